@@ -1,0 +1,269 @@
+"""Scene objects → a Mitsuba scene that holds only the plugins the scene declares.
+
+`mitsuba_scene_dict` maps each declared part to its Mitsuba plugin and nothing else: no default
+emitter, no BSDF on shapes that do not reflect, no medium plugins without media. `plugin_types`
+lists the plugin types of a dict, so tests can check the "model only what a scene requires" rule.
+
+Frames: the world is +Z up. Mitsuba's ``envmap`` is +Y up in its own frame, so it is rotated by
++90° about X (map +Y → world +Z), then by ``rotate_deg`` about world +Z. ``sunsky`` is +Z up already.
+Mitsuba's ``directional`` takes the propagation direction, the scene's ``Sun`` the direction to the
+sun: the sign flips here. Light geometry (sphere and rectangle lights, a sun of finite size) is
+black: it emits, it does not reflect.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from rtfit.scenes.model import (
+    Cube,
+    Diffuse,
+    HomogeneousMedium,
+    Scene,
+    Sphere,
+)
+
+from .integrators import IntegratorChoice, choose_integrator
+
+
+# ------------------------------------------------------------------------------------ transforms
+def rotation_matrix(axis, angle_deg: float) -> np.ndarray:
+    """3×3 rotation about ``axis`` (normalised here) by ``angle_deg`` (right-handed), Rodrigues."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    t = math.radians(angle_deg)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * (k @ k)
+
+
+def frame_from_normal(normal, rotation_deg: float = 0.0) -> np.ndarray:
+    """3×3 matrix whose columns (t, b, n) form a right-handed frame with n = ``normal``.
+
+    The tangent is the world axis least aligned with n projected onto the plane, turned by
+    ``rotation_deg`` about n: deterministic, so a rectangle's orientation is reproducible.
+    """
+    n = np.asarray(normal, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    hint = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    t = np.cross(hint, n)
+    t /= np.linalg.norm(t)
+    b = np.cross(n, t)
+    r = rotation_matrix(n, rotation_deg)
+    return np.column_stack([r @ t, r @ b, n])
+
+
+def affine(linear: np.ndarray, translate) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = linear
+    m[:3, 3] = np.asarray(translate, dtype=np.float64)
+    return m
+
+
+def _transform(mi, matrix: np.ndarray):
+    return mi.ScalarTransform4f(matrix.tolist())
+
+
+# ------------------------------------------------------------------------------------ plugin dicts
+def _rgb(value) -> dict:
+    return {"type": "rgb", "value": [float(c) for c in value]}
+
+
+def _diffuse(material: Diffuse) -> dict:
+    return {"type": "diffuse", "reflectance": _rgb(material.reflectance)}
+
+
+_BLACK = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
+
+
+def _planar_to_world(center, normal, half_x, half_y, rotation_deg=0.0) -> np.ndarray:
+    frame = frame_from_normal(normal, rotation_deg)
+    return affine(frame @ np.diag([half_x, half_y, 1.0]), center)
+
+
+def _shape_dict(mi, shape) -> dict:
+    kind = shape.kind
+    bsdf = _diffuse(shape.material)
+    if kind == "sphere":
+        return {"type": "sphere", "center": list(shape.center), "radius": shape.radius, "bsdf": bsdf}
+    if kind == "rectangle":
+        m = _planar_to_world(shape.center, shape.normal, shape.size[0] / 2, shape.size[1] / 2,
+                             shape.rotation_deg)
+        return {"type": "rectangle", "to_world": _transform(mi, m), "bsdf": bsdf}
+    if kind == "disk":
+        m = _planar_to_world(shape.center, shape.normal, shape.radius, shape.radius)
+        return {"type": "disk", "to_world": _transform(mi, m), "bsdf": bsdf}
+    if kind == "cube":
+        lin = rotation_matrix(shape.rotate_axis, shape.rotate_deg) @ np.diag(np.asarray(shape.size) / 2)
+        return {"type": "cube", "to_world": _transform(mi, affine(lin, shape.center)), "bsdf": bsdf}
+    if kind == "cylinder":
+        return {"type": "cylinder", "p0": list(shape.p0), "p1": list(shape.p1), "radius": shape.radius,
+                "bsdf": bsdf}
+    if kind == "mesh":
+        lin = rotation_matrix(shape.rotate_axis, shape.rotate_deg) @ np.diag(shape.scale)
+        return {"type": os.path.splitext(shape.file)[1][1:].lower(), "filename": shape.file,
+                "face_normals": shape.face_normals, "to_world": _transform(mi, affine(lin, shape.translate)),
+                "bsdf": bsdf}
+    raise ValueError(f"unsupported shape kind {kind!r}")
+
+
+def _light_dicts(mi, light) -> dict:
+    """Return ``{key_suffix: plugin dict}`` for one light (a shape light is one shape entry)."""
+    kind = light.kind
+    if kind == "sun":
+        d = np.asarray(light.direction, dtype=np.float64)
+        if light.angular_radius_deg == 0.0:
+            return {"": {"type": "directional", "direction": (-d).tolist(), "irradiance": _rgb(light.irradiance)}}
+        sin_a = math.sin(math.radians(light.angular_radius_deg))
+        radiance = [e / (math.pi * sin_a * sin_a) for e in light.irradiance]
+        return {"": {"type": "sphere", "center": (d * light.distance).tolist(),
+                     "radius": light.distance * sin_a, "bsdf": _BLACK,
+                     "emitter": {"type": "area", "radiance": _rgb(radiance)}}}
+    if kind == "sphere_light":
+        return {"": {"type": "sphere", "center": list(light.center), "radius": light.radius, "bsdf": _BLACK,
+                     "emitter": {"type": "area", "radiance": _rgb(light.radiance)}}}
+    if kind == "rect_light":
+        m = _planar_to_world(light.center, light.normal, light.size[0] / 2, light.size[1] / 2,
+                             light.rotation_deg)
+        return {"": {"type": "rectangle", "to_world": _transform(mi, m), "bsdf": _BLACK,
+                     "emitter": {"type": "area", "radiance": _rgb(light.radiance)}}}
+    if kind == "constant_env":
+        return {"": {"type": "constant", "radiance": _rgb(light.radiance)}}
+    if kind == "envmap":
+        m = affine(rotation_matrix((0, 0, 1), light.rotate_deg) @ rotation_matrix((1, 0, 0), 90.0), (0, 0, 0))
+        return {"": {"type": "envmap", "filename": light.file, "scale": light.scale,
+                     "to_world": _transform(mi, m)}}
+    if kind == "sunsky":
+        return {"": {"type": "sunsky", "sun_direction": list(light.sun_direction),
+                     "turbidity": light.turbidity, "albedo": light.albedo, "sun_scale": light.sun_scale,
+                     "sky_scale": light.sky_scale, "sun_aperture": light.sun_aperture_deg,
+                     "complex_sun": light.complex_sun}}
+    raise ValueError(f"unsupported light kind {kind!r}")
+
+
+def _medium_dict(medium: HomogeneousMedium) -> dict:
+    phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
+    return {"type": "homogeneous", "sigma_t": _rgb(medium.sigma_t), "albedo": _rgb(medium.albedo),
+            "phase": phase}
+
+
+def _inside(boundary, point) -> bool:
+    p = np.asarray(point, dtype=np.float64)
+    if isinstance(boundary, Sphere):
+        return float(np.linalg.norm(p - np.asarray(boundary.center))) < boundary.radius
+    if isinstance(boundary, Cube):
+        rot = rotation_matrix(boundary.rotate_axis, boundary.rotate_deg)
+        local = rot.T @ (p - np.asarray(boundary.center))
+        return bool(np.all(np.abs(local) < np.asarray(boundary.size) / 2))
+    raise ValueError(f"unsupported medium boundary {boundary.kind!r}")
+
+
+def _camera_dict(mi, camera) -> dict:
+    to_world = mi.ScalarTransform4f().look_at(origin=list(camera.origin), target=list(camera.target),
+                                              up=list(camera.up))
+    return {"type": "perspective", "fov": camera.fov_deg, "fov_axis": "x", "to_world": to_world,
+            "near_clip": camera.near_clip, "far_clip": camera.far_clip,
+            "film": {"type": "hdrfilm", "width": camera.width, "height": camera.height,
+                     "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+            "sampler": {"type": "independent"}}
+
+
+# ------------------------------------------------------------------------------- Mitsuba XML input
+_DROP_TOP_LEVEL = ("sensor", "integrator")
+
+
+def _xml_shape_objects(mi, shape) -> list:
+    """Load the shapes (and, if asked, the emitters) of a user's Mitsuba XML file.
+
+    The file is edited before loading: its sensors and integrator are dropped, its emitters unless
+    ``keep_emitters``, and with ``override_material`` every BSDF of a shape is replaced by ours.
+    """
+    tree = ET.parse(shape.file)
+    root = tree.getroot()
+    for child in list(root):
+        if child.tag in _DROP_TOP_LEVEL or (child.tag == "emitter" and not shape.keep_emitters):
+            root.remove(child)
+    for elem in root.iter("shape"):
+        for child in list(elem):
+            if child.tag == "emitter" and not shape.keep_emitters:
+                elem.remove(child)
+            elif shape.override_material is not None and (
+                child.tag == "bsdf" or (child.tag == "ref" and child.get("name") not in ("interior", "exterior"))
+            ):
+                elem.remove(child)
+        if shape.override_material is not None:
+            bsdf = ET.SubElement(elem, "bsdf", type="diffuse")
+            r = shape.override_material.reflectance
+            ET.SubElement(bsdf, "rgb", name="reflectance", value=f"{r[0]!r}, {r[1]!r}, {r[2]!r}")
+    resolver = mi.Thread.thread().file_resolver()
+    folder = os.path.dirname(shape.file)
+    resolver.prepend(folder)
+    try:
+        loaded = mi.load_string(ET.tostring(root, encoding="unicode"))
+    finally:
+        # Remove what we prepended (the resolver is process-global state).
+        paths = [str(resolver[i]) for i in range(len(resolver))]
+        resolver.clear()
+        dropped = False
+        for p in paths:
+            if not dropped and p == folder:
+                dropped = True
+                continue
+            resolver.append(p)
+    objects = list(loaded.shapes())
+    if shape.keep_emitters:
+        objects += [e for e in loaded.emitters() if not (e.flags() & int(mi.EmitterFlags.Surface))]
+    return objects
+
+
+# ------------------------------------------------------------------------------------- whole scene
+def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = None) -> dict:
+    """The ``mi.load_dict`` input for ``scene`` (``mi``: the mitsuba module with a variant set)."""
+    integrator = integrator or choose_integrator(scene)
+    d: dict = {"type": "scene", "integrator": integrator.mitsuba_dict(), "sensor": _camera_dict(mi, scene.camera)}
+    for i, shape in enumerate(scene.shapes):
+        if shape.kind == "mitsuba_xml":
+            for j, obj in enumerate(_xml_shape_objects(mi, shape)):
+                d[f"xml{i}_{j}"] = obj
+        else:
+            d[f"shape{i}"] = _shape_dict(mi, shape)
+    for i, light in enumerate(scene.lights):
+        for suffix, plugin in _light_dicts(mi, light).items():
+            d[f"light{i}{suffix}"] = plugin
+    for i, medium in enumerate(scene.media):
+        d[f"medium{i}"] = _medium_dict(medium)
+        boundary = _shape_dict(mi, medium.boundary)
+        boundary["bsdf"] = {"type": "null"}
+        boundary["interior"] = {"type": "ref", "id": f"medium{i}"}
+        d[f"medium{i}_boundary"] = boundary
+        if _inside(medium.boundary, scene.camera.origin):
+            d["sensor"]["medium"] = {"type": "ref", "id": f"medium{i}"}
+    return d
+
+
+def plugin_types(d) -> set[str]:
+    """Every plugin ``type`` named in a scene dict, recursively (objects already loaded excluded)."""
+    found: set[str] = set()
+
+    def walk(x):
+        if isinstance(x, dict):
+            t = x.get("type")
+            if isinstance(t, str) and t not in ("ref", "rgb"):
+                found.add(t)
+            for v in x.values():
+                walk(v)
+
+    walk(d)
+    found.discard("scene")
+    return found
+
+
+def load_mitsuba_scene(scene: Scene, variant: str = "llvm_ad_rgb", integrator: IntegratorChoice | None = None):
+    """Build and load the Mitsuba scene for ``scene`` under ``variant``; returns ``(mi, mi_scene)``."""
+    from .variants import use_variant
+
+    mi = use_variant(variant)
+    return mi, mi.load_dict(mitsuba_scene_dict(mi, scene, integrator))

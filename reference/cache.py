@@ -1,0 +1,274 @@
+"""Content-addressed, resumable cache of Monte Carlo references.
+
+An entry is identified by a SHA-256 key over everything that determines its samples: the scene's
+physics hash (`rtfit.scenes.scene_hash`, which hashes referenced files by content), the quantity
+(radiance image or irradiance probes, with the probe points), the integrator chosen by the rule,
+the variant, the base seed, the samples per pass, the Mitsuba and Dr.Jit versions and the format
+version of this module. The requested total ``spp`` is *not* part of the key: an entry holds
+independent passes, pass *i* seeded with ``sub_seed(seed, "pass", i)``, and a request for N samples
+uses exactly its first ceil(N / pass_spp) passes, rendering only those not cached yet. So a result
+never depends on the cache's history, an interrupted run loses at most the pass in flight, and
+asking for more samples later adds passes to the same entry.
+
+Layout: ``ROOT/<key[:2]>/<key>/`` with ``pass-NNNNN.exr`` (per-element mean and unbiased sample
+variance, float32 channels ``mean.*`` and ``var.*``), ``pass-NNNNN.json`` (its seed, spp and
+timing; a pass counts only once both files exist), ``entry.json`` (what the entry is, for humans
+and tools) and ``reference.exr`` (the latest combination: ``R,G,B`` mean and ``stderr.*``). Every
+file is written atomically, so two workers finishing the same pass overwrite it with identical
+content and never leave half a file.
+
+Combination of passes (sizes n_i, means m_i, variances s_i², N = Σ n_i) is exact pooling:
+mean M = Σ n_i m_i / N, variance S² = [Σ (n_i − 1) s_i² + Σ n_i (m_i − M)²] / (N − 1), and the
+standard error of M is sqrt(S² / N), computed in float64.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rtfit.scenes import Scene, scene_hash, scene_to_dict
+
+from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
+from .integrators import choose_integrator
+from .io import atomic_write_json, read_exr, rgb_group, write_exr
+
+CACHE_FORMAT = 1
+DEFAULT_PASS_SPP = 256
+QUANTITIES = ("radiance", "irradiance")
+
+
+def default_cache_dir() -> Path:
+    """``$RTFIT_CACHE`` if set, else ``$XDG_CACHE_HOME/rtfit`` (``~/.cache/rtfit``)."""
+    env = os.environ.get("RTFIT_CACHE")
+    if env:
+        return Path(env)
+    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rtfit"
+
+
+@dataclass(frozen=True)
+class ReferenceRequest:
+    """What to estimate. Plain data only (safe to send to another process or machine).
+
+    ``quantity="radiance"``: point-sampled radiance at every pixel centre of the scene's camera.
+    ``quantity="irradiance"``: irradiance at ``points`` (N, 3) with unit ``normals`` (N, 3), with
+    ``transport`` "direct" (MIS emitter + cosine sampling) or "global" (path-traced).
+    """
+
+    scene: Scene
+    spp: int
+    quantity: str = "radiance"
+    seed: int = 0
+    variant: str = "llvm_ad_rgb"
+    pass_spp: int = DEFAULT_PASS_SPP
+    points: np.ndarray | None = field(default=None, compare=False)
+    normals: np.ndarray | None = field(default=None, compare=False)
+    transport: str = "direct"
+
+    def __post_init__(self):
+        if self.quantity not in QUANTITIES:
+            raise ValueError(f"quantity must be one of {QUANTITIES} (got {self.quantity!r})")
+        if not isinstance(self.spp, int) or self.spp < 2:
+            raise ValueError(f"spp must be an integer >= 2 (got {self.spp!r})")
+        if not isinstance(self.pass_spp, int) or self.pass_spp < 2:
+            raise ValueError(f"pass_spp must be an integer >= 2 (got {self.pass_spp!r})")
+        if self.quantity == "irradiance":
+            if self.points is None or self.normals is None:
+                raise ValueError("an irradiance request needs points and normals")
+            p = np.asarray(self.points, dtype=np.float64)
+            n = np.asarray(self.normals, dtype=np.float64)
+            if p.ndim != 2 or p.shape[1] != 3 or p.shape != n.shape:
+                raise ValueError(f"points and normals must both be (N, 3) (got {p.shape} and {n.shape})")
+            if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n))):
+                raise ValueError("points and normals must be finite")
+            norms = np.linalg.norm(n, axis=1)
+            if np.any(np.abs(norms - 1.0) > 1e-3):
+                raise ValueError("normals must be unit length (normalise them first)")
+
+    @property
+    def passes(self) -> int:
+        return -(-self.spp // self.pass_spp)
+
+    def integrator(self) -> dict:
+        if self.quantity == "radiance":
+            return choose_integrator(self.scene).to_dict()
+        return {"type": f"irradiance-probe-{self.transport}", "max_depth": None,
+                "reason": "Mitsuba emitter sampling + cosine sampling (MIS)" if self.transport == "direct"
+                else "path-traced radiance along cosine-sampled directions"}
+
+    def key(self) -> str:
+        import drjit
+        import mitsuba
+
+        ident = {
+            "format": CACHE_FORMAT,
+            "scene": scene_hash(self.scene),
+            "quantity": self.quantity,
+            "integrator": self.integrator(),
+            "variant": self.variant,
+            "seed": self.seed,
+            "pass_spp": self.pass_spp,
+            "versions": {"mitsuba": mitsuba.__version__, "drjit": drjit.__version__},
+        }
+        if self.quantity == "irradiance":
+            h = hashlib.sha256()
+            h.update(np.ascontiguousarray(self.points, dtype=np.float32).tobytes())
+            h.update(np.ascontiguousarray(self.normals, dtype=np.float32).tobytes())
+            ident["probes"] = h.hexdigest()
+            ident["transport"] = self.transport
+        return hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A combined Monte Carlo reference: ``mean`` and its per-element standard error ``stderr``.
+
+    Arrays are float64, (H, W, 3) for radiance images and (N, 3) for irradiance probes.
+    """
+
+    key: str
+    path: str
+    quantity: str
+    mean: np.ndarray
+    stderr: np.ndarray
+    spp: int
+    passes: int
+    passes_rendered: int  # how many of ``passes`` this call rendered (the rest came from the cache)
+    integrator: dict
+    variant: str
+    render_seconds: float  # summed over all passes used, whenever they were rendered
+
+    @property
+    def samples_per_second(self) -> float:
+        n = self.mean.shape[0] * (self.mean.shape[1] if self.mean.ndim == 3 else 1)
+        return n * self.spp / self.render_seconds if self.render_seconds > 0 else math.nan
+
+    def to_dict(self) -> dict:
+        """Metadata for results files (no arrays)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = self.stderr / np.abs(self.mean)
+        rel = rel[np.isfinite(rel) & (np.abs(self.mean) > 0)]
+        return {
+            "cache_key": self.key, "quantity": self.quantity, "integrator": self.integrator.get("type"),
+            "max_depth": self.integrator.get("max_depth"), "integrator_reason": self.integrator.get("reason"),
+            "variant": self.variant, "spp": self.spp, "passes": self.passes,
+            "mean_rel_stderr": float(np.mean(rel)) if rel.size else 0.0,
+            "samples_per_second": float(self.samples_per_second) if self.render_seconds > 0 else None,
+        }
+
+
+def pool_passes(passes: list[PassResult]) -> tuple[np.ndarray, np.ndarray, int]:
+    """Exact pooling of independent passes → (mean, standard error of the mean, total samples)."""
+    n_i = np.array([p.spp for p in passes], dtype=np.float64)
+    total = float(n_i.sum())
+    mean = sum(p.spp * p.mean for p in passes) / total
+    within = sum((p.spp - 1) * p.var for p in passes)
+    between = sum(p.spp * (p.mean - mean) ** 2 for p in passes)
+    var = (within + between) / (total - 1)
+    return mean, np.sqrt(var / total), int(total)
+
+
+class ReferenceCache:
+    """The cache rooted at ``root`` (created on first write)."""
+
+    def __init__(self, root=None):
+        self.root = Path(root) if root is not None else default_cache_dir()
+
+    def entry_dir(self, key: str) -> Path:
+        return self.root / key[:2] / key
+
+    # -- passes on disk
+    def _load_pass(self, folder: Path, index: int) -> PassResult | None:
+        exr, meta = folder / f"pass-{index:05d}.exr", folder / f"pass-{index:05d}.json"
+        if not (exr.exists() and meta.exists()):
+            return None
+        try:
+            info = json.loads(meta.read_text())
+            ch = read_exr(exr)
+        except (OSError, ValueError, RuntimeError):
+            return None  # unreadable leftovers are re-rendered, never trusted
+        mean, var = rgb_group(ch, "mean").astype(np.float64), rgb_group(ch, "var").astype(np.float64)
+        return PassResult(mean, var, int(info["spp"]), int(info["seed"]), float(info["seconds"]))
+
+    def _save_pass(self, folder: Path, index: int, result: PassResult, as_points: bool):
+        shape = (1, -1, 3) if as_points else result.mean.shape
+        write_exr(folder / f"pass-{index:05d}.exr",
+                  {"mean": result.mean.reshape(shape), "var": result.var.reshape(shape)})
+        atomic_write_json(folder / f"pass-{index:05d}.json",
+                          {"index": index, "spp": result.spp, "seed": result.seed, "seconds": result.seconds})
+
+    # -- the public entry point
+    def get(self, request: ReferenceRequest, *, progress: bool = False, label: str | None = None) -> Reference:
+        """Return the reference for ``request``, rendering only the passes not cached yet."""
+        from .build import load_mitsuba_scene
+
+        key = request.key()
+        folder = self.entry_dir(key)
+        folder.mkdir(parents=True, exist_ok=True)
+        as_points = request.quantity == "irradiance"
+        results: list[PassResult | None] = [self._load_pass(folder, i) for i in range(request.passes)]
+        missing = [i for i, r in enumerate(results) if r is None]
+        if missing:
+            atomic_write_json(folder / "entry.json", self._entry_info(request, key))
+            mi, mi_scene = load_mitsuba_scene(request.scene, request.variant)
+            bar = _progress(len(missing), label or f"reference {key[:8]}", progress)
+            for i in missing:
+                pass_spp = min(request.pass_spp, request.spp - i * request.pass_spp)
+                pass_spp = max(pass_spp, 2)
+                seed = sub_seed(request.seed, "pass", i)
+                if as_points:
+                    r = irradiance_pass(mi, mi_scene, np.asarray(request.points), np.asarray(request.normals),
+                                        pass_spp, seed, request.transport)
+                else:
+                    r = radiance_pass(mi, mi_scene, pass_spp, seed)
+                self._save_pass(folder, i, r, as_points)
+                # Use the values exactly as stored (float32), so that a fresh result and one
+                # resumed from the cache are identical.
+                results[i] = PassResult(_as_stored(r.mean), _as_stored(r.var), r.spp, r.seed, r.seconds)
+                bar.update(1)
+            bar.close()
+        passes = [r for r in results if r is not None]
+        mean, stderr, total = pool_passes(passes)
+        if missing:
+            shape = (1, -1, 3) if as_points else mean.shape
+            write_exr(folder / "reference.exr", {"RGB": mean.reshape(shape), "stderr": stderr.reshape(shape)})
+        return Reference(key=key, path=str(folder), quantity=request.quantity, mean=mean, stderr=stderr,
+                         spp=total, passes=len(passes), passes_rendered=len(missing),
+                         integrator=request.integrator(), variant=request.variant,
+                         render_seconds=float(sum(p.seconds for p in passes)))
+
+    def _entry_info(self, request: ReferenceRequest, key: str) -> dict:
+        import drjit
+        import mitsuba
+
+        return {"key": key, "format": CACHE_FORMAT, "quantity": request.quantity,
+                "variant": request.variant, "seed": request.seed, "pass_spp": request.pass_spp,
+                "integrator": request.integrator(), "scene": scene_to_dict(request.scene),
+                "scene_hash": scene_hash(request.scene),
+                "versions": {"mitsuba": mitsuba.__version__, "drjit": drjit.__version__}}
+
+
+def _as_stored(a: np.ndarray) -> np.ndarray:
+    return a.astype(np.float32).astype(np.float64)
+
+
+class _NoBar:
+    def update(self, n):
+        pass
+
+    def close(self):
+        pass
+
+
+def _progress(total: int, label: str, enabled: bool):
+    if not enabled:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=label, unit="pass", leave=False)

@@ -1,0 +1,49 @@
+"""Mitsuba variant selection.
+
+``llvm_ad_rgb`` (CPU, all cores) is the default; ``cuda_ad_rgb`` is used when a CUDA device is
+present and asked for with ``"auto"``; ``scalar_rgb`` is selectable for debugging and cross-checks
+(it is slow: rtfit calls the integrator one sample at a time from Python there).
+"""
+
+from __future__ import annotations
+
+KNOWN_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
+
+
+def cuda_available() -> bool:
+    import drjit as dr
+
+    try:
+        return bool(dr.has_backend(dr.JitBackend.CUDA))
+    except RuntimeError:  # Dr.Jit raises when the CUDA driver is absent
+        return False
+
+
+def resolve_variant(name: str = "auto") -> str:
+    """Map ``"auto"`` to the best available variant; validate explicit names (one-line error)."""
+    if name == "auto":
+        return "cuda_ad_rgb" if cuda_available() else "llvm_ad_rgb"
+    if name not in KNOWN_VARIANTS:
+        raise ValueError(f"unknown variant {name!r} (expected one of: auto, {', '.join(KNOWN_VARIANTS)})")
+    if name == "cuda_ad_rgb" and not cuda_available():
+        raise ValueError("variant 'cuda_ad_rgb' needs a CUDA GPU, and none was found")
+    return name
+
+
+def use_variant(name: str = "auto"):
+    """Activate a Mitsuba variant and return the ``mitsuba`` module."""
+    import mitsuba as mi
+
+    variant = resolve_variant(name)
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    return mi
+
+
+def is_scalar(variant: str) -> bool:
+    return variant.startswith("scalar")
+
+
+def backend_of(variant: str) -> str:
+    """The Dr.Jit backend name ("llvm", "cuda" or "scalar") a variant computes on."""
+    return variant.split("_", 1)[0]

@@ -1,0 +1,114 @@
+"""Scene → Mitsuba: only the plugins a scene declares, and frames/units as documented."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from rtfit.reference import irradiance_pass, load_mitsuba_scene, mitsuba_scene_dict, plugin_types
+from rtfit.reference.build import frame_from_normal, rotation_matrix
+from rtfit.scenes.model import (
+    ConstantEnv,
+    Cube,
+    Disk,
+    HomogeneousMedium,
+    Rectangle,
+    RectLight,
+    Sphere,
+    Sun,
+)
+
+from .conftest import sphere_scene
+
+CAMERA_PLUGINS = {"perspective", "hdrfilm", "box", "independent"}
+
+
+def test_sphere_light_scene_has_only_its_plugins(mi):
+    types = plugin_types(mitsuba_scene_dict(mi, sphere_scene()))
+    assert types == CAMERA_PLUGINS | {"direct", "sphere", "diffuse", "area"}
+
+
+def test_no_media_plugins_without_media_and_volpathmis_with(mi):
+    plain = plugin_types(mitsuba_scene_dict(mi, sphere_scene(transport="global")))
+    assert not plain & {"volpath", "volpathmis", "homogeneous", "isotropic", "hg", "null"}
+    medium = HomogeneousMedium(boundary=Cube((0, 0, 0), (4, 4, 4)), sigma_t=(0.5,) * 3, albedo=(0.8,) * 3, g=0.3)
+    with_medium = plugin_types(mitsuba_scene_dict(mi, dataclasses.replace(sphere_scene(), media=(medium,))))
+    assert {"volpathmis", "homogeneous", "hg", "null", "cube"} <= with_medium
+    assert "volpath" not in with_medium
+
+
+def test_environment_plugins_only_when_declared(mi):
+    scene = sphere_scene(lights=(ConstantEnv((0.5, 0.5, 0.5)),))
+    types = plugin_types(mitsuba_scene_dict(mi, scene))
+    assert "constant" in types and "area" not in types and "envmap" not in types
+
+
+def test_directional_sun_flips_direction(mi):
+    d = mitsuba_scene_dict(mi, sphere_scene(lights=(Sun(direction=(0.0, 0.0, 1.0), irradiance=(2.0, 2.0, 2.0)),)))
+    light = d["light0"]
+    assert light["type"] == "directional"
+    assert light["direction"] == [-0.0, -0.0, -1.0]
+
+
+def test_rotation_and_frame_are_orthonormal():
+    r = rotation_matrix((1, 1, 0), 37.0)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(r @ np.array([1, 1, 0]) / math.sqrt(2), [1 / math.sqrt(2)] * 2 + [0], atol=1e-12)
+    for n in ([0, 0, 1], [0, 0, -1], [1, 2, 3], [1, 0, 0]):
+        f = frame_from_normal(n, 20.0)
+        np.testing.assert_allclose(f.T @ f, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(f[:, 2], np.array(n) / np.linalg.norm(n), atol=1e-12)
+        assert np.linalg.det(f) > 0
+
+
+def _irradiance_at(mi, scene, point, normal, spp=256):
+    _, ms = load_mitsuba_scene(scene)
+    r = irradiance_pass(mi, ms, np.array([point], float), np.array([normal], float), spp, seed=1)
+    return r.mean[0], np.sqrt(r.var[0] / spp)
+
+
+def test_directional_sun_irradiance_is_exact(mi):
+    # A delta light has no variance: E = E_sun · cos θ exactly (to float32 rounding).
+    d = np.array([1.0, 0.0, 1.0]) / math.sqrt(2)
+    scene = sphere_scene(lights=(Sun(direction=tuple(d), irradiance=(3.0, 3.0, 3.0)),), shapes=())
+    e, se = _irradiance_at(mi, scene, (0, 0, 0), (0, 0, 1))
+    np.testing.assert_allclose(e, 3.0 * d[2], rtol=1e-5)
+
+
+def test_finite_sun_has_stated_irradiance(mi):
+    # A sun of angular radius 2° and irradiance 5 at normal incidence, seen at the origin head-on.
+    scene = sphere_scene(lights=(Sun(direction=(0.0, 0.0, 1.0), irradiance=(5.0,) * 3, angular_radius_deg=2.0),),
+                         shapes=())
+    e, se = _irradiance_at(mi, scene, (0, 0, 0), (0, 0, 1), spp=4096)
+    # Exact: π sin²α L cos-weighted over the cap = L·π sin²α for a head-on cap (Nusselt) = 5.
+    assert abs(e[0] - 5.0) < max(4 * se[0], 5e-4 * 5.0)
+
+
+def test_rect_light_plane_orientation(mi):
+    # A rectangle light facing down (−z) above the origin lights an up-facing probe; facing up, it does not.
+    down = RectLight(center=(0, 0, 2), normal=(0, 0, -1), size=(1.0, 1.0), radiance=(1.0,) * 3)
+    up = dataclasses.replace(down, normal=(0, 0, 1))
+    e_down, _ = _irradiance_at(mi, sphere_scene(lights=(down,), shapes=()), (0, 0, 0), (0, 0, 1))
+    e_up, _ = _irradiance_at(mi, sphere_scene(lights=(up,), shapes=()), (0, 0, 0), (0, 0, 1))
+    assert e_down[0] > 0.1 and e_up[0] == 0.0
+
+
+@pytest.mark.parametrize("shape", [Rectangle((0, 0, -1), (0, 0, 1), (4.0, 4.0)), Disk((0, 0, -1), (0, 0, 1), 2.0),
+                                   Cube((0, 0, -2), (4.0, 4.0, 2.0))])
+def test_planar_and_box_shapes_occlude_where_declared(mi, shape):
+    # A constant sky of radiance 1 above a shape whose top face is at z = −1: a probe just above the
+    # top face, facing up, sees the full upper hemisphere (E = π); facing down it sees the shape (E = 0).
+    scene = sphere_scene(lights=(ConstantEnv((1.0,) * 3),), shapes=(shape,))
+    e_up, se = _irradiance_at(mi, scene, (0, 0, -0.999), (0, 0, 1), spp=1024)
+    e_dn, _ = _irradiance_at(mi, scene, (0, 0, -0.999), (0, 0, -1), spp=1024)
+    assert abs(e_up[0] - math.pi) < 4 * se[0] + 1e-4
+    assert e_dn[0] < 1e-4  # only sky grazing past the far edges (solid angle ~ (1e-3/2)²) remains
+
+
+def test_sphere_shape_is_where_declared(mi):
+    sph = Sphere((0.0, 0.0, 3.0), 1.0)
+    scene = sphere_scene(lights=(ConstantEnv((1.0,) * 3),), shapes=(sph,))
+    # Looking up from the origin, the sphere of angular radius asin(1/3) blocks π sin²(asin 1/3) = π/9.
+    e, se = _irradiance_at(mi, scene, (0, 0, 0), (0, 0, 1), spp=16384)
+    assert abs(e[0] - (math.pi - math.pi / 9)) < 4 * se[0] + 1e-4
