@@ -27,6 +27,7 @@ from rtfit.scenes.model import (
     Sphere,
 )
 
+from . import emitters
 from .integrators import IntegratorChoice, choose_integrator
 
 
@@ -117,11 +118,11 @@ def _light_dicts(mi, light) -> dict:
         d = np.asarray(light.direction, dtype=np.float64)
         if light.angular_radius_deg == 0.0:
             return {"": {"type": "directional", "direction": (-d).tolist(), "irradiance": _rgb(light.irradiance)}}
-        sin_a = math.sin(math.radians(light.angular_radius_deg))
-        radiance = [e / (math.pi * sin_a * sin_a) for e in light.irradiance]
-        return {"": {"type": "sphere", "center": (d * light.distance).tolist(),
-                     "radius": light.distance * sin_a, "bsdf": _BLACK,
-                     "emitter": {"type": "area", "radiance": _rgb(radiance)}}}
+        alpha = math.radians(light.angular_radius_deg)
+        radiance = [e / (math.pi * math.sin(alpha) ** 2) for e in light.irradiance]
+        return {"": {"type": emitters.PLUGIN, "direction": mi.ScalarVector3f(*d.tolist()),
+                     "angular_radius": alpha, "radiance": mi.ScalarVector3f(*radiance),
+                     "sky": mi.ScalarVector3f(0.0, 0.0, 0.0)}}
     if kind == "sphere_light":
         return {"": {"type": "sphere", "center": list(light.center), "radius": light.radius, "bsdf": _BLACK,
                      "emitter": {"type": "area", "radiance": _rgb(light.radiance)}}}
@@ -233,6 +234,7 @@ def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = N
     for i, light in enumerate(scene.lights):
         for suffix, plugin in _light_dicts(mi, light).items():
             d[f"light{i}{suffix}"] = plugin
+    _merge_environments(mi, scene, d)
     for i, medium in enumerate(scene.media):
         d[f"medium{i}"] = _medium_dict(medium)
         boundary = _shape_dict(mi, medium.boundary)
@@ -242,6 +244,22 @@ def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = N
         if _inside(medium.boundary, scene.camera.origin):
             d["sensor"]["medium"] = {"type": "ref", "id": f"medium{i}"}
     return d
+
+
+def _merge_environments(mi, scene: Scene, d: dict) -> None:
+    """Mitsuba takes one environment emitter: fold a constant sky into a finite sun's emitter."""
+    suns = [k for k, v in d.items() if isinstance(v, dict) and v.get("type") == emitters.PLUGIN]
+    envs = [k for k, v in d.items() if isinstance(v, dict) and v.get("type") in ("constant", "envmap", "sunsky")]
+    if len(suns) > 1:
+        raise ValueError(f"{scene.source}: at most one sun with angular_radius_deg > 0 per scene "
+                         "(Mitsuba takes one environment emitter)")
+    if suns and envs:
+        env = d[envs[0]]
+        if env["type"] != "constant":
+            raise ValueError(f"{scene.source}: a sun with angular_radius_deg > 0 cannot share a scene with "
+                             f"an {env['type']} environment (Mitsuba takes one environment emitter)")
+        d[suns[0]]["sky"] = mi.ScalarVector3f(*env["radiance"]["value"])
+        del d[envs[0]]
 
 
 def plugin_types(d) -> set[str]:
@@ -266,4 +284,12 @@ def load_mitsuba_scene(scene: Scene, variant: str = "llvm_ad_rgb", integrator: I
     from .variants import use_variant
 
     mi = use_variant(variant)
-    return mi, mi.load_dict(mitsuba_scene_dict(mi, scene, integrator))
+    return mi, load_dict(mi, mitsuba_scene_dict(mi, scene, integrator))
+
+
+def load_dict(mi, d: dict):
+    """``mi.load_dict`` with rtfit's own plugins registered and attached to the loaded scene."""
+    emitters.register(mi)
+    mi_scene = mi.load_dict(d)
+    emitters.attach(mi_scene)
+    return mi_scene

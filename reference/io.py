@@ -1,8 +1,15 @@
-"""Atomic file writes and EXR I/O (float32, named channels).
+"""Atomic file writes (text, bytes, JSON) and EXR I/O (float32, named channels).
 
-Every file rtfit writes goes to a temporary file in the target directory, is flushed and fsynced,
-then renamed over the target (``os.replace`` is atomic on POSIX): a reader never sees half a file,
-and an interrupted run leaves either the old file or the new one.
+A file is written to a temporary file in the target's own directory, flushed and fsynced, then
+renamed over the target with ``os.replace`` (atomic on POSIX): a reader sees either the old file
+or the complete new one, never half of one, and an interrupted write leaves the old file intact.
+
+Whole directories (one experiment's output) are swapped in by
+``rtfit.experiments.atomic.atomic_directory``, which uses the same temporary names.
+
+Temporary names start with a dot and end in ``.tmp`` (files, directories under construction) or
+``.old`` (a directory being replaced); :func:`is_temporary_name` recognises them, so directory
+scans can skip what a killed process left behind.
 """
 
 from __future__ import annotations
@@ -10,16 +17,65 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
+import re
+import secrets
 from pathlib import Path
 
 import numpy as np
 
+__all__ = [
+    "NonFiniteJSONError",
+    "atomic_write_bytes",
+    "atomic_write_json",
+    "atomic_write_text",
+    "is_temporary_name",
+    "read_exr",
+    "rgb_group",
+    "write_exr",
+]
+
+_TEMP_NAME = re.compile(r"^\..+\.[0-9a-f]{12}\.(tmp|old)$")
+
+
+class NonFiniteJSONError(ValueError):
+    """A NaN or ±Infinity was about to be written to JSON (not valid JSON; it would hide a bug)."""
+
+
+def is_temporary_name(name: str) -> bool:
+    """True for names this module gives its temporary files and directories."""
+    return bool(_TEMP_NAME.match(name))
+
+
+def _temp_name(final: Path, kind: str) -> Path:
+    return final.parent / f".{final.name}.{secrets.token_hex(6)}.{kind}"
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make a rename durable (best effort: some file systems refuse fsync on directories)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
 
 def atomic_write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (parent directories are created). Returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    while True:
+        tmp = _temp_name(path, "tmp")
+        try:
+            # 0o666 & ~umask, like open(): a report must stay readable by others (mkstemp gives 0600).
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            break
+        except FileExistsError:
+            continue
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -27,31 +83,68 @@ def atomic_write_bytes(path, data: bytes) -> Path:
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
+        try:
             os.unlink(tmp)
+        except FileNotFoundError:
+            pass
         raise
+    _fsync_dir(path.parent)
     return path
 
 
 def atomic_write_text(path, text: str) -> Path:
+    """Write ``text`` as UTF-8 to ``path`` atomically. Returns the path."""
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def _check_finite(obj, where="$"):
-    if isinstance(obj, float) and not math.isfinite(obj):
-        raise ValueError(f"non-finite number {obj!r} at {where}: refusing to write it to JSON")
+def _jsonable(o):
+    """``json.dumps`` default hook: NumPy scalars and arrays become Python numbers and lists."""
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"object of type {type(o).__name__} is not JSON serialisable")
+
+
+def _find_non_finite(obj, where: str = "$") -> tuple[str, float] | None:
+    if isinstance(obj, float):
+        return None if math.isfinite(obj) else (where, obj)
     if isinstance(obj, dict):
         for k, v in obj.items():
-            _check_finite(v, f"{where}.{k}")
+            hit = _find_non_finite(v, f"{where}.{k}")
+            if hit:
+                return hit
     elif isinstance(obj, (list, tuple)):
         for i, v in enumerate(obj):
-            _check_finite(v, f"{where}[{i}]")
+            hit = _find_non_finite(v, f"{where}[{i}]")
+            if hit:
+                return hit
+    elif hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):
+        return _find_non_finite(obj.tolist(), where)
+    return None
 
 
 def atomic_write_json(path, obj) -> Path:
-    """Write JSON atomically; NaN/Inf are an error (they are not JSON and would hide bugs)."""
-    _check_finite(obj)
-    return atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=False, allow_nan=False) + "\n")
+    """Write ``obj`` as indented UTF-8 JSON to ``path`` atomically. Returns the path.
+
+    NaN and ±Infinity are refused (``allow_nan=False``): :class:`NonFiniteJSONError` names the file
+    and the key path of the first offending value, and nothing is written. NumPy scalars and arrays
+    are converted to Python numbers and lists.
+    """
+    path = Path(path)
+    try:
+        text = json.dumps(obj, indent=2, ensure_ascii=False, allow_nan=False, default=_jsonable)
+    except ValueError as e:
+        hit = _find_non_finite(obj)
+        if hit is None:
+            raise ValueError(f"{path}: cannot write JSON: {e}") from None
+        where, value = hit
+        raise NonFiniteJSONError(
+            f"{path}: {where} is {value!r}; NaN and infinities are not valid JSON results "
+            "(nothing was written)") from None
+    except TypeError as e:
+        raise TypeError(f"{path}: cannot write JSON: {e}") from None
+    return atomic_write_text(path, text + "\n")
 
 
 def write_exr(path, channels: dict[str, np.ndarray]) -> Path:
@@ -77,19 +170,18 @@ def write_exr(path, channels: dict[str, np.ndarray]) -> Path:
             raise ValueError(f"channel {name!r} must be 2-D or (H, W, 3) (got shape {a.shape})")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".exr", dir=path.parent)
-    os.close(fd)
+    tmp = _temp_name(path, "tmp")
     try:
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
         with OpenEXR.File(header, dict(flat)) as f:  # OpenEXR mutates the dict it is given: pass a copy
-            f.write(tmp)
+            f.write(str(tmp))
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        tmp.unlink(missing_ok=True)
         raise
+    _fsync_dir(path.parent)
     return path
 
 

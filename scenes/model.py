@@ -172,16 +172,15 @@ class Sun:
     """A distant light: direction towards the sun, irradiance at normal incidence, angular radius.
 
     ``angular_radius_deg = 0`` is an ideal directional light (Mitsuba ``directional``). A positive
-    radius is a uniform spherical emitter placed at ``distance`` along ``direction`` from the world
-    origin, with radiance chosen so that the irradiance at normal incidence at the origin is
-    ``irradiance``: L = E / (π sin² α). ``distance`` must be large against the scene for the light
-    to be "distant" (parallax across the scene ~ extent / distance).
+    radius is a uniform disc at infinity (a spherical cap of directions, the same from every point),
+    of radiance L = E / (π sin² α) so that the irradiance at normal incidence is ``irradiance``. The
+    reference renders it with rtfit's own Mitsuba emitter (`rtfit.reference.emitters`), because
+    Mitsuba's sphere emitter loses float32 precision in its pdf for small angular sizes.
     """
 
     direction: Vec3
     irradiance: RGB = (1.0, 1.0, 1.0)
     angular_radius_deg: float = 0.0
-    distance: float = 1.0e4
 
     kind: ClassVar[str] = "sun"
 

@@ -181,7 +181,7 @@ SCHEMA: dict[type, dict[str, Spec]] = {
     MitsubaXML: {"file": Spec("file", suffixes=(".xml",)), "keep_emitters": Spec("bool"),
                  "override_material": Spec("material", optional=True)},
     Sun: {"direction": _UNIT, "irradiance": _RADIANCE,
-          "angular_radius_deg": Spec("float", Bounds(0, 90, hi_open=True)), "distance": _POS},
+          "angular_radius_deg": Spec("float", Bounds(0, 90, hi_open=True))},
     SphereLight: {"center": _VEC, "radius": _POS, "radiance": _RADIANCE},
     RectLight: {"center": _VEC, "normal": _UNIT, "size": _SIZE2, "radiance": _RADIANCE,
                 "rotation_deg": _ANGLE},

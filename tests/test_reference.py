@@ -75,8 +75,9 @@ def test_image_matches_closed_form_within_noise(mi):
     assert lit.sum() > 400
     assert abs(np.std(z) - 1.0) < 0.1
     assert abs(np.mean(z)) < 4 / math.sqrt(lit.sum())
-    # Pixels with zero variance are fully shadowed: exactly zero in both.
-    assert np.all(exact[~lit] < 1e-7) and np.all(r.mean[m][:, 0][~lit] == 0.0)
+    # Pixels with zero variance got no light sample at all: fully shadowed, or so close to the lower
+    # horizon boundary that a hit is unlikely in 1024 samples (exact radiance < 1e-3 of the peak).
+    assert np.all(exact[~lit] < 1e-3) and np.all(r.mean[m][:, 0][~lit] == 0.0)
 
 
 @pytest.mark.parametrize("integrator_transport,shapes_extra", [("global", ()), ("direct", ())])

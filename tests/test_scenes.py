@@ -78,7 +78,7 @@ PARTS = {
                    'override_material = { type = "diffuse", reflectance = 0.8 }',
     "mitsuba_xml_plain": '[[shapes]]\ntype = "mitsuba_xml"\nfile = "tiny.xml"',
     "sun": '[[lights]]\ntype = "sun"\ndirection = [1, 1, 1]\nirradiance = [3, 2, 1]\n'
-           'angular_radius_deg = 0.27\ndistance = 1e5',
+           'angular_radius_deg = 0.27',
     "sphere_light": '[[lights]]\ntype = "sphere_light"\ncenter = [10, 0, 0]\nradius = 0.5\nradiance = 2',
     "rect_light": '[[lights]]\ntype = "rect_light"\ncenter = [0, 0, 3]\nnormal = [0, 0, -1]\nsize = [1, 2]\n'
                   'radiance = [5, 5, 4]\nrotation_deg = 45',
@@ -255,7 +255,7 @@ INVALID = [  # (whole text, or "+" and what follows BASE), key path, reason frag
     (SUN + "irradiance = [1, -1, 1]", "lights[0].irradiance[1]", ">= 0"),
     (SUN + "angular_radius_deg = 90", "lights[0].angular_radius_deg", "must be in [0, 90) (got 90)"),
     (SUN + "angular_radius_deg = -1", "lights[0].angular_radius_deg", "must be in [0, 90)"),
-    (SUN + "distance = 0", "lights[0].distance", "must be > 0"),
+    (SUN + "distance = 10", "lights[0].distance", "unknown key"),
     ('+[[lights]]\ntype = "rect_light"\ncenter = [0, 0, 0]\nnormal = [0, 0, 1]\nsize = [0, 1]',
      "lights[0].size[0]", "must be > 0"),
     ('+[[lights]]\ntype = "envmap"\nfile = "sky.hdr"', "lights[0].file", "must be a .exr file"),
@@ -371,14 +371,15 @@ def test_hash_is_stable_and_ignores_labels(files):
 @pytest.mark.parametrize("change", [
     lambda s: dataclasses.replace(s, shapes=(dataclasses.replace(s.shapes[0], radius=1.0000001),)),
     lambda s: dataclasses.replace(s, shapes=(Sphere((0, 0, 0), 1.0, Diffuse((0.5, 1, 1))),)),
-    lambda s: dataclasses.replace(s, lights=(dataclasses.replace(s.lights[0], radiance=(1, 1, 2)),)),
+    lambda s: dataclasses.replace(s, lights=(dataclasses.replace(s.lights[0], irradiance=(1, 1, 2)),)),
+    lambda s: dataclasses.replace(s, lights=(dataclasses.replace(s.lights[0], angular_radius_deg=5.001),)),
     lambda s: dataclasses.replace(s, lights=s.lights + (ConstantEnv(),)),
     lambda s: dataclasses.replace(s, camera=dataclasses.replace(s.camera, width=64)),
     lambda s: dataclasses.replace(s, camera=dataclasses.replace(s.camera, fov_deg=25.0)),
     lambda s: dataclasses.replace(s, reference=ReferenceSettings("global")),
     lambda s: dataclasses.replace(s, reference=ReferenceSettings("direct", max_depth=3)),
     lambda s: dataclasses.replace(s, media=(HomogeneousMedium(Sphere((0, 0, 0), 2.0), sigma_t=(0.1,) * 3),)),
-], ids=["radius", "reflectance", "radiance", "env", "width", "fov", "transport", "max_depth", "medium"])
+], ids=["radius", "reflectance", "irradiance", "sun_size", "env", "width", "fov", "transport", "max_depth", "medium"])
 def test_hash_sees_physical_changes(change):
     scene = load_scene(library_path("half_lambert_sphere"))
     assert scene_hash(change(scene)) != scene_hash(scene)
@@ -418,8 +419,7 @@ def test_library_scenes():
     assert hl.camera == Camera((0.0, -6.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 24.0, 128, 128)
     assert hl.reference.transport == "direct"
     (light,) = hl.lights
-    assert light.center == (20.0, 0.0, 0.0) and light.radius == pytest.approx(20 * math.sin(math.radians(5)))
-    assert light.radiance == (1.0, 1.0, 1.0)
+    assert light == Sun(direction=(1.0, 0.0, 0.0), irradiance=(math.pi,) * 3, angular_radius_deg=5.0)
     wf = load_scene(library_path("white-furnace-sphere.toml"))
     assert wf.lights == (ConstantEnv((1.0, 1.0, 1.0)),) and wf.reference.transport == "global"
     assert (wf.shapes, wf.camera) == (hl.shapes, hl.camera)

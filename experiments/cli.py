@@ -1,0 +1,168 @@
+"""The ``rtfit`` command line.
+
+    rtfit list
+    rtfit run EXPERIMENT... [--quick] [--variant V] [--spp N] [--out DIR] [--cache DIR]
+                            [--executor inline|process] [--workers N] [--seed S]
+    rtfit report DIR
+    rtfit bench EXPERIMENT [--variant V] [--size N]
+
+Errors in what the user typed or supplied (unknown experiment, bad option, malformed scene file,
+invalid value) print one line, ``rtfit: error: …``, write nothing and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from .jobs import EXECUTORS
+from .registry import EXPERIMENTS, BenchContext, resolve_names
+
+VARIANT_CHOICES = ("auto", "llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
+
+
+class UserError(click.ClickException):
+    exit_code = 2
+
+
+def _fail(message: str):
+    raise UserError(message)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+def cli():
+    """rtfit: how wrong is a real-time rendering shortcut, where, at what cost, and which parameters
+    make it least wrong (Mitsuba 3 ground truth, Dr.Jit approximations)."""
+
+
+@cli.command("list")
+def list_cmd():
+    """List the experiments."""
+    width = max(len(n) for n in EXPERIMENTS)
+    for name, spec in EXPERIMENTS.items():
+        click.echo(f"{name:<{width}}  {spec.title}")
+
+
+@cli.command("run")
+@click.argument("experiments", nargs=-1)
+@click.option("--quick", is_flag=True, help="Small images, few samples, fewer cases (minutes on 2 cores).")
+@click.option("--variant", default="llvm_ad_rgb", show_default=True, type=click.Choice(VARIANT_CHOICES),
+              help="Mitsuba variant for references and the Dr.Jit backend for approximations.")
+@click.option("--spp", type=click.IntRange(min=2), default=None, help="Reference samples per pixel (overrides).")
+@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path), default=Path("out"),
+              show_default=True, help="Output directory.")
+@click.option("--cache", "cache", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit).")
+@click.option("--executor", type=click.Choice(EXECUTORS), default="inline", show_default=True)
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Process-pool size.")
+@click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
+@click.option("--no-progress", is_flag=True, help="No progress bars.")
+def run_cmd(experiments, quick, variant, spp, out, cache, executor, workers, seed, no_progress):
+    """Run EXPERIMENT... (or 'all') and write OUT/EXPERIMENT/{results.json,report.html,...}."""
+    try:
+        specs = resolve_names(experiments)
+    except ValueError as e:
+        _fail(str(e))
+    from rtfit.reference import default_cache_dir, resolve_variant
+
+    try:
+        variant = resolve_variant(variant)
+    except ValueError as e:
+        _fail(str(e))
+    from .runner import run_experiments
+
+    run_experiments(specs, out, quick=quick, variant=variant, spp=spp, seed=seed,
+                    cache_dir=cache or default_cache_dir(), executor=executor, workers=workers,
+                    progress=not no_progress and sys.stderr.isatty())
+    click.echo(str((out / "index.html").resolve()))
+
+
+@cli.command("report")
+@click.argument("directory", type=click.Path(exists=True, file_okay=False, path_type=Path))
+def report_cmd(directory):
+    """Regenerate report.md/html and tables.tex from DIRECTORY/results.json (or every experiment below it)."""
+    from .atomic import is_temporary_name
+    from .report import write_index, write_report
+
+    if (directory / "results.json").is_file():
+        write_report(directory)
+        click.echo(str((directory / "report.html").resolve()))
+        return
+    subdirs = sorted(p for p in directory.iterdir()
+                     if not is_temporary_name(p.name) and (p / "results.json").is_file())
+    if not subdirs:
+        _fail(f"{directory}: no results.json here or in its subdirectories")
+    for sub in subdirs:
+        write_report(sub)
+    write_index(directory, subdirs)
+    click.echo(str((directory / "index.html").resolve()))
+
+
+@cli.command("bench")
+@click.argument("experiment")
+@click.option("--variant", default="auto", show_default=True, type=click.Choice(VARIANT_CHOICES))
+@click.option("--size", type=click.IntRange(min=1024), default=None,
+              help="Elements per kernel launch (default: 2^22 on CPU, 2^24 on GPU).")
+@click.option("--quick", is_flag=True, help="Fewer, smaller measurements.")
+def bench_cmd(experiment, variant, size, quick):
+    """Throughput of each approximation (Dr.Jit vs NumPy, same run) and of the ground truth."""
+    try:
+        (spec,) = resolve_names([experiment])
+    except ValueError as e:
+        _fail(str(e))
+    from rtfit.reference import resolve_variant
+
+    try:
+        variant = resolve_variant(variant)
+    except ValueError as e:
+        _fail(str(e))
+    module = spec.load()
+    rows = module.bench(BenchContext(variant=variant, size=size, quick=quick))
+    from .runner import device_description
+
+    click.echo(f"# rtfit bench {spec.name} — {device_description(variant)}")
+    _print_table(rows)
+
+
+def _print_table(rows: list[dict]):
+    if not rows:
+        return
+    cols = list(rows[0].keys())
+    cells = [[_fmt(r.get(c)) for c in cols] for r in rows]
+    widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]
+    click.echo("  ".join(c.ljust(w) for c, w in zip(cols, widths)))
+    for row in cells:
+        click.echo("  ".join(v.ljust(w) for v, w in zip(row, widths)))
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return "" if v is None else str(v)
+
+
+def main(argv=None) -> int:
+    """Entry point: one-line errors and exit status 2 for anything the user got wrong."""
+    from rtfit.scenes import SceneError
+
+    try:
+        cli.main(args=argv, prog_name="rtfit", standalone_mode=False)
+    except click.exceptions.Exit as e:
+        return e.exit_code
+    except (click.exceptions.Abort, KeyboardInterrupt):
+        click.echo("rtfit: interrupted (rendered passes are kept in the cache; rerun to resume)", err=True)
+        return 130
+    except click.ClickException as e:
+        msg = e.format_message().replace("\n", " ")
+        click.echo(f"rtfit: error: {msg}", err=True)
+        return 2
+    except (SceneError, ValueError) as e:
+        click.echo(f"rtfit: error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", err=True)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,84 @@
+"""Measured cost of an approximation: time per evaluated element on the current backend.
+
+Dr.Jit is lazy: a kernel runs when its result is evaluated. `time_drjit` therefore forces
+evaluation (``dr.eval``) and waits for the device (``dr.sync_thread``) inside the timed region,
+after a warm-up call that compiles (or loads) the kernel, and reports the median of several
+repetitions. Inputs are made opaque (evaluated device arrays) beforehand so that only the
+approximation's own kernel is timed. `time_numpy` times the same formula through NumPy (the same
+kernel text run with NumPy operations), so the two can be quoted as a ratio measured in one run.
+A memory-traffic baseline (one fused multiply-add reading the same inputs) shows how close a
+closed form is to the memory limit.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+
+@dataclass(frozen=True)
+class Timing:
+    seconds: float  # median wall time of one call
+    elements: int
+    repeats: int
+
+    @property
+    def ns_per_element(self) -> float:
+        return self.seconds / self.elements * 1e9
+
+    @property
+    def elements_per_second(self) -> float:
+        return self.elements / self.seconds
+
+    def to_dict(self) -> dict:
+        return {"ns_per_pixel": self.ns_per_element, "pixels_per_second": self.elements_per_second,
+                "elements": self.elements, "repeats": self.repeats}
+
+
+def _median_time(call: Callable[[], None], repeats: int, min_seconds: float) -> tuple[float, int]:
+    times = []
+    start = time.perf_counter()
+    while len(times) < repeats or (time.perf_counter() - start < min_seconds and len(times) < 1000):
+        t0 = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), len(times)
+
+
+def time_drjit(fn: Callable, args: tuple, elements: int, repeats: int = 7, min_seconds: float = 0.2) -> Timing:
+    """Median time of ``fn(*args)`` with evaluation and device sync inside the timed region."""
+    import drjit as dr
+
+    dr.eval(*[a for a in args if dr.is_array_v(a)])
+    dr.sync_thread()
+
+    def call():
+        out = fn(*args)
+        dr.eval(out)
+        dr.sync_thread()
+
+    call()  # warm-up: kernel compilation or cache load
+    seconds, n = _median_time(call, repeats, min_seconds)
+    return Timing(seconds, elements, n)
+
+
+def time_numpy(fn: Callable, args: tuple, elements: int, repeats: int = 5, min_seconds: float = 0.2) -> Timing:
+    fn(*args)
+    seconds, n = _median_time(lambda: fn(*args), repeats, min_seconds)
+    return Timing(seconds, elements, n)
+
+
+def memory_baseline(args: tuple, elements: int) -> Timing:
+    """A kernel reading the same inputs and writing one output: the memory-bound floor."""
+    import drjit as dr
+
+    def fma_all(*xs):
+        acc = xs[0]
+        for x in xs[1:]:
+            acc = dr.fma(acc, 0.5, x)
+        return acc
+
+    floats = tuple(a for a in args if dr.is_array_v(a))
+    return time_drjit(fma_all, floats, elements)

@@ -1,0 +1,1132 @@
+"""Reports from ``results.json``: ``report.md``, ``report.html``, ``tables.tex``, and a suite index.
+
+Everything a report shows comes from ``results.json`` (schema ``rtfit.results/1``, described in
+``docs/results-schema.md``), so ``rtfit report DIR`` regenerates it without rerunning anything.
+The output is deterministic: the same results give byte-identical files.
+
+Layout (paper-like): title; summary; contents; 1 Setup (configuration, versions, device); each
+``sections`` entry; Results (an overview table of the headline metric when there are several cases,
+then per case: parameters, reference, and a metrics table with every value beside its noise floor);
+Cost; Fitted parameters; Checks; Figures not placed in a section; Notes. Tables and figures are
+numbered in document order. A metric with ``resolved: false`` is set in grey italics and marked †:
+it lies below the reference's own noise floor and means nothing.
+
+``tables.tex`` holds the same tables as LaTeX ``table`` floats (needs ``\\usepackage{booktabs}``).
+The HTML is one self-contained page (inline CSS) referring to the figures by relative path; the
+markdown of ``summary``, ``sections``, captions and notes is converted by :func:`markdown_to_html`,
+a small converter for the subset rtfit writes.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .atomic import atomic_write_text, is_temporary_name
+
+__all__ = [
+    "SCHEMA",
+    "ResultsError",
+    "format_number",
+    "load_results",
+    "markdown_inline",
+    "markdown_to_html",
+    "render_report",
+    "write_index",
+    "write_report",
+]
+
+SCHEMA = "rtfit.results/1"
+RESULTS_FILE = "results.json"
+REPORT_FILES = ("report.md", "report.html", "tables.tex")
+
+# Known metrics: display name and direction (True: lower is better). Others render generically.
+METRICS: dict[str, tuple[str, bool | None]] = {
+    "rmse": ("RMSE", True),
+    "rel_mse": ("relMSE", True),
+    "mae": ("MAE", True),
+    "max_abs": ("max |Δ|", True),
+    "psnr": ("PSNR (dB)", False),
+    "ssim": ("SSIM", False),
+    "flip": ("FLIP", True),
+}
+UNRESOLVED_NOTE = ("† Below the reference's own noise floor: this error is indistinguishable from the "
+                   "Monte Carlo noise of the ground truth and means nothing.")
+AT_BOUND_NOTE = "‡ At a bound of its allowed range: the fit is constrained there, so its standard error is unreliable."
+
+
+class ResultsError(ValueError):
+    """A results file that cannot be reported: a one-line message naming the file and the key."""
+
+
+# ------------------------------------------------------------------------------------------ numbers
+def format_number(x, trim: bool = False) -> str:
+    """4 significant digits; scientific (``1.234e-5``) for |x| < 1e-3 or |x| ≥ 1e5.
+
+    Integers print exactly, booleans as yes/no, None as an em dash, strings unchanged. ``trim``
+    drops trailing zeros (for inputs such as configuration values: ``5`` rather than ``5.000``).
+    """
+    if x is None:
+        return "—"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, int):
+        return str(x)
+    if isinstance(x, float):
+        if math.isnan(x):
+            return "NaN"
+        if math.isinf(x):
+            return "∞" if x > 0 else "−∞"
+        if x == 0:
+            return "0"
+        mant, exp = f"{x:.3e}".split("e")
+        e = int(exp)
+        if e < -3 or e >= 5:
+            if trim:
+                mant = mant.rstrip("0").rstrip(".")
+            return f"{mant}e{e}"
+        s = f"{float(mant + 'e' + exp):.{max(0, 3 - e)}f}"
+        if trim and "." in s:
+            s = s.rstrip("0").rstrip(".")
+        return s
+    if isinstance(x, (list, tuple)):
+        return ", ".join(format_number(v, trim) for v in x)
+    if isinstance(x, dict):
+        return ", ".join(f"{k} = {format_number(v, trim)}" for k, v in x.items())
+    return str(x)
+
+
+# ------------------------------------------------------------------------------------------ loading
+class _NonFinite:
+    def __init__(self, token: str):
+        self.token = token
+
+
+def _find_sentinel(obj, where: str):
+    if isinstance(obj, _NonFinite):
+        return where, obj.token
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            hit = _find_sentinel(v, f"{where}.{k}" if where else str(k))
+            if hit:
+                return hit
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            hit = _find_sentinel(v, f"{where}[{i}]")
+            if hit:
+                return hit
+    return None
+
+
+def _require(file, obj, where: str, key: str, kind, kind_name: str, optional: bool = False):
+    if not isinstance(obj, dict):
+        raise ResultsError(f"{file}: {where or 'top level'}: expected an object")
+    if key not in obj or obj[key] is None:
+        if optional:
+            return None
+        raise ResultsError(f"{file}: {where + '.' if where else ''}{key}: missing required key")
+    if not isinstance(obj[key], kind):
+        raise ResultsError(f"{file}: {where + '.' if where else ''}{key}: expected {kind_name}, "
+                           f"got {type(obj[key]).__name__}")
+    return obj[key]
+
+
+def _validate(file, doc) -> None:
+    if not isinstance(doc, dict):
+        raise ResultsError(f"{file}: top level: expected an object")
+    schema = doc.get("schema")
+    if schema != SCHEMA:
+        raise ResultsError(f"{file}: schema: expected {SCHEMA!r}, got {schema!r}")
+    for key in ("experiment", "title", "summary", "created", "device"):
+        _require(file, doc, "", key, str, "a string")
+    for key in ("config", "versions"):
+        _require(file, doc, "", key, dict, "an object")
+    cases = _require(file, doc, "", "cases", list, "a list")
+    for key in ("sections", "fits", "figures", "costs", "checks", "notes"):
+        _require(file, doc, "", key, list, "a list", optional=True)
+    for i, case in enumerate(cases):
+        w = f"cases[{i}]"
+        _require(file, case, w, "id", str, "a string")
+        _require(file, case, w, "label", str, "a string")
+        for key in ("parameters", "scene", "reference"):
+            _require(file, case, w, key, dict, "an object", optional=True)
+        for j, ap in enumerate(_require(file, case, w, "approximations", list, "a list")):
+            wa = f"{w}.approximations[{j}]"
+            _require(file, ap, wa, "method", str, "a string")
+            _require(file, ap, wa, "parameters", dict, "an object", optional=True)
+            _require(file, ap, wa, "figures", list, "a list", optional=True)
+            for k, fig in enumerate(ap.get("figures") or []):
+                _check_rel_path(file, f"{wa}.figures[{k}]", fig)
+            for name, m in _require(file, ap, wa, "metrics", dict, "an object").items():
+                if not isinstance(m, dict) or "value" not in m:
+                    raise ResultsError(f"{file}: {wa}.metrics.{name}: expected an object with 'value'")
+    for i, s in enumerate(doc.get("sections") or []):
+        for key in ("id", "title", "text"):
+            _require(file, s, f"sections[{i}]", key, str, "a string")
+    for i, f in enumerate(doc.get("fits") or []):
+        _require(file, f, f"fits[{i}]", "parameters", dict, "an object")
+    for i, f in enumerate(doc.get("figures") or []):
+        _check_rel_path(file, f"figures[{i}].file", _require(file, f, f"figures[{i}]", "file", str, "a string"))
+    for i, c in enumerate(doc.get("costs") or []):
+        _require(file, c, f"costs[{i}]", "method", str, "a string")
+    for i, c in enumerate(doc.get("checks") or []):
+        _require(file, c, f"checks[{i}]", "name", str, "a string")
+        _require(file, c, f"checks[{i}]", "passed", bool, "true or false")
+    for i, n in enumerate(doc.get("notes") or []):
+        if not isinstance(n, str):
+            raise ResultsError(f"{file}: notes[{i}]: expected a string")
+
+
+def _check_rel_path(file, where: str, p) -> None:
+    if not isinstance(p, str) or not p or p.startswith(("/", "\\")) or ".." in re.split(r"[/\\]", p) \
+            or re.match(r"^[A-Za-z][A-Za-z0-9+.-]*:", p):
+        raise ResultsError(f"{file}: {where}: expected a relative path inside the experiment directory, "
+                           f"got {p!r}")
+
+
+def load_results(directory) -> dict:
+    """Read and validate ``DIRECTORY/results.json``.
+
+    Raises :class:`ResultsError` (a ``ValueError``) with one line naming the file and the key for a
+    missing file, invalid JSON, NaN/Infinity, a wrong schema version, or a missing or mistyped key.
+    """
+    file = Path(directory) / RESULTS_FILE
+    try:
+        text = file.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ResultsError(f"{file}: not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ResultsError(f"{file}: cannot read: {e}") from None
+    try:
+        doc = json.loads(text, parse_constant=_NonFinite)
+    except json.JSONDecodeError as e:
+        raise ResultsError(f"{file}: invalid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+    hit = _find_sentinel(doc, "")
+    if hit:
+        raise ResultsError(f"{file}: {hit[0]}: {hit[1]} is not a valid result (NaN and infinities are refused)")
+    _validate(file, doc)
+    return doc
+
+
+# ----------------------------------------------------------------------------------------- markdown
+_INLINE = re.compile(
+    r"(?P<esc>\\[\\`*_{}\[\]()#+\-.!$|<>])"
+    r"|(?P<tick>`+)(?P<code>.+?)(?P=tick)"
+    r"|(?P<math>\$(?![\s$])[^$\n]*?(?<![\s\\])\$)"
+    r"|\[(?P<ltext>[^\]\n]+)\]\((?P<lurl>[^)\s]+)\)"
+    r"|<(?P<auto>https?://[^>\s]+)>"
+    r"|\*\*(?P<strong>(?!\s).+?(?<!\s))\*\*"
+    r"|\*(?P<em>(?![\s*])[^*\n]+?(?<!\s))\*"
+)
+_SAFE_URL = re.compile(r"^(https?://|mailto:|#|[^:/?#]+(?:[/?#]|$)|/(?!/))", re.I)
+
+
+def _md_text(text) -> str:
+    """Plain text for markdown output: characters markdown would interpret are backslash-escaped
+    (``markdown_inline`` undoes the escapes, so the same text also renders right in HTML)."""
+    return re.sub(r"([\\`*\[\]|<>$])", r"\\\1", str(text)).replace("\n", " ")
+
+
+def _esc(text) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def markdown_inline(text: str) -> str:
+    """Inline markdown → HTML: **bold**, *italic*, `code`, [links](url), <autolinks>, \\escapes.
+
+    Everything else is escaped; inline math (``$…$``) is left as text in a ``span.math``. Links to
+    other schemes than http(s)/mailto/relative paths (``javascript:`` …) render as plain text.
+    """
+    out, pos = [], 0
+    for m in _INLINE.finditer(text):
+        out.append(_esc(text[pos:m.start()]))
+        pos = m.end()
+        g = m.lastgroup
+        if m.group("esc"):
+            out.append(_esc(m.group("esc")[1]))
+        elif m.group("tick"):
+            out.append(f"<code>{_esc(m.group('code').strip())}</code>")
+        elif m.group("math"):
+            out.append(f'<span class="math">{_esc(m.group("math"))}</span>')
+        elif m.group("ltext") is not None:
+            url = m.group("lurl")
+            inner = markdown_inline(m.group("ltext"))
+            out.append(f'<a href="{_esc(url)}">{inner}</a>' if _SAFE_URL.match(url) else inner)
+        elif m.group("auto"):
+            out.append(f'<a href="{_esc(m.group("auto"))}">{_esc(m.group("auto"))}</a>')
+        elif g == "strong":
+            out.append(f"<strong>{markdown_inline(m.group('strong'))}</strong>")
+        else:
+            out.append(f"<em>{markdown_inline(m.group('em'))}</em>")
+    out.append(_esc(text[pos:]))
+    return "".join(out)
+
+
+_BULLET = re.compile(r"^ {0,3}([-*+]|\d{1,9}[.)])\s+(.*)$")
+_HEADING = re.compile(r"^ {0,3}(#{1,6})\s+(.*?)\s*#*\s*$")
+
+
+def markdown_to_html(text: str, heading_offset: int = 2) -> str:
+    """Block markdown → HTML: paragraphs, bullet and numbered lists (one level, lazy continuation
+    lines), ``#`` headings (shifted down by ``heading_offset``, at most h6), fenced code blocks;
+    inline elements by :func:`markdown_inline`."""
+    out: list[str] = []
+    para: list[str] = []
+    items: list[list[str]] = []
+    list_tag = ""
+
+    def flush_para():
+        if para:
+            out.append(f"<p>{markdown_inline(' '.join(s.strip() for s in para))}</p>")
+            para.clear()
+
+    def flush_list():
+        nonlocal list_tag
+        if items:
+            lis = "".join(f"<li>{markdown_inline(' '.join(s.strip() for s in it))}</li>" for it in items)
+            out.append(f"<{list_tag}>{lis}</{list_tag}>")
+            items.clear()
+        list_tag = ""
+
+    lines = text.replace("\r\n", "\n").split("\n")
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        if line.lstrip().startswith("```"):
+            flush_para()
+            flush_list()
+            body = []
+            i += 1
+            while i < len(lines) and not lines[i].lstrip().startswith("```"):
+                body.append(lines[i])
+                i += 1
+            out.append(f"<pre><code>{_esc(chr(10).join(body))}</code></pre>")
+        elif not line.strip():
+            flush_para()
+            flush_list()
+        elif h := _HEADING.match(line):
+            flush_para()
+            flush_list()
+            level = min(6, len(h.group(1)) + heading_offset)
+            out.append(f"<h{level}>{markdown_inline(h.group(2))}</h{level}>")
+        elif b := _BULLET.match(line):
+            flush_para()
+            tag = "ul" if b.group(1) in "-*+" else "ol"
+            if items and tag != list_tag:
+                flush_list()
+            list_tag = tag
+            items.append([b.group(2)])
+        elif items:
+            items[-1].append(line)
+        else:
+            para.append(line)
+        i += 1
+    flush_para()
+    flush_list()
+    return "\n".join(out)
+
+
+# ----------------------------------------------------------------------------------------- document
+@dataclass
+class _Cell:
+    text: str = ""
+    sub: str = ""  # secondary text (the noise floor), smaller and grey in HTML
+    numeric: bool = False
+    md: bool = False  # ``text`` is inline markdown
+    style: str = ""  # "", "unresolved", "best", "pass", "fail", "at-bound"
+    mark: str = ""  # footnote mark
+
+
+@dataclass
+class _Heading:
+    level: int
+    title: str
+    anchor: str
+    number: str = ""
+
+
+@dataclass
+class _Prose:
+    md: str
+
+
+@dataclass
+class _Bullets:
+    items: list[str]
+
+
+@dataclass
+class _Table:
+    anchor: str
+    number: int
+    caption: str
+    header: list[_Cell]
+    rows: list[list[_Cell]]
+    notes: list[str] = field(default_factory=list)
+    tex_cols: list[int] | None = None  # columns in tables.tex (None: all)
+    tex: bool = True
+
+
+@dataclass
+class _Figure:
+    number: int
+    anchor: str
+    images: list[tuple[str, str]]  # (relative file, sub-label)
+    caption: str  # inline markdown
+    missing: list[str] = field(default_factory=list)
+
+
+def _slug(text: str) -> str:
+    s = re.sub(r"[^\w\- ]", "", str(text).lower(), flags=re.UNICODE).strip().replace(" ", "-")
+    return s or "x"
+
+
+class _Doc:
+    def __init__(self, results: dict, directory: Path | None):
+        self.r = results
+        self.dir = directory
+        self.blocks: list = []
+        self.anchors: set[str] = set()
+        self.tables = 0
+        self.figures = 0
+        self.sec = [0, 0]
+
+    def anchor(self, base: str) -> str:
+        a, k = _slug(base), 2
+        while a in self.anchors:
+            a, k = f"{_slug(base)}-{k}", k + 1
+        self.anchors.add(a)
+        return a
+
+    def heading(self, level: int, title: str, key: str, numbered: bool = True) -> str:
+        number = ""
+        if numbered and level == 2:
+            self.sec = [self.sec[0] + 1, 0]
+            number = str(self.sec[0])
+        elif numbered and level == 3:
+            self.sec[1] += 1
+            number = f"{self.sec[0]}.{self.sec[1]}"
+        a = self.anchor(key)
+        self.blocks.append(_Heading(level, title, a, number))
+        return a
+
+    def prose(self, md: str):
+        if md and md.strip():
+            self.blocks.append(_Prose(md.strip()))
+
+    def table(self, key, caption, header, rows, notes=(), tex_cols=None, tex=True):
+        self.tables += 1
+        self.blocks.append(_Table(self.anchor(f"table-{key}"), self.tables, caption, header, rows,
+                                  list(notes), tex_cols, tex))
+
+    def figure(self, images, caption):
+        self.figures += 1
+        missing = [f for f, _ in images if self.dir is not None and not (self.dir / f).is_file()]
+        self.blocks.append(_Figure(self.figures, self.anchor(f"figure-{self.figures}"), images,
+                                   caption, missing))
+
+
+def _metric_name(key: str) -> str:
+    name, lower = METRICS.get(key, (key, None))
+    return name + ("" if lower is None else (" ↓" if lower else " ↑"))
+
+
+def _metric_keys(approximations) -> list[str]:
+    seen = []
+    for ap in approximations:
+        for k in ap.get("metrics") or {}:
+            if k not in seen:
+                seen.append(k)
+    return [k for k in METRICS if k in seen] + [k for k in seen if k not in METRICS]
+
+
+def _metric_cell(m) -> _Cell:
+    if not isinstance(m, dict):
+        return _Cell("—", numeric=True)
+    floor = m.get("noise_floor")
+    cell = _Cell(format_number(m.get("value")), "floor " + format_number(floor), numeric=True)
+    if m.get("resolved") is False:
+        cell.style, cell.mark = "unresolved", "†"
+    return cell
+
+
+def _mark_best(cells: list[_Cell], entries: list, key: str) -> None:
+    lower = METRICS.get(key, (key, None))[1]
+    if lower is None:
+        return
+    vals = [(e.get("value"), i) for i, e in enumerate(entries)
+            if isinstance(e, dict) and isinstance(e.get("value"), (int, float)) and not isinstance(e.get("value"), bool)
+            and e.get("resolved") is not False]
+    if len(entries) < 2 or not vals:
+        return
+    best = min(v for v, _ in vals) if lower else max(v for v, _ in vals)
+    for v, i in vals:
+        if v == best:
+            cells[i].style = "best"
+
+
+def _headline_metric(cases) -> str | None:
+    keys = _metric_keys([ap for c in cases for ap in c.get("approximations") or []])
+    return "rmse" if "rmse" in keys else (keys[0] if keys else None)
+
+
+def _kv_line(d: dict, trim: bool = True) -> str:
+    """``key = value`` pairs as one markdown line (keys in code spans)."""
+    parts = []
+    for k, v in d.items():
+        if v is None:
+            continue
+        if isinstance(v, str) and re.fullmatch(r"[0-9a-f]{24,}", v):
+            v = f"`{v[:12]}…`"
+        elif not isinstance(v, str):
+            v = format_number(v, trim)
+        parts.append(f"`{k}` = {v}")
+    return ", ".join(parts)
+
+
+def _label(d: dict, *keys) -> str:
+    for k in keys:
+        if isinstance(d.get(k), str) and d[k]:
+            return d[k]
+    return "?"
+
+
+_BUILTIN_TARGETS = {"summary": "summary", "setup": "setup", "results": "results", "result": "results",
+                    "costs": "costs", "cost": "costs", "fits": "fits", "fit": "fits",
+                    "checks": "checks", "check": "checks", "notes": "notes", "figures": "figures"}
+
+
+def _build(results: dict, directory: Path | None) -> _Doc:
+    r = results
+    d = _Doc(r, directory)
+    cases = r.get("cases") or []
+    user_sections = r.get("sections") or []
+    user_ids = {s["id"] for s in user_sections}
+
+    # Figures grouped by where they go: a `sections` id wins over a built-in section name.
+    placed: dict[tuple[str, str], list[dict]] = {}
+    for fig in r.get("figures") or []:
+        target = str(fig.get("section") or "figures")
+        key = ("user", target) if target in user_ids else ("builtin", _BUILTIN_TARGETS.get(target.lower(), "figures"))
+        placed.setdefault(key, []).append(fig)
+
+    def emit_figures(key):
+        for fig in placed.pop(key, []):
+            d.figure([(fig["file"], "")], str(fig.get("caption") or ""))
+
+    d.heading(2, "Summary", "summary", numbered=False)
+    d.prose(r["summary"])
+    emit_figures(("builtin", "summary"))
+
+    # Setup.
+    d.heading(2, "Setup", "setup")
+    cfg = r.get("config") or {}
+    if cfg:
+        d.table("config", "Configuration of this run.", [_Cell("Setting"), _Cell("Value")],
+                [[_Cell(f"`{k}`", md=True), _Cell(format_number(v, trim=True))] for k, v in cfg.items()], tex=False)
+    vers = r.get("versions") or {}
+    if vers:
+        d.table("versions", "Software versions.", [_Cell("Package"), _Cell("Version")],
+                [[_Cell(str(k)), _Cell("not installed" if v is None else str(v))] for k, v in vers.items()],
+                tex=False)
+    d.blocks.append(_Bullets([f"**Device:** {_md_text(r['device'])}", f"**Created:** {_md_text(r['created'])}"]))
+    emit_figures(("builtin", "setup"))
+
+    def emit_user(placement):
+        for s in user_sections:
+            if ("after_results" if s.get("placement") == "after_results" else "before_results") == placement:
+                d.heading(2, s["title"], s["id"])
+                d.prose(s["text"])
+                emit_figures(("user", s["id"]))
+
+    emit_user("before_results")
+
+    # Results.
+    d.heading(2, "Results", "results")
+    if not cases:
+        d.prose("No cases were evaluated.")
+    head = _headline_metric(cases)
+    if len(cases) > 1 and head:
+        methods: list[tuple[str, str]] = []
+        for c in cases:
+            for ap in c["approximations"]:
+                if ap["method"] not in [m for m, _ in methods]:
+                    methods.append((ap["method"], _label(ap, "label", "method")))
+        rows = []
+        for c in cases:
+            by = {ap["method"]: ap for ap in c["approximations"]}
+            entries = [(by.get(m) or {}).get("metrics", {}).get(head) for m, _ in methods]
+            cells = [_metric_cell(e) if e is not None else _Cell("—", numeric=True) for e in entries]
+            _mark_best(cells, [e if e is not None else {} for e in entries], head)
+            rows.append([_Cell(c["label"])] + cells)
+        d.table("overview", f"{METRICS.get(head, (head,))[0]} of every approximation in every case "
+                            f"(value with the reference's noise floor; bold: best resolved value in the row).",
+                [_Cell("Case")] + [_Cell(lab, numeric=True) for _, lab in methods], rows,
+                [UNRESOLVED_NOTE] if any(cl.mark for row in rows for cl in row) else [])
+    for c in cases:
+        d.heading(3, c["label"], f"case-{c['id']}")
+        lines = [f"Case `{c['id']}`" + (f": {_kv_line(c['parameters'])}." if c.get("parameters") else ".")]
+        scene = c.get("scene") or {}
+        if scene:
+            lines.append("Scene " + (f"`{scene['name']}`" if scene.get("name") else "")
+                         + (f" (sha256 `{str(scene['hash'])[:12]}…`)" if scene.get("hash") else "") + ".")
+        if c.get("reference"):
+            lines.append(f"Reference: {_kv_line(c['reference'])}.")
+        d.prose(" ".join(lines))
+        aps = c["approximations"]
+        if not aps:
+            d.prose("No approximations were evaluated in this case.")
+            continue
+        keys = _metric_keys(aps)
+        columns = [[_metric_cell((ap.get("metrics") or {}).get(k)) if k in (ap.get("metrics") or {})
+                    else _Cell("—", numeric=True) for ap in aps] for k in keys]
+        for k, col in zip(keys, columns):
+            _mark_best(col, [(ap.get("metrics") or {}).get(k) or {} for ap in aps], k)
+        has_cost = any(isinstance(ap.get("cost"), dict) and ap["cost"].get("ns_per_pixel") is not None for ap in aps)
+        header = [_Cell("Method")] + [_Cell(_metric_name(k), numeric=True) for k in keys]
+        header += [_Cell("ns/pixel", numeric=True)] if has_cost else []
+        header += [_Cell("Parameters")]
+        rows = []
+        for i, ap in enumerate(aps):
+            row = [_Cell(_label(ap, "label", "method"))] + [col[i] for col in columns]
+            if has_cost:
+                row.append(_Cell(format_number((ap.get("cost") or {}).get("ns_per_pixel")), numeric=True))
+            params = format_number(ap.get("parameters") or {}, trim=True) or "—"
+            row.append(_Cell(("fitted: " if ap.get("fitted") else "") + params))
+            rows.append(row)
+        unresolved = any(cl.mark for col in columns for cl in col)
+        d.table(f"case-{c['id']}",
+                f"Error metrics for {c['label']}: each value with the reference's noise floor "
+                "(↓ lower is better, ↑ higher is better; bold: best resolved value).",
+                header, rows, [UNRESOLVED_NOTE] if unresolved else [], tex_cols=list(range(1 + len(keys))))
+        imgs = [(f, _label(ap, "label", "method")) for ap in aps for f in ap.get("figures") or []]
+        if imgs:
+            d.figure(imgs, f"{c['label']}: " + ", ".join(lab for _, lab in imgs) + " (left to right).")
+    emit_figures(("builtin", "results"))
+
+    # Cost.
+    costs = r.get("costs") or []
+    if costs or ("builtin", "costs") in placed:
+        d.heading(2, "Cost", "costs")
+        if costs:
+            cols = [("ns_per_pixel", "ns/pixel"), ("pixels_per_second", "pixels/s"), ("backend", "Backend"),
+                    ("note", "Note")]
+            cols = [(k, n) for k, n in cols if any(c.get(k) is not None for c in costs)]
+            rows = [[_Cell(_label(c, "label", "method"))]
+                    + [_Cell(str(c.get(k) or ""), md=True) if k == "note" else
+                       _Cell(format_number(c.get(k)), numeric=k != "backend") for k, _ in cols] for c in costs]
+            d.table("costs", "Measured cost per pixel on this run's device.",
+                    [_Cell("Method")] + [_Cell(n, numeric=k not in ("backend", "note")) for k, n in cols], rows)
+        emit_figures(("builtin", "costs"))
+
+    # Fits.
+    fits = r.get("fits") or []
+    if fits or ("builtin", "fits") in placed:
+        d.heading(2, "Fitted parameters", "fits")
+        if fits:
+            rows, at_bound, files = [], False, []
+            for f in fits:
+                params = list((f.get("parameters") or {}).items()) or [("—", None)]
+                for j, (name, p) in enumerate(params):
+                    p = p if isinstance(p, dict) else {"value": p}
+                    val = _Cell(format_number(p.get("value")), numeric=True)
+                    if p.get("stderr") is not None:
+                        val.text += " ± " + format_number(p["stderr"])
+                    if p.get("at_bound"):
+                        val.style, val.mark, at_bound = "at-bound", "‡", True
+                    bounds = "" if p.get("lower") is None and p.get("upper") is None else \
+                        f"[{format_number(p.get('lower'))}, {format_number(p.get('upper'))}]"
+                    first = j == 0
+                    conv = f.get("converged")
+                    rows.append([
+                        _Cell(_label(f, "label", "id") if first else "", sub=str(f.get("model") or "") if first else ""),
+                        _Cell(str(name)), val, _Cell(bounds, numeric=True),
+                        _Cell(format_number(f.get("rms_residual")) if first else "", numeric=True),
+                        _Cell(format_number(f.get("n_residuals")) if first else "", numeric=True),
+                        _Cell(("yes" if conv else "no") if first and conv is not None else "",
+                              style="" if conv or not first or conv is None else "fail"),
+                    ])
+                if f.get("file"):
+                    files.append(f"[`{f['file']}`]({f['file']}) ({_label(f, 'label', 'id')})")
+            d.table("fits", "Fitted parameters (value ± standard error; bounds of the allowed range).",
+                    [_Cell("Fit"), _Cell("Parameter"), _Cell("Value ± s.e.", numeric=True),
+                     _Cell("Bounds", numeric=True), _Cell("RMS residual", numeric=True),
+                     _Cell("Residuals", numeric=True), _Cell("Converged")],
+                    rows, [AT_BOUND_NOTE] if at_bound else [])
+            if files:
+                d.prose("Fitted-parameter files:")
+                d.blocks.append(_Bullets(files))
+        emit_figures(("builtin", "fits"))
+
+    # Checks.
+    checks = r.get("checks") or []
+    if checks or ("builtin", "checks") in placed:
+        d.heading(2, "Checks", "checks")
+        if checks:
+            failed = sum(1 for c in checks if not c["passed"])
+            n = len(checks)
+            d.prose(("The check passed." if n == 1 else f"All {n} checks passed.") if not failed else
+                    f"**{failed} of {n} check{'s' if n != 1 else ''} FAILED.**")
+            rows = [[_Cell(c["name"]), _Cell(format_number(c.get("value")), numeric=True),
+                     _Cell(format_number(c.get("expected"))),
+                     _Cell("pass" if c["passed"] else "FAIL", style="pass" if c["passed"] else "fail")]
+                    for c in checks]
+            d.table("checks", "Consistency checks of this run.",
+                    [_Cell("Check"), _Cell("Value", numeric=True), _Cell("Expected"), _Cell("Result")], rows)
+        emit_figures(("builtin", "checks"))
+
+    emit_user("after_results")
+
+    rest = [f for key in list(placed) if key != ("builtin", "notes") for f in placed.pop(key)]
+    if rest:
+        d.heading(2, "Figures", "figures")
+        for fig in rest:
+            d.figure([(fig["file"], "")], str(fig.get("caption") or ""))
+    notes = r.get("notes") or []
+    if notes or placed:
+        d.heading(2, "Notes", "notes")
+        if notes:
+            d.blocks.append(_Bullets(list(notes)))
+        emit_figures(("builtin", "notes"))
+    return d
+
+
+# ----------------------------------------------------------------------------------------- markdown
+def _md_cell(c: _Cell) -> str:
+    t = c.text if c.md else _md_text(c.text)
+    if c.style == "best":
+        t = f"**{t}**"
+    if c.sub:
+        t = f"{t} ({c.sub.replace('|', chr(92) + '|')})"
+    if c.style in ("unresolved", "at-bound"):
+        t = f"*{t}*"
+    if c.style == "fail":
+        t = f"**{t}**"
+    return t.replace("\n", " ") + c.mark
+
+
+def _heading_text(h: _Heading) -> str:
+    return _md_text(f"{h.number} {h.title}" if h.number else h.title)
+
+
+def _toc(d: _Doc) -> list[tuple[_Heading, list[_Heading]]]:
+    """Numbered sections with their subsections (the contents list, placed after the summary)."""
+    items: list[tuple[_Heading, list[_Heading]]] = []
+    for h in d.blocks:
+        if isinstance(h, _Heading) and h.number:
+            if h.level == 2 or not items:
+                items.append((h, []))
+            else:
+                items[-1][1].append(h)
+    return items
+
+
+def _render_md(d: _Doc) -> str:
+    r = d.r
+    out = [f"# {_md_text(r['title'])}", "",
+           f"*rtfit experiment `{r['experiment']}` · {_md_text(r['created'])} · {_md_text(r['device'])}*", ""]
+    toc = ["**Contents**", ""]
+    for h, subs in _toc(d):
+        toc.append(f"- [{_heading_text(h)}](#{h.anchor})")
+        toc += [f"  - [{_heading_text(s)}](#{s.anchor})" for s in subs]
+    toc.append("")
+    for b in d.blocks:
+        if isinstance(b, _Heading):
+            if b.number and toc:
+                out += toc
+                toc = []
+            out += [f'<a id="{b.anchor}"></a>', "", f"{'#' * b.level} {_heading_text(b)}", ""]
+        elif isinstance(b, _Prose):
+            out += [b.md, ""]
+        elif isinstance(b, _Bullets):
+            out += [f"- {item}" for item in b.items] + [""]
+        elif isinstance(b, _Table):
+            out += [f'<a id="{b.anchor}"></a>', "", f"**Table {b.number}:** {_md_text(b.caption)}", ""]
+            out.append("| " + " | ".join(_md_cell(c) for c in b.header) + " |")
+            out.append("|" + "|".join("---:" if c.numeric else ":---" for c in b.header) + "|")
+            out += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in b.rows]
+            out += [""] + [f"{n}  " for n in b.notes] + ([""] if b.notes else [])
+        elif isinstance(b, _Figure):
+            out.append(f'<a id="{b.anchor}"></a>')
+            out.append("")
+            out += [f"![{_md_text(sub or f'Figure {b.number}')}]({f})" for f, sub in b.images]
+            missing = f" (missing: {', '.join(b.missing)})" if b.missing else ""
+            out += ["", f"**Figure {b.number}:** {b.caption}{missing}", ""]
+    out += ["---", "", _footer_text(r), ""]
+    return "\n".join(out)
+
+
+def _footer_text(r: dict) -> str:
+    v = (r.get("versions") or {}).get("rtfit")
+    return (f"Generated by rtfit{' ' + str(v) if v else ''} from `results.json` (schema `{SCHEMA}`); "
+            "regenerate with `rtfit report DIR`.")
+
+
+# --------------------------------------------------------------------------------------------- html
+_CSS = """
+:root { --fg: #1d1d1f; --muted: #6e6e73; --rule: #1d1d1f; --light: #d2d2d7; --accent: #0a58ca;
+        --pass: #1a7f37; --fail: #cf222e; --bg-alt: #f6f8fa; }
+* { box-sizing: border-box; }
+body { margin: 0; color: var(--fg); background: #fff;
+       font: 17px/1.55 "Charter", "Iowan Old Style", "Source Serif Pro", Georgia, "Times New Roman", serif; }
+main { max-width: 62rem; margin: 0 auto; padding: 2.5rem 1.5rem 4rem; }
+h1, h2, h3, h4, h5, h6, nav, table, figcaption, .meta, footer {
+  font-family: -apple-system, "Segoe UI", "Helvetica Neue", Arial, sans-serif; }
+h1 { font-size: 1.9rem; line-height: 1.25; margin: 0 0 .4rem; }
+h2 { font-size: 1.35rem; margin: 2.4rem 0 .8rem; padding-bottom: .25rem; border-bottom: 1px solid var(--light); }
+h3 { font-size: 1.1rem; margin: 1.8rem 0 .6rem; }
+.secnum { color: var(--muted); margin-right: .5rem; }
+.meta { color: var(--muted); font-size: .9rem; margin: 0 0 1.5rem; }
+.abstract { background: var(--bg-alt); border-left: 3px solid var(--accent); padding: .2rem 1.2rem; }
+.abstract h2 { border: 0; margin-top: 1rem; font-size: 1.05rem; text-transform: uppercase; letter-spacing: .05em; }
+a { color: var(--accent); text-decoration: none; } a:hover { text-decoration: underline; }
+code { font: .85em/1.4 ui-monospace, "SF Mono", Menlo, Consolas, monospace; background: var(--bg-alt);
+       padding: .05em .3em; border-radius: 3px; }
+pre { background: var(--bg-alt); padding: .8rem 1rem; overflow-x: auto; border-radius: 4px; }
+pre code { background: none; padding: 0; }
+.math { font-style: italic; white-space: nowrap; }
+nav.toc { font-size: .92rem; margin: 1.5rem 0 2rem; }
+nav.toc h2 { font-size: 1rem; border: 0; margin: 0 0 .4rem; }
+nav.toc ol { list-style: none; padding-left: 0; margin: 0; }
+nav.toc ol ol { padding-left: 1.6rem; }
+.table-wrap { overflow-x: auto; margin: 1.2rem 0 1.6rem; }
+table { border-collapse: collapse; font-size: .86rem; margin: 0 auto;
+        border-top: 2px solid var(--rule); border-bottom: 2px solid var(--rule); }
+caption { caption-side: top; text-align: left; font-size: .86rem; padding: 0 0 .5rem; color: var(--fg); }
+caption b { margin-right: .3rem; }
+th, td { padding: .3rem .65rem; vertical-align: top; text-align: left; }
+thead th { border-bottom: 1px solid var(--rule); font-weight: 600; white-space: nowrap; }
+tbody tr:hover { background: var(--bg-alt); }
+td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+.sub { color: var(--muted); font-size: .88em; }
+td.sub-block .sub { display: block; white-space: normal; }
+.unresolved { color: #8e8e93; font-style: italic; }
+.best { font-weight: 700; }
+.at-bound { font-style: italic; }
+.pass { color: var(--pass); font-weight: 600; }
+.fail { color: var(--fail); font-weight: 700; }
+.mark { font-size: .8em; vertical-align: super; line-height: 0; }
+.table-note { font-size: .8rem; color: var(--muted); margin: .4rem 0 0; }
+figure { margin: 1.8rem 0; text-align: center; }
+figure .images { display: flex; flex-wrap: wrap; gap: .6rem; justify-content: center; }
+figure .images div { flex: 1 1 14rem; max-width: 100%; }
+figure img { max-width: 100%; height: auto; border: 1px solid var(--light); }
+figcaption { font-size: .88rem; text-align: left; margin: .5rem auto 0; max-width: 48rem; }
+figcaption .sublabel { display: block; font-size: .8rem; color: var(--muted); text-align: center; }
+.missing { color: var(--fail); }
+footer { margin-top: 3rem; padding-top: .8rem; border-top: 1px solid var(--light); color: var(--muted); font-size: .82rem; }
+.entry { margin: 0 0 2.2rem; }
+.entry h2 { margin-bottom: .3rem; }
+.headline { list-style: none; padding: 0; display: flex; flex-wrap: wrap; gap: .4rem 1.2rem;
+            font-family: -apple-system, "Segoe UI", "Helvetica Neue", Arial, sans-serif; font-size: .88rem; }
+.headline b { font-weight: 600; }
+@media print { main { max-width: none; padding: 0; } nav.toc { display: none; } a { color: inherit; } }
+"""
+
+
+def _html_cell(c: _Cell, tag: str = "td") -> str:
+    classes = [x for x in ("num" if c.numeric else "", c.style, "sub-block" if c.sub and not c.numeric else "") if x]
+    body = markdown_inline(c.text) if c.md else _esc(c.text)
+    if c.sub:
+        body += f' <span class="sub">({_esc(c.sub)})</span>' if c.numeric else f'<span class="sub">{_esc(c.sub)}</span>'
+    if c.mark:
+        body += f'<span class="mark">{_esc(c.mark)}</span>'
+    cls = f' class="{" ".join(classes)}"' if classes else ""
+    if c.style == "unresolved":
+        cls += ' title="below the reference\'s noise floor: not meaningful"'
+    return f"<{tag}{cls}>{body}</{tag}>"
+
+
+def _html_table(b: _Table) -> str:
+    head = "".join(_html_cell(c, "th") for c in b.header)
+    body = "\n".join("<tr>" + "".join(_html_cell(c) for c in row) + "</tr>" for row in b.rows)
+    notes = "".join(f'<p class="table-note">{_esc(n)}</p>' for n in b.notes)
+    return (f'<div class="table-wrap" id="{b.anchor}"><table>\n<caption><b>Table {b.number}:</b> {_esc(b.caption)}'
+            f"</caption>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody></table>{notes}</div>")
+
+
+def _html_figure(b: _Figure) -> str:
+    imgs = "".join(
+        f'<div><img src="{_esc(f)}" alt="{_esc(sub or f"Figure {b.number}")}" loading="lazy">'
+        + (f'<span class="sublabel">{_esc(sub)}</span>' if sub and len(b.images) > 1 else "") + "</div>"
+        for f, sub in b.images)
+    missing = (f' <span class="missing">(missing: {_esc(", ".join(b.missing))})</span>' if b.missing else "")
+    return (f'<figure id="{b.anchor}"><div class="images">{imgs}</div>'
+            f"<figcaption><b>Figure {b.number}:</b> {markdown_inline(b.caption)}{missing}</figcaption></figure>")
+
+
+def _html_page(title: str, body: str) -> str:
+    return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+            f"<title>{_esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n<main>\n{body}\n</main>\n"
+            "</body>\n</html>\n")
+
+
+def _render_html(d: _Doc) -> str:
+    r = d.r
+    parts = [f"<header><h1>{_esc(r['title'])}</h1>",
+             f'<p class="meta">rtfit experiment <code>{_esc(r["experiment"])}</code> · {_esc(r["created"])} · '
+             f"{_esc(r['device'])}</p></header>"]
+    def link(h):
+        return f'<a href="#{h.anchor}"><span class="secnum">{_esc(h.number)}</span>{_esc(h.title)}</a>'
+
+    toc = ('<nav class="toc"><h2>Contents</h2><ol>' + "".join(
+        f"<li>{link(h)}" + (f"<ol>{''.join(f'<li>{link(s)}</li>' for s in subs)}</ol>" if subs else "") + "</li>"
+        for h, subs in _toc(d)) + "</ol></nav>")
+    in_abstract = False
+    for b in d.blocks:
+        if isinstance(b, _Heading):
+            if in_abstract:
+                parts.append("</section>")
+                in_abstract = False
+            if b.number and toc:
+                parts.append(toc)
+                toc = ""
+            num = f'<span class="secnum">{_esc(b.number)}</span>' if b.number else ""
+            h = f'<h{b.level} id="{b.anchor}">{num}{_esc(b.title)}</h{b.level}>'
+            if b.anchor == "summary":
+                parts.append('<section class="abstract">' + h)
+                in_abstract = True
+            else:
+                parts.append(h)
+        elif isinstance(b, _Prose):
+            parts.append(markdown_to_html(b.md, heading_offset=3))
+        elif isinstance(b, _Bullets):
+            parts.append("<ul>" + "".join(f"<li>{markdown_inline(i)}</li>" for i in b.items) + "</ul>")
+        elif isinstance(b, _Table):
+            parts.append(_html_table(b))
+        elif isinstance(b, _Figure):
+            parts.append(_html_figure(b))
+    if in_abstract:
+        parts.append("</section>")
+    parts.append(f"<footer>{markdown_inline(_footer_text(r))}</footer>")
+    return _html_page(r["title"], "\n".join(parts))
+
+
+# ---------------------------------------------------------------------------------------------- tex
+_TEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+                "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
+                "<": r"\textless{}", ">": r"\textgreater{}", "|": r"\textbar{}"}
+_TEX_GREEK = zip("αβγδεζηθικλμνξπρστυφχψωΓΔΘΛΞΠΣΥΦΨΩ",
+                 "alpha beta gamma delta epsilon zeta eta theta iota kappa lambda mu nu xi pi rho sigma tau upsilon "
+                 "phi chi psi omega Gamma Delta Theta Lambda Xi Pi Sigma Upsilon Phi Psi Omega".split())
+_TEX_UNICODE = {
+    **{c: rf"\ensuremath{{\{n}}}" for c, n in _TEX_GREEK},
+    "ε": r"\ensuremath{\varepsilon}", "°": r"\ensuremath{^\circ}", "±": r"\ensuremath{\pm}",
+    "≤": r"\ensuremath{\le}", "≥": r"\ensuremath{\ge}", "≈": r"\ensuremath{\approx}", "≠": r"\ensuremath{\ne}",
+    "×": r"\ensuremath{\times}", "·": r"\ensuremath{\cdot}", "−": r"\ensuremath{-}", "∞": r"\ensuremath{\infty}",
+    "→": r"\ensuremath{\to}", "↓": r"\ensuremath{\downarrow}", "↑": r"\ensuremath{\uparrow}",
+    "√": r"\ensuremath{\surd}", "∑": r"\ensuremath{\sum}", "∂": r"\ensuremath{\partial}", "∫": r"\ensuremath{\int}",
+    "²": r"\textsuperscript{2}", "³": r"\textsuperscript{3}", "¹": r"\textsuperscript{1}",
+    "⁻": r"\textsuperscript{\ensuremath{-}}", "—": "---", "–": "--", "…": r"\ldots{}", "†": r"\ensuremath{\dagger}",
+    "‡": r"\ensuremath{\ddagger}", "“": "``", "”": "''", "‘": "`", "’": "'", "\u00a0": "~", "✓": "pass", "✗": "FAIL",
+}
+
+
+def _tex(text) -> str:
+    """Escape plain text for LaTeX (text mode); common Greek letters and symbols become macros."""
+    return "".join(_TEX_SPECIAL.get(ch) or _TEX_UNICODE.get(ch) or ch for ch in str(text))
+
+
+_SCI = re.compile(r"(-?\d+(?:\.\d+)?)e(-?\d+)")
+
+
+def _tex_num(text: str) -> str:
+    return _SCI.sub(lambda m: rf"\ensuremath{{{m.group(1)}\times 10^{{{m.group(2)}}}}}", _tex(text))
+
+
+def _tex_md(text: str) -> str:
+    """Plain-text rendering of inline markdown for LaTeX (code, bold, italic kept; math verbatim)."""
+    out, pos = [], 0
+    for m in _INLINE.finditer(text):
+        out.append(_tex(text[pos:m.start()]))
+        pos = m.end()
+        if m.group("esc"):
+            out.append(_tex(m.group("esc")[1]))
+        elif m.group("tick"):
+            out.append(r"\texttt{" + _tex(m.group("code").strip()) + "}")
+        elif m.group("math"):
+            out.append(m.group("math"))
+        elif m.group("ltext") is not None:
+            out.append(_tex_md(m.group("ltext")))
+        elif m.group("auto"):
+            out.append(r"\texttt{" + _tex(m.group("auto")) + "}")
+        elif m.lastgroup == "strong":
+            out.append(r"\textbf{" + _tex_md(m.group("strong")) + "}")
+        else:
+            out.append(r"\emph{" + _tex_md(m.group("em")) + "}")
+    out.append(_tex(text[pos:]))
+    return "".join(out)
+
+
+def _tex_cell(c: _Cell) -> str:
+    t = (_tex_num(c.text) if c.numeric else (_tex_md(c.text) if c.md else _tex(c.text)))
+    if c.sub and c.numeric:
+        t += r"\,{\scriptsize(" + _tex_num(c.sub.removeprefix("floor ")) + ")}"
+    elif c.sub:
+        t += r" {\scriptsize(" + _tex(c.sub) + ")}"
+    if c.style in ("best", "fail"):
+        t = r"\textbf{" + t + "}"
+    elif c.style in ("unresolved", "at-bound"):
+        t = r"\textit{" + t + "}"
+    if c.mark:
+        t += _tex(c.mark)
+    return t
+
+
+def _tex_label(*parts: str) -> str:
+    return ":".join(re.sub(r"[^A-Za-z0-9\-]+", "-", p).strip("-") or "x" for p in parts)
+
+
+def _render_tex(d: _Doc) -> str:
+    r = d.r
+    out = [f"% tables.tex — generated by rtfit from results.json (experiment {r['experiment']}); do not edit.",
+           r"% \input{} it after \usepackage{booktabs}. Greek letters and common symbols are mapped to macros;",
+           "% other non-ASCII characters need a Unicode engine (xelatex, lualatex) or \\usepackage[utf8]{inputenc}.",
+           "% Metric cells: value (noise floor of the reference).", ""]
+    for b in d.blocks:
+        if not isinstance(b, _Table) or not b.tex:
+            continue
+        cols = b.tex_cols if b.tex_cols is not None else list(range(len(b.header)))
+        spec = "".join("r" if b.header[i].numeric else "l" for i in cols)
+        out += [r"\begin{table}[htbp]", r"  \centering\small",
+                f"  \\caption{{{_tex(b.caption)}}}",
+                f"  \\label{{tab:{_tex_label(r['experiment'], b.anchor.removeprefix('table-'))}}}",
+                f"  \\begin{{tabular}}{{{spec}}}", r"    \toprule",
+                "    " + " & ".join(_tex(b.header[i].text) for i in cols) + r" \\", r"    \midrule"]
+        out += ["    " + " & ".join(_tex_cell(row[i]) for i in cols) + r" \\" for row in b.rows]
+        out += [r"    \bottomrule", r"  \end{tabular}"]
+        if b.notes:
+            out.append(r"  \par\smallskip{\footnotesize " + r" \par ".join(_tex(n) for n in b.notes) + "}")
+        out += [r"\end{table}", ""]
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------------------- public
+def render_report(results: dict, directory=None) -> dict[str, str]:
+    """Render validated results to ``{"report.md": …, "report.html": …, "tables.tex": …}``.
+
+    ``directory`` (optional) is where figure files are looked up to flag missing ones.
+    """
+    d = _build(results, Path(directory) if directory is not None else None)
+    return {"report.md": _render_md(d), "report.html": _render_html(d), "tables.tex": _render_tex(d)}
+
+
+def write_report(directory) -> list[Path]:
+    """Write ``report.md``, ``report.html`` and ``tables.tex`` into ``directory`` from its
+    ``results.json``. Everything is rendered before anything is written, so an invalid results
+    file (:class:`ResultsError`) leaves the directory as it was. Returns the written paths."""
+    directory = Path(directory)
+    texts = render_report(load_results(directory), directory)
+    return [atomic_write_text(directory / name, texts[name]) for name in REPORT_FILES]
+
+
+def _first_paragraph(md: str) -> str:
+    return re.split(r"\n\s*\n", md.strip(), maxsplit=1)[0]
+
+
+def _index_entry(results: dict) -> tuple[list[tuple[str, str, bool]], list[tuple[str, str, str]]]:
+    """Headline facts ``(label, value, is_bad)`` and per-method rows ``(method, mean metric, ns/pixel)``."""
+    cases = results.get("cases") or []
+    facts = [(str(h.get("label", "")),
+              format_number(h.get("value")) + (f" {h['unit']}" if h.get("unit") else ""), False)
+             for h in results.get("headline") or [] if isinstance(h, dict)]
+    methods = []
+    for c in cases:
+        for ap in c["approximations"]:
+            if ap["method"] not in methods:
+                methods.append(ap["method"])
+    facts.append(("cases", f"{len(cases)} × {len(methods)} approximations", False))
+    checks = results.get("checks") or []
+    if checks:
+        ok = sum(1 for c in checks if c.get("passed"))
+        facts.append(("checks", f"{ok}/{len(checks)} passed" + ("" if ok == len(checks) else " — FAILURES"),
+                      ok != len(checks)))
+    fits = results.get("fits") or []
+    if fits:
+        bad = sum(1 for f in fits if f.get("converged") is False)
+        facts.append(("fits", f"{len(fits)} ({'all converged' if not bad else f'{bad} not converged'})", bad > 0))
+    head = _headline_metric(cases)
+    rows = []
+    if head:
+        cost = {c["method"]: c.get("ns_per_pixel") for c in results.get("costs") or []}
+        for m in methods:
+            vals, floors, unresolved, label = [], [], 0, m
+            for c in cases:
+                for ap in c["approximations"]:
+                    e = (ap.get("metrics") or {}).get(head)
+                    if ap["method"] == m and isinstance(e, dict) and isinstance(e.get("value"), (int, float)):
+                        label = _label(ap, "label", "method")
+                        vals.append(e["value"])
+                        unresolved += e.get("resolved") is False
+                        if isinstance(e.get("noise_floor"), (int, float)):
+                            floors.append(e["noise_floor"])
+            if vals:
+                mean = format_number(sum(vals) / len(vals))
+                if floors:
+                    mean += f" (floor {format_number(sum(floors) / len(floors))})"
+                if unresolved == len(vals):
+                    mean += " ≤ floor†"
+                rows.append((label, mean, format_number(cost.get(m))))
+    return facts, rows
+
+
+def write_index(out_dir, experiment_dirs) -> list[Path]:
+    """Write ``OUT/index.html`` and ``OUT/index.md``: one entry per experiment directory, linking
+    its report, with its first summary paragraph and headline numbers (cases, checks, fits, and
+    the mean headline metric per approximation). A directory whose results cannot be read is
+    listed with the error; temporary directories of :mod:`.atomic` are skipped. Returns the paths."""
+    out_dir = Path(out_dir)
+    entries, any_unresolved = [], False
+    for d in experiment_dirs:
+        d = Path(d)
+        if is_temporary_name(d.name):
+            continue
+        link = os.path.relpath(d / "report.html", out_dir).replace(os.sep, "/")
+        try:
+            entries.append((d, link, load_results(d), None))
+        except ResultsError as e:
+            entries.append((d, link, None, str(e)))
+    md = ["# rtfit results", "", f"{len(entries)} experiment{'s' if len(entries) != 1 else ''}.", ""]
+    body = ["<header><h1>rtfit results</h1>",
+            f'<p class="meta">{len(entries)} experiment{"s" if len(entries) != 1 else ""}.</p></header>']
+    for d, link, r, err in entries:
+        if r is None:
+            md += [f"## {d.name}", "", f"**Cannot read results:** {err}", ""]
+            body.append(f'<section class="entry"><h2>{_esc(d.name)}</h2><p class="fail">Cannot read results: '
+                        f"{_esc(err)}</p></section>")
+            continue
+        facts, rows = _index_entry(r)
+        summary = _first_paragraph(r["summary"])
+        meta = f"`{r['experiment']}` · {_md_text(r['created'])} · {_md_text(r['device'])}"
+        md += [f"## [{_md_text(r['title'])}]({link})", "", f"*{meta}*", "", summary, ""]
+        md += ["  ·  ".join(f"**{k}:** {v}" for k, v, _ in facts), ""]
+        any_unresolved |= any("≤ floor†" in b for _, b, _ in rows)
+        head = _headline_metric(r.get("cases") or [])
+        hname = METRICS.get(head, (head,))[0] if head else ""
+        if rows:
+            md += [f"| Approximation | mean {hname} over cases | ns/pixel |", "|:---|---:|---:|"]
+            md += [f"| {_md_text(a)} | {b} | {c} |" for a, b, c in rows] + [""]
+        html_rows = "".join(f"<tr><td>{_esc(a)}</td><td class=\"num\">{_esc(b)}</td><td class=\"num\">{_esc(c)}"
+                            "</td></tr>" for a, b, c in rows)
+        table = (f'<div class="table-wrap"><table><thead><tr><th>Approximation</th><th class="num">mean '
+                 f'{_esc(hname)} over cases</th><th class="num">ns/pixel</th></tr></thead><tbody>{html_rows}'
+                 "</tbody></table></div>") if rows else ""
+        fact_html = "".join(f'<li><b>{_esc(k)}:</b> ' + (f'<span class="fail">{_esc(v)}</span>' if bad else _esc(v))
+                            + "</li>" for k, v, bad in facts)
+        body.append(f'<section class="entry"><h2><a href="{_esc(link)}">{_esc(r["title"])}</a></h2>'
+                    f'<p class="meta">{markdown_inline(meta)}</p>{markdown_to_html(summary)}'
+                    f'<ul class="headline">{fact_html}</ul>{table}</section>')
+    if any_unresolved:
+        md += [UNRESOLVED_NOTE, ""]
+        body.append(f'<p class="table-note">{_esc(UNRESOLVED_NOTE)}</p>')
+    body.append(f"<footer>Generated by rtfit from each experiment's <code>results.json</code> "
+                f"(schema <code>{SCHEMA}</code>).</footer>")
+    md += ["---", "", f"Generated by rtfit from each experiment's `results.json` (schema `{SCHEMA}`).", ""]
+    return [atomic_write_text(out_dir / "index.html", _html_page("rtfit results", "\n".join(body))),
+            atomic_write_text(out_dir / "index.md", "\n".join(md))]

@@ -1,0 +1,96 @@
+"""Run experiments into an output directory: atomically, resumably, with a common results header.
+
+Each experiment writes into a fresh temporary directory beside ``OUT/EXPERIMENT``; only when its
+results, figures and report are complete does that directory replace ``OUT/EXPERIMENT``. An
+interrupted run therefore leaves the previous output untouched, and a rerun resumes from the
+reference cache (rendered passes are never rendered twice).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import platform
+import sys
+from importlib import metadata
+from pathlib import Path
+
+from .atomic import atomic_directory, atomic_write_json, is_temporary_name
+from .jobs import make_executor
+from .registry import ExperimentSpec, RunContext
+from .report import write_index, write_report
+
+SCHEMA = "rtfit.results/1"
+
+
+def versions() -> dict:
+    out = {"python": platform.python_version()}
+    for dist in ("rtfit", "mitsuba", "drjit", "numpy", "jax", "optimistix", "scikit-image", "flip-evaluator"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = None
+    return out
+
+
+def device_description(variant: str) -> str:
+    import drjit as dr
+
+    if variant.startswith("cuda"):
+        try:
+            import subprocess
+
+            name = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                                  capture_output=True, text=True, timeout=10).stdout.strip().splitlines()
+            return f"GPU (CUDA backend): {name[0] if name else 'unknown'}"
+        except (OSError, subprocess.SubprocessError):
+            return "GPU (CUDA backend)"
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    threads = dr.thread_count() if variant.startswith("llvm") else 1
+    backend = "LLVM" if variant.startswith("llvm") else "scalar"
+    return f"CPU ({backend} backend, {threads} threads): {cpu}"
+
+
+def run_experiments(specs: list[ExperimentSpec], out: Path, *, quick: bool, variant: str, spp: int | None,
+                    seed: int, cache_dir: Path, executor: str, workers: int | None,
+                    progress: bool) -> list[Path]:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    done: list[Path] = []
+    pool = make_executor(executor, workers, progress)
+    try:
+        for spec in specs:
+            final = out / spec.name
+            with atomic_directory(final) as tmp:
+                ctx = RunContext(out_dir=Path(tmp), cache_dir=Path(cache_dir), executor=pool, quick=quick,
+                                 variant=variant, spp=spp, seed=seed, progress=progress)
+                ctx.log(f"{spec.name}: running ({'quick' if quick else 'full'}, {variant})")
+                body = spec.load().run(ctx)
+                results = {
+                    "schema": SCHEMA,
+                    "experiment": spec.name,
+                    "title": spec.title,
+                    "created": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
+                    "versions": versions(),
+                    "device": device_description(variant),
+                    **body,
+                }
+                results.setdefault("config", {}).update(
+                    {"quick": quick, "variant": variant, "seed": seed, "executor": executor})
+                atomic_write_json(Path(tmp) / "results.json", results)
+                write_report(Path(tmp))
+            done.append(final)
+            print(f"rtfit: {spec.name}: report at {final / 'report.html'}", file=sys.stderr)
+    finally:
+        pool.close()
+    present = sorted(p for p in out.iterdir()
+                     if not is_temporary_name(p.name) and (p / "results.json").is_file())
+    write_index(out, present)
+    return done

@@ -1,0 +1,450 @@
+"""Image and point-set error metrics, each with the noise floor of a Monte Carlo reference.
+
+The reference is a Monte Carlo estimate whose per-element standard error ``stderr`` is known. A
+metric between an approximation and such a reference does not read zero even for an *exact*
+approximation: the reference's own noise remains. Every metric therefore comes with its
+``noise_floor`` (the value it would read for an exact approximation), a ``resolved`` flag (the
+error stands clearly above that floor) and, for the mean-squared-error metrics, a ``debiased``
+value with the noise contribution removed.
+
+Inputs
+    ``approx``, ``reference``: float arrays of the same shape, either an image (H, W, C) or a
+    point set (N,) / (N, C). ``stderr``: the reference's standard error, same shape, finite, ≥ 0.
+    ``mask``: boolean (H, W) for images or (N,) for point sets selecting the elements to measure
+    (all channels of a selected pixel/point are measured); default all.
+
+Metrics (keys of ``results.json``; d = x − r over the masked elements, σ the stderr)
+
+=========  ===========================================  ==========================================
+key        value                                        noise floor (exact approximation)
+=========  ===========================================  ==========================================
+rmse       sqrt(mean d²)                                sqrt(mean σ²)                   (analytic)
+rel_mse    mean d² / (r² + 0.01)                        mean σ² / (r² + 0.01)           (analytic)
+mae        mean |d|                                     sqrt(2/π) · mean σ              (analytic)
+max_abs    max |d|                                      mean over draws of max |σ·ε|    (seeded MC)
+psnr       10 log10(peak² / mean d²),                   10 log10(peak² / mean σ²): a *ceiling*
+           peak = max of the masked reference            (analytic)
+ssim       mean over the mask of the SSIM map of the     SSIM(t(r), t(r + σ·ε))          (seeded MC)
+           tone-mapped images t(x) = x / (1 + |x|)
+flip       mean over the mask of the HDR-ꟻLIP map        ꟻLIP(r + σ·ε → r)               (seeded MC)
+smape      mean |d| / (|x| + |r|)  (0/0 := 0)            smape(r, r + σ·ε)               (seeded MC)
+=========  ===========================================  ==========================================
+
+ε is standard normal noise from ``numpy.random.default_rng`` seeded by ``(seed, metric)``; the MC
+floors average ``floor_draws`` draws (default 4). The analytic floors follow from
+E[(r − truth)²] = σ² and E|N(0, σ²)| = σ·sqrt(2/π). The rel_mse floor uses the reference value r in
+the denominator in place of the unknown truth. ``smape`` is not in :data:`ALL_METRICS` (it is for
+point-set families); ask for it by name.
+
+Resolved rule ("the error is clearly above the noise"): in amplitude units the error must exceed
+twice its floor. rmse, mae, max_abs, flip, smape: value > 2·floor; rel_mse (a squared quantity):
+value > 4·floor; psnr: value < ceiling − 20·log10(2) dB (≈ 6.02 dB, the same test as rmse);
+ssim: 1 − value > 2·(1 − floor). A floor of 0 (noise-free reference) makes any non-zero error
+resolved. An unresolved value *means nothing*: the approximation cannot be told apart from exact at
+this sample count.
+
+Debiased (rmse, rel_mse only): since E[(x − r)²] = (x − truth)² + σ², rmse_debiased =
+sqrt(max(rmse² − floor², 0)) and rel_mse_debiased = max(rel_mse − floor, 0).
+
+Applicability: ssim and flip need images; flip needs exactly 3 channels and both need the image to
+be at least as large as their filter (ssim: the 11-pixel Gaussian window of σ = 1.5; ꟻLIP: the
+21-pixel spatial filter at its default 67 pixels per degree). psnr needs a positive peak and flip a
+reference that is not black inside the mask. Metrics that do not apply are left out of the result;
+``result.skipped`` maps each to the reason.
+
+SSIM: scikit-image ``structural_similarity`` with data_range=1, channel_axis=-1,
+gaussian_weights=True, sigma=1.5, use_sample_covariance=False, full=True on the tone-mapped images.
+The tone map x/(1+|x|) equals x/(1+x) for x ≥ 0 and keeps negative inputs finite. The SSIM map is
+computed on the whole image (windows reach outside the mask) and averaged over the mask.
+
+ꟻLIP: ``flip_evaluator.evaluate(reference, test, "HDR", applyMagma=False)`` on contiguous float32
+(H, W, 3) arrays with negative values clipped to 0 (HDR-ꟻLIP accepts only non-negative radiance;
+clipping more than 1e-6 of the peak warns). The exposure range uses ꟻLIP's own rule, ACES tone
+mapper: start = log2(x_max / Y_max), stop = log2(x_max / Y_median), exposures =
+max(2, ceil(stop − start)), but with the luminances Y taken over the *masked* reference pixels (a
+black background would otherwise push the median to 0 and the range to ~25 stops), a median of 0
+replaced by the median of the positive luminances, and a one-stop range for a reference of constant
+luminance (where ꟻLIP itself would exit the process). flip_evaluator calls ``sys.exit`` on bad
+arguments, so everything is validated before it is called.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+import zlib
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = [
+    "ALL_METRICS",
+    "EXTRA_METRICS",
+    "FLIP_MIN_SIZE",
+    "REL_MSE_EPS",
+    "SSIM_MIN_SIZE",
+    "MetricResults",
+    "MetricValue",
+    "ZScoreSummary",
+    "compute_metrics",
+    "smape",
+    "tone_map",
+    "z_score_summary",
+    "z_scores",
+]
+
+ALL_METRICS: tuple[str, ...] = ("rmse", "rel_mse", "mae", "max_abs", "psnr", "ssim", "flip")
+"""The default metric keys, in the report's order."""
+EXTRA_METRICS: tuple[str, ...] = ("smape",)
+"""Metrics computed only when asked for by name."""
+REL_MSE_EPS = 0.01
+"""Added to r² in the rel_mse denominator (in squared image units)."""
+SSIM_SIGMA = 1.5
+SSIM_MIN_SIZE = 2 * int(3.5 * SSIM_SIGMA + 0.5) + 1  # scikit-image's window for gaussian_weights: 11
+FLIP_PPD = 67.02064514160156  # ꟻLIP's default pixels per degree (0.7 m from a 0.7 m wide 4K display)
+# ꟻLIP's widest filter: the colour CSF of scale 0.04, radius ceil(3·sqrt(0.04/(2π²))·ppd) = 10 → 21 px.
+FLIP_MIN_SIZE = 2 * math.ceil(3.0 * math.sqrt(0.04 / (2.0 * math.pi**2)) * FLIP_PPD) + 1
+_RESOLVE_FACTOR = 2.0
+_FLIP_NEG_WARN = 1e-6
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+# ------------------------------------------------------------------------------------- data types
+def _json_float(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class MetricValue:
+    """One metric: its value, the reference-noise floor, whether it is resolved above the floor,
+    and (for MSE-type metrics) the value with the noise contribution removed."""
+
+    value: float
+    noise_floor: float
+    resolved: bool
+    debiased: float | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready plain data; non-finite numbers (e.g. the PSNR of an exact match) become None."""
+        return {"value": _json_float(self.value), "noise_floor": _json_float(self.noise_floor),
+                "resolved": bool(self.resolved), "debiased": _json_float(self.debiased)}
+
+
+class MetricResults(dict):
+    """``dict[str, MetricValue]`` in the requested order, plus ``skipped``: metric → reason for each
+    requested metric that does not apply to these inputs."""
+
+    def __init__(self, values=(), skipped=None):
+        super().__init__(values)
+        self.skipped: dict[str, str] = dict(skipped or {})
+
+    def to_dict(self) -> dict:
+        return {k: v.to_dict() for k, v in self.items()}
+
+
+@dataclass(frozen=True)
+class ZScoreSummary:
+    """Spread of the per-element z-scores (x − r)/σ. For an exact approximation mean ≈ 0, std ≈ 1.
+
+    ``n`` counts the z-scores (masked elements with σ > 0); ``n_zero_stderr`` the masked elements
+    dropped because σ == 0, of which ``n_zero_stderr_differing`` have x ≠ r (an error that no
+    noise explains). ``frac_abs_above_4``: fraction with |z| > 4 (normal: 6.3e-5)."""
+
+    n: int
+    n_zero_stderr: int
+    n_zero_stderr_differing: int
+    mean: float
+    std: float
+    max_abs: float
+    frac_abs_above_4: float
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        return {k: (_json_float(v) if isinstance(v, float) else v) for k, v in d.items()}
+
+
+# ------------------------------------------------------------------------------------- validation
+def _validate(approx, reference, stderr, mask):
+    """Return float64 arrays, the (H, W)/(N,) mask, and whether the inputs are an image."""
+    x = np.asarray(approx)
+    r = np.asarray(reference)
+    s = np.asarray(stderr)
+    for name, a in (("approx", x), ("reference", r), ("stderr", s)):
+        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+            raise ValueError(f"{name} must be a real numeric array, got dtype {a.dtype}")
+    if x.ndim not in (1, 2, 3):
+        raise ValueError(f"approx must be an image (H, W, C) or a point set (N,)/(N, C), got shape {x.shape}")
+    if r.shape != x.shape:
+        raise ValueError(f"reference shape {r.shape} does not match approx shape {x.shape}")
+    if s.shape != r.shape:
+        raise ValueError(f"stderr shape {s.shape} does not match reference shape {r.shape}")
+    if x.size == 0:
+        raise ValueError("approx is empty")
+    x = x.astype(np.float64)
+    r = r.astype(np.float64)
+    s = s.astype(np.float64)
+    for name, a in (("approx", x), ("reference", r), ("stderr", s)):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} contains {int(np.sum(~np.isfinite(a)))} non-finite values (NaN or inf)")
+    if np.any(s < 0):
+        raise ValueError(f"stderr contains {int(np.sum(s < 0))} negative values")
+    is_image = x.ndim == 3
+    mshape = x.shape[:2] if is_image else x.shape[:1]
+    if mask is None:
+        m = np.ones(mshape, dtype=bool)
+    else:
+        m = np.asarray(mask)
+        if m.dtype != np.bool_:
+            raise ValueError(f"mask must be a boolean array, got dtype {m.dtype}")
+        if m.shape != mshape:
+            kind = "image" if is_image else "point set"
+            raise ValueError(f"mask shape {m.shape} does not match the {kind} shape {mshape}")
+        if not m.any():
+            raise ValueError("mask selects no elements")
+    return x, r, s, m, is_image
+
+
+def _sel(a, m):
+    """Masked elements as a flat array (all channels of each selected pixel/point)."""
+    return a[m].ravel()
+
+
+def _rng(seed: int, name: str) -> np.random.Generator:
+    return np.random.default_rng([int(seed), zlib.crc32(name.encode())])
+
+
+def tone_map(x):
+    """t(x) = x / (1 + |x|): Reinhard's x/(1+x) for x ≥ 0, odd and bounded for negative inputs."""
+    x = np.asarray(x, dtype=np.float64)
+    return x / (1.0 + np.abs(x))
+
+
+# ---------------------------------------------------------------------------------- applicability
+def _skip_reason(name, x, r, m, is_image) -> str | None:
+    if name in ("ssim", "flip"):
+        if not is_image:
+            return f"{name} needs an image (H, W, C); got a point set of shape {x.shape}"
+        h, w = x.shape[:2]
+        need = SSIM_MIN_SIZE if name == "ssim" else FLIP_MIN_SIZE
+        what = ("its 11-pixel Gaussian window (sigma 1.5)" if name == "ssim"
+                else f"ꟻLIP's {FLIP_MIN_SIZE}-pixel spatial filter at {FLIP_PPD:.0f} pixels per degree")
+        if min(h, w) < need:
+            return f"{name} needs at least {need}x{need} pixels ({what}); image is {h}x{w}"
+        if name == "flip":
+            if x.shape[2] != 3:
+                return f"flip needs 3 colour channels (linear RGB); image has {x.shape[2]}"
+            if np.abs(r).max() > _F32_MAX or np.abs(x).max() > _F32_MAX:
+                return "flip works in float32 and the inputs exceed its range"
+            if not np.any(_luminance(np.maximum(r, 0.0))[m] > 0):
+                return "flip's exposure range is undefined: the reference is black inside the mask"
+    if name == "psnr" and not _sel(r, m).max() > 0:
+        return "psnr needs a positive peak (max of the masked reference)"
+    return None
+
+
+# ----------------------------------------------------------------------------------- the metrics
+def _resolved_above(value, floor, factor=_RESOLVE_FACTOR) -> bool:
+    return bool(value > factor * floor)
+
+
+def _rmse(x, r, s, m, **_):
+    d = _sel(x - r, m)
+    mse = float(np.mean(d * d))
+    floor2 = float(np.mean(_sel(s, m) ** 2))
+    return MetricValue(math.sqrt(mse), math.sqrt(floor2), _resolved_above(math.sqrt(mse), math.sqrt(floor2)),
+                       math.sqrt(max(mse - floor2, 0.0)))
+
+
+def _rel_mse(x, r, s, m, **_):
+    den = _sel(r, m) ** 2 + REL_MSE_EPS
+    val = float(np.mean(_sel(x - r, m) ** 2 / den))
+    floor = float(np.mean(_sel(s, m) ** 2 / den))
+    # A squared quantity: "2x in amplitude" is 4x here (the same decision as rmse on uniform data).
+    return MetricValue(val, floor, _resolved_above(val, floor, _RESOLVE_FACTOR**2), max(val - floor, 0.0))
+
+
+def _mae(x, r, s, m, **_):
+    val = float(np.mean(np.abs(_sel(x - r, m))))
+    floor = math.sqrt(2.0 / math.pi) * float(np.mean(_sel(s, m)))
+    return MetricValue(val, floor, _resolved_above(val, floor))
+
+
+def _max_abs(x, r, s, m, seed, draws, **_):
+    val = float(np.max(np.abs(_sel(x - r, m))))
+    sm = _sel(s, m)
+    rng = _rng(seed, "max_abs")
+    floor = float(np.mean([np.max(np.abs(sm * rng.standard_normal(sm.shape))) for _ in range(draws)]))
+    return MetricValue(val, floor, _resolved_above(val, floor))
+
+
+def _psnr(x, r, s, m, **_):
+    peak = float(_sel(r, m).max())
+    mse = float(np.mean(_sel(x - r, m) ** 2))
+    floor_mse = float(np.mean(_sel(s, m) ** 2))
+
+    def db(e):
+        return math.inf if e == 0 else 10.0 * math.log10(peak * peak / e)
+
+    val, ceiling = db(mse), db(floor_mse)
+    # Same test as rmse > 2·floor: mse > 4·floor_mse ⇔ psnr < ceiling − 20·log10(2).
+    resolved = bool(mse > _RESOLVE_FACTOR**2 * floor_mse)
+    return MetricValue(val, ceiling, resolved)
+
+
+def _ssim_mean(a, b, m):
+    from skimage.metrics import structural_similarity
+
+    _, smap = structural_similarity(tone_map(a), tone_map(b), data_range=1.0, channel_axis=-1,
+                                    gaussian_weights=True, sigma=SSIM_SIGMA, use_sample_covariance=False,
+                                    full=True)
+    return float(np.mean(smap[m]))
+
+
+def _ssim(x, r, s, m, seed, draws, **_):
+    val = _ssim_mean(r, x, m)
+    rng = _rng(seed, "ssim")
+    floor = float(np.mean([_ssim_mean(r + s * rng.standard_normal(r.shape), r, m) for _ in range(draws)]))
+    return MetricValue(val, floor, _resolved_above(1.0 - val, 1.0 - floor))
+
+
+def _luminance(rgb):
+    return 0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]
+
+
+def _flip_exposures(r, m) -> dict:
+    """ꟻLIP's HDR exposure rule (ACES, t = 0.85) on the masked reference luminances."""
+    tc = (0.6 * 0.6 * 2.51, 0.6 * 0.03, 0.0, 0.6 * 0.6 * 2.43, 0.6 * 0.59, 0.14)
+    t = 0.85
+    a, b, c = tc[0] - t * tc[3], tc[1] - t * tc[4], tc[2] - t * tc[5]
+    x_max = (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
+    y = _luminance(np.maximum(r, 0.0))[m]
+    y_max = float(y.max())
+    y_med = float(np.median(y))
+    if not y_med > 0:
+        y_med = float(np.median(y[y > 0]))
+    start = math.log2(x_max / y_max)
+    stop = math.log2(x_max / y_med)
+    if not stop > start + 1e-3:
+        stop = start + 1.0
+    n = max(2, math.ceil(stop - start))
+    return {"startExposure": float(start), "stopExposure": float(stop), "numExposures": int(n)}
+
+
+def _flip_input(a, name, peak, warn):
+    a = np.asarray(a, dtype=np.float64)
+    if warn:
+        lim = -_FLIP_NEG_WARN * max(peak, np.finfo(np.float32).tiny)
+        n_neg = int(np.sum(a < lim))
+        if n_neg:
+            warnings.warn(f"flip: {n_neg} values of {name} below -1e-6·peak clipped to 0 (HDR-FLIP needs "
+                          f"non-negative radiance; min {a.min():.3g})", RuntimeWarning, stacklevel=4)
+    return np.ascontiguousarray(np.maximum(a, 0.0), dtype=np.float32)
+
+
+def _flip_call(ref32, test32, m, params) -> float:
+    import flip_evaluator
+
+    # flip_evaluator exits the process on bad arguments: check everything it checks, and more.
+    for a in (ref32, test32):
+        if not (a.dtype == np.float32 and a.ndim == 3 and a.shape[2] == 3 and a.flags.c_contiguous
+                and np.all(np.isfinite(a)) and a.min() >= 0.0):
+            raise ValueError("internal: flip input must be finite non-negative contiguous float32 (H, W, 3)")
+    if ref32.shape != test32.shape or min(ref32.shape[:2]) < FLIP_MIN_SIZE:
+        raise ValueError(f"internal: flip inputs must share a shape of at least {FLIP_MIN_SIZE} pixels")
+    if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
+        raise ValueError(f"internal: bad flip exposure parameters {params}")
+    fmap, _, _ = flip_evaluator.evaluate(ref32, test32, "HDR", applyMagma=False, computeMeanError=False,
+                                         parameters=dict(params))
+    fmap = np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
+    return float(np.mean(fmap[m]))
+
+
+def _flip(x, r, s, m, seed, draws, **_):
+    params = _flip_exposures(r, m)
+    peak = float(np.max(r[m]))
+    r32 = _flip_input(r, "reference", peak, True)
+    val = _flip_call(r32, _flip_input(x, "approx", peak, True), m, params)
+    rng = _rng(seed, "flip")
+    floors = []
+    for _ in range(draws):
+        noisy = _flip_input(r + s * rng.standard_normal(r.shape), "", peak, False)
+        floors.append(_flip_call(noisy, r32, m, params))
+    floor = float(np.mean(floors))
+    return MetricValue(val, floor, _resolved_above(val, floor))
+
+
+def _smape_value(x, r):
+    num = np.abs(x - r)
+    den = np.abs(x) + np.abs(r)
+    return float(np.mean(np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)))
+
+
+def _smape(x, r, s, m, seed, draws, **_):
+    xs, rs, ss = _sel(x, m), _sel(r, m), _sel(s, m)
+    val = _smape_value(xs, rs)
+    rng = _rng(seed, "smape")
+    floor = float(np.mean([_smape_value(rs, rs + ss * rng.standard_normal(rs.shape)) for _ in range(draws)]))
+    return MetricValue(val, floor, _resolved_above(val, floor))
+
+
+_METRICS = {"rmse": _rmse, "rel_mse": _rel_mse, "mae": _mae, "max_abs": _max_abs, "psnr": _psnr,
+            "ssim": _ssim, "flip": _flip, "smape": _smape}
+
+
+# ------------------------------------------------------------------------------------- public API
+def compute_metrics(approx, reference, stderr, mask=None, names=ALL_METRICS, seed: int = 0,
+                    floor_draws: int = 4) -> MetricResults:
+    """Compute the metrics ``names`` (default :data:`ALL_METRICS`) over the masked elements.
+
+    Returns a :class:`MetricResults` (a ``dict[str, MetricValue]`` in the order of ``names``);
+    metrics that do not apply to these inputs are left out and listed in ``.skipped`` with the
+    reason. ``seed`` and ``floor_draws`` control the Monte Carlo noise floors."""
+    x, r, s, m, is_image = _validate(approx, reference, stderr, mask)
+    if isinstance(names, str):
+        names = (names,)
+    unknown = [n for n in names if n not in _METRICS]
+    if unknown:
+        raise ValueError(f"unknown metric(s) {unknown}; known: {list(_METRICS)}")
+    if int(floor_draws) < 1:
+        raise ValueError(f"floor_draws must be >= 1, got {floor_draws}")
+    out, skipped = {}, {}
+    for name in dict.fromkeys(names):
+        reason = _skip_reason(name, x, r, m, is_image)
+        if reason is not None:
+            skipped[name] = reason
+            continue
+        out[name] = _METRICS[name](x, r, s, m, seed=seed, draws=int(floor_draws))
+    return MetricResults(out, skipped)
+
+
+def smape(approx, reference, stderr, mask=None, seed: int = 0, floor_draws: int = 4) -> MetricValue:
+    """Symmetric relative error mean |x − r| / (|x| + |r|) (0/0 counts as 0; range [0, 1]) with
+    its seeded Monte Carlo noise floor smape(r, r + σ·ε). For point sets and images alike."""
+    return compute_metrics(approx, reference, stderr, mask, names=("smape",), seed=seed,
+                           floor_draws=floor_draws)["smape"]
+
+
+def _z_parts(approx, reference, stderr, mask):
+    x, r, s, m, _ = _validate(approx, reference, stderr, mask)
+    xs, rs, ss = _sel(x, m), _sel(r, m), _sel(s, m)
+    ok = ss > 0
+    return (xs[ok] - rs[ok]) / ss[ok], int(np.sum(~ok)), int(np.sum(~ok & (xs != rs)))
+
+
+def z_scores(approx, reference, stderr, mask=None) -> np.ndarray:
+    """(x − r)/σ for the masked elements with σ > 0, as a flat float64 array (pixel-major, then
+    channel). Elements with σ == 0 are dropped; :func:`z_score_summary` counts them."""
+    return _z_parts(approx, reference, stderr, mask)[0]
+
+
+def z_score_summary(approx, reference, stderr, mask=None) -> ZScoreSummary:
+    """Summary of :func:`z_scores`, with the count of elements dropped for σ == 0."""
+    z, n0, n0_diff = _z_parts(approx, reference, stderr, mask)
+    if z.size == 0:
+        nan = float("nan")
+        return ZScoreSummary(0, n0, n0_diff, nan, nan, nan, nan)
+    return ZScoreSummary(int(z.size), n0, n0_diff, float(np.mean(z)), float(np.std(z)),
+                         float(np.max(np.abs(z))), float(np.mean(np.abs(z) > 4.0)))

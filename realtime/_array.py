@@ -1,0 +1,339 @@
+"""Array plumbing shared by the ``rtfit.realtime`` kernels: one kernel text, two array libraries.
+
+Every real-time formula in this package is written **once**, as a function of an *ops namespace*::
+
+    def _half_lambert_kernel(ops, cos_theta, irradiance):
+        t = ops.fma(clamp_cos(ops, cos_theta), 0.5, 0.5)
+        return irradiance * t * t
+
+``DRJIT_OPS`` and ``NUMPY_OPS`` expose the same function names (``sqrt``, ``select``, ``maximum``, ...),
+so the same text runs as a fused Dr.Jit kernel (LLVM or CUDA) or as NumPy code. The benchmark compares the
+two without a second hand-written copy of any formula.
+
+Dispatch rules (`evaluate`), applied to all array-like arguments of a public function together:
+
+* any Dr.Jit array argument → the Dr.Jit kernel runs on that array type (the type of the *first* Dr.Jit
+  argument; other Dr.Jit arguments are cast to it, NumPy arguments are converted to it) and the result has
+  that same type (generic: ``Float = type(x)``, e.g. ``drjit.cuda.Float64`` or ``drjit.llvm.ad.Float``);
+  nothing is evaluated: the result stays lazy;
+* else any NumPy array (0-d included) → the arguments are broadcast, converted to a Dr.Jit array of the
+  *default backend* (`set_default_backend`; float64 input → ``Float64``, float32/float16 input →
+  ``Float``), computed there and returned as a NumPy array of the broadcast shape and that dtype;
+* else (Python floats/ints, NumPy scalars) → the NumPy kernel runs in float64 and a Python ``float`` is
+  returned.
+
+NumPy scalars are turned into Python floats at this edge: a NumPy scalar times a Dr.Jit array is an ndarray,
+which the next Dr.Jit call would reject.
+
+This module imports only drjit and numpy and reads no settings at import time.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+__all__ = [
+    "ATAN_SERIES_LIMIT",
+    "DRJIT_OPS",
+    "NUMPY_OPS",
+    "atan_minus_x_series",
+    "check_range",
+    "check_scalar",
+    "clamp01",
+    "clamp_cos",
+    "evaluate",
+    "evaluate_numpy",
+    "get_default_backend",
+    "is_drjit",
+    "safe_div",
+    "safe_sqrt",
+    "set_default_backend",
+    "sin_from_cos",
+    "sincos_first_quadrant",
+    "split3",
+]
+
+# ----------------------------------------------------------------------------------------- ops namespaces
+_NP_CLIP = np.clip
+
+
+def _np_fma(a, b, c):
+    """NumPy has no fused multiply-add: a·b + c with two roundings (the float64 reference tolerates it)."""
+    return a * b + c
+
+
+DRJIT_OPS = types.SimpleNamespace(
+    name="drjit",
+    sqrt=dr.sqrt, select=dr.select, maximum=dr.maximum, minimum=dr.minimum, clip=dr.clip,
+    abs=dr.abs, fma=dr.fma, sin=dr.sin, cos=dr.cos, tan=dr.tan, acos=dr.acos, asin=dr.asin,
+    atan=dr.atan, atan2=dr.atan2, power=dr.power,
+)
+"""Dr.Jit functions (work on Python floats too); NaN propagates through maximum/minimum/clip."""
+
+NUMPY_OPS = types.SimpleNamespace(
+    name="numpy",
+    sqrt=np.sqrt, select=np.where, maximum=np.maximum, minimum=np.minimum, clip=_NP_CLIP,
+    abs=np.abs, fma=_np_fma, sin=np.sin, cos=np.cos, tan=np.tan, acos=np.arccos, asin=np.arcsin,
+    atan=np.arctan, atan2=np.arctan2, power=np.power,
+)
+"""The same names over NumPy (``select`` is ``np.where``: both branches are evaluated, so kernels must
+keep unselected branches finite — see `safe_div`)."""
+
+assert set(vars(DRJIT_OPS)) == set(vars(NUMPY_OPS))
+
+# ----------------------------------------------------------------------------------------- small helpers
+_TINY = 1e-30  # > float32's smallest normal (1.2e-38) squared-safe floor for denominators
+
+
+def safe_sqrt(ops, x):
+    """√max(x, 0): rounding can push a mathematically non-negative radicand (1 − y², 1 − c²) below 0."""
+    return ops.sqrt(ops.maximum(x, 0.0))
+
+
+def safe_div(ops, a, b):
+    """a / max(b, 1e-30) for b ≥ 0: keeps the branch that np.where/dr.select discards finite (no 0/0)."""
+    return a / ops.maximum(b, _TINY)
+
+
+def clamp_cos(ops, c):
+    """Clamp to [−1, 1]: a dot product of unit vectors can exceed 1 by rounding, and acos/√(1−c²) need it."""
+    return ops.clip(c, -1.0, 1.0)
+
+
+def clamp01(ops, x):
+    """Clamp to [0, 1] (saturate)."""
+    return ops.clip(x, 0.0, 1.0)
+
+
+def sin_from_cos(ops, c):
+    """sin θ = √((1 − c)(1 + c)) for θ ∈ [0, π]: the factored form keeps relative accuracy near c = ±1."""
+    return safe_sqrt(ops, (1.0 - c) * (1.0 + c))
+
+
+ATAN_SERIES_LIMIT = 0.3
+"""|u| below which kernels may use `atan_minus_x_series` (see there for the truncation error)."""
+
+_ATAN_TERMS = 12
+_ATAN_COEFFS = tuple((-1.0) ** k / (2 * k + 1) for k in range(1, _ATAN_TERMS + 1))  # −1/3, 1/5, …, 1/25
+
+
+def atan_minus_x_series(ops, u):
+    """atan(u) − u without cancellation for |u| ≤ 0.3: Σ_{k=1..12} (−1)^k u^(2k+1)/(2k+1) (Horner in u²).
+
+    Alternating series: the truncation error is ≤ |u|²⁷/27, i.e. ≤ 3·u²⁴/27 ≈ 3e-14 relative to the result
+    at |u| = 0.3 and ≤ 1e-17 at |u| = 0.125. The caller must select another form for larger |u|
+    (and should pass a clamped u so that the discarded branch stays finite).
+    """
+    u2 = u * u
+    acc = _ATAN_COEFFS[-1]
+    for coef in reversed(_ATAN_COEFFS[:-1]):
+        acc = ops.fma(acc, u2, coef)
+    return u * u2 * acc
+
+
+_SIN_COEFFS = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(11))  # 1, −1/3!, …, 1/21!
+_COS_COEFFS = tuple((-1.0) ** k / math.factorial(2 * k) for k in range(12))      # 1, −1/2!, …, −1/22!
+
+
+def sincos_first_quadrant(ops, a):
+    """(sin a, cos a) for a ∈ [0, π/2] from Taylor polynomials in a² (Horner, fma), not the backend's sin/cos.
+
+    Why: on Dr.Jit-CUDA, float32 ``dr.sin``/``dr.cos`` run on the GPU's approximate multi-function unit
+    (absolute error ~1e-6), a 1 % relative error of sin α at α = 1e-4. The polynomials give relative accuracy
+    at every a, on every backend. Truncation ≤ (π/2)²³/23! ≈ 1e-18 (sin), ≤ (π/2)²⁴/24! ≈ 1e-19 (cos).
+    Outside [0, π/2] the result is wrong: callers clamp first.
+    """
+    a2 = a * a
+    s = _SIN_COEFFS[-1]
+    for coef in reversed(_SIN_COEFFS[:-1]):
+        s = ops.fma(s, a2, coef)
+    c = _COS_COEFFS[-1]
+    for coef in reversed(_COS_COEFFS[:-1]):
+        c = ops.fma(c, a2, coef)
+    return a * s, c
+
+
+# ----------------------------------------------------------------------------------------- validation
+def check_scalar(name: str, value: float, lo: float, hi: float, lo_open: bool = False,
+                 interval: str | None = None) -> float:
+    """Return ``float(value)``; raise a one-line ValueError if it is NaN or outside [lo, hi] ((lo, hi]
+    with ``lo_open``). ``interval`` is the text shown for the valid interval (defaults to the numbers)."""
+    v = float(value)
+    ok = (v > lo if lo_open else v >= lo) and v <= hi  # False for NaN
+    if not ok:
+        raise ValueError(f"{name} must be in {_interval_text(lo, hi, lo_open, interval)} (got {v!r})")
+    return v
+
+
+def check_range(name: str, value: Any, lo: float, hi: float, lo_open: bool = False,
+                interval: str | None = None) -> Any:
+    """Validate a parameter that may be a scalar or an array; return it with NumPy scalars made floats.
+
+    * Python/NumPy scalars: `check_scalar`.
+    * NumPy arrays: one min and one max pass (NaN fails both comparisons), one-line ValueError.
+    * Dr.Jit arrays: **not checked** (that would force evaluation and a host sync); kernels clamp into the
+      domain instead, as each public function documents.
+    """
+    if is_drjit(value):
+        return value
+    if isinstance(value, np.ndarray):
+        if value.size == 0:
+            return value
+        if not np.issubdtype(value.dtype, np.number) or np.iscomplexobj(value):
+            raise ValueError(f"{name} must be a real array (got dtype {value.dtype})")
+        vmin, vmax = value.min(), value.max()
+        ok = (vmin > lo if lo_open else vmin >= lo) and vmax <= hi  # NaN → min/max NaN → False
+        if not ok:
+            bad = vmin if not (vmin > lo if lo_open else vmin >= lo) else vmax
+            raise ValueError(f"{name} must be in {_interval_text(lo, hi, lo_open, interval)} "
+                             f"(got {float(bad)!r})")
+        return value
+    return check_scalar(name, value, lo, hi, lo_open, interval)
+
+
+def _interval_text(lo, hi, lo_open, interval):
+    if interval is not None:
+        return interval
+    return f"{'(' if lo_open else '['}{_num(lo)}, {_num(hi)}]"
+
+
+def _num(x: float) -> str:
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return f"{x:g}"
+
+
+# ----------------------------------------------------------------------------------------- backends
+_BACKENDS = ("llvm", "cuda")
+_default_backend = "llvm"
+
+
+def set_default_backend(backend: str) -> None:
+    """Backend ("llvm" or "cuda") on which NumPy inputs are evaluated. Default "llvm"."""
+    global _default_backend
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend must be one of {_BACKENDS} (got {backend!r})")
+    _default_backend = backend
+
+
+def get_default_backend() -> str:
+    """The backend set by `set_default_backend` ("llvm" unless changed)."""
+    return _default_backend
+
+
+def _backend_float(dtype) -> type:
+    mod = dr.cuda if _default_backend == "cuda" else dr.llvm
+    return mod.Float64 if np.dtype(dtype) == np.float64 else mod.Float
+
+
+# ----------------------------------------------------------------------------------------- dispatch
+def is_drjit(x: Any) -> bool:
+    """True for a Dr.Jit array (any backend, scalar-valued or nested)."""
+    return dr.is_array_v(x)
+
+
+def _as_float_scalar(x: Any) -> float:
+    if isinstance(x, (bool, np.bool_)):
+        raise TypeError(f"expected a real number (got {x!r})")
+    return float(x)
+
+
+def _is_numpy_array(x: Any) -> bool:
+    return isinstance(x, np.ndarray)
+
+
+def _numpy_dtype(args: Sequence[Any]) -> np.dtype:
+    """float64 if any NumPy array is float64 (or integer); float32 if all arrays are float32/float16."""
+    dts = [a.dtype for a in args if _is_numpy_array(a)]
+    for d in dts:
+        if not (np.issubdtype(d, np.floating) and np.dtype(d).itemsize <= 4):
+            return np.dtype(np.float64)
+    return np.dtype(np.float32)
+
+
+def evaluate(kernel: Callable, *args: Any) -> Any:
+    """Run ``kernel(ops, *args)`` following the dispatch rules of this module (see module docstring).
+
+    ``kernel`` may return one array or a tuple of arrays; the result has the same structure.
+    """
+    dr_args = [a for a in args if is_drjit(a)]
+    if dr_args:
+        Float = type(dr_args[0])
+        conv = []
+        for a in args:
+            if is_drjit(a):
+                conv.append(a if type(a) is Float else Float(a))
+            elif _is_numpy_array(a):  # size 1 broadcasts; kept an array (a literal would recompile per value)
+                conv.append(Float(np.ascontiguousarray(a.reshape(-1))))
+            else:
+                conv.append(_as_float_scalar(a))
+        return kernel(DRJIT_OPS, *conv)
+
+    np_args = [a for a in args if _is_numpy_array(a)]
+    if not np_args:
+        with np.errstate(all="ignore"):
+            out = kernel(NUMPY_OPS, *[_as_float_scalar(a) for a in args])
+        return tuple(float(o) for o in out) if isinstance(out, tuple) else float(out)
+
+    shape = np.broadcast_shapes(*[a.shape for a in np_args])
+    dtype = _numpy_dtype(np_args)
+    size = math.prod(shape)
+    if size == 0:
+        out = kernel(NUMPY_OPS, *[np.zeros(shape, dtype) if _is_numpy_array(a) else _as_float_scalar(a)
+                                  for a in args])
+        if isinstance(out, tuple):
+            return tuple(np.zeros(shape, dtype) for _ in out)
+        return np.zeros(shape, dtype)
+    Float = _backend_float(dtype)
+    conv = []
+    for a in args:
+        if not _is_numpy_array(a):
+            conv.append(_as_float_scalar(a))
+        else:  # size-1 arrays stay size-1 Dr.Jit arrays (broadcast by Dr.Jit, no per-value recompilation)
+            same = a.shape == shape or a.size == 1
+            flat = a.reshape(-1) if same else np.broadcast_to(a, shape).reshape(-1)
+            conv.append(Float(np.ascontiguousarray(flat, dtype=dtype)))
+    out = kernel(DRJIT_OPS, *conv)
+
+    def back(o):  # an owned NumPy copy (never a view of Dr.Jit memory); size-1 results are broadcast
+        arr = np.array(o, dtype=dtype).reshape(-1)
+        if arr.size != size:
+            arr = np.full(size, arr[0], dtype)
+        return arr.reshape(shape)
+
+    return tuple(back(o) for o in out) if isinstance(out, tuple) else back(out)
+
+
+def evaluate_numpy(kernel: Callable, *args: Any) -> Any:
+    """Run the NumPy text of ``kernel`` directly on NumPy arrays/floats (no Dr.Jit, no validation).
+
+    NumPy scalars become Python floats; arrays are used as given (their dtype decides the precision).
+    For benchmarks and references, not hot paths.
+    """
+    conv = [a if _is_numpy_array(a) else _as_float_scalar(a) for a in args]
+    return kernel(NUMPY_OPS, *conv)
+
+
+def split3(v: Any, name: str) -> tuple:
+    """Split a 3-vector argument into components (x, y, z).
+
+    Accepts a Dr.Jit Array3f-like (components are its ``.x/.y/.z`` Float arrays, or floats for a scalar
+    Array3f), a NumPy array of shape (..., 3) (components are views of shape (...)), or a length-3
+    sequence of floats.
+    """
+    if is_drjit(v):
+        if dr.depth_v(v) >= 2 or (dr.size_v(v) == 3 and not dr.is_dynamic_v(v)):
+            return v[0], v[1], v[2]
+        raise ValueError(f"{name} must be a 3-vector (Dr.Jit Array3f-like), got {type(v).__name__}")
+    a = np.asarray(v) if not _is_numpy_array(v) else v
+    if a.ndim == 0 or a.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (..., 3) (got shape {a.shape})")
+    if a.ndim == 1 and not _is_numpy_array(v):
+        return tuple(_as_float_scalar(c) for c in a)
+    return a[..., 0], a[..., 1], a[..., 2]

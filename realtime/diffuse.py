@@ -1,0 +1,354 @@
+r"""Diffuse lighting from one light: Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance.
+
+Conventions and units
+---------------------
+* ``cos_theta`` = n·l, with n the unit surface normal and l the unit direction from the shaded point TO the
+  light (its centre, for a sphere light). Values are clamped to [−1, 1] (rounding of dot products).
+* ``irradiance`` (W/m²) is the irradiance the light delivers at normal incidence, E⊥; the cosine-law models
+  return irradiance in W/m² on the surface. Outgoing radiance of a Lambertian surface of albedo ρ is E·ρ/π.
+* ``radiance`` (W/m²/sr) is the uniform radiance of a spherical light; ``alpha`` (radians) its angular
+  radius seen from the point, α = asin(r/d) for a sphere of radius r at distance d.
+
+Formulas
+--------
+* Lambert:        E = E⊥ · max(cos θ, 0)
+* Half-Lambert:   E = E⊥ · (½ cos θ + ½)²                 (Valve, "Shading in Valve's Source Engine",
+  SIGGRAPH 2006 course "Advanced Real-Time Rendering in 3D Graphics and Games", §7.4.4 "Half Lambert
+  Diffuse"; seed file ``000_540fc7eee6870c4d.txt`` lines 2520–2534). Non-physical: not zero below the
+  horizon, E⊥/4 at θ = 90°.
+* Wrap lighting:  E = E⊥ · max((cos θ + w)/(1 + w), 0)^p,  w ∈ [0, 1], p ∈ (0, 8].
+  (w, p) = (0, 1) is Lambert, (1, 2) is half-Lambert, (1, 1) is the exact irradiance of a uniform
+  hemisphere light (see below).
+* Exact irradiance of a uniform sphere light of radiance L and angular radius α ∈ [0, π/2], including the
+  horizon-clipped case (Snyder 1996, "Area light sources for real-time graphics", MSR-TR-96-11; also
+  Lagarde & de Rousiers 2014, "Moving Frostbite to Physically Based Rendering", §4.7 "Area lights",
+  illuminance of a sphere light with the horizon):
+
+  - cos θ ≥ sin α (whole cap above the horizon):   E = π sin²α cos θ · L
+  - cos θ ≤ −sin α (whole cap below):               E = 0
+  - otherwise, with y = −cos α cos θ / (sin α sin θ) ∈ [−1, 1] and s = √(1 − y²):
+
+        E/L = sin²α cos θ acos(y) − cos α sin α sin θ s + atan2(sin α sin θ s, cos α)
+
+    The last two terms cancel to O(α²) for small α (in float32 the textbook form loses ~3 digits for the sun,
+    α = 0.27°), so the kernel evaluates, with g = sin α sin θ s and
+    u = g / cos α = tan α sin θ s ∈ [0, tan α],
+
+        E/L = sin²α (cos θ acos(y) + u) + (atan(u) − u)         for u < 0.3; atan(u) − u from its alternating
+                                                                  Taylor series to u²⁵ (truncation ≤ u²⁷/27,
+                                                                  ≤ 3e-14 relative to atan(u) − u)
+        E/L = sin²α cos θ acos(y) + (atan2(g, cos α) − g cos α)  for u ≥ 0.3 (then α ≥ 16.7°: the
+                                                                  cancellation is mild; finite at α = π/2)
+
+  Measured against mpmath quadrature of ∫_cap max(n·ω, 0) dω (tests/test_diffuse.py, docs/diffuse.md):
+  |error| ≤ 1e-15 · π sin²α L in float64 and ≤ 7.3e-7 · π sin²α L in Dr.Jit float32 (LLVM: 6.3e-7, its
+  float32 atan2 is ≤ 12 ulp; CUDA/H100: 7.3e-7); for small lights the float32 error inside the horizon
+  band is ≤ 2.2e-7 · π sin³α L. sin α and cos α come from the kernel's own polynomials
+  (`sincos_first_quadrant`): Dr.Jit-CUDA's float32 dr.sin/dr.cos are approximate (MUFU unit, ~1e-6
+  absolute), which gave 4e-3 · π sin²α L errors for small α before.
+  Exact by construction: α = 0 → E = 0 (no NaN); α = π/2 (hemisphere light) → E/L = π (1 + cos θ)/2, i.e.
+  wrap lighting with w = 1, p = 1; cos θ = ±1 → π sin²α L or 0.
+
+Domain and validation
+---------------------
+Public functions accept Python floats (→ float), NumPy arrays (→ evaluated on the default Dr.Jit backend,
+returned as NumPy of the broadcast shape; float64 in → float64 computation) or Dr.Jit arrays (→ the same
+Dr.Jit type, lazily; see `rtfit.realtime._array`). Parameters are validated at the entry point:
+
+* Python/NumPy scalars and NumPy arrays outside the domain (NaN included) raise a one-line ValueError naming
+  the valid interval (one min/max pass over NumPy arrays). ``cos_theta`` may exceed [−1, 1] by 1e-4
+  (rounding) and is then clamped; NaN entries of a ``cos_theta`` *array* propagate to the output.
+* Dr.Jit arrays are never checked (no host sync in hot paths): the kernels clamp cos θ to [−1, 1],
+  α to [0, π/2], w to [0, 1] and p to [1e-30, 8]; scale factors (irradiance, radiance) are applied as given;
+  NaN inputs give NaN outputs.
+* Dr.Jit flushes subnormal floats to zero (|x| < 2.2e-308 in float64, 1.2e-38 in float32), so tiny
+  inputs and results may differ from NumPy's below those magnitudes.
+
+Performance notes: Python-float parameters are compiled into the Dr.Jit kernel as constants (one kernel
+compile, ~15 ms on LLVM, per new value; cached afterwards). When sweeping a parameter, pass it as an array
+or as ``dr.opaque(Float, value)`` to reuse one kernel.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ._array import (
+    ATAN_SERIES_LIMIT,
+    atan_minus_x_series,
+    check_range,
+    clamp_cos,
+    evaluate,
+    evaluate_numpy,
+    is_drjit,
+    safe_div,
+    safe_sqrt,
+    sin_from_cos,
+    sincos_first_quadrant,
+    split3,
+)
+
+__all__ = [
+    "DIFFUSE_MODELS",
+    "DiffuseModel",
+    "ParamSpec",
+    "ambient_term",
+    "half_lambert",
+    "lambert",
+    "numpy_kernel",
+    "numpy_reference",
+    "sphere_light_geometry",
+    "sphere_light_irradiance",
+    "sphere_light_peak_irradiance",
+    "wrap",
+]
+
+HALF_PI = 0.5 * math.pi
+_ALPHA_MAX = 1.5707963705062866  # float32(π/2) > π/2: accept it (it rounds to π/2), the kernel clamps
+_COS_SLACK = 1e-4                # |cos θ| up to 1 + 1e-4 is accepted as rounding and clamped
+_FMAX = sys.float_info.max       # "finite" upper bound for scale factors
+_P_MIN = 1e-30                   # Dr.Jit-path clamp for the wrap exponent (p must be > 0)
+
+
+# ===================================================================================== kernels (ops text)
+def _lambert_kernel(ops, cos_theta, irradiance):
+    """E⊥ · max(cos θ, 0); cos θ clamped to 1 from above (rounding)."""
+    return irradiance * ops.clip(cos_theta, 0.0, 1.0)
+
+
+def _half_lambert_kernel(ops, cos_theta, irradiance):
+    """E⊥ · (½ cos θ + ½)² (Valve 2006)."""
+    t = ops.fma(clamp_cos(ops, cos_theta), 0.5, 0.5)
+    return irradiance * (t * t)
+
+
+def _wrap_kernel(ops, cos_theta, w, p, irradiance):
+    """E⊥ · max((cos θ + w)/(1 + w), 0)^p, with w clamped to [0, 1] and p to [1e-30, 8]."""
+    c = clamp_cos(ops, cos_theta)
+    w = ops.clip(w, 0.0, 1.0)
+    p = ops.clip(p, _P_MIN, 8.0)
+    base = ops.maximum((c + w) / (1.0 + w), 0.0)
+    return irradiance * ops.power(base, p)
+
+
+def _sphere_light_kernel(ops, cos_theta, alpha, radiance):
+    """Exact irradiance from a uniform sphere light (cap of half-angle α), horizon clipping included."""
+    c = clamp_cos(ops, cos_theta)
+    a = ops.clip(alpha, 0.0, HALF_PI)
+    sin_a, cos_a = sincos_first_quadrant(ops, a)  # not ops.sin/cos: CUDA float32 sin/cos are approximate
+    cos_a = ops.maximum(cos_a, 0.0)  # float32(π/2) exceeds π/2: its cosine would be −4.4e-8
+    sin2_a = sin_a * sin_a
+    sin_t = sin_from_cos(ops, c)
+
+    above = math.pi * sin2_a * c  # whole cap above the horizon
+
+    # Horizon-clipped cap. Denominators are guarded so that the branch not selected stays finite.
+    y = clamp_cos(ops, safe_div(ops, -cos_a * c, sin_a * sin_t))
+    s = safe_sqrt(ops, (1.0 - y) * (1.0 + y))
+    g = sin_a * sin_t * s                      # sin α sin θ √(1 − y²)
+    u = safe_div(ops, g, cos_a)                # tan α sin θ √(1 − y²) ≥ 0
+    c_acos = c * ops.acos(y)
+    small = sin2_a * (c_acos + u) + atan_minus_x_series(ops, ops.minimum(u, ATAN_SERIES_LIMIT))
+    large = sin2_a * c_acos + (ops.atan2(g, cos_a) - g * cos_a)
+    partial = ops.select(u < ATAN_SERIES_LIMIT, small, large)
+    partial = ops.clip(partial, 0.0, math.pi * sin2_a)  # rounding only: 0 ≤ E ≤ E⊥ holds exactly
+
+    e = ops.select(c >= sin_a, above, ops.select(c <= -sin_a, 0.0, partial))
+    return radiance * e
+
+
+def _peak_kernel(ops, alpha, radiance):
+    """π sin²α L: irradiance at normal incidence (whole cap above the horizon)."""
+    sin_a, _ = sincos_first_quadrant(ops, ops.clip(alpha, 0.0, HALF_PI))
+    return (math.pi * radiance) * (sin_a * sin_a)
+
+
+def _ambient_kernel(ops, sky_radiance):
+    """π L_sky: unoccluded upper hemisphere of a constant sky."""
+    return math.pi * sky_radiance
+
+
+def _geometry_kernel(ops, px, py, pz, nx, ny, nz, cx, cy, cz, radius):
+    """(cos θ, α) at points p with normals n for a sphere light of centre c, radius r.
+
+    cos θ = n·(c − p)/(|n| |c − p|) (n need not be unit length; zero n or p = c give 0);
+    α = atan2(r, √(d² − r²)) = asin(min(r/d, 1)) without asin's precision loss near π/2 (π/2 inside)."""
+    dx, dy, dz = cx - px, cy - py, cz - pz
+    d2 = dx * dx + dy * dy + dz * dz
+    n2 = nx * nx + ny * ny + nz * nz
+    dn = dx * nx + dy * ny + dz * nz
+    cos_t = clamp_cos(ops, safe_div(ops, dn, ops.sqrt(d2 * n2)))
+    d = ops.sqrt(d2)
+    alpha = ops.atan2(radius, safe_sqrt(ops, (d - radius) * (d + radius)))
+    return cos_t, alpha
+
+
+# ===================================================================================== validation helpers
+def _cos(cos_theta):
+    """Range-check cos θ (scalars and NumPy arrays, ±1e-4 slack for rounding); NaN entries of an array
+    propagate to the output instead of raising (a NaN scalar raises)."""
+    if isinstance(cos_theta, np.ndarray) and cos_theta.size and np.issubdtype(cos_theta.dtype, np.floating):
+        lo, hi = cos_theta.min(), cos_theta.max()
+        if np.isnan(lo) or np.isnan(hi):
+            finite = cos_theta[~np.isnan(cos_theta)]
+            if finite.size:
+                check_range("cos_theta", finite, -1.0 - _COS_SLACK, 1.0 + _COS_SLACK, interval="[-1, 1]")
+            return cos_theta
+    return check_range("cos_theta", cos_theta, -1.0 - _COS_SLACK, 1.0 + _COS_SLACK, interval="[-1, 1]")
+
+
+def _scale(name, value):
+    return check_range(name, value, 0.0, _FMAX, interval="[0, inf)")
+
+
+def _alpha(alpha):
+    return check_range("alpha", alpha, 0.0, _ALPHA_MAX, interval="[0, pi/2]")
+
+
+# ===================================================================================== public API
+def lambert(cos_theta, irradiance=1.0):
+    """Lambert: ``irradiance · max(cos θ, 0)`` (W/m²). See the module docstring for input types."""
+    return evaluate(_lambert_kernel, _cos(cos_theta), _scale("irradiance", irradiance))
+
+
+def half_lambert(cos_theta, irradiance=1.0):
+    """Valve's half-Lambert: ``irradiance · (½ cos θ + ½)²`` (W/m²)."""
+    return evaluate(_half_lambert_kernel, _cos(cos_theta), _scale("irradiance", irradiance))
+
+
+def wrap(cos_theta, w, p, irradiance=1.0):
+    """Wrap lighting: ``irradiance · max((cos θ + w)/(1 + w), 0)^p`` with w ∈ [0, 1], p ∈ (0, 8].
+
+    (0, 1) is Lambert, (1, 2) half-Lambert, (1, 1) the exact hemisphere-light irradiance."""
+    w = check_range("w", w, 0.0, 1.0)
+    p = check_range("p", p, 0.0, 8.0, lo_open=True)
+    return evaluate(_wrap_kernel, _cos(cos_theta), w, p, _scale("irradiance", irradiance))
+
+
+def sphere_light_irradiance(cos_theta, alpha, radiance=1.0):
+    """Exact irradiance (W/m²) from a uniform sphere light of angular radius ``alpha`` ∈ [0, π/2] (rad) and
+    ``radiance`` (W/m²/sr) whose centre is at angle θ from the normal, horizon clipping included."""
+    return evaluate(_sphere_light_kernel, _cos(cos_theta), _alpha(alpha), _scale("radiance", radiance))
+
+
+def sphere_light_peak_irradiance(alpha, radiance=1.0):
+    """π sin²α · L: the sphere light's irradiance at normal incidence, E⊥ (W/m²)."""
+    return evaluate(_peak_kernel, _alpha(alpha), _scale("radiance", radiance))
+
+
+def ambient_term(sky_radiance):
+    """π · L_sky (W/m²): irradiance from a constant sky over the whole upper hemisphere (unoccluded; exact
+    for any point of a convex object)."""
+    return evaluate(_ambient_kernel, _scale("sky_radiance", sky_radiance))
+
+
+def sphere_light_geometry(position, normal, light_center, light_radius):
+    """Per-point ``(cos_theta, alpha)`` for a sphere light (centre ``light_center``, radius ``light_radius``).
+
+    ``position``/``normal``: Dr.Jit Array3f-like (→ Float of the same precision), NumPy arrays of shape
+    (..., 3) (→ NumPy arrays of shape (...)) or 3-sequences (→ floats). ``light_center``: 3-sequence,
+    NumPy (3,) or Dr.Jit Array3f-like; ``light_radius`` ≥ 0 (float or array).
+    cos θ = n·normalize(c − p) / |n| (normals need not be unit length; a zero normal gives 0) and
+    α = asin(min(r/|c − p|, 1)) (computed as atan2(r, √(d² − r²)); points inside the light get π/2).
+    """
+    if not is_drjit(light_center):
+        cen = np.asarray(light_center, dtype=np.float64)
+        if cen.shape != (3,) or not np.all(np.isfinite(cen)):
+            raise ValueError(f"light_center must be 3 finite numbers (got {light_center!r})")
+        light_center = tuple(float(v) for v in cen)
+    radius = _scale("light_radius", light_radius)
+    return evaluate(_geometry_kernel, *split3(position, "position"), *split3(normal, "normal"),
+                    *split3(light_center, "light_center"), radius)
+
+
+# ===================================================================================== NumPy reference
+_KERNELS: dict[str, Callable] = {
+    "lambert": _lambert_kernel,
+    "half_lambert": _half_lambert_kernel,
+    "wrap": _wrap_kernel,
+    "sphere_light_irradiance": _sphere_light_kernel,
+    "sphere_light_peak_irradiance": _peak_kernel,
+    "ambient_term": _ambient_kernel,
+}
+_ALIASES = {"half-lambert": "half_lambert", "exact": "sphere_light_irradiance"}
+
+
+def numpy_reference(name: str) -> Callable:
+    """The NumPy path of the SAME kernel text as the public function ``name``, with its signature.
+
+    ``name``: a public function name ("lambert", "half_lambert", "wrap", "sphere_light_irradiance",
+    "sphere_light_peak_irradiance", "ambient_term") or a `DIFFUSE_MODELS` id ("half-lambert", "exact").
+    The callable takes NumPy arrays/floats, runs in their dtype (float64 for Python floats), does no
+    validation and never touches Dr.Jit: for benchmarks (Dr.Jit vs NumPy of one formula) and references.
+    """
+    key = _ALIASES.get(name, name)
+    if key not in _KERNELS:
+        raise ValueError(f"unknown kernel {name!r}; known: {sorted(_KERNELS) + sorted(_ALIASES)}")
+    kernel = _KERNELS[key]
+
+    def run(*args):
+        return evaluate_numpy(kernel, *args)
+
+    run.__name__ = f"numpy_{key}"
+    run.__doc__ = f"NumPy evaluation of the kernel of `{key}` (same text as the Dr.Jit path)."
+    return run
+
+
+numpy_kernel = numpy_reference  # alias used by the experiment code
+
+
+# ===================================================================================== model registry
+@dataclass(frozen=True)
+class ParamSpec:
+    """A model parameter: name, closed bounds [lo, hi] used for fitting, default value."""
+
+    name: str
+    lo: float
+    hi: float
+    default: float
+
+
+@dataclass(frozen=True)
+class DiffuseModel:
+    """One diffuse-lighting model of the ``half-lambert`` experiment.
+
+    ``fn`` is the public function; ``inputs`` names its per-pixel inputs in call order before the
+    ``params`` (all keyword-compatible), ``scale`` the name of its last argument (irradiance E⊥ in W/m² or
+    the light's radiance in W/m²/sr)."""
+
+    id: str
+    label: str
+    fn: Callable[..., Any]
+    inputs: tuple[str, ...]
+    params: tuple[ParamSpec, ...] = field(default_factory=tuple)
+    scale: str = "irradiance"
+    description: str = ""
+
+    def defaults(self) -> dict[str, float]:
+        return {p.name: p.default for p in self.params}
+
+    def bounds(self) -> dict[str, tuple[float, float]]:
+        return {p.name: (p.lo, p.hi) for p in self.params}
+
+
+DIFFUSE_MODELS: dict[str, DiffuseModel] = {
+    "lambert": DiffuseModel(
+        "lambert", "Lambert", lambert, ("cos_theta",),
+        description="E⊥·max(cos θ, 0): exact for a point/directional light, ignores the light's size."),
+    "half-lambert": DiffuseModel(
+        "half-lambert", "Half-Lambert (Valve)", half_lambert, ("cos_theta",),
+        description="E⊥·(½cos θ + ½)²: Valve's non-physical softening; E⊥/4 at 90°, 0 only at 180°."),
+    "wrap": DiffuseModel(
+        "wrap", "Wrap lighting", wrap, ("cos_theta",),
+        (ParamSpec("w", 0.0, 1.0, 0.5), ParamSpec("p", 0.25, 8.0, 1.5)),
+        description="E⊥·max((cos θ + w)/(1 + w), 0)^p: w=0,p=1 is Lambert, w=1,p=2 half-Lambert."),
+    "exact": DiffuseModel(
+        "exact", "Exact sphere light", sphere_light_irradiance, ("cos_theta", "alpha"), scale="radiance",
+        description="Closed-form irradiance of a uniform sphere light incl. horizon clipping (Snyder 1996)."),
+}
