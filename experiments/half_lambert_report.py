@@ -287,12 +287,15 @@ def _robust_spread(z: np.ndarray) -> float:
 
 
 def _z_pair(approx, mean, stderr, sigma) -> tuple[np.ndarray, np.ndarray]:
-    """(z of elements with a statistical error, z of every element with σ > 0).
+    """(z of elements whose statistical error exceeds the precision floor, z of every element with σ > 0).
 
-    Elements whose sample variance is zero (deterministic: e.g. lit by the constant sky alone) carry
-    no statistics; they enter only the tail check, through the precision floor in σ."""
+    Elements whose standard error is below float32 resolution (e.g. lit by the constant sky alone:
+    zero variance on the CPU, 1-ulp variance on CUDA) carry no statistics; they enter only the tail
+    check, through the precision floor in σ."""
+    from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
+
     d = np.asarray(approx, np.float64) - np.asarray(mean, np.float64)
-    stat = stderr > 0
+    stat = stderr > RELATIVE_PRECISION_FLOOR * np.abs(mean)
     ok = sigma > 0
     return d[stat] / sigma[stat], d[ok] / sigma[ok]
 
