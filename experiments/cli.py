@@ -61,16 +61,9 @@ def list_cmd():
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
 def run_cmd(experiments, quick, variant, spp, out, cache, executor, workers, seed, no_progress):
     """Run EXPERIMENT... (or 'all') and write OUT/EXPERIMENT/{results.json,report.html,...}."""
-    try:
-        specs = resolve_names(experiments)
-    except ValueError as e:
-        _fail(str(e))
-    from rtfit.reference import default_cache_dir, resolve_variant
+    specs, variant = _validated(experiments, variant)  # before anything is written
+    from rtfit.reference import default_cache_dir
 
-    try:
-        variant = resolve_variant(variant)
-    except ValueError as e:
-        _fail(str(e))
     from .runner import run_experiments
 
     run_experiments(specs, out, quick=quick, variant=variant, spp=spp, seed=seed,
@@ -108,22 +101,21 @@ def report_cmd(directory):
 @click.option("--quick", is_flag=True, help="Fewer, smaller measurements.")
 def bench_cmd(experiment, variant, size, quick):
     """Throughput of each approximation (Dr.Jit vs NumPy, same run) and of the ground truth."""
-    try:
-        (spec,) = resolve_names([experiment])
-    except ValueError as e:
-        _fail(str(e))
-    from rtfit.reference import resolve_variant
-
-    try:
-        variant = resolve_variant(variant)
-    except ValueError as e:
-        _fail(str(e))
+    (spec,), variant = _validated([experiment], variant)
     module = spec.load()
     rows = module.bench(BenchContext(variant=variant, size=size, quick=quick))
     from .runner import device_description
 
     click.echo(f"# rtfit bench {spec.name} — {device_description(variant)}")
     _print_table(rows)
+
+
+def _validated(names, variant: str):
+    """Experiment specs and the resolved variant; a bad name or variant is a ValueError, which
+    `main` prints as one line with exit status 2."""
+    from rtfit.reference import resolve_variant
+
+    return resolve_names(names), resolve_variant(variant)
 
 
 def _print_table(rows: list[dict]):

@@ -24,6 +24,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Any
 
+from rtfit.reference.progress import progress_bar
+
 EXECUTORS = ("inline", "process")
 
 
@@ -60,7 +62,7 @@ class InlineExecutor:
         self.progress = progress
 
     def map(self, jobs: list[Job], desc: str = "jobs") -> list:
-        bar = _bar(len(jobs), desc, self.progress)
+        bar = progress_bar(len(jobs), desc, self.progress, unit="job")
         out = []
         for job in jobs:
             out.append(job.run())
@@ -85,7 +87,7 @@ class ProcessExecutor:
                                          initializer=_worker_init, initargs=(threads,))
 
     def map(self, jobs: list[Job], desc: str = "jobs") -> list:
-        bar = _bar(len(jobs), desc, self.progress)
+        bar = progress_bar(len(jobs), desc, self.progress, unit="job")
         futures = {self._pool.submit(_run_job, job): i for i, job in enumerate(jobs)}
         out: list = [None] * len(jobs)
         try:
@@ -106,19 +108,3 @@ def make_executor(name: str = "inline", workers: int | None = None, progress: bo
     if name == "process":
         return ProcessExecutor(workers, progress)
     raise ValueError(f"unknown executor {name!r} (expected one of: {', '.join(EXECUTORS)})")
-
-
-class _NoBar:
-    def update(self, n):
-        pass
-
-    def close(self):
-        pass
-
-
-def _bar(total: int, desc: str, enabled: bool):
-    if not enabled or total == 0:
-        return _NoBar()
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=desc, unit="job", leave=False)

@@ -38,6 +38,7 @@ from rtfit.scenes import Scene, scene_hash, scene_to_dict
 from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
 from .integrators import choose_integrator
 from .io import atomic_write_json, read_exr, rgb_group, write_exr
+from .progress import progress_bar
 
 CACHE_FORMAT = 1
 DEFAULT_PASS_SPP = 256
@@ -229,7 +230,7 @@ class ReferenceCache:
         if missing:
             atomic_write_json(folder / "entry.json", self._entry_info(request, key))
             mi, mi_scene = load_mitsuba_scene(request.scene, request.variant)
-            bar = _progress(len(missing), label or f"reference {key[:8]}", progress)
+            bar = progress_bar(len(missing), label or f"reference {key[:8]}", progress, unit="pass")
             for i in missing:
                 pass_spp = min(request.pass_spp, request.spp - i * request.pass_spp)
                 pass_spp = max(pass_spp, 2)
@@ -268,19 +269,3 @@ class ReferenceCache:
 
 def _as_stored(a: np.ndarray) -> np.ndarray:
     return a.astype(np.float32).astype(np.float64)
-
-
-class _NoBar:
-    def update(self, n):
-        pass
-
-    def close(self):
-        pass
-
-
-def _progress(total: int, label: str, enabled: bool):
-    if not enabled:
-        return _NoBar()
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=label, unit="pass", leave=False)
