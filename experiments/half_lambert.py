@@ -122,16 +122,18 @@ def fit_wrap_job(cos_theta, target, peak) -> dict:
 
 
 # ----------------------------------------------------------------------------------- the experiment
-def _light_geometry(gb, scene):
-    """Per-pixel cos θ = n·l, α and E⊥ from the G-buffer (a distant light: α and E⊥ are constant)."""
-    sun = scene.lights[0]
-    mask = gb.mask & ~gb.emitter
-    nrm = gb.normal[mask].astype(np.float64)
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+def sun_geometry(normals, sun):
+    """cos θ = n·l, α and E⊥ per normal (N, 3) for a distant light (α and E⊥ are the same everywhere)."""
+    nrm = np.asarray(normals, dtype=np.float64)
+    nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
     cos_t = np.clip(nrm @ np.asarray(sun.direction, dtype=np.float64), -1.0, 1.0)
-    alpha = np.full_like(cos_t, math.radians(sun.angular_radius_deg))
-    peak = np.full_like(cos_t, sun.irradiance[0])
-    return mask, cos_t, alpha, peak
+    return cos_t, np.full_like(cos_t, math.radians(sun.angular_radius_deg)), np.full_like(cos_t, sun.irradiance[0])
+
+
+def _light_geometry(gb, scene):
+    """The comparison mask and per-pixel cos θ, α, E⊥ from the G-buffer."""
+    mask = gb.mask & ~gb.emitter
+    return (mask, *sun_geometry(gb.normal[mask], scene.lights[0]))
 
 
 def _model_irradiance(model: str, cos_t, alpha, peak, params: dict):

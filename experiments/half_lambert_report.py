@@ -23,6 +23,7 @@ from .half_lambert import (
     probe_points,
     smooth_p,
     smooth_w,
+    sun_geometry,
 )
 
 # Z-test of the exact closed form against the reference, judged as Mitsuba's own tests do: a robust
@@ -178,7 +179,7 @@ def bench(ctx) -> list[dict]:
     base = memory_baseline((c, a), n)
     for model in MODELS:
         t_dr = time_drjit(_kernel_for(model, {"w": 0.5, "p": 1.5}), (c, a), n)
-        np_fn = diffuse.numpy_kernel(_numpy_name(model))
+        np_fn = diffuse.numpy_reference("wrap" if model.startswith("wrap") else model)
         np_args = _numpy_args(model, cos64, alpha64)
         t_np = time_numpy(lambda *xs: np_fn(*xs), np_args, n)
         rows.append({"what": LABELS[model], "backend": backend, "elements": n,
@@ -190,11 +191,6 @@ def bench(ctx) -> list[dict]:
                  "ns_per_px": base.ns_per_element, "vs_memory_floor": 1.0})
     rows += _bench_reference(ctx)
     return rows
-
-
-def _numpy_name(model: str) -> str:
-    return {"lambert": "lambert", "half-lambert": "half_lambert", "wrap-fit": "wrap", "wrap-smooth": "wrap",
-            "exact": "sphere_light_irradiance"}[model]
 
 
 def _numpy_args(model: str, cos64, alpha64):
@@ -274,9 +270,7 @@ def _figures(ctx, cfg, cases, rendered, geom, images, fits, smooth, case_docs, c
 def _probe_sun_geometry(count: int, sun):
     """θ (rad), cos θ, α and E⊥ of the equator probes for a distant light."""
     theta, _, normals = probe_points(count)
-    cos_t = np.clip(normals @ np.asarray(sun.direction, dtype=np.float64), -1.0, 1.0)
-    alpha = np.full_like(cos_t, math.radians(sun.angular_radius_deg))
-    return theta, cos_t, alpha, np.full_like(cos_t, sun.irradiance[0])
+    return (theta, *sun_geometry(normals, sun))
 
 
 def _robust_spread(z: np.ndarray) -> float:
