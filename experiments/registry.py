@@ -35,6 +35,31 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "Half-Lambert and wrap lighting vs exact sphere-light irradiance",
             "White diffuse sphere under a spherical light of angular radius 0.27°–30°, with and without "
             "a constant sky: Lambert, half-Lambert and fitted wrap lighting against Mitsuba."),
+        ExperimentSpec(
+            "irradiance-bases", "rtfit.experiments.irradiance_bases",
+            "Irradiance bases: ambient cube vs spherical harmonics against path-traced irradiance",
+            "Valve ambient cube (axis-sampled and NNLS-optimal), SH L1/L2 and windowed SH under constant, "
+            "sun, sunsky, studio, overcast and measured light probes, with per-probe storage and cost."),
+        ExperimentSpec(
+            "ambient-aperture", "rtfit.experiments.ambient_aperture",
+            "Ambient aperture lighting: spherical-cap intersection, exact vs smoothstep vs fitted",
+            "Solid angle of two intersecting spherical caps over the whole domain, and ambient-aperture "
+            "shading of area-light occlusion against Mitsuba renders."),
+        ExperimentSpec(
+            "sdf-occlusion", "rtfit.experiments.sdf_occlusion",
+            "SDF occlusion and skylight (Evans) vs path-traced ambient occlusion and sky light",
+            "Multi-scale signed-distance sampling and cone-traced soft occlusion against Mitsuba AO and "
+            "sky-lit irradiance, with steps-vs-error-vs-cost and fitted contrast."),
+        ExperimentSpec(
+            "height-fog", "rtfit.experiments.height_fog",
+            "Exponential height fog: closed-form optical depth and fog colour vs path-traced media",
+            "Closed-form, seed-listing and Taylor optical-depth forms over the whole domain, and fog "
+            "shading against Mitsuba transmittance and aerial perspective, with fitted artist parameters."),
+        ExperimentSpec(
+            "nishita-sky", "rtfit.experiments.nishita_sky",
+            "Nishita sky: single-scattering sky texture vs a path-traced spherical-shell atmosphere",
+            "The 128×64 Nishita sky texture with per-pixel phase against single- and multiple-scattering "
+            "Mitsuba references and sunsky, with layers-vs-error-vs-cost and fitted artist parameters."),
     ]
 }
 
