@@ -2,7 +2,9 @@
 
     rtfit list
     rtfit run EXPERIMENT... [--quick] [--variant V] [--spp N] [--out DIR] [--cache DIR]
-                            [--executor inline|process] [--workers N] [--seed S]
+                            [--executor inline|process|ray] [--address A] [--workers N] [--seed S]
+    rtfit sweep SPEC.toml [--variant V] [--out DIR] [--cache DIR] [--executor …] [--address A] [--gpus 0,1]
+    rtfit sweep --show-config EXPERIMENT [--quick]
     rtfit report DIR
     rtfit bench EXPERIMENT [--variant V] [--size N]
 
@@ -55,21 +57,99 @@ def list_cmd():
               show_default=True, help="Output directory.")
 @click.option("--cache", "cache", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit).")
-@click.option("--executor", type=click.Choice(EXECUTORS), default="inline", show_default=True)
-@click.option("--workers", type=click.IntRange(min=1), default=None, help="Process-pool size.")
+@click.option("--executor", type=click.Choice(EXECUTORS), default="inline", show_default=True,
+              help="inline: this process; process: a local spawn pool; ray: a Ray cluster (rtfit[ray]).")
+@click.option("--address", default=None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster).")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Pool size (process/ray on CPUs).")
 @click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
-def run_cmd(experiments, quick, variant, spp, out, cache, executor, workers, seed, no_progress):
+def run_cmd(experiments, quick, variant, spp, out, cache, executor, address, workers, seed, no_progress):
     """Run EXPERIMENT... (or 'all') and write OUT/EXPERIMENT/{results.json,report.html,...}."""
     specs, variant = _validated(experiments, variant)  # before anything is written
+    _check_executor(executor, address)
     from rtfit.reference import default_cache_dir
 
     from .runner import run_experiments
 
     run_experiments(specs, out, quick=quick, variant=variant, spp=spp, seed=seed,
                     cache_dir=cache or default_cache_dir(), executor=executor, workers=workers,
-                    progress=not no_progress and sys.stderr.isatty())
+                    progress=not no_progress and sys.stderr.isatty(), address=address)
     click.echo(str((out / "index.html").resolve()))
+
+
+@cli.command("sweep")
+@click.argument("spec_file", required=False, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--show-config", "show_config", metavar="EXPERIMENT", default=None,
+              help="Print EXPERIMENT's configuration keys and defaults (what a sweep may set) and exit.")
+@click.option("--quick", is_flag=True, help="With --show-config: the quick configuration.")
+@click.option("--variant", default="llvm_ad_rgb", show_default=True, type=click.Choice(VARIANT_CHOICES))
+@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path), default=Path("out"),
+              show_default=True, help="Output directory (the sweep goes to OUT/NAME).")
+@click.option("--cache", "cache", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit); share it between nodes.")
+@click.option("--executor", type=click.Choice(EXECUTORS), default="process", show_default=True)
+@click.option("--address", default=None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster).")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Pool size (process/ray on CPUs).")
+@click.option("--gpus", default=None, help="process executor: one worker per listed GPU id, e.g. 0,1.")
+@click.option("--no-progress", is_flag=True, help="No progress bars.")
+def sweep_cmd(spec_file, show_config, quick, variant, out, cache, executor, address, workers, gpus, no_progress):
+    """Run the experiment of SPEC.toml over its grid of configuration points (docs/scale-out.md):
+    one results.json per point in OUT/NAME/points/, and a combined table and report in OUT/NAME/."""
+    from .sweep import load_sweep, run_sweep
+    from .sweep import show_config as _show
+
+    if show_config:
+        click.echo(_show(show_config, quick))
+        return
+    if spec_file is None:
+        _fail("name a sweep file (SPEC.toml), or --show-config EXPERIMENT")
+    sweep = load_sweep(spec_file)
+    (_,), variant = _validated([sweep.experiment], variant)
+    _check_executor(executor, address)
+    gpu_ids = _parse_gpus(gpus, executor)
+    from rtfit.reference import default_cache_dir
+
+    from .jobs import make_executor
+
+    progress = not no_progress and sys.stderr.isatty()
+    pool = make_executor(executor, workers, progress, address=address, gpus=gpu_ids)
+    try:
+        summary = run_sweep(sweep, out, variant=variant, cache_dir=cache or default_cache_dir(), executor=pool,
+                            executor_name=executor,
+                            log=lambda m: click.echo(f"rtfit: {m}", err=True) if not no_progress else None)
+    finally:
+        pool.close()
+    for pid, reason in summary.failed:
+        click.echo(f"rtfit: sweep {sweep.name}: point {pid} failed: {reason}", err=True)
+    click.echo(str((summary.directory / "report.html").resolve()))
+    if summary.failed:
+        raise click.exceptions.Exit(1)
+
+
+def _check_executor(executor: str, address):
+    if address and executor != "ray":
+        raise click.UsageError("--address is for --executor ray")
+    if executor == "ray":
+        import importlib.util
+
+        if importlib.util.find_spec("ray") is None:
+            from .ray_executor import RAY_EXTRA_HINT
+
+            raise click.UsageError(RAY_EXTRA_HINT)
+
+
+def _parse_gpus(text, executor: str):
+    if text is None:
+        return None
+    if executor != "process":
+        raise click.UsageError("--gpus is for --executor process (Ray finds the GPUs itself)")
+    try:
+        ids = [int(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise click.UsageError(f"--gpus {text!r}: expected comma-separated GPU ids, e.g. 0,1") from None
+    if not ids or min(ids) < 0 or len(set(ids)) != len(ids):
+        raise click.UsageError(f"--gpus {text!r}: expected distinct non-negative GPU ids, e.g. 0,1")
+    return ids
 
 
 @cli.command("report")

@@ -166,7 +166,10 @@ def run(ctx) -> dict:
 
     from . import half_lambert_report as rep
 
-    cfg = configure(ctx.quick, ctx.spp)
+    cfg = ctx.configured(configure(ctx.quick, ctx.spp))
+    if 0.0 not in cfg["sky_radiances"] or len(set(cfg["alphas_deg"])) < 2:
+        raise ValueError("half-lambert: sky_radiances must include 0 and alphas_deg must hold at least two "
+                         "light sizes (the smooth w(α), p(α) fit uses the no-sky cases)")
     cases = [(a, s) for s in cfg["sky_radiances"] for a in cfg["alphas_deg"]]
     scenes = {case_id(a, s): case_scene(a, s, cfg["resolution"]) for a, s in cases}
 

@@ -5,13 +5,25 @@ and carries keyword arguments of plain data only (scene TOML text, numbers, stri
 file paths). Its result is plain data too. No Mitsuba or Dr.Jit object ever crosses a job
 boundary, so the same job list runs in this process, in a local process pool, or on a cluster.
 
-Executors share one method, ``map(jobs) -> list of results`` (in job order):
+Executors share two methods:
+
+* ``map(jobs) -> list of results`` (in job order). A job that raises makes ``map`` raise that
+  exception (after the other jobs in flight finish); a *worker* that dies (killed, out of memory)
+  is not the job's fault: its job is retried on a fresh worker, up to ``max_attempts`` times.
+* ``run_all(jobs) -> list[Outcome]`` never raises for a job: each :class:`Outcome` says whether the
+  job succeeded, its value or its one-line error, and how many attempts it took. Sweeps use it so
+  that they finish with every point or say exactly which failed and why.
+
+Executors:
 
 * ``InlineExecutor`` runs jobs one after another in this process (the default; Dr.Jit's LLVM
   backend already uses every core inside one job).
 * ``ProcessExecutor`` runs them in a pool of worker processes started with the **spawn** method
   (CUDA does not survive ``fork``). Each worker gets its own Dr.Jit kernel-cache directory (shared
-  kernel caches can corrupt, drjit #115/#130) and, on the CPU, a share of the cores.
+  kernel caches can corrupt, drjit #115/#130) and, on the CPU, a share of the cores; with
+  ``gpus=[0, 1, …]`` one worker per GPU, pinned by ``CUDA_VISIBLE_DEVICES``.
+* ``RayExecutor`` (``rtfit.experiments.ray_executor``, optional extra ``rtfit[ray]``): one long-lived
+  worker per GPU of a Ray cluster, or CPU workers.
 """
 
 from __future__ import annotations
@@ -20,13 +32,82 @@ import importlib
 import multiprocessing
 import os
 import tempfile
+import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
 
 from rtfit.reference.progress import progress_bar
 
-EXECUTORS = ("inline", "process")
+EXECUTORS = ("inline", "process", "ray")
+MAX_ATTEMPTS = 3
+
+
+@dataclass
+class Outcome:
+    """What became of one job: ``value`` if ``ok``, else ``error`` (one line: ``Type: message``)."""
+
+    index: int
+    label: str
+    ok: bool
+    value: Any = None
+    error: str | None = None
+    attempts: int = 1
+    seconds: float = 0.0
+
+
+def error_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+
+
+class JobTracker:
+    """Progress over a job list: done / running / failed counts and an ETA (tqdm), or nothing."""
+
+    def __init__(self, total: int, desc: str, enabled: bool):
+        self.done = self.failed = self.running = 0
+        self._bar = progress_bar(total, desc, enabled, unit="job")
+
+    def started(self, n: int = 1):
+        self.running += n
+        self._show()
+
+    def finished(self, ok: bool, was_running: bool = True):
+        self.running -= int(was_running)
+        self.done += int(ok)
+        self.failed += int(not ok)
+        self._bar.update(1)
+        self._show()
+
+    def requeued(self):
+        self.running -= 1
+        self._show()
+
+    def _show(self):
+        if hasattr(self._bar, "set_postfix_str"):
+            self._bar.set_postfix_str(f"running {self.running}, failed {self.failed}", refresh=False)
+
+    def close(self):
+        self._bar.close()
+
+
+def values_or_raise(outcomes: list[Outcome], exceptions: dict[int, BaseException]) -> list:
+    """The values in job order; re-raise the first job's own exception if any job failed."""
+    for o in outcomes:
+        if not o.ok:
+            if o.index in exceptions:
+                raise exceptions[o.index]
+            raise JobsFailed([o])
+    return [o.value for o in outcomes]
+
+
+class JobsFailed(RuntimeError):
+    """Jobs that could not be completed (their worker kept dying); one line naming each."""
+
+    def __init__(self, failed: list[Outcome]):
+        self.failed = failed
+        super().__init__("; ".join(f"{o.label or o.index}: {o.error} ({o.attempts} attempts)" for o in failed))
 
 
 @dataclass(frozen=True)
@@ -40,6 +121,16 @@ class Job:
     def run(self):
         module, _, name = self.func.partition(":")
         return getattr(importlib.import_module(module), name)(**self.kwargs)
+
+
+def diagnostic_job(seconds: float = 0.0, fail: str | None = None) -> dict:
+    """A job that only waits ``seconds`` (and raises ``ValueError(fail)`` if given): it measures an
+    executor's own overhead per job, and lets tests kill a worker in the middle of a job."""
+    if seconds:
+        time.sleep(seconds)
+    if fail:
+        raise ValueError(fail)
+    return {"pid": os.getpid(), "cuda_visible_devices": os.environ.get("CUDA_VISIBLE_DEVICES")}
 
 
 def _run_job(job: Job):
@@ -70,41 +161,126 @@ class InlineExecutor:
         bar.close()
         return out
 
+    def run_all(self, jobs: list[Job], desc: str = "jobs") -> list[Outcome]:
+        tracker = JobTracker(len(jobs), desc, self.progress)
+        out = []
+        for i, job in enumerate(jobs):
+            tracker.started()
+            t0 = time.perf_counter()
+            try:
+                out.append(Outcome(i, job.label, True, job.run(), seconds=time.perf_counter() - t0))
+            except Exception as e:  # noqa: BLE001 — reported per job, never swallowed silently
+                out.append(Outcome(i, job.label, False, error=error_line(e), seconds=time.perf_counter() - t0))
+            tracker.finished(out[-1].ok)
+        tracker.close()
+        return out
+
     def close(self):
         pass
 
 
+def _gpu_worker_init(gpu_queue, threads: int | None):
+    """Per-worker set-up for a GPU pool: take one GPU id before anything imports Dr.Jit."""
+    os.environ["CUDA_VISIBLE_DEVICES"] = str(gpu_queue.get())
+    _worker_init(threads)
+
+
 class ProcessExecutor:
-    """A spawn-based process pool. ``workers`` defaults to the number of CPU cores."""
+    """A spawn-based process pool. ``workers`` defaults to the number of CPU cores, or to one
+    worker per GPU when ``gpus`` (a list of device ids) is given.
+
+    A worker that dies breaks the whole ``concurrent.futures`` pool; the executor then starts a new
+    pool and resubmits every unfinished job, counting an attempt against each job that was in
+    flight. A job whose workers died ``max_attempts`` times fails with a one-line reason."""
 
     name = "process"
 
-    def __init__(self, workers: int | None = None, progress: bool = False):
-        self.workers = workers or os.cpu_count() or 1
+    def __init__(self, workers: int | None = None, progress: bool = False, gpus: list[int] | None = None,
+                 max_attempts: int = MAX_ATTEMPTS):
+        self.gpus = list(gpus) if gpus else None
+        self.workers = len(self.gpus) if self.gpus else (workers or os.cpu_count() or 1)
         self.progress = progress
+        self.max_attempts = max_attempts
+        self._ctx = multiprocessing.get_context("spawn")
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        if self.gpus:
+            queue = self._ctx.Queue()
+            for g in self.gpus:
+                queue.put(g)
+            return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx,
+                                       initializer=_gpu_worker_init, initargs=(queue, None))
         threads = max(1, (os.cpu_count() or 1) // self.workers)
-        self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=_worker_init, initargs=(threads,))
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx,
+                                   initializer=_worker_init, initargs=(threads,))
+
+    def worker_pids(self) -> list[int]:
+        """PIDs of the live worker processes (for monitoring and fault-injection tests)."""
+        return [p.pid for p in (self._pool._processes or {}).values() if p.is_alive()]
+
+    def run_all(self, jobs: list[Job], desc: str = "jobs", _exceptions: dict | None = None) -> list[Outcome]:
+        tracker = JobTracker(len(jobs), desc, self.progress)
+        outcomes: list[Outcome | None] = [None] * len(jobs)
+        attempts = [0] * len(jobs)
+        todo = list(range(len(jobs)))
+        try:
+            while todo:
+                t0 = time.perf_counter()
+                futures = {self._pool.submit(_run_job, jobs[i]): i for i in todo}
+                for i in todo:
+                    attempts[i] += 1
+                tracker.started(len(todo))
+                broken: list[int] = []
+                for fut in as_completed(futures):
+                    i = futures[fut]
+                    try:
+                        value = fut.result()
+                    except BrokenProcessPool as e:
+                        broken.append(i)
+                        if attempts[i] >= self.max_attempts:
+                            outcomes[i] = Outcome(i, jobs[i].label, False, attempts=attempts[i],
+                                                  error=f"worker died {attempts[i]} times ({error_line(e)})")
+                            tracker.finished(False)
+                        else:
+                            tracker.requeued()
+                        continue
+                    except Exception as e:  # noqa: BLE001 — the job's own error, reported per job
+                        outcomes[i] = Outcome(i, jobs[i].label, False, error=error_line(e), attempts=attempts[i],
+                                              seconds=time.perf_counter() - t0)
+                        if _exceptions is not None:
+                            _exceptions[i] = e
+                        tracker.finished(False)
+                        continue
+                    outcomes[i] = Outcome(i, jobs[i].label, True, value, attempts=attempts[i],
+                                          seconds=time.perf_counter() - t0)
+                    tracker.finished(True)
+                todo = [i for i in broken if outcomes[i] is None]
+                if broken:
+                    self._pool.shutdown(wait=True, cancel_futures=True)
+                    self._pool = self._new_pool()
+        finally:
+            tracker.close()
+        return outcomes  # type: ignore[return-value]
 
     def map(self, jobs: list[Job], desc: str = "jobs") -> list:
-        bar = progress_bar(len(jobs), desc, self.progress, unit="job")
-        futures = {self._pool.submit(_run_job, job): i for i, job in enumerate(jobs)}
-        out: list = [None] * len(jobs)
-        try:
-            for fut in as_completed(futures):
-                out[futures[fut]] = fut.result()
-                bar.update(1)
-        finally:
-            bar.close()
-        return out
+        exceptions: dict[int, BaseException] = {}
+        return values_or_raise(self.run_all(jobs, desc, exceptions), exceptions)
 
     def close(self):
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
-def make_executor(name: str = "inline", workers: int | None = None, progress: bool = False):
+def make_executor(name: str = "inline", workers: int | None = None, progress: bool = False,
+                  address: str | None = None, gpus: list[int] | None = None):
+    """``inline``, ``process`` (``gpus``: one worker per listed GPU) or ``ray`` (``address`` of an
+    existing cluster, or a local one)."""
     if name == "inline":
         return InlineExecutor(progress)
     if name == "process":
-        return ProcessExecutor(workers, progress)
+        return ProcessExecutor(workers, progress, gpus=gpus)
+    if name == "ray":
+        from .ray_executor import RayExecutor
+
+        return RayExecutor(address=address, workers=workers, progress=progress)
     raise ValueError(f"unknown executor {name!r} (expected one of: {', '.join(EXECUTORS)})")

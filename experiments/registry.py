@@ -5,13 +5,17 @@ An experiment module exposes:
 * ``run(ctx: RunContext) -> dict`` — runs its jobs through ``ctx.executor``, writes figures and
   fitted-parameter files under ``ctx.out_dir`` and returns the results document
   (``docs/results-schema.md``) without the common header, which the runner adds;
-* ``bench(ctx: BenchContext) -> list[dict]`` — rows for ``rtfit bench``.
+* ``bench(ctx: BenchContext) -> list[dict]`` — rows for ``rtfit bench``;
+* ``configure(quick: bool, spp: int | None) -> dict`` — its configuration (plain JSON data: case lists,
+  resolution, spp, …). ``run`` must take its configuration as ``ctx.configured(configure(ctx.quick,
+  ctx.spp))``, so that a sweep (``rtfit sweep``) can override any key per point.
 """
 
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
 
@@ -68,6 +72,31 @@ class UnknownExperiment(ValueError):
     pass
 
 
+def _same_kind(default, value) -> bool:
+    if isinstance(default, bool) or isinstance(value, bool):
+        return isinstance(default, bool) and isinstance(value, bool)
+    if isinstance(default, (int, float)):
+        return isinstance(value, (int, float)) and (isinstance(value, int) or math.isfinite(value))
+    if isinstance(default, (list, tuple)):
+        return isinstance(value, (list, tuple)) and all(
+            not isinstance(v, float) or math.isfinite(v) for v in value)
+    return type(default) is type(value) or default is None
+
+
+def apply_overrides(defaults: dict, overrides: dict, experiment: str = "") -> dict:
+    """A copy of ``defaults`` with ``overrides`` applied; an unknown key, a value of another kind
+    (a number for a list, a string for a number, NaN/Inf) is a one-line ``ValueError``."""
+    where = f" of {experiment}" if experiment else ""
+    out = dict(defaults)
+    for key, value in overrides.items():
+        if key not in defaults:
+            raise ValueError(f"{key!r} is not a configuration key{where} (known: {', '.join(sorted(defaults))})")
+        if not _same_kind(defaults[key], value):
+            raise ValueError(f"{key} = {value!r}: expected a value like {defaults[key]!r}")
+        out[key] = type(defaults[key])(value) if isinstance(defaults[key], float) else value
+    return out
+
+
 def get_experiment(name: str) -> ExperimentSpec:
     try:
         return EXPERIMENTS[name]
@@ -100,6 +129,11 @@ class RunContext:
     spp: int | None
     seed: int
     progress: bool
+    overrides: dict = field(default_factory=dict)
+
+    def configured(self, defaults: dict) -> dict:
+        """``defaults`` (the experiment's ``configure``) with this run's sweep overrides applied."""
+        return apply_overrides(defaults, self.overrides)
 
     def log(self, message: str):
         if self.progress:

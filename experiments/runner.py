@@ -58,39 +58,52 @@ def device_description(variant: str) -> str:
     return f"CPU ({backend} backend, {threads} threads): {cpu}"
 
 
+def run_experiment_into(spec: ExperimentSpec, directory: Path, ctx: RunContext, executor_name: str) -> dict:
+    """Run one experiment with ``ctx`` and write ``results.json`` and the report into ``directory``
+    (which the caller makes atomic). Returns the results document."""
+    ctx.log(f"{spec.name}: running ({'quick' if ctx.quick else 'full'}, {ctx.variant})")
+    body = spec.load().run(ctx)
+    results = {
+        "schema": SCHEMA,
+        "experiment": spec.name,
+        "title": spec.title,
+        "created": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
+        "versions": versions(),
+        "device": device_description(ctx.variant),
+        **body,
+    }
+    results.setdefault("config", {}).update(
+        {"quick": ctx.quick, "variant": ctx.variant, "seed": ctx.seed, "executor": executor_name})
+    if ctx.overrides:
+        results["config"]["overrides"] = dict(ctx.overrides)
+    atomic_write_json(Path(directory) / "results.json", results)
+    write_report(Path(directory))
+    return results
+
+
 def run_experiments(specs: list[ExperimentSpec], out: Path, *, quick: bool, variant: str, spp: int | None,
                     seed: int, cache_dir: Path, executor: str, workers: int | None,
-                    progress: bool) -> list[Path]:
+                    progress: bool, address: str | None = None) -> list[Path]:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     done: list[Path] = []
-    pool = make_executor(executor, workers, progress)
+    pool = make_executor(executor, workers, progress, address=address)
     try:
         for spec in specs:
             final = out / spec.name
             with atomic_directory(final) as tmp:
                 ctx = RunContext(out_dir=Path(tmp), cache_dir=Path(cache_dir), executor=pool, quick=quick,
                                  variant=variant, spp=spp, seed=seed, progress=progress)
-                ctx.log(f"{spec.name}: running ({'quick' if quick else 'full'}, {variant})")
-                body = spec.load().run(ctx)
-                results = {
-                    "schema": SCHEMA,
-                    "experiment": spec.name,
-                    "title": spec.title,
-                    "created": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
-                    "versions": versions(),
-                    "device": device_description(variant),
-                    **body,
-                }
-                results.setdefault("config", {}).update(
-                    {"quick": quick, "variant": variant, "seed": seed, "executor": executor})
-                atomic_write_json(Path(tmp) / "results.json", results)
-                write_report(Path(tmp))
+                run_experiment_into(spec, Path(tmp), ctx, executor)
             done.append(final)
             print(f"rtfit: {spec.name}: report at {final / 'report.html'}", file=sys.stderr)
     finally:
         pool.close()
-    present = sorted(p for p in out.iterdir()
-                     if not is_temporary_name(p.name) and (p / "results.json").is_file())
-    write_index(out, present)
+    write_index(out, experiment_dirs(out))
     return done
+
+
+def experiment_dirs(out: Path) -> list[Path]:
+    """Every complete experiment (or sweep) directory directly under ``out``."""
+    return sorted(p for p in Path(out).iterdir()
+                  if not is_temporary_name(p.name) and (p / "results.json").is_file())

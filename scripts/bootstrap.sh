@@ -45,7 +45,7 @@ _rtfit_want="$(sha256sum "$RTFIT_ROOT/pyproject.toml" | cut -d' ' -f1)"
 if [ "$(cat "$_rtfit_stamp" 2>/dev/null)" != "$_rtfit_want" ] || ! "$RTFIT_VENV/bin/python" -c 'import rtfit.experiments' 2>/dev/null; then
   echo "rtfit setup: installing rtfit and its dependencies into $RTFIT_VENV" >&2
   "$RTFIT_VENV/bin/python" -m pip install -q --upgrade pip >/dev/null
-  "$RTFIT_VENV/bin/python" -m pip install -q -e "$RTFIT_ROOT[test]"
+  "$RTFIT_VENV/bin/python" -m pip install -q -e "$RTFIT_ROOT[test,ray]"
   echo "$_rtfit_want" > "$_rtfit_stamp"
 fi
 export PATH="$RTFIT_VENV/bin:$PATH"

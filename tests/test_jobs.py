@@ -31,5 +31,5 @@ def test_process_pool_matches_inline(tmp_path):
 def test_unknown_executor_is_clear():
     import pytest
 
-    with pytest.raises(ValueError, match="unknown executor 'ray'"):
-        make_executor("ray")
+    with pytest.raises(ValueError, match="unknown executor 'dask'"):
+        make_executor("dask")

@@ -1,0 +1,192 @@
+"""``--executor ray``: run a job list on a Ray cluster, one long-lived worker per GPU.
+
+Needs the optional extra ``pip install 'rtfit[ray]'``; without it, asking for this executor is a
+one-line error naming the extra.
+
+Workers
+    On a cluster with GPUs, one actor per GPU (``num_gpus=1``: Ray sets its ``CUDA_VISIBLE_DEVICES``),
+    otherwise ``workers`` CPU actors (default: one per CPU of the cluster) that split a node's cores.
+    Each actor is a long-lived process with its own Dr.Jit kernel-cache directory (a shared kernel
+    cache can corrupt, drjit #115/#130/#162), so kernels compile once per worker, not once per job.
+
+Jobs
+    A :class:`~rtfit.experiments.jobs.Job` is plain data (an import path and keyword arguments:
+    scene text, numbers, arrays, paths); its result is plain data. Workers import ``rtfit`` themselves,
+    so every node needs the same rtfit installed (or a Ray ``runtime_env``), and the reference cache
+    directory should be on a filesystem the nodes share: its entries are written pass by pass with an
+    atomic rename, so two workers never leave a half-written entry (the last complete write wins).
+
+Faults
+    A job that raises fails with its own one-line error (not retried: it would fail again). A worker
+    that dies (killed, out of memory, node lost) is replaced by a fresh actor and its job is resubmitted
+    to the next free worker, up to ``max_attempts`` times in all.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+
+from .jobs import MAX_ATTEMPTS, Job, JobTracker, Outcome, error_line, values_or_raise
+
+RAY_EXTRA_HINT = "--executor ray needs Ray: pip install 'rtfit[ray]'"
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise ValueError(RAY_EXTRA_HINT) from None
+    return ray
+
+
+class _Worker:
+    """The actor body: a private kernel cache, a thread budget on CPU, then jobs one at a time."""
+
+    def __init__(self, threads: int | None):
+        os.environ["DRJIT_CACHE_DIR"] = tempfile.mkdtemp(prefix="rtfit-drjit-ray-")
+        self.threads = threads
+
+    def pid(self) -> int:
+        return os.getpid()
+
+    def run(self, job: Job):
+        if self.threads:
+            import drjit as dr
+
+            if dr.thread_count() != self.threads:
+                dr.set_thread_count(self.threads)
+        return job.run()
+
+
+class RayExecutor:
+    """Jobs on Ray actors; ``address`` names an existing cluster (``ray://…`` or ``host:port``),
+    ``None`` connects to ``RAY_ADDRESS`` if set, else starts a local cluster on this machine."""
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None, workers: int | None = None, progress: bool = False,
+                 max_attempts: int = MAX_ATTEMPTS, num_cpus: int | None = None):
+        ray = _import_ray()
+        self._ray = ray
+        self.progress = progress
+        self.max_attempts = max_attempts
+        if not ray.is_initialized():
+            kwargs = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
+            if address:
+                ray.init(address=address, **kwargs)
+            elif os.environ.get("RAY_ADDRESS"):
+                ray.init(**kwargs)
+            else:
+                ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **kwargs)
+            self._owns_ray = True
+        else:
+            self._owns_ray = False
+        resources = ray.cluster_resources()
+        self.gpus = int(resources.get("GPU", 0))
+        cpus = int(resources.get("CPU", 1))
+        if self.gpus:
+            self.workers = self.gpus
+            self._options = {"num_gpus": 1, "num_cpus": 1}
+            self._threads = None
+        else:
+            self.workers = workers or cpus
+            share = max(1, cpus // self.workers)
+            self._options = {"num_cpus": min(share, cpus)}
+            self._threads = share
+        self._actor_class = ray.remote(**self._options)(_Worker)
+        self._actors = [self._new_actor() for _ in range(self.workers)]
+        self._pids = ray.get([a.pid.remote() for a in self._actors])
+        self._busy: dict[int, str] = {}  # actor slot -> label of the job it runs
+
+    def _new_actor(self):
+        return self._actor_class.options(max_restarts=0, max_task_retries=0).remote(self._threads)
+
+    def worker_pids(self) -> list[int]:
+        """PIDs of the worker processes, one per slot (for monitoring and fault-injection tests)."""
+        return list(self._pids)
+
+    def busy_pids(self) -> dict[int, str]:
+        """PID → label of the job that worker is running now."""
+        return {self._pids[slot]: label for slot, label in list(self._busy.items())}
+
+    def run_all(self, jobs: list[Job], desc: str = "jobs", _exceptions: dict | None = None) -> list[Outcome]:
+        ray = self._ray
+        from ray.exceptions import RayActorError, RayTaskError, WorkerCrashedError
+
+        lost_worker = (RayActorError, WorkerCrashedError)
+        tracker = JobTracker(len(jobs), desc, self.progress)
+        outcomes: list[Outcome | None] = [None] * len(jobs)
+        attempts = [0] * len(jobs)
+        queue = list(range(len(jobs)))
+        idle = list(range(len(self._actors)))
+        in_flight: dict = {}  # object ref -> (job index, actor slot, start time)
+        try:
+            while queue or in_flight:
+                while queue and idle:
+                    i, slot = queue.pop(0), idle.pop(0)
+                    attempts[i] += 1
+                    ref = self._actors[slot].run.remote(jobs[i])
+                    in_flight[ref] = (i, slot, time.perf_counter())
+                    self._busy[slot] = jobs[i].label or str(i)
+                    tracker.started()
+                ready, _ = ray.wait(list(in_flight), num_returns=1)
+                ref = ready[0]
+                i, slot, t0 = in_flight.pop(ref)
+                self._busy.pop(slot, None)
+                try:
+                    value = ray.get(ref)
+                except RayTaskError as e:
+                    cause = e.cause if isinstance(getattr(e, "cause", None), BaseException) else e
+                    if isinstance(cause, lost_worker):
+                        self._lost(i, slot, cause, attempts, outcomes, queue, tracker, jobs)
+                    else:
+                        outcomes[i] = Outcome(i, jobs[i].label, False, error=error_line(cause),
+                                              attempts=attempts[i], seconds=time.perf_counter() - t0)
+                        if _exceptions is not None:
+                            _exceptions[i] = cause
+                        tracker.finished(False)
+                    idle.append(slot)
+                    continue
+                except lost_worker as e:
+                    self._lost(i, slot, e, attempts, outcomes, queue, tracker, jobs)
+                    idle.append(slot)
+                    continue
+                outcomes[i] = Outcome(i, jobs[i].label, True, value, attempts=attempts[i],
+                                      seconds=time.perf_counter() - t0)
+                tracker.finished(True)
+                idle.append(slot)
+        finally:
+            tracker.close()
+        return outcomes  # type: ignore[return-value]
+
+    def _lost(self, i, slot, exc, attempts, outcomes, queue, tracker, jobs):
+        """A worker died under job ``i``: replace the actor; retry the job or give up on it."""
+        try:
+            self._ray.kill(self._actors[slot], no_restart=True)
+        except Exception:  # noqa: BLE001 — it is already gone
+            pass
+        self._actors[slot] = self._new_actor()
+        self._pids[slot] = self._ray.get(self._actors[slot].pid.remote())
+        if attempts[i] >= self.max_attempts:
+            outcomes[i] = Outcome(i, jobs[i].label, False, attempts=attempts[i],
+                                  error=f"worker died {attempts[i]} times ({error_line(exc)})")
+            tracker.finished(False)
+        else:
+            queue.insert(0, i)
+            tracker.requeued()
+
+    def map(self, jobs: list[Job], desc: str = "jobs") -> list:
+        exceptions: dict[int, BaseException] = {}
+        return values_or_raise(self.run_all(jobs, desc, exceptions), exceptions)
+
+    def close(self):
+        for actor in self._actors:
+            try:
+                self._ray.kill(actor)
+            except Exception:  # noqa: BLE001
+                pass
+        self._actors = []
+        if self._owns_ray:
+            self._ray.shutdown()
