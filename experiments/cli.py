@@ -180,12 +180,23 @@ def report_cmd(directory):
               help="Elements per kernel launch (default: 2^22 on CPU, 2^24 on GPU).")
 @click.option("--quick", is_flag=True, help="Fewer, smaller measurements.")
 def bench_cmd(experiment, variant, size, quick):
-    """Throughput of each approximation (Dr.Jit vs NumPy, same run) and of the ground truth."""
+    """Throughput of each approximation (Dr.Jit vs NumPy, same run) and of the ground truth;
+    'executors': per-job overhead and sweep scaling of inline / process / Ray (docs/scale-out.md)."""
+    from .runner import device_description
+
+    if experiment == "executors":
+        from rtfit.reference import resolve_variant
+
+        from . import scaling
+
+        variant = resolve_variant(variant)
+        rows = scaling.bench(BenchContext(variant=variant, size=size, quick=quick))
+        click.echo(f"# rtfit bench executors — {device_description(variant)}")
+        _print_table(rows)
+        return
     (spec,), variant = _validated([experiment], variant)
     module = spec.load()
     rows = module.bench(BenchContext(variant=variant, size=size, quick=quick))
-    from .runner import device_description
-
     click.echo(f"# rtfit bench {spec.name} — {device_description(variant)}")
     _print_table(rows)
 
@@ -199,14 +210,22 @@ def _validated(names, variant: str):
 
 
 def _print_table(rows: list[dict]):
-    if not rows:
-        return
-    cols = list(rows[0].keys())
-    cells = [[_fmt(r.get(c)) for c in cols] for r in rows]
-    widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]
-    click.echo("  ".join(c.ljust(w) for c, w in zip(cols, widths)))
-    for row in cells:
-        click.echo("  ".join(v.ljust(w) for v, w in zip(row, widths)))
+    """Rows as aligned columns; rows with different keys form separate tables, in order."""
+    groups: list[list[dict]] = []
+    for r in rows:
+        if groups and list(groups[-1][0].keys()) == list(r.keys()):
+            groups[-1].append(r)
+        else:
+            groups.append([r])
+    for n, group in enumerate(groups):
+        cols = list(group[0].keys())
+        cells = [[_fmt(r.get(c)) for c in cols] for r in group]
+        widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]
+        if n:
+            click.echo("")
+        click.echo("  ".join(c.ljust(w) for c, w in zip(cols, widths)))
+        for row in cells:
+            click.echo("  ".join(v.ljust(w) for v, w in zip(row, widths)))
 
 
 def _fmt(v) -> str:

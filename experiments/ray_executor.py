@@ -67,18 +67,24 @@ class RayExecutor:
     name = "ray"
 
     def __init__(self, address: str | None = None, workers: int | None = None, progress: bool = False,
-                 max_attempts: int = MAX_ATTEMPTS, num_cpus: int | None = None):
+                 max_attempts: int = MAX_ATTEMPTS, num_cpus: int | None = None, num_gpus: int | None = None):
         ray = _import_ray()
         self._ray = ray
         self.progress = progress
         self.max_attempts = max_attempts
         if not ray.is_initialized():
+            import warnings
+
+            # Ray starts its daemons with fork+exec; Python warns about fork when JAX threads exist.
+            warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
             kwargs = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
             if address:
                 ray.init(address=address, **kwargs)
             elif os.environ.get("RAY_ADDRESS"):
                 ray.init(**kwargs)
             else:
+                if num_gpus is not None:
+                    kwargs["num_gpus"] = num_gpus  # a local cluster using only the first num_gpus GPUs
                 ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **kwargs)
             self._owns_ray = True
         else:
