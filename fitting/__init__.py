@@ -1,6 +1,13 @@
 """rtfit.fitting: error metrics with Monte Carlo noise floors, z-scores, and bounded least squares.
 
-Importing this package does not import JAX (only :func:`fit_least_squares` / :func:`fit_curve` do)."""
+Importing this package does not import JAX (only :func:`fit_least_squares` / :func:`fit_curve` do).
+Fits run on the CPU unless ``JAX_PLATFORMS`` says otherwise (they are small, and JAX would otherwise
+preallocate most of the GPU's memory beside Dr.Jit)."""
+
+import os as _os
+
+_os.environ.setdefault("JAX_PLATFORMS", "cpu")
+_os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
 from .least_squares import AT_BOUND_RTOL, FitResult, Param, fit_curve, fit_least_squares
 from .metrics import (
