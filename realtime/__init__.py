@@ -4,10 +4,14 @@ Imports only drjit and numpy. Public functions accept Python floats, NumPy array
 Dr.Jit backend, see `set_default_backend`) or Dr.Jit arrays (same type out); see `rtfit.realtime._array`.
 
 Modules:
+    aperture  ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection and shading
+              (docs/ambient-aperture.md).
     diffuse   Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
+    fog       exponential height fog: stable closed-form optical depth, fog colour, fog volumes
+              (docs/height-fog.md).
 """
 
-from . import diffuse
+from . import aperture, diffuse, fog
 from ._array import DRJIT_OPS, NUMPY_OPS, get_default_backend, set_default_backend
 
-__all__ = ["DRJIT_OPS", "NUMPY_OPS", "diffuse", "get_default_backend", "set_default_backend"]
+__all__ = ["DRJIT_OPS", "NUMPY_OPS", "aperture", "diffuse", "fog", "get_default_backend", "set_default_backend"]

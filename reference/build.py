@@ -146,6 +146,12 @@ def _light_dicts(mi, light) -> dict:
 
 
 def _medium_dict(medium: HomogeneousMedium) -> dict:
+    if medium.kind == "exponential_fog":  # rtfit's Python medium (height fog, rtfit.reference.fog_media)
+        import mitsuba as mi
+
+        from . import fog_media
+
+        return fog_media.medium_dict(mi, medium)
     phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
     return {"type": "homogeneous", "sigma_t": _rgb(medium.sigma_t), "albedo": _rgb(medium.albedo),
             "phase": phase}
@@ -290,6 +296,9 @@ def load_mitsuba_scene(scene: Scene, variant: str = "llvm_ad_rgb", integrator: I
 def load_dict(mi, d: dict):
     """``mi.load_dict`` with rtfit's own plugins registered and attached to the loaded scene."""
     emitters.register(mi)
+    from . import fog_media
+
+    fog_media.register(mi)
     mi_scene = mi.load_dict(d)
     emitters.attach(mi_scene)
     return mi_scene

@@ -276,6 +276,27 @@ class HomogeneousMedium:
     kind: ClassVar[str] = "homogeneous"
 
 
+@dataclass(frozen=True)
+class ExponentialFog:
+    """Exponential height fog σt(p) = density·exp(−falloff·(p − gradient_origin)·gradient) (1/scene unit),
+    inside ``boundary`` (a box, or a sphere), optionally restricted to the ellipsoid inscribed in a box
+    boundary (``ellipsoid``). ``density`` b ≥ 0 and ``falloff`` c ≥ 0 are in 1/scene unit; ``gradient`` is
+    the unit direction of increasing height (default +Z); ``albedo`` and Henyey–Greenstein ``g`` as for
+    `HomogeneousMedium`. Rendered by rtfit's Python medium (`rtfit.reference.fog_media`).
+    """
+
+    boundary: Union[Sphere, Cube]
+    density: float
+    falloff: float = 0.0
+    gradient: Vec3 = (0.0, 0.0, 1.0)
+    gradient_origin: Vec3 = (0.0, 0.0, 0.0)
+    albedo: RGB = (0.0, 0.0, 0.0)
+    g: float = 0.0
+    ellipsoid: bool = False
+
+    kind: ClassVar[str] = "exponential_fog"
+
+
 Medium = HomogeneousMedium
 
 

@@ -41,6 +41,7 @@ from .model import (
     Diffuse,
     Disk,
     EnvMap,
+    ExponentialFog,
     HomogeneousMedium,
     Mesh,
     MitsubaXML,
@@ -195,13 +196,17 @@ SCHEMA: dict[type, dict[str, Spec]] = {
              "complex_sun": Spec("bool")},
     HomogeneousMedium: {"boundary": Spec("boundary"), "sigma_t": _RADIANCE, "albedo": Spec("rgb", ZERO_ONE),
                         "g": Spec("float", Bounds(-1, 1, lo_open=True, hi_open=True))},
+    ExponentialFog: {"boundary": Spec("boundary"), "density": Spec("float", NON_NEGATIVE),
+                     "falloff": Spec("float", NON_NEGATIVE), "gradient": _UNIT, "gradient_origin": _VEC,
+                     "albedo": Spec("rgb", ZERO_ONE),
+                     "g": Spec("float", Bounds(-1, 1, lo_open=True, hi_open=True)), "ellipsoid": Spec("bool")},
     ReferenceSettings: {"transport": Spec("choice", choices=TRANSPORTS),
                         "max_depth": Spec("depth", optional=True)},
 }
 
 SHAPE_TYPES = {c.kind: c for c in (Sphere, Rectangle, Disk, Cube, Cylinder, Mesh, MitsubaXML)}
 LIGHT_TYPES = {c.kind: c for c in (Sun, SphereLight, RectLight, ConstantEnv, EnvMap, SunSky)}
-MEDIUM_TYPES = {c.kind: c for c in (HomogeneousMedium,)}
+MEDIUM_TYPES = {c.kind: c for c in (HomogeneousMedium, ExponentialFog)}
 BOUNDARY_TYPES = {c.kind: c for c in (Sphere, Cube)}
 BOUNDARY_EXCLUDES = ("material",)  # a medium boundary is an interface (null BSDF), not a surface
 SPHERE_LIGHT_PLACEMENT = ("target", "direction", "distance", "angular_radius_deg")

@@ -1,0 +1,490 @@
+r"""Ambient aperture lighting (Oat & Sander 2007): spherical-cap intersection and the shading built on it.
+
+Source: seed ``000_540fc7eee6870c4d.txt`` chapter 8 (000:2620-2800), "Ambient Aperture Lighting".
+Visibility over a point's upper hemisphere is stored as one spherical cap per texel (a unit *bent normal*
+``a`` and an *aperture* angular radius ``r_a``); a sphere light is a second cap (direction ``l`` to its
+centre, angular radius α). The light that gets through is the intersection of the two caps.
+
+Conventions and units
+---------------------
+* Angles in radians. A cap of angular radius r ∈ [0, π] has solid angle A(r) = 2π(1 − cos r) = 4π sin²(r/2)
+  steradians (the second form has no cancellation for small r).
+* ``d`` ∈ [0, π] is the angle between the two cap centres.
+* Solid angles are in sr; irradiance in W/m² for radiance in W/m²/sr.
+
+Exact intersection (`cap_intersection_solid_angle`)
+---------------------------------------------------
+Let r1, r2 be the radii, d the centre distance, and P one of the two points where the boundary circles
+cross. The spherical triangle C1 P C2 has sides r1, r2, d; β1, β2 are its angles at C1, C2, γ the angle at
+P, E = β1 + β2 + γ − π its area (spherical excess). Splitting the lens into the two sectors of angle 2βᵢ
+minus the kite C1 P C2 P' (area 2E):
+
+    Ω = 2 [β1 (1 − cos r1) + β2 (1 − cos r2) − E]
+      = 2 [π − γ − β1 cos r1 − β2 cos r2]                         (Gauss–Bonnet form)
+
+which is Tovchigrechko & Vakser (2001, eq. for the intersection of two spherical caps) and Mazonka (2012,
+"Solid angle of conical surfaces, polyhedral cones, and intersecting spherical caps", arXiv:1205.1396).
+It holds for caps larger than a hemisphere too (checked against quadrature in tests). Cases:
+
+* nested,   d ≤ |r1 − r2|:                 Ω = A(min(r1, r2))
+* disjoint, d ≥ r1 + r2:                   Ω = 0
+* covering, r1 + r2 + d ≥ 2π (the complements are disjoint: the union is the whole sphere):
+                                          Ω = A(r1) + A(r2) − 4π = 4π cos((r1 − r2)/2) sin((r1 + r2 − π)/2)
+* otherwise the partial formula above; the triangle exists (s = (r1 + r2 + d)/2 ≤ π, all s − x ≥ 0).
+
+Numerics. cos β = (cos r − cos r' cos d)/(sin r' sin d) loses all digits near tangency (its acos argument
+is ±1 − ε) and the Gauss–Bonnet form cancels completely for small caps (π − γ − β1 − β2 ≈ the tiny excess).
+The kernel therefore uses the half-angle (l'Huilier-type) forms with s = (r1 + r2 + d)/2,
+
+    β1 = 2 atan2(√(sin(s − r1) sin(s − d)), √(sin s sin(s − r2)))       (β2: swap r1 ↔ r2)
+    tan(γ/2) = X/Y,  X = √(sin(s − r1) sin(s − r2)),  Y = √(sin s sin(s − d))
+    tan(E/2) = tan(r1/2) tan(r2/2) sin γ / (1 + tan(r1/2) tan(r2/2) cos γ)
+             = 2 h1 h2 XY / (c1 c2 (X² + Y²) + h1 h2 (Y² − X²)),   hᵢ = sin(rᵢ/2), cᵢ = cos(rᵢ/2)
+
+and the sector form Ω = 4(β1 h1² + β2 h2²) − 2E, whose terms all scale with the caps' size. Every sine is
+evaluated by the project's Taylor polynomial on [0, π/2] (`sincos_first_quadrant`; CUDA's float32 sin/cos are
+approximate). Measured error, as a fraction of the smaller cap: ≤ 1e-14 in float64 and ≤ 4e-6 in float32
+over the whole domain, tangencies included (tests/test_aperture.py).
+
+Seed erratum (000:2672-2687). The printed *IntersectArea* has a sign error in its third term: it gives
+−7.92 for r0 = r1 = d = 0.5, where the correct value (Monte Carlo, quadrature, this formula) is 0.3078.
+With acos(−x) = π − acos(x), the printed terms read 2π cos r1 − 2β1 cos r1, −2β0 cos r0 and
+−2(π − γ), then −2π cos r1: the sum is 2[−β0 cos r0 − β1 cos r1 − (π − γ)], whereas Gauss–Bonnet gives
+2[(π − γ) − β0 cos r0 − β1 cos r1]. The third term must be **+** 2 arccos((−cos d + cos r0 cos r1)/(sin r0
+sin r1)); as printed the result is short by 4(π − γ). `seed_printed_intersect_area` keeps the printed text
+for the record.
+
+Approximations of the partial-overlap region
+--------------------------------------------
+With r_min, r_max the smaller and larger radius and the normalised distance
+x = (d − |r1 − r2|)/(r1 + r2 − |r1 − r2|) = (d − (r_max − r_min))/(2 r_min), t = 1 − saturate(x):
+
+* ``smoothstep`` (000:2689-2762, Listing 1): Ω ≈ A(r_min) · t²(3 − 2t), exactly the listing's three cases
+  (the cap area is computed as 4π sin²(r/2), mathematically the listing's 2π − 2π cos r without its float32
+  cancellation for small caps). It knows nothing of the covering case r1 + r2 + d > 2π: there it errs by up
+  to 0.60 of the smaller cap.
+* ``linear``: Ω ≈ A(r_min) · t.
+* ``fitted``: first the **complement trick** — if r1 + r2 > π, replace both caps by their complements
+  (radii π − rᵢ, centres antipodal, same d): |C1 ∩ C2| = A(r1) + A(r2) − 4π + |C1ᶜ ∩ C2ᶜ|, so every case
+  becomes one with r1 + r2 ≤ π — then, with ρ = r_min/r_max ∈ [0, 1], σ = (r_min + r_max)/π ∈ [0, 1] and
+  u = 1 − 2t,
+
+      f = saturate(t²(3 − 2t) + t(1 − t) · [c0 + c1 u + ρ (c2 + c3 u) + σ (c4 + c5 u)])
+      Ω ≈ L + A(r_min) · f,  L = A(r1) + A(r2) − 4π if complemented else 0
+
+  f is 0 at t = 0 and 1 at t = 1 for any coefficients, so the nested and disjoint limits stay exact and
+  Ω never leaves [0, A(smaller cap)]. The coefficients c0..c5 are least-squares fitted (optimistix) to the
+  exact formula over a dense (r1, r2, d) grid by the ``ambient-aperture`` experiment; `FITTED_COEFFS` holds
+  the values of that fit. Cost: one more division (ρ) and six fused multiply-adds over the smoothstep.
+
+Shading (`ambient_aperture_irradiance`)
+---------------------------------------
+Inputs per point: cos_na = n·a, cos_nl = n·l, cos_al = a·l (unit vectors: surface normal n, bent normal a,
+light direction l), aperture r_a ∈ [0, π/2] and light radius α ∈ [0, π/2]; d = angle(a, l).
+
+* light:  E_L = L · Ω(r_a, α, d) · max(n·c, 0), c = normalize(w l + (1 − w) a), the estimated centroid of
+  the intersection. The seed (000:2763-2772) takes the plain average, w = ½; under an open sky (a = n,
+  r_a = π/2) a small light at 60° gets cos 30° instead of cos 60°, 73 % too bright (erratum in the issue).
+  The replacement weights by the *other* cap's size, w = A(r_a)^k / (A(r_a)^k + A(α)^k): a small light inside
+  a large aperture is its own centroid (w → 1), a small aperture inside a large light is the aperture's
+  (w → 0). The exponent k is fitted (`FITTED_LAMBERT_K`) to quadrature of ∫_{cap∩cap} max(n·ω, 0) dω.
+* ambient fill (000:2774-2782): the part of the aperture the light does not cover is filled with the sky's
+  radiance L_sky. The seed states no cosine weighting; ``fill="seed"`` uses the solid angle with the bent
+  normal's Lambert factor, L_sky (A(r_a) − Ω) max(n·a, 0), which reads 2π L_sky under an open sky where the
+  truth is π L_sky. ``fill="projected"`` uses the aperture's exact *projected* solid angle (the horizon-
+  clipped cap integral ∫_cap max(n·ω, 0) dω, the closed form of `rtfit.realtime.diffuse`) minus the light's
+  share: L_sky (P(n·a, r_a) − Ω · max(n·c, 0)). It has no free parameter: it is exact within the cap model.
+
+Baking (`aperture_from_visibility`): the visible fraction V of the hemisphere (uniform directions) gives the
+aperture of equal solid angle, 2π V = A(r_a): r_a = acos(1 − V) = 2 asin(√(V/2)) (000:2660-2668).
+
+Domain and validation: as `rtfit.realtime.diffuse` — floats, NumPy arrays (one-line ValueError naming the
+interval for values outside) or Dr.Jit arrays (not checked; the kernels clamp radii and d into [0, π],
+cosines into [−1, 1]).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from ._array import (
+    check_range,
+    clamp01,
+    clamp_cos,
+    evaluate,
+    evaluate_numpy,
+    safe_div,
+    safe_sqrt,
+    sincos_first_quadrant,
+)
+from .diffuse import _sphere_light_kernel
+
+__all__ = [
+    "FILL_FORMS",
+    "FITTED_COEFFS",
+    "FITTED_LAMBERT_K",
+    "INTERSECTION_FORMS",
+    "LAMBERT_FORMS",
+    "ambient_aperture_irradiance",
+    "aperture_from_visibility",
+    "cap_area",
+    "cap_intersection_fitted",
+    "cap_intersection_linear",
+    "cap_intersection_smoothstep",
+    "cap_intersection_solid_angle",
+    "intersection_kernel",
+    "numpy_reference",
+    "seed_printed_intersect_area",
+]
+
+PI = math.pi
+HALF_PI = 0.5 * math.pi
+TWO_PI = 2.0 * math.pi
+FOUR_PI = 4.0 * math.pi
+_PI_MAX = 3.1415927410125732   # float32(π) > π: accepted (rounds to π), the kernels clamp
+_HALF_PI_MAX = 1.5707963705062866
+
+FITTED_COEFFS: tuple[float, ...] = (-0.278338, 0.103612, -0.37048, 0.380772, 0.646645, 0.381637)
+"""c0..c5 of the fitted form (see module docstring): `rtfit.experiments.ambient_aperture.fit_intersection_job`
+with its full configuration (72³ cell-centred grid of (r1, r2, d) ∈ (0, π)³, its 124 464 partial-overlap
+points), least squares of (Ω_fit − Ω_exact)/A(r_min); RMS residual 0.0085, max 0.064."""
+
+FITTED_LAMBERT_K: float = 1.19
+"""Exponent k of the fitted centroid weight w = A(r_a)^k/(A(r_a)^k + A(α)^k):
+`rtfit.experiments.ambient_aperture.fit_lambert_job` with its full configuration (6000 random configurations,
+2018 with overlap; k = 1.190 ± 0.019); RMS error of the Lambert-weighted intersection 0.015 of the light cap,
+against 0.159 for the seed's plain average."""
+
+INTERSECTION_FORMS = ("exact", "smoothstep", "linear", "fitted")
+LAMBERT_FORMS = ("seed", "fitted")
+FILL_FORMS = ("seed", "projected")
+
+
+# ===================================================================================== kernels (ops text)
+def _sin_0_pi(ops, x):
+    """sin x for x ∈ [0, π] (clamped) via the first-quadrant polynomial: sin x = sin(min(x, π − x))."""
+    x = ops.clip(x, 0.0, PI)
+    s, _ = sincos_first_quadrant(ops, ops.minimum(x, PI - x))
+    return s
+
+
+_SIN_QUARTER = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(7))  # 1, −1/3!, …, 1/13!
+
+
+def _cap_area_half_kernel(ops, q):
+    """A(q) = 4π sin²(q/2) for q ∈ [0, π/2] (clamped): q/2 ≤ π/4, so a 7-term Taylor polynomial of sin
+    suffices (truncation ≤ (π/4)¹⁵/15! ≈ 2.6e-14 relative); cheaper than the full-quadrant one."""
+    x = 0.5 * ops.clip(q, 0.0, 0.5 * PI)
+    x2 = x * x
+    acc = _SIN_QUARTER[-1]
+    for coef in reversed(_SIN_QUARTER[:-1]):
+        acc = ops.fma(acc, x2, coef)
+    h = x * acc
+    return FOUR_PI * (h * h)
+
+
+def _cap_area_kernel(ops, r):
+    """A(r) = 4π sin²(r/2) for r ∈ [0, π] (clamped)."""
+    h, _ = sincos_first_quadrant(ops, 0.5 * ops.clip(r, 0.0, PI))
+    return FOUR_PI * (h * h)
+
+
+def _lens_kernel(ops, r1, r2, d):
+    """Intersection of two caps with r1, r2 ∈ [0, π/2] (clamped): nested / disjoint / partial (sector form).
+
+    Returns (Ω, A(r1), A(r2)). With both radii ≤ π/2 the covering case cannot occur (r1 + r2 + d ≤ 2π)."""
+    r1 = ops.clip(r1, 0.0, HALF_PI)
+    r2 = ops.clip(r2, 0.0, HALF_PI)
+    h1, c1 = sincos_first_quadrant(ops, 0.5 * r1)
+    h2, c2 = sincos_first_quadrant(ops, 0.5 * r2)
+    a1 = FOUR_PI * (h1 * h1)
+    a2 = FOUR_PI * (h2 * h2)
+    a_min = ops.minimum(a1, a2)
+    diff = ops.abs(r1 - r2)
+    total = r1 + r2
+    # Half-angle forms on the triangle C1 P C2 (sides r1, r2, d; s = half perimeter ≤ π).
+    # The differences s − x vanish at the tangencies: each is summed in the order whose first subtraction
+    # is exact (Sterbenz: operands within a factor 2), so it keeps full relative accuracy near 0.
+    r_max = ops.maximum(r1, r2)
+    r_min = ops.minimum(r1, r2)
+    close = (r2 >= 0.5 * r1) & (r2 <= 2.0 * r1)
+    sin_s = _sin_0_pi(ops, 0.5 * (total + d))
+    sin_1 = _sin_0_pi(ops, 0.5 * ops.select(close, (r2 - r1) + d, (d - r1) + r2))   # sin(s − r1)
+    sin_2 = _sin_0_pi(ops, 0.5 * ops.select(close, (r1 - r2) + d, (d - r2) + r1))   # sin(s − r2)
+    sin_d = _sin_0_pi(ops, 0.5 * ((r_max - d) + r_min))                             # sin(s − d)
+    beta1 = 2.0 * ops.atan2(safe_sqrt(ops, sin_1 * sin_d), safe_sqrt(ops, sin_s * sin_2))
+    beta2 = 2.0 * ops.atan2(safe_sqrt(ops, sin_2 * sin_d), safe_sqrt(ops, sin_s * sin_1))
+    x2 = sin_1 * sin_2
+    y2 = sin_s * sin_d
+    xy = safe_sqrt(ops, x2 * y2)
+    hh = h1 * h2
+    excess = 2.0 * ops.atan2(2.0 * hh * xy, ops.fma(c1 * c2, x2 + y2, hh * (y2 - x2)))
+    partial = 4.0 * ops.fma(beta1, h1 * h1, beta2 * (h2 * h2)) - 2.0 * excess
+    # d ≤ 1e-30: equal caps at a distance that underflows in the half-angle sines (Dr.Jit flushes
+    # subnormals) are nested to within rounding.
+    nested = d <= ops.maximum(diff, 1e-30)
+    out = ops.select(nested, a_min, ops.select(d >= total, 0.0, partial))
+    return ops.clip(out, 0.0, a_min), a1, a2
+
+
+def _exact_kernel(ops, r1, r2, d):
+    """Exact solid angle of the intersection of two caps (radii r1, r2, centre distance d), in sr.
+
+    Caps larger than a hemisphere are replaced by their complements (radius π − r, antipodal centre), so
+    the lens formula only ever sees radii ≤ π/2, where its sector terms stay comparable to the caps:
+      one large (r2 > π/2):  |C1 ∩ C2| = A(r1) − |C1 ∩ C2ᶜ|,  C2ᶜ: radius π − r2 at distance π − d;
+      both large:            |C1 ∩ C2| = A(r1) + A(r2) − 4π + |C1ᶜ ∩ C2ᶜ|,  distance d.
+    """
+    r1 = ops.clip(r1, 0.0, PI)
+    r2 = ops.clip(r2, 0.0, PI)
+    d = ops.clip(d, 0.0, PI)
+    big1 = r1 > HALF_PI
+    big2 = r2 > HALF_PI
+    q1 = ops.select(big1, PI - r1, r1)
+    q2 = ops.select(big2, PI - r2, r2)
+    one = big1 ^ big2
+    lens, a1q, a2q = _lens_kernel(ops, q1, q2, ops.select(one, PI - d, d))
+    # A(r) for a large cap = 4π − A(π − r).
+    a1 = ops.select(big1, FOUR_PI - a1q, a1q)
+    a2 = ops.select(big2, FOUR_PI - a2q, a2q)
+    # Both large: A1 + A2 − 4π = 4π − A(π − r1) − A(π − r2) ≥ 0 (each complement is at most a hemisphere).
+    both = FOUR_PI - a1q - a2q + lens
+    one_out = ops.select(big1, a2 - lens, a1 - lens)
+    out = ops.select(big1 & big2, both, ops.select(one, one_out, lens))
+    return ops.clip(out, 0.0, ops.minimum(a1, a2))
+
+
+def _ramp_parts(ops, r1, r2, d):
+    """(A(r_min), t) with t = 1 − saturate((d − |r1 − r2|)/(r1 + r2 − |r1 − r2|)), as in Listing 1."""
+    r1 = ops.clip(r1, 0.0, PI)
+    r2 = ops.clip(r2, 0.0, PI)
+    d = ops.clip(d, 0.0, PI)
+    r_min = ops.minimum(r1, r2)
+    diff = ops.abs(r1 - r2)
+    a_min = _cap_area_kernel(ops, r_min)
+    t = 1.0 - clamp01(ops, safe_div(ops, d - diff, (r1 + r2) - diff))
+    return a_min, t, diff, r1 + r2, d
+
+
+def _smoothstep_kernel(ops, r1, r2, d):
+    """Seed Listing 1 (000:2725-2755): A(r_min)·smoothstep(0, 1, t) with the nested / disjoint cases."""
+    a_min, t, diff, total, d = _ramp_parts(ops, r1, r2, d)
+    f = t * t * ops.fma(t, -2.0, 3.0)
+    return ops.select(d <= diff, a_min, ops.select(d >= total, 0.0, a_min * f))
+
+
+def _linear_kernel(ops, r1, r2, d):
+    """A(r_min)·t: the linear ramp between full and no intersection."""
+    a_min, t, diff, total, d = _ramp_parts(ops, r1, r2, d)
+    return ops.select(d <= diff, a_min, ops.select(d >= total, 0.0, a_min * t))
+
+
+def _fitted_kernel(ops, r1, r2, d, c0, c1, c2, c3, c4, c5):
+    """Complement trick + smoothstep corrected by a fitted t(1 − t)·(bilinear in u, ρ, σ) term.
+
+    With the complement (r1 + r2 > π), |C1 ∩ C2| = A(r1) + A(r2) − 4π + A(q_min)·f = A(r_min) − A(q_min)(1 − f),
+    since A(r_min) = A(r1) + A(r2) − 4π + A(q_min) when q_min = π − r_max: written that way there is no
+    4π − A(·) cancellation in float32 and only two cap areas are evaluated (q_min ≤ π/2 takes the shorter
+    polynomial)."""
+    r1 = ops.clip(r1, 0.0, PI)
+    r2 = ops.clip(r2, 0.0, PI)
+    d = ops.clip(d, 0.0, PI)
+    comp = (r1 + r2) > PI
+    q1 = ops.select(comp, PI - r1, r1)
+    q2 = ops.select(comp, PI - r2, r2)
+    q_min = ops.minimum(q1, q2)
+    q_max = ops.maximum(q1, q2)
+    a_min = _cap_area_kernel(ops, ops.minimum(r1, r2))          # A(min(r1, r2)): the bound
+    a_q = ops.select(comp, _cap_area_half_kernel(ops, q_min), a_min)
+    diff = q_max - q_min
+    t = 1.0 - clamp01(ops, safe_div(ops, d - diff, 2.0 * q_min))
+    rho = safe_div(ops, q_min, q_max)
+    sigma = (q_min + q_max) * (1.0 / PI)
+    u = ops.fma(t, -2.0, 1.0)
+    corr = ops.fma(u, c1, c0) + rho * ops.fma(u, c3, c2) + sigma * ops.fma(u, c5, c4)
+    f = clamp01(ops, ops.fma(t * (1.0 - t), corr, t * t * ops.fma(t, -2.0, 3.0)))
+    f = ops.select(d <= diff, 1.0, ops.select(d >= q1 + q2, 0.0, f))
+    out = ops.select(comp, ops.fma(-a_q, 1.0 - f, a_min), a_q * f)
+    return ops.clip(out, 0.0, a_min)
+
+
+def _seed_printed_kernel(ops, r0, r1, d):
+    """IntersectArea exactly as printed at 000:2672-2687 (WRONG: kept to document the erratum)."""
+    t1 = 2.0 * ops.cos(r1) * ops.acos(clamp_cos(ops, (-ops.cos(r0) + ops.cos(d) * ops.cos(r1))
+                                                 / (ops.sin(d) * ops.sin(r1))))
+    t2 = 2.0 * ops.cos(r0) * ops.acos(clamp_cos(ops, (ops.cos(r1) - ops.cos(d) * ops.cos(r0))
+                                                 / (ops.sin(d) * ops.sin(r0))))
+    t3 = 2.0 * ops.acos(clamp_cos(ops, (-ops.cos(d) + ops.cos(r0) * ops.cos(r1)) / (ops.sin(r0) * ops.sin(r1))))
+    return t1 - t2 - t3 - TWO_PI * ops.cos(r1)
+
+
+_INTERSECTION_KERNELS: dict[str, Callable] = {
+    "exact": _exact_kernel,
+    "smoothstep": _smoothstep_kernel,
+    "linear": _linear_kernel,
+}
+
+
+def intersection_kernel(form: str, coeffs: Sequence[float] | None = None) -> Callable:
+    """The ops-kernel ``k(ops, r1, r2, d)`` of an intersection form (for composition and benchmarks)."""
+    if form == "fitted":
+        c = _coeffs(coeffs)
+        return lambda ops, r1, r2, d: _fitted_kernel(ops, r1, r2, d, *c)
+    if form not in _INTERSECTION_KERNELS:
+        raise ValueError(f"intersection form must be one of {INTERSECTION_FORMS} (got {form!r})")
+    return _INTERSECTION_KERNELS[form]
+
+
+def _angle_from_cos(ops, c):
+    """acos(c) as atan2(√((1 − c)(1 + c)), c): full relative accuracy of the sine near c = ±1."""
+    c = clamp_cos(ops, c)
+    return ops.atan2(safe_sqrt(ops, (1.0 - c) * (1.0 + c)), c)
+
+
+def _centroid_cos(ops, cos_na, cos_nl, cos_al, w):
+    """n·normalize(w l + (1 − w) a) for unit a, l; 0 when the sum vanishes (a = −l, w = ½)."""
+    v = 1.0 - w
+    norm2 = ops.fma(w, w, v * v) + 2.0 * w * v * cos_al
+    dot = ops.fma(w, cos_nl, v * cos_na)
+    return clamp_cos(ops, safe_div(ops, dot, safe_sqrt(ops, norm2)))
+
+
+def _shading_kernel_factory(form: str, lambert: str, fill: str, coeffs, k: float):
+    inter = intersection_kernel(form, coeffs)
+
+    def kernel(ops, cos_na, cos_nl, cos_al, r_a, alpha, radiance, sky):
+        r_a = ops.clip(r_a, 0.0, 0.5 * PI)
+        alpha = ops.clip(alpha, 0.0, 0.5 * PI)
+        cos_na = clamp_cos(ops, cos_na)
+        d = _angle_from_cos(ops, cos_al)
+        omega = inter(ops, r_a, alpha, d)
+        if lambert == "seed":
+            w = 0.5
+        else:
+            # w = A_a^k / (A_a^k + A_l^k) = 1 / (1 + (A_l/A_a)^k): one power, no overflow for tiny caps.
+            aa = _cap_area_kernel(ops, r_a)
+            al = _cap_area_kernel(ops, alpha)
+            ratio = ops.minimum(safe_div(ops, al, aa), 1e30)
+            w = 1.0 / (1.0 + ops.power(ratio, k))
+        lam = ops.maximum(_centroid_cos(ops, cos_na, cos_nl, cos_al, w), 0.0)
+        e_light = radiance * (omega * lam)
+        if fill == "seed":
+            aperture = _cap_area_kernel(ops, r_a)
+            e_fill = sky * (ops.maximum(aperture - omega, 0.0) * ops.maximum(cos_na, 0.0))
+        else:
+            proj = _sphere_light_kernel(ops, cos_na, r_a, 1.0)  # ∫_aperture max(n·ω, 0) dω
+            e_fill = sky * ops.maximum(proj - omega * lam, 0.0)
+        return e_light, e_fill
+
+    return kernel
+
+
+def _visibility_kernel(ops, v):
+    """r_a = 2 asin(√(V/2)) = acos(1 − V) for a visible hemisphere fraction V ∈ [0, 1]."""
+    x = safe_sqrt(ops, 0.5 * clamp01(ops, v))
+    return 2.0 * ops.atan2(x, safe_sqrt(ops, (1.0 - x) * (1.0 + x)))
+
+
+# ===================================================================================== validation helpers
+def _radius(name, r):
+    return check_range(name, r, 0.0, _PI_MAX, interval="[0, pi]")
+
+
+def _half(name, r):
+    return check_range(name, r, 0.0, _HALF_PI_MAX, interval="[0, pi/2]")
+
+
+def _cosine(name, c):
+    return check_range(name, c, -1.0 - 1e-4, 1.0 + 1e-4, interval="[-1, 1]")
+
+
+def _coeffs(coeffs) -> tuple[float, ...]:
+    c = FITTED_COEFFS if coeffs is None else tuple(float(x) for x in coeffs)
+    if len(c) != 6 or not all(math.isfinite(x) for x in c):
+        raise ValueError(f"coeffs must be 6 finite numbers c0..c5 (got {coeffs!r})")
+    return c
+
+
+# ===================================================================================== public API
+def cap_area(r):
+    """Solid angle (sr) of a spherical cap of angular radius r ∈ [0, π]: 2π(1 − cos r) = 4π sin²(r/2)."""
+    return evaluate(_cap_area_kernel, _radius("r", r))
+
+
+def cap_intersection_solid_angle(r1, r2, d):
+    """Exact solid angle (sr) of the intersection of two caps of radii r1, r2 ∈ [0, π] whose centres are
+    d ∈ [0, π] apart (all radians). Nested, disjoint, covering and tangent cases included; see module doc."""
+    return evaluate(_exact_kernel, _radius("r1", r1), _radius("r2", r2), _radius("d", d))
+
+
+def cap_intersection_smoothstep(r1, r2, d):
+    """The seed's approximation (000:2725-2755): A(r_min)·smoothstep(0, 1, 1 − (d − |r1−r2|)/(r1+r2−|r1−r2|))."""
+    return evaluate(_smoothstep_kernel, _radius("r1", r1), _radius("r2", r2), _radius("d", d))
+
+
+def cap_intersection_linear(r1, r2, d):
+    """Linear ramp: A(r_min)·(1 − (d − |r1−r2|)/(r1+r2−|r1−r2|)), clamped to [0, 1] inside."""
+    return evaluate(_linear_kernel, _radius("r1", r1), _radius("r2", r2), _radius("d", d))
+
+
+def cap_intersection_fitted(r1, r2, d, coeffs: Sequence[float] | None = None):
+    """Fitted replacement (complement trick + corrected smoothstep); ``coeffs`` c0..c5 default to
+    `FITTED_COEFFS`. Always within [0, A(min(r1, r2))]."""
+    c = _coeffs(coeffs)
+    return evaluate(lambda ops, a, b, e: _fitted_kernel(ops, a, b, e, *c),
+                    _radius("r1", r1), _radius("r2", r2), _radius("d", d))
+
+
+def seed_printed_intersect_area(r0, r1, d):
+    """The seed's printed IntersectArea (000:2672-2687) verbatim, for the erratum only (it is wrong)."""
+    return evaluate_numpy(_seed_printed_kernel, r0, r1, d)
+
+
+def aperture_from_visibility(visible_fraction):
+    """Aperture radius (rad) of the cap whose solid angle is the visible part of the hemisphere:
+    r_a = acos(1 − V), V ∈ [0, 1] the visible fraction of uniformly distributed hemisphere directions."""
+    return evaluate(_visibility_kernel, check_range("visible_fraction", visible_fraction, 0.0, 1.0))
+
+
+def ambient_aperture_irradiance(cos_na, cos_nl, cos_al, aperture, alpha, radiance=1.0, sky_radiance=0.0, *,
+                                intersection: str = "exact", lambert: str = "seed", fill: str = "seed",
+                                coeffs: Sequence[float] | None = None, k: float | None = None):
+    """Ambient-aperture irradiance (W/m²): returns ``(E_light, E_fill)``.
+
+    ``cos_na`` = n·a, ``cos_nl`` = n·l, ``cos_al`` = a·l (unit normal n, bent normal a, light direction l);
+    ``aperture`` r_a and ``alpha`` (light angular radius) in [0, π/2] rad; ``radiance`` of the light and
+    ``sky_radiance`` of the ambient fill in W/m²/sr. ``intersection`` ∈ `INTERSECTION_FORMS`, ``lambert`` ∈
+    `LAMBERT_FORMS` ("seed": plain average direction; "fitted": cap-size weights with exponent ``k``),
+    ``fill`` ∈ `FILL_FORMS` ("seed": solid angle × bent-normal cosine; "projected": exact projected solid
+    angle of the aperture). See the module docstring for the formulas.
+    """
+    if intersection not in INTERSECTION_FORMS:
+        raise ValueError(f"intersection must be one of {INTERSECTION_FORMS} (got {intersection!r})")
+    if lambert not in LAMBERT_FORMS:
+        raise ValueError(f"lambert must be one of {LAMBERT_FORMS} (got {lambert!r})")
+    if fill not in FILL_FORMS:
+        raise ValueError(f"fill must be one of {FILL_FORMS} (got {fill!r})")
+    kk = FITTED_LAMBERT_K if k is None else float(k)
+    if not (0.0 < kk <= 16.0):
+        raise ValueError(f"k must be in (0, 16] (got {k!r})")
+    kernel = _shading_kernel_factory(intersection, lambert, fill, coeffs, kk)
+    return evaluate(kernel, _cosine("cos_na", cos_na), _cosine("cos_nl", cos_nl), _cosine("cos_al", cos_al),
+                    _half("aperture", aperture), _half("alpha", alpha),
+                    check_range("radiance", radiance, 0.0, 1.7e308, interval="[0, inf)"),
+                    check_range("sky_radiance", sky_radiance, 0.0, 1.7e308, interval="[0, inf)"))
+
+
+def numpy_reference(form: str, coeffs: Sequence[float] | None = None) -> Callable:
+    """NumPy evaluation ``f(r1, r2, d)`` of the SAME kernel text as the Dr.Jit path of an intersection form
+    (no validation, input dtype decides the precision): for benchmarks."""
+    kernel = intersection_kernel(form, coeffs)
+
+    def run(r1, r2, d):
+        with np.errstate(all="ignore"):
+            return evaluate_numpy(kernel, r1, r2, d)
+
+    run.__name__ = f"numpy_{form}"
+    return run

@@ -1,0 +1,195 @@
+r"""rtfit's exponential-height-fog medium for Mitsuba: a Python ``mi.Medium`` (plugin ``rtfit_expfog``).
+
+σt(p) = b·exp(−c·(p − p₀)·ĝ) (1/scene unit), σs = albedo·σt, Henyey–Greenstein phase (g), grey
+extinction. The medium is bounded by its region: the box ``to_world``·[−1, 1]³ (the boundary cube of
+the scene's `ExponentialFog`, or the box around a sphere boundary); with ``ellipsoid`` the density is zero
+outside the ellipsoid inscribed in that box (so ray–ellipsoid entry and exit are exact, not a mesh).
+
+Why a Python medium and not a ``heterogeneous`` grid volume: the density is then the analytic function
+itself — no voxelisation error at any scale (the scenes span 1 m to 20 km with scale heights of 10–1000
+m) — and it costs less (facts note §5: 3.6 s against 4.7 s for a 64³ grid). The ``bbox`` pitfall of
+Python volumes (clipped to [0, 1]³) does not arise: a ``Medium`` defines its own extent through
+``intersect_aabb``, which here intersects the ray with the region box in the box's local frame.
+
+Majorant: Mitsuba calls ``get_majorant`` before it knows the sample position (one majorant per
+medium), so it is the largest density in the region: b·exp(−c·min over the box corners of (q − p₀)·ĝ),
+computed in float64 and raised by 1e-5 relative (float32 rounding of the density never exceeds it;
+densities are also clamped to it). Delta tracking with it is unbiased; its cost grows with
+majorant × path length, which is why the experiment's fog region stops at 20 scale heights.
+
+Properties: ``density`` (float b), ``falloff`` (float c), ``gradient`` and ``gradient_origin``
+(ScalarVector3f), ``to_world`` (ScalarTransform4f of the region box), ``ellipsoid`` (bool),
+``albedo`` (ScalarVector3f RGB), and the nested ``phase``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+PLUGIN = "rtfit_expfog"
+_registered: set[str] = set()
+_MAJORANT_MARGIN = 1e-5
+
+
+def region_matrix(boundary) -> np.ndarray:
+    """4×4 world-from-local matrix of the region box [−1, 1]³ of a Cube or Sphere boundary."""
+    from .build import affine, rotation_matrix
+
+    if boundary.kind == "cube":
+        rot = rotation_matrix(boundary.rotate_axis, boundary.rotate_deg)
+        lin = rot @ np.diag(np.asarray(boundary.size) / 2)
+        return affine(lin, boundary.center)
+    if boundary.kind == "sphere":
+        return affine(np.eye(3) * boundary.radius, boundary.center)
+    raise ValueError(f"unsupported fog boundary {boundary.kind!r}")
+
+
+def majorant(density: float, falloff: float, gradient, gradient_origin, to_world: np.ndarray) -> float:
+    """Largest density in the region box: at the corner lowest along the gradient (float64)."""
+    g = np.asarray(gradient, dtype=np.float64)
+    g = g / np.linalg.norm(g)
+    q0 = np.asarray(gradient_origin, dtype=np.float64)
+    hmin = min(float((to_world @ np.array([*c, 1.0]))[:3] @ g - q0 @ g)
+               for c in itertools.product((-1.0, 1.0), repeat=3))
+    value = density * math.exp(min(-falloff * hmin, 700.0))
+    return value * (1.0 + _MAJORANT_MARGIN)
+
+
+def medium_dict(mi, medium) -> dict:
+    """``mi.load_dict`` entry for a scene `ExponentialFog` (``mi``: the mitsuba module, variant set)."""
+    m = region_matrix(medium.boundary)
+    phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
+    return {"type": PLUGIN, "density": float(medium.density), "falloff": float(medium.falloff),
+            "gradient": mi.ScalarVector3f(*[float(x) for x in medium.gradient]),
+            "gradient_origin": mi.ScalarVector3f(*[float(x) for x in medium.gradient_origin]),
+            "to_world": mi.ScalarTransform4f(m.tolist()), "ellipsoid": bool(medium.ellipsoid),
+            "albedo": mi.ScalarVector3f(*[float(x) for x in medium.albedo]), "phase": phase}
+
+
+def register(mi) -> None:
+    """Register the medium for the active variant (once per variant)."""
+    variant = mi.variant()
+    if variant in _registered:
+        return
+    import drjit as dr
+
+    class ExpFog(mi.Medium):
+        def __init__(self, props):
+            super().__init__(props)
+            self.m_is_homogeneous = False
+            self.m_has_spectral_extinction = False
+            self.b = float(props.get("density"))
+            self.c = float(props.get("falloff"))
+            g = props.get("gradient")
+            q = props.get("gradient_origin")
+            gv = np.array([float(g[i]) for i in range(3)])
+            gv /= np.linalg.norm(gv)
+            qv = np.array([float(q[i]) for i in range(3)])
+            to_world = np.array(props.get("to_world").matrix, dtype=np.float64)
+            inv = np.linalg.inv(to_world)
+            self.ellipsoid = bool(props.get("ellipsoid", False))
+            a = props.get("albedo")
+            self.albedo = mi.Color3f(float(a[0]), float(a[1]), float(a[2]))
+            self.maj = majorant(self.b, self.c, gv, qv, to_world)
+            self.grad = mi.Vector3f(*gv.tolist())
+            self.h_offset = float(qv @ gv)       # h(p) = p·ĝ − p₀·ĝ
+            self.inv_lin = mi.Matrix3f(inv[:3, :3].tolist())
+            self.inv_t = mi.Vector3f(*inv[:3, 3].tolist())
+            self.unit_box = mi.BoundingBox3f(mi.ScalarPoint3f(-1.0, -1.0, -1.0),
+                                             mi.ScalarPoint3f(1.0, 1.0, 1.0))
+
+        def _to_local_point(self, p):
+            return self.inv_lin @ mi.Vector3f(p) + self.inv_t
+
+        def intersect_aabb(self, ray):
+            o = mi.Point3f(self._to_local_point(ray.o))
+            d = self.inv_lin @ mi.Vector3f(ray.d)   # not renormalised: t stays in world units
+            return self.unit_box.ray_intersect(mi.Ray3f(o, d))
+
+        def get_majorant(self, mei, active=True):
+            return mi.UnpolarizedSpectrum(self.maj)
+
+        def get_scattering_coefficients(self, mei, active=True):
+            h = dr.dot(mi.Vector3f(mei.p), self.grad) - self.h_offset
+            sig = self.b * dr.exp(dr.minimum(-self.c * h, 85.0))
+            sig = dr.minimum(sig, self.maj)
+            if self.ellipsoid:
+                local = self._to_local_point(mei.p)
+                sig = dr.select(dr.squared_norm(local) <= 1.0, sig, 0.0)
+            sigma_t = mi.UnpolarizedSpectrum(sig)
+            sigma_s = self.albedo * sigma_t
+            sigma_n = mi.UnpolarizedSpectrum(self.maj) - sigma_t
+            return sigma_s, sigma_n, sigma_t
+
+        def traverse(self, callback):
+            pass
+
+        def to_string(self):
+            return f"ExpFog[b={self.b}, c={self.c}, majorant={self.maj}]"
+
+    mi.register_medium(PLUGIN, lambda props: ExpFog(props))
+    _registered.add(variant)
+
+
+def sky_statistics(sunsky, variant: str = "llvm_ad_rgb", n_azimuth: int = 256, n_dirs: int = 1 << 16,
+                   seed: int = 0) -> dict:
+    """Radiance statistics of a scene `SunSky` light (Mitsuba's ``sunsky`` evaluated directly, RGB):
+
+    * ``horizon``: mean sky radiance over azimuth at elevations 1°–5° (the seed's horizon average,
+      000:2247-2254);
+    * ``upper_mean``: mean sky radiance over the upper hemisphere (uniform in solid angle, sun excluded:
+      directions within 2 apertures of the sun centre are dropped);
+    * ``sun_irradiance``: E⊥ of the sun disc, ∫ L dω over its aperture (midpoint rule on a polar grid);
+    * ``sky_irradiance_horizontal``: ∫ L_sky cos θ dω over the upper hemisphere (W/m² per the model's units).
+    """
+    from .build import _light_dicts
+    from .variants import use_variant
+
+    mi = use_variant(variant)
+    import drjit as dr
+
+    emitter = mi.load_dict(_light_dicts(mi, sunsky)[""])
+
+    def radiance(dirs: np.ndarray) -> np.ndarray:
+        si = dr.zeros(mi.SurfaceInteraction3f, len(dirs))
+        si.wi = mi.Vector3f(-dirs.T.astype(np.float32))
+        return np.array(emitter.eval(si)).T.astype(np.float64)
+
+    sun = np.asarray(sunsky.sun_direction, dtype=np.float64)
+    sun = sun / np.linalg.norm(sun)
+    ap = math.radians(sunsky.sun_aperture_deg) / 2.0
+    # horizon band
+    az = (np.arange(n_azimuth) + 0.5) / n_azimuth * 2 * math.pi
+    els = np.radians(np.array([1.0, 2.0, 3.0, 4.0, 5.0]))
+    a, e = np.meshgrid(az, els)
+    dirs = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], -1).reshape(-1, 3)
+    keep = dirs @ sun < math.cos(4 * ap)
+    horizon = radiance(dirs[keep]).mean(axis=0)
+    # upper hemisphere, uniform in solid angle (stratified)
+    rng = np.random.default_rng(seed)
+    u = rng.random((n_dirs, 2))
+    z = u[:, 0]
+    r = np.sqrt(np.maximum(1 - z * z, 0))
+    dirs = np.stack([r * np.cos(2 * math.pi * u[:, 1]), r * np.sin(2 * math.pi * u[:, 1]), z], -1)
+    keep = dirs @ sun < math.cos(4 * ap)
+    lu = radiance(dirs[keep])
+    upper_mean = lu.mean(axis=0)
+    sky_e = 2 * math.pi * (lu * dirs[keep][:, 2:3]).mean(axis=0) * keep.mean()
+    # sun disc: polar grid around the sun direction
+    frame_t = np.cross(sun, [0.0, 0.0, 1.0] if abs(sun[2]) < 0.9 else [1.0, 0.0, 0.0])
+    frame_t /= np.linalg.norm(frame_t)
+    frame_b = np.cross(sun, frame_t)
+    nr, nphi = 64, 64
+    rr = (np.arange(nr) + 0.5) / nr * ap * 1.0001
+    ph = (np.arange(nphi) + 0.5) / nphi * 2 * math.pi
+    R, P = np.meshgrid(rr, ph)
+    perp = np.cos(P)[..., None] * frame_t + np.sin(P)[..., None] * frame_b
+    d = (np.cos(R)[..., None] * sun + np.sin(R)[..., None] * perp).reshape(-1, 3)
+    w = (np.sin(R) * (ap * 1.0001 / nr) * (2 * math.pi / nphi)).reshape(-1, 1)
+    ls = radiance(d) - upper_mean  # the sky under the disc is in upper_mean already
+    sun_e = np.maximum((ls * w).sum(axis=0), 0.0)
+    return {"horizon": horizon.tolist(), "upper_mean": upper_mean.tolist(), "sun_irradiance": sun_e.tolist(),
+            "sky_irradiance_horizontal": sky_e.tolist(), "sun_direction": sun.tolist()}
