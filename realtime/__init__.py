@@ -7,11 +7,13 @@ Modules:
     aperture  ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection and shading
               (docs/ambient-aperture.md).
     diffuse   Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
+    irradiance  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
+              (docs/irradiance-bases.md).
     fog       exponential height fog: stable closed-form optical depth, fog colour, fog volumes
               (docs/height-fog.md).
 """
 
-from . import aperture, diffuse, fog
+from . import aperture, diffuse, fog, irradiance
 from ._array import DRJIT_OPS, NUMPY_OPS, get_default_backend, set_default_backend
 
-__all__ = ["DRJIT_OPS", "NUMPY_OPS", "aperture", "diffuse", "fog", "get_default_backend", "set_default_backend"]
+__all__ = ["DRJIT_OPS", "NUMPY_OPS", "aperture", "diffuse", "fog", "get_default_backend", "irradiance", "set_default_backend"]

@@ -1,0 +1,506 @@
+"""Irradiance bases for distant lighting: Valve's ambient cube and spherical harmonics (L1, L2, windowed).
+
+All functions return irradiance E(n) = ∫ L(ω) max(n·ω, 0) dω in W/m² (per RGB channel) for a distant
+environment of radiance L (W·m⁻²·sr⁻¹), evaluated at unit normals n (world frame, +Z up).
+
+Ambient cube (seed 000:2471-2501, Valve's listing): six RGB colours C in the order +x, −x, +y, −y, +z, −z,
+
+    E(n) = n_x² C[x sign] + n_y² C[y sign] + n_z² C[z sign]      (sign: n_i < 0 picks the − entry).
+
+Valve fills C with the irradiance at the six axes; `fit_ambient_cube_nnls` gives the cube that minimises
+the squared irradiance error over the sphere of normals with C ≥ 0. 18 floats per probe.
+
+Spherical harmonics. **Sign convention: real SH without the Condon–Shortley phase** (the graphics
+convention of Ramamoorthi & Hanrahan 2001 and Sloan's "Stupid SH tricks"), index k = l(l + 1) + m:
+
+    Y00 = 0.282095                       Y1,−1 = 0.488603 y   Y10 = 0.488603 z   Y11 = 0.488603 x
+    Y2,−2 = 1.092548 xy   Y2,−1 = 1.092548 yz   Y20 = 0.315392 (3z² − 1)   Y21 = 1.092548 xz
+    Y22 = 0.546274 (x² − y²)
+
+Dr.Jit's ``dr.sh_eval`` includes the Condon–Shortley phase (−1)^m: its odd-m entries (k = 1, 3, 5, 7)
+have the opposite sign (checked in tests). Projection L_lm = ∫ L(ω) Y_lm(ω) dω; irradiance by the
+Funk–Hecke convolution with the clamped cosine (R&H): E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n) with
+Â0 = π, Â1 = 2π/3, Â2 = π/4, and a window w_l (1 unless windowed). L1 stores 4 coefficients per channel
+(12 floats), L2 9 (27 floats).
+
+For a distant light of unit irradiance at normal incidence along d, L_lm = Y_lm(d)
+(`sh9_from_directional`), and the L2 irradiance at angle θ from d is
+1/4 + cos θ/2 + (5/16)(3cos²θ − 1)/2 (R&H); L1 drops the last term. A uniform disc of angular radius α
+and normal-incidence irradiance E⊥ has (Funk–Hecke, ∫_{cos α}^1 P_l) L_00 = 2E⊥/(1 + cos α)·Y00(d),
+L_1m = E⊥ Y_1m(d), L_2m = E⊥ cos α Y_2m(d) (`sh9_from_disk`).
+
+Windows against ringing (negative irradiance opposite a bright light): Hann w_l = ½(1 + cos(πl/(L+1))),
+Lanczos w_l = sinc(l/(L+1)) = sin(πl/(L+1))/(πl/(L+1)), and Sloan's w_l = 1/(1 + λ l²(l + 1)²) with the
+smallest λ that removes the negative irradiance of a given environment (`fit_window_lambda`).
+
+Geomerics L1 (Hazel, "Reconstructing diffuse lighting from SH", as written in Frostbite-style code):
+with the linear irradiance E_lin(n) = R0 + 2 R1·n (R0 the sphere-average irradiance, R1 half the
+linear coefficient vector), r = |R1|/R0 ∈ [0, 1], q = ½(1 + R̂1·n), p = 1 + 2r, a = (1 − r)/(1 + r):
+E(n) = R0 (a + (1 − a)(p + 1) q^p). It keeps the mean R0, is never negative, and matches E_lin to first
+order in r (its L1 band is 3R0(1 − a)p/(p + 2), = 2|R1| for small r).
+
+Normals: need not be unit length (they are normalised). A zero-length normal in NumPy/float input raises a
+ValueError; in Dr.Jit input (not checked, to avoid a host sync) it returns the basis's sphere-average
+irradiance (SH: the DC term; cube: the mean of the six colours; Geomerics: R0). NaN normals raise for NumPy.
+
+Everything here runs on Dr.Jit (LLVM/CUDA) and NumPy from one kernel text (`rtfit.realtime._array`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from ._array import evaluate, evaluate_numpy, is_drjit, safe_div, split3  # noqa: F401
+
+__all__ = [
+    "A_HAT", "CUBE_ORDER", "FLOATS_PER_PROBE", "SH_C", "WINDOWS", "ambient_cube_from_axes",
+    "ambient_cube_irradiance", "cube_design_matrix", "fibonacci_sphere", "fit_ambient_cube_nnls",
+    "fit_window_lambda", "latlong_directions", "latlong_samples", "numpy_reference", "sh4_irradiance",
+    "sh4_irradiance_geomerics", "sh9_basis", "sh9_from_directional", "sh9_from_disk", "sh9_irradiance",
+    "sh_irradiance", "sh_project_latlong", "sh_project_samples", "sh_window",
+]
+
+# Normalisation constants of the real SH basis (no Condon–Shortley phase).
+SH_C = (0.28209479177387814,   # 1/(2√π)
+        0.4886025119029199,    # √3/(2√π)
+        1.0925484305920792,    # √15/(2√π)
+        0.31539156525252005,   # √5/(4√π)
+        0.5462742152960396)    # √15/(4√π)
+A_HAT = (math.pi, 2.0 * math.pi / 3.0, math.pi / 4.0)
+CUBE_ORDER = ("+x", "-x", "+y", "-y", "+z", "-z")
+FLOATS_PER_PROBE = {"ambient-cube": 18, "sh-l1": 12, "sh-l2": 27}
+WINDOWS = ("none", "hann", "lanczos", "lambda")
+_BAND = (0, 1, 1, 1, 2, 2, 2, 2, 2)
+_TINY = 1e-30
+
+
+# =========================================================================================== kernels
+def _unit(ops, nx, ny, nz):
+    """(x, y, z, valid): n/|n| and whether |n|² > 1e-30 (invalid normals become 0)."""
+    n2 = nx * nx + ny * ny + nz * nz
+    valid = n2 > _TINY
+    inv = 1.0 / ops.sqrt(ops.maximum(n2, _TINY))
+    return (ops.select(valid, nx * inv, 0.0), ops.select(valid, ny * inv, 0.0),
+            ops.select(valid, nz * inv, 0.0), valid)
+
+
+def _basis(x, y, z):
+    c0, c1, c2, c3, c4 = SH_C
+    return (c0 + 0.0 * x, c1 * y, c1 * z, c1 * x, c2 * x * y, c2 * y * z, c3 * (3.0 * z * z - 1.0),
+            c2 * x * z, c4 * (x * x - y * y))
+
+
+def _sh_kernel(ops, nx, ny, nz, *k):
+    """k: 27 (L2) or 12 (L1) convolved coefficients Â_l w_l L_lm, channel-major (R then G then B)."""
+    x, y, z, valid = _unit(ops, nx, ny, nz)
+    per = len(k) // 3
+    out = []
+    for c in range(3):
+        kc = k[c * per:(c + 1) * per]
+        rest = kc[1] * (SH_C[1] * y) + kc[2] * (SH_C[1] * z) + kc[3] * (SH_C[1] * x)
+        if per == 9:
+            rest = rest + kc[4] * (SH_C[2] * x * y) + kc[5] * (SH_C[2] * y * z) \
+                + kc[6] * (SH_C[3] * (3.0 * z * z - 1.0)) + kc[7] * (SH_C[2] * x * z) \
+                + kc[8] * (SH_C[4] * (x * x - y * y))
+        out.append(kc[0] * SH_C[0] + ops.select(valid, rest, 0.0))
+    return tuple(out)
+
+
+def _cube_kernel(ops, nx, ny, nz, *c):
+    """c: 18 floats, channel-major, each channel in the order +x, −x, +y, −y, +z, −z."""
+    x, y, z, valid = _unit(ops, nx, ny, nz)
+    x2, y2, z2 = x * x, y * y, z * z
+    out = []
+    for ch in range(3):
+        cc = c[ch * 6:(ch + 1) * 6]
+        e = x2 * ops.select(x < 0.0, cc[1], cc[0]) + y2 * ops.select(y < 0.0, cc[3], cc[2]) \
+            + z2 * ops.select(z < 0.0, cc[5], cc[4])
+        mean = (cc[0] + cc[1] + cc[2] + cc[3] + cc[4] + cc[5]) * (1.0 / 6.0)
+        out.append(ops.select(valid, e, mean))
+    return tuple(out)
+
+
+def _geomerics_kernel(ops, nx, ny, nz, *k):
+    """k: 12 floats channel-major: (R0, R1x, R1y, R1z) per channel (see module docstring)."""
+    x, y, z, valid = _unit(ops, nx, ny, nz)
+    out = []
+    for ch in range(3):
+        r0, ax, ay, az = k[ch * 4:(ch + 1) * 4]
+        r0p = ops.maximum(r0, 0.0)
+        length = ops.sqrt(ax * ax + ay * ay + az * az)
+        r = ops.clip(safe_div(ops, length, r0p), 0.0, 1.0)
+        q = ops.clip(0.5 * (1.0 + safe_div(ops, ax * x + ay * y + az * z, length)), 0.0, 1.0)
+        p = 1.0 + 2.0 * r
+        a = (1.0 - r) / (1.0 + r)
+        e = r0p * (a + (1.0 - a) * (p + 1.0) * ops.power(q, p))
+        out.append(ops.select(valid, e, r0p))
+    return tuple(out)
+
+
+# =========================================================================================== helpers
+def _normal_args(normal, name="normal"):
+    """Split a normal argument; NumPy/float input is checked (finite, non-zero length)."""
+    if not is_drjit(normal):
+        a = np.asarray(normal)
+        if a.ndim == 0 or a.shape[-1] != 3:
+            raise ValueError(f"{name} must have shape (..., 3) (got shape {a.shape})")
+        if a.size:
+            a64 = a.astype(np.float64, copy=False)
+            if not np.all(np.isfinite(a64)):
+                raise ValueError(f"{name} must be finite (got NaN or inf)")
+            if np.any(np.sum(a64 * a64, axis=-1) <= _TINY):
+                raise ValueError(f"{name} must have non-zero length (normals are normalised; a zero vector "
+                                 "has no direction)")
+    return split3(normal, name)
+
+
+def _coeff_array(coeffs, n: int, name: str) -> np.ndarray:
+    """(n, 3) float64 coefficients; a (n,) vector is taken as grey (the same for R, G, B)."""
+    c = np.asarray(coeffs, dtype=np.float64)
+    if c.ndim == 1 and c.shape[0] >= n:
+        c = np.repeat(c[:n, None], 3, axis=1)
+    elif c.ndim == 2 and c.shape[1] == 1:
+        c = np.repeat(c, 3, axis=1)
+    if c.ndim != 2 or c.shape[0] < n or c.shape[1] != 3:
+        raise ValueError(f"{name} must have shape ({n}, 3) or ({n},) (at least {n} rows; got {np.shape(coeffs)})")
+    c = c[:n]
+    if not np.all(np.isfinite(c)):
+        raise ValueError(f"{name} must be finite")
+    return c
+
+
+def _flat(k: np.ndarray, opaque: bool) -> list:
+    """Channel-major list of per-coefficient arguments: size-1 arrays (one compiled kernel for all
+    coefficient values) or Python floats (for the float64 NumPy path)."""
+    flat = k.T.reshape(-1)
+    return [np.array([v]) for v in flat] if opaque else [float(v) for v in flat]
+
+
+def _run(kernel, normal, k: np.ndarray, name="normal"):
+    """Evaluate ``kernel`` at ``normal`` with coefficients ``k`` (n, 3).
+
+    Coefficients enter a Dr.Jit kernel as *opaque* size-1 arrays (``dr.opaque``): one compiled kernel for
+    every coefficient value. (Measured: size-1 arrays freshly made from NumPy are folded into the kernel
+    as literals and recompile it on every call, 16 ms per launch on 2 CPU cores.)"""
+    import drjit as dr
+
+    from ._array import DRJIT_OPS, _backend_float, _numpy_dtype
+
+    nx, ny, nz = _normal_args(normal, name)
+    if is_drjit(normal):
+        Float = type(nx)
+        return kernel(DRJIT_OPS, nx, ny, nz, *[dr.opaque(Float, v) for v in _flat(k, False)])
+    if not isinstance(nx, np.ndarray):  # one normal given as floats: NumPy text in float64
+        return np.array(evaluate(kernel, nx, ny, nz, *_flat(k, False)), dtype=np.float64)
+    shape = np.broadcast_shapes(nx.shape, ny.shape, nz.shape)
+    dtype = _numpy_dtype([nx, ny, nz])
+    size = int(np.prod(shape))
+    if size == 0:
+        return np.zeros(shape + (3,), dtype)
+    Float = _backend_float(dtype)
+    conv = [Float(np.ascontiguousarray(np.broadcast_to(c, shape).reshape(-1), dtype=dtype)) for c in (nx, ny, nz)]
+    out = kernel(DRJIT_OPS, *conv, *[dr.opaque(Float, v) for v in _flat(k, False)])
+    return np.stack([np.array(o, dtype=dtype).reshape(shape) for o in out], axis=-1)
+
+
+# ====================================================================================== SH: windows
+def sh_window(kind: str, order: int = 2, lam: float = 0.0) -> np.ndarray:
+    """Per-band window factors w_0..w_order for ``kind`` in {"none", "hann", "lanczos", "lambda"}."""
+    if order not in (1, 2):
+        raise ValueError(f"order must be 1 or 2 (got {order!r})")
+    ls = np.arange(order + 1, dtype=np.float64)
+    if kind == "none":
+        return np.ones(order + 1)
+    if kind == "hann":
+        return 0.5 * (1.0 + np.cos(np.pi * ls / (order + 1)))
+    if kind == "lanczos":
+        x = np.pi * ls / (order + 1)
+        return np.where(ls == 0, 1.0, np.sin(x) / np.where(ls == 0, 1.0, x))
+    if kind == "lambda":
+        lam = float(lam)
+        if not (lam >= 0.0 and math.isfinite(lam)):
+            raise ValueError(f"lam must be a finite number >= 0 (got {lam!r})")
+        return 1.0 / (1.0 + lam * ls * ls * (ls + 1.0) ** 2)
+    raise ValueError(f"window kind must be one of {WINDOWS} (got {kind!r})")
+
+
+def _convolved(coeffs, order: int, window: np.ndarray | None) -> np.ndarray:
+    n = (order + 1) ** 2
+    c = _coeff_array(coeffs, n, "coeffs")
+    w = np.ones(order + 1) if window is None else np.asarray(window, dtype=np.float64)
+    if w.shape != (order + 1,) or not np.all(np.isfinite(w)):
+        raise ValueError(f"window must be {order + 1} finite band factors (got {np.shape(window)})")
+    scale = np.array([A_HAT[_BAND[i]] * w[_BAND[i]] for i in range(n)])
+    return c * scale[:, None]
+
+
+# ====================================================================================== SH: public
+def sh9_basis(direction) -> np.ndarray:
+    """The 9 real SH basis values (no Condon–Shortley phase) at unit ``direction`` (..., 3) → (..., 9)."""
+    d = np.asarray(direction, dtype=np.float64)
+    _normal_args(d, "direction")
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    return np.stack(_basis(d[..., 0], d[..., 1], d[..., 2]), axis=-1)
+
+
+def sh9_from_directional(direction) -> np.ndarray:
+    """SH coefficients (9,) of a distant light of unit irradiance at normal incidence towards
+    ``direction`` (a delta in direction: L_lm = Y_lm(d)); normalised here, zero length raises."""
+    d = np.asarray(direction, dtype=np.float64)
+    if d.shape != (3,):
+        raise ValueError(f"direction must be 3 numbers (got shape {d.shape})")
+    return sh9_basis(d)
+
+
+def sh9_from_disk(direction, angular_radius: float, irradiance=1.0) -> np.ndarray:
+    """SH coefficients of a uniform disc light at infinity (angular radius ``angular_radius`` in radians,
+    [0, π/2]; irradiance ``irradiance`` W/m² at normal incidence, scalar or RGB) → (9,) or (9, 3)."""
+    alpha = float(angular_radius)
+    if not (0.0 <= alpha <= math.pi / 2):
+        raise ValueError(f"angular_radius must be in [0, pi/2] radians (got {angular_radius!r})")
+    y = sh9_from_directional(direction)
+    c = math.cos(alpha)
+    band = np.array([2.0 / (1.0 + c), 1.0, 1.0, 1.0, c, c, c, c, c])
+    e = np.asarray(irradiance, dtype=np.float64)
+    if not np.all(np.isfinite(e)) or np.any(e < 0):
+        raise ValueError(f"irradiance must be finite and >= 0 (got {irradiance!r})")
+    base = y * band
+    return base * e if e.ndim == 0 else base[:, None] * e[None, :]
+
+
+def sh_irradiance(coeffs, normal, order: int = 2, window=None):
+    """E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n) for coefficients (9, 3) (or (9,) grey; L1 uses the first 4).
+
+    ``window``: per-band factors (see `sh_window`) or None. Returns (..., 3) for NumPy input, a length-3
+    array for a single normal, a tuple (R, G, B) of lazy arrays for Dr.Jit input."""
+    if order not in (1, 2):
+        raise ValueError(f"order must be 1 or 2 (got {order!r})")
+    return _run(_sh_kernel, normal, _convolved(coeffs, order, window))
+
+
+def sh9_irradiance(coeffs, normal, window=None):
+    """L2 (9-coefficient) SH irradiance; see `sh_irradiance`."""
+    return sh_irradiance(coeffs, normal, 2, window)
+
+
+def sh4_irradiance(coeffs, normal):
+    """L1 (4-coefficient) SH irradiance (linear in n); see `sh_irradiance`."""
+    return sh_irradiance(coeffs, normal, 1)
+
+
+def _geomerics_params(coeffs) -> np.ndarray:
+    c = _coeff_array(coeffs, 4, "coeffs")
+    r0 = A_HAT[0] * SH_C[0] * c[0]
+    half = 0.5 * A_HAT[1] * SH_C[1]
+    return np.stack([r0, half * c[3], half * c[1], half * c[2]])  # (R0, R1x, R1y, R1z) × 3 channels
+
+
+def sh4_irradiance_geomerics(coeffs, normal):
+    """Geomerics' non-negative L1 reconstruction (see the module docstring) from SH coefficients (≥ 4, 3)."""
+    return _run(_geomerics_kernel, normal, _geomerics_params(coeffs))
+
+
+# ====================================================================================== ambient cube
+def ambient_cube_irradiance(cube, normal):
+    """Valve's ambient cube: Σ n_i² C[sign of n_i] for ``cube`` (6, 3) in the order +x, −x, +y, −y, +z, −z."""
+    return _run(_cube_kernel, normal, _coeff_array(cube, 6, "cube"))
+
+
+def ambient_cube_from_axes(irradiance_at_axes) -> np.ndarray:
+    """Valve's cube: the irradiance sampled at the six axes (already in cube order) → (6, 3)."""
+    return _coeff_array(irradiance_at_axes, 6, "irradiance_at_axes").copy()
+
+
+def cube_design_matrix(normals) -> np.ndarray:
+    """(N, 6) weights of the six cube colours at unit ``normals`` (N, 3): n_i² on the side of its sign."""
+    n = np.asarray(normals, dtype=np.float64)
+    _normal_args(n, "normals")
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    m = np.zeros((len(n), 6))
+    for i in range(3):
+        sq = n[:, i] ** 2
+        m[:, 2 * i] = np.where(n[:, i] >= 0, sq, 0.0)
+        m[:, 2 * i + 1] = np.where(n[:, i] < 0, sq, 0.0)
+    return m
+
+
+def fit_ambient_cube_nnls(normals, irradiance, weights=None) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares cube with C ≥ 0 (scipy NNLS per channel) minimising Σ_k w_k (E_cube(n_k) − E_k)².
+
+    ``normals`` (N, 3), ``irradiance`` (N, 3) or (N,), optional ``weights`` (N,) ≥ 0 (default uniform:
+    a uniform sphere sampling such as `fibonacci_sphere` then minimises the sphere-integrated error).
+    Returns (cube (6, 3), rms residual per channel (3,))."""
+    from scipy.optimize import nnls
+
+    a = cube_design_matrix(normals)
+    e = np.asarray(irradiance, dtype=np.float64)
+    if e.ndim == 1:
+        e = np.repeat(e[:, None], 3, axis=1)
+    if e.shape != (len(a), 3) or not np.all(np.isfinite(e)):
+        raise ValueError(f"irradiance must be finite with shape ({len(a)}, 3) (got {np.shape(irradiance)})")
+    w = np.ones(len(a)) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (len(a),) or np.any(~np.isfinite(w)) or np.any(w < 0):
+        raise ValueError("weights must be finite, >= 0, one per normal")
+    sw = np.sqrt(w)
+    cube = np.zeros((6, 3))
+    rms = np.zeros(3)
+    for c in range(3):
+        cube[:, c], res = nnls(a * sw[:, None], e[:, c] * sw)
+        rms[c] = res / math.sqrt(max(w.sum(), _TINY))
+    return cube, rms
+
+
+# ====================================================================================== λ window fit
+def fit_window_lambda(coeffs, normals=None, tolerance: float = 0.0, lam_max: float = 1e6) -> float:
+    """Smallest λ ≥ 0 such that the λ-windowed L2 irradiance is ≥ −tolerance·E_DC at every normal of
+    ``normals`` (default: 4096 Fibonacci normals plus the 26 axis/edge/corner directions), every channel.
+
+    Bisection on λ (60 steps, relative precision ~1e-6 of the bracket); λ → ∞ leaves the DC term, which is
+    ≥ 0 for a non-negative environment. Returns 0.0 when the plain L2 reconstruction is already
+    non-negative, and ``lam_max`` if even that does not remove the negative values."""
+    c = _coeff_array(coeffs, 9, "coeffs")
+    n = _default_check_normals() if normals is None else np.asarray(normals, dtype=np.float64)
+    lin = c[[3, 1, 2], :].T  # (3 channels, xyz): the L1 direction of each channel, where ringing peaks
+    ln = np.linalg.norm(lin, axis=1)
+    extra = lin[ln > 0] / ln[ln > 0, None]
+    n = np.concatenate([n, extra, -extra]) if len(extra) else n
+    dc = A_HAT[0] * SH_C[0] * c[0]
+    # −tolerance·DC, and a positive margin of 1e-6·DC at tolerance 0 so that sampled normals between the
+    # check set's points stay non-negative too.
+    thr = (-float(tolerance) if tolerance > 0 else 1e-6) * np.maximum(dc, 0.0)
+
+    def ok(lam):
+        k = _convolved(c, 2, sh_window("lambda", 2, lam))
+        e = np.stack(evaluate_numpy(_sh_kernel, n[:, 0], n[:, 1], n[:, 2], *_flat(k, False)), axis=-1)
+        return bool(np.all(e >= thr[None, :]))
+
+    if ok(0.0):
+        return 0.0
+    if not ok(lam_max):
+        return float(lam_max)
+    lo, hi = 0.0, 1e-6
+    while not ok(hi):
+        lo, hi = hi, hi * 4.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if ok(mid):
+            hi = mid
+        else:
+            lo = mid
+        if hi - lo <= 1e-7 * hi:
+            break
+    return float(hi)
+
+
+def _default_check_normals() -> np.ndarray:
+    grid = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)],
+                    dtype=np.float64)
+    grid /= np.linalg.norm(grid, axis=1, keepdims=True)
+    return np.concatenate([fibonacci_sphere(4096), grid])
+
+
+# ====================================================================================== sampling
+def fibonacci_sphere(count: int) -> np.ndarray:
+    """``count`` near-uniform unit vectors (N, 3): z_k = 1 − (2k + 1)/N, φ_k = k·π(3 − √5)."""
+    count = int(count)
+    if count < 1:
+        raise ValueError(f"count must be >= 1 (got {count})")
+    k = np.arange(count, dtype=np.float64)
+    z = 1.0 - (2.0 * k + 1.0) / count
+    r = np.sqrt(np.maximum(0.0, (1.0 - z) * (1.0 + z)))
+    phi = k * math.pi * (3.0 - math.sqrt(5.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+
+
+def latlong_directions(u, v) -> np.ndarray:
+    """World direction (+Z up) of lat-long coordinates (u, v) ∈ [0, 1]² of a Mitsuba ``envmap`` file as
+    rtfit places it (rotated +Y → +Z, `rtfit.reference.build`): θ = πv from +Z, φ = 2πu from +Y towards
+    +X, d = (sin θ sin φ, sin θ cos φ, cos θ)."""
+    th = np.pi * np.asarray(v, dtype=np.float64)
+    ph = 2.0 * np.pi * np.asarray(u, dtype=np.float64)
+    return np.stack([np.sin(th) * np.sin(ph), np.sin(th) * np.cos(ph), np.cos(th)], axis=-1)
+
+
+def latlong_samples(radiance, supersample: int = 2):
+    """Quadrature samples of the radiance function Mitsuba's ``envmap`` makes of a lat-long map.
+
+    Mitsuba interpolates bilinearly between nodes at u_i = (i + ½)/W (periodic) and v_j = j/(H − 1)
+    (rows 0 and H − 1 at the poles; measured, see tests). This evaluates that function at the
+    midpoints of an (sH × sW) grid in (u, v) with weights (2π/(sW))(π/(sH)) sin(πv) (solid angle).
+    Returns (directions (M, 3), weights (M,), radiance (M, 3)), float64."""
+    img = np.asarray(radiance, dtype=np.float64)
+    if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 2 or img.shape[1] < 1:
+        raise ValueError(f"radiance must be an (H >= 2, W, 3) lat-long map (got shape {img.shape})")
+    if not np.all(np.isfinite(img)):
+        raise ValueError("radiance must be finite")
+    s = int(supersample)
+    if s < 1:
+        raise ValueError(f"supersample must be >= 1 (got {supersample})")
+    h, w = img.shape[:2]
+    u = (np.arange(s * w) + 0.5) / (s * w)
+    v = (np.arange(s * h) + 0.5) / (s * h)
+    x = u * w - 0.5
+    i0 = np.floor(x).astype(int)
+    fx = x - i0
+    ia, ib = i0 % w, (i0 + 1) % w
+    y = v * (h - 1)
+    j0 = np.clip(np.floor(y).astype(int), 0, h - 2)
+    fy = y - j0
+    rows = img[j0] * (1 - fy)[:, None, None] + img[j0 + 1] * fy[:, None, None]  # (sH, W, 3)
+    vals = rows[:, ia] * (1 - fx)[None, :, None] + rows[:, ib] * fx[None, :, None]
+    uu, vv = np.meshgrid(u, v)
+    wgt = (2.0 * np.pi / (s * w)) * (np.pi / (s * h)) * np.sin(np.pi * vv)
+    return latlong_directions(uu, vv).reshape(-1, 3), wgt.reshape(-1), vals.reshape(-1, 3)
+
+
+def sh_project_samples(directions, weights, radiance) -> np.ndarray:
+    """L_lm ≈ Σ_k w_k L_k Y_lm(d_k) → (9, 3)."""
+    y = sh9_basis(directions)
+    return y.T @ (np.asarray(radiance, np.float64) * np.asarray(weights, np.float64)[:, None])
+
+
+def sh_project_latlong(radiance, supersample: int = 2) -> np.ndarray:
+    """SH L2 coefficients (9, 3) of a Mitsuba-convention lat-long radiance map (see `latlong_samples`)."""
+    return sh_project_samples(*latlong_samples(radiance, supersample))
+
+
+# ====================================================================================== NumPy twins
+_KERNELS: dict[str, Callable] = {"sh": _sh_kernel, "ambient_cube": _cube_kernel, "geomerics": _geomerics_kernel}
+
+
+def kernel_args(method: str, coeffs, window=None) -> list[float]:
+    """The flat per-coefficient arguments (floats) the kernel of ``method`` takes after nx, ny, nz:
+    ``method`` in {"sh-l1", "sh-l2", "ambient-cube", "sh-l1-geomerics"}."""
+    if method == "sh-l2":
+        return _flat(_convolved(coeffs, 2, window), False)
+    if method == "sh-l1":
+        return _flat(_convolved(coeffs, 1, None), False)
+    if method == "ambient-cube":
+        return _flat(_coeff_array(coeffs, 6, "cube"), False)
+    if method == "sh-l1-geomerics":
+        return _flat(_geomerics_params(coeffs), False)
+    raise ValueError(f"unknown method {method!r}")
+
+
+def numpy_reference(name: str) -> Callable:
+    """NumPy evaluation of the SAME kernel text: ``name`` in {"sh", "ambient_cube", "geomerics"}; call as
+    ``f(nx, ny, nz, *kernel_args(...))`` → tuple (R, G, B). No validation (benchmarks and tests)."""
+    if name not in _KERNELS:
+        raise ValueError(f"unknown kernel {name!r}; known: {sorted(_KERNELS)}")
+    kernel = _KERNELS[name]
+
+    def run(*args):
+        return evaluate_numpy(kernel, *args)
+
+    return run
+
+
+def drjit_kernel(name: str) -> Callable:
+    """The Dr.Jit path of kernel ``name`` (arguments: Dr.Jit Floats nx, ny, nz, then coefficients)."""
+    from ._array import DRJIT_OPS
+
+    kernel = _KERNELS[name]
+    return lambda *args: kernel(DRJIT_OPS, *args)

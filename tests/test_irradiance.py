@@ -1,0 +1,214 @@
+"""rtfit.realtime.irradiance against independent values: R&H closed forms, scipy quadrature, Dr.Jit's sh_eval."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import integrate
+
+from rtfit.realtime import irradiance as ir
+
+
+def _theta_normals(theta):
+    return np.stack([np.sin(theta), np.zeros_like(theta), np.cos(theta)], axis=-1)
+
+
+def test_rh_closed_form_unit_directional_light():
+    theta = np.linspace(0.0, math.pi, 37)
+    c = np.cos(theta)
+    coeffs = ir.sh9_from_directional([0.0, 0.0, 1.0])
+    l2 = ir.sh9_irradiance(coeffs, _theta_normals(theta))
+    l1 = ir.sh4_irradiance(coeffs, _theta_normals(theta))
+    want2 = 0.25 + c / 2 + (5.0 / 16.0) * (3 * c * c - 1) / 2
+    np.testing.assert_allclose(l2, np.repeat(want2[:, None], 3, 1), atol=1e-12)
+    np.testing.assert_allclose(l1, np.repeat((0.25 + c / 2)[:, None], 3, 1), atol=1e-12)
+
+
+def test_basis_matches_drjit_sh_eval_up_to_condon_shortley():
+    import drjit as dr
+    from drjit.scalar import Array3f
+
+    rng = np.random.default_rng(1)
+    for d in rng.normal(size=(5, 3)):
+        d /= np.linalg.norm(d)
+        ours = ir.sh9_basis(d)
+        theirs = np.array(dr.sh_eval(Array3f(*d.tolist()), 2))
+        sign = np.array([1, -1, 1, -1, 1, -1, 1, -1, 1])  # (−1)^m for m = −l..l
+        np.testing.assert_allclose(ours, sign * theirs, atol=2e-6)
+
+
+def test_basis_orthonormal_by_scipy_quadrature():
+    def g(i, j):
+        f = lambda ph, th: (ir.sh9_basis(np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph),
+                                                   math.cos(th)]))[[i, j]].prod() * math.sin(th))
+        return integrate.dblquad(f, 0, math.pi, 0, 2 * math.pi, epsabs=1e-9)[0]
+
+    for i, j in ((0, 0), (3, 3), (6, 6), (8, 8), (1, 3), (4, 8)):
+        assert g(i, j) == pytest.approx(1.0 if i == j else 0.0, abs=1e-7)
+
+
+def test_constant_environment_projects_to_dc_only_and_cube_is_exact():
+    img = np.full((16, 32, 3), 2.0)
+    c = ir.sh_project_latlong(img, 4)
+    assert c[0, 0] == pytest.approx(2.0 * math.sqrt(4 * math.pi), rel=2e-3)
+    assert np.all(np.abs(c[1:]) < 1e-3 * c[0, 0])
+    n = ir.fibonacci_sphere(50)
+    cube = np.full((6, 3), 2.0 * math.pi)
+    np.testing.assert_allclose(ir.ambient_cube_irradiance(cube, n), 2.0 * math.pi, rtol=1e-12)
+
+
+def test_disk_sun_sh_matches_scipy_projection():
+    alpha = math.radians(20.0)
+    d = np.array([0.3, -0.4, 0.866])
+    d /= np.linalg.norm(d)
+    want = ir.sh9_from_disk(d, alpha, 1.0)
+    radiance = 1.0 / (math.pi * math.sin(alpha) ** 2)
+    t = np.cross([0, 0, 1.0], d)
+    t /= np.linalg.norm(t)
+    b = np.cross(d, t)
+    for k in (0, 2, 3, 6, 8):
+        f = lambda ph, g: (ir.sh9_basis(math.cos(g) * d + math.sin(g) * (math.cos(ph) * t + math.sin(ph) * b))[k]
+                           * math.sin(g) * radiance)
+        assert integrate.dblquad(f, 0, alpha, 0, 2 * math.pi, epsabs=1e-10)[0] == pytest.approx(want[k], abs=1e-7)
+
+
+def test_rotation_of_environment_rotates_reconstruction():
+    # a smooth lobe rotated by 90° about z (u shift by W/4) gives the reconstruction rotated by 90°.
+    h, w = 32, 64
+    u = (np.arange(w) + 0.5) / w
+    v = np.arange(h) / (h - 1)
+    d = ir.latlong_directions(*np.meshgrid(u, v))
+    axis = np.array([0.6, 0.0, 0.8])
+    img = np.repeat(np.exp(4 * (d @ axis))[..., None], 3, axis=2)
+    rolled = np.roll(img, w // 4, axis=1)  # φ → φ + 90°: (x, y) → (y·…) a rotation about +z
+    n = ir.fibonacci_sphere(64)
+    rot = np.array([[0, 1, 0], [-1, 0, 0], [0, 0, 1.0]])  # direction d in img ↦ d' in rolled
+    e1 = ir.sh9_irradiance(ir.sh_project_latlong(img), n)
+    e2 = ir.sh9_irradiance(ir.sh_project_latlong(rolled), n @ rot.T)
+    np.testing.assert_allclose(e1, e2, rtol=1e-9, atol=1e-9 * e1.max())
+
+
+def test_nnls_recovers_known_cube():
+    rng = np.random.default_rng(7)
+    cube = rng.uniform(0.0, 3.0, (6, 3))
+    cube[2, 1] = 0.0
+    n = ir.fibonacci_sphere(300)
+    e = ir.ambient_cube_irradiance(cube, n)
+    fit, rms = ir.fit_ambient_cube_nnls(n, e)
+    np.testing.assert_allclose(fit, cube, atol=1e-9)
+    assert np.all(rms < 1e-9)
+
+
+def test_valve_cube_exact_at_axes_and_seed_listing():
+    cube = np.arange(18.0).reshape(6, 3)
+    axes = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1.0]])
+    np.testing.assert_allclose(ir.ambient_cube_irradiance(cube, axes), cube)
+    n = np.array([1.0, -1.0, 1.0]) / math.sqrt(3)  # between the axes: mean of +x, −y, +z
+    np.testing.assert_allclose(ir.ambient_cube_irradiance(cube, n), (cube[0] + cube[3] + cube[4]) / 3)
+
+
+def test_windows_and_lambda_removes_ringing():
+    np.testing.assert_allclose(ir.sh_window("hann"), [1.0, 0.75, 0.25])
+    np.testing.assert_allclose(ir.sh_window("lanczos"), [1.0, math.sin(math.pi / 3) / (math.pi / 3),
+                                                         math.sin(2 * math.pi / 3) / (2 * math.pi / 3)])
+    c = ir.sh9_from_directional([0.2, 0.3, 0.9])
+    lam = ir.fit_window_lambda(c)
+    assert lam > 0
+    e = ir.sh9_irradiance(c, ir.fibonacci_sphere(20000), ir.sh_window("lambda", 2, lam))
+    assert e.min() >= 0.0
+    e_less = ir.sh9_irradiance(c, ir.fibonacci_sphere(20000), ir.sh_window("lambda", 2, 0.9 * lam))
+    assert e_less.min() < 0.0  # smallest λ: a bit less rings again
+
+
+def test_geomerics_keeps_mean_and_is_non_negative():
+    c = ir.sh9_from_directional([0.0, 0.6, 0.8])[:, None] + np.array([0.1] + [0.0] * 8)[:, None] * np.ones(3)
+    n = ir.fibonacci_sphere(20000)
+    e = ir.sh4_irradiance_geomerics(c, n)
+    assert e.min() >= 0
+    np.testing.assert_allclose(e.mean(axis=0), ir.A_HAT[0] * ir.SH_C[0] * c[0], rtol=2e-3)
+
+
+def test_bad_input_and_extremes():
+    c = ir.sh9_from_directional([0, 0, 1])
+    with pytest.raises(ValueError, match="normal"):
+        ir.sh9_irradiance(c, [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="normal"):
+        ir.ambient_cube_irradiance(np.ones((6, 3)), np.array([[np.nan, 0, 1]]))
+    with pytest.raises(ValueError, match="coeffs"):
+        ir.sh9_irradiance(np.ones((5, 3)), [0, 0, 1])
+    with pytest.raises(ValueError, match="direction"):
+        ir.sh9_from_directional([0, 0, 0])
+    with pytest.raises(ValueError, match="angular_radius"):
+        ir.sh9_from_disk([0, 0, 1], 2.0)
+    with pytest.raises(ValueError, match="window kind"):
+        ir.sh_window("box")
+    # unnormalised normals are normalised; all-zero environment gives zeros everywhere
+    np.testing.assert_allclose(ir.sh9_irradiance(c, [0, 0, 5.0]), ir.sh9_irradiance(c, [0, 0, 1.0]))
+    assert np.all(ir.sh9_irradiance(np.zeros((9, 3)), ir.fibonacci_sphere(10)) == 0)
+    assert ir.fit_window_lambda(np.zeros((9, 3))) == 0.0
+    # a sun 1e5 times brighter than the sky, at and below the horizon: finite everywhere
+    for z in (0.0, -0.3):
+        big = 1e5 * ir.sh9_from_directional([1.0, 0.0, z])[:, None] + np.array([1.0] + [0.0] * 8)[:, None]
+        for f in (ir.sh9_irradiance, ir.sh4_irradiance, ir.sh4_irradiance_geomerics):
+            assert np.all(np.isfinite(f(big, ir.fibonacci_sphere(100))))
+
+
+def test_drjit_zero_normal_gives_sphere_average():
+    import drjit as dr
+
+    c = ir.sh9_from_directional([0, 0, 1])
+    r = ir.sh9_irradiance(c, dr.llvm.Array3f([0.0, 0.0], [0.0, 0.0], [0.0, 1.0]))
+    np.testing.assert_allclose(np.array(r[0]), [0.25, 1.0625], rtol=1e-6)
+    cube = np.arange(18.0).reshape(6, 3)
+    rc = ir.ambient_cube_irradiance(cube, dr.llvm.Array3f([0.0], [0.0], [0.0]))
+    assert float(rc[0][0]) == pytest.approx(cube[:, 0].mean())
+
+
+_unit = st.floats(-1.0, 1.0, allow_nan=False)
+
+
+@settings(max_examples=40, deadline=None)
+@given(x=_unit, y=_unit, z=_unit, lx=_unit, ly=_unit, lz=_unit, scale=st.floats(0.0, 1e6))
+def test_property_finite_and_bounded(x, y, z, lx, ly, lz, scale):
+    n = np.array([[x, y, z]])
+    light = np.array([lx, ly, lz])
+    if np.linalg.norm(n) < 1e-6 or np.linalg.norm(light) < 1e-6:
+        return
+    c = scale * ir.sh9_from_directional(light)[:, None] + np.array([0.5] + [0.0] * 8)[:, None] * np.ones(3)
+    for f in (ir.sh9_irradiance, ir.sh4_irradiance, ir.sh4_irradiance_geomerics):
+        e = f(c, n)
+        assert np.all(np.isfinite(e))
+    # L2 irradiance of a unit directional light never exceeds 1.0625 (its value at the light) + DC
+    e = ir.sh9_irradiance(ir.sh9_from_directional(light), n)
+    assert np.all(e <= 1.0625 + 1e-9) and np.all(e >= -0.25 - 1e-9)
+    g = ir.sh4_irradiance_geomerics(c, n)
+    assert np.all(g >= 0)
+
+
+def test_drjit_and_numpy_paths_agree():
+    rng = np.random.default_rng(5)
+    n = rng.normal(size=(64, 3))
+    c = rng.normal(size=(9, 3))
+    cube = rng.uniform(0, 2, (6, 3))
+    for method, kname, coeffs, got in (
+            ("sh-l2", "sh", c, ir.sh9_irradiance(c, n)),
+            ("sh-l1", "sh", c, ir.sh4_irradiance(c, n)),
+            ("sh-l1-geomerics", "geomerics", np.abs(c), ir.sh4_irradiance_geomerics(np.abs(c), n)),
+            ("ambient-cube", "ambient_cube", cube, ir.ambient_cube_irradiance(cube, n))):
+        want = np.stack(ir.numpy_reference(kname)(n[:, 0], n[:, 1], n[:, 2], *ir.kernel_args(method, coeffs)), -1)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(x=_unit, y=_unit, z=_unit, scale=st.floats(1e-3, 1e3))
+def test_property_cube_convex_combination(x, y, z, scale):
+    # n_x² + n_y² + n_z² = 1: the cube's value is a convex combination of three of its colours
+    if x * x + y * y + z * z < 1e-6:
+        return
+    cube = scale * np.arange(1.0, 19.0).reshape(6, 3)
+    e = ir.ambient_cube_irradiance(cube, np.array([[x, y, z]]))[0]
+    assert np.all(e >= cube.min(axis=0) - 1e-9 * scale) and np.all(e <= cube.max(axis=0) + 1e-9 * scale)
