@@ -1,0 +1,262 @@
+"""Experiment ``nishita-sky``: the Nishita sky texture vs a path-traced spherical-shell atmosphere.
+
+Per sun elevation, the sky hemisphere (azimuth × elevation image, sun at azimuth 0, viewer 10 m
+above the ground) is rendered by Mitsuba (`rtfit.reference.atmosphere`: planet + atmosphere
+shell with a Python Rayleigh + Mie medium and an exact chromatic phase mixture, ``volpathmis``)
+with single scattering (max_depth 2) and with all orders (max_depth −1, ground albedo 0.1).
+Approximations (`rtfit.realtime.sky`), evaluated at the same pixel-centre directions:
+
+* ``nishita-seed``     n = 32 layers, 128×64 texture, 128-entry sun table (the seed's setting)
+* ``nishita-fine``     n = 128, 512×256 (√ horizon mapping), 512-entry table (the converged model)
+* ``nishita-spectral`` the seed setting over 16 wavelengths (λ⁻⁴ Rayleigh), CIE → linear sRGB
+* ``nishita-fitted``   the seed setting with fitted artist parameters (Rayleigh scale, Mie density
+  scale, Mie g, isotropic ambient; vs the multiple-scattering sky)
+* ``quadrature``       independent float64 quadrature of single scattering (a subset of pixels;
+  must sit at the noise floor of the single-scattering reference)
+* ``sunsky``           Mitsuba's Hosek–Wilkie sky (sun above the horizon), one fitted scale
+
+Radiance unit: W·m⁻²·sr⁻¹·nm⁻¹ for E₀ = (1.474, 1.8504, 1.91198) W·m⁻²·nm⁻¹ at 680/550/440 nm.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .jobs import Job
+
+ELEVATIONS_FULL = (90.0, 45.0, 10.0, 2.0, 0.0, -4.0)
+ELEVATIONS_QUICK = (45.0, 10.0, -4.0)
+VIEWER_ALTITUDE_M = 10.0
+SEED_CFG = {"layers": 32, "width": 128, "height": 64, "table_size": 128, "mapping": "linear"}
+FINE_CFG = {"layers": 128, "width": 512, "height": 256, "table_size": 512, "mapping": "sqrt"}
+LABELS = {"nishita-seed": "Nishita, seed setting (n=32, 128×64)", "nishita-fine": "Nishita, n=128, 512×256",
+          "nishita-spectral": "Nishita spectral (16 λ → sRGB)", "nishita-fitted": "Nishita, fitted artist parameters",
+          "quadrature": "independent SS quadrature (pixel subset)", "sunsky": "Mitsuba sunsky (scaled)"}
+
+
+def configure(quick: bool, spp: int | None) -> dict:
+    return {
+        "sun_elevations_deg": list(ELEVATIONS_QUICK if quick else ELEVATIONS_FULL),
+        "resolution": [32, 16] if quick else [128, 64],
+        "spp": spp or (256 if quick else 4096),
+        "pass_spp": 128 if quick else 1024,
+        "viewer_altitude_m": VIEWER_ALTITUDE_M,
+        "quadrature_stride": [4, 2] if quick else [8, 4],
+        "quadrature_steps": 400 if quick else 1500,
+        "sweep_elevations_deg": [10.0, -4.0],
+        "sweep_layers": [4, 8, 16, 32, 64, 128] if not quick else [4, 16, 32, 128],
+        "sweep_textures": [[32, 16], [64, 32], [128, 64], [256, 128], [512, 256]] if not quick
+        else [[32, 16], [128, 64], [256, 128]],
+        "sweep_tables": [16, 32, 64, 128, 256] if not quick else [16, 128],
+        "spectral_wavelengths": 16,
+        "fine": dict(FINE_CFG),
+        "sweep_fine": not quick,
+        "fit_texture": [64, 32],
+        "altitude_cases": [[10.0, 5000.0]] if quick else [[10.0, 5000.0], [10.0, 30000.0]],
+        "cost_elements": 1 << (18 if quick else 22),
+    }
+
+
+def _spec(elev: float, alt_m: float):
+    from rtfit.reference.atmosphere import AtmosphereSpec
+
+    return AtmosphereSpec(sun_elevation_deg=float(elev), viewer_altitude_km=alt_m / 1000.0)
+
+
+def case_id(elev: float, kind: str) -> str:
+    return f"e{elev:g}".replace("-", "m").replace(".", "p") + f"-{kind}"
+
+
+def altitude_id(elev: float, alt_m: float, kind: str) -> str:
+    return case_id(elev, f"h{alt_m:g}-{kind}")
+
+
+# --------------------------------------------------------------------------------------------- jobs
+def render_job(elev: float, depth: int, width: int, height: int, spp: int, pass_spp: int, seed: int,
+               variant: str, cache_dir: str, alt_m: float) -> dict:
+    from rtfit.reference.atmosphere import hemisphere_directions, render_sky
+
+    d, _, _ = hemisphere_directions(width, height)
+    return render_sky(_spec(elev, alt_m), d, spp, pass_spp, seed, variant, depth, cache_dir)
+
+
+def quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt_m: float) -> dict:
+    from rtfit.reference.atmosphere import hemisphere_directions, single_scattering_quadrature
+
+    d, _, _ = hemisphere_directions(width, height)
+    sub = d[stride[1] // 2::stride[1], stride[0] // 2::stride[0]]
+    t0 = time.perf_counter()
+    q = single_scattering_quadrature(_spec(elev, alt_m), sub, steps=steps)
+    return {"value": q, "seconds": time.perf_counter() - t0}
+
+
+# ---------------------------------------------------------------------------------------- the model
+def _params():
+    from rtfit.realtime.sky import AtmosphereParams
+
+    return AtmosphereParams()
+
+
+def nishita_image(elev, dirs, cfg, backend, params=None, alt_m=VIEWER_ALTITUDE_M):
+    from rtfit.realtime.sky import build_sky, shade_sky
+
+    p = params or _params()
+    sky = build_sky(p, elev, alt_m, backend=backend, **cfg)
+    return shade_sky(sky, dirs), sky
+
+
+def spectral_image(elev, dirs, n_lambda, backend):
+    from rtfit.realtime.sky import build_sky, shade_sky, spectral_to_srgb
+
+    p = _params()
+    lam = np.linspace(400.0, 700.0, n_lambda)
+    ps = p.spectral(lam)
+    sky = build_sky(ps, elev, VIEWER_ALTITUDE_M, backend=backend, **SEED_CFG)
+    L = shade_sky(sky, dirs, include_sun=False)
+    rgb = spectral_to_srgb(L, lam, white=np.asarray(ps.solar_irradiance), white_rgb=p.solar_irradiance)
+    return np.maximum(rgb, 0.0)  # twilight colours can leave the sRGB gamut: clipped as a display would
+
+
+_RESIDUALS: dict = {}
+
+
+def _residual_for(width: int, height: int):
+    """The fit residual for a (width × height) seed-setting texture, one function object per size
+    (fit_least_squares compiles once per residual function). The texture is rebuilt from the
+    parameters inside the residual: the same kernel text as the Dr.Jit build, run by JAX with
+    a lax.fori_loop over the path slots (differentiable, forward mode)."""
+    key = (int(width), int(height))
+    if key in _RESIDUALS:
+        return _RESIDUALS[key]
+    from rtfit.realtime import sky
+
+    cfg = sky._cfg(_params(), SEED_CFG["layers"], SEED_CFG["table_size"])
+    W, H = float(width), float(height)
+
+    def residual(x, args):
+        import jax.numpy as jnp
+
+        ops = sky._jax_ops()
+        mu, nu, h0, sz, tr, tm, px, py, cosg, ref, w, e0, br0, bm0, bme0 = args
+        br = [br0[c] * x["rayleigh_scale"] for c in range(3)]
+        bm = [bm0[c] * x["mie_scale"] for c in range(3)]
+        bme = [bme0[c] * x["mie_scale"] for c in range(3)]
+        S_r, S_m = sky._inscatter_kernel(ops, mu, nu, h0, sz, cfg, tr, tm, (br, bm, bme), "jax")
+        g = x["mie_g"]
+        pr = 3.0 / (16.0 * jnp.pi) * (1.0 + cosg * cosg) + x["ambient"] / (4.0 * jnp.pi)
+        den = 1.0 + g * g - 2.0 * g * cosg
+        pm = (1.0 - g * g) / (4.0 * jnp.pi * den * jnp.sqrt(den))
+        out = []
+        for c in range(3):
+            sr = sky._texture_lookup(ops, S_r[c], px, py, W, H)
+            sm = sky._texture_lookup(ops, S_m[c], px, py, W, H)
+            out.append((e0[c] * (pr * sr + pm * sm) - ref[:, c]) * w[:, c])
+        return jnp.concatenate(out)
+
+    _RESIDUALS[key] = residual
+    return residual
+
+
+FIT_PARAMS = ("rayleigh_scale", "mie_scale", "mie_g", "ambient")
+
+
+def fit_job(elev: float, dirs, ref_mean, mask, tex_size=(64, 32)) -> dict:
+    """Fit the artist parameters of the seed-setting sky to the multiple-scattering reference:
+    Rayleigh scale (β_R), Mie density scale (β_M and β_M^ext), Mie g and an isotropic ambient
+    term (P_R → P_R + A/(4π)); the texture (n = 32, table 128) is rebuilt for every parameter
+    value. Relative residuals, floored at 2 % of the brightest pixel. ``tex_size``: the texture
+    used inside the fit (its size barely changes the model: see the sweep)."""
+    import math as _m
+
+    from rtfit.fitting import Param, fit_least_squares
+    from rtfit.realtime import sky
+
+    p = _params()
+    W, H = tex_size
+    el_s = _m.radians(elev)
+    el_lo = sky._horizon_elevation(p, VIEWER_ALTITUDE_M)
+    A, E = sky._texel_directions(W, H, el_lo, 0.5 * _m.pi, SEED_CFG["mapping"])
+    mu = np.sin(E).ravel()
+    nu = (np.cos(E) * _m.cos(el_s) * np.cos(A) + np.sin(E) * _m.sin(el_s)).ravel()
+    tr, tm = sky.build_optical_depth_table(p, SEED_CFG["layers"], SEED_CFG["table_size"])
+    d = np.asarray(dirs, dtype=np.float64)[mask]
+    el = np.arcsin(np.clip(d[:, 2], -1, 1))
+    az = np.mod(np.arctan2(d[:, 1], d[:, 0]), 2 * _m.pi)
+    px = az / (2 * _m.pi) * W
+    py = np.clip((el - el_lo) / (0.5 * _m.pi - el_lo), 0.0, 1.0) * H
+    s = np.array([_m.cos(el_s), 0.0, _m.sin(el_s)])
+    cosg = np.clip(d @ s, -1, 1)
+    ref = np.asarray(ref_mean, dtype=np.float64)[mask]
+    w = 1.0 / (np.abs(ref) + 0.02 * float(np.max(ref)) + 1e-12)
+    res = fit_least_squares(_residual_for(W, H), {
+        "rayleigh_scale": Param(1.0, 0.3, 3.0), "mie_scale": Param(1.0, 0.05, 20.0),
+        "mie_g": Param(0.8, 0.0, 0.95), "ambient": Param(0.3, 0.0, 10.0)},
+        args=(mu, nu, float(VIEWER_ALTITUDE_M), _m.sin(el_s), tr.ravel(), tm.ravel(), px, py, cosg, ref, w,
+              np.asarray(p.solar_irradiance), np.asarray(p.rayleigh_beta), np.asarray(p.mie_beta),
+              np.asarray(p.mie_extinction)), max_steps=128)
+    return res.to_dict()
+
+
+def fitted_params(fit):
+    from dataclasses import replace
+
+    x = {k: v["value"] for k, v in fit["parameters"].items()}
+    return replace(_params(), rayleigh_scale=x["rayleigh_scale"], mie_scale=x["mie_scale"],
+                   mie_g=min(x["mie_g"], 0.999), ambient=x["ambient"])
+
+
+def fitted_image(elev, dirs, fit, backend="llvm"):
+    img, _ = nishita_image(elev, dirs, SEED_CFG, backend, fitted_params(fit))
+    return img
+
+
+# ------------------------------------------------------------------------------------ experiment
+def run(ctx) -> dict:
+    from rtfit.reference.atmosphere import hemisphere_directions
+
+    from . import nishita_sky_report as rep
+
+    cfg = ctx.configured(configure(ctx.quick, ctx.spp))
+    W, H = cfg["resolution"]
+    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
+    from rtfit.realtime import set_default_backend
+
+    set_default_backend(backend)
+    dirs, az, el = hemisphere_directions(W, H)
+    jobs = []
+    for e in cfg["sun_elevations_deg"]:
+        for kind, depth in (("ss", 2), ("ms", -1)):
+            jobs.append(Job("rtfit.experiments.nishita_sky:render_job",
+                            dict(elev=e, depth=depth, width=W, height=H, spp=cfg["spp"], pass_spp=cfg["pass_spp"],
+                                 seed=ctx.seed, variant=ctx.variant, cache_dir=str(ctx.cache_dir),
+                                 alt_m=cfg["viewer_altitude_m"]), label=case_id(e, kind)))
+        jobs.append(Job("rtfit.experiments.nishita_sky:quadrature_job",
+                        dict(elev=e, width=W, height=H, stride=cfg["quadrature_stride"], steps=cfg["quadrature_steps"],
+                             alt_m=cfg["viewer_altitude_m"]), label=case_id(e, "quad")))
+    for e, alt in cfg["altitude_cases"]:
+        jobs.append(Job("rtfit.experiments.nishita_sky:render_job",
+                        dict(elev=e, depth=2, width=W, height=H, spp=cfg["spp"], pass_spp=cfg["pass_spp"],
+                             seed=ctx.seed, variant=ctx.variant, cache_dir=str(ctx.cache_dir), alt_m=alt),
+                        label=altitude_id(e, alt, "ss")))
+        jobs.append(Job("rtfit.experiments.nishita_sky:quadrature_job",
+                        dict(elev=e, width=W, height=H, stride=cfg["quadrature_stride"], steps=cfg["quadrature_steps"],
+                             alt_m=alt), label=altitude_id(e, alt, "quad")))
+    ctx.log(f"rendering {len(jobs)} references / quadratures")
+    t0 = time.perf_counter()
+    done = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references")))
+    ref_seconds = time.perf_counter() - t0
+
+    mask = np.ones((H, W), dtype=bool)
+    fits = {}
+    for e in cfg["sun_elevations_deg"]:
+        ctx.log(f"fitting artist parameters at {e:g}°")
+        fits[e] = fit_job(e, dirs, done[case_id(e, "ms")]["mean"], mask, tuple(cfg["fit_texture"]))
+    return rep.assemble(ctx, cfg, dirs, az, el, done, fits, backend, ref_seconds)
+
+
+def bench(ctx) -> list[dict]:
+    from . import nishita_sky_report as rep
+
+    return rep.bench(ctx)
