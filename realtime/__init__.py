@@ -11,9 +11,15 @@ Modules:
               (docs/irradiance-bases.md).
     fog       exponential height fog: stable closed-form optical depth, fog colour, fog volumes
               (docs/height-fog.md).
+    sdf_grid    signed distance fields: analytic primitives, mesh → voxel grid, mip chain, 8-bit
+              (docs/sdf-occlusion.md).
+    sdf_occlusion  Evans multi-scale SDF skylight/occlusion, curvature term, cone-traced soft occlusion.
+    sky         Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
+              (docs/nishita-sky.md).
 """
 
-from . import aperture, diffuse, fog, irradiance
+from . import aperture, diffuse, fog, irradiance, sdf_grid, sdf_occlusion, sky
 from ._array import DRJIT_OPS, NUMPY_OPS, get_default_backend, set_default_backend
 
-__all__ = ["DRJIT_OPS", "NUMPY_OPS", "aperture", "diffuse", "fog", "get_default_backend", "irradiance", "set_default_backend"]
+__all__ = ["DRJIT_OPS", "NUMPY_OPS", "aperture", "diffuse", "fog", "get_default_backend", "irradiance", "sdf_grid",
+           "sdf_occlusion", "set_default_backend", "sky"]

@@ -1,0 +1,438 @@
+r"""SDF occlusion and skylight (Evans 2006) and cone-traced distance-field occlusion, Dr.Jit-vectorized.
+
+Source: A. Evans, "Fast Approximations for Global Illumination on Dynamic Scenes", SIGGRAPH 2006
+course *Advanced Real-Time Rendering in 3D Graphics and Games*, ch. 9 (seed ``000_540fc7eee6870c4d.txt``,
+cited as 000:LINE).
+
+Sign convention: s(P) > 0 outside, < 0 inside (see `rtfit.realtime.sdf_grid`). The seed's text uses
+S = −s (000:2891-2895, "positive inside"), its listings use s (000:3037-3040). Every formula below is
+the seed's, rewritten with S_text = −s; the seed's contrast k_text (negative to darken, since
+S_text + d ≥ 0 near occluders) is k = −k_text here (positive darkens). Distances are in scene units.
+
+Evans skylight / occlusion (000:2919-2946)
+----------------------------------------
+With unit surface normal N, sky-up unit vector U, sky weighting α ∈ [0, 1] and the bent normal
+N' = N + α U (000:2942), samples i = 1..n at distances d_i = base·2^(i−1) (doubling from one voxel,
+000:2938), each read from mip level i − 1 of a Gaussian-prefiltered SDF (000:2936-2938):
+
+    D = Σ_i w_i (d_i − s_{i−1}(P + d_i N'))          (≥ 0 when occluders are near: s ≤ distance)
+    C = B · exp(−k D)
+
+* In an empty half-space above a plane, s(P + d N) = d: D = 0 and C = B (000:2919-2929). The text's
+  sum starts at d_0 = 0 (the sample at P itself, the curvature term); ``include_d0`` adds it (level 0).
+* Text form (000:2946): α = 0.5, w_i = 1, B = 1. Listing 1 (000:2982-2987): delta = 0.03·(N + U), i.e.
+  α = 1, weights (1, 1.2, 1.4, 1.8), no "+ d_i" term (a constant factor, absorbed in its
+  ``GlobalBrightness``: B here). The seed gives no k: it is always fitted (or set by the user).
+* N' is used unnormalised as in the seed (the sample at d_i then lies d_i·|N'| away and the
+  expectation d_i is the text's, not the true distance); ``normalize=True`` uses N'/|N'|, for which an
+  unoccluded point gives exactly C = B. N' of zero length (α = 1, N = −U) falls back to N.
+* Guard (``clamp=True``, default): each sample is limited to the distance of its position from P,
+  s_i ← min(s_i, d_i·|N'|) — a true SDF of a surface point obeys it; blurred, out-of-grid or empty-scene
+  samples may not. With it an empty scene gives C = B exactly when ``normalize`` or α = 0; the seed's
+  unnormalised N' gives exp(k Σ w_i d_i (|N'| − 1)) ≥ B there, the seed form's own bias.
+* Overflow: the exponent −kD is clamped to [−87, 80] (float32 exp overflows above 88.7), so k = 0 gives
+  C = B, and huge k gives C = 0 (occluded) or B·e^80 at most where D < 0 (documented, finite).
+
+Curvature term (000:2885-2908): C_curv = 0.5 + exp(k_text·S_text(P)) with S the blurred SDF sampled on the
+surface (slightly positive in creases in the text's sign). Here ``curvature_term`` returns exactly that
+with S_text = −s_L(P) from mip level L; the experiment compares C_curv/1.5 (1 on a flat surface).
+
+Cone-traced distance-field occlusion (the modern variant; e.g. Wright 2015, "Dynamic occlusion with signed
+distance fields", SIGGRAPH Advances; Quilez's soft shadows): M cone axes ω_j spread over the cosine-weighted
+hemisphere around N (stratified, golden-angle spiral: r_j = √((j+½)/M), φ_j = 2.39996·j), each marched at
+S distances t_s growing geometrically from t_0 to t_max; a cone's visibility is
+v_j = min_s clamp(k·s(P + t_s ω_j)/t_s, 0, 1) (k = 1/tan of the cone half-angle), read from the mip level
+whose voxel matches the cone's width t_s/k; AO = (1/M) Σ_j v_j.
+
+Inputs and outputs
+------------------
+``points`` and ``normals``: (N, 3) NumPy arrays (evaluated on the default Dr.Jit backend in float32, returned
+as NumPy float32, or in float64 NumPy with ``backend="numpy"``) or Dr.Jit Array3f (returned lazily as the
+matching Float). Normals are normalised in the kernel (zero normals give C = B: no direction to test).
+``sdf``: a `GridSDF` (mip chain of `SdfGrid` levels) or an `AnalyticSDF` (primitives; ``level`` ignored).
+"""
+
+from __future__ import annotations
+
+import math
+import types
+from dataclasses import dataclass
+
+import drjit as dr
+import numpy as np
+
+from ._array import DRJIT_OPS, NUMPY_OPS, check_scalar, get_default_backend, is_drjit
+from .sdf_grid import EMPTY_DISTANCE, SdfGrid, build_mips, primitives_sdf
+
+__all__ = [
+    "AnalyticSDF", "EvansParams", "GridSDF", "LISTING_WEIGHTS", "cone_occlusion", "curvature_term",
+    "evans_occlusion", "evans_sample_positions", "evans_terms",
+]
+
+LISTING_WEIGHTS = (1.0, 1.2, 1.4, 1.8)
+"""Per-sample weights of the seed's Listing 1 (000:2983-2986)."""
+EXP_MIN, EXP_MAX = -87.0, 80.0
+CONE_LEVEL_K = 2.0
+"""The cone march reads the mip level whose voxel matches t/CONE_LEVEL_K (a cone of half-angle atan ½),
+whatever k: k then only scales the visibility, so one compiled kernel serves every k."""
+_GOLDEN = math.pi * (3.0 - math.sqrt(5.0))
+
+_DR = types.SimpleNamespace(**vars(DRJIT_OPS), exp=dr.exp, floor=dr.floor)
+_NP = types.SimpleNamespace(**vars(NUMPY_OPS), exp=np.exp, floor=np.floor)
+
+
+def _const(ops, like, value):
+    """A parameter as a kernel input: an opaque Dr.Jit scalar (one compiled kernel serves every value of it:
+    grids of the same shape, any k, α, base), or the float itself for NumPy/JAX."""
+    if ops.name == "drjit" and is_drjit(like):
+        return dr.opaque(type(like), float(value))
+    return float(value)
+
+
+# ===================================================================================== SDF sources
+class AnalyticSDF:
+    """Union of analytic primitives (`rtfit.realtime.sdf_grid` Sphere, Box, HalfSpace, Capsule)."""
+
+    levels = 1
+
+    def __init__(self, prims):
+        self.prims = list(prims)
+        self.voxel = 0.0
+
+    def sample(self, ops, level, x, y, z):
+        return primitives_sdf(ops, self.prims, x, y, z)
+
+    def level_voxel(self, level):
+        return 0.0
+
+
+class GridSDF:
+    """A mip chain of voxel SDFs with trilinear sampling (clamp to the box of cell centres, plus the
+    distance to that box outside it). Build with ``GridSDF.from_grid(grid, levels, prefilter=...)``."""
+
+    def __init__(self, levels: list[SdfGrid]):
+        if not levels:
+            raise ValueError("GridSDF needs at least one level")
+        self.grids = list(levels)
+        self.levels = len(levels)
+        self.voxel = levels[0].voxel
+        self._dr_cache: dict = {}
+
+    @classmethod
+    def from_grid(cls, grid: SdfGrid, levels: int = 8, *, prefilter: bool = True, sigma: float = 1.0):
+        return cls(build_mips(grid, levels, prefilter=prefilter, sigma=sigma))
+
+    def level_voxel(self, level):
+        return self.grids[min(level, self.levels - 1)].voxel
+
+    def _arrays(self, ops, Float, level):
+        g = self.grids[min(level, self.levels - 1)]
+        if ops.name == "numpy":
+            return g.values.astype(np.float64).reshape(-1)
+        key = (Float, level)
+        arr = self._dr_cache.get(key)
+        if arr is None:
+            arr = Float(g.values.reshape(-1))
+            dr.make_opaque(arr)
+            self._dr_cache[key] = arr
+        return arr
+
+    def sample(self, ops, level, x, y, z):
+        g = self.grids[min(level, self.levels - 1)]
+        nx, ny, nz = g.shape
+        h = _const(ops, x, g.voxel)
+        inv = _const(ops, x, 1.0 / g.voxel)
+        ox, oy, oz = (_const(ops, x, c) for c in g.origin)
+        ux = (x - ox) * inv - 0.5
+        uy = (y - oy) * inv - 0.5
+        uz = (z - oz) * inv - 0.5
+        cx = ops.clip(ux, 0.0, nx - 1.0)
+        cy = ops.clip(uy, 0.0, ny - 1.0)
+        cz = ops.clip(uz, 0.0, nz - 1.0)
+        ex, ey, ez = (ux - cx) * h, (uy - cy) * h, (uz - cz) * h
+        outside = ops.sqrt(ex * ex + ey * ey + ez * ez)
+        fx0 = ops.minimum(ops.floor(cx), nx - 2.0)
+        fy0 = ops.minimum(ops.floor(cy), ny - 2.0)
+        fz0 = ops.minimum(ops.floor(cz), nz - 2.0)
+        fx, fy, fz = cx - fx0, cy - fy0, cz - fz0
+        if ops.name == "numpy":
+            vals = self._arrays(ops, None, level)
+            base = ((fz0 * ny + fy0) * nx + fx0).astype(np.int64)
+
+            def at(off):
+                return vals[base + off]
+        else:
+            Float = type(x)
+            vals = self._arrays(ops, Float, level)
+            UInt = dr.uint32_array_t(Float)
+            base = UInt(fz0) * (ny * nx) + UInt(fy0) * nx + UInt(fx0)
+
+            def at(off):
+                return dr.gather(Float, vals, base + off)
+        sxy = nx * ny
+        c00 = at(0) * (1 - fx) + at(1) * fx
+        c10 = at(nx) * (1 - fx) + at(nx + 1) * fx
+        c01 = at(sxy) * (1 - fx) + at(sxy + 1) * fx
+        c11 = at(sxy + nx) * (1 - fx) + at(sxy + nx + 1) * fx
+        c0 = c00 * (1 - fy) + c10 * fy
+        c1 = c01 * (1 - fy) + c11 * fy
+        return c0 * (1 - fz) + c1 * fz + outside
+
+
+# ===================================================================================== parameters
+@dataclass(frozen=True)
+class EvansParams:
+    """Parameters of the Evans skylight. ``base`` in scene units (the seed: one voxel of the finest grid);
+    ``weights`` (length n) or None (all 1); ``prefilter``: sample i reads mip level i − 1 (else level 0)."""
+
+    n: int = 4
+    base: float = 0.01
+    k: float = 10.0
+    alpha: float = 0.5
+    weights: tuple | None = None
+    brightness: float = 1.0
+    normalize: bool = False
+    include_d0: bool = False
+    prefilter: bool = True
+    up: tuple = (0.0, 0.0, 1.0)
+    clamp: bool = True
+
+    def __post_init__(self):
+        if not isinstance(self.n, (int, np.integer)) or not 1 <= self.n <= 16:
+            raise ValueError(f"n (samples) must be an integer in [1, 16] (got {self.n!r})")
+        check_scalar("base", self.base, 0.0, 1e30, lo_open=True)
+        check_scalar("k", self.k, 0.0, 1e30)
+        check_scalar("alpha", self.alpha, 0.0, 1.0)
+        check_scalar("brightness", self.brightness, 0.0, 1e30)
+        if self.weights is not None:
+            w = tuple(float(v) for v in self.weights)
+            if len(w) != self.n or not all(math.isfinite(v) and v >= 0 for v in w):
+                raise ValueError(f"weights must be {self.n} finite numbers >= 0 (got {self.weights!r})")
+            object.__setattr__(self, "weights", w)
+        u = np.asarray(self.up, dtype=np.float64)
+        if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+            raise ValueError(f"up must be a finite non-zero 3-vector (got {self.up!r})")
+        object.__setattr__(self, "up", tuple(float(c) for c in u / np.linalg.norm(u)))
+
+    def distances(self) -> list[float]:
+        return [self.base * 2.0 ** i for i in range(self.n)]
+
+
+def evans_sample_positions(point, normal, params: EvansParams) -> np.ndarray:
+    """The n sample positions P + d_i N' (float64, (n, 3)) for one point: for tests and figures."""
+    p = np.asarray(point, dtype=np.float64)
+    nrm = np.asarray(normal, dtype=np.float64)
+    nrm = nrm / np.linalg.norm(nrm)
+    b = nrm + params.alpha * np.asarray(params.up)
+    m = np.linalg.norm(b)
+    if params.normalize:
+        b = b / m if m > 1e-6 else nrm
+    elif m <= 1e-6:
+        b = nrm
+    return np.array([p + d * b for d in params.distances()])
+
+
+# ===================================================================================== kernels
+def _unit(ops, x, y, z):
+    m = ops.sqrt(x * x + y * y + z * z)
+    inv = 1.0 / ops.maximum(m, 1e-30)
+    return x * inv, y * inv, z * inv, m
+
+
+def _evans_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
+    nx, ny, nz, nlen = _unit(ops, nx, ny, nz)
+    ux, uy, uz = params.up
+    a = _const(ops, px, params.alpha)
+    base = _const(ops, px, params.base)
+    bx, by, bz = nx + a * ux, ny + a * uy, nz + a * uz
+    bm = ops.sqrt(bx * bx + by * by + bz * bz)
+    degenerate = bm < 1e-6
+    if params.normalize:
+        inv = 1.0 / ops.maximum(bm, 1e-30)
+        bx, by, bz = bx * inv, by * inv, bz * inv
+    bx = ops.select(degenerate, nx, bx)
+    by = ops.select(degenerate, ny, by)
+    bz = ops.select(degenerate, nz, bz)
+    weights = params.weights or (1.0,) * params.n
+    one = px * 0.0 + 1.0
+    reach = one if params.normalize else ops.select(degenerate, one, bm)  # |N'| actually used
+    acc = px * 0.0
+    if params.include_d0:
+        acc = acc - sdf.sample(ops, 0, px, py, pz)
+    for i in range(params.n):
+        d = base * float(2**i)
+        level = i if params.prefilter else 0
+        s = sdf.sample(ops, level, px + d * bx, py + d * by, pz + d * bz)
+        if params.clamp:  # a surface point's true SDF obeys s(P + v) ≤ |v|
+            s = ops.minimum(s, d * reach)
+        acc = acc + weights[i] * (d - s)
+    bright = _const(ops, px, params.brightness)
+    e = ops.clip(-_const(ops, px, params.k) * acc, EXP_MIN, EXP_MAX)
+    c = bright * ops.exp(e)
+    return ops.select(nlen > 0, c, bright + px * 0.0)
+
+
+def _evans_terms_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
+    """The per-sample terms D_i = d_i − s_i (clamped as in `_evans_kernel`), i = 1..n, as a tuple."""
+    nx, ny, nz, nlen = _unit(ops, nx, ny, nz)
+    ux, uy, uz = params.up
+    a = _const(ops, px, params.alpha)
+    base = _const(ops, px, params.base)
+    bx, by, bz = nx + a * ux, ny + a * uy, nz + a * uz
+    bm = ops.sqrt(bx * bx + by * by + bz * bz)
+    degenerate = bm < 1e-6
+    if params.normalize:
+        inv = 1.0 / ops.maximum(bm, 1e-30)
+        bx, by, bz = bx * inv, by * inv, bz * inv
+    bx = ops.select(degenerate, nx, bx)
+    by = ops.select(degenerate, ny, by)
+    bz = ops.select(degenerate, nz, bz)
+    one = px * 0.0 + 1.0
+    reach = one if params.normalize else ops.select(degenerate, one, bm)
+    out = []
+    for i in range(params.n):
+        d = base * float(2**i)
+        level = i if params.prefilter else 0
+        s = sdf.sample(ops, level, px + d * bx, py + d * by, pz + d * bz)
+        if params.clamp:
+            s = ops.minimum(s, d * reach)
+        out.append(ops.select(nlen > 0, d - s, px * 0.0))
+    return tuple(out)
+
+
+def evans_terms(points, normals, sdf, params: EvansParams, *, backend: str | None = None) -> np.ndarray:
+    """D_i = d_i − s_i for i = 1..n as an (n, N) NumPy array, so that C = B·exp(−k Σ_i w_i D_i): the
+    linear-in-(k·w_i) form the experiment fits (k and the weights do not change the sample positions)."""
+    if is_drjit(points):
+        raise ValueError("evans_terms takes NumPy points (it returns NumPy)")
+    p = _split_points(points, "points")
+    n = _split_points(normals, "normals")
+    if backend == "numpy":
+        with np.errstate(all="ignore"):
+            out = _evans_terms_kernel(_NP, sdf, params, *[p[:, i].astype(np.float64) for i in range(3)],
+                                      *[n[:, i].astype(np.float64) for i in range(3)])
+        return np.stack([np.asarray(o, dtype=np.float64) for o in out])
+    be = backend or get_default_backend()
+    Float = (dr.cuda if be == "cuda" else dr.llvm).Float
+    cols = [Float(np.ascontiguousarray(a[:, i], dtype=np.float32)) for a in (p, n) for i in range(3)]
+    out = _evans_terms_kernel(_DR, sdf, params, *cols)
+    dr.eval(*out)
+    return np.stack([np.array(o, dtype=np.float64) for o in out])
+
+
+def _curvature_kernel(ops, sdf, level, k, px, py, pz):
+    s_text = -sdf.sample(ops, level, px, py, pz)
+    return 0.5 + ops.exp(ops.clip(_const(ops, px, k) * s_text, EXP_MIN, EXP_MAX))
+
+
+def _cone_axes(m: int):
+    out = []
+    for j in range(m):
+        r = math.sqrt((j + 0.5) / m)
+        phi = _GOLDEN * j
+        out.append((r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - r * r))))
+    return out
+
+
+def _cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
+    nx, ny, nz, nlen = _unit(ops, nx, ny, nz)
+    # Branchless orthonormal basis (Duff et al. 2017, "Building an orthonormal basis, revisited").
+    sgn = ops.select(nz >= 0, 1.0 + nz * 0.0, -1.0 + nz * 0.0)
+    a = -1.0 / (sgn + nz)
+    b = nx * ny * a
+    t1x, t1y, t1z = 1.0 + sgn * nx * nx * a, sgn * b, -sgn * nx
+    t2x, t2y, t2z = b, sgn + ny * ny * a, -ny
+    ratio = (t_max / t0) ** (1.0 / max(steps - 1, 1))
+    ts = [t0 * ratio ** s for s in range(steps)]
+    total = px * 0.0
+    kk = _const(ops, px, k)
+    t_scale = _const(ops, px, t0)  # t_s = t0 · ratio^s: the geometric ratio is structural, t0 is an input
+    for (lx, ly, lz) in _cone_axes(cones):
+        wx = lx * t1x + ly * t2x + lz * nx
+        wy = lx * t1y + ly * t2y + lz * ny
+        wz = lx * t1z + ly * t2z + lz * nz
+        vis = px * 0.0 + 1.0
+        for t in ts:
+            width = t / CONE_LEVEL_K  # level choice independent of k: one compiled kernel serves every k
+            tt = t_scale * (t / t0)
+            level = 0
+            if sdf.voxel > 0:
+                level = max(0, min(sdf.levels - 1, int(math.floor(math.log2(max(width / sdf.voxel, 1.0))))))
+            s = sdf.sample(ops, level, px + tt * wx, py + tt * wy, pz + tt * wz)
+            vis = ops.minimum(vis, ops.clip(kk * s / tt, 0.0, 1.0))
+        total = total + vis
+    ao = total * (1.0 / cones)
+    return ops.select(nlen > 0, ao, 1.0 + px * 0.0)
+
+
+# ===================================================================================== dispatch
+def _split_points(v, name):
+    if is_drjit(v):
+        return v[0], v[1], v[2]
+    a = np.asarray(v)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3) (got {a.shape})")
+    return a
+
+
+def _run(kernel, points, normals, backend, *extra):
+    """Evaluate ``kernel(ops, px, py, pz[, nx, ny, nz])`` on NumPy float64 (backend='numpy'), or Dr.Jit."""
+    if is_drjit(points):
+        p = (points[0], points[1], points[2])
+        n = (normals[0], normals[1], normals[2]) if normals is not None else ()
+        return kernel(_DR, *p, *n)
+    p = _split_points(points, "points")
+    n = _split_points(normals, "normals") if normals is not None else None
+    if n is not None and n.shape != p.shape:
+        raise ValueError(f"points and normals must have the same shape (got {p.shape} and {n.shape})")
+    if not np.all(np.isfinite(p)) or (n is not None and not np.all(np.isfinite(n))):
+        raise ValueError("points and normals must be finite")
+    if len(p) == 0:
+        return np.zeros(0, np.float32 if backend != "numpy" else np.float64)
+    if backend == "numpy":
+        cols = [p[:, i].astype(np.float64) for i in range(3)]
+        if n is not None:
+            cols += [n[:, i].astype(np.float64) for i in range(3)]
+        with np.errstate(all="ignore"):
+            return np.asarray(kernel(_NP, *cols), dtype=np.float64)
+    be = backend or get_default_backend()
+    Float = (dr.cuda if be == "cuda" else dr.llvm).Float
+    cols = [Float(np.ascontiguousarray(p[:, i], dtype=np.float32)) for i in range(3)]
+    if n is not None:
+        cols += [Float(np.ascontiguousarray(n[:, i], dtype=np.float32)) for i in range(3)]
+    out = kernel(_DR, *cols)
+    return np.array(out, dtype=np.float32).reshape(-1)
+
+
+def evans_occlusion(points, normals, sdf, params: EvansParams, *, backend: str | None = None):
+    """Evans skylight/occlusion C (dimensionless; 1 = unoccluded for B = 1) at each point. See the module
+    docstring. ``backend``: None (the default Dr.Jit backend), "llvm", "cuda" or "numpy" (float64)."""
+    if not isinstance(params, EvansParams):
+        raise ValueError("params must be an EvansParams")
+    return _run(lambda ops, *a: _evans_kernel(ops, sdf, params, *a), points, normals, backend)
+
+
+def curvature_term(points, sdf, *, k: float, level: int = 0, backend: str | None = None):
+    """The seed's curvature shading 0.5 + exp(k·S_text(P)), S_text = −s_level(P) (000:2902-2904)."""
+    k = check_scalar("k", k, -1e30, 1e30)
+    if not isinstance(level, (int, np.integer)) or level < 0:
+        raise ValueError(f"level must be an integer >= 0 (got {level!r})")
+    return _run(lambda ops, x, y, z: _curvature_kernel(ops, sdf, int(level), k, x, y, z), points, None, backend)
+
+
+def cone_occlusion(points, normals, sdf, *, cones: int = 9, steps: int = 8, t0: float, t_max: float,
+                   k: float = 2.0, backend: str | None = None):
+    """Cone-traced distance-field AO in [0, 1] (module docstring). ``t0`` < ``t_max`` in scene units;
+    ``k`` = 1/tan(cone half-angle) > 0."""
+    if not isinstance(cones, (int, np.integer)) or not 1 <= cones <= 64:
+        raise ValueError(f"cones must be an integer in [1, 64] (got {cones!r})")
+    if not isinstance(steps, (int, np.integer)) or not 1 <= steps <= 64:
+        raise ValueError(f"steps must be an integer in [1, 64] (got {steps!r})")
+    t0 = check_scalar("t0", t0, 0.0, 1e30, lo_open=True)
+    t_max = check_scalar("t_max", t_max, t0, 1e30)
+    k = check_scalar("k", k, 0.0, 1e30, lo_open=True)
+    return _run(lambda ops, *a: _cone_kernel(ops, sdf, int(cones), int(steps), t0, t_max, k, *a),
+                points, normals, backend)
+
+
+_ = EMPTY_DISTANCE  # re-exported meaning: an empty AnalyticSDF samples as 'very far' (C = B exactly)
