@@ -93,8 +93,10 @@ class RayExecutor:
         self.gpus = int(resources.get("GPU", 0))
         cpus = int(resources.get("CPU", 1))
         if self.gpus:
+            # A GPU worker also does CPU work (fits, metrics, figures): give it its share of the
+            # cores, or Ray would pin it to one (OMP_NUM_THREADS=1 for a num_cpus=1 actor).
             self.workers = self.gpus
-            self._options = {"num_gpus": 1, "num_cpus": 1}
+            self._options = {"num_gpus": 1, "num_cpus": max(1, cpus // self.gpus)}
             self._threads = None
         else:
             self.workers = workers or cpus
