@@ -27,7 +27,7 @@ from .ambient_aperture import (
     shade,
     shade_sky,
 )
-from .cost import memory_baseline, time_drjit, time_numpy
+from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 
 Z_SPREAD_TOLERANCE = 0.15  # robust spread of ≥ 500 unit-normal z-scores: 3σ band (see half_lambert_report)
 
@@ -362,11 +362,8 @@ def costs(ctx, cfg, coeffs, k) -> list[dict]:
 def bench(ctx) -> list[dict]:
     """Evaluations/s of each intersection form, Dr.Jit vs NumPy (same kernel text), and the full shading."""
     from rtfit.realtime import aperture as ap
-    from rtfit.realtime import set_default_backend
 
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    set_default_backend(backend)
-    n = ctx.size or (1 << (24 if backend == "cuda" else 22))
+    backend, n = bench_backend(ctx)
     np_args, dr_args = _cost_inputs(n, backend)
     np64 = tuple(x.astype(np.float64) for x in np_args)
     base = memory_baseline(dr_args, n)
@@ -374,13 +371,8 @@ def bench(ctx) -> list[dict]:
     for form in FORMS:
         t_dr = time_drjit(_form_fn(form, ap.FITTED_COEFFS), dr_args, n)
         t_np = time_numpy(ap.numpy_reference(form), np64, n)
-        rows.append({"what": f"Ω {FORM_LABELS[form]}", "backend": backend, "elements": n,
-                     "drjit_Mpx_s": t_dr.elements_per_second / 1e6, "numpy_Mpx_s": t_np.elements_per_second / 1e6,
-                     "drjit/numpy": t_np.seconds / t_dr.seconds, "ns_per_px": t_dr.ns_per_element,
-                     "vs_memory_floor": t_dr.seconds / base.seconds})
-    rows.append({"what": "memory baseline (fma of the inputs)", "backend": backend, "elements": n,
-                 "drjit_Mpx_s": base.elements_per_second / 1e6, "numpy_Mpx_s": None, "drjit/numpy": None,
-                 "ns_per_px": base.ns_per_element, "vs_memory_floor": 1.0})
+        rows.append(comparison_row(f"Ω {FORM_LABELS[form]}", backend, t_dr, t_np, base))
+    rows.append(baseline_row(base, backend))
     return rows
 
 

@@ -82,3 +82,32 @@ def memory_baseline(args: tuple, elements: int) -> Timing:
 
     floats = tuple(a for a in args if dr.is_array_v(a))
     return time_drjit(fma_all, floats, elements)
+
+
+# ------------------------------------------------------------------------------ `rtfit bench` rows
+def bench_backend(ctx) -> tuple[str, int]:
+    """The Dr.Jit backend of ``ctx.variant`` (made the default) and the kernel size: ``ctx.size``,
+    else 2^24 elements on the GPU and 2^22 on the CPU."""
+    from rtfit.realtime import set_default_backend
+
+    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
+    set_default_backend(backend)
+    return backend, ctx.size or (1 << (24 if backend == "cuda" else 22))
+
+
+def comparison_row(what: str, backend: str, t_drjit: Timing, t_numpy: Timing | None, base: Timing,
+                   unit: str = "px", per: str | None = None) -> dict:
+    """One bench row: Dr.Jit and NumPy throughput of the same kernel text (millions of ``unit``/s),
+    their ratio, ns per element (``per``, default ``unit``) and the multiple of the memory floor."""
+    per = per or unit
+    return {"what": what, "backend": backend, "elements": t_drjit.elements,
+            f"drjit_M{unit}_s": t_drjit.elements_per_second / 1e6,
+            f"numpy_M{unit}_s": t_numpy.elements_per_second / 1e6 if t_numpy else None,
+            "drjit/numpy": t_numpy.seconds / t_drjit.seconds if t_numpy else None,
+            f"ns_per_{per}": t_drjit.ns_per_element, "vs_memory_floor": t_drjit.seconds / base.seconds}
+
+
+def baseline_row(base: Timing, backend: str, what: str = "memory baseline (fma of the inputs)",
+                 unit: str = "px", per: str | None = None) -> dict:
+    """The memory-traffic floor as a bench row (1× by definition)."""
+    return comparison_row(what, backend, base, None, base, unit, per)

@@ -13,7 +13,7 @@ import numpy as np
 from rtfit.reference.io import atomic_write_json
 
 from . import figures
-from .cost import memory_baseline, time_drjit, time_numpy
+from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 from .half_lambert import (
     LABELS,
     MODELS,
@@ -168,11 +168,9 @@ def _costs(ctx, cfg) -> list[dict]:
 
 def bench(ctx) -> list[dict]:
     """Dr.Jit vs NumPy (same kernel text) per model, then reference vs Mitsuba's path integrator."""
-    from rtfit.realtime import diffuse, set_default_backend
+    from rtfit.realtime import diffuse
 
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    set_default_backend(backend)
-    n = ctx.size or (1 << (24 if backend == "cuda" else 22))
+    backend, n = bench_backend(ctx)
     cos_np, alpha_np, c, a = _cost_inputs(n, backend)
     cos64, alpha64 = cos_np.astype(np.float64), alpha_np.astype(np.float64)
     rows = []
@@ -182,13 +180,8 @@ def bench(ctx) -> list[dict]:
         np_fn = diffuse.numpy_reference("wrap" if model.startswith("wrap") else model)
         np_args = _numpy_args(model, cos64, alpha64)
         t_np = time_numpy(lambda *xs: np_fn(*xs), np_args, n)
-        rows.append({"what": LABELS[model], "backend": backend, "elements": n,
-                     "drjit_Mpx_s": t_dr.elements_per_second / 1e6, "numpy_Mpx_s": t_np.elements_per_second / 1e6,
-                     "drjit/numpy": t_np.seconds / t_dr.seconds, "ns_per_px": t_dr.ns_per_element,
-                     "vs_memory_floor": t_dr.seconds / base.seconds})
-    rows.append({"what": "memory baseline (fma of the inputs)", "backend": backend, "elements": n,
-                 "drjit_Mpx_s": base.elements_per_second / 1e6, "numpy_Mpx_s": None, "drjit/numpy": None,
-                 "ns_per_px": base.ns_per_element, "vs_memory_floor": 1.0})
+        rows.append(comparison_row(LABELS[model], backend, t_dr, t_np, base))
+    rows.append(baseline_row(base, backend))
     rows += _bench_reference(ctx)
     return rows
 

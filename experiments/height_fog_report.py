@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from .cost import memory_baseline, time_drjit, time_numpy
+from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 from .height_fog import LABELS, MODELS, TRANSPORTS, model_image, volume_from_medium
 
 FORM_LABELS = {"exact": "stable closed form (rtfit)", "seed": "seed listing (000:2226-2240)",
@@ -415,12 +415,10 @@ def bench(ctx) -> list[dict]:
     """Rays/s of each optical-depth form on Dr.Jit vs the same kernel text on NumPy, then the reference's
     samples/s (volpathmis with the Python fog medium)."""
     import drjit as dr
-    from rtfit.realtime import fog, set_default_backend
+    from rtfit.realtime import fog
 
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    set_default_backend(backend)
+    backend, n = bench_backend(ctx)
     Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
-    n = ctx.size or (1 << (24 if backend == "cuda" else 22))
     np_args, args = _cost_inputs(n, Float)
     base = memory_baseline(args, n)
     rows = []
@@ -429,13 +427,8 @@ def bench(ctx) -> list[dict]:
         np_fn = fog.numpy_kernel(form)
         with np.errstate(all="ignore"):
             t_np = time_numpy(lambda a, b_, c_: np_fn(a, b_, c_, np.float32(1e-3), np.float32(0.01)), np_args, n)
-        rows.append({"what": f"optical depth: {FORM_LABELS[form]}", "backend": backend, "elements": n,
-                     "drjit_Mray_s": t_dr.elements_per_second / 1e6, "numpy_Mray_s": t_np.elements_per_second / 1e6,
-                     "drjit/numpy": t_np.seconds / t_dr.seconds, "ns_per_ray": t_dr.ns_per_element,
-                     "vs_memory_floor": t_dr.seconds / base.seconds})
-    rows.append({"what": "memory baseline (fma of the 3 inputs)", "backend": backend, "elements": n,
-                 "drjit_Mray_s": base.elements_per_second / 1e6, "numpy_Mray_s": None, "drjit/numpy": None,
-                 "ns_per_ray": base.ns_per_element, "vs_memory_floor": 1.0})
+        rows.append(comparison_row(f"optical depth: {FORM_LABELS[form]}", backend, t_dr, t_np, base, unit="ray"))
+    rows.append(baseline_row(base, backend, "memory baseline (fma of the 3 inputs)", unit="ray"))
     for row in _pass_costs(n, Float, backend):
         rows.append({"what": row["label"], "backend": backend, "elements": n,
                      "drjit_Mray_s": row["pixels_per_second"] / 1e6, "numpy_Mray_s": None, "drjit/numpy": None,

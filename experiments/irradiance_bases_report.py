@@ -22,7 +22,7 @@ from rtfit.reference.environments import PROBE_CREDITS
 from rtfit.reference.io import atomic_write_json
 
 from . import figures
-from .cost import memory_baseline, time_drjit, time_numpy
+from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 from .half_lambert_report import _concat_pairs, _z_checks, _z_pair
 from .irradiance_bases import (FLOATS, LABELS, METHODS, combine, evaluate_method, quadrature_backend,
                                supersample_for)
@@ -239,13 +239,10 @@ def _costs(ctx) -> list[dict]:
 def bench(ctx) -> list[dict]:
     """Dr.Jit vs NumPy (same kernel text) per basis in normals/s, then projection time per environment."""
     from rtfit.realtime import irradiance as ir
-    from rtfit.realtime import set_default_backend
 
     from .irradiance_bases import build_bases, configure, make_environment
 
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    set_default_backend(backend)
-    n = ctx.size or (1 << (24 if backend == "cuda" else 22))
+    backend, n = bench_backend(ctx)
     nrm, nd = _cost_inputs(n, backend)
     n64 = nrm.astype(np.float64)
     b = _demo_bases()
@@ -261,14 +258,8 @@ def bench(ctx) -> list[dict]:
         np_fn = ir.numpy_reference(kname)
         args = (n64[:, 0], n64[:, 1], n64[:, 2], *ir.kernel_args(kmethod, coeffs, window))
         t_np = time_numpy(lambda *xs: np_fn(*xs), args, n)
-        rows.append({"what": LABELS[m], "backend": backend, "elements": n,
-                     "drjit_Mnormals_s": t_dr.elements_per_second / 1e6,
-                     "numpy_Mnormals_s": t_np.elements_per_second / 1e6,
-                     "drjit/numpy": t_np.seconds / t_dr.seconds, "ns_per_normal": t_dr.ns_per_element,
-                     "vs_memory_floor": t_dr.seconds / base.seconds})
-    rows.append({"what": "memory baseline", "backend": backend, "elements": n,
-                 "drjit_Mnormals_s": base.elements_per_second / 1e6, "numpy_Mnormals_s": None, "drjit/numpy": None,
-                 "ns_per_normal": base.ns_per_element, "vs_memory_floor": 1.0})
+        rows.append(comparison_row(LABELS[m], backend, t_dr, t_np, base, unit="normals", per="normal"))
+    rows.append(baseline_row(base, backend, "memory baseline", unit="normals", per="normal"))
     from rtfit.reference import use_variant
 
     mi = use_variant(ctx.variant)
