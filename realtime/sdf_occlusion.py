@@ -239,7 +239,10 @@ def _unit(ops, x, y, z):
     return x * inv, y * inv, z * inv, m
 
 
-def _evans_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
+def _evans_samples(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
+    """The Evans sample terms D_i = d_i − s_i, i = 1..n (s_i read along the skewed normal
+    N' = N + α·U, normalised or not, clamped to |N'|·d_i when ``params.clamp``), the unit-normal length
+    ``|N|`` (0 marks a degenerate normal) and the base distance. A zero-length N' falls back to N."""
     nx, ny, nz, nlen = _unit(ops, nx, ny, nz)
     ux, uy, uz = params.up
     a = _const(ops, px, params.alpha)
@@ -253,19 +256,27 @@ def _evans_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
     bx = ops.select(degenerate, nx, bx)
     by = ops.select(degenerate, ny, by)
     bz = ops.select(degenerate, nz, bz)
-    weights = params.weights or (1.0,) * params.n
     one = px * 0.0 + 1.0
     reach = one if params.normalize else ops.select(degenerate, one, bm)  # |N'| actually used
-    acc = px * 0.0
-    if params.include_d0:
-        acc = acc - sdf.sample(ops, 0, px, py, pz)
+    terms = []
     for i in range(params.n):
         d = base * float(2**i)
         level = i if params.prefilter else 0
         s = sdf.sample(ops, level, px + d * bx, py + d * by, pz + d * bz)
         if params.clamp:  # a surface point's true SDF obeys s(P + v) ≤ |v|
             s = ops.minimum(s, d * reach)
-        acc = acc + weights[i] * (d - s)
+        terms.append(d - s)
+    return terms, nlen
+
+
+def _evans_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
+    terms, nlen = _evans_samples(ops, sdf, params, px, py, pz, nx, ny, nz)
+    weights = params.weights or (1.0,) * params.n
+    acc = px * 0.0
+    if params.include_d0:
+        acc = acc - sdf.sample(ops, 0, px, py, pz)
+    for w, t in zip(weights, terms):
+        acc = acc + w * t
     bright = _const(ops, px, params.brightness)
     e = ops.clip(-_const(ops, px, params.k) * acc, EXP_MIN, EXP_MAX)
     c = bright * ops.exp(e)
@@ -274,30 +285,8 @@ def _evans_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
 
 def _evans_terms_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
     """The per-sample terms D_i = d_i − s_i (clamped as in `_evans_kernel`), i = 1..n, as a tuple."""
-    nx, ny, nz, nlen = _unit(ops, nx, ny, nz)
-    ux, uy, uz = params.up
-    a = _const(ops, px, params.alpha)
-    base = _const(ops, px, params.base)
-    bx, by, bz = nx + a * ux, ny + a * uy, nz + a * uz
-    bm = ops.sqrt(bx * bx + by * by + bz * bz)
-    degenerate = bm < 1e-6
-    if params.normalize:
-        inv = 1.0 / ops.maximum(bm, 1e-30)
-        bx, by, bz = bx * inv, by * inv, bz * inv
-    bx = ops.select(degenerate, nx, bx)
-    by = ops.select(degenerate, ny, by)
-    bz = ops.select(degenerate, nz, bz)
-    one = px * 0.0 + 1.0
-    reach = one if params.normalize else ops.select(degenerate, one, bm)
-    out = []
-    for i in range(params.n):
-        d = base * float(2**i)
-        level = i if params.prefilter else 0
-        s = sdf.sample(ops, level, px + d * bx, py + d * by, pz + d * bz)
-        if params.clamp:
-            s = ops.minimum(s, d * reach)
-        out.append(ops.select(nlen > 0, d - s, px * 0.0))
-    return tuple(out)
+    terms, nlen = _evans_samples(ops, sdf, params, px, py, pz, nx, ny, nz)
+    return tuple(ops.select(nlen > 0, t, px * 0.0) for t in terms)
 
 
 def evans_terms(points, normals, sdf, params: EvansParams, *, backend: str | None = None) -> np.ndarray:
