@@ -439,6 +439,9 @@ class _Parser:
         return cls(**args)
 
     def scene(self, doc: dict, source: str) -> Scene:
+        if isinstance(doc.get("format"), str):  # another rtfit file format in the same library
+            reader = OTHER_FORMATS.get(doc["format"], "the tool that wrote it")
+            raise _Invalid("format", f"a {doc['format']!r} file, not a scene: read it with {reader}")
         for k in doc:
             if k not in TOP_LEVEL_KEYS:
                 raise _Invalid(k, f"unknown key (expected one of: {', '.join(sorted(TOP_LEVEL_KEYS))})")
@@ -467,6 +470,10 @@ class _Parser:
 
 
 # ----------------------------------------------------------------------------------------------- API
+# Files in scenes/library/ that are not scene files, by their ``format`` key.
+OTHER_FORMATS = {"rtfit.sky/1": "rtfit.reference.atmosphere.load_atmosphere_scene"}
+
+
 def parse_scene_text(text: str, *, source: str = "<string>",
                      base_dir: str | os.PathLike | None = None) -> Scene:
     """Parse scene-file text. ``source`` names it in errors and in ``Scene.source``; relative file paths

@@ -425,3 +425,11 @@ def test_library_scenes():
     assert (wf.shapes, wf.camera) == (hl.shapes, hl.camera)
     with pytest.raises(SceneError, match=r'no library scene named "nope" \(available: .*half_lambert_sphere'):
         library_path("nope")
+
+
+def test_a_sky_file_is_named_as_such_not_parsed_as_a_scene():
+    from rtfit.scenes import SceneError, library_path, load_scene
+
+    with pytest.raises(SceneError, match="format: a 'rtfit.sky/1' file, not a scene: read it with "
+                                         "rtfit.reference.atmosphere.load_atmosphere_scene"):
+        load_scene(library_path("sky_sun_10"))
