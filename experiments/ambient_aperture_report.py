@@ -114,7 +114,7 @@ def _map_figure(out, coeffs) -> dict:
     """Signed error maps over (d, r1) for r2 = ρ·r1, ρ ∈ {1, 0.5, 0.2}, r1 ∈ (0, π/2]."""
     from rtfit.realtime import aperture as ap
 
-    plt = figures._plt()
+    plt = figures.pyplot()
     n = 160
     r1 = (np.arange(n) + 0.5) / n * (PI / 2)
     d = (np.arange(n) + 0.5) / n * PI
@@ -138,7 +138,7 @@ def _map_figure(out, coeffs) -> dict:
     fig.subplots_adjust(hspace=0.5, wspace=0.35)
     fig.colorbar(im, ax=axes, shrink=0.6, label="(Ω_approx − Ω_exact) / smaller cap")
     name = "figures/error_maps.png"
-    figures._save(fig, out / name)
+    figures.save_figure(fig, out / name)
     return {"file": name, "section": "function-level",
             "caption": "Signed error of the smoothstep (seed), linear ramp and fitted forms over the centre "
                        "distance d and the larger radius r₁, for cap ratios r₂/r₁ = 1, 0.5, 0.2, as a fraction "
@@ -164,7 +164,7 @@ def _curve_figure(out, coeffs) -> dict:
 
 
 def _panels(path, series, xl, yl):
-    plt = figures._plt()
+    plt = figures.pyplot()
     panels = list(dict.fromkeys(s["panel"] for s in series))
     fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.3), squeeze=False)
     for k, p in enumerate(panels):
@@ -178,7 +178,7 @@ def _panels(path, series, xl, yl):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    figures._save(fig, path)
+    figures.save_figure(fig, path)
 
 
 # ------------------------------------------------------------------------------------------ scene level

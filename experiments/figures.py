@@ -17,7 +17,8 @@ import numpy as np
 from rtfit.reference.io import atomic_write_bytes
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend (figures are written, never shown)."""
     import matplotlib
 
     matplotlib.use("Agg", force=True)
@@ -31,10 +32,11 @@ def srgb(linear: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
-def _save(fig, path) -> Path:
+def save_figure(fig, path) -> Path:
+    """Write ``fig`` as a PNG atomically and close it."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    _plt().close(fig)
+    pyplot().close(fig)
     return atomic_write_bytes(path, buf.getvalue())
 
 
@@ -45,7 +47,7 @@ def image_comparison(path, reference: np.ndarray, panels: list[tuple[str, np.nda
     ``error_scale`` normalises the error (approx − reference) / error_scale; the colour range is
     ±max(|normalised error|) over all panels, shown on a shared colour bar.
     """
-    plt = _plt()
+    plt = pyplot()
     if exposure is None:
         exposure = float(np.percentile(reference[mask], 99.5)) if mask.any() else 1.0
         exposure = exposure if exposure > 0 else 1.0
@@ -71,13 +73,13 @@ def image_comparison(path, reference: np.ndarray, panels: list[tuple[str, np.nda
         fig.colorbar(im, ax=list(axes[1, 1:]), shrink=0.8, pad=0.02)
     if title:
         fig.suptitle(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def line_plot(path, x_label: str, y_label: str, series: list[dict], title: str = "",
               x_log: bool = False, y_log: bool = False, panels: list[str] | None = None) -> Path:
     """Curves; each series dict: x, y, label, optional yerr, style ("line"/"points"), panel."""
-    plt = _plt()
+    plt = pyplot()
     panels = panels or [""]
     fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 3.6), squeeze=False)
     for ax, panel in zip(axes[0], panels):
@@ -103,13 +105,13 @@ def line_plot(path, x_label: str, y_label: str, series: list[dict], title: str =
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def pareto_plot(path, points: list[dict], x_label: str, y_label: str, title: str = "",
                 floor: float | None = None) -> Path:
     """Error vs cost; each point dict: x (cost), y (error), label. The Pareto front is drawn."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.2, 3.8))
     pts = sorted(points, key=lambda p: (p["x"], p["y"]))
     for p in pts:
@@ -131,4 +133,4 @@ def pareto_plot(path, points: list[dict], x_label: str, y_label: str, title: str
     if title:
         ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)

@@ -558,9 +558,9 @@ def _residual_figures(fdir, cfg, geoms, residuals, rendered) -> list[dict]:
 
 
 def _map_figure(fdir, forms) -> dict:
-    from .figures import _plt, _save
+    from .figures import pyplot, save_figure
 
-    plt = _plt()
+    plt = pyplot()
     maps = forms["maps"]
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), squeeze=False)
     x = maps["x"]
@@ -572,7 +572,7 @@ def _map_figure(fdir, forms) -> dict:
         ax.set_xlabel("sign(cΔz)·(log₁₀|cΔz| + 9)")
         ax.set_ylabel("log₁₀ D (m)")
     fig.colorbar(im, ax=axes[0].tolist(), label="log₁₀ relative error of τ (float32)")
-    path = _save(fig, fdir / "optical_depth_error_maps.png")
+    path = save_figure(fig, fdir / "optical_depth_error_maps.png")
     return {"file": f"figures/{path.name}", "caption": "Relative error of the float32 optical depth against a "
             f"float64 oracle over (c·Δz, D), c = {maps['c']} /m, b = {maps['b']} /m, camera at z = 0; grey: "
             "|Δz| > D (impossible) or τ outside float32 range (> 1e30). Values ≥ 10 (including ∞) saturate.", "section": "optical-depth"}

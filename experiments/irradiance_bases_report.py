@@ -329,7 +329,7 @@ _MAP_METHODS = tuple(m for m in METHODS if m != "quadrature")
 def _error_map_figure(ctx, cfg, rendered, bases) -> dict:
     from rtfit.reference.environments import irradiance_quadrature
 
-    plt = figures._plt()
+    plt = figures.pyplot()
     show = _pick(cfg["environments"], ("sun-", 1), ("sunsky-", 2), ("studio", 1), ("overcast", 1), ("probe-", 3))
     h, w = 24, 48
     v = (np.arange(h) + 0.5) / h
@@ -356,7 +356,7 @@ def _error_map_figure(ctx, cfg, rendered, bases) -> dict:
                 axes[i, j].set_ylabel(name, fontsize=7)
     fig.colorbar(im, ax=axes, shrink=0.6, label="relative error (luminance)")
     name = "figures/error_maps.png"
-    figures._save(fig, ctx.out_dir / name)
+    figures.save_figure(fig, ctx.out_dir / name)
     return {"file": name, "section": "results",
             "caption": "Relative irradiance error over the sphere of normals (lat-long: normal elevation vertical, "
                        "azimuth horizontal, +Z up at the top) for each basis, against the dense quadrature "

@@ -439,7 +439,7 @@ def _figures(out, cfg, dirs, az, el, done, images, sweep, irr_rows, fits) -> lis
 
 def _relative_maps(out, elevs, done, images) -> dict:
     """False-colour relative error (approx − ref)/ref (channel mean) over the hemisphere, ±50 %."""
-    plt = figures._plt()
+    plt = figures.pyplot()
     cols = [("ss", "nishita-seed", "seed vs SS"), ("ss", "nishita-fine", "n=128 vs SS"),
             ("ms", "nishita-seed", "seed vs MS"), ("ms", "nishita-fitted", "fitted vs MS")]
     fig, axes = plt.subplots(len(elevs), len(cols), figsize=(2.6 * len(cols), 2.0 * len(elevs) + 0.6),
@@ -457,7 +457,7 @@ def _relative_maps(out, elevs, done, images) -> dict:
     if im is not None:
         fig.colorbar(im, ax=axes, shrink=0.8, label="relative error")
     name = "figures/relative_error_maps.png"
-    figures._save(fig, out / name)
+    figures.save_figure(fig, out / name)
     return {"file": name, "section": "results",
             "caption": "Relative error (approximation − reference)/reference over the sky hemisphere (x: azimuth from "
                        "the sun in degrees, y: elevation), mean of the RGB channels, clipped to ±50 %. In quick runs "
