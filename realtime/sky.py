@@ -98,6 +98,12 @@ OPS_DR = _ops_with(DRJIT_OPS, exp=dr.exp, log=dr.log, floor=dr.floor, gather=_dr
 OPS_NP = _ops_with(NUMPY_OPS, exp=np.exp, log=np.log, floor=np.floor, gather=_np_gather, cbrt=np.cbrt)
 
 
+_OPS_MATH = types.SimpleNamespace(
+    name="math", sqrt=math.sqrt, exp=math.exp, maximum=max, minimum=min,
+    clip=lambda x, lo, hi: min(max(x, lo), hi), select=lambda c, a, b: a if c else b)
+"""Python-float operations for the kernels' scalar calls (a per-build sun transmittance)."""
+
+
 def _ext(o):
     return OPS_DR if o.name == "drjit" else OPS_NP
 
@@ -310,11 +316,17 @@ def atmosphere_optical_depth(altitude_m, cos_zenith, scale_height_m, planet_radi
 
 def sun_transmittance(params: AtmosphereParams, altitude_m, cos_zenith):
     """Per-channel transmittance exp(−β_R τ_R − β_M^ext τ_M) to space: list of arrays/floats."""
-    tr = atmosphere_optical_depth(altitude_m, cos_zenith, params.rayleigh_height_m, params.planet_radius_m,
-                                  params.top_radius_m)
-    tm = atmosphere_optical_depth(altitude_m, cos_zenith, params.mie_height_m, params.planet_radius_m,
-                                  params.top_radius_m)
     br, _, bme = params.betas()
+    if isinstance(altitude_m, float) and isinstance(cos_zenith, float):  # scalar fast path: plain math
+        h = min(max(altitude_m, 0.0), params.top_m)
+        mu = min(max(cos_zenith, -1.0), 1.0)
+        tr, tm = (_optical_depth_kernel(_OPS_MATH, h, mu, H, params.planet_radius_m, params.top_radius_m)
+                  for H in (params.rayleigh_height_m, params.mie_height_m))
+    else:
+        tr = atmosphere_optical_depth(altitude_m, cos_zenith, params.rayleigh_height_m, params.planet_radius_m,
+                                      params.top_radius_m)
+        tm = atmosphere_optical_depth(altitude_m, cos_zenith, params.mie_height_m, params.planet_radius_m,
+                                      params.top_radius_m)
     if isinstance(tr, float):
         return [math.exp(-(a * tr + b * tm)) if math.isfinite(tr) else 0.0 for a, b in zip(br, bme)]
     ex = dr.exp if is_drjit(tr) else np.exp
@@ -538,8 +550,10 @@ def build_sky(params: AtmosphereParams, sun_elevation_deg: float, altitude_m: fl
               mapping: str = "linear", backend: str = "llvm", tables=None) -> NishitaSky:
     """Build the Nishita sky texture (the seed's CPU step).
 
-    ``backend``: "llvm"/"cuda" (Dr.Jit: one fused kernel over all texels with a symbolic loop over
-    the path samples; results stay on the device as flat Float arrays) or "numpy" (the same kernel
+    ``backend``: "llvm"/"cuda" (Dr.Jit: texel directions, both sun tables and one fused kernel over
+    all texels with a symbolic loop over the path samples, built on the device by the frozen
+    function `_device_build`, so a rebuild replays three kernel launches without re-tracing;
+    results stay on the device as flat Float arrays) or "numpy" (the same kernel
     text, float64 NumPy, a Python loop over path samples: the bench's comparison). ``tables``:
     optional prebuilt (τ_R, τ_M) (from `build_optical_depth_table` with the same backend).
     Rows of the texture run from el_lo (the horizon: 0° on the ground, −dip from altitude) to 90°."""
@@ -555,20 +569,28 @@ def build_sky(params: AtmosphereParams, sun_elevation_deg: float, altitude_m: fl
     el_s = math.radians(sun_elevation_deg)
     el_lo = _horizon_elevation(params, altitude_m)
     el_hi = 0.5 * math.pi
-    A, E = _texel_directions(width, height, el_lo, el_hi, mapping)
-    mu = np.sin(E)
-    nu = np.cos(E) * math.cos(el_s) * np.cos(A) + np.sin(E) * math.sin(el_s)
-    if tables is None:
-        tables = build_optical_depth_table(params, layers, table_size, backend)
     cfg = _cfg(params, layers, table_size)
     betas = params.betas()
     h0, sz = float(altitude_m), math.sin(el_s)
+    if backend != "numpy" and tables is None:
+        Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
+        static = (int(layers), int(width), int(height), int(table_size), mapping == "sqrt", el_hi,
+                  tuple(sorted(cfg.items())))
+        op = lambda v: dr.opaque(Float, v)  # noqa: E731  (size-1 device values: no recompilation)
+        S_r, S_m = _device_build(static, op(h0), op(sz), op(math.cos(el_s)), op(el_lo),
+                                 *([op(b) for b in bs] for bs in betas))
+    else:
+        A, E = _texel_directions(width, height, el_lo, el_hi, mapping)
+        mu = np.sin(E)
+        nu = np.cos(E) * math.cos(el_s) * np.cos(A) + np.sin(E) * math.sin(el_s)
+        if tables is None:
+            tables = build_optical_depth_table(params, layers, table_size, backend)
     if backend == "numpy":
         S_r, S_m = _inscatter_kernel(OPS_NP, mu.ravel(), nu.ravel(), h0, sz, cfg, tables[0].ravel(),
                                      tables[1].ravel(), betas, "python")
         S_r = [np.asarray(s).reshape(height, width) for s in S_r]
         S_m = [np.asarray(s).reshape(height, width) for s in S_m]
-    else:
+    elif tables is not None:
         Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
         S_r, S_m = _inscatter_kernel(OPS_DR, Float(mu.ravel()), Float(nu.ravel()), dr.opaque(Float, h0),
                                      dr.opaque(Float, sz), cfg, tables[0], tables[1], betas, "drjit")
@@ -577,6 +599,47 @@ def build_sky(params: AtmosphereParams, sun_elevation_deg: float, altitude_m: fl
     sky.sun_transmittance = sun_transmittance(params, float(min(altitude_m, params.top_m)), math.sin(el_s)) \
         if altitude_m <= params.top_m else [1.0] * params.channels
     return sky
+
+
+@dr.freeze
+def _device_build(static, h0, sz, cz, el_lo, br, bm, bme):
+    """The whole texture on the device, as one frozen Dr.Jit function (`dr.freeze`): texel
+    directions from `dr.arange`, the two sun optical-depth tables and the in-scatter loop.
+
+    The first call per ``static`` configuration (layer count, texture and table size, mapping,
+    atmosphere geometry) traces and compiles; later calls replay the recorded kernel launches
+    without re-tracing Python, which is what brings a rebuild (a new sun angle, altitude or set of
+    scattering coefficients: all device inputs) to the kernels' own run time. Inputs: size-1 Float
+    arrays (h0 in m, sin/cos of the sun elevation, the horizon elevation in radians, β lists)."""
+    layers, width, height, table_size, sqrt_map, el_hi, cfg_items = static
+    cfg = dict(cfg_items)
+    Float = type(h0)
+    UInt = dr.uint32_array_t(Float)
+    # texel directions (as `_texel_directions`): azimuth φ from the sun at texel centres, elevation rows
+    idx = dr.arange(UInt, width * height)
+    col = Float(idx % width)
+    row = Float(idx // width)
+    az = (2.0 * math.pi / width) * (col + 0.5)
+    f = (row + 0.5) / height
+    f = f * f if sqrt_map else f
+    el = el_lo + (el_hi - el_lo) * f
+    s_el, c_el = dr.sincos(el)
+    mu = s_el
+    nu = c_el * cz * dr.cos(az) + s_el * sz
+    # sun optical-depth tables (as `build_optical_depth_table`): rows = layer heights, columns = θ
+    n, m = layers, table_size
+    tidx = dr.arange(UInt, (n + 1) * m)
+    k = Float(tidx // m)
+    j = Float(tidx % m)
+    q = -math.expm1(-cfg["top"] / cfg["HR"])
+    hk = -cfg["HR"] * dr.log(dr.maximum(1.0 - (k / n) * q, 1e-30))
+    hk = dr.select(k >= n, cfg["top"], hk)
+    cos_th = dr.cos(j * (cfg["th_max"] / (m - 1)))
+    tables = []
+    for H in (cfg["HR"], cfg["HM"]):
+        od = _optical_depth_kernel(OPS_DR, hk, cos_th, H, cfg["rg"], cfg["rg"] + cfg["top"])
+        tables.append(dr.select(dr.isfinite(od), od, _FAR))
+    return _inscatter_kernel(OPS_DR, mu, nu, h0, sz, cfg, tables[0], tables[1], (br, bm, bme), "drjit")
 
 
 def _cfg(params, layers, table_size):

@@ -76,6 +76,8 @@ def _chunks(n_elements: int, spp: int):
 
 def _moments(mi, dr, value, spp: int):
     """Per-element float64 sums of a per-lane RGB value and of its square (lanes grouped by spp)."""
+    dr.eval(value)  # one kernel for all channels: block_sum evaluates only its own input, so without
+    # this each channel would re-run (and re-compile) the whole integrator kernel: 3x the work.
     sums, sqs = [], []
     for c in range(3):
         v = mi.Float64(value[c])
