@@ -1,7 +1,11 @@
 """Fits, metrics, sweep, figures, fitted files and benchmark of the ``sdf-occlusion`` experiment.
 
-All images are dimensionless occlusion/sky-light values: 1 = unoccluded (AO), or E/(πL) = 1 for an
-unoccluded upward-facing point under the constant upper-hemisphere sky.
+All images are dimensionless occlusion/sky-light values: 1 = unoccluded (AO), E/(πL) = 1 for an
+unoccluded upward-facing point under the constant upper-hemisphere sky, E/E_h = 1 under the sunsky sky.
+
+Sunsky targets: every approximation's C is multiplied by the per-point sky factor g(N)
+(`rtfit.experiments.sdf_occlusion.sky_factor`; 1 for the other targets). The JAX fits of C keep their
+residual functions: (C − y/g)·g = g·C − y, i.e. target y/g with weight g.
 """
 
 from __future__ import annotations
@@ -22,7 +26,12 @@ from .sdf_occlusion import (
     HELD_OUT,
     LABELS,
     METHODS,
+    SUNSKY_TARGETS,
     TARGET_LABEL,
+    EvansFitData,
+    evans_param_names,
+    evans_readable,
+    fit_evans_continuous,
     grid_of,
     load_case_scene,
 )
@@ -123,6 +132,40 @@ class SceneData:
     def target(self, t):
         return self.r["refs"][t]["mean"], self.r["refs"][t]["stderr"]
 
+    def factor(self, t):
+        """The sky factor g(N) per point for sunsky targets (`sky_factor`), else None (g = 1)."""
+        if t in SUNSKY_TARGETS:
+            g = self.r.get("sky_factor")
+            if g is None:
+                raise ValueError(f"{self.name}: target {t} needs the per-point sky factor (render with it)")
+            return np.asarray(g, dtype=np.float64)
+        return None
+
+    def scaled(self, t, pred):
+        """g·pred (the approximation under target t)."""
+        g = self.factor(t)
+        return pred if g is None else pred * g
+
+    def fit_target(self, t):
+        """(target/g, weight g) on the fit subsample, padded to FIT_POINTS: JAX residual (C − y/g)·g = gC − y."""
+        ref, _ = self.target(t)
+        g = self.factor(t)
+        y = ref[self.fit_idx]
+        w = self.fit_w.copy()
+        if g is not None:
+            gs = np.maximum(g[self.fit_idx], 1e-6)
+            y = y / gs
+            w[: len(gs)] *= gs
+        return _pad(y, FIT_POINTS), w
+
+    def fit_data(self, t, analytic=False) -> EvansFitData:
+        """The fit subsample as `EvansFitData` for the continuous fit."""
+        ref, _ = self.target(t)
+        g = self.factor(t)
+        i = self.fit_idx
+        return EvansFitData(self.points[i], self.normals[i], self.analytic if analytic else self.sdf, self.voxel,
+                            ref[i], None if g is None else g[i])
+
     def image(self, values):
         img = np.zeros(self.mask.shape)
         img[self.mask] = values
@@ -144,9 +187,9 @@ def fit_text(sd: SceneData, t, alpha=0.5, weights=None):
 
     d = sd.terms(alpha, 1.0)
     w = np.asarray(weights or (1.0,) * d.shape[0])
-    ref, _ = sd.target(t)
     dsum = w @ d
-    args = (_pad(dsum[sd.fit_idx], FIT_POINTS), _pad(ref[sd.fit_idx], FIT_POINTS), sd.fit_w)
+    y, fw = sd.fit_target(t)
+    args = (_pad(dsum[sd.fit_idx], FIT_POINTS), y, fw)
     if weights is None:
         f = _fit(_res_text, {"k": Param(1.0 / (10 * sd.voxel), 0.0, 1e4)}, args)
         pred = np.exp(np.clip(-_values(f)["k"] * dsum, -87, 80))
@@ -154,7 +197,7 @@ def fit_text(sd: SceneData, t, alpha=0.5, weights=None):
         f = _fit(_res_listing, {"k": Param(1.0 / (10 * sd.voxel), 0.0, 1e4), "logB": Param(0.0, -5.0, 5.0)}, args)
         v = _values(f)
         pred = np.exp(np.clip(v["logB"] - v["k"] * dsum, -87, 80))
-    return f, pred
+    return f, sd.scaled(t, pred)
 
 
 def _free_params(n, voxel):
@@ -167,17 +210,18 @@ def _free_params(n, voxel):
 
 
 def fit_free(sds: list[SceneData], t, alphas=ALPHAS, bases=BASES_VOX, analytic=False):
-    """Profile over (α, base) of the LM fit of (log B, c_i); returns the best {fit, alpha, base_vox}."""
+    """Stage 1 (initialisation): profile over the (α, base) grid of the optimistix LM fit of (log B, c_i);
+    returns the best {fit, alpha, base_vox}."""
     best = None
     for alpha in alphas:
         for base in bases:
             ds, refs, ws = [], [], []
             for sd in sds:
                 d = sd.terms(alpha, base, analytic=analytic)
-                ref, _ = sd.target(t)
+                y, w = sd.fit_target(t)
                 ds.append(_pad(d[:, sd.fit_idx], FIT_POINTS))
-                refs.append(_pad(ref[sd.fit_idx], FIT_POINTS))
-                ws.append(sd.fit_w)
+                refs.append(y)
+                ws.append(w)
             args = (np.concatenate(ds, axis=1), np.concatenate(refs), np.concatenate(ws))
             f = _fit(_res_free, _free_params(sds[0].n, sds[0].voxel), args)
             if best is None or f["ssr"] < best["fit"]["ssr"]:
@@ -185,22 +229,31 @@ def fit_free(sds: list[SceneData], t, alphas=ALPHAS, bases=BASES_VOX, analytic=F
     return best
 
 
-def predict_free(sd: SceneData, best, analytic=False):
+def fit_evans(sds: list[SceneData], t, cfg, analytic=False):
+    """The Evans fit: grid profile (`fit_free`), then the continuous LM over (log B, c_i, α, base) from its best
+    point (`rtfit.experiments.sdf_occlusion.fit_evans_continuous`). Returns the continuous result with the
+    grid's best as ``grid`` ({alpha, base_vox, rms_residual})."""
+    g = fit_free(sds, t, cfg["alphas"], cfg["bases_vox"], analytic=analytic)
+    init = {**_values(g["fit"]), "alpha": g["alpha"], "base_voxels": g["base_vox"]}
+    data = [sd.fit_data(t, analytic=analytic) for sd in sds]
+    b = fit_evans_continuous(data, init, sds[0].n, max_iter=int(cfg.get("lm_max_iter", 100)))
+    b["grid"] = {"alpha": g["alpha"], "base_vox": g["base_vox"], "rms_residual": g["fit"]["rms_residual"],
+                 "rms_residual_unpadded": math.sqrt(g["fit"]["ssr"] / max(1, sum(len(sd.fit_idx) for sd in sds)))}
+    return b
+
+
+def predict_free(sd: SceneData, best, analytic=False, t=None):
+    """g·C at every point of ``sd`` with the fitted (log B, c_i) at the fit's α and base (g for target t)."""
     v = _values(best["fit"])
     d = sd.terms(best["alpha"], best["base_vox"], analytic=analytic)
     c = np.array([v[f"c{i + 1}"] for i in range(d.shape[0])])
-    return np.exp(np.clip(v["logB"] - c @ d, -87, 80))
+    pred = np.exp(np.clip(v["logB"] - c @ d, -87, 80))
+    return pred if t is None else sd.scaled(t, pred)
 
 
 def free_params_readable(best, voxel):
-    v = _values(best["fit"])
-    n = len([k for k in v if k.startswith("c")])
-    k = v["c1"]
-    out = {"k": k, "alpha": best["alpha"], "base": best["base_vox"] * voxel, "base_voxels": best["base_vox"],
-           "B": math.exp(v["logB"])}
-    for i in range(1, n):
-        out[f"w{i + 1}"] = v[f"c{i + 1}"] / k if k != 0 else 0.0
-    return out
+    """k, w_i, B, α, base (voxels, and scene units with ``voxel``) with standard errors (`evans_readable`)."""
+    return evans_readable(best, voxel)
 
 
 def fit_curvature(sd: SceneData, t, level=1):
@@ -208,12 +261,12 @@ def fit_curvature(sd: SceneData, t, level=1):
     from rtfit.realtime.sdf_occlusion import GridSDF, _NP
 
     s_text = -np.asarray(sd.sdf.sample(_NP, level, *sd.points.T))
-    ref, _ = sd.target(t)
-    args = (_pad(s_text[sd.fit_idx], FIT_POINTS), _pad(ref[sd.fit_idx], FIT_POINTS), sd.fit_w)
+    y, fw = sd.fit_target(t)
+    args = (_pad(s_text[sd.fit_idx], FIT_POINTS), y, fw)
     f = _fit(_res_curv, {"k": Param(-1.0 / sd.voxel, -1e4, 1e4)}, args)
     k = _values(f)["k"]
     _ = GridSDF
-    return f, (0.5 + np.exp(np.clip(k * s_text, -87, 80))) / 1.5
+    return f, sd.scaled(t, (0.5 + np.exp(np.clip(k * s_text, -87, 80))) / 1.5)
 
 
 def cone_best(sd: SceneData, t, cfg):
@@ -226,7 +279,7 @@ def cone_best(sd: SceneData, t, cfg):
             sd.cone_cache[k] = np.asarray(cone_occlusion(sd.points, sd.normals, sd.sdf, cones=cfg["cone_count"],
                                                          steps=cfg["cone_steps"], t0=sd.voxel,
                                                          t_max=cfg["ao_distance"], k=k), dtype=np.float64)
-        pred = sd.cone_cache[k]
+        pred = sd.scaled(t, sd.cone_cache[k])
         e = float(np.sqrt(np.mean((pred - ref) ** 2)))
         if best is None or e < best[0]:
             best = (e, k, pred)
@@ -241,9 +294,9 @@ def assemble(ctx, cfg, rendered) -> dict:
     t_start = time.perf_counter()
     sds = {n: SceneData(n, rendered[n], cfg) for n in cfg["scenes"]}
     train = [sds[n] for n in cfg["scenes"] if n != HELD_OUT]
-    joint = {t: fit_free(train, t, cfg["alphas"], cfg["bases_vox"]) for t in cfg["targets"]}
+    joint = {t: fit_evans(train, t, cfg) for t in cfg["targets"]}
     ctx.log(f"joint fits done ({time.perf_counter() - t_start:.1f} s)")
-    case_docs, fits_out, per_case_params = [], [], {}
+    case_docs, fits_out, per_case_params, fit_rows = [], [], {}, []
     maps = {}
     for n in cfg["scenes"]:
         sd = sds[n]
@@ -254,15 +307,16 @@ def assemble(ctx, cfg, rendered) -> dict:
             params["evans-text"] = {"k": _values(f)["k"], "alpha": 0.5, "base": sd.voxel}
             f, preds["evans-listing"] = fit_text(sd, t, alpha=1.0, weights=(1.0, 1.2, 1.4, 1.8))
             params["evans-listing"] = {**_values(f), "alpha": 1.0, "base": sd.voxel}
-            b = fit_free([sd], t, cfg["alphas"], cfg["bases_vox"])
-            preds["evans-fit"] = predict_free(sd, b)
+            b = fit_evans([sd], t, cfg)
+            preds["evans-fit"] = predict_free(sd, b, t=t)
             params["evans-fit"] = free_params_readable(b, sd.voxel)
             fitted["evans-fit"] = b
             if sd.analytic is not None:
-                ba = fit_free([sd], t, cfg["alphas"], cfg["bases_vox"], analytic=True)
-                preds["evans-analytic"] = predict_free(sd, ba, analytic=True)
+                ba = fit_evans([sd], t, cfg, analytic=True)
+                preds["evans-analytic"] = predict_free(sd, ba, analytic=True, t=t)
                 params["evans-analytic"] = free_params_readable(ba, sd.voxel)
-            preds["evans-joint"] = predict_free(sd, joint[t])
+                fitted["evans-analytic"] = ba
+            preds["evans-joint"] = predict_free(sd, joint[t], t=t)
             params["evans-joint"] = free_params_readable(joint[t], sd.voxel)
             f, preds["curvature"] = fit_curvature(sd, t)
             params["curvature"] = {"k_text": _values(f)["k"], "level": 1}
@@ -278,19 +332,25 @@ def assemble(ctx, cfg, rendered) -> dict:
                 met = compute_metrics(img[..., None].repeat(3, -1), ref_img[..., None].repeat(3, -1),
                                       err_img[..., None].repeat(3, -1), sd.mask, names=METRICS)
                 approx_docs.append({"method": m, "label": LABELS[m], "fitted": True,
-                                    "parameters": {k: float(v) for k, v in params[m].items()},
+                                    "parameters": _approx_params(params[m]),
                                     "metrics": met.to_dict(), "cost": None, "figures": []})
                 maps[(n, t, m)] = img
             if t == "ao" and sd.r["sdfgrid_ao"] is not None:
                 approx_docs.append(_sdfgrid_doc(sd))
                 approx_docs.append(_model_only_doc(sd, cfg))
             cid = f"{n}-{t}".replace("_", "")
-            per_case_params[cid] = params
+            per_case_params[cid] = {m: _json_params(v) for m, v in params.items()}
+            per_case_params[cid]["evans-fit-lm"] = _lm_summary(b)
+            if "evans-analytic" in fitted:
+                per_case_params[cid]["evans-analytic-lm"] = _lm_summary(fitted["evans-analytic"])
+            fit_rows.append({"case": cid, "scene": n, "target": t, "voxel": sd.voxel, **_lm_summary(b)})
+            sky_meta = ({"sun_elevation_deg": cfg["sun_elevation"], "sun_azimuth_deg": cfg["sun_azimuth"],
+                         "turbidity": cfg["turbidity"]} if t in SUNSKY_TARGETS else {})
             case_docs.append({"id": cid, "label": f"{n.replace('_', ' ')}: {TARGET_LABEL[t]}",
                               "parameters": {"scene": n, "target": t, "grid_cells": cfg["grid"],
                                              "voxel": sd.voxel, "ao_distance": cfg["ao_distance"] if t == "ao" else None,
-                                             "albedo": cfg["albedo"] if t == "sky-gi" else None,
-                                             "held_out": n == HELD_OUT},
+                                             "albedo": cfg["albedo"] if t in ("sky-gi", "sunsky-gi") else None,
+                                             **sky_meta, "held_out": n == HELD_OUT},
                               "scene": {"name": f"sdf-{n}", "hash": sd.r["scene_hash"]},
                               "reference": sd.r["refs"][t]["meta"], "approximations": approx_docs})
             maps[(n, t, "ref")] = ref_img
@@ -311,7 +371,7 @@ def assemble(ctx, cfg, rendered) -> dict:
     return {
         "summary": summary(cfg, case_docs, joint, sweep, sds),
         "config": {k: v for k, v in cfg.items()},
-        "sections": _with_sweep_table(sections(cfg), sweep),
+        "sections": _with_fit_table(_with_sweep_table(sections(cfg), sweep), fit_rows, joint, sds, cfg),
         "cases": case_docs,
         "fits": fits_out,
         "figures": figs,
@@ -320,6 +380,54 @@ def assemble(ctx, cfg, rendered) -> dict:
         "notes": notes(cfg),
         "sweep": sweep,
     }
+
+
+def _finite(v):
+    return v is not None and isinstance(v, (int, float, np.floating, np.integer)) and math.isfinite(float(v))
+
+
+def _approx_params(p: dict) -> dict:
+    """An approximation's parameter values for results.json (name → number): stderrs and undefined values are
+    left out (they are in the fitted files and the fit table)."""
+    return {k: float(v) for k, v in p.items() if not k.endswith("_stderr") and _finite(v)}
+
+
+def _json_params(p: dict) -> dict:
+    """Values and stderrs, undefined ones as None (JSON has no NaN)."""
+    return {k: (float(v) if _finite(v) else None) for k, v in p.items()}
+
+
+def _lm_summary(b: dict) -> dict:
+    """The continuous fit in a few numbers: readable parameters with stderrs, RMS residual before (grid) and
+    after, LM iterations, convergence."""
+    return {**_json_params(evans_readable(b, None)), "rms_residual": b["fit"]["rms_residual"],
+            "rms_residual_grid": b["grid"]["rms_residual_unpadded"], "grid_alpha": b["grid"]["alpha"],
+            "grid_base_voxels": b["grid"]["base_vox"], "lm_iterations": b["lm"]["iterations"],
+            "converged": b["fit"]["converged"], "message": b["fit"]["message"],
+            "at_bound": [k for k, v in b["fit"]["parameters"].items() if v["at_bound"]]}
+
+
+def _pm(v, e, fmt="{:.3g}"):
+    if v is None:
+        return "–"
+    return fmt.format(v) + (f" ± {e:.2g}" if e is not None else " ± –")
+
+
+def _with_fit_table(secs, rows, joint, sds, cfg) -> list[dict]:
+    """Append the per-case continuous-fit table (α, base, k, B with stderrs; RMS grid → continuous) to the
+    ``fit`` section."""
+    lines = ["case                      α               base (voxels)    k (1/unit)        B               "
+             "RMS grid → LM       iters"]
+    for r in rows + [{"case": f"joint-{t}", **_lm_summary(b)} for t, b in joint.items()]:
+        lines.append(f"{r['case']:<25} {_pm(r['alpha'], r['alpha_stderr']):<15} "
+                     f"{_pm(r['base_voxels'], r['base_voxels_stderr']):<16} {_pm(r['k'], r['k_stderr']):<17} "
+                     f"{_pm(r['B'], r['B_stderr']):<15} {r['rms_residual_grid']:.4f} → {r['rms_residual']:.4f}   "
+                     f"{r['lm_iterations']}{'' if r['converged'] else ' (not converged)'}"
+                     + (f"  at bound: {', '.join(r['at_bound'])}" if r["at_bound"] else ""))
+    for sec in secs:
+        if sec["id"] == "fit":
+            sec["text"] += "\n\n```\n" + "\n".join(lines) + "\n```"
+    return secs
 
 
 def _sdfgrid_doc(sd: SceneData) -> dict:
@@ -347,13 +455,13 @@ def _model_only_doc(sd: SceneData, cfg) -> dict:
     r = dict(sd.r)
     r.update(sd.r["sdfgrid_gbuffer"])
     sd2 = SceneData(sd.name, r, cfg)
-    b = fit_free([sd2], "ao", cfg["alphas"], cfg["bases_vox"])
+    b = fit_evans([sd2], "ao", cfg)
     ref, err = sd2.target("ao")
     img, ref_img, err_img = sd2.image(predict_free(sd2, b)), sd2.image(ref), sd2.image(err)
     met = compute_metrics(img[..., None].repeat(3, -1), ref_img[..., None].repeat(3, -1),
                           err_img[..., None].repeat(3, -1), sd2.mask, names=METRICS)
     return {"method": "evans-on-sdfgrid", "label": LABELS["evans-on-sdfgrid"], "fitted": True,
-            "parameters": {k: float(v) for k, v in free_params_readable(b, sd.voxel).items()},
+            "parameters": _approx_params(free_params_readable(b, sd.voxel)),
             "metrics": met.to_dict(), "cost": None, "figures": []}
 
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AT_BOUND_RTOL", "FitResult", "Param", "fit_curve", "fit_least_squares"]
+__all__ = ["AT_BOUND_RTOL", "FitResult", "Param", "covariance_from_jacobian", "fit_curve", "fit_least_squares"]
 
 AT_BOUND_RTOL = 1e-6
 """A value within this fraction of (upper − lower) of a bound (two-sided), or of max(1, |bound|)
@@ -237,6 +237,18 @@ def _covariance(jac: np.ndarray, ssr: float, dof: int, absolute_sigma: bool):
     cov[undetermined, :] = math.nan
     cov[:, undetermined] = math.nan
     return cov, rank
+
+
+def covariance_from_jacobian(jac, ssr: float, dof: int, *, absolute_sigma: bool = False):
+    """The parameter covariance :func:`fit_least_squares` reports, for a fit solved elsewhere (e.g. a
+    Levenberg–Marquardt loop whose Jacobian comes from Dr.Jit autodiff): ``jac`` (n, k) = ∂residual/∂x
+    in the original parameters at the solution, ``ssr`` = Σ r², ``dof`` = n − k. Returns ``(cov, rank)``:
+    cov = s²·(JᵀJ)⁺ (pseudo-inverse on the column-normalised J; s² = SSR/dof, or 1 with
+    ``absolute_sigma``), NaN rows/columns for parameters in J's null space, and J's rank."""
+    jac = np.asarray(jac, dtype=np.float64)
+    if jac.ndim != 2 or jac.shape[1] == 0 or not np.all(np.isfinite(jac)):
+        raise ValueError(f"jac must be a finite (n, k) array with k >= 1 (got shape {jac.shape})")
+    return _covariance(jac, float(ssr), int(dof), bool(absolute_sigma))
 
 
 def _kkt_holds(jac, r, at_lower, at_upper, gtol: float = 1e-6) -> bool:

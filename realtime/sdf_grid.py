@@ -145,7 +145,9 @@ def primitive_sdf(ops, prim, x, y, z):
         qy = ops.abs(ly) - float(prim.half[1])
         qz = ops.abs(lz) - float(prim.half[2])
         ox, oy, oz = ops.maximum(qx, 0.0), ops.maximum(qy, 0.0), ops.maximum(qz, 0.0)
-        outside = ops.sqrt(ox * ox + oy * oy + oz * oz)
+        sq = ox * ox + oy * oy + oz * oz
+        # 0 inside; the select keeps forward-mode autodiff finite there (d√q = dq/(2√q) is 0/0 at q = 0)
+        outside = ops.select(sq > 0, ops.sqrt(ops.maximum(sq, 1e-30)), sq * 0.0)
         inside = ops.minimum(ops.maximum(qx, ops.maximum(qy, qz)), 0.0)
         return outside + inside
     if isinstance(prim, HalfSpace):

@@ -66,7 +66,7 @@ from .sdf_grid import EMPTY_DISTANCE, SdfGrid, build_mips, primitives_sdf
 
 __all__ = [
     "AnalyticSDF", "EvansParams", "GridSDF", "LISTING_WEIGHTS", "cone_occlusion", "curvature_term",
-    "evans_occlusion", "evans_sample_positions", "evans_terms",
+    "evans_occlusion", "evans_sample_positions", "evans_terms", "evans_terms_jacobian",
 ]
 
 LISTING_WEIGHTS = (1.0, 1.2, 1.4, 1.8)
@@ -150,7 +150,9 @@ class GridSDF:
         cy = ops.clip(uy, 0.0, ny - 1.0)
         cz = ops.clip(uz, 0.0, nz - 1.0)
         ex, ey, ez = (ux - cx) * h, (uy - cy) * h, (uz - cz) * h
-        outside = ops.sqrt(ex * ex + ey * ey + ez * ez)
+        sq = ex * ex + ey * ey + ez * ez
+        # 0 inside the box; the select keeps forward-mode autodiff finite there (d√q = dq/(2√q) is 0/0 at q = 0)
+        outside = ops.select(sq > 0, ops.sqrt(ops.maximum(sq, 1e-30)), sq * 0.0)
         fx0 = ops.minimum(ops.floor(cx), nx - 2.0)
         fy0 = ops.minimum(ops.floor(cy), ny - 2.0)
         fz0 = ops.minimum(ops.floor(cz), nz - 2.0)
@@ -239,14 +241,16 @@ def _unit(ops, x, y, z):
     return x * inv, y * inv, z * inv, m
 
 
-def _evans_samples(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
+def _evans_samples(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz, alpha=None, base=None):
     """The Evans sample terms D_i = d_i − s_i, i = 1..n (s_i read along the skewed normal
     N' = N + α·U, normalised or not, clamped to |N'|·d_i when ``params.clamp``), the unit-normal length
-    ``|N|`` (0 marks a degenerate normal) and the base distance. A zero-length N' falls back to N."""
+    ``|N|`` (0 marks a degenerate normal) and the base distance. A zero-length N' falls back to N.
+    ``alpha``/``base``: kernel inputs replacing ``params.alpha``/``params.base`` (Dr.Jit AD scalars for
+    `evans_terms_jacobian`)."""
     nx, ny, nz, nlen = _unit(ops, nx, ny, nz)
     ux, uy, uz = params.up
-    a = _const(ops, px, params.alpha)
-    base = _const(ops, px, params.base)
+    a = _const(ops, px, params.alpha) if alpha is None else alpha
+    base = _const(ops, px, params.base) if base is None else base
     bx, by, bz = nx + a * ux, ny + a * uy, nz + a * uz
     bm = ops.sqrt(bx * bx + by * by + bz * bz)
     degenerate = bm < 1e-6
@@ -283,9 +287,9 @@ def _evans_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
     return ops.select(nlen > 0, c, bright + px * 0.0)
 
 
-def _evans_terms_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
+def _evans_terms_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz, alpha=None, base=None):
     """The per-sample terms D_i = d_i − s_i (clamped as in `_evans_kernel`), i = 1..n, as a tuple."""
-    terms, nlen = _evans_samples(ops, sdf, params, px, py, pz, nx, ny, nz)
+    terms, nlen = _evans_samples(ops, sdf, params, px, py, pz, nx, ny, nz, alpha, base)
     return tuple(ops.select(nlen > 0, t, px * 0.0) for t in terms)
 
 
@@ -307,6 +311,53 @@ def evans_terms(points, normals, sdf, params: EvansParams, *, backend: str | Non
     out = _evans_terms_kernel(_DR, sdf, params, *cols)
     dr.eval(*out)
     return np.stack([np.array(o, dtype=np.float64) for o in out])
+
+
+def evans_terms_jacobian(points, normals, sdf, params: EvansParams, *, backend: str | None = None):
+    r"""D_i = d_i − s_{i−1}(P + d_i N') and its derivatives with respect to α and the base distance, by
+    Dr.Jit forward-mode autodiff through the kernel (``drjit.<llvm|cuda>.ad.Float``, float32).
+
+    Returns ``(D, dD_dalpha, dD_dbase)``, each an (n, N) float64 NumPy array; ∂/∂base is per scene unit.
+    With d_i = base·2^(i−1) and N'(α) = N + αU (or N'/|N'| with ``normalize``), the sample position
+    x_i = P + d_i N' moves continuously with α and base, so
+
+        ∂D_i/∂α    = −d_i ∇s_{i−1}(x_i)·∂N'/∂α,
+        ∂D_i/∂base = 2^(i−1) (1 − ∇s_{i−1}(x_i)·N'),
+
+    with ∇s the gradient of the trilinear (or analytic) SDF; where the guard s_i ← min(s_i, d_i|N'|) is
+    active, s_i is replaced by d_i|N'| and differentiated as such. Each sample keeps its discrete mip level
+    i − 1, so D is piecewise smooth in (α, base): the trilinear gradient jumps on cell faces (a kink, not a
+    jump of D). Degenerate normals give 0 rows as in `evans_terms`. Needs a Dr.Jit backend ("llvm" or
+    "cuda"; None: the default backend)."""
+    if not isinstance(params, EvansParams):
+        raise ValueError("params must be an EvansParams")
+    if is_drjit(points):
+        raise ValueError("evans_terms_jacobian takes NumPy points (it returns NumPy)")
+    be = backend or get_default_backend()
+    if be not in ("llvm", "cuda"):
+        raise ValueError(f"evans_terms_jacobian needs a Dr.Jit backend, 'llvm' or 'cuda' (got {be!r})")
+    p = _split_points(points, "points")
+    nrm = _split_points(normals, "normals")
+    if nrm.shape != p.shape:
+        raise ValueError(f"points and normals must have the same shape (got {p.shape} and {nrm.shape})")
+    if not np.all(np.isfinite(p)) or not np.all(np.isfinite(nrm)):
+        raise ValueError("points and normals must be finite")
+    Float = (dr.cuda.ad if be == "cuda" else dr.llvm.ad).Float
+    cols = [Float(np.ascontiguousarray(a[:, i], dtype=np.float32)) for a in (p, nrm) for i in range(3)]
+    values, grads = None, []
+    for wrt in ("alpha", "base"):
+        a = dr.opaque(Float, float(params.alpha))
+        b = dr.opaque(Float, float(params.base))
+        var = a if wrt == "alpha" else b
+        dr.enable_grad(var)
+        terms = _evans_terms_kernel(_DR, sdf, params, *cols, alpha=a, base=b)
+        dr.forward_from(var)
+        g = [dr.grad(t) for t in terms]
+        dr.eval(*terms, *g)
+        if values is None:
+            values = np.stack([np.array(dr.detach(t), dtype=np.float64) for t in terms])
+        grads.append(np.stack([np.array(x, dtype=np.float64) for x in g]))
+    return values, grads[0], grads[1]
 
 
 def _curvature_kernel(ops, sdf, level, k, px, py, pz):

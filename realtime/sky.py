@@ -576,9 +576,9 @@ def build_sky(params: AtmosphereParams, sun_elevation_deg: float, altitude_m: fl
         Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
         static = (int(layers), int(width), int(height), int(table_size), mapping == "sqrt", el_hi,
                   tuple(sorted(cfg.items())))
-        op = lambda v: dr.opaque(Float, v)  # noqa: E731  (size-1 device values: no recompilation)
-        S_r, S_m = _device_build(static, op(h0), op(sz), op(math.cos(el_s)), op(el_lo),
-                                 *([op(b) for b in bs] for bs in betas))
+        # every per-build value in one device array (one upload, no value baked into a kernel)
+        values = np.array([h0, sz, math.cos(el_s), el_lo, *betas[0], *betas[1], *betas[2]], dtype=np.float32)
+        S_r, S_m = _device_build(static + (params.channels,), Float(values))
     else:
         A, E = _texel_directions(width, height, el_lo, el_hi, mapping)
         mu = np.sin(E)
@@ -602,19 +602,27 @@ def build_sky(params: AtmosphereParams, sun_elevation_deg: float, altitude_m: fl
 
 
 @dr.freeze
-def _device_build(static, h0, sz, cz, el_lo, br, bm, bme):
+def _device_build(static, values):
     """The whole texture on the device, as one frozen Dr.Jit function (`dr.freeze`): texel
     directions from `dr.arange`, the two sun optical-depth tables and the in-scatter loop.
 
     The first call per ``static`` configuration (layer count, texture and table size, mapping,
     atmosphere geometry) traces and compiles; later calls replay the recorded kernel launches
     without re-tracing Python, which is what brings a rebuild (a new sun angle, altitude or set of
-    scattering coefficients: all device inputs) to the kernels' own run time. Inputs: size-1 Float
-    arrays (h0 in m, sin/cos of the sun elevation, the horizon elevation in radians, β lists)."""
-    layers, width, height, table_size, sqrt_map, el_hi, cfg_items = static
+    scattering coefficients: all device inputs) to the kernels' own run time. ``values``: one Float
+    array (h0 in m, sin and cos of the sun elevation, the horizon elevation in radians, then β_R,
+    β_M, β_M^ext per channel in m⁻¹); the channel count is part of ``static`` (a frozen function
+    replays widths it has not seen, so no size may be read from an input)."""
+    layers, width, height, table_size, sqrt_map, el_hi, cfg_items, C = static
     cfg = dict(cfg_items)
-    Float = type(h0)
+    Float = type(values)
     UInt = dr.uint32_array_t(Float)
+
+    def value(i):
+        return dr.gather(Float, values, UInt(i))
+
+    h0, sz, cz, el_lo = (value(i) for i in range(4))
+    br, bm, bme = ([value(4 + k * C + c) for c in range(C)] for k in range(3))
     # texel directions (as `_texel_directions`): azimuth φ from the sun at texel centres, elevation rows
     idx = dr.arange(UInt, width * height)
     col = Float(idx % width)

@@ -33,12 +33,38 @@ Integrator: ``volpathmis`` (unbiased with chromatic extinction); ``max_depth = 2
 scattering (camera segment, one scattering event, next-event estimation to the sun), ``-1`` all
 orders including the ground bounce.
 
+**Spectral variants** (``llvm_ad_spectral``, ``cuda_ad_spectral``): the same scene over wavelength.
+Each path carries the 4 wavelengths Mitsuba sampled (``mei.wavelengths``, nm); the medium and the
+phase evaluate, at those wavelengths,
+
+    β_R(λ) = β_R(550)·(550/λ)⁴,   β_M(λ) = β_M(550),   β_M^ext(λ) = β_M^ext(550)
+
+with the 550 nm values the spec's second (G) channel, and the sun's disc radiance is
+E₀(λ)/(π sin²α) with E₀ = `solar_spectrum` (a 5778 K blackbody normalised to E₀(550) = the spec's
+second solar-irradiance channel: the real-time spectral variant's default, re-derived here), given
+to the emitter as a ``regular`` spectrum on 360–830 nm in 1 nm steps. The majorant is grey per path:
+max over its 4 wavelengths of β_R(λ) + β_M^ext (the ground-level extinction). Wavelengths are
+sampled and converted exactly as Mitsuba's sensor and RGB film do (`sky_pass`): 4 stratified
+wavelengths from ``sample_rgb_spectrum`` (importance density ∝ sech²(0.0072(λ − 538)) on
+[360, 830] nm, weight 1/pdf), then per path
+
+    XYZ = mean_j x̄(λ_j) L(λ_j)/pdf(λ_j) / 106.7502594,   linear sRGB = M_709 · XYZ,
+
+x̄, ȳ, z̄ Mitsuba's CIE 1931 2° table (5 nm knots, linear interpolation, `cie1931_table`). The
+expectation is `film_srgb`: M_709 ∫₃₆₀⁸³⁰ (x̄, ȳ, z̄)(λ) L(λ) dλ / 106.7502594 (a flat L = 1 gives
+Y = 1.001: Mitsuba's normalisation constant is not quite ∫ȳ = 106.857 of its own table). Measured
+against an hdrfilm render of a ``constant`` emitter (flat and 5778 K blackbody spectra): equal within
+the render's noise (tests). No white balance: a spectrum maps to the sRGB of its CIE coordinates.
+
 Also here, for the cross-checks of the experiment:
 
 * `single_scattering_quadrature`: an independent float64 NumPy quadrature of the single-scattering
   integral (fine trapezoid along the view ray, sun optical depth by Gauss–Legendre along each
   sun ray, planet shadow by exact ray–sphere test), to check the Mitsuba single-scattering
   reference and the real-time sky;
+* `spectral_single_scattering_quadrature`: the same quadrature per wavelength (1 nm grid on
+  360–830 nm by default) with the spectral coefficients above, converted by `film_srgb`: the check
+  of the spectral Mitsuba reference;
 * `sunsky_radiance`: Mitsuba's Hosek–Wilkie ``sunsky`` evaluated along directions.
 
 This module does not import ``rtfit.realtime`` (layering): parameters are plain numbers.
@@ -59,14 +85,27 @@ from .estimators import PassResult, _chunks, _mean_var, _moments, sub_seed
 from .io import atomic_write_bytes
 
 __all__ = [
-    "AtmosphereSpec", "MEDIUM_PLUGIN", "PHASE_PLUGIN", "hemisphere_directions", "load_atmosphere_scene",
-    "register", "render_sky", "scene_dict", "single_scattering_quadrature", "sky_pass",
-    "sunsky_radiance",
+    "AtmosphereSpec", "MEDIUM_PLUGIN", "PHASE_PLUGIN", "SPECTRAL_VARIANTS", "cie1931_table", "film_srgb",
+    "hemisphere_directions", "load_atmosphere_scene", "register", "render_sky", "scene_dict",
+    "single_scattering_quadrature", "sky_pass", "solar_spectrum", "spectral_coefficients",
+    "spectral_single_scattering_quadrature", "sunsky_radiance",
 ]
 
 MEDIUM_PLUGIN = "rtfit_atmosphere"
 PHASE_PLUGIN = "rtfit_rayleigh_mie"
 _CACHE_FORMAT = 1
+SPECTRAL_VARIANTS = ("llvm_ad_spectral", "cuda_ad_spectral")
+SOLAR_TEMPERATURE_K = 5778.0
+"""Blackbody temperature of the spectral sun (the real-time spectral variant's default)."""
+REFERENCE_WAVELENGTH_NM = 550.0
+"""The wavelength of the spec's second (G) channel: the anchor of the spectral coefficients."""
+CIE_MIN_NM, CIE_MAX_NM = 360.0, 830.0
+CIE_Y_NORMALIZATION = 1.0 / 106.7502593994140625
+"""Mitsuba's ``MI_CIE_Y_NORMALIZATION`` (checked against the installed Mitsuba in the tests)."""
+XYZ_TO_SRGB = np.array([[3.240479, -1.537150, -0.498535],
+                        [-0.969256, 1.875991, 0.041556],
+                        [0.055648, -0.204043, 1.057311]])
+"""Mitsuba's ``xyz_to_srgb`` matrix (ITU-R BT.709 primaries, D65 white)."""
 
 
 @dataclass(frozen=True)
@@ -169,8 +208,11 @@ def register(mi) -> None:
         v = props.get(name)
         return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
 
+    spectral = bool(mi.is_spectral)
+
     class _Profile:
-        """Densities and coefficients shared by the medium and its phase function."""
+        """Densities and coefficients shared by the medium and its phase function. RGB variants:
+        constant Color3f β per channel; spectral variants: β at the path's wavelengths (`coeffs`)."""
 
         def __init__(self, props):
             self.rg = float(props.get("planet_radius"))
@@ -180,10 +222,22 @@ def register(mi) -> None:
             self.bm = _vec(props, "mie_beta")
             self.bme = _vec(props, "mie_extinction")
             self.g = float(props.get("g"))
+            if spectral:  # 550 nm anchors: the G channel (see the module docstring)
+                self.br550 = float(props.get("rayleigh_beta")[1])
+                self.bm550 = float(props.get("mie_beta")[1])
+                self.bme550 = float(props.get("mie_extinction")[1])
 
         def rho(self, p):
             h = dr.maximum(dr.norm(p) - self.rg, 0.0)
             return dr.exp(-h / self.hr), dr.exp(-h / self.hm)
+
+        def coeffs(self, mei):
+            """(β_R, β_M, β_M^ext) per channel (RGB) or at mei.wavelengths (spectral), km⁻¹."""
+            if not spectral:
+                return self.br, self.bm, self.bme
+            x = REFERENCE_WAVELENGTH_NM / mei.wavelengths
+            x2 = x * x
+            return self.br550 * (x2 * x2), mi.Spectrum(self.bm550), mi.Spectrum(self.bme550)
 
     class RayleighMiePhase(mi.PhaseFunction):
         def __init__(self, props):
@@ -193,8 +247,9 @@ def register(mi) -> None:
 
         def _mix(self, mei):
             rr, rm = self.prof.rho(mei.p)
-            sr = self.prof.br * rr
-            sm = self.prof.bm * rm
+            br, bm, _ = self.prof.coeffs(mei)
+            sr = br * rr
+            sm = bm * rm
             w = dr.sum(sm) / dr.maximum(dr.sum(sr) + dr.sum(sm), 1e-30)
             return sr, sm, w
 
@@ -242,21 +297,50 @@ def register(mi) -> None:
             self.m_is_homogeneous = False
             self.m_has_spectral_extinction = True
 
+        def _spectral_majorant(self, mei):
+            # grey per path: the largest ground-level extinction over its 4 wavelengths
+            br, _, bme = self.prof.coeffs(mei)
+            return mi.Spectrum(dr.max(br + bme))
+
         def get_majorant(self, mei, active=True):
             # Constant (the ground-level extinction). Mitsuba's sample_interaction calls this
-            # before mei.p is set, so an altitude-adaptive bound cannot be used here.
+            # before mei.p is set, so an altitude-adaptive bound cannot be used here (it does set
+            # mei.wavelengths first: the spectral majorant depends on them).
+            if spectral:
+                return self._spectral_majorant(mei)
             return mi.Spectrum(self.majorant)
 
         def get_scattering_coefficients(self, mei, active=True):
             rr, rm = self.prof.rho(mei.p)
+            if spectral:
+                br, bm, bme = self.prof.coeffs(mei)
+                sigma_s = br * rr + bm * rm
+                sigma_t = br * rr + bme * rm
+                return sigma_s, self._spectral_majorant(mei) - sigma_t, sigma_t
             sigma_s = self.prof.br * rr + self.prof.bm * rm
             sigma_t = self.prof.br * rr + self.prof.bme * rm
             sigma_n = self.majorant - sigma_t
             return mi.Spectrum(sigma_s), mi.Spectrum(sigma_n), mi.Spectrum(sigma_t)
 
         def intersect_aabb(self, ray):
+            # The slab test of Mitsuba's BoundingBox3f.ray_intersect on [−R_t, R_t]³, written out:
+            # BoundingBox3f is one Python type for the RGB and spectral variants but its
+            # ray_intersect accepts only the Ray3f of the variant that bound it first, so the
+            # bound method fails once both variants were used in one process.
             r = self.rt
-            return mi.BoundingBox3f(mi.ScalarPoint3f(-r, -r, -r), mi.ScalarPoint3f(r, r, r)).ray_intersect(ray)
+            d_rcp = dr.rcp(ray.d)
+            ok = mi.Bool(True)
+            t1p, t2p = [], []
+            for k in range(3):
+                o, d = ray.o[k], ray.d[k]
+                ok &= (d != 0.0) | ((o > -r) & (o < r))
+                t1 = (-r - o) * d_rcp[k]
+                t2 = (r - o) * d_rcp[k]
+                t1p.append(dr.minimum(t1, t2))
+                t2p.append(dr.maximum(t1, t2))
+            mint = dr.maximum(dr.maximum(t1p[0], t1p[1]), t1p[2])
+            maxt = dr.minimum(dr.minimum(t2p[0], t2p[1]), t2p[2])
+            return ok & (maxt >= mint), mint, maxt
 
     mi.register_phase(PHASE_PLUGIN, lambda props: RayleighMiePhase(props))
     mi.register_medium(MEDIUM_PLUGIN, lambda props: AtmosphereMedium(props))
@@ -280,7 +364,7 @@ def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
               "phase": {"type": PHASE_PLUGIN, **props}}
     alpha = math.radians(spec.sun_angular_radius_deg)
     radiance = [e / (math.pi * math.sin(alpha) ** 2) for e in spec.solar_irradiance]
-    return {
+    d = {
         "type": "scene",
         "integrator": {"type": "volpathmis", "max_depth": int(max_depth)},
         "planet": {"type": "sphere", "center": [0, 0, 0], "radius": spec.planet_radius_km,
@@ -291,6 +375,15 @@ def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
                 "angular_radius": alpha, "radiance": mi.ScalarVector3f(*radiance),
                 "sky": mi.ScalarVector3f(0.0, 0.0, 0.0)},
     }
+    if mi.is_spectral:
+        # grey ground; the sun's disc radiance E₀(λ)/(π sin²α) on a 1 nm grid over Mitsuba's range
+        d["planet"]["bsdf"]["reflectance"] = {"type": "uniform", "value": float(spec.ground_albedo)}
+        lam = np.arange(CIE_MIN_NM, CIE_MAX_NM + 0.5, 1.0)
+        disc = solar_spectrum(lam, spec.solar_irradiance[1]) / (math.pi * math.sin(alpha) ** 2)
+        d["sun"]["radiance_spectrum"] = {"type": "regular", "wavelength_min": float(lam[0]),
+                                         "wavelength_max": float(lam[-1]),
+                                         "values": ", ".join(f"{v:.9g}" for v in disc)}
+    return d
 
 
 def _load(mi, spec, max_depth):
@@ -322,11 +415,51 @@ def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -
         idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + a
         direction = mi.Vector3f(dr.gather(mi.Float, dx, idx), dr.gather(mi.Float, dy, idx),
                                 dr.gather(mi.Float, dz, idx))
-        ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), dr.normalize(direction))
-        value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
+        if mi.is_spectral:
+            value = _spectral_sample(mi, dr, scene, sampler, integrator, medium, origin, dr.normalize(direction))
+        else:
+            ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), dr.normalize(direction))
+            value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
         s[a:b], q[a:b] = _moments(mi, dr, value, spp)
     mean, var = _mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
+
+
+def _spectral_sample(mi, dr, scene, sampler, integrator, medium, origin, direction):
+    """One spectral sample per lane, as Mitsuba's sensor + RGB film do it: 4 stratified
+    wavelengths u_j = (u + j/4) mod 1 through ``sample_rgb_spectrum`` (weight 1/pdf), the
+    integrator's radiance at those wavelengths, then ``spectrum_to_xyz`` (mean over the 4 of
+    x̄ L/pdf, Mitsuba's CIE normalisation) and ``xyz_to_srgb``: linear sRGB per lane."""
+    u = sampler.next_1d()
+    lams, weights = [], []
+    for j in range(4):
+        uj = u + 0.25 * j
+        uj = dr.select(uj >= 1.0, uj - 1.0, uj)
+        lam, w = mi.sample_rgb_spectrum(uj)
+        lams.append(lam)
+        weights.append(w)
+    wavelengths = mi.Spectrum(*lams)
+    ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), direction, 0.0, wavelengths)
+    value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
+    return mi.xyz_to_srgb(mi.spectrum_to_xyz(value * mi.Spectrum(*weights), wavelengths))
+
+
+def _use_variant(variant: str):
+    """Activate an RGB variant through `rtfit.reference.variants`, or a spectral one
+    (``llvm_ad_spectral``, ``cuda_ad_spectral``) here (one-line ValueError otherwise)."""
+    from .variants import cuda_available, use_variant
+
+    if "spectral" not in variant:
+        return use_variant(variant)
+    if variant not in SPECTRAL_VARIANTS:
+        raise ValueError(f"spectral variant must be one of {', '.join(SPECTRAL_VARIANTS)} (got {variant!r})")
+    if variant.startswith("cuda") and not cuda_available():
+        raise ValueError(f"variant {variant!r} needs a CUDA GPU, and none was found")
+    import mitsuba as mi
+
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    return mi
 
 
 def render_sky(spec: AtmosphereSpec, dirs: np.ndarray, spp: int, pass_spp: int, seed: int,
@@ -335,15 +468,18 @@ def render_sky(spec: AtmosphereSpec, dirs: np.ndarray, spp: int, pass_spp: int, 
 
     Returns ``{"mean", "stderr"}`` (shape of ``dirs`` with last axis RGB, float64, W·m⁻²·sr⁻¹·nm⁻¹
     when E₀ is in W·m⁻²·nm⁻¹), ``spp``, ``passes``, ``seconds``, ``cache_key``. Passes are cached
-    as .npz under ``cache_dir`` (one file per pass; a rerun renders only missing passes)."""
-    from .variants import use_variant
+    as .npz under ``cache_dir`` (one file per pass; a rerun renders only missing passes).
 
+    ``variant``: an llvm_*/cuda_* RGB variant (channels = the spec's three wavelengths), or
+    ``llvm_ad_spectral``/``cuda_ad_spectral``: the spectral atmosphere (module docstring), the
+    channels then being Mitsuba's film linear sRGB (`film_srgb` of the radiance spectrum: no
+    white balance)."""
     if spp < 2 or pass_spp < 2:
         raise ValueError(f"spp and pass_spp must be >= 2 (got {spp}, {pass_spp})")
-    if not (variant.startswith("llvm_") or variant.startswith("cuda_")) or "spectral" in variant:
-        raise ValueError(f"variant must be an llvm_*/cuda_* RGB variant for the atmosphere reference (got {variant!r})")
+    if not (variant.startswith("llvm_") or variant.startswith("cuda_")):
+        raise ValueError(f"variant must be an llvm_*/cuda_* variant for the atmosphere reference (got {variant!r})")
     shape = np.asarray(dirs).shape
-    mi = use_variant(variant)
+    mi = _use_variant(variant)
     h = hashlib.sha256()
     h.update(json.dumps({"f": _CACHE_FORMAT, "spec": asdict(spec), "depth": max_depth, "variant": variant,
                          "seed": seed, "pass_spp": pass_spp, "mi": mi.__version__}, sort_keys=True).encode())
@@ -428,7 +564,15 @@ def single_scattering_quadrature(spec: AtmosphereSpec, dirs: np.ndarray, steps: 
     scattering events for a sky pixel)."""
     d = np.asarray(dirs, dtype=np.float64)
     shape = d.shape
-    d = d.reshape(-1, 3)
+    br, bm, bme = (np.asarray(v, dtype=np.float64) for v in (spec.rayleigh_beta, spec.mie_beta, spec.mie_extinction))
+    out = _ss_quadrature(spec, d.reshape(-1, 3), steps, br, bm, bme)
+    out *= np.asarray(spec.solar_irradiance)[None, :]
+    return out.reshape(shape)
+
+
+def _ss_quadrature(spec: AtmosphereSpec, d: np.ndarray, steps: int, br, bm, bme) -> np.ndarray:
+    """The integral of `single_scattering_quadrature` per unit E₀ for (N, 3) directions and C
+    channels with coefficient arrays br, bm, bme of shape (C,) (km⁻¹): returns (N, C)."""
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     rg, rt = spec.planet_radius_km, spec.top_radius_km
     o = np.array([0.0, 0.0, rg + spec.viewer_altitude_km])
@@ -440,13 +584,12 @@ def single_scattering_quadrature(spec: AtmosphereSpec, dirs: np.ndarray, steps: 
     hit = (disc > 0) & (b < 0)
     t_g = -b - np.sqrt(np.maximum(disc, 0.0))
     t_max = np.where(hit, t_g, t_top)
-    br, bm, bme = (np.asarray(v, dtype=np.float64) for v in (spec.rayleigh_beta, spec.mie_beta, spec.mie_extinction))
     g = spec.mie_g
     cos_g = d @ s
     pr = 3.0 / (16.0 * math.pi) * (1.0 + cos_g ** 2)
     pm = (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g - 2.0 * g * cos_g) ** 1.5)
     u = np.linspace(0.0, 1.0, steps) ** 2
-    out = np.zeros((d.shape[0], 3))
+    out = np.zeros((d.shape[0], br.size))
     for i in range(d.shape[0]):
         t = u * t_max[i]
         x = o[None, :] + t[:, None] * d[i][None, :]
@@ -459,8 +602,101 @@ def single_scattering_quadrature(spec: AtmosphereSpec, dirs: np.ndarray, steps: 
         tau = (odr + sr)[:, None] * br[None, :] + (odm + sm)[:, None] * bme[None, :]
         f = (br[None, :] * rr[:, None] * pr[i] + bm[None, :] * rm[:, None] * pm[i]) * np.exp(-tau)
         out[i] = np.sum(0.5 * (f[1:] + f[:-1]) * dt[:, None], axis=0)
-    out *= np.asarray(spec.solar_irradiance)[None, :]
-    return out.reshape(shape)
+    return out
+
+
+# ----------------------------------------------------------------------------- spectral helpers
+def solar_spectrum(lam_nm, e550: float = 1.8504, temperature_k: float = SOLAR_TEMPERATURE_K) -> np.ndarray:
+    """Solar irradiance E₀(λ) = E₀(550)·B(λ, T)/B(550, T) (W·m⁻²·nm⁻¹ when E₀(550) is), B the
+    Planck law ∝ λ⁻⁵/(exp(c₂/(λT)) − 1), c₂ = 1.4387769e-2 m·K, λ in nm.
+
+    The real-time spectral variant's default (``rtfit.realtime.sky.AtmosphereParams.spectral``:
+    5778 K blackbody normalised to that set's 550 nm value), re-derived here because the reference
+    must not import the real-time code; a test checks that the two agree."""
+    lam = np.asarray(lam_nm, dtype=np.float64)
+    if np.any(~np.isfinite(lam)) or np.any(lam <= 0):
+        raise ValueError("lam_nm must be finite and > 0")
+    if not (temperature_k > 0 and math.isfinite(temperature_k)):
+        raise ValueError(f"temperature_k must be finite and > 0 (got {temperature_k!r})")
+
+    def planck(x):
+        x = x * 1e-9
+        return x ** -5 / np.expm1(1.4387769e-2 / (x * temperature_k))
+
+    return float(e550) * planck(lam) / planck(np.array(REFERENCE_WAVELENGTH_NM))
+
+
+def spectral_coefficients(spec: AtmosphereSpec, lam_nm):
+    """(β_R, β_M, β_M^ext, E₀) at wavelengths ``lam_nm`` (arrays, km⁻¹ and W·m⁻²·nm⁻¹):
+    β_R(550)(550/λ)⁴, grey Mie, `solar_spectrum` — exactly what the spectral Mitsuba scene uses,
+    anchored at the spec's 550 nm (second) channel."""
+    lam = np.asarray(lam_nm, dtype=np.float64)
+    if np.any(~np.isfinite(lam)) or np.any(lam <= 0):
+        raise ValueError("lam_nm must be finite and > 0")
+    br = spec.rayleigh_beta[1] * (REFERENCE_WAVELENGTH_NM / lam) ** 4
+    ones = np.ones_like(lam)
+    return br, spec.mie_beta[1] * ones, spec.mie_extinction[1] * ones, solar_spectrum(lam, spec.solar_irradiance[1])
+
+
+_CIE_TABLE: dict = {}
+
+
+def cie1931_table():
+    """Mitsuba's CIE 1931 2° colour-matching table as used by its film: (λ knots (95,) nm, 360–830
+    in 5 nm steps; x̄ȳz̄ (95, 3)), read from the installed Mitsuba (``mi.cie1931_xyz`` at the knots;
+    between knots Mitsuba interpolates linearly, outside [360, 830] it returns 0)."""
+    if "table" not in _CIE_TABLE:
+        import mitsuba as mi
+
+        prev = mi.variant()
+        if prev is None or prev.startswith("scalar"):
+            mi.set_variant("llvm_ad_rgb")
+        knots = np.linspace(CIE_MIN_NM, CIE_MAX_NM, 95)
+        xyz = np.asarray(mi.cie1931_xyz(mi.Float(knots.astype(np.float32))), dtype=np.float64)
+        if prev is not None and prev != mi.variant():
+            mi.set_variant(prev)
+        _CIE_TABLE["table"] = (knots, xyz.reshape(3, -1).T.copy())
+    return _CIE_TABLE["table"]
+
+
+def film_srgb(spectra, lam_nm) -> np.ndarray:
+    """Linear sRGB that Mitsuba's RGB film gives a radiance spectrum: M_709 ∫ (x̄, ȳ, z̄) L dλ ×
+    `CIE_Y_NORMALIZATION`, over the samples ``lam_nm`` (N,) (ascending, inside [360, 830]; the
+    trapezoid rule, with x̄ȳz̄ Mitsuba's piecewise-linear table: use a grid containing the 5 nm knots,
+    e.g. 1 nm steps, to make the only error the trapezoid's on L). ``spectra`` (…, N) → (…, 3)."""
+    lam = np.asarray(lam_nm, dtype=np.float64)
+    L = np.asarray(spectra, dtype=np.float64)
+    if lam.ndim != 1 or lam.size < 2 or np.any(np.diff(lam) <= 0):
+        raise ValueError("lam_nm must be 1-D, ascending, with at least 2 samples")
+    if lam[0] < CIE_MIN_NM - 1e-9 or lam[-1] > CIE_MAX_NM + 1e-9:
+        raise ValueError(f"lam_nm must lie in [{CIE_MIN_NM:g}, {CIE_MAX_NM:g}] nm")
+    if L.shape[-1] != lam.size:
+        raise ValueError(f"spectra's last axis must have {lam.size} samples (got {L.shape[-1]})")
+    knots, table = cie1931_table()
+    cmf = np.stack([np.interp(lam, knots, table[:, k]) for k in range(3)], axis=-1)   # (N, 3)
+    w = np.zeros(lam.size)
+    dl = np.diff(lam)
+    w[:-1] += 0.5 * dl
+    w[1:] += 0.5 * dl
+    xyz = L @ (cmf * w[:, None]) * CIE_Y_NORMALIZATION
+    return xyz @ XYZ_TO_SRGB.T
+
+
+def spectral_single_scattering_quadrature(spec: AtmosphereSpec, dirs: np.ndarray, steps: int = 2000,
+                                          step_nm: float = 1.0) -> dict:
+    """The spectral single-scattered sky along ``dirs`` (…, 3): `single_scattering_quadrature`'s
+    integral per wavelength on λ = 360, 360 + step_nm, …, 830 nm with `spectral_coefficients`,
+    then Mitsuba's film conversion (`film_srgb`). Returns ``{"srgb": (…, 3), "wavelengths_nm":
+    (N,), "spectra": (…, N) in W·m⁻²·sr⁻¹·nm⁻¹}``. ``step_nm`` must divide 5 nm (the CIE knots)."""
+    k = 5.0 / step_nm
+    if not (step_nm > 0 and abs(k - round(k)) < 1e-9):
+        raise ValueError(f"step_nm must divide 5 nm (got {step_nm!r})")
+    lam = np.linspace(CIE_MIN_NM, CIE_MAX_NM, int(round((CIE_MAX_NM - CIE_MIN_NM) / step_nm)) + 1)
+    d = np.asarray(dirs, dtype=np.float64)
+    br, bm, bme, e0 = spectral_coefficients(spec, lam)
+    L = _ss_quadrature(spec, d.reshape(-1, 3), steps, br, bm, bme) * e0[None, :]
+    L = L.reshape(*d.shape[:-1], lam.size)
+    return {"srgb": film_srgb(L, lam), "wavelengths_nm": lam, "spectra": L}
 
 
 # ------------------------------------------------------------------------------------ sunsky

@@ -18,6 +18,13 @@ Mitsuba does not call ``set_scene`` on Python emitters.
 
 Properties: ``direction`` (unit vector towards the light), ``angular_radius`` (radians, (0, π/2)),
 ``radiance`` and ``sky`` (RGB, W·m⁻²·sr⁻¹).
+
+Spectral variants (``*_spectral``): the disc's radiance L(λ) comes from the optional property
+``radiance_spectrum``, a Mitsuba spectrum object (e.g. ``{"type": "regular", "wavelength_min": 360,
+"wavelength_max": 830, "values": "..."}``, linearly interpolated; W·m⁻²·sr⁻¹·nm⁻¹), evaluated at the
+wavelengths carried by each interaction; without it the RGB ``radiance`` must be grey (its value is
+then a flat spectrum). ``sky`` must be grey in spectral variants (a flat spectrum). RGB variants
+ignore ``radiance_spectrum``: their code path is unchanged.
 """
 
 from __future__ import annotations
@@ -54,6 +61,28 @@ def register(mi) -> None:
             self.weight = (self.radiance + self.sky) / self.pdf_value
             self.shadow_distance = mi.Float(1e7)
             self.m_flags = mi.EmitterFlags.Infinite
+            self.spectral = bool(mi.is_spectral)
+            if self.spectral:
+                self._init_spectral(props, r, s)
+
+        def _init_spectral(self, props, r, s):
+            """Spectral variants: L(λ) from ``radiance_spectrum`` (or a grey ``radiance``), grey sky."""
+            if float(s[0]) != float(s[1]) or float(s[1]) != float(s[2]):
+                raise ValueError(f"{PLUGIN}: 'sky' must be grey in a spectral variant (got {s})")
+            self.sky_value = float(s[0])
+            self.spectrum = props.get("radiance_spectrum") if props.has_property("radiance_spectrum") else None
+            if self.spectrum is None and (float(r[0]) != float(r[1]) or float(r[1]) != float(r[2])):
+                raise ValueError(f"{PLUGIN}: a spectral variant needs 'radiance_spectrum' or a grey 'radiance' "
+                                 f"(got {r})")
+            self.grey = float(r[0])
+
+        def _disc_spectrum(self, wavelengths):
+            """L(λ) of the disc at the sampled wavelengths (spectral variants)."""
+            if self.spectrum is None:
+                return mi.Spectrum(self.grey)
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            si.wavelengths = wavelengths
+            return self.spectrum.eval(si)
 
         def attach_to_scene(self, scene):
             bbox = scene.bbox()
@@ -67,10 +96,18 @@ def register(mi) -> None:
         def _radiance(self, w):
             return dr.select(self._inside(w), self.radiance + self.sky, self.sky)
 
+        def _radiance_spectral(self, w, wavelengths):
+            sky = mi.Spectrum(self.sky_value)
+            return dr.select(self._inside(w), self._disc_spectrum(wavelengths) + sky, sky)
+
         def eval(self, si, active=True):
+            if self.spectral:
+                return self._radiance_spectral(-si.wi, si.wavelengths)
             return self._radiance(-si.wi)  # si.wi is world-space for escaped rays
 
         def eval_direction(self, it, ds, active=True):
+            if self.spectral:
+                return self._radiance_spectral(ds.d, it.wavelengths)
             return self._radiance(ds.d)
 
         def sample_direction(self, it, sample, active=True):
@@ -86,6 +123,9 @@ def register(mi) -> None:
             ds.pdf = self.pdf_value
             ds.delta = False
             ds.emitter = mi.EmitterPtr(self)
+            if self.spectral:
+                weight = (self._disc_spectrum(it.wavelengths) + mi.Spectrum(self.sky_value)) / self.pdf_value
+                return ds, weight
             return ds, mi.Spectrum(self.weight)
 
         def pdf_direction(self, it, ds, active=True):

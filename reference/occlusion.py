@@ -21,9 +21,20 @@ resolution error and occlusion-model error can be told apart. Mitsuba's ``sdfgri
 intersects at the cell-centre positions only with this mapping), so `sdfgrid_scene` maps the unit cube
 onto the box of rtfit's cell centres: the two trilinear zero sets coincide.
 
-Rays start at the points with Mitsuba's ``spawn_ray`` offset (relative epsilon along n). The sky quantities
-use no Mitsuba emitter: the sky is defined here (radiance 1 above the horizon), which is exactly the
-"constant upper-hemisphere sky without a sun" of the issue.
+* ``"sunsky_direct"``: E(x)/E_h under Mitsuba's ``sunsky`` sky without its sun (`SunskySky`: the emitter
+  with ``sun_scale`` 0, radiance L(ω) ≥ 0 for ω_z > 0 and 0 below the horizon), one bounce:
+  E(x) = ∫_{H(n)} V(x, ω) [ω_z > 0] L(ω) (n·ω) dω, with L the luminance Y = 0.2126 R + 0.7152 G + 0.0722 B
+  of Mitsuba's linear-sRGB radiance (W m⁻² sr⁻¹) and E_h = ∫_{ω_z > 0} L(ω) ω_z dω the unoccluded
+  horizontal irradiance (W m⁻²) from `sunsky_horizontal_irradiance` (quadrature of the baked sky).
+  Estimator: π L(ω) V(ω) [ω_z > 0] / E_h, ω ~ cos/π. For a constant L, E_h = πL: the ``sky_direct``
+  normalisation is the special case. Unoccluded and facing up it is 1.
+* ``"sunsky_global"``: the same sky with all interreflections (Russian roulette as ``sky_global``; an escaping
+  path scores π L(ω)/E_h instead of 1).
+
+Rays start at the points with Mitsuba's ``spawn_ray`` offset (relative epsilon along n). The constant-sky
+quantities use no Mitsuba emitter: the sky is defined here (radiance 1 above the horizon), which is exactly
+the "constant upper-hemisphere sky without a sun" of the issue. The sunsky quantities evaluate the emitter
+itself (``Emitter.eval``) for each escaping ray.
 
 `OcclusionCache` stores passes (``.npz``, atomic) under a key of everything that determines the samples.
 """
@@ -43,9 +54,108 @@ from .cache import pool_passes
 from .estimators import MAX_LANES, PassResult, sub_seed
 from .io import atomic_write_bytes, atomic_write_json
 
-QUANTITIES = ("ao", "sky_direct", "sky_global")
+QUANTITIES = ("ao", "sky_direct", "sky_global", "sunsky_direct", "sunsky_global")
 MAX_BOUNCES = 64
 FORMAT = 1
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 / linear-sRGB luminance weights: the scalar the sunsky quantities integrate."""
+SKY_BAKE_HEIGHT = 257
+"""Rows of the baked sunsky map (`rtfit.reference.environments.sunsky_environment`, 2:1) whose quadrature
+(supersample 2, so that quadrature cells end on the horizon) gives E_h: node rows every 0.7°, one on the
+horizon. Measured (30° sun, turbidity 3) against a Gauss–Legendre × midpoint quadrature of the emitter
+itself: 3e-5 relative for E_h, ≤ 6e-4 for vertical normals (the horizon band); 2e-5 between 257 and 513
+rows for E_h."""
+
+
+@dataclass(frozen=True)
+class SunskySky:
+    """Mitsuba's Hosek–Wilkie ``sunsky`` without its sun (``sun_scale`` 0; ground albedo 0.3 as in
+    `rtfit.reference.environments.sunsky_environment`), +Z up. The sun direction (which shapes the sky) is
+    (cos e sin a, cos e cos a, sin e): elevation e above the horizon, azimuth a from +Y towards +X (the
+    convention of `rtfit.reference.environments`)."""
+
+    elevation_deg: float = 30.0
+    azimuth_deg: float = 60.0
+    turbidity: float = 3.0
+
+    def __post_init__(self):
+        for f in ("elevation_deg", "azimuth_deg", "turbidity"):
+            v = getattr(self, f)
+            if not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
+                raise ValueError(f"SunskySky.{f} must be a finite number (got {v!r})")
+            object.__setattr__(self, f, float(v))
+        if not 0.0 < self.elevation_deg <= 90.0:
+            raise ValueError(f"sun elevation_deg must be in (0, 90] (got {self.elevation_deg!r})")
+        if not 1.0 <= self.turbidity <= 10.0:
+            raise ValueError(f"turbidity must be in [1, 10] (got {self.turbidity!r})")
+
+    def sun_direction(self) -> np.ndarray:
+        e, a = math.radians(self.elevation_deg), math.radians(self.azimuth_deg)
+        return np.array([math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e)])
+
+    def to_dict(self) -> dict:
+        return {"emitter": "sunsky (Mitsuba), sun_scale 0", "sun_elevation_deg": self.elevation_deg,
+                "sun_azimuth_deg": self.azimuth_deg, "turbidity": self.turbidity, "ground_albedo": 0.3,
+                "sun_direction": [float(v) for v in self.sun_direction()], "scalar": "luminance Y (Rec. 709)"}
+
+
+_SKY_CACHE: dict = {}
+
+
+def sunsky_emitter(mi, sky: SunskySky):
+    """The Mitsuba ``sunsky`` emitter of ``sky`` with ``sun_scale`` 0 (the same dictionary as the sky part of
+    `rtfit.reference.environments.sunsky_environment`)."""
+    from .environments import SUNSKY_APERTURE_DEG
+
+    key = ("emitter", mi.variant(), sky)
+    if key not in _SKY_CACHE:
+        _SKY_CACHE[key] = mi.load_dict({"type": "sunsky", "sun_direction": sky.sun_direction().tolist(),
+                                        "turbidity": sky.turbidity, "albedo": 0.3,
+                                        "sun_aperture": SUNSKY_APERTURE_DEG, "sun_scale": 0.0})
+    return _SKY_CACHE[key]
+
+
+def sunsky_sky_nodes(mi, sky: SunskySky, height: int = SKY_BAKE_HEIGHT, supersample: int = 2):
+    """Quadrature nodes of the sky above the horizon: (directions (M, 3), solid-angle weights (M,),
+    luminance (M,) in W m⁻² sr⁻¹) — the midpoint rule over the bilinear map baked by
+    `rtfit.reference.environments.sunsky_environment` (``sun_scale`` 0; its sun is dropped), keeping the
+    nodes with ω_z > 0 (the map has a node row on the horizon when ``height`` is odd)."""
+    from .environments import quadrature_samples, sunsky_environment
+
+    if not isinstance(height, (int, np.integer)) or height < 3 or height % 2 == 0:
+        raise ValueError(f"height must be an odd integer >= 3 (a node row on the horizon; got {height!r})")
+    key = ("nodes", mi.variant(), sky, int(height), int(supersample))
+    if key not in _SKY_CACHE:
+        env = sunsky_environment(mi, sky.elevation_deg, int(height), 2 * (int(height) - 1), sky.turbidity,
+                                 sky.azimuth_deg)
+        d, w, rgb = quadrature_samples(env.radiance_map, int(supersample))
+        up = d[:, 2] > 0
+        _SKY_CACHE[key] = (d[up], w[up], rgb[up] @ np.asarray(LUMINANCE))
+    return _SKY_CACHE[key]
+
+
+def sunsky_irradiance(mi, sky: SunskySky, normals, height: int = SKY_BAKE_HEIGHT, supersample: int = 2):
+    """Unoccluded luminance irradiance E(n) = Σ_k w_k L_k max(n·d_k, 0) (W m⁻²) of the sky above the horizon
+    at unit ``normals`` (N, 3), by quadrature (`sunsky_sky_nodes`)."""
+    n = np.asarray(normals, np.float64)
+    if n.ndim != 2 or n.shape[1] != 3 or not np.all(np.isfinite(n)) or np.any(np.linalg.norm(n, axis=1) == 0):
+        raise ValueError(f"normals must be finite non-zero (N, 3) vectors (got shape {n.shape})")
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    d, w, lum = sunsky_sky_nodes(mi, sky, height, supersample)
+    wl = w * lum
+    out = np.empty(len(n))
+    per = max(1, (1 << 22) // max(len(d), 1))
+    for a in range(0, len(n), per):
+        out[a:a + per] = np.maximum(n[a:a + per] @ d.T, 0.0) @ wl
+    return out
+
+
+def sunsky_horizontal_irradiance(mi, sky: SunskySky) -> float:
+    """E_h = ∫_{ω_z > 0} L(ω) ω_z dω (W m⁻², luminance): the normaliser of the sunsky quantities."""
+    key = ("E_h", mi.variant(), sky)
+    if key not in _SKY_CACHE:
+        _SKY_CACHE[key] = float(sunsky_irradiance(mi, sky, np.array([[0.0, 0.0, 1.0]]))[0])
+    return _SKY_CACHE[key]
 
 
 def _check(quantity, spp, max_distance, albedo):
@@ -60,11 +170,27 @@ def _check(quantity, spp, max_distance, albedo):
 
 
 def occlusion_pass(mi, mi_scene, points, normals, spp: int, seed: int, *, quantity: str = "ao",
-                   max_distance: float = math.inf, albedo: float = 0.8) -> PassResult:
-    """One pass of ``spp`` samples per point; mean/var arrays of shape (N,) (float64)."""
+                   max_distance: float = math.inf, albedo: float = 0.8, sky: SunskySky | None = None) -> PassResult:
+    """One pass of ``spp`` samples per point; mean/var arrays of shape (N,) (float64). ``sky``: the sky of
+    the sunsky quantities (None: ``SunskySky()``, 30° elevation, 60° azimuth, turbidity 3)."""
     import drjit as dr
 
     _check(quantity, spp, max_distance, albedo)
+    if sky is not None and not isinstance(sky, SunskySky):
+        raise ValueError(f"sky must be a SunskySky (got {type(sky).__name__})")
+    skyfn = None
+    if quantity.startswith("sunsky"):
+        sky = sky or SunskySky()
+        emitter = sunsky_emitter(mi, sky)
+        scale = math.pi / sunsky_horizontal_irradiance(mi, sky)
+        lum = LUMINANCE
+
+        def skyfn(d):  # π L(d) / E_h, luminance, ≥ 0 (Hosek–Wilkie can dip below 0: mitsuba3 #1777)
+            si = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
+            si.wi = -d
+            rgb = emitter.eval(si)
+            y = lum[0] * rgb[0] + lum[1] * rgb[1] + lum[2] * rgb[2]
+            return dr.maximum(y, 0.0) * scale
     if mi.variant().startswith("scalar"):
         raise ValueError("occlusion references need a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
     points = np.ascontiguousarray(points, dtype=np.float32)
@@ -91,7 +217,7 @@ def occlusion_pass(mi, mi_scene, points, normals, spp: int, seed: int, *, quanti
         lane = dr.arange(mi.UInt32, lanes)
         h0, h1 = mi.sample_tea_32(mi.UInt32(sub_seed(seed, "chunk", c)), lane)
         rng = mi.PCG32(lanes, (mi.UInt64(h0) << 32) | mi.UInt64(h1), mi.UInt64(lane))
-        v = _estimate(mi, dr, mi_scene, rng, p, n, quantity, float(max_distance), float(albedo))
+        v = _estimate(mi, dr, mi_scene, rng, p, n, quantity, float(max_distance), float(albedo), skyfn)
         v64 = mi.Float64(v)
         sums = dr.block_sum(v64, spp)
         sqs = dr.block_sum(v64 * v64, spp)
@@ -118,21 +244,23 @@ def _cos_dir(mi, rng, n):
     return mi.Frame3f(n).to_world(mi.warp.square_to_cosine_hemisphere(u))
 
 
-def _estimate(mi, dr, mi_scene, rng, p, n, quantity, max_distance, albedo):
+def _estimate(mi, dr, mi_scene, rng, p, n, quantity, max_distance, albedo, skyfn=None):
+    """One sample per lane. ``skyfn(d)``: the escape value π L(d)/E_h of the sunsky quantities (None: 1)."""
     d = _cos_dir(mi, rng, n)
     if quantity == "ao":
         hit = mi_scene.ray_test(_spawn(mi, dr, p, n, d, max_distance))
         return dr.select(hit, 0.0, 1.0)
-    if quantity == "sky_direct":
+    if quantity in ("sky_direct", "sunsky_direct"):
         hit = mi_scene.ray_test(_spawn(mi, dr, p, n, d))
-        return dr.select(hit | (d.z <= 0), 0.0, 1.0)
-    # sky_global: Russian roulette with q = albedo (weight stays 1).
+        sky = 1.0 if skyfn is None else skyfn(d)
+        return dr.select(hit | (d.z <= 0), 0.0, sky)
+    # sky_global / sunsky_global: Russian roulette with q = albedo (weight stays 1).
     value = dr.zeros(mi.Float, dr.width(p))
     alive = dr.full(mi.Bool, True, dr.width(p))
     for _ in range(MAX_BOUNCES):
         si = mi_scene.ray_intersect(_spawn(mi, dr, p, n, d), alive)
         escaped = alive & ~si.is_valid()
-        value = dr.select(escaped & (d.z > 0), value + 1.0, value)
+        value = dr.select(escaped & (d.z > 0), value + (1.0 if skyfn is None else skyfn(d)), value)
         cont = rng.next_float32() < albedo
         alive = alive & si.is_valid() & cont
         ng = dr.select(dr.dot(si.n, d) > 0, -si.n, si.n)
@@ -180,6 +308,7 @@ class OcclusionReference:
     seconds: float
     key: str
     quantity: str
+    sky: dict | None = None
 
     @property
     def samples_per_second(self) -> float:
@@ -190,7 +319,8 @@ class OcclusionReference:
                 "quantity": self.quantity, "spp": self.spp, "passes": self.passes, "cache_key": self.key,
                 "mean_rel_stderr": float(np.mean(self.stderr[self.mean > 0] / self.mean[self.mean > 0]))
                 if np.any(self.mean > 0) else 0.0,
-                "samples_per_second": float(self.samples_per_second) if self.seconds > 0 else None}
+                "samples_per_second": float(self.samples_per_second) if self.seconds > 0 else None,
+                **({"sky": self.sky} if self.sky is not None else {})}
 
 
 class OcclusionCache:
@@ -200,19 +330,24 @@ class OcclusionCache:
         self.root = Path(root) / "occlusion"
 
     def get(self, mi, mi_scene, geometry_hash: str, points, normals, *, spp: int, pass_spp: int, seed: int,
-            variant: str, quantity: str = "ao", max_distance: float = math.inf, albedo: float = 0.8) -> OcclusionReference:
+            variant: str, quantity: str = "ao", max_distance: float = math.inf, albedo: float = 0.8,
+            sky: SunskySky | None = None) -> OcclusionReference:
         import drjit
         import mitsuba
 
         _check(quantity, pass_spp, max_distance, albedo)
+        if quantity.startswith("sunsky"):
+            sky = sky or SunskySky()
         h = hashlib.sha256()
         h.update(np.ascontiguousarray(points, dtype=np.float32).tobytes())
         h.update(np.ascontiguousarray(normals, dtype=np.float32).tobytes())
         ident = {"format": FORMAT, "geometry": geometry_hash, "points": h.hexdigest(), "quantity": quantity,
                  "max_distance": None if not math.isfinite(max_distance) else float(max_distance),
-                 "albedo": float(albedo) if quantity == "sky_global" else None, "seed": int(seed),
-                 "pass_spp": int(pass_spp), "variant": variant,
+                 "albedo": float(albedo) if quantity in ("sky_global", "sunsky_global") else None,
+                 "seed": int(seed), "pass_spp": int(pass_spp), "variant": variant,
                  "versions": [mitsuba.__version__, drjit.__version__]}
+        if quantity.startswith("sunsky"):  # (absent for the other quantities: their keys are unchanged)
+            ident["sky"] = {**sky.to_dict(), "bake_height": SKY_BAKE_HEIGHT}
         key = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
         folder = self.root / key[:2] / key
         n_passes = -(-int(spp) // int(pass_spp))
@@ -231,7 +366,7 @@ class OcclusionCache:
                     folder.mkdir(parents=True, exist_ok=True)
                     atomic_write_json(folder / "entry.json", ident)
                 r = occlusion_pass(mi, mi_scene, points, normals, int(pass_spp), sub_seed(seed, "pass", i),
-                                   quantity=quantity, max_distance=max_distance, albedo=albedo)
+                                   quantity=quantity, max_distance=max_distance, albedo=albedo, sky=sky)
                 import io
 
                 buf = io.BytesIO()
@@ -240,4 +375,5 @@ class OcclusionCache:
             results.append(r)
         mean, stderr, total = pool_passes(results)
         return OcclusionReference(mean, stderr, total, len(results), float(sum(r.seconds for r in results)), key,
-                                  quantity)
+                                  quantity, sky.to_dict() | {"horizontal_irradiance": sunsky_horizontal_irradiance(mi, sky)}
+                                  if quantity.startswith("sunsky") else None)
