@@ -447,38 +447,10 @@ def mesh_sdf_grid(vertices, faces, origin, voxel: float, shape, *, band: float =
     # Closest-point propagation beyond the band.
     mask3 = in_band.reshape(nz, ny, nx)
     idx = ndimage.distance_transform_edt(~mask3, return_distances=False, return_indices=True)
-    src = ((idx[0] * ny + idx[1]) * nx + idx[2]).reshape(-1)
+    src3 = ((idx[0] * ny + idx[1]) * nx + idx[2]).astype(np.int64)
     del idx
-    far = ~in_band
-    far_idx = np.nonzero(far)[0]
-    zz, yy, xx = np.unravel_index(far_idx, (nz, ny, nx))
-    pts = o + (np.stack([xx, yy, zz], axis=1) + 0.5) * h
-    cur = src[far_idx]
-    best_d[far_idx] = np.linalg.norm(pts - best_p[cur], axis=1)
-    # Relaxation: every candidate is a true surface point (an upper bound of the distance), so trying the
-    # closest points held by the 6 neighbours can only bring the value closer to the exact distance; two
-    # sweeps fix the few cells where the nearest band cell does not hold the nearest surface point.
-    # Only cells with a neighbour holding another source can improve (medial sheets): test those alone.
-    src3 = src.reshape(nz, ny, nx)
-    for _ in range(2):
-        differs = np.zeros(src3.shape, bool)
-        for axis in range(3):
-            for step in (-1, 1):
-                differs |= np.roll(src3, step, axis=axis) != src3
-        sel = np.nonzero(differs.reshape(-1)[far_idx])[0]
-        if sel.size == 0:
-            break
-        cells, psel = far_idx[sel], pts[sel]
-        for axis in range(3):
-            for step in (-1, 1):
-                cand = np.roll(src3, step, axis=axis).reshape(-1)[cells]
-                dc = np.linalg.norm(psel - best_p[cand], axis=1)
-                better = dc < best_d[cells]
-                best_d[cells[better]] = dc[better]
-                cur[sel[better]] = cand[better]
-        src3 = src.copy()
-        src3[far_idx] = cur
-        src3 = src3.reshape(nz, ny, nx)
+    far_d = _propagate_closest_points(best_p, src3.reshape(-1), o, h, (nx, ny, nz))
+    best_d = np.where(in_band, best_d, far_d)
     dist = best_d.reshape(nz, ny, nx)
 
     meta = {"source": "mesh", "triangles": int(len(f)), "band_voxels": float(band), "sign": sign}
@@ -493,6 +465,45 @@ def mesh_sdf_grid(vertices, faces, origin, voxel: float, shape, *, band: float =
     else:
         inside = _flood_inside(dist, h)
     return SdfGrid(np.where(inside, -dist, dist).astype(np.float32), tuple(o), h, meta=meta)
+
+
+def _propagate_closest_points(best_p, src, o, h, shape, sweeps: int = 2) -> np.ndarray:
+    """Distance of every cell centre to the closest surface point held by its source cell ``src`` (the
+    nearest band cell, from the Euclidean distance transform), then ``sweeps`` Jacobi sweeps in which each
+    cell also tries the points held by its 6 neighbours' sources and keeps the nearest. Every candidate is
+    a true surface point, so each value is an upper bound of the exact distance that the sweeps can only
+    lower; they fix the cells where the nearest band cell does not hold the nearest surface point (near
+    medial sheets). One Dr.Jit LLVM kernel per sweep over all cells (float32, as the grid is stored).
+    Returns the distances (flat, float64)."""
+    import drjit as dr
+    from drjit.llvm import Array3f, Float, Int32, UInt32
+
+    nx, ny, nz = shape
+    n = nx * ny * nz
+    pts = [Float(np.ascontiguousarray(best_p[:, k], dtype=np.float32)) for k in range(3)]
+    S = UInt32(np.ascontiguousarray(src, dtype=np.uint32))
+    idx = dr.arange(Int32, n)
+    coords = (idx % nx, (idx // nx) % ny, idx // (nx * ny))
+    centre = Array3f(*[o[k] + (Float(coords[k]) + 0.5) * h for k in range(3)])
+
+    def dist(s):
+        return dr.norm(centre - Array3f(*[dr.gather(Float, pts[k], s) for k in range(3)]))
+
+    d = dist(S)
+    dr.eval(d)
+    for _ in range(sweeps):
+        best_s, best = S, d
+        for axis, stride, size in ((0, 1, nx), (1, nx, ny), (2, nx * ny, nz)):
+            for step in (-1, 1):
+                ok = (coords[axis] + step >= 0) & (coords[axis] + step < size)
+                cand = dr.gather(UInt32, S, UInt32(dr.select(ok, idx + step * stride, idx)))
+                dc = dist(cand)
+                better = dc < best
+                best = dr.select(better, dc, best)
+                best_s = dr.select(better, cand, best_s)
+        S, d = best_s, best
+        dr.eval(S, d)
+    return np.asarray(d, dtype=np.float64)
 
 
 def _parity_inside(tri, o, h, shape):
