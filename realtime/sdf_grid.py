@@ -23,8 +23,9 @@ that box is *added* (outside the grid the field stays 1-Lipschitz and grows with
 bound of the true distance's growth, documented fallback).
 
 Mesh → grid (`mesh_sdf_grid`): exact Euclidean distance to the triangles at every cell centre in a
-narrow band (|s| ≤ ``band`` voxels: every triangle, subdivided until its edges are ≤ 4 voxels, is
-tested against every cell centre in its bounding box grown by the band), then outside the band the
+narrow band (|s| ≤ ``band`` voxels: every triangle, subdivided until its edges are ≤ 8 voxels, is
+tested against every cell centre in its bounding box grown by the band; a region-free float64 Dr.Jit
+kernel, exact for degenerate triangles too), then outside the band the
 distance to the closest surface point of the nearest band voxel (closest-point propagation through
 SciPy's exact Euclidean distance transform); sign from the parity of crossings of +z rays through each
 column (ray origins jittered by 1e-4·h·(√2, √3) off the cell centres so that rays do not graze shared
@@ -43,7 +44,8 @@ gives a chain of plain 2×2×2 averages without the Gaussian.
 d in voxels clamped to ±127, +128). q = clip(round(s/(h·step)) + 128, 1, 255)·... see the function;
 dequantised values are what a GPU's UNORM8 sampler returns before filtering.
 
-NumPy/SciPy only (no Mitsuba here: ``tests/test_layering.py``).
+NumPy/SciPy, and the Dr.Jit LLVM backend for the per-cell kernels of the mesh → grid transform (always on
+the CPU); no Mitsuba here (``tests/test_layering.py``).
 """
 
 from __future__ import annotations
