@@ -15,6 +15,19 @@ Approximations (`rtfit.realtime.sky`), evaluated at the same pixel-centre direct
   must sit at the noise floor of the single-scattering reference)
 * ``sunsky``           Mitsuba's Hosek–Wilkie sky (sun above the horizon), one fitted scale
 
+Spectral reference (``spectral_elevations_deg``): the same atmosphere single-scattered by Mitsuba's
+spectral variant (``llvm_ad_spectral``/``cuda_ad_spectral``; β_R ∝ λ⁻⁴, grey Mie, 5778 K sun, 4
+wavelengths per path, CIE 1931 → linear sRGB exactly as Mitsuba's film), on a coarser image with
+more samples, checked against the spectral float64 quadrature (per wavelength on a 1 nm grid, then
+the same CIE conversion). Both are white-balanced the way `rtfit.realtime.sky.spectral_to_srgb`
+does it (von Kries in sRGB: the solar spectrum ↦ E₀ above), so the spectral Nishita sky, the RGB
+(3-wavelength) models and the spectral reference share units.
+
+Twilight (sun < 0): the references get ``twilight_spp_factor``× the samples (quick: 4×, 1024 spp):
+at 256 spp the −4° multiple-scattering reference has 65 % per-pixel noise and the artist fit ends
+on the bound ambient = 0; at 1024 spp its optimum is interior (see docs/nishita-sky.md). Fits
+whose parameters end on a bound are flagged (``at_bound``) in results.json and the fitted JSON.
+
 Radiance unit: W·m⁻²·sr⁻¹·nm⁻¹ for E₀ = (1.474, 1.8504, 1.91198) W·m⁻²·nm⁻¹ at 680/550/440 nm.
 """
 
@@ -33,15 +46,23 @@ SEED_CFG = {"layers": 32, "width": 128, "height": 64, "table_size": 128, "mappin
 FINE_CFG = {"layers": 128, "width": 512, "height": 256, "table_size": 512, "mapping": "sqrt"}
 LABELS = {"nishita-seed": "Nishita, seed setting (n=32, 128×64)", "nishita-fine": "Nishita, n=128, 512×256",
           "nishita-spectral": "Nishita spectral (16 λ → sRGB)", "nishita-fitted": "Nishita, fitted artist parameters",
-          "quadrature": "independent SS quadrature (pixel subset)", "sunsky": "Mitsuba sunsky (scaled)"}
+          "quadrature": "independent SS quadrature (pixel subset)", "sunsky": "Mitsuba sunsky (scaled)",
+          "quadrature-spectral": "independent spectral SS quadrature (pixel subset)"}
 
 
 def configure(quick: bool, spp: int | None) -> dict:
+    spp = spp or (256 if quick else 4096)
     return {
         "sun_elevations_deg": list(ELEVATIONS_QUICK if quick else ELEVATIONS_FULL),
         "resolution": [32, 16] if quick else [128, 64],
-        "spp": spp or (256 if quick else 4096),
+        "spp": spp,
         "pass_spp": 128 if quick else 1024,
+        "twilight_spp_factor": 4 if quick else 1,
+        "spectral_elevations_deg": [45.0, 10.0] if quick else list(ELEVATIONS_FULL),
+        "spectral_resolution": [16, 8] if quick else [64, 32],
+        "spectral_spp": 4 * spp if quick else spp,
+        "spectral_pass_spp": 256 if quick else 1024,
+        "spectral_quadrature_stride": [2, 1] if quick else [4, 2],
         "viewer_altitude_m": VIEWER_ALTITUDE_M,
         "quadrature_stride": [4, 2] if quick else [8, 4],
         "quadrature_steps": 400 if quick else 1500,
@@ -80,6 +101,35 @@ def render_job(elev: float, depth: int, width: int, height: int, spp: int, pass_
 
     d, _, _ = hemisphere_directions(width, height)
     return render_sky(_spec(elev, alt_m), d, spp, pass_spp, seed, variant, depth, cache_dir)
+
+
+def reference_spp(cfg: dict, elev: float) -> int:
+    """Samples per pixel of the RGB references at sun elevation ``elev`` (twilight: × factor)."""
+    return int(cfg["spp"]) * (int(cfg.get("twilight_spp_factor", 1)) if elev < 0 else 1)
+
+
+def spectral_variant(variant: str) -> str | None:
+    """The Mitsuba spectral variant beside an RGB one; None for scalar variants (not supported) or
+    when the installed Mitsuba lacks it (the spectral cases are then skipped)."""
+    import mitsuba
+
+    sv = {"cuda": "cuda_ad_spectral", "llvm": "llvm_ad_spectral"}.get(variant.split("_", 1)[0])
+    return sv if sv in mitsuba.variants() else None
+
+
+def spectral_quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt_m: float) -> dict:
+    """The spectral float64 quadrature (film sRGB, spectra on 360–830 nm at 1 nm) and the RGB
+    (3-wavelength) quadrature on the same pixel subset of a width × height hemisphere image."""
+    from rtfit.reference.atmosphere import (hemisphere_directions, single_scattering_quadrature,
+                                            spectral_single_scattering_quadrature)
+
+    d, _, _ = hemisphere_directions(width, height)
+    sub = d[stride[1] // 2::stride[1], stride[0] // 2::stride[0]]
+    t0 = time.perf_counter()
+    spec = _spec(elev, alt_m)
+    q = spectral_single_scattering_quadrature(spec, sub, steps=steps)
+    rgb = single_scattering_quadrature(spec, sub, steps=steps)
+    return {**q, "rgb": rgb, "seconds": time.perf_counter() - t0}
 
 
 def quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt_m: float) -> dict:
@@ -162,15 +212,27 @@ def _residual_for(width: int, height: int):
 FIT_PARAMS = ("rayleigh_scale", "mie_scale", "mie_g", "ambient")
 
 
+def _fit_bounds():
+    from rtfit.fitting import Param
+
+    # ambient ≥ 0: a negative isotropic term would make dark pixels negative. The −4° quick fit
+    # that ended on ambient = 0 at 256 spp is interior at 1024 spp (docs/nishita-sky.md): the
+    # bound is kept, the twilight references get more samples instead.
+    return {"rayleigh_scale": Param(1.0, 0.3, 3.0), "mie_scale": Param(1.0, 0.05, 20.0),
+            "mie_g": Param(0.8, 0.0, 0.95), "ambient": Param(0.3, 0.0, 10.0)}
+
+
 def fit_job(elev: float, dirs, ref_mean, mask, tex_size=(64, 32)) -> dict:
     """Fit the artist parameters of the seed-setting sky to the multiple-scattering reference:
     Rayleigh scale (β_R), Mie density scale (β_M and β_M^ext), Mie g and an isotropic ambient
     term (P_R → P_R + A/(4π)); the texture (n = 32, table 128) is rebuilt for every parameter
     value. Relative residuals, floored at 2 % of the brightest pixel. ``tex_size``: the texture
-    used inside the fit (its size barely changes the model: see the sweep)."""
+    used inside the fit (its size barely changes the model: see the sweep). Returns
+    `FitResult.to_dict` plus ``at_bound``: the names of the parameters that ended on a bound (the
+    value is then a constrained optimum: KKT conditions hold, its stderr means nothing)."""
     import math as _m
 
-    from rtfit.fitting import Param, fit_least_squares
+    from rtfit.fitting import fit_least_squares
     from rtfit.realtime import sky
 
     p = _params()
@@ -190,13 +252,13 @@ def fit_job(elev: float, dirs, ref_mean, mask, tex_size=(64, 32)) -> dict:
     cosg = np.clip(d @ s, -1, 1)
     ref = np.asarray(ref_mean, dtype=np.float64)[mask]
     w = 1.0 / (np.abs(ref) + 0.02 * float(np.max(ref)) + 1e-12)
-    res = fit_least_squares(_residual_for(W, H), {
-        "rayleigh_scale": Param(1.0, 0.3, 3.0), "mie_scale": Param(1.0, 0.05, 20.0),
-        "mie_g": Param(0.8, 0.0, 0.95), "ambient": Param(0.3, 0.0, 10.0)},
+    res = fit_least_squares(_residual_for(W, H), _fit_bounds(),
         args=(mu, nu, float(VIEWER_ALTITUDE_M), _m.sin(el_s), tr.ravel(), tm.ravel(), px, py, cosg, ref, w,
               np.asarray(p.solar_irradiance), np.asarray(p.rayleigh_beta), np.asarray(p.mie_beta),
               np.asarray(p.mie_extinction)), max_steps=128)
-    return res.to_dict()
+    out = res.to_dict()
+    out["at_bound"] = [k for k, v in out["parameters"].items() if v["at_bound"]]
+    return out
 
 
 def fitted_params(fit):
@@ -229,9 +291,10 @@ def run(ctx) -> dict:
     for e in cfg["sun_elevations_deg"]:
         for kind, depth in (("ss", 2), ("ms", -1)):
             jobs.append(Job("rtfit.experiments.nishita_sky:render_job",
-                            dict(elev=e, depth=depth, width=W, height=H, spp=cfg["spp"], pass_spp=cfg["pass_spp"],
-                                 seed=ctx.seed, variant=ctx.variant, cache_dir=str(ctx.cache_dir),
-                                 alt_m=cfg["viewer_altitude_m"]), label=case_id(e, kind)))
+                            dict(elev=e, depth=depth, width=W, height=H, spp=reference_spp(cfg, e),
+                                 pass_spp=cfg["pass_spp"], seed=ctx.seed, variant=ctx.variant,
+                                 cache_dir=str(ctx.cache_dir), alt_m=cfg["viewer_altitude_m"]),
+                            label=case_id(e, kind)))
         jobs.append(Job("rtfit.experiments.nishita_sky:quadrature_job",
                         dict(elev=e, width=W, height=H, stride=cfg["quadrature_stride"], steps=cfg["quadrature_steps"],
                              alt_m=cfg["viewer_altitude_m"]), label=case_id(e, "quad")))
@@ -243,6 +306,20 @@ def run(ctx) -> dict:
         jobs.append(Job("rtfit.experiments.nishita_sky:quadrature_job",
                         dict(elev=e, width=W, height=H, stride=cfg["quadrature_stride"], steps=cfg["quadrature_steps"],
                              alt_m=alt), label=altitude_id(e, alt, "quad")))
+    sv = spectral_variant(ctx.variant)
+    if sv is None:
+        cfg["spectral_elevations_deg"] = []
+    SW, SH = cfg["spectral_resolution"]
+    for e in cfg["spectral_elevations_deg"]:
+        jobs.append(Job("rtfit.experiments.nishita_sky:render_job",
+                        dict(elev=e, depth=2, width=SW, height=SH, spp=cfg["spectral_spp"],
+                             pass_spp=cfg["spectral_pass_spp"], seed=ctx.seed, variant=sv,
+                             cache_dir=str(ctx.cache_dir), alt_m=cfg["viewer_altitude_m"]),
+                        label=case_id(e, "ss-spectral")))
+        jobs.append(Job("rtfit.experiments.nishita_sky:spectral_quadrature_job",
+                        dict(elev=e, width=SW, height=SH, stride=cfg["spectral_quadrature_stride"],
+                             steps=cfg["quadrature_steps"], alt_m=cfg["viewer_altitude_m"]),
+                        label=case_id(e, "quad-spectral")))
     ctx.log(f"rendering {len(jobs)} references / quadratures")
     t0 = time.perf_counter()
     done = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references")))

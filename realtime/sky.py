@@ -601,7 +601,7 @@ def build_sky(params: AtmosphereParams, sun_elevation_deg: float, altitude_m: fl
     return sky
 
 
-@dr.freeze
+@dr.freeze(limit=64, warn_after=1000)  # one recording per static configuration (sweeps hold many); LRU beyond 64
 def _device_build(static, values):
     """The whole texture on the device, as one frozen Dr.Jit function (`dr.freeze`): texel
     directions from `dr.arange`, the two sun optical-depth tables and the in-scatter loop.

@@ -70,7 +70,7 @@ def register(mi) -> None:
             if float(s[0]) != float(s[1]) or float(s[1]) != float(s[2]):
                 raise ValueError(f"{PLUGIN}: 'sky' must be grey in a spectral variant (got {s})")
             self.sky_value = float(s[0])
-            self.spectrum = props.get("radiance_spectrum") if props.has_property("radiance_spectrum") else None
+            self.spectrum = props.get("radiance_spectrum") if "radiance_spectrum" in props else None
             if self.spectrum is None and (float(r[0]) != float(r[1]) or float(r[1]) != float(r[2])):
                 raise ValueError(f"{PLUGIN}: a spectral variant needs 'radiance_spectrum' or a grey 'radiance' "
                                  f"(got {r})")

@@ -105,7 +105,9 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
                    sweep_elevations_deg=[30.0], sweep_layers=[8], sweep_textures=[[32, 16]], sweep_tables=[32],
                    spectral_wavelengths=6, cost_elements=1 << 12,
                    fine=dict(layers=32, width=64, height=32, table_size=64, mapping="sqrt"),
-                   fit_texture=[32, 16], altitude_cases=[[30.0, 5000.0]])
+                   fit_texture=[32, 16], altitude_cases=[[30.0, 5000.0]],
+                   spectral_elevations_deg=[30.0], spectral_resolution=[8, 4], spectral_spp=128,
+                   spectral_pass_spp=64, spectral_quadrature_stride=[2, 1])
         return cfg
 
     monkeypatch.setattr(nishita_sky, "configure", tiny)
@@ -113,8 +115,155 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     run_experiments([get_experiment("nishita-sky")], tmp_path / "out", quick=True, variant="llvm_ad_rgb", spp=None,
                     seed=0, cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False)
     res = load_results(tmp_path / "out" / "nishita-sky")
-    assert {c["id"] for c in res["cases"]} == {"e30-ss", "e30-ms", "e30-h5000-ss"}
+    assert {c["id"] for c in res["cases"]} == {"e30-ss", "e30-ms", "e30-h5000-ss", "e30-ss-spectral"}
     failed = [c["name"] for c in res["checks"] if not c["passed"]]
     assert not failed, failed
     assert all(f["converged"] for f in res["fits"])
-    assert (tmp_path / "out" / "nishita-sky" / "fitted" / "nishita_artist_params.json").is_file()
+    assert all(isinstance(f["at_bound"], list) for f in res["fits"])
+    fitted = tmp_path / "out" / "nishita-sky" / "fitted" / "nishita_artist_params.json"
+    import json
+
+    rows = json.loads(fitted.read_text())["per_sun_elevation"]
+    assert all("at_bound" in r for r in rows)
+    sp = res["spectral"]["rows"][0]
+    assert sp["sun_elevation_deg"] == 30.0 and len(sp["rgb_model_vs_spectral_model"]) == 4
+    assert np.isfinite(sp["rgb_over_spectral_sum"]).all()
+    assert any(s["id"] == "spectral" for s in res["sections"]) and any(s["id"] == "twilight" for s in res["sections"])
+
+
+# ------------------------------------------------------------------------------ spectral reference
+def _planck_si(lam_nm, t_k):
+    """Planck spectral radiance W·m⁻²·sr⁻¹·nm⁻¹ from the SI constants (independent of rtfit)."""
+    h, c, k = 6.62607015e-34, 299792458.0, 1.380649e-23
+    lam = np.asarray(lam_nm, dtype=np.float64) * 1e-9
+    return 2 * h * c * c / lam ** 5 / np.expm1(h * c / (lam * k * t_k)) * 1e-9
+
+
+def test_film_srgb_matches_mitsubas_film():
+    """`film_srgb` (quadrature with Mitsuba's CIE table) equals what Mitsuba's hdrfilm makes of a
+    constant emitter in the spectral variant: a flat spectrum and a 5778 K blackbody (Mitsuba's own
+    `blackbody` plugin vs the SI Planck law here), within the render's noise."""
+    from rtfit.reference.atmosphere import CIE_Y_NORMALIZATION, XYZ_TO_SRGB, _use_variant, film_srgb
+
+    mi = _use_variant("llvm_ad_spectral")
+    assert CIE_Y_NORMALIZATION == pytest.approx(mi.MI_CIE_Y_NORMALIZATION, rel=1e-7)
+    m = np.asarray(mi.xyz_to_srgb(mi.Color3f(1, 0, 0))).ravel()
+    assert m == pytest.approx(XYZ_TO_SRGB[:, 0], rel=1e-6)
+
+    def render(radiance):
+        sc = mi.load_dict({"type": "scene", "em": {"type": "constant", "radiance": radiance},
+                           "integrator": {"type": "path"},
+                           "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4,
+                                                                       "rfilter": {"type": "box"}}}})
+        img = np.asarray(mi.render(sc, spp=16384, seed=1))
+        return img.reshape(-1, img.shape[-1])[:, :3].mean(axis=0)
+
+    lam = np.arange(360.0, 830.5, 1.0)
+    flat = render({"type": "uniform", "value": 1.0})
+    assert flat == pytest.approx(film_srgb(np.ones_like(lam), lam), rel=2e-3)
+    bb = render({"type": "blackbody", "temperature": 5778.0})
+    assert bb == pytest.approx(film_srgb(_planck_si(lam, 5778.0), lam), rel=2e-3)
+    with pytest.raises(ValueError, match="ascending"):
+        film_srgb(np.ones(3), [500.0, 400.0, 600.0])
+    with pytest.raises(ValueError, match="360"):
+        film_srgb(np.ones(2), [300.0, 400.0])
+
+
+def test_solar_spectrum_is_the_realtime_one_and_a_5778k_blackbody():
+    from rtfit.realtime.sky import AtmosphereParams
+    from rtfit.reference.atmosphere import solar_spectrum
+
+    lam = np.linspace(400.0, 700.0, 16)
+    rt = np.asarray(AtmosphereParams().spectral(lam).solar_irradiance)
+    assert solar_spectrum(lam) == pytest.approx(rt, rel=1e-12)
+    assert float(solar_spectrum(np.array([550.0]))[0]) == pytest.approx(1.8504, rel=1e-14)
+    fine = np.arange(480.0, 520.0, 0.01)
+    peak = fine[np.argmax(solar_spectrum(fine))]
+    assert peak == pytest.approx(2.897771955e-3 / 5778.0 * 1e9, abs=0.02)   # Wien's displacement law
+    ratio = solar_spectrum(np.array([440.0]))[0] / 1.8504
+    assert ratio == pytest.approx(_planck_si(440.0, 5778.0) / _planck_si(550.0, 5778.0), rel=1e-6)
+    with pytest.raises(ValueError, match="lam_nm"):
+        solar_spectrum([-1.0])
+
+
+def test_spectral_medium_phase_and_sun_at_the_sampled_wavelengths():
+    """In the spectral variant the medium returns β_R(550)(550/λ)⁴ + grey Mie at the interaction's
+    wavelengths, the phase mixture integrates to 1 per wavelength, and the sun's disc radiance is
+    E₀(λ)/(π sin²α) of the 5778 K sun (closed forms)."""
+    import drjit as dr
+
+    from rtfit.reference.atmosphere import AtmosphereSpec, _load, _use_variant
+
+    mi = _use_variant("llvm_ad_spectral")
+    spec = AtmosphereSpec()
+    scene, medium = _load(mi, spec, 2)
+    lam = [380.0, 450.0, 550.0, 700.0]
+    n = 1 << 16
+    mei = dr.zeros(mi.MediumInteraction3f, n)
+    mei.p = mi.Point3f(0.0, 0.0, spec.planet_radius_km)          # ground: densities 1
+    mei.wavelengths = mi.Spectrum(*[mi.Float(x) for x in lam])
+    mei.wi = mi.Vector3f(0.0, 0.0, 1.0)
+    s, nn, t = medium.get_scattering_coefficients(mei)
+    for j, x in enumerate(lam):
+        br = spec.rayleigh_beta[1] * (550.0 / x) ** 4
+        assert float(np.asarray(s[j])[0]) == pytest.approx(br + spec.mie_beta[1], rel=1e-5)
+        assert float(np.asarray(t[j])[0]) == pytest.approx(br + spec.mie_extinction[1], rel=1e-5)
+    maj = spec.rayleigh_beta[1] * (550.0 / 380.0) ** 4 + spec.mie_extinction[1]
+    assert float(np.asarray(medium.get_majorant(mei)[3])[0]) == pytest.approx(maj, rel=1e-5)
+    assert np.asarray(nn[0]).min() >= 0
+    # phase mixture normalised per wavelength (uniform directions)
+    rng = np.random.default_rng(2)
+    u = rng.random((n, 2))
+    z = 1 - 2 * u[:, 0]
+    r = np.sqrt(1 - z * z)
+    wo = mi.Vector3f(r * np.cos(2 * np.pi * u[:, 1]), r * np.sin(2 * np.pi * u[:, 1]), z)
+    mei.p = mi.Point3f(0.0, 0.0, spec.planet_radius_km + 0.5)
+    val, _ = medium.phase_function().eval_pdf(mi.PhaseFunctionContext(), mei, wo)
+    for j in range(4):
+        assert 4 * math.pi * float(np.mean(np.asarray(val[j]))) == pytest.approx(1.0, rel=0.03)
+    # the sun
+    sun = scene.emitters()[0]
+    it = dr.zeros(mi.Interaction3f, 1)
+    it.wavelengths = mi.Spectrum(450.0, 500.0, 550.0, 650.0)
+    ds = dr.zeros(mi.DirectionSample3f, 1)
+    ds.d = mi.Vector3f(*spec.sun_direction.tolist())
+    L = np.asarray(sun.eval_direction(it, ds)).ravel()
+    a = math.radians(spec.sun_angular_radius_deg)
+    e0 = 1.8504 * _planck_si([450.0, 500.0, 550.0, 650.0], 5778.0) / _planck_si(550.0, 5778.0)
+    assert L == pytest.approx(e0 / (math.pi * math.sin(a) ** 2), rel=1e-5)
+
+
+def test_spectral_quadrature_at_550nm_is_the_rgb_green_channel():
+    """The spec's G channel is its 550 nm value: the spectral quadrature's spectrum at 550 nm
+    equals the RGB quadrature's green (same coefficients), and step_nm must divide 5 nm."""
+    from rtfit.reference.atmosphere import (AtmosphereSpec, hemisphere_directions, single_scattering_quadrature,
+                                            spectral_single_scattering_quadrature)
+
+    spec = AtmosphereSpec(sun_elevation_deg=10.0)
+    d, _, _ = hemisphere_directions(4, 2)
+    q = spectral_single_scattering_quadrature(spec, d, steps=300, step_nm=5.0)
+    g = single_scattering_quadrature(spec, d, steps=300)[..., 1]
+    i = int(np.flatnonzero(q["wavelengths_nm"] == 550.0)[0])
+    assert q["spectra"][..., i] == pytest.approx(g, rel=1e-12)
+    assert np.isfinite(q["srgb"]).all() and (q["srgb"][..., 2] > q["srgb"][..., 0]).all()  # a blue sky
+    with pytest.raises(ValueError, match="step_nm"):
+        spectral_single_scattering_quadrature(spec, d, step_nm=2.0)
+
+
+def test_spectral_reference_matches_spectral_quadrature(tmp_path):
+    """Mitsuba's spectral variant (volpathmis, max_depth 2, λ⁻⁴ medium, 5778 K sun, film
+    conversion per path) vs the float64 spectral quadrature: z of every pixel and of the sums."""
+    from rtfit.reference.atmosphere import (AtmosphereSpec, hemisphere_directions, render_sky,
+                                            spectral_single_scattering_quadrature)
+
+    spec = AtmosphereSpec(sun_elevation_deg=20.0)
+    d, _, _ = hemisphere_directions(6, 3)
+    r = render_sky(spec, d, spp=4096, pass_spp=2048, seed=5, variant="llvm_ad_spectral", max_depth=2,
+                   cache_dir=tmp_path)
+    q = spectral_single_scattering_quadrature(spec, d, steps=1000)["srgb"]
+    z = (r["mean"] - q) / r["stderr"]
+    assert np.abs(z).max() < 4.5
+    zs = (r["mean"].sum(axis=(0, 1)) - q.sum(axis=(0, 1))) / np.sqrt((r["stderr"] ** 2).sum(axis=(0, 1)))
+    assert np.all(np.abs(zs) < 4)
+    with pytest.raises(ValueError, match="spectral variant"):
+        render_sky(spec, d, spp=4, pass_spp=2, seed=0, variant="llvm_mono_spectral", max_depth=2)
