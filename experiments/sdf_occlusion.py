@@ -36,12 +36,13 @@ unchanged, and a fit of C fits the occlusion part alone.
 The Evans fit (``evans-fit``, ``evans-joint``, ``evans-analytic``, ``evans-on-sdfgrid``) runs in two stages:
 
 1. Initialisation (grid profile): for fixed α and base distance C = exp(log B − Σ_i c_i D_i) is linear in
-   (log B, c_i = k·w_i) inside the exponent, with D_i = d_i − s_{i−1} from the Dr.Jit kernel; those are fitted
-   by optimistix Levenberg–Marquardt (`rtfit.fitting.fit_least_squares`) at every (α, base) of a small grid
-   (α ∈ {0, ¼, ½, ¾, 1}, base ∈ {½, 1, 2} voxels; quick: {0, ½, 1} × {1}) and the best point is kept.
-2. The continuous fit (`fit_evans_continuous`): all of x = (log B, c_1..c_n, α, base in voxels) together, by a
-   bounded Levenberg–Marquardt loop written here (`bounded_lm`, NumPy, projected steps with an active set
-   at the bounds). Its Jacobian: the columns of log B and c_i are analytic (∂r/∂log B = g C,
+   (log B, c_i = k·w_i) inside the exponent, with D_i = d_i − s_{i−1} computed once by the Dr.Jit kernel; those
+   are fitted with α and base held, at every (α, base) of a small grid (α ∈ {0, ¼, ½, ¾, 1}, base ∈ {½, 1, 2}
+   voxels; quick: {0, ½, 1} × {1}), and the best point is kept.
+2. The continuous fit (`fit_evans_continuous`): all of x = (log B, c_1..c_n, α, base in voxels) together.
+   Both stages use the bounded Levenberg–Marquardt loop written here (`bounded_lm`, NumPy, projected steps
+   with an active set at the bounds; not optimistix: its residuals come from Dr.Jit, not JAX). The
+   continuous fit's Jacobian: the columns of log B and c_i are analytic (∂r/∂log B = g C,
    ∂r/∂c_i = −g C D_i); those of α and base come from Dr.Jit forward-mode autodiff through the kernel
    (`rtfit.realtime.sdf_occlusion.evans_terms_jacobian`: each sample's position P + base·2^(i−1)·N'(α)
    moves continuously, its mip level i − 1 stays discrete, so the residuals are piecewise smooth with kinks
@@ -112,7 +113,7 @@ def configure(quick: bool, spp: int | None) -> dict:
         "sun_elevation": 30.0,
         "sun_azimuth": 60.0,
         "turbidity": 3.0,
-        "lm_max_iter": 60 if quick else 200,
+        "lm_max_iter": 100 if quick else 300,
     }
 
 
@@ -212,15 +213,15 @@ def evans_fit_residuals(x, data: list, n: int, *, jacobian: bool = True):
     return (r, np.concatenate(js)) if jacobian else r
 
 
-def bounded_lm(fun, x0, lower, upper, *, max_iter: int = 100, ftol: float = 1e-9, xtol: float = 1e-8,
+def bounded_lm(fun, x0, lower, upper, *, max_iter: int = 100, ftol: float = 1e-7, xtol: float = 1e-7,
                gtol: float = 1e-8) -> dict:
     """Minimise ½‖r(x)‖² subject to lower ≤ x ≤ upper; ``fun(x)`` returns (r, J).
 
     Levenberg–Marquardt with Marquardt's diagonal scaling (A + λ diag A) δ = −Jᵀr, A = JᵀJ, and Nielsen's
     damping update (λ ← λ·max(⅓, 1 − (2ρ − 1)³) on success, λ ← λν, ν ← 2ν on failure). Bounds: a
     parameter on a bound whose gradient points out of the box is held fixed (active set), the others take the
-    step, and the step is projected onto the box. Stops when a successful step lowers the SSR by less than
-    ``ftol``·SSR and moves x by less than ``xtol``·(‖x‖ + xtol), or when the projected gradient's cosine
+    step, and the step is projected onto the box. Stops (as MINPACK's lmder) when a successful step lowers the
+    SSR by less than ``ftol``·SSR or moves x by less than ``xtol``·(‖x‖ + xtol), or when the projected gradient's cosine
     max_i |g_i|/(‖J_i‖‖r‖) over free parameters is below ``gtol`` (converged), or at ``max_iter`` / when
     λ exceeds 1e16 (not converged: the residuals are piecewise smooth, a kink can stall the step)."""
     lo, hi = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
@@ -264,13 +265,13 @@ def bounded_lm(fun, x0, lower, upper, *, max_iter: int = 100, ftol: float = 1e-9
         pred = ssr - float(lin @ lin)
         if ssr_new < ssr and np.all(np.isfinite(j_new)):
             rho = (ssr - ssr_new) / pred if pred > 0 else 0.0
-            small = (ssr - ssr_new) <= ftol * ssr and np.linalg.norm(dx) <= xtol * (np.linalg.norm(x) + xtol)
+            small = (ssr - ssr_new) <= ftol * ssr or np.linalg.norm(dx) <= xtol * (np.linalg.norm(x) + xtol)
             x, r, jac, ssr = x_new, r_new, j_new, ssr_new
             a = jac.T @ jac
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0
             if small:
-                converged, message = True, "relative SSR change below ftol and step below xtol"
+                converged, message = True, "relative SSR change below ftol or step below xtol"
                 break
         else:
             lam *= nu

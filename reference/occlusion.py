@@ -178,19 +178,7 @@ def occlusion_pass(mi, mi_scene, points, normals, spp: int, seed: int, *, quanti
     _check(quantity, spp, max_distance, albedo)
     if sky is not None and not isinstance(sky, SunskySky):
         raise ValueError(f"sky must be a SunskySky (got {type(sky).__name__})")
-    skyfn = None
-    if quantity.startswith("sunsky"):
-        sky = sky or SunskySky()
-        emitter = sunsky_emitter(mi, sky)
-        scale = math.pi / sunsky_horizontal_irradiance(mi, sky)
-        lum = LUMINANCE
-
-        def skyfn(d):  # π L(d) / E_h, luminance, ≥ 0 (Hosek–Wilkie can dip below 0: mitsuba3 #1777)
-            si = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
-            si.wi = -d
-            rgb = emitter.eval(si)
-            y = lum[0] * rgb[0] + lum[1] * rgb[1] + lum[2] * rgb[2]
-            return dr.maximum(y, 0.0) * scale
+    skyfn = _sunsky_escape_value(mi, dr, sky or SunskySky()) if quantity.startswith("sunsky") else None
     if mi.variant().startswith("scalar"):
         raise ValueError("occlusion references need a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
     points = np.ascontiguousarray(points, dtype=np.float32)
@@ -227,6 +215,21 @@ def occlusion_pass(mi, mi_scene, points, normals, spp: int, seed: int, *, quanti
     mean = s / spp
     var = np.maximum(q - s * mean, 0.0) / (spp - 1)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
+
+
+def _sunsky_escape_value(mi, dr, sky: SunskySky):
+    """d ↦ π L(d)/E_h (luminance, ≥ 0: Hosek–Wilkie can dip below 0, mitsuba3 #1777) for escaping rays."""
+    emitter = sunsky_emitter(mi, sky)
+    scale = math.pi / sunsky_horizontal_irradiance(mi, sky)
+    lum = LUMINANCE
+
+    def value(d):
+        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
+        si.wi = -d
+        rgb = emitter.eval(si)
+        return dr.maximum(lum[0] * rgb[0] + lum[1] * rgb[1] + lum[2] * rgb[2], 0.0) * scale
+
+    return value
 
 
 def _spawn(mi, dr, p, n, d, maxt=math.inf):

@@ -67,6 +67,80 @@ def test_open_sky_and_global_on_an_unoccluded_point(crease_scene):
         occlusion_pass(mi, s, p, n, 16, 1, quantity="sky_global", albedo=1.0)
 
 
+def _sunsky_gauss_legendre(mi, sky, normals, n_mu=160, n_phi=720):
+    """Independent quadrature of the sunsky emitter itself over the upper hemisphere (no bake): Gauss–Legendre
+    in μ = cos θ ∈ (0, 1) × midpoint rule in φ; luminance irradiance E(n) = ∫ L(ω) max(n·ω, 0) dω."""
+    import drjit as dr
+
+    from rtfit.reference.occlusion import LUMINANCE, sunsky_emitter
+
+    x, wx = np.polynomial.legendre.leggauss(n_mu)
+    mu, wmu = 0.5 * (x + 1), 0.5 * wx
+    phi = (np.arange(n_phi) + 0.5) * 2 * np.pi / n_phi
+    mm, pp = np.meshgrid(mu, phi, indexing="ij")
+    st = np.sqrt(1 - mm**2)
+    d = np.stack([st * np.cos(pp), st * np.sin(pp), mm], -1).reshape(-1, 3)
+    w = (wmu[:, None] * np.full(n_phi, 2 * np.pi / n_phi)[None, :]).reshape(-1)
+    si = dr.zeros(mi.SurfaceInteraction3f, len(d))
+    si.wi = mi.Vector3f(np.ascontiguousarray(-d.T, dtype=np.float32))
+    lum = np.maximum(np.array(sunsky_emitter(mi, sky).eval(si), dtype=np.float64).T @ np.asarray(LUMINANCE), 0.0)
+    return np.array([np.sum(w * lum * np.maximum(d @ n, 0.0)) for n in np.asarray(normals, np.float64)])
+
+
+def test_sunsky_reference_at_an_unoccluded_point_equals_the_sky_irradiance_quadrature(crease_scene):
+    from rtfit.reference.occlusion import SunskySky, occlusion_pass, sunsky_horizontal_irradiance, sunsky_irradiance
+
+    mi, s = crease_scene
+    sky = SunskySky(30.0, 60.0, 3.0)
+    sd = sky.sun_direction()
+    assert sd[2] == pytest.approx(0.5) and sd[0] == pytest.approx(math.cos(math.radians(30)) * math.sin(math.radians(60)))
+    hs = np.array([sd[0], sd[1], 0.0]) / np.hypot(sd[0], sd[1])
+    n = np.array([[0.0, 0.0, 1.0], hs, -hs, [-hs[1], hs[0], 0.0], [0.3, -0.2, 0.93]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    e_gl = _sunsky_gauss_legendre(mi, sky, n)
+    # E_h (the normaliser, from the baked map) agrees with the quadrature of the emitter itself
+    assert sunsky_horizontal_irradiance(mi, sky) == pytest.approx(e_gl[0], rel=2e-4)
+    np.testing.assert_allclose(sunsky_irradiance(mi, sky, n), e_gl, rtol=2e-3)
+    # the sky is anisotropic: facing the sun's azimuth sees more than facing away
+    assert e_gl[1] > 1.3 * e_gl[2]
+    p = np.tile([0.5, 0.0, 50.0], (len(n), 1))  # far above everything: nothing occludes the upper sky
+    r = occlusion_pass(mi, s, p, n, 1 << 16, 11, quantity="sunsky_direct", sky=sky)
+    z = (r.mean - e_gl / e_gl[0]) / np.sqrt(r.var / r.spp)
+    assert np.max(np.abs(z)) < 4.0, z
+    g = occlusion_pass(mi, s, p[:1], n[:1], 1 << 16, 12, quantity="sunsky_global", albedo=0.8, sky=sky)
+    assert abs(g.mean[0] - 1.0) < 4 * math.sqrt(g.var[0] / g.spp)
+    # the constant-sky quantity is unchanged by the sky argument
+    c = occlusion_pass(mi, s, p[:1], n[:1], 64, 1, quantity="sky_direct", sky=sky)
+    assert c.mean[0] == 1.0
+    with pytest.raises(ValueError, match="SunskySky"):
+        occlusion_pass(mi, s, p, n, 16, 1, quantity="sunsky_direct", sky={"elevation_deg": 30})
+
+
+def test_sunsky_sky_validation():
+    from rtfit.reference.occlusion import SunskySky
+
+    with pytest.raises(ValueError, match="elevation"):
+        SunskySky(elevation_deg=-5.0)
+    with pytest.raises(ValueError, match="turbidity"):
+        SunskySky(turbidity=20.0)
+    with pytest.raises(ValueError, match="finite"):
+        SunskySky(azimuth_deg=float("nan"))
+
+
+def test_sunsky_cache_key_separates_skies(tmp_path, crease_scene):
+    from rtfit.reference.occlusion import OcclusionCache, SunskySky
+
+    mi, s = crease_scene
+    p = np.array([[0.2, 0.0, 1e-6]])
+    n = np.array([[0.0, 0.0, 1.0]])
+    c = OcclusionCache(tmp_path)
+    a = c.get(mi, s, "geo", p, n, spp=8, pass_spp=8, seed=3, variant="llvm_ad_rgb", quantity="sunsky_direct",
+              sky=SunskySky(30.0, 60.0))
+    b = c.get(mi, s, "geo", p, n, spp=8, pass_spp=8, seed=3, variant="llvm_ad_rgb", quantity="sunsky_direct",
+              sky=SunskySky(45.0, 60.0))
+    assert a.key != b.key and a.to_dict()["sky"]["sun_elevation_deg"] == 30.0
+
+
 def test_sdfgrid_scene_places_the_surface_where_the_grid_says(crease_scene):
     from rtfit.reference.occlusion import sdfgrid_scene
 
@@ -104,7 +178,7 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
 
     def tiny(quick, spp):
         cfg = base(True, spp)
-        cfg.update(scenes=["crease_90", "character"], targets=["ao"], resolution=10, spp=8, pass_spp=4, grid=32,
+        cfg.update(scenes=["crease_90", "character"], targets=["ao", "sunsky"], resolution=10, spp=8, pass_spp=4, grid=32,
                    alphas=[0.0], bases_vox=[1.0], sweep_grids=[24], sweep_n=[1, 2], sweep_scenes=["crease_90"],
                    probe_spp=256, cost_points=4096)
         return cfg
@@ -121,4 +195,14 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     res = load_results(tmp_path / "sdf")
     assert all(c["passed"] for c in res["checks"]), [c for c in res["checks"] if not c["passed"]]
     assert {a["method"] for a in res["cases"][0]["approximations"]} >= {"evans-text", "evans-fit", "cone", "sdfgrid"}
+    names = [c["name"] for c in res["checks"]]
+    assert any("sunsky one bounce" in nm for nm in names) and any("continuous Evans fit" in nm for nm in names)
+    sun = [c for c in res["cases"] if c["parameters"]["target"] == "sunsky"]
+    assert sun and sun[0]["parameters"]["sun_elevation_deg"] == 30.0 and sun[0]["reference"]["sky"]["turbidity"] == 3.0
+    import json
+
+    joint = json.loads((tmp_path / "sdf" / "fitted" / "evans_joint_sunsky.json").read_text())
+    for key in ("k", "alpha", "base_voxels", "B", "w2"):
+        assert key in joint["parameters"] and f"{key}_stderr" in joint["parameters"]
+    assert set(joint["base_scene_units"]) == {"crease_90"}
     _ = dataclasses
