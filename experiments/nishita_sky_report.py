@@ -42,6 +42,24 @@ def _tonemapped_rmse(x, r, s, mask, seed=0):
     return {"value": v, "noise_floor": fl, "resolved": bool(v > 2 * fl)}
 
 
+def _quadrature_vs_mitsuba(q, mean, stderr, method, params, what):
+    """An independent quadrature ``q`` against Mitsuba's ``mean`` ± ``stderr`` on the same pixels
+    ((h, w, 3)): its approximation row (metrics with the reference's noise floor), the per-pixel z values
+    (for the robust spread), the z of the per-channel sums and the check on it (|z| ≤ 4)."""
+    from rtfit.fitting import compute_metrics
+
+    met = compute_metrics(q, mean, stderr, names=("rmse", "mae", "max_abs"))
+    doc = {"method": method, "label": LABELS[method], "fitted": False, "parameters": params,
+           "metrics": {k: _metric_dict(v) for k, v in met.items()}}
+    ok = stderr > 0
+    z = ((q - mean)[ok] / stderr[ok]).ravel()
+    zsum = (q.sum(axis=(0, 1)) - mean.sum(axis=(0, 1))) / np.sqrt((stderr ** 2).sum(axis=(0, 1)))
+    check = {"name": f"{what}, z of the sum over {q.shape[0] * q.shape[1]} pixels (R, G, B)",
+             "value": ", ".join(f"{v:.2f}" for v in zsum), "expected": "|z| ≤ 4 per channel",
+             "passed": bool(np.all(np.abs(zsum) <= 4))}
+    return doc, z, zsum, check
+
+
 def _irradiance(img, el, W, H):
     """Horizontal irradiance ∫ L sin(el) cos(el) dEl dAz over the upper hemisphere grid (midpoint)."""
     w = np.sin(el) * np.cos(el) * (math.pi / 2 / H) * (2 * math.pi / W)
@@ -105,17 +123,12 @@ def assemble(ctx, cfg, dirs, az, el, done, fits, backend, ref_seconds) -> dict:
                 st = cfg["quadrature_stride"]
                 sl = (slice(st[1] // 2, None, st[1]), slice(st[0] // 2, None, st[0]))
                 sub_m, sub_s = mean[sl], se[sl]
-                met = compute_metrics(q, sub_m, sub_s, names=("rmse", "mae", "max_abs"))
-                approx_docs.append({"method": "quadrature", "label": LABELS["quadrature"], "fitted": False,
-                                    "parameters": {"pixels": int(q.shape[0] * q.shape[1])},
-                                    "metrics": {k: _metric_dict(v) for k, v in met.items()}})
-                ok = sub_s > 0
-                quad_z.append(((q - sub_m)[ok] / sub_s[ok]).ravel())
-                zsum = (q.sum(axis=(0, 1)) - sub_m.sum(axis=(0, 1))) / np.sqrt((sub_s ** 2).sum(axis=(0, 1)))
-                checks.append({"name": f"sun {e:g}°: independent SS quadrature vs Mitsuba single scattering, "
-                                       f"z of the sum over {q.shape[0] * q.shape[1]} pixels (R, G, B)",
-                               "value": ", ".join(f"{v:.2f}" for v in zsum), "expected": "|z| ≤ 4 per channel",
-                               "passed": bool(np.all(np.abs(zsum) <= 4))})
+                doc, z, _, check = _quadrature_vs_mitsuba(
+                    q, sub_m, sub_s, "quadrature", {"pixels": int(q.shape[0] * q.shape[1])},
+                    f"sun {e:g}°: independent SS quadrature vs Mitsuba single scattering")
+                approx_docs.append(doc)
+                quad_z.append(z)
+                checks.append(check)
                 ratio = q.sum(axis=(0, 1)) / np.maximum(sub_m.sum(axis=(0, 1)), 1e-30)
                 checks.append({"name": f"sun {e:g}°: Σ quadrature / Σ Mitsuba SS (G)", "value": float(ratio[1]),
                                "expected": "1 within 4 σ of the sum (previous check)", "passed": True})
@@ -254,18 +267,14 @@ def _spectral_cases(ctx, cfg, done, backend):
         qd = done[case_id(e, "quad-spectral")]
         q = qd["srgb"] * k
         sub_m, sub_s = mean[sl], se[sl]
-        met = compute_metrics(q, sub_m, sub_s, names=("rmse", "mae", "max_abs"))
-        docs.append({"method": "quadrature-spectral", "label": LABELS["quadrature-spectral"], "fitted": False,
-                     "parameters": {"pixels": int(q.shape[0] * q.shape[1]),
-                                    "wavelength_step_nm": float(qd["wavelengths_nm"][1] - qd["wavelengths_nm"][0])},
-                     "metrics": {k_: _metric_dict(v) for k_, v in met.items()}})
-        ok = sub_s > 0
-        zs.append(((q - sub_m)[ok] / sub_s[ok]).ravel())
-        zsum = (q.sum(axis=(0, 1)) - sub_m.sum(axis=(0, 1))) / np.sqrt((sub_s ** 2).sum(axis=(0, 1)))
-        checks.append({"name": f"sun {e:g}°: independent spectral SS quadrature vs Mitsuba spectral single "
-                               f"scattering, z of the sum over {q.shape[0] * q.shape[1]} pixels (R, G, B)",
-                       "value": ", ".join(f"{v:.2f}" for v in zsum), "expected": "|z| ≤ 4 per channel",
-                       "passed": bool(np.all(np.abs(zsum) <= 4))})
+        doc, z, zsum, check = _quadrature_vs_mitsuba(
+            q, sub_m, sub_s, "quadrature-spectral",
+            {"pixels": int(q.shape[0] * q.shape[1]),
+             "wavelength_step_nm": float(qd["wavelengths_nm"][1] - qd["wavelengths_nm"][0])},
+            f"sun {e:g}°: independent spectral SS quadrature vs Mitsuba spectral single scattering")
+        docs.append(doc)
+        zs.append(z)
+        checks.append(check)
         # noise-free decomposition on the quadrature's pixels
         dsub = d[sl]
         lam = np.asarray(qd["wavelengths_nm"])

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from rtfit.scenes.model import Camera, Diffuse, ReferenceSettings, Scene, Sphere, SphereLight
@@ -35,3 +36,16 @@ def sphere_scene(alpha_deg: float = 5.0, distance: float = 20.0, res: int = 48, 
         lights=tuple(lights),
         reference=ReferenceSettings(transport=transport),
     )
+
+
+def upper_hemisphere_nodes(n_mu: int, n_phi: int):
+    """Quadrature nodes of the upper hemisphere: Gauss–Legendre in μ = cos θ ∈ (0, 1) × midpoint rule in φ.
+    Returns unit directions (n_mu·n_phi, 3) and solid-angle weights summing to 2π."""
+    x, wx = np.polynomial.legendre.leggauss(n_mu)
+    mu, wmu = 0.5 * (x + 1), 0.5 * wx
+    phi = (np.arange(n_phi) + 0.5) * 2 * np.pi / n_phi
+    mm, pp = np.meshgrid(mu, phi, indexing="ij")
+    st = np.sqrt(1 - mm**2)
+    d = np.stack([st * np.cos(pp), st * np.sin(pp), mm], -1).reshape(-1, 3)
+    w = (wmu[:, None] * np.full(n_phi, 2 * np.pi / n_phi)[None, :]).reshape(-1)
+    return d, w

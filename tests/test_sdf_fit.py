@@ -15,6 +15,8 @@ import math
 import numpy as np
 import pytest
 
+from .conftest import upper_hemisphere_nodes
+
 from rtfit.experiments.sdf_occlusion import (
     EvansFitData,
     bounded_lm,
@@ -238,19 +240,8 @@ def test_delta_method_errors_of_weights_and_brightness():
 
 
 # ============================================================================ the sunsky factor
-def _hemisphere_nodes(n_mu=200, n_phi=400):
-    x, wx = np.polynomial.legendre.leggauss(n_mu)
-    mu, wmu = 0.5 * (x + 1), 0.5 * wx
-    phi = (np.arange(n_phi) + 0.5) * 2 * np.pi / n_phi
-    mm, pp = np.meshgrid(mu, phi, indexing="ij")
-    st = np.sqrt(1 - mm**2)
-    d = np.stack([st * np.cos(pp), st * np.sin(pp), mm], -1).reshape(-1, 3)
-    w = (wmu[:, None] * np.full(n_phi, 2 * np.pi / n_phi)[None, :]).reshape(-1)
-    return d, w
-
-
 def test_sky_factor_is_one_for_a_constant_sky_and_matches_a_linear_sky():
-    d, w = _hemisphere_nodes()
+    d, w = upper_hemisphere_nodes(200, 400)
     nrm = np.array([[0, 0, 1.0], [1, 0, 0], [0, -1, 0], [0.6, 0, -0.8], [0, 0, -1.0]])
     np.testing.assert_allclose(sky_factor(nrm, d, w, np.full(len(d), 3.7)), 1.0, atol=1e-12)
     # L = 1 + z above the horizon: E_h = ∫(1 + μ)μ dω = 5π/3; facing sideways E = π/2 + 2/3 and a constant sky of

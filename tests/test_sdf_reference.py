@@ -9,6 +9,8 @@ import math
 import numpy as np
 import pytest
 
+from .conftest import upper_hemisphere_nodes
+
 from rtfit.experiments.sdf_occlusion import CREASE_PROBE_X, load_case_scene
 from rtfit.experiments.sdf_occlusion_report import crease_ao
 from rtfit.realtime.sdf_grid import HalfSpace, Sphere, union_grid
@@ -74,13 +76,7 @@ def _sunsky_gauss_legendre(mi, sky, normals, n_mu=160, n_phi=720):
 
     from rtfit.reference.occlusion import LUMINANCE, sunsky_emitter
 
-    x, wx = np.polynomial.legendre.leggauss(n_mu)
-    mu, wmu = 0.5 * (x + 1), 0.5 * wx
-    phi = (np.arange(n_phi) + 0.5) * 2 * np.pi / n_phi
-    mm, pp = np.meshgrid(mu, phi, indexing="ij")
-    st = np.sqrt(1 - mm**2)
-    d = np.stack([st * np.cos(pp), st * np.sin(pp), mm], -1).reshape(-1, 3)
-    w = (wmu[:, None] * np.full(n_phi, 2 * np.pi / n_phi)[None, :]).reshape(-1)
+    d, w = upper_hemisphere_nodes(n_mu, n_phi)
     si = dr.zeros(mi.SurfaceInteraction3f, len(d))
     si.wi = mi.Vector3f(np.ascontiguousarray(-d.T, dtype=np.float32))
     lum = np.maximum(np.array(sunsky_emitter(mi, sky).eval(si), dtype=np.float64).T @ np.asarray(LUMINANCE), 0.0)
