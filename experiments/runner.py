@@ -18,8 +18,8 @@ from .atomic import atomic_directory, atomic_write_json, is_temporary_name
 from .jobs import make_executor
 from .registry import ExperimentSpec, RunContext
 from .report import write_index, write_report
+from .results import SCHEMA
 
-SCHEMA = "rtfit.results/1"
 
 
 def versions() -> dict:

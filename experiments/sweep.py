@@ -259,7 +259,8 @@ def combined_results(sweep: Sweep, points: list[SweepPoint], root: Path, failed:
     checks prefixed with its id, and a failed check for each point that could not be completed."""
     import datetime as _dt
 
-    from .runner import SCHEMA, device_description, versions
+    from .results import SCHEMA
+    from .runner import device_description, versions
 
     cases, checks, rows = [], [], []
     for p in points:

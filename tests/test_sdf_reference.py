@@ -167,7 +167,7 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     from rtfit.experiments.jobs import make_executor
     from rtfit.experiments.registry import RunContext
     from rtfit.experiments.report import load_results, write_report
-    from rtfit.experiments.runner import SCHEMA
+    from rtfit.experiments.results import SCHEMA
     from rtfit.reference.io import atomic_write_json
 
     base = exp.configure
