@@ -83,7 +83,10 @@ def run_experiment_into(spec: ExperimentSpec, directory: Path, ctx: RunContext, 
 
 def run_experiments(specs: list[ExperimentSpec], out: Path, *, quick: bool, variant: str, spp: int | None,
                     seed: int, cache_dir: Path, executor: str, workers: int | None,
-                    progress: bool, address: str | None = None) -> list[Path]:
+                    progress: bool, address: str | None = None, overrides: dict | None = None) -> list[Path]:
+    """Run each experiment into ``out/<name>`` (atomically) and write the suite index. ``overrides``:
+    configuration keys replacing the experiments' defaults (as one `rtfit sweep` point does; validated
+    by `registry.apply_overrides`: an unknown key or a value of another kind is a ValueError)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     done: list[Path] = []
@@ -93,7 +96,8 @@ def run_experiments(specs: list[ExperimentSpec], out: Path, *, quick: bool, vari
             final = out / spec.name
             with atomic_directory(final) as tmp:
                 ctx = RunContext(out_dir=Path(tmp), cache_dir=Path(cache_dir), executor=pool, quick=quick,
-                                 variant=variant, spp=spp, seed=seed, progress=progress)
+                                 variant=variant, spp=spp, seed=seed, progress=progress,
+                                 overrides=dict(overrides or {}))
                 run_experiment_into(spec, Path(tmp), ctx, executor)
             done.append(final)
             print(f"rtfit: {spec.name}: report at {final / 'report.html'}", file=sys.stderr)

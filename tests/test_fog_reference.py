@@ -117,26 +117,19 @@ def test_mitsuba_transmittance_equals_closed_form(mi, ellipsoid):
 
 
 def test_tiny_experiment_run(tmp_path, monkeypatch):
-    from rtfit.experiments import height_fog
     from rtfit.experiments.registry import get_experiment
     from rtfit.experiments.report import load_results
     from rtfit.experiments.runner import run_experiments
 
-    orig = height_fog.configure
-
-    def tiny(quick, spp):
-        cfg = orig(True, spp)
-        cfg.update(sun_elevations_deg=[30.0], resolution=[24, 12], spp=32, pass_spp=16, check_resolution=12,
-                   check_spp=64, volumes=True, map_size=[12, 8], random_samples=2000, cost_elements=1 << 12)
-        return cfg
-
-    monkeypatch.setattr(height_fog, "configure", tiny)
+    tiny = dict(sun_elevations_deg=[30.0], resolution=[24, 12], spp=32, pass_spp=16, check_resolution=12,
+                check_spp=64, volumes=True, map_size=[12, 8], random_samples=2000, cost_elements=1 << 12)
     from rtfit.experiments import height_fog_report
 
     # figures are exercised by the quick run; here they would double the test's time
     monkeypatch.setattr(height_fog_report, "_figures", lambda *a, **k: [])
     run_experiments([get_experiment("height-fog")], tmp_path / "out", quick=True, variant="llvm_ad_rgb", spp=None,
-                    seed=0, cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False)
+                    seed=0, cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False,
+                    overrides=tiny)
     res = load_results(tmp_path / "out" / "height-fog")
     assert res["experiment"] == "height-fog"
     assert {c["id"] for c in res["cases"]} == {"e30-single", "e30-multiple", "volumes"}

@@ -162,7 +162,7 @@ def test_cache_resumes_identically(tmp_path, crease_scene):
     assert a.passes == 2 and np.array_equal(a.mean, b.mean) and np.array_equal(a.stderr, b.stderr)
 
 
-def test_tiny_experiment_run(tmp_path, monkeypatch):
+def test_tiny_experiment_run(tmp_path):
     from rtfit.experiments import sdf_occlusion as exp
     from rtfit.experiments.jobs import make_executor
     from rtfit.experiments.registry import RunContext
@@ -170,18 +170,11 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     from rtfit.experiments.results import SCHEMA
     from rtfit.reference.io import atomic_write_json
 
-    base = exp.configure
-
-    def tiny(quick, spp):
-        cfg = base(True, spp)
-        cfg.update(scenes=["crease_90", "character"], targets=["ao", "sunsky"], resolution=10, spp=8, pass_spp=4, grid=32,
-                   alphas=[0.0], bases_vox=[1.0], sweep_grids=[24], sweep_n=[1, 2], sweep_scenes=["crease_90"],
-                   probe_spp=256, cost_points=4096)
-        return cfg
-
-    monkeypatch.setattr(exp, "configure", tiny)
+    tiny = dict(scenes=["crease_90", "character"], targets=["ao", "sunsky"], resolution=10, spp=8, pass_spp=4, grid=32,
+                alphas=[0.0], bases_vox=[1.0], sweep_grids=[24], sweep_n=[1, 2], sweep_scenes=["crease_90"],
+                probe_spp=256, cost_points=4096)
     ctx = RunContext(out_dir=tmp_path / "sdf", cache_dir=tmp_path / "cache", executor=make_executor("inline"),
-                     quick=True, variant="llvm_ad_rgb", spp=None, seed=0, progress=False)
+                     quick=True, variant="llvm_ad_rgb", spp=None, seed=0, progress=False, overrides=tiny)
     (tmp_path / "sdf").mkdir()
     body = exp.run(ctx)
     doc = {"schema": SCHEMA, "experiment": "sdf-occlusion", "title": "t", "created": "2026-01-01T00:00:00+00:00",

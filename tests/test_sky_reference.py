@@ -92,28 +92,22 @@ def test_library_sky_scenes_load():
 
 
 def test_tiny_experiment_run(tmp_path, monkeypatch):
-    from rtfit.experiments import nishita_sky, nishita_sky_report
+    from rtfit.experiments import nishita_sky_report
     from rtfit.experiments.registry import get_experiment
     from rtfit.experiments.report import load_results
     from rtfit.experiments.runner import run_experiments
 
-    orig = nishita_sky.configure
-
-    def tiny(quick, spp):
-        cfg = orig(True, spp)
-        cfg.update(sun_elevations_deg=[30.0], resolution=[16, 8], spp=64, pass_spp=32, quadrature_steps=200,
-                   sweep_elevations_deg=[30.0], sweep_layers=[8], sweep_textures=[[32, 16]], sweep_tables=[32],
-                   spectral_wavelengths=6, cost_elements=1 << 12,
-                   fine=dict(layers=32, width=64, height=32, table_size=64, mapping="sqrt"),
-                   fit_texture=[32, 16], altitude_cases=[[30.0, 5000.0]],
-                   spectral_elevations_deg=[30.0], spectral_resolution=[8, 4], spectral_spp=128,
-                   spectral_pass_spp=64, spectral_quadrature_stride=[2, 1])
-        return cfg
-
-    monkeypatch.setattr(nishita_sky, "configure", tiny)
+    tiny = dict(sun_elevations_deg=[30.0], resolution=[16, 8], spp=64, pass_spp=32, quadrature_steps=200,
+                sweep_elevations_deg=[30.0], sweep_layers=[8], sweep_textures=[[32, 16]], sweep_tables=[32],
+                spectral_wavelengths=6, cost_elements=1 << 12,
+                fine=dict(layers=32, width=64, height=32, table_size=64, mapping="sqrt"),
+                fit_texture=[32, 16], altitude_cases=[[30.0, 5000.0]],
+                spectral_elevations_deg=[30.0], spectral_resolution=[8, 4], spectral_spp=128,
+                spectral_pass_spp=64, spectral_quadrature_stride=[2, 1])
     monkeypatch.setattr(nishita_sky_report, "_figures", lambda *a, **k: [])
     run_experiments([get_experiment("nishita-sky")], tmp_path / "out", quick=True, variant="llvm_ad_rgb", spp=None,
-                    seed=0, cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False)
+                    seed=0, cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False,
+                    overrides=tiny)
     res = load_results(tmp_path / "out" / "nishita-sky")
     assert {c["id"] for c in res["cases"]} == {"e30-ss", "e30-ms", "e30-h5000-ss", "e30-ss-spectral"}
     failed = [c["name"] for c in res["checks"] if not c["passed"]]
