@@ -513,8 +513,9 @@ def measure_costs(sds, cfg) -> list[dict]:
 
 # ===================================================================================== sweep
 def run_sweep(ctx, cfg, sds) -> list[dict]:
-    """Steps (n) × grid resolution × prefilter × 8-bit: k refitted per configuration (Evans text form, α = ½),
-    error against the AO reference (mean RMSE over the sweep scenes) and measured ns per pixel."""
+    """Steps (n) × grid resolution × prefilter × 8-bit: Evans as pure occlusion (α = 0, w_i = 1, base = one
+    voxel of the grid) with k and B refitted per configuration, error against the AO reference (mean RMSE
+    over the sweep scenes) and measured ns per pixel."""
     import drjit as dr
 
     from rtfit.realtime import get_default_backend
