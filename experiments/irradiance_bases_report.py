@@ -167,8 +167,20 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
             "bands l = 0, 1, 2 (order 2).",
             "Storage per probe: ambient cube 18 floats, SH L1 12, SH L2 27 (RGB).",
             PROBE_CREDITS,
-        ],
+        ] + _missing_probe_notes(ctx),
     }
+
+
+def _missing_probe_notes(ctx) -> list[str]:
+    from rtfit.reference.environments import probe_dir
+
+    from .irradiance_bases import missing_probes
+
+    gone = missing_probes(ctx.quick)
+    if not gone:
+        return []
+    return [f"Measured probes not found in {probe_dir()} (set RTFIT_PROBE_DIR): {', '.join(gone)} left out of "
+            "this run."]
 
 
 def _method_params(m, b) -> dict:

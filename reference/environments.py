@@ -447,6 +447,11 @@ def probe_source_uv(projection: str, d: np.ndarray) -> tuple[np.ndarray, np.ndar
 _probe_dir = probe_dir
 
 
+def probe_available(name: str, probe_dir: Path | None = None) -> bool:
+    """True when the file of the measured probe ``name`` is present (see `probe_dir`)."""
+    return name in PROBES and (Path(probe_dir or _probe_dir()) / PROBES[name][0]).is_file()
+
+
 def probe_environment(name: str, height: int | None = None, probe_dir: Path | None = None) -> Environment:
     """A measured probe resampled into Mitsuba's lat-long convention with ``height`` rows (2:1 aspect;
     default: the file's own height). The file is box-filtered first when ``height`` is much smaller."""

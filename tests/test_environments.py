@@ -87,6 +87,8 @@ def test_quadrature_agrees_with_mitsuba_irradiance(mi, tmp_path):
     assert np.mean(np.abs(z) > 4) < 0.02
 
 
+@pytest.mark.skipif(not (envs.probe_available("grace") and envs.probe_available("uffizi")),
+                    reason="measured probes not found (../shared/probes or $RTFIT_PROBE_DIR)")
 def test_probes_load_with_sky_up():
     for name in ("grace", "uffizi"):
         env = envs.probe_environment(name, 32)
@@ -133,9 +135,12 @@ def test_drjit_quadrature_matches_numpy():
                                rtol=1e-12, atol=1e-14)
 
 
-def test_bad_input():
+def test_bad_input(tmp_path):
     with pytest.raises(ValueError, match="unknown probe"):
         envs.probe_environment("nowhere")
+    with pytest.raises(ValueError, match="probe file not found"):
+        envs.probe_environment("grace", probe_dir=tmp_path)
+    assert not envs.probe_available("grace", tmp_path) and not envs.probe_available("nowhere")
     with pytest.raises(ValueError, match="angular_radius_deg"):
         envs.sun_environment(0.0)
     with pytest.raises(ValueError, match="finite"):
