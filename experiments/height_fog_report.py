@@ -239,10 +239,13 @@ def _oracle(z0, z1, dist, b, c):
         return np.exp(log_tau)
 
 
-def _random_domain(n: int, seed: int = 7):
+def random_domain(n: int, seed: int = 7, log10_distance: tuple = (-1.0, 6.0)):
+    """Random float32 fog inputs over the whole domain (log-uniform): heights |z0| 1e-3..1e4 of either sign,
+    distances 10^log10_distance, end heights z1 from nearly horizontal (|Δz| 1e-9 of the path) to vertical,
+    density b 1e-6..1 and falloff c 1e-5..10. Returns (z0, z1, dist, b, c); shared with tests/test_fog.py."""
     rng = np.random.default_rng(seed)
     z0 = (rng.choice([-1, 1], n) * 10 ** rng.uniform(-3, 4, n)).astype(np.float32)
-    dist = (10 ** rng.uniform(-1, 6, n)).astype(np.float32)
+    dist = (10 ** rng.uniform(*log10_distance, n)).astype(np.float32)
     frac = rng.uniform(-1, 1, n) * 10 ** rng.uniform(-9, 0, n)
     z1 = (z0 + frac * np.minimum(dist, 2e4)).astype(np.float32)
     b = (10 ** rng.uniform(-6, 0, n)).astype(np.float32)
@@ -269,7 +272,7 @@ def optical_depth_errors(cfg) -> dict:
     from rtfit.realtime import fog, get_default_backend
 
     Float = dr.cuda.Float if get_default_backend() == "cuda" else dr.llvm.Float
-    z0, z1, dist, b, c = _random_domain(cfg["random_samples"])
+    z0, z1, dist, b, c = random_domain(cfg["random_samples"])
     truth = _oracle(z0, z1, dist, b, c)
     ok = np.isfinite(truth) & (truth > 1e-30) & (truth < 1e30)
     cond = np.abs(c.astype(np.float64) * np.minimum(z0, z1))
@@ -344,7 +347,7 @@ def _error_maps(cfg, Float) -> dict:
 
 # -------------------------------------------------------------------------------------------- costs
 def _cost_inputs(n: int, Float, seed: int = 3):
-    z0, z1, dist, _, _ = _random_domain(n, seed)
+    z0, z1, dist, _, _ = random_domain(n, seed)
     return (z0, z1, dist), tuple(Float(a) for a in (z0, z1, dist))
 
 

@@ -42,14 +42,9 @@ def bound32(z0, z1, c) -> float:
 
 
 def _random_inputs(n, seed):
-    rng = np.random.default_rng(seed)
-    z0 = (rng.choice([-1, 1], n) * 10 ** rng.uniform(-3, 4, n)).astype(np.float32)
-    dist = (10 ** rng.uniform(-2, 6, n)).astype(np.float32)
-    frac = rng.uniform(-1, 1, n) * 10 ** rng.uniform(-9, 0, n)
-    z1 = (z0 + frac * np.minimum(dist, 2e4)).astype(np.float32)
-    b = (10 ** rng.uniform(-6, 0, n)).astype(np.float32)
-    c = (10 ** rng.uniform(-5, 1, n)).astype(np.float32)
-    return z0, z1, dist, b, c
+    from rtfit.experiments.height_fog_report import random_domain
+
+    return random_domain(n, seed, log10_distance=(-2.0, 6.0))  # down to 1 cm paths
 
 
 # ------------------------------------------------------------------------------- accuracy vs mpmath
