@@ -27,7 +27,8 @@ from .ambient_aperture import (
     shade,
     shade_sky,
 )
-from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import (attach_costs, baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit,
+                   time_numpy)
 
 Z_SPREAD_TOLERANCE = 0.15  # robust spread of ≥ 500 unit-normal z-scores: 3σ band (see half_lambert_report)
 
@@ -414,12 +415,7 @@ def assemble(ctx, cfg, results) -> dict:
     cases, arrays = scene_cases(cfg, results, coeffs, k)
     dec = decomposition(cases, arrays)
     cost_rows = costs(ctx, cfg, coeffs, k)
-    by_method = {c["method"]: c for c in cost_rows}
-    for c in cases:
-        for a in c["approximations"]:
-            cr = by_method.get(a["method"])
-            a["cost"] = ({"ns_per_pixel": cr["ns_per_pixel"], "pixels_per_second": cr["pixels_per_second"],
-                          "backend": cr["backend"]} if cr else None)
+    attach_costs(cases, cost_rows)
 
     figs = [_curve_figure(out, coeffs), _map_figure(out, coeffs)]
     figs += _scene_figures(out, cases, arrays)

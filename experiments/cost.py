@@ -84,6 +84,18 @@ def memory_baseline(args: tuple, elements: int) -> Timing:
     return time_drjit(fma_all, floats, elements)
 
 
+def attach_costs(case_docs: list[dict], cost_rows: list[dict], key: Callable | None = None) -> None:
+    """Set every approximation's ``cost`` (ns per pixel, pixels per second, backend: the results schema's
+    cost object) from the measured row whose ``method`` is ``key(approximation)`` (default: the
+    approximation's own method); None where no row was measured."""
+    by_method = {c["method"]: c for c in cost_rows}
+    for doc in case_docs:
+        for ap in doc["approximations"]:
+            c = by_method.get(key(ap) if key else ap["method"])
+            ap["cost"] = ({"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"],
+                           "backend": c["backend"]} if c else None)
+
+
 # ------------------------------------------------------------------------------ `rtfit bench` rows
 def bench_backend(ctx) -> tuple[str, int]:
     """The Dr.Jit backend of ``ctx.variant`` (made the default) and the kernel size: ``ctx.size``,

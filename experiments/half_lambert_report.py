@@ -13,7 +13,8 @@ import numpy as np
 from rtfit.reference.io import atomic_write_json
 
 from . import figures
-from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import (attach_costs, baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit,
+                   time_numpy)
 from .half_lambert import (
     LABELS,
     MODELS,
@@ -89,12 +90,7 @@ def assemble(ctx, cfg, cases, scenes, rendered, geom, fits, smooth, hashes) -> d
         })
 
     costs = _costs(ctx, cfg)
-    cost_by_model = {c["method"]: c for c in costs}
-    for doc in case_docs:
-        for ap in doc["approximations"]:
-            c = cost_by_model.get(ap["method"])
-            ap["cost"] = {"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"],
-                          "backend": c["backend"]} if c else None
+    attach_costs(case_docs, costs)
 
     figs = _figures(ctx, cfg, cases, rendered, geom, images, fits, smooth, case_docs, costs)
     fitted = _write_fitted(out, cfg, fits, smooth)

@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 
-from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import (attach_costs, baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit,
+                   time_numpy)
 from .height_fog import LABELS, MODELS, TRANSPORTS, model_image, volume_from_medium
 
 FORM_LABELS = {"exact": "stable closed form (rtfit)", "seed": "seed listing (000:2226-2240)",
@@ -97,15 +98,7 @@ def assemble(ctx, cfg, scenes, rendered, skies, geoms, fits, hashes) -> dict:
     forms = optical_depth_errors(cfg)
     checks += forms["checks"]
     costs = _costs(ctx, cfg)
-    cost_by = {c["method"]: c for c in costs}
-    for doc in case_docs:
-        for ap in doc["approximations"]:
-            key = "fog-pass-phase" if ap["parameters"].get("C1_r") is not None else "fog-pass-const"
-            if ap["method"] == "volume-true":
-                key = "volumes-2"
-            c = cost_by.get(key)
-            ap["cost"] = {"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"],
-                          "backend": c["backend"]} if c else None
+    attach_costs(case_docs, costs, key=_cost_key)
     fitted = _write_fitted(out, cfg, fits, vol_fit)
     figs = _figures(out, cfg, scenes, rendered, geoms, images, residuals, case_docs, costs, forms)
     for f in fitted:
@@ -237,6 +230,14 @@ def _oracle(z0, z1, dist, b, c):
         phi = np.where(y > 0, -np.expm1(-y) / np.where(y > 0, y, 1.0), 1.0)
         log_tau = np.log(b) + np.log(dist) - c * zmin + np.log(phi)
         return np.exp(log_tau)
+
+
+def _cost_key(ap: dict) -> str:
+    """The measured fog pass that an approximation row runs: two volumes, or one pass with or without
+    the phase-weighted colour."""
+    if ap["method"] == "volume-true":
+        return "volumes-2"
+    return "fog-pass-phase" if ap["parameters"].get("C1_r") is not None else "fog-pass-const"
 
 
 def random_domain(n: int, seed: int = 7, log10_distance: tuple = (-1.0, 6.0)):

@@ -22,7 +22,8 @@ from rtfit.reference.environments import PROBE_CREDITS
 from rtfit.reference.io import atomic_write_json
 
 from . import figures
-from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import (attach_costs, baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit,
+                   time_numpy)
 from .half_lambert_report import _concat_pairs, _z_checks, _z_pair
 from .irradiance_bases import (FLOATS, LABELS, METHODS, combine, evaluate_method, quadrature_backend,
                                supersample_for)
@@ -121,12 +122,7 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
         })
 
     costs = _costs(ctx)
-    by = {c["method"]: c for c in costs}
-    for doc in cases:
-        for ap in doc["approximations"]:
-            c = by.get(ap["method"])
-            ap["cost"] = ({"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"],
-                           "backend": c["backend"]} if c else None)
+    attach_costs(cases, costs)
 
     checks = (_z_checks("quadrature vs Mitsuba irradiance (all environments, Fibonacci normals)",
                         *_concat_pairs(z_quad))

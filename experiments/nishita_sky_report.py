@@ -9,7 +9,7 @@ import numpy as np
 from rtfit.reference.io import atomic_write_json
 
 from . import figures
-from .cost import time_drjit, time_numpy
+from .cost import attach_costs, time_drjit, time_numpy
 from .nishita_sky import (
     FINE_CFG,
     LABELS,
@@ -169,12 +169,7 @@ def assemble(ctx, cfg, dirs, az, el, done, fits, backend, ref_seconds) -> dict:
 
     sweep = _sweep(cfg, backend, done)
     costs = _costs(ctx, backend, cfg)
-    cost_by = {c["method"]: c for c in costs}
-    for doc in cases:
-        for ap in doc["approximations"]:
-            c = cost_by.get(ap["method"])
-            ap["cost"] = {"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"],
-                          "backend": c["backend"]} if c else None
+    attach_costs(cases, costs)
     fitted = _write_fits(out, cfg, fits)
     figs = _figures(out, cfg, dirs, az, el, done, images, sweep, irr_rows, fits)
     summary = _summary(cfg, cases, sweep, spread, spectral, fits)

@@ -18,6 +18,7 @@ import numpy as np
 from rtfit.reference.io import atomic_write_json
 
 from . import figures
+from .cost import attach_costs
 from .sdf_occlusion import (
     ALPHAS,
     BASES_VOX,
@@ -351,13 +352,7 @@ def assemble(ctx, cfg, rendered) -> dict:
             maps[(n, t, "ref")] = ref_img
     ctx.log(f"per-case fits done ({time.perf_counter() - t_start:.1f} s)")
     costs = measure_costs(sds, cfg)
-    cost_by = {c["method"]: c for c in costs}
-    for doc in case_docs:
-        for ap in doc["approximations"]:
-            c = cost_by.get(ap["method"])
-            if c:
-                ap["cost"] = {"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"],
-                              "backend": c["backend"]}
+    attach_costs(case_docs, costs)
     sweep = run_sweep(ctx, cfg, sds)
     ctx.log(f"sweep done ({time.perf_counter() - t_start:.1f} s)")
     figs = make_figures(out, cfg, sds, maps, case_docs, sweep, costs)
