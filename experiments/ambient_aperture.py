@@ -42,8 +42,16 @@ import numpy as np
 from .jobs import Job
 
 PI = math.pi
-LIGHT_METHODS = ("cap-model", "aa-exact-seed", "aa-smoothstep-seed", "aa-linear-seed", "aa-fitted-seed",
-                 "aa-exact-fitted", "aa-fitted-fitted", "unshadowed")
+LIGHT_METHODS = (
+    "cap-model",
+    "aa-exact-seed",
+    "aa-smoothstep-seed",
+    "aa-linear-seed",
+    "aa-fitted-seed",
+    "aa-exact-fitted",
+    "aa-fitted-fitted",
+    "unshadowed",
+)
 SKY_METHODS = ("cap-model", "fill-seed", "fill-projected", "unoccluded")
 LABELS = {
     "cap-model": "Cap model, exact integral",
@@ -59,18 +67,22 @@ LABELS = {
     "unoccluded": "No occlusion (π L_sky)",
 }
 FORMS = ("exact", "smoothstep", "linear", "fitted")
-FORM_LABELS = {"exact": "exact (closed form)", "smoothstep": "smoothstep (seed)", "linear": "linear ramp",
-               "fitted": "fitted (complement + corrected smoothstep)"}
+FORM_LABELS = {
+    "exact": "exact (closed form)",
+    "smoothstep": "smoothstep (seed)",
+    "linear": "linear ramp",
+    "fitted": "fitted (complement + corrected smoothstep)",
+}
 
 
 def configure(quick: bool, spp: int | None) -> dict:
     return {
-        "grid": 40 if quick else 96,                 # (r1, r2, d) grid points per axis
+        "grid": 40 if quick else 96,  # (r1, r2, d) grid points per axis
         "fit_grid": 40 if quick else 72,
-        "quad_nodes": 48 if quick else 96,           # Gauss–Legendre nodes per sub-interval (function check)
+        "quad_nodes": 48 if quick else 96,  # Gauss–Legendre nodes per sub-interval (function check)
         "lambert_configs": 1500 if quick else 6000,
         "lambert_quad": [24, 96] if quick else [48, 192],
-        "probe_n": 32 if quick else 64,              # probe image side
+        "probe_n": 32 if quick else 64,  # probe image side
         "spp": spp or (1024 if quick else 8192),
         "sky_spp": 4 * spp if spp else (4096 if quick else 32768),  # the sky is seen through small apertures
         "pass_spp": 512 if quick else 4096,
@@ -115,11 +127,13 @@ def quadrature_intersection(r1, r2, d, nodes: int = 48, chunk: int = 20000):
         kinks = np.sort(np.clip(kinks, 0.0, rs_[:, None]), axis=1)
         total = np.zeros_like(rs_)
         for k in range(4):
-            a, b = kinks[:, k:k + 1], kinks[:, k + 1:k + 2]
+            a, b = kinks[:, k : k + 1], kinks[:, k + 1 : k + 2]
             th = a + (b - a) * 0.5 * (1 - np.cos(PI * s))[None, :]
             jac = (b - a) * 0.5 * PI * np.sin(PI * s)[None, :]
             with np.errstate(divide="ignore", invalid="ignore"):
-                kk = (np.cos(rb_)[:, None] - np.cos(th) * np.cos(d_)[:, None]) / (np.sin(th) * np.sin(d_)[:, None])
+                kk = (np.cos(rb_)[:, None] - np.cos(th) * np.cos(d_)[:, None]) / (
+                    np.sin(th) * np.sin(d_)[:, None]
+                )
             kk = np.where(np.isfinite(kk), kk, 1.0)
             f = 2 * np.arccos(np.clip(kk, -1, 1)) * np.sin(th)
             total += np.sum(f * jac * ws[None, :], axis=1)
@@ -185,9 +199,10 @@ def _frame(v):
 def _node_dots(vec, frame, mu, st, cp, sp):
     """vec·ω at the quadrature nodes ω = μ·axis + sin θ'(cos φ u1 + sin φ u2): (m, nt, nphi)."""
     axis, u1, u2 = frame
-    return (mu[:, :, None] * np.sum(vec * axis, 1)[:, None, None]
-            + st[:, :, None] * (cp[None, None, :] * np.sum(vec * u1, 1)[:, None, None]
-                                + sp[None, None, :] * np.sum(vec * u2, 1)[:, None, None]))
+    return mu[:, :, None] * np.sum(vec * axis, 1)[:, None, None] + st[:, :, None] * (
+        cp[None, None, :] * np.sum(vec * u1, 1)[:, None, None]
+        + sp[None, None, :] * np.sum(vec * u2, 1)[:, None, None]
+    )
 
 
 def cap_model_irradiance(n, a, r_a, l, alpha, nodes=(24, 96), chunk: int = 512):
@@ -209,7 +224,7 @@ def cap_model_irradiance(n, a, r_a, l, alpha, nodes=(24, 96), chunk: int = 512):
     for s in range(0, len(l), chunk):
         sl = slice(s, s + chunk)
         ca = np.cos(alpha[sl])[:, None]
-        mu = ca + (1 - ca) * 0.5 * (x[None, :] + 1)                  # (m, nt)
+        mu = ca + (1 - ca) * 0.5 * (x[None, :] + 1)  # (m, nt)
         wmu = (1 - ca) * 0.5 * w[None, :]
         st = np.sqrt(np.maximum(1 - mu * mu, 0))
         cp, sp = np.cos(phi), np.sin(phi)
@@ -263,38 +278,66 @@ def fit_lambert_job(count: int, nodes) -> dict:
     cos_al = np.clip(np.sum(a * l, 1), -1, 1)
     omega = ap.cap_intersection_solid_angle(r_a, alpha, np.arccos(cos_al))
     keep = omega > 1e-3 * ap.cap_area(np.minimum(r_a, alpha))
-    n, a, r_a, l, alpha, target, omega, cos_al = (x[keep] for x in (n, a, r_a, l, alpha, target, omega, cos_al))
+    n, a, r_a, l, alpha, target, omega, cos_al = (
+        x[keep] for x in (n, a, r_a, l, alpha, target, omega, cos_al)
+    )
     cos_na, cos_nl = a[:, 2], l[:, 2]
     scale = ap.cap_area(alpha)
     log_ratio = np.log(ap.cap_area(r_a) / scale)
-    res = fit_least_squares(_lambert_residual, {"k": Param(1.0, 0.05, 8.0)},
-                            (omega, cos_na, cos_nl, cos_al, log_ratio, target, scale))
+    res = fit_least_squares(
+        _lambert_residual,
+        {"k": Param(1.0, 0.05, 8.0)},
+        (omega, cos_na, cos_nl, cos_al, log_ratio, target, scale),
+    )
     out = res.to_dict()
     k = float(res.values["k"])
     errs = {}
     for name, lam in (("seed", "seed"), ("fitted", "fitted")):
-        e, _ = ap.ambient_aperture_irradiance(cos_na, cos_nl, cos_al, r_a, alpha, 1.0, 0.0,
-                                              intersection="exact", lambert=lam, k=k)
+        e, _ = ap.ambient_aperture_irradiance(
+            cos_na, cos_nl, cos_al, r_a, alpha, 1.0, 0.0, intersection="exact", lambert=lam, k=k
+        )
         rel = (e - target) / scale
-        errs[name] = {"rms": float(np.sqrt(np.mean(rel ** 2))), "max": float(np.max(np.abs(rel))),
-                      "mean": float(np.mean(rel))}
+        errs[name] = {
+            "rms": float(np.sqrt(np.mean(rel**2))),
+            "max": float(np.max(np.abs(rel))),
+            "mean": float(np.mean(rel)),
+        }
     # Open sky, small light at 60°: the erratum's 73 %.
     e_seed, _ = ap.ambient_aperture_irradiance(1.0, 0.5, 0.5, PI / 2, 0.01, 1.0, 0.0)
     e_fit, _ = ap.ambient_aperture_irradiance(1.0, 0.5, 0.5, PI / 2, 0.01, 1.0, 0.0, lambert="fitted", k=k)
-    exact60 = float(cap_model_irradiance([[0, 0, 1]], [[0, 0, 1]], [PI / 2], [[math.sqrt(0.75), 0, 0.5]],
-                                         [0.01], tuple(nodes))[0])
+    exact60 = float(
+        cap_model_irradiance(
+            [[0, 0, 1]], [[0, 0, 1]], [PI / 2], [[math.sqrt(0.75), 0, 0.5]], [0.01], tuple(nodes)
+        )[0]
+    )
     # Quadrature resolution: the same configurations with twice the nodes in each direction (first 300).
     m = min(300, len(target))
     fine = cap_model_irradiance(n[:m], a[:m], r_a[:m], l[:m], alpha[:m], (2 * nodes[0], 2 * nodes[1]))
-    out.update({"errors": errs, "n_configs": len(target), "k": k,
-                "open_sky_60": {"exact": exact60, "seed": e_seed, "fitted": e_fit},
-                "quad_resolution": float(np.max(np.abs(fine - target[:m]) / scale[:m]))})
+    out.update(
+        {
+            "errors": errs,
+            "n_configs": len(target),
+            "k": k,
+            "open_sky_60": {"exact": exact60, "seed": e_seed, "fitted": e_fit},
+            "quad_resolution": float(np.max(np.abs(fine - target[:m]) / scale[:m])),
+        }
+    )
     return out
 
 
 # --------------------------------------------------------------------------------------------- scenes
-def scene_job(name: str, probe_n: int, spp: int, sky_spp: int, pass_spp: int, seed: int, variant: str,
-              cache_dir: str, bake_dirs: int, progress: bool = False) -> dict:
+def scene_job(
+    name: str,
+    probe_n: int,
+    spp: int,
+    sky_spp: int,
+    pass_spp: int,
+    seed: int,
+    variant: str,
+    cache_dir: str,
+    bake_dirs: int,
+    progress: bool = False,
+) -> dict:
     """Job: probe points on the receiver, baked visibility, and light / sky irradiance references."""
     from rtfit.reference import ReferenceCache, ReferenceRequest
     from rtfit.reference.visibility import bake_visibility, surface_points
@@ -309,22 +352,51 @@ def scene_job(name: str, probe_n: int, spp: int, sky_spp: int, pass_spp: int, se
     p, n = pts[mask], nrm[mask]
     bake = bake_visibility(scene, p, n, bake_dirs, seed, variant)
     cache = ReferenceCache(cache_dir)
-    sky_scene = dataclasses.replace(scene, lights=(ConstantEnv(radiance=(1.0, 1.0, 1.0)),), name=f"{scene.name}-sky")
+    sky_scene = dataclasses.replace(
+        scene, lights=(ConstantEnv(radiance=(1.0, 1.0, 1.0)),), name=f"{scene.name}-sky"
+    )
     refs = {}
     for label, sc, n_spp in (("light", scene, spp), ("sky", sky_scene, sky_spp)):
-        r = cache.get(ReferenceRequest(scene=sc, spp=n_spp, pass_spp=min(pass_spp, n_spp), seed=seed, variant=variant,
-                                       quantity="irradiance", points=p, normals=n, transport="direct"),
-                      progress=progress, label=f"{sc.name} probes")
-        refs[label] = {"mean": r.mean, "stderr": r.stderr, "sigma": r.sigma(), "info": r.to_dict(),
-                       "hash": scene_hash(sc)}
-    return {"name": name, "mask": mask.reshape(probe_n, probe_n), "points": p, "normals": n,
-            "visible_fraction": bake.visible_fraction, "bake_stderr": bake.stderr,
-            "bent_normal": bake.bent_normal, "aperture": bake.aperture, "bake": bake.to_dict(), "refs": refs,
-            "scene_hash": scene_hash(scene)}
+        r = cache.get(
+            ReferenceRequest(
+                scene=sc,
+                spp=n_spp,
+                pass_spp=min(pass_spp, n_spp),
+                seed=seed,
+                variant=variant,
+                quantity="irradiance",
+                points=p,
+                normals=n,
+                transport="direct",
+            ),
+            progress=progress,
+            label=f"{sc.name} probes",
+        )
+        refs[label] = {
+            "mean": r.mean,
+            "stderr": r.stderr,
+            "sigma": r.sigma(),
+            "info": r.to_dict(),
+            "hash": scene_hash(sc),
+        }
+    return {
+        "name": name,
+        "mask": mask.reshape(probe_n, probe_n),
+        "points": p,
+        "normals": n,
+        "visible_fraction": bake.visible_fraction,
+        "bake_stderr": bake.stderr,
+        "bent_normal": bake.bent_normal,
+        "aperture": bake.aperture,
+        "bake": bake.to_dict(),
+        "refs": refs,
+        "scene_hash": scene_hash(scene),
+    }
 
 
-def unoccluded_job(probe_n: int, spp: int, pass_spp: int, seed: int, variant: str, cache_dir: str,
-                   progress: bool = False) -> dict:
+def unoccluded_job(
+    probe_n: int, spp: int, pass_spp: int, seed: int, variant: str, cache_dir: str, progress: bool = False
+) -> dict:
     """Job: the hole scene with every occluder removed: Mitsuba vs the closed-form sphere-light irradiance
     (validates the probes, the light's geometry and the units of the whole comparison)."""
     from rtfit.reference import ReferenceCache, ReferenceRequest
@@ -338,11 +410,28 @@ def unoccluded_job(probe_n: int, spp: int, pass_spp: int, seed: int, variant: st
     p = np.concatenate([xy, np.zeros((len(xy), 1))], axis=1)
     n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
     r = ReferenceCache(cache_dir).get(
-        ReferenceRequest(scene=floor, spp=spp, pass_spp=min(pass_spp, spp), seed=seed, variant=variant,
-                         quantity="irradiance", points=p, normals=n, transport="direct"),
-        progress=progress, label="unoccluded probes")
-    return {"points": p, "normals": n, "mean": r.mean, "stderr": r.stderr, "sigma": r.sigma(),
-            "info": r.to_dict()}
+        ReferenceRequest(
+            scene=floor,
+            spp=spp,
+            pass_spp=min(pass_spp, spp),
+            seed=seed,
+            variant=variant,
+            quantity="irradiance",
+            points=p,
+            normals=n,
+            transport="direct",
+        ),
+        progress=progress,
+        label="unoccluded probes",
+    )
+    return {
+        "points": p,
+        "normals": n,
+        "mean": r.mean,
+        "stderr": r.stderr,
+        "sigma": r.sigma(),
+        "info": r.to_dict(),
+    }
 
 
 def light_geometry(points, normals, bent, light):
@@ -351,7 +440,7 @@ def light_geometry(points, normals, bent, light):
     v = c[None, :] - points
     dist = np.linalg.norm(v, axis=1)
     l = v / dist[:, None]
-    alpha = np.arctan2(light.radius, np.sqrt(np.maximum(dist ** 2 - light.radius ** 2, 0)))
+    alpha = np.arctan2(light.radius, np.sqrt(np.maximum(dist**2 - light.radius**2, 0)))
     cos_na = np.clip(np.sum(normals * bent, 1), -1, 1)
     cos_nl = np.clip(np.sum(normals * l, 1), -1, 1)
     cos_al = np.clip(np.sum(bent * l, 1), -1, 1)
@@ -367,8 +456,19 @@ def shade(method: str, geo, aperture, radiance: float, k: float, coeffs) -> np.n
     if method == "unshadowed":
         return diffuse.sphere_light_irradiance(cos_nl, alpha, radiance)
     _, form, lam = method.split("-")
-    e, _ = ap.ambient_aperture_irradiance(cos_na, cos_nl, cos_al, aperture, alpha, radiance, 0.0,
-                                          intersection=form, lambert=lam, coeffs=coeffs, k=k)
+    e, _ = ap.ambient_aperture_irradiance(
+        cos_na,
+        cos_nl,
+        cos_al,
+        aperture,
+        alpha,
+        radiance,
+        0.0,
+        intersection=form,
+        lambert=lam,
+        coeffs=coeffs,
+        k=k,
+    )
     return e
 
 
@@ -379,8 +479,9 @@ def shade_sky(method: str, cos_na, aperture, sky: float) -> np.ndarray:
     if method == "unoccluded":
         return np.full_like(cos_na, PI * sky)
     fill = "seed" if method == "fill-seed" else "projected"
-    _, e = ap.ambient_aperture_irradiance(cos_na, zero, -np.ones_like(cos_na), aperture, zero, 0.0, sky,
-                                          intersection="exact", fill=fill)
+    _, e = ap.ambient_aperture_irradiance(
+        cos_na, zero, -np.ones_like(cos_na), aperture, zero, 0.0, sky, intersection="exact", fill=fill
+    )
     return e
 
 
@@ -392,19 +493,54 @@ def run(ctx) -> dict:
     from rtfit.realtime import set_default_backend
 
     set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
-    jobs = [Job("rtfit.experiments.ambient_aperture:scene_job",
-                {"name": name, "probe_n": cfg["probe_n"], "spp": cfg["spp"], "sky_spp": cfg["sky_spp"],
-                     "pass_spp": cfg["pass_spp"], "seed": ctx.seed,
-                     "variant": ctx.variant, "cache_dir": str(ctx.cache_dir), "bake_dirs": cfg["bake_dirs"],
-                     "progress": ctx.progress}, label=name) for name in cfg["scenes"]]
-    jobs.append(Job("rtfit.experiments.ambient_aperture:unoccluded_job",
-                    {"probe_n": cfg["probe_n"], "spp": cfg["spp"], "pass_spp": cfg["pass_spp"], "seed": ctx.seed,
-                         "variant": ctx.variant, "cache_dir": str(ctx.cache_dir), "progress": ctx.progress},
-                    label="unoccluded"))
-    jobs.append(Job("rtfit.experiments.ambient_aperture:fit_intersection_job", {"grid": cfg["fit_grid"]},
-                    label="fit-intersection"))
-    jobs.append(Job("rtfit.experiments.ambient_aperture:fit_lambert_job",
-                    {"count": cfg["lambert_configs"], "nodes": cfg["lambert_quad"]}, label="fit-lambert"))
+    jobs = [
+        Job(
+            "rtfit.experiments.ambient_aperture:scene_job",
+            {
+                "name": name,
+                "probe_n": cfg["probe_n"],
+                "spp": cfg["spp"],
+                "sky_spp": cfg["sky_spp"],
+                "pass_spp": cfg["pass_spp"],
+                "seed": ctx.seed,
+                "variant": ctx.variant,
+                "cache_dir": str(ctx.cache_dir),
+                "bake_dirs": cfg["bake_dirs"],
+                "progress": ctx.progress,
+            },
+            label=name,
+        )
+        for name in cfg["scenes"]
+    ]
+    jobs.append(
+        Job(
+            "rtfit.experiments.ambient_aperture:unoccluded_job",
+            {
+                "probe_n": cfg["probe_n"],
+                "spp": cfg["spp"],
+                "pass_spp": cfg["pass_spp"],
+                "seed": ctx.seed,
+                "variant": ctx.variant,
+                "cache_dir": str(ctx.cache_dir),
+                "progress": ctx.progress,
+            },
+            label="unoccluded",
+        )
+    )
+    jobs.append(
+        Job(
+            "rtfit.experiments.ambient_aperture:fit_intersection_job",
+            {"grid": cfg["fit_grid"]},
+            label="fit-intersection",
+        )
+    )
+    jobs.append(
+        Job(
+            "rtfit.experiments.ambient_aperture:fit_lambert_job",
+            {"count": cfg["lambert_configs"], "nodes": cfg["lambert_quad"]},
+            label="fit-lambert",
+        )
+    )
     ctx.log(f"running {len(jobs)} jobs (3 scenes, validation, 2 fits)")
     results = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="ambient-aperture")))
     return rep.assemble(ctx, cfg, results)

@@ -27,8 +27,15 @@ from .ambient_aperture import (
     shade,
     shade_sky,
 )
-from .cost import (attach_costs, baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit,
-                   time_numpy)
+from .cost import (
+    attach_costs,
+    baseline_row,
+    bench_backend,
+    comparison_row,
+    memory_baseline,
+    time_drjit,
+    time_numpy,
+)
 
 Z_SPREAD_TOLERANCE = 0.15  # robust spread of ≥ 500 unit-normal z-scores: 3σ band (see half_lambert_report)
 
@@ -42,8 +49,11 @@ def _form_fn(form: str, coeffs):
 
     if form == "fitted":
         return lambda a, b, c: ap.cap_intersection_fitted(a, b, c, coeffs)
-    return {"exact": ap.cap_intersection_solid_angle, "smoothstep": ap.cap_intersection_smoothstep,
-            "linear": ap.cap_intersection_linear}[form]
+    return {
+        "exact": ap.cap_intersection_solid_angle,
+        "smoothstep": ap.cap_intersection_smoothstep,
+        "linear": ap.cap_intersection_linear,
+    }[form]
 
 
 # --------------------------------------------------------------------------------------- function level
@@ -67,8 +77,9 @@ def function_level(cfg, coeffs, seed: int) -> dict:
     nested = d <= np.abs(r1 - r2)
     disjoint = d >= r1 + r2
     covering = (r1 + r2 + d >= 2 * PI) & ~nested & ~disjoint
-    closed = np.where(nested, a_min, np.where(disjoint, 0.0, 4 * PI * (np.sin(r1 / 2) ** 2 + np.sin(r2 / 2) ** 2)
-                                               - 4 * PI))
+    closed = np.where(
+        nested, a_min, np.where(disjoint, 0.0, 4 * PI * (np.sin(r1 / 2) ** 2 + np.sin(r2 / 2) ** 2) - 4 * PI)
+    )
     sel = nested | disjoint | covering
     closed_dev = float(np.max(np.abs(exact[sel] - closed[sel]) / a_min[sel]))
 
@@ -80,15 +91,27 @@ def function_level(cfg, coeffs, seed: int) -> dict:
         rel = (approx - exact) / a_min
         errors[form] = {}
         for dom, m in (("hemisphere", hemi), ("full", part), ("all", np.ones_like(part))):
-            errors[form][dom] = {"max": float(np.max(np.abs(rel[m]))), "rms": float(np.sqrt(np.mean(rel[m] ** 2))),
-                                 "mean": float(np.mean(rel[m])), "points": int(m.sum())}
+            errors[form][dom] = {
+                "max": float(np.max(np.abs(rel[m]))),
+                "rms": float(np.sqrt(np.mean(rel[m] ** 2))),
+                "mean": float(np.mean(rel[m])),
+                "points": int(m.sum()),
+            }
         errors[form]["in_bounds"] = bool(np.all(approx >= 0) and np.all(approx <= a_min * (1 + 1e-9)))
-    return {"errors": errors, "quad_dev": quad_dev, "quad_points": len(idx), "closed_dev": closed_dev,
-            "grid": cfg["grid"], "n_partial": int(part.sum()), "n_hemi": int(hemi.sum())}
+    return {
+        "errors": errors,
+        "quad_dev": quad_dev,
+        "quad_points": len(idx),
+        "closed_dev": closed_dev,
+        "grid": cfg["grid"],
+        "n_partial": int(part.sum()),
+        "n_hemi": int(hemi.sum()),
+    }
 
 
-def mpmath_check(points=((0.5, 0.5, 0.5), (2.0, 1.0, 2.5), (2.6, 2.2, 1.9), (0.01, 1.2, 1.205),
-                         (1.4, 0.0003, 1.40025))) -> float:
+def mpmath_check(
+    points=((0.5, 0.5, 0.5), (2.0, 1.0, 2.5), (2.6, 2.2, 1.9), (0.01, 1.2, 1.205), (1.4, 0.0003, 1.40025)),
+) -> float:
     """max |Ω − Ω_mpmath| / A_min at a few points (mpmath quadrature, 25 digits)."""
     import mpmath as mp
     from rtfit.realtime import aperture as ap
@@ -104,7 +127,9 @@ def mpmath_check(points=((0.5, 0.5, 0.5), (2.0, 1.0, 2.5), (2.6, 2.2, 1.9), (0.0
                 k = (mp.cos(rb) - mp.cos(th) * mp.cos(dd)) / (mp.sin(th) * mp.sin(dd))
                 return 2 * mp.acos(max(-1, min(1, k))) * mp.sin(th)
 
-            pts = sorted({mp.mpf(0), rs} | {b for b in (abs(dd - rb), dd + rb, 2 * mp.pi - dd - rb) if 0 < b < rs})
+            pts = sorted(
+                {mp.mpf(0), rs} | {b for b in (abs(dd - rb), dd + rb, 2 * mp.pi - dd - rb) if 0 < b < rs}
+            )
             q = float(mp.quad(f, pts))
         a = 2 * PI * (1 - math.cos(min(r1, r2)))
         worst = max(worst, abs(ap.cap_intersection_solid_angle(r1, r2, d) - q) / a)
@@ -131,8 +156,15 @@ def _map_figure(out, coeffs) -> dict:
         for j, form in enumerate(forms):
             err = (_form_fn(form, coeffs)(R1, R2, D) - ex) / a_min
             err = np.where((D > np.abs(R1 - R2)) & (D < R1 + R2), err, np.nan)
-            im = axes[i, j].imshow(err, origin="lower", extent=[0, 180, 0, 90], aspect="auto", cmap="RdBu_r",
-                                   vmin=-0.16, vmax=0.16)
+            im = axes[i, j].imshow(
+                err,
+                origin="lower",
+                extent=[0, 180, 0, 90],
+                aspect="auto",
+                cmap="RdBu_r",
+                vmin=-0.16,
+                vmax=0.16,
+            )
             axes[i, j].set_title(f"{form}, r₂ = {rho:g}·r₁", fontsize=9)
             axes[i, j].set_xlabel("d (deg)", fontsize=8)
             axes[i, j].set_ylabel("r₁ (deg)", fontsize=8)
@@ -140,10 +172,13 @@ def _map_figure(out, coeffs) -> dict:
     fig.colorbar(im, ax=axes, shrink=0.6, label="(Ω_approx − Ω_exact) / smaller cap")
     name = "figures/error_maps.png"
     figures.save_figure(fig, out / name)
-    return {"file": name, "section": "function-level",
-            "caption": "Signed error of the smoothstep (seed), linear ramp and fitted forms over the centre "
-                       "distance d and the larger radius r₁, for cap ratios r₂/r₁ = 1, 0.5, 0.2, as a fraction "
-                       "of the smaller cap; white outside the partial-overlap band. Colour range ±0.16."}
+    return {
+        "file": name,
+        "section": "function-level",
+        "caption": "Signed error of the smoothstep (seed), linear ramp and fitted forms over the centre "
+        "distance d and the larger radius r₁, for cap ratios r₂/r₁ = 1, 0.5, 0.2, as a fraction "
+        "of the smaller cap; white outside the partial-overlap band. Colour range ±0.16.",
+    }
 
 
 def _curve_figure(out, coeffs) -> dict:
@@ -154,14 +189,23 @@ def _curve_figure(out, coeffs) -> dict:
     for r1, r2 in ((0.5, 0.5), (1.2, 0.3), (PI / 2, PI / 2)):
         for form in FORMS:
             y = _form_fn(form, coeffs)(np.full_like(d, r1), np.full_like(d, r2), d)
-            series.append({"x": np.degrees(d), "y": y / ap.cap_area(min(r1, r2)),
-                           "label": f"{form}", "panel": f"r₁ = {math.degrees(r1):.0f}°, r₂ = {math.degrees(r2):.0f}°"})
+            series.append(
+                {
+                    "x": np.degrees(d),
+                    "y": y / ap.cap_area(min(r1, r2)),
+                    "label": f"{form}",
+                    "panel": f"r₁ = {math.degrees(r1):.0f}°, r₂ = {math.degrees(r2):.0f}°",
+                }
+            )
     path = out / "figures/intersection_curves.png"
     _panels(path, series, "d (deg)", "Ω / smaller cap")
-    return {"file": "figures/intersection_curves.png", "section": "function-level",
-            "caption": "Intersection solid angle over the centre distance for three cap pairs, as a fraction "
-                       "of the smaller cap. Two hemispheres (right): the exact lune 2(π − d) is linear in d; "
-                       "the smoothstep bends it into an S."}
+    return {
+        "file": "figures/intersection_curves.png",
+        "section": "function-level",
+        "caption": "Intersection solid angle over the centre distance for three cap pairs, as a fraction "
+        "of the smaller cap. Two hemispheres (right): the exact lune 2(π − d) is linear in d; "
+        "the smoothstep bends it into an S.",
+    }
 
 
 def _panels(path, series, xl, yl):
@@ -212,13 +256,24 @@ def scene_cases(cfg, results, coeffs, k) -> tuple[list[dict], dict]:
             if lighting == "light":
                 unshadowed = shade("unshadowed", geo, r_a, radiance, k, coeffs)
                 peak = float(np.max(unshadowed))
-                values = {m: (cap_model_irradiance(n, a, r_a, l, alpha, tuple(cfg["cap_quad"])) * radiance
-                              if m == "cap-model" else shade(m, geo, r_a, radiance, k, coeffs))
-                          for m in LIGHT_METHODS}
+                values = {
+                    m: (
+                        cap_model_irradiance(n, a, r_a, l, alpha, tuple(cfg["cap_quad"])) * radiance
+                        if m == "cap-model"
+                        else shade(m, geo, r_a, radiance, k, coeffs)
+                    )
+                    for m in LIGHT_METHODS
+                }
             else:
                 peak = PI
-                values = {m: (shade_sky("fill-projected", cos_na, r_a, 1.0) if m == "cap-model"
-                              else shade_sky(m, cos_na, r_a, 1.0)) for m in SKY_METHODS}
+                values = {
+                    m: (
+                        shade_sky("fill-projected", cos_na, r_a, 1.0)
+                        if m == "cap-model"
+                        else shade_sky(m, cos_na, r_a, 1.0)
+                    )
+                    for m in SKY_METHODS
+                }
             ref_img = _as_image(mask, ref_e / peak, np.zeros(mask.shape))
             sig_img = _as_image(mask, ref["sigma"][:, 0] / peak, np.zeros(mask.shape))
             approx_docs, imgs = [], {}
@@ -226,21 +281,39 @@ def scene_cases(cfg, results, coeffs, k) -> tuple[list[dict], dict]:
                 img = _as_image(mask, v / peak, ref_img[..., 0])
                 imgs[m] = img
                 met = compute_metrics(img, ref_img, sig_img, mask, names=cfg["metrics"])
-                approx_docs.append({"method": m, "label": LABELS[m], "fitted": "fitted" in m,
-                                    "parameters": _params(m, coeffs, k),
-                                    "metrics": {kk: _metric_dict(vv) for kk, vv in met.items()}})
+                approx_docs.append(
+                    {
+                        "method": m,
+                        "label": LABELS[m],
+                        "fitted": "fitted" in m,
+                        "parameters": _params(m, coeffs, k),
+                        "metrics": {kk: _metric_dict(vv) for kk, vv in met.items()},
+                    }
+                )
             cid = f"{name.removeprefix('aperture_')}-{lighting}"
-            cases.append({
-                "id": cid, "label": f"{SCENE_LABELS[name]}, {'sphere light' if lighting == 'light' else 'constant sky'}",
-                "parameters": {"probes": int(mask.sum()), "bake_dirs": r["bake"]["n_dirs"],
-                               "mean_aperture_deg": float(np.degrees(r_a).mean()),
-                               "mean_visible_fraction": float(r["visible_fraction"].mean()),
-                               **({"light_alpha_deg_mean": float(np.degrees(alpha).mean()),
-                                   "peak_irradiance": peak} if lighting == "light" else {"sky_radiance": 1.0})},
-                "scene": {"name": f"{scene.name}{'' if lighting == 'light' else '-sky'}", "hash": ref["hash"]},
-                "reference": {**ref["info"], "quantity": "irradiance (direct), probes on the receiver"},
-                "approximations": approx_docs,
-            })
+            cases.append(
+                {
+                    "id": cid,
+                    "label": f"{SCENE_LABELS[name]}, {'sphere light' if lighting == 'light' else 'constant sky'}",
+                    "parameters": {
+                        "probes": int(mask.sum()),
+                        "bake_dirs": r["bake"]["n_dirs"],
+                        "mean_aperture_deg": float(np.degrees(r_a).mean()),
+                        "mean_visible_fraction": float(r["visible_fraction"].mean()),
+                        **(
+                            {"light_alpha_deg_mean": float(np.degrees(alpha).mean()), "peak_irradiance": peak}
+                            if lighting == "light"
+                            else {"sky_radiance": 1.0}
+                        ),
+                    },
+                    "scene": {
+                        "name": f"{scene.name}{'' if lighting == 'light' else '-sky'}",
+                        "hash": ref["hash"],
+                    },
+                    "reference": {**ref["info"], "quantity": "irradiance (direct), probes on the receiver"},
+                    "approximations": approx_docs,
+                }
+            )
             arrays[cid] = {"ref": ref_img, "sigma": sig_img, "mask": mask, "images": imgs, "peak": peak}
     return cases, arrays
 
@@ -280,12 +353,27 @@ def decomposition(cases, arrays) -> list[dict]:
         def vs_cap(method, a=a, m=m, cap=cap):
             return float(np.sqrt(np.mean((a["images"][method][m][:, 0] - cap) ** 2)))
 
-        rows.append({"case": c["id"], "cap_model_vs_reference": _rmse(c, "cap-model"),
-                     "noise_floor": float(next(x for x in c["approximations"]
-                                               if x["method"] == "cap-model")["metrics"]["rmse"]["noise_floor"]),
-                     **{f"{meth}_vs_cap_model": vs_cap(meth) for meth in
-                        ("aa-exact-seed", "aa-smoothstep-seed", "aa-fitted-seed", "aa-exact-fitted",
-                         "aa-fitted-fitted")}})
+        rows.append(
+            {
+                "case": c["id"],
+                "cap_model_vs_reference": _rmse(c, "cap-model"),
+                "noise_floor": float(
+                    next(x for x in c["approximations"] if x["method"] == "cap-model")["metrics"]["rmse"][
+                        "noise_floor"
+                    ]
+                ),
+                **{
+                    f"{meth}_vs_cap_model": vs_cap(meth)
+                    for meth in (
+                        "aa-exact-seed",
+                        "aa-smoothstep-seed",
+                        "aa-fitted-seed",
+                        "aa-exact-fitted",
+                        "aa-fitted-fitted",
+                    )
+                },
+            }
+        )
     return rows
 
 
@@ -299,13 +387,24 @@ def _scene_figures(out, cases, arrays) -> list[dict]:
             show = ("cap-model", "fill-seed", "fill-projected")
         panels = [(m, a["images"][m]) for m in show]  # method ids: short enough for panel titles
         name = f"figures/{c['id']}.png"
-        figures.image_comparison(out / name, a["ref"], panels, a["mask"], error_scale=1.0,
-                                 title=f"{c['label']}: reference, methods, signed error (fraction of peak)",
-                                 exposure=1.0)
-        figs.append({"file": name, "section": "results",
-                     "caption": f"{c['label']}. Top: Mitsuba irradiance probes on the receiver (as an image) and "
-                                "each method; bottom: signed error as a fraction of the unshadowed peak "
-                                "(red: too bright). Grey: outside the receiver."})
+        figures.image_comparison(
+            out / name,
+            a["ref"],
+            panels,
+            a["mask"],
+            error_scale=1.0,
+            title=f"{c['label']}: reference, methods, signed error (fraction of peak)",
+            exposure=1.0,
+        )
+        figs.append(
+            {
+                "file": name,
+                "section": "results",
+                "caption": f"{c['label']}. Top: Mitsuba irradiance probes on the receiver (as an image) and "
+                "each method; bottom: signed error as a fraction of the unshadowed peak "
+                "(red: too bright). Grey: outside the receiver.",
+            }
+        )
     return figs
 
 
@@ -325,8 +424,13 @@ def _shading_inputs(n: int, backend: str, seed: int = 2):
     import drjit as dr
 
     rng = np.random.default_rng(seed)
-    arrs = (rng.uniform(0, 1, n), rng.uniform(-0.2, 1, n), rng.uniform(-1, 1, n), rng.uniform(0, PI / 2, n),
-            rng.uniform(0.005, 0.3, n))
+    arrs = (
+        rng.uniform(0, 1, n),
+        rng.uniform(-0.2, 1, n),
+        rng.uniform(-1, 1, n),
+        rng.uniform(0, PI / 2, n),
+        rng.uniform(0.005, 0.3, n),
+    )
     Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
     return tuple(Float(x.astype(np.float32)) for x in arrs)
 
@@ -340,23 +444,45 @@ def costs(ctx, cfg, coeffs, k) -> list[dict]:
     rows = []
     for form in FORMS:
         t = time_drjit(_form_fn(form, coeffs), dr_args, n)
-        rows.append({"method": f"omega-{form}", "label": f"Ω {FORM_LABELS[form]}", "backend": backend,
-                     **t.to_dict(), "note": "per evaluation: r1, r2, d in memory (float32), one float out"})
+        rows.append(
+            {
+                "method": f"omega-{form}",
+                "label": f"Ω {FORM_LABELS[form]}",
+                "backend": backend,
+                **t.to_dict(),
+                "note": "per evaluation: r1, r2, d in memory (float32), one float out",
+            }
+        )
     base = memory_baseline(dr_args, n)
-    rows.append({"method": "memory-baseline", "label": "memory traffic baseline (3 loads, 1 store)",
-                 "backend": backend, **base.to_dict(), "note": "the memory-bound floor for these kernels"})
+    rows.append(
+        {
+            "method": "memory-baseline",
+            "label": "memory traffic baseline (3 loads, 1 store)",
+            "backend": backend,
+            **base.to_dict(),
+            "note": "the memory-bound floor for these kernels",
+        }
+    )
     sh = _shading_inputs(n, backend)
     for method in ("aa-exact-seed", "aa-smoothstep-seed", "aa-fitted-fitted"):
         _, form, lam = method.split("-")
 
         def fn(*xs, form=form, lam=lam):
-            e, _ = ap.ambient_aperture_irradiance(*xs, 1.0, 0.0, intersection=form, lambert=lam, coeffs=coeffs,
-                                                  k=k)
+            e, _ = ap.ambient_aperture_irradiance(
+                *xs, 1.0, 0.0, intersection=form, lambert=lam, coeffs=coeffs, k=k
+            )
             return e
 
         t = time_drjit(fn, sh, n)
-        rows.append({"method": method, "label": LABELS[method], "backend": backend, **t.to_dict(),
-                     "note": "per pixel: cos(n,a), cos(n,l), cos(a,l), r_a, α in memory; light term only"})
+        rows.append(
+            {
+                "method": method,
+                "label": LABELS[method],
+                "backend": backend,
+                **t.to_dict(),
+                "note": "per pixel: cos(n,a), cos(n,l), cos(a,l), r_a, α in memory; light term only",
+            }
+        )
     return rows
 
 
@@ -396,9 +522,18 @@ def unoccluded_check(res) -> list[dict]:
     z = (exact[ok] - res["mean"][ok, 0]) / sig[ok]
     spread, med = _robust_spread(z), float(np.median(z))
     return [
-        {"name": "reference vs closed-form sphere-light irradiance, occluders removed: z-score robust spread",
-         "value": spread, "expected": f"1 ± {Z_SPREAD_TOLERANCE}", "passed": abs(spread - 1) <= Z_SPREAD_TOLERANCE},
-        {"name": "same: z-score median", "value": med, "expected": "|median| ≤ 0.15", "passed": abs(med) <= 0.15},
+        {
+            "name": "reference vs closed-form sphere-light irradiance, occluders removed: z-score robust spread",
+            "value": spread,
+            "expected": f"1 ± {Z_SPREAD_TOLERANCE}",
+            "passed": abs(spread - 1) <= Z_SPREAD_TOLERANCE,
+        },
+        {
+            "name": "same: z-score median",
+            "value": med,
+            "expected": "|median| ≤ 0.15",
+            "passed": abs(med) <= 0.15,
+        },
     ]
 
 
@@ -424,29 +559,65 @@ def assemble(ctx, cfg, results) -> dict:
     fits = _write_fitted(out, fit_i, fit_l, fl)
 
     checks = [
-        {"name": "closed form vs independent quadrature over the grid (max |ΔΩ| / smaller cap)",
-         "value": fl["quad_dev"], "expected": "≤ 1e-4", "passed": fl["quad_dev"] <= 1e-4},
-        {"name": "closed form vs mpmath at 5 points incl. near-tangent tiny caps (max |ΔΩ| / smaller cap)",
-         "value": mp_dev, "expected": "≤ 1e-10", "passed": mp_dev <= 1e-10},
-        {"name": "closed form on nested / disjoint / covering grid points vs their closed values",
-         "value": fl["closed_dev"], "expected": "≤ 1e-12", "passed": fl["closed_dev"] <= 1e-12},
-        {"name": "fitted form stays within [0, smaller cap] on the grid",
-         "value": str(fl["errors"]["fitted"]["in_bounds"]), "expected": "True",
-         "passed": fl["errors"]["fitted"]["in_bounds"]},
-        {"name": "fitted form beats the smoothstep: max error, full domain",
-         "value": fl["errors"]["fitted"]["full"]["max"], "expected": f"< {fl['errors']['smoothstep']['full']['max']:.4g}",
-         "passed": fl["errors"]["fitted"]["full"]["max"] < fl["errors"]["smoothstep"]["full"]["max"]},
-        {"name": "intersection fit converged", "value": str(fit_i["converged"]), "expected": "True",
-         "passed": bool(fit_i["converged"])},
-        {"name": "Lambert-weight fit converged", "value": str(fit_l["converged"]), "expected": "True",
-         "passed": bool(fit_l["converged"])},
-        {"name": "Lambert-factor quadrature: change with doubled nodes (max, fraction of the light cap)",
-         "value": fit_l["quad_resolution"], "expected": "≤ 0.01", "passed": fit_l["quad_resolution"] <= 0.01},
+        {
+            "name": "closed form vs independent quadrature over the grid (max |ΔΩ| / smaller cap)",
+            "value": fl["quad_dev"],
+            "expected": "≤ 1e-4",
+            "passed": fl["quad_dev"] <= 1e-4,
+        },
+        {
+            "name": "closed form vs mpmath at 5 points incl. near-tangent tiny caps (max |ΔΩ| / smaller cap)",
+            "value": mp_dev,
+            "expected": "≤ 1e-10",
+            "passed": mp_dev <= 1e-10,
+        },
+        {
+            "name": "closed form on nested / disjoint / covering grid points vs their closed values",
+            "value": fl["closed_dev"],
+            "expected": "≤ 1e-12",
+            "passed": fl["closed_dev"] <= 1e-12,
+        },
+        {
+            "name": "fitted form stays within [0, smaller cap] on the grid",
+            "value": str(fl["errors"]["fitted"]["in_bounds"]),
+            "expected": "True",
+            "passed": fl["errors"]["fitted"]["in_bounds"],
+        },
+        {
+            "name": "fitted form beats the smoothstep: max error, full domain",
+            "value": fl["errors"]["fitted"]["full"]["max"],
+            "expected": f"< {fl['errors']['smoothstep']['full']['max']:.4g}",
+            "passed": fl["errors"]["fitted"]["full"]["max"] < fl["errors"]["smoothstep"]["full"]["max"],
+        },
+        {
+            "name": "intersection fit converged",
+            "value": str(fit_i["converged"]),
+            "expected": "True",
+            "passed": bool(fit_i["converged"]),
+        },
+        {
+            "name": "Lambert-weight fit converged",
+            "value": str(fit_l["converged"]),
+            "expected": "True",
+            "passed": bool(fit_l["converged"]),
+        },
+        {
+            "name": "Lambert-factor quadrature: change with doubled nodes (max, fraction of the light cap)",
+            "value": fit_l["quad_resolution"],
+            "expected": "≤ 0.01",
+            "passed": fit_l["quad_resolution"] <= 0.01,
+        },
     ]
     checks += unoccluded_check(results["unoccluded"])
     finite = all(np.all(np.isfinite(img)) for a in arrays.values() for img in a["images"].values())
-    checks.append({"name": "every shaded probe finite (no NaN/Inf)", "value": str(finite), "expected": "True",
-                   "passed": finite})
+    checks.append(
+        {
+            "name": "every shaded probe finite (no NaN/Inf)",
+            "value": str(finite),
+            "expected": "True",
+            "passed": finite,
+        }
+    )
 
     from .ambient_aperture_doc import sections, summary
 
@@ -462,24 +633,38 @@ def assemble(ctx, cfg, results) -> dict:
         "function_level": fl,
         "decomposition": dec,
         "headline": [
-            {"label": "smoothstep max error, r ≤ π/2 (fraction of smaller cap)",
-             "value": fl["errors"]["smoothstep"]["hemisphere"]["max"], "unit": "of smaller cap"},
-            {"label": "fitted max error, full domain", "value": fl["errors"]["fitted"]["full"]["max"],
-             "unit": "of smaller cap"},
+            {
+                "label": "smoothstep max error, r ≤ π/2 (fraction of smaller cap)",
+                "value": fl["errors"]["smoothstep"]["hemisphere"]["max"],
+                "unit": "of smaller cap",
+            },
+            {
+                "label": "fitted max error, full domain",
+                "value": fl["errors"]["fitted"]["full"]["max"],
+                "unit": "of smaller cap",
+            },
         ],
         "notes": [
-            ("Function level: errors are (Ω_approx − Ω_exact) / A(min(r1, r2)), over the partial-overlap points "
-             "of the (r1, r2, d) grid (nested, disjoint and covering points are exact for the seed's cases and "
-             "for the fitted form)."),
-            ("Scene level: irradiance as a fraction of the unshadowed peak — for the light cases the largest "
-             "unshadowed sphere-light irradiance over the probes, for the sky cases π·L_sky with L_sky = 1. "
-             "Probes are points on the receiver laid out as an image; the reference is Mitsuba's direct "
-             "irradiance (emitter sampling + cosine sampling, MIS)."),
-            ("The bent normal and aperture are baked with Mitsuba ray casts (uniformly distributed, stratified "
-             "hemisphere directions, lights removed), as a baker would; their own Monte Carlo noise is part of "
-             "the cap model's error."),
-            ("ꟻLIP is computed in the full run only (its cost on a busy 2-core machine would exceed the quick "
-             "run's budget)."),
+            (
+                "Function level: errors are (Ω_approx − Ω_exact) / A(min(r1, r2)), over the partial-overlap points "
+                "of the (r1, r2, d) grid (nested, disjoint and covering points are exact for the seed's cases and "
+                "for the fitted form)."
+            ),
+            (
+                "Scene level: irradiance as a fraction of the unshadowed peak — for the light cases the largest "
+                "unshadowed sphere-light irradiance over the probes, for the sky cases π·L_sky with L_sky = 1. "
+                "Probes are points on the receiver laid out as an image; the reference is Mitsuba's direct "
+                "irradiance (emitter sampling + cosine sampling, MIS)."
+            ),
+            (
+                "The bent normal and aperture are baked with Mitsuba ray casts (uniformly distributed, stratified "
+                "hemisphere directions, lights removed), as a baker would; their own Monte Carlo noise is part of "
+                "the cap model's error."
+            ),
+            (
+                "ꟻLIP is computed in the full run only (its cost on a busy 2-core machine would exceed the quick "
+                "run's budget)."
+            ),
         ],
     }
 
@@ -491,45 +676,87 @@ def _pareto(out, fl, cost_rows) -> dict:
         y = 1e-7 if form == "exact" else fl["errors"][form]["full"]["max"]
         pts.append({"x": c["ns_per_pixel"], "y": y, "label": form})
     name = "figures/pareto.png"
-    figures.pareto_plot(out / name, pts, "ns per evaluation", "max |ΔΩ| / smaller cap (full domain)",
-                        title="Intersection forms: error vs cost (exact plotted at its float32 level, 1e-7)")
-    return {"file": name, "section": "costs",
-            "caption": "Maximum error over the full domain against the measured cost per evaluation, same run."}
+    figures.pareto_plot(
+        out / name,
+        pts,
+        "ns per evaluation",
+        "max |ΔΩ| / smaller cap (full domain)",
+        title="Intersection forms: error vs cost (exact plotted at its float32 level, 1e-7)",
+    )
+    return {
+        "file": name,
+        "section": "costs",
+        "caption": "Maximum error over the full domain against the measured cost per evaluation, same run.",
+    }
 
 
 def _scene_pareto(out, cases, cost_rows) -> dict:
     """Mean RMSE over the light cases (vs the path tracer) against the measured shading cost."""
     pts = []
     light = [c for c in cases if c["id"].endswith("-light")]
-    floor = float(np.mean([next(a for a in c["approximations"] if a["method"] == "cap-model")["metrics"]["rmse"]
-                           ["noise_floor"] for c in light]))
+    floor = float(
+        np.mean(
+            [
+                next(a for a in c["approximations"] if a["method"] == "cap-model")["metrics"]["rmse"][
+                    "noise_floor"
+                ]
+                for c in light
+            ]
+        )
+    )
     for method in ("aa-exact-seed", "aa-smoothstep-seed", "aa-fitted-fitted"):
         c = next(r for r in cost_rows if r["method"] == method)
         y = float(np.mean([_rmse(case, method) for case in light]))
         pts.append({"x": c["ns_per_pixel"], "y": y, "label": method})
     name = "figures/pareto_scenes.png"
-    figures.pareto_plot(out / name, pts, "ns per pixel (light term)", "mean RMSE over the light cases",
-                        title="Ambient-aperture shading: error vs cost", floor=floor)
-    return {"file": name, "section": "costs",
-            "caption": "Scene level: RMSE against the path tracer (mean over the three light cases, fraction of "
-                       "the unshadowed peak) against the measured cost of the light term per pixel; the dotted "
-                       "line is the reference's noise floor. The cap model's own error bounds what any formula "
-                       "can reach."}
+    figures.pareto_plot(
+        out / name,
+        pts,
+        "ns per pixel (light term)",
+        "mean RMSE over the light cases",
+        title="Ambient-aperture shading: error vs cost",
+        floor=floor,
+    )
+    return {
+        "file": name,
+        "section": "costs",
+        "caption": "Scene level: RMSE against the path tracer (mean over the three light cases, fraction of "
+        "the unshadowed peak) against the measured cost of the light term per pixel; the dotted "
+        "line is the reference's noise floor. The cap model's own error bounds what any formula "
+        "can reach.",
+    }
 
 
 def _write_fitted(out, fit_i, fit_l, fl) -> list[dict]:
     docs = []
     for fid, label, model, fit, extra in (
-        ("intersection", "Fitted cap-intersection form",
-         "f = sat(t²(3−2t) + t(1−t)[c0 + c1u + ρ(c2 + c3u) + σ(c4 + c5u)]), u = 1 − 2t, after the complement trick",
-         fit_i, {"errors": fl["errors"]["fitted"], "residual_units": "fraction of the smaller cap"}),
-        ("lambert", "Centroid weight of the Lambert factor",
-         "c = normalize(w l + (1 − w) a), w = A(r_a)^k / (A(r_a)^k + A(α)^k)", fit_l,
-         {"errors": fit_l["errors"], "residual_units": "fraction of the light cap's solid angle"}),
+        (
+            "intersection",
+            "Fitted cap-intersection form",
+            "f = sat(t²(3−2t) + t(1−t)[c0 + c1u + ρ(c2 + c3u) + σ(c4 + c5u)]), u = 1 − 2t, after the complement trick",
+            fit_i,
+            {"errors": fl["errors"]["fitted"], "residual_units": "fraction of the smaller cap"},
+        ),
+        (
+            "lambert",
+            "Centroid weight of the Lambert factor",
+            "c = normalize(w l + (1 − w) a), w = A(r_a)^k / (A(r_a)^k + A(α)^k)",
+            fit_l,
+            {"errors": fit_l["errors"], "residual_units": "fraction of the light cap's solid angle"},
+        ),
     ):
         file = f"fitted/{fid}.json"
         atomic_write_json(out / file, {"model": model, **{kk: v for kk, v in fit.items()}, **extra})
-        docs.append({"id": fid, "label": label, "model": model, "parameters": fit["parameters"],
-                     "rms_residual": fit.get("rms_residual"), "n_residuals": fit.get("n_residuals"),
-                     "converged": bool(fit["converged"]), "file": file})
+        docs.append(
+            {
+                "id": fid,
+                "label": label,
+                "model": model,
+                "parameters": fit["parameters"],
+                "rms_residual": fit.get("rms_residual"),
+                "n_residuals": fit.get("n_residuals"),
+                "converged": bool(fit["converged"]),
+                "file": file,
+            }
+        )
     return docs

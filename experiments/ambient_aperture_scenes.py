@@ -26,17 +26,25 @@ BUMPS = "aperture_bumps.ply"
 BUMPS_GRID = 49
 BUMPS_HALF = 2.0
 # (cx, cy, height, sigma) of the Gaussian bumps (scene units).
-BUMPS_SPEC = ((-0.7, -0.5, 0.55, 0.35), (0.6, 0.4, 0.7, 0.3), (0.1, -0.9, 0.35, 0.25), (-0.4, 0.9, 0.45, 0.3),
-              (1.2, -0.8, 0.5, 0.35), (-1.3, 0.2, 0.4, 0.3))
+BUMPS_SPEC = (
+    (-0.7, -0.5, 0.55, 0.35),
+    (0.6, 0.4, 0.7, 0.3),
+    (0.1, -0.9, 0.35, 0.25),
+    (-0.4, 0.9, 0.45, 0.3),
+    (1.2, -0.8, 0.5, 0.35),
+    (-1.3, 0.2, 0.4, 0.3),
+)
 
 
 def write_ply(path, vertices: np.ndarray, faces: np.ndarray) -> Path:
     """Binary little-endian PLY with float32 x, y, z and uchar-counted int32 triangle indices."""
     v = np.ascontiguousarray(vertices, dtype="<f4")
     f = np.ascontiguousarray(faces, dtype="<i4")
-    header = (f"ply\nformat binary_little_endian 1.0\ncomment rtfit ambient-aperture mesh\n"
-              f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
-              f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n").encode("ascii")
+    header = (
+        f"ply\nformat binary_little_endian 1.0\ncomment rtfit ambient-aperture mesh\n"
+        f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n"
+    ).encode("ascii")
     rows = b"".join(struct.pack("<B3i", 3, *tri) for tri in f.tolist())
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -100,12 +108,17 @@ def write_library_meshes(directory) -> list[Path]:
 
 # ------------------------------------------------------------------------------------------- cases
 SCENES = ("aperture_hole", "aperture_well", "aperture_bumps")
-LABELS = {"aperture_hole": "plate with a circular hole", "aperture_well": "cylindrical well",
-          "aperture_bumps": "bumpy height field"}
+LABELS = {
+    "aperture_hole": "plate with a circular hole",
+    "aperture_well": "cylindrical well",
+    "aperture_bumps": "bumpy height field",
+}
 # Region of the receiver covered by the probe grid (x0, x1, y0, y1) and the z from which to cast down.
-PROBE_REGION = {"aperture_hole": (-1.5, 1.5, -1.5, 1.5, 0.5),
-                "aperture_well": (-0.62, 0.62, -0.62, 0.62, 0.5),
-                "aperture_bumps": (-1.6, 1.6, -1.6, 1.6, 3.0)}
+PROBE_REGION = {
+    "aperture_hole": (-1.5, 1.5, -1.5, 1.5, 0.5),
+    "aperture_well": (-0.62, 0.62, -0.62, 0.62, 0.5),
+    "aperture_bumps": (-1.6, 1.6, -1.6, 1.6, 3.0),
+}
 WELL_RADIUS = 0.7
 
 

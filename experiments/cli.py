@@ -50,16 +50,41 @@ def list_cmd():
 @cli.command("run")
 @click.argument("experiments", nargs=-1)
 @click.option("--quick", is_flag=True, help="Small images, few samples, fewer cases (minutes on 2 cores).")
-@click.option("--variant", default="llvm_ad_rgb", show_default=True, type=click.Choice(VARIANT_CHOICES),
-              help="Mitsuba variant for references and the Dr.Jit backend for approximations.")
-@click.option("--spp", type=click.IntRange(min=2), default=None, help="Reference samples per pixel (overrides).")
-@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path), default=Path("out"),
-              show_default=True, help="Output directory.")
-@click.option("--cache", "cache", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit).")
-@click.option("--executor", type=click.Choice(EXECUTORS), default="inline", show_default=True,
-              help="inline: this process; process: a local spawn pool; ray: a Ray cluster (rtfit[ray]).")
-@click.option("--address", default=None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster).")
+@click.option(
+    "--variant",
+    default="llvm_ad_rgb",
+    show_default=True,
+    type=click.Choice(VARIANT_CHOICES),
+    help="Mitsuba variant for references and the Dr.Jit backend for approximations.",
+)
+@click.option(
+    "--spp", type=click.IntRange(min=2), default=None, help="Reference samples per pixel (overrides)."
+)
+@click.option(
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("out"),
+    show_default=True,
+    help="Output directory.",
+)
+@click.option(
+    "--cache",
+    "cache",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit).",
+)
+@click.option(
+    "--executor",
+    type=click.Choice(EXECUTORS),
+    default="inline",
+    show_default=True,
+    help="inline: this process; process: a local spawn pool; ray: a Ray cluster (rtfit[ray]).",
+)
+@click.option(
+    "--address", default=None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster)."
+)
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Pool size (process/ray on CPUs).")
 @click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
@@ -71,28 +96,58 @@ def run_cmd(experiments, quick, variant, spp, out, cache, executor, address, wor
 
     from .runner import run_experiments
 
-    run_experiments(specs, out, quick=quick, variant=variant, spp=spp, seed=seed,
-                    cache_dir=cache or default_cache_dir(), executor=executor, workers=workers,
-                    progress=not no_progress and sys.stderr.isatty(), address=address)
+    run_experiments(
+        specs,
+        out,
+        quick=quick,
+        variant=variant,
+        spp=spp,
+        seed=seed,
+        cache_dir=cache or default_cache_dir(),
+        executor=executor,
+        workers=workers,
+        progress=not no_progress and sys.stderr.isatty(),
+        address=address,
+    )
     click.echo(str((out / "index.html").resolve()))
 
 
 @cli.command("sweep")
 @click.argument("spec_file", required=False, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--show-config", "show_config", metavar="EXPERIMENT", default=None,
-              help="Print EXPERIMENT's configuration keys and defaults (what a sweep may set) and exit.")
+@click.option(
+    "--show-config",
+    "show_config",
+    metavar="EXPERIMENT",
+    default=None,
+    help="Print EXPERIMENT's configuration keys and defaults (what a sweep may set) and exit.",
+)
 @click.option("--quick", is_flag=True, help="With --show-config: the quick configuration.")
 @click.option("--variant", default="llvm_ad_rgb", show_default=True, type=click.Choice(VARIANT_CHOICES))
-@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path), default=Path("out"),
-              show_default=True, help="Output directory (the sweep goes to OUT/NAME).")
-@click.option("--cache", "cache", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit); share it between nodes.")
+@click.option(
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("out"),
+    show_default=True,
+    help="Output directory (the sweep goes to OUT/NAME).",
+)
+@click.option(
+    "--cache",
+    "cache",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit); share it between nodes.",
+)
 @click.option("--executor", type=click.Choice(EXECUTORS), default="process", show_default=True)
-@click.option("--address", default=None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster).")
+@click.option(
+    "--address", default=None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster)."
+)
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Pool size (process/ray on CPUs).")
 @click.option("--gpus", default=None, help="process executor: one worker per listed GPU id, e.g. 0,1.")
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
-def sweep_cmd(spec_file, show_config, quick, variant, out, cache, executor, address, workers, gpus, no_progress):
+def sweep_cmd(
+    spec_file, show_config, quick, variant, out, cache, executor, address, workers, gpus, no_progress
+):
     """Run the experiment of SPEC.toml over its grid of configuration points (docs/scale-out.md):
     one results.json per point in OUT/NAME/points/, and a combined table and report in OUT/NAME/."""
     from .sweep import load_sweep, run_sweep
@@ -114,9 +169,15 @@ def sweep_cmd(spec_file, show_config, quick, variant, out, cache, executor, addr
     progress = not no_progress and sys.stderr.isatty()
     pool = make_executor(executor, workers, progress, address=address, gpus=gpu_ids)
     try:
-        summary = run_sweep(sweep, out, variant=variant, cache_dir=cache or default_cache_dir(), executor=pool,
-                            executor_name=executor,
-                            log=lambda m: click.echo(f"rtfit: {m}", err=True) if not no_progress else None)
+        summary = run_sweep(
+            sweep,
+            out,
+            variant=variant,
+            cache_dir=cache or default_cache_dir(),
+            executor=pool,
+            executor_name=executor,
+            log=lambda m: click.echo(f"rtfit: {m}", err=True) if not no_progress else None,
+        )
     finally:
         pool.close()
     for pid, reason in summary.failed:
@@ -163,8 +224,9 @@ def report_cmd(directory):
         write_report(directory)
         click.echo(str((directory / "report.html").resolve()))
         return
-    subdirs = sorted(p for p in directory.iterdir()
-                     if not is_temporary_name(p.name) and (p / "results.json").is_file())
+    subdirs = sorted(
+        p for p in directory.iterdir() if not is_temporary_name(p.name) and (p / "results.json").is_file()
+    )
     if not subdirs:
         _fail(f"{directory}: no results.json here or in its subdirectories")
     for sub in subdirs:
@@ -176,8 +238,12 @@ def report_cmd(directory):
 @cli.command("bench")
 @click.argument("experiment")
 @click.option("--variant", default="auto", show_default=True, type=click.Choice(VARIANT_CHOICES))
-@click.option("--size", type=click.IntRange(min=1024), default=None,
-              help="Elements per kernel launch (default: 2^22 on CPU, 2^24 on GPU).")
+@click.option(
+    "--size",
+    type=click.IntRange(min=1024),
+    default=None,
+    help="Elements per kernel launch (default: 2^22 on CPU, 2^24 on GPU).",
+)
 @click.option("--quick", is_flag=True, help="Fewer, smaller measurements.")
 def bench_cmd(experiment, variant, size, quick):
     """Throughput of each approximation (Dr.Jit vs NumPy, same run) and of the ground truth;

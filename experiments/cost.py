@@ -33,8 +33,12 @@ class Timing:
         return self.elements / self.seconds
 
     def to_dict(self) -> dict:
-        return {"ns_per_pixel": self.ns_per_element, "pixels_per_second": self.elements_per_second,
-                "elements": self.elements, "repeats": self.repeats}
+        return {
+            "ns_per_pixel": self.ns_per_element,
+            "pixels_per_second": self.elements_per_second,
+            "elements": self.elements,
+            "repeats": self.repeats,
+        }
 
 
 def _median_time(call: Callable[[], None], repeats: int, min_seconds: float) -> tuple[float, int]:
@@ -47,7 +51,9 @@ def _median_time(call: Callable[[], None], repeats: int, min_seconds: float) -> 
     return statistics.median(times), len(times)
 
 
-def time_drjit(fn: Callable, args: tuple, elements: int, repeats: int = 7, min_seconds: float = 0.2) -> Timing:
+def time_drjit(
+    fn: Callable, args: tuple, elements: int, repeats: int = 7, min_seconds: float = 0.2
+) -> Timing:
     """Median time of ``fn(*args)`` with evaluation and device sync inside the timed region."""
     import drjit as dr
 
@@ -64,7 +70,9 @@ def time_drjit(fn: Callable, args: tuple, elements: int, repeats: int = 7, min_s
     return Timing(seconds, elements, n)
 
 
-def time_numpy(fn: Callable, args: tuple, elements: int, repeats: int = 5, min_seconds: float = 0.2) -> Timing:
+def time_numpy(
+    fn: Callable, args: tuple, elements: int, repeats: int = 5, min_seconds: float = 0.2
+) -> Timing:
     fn(*args)
     seconds, n = _median_time(lambda: fn(*args), repeats, min_seconds)
     return Timing(seconds, elements, n)
@@ -92,8 +100,15 @@ def attach_costs(case_docs: list[dict], cost_rows: list[dict], key: Callable | N
     for doc in case_docs:
         for ap in doc["approximations"]:
             c = by_method.get(key(ap) if key else ap["method"])
-            ap["cost"] = ({"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"],
-                           "backend": c["backend"]} if c else None)
+            ap["cost"] = (
+                {
+                    "ns_per_pixel": c["ns_per_pixel"],
+                    "pixels_per_second": c["pixels_per_second"],
+                    "backend": c["backend"],
+                }
+                if c
+                else None
+            )
 
 
 # ------------------------------------------------------------------------------ `rtfit bench` rows
@@ -107,19 +122,36 @@ def bench_backend(ctx) -> tuple[str, int]:
     return backend, ctx.size or (1 << (24 if backend == "cuda" else 22))
 
 
-def comparison_row(what: str, backend: str, t_drjit: Timing, t_numpy: Timing | None, base: Timing,
-                   unit: str = "px", per: str | None = None) -> dict:
+def comparison_row(
+    what: str,
+    backend: str,
+    t_drjit: Timing,
+    t_numpy: Timing | None,
+    base: Timing,
+    unit: str = "px",
+    per: str | None = None,
+) -> dict:
     """One bench row: Dr.Jit and NumPy throughput of the same kernel text (millions of ``unit``/s),
     their ratio, ns per element (``per``, default ``unit``) and the multiple of the memory floor."""
     per = per or unit
-    return {"what": what, "backend": backend, "elements": t_drjit.elements,
-            f"drjit_M{unit}_s": t_drjit.elements_per_second / 1e6,
-            f"numpy_M{unit}_s": t_numpy.elements_per_second / 1e6 if t_numpy else None,
-            "drjit/numpy": t_numpy.seconds / t_drjit.seconds if t_numpy else None,
-            f"ns_per_{per}": t_drjit.ns_per_element, "vs_memory_floor": t_drjit.seconds / base.seconds}
+    return {
+        "what": what,
+        "backend": backend,
+        "elements": t_drjit.elements,
+        f"drjit_M{unit}_s": t_drjit.elements_per_second / 1e6,
+        f"numpy_M{unit}_s": t_numpy.elements_per_second / 1e6 if t_numpy else None,
+        "drjit/numpy": t_numpy.seconds / t_drjit.seconds if t_numpy else None,
+        f"ns_per_{per}": t_drjit.ns_per_element,
+        "vs_memory_floor": t_drjit.seconds / base.seconds,
+    }
 
 
-def baseline_row(base: Timing, backend: str, what: str = "memory baseline (fma of the inputs)",
-                 unit: str = "px", per: str | None = None) -> dict:
+def baseline_row(
+    base: Timing,
+    backend: str,
+    what: str = "memory baseline (fma of the inputs)",
+    unit: str = "px",
+    per: str | None = None,
+) -> dict:
     """The memory-traffic floor as a bench row (1× by definition)."""
     return comparison_row(what, backend, base, None, base, unit, per)

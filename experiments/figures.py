@@ -40,8 +40,15 @@ def save_figure(fig, path) -> Path:
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def image_comparison(path, reference: np.ndarray, panels: list[tuple[str, np.ndarray]], mask: np.ndarray,
-                     error_scale: float, title: str = "", exposure: float | None = None) -> Path:
+def image_comparison(
+    path,
+    reference: np.ndarray,
+    panels: list[tuple[str, np.ndarray]],
+    mask: np.ndarray,
+    error_scale: float,
+    title: str = "",
+    exposure: float | None = None,
+) -> Path:
     """Reference, then for each (label, image): the image above its signed error map.
 
     ``error_scale`` normalises the error (approx − reference) / error_scale; the colour range is
@@ -76,8 +83,16 @@ def image_comparison(path, reference: np.ndarray, panels: list[tuple[str, np.nda
     return save_figure(fig, path)
 
 
-def line_plot(path, x_label: str, y_label: str, series: list[dict], title: str = "",
-              x_log: bool = False, y_log: bool = False, panels: list[str] | None = None) -> Path:
+def line_plot(
+    path,
+    x_label: str,
+    y_label: str,
+    series: list[dict],
+    title: str = "",
+    x_log: bool = False,
+    y_log: bool = False,
+    panels: list[str] | None = None,
+) -> Path:
     """Curves; each series dict: x, y, label, optional yerr, style ("line"/"points"), panel."""
     plt = pyplot()
     panels = panels or [""]
@@ -88,8 +103,9 @@ def line_plot(path, x_label: str, y_label: str, series: list[dict], title: str =
                 continue
             x, y = np.asarray(s["x"]), np.asarray(s["y"])
             if s.get("style") == "points":
-                ax.errorbar(x, y, yerr=s.get("yerr"), fmt="o", ms=3, capsize=2, label=s["label"],
-                            color=s.get("color"))
+                ax.errorbar(
+                    x, y, yerr=s.get("yerr"), fmt="o", ms=3, capsize=2, label=s["label"], color=s.get("color")
+                )
             else:
                 ax.plot(x, y, s.get("ls", "-"), label=s["label"], lw=1.4, color=s.get("color"))
         ax.set_xlabel(x_label)
@@ -108,8 +124,9 @@ def line_plot(path, x_label: str, y_label: str, series: list[dict], title: str =
     return save_figure(fig, path)
 
 
-def pareto_plot(path, points: list[dict], x_label: str, y_label: str, title: str = "",
-                floor: float | None = None) -> Path:
+def pareto_plot(
+    path, points: list[dict], x_label: str, y_label: str, title: str = "", floor: float | None = None
+) -> Path:
     """Error vs cost; each point dict: x (cost), y (error), label. The Pareto front is drawn."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.2, 3.8))

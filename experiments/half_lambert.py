@@ -32,8 +32,13 @@ import numpy as np
 from .jobs import Job
 
 MODELS = ("lambert", "half-lambert", "wrap-fit", "wrap-smooth", "exact")
-LABELS = {"lambert": "Lambert", "half-lambert": "Half-Lambert", "wrap-fit": "Wrap (fitted per α)",
-          "wrap-smooth": "Wrap (smooth w(α), p(α))", "exact": "Exact closed form"}
+LABELS = {
+    "lambert": "Lambert",
+    "half-lambert": "Half-Lambert",
+    "wrap-fit": "Wrap (fitted per α)",
+    "wrap-smooth": "Wrap (smooth w(α), p(α))",
+    "exact": "Exact closed form",
+}
 
 # Cases: light angular radius (degrees) × sky radiance (relative to the lit peak radiance, 1).
 ALPHAS_FULL = (0.27, 1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 30.0)
@@ -62,7 +67,9 @@ def case_scene(alpha_deg: float, sky: float, resolution: int):
     sun = dataclasses.replace(base.lights[0], angular_radius_deg=float(alpha_deg), irradiance=(math.pi,) * 3)
     lights = (sun,) + ((ConstantEnv(radiance=(sky,) * 3),) if sky > 0 else ())
     camera = dataclasses.replace(base.camera, width=resolution, height=resolution)
-    return dataclasses.replace(base, name=f"{base.name}-a{alpha_deg:g}-s{sky:g}", camera=camera, lights=lights)
+    return dataclasses.replace(
+        base, name=f"{base.name}-a{alpha_deg:g}-s{sky:g}", camera=camera, lights=lights
+    )
 
 
 def case_id(alpha_deg: float, sky: float) -> str:
@@ -78,21 +85,44 @@ def probe_points(count: int):
 
 
 # --------------------------------------------------------------------------------------------- jobs
-def render_case(scene_toml: str, spp: int, pass_spp: int, seed: int, variant: str, cache_dir: str,
-                probe_count: int, probe_spp: int, progress: bool = False) -> dict:
+def render_case(
+    scene_toml: str,
+    spp: int,
+    pass_spp: int,
+    seed: int,
+    variant: str,
+    cache_dir: str,
+    probe_count: int,
+    probe_spp: int,
+    progress: bool = False,
+) -> dict:
     """Job: reference image, G-buffer and irradiance probes of one case (plain data out)."""
     from rtfit.reference import ReferenceCache, ReferenceRequest, render_gbuffer
     from rtfit.scenes import parse_scene_text
 
     scene = parse_scene_text(scene_toml)
     cache = ReferenceCache(cache_dir)
-    image = cache.get(ReferenceRequest(scene=scene, spp=spp, pass_spp=pass_spp, seed=seed, variant=variant),
-                      progress=progress, label=scene.name)
+    image = cache.get(
+        ReferenceRequest(scene=scene, spp=spp, pass_spp=pass_spp, seed=seed, variant=variant),
+        progress=progress,
+        label=scene.name,
+    )
     gb = render_gbuffer(scene, variant)
     _, points, normals = probe_points(probe_count)
-    probes = cache.get(ReferenceRequest(scene=scene, spp=probe_spp, pass_spp=min(probe_spp, 4096), seed=seed,
-                                        variant=variant, quantity="irradiance", points=points, normals=normals),
-                       progress=progress, label=f"{scene.name} probes")
+    probes = cache.get(
+        ReferenceRequest(
+            scene=scene,
+            spp=probe_spp,
+            pass_spp=min(probe_spp, 4096),
+            seed=seed,
+            variant=variant,
+            quantity="irradiance",
+            points=points,
+            normals=normals,
+        ),
+        progress=progress,
+        label=f"{scene.name} probes",
+    )
     return {"image": image, "gbuffer": gb, "probes": probes}
 
 
@@ -116,8 +146,11 @@ def fit_wrap_job(cos_theta, target, peak) -> dict:
     peak = np.asarray(peak, dtype=np.float64)
     target = np.asarray(target, dtype=np.float64) / peak
     scale = peak / np.mean(peak)
-    result = fit_least_squares(_wrap_residual, {"w": Param(0.3, 0.0, 1.0), "p": Param(1.3, 0.25, 8.0)},
-                               args=(cos_theta, target, scale))
+    result = fit_least_squares(
+        _wrap_residual,
+        {"w": Param(0.3, 0.0, 1.0), "p": Param(1.3, 0.25, 8.0)},
+        args=(cos_theta, target, scale),
+    )
     return result.to_dict()
 
 
@@ -127,7 +160,11 @@ def sun_geometry(normals, sun):
     nrm = np.asarray(normals, dtype=np.float64)
     nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
     cos_t = np.clip(nrm @ np.asarray(sun.direction, dtype=np.float64), -1.0, 1.0)
-    return cos_t, np.full_like(cos_t, math.radians(sun.angular_radius_deg)), np.full_like(cos_t, sun.irradiance[0])
+    return (
+        cos_t,
+        np.full_like(cos_t, math.radians(sun.angular_radius_deg)),
+        np.full_like(cos_t, sun.irradiance[0]),
+    )
 
 
 def _light_geometry(gb, scene):
@@ -168,17 +205,32 @@ def run(ctx) -> dict:
 
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     if 0.0 not in cfg["sky_radiances"] or len(set(cfg["alphas_deg"])) < 2:
-        raise ValueError("half-lambert: sky_radiances must include 0 and alphas_deg must hold at least two "
-                         "light sizes (the smooth w(α), p(α) fit uses the no-sky cases)")
+        raise ValueError(
+            "half-lambert: sky_radiances must include 0 and alphas_deg must hold at least two "
+            "light sizes (the smooth w(α), p(α) fit uses the no-sky cases)"
+        )
     cases = [(a, s) for s in cfg["sky_radiances"] for a in cfg["alphas_deg"]]
     scenes = {case_id(a, s): case_scene(a, s, cfg["resolution"]) for a, s in cases}
 
     # Stage 1: references, G-buffers and probes (independent jobs).
-    jobs = [Job("rtfit.experiments.half_lambert:render_case",
-                dict(scene_toml=scene_to_toml(scenes[case_id(a, s)]), spp=cfg["spp"], pass_spp=cfg["pass_spp"],
-                     seed=ctx.seed, variant=ctx.variant, cache_dir=str(ctx.cache_dir),
-                     probe_count=cfg["probe_count"], probe_spp=cfg["probe_spp"], progress=ctx.progress),
-                label=case_id(a, s)) for a, s in cases]
+    jobs = [
+        Job(
+            "rtfit.experiments.half_lambert:render_case",
+            dict(
+                scene_toml=scene_to_toml(scenes[case_id(a, s)]),
+                spp=cfg["spp"],
+                pass_spp=cfg["pass_spp"],
+                seed=ctx.seed,
+                variant=ctx.variant,
+                cache_dir=str(ctx.cache_dir),
+                probe_count=cfg["probe_count"],
+                probe_spp=cfg["probe_spp"],
+                progress=ctx.progress,
+            ),
+            label=case_id(a, s),
+        )
+        for a, s in cases
+    ]
     ctx.log(f"rendering {len(jobs)} references")
     rendered = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references")))
 
@@ -195,15 +247,29 @@ def run(ctx) -> dict:
         mask, cos_t, alpha, peak = _light_geometry(r["gbuffer"], scenes[cid])
         ref_e = math.pi * (r["image"].mean[mask][:, 0] - s)  # irradiance from the light only (ρ = 1)
         geom[cid] = (mask, cos_t, alpha, peak)
-        fit_jobs.append(Job("rtfit.experiments.half_lambert:fit_wrap_job",
-                            dict(cos_theta=cos_t, target=ref_e, peak=peak), label=cid))
+        fit_jobs.append(
+            Job(
+                "rtfit.experiments.half_lambert:fit_wrap_job",
+                dict(cos_theta=cos_t, target=ref_e, peak=peak),
+                label=cid,
+            )
+        )
     ctx.log(f"fitting wrap lighting for {len(fit_jobs)} cases")
     fits = dict(zip([j.label for j in fit_jobs], ctx.executor.map(fit_jobs, desc="fits")))
 
     # Stage 3: w(α), p(α) as smooth functions, fitted to the per-α fits of the no-sky cases.
     smooth = _fit_smooth(cfg, fits)
-    return rep.assemble(ctx, cfg, cases, scenes, rendered, geom, fits, smooth,
-                        {cid: scene_hash(sc) for cid, sc in scenes.items()})
+    return rep.assemble(
+        ctx,
+        cfg,
+        cases,
+        scenes,
+        rendered,
+        geom,
+        fits,
+        smooth,
+        {cid: scene_hash(sc) for cid, sc in scenes.items()},
+    )
 
 
 def _fit_smooth(cfg, fits) -> dict:
@@ -226,9 +292,16 @@ def _fit_smooth(cfg, fits) -> dict:
         rp = (1.0 + c["p1"] * s + c["p2"] * s * s - p_) * ps_
         return jnp.concatenate([rw, rp])
 
-    result = fit_least_squares(residual, {"w1": Param(1.0, -10.0, 10.0), "w2": Param(0.0, -10.0, 10.0),
-                                          "p1": Param(0.0, -20.0, 20.0), "p2": Param(0.0, -20.0, 20.0)},
-                               args=(alphas, w, p, ws, ps))
+    result = fit_least_squares(
+        residual,
+        {
+            "w1": Param(1.0, -10.0, 10.0),
+            "w2": Param(0.0, -10.0, 10.0),
+            "p1": Param(0.0, -20.0, 20.0),
+            "p2": Param(0.0, -20.0, 20.0),
+        },
+        args=(alphas, w, p, ws, ps),
+    )
     return result.to_dict()
 
 

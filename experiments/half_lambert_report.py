@@ -13,8 +13,15 @@ import numpy as np
 from rtfit.reference.io import atomic_write_json
 
 from . import figures
-from .cost import (attach_costs, baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit,
-                   time_numpy)
+from .cost import (
+    attach_costs,
+    baseline_row,
+    bench_backend,
+    comparison_row,
+    memory_baseline,
+    time_drjit,
+    time_numpy,
+)
 from .half_lambert import (
     LABELS,
     MODELS,
@@ -43,8 +50,10 @@ def _params_for(model: str, cid: str, alpha_rad: float, fits: dict, smooth: dict
         return {k: v["value"] for k, v in fits[cid]["parameters"].items()}
     if model == "wrap-smooth":
         c = {k: v["value"] for k, v in smooth["parameters"].items()}
-        return {"w": float(np.clip(smooth_w(alpha_rad, c), 0.0, 1.0)),
-                "p": float(np.clip(smooth_p(alpha_rad, c), 0.25, 8.0))}
+        return {
+            "w": float(np.clip(smooth_w(alpha_rad, c), 0.0, 1.0)),
+            "p": float(np.clip(smooth_p(alpha_rad, c), 0.25, 8.0)),
+        }
     if model == "half-lambert":
         return {"w": 1.0, "p": 2.0}
     if model == "lambert":
@@ -70,24 +79,41 @@ def assemble(ctx, cfg, cases, scenes, rendered, geom, fits, smooth, hashes) -> d
         approx_docs = []
         for model in MODELS:
             params = _params_for(model, cid, math.radians(a), fits, smooth)
-            e = np.asarray(_model_irradiance(model, cos_t, alpha, peak, params), dtype=np.float64) + math.pi * s
+            e = (
+                np.asarray(_model_irradiance(model, cos_t, alpha, peak, params), dtype=np.float64)
+                + math.pi * s
+            )
             img = _image(mask, gb.albedo.astype(np.float64), e, ref.mean)
             images[(cid, model)] = img
             metrics = compute_metrics(img, ref.mean, ref.sigma(), mask)
             if model == "exact":  # channel 0 only: the scene is grey, the channels are one estimate
-                exact_z.append(_z_pair(img[..., 0][mask], ref.mean[..., 0][mask], ref.stderr[..., 0][mask],
-                                       ref.sigma()[..., 0][mask]))
-            approx_docs.append({
-                "method": model, "label": LABELS[model], "fitted": model.startswith("wrap"),
-                "parameters": params, "metrics": {k: _metric_dict(v) for k, v in metrics.items()},
-            })
-        case_docs.append({
-            "id": cid, "label": f"α = {a:g}°, " + ("no sky" if s == 0 else f"sky radiance {s:g}"),
-            "parameters": {"alpha_deg": a, "sky_radiance": s},
-            "scene": {"name": scenes[cid].name, "hash": hashes[cid]},
-            "reference": ref.to_dict(),
-            "approximations": approx_docs,
-        })
+                exact_z.append(
+                    _z_pair(
+                        img[..., 0][mask],
+                        ref.mean[..., 0][mask],
+                        ref.stderr[..., 0][mask],
+                        ref.sigma()[..., 0][mask],
+                    )
+                )
+            approx_docs.append(
+                {
+                    "method": model,
+                    "label": LABELS[model],
+                    "fitted": model.startswith("wrap"),
+                    "parameters": params,
+                    "metrics": {k: _metric_dict(v) for k, v in metrics.items()},
+                }
+            )
+        case_docs.append(
+            {
+                "id": cid,
+                "label": f"α = {a:g}°, " + ("no sky" if s == 0 else f"sky radiance {s:g}"),
+                "parameters": {"alpha_deg": a, "sky_radiance": s},
+                "scene": {"name": scenes[cid].name, "hash": hashes[cid]},
+                "reference": ref.to_dict(),
+                "approximations": approx_docs,
+            }
+        )
 
     costs = _costs(ctx, cfg)
     attach_costs(case_docs, costs)
@@ -96,8 +122,9 @@ def assemble(ctx, cfg, cases, scenes, rendered, geom, fits, smooth, hashes) -> d
     fitted = _write_fitted(out, cfg, fits, smooth)
     z = _concat_pairs(exact_z)
     probe_z = _concat_pairs(_probe_z(cfg, cases, rendered, scenes))
-    checks = _z_checks("exact closed form vs Mitsuba image", *z) + \
-        _z_checks("exact closed form vs Mitsuba irradiance probes", *probe_z)
+    checks = _z_checks("exact closed form vs Mitsuba image", *z) + _z_checks(
+        "exact closed form vs Mitsuba irradiance probes", *probe_z
+    )
     z_std = _robust_spread(z[0])
     return {
         "summary": _summary(cfg, case_docs, smooth, z_std),
@@ -154,11 +181,25 @@ def _costs(ctx, cfg) -> list[dict]:
     rows = []
     for model in MODELS:
         t = time_drjit(_kernel_for(model, {"w": 0.5, "p": 1.5}), (c, a), n)
-        rows.append({"method": model, "label": LABELS[model], "backend": backend, **t.to_dict(),
-                     "note": "per pixel, inputs cos θ and α in memory, one float out"})
+        rows.append(
+            {
+                "method": model,
+                "label": LABELS[model],
+                "backend": backend,
+                **t.to_dict(),
+                "note": "per pixel, inputs cos θ and α in memory, one float out",
+            }
+        )
     base = memory_baseline((c, a), n)
-    rows.append({"method": "memory-baseline", "label": "memory traffic baseline (2 loads, 1 store)",
-                 "backend": backend, **base.to_dict(), "note": "the memory-bound floor for these kernels"})
+    rows.append(
+        {
+            "method": "memory-baseline",
+            "label": "memory traffic baseline (2 loads, 1 store)",
+            "backend": backend,
+            **base.to_dict(),
+            "note": "the memory-bound floor for these kernels",
+        }
+    )
     return rows
 
 
@@ -218,15 +259,36 @@ def _bench_reference(ctx) -> list[dict]:
     t_path = min(render_path(k + 1) for k in range(3))
     samples = res * res * spp
     return [
-        {"what": f"reference: rtfit direct, point-sampled ({res}², {spp} spp)", "backend": ctx.variant,
-         "elements": samples, "drjit_Mpx_s": samples / t_ref / 1e6, "numpy_Mpx_s": None,
-         "drjit/numpy": None, "ns_per_px": t_ref / samples * 1e9, "vs_memory_floor": None},
-        {"what": f"Mitsuba path integrator, mi.render ({res}², {spp} spp)", "backend": ctx.variant,
-         "elements": samples, "drjit_Mpx_s": samples / t_path / 1e6, "numpy_Mpx_s": None,
-         "drjit/numpy": None, "ns_per_px": t_path / samples * 1e9, "vs_memory_floor": None},
-        {"what": "ratio: rtfit reference / Mitsuba path (samples/s)", "backend": ctx.variant,
-         "elements": None, "drjit_Mpx_s": t_path / t_ref, "numpy_Mpx_s": None, "drjit/numpy": None,
-         "ns_per_px": None, "vs_memory_floor": None},
+        {
+            "what": f"reference: rtfit direct, point-sampled ({res}², {spp} spp)",
+            "backend": ctx.variant,
+            "elements": samples,
+            "drjit_Mpx_s": samples / t_ref / 1e6,
+            "numpy_Mpx_s": None,
+            "drjit/numpy": None,
+            "ns_per_px": t_ref / samples * 1e9,
+            "vs_memory_floor": None,
+        },
+        {
+            "what": f"Mitsuba path integrator, mi.render ({res}², {spp} spp)",
+            "backend": ctx.variant,
+            "elements": samples,
+            "drjit_Mpx_s": samples / t_path / 1e6,
+            "numpy_Mpx_s": None,
+            "drjit/numpy": None,
+            "ns_per_px": t_path / samples * 1e9,
+            "vs_memory_floor": None,
+        },
+        {
+            "what": "ratio: rtfit reference / Mitsuba path (samples/s)",
+            "backend": ctx.variant,
+            "elements": None,
+            "drjit_Mpx_s": t_path / t_ref,
+            "numpy_Mpx_s": None,
+            "drjit/numpy": None,
+            "ns_per_px": None,
+            "vs_memory_floor": None,
+        },
     ]
 
 
@@ -242,13 +304,25 @@ def _figures(ctx, cfg, cases, rendered, geom, images, fits, smooth, case_docs, c
         mask = geom[cid][0]
         panels = [(LABELS[m], images[(cid, m)]) for m in ("lambert", "half-lambert", "wrap-fit", "exact")]
         name = f"figures/{cid}_images.png"
-        figures.image_comparison(out / name, ref.mean, panels, mask, error_scale=1.0,
-                                 title=f"α = {a:g}°, sky {s:g}: reference, approximations, signed error "
-                                       "(fraction of the lit peak radiance)", exposure=1.0 + s)
-        figs.append({"file": name, "section": "results",
-                     "caption": f"α = {a:g}°, sky radiance {s:g}. Top: Mitsuba reference and each approximation "
-                                "(same exposure). Bottom: signed error as a fraction of the lit peak radiance "
-                                "(red: too bright, blue: too dark)."})
+        figures.image_comparison(
+            out / name,
+            ref.mean,
+            panels,
+            mask,
+            error_scale=1.0,
+            title=f"α = {a:g}°, sky {s:g}: reference, approximations, signed error "
+            "(fraction of the lit peak radiance)",
+            exposure=1.0 + s,
+        )
+        figs.append(
+            {
+                "file": name,
+                "section": "results",
+                "caption": f"α = {a:g}°, sky radiance {s:g}. Top: Mitsuba reference and each approximation "
+                "(same exposure). Bottom: signed error as a fraction of the lit peak radiance "
+                "(red: too bright, blue: too dark).",
+            }
+        )
     figs.append(_terminator_figure(out, cfg, rendered, fits))
     figs.append(_params_figure(out, cfg, fits, smooth))
     figs.append(_error_vs_alpha_figure(out, cfg, case_docs))
@@ -291,17 +365,30 @@ def _concat_pairs(pairs) -> tuple[np.ndarray, np.ndarray]:
 
 def _z_checks(what: str, z: np.ndarray, z_all: np.ndarray) -> list[dict]:
     if z.size == 0:
-        return [{"name": f"{what}: z-scores", "value": 0.0, "expected": "at least one element", "passed": False}]
+        return [
+            {"name": f"{what}: z-scores", "value": 0.0, "expected": "at least one element", "passed": False}
+        ]
     spread, median = _robust_spread(z), float(np.median(z))
     tail = float(np.mean(np.abs(z_all) > 4))
     return [
-        {"name": f"{what}: robust z spread (1.4826·MAD, {z.size} elements)", "value": spread,
-         "expected": f"1 ± {Z_SPREAD_TOLERANCE}", "passed": abs(spread - 1) <= Z_SPREAD_TOLERANCE},
-        {"name": f"{what}: median z", "value": median, "expected": f"0 ± {Z_MEDIAN_TOLERANCE}",
-         "passed": abs(median) <= Z_MEDIAN_TOLERANCE},
-        {"name": f"{what}: fraction with |z| > 4 ({z_all.size} elements)", "value": tail,
-         "expected": f"≤ {Z_TAIL_FRACTION}",
-         "passed": tail <= Z_TAIL_FRACTION},
+        {
+            "name": f"{what}: robust z spread (1.4826·MAD, {z.size} elements)",
+            "value": spread,
+            "expected": f"1 ± {Z_SPREAD_TOLERANCE}",
+            "passed": abs(spread - 1) <= Z_SPREAD_TOLERANCE,
+        },
+        {
+            "name": f"{what}: median z",
+            "value": median,
+            "expected": f"0 ± {Z_MEDIAN_TOLERANCE}",
+            "passed": abs(median) <= Z_MEDIAN_TOLERANCE,
+        },
+        {
+            "name": f"{what}: fraction with |z| > 4 ({z_all.size} elements)",
+            "value": tail,
+            "expected": f"≤ {Z_TAIL_FRACTION}",
+            "passed": tail <= Z_TAIL_FRACTION,
+        },
     ]
 
 
@@ -327,24 +414,55 @@ def _terminator_figure(out, cfg, rendered, fits) -> dict:
         theta, cos_t, alpha, peak = _probe_sun_geometry(cfg["probe_count"], case_scene(a, 0.0, 8).lights[0])
         deg = np.degrees(theta)
         pr = rendered[cid]["probes"]
-        series.append({"x": deg, "y": pr.mean[:, 0] / math.pi, "yerr": 2 * pr.stderr[:, 0] / math.pi,
-                       "label": "Mitsuba (±2σ)", "style": "points", "panel": panel, "color": "k"})
+        series.append(
+            {
+                "x": deg,
+                "y": pr.mean[:, 0] / math.pi,
+                "yerr": 2 * pr.stderr[:, 0] / math.pi,
+                "label": "Mitsuba (±2σ)",
+                "style": "points",
+                "panel": panel,
+                "color": "k",
+            }
+        )
         exact = _model_irradiance("exact", cos_t, alpha, peak, {})
-        series.append({"x": deg, "y": np.asarray(exact) / math.pi, "label": "exact closed form", "panel": panel,
-                       "color": "0.4"})
+        series.append(
+            {
+                "x": deg,
+                "y": np.asarray(exact) / math.pi,
+                "label": "exact closed form",
+                "panel": panel,
+                "color": "0.4",
+            }
+        )
         w = fits[cid]["parameters"]
-        for model, params, color in (("lambert", {}, "C0"), ("half-lambert", {}, "C1"),
-                                     ("wrap-fit", {"w": w["w"]["value"], "p": w["p"]["value"]}, "C2")):
+        for model, params, color in (
+            ("lambert", {}, "C0"),
+            ("half-lambert", {}, "C1"),
+            ("wrap-fit", {"w": w["w"]["value"], "p": w["p"]["value"]}, "C2"),
+        ):
             e = _model_irradiance(model, cos_t, alpha, peak, params)
-            series.append({"x": deg, "y": np.asarray(e) / math.pi, "label": LABELS[model], "panel": panel,
-                           "color": color, "ls": "--"})
+            series.append(
+                {
+                    "x": deg,
+                    "y": np.asarray(e) / math.pi,
+                    "label": LABELS[model],
+                    "panel": panel,
+                    "color": color,
+                    "ls": "--",
+                }
+            )
     name = "figures/terminator.png"
-    figures.line_plot(out / name, "angle θ between normal and light direction (°)", "E / E⊥", series,
-                      panels=panels)
-    return {"file": name, "section": "results",
-            "caption": "Irradiance across the terminator along the sphere's equator: Mitsuba irradiance probes "
-                       "(points, ±2σ), the exact closed form, and each approximation. The exact irradiance "
-                       "reaches past 90° by α (the light is partly below the horizon there)."}
+    figures.line_plot(
+        out / name, "angle θ between normal and light direction (°)", "E / E⊥", series, panels=panels
+    )
+    return {
+        "file": name,
+        "section": "results",
+        "caption": "Irradiance across the terminator along the sphere's equator: Mitsuba irradiance probes "
+        "(points, ±2σ), the exact closed form, and each approximation. The exact irradiance "
+        "reaches past 90° by α (the light is partly below the horizon there).",
+    }
 
 
 def _params_figure(out, cfg, fits, smooth) -> dict:
@@ -354,15 +472,27 @@ def _params_figure(out, cfg, fits, smooth) -> dict:
     series = []
     for name, fn in (("w", smooth_w), ("p", smooth_p)):
         vals = [fits[case_id(a, 0.0)]["parameters"][name] for a in alphas]
-        series.append({"x": alphas, "y": [v["value"] for v in vals],
-                       "yerr": [2 * (v["stderr"] or 0.0) for v in vals], "label": f"{name}: per-α fit (±2σ)",
-                       "style": "points", "panel": name})
-        series.append({"x": fine, "y": fn(np.radians(fine), c), "label": f"{name}(α): smooth fit", "panel": name})
+        series.append(
+            {
+                "x": alphas,
+                "y": [v["value"] for v in vals],
+                "yerr": [2 * (v["stderr"] or 0.0) for v in vals],
+                "label": f"{name}: per-α fit (±2σ)",
+                "style": "points",
+                "panel": name,
+            }
+        )
+        series.append(
+            {"x": fine, "y": fn(np.radians(fine), c), "label": f"{name}(α): smooth fit", "panel": name}
+        )
     name = "figures/wrap_parameters.png"
     figures.line_plot(out / name, "light angular radius α (°)", "parameter value", series, panels=["w", "p"])
-    return {"file": name, "section": "fits",
-            "caption": "Wrap parameters fitted per light size (points) and the smooth functions "
-                       "w(α) = w1·sin α + w2·sin²α, p(α) = 1 + p1·sin α + p2·sin²α fitted to them (lines)."}
+    return {
+        "file": name,
+        "section": "fits",
+        "caption": "Wrap parameters fitted per light size (points) and the smooth functions "
+        "w(α) = w1·sin α + w2·sin²α, p(α) = 1 + p1·sin α + p2·sin²α fitted to them (lines).",
+    }
 
 
 def _error_vs_alpha_figure(out, cfg, case_docs) -> dict:
@@ -373,19 +503,38 @@ def _error_vs_alpha_figure(out, cfg, case_docs) -> dict:
         if doc["parameters"]["sky_radiance"] != 0.0:
             continue
         for ap in doc["approximations"]:
-            by_model.setdefault(ap["method"], []).append((doc["parameters"]["alpha_deg"],
-                                                          ap["metrics"]["rmse"]["value"]))
-        floor.append((doc["parameters"]["alpha_deg"], doc["approximations"][0]["metrics"]["rmse"]["noise_floor"]))
+            by_model.setdefault(ap["method"], []).append(
+                (doc["parameters"]["alpha_deg"], ap["metrics"]["rmse"]["value"])
+            )
+        floor.append(
+            (doc["parameters"]["alpha_deg"], doc["approximations"][0]["metrics"]["rmse"]["noise_floor"])
+        )
     for model, pts in by_model.items():
         series.append({"x": [p[0] for p in pts], "y": [p[1] for p in pts], "label": LABELS[model]})
-    series.append({"x": [p[0] for p in floor], "y": [p[1] for p in floor], "label": "reference noise floor",
-                   "ls": ":", "color": "0.5"})
+    series.append(
+        {
+            "x": [p[0] for p in floor],
+            "y": [p[1] for p in floor],
+            "label": "reference noise floor",
+            "ls": ":",
+            "color": "0.5",
+        }
+    )
     name = "figures/error_vs_alpha.png"
-    figures.line_plot(out / name, "light angular radius α (°)", "RMSE (fraction of lit peak)", series,
-                      x_log=True, y_log=True)
-    return {"file": name, "section": "results",
-            "caption": "Image RMSE of each approximation against the Mitsuba reference vs light size (no sky), "
-                       "with the reference's own noise floor: values near the floor are not resolved."}
+    figures.line_plot(
+        out / name,
+        "light angular radius α (°)",
+        "RMSE (fraction of lit peak)",
+        series,
+        x_log=True,
+        y_log=True,
+    )
+    return {
+        "file": name,
+        "section": "results",
+        "caption": "Image RMSE of each approximation against the Mitsuba reference vs light size (no sky), "
+        "with the reference's own noise floor: values near the floor are not resolved.",
+    }
 
 
 def _pareto_figure(out, case_docs, costs) -> dict:
@@ -398,10 +547,14 @@ def _pareto_figure(out, case_docs, costs) -> dict:
         floors.append(doc["approximations"][0]["metrics"]["rmse"]["noise_floor"])
     pts = [{"x": cost[m], "y": float(np.mean(v)), "label": LABELS[m]} for m, v in err.items() if m in cost]
     name = "figures/pareto.png"
-    figures.pareto_plot(out / name, pts, "cost (ns per pixel, measured)", "mean RMSE over cases",
-                        floor=float(np.mean(floors)))
-    return {"file": name, "section": "results",
-            "caption": "Error vs measured cost per pixel on this run's backend (mean image RMSE over all cases)."}
+    figures.pareto_plot(
+        out / name, pts, "cost (ns per pixel, measured)", "mean RMSE over cases", floor=float(np.mean(floors))
+    )
+    return {
+        "file": name,
+        "section": "results",
+        "caption": "Error vs measured cost per pixel on this run's backend (mean image RMSE over all cases).",
+    }
 
 
 # ------------------------------------------------------------------------------------- fitted files
@@ -410,41 +563,74 @@ def _write_fitted(out, cfg, fits, smooth) -> list[dict]:
     for s in cfg["sky_radiances"]:
         for a in cfg["alphas_deg"]:
             f = fits[case_id(a, s)]
-            per_alpha.append({"alpha_deg": a, "sky_radiance": s,
-                              **{k: v["value"] for k, v in f["parameters"].items()},
-                              **{f"{k}_stderr": v["stderr"] for k, v in f["parameters"].items()},
-                              "rms_residual": f["rms_residual"]})
-    atomic_write_json(out / "fitted" / "wrap_per_alpha.json", {
-        "model": "wrap", "formula": "E = E_perp * max((cos_theta + w) / (1 + w), 0) ** p",
-        "units": {"alpha_deg": "degrees (light angular radius)", "E_perp": "irradiance at normal incidence"},
-        "fitted_to": "Mitsuba point-sampled radiance of a white sphere, residual normalised by E_perp",
-        "cases": per_alpha})
+            per_alpha.append(
+                {
+                    "alpha_deg": a,
+                    "sky_radiance": s,
+                    **{k: v["value"] for k, v in f["parameters"].items()},
+                    **{f"{k}_stderr": v["stderr"] for k, v in f["parameters"].items()},
+                    "rms_residual": f["rms_residual"],
+                }
+            )
+    atomic_write_json(
+        out / "fitted" / "wrap_per_alpha.json",
+        {
+            "model": "wrap",
+            "formula": "E = E_perp * max((cos_theta + w) / (1 + w), 0) ** p",
+            "units": {
+                "alpha_deg": "degrees (light angular radius)",
+                "E_perp": "irradiance at normal incidence",
+            },
+            "fitted_to": "Mitsuba point-sampled radiance of a white sphere, residual normalised by E_perp",
+            "cases": per_alpha,
+        },
+    )
     coeffs = {k: v["value"] for k, v in smooth["parameters"].items()}
-    atomic_write_json(out / "fitted" / "wrap_smooth.json", {
-        "model": "wrap with smooth w(alpha), p(alpha)",
-        "formula": "E = E_perp * max((cos_theta + w) / (1 + w), 0) ** p",
-        "w": "w1 * sin(alpha) + w2 * sin(alpha)**2", "p": "1 + p1 * sin(alpha) + p2 * sin(alpha)**2",
-        "alpha_units": "radians", "valid_alpha_deg": [min(cfg["alphas_deg"]), max(cfg["alphas_deg"])],
-        "coefficients": coeffs,
-        "stderr": {k: v["stderr"] for k, v in smooth["parameters"].items()}})
+    atomic_write_json(
+        out / "fitted" / "wrap_smooth.json",
+        {
+            "model": "wrap with smooth w(alpha), p(alpha)",
+            "formula": "E = E_perp * max((cos_theta + w) / (1 + w), 0) ** p",
+            "w": "w1 * sin(alpha) + w2 * sin(alpha)**2",
+            "p": "1 + p1 * sin(alpha) + p2 * sin(alpha)**2",
+            "alpha_units": "radians",
+            "valid_alpha_deg": [min(cfg["alphas_deg"]), max(cfg["alphas_deg"])],
+            "coefficients": coeffs,
+            "stderr": {k: v["stderr"] for k, v in smooth["parameters"].items()},
+        },
+    )
     first = fits[case_id(cfg["alphas_deg"][-1], 0.0)]
     return [
-        {"id": f"wrap-{case_id(cfg['alphas_deg'][-1], 0.0)}", "label": f"wrap (w, p) at α = {cfg['alphas_deg'][-1]:g}°",
-         "model": "max((cos θ + w)/(1 + w), 0)^p", "parameters": first["parameters"],
-         "rms_residual": first["rms_residual"], "n_residuals": first["n_residuals"],
-         "converged": first["converged"], "file": "fitted/wrap_per_alpha.json"},
-        {"id": "wrap-smooth", "label": "smooth w(α), p(α)",
-         "model": "w = w1 sin α + w2 sin²α; p = 1 + p1 sin α + p2 sin²α", "parameters": smooth["parameters"],
-         "rms_residual": smooth["rms_residual"], "n_residuals": smooth["n_residuals"],
-         "converged": smooth["converged"], "file": "fitted/wrap_smooth.json"},
+        {
+            "id": f"wrap-{case_id(cfg['alphas_deg'][-1], 0.0)}",
+            "label": f"wrap (w, p) at α = {cfg['alphas_deg'][-1]:g}°",
+            "model": "max((cos θ + w)/(1 + w), 0)^p",
+            "parameters": first["parameters"],
+            "rms_residual": first["rms_residual"],
+            "n_residuals": first["n_residuals"],
+            "converged": first["converged"],
+            "file": "fitted/wrap_per_alpha.json",
+        },
+        {
+            "id": "wrap-smooth",
+            "label": "smooth w(α), p(α)",
+            "model": "w = w1 sin α + w2 sin²α; p = 1 + p1 sin α + p2 sin²α",
+            "parameters": smooth["parameters"],
+            "rms_residual": smooth["rms_residual"],
+            "n_residuals": smooth["n_residuals"],
+            "converged": smooth["converged"],
+            "file": "fitted/wrap_smooth.json",
+        },
     ]
 
 
 # ------------------------------------------------------------------------------------------- text
 def _sections(cfg) -> list[dict]:
     return [
-        {"id": "method", "title": "Method", "text":
-            "A white Lambertian unit sphere is lit from the side by a distant uniform spherical light (a sun) "
+        {
+            "id": "method",
+            "title": "Method",
+            "text": "A white Lambertian unit sphere is lit from the side by a distant uniform spherical light (a sun) "
             f"whose angular radius α ranges over {', '.join(f'{a:g}°' for a in cfg['alphas_deg'])}; "
             "its radiance is 1/sin²α so the irradiance at normal incidence is π and the lit peak radiance is 1. "
             "The light is rendered by rtfit's own Mitsuba emitter for a disc at infinity: Mitsuba's sphere "
@@ -455,7 +641,8 @@ def _sections(cfg) -> list[dict]:
             f"{cfg['spp']} samples per pixel in independent passes of {cfg['pass_spp']}; irradiance probes along "
             f"the equator use {cfg['probe_spp']} MIS samples each. Approximations are evaluated on the pixel-centre "
             "G-buffer, as a shader would: cos θ = n·l per pixel. Wrap lighting's (w, p) are fitted per light size by Levenberg–Marquardt "
-            "(optimistix) to the reference image, then w(α) and p(α) are fitted as smooth functions of α."},
+            "(optimistix) to the reference image, then w(α) and p(α) are fitted as smooth functions of α.",
+        },
     ]
 
 

@@ -66,19 +66,30 @@ def sun_direction(elevation_deg: float, azimuth_deg: float = SUN_AZIMUTH_DEG) ->
     return (math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e))
 
 
-def terrain_scene(elevation_deg: float, transport: str, resolution, fog: bool = True, name: str = "fog_terrain"):
+def terrain_scene(
+    elevation_deg: float, transport: str, resolution, fog: bool = True, name: str = "fog_terrain"
+):
     """The library terrain at one sun elevation; ``transport`` "single" (direct) or "multiple" (global)."""
     from rtfit.scenes import library_path, load_scene
 
     base = load_scene(library_path(name))
-    lights = tuple(dataclasses.replace(lt, sun_direction=sun_direction(elevation_deg)) if lt.kind == "sunsky"
-                   else lt for lt in base.lights)
+    lights = tuple(
+        dataclasses.replace(lt, sun_direction=sun_direction(elevation_deg)) if lt.kind == "sunsky" else lt
+        for lt in base.lights
+    )
     camera = dataclasses.replace(base.camera, width=int(resolution[0]), height=int(resolution[1]))
-    ref = dataclasses.replace(base.reference, transport="direct" if transport == "single" else "global",
-                              max_depth=None)
+    ref = dataclasses.replace(
+        base.reference, transport="direct" if transport == "single" else "global", max_depth=None
+    )
     tag = f"e{elevation_deg:g}-{transport}" + ("" if fog else "-nofog")
-    return dataclasses.replace(base, name=f"{base.name}-{tag}", camera=camera, lights=lights, reference=ref,
-                               media=base.media if fog else ())
+    return dataclasses.replace(
+        base,
+        name=f"{base.name}-{tag}",
+        camera=camera,
+        lights=lights,
+        reference=ref,
+        media=base.media if fog else (),
+    )
 
 
 def check_scene(resolution: int):
@@ -97,9 +108,17 @@ def volume_from_medium(medium, colour=(1.0, 1.0, 1.0)):
     m = region_matrix(medium.boundary)
     half = np.linalg.norm(m[:3, :3], axis=0)
     rot = m[:3, :3] / half
-    return FogVolume(center=tuple(m[:3, 3]), half_size=tuple(half), rotation=tuple(map(tuple, rot)),
-                     ellipsoid=medium.ellipsoid, density=medium.density, falloff=medium.falloff,
-                     gradient=medium.gradient, gradient_origin=medium.gradient_origin, colour=colour)
+    return FogVolume(
+        center=tuple(m[:3, 3]),
+        half_size=tuple(half),
+        rotation=tuple(map(tuple, rot)),
+        ellipsoid=medium.ellipsoid,
+        density=medium.density,
+        falloff=medium.falloff,
+        gradient=medium.gradient,
+        gradient_origin=medium.gradient_origin,
+        colour=colour,
+    )
 
 
 def segment_geometry(scene, gb, medium) -> dict:
@@ -119,8 +138,14 @@ def segment_geometry(scene, gb, medium) -> dict:
     g = np.asarray(vol.gradient)
     h_o = (o - np.asarray(vol.gradient_origin)) @ g
     h_d = d @ g
-    return {"z0": h_o + t0 * h_d, "z1": h_o + t1 * h_d, "length": seg, "elevation_deg": np.degrees(np.arcsin(
-        np.clip(d[..., 2], -1, 1))), "distance": dist, "view_dir": d}
+    return {
+        "z0": h_o + t0 * h_d,
+        "z1": h_o + t1 * h_d,
+        "length": seg,
+        "elevation_deg": np.degrees(np.arcsin(np.clip(d[..., 2], -1, 1))),
+        "distance": dist,
+        "view_dir": d,
+    }
 
 
 def _box_interval(o, d, vol):
@@ -140,15 +165,26 @@ def _box_interval(o, d, vol):
 
 
 # ------------------------------------------------------------------------------------------- jobs
-def render_job(scene_toml: str, spp: int, pass_spp: int, seed: int, variant: str, cache_dir: str,
-               gbuffer_of: str | None = None, progress: bool = False) -> dict:
+def render_job(
+    scene_toml: str,
+    spp: int,
+    pass_spp: int,
+    seed: int,
+    variant: str,
+    cache_dir: str,
+    gbuffer_of: str | None = None,
+    progress: bool = False,
+) -> dict:
     """Job: one cached reference image (and, if given, the G-buffer of another scene: the fog-free one)."""
     from rtfit.reference import ReferenceCache, ReferenceRequest, render_gbuffer
     from rtfit.scenes import parse_scene_text
 
     scene = parse_scene_text(scene_toml)
-    ref = ReferenceCache(cache_dir).get(ReferenceRequest(scene=scene, spp=spp, pass_spp=pass_spp, seed=seed,
-                                                         variant=variant), progress=progress, label=scene.name)
+    ref = ReferenceCache(cache_dir).get(
+        ReferenceRequest(scene=scene, spp=spp, pass_spp=pass_spp, seed=seed, variant=variant),
+        progress=progress,
+        label=scene.name,
+    )
     out = {"image": ref}
     if gbuffer_of is not None:
         out["gbuffer"] = render_gbuffer(parse_scene_text(gbuffer_of), variant)
@@ -197,8 +233,7 @@ def fog_residual(p, args):
     return ((model - ref) / scale).reshape(-1)
 
 
-def fit_fog_job(z0, z1, length, cos_sun, l0, ref, scale, phase: bool, b0: float, c0: float,
-                colour0) -> dict:
+def fit_fog_job(z0, z1, length, cos_sun, l0, ref, scale, phase: bool, b0: float, c0: float, colour0) -> dict:
     """Job: fit (b, c, C) or (b, c, C₀, C₁, g) to one reference image (arrays flattened to pixels)."""
     from rtfit.fitting import Param, fit_least_squares
 
@@ -209,8 +244,9 @@ def fit_fog_job(z0, z1, length, cos_sun, l0, ref, scale, phase: bool, b0: float,
         for name in ("r1", "g1", "b1"):
             params[name] = Param(0.01, 0.0, 100.0)
         params["g"] = Param(0.5, -0.95, 0.95)
-    result = fit_least_squares(fog_residual, params, args=(z0, z1, length, cos_sun, l0, ref, scale,
-                                                           1.0 if phase else 0.0))
+    result = fit_least_squares(
+        fog_residual, params, args=(z0, z1, length, cos_sun, l0, ref, scale, 1.0 if phase else 0.0)
+    )
     return result.to_dict()
 
 
@@ -218,8 +254,16 @@ def model_image(geom, l0, b, c, colour0, colour1=None, g=0.0) -> np.ndarray:
     """L₀·T + C(θ)·(1 − T) with the real-time kernels (rtfit.realtime.fog, float32 Dr.Jit)."""
     from rtfit.realtime import fog
 
-    tau = np.asarray(fog.height_fog_optical_depth(geom["z0"].astype(np.float32), geom["z1"].astype(np.float32),
-                                                  geom["length"].astype(np.float32), b, c), dtype=np.float64)
+    tau = np.asarray(
+        fog.height_fog_optical_depth(
+            geom["z0"].astype(np.float32),
+            geom["z1"].astype(np.float32),
+            geom["length"].astype(np.float32),
+            b,
+            c,
+        ),
+        dtype=np.float64,
+    )
     t = np.exp(-tau)
     colour = np.broadcast_to(np.asarray(colour0, dtype=np.float64), l0.shape).copy()
     if colour1 is not None:
@@ -238,49 +282,104 @@ def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
     res = cfg["resolution"]
-    common = dict(pass_spp=cfg["pass_spp"], seed=ctx.seed, variant=ctx.variant, cache_dir=str(ctx.cache_dir),
-                  progress=ctx.progress)
+    common = dict(
+        pass_spp=cfg["pass_spp"],
+        seed=ctx.seed,
+        variant=ctx.variant,
+        cache_dir=str(ctx.cache_dir),
+        progress=ctx.progress,
+    )
 
     scenes, jobs = {}, []
     chk = check_scene(cfg["check_resolution"])
     scenes["check"] = chk
-    jobs.append(Job("rtfit.experiments.height_fog:render_job",
-                    dict(scene_toml=scene_to_toml(chk), spp=cfg["check_spp"], gbuffer_of=scene_to_toml(chk),
-                         **common), label="check"))
+    jobs.append(
+        Job(
+            "rtfit.experiments.height_fog:render_job",
+            dict(
+                scene_toml=scene_to_toml(chk), spp=cfg["check_spp"], gbuffer_of=scene_to_toml(chk), **common
+            ),
+            label="check",
+        )
+    )
     # the same check with the fog restricted to the ellipsoid inscribed in the box (a fog volume)
-    chk_e = dataclasses.replace(chk, name=f"{chk.name}-ellipsoid",
-                                media=(dataclasses.replace(chk.media[0], ellipsoid=True),))
+    chk_e = dataclasses.replace(
+        chk, name=f"{chk.name}-ellipsoid", media=(dataclasses.replace(chk.media[0], ellipsoid=True),)
+    )
     scenes["check-ellipsoid"] = chk_e
-    jobs.append(Job("rtfit.experiments.height_fog:render_job",
-                    dict(scene_toml=scene_to_toml(chk_e), spp=cfg["check_spp"], gbuffer_of=scene_to_toml(chk_e),
-                         **common), label="check-ellipsoid"))
+    jobs.append(
+        Job(
+            "rtfit.experiments.height_fog:render_job",
+            dict(
+                scene_toml=scene_to_toml(chk_e),
+                spp=cfg["check_spp"],
+                gbuffer_of=scene_to_toml(chk_e),
+                **common,
+            ),
+            label="check-ellipsoid",
+        )
+    )
     for e in cfg["sun_elevations_deg"]:
         for tr in TRANSPORTS:
             fogged = terrain_scene(e, tr, res)
             clear = terrain_scene(e, tr, res, fog=False)
             scenes[f"e{e:g}-{tr}"] = fogged
             scenes[f"e{e:g}-{tr}-nofog"] = clear
-            jobs.append(Job("rtfit.experiments.height_fog:render_job",
-                            dict(scene_toml=scene_to_toml(fogged), spp=cfg["spp"], **common), label=f"e{e:g}-{tr}"))
-            jobs.append(Job("rtfit.experiments.height_fog:render_job",
-                            dict(scene_toml=scene_to_toml(clear), spp=cfg["spp"],
-                                 gbuffer_of=scene_to_toml(clear) if tr == "single" else None, **common),
-                            label=f"e{e:g}-{tr}-nofog"))
+            jobs.append(
+                Job(
+                    "rtfit.experiments.height_fog:render_job",
+                    dict(scene_toml=scene_to_toml(fogged), spp=cfg["spp"], **common),
+                    label=f"e{e:g}-{tr}",
+                )
+            )
+            jobs.append(
+                Job(
+                    "rtfit.experiments.height_fog:render_job",
+                    dict(
+                        scene_toml=scene_to_toml(clear),
+                        spp=cfg["spp"],
+                        gbuffer_of=scene_to_toml(clear) if tr == "single" else None,
+                        **common,
+                    ),
+                    label=f"e{e:g}-{tr}-nofog",
+                )
+            )
     if cfg["volumes"]:
         e = cfg["sun_elevations_deg"][-1]
         vol = terrain_scene(e, "multiple", res, name="fog_volumes")
         vclear = terrain_scene(e, "multiple", res, fog=False, name="fog_volumes")
         scenes["volumes"], scenes["volumes-nofog"] = vol, vclear
-        jobs.append(Job("rtfit.experiments.height_fog:render_job",
-                        dict(scene_toml=scene_to_toml(vol), spp=cfg["spp"], **common), label="volumes"))
-        jobs.append(Job("rtfit.experiments.height_fog:render_job",
-                        dict(scene_toml=scene_to_toml(vclear), spp=cfg["spp"], gbuffer_of=scene_to_toml(vclear),
-                             **common), label="volumes-nofog"))
-    sky_jobs = [Job("rtfit.experiments.height_fog:sky_job",
-                    dict(scene_toml=scene_to_toml(scenes[f"e{e:g}-single"]), variant=ctx.variant), label=f"sky-e{e:g}")
-                for e in cfg["sun_elevations_deg"]]
+        jobs.append(
+            Job(
+                "rtfit.experiments.height_fog:render_job",
+                dict(scene_toml=scene_to_toml(vol), spp=cfg["spp"], **common),
+                label="volumes",
+            )
+        )
+        jobs.append(
+            Job(
+                "rtfit.experiments.height_fog:render_job",
+                dict(
+                    scene_toml=scene_to_toml(vclear),
+                    spp=cfg["spp"],
+                    gbuffer_of=scene_to_toml(vclear),
+                    **common,
+                ),
+                label="volumes-nofog",
+            )
+        )
+    sky_jobs = [
+        Job(
+            "rtfit.experiments.height_fog:sky_job",
+            dict(scene_toml=scene_to_toml(scenes[f"e{e:g}-single"]), variant=ctx.variant),
+            label=f"sky-e{e:g}",
+        )
+        for e in cfg["sun_elevations_deg"]
+    ]
     ctx.log(f"rendering {len(jobs)} references")
-    rendered = dict(zip([j.label for j in jobs + sky_jobs], ctx.executor.map(jobs + sky_jobs, desc="references")))
+    rendered = dict(
+        zip([j.label for j in jobs + sky_jobs], ctx.executor.map(jobs + sky_jobs, desc="references"))
+    )
     skies = {f"e{e:g}": rendered.pop(f"sky-e{e:g}") for e in cfg["sun_elevations_deg"]}
 
     # Geometry per sun elevation (the fog-free single-scattering scene carries the G-buffer).
@@ -302,10 +401,19 @@ def run(ctx) -> dict:
             l0 = rendered[f"e{e:g}-{tr}-nofog"]["image"].mean
             flat = _flat_args(geom, l0, ref.mean)
             for phase in (False, True):
-                fit_jobs.append(Job("rtfit.experiments.height_fog:fit_fog_job",
-                                    dict(**flat, phase=phase, b0=medium.density, c0=medium.falloff,
-                                         colour0=skies[f"e{e:g}"]["horizon"]),
-                                    label=f"e{e:g}-{tr}-{'phase' if phase else 'const'}"))
+                fit_jobs.append(
+                    Job(
+                        "rtfit.experiments.height_fog:fit_fog_job",
+                        dict(
+                            **flat,
+                            phase=phase,
+                            b0=medium.density,
+                            c0=medium.falloff,
+                            colour0=skies[f"e{e:g}"]["horizon"],
+                        ),
+                        label=f"e{e:g}-{tr}-{'phase' if phase else 'const'}",
+                    )
+                )
     ctx.log(f"fitting {len(fit_jobs)} fog models")
     fits = dict(zip([j.label for j in fit_jobs], ctx.executor.map(fit_jobs, desc="fits")))
     hashes = {k: scene_hash(v) for k, v in scenes.items()}
@@ -316,9 +424,15 @@ def _flat_args(geom, l0, ref) -> dict:
     """Pixel-flattened fit inputs; residual scale: 2 % of the reference plus 1 % of its mean (relative
     error, not dominated by the bright sky)."""
     scale = 0.02 * np.abs(ref) + 0.01 * float(np.mean(np.abs(ref)))
-    return dict(z0=geom["z0"].reshape(-1), z1=geom["z1"].reshape(-1), length=geom["length"].reshape(-1),
-                cos_sun=geom["cos_sun"].reshape(-1), l0=l0.reshape(-1, 3), ref=ref.reshape(-1, 3),
-                scale=scale.reshape(-1, 3))
+    return dict(
+        z0=geom["z0"].reshape(-1),
+        z1=geom["z1"].reshape(-1),
+        length=geom["length"].reshape(-1),
+        cos_sun=geom["cos_sun"].reshape(-1),
+        l0=l0.reshape(-1, 3),
+        ref=ref.reshape(-1, 3),
+        scale=scale.reshape(-1, 3),
+    )
 
 
 def bench(ctx) -> list[dict]:

@@ -38,14 +38,39 @@ import numpy as np
 
 from .jobs import Job
 
-METHODS = ("cube-valve", "cube-nnls", "sh-l1", "sh-l1-geomerics", "sh-l2", "sh-l2-hann", "sh-l2-lanczos",
-           "sh-l2-lambda", "quadrature")
-LABELS = {"cube-valve": "Ambient cube (Valve: axis samples)", "cube-nnls": "Ambient cube (NNLS optimal)",
-          "sh-l1": "SH L1 (4)", "sh-l1-geomerics": "SH L1, Geomerics non-linear", "sh-l2": "SH L2 (9)",
-          "sh-l2-hann": "SH L2, Hann window", "sh-l2-lanczos": "SH L2, Lanczos window",
-          "sh-l2-lambda": "SH L2, fitted λ window", "quadrature": "Dense quadrature (exact)"}
-FLOATS = {"cube-valve": 18, "cube-nnls": 18, "sh-l1": 12, "sh-l1-geomerics": 12, "sh-l2": 27,
-          "sh-l2-hann": 27, "sh-l2-lanczos": 27, "sh-l2-lambda": 27, "quadrature": None}
+METHODS = (
+    "cube-valve",
+    "cube-nnls",
+    "sh-l1",
+    "sh-l1-geomerics",
+    "sh-l2",
+    "sh-l2-hann",
+    "sh-l2-lanczos",
+    "sh-l2-lambda",
+    "quadrature",
+)
+LABELS = {
+    "cube-valve": "Ambient cube (Valve: axis samples)",
+    "cube-nnls": "Ambient cube (NNLS optimal)",
+    "sh-l1": "SH L1 (4)",
+    "sh-l1-geomerics": "SH L1, Geomerics non-linear",
+    "sh-l2": "SH L2 (9)",
+    "sh-l2-hann": "SH L2, Hann window",
+    "sh-l2-lanczos": "SH L2, Lanczos window",
+    "sh-l2-lambda": "SH L2, fitted λ window",
+    "quadrature": "Dense quadrature (exact)",
+}
+FLOATS = {
+    "cube-valve": 18,
+    "cube-nnls": 18,
+    "sh-l1": 12,
+    "sh-l1-geomerics": 12,
+    "sh-l2": 27,
+    "sh-l2-hann": 27,
+    "sh-l2-lanczos": 27,
+    "sh-l2-lambda": 27,
+    "quadrature": None,
+}
 
 SUNSKY_ELEVATIONS_FULL = (2.0, 10.0, 30.0, 60.0, 90.0)
 SUNSKY_ELEVATIONS_QUICK = (10.0, 60.0)
@@ -81,8 +106,13 @@ def environment_names(quick: bool) -> list[str]:
     suns = SUN_SIZES_QUICK if quick else SUN_SIZES_FULL
     els = SUNSKY_ELEVATIONS_QUICK if quick else SUNSKY_ELEVATIONS_FULL
     probes = [p for p in (PROBES_QUICK if quick else PROBES_FULL) if probe_available(p)]
-    return (["constant"] + [f"sun-{a:g}" for a in suns] + [f"sunsky-{e:g}" for e in els]
-            + ["studio", "overcast"] + [f"probe-{p}" for p in probes])
+    return (
+        ["constant"]
+        + [f"sun-{a:g}" for a in suns]
+        + [f"sunsky-{e:g}" for e in els]
+        + ["studio", "overcast"]
+        + [f"probe-{p}" for p in probes]
+    )
 
 
 def missing_probes(quick: bool) -> list[str]:
@@ -115,10 +145,13 @@ def make_environment(name: str, cfg: dict, mi=None):
             mi = use_variant("llvm_ad_rgb")
         return envs.sunsky_environment(mi, float(name[7:]), h, 2 * h)
     if name == "studio":
-        return envs.map_environment("studio", "studio (3 softboxes on black)", "studio", envs.studio_map(h, 2 * h))
+        return envs.map_environment(
+            "studio", "studio (3 softboxes on black)", "studio", envs.studio_map(h, 2 * h)
+        )
     if name == "overcast":
-        return envs.map_environment("overcast", "overcast (CIE sky, ground ρ = 0.2)", "overcast",
-                                    envs.overcast_map(h, 2 * h))
+        return envs.map_environment(
+            "overcast", "overcast (CIE sky, ground ρ = 0.2)", "overcast", envs.overcast_map(h, 2 * h)
+        )
     if name.startswith("probe-"):
         return envs.probe_environment(name[6:], cfg["probe_height"])
     raise ValueError(f"unknown environment {name!r}")
@@ -145,9 +178,14 @@ def sun_scene(env, resolution: int):
     base = load_scene(library_path("irradiance_sphere_sun"))
     s = env.sun
     cam = dataclasses.replace(base.camera, width=resolution, height=resolution)
-    return dataclasses.replace(base, name=f"{base.name}-{env.name}", camera=cam,
-                               lights=(Sun(direction=s.direction, irradiance=s.irradiance,
-                                           angular_radius_deg=s.angular_radius_deg),))
+    return dataclasses.replace(
+        base,
+        name=f"{base.name}-{env.name}",
+        camera=cam,
+        lights=(
+            Sun(direction=s.direction, irradiance=s.irradiance, angular_radius_deg=s.angular_radius_deg),
+        ),
+    )
 
 
 def sunsky_scene(env, resolution: int):
@@ -158,12 +196,15 @@ def sunsky_scene(env, resolution: int):
 
     base = load_scene(library_path("irradiance_sphere_sunsky"))
     cam = dataclasses.replace(base.camera, width=resolution, height=resolution)
-    return dataclasses.replace(base, name=f"{base.name}-{env.name}", camera=cam,
-                               lights=(SunSky(sun_direction=env.sun.direction),))
+    return dataclasses.replace(
+        base, name=f"{base.name}-{env.name}", camera=cam, lights=(SunSky(sun_direction=env.sun.direction),)
+    )
 
 
 # -------------------------------------------------------------------------------------------- job
-def render_environment(name: str, cfg: dict, seed: int, variant: str, cache_dir: str, progress: bool = False) -> dict:
+def render_environment(
+    name: str, cfg: dict, seed: int, variant: str, cache_dir: str, progress: bool = False
+) -> dict:
     """Job: bake/load one environment, render its Mitsuba references, integrate its quadrature."""
     from pathlib import Path
 
@@ -193,19 +234,46 @@ def render_environment(name: str, cfg: dict, seed: int, variant: str, cache_dir:
     for part, scene0 in scenes:
         scene = parse_scene_text(scene_to_toml(scene0))
         hashes[part] = scene_hash(scene)
-        probes = cache.get(ReferenceRequest(scene=scene, spp=cfg["probe_spp"], pass_spp=cfg["probe_pass_spp"],
-                                            seed=seed, variant=variant, quantity="irradiance", points=n32,
-                                            normals=n32), progress=progress, label=f"{name} {part} probes")
-        image = cache.get(ReferenceRequest(scene=scene, spp=cfg["spp"], pass_spp=cfg["pass_spp"], seed=seed,
-                                           variant=variant), progress=progress, label=f"{name} {part} image")
+        probes = cache.get(
+            ReferenceRequest(
+                scene=scene,
+                spp=cfg["probe_spp"],
+                pass_spp=cfg["probe_pass_spp"],
+                seed=seed,
+                variant=variant,
+                quantity="irradiance",
+                points=n32,
+                normals=n32,
+            ),
+            progress=progress,
+            label=f"{name} {part} probes",
+        )
+        image = cache.get(
+            ReferenceRequest(
+                scene=scene, spp=cfg["spp"], pass_spp=cfg["pass_spp"], seed=seed, variant=variant
+            ),
+            progress=progress,
+            label=f"{name} {part} image",
+        )
         parts.append({"part": part, "probes": probes, "image": image})
     gb = render_gbuffer(scenes[0][1], variant)
     own = None
     if env.kind == "sunsky":  # Mitsuba's own sunsky, one emitter: checks the bake
         scene = parse_scene_text(scene_to_toml(sunsky_scene(env, cfg["resolution"])))
-        own = cache.get(ReferenceRequest(scene=scene, spp=cfg["probe_spp"], pass_spp=cfg["probe_pass_spp"],
-                                         seed=seed, variant=variant, quantity="irradiance", points=n32,
-                                         normals=n32), progress=progress, label=f"{name} mitsuba sunsky probes")
+        own = cache.get(
+            ReferenceRequest(
+                scene=scene,
+                spp=cfg["probe_spp"],
+                pass_spp=cfg["probe_pass_spp"],
+                seed=seed,
+                variant=variant,
+                quantity="irradiance",
+                points=n32,
+                normals=n32,
+            ),
+            progress=progress,
+            label=f"{name} mitsuba sunsky probes",
+        )
     t0 = time.perf_counter()
     ss = supersample_for(env, cfg)
     qb = quadrature_backend(variant)
@@ -213,9 +281,19 @@ def render_environment(name: str, cfg: dict, seed: int, variant: str, cache_dir:
     mask = gb.mask & ~gb.emitter
     quad_img = envs.irradiance_quadrature(env, gb.normal[mask], ss, qb)
     quad_s = time.perf_counter() - t0
-    return {"env": env, "normals": n32.astype(np.float64), "parts": parts, "gbuffer": gb, "mask": mask,
-            "quadrature": quad, "quadrature_image": quad_img, "sunsky_own": own, "hashes": hashes,
-            "bake_seconds": bake_s, "quadrature_seconds": quad_s}
+    return {
+        "env": env,
+        "normals": n32.astype(np.float64),
+        "parts": parts,
+        "gbuffer": gb,
+        "mask": mask,
+        "quadrature": quad,
+        "quadrature_image": quad_img,
+        "sunsky_own": own,
+        "hashes": hashes,
+        "bake_seconds": bake_s,
+        "quadrature_seconds": quad_s,
+    }
 
 
 # ------------------------------------------------------------------------------------------ bases
@@ -294,11 +372,25 @@ def run(ctx) -> dict:
     from . import irradiance_bases_report as rep
 
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    jobs = [Job("rtfit.experiments.irradiance_bases:render_environment",
-                dict(name=n, cfg=cfg, seed=ctx.seed, variant=ctx.variant, cache_dir=str(ctx.cache_dir),
-                     progress=ctx.progress), label=n) for n in cfg["environments"]]
+    jobs = [
+        Job(
+            "rtfit.experiments.irradiance_bases:render_environment",
+            dict(
+                name=n,
+                cfg=cfg,
+                seed=ctx.seed,
+                variant=ctx.variant,
+                cache_dir=str(ctx.cache_dir),
+                progress=ctx.progress,
+            ),
+            label=n,
+        )
+        for n in cfg["environments"]
+    ]
     if missing_probes(ctx.quick):
-        ctx.log(f"measured probes not found, left out: {', '.join(missing_probes(ctx.quick))} (set RTFIT_PROBE_DIR)")
+        ctx.log(
+            f"measured probes not found, left out: {', '.join(missing_probes(ctx.quick))} (set RTFIT_PROBE_DIR)"
+        )
     ctx.log(f"rendering references for {len(jobs)} environments")
     rendered = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="environments")))
 
@@ -307,7 +399,9 @@ def run(ctx) -> dict:
     set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
     ctx.log("projecting and fitting the bases")
     qb = quadrature_backend(ctx.variant)
-    bases = {n: build_bases(rendered[n]["env"], cfg, 512 if ctx.quick else 2048, qb) for n in cfg["environments"]}
+    bases = {
+        n: build_bases(rendered[n]["env"], cfg, 512 if ctx.quick else 2048, qb) for n in cfg["environments"]
+    }
     return rep.assemble(ctx, cfg, rendered, bases)
 
 

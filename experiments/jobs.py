@@ -107,7 +107,9 @@ class JobsFailed(RuntimeError):
 
     def __init__(self, failed: list[Outcome]):
         self.failed = failed
-        super().__init__("; ".join(f"{o.label or o.index}: {o.error} ({o.attempts} attempts)" for o in failed))
+        super().__init__(
+            "; ".join(f"{o.label or o.index}: {o.error} ({o.attempts} attempts)" for o in failed)
+        )
 
 
 @dataclass(frozen=True)
@@ -170,7 +172,9 @@ class InlineExecutor:
             try:
                 out.append(Outcome(i, job.label, True, job.run(), seconds=time.perf_counter() - t0))
             except Exception as e:  # noqa: BLE001 — reported per job, never swallowed silently
-                out.append(Outcome(i, job.label, False, error=error_line(e), seconds=time.perf_counter() - t0))
+                out.append(
+                    Outcome(i, job.label, False, error=error_line(e), seconds=time.perf_counter() - t0)
+                )
             tracker.finished(out[-1].ok)
         tracker.close()
         return out
@@ -195,8 +199,13 @@ class ProcessExecutor:
 
     name = "process"
 
-    def __init__(self, workers: int | None = None, progress: bool = False, gpus: list[int] | None = None,
-                 max_attempts: int = MAX_ATTEMPTS):
+    def __init__(
+        self,
+        workers: int | None = None,
+        progress: bool = False,
+        gpus: list[int] | None = None,
+        max_attempts: int = MAX_ATTEMPTS,
+    ):
         self.gpus = list(gpus) if gpus else None
         self.workers = len(self.gpus) if self.gpus else (workers or os.cpu_count() or 1)
         self.progress = progress
@@ -209,11 +218,16 @@ class ProcessExecutor:
             queue = self._ctx.Queue()
             for g in self.gpus:
                 queue.put(g)
-            return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx,
-                                       initializer=_gpu_worker_init, initargs=(queue, None))
+            return ProcessPoolExecutor(
+                max_workers=self.workers,
+                mp_context=self._ctx,
+                initializer=_gpu_worker_init,
+                initargs=(queue, None),
+            )
         threads = max(1, (os.cpu_count() or 1) // self.workers)
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx,
-                                   initializer=_worker_init, initargs=(threads,))
+        return ProcessPoolExecutor(
+            max_workers=self.workers, mp_context=self._ctx, initializer=_worker_init, initargs=(threads,)
+        )
 
     def worker_pids(self) -> list[int]:
         """PIDs of the live worker processes (for monitoring and fault-injection tests)."""
@@ -239,21 +253,33 @@ class ProcessExecutor:
                     except BrokenProcessPool as e:
                         broken.append(i)
                         if attempts[i] >= self.max_attempts:
-                            outcomes[i] = Outcome(i, jobs[i].label, False, attempts=attempts[i],
-                                                  error=f"worker died {attempts[i]} times ({error_line(e)})")
+                            outcomes[i] = Outcome(
+                                i,
+                                jobs[i].label,
+                                False,
+                                attempts=attempts[i],
+                                error=f"worker died {attempts[i]} times ({error_line(e)})",
+                            )
                             tracker.finished(False)
                         else:
                             tracker.requeued()
                         continue
                     except Exception as e:  # noqa: BLE001 — the job's own error, reported per job
-                        outcomes[i] = Outcome(i, jobs[i].label, False, error=error_line(e), attempts=attempts[i],
-                                              seconds=time.perf_counter() - t0)
+                        outcomes[i] = Outcome(
+                            i,
+                            jobs[i].label,
+                            False,
+                            error=error_line(e),
+                            attempts=attempts[i],
+                            seconds=time.perf_counter() - t0,
+                        )
                         if _exceptions is not None:
                             _exceptions[i] = e
                         tracker.finished(False)
                         continue
-                    outcomes[i] = Outcome(i, jobs[i].label, True, value, attempts=attempts[i],
-                                          seconds=time.perf_counter() - t0)
+                    outcomes[i] = Outcome(
+                        i, jobs[i].label, True, value, attempts=attempts[i], seconds=time.perf_counter() - t0
+                    )
                     tracker.finished(True)
                 todo = [i for i in broken if outcomes[i] is None]
                 if broken:
@@ -271,8 +297,13 @@ class ProcessExecutor:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
-def make_executor(name: str = "inline", workers: int | None = None, progress: bool = False,
-                  address: str | None = None, gpus: list[int] | None = None):
+def make_executor(
+    name: str = "inline",
+    workers: int | None = None,
+    progress: bool = False,
+    address: str | None = None,
+    gpus: list[int] | None = None,
+):
     """``inline``, ``process`` (``gpus``: one worker per listed GPU) or ``ray`` (``address`` of an
     existing cluster, or a local one)."""
     if name == "inline":

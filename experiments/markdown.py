@@ -39,7 +39,7 @@ def markdown_inline(text: str) -> str:
     """
     out, pos = [], 0
     for m in INLINE.finditer(text):
-        out.append(escape(text[pos:m.start()]))
+        out.append(escape(text[pos : m.start()]))
         pos = m.end()
         g = m.lastgroup
         if m.group("esc"):

@@ -44,10 +44,15 @@ ELEVATIONS_QUICK = (45.0, 10.0, -4.0)
 VIEWER_ALTITUDE_M = 10.0
 SEED_CFG = {"layers": 32, "width": 128, "height": 64, "table_size": 128, "mapping": "linear"}
 FINE_CFG = {"layers": 128, "width": 512, "height": 256, "table_size": 512, "mapping": "sqrt"}
-LABELS = {"nishita-seed": "Nishita, seed setting (n=32, 128×64)", "nishita-fine": "Nishita, n=128, 512×256",
-          "nishita-spectral": "Nishita spectral (16 λ → sRGB)", "nishita-fitted": "Nishita, fitted artist parameters",
-          "quadrature": "independent SS quadrature (pixel subset)", "sunsky": "Mitsuba sunsky (scaled)",
-          "quadrature-spectral": "independent spectral SS quadrature (pixel subset)"}
+LABELS = {
+    "nishita-seed": "Nishita, seed setting (n=32, 128×64)",
+    "nishita-fine": "Nishita, n=128, 512×256",
+    "nishita-spectral": "Nishita spectral (16 λ → sRGB)",
+    "nishita-fitted": "Nishita, fitted artist parameters",
+    "quadrature": "independent SS quadrature (pixel subset)",
+    "sunsky": "Mitsuba sunsky (scaled)",
+    "quadrature-spectral": "independent spectral SS quadrature (pixel subset)",
+}
 
 
 def configure(quick: bool, spp: int | None) -> dict:
@@ -68,7 +73,8 @@ def configure(quick: bool, spp: int | None) -> dict:
         "quadrature_steps": 400 if quick else 1500,
         "sweep_elevations_deg": [10.0, -4.0],
         "sweep_layers": [4, 8, 16, 32, 64, 128] if not quick else [4, 16, 32, 128],
-        "sweep_textures": [[32, 16], [64, 32], [128, 64], [256, 128], [512, 256]] if not quick
+        "sweep_textures": [[32, 16], [64, 32], [128, 64], [256, 128], [512, 256]]
+        if not quick
         else [[32, 16], [128, 64], [256, 128]],
         "sweep_tables": [16, 32, 64, 128, 256] if not quick else [16, 128],
         "spectral_wavelengths": 16,
@@ -95,8 +101,18 @@ def altitude_id(elev: float, alt_m: float, kind: str) -> str:
 
 
 # --------------------------------------------------------------------------------------------- jobs
-def render_job(elev: float, depth: int, width: int, height: int, spp: int, pass_spp: int, seed: int,
-               variant: str, cache_dir: str, alt_m: float) -> dict:
+def render_job(
+    elev: float,
+    depth: int,
+    width: int,
+    height: int,
+    spp: int,
+    pass_spp: int,
+    seed: int,
+    variant: str,
+    cache_dir: str,
+    alt_m: float,
+) -> dict:
     from rtfit.reference.atmosphere import hemisphere_directions, render_sky
 
     d, _, _ = hemisphere_directions(width, height)
@@ -120,11 +136,14 @@ def spectral_variant(variant: str) -> str | None:
 def spectral_quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt_m: float) -> dict:
     """The spectral float64 quadrature (film sRGB, spectra on 360–830 nm at 1 nm) and the RGB
     (3-wavelength) quadrature on the same pixel subset of a width × height hemisphere image."""
-    from rtfit.reference.atmosphere import (hemisphere_directions, single_scattering_quadrature,
-                                            spectral_single_scattering_quadrature)
+    from rtfit.reference.atmosphere import (
+        hemisphere_directions,
+        single_scattering_quadrature,
+        spectral_single_scattering_quadrature,
+    )
 
     d, _, _ = hemisphere_directions(width, height)
-    sub = d[stride[1] // 2::stride[1], stride[0] // 2::stride[0]]
+    sub = d[stride[1] // 2 :: stride[1], stride[0] // 2 :: stride[0]]
     t0 = time.perf_counter()
     spec = _spec(elev, alt_m)
     q = spectral_single_scattering_quadrature(spec, sub, steps=steps)
@@ -136,7 +155,7 @@ def quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt
     from rtfit.reference.atmosphere import hemisphere_directions, single_scattering_quadrature
 
     d, _, _ = hemisphere_directions(width, height)
-    sub = d[stride[1] // 2::stride[1], stride[0] // 2::stride[0]]
+    sub = d[stride[1] // 2 :: stride[1], stride[0] // 2 :: stride[0]]
     t0 = time.perf_counter()
     q = single_scattering_quadrature(_spec(elev, alt_m), sub, steps=steps)
     return {"value": q, "seconds": time.perf_counter() - t0}
@@ -218,8 +237,12 @@ def _fit_bounds():
     # ambient ≥ 0: a negative isotropic term would make dark pixels negative. The −4° quick fit
     # that ended on ambient = 0 at 256 spp is interior at 1024 spp (docs/nishita-sky.md): the
     # bound is kept, the twilight references get more samples instead.
-    return {"rayleigh_scale": Param(1.0, 0.3, 3.0), "mie_scale": Param(1.0, 0.05, 20.0),
-            "mie_g": Param(0.8, 0.0, 0.95), "ambient": Param(0.3, 0.0, 10.0)}
+    return {
+        "rayleigh_scale": Param(1.0, 0.3, 3.0),
+        "mie_scale": Param(1.0, 0.05, 20.0),
+        "mie_g": Param(0.8, 0.0, 0.95),
+        "ambient": Param(0.3, 0.0, 10.0),
+    }
 
 
 def fit_job(elev: float, dirs, ref_mean, mask, tex_size=(64, 32)) -> dict:
@@ -252,10 +275,28 @@ def fit_job(elev: float, dirs, ref_mean, mask, tex_size=(64, 32)) -> dict:
     cosg = np.clip(d @ s, -1, 1)
     ref = np.asarray(ref_mean, dtype=np.float64)[mask]
     w = 1.0 / (np.abs(ref) + 0.02 * float(np.max(ref)) + 1e-12)
-    res = fit_least_squares(_residual_for(W, H), _fit_bounds(),
-        args=(mu, nu, float(VIEWER_ALTITUDE_M), _m.sin(el_s), tr.ravel(), tm.ravel(), px, py, cosg, ref, w,
-              np.asarray(p.solar_irradiance), np.asarray(p.rayleigh_beta), np.asarray(p.mie_beta),
-              np.asarray(p.mie_extinction)), max_steps=128)
+    res = fit_least_squares(
+        _residual_for(W, H),
+        _fit_bounds(),
+        args=(
+            mu,
+            nu,
+            float(VIEWER_ALTITUDE_M),
+            _m.sin(el_s),
+            tr.ravel(),
+            tm.ravel(),
+            px,
+            py,
+            cosg,
+            ref,
+            w,
+            np.asarray(p.solar_irradiance),
+            np.asarray(p.rayleigh_beta),
+            np.asarray(p.mie_beta),
+            np.asarray(p.mie_extinction),
+        ),
+        max_steps=128,
+    )
     out = res.to_dict()
     out["at_bound"] = [k for k, v in out["parameters"].items() if v["at_bound"]]
     return out
@@ -265,8 +306,13 @@ def fitted_params(fit):
     from dataclasses import replace
 
     x = {k: v["value"] for k, v in fit["parameters"].items()}
-    return replace(_params(), rayleigh_scale=x["rayleigh_scale"], mie_scale=x["mie_scale"],
-                   mie_g=min(x["mie_g"], 0.999), ambient=x["ambient"])
+    return replace(
+        _params(),
+        rayleigh_scale=x["rayleigh_scale"],
+        mie_scale=x["mie_scale"],
+        mie_g=min(x["mie_g"], 0.999),
+        ambient=x["ambient"],
+    )
 
 
 def fitted_image(elev, dirs, fit, backend="llvm"):
@@ -290,36 +336,108 @@ def run(ctx) -> dict:
     jobs = []
     for e in cfg["sun_elevations_deg"]:
         for kind, depth in (("ss", 2), ("ms", -1)):
-            jobs.append(Job("rtfit.experiments.nishita_sky:render_job",
-                            dict(elev=e, depth=depth, width=W, height=H, spp=reference_spp(cfg, e),
-                                 pass_spp=cfg["pass_spp"], seed=ctx.seed, variant=ctx.variant,
-                                 cache_dir=str(ctx.cache_dir), alt_m=cfg["viewer_altitude_m"]),
-                            label=case_id(e, kind)))
-        jobs.append(Job("rtfit.experiments.nishita_sky:quadrature_job",
-                        dict(elev=e, width=W, height=H, stride=cfg["quadrature_stride"], steps=cfg["quadrature_steps"],
-                             alt_m=cfg["viewer_altitude_m"]), label=case_id(e, "quad")))
+            jobs.append(
+                Job(
+                    "rtfit.experiments.nishita_sky:render_job",
+                    dict(
+                        elev=e,
+                        depth=depth,
+                        width=W,
+                        height=H,
+                        spp=reference_spp(cfg, e),
+                        pass_spp=cfg["pass_spp"],
+                        seed=ctx.seed,
+                        variant=ctx.variant,
+                        cache_dir=str(ctx.cache_dir),
+                        alt_m=cfg["viewer_altitude_m"],
+                    ),
+                    label=case_id(e, kind),
+                )
+            )
+        jobs.append(
+            Job(
+                "rtfit.experiments.nishita_sky:quadrature_job",
+                dict(
+                    elev=e,
+                    width=W,
+                    height=H,
+                    stride=cfg["quadrature_stride"],
+                    steps=cfg["quadrature_steps"],
+                    alt_m=cfg["viewer_altitude_m"],
+                ),
+                label=case_id(e, "quad"),
+            )
+        )
     for e, alt in cfg["altitude_cases"]:
-        jobs.append(Job("rtfit.experiments.nishita_sky:render_job",
-                        dict(elev=e, depth=2, width=W, height=H, spp=cfg["spp"], pass_spp=cfg["pass_spp"],
-                             seed=ctx.seed, variant=ctx.variant, cache_dir=str(ctx.cache_dir), alt_m=alt),
-                        label=altitude_id(e, alt, "ss")))
-        jobs.append(Job("rtfit.experiments.nishita_sky:quadrature_job",
-                        dict(elev=e, width=W, height=H, stride=cfg["quadrature_stride"], steps=cfg["quadrature_steps"],
-                             alt_m=alt), label=altitude_id(e, alt, "quad")))
+        jobs.append(
+            Job(
+                "rtfit.experiments.nishita_sky:render_job",
+                dict(
+                    elev=e,
+                    depth=2,
+                    width=W,
+                    height=H,
+                    spp=cfg["spp"],
+                    pass_spp=cfg["pass_spp"],
+                    seed=ctx.seed,
+                    variant=ctx.variant,
+                    cache_dir=str(ctx.cache_dir),
+                    alt_m=alt,
+                ),
+                label=altitude_id(e, alt, "ss"),
+            )
+        )
+        jobs.append(
+            Job(
+                "rtfit.experiments.nishita_sky:quadrature_job",
+                dict(
+                    elev=e,
+                    width=W,
+                    height=H,
+                    stride=cfg["quadrature_stride"],
+                    steps=cfg["quadrature_steps"],
+                    alt_m=alt,
+                ),
+                label=altitude_id(e, alt, "quad"),
+            )
+        )
     sv = spectral_variant(ctx.variant)
     if sv is None:
         cfg["spectral_elevations_deg"] = []
     SW, SH = cfg["spectral_resolution"]
     for e in cfg["spectral_elevations_deg"]:
-        jobs.append(Job("rtfit.experiments.nishita_sky:render_job",
-                        dict(elev=e, depth=2, width=SW, height=SH, spp=cfg["spectral_spp"],
-                             pass_spp=cfg["spectral_pass_spp"], seed=ctx.seed, variant=sv,
-                             cache_dir=str(ctx.cache_dir), alt_m=cfg["viewer_altitude_m"]),
-                        label=case_id(e, "ss-spectral")))
-        jobs.append(Job("rtfit.experiments.nishita_sky:spectral_quadrature_job",
-                        dict(elev=e, width=SW, height=SH, stride=cfg["spectral_quadrature_stride"],
-                             steps=cfg["quadrature_steps"], alt_m=cfg["viewer_altitude_m"]),
-                        label=case_id(e, "quad-spectral")))
+        jobs.append(
+            Job(
+                "rtfit.experiments.nishita_sky:render_job",
+                dict(
+                    elev=e,
+                    depth=2,
+                    width=SW,
+                    height=SH,
+                    spp=cfg["spectral_spp"],
+                    pass_spp=cfg["spectral_pass_spp"],
+                    seed=ctx.seed,
+                    variant=sv,
+                    cache_dir=str(ctx.cache_dir),
+                    alt_m=cfg["viewer_altitude_m"],
+                ),
+                label=case_id(e, "ss-spectral"),
+            )
+        )
+        jobs.append(
+            Job(
+                "rtfit.experiments.nishita_sky:spectral_quadrature_job",
+                dict(
+                    elev=e,
+                    width=SW,
+                    height=SH,
+                    stride=cfg["spectral_quadrature_stride"],
+                    steps=cfg["quadrature_steps"],
+                    alt_m=cfg["viewer_altitude_m"],
+                ),
+                label=case_id(e, "quad-spectral"),
+            )
+        )
     ctx.log(f"rendering {len(jobs)} references / quadratures")
     t0 = time.perf_counter()
     done = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references")))

@@ -66,8 +66,15 @@ class RayExecutor:
 
     name = "ray"
 
-    def __init__(self, address: str | None = None, workers: int | None = None, progress: bool = False,
-                 max_attempts: int = MAX_ATTEMPTS, num_cpus: int | None = None, num_gpus: int | None = None):
+    def __init__(
+        self,
+        address: str | None = None,
+        workers: int | None = None,
+        progress: bool = False,
+        max_attempts: int = MAX_ATTEMPTS,
+        num_cpus: int | None = None,
+        num_gpus: int | None = None,
+    ):
         ray = _import_ray()
         self._ray = ray
         self.progress = progress
@@ -150,8 +157,14 @@ class RayExecutor:
                     if isinstance(cause, lost_worker):
                         self._lost(i, slot, cause, attempts, outcomes, queue, tracker, jobs)
                     else:
-                        outcomes[i] = Outcome(i, jobs[i].label, False, error=error_line(cause),
-                                              attempts=attempts[i], seconds=time.perf_counter() - t0)
+                        outcomes[i] = Outcome(
+                            i,
+                            jobs[i].label,
+                            False,
+                            error=error_line(cause),
+                            attempts=attempts[i],
+                            seconds=time.perf_counter() - t0,
+                        )
                         if _exceptions is not None:
                             _exceptions[i] = cause
                         tracker.finished(False)
@@ -161,8 +174,9 @@ class RayExecutor:
                     self._lost(i, slot, e, attempts, outcomes, queue, tracker, jobs)
                     idle.append(slot)
                     continue
-                outcomes[i] = Outcome(i, jobs[i].label, True, value, attempts=attempts[i],
-                                      seconds=time.perf_counter() - t0)
+                outcomes[i] = Outcome(
+                    i, jobs[i].label, True, value, attempts=attempts[i], seconds=time.perf_counter() - t0
+                )
                 tracker.finished(True)
                 idle.append(slot)
         finally:
@@ -178,8 +192,13 @@ class RayExecutor:
         self._actors[slot] = self._new_actor()
         self._pids[slot] = self._ray.get(self._actors[slot].pid.remote())
         if attempts[i] >= self.max_attempts:
-            outcomes[i] = Outcome(i, jobs[i].label, False, attempts=attempts[i],
-                                  error=f"worker died {attempts[i]} times ({error_line(exc)})")
+            outcomes[i] = Outcome(
+                i,
+                jobs[i].label,
+                False,
+                attempts=attempts[i],
+                error=f"worker died {attempts[i]} times ({error_line(exc)})",
+            )
             tracker.finished(False)
         else:
             queue.insert(0, i)

@@ -35,35 +35,47 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
     spec.name: spec
     for spec in [
         ExperimentSpec(
-            "half-lambert", "rtfit.experiments.half_lambert",
+            "half-lambert",
+            "rtfit.experiments.half_lambert",
             "Half-Lambert and wrap lighting vs exact sphere-light irradiance",
             "White diffuse sphere under a spherical light of angular radius 0.27°–30°, with and without "
-            "a constant sky: Lambert, half-Lambert and fitted wrap lighting against Mitsuba."),
+            "a constant sky: Lambert, half-Lambert and fitted wrap lighting against Mitsuba.",
+        ),
         ExperimentSpec(
-            "irradiance-bases", "rtfit.experiments.irradiance_bases",
+            "irradiance-bases",
+            "rtfit.experiments.irradiance_bases",
             "Irradiance bases: ambient cube vs spherical harmonics against path-traced irradiance",
             "Valve ambient cube (axis-sampled and NNLS-optimal), SH L1/L2 and windowed SH under constant, "
-            "sun, sunsky, studio, overcast and measured light probes, with per-probe storage and cost."),
+            "sun, sunsky, studio, overcast and measured light probes, with per-probe storage and cost.",
+        ),
         ExperimentSpec(
-            "ambient-aperture", "rtfit.experiments.ambient_aperture",
+            "ambient-aperture",
+            "rtfit.experiments.ambient_aperture",
             "Ambient aperture lighting: spherical-cap intersection, exact vs smoothstep vs fitted",
             "Solid angle of two intersecting spherical caps over the whole domain, and ambient-aperture "
-            "shading of area-light occlusion against Mitsuba renders."),
+            "shading of area-light occlusion against Mitsuba renders.",
+        ),
         ExperimentSpec(
-            "sdf-occlusion", "rtfit.experiments.sdf_occlusion",
+            "sdf-occlusion",
+            "rtfit.experiments.sdf_occlusion",
             "SDF occlusion and skylight (Evans) vs path-traced ambient occlusion and sky light",
             "Multi-scale signed-distance sampling and cone-traced soft occlusion against Mitsuba AO and "
-            "sky-lit irradiance, with steps-vs-error-vs-cost and fitted contrast."),
+            "sky-lit irradiance, with steps-vs-error-vs-cost and fitted contrast.",
+        ),
         ExperimentSpec(
-            "height-fog", "rtfit.experiments.height_fog",
+            "height-fog",
+            "rtfit.experiments.height_fog",
             "Exponential height fog: closed-form optical depth and fog colour vs path-traced media",
             "Closed-form, seed-listing and Taylor optical-depth forms over the whole domain, and fog "
-            "shading against Mitsuba transmittance and aerial perspective, with fitted artist parameters."),
+            "shading against Mitsuba transmittance and aerial perspective, with fitted artist parameters.",
+        ),
         ExperimentSpec(
-            "nishita-sky", "rtfit.experiments.nishita_sky",
+            "nishita-sky",
+            "rtfit.experiments.nishita_sky",
             "Nishita sky: single-scattering sky texture vs a path-traced spherical-shell atmosphere",
             "The 128×64 Nishita sky texture with per-pixel phase against single- and multiple-scattering "
-            "Mitsuba references and sunsky, with layers-vs-error-vs-cost and fitted artist parameters."),
+            "Mitsuba references and sunsky, with layers-vs-error-vs-cost and fitted artist parameters.",
+        ),
     ]
 }
 
@@ -79,7 +91,8 @@ def _same_kind(default, value) -> bool:
         return isinstance(value, (int, float)) and (isinstance(value, int) or math.isfinite(value))
     if isinstance(default, (list, tuple)):
         return isinstance(value, (list, tuple)) and all(
-            not isinstance(v, float) or math.isfinite(v) for v in value)
+            not isinstance(v, float) or math.isfinite(v) for v in value
+        )
     return type(default) is type(value) or default is None
 
 
@@ -90,7 +103,9 @@ def apply_overrides(defaults: dict, overrides: dict, experiment: str = "") -> di
     out = dict(defaults)
     for key, value in overrides.items():
         if key not in defaults:
-            raise ValueError(f"{key!r} is not a configuration key{where} (known: {', '.join(sorted(defaults))})")
+            raise ValueError(
+                f"{key!r} is not a configuration key{where} (known: {', '.join(sorted(defaults))})"
+            )
         if not _same_kind(defaults[key], value):
             raise ValueError(f"{key} = {value!r}: expected a value like {defaults[key]!r}")
         out[key] = type(defaults[key])(value) if isinstance(defaults[key], float) else value
@@ -102,7 +117,8 @@ def get_experiment(name: str) -> ExperimentSpec:
         return EXPERIMENTS[name]
     except KeyError:
         raise UnknownExperiment(
-            f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)}; or 'all')") from None
+            f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)}; or 'all')"
+        ) from None
 
 
 def resolve_names(names: tuple[str, ...] | list[str]) -> list[ExperimentSpec]:
@@ -111,7 +127,7 @@ def resolve_names(names: tuple[str, ...] | list[str]) -> list[ExperimentSpec]:
         raise UnknownExperiment(f"name an experiment (known: {', '.join(EXPERIMENTS)}; or 'all')")
     specs: list[ExperimentSpec] = []
     for name in names:
-        for spec in (list(EXPERIMENTS.values()) if name == "all" else [get_experiment(name)]):
+        for spec in list(EXPERIMENTS.values()) if name == "all" else [get_experiment(name)]:
             if spec not in specs:
                 specs.append(spec)
     return specs

@@ -56,9 +56,13 @@ METRICS: dict[str, tuple[str, bool | None]] = {
     "ssim": ("SSIM", False),
     "flip": ("FLIP", True),
 }
-UNRESOLVED_NOTE = ("† Below the reference's own noise floor: this error is indistinguishable from the "
-                   "Monte Carlo noise of the ground truth and means nothing.")
-AT_BOUND_NOTE = "‡ At a bound of its allowed range: the fit is constrained there, so its standard error is unreliable."
+UNRESOLVED_NOTE = (
+    "† Below the reference's own noise floor: this error is indistinguishable from the "
+    "Monte Carlo noise of the ground truth and means nothing."
+)
+AT_BOUND_NOTE = (
+    "‡ At a bound of its allowed range: the fit is constrained there, so its standard error is unreliable."
+)
 
 
 # ------------------------------------------------------------------------------------------ numbers
@@ -188,14 +192,18 @@ class _Doc:
 
     def table(self, key, caption, header, rows, notes=(), tex_cols=None, tex=True):
         self.tables += 1
-        self.blocks.append(_Table(self.anchor(f"table-{key}"), self.tables, caption, header, rows,
-                                  list(notes), tex_cols, tex))
+        self.blocks.append(
+            _Table(
+                self.anchor(f"table-{key}"), self.tables, caption, header, rows, list(notes), tex_cols, tex
+            )
+        )
 
     def figure(self, images, caption):
         self.figures += 1
         missing = [f for f, _ in images if self.dir is not None and not (self.dir / f).is_file()]
-        self.blocks.append(_Figure(self.figures, self.anchor(f"figure-{self.figures}"), images,
-                                   caption, missing))
+        self.blocks.append(
+            _Figure(self.figures, self.anchor(f"figure-{self.figures}"), images, caption, missing)
+        )
 
 
 def _metric_name(key: str) -> str:
@@ -226,9 +234,14 @@ def _mark_best(cells: list[_Cell], entries: list, key: str) -> None:
     lower = METRICS.get(key, (key, None))[1]
     if lower is None:
         return
-    vals = [(e.get("value"), i) for i, e in enumerate(entries)
-            if isinstance(e, dict) and isinstance(e.get("value"), (int, float)) and not isinstance(e.get("value"), bool)
-            and e.get("resolved") is not False]
+    vals = [
+        (e.get("value"), i)
+        for i, e in enumerate(entries)
+        if isinstance(e, dict)
+        and isinstance(e.get("value"), (int, float))
+        and not isinstance(e.get("value"), bool)
+        and e.get("resolved") is not False
+    ]
     if len(entries) < 2 or not vals:
         return
     best = min(v for v, _ in vals) if lower else max(v for v, _ in vals)
@@ -263,9 +276,20 @@ def _label(d: dict, *keys) -> str:
     return "?"
 
 
-_BUILTIN_TARGETS = {"summary": "summary", "setup": "setup", "results": "results", "result": "results",
-                    "costs": "costs", "cost": "costs", "fits": "fits", "fit": "fits",
-                    "checks": "checks", "check": "checks", "notes": "notes", "figures": "figures"}
+_BUILTIN_TARGETS = {
+    "summary": "summary",
+    "setup": "setup",
+    "results": "results",
+    "result": "results",
+    "costs": "costs",
+    "cost": "costs",
+    "fits": "fits",
+    "fit": "fits",
+    "checks": "checks",
+    "check": "checks",
+    "notes": "notes",
+    "figures": "figures",
+}
 
 
 def _build(results: dict, directory: Path | None) -> _Doc:
@@ -279,7 +303,11 @@ def _build(results: dict, directory: Path | None) -> _Doc:
     placed: dict[tuple[str, str], list[dict]] = {}
     for fig in r.get("figures") or []:
         target = str(fig.get("section") or "figures")
-        key = ("user", target) if target in user_ids else ("builtin", _BUILTIN_TARGETS.get(target.lower(), "figures"))
+        key = (
+            ("user", target)
+            if target in user_ids
+            else ("builtin", _BUILTIN_TARGETS.get(target.lower(), "figures"))
+        )
         placed.setdefault(key, []).append(fig)
 
     def emit_figures(key):
@@ -294,14 +322,25 @@ def _build(results: dict, directory: Path | None) -> _Doc:
     d.heading(2, "Setup", "setup")
     cfg = r.get("config") or {}
     if cfg:
-        d.table("config", "Configuration of this run.", [_Cell("Setting"), _Cell("Value")],
-                [[_Cell(f"`{k}`", md=True), _Cell(format_number(v, trim=True))] for k, v in cfg.items()], tex=False)
+        d.table(
+            "config",
+            "Configuration of this run.",
+            [_Cell("Setting"), _Cell("Value")],
+            [[_Cell(f"`{k}`", md=True), _Cell(format_number(v, trim=True))] for k, v in cfg.items()],
+            tex=False,
+        )
     vers = r.get("versions") or {}
     if vers:
-        d.table("versions", "Software versions.", [_Cell("Package"), _Cell("Version")],
-                [[_Cell(str(k)), _Cell("not installed" if v is None else str(v))] for k, v in vers.items()],
-                tex=False)
-    d.blocks.append(_Bullets([f"**Device:** {_md_text(r['device'])}", f"**Created:** {_md_text(r['created'])}"]))
+        d.table(
+            "versions",
+            "Software versions.",
+            [_Cell("Package"), _Cell("Version")],
+            [[_Cell(str(k)), _Cell("not installed" if v is None else str(v))] for k, v in vers.items()],
+            tex=False,
+        )
+    d.blocks.append(
+        _Bullets([f"**Device:** {_md_text(r['device'])}", f"**Created:** {_md_text(r['created'])}"])
+    )
     emit_figures(("builtin", "setup"))
 
     def emit_user(placement):
@@ -331,17 +370,25 @@ def _build(results: dict, directory: Path | None) -> _Doc:
             cells = [_metric_cell(e) if e is not None else _Cell("—", numeric=True) for e in entries]
             _mark_best(cells, [e if e is not None else {} for e in entries], head)
             rows.append([_Cell(c["label"])] + cells)
-        d.table("overview", f"{METRICS.get(head, (head,))[0]} of every approximation in every case "
-                            f"(value with the reference's noise floor; bold: best resolved value in the row).",
-                [_Cell("Case")] + [_Cell(lab, numeric=True) for _, lab in methods], rows,
-                [UNRESOLVED_NOTE] if any(cl.mark for row in rows for cl in row) else [])
+        d.table(
+            "overview",
+            f"{METRICS.get(head, (head,))[0]} of every approximation in every case "
+            f"(value with the reference's noise floor; bold: best resolved value in the row).",
+            [_Cell("Case")] + [_Cell(lab, numeric=True) for _, lab in methods],
+            rows,
+            [UNRESOLVED_NOTE] if any(cl.mark for row in rows for cl in row) else [],
+        )
     for c in cases:
         d.heading(3, c["label"], f"case-{c['id']}")
         lines = [f"Case `{c['id']}`" + (f": {_kv_line(c['parameters'])}." if c.get("parameters") else ".")]
         scene = c.get("scene") or {}
         if scene:
-            lines.append("Scene " + (f"`{scene['name']}`" if scene.get("name") else "")
-                         + (f" (sha256 `{str(scene['hash'])[:12]}…`)" if scene.get("hash") else "") + ".")
+            lines.append(
+                "Scene "
+                + (f"`{scene['name']}`" if scene.get("name") else "")
+                + (f" (sha256 `{str(scene['hash'])[:12]}…`)" if scene.get("hash") else "")
+                + "."
+            )
         if c.get("reference"):
             lines.append(f"Reference: {_kv_line(c['reference'])}.")
         d.prose(" ".join(lines))
@@ -350,11 +397,20 @@ def _build(results: dict, directory: Path | None) -> _Doc:
             d.prose("No approximations were evaluated in this case.")
             continue
         keys = _metric_keys(aps)
-        columns = [[_metric_cell((ap.get("metrics") or {}).get(k)) if k in (ap.get("metrics") or {})
-                    else _Cell("—", numeric=True) for ap in aps] for k in keys]
+        columns = [
+            [
+                _metric_cell((ap.get("metrics") or {}).get(k))
+                if k in (ap.get("metrics") or {})
+                else _Cell("—", numeric=True)
+                for ap in aps
+            ]
+            for k in keys
+        ]
         for k, col in zip(keys, columns):
             _mark_best(col, [(ap.get("metrics") or {}).get(k) or {} for ap in aps], k)
-        has_cost = any(isinstance(ap.get("cost"), dict) and ap["cost"].get("ns_per_pixel") is not None for ap in aps)
+        has_cost = any(
+            isinstance(ap.get("cost"), dict) and ap["cost"].get("ns_per_pixel") is not None for ap in aps
+        )
         header = [_Cell("Method")] + [_Cell(_metric_name(k), numeric=True) for k in keys]
         header += [_Cell("ns/pixel", numeric=True)] if has_cost else []
         header += [_Cell("Parameters")]
@@ -367,10 +423,15 @@ def _build(results: dict, directory: Path | None) -> _Doc:
             row.append(_Cell(("fitted: " if ap.get("fitted") else "") + params))
             rows.append(row)
         unresolved = any(cl.mark for col in columns for cl in col)
-        d.table(f"case-{c['id']}",
-                f"Error metrics for {c['label']}: each value with the reference's noise floor "
-                "(↓ lower is better, ↑ higher is better; bold: best resolved value).",
-                header, rows, [UNRESOLVED_NOTE] if unresolved else [], tex_cols=list(range(1 + len(keys))))
+        d.table(
+            f"case-{c['id']}",
+            f"Error metrics for {c['label']}: each value with the reference's noise floor "
+            "(↓ lower is better, ↑ higher is better; bold: best resolved value).",
+            header,
+            rows,
+            [UNRESOLVED_NOTE] if unresolved else [],
+            tex_cols=list(range(1 + len(keys))),
+        )
         imgs = [(f, _label(ap, "label", "method")) for ap in aps for f in ap.get("figures") or []]
         if imgs:
             d.figure(imgs, f"{c['label']}: " + ", ".join(lab for _, lab in imgs) + " (left to right).")
@@ -381,14 +442,29 @@ def _build(results: dict, directory: Path | None) -> _Doc:
     if costs or ("builtin", "costs") in placed:
         d.heading(2, "Cost", "costs")
         if costs:
-            cols = [("ns_per_pixel", "ns/pixel"), ("pixels_per_second", "pixels/s"), ("backend", "Backend"),
-                    ("note", "Note")]
+            cols = [
+                ("ns_per_pixel", "ns/pixel"),
+                ("pixels_per_second", "pixels/s"),
+                ("backend", "Backend"),
+                ("note", "Note"),
+            ]
             cols = [(k, n) for k, n in cols if any(c.get(k) is not None for c in costs)]
-            rows = [[_Cell(_label(c, "label", "method"))]
-                    + [_Cell(str(c.get(k) or ""), md=True) if k == "note" else
-                       _Cell(format_number(c.get(k)), numeric=k != "backend") for k, _ in cols] for c in costs]
-            d.table("costs", "Measured cost per pixel on this run's device.",
-                    [_Cell("Method")] + [_Cell(n, numeric=k not in ("backend", "note")) for k, n in cols], rows)
+            rows = [
+                [_Cell(_label(c, "label", "method"))]
+                + [
+                    _Cell(str(c.get(k) or ""), md=True)
+                    if k == "note"
+                    else _Cell(format_number(c.get(k)), numeric=k != "backend")
+                    for k, _ in cols
+                ]
+                for c in costs
+            ]
+            d.table(
+                "costs",
+                "Measured cost per pixel on this run's device.",
+                [_Cell("Method")] + [_Cell(n, numeric=k not in ("backend", "note")) for k, n in cols],
+                rows,
+            )
         emit_figures(("builtin", "costs"))
 
     # Fits.
@@ -406,25 +482,47 @@ def _build(results: dict, directory: Path | None) -> _Doc:
                         val.text += " ± " + format_number(p["stderr"])
                     if p.get("at_bound"):
                         val.style, val.mark, at_bound = "at-bound", "‡", True
-                    bounds = "" if p.get("lower") is None and p.get("upper") is None else \
-                        f"[{format_number(p.get('lower'))}, {format_number(p.get('upper'))}]"
+                    bounds = (
+                        ""
+                        if p.get("lower") is None and p.get("upper") is None
+                        else f"[{format_number(p.get('lower'))}, {format_number(p.get('upper'))}]"
+                    )
                     first = j == 0
                     conv = f.get("converged")
-                    rows.append([
-                        _Cell(_label(f, "label", "id") if first else "", sub=str(f.get("model") or "") if first else ""),
-                        _Cell(str(name)), val, _Cell(bounds, numeric=True),
-                        _Cell(format_number(f.get("rms_residual")) if first else "", numeric=True),
-                        _Cell(format_number(f.get("n_residuals")) if first else "", numeric=True),
-                        _Cell(("yes" if conv else "no") if first and conv is not None else "",
-                              style="" if conv or not first or conv is None else "fail"),
-                    ])
+                    rows.append(
+                        [
+                            _Cell(
+                                _label(f, "label", "id") if first else "",
+                                sub=str(f.get("model") or "") if first else "",
+                            ),
+                            _Cell(str(name)),
+                            val,
+                            _Cell(bounds, numeric=True),
+                            _Cell(format_number(f.get("rms_residual")) if first else "", numeric=True),
+                            _Cell(format_number(f.get("n_residuals")) if first else "", numeric=True),
+                            _Cell(
+                                ("yes" if conv else "no") if first and conv is not None else "",
+                                style="" if conv or not first or conv is None else "fail",
+                            ),
+                        ]
+                    )
                 if f.get("file"):
                     files.append(f"[`{f['file']}`]({f['file']}) ({_label(f, 'label', 'id')})")
-            d.table("fits", "Fitted parameters (value ± standard error; bounds of the allowed range).",
-                    [_Cell("Fit"), _Cell("Parameter"), _Cell("Value ± s.e.", numeric=True),
-                     _Cell("Bounds", numeric=True), _Cell("RMS residual", numeric=True),
-                     _Cell("Residuals", numeric=True), _Cell("Converged")],
-                    rows, [AT_BOUND_NOTE] if at_bound else [])
+            d.table(
+                "fits",
+                "Fitted parameters (value ± standard error; bounds of the allowed range).",
+                [
+                    _Cell("Fit"),
+                    _Cell("Parameter"),
+                    _Cell("Value ± s.e.", numeric=True),
+                    _Cell("Bounds", numeric=True),
+                    _Cell("RMS residual", numeric=True),
+                    _Cell("Residuals", numeric=True),
+                    _Cell("Converged"),
+                ],
+                rows,
+                [AT_BOUND_NOTE] if at_bound else [],
+            )
             if files:
                 d.prose("Fitted-parameter files:")
                 d.blocks.append(_Bullets(files))
@@ -437,14 +535,26 @@ def _build(results: dict, directory: Path | None) -> _Doc:
         if checks:
             failed = sum(1 for c in checks if not c["passed"])
             n = len(checks)
-            d.prose(("The check passed." if n == 1 else f"All {n} checks passed.") if not failed else
-                    f"**{failed} of {n} check{'s' if n != 1 else ''} FAILED.**")
-            rows = [[_Cell(c["name"]), _Cell(format_number(c.get("value")), numeric=True),
-                     _Cell(format_number(c.get("expected"))),
-                     _Cell("pass" if c["passed"] else "FAIL", style="pass" if c["passed"] else "fail")]
-                    for c in checks]
-            d.table("checks", "Consistency checks of this run.",
-                    [_Cell("Check"), _Cell("Value", numeric=True), _Cell("Expected"), _Cell("Result")], rows)
+            d.prose(
+                ("The check passed." if n == 1 else f"All {n} checks passed.")
+                if not failed
+                else f"**{failed} of {n} check{'s' if n != 1 else ''} FAILED.**"
+            )
+            rows = [
+                [
+                    _Cell(c["name"]),
+                    _Cell(format_number(c.get("value")), numeric=True),
+                    _Cell(format_number(c.get("expected"))),
+                    _Cell("pass" if c["passed"] else "FAIL", style="pass" if c["passed"] else "fail"),
+                ]
+                for c in checks
+            ]
+            d.table(
+                "checks",
+                "Consistency checks of this run.",
+                [_Cell("Check"), _Cell("Value", numeric=True), _Cell("Expected"), _Cell("Result")],
+                rows,
+            )
         emit_figures(("builtin", "checks"))
 
     emit_user("after_results")
@@ -495,8 +605,12 @@ def _toc(d: _Doc) -> list[tuple[_Heading, list[_Heading]]]:
 
 def _render_md(d: _Doc) -> str:
     r = d.r
-    out = [f"# {_md_text(r['title'])}", "",
-           f"*rtfit experiment `{r['experiment']}` · {_md_text(r['created'])} · {_md_text(r['device'])}*", ""]
+    out = [
+        f"# {_md_text(r['title'])}",
+        "",
+        f"*rtfit experiment `{r['experiment']}` · {_md_text(r['created'])} · {_md_text(r['device'])}*",
+        "",
+    ]
     toc = ["**Contents**", ""]
     for h, subs in _toc(d):
         toc.append(f"- [{_heading_text(h)}](#{h.anchor})")
@@ -530,8 +644,10 @@ def _render_md(d: _Doc) -> str:
 
 def _footer_text(r: dict) -> str:
     v = (r.get("versions") or {}).get("rtfit")
-    return (f"Generated by rtfit{' ' + str(v) if v else ''} from `results.json` (schema `{SCHEMA}`); "
-            "regenerate with `rtfit report DIR`.")
+    return (
+        f"Generated by rtfit{' ' + str(v) if v else ''} from `results.json` (schema `{SCHEMA}`); "
+        "regenerate with `rtfit report DIR`."
+    )
 
 
 # --------------------------------------------------------------------------------------------- html
@@ -597,10 +713,16 @@ footer { margin-top: 3rem; padding-top: .8rem; border-top: 1px solid var(--light
 
 
 def _html_cell(c: _Cell, tag: str = "td") -> str:
-    classes = [x for x in ("num" if c.numeric else "", c.style, "sub-block" if c.sub and not c.numeric else "") if x]
+    classes = [
+        x for x in ("num" if c.numeric else "", c.style, "sub-block" if c.sub and not c.numeric else "") if x
+    ]
     body = markdown_inline(c.text) if c.md else _esc(c.text)
     if c.sub:
-        body += f' <span class="sub">({_esc(c.sub)})</span>' if c.numeric else f'<span class="sub">{_esc(c.sub)}</span>'
+        body += (
+            f' <span class="sub">({_esc(c.sub)})</span>'
+            if c.numeric
+            else f'<span class="sub">{_esc(c.sub)}</span>'
+        )
     if c.mark:
         body += f'<span class="mark">{_esc(c.mark)}</span>'
     cls = f' class="{" ".join(classes)}"' if classes else ""
@@ -613,38 +735,56 @@ def _html_table(b: _Table) -> str:
     head = "".join(_html_cell(c, "th") for c in b.header)
     body = "\n".join("<tr>" + "".join(_html_cell(c) for c in row) + "</tr>" for row in b.rows)
     notes = "".join(f'<p class="table-note">{_esc(n)}</p>' for n in b.notes)
-    return (f'<div class="table-wrap" id="{b.anchor}"><table>\n<caption><b>Table {b.number}:</b> {_esc(b.caption)}'
-            f"</caption>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody></table>{notes}</div>")
+    return (
+        f'<div class="table-wrap" id="{b.anchor}"><table>\n<caption><b>Table {b.number}:</b> {_esc(b.caption)}'
+        f"</caption>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody></table>{notes}</div>"
+    )
 
 
 def _html_figure(b: _Figure) -> str:
     imgs = "".join(
         f'<div><img src="{_esc(f)}" alt="{_esc(sub or f"Figure {b.number}")}" loading="lazy">'
-        + (f'<span class="sublabel">{_esc(sub)}</span>' if sub and len(b.images) > 1 else "") + "</div>"
-        for f, sub in b.images)
-    missing = (f' <span class="missing">(missing: {_esc(", ".join(b.missing))})</span>' if b.missing else "")
-    return (f'<figure id="{b.anchor}"><div class="images">{imgs}</div>'
-            f"<figcaption><b>Figure {b.number}:</b> {markdown_inline(b.caption)}{missing}</figcaption></figure>")
+        + (f'<span class="sublabel">{_esc(sub)}</span>' if sub and len(b.images) > 1 else "")
+        + "</div>"
+        for f, sub in b.images
+    )
+    missing = f' <span class="missing">(missing: {_esc(", ".join(b.missing))})</span>' if b.missing else ""
+    return (
+        f'<figure id="{b.anchor}"><div class="images">{imgs}</div>'
+        f"<figcaption><b>Figure {b.number}:</b> {markdown_inline(b.caption)}{missing}</figcaption></figure>"
+    )
 
 
 def _html_page(title: str, body: str) -> str:
-    return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
-            f"<title>{_esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n<main>\n{body}\n</main>\n"
-            "</body>\n</html>\n")
+    return (
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
+        f"<title>{_esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n<main>\n{body}\n</main>\n"
+        "</body>\n</html>\n"
+    )
 
 
 def _render_html(d: _Doc) -> str:
     r = d.r
-    parts = [f"<header><h1>{_esc(r['title'])}</h1>",
-             f'<p class="meta">rtfit experiment <code>{_esc(r["experiment"])}</code> · {_esc(r["created"])} · '
-             f"{_esc(r['device'])}</p></header>"]
+    parts = [
+        f"<header><h1>{_esc(r['title'])}</h1>",
+        f'<p class="meta">rtfit experiment <code>{_esc(r["experiment"])}</code> · {_esc(r["created"])} · '
+        f"{_esc(r['device'])}</p></header>",
+    ]
+
     def link(h):
         return f'<a href="#{h.anchor}"><span class="secnum">{_esc(h.number)}</span>{_esc(h.title)}</a>'
 
-    toc = ('<nav class="toc"><h2>Contents</h2><ol>' + "".join(
-        f"<li>{link(h)}" + (f"<ol>{''.join(f'<li>{link(s)}</li>' for s in subs)}</ol>" if subs else "") + "</li>"
-        for h, subs in _toc(d)) + "</ol></nav>")
+    toc = (
+        '<nav class="toc"><h2>Contents</h2><ol>'
+        + "".join(
+            f"<li>{link(h)}"
+            + (f"<ol>{''.join(f'<li>{link(s)}</li>' for s in subs)}</ol>" if subs else "")
+            + "</li>"
+            for h, subs in _toc(d)
+        )
+        + "</ol></nav>"
+    )
     in_abstract = False
     for b in d.blocks:
         if isinstance(b, _Heading):
@@ -676,22 +816,62 @@ def _render_html(d: _Doc) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- tex
-_TEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
-                "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
-                "<": r"\textless{}", ">": r"\textgreater{}", "|": r"\textbar{}"}
-_TEX_GREEK = zip("αβγδεζηθικλμνξπρστυφχψωΓΔΘΛΞΠΣΥΦΨΩ",
-                 "alpha beta gamma delta epsilon zeta eta theta iota kappa lambda mu nu xi pi rho sigma tau upsilon "
-                 "phi chi psi omega Gamma Delta Theta Lambda Xi Pi Sigma Upsilon Phi Psi Omega".split())
+_TEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+    "<": r"\textless{}",
+    ">": r"\textgreater{}",
+    "|": r"\textbar{}",
+}
+_TEX_GREEK = zip(
+    "αβγδεζηθικλμνξπρστυφχψωΓΔΘΛΞΠΣΥΦΨΩ",
+    "alpha beta gamma delta epsilon zeta eta theta iota kappa lambda mu nu xi pi rho sigma tau upsilon "
+    "phi chi psi omega Gamma Delta Theta Lambda Xi Pi Sigma Upsilon Phi Psi Omega".split(),
+)
 _TEX_UNICODE = {
     **{c: rf"\ensuremath{{\{n}}}" for c, n in _TEX_GREEK},
-    "ε": r"\ensuremath{\varepsilon}", "°": r"\ensuremath{^\circ}", "±": r"\ensuremath{\pm}",
-    "≤": r"\ensuremath{\le}", "≥": r"\ensuremath{\ge}", "≈": r"\ensuremath{\approx}", "≠": r"\ensuremath{\ne}",
-    "×": r"\ensuremath{\times}", "·": r"\ensuremath{\cdot}", "−": r"\ensuremath{-}", "∞": r"\ensuremath{\infty}",
-    "→": r"\ensuremath{\to}", "↓": r"\ensuremath{\downarrow}", "↑": r"\ensuremath{\uparrow}",
-    "√": r"\ensuremath{\surd}", "∑": r"\ensuremath{\sum}", "∂": r"\ensuremath{\partial}", "∫": r"\ensuremath{\int}",
-    "²": r"\textsuperscript{2}", "³": r"\textsuperscript{3}", "¹": r"\textsuperscript{1}",
-    "⁻": r"\textsuperscript{\ensuremath{-}}", "—": "---", "–": "--", "…": r"\ldots{}", "†": r"\ensuremath{\dagger}",
-    "‡": r"\ensuremath{\ddagger}", "“": "``", "”": "''", "‘": "`", "’": "'", "\u00a0": "~", "✓": "pass", "✗": "FAIL",
+    "ε": r"\ensuremath{\varepsilon}",
+    "°": r"\ensuremath{^\circ}",
+    "±": r"\ensuremath{\pm}",
+    "≤": r"\ensuremath{\le}",
+    "≥": r"\ensuremath{\ge}",
+    "≈": r"\ensuremath{\approx}",
+    "≠": r"\ensuremath{\ne}",
+    "×": r"\ensuremath{\times}",
+    "·": r"\ensuremath{\cdot}",
+    "−": r"\ensuremath{-}",
+    "∞": r"\ensuremath{\infty}",
+    "→": r"\ensuremath{\to}",
+    "↓": r"\ensuremath{\downarrow}",
+    "↑": r"\ensuremath{\uparrow}",
+    "√": r"\ensuremath{\surd}",
+    "∑": r"\ensuremath{\sum}",
+    "∂": r"\ensuremath{\partial}",
+    "∫": r"\ensuremath{\int}",
+    "²": r"\textsuperscript{2}",
+    "³": r"\textsuperscript{3}",
+    "¹": r"\textsuperscript{1}",
+    "⁻": r"\textsuperscript{\ensuremath{-}}",
+    "—": "---",
+    "–": "--",
+    "…": r"\ldots{}",
+    "†": r"\ensuremath{\dagger}",
+    "‡": r"\ensuremath{\ddagger}",
+    "“": "``",
+    "”": "''",
+    "‘": "`",
+    "’": "'",
+    "\u00a0": "~",
+    "✓": "pass",
+    "✗": "FAIL",
 }
 
 
@@ -711,7 +891,7 @@ def _tex_md(text: str) -> str:
     """Plain-text rendering of inline markdown for LaTeX (code, bold, italic kept; math verbatim)."""
     out, pos = [], 0
     for m in _INLINE.finditer(text):
-        out.append(_tex(text[pos:m.start()]))
+        out.append(_tex(text[pos : m.start()]))
         pos = m.end()
         if m.group("esc"):
             out.append(_tex(m.group("esc")[1]))
@@ -732,7 +912,7 @@ def _tex_md(text: str) -> str:
 
 
 def _tex_cell(c: _Cell) -> str:
-    t = (_tex_num(c.text) if c.numeric else (_tex_md(c.text) if c.md else _tex(c.text)))
+    t = _tex_num(c.text) if c.numeric else (_tex_md(c.text) if c.md else _tex(c.text))
     if c.sub and c.numeric:
         t += r"\,{\scriptsize(" + _tex_num(c.sub.removeprefix("floor ")) + ")}"
     elif c.sub:
@@ -752,20 +932,28 @@ def _tex_label(*parts: str) -> str:
 
 def _render_tex(d: _Doc) -> str:
     r = d.r
-    out = [f"% tables.tex — generated by rtfit from results.json (experiment {r['experiment']}); do not edit.",
-           r"% \input{} it after \usepackage{booktabs}. Greek letters and common symbols are mapped to macros;",
-           "% other non-ASCII characters need a Unicode engine (xelatex, lualatex) or \\usepackage[utf8]{inputenc}.",
-           "% Metric cells: value (noise floor of the reference).", ""]
+    out = [
+        f"% tables.tex — generated by rtfit from results.json (experiment {r['experiment']}); do not edit.",
+        r"% \input{} it after \usepackage{booktabs}. Greek letters and common symbols are mapped to macros;",
+        "% other non-ASCII characters need a Unicode engine (xelatex, lualatex) or \\usepackage[utf8]{inputenc}.",
+        "% Metric cells: value (noise floor of the reference).",
+        "",
+    ]
     for b in d.blocks:
         if not isinstance(b, _Table) or not b.tex:
             continue
         cols = b.tex_cols if b.tex_cols is not None else list(range(len(b.header)))
         spec = "".join("r" if b.header[i].numeric else "l" for i in cols)
-        out += [r"\begin{table}[htbp]", r"  \centering\small",
-                f"  \\caption{{{_tex(b.caption)}}}",
-                f"  \\label{{tab:{_tex_label(r['experiment'], b.anchor.removeprefix('table-'))}}}",
-                f"  \\begin{{tabular}}{{{spec}}}", r"    \toprule",
-                "    " + " & ".join(_tex(b.header[i].text) for i in cols) + r" \\", r"    \midrule"]
+        out += [
+            r"\begin{table}[htbp]",
+            r"  \centering\small",
+            f"  \\caption{{{_tex(b.caption)}}}",
+            f"  \\label{{tab:{_tex_label(r['experiment'], b.anchor.removeprefix('table-'))}}}",
+            f"  \\begin{{tabular}}{{{spec}}}",
+            r"    \toprule",
+            "    " + " & ".join(_tex(b.header[i].text) for i in cols) + r" \\",
+            r"    \midrule",
+        ]
         out += ["    " + " & ".join(_tex_cell(row[i]) for i in cols) + r" \\" for row in b.rows]
         out += [r"    \bottomrule", r"  \end{tabular}"]
         if b.notes:
@@ -800,9 +988,15 @@ def _first_paragraph(md: str) -> str:
 def _index_entry(results: dict) -> tuple[list[tuple[str, str, bool]], list[tuple[str, str, str]]]:
     """Headline facts ``(label, value, is_bad)`` and per-method rows ``(method, mean metric, ns/pixel)``."""
     cases = results.get("cases") or []
-    facts = [(str(h.get("label", "")),
-              format_number(h.get("value")) + (f" {h['unit']}" if h.get("unit") else ""), False)
-             for h in results.get("headline") or [] if isinstance(h, dict)]
+    facts = [
+        (
+            str(h.get("label", "")),
+            format_number(h.get("value")) + (f" {h['unit']}" if h.get("unit") else ""),
+            False,
+        )
+        for h in results.get("headline") or []
+        if isinstance(h, dict)
+    ]
     methods = []
     for c in cases:
         for ap in c["approximations"]:
@@ -812,12 +1006,19 @@ def _index_entry(results: dict) -> tuple[list[tuple[str, str, bool]], list[tuple
     checks = results.get("checks") or []
     if checks:
         ok = sum(1 for c in checks if c.get("passed"))
-        facts.append(("checks", f"{ok}/{len(checks)} passed" + ("" if ok == len(checks) else " — FAILURES"),
-                      ok != len(checks)))
+        facts.append(
+            (
+                "checks",
+                f"{ok}/{len(checks)} passed" + ("" if ok == len(checks) else " — FAILURES"),
+                ok != len(checks),
+            )
+        )
     fits = results.get("fits") or []
     if fits:
         bad = sum(1 for f in fits if f.get("converged") is False)
-        facts.append(("fits", f"{len(fits)} ({'all converged' if not bad else f'{bad} not converged'})", bad > 0))
+        facts.append(
+            ("fits", f"{len(fits)} ({'all converged' if not bad else f'{bad} not converged'})", bad > 0)
+        )
     head = _headline_metric(cases)
     rows = []
     if head:
@@ -860,13 +1061,17 @@ def write_index(out_dir, experiment_dirs) -> list[Path]:
         except ResultsError as e:
             entries.append((d, link, None, str(e)))
     md = ["# rtfit results", "", f"{len(entries)} experiment{'s' if len(entries) != 1 else ''}.", ""]
-    body = ["<header><h1>rtfit results</h1>",
-            f'<p class="meta">{len(entries)} experiment{"s" if len(entries) != 1 else ""}.</p></header>']
+    body = [
+        "<header><h1>rtfit results</h1>",
+        f'<p class="meta">{len(entries)} experiment{"s" if len(entries) != 1 else ""}.</p></header>',
+    ]
     for d, link, r, err in entries:
         if r is None:
             md += [f"## {d.name}", "", f"**Cannot read results:** {err}", ""]
-            body.append(f'<section class="entry"><h2>{_esc(d.name)}</h2><p class="fail">Cannot read results: '
-                        f"{_esc(err)}</p></section>")
+            body.append(
+                f'<section class="entry"><h2>{_esc(d.name)}</h2><p class="fail">Cannot read results: '
+                f"{_esc(err)}</p></section>"
+            )
             continue
         facts, rows = _index_entry(r)
         summary = _first_paragraph(r["summary"])
@@ -879,21 +1084,37 @@ def write_index(out_dir, experiment_dirs) -> list[Path]:
         if rows:
             md += [f"| Approximation | mean {hname} over cases | ns/pixel |", "|:---|---:|---:|"]
             md += [f"| {_md_text(a)} | {b} | {c} |" for a, b, c in rows] + [""]
-        html_rows = "".join(f"<tr><td>{_esc(a)}</td><td class=\"num\">{_esc(b)}</td><td class=\"num\">{_esc(c)}"
-                            "</td></tr>" for a, b, c in rows)
-        table = (f'<div class="table-wrap"><table><thead><tr><th>Approximation</th><th class="num">mean '
-                 f'{_esc(hname)} over cases</th><th class="num">ns/pixel</th></tr></thead><tbody>{html_rows}'
-                 "</tbody></table></div>") if rows else ""
-        fact_html = "".join(f'<li><b>{_esc(k)}:</b> ' + (f'<span class="fail">{_esc(v)}</span>' if bad else _esc(v))
-                            + "</li>" for k, v, bad in facts)
-        body.append(f'<section class="entry"><h2><a href="{_esc(link)}">{_esc(r["title"])}</a></h2>'
-                    f'<p class="meta">{markdown_inline(meta)}</p>{markdown_to_html(summary)}'
-                    f'<ul class="headline">{fact_html}</ul>{table}</section>')
+        html_rows = "".join(
+            f'<tr><td>{_esc(a)}</td><td class="num">{_esc(b)}</td><td class="num">{_esc(c)}</td></tr>'
+            for a, b, c in rows
+        )
+        table = (
+            (
+                f'<div class="table-wrap"><table><thead><tr><th>Approximation</th><th class="num">mean '
+                f'{_esc(hname)} over cases</th><th class="num">ns/pixel</th></tr></thead><tbody>{html_rows}'
+                "</tbody></table></div>"
+            )
+            if rows
+            else ""
+        )
+        fact_html = "".join(
+            f"<li><b>{_esc(k)}:</b> " + (f'<span class="fail">{_esc(v)}</span>' if bad else _esc(v)) + "</li>"
+            for k, v, bad in facts
+        )
+        body.append(
+            f'<section class="entry"><h2><a href="{_esc(link)}">{_esc(r["title"])}</a></h2>'
+            f'<p class="meta">{markdown_inline(meta)}</p>{markdown_to_html(summary)}'
+            f'<ul class="headline">{fact_html}</ul>{table}</section>'
+        )
     if any_unresolved:
         md += [UNRESOLVED_NOTE, ""]
         body.append(f'<p class="table-note">{_esc(UNRESOLVED_NOTE)}</p>')
-    body.append(f"<footer>Generated by rtfit from each experiment's <code>results.json</code> "
-                f"(schema <code>{SCHEMA}</code>).</footer>")
+    body.append(
+        f"<footer>Generated by rtfit from each experiment's <code>results.json</code> "
+        f"(schema <code>{SCHEMA}</code>).</footer>"
+    )
     md += ["---", "", f"Generated by rtfit from each experiment's `results.json` (schema `{SCHEMA}`).", ""]
-    return [atomic_write_text(out_dir / "index.html", _html_page("rtfit results", "\n".join(body))),
-            atomic_write_text(out_dir / "index.md", "\n".join(md))]
+    return [
+        atomic_write_text(out_dir / "index.html", _html_page("rtfit results", "\n".join(body))),
+        atomic_write_text(out_dir / "index.md", "\n".join(md)),
+    ]

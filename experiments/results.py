@@ -52,8 +52,10 @@ def _require(file, obj, where: str, key: str, kind, kind_name: str, optional: bo
             return None
         raise ResultsError(f"{file}: {where + '.' if where else ''}{key}: missing required key")
     if not isinstance(obj[key], kind):
-        raise ResultsError(f"{file}: {where + '.' if where else ''}{key}: expected {kind_name}, "
-                           f"got {type(obj[key]).__name__}")
+        raise ResultsError(
+            f"{file}: {where + '.' if where else ''}{key}: expected {kind_name}, "
+            f"got {type(obj[key]).__name__}"
+        )
     return obj[key]
 
 
@@ -92,7 +94,9 @@ def _validate(file, doc) -> None:
     for i, f in enumerate(doc.get("fits") or []):
         _require(file, f, f"fits[{i}]", "parameters", dict, "an object")
     for i, f in enumerate(doc.get("figures") or []):
-        _check_rel_path(file, f"figures[{i}].file", _require(file, f, f"figures[{i}]", "file", str, "a string"))
+        _check_rel_path(
+            file, f"figures[{i}].file", _require(file, f, f"figures[{i}]", "file", str, "a string")
+        )
     for i, c in enumerate(doc.get("costs") or []):
         _require(file, c, f"costs[{i}]", "method", str, "a string")
     for i, c in enumerate(doc.get("checks") or []):
@@ -104,10 +108,16 @@ def _validate(file, doc) -> None:
 
 
 def _check_rel_path(file, where: str, p) -> None:
-    if not isinstance(p, str) or not p or p.startswith(("/", "\\")) or ".." in re.split(r"[/\\]", p) \
-            or re.match(r"^[A-Za-z][A-Za-z0-9+.-]*:", p):
-        raise ResultsError(f"{file}: {where}: expected a relative path inside the experiment directory, "
-                           f"got {p!r}")
+    if (
+        not isinstance(p, str)
+        or not p
+        or p.startswith(("/", "\\"))
+        or ".." in re.split(r"[/\\]", p)
+        or re.match(r"^[A-Za-z][A-Za-z0-9+.-]*:", p)
+    ):
+        raise ResultsError(
+            f"{file}: {where}: expected a relative path inside the experiment directory, got {p!r}"
+        )
 
 
 def load_results(directory) -> dict:
@@ -129,6 +139,8 @@ def load_results(directory) -> dict:
         raise ResultsError(f"{file}: invalid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
     hit = _find_sentinel(doc, "")
     if hit:
-        raise ResultsError(f"{file}: {hit[0]}: {hit[1]} is not a valid result (NaN and infinities are refused)")
+        raise ResultsError(
+            f"{file}: {hit[0]}: {hit[1]} is not a valid result (NaN and infinities are refused)"
+        )
     _validate(file, doc)
     return doc

@@ -21,7 +21,6 @@ from .report import write_index, write_report
 from .results import SCHEMA
 
 
-
 def versions() -> dict:
     out = {"python": platform.python_version()}
     for dist in ("rtfit", "mitsuba", "drjit", "numpy", "jax", "optimistix", "scikit-image", "flip-evaluator"):
@@ -39,8 +38,16 @@ def device_description(variant: str) -> str:
         try:
             import subprocess
 
-            name = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
-                                  capture_output=True, text=True, timeout=10).stdout.strip().splitlines()
+            name = (
+                subprocess.run(
+                    ["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                    capture_output=True,
+                    text=True,
+                    timeout=10,
+                )
+                .stdout.strip()
+                .splitlines()
+            )
             return f"GPU (CUDA backend): {name[0] if name else 'unknown'}"
         except (OSError, subprocess.SubprocessError):
             return "GPU (CUDA backend)"
@@ -73,7 +80,8 @@ def run_experiment_into(spec: ExperimentSpec, directory: Path, ctx: RunContext, 
         **body,
     }
     results.setdefault("config", {}).update(
-        {"quick": ctx.quick, "variant": ctx.variant, "seed": ctx.seed, "executor": executor_name})
+        {"quick": ctx.quick, "variant": ctx.variant, "seed": ctx.seed, "executor": executor_name}
+    )
     if ctx.overrides:
         results["config"]["overrides"] = dict(ctx.overrides)
     atomic_write_json(Path(directory) / "results.json", results)
@@ -81,9 +89,21 @@ def run_experiment_into(spec: ExperimentSpec, directory: Path, ctx: RunContext, 
     return results
 
 
-def run_experiments(specs: list[ExperimentSpec], out: Path, *, quick: bool, variant: str, spp: int | None,
-                    seed: int, cache_dir: Path, executor: str, workers: int | None,
-                    progress: bool, address: str | None = None, overrides: dict | None = None) -> list[Path]:
+def run_experiments(
+    specs: list[ExperimentSpec],
+    out: Path,
+    *,
+    quick: bool,
+    variant: str,
+    spp: int | None,
+    seed: int,
+    cache_dir: Path,
+    executor: str,
+    workers: int | None,
+    progress: bool,
+    address: str | None = None,
+    overrides: dict | None = None,
+) -> list[Path]:
     """Run each experiment into ``out/<name>`` (atomically) and write the suite index. ``overrides``:
     configuration keys replacing the experiments' defaults (as one `rtfit sweep` point does; validated
     by `registry.apply_overrides`: an unknown key or a value of another kind is a ValueError)."""
@@ -95,9 +115,17 @@ def run_experiments(specs: list[ExperimentSpec], out: Path, *, quick: bool, vari
         for spec in specs:
             final = out / spec.name
             with atomic_directory(final) as tmp:
-                ctx = RunContext(out_dir=Path(tmp), cache_dir=Path(cache_dir), executor=pool, quick=quick,
-                                 variant=variant, spp=spp, seed=seed, progress=progress,
-                                 overrides=dict(overrides or {}))
+                ctx = RunContext(
+                    out_dir=Path(tmp),
+                    cache_dir=Path(cache_dir),
+                    executor=pool,
+                    quick=quick,
+                    variant=variant,
+                    spp=spp,
+                    seed=seed,
+                    progress=progress,
+                    overrides=dict(overrides or {}),
+                )
                 run_experiment_into(spec, Path(tmp), ctx, executor)
             done.append(final)
             print(f"rtfit: {spec.name}: report at {final / 'report.html'}", file=sys.stderr)
@@ -109,5 +137,6 @@ def run_experiments(specs: list[ExperimentSpec], out: Path, *, quick: bool, vari
 
 def experiment_dirs(out: Path) -> list[Path]:
     """Every complete experiment (or sweep) directory directly under ``out``."""
-    return sorted(p for p in Path(out).iterdir()
-                  if not is_temporary_name(p.name) and (p / "results.json").is_file())
+    return sorted(
+        p for p in Path(out).iterdir() if not is_temporary_name(p.name) and (p / "results.json").is_file()
+    )

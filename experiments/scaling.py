@@ -48,8 +48,14 @@ def _overhead_rows(name: str, n_jobs: int, workers: int | None, gpus=None) -> di
         batch = (time.perf_counter() - t) / n_jobs
     finally:
         ex.close()
-    return {"measurement": "overhead", "executor": name, "workers": getattr(ex, "workers", 1),
-            "startup_s": startup, "latency_ms": 1e3 * statistics.median(lat), "per_job_ms_batched": 1e3 * batch}
+    return {
+        "measurement": "overhead",
+        "executor": name,
+        "workers": getattr(ex, "workers", 1),
+        "startup_s": startup,
+        "latency_ms": 1e3 * statistics.median(lat),
+        "per_job_ms_batched": 1e3 * batch,
+    }
 
 
 def sweep_spec_text(points: int, variant: str) -> str:
@@ -57,10 +63,12 @@ def sweep_spec_text(points: int, variant: str) -> str:
     alphas = [1.0 + 2.0 * i for i in range(points)]
     gpu = variant.startswith("cuda")
     res, spp = (192, 1024) if gpu else (40, 128)
-    return (f'name = "scaling"\nexperiment = "half-lambert"\nquick = true\nspp = {spp}\n'
-            f'[fixed]\nsky_radiances = [0.0]\nresolution = {res}\npass_spp = {spp // 4}\n'
-            f'probe_count = 31\nprobe_spp = {spp}\n'
-            "[grid]\nalphas_deg = [" + ", ".join(f"[{a}, 30.0]" for a in alphas) + "]\n")
+    return (
+        f'name = "scaling"\nexperiment = "half-lambert"\nquick = true\nspp = {spp}\n'
+        f"[fixed]\nsky_radiances = [0.0]\nresolution = {res}\npass_spp = {spp // 4}\n"
+        f"probe_count = 31\nprobe_spp = {spp}\n"
+        "[grid]\nalphas_deg = [" + ", ".join(f"[{a}, 30.0]" for a in alphas) + "]\n"
+    )
 
 
 def _executor(name: str, workers, gpus):
@@ -81,13 +89,25 @@ def _sweep_row(name: str, points: int, variant: str, workers, gpus=None, label=N
         t0 = time.perf_counter()
         ex = _executor(name, workers, gpus)
         try:
-            summary = run_sweep(sweep, Path(tmp) / "out", variant=variant, cache_dir=Path(tmp) / "cache",
-                                executor=ex, executor_name=name)
+            summary = run_sweep(
+                sweep,
+                Path(tmp) / "out",
+                variant=variant,
+                cache_dir=Path(tmp) / "cache",
+                executor=ex,
+                executor_name=name,
+            )
         finally:
             ex.close()
         wall = time.perf_counter() - t0
-    return {"measurement": "sweep", "executor": label or name, "workers": getattr(ex, "workers", 1),
-            "points": points, "failed": len(summary.failed), "wall_s": wall}
+    return {
+        "measurement": "sweep",
+        "executor": label or name,
+        "workers": getattr(ex, "workers", 1),
+        "points": points,
+        "failed": len(summary.failed),
+        "wall_s": wall,
+    }
 
 
 def bench(ctx) -> list[dict]:
@@ -110,7 +130,9 @@ def bench(ctx) -> list[dict]:
         for n in ("process", "ray") if _available("ray") else ("process",):
             sweeps.append(_sweep_row(n, points, ctx.variant, None, gpus=gpus[:1], label=f"{n}, 1 GPU"))
             if len(gpus) > 1:
-                sweeps.append(_sweep_row(n, points, ctx.variant, None, gpus=gpus, label=f"{n}, {len(gpus)} GPUs"))
+                sweeps.append(
+                    _sweep_row(n, points, ctx.variant, None, gpus=gpus, label=f"{n}, {len(gpus)} GPUs")
+                )
     base = sweeps[0]["wall_s"]
     for r in sweeps:
         r["speedup_vs_inline"] = base / r["wall_s"]

@@ -63,27 +63,46 @@ from .jobs import Job
 
 TARGETS_QUICK = ("ao", "sky", "sunsky")
 TARGETS_FULL = ("ao", "sky", "sky-gi", "sunsky", "sunsky-gi")
-TARGET_QUANTITY = {"ao": "ao", "sky": "sky_direct", "sky-gi": "sky_global", "sunsky": "sunsky_direct",
-                   "sunsky-gi": "sunsky_global"}
-TARGET_LABEL = {"ao": "AO (cosine-weighted visibility within R)", "sky": "sky light, one bounce (E/πL)",
-                "sky-gi": "sky light, global illumination (E/πL)",
-                "sunsky": "sunsky sky light without the sun, one bounce (E/E_h)",
-                "sunsky-gi": "sunsky sky light without the sun, global illumination (E/E_h)"}
+TARGET_QUANTITY = {
+    "ao": "ao",
+    "sky": "sky_direct",
+    "sky-gi": "sky_global",
+    "sunsky": "sunsky_direct",
+    "sunsky-gi": "sunsky_global",
+}
+TARGET_LABEL = {
+    "ao": "AO (cosine-weighted visibility within R)",
+    "sky": "sky light, one bounce (E/πL)",
+    "sky-gi": "sky light, global illumination (E/πL)",
+    "sunsky": "sunsky sky light without the sun, one bounce (E/E_h)",
+    "sunsky-gi": "sunsky sky light without the sun, global illumination (E/E_h)",
+}
 SUNSKY_TARGETS = ("sunsky", "sunsky-gi")
 SKY_FACTOR_HEIGHT = 129
 """Rows of the baked sky map whose quadrature gives the approximation's unoccluded sky factor g(N)
 (`sky_factor`): 0.2% from the converged value for vertical normals, far below the occlusion models' error."""
 HELD_OUT = "character"
 METHODS = ("evans-text", "evans-listing", "evans-fit", "evans-joint", "curvature", "cone")
-LABELS = {"evans-text": "Evans, seed text (α=½, w=1; k fit)", "evans-listing": "Evans, seed listing (α=1, w=1…1.8; k, B fit)",
-          "evans-fit": "Evans, fitted per case", "evans-joint": "Evans, joint fit", "curvature": "Curvature (seed §9.5; k fit)",
-          "cone": "Cone-traced DF AO (k grid-searched)", "sdfgrid": "Mitsuba AO on the sdfgrid (grid error)",
-          "evans-analytic": "Evans fitted, exact analytic SDF (no grid, no blur)",
-          "evans-on-sdfgrid": "Evans fitted, on the voxelised geometry vs its own AO (model error only)"}
+LABELS = {
+    "evans-text": "Evans, seed text (α=½, w=1; k fit)",
+    "evans-listing": "Evans, seed listing (α=1, w=1…1.8; k, B fit)",
+    "evans-fit": "Evans, fitted per case",
+    "evans-joint": "Evans, joint fit",
+    "curvature": "Curvature (seed §9.5; k fit)",
+    "cone": "Cone-traced DF AO (k grid-searched)",
+    "sdfgrid": "Mitsuba AO on the sdfgrid (grid error)",
+    "evans-analytic": "Evans fitted, exact analytic SDF (no grid, no blur)",
+    "evans-on-sdfgrid": "Evans fitted, on the voxelised geometry vs its own AO (model error only)",
+}
 ALPHAS = (0.0, 0.25, 0.5, 0.75, 1.0)
 BASES_VOX = (0.5, 1.0, 2.0)
 CONE_KS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
-CREASE_PROBE_X = (0.05, 0.1, 0.2, 0.4)  # floor probes (y = 0) of the creases: the finite arms are exact within R = 1
+CREASE_PROBE_X = (
+    0.05,
+    0.1,
+    0.2,
+    0.4,
+)  # floor probes (y = 0) of the creases: the finite arms are exact within R = 1
 FIT_POINTS = 2048  # pixels per scene used by the fits (padded: one JAX compile per model size)
 
 
@@ -102,7 +121,9 @@ def configure(quick: bool, spp: int | None) -> dict:
         "albedo": 0.8,
         "sweep_grids": [32, 64] if quick else [32, 64, 128, 256],
         "sweep_n": [1, 2, 4, 8] if quick else [1, 2, 3, 4, 5, 6, 7, 8],
-        "sweep_scenes": ["crease_90", "sphere_plane", "boxes"] if quick else ["crease_90", "boxes", "character"],
+        "sweep_scenes": ["crease_90", "sphere_plane", "boxes"]
+        if quick
+        else ["crease_90", "boxes", "character"],
         "alphas": [0.0, 0.5, 1.0] if quick else list(ALPHAS),
         "bases_vox": [1.0] if quick else list(BASES_VOX),
         "map_scenes": ["crease_90", "room", "boxes", "character"] if quick else list(SCENE_NAMES),
@@ -132,7 +153,14 @@ def sky_factor(normals, directions, weights, radiance) -> np.ndarray:
     d = np.asarray(directions, np.float64)
     w = np.asarray(weights, np.float64)
     lum = np.asarray(radiance, np.float64)
-    if n.ndim != 2 or n.shape[1] != 3 or d.ndim != 2 or d.shape[1] != 3 or w.shape != (len(d),) or lum.shape != (len(d),):
+    if (
+        n.ndim != 2
+        or n.shape[1] != 3
+        or d.ndim != 2
+        or d.shape[1] != 3
+        or w.shape != (len(d),)
+        or lum.shape != (len(d),)
+    ):
         raise ValueError("sky_factor needs normals (M, 3), directions (K, 3), weights (K,), radiance (K,)")
     if len(d) == 0 or np.any(d[:, 2] <= 0) or np.any(w < 0) or np.any(lum < 0):
         raise ValueError("sky_factor needs nodes above the horizon (d_z > 0) with weights and radiance >= 0")
@@ -144,9 +172,9 @@ def sky_factor(normals, directions, weights, radiance) -> np.ndarray:
     per = max(1, (1 << 22) // len(d))
     wl = w * lum
     for a in range(0, len(n), per):
-        cos = np.maximum(n[a:a + per] @ d.T, 0.0)
-        num[a:a + per] = cos @ wl
-        den[a:a + per] = (cos @ w) * (e_h / math.pi)
+        cos = np.maximum(n[a : a + per] @ d.T, 0.0)
+        num[a : a + per] = cos @ wl
+        den[a : a + per] = (cos @ w) * (e_h / math.pi)
     return np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
 
 
@@ -172,8 +200,10 @@ class EvansFitData:
     def __post_init__(self):
         m = len(self.target)
         if np.shape(self.points) != (m, 3) or np.shape(self.normals) != (m, 3):
-            raise ValueError(f"points and normals must be ({m}, 3) like the target (got "
-                             f"{np.shape(self.points)} and {np.shape(self.normals)})")
+            raise ValueError(
+                f"points and normals must be ({m}, 3) like the target (got "
+                f"{np.shape(self.points)} and {np.shape(self.normals)})"
+            )
         if self.factor is not None and np.shape(self.factor) != (m,):
             raise ValueError(f"factor must have shape ({m},) (got {np.shape(self.factor)})")
         if not (self.voxel > 0):
@@ -192,7 +222,7 @@ def evans_fit_residuals(x, data: list, n: int, *, jacobian: bool = True):
     from rtfit.realtime.sdf_occlusion import EvansParams, evans_terms, evans_terms_jacobian
 
     x = np.asarray(x, dtype=np.float64)
-    logb, c, alpha, base_v = x[0], x[1:1 + n], float(x[1 + n]), float(x[2 + n])
+    logb, c, alpha, base_v = x[0], x[1 : 1 + n], float(x[1 + n]), float(x[2 + n])
     rs, js = [], []
     for dd in data:
         prm = EvansParams(n=n, base=base_v * dd.voxel, k=1.0, alpha=alpha)
@@ -213,8 +243,9 @@ def evans_fit_residuals(x, data: list, n: int, *, jacobian: bool = True):
     return (r, np.concatenate(js)) if jacobian else r
 
 
-def bounded_lm(fun, x0, lower, upper, *, max_iter: int = 100, ftol: float = 1e-7, xtol: float = 1e-7,
-               gtol: float = 1e-8) -> dict:
+def bounded_lm(
+    fun, x0, lower, upper, *, max_iter: int = 100, ftol: float = 1e-7, xtol: float = 1e-7, gtol: float = 1e-8
+) -> dict:
     """Minimise ½‖r(x)‖² subject to lower ≤ x ≤ upper; ``fun(x)`` returns (r, J).
 
     Levenberg–Marquardt with Marquardt's diagonal scaling (A + λ diag A) δ = −Jᵀr, A = JᵀJ, and Nielsen's
@@ -279,8 +310,16 @@ def bounded_lm(fun, x0, lower, upper, *, max_iter: int = 100, ftol: float = 1e-7
             if lam > 1e16:
                 message = "no descent step (damping above 1e16)"
                 break
-    return {"x": x, "r": r, "jac": jac, "ssr": ssr, "iterations": it, "evaluations": evals,
-            "converged": converged, "message": message}
+    return {
+        "x": x,
+        "r": r,
+        "jac": jac,
+        "ssr": ssr,
+        "iterations": it,
+        "evaluations": evals,
+        "converged": converged,
+        "message": message,
+    }
 
 
 def fit_evans_continuous(data: list, init: dict, n: int, *, max_iter: int = 100) -> dict:
@@ -295,10 +334,16 @@ def fit_evans_continuous(data: list, init: dict, n: int, *, max_iter: int = 100)
     missing = [k for k in names if k not in init]
     if missing:
         raise ValueError(f"init lacks {', '.join(missing)}")
-    lo = np.array([FIT_BOUNDS["logB"][0]] + [FIT_BOUNDS["c"][0]] * n + [FIT_BOUNDS["alpha"][0],
-                                                                        FIT_BOUNDS["base_voxels"][0]])
-    hi = np.array([FIT_BOUNDS["logB"][1]] + [FIT_BOUNDS["c"][1]] * n + [FIT_BOUNDS["alpha"][1],
-                                                                        FIT_BOUNDS["base_voxels"][1]])
+    lo = np.array(
+        [FIT_BOUNDS["logB"][0]]
+        + [FIT_BOUNDS["c"][0]] * n
+        + [FIT_BOUNDS["alpha"][0], FIT_BOUNDS["base_voxels"][0]]
+    )
+    hi = np.array(
+        [FIT_BOUNDS["logB"][1]]
+        + [FIT_BOUNDS["c"][1]] * n
+        + [FIT_BOUNDS["alpha"][1], FIT_BOUNDS["base_voxels"][1]]
+    )
     x0 = np.array([float(init[k]) for k in names])
     out = bounded_lm(lambda x: evans_fit_residuals(x, data, n), x0, lo, hi, max_iter=max_iter)
     x, r, jac = out["x"], out["r"], out["jac"]
@@ -307,18 +352,37 @@ def fit_evans_continuous(data: list, init: dict, n: int, *, max_iter: int = 100)
     with np.errstate(invalid="ignore", divide="ignore"):
         se = np.sqrt(np.diag(cov))
         corr = cov / np.outer(se, se)
-    at_bound = {nm: bool(x[i] - lo[i] <= AT_BOUND_RTOL * (hi[i] - lo[i]) or hi[i] - x[i] <= AT_BOUND_RTOL * (hi[i] - lo[i]))
-                for i, nm in enumerate(names)}
-    fr = FitResult(values={nm: float(x[i]) for i, nm in enumerate(names)},
-                   stderr={nm: float(se[i]) for i, nm in enumerate(names)},
-                   correlation=[[float(v) for v in row] for row in corr], param_names=tuple(names),
-                   rms_residual=math.sqrt(out["ssr"] / m), ssr=out["ssr"], n_residuals=m, dof=m - p,
-                   steps=out["iterations"], converged=out["converged"], message=out["message"],
-                   at_bound=at_bound, lower={nm: float(lo[i]) for i, nm in enumerate(names)},
-                   upper={nm: float(hi[i]) for i, nm in enumerate(names)}, jacobian_rank=rank)
-    return {"fit": fr.to_dict(), "alpha": float(x[1 + n]), "base_vox": float(x[2 + n]),
-            "init": {k: float(v) for k, v in init.items()}, "cov": cov,
-            "lm": {"iterations": out["iterations"], "evaluations": out["evaluations"], "message": out["message"]}}
+    at_bound = {
+        nm: bool(
+            x[i] - lo[i] <= AT_BOUND_RTOL * (hi[i] - lo[i]) or hi[i] - x[i] <= AT_BOUND_RTOL * (hi[i] - lo[i])
+        )
+        for i, nm in enumerate(names)
+    }
+    fr = FitResult(
+        values={nm: float(x[i]) for i, nm in enumerate(names)},
+        stderr={nm: float(se[i]) for i, nm in enumerate(names)},
+        correlation=[[float(v) for v in row] for row in corr],
+        param_names=tuple(names),
+        rms_residual=math.sqrt(out["ssr"] / m),
+        ssr=out["ssr"],
+        n_residuals=m,
+        dof=m - p,
+        steps=out["iterations"],
+        converged=out["converged"],
+        message=out["message"],
+        at_bound=at_bound,
+        lower={nm: float(lo[i]) for i, nm in enumerate(names)},
+        upper={nm: float(hi[i]) for i, nm in enumerate(names)},
+        jacobian_rank=rank,
+    )
+    return {
+        "fit": fr.to_dict(),
+        "alpha": float(x[1 + n]),
+        "base_vox": float(x[2 + n]),
+        "init": {k: float(v) for k, v in init.items()},
+        "cov": cov,
+        "lm": {"iterations": out["iterations"], "evaluations": out["evaluations"], "message": out["message"]},
+    }
 
 
 def evans_readable(best: dict, voxel: float | None) -> dict:
@@ -338,11 +402,20 @@ def evans_readable(best: dict, voxel: float | None) -> dict:
         return se[a] ** 2 if a == b else 0.0
 
     k = v["c1"]
-    out = {"k": k, "k_stderr": se["c1"], "B": math.exp(v["logB"]), "B_stderr": math.exp(v["logB"]) * se["logB"]}
+    out = {
+        "k": k,
+        "k_stderr": se["c1"],
+        "B": math.exp(v["logB"]),
+        "B_stderr": math.exp(v["logB"]) * se["logB"],
+    }
     for i in range(1, n):
         ci = v[f"c{i + 1}"]
         w = ci / k if k != 0 else 0.0
-        var = (cv(f"c{i + 1}", f"c{i + 1}") + w * w * cv("c1", "c1") - 2 * w * cv("c1", f"c{i + 1}")) / k**2 if k else math.nan
+        var = (
+            (cv(f"c{i + 1}", f"c{i + 1}") + w * w * cv("c1", "c1") - 2 * w * cv("c1", f"c{i + 1}")) / k**2
+            if k
+            else math.nan
+        )
         out[f"w{i + 1}"] = w
         out[f"w{i + 1}_stderr"] = math.sqrt(var) if var >= 0 else math.nan
     a = f["alpha"]["value"] if "alpha" in f else best["alpha"]
@@ -384,7 +457,9 @@ def grid_of(scene, resolution: int, cache_dir=None):
     from rtfit.realtime.sdf_grid import SdfGrid, grid_for_bounds, mesh_bounds, mesh_sdf_grid
 
     v, f = mesh_of(scene)
-    h = hashlib.sha256(v.astype(np.float32).tobytes() + f.astype(np.int32).tobytes() + str(resolution).encode())
+    h = hashlib.sha256(
+        v.astype(np.float32).tobytes() + f.astype(np.int32).tobytes() + str(resolution).encode()
+    )
     path = None
     if cache_dir is not None:
         from pathlib import Path
@@ -408,10 +483,24 @@ def grid_of(scene, resolution: int, cache_dir=None):
 
 
 # --------------------------------------------------------------------------------------------- jobs
-def render_case(name: str, resolution: int, spp: int, pass_spp: int, seed: int, variant: str, cache_dir: str,
-                targets: list, ao_distance: float, albedo: float, grid: int, probe_spp: int = 2048,
-                sun_elevation: float = 30.0, sun_azimuth: float = 60.0, turbidity: float = 3.0,
-                sky_probe: bool = False) -> dict:
+def render_case(
+    name: str,
+    resolution: int,
+    spp: int,
+    pass_spp: int,
+    seed: int,
+    variant: str,
+    cache_dir: str,
+    targets: list,
+    ao_distance: float,
+    albedo: float,
+    grid: int,
+    probe_spp: int = 2048,
+    sun_elevation: float = 30.0,
+    sun_azimuth: float = 60.0,
+    turbidity: float = 3.0,
+    sky_probe: bool = False,
+) -> dict:
     """Job: G-buffer, occlusion references and the sdfgrid AO of one scene (plain data out). With sunsky
     targets also the per-point sky factor g(N) (`sky_factor`) and, with ``sky_probe``, the sunsky reference
     at a point 50 units above everything (normals up and four horizontal ones) beside the quadrature."""
@@ -438,9 +527,21 @@ def render_case(name: str, resolution: int, spp: int, pass_spp: int, seed: int, 
     sky = SunskySky(sun_elevation, sun_azimuth, turbidity)
     refs = {}
     for t in targets:
-        r = cache.get(mi, mi_scene, geo, pts, nrm, spp=spp, pass_spp=pass_spp, seed=seed, variant=variant,
-                      quantity=TARGET_QUANTITY[t], max_distance=ao_distance if t == "ao" else math.inf,
-                      albedo=albedo, sky=sky)
+        r = cache.get(
+            mi,
+            mi_scene,
+            geo,
+            pts,
+            nrm,
+            spp=spp,
+            pass_spp=pass_spp,
+            seed=seed,
+            variant=variant,
+            quantity=TARGET_QUANTITY[t],
+            max_distance=ao_distance if t == "ao" else math.inf,
+            albedo=albedo,
+            sky=sky,
+        )
         refs[t] = {"mean": r.mean, "stderr": r.stderr, "meta": r.to_dict()}
     factor = sky_probe_out = None
     if any(t in SUNSKY_TARGETS for t in targets):
@@ -453,19 +554,60 @@ def render_case(name: str, resolution: int, spp: int, pass_spp: int, seed: int, 
             pp = np.tile([0.0, 0.0, 50.0], (len(pn), 1))
             sspp = max(int(probe_spp), 1 << 16)
             expect = sunsky_irradiance(mi, sky, pn) / sunsky_horizontal_irradiance(mi, sky)
-            rd = cache.get(mi, mi_scene, geo, pp, pn, spp=sspp, pass_spp=min(sspp, 1 << 14), seed=seed, variant=variant,
-                           quantity="sunsky_direct", sky=sky)
-            rg = cache.get(mi, mi_scene, geo, pp[:1], pn[:1], spp=sspp, pass_spp=min(sspp, 1 << 14), seed=seed,
-                           variant=variant, quantity="sunsky_global", albedo=albedo, sky=sky)
-            sky_probe_out = {"normals": pn, "expected": expect, "direct_mean": rd.mean, "direct_stderr": rd.stderr,
-                             "global_mean": rg.mean, "global_stderr": rg.stderr, "spp": sspp}
+            rd = cache.get(
+                mi,
+                mi_scene,
+                geo,
+                pp,
+                pn,
+                spp=sspp,
+                pass_spp=min(sspp, 1 << 14),
+                seed=seed,
+                variant=variant,
+                quantity="sunsky_direct",
+                sky=sky,
+            )
+            rg = cache.get(
+                mi,
+                mi_scene,
+                geo,
+                pp[:1],
+                pn[:1],
+                spp=sspp,
+                pass_spp=min(sspp, 1 << 14),
+                seed=seed,
+                variant=variant,
+                quantity="sunsky_global",
+                albedo=albedo,
+                sky=sky,
+            )
+            sky_probe_out = {
+                "normals": pn,
+                "expected": expect,
+                "direct_mean": rd.mean,
+                "direct_stderr": rd.stderr,
+                "global_mean": rg.mean,
+                "global_stderr": rg.stderr,
+                "spp": sspp,
+            }
     probes = None
     if name.startswith("crease_"):
         xs = np.array(CREASE_PROBE_X)
         pp = np.column_stack([xs, np.zeros_like(xs), np.full_like(xs, 1e-6)])
         pn = np.tile([0.0, 0.0, 1.0], (len(xs), 1))
-        r = cache.get(mi, mi_scene, geo, pp, pn, spp=probe_spp, pass_spp=min(probe_spp, 1024), seed=seed,
-                      variant=variant, quantity="ao", max_distance=ao_distance)
+        r = cache.get(
+            mi,
+            mi_scene,
+            geo,
+            pp,
+            pn,
+            spp=probe_spp,
+            pass_spp=min(probe_spp, 1024),
+            seed=seed,
+            variant=variant,
+            quantity="ao",
+            max_distance=ao_distance,
+        )
         probes = {"x": xs, "mean": r.mean, "stderr": r.stderr}
     g = grid_of(scene, grid, cache_dir)
     import hashlib
@@ -483,8 +625,19 @@ def render_case(name: str, resolution: int, spp: int, pass_spp: int, seed: int, 
         n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-30)
         ok = np.all(np.isfinite(n2), axis=1) & (np.linalg.norm(n2, axis=1) > 0.5)
         gh = hashlib.sha256(g.values.tobytes() + repr((g.origin, g.voxel)).encode()).hexdigest()
-        r2 = cache.get(mi, mi_sdf, "sdfgrid-" + gh, p2[ok], n2[ok], spp=spp, pass_spp=pass_spp, seed=seed,
-                       variant=variant, quantity="ao", max_distance=ao_distance)
+        r2 = cache.get(
+            mi,
+            mi_sdf,
+            "sdfgrid-" + gh,
+            p2[ok],
+            n2[ok],
+            spp=spp,
+            pass_spp=pass_spp,
+            seed=seed,
+            variant=variant,
+            quantity="ao",
+            max_distance=ao_distance,
+        )
         img2 = np.full(m2.shape, np.nan)
         idx = np.flatnonzero(m2)[ok]
         img2.reshape(-1)[idx] = r2.mean
@@ -492,25 +645,60 @@ def render_case(name: str, resolution: int, spp: int, pass_spp: int, seed: int, 
         err2.reshape(-1)[idx] = r2.stderr
         meta2 = r2.to_dict()
         sdf_error = None
-        sdf_gb = {"mask": np.isfinite(img2), "points": p2[ok], "normals": n2[ok],
-                  "refs": {"ao": {"mean": r2.mean, "stderr": r2.stderr, "meta": meta2}}}
-    return {"mask": mask, "points": pts, "normals": nrm, "refs": refs, "grid": {"values": g.values,
-            "origin": g.origin, "voxel": g.voxel}, "sdfgrid_ao": img2, "sdfgrid_ao_stderr": err2,
-            "sdfgrid_meta": meta2, "sdfgrid_error": sdf_error, "sdfgrid_gbuffer": sdf_gb, "scene_hash": geo, "probes": probes, "triangles": int(len(mesh_of(scene)[1])),
-            "sky_factor": factor, "sky_probe": sky_probe_out}
+        sdf_gb = {
+            "mask": np.isfinite(img2),
+            "points": p2[ok],
+            "normals": n2[ok],
+            "refs": {"ao": {"mean": r2.mean, "stderr": r2.stderr, "meta": meta2}},
+        }
+    return {
+        "mask": mask,
+        "points": pts,
+        "normals": nrm,
+        "refs": refs,
+        "grid": {"values": g.values, "origin": g.origin, "voxel": g.voxel},
+        "sdfgrid_ao": img2,
+        "sdfgrid_ao_stderr": err2,
+        "sdfgrid_meta": meta2,
+        "sdfgrid_error": sdf_error,
+        "sdfgrid_gbuffer": sdf_gb,
+        "scene_hash": geo,
+        "probes": probes,
+        "triangles": int(len(mesh_of(scene)[1])),
+        "sky_factor": factor,
+        "sky_probe": sky_probe_out,
+    }
 
 
 def run(ctx) -> dict:
     from . import sdf_occlusion_report as rep
 
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    jobs = [Job("rtfit.experiments.sdf_occlusion:render_case",
-                dict(name=n, resolution=cfg["resolution"], spp=cfg["spp"], pass_spp=cfg["pass_spp"], seed=ctx.seed,
-                     variant=ctx.variant, cache_dir=str(ctx.cache_dir), targets=cfg["targets"],
-                     ao_distance=cfg["ao_distance"], albedo=cfg["albedo"], grid=cfg["grid"],
-                     probe_spp=cfg["probe_spp"], sun_elevation=cfg["sun_elevation"], sun_azimuth=cfg["sun_azimuth"],
-                     turbidity=cfg["turbidity"], sky_probe=(n == cfg["scenes"][0])), label=n)
-            for n in cfg["scenes"]]
+    jobs = [
+        Job(
+            "rtfit.experiments.sdf_occlusion:render_case",
+            dict(
+                name=n,
+                resolution=cfg["resolution"],
+                spp=cfg["spp"],
+                pass_spp=cfg["pass_spp"],
+                seed=ctx.seed,
+                variant=ctx.variant,
+                cache_dir=str(ctx.cache_dir),
+                targets=cfg["targets"],
+                ao_distance=cfg["ao_distance"],
+                albedo=cfg["albedo"],
+                grid=cfg["grid"],
+                probe_spp=cfg["probe_spp"],
+                sun_elevation=cfg["sun_elevation"],
+                sun_azimuth=cfg["sun_azimuth"],
+                turbidity=cfg["turbidity"],
+                sky_probe=(n == cfg["scenes"][0]),
+            ),
+            label=n,
+        )
+        for n in cfg["scenes"]
+    ]
     ctx.log(f"rendering references of {len(jobs)} scenes")
     rendered = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references")))
 

@@ -38,9 +38,17 @@ from .sdf_occlusion import (
 
 _ANALYTIC_SCENES = ("sphere_plane", "room", "boxes")  # built from analytic primitives (exact SDF available)
 METRICS = ("rmse", "rel_mse", "mae", "max_abs", "psnr", "ssim")
-SHORT = {"evans-text": "Evans text", "evans-listing": "Evans listing", "evans-fit": "Evans fit",
-         "evans-joint": "Evans joint", "curvature": "curvature", "cone": "cone DF AO", "sdfgrid": "sdfgrid AO",
-         "evans-analytic": "Evans fit, exact SDF", "evans-on-sdfgrid": "Evans fit on sdfgrid"}
+SHORT = {
+    "evans-text": "Evans text",
+    "evans-listing": "Evans listing",
+    "evans-fit": "Evans fit",
+    "evans-joint": "Evans joint",
+    "curvature": "curvature",
+    "cone": "cone DF AO",
+    "sdfgrid": "sdfgrid AO",
+    "evans-analytic": "Evans fit, exact SDF",
+    "evans-on-sdfgrid": "Evans fit on sdfgrid",
+}
 
 
 # =============================================================================== residuals (JAX)
@@ -154,8 +162,14 @@ class SceneData:
         ref, _ = self.target(t)
         g = self.factor(t)
         i = self.fit_idx
-        return EvansFitData(self.points[i], self.normals[i], self.analytic if analytic else self.sdf, self.voxel,
-                            ref[i], None if g is None else g[i])
+        return EvansFitData(
+            self.points[i],
+            self.normals[i],
+            self.analytic if analytic else self.sdf,
+            self.voxel,
+            ref[i],
+            None if g is None else g[i],
+        )
 
     def image(self, values):
         img = np.zeros(self.mask.shape)
@@ -185,7 +199,9 @@ def fit_text(sd: SceneData, t, alpha=0.5, weights=None):
         f = _fit(_res_text, {"k": Param(1.0 / (10 * sd.voxel), 0.0, 1e4)}, args)
         pred = np.exp(np.clip(-_values(f)["k"] * dsum, -87, 80))
     else:
-        f = _fit(_res_listing, {"k": Param(1.0 / (10 * sd.voxel), 0.0, 1e4), "logB": Param(0.0, -5.0, 5.0)}, args)
+        f = _fit(
+            _res_listing, {"k": Param(1.0 / (10 * sd.voxel), 0.0, 1e4), "logB": Param(0.0, -5.0, 5.0)}, args
+        )
         v = _values(f)
         pred = np.exp(np.clip(v["logB"] - v["k"] * dsum, -87, 80))
     return f, sd.scaled(t, pred)
@@ -210,7 +226,9 @@ def fit_free(sds: list[SceneData], t, alphas=ALPHAS, bases=BASES_VOX, analytic=F
     best = None
     for alpha in alphas:
         for base in bases:
-            d = np.concatenate([sd.terms(alpha, base, analytic=analytic)[:, sd.fit_idx] for sd in sds], axis=1)
+            d = np.concatenate(
+                [sd.terms(alpha, base, analytic=analytic)[:, sd.fit_idx] for sd in sds], axis=1
+            )
 
             def fun(x, d=d):
                 e = x[0] - x[1:] @ d
@@ -221,8 +239,16 @@ def fit_free(sds: list[SceneData], t, alphas=ALPHAS, bases=BASES_VOX, analytic=F
             x0 = np.array([0.0] + [1.0 / (10 * sds[0].voxel)] * n)
             out = bounded_lm(fun, x0, lo, hi, max_iter=200)
             if best is None or out["ssr"] < best["ssr"]:
-                best = {"values": {"logB": float(out["x"][0]), **{f"c{i + 1}": float(out["x"][1 + i]) for i in range(n)}},
-                        "ssr": out["ssr"], "alpha": alpha, "base_vox": base, "m": len(y)}
+                best = {
+                    "values": {
+                        "logB": float(out["x"][0]),
+                        **{f"c{i + 1}": float(out["x"][1 + i]) for i in range(n)},
+                    },
+                    "ssr": out["ssr"],
+                    "alpha": alpha,
+                    "base_vox": base,
+                    "m": len(y),
+                }
     return best
 
 
@@ -272,9 +298,19 @@ def cone_best(sd: SceneData, t, cfg):
     best = None
     for k in CONE_KS:
         if k not in sd.cone_cache:
-            sd.cone_cache[k] = np.asarray(cone_occlusion(sd.points, sd.normals, sd.sdf, cones=cfg["cone_count"],
-                                                         steps=cfg["cone_steps"], t0=sd.voxel,
-                                                         t_max=cfg["ao_distance"], k=k), dtype=np.float64)
+            sd.cone_cache[k] = np.asarray(
+                cone_occlusion(
+                    sd.points,
+                    sd.normals,
+                    sd.sdf,
+                    cones=cfg["cone_count"],
+                    steps=cfg["cone_steps"],
+                    t0=sd.voxel,
+                    t_max=cfg["ao_distance"],
+                    k=k,
+                ),
+                dtype=np.float64,
+            )
         pred = sd.scaled(t, sd.cone_cache[k])
         e = float(np.sqrt(np.mean((pred - ref) ** 2)))
         if best is None or e < best[0]:
@@ -317,19 +353,37 @@ def assemble(ctx, cfg, rendered) -> dict:
             f, preds["curvature"] = fit_curvature(sd, t)
             params["curvature"] = {"k_text": _values(f)["k"], "level": 1}
             kc, preds["cone"] = cone_best(sd, t, cfg)
-            params["cone"] = {"k": kc, "cones": cfg["cone_count"], "steps": cfg["cone_steps"],
-                              "t0": sd.voxel, "t_max": cfg["ao_distance"]}
+            params["cone"] = {
+                "k": kc,
+                "cones": cfg["cone_count"],
+                "steps": cfg["cone_steps"],
+                "t0": sd.voxel,
+                "t_max": cfg["ao_distance"],
+            }
             ref_img, err_img = sd.image(ref), sd.image(err)
             approx_docs = []
             for m in METHODS + ("evans-analytic",):
                 if m not in preds:
                     continue
                 img = sd.image(preds[m])
-                met = compute_metrics(img[..., None].repeat(3, -1), ref_img[..., None].repeat(3, -1),
-                                      err_img[..., None].repeat(3, -1), sd.mask, names=METRICS)
-                approx_docs.append({"method": m, "label": LABELS[m], "fitted": True,
-                                    "parameters": _approx_params(params[m]),
-                                    "metrics": met.to_dict(), "cost": None, "figures": []})
+                met = compute_metrics(
+                    img[..., None].repeat(3, -1),
+                    ref_img[..., None].repeat(3, -1),
+                    err_img[..., None].repeat(3, -1),
+                    sd.mask,
+                    names=METRICS,
+                )
+                approx_docs.append(
+                    {
+                        "method": m,
+                        "label": LABELS[m],
+                        "fitted": True,
+                        "parameters": _approx_params(params[m]),
+                        "metrics": met.to_dict(),
+                        "cost": None,
+                        "figures": [],
+                    }
+                )
                 maps[(n, t, m)] = img
             if t == "ao" and sd.r["sdfgrid_ao"] is not None:
                 approx_docs.append(_sdfgrid_doc(sd))
@@ -340,15 +394,34 @@ def assemble(ctx, cfg, rendered) -> dict:
             if "evans-analytic" in fitted:
                 per_case_params[cid]["evans-analytic-lm"] = _lm_summary(fitted["evans-analytic"])
             fit_rows.append({"case": cid, "scene": n, "target": t, "voxel": sd.voxel, **_lm_summary(b)})
-            sky_meta = ({"sun_elevation_deg": cfg["sun_elevation"], "sun_azimuth_deg": cfg["sun_azimuth"],
-                         "turbidity": cfg["turbidity"]} if t in SUNSKY_TARGETS else {})
-            case_docs.append({"id": cid, "label": f"{n.replace('_', ' ')}: {TARGET_LABEL[t]}",
-                              "parameters": {"scene": n, "target": t, "grid_cells": cfg["grid"],
-                                             "voxel": sd.voxel, "ao_distance": cfg["ao_distance"] if t == "ao" else None,
-                                             "albedo": cfg["albedo"] if t in ("sky-gi", "sunsky-gi") else None,
-                                             **sky_meta, "held_out": n == HELD_OUT},
-                              "scene": {"name": f"sdf-{n}", "hash": sd.r["scene_hash"]},
-                              "reference": sd.r["refs"][t]["meta"], "approximations": approx_docs})
+            sky_meta = (
+                {
+                    "sun_elevation_deg": cfg["sun_elevation"],
+                    "sun_azimuth_deg": cfg["sun_azimuth"],
+                    "turbidity": cfg["turbidity"],
+                }
+                if t in SUNSKY_TARGETS
+                else {}
+            )
+            case_docs.append(
+                {
+                    "id": cid,
+                    "label": f"{n.replace('_', ' ')}: {TARGET_LABEL[t]}",
+                    "parameters": {
+                        "scene": n,
+                        "target": t,
+                        "grid_cells": cfg["grid"],
+                        "voxel": sd.voxel,
+                        "ao_distance": cfg["ao_distance"] if t == "ao" else None,
+                        "albedo": cfg["albedo"] if t in ("sky-gi", "sunsky-gi") else None,
+                        **sky_meta,
+                        "held_out": n == HELD_OUT,
+                    },
+                    "scene": {"name": f"sdf-{n}", "hash": sd.r["scene_hash"]},
+                    "reference": sd.r["refs"][t]["meta"],
+                    "approximations": approx_docs,
+                }
+            )
             maps[(n, t, "ref")] = ref_img
     ctx.log(f"per-case fits done ({time.perf_counter() - t_start:.1f} s)")
     costs = measure_costs(sds, cfg)
@@ -390,11 +463,17 @@ def _json_params(p: dict) -> dict:
 def _lm_summary(b: dict) -> dict:
     """The continuous fit in a few numbers: readable parameters with stderrs, RMS residual before (grid) and
     after, LM iterations, convergence."""
-    return {**_json_params(evans_readable(b, None)), "rms_residual": b["fit"]["rms_residual"],
-            "rms_residual_grid": b["grid"]["rms_residual"], "grid_alpha": b["grid"]["alpha"],
-            "grid_base_voxels": b["grid"]["base_vox"], "lm_iterations": b["lm"]["iterations"],
-            "converged": b["fit"]["converged"], "message": b["fit"]["message"],
-            "at_bound": [k for k, v in b["fit"]["parameters"].items() if v["at_bound"]]}
+    return {
+        **_json_params(evans_readable(b, None)),
+        "rms_residual": b["fit"]["rms_residual"],
+        "rms_residual_grid": b["grid"]["rms_residual"],
+        "grid_alpha": b["grid"]["alpha"],
+        "grid_base_voxels": b["grid"]["base_vox"],
+        "lm_iterations": b["lm"]["iterations"],
+        "converged": b["fit"]["converged"],
+        "message": b["fit"]["message"],
+        "at_bound": [k for k, v in b["fit"]["parameters"].items() if v["at_bound"]],
+    }
 
 
 def _pm(v, e, fmt="{:.3g}"):
@@ -407,14 +486,18 @@ def _pm(v, e, fmt="{:.3g}"):
 def _with_fit_table(secs, rows, joint, sds, cfg) -> list[dict]:
     """Append the per-case continuous-fit table (α, base, k, B with stderrs; RMS grid → continuous) to the
     ``fit`` section."""
-    lines = ["case                      α               base (voxels)    k (1/unit)        B               "
-             "RMS grid → LM       iters"]
+    lines = [
+        "case                      α               base (voxels)    k (1/unit)        B               "
+        "RMS grid → LM       iters"
+    ]
     for r in rows + [{"case": f"joint-{t}", **_lm_summary(b)} for t, b in joint.items()]:
-        lines.append(f"{r['case']:<25} {_pm(r['alpha'], r['alpha_stderr']):<15} "
-                     f"{_pm(r['base_voxels'], r['base_voxels_stderr']):<16} {_pm(r['k'], r['k_stderr']):<17} "
-                     f"{_pm(r['B'], r['B_stderr']):<15} {r['rms_residual_grid']:.4f} → {r['rms_residual']:.4f}   "
-                     f"{r['lm_iterations']}{'' if r['converged'] else ' (not converged)'}"
-                     + (f"  at bound: {', '.join(r['at_bound'])}" if r["at_bound"] else ""))
+        lines.append(
+            f"{r['case']:<25} {_pm(r['alpha'], r['alpha_stderr']):<15} "
+            f"{_pm(r['base_voxels'], r['base_voxels_stderr']):<16} {_pm(r['k'], r['k_stderr']):<17} "
+            f"{_pm(r['B'], r['B_stderr']):<15} {r['rms_residual_grid']:.4f} → {r['rms_residual']:.4f}   "
+            f"{r['lm_iterations']}{'' if r['converged'] else ' (not converged)'}"
+            + (f"  at bound: {', '.join(r['at_bound'])}" if r["at_bound"] else "")
+        )
     for sec in secs:
         if sec["id"] == "fit":
             sec["text"] += "\n\n```\n" + "\n".join(lines) + "\n```"
@@ -432,10 +515,22 @@ def _sdfgrid_doc(sd: SceneData) -> dict:
     img = np.where(both, g, 0.0)
     # both images are noisy: the floor uses the combined standard error
     comb = np.sqrt(np.where(both, err_img**2 + np.nan_to_num(ge) ** 2, err_img**2))
-    met = compute_metrics(img[..., None].repeat(3, -1), np.where(both, ref_img, 0)[..., None].repeat(3, -1),
-                          comb[..., None].repeat(3, -1), both, names=METRICS)
-    return {"method": "sdfgrid", "label": LABELS["sdfgrid"], "fitted": False,
-            "parameters": {"grid_voxel": sd.voxel}, "metrics": met.to_dict(), "cost": None, "figures": []}
+    met = compute_metrics(
+        img[..., None].repeat(3, -1),
+        np.where(both, ref_img, 0)[..., None].repeat(3, -1),
+        comb[..., None].repeat(3, -1),
+        both,
+        names=METRICS,
+    )
+    return {
+        "method": "sdfgrid",
+        "label": LABELS["sdfgrid"],
+        "fitted": False,
+        "parameters": {"grid_voxel": sd.voxel},
+        "metrics": met.to_dict(),
+        "cost": None,
+        "figures": [],
+    }
 
 
 def _model_only_doc(sd: SceneData, cfg) -> dict:
@@ -449,11 +544,22 @@ def _model_only_doc(sd: SceneData, cfg) -> dict:
     b = fit_evans([sd2], "ao", cfg)
     ref, err = sd2.target("ao")
     img, ref_img, err_img = sd2.image(predict_free(sd2, b)), sd2.image(ref), sd2.image(err)
-    met = compute_metrics(img[..., None].repeat(3, -1), ref_img[..., None].repeat(3, -1),
-                          err_img[..., None].repeat(3, -1), sd2.mask, names=METRICS)
-    return {"method": "evans-on-sdfgrid", "label": LABELS["evans-on-sdfgrid"], "fitted": True,
-            "parameters": _approx_params(free_params_readable(b, sd.voxel)),
-            "metrics": met.to_dict(), "cost": None, "figures": []}
+    met = compute_metrics(
+        img[..., None].repeat(3, -1),
+        ref_img[..., None].repeat(3, -1),
+        err_img[..., None].repeat(3, -1),
+        sd2.mask,
+        names=METRICS,
+    )
+    return {
+        "method": "evans-on-sdfgrid",
+        "label": LABELS["evans-on-sdfgrid"],
+        "fitted": True,
+        "parameters": _approx_params(free_params_readable(b, sd.voxel)),
+        "metrics": met.to_dict(),
+        "cost": None,
+        "figures": [],
+    }
 
 
 # ===================================================================================== cost
@@ -480,29 +586,48 @@ def measure_costs(sds, cfg) -> list[dict]:
     idx = rng.integers(0, len(sd.points), size)
     be = get_default_backend()
     Float = (dr.cuda if be == "cuda" else dr.llvm).Float
-    cols = tuple(Float(np.ascontiguousarray(a[idx, i], dtype=np.float32)) for a in (sd.points, sd.normals)
-                 for i in range(3))
+    cols = tuple(
+        Float(np.ascontiguousarray(a[idx, i], dtype=np.float32))
+        for a in (sd.points, sd.normals)
+        for i in range(3)
+    )
     h = sd.voxel
     kernels = {
         "evans-text": lambda *a: _evans_kernel(_DR, sd.sdf, EvansParams(n=4, base=h, k=1.0, alpha=0.5), *a),
-        "evans-listing": lambda *a: _evans_kernel(_DR, sd.sdf, EvansParams(n=4, base=h, k=1.0, alpha=1.0,
-                                                                          weights=LISTING_WEIGHTS), *a),
-        "evans-fit": lambda *a: _evans_kernel(_DR, sd.sdf, EvansParams(n=4, base=h, k=1.0, alpha=0.3,
-                                                                      weights=(1.0, 0.9, 0.8, 0.7)), *a),
+        "evans-listing": lambda *a: _evans_kernel(
+            _DR, sd.sdf, EvansParams(n=4, base=h, k=1.0, alpha=1.0, weights=LISTING_WEIGHTS), *a
+        ),
+        "evans-fit": lambda *a: _evans_kernel(
+            _DR, sd.sdf, EvansParams(n=4, base=h, k=1.0, alpha=0.3, weights=(1.0, 0.9, 0.8, 0.7)), *a
+        ),
         "curvature": lambda *a: _curvature_kernel(_DR, sd.sdf, 1, -1.0, *a[:3]),
-        "cone": lambda *a: _cone_kernel(_DR, sd.sdf, cfg["cone_count"], cfg["cone_steps"], h, cfg["ao_distance"],
-                                        2.0, *a),
+        "cone": lambda *a: _cone_kernel(
+            _DR, sd.sdf, cfg["cone_count"], cfg["cone_steps"], h, cfg["ao_distance"], 2.0, *a
+        ),
     }
     out = []
     for m, fn in kernels.items():
         tm = time_drjit(fn, cols, size, repeats=5, min_seconds=0.1)
-        out.append({"method": m, "label": LABELS[m], "backend": be, **tm.to_dict(),
-                    "note": f"Dr.Jit kernel incl. trilinear gathers from the mip chain, {size} surface points "
-                            f"({cfg['grid']}³ grid), median wall time after warm-up"})
+        out.append(
+            {
+                "method": m,
+                "label": LABELS[m],
+                "backend": be,
+                **tm.to_dict(),
+                "note": f"Dr.Jit kernel incl. trilinear gathers from the mip chain, {size} surface points "
+                f"({cfg['grid']}³ grid), median wall time after warm-up",
+            }
+        )
     tm = next(c for c in out if c["method"] == "evans-fit")
-    out.append({"method": "evans-joint", "label": LABELS["evans-joint"], "backend": be,
-                **{k: tm[k] for k in ("ns_per_pixel", "pixels_per_second", "elements", "repeats")},
-                "note": "same kernel as evans-fit"})
+    out.append(
+        {
+            "method": "evans-joint",
+            "label": LABELS["evans-joint"],
+            "backend": be,
+            **{k: tm[k] for k in ("ns_per_pixel", "pixels_per_second", "elements", "repeats")},
+            "note": "same kernel as evans-fit",
+        }
+    )
     return out
 
 
@@ -553,14 +678,31 @@ def run_sweep(ctx, cfg, sds) -> list[dict]:
             floors.append(float(np.sqrt(np.mean(err**2))))
             if timing is None:
                 idx = np.random.default_rng(1).integers(0, len(sd.points), size)
-                cols = tuple(Float(np.ascontiguousarray(a[idx, i], dtype=np.float32)) for a in (sd.points, sd.normals)
-                             for i in range(3))
-                timing = time_drjit(lambda *a, s=sdf, p=prm: _evans_kernel(_DR, s, p, *a), cols, size, repeats=5,
-                                    min_seconds=0.1)
-        rows.append({"grid": res, "n": n, "prefilter": pre, "bits": 8 if q8 else 32, "target": target,
-                     "rmse": float(np.mean(errs)), "noise_floor": float(np.mean(floors)),
-                     "ns_per_pixel": timing.ns_per_element,
-                     "seed_default": bool(res == 128 and n == 4 and pre and q8)})
+                cols = tuple(
+                    Float(np.ascontiguousarray(a[idx, i], dtype=np.float32))
+                    for a in (sd.points, sd.normals)
+                    for i in range(3)
+                )
+                timing = time_drjit(
+                    lambda *a, s=sdf, p=prm: _evans_kernel(_DR, s, p, *a),
+                    cols,
+                    size,
+                    repeats=5,
+                    min_seconds=0.1,
+                )
+        rows.append(
+            {
+                "grid": res,
+                "n": n,
+                "prefilter": pre,
+                "bits": 8 if q8 else 32,
+                "target": target,
+                "rmse": float(np.mean(errs)),
+                "noise_floor": float(np.mean(floors)),
+                "ns_per_pixel": timing.ns_per_element,
+                "seed_default": bool(res == 128 and n == 4 and pre and q8),
+            }
+        )
     return rows
 
 
@@ -580,8 +722,9 @@ def _fit_k(dsum, ref):
         b, e = inner(math.exp(logk))
         return float(np.mean((b * e - ref) ** 2))
 
-    r = minimize_scalar(f, bounds=(math.log(1e-3 / scale), math.log(1e3 / scale)), method="bounded",
-                        options={"xatol": 1e-4})
+    r = minimize_scalar(
+        f, bounds=(math.log(1e-3 / scale), math.log(1e3 / scale)), method="bounded", options={"xatol": 1e-4}
+    )
     k = math.exp(r.x)
     b, _ = inner(k)
     return k, math.log(max(b, 1e-30))
@@ -590,32 +733,65 @@ def _fit_k(dsum, ref):
 # ===================================================================================== figures
 def make_figures(out, cfg, sds, maps, case_docs, sweep, costs) -> list[dict]:
     figs = []
-    for t, n in [(t, n) for t in cfg["targets"] if t in ("ao", "sky", "sunsky")
-                 for n in cfg.get("map_scenes", cfg["scenes"]) if n in sds]:
+    for t, n in [
+        (t, n)
+        for t in cfg["targets"]
+        if t in ("ao", "sky", "sunsky")
+        for n in cfg.get("map_scenes", cfg["scenes"])
+        if n in sds
+    ]:
         sd = sds[n]
         name = f"figures/maps_{n}_{t}.png"
-        panels = [(SHORT[m], maps[(n, t, m)]) for m in ("evans-text", "evans-listing", "evans-fit", "evans-joint", "cone")]
-        figures.image_comparison(out / name, maps[(n, t, "ref")][..., None].repeat(3, -1),
-                                 [(lab, img[..., None].repeat(3, -1)) for lab, img in panels], sd.mask,
-                                 error_scale=1.0, exposure=1.0, title=f"{n}: {TARGET_LABEL[t]}")
-        figs.append({"file": name, "section": "failures",
-                     "caption": f"{n.replace('_', ' ')}: reference ({TARGET_LABEL[t]}) and approximations with signed "
-                                "error maps (red: too bright, blue: too dark)."})
+        panels = [
+            (SHORT[m], maps[(n, t, m)])
+            for m in ("evans-text", "evans-listing", "evans-fit", "evans-joint", "cone")
+        ]
+        figures.image_comparison(
+            out / name,
+            maps[(n, t, "ref")][..., None].repeat(3, -1),
+            [(lab, img[..., None].repeat(3, -1)) for lab, img in panels],
+            sd.mask,
+            error_scale=1.0,
+            exposure=1.0,
+            title=f"{n}: {TARGET_LABEL[t]}",
+        )
+        figs.append(
+            {
+                "file": name,
+                "section": "failures",
+                "caption": f"{n.replace('_', ' ')}: reference ({TARGET_LABEL[t]}) and approximations with signed "
+                "error maps (red: too bright, blue: too dark).",
+            }
+        )
     t = "sky" if "sky" in cfg["targets"] else cfg["targets"][0]
     # Pareto: sweep points
     pts = []
     for r in sweep:
-        lab = f"{r['grid']}³ n={r['n']}" + ("" if r["prefilter"] else " nofilt") + (" 8bit" if r["bits"] == 8 else "")
+        lab = (
+            f"{r['grid']}³ n={r['n']}"
+            + ("" if r["prefilter"] else " nofilt")
+            + (" 8bit" if r["bits"] == 8 else "")
+        )
         if r["seed_default"]:
             lab += " ★seed"
         pts.append({"x": r["ns_per_pixel"], "y": r["rmse"], "label": lab})
     name = "figures/pareto_steps.png"
-    figures.pareto_plot(out / name, pts, "cost (ns per pixel, measured)", "mean RMSE vs Mitsuba AO",
-                        floor=float(np.mean([r["noise_floor"] for r in sweep])))
-    figs.append({"file": name, "section": "sweep",
-                 "caption": "Steps vs error vs cost: Evans occlusion (α = 0, w = 1; k and B refitted per point) against "
-                            "the AO reference, over samples n, grid resolution, prefiltering and 8-bit storage; ★ marks "
-                            "the seed's 4 samples at 128³ in 8 bit."})
+    figures.pareto_plot(
+        out / name,
+        pts,
+        "cost (ns per pixel, measured)",
+        "mean RMSE vs Mitsuba AO",
+        floor=float(np.mean([r["noise_floor"] for r in sweep])),
+    )
+    figs.append(
+        {
+            "file": name,
+            "section": "sweep",
+            "caption": "Steps vs error vs cost: Evans occlusion (α = 0, w = 1; k and B refitted per point) against "
+            "the AO reference, over samples n, grid resolution, prefiltering and 8-bit storage; ★ marks "
+            "the seed's 4 samples at 128³ in 8 bit.",
+        }
+    )
     # method Pareto
     err = {}
     for doc in case_docs:
@@ -625,7 +801,9 @@ def make_figures(out, cfg, sds, maps, case_docs, sweep, costs) -> list[dict]:
     pts = [{"x": cost[m], "y": float(np.mean(v)), "label": SHORT[m]} for m, v in err.items() if m in cost]
     name = "figures/pareto_methods.png"
     figures.pareto_plot(out / name, pts, "cost (ns per pixel, measured)", "mean RMSE over all cases")
-    figs.append({"file": name, "section": "costs", "caption": "Mean RMSE over all cases vs measured cost per pixel."})
+    figs.append(
+        {"file": name, "section": "costs", "caption": "Mean RMSE over all cases vs measured cost per pixel."}
+    )
     # crease: AO vs angle
     cre = [n for n in cfg["scenes"] if n.startswith("crease_")]
     if cre:
@@ -639,11 +817,22 @@ def make_figures(out, cfg, sds, maps, case_docs, sweep, costs) -> list[dict]:
                 sel = sd.normals[:, 2] > 0.99  # floor points
                 xs.append(float(n.split("_")[1]))
                 ys.append(float(np.mean(v[sel])) if np.any(sel) else float("nan"))
-            series.append({"x": xs, "y": ys, "label": "Mitsuba AO" if m == "ref" else SHORT[m],
-                           "style": "points" if m == "ref" else "line"})
+            series.append(
+                {
+                    "x": xs,
+                    "y": ys,
+                    "label": "Mitsuba AO" if m == "ref" else SHORT[m],
+                    "style": "points" if m == "ref" else "line",
+                }
+            )
         figures.line_plot(out / name, "crease angle φ (degrees)", "mean AO of the floor arm", series)
-        figs.append({"file": name, "section": "failures",
-                     "caption": "Mean AO over the visible floor arm of each crease against the crease angle."})
+        figs.append(
+            {
+                "file": name,
+                "section": "failures",
+                "caption": "Mean AO over the visible floor arm of each crease against the crease angle.",
+            }
+        )
     return figs
 
 
@@ -658,35 +847,76 @@ def write_fitted(out, cfg, joint, per_case, sds) -> list[dict]:
         readable = _json_params(evans_readable(b, None))
         fname = f"fitted/evans_joint_{t}.json"
         names = list(b["fit"]["parameters"])
-        atomic_write_json(out / fname, {
-            "model": "C = B * exp(-k * sum_i w_i (d_i - s_{i-1}(P + d_i (N + alpha U)))), d_i = base * 2^(i-1)"
-                     + ("; prediction g(N) * C, g = sunsky factor E_sky(N)/E_u(N)" if t in SUNSKY_TARGETS else ""),
-            "target": t, "trained_on": train, "held_out": HELD_OUT,
-            "units": {"k": "1/scene unit", "base_voxels": "voxels of the finest grid (each scene's own)",
-                      "base": "scene units", "alpha": "dimensionless", "B": "dimensionless",
-                      "w_i": "dimensionless (w_1 = 1)"},
-            "parameters": readable,
-            "base_scene_units": {n: {"value": b["base_vox"] * sds[n].voxel,
-                                     "stderr": (readable["base_voxels_stderr"] * sds[n].voxel
-                                                if readable["base_voxels_stderr"] is not None else None),
-                                     "voxel": sds[n].voxel} for n in train},
-            "grid_cells": cfg["grid"], "n": cfg["n_samples"],
-            "method": "grid profile (LM of log B, c_i at each (alpha, base) point) as initialisation, then "
-                      "bounded Levenberg-Marquardt over (log B, c_i, alpha, base_voxels) with the alpha/base Jacobian "
-                      "columns from Dr.Jit forward-mode autodiff; stderr = sqrt(diag(s^2 (J^T J)^+)), s^2 = SSR/dof",
-            "grid_init": {"alphas": cfg["alphas"], "bases_voxels": cfg["bases_vox"], **b["grid"]},
-            "lm_fit": b["fit"], "lm": b["lm"],
-            "covariance": {"names": names, "matrix": [[_json_params({"v": v})["v"] for v in row] for row in b["cov"]]}})
-        docs.append({"id": f"evans-joint-{t}", "label": f"Evans joint fit ({TARGET_LABEL[t]})",
-                     "model": "C = exp(log B − Σ c_i D_i(α, base)), c_i = k·w_i; all fitted together (LM, "
-                              "Dr.Jit autodiff for α and base)",
-                     "parameters": b["fit"]["parameters"], "rms_residual": b["fit"]["rms_residual"],
-                     "n_residuals": b["fit"]["n_residuals"], "converged": b["fit"]["converged"], "file": fname})
-    atomic_write_json(out / "fitted/per_case.json", {
-        "units": {"k": "1/scene unit", "base": "scene units", "base_voxels": "voxels", "alpha": "dimensionless"},
-        "note": "evans-fit / evans-analytic / evans-joint: continuous fits with standard errors (*_stderr; None: "
-                "undetermined); *-lm: the fit's RMS residual before (grid) and after the continuous LM",
-        "cases": per_case})
+        atomic_write_json(
+            out / fname,
+            {
+                "model": "C = B * exp(-k * sum_i w_i (d_i - s_{i-1}(P + d_i (N + alpha U)))), d_i = base * 2^(i-1)"
+                + ("; prediction g(N) * C, g = sunsky factor E_sky(N)/E_u(N)" if t in SUNSKY_TARGETS else ""),
+                "target": t,
+                "trained_on": train,
+                "held_out": HELD_OUT,
+                "units": {
+                    "k": "1/scene unit",
+                    "base_voxels": "voxels of the finest grid (each scene's own)",
+                    "base": "scene units",
+                    "alpha": "dimensionless",
+                    "B": "dimensionless",
+                    "w_i": "dimensionless (w_1 = 1)",
+                },
+                "parameters": readable,
+                "base_scene_units": {
+                    n: {
+                        "value": b["base_vox"] * sds[n].voxel,
+                        "stderr": (
+                            readable["base_voxels_stderr"] * sds[n].voxel
+                            if readable["base_voxels_stderr"] is not None
+                            else None
+                        ),
+                        "voxel": sds[n].voxel,
+                    }
+                    for n in train
+                },
+                "grid_cells": cfg["grid"],
+                "n": cfg["n_samples"],
+                "method": "grid profile (LM of log B, c_i at each (alpha, base) point) as initialisation, then "
+                "bounded Levenberg-Marquardt over (log B, c_i, alpha, base_voxels) with the alpha/base Jacobian "
+                "columns from Dr.Jit forward-mode autodiff; stderr = sqrt(diag(s^2 (J^T J)^+)), s^2 = SSR/dof",
+                "grid_init": {"alphas": cfg["alphas"], "bases_voxels": cfg["bases_vox"], **b["grid"]},
+                "lm_fit": b["fit"],
+                "lm": b["lm"],
+                "covariance": {
+                    "names": names,
+                    "matrix": [[_json_params({"v": v})["v"] for v in row] for row in b["cov"]],
+                },
+            },
+        )
+        docs.append(
+            {
+                "id": f"evans-joint-{t}",
+                "label": f"Evans joint fit ({TARGET_LABEL[t]})",
+                "model": "C = exp(log B − Σ c_i D_i(α, base)), c_i = k·w_i; all fitted together (LM, "
+                "Dr.Jit autodiff for α and base)",
+                "parameters": b["fit"]["parameters"],
+                "rms_residual": b["fit"]["rms_residual"],
+                "n_residuals": b["fit"]["n_residuals"],
+                "converged": b["fit"]["converged"],
+                "file": fname,
+            }
+        )
+    atomic_write_json(
+        out / "fitted/per_case.json",
+        {
+            "units": {
+                "k": "1/scene unit",
+                "base": "scene units",
+                "base_voxels": "voxels",
+                "alpha": "dimensionless",
+            },
+            "note": "evans-fit / evans-analytic / evans-joint: continuous fits with standard errors (*_stderr; None: "
+            "undetermined); *-lm: the fit's RMS residual before (grid) and after the continuous LM",
+            "cases": per_case,
+        },
+    )
     return docs
 
 
@@ -695,10 +925,18 @@ def make_checks(cfg, sds, case_docs, fit_rows=()) -> list[dict]:
     checks = []
     if fit_rows:
         # The continuous LM starts at the grid's best point and accepts only steps that lower the SSR.
-        worse = [r["case"] for r in fit_rows if r["rms_residual"] > r["rms_residual_grid"] * (1 + 1e-9) + 1e-12]
-        checks.append({"name": "continuous Evans fit (LM, autodiff α/base) never above its grid initialisation "
-                               "(RMS residual, every case)", "value": len(worse), "expected": "0",
-                       "passed": not worse})
+        worse = [
+            r["case"] for r in fit_rows if r["rms_residual"] > r["rms_residual_grid"] * (1 + 1e-9) + 1e-12
+        ]
+        checks.append(
+            {
+                "name": "continuous Evans fit (LM, autodiff α/base) never above its grid initialisation "
+                "(RMS residual, every case)",
+                "value": len(worse),
+                "expected": "0",
+                "passed": not worse,
+            }
+        )
     # Mitsuba AO at floor probes of each crease vs the wedge integral (independent quadrature, `crease_ao`).
     # Within R = ao_distance ≤ 1 the shipped crease (arms 2 long, 2 wide) is exact for probes at y = 0, x ≤ 0.4.
     for n in cfg["scenes"]:
@@ -708,35 +946,67 @@ def make_checks(cfg, sds, case_docs, fit_rows=()) -> list[dict]:
         phi = math.radians(float(n.split("_")[1]))
         expect = np.array([crease_ao(phi, x, cfg["ao_distance"]) for x in pr["x"]])
         z = (pr["mean"] - expect) / np.sqrt(pr["stderr"] ** 2 + 1e-5**2)  # 1e-5: float32 ray precision
-        checks.append({"name": f"Mitsuba AO at {len(expect)} floor probes of the {n.split('_')[1]}° crease vs the "
-                               "wedge integral (max |z|)", "value": float(np.max(np.abs(z))), "expected": "≤ 4",
-                       "passed": bool(np.max(np.abs(z)) <= 4.0)})
+        checks.append(
+            {
+                "name": f"Mitsuba AO at {len(expect)} floor probes of the {n.split('_')[1]}° crease vs the "
+                "wedge integral (max |z|)",
+                "value": float(np.max(np.abs(z))),
+                "expected": "≤ 4",
+                "passed": bool(np.max(np.abs(z)) <= 4.0),
+            }
+        )
     # Structural: Evans with a normalised bent normal is exactly 1 on an unoccluded plane (analytic SDF).
     from rtfit.realtime.sdf_grid import HalfSpace
     from rtfit.realtime.sdf_occlusion import AnalyticSDF, EvansParams, evans_occlusion
 
     pts = np.column_stack([np.linspace(-1, 1, 64), np.zeros(64), np.zeros(64)])
-    c = evans_occlusion(pts, np.tile([0.0, 0.0, 1.0], (64, 1)), AnalyticSDF([HalfSpace((0, 0, 0), (0, 0, 1))]),
-                        EvansParams(n=8, base=0.01, k=50.0, alpha=0.5, normalize=True))
+    c = evans_occlusion(
+        pts,
+        np.tile([0.0, 0.0, 1.0], (64, 1)),
+        AnalyticSDF([HalfSpace((0, 0, 0), (0, 0, 1))]),
+        EvansParams(n=8, base=0.01, k=50.0, alpha=0.5, normalize=True),
+    )
     dev = float(np.max(np.abs(np.asarray(c) - 1.0)))
-    checks.append({"name": "Evans on an unoccluded plane (analytic SDF, normalised N') equals 1", "value": dev,
-                   "expected": "max |C − 1| ≤ 1e-6", "passed": dev <= 1e-6})
+    checks.append(
+        {
+            "name": "Evans on an unoccluded plane (analytic SDF, normalised N') equals 1",
+            "value": dev,
+            "expected": "max |C − 1| ≤ 1e-6",
+            "passed": dev <= 1e-6,
+        }
+    )
     # The sunsky reference at an unoccluded point vs the quadrature of the baked sky (independent integration).
     for n in cfg["scenes"]:
         pr = sds[n].r.get("sky_probe")
         if pr is None:
             continue
         z = (pr["direct_mean"] - pr["expected"]) / np.maximum(pr["direct_stderr"], 1e-12)
-        checks.append({"name": "sunsky one bounce at an unoccluded point, facing up (E/E_h = 1) and sideways "
-                               f"(4 azimuths), vs the sky-irradiance quadrature: max |z| ({pr['spp']} spp)",
-                       "value": float(np.max(np.abs(z))), "expected": "≤ 4", "passed": bool(np.max(np.abs(z)) <= 4.0)})
+        checks.append(
+            {
+                "name": "sunsky one bounce at an unoccluded point, facing up (E/E_h = 1) and sideways "
+                f"(4 azimuths), vs the sky-irradiance quadrature: max |z| ({pr['spp']} spp)",
+                "value": float(np.max(np.abs(z))),
+                "expected": "≤ 4",
+                "passed": bool(np.max(np.abs(z)) <= 4.0),
+            }
+        )
         zg = float(abs(pr["global_mean"][0] - pr["expected"][0]) / max(pr["global_stderr"][0], 1e-12))
-        checks.append({"name": "sunsky global illumination at an unoccluded upward-facing point vs the quadrature "
-                               "(|z|)", "value": zg, "expected": "≤ 4", "passed": zg <= 4.0})
+        checks.append(
+            {
+                "name": "sunsky global illumination at an unoccluded upward-facing point vs the quadrature "
+                "(|z|)",
+                "value": zg,
+                "expected": "≤ 4",
+                "passed": zg <= 4.0,
+            }
+        )
         break
     # The fits converged.
-    bad = [d["id"] for d in case_docs if not all(np.isfinite(a["metrics"]["rmse"]["value"] or np.nan)
-                                                 for a in d["approximations"])]
+    bad = [
+        d["id"]
+        for d in case_docs
+        if not all(np.isfinite(a["metrics"]["rmse"]["value"] or np.nan) for a in d["approximations"])
+    ]
     checks.append({"name": "every metric finite", "value": len(bad), "expected": "0", "passed": not bad})
     return checks
 
@@ -770,8 +1040,10 @@ def crease_ao(phi: float, x: float, R: float) -> float:
 # ===================================================================================== text
 def sections(cfg) -> list[dict]:
     return [
-        {"id": "method", "title": "Method", "text":
-            "Every scene is a closed triangle mesh (generated procedurally, `experiments/sdf_occlusion_scenes.py`). "
+        {
+            "id": "method",
+            "title": "Method",
+            "text": "Every scene is a closed triangle mesh (generated procedurally, `experiments/sdf_occlusion_scenes.py`). "
             f"Its voxel SDF ({cfg['grid']}³ cells, exact Euclidean distance in a narrow band, closest-point propagation "
             "beyond, sign by ray parity) is prefiltered into a Gaussian mip chain; Evans' estimator samples "
             f"n = {cfg['n_samples']} points at d_i = base·2^(i−1) along the bent normal N + αU, sample i from mip "
@@ -788,9 +1060,13 @@ def sections(cfg) -> list[dict]:
             "shape built from the same grid gives the AO of the voxelised geometry: its difference from the mesh AO "
             "is the grid-resolution error (row *sdfgrid* in the AO cases), and Evans fitted at that geometry's own "
             "surface points against its own AO is the occlusion-model error alone (row *evans-on-sdfgrid*). "
-            "Row *evans-analytic* fits Evans on the exact SDF of the primitives (sphere on plane, room, boxes)."},
-        {"id": "fit", "title": "The continuous Evans fit", "placement": "after_results", "text":
-            "Rows *evans-fit*, *evans-joint*, *evans-analytic* and *evans-on-sdfgrid* fit log B, c_i = k·w_i "
+            "Row *evans-analytic* fits Evans on the exact SDF of the primitives (sphere on plane, room, boxes).",
+        },
+        {
+            "id": "fit",
+            "title": "The continuous Evans fit",
+            "placement": "after_results",
+            "text": "Rows *evans-fit*, *evans-joint*, *evans-analytic* and *evans-on-sdfgrid* fit log B, c_i = k·w_i "
             f"(i = 1..{cfg['n_samples']}), α and the base distance together. Initialisation: for each (α, base) of "
             f"the grid α ∈ {{{', '.join(f'{a:g}' for a in cfg['alphas'])}}} × base ∈ "
             f"{{{', '.join(f'{b:g}' for b in cfg['bases_vox'])}}} voxels the model is linear in (log B, c_i) inside "
@@ -803,28 +1079,39 @@ def sections(cfg) -> list[dict]:
             f"Fits use at most {FIT_POINTS} pixels per scene. Pixel residuals are spatially correlated and dominated by "
             "model error, so the stderrs measure how sharply the data pin a parameter, not a sampling error. "
             "Table: per case α, base (voxels), k (1/scene unit), B with stderrs; RMS residual of the grid's best "
-            "point → the continuous fit; LM iterations; parameters on a bound (their stderr is unreliable)."},
-        {"id": "sweep", "title": "Steps vs error vs cost", "placement": "after_results", "text":
-            "Evans' estimator as pure occlusion (α = 0, w = 1) with k and B refitted per configuration over "
+            "point → the continuous fit; LM iterations; parameters on a bound (their stderr is unreliable).",
+        },
+        {
+            "id": "sweep",
+            "title": "Steps vs error vs cost",
+            "placement": "after_results",
+            "text": "Evans' estimator as pure occlusion (α = 0, w = 1) with k and B refitted per configuration over "
             "samples n, grid resolution, with and without the Gaussian prefilter (without: plain 2×2×2 averages), "
             "and with the seed's 8-bit storage (one voxel per code). Error: mean RMSE over the sweep scenes against "
             "the AO reference; cost: the Dr.Jit kernel per pixel on this run's device. The `sweep` key of "
-            "results.json holds the table."},
-        {"id": "failures", "title": "Where it fails", "placement": "after_results", "text":
-            "Error maps per scene. Expected failure modes, visible there: thin occluders (thinner than a voxel of "
+            "results.json holds the table.",
+        },
+        {
+            "id": "failures",
+            "title": "Where it fails",
+            "placement": "after_results",
+            "text": "Error maps per scene. Expected failure modes, visible there: thin occluders (thinner than a voxel of "
             "the mip level a sample reads: the blurred SDF never reaches 0, so the room's walls and the character's "
             "limbs occlude too little), occluders behind the normal direction (the samples march only along N'; a "
             "wall beside a point at grazing angles is never sampled), and distant large occluders (beyond "
-            "Σ d_i = base·(2^n − 1): the room's ceiling and the sky hidden by the window wall, which Evans cannot see)."},
+            "Σ d_i = base·(2^n − 1): the room's ceiling and the sky hidden by the window wall, which Evans cannot see).",
+        },
     ]
 
 
 def _with_sweep_table(secs, sweep) -> list[dict]:
     lines = ["grid  n  prefilter  bits   RMSE     floor    ns/pixel"]
     for r in sweep:
-        lines.append(f"{r['grid']:>4}  {r['n']}  {'yes' if r['prefilter'] else 'no ':9}  {r['bits']:>4}   "
-                     f"{r['rmse']:.4f}   {r['noise_floor']:.4f}   {r['ns_per_pixel']:.3g}"
-                     + ("   <- seed (n = 4, 128³, 8 bit)" if r["seed_default"] else ""))
+        lines.append(
+            f"{r['grid']:>4}  {r['n']}  {'yes' if r['prefilter'] else 'no ':9}  {r['bits']:>4}   "
+            f"{r['rmse']:.4f}   {r['noise_floor']:.4f}   {r['ns_per_pixel']:.3g}"
+            + ("   <- seed (n = 4, 128³, 8 bit)" if r["seed_default"] else "")
+        )
     for sec in secs:
         if sec["id"] == "sweep":
             sec["text"] += "\n\n```\n" + "\n".join(lines) + "\n```"
@@ -849,8 +1136,13 @@ def notes(cfg) -> list[str]:
 
 def summary(cfg, case_docs, joint, sweep, sds) -> str:
     def mean_rmse(method, target):
-        v = [a["metrics"]["rmse"]["value"] for d in case_docs if d["parameters"]["target"] == target
-             for a in d["approximations"] if a["method"] == method]
+        v = [
+            a["metrics"]["rmse"]["value"]
+            for d in case_docs
+            if d["parameters"]["target"] == target
+            for a in d["approximations"]
+            if a["method"] == method
+        ]
         return float(np.mean(v)) if v else float("nan")
 
     t = "sky" if "sky" in cfg["targets"] else cfg["targets"][0]
@@ -866,19 +1158,29 @@ def summary(cfg, case_docs, joint, sweep, sds) -> str:
     held_txt = ""
     ap = held_rmse(t)
     if ap:
-        held_txt = (f" On the held-out character the joint set gives RMSE {ap['evans-joint']:.3g} against "
-                    f"{ap['evans-fit']:.3g} for a per-scene fit.")
+        held_txt = (
+            f" On the held-out character the joint set gives RMSE {ap['evans-joint']:.3g} against "
+            f"{ap['evans-fit']:.3g} for a per-scene fit."
+        )
     sun_txt = ""
     if "sunsky" in cfg["targets"]:
         sp = free_params_readable(joint["sunsky"], 1.0)
         hs = held_rmse("sunsky")
-        sun_txt = (f" Under the sunsky sky without its sun ({cfg['sun_elevation']:g}° elevation; E/E_h, "
-                   f"approximations × the unoccluded sky factor g(N)): seed listing "
-                   f"{mean_rmse('evans-listing', 'sunsky'):.3g}, fitted per scene {mean_rmse('evans-fit', 'sunsky'):.3g}, "
-                   f"joint {mean_rmse('evans-joint', 'sunsky'):.3g} (α = {_pm(sp['alpha'], sp['alpha_stderr'])}, "
-                   f"base = {_pm(sp['base_voxels'], sp['base_voxels_stderr'])} voxels)"
-                   + (f", held-out character {hs['evans-joint']:.3g} vs {hs['evans-fit']:.3g}" if hs else "") + ".")
-    grid_err = [a["metrics"]["rmse"]["value"] for d in case_docs for a in d["approximations"] if a["method"] == "sdfgrid"]
+        sun_txt = (
+            f" Under the sunsky sky without its sun ({cfg['sun_elevation']:g}° elevation; E/E_h, "
+            f"approximations × the unoccluded sky factor g(N)): seed listing "
+            f"{mean_rmse('evans-listing', 'sunsky'):.3g}, fitted per scene {mean_rmse('evans-fit', 'sunsky'):.3g}, "
+            f"joint {mean_rmse('evans-joint', 'sunsky'):.3g} (α = {_pm(sp['alpha'], sp['alpha_stderr'])}, "
+            f"base = {_pm(sp['base_voxels'], sp['base_voxels_stderr'])} voxels)"
+            + (f", held-out character {hs['evans-joint']:.3g} vs {hs['evans-fit']:.3g}" if hs else "")
+            + "."
+        )
+    grid_err = [
+        a["metrics"]["rmse"]["value"]
+        for d in case_docs
+        for a in d["approximations"]
+        if a["method"] == "sdfgrid"
+    ]
     return (
         f"Evans' 2006 SDF skylight against Mitsuba ray-cast sky light ({TARGET_LABEL[t]}), mean RMSE over "
         f"{len(cfg['scenes'])} scenes: seed text form {mean_rmse('evans-text', t):.3g}, seed listing "
@@ -923,20 +1225,45 @@ def bench(ctx) -> list[dict]:
     size = ctx.size or (1 << 18 if ctx.quick else 1 << 22)
     Float = (dr.cuda if variant.startswith("cuda") else dr.llvm).Float
     idx = np.random.default_rng(0).integers(0, len(pts), size)
-    cols = tuple(Float(np.ascontiguousarray(a[idx, i], dtype=np.float32)) for a in (pts, nrm) for i in range(3))
+    cols = tuple(
+        Float(np.ascontiguousarray(a[idx, i], dtype=np.float32)) for a in (pts, nrm) for i in range(3)
+    )
     rows = []
     be = "cuda" if variant.startswith("cuda") else "llvm"
     prm = EvansParams(n=4, base=g.voxel, k=10.0, alpha=0.5)
     t = time_drjit(lambda *a: _evans_kernel(_DR, sdf, prm, *a), cols, size)
-    rows.append({"what": f"Evans n=4, {grid_res}³ grid", "backend": be, "elements": size,
-                 "Mpx_s": t.elements_per_second / 1e6, "ns_per_px": t.ns_per_element, "Msamples_s": None})
+    rows.append(
+        {
+            "what": f"Evans n=4, {grid_res}³ grid",
+            "backend": be,
+            "elements": size,
+            "Mpx_s": t.elements_per_second / 1e6,
+            "ns_per_px": t.ns_per_element,
+            "Msamples_s": None,
+        }
+    )
     t = time_drjit(lambda *a: _cone_kernel(_DR, sdf, 9, 8, g.voxel, 1.0, 2.0, *a), cols, size)
-    rows.append({"what": f"cone-traced DF AO (9 cones × 8 steps), {grid_res}³", "backend": be, "elements": size,
-                 "Mpx_s": t.elements_per_second / 1e6, "ns_per_px": t.ns_per_element, "Msamples_s": None})
+    rows.append(
+        {
+            "what": f"cone-traced DF AO (9 cones × 8 steps), {grid_res}³",
+            "backend": be,
+            "elements": size,
+            "Mpx_s": t.elements_per_second / 1e6,
+            "ns_per_px": t.ns_per_element,
+            "Msamples_s": None,
+        }
+    )
     spp = 64 if ctx.quick else 256
     occlusion_pass(mi, mi_scene, pts[:1024], nrm[:1024], 4, 0, quantity="ao", max_distance=1.0)  # warm-up
     r = occlusion_pass(mi, mi_scene, pts, nrm, spp, 1, quantity="ao", max_distance=1.0)
-    rows.append({"what": f"Mitsuba ray-cast AO reference ({spp} spp)", "backend": be, "elements": len(pts),
-                 "Mpx_s": len(pts) / r.seconds / 1e6, "ns_per_px": r.seconds / len(pts) * 1e9,
-                 "Msamples_s": len(pts) * spp / r.seconds / 1e6})
+    rows.append(
+        {
+            "what": f"Mitsuba ray-cast AO reference ({spp} spp)",
+            "backend": be,
+            "elements": len(pts),
+            "Mpx_s": len(pts) / r.seconds / 1e6,
+            "ns_per_px": r.seconds / len(pts) * 1e9,
+            "Msamples_s": len(pts) * spp / r.seconds / 1e6,
+        }
+    )
     return rows

@@ -38,9 +38,11 @@ def write_ply(path, vertices, faces) -> None:
 
     v = np.ascontiguousarray(vertices, dtype="<f4")
     f = np.asarray(faces, dtype="<i4")
-    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(v)}\nproperty float x\n"
-            f"property float y\nproperty float z\nelement face {len(f)}\nproperty list uchar int vertex_indices\n"
-            "end_header\n").encode()
+    head = (
+        f"ply\nformat binary_little_endian 1.0\nelement vertex {len(v)}\nproperty float x\n"
+        f"property float y\nproperty float z\nelement face {len(f)}\nproperty list uchar int vertex_indices\n"
+        "end_header\n"
+    ).encode()
     rec = np.zeros(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
     rec["n"] = 3
     rec["i"] = f
@@ -69,19 +71,65 @@ def box_mesh(center, half, rotation=None):
     if rotation is not None:
         v = v @ np.asarray(rotation).T
     v = v + c
-    f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
-                  [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]], dtype=np.int64)
+    f = np.array(
+        [
+            [0, 2, 1],
+            [1, 2, 3],
+            [4, 5, 6],
+            [5, 7, 6],
+            [0, 1, 4],
+            [1, 5, 4],
+            [2, 6, 3],
+            [3, 6, 7],
+            [0, 4, 2],
+            [2, 4, 6],
+            [1, 3, 5],
+            [3, 7, 5],
+        ],
+        dtype=np.int64,
+    )
     # Vertices are not shared between faces, so interpolated (smooth) normals are the face normals.
     return v[f.reshape(-1)], np.arange(36, dtype=np.int64).reshape(12, 3)
 
 
 def icosphere(center, radius, subdivisions=3):
     t = (1.0 + math.sqrt(5.0)) / 2.0
-    v = [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
-         [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]]
-    f = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
-         [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11],
-         [6, 2, 10], [8, 6, 7], [9, 8, 1]]
+    v = [
+        [-1, t, 0],
+        [1, t, 0],
+        [-1, -t, 0],
+        [1, -t, 0],
+        [0, -1, t],
+        [0, 1, t],
+        [0, -1, -t],
+        [0, 1, -t],
+        [t, 0, -1],
+        [t, 0, 1],
+        [-t, 0, -1],
+        [-t, 0, 1],
+    ]
+    f = [
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ]
     verts = [np.array(p, float) / np.linalg.norm(p) for p in v]
     faces = f
     for _ in range(subdivisions):
@@ -95,6 +143,7 @@ def icosphere(center, radius, subdivisions=3):
                 verts.append(m / np.linalg.norm(m))
                 cache[key] = len(verts) - 1
             return cache[key]
+
         for a, b, c in faces:
             ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
             new += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
@@ -107,8 +156,12 @@ def prism_mesh(polygon_xz, y0, y1, quads):
     quads/triangles (index lists into the polygon)."""
     p = np.asarray(polygon_xz, float)
     m = len(p)
-    v = np.concatenate([np.column_stack([p[:, 0], np.full(m, y0), p[:, 1]]),
-                        np.column_stack([p[:, 0], np.full(m, y1), p[:, 1]])])
+    v = np.concatenate(
+        [
+            np.column_stack([p[:, 0], np.full(m, y0), p[:, 1]]),
+            np.column_stack([p[:, 0], np.full(m, y1), p[:, 1]]),
+        ]
+    )
     f = []
     for i in range(m):
         j = (i + 1) % m
@@ -137,7 +190,14 @@ def crease(phi_deg: float, length: float = 2.0, thick: float = 0.1, half_width: 
     ne = np.array([-math.sin(phi), math.cos(phi)])  # from the wall arm into its solid (away from the wedge)
     s = -thick * (1.0 + math.cos(phi)) / math.sin(phi)
     q = thick * ne + s * e  # corner where the two back faces meet (z = −thick)
-    poly = [(0.0, 0.0), tuple(length * e), tuple(length * e + thick * ne), tuple(q), (length, -thick), (length, 0.0)]
+    poly = [
+        (0.0, 0.0),
+        tuple(length * e),
+        tuple(length * e + thick * ne),
+        tuple(q),
+        (length, -thick),
+        (length, 0.0),
+    ]
     # polygon order: O, Le, Le+t·ne, Q, (L,−t), (L,0): counter-clockwise seen from −y is irrelevant for parity
     mesh = prism_mesh(poly, -half_width, half_width, [[0, 1, 2, 3], [0, 3, 4, 5]])
     return mesh, None
@@ -153,19 +213,19 @@ def room():
     t = 0.1
     hx, hy, hz = 1.0, 1.0, 0.7  # interior half-extents
     boxes = [
-        ((0, 0, -t / 2), (hx + t, hy + t, t / 2)),                 # floor
-        ((0, 0, 2 * hz + t / 2), (hx + t, hy + t, t / 2)),         # ceiling
-        ((-hx - t / 2, 0, hz), (t / 2, hy + t, hz)),               # −x wall
-        ((0, -hy - t / 2, hz), (hx, t / 2, hz)),                   # −y wall
-        ((0, hy + t / 2, hz), (hx, t / 2, hz)),                    # +y wall
+        ((0, 0, -t / 2), (hx + t, hy + t, t / 2)),  # floor
+        ((0, 0, 2 * hz + t / 2), (hx + t, hy + t, t / 2)),  # ceiling
+        ((-hx - t / 2, 0, hz), (t / 2, hy + t, hz)),  # −x wall
+        ((0, -hy - t / 2, hz), (hx, t / 2, hz)),  # −y wall
+        ((0, hy + t / 2, hz), (hx, t / 2, hz)),  # +y wall
     ]
     # +x wall with a window (|y| < 0.4, 0.5 < z < 1.1): four boxes around the hole
     wx = hx + t / 2
     boxes += [
-        ((wx, 0, 0.25), (t / 2, hy + t, 0.25)),                    # below the window, z ∈ [0, 0.5]
-        ((wx, 0, 1.25), (t / 2, hy + t, 0.15)),                    # above, z ∈ [1.1, 1.4]
+        ((wx, 0, 0.25), (t / 2, hy + t, 0.25)),  # below the window, z ∈ [0, 0.5]
+        ((wx, 0, 1.25), (t / 2, hy + t, 0.15)),  # above, z ∈ [1.1, 1.4]
         ((wx, -0.4 - 0.35 - t / 2, 0.8), (t / 2, 0.35 + t / 2, 0.3)),  # left of it, y ∈ [−1.1, −0.4]
-        ((wx, 0.4 + 0.35 + t / 2, 0.8), (t / 2, 0.35 + t / 2, 0.3)),   # right
+        ((wx, 0.4 + 0.35 + t / 2, 0.8), (t / 2, 0.35 + t / 2, 0.3)),  # right
     ]
     prims = [Box(c, h) for c, h in boxes]
     mesh = merge(*[box_mesh(c, h) for c, h in boxes])
@@ -187,16 +247,16 @@ def boxes():
 def character_primitives():
     """Capsules and spheres of the figure (standing on z = 0, about 1.7 tall)."""
     return [
-        Sphere((0.0, 0.0, 1.55), 0.14),                           # head
-        Capsule((0.0, 0.0, 0.95), (0.0, 0.0, 1.3), 0.17),         # torso
-        Capsule((-0.2, 0.0, 1.3), (-0.45, 0.05, 0.95), 0.06),     # left arm
+        Sphere((0.0, 0.0, 1.55), 0.14),  # head
+        Capsule((0.0, 0.0, 0.95), (0.0, 0.0, 1.3), 0.17),  # torso
+        Capsule((-0.2, 0.0, 1.3), (-0.45, 0.05, 0.95), 0.06),  # left arm
         Capsule((-0.45, 0.05, 0.95), (-0.35, -0.2, 0.75), 0.055),  # left forearm (bent forward)
-        Capsule((0.2, 0.0, 1.3), (0.42, 0.0, 0.92), 0.06),        # right arm
-        Capsule((0.42, 0.0, 0.92), (0.45, 0.0, 0.6), 0.055),      # right forearm
-        Capsule((-0.1, 0.0, 0.9), (-0.12, 0.0, 0.5), 0.08),       # left thigh
-        Capsule((-0.12, 0.0, 0.5), (-0.12, 0.0, 0.1), 0.065),     # left shin
-        Capsule((0.1, 0.0, 0.9), (0.15, -0.05, 0.5), 0.08),       # right thigh
-        Capsule((0.15, -0.05, 0.5), (0.15, 0.0, 0.1), 0.065),     # right shin
+        Capsule((0.2, 0.0, 1.3), (0.42, 0.0, 0.92), 0.06),  # right arm
+        Capsule((0.42, 0.0, 0.92), (0.45, 0.0, 0.6), 0.055),  # right forearm
+        Capsule((-0.1, 0.0, 0.9), (-0.12, 0.0, 0.5), 0.08),  # left thigh
+        Capsule((-0.12, 0.0, 0.5), (-0.12, 0.0, 0.1), 0.065),  # left shin
+        Capsule((0.1, 0.0, 0.9), (0.15, -0.05, 0.5), 0.08),  # right thigh
+        Capsule((0.15, -0.05, 0.5), (0.15, 0.0, 0.1), 0.065),  # right shin
         Capsule((-0.12, -0.02, 0.05), (-0.12, -0.18, 0.05), 0.05),  # feet
         Capsule((0.15, -0.02, 0.05), (0.15, -0.18, 0.05), 0.05),
     ]

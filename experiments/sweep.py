@@ -66,8 +66,10 @@ class SweepPoint:
 
     @property
     def label(self) -> str:
-        return ", ".join(f"{k} = {_short(self.overrides[k])}" for k in self.varying if k in self.overrides) \
+        return (
+            ", ".join(f"{k} = {_short(self.overrides[k])}" for k in self.varying if k in self.overrides)
             or "defaults"
+        )
 
 
 @dataclass
@@ -82,9 +84,13 @@ class Sweep:
 
     def resolved_points(self, variant: str) -> list[SweepPoint]:
         keys = list(dict.fromkeys(k for p in self.points for k in p))
-        varying = tuple(k for k in keys if len({json.dumps(p.get(k), sort_keys=True) for p in self.points}) > 1)
-        return [SweepPoint(i, p, point_key(self.experiment, p, self.quick, self.spp, self.seed, variant), varying)
-                for i, p in enumerate(self.points)]
+        varying = tuple(
+            k for k in keys if len({json.dumps(p.get(k), sort_keys=True) for p in self.points}) > 1
+        )
+        return [
+            SweepPoint(i, p, point_key(self.experiment, p, self.quick, self.spp, self.seed, variant), varying)
+            for i, p in enumerate(self.points)
+        ]
 
 
 def _short(v) -> str:
@@ -96,8 +102,17 @@ def _short(v) -> str:
 
 
 def point_key(experiment: str, overrides: dict, quick: bool, spp, seed: int, variant: str) -> str:
-    text = json.dumps({"experiment": experiment, "overrides": overrides, "quick": quick, "spp": spp,
-                       "seed": seed, "variant": variant}, sort_keys=True)
+    text = json.dumps(
+        {
+            "experiment": experiment,
+            "overrides": overrides,
+            "quick": quick,
+            "spp": spp,
+            "seed": seed,
+            "variant": variant,
+        },
+        sort_keys=True,
+    )
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -149,7 +164,9 @@ def load_sweep(path) -> Sweep:
     for key, values in grid.items():
         if not isinstance(values, list) or not values:
             fail(f"grid.{key}", "must be a non-empty list of values")
-    points = [dict(fixed, **dict(zip(grid, combo))) for combo in itertools.product(*grid.values())] if grid else []
+    points = (
+        [dict(fixed, **dict(zip(grid, combo))) for combo in itertools.product(*grid.values())] if grid else []
+    )
     points += [dict(fixed, **p) for p in listed]
     if not points:
         points = [dict(fixed)]
@@ -165,13 +182,28 @@ def load_sweep(path) -> Sweep:
         if k in seen:
             fail(f"point {i}", "duplicates an earlier point")
         seen.add(k)
-    return Sweep(name=name, experiment=spec.name, quick=quick, spp=spp, seed=seed,
-                 description=str(doc.get("description", "")), points=points)
+    return Sweep(
+        name=name,
+        experiment=spec.name,
+        quick=quick,
+        spp=spp,
+        seed=seed,
+        description=str(doc.get("description", "")),
+        points=points,
+    )
 
 
 # ------------------------------------------------------------------------------------------ workers
-def run_point(experiment: str, overrides: dict, quick: bool, variant: str, spp, seed: int, cache_dir: str,
-              point_key: str) -> dict:
+def run_point(
+    experiment: str,
+    overrides: dict,
+    quick: bool,
+    variant: str,
+    spp,
+    seed: int,
+    cache_dir: str,
+    point_key: str,
+) -> dict:
     """Job body: run ``experiment`` with ``overrides`` in a scratch directory on this worker and
     return its files as ``{relative path: bytes}`` (plain data, so it crosses any executor)."""
     from .jobs import InlineExecutor
@@ -180,13 +212,27 @@ def run_point(experiment: str, overrides: dict, quick: bool, variant: str, spp, 
     spec = get_experiment(experiment)
     scratch = Path(tempfile.mkdtemp(prefix="rtfit-point-"))
     try:
-        ctx = RunContext(out_dir=scratch, cache_dir=Path(cache_dir), executor=InlineExecutor(), quick=quick,
-                         variant=variant, spp=spp, seed=seed, progress=False, overrides=dict(overrides))
+        ctx = RunContext(
+            out_dir=scratch,
+            cache_dir=Path(cache_dir),
+            executor=InlineExecutor(),
+            quick=quick,
+            variant=variant,
+            spp=spp,
+            seed=seed,
+            progress=False,
+            overrides=dict(overrides),
+        )
         results = run_experiment_into(spec, scratch, ctx, "inline")
         results["config"]["sweep_point"] = point_key
         atomic_write_json(scratch / "results.json", results)
-        return {"files": {p.relative_to(scratch).as_posix(): p.read_bytes()
-                          for p in sorted(scratch.rglob("*")) if p.is_file()}}
+        return {
+            "files": {
+                p.relative_to(scratch).as_posix(): p.read_bytes()
+                for p in sorted(scratch.rglob("*"))
+                if p.is_file()
+            }
+        }
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 
@@ -212,14 +258,25 @@ def _write_point(directory: Path, files: dict):
     with atomic_directory(directory) as tmp:
         for rel, data in files.items():
             target = Path(tmp) / rel
-            if target.resolve().parent != Path(tmp).resolve() and Path(tmp).resolve() not in target.resolve().parents:
+            if (
+                target.resolve().parent != Path(tmp).resolve()
+                and Path(tmp).resolve() not in target.resolve().parents
+            ):
                 raise ValueError(f"point output escapes its directory: {rel}")
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_bytes(data)
 
 
-def run_sweep(sweep: Sweep, out: Path, *, variant: str, cache_dir: Path, executor, executor_name: str,
-              log=lambda msg: None) -> SweepSummary:
+def run_sweep(
+    sweep: Sweep,
+    out: Path,
+    *,
+    variant: str,
+    cache_dir: Path,
+    executor,
+    executor_name: str,
+    log=lambda msg: None,
+) -> SweepSummary:
     """Run every missing point through ``executor``; write each point and the combined report."""
     from .report import write_index, write_report
     from .runner import experiment_dirs
@@ -230,12 +287,27 @@ def run_sweep(sweep: Sweep, out: Path, *, variant: str, cache_dir: Path, executo
     todo, resumed = [], []
     for p in points:
         (resumed if _point_done(root / "points" / p.id, p.key) else todo).append(p)
-    log(f"sweep {sweep.name}: {len(points)} points of {sweep.experiment}, {len(resumed)} already done, "
-        f"{len(todo)} to run on {executor_name}")
-    jobs = [Job("rtfit.experiments.sweep:run_point",
-                dict(experiment=sweep.experiment, overrides=p.overrides, quick=sweep.quick, variant=variant,
-                     spp=sweep.spp, seed=sweep.seed, cache_dir=str(cache_dir), point_key=p.key), label=p.id)
-            for p in todo]
+    log(
+        f"sweep {sweep.name}: {len(points)} points of {sweep.experiment}, {len(resumed)} already done, "
+        f"{len(todo)} to run on {executor_name}"
+    )
+    jobs = [
+        Job(
+            "rtfit.experiments.sweep:run_point",
+            dict(
+                experiment=sweep.experiment,
+                overrides=p.overrides,
+                quick=sweep.quick,
+                variant=variant,
+                spp=sweep.spp,
+                seed=sweep.seed,
+                cache_dir=str(cache_dir),
+                point_key=p.key,
+            ),
+            label=p.id,
+        )
+        for p in todo
+    ]
     outcomes: list[Outcome] = executor.run_all(jobs, desc=f"sweep {sweep.name}") if jobs else []
     failed = []
     for p, o in zip(todo, outcomes):
@@ -246,15 +318,26 @@ def run_sweep(sweep: Sweep, out: Path, *, variant: str, cache_dir: Path, executo
     attempts = {p.id: o.attempts for p, o in zip(todo, outcomes)}
     # The combined table lives in OUT/NAME/ itself (beside points/), so the suite index links it;
     # each file is written atomically.
-    atomic_write_json(root / "results.json",
-                      combined_results(sweep, points, root, dict(failed), attempts, variant, executor_name))
+    atomic_write_json(
+        root / "results.json",
+        combined_results(sweep, points, root, dict(failed), attempts, variant, executor_name),
+    )
     write_report(root)
     write_index(Path(out), experiment_dirs(Path(out)))
-    return SweepSummary(root, [p.id for p in todo if p.id not in dict(failed)], [p.id for p in resumed], failed)
+    return SweepSummary(
+        root, [p.id for p in todo if p.id not in dict(failed)], [p.id for p in resumed], failed
+    )
 
 
-def combined_results(sweep: Sweep, points: list[SweepPoint], root: Path, failed: dict, attempts: dict,
-                     variant: str, executor_name: str) -> dict:
+def combined_results(
+    sweep: Sweep,
+    points: list[SweepPoint],
+    root: Path,
+    failed: dict,
+    attempts: dict,
+    variant: str,
+    executor_name: str,
+) -> dict:
     """One results document over all points: a case per (point, experiment case), every point's
     checks prefixed with its id, and a failed check for each point that could not be completed."""
     import datetime as _dt
@@ -266,40 +349,75 @@ def combined_results(sweep: Sweep, points: list[SweepPoint], root: Path, failed:
     for p in points:
         path = root / "points" / p.id / "results.json"
         if p.id in failed or not path.is_file():
-            checks.append({"name": f"{p.id} ({p.label}) completed", "value": failed.get(p.id, "missing"),
-                           "expected": "completed", "passed": False})
+            checks.append(
+                {
+                    "name": f"{p.id} ({p.label}) completed",
+                    "value": failed.get(p.id, "missing"),
+                    "expected": "completed",
+                    "passed": False,
+                }
+            )
             rows.append(f"| `{p.id}` | {p.label} | **failed**: {failed.get(p.id, 'missing')} |")
             continue
         doc = json.loads(path.read_text())
         for c in doc.get("cases") or []:
-            case = dict(c, id=f"{p.id}-{c['id']}", label=f"{p.label} · {c['label']}",
-                        parameters={**{f"sweep.{k}": _short(p.overrides[k]) if isinstance(p.overrides[k], list)
-                                       else p.overrides[k] for k in p.varying if k in p.overrides},
-                                    **(c.get("parameters") or {})})
-            case["approximations"] = [dict(a, figures=[f"points/{p.id}/{f}" for f in a.get("figures") or []])
-                                      for a in c.get("approximations") or []]
+            case = dict(
+                c,
+                id=f"{p.id}-{c['id']}",
+                label=f"{p.label} · {c['label']}",
+                parameters={
+                    **{
+                        f"sweep.{k}": _short(p.overrides[k])
+                        if isinstance(p.overrides[k], list)
+                        else p.overrides[k]
+                        for k in p.varying
+                        if k in p.overrides
+                    },
+                    **(c.get("parameters") or {}),
+                },
+            )
+            case["approximations"] = [
+                dict(a, figures=[f"points/{p.id}/{f}" for f in a.get("figures") or []])
+                for a in c.get("approximations") or []
+            ]
             cases.append(case)
         for ch in doc.get("checks") or []:
             checks.append(dict(ch, name=f"{p.id}: {ch['name']}"))
         ok = sum(bool(ch.get("passed")) for ch in doc.get("checks") or [])
         n = len(doc.get("checks") or [])
-        rows.append(f"| [`{p.id}`](points/{p.id}/report.html) | {p.label} | {ok}/{n} checks passed"
-                    f"{f', {attempts[p.id]} attempts' if attempts.get(p.id, 1) > 1 else ''} |")
+        rows.append(
+            f"| [`{p.id}`](points/{p.id}/report.html) | {p.label} | {ok}/{n} checks passed"
+            f"{f', {attempts[p.id]} attempts' if attempts.get(p.id, 1) > 1 else ''} |"
+        )
     table = "\n".join(["| Point | Overrides | Status |", "|:---|:---|:---|", *rows])
-    n_failed = sum(1 for p in points if p.id in failed or not (root / "points" / p.id / "results.json").is_file())
-    summary = (f"Sweep **{sweep.name}** of experiment `{sweep.experiment}` over {len(points)} configuration points "
-               f"({len(points) - n_failed} complete, {n_failed} failed). Each point's full report is linked below; "
-               "the tables combine every point's cases.")
+    n_failed = sum(
+        1 for p in points if p.id in failed or not (root / "points" / p.id / "results.json").is_file()
+    )
+    summary = (
+        f"Sweep **{sweep.name}** of experiment `{sweep.experiment}` over {len(points)} configuration points "
+        f"({len(points) - n_failed} complete, {n_failed} failed). Each point's full report is linked below; "
+        "the tables combine every point's cases."
+    )
     return {
         "schema": SCHEMA,
         "experiment": f"sweep-{sweep.name}",
         "title": f"Sweep {sweep.name}: {get_experiment(sweep.experiment).title}",
         "summary": summary + (f"\n\n{sweep.description}" if sweep.description else ""),
         "created": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
-        "config": {"experiment": sweep.experiment, "quick": sweep.quick, "spp": sweep.spp, "seed": sweep.seed,
-                   "variant": variant, "executor": executor_name, "points": len(points),
-                   **{f"fixed.{k}": v for k, v in (points[0].overrides if points else {}).items()
-                      if k not in (points[0].varying if points else ())}},
+        "config": {
+            "experiment": sweep.experiment,
+            "quick": sweep.quick,
+            "spp": sweep.spp,
+            "seed": sweep.seed,
+            "variant": variant,
+            "executor": executor_name,
+            "points": len(points),
+            **{
+                f"fixed.{k}": v
+                for k, v in (points[0].overrides if points else {}).items()
+                if k not in (points[0].varying if points else ())
+            },
+        },
         "versions": versions(),
         "device": device_description(variant),
         "sections": [{"id": "points", "title": "Points", "text": table}],
@@ -313,4 +431,3 @@ def show_config(experiment: str, quick: bool) -> str:
     spec = get_experiment(experiment)
     cfg = spec.load().configure(quick, None)
     return "\n".join(f"{k} = {json.dumps(v)}" for k, v in cfg.items())
-

@@ -9,7 +9,14 @@ import os as _os
 _os.environ.setdefault("JAX_PLATFORMS", "cpu")
 _os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
-from .least_squares import AT_BOUND_RTOL, FitResult, Param, covariance_from_jacobian, fit_curve, fit_least_squares
+from .least_squares import (
+    AT_BOUND_RTOL,
+    FitResult,
+    Param,
+    covariance_from_jacobian,
+    fit_curve,
+    fit_least_squares,
+)
 from .metrics import (
     ALL_METRICS,
     EXTRA_METRICS,

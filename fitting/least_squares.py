@@ -33,7 +33,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AT_BOUND_RTOL", "FitResult", "Param", "covariance_from_jacobian", "fit_curve", "fit_least_squares"]
+__all__ = [
+    "AT_BOUND_RTOL",
+    "FitResult",
+    "Param",
+    "covariance_from_jacobian",
+    "fit_curve",
+    "fit_least_squares",
+]
 
 AT_BOUND_RTOL = 1e-6
 """A value within this fraction of (upper − lower) of a bound (two-sided), or of max(1, |bound|)
@@ -65,8 +72,9 @@ class Param:
         if not math.isfinite(self.initial):
             raise ValueError(f"Param.initial must be finite, got {self.initial}")
         if not self.lower < self.initial < self.upper:
-            raise ValueError(f"Param.initial {self.initial} must lie strictly inside "
-                             f"({self.lower}, {self.upper})")
+            raise ValueError(
+                f"Param.initial {self.initial} must lie strictly inside ({self.lower}, {self.upper})"
+            )
 
     @property
     def kind(self) -> str:
@@ -121,9 +129,16 @@ class FitResult:
         "correlation", "rms_residual", "ssr", "n_residuals", "dof", "steps", "converged", "message",
         "jacobian_rank"}. Infinite bounds and undefined numbers become None."""
         return {
-            "parameters": {n: {"value": float(self.values[n]), "stderr": _json_float(self.stderr[n]),
-                               "lower": _json_float(self.lower[n]), "upper": _json_float(self.upper[n]),
-                               "at_bound": bool(self.at_bound[n])} for n in self.param_names},
+            "parameters": {
+                n: {
+                    "value": float(self.values[n]),
+                    "stderr": _json_float(self.stderr[n]),
+                    "lower": _json_float(self.lower[n]),
+                    "upper": _json_float(self.upper[n]),
+                    "at_bound": bool(self.at_bound[n]),
+                }
+                for n in self.param_names
+            },
             "param_names": list(self.param_names),
             "correlation": [[_json_float(c) for c in row] for row in self.correlation],
             "rms_residual": _json_float(self.rms_residual),
@@ -273,8 +288,16 @@ def _kkt_holds(jac, r, at_lower, at_upper, gtol: float = 1e-6) -> bool:
     return True
 
 
-def fit_least_squares(residual_fn: Callable, params: Mapping[str, Param], args=None, *, max_steps: int = 256,
-                      rtol: float = 1e-10, atol: float = 1e-10, absolute_sigma: bool = False) -> FitResult:
+def fit_least_squares(
+    residual_fn: Callable,
+    params: Mapping[str, Param],
+    args=None,
+    *,
+    max_steps: int = 256,
+    rtol: float = 1e-10,
+    atol: float = 1e-10,
+    absolute_sigma: bool = False,
+) -> FitResult:
     """Minimise Σ residual_fn(p, args)² over ``params`` with Levenberg–Marquardt (float64).
 
     ``residual_fn(p, args)``: ``p`` maps each parameter name to a JAX float64 scalar; returns a
@@ -311,8 +334,10 @@ def fit_least_squares(residual_fn: Callable, params: Mapping[str, Param], args=N
     if r0.size == 0:
         raise ValueError("residual_fn returned no residuals")
     if not np.all(np.isfinite(r0)):
-        raise ValueError(f"residual_fn returned {int(np.sum(~np.isfinite(r0)))} non-finite residuals at the "
-                         "initial parameters")
+        raise ValueError(
+            f"residual_fn returned {int(np.sum(~np.isfinite(r0)))} non-finite residuals at the "
+            "initial parameters"
+        )
     x, r, jac = (np.asarray(a, dtype=np.float64) for a in (x, r, jac))
     n, k = r.size, len(names)
     ssr = float(r @ r)
@@ -338,15 +363,22 @@ def fit_least_squares(residual_fn: Callable, params: Mapping[str, Param], args=N
         at_lower[nm] = bool(math.isfinite(p.lower) and x[i] - p.lower <= tol)
         at_upper[nm] = bool(math.isfinite(p.upper) and p.upper - x[i] <= tol)
     at_bound = {nm: at_lower[nm] or at_upper[nm] for nm in names}
-    if (not converged and result == optx.RESULTS.nonlinear_max_steps_reached and any(at_bound.values())
-            and np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
+    if (
+        not converged
+        and result == optx.RESULTS.nonlinear_max_steps_reached
+        and any(at_bound.values())
+        and np.all(np.isfinite(r))
+        and np.all(np.isfinite(jac))
+    ):
         # An optimum on a bound sits at z = ±inf of the reparametrisation, which the solver only
         # approaches: accept it when the first-order (KKT) conditions hold in the original parameters.
         if _kkt_holds(jac.reshape(n, k), r, [at_lower[nm] for nm in names], [at_upper[nm] for nm in names]):
             bound_names = ", ".join(nm for nm in names if at_bound[nm])
             converged = True
-            message = (f"optimum on the bound of {bound_names}: stopped at max_steps={int(max_steps)} while "
-                       "approaching it through the reparametrisation; first-order (KKT) conditions hold")
+            message = (
+                f"optimum on the bound of {bound_names}: stopped at max_steps={int(max_steps)} while "
+                "approaching it through the reparametrisation; first-order (KKT) conditions hold"
+            )
     return FitResult(
         values={nm: float(x[i]) for i, nm in enumerate(names)},
         stderr={nm: float(se[i]) for i, nm in enumerate(names)},

@@ -129,8 +129,12 @@ class MetricValue:
 
     def to_dict(self) -> dict:
         """JSON-ready plain data; non-finite numbers (e.g. the PSNR of an exact match) become None."""
-        return {"value": _json_float(self.value), "noise_floor": _json_float(self.noise_floor),
-                "resolved": bool(self.resolved), "debiased": _json_float(self.debiased)}
+        return {
+            "value": _json_float(self.value),
+            "noise_floor": _json_float(self.noise_floor),
+            "resolved": bool(self.resolved),
+            "debiased": _json_float(self.debiased),
+        }
 
 
 class MetricResults(dict):
@@ -229,8 +233,11 @@ def _skip_reason(name, x, r, m, is_image) -> str | None:
             return f"{name} needs an image (H, W, C); got a point set of shape {x.shape}"
         h, w = x.shape[:2]
         need = SSIM_MIN_SIZE if name == "ssim" else FLIP_MIN_SIZE
-        what = ("its 11-pixel Gaussian window (sigma 1.5)" if name == "ssim"
-                else f"ꟻLIP's {FLIP_MIN_SIZE}-pixel spatial filter at {FLIP_PPD:.0f} pixels per degree")
+        what = (
+            "its 11-pixel Gaussian window (sigma 1.5)"
+            if name == "ssim"
+            else f"ꟻLIP's {FLIP_MIN_SIZE}-pixel spatial filter at {FLIP_PPD:.0f} pixels per degree"
+        )
         if min(h, w) < need:
             return f"{name} needs at least {need}x{need} pixels ({what}); image is {h}x{w}"
         if name == "flip":
@@ -254,8 +261,12 @@ def _rmse(x, r, s, m, **_):
     d = _sel(x - r, m)
     mse = float(np.mean(d * d))
     floor2 = float(np.mean(_sel(s, m) ** 2))
-    return MetricValue(math.sqrt(mse), math.sqrt(floor2), _resolved_above(math.sqrt(mse), math.sqrt(floor2)),
-                       math.sqrt(max(mse - floor2, 0.0)))
+    return MetricValue(
+        math.sqrt(mse),
+        math.sqrt(floor2),
+        _resolved_above(math.sqrt(mse), math.sqrt(floor2)),
+        math.sqrt(max(mse - floor2, 0.0)),
+    )
 
 
 def _rel_mse(x, r, s, m, **_):
@@ -297,9 +308,16 @@ def _psnr(x, r, s, m, **_):
 def _ssim_mean(a, b, m):
     from skimage.metrics import structural_similarity
 
-    _, smap = structural_similarity(tone_map(a), tone_map(b), data_range=1.0, channel_axis=-1,
-                                    gaussian_weights=True, sigma=SSIM_SIGMA, use_sample_covariance=False,
-                                    full=True)
+    _, smap = structural_similarity(
+        tone_map(a),
+        tone_map(b),
+        data_range=1.0,
+        channel_axis=-1,
+        gaussian_weights=True,
+        sigma=SSIM_SIGMA,
+        use_sample_covariance=False,
+        full=True,
+    )
     return float(np.mean(smap[m]))
 
 
@@ -339,8 +357,12 @@ def _flip_input(a, name, peak, warn):
         lim = -_FLIP_NEG_WARN * max(peak, np.finfo(np.float32).tiny)
         n_neg = int(np.sum(a < lim))
         if n_neg:
-            warnings.warn(f"flip: {n_neg} values of {name} below -1e-6·peak clipped to 0 (HDR-FLIP needs "
-                          f"non-negative radiance; min {a.min():.3g})", RuntimeWarning, stacklevel=4)
+            warnings.warn(
+                f"flip: {n_neg} values of {name} below -1e-6·peak clipped to 0 (HDR-FLIP needs "
+                f"non-negative radiance; min {a.min():.3g})",
+                RuntimeWarning,
+                stacklevel=4,
+            )
     return np.ascontiguousarray(np.maximum(a, 0.0), dtype=np.float32)
 
 
@@ -349,15 +371,22 @@ def _flip_call(ref32, test32, m, params) -> float:
 
     # flip_evaluator exits the process on bad arguments: check everything it checks, and more.
     for a in (ref32, test32):
-        if not (a.dtype == np.float32 and a.ndim == 3 and a.shape[2] == 3 and a.flags.c_contiguous
-                and np.all(np.isfinite(a)) and a.min() >= 0.0):
+        if not (
+            a.dtype == np.float32
+            and a.ndim == 3
+            and a.shape[2] == 3
+            and a.flags.c_contiguous
+            and np.all(np.isfinite(a))
+            and a.min() >= 0.0
+        ):
             raise ValueError("internal: flip input must be finite non-negative contiguous float32 (H, W, 3)")
     if ref32.shape != test32.shape or min(ref32.shape[:2]) < FLIP_MIN_SIZE:
         raise ValueError(f"internal: flip inputs must share a shape of at least {FLIP_MIN_SIZE} pixels")
     if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
         raise ValueError(f"internal: bad flip exposure parameters {params}")
-    fmap, _, _ = flip_evaluator.evaluate(ref32, test32, "HDR", applyMagma=False, computeMeanError=False,
-                                         parameters=dict(params))
+    fmap, _, _ = flip_evaluator.evaluate(
+        ref32, test32, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
+    )
     fmap = np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
     return float(np.mean(fmap[m]))
 
@@ -390,13 +419,22 @@ def _smape(x, r, s, m, seed, draws, **_):
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
-_METRICS = {"rmse": _rmse, "rel_mse": _rel_mse, "mae": _mae, "max_abs": _max_abs, "psnr": _psnr,
-            "ssim": _ssim, "flip": _flip, "smape": _smape}
+_METRICS = {
+    "rmse": _rmse,
+    "rel_mse": _rel_mse,
+    "mae": _mae,
+    "max_abs": _max_abs,
+    "psnr": _psnr,
+    "ssim": _ssim,
+    "flip": _flip,
+    "smape": _smape,
+}
 
 
 # ------------------------------------------------------------------------------------- public API
-def compute_metrics(approx, reference, stderr, mask=None, names=ALL_METRICS, seed: int = 0,
-                    floor_draws: int = 4) -> MetricResults:
+def compute_metrics(
+    approx, reference, stderr, mask=None, names=ALL_METRICS, seed: int = 0, floor_draws: int = 4
+) -> MetricResults:
     """Compute the metrics ``names`` (default :data:`ALL_METRICS`) over the masked elements.
 
     Returns a :class:`MetricResults` (a ``dict[str, MetricValue]`` in the order of ``names``);
@@ -423,8 +461,9 @@ def compute_metrics(approx, reference, stderr, mask=None, names=ALL_METRICS, see
 def smape(approx, reference, stderr, mask=None, seed: int = 0, floor_draws: int = 4) -> MetricValue:
     """Symmetric relative error mean |x − r| / (|x| + |r|) (0/0 counts as 0; range [0, 1]) with
     its seeded Monte Carlo noise floor smape(r, r + σ·ε). For point sets and images alike."""
-    return compute_metrics(approx, reference, stderr, mask, names=("smape",), seed=seed,
-                           floor_draws=floor_draws)["smape"]
+    return compute_metrics(
+        approx, reference, stderr, mask, names=("smape",), seed=seed, floor_draws=floor_draws
+    )["smape"]
 
 
 def _z_parts(approx, reference, stderr, mask):
@@ -446,5 +485,12 @@ def z_score_summary(approx, reference, stderr, mask=None) -> ZScoreSummary:
     if z.size == 0:
         nan = float("nan")
         return ZScoreSummary(0, n0, n0_diff, nan, nan, nan, nan)
-    return ZScoreSummary(int(z.size), n0, n0_diff, float(np.mean(z)), float(np.std(z)),
-                         float(np.max(np.abs(z))), float(np.mean(np.abs(z) > 4.0)))
+    return ZScoreSummary(
+        int(z.size),
+        n0,
+        n0_diff,
+        float(np.mean(z)),
+        float(np.std(z)),
+        float(np.max(np.abs(z))),
+        float(np.mean(np.abs(z) > 4.0)),
+    )

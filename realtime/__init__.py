@@ -21,5 +21,16 @@ Modules:
 from . import aperture, diffuse, fog, irradiance, sdf_grid, sdf_occlusion, sky
 from ._array import DRJIT_OPS, NUMPY_OPS, get_default_backend, set_default_backend
 
-__all__ = ["DRJIT_OPS", "NUMPY_OPS", "aperture", "diffuse", "fog", "get_default_backend", "irradiance", "sdf_grid",
-           "sdf_occlusion", "set_default_backend", "sky"]
+__all__ = [
+    "DRJIT_OPS",
+    "NUMPY_OPS",
+    "aperture",
+    "diffuse",
+    "fog",
+    "get_default_backend",
+    "irradiance",
+    "sdf_grid",
+    "sdf_occlusion",
+    "set_default_backend",
+    "sky",
+]

@@ -70,17 +70,41 @@ def _np_fma(a, b, c):
 
 DRJIT_OPS = types.SimpleNamespace(
     name="drjit",
-    sqrt=dr.sqrt, select=dr.select, maximum=dr.maximum, minimum=dr.minimum, clip=dr.clip,
-    abs=dr.abs, fma=dr.fma, sin=dr.sin, cos=dr.cos, tan=dr.tan, acos=dr.acos, asin=dr.asin,
-    atan=dr.atan, atan2=dr.atan2, power=dr.power,
+    sqrt=dr.sqrt,
+    select=dr.select,
+    maximum=dr.maximum,
+    minimum=dr.minimum,
+    clip=dr.clip,
+    abs=dr.abs,
+    fma=dr.fma,
+    sin=dr.sin,
+    cos=dr.cos,
+    tan=dr.tan,
+    acos=dr.acos,
+    asin=dr.asin,
+    atan=dr.atan,
+    atan2=dr.atan2,
+    power=dr.power,
 )
 """Dr.Jit functions (work on Python floats too); NaN propagates through maximum/minimum/clip."""
 
 NUMPY_OPS = types.SimpleNamespace(
     name="numpy",
-    sqrt=np.sqrt, select=np.where, maximum=np.maximum, minimum=np.minimum, clip=_NP_CLIP,
-    abs=np.abs, fma=_np_fma, sin=np.sin, cos=np.cos, tan=np.tan, acos=np.arccos, asin=np.arcsin,
-    atan=np.arctan, atan2=np.arctan2, power=np.power,
+    sqrt=np.sqrt,
+    select=np.where,
+    maximum=np.maximum,
+    minimum=np.minimum,
+    clip=_NP_CLIP,
+    abs=np.abs,
+    fma=_np_fma,
+    sin=np.sin,
+    cos=np.cos,
+    tan=np.tan,
+    acos=np.arccos,
+    asin=np.arcsin,
+    atan=np.arctan,
+    atan2=np.arctan2,
+    power=np.power,
 )
 """The same names over NumPy (``select`` is ``np.where``: both branches are evaluated, so kernels must
 keep unselected branches finite — see `safe_div`)."""
@@ -138,7 +162,7 @@ def atan_minus_x_series(ops, u):
 
 
 _SIN_COEFFS = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(11))  # 1, −1/3!, …, 1/21!
-_COS_COEFFS = tuple((-1.0) ** k / math.factorial(2 * k) for k in range(12))      # 1, −1/2!, …, −1/22!
+_COS_COEFFS = tuple((-1.0) ** k / math.factorial(2 * k) for k in range(12))  # 1, −1/2!, …, −1/22!
 
 
 def sincos_first_quadrant(ops, a):
@@ -160,8 +184,9 @@ def sincos_first_quadrant(ops, a):
 
 
 # ----------------------------------------------------------------------------------------- validation
-def check_scalar(name: str, value: float, lo: float, hi: float, lo_open: bool = False,
-                 interval: str | None = None) -> float:
+def check_scalar(
+    name: str, value: float, lo: float, hi: float, lo_open: bool = False, interval: str | None = None
+) -> float:
     """Return ``float(value)``; raise a one-line ValueError if it is NaN or outside [lo, hi] ((lo, hi]
     with ``lo_open``). ``interval`` is the text shown for the valid interval (defaults to the numbers)."""
     v = float(value)
@@ -171,8 +196,9 @@ def check_scalar(name: str, value: float, lo: float, hi: float, lo_open: bool = 
     return v
 
 
-def check_range(name: str, value: Any, lo: float, hi: float, lo_open: bool = False,
-                interval: str | None = None) -> Any:
+def check_range(
+    name: str, value: Any, lo: float, hi: float, lo_open: bool = False, interval: str | None = None
+) -> Any:
     """Validate a parameter that may be a scalar or an array; return it with NumPy scalars made floats.
 
     * Python/NumPy scalars: `check_scalar`.
@@ -191,8 +217,9 @@ def check_range(name: str, value: Any, lo: float, hi: float, lo_open: bool = Fal
         ok = (vmin > lo if lo_open else vmin >= lo) and vmax <= hi  # NaN → min/max NaN → False
         if not ok:
             bad = vmin if not (vmin > lo if lo_open else vmin >= lo) else vmax
-            raise ValueError(f"{name} must be in {_interval_text(lo, hi, lo_open, interval)} "
-                             f"(got {float(bad)!r})")
+            raise ValueError(
+                f"{name} must be in {_interval_text(lo, hi, lo_open, interval)} (got {float(bad)!r})"
+            )
         return value
     return check_scalar(name, value, lo, hi, lo_open, interval)
 
@@ -285,8 +312,9 @@ def evaluate(kernel: Callable, *args: Any) -> Any:
     dtype = _numpy_dtype(np_args)
     size = math.prod(shape)
     if size == 0:
-        out = kernel(NUMPY_OPS, *[np.zeros(shape, dtype) if _is_numpy_array(a) else _as_float_scalar(a)
-                                  for a in args])
+        out = kernel(
+            NUMPY_OPS, *[np.zeros(shape, dtype) if _is_numpy_array(a) else _as_float_scalar(a) for a in args]
+        )
         if isinstance(out, tuple):
             return tuple(np.zeros(shape, dtype) for _ in out)
         return np.zeros(shape, dtype)

@@ -144,7 +144,7 @@ PI = math.pi
 HALF_PI = 0.5 * math.pi
 TWO_PI = 2.0 * math.pi
 FOUR_PI = 4.0 * math.pi
-_PI_MAX = 3.1415927410125732   # float32(π) > π: accepted (rounds to π), the kernels clamp
+_PI_MAX = 3.1415927410125732  # float32(π) > π: accepted (rounds to π), the kernels clamp
 _HALF_PI_MAX = 1.5707963705062866
 
 FITTED_COEFFS: tuple[float, ...] = (-0.278338, 0.103612, -0.37048, 0.380772, 0.646645, 0.381637)
@@ -212,9 +212,9 @@ def _lens_kernel(ops, r1, r2, d):
     r_min = ops.minimum(r1, r2)
     close = (r2 >= 0.5 * r1) & (r2 <= 2.0 * r1)
     sin_s = _sin_0_pi(ops, 0.5 * (total + d))
-    sin_1 = _sin_0_pi(ops, 0.5 * ops.select(close, (r2 - r1) + d, (d - r1) + r2))   # sin(s − r1)
-    sin_2 = _sin_0_pi(ops, 0.5 * ops.select(close, (r1 - r2) + d, (d - r2) + r1))   # sin(s − r2)
-    sin_d = _sin_0_pi(ops, 0.5 * ((r_max - d) + r_min))                             # sin(s − d)
+    sin_1 = _sin_0_pi(ops, 0.5 * ops.select(close, (r2 - r1) + d, (d - r1) + r2))  # sin(s − r1)
+    sin_2 = _sin_0_pi(ops, 0.5 * ops.select(close, (r1 - r2) + d, (d - r2) + r1))  # sin(s − r2)
+    sin_d = _sin_0_pi(ops, 0.5 * ((r_max - d) + r_min))  # sin(s − d)
     beta1 = 2.0 * ops.atan2(safe_sqrt(ops, sin_1 * sin_d), safe_sqrt(ops, sin_s * sin_2))
     beta2 = 2.0 * ops.atan2(safe_sqrt(ops, sin_2 * sin_d), safe_sqrt(ops, sin_s * sin_1))
     x2 = sin_1 * sin_2
@@ -297,7 +297,7 @@ def _fitted_kernel(ops, r1, r2, d, c0, c1, c2, c3, c4, c5):
     q2 = ops.select(comp, PI - r2, r2)
     q_min = ops.minimum(q1, q2)
     q_max = ops.maximum(q1, q2)
-    a_min = _cap_area_kernel(ops, ops.minimum(r1, r2))          # A(min(r1, r2)): the bound
+    a_min = _cap_area_kernel(ops, ops.minimum(r1, r2))  # A(min(r1, r2)): the bound
     a_q = ops.select(comp, _cap_area_half_kernel(ops, q_min), a_min)
     diff = q_max - q_min
     t = 1.0 - clamp01(ops, safe_div(ops, d - diff, 2.0 * q_min))
@@ -313,11 +313,19 @@ def _fitted_kernel(ops, r1, r2, d, c0, c1, c2, c3, c4, c5):
 
 def _seed_printed_kernel(ops, r0, r1, d):
     """IntersectArea exactly as printed at 000:2672-2687 (WRONG: kept to document the erratum)."""
-    t1 = 2.0 * ops.cos(r1) * ops.acos(clamp_cos(ops, (-ops.cos(r0) + ops.cos(d) * ops.cos(r1))
-                                                 / (ops.sin(d) * ops.sin(r1))))
-    t2 = 2.0 * ops.cos(r0) * ops.acos(clamp_cos(ops, (ops.cos(r1) - ops.cos(d) * ops.cos(r0))
-                                                 / (ops.sin(d) * ops.sin(r0))))
-    t3 = 2.0 * ops.acos(clamp_cos(ops, (-ops.cos(d) + ops.cos(r0) * ops.cos(r1)) / (ops.sin(r0) * ops.sin(r1))))
+    t1 = (
+        2.0
+        * ops.cos(r1)
+        * ops.acos(clamp_cos(ops, (-ops.cos(r0) + ops.cos(d) * ops.cos(r1)) / (ops.sin(d) * ops.sin(r1))))
+    )
+    t2 = (
+        2.0
+        * ops.cos(r0)
+        * ops.acos(clamp_cos(ops, (ops.cos(r1) - ops.cos(d) * ops.cos(r0)) / (ops.sin(d) * ops.sin(r0))))
+    )
+    t3 = 2.0 * ops.acos(
+        clamp_cos(ops, (-ops.cos(d) + ops.cos(r0) * ops.cos(r1)) / (ops.sin(r0) * ops.sin(r1)))
+    )
     return t1 - t2 - t3 - TWO_PI * ops.cos(r1)
 
 
@@ -434,8 +442,12 @@ def cap_intersection_fitted(r1, r2, d, coeffs: Sequence[float] | None = None):
     """Fitted replacement (complement trick + corrected smoothstep); ``coeffs`` c0..c5 default to
     `FITTED_COEFFS`. Always within [0, A(min(r1, r2))]."""
     c = _coeffs(coeffs)
-    return evaluate(lambda ops, a, b, e: _fitted_kernel(ops, a, b, e, *c),
-                    _radius("r1", r1), _radius("r2", r2), _radius("d", d))
+    return evaluate(
+        lambda ops, a, b, e: _fitted_kernel(ops, a, b, e, *c),
+        _radius("r1", r1),
+        _radius("r2", r2),
+        _radius("d", d),
+    )
 
 
 def seed_printed_intersect_area(r0, r1, d):
@@ -449,9 +461,21 @@ def aperture_from_visibility(visible_fraction):
     return evaluate(_visibility_kernel, check_range("visible_fraction", visible_fraction, 0.0, 1.0))
 
 
-def ambient_aperture_irradiance(cos_na, cos_nl, cos_al, aperture, alpha, radiance=1.0, sky_radiance=0.0, *,
-                                intersection: str = "exact", lambert: str = "seed", fill: str = "seed",
-                                coeffs: Sequence[float] | None = None, k: float | None = None):
+def ambient_aperture_irradiance(
+    cos_na,
+    cos_nl,
+    cos_al,
+    aperture,
+    alpha,
+    radiance=1.0,
+    sky_radiance=0.0,
+    *,
+    intersection: str = "exact",
+    lambert: str = "seed",
+    fill: str = "seed",
+    coeffs: Sequence[float] | None = None,
+    k: float | None = None,
+):
     """Ambient-aperture irradiance (W/m²): returns ``(E_light, E_fill)``.
 
     ``cos_na`` = n·a, ``cos_nl`` = n·l, ``cos_al`` = a·l (unit normal n, bent normal a, light direction l);
@@ -471,10 +495,16 @@ def ambient_aperture_irradiance(cos_na, cos_nl, cos_al, aperture, alpha, radianc
     if not (0.0 < kk <= 16.0):
         raise ValueError(f"k must be in (0, 16] (got {k!r})")
     kernel = _shading_kernel_factory(intersection, lambert, fill, coeffs, kk)
-    return evaluate(kernel, _cosine("cos_na", cos_na), _cosine("cos_nl", cos_nl), _cosine("cos_al", cos_al),
-                    _half("aperture", aperture), _half("alpha", alpha),
-                    check_range("radiance", radiance, 0.0, 1.7e308, interval="[0, inf)"),
-                    check_range("sky_radiance", sky_radiance, 0.0, 1.7e308, interval="[0, inf)"))
+    return evaluate(
+        kernel,
+        _cosine("cos_na", cos_na),
+        _cosine("cos_nl", cos_nl),
+        _cosine("cos_al", cos_al),
+        _half("aperture", aperture),
+        _half("alpha", alpha),
+        check_range("radiance", radiance, 0.0, 1.7e308, interval="[0, inf)"),
+        check_range("sky_radiance", sky_radiance, 0.0, 1.7e308, interval="[0, inf)"),
+    )
 
 
 def numpy_reference(form: str, coeffs: Sequence[float] | None = None) -> Callable:

@@ -111,9 +111,9 @@ __all__ = [
 
 HALF_PI = 0.5 * math.pi
 _ALPHA_MAX = 1.5707963705062866  # float32(π/2) > π/2: accept it (it rounds to π/2), the kernel clamps
-_COS_SLACK = 1e-4                # |cos θ| up to 1 + 1e-4 is accepted as rounding and clamped
-_FMAX = sys.float_info.max       # "finite" upper bound for scale factors
-_P_MIN = 1e-30                   # Dr.Jit-path clamp for the wrap exponent (p must be > 0)
+_COS_SLACK = 1e-4  # |cos θ| up to 1 + 1e-4 is accepted as rounding and clamped
+_FMAX = sys.float_info.max  # "finite" upper bound for scale factors
+_P_MIN = 1e-30  # Dr.Jit-path clamp for the wrap exponent (p must be > 0)
 
 
 # ===================================================================================== kernels (ops text)
@@ -151,8 +151,8 @@ def _sphere_light_kernel(ops, cos_theta, alpha, radiance):
     # Horizon-clipped cap. Denominators are guarded so that the branch not selected stays finite.
     y = clamp_cos(ops, safe_div(ops, -cos_a * c, sin_a * sin_t))
     s = safe_sqrt(ops, (1.0 - y) * (1.0 + y))
-    g = sin_a * sin_t * s                      # sin α sin θ √(1 − y²)
-    u = safe_div(ops, g, cos_a)                # tan α sin θ √(1 − y²) ≥ 0
+    g = sin_a * sin_t * s  # sin α sin θ √(1 − y²)
+    u = safe_div(ops, g, cos_a)  # tan α sin θ √(1 − y²) ≥ 0
     c_acos = c * ops.acos(y)
     small = sin2_a * (c_acos + u) + atan_minus_x_series(ops, ops.minimum(u, ATAN_SERIES_LIMIT))
     large = sin2_a * c_acos + (ops.atan2(g, cos_a) - g * cos_a)
@@ -263,8 +263,13 @@ def sphere_light_geometry(position, normal, light_center, light_radius):
             raise ValueError(f"light_center must be 3 finite numbers (got {light_center!r})")
         light_center = tuple(float(v) for v in cen)
     radius = _scale("light_radius", light_radius)
-    return evaluate(_geometry_kernel, *split3(position, "position"), *split3(normal, "normal"),
-                    *split3(light_center, "light_center"), radius)
+    return evaluate(
+        _geometry_kernel,
+        *split3(position, "position"),
+        *split3(normal, "normal"),
+        *split3(light_center, "light_center"),
+        radius,
+    )
 
 
 # ===================================================================================== NumPy reference
@@ -339,16 +344,33 @@ class DiffuseModel:
 
 DIFFUSE_MODELS: dict[str, DiffuseModel] = {
     "lambert": DiffuseModel(
-        "lambert", "Lambert", lambert, ("cos_theta",),
-        description="E⊥·max(cos θ, 0): exact for a point/directional light, ignores the light's size."),
+        "lambert",
+        "Lambert",
+        lambert,
+        ("cos_theta",),
+        description="E⊥·max(cos θ, 0): exact for a point/directional light, ignores the light's size.",
+    ),
     "half-lambert": DiffuseModel(
-        "half-lambert", "Half-Lambert (Valve)", half_lambert, ("cos_theta",),
-        description="E⊥·(½cos θ + ½)²: Valve's non-physical softening; E⊥/4 at 90°, 0 only at 180°."),
+        "half-lambert",
+        "Half-Lambert (Valve)",
+        half_lambert,
+        ("cos_theta",),
+        description="E⊥·(½cos θ + ½)²: Valve's non-physical softening; E⊥/4 at 90°, 0 only at 180°.",
+    ),
     "wrap": DiffuseModel(
-        "wrap", "Wrap lighting", wrap, ("cos_theta",),
+        "wrap",
+        "Wrap lighting",
+        wrap,
+        ("cos_theta",),
         (ParamSpec("w", 0.0, 1.0, 0.5), ParamSpec("p", 0.25, 8.0, 1.5)),
-        description="E⊥·max((cos θ + w)/(1 + w), 0)^p: w=0,p=1 is Lambert, w=1,p=2 half-Lambert."),
+        description="E⊥·max((cos θ + w)/(1 + w), 0)^p: w=0,p=1 is Lambert, w=1,p=2 half-Lambert.",
+    ),
     "exact": DiffuseModel(
-        "exact", "Exact sphere light", sphere_light_irradiance, ("cos_theta", "alpha"), scale="radiance",
-        description="Closed-form irradiance of a uniform sphere light incl. horizon clipping (Snyder 1996)."),
+        "exact",
+        "Exact sphere light",
+        sphere_light_irradiance,
+        ("cos_theta", "alpha"),
+        scale="radiance",
+        description="Closed-form irradiance of a uniform sphere light incl. horizon clipping (Snyder 1996).",
+    ),
 }

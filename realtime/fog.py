@@ -109,7 +109,7 @@ FORMS = ("exact", "seed", "taylor")
 _SERIES_LIMIT = 0.5
 _PHI_COEFFS = tuple((-1.0) ** k / math.factorial(k + 1) for k in range(10))  # 1, −1/2, 1/6, …, −1/10!
 _TINY = 1e-30
-_SEED_THRESHOLD = 0.01     # metres of raw height difference (000:2233)
+_SEED_THRESHOLD = 0.01  # metres of raw height difference (000:2233)
 _UE_CLAMP = -127.0 * math.log(2.0)
 _UE_EPS = 0.01 * math.log(2.0)
 _INV_4PI = 1.0 / (4.0 * math.pi)
@@ -218,8 +218,13 @@ def _phase_rayleigh_kernel(ops, cos_t):
 def _check(z0, z1, dist, b, c, *, allow_inf_dist=False):
     for name, v in (("camera_z", z0), ("end_z", z1)):
         check_range(name, v, -math.inf, math.inf, interval="finite numbers")
-    check_range("distance", dist, 0.0, math.inf if allow_inf_dist else 3.4e38,
-                interval="[0, inf]" if allow_inf_dist else "[0, 3.4e38] (finite)")
+    check_range(
+        "distance",
+        dist,
+        0.0,
+        math.inf if allow_inf_dist else 3.4e38,
+        interval="[0, inf]" if allow_inf_dist else "[0, 3.4e38] (finite)",
+    )
     check_range("density", b, 0.0, 3.4e38, interval="[0, 3.4e38] (finite, 1/m)")
     check_range("falloff", c, 0.0, 3.4e38, interval="[0, 3.4e38] (finite, 1/m)")
 
@@ -296,8 +301,9 @@ def fog_colour_phase(cos_theta, rayleigh_colour, mie_colour, g):
     """
     pr = phase_rayleigh(cos_theta)
     pm = phase_hg(cos_theta, g)
-    return tuple(4.0 * math.pi * (float(rayleigh_colour[i]) * pr + float(mie_colour[i]) * pm)
-                 for i in range(3))
+    return tuple(
+        4.0 * math.pi * (float(rayleigh_colour[i]) * pr + float(mie_colour[i]) * pm) for i in range(3)
+    )
 
 
 def apply_fog(radiance, transmittance, fog_colour):
@@ -402,8 +408,11 @@ def fog_volumes_optical_depth(origin, direction, max_distance, volumes):
     from ._array import split3
 
     def comps(v, name):  # a tuple of three component arrays is taken as is (Dr.Jit wavefronts)
-        if isinstance(v, (tuple, list)) and len(v) == 3 and all(
-                is_drjit(x) or isinstance(x, np.ndarray) for x in v):
+        if (
+            isinstance(v, (tuple, list))
+            and len(v) == 3
+            and all(is_drjit(x) or isinstance(x, np.ndarray) for x in v)
+        ):
             return tuple(v)
         return split3(v, name)
 
@@ -412,16 +421,20 @@ def fog_volumes_optical_depth(origin, direction, max_distance, volumes):
     check_range("max_distance", max_distance, 0.0, math.inf, interval="[0, inf]")
     out = []
     for vol in volumes:
+
         def kernel(ops, *a, vol=vol):
             return _volume_kernel(ops, *a, vol)
+
         out.append(evaluate(kernel, ox, oy, oz, dx, dy, dz, max_distance))
     return out
 
 
 def fog_volumes_shade(radiance, origin, direction, max_distance, volumes):
     """Composite several fog volumes over ``radiance`` (…, 3): T = e^(−Σ τᵢ), colour mixed by τᵢ/Σ τ."""
-    taus = [np.asarray(t, dtype=np.float64)
-            for t in fog_volumes_optical_depth(origin, direction, max_distance, volumes)]
+    taus = [
+        np.asarray(t, dtype=np.float64)
+        for t in fog_volumes_optical_depth(origin, direction, max_distance, volumes)
+    ]
     total = np.sum(taus, axis=0)
     trans = np.exp(-total)
     colour = np.zeros(total.shape + (3,))
@@ -431,8 +444,9 @@ def fog_volumes_shade(radiance, origin, direction, max_distance, volumes):
     return apply_fog(radiance, trans, colour)
 
 
-def _fog_pass_kernel(ops, r, g_, b_, z0, dz, dist, cos_sun, density, falloff, c0r, c0g, c0b, c1r, c1g, c1b, g,
-                     phase):
+def _fog_pass_kernel(
+    ops, r, g_, b_, z0, dz, dist, cos_sun, density, falloff, c0r, c0g, c0b, c1r, c1g, c1b, g, phase
+):
     t = _exp(ops, -_optical_depth_ray_kernel(ops, z0, dz, dist, density, falloff))
     one_t = 1.0 - t
     if phase:
@@ -441,8 +455,9 @@ def _fog_pass_kernel(ops, r, g_, b_, z0, dz, dist, cos_sun, density, falloff, c0
     return (ops.fma(r, t, c0r * one_t), ops.fma(g_, t, c0g * one_t), ops.fma(b_, t, c0b * one_t))
 
 
-def fog_pass(radiance, camera_z, dir_z, distance, density, falloff, colour, *, cos_sun=None,
-             phase_colour=None, g=0.0):
+def fog_pass(
+    radiance, camera_z, dir_z, distance, density, falloff, colour, *, cos_sun=None, phase_colour=None, g=0.0
+):
     """The whole per-pixel fog pass: T along the view ray (`height_fog_optical_depth_ray`, sky pixels with
     ``distance`` = inf), then L·T + C·(1 − T) with C = ``colour`` + ``phase_colour``·4π·p_HG(cos_sun, g)
     when ``phase_colour`` is given (the seed's per-pixel phase-weighted fog colour).
@@ -466,5 +481,18 @@ def fog_pass(radiance, camera_z, dir_z, distance, density, falloff, colour, *, c
     def kernel(ops, *a):
         return _fog_pass_kernel(ops, *a, phase)
 
-    return evaluate(kernel, r, gg, bb, camera_z, dir_z, distance, cs, float(density), float(falloff),
-                    *[float(x) for x in colour], *[float(x) for x in c1], float(g))
+    return evaluate(
+        kernel,
+        r,
+        gg,
+        bb,
+        camera_z,
+        dir_z,
+        distance,
+        cs,
+        float(density),
+        float(falloff),
+        *[float(x) for x in colour],
+        *[float(x) for x in c1],
+        float(g),
+    )

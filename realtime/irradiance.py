@@ -56,19 +56,40 @@ import numpy as np
 from ._array import evaluate, evaluate_numpy, is_drjit, safe_div, split3  # noqa: F401
 
 __all__ = [
-    "A_HAT", "CUBE_ORDER", "FLOATS_PER_PROBE", "SH_C", "WINDOWS", "ambient_cube_from_axes",
-    "ambient_cube_irradiance", "cube_design_matrix", "fibonacci_sphere", "fit_ambient_cube_nnls",
-    "fit_window_lambda", "latlong_directions", "latlong_samples", "numpy_reference", "sh4_irradiance",
-    "sh4_irradiance_geomerics", "sh9_basis", "sh9_from_directional", "sh9_from_disk", "sh9_irradiance",
-    "sh_irradiance", "sh_project_latlong", "sh_project_samples", "sh_window",
+    "A_HAT",
+    "CUBE_ORDER",
+    "FLOATS_PER_PROBE",
+    "SH_C",
+    "WINDOWS",
+    "ambient_cube_from_axes",
+    "ambient_cube_irradiance",
+    "cube_design_matrix",
+    "fibonacci_sphere",
+    "fit_ambient_cube_nnls",
+    "fit_window_lambda",
+    "latlong_directions",
+    "latlong_samples",
+    "numpy_reference",
+    "sh4_irradiance",
+    "sh4_irradiance_geomerics",
+    "sh9_basis",
+    "sh9_from_directional",
+    "sh9_from_disk",
+    "sh9_irradiance",
+    "sh_irradiance",
+    "sh_project_latlong",
+    "sh_project_samples",
+    "sh_window",
 ]
 
 # Normalisation constants of the real SH basis (no Condon–Shortley phase).
-SH_C = (0.28209479177387814,   # 1/(2√π)
-        0.4886025119029199,    # √3/(2√π)
-        1.0925484305920792,    # √15/(2√π)
-        0.31539156525252005,   # √5/(4√π)
-        0.5462742152960396)    # √15/(4√π)
+SH_C = (
+    0.28209479177387814,  # 1/(2√π)
+    0.4886025119029199,  # √3/(2√π)
+    1.0925484305920792,  # √15/(2√π)
+    0.31539156525252005,  # √5/(4√π)
+    0.5462742152960396,
+)  # √15/(4√π)
 A_HAT = (math.pi, 2.0 * math.pi / 3.0, math.pi / 4.0)
 CUBE_ORDER = ("+x", "-x", "+y", "-y", "+z", "-z")
 FLOATS_PER_PROBE = {"ambient-cube": 18, "sh-l1": 12, "sh-l2": 27}
@@ -83,14 +104,27 @@ def _unit(ops, nx, ny, nz):
     n2 = nx * nx + ny * ny + nz * nz
     valid = n2 > _TINY
     inv = 1.0 / ops.sqrt(ops.maximum(n2, _TINY))
-    return (ops.select(valid, nx * inv, 0.0), ops.select(valid, ny * inv, 0.0),
-            ops.select(valid, nz * inv, 0.0), valid)
+    return (
+        ops.select(valid, nx * inv, 0.0),
+        ops.select(valid, ny * inv, 0.0),
+        ops.select(valid, nz * inv, 0.0),
+        valid,
+    )
 
 
 def _basis(x, y, z):
     c0, c1, c2, c3, c4 = SH_C
-    return (c0 + 0.0 * x, c1 * y, c1 * z, c1 * x, c2 * x * y, c2 * y * z, c3 * (3.0 * z * z - 1.0),
-            c2 * x * z, c4 * (x * x - y * y))
+    return (
+        c0 + 0.0 * x,
+        c1 * y,
+        c1 * z,
+        c1 * x,
+        c2 * x * y,
+        c2 * y * z,
+        c3 * (3.0 * z * z - 1.0),
+        c2 * x * z,
+        c4 * (x * x - y * y),
+    )
 
 
 def _sh_kernel(ops, nx, ny, nz, *k):
@@ -99,12 +133,17 @@ def _sh_kernel(ops, nx, ny, nz, *k):
     per = len(k) // 3
     out = []
     for c in range(3):
-        kc = k[c * per:(c + 1) * per]
+        kc = k[c * per : (c + 1) * per]
         rest = kc[1] * (SH_C[1] * y) + kc[2] * (SH_C[1] * z) + kc[3] * (SH_C[1] * x)
         if per == 9:
-            rest = rest + kc[4] * (SH_C[2] * x * y) + kc[5] * (SH_C[2] * y * z) \
-                + kc[6] * (SH_C[3] * (3.0 * z * z - 1.0)) + kc[7] * (SH_C[2] * x * z) \
+            rest = (
+                rest
+                + kc[4] * (SH_C[2] * x * y)
+                + kc[5] * (SH_C[2] * y * z)
+                + kc[6] * (SH_C[3] * (3.0 * z * z - 1.0))
+                + kc[7] * (SH_C[2] * x * z)
                 + kc[8] * (SH_C[4] * (x * x - y * y))
+            )
         out.append(kc[0] * SH_C[0] + ops.select(valid, rest, 0.0))
     return tuple(out)
 
@@ -115,9 +154,12 @@ def _cube_kernel(ops, nx, ny, nz, *c):
     x2, y2, z2 = x * x, y * y, z * z
     out = []
     for ch in range(3):
-        cc = c[ch * 6:(ch + 1) * 6]
-        e = x2 * ops.select(x < 0.0, cc[1], cc[0]) + y2 * ops.select(y < 0.0, cc[3], cc[2]) \
+        cc = c[ch * 6 : (ch + 1) * 6]
+        e = (
+            x2 * ops.select(x < 0.0, cc[1], cc[0])
+            + y2 * ops.select(y < 0.0, cc[3], cc[2])
             + z2 * ops.select(z < 0.0, cc[5], cc[4])
+        )
         mean = (cc[0] + cc[1] + cc[2] + cc[3] + cc[4] + cc[5]) * (1.0 / 6.0)
         out.append(ops.select(valid, e, mean))
     return tuple(out)
@@ -128,7 +170,7 @@ def _geomerics_kernel(ops, nx, ny, nz, *k):
     x, y, z, valid = _unit(ops, nx, ny, nz)
     out = []
     for ch in range(3):
-        r0, ax, ay, az = k[ch * 4:(ch + 1) * 4]
+        r0, ax, ay, az = k[ch * 4 : (ch + 1) * 4]
         r0p = ops.maximum(r0, 0.0)
         length = ops.sqrt(ax * ax + ay * ay + az * az)
         r = ops.clip(safe_div(ops, length, r0p), 0.0, 1.0)
@@ -152,8 +194,10 @@ def _normal_args(normal, name="normal"):
             if not np.all(np.isfinite(a64)):
                 raise ValueError(f"{name} must be finite (got NaN or inf)")
             if np.any(np.sum(a64 * a64, axis=-1) <= _TINY):
-                raise ValueError(f"{name} must have non-zero length (normals are normalised; a zero vector "
-                                 "has no direction)")
+                raise ValueError(
+                    f"{name} must have non-zero length (normals are normalised; a zero vector "
+                    "has no direction)"
+                )
     return split3(normal, name)
 
 
@@ -165,7 +209,9 @@ def _coeff_array(coeffs, n: int, name: str) -> np.ndarray:
     elif c.ndim == 2 and c.shape[1] == 1:
         c = np.repeat(c, 3, axis=1)
     if c.ndim != 2 or c.shape[0] < n or c.shape[1] != 3:
-        raise ValueError(f"{name} must have shape ({n}, 3) or ({n},) (at least {n} rows; got {np.shape(coeffs)})")
+        raise ValueError(
+            f"{name} must have shape ({n}, 3) or ({n},) (at least {n} rows; got {np.shape(coeffs)})"
+        )
     c = c[:n]
     if not np.all(np.isfinite(c)):
         raise ValueError(f"{name} must be finite")
@@ -201,7 +247,9 @@ def _run(kernel, normal, k: np.ndarray, name="normal"):
     if size == 0:
         return np.zeros(shape + (3,), dtype)
     Float = _backend_float(dtype)
-    conv = [Float(np.ascontiguousarray(np.broadcast_to(c, shape).reshape(-1), dtype=dtype)) for c in (nx, ny, nz)]
+    conv = [
+        Float(np.ascontiguousarray(np.broadcast_to(c, shape).reshape(-1), dtype=dtype)) for c in (nx, ny, nz)
+    ]
     out = kernel(DRJIT_OPS, *conv, *[dr.opaque(Float, v) for v in _flat(k, False)])
     return np.stack([np.array(o, dtype=dtype).reshape(shape) for o in out], axis=-1)
 
@@ -397,8 +445,10 @@ def fit_window_lambda(coeffs, normals=None, tolerance: float = 0.0, lam_max: flo
 
 
 def _default_check_normals() -> np.ndarray:
-    grid = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)],
-                    dtype=np.float64)
+    grid = np.array(
+        [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)],
+        dtype=np.float64,
+    )
     grid /= np.linalg.norm(grid, axis=1, keepdims=True)
     return np.concatenate([fibonacci_sphere(4096), grid])
 
@@ -469,7 +519,11 @@ def sh_project_latlong(radiance, supersample: int = 2) -> np.ndarray:
 
 
 # ====================================================================================== NumPy twins
-_KERNELS: dict[str, Callable] = {"sh": _sh_kernel, "ambient_cube": _cube_kernel, "geomerics": _geomerics_kernel}
+_KERNELS: dict[str, Callable] = {
+    "sh": _sh_kernel,
+    "ambient_cube": _cube_kernel,
+    "geomerics": _geomerics_kernel,
+}
 
 
 def kernel_args(method: str, coeffs, window=None) -> list[float]:

@@ -56,9 +56,22 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = [
-    "Box", "Capsule", "HalfSpace", "SdfGrid", "Sphere", "build_mips", "grid_for_bounds", "mesh_bounds",
-    "mesh_sdf_grid", "point_triangle_distance", "primitive_sdf", "primitives_sdf", "quantize_8bit",
-    "sample_grid_numpy", "seed_text_sdf", "union_grid",
+    "Box",
+    "Capsule",
+    "HalfSpace",
+    "SdfGrid",
+    "Sphere",
+    "build_mips",
+    "grid_for_bounds",
+    "mesh_bounds",
+    "mesh_sdf_grid",
+    "point_triangle_distance",
+    "primitive_sdf",
+    "primitives_sdf",
+    "quantize_8bit",
+    "sample_grid_numpy",
+    "seed_text_sdf",
+    "union_grid",
 ]
 
 
@@ -207,7 +220,9 @@ class SdfGrid:
     def __post_init__(self):
         v = np.asarray(self.values)
         if v.ndim != 3 or min(v.shape) < 2:
-            raise ValueError(f"SdfGrid.values must be a 3-D array with at least 2 cells per axis (got {v.shape})")
+            raise ValueError(
+                f"SdfGrid.values must be a 3-D array with at least 2 cells per axis (got {v.shape})"
+            )
         if not np.all(np.isfinite(v)):
             raise ValueError("SdfGrid.values must be finite")
         if not (self.voxel > 0 and math.isfinite(self.voxel)):
@@ -231,8 +246,11 @@ class SdfGrid:
         nx, ny, nz = self.shape
         o = self.origin
         h = self.voxel
-        return (o[0] + (np.arange(nx) + 0.5) * h, o[1] + (np.arange(ny) + 0.5) * h,
-                o[2] + (np.arange(nz) + 0.5) * h)
+        return (
+            o[0] + (np.arange(nx) + 0.5) * h,
+            o[1] + (np.arange(ny) + 0.5) * h,
+            o[2] + (np.arange(nz) + 0.5) * h,
+        )
 
     def points(self) -> np.ndarray:
         """All cell centres, (nz, ny, nx, 3) float64 (x, y, z order in the last axis)."""
@@ -396,7 +414,9 @@ def _validate_mesh(vertices, faces):
     if not np.all(np.isfinite(v)):
         raise ValueError("mesh vertices must be finite")
     if f.ndim != 2 or f.shape[1] != 3 or len(f) < 1 or not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"mesh faces must be (F >= 1, 3) integer indices (got shape {f.shape}, dtype {f.dtype})")
+        raise ValueError(
+            f"mesh faces must be (F >= 1, 3) integer indices (got shape {f.shape}, dtype {f.dtype})"
+        )
     if f.min() < 0 or f.max() >= len(v):
         raise ValueError(f"mesh faces index vertices outside [0, {len(v) - 1}]")
     return v, f.astype(np.int64)
@@ -407,9 +427,14 @@ def _subdivide(tri: np.ndarray, max_edge: float) -> np.ndarray:
     out = []
     todo = tri
     for _ in range(64):
-        e = np.stack([np.linalg.norm(todo[:, 1] - todo[:, 0], axis=1),
-                      np.linalg.norm(todo[:, 2] - todo[:, 1], axis=1),
-                      np.linalg.norm(todo[:, 0] - todo[:, 2], axis=1)], axis=1)
+        e = np.stack(
+            [
+                np.linalg.norm(todo[:, 1] - todo[:, 0], axis=1),
+                np.linalg.norm(todo[:, 2] - todo[:, 1], axis=1),
+                np.linalg.norm(todo[:, 0] - todo[:, 2], axis=1),
+            ],
+            axis=1,
+        )
         big = e.max(axis=1) > max_edge
         out.append(todo[~big])
         if not np.any(big):
@@ -420,7 +445,9 @@ def _subdivide(tri: np.ndarray, max_edge: float) -> np.ndarray:
         idx = np.stack([k, (k + 1) % 3, (k + 2) % 3], axis=1)
         t = np.take_along_axis(t, idx[:, :, None], axis=1)
         m = 0.5 * (t[:, 0] + t[:, 1])
-        todo = np.concatenate([np.stack([t[:, 0], m, t[:, 2]], axis=1), np.stack([m, t[:, 1], t[:, 2]], axis=1)])
+        todo = np.concatenate(
+            [np.stack([t[:, 0], m, t[:, 2]], axis=1), np.stack([m, t[:, 1], t[:, 2]], axis=1)]
+        )
     else:
         out.append(todo)
     return np.concatenate(out)
@@ -430,8 +457,17 @@ _JITTER = (1e-4 * math.sqrt(2.0), 1e-4 * math.sqrt(3.0))
 SIGN_MODES = ("parity", "flood", "unsigned")
 
 
-def mesh_sdf_grid(vertices, faces, origin, voxel: float, shape, *, band: float = 2.0,
-                  sign: str = "parity", chunk_pairs: int = 1 << 21) -> SdfGrid:
+def mesh_sdf_grid(
+    vertices,
+    faces,
+    origin,
+    voxel: float,
+    shape,
+    *,
+    band: float = 2.0,
+    sign: str = "parity",
+    chunk_pairs: int = 1 << 21,
+) -> SdfGrid:
     """Signed distance of a triangle mesh at the cell centres of the grid (origin, voxel, shape=(nx, ny, nz)).
 
     See the module docstring for the method. ``band`` (voxels, ≥ 1): width of the exactly computed band.
@@ -490,7 +526,9 @@ def mesh_sdf_grid(vertices, faces, origin, voxel: float, shape, *, band: float =
 
     in_band = best_d <= band * h
     if not np.any(in_band):
-        raise ValueError("the mesh does not come within the band of any grid cell (grid and mesh do not overlap)")
+        raise ValueError(
+            "the mesh does not come within the band of any grid cell (grid and mesh do not overlap)"
+        )
     # Closest-point propagation beyond the band.
     mask3 = in_band.reshape(nz, ny, nx)
     idx = ndimage.distance_transform_edt(~mask3, return_distances=False, return_indices=True)
@@ -507,8 +545,10 @@ def mesh_sdf_grid(vertices, faces, origin, voxel: float, shape, *, band: float =
     meta["odd_columns"] = int(odd_columns)
     if sign == "parity":
         if odd_columns:
-            raise ValueError(f"mesh is not watertight: {odd_columns} grid column(s) cross its surface an odd "
-                             "number of times (use sign='flood' for the documented fallback, or 'unsigned')")
+            raise ValueError(
+                f"mesh is not watertight: {odd_columns} grid column(s) cross its surface an odd "
+                "number of times (use sign='flood' for the documented fallback, or 'unsigned')"
+            )
     else:
         inside = _flood_inside(dist, h)
     return SdfGrid(np.where(inside, -dist, dist).astype(np.float32), tuple(o), h, meta=meta)
@@ -595,7 +635,7 @@ def _parity_inside(tri, o, h, shape):
         np.add.at(hist, (col, k), 1)
         np.add.at(total, col, 1)
         start = stop
-    inside = (np.cumsum(hist, axis=1)[:, :nz] % 2 == 1)  # (ny*nx, nz)
+    inside = np.cumsum(hist, axis=1)[:, :nz] % 2 == 1  # (ny*nx, nz)
     inside = inside.reshape(ny, nx, nz).transpose(2, 0, 1)
     return inside, int(np.count_nonzero(total % 2))
 
@@ -605,8 +645,18 @@ def _flood_inside(dist, h):
 
     far = dist > 0.5 * math.sqrt(3.0) * h
     lab, _ = ndimage.label(far)
-    border = np.unique(np.concatenate([lab[0].ravel(), lab[-1].ravel(), lab[:, 0].ravel(), lab[:, -1].ravel(),
-                                       lab[:, :, 0].ravel(), lab[:, :, -1].ravel()]))
+    border = np.unique(
+        np.concatenate(
+            [
+                lab[0].ravel(),
+                lab[-1].ravel(),
+                lab[:, 0].ravel(),
+                lab[:, -1].ravel(),
+                lab[:, :, 0].ravel(),
+                lab[:, :, -1].ravel(),
+            ]
+        )
+    )
     border = border[border > 0]
     outside_far = np.isin(lab, border)
     inside_far = far & ~outside_far
@@ -641,8 +691,16 @@ def build_mips(grid: SdfGrid, levels: int, *, prefilter: bool = True, sigma: flo
             cur = ndimage.gaussian_filter(cur, sigma=sigma, mode="nearest", truncate=3.0)
         cur = _downsample2(cur)
         h *= 2.0
-        out.append(SdfGrid(cur.astype(np.float32), grid.origin, h, quantized=grid.quantized,
-                           quant_step=grid.quant_step, meta={**grid.meta, "prefilter": prefilter}))
+        out.append(
+            SdfGrid(
+                cur.astype(np.float32),
+                grid.origin,
+                h,
+                quantized=grid.quantized,
+                quant_step=grid.quant_step,
+                meta={**grid.meta, "prefilter": prefilter},
+            )
+        )
     return out
 
 
@@ -655,8 +713,14 @@ def quantize_8bit(grid: SdfGrid, step_voxels: float = 1.0) -> SdfGrid:
     q = np.clip(np.rint(grid.values.astype(np.float64) / (step_voxels * grid.voxel)), -127, 127) + 128
     q = q.astype(np.uint8)
     back = (q.astype(np.float64) - 128.0) * step_voxels * grid.voxel
-    return SdfGrid(back.astype(np.float32), grid.origin, grid.voxel, quantized=True, quant_step=float(step_voxels),
-                   meta={**grid.meta, "bytes": int(q.nbytes)})
+    return SdfGrid(
+        back.astype(np.float32),
+        grid.origin,
+        grid.voxel,
+        quantized=True,
+        quant_step=float(step_voxels),
+        meta={**grid.meta, "bytes": int(q.nbytes)},
+    )
 
 
 def sample_grid_numpy(grid: SdfGrid, points) -> np.ndarray:
@@ -674,7 +738,10 @@ def sample_grid_numpy(grid: SdfGrid, points) -> np.ndarray:
     for dz in (0, 1):
         for dy in (0, 1):
             for dx in (0, 1):
-                w = ((f[..., 0] if dx else 1 - f[..., 0]) * (f[..., 1] if dy else 1 - f[..., 1])
-                     * (f[..., 2] if dz else 1 - f[..., 2]))
+                w = (
+                    (f[..., 0] if dx else 1 - f[..., 0])
+                    * (f[..., 1] if dy else 1 - f[..., 1])
+                    * (f[..., 2] if dz else 1 - f[..., 2])
+                )
                 acc = acc + w * v[i0[..., 2] + dz, i0[..., 1] + dy, i0[..., 0] + dx]
     return acc + outside

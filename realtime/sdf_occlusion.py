@@ -65,8 +65,16 @@ from ._array import DRJIT_OPS, NUMPY_OPS, check_scalar, get_default_backend, is_
 from .sdf_grid import EMPTY_DISTANCE, SdfGrid, build_mips, primitives_sdf
 
 __all__ = [
-    "AnalyticSDF", "EvansParams", "GridSDF", "LISTING_WEIGHTS", "cone_occlusion", "curvature_term",
-    "evans_occlusion", "evans_sample_positions", "evans_terms", "evans_terms_jacobian",
+    "AnalyticSDF",
+    "EvansParams",
+    "GridSDF",
+    "LISTING_WEIGHTS",
+    "cone_occlusion",
+    "curvature_term",
+    "evans_occlusion",
+    "evans_sample_positions",
+    "evans_terms",
+    "evans_terms_jacobian",
 ]
 
 LISTING_WEIGHTS = (1.0, 1.2, 1.4, 1.8)
@@ -171,6 +179,7 @@ class GridSDF:
 
             def at(off):
                 return dr.gather(Float, vals, base + off)
+
         sxy = nx * ny
         c00 = at(0) * (1 - fx) + at(1) * fx
         c10 = at(nx) * (1 - fx) + at(nx + 1) * fx
@@ -217,7 +226,7 @@ class EvansParams:
         object.__setattr__(self, "up", tuple(float(c) for c in u / np.linalg.norm(u)))
 
     def distances(self) -> list[float]:
-        return [self.base * 2.0 ** i for i in range(self.n)]
+        return [self.base * 2.0**i for i in range(self.n)]
 
 
 def evans_sample_positions(point, normal, params: EvansParams) -> np.ndarray:
@@ -302,8 +311,13 @@ def evans_terms(points, normals, sdf, params: EvansParams, *, backend: str | Non
     n = _split_points(normals, "normals")
     if backend == "numpy":
         with np.errstate(all="ignore"):
-            out = _evans_terms_kernel(_NP, sdf, params, *[p[:, i].astype(np.float64) for i in range(3)],
-                                      *[n[:, i].astype(np.float64) for i in range(3)])
+            out = _evans_terms_kernel(
+                _NP,
+                sdf,
+                params,
+                *[p[:, i].astype(np.float64) for i in range(3)],
+                *[n[:, i].astype(np.float64) for i in range(3)],
+            )
         return np.stack([np.asarray(o, dtype=np.float64) for o in out])
     be = backend or get_default_backend()
     Float = (dr.cuda if be == "cuda" else dr.llvm).Float
@@ -383,11 +397,11 @@ def _cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
     t1x, t1y, t1z = 1.0 + sgn * nx * nx * a, sgn * b, -sgn * nx
     t2x, t2y, t2z = b, sgn + ny * ny * a, -ny
     ratio = (t_max / t0) ** (1.0 / max(steps - 1, 1))
-    ts = [t0 * ratio ** s for s in range(steps)]
+    ts = [t0 * ratio**s for s in range(steps)]
     total = px * 0.0
     kk = _const(ops, px, k)
     t_scale = _const(ops, px, t0)  # t_s = t0 · ratio^s: the geometric ratio is structural, t0 is an input
-    for (lx, ly, lz) in _cone_axes(cones):
+    for lx, ly, lz in _cone_axes(cones):
         wx = lx * t1x + ly * t2x + lz * nx
         wy = lx * t1y + ly * t2y + lz * ny
         wz = lx * t1z + ly * t2z + lz * nz
@@ -457,11 +471,23 @@ def curvature_term(points, sdf, *, k: float, level: int = 0, backend: str | None
     k = check_scalar("k", k, -1e30, 1e30)
     if not isinstance(level, (int, np.integer)) or level < 0:
         raise ValueError(f"level must be an integer >= 0 (got {level!r})")
-    return _run(lambda ops, x, y, z: _curvature_kernel(ops, sdf, int(level), k, x, y, z), points, None, backend)
+    return _run(
+        lambda ops, x, y, z: _curvature_kernel(ops, sdf, int(level), k, x, y, z), points, None, backend
+    )
 
 
-def cone_occlusion(points, normals, sdf, *, cones: int = 9, steps: int = 8, t0: float, t_max: float,
-                   k: float = 2.0, backend: str | None = None):
+def cone_occlusion(
+    points,
+    normals,
+    sdf,
+    *,
+    cones: int = 9,
+    steps: int = 8,
+    t0: float,
+    t_max: float,
+    k: float = 2.0,
+    backend: str | None = None,
+):
     """Cone-traced distance-field AO in [0, 1] (module docstring). ``t0`` < ``t_max`` in scene units;
     ``k`` = 1/tan(cone half-angle) > 0."""
     if not isinstance(cones, (int, np.integer)) or not 1 <= cones <= 64:
@@ -471,8 +497,12 @@ def cone_occlusion(points, normals, sdf, *, cones: int = 9, steps: int = 8, t0: 
     t0 = check_scalar("t0", t0, 0.0, 1e30, lo_open=True)
     t_max = check_scalar("t_max", t_max, t0, 1e30)
     k = check_scalar("k", k, 0.0, 1e30, lo_open=True)
-    return _run(lambda ops, *a: _cone_kernel(ops, sdf, int(cones), int(steps), t0, t_max, k, *a),
-                points, normals, backend)
+    return _run(
+        lambda ops, *a: _cone_kernel(ops, sdf, int(cones), int(steps), t0, t_max, k, *a),
+        points,
+        normals,
+        backend,
+    )
 
 
 _ = EMPTY_DISTANCE  # re-exported meaning: an empty AnalyticSDF samples as 'very far' (C = B exactly)

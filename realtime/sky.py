@@ -70,14 +70,25 @@ import numpy as np
 from ._array import DRJIT_OPS, NUMPY_OPS, check_range, check_scalar, evaluate, is_drjit
 
 __all__ = [
-    "AtmosphereParams", "NishitaSky", "aerial_perspective", "atmosphere_optical_depth",
-    "build_sky", "build_optical_depth_table", "cie_xyz_fit", "hg_phase", "cornette_shanks_phase",
-    "layer_heights", "rayleigh_phase", "shade_sky", "spectral_to_srgb", "sun_transmittance",
+    "AtmosphereParams",
+    "NishitaSky",
+    "aerial_perspective",
+    "atmosphere_optical_depth",
+    "build_sky",
+    "build_optical_depth_table",
+    "cie_xyz_fit",
+    "hg_phase",
+    "cornette_shanks_phase",
+    "layer_heights",
+    "rayleigh_phase",
+    "shade_sky",
+    "spectral_to_srgb",
+    "sun_transmittance",
     "JAX_OPS",
 ]
 
-_FAR = 1e12          # "infinite" optical depth stored in tables (m of density-weighted path)
-_TRUNC = 40.0        # truncate each leg where the integrand has fallen by e^-40
+_FAR = 1e12  # "infinite" optical depth stored in tables (m of density-weighted path)
+_TRUNC = 40.0  # truncate each leg where the integrand has fallen by e^-40
 _GL_N = 24
 _GL_X, _GL_W = (tuple(float(v) for v in a) for a in np.polynomial.legendre.leggauss(_GL_N))
 
@@ -99,8 +110,14 @@ OPS_NP = _ops_with(NUMPY_OPS, exp=np.exp, log=np.log, floor=np.floor, gather=_np
 
 
 _OPS_MATH = types.SimpleNamespace(
-    name="math", sqrt=math.sqrt, exp=math.exp, maximum=max, minimum=min,
-    clip=lambda x, lo, hi: min(max(x, lo), hi), select=lambda c, a, b: a if c else b)
+    name="math",
+    sqrt=math.sqrt,
+    exp=math.exp,
+    maximum=max,
+    minimum=min,
+    clip=lambda x, lo, hi: min(max(x, lo), hi),
+    select=lambda c, a, b: a if c else b,
+)
 """Python-float operations for the kernels' scalar calls (a per-build sun transmittance)."""
 
 
@@ -117,11 +134,28 @@ def _jax_ops():
     import jax.numpy as jnp
 
     return types.SimpleNamespace(
-        name="jax", sqrt=jnp.sqrt, select=jnp.where, maximum=jnp.maximum, minimum=jnp.minimum,
-        clip=jnp.clip, abs=jnp.abs, fma=lambda a, b, c: a * b + c, sin=jnp.sin, cos=jnp.cos, tan=jnp.tan,
-        acos=jnp.arccos, asin=jnp.arcsin, atan=jnp.arctan, atan2=jnp.arctan2, power=jnp.power,
-        exp=jnp.exp, log=jnp.log, floor=jnp.floor, cbrt=jnp.cbrt,
-        gather=lambda table, idx: jnp.asarray(table)[idx.astype(jnp.int32)])
+        name="jax",
+        sqrt=jnp.sqrt,
+        select=jnp.where,
+        maximum=jnp.maximum,
+        minimum=jnp.minimum,
+        clip=jnp.clip,
+        abs=jnp.abs,
+        fma=lambda a, b, c: a * b + c,
+        sin=jnp.sin,
+        cos=jnp.cos,
+        tan=jnp.tan,
+        acos=jnp.arccos,
+        asin=jnp.arcsin,
+        atan=jnp.arctan,
+        atan2=jnp.arctan2,
+        power=jnp.power,
+        exp=jnp.exp,
+        log=jnp.log,
+        floor=jnp.floor,
+        cbrt=jnp.cbrt,
+        gather=lambda table, idx: jnp.asarray(table)[idx.astype(jnp.int32)],
+    )
 
 
 class _LazyJax:
@@ -179,7 +213,9 @@ class AtmosphereParams:
         n = len(self.rayleigh_beta)
         for name in ("mie_beta", "mie_extinction", "solar_irradiance", "wavelengths_nm"):
             if len(getattr(self, name)) != n:
-                raise ValueError(f"{name} must have {n} channels like rayleigh_beta (got {len(getattr(self, name))})")
+                raise ValueError(
+                    f"{name} must have {n} channels like rayleigh_beta (got {len(getattr(self, name))})"
+                )
         for name in ("rayleigh_beta", "mie_beta", "mie_extinction", "solar_irradiance"):
             for v in getattr(self, name):
                 check_scalar(name, v, 0.0, 1e3)
@@ -197,9 +233,11 @@ class AtmosphereParams:
 
     def betas(self):
         """(β_R, β_M, β_M^ext) per channel with the artist scales applied (floats)."""
-        return ([b * self.rayleigh_scale for b in self.rayleigh_beta],
-                [b * self.mie_scale for b in self.mie_beta],
-                [b * self.mie_scale for b in self.mie_extinction])
+        return (
+            [b * self.rayleigh_scale for b in self.rayleigh_beta],
+            [b * self.mie_scale for b in self.mie_beta],
+            [b * self.mie_scale for b in self.mie_extinction],
+        )
 
     def spectral(self, wavelengths_nm, solar=None) -> "AtmosphereParams":
         """The same atmosphere sampled at ``wavelengths_nm``: β_R ∝ λ⁻⁴ (from its 550 nm value),
@@ -209,18 +247,25 @@ class AtmosphereParams:
         ref = 13.558e-6 * (self.rayleigh_beta[1] / 13.558e-6)
         br = ref * (550.0 / lam) ** 4
         if solar is None:
-            solar = blackbody(lam, 5778.0) / blackbody(np.array([550.0]), 5778.0)[0] * self.solar_irradiance[1]
+            solar = (
+                blackbody(lam, 5778.0) / blackbody(np.array([550.0]), 5778.0)[0] * self.solar_irradiance[1]
+            )
         n = lam.size
-        return replace(self, rayleigh_beta=tuple(br.tolist()), mie_beta=(self.mie_beta[1],) * n,
-                       mie_extinction=(self.mie_extinction[1],) * n, solar_irradiance=tuple(np.asarray(solar).tolist()),
-                       wavelengths_nm=tuple(lam.tolist()))
+        return replace(
+            self,
+            rayleigh_beta=tuple(br.tolist()),
+            mie_beta=(self.mie_beta[1],) * n,
+            mie_extinction=(self.mie_extinction[1],) * n,
+            solar_irradiance=tuple(np.asarray(solar).tolist()),
+            wavelengths_nm=tuple(lam.tolist()),
+        )
 
 
 def blackbody(lam_nm, temperature):
     """Planck spectral radiance (arbitrary scale) at wavelengths in nm."""
     lam = np.asarray(lam_nm, dtype=np.float64) * 1e-9
     c2 = 1.4387769e-2
-    return lam ** -5 / np.expm1(c2 / (lam * temperature))
+    return lam**-5 / np.expm1(c2 / (lam * temperature))
 
 
 # ====================================================================================== phase functions
@@ -267,10 +312,10 @@ def _optical_depth_kernel(ops, h, mu, H, rg, rt):
     mu = ops.clip(mu, -1.0, 1.0)
     r = rg + h
     sin_t = ops.sqrt(ops.maximum((1.0 - mu) * (1.0 + mu), 0.0))
-    xa2 = r * mu * mu / (1.0 + sin_t)           # r − d, d = r sin θ the impact parameter
+    xa2 = r * mu * mu / (1.0 + sin_t)  # r − d, d = r sin θ the impact parameter
     d = r - xa2
     xa = ops.sqrt(xa2)
-    base = h - xa2                               # altitude of the tangent point (may be < 0: ground hit)
+    base = h - xa2  # altitude of the tangent point (may be < 0: ground hit)
     hits = (mu < 0.0) & (base < 0.0)
 
     def leg(x0, dx):
@@ -295,8 +340,9 @@ def _optical_depth_kernel(ops, h, mu, H, rg, rt):
     return ops.select(hits, math.inf, total)
 
 
-def atmosphere_optical_depth(altitude_m, cos_zenith, scale_height_m, planet_radius_m=6360e3,
-                             top_radius_m=6420e3):
+def atmosphere_optical_depth(
+    altitude_m, cos_zenith, scale_height_m, planet_radius_m=6360e3, top_radius_m=6420e3
+):
     """∫ e^{−h/H} ds (metres) from a point at ``altitude_m`` along a direction with cosine
     ``cos_zenith`` to the top of the atmosphere; +inf where the ray hits the ground.
 
@@ -310,8 +356,9 @@ def atmosphere_optical_depth(altitude_m, cos_zenith, scale_height_m, planet_radi
     cos_zenith = check_range("cos_zenith", cos_zenith, -1.0, 1.0)
     scale_height_m = check_range("scale_height_m", scale_height_m, 0.0, 1e9, lo_open=True)
     rg, rt = float(planet_radius_m), float(top_radius_m)
-    return _ev(lambda o, h, m, H: _optical_depth_kernel(o, h, m, H, rg, rt),
-               altitude_m, cos_zenith, scale_height_m)
+    return _ev(
+        lambda o, h, m, H: _optical_depth_kernel(o, h, m, H, rg, rt), altitude_m, cos_zenith, scale_height_m
+    )
 
 
 def sun_transmittance(params: AtmosphereParams, altitude_m, cos_zenith):
@@ -320,13 +367,17 @@ def sun_transmittance(params: AtmosphereParams, altitude_m, cos_zenith):
     if isinstance(altitude_m, float) and isinstance(cos_zenith, float):  # scalar fast path: plain math
         h = min(max(altitude_m, 0.0), params.top_m)
         mu = min(max(cos_zenith, -1.0), 1.0)
-        tr, tm = (_optical_depth_kernel(_OPS_MATH, h, mu, H, params.planet_radius_m, params.top_radius_m)
-                  for H in (params.rayleigh_height_m, params.mie_height_m))
+        tr, tm = (
+            _optical_depth_kernel(_OPS_MATH, h, mu, H, params.planet_radius_m, params.top_radius_m)
+            for H in (params.rayleigh_height_m, params.mie_height_m)
+        )
     else:
-        tr = atmosphere_optical_depth(altitude_m, cos_zenith, params.rayleigh_height_m, params.planet_radius_m,
-                                      params.top_radius_m)
-        tm = atmosphere_optical_depth(altitude_m, cos_zenith, params.mie_height_m, params.planet_radius_m,
-                                      params.top_radius_m)
+        tr = atmosphere_optical_depth(
+            altitude_m, cos_zenith, params.rayleigh_height_m, params.planet_radius_m, params.top_radius_m
+        )
+        tm = atmosphere_optical_depth(
+            altitude_m, cos_zenith, params.mie_height_m, params.planet_radius_m, params.top_radius_m
+        )
     if isinstance(tr, float):
         return [math.exp(-(a * tr + b * tm)) if math.isfinite(tr) else 0.0 for a, b in zip(br, bme)]
     ex = dr.exp if is_drjit(tr) else np.exp
@@ -362,13 +413,22 @@ def build_optical_depth_table(params: AtmosphereParams, layers: int, table_size:
     out = []
     for H in (params.rayleigh_height_m, params.mie_height_m):
         if backend == "numpy":
-            od = np.asarray(_optical_depth_kernel(NUMPY_OPS_EXT, H2, np.cos(T2), H, params.planet_radius_m,
-                                                  params.top_radius_m))
+            od = np.asarray(
+                _optical_depth_kernel(
+                    NUMPY_OPS_EXT, H2, np.cos(T2), H, params.planet_radius_m, params.top_radius_m
+                )
+            )
             out.append(np.where(np.isfinite(od), od, _FAR))
         else:
             Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
-            od = _optical_depth_kernel(OPS_DR, Float(H2.ravel()), dr.cos(Float(T2.ravel())), H,
-                                       params.planet_radius_m, params.top_radius_m)
+            od = _optical_depth_kernel(
+                OPS_DR,
+                Float(H2.ravel()),
+                dr.cos(Float(T2.ravel())),
+                H,
+                params.planet_radius_m,
+                params.top_radius_m,
+            )
             out.append(dr.select(dr.isfinite(od), od, _FAR))
     return out[0], out[1]
 
@@ -412,7 +472,7 @@ def _inscatter_kernel(ops, mu, nu_, h0, sz, cfg, tab_r, tab_m, betas, loop):
     r0 = rg + h0
     mu = ops.clip(mu, -1.0, 1.0)
     sin_t = ops.sqrt(ops.maximum((1.0 - mu) * (1.0 + mu), 0.0))
-    xa2 = r0 * mu * mu / (1.0 + sin_t)          # r0 − d, d = r0 sin θ the impact parameter
+    xa2 = r0 * mu * mu / (1.0 + sin_t)  # r0 − d, d = r0 sin θ the impact parameter
     tc = -r0 * mu
     hit = (mu < 0.0) & (xa2 > h0)
     inside = h0 <= top
@@ -427,7 +487,7 @@ def _inscatter_kernel(ops, mu, nu_, h0, sz, cfg, tab_r, tab_m, betas, loop):
         k = ops.clip(k, 0.0, n)
         hk = -HR * ops.log(ops.maximum(1.0 - (k / n) * q, 1e-30))
         hk = ops.select(k >= n, top, hk)
-        Dk = (hk - h0) + xa2                      # r_k − d
+        Dk = (hk - h0) + xa2  # r_k − d
         root = ops.sqrt(ops.maximum(Dk, 0.0) * ops.maximum(2.0 * r0 + (hk - h0) - xa2, 0.0))
         t_dn = tc - root
         t_up = tc + root
@@ -474,8 +534,18 @@ def _inscatter_kernel(ops, mu, nu_, h0, sz, cfg, tab_r, tab_m, betas, loop):
             nSm.append(S_m[c] + 0.5 * (a_m + fm[c]) * dt)
             nfr.append(ops.select(valid, a_r, fr[c]))
             nfm.append(ops.select(valid, a_m, fm[c]))
-        return (have | valid, ops.select(valid, t, tp), ops.select(valid, rr, rrp), ops.select(valid, rm, rmp),
-                ops.select(valid, odr2, odr), ops.select(valid, odm2, odm), nfr, nfm, nSr, nSm)
+        return (
+            have | valid,
+            ops.select(valid, t, tp),
+            ops.select(valid, rr, rrp),
+            ops.select(valid, rm, rmp),
+            ops.select(valid, odr2, odr),
+            ops.select(valid, odm2, odm),
+            nfr,
+            nfm,
+            nSr,
+            nSm,
+        )
 
     z = 0.0 * mu
     state = (mu != mu, z, z, z, z, z, [z] * C, [z] * C, [z] * C, [z] * C)
@@ -545,9 +615,19 @@ def _horizon_elevation(params, h0):
     return -math.acos(min(1.0, params.planet_radius_m / (params.planet_radius_m + h0)))
 
 
-def build_sky(params: AtmosphereParams, sun_elevation_deg: float, altitude_m: float = 0.0, *,
-              layers: int = 32, width: int = 128, height: int = 64, table_size: int = 128,
-              mapping: str = "linear", backend: str = "llvm", tables=None) -> NishitaSky:
+def build_sky(
+    params: AtmosphereParams,
+    sun_elevation_deg: float,
+    altitude_m: float = 0.0,
+    *,
+    layers: int = 32,
+    width: int = 128,
+    height: int = 64,
+    table_size: int = 128,
+    mapping: str = "linear",
+    backend: str = "llvm",
+    tables=None,
+) -> NishitaSky:
     """Build the Nishita sky texture (the seed's CPU step).
 
     ``backend``: "llvm"/"cuda" (Dr.Jit: texel directions, both sun tables and one fused kernel over
@@ -574,8 +654,15 @@ def build_sky(params: AtmosphereParams, sun_elevation_deg: float, altitude_m: fl
     h0, sz = float(altitude_m), math.sin(el_s)
     if backend != "numpy" and tables is None:
         Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
-        static = (int(layers), int(width), int(height), int(table_size), mapping == "sqrt", el_hi,
-                  tuple(sorted(cfg.items())))
+        static = (
+            int(layers),
+            int(width),
+            int(height),
+            int(table_size),
+            mapping == "sqrt",
+            el_hi,
+            tuple(sorted(cfg.items())),
+        )
         # every per-build value in one device array (one upload, no value baked into a kernel)
         values = np.array([h0, sz, math.cos(el_s), el_lo, *betas[0], *betas[1], *betas[2]], dtype=np.float32)
         S_r, S_m = _device_build(static + (params.channels,), Float(values))
@@ -586,22 +673,51 @@ def build_sky(params: AtmosphereParams, sun_elevation_deg: float, altitude_m: fl
         if tables is None:
             tables = build_optical_depth_table(params, layers, table_size, backend)
     if backend == "numpy":
-        S_r, S_m = _inscatter_kernel(OPS_NP, mu.ravel(), nu.ravel(), h0, sz, cfg, tables[0].ravel(),
-                                     tables[1].ravel(), betas, "python")
+        S_r, S_m = _inscatter_kernel(
+            OPS_NP, mu.ravel(), nu.ravel(), h0, sz, cfg, tables[0].ravel(), tables[1].ravel(), betas, "python"
+        )
         S_r = [np.asarray(s).reshape(height, width) for s in S_r]
         S_m = [np.asarray(s).reshape(height, width) for s in S_m]
     elif tables is not None:
         Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
-        S_r, S_m = _inscatter_kernel(OPS_DR, Float(mu.ravel()), Float(nu.ravel()), dr.opaque(Float, h0),
-                                     dr.opaque(Float, sz), cfg, tables[0], tables[1], betas, "drjit")
-    sky = NishitaSky(params, el_s, float(altitude_m), int(width), int(height), int(layers), int(table_size),
-                     mapping, el_lo, el_hi, list(S_r), list(S_m), backend=backend)
-    sky.sun_transmittance = sun_transmittance(params, float(min(altitude_m, params.top_m)), math.sin(el_s)) \
-        if altitude_m <= params.top_m else [1.0] * params.channels
+        S_r, S_m = _inscatter_kernel(
+            OPS_DR,
+            Float(mu.ravel()),
+            Float(nu.ravel()),
+            dr.opaque(Float, h0),
+            dr.opaque(Float, sz),
+            cfg,
+            tables[0],
+            tables[1],
+            betas,
+            "drjit",
+        )
+    sky = NishitaSky(
+        params,
+        el_s,
+        float(altitude_m),
+        int(width),
+        int(height),
+        int(layers),
+        int(table_size),
+        mapping,
+        el_lo,
+        el_hi,
+        list(S_r),
+        list(S_m),
+        backend=backend,
+    )
+    sky.sun_transmittance = (
+        sun_transmittance(params, float(min(altitude_m, params.top_m)), math.sin(el_s))
+        if altitude_m <= params.top_m
+        else [1.0] * params.channels
+    )
     return sky
 
 
-@dr.freeze(limit=64, warn_after=1000)  # one recording per static configuration (sweeps hold many); LRU beyond 64
+@dr.freeze(
+    limit=64, warn_after=1000
+)  # one recording per static configuration (sweeps hold many); LRU beyond 64
 def _device_build(static, values):
     """The whole texture on the device, as one frozen Dr.Jit function (`dr.freeze`): texel
     directions from `dr.arange`, the two sun optical-depth tables and the in-scatter loop.
@@ -651,8 +767,15 @@ def _device_build(static, values):
 
 
 def _cfg(params, layers, table_size):
-    return {"n": float(layers), "m": float(table_size), "rg": params.planet_radius_m, "top": params.top_m,
-            "HR": params.rayleigh_height_m, "HM": params.mie_height_m, "th_max": _theta_max(params)}
+    return {
+        "n": float(layers),
+        "m": float(table_size),
+        "rg": params.planet_radius_m,
+        "top": params.top_m,
+        "HR": params.rayleigh_height_m,
+        "HM": params.mie_height_m,
+        "th_max": _theta_max(params),
+    }
 
 
 def sky_build_numpy_loop(params, sun_elevation_deg, altitude_m=0.0, **kw):
@@ -719,18 +842,37 @@ def shade_sky(sky: NishitaSky, directions, include_sun: bool = True):
     Tsun = list(sky.sun_transmittance) if include_sun else [0.0] * p.channels
     consts = (list(p.solar_irradiance), Tsun, p.mie_g, p.sun_angular_radius, p.ambient, p.mie_phase == "cs")
     if is_drjit(directions):
-        return _shade_kernel(OPS_DR, directions[0], directions[1], directions[2], sky.rayleigh, sky.mie, cfg,
-                             sun, consts)
+        return _shade_kernel(
+            OPS_DR, directions[0], directions[1], directions[2], sky.rayleigh, sky.mie, cfg, sun, consts
+        )
     d = np.asarray(directions, dtype=np.float64)
     shape = d.shape[:-1]
     flat = d.reshape(-1, 3)
     if sky.backend == "numpy":
-        out = _shade_kernel(OPS_NP, flat[:, 0], flat[:, 1], flat[:, 2], [t.ravel() for t in sky.rayleigh],
-                            [t.ravel() for t in sky.mie], cfg, sun, consts)
+        out = _shade_kernel(
+            OPS_NP,
+            flat[:, 0],
+            flat[:, 1],
+            flat[:, 2],
+            [t.ravel() for t in sky.rayleigh],
+            [t.ravel() for t in sky.mie],
+            cfg,
+            sun,
+            consts,
+        )
         return np.stack([np.asarray(o) for o in out], axis=-1).reshape(*shape, -1)
     Float = type(sky.rayleigh[0])
-    out = _shade_kernel(OPS_DR, Float(flat[:, 0]), Float(flat[:, 1]), Float(flat[:, 2]), sky.rayleigh, sky.mie,
-                        cfg, sun, consts)
+    out = _shade_kernel(
+        OPS_DR,
+        Float(flat[:, 0]),
+        Float(flat[:, 1]),
+        Float(flat[:, 2]),
+        sky.rayleigh,
+        sky.mie,
+        cfg,
+        sun,
+        consts,
+    )
     return np.stack([np.asarray(o, dtype=np.float64) for o in out], axis=-1).reshape(*shape, -1)
 
 
@@ -739,14 +881,25 @@ def texture_arrays(sky: NishitaSky):
     if sky.backend == "numpy":
         return np.stack(sky.rayleigh), np.stack(sky.mie)
     shp = (sky.height, sky.width)
-    return (np.stack([np.asarray(t, dtype=np.float64).reshape(shp) for t in sky.rayleigh]),
-            np.stack([np.asarray(t, dtype=np.float64).reshape(shp) for t in sky.mie]))
+    return (
+        np.stack([np.asarray(t, dtype=np.float64).reshape(shp) for t in sky.rayleigh]),
+        np.stack([np.asarray(t, dtype=np.float64).reshape(shp) for t in sky.mie]),
+    )
 
 
 # ====================================================================================== aerial perspective
-def aerial_perspective(params: AtmosphereParams, sun_elevation_deg: float, altitude_m, cos_zenith,
-                       cos_sun, distance_m, steps: int = 16, tables=None, layers: int = 32,
-                       table_size: int = 128):
+def aerial_perspective(
+    params: AtmosphereParams,
+    sun_elevation_deg: float,
+    altitude_m,
+    cos_zenith,
+    cos_sun,
+    distance_m,
+    steps: int = 16,
+    tables=None,
+    layers: int = 32,
+    table_size: int = 128,
+):
     """Transmittance and single-scattered in-scatter from the viewer (altitude ``altitude_m``) to a
     point at ``distance_m`` along a ray with cosine of zenith angle ``cos_zenith`` and cosine to the
     sun ``cos_sun``: returns (T, L) lists per channel, with L in radiance units (E₀ · …).
@@ -769,13 +922,20 @@ def aerial_perspective(params: AtmosphereParams, sun_elevation_deg: float, altit
         Float = type(next(a for a in args if is_drjit(a)))
         backend = "cuda" if dr.backend_v(Float) == dr.JitBackend.CUDA else "llvm"
         altitude_m, cos_zenith, cos_sun, distance_m = (
-            a if type(a) is Float else Float(np.asarray(a, dtype=np.float64).ravel() if isinstance(a, np.ndarray)
-                                              else float(a)) for a in args)
+            a
+            if type(a) is Float
+            else Float(np.asarray(a, dtype=np.float64).ravel() if isinstance(a, np.ndarray) else float(a))
+            for a in args
+        )
     if tables is None:
         tables = build_optical_depth_table(params, layers, table_size, backend)
         n_layers, m = layers, table_size
     else:
-        n_layers = (np.asarray(tables[0]).size // table_size) - 1 if not dr_in else dr.width(tables[0]) // table_size - 1
+        n_layers = (
+            (np.asarray(tables[0]).size // table_size) - 1
+            if not dr_in
+            else dr.width(tables[0]) // table_size - 1
+        )
         m = table_size
     if not dr_in:
         tables = tuple(np.asarray(t, dtype=np.float64).ravel() for t in tables)
@@ -784,8 +944,11 @@ def aerial_perspective(params: AtmosphereParams, sun_elevation_deg: float, altit
     ops = OPS_DR if dr_in else OPS_NP
     if not dr_in:
         altitude_m, cos_zenith, cos_sun, distance_m = np.broadcast_arrays(
-            *[np.asarray(a, dtype=np.float64) for a in (altitude_m, cos_zenith, cos_sun, distance_m)])
-    return _aerial_kernel(ops, altitude_m, cos_zenith, cos_sun, distance_m, sz, cfg, tables, params, int(steps))
+            *[np.asarray(a, dtype=np.float64) for a in (altitude_m, cos_zenith, cos_sun, distance_m)]
+        )
+    return _aerial_kernel(
+        ops, altitude_m, cos_zenith, cos_sun, distance_m, sz, cfg, tables, params, int(steps)
+    )
 
 
 def _aerial_kernel(ops, h0, mu, nu_, dist, sz, cfg, tables, params, steps):
@@ -839,7 +1002,11 @@ def cie_xyz_fit(lam_nm):
     """CIE 1931 2° colour-matching functions, multi-lobe Gaussian fit of Wyman, Sloan & Shirley 2013
     ("Simple analytic approximations to the CIE XYZ color matching functions", JCGT 2(2)); (N, 3)."""
     lam = np.asarray(lam_nm, dtype=np.float64)
-    x = 1.056 * _lobe(lam, 599.8, 37.9, 31.0) + 0.362 * _lobe(lam, 442.0, 16.0, 26.7) - 0.065 * _lobe(lam, 501.1, 20.4, 26.2)
+    x = (
+        1.056 * _lobe(lam, 599.8, 37.9, 31.0)
+        + 0.362 * _lobe(lam, 442.0, 16.0, 26.7)
+        - 0.065 * _lobe(lam, 501.1, 20.4, 26.2)
+    )
     y = 0.821 * _lobe(lam, 568.8, 46.9, 40.5) + 0.286 * _lobe(lam, 530.9, 16.3, 31.1)
     z = 1.217 * _lobe(lam, 437.0, 11.8, 36.0) + 0.681 * _lobe(lam, 459.0, 26.0, 13.8)
     return np.stack([x, y, z], axis=-1)
@@ -855,7 +1022,7 @@ def spectral_to_srgb(spectra: np.ndarray, lam_nm, white=None, white_rgb=None) ->
     units as the 3-wavelength RGB sky lit by ``white_rgb``."""
     lam = np.asarray(lam_nm, dtype=np.float64)
     w = np.gradient(lam) if lam.size > 1 else np.ones(1)
-    M = _XYZ_TO_SRGB @ (cie_xyz_fit(lam) * w[:, None]).T   # (3, N)
+    M = _XYZ_TO_SRGB @ (cie_xyz_fit(lam) * w[:, None]).T  # (3, N)
     rgb = np.asarray(spectra, dtype=np.float64) @ M.T
     if white is not None and white_rgb is not None:
         wr = M @ np.asarray(white, dtype=np.float64)
@@ -879,5 +1046,7 @@ def lookup_components(sky: NishitaSky, directions):
     outr = [_texture_lookup(OPS_NP, R[c].ravel(), x, y, W, H) for c in range(R.shape[0])]
     outm = [_texture_lookup(OPS_NP, M[c].ravel(), x, y, W, H) for c in range(M.shape[0])]
     below = (el < sky.el_lo)[:, None]
-    return (np.where(below, 0.0, np.stack(outr, -1)).reshape(*shape, -1),
-            np.where(below, 0.0, np.stack(outm, -1)).reshape(*shape, -1))
+    return (
+        np.where(below, 0.0, np.stack(outr, -1)).reshape(*shape, -1),
+        np.where(below, 0.0, np.stack(outm, -1)).reshape(*shape, -1),
+    )

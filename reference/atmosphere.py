@@ -85,10 +85,23 @@ from .estimators import PassResult, _chunks, _mean_var, _moments, sub_seed
 from .io import atomic_write_bytes
 
 __all__ = [
-    "AtmosphereSpec", "MEDIUM_PLUGIN", "PHASE_PLUGIN", "SPECTRAL_VARIANTS", "cie1931_table", "film_srgb",
-    "hemisphere_directions", "load_atmosphere_scene", "register", "render_sky", "scene_dict",
-    "single_scattering_quadrature", "sky_pass", "solar_spectrum", "spectral_coefficients",
-    "spectral_single_scattering_quadrature", "sunsky_radiance",
+    "AtmosphereSpec",
+    "MEDIUM_PLUGIN",
+    "PHASE_PLUGIN",
+    "SPECTRAL_VARIANTS",
+    "cie1931_table",
+    "film_srgb",
+    "hemisphere_directions",
+    "load_atmosphere_scene",
+    "register",
+    "render_sky",
+    "scene_dict",
+    "single_scattering_quadrature",
+    "sky_pass",
+    "solar_spectrum",
+    "spectral_coefficients",
+    "spectral_single_scattering_quadrature",
+    "sunsky_radiance",
 ]
 
 MEDIUM_PLUGIN = "rtfit_atmosphere"
@@ -102,9 +115,9 @@ REFERENCE_WAVELENGTH_NM = 550.0
 CIE_MIN_NM, CIE_MAX_NM = 360.0, 830.0
 CIE_Y_NORMALIZATION = 1.0 / 106.7502593994140625
 """Mitsuba's ``MI_CIE_Y_NORMALIZATION`` (checked against the installed Mitsuba in the tests)."""
-XYZ_TO_SRGB = np.array([[3.240479, -1.537150, -0.498535],
-                        [-0.969256, 1.875991, 0.041556],
-                        [0.055648, -0.204043, 1.057311]])
+XYZ_TO_SRGB = np.array(
+    [[3.240479, -1.537150, -0.498535], [-0.969256, 1.875991, 0.041556], [0.055648, -0.204043, 1.057311]]
+)
 """Mitsuba's ``xyz_to_srgb`` matrix (ITU-R BT.709 primaries, D65 white)."""
 
 
@@ -134,14 +147,17 @@ class AtmosphereSpec:
         if not (-90.0 <= self.sun_elevation_deg <= 90.0):
             raise ValueError(f"sun_elevation_deg must be in [-90, 90] (got {self.sun_elevation_deg!r})")
         if not (0.0 <= self.viewer_altitude_km < self.top_radius_km - self.planet_radius_km):
-            raise ValueError("viewer_altitude_km must be in [0, top - planet) "
-                             f"(got {self.viewer_altitude_km!r})")
+            raise ValueError(
+                f"viewer_altitude_km must be in [0, top - planet) (got {self.viewer_altitude_km!r})"
+            )
         if not (0.0 < self.planet_radius_km < self.top_radius_km):
             raise ValueError("need 0 < planet_radius_km < top_radius_km")
         if not (-1.0 < self.mie_g < 1.0):
             raise ValueError(f"mie_g must be in (-1, 1) (got {self.mie_g!r})")
         if not (0.0 < self.sun_angular_radius_deg < 90.0):
-            raise ValueError(f"sun_angular_radius_deg must be in (0, 90) (got {self.sun_angular_radius_deg!r})")
+            raise ValueError(
+                f"sun_angular_radius_deg must be in (0, 90) (got {self.sun_angular_radius_deg!r})"
+            )
 
     @property
     def sun_direction(self) -> np.ndarray:
@@ -160,7 +176,7 @@ def load_atmosphere_scene(path) -> AtmosphereSpec:
     path = Path(path)
     doc = tomllib.loads(path.read_text())
     if doc.get("format") != "rtfit.sky/1":
-        raise ValueError(f"{path}: format: must be \"rtfit.sky/1\" (got {doc.get('format')!r})")
+        raise ValueError(f'{path}: format: must be "rtfit.sky/1" (got {doc.get("format")!r})')
     allowed = set(AtmosphereSpec.__dataclass_fields__)
     extra = set(doc) - {"format", "name", "description", "atmosphere", "sun", "view"}
     if extra:
@@ -349,9 +365,15 @@ def register(mi) -> None:
 
 def _profile_props(spec: AtmosphereSpec, mi) -> dict:
     v = mi.ScalarVector3f
-    return {"planet_radius": spec.planet_radius_km, "rayleigh_height": spec.rayleigh_height_km,
-            "mie_height": spec.mie_height_km, "rayleigh_beta": v(*spec.rayleigh_beta),
-            "mie_beta": v(*spec.mie_beta), "mie_extinction": v(*spec.mie_extinction), "g": spec.mie_g}
+    return {
+        "planet_radius": spec.planet_radius_km,
+        "rayleigh_height": spec.rayleigh_height_km,
+        "mie_height": spec.mie_height_km,
+        "rayleigh_beta": v(*spec.rayleigh_beta),
+        "mie_beta": v(*spec.mie_beta),
+        "mie_extinction": v(*spec.mie_extinction),
+        "g": spec.mie_g,
+    }
 
 
 def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
@@ -360,29 +382,49 @@ def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
 
     register(mi)
     props = _profile_props(spec, mi)
-    medium = {"type": MEDIUM_PLUGIN, "top_radius": spec.top_radius_km, **props,
-              "phase": {"type": PHASE_PLUGIN, **props}}
+    medium = {
+        "type": MEDIUM_PLUGIN,
+        "top_radius": spec.top_radius_km,
+        **props,
+        "phase": {"type": PHASE_PLUGIN, **props},
+    }
     alpha = math.radians(spec.sun_angular_radius_deg)
     radiance = [e / (math.pi * math.sin(alpha) ** 2) for e in spec.solar_irradiance]
     d = {
         "type": "scene",
         "integrator": {"type": "volpathmis", "max_depth": int(max_depth)},
-        "planet": {"type": "sphere", "center": [0, 0, 0], "radius": spec.planet_radius_km,
-                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [spec.ground_albedo] * 3}}},
-        "atmosphere": {"type": "sphere", "center": [0, 0, 0], "radius": spec.top_radius_km,
-                       "bsdf": {"type": "null"}, "interior": medium},
-        "sun": {"type": emitters.PLUGIN, "direction": mi.ScalarVector3f(*spec.sun_direction.tolist()),
-                "angular_radius": alpha, "radiance": mi.ScalarVector3f(*radiance),
-                "sky": mi.ScalarVector3f(0.0, 0.0, 0.0)},
+        "planet": {
+            "type": "sphere",
+            "center": [0, 0, 0],
+            "radius": spec.planet_radius_km,
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [spec.ground_albedo] * 3}},
+        },
+        "atmosphere": {
+            "type": "sphere",
+            "center": [0, 0, 0],
+            "radius": spec.top_radius_km,
+            "bsdf": {"type": "null"},
+            "interior": medium,
+        },
+        "sun": {
+            "type": emitters.PLUGIN,
+            "direction": mi.ScalarVector3f(*spec.sun_direction.tolist()),
+            "angular_radius": alpha,
+            "radiance": mi.ScalarVector3f(*radiance),
+            "sky": mi.ScalarVector3f(0.0, 0.0, 0.0),
+        },
     }
     if mi.is_spectral:
         # grey ground; the sun's disc radiance E₀(λ)/(π sin²α) on a 1 nm grid over Mitsuba's range
         d["planet"]["bsdf"]["reflectance"] = {"type": "uniform", "value": float(spec.ground_albedo)}
         lam = np.arange(CIE_MIN_NM, CIE_MAX_NM + 0.5, 1.0)
         disc = solar_spectrum(lam, spec.solar_irradiance[1]) / (math.pi * math.sin(alpha) ** 2)
-        d["sun"]["radiance_spectrum"] = {"type": "regular", "wavelength_min": float(lam[0]),
-                                         "wavelength_max": float(lam[-1]),
-                                         "values": ", ".join(f"{v:.9g}" for v in disc)}
+        d["sun"]["radiance_spectrum"] = {
+            "type": "regular",
+            "wavelength_min": float(lam[0]),
+            "wavelength_max": float(lam[-1]),
+            "values": ", ".join(f"{v:.9g}" for v in disc),
+        }
     return d
 
 
@@ -413,10 +455,13 @@ def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -
     for k, (a, b) in enumerate(_chunks(n, spp)):
         sampler.seed(sub_seed(seed, "sky", k), (b - a) * spp)
         idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + a
-        direction = mi.Vector3f(dr.gather(mi.Float, dx, idx), dr.gather(mi.Float, dy, idx),
-                                dr.gather(mi.Float, dz, idx))
+        direction = mi.Vector3f(
+            dr.gather(mi.Float, dx, idx), dr.gather(mi.Float, dy, idx), dr.gather(mi.Float, dz, idx)
+        )
         if mi.is_spectral:
-            value = _spectral_sample(mi, dr, scene, sampler, integrator, medium, origin, dr.normalize(direction))
+            value = _spectral_sample(
+                mi, dr, scene, sampler, integrator, medium, origin, dr.normalize(direction)
+            )
         else:
             ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), dr.normalize(direction))
             value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
@@ -462,8 +507,16 @@ def _use_variant(variant: str):
     return mi
 
 
-def render_sky(spec: AtmosphereSpec, dirs: np.ndarray, spp: int, pass_spp: int, seed: int,
-               variant: str, max_depth: int, cache_dir=None) -> dict:
+def render_sky(
+    spec: AtmosphereSpec,
+    dirs: np.ndarray,
+    spp: int,
+    pass_spp: int,
+    seed: int,
+    variant: str,
+    max_depth: int,
+    cache_dir=None,
+) -> dict:
     """Point-sampled radiance along ``dirs`` from the viewer, pooled over independent passes.
 
     Returns ``{"mean", "stderr"}`` (shape of ``dirs`` with last axis RGB, float64, W·m⁻²·sr⁻¹·nm⁻¹
@@ -477,12 +530,26 @@ def render_sky(spec: AtmosphereSpec, dirs: np.ndarray, spp: int, pass_spp: int, 
     if spp < 2 or pass_spp < 2:
         raise ValueError(f"spp and pass_spp must be >= 2 (got {spp}, {pass_spp})")
     if not (variant.startswith("llvm_") or variant.startswith("cuda_")):
-        raise ValueError(f"variant must be an llvm_*/cuda_* variant for the atmosphere reference (got {variant!r})")
+        raise ValueError(
+            f"variant must be an llvm_*/cuda_* variant for the atmosphere reference (got {variant!r})"
+        )
     shape = np.asarray(dirs).shape
     mi = _use_variant(variant)
     h = hashlib.sha256()
-    h.update(json.dumps({"f": _CACHE_FORMAT, "spec": asdict(spec), "depth": max_depth, "variant": variant,
-                         "seed": seed, "pass_spp": pass_spp, "mi": mi.__version__}, sort_keys=True).encode())
+    h.update(
+        json.dumps(
+            {
+                "f": _CACHE_FORMAT,
+                "spec": asdict(spec),
+                "depth": max_depth,
+                "variant": variant,
+                "seed": seed,
+                "pass_spp": pass_spp,
+                "mi": mi.__version__,
+            },
+            sort_keys=True,
+        ).encode()
+    )
     h.update(np.ascontiguousarray(dirs, dtype=np.float32).tobytes())
     key = h.hexdigest()
     folder = Path(cache_dir) / "atmosphere" / key[:2] / key if cache_dir else None
@@ -512,9 +579,15 @@ def render_sky(spec: AtmosphereSpec, dirs: np.ndarray, spp: int, pass_spp: int, 
     ss = sum((p.spp - 1) * p.var + p.spp * (p.mean - mean) ** 2 for p in passes)
     var = ss / max(n - 1, 1)
     stderr = np.sqrt(var / n)
-    return {"mean": mean.reshape(shape), "stderr": stderr.reshape(shape), "spp": n, "passes": len(passes),
-            "seconds": float(sum(p.seconds for p in passes)), "cache_key": key,
-            "samples_per_second": float(n * mean.shape[0] / max(sum(p.seconds for p in passes), 1e-9))}
+    return {
+        "mean": mean.reshape(shape),
+        "stderr": stderr.reshape(shape),
+        "spp": n,
+        "passes": len(passes),
+        "seconds": float(sum(p.seconds for p in passes)),
+        "cache_key": key,
+        "samples_per_second": float(n * mean.shape[0] / max(sum(p.seconds for p in passes), 1e-9)),
+    }
 
 
 # ------------------------------------------------------------------------ independent quadrature
@@ -552,8 +625,9 @@ def _sun_optical_depth(p: np.ndarray, s: np.ndarray, spec: AtmosphereSpec, nodes
     return tr, tm
 
 
-def single_scattering_quadrature(spec: AtmosphereSpec, dirs: np.ndarray, steps: int = 2000,
-                                 point_sun: bool = True) -> np.ndarray:
+def single_scattering_quadrature(
+    spec: AtmosphereSpec, dirs: np.ndarray, steps: int = 2000, point_sun: bool = True
+) -> np.ndarray:
     """Single-scattered sky radiance along ``dirs`` (…, 3) by direct float64 quadrature.
 
     L = E₀ ∫₀^{t_max} Σ_{k∈{R,M}} β_k ρ_k(x) P_k(cos γ) T(o→x) T_sun(x) dt, with t_max the exit
@@ -564,7 +638,9 @@ def single_scattering_quadrature(spec: AtmosphereSpec, dirs: np.ndarray, steps: 
     scattering events for a sky pixel)."""
     d = np.asarray(dirs, dtype=np.float64)
     shape = d.shape
-    br, bm, bme = (np.asarray(v, dtype=np.float64) for v in (spec.rayleigh_beta, spec.mie_beta, spec.mie_extinction))
+    br, bm, bme = (
+        np.asarray(v, dtype=np.float64) for v in (spec.rayleigh_beta, spec.mie_beta, spec.mie_extinction)
+    )
     out = _ss_quadrature(spec, d.reshape(-1, 3), steps, br, bm, bme)
     out *= np.asarray(spec.solar_irradiance)[None, :]
     return out.reshape(shape)
@@ -586,7 +662,7 @@ def _ss_quadrature(spec: AtmosphereSpec, d: np.ndarray, steps: int, br, bm, bme)
     t_max = np.where(hit, t_g, t_top)
     g = spec.mie_g
     cos_g = d @ s
-    pr = 3.0 / (16.0 * math.pi) * (1.0 + cos_g ** 2)
+    pr = 3.0 / (16.0 * math.pi) * (1.0 + cos_g**2)
     pm = (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g - 2.0 * g * cos_g) ** 1.5)
     u = np.linspace(0.0, 1.0, steps) ** 2
     out = np.zeros((d.shape[0], br.size))
@@ -621,7 +697,7 @@ def solar_spectrum(lam_nm, e550: float = 1.8504, temperature_k: float = SOLAR_TE
 
     def planck(x):
         x = x * 1e-9
-        return x ** -5 / np.expm1(1.4387769e-2 / (x * temperature_k))
+        return x**-5 / np.expm1(1.4387769e-2 / (x * temperature_k))
 
     return float(e550) * planck(lam) / planck(np.array(REFERENCE_WAVELENGTH_NM))
 
@@ -635,7 +711,12 @@ def spectral_coefficients(spec: AtmosphereSpec, lam_nm):
         raise ValueError("lam_nm must be finite and > 0")
     br = spec.rayleigh_beta[1] * (REFERENCE_WAVELENGTH_NM / lam) ** 4
     ones = np.ones_like(lam)
-    return br, spec.mie_beta[1] * ones, spec.mie_extinction[1] * ones, solar_spectrum(lam, spec.solar_irradiance[1])
+    return (
+        br,
+        spec.mie_beta[1] * ones,
+        spec.mie_extinction[1] * ones,
+        solar_spectrum(lam, spec.solar_irradiance[1]),
+    )
 
 
 _CIE_TABLE: dict = {}
@@ -673,7 +754,7 @@ def film_srgb(spectra, lam_nm) -> np.ndarray:
     if L.shape[-1] != lam.size:
         raise ValueError(f"spectra's last axis must have {lam.size} samples (got {L.shape[-1]})")
     knots, table = cie1931_table()
-    cmf = np.stack([np.interp(lam, knots, table[:, k]) for k in range(3)], axis=-1)   # (N, 3)
+    cmf = np.stack([np.interp(lam, knots, table[:, k]) for k in range(3)], axis=-1)  # (N, 3)
     w = np.zeros(lam.size)
     dl = np.diff(lam)
     w[:-1] += 0.5 * dl
@@ -682,8 +763,9 @@ def film_srgb(spectra, lam_nm) -> np.ndarray:
     return xyz @ XYZ_TO_SRGB.T
 
 
-def spectral_single_scattering_quadrature(spec: AtmosphereSpec, dirs: np.ndarray, steps: int = 2000,
-                                          step_nm: float = 1.0) -> dict:
+def spectral_single_scattering_quadrature(
+    spec: AtmosphereSpec, dirs: np.ndarray, steps: int = 2000, step_nm: float = 1.0
+) -> dict:
     """The spectral single-scattered sky along ``dirs`` (…, 3): `single_scattering_quadrature`'s
     integral per wavelength on λ = 360, 360 + step_nm, …, 830 nm with `spectral_coefficients`,
     then Mitsuba's film conversion (`film_srgb`). Returns ``{"srgb": (…, 3), "wavelengths_nm":
@@ -700,8 +782,13 @@ def spectral_single_scattering_quadrature(spec: AtmosphereSpec, dirs: np.ndarray
 
 
 # ------------------------------------------------------------------------------------ sunsky
-def sunsky_radiance(sun_elevation_deg: float, dirs: np.ndarray, variant: str = "llvm_ad_rgb",
-                    turbidity: float = 3.0, albedo: float = 0.1) -> dict:
+def sunsky_radiance(
+    sun_elevation_deg: float,
+    dirs: np.ndarray,
+    variant: str = "llvm_ad_rgb",
+    turbidity: float = 3.0,
+    albedo: float = 0.1,
+) -> dict:
     """Mitsuba's Hosek–Wilkie ``sunsky``: sky radiance along ``dirs`` (sun excluded) and the sun's
     irradiance at normal incidence (disc radiance at its centre × its solid angle), in sunsky's
     own units (facts note §6: W·m⁻²·sr⁻¹·nm⁻¹ in RGB). Only for sun elevation > 0."""
@@ -717,9 +804,20 @@ def sunsky_radiance(sun_elevation_deg: float, dirs: np.ndarray, variant: str = "
     aperture = 0.5358
 
     def emitter(sun_scale, sky_scale):
-        sc = mi.load_dict({"type": "scene", "sky": {"type": "sunsky", "sun_direction": sd, "turbidity": turbidity,
-                                                     "albedo": albedo, "sun_scale": sun_scale,
-                                                     "sky_scale": sky_scale, "sun_aperture": aperture}})
+        sc = mi.load_dict(
+            {
+                "type": "scene",
+                "sky": {
+                    "type": "sunsky",
+                    "sun_direction": sd,
+                    "turbidity": turbidity,
+                    "albedo": albedo,
+                    "sun_scale": sun_scale,
+                    "sky_scale": sky_scale,
+                    "sun_aperture": aperture,
+                },
+            }
+        )
         return sc.environment()
 
     def evaluate(em, d):

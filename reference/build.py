@@ -91,8 +91,9 @@ def _shape_dict(mi, shape) -> dict:
     if kind == "sphere":
         return {"type": "sphere", "center": list(shape.center), "radius": shape.radius, "bsdf": bsdf}
     if kind == "rectangle":
-        m = _planar_to_world(shape.center, shape.normal, shape.size[0] / 2, shape.size[1] / 2,
-                             shape.rotation_deg)
+        m = _planar_to_world(
+            shape.center, shape.normal, shape.size[0] / 2, shape.size[1] / 2, shape.rotation_deg
+        )
         return {"type": "rectangle", "to_world": _transform(mi, m), "bsdf": bsdf}
     if kind == "disk":
         m = _planar_to_world(shape.center, shape.normal, shape.radius, shape.radius)
@@ -101,13 +102,22 @@ def _shape_dict(mi, shape) -> dict:
         lin = rotation_matrix(shape.rotate_axis, shape.rotate_deg) @ np.diag(np.asarray(shape.size) / 2)
         return {"type": "cube", "to_world": _transform(mi, affine(lin, shape.center)), "bsdf": bsdf}
     if kind == "cylinder":
-        return {"type": "cylinder", "p0": list(shape.p0), "p1": list(shape.p1), "radius": shape.radius,
-                "bsdf": bsdf}
+        return {
+            "type": "cylinder",
+            "p0": list(shape.p0),
+            "p1": list(shape.p1),
+            "radius": shape.radius,
+            "bsdf": bsdf,
+        }
     if kind == "mesh":
         lin = rotation_matrix(shape.rotate_axis, shape.rotate_deg) @ np.diag(shape.scale)
-        return {"type": os.path.splitext(shape.file)[1][1:].lower(), "filename": shape.file,
-                "face_normals": shape.face_normals, "to_world": _transform(mi, affine(lin, shape.translate)),
-                "bsdf": bsdf}
+        return {
+            "type": os.path.splitext(shape.file)[1][1:].lower(),
+            "filename": shape.file,
+            "face_normals": shape.face_normals,
+            "to_world": _transform(mi, affine(lin, shape.translate)),
+            "bsdf": bsdf,
+        }
     raise ValueError(f"unsupported shape kind {kind!r}")
 
 
@@ -117,31 +127,67 @@ def _light_dicts(mi, light) -> dict:
     if kind == "sun":
         d = np.asarray(light.direction, dtype=np.float64)
         if light.angular_radius_deg == 0.0:
-            return {"": {"type": "directional", "direction": (-d).tolist(), "irradiance": _rgb(light.irradiance)}}
+            return {
+                "": {"type": "directional", "direction": (-d).tolist(), "irradiance": _rgb(light.irradiance)}
+            }
         alpha = math.radians(light.angular_radius_deg)
         radiance = [e / (math.pi * math.sin(alpha) ** 2) for e in light.irradiance]
-        return {"": {"type": emitters.PLUGIN, "direction": mi.ScalarVector3f(*d.tolist()),
-                     "angular_radius": alpha, "radiance": mi.ScalarVector3f(*radiance),
-                     "sky": mi.ScalarVector3f(0.0, 0.0, 0.0)}}
+        return {
+            "": {
+                "type": emitters.PLUGIN,
+                "direction": mi.ScalarVector3f(*d.tolist()),
+                "angular_radius": alpha,
+                "radiance": mi.ScalarVector3f(*radiance),
+                "sky": mi.ScalarVector3f(0.0, 0.0, 0.0),
+            }
+        }
     if kind == "sphere_light":
-        return {"": {"type": "sphere", "center": list(light.center), "radius": light.radius, "bsdf": _BLACK,
-                     "emitter": {"type": "area", "radiance": _rgb(light.radiance)}}}
+        return {
+            "": {
+                "type": "sphere",
+                "center": list(light.center),
+                "radius": light.radius,
+                "bsdf": _BLACK,
+                "emitter": {"type": "area", "radiance": _rgb(light.radiance)},
+            }
+        }
     if kind == "rect_light":
-        m = _planar_to_world(light.center, light.normal, light.size[0] / 2, light.size[1] / 2,
-                             light.rotation_deg)
-        return {"": {"type": "rectangle", "to_world": _transform(mi, m), "bsdf": _BLACK,
-                     "emitter": {"type": "area", "radiance": _rgb(light.radiance)}}}
+        m = _planar_to_world(
+            light.center, light.normal, light.size[0] / 2, light.size[1] / 2, light.rotation_deg
+        )
+        return {
+            "": {
+                "type": "rectangle",
+                "to_world": _transform(mi, m),
+                "bsdf": _BLACK,
+                "emitter": {"type": "area", "radiance": _rgb(light.radiance)},
+            }
+        }
     if kind == "constant_env":
         return {"": {"type": "constant", "radiance": _rgb(light.radiance)}}
     if kind == "envmap":
         m = affine(rotation_matrix((0, 0, 1), light.rotate_deg) @ rotation_matrix((1, 0, 0), 90.0), (0, 0, 0))
-        return {"": {"type": "envmap", "filename": light.file, "scale": light.scale,
-                     "to_world": _transform(mi, m)}}
+        return {
+            "": {
+                "type": "envmap",
+                "filename": light.file,
+                "scale": light.scale,
+                "to_world": _transform(mi, m),
+            }
+        }
     if kind == "sunsky":
-        return {"": {"type": "sunsky", "sun_direction": list(light.sun_direction),
-                     "turbidity": light.turbidity, "albedo": light.albedo, "sun_scale": light.sun_scale,
-                     "sky_scale": light.sky_scale, "sun_aperture": light.sun_aperture_deg,
-                     "complex_sun": light.complex_sun}}
+        return {
+            "": {
+                "type": "sunsky",
+                "sun_direction": list(light.sun_direction),
+                "turbidity": light.turbidity,
+                "albedo": light.albedo,
+                "sun_scale": light.sun_scale,
+                "sky_scale": light.sky_scale,
+                "sun_aperture": light.sun_aperture_deg,
+                "complex_sun": light.complex_sun,
+            }
+        }
     raise ValueError(f"unsupported light kind {kind!r}")
 
 
@@ -153,8 +199,12 @@ def _medium_dict(medium: HomogeneousMedium) -> dict:
 
         return fog_media.medium_dict(mi, medium)
     phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
-    return {"type": "homogeneous", "sigma_t": _rgb(medium.sigma_t), "albedo": _rgb(medium.albedo),
-            "phase": phase}
+    return {
+        "type": "homogeneous",
+        "sigma_t": _rgb(medium.sigma_t),
+        "albedo": _rgb(medium.albedo),
+        "phase": phase,
+    }
 
 
 def _inside(boundary, point) -> bool:
@@ -169,13 +219,25 @@ def _inside(boundary, point) -> bool:
 
 
 def _camera_dict(mi, camera) -> dict:
-    to_world = mi.ScalarTransform4f().look_at(origin=list(camera.origin), target=list(camera.target),
-                                              up=list(camera.up))
-    return {"type": "perspective", "fov": camera.fov_deg, "fov_axis": "x", "to_world": to_world,
-            "near_clip": camera.near_clip, "far_clip": camera.far_clip,
-            "film": {"type": "hdrfilm", "width": camera.width, "height": camera.height,
-                     "rfilter": {"type": "box"}, "pixel_format": "rgb"},
-            "sampler": {"type": "independent"}}
+    to_world = mi.ScalarTransform4f().look_at(
+        origin=list(camera.origin), target=list(camera.target), up=list(camera.up)
+    )
+    return {
+        "type": "perspective",
+        "fov": camera.fov_deg,
+        "fov_axis": "x",
+        "to_world": to_world,
+        "near_clip": camera.near_clip,
+        "far_clip": camera.far_clip,
+        "film": {
+            "type": "hdrfilm",
+            "width": camera.width,
+            "height": camera.height,
+            "rfilter": {"type": "box"},
+            "pixel_format": "rgb",
+        },
+        "sampler": {"type": "independent"},
+    }
 
 
 # ------------------------------------------------------------------------------- Mitsuba XML input
@@ -198,7 +260,8 @@ def _xml_shape_objects(mi, shape) -> list:
             if child.tag == "emitter" and not shape.keep_emitters:
                 elem.remove(child)
             elif shape.override_material is not None and (
-                child.tag == "bsdf" or (child.tag == "ref" and child.get("name") not in ("interior", "exterior"))
+                child.tag == "bsdf"
+                or (child.tag == "ref" and child.get("name") not in ("interior", "exterior"))
             ):
                 elem.remove(child)
         if shape.override_material is not None:
@@ -230,7 +293,11 @@ def _xml_shape_objects(mi, shape) -> list:
 def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = None) -> dict:
     """The ``mi.load_dict`` input for ``scene`` (``mi``: the mitsuba module with a variant set)."""
     integrator = integrator or choose_integrator(scene)
-    d: dict = {"type": "scene", "integrator": integrator.mitsuba_dict(), "sensor": _camera_dict(mi, scene.camera)}
+    d: dict = {
+        "type": "scene",
+        "integrator": integrator.mitsuba_dict(),
+        "sensor": _camera_dict(mi, scene.camera),
+    }
     for i, shape in enumerate(scene.shapes):
         if shape.kind == "mitsuba_xml":
             for j, obj in enumerate(_xml_shape_objects(mi, shape)):
@@ -255,15 +322,21 @@ def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = N
 def _merge_environments(mi, scene: Scene, d: dict) -> None:
     """Mitsuba takes one environment emitter: fold a constant sky into a finite sun's emitter."""
     suns = [k for k, v in d.items() if isinstance(v, dict) and v.get("type") == emitters.PLUGIN]
-    envs = [k for k, v in d.items() if isinstance(v, dict) and v.get("type") in ("constant", "envmap", "sunsky")]
+    envs = [
+        k for k, v in d.items() if isinstance(v, dict) and v.get("type") in ("constant", "envmap", "sunsky")
+    ]
     if len(suns) > 1:
-        raise ValueError(f"{scene.source}: at most one sun with angular_radius_deg > 0 per scene "
-                         "(Mitsuba takes one environment emitter)")
+        raise ValueError(
+            f"{scene.source}: at most one sun with angular_radius_deg > 0 per scene "
+            "(Mitsuba takes one environment emitter)"
+        )
     if suns and envs:
         env = d[envs[0]]
         if env["type"] != "constant":
-            raise ValueError(f"{scene.source}: a sun with angular_radius_deg > 0 cannot share a scene with "
-                             f"an {env['type']} environment (Mitsuba takes one environment emitter)")
+            raise ValueError(
+                f"{scene.source}: a sun with angular_radius_deg > 0 cannot share a scene with "
+                f"an {env['type']} environment (Mitsuba takes one environment emitter)"
+            )
         d[suns[0]]["sky"] = mi.ScalarVector3f(*env["radiance"]["value"])
         del d[envs[0]]
 
@@ -285,7 +358,9 @@ def plugin_types(d) -> set[str]:
     return found
 
 
-def load_mitsuba_scene(scene: Scene, variant: str = "llvm_ad_rgb", integrator: IntegratorChoice | None = None):
+def load_mitsuba_scene(
+    scene: Scene, variant: str = "llvm_ad_rgb", integrator: IntegratorChoice | None = None
+):
     """Build and load the Mitsuba scene for ``scene`` under ``variant``; returns ``(mi, mi_scene)``."""
     from .variants import use_variant
 

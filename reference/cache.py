@@ -104,9 +104,13 @@ class ReferenceRequest:
     def integrator(self) -> dict:
         if self.quantity == "radiance":
             return choose_integrator(self.scene).to_dict()
-        return {"type": f"irradiance-probe-{self.transport}", "max_depth": None,
-                "reason": "Mitsuba emitter sampling + cosine sampling (MIS)" if self.transport == "direct"
-                else "path-traced radiance along cosine-sampled directions"}
+        return {
+            "type": f"irradiance-probe-{self.transport}",
+            "max_depth": None,
+            "reason": "Mitsuba emitter sampling + cosine sampling (MIS)"
+            if self.transport == "direct"
+            else "path-traced radiance along cosine-sampled directions",
+        }
 
     def key(self) -> str:
         import drjit
@@ -166,9 +170,14 @@ class Reference:
             rel = self.stderr / np.abs(self.mean)
         rel = rel[np.isfinite(rel) & (np.abs(self.mean) > 0)]
         return {
-            "cache_key": self.key, "quantity": self.quantity, "integrator": self.integrator.get("type"),
-            "max_depth": self.integrator.get("max_depth"), "integrator_reason": self.integrator.get("reason"),
-            "variant": self.variant, "spp": self.spp, "passes": self.passes,
+            "cache_key": self.key,
+            "quantity": self.quantity,
+            "integrator": self.integrator.get("type"),
+            "max_depth": self.integrator.get("max_depth"),
+            "integrator_reason": self.integrator.get("reason"),
+            "variant": self.variant,
+            "spp": self.spp,
+            "passes": self.passes,
             "mean_rel_stderr": float(np.mean(rel)) if rel.size else 0.0,
             "samples_per_second": float(self.samples_per_second) if self.render_seconds > 0 else None,
         }
@@ -211,13 +220,19 @@ class ReferenceCache:
 
     def _save_pass(self, folder: Path, index: int, result: PassResult, as_points: bool):
         shape = (1, -1, 3) if as_points else result.mean.shape
-        write_exr(folder / f"pass-{index:05d}.exr",
-                  {"mean": result.mean.reshape(shape), "var": result.var.reshape(shape)})
-        atomic_write_json(folder / f"pass-{index:05d}.json",
-                          {"index": index, "spp": result.spp, "seed": result.seed, "seconds": result.seconds})
+        write_exr(
+            folder / f"pass-{index:05d}.exr",
+            {"mean": result.mean.reshape(shape), "var": result.var.reshape(shape)},
+        )
+        atomic_write_json(
+            folder / f"pass-{index:05d}.json",
+            {"index": index, "spp": result.spp, "seed": result.seed, "seconds": result.seconds},
+        )
 
     # -- the public entry point
-    def get(self, request: ReferenceRequest, *, progress: bool = False, label: str | None = None) -> Reference:
+    def get(
+        self, request: ReferenceRequest, *, progress: bool = False, label: str | None = None
+    ) -> Reference:
         """Return the reference for ``request``, rendering only the passes not cached yet."""
         from .build import load_mitsuba_scene
 
@@ -225,7 +240,9 @@ class ReferenceCache:
         folder = self.entry_dir(key)
         folder.mkdir(parents=True, exist_ok=True)
         as_points = request.quantity == "irradiance"
-        results: list[PassResult | None] = [self._load_pass(folder, i, as_points) for i in range(request.passes)]
+        results: list[PassResult | None] = [
+            self._load_pass(folder, i, as_points) for i in range(request.passes)
+        ]
         missing = [i for i, r in enumerate(results) if r is None]
         if missing:
             atomic_write_json(folder / "entry.json", self._entry_info(request, key))
@@ -236,8 +253,15 @@ class ReferenceCache:
                 pass_spp = max(pass_spp, 2)
                 seed = sub_seed(request.seed, "pass", i)
                 if as_points:
-                    r = irradiance_pass(mi, mi_scene, np.asarray(request.points), np.asarray(request.normals),
-                                        pass_spp, seed, request.transport)
+                    r = irradiance_pass(
+                        mi,
+                        mi_scene,
+                        np.asarray(request.points),
+                        np.asarray(request.normals),
+                        pass_spp,
+                        seed,
+                        request.transport,
+                    )
                 else:
                     r = radiance_pass(mi, mi_scene, pass_spp, seed)
                 self._save_pass(folder, i, r, as_points)
@@ -251,20 +275,36 @@ class ReferenceCache:
         if missing:
             shape = (1, -1, 3) if as_points else mean.shape
             write_exr(folder / "reference.exr", {"RGB": mean.reshape(shape), "stderr": stderr.reshape(shape)})
-        return Reference(key=key, path=str(folder), quantity=request.quantity, mean=mean, stderr=stderr,
-                         spp=total, passes=len(passes), passes_rendered=len(missing),
-                         integrator=request.integrator(), variant=request.variant,
-                         render_seconds=float(sum(p.seconds for p in passes)))
+        return Reference(
+            key=key,
+            path=str(folder),
+            quantity=request.quantity,
+            mean=mean,
+            stderr=stderr,
+            spp=total,
+            passes=len(passes),
+            passes_rendered=len(missing),
+            integrator=request.integrator(),
+            variant=request.variant,
+            render_seconds=float(sum(p.seconds for p in passes)),
+        )
 
     def _entry_info(self, request: ReferenceRequest, key: str) -> dict:
         import drjit
         import mitsuba
 
-        return {"key": key, "format": CACHE_FORMAT, "quantity": request.quantity,
-                "variant": request.variant, "seed": request.seed, "pass_spp": request.pass_spp,
-                "integrator": request.integrator(), "scene": scene_to_dict(request.scene),
-                "scene_hash": scene_hash(request.scene),
-                "versions": {"mitsuba": mitsuba.__version__, "drjit": drjit.__version__}}
+        return {
+            "key": key,
+            "format": CACHE_FORMAT,
+            "quantity": request.quantity,
+            "variant": request.variant,
+            "seed": request.seed,
+            "pass_spp": request.pass_spp,
+            "integrator": request.integrator(),
+            "scene": scene_to_dict(request.scene),
+            "scene_hash": scene_hash(request.scene),
+            "versions": {"mitsuba": mitsuba.__version__, "drjit": drjit.__version__},
+        }
 
 
 def _as_stored(a: np.ndarray) -> np.ndarray:

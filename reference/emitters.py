@@ -72,8 +72,9 @@ def register(mi) -> None:
             self.sky_value = float(s[0])
             self.spectrum = props.get("radiance_spectrum") if "radiance_spectrum" in props else None
             if self.spectrum is None and (float(r[0]) != float(r[1]) or float(r[1]) != float(r[2])):
-                raise ValueError(f"{PLUGIN}: a spectral variant needs 'radiance_spectrum' or a grey 'radiance' "
-                                 f"(got {r})")
+                raise ValueError(
+                    f"{PLUGIN}: a spectral variant needs 'radiance_spectrum' or a grey 'radiance' (got {r})"
+                )
             self.grey = float(r[0])
 
         def _disc_spectrum(self, wavelengths):
@@ -87,8 +88,9 @@ def register(mi) -> None:
         def attach_to_scene(self, scene):
             bbox = scene.bbox()
             extent = float(dr.norm(bbox.extents())) if bbox.valid() else 1.0
-            self.shadow_distance = mi.Float(max(2.0 * extent + float(dr.norm(bbox.center())), 1.0)
-                                            if bbox.valid() else 1e7)
+            self.shadow_distance = mi.Float(
+                max(2.0 * extent + float(dr.norm(bbox.center())), 1.0) if bbox.valid() else 1e7
+            )
 
         def _inside(self, w):
             return dr.squared_norm(w - self.direction) <= 2.0 * self.one_minus_cos

@@ -57,7 +57,6 @@ def probe_dir() -> Path:
     return _ROOT.parent / "shared" / "probes"
 
 
-
 # name → (file, projection). pbrt-v2: s = atan2(y, x)/2π, t = acos(z)/π in the file's frame, whose +Z is the
 # world's nadir (the floor is on the top row): the file frame is the world rotated by 180° about +X.
 # probulator: +Y up, d = (sin φ sin θ, cos φ, −sin φ cos θ), θ = π(2u − 1), φ = πv (README of the probes).
@@ -69,8 +68,10 @@ PROBES = {
     "pisa": ("probulator_pisa.hdr", "probulator"),
     "wells": ("probulator_wells.hdr", "probulator"),
 }
-PROBE_CREDITS = ("Light probes: Paul Debevec and USC ICT (Grace Cathedral, Uffizi, Ennis, Pisa), "
-                 "Bernhard Vogl (Wells); files from pbrt-v2 and kayru/Probulator.")
+PROBE_CREDITS = (
+    "Light probes: Paul Debevec and USC ICT (Grace Cathedral, Uffizi, Ennis, Pisa), "
+    "Bernhard Vogl (Wells); files from pbrt-v2 and kayru/Probulator."
+)
 SUNSKY_APERTURE_DEG = 0.5358  # Mitsuba's default sun aperture (full angle)
 
 
@@ -157,8 +158,9 @@ def quadrature_samples(img: np.ndarray, supersample: int):
     return uv_to_direction(uu, vv).reshape(-1, 3), wgt.reshape(-1), bilinear(img, uu, vv).reshape(-1, 3)
 
 
-def irradiance_quadrature(env: Environment, normals, supersample: int = 4, backend: str | None = None,
-                          include_sun: bool = True) -> np.ndarray:
+def irradiance_quadrature(
+    env: Environment, normals, supersample: int = 4, backend: str | None = None, include_sun: bool = True
+) -> np.ndarray:
     """Irradiance (N, 3) of ``env`` at unit ``normals`` (N, 3): dense midpoint quadrature of the map
     (error O(h²) away from the horizon kink), π·L for a constant, plus the sun's exact disc irradiance.
 
@@ -178,7 +180,7 @@ def irradiance_quadrature(env: Environment, normals, supersample: int = 4, backe
         if backend is None:
             chunk = max(256, (1 << 21) // max(len(n), 1))
             for a in range(0, len(d), chunk):
-                e += np.maximum(n @ d[a:a + chunk].T, 0.0) @ wl[a:a + chunk]
+                e += np.maximum(n @ d[a : a + chunk].T, 0.0) @ wl[a : a + chunk]
         elif len(d):
             e += _quadrature_drjit(n, d, wl, backend)
     if include_sun and env.sun is not None:
@@ -203,8 +205,11 @@ def _quadrature_drjit(n: np.ndarray, d: np.ndarray, wl: np.ndarray, backend: str
         idx = dr.arange(U, (b - a) * m)
         di, ni = idx % m, idx // m
         nb = [F(np.ascontiguousarray(n[a:b, k])) for k in range(3)]
-        cos = (dr.gather(F, nb[0], ni) * dr.gather(F, dirs[0], di) + dr.gather(F, nb[1], ni) * dr.gather(F, dirs[1], di)
-               + dr.gather(F, nb[2], ni) * dr.gather(F, dirs[2], di))
+        cos = (
+            dr.gather(F, nb[0], ni) * dr.gather(F, dirs[0], di)
+            + dr.gather(F, nb[1], ni) * dr.gather(F, dirs[1], di)
+            + dr.gather(F, nb[2], ni) * dr.gather(F, dirs[2], di)
+        )
         c = dr.maximum(cos, 0.0)
         sums = [dr.block_sum(c * dr.gather(F, wts[k], di), m) for k in range(3)]
         dr.eval(sums)
@@ -257,19 +262,28 @@ def _cap_numeric(cos_t, alpha, n_r: int = 64, n_phi: int = 256):
 # =========================================================================================== synthetic maps
 def constant_environment(radiance=1.0) -> Environment:
     r = tuple(float(x) for x in np.broadcast_to(np.asarray(radiance, np.float64), (3,)))
-    return Environment("constant", f"constant L = {r[0]:g}", "constant", constant=r,
-                       params={"radiance": r[0]})
+    return Environment(
+        "constant", f"constant L = {r[0]:g}", "constant", constant=r, params={"radiance": r[0]}
+    )
 
 
-def sun_environment(angular_radius_deg: float, elevation_deg: float = 45.0, azimuth_deg: float = 30.0,
-                    irradiance: float = math.pi) -> Environment:
+def sun_environment(
+    angular_radius_deg: float,
+    elevation_deg: float = 45.0,
+    azimuth_deg: float = 30.0,
+    irradiance: float = math.pi,
+) -> Environment:
     a = float(angular_radius_deg)
     if not (0.0 < a < 90.0):
         raise ValueError(f"angular_radius_deg must be in (0, 90) (got {angular_radius_deg!r})")
     d = _direction(elevation_deg, azimuth_deg)
-    return Environment(f"sun-{a:g}", f"sun α = {a:g}°, elevation {elevation_deg:g}°", "sun",
-                       sun=DiscSun(d, a, (irradiance,) * 3),
-                       params={"angular_radius_deg": a, "sun_elevation_deg": float(elevation_deg)})
+    return Environment(
+        f"sun-{a:g}",
+        f"sun α = {a:g}°, elevation {elevation_deg:g}°",
+        "sun",
+        sun=DiscSun(d, a, (irradiance,) * 3),
+        params={"angular_radius_deg": a, "sun_elevation_deg": float(elevation_deg)},
+    )
 
 
 def _direction(elevation_deg, azimuth_deg) -> tuple[float, float, float]:
@@ -288,8 +302,8 @@ def _smooth_cap(d: np.ndarray, axis, radius_deg: float) -> np.ndarray:
 
 
 STUDIO_LIGHTS = (  # (elevation°, azimuth°, radius°, RGB radiance)
-    (35.0, 40.0, 8.0, (60.0, 58.0, 55.0)),    # key
-    (20.0, -70.0, 6.0, (12.0, 14.0, 18.0)),   # fill (cool)
+    (35.0, 40.0, 8.0, (60.0, 58.0, 55.0)),  # key
+    (20.0, -70.0, 6.0, (12.0, 14.0, 18.0)),  # fill (cool)
     (60.0, 170.0, 4.0, (120.0, 110.0, 90.0)),  # rim (warm, small)
 )
 
@@ -324,8 +338,9 @@ def map_environment(name: str, label: str, kind: str, img: np.ndarray, **params)
 
 
 # =========================================================================================== sunsky
-def sunsky_environment(mi, elevation_deg: float, height: int, width: int, turbidity: float = 3.0,
-                       azimuth_deg: float = 30.0) -> Environment:
+def sunsky_environment(
+    mi, elevation_deg: float, height: int, width: int, turbidity: float = 3.0, azimuth_deg: float = 30.0
+) -> Environment:
     """Mitsuba ``sunsky`` as a baked sky map (sun_scale 0) plus a disc sun (sky_scale 0) whose E⊥ is
     integrated from the emitter's radiance (``mi``: the mitsuba module with an RGB variant set)."""
     import drjit as dr
@@ -334,8 +349,13 @@ def sunsky_environment(mi, elevation_deg: float, height: int, width: int, turbid
     if not (0.0 < el <= 90.0):
         raise ValueError(f"sun elevation_deg must be in (0, 90] for the baked sunsky (got {elevation_deg!r})")
     d_sun = np.array(_direction(el, azimuth_deg))
-    base = {"type": "sunsky", "sun_direction": d_sun.tolist(), "turbidity": float(turbidity), "albedo": 0.3,
-            "sun_aperture": SUNSKY_APERTURE_DEG}
+    base = {
+        "type": "sunsky",
+        "sun_direction": d_sun.tolist(),
+        "turbidity": float(turbidity),
+        "albedo": 0.3,
+        "sun_aperture": SUNSKY_APERTURE_DEG,
+    }
     sky = mi.load_dict({**base, "sun_scale": 0.0})
     dirs = node_directions(height, width).reshape(-1, 3)
     img = _eval_emitter(mi, dr, sky, dirs).reshape(height, width, 3)
@@ -347,12 +367,20 @@ def sunsky_environment(mi, elevation_deg: float, height: int, width: int, turbid
     negative = [int(c) for c in np.nonzero(e_perp < 0)[0]]
     e_perp = np.maximum(e_perp, 0.0)
     sun = DiscSun(tuple(float(v) for v in d_sun), SUNSKY_APERTURE_DEG / 2, tuple(float(v) for v in e_perp))
-    return Environment(f"sunsky-{el:g}", f"sunsky, sun elevation {el:g}°", "sunsky",
-                       radiance_map=img.astype(np.float32), sun=sun,
-                       params={"sun_elevation_deg": el, "turbidity": float(turbidity),
-                               "sun_irradiance_rgb": list(sun.irradiance),
-                               "sun_irradiance_eval_rgb": [float(v) for v in e_eval],
-                               "sun_negative_channels": negative})
+    return Environment(
+        f"sunsky-{el:g}",
+        f"sunsky, sun elevation {el:g}°",
+        "sunsky",
+        radiance_map=img.astype(np.float32),
+        sun=sun,
+        params={
+            "sun_elevation_deg": el,
+            "turbidity": float(turbidity),
+            "sun_irradiance_rgb": list(sun.irradiance),
+            "sun_irradiance_eval_rgb": [float(v) for v in e_eval],
+            "sun_negative_channels": negative,
+        },
+    )
 
 
 def sunsky_sun_irradiance(mi, sun_only, d_sun: np.ndarray, samples: int = 1 << 18):
@@ -416,7 +444,7 @@ def _box_down(img: np.ndarray, factor: int) -> np.ndarray:
         return img
     h, w = img.shape[:2]
     h2, w2 = h // factor, w // factor
-    return img[:h2 * factor, :w2 * factor].reshape(h2, factor, w2, factor, 3).mean(axis=(1, 3))
+    return img[: h2 * factor, : w2 * factor].reshape(h2, factor, w2, factor, 3).mean(axis=(1, 3))
 
 
 def _source_lookup(src: np.ndarray, fu: np.ndarray, fv: np.ndarray) -> np.ndarray:
@@ -468,8 +496,15 @@ def probe_environment(name: str, height: int | None = None, probe_dir: Path | No
     d = node_directions(h, 2 * h)
     img = _source_lookup(src, *probe_source_uv(projection, d))
     img = np.maximum(img, 0.0)
-    return map_environment(f"probe-{name}", f"probe: {name}", "probe", img, probe=name, file=fname,
-                           source_shape=list(src.shape[:2]))
+    return map_environment(
+        f"probe-{name}",
+        f"probe: {name}",
+        "probe",
+        img,
+        probe=name,
+        file=fname,
+        source_shape=list(src.shape[:2]),
+    )
 
 
 def write_map_exr(img: np.ndarray, path) -> Path:

@@ -199,8 +199,9 @@ def _gbuffer_scalar(mi, mi_scene, sensor, width, height) -> GBuffer:
     emit = np.zeros_like(mask)
     for j in range(height):
         for i in range(width):
-            ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((i + 0.5) / width, (j + 0.5) / height),
-                                       mi.Point2f(0.5, 0.5))
+            ray, _ = sensor.sample_ray(
+                0.0, 0.5, mi.Point2f((i + 0.5) / width, (j + 0.5) / height), mi.Point2f(0.5, 0.5)
+            )
             view[j, i] = np.array(ray.d)
             si = mi_scene.ray_intersect(ray)
             if not si.is_valid():
@@ -218,8 +219,9 @@ def _gbuffer_scalar(mi, mi_scene, sensor, width, height) -> GBuffer:
 
 
 # ---------------------------------------------------------------------------------- irradiance pass
-def irradiance_pass(mi, mi_scene, points: np.ndarray, normals: np.ndarray, spp: int, seed: int,
-                    transport: str = "direct") -> PassResult:
+def irradiance_pass(
+    mi, mi_scene, points: np.ndarray, normals: np.ndarray, spp: int, seed: int, transport: str = "direct"
+) -> PassResult:
     """Irradiance (W/m², RGB) at ``points`` (N, 3) for unit ``normals`` (N, 3)."""
     import drjit as dr
 

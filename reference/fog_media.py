@@ -52,8 +52,10 @@ def majorant(density: float, falloff: float, gradient, gradient_origin, to_world
     g = np.asarray(gradient, dtype=np.float64)
     g = g / np.linalg.norm(g)
     q0 = np.asarray(gradient_origin, dtype=np.float64)
-    hmin = min(float((to_world @ np.array([*c, 1.0]))[:3] @ g - q0 @ g)
-               for c in itertools.product((-1.0, 1.0), repeat=3))
+    hmin = min(
+        float((to_world @ np.array([*c, 1.0]))[:3] @ g - q0 @ g)
+        for c in itertools.product((-1.0, 1.0), repeat=3)
+    )
     value = density * math.exp(min(-falloff * hmin, 700.0))
     return value * (1.0 + _MAJORANT_MARGIN)
 
@@ -62,11 +64,17 @@ def medium_dict(mi, medium) -> dict:
     """``mi.load_dict`` entry for a scene `ExponentialFog` (``mi``: the mitsuba module, variant set)."""
     m = region_matrix(medium.boundary)
     phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
-    return {"type": PLUGIN, "density": float(medium.density), "falloff": float(medium.falloff),
-            "gradient": mi.ScalarVector3f(*[float(x) for x in medium.gradient]),
-            "gradient_origin": mi.ScalarVector3f(*[float(x) for x in medium.gradient_origin]),
-            "to_world": mi.ScalarTransform4f(m.tolist()), "ellipsoid": bool(medium.ellipsoid),
-            "albedo": mi.ScalarVector3f(*[float(x) for x in medium.albedo]), "phase": phase}
+    return {
+        "type": PLUGIN,
+        "density": float(medium.density),
+        "falloff": float(medium.falloff),
+        "gradient": mi.ScalarVector3f(*[float(x) for x in medium.gradient]),
+        "gradient_origin": mi.ScalarVector3f(*[float(x) for x in medium.gradient_origin]),
+        "to_world": mi.ScalarTransform4f(m.tolist()),
+        "ellipsoid": bool(medium.ellipsoid),
+        "albedo": mi.ScalarVector3f(*[float(x) for x in medium.albedo]),
+        "phase": phase,
+    }
 
 
 def register(mi) -> None:
@@ -95,18 +103,19 @@ def register(mi) -> None:
             self.albedo = mi.Color3f(float(a[0]), float(a[1]), float(a[2]))
             self.maj = majorant(self.b, self.c, gv, qv, to_world)
             self.grad = mi.Vector3f(*gv.tolist())
-            self.h_offset = float(qv @ gv)       # h(p) = p·ĝ − p₀·ĝ
+            self.h_offset = float(qv @ gv)  # h(p) = p·ĝ − p₀·ĝ
             self.inv_lin = mi.Matrix3f(inv[:3, :3].tolist())
             self.inv_t = mi.Vector3f(*inv[:3, 3].tolist())
-            self.unit_box = mi.BoundingBox3f(mi.ScalarPoint3f(-1.0, -1.0, -1.0),
-                                             mi.ScalarPoint3f(1.0, 1.0, 1.0))
+            self.unit_box = mi.BoundingBox3f(
+                mi.ScalarPoint3f(-1.0, -1.0, -1.0), mi.ScalarPoint3f(1.0, 1.0, 1.0)
+            )
 
         def _to_local_point(self, p):
             return self.inv_lin @ mi.Vector3f(p) + self.inv_t
 
         def intersect_aabb(self, ray):
             o = mi.Point3f(self._to_local_point(ray.o))
-            d = self.inv_lin @ mi.Vector3f(ray.d)   # not renormalised: t stays in world units
+            d = self.inv_lin @ mi.Vector3f(ray.d)  # not renormalised: t stays in world units
             return self.unit_box.ray_intersect(mi.Ray3f(o, d))
 
         def get_majorant(self, mei, active=True):
@@ -134,8 +143,9 @@ def register(mi) -> None:
     _registered.add(variant)
 
 
-def sky_statistics(sunsky, variant: str = "llvm_ad_rgb", n_azimuth: int = 256, n_dirs: int = 1 << 16,
-                   seed: int = 0) -> dict:
+def sky_statistics(
+    sunsky, variant: str = "llvm_ad_rgb", n_azimuth: int = 256, n_dirs: int = 1 << 16, seed: int = 0
+) -> dict:
     """Radiance statistics of a scene `SunSky` light (Mitsuba's ``sunsky`` evaluated directly, RGB):
 
     * ``horizon``: mean sky radiance over azimuth at elevations 1°–5° (the seed's horizon average,
@@ -191,5 +201,10 @@ def sky_statistics(sunsky, variant: str = "llvm_ad_rgb", n_azimuth: int = 256, n
     w = (np.sin(R) * (ap * 1.0001 / nr) * (2 * math.pi / nphi)).reshape(-1, 1)
     ls = radiance(d) - upper_mean  # the sky under the disc is in upper_mean already
     sun_e = np.maximum((ls * w).sum(axis=0), 0.0)
-    return {"horizon": horizon.tolist(), "upper_mean": upper_mean.tolist(), "sun_irradiance": sun_e.tolist(),
-            "sky_irradiance_horizontal": sky_e.tolist(), "sun_direction": sun.tolist()}
+    return {
+        "horizon": horizon.tolist(),
+        "upper_mean": upper_mean.tolist(),
+        "sun_irradiance": sun_e.tolist(),
+        "sky_irradiance_horizontal": sky_e.tolist(),
+        "sun_direction": sun.tolist(),
+    }

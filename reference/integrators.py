@@ -71,16 +71,18 @@ def choose_integrator(scene: Scene) -> IntegratorChoice:
     settings = scene.reference
     if scene.media:
         if settings.transport == "direct":
-            return IntegratorChoice("volpathmis", SINGLE_BOUNCE_DEPTH,
-                                    "media present, single scattering requested")
+            return IntegratorChoice(
+                "volpathmis", SINGLE_BOUNCE_DEPTH, "media present, single scattering requested"
+            )
         depth = settings.max_depth if settings.max_depth is not None else -1
-        return IntegratorChoice("volpathmis", depth,
-                                "media present: volpathmis is unbiased with chromatic extinction")
+        return IntegratorChoice(
+            "volpathmis", depth, "media present: volpathmis is unbiased with chromatic extinction"
+        )
     if settings.transport == "direct":
         return IntegratorChoice("direct", None, "direct transport requested")
     if not can_interreflect(scene):
         return IntegratorChoice(
-            "direct", None,
-            "global transport, but no reflective surface can see another: one bounce is exact")
+            "direct", None, "global transport, but no reflective surface can see another: one bounce is exact"
+        )
     depth = settings.max_depth if settings.max_depth is not None else -1
     return IntegratorChoice("path", depth, "global transport with interreflections")

@@ -141,7 +141,8 @@ def atomic_write_json(path, obj) -> Path:
         where, value = hit
         raise NonFiniteJSONError(
             f"{path}: {where} is {value!r}; NaN and infinities are not valid JSON results "
-            "(nothing was written)") from None
+            "(nothing was written)"
+        ) from None
     except TypeError as e:
         raise TypeError(f"{path}: cannot write JSON: {e}") from None
     return atomic_write_text(path, text + "\n")

@@ -94,9 +94,15 @@ class SunskySky:
         return np.array([math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e)])
 
     def to_dict(self) -> dict:
-        return {"emitter": "sunsky (Mitsuba), sun_scale 0", "sun_elevation_deg": self.elevation_deg,
-                "sun_azimuth_deg": self.azimuth_deg, "turbidity": self.turbidity, "ground_albedo": 0.3,
-                "sun_direction": [float(v) for v in self.sun_direction()], "scalar": "luminance Y (Rec. 709)"}
+        return {
+            "emitter": "sunsky (Mitsuba), sun_scale 0",
+            "sun_elevation_deg": self.elevation_deg,
+            "sun_azimuth_deg": self.azimuth_deg,
+            "turbidity": self.turbidity,
+            "ground_albedo": 0.3,
+            "sun_direction": [float(v) for v in self.sun_direction()],
+            "scalar": "luminance Y (Rec. 709)",
+        }
 
 
 _SKY_CACHE: dict = {}
@@ -109,9 +115,16 @@ def sunsky_emitter(mi, sky: SunskySky):
 
     key = ("emitter", mi.variant(), sky)
     if key not in _SKY_CACHE:
-        _SKY_CACHE[key] = mi.load_dict({"type": "sunsky", "sun_direction": sky.sun_direction().tolist(),
-                                        "turbidity": sky.turbidity, "albedo": 0.3,
-                                        "sun_aperture": SUNSKY_APERTURE_DEG, "sun_scale": 0.0})
+        _SKY_CACHE[key] = mi.load_dict(
+            {
+                "type": "sunsky",
+                "sun_direction": sky.sun_direction().tolist(),
+                "turbidity": sky.turbidity,
+                "albedo": 0.3,
+                "sun_aperture": SUNSKY_APERTURE_DEG,
+                "sun_scale": 0.0,
+            }
+        )
     return _SKY_CACHE[key]
 
 
@@ -126,8 +139,9 @@ def sunsky_sky_nodes(mi, sky: SunskySky, height: int = SKY_BAKE_HEIGHT, supersam
         raise ValueError(f"height must be an odd integer >= 3 (a node row on the horizon; got {height!r})")
     key = ("nodes", mi.variant(), sky, int(height), int(supersample))
     if key not in _SKY_CACHE:
-        env = sunsky_environment(mi, sky.elevation_deg, int(height), 2 * (int(height) - 1), sky.turbidity,
-                                 sky.azimuth_deg)
+        env = sunsky_environment(
+            mi, sky.elevation_deg, int(height), 2 * (int(height) - 1), sky.turbidity, sky.azimuth_deg
+        )
         d, w, rgb = quadrature_samples(env.radiance_map, int(supersample))
         up = d[:, 2] > 0
         _SKY_CACHE[key] = (d[up], w[up], rgb[up] @ np.asarray(LUMINANCE))
@@ -146,7 +160,7 @@ def sunsky_irradiance(mi, sky: SunskySky, normals, height: int = SKY_BAKE_HEIGHT
     out = np.empty(len(n))
     per = max(1, (1 << 22) // max(len(d), 1))
     for a in range(0, len(n), per):
-        out[a:a + per] = np.maximum(n[a:a + per] @ d.T, 0.0) @ wl
+        out[a : a + per] = np.maximum(n[a : a + per] @ d.T, 0.0) @ wl
     return out
 
 
@@ -169,8 +183,19 @@ def _check(quantity, spp, max_distance, albedo):
         raise ValueError(f"albedo must be in [0, 1) (got {albedo!r})")
 
 
-def occlusion_pass(mi, mi_scene, points, normals, spp: int, seed: int, *, quantity: str = "ao",
-                   max_distance: float = math.inf, albedo: float = 0.8, sky: SunskySky | None = None) -> PassResult:
+def occlusion_pass(
+    mi,
+    mi_scene,
+    points,
+    normals,
+    spp: int,
+    seed: int,
+    *,
+    quantity: str = "ao",
+    max_distance: float = math.inf,
+    albedo: float = 0.8,
+    sky: SunskySky | None = None,
+) -> PassResult:
     """One pass of ``spp`` samples per point; mean/var arrays of shape (N,) (float64). ``sky``: the sky of
     the sunsky quantities (None: ``SunskySky()``, 30° elevation, 60° azimuth, turbidity 3)."""
     import drjit as dr
@@ -286,9 +311,12 @@ def sdfgrid_dict(mi, grid) -> dict:
     m = np.eye(4)
     m[:3, :3] = np.diag(scale)
     m[:3, 3] = o
-    return {"type": "sdfgrid", "grid": mi.TensorXf(np.ascontiguousarray(grid.values, dtype=np.float32)[..., None]),
-            "to_world": mi.ScalarTransform4f(m.tolist()),
-            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}}}
+    return {
+        "type": "sdfgrid",
+        "grid": mi.TensorXf(np.ascontiguousarray(grid.values, dtype=np.float32)[..., None]),
+        "to_world": mi.ScalarTransform4f(m.tolist()),
+        "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
+    }
 
 
 def sdfgrid_scene(mi, grid, camera=None):
@@ -318,12 +346,18 @@ class OcclusionReference:
         return self.mean.size * self.spp / self.seconds if self.seconds > 0 else 0.0
 
     def to_dict(self) -> dict:
-        return {"integrator": f"rtfit ray-cast {self.quantity} (Mitsuba ray_test/ray_intersect)",
-                "quantity": self.quantity, "spp": self.spp, "passes": self.passes, "cache_key": self.key,
-                "mean_rel_stderr": float(np.mean(self.stderr[self.mean > 0] / self.mean[self.mean > 0]))
-                if np.any(self.mean > 0) else 0.0,
-                "samples_per_second": float(self.samples_per_second) if self.seconds > 0 else None,
-                **({"sky": self.sky} if self.sky is not None else {})}
+        return {
+            "integrator": f"rtfit ray-cast {self.quantity} (Mitsuba ray_test/ray_intersect)",
+            "quantity": self.quantity,
+            "spp": self.spp,
+            "passes": self.passes,
+            "cache_key": self.key,
+            "mean_rel_stderr": float(np.mean(self.stderr[self.mean > 0] / self.mean[self.mean > 0]))
+            if np.any(self.mean > 0)
+            else 0.0,
+            "samples_per_second": float(self.samples_per_second) if self.seconds > 0 else None,
+            **({"sky": self.sky} if self.sky is not None else {}),
+        }
 
 
 class OcclusionCache:
@@ -332,9 +366,23 @@ class OcclusionCache:
     def __init__(self, root):
         self.root = Path(root) / "occlusion"
 
-    def get(self, mi, mi_scene, geometry_hash: str, points, normals, *, spp: int, pass_spp: int, seed: int,
-            variant: str, quantity: str = "ao", max_distance: float = math.inf, albedo: float = 0.8,
-            sky: SunskySky | None = None) -> OcclusionReference:
+    def get(
+        self,
+        mi,
+        mi_scene,
+        geometry_hash: str,
+        points,
+        normals,
+        *,
+        spp: int,
+        pass_spp: int,
+        seed: int,
+        variant: str,
+        quantity: str = "ao",
+        max_distance: float = math.inf,
+        albedo: float = 0.8,
+        sky: SunskySky | None = None,
+    ) -> OcclusionReference:
         import drjit
         import mitsuba
 
@@ -344,11 +392,18 @@ class OcclusionCache:
         h = hashlib.sha256()
         h.update(np.ascontiguousarray(points, dtype=np.float32).tobytes())
         h.update(np.ascontiguousarray(normals, dtype=np.float32).tobytes())
-        ident = {"format": FORMAT, "geometry": geometry_hash, "points": h.hexdigest(), "quantity": quantity,
-                 "max_distance": None if not math.isfinite(max_distance) else float(max_distance),
-                 "albedo": float(albedo) if quantity in ("sky_global", "sunsky_global") else None,
-                 "seed": int(seed), "pass_spp": int(pass_spp), "variant": variant,
-                 "versions": [mitsuba.__version__, drjit.__version__]}
+        ident = {
+            "format": FORMAT,
+            "geometry": geometry_hash,
+            "points": h.hexdigest(),
+            "quantity": quantity,
+            "max_distance": None if not math.isfinite(max_distance) else float(max_distance),
+            "albedo": float(albedo) if quantity in ("sky_global", "sunsky_global") else None,
+            "seed": int(seed),
+            "pass_spp": int(pass_spp),
+            "variant": variant,
+            "versions": [mitsuba.__version__, drjit.__version__],
+        }
         if quantity.startswith("sunsky"):  # (absent for the other quantities: their keys are unchanged)
             ident["sky"] = {**sky.to_dict(), "bake_height": SKY_BAKE_HEIGHT}
         key = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
@@ -368,8 +423,18 @@ class OcclusionCache:
                 if not folder.exists():
                     folder.mkdir(parents=True, exist_ok=True)
                     atomic_write_json(folder / "entry.json", ident)
-                r = occlusion_pass(mi, mi_scene, points, normals, int(pass_spp), sub_seed(seed, "pass", i),
-                                   quantity=quantity, max_distance=max_distance, albedo=albedo, sky=sky)
+                r = occlusion_pass(
+                    mi,
+                    mi_scene,
+                    points,
+                    normals,
+                    int(pass_spp),
+                    sub_seed(seed, "pass", i),
+                    quantity=quantity,
+                    max_distance=max_distance,
+                    albedo=albedo,
+                    sky=sky,
+                )
                 import io
 
                 buf = io.BytesIO()
@@ -377,6 +442,15 @@ class OcclusionCache:
                 atomic_write_bytes(f, buf.getvalue())
             results.append(r)
         mean, stderr, total = pool_passes(results)
-        return OcclusionReference(mean, stderr, total, len(results), float(sum(r.seconds for r in results)), key,
-                                  quantity, sky.to_dict() | {"horizontal_irradiance": sunsky_horizontal_irradiance(mi, sky)}
-                                  if quantity.startswith("sunsky") else None)
+        return OcclusionReference(
+            mean,
+            stderr,
+            total,
+            len(results),
+            float(sum(r.seconds for r in results)),
+            key,
+            quantity,
+            sky.to_dict() | {"horizontal_irradiance": sunsky_horizontal_irradiance(mi, sky)}
+            if quantity.startswith("sunsky")
+            else None,
+        )

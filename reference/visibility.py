@@ -35,22 +35,26 @@ class BakedVisibility:
     """Per point: visible fraction of the hemisphere, its binomial standard error, bent normal, aperture (rad)."""
 
     visible_fraction: np.ndarray  # (N,) float64 in [0, 1]
-    stderr: np.ndarray            # (N,)
-    bent_normal: np.ndarray       # (N, 3) unit
-    aperture: np.ndarray          # (N,) radians in [0, π/2]
+    stderr: np.ndarray  # (N,)
+    bent_normal: np.ndarray  # (N, 3) unit
+    aperture: np.ndarray  # (N,) radians in [0, π/2]
     n_dirs: int
 
     def to_dict(self) -> dict:
-        return {"n_dirs": self.n_dirs, "mean_visible_fraction": float(self.visible_fraction.mean()),
-                "max_stderr": float(self.stderr.max()) if self.stderr.size else 0.0}
+        return {
+            "n_dirs": self.n_dirs,
+            "mean_visible_fraction": float(self.visible_fraction.mean()),
+            "max_stderr": float(self.stderr.max()) if self.stderr.size else 0.0,
+        }
 
 
 def _geometry_only(scene):
     return dataclasses.replace(scene, lights=(), name=f"{scene.name}-geometry")
 
 
-def bake_visibility(scene, points, normals, n_dirs: int = 1024, seed: int = 0,
-                    variant: str = "llvm_ad_rgb") -> BakedVisibility:
+def bake_visibility(
+    scene, points, normals, n_dirs: int = 1024, seed: int = 0, variant: str = "llvm_ad_rgb"
+) -> BakedVisibility:
     """Bake V̂, â and r_a at ``points`` (N, 3) with unit ``normals`` (N, 3); see the module docstring."""
     points = np.ascontiguousarray(points, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)

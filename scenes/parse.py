@@ -164,44 +164,96 @@ _SIZE2 = Spec("vec2", POSITIVE)
 
 #: Field specs of every model class, in the order they are written.
 SCHEMA: dict[type, dict[str, Spec]] = {
-    Camera: {"origin": _VEC, "target": _VEC, "up": _UNIT,
-             "fov_deg": Spec("float", Bounds(0, 180, lo_open=True, hi_open=True)),
-             "width": Spec("int", Bounds(1, 16384)), "height": Spec("int", Bounds(1, 16384)),
-             "near_clip": _POS, "far_clip": _POS},
+    Camera: {
+        "origin": _VEC,
+        "target": _VEC,
+        "up": _UNIT,
+        "fov_deg": Spec("float", Bounds(0, 180, lo_open=True, hi_open=True)),
+        "width": Spec("int", Bounds(1, 16384)),
+        "height": Spec("int", Bounds(1, 16384)),
+        "near_clip": _POS,
+        "far_clip": _POS,
+    },
     Diffuse: {"reflectance": Spec("rgb", ZERO_ONE)},
     Sphere: {"center": _VEC, "radius": _POS, "material": _MATERIAL},
-    Rectangle: {"center": _VEC, "normal": _UNIT, "size": _SIZE2, "rotation_deg": _ANGLE,
-                "material": _MATERIAL},
+    Rectangle: {
+        "center": _VEC,
+        "normal": _UNIT,
+        "size": _SIZE2,
+        "rotation_deg": _ANGLE,
+        "material": _MATERIAL,
+    },
     Disk: {"center": _VEC, "normal": _UNIT, "radius": _POS, "material": _MATERIAL},
-    Cube: {"center": _VEC, "size": Spec("vec3", POSITIVE), "rotate_axis": _UNIT, "rotate_deg": _ANGLE,
-           "material": _MATERIAL},
+    Cube: {
+        "center": _VEC,
+        "size": Spec("vec3", POSITIVE),
+        "rotate_axis": _UNIT,
+        "rotate_deg": _ANGLE,
+        "material": _MATERIAL,
+    },
     Cylinder: {"p0": _VEC, "p1": _VEC, "radius": _POS, "material": _MATERIAL},
-    Mesh: {"file": Spec("file", suffixes=(".ply", ".obj")), "translate": _VEC, "rotate_axis": _UNIT,
-           "rotate_deg": _ANGLE, "scale": Spec("vec3", POSITIVE), "face_normals": Spec("bool"),
-           "material": _MATERIAL},
-    MitsubaXML: {"file": Spec("file", suffixes=(".xml",)), "keep_emitters": Spec("bool"),
-                 "override_material": Spec("material", optional=True)},
-    Sun: {"direction": _UNIT, "irradiance": _RADIANCE,
-          "angular_radius_deg": Spec("float", Bounds(0, 90, hi_open=True))},
+    Mesh: {
+        "file": Spec("file", suffixes=(".ply", ".obj")),
+        "translate": _VEC,
+        "rotate_axis": _UNIT,
+        "rotate_deg": _ANGLE,
+        "scale": Spec("vec3", POSITIVE),
+        "face_normals": Spec("bool"),
+        "material": _MATERIAL,
+    },
+    MitsubaXML: {
+        "file": Spec("file", suffixes=(".xml",)),
+        "keep_emitters": Spec("bool"),
+        "override_material": Spec("material", optional=True),
+    },
+    Sun: {
+        "direction": _UNIT,
+        "irradiance": _RADIANCE,
+        "angular_radius_deg": Spec("float", Bounds(0, 90, hi_open=True)),
+    },
     SphereLight: {"center": _VEC, "radius": _POS, "radiance": _RADIANCE},
-    RectLight: {"center": _VEC, "normal": _UNIT, "size": _SIZE2, "radiance": _RADIANCE,
-                "rotation_deg": _ANGLE},
+    RectLight: {
+        "center": _VEC,
+        "normal": _UNIT,
+        "size": _SIZE2,
+        "radiance": _RADIANCE,
+        "rotation_deg": _ANGLE,
+    },
     ConstantEnv: {"radiance": _RADIANCE},
-    EnvMap: {"file": Spec("file", suffixes=(".exr",)), "scale": Spec("float", NON_NEGATIVE),
-             "rotate_deg": _ANGLE},
-    SunSky: {"sun_direction": _UNIT, "turbidity": Spec("float", Bounds(1, 10)),
-             "albedo": Spec("float", ZERO_ONE), "sun_scale": Spec("float", NON_NEGATIVE),
-             "sky_scale": Spec("float", NON_NEGATIVE),
-             "sun_aperture_deg": Spec("float", OPEN_QUADRANT),
-             "complex_sun": Spec("bool")},
-    HomogeneousMedium: {"boundary": Spec("boundary"), "sigma_t": _RADIANCE, "albedo": Spec("rgb", ZERO_ONE),
-                        "g": Spec("float", Bounds(-1, 1, lo_open=True, hi_open=True))},
-    ExponentialFog: {"boundary": Spec("boundary"), "density": Spec("float", NON_NEGATIVE),
-                     "falloff": Spec("float", NON_NEGATIVE), "gradient": _UNIT, "gradient_origin": _VEC,
-                     "albedo": Spec("rgb", ZERO_ONE),
-                     "g": Spec("float", Bounds(-1, 1, lo_open=True, hi_open=True)), "ellipsoid": Spec("bool")},
-    ReferenceSettings: {"transport": Spec("choice", choices=TRANSPORTS),
-                        "max_depth": Spec("depth", optional=True)},
+    EnvMap: {
+        "file": Spec("file", suffixes=(".exr",)),
+        "scale": Spec("float", NON_NEGATIVE),
+        "rotate_deg": _ANGLE,
+    },
+    SunSky: {
+        "sun_direction": _UNIT,
+        "turbidity": Spec("float", Bounds(1, 10)),
+        "albedo": Spec("float", ZERO_ONE),
+        "sun_scale": Spec("float", NON_NEGATIVE),
+        "sky_scale": Spec("float", NON_NEGATIVE),
+        "sun_aperture_deg": Spec("float", OPEN_QUADRANT),
+        "complex_sun": Spec("bool"),
+    },
+    HomogeneousMedium: {
+        "boundary": Spec("boundary"),
+        "sigma_t": _RADIANCE,
+        "albedo": Spec("rgb", ZERO_ONE),
+        "g": Spec("float", Bounds(-1, 1, lo_open=True, hi_open=True)),
+    },
+    ExponentialFog: {
+        "boundary": Spec("boundary"),
+        "density": Spec("float", NON_NEGATIVE),
+        "falloff": Spec("float", NON_NEGATIVE),
+        "gradient": _UNIT,
+        "gradient_origin": _VEC,
+        "albedo": Spec("rgb", ZERO_ONE),
+        "g": Spec("float", Bounds(-1, 1, lo_open=True, hi_open=True)),
+        "ellipsoid": Spec("bool"),
+    },
+    ReferenceSettings: {
+        "transport": Spec("choice", choices=TRANSPORTS),
+        "max_depth": Spec("depth", optional=True),
+    },
 }
 
 SHAPE_TYPES = {c.kind: c for c in (Sphere, Rectangle, Disk, Cube, Cylinder, Mesh, MitsubaXML)}
@@ -342,20 +394,23 @@ class _Parser:
 
     # tables ------------------------------------------------------------------------------------
     @staticmethod
-    def check_type(t: dict, key: str, registry: dict[str, type], what: str,
-                   default: str | None = None) -> type:
+    def check_type(
+        t: dict, key: str, registry: dict[str, type], what: str, default: str | None = None
+    ) -> type:
         """The class named by ``t["type"]`` (``default`` when absent, if given)."""
         if "type" not in t and default is None:
             raise _Invalid(key, "missing required key 'type'")
         name = _string(t.get("type", default), _join(key, "type"))
         if name not in registry:
             expected = ", ".join(sorted(registry))
-            raise _Invalid(_join(key, "type"),
-                           f"unknown {what} type {_show(name)} (expected one of: {expected})")
+            raise _Invalid(
+                _join(key, "type"), f"unknown {what} type {_show(name)} (expected one of: {expected})"
+            )
         return registry[name]
 
-    def fields(self, cls: type, t: dict, key: str, *, exclude=(), extra=(), typed=True,
-               check_required=True) -> dict[str, Any]:
+    def fields(
+        self, cls: type, t: dict, key: str, *, exclude=(), extra=(), typed=True, check_required=True
+    ) -> dict[str, Any]:
         """Constructor arguments of ``cls`` given in ``t`` (absent optional fields keep their defaults).
 
         ``extra`` keys are allowed in ``t`` but left to the caller, as is a missing required field
@@ -392,11 +447,13 @@ class _Parser:
         u = cam.up
         cross = (u[1] * f[2] - u[2] * f[1], u[2] * f[0] - u[0] * f[2], u[0] * f[1] - u[1] * f[0])
         if math.sqrt(sum(c * c for c in cross)) < 1e-6:
-            raise _Invalid("camera.up",
-                           f"must not be parallel to target - origin (got {_show(list(cam.up))})")
+            raise _Invalid(
+                "camera.up", f"must not be parallel to target - origin (got {_show(list(cam.up))})"
+            )
         if cam.far_clip <= cam.near_clip:
-            raise _Invalid("camera.far_clip",
-                           f"must be > near_clip = {cam.near_clip!r} (got {cam.far_clip!r})")
+            raise _Invalid(
+                "camera.far_clip", f"must be > near_clip = {cam.near_clip!r} (got {cam.far_clip!r})"
+            )
         return cam
 
     def shape(self, t: dict, key: str):
@@ -415,18 +472,27 @@ class _Parser:
         if not alt:
             for k in ("center", "radius"):
                 if k not in args:
-                    raise _Invalid(key, f"missing required key '{k}' (or place it by direction, distance and "
-                                        "angular_radius_deg)")
+                    raise _Invalid(
+                        key,
+                        f"missing required key '{k}' (or place it by direction, distance and "
+                        "angular_radius_deg)",
+                    )
             return cls(**args)
         for k in ("center", "radius"):
             if k in t:
-                raise _Invalid(_join(key, k), f"cannot be combined with {alt[0]} (place a sphere light "
-                                              "either by center/radius or by "
-                                              "target/direction/distance/angular_radius_deg)")
+                raise _Invalid(
+                    _join(key, k),
+                    f"cannot be combined with {alt[0]} (place a sphere light "
+                    "either by center/radius or by "
+                    "target/direction/distance/angular_radius_deg)",
+                )
         for k in ("direction", "distance", "angular_radius_deg"):
             if k not in t:
-                raise _Invalid(key, f"missing required key '{k}' (a sphere light placed by direction needs "
-                                    "direction, distance and angular_radius_deg)")
+                raise _Invalid(
+                    key,
+                    f"missing required key '{k}' (a sphere light placed by direction needs "
+                    "direction, distance and angular_radius_deg)",
+                )
         target = _vector(t.get("target", [0.0, 0.0, 0.0]), _join(key, "target"), 3)
         direction = _unit(t["direction"], _join(key, "direction"))
         distance = _number(t["distance"], _join(key, "distance"), POSITIVE)
@@ -434,8 +500,11 @@ class _Parser:
         args["center"] = tuple(p + distance * d for p, d in zip(target, direction, strict=True))
         args["radius"] = distance * math.sin(math.radians(alpha))
         if not all(map(math.isfinite, args["center"])) or not args["radius"] > 0.0:
-            raise _Invalid(key, f"placement gives centre {_show(list(args['center']))} and radius "
-                                f"{args['radius']!r} (must be finite, radius > 0)")
+            raise _Invalid(
+                key,
+                f"placement gives centre {_show(list(args['center']))} and radius "
+                f"{args['radius']!r} (must be finite, radius > 0)",
+            )
         return cls(**args)
 
     def scene(self, doc: dict, source: str) -> Scene:
@@ -462,11 +531,21 @@ class _Parser:
             media.append(cls(**self.fields(cls, t, f"media[{i}]")))
         envs = [i for i, light in enumerate(lights) if light.kind in ENVIRONMENT_KINDS]
         if len(envs) > 1:
-            raise _Invalid(f"lights[{envs[1]}]",
-                           f"a scene has at most one environment light ({', '.join(ENVIRONMENT_KINDS)}); "
-                           f"lights[{envs[0]}] is one already")
-        return Scene(name=doc["name"], camera=camera, shapes=shapes, lights=lights, media=tuple(media),
-                     reference=reference, description=description, source=source)
+            raise _Invalid(
+                f"lights[{envs[1]}]",
+                f"a scene has at most one environment light ({', '.join(ENVIRONMENT_KINDS)}); "
+                f"lights[{envs[0]}] is one already",
+            )
+        return Scene(
+            name=doc["name"],
+            camera=camera,
+            shapes=shapes,
+            lights=lights,
+            media=tuple(media),
+            reference=reference,
+            description=description,
+            source=source,
+        )
 
 
 # ----------------------------------------------------------------------------------------------- API
@@ -474,8 +553,9 @@ class _Parser:
 OTHER_FORMATS = {"rtfit.sky/1": "rtfit.reference.atmosphere.load_atmosphere_scene"}
 
 
-def parse_scene_text(text: str, *, source: str = "<string>",
-                     base_dir: str | os.PathLike | None = None) -> Scene:
+def parse_scene_text(
+    text: str, *, source: str = "<string>", base_dir: str | os.PathLike | None = None
+) -> Scene:
     """Parse scene-file text. ``source`` names it in errors and in ``Scene.source``; relative file paths
     resolve against ``base_dir`` (default: the current directory at call time)."""
     base = os.path.abspath(os.fspath(base_dir)) if base_dir is not None else os.getcwd()

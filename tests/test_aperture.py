@@ -47,7 +47,9 @@ def quad_intersection(r1: float, r2: float, d: float) -> float:
             k = (mp.cos(rb) - mp.cos(th) * mp.cos(dd)) / (mp.sin(th) * mp.sin(dd))
             return 2 * mp.acos(max(-1, min(1, k))) * mp.sin(th)
 
-        pts = sorted({mp.mpf(0), rs} | {b for b in (abs(dd - rb), dd + rb, 2 * mp.pi - dd - rb) if 0 < b < rs})
+        pts = sorted(
+            {mp.mpf(0), rs} | {b for b in (abs(dd - rb), dd + rb, 2 * mp.pi - dd - rb) if 0 < b < rs}
+        )
         return float(mp.quad(f, pts))
 
 
@@ -76,10 +78,12 @@ def test_exact_matches_quadrature_float64():
     r = np.array(CASES).T
     ref = np.array(QUAD)
     a_min = 2 * np.pi * (1 - np.cos(np.minimum(r[0], r[1])))
-    for name, e in [("numpy f64", ap.cap_intersection_solid_angle(*r)),
-                    ("Dr.Jit Float64", np.asarray(ap.cap_intersection_solid_angle(*[Float64(x) for x in r]))),
-                    ("numpy kernel", ap.numpy_reference("exact")(*r)),
-                    ("floats", np.array([ap.cap_intersection_solid_angle(*map(float, c)) for c in CASES]))]:
+    for name, e in [
+        ("numpy f64", ap.cap_intersection_solid_angle(*r)),
+        ("Dr.Jit Float64", np.asarray(ap.cap_intersection_solid_angle(*[Float64(x) for x in r]))),
+        ("numpy kernel", ap.numpy_reference("exact")(*r)),
+        ("floats", np.array([ap.cap_intersection_solid_angle(*map(float, c)) for c in CASES])),
+    ]:
         err = np.abs(np.asarray(e) - ref) / a_min
         assert err.max() < 1e-11, (name, err.max(), CASES[int(err.argmax())])
 
@@ -92,35 +96,41 @@ def test_exact_float32_accuracy():
     r1 = np.exp(rng.uniform(math.log(1e-4), math.log(PI), n))
     r2 = np.exp(rng.uniform(math.log(1e-4), math.log(PI), n))
     eps = np.exp(rng.uniform(math.log(1e-7), 0, n)) * np.minimum(r1, r2)
-    d = np.concatenate([np.clip(r1 + r2 - eps, 0, PI), np.clip(np.abs(r1 - r2) + eps, 0, PI), rng.uniform(0, PI, n)])
+    d = np.concatenate(
+        [np.clip(r1 + r2 - eps, 0, PI), np.clip(np.abs(r1 - r2) + eps, 0, PI), rng.uniform(0, PI, n)]
+    )
     r = np.stack([np.tile(r1, 3), np.tile(r2, 3), d]).astype(np.float32)
     e64 = ap.cap_intersection_solid_angle(*r.astype(np.float64))
     r_min = np.minimum(r[0], r[1]).astype(np.float64)
     a_min = 2 * np.pi * (1 - np.cos(r_min))
-    for e32 in (ap.cap_intersection_solid_angle(*r), np.asarray(ap.cap_intersection_solid_angle(*map(Float, r)))):
+    for e32 in (
+        ap.cap_intersection_solid_angle(*r),
+        np.asarray(ap.cap_intersection_solid_angle(*map(Float, r))),
+    ):
         err = np.abs(np.asarray(e32, np.float64) - e64) / a_min
         assert np.all(err <= 5e-6 + 3e-7 / r_min), err.max()
 
 
 def test_closed_cases():
     f = ap.cap_intersection_solid_angle
-    assert f(0.3, 1.0, 0.2) == pytest.approx(cap(0.3), rel=1e-14)            # nested
-    assert f(0.3, 1.0, 0.7) == pytest.approx(cap(0.3), rel=1e-14)            # internally tangent
-    assert f(0.3, 0.4, 0.7) == 0.0                                          # externally tangent
-    assert f(0.3, 0.4, 1.5) == 0.0                                          # disjoint
-    for d in (0.0, 0.1, 1.0, 2.0, PI):                                      # hemispheres: lune
+    assert f(0.3, 1.0, 0.2) == pytest.approx(cap(0.3), rel=1e-14)  # nested
+    assert f(0.3, 1.0, 0.7) == pytest.approx(cap(0.3), rel=1e-14)  # internally tangent
+    assert f(0.3, 0.4, 0.7) == 0.0  # externally tangent
+    assert f(0.3, 0.4, 1.5) == 0.0  # disjoint
+    for d in (0.0, 0.1, 1.0, 2.0, PI):  # hemispheres: lune
         assert f(PI / 2, PI / 2, d) == pytest.approx(2 * (PI - d), abs=1e-13)
     assert f(2.5, 2.0, 2.0) == pytest.approx(cap(2.5) + cap(2.0) - 4 * PI, rel=1e-13)  # covering
-    assert f(1.0, PI - 1.0, PI) == pytest.approx(0.0, abs=1e-14)            # a cap and its complement
-    assert f(PI, 0.4, 1.3) == pytest.approx(cap(0.4), rel=1e-14)            # the whole sphere
+    assert f(1.0, PI - 1.0, PI) == pytest.approx(0.0, abs=1e-14)  # a cap and its complement
+    assert f(PI, 0.4, 1.3) == pytest.approx(cap(0.4), rel=1e-14)  # the whole sphere
     assert f(0.0, 1.0, 0.5) == 0.0 and f(0.0, 0.0, 0.0) == 0.0
 
 
 def test_seed_erratum_numbers():
     """The printed formula (000:2672-2687) gives −7.92 at r0 = r1 = d = 0.5; the true value is 0.3078."""
     assert ap.seed_printed_intersect_area(0.5, 0.5, 0.5) == pytest.approx(-7.921, abs=1e-3)
-    assert ap.cap_intersection_solid_angle(0.5, 0.5, 0.5) == pytest.approx(quad_intersection(0.5, 0.5, 0.5),
-                                                                           rel=1e-12)
+    assert ap.cap_intersection_solid_angle(0.5, 0.5, 0.5) == pytest.approx(
+        quad_intersection(0.5, 0.5, 0.5), rel=1e-12
+    )
     assert quad_intersection(0.5, 0.5, 0.5) == pytest.approx(0.3075, abs=1e-3)
 
 
@@ -175,14 +185,20 @@ def test_fitted_beats_smoothstep_on_grid():
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.tuples(st.floats(0, PI), st.floats(0, PI), st.floats(0, PI)), min_size=1, max_size=32),
-       st.sampled_from([np.float32, np.float64]))
+@given(
+    st.lists(st.tuples(st.floats(0, PI), st.floats(0, PI), st.floats(0, PI)), min_size=1, max_size=32),
+    st.sampled_from([np.float32, np.float64]),
+)
 def test_property_bounds_and_symmetry(triples, dtype):
     r = np.array(triples, dtype=np.float64).T.astype(dtype)
     r = np.minimum(r, dtype(PI))
     a_min = np.asarray(ap.cap_area(np.minimum(r[0], r[1])), np.float64)
-    for fn in (ap.cap_intersection_solid_angle, ap.cap_intersection_smoothstep, ap.cap_intersection_linear,
-               ap.cap_intersection_fitted):
+    for fn in (
+        ap.cap_intersection_solid_angle,
+        ap.cap_intersection_smoothstep,
+        ap.cap_intersection_linear,
+        ap.cap_intersection_fitted,
+    ):
         x = np.asarray(fn(*r), np.float64)
         assert np.all(np.isfinite(x))
         assert np.all(x >= 0) and np.all(x <= a_min * (1 + 1e-6) + 1e-30)
@@ -254,16 +270,24 @@ def test_shading_open_sky_erratum_and_fill():
 def test_shading_drjit_matches_numpy_and_is_finite():
     rng = np.random.default_rng(2)
     n = 4096
-    args = [rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), rng.uniform(-1, 1, n),
-            rng.uniform(0, PI / 2, n), rng.uniform(0, PI / 2, n)]
+    args = [
+        rng.uniform(-1, 1, n),
+        rng.uniform(-1, 1, n),
+        rng.uniform(-1, 1, n),
+        rng.uniform(0, PI / 2, n),
+        rng.uniform(0, PI / 2, n),
+    ]
     args[3][:5] = [0.0, PI / 2, 0.0, PI / 2, 1e-20]
     args[4][:5] = [0.0, 0.0, PI / 2, PI / 2, 1e-20]
     for form in ap.INTERSECTION_FORMS:
         for lam in ap.LAMBERT_FORMS:
             for fill in ap.FILL_FORMS:
-                e64 = ap.ambient_aperture_irradiance(*args, 1.0, 0.5, intersection=form, lambert=lam, fill=fill)
-                e32 = ap.ambient_aperture_irradiance(*[a.astype(np.float32) for a in args], 1.0, 0.5,
-                                                     intersection=form, lambert=lam, fill=fill)
+                e64 = ap.ambient_aperture_irradiance(
+                    *args, 1.0, 0.5, intersection=form, lambert=lam, fill=fill
+                )
+                e32 = ap.ambient_aperture_irradiance(
+                    *[a.astype(np.float32) for a in args], 1.0, 0.5, intersection=form, lambert=lam, fill=fill
+                )
                 for a, b in zip(e64, e32):
                     assert np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(a >= 0)
                     assert np.allclose(a, b, atol=2e-4)

@@ -85,8 +85,9 @@ def test_cap_model_quadrature_against_closed_forms():
 
 def test_quadrature_intersection_against_closed_cases():
     assert aa.quadrature_intersection([PI / 2], [PI / 2], [1.0])[0] == pytest.approx(2 * (PI - 1), rel=1e-9)
-    assert aa.quadrature_intersection([0.3], [1.0], [0.2])[0] == pytest.approx(2 * PI * (1 - math.cos(0.3)),
-                                                                             rel=1e-9)
+    assert aa.quadrature_intersection([0.3], [1.0], [0.2])[0] == pytest.approx(
+        2 * PI * (1 - math.cos(0.3)), rel=1e-9
+    )
 
 
 def test_tiny_run_checks_pass(tmp_path, monkeypatch):
@@ -98,23 +99,53 @@ def test_tiny_run_checks_pass(tmp_path, monkeypatch):
 
     def tiny(quick, spp):
         cfg = real(True, spp)
-        cfg.update({"grid": 16, "fit_grid": 16, "quad_nodes": 32, "lambert_configs": 400, "probe_n": 12,
-                    "spp": 256, "sky_spp": 512, "pass_spp": 256, "bake_dirs": 256, "cap_quad": [16, 64],
-                    "cost_elements": 1 << 14, "metrics": ["rmse", "mae", "max_abs"]})
+        cfg.update(
+            {
+                "grid": 16,
+                "fit_grid": 16,
+                "quad_nodes": 32,
+                "lambert_configs": 400,
+                "probe_n": 12,
+                "spp": 256,
+                "sky_spp": 512,
+                "pass_spp": 256,
+                "bake_dirs": 256,
+                "cap_quad": [16, 64],
+                "cost_elements": 1 << 14,
+                "metrics": ["rmse", "mae", "max_abs"],
+            }
+        )
         return cfg
 
     monkeypatch.setattr(aa, "configure", tiny)
     out = tmp_path / "out"
-    assert main(["run", "ambient-aperture", "--quick", "--out", str(out), "--cache", str(tmp_path / "cache"),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "ambient-aperture",
+                "--quick",
+                "--out",
+                str(out),
+                "--cache",
+                str(tmp_path / "cache"),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     res = load_results(out / "ambient-aperture")
     failed = [c for c in res["checks"] if not c["passed"]]
     # The unoccluded z-score checks need ≥ 500 probes to be tight; at 144 probes allow them to miss.
     assert all("z-score" in c["name"] for c in failed), failed
-    assert {c["id"] for c in res["cases"]} == {f"{s}-{k}" for s in ("hole", "well", "bumps") for k in ("light", "sky")}
+    assert {c["id"] for c in res["cases"]} == {
+        f"{s}-{k}" for s in ("hole", "well", "bumps") for k in ("light", "sky")
+    }
     for case in res["cases"]:
         by = {a["method"]: a for a in case["approximations"]}
         # Occlusion matters: ignoring it is far worse than the cap model (not on the open bumps).
         if case["id"].endswith("-light") and not case["id"].startswith("bumps"):
-            assert by["unshadowed"]["metrics"]["rmse"]["value"] > 3 * by["cap-model"]["metrics"]["rmse"]["value"]
+            assert (
+                by["unshadowed"]["metrics"]["rmse"]["value"] > 3 * by["cap-model"]["metrics"]["rmse"]["value"]
+            )
     assert (out / "ambient-aperture" / "fitted" / "intersection.json").is_file()

@@ -32,7 +32,9 @@ def test_sphere_light_scene_has_only_its_plugins(mi):
 def test_no_media_plugins_without_media_and_volpathmis_with(mi):
     plain = plugin_types(mitsuba_scene_dict(mi, sphere_scene(transport="global")))
     assert not plain & {"volpath", "volpathmis", "homogeneous", "isotropic", "hg", "null"}
-    medium = HomogeneousMedium(boundary=Cube((0, 0, 0), (4, 4, 4)), sigma_t=(0.5,) * 3, albedo=(0.8,) * 3, g=0.3)
+    medium = HomogeneousMedium(
+        boundary=Cube((0, 0, 0), (4, 4, 4)), sigma_t=(0.5,) * 3, albedo=(0.8,) * 3, g=0.3
+    )
     with_medium = plugin_types(mitsuba_scene_dict(mi, dataclasses.replace(sphere_scene(), media=(medium,))))
     assert {"volpathmis", "homogeneous", "hg", "null", "cube"} <= with_medium
     assert "volpath" not in with_medium
@@ -45,7 +47,9 @@ def test_environment_plugins_only_when_declared(mi):
 
 
 def test_directional_sun_flips_direction(mi):
-    d = mitsuba_scene_dict(mi, sphere_scene(lights=(Sun(direction=(0.0, 0.0, 1.0), irradiance=(2.0, 2.0, 2.0)),)))
+    d = mitsuba_scene_dict(
+        mi, sphere_scene(lights=(Sun(direction=(0.0, 0.0, 1.0), irradiance=(2.0, 2.0, 2.0)),))
+    )
     light = d["light0"]
     assert light["type"] == "directional"
     assert light["direction"] == [-0.0, -0.0, -1.0]
@@ -54,7 +58,9 @@ def test_directional_sun_flips_direction(mi):
 def test_rotation_and_frame_are_orthonormal():
     r = rotation_matrix((1, 1, 0), 37.0)
     np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
-    np.testing.assert_allclose(r @ np.array([1, 1, 0]) / math.sqrt(2), [1 / math.sqrt(2)] * 2 + [0], atol=1e-12)
+    np.testing.assert_allclose(
+        r @ np.array([1, 1, 0]) / math.sqrt(2), [1 / math.sqrt(2)] * 2 + [0], atol=1e-12
+    )
     for n in ([0, 0, 1], [0, 0, -1], [1, 2, 3], [1, 0, 0]):
         f = frame_from_normal(n, 20.0)
         np.testing.assert_allclose(f.T @ f, np.eye(3), atol=1e-12)
@@ -78,8 +84,9 @@ def test_directional_sun_irradiance_is_exact(mi):
 
 def test_finite_sun_has_stated_irradiance(mi):
     # A sun of angular radius 2° and irradiance 5 at normal incidence, seen at the origin head-on.
-    scene = sphere_scene(lights=(Sun(direction=(0.0, 0.0, 1.0), irradiance=(5.0,) * 3, angular_radius_deg=2.0),),
-                         shapes=())
+    scene = sphere_scene(
+        lights=(Sun(direction=(0.0, 0.0, 1.0), irradiance=(5.0,) * 3, angular_radius_deg=2.0),), shapes=()
+    )
     e, se = _irradiance_at(mi, scene, (0, 0, 0), (0, 0, 1), spp=4096)
     # Exact: π sin²α L cos-weighted over the cap = L·π sin²α for a head-on cap (Nusselt) = 5.
     assert abs(e[0] - 5.0) < max(4 * se[0], 5e-4 * 5.0)
@@ -91,7 +98,9 @@ def test_finite_sun_is_unbiased_at_any_size(mi, alpha_deg):
     π sin²α L cos θ (the cap is entirely above the horizon). Mitsuba's own sphere emitter is off by
     +1.75% at 0.1° and +0.39% at 0.27° here (float32 pdf cancellation)."""
     d = (0.0, 0.0, 1.0)
-    scene = sphere_scene(lights=(Sun(direction=d, irradiance=(2.0,) * 3, angular_radius_deg=alpha_deg),), shapes=())
+    scene = sphere_scene(
+        lights=(Sun(direction=d, irradiance=(2.0,) * 3, angular_radius_deg=alpha_deg),), shapes=()
+    )
     _, ms = load_mitsuba_scene(scene)
     n = np.array([[0.0, 0.0, 1.0], [math.sin(math.radians(60)), 0.0, 0.5]])
     spp = 65536
@@ -111,7 +120,9 @@ def test_finite_sun_and_constant_sky_share_one_emitter(mi):
     r = irradiance_pass(mi, ms, np.zeros((1, 3)), n, 65536, seed=2)
     # Sun: a cap of radius 1° centred on the horizon contributes E⊥·(something tiny, < sin α/π·…);
     # bound it by E⊥·sin α. Sky: π·0.25 exactly.
-    assert abs(r.mean[0, 0] - math.pi * 0.25) < 1.0 * math.sin(math.radians(1.0)) + 4 * math.sqrt(r.var[0, 0] / 65536)
+    assert abs(r.mean[0, 0] - math.pi * 0.25) < 1.0 * math.sin(math.radians(1.0)) + 4 * math.sqrt(
+        r.var[0, 0] / 65536
+    )
     up = irradiance_pass(mi, ms, np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), 65536, seed=3)
     assert abs(up.mean[0, 0] - (1.0 + math.pi * 0.25)) < 4 * math.sqrt(up.var[0, 0] / 65536) + 1e-5
 
@@ -136,8 +147,14 @@ def test_rect_light_plane_orientation(mi):
     assert e_down[0] > 0.1 and e_up[0] == 0.0
 
 
-@pytest.mark.parametrize("shape", [Rectangle((0, 0, -1), (0, 0, 1), (4.0, 4.0)), Disk((0, 0, -1), (0, 0, 1), 2.0),
-                                   Cube((0, 0, -2), (4.0, 4.0, 2.0))])
+@pytest.mark.parametrize(
+    "shape",
+    [
+        Rectangle((0, 0, -1), (0, 0, 1), (4.0, 4.0)),
+        Disk((0, 0, -1), (0, 0, 1), 2.0),
+        Cube((0, 0, -2), (4.0, 4.0, 2.0)),
+    ],
+)
 def test_planar_and_box_shapes_occlude_where_declared(mi, shape):
     # A constant sky of radiance 1 above a shape whose top face is at z = −1: a probe just above the
     # top face, facing up, sees the full upper hemisphere (E = π); facing down it sees the shape (E = 0).

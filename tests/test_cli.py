@@ -23,15 +23,18 @@ def test_list(capsys):
     assert "half-lambert" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv,needle", [
-    (["run", "no-such-experiment"], "unknown experiment 'no-such-experiment'"),
-    (["run"], "name an experiment"),
-    (["run", "half-lambert", "--variant", "bogus"], "bogus"),
-    (["run", "half-lambert", "--spp", "1"], "--spp"),
-    (["run", "half-lambert", "--executor", "carrier-pigeon"], "carrier-pigeon"),
-    (["bench", "nope"], "unknown experiment"),
-    (["frobnicate"], "frobnicate"),
-])
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["run", "no-such-experiment"], "unknown experiment 'no-such-experiment'"),
+        (["run"], "name an experiment"),
+        (["run", "half-lambert", "--variant", "bogus"], "bogus"),
+        (["run", "half-lambert", "--spp", "1"], "--spp"),
+        (["run", "half-lambert", "--executor", "carrier-pigeon"], "carrier-pigeon"),
+        (["bench", "nope"], "unknown experiment"),
+        (["frobnicate"], "frobnicate"),
+    ],
+)
 def test_bad_input_is_one_line_and_writes_nothing(capsys, tmp_path, argv, needle):
     out = tmp_path / "out"
     err = _one_line_error(capsys, 2, argv + ["--out", str(out)] if argv[0] == "run" else argv)
@@ -49,13 +52,18 @@ def test_cuda_without_gpu_is_clear(capsys, tmp_path):
 
     if cuda_available():
         pytest.skip("a GPU is present")
-    err = _one_line_error(capsys, 2, ["run", "half-lambert", "--variant", "cuda_ad_rgb", "--out", str(tmp_path / "o")])
+    err = _one_line_error(
+        capsys, 2, ["run", "half-lambert", "--variant", "cuda_ad_rgb", "--out", str(tmp_path / "o")]
+    )
     assert "CUDA" in err
 
 
 def test_entry_point_exit_status(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "rtfit.experiments.cli", "run", "nope", "--out", str(tmp_path / "o")],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "rtfit.experiments.cli", "run", "nope", "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "unknown experiment" in r.stderr
     assert not (tmp_path / "o").exists()
@@ -66,15 +74,26 @@ def quick_run(tmp_path_factory):
     """One quick half-lambert run shared by the end-to-end tests (it takes tens of seconds)."""
     root = tmp_path_factory.mktemp("e2e")
     out, cache = root / "out", root / "cache"
-    assert main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"]) == 0
+    assert (
+        main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"])
+        == 0
+    )
     return out, cache
 
 
 def test_quick_run_writes_a_complete_report(quick_run):
     out, _ = quick_run
     exp = out / "half-lambert"
-    for name in ("results.json", "report.md", "report.html", "tables.tex", "fitted/wrap_smooth.json",
-                 "fitted/wrap_per_alpha.json", "figures/terminator.png", "figures/pareto.png"):
+    for name in (
+        "results.json",
+        "report.md",
+        "report.html",
+        "tables.tex",
+        "fitted/wrap_smooth.json",
+        "fitted/wrap_per_alpha.json",
+        "figures/terminator.png",
+        "figures/pareto.png",
+    ):
         assert (exp / name).is_file(), name
     assert (out / "index.html").is_file()
     results = json.loads((exp / "results.json").read_text())
@@ -100,7 +119,10 @@ def test_interrupted_run_keeps_old_output_and_resumes(quick_run, monkeypatch, ca
         raise KeyboardInterrupt
 
     monkeypatch.setattr(half_lambert_report, "assemble", boom)
-    assert main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"]) == 130
+    assert (
+        main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"])
+        == 130
+    )
     assert (exp / "results.json").read_text() == before
     assert [p.name for p in out.iterdir() if p.name.startswith(".")] == []
     monkeypatch.undo()
@@ -109,7 +131,10 @@ def test_interrupted_run_keeps_old_output_and_resumes(quick_run, monkeypatch, ca
     passes = sorted(cache.rglob("pass-*.json"))
     for p in passes[::3]:
         p.unlink()
-    assert main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"]) == 0
+    assert (
+        main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"])
+        == 0
+    )
     a, b = json.loads(before), json.loads((exp / "results.json").read_text())
     for ca, cb in zip(a["cases"], b["cases"]):
         assert ca["reference"]["cache_key"] == cb["reference"]["cache_key"]

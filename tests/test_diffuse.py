@@ -31,7 +31,7 @@ from rtfit.realtime import diffuse as d
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # kernels must not warn (0/0, overflow)
 
 TOL64 = 1e-14  # |E − E_quad| / E⊥ in float64 (≈ 45 ulp; measured ≤ 9.4e-16)
-TOL32 = 2e-6   # |E − E_quad| / E⊥ in float32 (≈ 17 ulp; measured ≤ 6.3e-7)
+TOL32 = 2e-6  # |E − E_quad| / E⊥ in float32 (≈ 17 ulp; measured ≤ 6.3e-7)
 TINY32 = 1e-36  # absolute floor for float32 (sin²α underflows below α ≈ 1e-19)
 HALF_PI = math.pi / 2
 Float, Float64 = dr.llvm.Float, dr.llvm.Float64
@@ -94,8 +94,13 @@ def _cases():
             th = rng.uniform(HALF_PI - a, HALF_PI + a)
         pairs.append((th, a))
     for a in (math.radians(0.27), 0.01, 0.3, 1.0, 1.5):  # boundaries θ = π/2 ± α, and θ = π/2
-        pairs += [(HALF_PI - a, a), (HALF_PI + a, a), (HALF_PI, a), (HALF_PI - a / 2, a),
-                  (HALF_PI + 0.999 * a, a)]
+        pairs += [
+            (HALF_PI - a, a),
+            (HALF_PI + a, a),
+            (HALF_PI, a),
+            (HALF_PI - a / 2, a),
+            (HALF_PI + 0.999 * a, a),
+        ]
     pairs += [(0.0, 1.2), (math.pi, 1.2), (0.7, HALF_PI), (2.5, HALF_PI)]
     return pairs
 
@@ -111,12 +116,15 @@ def test_closed_form_matches_quadrature_float64():
     ref = np.array([QUAD[c] for c in CASES])
     peak = math.pi * np.sin(al) ** 2
     for L in (1.0, 3.5):
-        for name, e in [("numpy input (Dr.Jit Float64)", d.sphere_light_irradiance(cos, al, L)),
-                        ("Dr.Jit Float64",
-                         np.asarray(d.sphere_light_irradiance(Float64(cos), Float64(al), L))),
-                        ("NumPy kernel", d.numpy_reference("sphere_light_irradiance")(cos, al, L)),
-                        ("python floats", np.array([d.sphere_light_irradiance(float(c), float(a), L)
-                                                    for c, a in zip(cos, al)]))]:
+        for name, e in [
+            ("numpy input (Dr.Jit Float64)", d.sphere_light_irradiance(cos, al, L)),
+            ("Dr.Jit Float64", np.asarray(d.sphere_light_irradiance(Float64(cos), Float64(al), L))),
+            ("NumPy kernel", d.numpy_reference("sphere_light_irradiance")(cos, al, L)),
+            (
+                "python floats",
+                np.array([d.sphere_light_irradiance(float(c), float(a), L) for c, a in zip(cos, al)]),
+            ),
+        ]:
             err = np.abs(np.asarray(e) - L * ref) / (L * peak)
             assert err.max() <= TOL64, (name, err.max(), CASES[int(err.argmax())])
 
@@ -127,8 +135,10 @@ def test_closed_form_matches_quadrature_float32():
     # reference at the float32 inputs exactly (θ = acos of the float32 cosine)
     ref = np.array([cap_quadrature(math.acos(float(c)), min(float(a), HALF_PI)) for c, a in zip(c32, a32)])
     peak = math.pi * np.sin(np.minimum(a32.astype(np.float64), HALF_PI)) ** 2
-    for name, e in [("numpy float32 input", d.sphere_light_irradiance(c32, a32)),
-                    ("Dr.Jit Float", d.sphere_light_irradiance(Float(c32), Float(a32)))]:
+    for name, e in [
+        ("numpy float32 input", d.sphere_light_irradiance(c32, a32)),
+        ("Dr.Jit Float", d.sphere_light_irradiance(Float(c32), Float(a32))),
+    ]:
         e = np.asarray(e, dtype=np.float64)
         err = np.abs(e - ref) / peak
         assert err.max() <= TOL32, (name, err.max())
@@ -167,8 +177,9 @@ def test_fully_above_and_below():
     for a in (1e-6, 0.01, 0.3, 1.0, 1.5):
         s = math.sin(a)
         c = np.linspace(s, 1, 23)
-        np.testing.assert_allclose(d.sphere_light_irradiance(c, a, 2.0), 2.0 * math.pi * s * s * c,
-                                   rtol=1e-15)
+        np.testing.assert_allclose(
+            d.sphere_light_irradiance(c, a, 2.0), 2.0 * math.pi * s * s * c, rtol=1e-15
+        )
         below = np.linspace(-1, -s, 23)
         assert np.all(d.sphere_light_irradiance(below, a, 2.0) == 0.0)
         assert np.all(np.asarray(d.sphere_light_irradiance(Float(below.astype(np.float32)), a)) == 0.0)
@@ -210,13 +221,20 @@ def test_half_lambert_and_wrap_by_hand():
 @pytest.mark.parametrize("kind", ["float", "numpy64", "numpy32", "drjit32"])
 def test_wrap_special_cases_are_lambert_and_half_lambert(kind):
     c = np.linspace(-1, 1, 65)
-    conv = {"float": lambda x: x, "numpy64": lambda x: x, "numpy32": lambda x: x.astype(np.float32),
-            "drjit32": lambda x: Float(x.astype(np.float32))}[kind]
+    conv = {
+        "float": lambda x: x,
+        "numpy64": lambda x: x,
+        "numpy32": lambda x: x.astype(np.float32),
+        "drjit32": lambda x: Float(x.astype(np.float32)),
+    }[kind]
     if kind == "float":
-        pairs = [(np.array([d.wrap(float(x), 0.0, 1.0) for x in c]),
-                  np.array([d.lambert(float(x)) for x in c])),
-                 (np.array([d.wrap(float(x), 1.0, 2.0) for x in c]),
-                  np.array([d.half_lambert(float(x)) for x in c]))]
+        pairs = [
+            (np.array([d.wrap(float(x), 0.0, 1.0) for x in c]), np.array([d.lambert(float(x)) for x in c])),
+            (
+                np.array([d.wrap(float(x), 1.0, 2.0) for x in c]),
+                np.array([d.half_lambert(float(x)) for x in c]),
+            ),
+        ]
     else:
         x = conv(c)
         pairs = [(d.wrap(x, 0.0, 1.0), d.lambert(x)), (d.wrap(x, 1.0, 2.0), d.half_lambert(x))]
@@ -257,14 +275,19 @@ def test_exact_monotone_in_cos(alpha, cs):
     peak = math.pi * math.sin(alpha) ** 2
     e = d.sphere_light_irradiance(c, a)
     assert np.all(np.diff(e) >= -TOL64 * peak)
-    e32 = np.asarray(d.sphere_light_irradiance(Float(c.astype(np.float32)), dr.opaque(Float, alpha)),
-                     np.float64)
+    e32 = np.asarray(
+        d.sphere_light_irradiance(Float(c.astype(np.float32)), dr.opaque(Float, alpha)), np.float64
+    )
     assert np.all(np.diff(e32) >= -2 * TOL32 * peak - TINY32)
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(unit, min_size=2, max_size=48), st.floats(0.0, 1.0, allow_subnormal=False),
-       st.floats(0.25, 8.0), st.floats(0.0, 50.0, allow_subnormal=False))
+@given(
+    st.lists(unit, min_size=2, max_size=48),
+    st.floats(0.0, 1.0, allow_subnormal=False),
+    st.floats(0.25, 8.0),
+    st.floats(0.0, 50.0, allow_subnormal=False),
+)
 def test_wrap_properties(cs, w, p, irr):
     c = np.sort(np.array(cs))
     # parameters as arrays (broadcast), so the examples share one kernel
@@ -273,8 +296,10 @@ def test_wrap_properties(cs, w, p, irr):
     assert np.all(np.diff(e) >= -1e-15 * irr)
     ref = irr * np.maximum((c + w) / (1 + w), 0.0) ** p
     np.testing.assert_allclose(e, ref, rtol=1e-13, atol=1e-300)
-    e32 = np.asarray(d.wrap(Float(c.astype(np.float32)), dr.opaque(Float, w), dr.opaque(Float, p),
-                            dr.opaque(Float, irr)), np.float64)
+    e32 = np.asarray(
+        d.wrap(Float(c.astype(np.float32)), dr.opaque(Float, w), dr.opaque(Float, p), dr.opaque(Float, irr)),
+        np.float64,
+    )
     assert np.all(e32 >= 0.0) and np.all(e32 <= np.float32(irr) * (1 + 1e-6))
     # float32 pow via exp2/log2: error grows like p·|log x|·eps; 1e-5·irr absolute is ample
     assert np.all(np.abs(e32 - ref) <= 1e-5 * irr + 1e-30)
@@ -312,8 +337,10 @@ BAD = [
     (lambda: d.sphere_light_irradiance(0.1, -0.1), "alpha must be in [0, pi/2]"),
     (lambda: d.sphere_light_irradiance(0.1, float("nan")), "alpha must be in [0, pi/2] (got nan)"),
     (lambda: d.sphere_light_irradiance(np.zeros(4), np.array([0.1, 0.2, np.nan, 0.3])), "alpha must be in"),
-    (lambda: d.sphere_light_irradiance(np.zeros(2), np.array([0.1, 1.6])),
-     "alpha must be in [0, pi/2] (got 1.6)"),
+    (
+        lambda: d.sphere_light_irradiance(np.zeros(2), np.array([0.1, 1.6])),
+        "alpha must be in [0, pi/2] (got 1.6)",
+    ),
     (lambda: d.sphere_light_irradiance(0.1, 0.2, -1.0), "radiance must be in [0, inf)"),
     (lambda: d.sphere_light_irradiance(0.1, 0.2, float("inf")), "radiance must be in [0, inf)"),
     (lambda: d.wrap(0.1, -0.1, 1.0), "w must be in [0, 1] (got -0.1)"),
@@ -327,12 +354,18 @@ BAD = [
     (lambda: d.half_lambert(1.5), "cos_theta must be in [-1, 1] (got 1.5)"),
     (lambda: d.lambert(np.array([0.0, -2.0])), "cos_theta must be in [-1, 1] (got -2.0)"),
     (lambda: d.lambert(0.5, -2.0), "irradiance must be in [0, inf)"),
-    (lambda: d.sphere_light_geometry((0, 0, 0), (0, 0, 1), (0, 0, 5), -1.0),
-     "light_radius must be in [0, inf)"),
-    (lambda: d.sphere_light_geometry((0, 0, 0), (0, 0, 1), (0, float("nan"), 5), 1.0),
-     "light_center must be"),
-    (lambda: d.sphere_light_geometry(np.zeros((4, 2)), np.zeros((4, 3)), (0, 0, 5), 1.0),
-     "position must have shape"),
+    (
+        lambda: d.sphere_light_geometry((0, 0, 0), (0, 0, 1), (0, 0, 5), -1.0),
+        "light_radius must be in [0, inf)",
+    ),
+    (
+        lambda: d.sphere_light_geometry((0, 0, 0), (0, 0, 1), (0, float("nan"), 5), 1.0),
+        "light_center must be",
+    ),
+    (
+        lambda: d.sphere_light_geometry(np.zeros((4, 2)), np.zeros((4, 3)), (0, 0, 5), 1.0),
+        "position must have shape",
+    ),
     (lambda: set_default_backend("metal"), "backend must be one of"),
     (lambda: d.numpy_reference("phong"), "unknown kernel"),
 ]
@@ -408,8 +441,9 @@ def test_sincos_polynomial():
     for tiny angles, absolute accuracy of cos, in float64 (NumPy) and float32 (Dr.Jit)."""
     from rtfit.realtime._array import sincos_first_quadrant
 
-    a = np.concatenate([np.exp(np.linspace(np.log(1e-30), np.log(HALF_PI), 2000)),
-                        np.linspace(1e-9, HALF_PI, 2000)])
+    a = np.concatenate(
+        [np.exp(np.linspace(np.log(1e-30), np.log(HALF_PI), 2000)), np.linspace(1e-9, HALF_PI, 2000)]
+    )
     s, c = sincos_first_quadrant(NUMPY_OPS, a)
     assert np.max(np.abs(s - np.sin(a)) / np.sin(a)) <= 4e-16
     assert np.max(np.abs(c - np.cos(a))) <= 4e-16
@@ -448,8 +482,12 @@ def test_sphere_light_geometry():
     np.testing.assert_allclose(cos_t, cos_ref, rtol=0, atol=1e-14)
     np.testing.assert_allclose(alpha, alpha_ref, rtol=1e-13)
     # Dr.Jit Array3f in → Float out
-    cos32, alpha32 = d.sphere_light_geometry(dr.llvm.Array3f(pos.T.astype(np.float32)),
-                                             dr.llvm.Array3f(nrm.T.astype(np.float32)), tuple(center), radius)
+    cos32, alpha32 = d.sphere_light_geometry(
+        dr.llvm.Array3f(pos.T.astype(np.float32)),
+        dr.llvm.Array3f(nrm.T.astype(np.float32)),
+        tuple(center),
+        radius,
+    )
     assert type(cos32) is Float and type(alpha32) is Float
     np.testing.assert_allclose(np.asarray(cos32), cos_ref, atol=2e-6)
     np.testing.assert_allclose(np.asarray(alpha32), alpha_ref, atol=2e-6)

@@ -23,8 +23,13 @@ def _mitsuba_env(mi, img):
     from rtfit.reference.build import affine, rotation_matrix
 
     m = affine(rotation_matrix((1, 0, 0), 90.0), (0, 0, 0))  # the builder's +Y → +Z rotation
-    return mi.load_dict({"type": "envmap", "bitmap": mi.Bitmap(np.asarray(img, np.float32)),
-                         "to_world": mi.ScalarTransform4f(m.tolist())})
+    return mi.load_dict(
+        {
+            "type": "envmap",
+            "bitmap": mi.Bitmap(np.asarray(img, np.float32)),
+            "to_world": mi.ScalarTransform4f(m.tolist()),
+        }
+    )
 
 
 def _eval(mi, emitter, d):
@@ -64,7 +69,9 @@ def test_furnace_and_disc_closed_forms():
     sun = envs.sun_environment(15.0, 30.0)
     a = math.radians(15.0)
     ct = np.clip(n @ np.array(sun.sun.direction), -1, 1)
-    want = np.asarray(sphere_light_irradiance(ct, np.full_like(ct, a), math.pi / (math.pi * math.sin(a) ** 2)))
+    want = np.asarray(
+        sphere_light_irradiance(ct, np.full_like(ct, a), math.pi / (math.pi * math.sin(a) ** 2))
+    )
     np.testing.assert_allclose(envs.irradiance_quadrature(sun, n)[:, 0], want, atol=2e-5)
 
 
@@ -78,8 +85,9 @@ def test_quadrature_agrees_with_mitsuba_irradiance(mi, tmp_path):
     scene = sky_scene(env, str(path), 8)
     n = ir.fibonacci_sphere(96).astype(np.float32)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    ref = ReferenceCache(tmp_path / "cache").get(ReferenceRequest(
-        scene=scene, spp=4096, pass_spp=1024, quantity="irradiance", points=n, normals=n))
+    ref = ReferenceCache(tmp_path / "cache").get(
+        ReferenceRequest(scene=scene, spp=4096, pass_spp=1024, quantity="irradiance", points=n, normals=n)
+    )
     quad = envs.irradiance_quadrature(env, n, 4)
     z = (quad - ref.mean) / ref.sigma()
     assert abs(np.median(z)) < 0.3
@@ -87,8 +95,10 @@ def test_quadrature_agrees_with_mitsuba_irradiance(mi, tmp_path):
     assert np.mean(np.abs(z) > 4) < 0.02
 
 
-@pytest.mark.skipif(not (envs.probe_available("grace") and envs.probe_available("uffizi")),
-                    reason="measured probes not found (../shared/probes or $RTFIT_PROBE_DIR)")
+@pytest.mark.skipif(
+    not (envs.probe_available("grace") and envs.probe_available("uffizi")),
+    reason="measured probes not found (../shared/probes or $RTFIT_PROBE_DIR)",
+)
 def test_probes_load_with_sky_up():
     for name in ("grace", "uffizi"):
         env = envs.probe_environment(name, 32)
@@ -131,8 +141,12 @@ def test_all_zero_environment():
 def test_drjit_quadrature_matches_numpy():
     env = envs.map_environment("s", "s", "studio", envs.studio_map(16, 32))
     n = ir.fibonacci_sphere(40)
-    np.testing.assert_allclose(envs.irradiance_quadrature(env, n, 2, "llvm"), envs.irradiance_quadrature(env, n, 2),
-                               rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(
+        envs.irradiance_quadrature(env, n, 2, "llvm"),
+        envs.irradiance_quadrature(env, n, 2),
+        rtol=1e-12,
+        atol=1e-14,
+    )
 
 
 def test_bad_input(tmp_path):
@@ -155,14 +169,24 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
 
     def tiny(quick, spp):
         cfg = orig(True, spp)
-        cfg.update(environments=["constant", "sun-10", "overcast"], normals=128, probe_spp=2048,
-                   probe_pass_spp=1024, resolution=24, spp=64, pass_spp=32, map_height=16)
+        cfg.update(
+            environments=["constant", "sun-10", "overcast"],
+            normals=128,
+            probe_spp=2048,
+            probe_pass_spp=1024,
+            resolution=24,
+            spp=64,
+            pass_spp=32,
+            map_height=16,
+        )
         return cfg
 
     monkeypatch.setattr(ib, "configure", tiny)
     from rtfit.experiments.cli import main
 
-    rc = main(["run", "irradiance-bases", "--quick", "--out", str(tmp_path / "out"), "--cache", str(tmp_path / "c")])
+    rc = main(
+        ["run", "irradiance-bases", "--quick", "--out", str(tmp_path / "out"), "--cache", str(tmp_path / "c")]
+    )
     assert rc in (0, None)
     res = load_results(tmp_path / "out" / "irradiance-bases")
     assert all(c["passed"] for c in res["checks"]), [c for c in res["checks"] if not c["passed"]]

@@ -25,7 +25,7 @@ from rtfit.realtime import fog
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 
 Float, Float64 = dr.llvm.Float, dr.llvm.Float64
-EPS32 = 2.0 ** -24
+EPS32 = 2.0**-24
 
 
 def tau_quad(z0, z1, dist, b, c) -> mp.mpf:
@@ -63,15 +63,15 @@ def test_float32_against_mpmath_random_domain():
 
 
 EXTREMES = [
-    (10.0, 10.0, 1000.0, 1e-3, 0.01),        # Δz = 0
-    (0.0, 1e-5, 1000.0, 1e-3, 0.01),         # c·Δz = 1e-7
-    (0.0, 0.0125, 1e4, 1e-3, 1e-4),          # just above the seed's 0.01 m threshold
-    (1000.0, 0.0, 1500.0, 0.05, 0.2),        # c·Δz = −200: camera above dense ground fog
-    (0.0, 1500.0, 3000.0, 0.05, 0.2),        # c·Δz = +300
-    (5.0, 50.0, 100.0, 1e-3, 0.0),           # homogeneous
-    (0.0, 0.0, 1e6, 1e-4, 1e-3),             # 10⁶ m
-    (-50.0, 30.0, 500.0, 1e-4, 1.0),         # below the reference height, steep falloff
-    (3.0, 3.0 + 1e-6, 2.0, 0.3, 7.0),        # tiny |Δz|, large c
+    (10.0, 10.0, 1000.0, 1e-3, 0.01),  # Δz = 0
+    (0.0, 1e-5, 1000.0, 1e-3, 0.01),  # c·Δz = 1e-7
+    (0.0, 0.0125, 1e4, 1e-3, 1e-4),  # just above the seed's 0.01 m threshold
+    (1000.0, 0.0, 1500.0, 0.05, 0.2),  # c·Δz = −200: camera above dense ground fog
+    (0.0, 1500.0, 3000.0, 0.05, 0.2),  # c·Δz = +300
+    (5.0, 50.0, 100.0, 1e-3, 0.0),  # homogeneous
+    (0.0, 0.0, 1e6, 1e-4, 1e-3),  # 10⁶ m
+    (-50.0, 30.0, 500.0, 1e-4, 1.0),  # below the reference height, steep falloff
+    (3.0, 3.0 + 1e-6, 2.0, 0.3, 7.0),  # tiny |Δz|, large c
 ]
 
 
@@ -100,8 +100,11 @@ def test_zero_density_distance_and_underflow():
     assert fog.height_fog_optical_depth(1000.0, 0.0, 1500.0, 0.0, 200.0) == 0.0
     assert fog.height_fog_optical_depth(-1e4, -1e4, 0.0, 1.0, 10.0) == 0.0
     # b·D so large that T underflows: exactly 0, τ finite or +inf, never NaN
-    t = np.asarray(fog.height_fog_transmittance(Float([0.0, -1e4]), Float([0.0, -1e4]), Float([1e6, 1e6]),
-                                                 1.0, Float([0.0, 10.0])))
+    t = np.asarray(
+        fog.height_fog_transmittance(
+            Float([0.0, -1e4]), Float([0.0, -1e4]), Float([1e6, 1e6]), 1.0, Float([0.0, 10.0])
+        )
+    )
     assert np.array_equal(t, [0.0, 0.0])
     tau = np.asarray(fog.height_fog_optical_depth(Float([-1e4]), Float([-1e4]), Float([1e6]), 1.0, 10.0))
     assert np.isposinf(tau[0])
@@ -113,24 +116,40 @@ def test_sky_pixels_infinite_distance():
     expect = b * math.exp(-c * z0) / (c * dz)
     got = fog.height_fog_optical_depth_ray(z0, dz, math.inf, b, c)
     assert abs(got / expect - 1) < 1e-14
-    got32 = np.asarray(fog.height_fog_optical_depth_ray(Float([z0, z0, z0, z0]), Float([dz, 0.0, -0.1, 1e-9]),
-                                                        Float([math.inf] * 4), b, c))
+    got32 = np.asarray(
+        fog.height_fog_optical_depth_ray(
+            Float([z0, z0, z0, z0]), Float([dz, 0.0, -0.1, 1e-9]), Float([math.inf] * 4), b, c
+        )
+    )
     assert abs(got32[0] / expect - 1) < 2e-6 and np.isposinf(got32[1]) and np.isposinf(got32[2])
     assert abs(got32[3] / (b * math.exp(-c * z0) / (c * 1e-9)) - 1) < 2e-6
     assert fog.height_fog_optical_depth_ray(z0, -0.5, math.inf, 0.0, c) == 0.0
     # horizontal sky ray far above a steep fog: density underflows in float32, the path is infinite: τ = ∞
-    t = np.asarray(fog.height_fog_optical_depth_ray(Float([18.0]), Float([0.0]), Float([math.inf]), 1.0, 10.0))
+    t = np.asarray(
+        fog.height_fog_optical_depth_ray(Float([18.0]), Float([0.0]), Float([math.inf]), 1.0, 10.0)
+    )
     assert np.isposinf(t[0])
     assert math.isinf(fog.height_fog_optical_depth_ray(z0, 0.5, math.inf, b, 0.0))
     # finite distance agrees with the end-point form
     d = 1234.5
-    assert abs(fog.height_fog_optical_depth_ray(z0, dz, d, b, c)
-               / fog.height_fog_optical_depth(z0, z0 + dz * d, d, b, c) - 1) < 1e-14
+    assert (
+        abs(
+            fog.height_fog_optical_depth_ray(z0, dz, d, b, c)
+            / fog.height_fog_optical_depth(z0, z0 + dz * d, d, b, c)
+            - 1
+        )
+        < 1e-14
+    )
 
 
 @settings(max_examples=60, deadline=None)
-@given(z0=st.floats(-1e4, 1e4), dz=st.floats(-1.0, 1.0), dist=st.floats(0.0, 1e6),
-       b=st.floats(0.0, 1.0), c=st.floats(0.0, 10.0))
+@given(
+    z0=st.floats(-1e4, 1e4),
+    dz=st.floats(-1.0, 1.0),
+    dist=st.floats(0.0, 1e6),
+    b=st.floats(0.0, 1.0),
+    c=st.floats(0.0, 10.0),
+)
 def test_property_finite_and_monotone(z0, dz, dist, b, c):
     # wrapped in arrays so that one kernel serves every example
     a = [Float([x]) for x in (z0, z0 + dz * min(dist, 1e4), dist, b, c)]
@@ -171,8 +190,17 @@ def test_engine_taylor_form():
 
 
 # ------------------------------------------------------------------------------- bad input
-@pytest.mark.parametrize("kw,bad", [("density", -1.0), ("density", math.nan), ("falloff", -0.1),
-                                    ("falloff", math.nan), ("distance", -5.0), ("distance", math.inf)])
+@pytest.mark.parametrize(
+    "kw,bad",
+    [
+        ("density", -1.0),
+        ("density", math.nan),
+        ("falloff", -0.1),
+        ("falloff", math.nan),
+        ("distance", -5.0),
+        ("distance", math.inf),
+    ],
+)
 def test_bad_input_one_line_error(kw, bad):
     args = {"camera_z": 0.0, "end_z": 1.0, "distance": 10.0, "density": 1e-3, "falloff": 0.01}
     args[kw] = bad
@@ -196,13 +224,14 @@ def test_phase_functions_normalised():
         integral = 2 * math.pi * float(mp.quad(lambda u: fog.phase_hg(float(u), g), [-1, 1]))
         assert abs(integral - 1) < 1e-10
     assert abs(2 * math.pi * float(mp.quad(lambda u: fog.phase_rayleigh(float(u)), [-1, 1])) - 1) < 1e-12
-    assert abs(fog.phase_hg(1.0, 0.6) - (1 - 0.36) / (4 * math.pi * 0.4 ** 3)) < 1e-12
+    assert abs(fog.phase_hg(1.0, 0.6) - (1 - 0.36) / (4 * math.pi * 0.4**3)) < 1e-12
 
 
 def test_fog_pass_matches_blend():
     rgb = (np.array([0.5], np.float32), np.array([0.2], np.float32), np.array([0.1], np.float32))
-    out = fog.fog_pass(rgb, np.float32([2.0]), np.float32([0.1]), np.float32([800.0]), 2e-4, 4e-3,
-                       (0.3, 0.3, 0.4))
+    out = fog.fog_pass(
+        rgb, np.float32([2.0]), np.float32([0.1]), np.float32([800.0]), 2e-4, 4e-3, (0.3, 0.3, 0.4)
+    )
     tau = float(tau_quad(2.0, 82.0, 800.0, 2e-4, 4e-3))
     t = math.exp(-tau)
     for ch, col, c in zip(out, (0.5, 0.2, 0.1), (0.3, 0.3, 0.4)):
@@ -240,10 +269,27 @@ def _np_segment(o, d, vol, tmax):
 def test_fog_volumes_against_quadrature():
     c30, s30 = math.cos(math.radians(30)), math.sin(math.radians(30))
     rot = ((c30, -s30, 0.0), (s30, c30, 0.0), (0.0, 0.0, 1.0))
-    vols = [fog.FogVolume(center=(0.0, 10.0, 2.0), half_size=(3.0, 2.0, 1.5), rotation=rot, ellipsoid=True,
-                          density=0.4, falloff=0.7, gradient=(0.0, 0.3, 1.0), gradient_origin=(0.0, 10.0, 1.0)),
-            fog.FogVolume(center=(2.0, 16.0, 1.0), half_size=(2.0, 2.0, 2.0), rotation=rot, density=0.2,
-                          falloff=0.3, gradient=(1.0, 0.0, 0.5), gradient_origin=(2.0, 16.0, 0.0))]
+    vols = [
+        fog.FogVolume(
+            center=(0.0, 10.0, 2.0),
+            half_size=(3.0, 2.0, 1.5),
+            rotation=rot,
+            ellipsoid=True,
+            density=0.4,
+            falloff=0.7,
+            gradient=(0.0, 0.3, 1.0),
+            gradient_origin=(0.0, 10.0, 1.0),
+        ),
+        fog.FogVolume(
+            center=(2.0, 16.0, 1.0),
+            half_size=(2.0, 2.0, 2.0),
+            rotation=rot,
+            density=0.2,
+            falloff=0.3,
+            gradient=(1.0, 0.0, 0.5),
+            gradient_origin=(2.0, 16.0, 0.0),
+        ),
+    ]
     rng = np.random.default_rng(5)
     n = 64
     o = np.tile([0.0, 0.0, 1.5], (n, 1))
@@ -251,7 +297,9 @@ def test_fog_volumes_against_quadrature():
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     tmax = np.where(rng.random(n) < 0.3, 14.0, np.inf)
     taus = fog.fog_volumes_optical_depth(o, d, tmax, vols)  # float64 NumPy in → Float64 kernel
-    taus32 = fog.fog_volumes_optical_depth(o.astype(np.float32), d.astype(np.float32), tmax.astype(np.float32), vols)
+    taus32 = fog.fog_volumes_optical_depth(
+        o.astype(np.float32), d.astype(np.float32), tmax.astype(np.float32), vols
+    )
     hits = 0
     for v, vol in enumerate(vols):
         g = np.asarray(vol.gradient) / np.linalg.norm(vol.gradient)
@@ -283,15 +331,25 @@ def test_fog_volume_bad_input():
 
 def test_fog_volumes_shade_mixes_colours():
     vol = fog.FogVolume(center=(0, 5, 0), half_size=(1, 1, 1), density=0.5, colour=(1.0, 0.0, 0.0))
-    out = fog.fog_volumes_shade(np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 0.0]]),
-                                np.array([[0.0, 1.0, 0.0]]), np.array([np.inf]), [vol])
+    out = fog.fog_volumes_shade(
+        np.array([[0.0, 0.0, 1.0]]),
+        np.array([[0.0, 0.0, 0.0]]),
+        np.array([[0.0, 1.0, 0.0]]),
+        np.array([np.inf]),
+        [vol],
+    )
     t = math.exp(-1.0)  # 2 m at 0.5 /m
     assert np.allclose(out[0], [1 - t, 0.0, t], atol=1e-6)
 
 
 @settings(max_examples=40, deadline=None)
-@given(z0=st.floats(-1e4, 1e4), dz=st.floats(-1.0, 1.0), dist=st.one_of(st.floats(0.0, 1e6), st.just(math.inf)),
-       b=st.floats(0.0, 1.0), c=st.floats(0.0, 10.0))
+@given(
+    z0=st.floats(-1e4, 1e4),
+    dz=st.floats(-1.0, 1.0),
+    dist=st.one_of(st.floats(0.0, 1e6), st.just(math.inf)),
+    b=st.floats(0.0, 1.0),
+    c=st.floats(0.0, 10.0),
+)
 def test_property_ray_form_never_nan(z0, dz, dist, b, c):
     a = [Float([x]) for x in (z0, dz, dist, b, c)]
     tau = float(np.asarray(fog.height_fog_optical_depth_ray(*a))[0])

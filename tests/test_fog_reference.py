@@ -39,8 +39,10 @@ def test_parse_roundtrip_and_defaults():
         assert parse_scene_text(scene_to_toml(sc), source=sc.source) == sc
 
 
-@pytest.mark.parametrize("density,falloff,key", [("nan", 1.0, "density"), (-0.1, 1.0, "density"),
-                                                 (0.5, "nan", "falloff"), (0.5, -2.0, "falloff")])
+@pytest.mark.parametrize(
+    "density,falloff,key",
+    [("nan", 1.0, "density"), (-0.1, 1.0, "density"), (0.5, "nan", "falloff"), (0.5, -2.0, "falloff")],
+)
 def test_bad_fog_parameters_one_line_error(density, falloff, key):
     with pytest.raises(SceneError, match=f"media\\[0\\].{key}") as e:
         parse_scene_text(FOG_TOML.format(density=density, falloff=falloff))
@@ -99,8 +101,11 @@ def test_mitsuba_transmittance_equals_closed_form(mi, ellipsoid):
     from rtfit.reference.estimators import gbuffer
 
     base = load_scene(library_path("fog_transmittance"))
-    scene = dataclasses.replace(base, camera=dataclasses.replace(base.camera, width=16, height=16),
-                                media=(dataclasses.replace(base.media[0], ellipsoid=ellipsoid),))
+    scene = dataclasses.replace(
+        base,
+        camera=dataclasses.replace(base.camera, width=16, height=16),
+        media=(dataclasses.replace(base.media[0], ellipsoid=ellipsoid),),
+    )
     mi_, ms = load_mitsuba_scene(scene)
     spp = 512
     p = radiance_pass(mi_, ms, spp, 3)
@@ -121,15 +126,35 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     from rtfit.experiments.report import load_results
     from rtfit.experiments.runner import run_experiments
 
-    tiny = dict(sun_elevations_deg=[30.0], resolution=[24, 12], spp=32, pass_spp=16, check_resolution=12,
-                check_spp=64, volumes=True, map_size=[12, 8], random_samples=2000, cost_elements=1 << 12)
+    tiny = dict(
+        sun_elevations_deg=[30.0],
+        resolution=[24, 12],
+        spp=32,
+        pass_spp=16,
+        check_resolution=12,
+        check_spp=64,
+        volumes=True,
+        map_size=[12, 8],
+        random_samples=2000,
+        cost_elements=1 << 12,
+    )
     from rtfit.experiments import height_fog_report
 
     # figures are exercised by the quick run; here they would double the test's time
     monkeypatch.setattr(height_fog_report, "_figures", lambda *a, **k: [])
-    run_experiments([get_experiment("height-fog")], tmp_path / "out", quick=True, variant="llvm_ad_rgb", spp=None,
-                    seed=0, cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False,
-                    overrides=tiny)
+    run_experiments(
+        [get_experiment("height-fog")],
+        tmp_path / "out",
+        quick=True,
+        variant="llvm_ad_rgb",
+        spp=None,
+        seed=0,
+        cache_dir=tmp_path / "cache",
+        executor="inline",
+        workers=None,
+        progress=False,
+        overrides=tiny,
+    )
     res = load_results(tmp_path / "out" / "height-fog")
     assert res["experiment"] == "height-fog"
     assert {c["id"] for c in res["cases"]} == {"e30-single", "e30-multiple", "volumes"}

@@ -47,15 +47,18 @@ def test_max_depth_respected():
     import dataclasses
 
     shapes = (Sphere((0, 0, 0), 1.0), Sphere((3, 0, 0), 1.0))
-    scene = dataclasses.replace(sphere_scene(transport="global", shapes=shapes),
-                                reference=ReferenceSettings("global", max_depth=3))
+    scene = dataclasses.replace(
+        sphere_scene(transport="global", shapes=shapes), reference=ReferenceSettings("global", max_depth=3)
+    )
     assert choose_integrator(scene).max_depth == 3
 
 
 def test_media_use_volpathmis_never_volpath():
     import dataclasses
 
-    medium = HomogeneousMedium(boundary=Cube((0, 0, 0), (4, 4, 4)), sigma_t=(0.1, 0.2, 0.3), albedo=(0.9,) * 3)
+    medium = HomogeneousMedium(
+        boundary=Cube((0, 0, 0), (4, 4, 4)), sigma_t=(0.1, 0.2, 0.3), albedo=(0.9,) * 3
+    )
     scene = dataclasses.replace(sphere_scene(transport="global"), media=(medium,))
     c = choose_integrator(scene)
     assert (c.type, c.max_depth) == ("volpathmis", -1)

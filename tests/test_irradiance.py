@@ -43,8 +43,12 @@ def test_basis_matches_drjit_sh_eval_up_to_condon_shortley():
 
 def test_basis_orthonormal_by_scipy_quadrature():
     def g(i, j):
-        f = lambda ph, th: (ir.sh9_basis(np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph),
-                                                   math.cos(th)]))[[i, j]].prod() * math.sin(th))
+        f = lambda ph, th: (
+            ir.sh9_basis(np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)]))[
+                [i, j]
+            ].prod()
+            * math.sin(th)
+        )
         return integrate.dblquad(f, 0, math.pi, 0, 2 * math.pi, epsabs=1e-9)[0]
 
     for i, j in ((0, 0), (3, 3), (6, 6), (8, 8), (1, 3), (4, 8)):
@@ -71,9 +75,14 @@ def test_disk_sun_sh_matches_scipy_projection():
     t /= np.linalg.norm(t)
     b = np.cross(d, t)
     for k in (0, 2, 3, 6, 8):
-        f = lambda ph, g: (ir.sh9_basis(math.cos(g) * d + math.sin(g) * (math.cos(ph) * t + math.sin(ph) * b))[k]
-                           * math.sin(g) * radiance)
-        assert integrate.dblquad(f, 0, alpha, 0, 2 * math.pi, epsabs=1e-10)[0] == pytest.approx(want[k], abs=1e-7)
+        f = lambda ph, g: (
+            ir.sh9_basis(math.cos(g) * d + math.sin(g) * (math.cos(ph) * t + math.sin(ph) * b))[k]
+            * math.sin(g)
+            * radiance
+        )
+        assert integrate.dblquad(f, 0, alpha, 0, 2 * math.pi, epsabs=1e-10)[0] == pytest.approx(
+            want[k], abs=1e-7
+        )
 
 
 def test_rotation_of_environment_rotates_reconstruction():
@@ -113,8 +122,10 @@ def test_valve_cube_exact_at_axes_and_seed_listing():
 
 def test_windows_and_lambda_removes_ringing():
     np.testing.assert_allclose(ir.sh_window("hann"), [1.0, 0.75, 0.25])
-    np.testing.assert_allclose(ir.sh_window("lanczos"), [1.0, math.sin(math.pi / 3) / (math.pi / 3),
-                                                         math.sin(2 * math.pi / 3) / (2 * math.pi / 3)])
+    np.testing.assert_allclose(
+        ir.sh_window("lanczos"),
+        [1.0, math.sin(math.pi / 3) / (math.pi / 3), math.sin(2 * math.pi / 3) / (2 * math.pi / 3)],
+    )
     c = ir.sh9_from_directional([0.2, 0.3, 0.9])
     lam = ir.fit_window_lambda(c)
     assert lam > 0
@@ -195,11 +206,14 @@ def test_drjit_and_numpy_paths_agree():
     c = rng.normal(size=(9, 3))
     cube = rng.uniform(0, 2, (6, 3))
     for method, kname, coeffs, got in (
-            ("sh-l2", "sh", c, ir.sh9_irradiance(c, n)),
-            ("sh-l1", "sh", c, ir.sh4_irradiance(c, n)),
-            ("sh-l1-geomerics", "geomerics", np.abs(c), ir.sh4_irradiance_geomerics(np.abs(c), n)),
-            ("ambient-cube", "ambient_cube", cube, ir.ambient_cube_irradiance(cube, n))):
-        want = np.stack(ir.numpy_reference(kname)(n[:, 0], n[:, 1], n[:, 2], *ir.kernel_args(method, coeffs)), -1)
+        ("sh-l2", "sh", c, ir.sh9_irradiance(c, n)),
+        ("sh-l1", "sh", c, ir.sh4_irradiance(c, n)),
+        ("sh-l1-geomerics", "geomerics", np.abs(c), ir.sh4_irradiance_geomerics(np.abs(c), n)),
+        ("ambient-cube", "ambient_cube", cube, ir.ambient_cube_irradiance(cube, n)),
+    ):
+        want = np.stack(
+            ir.numpy_reference(kname)(n[:, 0], n[:, 1], n[:, 2], *ir.kernel_args(method, coeffs)), -1
+        )
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
 
 

@@ -9,10 +9,23 @@ from .conftest import sphere_scene
 
 
 def _jobs(tmp_path):
-    return [Job("rtfit.experiments.half_lambert:render_case",
-                dict(scene_toml=scene_to_toml(sphere_scene(alpha_deg=a, res=12)), spp=32, pass_spp=16, seed=3,
-                     variant="llvm_ad_rgb", cache_dir=str(tmp_path / f"cache-{tag}"), probe_count=5, probe_spp=32),
-                label=f"a{a}") for a, tag in ((5.0, "x"), (20.0, "y"))]
+    return [
+        Job(
+            "rtfit.experiments.half_lambert:render_case",
+            dict(
+                scene_toml=scene_to_toml(sphere_scene(alpha_deg=a, res=12)),
+                spp=32,
+                pass_spp=16,
+                seed=3,
+                variant="llvm_ad_rgb",
+                cache_dir=str(tmp_path / f"cache-{tag}"),
+                probe_count=5,
+                probe_spp=32,
+            ),
+            label=f"a{a}",
+        )
+        for a, tag in ((5.0, "x"), (20.0, "y"))
+    ]
 
 
 def test_process_pool_matches_inline(tmp_path):

@@ -149,8 +149,18 @@ def test_to_dict_shape_and_json():
     res = fit_least_squares(line_residual, {"m": Param(1.0), "q": Param(0.5, -1.0, 1.0)}, (x, 2 * x + 0.1))
     assert isinstance(res, FitResult)
     doc = json.loads(json.dumps(res.to_dict(), allow_nan=False))
-    assert set(doc) >= {"parameters", "rms_residual", "ssr", "n_residuals", "dof", "steps", "converged",
-                        "message", "correlation", "param_names"}
+    assert set(doc) >= {
+        "parameters",
+        "rms_residual",
+        "ssr",
+        "n_residuals",
+        "dof",
+        "steps",
+        "converged",
+        "message",
+        "correlation",
+        "param_names",
+    }
     assert list(doc["parameters"]) == ["m", "q"]
     assert set(doc["parameters"]["q"]) == {"value", "stderr", "lower", "upper", "at_bound"}
     assert doc["parameters"]["m"]["lower"] is None and doc["parameters"]["q"]["lower"] == -1.0
@@ -172,10 +182,18 @@ def test_same_residual_function_is_not_traced_again():
     assert res.values["k"] == pytest.approx(1.5, abs=0.05)
 
 
-@pytest.mark.parametrize("kwargs", [dict(initial=0.0, lower=1.0, upper=0.0), dict(initial=1.0, lower=1.0),
-                                    dict(initial=2.0, upper=1.0), dict(initial=math.nan),
-                                    dict(initial=math.inf), dict(initial=0.0, lower=math.nan),
-                                    dict(initial=0.0, lower=math.inf)])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(initial=0.0, lower=1.0, upper=0.0),
+        dict(initial=1.0, lower=1.0),
+        dict(initial=2.0, upper=1.0),
+        dict(initial=math.nan),
+        dict(initial=math.inf),
+        dict(initial=0.0, lower=math.nan),
+        dict(initial=0.0, lower=math.inf),
+    ],
+)
 def test_param_validation(kwargs):
     with pytest.raises(ValueError) as err:
         Param(**kwargs)

@@ -29,7 +29,7 @@ def _smooth_image(h=64, w=64, seed=0):
     """A smooth positive HDR-ish image (values 0.2 … 3) with a bright square."""
     yy, xx = np.mgrid[0:h, 0:w] / max(h, w)
     img = np.stack([0.2 + xx, 0.3 + 0.5 * yy, 0.7 + 0.2 * xx * yy], axis=-1)
-    img[h // 3: 2 * h // 3, w // 3: 2 * w // 3] *= 3.0
+    img[h // 3 : 2 * h // 3, w // 3 : 2 * w // 3] *= 3.0
     return img
 
 
@@ -128,8 +128,16 @@ def test_ssim_matches_scikit_image_on_the_tone_map():
     ap = ref * (1 + 0.2 * rng.standard_normal(ref.shape)) + 0.1
     mask = np.zeros(ref.shape[:2], bool)
     mask[5:30, 10:40] = True
-    _, smap = structural_similarity(ref / (1 + ref), ap / (1 + ap), data_range=1.0, channel_axis=-1,
-                                    gaussian_weights=True, sigma=1.5, use_sample_covariance=False, full=True)
+    _, smap = structural_similarity(
+        ref / (1 + ref),
+        ap / (1 + ap),
+        data_range=1.0,
+        channel_axis=-1,
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        full=True,
+    )
     expect = smap[mask].mean()
     m = compute_metrics(ap, ref, np.full(ref.shape, 0.01), mask=mask, names=("ssim",))["ssim"]
     assert m.value == pytest.approx(expect, rel=1e-12)
@@ -196,8 +204,12 @@ def test_to_dict_is_json_ready():
     doc = json.loads(json.dumps(m.to_dict(), allow_nan=False))
     assert list(doc) == list(ALL_METRICS)
     assert set(doc["rmse"]) == {"value", "noise_floor", "resolved", "debiased"}
-    assert MetricValue(1.0, 0.5, True).to_dict() == {"value": 1.0, "noise_floor": 0.5, "resolved": True,
-                                                      "debiased": None}
+    assert MetricValue(1.0, 0.5, True).to_dict() == {
+        "value": 1.0,
+        "noise_floor": 0.5,
+        "resolved": True,
+        "debiased": None,
+    }
 
 
 # ---------------------------------------------------------------------------------- noise floors
@@ -293,8 +305,21 @@ def test_z_scores_drop_and_count_zero_stderr():
 
 
 # ----------------------------------------------------------------------------------- bad inputs
-@pytest.mark.parametrize("case", ["shape", "stderr_shape", "nan", "inf_ref", "neg_stderr", "mask_shape",
-                                  "mask_dtype", "mask_empty", "ndim", "unknown"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "shape",
+        "stderr_shape",
+        "nan",
+        "inf_ref",
+        "neg_stderr",
+        "mask_shape",
+        "mask_dtype",
+        "mask_empty",
+        "ndim",
+        "unknown",
+    ],
+)
 def test_bad_inputs_raise_one_line_value_errors(case):
     a = np.ones((4, 4, 3))
     r, s, mask, names = a.copy(), np.full(a.shape, 0.1), None, ("rmse",)

@@ -52,7 +52,12 @@ def test_sphere_light_probes_match_quadrature(mi):
         if exact == 0.0:
             assert r.mean[k, 0] == 0.0
         else:
-            assert abs(r.mean[k, 0] - exact) < 4.5 * se + 1e-6 * exact, (math.degrees(thetas[k]), r.mean[k, 0], exact, se)
+            assert abs(r.mean[k, 0] - exact) < 4.5 * se + 1e-6 * exact, (
+                math.degrees(thetas[k]),
+                r.mean[k, 0],
+                exact,
+                se,
+            )
 
 
 def test_image_matches_closed_form_within_noise(mi):
@@ -66,8 +71,12 @@ def test_image_matches_closed_form_within_noise(mi):
     r = radiance_pass(mi, ms, spp, seed=11)
     gb = render_gbuffer(scene)
     m = gb.mask & ~gb.emitter
-    cos_t, a = sphere_light_geometry(gb.position[m].astype(np.float64), gb.normal[m].astype(np.float64),
-                                     np.asarray(light.center), light.radius)
+    cos_t, a = sphere_light_geometry(
+        gb.position[m].astype(np.float64),
+        gb.normal[m].astype(np.float64),
+        np.asarray(light.center),
+        light.radius,
+    )
     exact = np.asarray(sphere_light_irradiance(cos_t, a, light.radiance[0])) / math.pi
     se = np.sqrt(r.var[m][:, 0] / spp)
     lit = se > 0
@@ -84,8 +93,9 @@ def test_image_matches_closed_form_within_noise(mi):
 def test_white_furnace(mi, integrator_transport, shapes_extra):
     """Uniform environment of radiance 1 on a Lambertian sphere of albedo ρ: radiance is exactly ρ."""
     rho = 0.8
-    scene = sphere_scene(lights=(ConstantEnv((1.0, 1.0, 1.0)),), transport=integrator_transport,
-                         reflectance=rho, res=24)
+    scene = sphere_scene(
+        lights=(ConstantEnv((1.0, 1.0, 1.0)),), transport=integrator_transport, reflectance=rho, res=24
+    )
     _, ms = load_mitsuba_scene(scene)
     spp = 256
     r = radiance_pass(mi, ms, spp, seed=5)
@@ -198,4 +208,6 @@ def test_bad_requests_are_clear():
     with pytest.raises(ValueError, match="quantity"):
         ReferenceRequest(scene=scene, spp=64, quantity="albedo")
     with pytest.raises(ValueError, match="unit length"):
-        ReferenceRequest(scene=scene, spp=64, quantity="irradiance", points=np.zeros((2, 3)), normals=np.ones((2, 3)))
+        ReferenceRequest(
+            scene=scene, spp=64, quantity="irradiance", points=np.zeros((2, 3)), normals=np.ones((2, 3))
+        )

@@ -40,43 +40,114 @@ def _results() -> dict:
         "title": "Half-Lambert & wrap <lighting>",
         "summary": "We measured **irradiance** near the terminator; see `w(α)` and $E = \\pi L$.\n\nSecond paragraph.",
         "created": "2026-11-23T10:00:00Z",
-        "config": {"quick": True, "variant": "llvm_ad_rgb", "spp": 256, "resolution": [128, 128],
-                   "alphas_deg": [5.0, 30.0]},
+        "config": {
+            "quick": True,
+            "variant": "llvm_ad_rgb",
+            "spp": 256,
+            "resolution": [128, 128],
+            "alphas_deg": [5.0, 30.0],
+        },
         "versions": {"rtfit": "0.1.0", "mitsuba": "3.9.1", "jax": None, "python": "3.11.7"},
         "device": "CPU (LLVM backend, 2 threads): Test CPU",
-        "sections": [{"id": "method", "title": "Method",
-                      "text": "A sphere.\n\n- one **bold** item\n- a [link](fitted/wrap.json)"}],
-        "cases": [
-            {"id": "a05-sky0", "label": "α = 5°, no sky", "parameters": {"alpha_deg": 5.0, "sky_radiance": 0.0},
-             "scene": {"name": "half-lambert-sphere", "hash": "ab" * 32},
-             "reference": {"integrator": "direct", "max_depth": 2, "spp": 256, "passes": 4, "cache_key": "cd" * 32,
-                           "mean_rel_stderr": 0.004, "samples_per_second": 1.2e7},
-             "approximations": [
-                 {"method": "half-lambert", "label": "Half-Lambert", "fitted": False,
-                  "parameters": {"w": 1.0, "p": 2.0},
-                  "metrics": {"rmse": _metric(0.0123, 0.001), "psnr": _metric(38.2, 60.0),
-                              "smape": _metric(0.5, 0.01)},
-                  "cost": {"ns_per_pixel": 0.8, "pixels_per_second": 1.2e9, "backend": "llvm"},
-                  "figures": ["figures/case.png"]},
-                 {"method": "exact", "label": "Exact", "fitted": False, "parameters": {},
-                  "metrics": {"rmse": _metric(0.00091, 0.001, resolved=False), "psnr": _metric(61.0, 60.0, False)},
-                  "cost": None}]},
-            {"id": "a30-sky0", "label": "α = 30°, sky radiance 0.2", "parameters": {"alpha_deg": 30.0},
-             "approximations": [
-                 {"method": "half-lambert", "label": "Half-Lambert", "metrics": {"rmse": _metric(0.05, 0.001)}},
-                 {"method": "exact", "label": "Exact", "metrics": {"rmse": _metric(0.0011, 0.001)}}]},
+        "sections": [
+            {
+                "id": "method",
+                "title": "Method",
+                "text": "A sphere.\n\n- one **bold** item\n- a [link](fitted/wrap.json)",
+            }
         ],
-        "fits": [{"id": "wrap-w", "label": "w(α) for wrap lighting", "model": "w(α) = c1·sin α + c2·sin² α",
-                  "parameters": {"c1": {"value": 1.0, "stderr": 0.01, "lower": 0.0, "upper": 2.0, "at_bound": False},
-                                 "c2": {"value": 2.0, "stderr": 1e-5, "lower": 0.0, "upper": 2.0, "at_bound": True}},
-                  "rms_residual": 0.001, "n_residuals": 1000, "converged": True, "file": "fitted/wrap.json"}],
-        "figures": [{"file": "figures/terminator.png", "caption": "Irradiance across the *terminator*.",
-                     "section": "results"},
-                    {"file": "figures/pareto.png", "caption": "Error vs cost.", "section": "costs"}],
-        "costs": [{"method": "half-lambert", "label": "Half-Lambert", "ns_per_pixel": 0.8, "backend": "llvm",
-                   "note": "inputs in memory"}],
-        "checks": [{"name": "z spread", "value": 1.01, "expected": "1 ± 0.05", "passed": True},
-                   {"name": "mean z", "value": 0.3, "expected": "0 ± 0.1", "passed": False}],
+        "cases": [
+            {
+                "id": "a05-sky0",
+                "label": "α = 5°, no sky",
+                "parameters": {"alpha_deg": 5.0, "sky_radiance": 0.0},
+                "scene": {"name": "half-lambert-sphere", "hash": "ab" * 32},
+                "reference": {
+                    "integrator": "direct",
+                    "max_depth": 2,
+                    "spp": 256,
+                    "passes": 4,
+                    "cache_key": "cd" * 32,
+                    "mean_rel_stderr": 0.004,
+                    "samples_per_second": 1.2e7,
+                },
+                "approximations": [
+                    {
+                        "method": "half-lambert",
+                        "label": "Half-Lambert",
+                        "fitted": False,
+                        "parameters": {"w": 1.0, "p": 2.0},
+                        "metrics": {
+                            "rmse": _metric(0.0123, 0.001),
+                            "psnr": _metric(38.2, 60.0),
+                            "smape": _metric(0.5, 0.01),
+                        },
+                        "cost": {"ns_per_pixel": 0.8, "pixels_per_second": 1.2e9, "backend": "llvm"},
+                        "figures": ["figures/case.png"],
+                    },
+                    {
+                        "method": "exact",
+                        "label": "Exact",
+                        "fitted": False,
+                        "parameters": {},
+                        "metrics": {
+                            "rmse": _metric(0.00091, 0.001, resolved=False),
+                            "psnr": _metric(61.0, 60.0, False),
+                        },
+                        "cost": None,
+                    },
+                ],
+            },
+            {
+                "id": "a30-sky0",
+                "label": "α = 30°, sky radiance 0.2",
+                "parameters": {"alpha_deg": 30.0},
+                "approximations": [
+                    {
+                        "method": "half-lambert",
+                        "label": "Half-Lambert",
+                        "metrics": {"rmse": _metric(0.05, 0.001)},
+                    },
+                    {"method": "exact", "label": "Exact", "metrics": {"rmse": _metric(0.0011, 0.001)}},
+                ],
+            },
+        ],
+        "fits": [
+            {
+                "id": "wrap-w",
+                "label": "w(α) for wrap lighting",
+                "model": "w(α) = c1·sin α + c2·sin² α",
+                "parameters": {
+                    "c1": {"value": 1.0, "stderr": 0.01, "lower": 0.0, "upper": 2.0, "at_bound": False},
+                    "c2": {"value": 2.0, "stderr": 1e-5, "lower": 0.0, "upper": 2.0, "at_bound": True},
+                },
+                "rms_residual": 0.001,
+                "n_residuals": 1000,
+                "converged": True,
+                "file": "fitted/wrap.json",
+            }
+        ],
+        "figures": [
+            {
+                "file": "figures/terminator.png",
+                "caption": "Irradiance across the *terminator*.",
+                "section": "results",
+            },
+            {"file": "figures/pareto.png", "caption": "Error vs cost.", "section": "costs"},
+        ],
+        "costs": [
+            {
+                "method": "half-lambert",
+                "label": "Half-Lambert",
+                "ns_per_pixel": 0.8,
+                "backend": "llvm",
+                "note": "inputs in memory",
+            }
+        ],
+        "checks": [
+            {"name": "z spread", "value": 1.01, "expected": "1 ± 0.05", "passed": True},
+            {"name": "mean z", "value": 0.3, "expected": "0 ± 0.1", "passed": False},
+        ],
         "notes": ["Radiance is relative to the lit peak (`E⊥ = π`)."],
         "unknown_extra_key": {"ignored": True},
     }
@@ -109,11 +180,26 @@ def exp_dir(tmp_path) -> Path:
 
 
 # --------------------------------------------------------------------------------------------- numbers
-@pytest.mark.parametrize("x, text", [
-    (0.0123, "0.01230"), (0.001, "0.001000"), (0.00091, "9.100e-4"), (1.2e7, "1.200e7"), (123456.0, "1.235e5"),
-    (12345.67, "12350"), (99999.5, "1.000e5"), (9.99996, "10.00"), (-0.5, "-0.5000"), (0.0, "0"), (38.2, "38.20"),
-    (1000, "1000"), (True, "yes"), (None, "—"), ("1 ± 0.05", "1 ± 0.05"),
-])
+@pytest.mark.parametrize(
+    "x, text",
+    [
+        (0.0123, "0.01230"),
+        (0.001, "0.001000"),
+        (0.00091, "9.100e-4"),
+        (1.2e7, "1.200e7"),
+        (123456.0, "1.235e5"),
+        (12345.67, "12350"),
+        (99999.5, "1.000e5"),
+        (9.99996, "10.00"),
+        (-0.5, "-0.5000"),
+        (0.0, "0"),
+        (38.2, "38.20"),
+        (1000, "1000"),
+        (True, "yes"),
+        (None, "—"),
+        ("1 ± 0.05", "1 ± 0.05"),
+    ],
+)
 def test_format_number(x, text):
     assert format_number(x) == text
 
@@ -142,7 +228,7 @@ def test_write_report(exp_dir):
     assert '<span class="math">$E = \\pi L$</span>' in page
 
     # Metric values with their noise floor, 4 significant digits.
-    assert "0.01230 <span class=\"sub\">(floor 0.001000)</span>" in page
+    assert '0.01230 <span class="sub">(floor 0.001000)</span>' in page
     assert "**0.01230** (floor 0.001000)" in md  # best resolved value in bold
     assert "| Half-Lambert | 0.05000 (floor 0.001000) |" in md
     assert "# Half-Lambert & wrap \\<lighting\\>" in md  # markdown would swallow <lighting> as a tag
@@ -150,8 +236,11 @@ def test_write_report(exp_dir):
     assert "smape" in page
 
     # Unresolved: grey/italic class, † mark, footnote; in markdown italic + †.
-    assert re.search(r'class="num unresolved"[^>]*>9\.100e-4 <span class="sub">\(floor 0\.001000\)</span>'
-                     r'<span class="mark">†</span>', page)
+    assert re.search(
+        r'class="num unresolved"[^>]*>9\.100e-4 <span class="sub">\(floor 0\.001000\)</span>'
+        r'<span class="mark">†</span>',
+        page,
+    )
     assert "*9.100e-4 (floor 0.001000)*†" in md
     assert "below the reference's own noise floor" in md.lower()
     assert "noise floor" in page and "means nothing" in page
@@ -161,7 +250,11 @@ def test_write_report(exp_dir):
     assert [n for n, _ in captions] == ["1", "2", "3"]
     assert "Irradiance across the <em>terminator</em>." in captions[1][1]
     assert captions[2][1].startswith("Error vs cost.")
-    assert page.index('src="figures/terminator.png"') < page.index('id="costs"') < page.index('src="figures/pareto.png"')
+    assert (
+        page.index('src="figures/terminator.png"')
+        < page.index('id="costs"')
+        < page.index('src="figures/pareto.png"')
+    )
     assert "**Figure 2:** Irradiance across the *terminator*." in md
     assert "missing" not in " ".join(c for _, c in captions)
 
@@ -176,14 +269,19 @@ def test_write_report(exp_dir):
     # LaTeX: balanced environments, booktabs rules, escaped text, metrics tables per case.
     for env in ("tabular", "table"):
         assert tex.count(f"\\begin{{{env}}}") == tex.count(f"\\end{{{env}}}") > 0
-    assert tex.count("\\toprule") == tex.count("\\midrule") == tex.count("\\bottomrule") == tex.count("\\begin{tabular}")
+    assert (
+        tex.count("\\toprule")
+        == tex.count("\\midrule")
+        == tex.count("\\bottomrule")
+        == tex.count("\\begin{tabular}")
+    )
     assert "\\label{tab:half-lambert:case-a05-sky0}" in tex
     assert "\\ensuremath{9.100\\times 10^{-4}}" in tex
     assert "\\ensuremath{\\alpha} = 5\\ensuremath{^\\circ}" in tex
     assert "\\textit{" in tex and "\\ensuremath{\\dagger}" in tex
     for line in tex.splitlines():  # every table row has as many cells as its tabular has columns
         if line.strip().endswith("\\\\"):
-            spec = re.findall(r"\\begin\{tabular\}\{(\w+)\}", tex[:tex.index(line)])[-1]
+            spec = re.findall(r"\\begin\{tabular\}\{(\w+)\}", tex[: tex.index(line)])[-1]
             assert line.count(" & ") == len(spec) - 1, line
 
 
@@ -198,12 +296,17 @@ def test_minimal_results_render(tmp_path):
     r = _results()
     for key in ("sections", "fits", "figures", "costs", "checks", "notes"):
         del r[key]
-    r["cases"] = [{"id": "only", "label": "Only case", "approximations": [
-        {"method": "m", "metrics": {"rmse": {"value": 0.2, "noise_floor": None}}}]}]
+    r["cases"] = [
+        {
+            "id": "only",
+            "label": "Only case",
+            "approximations": [{"method": "m", "metrics": {"rmse": {"value": 0.2, "noise_floor": None}}}],
+        }
+    ]
     (tmp_path / "results.json").write_text(json.dumps(r), encoding="utf-8")
     write_report(tmp_path)
     page = (tmp_path / "report.html").read_text(encoding="utf-8")
-    assert "Only case" in page and "0.2000 <span class=\"sub\">(floor —)</span>" in page
+    assert "Only case" in page and '0.2000 <span class="sub">(floor —)</span>' in page
     r["cases"] = []
     texts = render_report(r)
     assert "No cases were evaluated." in texts["report.html"]
@@ -250,7 +353,9 @@ def test_atomic_write_roundtrip_and_numpy(tmp_path):
     assert not (tmp_path / "y.json").exists()
     atomic_write_text(tmp_path / "t.txt", "héllo")
     assert (tmp_path / "t.txt").read_text(encoding="utf-8") == "héllo"
-    assert (tmp_path / "t.txt").stat().st_mode & 0o044  # readable by others (umask permitting), unlike mkstemp
+    assert (
+        tmp_path / "t.txt"
+    ).stat().st_mode & 0o044  # readable by others (umask permitting), unlike mkstemp
 
 
 @pytest.mark.parametrize("exc", [RuntimeError, KeyboardInterrupt])
@@ -286,17 +391,34 @@ def test_load_results_rejects_wrong_schema(exp_dir):
     with pytest.raises(ResultsError) as e:
         load_results(exp_dir)
     msg = str(e.value)
-    assert "\n" not in msg and str(exp_dir / "results.json") in msg and "schema" in msg and "rtfit.results/0" in msg
+    assert (
+        "\n" not in msg
+        and str(exp_dir / "results.json") in msg
+        and "schema" in msg
+        and "rtfit.results/0" in msg
+    )
 
 
-@pytest.mark.parametrize("mutate, where", [
-    (lambda r: r.pop("title"), "title: missing required key"),
-    (lambda r: r["cases"][1].pop("approximations"), "cases[1].approximations: missing required key"),
-    (lambda r: r["cases"][0]["approximations"][0]["metrics"].update(rmse=0.1), "cases[0].approximations[0].metrics.rmse"),
-    (lambda r: r.update(checks=[{"name": "x", "passed": "yes"}]), "checks[0].passed: expected true or false"),
-    (lambda r: r.update(figures=[{"file": "../secret.png"}]), "figures[0].file: expected a relative path"),
-    (lambda r: r.update(notes="not a list"), "notes: expected a list"),
-])
+@pytest.mark.parametrize(
+    "mutate, where",
+    [
+        (lambda r: r.pop("title"), "title: missing required key"),
+        (lambda r: r["cases"][1].pop("approximations"), "cases[1].approximations: missing required key"),
+        (
+            lambda r: r["cases"][0]["approximations"][0]["metrics"].update(rmse=0.1),
+            "cases[0].approximations[0].metrics.rmse",
+        ),
+        (
+            lambda r: r.update(checks=[{"name": "x", "passed": "yes"}]),
+            "checks[0].passed: expected true or false",
+        ),
+        (
+            lambda r: r.update(figures=[{"file": "../secret.png"}]),
+            "figures[0].file: expected a relative path",
+        ),
+        (lambda r: r.update(notes="not a list"), "notes: expected a list"),
+    ],
+)
 def test_load_results_names_the_key(exp_dir, mutate, where):
     r = copy.deepcopy(_results())
     mutate(r)
@@ -317,15 +439,20 @@ def test_load_results_missing_and_invalid(tmp_path):
 # ----------------------------------------------------------------------------------------- markdown
 def test_markdown_subset():
     assert markdown_inline("a <b> & **bold** *it* `x<y` [l](https://e.org/?a=1&b=2)") == (
-        'a &lt;b&gt; &amp; <strong>bold</strong> <em>it</em> <code>x&lt;y</code> '
-        '<a href="https://e.org/?a=1&amp;b=2">l</a>')
+        "a &lt;b&gt; &amp; <strong>bold</strong> <em>it</em> <code>x&lt;y</code> "
+        '<a href="https://e.org/?a=1&amp;b=2">l</a>'
+    )
     assert "<a" not in markdown_inline("[x](javascript:alert(1))")
     assert markdown_inline("[x](javascript:alert)") == "x"
     assert markdown_inline("$a*b*c$ and 2 * 3 * 4") == '<span class="math">$a*b*c$</span> and 2 * 3 * 4'
     assert markdown_inline(r"\*not italic\*") == "*not italic*"
-    out = markdown_to_html("Para line one\nline two.\n\n- item **1**\n  continued\n- item 2\n\n1. first\n2. second")
-    assert out == ("<p>Para line one line two.</p>\n<ul><li>item <strong>1</strong> continued</li>"
-                   "<li>item 2</li></ul>\n<ol><li>first</li><li>second</li></ol>")
+    out = markdown_to_html(
+        "Para line one\nline two.\n\n- item **1**\n  continued\n- item 2\n\n1. first\n2. second"
+    )
+    assert out == (
+        "<p>Para line one line two.</p>\n<ul><li>item <strong>1</strong> continued</li>"
+        "<li>item 2</li></ul>\n<ol><li>first</li><li>second</li></ol>"
+    )
     assert markdown_to_html("Text:\n- a\n- b") == "<p>Text:</p>\n<ul><li>a</li><li>b</li></ul>"
 
 

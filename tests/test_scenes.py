@@ -36,7 +36,7 @@ from rtfit.scenes import (
 from rtfit.scenes.parse import SCHEMA
 
 DATA = Path(__file__).parent / "data"
-CAMERA = '[camera]\norigin = [0, -6, 0]\ntarget = [0, 0, 0]\nfov_deg = 24\nwidth = 32\nheight = 32\n'
+CAMERA = "[camera]\norigin = [0, -6, 0]\ntarget = [0, 0, 0]\nfov_deg = 24\nwidth = 32\nheight = 32\n"
 BASE = 'name = "t"\n' + CAMERA
 
 
@@ -64,32 +64,32 @@ def assert_round_trip(scene: Scene) -> None:
 # ------------------------------------------------------------------------------------- round trips
 PARTS = {
     "sphere": '[[shapes]]\ntype = "sphere"\ncenter = [1, 2, 3]\nradius = 0.5\n'
-              'material = { reflectance = [0.1, 0.2, 0.3] }',
+    "material = { reflectance = [0.1, 0.2, 0.3] }",
     "rectangle": '[[shapes]]\ntype = "rectangle"\ncenter = [0, 0, -1]\nnormal = [0, 0, 2]\nsize = [4, 3]\n'
-                 'rotation_deg = 15\nmaterial = { type = "diffuse", reflectance = 0.25 }',
+    'rotation_deg = 15\nmaterial = { type = "diffuse", reflectance = 0.25 }',
     "disk": '[[shapes]]\ntype = "disk"\ncenter = [0, 0, 1]\nnormal = [1, 1, 1]\nradius = 2',
     "cube": '[[shapes]]\ntype = "cube"\ncenter = [0, 0, 0]\nsize = [1, 2, 3]\nrotate_axis = [0, 1, 1]\n'
-            'rotate_deg = 30',
+    "rotate_deg = 30",
     "cylinder": '[[shapes]]\ntype = "cylinder"\np0 = [0, 0, 0]\np1 = [0, 0, 2]\nradius = 0.3',
     "mesh_obj": '[[shapes]]\ntype = "mesh"\nfile = "tri.obj"\ntranslate = [1, 0, 0]\n'
-                'rotate_axis = [1, 0, 0]\nrotate_deg = 90\nscale = [2, 2, 2]\nface_normals = true',
+    "rotate_axis = [1, 0, 0]\nrotate_deg = 90\nscale = [2, 2, 2]\nface_normals = true",
     "mesh_ply": '[[shapes]]\ntype = "mesh"\nfile = "tri.ply"',
     "mitsuba_xml": '[[shapes]]\ntype = "mitsuba_xml"\nfile = "tiny.xml"\nkeep_emitters = true\n'
-                   'override_material = { type = "diffuse", reflectance = 0.8 }',
+    'override_material = { type = "diffuse", reflectance = 0.8 }',
     "mitsuba_xml_plain": '[[shapes]]\ntype = "mitsuba_xml"\nfile = "tiny.xml"',
     "sun": '[[lights]]\ntype = "sun"\ndirection = [1, 1, 1]\nirradiance = [3, 2, 1]\n'
-           'angular_radius_deg = 0.27',
+    "angular_radius_deg = 0.27",
     "sphere_light": '[[lights]]\ntype = "sphere_light"\ncenter = [10, 0, 0]\nradius = 0.5\nradiance = 2',
     "rect_light": '[[lights]]\ntype = "rect_light"\ncenter = [0, 0, 3]\nnormal = [0, 0, -1]\nsize = [1, 2]\n'
-                  'radiance = [5, 5, 4]\nrotation_deg = 45',
+    "radiance = [5, 5, 4]\nrotation_deg = 45",
     "constant_env": '[[lights]]\ntype = "constant_env"\nradiance = 0.5',
     "envmap": '[[lights]]\ntype = "envmap"\nfile = "sky.exr"\nscale = 2\nrotate_deg = 90',
     "sunsky": '[[lights]]\ntype = "sunsky"\nsun_direction = [0, 1, 1]\nturbidity = 4\nalbedo = 0.2\n'
-              'sun_scale = 0.5\nsky_scale = 2\nsun_aperture_deg = 1\ncomplex_sun = true',
+    "sun_scale = 0.5\nsky_scale = 2\nsun_aperture_deg = 1\ncomplex_sun = true",
     "homogeneous_cube": '[[media]]\ntype = "homogeneous"\nboundary = { type = "cube", center = [0, 0, 0], '
-                        'size = [2, 2, 2] }\nsigma_t = 0.5\nalbedo = 0.9\ng = 0.3',
+    "size = [2, 2, 2] }\nsigma_t = 0.5\nalbedo = 0.9\ng = 0.3",
     "homogeneous_sphere": '[[media]]\ntype = "homogeneous"\nsigma_t = [0.1, 0.2, 0.3]\n'
-                          'boundary = { type = "sphere", center = [0, 0, 0], radius = 3 }',
+    'boundary = { type = "sphere", center = [0, 0, 0], radius = 3 }',
     "reference": '[reference]\ntransport = "global"\nmax_depth = 5',
 }
 
@@ -116,7 +116,7 @@ def test_parsed_values_are_canonical(files):
     rect, sun, medium = scene.shapes[0], scene.lights[0], scene.media[0]
     assert rect.normal == (0.0, 0.0, 1.0) and rect.size == (4.0, 3.0)
     assert rect.material == Diffuse((0.25, 0.25, 0.25))
-    assert sun.direction == pytest.approx((3 ** -0.5,) * 3) and math.isclose(math.hypot(*sun.direction), 1.0)
+    assert sun.direction == pytest.approx((3**-0.5,) * 3) and math.isclose(math.hypot(*sun.direction), 1.0)
     assert all(type(c) is float for c in sun.irradiance) and sun.irradiance == (3.0, 2.0, 1.0)
     assert medium.boundary == Cube(center=(0.0, 0.0, 0.0), size=(2.0, 2.0, 2.0))
     assert medium.albedo == (0.9, 0.9, 0.9) and scene.reference == ReferenceSettings()  # defaults
@@ -125,10 +125,13 @@ def test_parsed_values_are_canonical(files):
 
 def test_constructed_scene_round_trips():
     """A scene built in code (ints where floats go, numpy-free) serialises to the same canonical form."""
-    scene = Scene(name="code", camera=Camera(origin=(0, -6, 0), target=(0, 0, 0)),
-                  shapes=(Sphere(center=(0, 0, 0), radius=1),),
-                  lights=(SphereLight(center=(20, 0, 0), radius=1.5, radiance=(2, 2, 2)),),
-                  media=(HomogeneousMedium(boundary=Sphere((0, 0, 0), 3), sigma_t=(1, 1, 1)),))
+    scene = Scene(
+        name="code",
+        camera=Camera(origin=(0, -6, 0), target=(0, 0, 0)),
+        shapes=(Sphere(center=(0, 0, 0), radius=1),),
+        lights=(SphereLight(center=(20, 0, 0), radius=1.5, radiance=(2, 2, 2)),),
+        media=(HomogeneousMedium(boundary=Sphere((0, 0, 0), 3), sigma_t=(1, 1, 1)),),
+    )
     assert_round_trip(scene)
     floats = parse_scene_text(scene_to_toml(scene))
     assert scene_hash(floats) == scene_hash(scene)
@@ -141,14 +144,25 @@ unit_rgb = st.tuples(*[st.floats(0, 1)] * 3)
 
 
 @settings(max_examples=60, deadline=None)
-@given(c=vec, r=positive, rho=unit_rgb, d=vec.filter(lambda v: max(map(abs, v)) > 1e-3),
-       alpha=st.floats(0, 89.9), e=st.tuples(*[st.floats(0, 1e6)] * 3), g=st.floats(-0.99, 0.99))
+@given(
+    c=vec,
+    r=positive,
+    rho=unit_rgb,
+    d=vec.filter(lambda v: max(map(abs, v)) > 1e-3),
+    alpha=st.floats(0, 89.9),
+    e=st.tuples(*[st.floats(0, 1e6)] * 3),
+    g=st.floats(-0.99, 0.99),
+)
 def test_round_trip_random_values(c, r, rho, d, alpha, e, g):
-    text = scene_to_toml(Scene(
-        name="h", camera=Camera(origin=(0.0, -6.0, 0.0), target=(0.0, 0.0, 0.0)),
-        shapes=(Sphere(center=c, radius=r, material=Diffuse(rho)),),
-        lights=(Sun(direction=d, irradiance=e, angular_radius_deg=alpha),),
-        media=(HomogeneousMedium(boundary=Sphere(c, r), sigma_t=e, g=g),)))
+    text = scene_to_toml(
+        Scene(
+            name="h",
+            camera=Camera(origin=(0.0, -6.0, 0.0), target=(0.0, 0.0, 0.0)),
+            shapes=(Sphere(center=c, radius=r, material=Diffuse(rho)),),
+            lights=(Sun(direction=d, irradiance=e, angular_radius_deg=alpha),),
+            media=(HomogeneousMedium(boundary=Sphere(c, r), sigma_t=e, g=g),),
+        )
+    )
     scene = parse_scene_text(text)  # normalises the sun direction
     assert_round_trip(scene)
     assert scene.shapes[0].center == c and scene.shapes[0].radius == r and scene.media[0].g == g
@@ -179,8 +193,11 @@ INVALID = [  # (whole text, or "+" and what follows BASE), key path, reason frag
     (N, "", "missing required key 'camera'"),
     ('name = ""\n' + CAMERA, "name", "must be a non-empty string"),
     ("name = 3\n" + CAMERA, "name", "must be a string (got 3)"),
-    ("colour = 1\n" + BASE, "colour",
-     "unknown key (expected one of: camera, description, lights, media, name, reference, shapes)"),
+    (
+        "colour = 1\n" + BASE,
+        "colour",
+        "unknown key (expected one of: camera, description, lights, media, name, reference, shapes)",
+    ),
     (N + "[camera]\ntarget = [0, 0, 1]\n", "camera", "missing required key 'origin'"),
     (CAM + "fov_deg = 0\n", "camera.fov_deg", "must be in (0, 180) (got 0)"),
     (CAM + "fov_deg = 180.0\n", "camera.fov_deg", "must be in (0, 180) (got 180.0)"),
@@ -200,64 +217,112 @@ INVALID = [  # (whole text, or "+" and what follows BASE), key path, reason frag
     (BASE + "near_clip = 1\nfar_clip = 0.5\n", "camera.far_clip", "must be > near_clip"),
     (SPHERE + "radius = -1.0", "shapes[0].radius", "must be > 0 (got -1.0)"),
     (SPHERE + "radius = inf", "shapes[0].radius", "must be finite (got inf)"),
-    (SPHERE + "radiu = 1", "shapes[0].radiu",
-     "unknown key (expected one of: center, material, radius, type)"),
+    (
+        SPHERE + "radiu = 1",
+        "shapes[0].radiu",
+        "unknown key (expected one of: center, material, radius, type)",
+    ),
     (SPHERE, "shapes[0]", "missing required key 'radius'"),
-    ('+[[shapes]]\ntype = "torus"', "shapes[0].type",
-     'unknown shape type "torus" (expected one of: cube, cylinder, disk, mesh, mitsuba_xml, rectangle, '
-     'sphere)'),
+    (
+        '+[[shapes]]\ntype = "torus"',
+        "shapes[0].type",
+        'unknown shape type "torus" (expected one of: cube, cylinder, disk, mesh, mitsuba_xml, rectangle, '
+        "sphere)",
+    ),
     ("+[[shapes]]\nradius = 1", "shapes[0]", "missing required key 'type'"),
     (N + "shapes = 1\n" + CAMERA, "shapes", "must be an array of tables"),
     (N + "shapes = [1]\n" + CAMERA, "shapes[0]", "must be a table (got 1)"),
     (SPHERE + "radius = 1\nmaterial = 0.5", "shapes[0].material", "must be a table (got 0.5)"),
-    (SPHERE + 'radius = 1\nmaterial = { type = "glossy" }', "shapes[0].material.type",
-     'unknown material type "glossy"'),
-    (SPHERE + "radius = 1\nmaterial = { reflectance = 1.5 }", "shapes[0].material.reflectance",
-     "must be in [0, 1] (got 1.5)"),
-    (SPHERE + "radius = 1\nmaterial = { reflectance = [0.5, -0.1, 0] }", "shapes[0].material.reflectance[1]",
-     "must be in [0, 1] (got -0.1)"),
-    (SPHERE + "radius = 1\nmaterial = { reflectance = [0.5, 0.5] }", "shapes[0].material.reflectance",
-     "must be a number or an array of 3 numbers"),
+    (
+        SPHERE + 'radius = 1\nmaterial = { type = "glossy" }',
+        "shapes[0].material.type",
+        'unknown material type "glossy"',
+    ),
+    (
+        SPHERE + "radius = 1\nmaterial = { reflectance = 1.5 }",
+        "shapes[0].material.reflectance",
+        "must be in [0, 1] (got 1.5)",
+    ),
+    (
+        SPHERE + "radius = 1\nmaterial = { reflectance = [0.5, -0.1, 0] }",
+        "shapes[0].material.reflectance[1]",
+        "must be in [0, 1] (got -0.1)",
+    ),
+    (
+        SPHERE + "radius = 1\nmaterial = { reflectance = [0.5, 0.5] }",
+        "shapes[0].material.reflectance",
+        "must be a number or an array of 3 numbers",
+    ),
     (RECT + "normal = [0, 0, 0]\nsize = [1, 1]", "shapes[0].normal", "must be non-zero"),
     (RECT + "normal = [0, 0, 1]\nsize = [1, 0]", "shapes[0].size[1]", "must be > 0 (got 0)"),
     (RECT + "normal = [0, 0, 1]\nsize = [1, 1, 1]", "shapes[0].size", "must be an array of 2 numbers"),
-    ('+[[shapes]]\ntype = "disk"\ncenter = [0, 0, 0]\nnormal = [0, 0, 1]\nradius = 0', "shapes[0].radius",
-     "must be > 0"),
-    ('+[[shapes]]\ntype = "cube"\ncenter = [0, 0, 0]\nsize = [1, 1, 1]\nrotate_axis = [0, 0, 0]',
-     "shapes[0].rotate_axis", "must be non-zero"),
+    (
+        '+[[shapes]]\ntype = "disk"\ncenter = [0, 0, 0]\nnormal = [0, 0, 1]\nradius = 0',
+        "shapes[0].radius",
+        "must be > 0",
+    ),
+    (
+        '+[[shapes]]\ntype = "cube"\ncenter = [0, 0, 0]\nsize = [1, 1, 1]\nrotate_axis = [0, 0, 0]',
+        "shapes[0].rotate_axis",
+        "must be non-zero",
+    ),
     ('+[[shapes]]\ntype = "cube"\ncenter = [0, 0, 0]\nsize = [1, -1, 1]', "shapes[0].size[1]", "must be > 0"),
-    ('+[[shapes]]\ntype = "cylinder"\np0 = [0, 0, 1]\np1 = [0, 0, 1]\nradius = 1', "shapes[0].p1",
-     "must differ from p0"),
+    (
+        '+[[shapes]]\ntype = "cylinder"\np0 = [0, 0, 1]\np1 = [0, 0, 1]\nradius = 1',
+        "shapes[0].p1",
+        "must differ from p0",
+    ),
     (MESH + 'file = "missing.ply"', "shapes[0].file", "file not found: "),
     (MESH + 'file = "tri.stl"', "shapes[0].file", 'must be a .ply or .obj file (got "tri.stl")'),
     (MESH + 'file = "tri.obj"\nscale = [1, 0, 1]', "shapes[0].scale[1]", "must be > 0"),
     (MESH + 'file = "tri.obj"\nface_normals = 1', "shapes[0].face_normals", "must be true or false (got 1)"),
     (XML + 'file = "other.xml"', "shapes[0].file", "file not found"),
     (XML + 'file = "tri.obj"', "shapes[0].file", "must be a .xml file"),
-    (XML + 'file = "tiny.xml"\noverride_material = { reflectance = 2 }',
-     "shapes[0].override_material.reflectance", "must be in [0, 1]"),
-    (LIGHT + "center = [1, 0, 0]\nradius = 1\nradiance = nan", "lights[0].radiance",
-     "must be finite (got nan)"),
+    (
+        XML + 'file = "tiny.xml"\noverride_material = { reflectance = 2 }',
+        "shapes[0].override_material.reflectance",
+        "must be in [0, 1]",
+    ),
+    (
+        LIGHT + "center = [1, 0, 0]\nradius = 1\nradiance = nan",
+        "lights[0].radiance",
+        "must be finite (got nan)",
+    ),
     (LIGHT + "center = [1, 0, 0]\nradius = 1\nradiance = -1", "lights[0].radiance", "must be >= 0 (got -1)"),
     (LIGHT + "center = [1, 0, 0]", "lights[0]", "missing required key 'radius'"),
-    (PLACED + "distance = 10\nangular_radius_deg = 90", "lights[0].angular_radius_deg",
-     "must be in (0, 90) (got 90)"),
+    (
+        PLACED + "distance = 10\nangular_radius_deg = 90",
+        "lights[0].angular_radius_deg",
+        "must be in (0, 90) (got 90)",
+    ),
     (PLACED + "distance = 10\nangular_radius_deg = 0", "lights[0].angular_radius_deg", "must be in (0, 90)"),
     (PLACED + "distance = 0\nangular_radius_deg = 5", "lights[0].distance", "must be > 0"),
-    (PLACED + "distance = 1e308\nangular_radius_deg = 5\ntarget = [1e308, 0, 0]", "lights[0]",
-     "must be finite"),
-    (LIGHT + "direction = [0, 0, 0]\ndistance = 1\nangular_radius_deg = 5", "lights[0].direction",
-     "must be non-zero"),
+    (
+        PLACED + "distance = 1e308\nangular_radius_deg = 5\ntarget = [1e308, 0, 0]",
+        "lights[0]",
+        "must be finite",
+    ),
+    (
+        LIGHT + "direction = [0, 0, 0]\ndistance = 1\nangular_radius_deg = 5",
+        "lights[0].direction",
+        "must be non-zero",
+    ),
     (PLACED + "angular_radius_deg = 5", "lights[0]", "missing required key 'distance'"),
-    (PLACED + "center = [1, 0, 0]\ndistance = 1\nangular_radius_deg = 5", "lights[0].center",
-     "cannot be combined with direction"),
+    (
+        PLACED + "center = [1, 0, 0]\ndistance = 1\nangular_radius_deg = 5",
+        "lights[0].center",
+        "cannot be combined with direction",
+    ),
     ('+[[lights]]\ntype = "sun"\ndirection = [0, 0, 0]', "lights[0].direction", "must be non-zero"),
     (SUN + "irradiance = [1, -1, 1]", "lights[0].irradiance[1]", ">= 0"),
     (SUN + "angular_radius_deg = 90", "lights[0].angular_radius_deg", "must be in [0, 90) (got 90)"),
     (SUN + "angular_radius_deg = -1", "lights[0].angular_radius_deg", "must be in [0, 90)"),
     (SUN + "distance = 10", "lights[0].distance", "unknown key"),
-    ('+[[lights]]\ntype = "rect_light"\ncenter = [0, 0, 0]\nnormal = [0, 0, 1]\nsize = [0, 1]',
-     "lights[0].size[0]", "must be > 0"),
+    (
+        '+[[lights]]\ntype = "rect_light"\ncenter = [0, 0, 0]\nnormal = [0, 0, 1]\nsize = [0, 1]',
+        "lights[0].size[0]",
+        "must be > 0",
+    ),
     ('+[[lights]]\ntype = "envmap"\nfile = "sky.hdr"', "lights[0].file", "must be a .exr file"),
     ('+[[lights]]\ntype = "envmap"\nfile = "none.exr"', "lights[0].file", "file not found"),
     ('+[[lights]]\ntype = "envmap"\nfile = "sky.exr"\nscale = -1', "lights[0].scale", "must be >= 0"),
@@ -268,32 +333,48 @@ INVALID = [  # (whole text, or "+" and what follows BASE), key path, reason frag
     (SUNSKY + "sun_scale = -1", "lights[0].sun_scale", "must be >= 0"),
     (SUNSKY + "sky_scale = -0.5", "lights[0].sky_scale", "must be >= 0"),
     (SUNSKY + "complex_sun = 0", "lights[0].complex_sun", "must be true or false"),
-    ('+[[lights]]\ntype = "constant_env"\n' + SUN[1:] + SUNSKY[1:], "lights[2]",
-     "at most one environment light (constant_env, envmap, sunsky); lights[0] is one already"),
+    (
+        '+[[lights]]\ntype = "constant_env"\n' + SUN[1:] + SUNSKY[1:],
+        "lights[2]",
+        "at most one environment light (constant_env, envmap, sunsky); lights[0] is one already",
+    ),
     ('+[[lights]]\ntype = "laser"', "lights[0].type", 'unknown light type "laser"'),
     (CUBE_MEDIUM + "albedo = 1.2", "media[0].albedo", "must be in [0, 1] (got 1.2)"),
     (CUBE_MEDIUM + "g = 1", "media[0].g", "must be in (-1, 1) (got 1)"),
     (CUBE_MEDIUM + "g = -1.0", "media[0].g", "must be in (-1, 1)"),
     (CUBE_MEDIUM.replace("sigma_t = 1", "sigma_t = -0.5"), "media[0].sigma_t", "must be >= 0 (got -0.5)"),
-    (MEDIUM + 'boundary = { type = "disk", center = [0, 0, 0], normal = [0, 0, 1], radius = 1 }',
-     "media[0].boundary.type", 'unknown boundary type "disk" (expected one of: cube, sphere)'),
-    (MEDIUM + 'boundary = { type = "sphere", center = [0, 0, 0], radius = 1, material = {} }',
-     "media[0].boundary.material", "unknown key (expected one of: center, radius, type)"),
+    (
+        MEDIUM + 'boundary = { type = "disk", center = [0, 0, 0], normal = [0, 0, 1], radius = 1 }',
+        "media[0].boundary.type",
+        'unknown boundary type "disk" (expected one of: cube, sphere)',
+    ),
+    (
+        MEDIUM + 'boundary = { type = "sphere", center = [0, 0, 0], radius = 1, material = {} }',
+        "media[0].boundary.material",
+        "unknown key (expected one of: center, radius, type)",
+    ),
     (MEDIUM, "media[0]", "missing required key 'boundary'"),
     ('+[[media]]\ntype = "fog"', "media[0].type", 'unknown medium type "fog"'),
-    ('+[reference]\ntransport = "both"', "reference.transport",
-     'must be one of: direct, global (got "both")'),
+    (
+        '+[reference]\ntransport = "both"',
+        "reference.transport",
+        'must be one of: direct, global (got "both")',
+    ),
     ('+[reference]\ntype = "x"', "reference.type", "unknown key (expected one of: max_depth, transport)"),
     ("+[reference]\nmax_depth = 0", "reference.max_depth", "must be -1 (unbounded) or >= 1 (got 0)"),
     ("+[reference]\nmax_depth = -2", "reference.max_depth", "must be -1 (unbounded) or >= 1"),
     ("+[reference]\nmax_depth = 4.0", "reference.max_depth", "must be an integer (got 4.0)"),
-    ('description = """two\nlines"""\n' + BASE + '[reference]\nmax_depth = "x\\ny"', "reference.max_depth",
-     'must be an integer (got "x\\ny")'),
+    (
+        'description = """two\nlines"""\n' + BASE + '[reference]\nmax_depth = "x\\ny"',
+        "reference.max_depth",
+        'must be an integer (got "x\\ny")',
+    ),
 ]
 
 
-@pytest.mark.parametrize("text,key,reason", INVALID, ids=[f"{i}:{k or 'file'}" for i, (_, k, _r) in
-                                                          enumerate(INVALID)])
+@pytest.mark.parametrize(
+    "text,key,reason", INVALID, ids=[f"{i}:{k or 'file'}" for i, (_, k, _r) in enumerate(INVALID)]
+)
 def test_validation_errors_are_one_line(text, key, reason, files):
     text = BASE + text[1:] + "\n" if text.startswith("+") else text
     with pytest.raises(SceneError) as info:
@@ -323,8 +404,9 @@ def test_load_errors(tmp_path):
 
 # ---------------------------------------------------------------------------------------- placement
 def test_sphere_light_placed_by_direction():
-    scene = parse(LIGHT[1:] + "target = [1, 2, 3]\ndirection = [0, 3, 4]\ndistance = 10\n"
-                              "angular_radius_deg = 30")
+    scene = parse(
+        LIGHT[1:] + "target = [1, 2, 3]\ndirection = [0, 3, 4]\ndistance = 10\nangular_radius_deg = 30"
+    )
     light = scene.lights[0]
     assert light.center == pytest.approx((1.0, 8.0, 11.0), abs=1e-12)  # target + 10·(0, 0.6, 0.8)
     assert light.radius == pytest.approx(5.0, abs=1e-12)  # 10·sin 30°
@@ -362,31 +444,56 @@ def test_hash_is_stable_and_ignores_labels(files):
     assert scene_hash(b) == h and scene_hash(parse_scene_text(scene_to_toml(a))) == h
     relabelled = dataclasses.replace(a, name="other", description="words", source="elsewhere.toml")
     assert scene_hash(relabelled) == h
-    code = [sys.executable, "-c", "import sys; from rtfit.scenes import parse_scene_text, scene_hash; "
-            "print(scene_hash(parse_scene_text(sys.stdin.read())))"]
+    code = [
+        sys.executable,
+        "-c",
+        "import sys; from rtfit.scenes import parse_scene_text, scene_hash; "
+        "print(scene_hash(parse_scene_text(sys.stdin.read())))",
+    ]
     out = subprocess.run(code, input=scene_to_toml(a), capture_output=True, text=True, check=True)
     assert out.stdout.strip() == h  # same in a fresh process (no hash randomisation leaks in)
 
 
-@pytest.mark.parametrize("change", [
-    lambda s: dataclasses.replace(s, shapes=(dataclasses.replace(s.shapes[0], radius=1.0000001),)),
-    lambda s: dataclasses.replace(s, shapes=(Sphere((0, 0, 0), 1.0, Diffuse((0.5, 1, 1))),)),
-    lambda s: dataclasses.replace(s, lights=(dataclasses.replace(s.lights[0], irradiance=(1, 1, 2)),)),
-    lambda s: dataclasses.replace(s, lights=(dataclasses.replace(s.lights[0], angular_radius_deg=5.001),)),
-    lambda s: dataclasses.replace(s, lights=s.lights + (ConstantEnv(),)),
-    lambda s: dataclasses.replace(s, camera=dataclasses.replace(s.camera, width=64)),
-    lambda s: dataclasses.replace(s, camera=dataclasses.replace(s.camera, fov_deg=25.0)),
-    lambda s: dataclasses.replace(s, reference=ReferenceSettings("global")),
-    lambda s: dataclasses.replace(s, reference=ReferenceSettings("direct", max_depth=3)),
-    lambda s: dataclasses.replace(s, media=(HomogeneousMedium(Sphere((0, 0, 0), 2.0), sigma_t=(0.1,) * 3),)),
-], ids=["radius", "reflectance", "irradiance", "sun_size", "env", "width", "fov", "transport", "max_depth", "medium"])
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda s: dataclasses.replace(s, shapes=(dataclasses.replace(s.shapes[0], radius=1.0000001),)),
+        lambda s: dataclasses.replace(s, shapes=(Sphere((0, 0, 0), 1.0, Diffuse((0.5, 1, 1))),)),
+        lambda s: dataclasses.replace(s, lights=(dataclasses.replace(s.lights[0], irradiance=(1, 1, 2)),)),
+        lambda s: dataclasses.replace(
+            s, lights=(dataclasses.replace(s.lights[0], angular_radius_deg=5.001),)
+        ),
+        lambda s: dataclasses.replace(s, lights=s.lights + (ConstantEnv(),)),
+        lambda s: dataclasses.replace(s, camera=dataclasses.replace(s.camera, width=64)),
+        lambda s: dataclasses.replace(s, camera=dataclasses.replace(s.camera, fov_deg=25.0)),
+        lambda s: dataclasses.replace(s, reference=ReferenceSettings("global")),
+        lambda s: dataclasses.replace(s, reference=ReferenceSettings("direct", max_depth=3)),
+        lambda s: dataclasses.replace(
+            s, media=(HomogeneousMedium(Sphere((0, 0, 0), 2.0), sigma_t=(0.1,) * 3),)
+        ),
+    ],
+    ids=[
+        "radius",
+        "reflectance",
+        "irradiance",
+        "sun_size",
+        "env",
+        "width",
+        "fov",
+        "transport",
+        "max_depth",
+        "medium",
+    ],
+)
 def test_hash_sees_physical_changes(change):
     scene = load_scene(library_path("half_lambert_sphere"))
     assert scene_hash(change(scene)) != scene_hash(scene)
 
 
-@pytest.mark.parametrize("part,edited", [("mesh_obj", "tri.obj"), ("envmap", "sky.exr"),
-                                         ("mitsuba_xml", "tiny.xml"), ("mitsuba_xml", "tri.obj")])
+@pytest.mark.parametrize(
+    "part,edited",
+    [("mesh_obj", "tri.obj"), ("envmap", "sky.exr"), ("mitsuba_xml", "tiny.xml"), ("mitsuba_xml", "tri.obj")],
+)
 def test_hash_follows_file_contents(part, edited, files, tmp_path_factory):
     scene = parse(PARTS[part], base_dir=files)
     before = scene_hash(scene)
@@ -430,6 +537,9 @@ def test_library_scenes():
 def test_a_sky_file_is_named_as_such_not_parsed_as_a_scene():
     from rtfit.scenes import SceneError, library_path, load_scene
 
-    with pytest.raises(SceneError, match="format: a 'rtfit.sky/1' file, not a scene: read it with "
-                                         "rtfit.reference.atmosphere.load_atmosphere_scene"):
+    with pytest.raises(
+        SceneError,
+        match="format: a 'rtfit.sky/1' file, not a scene: read it with "
+        "rtfit.reference.atmosphere.load_atmosphere_scene",
+    ):
         load_scene(library_path("sky_sun_10"))

@@ -63,10 +63,14 @@ def test_jacobian_on_a_plane_matches_the_closed_form(theta_deg, alpha):
     # (all samples stay inside the box of cell centres, where the grid stores the linear field exactly)
     grid = GridSDF.from_grid(union_grid(PLANE.prims, (-2.4, -2.4, -0.8), 0.1, (48, 48, 32)), levels=1)
     for sdf in (PLANE, grid):
-        D, da, db = evans_terms_jacobian(pts, nrm, sdf, EvansParams(n=5, base=base, k=1.0, alpha=alpha, prefilter=False))
+        D, da, db = evans_terms_jacobian(
+            pts, nrm, sdf, EvansParams(n=5, base=base, k=1.0, alpha=alpha, prefilter=False)
+        )
         np.testing.assert_allclose(D, np.tile(d * (1 - math.cos(th) - alpha), (2, 1)).T, rtol=1e-5, atol=2e-6)
         np.testing.assert_allclose(da, np.tile(-d, (2, 1)).T, rtol=1e-5, atol=2e-6)
-        np.testing.assert_allclose(db, np.tile(scale * (1 - math.cos(th) - alpha), (2, 1)).T, rtol=1e-5, atol=2e-6)
+        np.testing.assert_allclose(
+            db, np.tile(scale * (1 - math.cos(th) - alpha), (2, 1)).T, rtol=1e-5, atol=2e-6
+        )
 
 
 def _central_differences(pts, nrm, sdf, n, alpha, base, h_alpha=1e-6, h_base=1e-7):
@@ -87,8 +91,11 @@ def test_autodiff_jacobian_matches_central_differences(kind, alpha, base):
     else:
         sdf = GridSDF.from_grid(union_grid(SPHERE_PLANE, (-2.0, -2.0, -0.6), 0.05, (80, 80, 44)), levels=6)
     D, da, db = evans_terms_jacobian(pts, nrm, sdf, EvansParams(n=4, base=base, k=1.0, alpha=alpha))
-    np.testing.assert_allclose(D, evans_terms(pts, nrm, sdf, EvansParams(n=4, base=base, k=1.0, alpha=alpha),
-                                              backend="numpy"), atol=2e-6)
+    np.testing.assert_allclose(
+        D,
+        evans_terms(pts, nrm, sdf, EvansParams(n=4, base=base, k=1.0, alpha=alpha), backend="numpy"),
+        atol=2e-6,
+    )
     fd_a, fd_b = _central_differences(pts, nrm, sdf, 4, alpha, base)
     for ad, fd in ((da, fd_a), (db, fd_b)):
         rel = np.abs(ad - fd) / (np.abs(fd) + 1e-3 * np.abs(fd).max())
@@ -126,7 +133,10 @@ def test_residual_jacobian_columns_match_differences():
         xp, xm = x.copy(), x.copy()
         xp[j] += h
         xm[j] -= h
-        fd = (evans_fit_residuals(xp, data, 4, jacobian=False) - evans_fit_residuals(xm, data, 4, jacobian=False)) / (2 * h)
+        fd = (
+            evans_fit_residuals(xp, data, 4, jacobian=False)
+            - evans_fit_residuals(xm, data, 4, jacobian=False)
+        ) / (2 * h)
         err = np.abs(jac[:, j] - fd)
         assert np.quantile(err, 0.99) <= 2e-3 * np.abs(fd).max() + 1e-5, (evans_param_names(4)[j], err.max())
 
@@ -161,10 +171,19 @@ VOXEL = 0.05
 def _synthetic(noise=0.0, seed=0):
     pts, nrm = _sphere_plane_points(700, seed)
     sdf = AnalyticSDF(SPHERE_PLANE)
-    prm = EvansParams(n=4, base=TRUE["base_voxels"] * VOXEL, k=TRUE["k"], alpha=TRUE["alpha"], weights=TRUE["w"],
-                      brightness=TRUE["B"])
-    y = np.asarray(__import__("rtfit.realtime.sdf_occlusion", fromlist=["x"]).evans_occlusion(
-        pts, nrm, sdf, prm, backend="numpy"))
+    prm = EvansParams(
+        n=4,
+        base=TRUE["base_voxels"] * VOXEL,
+        k=TRUE["k"],
+        alpha=TRUE["alpha"],
+        weights=TRUE["w"],
+        brightness=TRUE["B"],
+    )
+    y = np.asarray(
+        __import__("rtfit.realtime.sdf_occlusion", fromlist=["x"]).evans_occlusion(
+            pts, nrm, sdf, prm, backend="numpy"
+        )
+    )
     if noise:
         y = y + np.random.default_rng(seed + 100).normal(0.0, noise, len(y))
     return [EvansFitData(pts, nrm, sdf, VOXEL, y)]
@@ -192,7 +211,12 @@ def test_continuous_fit_stderr_covers_the_truth_under_noise():
     b = fit_evans_continuous(_synthetic(noise=sigma, seed=1), INIT, 4, max_iter=300)
     r = evans_readable(b, VOXEL)
     assert b["fit"]["rms_residual"] == pytest.approx(sigma, rel=0.1)
-    for key, true in (("k", TRUE["k"]), ("alpha", TRUE["alpha"]), ("base_voxels", TRUE["base_voxels"]), ("B", TRUE["B"])):
+    for key, true in (
+        ("k", TRUE["k"]),
+        ("alpha", TRUE["alpha"]),
+        ("base_voxels", TRUE["base_voxels"]),
+        ("B", TRUE["B"]),
+    ):
         se = r[f"{key}_stderr"]
         assert 0 < se < 0.2 * abs(true), (key, se)
         assert abs(r[key] - true) < 4 * se, (key, r[key], true, se)
@@ -219,8 +243,12 @@ def test_delta_method_errors_of_weights_and_brightness():
     cov = np.zeros((5, 5))
     cov[:4, :4] = a @ a.T * 0.01
     cov[4, 4] = 0.04
-    best = {"fit": {"parameters": {k: {"value": vals[k], "stderr": math.sqrt(cov[i, i])} for i, k in enumerate(names)}},
-            "cov": cov}
+    best = {
+        "fit": {
+            "parameters": {k: {"value": vals[k], "stderr": math.sqrt(cov[i, i])} for i, k in enumerate(names)}
+        },
+        "cov": cov,
+    }
     r = evans_readable(best, 0.1)
 
     def grad(f):

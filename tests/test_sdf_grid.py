@@ -55,7 +55,11 @@ def test_box_sdf_matches_clipping_closest_point():
 
 
 def test_sphere_capsule_halfspace_union():
-    prims = [Sphere((0, 0, 0.5), 0.3), Capsule((-1, 0, 0), (1, 0.5, 0.2), 0.1), HalfSpace((0, 0, -1), (0, 0, 2))]
+    prims = [
+        Sphere((0, 0, 0.5), 0.3),
+        Capsule((-1, 0, 0), (1, 0.5, 0.2), 0.1),
+        HalfSpace((0, 0, -1), (0, 0, 2)),
+    ]
     p = RNG.uniform(-2, 2, (500, 3))
     t = np.linspace(0, 1, 20001)
     seg = np.array([-1, 0, 0]) + t[:, None] * np.array([2, 0.5, 0.2])
@@ -63,7 +67,9 @@ def test_sphere_capsule_halfspace_union():
     sph = np.linalg.norm(p - [0, 0, 0.5], axis=1) - 0.3
     plane = p[:, 2] + 1
     got = primitives_sdf(NUMPY_OPS, prims, p[:, 0], p[:, 1], p[:, 2])
-    np.testing.assert_allclose(got, np.minimum(np.minimum(sph, cap), plane), atol=2e-4)  # segment spacing 1e-4·|b−a|
+    np.testing.assert_allclose(
+        got, np.minimum(np.minimum(sph, cap), plane), atol=2e-4
+    )  # segment spacing 1e-4·|b−a|
 
 
 def test_empty_union_and_seed_sign():
@@ -82,7 +88,9 @@ def test_point_triangle_distance_vs_dense_sampling():
     assert np.all(d <= brute + 1e-12)
     assert np.all(brute - d <= 4e-3)  # sample spacing ≈ 1.2/400
     # degenerate (collinear) triangle stays finite and equals the segment distance
-    _, d2 = point_triangle_distance(np.array([[0.5, 1.0, 0]]), a[None], b[None] * 0 + [[2, 0, 0]], [[1, 0, 0]])
+    _, d2 = point_triangle_distance(
+        np.array([[0.5, 1.0, 0]]), a[None], b[None] * 0 + [[2, 0, 0]], [[1, 0, 0]]
+    )
     assert np.isfinite(d2).all() and abs(d2[0] - 1.0) < 1e-12
 
 
@@ -93,7 +101,10 @@ def sphere_box_grids():
     v = np.concatenate([v1, v2])
     f = np.concatenate([f1, f2 + len(v1)])
     origin, voxel, shape = grid_for_bounds(*mesh_bounds(v), 40, pad_voxels=4)
-    prims = [Sphere((0.1, -0.05, 0.0), 0.5), Box((0.9, 0.0, 0.1), (0.2, 0.3, 0.25), tuple(map(tuple, _rot((0, 0, 1), 20))))]
+    prims = [
+        Sphere((0.1, -0.05, 0.0), 0.5),
+        Box((0.9, 0.0, 0.1), (0.2, 0.3, 0.25), tuple(map(tuple, _rot((0, 0, 1), 20)))),
+    ]
     return mesh_sdf_grid(v, f, origin, voxel, shape), union_grid(prims, origin, voxel, shape), (v, f)
 
 
@@ -121,19 +132,28 @@ def test_open_mesh_errors_and_flood_fallback(sphere_box_grids):
     assert gu.values.min() >= 0
 
 
-@pytest.mark.parametrize("bad, msg", [
-    (dict(faces=np.array([[0, 1, 99]])), "outside"),
-    (dict(vertices=np.full((3, 3), np.nan)), "finite"),
-    (dict(sign="maybe"), "sign"),
-    (dict(band=0.5), "band"),
-])
+@pytest.mark.parametrize(
+    "bad, msg",
+    [
+        (dict(faces=np.array([[0, 1, 99]])), "outside"),
+        (dict(vertices=np.full((3, 3), np.nan)), "finite"),
+        (dict(sign="maybe"), "sign"),
+        (dict(band=0.5), "band"),
+    ],
+)
 def test_mesh_bad_input(bad, msg):
     v, f = box_mesh((0, 0, 0), (1, 1, 1))
     args = dict(vertices=v, faces=f, origin=(-2, -2, -2), voxel=0.5, shape=(8, 8, 8))
     args.update(bad)
     with pytest.raises(ValueError, match=msg):
-        mesh_sdf_grid(args.pop("vertices"), args.pop("faces"), args.pop("origin"), args.pop("voxel"),
-                      args.pop("shape"), **args)
+        mesh_sdf_grid(
+            args.pop("vertices"),
+            args.pop("faces"),
+            args.pop("origin"),
+            args.pop("voxel"),
+            args.pop("shape"),
+            **args,
+        )
 
 
 def test_grid_bounds_and_bad_resolution():
@@ -153,8 +173,12 @@ def test_mips_preserve_a_linear_field_and_double_the_voxel():
     for m in mips:
         p = m.points()
         inner = (slice(4, -4),) * 3 if m.values.shape[0] > 8 else (slice(1, -1),) * 3
-        expect = (np.asarray([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0]) @ (p - [0, 0, 1.6])[..., None])[..., 0]
-        np.testing.assert_allclose(m.values[inner], expect[inner], atol=2e-6 if m is g else 1e-5 + 0.02 * (m.voxel > 0.2))
+        expect = (
+            np.asarray([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0]) @ (p - [0, 0, 1.6])[..., None]
+        )[..., 0]
+        np.testing.assert_allclose(
+            m.values[inner], expect[inner], atol=2e-6 if m is g else 1e-5 + 0.02 * (m.voxel > 0.2)
+        )
 
 
 def test_quantize_8bit_error_bound():

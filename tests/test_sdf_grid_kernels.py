@@ -25,10 +25,12 @@ def test_degenerate_triangles_are_their_edges():
     rng = np.random.default_rng(4)
     n = 3000
     p, a, b = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
-    c = a + rng.uniform(-0.5, 1.5, size=(n, 1)) * (b - a)     # collinear (rounded: nearly degenerate)
-    c[:500] += 1e-9 * rng.normal(size=(500, 3))                # needles
-    b[2500:], c[2500:] = a[2500:], a[2500:]                    # points
-    want = np.minimum(np.minimum(_segment_distance(p, a, b), _segment_distance(p, b, c)), _segment_distance(p, c, a))
+    c = a + rng.uniform(-0.5, 1.5, size=(n, 1)) * (b - a)  # collinear (rounded: nearly degenerate)
+    c[:500] += 1e-9 * rng.normal(size=(500, 3))  # needles
+    b[2500:], c[2500:] = a[2500:], a[2500:]  # points
+    want = np.minimum(
+        np.minimum(_segment_distance(p, a, b), _segment_distance(p, b, c)), _segment_distance(p, c, a)
+    )
     _, got = _point_triangle_distance_drjit(p, a, b, c)
     assert np.max(np.abs(got - want)) < 1e-9
 

@@ -56,11 +56,17 @@ def test_unoccluded_gives_one(backend, plane_grid):
     pts = np.array([[0.0, 0.0, 0.0], [0.5, 0.5, 0.0]])
     nrm = np.tile([0.0, 0.0, 1.0], (2, 1))
     for sdf in (PLANE, plane_grid):
-        c = evans_occlusion(pts, nrm, sdf, EvansParams(n=4, base=0.1, k=7.0, alpha=0.0, prefilter=False),
-                            backend=backend)
+        c = evans_occlusion(
+            pts, nrm, sdf, EvansParams(n=4, base=0.1, k=7.0, alpha=0.0, prefilter=False), backend=backend
+        )
         np.testing.assert_allclose(c, 1.0, atol=1e-6)
-        c = evans_occlusion(pts, nrm, sdf, EvansParams(n=4, base=0.1, k=7.0, alpha=0.5, normalize=True,
-                                                       prefilter=False), backend=backend)
+        c = evans_occlusion(
+            pts,
+            nrm,
+            sdf,
+            EvansParams(n=4, base=0.1, k=7.0, alpha=0.5, normalize=True, prefilter=False),
+            backend=backend,
+        )
         np.testing.assert_allclose(c, 1.0, atol=1e-6)
 
 
@@ -68,10 +74,17 @@ def test_empty_scene_is_exactly_one():
     pts = np.random.default_rng(0).normal(size=(64, 3))
     nrm = np.random.default_rng(1).normal(size=(64, 3))
     for be in ("numpy", None):
-        c = evans_occlusion(pts, nrm, AnalyticSDF([]), EvansParams(n=6, base=0.05, k=100.0, alpha=0.7,
-                                                                   normalize=True), backend=be)
+        c = evans_occlusion(
+            pts,
+            nrm,
+            AnalyticSDF([]),
+            EvansParams(n=6, base=0.05, k=100.0, alpha=0.7, normalize=True),
+            backend=be,
+        )
         assert np.all(c == 1.0)
-        assert np.all(np.asarray(cone_occlusion(pts, nrm, AnalyticSDF([]), t0=0.01, t_max=1.0, backend=be)) == 1.0)
+        assert np.all(
+            np.asarray(cone_occlusion(pts, nrm, AnalyticSDF([]), t0=0.01, t_max=1.0, backend=be)) == 1.0
+        )
 
 
 def test_ceiling_closed_form():
@@ -105,7 +118,9 @@ def test_extremes_are_finite():
     nrm = np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0], [0, 0, -1.0]])
     for k in (0.0, 1e-8, 1e6, 1e30):
         for be in ("numpy", None):
-            c = np.asarray(evans_occlusion(pts, nrm, sdf, EvansParams(n=8, base=0.01, k=k, alpha=1.0), backend=be))
+            c = np.asarray(
+                evans_occlusion(pts, nrm, sdf, EvansParams(n=8, base=0.01, k=k, alpha=1.0), backend=be)
+            )
             assert np.all(np.isfinite(c)) and np.all(c >= 0) and np.all(c <= math.exp(80) * 1.0001)
             if k == 0.0:
                 assert np.all(c == 1.0)
@@ -153,10 +168,18 @@ def test_drjit_input_stays_lazy_and_matches_numpy():
     np.testing.assert_allclose(np.array(out), ref, rtol=2e-4, atol=2e-5)
 
 
-@pytest.mark.parametrize("bad, msg", [
-    (dict(n=0), "n"), (dict(n=17), "n"), (dict(base=0.0), "base"), (dict(k=-1.0), "k"),
-    (dict(alpha=1.5), "alpha"), (dict(weights=(1.0, 2.0)), "weights"), (dict(up=(0, 0, 0)), "up"),
-])
+@pytest.mark.parametrize(
+    "bad, msg",
+    [
+        (dict(n=0), "n"),
+        (dict(n=17), "n"),
+        (dict(base=0.0), "base"),
+        (dict(k=-1.0), "k"),
+        (dict(alpha=1.5), "alpha"),
+        (dict(weights=(1.0, 2.0)), "weights"),
+        (dict(up=(0, 0, 0)), "up"),
+    ],
+)
 def test_bad_parameters(bad, msg):
     with pytest.raises(ValueError, match=msg):
         EvansParams(**bad)
@@ -172,8 +195,14 @@ def test_bad_points():
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(k=st.floats(0.0, 1e6), alpha=st.floats(0.0, 1.0), base=st.floats(1e-4, 10.0), n=st.integers(1, 8),
-       h=st.floats(-2.0, 2.0), nz=st.floats(-1.0, 1.0))
+@given(
+    k=st.floats(0.0, 1e6),
+    alpha=st.floats(0.0, 1.0),
+    base=st.floats(1e-4, 10.0),
+    n=st.integers(1, 8),
+    h=st.floats(-2.0, 2.0),
+    nz=st.floats(-1.0, 1.0),
+)
 def test_property_normalised_evans_in_unit_interval_and_monotone(k, alpha, base, n, h, nz):
     """With a normalised bent normal and the clamp every term D_i ≥ 0: C ∈ [0, 1] and C falls with k."""
     sdf = AnalyticSDF([HalfSpace((0, 0, 0), (0, 0, 1)), Sphere((0.3, 0, 0.6), 0.25)])
@@ -181,7 +210,8 @@ def test_property_normalised_evans_in_unit_interval_and_monotone(k, alpha, base,
     nrm = np.array([[math.sqrt(max(0.0, 1 - nz * nz)), 0.0, nz]])
     prm = EvansParams(n=n, base=base, k=k, alpha=alpha, normalize=True)
     c = evans_occlusion(p, nrm, sdf, prm, backend="numpy")[0]
-    c2 = evans_occlusion(p, nrm, sdf, EvansParams(n=n, base=base, k=2 * k + 1, alpha=alpha, normalize=True),
-                         backend="numpy")[0]
+    c2 = evans_occlusion(
+        p, nrm, sdf, EvansParams(n=n, base=base, k=2 * k + 1, alpha=alpha, normalize=True), backend="numpy"
+    )[0]
     assert 0.0 <= c <= 1.0 and math.isfinite(c)
     assert c2 <= c + 1e-12

@@ -79,17 +79,26 @@ def _sunsky_gauss_legendre(mi, sky, normals, n_mu=160, n_phi=720):
     d, w = upper_hemisphere_nodes(n_mu, n_phi)
     si = dr.zeros(mi.SurfaceInteraction3f, len(d))
     si.wi = mi.Vector3f(np.ascontiguousarray(-d.T, dtype=np.float32))
-    lum = np.maximum(np.array(sunsky_emitter(mi, sky).eval(si), dtype=np.float64).T @ np.asarray(LUMINANCE), 0.0)
+    lum = np.maximum(
+        np.array(sunsky_emitter(mi, sky).eval(si), dtype=np.float64).T @ np.asarray(LUMINANCE), 0.0
+    )
     return np.array([np.sum(w * lum * np.maximum(d @ n, 0.0)) for n in np.asarray(normals, np.float64)])
 
 
 def test_sunsky_reference_at_an_unoccluded_point_equals_the_sky_irradiance_quadrature(crease_scene):
-    from rtfit.reference.occlusion import SunskySky, occlusion_pass, sunsky_horizontal_irradiance, sunsky_irradiance
+    from rtfit.reference.occlusion import (
+        SunskySky,
+        occlusion_pass,
+        sunsky_horizontal_irradiance,
+        sunsky_irradiance,
+    )
 
     mi, s = crease_scene
     sky = SunskySky(30.0, 60.0, 3.0)
     sd = sky.sun_direction()
-    assert sd[2] == pytest.approx(0.5) and sd[0] == pytest.approx(math.cos(math.radians(30)) * math.sin(math.radians(60)))
+    assert sd[2] == pytest.approx(0.5) and sd[0] == pytest.approx(
+        math.cos(math.radians(30)) * math.sin(math.radians(60))
+    )
     hs = np.array([sd[0], sd[1], 0.0]) / np.hypot(sd[0], sd[1])
     n = np.array([[0.0, 0.0, 1.0], hs, -hs, [-hs[1], hs[0], 0.0], [0.3, -0.2, 0.93]])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -130,10 +139,32 @@ def test_sunsky_cache_key_separates_skies(tmp_path, crease_scene):
     p = np.array([[0.2, 0.0, 1e-6]])
     n = np.array([[0.0, 0.0, 1.0]])
     c = OcclusionCache(tmp_path)
-    a = c.get(mi, s, "geo", p, n, spp=8, pass_spp=8, seed=3, variant="llvm_ad_rgb", quantity="sunsky_direct",
-              sky=SunskySky(30.0, 60.0))
-    b = c.get(mi, s, "geo", p, n, spp=8, pass_spp=8, seed=3, variant="llvm_ad_rgb", quantity="sunsky_direct",
-              sky=SunskySky(45.0, 60.0))
+    a = c.get(
+        mi,
+        s,
+        "geo",
+        p,
+        n,
+        spp=8,
+        pass_spp=8,
+        seed=3,
+        variant="llvm_ad_rgb",
+        quantity="sunsky_direct",
+        sky=SunskySky(30.0, 60.0),
+    )
+    b = c.get(
+        mi,
+        s,
+        "geo",
+        p,
+        n,
+        spp=8,
+        pass_spp=8,
+        seed=3,
+        variant="llvm_ad_rgb",
+        quantity="sunsky_direct",
+        sky=SunskySky(45.0, 60.0),
+    )
     assert a.key != b.key and a.to_dict()["sky"]["sun_elevation_deg"] == 30.0
 
 
@@ -141,7 +172,9 @@ def test_sdfgrid_scene_places_the_surface_where_the_grid_says(crease_scene):
     from rtfit.reference.occlusion import sdfgrid_scene
 
     mi, _ = crease_scene
-    g = union_grid([HalfSpace((0, 0, 0.3), (0, 0, 1)), Sphere((0.5, 0.5, 0.6), 0.2)], (0, 0, 0), 1 / 24, (24, 24, 24))
+    g = union_grid(
+        [HalfSpace((0, 0, 0.3), (0, 0, 1)), Sphere((0.5, 0.5, 0.6), 0.2)], (0, 0, 0), 1 / 24, (24, 24, 24)
+    )
     s = sdfgrid_scene(mi, g)
     ray = mi.Ray3f(mi.Point3f(0.2, 0.2, 0.95), mi.Vector3f(0, 0, -1))
     si = s.ray_intersect(ray)
@@ -170,24 +203,63 @@ def test_tiny_experiment_run(tmp_path):
     from rtfit.experiments.results import SCHEMA
     from rtfit.reference.io import atomic_write_json
 
-    tiny = dict(scenes=["crease_90", "character"], targets=["ao", "sunsky"], resolution=10, spp=8, pass_spp=4, grid=32,
-                alphas=[0.0], bases_vox=[1.0], sweep_grids=[24], sweep_n=[1, 2], sweep_scenes=["crease_90"],
-                probe_spp=256, cost_points=4096)
-    ctx = RunContext(out_dir=tmp_path / "sdf", cache_dir=tmp_path / "cache", executor=make_executor("inline"),
-                     quick=True, variant="llvm_ad_rgb", spp=None, seed=0, progress=False, overrides=tiny)
+    tiny = dict(
+        scenes=["crease_90", "character"],
+        targets=["ao", "sunsky"],
+        resolution=10,
+        spp=8,
+        pass_spp=4,
+        grid=32,
+        alphas=[0.0],
+        bases_vox=[1.0],
+        sweep_grids=[24],
+        sweep_n=[1, 2],
+        sweep_scenes=["crease_90"],
+        probe_spp=256,
+        cost_points=4096,
+    )
+    ctx = RunContext(
+        out_dir=tmp_path / "sdf",
+        cache_dir=tmp_path / "cache",
+        executor=make_executor("inline"),
+        quick=True,
+        variant="llvm_ad_rgb",
+        spp=None,
+        seed=0,
+        progress=False,
+        overrides=tiny,
+    )
     (tmp_path / "sdf").mkdir()
     body = exp.run(ctx)
-    doc = {"schema": SCHEMA, "experiment": "sdf-occlusion", "title": "t", "created": "2026-01-01T00:00:00+00:00",
-           "versions": {}, "device": "cpu", **body}
+    doc = {
+        "schema": SCHEMA,
+        "experiment": "sdf-occlusion",
+        "title": "t",
+        "created": "2026-01-01T00:00:00+00:00",
+        "versions": {},
+        "device": "cpu",
+        **body,
+    }
     atomic_write_json(tmp_path / "sdf" / "results.json", doc)
     write_report(tmp_path / "sdf")
     res = load_results(tmp_path / "sdf")
     assert all(c["passed"] for c in res["checks"]), [c for c in res["checks"] if not c["passed"]]
-    assert {a["method"] for a in res["cases"][0]["approximations"]} >= {"evans-text", "evans-fit", "cone", "sdfgrid"}
+    assert {a["method"] for a in res["cases"][0]["approximations"]} >= {
+        "evans-text",
+        "evans-fit",
+        "cone",
+        "sdfgrid",
+    }
     names = [c["name"] for c in res["checks"]]
-    assert any("sunsky one bounce" in nm for nm in names) and any("continuous Evans fit" in nm for nm in names)
+    assert any("sunsky one bounce" in nm for nm in names) and any(
+        "continuous Evans fit" in nm for nm in names
+    )
     sun = [c for c in res["cases"] if c["parameters"]["target"] == "sunsky"]
-    assert sun and sun[0]["parameters"]["sun_elevation_deg"] == 30.0 and sun[0]["reference"]["sky"]["turbidity"] == 3.0
+    assert (
+        sun
+        and sun[0]["parameters"]["sun_elevation_deg"] == 30.0
+        and sun[0]["reference"]["sky"]["turbidity"] == 3.0
+    )
     import json
 
     joint = json.loads((tmp_path / "sdf" / "fitted" / "evans_joint_sunsky.json").read_text())

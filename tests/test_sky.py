@@ -20,23 +20,26 @@ def od_mpmath(h, mu, H, rg=RG, rt=RT):
     mp.mp.dps = 30
     h, mu, H = mp.mpf(h), mp.mpf(mu), mp.mpf(H)
     r0 = rg + h
-    f = lambda t: mp.exp(-(mp.sqrt(r0 ** 2 + t ** 2 + 2 * r0 * t * mu) - rg) / H)  # noqa: E731
-    t_top = -r0 * mu + mp.sqrt(r0 ** 2 * mu ** 2 - r0 ** 2 + mp.mpf(rt) ** 2)
+    f = lambda t: mp.exp(-(mp.sqrt(r0**2 + t**2 + 2 * r0 * t * mu) - rg) / H)  # noqa: E731
+    t_top = -r0 * mu + mp.sqrt(r0**2 * mu**2 - r0**2 + mp.mpf(rt) ** 2)
     pts = [0, -r0 * mu, t_top] if mu < 0 else [0, t_top]
     # split further so the quadrature resolves the exponential near the low end
     return float(mp.quad(f, pts, maxdegree=10))
 
 
-@pytest.mark.parametrize("h,mu,H", [
-    (0.0, 0.0, 8000.0),        # horizontal ray at the ground (Chapman regime)
-    (0.0, 0.0, 1200.0),
-    (0.0, 1e-3, 8000.0),
-    (0.0, 1.0, 1200.0),
-    (1500.0, -0.02, 8000.0),   # down-going, passes above the ground
-    (30e3, -0.05, 1200.0),
-    (12e3, 0.3, 8000.0),
-    (TOP - 1.0, 0.0, 8000.0),  # 1 m below the top, horizontal
-])
+@pytest.mark.parametrize(
+    "h,mu,H",
+    [
+        (0.0, 0.0, 8000.0),  # horizontal ray at the ground (Chapman regime)
+        (0.0, 0.0, 1200.0),
+        (0.0, 1e-3, 8000.0),
+        (0.0, 1.0, 1200.0),
+        (1500.0, -0.02, 8000.0),  # down-going, passes above the ground
+        (30e3, -0.05, 1200.0),
+        (12e3, 0.3, 8000.0),
+        (TOP - 1.0, 0.0, 8000.0),  # 1 m below the top, horizontal
+    ],
+)
 def test_optical_depth_matches_mpmath(h, mu, H):
     got = sky.atmosphere_optical_depth(h, mu, H)
     ref = od_mpmath(h, mu, H)
@@ -48,8 +51,8 @@ def test_optical_depth_vertical_closed_form_and_limits():
         for H in (1200.0, 8000.0):
             ref = H * (math.exp(-h / H) - math.exp(-TOP / H))
             assert sky.atmosphere_optical_depth(h, 1.0, H) == pytest.approx(ref, rel=1e-12)
-    assert sky.atmosphere_optical_depth(TOP, 0.5, 8000.0) == 0.0        # at the top, going up
-    assert sky.atmosphere_optical_depth(TOP, 0.0, 8000.0) == 0.0        # at the top, horizontal
+    assert sky.atmosphere_optical_depth(TOP, 0.5, 8000.0) == 0.0  # at the top, going up
+    assert sky.atmosphere_optical_depth(TOP, 0.0, 8000.0) == 0.0  # at the top, horizontal
     assert math.isinf(sky.atmosphere_optical_depth(0.0, -1e-6, 8000.0))  # into the ground
     assert math.isinf(sky.atmosphere_optical_depth(1000.0, -0.5, 8000.0))
     # the grazing boundary from 10 km: μ = −√(1 − (R_g/r)²) touches the ground
@@ -64,7 +67,7 @@ def test_optical_depth_drjit_float32_and_no_nan():
 
     hs = np.array([0.0, 0.0, 0.0, 10.0, 5e3, TOP, TOP, 30e3])
     mus = np.array([0.0, 1.0, -1.0, -1e-7, 1e-7, -0.2, 1.0, -1.0])
-    ref = sky.atmosphere_optical_depth(hs, mus, 8000.0)          # float64 → Float64
+    ref = sky.atmosphere_optical_depth(hs, mus, 8000.0)  # float64 → Float64
     got = sky.atmosphere_optical_depth(dr.llvm.Float(hs), dr.llvm.Float(mus), 8000.0)
     got = np.asarray(got, dtype=np.float64)
     assert not np.isnan(got).any() and not np.isnan(ref).any()
@@ -74,8 +77,11 @@ def test_optical_depth_drjit_float32_and_no_nan():
 
 
 @settings(max_examples=15, deadline=None)
-@given(arrays(np.float64, 16, elements=st.floats(0.0, TOP)), arrays(np.float64, 16, elements=st.floats(-1.0, 1.0)),
-       st.floats(100.0, 1e5))
+@given(
+    arrays(np.float64, 16, elements=st.floats(0.0, TOP)),
+    arrays(np.float64, 16, elements=st.floats(-1.0, 1.0)),
+    st.floats(100.0, 1e5),
+)
 def test_optical_depth_properties(h, mu, H):
     od = sky.atmosphere_optical_depth(h, mu, np.full(16, H))
     assert not np.isnan(od).any()
@@ -83,7 +89,7 @@ def test_optical_depth_properties(h, mu, H):
     # +inf exactly where the ray meets the ground
     r = RG + h
     sin_t = np.sqrt(np.maximum(1 - mu * mu, 0))
-    hits = (mu < 0) & (h < r * mu * mu / (1 + sin_t))   # d = r sin θ < R_g, i.e. h < r(1 − sin θ)
+    hits = (mu < 0) & (h < r * mu * mu / (1 + sin_t))  # d = r sin θ < R_g, i.e. h < r(1 − sin θ)
     assert np.array_equal(np.isinf(od), hits)
     # a steeper up-going ray never sees more air
     od2 = sky.atmosphere_optical_depth(h, np.clip(np.abs(mu) + 0.05, 0, 1), np.full(16, H))
@@ -103,8 +109,16 @@ def test_optical_depth_bad_input():
 
 
 # ------------------------------------------------------------------------------------ phase functions
-@pytest.mark.parametrize("fn,g", [(lambda c, g: sky.rayleigh_phase(c), 0.0), (sky.hg_phase, 0.8),
-                                  (sky.hg_phase, -0.5), (sky.cornette_shanks_phase, 0.76), (sky.hg_phase, 0.99)])
+@pytest.mark.parametrize(
+    "fn,g",
+    [
+        (lambda c, g: sky.rayleigh_phase(c), 0.0),
+        (sky.hg_phase, 0.8),
+        (sky.hg_phase, -0.5),
+        (sky.cornette_shanks_phase, 0.76),
+        (sky.hg_phase, 0.99),
+    ],
+)
 def test_phase_functions_are_normalised(fn, g):
     from scipy.integrate import quad
 
@@ -141,7 +155,9 @@ def quad_ref():
 
 def test_single_scattering_converges_to_independent_quadrature(params, quad_ref):
     dirs, q = quad_ref
-    fine = sky.build_sky(params, 20.0, 10.0, layers=128, width=512, height=256, table_size=512, mapping="sqrt")
+    fine = sky.build_sky(
+        params, 20.0, 10.0, layers=128, width=512, height=256, table_size=512, mapping="sqrt"
+    )
     L = sky.shade_sky(fine, dirs)
     assert np.allclose(L, q, rtol=0.012)
     seed = sky.build_sky(params, 20.0, 10.0)  # n = 32, 128×64: the seed's setting
@@ -163,9 +179,14 @@ def test_frozen_device_build_replays_with_new_inputs(params):
     from dataclasses import replace
 
     kw = dict(layers=8, width=16, height=8, table_size=32)
-    cases = [(params, 30.0, 0.0, "linear"), (params, -4.0, 0.0, "linear"),
-             (replace(params, rayleigh_scale=2.0, mie_scale=0.3), 10.0, 5000.0, "linear"),
-             (params, 10.0, 5000.0, "sqrt"), (params, 60.0, 80e3, "sqrt"), (params, 2.0, 10.0, "linear")]
+    cases = [
+        (params, 30.0, 0.0, "linear"),
+        (params, -4.0, 0.0, "linear"),
+        (replace(params, rayleigh_scale=2.0, mie_scale=0.3), 10.0, 5000.0, "linear"),
+        (params, 10.0, 5000.0, "sqrt"),
+        (params, 60.0, 80e3, "sqrt"),
+        (params, 2.0, 10.0, "linear"),
+    ]
     for p, e, h, mapping in cases:
         a = sky.build_sky(p, e, h, backend="llvm", mapping=mapping, **kw)
         b = sky.build_sky(p, e, h, backend="numpy", mapping=mapping, **kw)
@@ -180,21 +201,39 @@ def test_optically_thin_limit_closed_form(params):
 
     p = replace(params, rayleigh_scale=1e-6, mie_scale=1e-6)
     h0 = 100.0
-    S_r, S_m = sky._inscatter_kernel(sky.OPS_NP, np.array([1.0]), np.array([0.5]), h0, 0.5,
-                                     sky._cfg(p, 128, 64), *[t.ravel() for t in sky.build_optical_depth_table(p, 128, 64)],
-                                     p.betas(), "python")
+    S_r, S_m = sky._inscatter_kernel(
+        sky.OPS_NP,
+        np.array([1.0]),
+        np.array([0.5]),
+        h0,
+        0.5,
+        sky._cfg(p, 128, 64),
+        *[t.ravel() for t in sky.build_optical_depth_table(p, 128, 64)],
+        p.betas(),
+        "python",
+    )
     br, bm, _ = p.betas()
     for c in range(3):
         ref_r = br[c] * 8000.0 * (math.exp(-h0 / 8000.0) - math.exp(-TOP / 8000.0))
         ref_m = bm[c] * 1200.0 * (math.exp(-h0 / 1200.0) - math.exp(-TOP / 1200.0))
-        assert float(S_r[c][0]) == pytest.approx(ref_r, rel=6e-3)   # trapezoid over 128 layers
+        assert float(S_r[c][0]) == pytest.approx(ref_r, rel=6e-3)  # trapezoid over 128 layers
         assert float(S_m[c][0]) == pytest.approx(ref_m, rel=6e-3)
 
 
-@pytest.mark.parametrize("kw", [
-    dict(sun=0.0, alt=0.0), dict(sun=-4.0, alt=0.0), dict(sun=-30.0, alt=0.0), dict(sun=90.0, alt=0.0),
-    dict(sun=10.0, alt=100e3), dict(sun=2.0, alt=30e3, layers=1), dict(sun=45.0, alt=0.0, g=0.999),
-    dict(sun=45.0, alt=0.0, g=-0.999), dict(sun=45.0, alt=0.0, mie=0.0)])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(sun=0.0, alt=0.0),
+        dict(sun=-4.0, alt=0.0),
+        dict(sun=-30.0, alt=0.0),
+        dict(sun=90.0, alt=0.0),
+        dict(sun=10.0, alt=100e3),
+        dict(sun=2.0, alt=30e3, layers=1),
+        dict(sun=45.0, alt=0.0, g=0.999),
+        dict(sun=45.0, alt=0.0, g=-0.999),
+        dict(sun=45.0, alt=0.0, mie=0.0),
+    ],
+)
 def test_extremes_finite_nonnegative(params, kw):
     from dataclasses import replace
 
@@ -225,19 +264,31 @@ def test_bad_sky_input(params):
 
 # -------------------------------------------------------------------------------- aerial perspective
 def test_aerial_perspective_limits_and_sky_consistency(params, quad_ref):
-    T, L = sky.aerial_perspective(params, 20.0, np.array([10.0]), np.array([0.3]), np.array([0.5]), np.array([0.0]))
+    T, L = sky.aerial_perspective(
+        params, 20.0, np.array([10.0]), np.array([0.3]), np.array([0.5]), np.array([0.0])
+    )
     assert all(np.allclose(t, 1.0) for t in T) and all(np.allclose(x, 0.0) for x in L)
     # horizontal 20 km path near the ground: T = exp(−(β_R + β_M^ext) · 20 km) to < 1e-3 (ρ ≈ 1 there)
-    T, L = sky.aerial_perspective(params, 20.0, np.array([0.0]), np.array([0.0]), np.array([0.5]), np.array([20e3]),
-                                  steps=64)
+    T, L = sky.aerial_perspective(
+        params, 20.0, np.array([0.0]), np.array([0.0]), np.array([0.5]), np.array([20e3]), steps=64
+    )
     br, _, bme = params.betas()
     for c in range(3):
         assert float(T[c][0]) == pytest.approx(math.exp(-(br[c] + bme[c]) * 20e3), rel=2e-3)
     # a ray to the top of the atmosphere reproduces the sky (independent quadrature), zenith
     dirs, q = quad_ref
     s = np.array([math.cos(math.radians(20)), 0, math.sin(math.radians(20))])
-    T, L = sky.aerial_perspective(params, 20.0, np.array([10.0]), np.array([1.0]), np.array([dirs[0] @ s]),
-                                  np.array([TOP - 10.0]), steps=256, layers=128, table_size=256)
+    T, L = sky.aerial_perspective(
+        params,
+        20.0,
+        np.array([10.0]),
+        np.array([1.0]),
+        np.array([dirs[0] @ s]),
+        np.array([TOP - 10.0]),
+        steps=256,
+        layers=128,
+        table_size=256,
+    )
     assert np.allclose([float(x[0]) for x in L], q[0], rtol=0.01)
 
 
@@ -257,7 +308,9 @@ def test_spectral_sky_close_to_rgb_sky(params):
     assert ps.rayleigh_beta[0] == pytest.approx(13.558e-6 * (550 / 400) ** 4)
     d = np.array([[0.0, 0.0, 1.0], [0.0, 0.9, 0.436]])
     a = sky.shade_sky(sky.build_sky(ps, 30.0, 0.0, layers=16, width=32, height=16), d, include_sun=False)
-    rgb = sky.spectral_to_srgb(a, lam, white=np.asarray(ps.solar_irradiance), white_rgb=params.solar_irradiance)
+    rgb = sky.spectral_to_srgb(
+        a, lam, white=np.asarray(ps.solar_irradiance), white_rgb=params.solar_irradiance
+    )
     b = sky.shade_sky(sky.build_sky(params, 30.0, 0.0, layers=16, width=32, height=16), d, include_sun=False)
     # same sky in the same units, different colour rendering: within 25 % per channel, blue sky both
     assert np.allclose(rgb, b, rtol=0.25)
@@ -277,9 +330,18 @@ def test_jax_kernel_matches_numpy(params):
     mu = np.sin(E).ravel()
     nu = (np.cos(E) * math.cos(e) * np.cos(A) + np.sin(E) * math.sin(e)).ravel()
     tr, tm = sky.build_optical_depth_table(params, 8, 32)
-    S_r, S_m = sky._inscatter_kernel(sky._jax_ops(), jnp.asarray(mu), jnp.asarray(nu), 10.0, math.sin(e),
-                                     sky._cfg(params, 8, 32), jnp.asarray(tr.ravel()), jnp.asarray(tm.ravel()),
-                                     params.betas(), "jax")
+    S_r, S_m = sky._inscatter_kernel(
+        sky._jax_ops(),
+        jnp.asarray(mu),
+        jnp.asarray(nu),
+        10.0,
+        math.sin(e),
+        sky._cfg(params, 8, 32),
+        jnp.asarray(tr.ravel()),
+        jnp.asarray(tm.ravel()),
+        params.betas(),
+        "jax",
+    )
     R, M = sky.texture_arrays(s)
     assert np.allclose(np.stack([np.asarray(x).reshape(8, 16) for x in S_r]), R, rtol=1e-10)
     assert np.allclose(np.stack([np.asarray(x).reshape(8, 16) for x in S_m]), M, rtol=1e-10)

@@ -16,21 +16,27 @@ def mi():
 def test_single_scattering_reference_matches_independent_quadrature(tmp_path):
     """Mitsuba volpathmis (max_depth 2, Python medium + chromatic phase mixture) vs a float64
     quadrature: z of every pixel and of the sums within noise."""
-    from rtfit.reference.atmosphere import (AtmosphereSpec, hemisphere_directions, render_sky,
-                                            single_scattering_quadrature)
+    from rtfit.reference.atmosphere import (
+        AtmosphereSpec,
+        hemisphere_directions,
+        render_sky,
+        single_scattering_quadrature,
+    )
 
     spec = AtmosphereSpec(sun_elevation_deg=20.0)
     d, _, _ = hemisphere_directions(6, 3)
-    r = render_sky(spec, d, spp=4096, pass_spp=2048, seed=3, variant="llvm_ad_rgb", max_depth=2,
-                   cache_dir=tmp_path)
+    r = render_sky(
+        spec, d, spp=4096, pass_spp=2048, seed=3, variant="llvm_ad_rgb", max_depth=2, cache_dir=tmp_path
+    )
     q = single_scattering_quadrature(spec, d, steps=1500)
     z = (r["mean"] - q) / r["stderr"]
     assert np.abs(z).max() < 4.5
     zs = (r["mean"].sum(axis=(0, 1)) - q.sum(axis=(0, 1))) / np.sqrt((r["stderr"] ** 2).sum(axis=(0, 1)))
     assert np.all(np.abs(zs) < 4)
     # cached: a second call renders nothing and returns the same numbers
-    r2 = render_sky(spec, d, spp=4096, pass_spp=2048, seed=3, variant="llvm_ad_rgb", max_depth=2,
-                    cache_dir=tmp_path)
+    r2 = render_sky(
+        spec, d, spp=4096, pass_spp=2048, seed=3, variant="llvm_ad_rgb", max_depth=2, cache_dir=tmp_path
+    )
     assert np.array_equal(r2["mean"], r["mean"])
 
 
@@ -58,7 +64,9 @@ def test_phase_mixture_is_normalised_and_sampling_consistent(mi):
     integ = [4 * math.pi * float(np.mean(np.asarray(val[c]))) for c in range(3)]
     assert integ == pytest.approx([1, 1, 1], rel=0.02)
     assert 4 * math.pi * float(np.mean(np.asarray(pdf))) == pytest.approx(1.0, rel=0.02)
-    w_o, weight, pdf_s = phase.sample(ctx, mei, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
+    w_o, weight, pdf_s = phase.sample(
+        ctx, mei, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n))
+    )
     for c in range(3):
         assert float(np.mean(np.asarray(weight[c]))) == pytest.approx(1.0, rel=0.02)
     assert np.isfinite(np.asarray(pdf_s)).all()
@@ -97,17 +105,41 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     from rtfit.experiments.report import load_results
     from rtfit.experiments.runner import run_experiments
 
-    tiny = dict(sun_elevations_deg=[30.0], resolution=[16, 8], spp=64, pass_spp=32, quadrature_steps=200,
-                sweep_elevations_deg=[30.0], sweep_layers=[8], sweep_textures=[[32, 16]], sweep_tables=[32],
-                spectral_wavelengths=6, cost_elements=1 << 12,
-                fine=dict(layers=32, width=64, height=32, table_size=64, mapping="sqrt"),
-                fit_texture=[32, 16], altitude_cases=[[30.0, 5000.0]],
-                spectral_elevations_deg=[30.0], spectral_resolution=[8, 4], spectral_spp=128,
-                spectral_pass_spp=64, spectral_quadrature_stride=[2, 1])
+    tiny = dict(
+        sun_elevations_deg=[30.0],
+        resolution=[16, 8],
+        spp=64,
+        pass_spp=32,
+        quadrature_steps=200,
+        sweep_elevations_deg=[30.0],
+        sweep_layers=[8],
+        sweep_textures=[[32, 16]],
+        sweep_tables=[32],
+        spectral_wavelengths=6,
+        cost_elements=1 << 12,
+        fine=dict(layers=32, width=64, height=32, table_size=64, mapping="sqrt"),
+        fit_texture=[32, 16],
+        altitude_cases=[[30.0, 5000.0]],
+        spectral_elevations_deg=[30.0],
+        spectral_resolution=[8, 4],
+        spectral_spp=128,
+        spectral_pass_spp=64,
+        spectral_quadrature_stride=[2, 1],
+    )
     monkeypatch.setattr(nishita_sky_report, "_figures", lambda *a, **k: [])
-    run_experiments([get_experiment("nishita-sky")], tmp_path / "out", quick=True, variant="llvm_ad_rgb", spp=None,
-                    seed=0, cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False,
-                    overrides=tiny)
+    run_experiments(
+        [get_experiment("nishita-sky")],
+        tmp_path / "out",
+        quick=True,
+        variant="llvm_ad_rgb",
+        spp=None,
+        seed=0,
+        cache_dir=tmp_path / "cache",
+        executor="inline",
+        workers=None,
+        progress=False,
+        overrides=tiny,
+    )
     res = load_results(tmp_path / "out" / "nishita-sky")
     assert {c["id"] for c in res["cases"]} == {"e30-ss", "e30-ms", "e30-h5000-ss", "e30-ss-spectral"}
     failed = [c["name"] for c in res["checks"] if not c["passed"]]
@@ -122,7 +154,9 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     sp = res["spectral"]["rows"][0]
     assert sp["sun_elevation_deg"] == 30.0 and len(sp["rgb_model_vs_spectral_model"]) == 4
     assert np.isfinite(sp["rgb_over_spectral_sum"]).all()
-    assert any(s["id"] == "spectral" for s in res["sections"]) and any(s["id"] == "twilight" for s in res["sections"])
+    assert any(s["id"] == "spectral" for s in res["sections"]) and any(
+        s["id"] == "twilight" for s in res["sections"]
+    )
 
 
 # ------------------------------------------------------------------------------ spectral reference
@@ -130,7 +164,7 @@ def _planck_si(lam_nm, t_k):
     """Planck spectral radiance W·m⁻²·sr⁻¹·nm⁻¹ from the SI constants (independent of rtfit)."""
     h, c, k = 6.62607015e-34, 299792458.0, 1.380649e-23
     lam = np.asarray(lam_nm, dtype=np.float64) * 1e-9
-    return 2 * h * c * c / lam ** 5 / np.expm1(h * c / (lam * k * t_k)) * 1e-9
+    return 2 * h * c * c / lam**5 / np.expm1(h * c / (lam * k * t_k)) * 1e-9
 
 
 def test_film_srgb_matches_mitsubas_film():
@@ -145,10 +179,17 @@ def test_film_srgb_matches_mitsubas_film():
     assert m == pytest.approx(XYZ_TO_SRGB[:, 0], rel=1e-6)
 
     def render(radiance):
-        sc = mi.load_dict({"type": "scene", "em": {"type": "constant", "radiance": radiance},
-                           "integrator": {"type": "path"},
-                           "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4,
-                                                                       "rfilter": {"type": "box"}}}})
+        sc = mi.load_dict(
+            {
+                "type": "scene",
+                "em": {"type": "constant", "radiance": radiance},
+                "integrator": {"type": "path"},
+                "sensor": {
+                    "type": "perspective",
+                    "film": {"type": "hdrfilm", "width": 4, "height": 4, "rfilter": {"type": "box"}},
+                },
+            }
+        )
         img = np.asarray(mi.render(sc, spp=16384, seed=1))
         return img.reshape(-1, img.shape[-1])[:, :3].mean(axis=0)
 
@@ -173,7 +214,7 @@ def test_solar_spectrum_is_the_realtime_one_and_a_5778k_blackbody():
     assert float(solar_spectrum(np.array([550.0]))[0]) == pytest.approx(1.8504, rel=1e-14)
     fine = np.arange(480.0, 520.0, 0.01)
     peak = fine[np.argmax(solar_spectrum(fine))]
-    assert peak == pytest.approx(2.897771955e-3 / 5778.0 * 1e9, abs=0.02)   # Wien's displacement law
+    assert peak == pytest.approx(2.897771955e-3 / 5778.0 * 1e9, abs=0.02)  # Wien's displacement law
     ratio = solar_spectrum(np.array([440.0]))[0] / 1.8504
     assert ratio == pytest.approx(_planck_si(440.0, 5778.0) / _planck_si(550.0, 5778.0), rel=1e-6)
     with pytest.raises(ValueError, match="lam_nm"):
@@ -194,7 +235,7 @@ def test_spectral_medium_phase_and_sun_at_the_sampled_wavelengths():
     lam = [380.0, 450.0, 550.0, 700.0]
     n = 1 << 16
     mei = dr.zeros(mi.MediumInteraction3f, n)
-    mei.p = mi.Point3f(0.0, 0.0, spec.planet_radius_km)          # ground: densities 1
+    mei.p = mi.Point3f(0.0, 0.0, spec.planet_radius_km)  # ground: densities 1
     mei.wavelengths = mi.Spectrum(*[mi.Float(x) for x in lam])
     mei.wi = mi.Vector3f(0.0, 0.0, 1.0)
     s, nn, t = medium.get_scattering_coefficients(mei)
@@ -230,8 +271,12 @@ def test_spectral_medium_phase_and_sun_at_the_sampled_wavelengths():
 def test_spectral_quadrature_at_550nm_is_the_rgb_green_channel():
     """The spec's G channel is its 550 nm value: the spectral quadrature's spectrum at 550 nm
     equals the RGB quadrature's green (same coefficients), and step_nm must divide 5 nm."""
-    from rtfit.reference.atmosphere import (AtmosphereSpec, hemisphere_directions, single_scattering_quadrature,
-                                            spectral_single_scattering_quadrature)
+    from rtfit.reference.atmosphere import (
+        AtmosphereSpec,
+        hemisphere_directions,
+        single_scattering_quadrature,
+        spectral_single_scattering_quadrature,
+    )
 
     spec = AtmosphereSpec(sun_elevation_deg=10.0)
     d, _, _ = hemisphere_directions(4, 2)
@@ -247,13 +292,18 @@ def test_spectral_quadrature_at_550nm_is_the_rgb_green_channel():
 def test_spectral_reference_matches_spectral_quadrature(tmp_path):
     """Mitsuba's spectral variant (volpathmis, max_depth 2, λ⁻⁴ medium, 5778 K sun, film
     conversion per path) vs the float64 spectral quadrature: z of every pixel and of the sums."""
-    from rtfit.reference.atmosphere import (AtmosphereSpec, hemisphere_directions, render_sky,
-                                            spectral_single_scattering_quadrature)
+    from rtfit.reference.atmosphere import (
+        AtmosphereSpec,
+        hemisphere_directions,
+        render_sky,
+        spectral_single_scattering_quadrature,
+    )
 
     spec = AtmosphereSpec(sun_elevation_deg=20.0)
     d, _, _ = hemisphere_directions(6, 3)
-    r = render_sky(spec, d, spp=4096, pass_spp=2048, seed=5, variant="llvm_ad_spectral", max_depth=2,
-                   cache_dir=tmp_path)
+    r = render_sky(
+        spec, d, spp=4096, pass_spp=2048, seed=5, variant="llvm_ad_spectral", max_depth=2, cache_dir=tmp_path
+    )
     q = spectral_single_scattering_quadrature(spec, d, steps=1000)["srgb"]
     z = (r["mean"] - q) / r["stderr"]
     assert np.abs(z).max() < 4.5

@@ -46,23 +46,35 @@ def test_apply_overrides_checks_keys_and_kinds():
     assert apply_overrides(d, {"resolution": 32, "scale": 1}) == {**d, "resolution": 32, "scale": 1.0}
     with pytest.raises(ValueError, match="'bogus' is not a configuration key"):
         apply_overrides(d, {"bogus": 1})
-    for bad in ({"resolution": "64"}, {"alphas_deg": 5.0}, {"scale": float("nan")}, {"flag": 1},
-                {"resolution": True}, {"alphas_deg": [float("inf")]}):
+    for bad in (
+        {"resolution": "64"},
+        {"alphas_deg": 5.0},
+        {"scale": float("nan")},
+        {"flag": 1},
+        {"resolution": True},
+        {"alphas_deg": [float("inf")]},
+    ):
         with pytest.raises(ValueError, match="expected a value like"):
             apply_overrides(d, bad)
 
 
-@pytest.mark.parametrize("text, message", [
-    ("experiment = 'nope'", "unknown experiment 'nope'"),
-    ("", "experiment: required"),
-    ("experiment = 'half-lambert'\nbogus = 1", "bogus: unknown key"),
-    ("experiment = 'half-lambert'\n[grid]\nno_such_key = [1, 2]", "'no_such_key' is not a configuration key"),
-    ("experiment = 'half-lambert'\n[grid]\nresolution = ['a']", "expected a value like"),
-    ("experiment = 'half-lambert'\n[grid]\nresolution = []", "grid.resolution: must be a non-empty list"),
-    ("experiment = 'half-lambert'\n[[points]]\nresolution = 8\n[[points]]\nresolution = 8", "duplicates"),
-    ("experiment = 'half-lambert'\nspp = 1", "spp: must be an integer"),
-    ("experiment = = 'x'", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("experiment = 'nope'", "unknown experiment 'nope'"),
+        ("", "experiment: required"),
+        ("experiment = 'half-lambert'\nbogus = 1", "bogus: unknown key"),
+        (
+            "experiment = 'half-lambert'\n[grid]\nno_such_key = [1, 2]",
+            "'no_such_key' is not a configuration key",
+        ),
+        ("experiment = 'half-lambert'\n[grid]\nresolution = ['a']", "expected a value like"),
+        ("experiment = 'half-lambert'\n[grid]\nresolution = []", "grid.resolution: must be a non-empty list"),
+        ("experiment = 'half-lambert'\n[[points]]\nresolution = 8\n[[points]]\nresolution = 8", "duplicates"),
+        ("experiment = 'half-lambert'\nspp = 1", "spp: must be an integer"),
+        ("experiment = = 'x'", "not valid TOML"),
+    ],
+)
 def test_bad_sweep_files_are_one_line_errors(tmp_path, capsys, text, message):
     path = _write(tmp_path, text)
     with pytest.raises(SweepError, match=message):
@@ -79,8 +91,12 @@ def test_grid_and_points_expand(tmp_path):
     pts = s.resolved_points("llvm_ad_rgb")
     assert pts[0].varying == ("resolution",) and pts[0].label == "resolution = 16"
     assert len({p.key for p in pts}) == 3
-    assert pts[0].key != load_sweep(_write(tmp_path, SWEEP.replace("spp = 32", "spp = 64"), "b.toml")) \
-        .resolved_points("llvm_ad_rgb")[0].key
+    assert (
+        pts[0].key
+        != load_sweep(_write(tmp_path, SWEEP.replace("spp = 32", "spp = 64"), "b.toml"))
+        .resolved_points("llvm_ad_rgb")[0]
+        .key
+    )
 
 
 def test_ray_executor_without_ray_names_the_extra(monkeypatch, tmp_path, capsys):
@@ -98,8 +114,14 @@ def _numbers(results: dict) -> list:
     out = []
     for c in results["cases"]:
         for a in c["approximations"]:
-            out.append((c["id"], a["method"], sorted((k, m["value"]) for k, m in a["metrics"].items()),
-                        sorted((a.get("parameters") or {}).items())))
+            out.append(
+                (
+                    c["id"],
+                    a["method"],
+                    sorted((k, m["value"]) for k, m in a["metrics"].items()),
+                    sorted((a.get("parameters") or {}).items()),
+                )
+            )
     return out
 
 
@@ -114,8 +136,14 @@ def sweeps(tmp_path_factory):
             pytest.importorskip("ray")
         ex = make_executor(name, workers=2)
         try:
-            summary = run_sweep(spec, root / name, variant="llvm_ad_rgb", cache_dir=root / f"cache-{name}",
-                                executor=ex, executor_name=name)
+            summary = run_sweep(
+                spec,
+                root / name,
+                variant="llvm_ad_rgb",
+                cache_dir=root / f"cache-{name}",
+                executor=ex,
+                executor_name=name,
+            )
         finally:
             ex.close()
         assert not summary.failed
@@ -135,7 +163,9 @@ def test_executors_give_identical_numbers(sweeps):
     # (The experiment's statistical checks are not asserted at these tiny sample counts; they
     # are the same under every executor.)
     checks = [(c["name"], c["value"], c["passed"]) for c in out["inline"]["checks"]]
-    assert all([(c["name"], c["value"], c["passed"]) for c in doc["checks"]] == checks for doc in out.values())
+    assert all(
+        [(c["name"], c["value"], c["passed"]) for c in doc["checks"]] == checks for doc in out.values()
+    )
 
 
 @pytest.mark.slow
@@ -145,10 +175,18 @@ def test_sweep_writes_points_and_resumes(sweeps, capsys):
     points = sorted((d / "points").iterdir())
     assert [p.name[:4] for p in points] == ["p000", "p001"]
     for p in points:
-        assert (p / "report.html").is_file() and json.loads((p / "results.json").read_text())["config"]["sweep_point"]
+        assert (p / "report.html").is_file() and json.loads((p / "results.json").read_text())["config"][
+            "sweep_point"
+        ]
     assert (d / "report.html").is_file() and (root / "inline" / "index.html").is_file()
-    summary = run_sweep(spec, root / "inline", variant="llvm_ad_rgb", cache_dir=root / "cache-inline",
-                        executor=make_executor("inline"), executor_name="inline")
+    summary = run_sweep(
+        spec,
+        root / "inline",
+        variant="llvm_ad_rgb",
+        cache_dir=root / "cache-inline",
+        executor=make_executor("inline"),
+        executor_name="inline",
+    )
     assert summary.ran == [] and len(summary.resumed) == 2
 
 
@@ -207,8 +245,14 @@ def test_ray_worker_killed_mid_render_sweep_completes(tmp_path):
 
     try:
         threading.Thread(target=kill_a_busy_worker, daemon=True).start()
-        summary = run_sweep(spec, tmp_path / "out", variant="llvm_ad_rgb", cache_dir=tmp_path / "cache",
-                            executor=ex, executor_name="ray")
+        summary = run_sweep(
+            spec,
+            tmp_path / "out",
+            variant="llvm_ad_rgb",
+            cache_dir=tmp_path / "cache",
+            executor=ex,
+            executor_name="ray",
+        )
     finally:
         ex.close()
     assert killed, "no worker was killed"
