@@ -37,6 +37,8 @@ import time
 
 import numpy as np
 
+from rtfit.realtime.arrays import jax_ops
+
 from .jobs import Job
 
 ELEVATIONS_FULL = (90.0, 45.0, 10.0, 2.0, 0.0, -4.0)
@@ -207,7 +209,7 @@ def _residual_for(width: int, height: int):
     def residual(x, args):
         import jax.numpy as jnp
 
-        ops = sky._jax_ops()
+        ops = jax_ops()
         mu, nu, h0, sz, tr, tm, px, py, cosg, ref, w, e0, br0, bm0, bme0 = args
         br = [br0[c] * x["rayleigh_scale"] for c in range(3)]
         bm = [bm0[c] * x["mie_scale"] for c in range(3)]

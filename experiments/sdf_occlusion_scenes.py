@@ -273,7 +273,7 @@ def _smooth_union(values, k=0.04):
 def character():
     from skimage import measure
 
-    from rtfit.realtime._array import NUMPY_OPS
+    from rtfit.realtime.arrays import NUMPY_OPS
     from rtfit.realtime.sdf_grid import primitive_sdf
 
     prims = character_primitives()

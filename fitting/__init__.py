@@ -1,15 +1,25 @@
-"""rtfit.fitting: error metrics with Monte Carlo noise floors, z-scores, and bounded least squares.
+"""rtfit.fitting: error metrics with Monte Carlo noise floors, z-statistics, and bounded least squares.
 
-Importing this package does not import JAX (only :func:`fit_least_squares` / :func:`fit_curve` do).
-Fits run on the CPU unless ``JAX_PLATFORMS`` says otherwise (they are small, and JAX would otherwise
-preallocate most of the GPU's memory beside Dr.Jit)."""
+* :mod:`.metrics`: `compute_metrics` (RMSE, relative MSE, MAE, max, PSNR, SSIM, FLIP, sMAPE), each beside
+  the reference's noise floor; `z_scores`, `z_score_summary`.
+* :mod:`.stats`: robust z-spread, the z-test checks every experiment runs (tolerances derived there),
+  Šidák thresholds.
+* :mod:`.least_squares`: `fit_least_squares` / `fit_curve` (optimistix Levenberg–Marquardt, bounds by
+  reparametrisation, standard errors), `covariance_from_jacobian`.
+* :mod:`.method_fit`: `fit_method`: fit a `rtfit.realtime.methods.Method`'s parameters through the JAX
+  run of its one kernel text.
+* :mod:`.bounded_lm`: a projected Levenberg–Marquardt for residuals with a user-supplied Jacobian.
+
+Importing this package does not import JAX (only the fits do). Fits run on the CPU unless
+``JAX_PLATFORMS`` says otherwise (they are small, and JAX would otherwise preallocate most of the GPU's
+memory beside Dr.Jit)."""
 
 import os as _os
 
 _os.environ.setdefault("JAX_PLATFORMS", "cpu")
 _os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
-from .least_squares import (
+from .least_squares import (  # noqa: E402  (the environment defaults above must precede any jax import)
     AT_BOUND_RTOL,
     FitResult,
     Param,
@@ -17,7 +27,8 @@ from .least_squares import (
     fit_curve,
     fit_least_squares,
 )
-from .metrics import (
+from .method_fit import fit_method, method_model  # noqa: E402
+from .metrics import (  # noqa: E402
     ALL_METRICS,
     EXTRA_METRICS,
     FLIP_MIN_SIZE,
@@ -32,12 +43,21 @@ from .metrics import (
     z_score_summary,
     z_scores,
 )
+from .stats import (  # noqa: E402
+    MAD_TO_SIGMA,
+    concat_z_pairs,
+    robust_spread,
+    sidak_threshold,
+    z_checks,
+    z_pair,
+)
 
 __all__ = [
     "ALL_METRICS",
     "AT_BOUND_RTOL",
     "EXTRA_METRICS",
     "FLIP_MIN_SIZE",
+    "MAD_TO_SIGMA",
     "REL_MSE_EPS",
     "SSIM_MIN_SIZE",
     "FitResult",
@@ -46,11 +66,18 @@ __all__ = [
     "Param",
     "ZScoreSummary",
     "compute_metrics",
+    "concat_z_pairs",
     "covariance_from_jacobian",
     "fit_curve",
     "fit_least_squares",
+    "fit_method",
+    "method_model",
+    "robust_spread",
+    "sidak_threshold",
     "smape",
     "tone_map",
+    "z_checks",
+    "z_pair",
     "z_score_summary",
     "z_scores",
 ]

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rtfit.realtime.methods import Param
+
 __all__ = [
     "AT_BOUND_RTOL",
     "FitResult",
@@ -45,52 +47,6 @@ __all__ = [
 AT_BOUND_RTOL = 1e-6
 """A value within this fraction of (upper − lower) of a bound (two-sided), or of max(1, |bound|)
 (one-sided), is reported ``at_bound``."""
-
-
-@dataclass(frozen=True)
-class Param:
-    """A fitted parameter: start value and optional bounds (infinite: unbounded on that side).
-    ``initial`` must be finite and strictly inside (lower, upper)."""
-
-    initial: float
-    lower: float = -math.inf
-    upper: float = math.inf
-
-    def __post_init__(self):
-        for f in ("initial", "lower", "upper"):
-            v = getattr(self, f)
-            try:
-                v = float(v)
-            except (TypeError, ValueError):
-                raise ValueError(f"Param.{f} must be a real number, got {v!r}") from None
-            object.__setattr__(self, f, v)
-        lo, hi = self.lower, self.upper
-        if math.isnan(lo) or math.isnan(hi) or lo == math.inf or hi == -math.inf:
-            raise ValueError(f"Param bounds must be finite or -inf/+inf on their side, got ({lo}, {hi})")
-        if not self.lower < self.upper:
-            raise ValueError(f"Param needs lower < upper, got ({self.lower}, {self.upper})")
-        if not math.isfinite(self.initial):
-            raise ValueError(f"Param.initial must be finite, got {self.initial}")
-        if not self.lower < self.initial < self.upper:
-            raise ValueError(
-                f"Param.initial {self.initial} must lie strictly inside ({self.lower}, {self.upper})"
-            )
-
-    @property
-    def kind(self) -> str:
-        lo, hi = math.isfinite(self.lower), math.isfinite(self.upper)
-        return "both" if lo and hi else "lower" if lo else "upper" if hi else "free"
-
-    def to_internal(self) -> float:
-        """z with x(z) = initial (inverse of the reparametrisation)."""
-        k, x = self.kind, self.initial
-        if k == "both":
-            u = (x - self.lower) / (self.upper - self.lower)
-            return math.log(u) - math.log1p(-u)
-        if k in ("lower", "upper"):
-            d = x - self.lower if k == "lower" else self.upper - x
-            return d + math.log(-math.expm1(-d))  # softplus⁻¹(d), stable for small and large d
-        return x
 
 
 def _json_float(x):

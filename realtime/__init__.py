@@ -1,36 +1,54 @@
-"""rtfit.realtime: real-time rendering approximations as Dr.Jit kernels (one kernel text, also run by NumPy).
+"""rtfit.realtime: real-time rendering approximations as kernels written once, run on Dr.Jit, NumPy and JAX.
 
-Imports only drjit and numpy. Public functions accept Python floats, NumPy arrays (evaluated on the default
-Dr.Jit backend, see `set_default_backend`) or Dr.Jit arrays (same type out); see `rtfit.realtime._array`.
+Imports only drjit and numpy (jax when a JAX array is passed or `JAX_OPS` is asked for). Public functions
+accept Python floats, NumPy arrays (evaluated on the default Dr.Jit backend, see `set_default_backend`),
+Dr.Jit arrays (same type out) or JAX arrays (JAX out, differentiable); see `rtfit.realtime.arrays`.
+
+Every public name of every module below is importable from this package's root
+(``from rtfit.realtime import sphere_light_irradiance, height_fog_optical_depth``), whatever module it
+lives in, so that moving a function between modules never breaks a user.
 
 Modules:
-    aperture  ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection and shading
-              (docs/ambient-aperture.md).
-    diffuse   Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
+    arrays      the ops namespaces (Dr.Jit, NumPy, JAX), dispatch, guards and small stable helpers.
+    methods     methods as data: `Method`, `Param`, `Input`, `method_table`.
+    phase       phase functions (Rayleigh, Henyey–Greenstein, Cornette–Shanks), one text for all media.
+    aperture    ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection and
+                shading (docs/ambient-aperture.md).
+    diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
     irradiance  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
-              (docs/irradiance-bases.md).
-    fog       exponential height fog: stable closed-form optical depth, fog colour, fog volumes
-              (docs/height-fog.md).
+                (docs/irradiance-bases.md).
+    fog         exponential height fog: stable closed-form optical depth, fog colour, fog volumes
+                (docs/height-fog.md).
     sdf_grid    signed distance fields: analytic primitives, mesh → voxel grid, mip chain, 8-bit
-              (docs/sdf-occlusion.md).
+                (docs/sdf-occlusion.md).
     sdf_occlusion  Evans multi-scale SDF skylight/occlusion, curvature term, cone-traced soft occlusion.
     sky         Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
-              (docs/nishita-sky.md).
+                (docs/nishita-sky.md).
 """
 
-from . import aperture, diffuse, fog, irradiance, sdf_grid, sdf_occlusion, sky
-from ._array import DRJIT_OPS, NUMPY_OPS, get_default_backend, set_default_backend
+# Star imports re-export each module's ``__all__`` (tests/test_layering.py checks that every public
+# function of every module is in its ``__all__`` and that no two modules export the same name).
+from . import aperture, arrays, diffuse, fog, irradiance, methods, phase, sdf_grid, sdf_occlusion, sky  # noqa: F401
+from .aperture import *  # noqa: F403
+from .arrays import *  # noqa: F403
+from .diffuse import *  # noqa: F403
+from .fog import *  # noqa: F403
+from .irradiance import *  # noqa: F403
+from .methods import *  # noqa: F403
+from .phase import *  # noqa: F403
+from .sdf_grid import *  # noqa: F403
+from .sdf_occlusion import *  # noqa: F403
+from .sky import *  # noqa: F403
 
-__all__ = [
-    "DRJIT_OPS",
-    "NUMPY_OPS",
-    "aperture",
-    "diffuse",
-    "fog",
-    "get_default_backend",
-    "irradiance",
-    "sdf_grid",
-    "sdf_occlusion",
-    "set_default_backend",
-    "sky",
-]
+MODULES = (
+    "arrays", "methods", "phase",
+    "aperture", "diffuse", "fog", "irradiance", "sdf_grid", "sdf_occlusion", "sky",
+)  # fmt: skip
+"""The modules whose public names this package re-exports."""
+
+
+def __getattr__(name: str):
+    # JAX_OPS is built on first use (it imports jax): see rtfit.realtime.arrays.
+    if name == "JAX_OPS":
+        return arrays.jax_ops()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -110,7 +110,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ._array import (
+from .arrays import (
     check_range,
     clamp01,
     clamp_cos,

@@ -53,7 +53,7 @@ Domain and validation
 ---------------------
 Public functions accept Python floats (→ float), NumPy arrays (→ evaluated on the default Dr.Jit backend,
 returned as NumPy of the broadcast shape; float64 in → float64 computation) or Dr.Jit arrays (→ the same
-Dr.Jit type, lazily; see `rtfit.realtime._array`). Parameters are validated at the entry point:
+Dr.Jit type, lazily; see `rtfit.realtime.arrays`). Parameters are validated at the entry point:
 
 * Python/NumPy scalars and NumPy arrays outside the domain (NaN included) raise a one-line ValueError naming
   the valid interval (one min/max pass over NumPy arrays). ``cos_theta`` may exceed [−1, 1] by 1e-4
@@ -79,7 +79,7 @@ from typing import Any
 
 import numpy as np
 
-from ._array import (
+from .arrays import (
     ATAN_SERIES_LIMIT,
     atan_minus_x_series,
     check_range,

@@ -73,7 +73,7 @@ Validation
 ----------
 Python/NumPy scalars and NumPy arrays are validated at the entry points (NaN or negative density, falloff
 or distance → one-line ValueError). Dr.Jit arrays are not checked (no host sync); negative b, c, D are
-clamped to 0. Kernels are written once against the ops namespace (`rtfit.realtime._array`).
+clamped to 0. Kernels are written once against the ops namespace (`rtfit.realtime.arrays`).
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from ._array import check_range, evaluate, evaluate_numpy, is_drjit, safe_div
+from .arrays import check_range, evaluate, evaluate_numpy, is_drjit, safe_div
 
 __all__ = [
     "FORMS",
@@ -405,7 +405,7 @@ def _volume_kernel(ops, ox, oy, oz, dx, dy, dz, tmax, vol):
 def fog_volumes_optical_depth(origin, direction, max_distance, volumes):
     """Per-volume optical depths (a list, one per volume, each shaped like ``max_distance``) along rays
     ``origin`` + t·``direction`` (unit), t ∈ [0, max_distance] (metres; inf allowed: sky)."""
-    from ._array import split3
+    from .arrays import split3
 
     def comps(v, name):  # a tuple of three component arrays is taken as is (Dr.Jit wavefronts)
         if (

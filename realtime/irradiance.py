@@ -43,7 +43,7 @@ Normals: need not be unit length (they are normalised). A zero-length normal in 
 ValueError; in Dr.Jit input (not checked, to avoid a host sync) it returns the basis's sphere-average
 irradiance (SH: the DC term; cube: the mean of the six colours; Geomerics: R0). NaN normals raise for NumPy.
 
-Everything here runs on Dr.Jit (LLVM/CUDA) and NumPy from one kernel text (`rtfit.realtime._array`).
+Everything here runs on Dr.Jit (LLVM/CUDA) and NumPy from one kernel text (`rtfit.realtime.arrays`).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ._array import evaluate, evaluate_numpy, is_drjit, safe_div, split3  # noqa: F401
+from .arrays import evaluate, evaluate_numpy, is_drjit, safe_div, split3  # noqa: F401
 
 __all__ = [
     "A_HAT",
@@ -233,7 +233,7 @@ def _run(kernel, normal, k: np.ndarray, name="normal"):
     as literals and recompile it on every call, 16 ms per launch on 2 CPU cores.)"""
     import drjit as dr
 
-    from ._array import DRJIT_OPS, _backend_float, _numpy_dtype
+    from .arrays import DRJIT_OPS, _backend_float, _numpy_dtype
 
     nx, ny, nz = _normal_args(normal, name)
     if is_drjit(normal):
@@ -555,7 +555,7 @@ def numpy_reference(name: str) -> Callable:
 
 def drjit_kernel(name: str) -> Callable:
     """The Dr.Jit path of kernel ``name`` (arguments: Dr.Jit Floats nx, ny, nz, then coefficients)."""
-    from ._array import DRJIT_OPS
+    from .arrays import DRJIT_OPS
 
     kernel = _KERNELS[name]
     return lambda *args: kernel(DRJIT_OPS, *args)

@@ -285,7 +285,7 @@ def grid_for_bounds(lo, hi, resolution: int, pad_voxels: float = 2.0, cubic: boo
 
 def union_grid(prims, origin, voxel, shape) -> SdfGrid:
     """Grid of the analytic union SDF sampled at the cell centres (float64 → float32)."""
-    from ._array import NUMPY_OPS
+    from .arrays import NUMPY_OPS
 
     g = SdfGrid(np.zeros(tuple(reversed(shape)), np.float32), origin, voxel)
     p = g.points()

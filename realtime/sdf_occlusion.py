@@ -61,7 +61,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from ._array import DRJIT_OPS, NUMPY_OPS, check_scalar, get_default_backend, is_drjit
+from .arrays import DRJIT_OPS, NUMPY_OPS, check_scalar, get_default_backend, is_drjit
 from .sdf_grid import EMPTY_DISTANCE, SdfGrid, build_mips, primitives_sdf
 
 __all__ = [
@@ -85,8 +85,8 @@ CONE_LEVEL_K = 2.0
 whatever k: k then only scales the visibility, so one compiled kernel serves every k."""
 _GOLDEN = math.pi * (3.0 - math.sqrt(5.0))
 
-_DR = types.SimpleNamespace(**vars(DRJIT_OPS), exp=dr.exp, floor=dr.floor)
-_NP = types.SimpleNamespace(**vars(NUMPY_OPS), exp=np.exp, floor=np.floor)
+_DR = DRJIT_OPS  # the shared namespaces carry exp and floor
+_NP = NUMPY_OPS
 
 
 def _const(ops, like, value):

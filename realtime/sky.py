@@ -67,7 +67,8 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
-from ._array import DRJIT_OPS, NUMPY_OPS, check_range, check_scalar, evaluate, is_drjit
+from .arrays import DRJIT_OPS, NUMPY_OPS, check_range, check_scalar, evaluate, is_drjit
+from .phase import cornette_shanks_phase_kernel, hg_phase_kernel, rayleigh_phase_kernel
 
 __all__ = [
     "AtmosphereParams",
@@ -77,14 +78,10 @@ __all__ = [
     "build_sky",
     "build_optical_depth_table",
     "cie_xyz_fit",
-    "hg_phase",
-    "cornette_shanks_phase",
     "layer_heights",
-    "rayleigh_phase",
     "shade_sky",
     "spectral_to_srgb",
     "sun_transmittance",
-    "JAX_OPS",
 ]
 
 _FAR = 1e12  # "infinite" optical depth stored in tables (m of density-weighted path)
@@ -105,8 +102,8 @@ def _dr_gather(table, idx):
     return dr.gather(type(table), table, dr.uint32_array_t(type(table))(idx))
 
 
-OPS_DR = _ops_with(DRJIT_OPS, exp=dr.exp, log=dr.log, floor=dr.floor, gather=_dr_gather, cbrt=dr.cbrt)
-OPS_NP = _ops_with(NUMPY_OPS, exp=np.exp, log=np.log, floor=np.floor, gather=_np_gather, cbrt=np.cbrt)
+OPS_DR = DRJIT_OPS  # the shared namespaces carry exp, log, floor, gather and cbrt
+OPS_NP = NUMPY_OPS
 
 
 _OPS_MATH = types.SimpleNamespace(
@@ -122,49 +119,12 @@ _OPS_MATH = types.SimpleNamespace(
 
 
 def _ext(o):
-    return OPS_DR if o.name == "drjit" else OPS_NP
+    return o  # the shared ops namespaces carry every name these kernels use
 
 
 def _ev(kernel, *args):
-    """`rtfit.realtime._array.evaluate` with this module's extended ops (exp, log, gather, …)."""
+    """`rtfit.realtime.arrays.evaluate` with this module's extended ops (exp, log, gather, …)."""
     return evaluate(lambda o, *a: kernel(_ext(o), *a), *args)
-
-
-def _jax_ops():
-    import jax.numpy as jnp
-
-    return types.SimpleNamespace(
-        name="jax",
-        sqrt=jnp.sqrt,
-        select=jnp.where,
-        maximum=jnp.maximum,
-        minimum=jnp.minimum,
-        clip=jnp.clip,
-        abs=jnp.abs,
-        fma=lambda a, b, c: a * b + c,
-        sin=jnp.sin,
-        cos=jnp.cos,
-        tan=jnp.tan,
-        acos=jnp.arccos,
-        asin=jnp.arcsin,
-        atan=jnp.arctan,
-        atan2=jnp.arctan2,
-        power=jnp.power,
-        exp=jnp.exp,
-        log=jnp.log,
-        floor=jnp.floor,
-        cbrt=jnp.cbrt,
-        gather=lambda table, idx: jnp.asarray(table)[idx.astype(jnp.int32)],
-    )
-
-
-class _LazyJax:
-    def __getattr__(self, name):
-        return getattr(_jax_ops(), name)
-
-
-JAX_OPS = _LazyJax()
-"""The kernels' operations over jax.numpy (for fitting with optimistix through JAX)."""
 
 
 # ====================================================================================== parameters
@@ -266,42 +226,6 @@ def blackbody(lam_nm, temperature):
     lam = np.asarray(lam_nm, dtype=np.float64) * 1e-9
     c2 = 1.4387769e-2
     return lam**-5 / np.expm1(c2 / (lam * temperature))
-
-
-# ====================================================================================== phase functions
-def _rayleigh_phase_kernel(ops, c):
-    return (3.0 / (16.0 * math.pi)) * (1.0 + c * c)
-
-
-def _hg_kernel(ops, c, g):
-    den = ops.maximum(1.0 + g * g - 2.0 * g * c, 1e-12)
-    return (1.0 - g * g) / (4.0 * math.pi * den * ops.sqrt(den))
-
-
-def _cs_kernel(ops, c, g):
-    den = ops.maximum(1.0 + g * g - 2.0 * g * c, 1e-12)
-    return 3.0 * (1.0 - g * g) * (1.0 + c * c) / (8.0 * math.pi * (2.0 + g * g) * den * ops.sqrt(den))
-
-
-def rayleigh_phase(cos_gamma):
-    """P_R(γ) = 3/(16π)(1 + cos²γ) (sr⁻¹), normalised over the sphere."""
-    cos_gamma = check_range("cos_gamma", cos_gamma, -1.0001, 1.0001)
-    return evaluate(lambda o, c: _rayleigh_phase_kernel(o, o.clip(c, -1.0, 1.0)), cos_gamma)
-
-
-def hg_phase(cos_gamma, g):
-    """Henyey–Greenstein (1 − g²)/(4π(1 + g² − 2g cos γ)^{3/2}) (sr⁻¹); γ the scattering angle
-    (0 = forward); g ∈ [−0.999, 0.999] (the denominator is floored at 1e-12: finite as g → ±1)."""
-    cos_gamma = check_range("cos_gamma", cos_gamma, -1.0001, 1.0001)
-    g = check_range("g", g, -0.999, 0.999)
-    return evaluate(lambda o, c, gg: _hg_kernel(o, o.clip(c, -1.0, 1.0), gg), cos_gamma, g)
-
-
-def cornette_shanks_phase(cos_gamma, g):
-    """Cornette–Shanks 3(1 − g²)(1 + cos²γ)/(8π(2 + g²)(1 + g² − 2g cos γ)^{3/2}) (sr⁻¹)."""
-    cos_gamma = check_range("cos_gamma", cos_gamma, -1.0001, 1.0001)
-    g = check_range("g", g, -0.999, 0.999)
-    return evaluate(lambda o, c, gg: _cs_kernel(o, o.clip(c, -1.0, 1.0), gg), cos_gamma, g)
 
 
 # ====================================================================================== optical depth
@@ -815,8 +739,8 @@ def _shade_kernel(ops, dx, dy, dz, tex_r, tex_m, cfg, sun, consts):
     f = ops.sqrt(f) if sqrt_map else f
     y = f * H
     c = ops.clip(dx * sx + dy * sy + dz * sz, -1.0, 1.0)
-    pr = _rayleigh_phase_kernel(ops, c) + ambient / (4.0 * math.pi)
-    pm = _cs_kernel(ops, c, g) if cs else _hg_kernel(ops, c, g)
+    pr = rayleigh_phase_kernel(ops, c) + ambient / (4.0 * math.pi)
+    pm = cornette_shanks_phase_kernel(ops, c, g) if cs else hg_phase_kernel(ops, c, g)
     # sun disc: |ω − s|² ≤ 2(1 − cos α)
     d2 = (dx - sx) ** 2 + (dy - sy) ** 2 + (dz - sz) ** 2
     in_sun = d2 <= 4.0 * math.sin(alpha / 2.0) ** 2
@@ -961,8 +885,12 @@ def _aerial_kernel(ops, h0, mu, nu_, dist, sz, cfg, tables, params, steps):
     mu = ops.clip(mu, -1.0, 1.0)
     nu_ = ops.clip(nu_, -1.0, 1.0)
     r0 = rg + h0
-    pr = _rayleigh_phase_kernel(ops, nu_) + params.ambient / (4.0 * math.pi)
-    pm = _cs_kernel(ops, nu_, g) if params.mie_phase == "cs" else _hg_kernel(ops, nu_, g)
+    pr = rayleigh_phase_kernel(ops, nu_) + params.ambient / (4.0 * math.pi)
+    pm = (
+        cornette_shanks_phase_kernel(ops, nu_, g)
+        if params.mie_phase == "cs"
+        else hg_phase_kernel(ops, nu_, g)
+    )
     dt = dist / steps
     odr = 0.0 * mu
     odm = 0.0 * mu

@@ -25,9 +25,11 @@ standard error of M is sqrt(S² / N), computed in float64.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,7 +39,7 @@ from rtfit.scenes import Scene, scene_hash, scene_to_dict
 
 from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
 from .integrators import choose_integrator
-from .io import atomic_write_json, read_exr, rgb_group, write_exr
+from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr
 from .progress import progress_bar
 
 CACHE_FORMAT = 1
@@ -113,6 +115,11 @@ class ReferenceRequest:
         }
 
     def key(self) -> str:
+        """The cache key: `entry_key` of `identity`."""
+        return entry_key(self.identity())
+
+    def identity(self) -> dict:
+        """Everything that determines this request's samples (see the module docstring)."""
         import drjit
         import mitsuba
 
@@ -127,12 +134,9 @@ class ReferenceRequest:
             "versions": {"mitsuba": mitsuba.__version__, "drjit": drjit.__version__},
         }
         if self.quantity == "irradiance":
-            h = hashlib.sha256()
-            h.update(np.ascontiguousarray(self.points, dtype=np.float32).tobytes())
-            h.update(np.ascontiguousarray(self.normals, dtype=np.float32).tobytes())
-            ident["probes"] = h.hexdigest()
+            ident["probes"] = array_digest(self.points, self.normals)
             ident["transport"] = self.transport
-        return hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
+        return ident
 
 
 @dataclass(frozen=True)
@@ -194,6 +198,114 @@ def pool_passes(passes: list[PassResult]) -> tuple[np.ndarray, np.ndarray, int]:
     return mean, np.sqrt(var / total), int(total)
 
 
+def entry_key(ident: dict) -> str:
+    """SHA-256 of the canonical JSON of ``ident`` (sorted keys): the key of a cache entry."""
+    return hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
+
+
+def array_digest(*arrays) -> str:
+    """SHA-256 over the float32 bytes of ``arrays`` (probe points, normals): part of an entry's identity."""
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a, dtype=np.float32).tobytes())
+    return h.hexdigest()
+
+
+class PassEntry:
+    """One cache entry of independent Monte Carlo passes: ``ROOT/[NAMESPACE/]<key[:2]>/<key>/``.
+
+    Every reference in rtfit (radiance images, irradiance probes, ray-cast occlusion, the atmosphere's
+    sky renders) is stored this way: ``pass-NNNNN.<exr|npz>`` holds a pass's per-element mean and
+    unbiased sample variance (float32), ``pass-NNNNN.json`` its seed, spp and timing (a pass counts only
+    once both exist), ``entry.json`` what the entry is. Files are written atomically; an unreadable or
+    truncated pass is re-rendered, never trusted. `passes` loads what is there and renders the rest.
+
+    ``storage="exr"`` keeps passes viewable in an image tool (arrays of shape (H, W, 3), or (N, 3) stored
+    as a (1, N, 3) image); ``"npz"`` stores arrays of any shape.
+    """
+
+    def __init__(
+        self, root, ident: dict, *, namespace: str = "", storage: str = "npz", info: dict | None = None
+    ):
+        if storage not in ("exr", "npz"):
+            raise ValueError(f"storage must be 'exr' or 'npz' (got {storage!r})")
+        self.key = entry_key(ident)
+        base = Path(root) / namespace if namespace else Path(root)
+        self.folder = base / self.key[:2] / self.key
+        self.storage = storage
+        self.info = {"key": self.key, **ident, **(info or {})}
+
+    def _files(self, index: int) -> tuple[Path, Path]:
+        return self.folder / f"pass-{index:05d}.{self.storage}", self.folder / f"pass-{index:05d}.json"
+
+    def load(self, index: int, shape: tuple[int, ...] | None = None) -> PassResult | None:
+        """Pass ``index`` as stored (float32 values in float64 arrays), or None if absent or unreadable."""
+        data, meta = self._files(index)
+        if not (data.exists() and meta.exists()):
+            return None
+        try:
+            info = json.loads(meta.read_text())
+            if self.storage == "exr":
+                ch = read_exr(data)
+                mean, var = rgb_group(ch, "mean"), rgb_group(ch, "var")
+            else:
+                with np.load(data) as z:
+                    mean, var = z["mean"], z["var"]
+            mean, var = mean.astype(np.float64), var.astype(np.float64)
+            if shape is not None:
+                mean, var = mean.reshape(shape), var.reshape(shape)
+            return PassResult(mean, var, int(info["spp"]), int(info["seed"]), float(info["seconds"]))
+        except (OSError, ValueError, RuntimeError, KeyError, EOFError):
+            return None  # unreadable leftovers are re-rendered, never trusted
+
+    def save(self, index: int, result: PassResult) -> PassResult:
+        """Write pass ``index`` atomically; returns it with the values exactly as stored (float32), so that
+        a fresh result and one resumed from the cache are identical."""
+        data, meta = self._files(index)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        mean32, var32 = result.mean.astype(np.float32), result.var.astype(np.float32)
+        if self.storage == "exr":
+            img = (1, -1, 3) if mean32.ndim == 2 else mean32.shape
+            write_exr(data, {"mean": mean32.reshape(img), "var": var32.reshape(img)})
+        else:
+            buf = io.BytesIO()
+            np.savez(buf, mean=mean32, var=var32)
+            atomic_write_bytes(data, buf.getvalue())
+        atomic_write_json(
+            meta, {"index": index, "spp": result.spp, "seed": result.seed, "seconds": result.seconds}
+        )
+        return PassResult(
+            mean32.astype(np.float64), var32.astype(np.float64), result.spp, result.seed, result.seconds
+        )
+
+    def passes(
+        self,
+        count: int,
+        render: Callable[[int], PassResult],
+        *,
+        shape: tuple[int, ...] | None = None,
+        progress: bool = False,
+        label: str | None = None,
+        before_render: Callable[[], None] | None = None,
+    ) -> tuple[list[PassResult], int]:
+        """The first ``count`` passes: loaded where cached, else ``render(i)`` and saved. Returns the passes
+        and how many were rendered by this call. ``before_render`` runs once, only if something is
+        missing (load the Mitsuba scene there, not before)."""
+        results = [self.load(i, shape) for i in range(count)]
+        missing = [i for i, r in enumerate(results) if r is None]
+        if missing:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            atomic_write_json(self.folder / "entry.json", self.info)
+            if before_render is not None:
+                before_render()
+            bar = progress_bar(len(missing), label or f"reference {self.key[:8]}", progress, unit="pass")
+            for i in missing:
+                results[i] = self.save(i, render(i))
+                bar.update(1)
+            bar.close()
+        return [r for r in results if r is not None], len(missing)
+
+
 class ReferenceCache:
     """The cache rooted at ``root`` (created on first write)."""
 
@@ -203,109 +315,57 @@ class ReferenceCache:
     def entry_dir(self, key: str) -> Path:
         return self.root / key[:2] / key
 
-    # -- passes on disk
-    def _load_pass(self, folder: Path, index: int, as_points: bool) -> PassResult | None:
-        exr, meta = folder / f"pass-{index:05d}.exr", folder / f"pass-{index:05d}.json"
-        if not (exr.exists() and meta.exists()):
-            return None
-        try:
-            info = json.loads(meta.read_text())
-            ch = read_exr(exr)
-        except (OSError, ValueError, RuntimeError):
-            return None  # unreadable leftovers are re-rendered, never trusted
-        mean, var = rgb_group(ch, "mean").astype(np.float64), rgb_group(ch, "var").astype(np.float64)
-        if as_points:  # stored as a (1, N, 3) image
-            mean, var = mean.reshape(-1, 3), var.reshape(-1, 3)
-        return PassResult(mean, var, int(info["spp"]), int(info["seed"]), float(info["seconds"]))
-
-    def _save_pass(self, folder: Path, index: int, result: PassResult, as_points: bool):
-        shape = (1, -1, 3) if as_points else result.mean.shape
-        write_exr(
-            folder / f"pass-{index:05d}.exr",
-            {"mean": result.mean.reshape(shape), "var": result.var.reshape(shape)},
-        )
-        atomic_write_json(
-            folder / f"pass-{index:05d}.json",
-            {"index": index, "spp": result.spp, "seed": result.seed, "seconds": result.seconds},
-        )
-
-    # -- the public entry point
     def get(
         self, request: ReferenceRequest, *, progress: bool = False, label: str | None = None
     ) -> Reference:
         """Return the reference for ``request``, rendering only the passes not cached yet."""
         from .build import load_mitsuba_scene
 
-        key = request.key()
-        folder = self.entry_dir(key)
-        folder.mkdir(parents=True, exist_ok=True)
+        entry = PassEntry(self.root, request.identity(), storage="exr", info=self._entry_info(request))
+        key = entry.key
         as_points = request.quantity == "irradiance"
-        results: list[PassResult | None] = [
-            self._load_pass(folder, i, as_points) for i in range(request.passes)
-        ]
-        missing = [i for i, r in enumerate(results) if r is None]
-        if missing:
-            atomic_write_json(folder / "entry.json", self._entry_info(request, key))
-            mi, mi_scene = load_mitsuba_scene(request.scene, request.variant)
-            bar = progress_bar(len(missing), label or f"reference {key[:8]}", progress, unit="pass")
-            for i in missing:
-                pass_spp = min(request.pass_spp, request.spp - i * request.pass_spp)
-                pass_spp = max(pass_spp, 2)
-                seed = sub_seed(request.seed, "pass", i)
-                if as_points:
-                    r = irradiance_pass(
-                        mi,
-                        mi_scene,
-                        np.asarray(request.points),
-                        np.asarray(request.normals),
-                        pass_spp,
-                        seed,
-                        request.transport,
-                    )
-                else:
-                    r = radiance_pass(mi, mi_scene, pass_spp, seed)
-                self._save_pass(folder, i, r, as_points)
-                # Use the values exactly as stored (float32), so that a fresh result and one
-                # resumed from the cache are identical.
-                results[i] = PassResult(_as_stored(r.mean), _as_stored(r.var), r.spp, r.seed, r.seconds)
-                bar.update(1)
-            bar.close()
-        passes = [r for r in results if r is not None]
+        loaded: dict = {}
+
+        def load_scene():
+            loaded["mi"], loaded["scene"] = load_mitsuba_scene(request.scene, request.variant)
+
+        def render(i: int) -> PassResult:
+            pass_spp = max(min(request.pass_spp, request.spp - i * request.pass_spp), 2)
+            seed = sub_seed(request.seed, "pass", i)
+            mi, mi_scene = loaded["mi"], loaded["scene"]
+            if as_points:
+                points, normals = np.asarray(request.points), np.asarray(request.normals)
+                return irradiance_pass(mi, mi_scene, points, normals, pass_spp, seed, request.transport)
+            return radiance_pass(mi, mi_scene, pass_spp, seed)
+
+        passes, rendered = entry.passes(
+            request.passes,
+            render,
+            shape=(-1, 3) if as_points else None,
+            progress=progress,
+            label=label or f"reference {key[:8]}",
+            before_render=load_scene,
+        )
         mean, stderr, total = pool_passes(passes)
-        if missing:
+        if rendered:
             shape = (1, -1, 3) if as_points else mean.shape
-            write_exr(folder / "reference.exr", {"RGB": mean.reshape(shape), "stderr": stderr.reshape(shape)})
+            write_exr(
+                entry.folder / "reference.exr", {"RGB": mean.reshape(shape), "stderr": stderr.reshape(shape)}
+            )
         return Reference(
             key=key,
-            path=str(folder),
+            path=str(entry.folder),
             quantity=request.quantity,
             mean=mean,
             stderr=stderr,
             spp=total,
             passes=len(passes),
-            passes_rendered=len(missing),
+            passes_rendered=rendered,
             integrator=request.integrator(),
             variant=request.variant,
             render_seconds=float(sum(p.seconds for p in passes)),
         )
 
-    def _entry_info(self, request: ReferenceRequest, key: str) -> dict:
-        import drjit
-        import mitsuba
-
-        return {
-            "key": key,
-            "format": CACHE_FORMAT,
-            "quantity": request.quantity,
-            "variant": request.variant,
-            "seed": request.seed,
-            "pass_spp": request.pass_spp,
-            "integrator": request.integrator(),
-            "scene": scene_to_dict(request.scene),
-            "scene_hash": scene_hash(request.scene),
-            "versions": {"mitsuba": mitsuba.__version__, "drjit": drjit.__version__},
-        }
-
-
-def _as_stored(a: np.ndarray) -> np.ndarray:
-    return a.astype(np.float32).astype(np.float64)
+    def _entry_info(self, request: ReferenceRequest) -> dict:
+        """What entry.json adds to the identity, for humans and tools: the whole scene."""
+        return {"scene_dict": scene_to_dict(request.scene), "scene_hash": scene_hash(request.scene)}

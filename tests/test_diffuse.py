@@ -439,7 +439,7 @@ def test_drjit_cuda_if_available():
 def test_sincos_polynomial():
     """The kernels' own sin/cos on [0, π/2] (used instead of the backend's): relative accuracy of sin even
     for tiny angles, absolute accuracy of cos, in float64 (NumPy) and float32 (Dr.Jit)."""
-    from rtfit.realtime._array import sincos_first_quadrant
+    from rtfit.realtime.arrays import sincos_first_quadrant
 
     a = np.concatenate(
         [np.exp(np.linspace(np.log(1e-30), np.log(HALF_PI), 2000)), np.linspace(1e-9, HALF_PI, 2000)]

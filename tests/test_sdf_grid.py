@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from rtfit.experiments.sdf_occlusion_scenes import box_mesh, icosphere
-from rtfit.realtime._array import NUMPY_OPS
+from rtfit.realtime.arrays import NUMPY_OPS
 from rtfit.realtime.sdf_grid import (
     Box,
     Capsule,

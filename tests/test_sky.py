@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from rtfit.realtime import sky
+from rtfit.realtime import phase, sky
+from rtfit.realtime.arrays import jax_ops
 
 RG, RT = 6360e3, 6420e3
 TOP = RT - RG
@@ -112,11 +113,11 @@ def test_optical_depth_bad_input():
 @pytest.mark.parametrize(
     "fn,g",
     [
-        (lambda c, g: sky.rayleigh_phase(c), 0.0),
-        (sky.hg_phase, 0.8),
-        (sky.hg_phase, -0.5),
-        (sky.cornette_shanks_phase, 0.76),
-        (sky.hg_phase, 0.99),
+        (lambda c, g: phase.rayleigh_phase(c), 0.0),
+        (phase.hg_phase, 0.8),
+        (phase.hg_phase, -0.5),
+        (phase.cornette_shanks_phase, 0.76),
+        (phase.hg_phase, 0.99),
     ],
 )
 def test_phase_functions_are_normalised(fn, g):
@@ -129,10 +130,10 @@ def test_phase_functions_are_normalised(fn, g):
 def test_phase_extremes_finite():
     c = np.linspace(-1, 1, 101)
     for g in (-0.999, 0.999):
-        p = sky.hg_phase(c, g)
+        p = phase.hg_phase(c, g)
         assert np.isfinite(p).all() and (p >= 0).all()
     with pytest.raises(ValueError, match="g must be"):
-        sky.hg_phase(0.0, 1.0)
+        phase.hg_phase(0.0, 1.0)
 
 
 # ------------------------------------------------------------------------------------------ the sky
@@ -331,7 +332,7 @@ def test_jax_kernel_matches_numpy(params):
     nu = (np.cos(E) * math.cos(e) * np.cos(A) + np.sin(E) * math.sin(e)).ravel()
     tr, tm = sky.build_optical_depth_table(params, 8, 32)
     S_r, S_m = sky._inscatter_kernel(
-        sky._jax_ops(),
+        jax_ops(),
         jnp.asarray(mu),
         jnp.asarray(nu),
         10.0,

@@ -1,4 +1,4 @@
-"""Array plumbing shared by the ``rtfit.realtime`` kernels: one kernel text, two array libraries.
+"""Array plumbing shared by the ``rtfit.realtime`` kernels: one kernel text, three array libraries.
 
 Every real-time formula in this package is written **once**, as a function of an *ops namespace*::
 
@@ -6,16 +6,21 @@ Every real-time formula in this package is written **once**, as a function of an
         t = ops.fma(clamp_cos(ops, cos_theta), 0.5, 0.5)
         return irradiance * t * t
 
-``DRJIT_OPS`` and ``NUMPY_OPS`` expose the same function names (``sqrt``, ``select``, ``maximum``, ...),
-so the same text runs as a fused Dr.Jit kernel (LLVM or CUDA) or as NumPy code. The benchmark compares the
-two without a second hand-written copy of any formula.
+``DRJIT_OPS``, ``NUMPY_OPS`` and ``JAX_OPS`` expose the same function names (`OP_NAMES`: ``sqrt``,
+``exp``, ``select``, ``gather``, ...), so the same text runs as a fused Dr.Jit kernel (LLVM or CUDA), as
+NumPy code (benchmarks: Dr.Jit vs NumPy of one formula) and as JAX code (fits: `rtfit.fitting` takes
+derivatives through the kernel text with ``jax``). No formula has a second hand-written copy.
+``JAX_OPS`` is built on first use (`jax_ops`), so importing this module does not import jax.
 
 Dispatch rules (`evaluate`), applied to all array-like arguments of a public function together:
 
-* any Dr.Jit array argument → the Dr.Jit kernel runs on that array type (the type of the *first* Dr.Jit
-  argument; other Dr.Jit arguments are cast to it, NumPy arguments are converted to it) and the result has
-  that same type (generic: ``Float = type(x)``, e.g. ``drjit.cuda.Float64`` or ``drjit.llvm.ad.Float``);
-  nothing is evaluated: the result stays lazy;
+* any JAX array or tracer argument → the JAX text runs on the arguments as given (NumPy arrays and floats
+  are left to JAX's own promotion); the result is a JAX array. This is how fits differentiate through a
+  public function (``jax.jacfwd`` of ``wrap(cos_theta, w, p)``);
+* else any Dr.Jit array argument → the Dr.Jit kernel runs on that array type (the type of the *first*
+  Dr.Jit argument; other Dr.Jit arguments are cast to it, NumPy arguments are converted to it) and the
+  result has that same type (generic: ``Float = type(x)``, e.g. ``drjit.cuda.Float64`` or
+  ``drjit.llvm.ad.Float``); nothing is evaluated: the result stays lazy;
 * else any NumPy array (0-d included) → the arguments are broadcast, converted to a Dr.Jit array of the
   *default backend* (`set_default_backend`; float64 input → ``Float64``, float32/float16 input →
   ``Float``), computed there and returned as a NumPy array of the broadcast shape and that dtype;
@@ -25,12 +30,14 @@ Dispatch rules (`evaluate`), applied to all array-like arguments of a public fun
 NumPy scalars are turned into Python floats at this edge: a NumPy scalar times a Dr.Jit array is an ndarray,
 which the next Dr.Jit call would reject.
 
-This module imports only drjit and numpy and reads no settings at import time.
+This module imports only drjit and numpy (jax on first use of `JAX_OPS`) and reads no settings at import
+time.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import types
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -42,6 +49,7 @@ __all__ = [
     "ATAN_SERIES_LIMIT",
     "DRJIT_OPS",
     "NUMPY_OPS",
+    "OP_NAMES",
     "atan_minus_x_series",
     "check_range",
     "check_scalar",
@@ -51,6 +59,9 @@ __all__ = [
     "evaluate_numpy",
     "get_default_backend",
     "is_drjit",
+    "is_jax",
+    "jax_ops",
+    "ops_for",
     "safe_div",
     "safe_sqrt",
     "set_default_backend",
@@ -60,7 +71,12 @@ __all__ = [
 ]
 
 # ----------------------------------------------------------------------------------------- ops namespaces
-_NP_CLIP = np.clip
+OP_NAMES = (
+    "sqrt", "cbrt", "exp", "log", "expm1", "log1p", "power",
+    "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "tanh",
+    "abs", "floor", "ceil", "maximum", "minimum", "clip", "fma", "select", "gather",
+)  # fmt: skip
+"""The names every ops namespace defines (besides ``name``), with the same meaning in each library."""
 
 
 def _np_fma(a, b, c):
@@ -68,48 +84,119 @@ def _np_fma(a, b, c):
     return a * b + c
 
 
+def _np_gather(table, index):
+    """table[index] with a float or integer index array (kernels compute indices in floating point)."""
+    return np.asarray(table)[np.asarray(index).astype(np.int64)]
+
+
+def _dr_gather(table, index):
+    """dr.gather of ``table``'s own type at ``index`` (a float index is truncated, as a cast in a shader)."""
+    return dr.gather(type(table), table, dr.uint32_array_t(type(table))(index))
+
+
+def _dr_expm1(x):
+    """e^x − 1 without cancellation near 0 (Dr.Jit has no expm1): Kahan's u = e^x; (u − 1)·x / log u.
+
+    The rounding error of u cancels between u − 1 and log u, so the relative error stays a few ulp for
+    |x| ≪ 1 (Higham, *Accuracy and Stability of Numerical Algorithms*, 2nd ed., §1.14.1). On CUDA,
+    float32 exp/log are approximate and this degrades to their accuracy (≈ 2 ulp of e^x, not of e^x − 1)."""
+    u = dr.exp(x)
+    d = dr.log(u)
+    plain = (u == 0.0) | ~dr.isfinite(u)  # x → ±inf (or NaN): u − 1 is the answer (−1, inf, NaN)
+    ratio = (u - 1.0) * x / dr.select(plain | (u == 1.0), 1.0, d)
+    return dr.select(u == 1.0, x, dr.select(plain, u - 1.0, ratio))
+
+
+def _dr_log1p(x):
+    """log(1 + x) without cancellation near 0 (Dr.Jit has no log1p): Kahan's u = 1 + x; log u · x / (u − 1)."""
+    u = 1.0 + x
+    d = u - 1.0
+    plain = (u <= 0.0) | ~dr.isfinite(u)  # x ≤ −1 or ±inf/NaN: log(u) itself (−inf, NaN, inf)
+    ratio = dr.log(u) * x / dr.select((d == 0.0) | plain, 1.0, d)
+    return dr.select(d == 0.0, x, dr.select(plain, dr.log(u), ratio))
+
+
 DRJIT_OPS = types.SimpleNamespace(
     name="drjit",
-    sqrt=dr.sqrt,
-    select=dr.select,
-    maximum=dr.maximum,
-    minimum=dr.minimum,
-    clip=dr.clip,
-    abs=dr.abs,
-    fma=dr.fma,
-    sin=dr.sin,
-    cos=dr.cos,
-    tan=dr.tan,
-    acos=dr.acos,
-    asin=dr.asin,
-    atan=dr.atan,
-    atan2=dr.atan2,
-    power=dr.power,
-)
+    sqrt=dr.sqrt, cbrt=dr.cbrt, exp=dr.exp, log=dr.log, expm1=_dr_expm1, log1p=_dr_log1p, power=dr.power,
+    sin=dr.sin, cos=dr.cos, tan=dr.tan, asin=dr.asin, acos=dr.acos, atan=dr.atan, atan2=dr.atan2,
+    tanh=dr.tanh, abs=dr.abs, floor=dr.floor, ceil=dr.ceil, maximum=dr.maximum, minimum=dr.minimum,
+    clip=dr.clip, fma=dr.fma, select=dr.select, gather=_dr_gather,
+)  # fmt: skip
 """Dr.Jit functions (work on Python floats too); NaN propagates through maximum/minimum/clip."""
 
 NUMPY_OPS = types.SimpleNamespace(
     name="numpy",
-    sqrt=np.sqrt,
-    select=np.where,
-    maximum=np.maximum,
-    minimum=np.minimum,
-    clip=_NP_CLIP,
-    abs=np.abs,
-    fma=_np_fma,
-    sin=np.sin,
-    cos=np.cos,
-    tan=np.tan,
-    acos=np.arccos,
-    asin=np.arcsin,
-    atan=np.arctan,
-    atan2=np.arctan2,
-    power=np.power,
-)
+    sqrt=np.sqrt, cbrt=np.cbrt, exp=np.exp, log=np.log, expm1=np.expm1, log1p=np.log1p, power=np.power,
+    sin=np.sin, cos=np.cos, tan=np.tan, asin=np.arcsin, acos=np.arccos, atan=np.arctan, atan2=np.arctan2,
+    tanh=np.tanh, abs=np.abs, floor=np.floor, ceil=np.ceil, maximum=np.maximum, minimum=np.minimum,
+    clip=np.clip, fma=_np_fma, select=np.where, gather=_np_gather,
+)  # fmt: skip
 """The same names over NumPy (``select`` is ``np.where``: both branches are evaluated, so kernels must
 keep unselected branches finite — see `safe_div`)."""
 
-assert set(vars(DRJIT_OPS)) == set(vars(NUMPY_OPS))
+
+def _jax_namespace() -> types.SimpleNamespace:
+    """The same names over ``jax.numpy`` (imported here, on first use: JAX is heavy and only fits need it).
+
+    Differences that matter for autodiff, not for values:
+
+    * ``power(x, y)`` for x ≥ 0 has the gradient of 0^y = 0 (y > 0) at x = 0 instead of NaN
+      (jnp.power's ∂/∂y = log(0)·0^y = NaN, which ``select`` would spread to every element: JAX
+      differentiates both branches). Values are those of jnp.power.
+    * ``select`` is ``jnp.where`` and, as with NumPy, both branches are evaluated *and differentiated*:
+      a kernel's unselected branch must stay finite (`safe_div`, `safe_sqrt`) for gradients too.
+    """
+    import jax.numpy as jnp
+
+    def power(x, y):
+        pos = x > 0
+        safe = jnp.where(pos, x, 1.0)
+        return jnp.where(pos, safe**y, jnp.where(x == 0, jnp.where(y == 0, 1.0, 0.0), jnp.power(x, y)))
+
+    def gather(table, index):
+        return jnp.asarray(table)[jnp.asarray(index).astype(jnp.int32)]
+
+    return types.SimpleNamespace(
+        name="jax",
+        sqrt=jnp.sqrt, cbrt=jnp.cbrt, exp=jnp.exp, log=jnp.log, expm1=jnp.expm1, log1p=jnp.log1p,
+        power=power, sin=jnp.sin, cos=jnp.cos, tan=jnp.tan, asin=jnp.arcsin, acos=jnp.arccos,
+        atan=jnp.arctan, atan2=jnp.arctan2, tanh=jnp.tanh, abs=jnp.abs, floor=jnp.floor, ceil=jnp.ceil,
+        maximum=jnp.maximum, minimum=jnp.minimum, clip=jnp.clip, fma=lambda a, b, c: a * b + c,
+        select=jnp.where, gather=gather,
+    )  # fmt: skip
+
+
+_jax_ops: types.SimpleNamespace | None = None
+
+
+def jax_ops() -> types.SimpleNamespace:
+    """The JAX ops namespace (`JAX_OPS`), built on first use (this imports jax)."""
+    global _jax_ops
+    if _jax_ops is None:
+        _jax_ops = _jax_namespace()
+        assert set(vars(_jax_ops)) == set(vars(DRJIT_OPS))
+    return _jax_ops
+
+
+def __getattr__(name: str):
+    # PEP 562: ``arrays.JAX_OPS`` imports jax only when it is first asked for.
+    if name == "JAX_OPS":
+        return jax_ops()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def ops_for(library: str) -> types.SimpleNamespace:
+    """The ops namespace of ``library``: "drjit", "numpy" or "jax"."""
+    if library == "jax":
+        return jax_ops()
+    try:
+        return {"drjit": DRJIT_OPS, "numpy": NUMPY_OPS}[library]
+    except KeyError:
+        raise ValueError(f"unknown array library {library!r} (known: drjit, numpy, jax)") from None
+
+
+assert set(vars(DRJIT_OPS)) == set(vars(NUMPY_OPS)) == {"name", *OP_NAMES}
 
 # ----------------------------------------------------------------------------------------- small helpers
 _TINY = 1e-30  # > float32's smallest normal (1.2e-38) squared-safe floor for denominators
@@ -203,10 +290,10 @@ def check_range(
 
     * Python/NumPy scalars: `check_scalar`.
     * NumPy arrays: one min and one max pass (NaN fails both comparisons), one-line ValueError.
-    * Dr.Jit arrays: **not checked** (that would force evaluation and a host sync); kernels clamp into the
-      domain instead, as each public function documents.
+    * Dr.Jit and JAX arrays: **not checked** (that would force evaluation and a host sync, or is impossible
+      on a tracer); kernels clamp into the domain instead, as each public function documents.
     """
-    if is_drjit(value):
+    if is_drjit(value) or is_jax(value):
         return value
     if isinstance(value, np.ndarray):
         if value.size == 0:
@@ -265,6 +352,12 @@ def is_drjit(x: Any) -> bool:
     return dr.is_array_v(x)
 
 
+def is_jax(x: Any) -> bool:
+    """True for a JAX array or tracer (checked without importing jax: only if jax is already loaded)."""
+    jax = sys.modules.get("jax")
+    return jax is not None and isinstance(x, jax.Array)
+
+
 def _as_float_scalar(x: Any) -> float:
     if isinstance(x, (bool, np.bool_)):
         raise TypeError(f"expected a real number (got {x!r})")
@@ -289,6 +382,10 @@ def evaluate(kernel: Callable, *args: Any) -> Any:
 
     ``kernel`` may return one array or a tuple of arrays; the result has the same structure.
     """
+    if any(is_jax(a) for a in args):  # traced by JAX (a fit's residual, jax.grad, jax.jit): the JAX text
+        return kernel(
+            jax_ops(), *[a if is_jax(a) or _is_numpy_array(a) else _as_float_scalar(a) for a in args]
+        )
     dr_args = [a for a in args if is_drjit(a)]
     if dr_args:
         Float = type(dr_args[0])

@@ -1,0 +1,210 @@
+"""Methods as data: one declaration per approximation, from which tables, fits, bench rows and reports derive.
+
+A *method* is one row of a family's comparison (Probulator's "one registry line per method"): an id used
+in file names, result records and report columns, a label for people, the kernel text it runs (written
+once against an ops namespace, see `rtfit.realtime.arrays`), the names and units of the per-element
+inputs the kernel takes, and its free parameters with defaults, bounds and units::
+
+    WRAP = Method(
+        id="wrap", label="Wrap lighting", kernel=_wrap_kernel,
+        inputs=(Input("cos_theta", "1", "n·l"), Input("irradiance", "W/m²", "E⊥")),
+        params={"w": Param(0.5, 0.0, 1.0, unit="1"), "p": Param(1.5, 0.25, 8.0, unit="1")},
+        formula="E⊥·max((cos θ + w)/(1 + w), 0)^p", source="000:2520-2534")
+
+The kernel is called with keywords, ``kernel(ops, **inputs, **params)``, so its positional signature is
+documentation, not an ordering contract. The same declaration evaluates on Dr.Jit, NumPy or JAX
+(`Method.evaluate`, dispatched like every public function of this package), and `rtfit.fitting.fit_method`
+fits its free parameters through the JAX run of that one text.
+
+Variants are parameters, not subclasses: "half-Lambert" can be its own kernel, or the wrap kernel with
+``fixed={"w": 1.0, "p": 2.0}``; "wrap fitted per light size" is the wrap method whose parameters a fit
+supplies. ``exact=True`` marks a method that must sit at the reference's noise floor (the check that the
+reference and the approximation measure the same quantity). ``storage`` is the number of floats stored
+per probe/texel/element (irradiance bases: 9 per channel for SH L2), or None for closed forms.
+
+This module imports nothing outside the standard library and `rtfit.realtime.arrays`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+from .arrays import evaluate
+
+__all__ = ["Input", "Method", "Param", "method_table"]
+
+
+@dataclass(frozen=True)
+class Param:
+    """A free parameter: its default (the start value of a fit), optional bounds and its unit.
+
+    ``initial`` must be finite and strictly inside (lower, upper); infinite bounds mean unbounded on that
+    side. ``unit`` is a short unit text ("1" for dimensionless, "rad", "1/m", "W/m²"); ``description`` one
+    line for tables and fitted-parameter files."""
+
+    initial: float
+    lower: float = -math.inf
+    upper: float = math.inf
+    unit: str = ""
+    description: str = ""
+
+    def __post_init__(self):
+        for f in ("initial", "lower", "upper"):
+            v = getattr(self, f)
+            if isinstance(v, bool):
+                raise ValueError(f"Param.{f} must be a real number, got {v!r}")
+            try:
+                v = float(v)
+            except (TypeError, ValueError):
+                raise ValueError(f"Param.{f} must be a real number, got {v!r}") from None
+            object.__setattr__(self, f, v)
+        lo, hi = self.lower, self.upper
+        if math.isnan(lo) or math.isnan(hi) or lo == math.inf or hi == -math.inf:
+            raise ValueError(f"Param bounds must be finite or -inf/+inf on their side, got ({lo}, {hi})")
+        if not self.lower < self.upper:
+            raise ValueError(f"Param needs lower < upper, got ({self.lower}, {self.upper})")
+        if not math.isfinite(self.initial):
+            raise ValueError(f"Param.initial must be finite, got {self.initial}")
+        if not self.lower < self.initial < self.upper:
+            raise ValueError(
+                f"Param.initial {self.initial} must lie strictly inside ({self.lower}, {self.upper})"
+            )
+
+    @property
+    def default(self) -> float:
+        """The start value (an alias of ``initial`` that reads better in method tables)."""
+        return self.initial
+
+    @property
+    def kind(self) -> str:
+        """Which bounds are finite: "both", "lower", "upper" or "free"."""
+        lo, hi = math.isfinite(self.lower), math.isfinite(self.upper)
+        return "both" if lo and hi else "lower" if lo else "upper" if hi else "free"
+
+    def to_internal(self) -> float:
+        """z with x(z) = initial under the fit's change of variables (see `rtfit.fitting.least_squares`)."""
+        k, x = self.kind, self.initial
+        if k == "both":
+            u = (x - self.lower) / (self.upper - self.lower)
+            return math.log(u) - math.log1p(-u)
+        if k in ("lower", "upper"):
+            d = x - self.lower if k == "lower" else self.upper - x
+            return d + math.log(-math.expm1(-d))  # softplus⁻¹(d), stable for small and large d
+        return x
+
+
+@dataclass(frozen=True)
+class Input:
+    """A per-element kernel input: its keyword name, unit text and one line of meaning."""
+
+    name: str
+    unit: str = ""
+    description: str = ""
+
+
+def _as_input(x: Input | str) -> Input:
+    return x if isinstance(x, Input) else Input(str(x))
+
+
+@dataclass(frozen=True)
+class Method:
+    """One approximation (or exact form) as data; see the module docstring.
+
+    ``kernel(ops, **inputs, **params)`` returns one array (or a tuple of arrays for multi-output kernels).
+    ``params``: the free parameters a fit may adjust; ``fixed``: constant keyword arguments this method
+    passes to its kernel (a variant of a shared kernel). ``quantity`` names what the method approximates
+    (e.g. "light_irradiance", "fog_transmittance"), ``formula`` the formula in one line (Unicode math),
+    ``source`` where it comes from (seed file and lines, or paper and equation)."""
+
+    id: str
+    label: str
+    kernel: Callable[..., Any]
+    inputs: tuple[Input, ...] = ()
+    params: Mapping[str, Param] = field(default_factory=dict)
+    fixed: Mapping[str, Any] = field(default_factory=dict)
+    exact: bool = False
+    storage: int | None = None
+    quantity: str = ""
+    formula: str = ""
+    source: str = ""
+    description: str = ""
+
+    def __post_init__(self):
+        if not self.id or not all(ch.isalnum() or ch in "-_." for ch in self.id):
+            raise ValueError(f"method id {self.id!r}: use letters, digits, '-', '_' or '.'")
+        object.__setattr__(self, "inputs", tuple(_as_input(i) for i in self.inputs))
+        object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
+        object.__setattr__(self, "fixed", MappingProxyType(dict(self.fixed)))
+        names = [i.name for i in self.inputs] + list(self.params) + list(self.fixed)
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"method {self.id!r}: {', '.join(dup)} declared twice (inputs, params, fixed)")
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return tuple(i.name for i in self.inputs)
+
+    @property
+    def fitted(self) -> bool:
+        """True when the method has free parameters."""
+        return bool(self.params)
+
+    def defaults(self) -> dict[str, float]:
+        """Each free parameter's default value."""
+        return {k: p.initial for k, p in self.params.items()}
+
+    def bounds(self) -> dict[str, tuple[float, float]]:
+        return {k: (p.lower, p.upper) for k, p in self.params.items()}
+
+    def keywords(self, params: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """The kernel's non-input keywords: defaults, overridden by ``params``, then the fixed values.
+
+        An unknown parameter name is a one-line ValueError naming the method and its parameters."""
+        params = dict(params or {})
+        unknown = sorted(set(params) - set(self.params))
+        if unknown:
+            known = ", ".join(self.params) or "none"
+            raise ValueError(
+                f"method {self.id!r} has no parameter {', '.join(unknown)} (parameters: {known})"
+            )
+        return {**self.defaults(), **params, **self.fixed}
+
+    def __call__(self, ops, inputs: Mapping[str, Any], params: Mapping[str, Any] | None = None):
+        """The kernel text on ``ops`` (no dispatch, no conversion): ``kernel(ops, **inputs, **keywords)``."""
+        missing = [n for n in self.input_names if n not in inputs]
+        if missing:
+            raise ValueError(f"method {self.id!r} needs input(s) {', '.join(missing)}")
+        return self.kernel(ops, **{n: inputs[n] for n in self.input_names}, **self.keywords(params))
+
+    def evaluate(self, inputs: Mapping[str, Any], params: Mapping[str, Any] | None = None):
+        """Evaluate with the package's dispatch (`rtfit.realtime.arrays.evaluate`): JAX arrays → JAX,
+        Dr.Jit arrays → that Dr.Jit type (lazy), NumPy arrays → the default Dr.Jit backend, back to NumPy;
+        floats → float64 NumPy text. Parameters may be floats or arrays of the inputs' kind."""
+        names = self.input_names
+        missing = [n for n in names if n not in inputs]
+        if missing:
+            raise ValueError(f"method {self.id!r} needs input(s) {', '.join(missing)}")
+        kw = self.keywords(params)
+        free = [k for k in kw if k not in self.fixed]  # arrays or floats: dispatched with the inputs
+        keys = list(names) + free
+        values = [inputs[n] for n in names] + [kw[k] for k in free]
+        fixed = dict(self.fixed)  # any constant (a mode string, a table): passed to the kernel as given
+
+        def kernel(ops, *args):
+            return self.kernel(ops, **dict(zip(keys, args, strict=True)), **fixed)
+
+        return evaluate(kernel, *values)
+
+
+def method_table(methods: Iterable[Method]) -> Mapping[str, Method]:
+    """A read-only ``{id: method}`` in declaration order; a repeated id is a ValueError."""
+    out: dict[str, Method] = {}
+    for m in methods:
+        if m.id in out:
+            raise ValueError(f"method id {m.id!r} declared twice")
+        out[m.id] = m
+    return MappingProxyType(out)
