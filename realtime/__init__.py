@@ -28,7 +28,7 @@ Modules:
 
 # Star imports re-export each module's ``__all__`` (tests/test_layering.py checks that every public
 # function of every module is in its ``__all__`` and that no two modules export the same name).
-from . import aperture, arrays, diffuse, fog, irradiance, methods, phase, sdf_grid, sdf_occlusion, sky  # noqa: F401
+from . import arrays
 from .aperture import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
@@ -41,9 +41,17 @@ from .sdf_occlusion import *  # noqa: F403
 from .sky import *  # noqa: F403
 
 MODULES = (
-    "arrays", "methods", "phase",
-    "aperture", "diffuse", "fog", "irradiance", "sdf_grid", "sdf_occlusion", "sky",
-)  # fmt: skip
+    "arrays",
+    "methods",
+    "phase",
+    "aperture",
+    "diffuse",
+    "fog",
+    "irradiance",
+    "sdf_grid",
+    "sdf_occlusion",
+    "sky",
+)
 """The modules whose public names this package re-exports."""
 
 
