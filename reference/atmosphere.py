@@ -81,7 +81,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .estimators import PassResult, _chunks, _mean_var, _moments, sub_seed
+from .estimators import PassResult, chunk_ranges, mean_var, moments, sub_seed
 from .io import atomic_write_bytes
 
 __all__ = [
@@ -452,7 +452,7 @@ def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -
     integrator = scene.integrator()
     sampler = mi.load_dict({"type": "independent"})
     dx, dy, dz = (mi.Float(d[:, k].astype(np.float32)) for k in range(3))
-    for k, (a, b) in enumerate(_chunks(n, spp)):
+    for k, (a, b) in enumerate(chunk_ranges(n, spp)):
         sampler.seed(sub_seed(seed, "sky", k), (b - a) * spp)
         idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + a
         direction = mi.Vector3f(
@@ -465,8 +465,8 @@ def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -
         else:
             ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), dr.normalize(direction))
             value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
-        s[a:b], q[a:b] = _moments(mi, dr, value, spp)
-    mean, var = _mean_var(s, q, spp)
+        s[a:b], q[a:b] = moments(mi, dr, value, spp)
+    mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 

@@ -121,7 +121,7 @@ def _shape_dict(mi, shape) -> dict:
     raise ValueError(f"unsupported shape kind {kind!r}")
 
 
-def _light_dicts(mi, light) -> dict:
+def light_dicts(mi, light) -> dict:
     """Return ``{key_suffix: plugin dict}`` for one light (a shape light is one shape entry)."""
     kind = light.kind
     if kind == "sun":
@@ -218,7 +218,7 @@ def _inside(boundary, point) -> bool:
     raise ValueError(f"unsupported medium boundary {boundary.kind!r}")
 
 
-def _camera_dict(mi, camera) -> dict:
+def camera_dict(mi, camera) -> dict:
     to_world = mi.ScalarTransform4f().look_at(
         origin=list(camera.origin), target=list(camera.target), up=list(camera.up)
     )
@@ -296,7 +296,7 @@ def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = N
     d: dict = {
         "type": "scene",
         "integrator": integrator.mitsuba_dict(),
-        "sensor": _camera_dict(mi, scene.camera),
+        "sensor": camera_dict(mi, scene.camera),
     }
     for i, shape in enumerate(scene.shapes):
         if shape.kind == "mitsuba_xml":
@@ -305,7 +305,7 @@ def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = N
         else:
             d[f"shape{i}"] = _shape_dict(mi, shape)
     for i, light in enumerate(scene.lights):
-        for suffix, plugin in _light_dicts(mi, light).items():
+        for suffix, plugin in light_dicts(mi, light).items():
             d[f"light{i}{suffix}"] = plugin
     _merge_environments(mi, scene, d)
     for i, medium in enumerate(scene.media):

@@ -68,13 +68,13 @@ def sub_seed(seed: int, *labels) -> int:
     return int.from_bytes(h[:4], "little")
 
 
-def _chunks(n_elements: int, spp: int):
+def chunk_ranges(n_elements: int, spp: int):
     per = max(1, MAX_LANES // spp)
     for start in range(0, n_elements, per):
         yield start, min(n_elements, start + per)
 
 
-def _moments(mi, dr, value, spp: int):
+def moments(mi, dr, value, spp: int):
     """Per-element float64 sums of a per-lane RGB value and of its square (lanes grouped by spp)."""
     dr.eval(value)  # one kernel for all channels: block_sum evaluates only its own input, so without
     # this each channel would re-run (and re-compile) the whole integrator kernel: 3x the work.
@@ -89,7 +89,7 @@ def _moments(mi, dr, value, spp: int):
     return s, q
 
 
-def _mean_var(s: np.ndarray, q: np.ndarray, n: int):
+def mean_var(s: np.ndarray, q: np.ndarray, n: int):
     mean = s / n
     var = np.maximum(q - s * mean, 0.0) / (n - 1)
     return mean, var
@@ -128,12 +128,12 @@ def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
     s = np.empty((n_pixels, 3))
     q = np.empty((n_pixels, 3))
     sampler = mi.load_dict({"type": "independent"})
-    for k, (a, b) in enumerate(_chunks(n_pixels, spp)):
+    for k, (a, b) in enumerate(chunk_ranges(n_pixels, spp)):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
         ray, weight = _pixel_rays(mi, dr, sensor, width, a, b - a, spp)
         value, _, _ = integrator.sample(mi_scene, sampler, ray, sensor.get_medium(), True)
-        s[a:b], q[a:b] = _moments(mi, dr, value * weight, spp)
-    mean, var = _mean_var(s, q, spp)
+        s[a:b], q[a:b] = moments(mi, dr, value * weight, spp)
+    mean, var = mean_var(s, q, spp)
     shape = (height, width, 3)
     return PassResult(mean.reshape(shape), var.reshape(shape), spp, seed, time.perf_counter() - t0)
 
@@ -154,7 +154,7 @@ def _radiance_scalar(mi, mi_scene, sensor, integrator, width, height, spp, seed)
                 s[j, i] += v
                 q[j, i] += v * v
                 sampler.advance()
-    return _mean_var(s, q, spp)
+    return mean_var(s, q, spp)
 
 
 # ------------------------------------------------------------------------------------------ G-buffer
@@ -237,7 +237,7 @@ def irradiance_pass(
     s = np.empty((n_points, 3))
     q = np.empty((n_points, 3))
     sampler = mi.load_dict({"type": "independent"})
-    for k, (a, b) in enumerate(_chunks(n_points, spp)):
+    for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
         idx = dr.arange(mi.UInt32, (b - a) * spp) // spp
         p = dr.gather(mi.Point3f, mi.Point3f(points[a:b].T), idx)
@@ -246,8 +246,8 @@ def irradiance_pass(
             value = _direct_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         else:
             value = _global_irradiance(mi, dr, mi_scene, sampler, p, nrm)
-        s[a:b], q[a:b] = _moments(mi, dr, value, spp)
-    mean, var = _mean_var(s, q, spp)
+        s[a:b], q[a:b] = moments(mi, dr, value, spp)
+    mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 

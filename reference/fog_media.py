@@ -155,13 +155,13 @@ def sky_statistics(
     * ``sun_irradiance``: E⊥ of the sun disc, ∫ L dω over its aperture (midpoint rule on a polar grid);
     * ``sky_irradiance_horizontal``: ∫ L_sky cos θ dω over the upper hemisphere (W/m² per the model's units).
     """
-    from .build import _light_dicts
+    from .build import light_dicts
     from .variants import use_variant
 
     mi = use_variant(variant)
     import drjit as dr
 
-    emitter = mi.load_dict(_light_dicts(mi, sunsky)[""])
+    emitter = mi.load_dict(light_dicts(mi, sunsky)[""])
 
     def radiance(dirs: np.ndarray) -> np.ndarray:
         si = dr.zeros(mi.SurfaceInteraction3f, len(dirs))

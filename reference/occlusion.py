@@ -321,11 +321,11 @@ def sdfgrid_dict(mi, grid) -> dict:
 
 def sdfgrid_scene(mi, grid, camera=None):
     """A Mitsuba scene holding only the ``sdfgrid`` shape (and the camera of an rtfit Scene, if given)."""
-    from .build import _camera_dict
+    from .build import camera_dict
 
     d = {"type": "scene", "sdf": sdfgrid_dict(mi, grid)}
     if camera is not None:
-        d["sensor"] = _camera_dict(mi, camera)
+        d["sensor"] = camera_dict(mi, camera)
     return mi.load_dict(d)
 
 
