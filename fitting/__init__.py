@@ -19,7 +19,7 @@ import os as _os
 _os.environ.setdefault("JAX_PLATFORMS", "cpu")
 _os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
-from .least_squares import (  # noqa: E402  (the environment defaults above must precede any jax import)
+from .least_squares import (
     AT_BOUND_RTOL,
     FitResult,
     Param,
@@ -27,8 +27,8 @@ from .least_squares import (  # noqa: E402  (the environment defaults above must
     fit_curve,
     fit_least_squares,
 )
-from .method_fit import fit_method, method_model  # noqa: E402
-from .metrics import (  # noqa: E402
+from .method_fit import fit_method, method_model
+from .metrics import (
     ALL_METRICS,
     EXTRA_METRICS,
     FLIP_MIN_SIZE,
@@ -43,7 +43,7 @@ from .metrics import (  # noqa: E402
     z_score_summary,
     z_scores,
 )
-from .stats import (  # noqa: E402
+from .stats import (
     MAD_TO_SIGMA,
     concat_z_pairs,
     robust_spread,

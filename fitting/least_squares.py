@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -164,7 +165,9 @@ def _machinery():
     return _SOLVE, _PROBLEM, _CURVE
 
 
-_SOLVE = _PROBLEM = _CURVE = None
+_SOLVE: Any = None  # built on first use by `_machinery` (imports jax, equinox, optimistix)
+_PROBLEM: Any = None
+_CURVE: Any = None
 
 
 def _to_f64_tree(args):
@@ -231,7 +234,7 @@ def _kkt_holds(jac, r, at_lower, at_upper, gtol: float = 1e-6) -> bool:
         return True
     g = jac.T @ r
     scale = np.linalg.norm(jac, axis=0) * rn
-    for gi, si, lo, hi in zip(g, scale, at_lower, at_upper):
+    for gi, si, lo, hi in zip(g, scale, at_lower, at_upper, strict=True):
         if si == 0.0:
             continue
         c = gi / si
@@ -311,7 +314,7 @@ def fit_least_squares(
         converged, message = False, "non-finite residuals at the solution"
 
     at_lower, at_upper = {}, {}
-    for i, (nm, p) in enumerate(zip(names, ps)):
+    for i, (nm, p) in enumerate(zip(names, ps, strict=True)):
         if p.kind == "both":
             tol = AT_BOUND_RTOL * (p.upper - p.lower)
         else:
@@ -348,8 +351,8 @@ def fit_least_squares(
         converged=converged,
         message=message,
         at_bound=at_bound,
-        lower={nm: p.lower for nm, p in zip(names, ps)},
-        upper={nm: p.upper for nm, p in zip(names, ps)},
+        lower={nm: p.lower for nm, p in zip(names, ps, strict=True)},
+        upper={nm: p.upper for nm, p in zip(names, ps, strict=True)},
         jacobian_rank=int(rank),
     )
 

@@ -26,6 +26,7 @@ from .least_squares import FitResult, fit_least_squares
 __all__ = ["fit_method", "method_model"]
 
 _RESIDUALS: dict[tuple, Callable] = {}
+_KEEP_ALIVE: dict[int, Method] = {}
 
 
 def method_model(method: Method, output: Callable[[Any], Any] | None = None) -> Callable:
@@ -43,20 +44,21 @@ def method_model(method: Method, output: Callable[[Any], Any] | None = None) -> 
 
 def _residual(method: Method, free: tuple[str, ...], held: tuple[str, ...], names: tuple[str, ...], output):
     key = (id(method), free, held, names, output)
-    fn = _RESIDUALS.get(key)
-    if fn is None:
-        model = method_model(method, output)
+    cached = _RESIDUALS.get(key)
+    if cached is not None:
+        return cached
+    model = method_model(method, output)
 
-        def fn(p, args):
-            import jax.numpy as jnp
+    def fn(p, args):
+        import jax.numpy as jnp  # jax: imported by fits only
 
-            inputs, held_values, target, weights = args
-            pred = jnp.asarray(model({**held_values, **p}, inputs))
-            return weights * (pred - target)
+        inputs, held_values, target, weights = args
+        pred = jnp.asarray(model({**held_values, **p}, inputs))
+        return weights * (pred - target)
 
-        fn.__qualname__ = f"fit_method.<{method.id}>"
-        _RESIDUALS[key] = fn
-        _RESIDUALS[(id(method), "keep")] = method  # keep the method alive while its id is a key
+    fn.__qualname__ = f"fit_method.<{method.id}>"
+    _RESIDUALS[key] = fn
+    _KEEP_ALIVE[id(method)] = method  # the method's id is part of the key: keep the object alive
     return fn
 
 
@@ -97,7 +99,9 @@ def fit_method(
     missing = [n for n in method.input_names if n not in inputs]
     if missing:
         raise ValueError(f"method {method.id!r} needs input(s) {', '.join(missing)}")
-    held_values = {k: float(held.get(k, p.initial)) for k, p in method.params.items() if k not in params}
+    held_values = {
+        k: float(held[k] if k in held else p.initial) for k, p in method.params.items() if k not in params
+    }
     target = np.asarray(target, dtype=np.float64)
     if target.size == 0 or not np.all(np.isfinite(target)):
         raise ValueError(f"method {method.id!r}: the target must be a non-empty finite array")

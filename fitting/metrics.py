@@ -308,7 +308,7 @@ def _psnr(x, r, s, m, **_):
 def _ssim_mean(a, b, m):
     from skimage.metrics import structural_similarity
 
-    _, smap = structural_similarity(
+    result = structural_similarity(
         tone_map(a),
         tone_map(b),
         data_range=1.0,
@@ -318,6 +318,7 @@ def _ssim_mean(a, b, m):
         use_sample_covariance=False,
         full=True,
     )
+    smap = result[1]  # full=True: (mean SSIM, per-pixel map)
     return float(np.mean(smap[m]))
 
 

@@ -108,7 +108,7 @@ def _dr_expm1(x):
 
 
 def _dr_log1p(x):
-    """log(1 + x) without cancellation near 0 (Dr.Jit has no log1p): Kahan's u = 1 + x; log u · x / (u − 1)."""
+    """log(1 + x) without cancellation near 0 (Dr.Jit has no log1p): Kahan's u = 1 + x; log u · x/(u − 1)."""
     u = 1.0 + x
     d = u - 1.0
     plain = (u <= 0.0) | ~dr.isfinite(u)  # x ≤ −1 or ±inf/NaN: log(u) itself (−inf, NaN, inf)

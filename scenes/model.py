@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import ClassVar, Union
+from typing import ClassVar
 
 Vec3 = tuple[float, float, float]
 RGB = tuple[float, float, float]
@@ -163,7 +163,7 @@ class MitsubaXML:
     convex: ClassVar[bool] = False
 
 
-Shape = Union[Sphere, Rectangle, Disk, Cube, Cylinder, Mesh, MitsubaXML]
+Shape = Sphere | Rectangle | Disk | Cube | Cylinder | Mesh | MitsubaXML
 
 
 # --------------------------------------------------------------------------------------------- lights
@@ -254,7 +254,7 @@ class SunSky:
     kind: ClassVar[str] = "sunsky"
 
 
-Light = Union[Sun, SphereLight, RectLight, ConstantEnv, EnvMap, SunSky]
+Light = Sun | SphereLight | RectLight | ConstantEnv | EnvMap | SunSky
 ENVIRONMENT_KINDS = ("constant_env", "envmap", "sunsky")
 
 
@@ -268,7 +268,7 @@ class HomogeneousMedium:
     atmosphere media beside this one.
     """
 
-    boundary: Union[Sphere, Cube]
+    boundary: Sphere | Cube
     sigma_t: RGB
     albedo: RGB = (0.0, 0.0, 0.0)
     g: float = 0.0
@@ -285,7 +285,7 @@ class ExponentialFog:
     `HomogeneousMedium`. Rendered by rtfit's Python medium (`rtfit.reference.fog_media`).
     """
 
-    boundary: Union[Sphere, Cube]
+    boundary: Sphere | Cube
     density: float
     falloff: float = 0.0
     gradient: Vec3 = (0.0, 0.0, 1.0)

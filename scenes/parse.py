@@ -25,11 +25,10 @@ import json
 import math
 import os
 import re
+import tomllib
 from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from typing import Any
-
-import tomllib
 
 from .model import (
     ENVIRONMENT_KINDS,
@@ -315,7 +314,8 @@ def _unit(v: Any, key: str) -> tuple[float, ...]:
 
 def _rgb(v: Any, key: str, bounds: Bounds | None) -> tuple[float, float, float]:
     if isinstance(v, list) and len(v) == 3:
-        return _vector(v, key, 3, bounds)
+        r, g, b = _vector(v, key, 3, bounds)
+        return (r, g, b)
     if isinstance(v, (int, float)) and not isinstance(v, bool):
         x = _number(v, key, bounds)
         return (x, x, x)
@@ -444,6 +444,7 @@ class _Parser:
         if not any(fwd):
             raise _Invalid("camera.target", f"must differ from camera.origin (got {_show(list(cam.target))})")
         f = normalised(tuple(fwd))
+        assert f is not None  # fwd is non-zero (checked just above)
         u = cam.up
         cross = (u[1] * f[2] - u[2] * f[1], u[2] * f[0] - u[0] * f[2], u[0] * f[1] - u[1] * f[0])
         if math.sqrt(sum(c * c for c in cross)) < 1e-6:

@@ -4,11 +4,23 @@ state another test left behind), and Dr.Jit's JIT state is flushed between tests
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 from rtfit.scenes.model import Camera, Diffuse, ReferenceSettings, Scene, Sphere, SphereLight
+
+
+# Hypothesis: derandomised in CI (the same examples every run, so a red CI is reproducible from its log),
+# random locally (new examples each run). HYPOTHESIS_PROFILE overrides. No deadline: Dr.Jit compiles a
+# kernel on its first call, which a per-example deadline would misread as slowness.
+settings.register_profile(
+    "ci", derandomize=True, deadline=None, print_blob=True, suppress_health_check=[HealthCheck.too_slow]
+)
+settings.register_profile("dev", deadline=None, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci" if os.environ.get("CI") else "dev"))
 
 
 @pytest.fixture()
