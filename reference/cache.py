@@ -27,8 +27,13 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import logging
 import math
 import os
+import socket
+import threading
+import time
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +46,8 @@ from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
 from .integrators import choose_integrator
 from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr
 from .progress import progress_bar
+
+log = logging.getLogger("rtfit.reference")
 
 CACHE_FORMAT = 1
 DEFAULT_PASS_SPP = 256
@@ -249,13 +256,13 @@ class PassEntry:
                 ch = read_exr(data)
                 mean, var = rgb_group(ch, "mean"), rgb_group(ch, "var")
             else:
-                with np.load(data) as z:
+                with open(data, "rb") as fh, np.load(fh) as z:  # own handle: closed even if np.load fails
                     mean, var = z["mean"], z["var"]
             mean, var = mean.astype(np.float64), var.astype(np.float64)
             if shape is not None:
                 mean, var = mean.reshape(shape), var.reshape(shape)
             return PassResult(mean, var, int(info["spp"]), int(info["seed"]), float(info["seconds"]))
-        except (OSError, ValueError, RuntimeError, KeyError, EOFError):
+        except (OSError, ValueError, RuntimeError, KeyError, EOFError, zipfile.BadZipFile):
             return None  # unreadable leftovers are re-rendered, never trusted
 
     def save(self, index: int, result: PassResult) -> PassResult:
@@ -278,6 +285,44 @@ class PassEntry:
             mean32.astype(np.float64), var32.astype(np.float64), result.spp, result.seed, result.seconds
         )
 
+    # -- claims: one process renders a pass, the others wait for it
+    def _claim_file(self, index: int) -> Path:
+        return self.folder / f"pass-{index:05d}.claim"
+
+    def claim(self, index: int) -> bool:
+        """Try to become the one process rendering pass ``index`` (an ``O_EXCL`` claim file holding the
+        host, pid and start time). A claim left by a dead process of this host, or one whose owner
+        stopped refreshing it for `CLAIM_STALE_SECONDS`, is taken over."""
+        path = self._claim_file(index)
+        for _ in range(2):  # second try after removing a stale claim
+            try:
+                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                if not self._claim_is_stale(path):
+                    return False
+                path.unlink(missing_ok=True)
+                continue
+            with os.fdopen(fd, "w") as f:
+                json.dump({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}, f)
+            return True
+        return False
+
+    def release(self, index: int) -> None:
+        self._claim_file(index).unlink(missing_ok=True)
+
+    @staticmethod
+    def _claim_is_stale(path: Path) -> bool:
+        try:
+            info = json.loads(path.read_text())
+            age = time.time() - path.stat().st_mtime
+        except FileNotFoundError:
+            return True  # released meanwhile: try again
+        except (OSError, ValueError):
+            return True  # a torn claim (its writer died between open and write)
+        if info.get("host") == socket.gethostname() and not _pid_alive(int(info.get("pid", -1))):
+            return True
+        return age > CLAIM_STALE_SECONDS
+
     def passes(
         self,
         count: int,
@@ -290,20 +335,98 @@ class PassEntry:
     ) -> tuple[list[PassResult], int]:
         """The first ``count`` passes: loaded where cached, else ``render(i)`` and saved. Returns the passes
         and how many were rendered by this call. ``before_render`` runs once, only if something is
-        missing (load the Mitsuba scene there, not before)."""
+        missing (load the Mitsuba scene there, not before).
+
+        Several processes may share one cache: each missing pass is claimed (`claim`) by exactly one of
+        them; the others render the passes nobody holds, then wait for the claimed ones to appear
+        (polling; a claim whose owner died is taken over). While rendering, the claim's mtime is
+        refreshed by a heartbeat thread, so that a claim is stale only when its owner is gone."""
         results = [self.load(i, shape) for i in range(count)]
         missing = [i for i, r in enumerate(results) if r is None]
-        if missing:
-            self.folder.mkdir(parents=True, exist_ok=True)
-            atomic_write_json(self.folder / "entry.json", self.info)
-            if before_render is not None:
-                before_render()
-            bar = progress_bar(len(missing), label or f"reference {self.key[:8]}", progress, unit="pass")
+        name = label or f"reference {self.key[:8]}"
+        if not missing:
+            return [r for r in results if r is not None], 0
+        if count - len(missing):
+            log.info("%s: resumed %d of %d passes from the cache", name, count - len(missing), count)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(self.folder / "entry.json", self.info)
+        prepared = False
+        rendered = 0
+        bar = progress_bar(len(missing), name, progress, unit="pass")
+        waits = 0
+        while missing:
+            held_elsewhere = []
             for i in missing:
-                results[i] = self.save(i, render(i))
-                bar.update(1)
-            bar.close()
-        return [r for r in results if r is not None], len(missing)
+                cached = self.load(i, shape)  # another process may have finished it meanwhile
+                if cached is None and self.claim(i):
+                    try:
+                        if not prepared and before_render is not None:
+                            before_render()
+                        prepared = True
+                        with _Heartbeat(self._claim_file(i)):
+                            cached = self.save(i, render(i))
+                        rendered += 1
+                    finally:
+                        self.release(i)
+                if cached is None:
+                    held_elsewhere.append(i)
+                else:
+                    results[i] = cached
+                    bar.update(1)
+            missing = held_elsewhere
+            if missing:
+                waits += 1
+                if waits == 1:
+                    log.info(
+                        "%s: %d passes are being rendered by another process; waiting", name, len(missing)
+                    )
+                time.sleep(CLAIM_POLL_SECONDS)
+        bar.close()
+        return [r for r in results if r is not None], rendered
+
+
+CLAIM_STALE_SECONDS = 120.0
+"""A claim not refreshed for this long belongs to a process that is gone (heartbeats come every 10 s)."""
+CLAIM_POLL_SECONDS = 0.5
+"""How often a process waiting for another's pass looks for it."""
+_HEARTBEAT_SECONDS = 10.0
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # exists, owned by someone else
+    return True
+
+
+class _Heartbeat:
+    """Touch a claim file every few seconds while the pass it guards renders (a daemon thread)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self):
+        while not self._stop.wait(_HEARTBEAT_SECONDS):
+            try:
+                os.utime(self.path)
+            except OSError:
+                return
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        return False
 
 
 class ReferenceCache:

@@ -1,0 +1,98 @@
+"""The one pass store (`rtfit.reference.cache.PassEntry`): resume, corrupt files, claims across processes.
+
+No Mitsuba here: a pass is a deterministic array computed from its index, so "identical results" and
+"rendered exactly once" are checked exactly."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import time
+
+import numpy as np
+import pytest
+
+from rtfit.reference.cache import PassEntry, entry_key, pool_passes
+from rtfit.reference.estimators import PassResult
+
+IDENT = {"what": "test", "format": 1}
+
+
+def _render(i: int, log_dir: str | None = None, delay: float = 0.0) -> PassResult:
+    if delay:
+        time.sleep(delay)
+    if log_dir:  # one marker file per render: the test counts who rendered what
+        with open(os.path.join(log_dir, f"{i}-{os.getpid()}-{time.time_ns()}"), "w"):
+            pass
+    rng = np.random.default_rng(i)
+    mean = rng.uniform(0, 1, (4, 3))
+    return PassResult(mean, mean * 0.1, 16, i, 0.01)
+
+
+def test_resume_renders_only_missing_passes(tmp_path):
+    entry = PassEntry(tmp_path, IDENT)
+    calls = []
+    first, n = entry.passes(3, lambda i: calls.append(i) or _render(i))
+    assert n == 3 and calls == [0, 1, 2]
+    again = PassEntry(tmp_path, IDENT)
+    more, n = again.passes(5, lambda i: calls.append(i) or _render(i))
+    assert n == 2 and calls[3:] == [3, 4]
+    # A resumed pass equals the fresh one exactly (both are the float32 values as stored).
+    for a, b in zip(first, more[:3], strict=True):
+        np.testing.assert_array_equal(a.mean, b.mean)
+    assert entry.key == entry_key(IDENT)
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "meta"])
+def test_a_corrupt_pass_is_discarded_and_rendered_again(tmp_path, damage):
+    entry = PassEntry(tmp_path, IDENT)
+    good, _ = entry.passes(2, _render)
+    data, meta = entry.folder / "pass-00001.npz", entry.folder / "pass-00001.json"
+    if damage == "truncate":
+        data.write_bytes(data.read_bytes()[:50])
+    elif damage == "garbage":
+        data.write_bytes(b"\x00" * 200)
+    else:
+        meta.write_text("{not json")
+    assert entry.load(1) is None
+    again, n = PassEntry(tmp_path, IDENT).passes(2, _render)
+    assert n == 1
+    np.testing.assert_array_equal(pool_passes(again)[0], pool_passes(good)[0])
+
+
+def test_a_claim_of_a_dead_process_is_taken_over(tmp_path):
+    entry = PassEntry(tmp_path, IDENT)
+    entry.folder.mkdir(parents=True)
+    dead = mp.get_context("spawn").Process(target=time.sleep, args=(0,))
+    dead.start()
+    dead.join()
+    claim = entry.folder / "pass-00000.claim"
+    claim.write_text(json.dumps({"host": os.uname().nodename, "pid": dead.pid, "started": 0}))
+    _, n = entry.passes(1, _render)
+    assert n == 1 and not claim.exists()
+
+
+def _worker(root: str, log_dir: str, out: str):
+    entry = PassEntry(root, IDENT)
+    passes, _ = entry.passes(12, lambda i: _render(i, log_dir, delay=0.05))
+    np.save(out, pool_passes(passes)[0])
+
+
+def test_two_processes_on_one_cache_render_each_pass_once(tmp_path):
+    log_dir = tmp_path / "log"
+    log_dir.mkdir()
+    ctx = mp.get_context("spawn")
+    procs = [
+        ctx.Process(target=_worker, args=(str(tmp_path / "cache"), str(log_dir), str(tmp_path / f"{k}.npy")))
+        for k in range(2)
+    ]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(120)
+        assert p.exitcode == 0
+    rendered = [name.split("-")[0] for name in os.listdir(log_dir)]
+    assert sorted(rendered, key=int) == [str(i) for i in range(12)]  # every pass exactly once
+    np.testing.assert_array_equal(np.load(tmp_path / "0.npy"), np.load(tmp_path / "1.npy"))
+    assert not list((tmp_path / "cache").rglob("*.claim"))
