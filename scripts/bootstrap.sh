@@ -5,7 +5,11 @@
 #  2. A virtual environment in .venv with rtfit installed editable (with its test extras); reinstalled
 #     only when pyproject.toml changes.
 #  3. DRJIT_LIBLLVM_PATH exported explicitly, so Dr.Jit never picks an older libLLVM on its own.
+# Sourcing it leaves the caller's shell options as they were (it runs with -eu -o pipefail inside and
+# restores the previous settings at the end); on failure it returns 1 instead of exiting the shell.
+_rtfit_saved_opts="$(set +o)"
 set -euo pipefail
+_rtfit_fail() { echo "rtfit setup: $*" >&2; eval "$_rtfit_saved_opts"; return 1; }
 RTFIT_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 export RTFIT_ROOT
 
@@ -31,7 +35,7 @@ if [ ${#_rtfit_need[@]} -gt 0 ]; then
   _rtfit_sudo apt-get update -qq
   _rtfit_sudo apt-get install -y -qq --no-install-recommends "${_rtfit_need[@]}" python3-venv python3-pip ca-certificates >/dev/null
 fi
-DRJIT_LIBLLVM_PATH="$(_rtfit_find_llvm)" || { echo "rtfit setup: libLLVM 19 not found after install" >&2; exit 1; }
+DRJIT_LIBLLVM_PATH="$(_rtfit_find_llvm)" || { _rtfit_fail "libLLVM 19 not found after install"; return 1 2>/dev/null || exit 1; }
 export DRJIT_LIBLLVM_PATH
 
 RTFIT_VENV="${RTFIT_VENV:-$RTFIT_ROOT/.venv}"
@@ -49,3 +53,5 @@ if [ "$(cat "$_rtfit_stamp" 2>/dev/null)" != "$_rtfit_want" ] || ! "$RTFIT_VENV/
   echo "$_rtfit_want" > "$_rtfit_stamp"
 fi
 export PATH="$RTFIT_VENV/bin:$PATH"
+eval "$_rtfit_saved_opts"
+unset _rtfit_saved_opts
