@@ -268,7 +268,7 @@ def _xml_shape_objects(mi, shape) -> list:
             bsdf = ET.SubElement(elem, "bsdf", type="diffuse")
             r = shape.override_material.reflectance
             ET.SubElement(bsdf, "rgb", name="reflectance", value=f"{r[0]!r}, {r[1]!r}, {r[2]!r}")
-    resolver = mi.Thread.thread().file_resolver()
+    resolver = mi.file_resolver()  # (Thread.file_resolver is deprecated in 3.9)
     folder = os.path.dirname(shape.file)
     resolver.prepend(folder)
     try:

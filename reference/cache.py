@@ -45,6 +45,7 @@ from rtfit.scenes import Scene, scene_hash, scene_to_dict
 from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
 from .integrators import choose_integrator
 from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr
+from .mitsuba_xml import xml_dependencies
 from .progress import progress_bar
 
 log = logging.getLogger("rtfit.reference")
@@ -140,6 +141,9 @@ class ReferenceRequest:
             "pass_spp": self.pass_spp,
             "versions": {"mitsuba": mitsuba.__version__, "drjit": drjit.__version__},
         }
+        xml = [sh.file for sh in self.scene.shapes if sh.kind == "mitsuba_xml"]
+        if xml:  # every file Mitsuba's parser loads for them (includes, <path> meshes), not only the XML
+            ident["xml_files"] = [xml_dependencies(f, variant=self.variant).digest for f in xml]
         if self.quantity == "irradiance":
             ident["probes"] = array_digest(self.points, self.normals)
             ident["transport"] = self.transport
