@@ -99,11 +99,14 @@ class Param:
 
 @dataclass(frozen=True)
 class Input:
-    """A per-element kernel input: its keyword name, unit text and one line of meaning."""
+    """A per-element kernel input: its keyword name, unit text, one line of meaning and, where it is a
+    scalar per element, its valid domain [lo, hi] (tests draw inputs from it to check that the Dr.Jit,
+    NumPy and JAX runs of the kernel agree; None for tables, grids and other structured inputs)."""
 
     name: str
     unit: str = ""
     description: str = ""
+    domain: tuple[float, float] | None = None
 
 
 def _as_input(x: Input | str) -> Input:
