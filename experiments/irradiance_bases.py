@@ -272,36 +272,29 @@ def make_environment(name: str, cfg: dict, mi=None):
     raise ValueError(f"unknown environment {name!r}")
 
 
-def sky_scene(env, map_file: str | None, resolution: int):
-    """The library sphere scene with the environment's map (or constant) as its only light."""
-    base = load_scene(library_path("irradiance_sphere"))
-    light = ConstantEnv(radiance=env.constant) if env.constant is not None else EnvMap(file=map_file)
+def _sphere_scene(library_name: str, env, resolution: int, light):
+    """The library scene ``library_name`` (the white unit sphere) at ``resolution``² with ``light`` alone."""
+    base = load_scene(library_path(library_name))
     cam = dataclasses.replace(base.camera, width=resolution, height=resolution)
     return dataclasses.replace(base, name=f"{base.name}-{env.name}", camera=cam, lights=(light,))
 
 
+def sky_scene(env, map_file: str | None, resolution: int):
+    """The sphere with the environment's map (or constant) as its only light."""
+    light = ConstantEnv(radiance=env.constant) if env.constant is not None else EnvMap(file=map_file)
+    return _sphere_scene("irradiance_sphere", env, resolution, light)
+
+
 def sun_scene(env, resolution: int):
-    """The library sphere scene lit by the environment's disc sun alone."""
-    base = load_scene(library_path("irradiance_sphere_sun"))
+    """The sphere lit by the environment's disc sun alone."""
     s = env.sun
-    cam = dataclasses.replace(base.camera, width=resolution, height=resolution)
-    return dataclasses.replace(
-        base,
-        name=f"{base.name}-{env.name}",
-        camera=cam,
-        lights=(
-            Sun(direction=s.direction, irradiance=s.irradiance, angular_radius_deg=s.angular_radius_deg),
-        ),
-    )
+    light = Sun(direction=s.direction, irradiance=s.irradiance, angular_radius_deg=s.angular_radius_deg)
+    return _sphere_scene("irradiance_sphere_sun", env, resolution, light)
 
 
 def sunsky_scene(env, resolution: int):
     """Mitsuba's own sunsky (sun and sky in one emitter): the check of the baked sky + disc sun."""
-    base = load_scene(library_path("irradiance_sphere_sunsky"))
-    cam = dataclasses.replace(base.camera, width=resolution, height=resolution)
-    return dataclasses.replace(
-        base, name=f"{base.name}-{env.name}", camera=cam, lights=(SunSky(sun_direction=env.sun.direction),)
-    )
+    return _sphere_scene("irradiance_sphere_sunsky", env, resolution, SunSky(sun_direction=env.sun.direction))
 
 
 # ================================================================================================= jobs
@@ -581,22 +574,24 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
     }
 
 
-def _metric(cases, env, method, key):
+def _approximation(cases, env, method) -> dict | None:
+    """The approximation record of ``method`` in case ``env`` (None if absent)."""
     for c in cases:
         if c["id"] == env:
             for ap in c["approximations"]:
                 if ap["method"] == method:
-                    return ap["metrics"][key]["value"]
-    return float("nan")
+                    return ap
+    return None
 
 
-def _floor(cases, env, method, key):
-    for c in cases:
-        if c["id"] == env:
-            for ap in c["approximations"]:
-                if ap["method"] == method:
-                    return ap["metrics"][key].get("noise_floor") or 0.0
-    return 0.0
+def _metric(cases, env, method, key) -> float:
+    ap = _approximation(cases, env, method)
+    return ap["metrics"][key]["value"] if ap else float("nan")
+
+
+def _floor(cases, env, method, key) -> float:
+    ap = _approximation(cases, env, method)
+    return (ap["metrics"][key].get("noise_floor") or 0.0) if ap else 0.0
 
 
 def _fit_parameter(value: float, lower: float, upper: float, at_bound: bool) -> dict:
