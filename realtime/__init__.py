@@ -15,7 +15,7 @@ Modules:
     aperture    ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection and
                 shading (docs/ambient-aperture.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
-    irradiance  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
+    irradiance_bases  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
                 (docs/irradiance-bases.md).
     fog         exponential height fog: stable closed-form optical depth, fog colour, fog volumes
                 (docs/height-fog.md).
@@ -33,7 +33,7 @@ from .aperture import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .fog import *  # noqa: F403
-from .irradiance import *  # noqa: F403
+from .irradiance_bases import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
@@ -47,7 +47,7 @@ MODULES = (
     "aperture",
     "diffuse",
     "fog",
-    "irradiance",
+    "irradiance_bases",
     "sdf_grid",
     "sdf_occlusion",
     "sky",

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from rtfit.realtime import irradiance as ir
+from rtfit.realtime import irradiance_bases as ir
 from rtfit.reference import environments as envs
 
 
@@ -76,9 +76,8 @@ def test_furnace_and_disc_closed_forms():
 
 
 def test_quadrature_agrees_with_mitsuba_irradiance(mi, tmp_path):
-    from rtfit.reference import ReferenceCache, ReferenceRequest
-
     from rtfit.experiments.irradiance_bases import sky_scene
+    from rtfit.reference import ReferenceCache, ReferenceRequest
 
     env = envs.map_environment("studio", "studio", "studio", envs.studio_map(16, 32))
     path = envs.write_map_exr(env.radiance_map, tmp_path / "studio.exr")

@@ -43,36 +43,52 @@ Normals: need not be unit length (they are normalised). A zero-length normal in 
 ValueError; in Dr.Jit input (not checked, to avoid a host sync) it returns the basis's sphere-average
 irradiance (SH: the DC term; cube: the mean of the six colours; Geomerics: R0). NaN normals raise for NumPy.
 
+Methods as data: `METHODS` holds one `rtfit.realtime.methods.Method` per basis (``cube-valve``,
+``cube-nnls``, ``sh-l1``, ``sh-l1-geomerics``, ``sh-l2``, ``sh-l2-hann``, ``sh-l2-lanczos``,
+``sh-l2-lambda``, and ``quadrature``, the exact row), each with its kernel, inputs and units, free
+parameters (λ), ``storage`` (floats stored per probe, RGB) and formula. A basis kernel takes the normal
+components ``nx, ny, nz`` and ``coeffs``, the probe's stored floats channel-major (R, G, B), and applies the
+convolution Â_l and the window w_l itself, so the stored floats are what an engine keeps. Run a method
+on an ops namespace with ``method(ops, basis_inputs(method, coeffs, normal), params)`` (e.g. the NumPy text,
+``NUMPY_OPS``), or validated and dispatched with `basis_irradiance`. The wrappers (`sh_irradiance`,
+`ambient_cube_irradiance`, …) are that with a fixed method.
+
 Everything here runs on Dr.Jit (LLVM/CUDA) and NumPy from one kernel text (`rtfit.realtime.arrays`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Mapping
+from typing import Any
 
+import drjit as dr
 import numpy as np
 
-from .arrays import evaluate, evaluate_numpy, is_drjit, safe_div, split3  # noqa: F401
+from .arrays import DRJIT_OPS, NUMPY_OPS, evaluate, is_drjit, safe_div, split3
+from .methods import Input, Method, Param, method_table
 
 __all__ = [
     "A_HAT",
+    "CUBE_AXES",
     "CUBE_ORDER",
-    "FLOATS_PER_PROBE",
+    "METHODS",
     "SH_C",
     "WINDOWS",
     "ambient_cube_from_axes",
     "ambient_cube_irradiance",
+    "basis_inputs",
+    "basis_irradiance",
     "cube_design_matrix",
     "fibonacci_sphere",
     "fit_ambient_cube_nnls",
     "fit_window_lambda",
     "latlong_directions",
     "latlong_samples",
-    "numpy_reference",
     "sh4_irradiance",
     "sh4_irradiance_geomerics",
     "sh9_basis",
+    "sh9_from_constant",
     "sh9_from_directional",
     "sh9_from_disk",
     "sh9_irradiance",
@@ -88,14 +104,23 @@ SH_C = (
     0.4886025119029199,  # √3/(2√π)
     1.0925484305920792,  # √15/(2√π)
     0.31539156525252005,  # √5/(4√π)
-    0.5462742152960396,
-)  # √15/(4√π)
+    0.5462742152960396,  # √15/(4√π)
+)
 A_HAT = (math.pi, 2.0 * math.pi / 3.0, math.pi / 4.0)
 CUBE_ORDER = ("+x", "-x", "+y", "-y", "+z", "-z")
-FLOATS_PER_PROBE = {"ambient-cube": 18, "sh-l1": 12, "sh-l2": 27}
+CUBE_AXES = (
+    (1.0, 0.0, 0.0),
+    (-1.0, 0.0, 0.0),
+    (0.0, 1.0, 0.0),
+    (0.0, -1.0, 0.0),
+    (0.0, 0.0, 1.0),
+    (0.0, 0.0, -1.0),
+)
+"""The unit directions of `CUBE_ORDER` (where Valve's cube samples the irradiance)."""
 WINDOWS = ("none", "hann", "lanczos", "lambda")
 _BAND = (0, 1, 1, 1, 2, 2, 2, 2, 2)
 _TINY = 1e-30
+_R1_SCALE = 0.5 * A_HAT[1] * SH_C[1]  # Geomerics: R1 = ½ Â1 Y1 (L11, L1−1, L10)
 
 
 # =========================================================================================== kernels
@@ -113,6 +138,7 @@ def _unit(ops, nx, ny, nz):
 
 
 def _basis(x, y, z):
+    """The 9 real SH basis values Y_k, k = l(l + 1) + m, at unit (x, y, z) (any array type)."""
     c0, c1, c2, c3, c4 = SH_C
     return (
         c0 + 0.0 * x,
@@ -127,34 +153,56 @@ def _basis(x, y, z):
     )
 
 
-def _sh_kernel(ops, nx, ny, nz, *k):
-    """k: 27 (L2) or 12 (L1) convolved coefficients Â_l w_l L_lm, channel-major (R then G then B)."""
+def _hann(order, lam):
+    return [0.5 * (1.0 + math.cos(math.pi * band / (order + 1))) for band in range(order + 1)]
+
+
+def _lanczos(order, lam):
+    xs = [math.pi * band / (order + 1) for band in range(order + 1)]
+    return [1.0 if x == 0.0 else math.sin(x) / x for x in xs]
+
+
+def _sloan(order, lam):
+    return [1.0 / (1.0 + lam * b * b * (b + 1.0) ** 2) for b in (0.0, 1.0, 2.0)[: order + 1]]
+
+
+_WINDOW_FACTORS = {
+    "none": lambda order, lam: [1.0] * (order + 1),
+    "hann": _hann,
+    "lanczos": _lanczos,
+    "lambda": _sloan,
+}
+"""Window kind → w_0..w_order as a function of (order, λ); λ may be a float or an array of any ops
+namespace (the λ window is computed inside the kernel, so a fit or a bisection can vary it)."""
+
+
+def _sh_kernel(ops, nx, ny, nz, coeffs, order=2, window="none", lam=0.0):
+    """E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n) per channel.
+
+    ``coeffs``: 3·(order + 1)² SH coefficients L_lm (W/m²), channel-major (R then G then B), index
+    l(l + 1) + m; ``window`` a kind of `WINDOWS`, ``lam`` Sloan's λ (used by the "lambda" window only)."""
     x, y, z, valid = _unit(ops, nx, ny, nz)
-    per = len(k) // 3
+    w = _WINDOW_FACTORS[window](order, lam)
+    per = (order + 1) ** 2
+    scale = [A_HAT[_BAND[i]] * w[_BAND[i]] for i in range(per)]
+    ys = _basis(x, y, z)
     out = []
     for c in range(3):
-        kc = k[c * per : (c + 1) * per]
-        rest = kc[1] * (SH_C[1] * y) + kc[2] * (SH_C[1] * z) + kc[3] * (SH_C[1] * x)
-        if per == 9:
-            rest = (
-                rest
-                + kc[4] * (SH_C[2] * x * y)
-                + kc[5] * (SH_C[2] * y * z)
-                + kc[6] * (SH_C[3] * (3.0 * z * z - 1.0))
-                + kc[7] * (SH_C[2] * x * z)
-                + kc[8] * (SH_C[4] * (x * x - y * y))
-            )
-        out.append(kc[0] * SH_C[0] + ops.select(valid, rest, 0.0))
+        k = [coeffs[c * per + i] * scale[i] for i in range(per)]
+        rest = k[1] * ys[1] + k[2] * ys[2] + k[3] * ys[3]
+        for i in range(4, per):
+            rest = rest + k[i] * ys[i]
+        out.append(k[0] * SH_C[0] + ops.select(valid, rest, 0.0))
     return tuple(out)
 
 
-def _cube_kernel(ops, nx, ny, nz, *c):
-    """c: 18 floats, channel-major, each channel in the order +x, −x, +y, −y, +z, −z."""
+def _cube_kernel(ops, nx, ny, nz, coeffs):
+    """Σ n_i² C[sign of n_i]; ``coeffs``: 18 floats (W/m²), channel-major, each channel in `CUBE_ORDER`."""
     x, y, z, valid = _unit(ops, nx, ny, nz)
     x2, y2, z2 = x * x, y * y, z * z
     out = []
     for ch in range(3):
-        cc = c[ch * 6 : (ch + 1) * 6]
+        cc = coeffs[ch * 6 : (ch + 1) * 6]
         e = (
             x2 * ops.select(x < 0.0, cc[1], cc[0])
             + y2 * ops.select(y < 0.0, cc[3], cc[2])
@@ -165,12 +213,15 @@ def _cube_kernel(ops, nx, ny, nz, *c):
     return tuple(out)
 
 
-def _geomerics_kernel(ops, nx, ny, nz, *k):
-    """k: 12 floats channel-major: (R0, R1x, R1y, R1z) per channel (see module docstring)."""
+def _geomerics_kernel(ops, nx, ny, nz, coeffs):
+    """Geomerics' L1 reconstruction (module docstring); ``coeffs``: 12 floats, per channel the SH
+    coefficients (L00, L1−1, L10, L11) (W/m²), channel-major."""
     x, y, z, valid = _unit(ops, nx, ny, nz)
     out = []
     for ch in range(3):
-        r0, ax, ay, az = k[ch * 4 : (ch + 1) * 4]
+        l00, l1m1, l10, l11 = coeffs[ch * 4 : (ch + 1) * 4]
+        r0 = l00 * (A_HAT[0] * SH_C[0])  # the sphere-average irradiance
+        ax, ay, az = l11 * _R1_SCALE, l1m1 * _R1_SCALE, l10 * _R1_SCALE
         r0p = ops.maximum(r0, 0.0)
         length = ops.sqrt(ax * ax + ay * ay + az * az)
         r = ops.clip(safe_div(ops, length, r0p), 0.0, 1.0)
@@ -182,7 +233,153 @@ def _geomerics_kernel(ops, nx, ny, nz, *k):
     return tuple(out)
 
 
+def _given_kernel(ops, irradiance):
+    """The exact row: the irradiance a dense quadrature of the environment gives at the normals
+    (integrated by `rtfit.reference.environments.irradiance_quadrature`; the reference layer is not
+    importable from here), passed through."""
+    return irradiance
+
+
+# =========================================================================================== methods
+_NORMAL = (
+    Input("nx", "1", "normal x (world frame, +Z up; normalised by the kernel)"),
+    Input("ny", "1", "normal y"),
+    Input("nz", "1", "normal z"),
+)
+_CUBE = Input("coeffs", "W/m²", "18 floats: irradiance colours C in CUBE_ORDER, channel-major (R, G, B)")
+_SH1 = Input("coeffs", "W/m²", "12 floats: SH coefficients L_lm = ∫ L Y_lm dω, l ≤ 1, channel-major")
+_SH2 = Input("coeffs", "W/m²", "27 floats: SH coefficients L_lm = ∫ L Y_lm dω, l ≤ 2, channel-major")
+_CUBE_FORMULA = "E(n) = n_x² C[±x] + n_y² C[±y] + n_z² C[±z] (the sign of n_i picks the entry)"
+_SH_FORMULA = "E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n), Â = (π, 2π/3, π/4)"
+_RH = "Ramamoorthi & Hanrahan 2001, An efficient representation for irradiance environment maps"
+_SLOAN = "Sloan 2008, Stupid spherical harmonics (SH) tricks (windowing)"
+
+METHODS = method_table(
+    [
+        Method(
+            id="cube-valve",
+            label="Ambient cube (Valve: axis samples)",
+            kernel=_cube_kernel,
+            inputs=(*_NORMAL, _CUBE),
+            storage=18,
+            quantity="irradiance",
+            formula=f"{_CUBE_FORMULA}; C = E at the six axes",
+            source="Valve (McTaggart 2004, Half-Life 2 shading); seed 000:2471-2501",
+            description="exact at the six axes and for a constant environment",
+        ),
+        Method(
+            id="cube-nnls",
+            label="Ambient cube (NNLS optimal)",
+            kernel=_cube_kernel,
+            inputs=(*_NORMAL, _CUBE),
+            storage=18,
+            quantity="irradiance",
+            formula=f"{_CUBE_FORMULA}; C ≥ 0 minimising Σ_k (E_cube(n_k) − E(n_k))² (fit_ambient_cube_nnls)",
+            source="Lawson & Hanson NNLS (scipy.optimize.nnls); seed 000:2471-2501",
+            description="the least-squares cube over a uniform sphere of normals",
+        ),
+        Method(
+            id="sh-l1",
+            label="SH L1 (4)",
+            kernel=_sh_kernel,
+            inputs=(*_NORMAL, _SH1),
+            fixed={"order": 1},
+            storage=12,
+            quantity="irradiance",
+            formula=f"{_SH_FORMULA}, l ≤ 1, w_l = 1 (linear in n)",
+            source=_RH,
+        ),
+        Method(
+            id="sh-l1-geomerics",
+            label="SH L1, Geomerics non-linear",
+            kernel=_geomerics_kernel,
+            inputs=(*_NORMAL, _SH1),
+            storage=12,
+            quantity="irradiance",
+            formula="E(n) = R0 (a + (1 − a)(p + 1) q^p), r = |R1|/R0, q = ½(1 + R̂1·n), p = 1 + 2r, "
+            "a = (1 − r)/(1 + r)",
+            source="Hazel (Geomerics), Reconstructing diffuse lighting from SH",
+            description="keeps the mean R0, never negative",
+        ),
+        Method(
+            id="sh-l2",
+            label="SH L2 (9)",
+            kernel=_sh_kernel,
+            inputs=(*_NORMAL, _SH2),
+            fixed={"order": 2},
+            storage=27,
+            quantity="irradiance",
+            formula=f"{_SH_FORMULA}, l ≤ 2, w_l = 1",
+            source=_RH,
+        ),
+        Method(
+            id="sh-l2-hann",
+            label="SH L2, Hann window",
+            kernel=_sh_kernel,
+            inputs=(*_NORMAL, _SH2),
+            fixed={"order": 2, "window": "hann"},
+            storage=27,
+            quantity="irradiance",
+            formula=f"{_SH_FORMULA}, w_l = ½(1 + cos(πl/3)) = (1, 0.75, 0.25)",
+            source=_SLOAN,
+        ),
+        Method(
+            id="sh-l2-lanczos",
+            label="SH L2, Lanczos window",
+            kernel=_sh_kernel,
+            inputs=(*_NORMAL, _SH2),
+            fixed={"order": 2, "window": "lanczos"},
+            storage=27,
+            quantity="irradiance",
+            formula=f"{_SH_FORMULA}, w_l = sinc(l/3) = (1, 0.827, 0.413)",
+            source=_SLOAN,
+        ),
+        Method(
+            id="sh-l2-lambda",
+            label="SH L2, fitted λ window",
+            kernel=_sh_kernel,
+            inputs=(*_NORMAL, _SH2),
+            params={
+                "lam": Param(
+                    1e-6,
+                    0.0,
+                    math.inf,
+                    unit="1",
+                    description="window strength λ of w_l = 1/(1 + λ l²(l + 1)²); fitted per "
+                    "environment as the smallest λ without negative irradiance (fit_window_lambda)",
+                )
+            },
+            fixed={"order": 2, "window": "lambda"},
+            storage=27,
+            quantity="irradiance",
+            formula=f"{_SH_FORMULA}, w_l = 1/(1 + λ l²(l + 1)²)",
+            source=_SLOAN,
+        ),
+        Method(
+            id="quadrature",
+            label="Dense quadrature (exact)",
+            kernel=_given_kernel,
+            inputs=(Input("irradiance", "W/m²", "dense quadrature of the environment at the normals"),),
+            exact=True,
+            quantity="irradiance",
+            formula="E(n) = Σ_k w_k L_k max(n·d_k, 0) over the bilinear map (+ the disc sun's closed form)",
+            source="rtfit.reference.environments.irradiance_quadrature",
+            description="must sit at the reference's noise floor",
+        ),
+    ]
+)
+"""The irradiance bases as data (module docstring): id → `Method`."""
+
+
 # =========================================================================================== helpers
+def _method(method: str | Method) -> Method:
+    if isinstance(method, Method):
+        return method
+    if method not in METHODS:
+        raise ValueError(f"unknown irradiance basis {method!r}; known: {', '.join(METHODS)}")
+    return METHODS[method]
+
+
 def _normal_args(normal, name="normal"):
     """Split a normal argument; NumPy/float input is checked (finite, non-zero length)."""
     if not is_drjit(normal):
@@ -218,71 +415,70 @@ def _coeff_array(coeffs, n: int, name: str) -> np.ndarray:
     return c
 
 
-def _flat(k: np.ndarray, opaque: bool) -> list:
-    """Channel-major list of per-coefficient arguments: size-1 arrays (one compiled kernel for all
-    coefficient values) or Python floats (for the float64 NumPy path)."""
-    flat = k.T.reshape(-1)
-    return [np.array([v]) for v in flat] if opaque else [float(v) for v in flat]
+def _stored(m: Method, coeffs, name: str = "coeffs") -> tuple[float, ...]:
+    """The ``storage`` floats of basis ``m`` from coefficients (rows, 3), channel-major (R, G, B): SH
+    (9, 3) arrays give their first 4 rows to the L1 bases."""
+    if m.storage is None:
+        raise ValueError(f"method {m.id!r} is not a basis (it stores no coefficients)")
+    c = _coeff_array(coeffs, m.storage // 3, name)
+    return tuple(float(v) for v in c.T.reshape(-1))
 
 
-def _run(kernel, normal, k: np.ndarray, name="normal"):
-    """Evaluate ``kernel`` at ``normal`` with coefficients ``k`` (n, 3).
+def basis_inputs(method: str | Method, coeffs, normal) -> dict[str, Any]:
+    """The kernel inputs of basis ``method`` at NumPy ``normal`` (..., 3): ``nx, ny, nz`` (views, no
+    normalisation: the kernel normalises) and ``coeffs`` (the stored floats, Python floats, from
+    coefficients (rows, 3) or (rows,) grey). Run the NumPy text with ``method(NUMPY_OPS, inputs, params)``."""
+    m = _method(method)
+    nx, ny, nz = _normal_args(normal)
+    return {"nx": nx, "ny": ny, "nz": nz, "coeffs": _stored(m, coeffs)}
 
-    Coefficients enter a Dr.Jit kernel as *opaque* size-1 arrays (``dr.opaque``): one compiled kernel for
-    every coefficient value. (Measured: size-1 arrays freshly made from NumPy are folded into the kernel
-    as literals and recompile it on every call, 16 ms per launch on 2 CPU cores.)"""
-    import drjit as dr
 
-    from .arrays import DRJIT_OPS, _backend_float, _numpy_dtype
+def basis_irradiance(method: str | Method, coeffs, normal, params: Mapping[str, float] | None = None):
+    """Irradiance (W/m², RGB) of basis ``method`` (an id of `METHODS` or a `Method`) with coefficients
+    ``coeffs`` (rows, 3) (or (rows,) grey; SH (9, 3) serves every SH basis) at ``normal``.
 
-    nx, ny, nz = _normal_args(normal, name)
-    if is_drjit(normal):
-        Float = type(nx)
-        return kernel(DRJIT_OPS, nx, ny, nz, *[dr.opaque(Float, v) for v in _flat(k, False)])
-    if not isinstance(nx, np.ndarray):  # one normal given as floats: NumPy text in float64
-        return np.array(evaluate(kernel, nx, ny, nz, *_flat(k, False)), dtype=np.float64)
-    shape = np.broadcast_shapes(nx.shape, ny.shape, nz.shape)
-    dtype = _numpy_dtype([nx, ny, nz])
-    size = int(np.prod(shape))
-    if size == 0:
-        return np.zeros(shape + (3,), dtype)
-    Float = _backend_float(dtype)
-    conv = [
-        Float(np.ascontiguousarray(np.broadcast_to(c, shape).reshape(-1), dtype=dtype)) for c in (nx, ny, nz)
-    ]
-    out = kernel(DRJIT_OPS, *conv, *[dr.opaque(Float, v) for v in _flat(k, False)])
-    return np.stack([np.array(o, dtype=dtype).reshape(shape) for o in out], axis=-1)
+    ``params``: the method's free parameters (``{"lam": λ}`` for ``sh-l2-lambda``; defaults otherwise).
+    Returns (..., 3) for NumPy input (its dtype), a length-3 float64 array for a single normal, a tuple
+    (R, G, B) of lazy arrays for Dr.Jit input.
+
+    On Dr.Jit the coefficients and free parameters enter the kernel as *opaque* size-1 arrays
+    (``dr.opaque``): one compiled kernel for every coefficient value. (Measured: size-1 arrays freshly made
+    from NumPy are folded into the kernel as literals and recompile it on every call, 16 ms per launch on
+    2 CPU cores.)"""
+    m = _method(method)
+    stored = _stored(m, coeffs)
+    keywords = m.keywords(params)
+    nx, ny, nz = _normal_args(normal)
+
+    def kernel(ops, nx, ny, nz):
+        c, kw = stored, keywords
+        if ops is DRJIT_OPS:
+            Float = type(nx)
+            c = [dr.opaque(Float, v) for v in stored]
+            kw = {k: dr.opaque(Float, float(v)) if k in m.params else v for k, v in keywords.items()}
+        return m.kernel(ops, nx=nx, ny=ny, nz=nz, coeffs=c, **kw)
+
+    out = evaluate(kernel, nx, ny, nz)
+    if isinstance(out[0], np.ndarray):
+        return np.stack(out, axis=-1)
+    if isinstance(out[0], float):  # one normal given as floats: the NumPy text in float64
+        return np.array(out, dtype=np.float64)
+    return out
 
 
 # ====================================================================================== SH: windows
 def sh_window(kind: str, order: int = 2, lam: float = 0.0) -> np.ndarray:
-    """Per-band window factors w_0..w_order for ``kind`` in {"none", "hann", "lanczos", "lambda"}."""
+    """Per-band window factors w_0..w_order for ``kind`` in {"none", "hann", "lanczos", "lambda"} (the text
+    the SH kernel applies): Hann ½(1 + cos(πl/(L+1))), Lanczos sinc(l/(L+1)), λ 1/(1 + λ l²(l + 1)²)."""
     if order not in (1, 2):
         raise ValueError(f"order must be 1 or 2 (got {order!r})")
-    ls = np.arange(order + 1, dtype=np.float64)
-    if kind == "none":
-        return np.ones(order + 1)
-    if kind == "hann":
-        return 0.5 * (1.0 + np.cos(np.pi * ls / (order + 1)))
-    if kind == "lanczos":
-        x = np.pi * ls / (order + 1)
-        return np.where(ls == 0, 1.0, np.sin(x) / np.where(ls == 0, 1.0, x))
-    if kind == "lambda":
+    if kind not in _WINDOW_FACTORS:
+        raise ValueError(f"window kind must be one of {WINDOWS} (got {kind!r})")
+    if kind == "lambda":  # guard: λ < 0 makes w_l grow with l (and divide by zero at λ = −1/4)
         lam = float(lam)
         if not (lam >= 0.0 and math.isfinite(lam)):
             raise ValueError(f"lam must be a finite number >= 0 (got {lam!r})")
-        return 1.0 / (1.0 + lam * ls * ls * (ls + 1.0) ** 2)
-    raise ValueError(f"window kind must be one of {WINDOWS} (got {kind!r})")
-
-
-def _convolved(coeffs, order: int, window: np.ndarray | None) -> np.ndarray:
-    n = (order + 1) ** 2
-    c = _coeff_array(coeffs, n, "coeffs")
-    w = np.ones(order + 1) if window is None else np.asarray(window, dtype=np.float64)
-    if w.shape != (order + 1,) or not np.all(np.isfinite(w)):
-        raise ValueError(f"window must be {order + 1} finite band factors (got {np.shape(window)})")
-    scale = np.array([A_HAT[_BAND[i]] * w[_BAND[i]] for i in range(n)])
-    return c * scale[:, None]
+    return np.array(_WINDOW_FACTORS[kind](order, lam), dtype=np.float64)
 
 
 # ====================================================================================== SH: public
@@ -292,6 +488,14 @@ def sh9_basis(direction) -> np.ndarray:
     _normal_args(d, "direction")
     d = d / np.linalg.norm(d, axis=-1, keepdims=True)
     return np.stack(_basis(d[..., 0], d[..., 1], d[..., 2]), axis=-1)
+
+
+def sh9_from_constant(radiance) -> np.ndarray:
+    """SH coefficients (9, 3) of a constant environment of radiance ``radiance`` (W·m⁻²·sr⁻¹, scalar or
+    RGB): L_00 = ∫ L Y00 dω = L·4π·Y00 = L√(4π), every other coefficient 0."""
+    sh = np.zeros((9, 3))
+    sh[0] = np.asarray(radiance, dtype=np.float64) * math.sqrt(4 * math.pi)
+    return sh
 
 
 def sh9_from_directional(direction) -> np.ndarray:
@@ -322,11 +526,19 @@ def sh9_from_disk(direction, angular_radius: float, irradiance=1.0) -> np.ndarra
 def sh_irradiance(coeffs, normal, order: int = 2, window=None):
     """E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n) for coefficients (9, 3) (or (9,) grey; L1 uses the first 4).
 
-    ``window``: per-band factors (see `sh_window`) or None. Returns (..., 3) for NumPy input, a length-3
-    array for a single normal, a tuple (R, G, B) of lazy arrays for Dr.Jit input."""
+    ``window``: per-band factors (see `sh_window`) or None; they scale the coefficients (w_l L_lm) before
+    the ``sh-l1``/``sh-l2`` kernel. Returns (..., 3) for NumPy input, a length-3 array for a single normal,
+    a tuple (R, G, B) of lazy arrays for Dr.Jit input (see `basis_irradiance`)."""
     if order not in (1, 2):
         raise ValueError(f"order must be 1 or 2 (got {order!r})")
-    return _run(_sh_kernel, normal, _convolved(coeffs, order, window))
+    method = METHODS["sh-l2" if order == 2 else "sh-l1"]
+    c = _coeff_array(coeffs, (order + 1) ** 2, "coeffs")
+    if window is not None:
+        w = np.asarray(window, dtype=np.float64)
+        if w.shape != (order + 1,) or not np.all(np.isfinite(w)):
+            raise ValueError(f"window must be {order + 1} finite band factors (got {np.shape(window)})")
+        c = c * w[list(_BAND[: len(c)]), None]
+    return basis_irradiance(method, c, normal)
 
 
 def sh9_irradiance(coeffs, normal, window=None):
@@ -339,40 +551,32 @@ def sh4_irradiance(coeffs, normal):
     return sh_irradiance(coeffs, normal, 1)
 
 
-def _geomerics_params(coeffs) -> np.ndarray:
-    c = _coeff_array(coeffs, 4, "coeffs")
-    r0 = A_HAT[0] * SH_C[0] * c[0]
-    half = 0.5 * A_HAT[1] * SH_C[1]
-    return np.stack([r0, half * c[3], half * c[1], half * c[2]])  # (R0, R1x, R1y, R1z) × 3 channels
-
-
 def sh4_irradiance_geomerics(coeffs, normal):
     """Geomerics' non-negative L1 reconstruction (see the module docstring) from SH coefficients (≥ 4, 3)."""
-    return _run(_geomerics_kernel, normal, _geomerics_params(coeffs))
+    return basis_irradiance("sh-l1-geomerics", coeffs, normal)
 
 
 # ====================================================================================== ambient cube
 def ambient_cube_irradiance(cube, normal):
     """Valve's ambient cube: Σ n_i² C[sign of n_i] for ``cube`` (6, 3) in the order +x, −x, +y, −y, +z, −z."""
-    return _run(_cube_kernel, normal, _coeff_array(cube, 6, "cube"))
+    return basis_irradiance("cube-valve", _coeff_array(cube, 6, "cube"), normal)
 
 
 def ambient_cube_from_axes(irradiance_at_axes) -> np.ndarray:
-    """Valve's cube: the irradiance sampled at the six axes (already in cube order) → (6, 3)."""
+    """Valve's cube: the irradiance sampled at the six axes (`CUBE_AXES`, already in cube order) → (6, 3)."""
     return _coeff_array(irradiance_at_axes, 6, "irradiance_at_axes").copy()
 
 
 def cube_design_matrix(normals) -> np.ndarray:
-    """(N, 6) weights of the six cube colours at unit ``normals`` (N, 3): n_i² on the side of its sign."""
+    """(N, 6) weights of the six cube colours at ``normals`` (N, 3): n_i² on the side of its sign, i.e.
+    column j is the cube kernel's red channel with C = e_j (the NumPy text of the same kernel)."""
     n = np.asarray(normals, dtype=np.float64)
-    _normal_args(n, "normals")
-    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    m = np.zeros((len(n), 6))
-    for i in range(3):
-        sq = n[:, i] ** 2
-        m[:, 2 * i] = np.where(n[:, i] >= 0, sq, 0.0)
-        m[:, 2 * i + 1] = np.where(n[:, i] < 0, sq, 0.0)
-    return m
+    if n.ndim != 2:
+        raise ValueError(f"normals must have shape (N, 3) (got shape {n.shape})")
+    m = METHODS["cube-valve"]
+    eye = np.eye(18)
+    cols = [m(NUMPY_OPS, basis_inputs(m, eye[j].reshape(3, 6).T, n))[0] for j in range(6)]
+    return np.stack(cols, axis=-1)
 
 
 def fit_ambient_cube_nnls(normals, irradiance, weights=None) -> tuple[np.ndarray, np.ndarray]:
@@ -381,7 +585,7 @@ def fit_ambient_cube_nnls(normals, irradiance, weights=None) -> tuple[np.ndarray
     ``normals`` (N, 3), ``irradiance`` (N, 3) or (N,), optional ``weights`` (N,) ≥ 0 (default uniform:
     a uniform sphere sampling such as `fibonacci_sphere` then minimises the sphere-integrated error).
     Returns (cube (6, 3), rms residual per channel (3,))."""
-    from scipy.optimize import nnls
+    from scipy.optimize import nnls  # scipy: heavy, only the NNLS bake needs it
 
     a = cube_design_matrix(normals)
     e = np.asarray(irradiance, dtype=np.float64)
@@ -421,16 +625,18 @@ def fit_window_lambda(coeffs, normals=None, tolerance: float = 0.0, lam_max: flo
     # the experiment found 2 of 4096 normals slightly negative).
     thr = (-float(tolerance) if tolerance > 0 else 1e-4) * np.maximum(dc, 0.0)
 
-    def ok(lam):
-        k = _convolved(c, 2, sh_window("lambda", 2, lam))
-        e = np.stack(evaluate_numpy(_sh_kernel, n[:, 0], n[:, 1], n[:, 2], *_flat(k, False)), axis=-1)
+    method = METHODS["sh-l2-lambda"]
+    inputs = basis_inputs(method, c, n)
+
+    def ok(lam):  # the NumPy text of the λ-window kernel, float64
+        e = np.stack(method(NUMPY_OPS, inputs, {"lam": lam}), axis=-1)
         return bool(np.all(e >= thr[None, :]))
 
     if ok(0.0):
         return 0.0
     if not ok(lam_max):
         return float(lam_max)
-    lo, hi = 0.0, 1e-6
+    lo, hi = 0.0, method.params["lam"].initial  # 1e-6: the bracket grows ×4 from λ's start value
     while not ok(hi):
         lo, hi = hi, hi * 4.0
     for _ in range(60):
@@ -516,46 +722,3 @@ def sh_project_samples(directions, weights, radiance) -> np.ndarray:
 def sh_project_latlong(radiance, supersample: int = 2) -> np.ndarray:
     """SH L2 coefficients (9, 3) of a Mitsuba-convention lat-long radiance map (see `latlong_samples`)."""
     return sh_project_samples(*latlong_samples(radiance, supersample))
-
-
-# ====================================================================================== NumPy twins
-_KERNELS: dict[str, Callable] = {
-    "sh": _sh_kernel,
-    "ambient_cube": _cube_kernel,
-    "geomerics": _geomerics_kernel,
-}
-
-
-def kernel_args(method: str, coeffs, window=None) -> list[float]:
-    """The flat per-coefficient arguments (floats) the kernel of ``method`` takes after nx, ny, nz:
-    ``method`` in {"sh-l1", "sh-l2", "ambient-cube", "sh-l1-geomerics"}."""
-    if method == "sh-l2":
-        return _flat(_convolved(coeffs, 2, window), False)
-    if method == "sh-l1":
-        return _flat(_convolved(coeffs, 1, None), False)
-    if method == "ambient-cube":
-        return _flat(_coeff_array(coeffs, 6, "cube"), False)
-    if method == "sh-l1-geomerics":
-        return _flat(_geomerics_params(coeffs), False)
-    raise ValueError(f"unknown method {method!r}")
-
-
-def numpy_reference(name: str) -> Callable:
-    """NumPy evaluation of the SAME kernel text: ``name`` in {"sh", "ambient_cube", "geomerics"}; call as
-    ``f(nx, ny, nz, *kernel_args(...))`` → tuple (R, G, B). No validation (benchmarks and tests)."""
-    if name not in _KERNELS:
-        raise ValueError(f"unknown kernel {name!r}; known: {sorted(_KERNELS)}")
-    kernel = _KERNELS[name]
-
-    def run(*args):
-        return evaluate_numpy(kernel, *args)
-
-    return run
-
-
-def drjit_kernel(name: str) -> Callable:
-    """The Dr.Jit path of kernel ``name`` (arguments: Dr.Jit Floats nx, ny, nz, then coefficients)."""
-    from .arrays import DRJIT_OPS
-
-    kernel = _KERNELS[name]
-    return lambda *args: kernel(DRJIT_OPS, *args)

@@ -1,4 +1,5 @@
-"""rtfit.realtime.irradiance against independent values: R&H closed forms, scipy quadrature, Dr.Jit's sh_eval."""
+"""rtfit.realtime.irradiance_bases against independent values: R&H closed forms, scipy quadrature and
+Dr.Jit's sh_eval; the method table; the dispatched run of each basis against its NumPy text."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import integrate
 
-from rtfit.realtime import irradiance as ir
+from rtfit.realtime import NUMPY_OPS
+from rtfit.realtime import irradiance_bases as ir
 
 
 def _theta_normals(theta):
@@ -43,12 +45,10 @@ def test_basis_matches_drjit_sh_eval_up_to_condon_shortley():
 
 def test_basis_orthonormal_by_scipy_quadrature():
     def g(i, j):
-        f = lambda ph, th: (
-            ir.sh9_basis(np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)]))[
-                [i, j]
-            ].prod()
-            * math.sin(th)
-        )
+        def f(ph, th):
+            d = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
+            return ir.sh9_basis(d)[[i, j]].prod() * math.sin(th)
+
         return integrate.dblquad(f, 0, math.pi, 0, 2 * math.pi, epsabs=1e-9)[0]
 
     for i, j in ((0, 0), (3, 3), (6, 6), (8, 8), (1, 3), (4, 8)):
@@ -75,11 +75,14 @@ def test_disk_sun_sh_matches_scipy_projection():
     t /= np.linalg.norm(t)
     b = np.cross(d, t)
     for k in (0, 2, 3, 6, 8):
-        f = lambda ph, g: (
-            ir.sh9_basis(math.cos(g) * d + math.sin(g) * (math.cos(ph) * t + math.sin(ph) * b))[k]
-            * math.sin(g)
-            * radiance
-        )
+
+        def f(ph, g, k=k):
+            return (
+                ir.sh9_basis(math.cos(g) * d + math.sin(g) * (math.cos(ph) * t + math.sin(ph) * b))[k]
+                * math.sin(g)
+                * radiance
+            )
+
         assert integrate.dblquad(f, 0, alpha, 0, 2 * math.pi, epsabs=1e-10)[0] == pytest.approx(
             want[k], abs=1e-7
         )
@@ -201,20 +204,68 @@ def test_property_finite_and_bounded(x, y, z, lx, ly, lz, scale):
 
 
 def test_drjit_and_numpy_paths_agree():
+    # the dispatched (Dr.Jit, opaque coefficients) run of every basis against its NumPy text
     rng = np.random.default_rng(5)
     n = rng.normal(size=(64, 3))
     c = rng.normal(size=(9, 3))
     cube = rng.uniform(0, 2, (6, 3))
-    for method, kname, coeffs, got in (
-        ("sh-l2", "sh", c, ir.sh9_irradiance(c, n)),
-        ("sh-l1", "sh", c, ir.sh4_irradiance(c, n)),
-        ("sh-l1-geomerics", "geomerics", np.abs(c), ir.sh4_irradiance_geomerics(np.abs(c), n)),
-        ("ambient-cube", "ambient_cube", cube, ir.ambient_cube_irradiance(cube, n)),
-    ):
-        want = np.stack(
-            ir.numpy_reference(kname)(n[:, 0], n[:, 1], n[:, 2], *ir.kernel_args(method, coeffs)), -1
-        )
-        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    for m in ir.METHODS.values():
+        if m.exact:
+            continue
+        coeffs = cube if m.storage == 18 else np.abs(c) if m.id == "sh-l1-geomerics" else c
+        params = {"lam": 0.05} if m.params else None
+        got = ir.basis_irradiance(m, coeffs, n, params)
+        want = np.stack(m(NUMPY_OPS, ir.basis_inputs(m, coeffs, n), params), -1)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12, err_msg=m.id)
+    # the wrappers are the table's methods
+    np.testing.assert_allclose(ir.sh9_irradiance(c, n), ir.basis_irradiance("sh-l2", c, n))
+    np.testing.assert_allclose(ir.sh4_irradiance(c, n), ir.basis_irradiance("sh-l1", c, n))
+    np.testing.assert_allclose(ir.ambient_cube_irradiance(cube, n), ir.basis_irradiance("cube-nnls", cube, n))
+    np.testing.assert_allclose(
+        ir.sh9_irradiance(c, n, ir.sh_window("hann")), ir.basis_irradiance("sh-l2-hann", c, n), rtol=1e-12
+    )
+    np.testing.assert_allclose(
+        ir.sh9_irradiance(c, n, ir.sh_window("lambda", 2, 0.3)),
+        ir.basis_irradiance("sh-l2-lambda", c, n, {"lam": 0.3}),
+        rtol=1e-12,
+    )
+
+
+def test_method_table():
+    # storage = floats per probe (RGB), one exact row, λ the one free parameter (bounded below by 0)
+    storage = {m.id: m.storage for m in ir.METHODS.values()}
+    assert storage["cube-valve"] == storage["cube-nnls"] == 18
+    assert storage["sh-l1"] == storage["sh-l1-geomerics"] == 12
+    assert storage["sh-l2"] == storage["sh-l2-lambda"] == 27
+    assert [m.id for m in ir.METHODS.values() if m.exact] == ["quadrature"]
+    assert [m.id for m in ir.METHODS.values() if m.fitted] == ["sh-l2-lambda"]
+    lam = ir.METHODS["sh-l2-lambda"].params["lam"]
+    assert lam.lower == 0.0 and lam.upper == math.inf
+    for m in ir.METHODS.values():
+        assert m.label and m.formula and m.source and m.quantity == "irradiance"
+        if not m.exact:
+            assert m.input_names == ("nx", "ny", "nz", "coeffs")
+    with pytest.raises(ValueError, match="not a basis"):
+        ir.basis_irradiance("quadrature", np.ones((9, 3)), [0, 0, 1.0])
+    with pytest.raises(ValueError, match="unknown irradiance basis"):
+        ir.basis_irradiance("sh-l3", np.ones((9, 3)), [0, 0, 1.0])
+
+
+def test_cube_design_matrix_against_its_definition():
+    n = ir.fibonacci_sphere(200)
+    want = np.zeros((len(n), 6))
+    for i in range(3):
+        want[:, 2 * i] = np.where(n[:, i] >= 0, n[:, i] ** 2, 0.0)
+        want[:, 2 * i + 1] = np.where(n[:, i] < 0, n[:, i] ** 2, 0.0)
+    np.testing.assert_allclose(ir.cube_design_matrix(n), want, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(ir.cube_design_matrix(np.array(ir.CUBE_AXES)), np.eye(6))
+
+
+def test_constant_sh():
+    c = ir.sh9_from_constant([1.0, 2.0, 3.0])
+    np.testing.assert_allclose(
+        ir.sh9_irradiance(c, ir.fibonacci_sphere(20)), np.pi * np.array([[1.0, 2.0, 3.0]] * 20)
+    )
 
 
 @settings(max_examples=30, deadline=None)
