@@ -44,7 +44,7 @@ The kernel therefore uses the half-angle (l'Huilier-type) forms with s = (r1 + r
 and the sector form Ω = 4(β1 h1² + β2 h2²) − 2E, whose terms all scale with the caps' size. Every sine is
 evaluated by the project's Taylor polynomial on [0, π/2] (`sincos_first_quadrant`; CUDA's float32 sin/cos are
 approximate). Measured error, as a fraction of the smaller cap: ≤ 1e-14 in float64 and ≤ 4e-6 in float32
-over the whole domain, tangencies included (tests/test_aperture.py).
+over the whole domain, tangencies included (tests/test_ambient_aperture.py).
 
 Seed erratum (000:2672-2687). The printed *IntersectArea* has a sign error in its third term: it gives
 −7.92 for r0 = r1 = d = 0.5, where the correct value (Monte Carlo, quadrature, this formula) is 0.3078.
@@ -73,9 +73,10 @@ x = (d − |r1 − r2|)/(r1 + r2 − |r1 − r2|) = (d − (r_max − r_min))/(2
       Ω ≈ L + A(r_min) · f,  L = A(r1) + A(r2) − 4π if complemented else 0
 
   f is 0 at t = 0 and 1 at t = 1 for any coefficients, so the nested and disjoint limits stay exact and
-  Ω never leaves [0, A(smaller cap)]. The coefficients c0..c5 are least-squares fitted (optimistix) to the
-  exact formula over a dense (r1, r2, d) grid by the ``ambient-aperture`` experiment; `FITTED_COEFFS` holds
-  the values of that fit. Cost: one more division (ρ) and six fused multiply-adds over the smoothstep.
+  Ω never leaves [0, A(smaller cap)]. The coefficients c0..c5 are least-squares fitted
+  (`rtfit.fitting.fit_method`, through this kernel's JAX run) to the exact formula over a dense
+  (r1, r2, d) grid by the ``ambient-aperture`` experiment; `FITTED_COEFFS` holds the values of that fit.
+  Cost: one more division (ρ) and six fused multiply-adds over the smoothstep.
 
 Shading (`ambient_aperture_irradiance`)
 ---------------------------------------
@@ -97,6 +98,13 @@ light direction l), aperture r_a ∈ [0, π/2] and light radius α ∈ [0, π/2]
 
 Baking (`aperture_from_visibility`): the visible fraction V of the hemisphere (uniform directions) gives the
 aperture of equal solid angle, 2π V = A(r_a): r_a = acos(1 − V) = 2 asin(√(V/2)) (000:2660-2668).
+
+Methods as data (`METHODS`): every form above is one `rtfit.realtime.methods.Method` row — the four
+intersection forms (ids ``exact``, ``smoothstep``, ``linear``, ``fitted``; inputs r1, r2, d in rad, Ω in
+sr), the light terms ``aa-<intersection>-<lambert>`` (W/m²) and the sky fills ``fill-<fill>`` (W/m²), with
+the fitted form's c0..c5 and the Lambert exponent k as free parameters (defaults: the shipped fitted values).
+The public functions below and the table run the same kernels; the kernels are selected by data
+(`INTERSECTION_KERNELS`, `LAMBERT_WEIGHTS`, `FILL_KERNELS`), not by branching on names.
 
 Domain and validation: as `rtfit.realtime.diffuse` — floats, NumPy arrays (one-line ValueError naming the
 interval for values outside) or Dr.Jit arrays (not checked; the kernels clamp radii and d into [0, π],
