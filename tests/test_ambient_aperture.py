@@ -307,3 +307,47 @@ def test_shading_drjit_matches_numpy_and_is_finite():
                 for a, b in zip(e64, e32, strict=True):
                     assert np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(a >= 0)
                     assert np.allclose(a, b, atol=2e-4)
+
+
+def test_methods_table_matches_the_public_functions():
+    """Every row of `METHODS` runs the same kernel as the public function it stands for (bit for bit on the
+    default backend), its NumPy run agrees to rounding, and its parameter defaults are the shipped values."""
+    rng = np.random.default_rng(4)
+    n = 2000
+    caps = dict(zip(("r1", "r2", "d"), rng.uniform(0, PI, (3, n)), strict=True))
+    public = {
+        "exact": ap.cap_intersection_solid_angle,
+        "smoothstep": ap.cap_intersection_smoothstep,
+        "linear": ap.cap_intersection_linear,
+        "fitted": ap.cap_intersection_fitted,
+    }
+    for form, fn in public.items():
+        m = ap.METHODS[form]
+        assert [i.unit for i in m.inputs] == ["rad"] * 3 and m.exact == (form == "exact")
+        x = m.evaluate(caps)
+        assert np.array_equal(x, fn(**caps)), form
+        assert np.allclose(m(NUMPY_OPS, caps), x, rtol=0, atol=1e-13), form
+    assert tuple(ap.METHODS["fitted"].defaults().values()) == ap.FITTED_COEFFS
+    assert ap.METHODS["aa-fitted-fitted"].defaults()["k"] == ap.FITTED_LAMBERT_K
+    shade = {
+        "cos_na": rng.uniform(-1, 1, n),
+        "cos_nl": rng.uniform(-1, 1, n),
+        "cos_al": rng.uniform(-1, 1, n),
+        "aperture": rng.uniform(0, PI / 2, n),
+        "alpha": rng.uniform(0, PI / 2, n),
+    }
+    args = [shade[k] for k in ("cos_na", "cos_nl", "cos_al", "aperture", "alpha")]
+    rows = [m for m in ap.METHODS.values() if m.quantity != "cap_intersection_solid_angle"]
+    assert {m.id for m in rows} >= {"aa-smoothstep-seed", "aa-fitted-fitted", "fill-seed", "fill-projected"}
+    for m in rows:
+        kind, form, variant = m.id.split("-") if m.id.startswith("aa-") else ("fill", "exact", m.id[5:])
+        if kind == "aa":
+            want, _ = ap.ambient_aperture_irradiance(*args, 1.5, 0.0, intersection=form, lambert=variant)
+            got = m.evaluate({**shade, "radiance": 1.5})
+        else:  # the fill alone: no light (α = 0)
+            zero = np.zeros(n)
+            _, want = ap.ambient_aperture_irradiance(
+                args[0], zero, zero - 1, args[3], zero, 0.0, 2.0, fill=variant
+            )
+            got = m.evaluate({"cos_na": args[0], "aperture": args[3], "sky_radiance": 2.0})
+        assert np.array_equal(got, want), m.id
