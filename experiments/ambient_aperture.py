@@ -196,33 +196,33 @@ def _rows(quantity: str) -> tuple[Row, ...]:
 
 LIGHTINGS = (
     Lighting(
-        "light",
-        "sphere light",
-        "",
-        (
+        id="light",
+        label="sphere light",
+        scene_suffix="",
+        rows=(
             Row("cap-model", "Cap model, exact integral", _cap_model_light),
             *_rows("light_irradiance"),
             Row("unshadowed", "No occlusion (exact sphere light)", _unshadowed),
         ),
-        ("cap-model", "aa-smoothstep-seed", "aa-exact-seed", "aa-fitted-fitted"),
-        lambda probes, peak: {
+        show=("cap-model", "aa-smoothstep-seed", "aa-exact-seed", "aa-fitted-fitted"),
+        parameters=lambda probes, peak: {
             "light_alpha_deg_mean": float(np.degrees(probes["alpha"]).mean()),
             "peak_irradiance": peak,
         },
     ),
     Lighting(
-        "sky",
-        "constant sky",
-        "-sky",
-        (
+        id="sky",
+        label="constant sky",
+        scene_suffix="-sky",
+        rows=(
             # For a uniform sky the exact integral over the baked cap is its projected solid angle: the
             # closed form of the ``fill-projected`` kernel (no light to subtract).
             Row("cap-model", "Cap model, exact integral", method_row(METHODS["fill-projected"]).value),
             *_rows("sky_irradiance"),
             Row("unoccluded", "No occlusion (π L_sky)", _unoccluded_sky),
         ),
-        ("cap-model", "fill-seed", "fill-projected"),
-        lambda probes, peak: {"sky_radiance": probes["sky_radiance"]},
+        show=("cap-model", "fill-seed", "fill-projected"),
+        parameters=lambda probes, peak: {"sky_radiance": probes["sky_radiance"]},
     ),
 )
 
