@@ -12,8 +12,8 @@ Modules:
     arrays      the ops namespaces (Dr.Jit, NumPy, JAX), dispatch, guards and small stable helpers.
     methods     methods as data: `Method`, `Param`, `Input`, `method_table`.
     phase       phase functions (Rayleigh, Henyey–Greenstein, Cornette–Shanks), one text for all media.
-    aperture    ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection and
-                shading (docs/ambient-aperture.md).
+    ambient_aperture  ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection
+                and shading (docs/ambient-aperture.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
     irradiance_bases  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
                 (docs/irradiance-bases.md).
@@ -29,7 +29,7 @@ Modules:
 # Star imports re-export each module's ``__all__`` (tests/test_layering.py checks that every public
 # function of every module is in its ``__all__`` and that no two modules export the same name).
 from . import arrays
-from .aperture import *  # noqa: F403
+from .ambient_aperture import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .fog import *  # noqa: F403
@@ -44,7 +44,7 @@ MODULES = (
     "arrays",
     "methods",
     "phase",
-    "aperture",
+    "ambient_aperture",
     "diffuse",
     "fog",
     "irradiance_bases",

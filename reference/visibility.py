@@ -24,6 +24,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+import drjit as dr
 import numpy as np
 
 from .build import load_mitsuba_scene
@@ -32,7 +33,8 @@ from .estimators import MAX_LANES, sub_seed
 
 @dataclass(frozen=True)
 class BakedVisibility:
-    """Per point: visible fraction of the hemisphere, its binomial standard error, bent normal, aperture (rad)."""
+    """Per point: visible fraction of the hemisphere, its binomial standard error, bent normal and aperture
+    (rad)."""
 
     visible_fraction: np.ndarray  # (N,) float64 in [0, 1]
     stderr: np.ndarray  # (N,)
@@ -67,8 +69,6 @@ def bake_visibility(
     side = round(math.sqrt(n_dirs))
     if n_dirs < 4 or side * side != n_dirs:
         raise ValueError(f"n_dirs must be a perfect square >= 4 (got {n_dirs})")
-
-    import drjit as dr
 
     mi, mi_scene = load_mitsuba_scene(_geometry_only(scene), variant)
     n = len(points)
@@ -113,8 +113,6 @@ def surface_points(scene, xy, z_top: float, variant: str = "llvm_ad_rgb", geomet
     to face up (+z side), rows without a hit have ``valid`` False and zeros. With ``geometry_only`` the
     lights are removed first (a sphere light above the receiver would otherwise be hit).
     """
-    import drjit as dr
-
     xy = np.ascontiguousarray(xy, dtype=np.float64)
     if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
         raise ValueError(f"xy must be a finite (N, 2) array (got shape {xy.shape})")

@@ -44,7 +44,7 @@ The kernel therefore uses the half-angle (l'Huilier-type) forms with s = (r1 + r
 and the sector form Ω = 4(β1 h1² + β2 h2²) − 2E, whose terms all scale with the caps' size. Every sine is
 evaluated by the project's Taylor polynomial on [0, π/2] (`sincos_first_quadrant`; CUDA's float32 sin/cos are
 approximate). Measured error, as a fraction of the smaller cap: ≤ 1e-14 in float64 and ≤ 4e-6 in float32
-over the whole domain, tangencies included (tests/test_aperture.py).
+over the whole domain, tangencies included (tests/test_ambient_aperture.py).
 
 Seed erratum (000:2672-2687). The printed *IntersectArea* has a sign error in its third term: it gives
 −7.92 for r0 = r1 = d = 0.5, where the correct value (Monte Carlo, quadrature, this formula) is 0.3078.
@@ -73,9 +73,10 @@ x = (d − |r1 − r2|)/(r1 + r2 − |r1 − r2|) = (d − (r_max − r_min))/(2
       Ω ≈ L + A(r_min) · f,  L = A(r1) + A(r2) − 4π if complemented else 0
 
   f is 0 at t = 0 and 1 at t = 1 for any coefficients, so the nested and disjoint limits stay exact and
-  Ω never leaves [0, A(smaller cap)]. The coefficients c0..c5 are least-squares fitted (optimistix) to the
-  exact formula over a dense (r1, r2, d) grid by the ``ambient-aperture`` experiment; `FITTED_COEFFS` holds
-  the values of that fit. Cost: one more division (ρ) and six fused multiply-adds over the smoothstep.
+  Ω never leaves [0, A(smaller cap)]. The coefficients c0..c5 are least-squares fitted
+  (`rtfit.fitting.fit_method`, through this kernel's JAX run) to the exact formula over a dense
+  (r1, r2, d) grid by the ``ambient-aperture`` experiment; `FITTED_COEFFS` holds the values of that fit.
+  Cost: one more division (ρ) and six fused multiply-adds over the smoothstep.
 
 Shading (`ambient_aperture_irradiance`)
 ---------------------------------------
@@ -98,6 +99,13 @@ light direction l), aperture r_a ∈ [0, π/2] and light radius α ∈ [0, π/2]
 Baking (`aperture_from_visibility`): the visible fraction V of the hemisphere (uniform directions) gives the
 aperture of equal solid angle, 2π V = A(r_a): r_a = acos(1 − V) = 2 asin(√(V/2)) (000:2660-2668).
 
+Methods as data (`METHODS`): every form above is one `rtfit.realtime.methods.Method` row — the four
+intersection forms (ids ``exact``, ``smoothstep``, ``linear``, ``fitted``; inputs r1, r2, d in rad, Ω in
+sr), the light terms ``aa-<intersection>-<lambert>`` (W/m²) and the sky fills ``fill-<fill>`` (W/m²), with
+the fitted form's c0..c5 and the Lambert exponent k as free parameters (defaults: the shipped fitted values).
+The public functions below and the table run the same kernels; the kernels are selected by data
+(`INTERSECTION_KERNELS`, `LAMBERT_WEIGHTS`, `FILL_KERNELS`), not by branching on names.
+
 Domain and validation: as `rtfit.realtime.diffuse` — floats, NumPy arrays (one-line ValueError naming the
 interval for values outside) or Dr.Jit arrays (not checked; the kernels clamp radii and d into [0, π],
 cosines into [−1, 1]).
@@ -106,9 +114,8 @@ cosines into [−1, 1]).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-
-import numpy as np
+from collections.abc import Callable, Mapping, Sequence
+from types import MappingProxyType
 
 from .arrays import (
     check_range,
@@ -121,6 +128,7 @@ from .arrays import (
     sincos_first_quadrant,
 )
 from .diffuse import _sphere_light_kernel
+from .methods import Input, Method, Param, method_table
 
 __all__ = [
     "FILL_FORMS",
@@ -135,8 +143,6 @@ __all__ = [
     "cap_intersection_linear",
     "cap_intersection_smoothstep",
     "cap_intersection_solid_angle",
-    "intersection_kernel",
-    "numpy_reference",
     "seed_printed_intersect_area",
 ]
 
@@ -157,10 +163,6 @@ FITTED_LAMBERT_K: float = 1.19
 `rtfit.experiments.ambient_aperture.fit_lambert_job` with its full configuration (6000 random configurations,
 2018 with overlap; k = 1.190 ± 0.019); RMS error of the Lambert-weighted intersection 0.015 of the light cap,
 against 0.159 for the seed's plain average."""
-
-INTERSECTION_FORMS = ("exact", "smoothstep", "linear", "fitted")
-LAMBERT_FORMS = ("seed", "fitted")
-FILL_FORMS = ("seed", "projected")
 
 
 # ===================================================================================== kernels (ops text)
@@ -285,10 +287,10 @@ def _linear_kernel(ops, r1, r2, d):
 def _fitted_kernel(ops, r1, r2, d, c0, c1, c2, c3, c4, c5):
     """Complement trick + smoothstep corrected by a fitted t(1 − t)·(bilinear in u, ρ, σ) term.
 
-    With the complement (r1 + r2 > π), |C1 ∩ C2| = A(r1) + A(r2) − 4π + A(q_min)·f = A(r_min) − A(q_min)(1 − f),
-    since A(r_min) = A(r1) + A(r2) − 4π + A(q_min) when q_min = π − r_max: written that way there is no
-    4π − A(·) cancellation in float32 and only two cap areas are evaluated (q_min ≤ π/2 takes the shorter
-    polynomial)."""
+    With the complement (r1 + r2 > π), |C1 ∩ C2| = A(r1) + A(r2) − 4π + A(q_min)·f, which equals
+    A(r_min) − A(q_min)(1 − f) since A(r_min) = A(r1) + A(r2) − 4π + A(q_min) when q_min = π − r_max:
+    written that way there is no 4π − A(·) cancellation in float32 and only two cap areas are evaluated
+    (q_min ≤ π/2 takes the shorter polynomial)."""
     r1 = ops.clip(r1, 0.0, PI)
     r2 = ops.clip(r2, 0.0, PI)
     d = ops.clip(d, 0.0, PI)
@@ -329,23 +331,6 @@ def _seed_printed_kernel(ops, r0, r1, d):
     return t1 - t2 - t3 - TWO_PI * ops.cos(r1)
 
 
-_INTERSECTION_KERNELS: dict[str, Callable] = {
-    "exact": _exact_kernel,
-    "smoothstep": _smoothstep_kernel,
-    "linear": _linear_kernel,
-}
-
-
-def intersection_kernel(form: str, coeffs: Sequence[float] | None = None) -> Callable:
-    """The ops-kernel ``k(ops, r1, r2, d)`` of an intersection form (for composition and benchmarks)."""
-    if form == "fitted":
-        c = _coeffs(coeffs)
-        return lambda ops, r1, r2, d: _fitted_kernel(ops, r1, r2, d, *c)
-    if form not in _INTERSECTION_KERNELS:
-        raise ValueError(f"intersection form must be one of {INTERSECTION_FORMS} (got {form!r})")
-    return _INTERSECTION_KERNELS[form]
-
-
 def _angle_from_cos(ops, c):
     """acos(c) as atan2(√((1 − c)(1 + c)), c): full relative accuracy of the sine near c = ±1."""
     c = clamp_cos(ops, c)
@@ -360,40 +345,246 @@ def _centroid_cos(ops, cos_na, cos_nl, cos_al, w):
     return clamp_cos(ops, safe_div(ops, dot, safe_sqrt(ops, norm2)))
 
 
-def _shading_kernel_factory(form: str, lambert: str, fill: str, coeffs, k: float):
-    inter = intersection_kernel(form, coeffs)
+# Lambert factor: the weight w of the light direction in the centroid c = normalize(w l + (1 − w) a).
+def _seed_weight(ops, r_a, alpha, k):
+    """The seed's plain average of the two directions (000:2763-2772): w = ½ (k unused)."""
+    return 0.5
 
-    def kernel(ops, cos_na, cos_nl, cos_al, r_a, alpha, radiance, sky):
-        r_a = ops.clip(r_a, 0.0, 0.5 * PI)
-        alpha = ops.clip(alpha, 0.0, 0.5 * PI)
-        cos_na = clamp_cos(ops, cos_na)
-        d = _angle_from_cos(ops, cos_al)
-        omega = inter(ops, r_a, alpha, d)
-        if lambert == "seed":
-            w = 0.5
-        else:
-            # w = A_a^k / (A_a^k + A_l^k) = 1 / (1 + (A_l/A_a)^k): one power, no overflow for tiny caps.
-            aa = _cap_area_kernel(ops, r_a)
-            al = _cap_area_kernel(ops, alpha)
-            ratio = ops.minimum(safe_div(ops, al, aa), 1e30)
-            w = 1.0 / (1.0 + ops.power(ratio, k))
-        lam = ops.maximum(_centroid_cos(ops, cos_na, cos_nl, cos_al, w), 0.0)
-        e_light = radiance * (omega * lam)
-        if fill == "seed":
-            aperture = _cap_area_kernel(ops, r_a)
-            e_fill = sky * (ops.maximum(aperture - omega, 0.0) * ops.maximum(cos_na, 0.0))
-        else:
-            proj = _sphere_light_kernel(ops, cos_na, r_a, 1.0)  # ∫_aperture max(n·ω, 0) dω
-            e_fill = sky * ops.maximum(proj - omega * lam, 0.0)
-        return e_light, e_fill
 
-    return kernel
+def _fitted_weight(ops, r_a, alpha, k):
+    """w = A_a^k / (A_a^k + A_l^k) = 1 / (1 + (A_l/A_a)^k): one power, no overflow for tiny caps."""
+    aa = _cap_area_kernel(ops, r_a)
+    al = _cap_area_kernel(ops, alpha)
+    ratio = ops.minimum(safe_div(ops, al, aa), 1e30)
+    return 1.0 / (1.0 + ops.power(ratio, k))
+
+
+# Ambient fill of the part of the aperture the light does not cover (000:2774-2782), per unit sky radiance.
+def _seed_fill(ops, cos_na, r_a, omega, lam):
+    """Solid angle times the bent normal's cosine: (A(r_a) − Ω) max(n·a, 0)."""
+    return ops.maximum(_cap_area_kernel(ops, r_a) - omega, 0.0) * ops.maximum(cos_na, 0.0)
+
+
+def _projected_fill(ops, cos_na, r_a, omega, lam):
+    """Projected solid angle of the aperture cap (horizon clipped) minus the light's share:
+    P(n·a, r_a) − Ω λ."""
+    proj = _sphere_light_kernel(ops, cos_na, r_a, 1.0)  # ∫_aperture max(n·ω, 0) dω
+    return ops.maximum(proj - omega * lam, 0.0)
+
+
+INTERSECTION_KERNELS: Mapping[str, Callable] = MappingProxyType(
+    {
+        "exact": _exact_kernel,
+        "smoothstep": _smoothstep_kernel,
+        "linear": _linear_kernel,
+        "fitted": _fitted_kernel,
+    }
+)
+"""Ops kernel ``k(ops, r1, r2, d, **coefficients)`` of each intersection form (``fitted`` takes c0..c5)."""
+LAMBERT_WEIGHTS: Mapping[str, Callable] = MappingProxyType({"seed": _seed_weight, "fitted": _fitted_weight})
+"""Centroid weight ``w(ops, r_a, α, k)`` of the light direction for each Lambert factor."""
+FILL_KERNELS: Mapping[str, Callable] = MappingProxyType({"seed": _seed_fill, "projected": _projected_fill})
+"""Ambient fill per unit sky radiance, ``f(ops, cos_na, r_a, Ω, λ)``, for each fill form."""
+INTERSECTION_FORMS = tuple(INTERSECTION_KERNELS)
+LAMBERT_FORMS = tuple(LAMBERT_WEIGHTS)
+FILL_FORMS = tuple(FILL_KERNELS)
+
+
+def _light_terms(ops, cos_na, cos_nl, cos_al, aperture, alpha, intersection, weight, k, coeffs):
+    """(Ω, λ, r_a, n·a): the intersection of the aperture and light caps and the Lambert factor
+    λ = max(n·c, 0), inputs clamped into their domain."""
+    r_a = ops.clip(aperture, 0.0, 0.5 * PI)
+    alpha = ops.clip(alpha, 0.0, 0.5 * PI)
+    cos_na = clamp_cos(ops, cos_na)
+    d = _angle_from_cos(ops, cos_al)
+    omega = intersection(ops, r_a, alpha, d, **coeffs)
+    w = weight(ops, r_a, alpha, k)
+    lam = ops.maximum(_centroid_cos(ops, cos_na, cos_nl, cos_al, w), 0.0)
+    return omega, lam, r_a, cos_na
+
+
+def _shading_kernel(
+    ops,
+    cos_na,
+    cos_nl,
+    cos_al,
+    aperture,
+    alpha,
+    radiance,
+    sky_radiance,
+    *,
+    intersection,
+    weight,
+    fill,
+    k=FITTED_LAMBERT_K,
+    **coeffs,
+):
+    """(E_light, E_fill) = (L Ω λ, L_sky · fill(n·a, r_a, Ω, λ)); see the module docstring."""
+    omega, lam, r_a, cos_na = _light_terms(
+        ops, cos_na, cos_nl, cos_al, aperture, alpha, intersection, weight, k, coeffs
+    )
+    e_light = radiance * (omega * lam)
+    return e_light, sky_radiance * fill(ops, cos_na, r_a, omega, lam)
+
+
+def _light_kernel(
+    ops,
+    cos_na,
+    cos_nl,
+    cos_al,
+    aperture,
+    alpha,
+    radiance,
+    *,
+    intersection,
+    weight,
+    k=FITTED_LAMBERT_K,
+    **coeffs,
+):
+    """The light term alone, E_light = L Ω max(n·c, 0) (W/m²): the ``aa-*`` methods."""
+    omega, lam, _, _ = _light_terms(
+        ops, cos_na, cos_nl, cos_al, aperture, alpha, intersection, weight, k, coeffs
+    )
+    return radiance * (omega * lam)
+
+
+def _sky_fill_kernel(ops, cos_na, aperture, sky_radiance, *, fill):
+    """The ambient fill with no light (Ω = 0), E_fill = L_sky · fill(n·a, r_a, 0, 0): the ``fill-*``
+    methods."""
+    r_a = ops.clip(aperture, 0.0, 0.5 * PI)
+    return sky_radiance * fill(ops, clamp_cos(ops, cos_na), r_a, 0.0, 0.0)
 
 
 def _visibility_kernel(ops, v):
     """r_a = 2 asin(√(V/2)) = acos(1 − V) for a visible hemisphere fraction V ∈ [0, 1]."""
     x = safe_sqrt(ops, 0.5 * clamp01(ops, v))
     return 2.0 * ops.atan2(x, safe_sqrt(ops, (1.0 - x) * (1.0 + x)))
+
+
+# ===================================================================================== methods (data)
+_CAPS = (
+    Input("r1", "rad", "angular radius of the first cap, [0, π]"),
+    Input("r2", "rad", "angular radius of the second cap, [0, π]"),
+    Input("d", "rad", "angle between the cap centres, [0, π]"),
+)
+_LIGHT = (
+    Input("cos_na", "1", "n·a: surface normal · bent normal"),
+    Input("cos_nl", "1", "n·l: surface normal · direction to the light centre"),
+    Input("cos_al", "1", "a·l: bent normal · direction to the light centre"),
+    Input("aperture", "rad", "aperture (visibility cap) radius r_a, [0, π/2]"),
+    Input("alpha", "rad", "angular radius α of the sphere light, [0, π/2]"),
+    Input("radiance", "W/m²/sr", "radiance L of the sphere light"),
+)
+_SKY = (
+    Input("cos_na", "1", "n·a: surface normal · bent normal"),
+    Input("aperture", "rad", "aperture (visibility cap) radius r_a, [0, π/2]"),
+    Input("sky_radiance", "W/m²/sr", "radiance L_sky of the uniform sky"),
+)
+COEFF_PARAMS: Mapping[str, Param] = MappingProxyType(
+    {
+        f"c{i}": Param(c, -4.0, 4.0, unit="1", description=f"fitted-form correction coefficient c{i}")
+        for i, c in enumerate(FITTED_COEFFS)
+    }
+)
+"""c0..c5 of the fitted intersection form: defaults `FITTED_COEFFS`, bounds [−4, 4] (dimensionless)."""
+K_PARAM: Mapping[str, Param] = MappingProxyType(
+    {"k": Param(FITTED_LAMBERT_K, 0.05, 8.0, unit="1", description="exponent of the centroid weight")}
+)
+"""k of the fitted Lambert factor: default `FITTED_LAMBERT_K`, bounds [0.05, 8] (dimensionless)."""
+_OMEGA_SOURCE = "Oat & Sander 2007, seed 000:2620-2800"
+
+
+def _omega(form, label, formula, source, *, exact=False, params=None):
+    return Method(
+        id=form,
+        label=label,
+        kernel=INTERSECTION_KERNELS[form],
+        inputs=_CAPS,
+        params=params or {},
+        exact=exact,
+        quantity="cap_intersection_solid_angle",
+        formula=formula,
+        source=source,
+    )
+
+
+FORM_PARAMS: Mapping[str, Mapping[str, Param]] = MappingProxyType({"fitted": COEFF_PARAMS})
+"""Free parameters of each intersection form that has any (the others: none)."""
+LAMBERT_PARAMS: Mapping[str, Mapping[str, Param]] = MappingProxyType({"fitted": K_PARAM})
+"""Free parameters of each Lambert factor that has any (the seed's: none)."""
+
+
+def _shading(form, lambert, label):
+    return Method(
+        id=f"aa-{form}-{lambert}",
+        label=label,
+        kernel=_light_kernel,
+        inputs=_LIGHT,
+        params={**FORM_PARAMS.get(form, {}), **LAMBERT_PARAMS.get(lambert, {})},
+        fixed={"intersection": INTERSECTION_KERNELS[form], "weight": LAMBERT_WEIGHTS[lambert]},
+        quantity="light_irradiance",
+        formula=f"L·Ω_{form}(r_a, α, d)·max(n·c_{lambert}, 0)",
+        source=_OMEGA_SOURCE,
+    )
+
+
+def _fill(fill, label, formula, source):
+    return Method(
+        id=f"fill-{fill}",
+        label=label,
+        kernel=_sky_fill_kernel,
+        inputs=_SKY,
+        fixed={"fill": FILL_KERNELS[fill]},
+        quantity="sky_irradiance",
+        formula=formula,
+        source=source,
+    )
+
+
+METHODS: Mapping[str, Method] = method_table(
+    [
+        _omega(
+            "exact",
+            "Ω exact (closed form)",
+            "Ω = 4(β1 h1² + β2 h2²) − 2E (half-angle forms; nested, disjoint, covering cases)",
+            "Tovchigrechko & Vakser 2001; Mazonka 2012 (arXiv:1205.1396)",
+            exact=True,
+        ),
+        _omega(
+            "smoothstep", "Ω smoothstep (seed)", "Ω ≈ A(r_min)·t²(3 − 2t)", "seed 000:2689-2762, Listing 1"
+        ),
+        _omega("linear", "Ω linear ramp", "Ω ≈ A(r_min)·t", "rtfit"),
+        _omega(
+            "fitted",
+            "Ω fitted (complement + corrected smoothstep)",
+            "Ω ≈ L + A(r_min)·sat(t²(3 − 2t) + t(1 − t)[c0 + c1u + ρ(c2 + c3u) + σ(c4 + c5u)])",
+            "rtfit (ambient-aperture experiment)",
+            params=COEFF_PARAMS,
+        ),
+        _shading("exact", "seed", "AA: exact Ω, seed Lambert"),
+        _shading("smoothstep", "seed", "AA: smoothstep Ω, seed Lambert (seed)"),
+        _shading("linear", "seed", "AA: linear Ω, seed Lambert"),
+        _shading("fitted", "seed", "AA: fitted Ω, seed Lambert"),
+        _shading("exact", "fitted", "AA: exact Ω, fitted Lambert"),
+        _shading("fitted", "fitted", "AA: fitted Ω, fitted Lambert"),
+        _fill("seed", "Seed fill: A(r_a)·cos(n,a)", "L_sky·A(r_a)·max(n·a, 0)", "seed 000:2774-2782"),
+        _fill(
+            "projected",
+            "Projected-cap fill",
+            "L_sky·∫_cap(a, r_a) max(n·ω, 0) dω",
+            "closed-form projected solid angle of a cap (rtfit.realtime.diffuse)",
+        ),
+    ]
+)
+"""The family's methods as data, in the experiment's row order (module docstring: formulas).
+
+* quantity ``cap_intersection_solid_angle`` (sr): the intersection forms, inputs r1, r2, d (rad);
+  ``exact`` is the closed form, ``fitted`` has the six coefficients c0..c5 (`COEFF_PARAMS`).
+* quantity ``light_irradiance`` (W/m²): ``aa-<form>-<lambert>``, the light term L·Ω·max(n·c, 0) with
+  an intersection form and a Lambert factor (``fitted``: exponent k, `K_PARAM`).
+* quantity ``sky_irradiance`` (W/m²): ``fill-<fill>``, the ambient fill of the whole aperture (no light).
+
+Not exported from the package root (every family has its own ``METHODS``): import it from this module."""
 
 
 # ===================================================================================== validation helpers
@@ -409,11 +600,20 @@ def _cosine(name, c):
     return check_range(name, c, -1.0 - 1e-4, 1.0 + 1e-4, interval="[-1, 1]")
 
 
-def _coeffs(coeffs) -> tuple[float, ...]:
+def _coeffs(coeffs) -> dict[str, float]:
     c = FITTED_COEFFS if coeffs is None else tuple(float(x) for x in coeffs)
     if len(c) != 6 or not all(math.isfinite(x) for x in c):
         raise ValueError(f"coeffs must be 6 finite numbers c0..c5 (got {coeffs!r})")
-    return c
+    return {f"c{i}": x for i, x in enumerate(c)}
+
+
+def _caps(kernel, r1, r2, d, **params):
+    return evaluate(
+        lambda ops, a, b, e: kernel(ops, a, b, e, **params),
+        _radius("r1", r1),
+        _radius("r2", r2),
+        _radius("d", d),
+    )
 
 
 # ===================================================================================== public API
@@ -425,29 +625,24 @@ def cap_area(r):
 def cap_intersection_solid_angle(r1, r2, d):
     """Exact solid angle (sr) of the intersection of two caps of radii r1, r2 ∈ [0, π] whose centres are
     d ∈ [0, π] apart (all radians). Nested, disjoint, covering and tangent cases included; see module doc."""
-    return evaluate(_exact_kernel, _radius("r1", r1), _radius("r2", r2), _radius("d", d))
+    return _caps(_exact_kernel, r1, r2, d)
 
 
 def cap_intersection_smoothstep(r1, r2, d):
-    """The seed's approximation (000:2725-2755): A(r_min)·smoothstep(0, 1, 1 − (d − |r1−r2|)/(r1+r2−|r1−r2|))."""
-    return evaluate(_smoothstep_kernel, _radius("r1", r1), _radius("r2", r2), _radius("d", d))
+    """The seed's approximation (000:2725-2755):
+    A(r_min)·smoothstep(0, 1, 1 − (d − |r1−r2|)/(r1+r2−|r1−r2|))."""
+    return _caps(_smoothstep_kernel, r1, r2, d)
 
 
 def cap_intersection_linear(r1, r2, d):
     """Linear ramp: A(r_min)·(1 − (d − |r1−r2|)/(r1+r2−|r1−r2|)), clamped to [0, 1] inside."""
-    return evaluate(_linear_kernel, _radius("r1", r1), _radius("r2", r2), _radius("d", d))
+    return _caps(_linear_kernel, r1, r2, d)
 
 
 def cap_intersection_fitted(r1, r2, d, coeffs: Sequence[float] | None = None):
     """Fitted replacement (complement trick + corrected smoothstep); ``coeffs`` c0..c5 default to
     `FITTED_COEFFS`. Always within [0, A(min(r1, r2))]."""
-    c = _coeffs(coeffs)
-    return evaluate(
-        lambda ops, a, b, e: _fitted_kernel(ops, a, b, e, *c),
-        _radius("r1", r1),
-        _radius("r2", r2),
-        _radius("d", d),
-    )
+    return _caps(_fitted_kernel, r1, r2, d, **_coeffs(coeffs))
 
 
 def seed_printed_intersect_area(r0, r1, d):
@@ -483,7 +678,8 @@ def ambient_aperture_irradiance(
     ``sky_radiance`` of the ambient fill in W/m²/sr. ``intersection`` ∈ `INTERSECTION_FORMS`, ``lambert`` ∈
     `LAMBERT_FORMS` ("seed": plain average direction; "fitted": cap-size weights with exponent ``k``),
     ``fill`` ∈ `FILL_FORMS` ("seed": solid angle × bent-normal cosine; "projected": exact projected solid
-    angle of the aperture). See the module docstring for the formulas.
+    angle of the aperture). See the module docstring for the formulas; `METHODS` holds the same light
+    terms (``aa-<intersection>-<lambert>``) and fills (``fill-<fill>``) as data.
     """
     if intersection not in INTERSECTION_FORMS:
         raise ValueError(f"intersection must be one of {INTERSECTION_FORMS} (got {intersection!r})")
@@ -494,7 +690,17 @@ def ambient_aperture_irradiance(
     kk = FITTED_LAMBERT_K if k is None else float(k)
     if not (0.0 < kk <= 16.0):
         raise ValueError(f"k must be in (0, 16] (got {k!r})")
-    kernel = _shading_kernel_factory(intersection, lambert, fill, coeffs, kk)
+    # Only the fitted form takes coefficients (``coeffs`` is ignored, unchecked, for the others).
+    coeff_kw = _coeffs(coeffs) if intersection in FORM_PARAMS else {}
+    modes = {
+        "intersection": INTERSECTION_KERNELS[intersection],
+        "weight": LAMBERT_WEIGHTS[lambert],
+        "fill": FILL_KERNELS[fill],
+    }
+
+    def kernel(ops, *args):
+        return _shading_kernel(ops, *args, **modes, k=kk, **coeff_kw)
+
     return evaluate(
         kernel,
         _cosine("cos_na", cos_na),
@@ -505,16 +711,3 @@ def ambient_aperture_irradiance(
         check_range("radiance", radiance, 0.0, 1.7e308, interval="[0, inf)"),
         check_range("sky_radiance", sky_radiance, 0.0, 1.7e308, interval="[0, inf)"),
     )
-
-
-def numpy_reference(form: str, coeffs: Sequence[float] | None = None) -> Callable:
-    """NumPy evaluation ``f(r1, r2, d)`` of the SAME kernel text as the Dr.Jit path of an intersection form
-    (no validation, input dtype decides the precision): for benchmarks."""
-    kernel = intersection_kernel(form, coeffs)
-
-    def run(r1, r2, d):
-        with np.errstate(all="ignore"):
-            return evaluate_numpy(kernel, r1, r2, d)
-
-    run.__name__ = f"numpy_{form}"
-    return run

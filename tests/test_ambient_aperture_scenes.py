@@ -14,10 +14,15 @@ import math
 
 import numpy as np
 import pytest
+
 from rtfit.experiments import ambient_aperture as aa
 from rtfit.experiments import ambient_aperture_scenes as sc
+from rtfit.experiments.cli import main
+from rtfit.experiments.report import load_results
+from rtfit.realtime import sphere_light_irradiance
 from rtfit.reference.visibility import bake_visibility, surface_points
 from rtfit.scenes import library_path, load_scene
+from tests.test_ambient_aperture import HARD_POINTS, quad_intersection
 
 PI = math.pi
 
@@ -70,15 +75,13 @@ def test_bake_validation(hole):
 
 
 def test_cap_model_quadrature_against_closed_forms():
-    """Light cap fully inside a hemisphere aperture: the closed-form sphere-light irradiance (horizon clipped);
-    nested the other way (aperture inside the light, centred on n): π sin² r_a."""
-    from rtfit.realtime import diffuse
-
+    """Light cap fully inside a hemisphere aperture: the closed-form sphere-light irradiance (horizon
+    clipped); nested the other way (aperture inside the light, centred on n): π sin² r_a."""
     th, al = 1.2, 0.4
-    l = np.array([[math.sin(th), 0.0, math.cos(th)]])
+    ld = np.array([[math.sin(th), 0.0, math.cos(th)]])
     n = np.array([[0.0, 0.0, 1.0]])
-    e = aa.cap_model_irradiance(n, n, [PI / 2], l, [al], (64, 256))[0]
-    assert e == pytest.approx(diffuse.sphere_light_irradiance(math.cos(th), al), rel=2e-3)
+    e = aa.cap_model_irradiance(n, n, [PI / 2], ld, [al], (64, 256))[0]
+    assert e == pytest.approx(sphere_light_irradiance(math.cos(th), al), rel=2e-3)
     e2 = aa.cap_model_irradiance(n, n, [0.3], n, [0.9], (64, 256))[0]
     assert e2 == pytest.approx(PI * math.sin(0.3) ** 2, rel=2e-3)
 
@@ -90,11 +93,17 @@ def test_quadrature_intersection_against_closed_cases():
     )
 
 
+def test_adaptive_quadrature_against_mpmath_at_hard_points():
+    """The experiment's float64 oracle at its hard points (tiny near-tangent caps included) against 25-digit
+    mpmath: ≤ 1e-12 of the smaller cap, far below the 1e-10 its check allows the closed form."""
+    assert aa.HARD_POINTS == HARD_POINTS
+    for r1, r2, d in aa.HARD_POINTS:
+        q = aa.adaptive_quadrature_intersection(r1, r2, d)
+        assert abs(q - quad_intersection(r1, r2, d)) <= 1e-12 * 2 * PI * (1 - math.cos(min(r1, r2)))
+
+
 def test_tiny_run_checks_pass(tmp_path, monkeypatch):
     """A tiny configuration of the whole experiment: results.json loads and every check passes."""
-    from rtfit.experiments.cli import main
-    from rtfit.experiments.report import load_results
-
     real = aa.configure
 
     def tiny(quick, spp):
