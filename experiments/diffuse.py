@@ -114,8 +114,8 @@ SMOOTH_LAW = Method(
 )
 
 WRAP = METHODS["wrap"]
-# Start of the per-α wrap fit (w, p) = (0.3, 1.3), inside the declared bounds (the declared defaults
-# (0.5, 1.5) are the benchmark's values); the optimum does not depend on it.
+# Start of the per-α wrap fit, inside the declared bounds (the declared defaults (0.5, 1.5) are the
+# benchmark's values): the start the fit has always used, so that its iterates and results reproduce.
 WRAP_FIT_START = {"w": 0.3, "p": 1.3}
 
 
