@@ -35,8 +35,8 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
     spec.name: spec
     for spec in [
         ExperimentSpec(
-            "half-lambert",
-            "rtfit.experiments.half_lambert",
+            "diffuse",
+            "rtfit.experiments.diffuse",
             "Half-Lambert and wrap lighting vs exact sphere-light irradiance",
             "White diffuse sphere under a spherical light of angular radius 0.27°–30°, with and without "
             "a constant sky: Lambert, half-Lambert and fitted wrap lighting against Mitsuba.",
@@ -80,6 +80,10 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
 }
 
 
+ALIASES: dict[str, str] = {"half-lambert": "diffuse"}
+"""Former experiment names → current ones (``rtfit run half-lambert`` still runs ``diffuse``)."""
+
+
 class UnknownExperiment(ValueError):
     pass
 
@@ -113,8 +117,9 @@ def apply_overrides(defaults: dict, overrides: dict, experiment: str = "") -> di
 
 
 def get_experiment(name: str) -> ExperimentSpec:
+    """The experiment called ``name`` (or an `ALIASES` name of it)."""
     try:
-        return EXPERIMENTS[name]
+        return EXPERIMENTS[ALIASES.get(name, name)]
     except KeyError:
         raise UnknownExperiment(
             f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)}; or 'all')"

@@ -64,6 +64,16 @@ Dr.Jit type, lazily; see `rtfit.realtime.arrays`). Parameters are validated at t
 * Dr.Jit flushes subnormal floats to zero (|x| < 2.2e-308 in float64, 1.2e-38 in float32), so tiny
   inputs and results may differ from NumPy's below those magnitudes.
 
+Methods as data
+---------------
+``METHODS`` (`rtfit.realtime.methods.method_table`: ``lambert``, ``half-lambert``, ``wrap``, ``exact``)
+declares each formula once: its kernel text, its inputs with units (``cos_theta`` "1", ``irradiance``
+"W/m²", ``alpha`` "rad", ``radiance`` "W/m²/sr"), wrap's free parameters w ∈ [0, 1], p ∈ [0.25, 8]
+(dimensionless, defaults 0.5 and 1.5) and ``exact=True`` for the sphere-light closed form.
+``METHODS[id](NUMPY_OPS, inputs, params)`` is the NumPy run of the same text (benchmarks, references);
+`rtfit.fitting.fit_method` fits through its JAX run. ``METHODS`` is not re-exported by
+`rtfit.realtime` (every family has one): use ``rtfit.realtime.diffuse.METHODS``.
+
 Performance notes: Python-float parameters are compiled into the Dr.Jit kernel as constants (one kernel
 compile, ~15 ms on LLVM, per new value; cached afterwards). When sweeping a parameter, pass it as an array
 or as ``dr.opaque(Float, value)`` to reuse one kernel.
@@ -73,9 +83,6 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -85,7 +92,6 @@ from .arrays import (
     check_range,
     clamp_cos,
     evaluate,
-    evaluate_numpy,
     is_drjit,
     safe_div,
     safe_sqrt,
@@ -93,18 +99,15 @@ from .arrays import (
     sincos_first_quadrant,
     split3,
 )
+from .methods import Input, Method, Param, method_table
 
 __all__ = [
-    "DIFFUSE_MODELS",
-    "DiffuseModel",
-    "ParamSpec",
     "ambient_term",
     "half_lambert",
     "lambert",
-    "numpy_kernel",
-    "numpy_reference",
     "sphere_light_geometry",
     "sphere_light_irradiance",
+    "sphere_light_irradiance_kernel",
     "sphere_light_peak_irradiance",
     "wrap",
 ]
@@ -137,8 +140,11 @@ def _wrap_kernel(ops, cos_theta, w, p, irradiance):
     return irradiance * ops.power(base, p)
 
 
-def _sphere_light_kernel(ops, cos_theta, alpha, radiance):
-    """Exact irradiance from a uniform sphere light (cap of half-angle α), horizon clipping included."""
+def sphere_light_irradiance_kernel(ops, cos_theta, alpha, radiance):
+    """Exact irradiance from a uniform sphere light (cap of half-angle α), horizon clipping included.
+
+    Kernel text (``ops`` an ops namespace of `rtfit.realtime.arrays`, no validation): public so that other
+    kernels (ambient aperture's projected cap) can call the one text inside their own."""
     c = clamp_cos(ops, cos_theta)
     a = ops.clip(alpha, 0.0, HALF_PI)
     sin_a, cos_a = sincos_first_quadrant(ops, a)  # not ops.sin/cos: CUDA float32 sin/cos are approximate
@@ -234,7 +240,9 @@ def wrap(cos_theta, w, p, irradiance=1.0):
 def sphere_light_irradiance(cos_theta, alpha, radiance=1.0):
     """Exact irradiance (W/m²) from a uniform sphere light of angular radius ``alpha`` ∈ [0, π/2] (rad) and
     ``radiance`` (W/m²/sr) whose centre is at angle θ from the normal, horizon clipping included."""
-    return evaluate(_sphere_light_kernel, _cos(cos_theta), _alpha(alpha), _scale("radiance", radiance))
+    return evaluate(
+        sphere_light_irradiance_kernel, _cos(cos_theta), _alpha(alpha), _scale("radiance", radiance)
+    )
 
 
 def sphere_light_peak_irradiance(alpha, radiance=1.0):
@@ -272,105 +280,69 @@ def sphere_light_geometry(position, normal, light_center, light_radius):
     )
 
 
-# ===================================================================================== NumPy reference
-_KERNELS: dict[str, Callable] = {
-    "lambert": _lambert_kernel,
-    "half_lambert": _half_lambert_kernel,
-    "wrap": _wrap_kernel,
-    "sphere_light_irradiance": _sphere_light_kernel,
-    "sphere_light_peak_irradiance": _peak_kernel,
-    "ambient_term": _ambient_kernel,
-}
-_ALIASES = {"half-lambert": "half_lambert", "exact": "sphere_light_irradiance"}
+# Transitional: `realtime/aperture.py` imports this private name; it should import the public
+# `sphere_light_irradiance_kernel` instead (then delete this line).
+_sphere_light_kernel = sphere_light_irradiance_kernel
 
 
-def numpy_reference(name: str) -> Callable:
-    """The NumPy path of the SAME kernel text as the public function ``name``, with its signature.
+# ===================================================================================== methods as data
+_COS = Input("cos_theta", "1", "n·l, cosine between the normal and the direction to the light (centre)")
+_IRRADIANCE = Input("irradiance", "W/m²", "E⊥, the light's irradiance at normal incidence")
 
-    ``name``: a public function name ("lambert", "half_lambert", "wrap", "sphere_light_irradiance",
-    "sphere_light_peak_irradiance", "ambient_term") or a `DIFFUSE_MODELS` id ("half-lambert", "exact").
-    The callable takes NumPy arrays/floats, runs in their dtype (float64 for Python floats), does no
-    validation and never touches Dr.Jit: for benchmarks (Dr.Jit vs NumPy of one formula) and references.
-    """
-    key = _ALIASES.get(name, name)
-    if key not in _KERNELS:
-        raise ValueError(f"unknown kernel {name!r}; known: {sorted(_KERNELS) + sorted(_ALIASES)}")
-    kernel = _KERNELS[key]
-
-    def run(*args):
-        return evaluate_numpy(kernel, *args)
-
-    run.__name__ = f"numpy_{key}"
-    run.__doc__ = f"NumPy evaluation of the kernel of `{key}` (same text as the Dr.Jit path)."
-    return run
-
-
-numpy_kernel = numpy_reference  # alias used by the experiment code
-
-
-# ===================================================================================== model registry
-@dataclass(frozen=True)
-class ParamSpec:
-    """A model parameter: name, closed bounds [lo, hi] used for fitting, default value."""
-
-    name: str
-    lo: float
-    hi: float
-    default: float
-
-
-@dataclass(frozen=True)
-class DiffuseModel:
-    """One diffuse-lighting model of the ``half-lambert`` experiment.
-
-    ``fn`` is the public function; ``inputs`` names its per-pixel inputs in call order before the
-    ``params`` (all keyword-compatible), ``scale`` the name of its last argument (irradiance E⊥ in W/m² or
-    the light's radiance in W/m²/sr)."""
-
-    id: str
-    label: str
-    fn: Callable[..., Any]
-    inputs: tuple[str, ...]
-    params: tuple[ParamSpec, ...] = field(default_factory=tuple)
-    scale: str = "irradiance"
-    description: str = ""
-
-    def defaults(self) -> dict[str, float]:
-        return {p.name: p.default for p in self.params}
-
-    def bounds(self) -> dict[str, tuple[float, float]]:
-        return {p.name: (p.lo, p.hi) for p in self.params}
-
-
-DIFFUSE_MODELS: dict[str, DiffuseModel] = {
-    "lambert": DiffuseModel(
-        "lambert",
-        "Lambert",
-        lambert,
-        ("cos_theta",),
-        description="E⊥·max(cos θ, 0): exact for a point/directional light, ignores the light's size.",
-    ),
-    "half-lambert": DiffuseModel(
-        "half-lambert",
-        "Half-Lambert (Valve)",
-        half_lambert,
-        ("cos_theta",),
-        description="E⊥·(½cos θ + ½)²: Valve's non-physical softening; E⊥/4 at 90°, 0 only at 180°.",
-    ),
-    "wrap": DiffuseModel(
-        "wrap",
-        "Wrap lighting",
-        wrap,
-        ("cos_theta",),
-        (ParamSpec("w", 0.0, 1.0, 0.5), ParamSpec("p", 0.25, 8.0, 1.5)),
-        description="E⊥·max((cos θ + w)/(1 + w), 0)^p: w=0,p=1 is Lambert, w=1,p=2 half-Lambert.",
-    ),
-    "exact": DiffuseModel(
-        "exact",
-        "Exact sphere light",
-        sphere_light_irradiance,
-        ("cos_theta", "alpha"),
-        scale="radiance",
-        description="Closed-form irradiance of a uniform sphere light incl. horizon clipping (Snyder 1996).",
-    ),
-}
+METHODS = method_table(
+    [
+        Method(
+            "lambert",
+            "Lambert",
+            _lambert_kernel,
+            inputs=(_COS, _IRRADIANCE),
+            quantity="irradiance",
+            formula="E = E⊥·max(cos θ, 0)",
+            source="Lambert's cosine law",
+            description="Exact for a point/directional light; ignores the light's size.",
+        ),
+        Method(
+            "half-lambert",
+            "Half-Lambert",
+            _half_lambert_kernel,
+            inputs=(_COS, _IRRADIANCE),
+            quantity="irradiance",
+            formula="E = E⊥·(½ cos θ + ½)²",
+            source="Valve 2006, Shading in Valve's Source Engine, §7.4.4 (seed 000:2520-2534)",
+            description="Valve's non-physical softening: E⊥/4 at 90°, zero only at 180°.",
+        ),
+        Method(
+            "wrap",
+            "Wrap lighting",
+            _wrap_kernel,
+            inputs=(_COS, _IRRADIANCE),
+            params={
+                "w": Param(0.5, 0.0, 1.0, unit="1", description="wrap: light reaches cos θ = −w"),
+                "p": Param(1.5, 0.25, 8.0, unit="1", description="exponent of the wrapped cosine"),
+            },
+            quantity="irradiance",
+            formula="E = E⊥·max((cos θ + w)/(1 + w), 0)^p",
+            source="real-time practice: half-Lambert generalised by an offset w and an exponent p",
+            description="(w, p) = (0, 1) is Lambert, (1, 2) half-Lambert, (1, 1) a hemisphere light.",
+        ),
+        Method(
+            "exact",
+            "Exact closed form",
+            sphere_light_irradiance_kernel,
+            inputs=(
+                _COS,
+                Input("alpha", "rad", "angular radius of the sphere light seen from the point"),
+                Input("radiance", "W/m²/sr", "the light's uniform radiance L"),
+            ),
+            exact=True,
+            quantity="irradiance",
+            formula="E = L·∫_cap max(n·ω, 0) dω (horizon-clipped cap of half-angle α)",
+            source="Snyder 1996, MSR-TR-96-11; Lagarde & de Rousiers 2014, §4.7",
+            description="Closed-form irradiance of a uniform sphere light incl. horizon clipping.",
+        ),
+    ]
+)
+"""The diffuse family's methods: ``METHODS[id](ops, inputs, params)`` runs the kernel text on one ops
+namespace (``METHODS["wrap"](NUMPY_OPS, {"cos_theta": c, "irradiance": 1.0}, {"w": 0.5, "p": 1.5})``:
+the NumPy run of benchmarks), ``.evaluate`` dispatches like the public functions (without their
+validation), `rtfit.fitting.fit_method` fits ``wrap``'s (w, p) through the JAX run of the same text."""

@@ -20,7 +20,14 @@ def _one_line_error(capsys, code, argv):
 
 def test_list(capsys):
     assert main(["list"]) == 0
-    assert "half-lambert" in capsys.readouterr().out
+    assert "diffuse" in capsys.readouterr().out
+
+
+def test_former_experiment_name_is_an_alias():
+    from rtfit.experiments.registry import get_experiment, resolve_names
+
+    assert get_experiment("half-lambert") is get_experiment("diffuse")
+    assert resolve_names(["half-lambert", "diffuse"]) == [get_experiment("diffuse")]
 
 
 @pytest.mark.parametrize(
@@ -28,16 +35,16 @@ def test_list(capsys):
     [
         (["run", "no-such-experiment"], "unknown experiment 'no-such-experiment'"),
         (["run"], "name an experiment"),
-        (["run", "half-lambert", "--variant", "bogus"], "bogus"),
-        (["run", "half-lambert", "--spp", "1"], "--spp"),
-        (["run", "half-lambert", "--executor", "carrier-pigeon"], "carrier-pigeon"),
+        (["run", "diffuse", "--variant", "bogus"], "bogus"),
+        (["run", "diffuse", "--spp", "1"], "--spp"),
+        (["run", "diffuse", "--executor", "carrier-pigeon"], "carrier-pigeon"),
         (["bench", "nope"], "unknown experiment"),
         (["frobnicate"], "frobnicate"),
     ],
 )
 def test_bad_input_is_one_line_and_writes_nothing(capsys, tmp_path, argv, needle):
     out = tmp_path / "out"
-    err = _one_line_error(capsys, 2, argv + ["--out", str(out)] if argv[0] == "run" else argv)
+    err = _one_line_error(capsys, 2, [*argv, "--out", str(out)] if argv[0] == "run" else argv)
     assert needle in err
     assert not out.exists()
 
@@ -53,7 +60,7 @@ def test_cuda_without_gpu_is_clear(capsys, tmp_path):
     if cuda_available():
         pytest.skip("a GPU is present")
     err = _one_line_error(
-        capsys, 2, ["run", "half-lambert", "--variant", "cuda_ad_rgb", "--out", str(tmp_path / "o")]
+        capsys, 2, ["run", "diffuse", "--variant", "cuda_ad_rgb", "--out", str(tmp_path / "o")]
     )
     assert "CUDA" in err
 
@@ -71,19 +78,16 @@ def test_entry_point_exit_status(tmp_path):
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
-    """One quick half-lambert run shared by the end-to-end tests (it takes tens of seconds)."""
+    """One quick diffuse run shared by the end-to-end tests (it takes tens of seconds)."""
     root = tmp_path_factory.mktemp("e2e")
     out, cache = root / "out", root / "cache"
-    assert (
-        main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"])
-        == 0
-    )
+    assert main(["run", "diffuse", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"]) == 0
     return out, cache
 
 
 def test_quick_run_writes_a_complete_report(quick_run):
     out, _ = quick_run
-    exp = out / "half-lambert"
+    exp = out / "diffuse"
     for name in (
         "results.json",
         "report.md",
@@ -110,18 +114,17 @@ def test_quick_run_writes_a_complete_report(quick_run):
 
 def test_interrupted_run_keeps_old_output_and_resumes(quick_run, monkeypatch, capsys):
     out, cache = quick_run
-    exp = out / "half-lambert"
+    exp = out / "diffuse"
     before = (exp / "results.json").read_text()
     # A failure during assembly (after the references) must leave the previous output untouched.
-    from rtfit.experiments import half_lambert_report
+    from rtfit.experiments import diffuse
 
     def boom(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(half_lambert_report, "assemble", boom)
+    monkeypatch.setattr(diffuse, "assemble", boom)
     assert (
-        main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"])
-        == 130
+        main(["run", "diffuse", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"]) == 130
     )
     assert (exp / "results.json").read_text() == before
     assert [p.name for p in out.iterdir() if p.name.startswith(".")] == []
@@ -131,22 +134,19 @@ def test_interrupted_run_keeps_old_output_and_resumes(quick_run, monkeypatch, ca
     passes = sorted(cache.rglob("pass-*.json"))
     for p in passes[::3]:
         p.unlink()
-    assert (
-        main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"])
-        == 0
-    )
+    assert main(["run", "diffuse", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"]) == 0
     a, b = json.loads(before), json.loads((exp / "results.json").read_text())
-    for ca, cb in zip(a["cases"], b["cases"]):
+    for ca, cb in zip(a["cases"], b["cases"], strict=True):
         assert ca["reference"]["cache_key"] == cb["reference"]["cache_key"]
-        for xa, xb in zip(ca["approximations"], cb["approximations"]):
+        for xa, xb in zip(ca["approximations"], cb["approximations"], strict=True):
             assert xa["metrics"]["rmse"]["value"] == pytest.approx(xb["metrics"]["rmse"]["value"], rel=1e-9)
 
 
 def test_report_regenerates_from_results_alone(quick_run, tmp_path):
     out, _ = quick_run
     copy = tmp_path / "copy"
-    shutil.copytree(out / "half-lambert", copy)
+    shutil.copytree(out / "diffuse", copy)
     for f in ("report.md", "report.html", "tables.tex"):
         (copy / f).unlink()
     assert main(["report", str(copy)]) == 0
-    assert (copy / "report.html").read_text() == (out / "half-lambert" / "report.html").read_text()
+    assert (copy / "report.html").read_text() == (out / "diffuse" / "report.html").read_text()

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
 from rtfit.realtime import DRJIT_OPS, NUMPY_OPS, get_default_backend, set_default_backend
 from rtfit.realtime import diffuse as d
 
@@ -119,10 +120,12 @@ def test_closed_form_matches_quadrature_float64():
         for name, e in [
             ("numpy input (Dr.Jit Float64)", d.sphere_light_irradiance(cos, al, L)),
             ("Dr.Jit Float64", np.asarray(d.sphere_light_irradiance(Float64(cos), Float64(al), L))),
-            ("NumPy kernel", d.numpy_reference("sphere_light_irradiance")(cos, al, L)),
+            ("NumPy kernel", d.METHODS["exact"](NUMPY_OPS, {"cos_theta": cos, "alpha": al, "radiance": L})),
             (
                 "python floats",
-                np.array([d.sphere_light_irradiance(float(c), float(a), L) for c, a in zip(cos, al)]),
+                np.array(
+                    [d.sphere_light_irradiance(float(c), float(a), L) for c, a in zip(cos, al, strict=True)]
+                ),
             ),
         ]:
             err = np.abs(np.asarray(e) - L * ref) / (L * peak)
@@ -133,7 +136,9 @@ def test_closed_form_matches_quadrature_float32():
     c32 = np.cos([c[0] for c in CASES]).astype(np.float32)
     a32 = np.minimum(np.array([c[1] for c in CASES], np.float32), np.float32(HALF_PI))
     # reference at the float32 inputs exactly (θ = acos of the float32 cosine)
-    ref = np.array([cap_quadrature(math.acos(float(c)), min(float(a), HALF_PI)) for c, a in zip(c32, a32)])
+    ref = np.array(
+        [cap_quadrature(math.acos(float(c)), min(float(a), HALF_PI)) for c, a in zip(c32, a32, strict=True)]
+    )
     peak = math.pi * np.sin(np.minimum(a32.astype(np.float64), HALF_PI)) ** 2
     for name, e in [
         ("numpy float32 input", d.sphere_light_irradiance(c32, a32)),
@@ -253,7 +258,7 @@ batch = st.lists(st.tuples(unit, alphas, radiances), min_size=2, max_size=48)
 @settings(max_examples=60, deadline=None)
 @given(batch)
 def test_exact_properties(rows):
-    c, a, L = (np.array(v, dtype=np.float64) for v in zip(*rows))
+    c, a, L = (np.array(v, dtype=np.float64) for v in zip(*rows, strict=True))
     e = d.sphere_light_irradiance(c, a, L)
     peak = d.sphere_light_peak_irradiance(a, L)
     assert np.all(np.isfinite(e))
@@ -262,7 +267,14 @@ def test_exact_properties(rows):
     # float32 Dr.Jit vs float64 NumPy of the same kernel at the same (float32-rounded) inputs
     c32, a32, L32 = c.astype(np.float32), a.astype(np.float32), L.astype(np.float32)
     e32 = np.asarray(d.sphere_light_irradiance(Float(c32), Float(a32), Float(L32)), np.float64)
-    e64 = d.numpy_reference("exact")(c32.astype(np.float64), a32.astype(np.float64), L32.astype(np.float64))
+    e64 = d.METHODS["exact"](
+        NUMPY_OPS,
+        {
+            "cos_theta": c32.astype(np.float64),
+            "alpha": a32.astype(np.float64),
+            "radiance": L32.astype(np.float64),
+        },
+    )
     p64 = L32 * math.pi * np.sin(np.minimum(a32.astype(np.float64), HALF_PI)) ** 2
     assert np.all(np.abs(e32 - e64) <= TOL32 * p64 + TINY32)
 
@@ -367,7 +379,8 @@ BAD = [
         "position must have shape",
     ),
     (lambda: set_default_backend("metal"), "backend must be one of"),
-    (lambda: d.numpy_reference("phong"), "unknown kernel"),
+    (lambda: d.METHODS["wrap"](NUMPY_OPS, {"irradiance": 1.0}), "needs input(s) cos_theta"),
+    (lambda: d.METHODS["wrap"].keywords({"q": 1.0}), "has no parameter q"),
 ]
 
 
@@ -429,7 +442,9 @@ def test_drjit_cuda_if_available():
     c = (rng.uniform(-1.2, 1.2, 4096) * np.sin(al)).clip(-1, 1).astype(np.float32)
     r = d.sphere_light_irradiance(dr.cuda.Float(c), dr.cuda.Float(al), 1.0)
     assert type(r) is dr.cuda.Float
-    ref = d.numpy_reference("exact")(c.astype(np.float64), al.astype(np.float64), 1.0)
+    ref = d.METHODS["exact"](
+        NUMPY_OPS, {"cos_theta": c.astype(np.float64), "alpha": al.astype(np.float64), "radiance": 1.0}
+    )
     peak = math.pi * np.sin(al.astype(np.float64)) ** 2
     assert np.all(np.abs(np.asarray(r, np.float64) - ref) <= TOL32 * peak + TINY32)
     p = np.asarray(d.sphere_light_peak_irradiance(dr.cuda.Float(al), 1.0), np.float64)
@@ -454,16 +469,14 @@ def test_sincos_polynomial():
     assert np.max(np.abs(np.asarray(c32, np.float64) - np.cos(a64))) <= 2e-7
 
 
-def test_default_backend_and_numpy_reference():
+def test_default_backend_and_numpy_run_of_the_methods():
     assert get_default_backend() == "llvm"
     set_default_backend("llvm")
     c = np.linspace(-1, 1, 9)
-    ref = d.numpy_reference("wrap")
-    out = ref(c, 0.5, 1.5, 1.0)
+    out = d.METHODS["wrap"](NUMPY_OPS, {"cos_theta": c, "irradiance": 1.0}, {"w": 0.5, "p": 1.5})
     assert isinstance(out, np.ndarray)
     np.testing.assert_allclose(out, np.maximum((c + 0.5) / 1.5, 0) ** 1.5, rtol=1e-15)
-    assert d.numpy_kernel is d.numpy_reference
-    assert float(d.numpy_reference("half-lambert")(0.0, 1.0)) == 0.25
+    assert float(d.METHODS["half-lambert"](NUMPY_OPS, {"cos_theta": 0.0, "irradiance": 1.0})) == 0.25
     assert set(vars(DRJIT_OPS)) == set(vars(NUMPY_OPS))
 
 
@@ -505,14 +518,28 @@ def test_sphere_light_geometry():
     assert ct.shape == (5, 10) and at.shape == (5, 10)
 
 
-def test_registry():
-    assert set(d.DIFFUSE_MODELS) == {"lambert", "half-lambert", "wrap", "exact"}
-    w = d.DIFFUSE_MODELS["wrap"]
+def test_method_table():
+    assert set(d.METHODS) == {"lambert", "half-lambert", "wrap", "exact"}
+    w = d.METHODS["wrap"]
     assert w.defaults() == {"w": 0.5, "p": 1.5}
     assert w.bounds() == {"w": (0.0, 1.0), "p": (0.25, 8.0)}
-    assert w.fn is d.wrap and d.DIFFUSE_MODELS["exact"].fn is d.sphere_light_irradiance
-    for m in d.DIFFUSE_MODELS.values():
-        assert m.label and m.description and "\n" not in m.description
+    assert [m.id for m in d.METHODS.values() if m.exact] == ["exact"]
+    units = {i.name: i.unit for m in d.METHODS.values() for i in m.inputs}
+    assert units == {"cos_theta": "1", "irradiance": "W/m²", "alpha": "rad", "radiance": "W/m²/sr"}
+    assert all(p.unit == "1" for p in w.params.values())
+    for m in d.METHODS.values():
+        assert m.label and m.description and "\n" not in m.description and m.formula
         with pytest.raises(dataclasses.FrozenInstanceError):
             m.label = "x"
-    assert d.DIFFUSE_MODELS["wrap"].fn(0.2, **w.defaults()) == pytest.approx((0.7 / 1.5) ** 1.5, rel=1e-15)
+    assert w.evaluate({"cos_theta": 0.2, "irradiance": 1.0}) == pytest.approx((0.7 / 1.5) ** 1.5, rel=1e-15)
+    # Each method's dispatch equals its public function (same kernel text, the function adds validation).
+    c = np.linspace(-1, 1, 13)
+    for mid, fn in (("lambert", d.lambert), ("half-lambert", d.half_lambert)):
+        np.testing.assert_array_equal(
+            d.METHODS[mid].evaluate({"cos_theta": c, "irradiance": 2.0}), fn(c, 2.0)
+        )
+    np.testing.assert_array_equal(
+        d.METHODS["exact"].evaluate({"cos_theta": c, "alpha": 0.3, "radiance": 1.5}),
+        d.sphere_light_irradiance(c, 0.3, 1.5),
+    )
+    np.testing.assert_array_equal(w.evaluate({"cos_theta": c, "irradiance": 1.0}), d.wrap(c, 0.5, 1.5))

@@ -11,7 +11,7 @@ from .conftest import sphere_scene
 def _jobs(tmp_path):
     return [
         Job(
-            "rtfit.experiments.half_lambert:render_case",
+            "rtfit.experiments.diffuse:render_case",
             dict(
                 scene_toml=scene_to_toml(sphere_scene(alpha_deg=a, res=12)),
                 spp=32,
@@ -35,7 +35,7 @@ def test_process_pool_matches_inline(tmp_path):
         spawned = pool.map(_jobs(tmp_path / "pool"))
     finally:
         pool.close()
-    for a, b in zip(inline, spawned):
+    for a, b in zip(inline, spawned, strict=True):
         np.testing.assert_array_equal(a["image"].mean, b["image"].mean)  # same seeds → same samples
         np.testing.assert_array_equal(a["probes"].stderr, b["probes"].stderr)
         np.testing.assert_array_equal(a["gbuffer"].normal, b["gbuffer"].normal)

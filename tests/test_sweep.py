@@ -20,7 +20,7 @@ from rtfit.experiments.sweep import SweepError, load_sweep, run_sweep
 
 SWEEP = """
 name = "tiny"
-experiment = "half-lambert"
+experiment = "diffuse"
 quick = true
 spp = 32
 [fixed]
@@ -63,15 +63,15 @@ def test_apply_overrides_checks_keys_and_kinds():
     [
         ("experiment = 'nope'", "unknown experiment 'nope'"),
         ("", "experiment: required"),
-        ("experiment = 'half-lambert'\nbogus = 1", "bogus: unknown key"),
+        ("experiment = 'diffuse'\nbogus = 1", "bogus: unknown key"),
         (
-            "experiment = 'half-lambert'\n[grid]\nno_such_key = [1, 2]",
+            "experiment = 'diffuse'\n[grid]\nno_such_key = [1, 2]",
             "'no_such_key' is not a configuration key",
         ),
-        ("experiment = 'half-lambert'\n[grid]\nresolution = ['a']", "expected a value like"),
-        ("experiment = 'half-lambert'\n[grid]\nresolution = []", "grid.resolution: must be a non-empty list"),
-        ("experiment = 'half-lambert'\n[[points]]\nresolution = 8\n[[points]]\nresolution = 8", "duplicates"),
-        ("experiment = 'half-lambert'\nspp = 1", "spp: must be an integer"),
+        ("experiment = 'diffuse'\n[grid]\nresolution = ['a']", "expected a value like"),
+        ("experiment = 'diffuse'\n[grid]\nresolution = []", "grid.resolution: must be a non-empty list"),
+        ("experiment = 'diffuse'\n[[points]]\nresolution = 8\n[[points]]\nresolution = 8", "duplicates"),
+        ("experiment = 'diffuse'\nspp = 1", "spp: must be an integer"),
         ("experiment = = 'x'", "not valid TOML"),
     ],
 )
@@ -104,7 +104,7 @@ def test_ray_executor_without_ray_names_the_extra(monkeypatch, tmp_path, capsys)
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda n, *a: None if n == "ray" else real(n, *a))
-    assert main(["run", "half-lambert", "--executor", "ray", "--out", str(tmp_path / "o")]) == 2
+    assert main(["run", "diffuse", "--executor", "ray", "--out", str(tmp_path / "o")]) == 2
     assert "pip install 'rtfit[ray]'" in capsys.readouterr().err
 
 
