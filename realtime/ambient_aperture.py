@@ -127,7 +127,7 @@ from .arrays import (
     safe_sqrt,
     sincos_first_quadrant,
 )
-from .diffuse import _sphere_light_kernel
+from .diffuse import sphere_light_irradiance_kernel
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
@@ -368,7 +368,7 @@ def _seed_fill(ops, cos_na, r_a, omega, lam):
 def _projected_fill(ops, cos_na, r_a, omega, lam):
     """Projected solid angle of the aperture cap (horizon clipped) minus the light's share:
     P(n·a, r_a) − Ω λ."""
-    proj = _sphere_light_kernel(ops, cos_na, r_a, 1.0)  # ∫_aperture max(n·ω, 0) dω
+    proj = sphere_light_irradiance_kernel(ops, cos_na, r_a, 1.0)  # ∫_aperture max(n·ω, 0) dω
     return ops.maximum(proj - omega * lam, 0.0)
 
 

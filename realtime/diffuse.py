@@ -280,11 +280,6 @@ def sphere_light_geometry(position, normal, light_center, light_radius):
     )
 
 
-# Transitional: `realtime/aperture.py` imports this private name; it should import the public
-# `sphere_light_irradiance_kernel` instead (then delete this line).
-_sphere_light_kernel = sphere_light_irradiance_kernel
-
-
 # ===================================================================================== methods as data
 _COS = Input("cos_theta", "1", "n·l, cosine between the normal and the direction to the light (centre)")
 _IRRADIANCE = Input("irradiance", "W/m²", "E⊥, the light's irradiance at normal incidence")
