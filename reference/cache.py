@@ -38,10 +38,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import drjit as dr
 import numpy as np
 
 from rtfit.scenes import Scene, scene_hash, scene_to_dict
 
+from .build import load_mitsuba_scene
 from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
 from .integrators import choose_integrator
 from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr
@@ -128,8 +130,7 @@ class ReferenceRequest:
 
     def identity(self) -> dict:
         """Everything that determines this request's samples (see the module docstring)."""
-        import drjit
-        import mitsuba
+        import mitsuba  # mitsuba: loaded only where a reference is made (its version is in the key)
 
         ident = {
             "format": CACHE_FORMAT,
@@ -139,7 +140,7 @@ class ReferenceRequest:
             "variant": self.variant,
             "seed": self.seed,
             "pass_spp": self.pass_spp,
-            "versions": {"mitsuba": mitsuba.__version__, "drjit": drjit.__version__},
+            "versions": {"mitsuba": mitsuba.__version__, "drjit": dr.__version__},
         }
         xml = [sh.file for sh in self.scene.shapes if sh.kind == "mitsuba_xml"]
         if xml:  # every file Mitsuba's parser loads for them (includes, <path> meshes), not only the XML
@@ -446,8 +447,6 @@ class ReferenceCache:
         self, request: ReferenceRequest, *, progress: bool = False, label: str | None = None
     ) -> Reference:
         """Return the reference for ``request``, rendering only the passes not cached yet."""
-        from .build import load_mitsuba_scene
-
         entry = PassEntry(self.root, request.identity(), storage="exr", info=self._entry_info(request))
         key = entry.key
         as_points = request.quantity == "irradiance"

@@ -28,6 +28,7 @@ import math
 import time
 from dataclasses import dataclass
 
+import drjit as dr
 import numpy as np
 
 # Lanes per kernel launch: bounded so memory stays small and far from the 2^32 lane limit.
@@ -64,7 +65,7 @@ class GBuffer:
 
 def sub_seed(seed: int, *labels) -> int:
     """A 32-bit seed derived from ``seed`` and labels (pass index, chunk index): independent streams."""
-    h = hashlib.sha256(repr((int(seed),) + tuple(labels)).encode()).digest()
+    h = hashlib.sha256(repr((int(seed), *labels)).encode()).digest()
     return int.from_bytes(h[:4], "little")
 
 
@@ -114,7 +115,6 @@ def _check_spp(spp: int):
 # ----------------------------------------------------------------------------------- radiance pass
 def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
     """Point-sampled radiance at every pixel centre with the scene's own integrator."""
-    import drjit as dr
 
     _check_spp(spp)
     t0 = time.perf_counter()
@@ -160,7 +160,6 @@ def _radiance_scalar(mi, mi_scene, sensor, integrator, width, height, spp, seed)
 # ------------------------------------------------------------------------------------------ G-buffer
 def gbuffer(mi, mi_scene) -> GBuffer:
     """First hits of the pixel-centre rays (the approximation's inputs)."""
-    import drjit as dr
 
     sensor = mi_scene.sensors()[0]
     width, height = sensor.film().crop_size()
@@ -223,7 +222,6 @@ def irradiance_pass(
     mi, mi_scene, points: np.ndarray, normals: np.ndarray, spp: int, seed: int, transport: str = "direct"
 ) -> PassResult:
     """Irradiance (W/m², RGB) at ``points`` (N, 3) for unit ``normals`` (N, 3)."""
-    import drjit as dr
 
     _check_spp(spp)
     if mi.variant().startswith("scalar"):
@@ -262,7 +260,6 @@ def _probe_interaction(mi, dr, p, n):
 
 def _power(a, b):
     """Power-heuristic MIS weight a²/(a² + b²); 0 where both densities vanish (no NaN)."""
-    import drjit as dr
 
     a2 = a * a
     denom = a2 + b * b

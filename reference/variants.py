@@ -7,11 +7,12 @@ present and asked for with ``"auto"``; ``scalar_rgb`` is selectable for debuggin
 
 from __future__ import annotations
 
+import drjit as dr
+
 KNOWN_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
 
 
 def cuda_available() -> bool:
-    import drjit as dr
 
     try:
         return bool(dr.has_backend(dr.JitBackend.CUDA))

@@ -20,6 +20,8 @@ import re
 import xml.etree.ElementTree as ET
 from typing import Any
 
+import tomli_w
+
 from .model import Scene
 from .parse import BOUNDARY_EXCLUDES, SCHEMA, SceneError, Spec
 
@@ -79,7 +81,6 @@ _NUMBER_ARRAY = re.compile(r"\[\n((?:[ \t]+[-+0-9.eEinfa_]+,\n)+)\]")
 
 def scene_to_toml(scene: Scene) -> str:
     """``scene`` as scene-file text (number arrays written on one line)."""
-    import tomli_w
 
     text = tomli_w.dumps(scene_to_dict(scene))
     return _NUMBER_ARRAY.sub(_one_line_array, text)
