@@ -222,10 +222,11 @@ class Case(Record):
         out = []
         for i, ap in enumerate(self.approximations):
             if ap.method in seen:
+                first = f"approximations[{seen[ap.method]}]"
                 out.append(
                     (
                         f"approximations[{i}].method",
-                        f"duplicate method {ap.method!r} in this case (also approximations[{seen[ap.method]}])",
+                        f"duplicate method {ap.method!r} in this case (also {first})",
                     )
                 )
             seen.setdefault(ap.method, i)

@@ -37,7 +37,7 @@ def test_list(capsys):
 )
 def test_bad_input_is_one_line_and_writes_nothing(capsys, tmp_path, argv, needle):
     out = tmp_path / "out"
-    err = _one_line_error(capsys, 2, argv + ["--out", str(out)] if argv[0] == "run" else argv)
+    err = _one_line_error(capsys, 2, [*argv, "--out", str(out)] if argv[0] == "run" else argv)
     assert needle in err
     assert not out.exists()
 
@@ -112,13 +112,14 @@ def test_interrupted_run_keeps_old_output_and_resumes(quick_run, monkeypatch, ca
     out, cache = quick_run
     exp = out / "half-lambert"
     before = (exp / "results.json").read_text()
-    # A failure during assembly (after the references) must leave the previous output untouched.
-    from rtfit.experiments import half_lambert_report
+    # A failure at the very end (references rendered, results.json written into the temporary
+    # directory, the report not yet) must leave the previous output untouched.
+    from rtfit.experiments import runner
 
     def boom(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(half_lambert_report, "assemble", boom)
+    monkeypatch.setattr(runner, "write_report", boom)
     assert (
         main(["run", "half-lambert", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"])
         == 130
@@ -136,9 +137,9 @@ def test_interrupted_run_keeps_old_output_and_resumes(quick_run, monkeypatch, ca
         == 0
     )
     a, b = json.loads(before), json.loads((exp / "results.json").read_text())
-    for ca, cb in zip(a["cases"], b["cases"]):
+    for ca, cb in zip(a["cases"], b["cases"], strict=True):
         assert ca["reference"]["cache_key"] == cb["reference"]["cache_key"]
-        for xa, xb in zip(ca["approximations"], cb["approximations"]):
+        for xa, xb in zip(ca["approximations"], cb["approximations"], strict=True):
             assert xa["metrics"]["rmse"]["value"] == pytest.approx(xb["metrics"]["rmse"]["value"], rel=1e-9)
 
 

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from rtfit.experiments.jobs import InlineExecutor, Job, ProcessExecutor, make_executor
+from rtfit.experiments.executors import make_executor
+from rtfit.experiments.jobs import InlineExecutor, Job, ProcessExecutor
 from rtfit.scenes import scene_to_toml
 
 from .conftest import sphere_scene
@@ -35,7 +36,7 @@ def test_process_pool_matches_inline(tmp_path):
         spawned = pool.map(_jobs(tmp_path / "pool"))
     finally:
         pool.close()
-    for a, b in zip(inline, spawned):
+    for a, b in zip(inline, spawned, strict=True):
         np.testing.assert_array_equal(a["image"].mean, b["image"].mean)  # same seeds → same samples
         np.testing.assert_array_equal(a["probes"].stderr, b["probes"].stderr)
         np.testing.assert_array_equal(a["gbuffer"].normal, b["gbuffer"].normal)
