@@ -425,29 +425,31 @@ def _union_args(tp) -> tuple | None:
     return None
 
 
-def _describe(tp) -> str:
-    """The expected kind of a value, in words: ``a number``, ``an object``, ``null``…"""
+def _alternatives(tp) -> list[str]:
+    """The kinds of value ``tp`` accepts, in words (``["a number", "null"]``)."""
     mark = _mark(tp)
     if isinstance(mark, _JSONMark):
-        return "a JSON value"
+        return ["a JSON value"]
     if isinstance(mark, _RelPathMark):
-        return "a relative path inside the experiment directory"
+        return ["a relative path inside the experiment directory"]
     args = _union_args(tp)
     if args is not None:
-        words = [_describe(a) for a in args if a is not type(None)]
-        words = list(dict.fromkeys(words)) + (["null"] if type(None) in args else [])
-        return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " or " + words[-1]
+        words = [w for a in args if a is not type(None) for w in _alternatives(a)]
+        return list(dict.fromkeys(words)) + (["null"] if type(None) in args else [])
     origin = typing.get_origin(tp)
     if origin is Literal:
-        values = [repr(v) for v in typing.get_args(tp)]
-        return values[0] if len(values) == 1 else ", ".join(values[:-1]) + " or " + values[-1]
+        return [repr(v) for v in typing.get_args(tp)]
     if origin is list:
-        return "a list"
+        return ["a list"]
     if origin is Mapping or _is_record(tp):
-        return "an object"
-    return {bool: "true or false", int: "an integer", float: "a number", str: "a string", type(None): "null"}[
-        tp
-    ]
+        return ["an object"]
+    return {bool: ["true", "false"], int: ["an integer"], float: ["a number"], str: ["a string"]}[tp]
+
+
+def _describe(tp) -> str:
+    """The expected kind of a value, in words: ``a number or null``, ``true or false``…"""
+    words = _alternatives(tp)
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " or " + words[-1]
 
 
 def _got(value) -> str:
@@ -508,7 +510,12 @@ def _build(tp, value, where: str):
             return None
         for a in args:
             if a is not type(None) and _fits_kind(a, value):
-                return _build(a, value, where)
+                try:
+                    return _build(a, value, where)
+                except _Refusal as e:
+                    if e.where != where or not e.problem.startswith("expected"):
+                        raise  # a problem inside the value, or NaN: its own message says more
+                    break
         raise _Refusal(where, f"expected {_describe(tp)}, got {_got(value)}")
     origin = typing.get_origin(tp)
     if origin is Literal:
@@ -581,7 +588,8 @@ def _build_record(cls, value, where: str):
     unknown = [k for k in value if k not in names]
     if unknown and not cls.OPEN:
         allowed = ", ".join(sorted(names))
-        raise _Refusal(_join(where, unknown[0]), f"unknown key (a {cls.__name__} has: {allowed})")
+        article = "an" if cls.__name__[0] in "AEIOU" else "a"
+        raise _Refusal(_join(where, unknown[0]), f"unknown key ({article} {cls.__name__} has: {allowed})")
     if cls.OPEN:
         kwargs["extra"] = {k: _check_json(value[k], _join(where, k)) for k in unknown}
     record = cls(**kwargs, json_keys=tuple(value))

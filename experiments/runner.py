@@ -108,9 +108,7 @@ def run_experiment_into(
         **({"overrides": dict(ctx.overrides)} if ctx.overrides else {}),
         **dict(extra_config or {}),
     }
-    results = from_json(
-        Results, plain_json(doc), f"{Path(directory) / RESULTS_FILE} (experiment {spec.name})"
-    )
+    results = from_json(Results, plain_json(doc), f"results of {spec.name}")
     write_results(directory, results)
     write_report(Path(directory))
     return results
