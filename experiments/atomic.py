@@ -11,18 +11,18 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 from rtfit.reference.io import (
     NonFiniteJSONError,
-    _fsync_dir,
-    _temp_name,
     atomic_write_bytes,
     atomic_write_json,
     atomic_write_text,
+    fsync_dir,
     is_temporary_name,
+    temp_name,
 )
 
 __all__ = [
@@ -50,7 +50,7 @@ def atomic_directory(final_path) -> Iterator[Path]:
         raise NotADirectoryError(f"{final}: exists and is not a directory")
     final.parent.mkdir(parents=True, exist_ok=True)
     while True:
-        tmp = _temp_name(final, "tmp")
+        tmp = temp_name(final, "tmp")
         try:
             tmp.mkdir(mode=0o777)
             break
@@ -64,7 +64,7 @@ def atomic_directory(final_path) -> Iterator[Path]:
     old = None
     try:
         if final.exists() or final.is_symlink():
-            old = _temp_name(final, "old")
+            old = temp_name(final, "old")
             os.rename(final, old)
         try:
             os.rename(tmp, final)
@@ -76,7 +76,7 @@ def atomic_directory(final_path) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    _fsync_dir(final.parent)
+    fsync_dir(final.parent)
     if old is not None:
         if old.is_symlink() or not old.is_dir():
             old.unlink()

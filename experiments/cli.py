@@ -14,13 +14,24 @@ invalid value) print one line, ``rtfit: error: …``, write nothing and exit wit
 
 from __future__ import annotations
 
+import importlib.util
 import sys
 from pathlib import Path
 
 import click
 
-from .jobs import EXECUTORS
+from rtfit.reference import default_cache_dir, resolve_variant
+from rtfit.scenes import SceneError
+
+from . import scaling
+from .atomic import is_temporary_name
+from .executors import EXECUTORS, make_executor
+from .ray_executor import RAY_EXTRA_HINT
 from .registry import EXPERIMENTS, BenchContext, resolve_names
+from .report import write_index, write_report
+from .runner import device_description, run_experiments
+from .sweep import load_sweep, run_sweep
+from .sweep import show_config as show_sweep_config
 
 VARIANT_CHOICES = ("auto", "llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
 
@@ -92,10 +103,6 @@ def run_cmd(experiments, quick, variant, spp, out, cache, executor, address, wor
     """Run EXPERIMENT... (or 'all') and write OUT/EXPERIMENT/{results.json,report.html,...}."""
     specs, variant = _validated(experiments, variant)  # before anything is written
     _check_executor(executor, address)
-    from rtfit.reference import default_cache_dir
-
-    from .runner import run_experiments
-
     run_experiments(
         specs,
         out,
@@ -150,11 +157,8 @@ def sweep_cmd(
 ):
     """Run the experiment of SPEC.toml over its grid of configuration points (docs/scale-out.md):
     one results.json per point in OUT/NAME/points/, and a combined table and report in OUT/NAME/."""
-    from .sweep import load_sweep, run_sweep
-    from .sweep import show_config as _show
-
     if show_config:
-        click.echo(_show(show_config, quick))
+        click.echo(show_sweep_config(show_config, quick))
         return
     if spec_file is None:
         _fail("name a sweep file (SPEC.toml), or --show-config EXPERIMENT")
@@ -162,10 +166,6 @@ def sweep_cmd(
     (_,), variant = _validated([sweep.experiment], variant)
     _check_executor(executor, address)
     gpu_ids = _parse_gpus(gpus, executor)
-    from rtfit.reference import default_cache_dir
-
-    from .jobs import make_executor
-
     progress = not no_progress and sys.stderr.isatty()
     pool = make_executor(executor, workers, progress, address=address, gpus=gpu_ids)
     try:
@@ -191,11 +191,7 @@ def _check_executor(executor: str, address):
     if address and executor != "ray":
         raise click.UsageError("--address is for --executor ray")
     if executor == "ray":
-        import importlib.util
-
         if importlib.util.find_spec("ray") is None:
-            from .ray_executor import RAY_EXTRA_HINT
-
             raise click.UsageError(RAY_EXTRA_HINT)
 
 
@@ -217,9 +213,6 @@ def _parse_gpus(text, executor: str):
 @click.argument("directory", type=click.Path(exists=True, file_okay=False, path_type=Path))
 def report_cmd(directory):
     """Regenerate report.md/html and tables.tex from DIRECTORY/results.json (or every experiment below it)."""
-    from .atomic import is_temporary_name
-    from .report import write_index, write_report
-
     if (directory / "results.json").is_file():
         write_report(directory)
         click.echo(str((directory / "report.html").resolve()))
@@ -248,13 +241,7 @@ def report_cmd(directory):
 def bench_cmd(experiment, variant, size, quick):
     """Throughput of each approximation (Dr.Jit vs NumPy, same run) and of the ground truth;
     'executors': per-job overhead and sweep scaling of inline / process / Ray (docs/scale-out.md)."""
-    from .runner import device_description
-
     if experiment == "executors":
-        from rtfit.reference import resolve_variant
-
-        from . import scaling
-
         variant = resolve_variant(variant)
         rows = scaling.bench(BenchContext(variant=variant, size=size, quick=quick))
         click.echo(f"# rtfit bench executors — {device_description(variant)}")
@@ -270,8 +257,6 @@ def bench_cmd(experiment, variant, size, quick):
 def _validated(names, variant: str):
     """Experiment specs and the resolved variant; a bad name or variant is a ValueError, which
     `main` prints as one line with exit status 2."""
-    from rtfit.reference import resolve_variant
-
     return resolve_names(names), resolve_variant(variant)
 
 
@@ -289,9 +274,9 @@ def _print_table(rows: list[dict]):
         widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]
         if n:
             click.echo("")
-        click.echo("  ".join(c.ljust(w) for c, w in zip(cols, widths)))
+        click.echo("  ".join(c.ljust(w) for c, w in zip(cols, widths, strict=True)))
         for row in cells:
-            click.echo("  ".join(v.ljust(w) for v, w in zip(row, widths)))
+            click.echo("  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)))
 
 
 def _fmt(v) -> str:
@@ -302,8 +287,6 @@ def _fmt(v) -> str:
 
 def main(argv=None) -> int:
     """Entry point: one-line errors and exit status 2 for anything the user got wrong."""
-    from rtfit.scenes import SceneError
-
     try:
         cli.main(args=argv, prog_name="rtfit", standalone_mode=False)
     except click.exceptions.Exit as e:

@@ -14,8 +14,12 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
+
+import drjit as dr
+
+from rtfit.realtime import set_default_backend
 
 
 @dataclass(frozen=True)
@@ -55,8 +59,6 @@ def time_drjit(
     fn: Callable, args: tuple, elements: int, repeats: int = 7, min_seconds: float = 0.2
 ) -> Timing:
     """Median time of ``fn(*args)`` with evaluation and device sync inside the timed region."""
-    import drjit as dr
-
     dr.eval(*[a for a in args if dr.is_array_v(a)])
     dr.sync_thread()
 
@@ -80,7 +82,6 @@ def time_numpy(
 
 def memory_baseline(args: tuple, elements: int) -> Timing:
     """A kernel reading the same inputs and writing one output: the memory-bound floor."""
-    import drjit as dr
 
     def fma_all(*xs):
         acc = xs[0]
@@ -115,8 +116,6 @@ def attach_costs(case_docs: list[dict], cost_rows: list[dict], key: Callable | N
 def bench_backend(ctx) -> tuple[str, int]:
     """The Dr.Jit backend of ``ctx.variant`` (made the default) and the kernel size: ``ctx.size``,
     else 2^24 elements on the GPU and 2^22 on the CPU."""
-    from rtfit.realtime import set_default_backend
-
     backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
     set_default_backend(backend)
     return backend, ctx.size or (1 << (24 if backend == "cuda" else 22))

@@ -65,7 +65,7 @@ def image_comparison(
     errors = [np.where(mask, (img - reference).mean(axis=-1) / error_scale, np.nan) for _, img in panels]
     vmax = max([float(np.nanmax(np.abs(e))) for e in errors if np.isfinite(e).any()] + [1e-6])
     im = None
-    for k, ((label, img), err) in enumerate(zip(panels, errors), start=1):
+    for k, ((label, img), err) in enumerate(zip(panels, errors, strict=True), start=1):
         axes[0, k].imshow(srgb(img / exposure))
         axes[0, k].set_title(label, fontsize=9)
         cmap = plt.get_cmap("RdBu_r").with_extremes(bad="0.75")
@@ -97,7 +97,7 @@ def line_plot(
     plt = pyplot()
     panels = panels or [""]
     fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 3.6), squeeze=False)
-    for ax, panel in zip(axes[0], panels):
+    for ax, panel in zip(axes[0], panels, strict=True):
         for s in series:
             if s.get("panel", "") != panel:
                 continue

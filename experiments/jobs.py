@@ -24,6 +24,9 @@ Executors:
   ``gpus=[0, 1, …]`` one worker per GPU, pinned by ``CUDA_VISIBLE_DEVICES``.
 * ``RayExecutor`` (``rtfit.experiments.ray_executor``, optional extra ``rtfit[ray]``): one long-lived
   worker per GPU of a Ray cluster, or CPU workers.
+
+``rtfit.experiments.executors.make_executor(name)`` picks one by name (it sits above this module and
+``ray_executor``, which builds on the job model here).
 """
 
 from __future__ import annotations
@@ -40,7 +43,6 @@ from typing import Any
 
 from rtfit.reference.progress import progress_bar
 
-EXECUTORS = ("inline", "process", "ray")
 MAX_ATTEMPTS = 3
 
 
@@ -143,6 +145,8 @@ def _worker_init(threads: int | None):
     """Per-worker set-up: a private Dr.Jit kernel cache and, if given, a thread budget."""
     os.environ.setdefault("DRJIT_CACHE_DIR", tempfile.mkdtemp(prefix="rtfit-drjit-"))
     if threads:
+        # drjit stays lazy here: importing it starts CUDA's initialisation, which reads
+        # CUDA_VISIBLE_DEVICES, and a GPU worker imports this module before `_gpu_worker_init` pins it.
         import drjit as dr
 
         dr.set_thread_count(threads)
@@ -171,7 +175,7 @@ class InlineExecutor:
             t0 = time.perf_counter()
             try:
                 out.append(Outcome(i, job.label, True, job.run(), seconds=time.perf_counter() - t0))
-            except Exception as e:  # noqa: BLE001 — reported per job, never swallowed silently
+            except Exception as e:  # reported per job, never swallowed silently
                 out.append(
                     Outcome(i, job.label, False, error=error_line(e), seconds=time.perf_counter() - t0)
                 )
@@ -264,7 +268,7 @@ class ProcessExecutor:
                         else:
                             tracker.requeued()
                         continue
-                    except Exception as e:  # noqa: BLE001 — the job's own error, reported per job
+                    except Exception as e:  # the job's own error, reported per job
                         outcomes[i] = Outcome(
                             i,
                             jobs[i].label,
@@ -295,23 +299,3 @@ class ProcessExecutor:
 
     def close(self):
         self._pool.shutdown(wait=True, cancel_futures=True)
-
-
-def make_executor(
-    name: str = "inline",
-    workers: int | None = None,
-    progress: bool = False,
-    address: str | None = None,
-    gpus: list[int] | None = None,
-):
-    """``inline``, ``process`` (``gpus``: one worker per listed GPU) or ``ray`` (``address`` of an
-    existing cluster, or a local one)."""
-    if name == "inline":
-        return InlineExecutor(progress)
-    if name == "process":
-        return ProcessExecutor(workers, progress, gpus=gpus)
-    if name == "ray":
-        from .ray_executor import RayExecutor
-
-        return RayExecutor(address=address, workers=workers, progress=progress)
-    raise ValueError(f"unknown executor {name!r} (expected one of: {', '.join(EXECUTORS)})")

@@ -27,6 +27,7 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+import warnings
 
 from .jobs import MAX_ATTEMPTS, Job, JobTracker, Outcome, error_line, values_or_raise
 
@@ -35,7 +36,7 @@ RAY_EXTRA_HINT = "--executor ray needs Ray: pip install 'rtfit[ray]'"
 
 def _import_ray():
     try:
-        import ray
+        import ray  # ray: optional extra rtfit[ray], and ≈ 2 s to import
     except ImportError:
         raise ValueError(RAY_EXTRA_HINT) from None
     return ray
@@ -53,6 +54,8 @@ class _Worker:
 
     def run(self, job: Job):
         if self.threads:
+            # drjit stays lazy: importing it starts CUDA's initialisation (reading CUDA_VISIBLE_DEVICES),
+            # which must happen in the actor after Ray has assigned its GPU, not when this module loads.
             import drjit as dr
 
             if dr.thread_count() != self.threads:
@@ -80,8 +83,6 @@ class RayExecutor:
         self.progress = progress
         self.max_attempts = max_attempts
         if not ray.is_initialized():
-            import warnings
-
             # Ray starts its daemons with fork+exec; Python warns about fork when JAX threads exist.
             warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
             kwargs = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
@@ -187,7 +188,7 @@ class RayExecutor:
         """A worker died under job ``i``: replace the actor; retry the job or give up on it."""
         try:
             self._ray.kill(self._actors[slot], no_restart=True)
-        except Exception:  # noqa: BLE001 — it is already gone
+        except Exception:  # it is already gone
             pass
         self._actors[slot] = self._new_actor()
         self._pids[slot] = self._ray.get(self._actors[slot].pid.remote())
@@ -212,7 +213,7 @@ class RayExecutor:
         for actor in self._actors:
             try:
                 self._ray.kill(actor)
-            except Exception:  # noqa: BLE001
+            except Exception:
                 pass
         self._actors = []
         if self._owns_ray:

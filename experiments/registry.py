@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
@@ -158,8 +159,6 @@ class RunContext:
 
     def log(self, message: str):
         if self.progress:
-            import sys
-
             print(f"[rtfit] {message}", file=sys.stderr, flush=True)
 
 

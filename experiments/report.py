@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import os
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,7 +31,19 @@ from .markdown import INLINE as _INLINE
 from .markdown import escape as _esc
 from .markdown import markdown_inline, markdown_to_html
 from .markdown import markdown_text as _md_text
-from .results import SCHEMA, ResultsError, load_results
+from .records import (
+    SCHEMA,
+    Approximation,
+    Case,
+    Figure,
+    FitParameter,
+    Metric,
+    Results,
+    ResultsError,
+    from_json,
+    plain_json,
+)
+from .results import load_results
 
 __all__ = [
     "SCHEMA",
@@ -158,7 +171,7 @@ def _slug(text: str) -> str:
 
 
 class _Doc:
-    def __init__(self, results: dict, directory: Path | None):
+    def __init__(self, results: Results, directory: Path | None):
         self.r = results
         self.dir = directory
         self.blocks: list = []
@@ -211,36 +224,33 @@ def _metric_name(key: str) -> str:
     return name + ("" if lower is None else (" ↓" if lower else " ↑"))
 
 
-def _metric_keys(approximations) -> list[str]:
-    seen = []
+def _metric_keys(approximations: list[Approximation]) -> list[str]:
+    seen: list[str] = []
     for ap in approximations:
-        for k in ap.get("metrics") or {}:
+        for k in ap.metrics:
             if k not in seen:
                 seen.append(k)
     return [k for k in METRICS if k in seen] + [k for k in seen if k not in METRICS]
 
 
-def _metric_cell(m) -> _Cell:
-    if not isinstance(m, dict):
+def _metric_cell(m: Metric | None) -> _Cell:
+    if m is None:
         return _Cell("—", numeric=True)
-    floor = m.get("noise_floor")
-    cell = _Cell(format_number(m.get("value")), "floor " + format_number(floor), numeric=True)
-    if m.get("resolved") is False:
+    cell = _Cell(format_number(m.value), "floor " + format_number(m.noise_floor), numeric=True)
+    if m.resolved is False:
         cell.style, cell.mark = "unresolved", "†"
     return cell
 
 
-def _mark_best(cells: list[_Cell], entries: list, key: str) -> None:
+def _mark_best(cells: list[_Cell], entries: list[Metric | None], key: str) -> None:
+    """Set the best resolved value of a directed metric in bold (only where there are two or more)."""
     lower = METRICS.get(key, (key, None))[1]
     if lower is None:
         return
     vals = [
-        (e.get("value"), i)
+        (e.value, i)
         for i, e in enumerate(entries)
-        if isinstance(e, dict)
-        and isinstance(e.get("value"), (int, float))
-        and not isinstance(e.get("value"), bool)
-        and e.get("resolved") is not False
+        if e is not None and e.value is not None and e.resolved is not False
     ]
     if len(entries) < 2 or not vals:
         return
@@ -250,15 +260,15 @@ def _mark_best(cells: list[_Cell], entries: list, key: str) -> None:
             cells[i].style = "best"
 
 
-def _headline_metric(cases) -> str | None:
-    keys = _metric_keys([ap for c in cases for ap in c.get("approximations") or []])
+def _headline_metric(cases: list[Case]) -> str | None:
+    keys = _metric_keys([ap for c in cases for ap in c.approximations])
     return "rmse" if "rmse" in keys else (keys[0] if keys else None)
 
 
-def _kv_line(d: dict, trim: bool = True) -> str:
-    """``key = value`` pairs as one markdown line (keys in code spans)."""
+def _kv_line(pairs, trim: bool = True) -> str:
+    """``key = value`` pairs (an iterable of pairs) as one markdown line (keys in code spans)."""
     parts = []
-    for k, v in d.items():
+    for k, v in pairs:
         if v is None:
             continue
         if isinstance(v, str) and re.fullmatch(r"[0-9a-f]{24,}", v):
@@ -267,13 +277,6 @@ def _kv_line(d: dict, trim: bool = True) -> str:
             v = format_number(v, trim)
         parts.append(f"`{k}` = {v}")
     return ", ".join(parts)
-
-
-def _label(d: dict, *keys) -> str:
-    for k in keys:
-        if isinstance(d.get(k), str) and d[k]:
-            return d[k]
-    return "?"
 
 
 _BUILTIN_TARGETS = {
@@ -292,17 +295,15 @@ _BUILTIN_TARGETS = {
 }
 
 
-def _build(results: dict, directory: Path | None) -> _Doc:
-    r = results
+def _build(r: Results, directory: Path | None) -> _Doc:
     d = _Doc(r, directory)
-    cases = r.get("cases") or []
-    user_sections = r.get("sections") or []
-    user_ids = {s["id"] for s in user_sections}
+    cases = r.cases
+    user_ids = {s.id for s in r.sections}
 
     # Figures grouped by where they go: a `sections` id wins over a built-in section name.
-    placed: dict[tuple[str, str], list[dict]] = {}
-    for fig in r.get("figures") or []:
-        target = str(fig.get("section") or "figures")
+    placed: dict[tuple[str, str], list[Figure]] = {}
+    for fig in r.figures:
+        target = fig.section or "figures"
         key = (
             ("user", target)
             if target in user_ids
@@ -312,43 +313,40 @@ def _build(results: dict, directory: Path | None) -> _Doc:
 
     def emit_figures(key):
         for fig in placed.pop(key, []):
-            d.figure([(fig["file"], "")], str(fig.get("caption") or ""))
+            d.figure([(fig.file, "")], fig.caption or "")
 
     d.heading(2, "Summary", "summary", numbered=False)
-    d.prose(r["summary"])
+    d.prose(r.summary)
     emit_figures(("builtin", "summary"))
 
     # Setup.
     d.heading(2, "Setup", "setup")
-    cfg = r.get("config") or {}
+    cfg = list(r.config.items())
     if cfg:
         d.table(
             "config",
             "Configuration of this run.",
             [_Cell("Setting"), _Cell("Value")],
-            [[_Cell(f"`{k}`", md=True), _Cell(format_number(v, trim=True))] for k, v in cfg.items()],
+            [[_Cell(f"`{k}`", md=True), _Cell(format_number(v, trim=True))] for k, v in cfg],
             tex=False,
         )
-    vers = r.get("versions") or {}
-    if vers:
+    if r.versions:
         d.table(
             "versions",
             "Software versions.",
             [_Cell("Package"), _Cell("Version")],
-            [[_Cell(str(k)), _Cell("not installed" if v is None else str(v))] for k, v in vers.items()],
+            [[_Cell(k), _Cell("not installed" if v is None else v)] for k, v in r.versions.items()],
             tex=False,
         )
-    d.blocks.append(
-        _Bullets([f"**Device:** {_md_text(r['device'])}", f"**Created:** {_md_text(r['created'])}"])
-    )
+    d.blocks.append(_Bullets([f"**Device:** {_md_text(r.device)}", f"**Created:** {_md_text(r.created)}"]))
     emit_figures(("builtin", "setup"))
 
     def emit_user(placement):
-        for s in user_sections:
-            if ("after_results" if s.get("placement") == "after_results" else "before_results") == placement:
-                d.heading(2, s["title"], s["id"])
-                d.prose(s["text"])
-                emit_figures(("user", s["id"]))
+        for s in r.sections:
+            if (s.placement or "before_results") == placement:
+                d.heading(2, s.title, s.id)
+                d.prose(s.text)
+                emit_figures(("user", s.id))
 
     emit_user("before_results")
 
@@ -358,106 +356,93 @@ def _build(results: dict, directory: Path | None) -> _Doc:
         d.prose("No cases were evaluated.")
     head = _headline_metric(cases)
     if len(cases) > 1 and head:
-        methods: list[tuple[str, str]] = []
+        methods: dict[str, str] = {}  # method id -> label of its first appearance
         for c in cases:
-            for ap in c["approximations"]:
-                if ap["method"] not in [m for m, _ in methods]:
-                    methods.append((ap["method"], _label(ap, "label", "method")))
+            for ap in c.approximations:
+                methods.setdefault(ap.method, ap.display)
         rows = []
         for c in cases:
-            by = {ap["method"]: ap for ap in c["approximations"]}
-            entries = [(by.get(m) or {}).get("metrics", {}).get(head) for m, _ in methods]
-            cells = [_metric_cell(e) if e is not None else _Cell("—", numeric=True) for e in entries]
-            _mark_best(cells, [e if e is not None else {} for e in entries], head)
-            rows.append([_Cell(c["label"])] + cells)
+            by = {ap.method: ap for ap in c.approximations}
+            entries = [by[m].metrics.get(head) if m in by else None for m in methods]
+            cells = [_metric_cell(e) for e in entries]
+            _mark_best(cells, entries, head)
+            rows.append([_Cell(c.label), *cells])
         d.table(
             "overview",
             f"{METRICS.get(head, (head,))[0]} of every approximation in every case "
             f"(value with the reference's noise floor; bold: best resolved value in the row).",
-            [_Cell("Case")] + [_Cell(lab, numeric=True) for _, lab in methods],
+            [_Cell("Case")] + [_Cell(lab, numeric=True) for lab in methods.values()],
             rows,
             [UNRESOLVED_NOTE] if any(cl.mark for row in rows for cl in row) else [],
         )
     for c in cases:
-        d.heading(3, c["label"], f"case-{c['id']}")
-        lines = [f"Case `{c['id']}`" + (f": {_kv_line(c['parameters'])}." if c.get("parameters") else ".")]
-        scene = c.get("scene") or {}
-        if scene:
+        d.heading(3, c.label, f"case-{c.id}")
+        lines = [f"Case `{c.id}`" + (f": {_kv_line(c.parameters.items())}." if c.parameters else ".")]
+        if c.scene is not None and (c.scene.name or c.scene.hash):
             lines.append(
                 "Scene "
-                + (f"`{scene['name']}`" if scene.get("name") else "")
-                + (f" (sha256 `{str(scene['hash'])[:12]}…`)" if scene.get("hash") else "")
+                + (f"`{c.scene.name}`" if c.scene.name else "")
+                + (f" (sha256 `{c.scene.hash[:12]}…`)" if c.scene.hash else "")
                 + "."
             )
-        if c.get("reference"):
-            lines.append(f"Reference: {_kv_line(c['reference'])}.")
+        if c.reference is not None and any(True for _ in c.reference.items()):
+            lines.append(f"Reference: {_kv_line(c.reference.items())}.")
         d.prose(" ".join(lines))
-        aps = c["approximations"]
+        aps = c.approximations
         if not aps:
             d.prose("No approximations were evaluated in this case.")
             continue
         keys = _metric_keys(aps)
-        columns = [
-            [
-                _metric_cell((ap.get("metrics") or {}).get(k))
-                if k in (ap.get("metrics") or {})
-                else _Cell("—", numeric=True)
-                for ap in aps
-            ]
-            for k in keys
-        ]
-        for k, col in zip(keys, columns):
-            _mark_best(col, [(ap.get("metrics") or {}).get(k) or {} for ap in aps], k)
-        has_cost = any(
-            isinstance(ap.get("cost"), dict) and ap["cost"].get("ns_per_pixel") is not None for ap in aps
-        )
+        columns = [[_metric_cell(ap.metrics.get(k)) for ap in aps] for k in keys]
+        for k, col in zip(keys, columns, strict=True):
+            _mark_best(col, [ap.metrics.get(k) for ap in aps], k)
+        has_cost = any(ap.cost is not None and ap.cost.ns_per_pixel is not None for ap in aps)
         header = [_Cell("Method")] + [_Cell(_metric_name(k), numeric=True) for k in keys]
         header += [_Cell("ns/pixel", numeric=True)] if has_cost else []
         header += [_Cell("Parameters")]
         rows = []
         for i, ap in enumerate(aps):
-            row = [_Cell(_label(ap, "label", "method"))] + [col[i] for col in columns]
+            row = [_Cell(ap.display)] + [col[i] for col in columns]
             if has_cost:
-                row.append(_Cell(format_number((ap.get("cost") or {}).get("ns_per_pixel")), numeric=True))
-            params = format_number(ap.get("parameters") or {}, trim=True) or "—"
-            row.append(_Cell(("fitted: " if ap.get("fitted") else "") + params))
+                row.append(_Cell(format_number(ap.cost.ns_per_pixel if ap.cost else None), numeric=True))
+            params = format_number(ap.parameters, trim=True) or "—"
+            row.append(_Cell(("fitted: " if ap.fitted else "") + params))
             rows.append(row)
         unresolved = any(cl.mark for col in columns for cl in col)
         d.table(
-            f"case-{c['id']}",
-            f"Error metrics for {c['label']}: each value with the reference's noise floor "
+            f"case-{c.id}",
+            f"Error metrics for {c.label}: each value with the reference's noise floor "
             "(↓ lower is better, ↑ higher is better; bold: best resolved value).",
             header,
             rows,
             [UNRESOLVED_NOTE] if unresolved else [],
             tex_cols=list(range(1 + len(keys))),
         )
-        imgs = [(f, _label(ap, "label", "method")) for ap in aps for f in ap.get("figures") or []]
+        imgs = [(f, ap.display) for ap in aps for f in ap.figures]
         if imgs:
-            d.figure(imgs, f"{c['label']}: " + ", ".join(lab for _, lab in imgs) + " (left to right).")
+            d.figure(imgs, f"{c.label}: " + ", ".join(lab for _, lab in imgs) + " (left to right).")
     emit_figures(("builtin", "results"))
 
     # Cost.
-    costs = r.get("costs") or []
-    if costs or ("builtin", "costs") in placed:
+    if r.costs or ("builtin", "costs") in placed:
         d.heading(2, "Cost", "costs")
-        if costs:
+        if r.costs:
             cols = [
                 ("ns_per_pixel", "ns/pixel"),
                 ("pixels_per_second", "pixels/s"),
                 ("backend", "Backend"),
                 ("note", "Note"),
             ]
-            cols = [(k, n) for k, n in cols if any(c.get(k) is not None for c in costs)]
+            cols = [(k, n) for k, n in cols if any(getattr(c, k) is not None for c in r.costs)]
             rows = [
-                [_Cell(_label(c, "label", "method"))]
+                [_Cell(c.display)]
                 + [
-                    _Cell(str(c.get(k) or ""), md=True)
+                    _Cell(c.note or "", md=True)
                     if k == "note"
-                    else _Cell(format_number(c.get(k)), numeric=k != "backend")
+                    else _Cell(format_number(getattr(c, k)), numeric=k != "backend")
                     for k, _ in cols
                 ]
-                for c in costs
+                for c in r.costs
             ]
             d.table(
                 "costs",
@@ -468,46 +453,44 @@ def _build(results: dict, directory: Path | None) -> _Doc:
         emit_figures(("builtin", "costs"))
 
     # Fits.
-    fits = r.get("fits") or []
-    if fits or ("builtin", "fits") in placed:
+    if r.fits or ("builtin", "fits") in placed:
         d.heading(2, "Fitted parameters", "fits")
-        if fits:
+        if r.fits:
             rows, at_bound, files = [], False, []
-            for f in fits:
-                params = list((f.get("parameters") or {}).items()) or [("—", None)]
+            for f in r.fits:
+                params: list[tuple[str, FitParameter | None]] = [
+                    (name, p if isinstance(p, FitParameter) else FitParameter(value=p))
+                    for name, p in f.parameters.items()
+                ] or [("—", None)]
                 for j, (name, p) in enumerate(params):
-                    p = p if isinstance(p, dict) else {"value": p}
-                    val = _Cell(format_number(p.get("value")), numeric=True)
-                    if p.get("stderr") is not None:
-                        val.text += " ± " + format_number(p["stderr"])
-                    if p.get("at_bound"):
+                    val = _Cell(format_number(p.value if p else None), numeric=True)
+                    if p is not None and p.stderr is not None:
+                        val.text += " ± " + format_number(p.stderr)
+                    if p is not None and p.at_bound:
                         val.style, val.mark, at_bound = "at-bound", "‡", True
                     bounds = (
                         ""
-                        if p.get("lower") is None and p.get("upper") is None
-                        else f"[{format_number(p.get('lower'))}, {format_number(p.get('upper'))}]"
+                        if p is None or (p.lower is None and p.upper is None)
+                        else f"[{format_number(p.lower)}, {format_number(p.upper)}]"
                     )
                     first = j == 0
-                    conv = f.get("converged")
+                    conv = f.converged
                     rows.append(
                         [
-                            _Cell(
-                                _label(f, "label", "id") if first else "",
-                                sub=str(f.get("model") or "") if first else "",
-                            ),
-                            _Cell(str(name)),
+                            _Cell(f.display if first else "", sub=(f.model or "") if first else ""),
+                            _Cell(name),
                             val,
                             _Cell(bounds, numeric=True),
-                            _Cell(format_number(f.get("rms_residual")) if first else "", numeric=True),
-                            _Cell(format_number(f.get("n_residuals")) if first else "", numeric=True),
+                            _Cell(format_number(f.rms_residual) if first else "", numeric=True),
+                            _Cell(format_number(f.n_residuals) if first else "", numeric=True),
                             _Cell(
                                 ("yes" if conv else "no") if first and conv is not None else "",
                                 style="" if conv or not first or conv is None else "fail",
                             ),
                         ]
                     )
-                if f.get("file"):
-                    files.append(f"[`{f['file']}`]({f['file']}) ({_label(f, 'label', 'id')})")
+                if f.file:
+                    files.append(f"[`{f.file}`]({f.file}) ({f.display})")
             d.table(
                 "fits",
                 "Fitted parameters (value ± standard error; bounds of the allowed range).",
@@ -529,12 +512,11 @@ def _build(results: dict, directory: Path | None) -> _Doc:
         emit_figures(("builtin", "fits"))
 
     # Checks.
-    checks = r.get("checks") or []
-    if checks or ("builtin", "checks") in placed:
+    if r.checks or ("builtin", "checks") in placed:
         d.heading(2, "Checks", "checks")
-        if checks:
-            failed = sum(1 for c in checks if not c["passed"])
-            n = len(checks)
+        if r.checks:
+            failed = sum(1 for c in r.checks if not c.passed)
+            n = len(r.checks)
             d.prose(
                 ("The check passed." if n == 1 else f"All {n} checks passed.")
                 if not failed
@@ -542,12 +524,12 @@ def _build(results: dict, directory: Path | None) -> _Doc:
             )
             rows = [
                 [
-                    _Cell(c["name"]),
-                    _Cell(format_number(c.get("value")), numeric=True),
-                    _Cell(format_number(c.get("expected"))),
-                    _Cell("pass" if c["passed"] else "FAIL", style="pass" if c["passed"] else "fail"),
+                    _Cell(c.name),
+                    _Cell(format_number(c.value), numeric=True),
+                    _Cell(format_number(c.expected)),
+                    _Cell("pass" if c.passed else "FAIL", style="pass" if c.passed else "fail"),
                 ]
-                for c in checks
+                for c in r.checks
             ]
             d.table(
                 "checks",
@@ -563,12 +545,11 @@ def _build(results: dict, directory: Path | None) -> _Doc:
     if rest:
         d.heading(2, "Figures", "figures")
         for fig in rest:
-            d.figure([(fig["file"], "")], str(fig.get("caption") or ""))
-    notes = r.get("notes") or []
-    if notes or placed:
+            d.figure([(fig.file, "")], fig.caption or "")
+    if r.notes or placed:
         d.heading(2, "Notes", "notes")
-        if notes:
-            d.blocks.append(_Bullets(list(notes)))
+        if r.notes:
+            d.blocks.append(_Bullets(list(r.notes)))
         emit_figures(("builtin", "notes"))
     return d
 
@@ -606,9 +587,9 @@ def _toc(d: _Doc) -> list[tuple[_Heading, list[_Heading]]]:
 def _render_md(d: _Doc) -> str:
     r = d.r
     out = [
-        f"# {_md_text(r['title'])}",
+        f"# {_md_text(r.title)}",
         "",
-        f"*rtfit experiment `{r['experiment']}` · {_md_text(r['created'])} · {_md_text(r['device'])}*",
+        f"*rtfit experiment `{r.experiment}` · {_md_text(r.created)} · {_md_text(r.device)}*",
         "",
     ]
     toc = ["**Contents**", ""]
@@ -642,8 +623,8 @@ def _render_md(d: _Doc) -> str:
     return "\n".join(out)
 
 
-def _footer_text(r: dict) -> str:
-    v = (r.get("versions") or {}).get("rtfit")
+def _footer_text(r: Results) -> str:
+    v = r.versions.get("rtfit")
     return (
         f"Generated by rtfit{' ' + str(v) if v else ''} from `results.json` (schema `{SCHEMA}`); "
         "regenerate with `rtfit report DIR`."
@@ -709,7 +690,7 @@ footer { margin-top: 3rem; padding-top: .8rem; border-top: 1px solid var(--light
             font-family: -apple-system, "Segoe UI", "Helvetica Neue", Arial, sans-serif; font-size: .88rem; }
 .headline b { font-weight: 600; }
 @media print { main { max-width: none; padding: 0; } nav.toc { display: none; } a { color: inherit; } }
-"""
+"""  # noqa: E501 (CSS rules one per line)
 
 
 def _html_cell(c: _Cell, tag: str = "td") -> str:
@@ -736,7 +717,8 @@ def _html_table(b: _Table) -> str:
     body = "\n".join("<tr>" + "".join(_html_cell(c) for c in row) + "</tr>" for row in b.rows)
     notes = "".join(f'<p class="table-note">{_esc(n)}</p>' for n in b.notes)
     return (
-        f'<div class="table-wrap" id="{b.anchor}"><table>\n<caption><b>Table {b.number}:</b> {_esc(b.caption)}'
+        f'<div class="table-wrap" id="{b.anchor}"><table>\n'
+        f"<caption><b>Table {b.number}:</b> {_esc(b.caption)}"
         f"</caption>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody></table>{notes}</div>"
     )
 
@@ -767,9 +749,9 @@ def _html_page(title: str, body: str) -> str:
 def _render_html(d: _Doc) -> str:
     r = d.r
     parts = [
-        f"<header><h1>{_esc(r['title'])}</h1>",
-        f'<p class="meta">rtfit experiment <code>{_esc(r["experiment"])}</code> · {_esc(r["created"])} · '
-        f"{_esc(r['device'])}</p></header>",
+        f"<header><h1>{_esc(r.title)}</h1>",
+        f'<p class="meta">rtfit experiment <code>{_esc(r.experiment)}</code> · {_esc(r.created)} · '
+        f"{_esc(r.device)}</p></header>",
     ]
 
     def link(h):
@@ -812,7 +794,7 @@ def _render_html(d: _Doc) -> str:
     if in_abstract:
         parts.append("</section>")
     parts.append(f"<footer>{markdown_inline(_footer_text(r))}</footer>")
-    return _html_page(r["title"], "\n".join(parts))
+    return _html_page(r.title, "\n".join(parts))
 
 
 # ---------------------------------------------------------------------------------------------- tex
@@ -835,6 +817,7 @@ _TEX_GREEK = zip(
     "αβγδεζηθικλμνξπρστυφχψωΓΔΘΛΞΠΣΥΦΨΩ",
     "alpha beta gamma delta epsilon zeta eta theta iota kappa lambda mu nu xi pi rho sigma tau upsilon "
     "phi chi psi omega Gamma Delta Theta Lambda Xi Pi Sigma Upsilon Phi Psi Omega".split(),
+    strict=True,
 )
 _TEX_UNICODE = {
     **{c: rf"\ensuremath{{\{n}}}" for c, n in _TEX_GREEK},
@@ -933,9 +916,10 @@ def _tex_label(*parts: str) -> str:
 def _render_tex(d: _Doc) -> str:
     r = d.r
     out = [
-        f"% tables.tex — generated by rtfit from results.json (experiment {r['experiment']}); do not edit.",
+        f"% tables.tex — generated by rtfit from results.json (experiment {r.experiment}); do not edit.",
         r"% \input{} it after \usepackage{booktabs}. Greek letters and common symbols are mapped to macros;",
-        "% other non-ASCII characters need a Unicode engine (xelatex, lualatex) or \\usepackage[utf8]{inputenc}.",
+        "% other non-ASCII characters need a Unicode engine (xelatex, lualatex) or "
+        "\\usepackage[utf8]{inputenc}.",
         "% Metric cells: value (noise floor of the reference).",
         "",
     ]
@@ -948,7 +932,7 @@ def _render_tex(d: _Doc) -> str:
             r"\begin{table}[htbp]",
             r"  \centering\small",
             f"  \\caption{{{_tex(b.caption)}}}",
-            f"  \\label{{tab:{_tex_label(r['experiment'], b.anchor.removeprefix('table-'))}}}",
+            f"  \\label{{tab:{_tex_label(r.experiment, b.anchor.removeprefix('table-'))}}}",
             f"  \\begin{{tabular}}{{{spec}}}",
             r"    \toprule",
             "    " + " & ".join(_tex(b.header[i].text) for i in cols) + r" \\",
@@ -963,11 +947,15 @@ def _render_tex(d: _Doc) -> str:
 
 
 # ------------------------------------------------------------------------------------------- public
-def render_report(results: dict, directory=None) -> dict[str, str]:
-    """Render validated results to ``{"report.md": …, "report.html": …, "tables.tex": …}``.
+def render_report(results: Results | Mapping, directory=None) -> dict[str, str]:
+    """Render results to ``{"report.md": …, "report.html": …, "tables.tex": …}``.
 
-    ``directory`` (optional) is where figure files are looked up to flag missing ones.
+    ``results``: a :class:`~.records.Results`, or the document as parsed JSON (validated here:
+    :class:`ResultsError`). ``directory`` (optional) is where figure files are looked up to flag missing
+    ones.
     """
+    if not isinstance(results, Results):
+        results = from_json(Results, plain_json(results), "<results>")
     d = _build(results, Path(directory) if directory is not None else None)
     return {"report.md": _render_md(d), "report.html": _render_html(d), "tables.tex": _render_tex(d)}
 
@@ -985,27 +973,22 @@ def _first_paragraph(md: str) -> str:
     return re.split(r"\n\s*\n", md.strip(), maxsplit=1)[0]
 
 
-def _index_entry(results: dict) -> tuple[list[tuple[str, str, bool]], list[tuple[str, str, str]]]:
+def _index_entry(results: Results) -> tuple[list[tuple[str, str, bool]], list[tuple[str, str, str]]]:
     """Headline facts ``(label, value, is_bad)`` and per-method rows ``(method, mean metric, ns/pixel)``."""
-    cases = results.get("cases") or []
+    cases = results.cases
     facts = [
-        (
-            str(h.get("label", "")),
-            format_number(h.get("value")) + (f" {h['unit']}" if h.get("unit") else ""),
-            False,
-        )
-        for h in results.get("headline") or []
-        if isinstance(h, dict)
+        (h.label or "", format_number(h.value) + (f" {h.unit}" if h.unit else ""), False)
+        for h in results.headline
     ]
-    methods = []
+    methods: list[str] = []
     for c in cases:
-        for ap in c["approximations"]:
-            if ap["method"] not in methods:
-                methods.append(ap["method"])
+        for ap in c.approximations:
+            if ap.method not in methods:
+                methods.append(ap.method)
     facts.append(("cases", f"{len(cases)} × {len(methods)} approximations", False))
-    checks = results.get("checks") or []
+    checks = results.checks
     if checks:
-        ok = sum(1 for c in checks if c.get("passed"))
+        ok = sum(1 for c in checks if c.passed)
         facts.append(
             (
                 "checks",
@@ -1013,27 +996,27 @@ def _index_entry(results: dict) -> tuple[list[tuple[str, str, bool]], list[tuple
                 ok != len(checks),
             )
         )
-    fits = results.get("fits") or []
+    fits = results.fits
     if fits:
-        bad = sum(1 for f in fits if f.get("converged") is False)
+        bad = sum(1 for f in fits if f.converged is False)
         facts.append(
             ("fits", f"{len(fits)} ({'all converged' if not bad else f'{bad} not converged'})", bad > 0)
         )
     head = _headline_metric(cases)
     rows = []
     if head:
-        cost = {c["method"]: c.get("ns_per_pixel") for c in results.get("costs") or []}
+        cost = {c.method: c.ns_per_pixel for c in results.costs}
         for m in methods:
             vals, floors, unresolved, label = [], [], 0, m
             for c in cases:
-                for ap in c["approximations"]:
-                    e = (ap.get("metrics") or {}).get(head)
-                    if ap["method"] == m and isinstance(e, dict) and isinstance(e.get("value"), (int, float)):
-                        label = _label(ap, "label", "method")
-                        vals.append(e["value"])
-                        unresolved += e.get("resolved") is False
-                        if isinstance(e.get("noise_floor"), (int, float)):
-                            floors.append(e["noise_floor"])
+                for ap in c.approximations:
+                    e = ap.metrics.get(head)
+                    if ap.method == m and e is not None and e.value is not None:
+                        label = ap.display
+                        vals.append(e.value)
+                        unresolved += e.resolved is False
+                        if e.noise_floor is not None:
+                            floors.append(e.noise_floor)
             if vals:
                 mean = format_number(sum(vals) / len(vals))
                 if floors:
@@ -1074,12 +1057,12 @@ def write_index(out_dir, experiment_dirs) -> list[Path]:
             )
             continue
         facts, rows = _index_entry(r)
-        summary = _first_paragraph(r["summary"])
-        meta = f"`{r['experiment']}` · {_md_text(r['created'])} · {_md_text(r['device'])}"
-        md += [f"## [{_md_text(r['title'])}]({link})", "", f"*{meta}*", "", summary, ""]
+        summary = _first_paragraph(r.summary)
+        meta = f"`{r.experiment}` · {_md_text(r.created)} · {_md_text(r.device)}"
+        md += [f"## [{_md_text(r.title)}]({link})", "", f"*{meta}*", "", summary, ""]
         md += ["  ·  ".join(f"**{k}:** {v}" for k, v, _ in facts), ""]
         any_unresolved |= any("≤ floor†" in b for _, b, _ in rows)
-        head = _headline_metric(r.get("cases") or [])
+        head = _headline_metric(r.cases)
         hname = METRICS.get(head, (head,))[0] if head else ""
         if rows:
             md += [f"| Approximation | mean {hname} over cases | ns/pixel |", "|:---|---:|---:|"]
@@ -1102,7 +1085,7 @@ def write_index(out_dir, experiment_dirs) -> list[Path]:
             for k, v, bad in facts
         )
         body.append(
-            f'<section class="entry"><h2><a href="{_esc(link)}">{_esc(r["title"])}</a></h2>'
+            f'<section class="entry"><h2><a href="{_esc(link)}">{_esc(r.title)}</a></h2>'
             f'<p class="meta">{markdown_inline(meta)}</p>{markdown_to_html(summary)}'
             f'<ul class="headline">{fact_html}</ul>{table}</section>'
         )

@@ -8,20 +8,26 @@ reference cache (rendered passes are never rendered twice).
 
 from __future__ import annotations
 
-import datetime as _dt
+import datetime
 import platform
+import subprocess
 import sys
+from collections.abc import Mapping
 from importlib import metadata
 from pathlib import Path
 
-from .atomic import atomic_directory, atomic_write_json, is_temporary_name
-from .jobs import make_executor
+import drjit as dr
+
+from .atomic import atomic_directory, is_temporary_name
+from .executors import make_executor
+from .records import SCHEMA, Results, from_json, plain_json
 from .registry import ExperimentSpec, RunContext
 from .report import write_index, write_report
-from .results import SCHEMA
+from .results import RESULTS_FILE, write_results
 
 
 def versions() -> dict:
+    """Installed version of each package a result depends on (None: not installed)."""
     out = {"python": platform.python_version()}
     for dist in ("rtfit", "mitsuba", "drjit", "numpy", "jax", "optimistix", "scikit-image", "flip-evaluator"):
         try:
@@ -32,12 +38,9 @@ def versions() -> dict:
 
 
 def device_description(variant: str) -> str:
-    import drjit as dr
-
+    """Where ``variant`` runs, in words: the GPU's name, or the CPU's with Dr.Jit's thread count."""
     if variant.startswith("cuda"):
         try:
-            import subprocess
-
             name = (
                 subprocess.run(
                     ["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
@@ -65,26 +68,48 @@ def device_description(variant: str) -> str:
     return f"CPU ({backend} backend, {threads} threads): {cpu}"
 
 
-def run_experiment_into(spec: ExperimentSpec, directory: Path, ctx: RunContext, executor_name: str) -> dict:
+def created_now() -> str:
+    """The current time, ISO 8601 UTC to the second (a results document's ``created``)."""
+    return datetime.datetime.now(datetime.UTC).replace(microsecond=0).isoformat()
+
+
+def run_experiment_into(
+    spec: ExperimentSpec,
+    directory: Path,
+    ctx: RunContext,
+    executor_name: str,
+    extra_config: Mapping | None = None,
+) -> Results:
     """Run one experiment with ``ctx`` and write ``results.json`` and the report into ``directory``
-    (which the caller makes atomic). Returns the results document."""
+    (which the caller makes atomic). Returns the results record.
+
+    The experiment's ``run(ctx)`` returns the body of the document (a dict); the runner adds the header
+    (schema, experiment, title, created, versions, device, the run's configuration keys and
+    ``extra_config``) and builds the :class:`~.records.Results` record before writing anything, so a
+    body of the wrong shape is a one-line :class:`~.records.ResultsError` naming the key path and
+    leaves no ``results.json`` behind."""
     ctx.log(f"{spec.name}: running ({'quick' if ctx.quick else 'full'}, {ctx.variant})")
     body = spec.load().run(ctx)
-    results = {
+    doc = {
         "schema": SCHEMA,
         "experiment": spec.name,
         "title": spec.title,
-        "created": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
+        "created": created_now(),
         "versions": versions(),
         "device": device_description(ctx.variant),
         **body,
     }
-    results.setdefault("config", {}).update(
-        {"quick": ctx.quick, "variant": ctx.variant, "seed": ctx.seed, "executor": executor_name}
-    )
-    if ctx.overrides:
-        results["config"]["overrides"] = dict(ctx.overrides)
-    atomic_write_json(Path(directory) / "results.json", results)
+    doc["config"] = {
+        **(body.get("config") or {}),
+        "quick": ctx.quick,
+        "variant": ctx.variant,
+        "seed": ctx.seed,
+        "executor": executor_name,
+        **({"overrides": dict(ctx.overrides)} if ctx.overrides else {}),
+        **dict(extra_config or {}),
+    }
+    results = from_json(Results, plain_json(doc), f"results of {spec.name}")
+    write_results(directory, results)
     write_report(Path(directory))
     return results
 
@@ -138,5 +163,5 @@ def run_experiments(
 def experiment_dirs(out: Path) -> list[Path]:
     """Every complete experiment (or sweep) directory directly under ``out``."""
     return sorted(
-        p for p in Path(out).iterdir() if not is_temporary_name(p.name) and (p / "results.json").is_file()
+        p for p in Path(out).iterdir() if not is_temporary_name(p.name) and (p / RESULTS_FILE).is_file()
     )

@@ -14,12 +14,17 @@ Two measurements, side by side in one run (ratios are only meaningful within one
 
 from __future__ import annotations
 
+import importlib.util
+import os
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
-from .jobs import Job, make_executor
+from .executors import make_executor
+from .jobs import Job
+from .ray_executor import RayExecutor
+from .sweep import load_sweep, run_sweep
 
 NOOP = "rtfit.experiments.jobs:diagnostic_job"
 
@@ -27,8 +32,6 @@ NOOP = "rtfit.experiments.jobs:diagnostic_job"
 def _available(name: str) -> bool:
     if name != "ray":
         return True
-    import importlib.util
-
     return importlib.util.find_spec("ray") is not None
 
 
@@ -73,15 +76,11 @@ def sweep_spec_text(points: int, variant: str) -> str:
 
 def _executor(name: str, workers, gpus):
     if name == "ray" and gpus:
-        from .ray_executor import RayExecutor
-
         return RayExecutor(num_gpus=len(gpus))
     return make_executor(name, workers, gpus=gpus)
 
 
 def _sweep_row(name: str, points: int, variant: str, workers, gpus=None, label=None) -> dict:
-    from .sweep import load_sweep, run_sweep
-
     with tempfile.TemporaryDirectory(prefix="rtfit-scaling-") as tmp:
         spec_path = Path(tmp) / "scaling.toml"
         spec_path.write_text(sweep_spec_text(points, variant))
@@ -112,8 +111,6 @@ def _sweep_row(name: str, points: int, variant: str, workers, gpus=None, label=N
 
 def bench(ctx) -> list[dict]:
     """Rows for ``rtfit bench executors`` (``ctx.quick``: fewer jobs and points)."""
-    import os
-
     gpus = None
     if ctx.variant.startswith("cuda"):
         env = os.environ.get("RTFIT_BENCH_GPUS")

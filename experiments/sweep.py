@@ -34,17 +34,23 @@ failed check per point that could not be completed) with its report.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 import json
 import shutil
 import tempfile
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .atomic import atomic_directory, atomic_write_json
-from .jobs import Job, Outcome
+from .atomic import atomic_directory
+from .jobs import InlineExecutor, Job, Outcome
+from .records import SCHEMA, Results, ResultsError, from_json, to_json
 from .registry import RunContext, apply_overrides, get_experiment
+from .report import write_index, write_report
+from .results import RESULTS_FILE, load_results, write_results
+from .runner import created_now, device_description, experiment_dirs, run_experiment_into, versions
 
 SWEEP_KEYS = {"name", "experiment", "quick", "spp", "seed", "fixed", "grid", "points", "description"}
 
@@ -118,8 +124,6 @@ def point_key(experiment: str, overrides: dict, quick: bool, spp, seed: int, var
 
 def load_sweep(path) -> Sweep:
     """Parse and validate a sweep file (every point against the experiment's configuration)."""
-    import tomllib
-
     path = Path(path)
 
     def fail(key: str, problem: str):
@@ -165,7 +169,9 @@ def load_sweep(path) -> Sweep:
         if not isinstance(values, list) or not values:
             fail(f"grid.{key}", "must be a non-empty list of values")
     points = (
-        [dict(fixed, **dict(zip(grid, combo))) for combo in itertools.product(*grid.values())] if grid else []
+        [dict(fixed, **dict(zip(grid, combo, strict=True))) for combo in itertools.product(*grid.values())]
+        if grid
+        else []
     )
     points += [dict(fixed, **p) for p in listed]
     if not points:
@@ -206,9 +212,6 @@ def run_point(
 ) -> dict:
     """Job body: run ``experiment`` with ``overrides`` in a scratch directory on this worker and
     return its files as ``{relative path: bytes}`` (plain data, so it crosses any executor)."""
-    from .jobs import InlineExecutor
-    from .runner import run_experiment_into
-
     spec = get_experiment(experiment)
     scratch = Path(tempfile.mkdtemp(prefix="rtfit-point-"))
     try:
@@ -223,9 +226,7 @@ def run_point(
             progress=False,
             overrides=dict(overrides),
         )
-        results = run_experiment_into(spec, scratch, ctx, "inline")
-        results["config"]["sweep_point"] = point_key
-        atomic_write_json(scratch / "results.json", results)
+        run_experiment_into(spec, scratch, ctx, "inline", extra_config={"sweep_point": point_key})
         return {
             "files": {
                 p.relative_to(scratch).as_posix(): p.read_bytes()
@@ -247,11 +248,11 @@ class SweepSummary:
 
 
 def _point_done(directory: Path, key: str) -> bool:
+    """Whether ``directory`` holds valid results of the point with key ``key`` (else: run it again)."""
     try:
-        doc = json.loads((directory / "results.json").read_text())
-    except (OSError, ValueError):
+        return load_results(directory).config.sweep_point == key
+    except ResultsError:
         return False
-    return doc.get("config", {}).get("sweep_point") == key
 
 
 def _write_point(directory: Path, files: dict):
@@ -278,9 +279,6 @@ def run_sweep(
     log=lambda msg: None,
 ) -> SweepSummary:
     """Run every missing point through ``executor``; write each point and the combined report."""
-    from .report import write_index, write_report
-    from .runner import experiment_dirs
-
     root = Path(out) / sweep.name
     (root / "points").mkdir(parents=True, exist_ok=True)
     points = sweep.resolved_points(variant)
@@ -310,18 +308,15 @@ def run_sweep(
     ]
     outcomes: list[Outcome] = executor.run_all(jobs, desc=f"sweep {sweep.name}") if jobs else []
     failed = []
-    for p, o in zip(todo, outcomes):
+    for p, o in zip(todo, outcomes, strict=True):
         if o.ok:
             _write_point(root / "points" / p.id, o.value["files"])
         else:
             failed.append((p.id, o.error or "unknown error"))
-    attempts = {p.id: o.attempts for p, o in zip(todo, outcomes)}
+    attempts = {p.id: o.attempts for p, o in zip(todo, outcomes, strict=True)}
     # The combined table lives in OUT/NAME/ itself (beside points/), so the suite index links it;
     # each file is written atomically.
-    atomic_write_json(
-        root / "results.json",
-        combined_results(sweep, points, root, dict(failed), attempts, variant, executor_name),
-    )
+    write_results(root, combined_results(sweep, points, root, dict(failed), attempts, variant, executor_name))
     write_report(root)
     write_index(Path(out), experiment_dirs(Path(out)))
     return SweepSummary(
@@ -337,17 +332,12 @@ def combined_results(
     attempts: dict,
     variant: str,
     executor_name: str,
-) -> dict:
+) -> Results:
     """One results document over all points: a case per (point, experiment case), every point's
     checks prefixed with its id, and a failed check for each point that could not be completed."""
-    import datetime as _dt
-
-    from .results import SCHEMA
-    from .runner import device_description, versions
-
     cases, checks, rows = [], [], []
     for p in points:
-        path = root / "points" / p.id / "results.json"
+        path = root / "points" / p.id / RESULTS_FILE
         if p.id in failed or not path.is_file():
             checks.append(
                 {
@@ -359,12 +349,12 @@ def combined_results(
             )
             rows.append(f"| `{p.id}` | {p.label} | **failed**: {failed.get(p.id, 'missing')} |")
             continue
-        doc = json.loads(path.read_text())
-        for c in doc.get("cases") or []:
-            case = dict(
+        doc = load_results(path.parent)
+        for c in doc.cases:
+            case = dataclasses.replace(
                 c,
-                id=f"{p.id}-{c['id']}",
-                label=f"{p.label} · {c['label']}",
+                id=f"{p.id}-{c.id}",
+                label=f"{p.label} · {c.label}",
                 parameters={
                     **{
                         f"sweep.{k}": _short(p.overrides[k])
@@ -373,18 +363,17 @@ def combined_results(
                         for k in p.varying
                         if k in p.overrides
                     },
-                    **(c.get("parameters") or {}),
+                    **c.parameters,
                 },
+                approximations=[
+                    dataclasses.replace(a, figures=[f"points/{p.id}/{f}" for f in a.figures])
+                    for a in c.approximations
+                ],
             )
-            case["approximations"] = [
-                dict(a, figures=[f"points/{p.id}/{f}" for f in a.get("figures") or []])
-                for a in c.get("approximations") or []
-            ]
-            cases.append(case)
-        for ch in doc.get("checks") or []:
-            checks.append(dict(ch, name=f"{p.id}: {ch['name']}"))
-        ok = sum(bool(ch.get("passed")) for ch in doc.get("checks") or [])
-        n = len(doc.get("checks") or [])
+            cases.append(to_json(case))
+        checks += [to_json(dataclasses.replace(ch, name=f"{p.id}: {ch.name}")) for ch in doc.checks]
+        ok = sum(ch.passed for ch in doc.checks)
+        n = len(doc.checks)
         rows.append(
             f"| [`{p.id}`](points/{p.id}/report.html) | {p.label} | {ok}/{n} checks passed"
             f"{f', {attempts[p.id]} attempts' if attempts.get(p.id, 1) > 1 else ''} |"
@@ -398,12 +387,12 @@ def combined_results(
         f"({len(points) - n_failed} complete, {n_failed} failed). Each point's full report is linked below; "
         "the tables combine every point's cases."
     )
-    return {
+    doc = {
         "schema": SCHEMA,
         "experiment": f"sweep-{sweep.name}",
         "title": f"Sweep {sweep.name}: {get_experiment(sweep.experiment).title}",
         "summary": summary + (f"\n\n{sweep.description}" if sweep.description else ""),
-        "created": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
+        "created": created_now(),
         "config": {
             "experiment": sweep.experiment,
             "quick": sweep.quick,
@@ -424,6 +413,7 @@ def combined_results(
         "cases": cases,
         "checks": checks,
     }
+    return from_json(Results, doc, f"sweep {sweep.name}")
 
 
 def show_config(experiment: str, quick: bool) -> str:

@@ -28,9 +28,11 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_json",
     "atomic_write_text",
+    "fsync_dir",
     "is_temporary_name",
     "read_exr",
     "rgb_group",
+    "temp_name",
     "write_exr",
 ]
 
@@ -46,11 +48,13 @@ def is_temporary_name(name: str) -> bool:
     return bool(_TEMP_NAME.match(name))
 
 
-def _temp_name(final: Path, kind: str) -> Path:
+def temp_name(final: Path, kind: str) -> Path:
+    """A fresh temporary name beside ``final`` (``.NAME.<12 hex>.KIND``, ``kind`` ``tmp`` or ``old``),
+    which :func:`is_temporary_name` recognises."""
     return final.parent / f".{final.name}.{secrets.token_hex(6)}.{kind}"
 
 
-def _fsync_dir(directory: Path) -> None:
+def fsync_dir(directory: Path) -> None:
     """Make a rename durable (best effort: some file systems refuse fsync on directories)."""
     try:
         fd = os.open(directory, os.O_RDONLY)
@@ -69,7 +73,7 @@ def atomic_write_bytes(path, data: bytes) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     while True:
-        tmp = _temp_name(path, "tmp")
+        tmp = temp_name(path, "tmp")
         try:
             # 0o666 & ~umask, like open(): a report must stay readable by others (mkstemp gives 0600).
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
@@ -88,7 +92,7 @@ def atomic_write_bytes(path, data: bytes) -> Path:
         except FileNotFoundError:
             pass
         raise
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
     return path
 
 
@@ -171,7 +175,7 @@ def write_exr(path, channels: dict[str, np.ndarray]) -> Path:
             raise ValueError(f"channel {name!r} must be 2-D or (H, W, 3) (got shape {a.shape})")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _temp_name(path, "tmp")
+    tmp = temp_name(path, "tmp")
     try:
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
         with OpenEXR.File(header, dict(flat)) as f:  # OpenEXR mutates the dict it is given: pass a copy
@@ -182,7 +186,7 @@ def write_exr(path, channels: dict[str, np.ndarray]) -> Path:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
     return path
 
 

@@ -116,13 +116,14 @@ def test_interrupted_run_keeps_old_output_and_resumes(quick_run, monkeypatch, ca
     out, cache = quick_run
     exp = out / "diffuse"
     before = (exp / "results.json").read_text()
-    # A failure during assembly (after the references) must leave the previous output untouched.
-    from rtfit.experiments import diffuse
+    # A failure at the very end (references rendered, results.json written into the temporary
+    # directory, the report not yet) must leave the previous output untouched.
+    from rtfit.experiments import runner
 
     def boom(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(diffuse, "assemble", boom)
+    monkeypatch.setattr(runner, "write_report", boom)
     assert (
         main(["run", "diffuse", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"]) == 130
     )

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from rtfit.experiments.jobs import InlineExecutor, Job, ProcessExecutor, make_executor
+from rtfit.experiments.executors import make_executor
+from rtfit.experiments.jobs import InlineExecutor, Job, ProcessExecutor
 from rtfit.scenes import scene_to_toml
 
 from .conftest import sphere_scene

@@ -39,6 +39,9 @@ LAZY_OK = {
     # ≈ 1 s, matplotlib ≈ 0.5 s, Ray ≈ 2 s), select a Mitsuba variant process-wide, or fail where the
     # optional extra is absent.
     "mitsuba",
+    # drjit starts loading CUDA on a background thread when imported: a GPU worker (process pool, Ray
+    # actor) must import it only after it has chosen its device (CUDA_VISIBLE_DEVICES).
+    "drjit",
     "jax",
     "jaxlib",
     "equinox",

@@ -38,7 +38,10 @@ def _results() -> dict:
         "schema": "rtfit.results/1",
         "experiment": "half-lambert",
         "title": "Half-Lambert & wrap <lighting>",
-        "summary": "We measured **irradiance** near the terminator; see `w(α)` and $E = \\pi L$.\n\nSecond paragraph.",
+        "summary": (
+            "We measured **irradiance** near the terminator; see `w(α)` and $E = \\pi L$."
+            "\n\nSecond paragraph."
+        ),
         "created": "2026-11-23T10:00:00Z",
         "config": {
             "quick": True,

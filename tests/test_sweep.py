@@ -14,7 +14,8 @@ import pytest
 
 from rtfit.experiments.atomic import is_temporary_name
 from rtfit.experiments.cli import main
-from rtfit.experiments.jobs import Job, ProcessExecutor, make_executor
+from rtfit.experiments.executors import make_executor
+from rtfit.experiments.jobs import Job, ProcessExecutor
 from rtfit.experiments.registry import apply_overrides
 from rtfit.experiments.sweep import SweepError, load_sweep, run_sweep
 
