@@ -228,7 +228,7 @@ class PassEntry:
 
     Every reference in rtfit (radiance images, irradiance probes, ray-cast occlusion, the atmosphere's
     sky renders) is stored this way: ``pass-NNNNN.<exr|npz>`` holds a pass's per-element mean and
-    unbiased sample variance (float32), ``pass-NNNNN.json`` its seed, spp and timing (a pass counts only
+    unbiased sample variance (float32 in EXR, float64 in npz), ``pass-NNNNN.json`` its seed, spp and timing (a pass counts only
     once both exist), ``entry.json`` what the entry is. Files are written atomically; an unreadable or
     truncated pass is re-rendered, never trusted. `passes` loads what is there and renders the rest.
 
@@ -271,23 +271,26 @@ class PassEntry:
             return None  # unreadable leftovers are re-rendered, never trusted
 
     def save(self, index: int, result: PassResult) -> PassResult:
-        """Write pass ``index`` atomically; returns it with the values exactly as stored (float32), so that
-        a fresh result and one resumed from the cache are identical."""
+        """Write pass ``index`` atomically; returns it with the values exactly as stored, so that a fresh
+        result and one resumed from the cache are identical. EXR passes are float32 (what image tools
+        read); npz passes keep the float64 moments as computed (an ill-conditioned fit downstream, such
+        as sdf-occlusion's sunsky Evans fit, moves by percents under float32 rounding of its target)."""
         data, meta = self._files(index)
         self.folder.mkdir(parents=True, exist_ok=True)
-        mean32, var32 = result.mean.astype(np.float32), result.var.astype(np.float32)
+        dtype = np.float32 if self.storage == "exr" else np.float64
+        mean, var = result.mean.astype(dtype), result.var.astype(dtype)
         if self.storage == "exr":
-            img = (1, -1, 3) if mean32.ndim == 2 else mean32.shape
-            write_exr(data, {"mean": mean32.reshape(img), "var": var32.reshape(img)})
+            img = (1, -1, 3) if mean.ndim == 2 else mean.shape
+            write_exr(data, {"mean": mean.reshape(img), "var": var.reshape(img)})
         else:
             buf = io.BytesIO()
-            np.savez(buf, mean=mean32, var=var32)
+            np.savez(buf, mean=mean, var=var)
             atomic_write_bytes(data, buf.getvalue())
         atomic_write_json(
             meta, {"index": index, "spp": result.spp, "seed": result.seed, "seconds": result.seconds}
         )
         return PassResult(
-            mean32.astype(np.float64), var32.astype(np.float64), result.spp, result.seed, result.seconds
+            mean.astype(np.float64), var.astype(np.float64), result.spp, result.seed, result.seconds
         )
 
     # -- claims: one process renders a pass, the others wait for it
