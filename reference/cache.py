@@ -228,9 +228,10 @@ class PassEntry:
 
     Every reference in rtfit (radiance images, irradiance probes, ray-cast occlusion, the atmosphere's
     sky renders) is stored this way: ``pass-NNNNN.<exr|npz>`` holds a pass's per-element mean and
-    unbiased sample variance (float32 in EXR, float64 in npz), ``pass-NNNNN.json`` its seed, spp and timing (a pass counts only
-    once both exist), ``entry.json`` what the entry is. Files are written atomically; an unreadable or
-    truncated pass is re-rendered, never trusted. `passes` loads what is there and renders the rest.
+    unbiased sample variance (float32 in EXR, float64 in npz), ``pass-NNNNN.json`` its seed, spp and
+    timing (a pass counts only once both exist), ``entry.json`` what the entry is. Files are written
+    atomically; an unreadable or truncated pass is re-rendered, never trusted. `passes` loads what is
+    there and renders the rest.
 
     ``storage="exr"`` keeps passes viewable in an image tool (arrays of shape (H, W, 3), or (N, 3) stored
     as a (1, N, 3) image); ``"npz"`` stores arrays of any shape.
