@@ -587,8 +587,7 @@ def volume_case(cfg, scenes, rendered, hashes, images):
     gb = rendered["volumes-nofog"]["gbuffer"]
     vols = [volume_from_medium(m) for m in sc.media]
     h, w = gb.mask.shape
-    o = np.broadcast_to(np.asarray(sc.camera.origin, dtype=np.float64), (h, w, 3))
-    _, d, dist = pixel_rays(sc, gb)
+    o, d, dist = pixel_rays(sc, gb)
     taus = [np.asarray(t, dtype=np.float64) for t in fog_volumes_optical_depth(o, d, dist, vols)]
     total = np.sum(taus, axis=0)
     t = np.exp(-total)
@@ -768,8 +767,7 @@ def transmittance_checks(scene, rendered, shape: str) -> list[dict]:
     ref, gb = rendered["image"], rendered["gbuffer"]
     vol = volume_from_medium(scene.media[0])
     h, w = gb.mask.shape
-    o = np.broadcast_to(np.asarray(scene.camera.origin, dtype=np.float64), (h, w, 3))
-    _, d, _ = pixel_rays(scene, gb)
+    o, d, _ = pixel_rays(scene, gb)
     tau = np.asarray(fog_volumes_optical_depth(o, d, np.full((h, w), np.inf), [vol])[0], dtype=np.float64)
     t = np.exp(-tau)
     m = gb.mask & (tau > 1e-6)
