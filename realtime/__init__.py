@@ -17,7 +17,7 @@ Modules:
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
     irradiance_bases  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
                 (docs/irradiance-bases.md).
-    fog         exponential height fog: stable closed-form optical depth, fog colour, fog volumes
+    height_fog  exponential height fog: stable closed-form optical depth, fog colour, fog volumes
                 (docs/height-fog.md).
     sdf_grid    signed distance fields: analytic primitives, mesh → voxel grid, mip chain, 8-bit
                 (docs/sdf-occlusion.md).
@@ -32,7 +32,7 @@ from . import arrays
 from .ambient_aperture import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
-from .fog import *  # noqa: F403
+from .height_fog import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .phase import *  # noqa: F403
@@ -46,7 +46,7 @@ MODULES = (
     "phase",
     "ambient_aperture",
     "diffuse",
-    "fog",
+    "height_fog",
     "irradiance_bases",
     "sdf_grid",
     "sdf_occlusion",

@@ -27,43 +27,13 @@ from rtfit.scenes.model import (
     Sphere,
 )
 
-from . import emitters
+from . import emitters, height_fog
 from .integrators import IntegratorChoice, choose_integrator
+from .transforms import affine, frame_from_normal, rotation_matrix
+from .variants import use_variant
 
 
 # ------------------------------------------------------------------------------------ transforms
-def rotation_matrix(axis, angle_deg: float) -> np.ndarray:
-    """3×3 rotation about ``axis`` (normalised here) by ``angle_deg`` (right-handed), Rodrigues."""
-    a = np.asarray(axis, dtype=np.float64)
-    a = a / np.linalg.norm(a)
-    t = math.radians(angle_deg)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * (k @ k)
-
-
-def frame_from_normal(normal, rotation_deg: float = 0.0) -> np.ndarray:
-    """3×3 matrix whose columns (t, b, n) form a right-handed frame with n = ``normal``.
-
-    The tangent is the world axis least aligned with n projected onto the plane, turned by
-    ``rotation_deg`` about n: deterministic, so a rectangle's orientation is reproducible.
-    """
-    n = np.asarray(normal, dtype=np.float64)
-    n = n / np.linalg.norm(n)
-    hint = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    t = np.cross(hint, n)
-    t /= np.linalg.norm(t)
-    b = np.cross(n, t)
-    r = rotation_matrix(n, rotation_deg)
-    return np.column_stack([r @ t, r @ b, n])
-
-
-def affine(linear: np.ndarray, translate) -> np.ndarray:
-    m = np.eye(4)
-    m[:3, :3] = linear
-    m[:3, 3] = np.asarray(translate, dtype=np.float64)
-    return m
-
-
 def _transform(mi, matrix: np.ndarray):
     return mi.ScalarTransform4f(matrix.tolist())
 
@@ -192,12 +162,10 @@ def light_dicts(mi, light) -> dict:
 
 
 def _medium_dict(medium: HomogeneousMedium) -> dict:
-    if medium.kind == "exponential_fog":  # rtfit's Python medium (height fog, rtfit.reference.fog_media)
-        import mitsuba as mi
+    if medium.kind == "exponential_fog":  # rtfit's Python medium (rtfit.reference.height_fog)
+        import mitsuba as mi  # mitsuba: the variant the caller selected (use_variant) is already active
 
-        from . import fog_media
-
-        return fog_media.medium_dict(mi, medium)
+        return height_fog.medium_dict(mi, medium)
     phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
     return {
         "type": "homogeneous",
@@ -362,8 +330,6 @@ def load_mitsuba_scene(
     scene: Scene, variant: str = "llvm_ad_rgb", integrator: IntegratorChoice | None = None
 ):
     """Build and load the Mitsuba scene for ``scene`` under ``variant``; returns ``(mi, mi_scene)``."""
-    from .variants import use_variant
-
     mi = use_variant(variant)
     return mi, load_dict(mi, mitsuba_scene_dict(mi, scene, integrator))
 
@@ -371,9 +337,7 @@ def load_mitsuba_scene(
 def load_dict(mi, d: dict):
     """``mi.load_dict`` with rtfit's own plugins registered and attached to the loaded scene."""
     emitters.register(mi)
-    from . import fog_media
-
-    fog_media.register(mi)
+    height_fog.register(mi)
     mi_scene = mi.load_dict(d)
     emitters.attach(mi_scene)
     return mi_scene

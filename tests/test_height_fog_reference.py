@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 import pytest
+
 from rtfit.scenes import ExponentialFog, SceneError, library_path, load_scene, parse_scene_text, scene_to_toml
 
 FOG_TOML = """
@@ -62,7 +63,7 @@ def test_builder_uses_python_medium_and_volpathmis(mi):
 
 def _expected_t(scene, view_dir):
     """Independent float64 transmittance along each pixel ray (see module docstring)."""
-    from rtfit.reference.fog_media import region_matrix
+    from rtfit.reference.height_fog import region_matrix
 
     m = scene.media[0]
     mat = region_matrix(m.boundary)
@@ -138,10 +139,10 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
         random_samples=2000,
         cost_elements=1 << 12,
     )
-    from rtfit.experiments import height_fog_report
+    from rtfit.experiments import height_fog
 
     # figures are exercised by the quick run; here they would double the test's time
-    monkeypatch.setattr(height_fog_report, "_figures", lambda *a, **k: [])
+    monkeypatch.setattr(height_fog, "make_figures", lambda *a, **k: [])
     run_experiments(
         [get_experiment("height-fog")],
         tmp_path / "out",

@@ -27,7 +27,10 @@ from __future__ import annotations
 import itertools
 import math
 
+import drjit as dr
 import numpy as np
+
+from .transforms import affine, rotation_matrix
 
 PLUGIN = "rtfit_expfog"
 _registered: set[str] = set()
@@ -36,8 +39,6 @@ _MAJORANT_MARGIN = 1e-5
 
 def region_matrix(boundary) -> np.ndarray:
     """4×4 world-from-local matrix of the region box [−1, 1]³ of a Cube or Sphere boundary."""
-    from .build import affine, rotation_matrix
-
     if boundary.kind == "cube":
         rot = rotation_matrix(boundary.rotate_axis, boundary.rotate_deg)
         lin = rot @ np.diag(np.asarray(boundary.size) / 2)
@@ -82,7 +83,6 @@ def register(mi) -> None:
     variant = mi.variant()
     if variant in _registered:
         return
-    import drjit as dr
 
     class ExpFog(mi.Medium):
         def __init__(self, props):
@@ -143,10 +143,12 @@ def register(mi) -> None:
     _registered.add(variant)
 
 
-def sky_statistics(
-    sunsky, variant: str = "llvm_ad_rgb", n_azimuth: int = 256, n_dirs: int = 1 << 16, seed: int = 0
-) -> dict:
-    """Radiance statistics of a scene `SunSky` light (Mitsuba's ``sunsky`` evaluated directly, RGB):
+def sky_statistics(mi, emitter, sunsky, n_azimuth: int = 256, n_dirs: int = 1 << 16, seed: int = 0) -> dict:
+    """Radiance statistics of a scene `SunSky` light (Mitsuba's ``sunsky`` evaluated directly, RGB).
+
+    ``mi``: the mitsuba module with the variant set; ``emitter``: the loaded ``sunsky`` plugin of
+    ``sunsky`` (``mi.load_dict(light_dicts(mi, sunsky)[""])`` with `rtfit.reference.build.light_dicts`:
+    the builder imports this module, so the caller builds the emitter). Returns
 
     * ``horizon``: mean sky radiance over azimuth at elevations 1°–5° (the seed's horizon average,
       000:2247-2254);
@@ -155,13 +157,6 @@ def sky_statistics(
     * ``sun_irradiance``: E⊥ of the sun disc, ∫ L dω over its aperture (midpoint rule on a polar grid);
     * ``sky_irradiance_horizontal``: ∫ L_sky cos θ dω over the upper hemisphere (W/m² per the model's units).
     """
-    from .build import light_dicts
-    from .variants import use_variant
-
-    mi = use_variant(variant)
-    import drjit as dr
-
-    emitter = mi.load_dict(light_dicts(mi, sunsky)[""])
 
     def radiance(dirs: np.ndarray) -> np.ndarray:
         si = dr.zeros(mi.SurfaceInteraction3f, len(dirs))

@@ -28,11 +28,11 @@ and y = c·|Δz| ≥ 0:
   overflow while τ itself is in float range (τ = +∞, T = 0 exactly, beyond it);
 * b = 0 or D = 0 → τ = 0 exactly (never 0·∞); c = 0 → τ = b·D (homogeneous fog).
 
-Measured float32 relative error against mpmath (tests/test_fog.py; the docs/height-fog.md table):
+Measured float32 relative error against mpmath (tests/test_height_fog.py; the docs/height-fog.md table):
 |τ₃₂/τ − 1| ≤ 2e-6 + 2·2⁻²⁴·|c·z_min| over z ∈ [−10⁴, 10⁴] m, D ∈ [0, 10⁶] m, b ∈ [0, 1] /m,
 c ∈ [0, 10] /m (the second term is the conditioning of e^(−c·z) itself: float32 inputs carry it).
 
-Comparison forms (same inputs, rows of the experiment):
+Comparison forms (same inputs, rows of the experiment; `METHODS` ids ``exact``, ``seed``, ``taylor``):
 
 * ``seed``: the seed's HLSL listing exactly as written (000:2226-2240): ``fogInt = D·e^(−c·z₀)``, multiplied
   by (1 − e^(−t))/t with t = c·Δz only when |Δz| > 0.01 — a threshold on the *raw height difference in
@@ -57,8 +57,17 @@ L = L_scene·T + C·(1 − T) (fog composited over the scene, seed 000:2247-2254
 the seed's sky-matched colour: the horizon average of the sky's in-scatter H times the per-pixel phase
 function of the angle θ between the view ray and the sun, here normalised to mean 1 over the sphere,
 C(θ) = H_R·4π·p_R(θ) + H_M·4π·p_HG(θ, g), with p_R = 3(1 + cos²θ)/(16π) and
-p_HG = (1 − g²)/(4π(1 + g² − 2g cos θ)^{3/2}).
+p_HG = (1 − g²)/(4π(1 + g² − 2g cos θ)^{3/2}) (the one phase text, `rtfit.realtime.phase`).
 cos θ = v·l with v the view direction (camera → pixel) and l the direction to the sun.
+
+Methods as data (`METHODS`)
+---------------------------
+The optical-depth forms (``exact``, ``seed``, ``taylor``: inputs z0, z1, distance in m; params b, c in 1/m)
+and the two shading models of the experiment, each L = L₀·T + C·(1 − T) on the fog-free radiance L₀ with T
+from the stable form along the segment: ``const`` (C = (r0, g0, b0)) and ``phase``
+(C = (r0, g0, b0) + (r1, g1, b1)·4π·p_HG(θ, g)). Each declares its inputs with units and its free
+parameters with defaults, bounds and units; `rtfit.fitting.fit_method` fits them through the JAX run of the
+same kernel text, and ``method(NUMPY_OPS, inputs, params)`` is its NumPy run.
 
 Fog volumes (seed 000:2255-2301)
 --------------------------------
@@ -84,27 +93,24 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .arrays import check_range, evaluate, evaluate_numpy, is_drjit, safe_div
+from .arrays import check_range, evaluate, is_drjit, safe_div, split3
+from .methods import Input, Method, Param, method_table
+from .phase import hg_phase, hg_phase_kernel, rayleigh_phase
 
 __all__ = [
-    "FORMS",
+    "OPTICAL_DEPTH_FORMS",
     "FogVolume",
     "apply_fog",
     "fog_colour_phase",
     "fog_pass",
+    "fog_volume_segment",
     "fog_volumes_optical_depth",
     "fog_volumes_shade",
     "height_fog_optical_depth",
     "height_fog_optical_depth_ray",
     "height_fog_transmittance",
-    "numpy_kernel",
     "optical_depth_form",
-    "phase_hg",
-    "phase_rayleigh",
 ]
-
-FORMS = ("exact", "seed", "taylor")
-"""Optical-depth forms compared by the experiment: rtfit's stable form, the seed listing, the engine form."""
 
 _SERIES_LIMIT = 0.5
 _PHI_COEFFS = tuple((-1.0) ** k / math.factorial(k + 1) for k in range(10))  # 1, −1/2, 1/6, …, −1/10!
@@ -112,11 +118,7 @@ _TINY = 1e-30
 _SEED_THRESHOLD = 0.01  # metres of raw height difference (000:2233)
 _UE_CLAMP = -127.0 * math.log(2.0)
 _UE_EPS = 0.01 * math.log(2.0)
-_INV_4PI = 1.0 / (4.0 * math.pi)
-
-
-def _exp(ops, x):
-    return dr.exp(x) if ops.name == "drjit" else np.exp(x)
+_G_LIMIT = 0.999  # |g| accepted by the public functions (that of `rtfit.realtime.phase`)
 
 
 # ===================================================================================== kernels (ops text)
@@ -131,7 +133,7 @@ def _phi_series(ops, y):
 def _exp_limit(ops, x) -> float:
     """Largest exponent e for which (pre·e^(e/2))·e^(e/2) cannot overflow before τ itself does: 176 in float32
     (e^88 < 3.4e38; any τ with e > 176 and pre ≥ the smallest normal 1.2e-38 exceeds float32),
-    1400 in float64."""
+    1400 in float64 (NumPy floats and JAX float64 tracers included)."""
     if ops.name == "drjit":
         return 1400.0 if dr.is_array_v(x) and dr.type_v(x) == dr.VarType.Float64 else 176.0
     return 176.0 if getattr(x, "dtype", np.float64) == np.float32 else 1400.0
@@ -141,7 +143,7 @@ def _scale_exp(ops, pre, e):
     """pre·e^e for pre ≥ 0 as (pre·h)·h with h = e^(e/2): one exp, no intermediate overflow; 0 when pre = 0
     (even where e^e = ∞), +∞ when e exceeds `_exp_limit` (τ beyond float range)."""
     limit = _exp_limit(ops, e)
-    h = _exp(ops, 0.5 * ops.minimum(e, limit))
+    h = ops.exp(0.5 * ops.minimum(e, limit))
     # pre = ∞ (an infinite path, e.g. a horizontal sky ray) stays ∞ even where h underflows to 0 (no ∞·0)
     tau = ops.select((e > limit) | (pre == math.inf), math.inf, (pre * h) * h)
     return ops.select(pre > 0.0, tau, 0.0)
@@ -152,66 +154,162 @@ def _core(ops, zmin, y, dist, dist_over_y, b, c):
     small = y < _SERIES_LIMIT
     ser = dist * _phi_series(ops, ops.minimum(y, _SERIES_LIMIT))
     yl = ops.maximum(y, _SERIES_LIMIT)
-    direct = (1.0 - _exp(ops, -yl)) * dist_over_y
+    direct = (1.0 - ops.exp(-yl)) * dist_over_y
     d_phi = ops.select(small, ser, direct)
     e = ops.select(c > 0.0, -c * zmin, 0.0)
     return _scale_exp(ops, b * d_phi, e)
 
 
-def _optical_depth_kernel(ops, z0, z1, dist, b, c):
+def _optical_depth_kernel(ops, z0, z1, distance, b, c):
+    """The stable closed form (module docstring): τ = b·D·e^(−c·z_min)·φ(c·|Δz|)."""
     b = ops.maximum(b, 0.0)
     c = ops.maximum(c, 0.0)
-    dist = ops.maximum(dist, 0.0)
+    distance = ops.maximum(distance, 0.0)
     zmin = ops.minimum(z0, z1)
     y = c * ops.abs(z1 - z0)
-    return _core(ops, zmin, y, dist, safe_div(ops, dist, y), b, c)
+    return _core(ops, zmin, y, distance, safe_div(ops, distance, y), b, c)
 
 
-def _optical_depth_ray_kernel(ops, z0, dz, dist, b, c):
+def _optical_depth_ray_kernel(ops, z0, dz, distance, b, c):
     b = ops.maximum(b, 0.0)
     c = ops.maximum(c, 0.0)
-    dist = ops.maximum(dist, 0.0)
+    distance = ops.maximum(distance, 0.0)
     down = dz < 0.0
-    zmin = z0 + ops.select(down, dz * ops.select(down, dist, 0.0), 0.0)
+    zmin = z0 + ops.select(down, dz * ops.select(down, distance, 0.0), 0.0)
     rate = c * ops.abs(dz)
-    y = ops.select(rate > 0.0, rate * ops.select(rate > 0.0, dist, 0.0), 0.0)
-    return _core(ops, zmin, y, dist, safe_div(ops, 1.0, rate), b, c)
+    y = ops.select(rate > 0.0, rate * ops.select(rate > 0.0, distance, 0.0), 0.0)
+    return _core(ops, zmin, y, distance, safe_div(ops, 1.0, rate), b, c)
 
 
-def _seed_kernel(ops, z0, z1, dist, b, c):
+def _seed_kernel(ops, z0, z1, distance, b, c):
     """000:2226-2240 as written (returns the optical depth b·fogInt, T = e^(−that))."""
     dz = z1 - z0
-    fog_int = dist * _exp(ops, -c * z0)
+    fog_int = distance * ops.exp(-c * z0)
     t = c * dz
-    fog_int = ops.select(ops.abs(dz) > _SEED_THRESHOLD, fog_int * ((1.0 - _exp(ops, -t)) / t), fog_int)
+    fog_int = ops.select(ops.abs(dz) > _SEED_THRESHOLD, fog_int * ((1.0 - ops.exp(-t)) / t), fog_int)
     return b * fog_int
 
 
-def _taylor_kernel(ops, z0, z1, dist, b, c):
+def _taylor_kernel(ops, z0, z1, distance, b, c):
     """Engine form: clamped exponent, first-order Taylor polynomial near horizontal rays."""
     x = ops.maximum(c * (z1 - z0), _UE_CLAMP)
-    exact = (1.0 - _exp(ops, -x)) / x
+    exact = (1.0 - ops.exp(-x)) / x
     taylor = 1.0 - 0.5 * x
     phi = ops.select(ops.abs(x) > _UE_EPS, exact, taylor)
-    return b * dist * _exp(ops, -c * z0) * phi
+    return b * distance * ops.exp(-c * z0) * phi
 
 
-def _transmittance_kernel(ops, z0, z1, dist, b, c):
-    return _exp(ops, -_optical_depth_kernel(ops, z0, z1, dist, b, c))
+def _transmittance_kernel(ops, z0, z1, distance, b, c):
+    return ops.exp(-_optical_depth_kernel(ops, z0, z1, distance, b, c))
 
 
-_KERNELS = {"exact": _optical_depth_kernel, "seed": _seed_kernel, "taylor": _taylor_kernel}
+def _fog_colour(ops, cos_sun, r0, g0, b0, r1, g1, b1, g):
+    """C(θ) = C₀ + C₁·4π·p_HG(θ, g) per channel (4π·p_HG has mean 1 over the sphere)."""
+    w = 4.0 * math.pi * hg_phase_kernel(ops, ops.clip(cos_sun, -1.0, 1.0), g)
+    return ops.fma(r1, w, r0), ops.fma(g1, w, g0), ops.fma(b1, w, b0)
 
 
-def _phase_hg_kernel(ops, cos_t, g):
-    cos_t = ops.clip(cos_t, -1.0, 1.0)
-    denom = ops.maximum(1.0 + g * g - 2.0 * g * cos_t, _TINY)
-    return _INV_4PI * (1.0 - g * g) / (denom * ops.sqrt(denom))
+def _blend(ops, t, l0_r, l0_g, l0_b, cr, cg, cb):
+    """L = L₀·T + C·(1 − T) per channel."""
+    one_t = 1.0 - t
+    return ops.fma(l0_r, t, cr * one_t), ops.fma(l0_g, t, cg * one_t), ops.fma(l0_b, t, cb * one_t)
 
 
-def _phase_rayleigh_kernel(ops, cos_t):
-    cos_t = ops.clip(cos_t, -1.0, 1.0)
-    return (3.0 / (16.0 * math.pi)) * (1.0 + cos_t * cos_t)
+def _fog_const_kernel(ops, z0, z1, distance, l0_r, l0_g, l0_b, b, c, r0, g0, b0):
+    """Shading model ``const``: T of the stable form along the segment, constant fog colour."""
+    t = _transmittance_kernel(ops, z0, z1, distance, b, c)
+    return _blend(ops, t, l0_r, l0_g, l0_b, r0, g0, b0)
+
+
+def _fog_phase_kernel(ops, z0, z1, distance, cos_sun, l0_r, l0_g, l0_b, b, c, r0, g0, b0, r1, g1, b1, g):
+    """Shading model ``phase``: as ``const`` with the colour C₀ + C₁·4π·p_HG(θ, g)."""
+    t = _transmittance_kernel(ops, z0, z1, distance, b, c)
+    return _blend(ops, t, l0_r, l0_g, l0_b, *_fog_colour(ops, cos_sun, r0, g0, b0, r1, g1, b1, g))
+
+
+# ===================================================================================== methods (data)
+_SEGMENT = (
+    Input("z0", "m", "height of the segment's start (the camera end) along the fog gradient"),
+    Input("z1", "m", "height of the segment's end along the fog gradient"),
+    Input("distance", "m", "segment length D (|z1 − z0| ≤ D)"),
+)
+_FOG_FREE = tuple(Input(f"l0_{ch}", "radiance", f"fog-free radiance L₀, {ch} channel") for ch in "rgb")
+_COS_SUN = Input("cos_sun", "1", "cos θ = v·l: view direction · direction to the sun")
+_DENSITY = {
+    "b": Param(2e-4, 2e-7, 0.2, unit="1/m", description="density b: extinction at height 0"),
+    "c": Param(4e-3, 4e-6, 0.4, unit="1/m", description="falloff c: the scale height is 1/c"),
+}
+_COLOUR = {
+    f"{ch}0": Param(0.1, 0.0, 100.0, unit="radiance", description=f"constant fog colour C₀, {ch} channel")
+    for ch in "rgb"
+}
+_PHASE_COLOUR = {
+    **{
+        f"{ch}1": Param(0.01, 0.0, 100.0, unit="radiance", description=f"phase-weighted colour C₁, {ch}")
+        for ch in "rgb"
+    },
+    "g": Param(0.5, -0.95, 0.95, unit="1", description="Henyey–Greenstein mean cosine of the colour lobe"),
+}
+
+METHODS = method_table(
+    [
+        Method(
+            id="exact",
+            label="stable closed form (rtfit)",
+            kernel=_optical_depth_kernel,
+            inputs=_SEGMENT,
+            params=_DENSITY,
+            exact=True,
+            quantity="fog_optical_depth",
+            formula="τ = b·D·e^(−c·z_min)·φ(c·|Δz|), φ(y) = (1 − e^(−y))/y (Taylor series below y = 0.5)",
+            source="seed 000:2196-2210 (derivation); rtfit (stable evaluation)",
+        ),
+        Method(
+            id="seed",
+            label="seed listing (000:2226-2240)",
+            kernel=_seed_kernel,
+            inputs=_SEGMENT,
+            params=_DENSITY,
+            quantity="fog_optical_depth",
+            formula="b·D·e^(−c·z₀)·(1 − e^(−cΔz))/(cΔz) where |Δz| > 0.01 m, else b·D·e^(−c·z₀)",
+            source="seed 000:2226-2240 (as written)",
+        ),
+        Method(
+            id="taylor",
+            label="engine form (clamp + 1st-order Taylor)",
+            kernel=_taylor_kernel,
+            inputs=_SEGMENT,
+            params=_DENSITY,
+            quantity="fog_optical_depth",
+            formula="x = max(cΔz, −127 ln 2); b·D·e^(−c·z₀)·((1 − e^(−x))/x if |x| > 0.01 ln 2 else 1 − x/2)",
+            source="Unreal Engine 4 exponential height fog (quoted from memory, base e)",
+        ),
+        Method(
+            id="const",
+            label="fog blend, constant colour",
+            kernel=_fog_const_kernel,
+            inputs=(*_SEGMENT, *_FOG_FREE),
+            params={**_DENSITY, **_COLOUR},
+            quantity="fogged_radiance",
+            formula="L = L₀·T(b, c) + C·(1 − T)",
+            source="seed 000:2247-2254",
+        ),
+        Method(
+            id="phase",
+            label="fog blend, colour C₀ + C₁·4π·p_HG(θ, g)",
+            kernel=_fog_phase_kernel,
+            inputs=(*_SEGMENT, _COS_SUN, *_FOG_FREE),
+            params={**_DENSITY, **_COLOUR, **_PHASE_COLOUR},
+            quantity="fogged_radiance",
+            formula="L = L₀·T(b, c) + (C₀ + C₁·4π·p_HG(θ, g))·(1 − T)",
+            source="seed 000:2247-2254 (per-pixel phase-weighted fog colour)",
+        ),
+    ]
+)
+"""The family's methods: three optical-depth forms and two shading models (see the module docstring)."""
+
+OPTICAL_DEPTH_FORMS = tuple(k for k, m in METHODS.items() if m.quantity == "fog_optical_depth")
+"""Optical-depth forms compared by the experiment: rtfit's stable form, the seed listing, the engine form."""
 
 
 # ===================================================================================== validation
@@ -242,7 +340,7 @@ def height_fog_optical_depth(camera_z, end_z, distance, density, falloff):
     ``camera_z`` to ``end_z`` (m); ``density`` b (1/m) and ``falloff`` c (1/m) ≥ 0. Dimensionless.
 
     Stable in float32 over the whole domain (see module docstring). Python floats → float (float64);
-    NumPy → NumPy (the default Dr.Jit backend); Dr.Jit → same type, lazily.
+    NumPy → NumPy (the default Dr.Jit backend); Dr.Jit → same type, lazily; JAX → JAX (differentiable).
     """
     _finite("camera_z", camera_z)
     _finite("end_z", end_z)
@@ -268,29 +366,14 @@ def height_fog_optical_depth_ray(camera_z, dir_z, distance, density, falloff):
 
 
 def optical_depth_form(form: str, camera_z, end_z, distance, density, falloff):
-    """Optical depth with one of `FORMS` ("exact", "seed", "taylor"); no validation beyond the form name
-    (the comparison rows must see what each form does with any input)."""
-    if form not in _KERNELS:
-        raise ValueError(f"form must be one of {FORMS} (got {form!r})")
-    return evaluate(_KERNELS[form], camera_z, end_z, distance, density, falloff)
-
-
-def numpy_kernel(form: str):
-    """The NumPy text of one form, ``f(z0, z1, D, b, c)`` (for benchmarks: same kernel text, NumPy ops)."""
-    kernel = _KERNELS[form]
-    return lambda *args: evaluate_numpy(kernel, *args)
-
-
-def phase_hg(cos_theta, g):
-    """Henyey–Greenstein phase function (1/sr), g ∈ (−1, 1); cos θ between propagation and scattered
-    directions (for a view ray: view direction · direction to the sun)."""
-    check_range("g", g, -0.999999, 0.999999, interval="(-1, 1)")
-    return evaluate(_phase_hg_kernel, cos_theta, g)
-
-
-def phase_rayleigh(cos_theta):
-    """Rayleigh phase function 3(1 + cos²θ)/(16π) (1/sr)."""
-    return evaluate(_phase_rayleigh_kernel, cos_theta)
+    """Optical depth with one of `OPTICAL_DEPTH_FORMS` ("exact", "seed", "taylor"): ``METHODS[form]``
+    evaluated with the package's dispatch; no validation beyond the form name (the comparison rows must
+    see what each form does with any input)."""
+    if form not in OPTICAL_DEPTH_FORMS:
+        raise ValueError(f"form must be one of {OPTICAL_DEPTH_FORMS} (got {form!r})")
+    return METHODS[form].evaluate(
+        {"z0": camera_z, "z1": end_z, "distance": distance}, {"b": density, "c": falloff}
+    )
 
 
 def fog_colour_phase(cos_theta, rayleigh_colour, mie_colour, g):
@@ -299,8 +382,8 @@ def fog_colour_phase(cos_theta, rayleigh_colour, mie_colour, g):
     ``rayleigh_colour`` and ``mie_colour`` are RGB triples (the horizon-averaged in-scatter without phase,
     seed 000:2247-2254); returns a tuple of three channels shaped like ``cos_theta``.
     """
-    pr = phase_rayleigh(cos_theta)
-    pm = phase_hg(cos_theta, g)
+    pr = rayleigh_phase(cos_theta)
+    pm = hg_phase(cos_theta, g)
     return tuple(
         4.0 * math.pi * (float(rayleigh_colour[i]) * pr + float(mie_colour[i]) * pm) for i in range(3)
     )
@@ -355,7 +438,9 @@ class FogVolume:
         object.__setattr__(self, "gradient", tuple(float(x) / n for x in self.gradient))
 
 
-def _volume_kernel(ops, ox, oy, oz, dx, dy, dz, tmax, vol):
+def _volume_segment_kernel(ops, ox, oy, oz, dx, dy, dz, tmax, vol):
+    """(z0, z1, D): heights along the volume's gradient at the entry and exit of the ray's segment inside
+    ``vol`` (clipped to t ∈ [0, tmax]) and its length; (0, 0, 0) where the ray misses."""
     r = vol.rotation
     cx, cy, cz = vol.center
     hx, hy, hz = vol.half_size
@@ -397,16 +482,15 @@ def _volume_kernel(ops, ox, oy, oz, dx, dy, dz, tmax, vol):
     qx, qy, qz = vol.gradient_origin
     h_o = (ox - qx) * gx + (oy - qy) * gy + (oz - qz) * gz
     h_d = dx * gx + dy * gy + dz * gz
-    z0 = h_o + t0 * h_d
-    z1 = h_o + t1_ * h_d
-    return _optical_depth_kernel(ops, z0, z1, ops.select(valid, seg, 0.0), vol.density, vol.falloff)
+    return h_o + t0 * h_d, h_o + t1_ * h_d, ops.select(valid, seg, 0.0)
 
 
-def fog_volumes_optical_depth(origin, direction, max_distance, volumes):
-    """Per-volume optical depths (a list, one per volume, each shaped like ``max_distance``) along rays
-    ``origin`` + t·``direction`` (unit), t ∈ [0, max_distance] (metres; inf allowed: sky)."""
-    from .arrays import split3
+def _volume_kernel(ops, ox, oy, oz, dx, dy, dz, tmax, vol):
+    z0, z1, seg = _volume_segment_kernel(ops, ox, oy, oz, dx, dy, dz, tmax, vol)
+    return _optical_depth_kernel(ops, z0, z1, seg, vol.density, vol.falloff)
 
+
+def _ray_components(origin, direction, max_distance):
     def comps(v, name):  # a tuple of three component arrays is taken as is (Dr.Jit wavefronts)
         if (
             isinstance(v, (tuple, list))
@@ -416,16 +500,34 @@ def fog_volumes_optical_depth(origin, direction, max_distance, volumes):
             return tuple(v)
         return split3(v, name)
 
-    ox, oy, oz = comps(origin, "origin")
-    dx, dy, dz = comps(direction, "direction")
     check_range("max_distance", max_distance, 0.0, math.inf, interval="[0, inf]")
+    return (*comps(origin, "origin"), *comps(direction, "direction"))
+
+
+def fog_volume_segment(origin, direction, max_distance, volume):
+    """The segment of rays ``origin`` + t·``direction`` (unit), t ∈ [0, max_distance] (m; inf: sky), inside
+    ``volume``: a tuple (z0, z1, D) of heights along its gradient at entry and exit (m) and the length (m),
+    zeros where a ray misses it. With (z0, z1, D) the volume's optical depth is
+    ``height_fog_optical_depth(z0, z1, D, volume.density, volume.falloff)``."""
+    ray = _ray_components(origin, direction, max_distance)
+
+    def kernel(ops, *a):
+        return _volume_segment_kernel(ops, *a, volume)
+
+    return evaluate(kernel, *ray, max_distance)
+
+
+def fog_volumes_optical_depth(origin, direction, max_distance, volumes):
+    """Per-volume optical depths (a list, one per volume, each shaped like ``max_distance``) along rays
+    ``origin`` + t·``direction`` (unit), t ∈ [0, max_distance] (metres; inf allowed: sky)."""
+    ray = _ray_components(origin, direction, max_distance)
     out = []
     for vol in volumes:
 
         def kernel(ops, *a, vol=vol):
             return _volume_kernel(ops, *a, vol)
 
-        out.append(evaluate(kernel, ox, oy, oz, dx, dy, dz, max_distance))
+        out.append(evaluate(kernel, *ray, max_distance))
     return out
 
 
@@ -437,22 +539,20 @@ def fog_volumes_shade(radiance, origin, direction, max_distance, volumes):
     ]
     total = np.sum(taus, axis=0)
     trans = np.exp(-total)
-    colour = np.zeros(total.shape + (3,))
-    for tau, vol in zip(taus, volumes):
+    colour = np.zeros((*total.shape, 3))
+    for tau, vol in zip(taus, volumes, strict=True):
         colour += tau[..., None] * np.asarray(vol.colour)
     colour = np.where(total[..., None] > 0, colour / np.maximum(total, 1e-300)[..., None], 0.0)
     return apply_fog(radiance, trans, colour)
 
 
+# ===================================================================================== the fog pass
 def _fog_pass_kernel(
     ops, r, g_, b_, z0, dz, dist, cos_sun, density, falloff, c0r, c0g, c0b, c1r, c1g, c1b, g, phase
 ):
-    t = _exp(ops, -_optical_depth_ray_kernel(ops, z0, dz, dist, density, falloff))
-    one_t = 1.0 - t
-    if phase:
-        w = 4.0 * math.pi * _phase_hg_kernel(ops, cos_sun, g)
-        c0r, c0g, c0b = ops.fma(c1r, w, c0r), ops.fma(c1g, w, c0g), ops.fma(c1b, w, c0b)
-    return (ops.fma(r, t, c0r * one_t), ops.fma(g_, t, c0g * one_t), ops.fma(b_, t, c0b * one_t))
+    t = ops.exp(-_optical_depth_ray_kernel(ops, z0, dz, dist, density, falloff))
+    colour = _fog_colour(ops, cos_sun, c0r, c0g, c0b, c1r, c1g, c1b, g) if phase else (c0r, c0g, c0b)
+    return _blend(ops, t, r, g_, b_, *colour)
 
 
 def fog_pass(
@@ -460,7 +560,7 @@ def fog_pass(
 ):
     """The whole per-pixel fog pass: T along the view ray (`height_fog_optical_depth_ray`, sky pixels with
     ``distance`` = inf), then L·T + C·(1 − T) with C = ``colour`` + ``phase_colour``·4π·p_HG(cos_sun, g)
-    when ``phase_colour`` is given (the seed's per-pixel phase-weighted fog colour).
+    when ``phase_colour`` is given (the seed's per-pixel phase-weighted fog colour; g ∈ [−0.999, 0.999]).
 
     ``radiance``: three channel arrays (r, g, b) or an (…, 3) NumPy array; returns a tuple (r, g, b).
     """
@@ -472,7 +572,7 @@ def fog_pass(
     check_range("falloff", falloff, 0.0, 3.4e38)
     phase = phase_colour is not None
     if phase:
-        check_range("g", g, -0.999999, 0.999999, interval="(-1, 1)")
+        check_range("g", g, -_G_LIMIT, _G_LIMIT)
         if cos_sun is None:
             raise ValueError("cos_sun is required with phase_colour")
     c1 = phase_colour if phase else (0.0, 0.0, 0.0)
