@@ -14,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from rtfit.realtime.arrays import NUMPY_OPS
 from rtfit.realtime.sdf_grid import HalfSpace, Sphere, seed_text_sdf, union_grid
 from rtfit.realtime.sdf_occlusion import (
     LISTING_WEIGHTS,
@@ -45,9 +46,7 @@ def test_plane_samples_are_minus_h_plus_d_in_seed_convention(h, plane_grid):
     s = np.array([PLANE.prims[0].normal[2] * p[2] for p in pos])  # plane SDF = height
     np.testing.assert_allclose(seed_text_sdf(s), -(h + d), atol=1e-15)  # 000:2919-2921: SDF(P + dN) = −d
     # the voxel grid (a linear field is sampled exactly by trilinear interpolation, level 0, inside the grid)
-    from rtfit.realtime.sdf_occlusion import _NP
-
-    got = plane_grid.sample(_NP, 0, pos[:, 0], pos[:, 1], pos[:, 2])
+    got = plane_grid.sample(NUMPY_OPS, 0, pos[:, 0], pos[:, 1], pos[:, 2])
     np.testing.assert_allclose(seed_text_sdf(got), -(h + d), atol=1e-6)
 
 
