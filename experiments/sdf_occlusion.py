@@ -722,7 +722,6 @@ GRID_ROWS = {
 }
 """id → (short, label) of the rows on the voxelised geometry: the sdfgrid's own AO (grid error) and Evans
 fitted at its surface points against it (model error alone)."""
-ROW = {r.id: r for r in ROWS}
 SHORT = {**{r.id: r.short for r in ROWS}, **{k: v[0] for k, v in GRID_ROWS.items()}}
 LABELS = {**{r.id: r.title for r in ROWS}, **{k: v[1] for k, v in GRID_ROWS.items()}}
 MAP_ROWS = ("evans-text", "evans-listing", "evans-fit", "evans-joint", "cone")
@@ -790,57 +789,26 @@ def _approx_doc(method, label, fitted, parameters, metrics) -> dict:
 
 
 def _sdfgrid_doc(sd: SceneData) -> dict:
+    """Mitsuba's AO on the sdfgrid shape against the mesh AO: the grid-resolution error (both images are
+    noisy: the floor uses the combined standard error)."""
     ref, err = sd.target("ao")
     ref_img, err_img = sd.image(ref), sd.image(err)
     g = sd.r["sdfgrid_ao"]
-    ge = sd.r["sdfgrid_ao_stderr"]
     both = sd.mask & np.isfinite(g)
-    img = np.where(both, g, 0.0)
-    # both images are noisy: the floor uses the combined standard error
-    comb = np.sqrt(np.where(both, err_img**2 + np.nan_to_num(ge) ** 2, err_img**2))
-    met = compute_metrics(
-        img[..., None].repeat(3, -1),
-        np.where(both, ref_img, 0)[..., None].repeat(3, -1),
-        comb[..., None].repeat(3, -1),
-        both,
-        names=METRICS,
-    )
-    return {
-        "method": "sdfgrid",
-        "label": LABELS["sdfgrid"],
-        "fitted": False,
-        "parameters": {"grid_voxel": sd.voxel},
-        "metrics": met.to_dict(),
-        "cost": None,
-        "figures": [],
-    }
+    comb = np.sqrt(np.where(both, err_img**2 + np.nan_to_num(sd.r["sdfgrid_ao_stderr"]) ** 2, err_img**2))
+    met = _metrics(np.where(both, g, 0.0), np.where(both, ref_img, 0), comb, both)
+    return _approx_doc("sdfgrid", LABELS["sdfgrid"], False, {"grid_voxel": sd.voxel}, met)
 
 
 def _model_only_doc(sd: SceneData, cfg) -> dict:
     """Evans fitted on the sdfgrid's own G-buffer against the AO of the sdfgrid geometry: both sides see the
     same voxelised surface, so what remains is the occlusion model's error alone."""
-    r = dict(sd.r)
-    r.update(sd.r["sdfgrid_gbuffer"])
-    sd2 = SceneData(sd.name, r, cfg)
+    sd2 = SceneData(sd.name, {**sd.r, **sd.r["sdfgrid_gbuffer"]}, cfg)
     b = fit_evans([sd2], "ao", cfg)
     ref, err = sd2.target("ao")
-    img, ref_img, err_img = sd2.image(predict_free(sd2, b)), sd2.image(ref), sd2.image(err)
-    met = compute_metrics(
-        img[..., None].repeat(3, -1),
-        ref_img[..., None].repeat(3, -1),
-        err_img[..., None].repeat(3, -1),
-        sd2.mask,
-        names=METRICS,
-    )
-    return {
-        "method": "evans-on-sdfgrid",
-        "label": LABELS["evans-on-sdfgrid"],
-        "fitted": True,
-        "parameters": _approx_params(evans_readable(b, sd.voxel)),
-        "metrics": met.to_dict(),
-        "cost": None,
-        "figures": [],
-    }
+    met = _metrics(sd2.image(predict_free(sd2, b)), sd2.image(ref), sd2.image(err), sd2.mask)
+    params = _approx_params(evans_readable(b, sd.voxel))
+    return _approx_doc("evans-on-sdfgrid", LABELS["evans-on-sdfgrid"], True, params, met)
 
 
 def _finite(v):
@@ -968,23 +936,17 @@ def render_case(
     cache = OcclusionCache(cache_dir)
     geo = scene_hash(scene)
     sky = SunskySky(sun_elevation, sun_azimuth, turbidity)
+
+    def reference(points, normals, quantity, n_spp, per_pass, *, geometry=(mi_scene, geo), **kw):
+        return cache.get(
+            mi, *geometry, points, normals, spp=n_spp, pass_spp=per_pass, seed=seed, variant=variant,
+            quantity=quantity, **kw
+        )  # fmt: skip
+
     refs = {}
     for t in targets:
-        r = cache.get(
-            mi,
-            mi_scene,
-            geo,
-            pts,
-            nrm,
-            spp=spp,
-            pass_spp=pass_spp,
-            seed=seed,
-            variant=variant,
-            quantity=TARGET_QUANTITY[t],
-            max_distance=ao_distance if t == "ao" else math.inf,
-            albedo=albedo,
-            sky=sky,
-        )
+        dist = ao_distance if t == "ao" else math.inf
+        r = reference(pts, nrm, TARGET_QUANTITY[t], spp, pass_spp, max_distance=dist, albedo=albedo, sky=sky)
         refs[t] = {"mean": r.mean, "stderr": r.stderr, "meta": r.to_dict()}
     factor = sky_probe_out = None
     if any(t in SUNSKY_TARGETS for t in targets):
@@ -997,33 +959,9 @@ def render_case(
             pp = np.tile([0.0, 0.0, 50.0], (len(pn), 1))
             sspp = max(int(probe_spp), 1 << 16)
             expect = sunsky_irradiance(mi, sky, pn) / sunsky_horizontal_irradiance(mi, sky)
-            rd = cache.get(
-                mi,
-                mi_scene,
-                geo,
-                pp,
-                pn,
-                spp=sspp,
-                pass_spp=min(sspp, 1 << 14),
-                seed=seed,
-                variant=variant,
-                quantity="sunsky_direct",
-                sky=sky,
-            )
-            rg = cache.get(
-                mi,
-                mi_scene,
-                geo,
-                pp[:1],
-                pn[:1],
-                spp=sspp,
-                pass_spp=min(sspp, 1 << 14),
-                seed=seed,
-                variant=variant,
-                quantity="sunsky_global",
-                albedo=albedo,
-                sky=sky,
-            )
+            per = min(sspp, 1 << 14)
+            rd = reference(pp, pn, "sunsky_direct", sspp, per, sky=sky)
+            rg = reference(pp[:1], pn[:1], "sunsky_global", sspp, per, albedo=albedo, sky=sky)
             sky_probe_out = {
                 "normals": pn,
                 "expected": expect,
@@ -1038,19 +976,7 @@ def render_case(
         xs = np.array(CREASE_PROBE_X)
         pp = np.column_stack([xs, np.zeros_like(xs), np.full_like(xs, 1e-6)])
         pn = np.tile([0.0, 0.0, 1.0], (len(xs), 1))
-        r = cache.get(
-            mi,
-            mi_scene,
-            geo,
-            pp,
-            pn,
-            spp=probe_spp,
-            pass_spp=min(probe_spp, 1024),
-            seed=seed,
-            variant=variant,
-            quantity="ao",
-            max_distance=ao_distance,
-        )
+        r = reference(pp, pn, "ao", probe_spp, min(probe_spp, 1024), max_distance=ao_distance)
         probes = {"x": xs, "mean": r.mean, "stderr": r.stderr}
     g = grid_of(scene, grid, cache_dir)
     try:
@@ -1066,18 +992,8 @@ def render_case(
         n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-30)
         ok = np.all(np.isfinite(n2), axis=1) & (np.linalg.norm(n2, axis=1) > 0.5)
         gh = hashlib.sha256(g.values.tobytes() + repr((g.origin, g.voxel)).encode()).hexdigest()
-        r2 = cache.get(
-            mi,
-            mi_sdf,
-            "sdfgrid-" + gh,
-            p2[ok],
-            n2[ok],
-            spp=spp,
-            pass_spp=pass_spp,
-            seed=seed,
-            variant=variant,
-            quantity="ao",
-            max_distance=ao_distance,
+        r2 = reference(
+            p2[ok], n2[ok], "ao", spp, pass_spp, geometry=(mi_sdf, "sdfgrid-" + gh), max_distance=ao_distance
         )
         img2 = np.full(m2.shape, np.nan)
         idx = np.flatnonzero(m2)[ok]
