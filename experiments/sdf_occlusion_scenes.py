@@ -25,17 +25,17 @@ from pathlib import Path
 
 import numpy as np
 
-from rtfit.realtime.sdf_grid import Box, Capsule, Sphere
+from rtfit.realtime.arrays import NUMPY_OPS
+from rtfit.realtime.sdf_grid import Box, Capsule, Sphere, primitive_sdf
+from rtfit.reference.io import atomic_write_bytes
 
 CREASE_ANGLES = (30, 60, 90, 120)
-SCENE_NAMES = tuple(f"crease_{a}" for a in CREASE_ANGLES) + ("sphere_plane", "room", "boxes", "character")
+SCENE_NAMES = (*(f"crease_{a}" for a in CREASE_ANGLES), "sphere_plane", "room", "boxes", "character")
 
 
 # ------------------------------------------------------------------------------------------ PLY
 def write_ply(path, vertices, faces) -> None:
     """Binary little-endian PLY (float32 x y z; uchar-count int32 faces), written atomically."""
-    from rtfit.reference.io import atomic_write_bytes
-
     v = np.ascontiguousarray(vertices, dtype="<f4")
     f = np.asarray(faces, dtype="<i4")
     head = (
@@ -136,7 +136,7 @@ def icosphere(center, radius, subdivisions=3):
         cache = {}
         new = []
 
-        def mid(a, b):
+        def mid(a, b, cache=cache):
             key = (min(a, b), max(a, b))
             if key not in cache:
                 m = verts[a] + verts[b]
@@ -271,10 +271,7 @@ def _smooth_union(values, k=0.04):
 
 
 def character():
-    from skimage import measure
-
-    from rtfit.realtime.arrays import NUMPY_OPS
-    from rtfit.realtime.sdf_grid import primitive_sdf
+    from skimage import measure  # scikit-image: optional, only to regenerate the character mesh
 
     prims = character_primitives()
     h = 0.02

@@ -8,7 +8,8 @@
   reparametrisation, standard errors), `covariance_from_jacobian`.
 * :mod:`.method_fit`: `fit_method`: fit a `rtfit.realtime.methods.Method`'s parameters through the JAX
   run of its one kernel text.
-* :mod:`.bounded_lm`: a projected Levenberg–Marquardt for residuals with a user-supplied Jacobian.
+* :mod:`.bounded_lm`: `bounded_lm`, a projected Levenberg–Marquardt for residuals with a user-supplied
+  Jacobian (NumPy; residuals JAX cannot trace), `bounded_lm_result` (its `FitResult`), `param_bounds`.
 
 Importing this package does not import JAX (only the fits do). Fits run on the CPU unless
 ``JAX_PLATFORMS`` says otherwise (they are small, and JAX would otherwise preallocate most of the GPU's
@@ -19,6 +20,7 @@ import os as _os
 _os.environ.setdefault("JAX_PLATFORMS", "cpu")
 _os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
+from .bounded_lm import bounded_lm, bounded_lm_result, param_bounds
 from .least_squares import (
     AT_BOUND_RTOL,
     FitResult,
@@ -65,6 +67,8 @@ __all__ = [
     "MetricValue",
     "Param",
     "ZScoreSummary",
+    "bounded_lm",
+    "bounded_lm_result",
     "compute_metrics",
     "concat_z_pairs",
     "covariance_from_jacobian",
@@ -72,6 +76,7 @@ __all__ = [
     "fit_least_squares",
     "fit_method",
     "method_model",
+    "param_bounds",
     "robust_spread",
     "sidak_threshold",
     "smape",

@@ -53,7 +53,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import drjit as dr
 import numpy as np
+from drjit.llvm import Array3f, Array3f64, Float, Float64, Int32, UInt32
+
+from .arrays import NUMPY_OPS
 
 __all__ = [
     "Box",
@@ -285,8 +289,6 @@ def grid_for_bounds(lo, hi, resolution: int, pad_voxels: float = 2.0, cubic: boo
 
 def union_grid(prims, origin, voxel, shape) -> SdfGrid:
     """Grid of the analytic union SDF sampled at the cell centres (float64 → float32)."""
-    from .arrays import NUMPY_OPS
-
     g = SdfGrid(np.zeros(tuple(reversed(shape)), np.float32), origin, voxel)
     p = g.points()
     vals = primitives_sdf(NUMPY_OPS, list(prims), p[..., 0], p[..., 1], p[..., 2])
@@ -364,8 +366,6 @@ def _point_triangle_distance_drjit(p, a, b, c):
     exact, and it stays exact for degenerate and nearly degenerate (needle, collinear) triangles, where
     Voronoi-region tests on rounded products pick the wrong region (det ≤ 1e-12·|ab|²|ac|² skips (ii)).
     Used by `mesh_sdf_grid`'s band; inputs and outputs as `point_triangle_distance`."""
-    import drjit as dr
-    from drjit.llvm import Array3f64, Float64
 
     def up(x):
         x = np.ascontiguousarray(x, dtype=np.float64)
@@ -538,7 +538,7 @@ def mesh_sdf_grid(
     best_d = np.where(in_band, best_d, far_d)
     dist = best_d.reshape(nz, ny, nx)
 
-    meta = {"source": "mesh", "triangles": int(len(f)), "band_voxels": float(band), "sign": sign}
+    meta = {"source": "mesh", "triangles": len(f), "band_voxels": float(band), "sign": sign}
     if sign == "unsigned":
         return SdfGrid(dist.astype(np.float32), tuple(o), h, meta=meta)
     inside, odd_columns = _parity_inside(v[f], o, h, (nx, ny, nz))
@@ -562,9 +562,6 @@ def _propagate_closest_points(best_p, src, o, h, shape, sweeps: int = 2) -> np.n
     lower; they fix the cells where the nearest band cell does not hold the nearest surface point (near
     medial sheets). One Dr.Jit LLVM kernel per sweep over all cells (float32, as the grid is stored).
     Returns the distances (flat, float64)."""
-    import drjit as dr
-    from drjit.llvm import Array3f, Float, Int32, UInt32
-
     nx, ny, nz = shape
     n = nx * ny * nz
     pts = [Float(np.ascontiguousarray(best_p[:, k], dtype=np.float32)) for k in range(3)]

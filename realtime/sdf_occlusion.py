@@ -55,22 +55,27 @@ matching Float). Normals are normalised in the kernel (zero normals give C = B: 
 from __future__ import annotations
 
 import math
-import types
 from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
 
 from .arrays import DRJIT_OPS, NUMPY_OPS, check_scalar, get_default_backend, is_drjit
+from .methods import Input, Method, Param, method_table
 from .sdf_grid import EMPTY_DISTANCE, SdfGrid, build_mips, primitives_sdf
 
 __all__ = [
+    "LISTING_WEIGHTS",
     "AnalyticSDF",
     "EvansParams",
     "GridSDF",
-    "LISTING_WEIGHTS",
+    "cone_kernel",
     "cone_occlusion",
+    "curvature_kernel",
     "curvature_term",
+    "evans_exponent_kernel",
+    "evans_from_terms_kernel",
+    "evans_kernel",
     "evans_occlusion",
     "evans_sample_positions",
     "evans_terms",
@@ -84,9 +89,6 @@ CONE_LEVEL_K = 2.0
 """The cone march reads the mip level whose voxel matches t/CONE_LEVEL_K (a cone of half-angle atan ½),
 whatever k: k then only scales the visibility, so one compiled kernel serves every k."""
 _GOLDEN = math.pi * (3.0 - math.sqrt(5.0))
-
-_DR = DRJIT_OPS  # the shared namespaces carry exp and floor
-_NP = NUMPY_OPS
 
 
 def _const(ops, like, value):
@@ -159,7 +161,8 @@ class GridSDF:
         cz = ops.clip(uz, 0.0, nz - 1.0)
         ex, ey, ez = (ux - cx) * h, (uy - cy) * h, (uz - cz) * h
         sq = ex * ex + ey * ey + ez * ez
-        # 0 inside the box; the select keeps forward-mode autodiff finite there (d√q = dq/(2√q) is 0/0 at q = 0)
+        # 0 inside the box; the select keeps forward-mode autodiff finite there
+        # (d√q = dq/(2√q) is 0/0 at q = 0)
         outside = ops.select(sq > 0, ops.sqrt(ops.maximum(sq, 1e-30)), sq * 0.0)
         fx0 = ops.minimum(ops.floor(cx), nx - 2.0)
         fy0 = ops.minimum(ops.floor(cy), ny - 2.0)
@@ -282,22 +285,44 @@ def _evans_samples(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz, alpha=
     return terms, nlen
 
 
-def _evans_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
+def evans_exponent_kernel(ops, terms, *, logB=0.0, k=1.0, weights=None):
+    """The exponent of Evans' estimator before its clamp: log B − k Σ_i w_i D_i (dimensionless).
+
+    ``terms``: the sample terms D_i = d_i − s_{i−1}(P + d_i N') (scene units), a sequence of arrays or an
+    (n, N) array (`evans_terms`); ``weights``: n numbers (None: all 1); ``k`` in 1/scene unit; ``logB`` the
+    natural log of the brightness B. The sum runs over i in order (D_1 first)."""
+    acc = None
+    for i in range(len(terms)):
+        t = terms[i] if weights is None else weights[i] * terms[i]
+        acc = t if acc is None else acc + t
+    return logB - k * acc
+
+
+def evans_from_terms_kernel(ops, terms, *, logB=0.0, k=1.0, weights=None):
+    """Evans' estimator from its sample terms, C = exp(clip(log B − k Σ_i w_i D_i, −87, 80)) (000:2946):
+    the one text of B·exp(−Σ_i c_i D_i) (c_i = k·w_i) that the point kernel, every fit and every
+    prediction run. Arguments as `evans_exponent_kernel`; the clamp keeps float32 ``exp`` finite (module
+    docstring), so its derivative is 0 where the exponent leaves [−87, 80]."""
+    e = evans_exponent_kernel(ops, terms, logB=logB, k=k, weights=weights)
+    return ops.exp(ops.clip(e, EXP_MIN, EXP_MAX))
+
+
+def evans_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz):
+    """Evans skylight/occlusion C at points (px, py, pz) with normals (nx, ny, nz) on ``ops`` (the text
+    `evans_occlusion` runs): C = B·exp(clip(−k Σ_i w_i D_i)) with D_i from the sample kernel and, with
+    ``params.include_d0``, the term D_0 = −s_0(P) (weight 1) first."""
     terms, nlen = _evans_samples(ops, sdf, params, px, py, pz, nx, ny, nz)
-    weights = params.weights or (1.0,) * params.n
-    acc = px * 0.0
+    weights = list(params.weights or (1.0,) * params.n)
     if params.include_d0:
-        acc = acc - sdf.sample(ops, 0, px, py, pz)
-    for w, t in zip(weights, terms):
-        acc = acc + w * t
+        terms = [-sdf.sample(ops, 0, px, py, pz), *terms]
+        weights = [1.0, *weights]
     bright = _const(ops, px, params.brightness)
-    e = ops.clip(-_const(ops, px, params.k) * acc, EXP_MIN, EXP_MAX)
-    c = bright * ops.exp(e)
+    c = bright * evans_from_terms_kernel(ops, terms, k=_const(ops, px, params.k), weights=weights)
     return ops.select(nlen > 0, c, bright + px * 0.0)
 
 
 def _evans_terms_kernel(ops, sdf, params: EvansParams, px, py, pz, nx, ny, nz, alpha=None, base=None):
-    """The per-sample terms D_i = d_i − s_i (clamped as in `_evans_kernel`), i = 1..n, as a tuple."""
+    """The per-sample terms D_i = d_i − s_i (clamped as in `evans_kernel`), i = 1..n, as a tuple."""
     terms, nlen = _evans_samples(ops, sdf, params, px, py, pz, nx, ny, nz, alpha, base)
     return tuple(ops.select(nlen > 0, t, px * 0.0) for t in terms)
 
@@ -312,7 +337,7 @@ def evans_terms(points, normals, sdf, params: EvansParams, *, backend: str | Non
     if backend == "numpy":
         with np.errstate(all="ignore"):
             out = _evans_terms_kernel(
-                _NP,
+                NUMPY_OPS,
                 sdf,
                 params,
                 *[p[:, i].astype(np.float64) for i in range(3)],
@@ -322,7 +347,7 @@ def evans_terms(points, normals, sdf, params: EvansParams, *, backend: str | Non
     be = backend or get_default_backend()
     Float = (dr.cuda if be == "cuda" else dr.llvm).Float
     cols = [Float(np.ascontiguousarray(a[:, i], dtype=np.float32)) for a in (p, n) for i in range(3)]
-    out = _evans_terms_kernel(_DR, sdf, params, *cols)
+    out = _evans_terms_kernel(DRJIT_OPS, sdf, params, *cols)
     dr.eval(*out)
     return np.stack([np.array(o, dtype=np.float64) for o in out])
 
@@ -364,7 +389,7 @@ def evans_terms_jacobian(points, normals, sdf, params: EvansParams, *, backend: 
         b = dr.opaque(Float, float(params.base))
         var = a if wrt == "alpha" else b
         dr.enable_grad(var)
-        terms = _evans_terms_kernel(_DR, sdf, params, *cols, alpha=a, base=b)
+        terms = _evans_terms_kernel(DRJIT_OPS, sdf, params, *cols, alpha=a, base=b)
         dr.forward_from(var)
         g = [dr.grad(t) for t in terms]
         dr.eval(*terms, *g)
@@ -374,9 +399,16 @@ def evans_terms_jacobian(points, normals, sdf, params: EvansParams, *, backend: 
     return values, grads[0], grads[1]
 
 
-def _curvature_kernel(ops, sdf, level, k, px, py, pz):
-    s_text = -sdf.sample(ops, level, px, py, pz)
-    return 0.5 + ops.exp(ops.clip(_const(ops, px, k) * s_text, EXP_MIN, EXP_MAX))
+def curvature_kernel(ops, distance, k, norm=1.0):
+    """The seed's curvature shading from the blurred SDF at the point,
+    (0.5 + exp(clip(k·S_text, −87, 80)))/norm with S_text = −``distance`` (000:2902-2904; ``k`` in
+    1/scene unit, the text's sign: negative darkens creases). ``norm`` = 1.5: 1 when flat."""
+    s_text = -distance
+    return (0.5 + ops.exp(ops.clip(k * s_text, EXP_MIN, EXP_MAX))) / norm
+
+
+def _curvature_point_kernel(ops, sdf, level, k, px, py, pz):
+    return curvature_kernel(ops, sdf.sample(ops, level, px, py, pz), _const(ops, px, k))
 
 
 def _cone_axes(m: int):
@@ -388,7 +420,10 @@ def _cone_axes(m: int):
     return out
 
 
-def _cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
+def cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
+    """Cone-traced distance-field AO in [0, 1] at points (px, py, pz) with normals (nx, ny, nz) on ``ops``
+    (the text `cone_occlusion` runs; module docstring): ``cones`` axes, ``steps`` march distances from
+    ``t0`` to ``t_max`` (scene units), aperture ``k`` = 1/tan(half-angle)."""
     nx, ny, nz, nlen = _unit(ops, nx, ny, nz)
     # Branchless orthonormal basis (Duff et al. 2017, "Building an orthonormal basis, revisited").
     sgn = ops.select(nz >= 0, 1.0 + nz * 0.0, -1.0 + nz * 0.0)
@@ -411,7 +446,7 @@ def _cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
             tt = t_scale * (t / t0)
             level = 0
             if sdf.voxel > 0:
-                level = max(0, min(sdf.levels - 1, int(math.floor(math.log2(max(width / sdf.voxel, 1.0))))))
+                level = max(0, min(sdf.levels - 1, math.floor(math.log2(max(width / sdf.voxel, 1.0)))))
             s = sdf.sample(ops, level, px + tt * wx, py + tt * wy, pz + tt * wz)
             vis = ops.minimum(vis, ops.clip(kk * s / tt, 0.0, 1.0))
         total = total + vis
@@ -434,7 +469,7 @@ def _run(kernel, points, normals, backend, *extra):
     if is_drjit(points):
         p = (points[0], points[1], points[2])
         n = (normals[0], normals[1], normals[2]) if normals is not None else ()
-        return kernel(_DR, *p, *n)
+        return kernel(DRJIT_OPS, *p, *n)
     p = _split_points(points, "points")
     n = _split_points(normals, "normals") if normals is not None else None
     if n is not None and n.shape != p.shape:
@@ -448,13 +483,13 @@ def _run(kernel, points, normals, backend, *extra):
         if n is not None:
             cols += [n[:, i].astype(np.float64) for i in range(3)]
         with np.errstate(all="ignore"):
-            return np.asarray(kernel(_NP, *cols), dtype=np.float64)
+            return np.asarray(kernel(NUMPY_OPS, *cols), dtype=np.float64)
     be = backend or get_default_backend()
     Float = (dr.cuda if be == "cuda" else dr.llvm).Float
     cols = [Float(np.ascontiguousarray(p[:, i], dtype=np.float32)) for i in range(3)]
     if n is not None:
         cols += [Float(np.ascontiguousarray(n[:, i], dtype=np.float32)) for i in range(3)]
-    out = kernel(_DR, *cols)
+    out = kernel(DRJIT_OPS, *cols)
     return np.array(out, dtype=np.float32).reshape(-1)
 
 
@@ -463,7 +498,7 @@ def evans_occlusion(points, normals, sdf, params: EvansParams, *, backend: str |
     docstring. ``backend``: None (the default Dr.Jit backend), "llvm", "cuda" or "numpy" (float64)."""
     if not isinstance(params, EvansParams):
         raise ValueError("params must be an EvansParams")
-    return _run(lambda ops, *a: _evans_kernel(ops, sdf, params, *a), points, normals, backend)
+    return _run(lambda ops, *a: evans_kernel(ops, sdf, params, *a), points, normals, backend)
 
 
 def curvature_term(points, sdf, *, k: float, level: int = 0, backend: str | None = None):
@@ -472,7 +507,7 @@ def curvature_term(points, sdf, *, k: float, level: int = 0, backend: str | None
     if not isinstance(level, (int, np.integer)) or level < 0:
         raise ValueError(f"level must be an integer >= 0 (got {level!r})")
     return _run(
-        lambda ops, x, y, z: _curvature_kernel(ops, sdf, int(level), k, x, y, z), points, None, backend
+        lambda ops, x, y, z: _curvature_point_kernel(ops, sdf, int(level), k, x, y, z), points, None, backend
     )
 
 
@@ -498,7 +533,7 @@ def cone_occlusion(
     t_max = check_scalar("t_max", t_max, t0, 1e30)
     k = check_scalar("k", k, 0.0, 1e30, lo_open=True)
     return _run(
-        lambda ops, *a: _cone_kernel(ops, sdf, int(cones), int(steps), t0, t_max, k, *a),
+        lambda ops, *a: cone_kernel(ops, sdf, int(cones), int(steps), t0, t_max, k, *a),
         points,
         normals,
         backend,
@@ -506,3 +541,130 @@ def cone_occlusion(
 
 
 _ = EMPTY_DISTANCE  # re-exported meaning: an empty AnalyticSDF samples as 'very far' (C = B exactly)
+
+
+# ===================================================================================== methods
+EVANS_SAMPLES = 4
+"""n of the Evans rows of `METHODS`: the seed's four samples (000:2938; Listing 1 has four weights)."""
+CURVATURE_LEVEL = 1
+"""Mip level whose blurred SDF the curvature row reads (one Gaussian step: creases show, noise does not)."""
+_EVANS_INPUT = Input(
+    "terms",
+    "scene units",
+    "the sample terms D_i = d_i − s_{i−1}(P + d_i N'), (n, N) (`evans_terms` at the row's α and base)",
+)
+_K = Param(10.0, 0.0, 1e4, unit="1/scene unit", description="contrast k (the seed's −k_text)")
+_LOG_B = Param(0.0, -5.0, 5.0, unit="1", description="log B, B the brightness (Listing 1's GlobalBrightness)")
+_ALPHA = Param(0.5, 0.0, 1.0, unit="1", description="sky weighting α of the bent normal N + αU")
+_BASE = Param(1.0, 0.25, 4.0, unit="voxels", description="base distance d_1 in voxels of the finest grid")
+_C = Param(10.0, 0.0, 1e4, unit="1/scene unit", description="per-sample coefficient c_i = k·w_i")
+
+
+def _evans_row_kernel(
+    ops, terms, *, logB=0.0, k=1.0, weights=None, alpha=0.5, base_voxels=1.0, **coefficients
+):
+    """`evans_from_terms_kernel` under the names of the Evans rows. ``alpha`` and ``base_voxels`` place
+    the samples: they enter through ``terms`` (computed at them by `evans_terms`), not here; the row
+    declares them so that its whole parameter set, bounds and units sit in one place. The weights are
+    ``weights`` (None: all 1), or the coefficients ``c1``..``cn`` with k = 1 (the continuous fit)."""
+    del alpha, base_voxels  # (see the docstring: already in ``terms``)
+    if coefficients:
+        names = [f"c{i + 1}" for i in range(len(terms))]
+        if sorted(coefficients) != sorted(names):
+            raise ValueError(f"Evans coefficients must be {', '.join(names)} (got {', '.join(coefficients)})")
+        weights = [coefficients[c] for c in names]
+    return evans_from_terms_kernel(ops, terms, logB=logB, k=k, weights=weights)
+
+
+def _cone_row_kernel(ops, px, py, pz, nx, ny, nz, *, sdf, t0, t_max, k, cones, steps):
+    return cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz)
+
+
+_POINTS = (
+    Input("px", "scene units", "surface point x"),
+    Input("py", "scene units", "surface point y"),
+    Input("pz", "scene units", "surface point z"),
+    Input("nx", "1", "unit normal x"),
+    Input("ny", "1", "unit normal y"),
+    Input("nz", "1", "unit normal z"),
+)
+_EVANS_FORMULA = "C = B·exp(−k Σ_i w_i (d_i − s_{i−1}(P + d_i (N + αU)))), d_i = base·2^(i−1)"
+
+METHODS = method_table(
+    [
+        Method(
+            id="evans-text",
+            label="Evans, seed text (α=½, w=1; k fit)",
+            kernel=_evans_row_kernel,
+            inputs=(_EVANS_INPUT,),
+            params={"k": _K},
+            fixed={"alpha": 0.5, "base_voxels": 1.0, "weights": None},
+            quantity="sky_visibility",
+            formula=_EVANS_FORMULA + "; α = ½, w_i = 1, B = 1",
+            source="000:2919-2946",
+            description="the seed's text form; it gives no k, so k is fitted per case",
+        ),
+        Method(
+            id="evans-listing",
+            label="Evans, seed listing (α=1, w=1…1.8; k, B fit)",
+            kernel=_evans_row_kernel,
+            inputs=(_EVANS_INPUT,),
+            params={"k": _K, "logB": _LOG_B},
+            fixed={"alpha": 1.0, "base_voxels": 1.0, "weights": LISTING_WEIGHTS},
+            quantity="sky_visibility",
+            formula=_EVANS_FORMULA + "; α = 1, w = (1, 1.2, 1.4, 1.8)",
+            source="000:2982-2987",
+            description="Listing 1; its missing '+ d_i' is a constant factor, fitted as B with k",
+        ),
+        Method(
+            id="evans-fit",
+            label="Evans, fitted per case",
+            kernel=_evans_row_kernel,
+            inputs=(_EVANS_INPUT,),
+            params={
+                "logB": _LOG_B,
+                **{f"c{i + 1}": _C for i in range(EVANS_SAMPLES)},
+                "alpha": _ALPHA,
+                "base_voxels": _BASE,
+            },
+            fixed={"k": 1.0},
+            quantity="sky_visibility",
+            formula="C = exp(log B − Σ_i c_i D_i(α, base)); k = c_1, w_i = c_i/c_1",
+            source="000:2919-2946",
+            description="every parameter fitted: B, c_i = k·w_i, α and the base distance",
+        ),
+        Method(
+            id="curvature",
+            label="Curvature (seed §9.5; k fit)",
+            kernel=curvature_kernel,
+            inputs=(
+                Input("distance", "scene units", f"s_{CURVATURE_LEVEL}(P), the blurred SDF at the point"),
+            ),
+            params={"k": Param(-10.0, -1e4, 1e4, unit="1/scene unit", description="the text's k_text")},
+            fixed={"norm": 1.5},
+            quantity="crease_darkening",
+            formula="(0.5 + exp(k_text·S_text(P)))/1.5, S_text = −s",
+            source="000:2885-2908",
+        ),
+        Method(
+            id="cone",
+            label="Cone-traced DF AO (k grid-searched)",
+            kernel=_cone_row_kernel,
+            inputs=(
+                *_POINTS,
+                Input("sdf", "scene units", "the distance field (GridSDF or AnalyticSDF)"),
+                Input("t0", "scene units", "first march distance"),
+                Input("t_max", "scene units", "last march distance"),
+            ),
+            params={"k": Param(2.0, 0.0, math.inf, unit="1", description="1/tan(cone half-angle)")},
+            fixed={"cones": 9, "steps": 8},
+            quantity="ambient_occlusion",
+            formula="AO = (1/M) Σ_j min_s clamp(k·s(P + t_s ω_j)/t_s, 0, 1)",
+            source="Wright 2015; Quilez",
+        ),
+    ]
+)
+"""The approximations of the sdf-occlusion family as data (`rtfit.realtime.methods`): id, label, kernel,
+inputs with units, free parameters with bounds and units, fixed values. The Evans rows share one kernel
+(`evans_from_terms_kernel` on the sample terms of `evans_terms`); the experiment derives its rows, fits,
+labels and cost rows from this table."""

@@ -36,27 +36,29 @@ quantities use no Mitsuba emitter: the sky is defined here (radiance 1 above the
 the "constant upper-hemisphere sky without a sun" of the issue. The sunsky quantities evaluate the emitter
 itself (``Emitter.eval``) for each escaping ray.
 
-`OcclusionCache` stores passes (``.npz``, atomic) under a key of everything that determines the samples.
+`OcclusionCache` stores passes in the one pass store of rtfit (`rtfit.reference.cache.PassEntry`, namespace
+``occlusion``, ``.npz``) under a key of everything that determines the samples.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import drjit as dr
 import numpy as np
 
-from .cache import pool_passes
+from .build import camera_dict
+from .cache import PassEntry, array_digest, pool_passes
+from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
 from .estimators import MAX_LANES, PassResult, sub_seed
-from .io import atomic_write_bytes, atomic_write_json
 
 QUANTITIES = ("ao", "sky_direct", "sky_global", "sunsky_direct", "sunsky_global")
 MAX_BOUNCES = 64
-FORMAT = 1
+FORMAT = 2
+"""Version of the occlusion cache entries (2: `PassEntry` layout, float32 passes with a .json each)."""
 LUMINANCE = (0.2126, 0.7152, 0.0722)
 """Rec. 709 / linear-sRGB luminance weights: the scalar the sunsky quantities integrate."""
 SKY_BAKE_HEIGHT = 257
@@ -111,8 +113,6 @@ _SKY_CACHE: dict = {}
 def sunsky_emitter(mi, sky: SunskySky):
     """The Mitsuba ``sunsky`` emitter of ``sky`` with ``sun_scale`` 0 (the same dictionary as the sky part of
     `rtfit.reference.environments.sunsky_environment`)."""
-    from .environments import SUNSKY_APERTURE_DEG
-
     key = ("emitter", mi.variant(), sky)
     if key not in _SKY_CACHE:
         _SKY_CACHE[key] = mi.load_dict(
@@ -133,8 +133,6 @@ def sunsky_sky_nodes(mi, sky: SunskySky, height: int = SKY_BAKE_HEIGHT, supersam
     luminance (M,) in W m⁻² sr⁻¹) — the midpoint rule over the bilinear map baked by
     `rtfit.reference.environments.sunsky_environment` (``sun_scale`` 0; its sun is dropped), keeping the
     nodes with ω_z > 0 (the map has a node row on the horizon when ``height`` is odd)."""
-    from .environments import quadrature_samples, sunsky_environment
-
     if not isinstance(height, (int, np.integer)) or height < 3 or height % 2 == 0:
         raise ValueError(f"height must be an odd integer >= 3 (a node row on the horizon; got {height!r})")
     key = ("nodes", mi.variant(), sky, int(height), int(supersample))
@@ -198,8 +196,6 @@ def occlusion_pass(
 ) -> PassResult:
     """One pass of ``spp`` samples per point; mean/var arrays of shape (N,) (float64). ``sky``: the sky of
     the sunsky quantities (None: ``SunskySky()``, 30° elevation, 60° azimuth, turbidity 3)."""
-    import drjit as dr
-
     _check(quantity, spp, max_distance, albedo)
     if sky is not None and not isinstance(sky, SunskySky):
         raise ValueError(f"sky must be a SunskySky (got {type(sky).__name__})")
@@ -321,8 +317,6 @@ def sdfgrid_dict(mi, grid) -> dict:
 
 def sdfgrid_scene(mi, grid, camera=None):
     """A Mitsuba scene holding only the ``sdfgrid`` shape (and the camera of an rtfit Scene, if given)."""
-    from .build import camera_dict
-
     d = {"type": "scene", "sdf": sdfgrid_dict(mi, grid)}
     if camera is not None:
         d["sensor"] = camera_dict(mi, camera)
@@ -361,10 +355,13 @@ class OcclusionReference:
 
 
 class OcclusionCache:
-    """Resumable pass cache for `occlusion_pass` (one ``.npz`` per pass, written atomically)."""
+    """Resumable pass cache for `occlusion_pass`: one `rtfit.reference.cache.PassEntry` per request
+    (namespace ``occlusion``, ``.npz`` passes), keyed by everything that determines the samples (geometry
+    hash, probe points and normals, quantity, distance, albedo, sky, seed, samples per pass, variant,
+    versions). Pass i is seeded with ``sub_seed(seed, "pass", i)``."""
 
     def __init__(self, root):
-        self.root = Path(root) / "occlusion"
+        self.root = Path(root)
 
     def get(
         self,
@@ -383,64 +380,42 @@ class OcclusionCache:
         albedo: float = 0.8,
         sky: SunskySky | None = None,
     ) -> OcclusionReference:
-        import drjit
-        import mitsuba
+        import mitsuba  # (only for its version; imported where Mitsuba is already in use)
 
         _check(quantity, pass_spp, max_distance, albedo)
         if quantity.startswith("sunsky"):
             sky = sky or SunskySky()
-        h = hashlib.sha256()
-        h.update(np.ascontiguousarray(points, dtype=np.float32).tobytes())
-        h.update(np.ascontiguousarray(normals, dtype=np.float32).tobytes())
         ident = {
             "format": FORMAT,
             "geometry": geometry_hash,
-            "points": h.hexdigest(),
+            "points": array_digest(points, normals),
             "quantity": quantity,
             "max_distance": None if not math.isfinite(max_distance) else float(max_distance),
             "albedo": float(albedo) if quantity in ("sky_global", "sunsky_global") else None,
             "seed": int(seed),
             "pass_spp": int(pass_spp),
             "variant": variant,
-            "versions": [mitsuba.__version__, drjit.__version__],
+            "versions": [mitsuba.__version__, dr.__version__],
         }
         if quantity.startswith("sunsky"):  # (absent for the other quantities: their keys are unchanged)
             ident["sky"] = {**sky.to_dict(), "bake_height": SKY_BAKE_HEIGHT}
-        key = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
-        folder = self.root / key[:2] / key
-        n_passes = -(-int(spp) // int(pass_spp))
-        results = []
-        for i in range(n_passes):
-            f = folder / f"pass-{i:05d}.npz"
-            r = None
-            if f.exists():
-                try:
-                    z = np.load(f)
-                    r = PassResult(z["mean"], z["var"], int(z["spp"]), int(z["seed"]), float(z["seconds"]))
-                except (OSError, ValueError, KeyError):
-                    r = None
-            if r is None:
-                if not folder.exists():
-                    folder.mkdir(parents=True, exist_ok=True)
-                    atomic_write_json(folder / "entry.json", ident)
-                r = occlusion_pass(
-                    mi,
-                    mi_scene,
-                    points,
-                    normals,
-                    int(pass_spp),
-                    sub_seed(seed, "pass", i),
-                    quantity=quantity,
-                    max_distance=max_distance,
-                    albedo=albedo,
-                    sky=sky,
-                )
-                import io
+        entry = PassEntry(self.root, ident, namespace="occlusion", storage="npz")
 
-                buf = io.BytesIO()
-                np.savez(buf, mean=r.mean, var=r.var, spp=r.spp, seed=r.seed, seconds=r.seconds)
-                atomic_write_bytes(f, buf.getvalue())
-            results.append(r)
+        def render(i: int) -> PassResult:
+            return occlusion_pass(
+                mi,
+                mi_scene,
+                points,
+                normals,
+                int(pass_spp),
+                sub_seed(seed, "pass", i),
+                quantity=quantity,
+                max_distance=max_distance,
+                albedo=albedo,
+                sky=sky,
+            )
+
+        results, _ = entry.passes(-(-int(spp) // int(pass_spp)), render)
         mean, stderr, total = pool_passes(results)
         return OcclusionReference(
             mean,
@@ -448,7 +423,7 @@ class OcclusionCache:
             total,
             len(results),
             float(sum(r.seconds for r in results)),
-            key,
+            entry.key,
             quantity,
             sky.to_dict() | {"horizontal_irradiance": sunsky_horizontal_irradiance(mi, sky)}
             if quantity.startswith("sunsky")

@@ -112,7 +112,8 @@ def test_mesh_grid_matches_analytic_within_half_voxel(sphere_box_grids):
     g, ga, _ = sphere_box_grids
     err = np.abs(g.values.astype(np.float64) - ga.values)
     assert err.max() <= 0.5 * g.voxel
-    # the band is exact: near the surface the error is only the icosphere's chord error (≤ r(1 − cos(edge/2r)))
+    # the band is exact: near the surface the error is only the icosphere's chord error
+    # (≤ r(1 − cos(edge/2r)))
     near = np.abs(ga.values) < 1.5 * g.voxel
     assert err[near].max() <= 2e-3
     assert g.meta["odd_columns"] == 0
@@ -157,7 +158,7 @@ def test_mesh_bad_input(bad, msg):
 
 
 def test_grid_bounds_and_bad_resolution():
-    o, h, sh = grid_for_bounds((0, 0, 0), (2, 1, 1), 32, pad_voxels=2, cubic=True)
+    _, h, sh = grid_for_bounds((0, 0, 0), (2, 1, 1), 32, pad_voxels=2, cubic=True)
     assert sh == (32, 32, 32) and abs(h - 2 / 28) < 1e-12
     with pytest.raises(ValueError, match="resolution"):
         grid_for_bounds((0, 0, 0), (1, 1, 1), 3)

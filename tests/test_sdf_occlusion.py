@@ -14,9 +14,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from rtfit.fitting import fit_method
+from rtfit.realtime.arrays import NUMPY_OPS
 from rtfit.realtime.sdf_grid import HalfSpace, Sphere, seed_text_sdf, union_grid
 from rtfit.realtime.sdf_occlusion import (
+    CURVATURE_LEVEL,
+    EVANS_SAMPLES,
     LISTING_WEIGHTS,
+    METHODS,
     AnalyticSDF,
     EvansParams,
     GridSDF,
@@ -45,9 +50,7 @@ def test_plane_samples_are_minus_h_plus_d_in_seed_convention(h, plane_grid):
     s = np.array([PLANE.prims[0].normal[2] * p[2] for p in pos])  # plane SDF = height
     np.testing.assert_allclose(seed_text_sdf(s), -(h + d), atol=1e-15)  # 000:2919-2921: SDF(P + dN) = −d
     # the voxel grid (a linear field is sampled exactly by trilinear interpolation, level 0, inside the grid)
-    from rtfit.realtime.sdf_occlusion import _NP
-
-    got = plane_grid.sample(_NP, 0, pos[:, 0], pos[:, 1], pos[:, 2])
+    got = plane_grid.sample(NUMPY_OPS, 0, pos[:, 0], pos[:, 1], pos[:, 2])
     np.testing.assert_allclose(seed_text_sdf(got), -(h + d), atol=1e-6)
 
 
@@ -215,3 +218,61 @@ def test_property_normalised_evans_in_unit_interval_and_monotone(k, alpha, base,
     )[0]
     assert 0.0 <= c <= 1.0 and math.isfinite(c)
     assert c2 <= c + 1e-12
+
+
+# ============================================================================ the method table
+def _sphere_on_plane_points(m=300, seed=0):
+    rng = np.random.default_rng(seed)
+    r = np.sqrt(rng.uniform(0.0, 1.2**2, m))
+    ph = rng.uniform(0, 2 * np.pi, m)
+    return np.column_stack([r * np.cos(ph), r * np.sin(ph), np.zeros(m)]), np.tile([0.0, 0.0, 1.0], (m, 1))
+
+
+SPHERE_ON_PLANE = AnalyticSDF([HalfSpace((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)), Sphere((0.0, 0.0, 0.5), 0.5)])
+
+
+@pytest.mark.parametrize("row", ["evans-text", "evans-listing", "evans-fit"])
+def test_evans_rows_run_the_point_kernel_text(row):
+    # A row of METHODS on the terms of `evans_terms` at its α and base = `evans_occlusion` with the same
+    # parameters (both float64 NumPy; the point kernel multiplies by B where the row adds log B).
+    m = METHODS[row]
+    values = {
+        "evans-text": {"k": 3.0},
+        "evans-listing": {"k": 2.5, "logB": math.log(0.8)},
+        "evans-fit": {"logB": math.log(0.9), "c1": 4.0, "c2": 3.2, "c3": 2.4, "c4": 2.0, "alpha": 0.35},
+    }[row]
+    kw = m.keywords(values)
+    base = 0.04 * kw["base_voxels"]
+    weights = kw["weights"] if "weights" in kw else [kw[f"c{i + 1}"] for i in range(EVANS_SAMPLES)]
+    prm = EvansParams(
+        n=EVANS_SAMPLES,
+        base=base,
+        k=kw["k"],
+        alpha=kw["alpha"],
+        weights=weights,
+        brightness=math.exp(kw.get("logB", 0.0)),
+    )
+    pts, nrm = _sphere_on_plane_points()
+    d = evans_terms(pts, nrm, SPHERE_ON_PLANE, prm, backend="numpy")
+    got = m(NUMPY_OPS, {"terms": d}, values)
+    want = evans_occlusion(pts, nrm, SPHERE_ON_PLANE, prm, backend="numpy")
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert np.ptp(want) > 0.05  # the scene occludes: the comparison is not of constants
+
+
+def test_evans_text_fit_through_the_kernel_recovers_k():
+    # fit_method differentiates the row's kernel text with JAX: k of a noise-free synthetic target comes back.
+    m = METHODS["evans-text"]
+    pts, nrm = _sphere_on_plane_points(400, seed=1)
+    d = evans_terms(pts, nrm, SPHERE_ON_PLANE, EvansParams(n=4, base=0.04, k=1.0, alpha=0.5), backend="numpy")
+    y = m(NUMPY_OPS, {"terms": d}, {"k": 7.5})
+    fit = fit_method(m, {"terms": d}, y)
+    assert fit.values["k"] == pytest.approx(7.5, rel=1e-8)
+
+
+def test_curvature_row_is_the_curvature_term_over_its_norm(plane_grid):
+    pts = np.array([[0.1, 0.2, 0.05], [0.3, -0.2, 0.0], [0.0, 0.0, -0.02]])
+    s = plane_grid.sample(NUMPY_OPS, CURVATURE_LEVEL, *pts.T)
+    got = METHODS["curvature"](NUMPY_OPS, {"distance": s}, {"k": -4.0})
+    want = curvature_term(pts, plane_grid, k=-4.0, level=CURVATURE_LEVEL, backend="numpy") / 1.5
+    np.testing.assert_allclose(got, want, rtol=1e-12)

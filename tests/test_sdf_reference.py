@@ -9,11 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from .conftest import upper_hemisphere_nodes
-
-from rtfit.experiments.sdf_occlusion import CREASE_PROBE_X, load_case_scene
-from rtfit.experiments.sdf_occlusion_report import crease_ao
+from rtfit.experiments.sdf_occlusion import CREASE_PROBE_X, crease_ao, load_case_scene
 from rtfit.realtime.sdf_grid import HalfSpace, Sphere, union_grid
+
+from .conftest import upper_hemisphere_nodes
 
 
 @pytest.mark.parametrize("phi_deg", [30, 60, 90, 120])
