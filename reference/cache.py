@@ -242,6 +242,8 @@ class PassEntry:
     ):
         if storage not in ("exr", "npz"):
             raise ValueError(f"storage must be 'exr' or 'npz' (got {storage!r})")
+        if storage == "npz":  # passes written as float64 (earlier npz entries held float32: other keys)
+            ident = {**ident, "pass_store": "npz-float64"}
         self.key = entry_key(ident)
         base = Path(root) / namespace if namespace else Path(root)
         self.folder = base / self.key[:2] / self.key

@@ -196,7 +196,7 @@ def test_cache_resumes_identically(tmp_path, crease_scene):
 
 def test_tiny_experiment_run(tmp_path):
     from rtfit.experiments import sdf_occlusion as exp
-    from rtfit.experiments.jobs import make_executor
+    from rtfit.experiments.executors import make_executor
     from rtfit.experiments.registry import RunContext
     from rtfit.experiments.report import load_results, write_report
     from rtfit.experiments.results import SCHEMA
