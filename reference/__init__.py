@@ -23,9 +23,9 @@ def render_gbuffer(scene, variant: str = "llvm_ad_rgb") -> GBuffer:
 
 
 __all__ = [
+    "KNOWN_VARIANTS",
     "GBuffer",
     "IntegratorChoice",
-    "KNOWN_VARIANTS",
     "PassResult",
     "Reference",
     "ReferenceCache",

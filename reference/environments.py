@@ -130,7 +130,8 @@ def node_directions(height: int, width: int) -> np.ndarray:
 
 
 def bilinear(img: np.ndarray, u, v) -> np.ndarray:
-    """Mitsuba's envmap lookup at (u, v): bilinear between nodes u_i = (i + ½)/W (periodic), v_j = j/(H − 1)."""
+    """Mitsuba's envmap lookup at (u, v): bilinear between nodes u_i = (i + ½)/W (periodic),
+    v_j = j/(H − 1)."""
     h, w = img.shape[:2]
     x = np.asarray(u, np.float64) * w - 0.5
     i0 = np.floor(x).astype(np.int64)

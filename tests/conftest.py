@@ -12,7 +12,6 @@ from hypothesis import HealthCheck, settings
 
 from rtfit.scenes.model import Camera, Diffuse, ReferenceSettings, Scene, Sphere, SphereLight
 
-
 # Hypothesis: derandomised in CI (the same examples every run, so a red CI is reproducible from its log),
 # random locally (new examples each run). HYPOTHESIS_PROFILE overrides. No deadline: Dr.Jit compiles a
 # kernel on its first call, which a per-example deadline would misread as slowness.

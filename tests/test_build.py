@@ -78,7 +78,7 @@ def test_directional_sun_irradiance_is_exact(mi):
     # A delta light has no variance: E = E_sun · cos θ exactly (to float32 rounding).
     d = np.array([1.0, 0.0, 1.0]) / math.sqrt(2)
     scene = sphere_scene(lights=(Sun(direction=tuple(d), irradiance=(3.0, 3.0, 3.0)),), shapes=())
-    e, se = _irradiance_at(mi, scene, (0, 0, 0), (0, 0, 1))
+    e, _ = _irradiance_at(mi, scene, (0, 0, 0), (0, 0, 1))
     np.testing.assert_allclose(e, 3.0 * d[2], rtol=1e-5)
 
 

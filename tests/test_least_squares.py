@@ -47,7 +47,7 @@ def test_exponential_recovers_parameters_with_correct_stderr():
     e = np.exp(-b * x)
     jac = np.stack([e, -a * x * e, np.ones_like(x)], axis=1)
     se_true = np.sqrt(np.diag(sigma**2 * np.linalg.inv(jac.T @ jac)))
-    for name, truth, se in zip("abc", (a, b, c), se_true):
+    for name, truth, se in zip("abc", (a, b, c), se_true, strict=True):
         assert abs(res.values[name] - truth) < 3 * res.stderr[name], name
         assert res.stderr[name] == pytest.approx(se, rel=0.2), name
     assert res.rms_residual == pytest.approx(sigma, rel=0.15)  # sd of rms over 200 points ≈ 5%
@@ -55,7 +55,7 @@ def test_exponential_recovers_parameters_with_correct_stderr():
     assert not any(res.at_bound.values())
     # With weights 1/σ and absolute_sigma, the stderr is σ(JᵀJ)⁻¹ at the estimate: within 2% of truth's.
     res_w = fit_curve(exp_model, x, y, params, weights=1.0 / sigma, absolute_sigma=True)
-    for name, se in zip("abc", se_true):
+    for name, se in zip("abc", se_true, strict=True):
         assert res_w.values[name] == pytest.approx(res.values[name], rel=1e-7)
         assert res_w.stderr[name] == pytest.approx(se, rel=0.02), name
 

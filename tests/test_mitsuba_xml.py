@@ -24,7 +24,8 @@ def _write_scene(root, lo=-1.0, hi=1.0):
     (root / "assets" / "meshes").mkdir(parents=True, exist_ok=True)
     (root / "assets" / "meshes" / "quad.ply").write_text(PLY.format(a=lo, b=hi))
     (root / "assets" / "geometry.xml").write_text(
-        '<scene version="3.0.0">\n  <shape type="ply"><string name="filename" value="quad.ply"/></shape>\n</scene>\n'
+        '<scene version="3.0.0">\n'
+        '  <shape type="ply"><string name="filename" value="quad.ply"/></shape>\n</scene>\n'
     )
     (root / "scene.xml").write_text(
         '<scene version="3.0.0">\n  <path value="assets/meshes"/>\n'

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
 from rtfit.scenes import (
     Camera,
     ConstantEnv,
@@ -396,7 +397,7 @@ def test_load_errors(tmp_path):
     with pytest.raises(SceneError, match=r"^\S*nope\.toml: cannot read scene file \(No such file"):
         load_scene(tmp_path / "nope.toml")
     (tmp_path / "bad.toml").write_bytes(b'name = "\xff"\n')
-    with pytest.raises(SceneError, match="bad.toml: not valid UTF-8"):
+    with pytest.raises(SceneError, match=r"bad\.toml: not valid UTF-8"):
         load_scene(tmp_path / "bad.toml")
     err = pickle.loads(pickle.dumps(SceneError.at("f.toml", "camera", "boom")))
     assert (str(err), err.key) == ("f.toml: camera: boom", "camera")
@@ -463,7 +464,7 @@ def test_hash_is_stable_and_ignores_labels(files):
         lambda s: dataclasses.replace(
             s, lights=(dataclasses.replace(s.lights[0], angular_radius_deg=5.001),)
         ),
-        lambda s: dataclasses.replace(s, lights=s.lights + (ConstantEnv(),)),
+        lambda s: dataclasses.replace(s, lights=(*s.lights, ConstantEnv())),
         lambda s: dataclasses.replace(s, camera=dataclasses.replace(s.camera, width=64)),
         lambda s: dataclasses.replace(s, camera=dataclasses.replace(s.camera, fov_deg=25.0)),
         lambda s: dataclasses.replace(s, reference=ReferenceSettings("global")),
