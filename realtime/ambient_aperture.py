@@ -463,22 +463,22 @@ def _visibility_kernel(ops, v):
 
 # ===================================================================================== methods (data)
 _CAPS = (
-    Input("r1", "rad", "angular radius of the first cap, [0, π]"),
-    Input("r2", "rad", "angular radius of the second cap, [0, π]"),
-    Input("d", "rad", "angle between the cap centres, [0, π]"),
+    Input("r1", "rad", "angular radius of the first cap, [0, π]", (0.0, math.pi)),
+    Input("r2", "rad", "angular radius of the second cap, [0, π]", (0.0, math.pi)),
+    Input("d", "rad", "angle between the cap centres, [0, π]", (0.0, math.pi)),
 )
 _LIGHT = (
-    Input("cos_na", "1", "n·a: surface normal · bent normal"),
-    Input("cos_nl", "1", "n·l: surface normal · direction to the light centre"),
-    Input("cos_al", "1", "a·l: bent normal · direction to the light centre"),
-    Input("aperture", "rad", "aperture (visibility cap) radius r_a, [0, π/2]"),
-    Input("alpha", "rad", "angular radius α of the sphere light, [0, π/2]"),
-    Input("radiance", "W/m²/sr", "radiance L of the sphere light"),
+    Input("cos_na", "1", "n·a: surface normal · bent normal", (-1.0, 1.0)),
+    Input("cos_nl", "1", "n·l: surface normal · direction to the light centre", (-1.0, 1.0)),
+    Input("cos_al", "1", "a·l: bent normal · direction to the light centre", (-1.0, 1.0)),
+    Input("aperture", "rad", "aperture (visibility cap) radius r_a, [0, π/2]", (0.0, 0.5 * math.pi)),
+    Input("alpha", "rad", "angular radius α of the sphere light, [0, π/2]", (0.0, 0.5 * math.pi)),
+    Input("radiance", "W/m²/sr", "radiance L of the sphere light", (0.0, 10.0)),
 )
 _SKY = (
-    Input("cos_na", "1", "n·a: surface normal · bent normal"),
-    Input("aperture", "rad", "aperture (visibility cap) radius r_a, [0, π/2]"),
-    Input("sky_radiance", "W/m²/sr", "radiance L_sky of the uniform sky"),
+    Input("cos_na", "1", "n·a: surface normal · bent normal", (-1.0, 1.0)),
+    Input("aperture", "rad", "aperture (visibility cap) radius r_a, [0, π/2]", (0.0, 0.5 * math.pi)),
+    Input("sky_radiance", "W/m²/sr", "radiance L_sky of the uniform sky", (0.0, 10.0)),
 )
 COEFF_PARAMS: Mapping[str, Param] = MappingProxyType(
     {

@@ -281,8 +281,10 @@ def sphere_light_geometry(position, normal, light_center, light_radius):
 
 
 # ===================================================================================== methods as data
-_COS = Input("cos_theta", "1", "n·l, cosine between the normal and the direction to the light (centre)")
-_IRRADIANCE = Input("irradiance", "W/m²", "E⊥, the light's irradiance at normal incidence")
+_COS = Input(
+    "cos_theta", "1", "n·l, cosine between the normal and the direction to the light (centre)", (-1.0, 1.0)
+)
+_IRRADIANCE = Input("irradiance", "W/m²", "E⊥, the light's irradiance at normal incidence", (0.0, 10.0))
 
 METHODS = method_table(
     [
@@ -326,8 +328,10 @@ METHODS = method_table(
             sphere_light_irradiance_kernel,
             inputs=(
                 _COS,
-                Input("alpha", "rad", "angular radius of the sphere light seen from the point"),
-                Input("radiance", "W/m²/sr", "the light's uniform radiance L"),
+                Input(
+                    "alpha", "rad", "angular radius of the sphere light seen from the point", (0.0, HALF_PI)
+                ),
+                Input("radiance", "W/m²/sr", "the light's uniform radiance L", (0.0, 10.0)),
             ),
             exact=True,
             quantity="irradiance",

@@ -512,7 +512,7 @@ def fog_volume_segment(origin, direction, max_distance, volume):
     ray = _ray_components(origin, direction, max_distance)
 
     def kernel(ops, *a):
-        return _volume_segment_kernel(ops, *a, volume)
+        return _volume_segment_kernel(ops, *a, vol=volume)
 
     return evaluate(kernel, *ray, max_distance)
 
@@ -525,7 +525,7 @@ def fog_volumes_optical_depth(origin, direction, max_distance, volumes):
     for vol in volumes:
 
         def kernel(ops, *a, vol=vol):
-            return _volume_kernel(ops, *a, vol)
+            return _volume_kernel(ops, *a, vol=vol)
 
         out.append(evaluate(kernel, *ray, max_distance))
     return out
@@ -579,7 +579,7 @@ def fog_pass(
     cs = cos_sun if cos_sun is not None else 0.0
 
     def kernel(ops, *a):
-        return _fog_pass_kernel(ops, *a, phase)
+        return _fog_pass_kernel(ops, *a, phase=phase)
 
     return evaluate(
         kernel,

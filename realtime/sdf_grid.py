@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import drjit as dr
 import numpy as np
@@ -383,6 +384,7 @@ def _point_triangle_distance_drjit(p, a, b, c):
         else:
             m = dd < best
             best, bq = dr.select(m, dd, best), dr.select(m, q, bq)
+    assert best is not None and bq is not None  # the loop above always runs (three edges)
     ab, ac, ap = B - A, C - A, P - A
     aa, cc, bc = dr.dot(ab, ab), dr.dot(ac, ac), dr.dot(ab, ac)
     d1, d2 = dr.dot(ab, ap), dr.dot(ac, ap)
@@ -531,7 +533,7 @@ def mesh_sdf_grid(
         )
     # Closest-point propagation beyond the band.
     mask3 = in_band.reshape(nz, ny, nx)
-    idx = ndimage.distance_transform_edt(~mask3, return_distances=False, return_indices=True)
+    idx: Any = ndimage.distance_transform_edt(~mask3, return_distances=False, return_indices=True)
     src3 = ((idx[0] * ny + idx[1]) * nx + idx[2]).astype(np.int64)
     del idx
     far_d = _propagate_closest_points(best_p, src3.reshape(-1), o, h, (nx, ny, nz))
@@ -641,7 +643,7 @@ def _flood_inside(dist, h):
     from scipy import ndimage
 
     far = dist > 0.5 * math.sqrt(3.0) * h
-    lab, _ = ndimage.label(far)
+    lab, _ = cast(tuple[Any, int], ndimage.label(far))  # (labels, count): no ``output`` given
     border = np.unique(
         np.concatenate(
             [
@@ -657,7 +659,7 @@ def _flood_inside(dist, h):
     border = border[border > 0]
     outside_far = np.isin(lab, border)
     inside_far = far & ~outside_far
-    idx = ndimage.distance_transform_edt(~far, return_distances=False, return_indices=True)
+    idx: Any = ndimage.distance_transform_edt(~far, return_distances=False, return_indices=True)
     near_inside = inside_far[idx[0], idx[1], idx[2]]
     return np.where(far, inside_far, near_inside)
 

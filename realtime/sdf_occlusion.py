@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -172,16 +173,20 @@ class GridSDF:
             vals = self._arrays(ops, None, level)
             base = ((fz0 * ny + fy0) * nx + fx0).astype(np.int64)
 
-            def at(off):
+            def at_numpy(off):
                 return vals[base + off]
+
+            at = at_numpy
         else:
             Float = type(x)
             vals = self._arrays(ops, Float, level)
             UInt = dr.uint32_array_t(Float)
             base = UInt(fz0) * (ny * nx) + UInt(fy0) * nx + UInt(fx0)
 
-            def at(off):
+            def at_drjit(off):
                 return dr.gather(Float, vals, base + off)
+
+            at = at_drjit
 
         sxy = nx * ny
         c00 = at(0) * (1 - fx) + at(1) * fx
@@ -291,7 +296,7 @@ def evans_exponent_kernel(ops, terms, *, logB=0.0, k=1.0, weights=None):
     ``terms``: the sample terms D_i = d_i − s_{i−1}(P + d_i N') (scene units), a sequence of arrays or an
     (n, N) array (`evans_terms`); ``weights``: n numbers (None: all 1); ``k`` in 1/scene unit; ``logB`` the
     natural log of the brightness B. The sum runs over i in order (D_1 first)."""
-    acc = None
+    acc: Any = None  # a NumPy or Dr.Jit array after the first term
     for i in range(len(terms)):
         t = terms[i] if weights is None else weights[i] * terms[i]
         acc = t if acc is None else acc + t
@@ -332,8 +337,8 @@ def evans_terms(points, normals, sdf, params: EvansParams, *, backend: str | Non
     linear-in-(k·w_i) form the experiment fits (k and the weights do not change the sample positions)."""
     if is_drjit(points):
         raise ValueError("evans_terms takes NumPy points (it returns NumPy)")
-    p = _split_points(points, "points")
-    n = _split_points(normals, "normals")
+    p = np.asarray(_split_points(points, "points"))  # NumPy input (checked above): an (N, 3) array
+    n = np.asarray(_split_points(normals, "normals"))
     if backend == "numpy":
         with np.errstate(all="ignore"):
             out = _evans_terms_kernel(
@@ -375,8 +380,8 @@ def evans_terms_jacobian(points, normals, sdf, params: EvansParams, *, backend: 
     be = backend or get_default_backend()
     if be not in ("llvm", "cuda"):
         raise ValueError(f"evans_terms_jacobian needs a Dr.Jit backend, 'llvm' or 'cuda' (got {be!r})")
-    p = _split_points(points, "points")
-    nrm = _split_points(normals, "normals")
+    p = np.asarray(_split_points(points, "points"))  # NumPy input (checked above): an (N, 3) array
+    nrm = np.asarray(_split_points(normals, "normals"))
     if nrm.shape != p.shape:
         raise ValueError(f"points and normals must have the same shape (got {p.shape} and {nrm.shape})")
     if not np.all(np.isfinite(p)) or not np.all(np.isfinite(nrm)):
@@ -385,8 +390,8 @@ def evans_terms_jacobian(points, normals, sdf, params: EvansParams, *, backend: 
     cols = [Float(np.ascontiguousarray(a[:, i], dtype=np.float32)) for a in (p, nrm) for i in range(3)]
     values, grads = None, []
     for wrt in ("alpha", "base"):
-        a = dr.opaque(Float, float(params.alpha))
-        b = dr.opaque(Float, float(params.base))
+        a = dr.opaque(Float, float(params.alpha))  # pyright: ignore[reportArgumentType]  # llvm|cuda union
+        b = dr.opaque(Float, float(params.base))  # pyright: ignore[reportArgumentType]  # llvm|cuda union
         var = a if wrt == "alpha" else b
         dr.enable_grad(var)
         terms = _evans_terms_kernel(DRJIT_OPS, sdf, params, *cols, alpha=a, base=b)
@@ -470,8 +475,8 @@ def _run(kernel, points, normals, backend, *extra):
         p = (points[0], points[1], points[2])
         n = (normals[0], normals[1], normals[2]) if normals is not None else ()
         return kernel(DRJIT_OPS, *p, *n)
-    p = _split_points(points, "points")
-    n = _split_points(normals, "normals") if normals is not None else None
+    p = np.asarray(_split_points(points, "points"))  # NumPy input (Dr.Jit returned above): an (N, 3) array
+    n = np.asarray(_split_points(normals, "normals")) if normals is not None else None
     if n is not None and n.shape != p.shape:
         raise ValueError(f"points and normals must have the same shape (got {p.shape} and {n.shape})")
     if not np.all(np.isfinite(p)) or (n is not None and not np.all(np.isfinite(n))):
