@@ -5,7 +5,7 @@ Two measurements, side by side in one run (ratios are only meaningful within one
 * **Overhead per job**: ``diagnostic_job`` (does nothing) through each executor; the round-trip
   latency of one job at a time (median), and the time per job when a batch of them is queued
   (scheduling + transfer of a job and its result, amortised over the workers).
-* **Scaling on a sweep**: the same small sweep (``sweep_points`` half-lambert points, every point a
+* **Scaling on a sweep**: the same small sweep (``sweep_points`` diffuse points, every point a
   full experiment run with its own reference renders, each executor with a fresh cache) under every
   executor; wall time and the speed-up over ``inline``. On CUDA, the process and Ray executors run
   one worker per GPU, first on one GPU and then on all GPUs listed in ``RTFIT_BENCH_GPUS``
@@ -62,12 +62,12 @@ def _overhead_rows(name: str, n_jobs: int, workers: int | None, gpus=None) -> di
 
 
 def sweep_spec_text(points: int, variant: str) -> str:
-    """A small half-lambert sweep: ``points`` configuration points (light sizes) of equal cost."""
+    """A small diffuse sweep: ``points`` configuration points (light sizes) of equal cost."""
     alphas = [1.0 + 2.0 * i for i in range(points)]
     gpu = variant.startswith("cuda")
     res, spp = (192, 1024) if gpu else (40, 128)
     return (
-        f'name = "scaling"\nexperiment = "half-lambert"\nquick = true\nspp = {spp}\n'
+        f'name = "scaling"\nexperiment = "diffuse"\nquick = true\nspp = {spp}\n'
         f"[fixed]\nsky_radiances = [0.0]\nresolution = {res}\npass_spp = {spp // 4}\n"
         f"probe_count = 31\nprobe_spp = {spp}\n"
         "[grid]\nalphas_deg = [" + ", ".join(f"[{a}, 30.0]" for a in alphas) + "]\n"
