@@ -25,11 +25,10 @@ import json
 import math
 import os
 import re
+import tomllib
 from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from typing import Any
-
-import tomllib
 
 from .model import (
     ENVIRONMENT_KINDS,
@@ -550,7 +549,7 @@ class _Parser:
 
 # ----------------------------------------------------------------------------------------------- API
 # Files in scenes/library/ that are not scene files, by their ``format`` key.
-OTHER_FORMATS = {"rtfit.sky/1": "rtfit.reference.atmosphere.load_atmosphere_scene"}
+OTHER_FORMATS = {"rtfit.sky/1": "rtfit.reference.nishita_sky.load_atmosphere_scene"}
 
 
 def parse_scene_text(
