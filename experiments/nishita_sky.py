@@ -254,6 +254,38 @@ def _approx_doc(method_id, img, mean, se, mask, metrics, params=None, fitted=Fal
     }
 
 
+def _near_sun(dirs, elev: float, degrees: float = 1.0) -> np.ndarray:
+    """Pixels within ``degrees`` of the sun (excluded from the metrics: the sun disc is a separate term)."""
+    e = math.radians(elev)
+    s_dir = np.array([math.cos(e), 0.0, math.sin(e)])
+    return np.degrees(np.arccos(np.clip(dirs @ s_dir, -1, 1))) < degrees
+
+
+def _subset(stride) -> tuple[slice, slice]:
+    """The quadrature's pixel subset: every ``stride`` = (x, y) pixel, starting half a stride in."""
+    return slice(stride[1] // 2, None, stride[1]), slice(stride[0] // 2, None, stride[0])
+
+
+def _reference_doc(ref, mean, se, mask, variant, max_depth, quantity, reason=None) -> dict:
+    """The "reference" record of a case: integrator, variant, samples, noise and speed."""
+    doc = {"integrator": "volpathmis", "max_depth": max_depth}
+    if reason:
+        doc["integrator_reason"] = reason
+    return {
+        **doc,
+        "variant": variant,
+        "quantity": quantity,
+        "spp": int(ref["spp"]),
+        "passes": int(ref["passes"]),
+        "cache_key": ref["cache_key"],
+        "mean_rel_stderr": float(np.mean(se[mask] / np.maximum(np.abs(mean[mask]), 1e-12))),
+        "samples_per_second": float(ref["samples_per_second"]),
+    }
+
+
+RADIANCE = "radiance along hemisphere directions"
+
+
 def _tonemapped_rmse(x, r, s, mask, seed=0):
     """RMSE of x/(1+x) images (Bruneton 2017-style tone-mapped comparison, exposure 10) with its
     MC noise floor."""
@@ -300,8 +332,7 @@ def _main_cases(ctx, cfg, dirs, el, done, fits, backend, settings):
     mask = np.ones((H, W), dtype=bool)
     cases, images, checks, irr_rows, quad_z = [], {}, [], [], []
     for e in cfg["sun_elevations_deg"]:
-        s_dir = np.array([math.cos(math.radians(e)), 0.0, math.sin(math.radians(e))])
-        near_sun = np.degrees(np.arccos(np.clip(dirs @ s_dir, -1, 1))) < 1.0
+        near_sun = _near_sun(dirs, e)
         m = mask & ~near_sun
         fit_of = {mid: f[e] for mid, f in fits.items()}
         imgs = {
@@ -334,8 +365,7 @@ def _main_cases(ctx, cfg, dirs, el, done, fits, backend, settings):
                 )
             if kind == "ss":
                 q = done[case_id(e, "quad")]["value"]
-                st = cfg["quadrature_stride"]
-                sl = (slice(st[1] // 2, None, st[1]), slice(st[0] // 2, None, st[0]))
+                sl = _subset(cfg["quadrature_stride"])
                 sub_m, sub_s = mean[sl], se[sl]
                 doc, z, _, check = _quadrature_vs_mitsuba(
                     q,
@@ -377,18 +407,16 @@ def _main_cases(ctx, cfg, dirs, el, done, fits, backend, settings):
                         "reference_max_depth": 2 if kind == "ss" else -1,
                         "horizontal_irradiance_ref": [float(x) for x in E_ref],
                     },
-                    "reference": {
-                        "integrator": "volpathmis",
-                        "max_depth": 2 if kind == "ss" else -1,
-                        "integrator_reason": "media with chromatic extinction; depth 2 = single scattering",
-                        "variant": ctx.variant,
-                        "quantity": "radiance along hemisphere directions",
-                        "spp": int(ref["spp"]),
-                        "passes": int(ref["passes"]),
-                        "cache_key": ref["cache_key"],
-                        "mean_rel_stderr": float(np.mean(se[m] / np.maximum(np.abs(mean[m]), 1e-12))),
-                        "samples_per_second": float(ref["samples_per_second"]),
-                    },
+                    "reference": _reference_doc(
+                        ref,
+                        mean,
+                        se,
+                        m,
+                        ctx.variant,
+                        2 if kind == "ss" else -1,
+                        RADIANCE,
+                        "media with chromatic extinction; depth 2 = single scattering",
+                    ),
                     "approximations": approx_docs,
                 }
             )
@@ -396,59 +424,35 @@ def _main_cases(ctx, cfg, dirs, el, done, fits, backend, settings):
 
 
 def _altitude_cases(ctx, cfg, dirs, done, backend, settings):
-    """Viewer above the ground (beyond the seed): single scattering vs the seed/fine textures built
-    for that altitude, and the independent quadrature as the reference's check."""
-
+    """Viewer above the ground (beyond the seed): single scattering vs the RGB textures built for that
+    altitude, and the independent quadrature as the reference's check."""
     cases, checks = [], []
-    st = cfg["quadrature_stride"]
-    sl = (slice(st[1] // 2, None, st[1]), slice(st[0] // 2, None, st[0]))
+    sl = _subset(cfg["quadrature_stride"])
     for e, alt in cfg["altitude_cases"]:
         ref = done[altitude_id(e, alt, "ss")]
         mean, se = ref["mean"], ref["stderr"]
-        s_dir = np.array([math.cos(math.radians(e)), 0.0, math.sin(math.radians(e))])
-        m = ~(np.degrees(np.arccos(np.clip(dirs @ s_dir, -1, 1))) < 1.0)
+        m = ~_near_sun(dirs, e)
         docs = []
         for name in rgb_methods(fitted=False):
             img = np.where(m[..., None], method_image(name, e, dirs, settings, backend, alt_m=alt), 0.0)
             docs.append(_approx_doc(name, img, mean, se, m, ("rel_mae",)))
         q = done[altitude_id(e, alt, "quad")]["value"]
-        sub_m, sub_s = mean[sl], se[sl]
-        met = compute_metrics(q, sub_m, sub_s, names=("rmse", "mae", "max_abs"))
-        docs.append(
-            {
-                "method": "quadrature",
-                "label": LABELS["quadrature"],
-                "fitted": False,
-                "parameters": {"pixels": int(q.shape[0] * q.shape[1])},
-                "metrics": met.to_dict(),
-            }
+        doc, _, _, check = _quadrature_vs_mitsuba(
+            q,
+            mean[sl],
+            se[sl],
+            "quadrature",
+            {"pixels": int(q.shape[0] * q.shape[1])},
+            f"viewer at {alt:g} m, sun {e:g}°: independent SS quadrature vs Mitsuba single scattering",
         )
-        zsum = (q.sum(axis=(0, 1)) - sub_m.sum(axis=(0, 1))) / np.sqrt((sub_s**2).sum(axis=(0, 1)))
-        checks.append(
-            {
-                "name": f"viewer at {alt:g} m, sun {e:g}°: independent SS quadrature vs Mitsuba single "
-                f"scattering, z of the sum over {q.shape[0] * q.shape[1]} pixels (R, G, B)",
-                "value": ", ".join(f"{v:.2f}" for v in zsum),
-                "expected": "|z| ≤ 4 per channel",
-                "passed": bool(np.all(np.abs(zsum) <= 4)),
-            }
-        )
+        docs.append(doc)
+        checks.append(check)
         cases.append(
             {
                 "id": altitude_id(e, alt, "ss"),
                 "label": f"viewer at {alt:g} m, sun {e:g}°, single scattering reference",
                 "parameters": {"sun_elevation_deg": e, "viewer_altitude_m": alt, "reference_max_depth": 2},
-                "reference": {
-                    "integrator": "volpathmis",
-                    "max_depth": 2,
-                    "variant": ctx.variant,
-                    "quantity": "radiance along hemisphere directions",
-                    "spp": int(ref["spp"]),
-                    "passes": int(ref["passes"]),
-                    "cache_key": ref["cache_key"],
-                    "mean_rel_stderr": float(np.mean(se[m] / np.maximum(np.abs(mean[m]), 1e-12))),
-                    "samples_per_second": float(ref["samples_per_second"]),
-                },
+                "reference": _reference_doc(ref, mean, se, m, ctx.variant, 2, RADIANCE),
                 "approximations": docs,
             }
         )
@@ -459,7 +463,6 @@ def spectral_white_balance(lam16):
     """The conversions of the two sides for the solar spectrum, and the von Kries factors k that
     put a Mitsuba film sRGB value in the real-time spectral sky's convention (`spectral_to_srgb`
     with white = solar spectrum, white_rgb = E₀): k = E₀ / film_srgb(E₀(λ)). Returns a dict."""
-
     e0 = np.asarray(atmosphere_params().solar_irradiance, dtype=np.float64)
     lam = np.arange(360.0, 830.5, 1.0)
     white = film_srgb(solar_spectrum(lam, e0[1]), lam)
@@ -477,14 +480,13 @@ def _spectral_cases(ctx, cfg, done, backend, settings):
     """Spectral single-scattering cases: the Mitsuba spectral reference (white-balanced like the
     real-time conversion) vs the spectral Nishita sky and the RGB (3-λ) one; the spectral
     quadrature as the reference's check; noise-free decompositions on the quadrature's pixels."""
-
     elevs = cfg["spectral_elevations_deg"]
     if not elevs:
         return [], [], [], None
     SW, SH = cfg["spectral_resolution"]
     d, _, _ = hemisphere_directions(SW, SH)
-    st = cfg["spectral_quadrature_stride"]
-    sl = (slice(st[1] // 2, None, st[1]), slice(st[0] // 2, None, st[0]))
+    sl = _subset(cfg["spectral_quadrature_stride"])
+    (sid, rid), *_ = spectral_methods()  # the spectral method and the RGB sky of its setting
     lam16 = np.linspace(400.0, 700.0, int(cfg["spectral_wavelengths"]))  # the spectral method's λ
     wb = spectral_white_balance(lam16)
     k = np.asarray(wb["von_kries_factors"])
@@ -493,17 +495,14 @@ def _spectral_cases(ctx, cfg, done, backend, settings):
     for e in elevs:
         ref = done[case_id(e, "ss-spectral")]
         mean, se = ref["mean"] * k, ref["stderr"] * k
-        s_dir = np.array([math.cos(math.radians(e)), 0.0, math.sin(math.radians(e))])
-        near_sun = np.degrees(np.arccos(np.clip(d @ s_dir, -1, 1))) < 1.0
+        near_sun = _near_sun(d, e)
         m = ~near_sun
-        docs, pair_images = [], []
-        for sid, rid in spectral_methods():
-            spec_img = method_image(sid, e, d, settings, backend)
-            rgb_img = np.where(near_sun[..., None], 0.0, method_image(rid, e, d, settings, backend))
-            pair_images.append((sid, rid, spec_img, rgb_img))
-            for name, img in ((sid, spec_img), (rid, rgb_img)):
-                docs.append(_approx_doc(name, img, mean, se, m, ("rel_mae", "tonemapped_rmse")))
-        sid, rid, spec_img, rgb_img = pair_images[0]  # the decomposition below: the first spectral method
+        spec_img = method_image(sid, e, d, settings, backend)
+        rgb_img = np.where(near_sun[..., None], 0.0, method_image(rid, e, d, settings, backend))
+        docs = [
+            _approx_doc(name, img, mean, se, m, ("rel_mae", "tonemapped_rmse"))
+            for name, img in ((sid, spec_img), (rid, rgb_img))
+        ]
         qd = done[case_id(e, "quad-spectral")]
         q = qd["srgb"] * k
         sub_m, sub_s = mean[sl], se[sl]
@@ -554,18 +553,16 @@ def _spectral_cases(ctx, cfg, done, backend, settings):
                     "reference_max_depth": 2,
                     "resolution": [SW, SH],
                 },
-                "reference": {
-                    "integrator": "volpathmis",
-                    "max_depth": 2,
-                    "variant": spectral_variant(ctx.variant),
-                    "quantity": "radiance along hemisphere directions, CIE 1931 → linear sRGB as Mitsuba's "
-                    "film, × von Kries factors E₀/film_srgb(solar spectrum)",
-                    "spp": int(ref["spp"]),
-                    "passes": int(ref["passes"]),
-                    "cache_key": ref["cache_key"],
-                    "mean_rel_stderr": float(np.mean(se[m] / np.maximum(np.abs(mean[m]), 1e-12))),
-                    "samples_per_second": float(ref["samples_per_second"]),
-                },
+                "reference": _reference_doc(
+                    ref,
+                    mean,
+                    se,
+                    m,
+                    spectral_variant(ctx.variant),
+                    2,
+                    f"{RADIANCE}, CIE 1931 → linear sRGB as Mitsuba's film, × von Kries factors "
+                    "E₀/film_srgb(solar spectrum)",
+                ),
                 "approximations": docs,
             }
         )
@@ -616,7 +613,7 @@ def render_job(
 def quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt_m: float) -> dict:
     """The float64 single-scattering quadrature on a pixel subset (every ``stride`` pixel) of the image."""
     d, _, _ = hemisphere_directions(width, height)
-    sub = d[stride[1] // 2 :: stride[1], stride[0] // 2 :: stride[0]]
+    sub = d[_subset(stride)]
     t0 = time.perf_counter()
     q = single_scattering_quadrature(atmosphere_spec(elev, alt_m), sub, steps=steps)
     return {"value": q, "seconds": time.perf_counter() - t0}
@@ -625,9 +622,8 @@ def quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt
 def spectral_quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt_m: float) -> dict:
     """The spectral float64 quadrature (film sRGB, spectra on 360–830 nm at 1 nm) and the RGB
     (3-wavelength) quadrature on the same pixel subset of a width × height hemisphere image."""
-
     d, _, _ = hemisphere_directions(width, height)
-    sub = d[stride[1] // 2 :: stride[1], stride[0] // 2 :: stride[0]]
+    sub = d[_subset(stride)]
     t0 = time.perf_counter()
     spec = atmosphere_spec(elev, alt_m)
     q = spectral_single_scattering_quadrature(spec, sub, steps=steps)
@@ -762,7 +758,6 @@ def _quadrature_vs_mitsuba(q, mean, stderr, method, params, what):
     """An independent quadrature ``q`` against Mitsuba's ``mean`` ± ``stderr`` on the same pixels
     ((h, w, 3)): its approximation row (metrics with the reference's noise floor), the per-pixel z values
     (for the robust spread), the z of the per-channel sums and the check on it (|z| ≤ 4)."""
-
     met = compute_metrics(q, mean, stderr, names=("rmse", "mae", "max_abs"))
     doc = {
         "method": method,
@@ -1328,7 +1323,7 @@ def _sweep_one(cfg, backend, done, e) -> list[dict]:
     W, H = cfg["resolution"]
     d, _, _ = hemisphere_directions(W, H)
     st = cfg["quadrature_stride"]
-    sub = d[st[1] // 2 :: st[1], st[0] // 2 :: st[0]]
+    sub = d[_subset(st)]
     q = done[case_id(e, "quad")]["value"]
     p = atmosphere_params()
     confs = []
@@ -1416,7 +1411,6 @@ def _costs(ctx, backend, cfg, settings) -> list[dict]:
 
 def bench(ctx) -> list[dict]:
     """Whole-texture build time per configuration: Dr.Jit (this backend) vs the NumPy loop."""
-
     backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
     set_default_backend(backend)
     p = atmosphere_params()

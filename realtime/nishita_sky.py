@@ -579,25 +579,25 @@ def build_sky(
         nu = np.cos(E) * math.cos(el_s) * np.cos(A) + np.sin(E) * math.sin(el_s)
         if tables is None:
             tables = build_optical_depth_table(params, layers, table_size, backend)
-    if backend == "numpy":
-        S_r, S_m = _inscatter_kernel(
-            NUMPY_OPS, mu.ravel(), nu.ravel(), h0, sz, cfg, tables[0].ravel(), tables[1].ravel(), betas
-        )
-        S_r = [np.asarray(s).reshape(height, width) for s in S_r]
-        S_m = [np.asarray(s).reshape(height, width) for s in S_m]
-    elif tables is not None:
-        Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
-        S_r, S_m = _inscatter_kernel(
-            DRJIT_OPS,
-            Float(mu.ravel()),
-            Float(nu.ravel()),
-            dr.opaque(Float, h0),
-            dr.opaque(Float, sz),
-            cfg,
-            tables[0],
-            tables[1],
-            betas,
-        )
+        if backend == "numpy":
+            S_r, S_m = _inscatter_kernel(
+                NUMPY_OPS, mu.ravel(), nu.ravel(), h0, sz, cfg, tables[0].ravel(), tables[1].ravel(), betas
+            )
+            S_r = [np.asarray(s).reshape(height, width) for s in S_r]
+            S_m = [np.asarray(s).reshape(height, width) for s in S_m]
+        else:  # prebuilt Dr.Jit tables: the same kernel, traced here (not the frozen device build)
+            Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
+            S_r, S_m = _inscatter_kernel(
+                DRJIT_OPS,
+                Float(mu.ravel()),
+                Float(nu.ravel()),
+                dr.opaque(Float, h0),
+                dr.opaque(Float, sz),
+                cfg,
+                tables[0],
+                tables[1],
+                betas,
+            )
     sky = NishitaSky(
         params,
         el_s,
@@ -1010,11 +1010,11 @@ class SkySetting:
             sky = build_sky(
                 atmosphere, sun_elevation_deg, altitude_m, backend=backend, **self.build_keywords()
             )
-            return shade_sky(sky, directions)
+            return np.asarray(shade_sky(sky, directions))  # NumPy directions: a NumPy array (…, C)
         lam = self.spectral_wavelengths()
         spectral = atmosphere.spectral(lam)
         sky = build_sky(spectral, sun_elevation_deg, altitude_m, backend=backend, **self.build_keywords())
-        L = shade_sky(sky, directions, include_sun=False)
+        L = np.asarray(shade_sky(sky, directions, include_sun=False))
         rgb = spectral_to_srgb(
             L, lam, white=np.asarray(spectral.solar_irradiance), white_rgb=atmosphere.solar_irradiance
         )
