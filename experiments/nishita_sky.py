@@ -51,7 +51,7 @@ import time
 import drjit as dr
 import numpy as np
 
-from rtfit.fitting import compute_metrics, fit_method, robust_spread
+from rtfit.fitting import compute_metrics, fit_method, robust_spread, tone_map
 from rtfit.realtime import set_default_backend
 from rtfit.realtime.nishita_sky import (
     FINE_SETTING,
@@ -132,6 +132,7 @@ ROWS = {
 """This experiment's own rows beside the realtime methods (id → label): the reference's checks and sunsky."""
 LABELS = {**{m.id: m.label for m in METHODS.values()}, **ROWS}
 METRICS = ("rmse", "rel_mse", "mae", "max_abs", "psnr", "smape")
+TONE_MAP_EXPOSURE = 10.0
 
 
 def atmosphere_spec(elev: float, alt_m: float):
@@ -153,9 +154,13 @@ def method_settings(cfg: dict) -> dict[str, SkySetting]:
     wavelength count as configured (``cfg["fine"]``, ``cfg["spectral_wavelengths"]``: a sweep or a test
     may change them)."""
     fine = dataclasses.replace(FINE_SETTING, **cfg["fine"])
-    return {
-        m.id: fine if m.fixed["setting"] == FINE_SETTING else m.fixed["setting"] for m in METHODS.values()
-    }
+    n_lambda = int(cfg["spectral_wavelengths"])
+
+    def configured(s: SkySetting) -> SkySetting:
+        s = fine if s == FINE_SETTING else s
+        return dataclasses.replace(s, wavelengths=n_lambda) if s.wavelengths else s
+
+    return {m.id: configured(m.fixed["setting"]) for m in METHODS.values()}
 
 
 def rgb_methods(fitted: bool = True) -> list[str]:
@@ -233,7 +238,7 @@ def reference_spp(cfg: dict, elev: float) -> int:
 def spectral_variant(variant: str) -> str | None:
     """The Mitsuba spectral variant beside an RGB one; None for scalar variants (not supported) or
     when the installed Mitsuba lacks it (the spectral cases are then skipped)."""
-    import mitsuba  # mitsuba: only to list the installed variants (selects none)
+    import mitsuba  # mitsuba: lazy (heavy); only lists the installed variants, selects none
 
     sv = {"cuda": "cuda_ad_spectral", "llvm": "llvm_ad_spectral"}.get(variant.split("_", 1)[0])
     return sv if sv in mitsuba.variants() else None
@@ -287,10 +292,12 @@ RADIANCE = "radiance along hemisphere directions"
 
 
 def _tonemapped_rmse(x, r, s, mask, seed=0):
-    """RMSE of x/(1+x) images (Bruneton 2017-style tone-mapped comparison, exposure 10) with its
-    MC noise floor."""
-    k = 10.0
-    tm = lambda a: (k * a) / (1.0 + k * np.abs(a))  # noqa: E731
+    """RMSE of `rtfit.fitting.tone_map`-ed images at exposure 10, t(10x) = 10x/(1 + |10x|) (Bruneton
+    2017-style tone-mapped comparison), with its MC noise floor."""
+
+    def tm(a):
+        return tone_map(TONE_MAP_EXPOSURE * a)
+
     v = float(np.sqrt(np.mean((tm(x[mask]) - tm(r[mask])) ** 2)))
     rng = np.random.default_rng(seed)
     fl = float(
@@ -487,7 +494,7 @@ def _spectral_cases(ctx, cfg, done, backend, settings):
     d, _, _ = hemisphere_directions(SW, SH)
     sl = _subset(cfg["spectral_quadrature_stride"])
     (sid, rid), *_ = spectral_methods()  # the spectral method and the RGB sky of its setting
-    lam16 = np.linspace(400.0, 700.0, int(cfg["spectral_wavelengths"]))  # the spectral method's λ
+    lam16 = settings[sid].spectral_wavelengths()
     wb = spectral_white_balance(lam16)
     k = np.asarray(wb["von_kries_factors"])
     e0 = np.asarray(wb["E0_rgb"])

@@ -553,7 +553,7 @@ def _use_variant(variant: str):
         raise ValueError(f"spectral variant must be one of {', '.join(SPECTRAL_VARIANTS)} (got {variant!r})")
     if variant.startswith("cuda") and not cuda_available():
         raise ValueError(f"variant {variant!r} needs a CUDA GPU, and none was found")
-    import mitsuba as mi
+    import mitsuba as mi  # mitsuba: lazy, it selects a variant process-wide (set just below)
 
     if mi.variant() != variant:
         mi.set_variant(variant)
@@ -734,7 +734,7 @@ def solar_spectrum(lam_nm, e550: float = 1.8504, temperature_k: float = SOLAR_TE
     """Solar irradiance E₀(λ) = E₀(550)·B(λ, T)/B(550, T) (W·m⁻²·nm⁻¹ when E₀(550) is), B the
     Planck law ∝ λ⁻⁵/(exp(c₂/(λT)) − 1), c₂ = 1.4387769e-2 m·K, λ in nm.
 
-    The real-time spectral variant's default (``rtfit.realtime.sky.AtmosphereParams.spectral``:
+    The real-time spectral variant's default (``rtfit.realtime.nishita_sky.AtmosphereParams.spectral``:
     5778 K blackbody normalised to that set's 550 nm value), re-derived here because the reference
     must not import the real-time code; a test checks that the two agree."""
     lam = np.asarray(lam_nm, dtype=np.float64)

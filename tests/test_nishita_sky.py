@@ -1,4 +1,4 @@
-"""rtfit.realtime.sky against independent values: mpmath quadrature, closed forms, scipy."""
+"""rtfit.realtime.nishita_sky against independent values: mpmath quadrature, closed forms, scipy."""
 
 import math
 
