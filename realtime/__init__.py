@@ -22,7 +22,7 @@ Modules:
     sdf_grid    signed distance fields: analytic primitives, mesh → voxel grid, mip chain, 8-bit
                 (docs/sdf-occlusion.md).
     sdf_occlusion  Evans multi-scale SDF skylight/occlusion, curvature term, cone-traced soft occlusion.
-    sky         Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
+    nishita_sky Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
                 (docs/nishita-sky.md).
 """
 
@@ -35,10 +35,10 @@ from .diffuse import *  # noqa: F403
 from .height_fog import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .methods import *  # noqa: F403
+from .nishita_sky import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
-from .sky import *  # noqa: F403
 
 MODULES = (
     "arrays",
@@ -50,7 +50,7 @@ MODULES = (
     "irradiance_bases",
     "sdf_grid",
     "sdf_occlusion",
-    "sky",
+    "nishita_sky",
 )
 """The modules whose public names this package re-exports."""
 

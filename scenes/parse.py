@@ -551,7 +551,7 @@ class _Parser:
 
 # ----------------------------------------------------------------------------------------------- API
 # Files in scenes/library/ that are not scene files, by their ``format`` key.
-OTHER_FORMATS = {"rtfit.sky/1": "rtfit.reference.atmosphere.load_atmosphere_scene"}
+OTHER_FORMATS = {"rtfit.sky/1": "rtfit.reference.nishita_sky.load_atmosphere_scene"}
 
 
 def parse_scene_text(

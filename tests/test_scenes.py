@@ -540,7 +540,7 @@ def test_a_sky_file_is_named_as_such_not_parsed_as_a_scene():
 
     with pytest.raises(
         SceneError,
-        match="format: a 'rtfit.sky/1' file, not a scene: read it with "
-        "rtfit.reference.atmosphere.load_atmosphere_scene",
+        match=r"format: a 'rtfit\.sky/1' file, not a scene: read it with "
+        r"rtfit\.reference\.nishita_sky\.load_atmosphere_scene",
     ):
         load_scene(library_path("sky_sun_10"))

@@ -1,5 +1,10 @@
 r"""Mitsuba ground truth for a planet's sky: a spherical-shell Rayleigh + Mie atmosphere.
 
+Parameters (`AtmosphereSpec`) are SI — metres, m⁻¹, radians — with the field names of the real-time
+`rtfit.realtime.nishita_sky.AtmosphereParams`, read from the scene files ``scenes/library/sky_*.toml``
+(`load_atmosphere_scene`). The Mitsuba scene is built in kilometres, from values derived from the spec
+(its ``*_km`` properties):
+
 Scene (units: **kilometres**, +Z up, planet centre at the origin):
 
 * a planet ``sphere`` of radius R_g with a diffuse BSDF (the ground albedo);
@@ -50,7 +55,8 @@ wavelengths from ``sample_rgb_spectrum`` (importance density ∝ sech²(0.0072(�
 
     XYZ = mean_j x̄(λ_j) L(λ_j)/pdf(λ_j) / 106.7502594,   linear sRGB = M_709 · XYZ,
 
-x̄, ȳ, z̄ Mitsuba's CIE 1931 2° table (5 nm knots, linear interpolation, `cie1931_table`). The
+x̄, ȳ, z̄ Mitsuba's CIE 1931 2° table (5 nm knots, linear interpolation, `cie1931_table`) and M_709
+its ``xyz_to_srgb`` matrix (`film_xyz_to_srgb`), both read from the installed Mitsuba. The
 expectation is `film_srgb`: M_709 ∫₃₆₀⁸³⁰ (x̄, ȳ, z̄)(λ) L(λ) dλ / 106.7502594 (a flat L = 1 gives
 Y = 1.001: Mitsuba's normalisation constant is not quite ∫ȳ = 106.857 of its own table). Measured
 against an hdrfilm render of a ``constant`` emitter (flat and 5778 K blackbody spectra): equal within
@@ -73,25 +79,35 @@ This module does not import ``rtfit.realtime`` (layering): parameters are plain 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import math
 import time
+import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import drjit as dr
 import numpy as np
 
+from rtfit.scenes import library_path
+
+from . import emitters
+from .cache import PassEntry, array_digest, pool_passes
 from .estimators import PassResult, chunk_ranges, mean_var, moments, sub_seed
-from .io import atomic_write_bytes
+from .variants import cuda_available, use_variant
 
 __all__ = [
-    "AtmosphereSpec",
+    "DEFAULT_SCENE",
     "MEDIUM_PLUGIN",
     "PHASE_PLUGIN",
     "SPECTRAL_VARIANTS",
+    "AtmosphereSpec",
     "cie1931_table",
     "film_srgb",
+    "film_xyz_to_srgb",
     "hemisphere_directions",
+    "library_atmosphere",
     "load_atmosphere_scene",
     "register",
     "render_sky",
@@ -106,7 +122,7 @@ __all__ = [
 
 MEDIUM_PLUGIN = "rtfit_atmosphere"
 PHASE_PLUGIN = "rtfit_rayleigh_mie"
-_CACHE_FORMAT = 1
+_CACHE_FORMAT = 2  # 2: passes in rtfit.reference.cache.PassEntry (namespace "sky"), SI spec
 SPECTRAL_VARIANTS = ("llvm_ad_spectral", "cuda_ad_spectral")
 SOLAR_TEMPERATURE_K = 5778.0
 """Blackbody temperature of the spectral sun (the real-time spectral variant's default)."""
@@ -115,49 +131,85 @@ REFERENCE_WAVELENGTH_NM = 550.0
 CIE_MIN_NM, CIE_MAX_NM = 360.0, 830.0
 CIE_Y_NORMALIZATION = 1.0 / 106.7502593994140625
 """Mitsuba's ``MI_CIE_Y_NORMALIZATION`` (checked against the installed Mitsuba in the tests)."""
-XYZ_TO_SRGB = np.array(
-    [[3.240479, -1.537150, -0.498535], [-0.969256, 1.875991, 0.041556], [0.055648, -0.204043, 1.057311]]
-)
-"""Mitsuba's ``xyz_to_srgb`` matrix (ITU-R BT.709 primaries, D65 white)."""
 
 
 @dataclass(frozen=True)
 class AtmosphereSpec:
-    """A sky to render. Lengths in km, coefficients in km⁻¹ per RGB channel, angles in degrees.
+    """A sky to render, in SI units: lengths in metres, coefficients in m⁻¹ per RGB channel, the sun's
+    angular radius in radians, its elevation in degrees, solar irradiance in W·m⁻²·nm⁻¹.
 
-    Defaults: Bruneton & Neyret 2008 / Bruneton 2017's shared parameter set (no ozone), sun of
-    angular radius 0.2679° (4.675 mrad), solar irradiance at 680/550/440 nm in W·m⁻²·nm⁻¹.
+    The field names and units are those of `rtfit.realtime.nishita_sky.AtmosphereParams` (the real-time
+    model's parameters), and the values come from a scene file (`load_atmosphere_scene`,
+    ``scenes/library/sky_*.toml``): this class has no numeric defaults of its own, so the atmosphere's
+    constants live in the scene files (checked against the real-time defaults in the tests). The Mitsuba
+    scene and the quadrature work in kilometres: the ``*_km`` properties derive those values.
     """
 
-    sun_elevation_deg: float = 45.0
-    viewer_altitude_km: float = 0.01
-    planet_radius_km: float = 6360.0
-    top_radius_km: float = 6420.0
-    rayleigh_beta: tuple = (5.802e-3, 13.558e-3, 33.1e-3)
-    rayleigh_height_km: float = 8.0
-    mie_beta: tuple = (3.996e-3, 3.996e-3, 3.996e-3)
-    mie_extinction: tuple = (4.440e-3, 4.440e-3, 4.440e-3)
-    mie_height_km: float = 1.2
-    mie_g: float = 0.8
-    ground_albedo: float = 0.1
-    sun_angular_radius_deg: float = 0.2679
-    solar_irradiance: tuple = (1.474, 1.8504, 1.91198)
+    sun_elevation_deg: float
+    viewer_altitude_m: float
+    planet_radius_m: float
+    top_radius_m: float
+    rayleigh_beta: tuple
+    rayleigh_height_m: float
+    mie_beta: tuple
+    mie_extinction: tuple
+    mie_height_m: float
+    mie_g: float
+    ground_albedo: float
+    sun_angular_radius: float
+    solar_irradiance: tuple
 
     def __post_init__(self):
         if not (-90.0 <= self.sun_elevation_deg <= 90.0):
             raise ValueError(f"sun_elevation_deg must be in [-90, 90] (got {self.sun_elevation_deg!r})")
-        if not (0.0 <= self.viewer_altitude_km < self.top_radius_km - self.planet_radius_km):
+        if not (0.0 < self.planet_radius_m < self.top_radius_m):
+            raise ValueError("need 0 < planet_radius_m < top_radius_m")
+        if not (0.0 <= self.viewer_altitude_m < self.top_radius_m - self.planet_radius_m):
             raise ValueError(
-                f"viewer_altitude_km must be in [0, top - planet) (got {self.viewer_altitude_km!r})"
+                f"viewer_altitude_m must be in [0, top - planet) (got {self.viewer_altitude_m!r})"
             )
-        if not (0.0 < self.planet_radius_km < self.top_radius_km):
-            raise ValueError("need 0 < planet_radius_km < top_radius_km")
         if not (-1.0 < self.mie_g < 1.0):
             raise ValueError(f"mie_g must be in (-1, 1) (got {self.mie_g!r})")
-        if not (0.0 < self.sun_angular_radius_deg < 90.0):
-            raise ValueError(
-                f"sun_angular_radius_deg must be in (0, 90) (got {self.sun_angular_radius_deg!r})"
-            )
+        if not (0.0 < self.sun_angular_radius < 0.5 * math.pi):
+            raise ValueError(f"sun_angular_radius must be in (0, π/2) rad (got {self.sun_angular_radius!r})")
+        for name in ("rayleigh_beta", "mie_beta", "mie_extinction", "solar_irradiance"):
+            if len(getattr(self, name)) != 3:
+                raise ValueError(f"{name} must have 3 channels (got {len(getattr(self, name))})")
+
+    # kilometres (km⁻¹) for the Mitsuba scene and the quadrature: float32 values are those of the
+    # former km constants (a km scene keeps the planet's radius and the heights at the same magnitude)
+    @property
+    def planet_radius_km(self) -> float:
+        return self.planet_radius_m / _M_PER_KM
+
+    @property
+    def top_radius_km(self) -> float:
+        return self.top_radius_m / _M_PER_KM
+
+    @property
+    def viewer_altitude_km(self) -> float:
+        return self.viewer_altitude_m / _M_PER_KM
+
+    @property
+    def rayleigh_height_km(self) -> float:
+        return self.rayleigh_height_m / _M_PER_KM
+
+    @property
+    def mie_height_km(self) -> float:
+        return self.mie_height_m / _M_PER_KM
+
+    @property
+    def rayleigh_beta_km(self) -> tuple:
+        """β_R in km⁻¹."""
+        return tuple(b * _M_PER_KM for b in self.rayleigh_beta)
+
+    @property
+    def mie_beta_km(self) -> tuple:
+        return tuple(b * _M_PER_KM for b in self.mie_beta)
+
+    @property
+    def mie_extinction_km(self) -> tuple:
+        return tuple(b * _M_PER_KM for b in self.mie_extinction)
 
     @property
     def sun_direction(self) -> np.ndarray:
@@ -169,25 +221,38 @@ class AtmosphereSpec:
         return hashlib.sha256(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()
 
 
-def load_atmosphere_scene(path) -> AtmosphereSpec:
-    """Read a ``scenes/library/sky_*.toml`` file (format ``rtfit.sky/1``, see scenes/README.md)."""
-    import tomllib
+_M_PER_KM = 1000.0
+_SCENE_TABLES = ("atmosphere", "sun", "view")
+DEFAULT_SCENE = "sky_sun_45"
+"""The library scene whose atmosphere `library_atmosphere` reads by default."""
 
+
+def load_atmosphere_scene(path, **overrides) -> AtmosphereSpec:
+    """Read a ``scenes/library/sky_*.toml`` file (format ``rtfit.sky/1``, SI units, see scenes/README.md);
+    ``overrides`` replace fields (e.g. ``sun_elevation_deg``). Unknown keys are one-line errors."""
     path = Path(path)
     doc = tomllib.loads(path.read_text())
     if doc.get("format") != "rtfit.sky/1":
         raise ValueError(f'{path}: format: must be "rtfit.sky/1" (got {doc.get("format")!r})')
     allowed = set(AtmosphereSpec.__dataclass_fields__)
-    extra = set(doc) - {"format", "name", "description", "atmosphere", "sun", "view"}
+    extra = set(doc) - {"format", "name", "description", *_SCENE_TABLES}
     if extra:
         raise ValueError(f"{path}: {sorted(extra)[0]}: unknown key")
     kw = {}
-    for table in ("atmosphere", "sun", "view"):
+    for table in _SCENE_TABLES:
         for k, v in doc.get(table, {}).items():
             if k not in allowed:
                 raise ValueError(f"{path}: {table}.{k}: unknown key")
             kw[k] = tuple(float(x) for x in v) if isinstance(v, list) else float(v)
-    return AtmosphereSpec(**kw)
+    missing = sorted(allowed - set(kw) - set(overrides))
+    if missing:
+        raise ValueError(f"{path}: {missing[0]}: missing key")
+    return AtmosphereSpec(**{**kw, **overrides})
+
+
+def library_atmosphere(name: str = DEFAULT_SCENE, **overrides) -> AtmosphereSpec:
+    """`load_atmosphere_scene` of the shipped scene ``name`` (`rtfit.scenes.library_path`)."""
+    return load_atmosphere_scene(library_path(name), **overrides)
 
 
 def hemisphere_directions(width: int, height: int, el_lo_deg: float = 0.0, el_hi_deg: float = 90.0):
@@ -214,10 +279,6 @@ def register(mi) -> None:
     variant = mi.variant()
     if variant in _registered:
         return
-    import drjit as dr
-
-    from . import emitters
-
     emitters.register(mi)
 
     def _vec(props, name):
@@ -284,7 +345,7 @@ def register(mi) -> None:
             return value, pdf
 
         def sample(self, ctx, mei, s1, s2, active=True):
-            sr, sm, w = self._mix(mei)
+            _sr, _sm, w = self._mix(mei)
             g = self.prof.g
             # HG, cos θ about the forward direction −wi
             if abs(g) > 1e-4:
@@ -369,17 +430,15 @@ def _profile_props(spec: AtmosphereSpec, mi) -> dict:
         "planet_radius": spec.planet_radius_km,
         "rayleigh_height": spec.rayleigh_height_km,
         "mie_height": spec.mie_height_km,
-        "rayleigh_beta": v(*spec.rayleigh_beta),
-        "mie_beta": v(*spec.mie_beta),
-        "mie_extinction": v(*spec.mie_extinction),
+        "rayleigh_beta": v(*spec.rayleigh_beta_km),
+        "mie_beta": v(*spec.mie_beta_km),
+        "mie_extinction": v(*spec.mie_extinction_km),
         "g": spec.mie_g,
     }
 
 
 def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
     """The Mitsuba scene (km units): planet, atmosphere shell with the medium, distant-disc sun."""
-    from . import emitters
-
     register(mi)
     props = _profile_props(spec, mi)
     medium = {
@@ -388,7 +447,7 @@ def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
         **props,
         "phase": {"type": PHASE_PLUGIN, **props},
     }
-    alpha = math.radians(spec.sun_angular_radius_deg)
+    alpha = spec.sun_angular_radius
     radiance = [e / (math.pi * math.sin(alpha) ** 2) for e in spec.solar_irradiance]
     d = {
         "type": "scene",
@@ -429,8 +488,6 @@ def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
 
 
 def _load(mi, spec, max_depth):
-    from . import emitters
-
     scene = mi.load_dict(scene_dict(mi, spec, max_depth))
     emitters.attach(scene)
     medium = None
@@ -442,8 +499,6 @@ def _load(mi, spec, max_depth):
 
 def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -> PassResult:
     """Radiance along rays from ``origin`` (km) in directions ``dirs`` (N, 3): one pass of ``spp``."""
-    import drjit as dr
-
     t0 = time.perf_counter()
     d = np.ascontiguousarray(dirs, dtype=np.float64).reshape(-1, 3)
     n = d.shape[0]
@@ -492,15 +547,13 @@ def _spectral_sample(mi, dr, scene, sampler, integrator, medium, origin, directi
 def _use_variant(variant: str):
     """Activate an RGB variant through `rtfit.reference.variants`, or a spectral one
     (``llvm_ad_spectral``, ``cuda_ad_spectral``) here (one-line ValueError otherwise)."""
-    from .variants import cuda_available, use_variant
-
     if "spectral" not in variant:
         return use_variant(variant)
     if variant not in SPECTRAL_VARIANTS:
         raise ValueError(f"spectral variant must be one of {', '.join(SPECTRAL_VARIANTS)} (got {variant!r})")
     if variant.startswith("cuda") and not cuda_available():
         raise ValueError(f"variant {variant!r} needs a CUDA GPU, and none was found")
-    import mitsuba as mi
+    import mitsuba as mi  # mitsuba: lazy, it selects a variant process-wide (set just below)
 
     if mi.variant() != variant:
         mi.set_variant(variant)
@@ -520,8 +573,11 @@ def render_sky(
     """Point-sampled radiance along ``dirs`` from the viewer, pooled over independent passes.
 
     Returns ``{"mean", "stderr"}`` (shape of ``dirs`` with last axis RGB, float64, W·m⁻²·sr⁻¹·nm⁻¹
-    when E₀ is in W·m⁻²·nm⁻¹), ``spp``, ``passes``, ``seconds``, ``cache_key``. Passes are cached
-    as .npz under ``cache_dir`` (one file per pass; a rerun renders only missing passes).
+    when E₀ is in W·m⁻²·nm⁻¹), ``spp``, ``passes``, ``seconds``, ``cache_key``. ceil(spp / pass_spp)
+    passes of ``pass_spp`` samples, pass i seeded with ``sub_seed(seed, "pass", i)``; with ``cache_dir``
+    they are stored in the one pass store (`rtfit.reference.cache.PassEntry`, namespace "sky", .npz:
+    a rerun renders only missing passes). Without a cache the passes are rounded to float32 as the store
+    keeps them, so a cached and an uncached call give the same numbers.
 
     ``variant``: an llvm_*/cuda_* RGB variant (channels = the spec's three wavelengths), or
     ``llvm_ad_spectral``/``cuda_ad_spectral``: the spectral atmosphere (module docstring), the
@@ -535,59 +591,50 @@ def render_sky(
         )
     shape = np.asarray(dirs).shape
     mi = _use_variant(variant)
-    h = hashlib.sha256()
-    h.update(
-        json.dumps(
-            {
-                "f": _CACHE_FORMAT,
-                "spec": asdict(spec),
-                "depth": max_depth,
-                "variant": variant,
-                "seed": seed,
-                "pass_spp": pass_spp,
-                "mi": mi.__version__,
-            },
-            sort_keys=True,
-        ).encode()
-    )
-    h.update(np.ascontiguousarray(dirs, dtype=np.float32).tobytes())
-    key = h.hexdigest()
-    folder = Path(cache_dir) / "atmosphere" / key[:2] / key if cache_dir else None
-    passes = []
-    n_pass = -(-spp // pass_spp)
-    scene = medium = None
+    ident = {
+        "format": _CACHE_FORMAT,
+        "spec": asdict(spec),
+        "max_depth": int(max_depth),
+        "variant": variant,
+        "seed": int(seed),
+        "pass_spp": int(pass_spp),
+        "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__},
+        "directions": array_digest(dirs),
+    }
+    entry = PassEntry(cache_dir or ".", ident, namespace="sky", storage="npz")
     origin = (0.0, 0.0, spec.planet_radius_km + spec.viewer_altitude_km)
-    for p in range(n_pass):
-        f = folder / f"pass{p:04d}.npz" if folder else None
-        if f is not None and f.exists():
-            z = np.load(f)
-            passes.append(PassResult(z["mean"], z["var"], int(z["spp"]), p, float(z["seconds"])))
-            continue
-        if scene is None:
-            scene, medium = _load(mi, spec, max_depth)
-        r = sky_pass(mi, scene, medium, origin, dirs, pass_spp, sub_seed(seed, "pass", p))
-        passes.append(r)
-        if f is not None:
-            import io
+    loaded: dict = {}
 
-            buf = io.BytesIO()
-            np.savez(buf, mean=r.mean, var=r.var, spp=r.spp, seconds=r.seconds)
-            atomic_write_bytes(f, buf.getvalue())
-    n = sum(p.spp for p in passes)
-    mean = sum(p.mean * p.spp for p in passes) / n
-    # pooled variance of the per-sample values (within + between passes), then stderr of the mean
-    ss = sum((p.spp - 1) * p.var + p.spp * (p.mean - mean) ** 2 for p in passes)
-    var = ss / max(n - 1, 1)
-    stderr = np.sqrt(var / n)
+    def load_scene():
+        loaded["scene"], loaded["medium"] = _load(mi, spec, max_depth)
+
+    def render(i: int) -> PassResult:
+        scene, medium = loaded["scene"], loaded["medium"]
+        return sky_pass(mi, scene, medium, origin, dirs, pass_spp, sub_seed(seed, "pass", i))
+
+    n_pass = -(-spp // pass_spp)
+    if cache_dir is not None:
+        passes, _ = entry.passes(n_pass, render, before_render=load_scene)
+    else:  # no store: the same float32 rounding as a stored pass
+        load_scene()
+        passes = [_as_stored(render(i)) for i in range(n_pass)]
+    mean, stderr, n = pool_passes(passes)
+    seconds = float(sum(p.seconds for p in passes))
     return {
         "mean": mean.reshape(shape),
         "stderr": stderr.reshape(shape),
         "spp": n,
         "passes": len(passes),
-        "seconds": float(sum(p.seconds for p in passes)),
-        "cache_key": key,
-        "samples_per_second": float(n * mean.shape[0] / max(sum(p.seconds for p in passes), 1e-9)),
+        "seconds": seconds,
+        "cache_key": entry.key,
+        "samples_per_second": float(n * mean.shape[0] / max(seconds, 1e-9)),
     }
+
+
+def _as_stored(p: PassResult) -> PassResult:
+    """A pass with its mean and variance rounded to float32, as `PassEntry.save` stores them."""
+    f32 = lambda a: a.astype(np.float32).astype(np.float64)  # noqa: E731
+    return PassResult(f32(p.mean), f32(p.var), p.spp, p.seed, p.seconds)
 
 
 # ------------------------------------------------------------------------ independent quadrature
@@ -612,7 +659,7 @@ def _sun_optical_depth(p: np.ndarray, s: np.ndarray, spec: AtmosphereSpec, nodes
     edges = np.concatenate([[0.0], 2.0 ** np.arange(-7, 1)])
     tr = np.zeros(p.shape[0])
     tm = np.zeros(p.shape[0])
-    for a0, a1 in zip(edges[:-1], edges[1:]):
+    for a0, a1 in itertools.pairwise(edges):
         ta, tb = a0 * t_top, a1 * t_top
         t = 0.5 * (ta + tb)[:, None] + 0.5 * (tb - ta)[:, None] * x[None, :]
         q = p[:, None, :] + t[..., None] * s[None, None, :]
@@ -639,7 +686,8 @@ def single_scattering_quadrature(
     d = np.asarray(dirs, dtype=np.float64)
     shape = d.shape
     br, bm, bme = (
-        np.asarray(v, dtype=np.float64) for v in (spec.rayleigh_beta, spec.mie_beta, spec.mie_extinction)
+        np.asarray(v, dtype=np.float64)
+        for v in (spec.rayleigh_beta_km, spec.mie_beta_km, spec.mie_extinction_km)
     )
     out = _ss_quadrature(spec, d.reshape(-1, 3), steps, br, bm, bme)
     out *= np.asarray(spec.solar_irradiance)[None, :]
@@ -686,7 +734,7 @@ def solar_spectrum(lam_nm, e550: float = 1.8504, temperature_k: float = SOLAR_TE
     """Solar irradiance E₀(λ) = E₀(550)·B(λ, T)/B(550, T) (W·m⁻²·nm⁻¹ when E₀(550) is), B the
     Planck law ∝ λ⁻⁵/(exp(c₂/(λT)) − 1), c₂ = 1.4387769e-2 m·K, λ in nm.
 
-    The real-time spectral variant's default (``rtfit.realtime.sky.AtmosphereParams.spectral``:
+    The real-time spectral variant's default (``rtfit.realtime.nishita_sky.AtmosphereParams.spectral``:
     5778 K blackbody normalised to that set's 550 nm value), re-derived here because the reference
     must not import the real-time code; a test checks that the two agree."""
     lam = np.asarray(lam_nm, dtype=np.float64)
@@ -709,12 +757,12 @@ def spectral_coefficients(spec: AtmosphereSpec, lam_nm):
     lam = np.asarray(lam_nm, dtype=np.float64)
     if np.any(~np.isfinite(lam)) or np.any(lam <= 0):
         raise ValueError("lam_nm must be finite and > 0")
-    br = spec.rayleigh_beta[1] * (REFERENCE_WAVELENGTH_NM / lam) ** 4
+    br = spec.rayleigh_beta_km[1] * (REFERENCE_WAVELENGTH_NM / lam) ** 4
     ones = np.ones_like(lam)
     return (
         br,
-        spec.mie_beta[1] * ones,
-        spec.mie_extinction[1] * ones,
+        spec.mie_beta_km[1] * ones,
+        spec.mie_extinction_km[1] * ones,
         solar_spectrum(lam, spec.solar_irradiance[1]),
     )
 
@@ -726,18 +774,37 @@ def cie1931_table():
     """Mitsuba's CIE 1931 2° colour-matching table as used by its film: (λ knots (95,) nm, 360–830
     in 5 nm steps; x̄ȳz̄ (95, 3)), read from the installed Mitsuba (``mi.cie1931_xyz`` at the knots;
     between knots Mitsuba interpolates linearly, outside [360, 830] it returns 0)."""
-    if "table" not in _CIE_TABLE:
-        import mitsuba as mi
-
-        prev = mi.variant()
-        if prev is None or prev.startswith("scalar"):
-            mi.set_variant("llvm_ad_rgb")
-        knots = np.linspace(CIE_MIN_NM, CIE_MAX_NM, 95)
-        xyz = np.asarray(mi.cie1931_xyz(mi.Float(knots.astype(np.float32))), dtype=np.float64)
-        if prev is not None and prev != mi.variant():
-            mi.set_variant(prev)
-        _CIE_TABLE["table"] = (knots, xyz.reshape(3, -1).T.copy())
+    _read_film_tables()
     return _CIE_TABLE["table"]
+
+
+def film_xyz_to_srgb() -> np.ndarray:
+    """Mitsuba's XYZ → linear sRGB matrix (3, 3) as its film applies it (``mi.xyz_to_srgb`` of the unit
+    vectors, float32 values): read from the installed Mitsuba, not typed in, so the reference has no
+    copy of the matrix (the real-time `spectral_to_srgb` has the one typed copy, ``XYZ_TO_SRGB``, to the
+    same digits; a test checks that they agree)."""
+    _read_film_tables()
+    return _CIE_TABLE["xyz_to_srgb"]
+
+
+def _read_film_tables() -> None:
+    if "table" in _CIE_TABLE:
+        return
+    import mitsuba as mi  # mitsuba: selects a variant process-wide (restored below)
+
+    prev = mi.variant()
+    if prev is None or prev.startswith("scalar"):
+        mi.set_variant("llvm_ad_rgb")
+    knots = np.linspace(CIE_MIN_NM, CIE_MAX_NM, 95)
+    xyz = np.asarray(mi.cie1931_xyz(mi.Float(knots.astype(np.float32))), dtype=np.float64)
+    cols = [
+        np.asarray(mi.xyz_to_srgb(mi.Color3f(*(float(x) for x in e))), dtype=np.float64).ravel()
+        for e in np.eye(3)
+    ]
+    if prev is not None and prev != mi.variant():
+        mi.set_variant(prev)
+    _CIE_TABLE["table"] = (knots, xyz.reshape(3, -1).T.copy())
+    _CIE_TABLE["xyz_to_srgb"] = np.stack(cols, axis=1)  # column j: the image of the j-th unit vector
 
 
 def film_srgb(spectra, lam_nm) -> np.ndarray:
@@ -760,7 +827,7 @@ def film_srgb(spectra, lam_nm) -> np.ndarray:
     w[:-1] += 0.5 * dl
     w[1:] += 0.5 * dl
     xyz = L @ (cmf * w[:, None]) * CIE_Y_NORMALIZATION
-    return xyz @ XYZ_TO_SRGB.T
+    return xyz @ film_xyz_to_srgb().T
 
 
 def spectral_single_scattering_quadrature(
@@ -773,7 +840,7 @@ def spectral_single_scattering_quadrature(
     k = 5.0 / step_nm
     if not (step_nm > 0 and abs(k - round(k)) < 1e-9):
         raise ValueError(f"step_nm must divide 5 nm (got {step_nm!r})")
-    lam = np.linspace(CIE_MIN_NM, CIE_MAX_NM, int(round((CIE_MAX_NM - CIE_MIN_NM) / step_nm)) + 1)
+    lam = np.linspace(CIE_MIN_NM, CIE_MAX_NM, round((CIE_MAX_NM - CIE_MIN_NM) / step_nm) + 1)
     d = np.asarray(dirs, dtype=np.float64)
     br, bm, bme, e0 = spectral_coefficients(spec, lam)
     L = _ss_quadrature(spec, d.reshape(-1, 3), steps, br, bm, bme) * e0[None, :]
@@ -792,12 +859,8 @@ def sunsky_radiance(
     """Mitsuba's Hosek–Wilkie ``sunsky``: sky radiance along ``dirs`` (sun excluded) and the sun's
     irradiance at normal incidence (disc radiance at its centre × its solid angle), in sunsky's
     own units (facts note §6: W·m⁻²·sr⁻¹·nm⁻¹ in RGB). Only for sun elevation > 0."""
-    from .variants import use_variant
-
     if not (0.0 < sun_elevation_deg <= 90.0):
         raise ValueError(f"sunsky needs sun_elevation_deg in (0, 90] (got {sun_elevation_deg!r})")
-    import drjit as dr
-
     mi = use_variant(variant)
     e = math.radians(sun_elevation_deg)
     sd = [math.cos(e), 0.0, math.sin(e)]

@@ -57,74 +57,56 @@ point and back up). Each leg is truncated where the integrand has fallen by e^{�
 integrated by 24-point Gauss–Legendre in x: relative error < 1e-12 in float64 against mpmath
 (tests), exact at the top (zero-length leg) and for horizontal rays (x_a = 0, no singularity).
 Vertical: H (e^{−h/H} − e^{−h_top/H}).
+
+Methods as data
+---------------
+`METHODS` (`rtfit.realtime.methods`) declares the approximations the experiment compares: one kernel text,
+`nishita_sky_kernel` (the in-scatter kernel over the texels, then the per-pixel lookup and phase, the
+pieces `build_sky` and `shade_sky` run), with the numerical setting as data (`SkySetting`: layers, texture
+and table size, row mapping, spectral wavelengths) and the artist parameters of ``nishita-fitted`` as
+`Param`s with bounds. Its JAX run is what `rtfit.fitting.fit_method` differentiates. The shared ops
+namespaces of `rtfit.realtime.arrays` run every kernel here on Dr.Jit, NumPy and JAX.
 """
 
 from __future__ import annotations
 
 import math
-import types
 from dataclasses import dataclass, field, replace
+
 import drjit as dr
 import numpy as np
 
 from .arrays import DRJIT_OPS, NUMPY_OPS, check_range, check_scalar, evaluate, is_drjit
+from .methods import Input, Method, Param, method_table
 from .phase import cornette_shanks_phase_kernel, hg_phase_kernel, rayleigh_phase_kernel
 
 __all__ = [
+    "FINE_SETTING",
+    "SEED_SETTING",
+    "XYZ_TO_SRGB",
     "AtmosphereParams",
     "NishitaSky",
+    "SkySetting",
     "aerial_perspective",
     "atmosphere_optical_depth",
-    "build_sky",
+    "blackbody",
     "build_optical_depth_table",
+    "build_sky",
     "cie_xyz_fit",
     "layer_heights",
+    "lookup_components",
+    "nishita_sky_kernel",
     "shade_sky",
+    "sky_kernel_inputs",
     "spectral_to_srgb",
     "sun_transmittance",
+    "texture_arrays",
 ]
 
 _FAR = 1e12  # "infinite" optical depth stored in tables (m of density-weighted path)
 _TRUNC = 40.0  # truncate each leg where the integrand has fallen by e^-40
 _GL_N = 24
 _GL_X, _GL_W = (tuple(float(v) for v in a) for a in np.polynomial.legendre.leggauss(_GL_N))
-
-
-def _ops_with(base, **extra):
-    return types.SimpleNamespace(**vars(base), **extra)
-
-
-def _np_gather(table, idx):
-    return np.asarray(table)[np.asarray(idx).astype(np.int64)]
-
-
-def _dr_gather(table, idx):
-    return dr.gather(type(table), table, dr.uint32_array_t(type(table))(idx))
-
-
-OPS_DR = DRJIT_OPS  # the shared namespaces carry exp, log, floor, gather and cbrt
-OPS_NP = NUMPY_OPS
-
-
-_OPS_MATH = types.SimpleNamespace(
-    name="math",
-    sqrt=math.sqrt,
-    exp=math.exp,
-    maximum=max,
-    minimum=min,
-    clip=lambda x, lo, hi: min(max(x, lo), hi),
-    select=lambda c, a, b: a if c else b,
-)
-"""Python-float operations for the kernels' scalar calls (a per-build sun transmittance)."""
-
-
-def _ext(o):
-    return o  # the shared ops namespaces carry every name these kernels use
-
-
-def _ev(kernel, *args):
-    """`rtfit.realtime.arrays.evaluate` with this module's extended ops (exp, log, gather, …)."""
-    return evaluate(lambda o, *a: kernel(_ext(o), *a), *args)
 
 
 # ====================================================================================== parameters
@@ -179,7 +161,7 @@ class AtmosphereParams:
         for name in ("rayleigh_beta", "mie_beta", "mie_extinction", "solar_irradiance"):
             for v in getattr(self, name):
                 check_scalar(name, v, 0.0, 1e3)
-        for b, e in zip(self.mie_beta, self.mie_extinction):
+        for b, e in zip(self.mie_beta, self.mie_extinction, strict=True):
             if e < b:
                 raise ValueError(f"mie_extinction must be >= mie_beta per channel (got {e!r} < {b!r})")
 
@@ -199,7 +181,7 @@ class AtmosphereParams:
             [b * self.mie_scale for b in self.mie_extinction],
         )
 
-    def spectral(self, wavelengths_nm, solar=None) -> "AtmosphereParams":
+    def spectral(self, wavelengths_nm, solar=None) -> AtmosphereParams:
         """The same atmosphere sampled at ``wavelengths_nm``: β_R ∝ λ⁻⁴ (from its 550 nm value),
         Mie grey; ``solar`` the solar irradiance per wavelength (default: 5778 K blackbody
         normalised to this set's 550 nm value)."""
@@ -244,7 +226,7 @@ def _optical_depth_kernel(ops, h, mu, H, rg, rt):
 
     def leg(x0, dx):
         acc = 0.0
-        for xn, wn in zip(_GL_X, _GL_W):
+        for xn, wn in zip(_GL_X, _GL_W, strict=True):
             x = x0 + 0.5 * dx * (xn + 1.0)
             x2 = x * x
             alt = ops.maximum(base + x2, 0.0)
@@ -280,7 +262,7 @@ def atmosphere_optical_depth(
     cos_zenith = check_range("cos_zenith", cos_zenith, -1.0, 1.0)
     scale_height_m = check_range("scale_height_m", scale_height_m, 0.0, 1e9, lo_open=True)
     rg, rt = float(planet_radius_m), float(top_radius_m)
-    return _ev(
+    return evaluate(
         lambda o, h, m, H: _optical_depth_kernel(o, h, m, H, rg, rt), altitude_m, cos_zenith, scale_height_m
     )
 
@@ -288,11 +270,12 @@ def atmosphere_optical_depth(
 def sun_transmittance(params: AtmosphereParams, altitude_m, cos_zenith):
     """Per-channel transmittance exp(−β_R τ_R − β_M^ext τ_M) to space: list of arrays/floats."""
     br, _, bme = params.betas()
-    if isinstance(altitude_m, float) and isinstance(cos_zenith, float):  # scalar fast path: plain math
+    if isinstance(altitude_m, float) and isinstance(cos_zenith, float):
+        # scalar fast path (one value per texture build): the NumPy text on floats, no device round trip
         h = min(max(altitude_m, 0.0), params.top_m)
         mu = min(max(cos_zenith, -1.0), 1.0)
         tr, tm = (
-            _optical_depth_kernel(_OPS_MATH, h, mu, H, params.planet_radius_m, params.top_radius_m)
+            float(_optical_depth_kernel(NUMPY_OPS, h, mu, H, params.planet_radius_m, params.top_radius_m))
             for H in (params.rayleigh_height_m, params.mie_height_m)
         )
     else:
@@ -303,9 +286,11 @@ def sun_transmittance(params: AtmosphereParams, altitude_m, cos_zenith):
             altitude_m, cos_zenith, params.mie_height_m, params.planet_radius_m, params.top_radius_m
         )
     if isinstance(tr, float):
-        return [math.exp(-(a * tr + b * tm)) if math.isfinite(tr) else 0.0 for a, b in zip(br, bme)]
+        return [
+            math.exp(-(a * tr + b * tm)) if math.isfinite(tr) else 0.0 for a, b in zip(br, bme, strict=True)
+        ]
     ex = dr.exp if is_drjit(tr) else np.exp
-    return [ex(-(a * tr + b * tm)) for a, b in zip(br, bme)]
+    return [ex(-(a * tr + b * tm)) for a, b in zip(br, bme, strict=True)]
 
 
 # ====================================================================================== layers and table
@@ -339,14 +324,14 @@ def build_optical_depth_table(params: AtmosphereParams, layers: int, table_size:
         if backend == "numpy":
             od = np.asarray(
                 _optical_depth_kernel(
-                    NUMPY_OPS_EXT, H2, np.cos(T2), H, params.planet_radius_m, params.top_radius_m
+                    NUMPY_OPS, H2, np.cos(T2), H, params.planet_radius_m, params.top_radius_m
                 )
             )
             out.append(np.where(np.isfinite(od), od, _FAR))
         else:
             Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
             od = _optical_depth_kernel(
-                OPS_DR,
+                DRJIT_OPS,
                 Float(H2.ravel()),
                 dr.cos(Float(T2.ravel())),
                 H,
@@ -355,9 +340,6 @@ def build_optical_depth_table(params: AtmosphereParams, layers: int, table_size:
             )
             out.append(dr.select(dr.isfinite(od), od, _FAR))
     return out[0], out[1]
-
-
-NUMPY_OPS_EXT = OPS_NP
 
 
 # ====================================================================================== texture kernel
@@ -376,13 +358,14 @@ def _bilerp_table(ops, table, u, v, nu, nv):
     return (t00 * (1.0 - fv) + t01 * fv) * (1.0 - fu) + (t10 * (1.0 - fv) + t11 * fv) * fu
 
 
-def _inscatter_kernel(ops, mu, nu_, h0, sz, cfg, tab_r, tab_m, betas, loop):
+def _inscatter_kernel(ops, mu, nu_, h0, sz, cfg, tab_r, tab_m, betas):
     """In-scatter integrals (S_R,c, S_M,c per channel, without phase) along view rays (μ, ν = v·s).
 
     ``cfg``: dict of floats (n layers, table size, radii, scale heights, θ_max); ``betas``:
-    (β_R, β_M, β_M^ext) lists per channel (floats or arrays); ``loop``: "drjit" (symbolic loop,
-    one kernel for every n), "jax" (``jax.lax.fori_loop``: differentiable, used by the fits) or
-    "python" (unrolled; NumPy)."""
+    (β_R, β_M, β_M^ext) lists per channel (floats or arrays). The loop over the path slots follows
+    the ops namespace: Dr.Jit a symbolic loop (one kernel for every n), JAX ``jax.lax.fori_loop``
+    (one traced body: fast to compile, differentiable, used by the fits), NumPy a Python loop."""
+    loop = ops.name
     n_int = int(cfg["n"])
     n = cfg["n"]
     rg, top, HR, HM = cfg["rg"], cfg["top"], cfg["HR"], cfg["HM"]
@@ -487,7 +470,7 @@ def _inscatter_kernel(ops, mu, nu_, h0, sz, cfg, tab_r, tab_m, betas, loop):
         out = dr.while_loop(state=(i, *state), cond=lambda i, *rest: i < slots, body=body)
         S_r, S_m = out[-2], out[-1]
     elif loop == "jax":  # one traced body (lax.fori_loop): fast to compile, differentiable (forward mode)
-        import jax
+        import jax  # jax: heavy, only the fits run this branch
 
         state = jax.lax.fori_loop(0, slots, lambda i, st: step(st, i * 1.0), state)
         S_r, S_m = state[-2], state[-1]
@@ -589,33 +572,32 @@ def build_sky(
         )
         # every per-build value in one device array (one upload, no value baked into a kernel)
         values = np.array([h0, sz, math.cos(el_s), el_lo, *betas[0], *betas[1], *betas[2]], dtype=np.float32)
-        S_r, S_m = _device_build(static + (params.channels,), Float(values))
+        S_r, S_m = _device_build((*static, params.channels), Float(values))
     else:
         A, E = _texel_directions(width, height, el_lo, el_hi, mapping)
         mu = np.sin(E)
         nu = np.cos(E) * math.cos(el_s) * np.cos(A) + np.sin(E) * math.sin(el_s)
         if tables is None:
             tables = build_optical_depth_table(params, layers, table_size, backend)
-    if backend == "numpy":
-        S_r, S_m = _inscatter_kernel(
-            OPS_NP, mu.ravel(), nu.ravel(), h0, sz, cfg, tables[0].ravel(), tables[1].ravel(), betas, "python"
-        )
-        S_r = [np.asarray(s).reshape(height, width) for s in S_r]
-        S_m = [np.asarray(s).reshape(height, width) for s in S_m]
-    elif tables is not None:
-        Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
-        S_r, S_m = _inscatter_kernel(
-            OPS_DR,
-            Float(mu.ravel()),
-            Float(nu.ravel()),
-            dr.opaque(Float, h0),
-            dr.opaque(Float, sz),
-            cfg,
-            tables[0],
-            tables[1],
-            betas,
-            "drjit",
-        )
+        if backend == "numpy":
+            S_r, S_m = _inscatter_kernel(
+                NUMPY_OPS, mu.ravel(), nu.ravel(), h0, sz, cfg, tables[0].ravel(), tables[1].ravel(), betas
+            )
+            S_r = [np.asarray(s).reshape(height, width) for s in S_r]
+            S_m = [np.asarray(s).reshape(height, width) for s in S_m]
+        else:  # prebuilt Dr.Jit tables: the same kernel, traced here (not the frozen device build)
+            Float = (dr.cuda if backend == "cuda" else dr.llvm).Float
+            S_r, S_m = _inscatter_kernel(
+                DRJIT_OPS,
+                Float(mu.ravel()),
+                Float(nu.ravel()),
+                dr.opaque(Float, h0),
+                dr.opaque(Float, sz),
+                cfg,
+                tables[0],
+                tables[1],
+                betas,
+            )
     sky = NishitaSky(
         params,
         el_s,
@@ -685,9 +667,9 @@ def _device_build(static, values):
     cos_th = dr.cos(j * (cfg["th_max"] / (m - 1)))
     tables = []
     for H in (cfg["HR"], cfg["HM"]):
-        od = _optical_depth_kernel(OPS_DR, hk, cos_th, H, cfg["rg"], cfg["rg"] + cfg["top"])
+        od = _optical_depth_kernel(DRJIT_OPS, hk, cos_th, H, cfg["rg"], cfg["rg"] + cfg["top"])
         tables.append(dr.select(dr.isfinite(od), od, _FAR))
-    return _inscatter_kernel(OPS_DR, mu, nu, h0, sz, cfg, tables[0], tables[1], (br, bm, bme), "drjit")
+    return _inscatter_kernel(DRJIT_OPS, mu, nu, h0, sz, cfg, tables[0], tables[1], (br, bm, bme))
 
 
 def _cfg(params, layers, table_size):
@@ -700,11 +682,6 @@ def _cfg(params, layers, table_size):
         "HM": params.mie_height_m,
         "th_max": _theta_max(params),
     }
-
-
-def sky_build_numpy_loop(params, sun_elevation_deg, altitude_m=0.0, **kw):
-    """The NumPy implementation of the same texture loop (for the benchmark ratio)."""
-    return build_sky(params, sun_elevation_deg, altitude_m, backend="numpy", **kw)
 
 
 # ====================================================================================== per-pixel shading
@@ -767,14 +744,14 @@ def shade_sky(sky: NishitaSky, directions, include_sun: bool = True):
     consts = (list(p.solar_irradiance), Tsun, p.mie_g, p.sun_angular_radius, p.ambient, p.mie_phase == "cs")
     if is_drjit(directions):
         return _shade_kernel(
-            OPS_DR, directions[0], directions[1], directions[2], sky.rayleigh, sky.mie, cfg, sun, consts
+            DRJIT_OPS, directions[0], directions[1], directions[2], sky.rayleigh, sky.mie, cfg, sun, consts
         )
     d = np.asarray(directions, dtype=np.float64)
     shape = d.shape[:-1]
     flat = d.reshape(-1, 3)
     if sky.backend == "numpy":
         out = _shade_kernel(
-            OPS_NP,
+            NUMPY_OPS,
             flat[:, 0],
             flat[:, 1],
             flat[:, 2],
@@ -787,7 +764,7 @@ def shade_sky(sky: NishitaSky, directions, include_sun: bool = True):
         return np.stack([np.asarray(o) for o in out], axis=-1).reshape(*shape, -1)
     Float = type(sky.rayleigh[0])
     out = _shade_kernel(
-        OPS_DR,
+        DRJIT_OPS,
         Float(flat[:, 0]),
         Float(flat[:, 1]),
         Float(flat[:, 2]),
@@ -865,7 +842,7 @@ def aerial_perspective(
         tables = tuple(np.asarray(t, dtype=np.float64).ravel() for t in tables)
     cfg = _cfg(params, n_layers, m)
     sz = math.sin(math.radians(sun_elevation_deg))
-    ops = OPS_DR if dr_in else OPS_NP
+    ops = DRJIT_OPS if dr_in else NUMPY_OPS
     if not dr_in:
         altitude_m, cos_zenith, cos_sun, distance_m = np.broadcast_arrays(
             *[np.asarray(a, dtype=np.float64) for a in (altitude_m, cos_zenith, cos_sun, distance_m)]
@@ -940,7 +917,11 @@ def cie_xyz_fit(lam_nm):
     return np.stack([x, y, z], axis=-1)
 
 
-_XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+XYZ_TO_SRGB = np.array(
+    [[3.240479, -1.537150, -0.498535], [-0.969256, 1.875991, 0.041556], [0.055648, -0.204043, 1.057311]]
+)
+"""CIE XYZ → linear sRGB (ITU-R BT.709 primaries, D65 white), to Mitsuba's digits (its ``xyz_to_srgb``,
+which the reference's film conversion uses: tests/test_nishita_sky_reference.py checks the two agree)."""
 
 
 def spectral_to_srgb(spectra: np.ndarray, lam_nm, white=None, white_rgb=None) -> np.ndarray:
@@ -950,7 +931,7 @@ def spectral_to_srgb(spectra: np.ndarray, lam_nm, white=None, white_rgb=None) ->
     units as the 3-wavelength RGB sky lit by ``white_rgb``."""
     lam = np.asarray(lam_nm, dtype=np.float64)
     w = np.gradient(lam) if lam.size > 1 else np.ones(1)
-    M = _XYZ_TO_SRGB @ (cie_xyz_fit(lam) * w[:, None]).T  # (3, N)
+    M = XYZ_TO_SRGB @ (cie_xyz_fit(lam) * w[:, None]).T  # (3, N)
     rgb = np.asarray(spectra, dtype=np.float64) @ M.T
     if white is not None and white_rgb is not None:
         wr = M @ np.asarray(white, dtype=np.float64)
@@ -971,10 +952,246 @@ def lookup_components(sky: NishitaSky, directions):
     f = np.sqrt(f) if sky.mapping == "sqrt" else f
     x, y = az / (2 * math.pi) * W, f * H
     R, M = texture_arrays(sky)
-    outr = [_texture_lookup(OPS_NP, R[c].ravel(), x, y, W, H) for c in range(R.shape[0])]
-    outm = [_texture_lookup(OPS_NP, M[c].ravel(), x, y, W, H) for c in range(M.shape[0])]
+    outr = [_texture_lookup(NUMPY_OPS, R[c].ravel(), x, y, W, H) for c in range(R.shape[0])]
+    outm = [_texture_lookup(NUMPY_OPS, M[c].ravel(), x, y, W, H) for c in range(M.shape[0])]
     below = (el < sky.el_lo)[:, None]
     return (
         np.where(below, 0.0, np.stack(outr, -1)).reshape(*shape, -1),
         np.where(below, 0.0, np.stack(outm, -1)).reshape(*shape, -1),
     )
+
+
+# ====================================================================================== methods
+@dataclass(frozen=True)
+class SkySetting:
+    """The numerical setting of a Nishita sky texture (what the experiment sweeps).
+
+    ``layers`` n (atmosphere layers), texture ``width`` × ``height`` (azimuth × elevation texels),
+    sun optical-depth ``table_size``, row ``mapping`` ("linear": the seed's uniform elevation rows;
+    "sqrt": more rows near the horizon) and ``wavelengths``: 0 for the atmosphere's own channels (the
+    3-wavelength RGB sky), N > 0 for the spectral variant (N wavelengths uniform on 400–700 nm, β_R ∝ λ⁻⁴,
+    converted by `spectral_to_srgb` and white-balanced so that the sun maps to the RGB set's E₀)."""
+
+    layers: int = 32
+    width: int = 128
+    height: int = 64
+    table_size: int = 128
+    mapping: str = "linear"
+    wavelengths: int = 0
+
+    def build_keywords(self) -> dict:
+        """The keywords of `build_sky` for this setting."""
+        return {
+            "layers": self.layers,
+            "width": self.width,
+            "height": self.height,
+            "table_size": self.table_size,
+            "mapping": self.mapping,
+        }
+
+    def spectral_wavelengths(self) -> np.ndarray:
+        """The spectral variant's wavelengths in nm (N uniform on 400–700 nm; empty for RGB)."""
+        return np.linspace(400.0, 700.0, self.wavelengths) if self.wavelengths else np.zeros(0)
+
+    def radiance(
+        self,
+        atmosphere: AtmosphereParams,
+        sun_elevation_deg: float,
+        directions,
+        *,
+        altitude_m: float = 0.0,
+        backend: str = "llvm",
+    ) -> np.ndarray:
+        """Sky radiance (…, C) along NumPy unit ``directions`` (…, 3): `build_sky` with this setting,
+        then `shade_sky`. RGB settings include the sun disc; the spectral variant excludes it and returns
+        linear sRGB (von Kries-balanced: the solar spectrum ↦ ``atmosphere.solar_irradiance``), clipped
+        at 0 as a display would (twilight colours can leave the sRGB gamut)."""
+        if not self.wavelengths:
+            sky = build_sky(
+                atmosphere, sun_elevation_deg, altitude_m, backend=backend, **self.build_keywords()
+            )
+            return np.asarray(shade_sky(sky, directions))  # NumPy directions: a NumPy array (…, C)
+        lam = self.spectral_wavelengths()
+        spectral = atmosphere.spectral(lam)
+        sky = build_sky(spectral, sun_elevation_deg, altitude_m, backend=backend, **self.build_keywords())
+        L = np.asarray(shade_sky(sky, directions, include_sun=False))
+        rgb = spectral_to_srgb(
+            L, lam, white=np.asarray(spectral.solar_irradiance), white_rgb=atmosphere.solar_irradiance
+        )
+        return np.maximum(rgb, 0.0)
+
+
+def nishita_sky_kernel(
+    ops,
+    dx,
+    dy,
+    dz,
+    texel_mu,
+    texel_nu,
+    tau_r,
+    tau_m,
+    sun_x,
+    sun_z,
+    *,
+    atmosphere: AtmosphereParams,
+    setting: SkySetting,
+    altitude_m: float,
+    rayleigh_scale=1.0,
+    mie_scale=1.0,
+    mie_g=None,
+    ambient=None,
+):
+    """The sky radiance along unit directions (dx, dy, dz), the texture rebuilt from its inputs, sun excluded.
+
+    The texture step of `build_sky` (`_inscatter_kernel` over the texels with cosines ``texel_mu``
+    (zenith) and ``texel_nu`` (to the sun), sun optical-depth tables ``tau_r``, ``tau_m`` from
+    `build_optical_depth_table`, flattened) followed by the per-pixel step of `shade_sky` (bilinear
+    lookup, Rayleigh + Mie phase, no sun disc): L_c = E₀,c [(P_R + A/(4π)) S_R,c + P_M(g) S_M,c] with
+    β_R → s_R β_R and β_M, β_M^ext → s_M β_M, s_M β_M^ext. Artist parameters ``rayleigh_scale`` s_R,
+    ``mie_scale`` s_M (multiplying ``atmosphere``'s own scales), ``mie_g`` g and ``ambient`` A (None:
+    ``atmosphere``'s value); they may be arrays (JAX tracers in a fit). (``sun_x``, 0, ``sun_z``): the
+    unit sun direction. ``setting`` (layers, table and texture size, mapping) and ``altitude_m`` (the
+    viewer) are static. Returns a tuple of C arrays (one per channel).
+
+    Inputs have different lengths (pixels, texels, table entries): run it on an ops namespace
+    (``METHODS[id](ops, inputs)``, or `rtfit.fitting.fit_method`), not through `Method.evaluate`, which
+    broadcasts NumPy inputs to one shape. `sky_kernel_inputs` computes the inputs."""
+    p = atmosphere
+    cfg = _cfg(p, setting.layers, setting.table_size)
+    br, bm, bme = p.betas()
+    betas = (
+        [b * rayleigh_scale for b in br],
+        [b * mie_scale for b in bm],
+        [b * mie_scale for b in bme],
+    )
+    S_r, S_m = _inscatter_kernel(ops, texel_mu, texel_nu, altitude_m, sun_z, cfg, tau_r, tau_m, betas)
+    el_lo = _horizon_elevation(p, altitude_m)
+    shape = (float(setting.width), float(setting.height), el_lo, 0.5 * math.pi, setting.mapping == "sqrt")
+    consts = (
+        list(p.solar_irradiance),
+        [0.0] * p.channels,
+        p.mie_g if mie_g is None else mie_g,
+        p.sun_angular_radius,
+        p.ambient if ambient is None else ambient,
+        p.mie_phase == "cs",
+    )
+    return tuple(_shade_kernel(ops, dx, dy, dz, S_r, S_m, shape, (sun_x, 0.0, sun_z), consts))
+
+
+def sky_kernel_inputs(
+    atmosphere: AtmosphereParams,
+    sun_elevation_deg: float,
+    directions,
+    setting: SkySetting,
+    altitude_m: float = 0.0,
+) -> dict:
+    """The inputs of `nishita_sky_kernel` (NumPy float64) for NumPy unit ``directions`` (…, 3) (flattened):
+    pixel directions, the texel cosines of ``setting``'s texture seen from ``altitude_m``, the sun tables
+    and the sun direction at ``sun_elevation_deg``."""
+    check_scalar("sun_elevation_deg", sun_elevation_deg, -90.0, 90.0)
+    el_s = math.radians(sun_elevation_deg)
+    el_lo = _horizon_elevation(atmosphere, altitude_m)
+    A, E = _texel_directions(setting.width, setting.height, el_lo, 0.5 * math.pi, setting.mapping)
+    tau_r, tau_m = build_optical_depth_table(atmosphere, setting.layers, setting.table_size)
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    return {
+        "dx": d[:, 0],
+        "dy": d[:, 1],
+        "dz": d[:, 2],
+        "texel_mu": np.sin(E).ravel(),
+        "texel_nu": (np.cos(E) * math.cos(el_s) * np.cos(A) + np.sin(E) * math.sin(el_s)).ravel(),
+        "tau_r": np.asarray(tau_r).ravel(),
+        "tau_m": np.asarray(tau_m).ravel(),
+        "sun_x": math.cos(el_s),
+        "sun_z": math.sin(el_s),
+    }
+
+
+SEED_SETTING = SkySetting()
+"""The seed's setting (000:2178-2187): n = 32 layers, 128×64 texture, 128-entry sun table, linear rows."""
+FINE_SETTING = SkySetting(layers=128, width=512, height=256, table_size=512, mapping="sqrt")
+"""The converged model of the sweep: n = 128, 512×256 with √ horizon rows, 512-entry table."""
+
+_SKY_INPUTS = (
+    Input("dx", "1", "pixel direction x (sun at azimuth 0, +Z up)"),
+    Input("dy", "1", "pixel direction y"),
+    Input("dz", "1", "pixel direction z (sin of the elevation)"),
+    Input("texel_mu", "1", "cos of the zenith angle of each texel centre (flattened H×W)"),
+    Input("texel_nu", "1", "cos of each texel centre's angle to the sun"),
+    Input("tau_r", "m", "Rayleigh sun optical-depth table ((n + 1) × table_size, flattened)"),
+    Input("tau_m", "m", "Mie sun optical-depth table"),
+    Input("sun_x", "1", "sun direction x = cos(sun elevation)"),
+    Input("sun_z", "1", "sun direction z = sin(sun elevation)"),
+)
+_SKY_FORMULA = "L_c = E₀,c [(P_R + A/4π) S_R,c + P_M(g) S_M,c], S from n layers (trapezoid), bilinear texture"
+
+
+def _sky_method(id, label, setting, description, **kw) -> Method:
+    return Method(
+        id=id,
+        label=label,
+        kernel=nishita_sky_kernel,
+        inputs=_SKY_INPUTS,
+        fixed={
+            "atmosphere": AtmosphereParams(),
+            "setting": setting,
+            "altitude_m": 0.0,
+            **kw.pop("fixed", {}),
+        },
+        storage=2 * (setting.wavelengths or 3),  # floats per texel: S_R and S_M per channel
+        quantity="sky_radiance",
+        formula=_SKY_FORMULA,
+        source="Nishita et al. 1993; CryEngine 2 (seed 000:2178-2187, 002:130-164)",
+        description=description,
+        **kw,
+    )
+
+
+METHODS = method_table(
+    [
+        _sky_method(
+            "nishita-seed",
+            "Nishita, seed setting (n=32, 128×64)",
+            SEED_SETTING,
+            "the seed's texture: 32 layers, 128×64 texels, 128-entry sun table",
+        ),
+        _sky_method(
+            "nishita-fine",
+            "Nishita, n=128, 512×256",
+            FINE_SETTING,
+            "the converged texture: 128 layers, 512×256 texels (√ horizon rows), 512-entry table",
+        ),
+        _sky_method(
+            "nishita-spectral",
+            "Nishita spectral (16 λ → sRGB)",
+            replace(SEED_SETTING, wavelengths=16),
+            "the seed setting over 16 wavelengths (λ⁻⁴ Rayleigh), CIE 1931 → linear sRGB",
+        ),
+        _sky_method(
+            "nishita-fitted",
+            "Nishita, fitted artist parameters",
+            SEED_SETTING,
+            "the seed setting with artist parameters fitted to the multiple-scattering sky",
+            # ambient ≥ 0: a negative isotropic term would make dark pixels negative (docs/nishita-sky.md)
+            params={
+                "rayleigh_scale": Param(1.0, 0.3, 3.0, unit="1", description="multiplies beta_R"),
+                "mie_scale": Param(
+                    1.0, 0.05, 20.0, unit="1", description="multiplies beta_M and beta_M_ext (Mie density)"
+                ),
+                "mie_g": Param(0.8, 0.0, 0.95, unit="1", description="Henyey-Greenstein asymmetry"),
+                "ambient": Param(
+                    0.3,
+                    0.0,
+                    10.0,
+                    unit="1",
+                    description="isotropic multiple-scattering term: P_R -> P_R + ambient/(4 pi)",
+                ),
+            },
+        ),
+    ]
+)
+"""The family's methods (`rtfit.realtime.methods`): one kernel text (`nishita_sky_kernel`), the setting as
+data. Fixed keywords ``atmosphere`` (the Bruneton set, `AtmosphereParams()`), ``setting`` and
+``altitude_m``: replace them (``dataclasses.replace(method, fixed={...})``) for another atmosphere or
+viewer. The artist parameters of ``nishita-fitted`` are `AtmosphereParams` fields of the same names, so a
+fitted set is ``replace(atmosphere, **values)``."""

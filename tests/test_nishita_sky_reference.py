@@ -1,4 +1,4 @@
-"""The Mitsuba atmosphere reference (rtfit.reference.atmosphere) and the nishita-sky experiment."""
+"""The Mitsuba atmosphere reference (rtfit.reference.nishita_sky) and the nishita-sky experiment."""
 
 import math
 
@@ -16,14 +16,14 @@ def mi():
 def test_single_scattering_reference_matches_independent_quadrature(tmp_path):
     """Mitsuba volpathmis (max_depth 2, Python medium + chromatic phase mixture) vs a float64
     quadrature: z of every pixel and of the sums within noise."""
-    from rtfit.reference.atmosphere import (
-        AtmosphereSpec,
+    from rtfit.reference.nishita_sky import (
         hemisphere_directions,
+        library_atmosphere,
         render_sky,
         single_scattering_quadrature,
     )
 
-    spec = AtmosphereSpec(sun_elevation_deg=20.0)
+    spec = library_atmosphere(sun_elevation_deg=20.0)
     d, _, _ = hemisphere_directions(6, 3)
     r = render_sky(
         spec, d, spp=4096, pass_spp=2048, seed=3, variant="llvm_ad_rgb", max_depth=2, cache_dir=tmp_path
@@ -38,6 +38,10 @@ def test_single_scattering_reference_matches_independent_quadrature(tmp_path):
         spec, d, spp=4096, pass_spp=2048, seed=3, variant="llvm_ad_rgb", max_depth=2, cache_dir=tmp_path
     )
     assert np.array_equal(r2["mean"], r["mean"])
+    assert list((tmp_path / "sky").glob("*/*/pass-00001.npz"))  # the one pass store (PassEntry)
+    # without a store: the same passes, rounded to float32 as the store keeps them
+    r3 = render_sky(spec, d, spp=4096, pass_spp=2048, seed=3, variant="llvm_ad_rgb", max_depth=2)
+    assert np.array_equal(r3["mean"], r["mean"]) and np.array_equal(r3["stderr"], r["stderr"])
 
 
 def test_phase_mixture_is_normalised_and_sampling_consistent(mi):
@@ -45,10 +49,10 @@ def test_phase_mixture_is_normalised_and_sampling_consistent(mi):
     value/pdf with E[weight] = 1 (the sampled pdf is the mixture's)."""
     import drjit as dr
 
-    from rtfit.reference.atmosphere import AtmosphereSpec, PHASE_PLUGIN, _profile_props, register
+    from rtfit.reference.nishita_sky import PHASE_PLUGIN, _profile_props, library_atmosphere, register
 
     register(mi)
-    spec = AtmosphereSpec()
+    spec = library_atmosphere()
     phase = mi.load_dict({"type": PHASE_PLUGIN, **_profile_props(spec, mi)})
     n = 1 << 18
     rng = np.random.default_rng(1)
@@ -64,7 +68,7 @@ def test_phase_mixture_is_normalised_and_sampling_consistent(mi):
     integ = [4 * math.pi * float(np.mean(np.asarray(val[c]))) for c in range(3)]
     assert integ == pytest.approx([1, 1, 1], rel=0.02)
     assert 4 * math.pi * float(np.mean(np.asarray(pdf))) == pytest.approx(1.0, rel=0.02)
-    w_o, weight, pdf_s = phase.sample(
+    _, weight, pdf_s = phase.sample(
         ctx, mei, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n))
     )
     for c in range(3):
@@ -73,34 +77,54 @@ def test_phase_mixture_is_normalised_and_sampling_consistent(mi):
 
 
 def test_sunsky_and_spec_validation():
-    from rtfit.reference.atmosphere import AtmosphereSpec, hemisphere_directions, sunsky_radiance
+    from dataclasses import replace
+
+    from rtfit.reference.nishita_sky import hemisphere_directions, library_atmosphere, sunsky_radiance
 
     d, _, _ = hemisphere_directions(8, 4)
     s = sunsky_radiance(30.0, d)
     assert np.isfinite(s["sky"]).all() and (s["sky"] > 0).all() and (s["sun_irradiance"] > 0).all()
     with pytest.raises(ValueError, match="sun_elevation_deg"):
         sunsky_radiance(-2.0, d)
+    spec = library_atmosphere()
     with pytest.raises(ValueError, match="mie_g"):
-        AtmosphereSpec(mie_g=1.0)
-    with pytest.raises(ValueError, match="viewer_altitude_km"):
-        AtmosphereSpec(viewer_altitude_km=-1.0)
+        replace(spec, mie_g=1.0)
+    with pytest.raises(ValueError, match="viewer_altitude_m"):
+        replace(spec, viewer_altitude_m=-1.0)
+    with pytest.raises(ValueError, match="sun_angular_radius"):
+        replace(spec, sun_angular_radius=2.0)
 
 
-def test_library_sky_scenes_load():
+def test_library_sky_scenes_load_and_hold_the_realtime_defaults(tmp_path):
+    """One atmosphere parameter set: every shipped sky scene (SI units) holds the real-time model's
+    defaults (`AtmosphereParams()`, same field names and units), and the reference's km values derive
+    from it."""
+    from dataclasses import asdict
     from pathlib import Path
 
-    from rtfit.reference.atmosphere import load_atmosphere_scene
+    from rtfit.realtime.nishita_sky import AtmosphereParams
+    from rtfit.reference.nishita_sky import load_atmosphere_scene
 
     lib = Path(__file__).resolve().parent.parent / "scenes" / "library"
     files = sorted(lib.glob("sky_*.toml"))
     assert files
+    defaults = asdict(AtmosphereParams())
     for f in files:
-        spec = load_atmosphere_scene(f)
-        assert spec.planet_radius_km == 6360.0
+        spec = asdict(load_atmosphere_scene(f))
+        shared = set(spec) & set(defaults)
+        assert len(shared) == 11, sorted(shared)  # every physical parameter, by the same name
+        assert {k: spec[k] for k in shared} == {k: defaults[k] for k in shared}, f.name
+    spec = load_atmosphere_scene(files[0])
+    assert spec.planet_radius_km == 6360.0 and spec.rayleigh_height_km == 8.0
+    assert np.float32(spec.rayleigh_beta_km[1]) == np.float32(13.558e-3)
+    bad = tmp_path / "sky.toml"
+    bad.write_text(files[0].read_text().replace("planet_radius_m", "planet_radius_km"))
+    with pytest.raises(ValueError, match=r"atmosphere\.planet_radius_km: unknown key"):
+        load_atmosphere_scene(bad)
 
 
 def test_tiny_experiment_run(tmp_path, monkeypatch):
-    from rtfit.experiments import nishita_sky_report
+    from rtfit.experiments import nishita_sky
     from rtfit.experiments.registry import get_experiment
     from rtfit.experiments.report import load_results
     from rtfit.experiments.runner import run_experiments
@@ -126,7 +150,7 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
         spectral_pass_spp=64,
         spectral_quadrature_stride=[2, 1],
     )
-    monkeypatch.setattr(nishita_sky_report, "_figures", lambda *a, **k: [])
+    monkeypatch.setattr(nishita_sky, "_figures", lambda *a, **k: [])
     run_experiments(
         [get_experiment("nishita-sky")],
         tmp_path / "out",
@@ -171,12 +195,15 @@ def test_film_srgb_matches_mitsubas_film():
     """`film_srgb` (quadrature with Mitsuba's CIE table) equals what Mitsuba's hdrfilm makes of a
     constant emitter in the spectral variant: a flat spectrum and a 5778 K blackbody (Mitsuba's own
     `blackbody` plugin vs the SI Planck law here), within the render's noise."""
-    from rtfit.reference.atmosphere import CIE_Y_NORMALIZATION, XYZ_TO_SRGB, _use_variant, film_srgb
+    from rtfit.realtime.nishita_sky import XYZ_TO_SRGB
+    from rtfit.reference.nishita_sky import CIE_Y_NORMALIZATION, _use_variant, film_srgb, film_xyz_to_srgb
 
     mi = _use_variant("llvm_ad_spectral")
     assert CIE_Y_NORMALIZATION == pytest.approx(mi.MI_CIE_Y_NORMALIZATION, rel=1e-7)
     m = np.asarray(mi.xyz_to_srgb(mi.Color3f(1, 0, 0))).ravel()
-    assert m == pytest.approx(XYZ_TO_SRGB[:, 0], rel=1e-6)
+    assert m == pytest.approx(film_xyz_to_srgb()[:, 0], rel=1e-7)
+    # the one typed copy (the real-time conversion) has Mitsuba's digits
+    assert film_xyz_to_srgb() == pytest.approx(XYZ_TO_SRGB, rel=1e-7)
 
     def render(radiance):
         sc = mi.load_dict(
@@ -205,8 +232,8 @@ def test_film_srgb_matches_mitsubas_film():
 
 
 def test_solar_spectrum_is_the_realtime_one_and_a_5778k_blackbody():
-    from rtfit.realtime.sky import AtmosphereParams
-    from rtfit.reference.atmosphere import solar_spectrum
+    from rtfit.realtime.nishita_sky import AtmosphereParams
+    from rtfit.reference.nishita_sky import solar_spectrum
 
     lam = np.linspace(400.0, 700.0, 16)
     rt = np.asarray(AtmosphereParams().spectral(lam).solar_irradiance)
@@ -227,10 +254,10 @@ def test_spectral_medium_phase_and_sun_at_the_sampled_wavelengths():
     E₀(λ)/(π sin²α) of the 5778 K sun (closed forms)."""
     import drjit as dr
 
-    from rtfit.reference.atmosphere import AtmosphereSpec, _load, _use_variant
+    from rtfit.reference.nishita_sky import _load, _use_variant, library_atmosphere
 
     mi = _use_variant("llvm_ad_spectral")
-    spec = AtmosphereSpec()
+    spec = library_atmosphere()
     scene, medium = _load(mi, spec, 2)
     lam = [380.0, 450.0, 550.0, 700.0]
     n = 1 << 16
@@ -240,10 +267,10 @@ def test_spectral_medium_phase_and_sun_at_the_sampled_wavelengths():
     mei.wi = mi.Vector3f(0.0, 0.0, 1.0)
     s, nn, t = medium.get_scattering_coefficients(mei)
     for j, x in enumerate(lam):
-        br = spec.rayleigh_beta[1] * (550.0 / x) ** 4
-        assert float(np.asarray(s[j])[0]) == pytest.approx(br + spec.mie_beta[1], rel=1e-5)
-        assert float(np.asarray(t[j])[0]) == pytest.approx(br + spec.mie_extinction[1], rel=1e-5)
-    maj = spec.rayleigh_beta[1] * (550.0 / 380.0) ** 4 + spec.mie_extinction[1]
+        br = spec.rayleigh_beta_km[1] * (550.0 / x) ** 4
+        assert float(np.asarray(s[j])[0]) == pytest.approx(br + spec.mie_beta_km[1], rel=1e-5)
+        assert float(np.asarray(t[j])[0]) == pytest.approx(br + spec.mie_extinction_km[1], rel=1e-5)
+    maj = spec.rayleigh_beta_km[1] * (550.0 / 380.0) ** 4 + spec.mie_extinction_km[1]
     assert float(np.asarray(medium.get_majorant(mei)[3])[0]) == pytest.approx(maj, rel=1e-5)
     assert np.asarray(nn[0]).min() >= 0
     # phase mixture normalised per wavelength (uniform directions)
@@ -263,7 +290,7 @@ def test_spectral_medium_phase_and_sun_at_the_sampled_wavelengths():
     ds = dr.zeros(mi.DirectionSample3f, 1)
     ds.d = mi.Vector3f(*spec.sun_direction.tolist())
     L = np.asarray(sun.eval_direction(it, ds)).ravel()
-    a = math.radians(spec.sun_angular_radius_deg)
+    a = spec.sun_angular_radius
     e0 = 1.8504 * _planck_si([450.0, 500.0, 550.0, 650.0], 5778.0) / _planck_si(550.0, 5778.0)
     assert L == pytest.approx(e0 / (math.pi * math.sin(a) ** 2), rel=1e-5)
 
@@ -271,14 +298,14 @@ def test_spectral_medium_phase_and_sun_at_the_sampled_wavelengths():
 def test_spectral_quadrature_at_550nm_is_the_rgb_green_channel():
     """The spec's G channel is its 550 nm value: the spectral quadrature's spectrum at 550 nm
     equals the RGB quadrature's green (same coefficients), and step_nm must divide 5 nm."""
-    from rtfit.reference.atmosphere import (
-        AtmosphereSpec,
+    from rtfit.reference.nishita_sky import (
         hemisphere_directions,
+        library_atmosphere,
         single_scattering_quadrature,
         spectral_single_scattering_quadrature,
     )
 
-    spec = AtmosphereSpec(sun_elevation_deg=10.0)
+    spec = library_atmosphere(sun_elevation_deg=10.0)
     d, _, _ = hemisphere_directions(4, 2)
     q = spectral_single_scattering_quadrature(spec, d, steps=300, step_nm=5.0)
     g = single_scattering_quadrature(spec, d, steps=300)[..., 1]
@@ -292,14 +319,14 @@ def test_spectral_quadrature_at_550nm_is_the_rgb_green_channel():
 def test_spectral_reference_matches_spectral_quadrature(tmp_path):
     """Mitsuba's spectral variant (volpathmis, max_depth 2, λ⁻⁴ medium, 5778 K sun, film
     conversion per path) vs the float64 spectral quadrature: z of every pixel and of the sums."""
-    from rtfit.reference.atmosphere import (
-        AtmosphereSpec,
+    from rtfit.reference.nishita_sky import (
         hemisphere_directions,
+        library_atmosphere,
         render_sky,
         spectral_single_scattering_quadrature,
     )
 
-    spec = AtmosphereSpec(sun_elevation_deg=20.0)
+    spec = library_atmosphere(sun_elevation_deg=20.0)
     d, _, _ = hemisphere_directions(6, 3)
     r = render_sky(
         spec, d, spp=4096, pass_spp=2048, seed=5, variant="llvm_ad_spectral", max_depth=2, cache_dir=tmp_path

@@ -1,4 +1,4 @@
-"""rtfit.realtime.sky against independent values: mpmath quadrature, closed forms, scipy."""
+"""rtfit.realtime.nishita_sky against independent values: mpmath quadrature, closed forms, scipy."""
 
 import math
 
@@ -9,8 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from rtfit.realtime import phase, sky
-from rtfit.realtime.arrays import jax_ops
+from rtfit.realtime import nishita_sky as sky
+from rtfit.realtime import phase
+from rtfit.realtime.arrays import NUMPY_OPS, jax_ops
 
 RG, RT = 6360e3, 6420e3
 TOP = RT - RG
@@ -144,13 +145,13 @@ def params():
 
 @pytest.fixture(scope="module")
 def quad_ref():
-    """Independent float64 single-scattering quadrature (rtfit.reference.atmosphere) for a few
+    """Independent float64 single-scattering quadrature (rtfit.reference.nishita_sky) for a few
     directions at sun 20°, viewer 10 m."""
-    from rtfit.reference.atmosphere import AtmosphereSpec, single_scattering_quadrature
+    from rtfit.reference.nishita_sky import library_atmosphere, single_scattering_quadrature
 
     dirs = np.array([[0, 0, 1.0], [0.6, 0.0, 0.8], [-0.6, 0.5, 0.6], [0.97, 0.1, 0.2], [0.2, -0.97, 0.12]])
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    spec = AtmosphereSpec(sun_elevation_deg=20.0, viewer_altitude_km=0.01)
+    spec = library_atmosphere(sun_elevation_deg=20.0, viewer_altitude_m=10.0)
     return dirs, single_scattering_quadrature(spec, dirs, steps=1500)
 
 
@@ -169,7 +170,7 @@ def test_single_scattering_converges_to_independent_quadrature(params, quad_ref)
 def test_drjit_and_numpy_textures_agree(params):
     a = sky.build_sky(params, 5.0, 0.0, layers=16, width=32, height=16, backend="llvm")
     b = sky.build_sky(params, 5.0, 0.0, layers=16, width=32, height=16, backend="numpy")
-    for x, y in zip(sky.texture_arrays(a), sky.texture_arrays(b)):
+    for x, y in zip(sky.texture_arrays(a), sky.texture_arrays(b), strict=True):
         assert np.allclose(x, y, rtol=1e-3, atol=1e-9)  # float32 (Dr.Jit) vs float64 (NumPy)
 
 
@@ -191,7 +192,7 @@ def test_frozen_device_build_replays_with_new_inputs(params):
     for p, e, h, mapping in cases:
         a = sky.build_sky(p, e, h, backend="llvm", mapping=mapping, **kw)
         b = sky.build_sky(p, e, h, backend="numpy", mapping=mapping, **kw)
-        for x, y in zip(sky.texture_arrays(a), sky.texture_arrays(b)):
+        for x, y in zip(sky.texture_arrays(a), sky.texture_arrays(b), strict=True):
             assert np.allclose(x, y, rtol=2e-3, atol=1e-9 * np.max(np.abs(y))), (e, h, mapping)
         assert np.allclose(a.sun_transmittance, b.sun_transmittance, rtol=1e-12)
 
@@ -203,7 +204,7 @@ def test_optically_thin_limit_closed_form(params):
     p = replace(params, rayleigh_scale=1e-6, mie_scale=1e-6)
     h0 = 100.0
     S_r, S_m = sky._inscatter_kernel(
-        sky.OPS_NP,
+        NUMPY_OPS,
         np.array([1.0]),
         np.array([0.5]),
         h0,
@@ -211,7 +212,6 @@ def test_optically_thin_limit_closed_form(params):
         sky._cfg(p, 128, 64),
         *[t.ravel() for t in sky.build_optical_depth_table(p, 128, 64)],
         p.betas(),
-        "python",
     )
     br, bm, _ = p.betas()
     for c in range(3):
@@ -341,8 +341,37 @@ def test_jax_kernel_matches_numpy(params):
         jnp.asarray(tr.ravel()),
         jnp.asarray(tm.ravel()),
         params.betas(),
-        "jax",
     )
     R, M = sky.texture_arrays(s)
     assert np.allclose(np.stack([np.asarray(x).reshape(8, 16) for x in S_r]), R, rtol=1e-10)
     assert np.allclose(np.stack([np.asarray(x).reshape(8, 16) for x in S_m]), M, rtol=1e-10)
+
+
+def test_method_kernel_is_the_built_and_shaded_sky(params):
+    """`METHODS`' one kernel text (the texture rebuilt from its inputs, then the per-pixel shading) equals
+    `build_sky` + `shade_sky` (NumPy, sun excluded); its JAX run (the fit's path) equals its NumPy run; the
+    fitted method at the atmosphere's own artist values is the seed method."""
+    from dataclasses import replace
+
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    setting = sky.SkySetting(layers=8, width=16, height=8, table_size=32)
+    rng = np.random.default_rng(4)
+    d = rng.normal(size=(64, 3))
+    d[:, 2] = np.abs(d[:, 2])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    fixed = {"atmosphere": params, "setting": setting, "altitude_m": 10.0}
+    seed = replace(sky.METHODS["nishita-seed"], fixed=fixed)
+    fitted = replace(sky.METHODS["nishita-fitted"], fixed=fixed)
+    inputs = sky.sky_kernel_inputs(params, 15.0, d, setting, 10.0)
+    got = np.stack(seed(NUMPY_OPS, inputs), axis=-1)
+    built = sky.build_sky(params, 15.0, 10.0, backend="numpy", **setting.build_keywords())
+    assert np.allclose(got, sky.shade_sky(built, d, include_sun=False), rtol=1e-12, atol=0)
+    jx = seed(jax_ops(), {k: jnp.asarray(v) for k, v in inputs.items()})
+    assert np.allclose(np.stack([np.asarray(x) for x in jx], axis=-1), got, rtol=1e-10)
+    own = {"rayleigh_scale": 1.0, "mie_scale": 1.0, "mie_g": params.mie_g, "ambient": params.ambient}
+    assert np.array_equal(np.stack(fitted(NUMPY_OPS, inputs, own), axis=-1), got)
+    assert set(sky.METHODS["nishita-fitted"].params) <= {f for f in vars(params)}  # AtmosphereParams fields
