@@ -576,8 +576,8 @@ def render_sky(
     when E₀ is in W·m⁻²·nm⁻¹), ``spp``, ``passes``, ``seconds``, ``cache_key``. ceil(spp / pass_spp)
     passes of ``pass_spp`` samples, pass i seeded with ``sub_seed(seed, "pass", i)``; with ``cache_dir``
     they are stored in the one pass store (`rtfit.reference.cache.PassEntry`, namespace "sky", .npz:
-    a rerun renders only missing passes). Without a cache the passes are rounded to float32 as the store
-    keeps them, so a cached and an uncached call give the same numbers.
+    a rerun renders only missing passes). npz passes keep their float64 moments, so a cached and an
+    uncached call give the same numbers.
 
     ``variant``: an llvm_*/cuda_* RGB variant (channels = the spec's three wavelengths), or
     ``llvm_ad_spectral``/``cuda_ad_spectral``: the spectral atmosphere (module docstring), the
@@ -615,9 +615,9 @@ def render_sky(
     n_pass = -(-spp // pass_spp)
     if cache_dir is not None:
         passes, _ = entry.passes(n_pass, render, before_render=load_scene)
-    else:  # no store: the same float32 rounding as a stored pass
+    else:  # no store: the passes as rendered (the npz store keeps the same float64 values)
         load_scene()
-        passes = [_as_stored(render(i)) for i in range(n_pass)]
+        passes = [render(i) for i in range(n_pass)]
     mean, stderr, n = pool_passes(passes)
     seconds = float(sum(p.seconds for p in passes))
     return {
@@ -629,12 +629,6 @@ def render_sky(
         "cache_key": entry.key,
         "samples_per_second": float(n * mean.shape[0] / max(seconds, 1e-9)),
     }
-
-
-def _as_stored(p: PassResult) -> PassResult:
-    """A pass with its mean and variance rounded to float32, as `PassEntry.save` stores them."""
-    f32 = lambda a: a.astype(np.float32).astype(np.float64)  # noqa: E731
-    return PassResult(f32(p.mean), f32(p.var), p.spp, p.seed, p.seconds)
 
 
 # ------------------------------------------------------------------------ independent quadrature
