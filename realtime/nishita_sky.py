@@ -591,8 +591,8 @@ def build_sky(
                 DRJIT_OPS,
                 Float(mu.ravel()),
                 Float(nu.ravel()),
-                dr.opaque(Float, h0),
-                dr.opaque(Float, sz),
+                dr.opaque(Float, h0),  # pyright: ignore[reportArgumentType]  # llvm|cuda union
+                dr.opaque(Float, sz),  # pyright: ignore[reportArgumentType]  # llvm|cuda union
                 cfg,
                 tables[0],
                 tables[1],
@@ -621,9 +621,9 @@ def build_sky(
     return sky
 
 
-@dr.freeze(
-    limit=64, warn_after=1000
-)  # one recording per static configuration (sweeps hold many); LRU beyond 64
+# One recording per static configuration (sweeps hold many); LRU beyond 64. (The drjit stubs type
+# freeze's keyword form without a positional function: a stub limitation.)
+@dr.freeze(limit=64, warn_after=1000)  # pyright: ignore[reportCallIssue]
 def _device_build(static, values):
     """The whole texture on the device, as one frozen Dr.Jit function (`dr.freeze`): texel
     directions from `dr.arange`, the two sun optical-depth tables and the in-scatter loop.
