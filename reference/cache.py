@@ -371,12 +371,16 @@ class PassEntry:
                 cached = self.load(i, shape)  # another process may have finished it meanwhile
                 if cached is None and self.claim(i):
                     try:
-                        if not prepared and before_render is not None:
-                            before_render()
-                        prepared = True
-                        with _Heartbeat(self._claim_file(i)):
-                            cached = self.save(i, render(i))
-                        rendered += 1
+                        # Look again now that we hold the claim: the owner before us saves a pass before
+                        # it releases it, so a pass finished between our load and our claim is seen here.
+                        cached = self.load(i, shape)
+                        if cached is None:
+                            if not prepared and before_render is not None:
+                                before_render()
+                            prepared = True
+                            with _Heartbeat(self._claim_file(i)):
+                                cached = self.save(i, render(i))
+                            rendered += 1
                     finally:
                         self.release(i)
                 if cached is None:
@@ -396,8 +400,10 @@ class PassEntry:
         return [r for r in results if r is not None], rendered
 
 
-CLAIM_STALE_SECONDS = 120.0
-"""A claim not refreshed for this long belongs to a process that is gone (heartbeats come every 10 s)."""
+CLAIM_STALE_SECONDS = 600.0
+"""A claim not refreshed for this long belongs to a process that is gone (heartbeats come every 10 s; a
+claim of a dead process on this host is taken over at once, this bound is for other hosts sharing the cache
+and for a heartbeat starved by a long kernel that holds the GIL)."""
 CLAIM_POLL_SECONDS = 0.5
 """How often a process waiting for another's pass looks for it."""
 _HEARTBEAT_SECONDS = 10.0
