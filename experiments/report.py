@@ -77,8 +77,8 @@ METRICS: dict[str, tuple[str, bool | None]] = {
 UNRESOLVED_NOTE = (
     "† Not resolved: within 2× the reference's noise floor (4× for the squared relMSE; within 6.02 dB "
     "of the ceiling for PSNR), so this error cannot be told apart from the Monte Carlo noise of the "
-    "ground truth: at this sample count the approximation is as good as exact, and the value means "
-    "nothing more."
+    "ground truth: at this sample count the approximation cannot be told apart from exact, and the "
+    "value itself means nothing more."
 )
 UNRESOLVED_TAG = "within noise"  # beside a best value that is not resolved (bold still marks it)
 INDEX_UNRESOLVED_MARK = "not resolved†"  # the index's mean over cases where no case is resolved
