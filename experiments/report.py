@@ -9,16 +9,20 @@ Layout (paper-like): title; summary; contents; 1 Setup (configuration, versions,
 then per case: parameters, reference, and a metrics table with every value beside its noise floor);
 Cost; Fitted parameters; Checks; Figures not placed in a section; Notes. Tables and figures are
 numbered in document order. A metric with ``resolved: false`` is set in grey italics and marked †:
-it lies below the reference's own noise floor and means nothing.
+it is not resolved, i.e. within 2× the reference's noise floor (the rule of ``rtfit.fitting.metrics``),
+and cannot be told apart from the ground truth's Monte Carlo noise. Bold marks the best value of a
+directed metric (the smallest; the largest for ↑ metrics), resolved or not, so a worse value is never
+bold; a best value that is not resolved keeps its † and is tagged "within noise".
 
 ``tables.tex`` holds the same tables as LaTeX ``table`` floats (needs ``\\usepackage{booktabs}``).
 The HTML is one self-contained page (inline CSS) referring to the figures by relative path; the
-markdown of ``summary``, ``sections``, captions and notes is converted by :func:`markdown_to_html`,
-a small converter for the subset rtfit writes (`rtfit.experiments.markdown`).
+markdown of ``summary``, ``sections``, captions and notes is CommonMark with pipe tables, rendered by
+markdown-it-py (:func:`markdown_to_html`, :func:`markdown_inline`) with raw HTML escaped.
 """
 
 from __future__ import annotations
 
+import html
 import math
 import os
 import re
@@ -26,11 +30,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from markdown_it import MarkdownIt
+from markdown_it.rules_inline import StateInline
+
 from .atomic import atomic_write_text, is_temporary_name
-from .markdown import INLINE as _INLINE
-from .markdown import escape as _esc
-from .markdown import markdown_inline, markdown_to_html
-from .markdown import markdown_text as _md_text
 from .records import (
     SCHEMA,
     Approximation,
@@ -69,9 +72,20 @@ METRICS: dict[str, tuple[str, bool | None]] = {
     "ssim": ("SSIM", False),
     "flip": ("FLIP", True),
 }
+# The resolve rule of rtfit.fitting.metrics: an error is resolved when it exceeds twice its noise floor
+# (in amplitude; the squared relMSE 4×, PSNR 6.02 dB below its ceiling, SSIM by 1 − SSIM).
 UNRESOLVED_NOTE = (
-    "† Below the reference's own noise floor: this error is indistinguishable from the "
-    "Monte Carlo noise of the ground truth and means nothing."
+    "† Not resolved: within 2× the reference's noise floor (4× for the squared relMSE; within 6.02 dB "
+    "of the ceiling for PSNR), so this error cannot be told apart from the Monte Carlo noise of the "
+    "ground truth: at this sample count the approximation cannot be told apart from exact, and the "
+    "value itself means nothing more."
+)
+UNRESOLVED_TAG = "within noise"  # beside a best value that is not resolved (bold still marks it)
+INDEX_UNRESOLVED_MARK = "not resolved†"  # the index's mean over cases where no case is resolved
+INDEX_UNRESOLVED_NOTE = (
+    "† Not resolved in any case: every value lies within 2× the reference's noise floor (4× for the "
+    "squared relMSE; within 6.02 dB of the ceiling for PSNR), so it cannot be told apart from the "
+    "Monte Carlo noise of the ground truth. The mean may exceed the mean floor: the rule is 2×."
 )
 AT_BOUND_NOTE = (
     "‡ At a bound of its allowed range: the fit is constrained there, so its standard error is unreliable."
@@ -115,6 +129,89 @@ def format_number(x, trim: bool = False) -> str:
     return str(x)
 
 
+# ----------------------------------------------------------------------------------- markdown text
+# The markdown of results (summary, sections, captions, notes, cost notes) is CommonMark with pipe
+# tables, rendered by markdown-it-py. Raw HTML is off (``html=False``): a ``<script>`` in a results
+# text is escaped, never passed through. Links keep markdown-it's own check (no ``javascript:``,
+# ``vbscript:``, ``file:`` or non-image ``data:`` URLs). One extension of rtfit's own: inline math
+# ``$…$`` is left as text in a ``span.math`` (not parsed as emphasis).
+_MATH = re.compile(r"\$(?![\s$])[^$\n]*?(?<![\s\\])\$")
+
+
+def _math_inline(state: StateInline, silent: bool) -> bool:
+    if state.src[state.pos] != "$":
+        return False
+    m = _MATH.match(state.src, state.pos, state.posMax)
+    if m is None:
+        return False
+    if not silent:
+        state.push("math_inline", "", 0).content = m.group(0)
+    state.pos = m.end()
+    return True
+
+
+def _render_math(self, tokens, idx, options, env) -> str:
+    return f'<span class="math">{html.escape(tokens[idx].content, quote=False)}</span>'
+
+
+def _render_table_open(self, tokens, idx, options, env) -> str:
+    return '<div class="table-wrap"><table>\n'
+
+
+def _render_table_close(self, tokens, idx, options, env) -> str:
+    return "</table></div>\n"
+
+
+_MD = MarkdownIt("commonmark", {"html": False}).enable("table")
+_MD.inline.ruler.before("escape", "math", _math_inline)
+_MD.add_render_rule("math_inline", _render_math)
+_MD.add_render_rule("table_open", _render_table_open)
+_MD.add_render_rule("table_close", _render_table_close)
+
+# Plain text that goes into markdown output is backslash-escaped where markdown would read it as markup.
+_MD_SPECIAL = re.compile(r"([\\`*_\[\]|<>$~]|&(?=#?\w+;))")
+
+# The inline subset that the LaTeX writer (``_tex_md``) understands. Kept from the former hand-written
+# converter for tables.tex alone; HTML goes through markdown-it (above).
+_INLINE = re.compile(
+    r"(?P<esc>\\[\\`*_{}\[\]()#+\-.!$|<>])"
+    r"|(?P<tick>`+)(?P<code>.+?)(?P=tick)"
+    r"|(?P<math>\$(?![\s$])[^$\n]*?(?<![\s\\])\$)"
+    r"|\[(?P<ltext>[^\]\n]+)\]\((?P<lurl>[^)\s]+)\)"
+    r"|<(?P<auto>https?://[^>\s]+)>"
+    r"|\*\*(?P<strong>(?!\s).+?(?<!\s))\*\*"
+    r"|\*(?P<em>(?![\s*])[^*\n]+?(?<!\s))\*"
+)
+
+
+def _esc(text) -> str:
+    """Plain text → HTML text (quotes escaped too, for attribute values)."""
+    return html.escape(str(text), quote=True)
+
+
+def _md_text(text) -> str:
+    """Plain text for markdown output, on one line: characters markdown would read as markup are
+    backslash-escaped (so the text reads the same in report.md and, through markdown-it, in HTML)."""
+    return _MD_SPECIAL.sub(r"\\\1", str(text)).replace("\n", " ")
+
+
+def markdown_inline(text: str) -> str:
+    """Inline markdown (CommonMark: emphasis, code, links, autolinks, escapes; ``$math$`` kept as
+    text in a ``span.math``) → HTML, no enclosing paragraph. Raw HTML is escaped."""
+    return _MD.renderInline(str(text)).rstrip("\n")
+
+
+def markdown_to_html(text: str, heading_offset: int = 2) -> str:
+    """Block markdown (CommonMark with pipe tables) → HTML. ``#`` headings are shifted down by
+    ``heading_offset`` levels (at most h6) so they nest under the report's own headings; pipe tables
+    come wrapped in ``div.table-wrap`` (scrolls when wide). Raw HTML is escaped."""
+    tokens = _MD.parse(str(text))
+    for t in tokens:
+        if t.type in ("heading_open", "heading_close"):
+            t.tag = f"h{min(6, int(t.tag[1:]) + heading_offset)}"
+    return _MD.renderer.render(tokens, _MD.options, {}).rstrip("\n")
+
+
 # ----------------------------------------------------------------------------------------- document
 @dataclass
 class _Cell:
@@ -124,6 +221,7 @@ class _Cell:
     md: bool = False  # ``text`` is inline markdown
     style: str = ""  # "", "unresolved", "best", "pass", "fail", "at-bound"
     mark: str = ""  # footnote mark
+    tag: str = ""  # short qualifier after the value (UNRESOLVED_TAG on a best value that is not resolved)
 
 
 @dataclass
@@ -242,22 +340,27 @@ def _metric_cell(m: Metric | None) -> _Cell:
     return cell
 
 
+def _shown(x: float) -> float:
+    """``x`` rounded to the 4 significant digits :func:`format_number` prints."""
+    return float(f"{x:.3e}")
+
+
 def _mark_best(cells: list[_Cell], entries: list[Metric | None], key: str) -> None:
-    """Set the best resolved value of a directed metric in bold (only where there are two or more)."""
+    """Set the best value of a directed metric in bold (only where there are two or more entries):
+    the smallest (the largest for a higher-is-better metric), resolved or not: a worse value is never
+    bold. A best value that is not resolved keeps its † and is tagged :data:`UNRESOLVED_TAG`."""
     lower = METRICS.get(key, (key, None))[1]
     if lower is None:
         return
-    vals = [
-        (e.value, i)
-        for i, e in enumerate(entries)
-        if e is not None and e.value is not None and e.resolved is not False
-    ]
+    vals = [(e.value, i, e) for i, e in enumerate(entries) if e is not None and e.value is not None]
     if len(entries) < 2 or not vals:
         return
-    best = min(v for v, _ in vals) if lower else max(v for v, _ in vals)
-    for v, i in vals:
-        if v == best:
+    best = _shown(min(v for v, _, _ in vals) if lower else max(v for v, _, _ in vals))
+    for v, i, e in vals:
+        if _shown(v) == best:  # values that print the same are tied: all bold
             cells[i].style = "best"
+            if e.resolved is False:
+                cells[i].mark, cells[i].tag = "†", UNRESOLVED_TAG
 
 
 def _headline_metric(cases: list[Case]) -> str | None:
@@ -370,7 +473,7 @@ def _build(r: Results, directory: Path | None) -> _Doc:
         d.table(
             "overview",
             f"{METRICS.get(head, (head,))[0]} of every approximation in every case "
-            f"(value with the reference's noise floor; bold: best resolved value in the row).",
+            "(value with the reference's noise floor; bold: the best value in the row, resolved or not).",
             [_Cell("Case")] + [_Cell(lab, numeric=True) for lab in methods.values()],
             rows,
             [UNRESOLVED_NOTE] if any(cl.mark for row in rows for cl in row) else [],
@@ -412,7 +515,7 @@ def _build(r: Results, directory: Path | None) -> _Doc:
         d.table(
             f"case-{c.id}",
             f"Error metrics for {c.label}: each value with the reference's noise floor "
-            "(↓ lower is better, ↑ higher is better; bold: best resolved value).",
+            "(↓ lower is better, ↑ higher is better; bold: the best value, resolved or not).",
             header,
             rows,
             [UNRESOLVED_NOTE] if unresolved else [],
@@ -559,6 +662,8 @@ def _md_cell(c: _Cell) -> str:
     t = c.text if c.md else _md_text(c.text)
     if c.style == "best":
         t = f"**{t}**"
+    if c.tag:
+        t = f"{t} {_md_text(c.tag)}"
     if c.sub:
         t = f"{t} ({c.sub.replace('|', chr(92) + '|')})"
     if c.style in ("unresolved", "at-bound"):
@@ -671,6 +776,7 @@ td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-sp
 td.sub-block .sub { display: block; white-space: normal; }
 .unresolved { color: #8e8e93; font-style: italic; }
 .best { font-weight: 700; }
+.tag { font-weight: 400; font-style: italic; color: #8e8e93; font-size: .85em; }
 .at-bound { font-style: italic; }
 .pass { color: var(--pass); font-weight: 600; }
 .fail { color: var(--fail); font-weight: 700; }
@@ -698,6 +804,8 @@ def _html_cell(c: _Cell, tag: str = "td") -> str:
         x for x in ("num" if c.numeric else "", c.style, "sub-block" if c.sub and not c.numeric else "") if x
     ]
     body = markdown_inline(c.text) if c.md else _esc(c.text)
+    if c.tag:
+        body += f' <span class="tag">{_esc(c.tag)}</span>'
     if c.sub:
         body += (
             f' <span class="sub">({_esc(c.sub)})</span>'
@@ -707,8 +815,8 @@ def _html_cell(c: _Cell, tag: str = "td") -> str:
     if c.mark:
         body += f'<span class="mark">{_esc(c.mark)}</span>'
     cls = f' class="{" ".join(classes)}"' if classes else ""
-    if c.style == "unresolved":
-        cls += ' title="below the reference\'s noise floor: not meaningful"'
+    if c.mark == "†":
+        cls += ' title="not resolved: within 2× the reference\'s noise floor"'
     return f"<{tag}{cls}>{body}</{tag}>"
 
 
@@ -1005,13 +1113,20 @@ def _index_entry(results: Results) -> tuple[list[tuple[str, str, bool]], list[tu
     head = _headline_metric(cases)
     rows = []
     if head:
-        cost = {c.method: c.ns_per_pixel for c in results.costs}
+        # Cost rows (``costs``) are keyed by what was timed, which need not be an approximation's id;
+        # the approximations carry their own measured cost (``attach_costs``): that is what is shown.
+        # A row of ``costs`` under the approximation's own id stands in where none carries one.
+        cost_rows = {c.method: c.ns_per_pixel for c in results.costs}
         for m in methods:
-            vals, floors, unresolved, label = [], [], 0, m
+            vals, floors, ns, unresolved, label = [], [], [], 0, m
             for c in cases:
                 for ap in c.approximations:
+                    if ap.method != m:
+                        continue
+                    if ap.cost is not None and ap.cost.ns_per_pixel is not None:
+                        ns.append(ap.cost.ns_per_pixel)
                     e = ap.metrics.get(head)
-                    if ap.method == m and e is not None and e.value is not None:
+                    if e is not None and e.value is not None:
                         label = ap.display
                         vals.append(e.value)
                         unresolved += e.resolved is False
@@ -1022,8 +1137,9 @@ def _index_entry(results: Results) -> tuple[list[tuple[str, str, bool]], list[tu
                 if floors:
                     mean += f" (floor {format_number(sum(floors) / len(floors))})"
                 if unresolved == len(vals):
-                    mean += " ≤ floor†"
-                rows.append((label, mean, format_number(cost.get(m))))
+                    mean += f" {INDEX_UNRESOLVED_MARK}"
+                cost = sum(ns) / len(ns) if ns else cost_rows.get(m)
+                rows.append((label, mean, format_number(cost)))
     return facts, rows
 
 
@@ -1061,7 +1177,7 @@ def write_index(out_dir, experiment_dirs) -> list[Path]:
         meta = f"`{r.experiment}` · {_md_text(r.created)} · {_md_text(r.device)}"
         md += [f"## [{_md_text(r.title)}]({link})", "", f"*{meta}*", "", summary, ""]
         md += ["  ·  ".join(f"**{k}:** {v}" for k, v, _ in facts), ""]
-        any_unresolved |= any("≤ floor†" in b for _, b, _ in rows)
+        any_unresolved |= any(b.endswith(INDEX_UNRESOLVED_MARK) for _, b, _ in rows)
         head = _headline_metric(r.cases)
         hname = METRICS.get(head, (head,))[0] if head else ""
         if rows:
@@ -1090,8 +1206,8 @@ def write_index(out_dir, experiment_dirs) -> list[Path]:
             f'<ul class="headline">{fact_html}</ul>{table}</section>'
         )
     if any_unresolved:
-        md += [UNRESOLVED_NOTE, ""]
-        body.append(f'<p class="table-note">{_esc(UNRESOLVED_NOTE)}</p>')
+        md += [INDEX_UNRESOLVED_NOTE, ""]
+        body.append(f'<p class="table-note">{_esc(INDEX_UNRESOLVED_NOTE)}</p>')
     body.append(
         f"<footer>Generated by rtfit from each experiment's <code>results.json</code> "
         f"(schema <code>{SCHEMA}</code>).</footer>"

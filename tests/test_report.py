@@ -232,21 +232,23 @@ def test_write_report(exp_dir):
 
     # Metric values with their noise floor, 4 significant digits.
     assert '0.01230 <span class="sub">(floor 0.001000)</span>' in page
-    assert "**0.01230** (floor 0.001000)" in md  # best resolved value in bold
+    assert "| Exact | **0.001100** (floor 0.001000) |" in md  # the best value in bold
     assert "| Half-Lambert | 0.05000 (floor 0.001000) |" in md
     assert "# Half-Lambert & wrap \\<lighting\\>" in md  # markdown would swallow <lighting> as a tag
     assert "38.20" in page and "0.5000" in page  # generic metric key (smape) rendered too
     assert "smape" in page
 
-    # Unresolved: grey/italic class, † mark, footnote; in markdown italic + †.
+    # The smallest RMSE (Exact's, not resolved) is bold and tagged, with its † and footnote; the larger
+    # resolved Half-Lambert value is not bold.
     assert re.search(
-        r'class="num unresolved"[^>]*>9\.100e-4 <span class="sub">\(floor 0\.001000\)</span>'
-        r'<span class="mark">†</span>',
+        r'class="num best"[^>]*>9\.100e-4 <span class="tag">within noise</span> '
+        r'<span class="sub">\(floor 0\.001000\)</span><span class="mark">†</span>',
         page,
     )
-    assert "*9.100e-4 (floor 0.001000)*†" in md
-    assert "below the reference's own noise floor" in md.lower()
-    assert "noise floor" in page and "means nothing" in page
+    assert "**9.100e-4** within noise (floor 0.001000)†" in md
+    assert "| Half-Lambert | 0.01230 (floor 0.001000) |" in md
+    assert "within 2× the reference's noise floor" in md and "within 2× the reference's noise floor" in page
+    assert "below the" not in md.lower() and "below the" not in page.lower()
 
     # Figures: numbered in document order (per-case figure first, then the results and cost figures).
     captions = re.findall(r"<figcaption><b>Figure (\d+):</b> (.*?)</figcaption>", page)
@@ -281,7 +283,7 @@ def test_write_report(exp_dir):
     assert "\\label{tab:half-lambert:case-a05-sky0}" in tex
     assert "\\ensuremath{9.100\\times 10^{-4}}" in tex
     assert "\\ensuremath{\\alpha} = 5\\ensuremath{^\\circ}" in tex
-    assert "\\textit{" in tex and "\\ensuremath{\\dagger}" in tex
+    assert "\\textbf{\\ensuremath{9.100\\times 10^{-4}}" in tex and "\\ensuremath{\\dagger}" in tex
     for line in tex.splitlines():  # every table row has as many cells as its tabular has columns
         if line.strip().endswith("\\\\"):
             spec = re.findall(r"\\begin\{tabular\}\{(\w+)\}", tex[: tex.index(line)])[-1]
@@ -440,23 +442,126 @@ def test_load_results_missing_and_invalid(tmp_path):
 
 
 # ----------------------------------------------------------------------------------------- markdown
-def test_markdown_subset():
+def test_markdown_inline_commonmark():
     assert markdown_inline("a <b> & **bold** *it* `x<y` [l](https://e.org/?a=1&b=2)") == (
         "a &lt;b&gt; &amp; <strong>bold</strong> <em>it</em> <code>x&lt;y</code> "
         '<a href="https://e.org/?a=1&amp;b=2">l</a>'
     )
-    assert "<a" not in markdown_inline("[x](javascript:alert(1))")
-    assert markdown_inline("[x](javascript:alert)") == "x"
+    for bad in ("[x](javascript:alert(1))", "[x](javascript:alert)", "[x](vbscript:y)"):
+        assert "<a" not in markdown_inline(bad)
     assert markdown_inline("$a*b*c$ and 2 * 3 * 4") == '<span class="math">$a*b*c$</span> and 2 * 3 * 4'
-    assert markdown_inline(r"\*not italic\*") == "*not italic*"
+    assert markdown_inline(r"\*not italic\* and \$5") == "*not italic* and $5"
+    assert markdown_inline("<https://e.org/x>") == '<a href="https://e.org/x">https://e.org/x</a>'
+
+
+def test_markdown_blocks():
     out = markdown_to_html(
-        "Para line one\nline two.\n\n- item **1**\n  continued\n- item 2\n\n1. first\n2. second"
+        "# Title\n\nPara line one\nline two.\n\n- item **1**\n  - nested *a*\n  - nested b\n- item 2\n\n"
+        "1. first\n2. second\n\n```\nx < y\n```"
     )
-    assert out == (
-        "<p>Para line one line two.</p>\n<ul><li>item <strong>1</strong> continued</li>"
-        "<li>item 2</li></ul>\n<ol><li>first</li><li>second</li></ol>"
+    assert out.startswith("<h3>Title</h3>\n<p>Para line one\nline two.</p>")  # # shifted by 2
+    flat = out.replace("\n", "")
+    assert (
+        "<ul><li>item <strong>1</strong><ul><li>nested <em>a</em></li><li>nested b</li></ul></li>"
+        "<li>item 2</li></ul>"
+    ) in flat
+    assert "<ol><li>first</li><li>second</li></ol>" in flat
+    assert "<pre><code>x &lt; y</code></pre>" in flat
+    assert markdown_to_html("#### deep", heading_offset=3) == "<h6>deep</h6>"  # at most h6
+
+
+def test_markdown_pipe_table_and_url_with_parentheses():
+    out = markdown_to_html(
+        "Worst error:\n\n| form | error | note |\n|---|--:|---|\n| stable | 3.79e-06 | a \\| b |\n"
+        "| seed | ∞ | *x* |\n\nSee [fog](https://en.wikipedia.org/wiki/Fog_(disambiguation)) and "
+        "[HG](https://e.org/a_(b)_c)."
     )
-    assert markdown_to_html("Text:\n- a\n- b") == "<p>Text:</p>\n<ul><li>a</li><li>b</li></ul>"
+    flat = out.replace("\n", "")
+    assert '<div class="table-wrap"><table><thead><tr><th>form</th><th style="text-align:right">error' in flat
+    assert '<tr><td>stable</td><td style="text-align:right">3.79e-06</td><td>a | b</td></tr>' in flat
+    assert "<td><em>x</em></td>" in flat and "|---|" not in out
+    assert '<a href="https://en.wikipedia.org/wiki/Fog_(disambiguation)">fog</a>' in out
+    assert '<a href="https://e.org/a_(b)_c">HG</a>.' in out
+
+
+def test_raw_html_in_results_text_is_escaped(exp_dir):
+    r = _results()
+    r["sections"][0]["text"] = (
+        "Before <script>alert('x')</script> after.\n\n<div onclick=\"x()\">block html</div>\n\n"
+        "| a | b |\n|---|---|\n| <img src=x onerror=y> | 2 |"
+    )
+    r["summary"] = "Summary with <iframe src=evil></iframe>."
+    (exp_dir / "results.json").write_text(json.dumps(r), encoding="utf-8")
+    write_report(exp_dir)
+    page = (exp_dir / "report.html").read_text(encoding="utf-8")
+    for tag in ("<script", "<div onclick", "<img src=x", "<iframe"):
+        assert tag not in page
+    assert "&lt;script&gt;alert('x')&lt;/script&gt;" in page
+    assert "&lt;div onclick=&quot;x()&quot;&gt;block html&lt;/div&gt;" in page
+    assert "<td>&lt;img src=x onerror=y&gt;</td>" in page  # the section's pipe table is a table
+
+
+def test_plain_text_survives_markdown(tmp_path):
+    """Plain-text fields (titles, labels) are escaped for markdown and read back unchanged."""
+    r = _results()
+    r["title"] = "a*b*c_d_ [x](y) `z` $m$ &amp; <t> | ~s~ \\"
+    texts = render_report(r)
+    assert "<title>a*b*c_d_ [x](y) `z` $m$ &amp;amp; &lt;t&gt; | ~s~ \\</title>" in texts["report.html"]
+    md_title = texts["report.md"].splitlines()[0].removeprefix("# ")
+    assert markdown_inline(md_title) == "a*b*c_d_ [x](y) `z` $m$ &amp;amp; &lt;t&gt; | ~s~ \\"
+
+
+# ------------------------------------------------------------------------------------------ bold rule
+def _one_case(key, entries):
+    """Results with one case whose approximations have ``key`` metrics ``(value, floor, resolved)``."""
+    r = _results()
+    r["cases"] = [
+        {
+            "id": "c",
+            "label": "C",
+            "approximations": [
+                {"method": f"m{i}", "label": f"M{i}", "metrics": {key: _metric(v, f, res)}}
+                for i, (v, f, res) in enumerate(entries)
+            ],
+        }
+    ]
+    return render_report(r)
+
+
+def _md_row(md, label):
+    return next(line for line in md.splitlines() if line.startswith(f"| {label} |"))
+
+
+def test_bold_is_the_smallest_value_even_when_not_resolved():
+    # diffuse's α = 0.27° row: Half-Lambert 0.132 (resolved) vs Lambert 9.3e-5 (below 2× its floor).
+    t = _one_case("rmse", [(0.132, 9.325e-5, True), (9.3e-5, 9.325e-5, False), (2.0e-4, 9.325e-5, False)])
+    md, page, tex = t["report.md"], t["report.html"], t["tables.tex"]
+    assert _md_row(md, "M0") == "| M0 | 0.1320 (floor 9.325e-5) | — |"
+    assert _md_row(md, "M1") == "| M1 | **9.300e-5** within noise (floor 9.325e-5)† | — |"
+    assert _md_row(md, "M2") == "| M2 | *2.000e-4 (floor 9.325e-5)*† | — |"
+    assert '<td class="num">0.1320 ' in page
+    assert '<td class="num best" title="not resolved' in page and '9.300e-5 <span class="tag">' in page
+    assert page.count('class="num best"') == 1
+    tex_rows = {line.split(" & ")[0].strip(): line for line in tex.splitlines() if " & " in line}
+    assert tex_rows["M1"].startswith("    M1 & \\textbf{\\ensuremath{9.300\\times 10^{-5}}")
+    assert "\\textbf" not in tex_rows["M0"] and "\\textbf" not in tex_rows["M2"]
+
+
+def test_bold_resolved_best_has_no_tag_and_higher_is_better():
+    md = _one_case("rmse", [(0.05, 0.001, True), (0.01, 0.001, True)])["report.md"]
+    assert _md_row(md, "M1") == "| M1 | **0.01000** (floor 0.001000) | — |" and "within noise (" not in md
+    assert _md_row(md, "M0") == "| M0 | 0.05000 (floor 0.001000) | — |"
+    md = _one_case("psnr", [(38.2, 60.0, True), (61.0, 60.0, False)])["report.md"]
+    assert _md_row(md, "M1") == "| M1 | **61.00** within noise (floor 60.00)† | — |"
+    assert _md_row(md, "M0") == "| M0 | 38.20 (floor 60.00) | — |"
+
+
+def test_bold_ties_at_the_printed_precision():
+    entries = [(9.2641e-5, 1e-4, False), (9.2638e-5, 1e-4, False), (0.1, 1e-4, True)]
+    md = _one_case("rmse", entries)["report.md"]
+    assert _md_row(md, "M0").startswith("| M0 | **9.264e-5** within noise")
+    assert _md_row(md, "M1").startswith("| M1 | **9.264e-5** within noise")
+    assert _md_row(md, "M2") == "| M2 | 0.1000 (floor 1.000e-4) | — |"
 
 
 # -------------------------------------------------------------------------------------------- index
@@ -479,3 +584,51 @@ def test_write_index(exp_dir):
     assert "0.03115 (floor 0.001000)" in page  # mean RMSE of Half-Lambert over the two cases
     assert "broken" in page and "schema" in page
     assert ".tmp" not in page
+
+
+DATA = Path(__file__).parent / "data" / "results"
+
+
+def _index_rows(md: str) -> dict[str, list[str]]:
+    """The index's per-approximation rows: label -> [mean metric cell, ns/pixel cell]."""
+    rows = {}
+    for line in md.splitlines():
+        cells = [c.strip() for c in line.strip("|").split(" | ")]
+        if line.startswith("| ") and len(cells) == 3 and cells[0] != "Approximation":
+            rows[cells[0]] = cells[1:]
+    return rows
+
+
+def test_index_cost_and_resolve_marker_on_height_fog(tmp_path):
+    doc = json.loads((DATA / "height-fog.json").read_text(encoding="utf-8"))
+    d = tmp_path / "height-fog"
+    d.mkdir()
+    (d / "results.json").write_text(json.dumps(doc), encoding="utf-8")
+    write_index(tmp_path, [d])
+    md = (tmp_path / "index.md").read_text(encoding="utf-8")
+    page = (tmp_path / "index.html").read_text(encoding="utf-8")
+    rows = _index_rows(md)
+
+    # Costs are timed under their own ids (tau-exact, fog-pass-const, …), none an approximation's:
+    # the index takes each approximation's own measured cost, the mean over its cases.
+    aps = [ap for c in doc["cases"] for ap in c["approximations"]]
+    assert not {c["method"] for c in doc["costs"]} & {ap["method"] for ap in aps}
+    labels = {ap["method"]: ap["label"] for ap in aps}
+    assert len(labels) == 5 and all(ap["cost"]["ns_per_pixel"] > 0 for ap in aps)
+    for method, label in labels.items():
+        ns = [ap["cost"]["ns_per_pixel"] for ap in aps if ap["method"] == method]
+        shown = rows[label.replace("_", "\\_")][1]
+        assert shown != "—" and float(shown) == pytest.approx(sum(ns) / len(ns), rel=5e-4)
+
+    # fit-phase is unresolved in all three cases although its mean RMSE is 1.4x the mean floor: the
+    # marker says "not resolved" (the 2x rule), never "≤ floor".
+    vals = [ap["metrics"]["rmse"] for ap in aps if ap["method"] == "fit-phase"]
+    assert [v["resolved"] for v in vals] == [False] * 3
+    mean = sum(v["value"] for v in vals) / 3
+    floor = sum(v["noise_floor"] for v in vals) / 3
+    assert 1.0 < mean / floor < 2.0
+    cell = rows[labels["fit-phase"]][0]
+    assert cell.endswith(" not resolved†") and float(cell.split()[0]) == pytest.approx(mean, rel=5e-4)
+    assert sum(r[0].endswith("not resolved†") for r in rows.values()) == 1  # others resolved somewhere
+    for text in (md, page):
+        assert "≤ floor" not in text and "within 2× the reference" in text
