@@ -52,7 +52,7 @@ __all__ = [
 ]
 
 _CHUNK = 1 << 20
-_SOURCE_PREFIX = re.compile(r"\[[A-Za-z0-9_./-]+\.cpp:\d+\]\s*")
+_SOURCE_PREFIX = re.compile(r"\[[A-Za-z0-9_./-]+\.(?:cpp|h):\d+\]\s*")
 _FILE_PROPERTIES = ("filename",)  # plugins name their data files so (ply, obj, serialized, bitmap, envmap, …)
 
 
@@ -173,6 +173,9 @@ _FREE_EMITTERS = {"point": "point", "spot": "spot", "directional": "directional"
 _AREA_ON = {"sphere": "sphere", "disk": "disk", "rectangle": "rectangle"}
 _SCALE_NAMES = ("radiance", "irradiance", "intensity", "scale")
 _MESH_PLUGINS = ("ply", "obj", "serialized")
+# Mitsuba 3.9's PLY loader reads triangle faces only; these are its messages for other faces.
+_PLY_FACE_ERRORS = ("trailing tokens", "non-triangular faces", "is this a triangle mesh")
+_PLY_HINT = "Mitsuba's PLY loader reads triangle faces only: triangulate the mesh, or save it as OBJ"
 _SUN_APERTURE_DEG = 0.5358  # Mitsuba's sunsky default `sun_aperture` (degrees, full angle)
 
 
@@ -368,6 +371,10 @@ def _scale(props: dict) -> tuple[tuple[float, ...] | None, str]:
     return None, ""
 
 
+def _resolved(mi, name) -> str:
+    return str(mi.file_resolver().resolve(name)) if isinstance(name, str) and name else ""
+
+
 def _emitter(mi, node, props: dict, location: str, obj, shape=None) -> XmlEmitter:
     plugin = node.props.plugin_name()
     scale, scale_name = _scale(props)
@@ -377,7 +384,7 @@ def _emitter(mi, node, props: dict, location: str, obj, shape=None) -> XmlEmitte
         s_node, s_props, s_obj = shape
         s_plugin = s_node.props.plugin_name()
         kind = _AREA_ON.get(s_plugin, "area")
-        extra: dict = {"shape": s_plugin, "file": str(s_props.get("filename", "") or "")}
+        extra: dict = {"shape": s_plugin, "file": _resolved(mi, s_props.get("filename"))}
         if s_obj is not None and kind == "sphere":
             lo, hi = _bbox(s_obj.bbox())
             extra["position"] = tuple((a + b) / 2 for a, b in zip(lo, hi, strict=True))
@@ -394,7 +401,7 @@ def _emitter(mi, node, props: dict, location: str, obj, shape=None) -> XmlEmitte
         return XmlEmitter(kind=kind, **base, **extra)
     if plugin in _ENVIRONMENT_PLUGINS:
         kind = _ENVIRONMENT_PLUGINS[plugin]
-        extra = {"environment": True, "file": str(props.get("filename", "") or "")}
+        extra = {"environment": True, "file": _resolved(mi, props.get("filename"))}
         if kind == "sunsky":
             params = mi.traverse(obj) if obj is not None else {}
             if "sun_direction" in params:
@@ -486,7 +493,10 @@ def inspect_xml(
             kind = {i: str(n.type).rsplit(".", 1)[-1] for i, n in enumerate(nodes)}
             scene = parser.instantiate(config, state)
         except RuntimeError as e:
-            raise XMLSceneError(f"{path}: {_one_line(str(e))}") from None
+            text = _one_line(str(e))
+            if "PLYMesh" in text and any(m in text for m in _PLY_FACE_ERRORS):
+                text += f" ({_PLY_HINT})"
+            raise XMLSceneError(f"{path}: {text}") from None
         if isinstance(scene, list | tuple) or not hasattr(scene, "shapes"):
             raise XMLSceneError(f"{path}: the file's root is not a <scene>")
 
@@ -539,13 +549,13 @@ def inspect_xml(
             boundaries.update(j for k, j in named.items() if k in ("interior", "exterior"))
             obj = shape_obj.get(i)
             plugin = nodes[i].props.plugin_name()
-            filename = props[i].get("filename") if plugin in _MESH_PLUGINS else None
+            filename = props[i].get("filename") if plugin in _MESH_PLUGINS else None  # (a mesh's data file)
             shapes.append(
                 XmlShape(
                     type=plugin,
                     id=nodes[i].props.id(),
                     location=where[i],
-                    file=str(mi.file_resolver().resolve(filename)) if isinstance(filename, str) else "",
+                    file=_resolved(mi, filename),
                     faces=int(obj.face_count()) if obj is not None and obj.is_mesh() else None,
                     emitter=any(kind[j] == "Emitter" for _, j in refs(i)),
                     bsdf=bsdf,
