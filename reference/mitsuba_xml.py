@@ -287,7 +287,7 @@ class XmlScene:
 
 def _unit(v) -> Vec3 | None:
     n = math.sqrt(sum(float(x) ** 2 for x in v))
-    return None if not n > 0.0 else (float(v[0]) / n, float(v[1]) / n, float(v[2]) / n)
+    return None if not n > 0.0 else (float(v[0]) / n + 0.0, float(v[1]) / n + 0.0, float(v[2]) / n + 0.0)
 
 
 def _plain(value):
