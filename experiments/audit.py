@@ -521,10 +521,17 @@ def _toml_bbox(scene: Scene):
     """The bounding box of the TOML scene's shapes as Mitsuba loads them (``None`` without shapes)."""
     if not scene.shapes:
         return None
+    import mitsuba  # mitsuba: heavy, and it selects a variant process-wide (the caller's is put back)
+
+    caller_variant = mitsuba.variant()
     mi = use_variant("scalar_rgb")
-    d = mitsuba_scene_dict(mi, Scene(name=scene.name, camera=scene.camera, shapes=scene.shapes))
-    box = load_dict(mi, d).bbox()
-    lo, hi = box.min, box.max
+    try:
+        d = mitsuba_scene_dict(mi, Scene(name=scene.name, camera=scene.camera, shapes=scene.shapes))
+        box = load_dict(mi, d).bbox()
+        lo, hi = box.min, box.max
+    finally:
+        if caller_variant and caller_variant != mi.variant():
+            mi.set_variant(caller_variant)
     return (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2]))
 
 

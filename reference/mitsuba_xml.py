@@ -9,7 +9,8 @@ away, reached through an ``<include>`` and a ``<path>``, and the key changes (a 
 the XML missed exactly that, and returned a stale reference).
 
 Side effects are scoped: the parser adds ``<path>`` folders to Mitsuba's process-wide file resolver;
-`xml_dependencies` parses with a resolver of its own and puts the caller's back afterwards.
+`xml_dependencies` and `inspect_xml` parse with a resolver of their own (a copy of the caller's, so that
+plugins are still found) and put the caller's back afterwards, and the caller's Mitsuba variant too.
 
 `inspect_xml` reads what the scene contains — sensors, emitters, shapes, BSDFs, media, the integrator —
 from the parser's state, and instantiates the scene (`mitsuba.parser.instantiate`, under the same scoped
@@ -99,6 +100,9 @@ def _parsed(path: str, defines: Mapping[str, str], variant: str) -> Iterator[tup
     resolver back afterwards. Mitsuba's refusal becomes one `XMLSceneError` line."""
     if not os.path.isfile(path):
         raise XMLSceneError(f"{path}: no such file")
+    import mitsuba  # mitsuba: heavy, and it selects a variant process-wide
+
+    caller_variant = mitsuba.variant()
     mi = use_variant(variant)
     import mitsuba.parser as parser  # mitsuba: needs the variant set above
 
@@ -115,6 +119,8 @@ def _parsed(path: str, defines: Mapping[str, str], variant: str) -> Iterator[tup
         yield mi, parser, config, state
     finally:
         mi.set_file_resolver(previous)
+        if caller_variant and caller_variant != mi.variant():  # the caller's variant back (scoped)
+            mi.set_variant(caller_variant)
 
 
 def _collect(mi, path: str, defines: Mapping[str, str], state) -> XmlDependencies:
@@ -235,9 +241,10 @@ class XmlEmitter:
 @dataclass(frozen=True)
 class XmlShape:
     """One shape: plugin ``type``, ``id``, ``location``, ``file`` (a mesh's data file, resolved), ``faces``
-    (triangles of the loaded mesh, ``None`` for analytic shapes), ``emitter`` (carries an area emitter),
-    ``bsdf`` (the BSDF plugin, ``""`` for Mitsuba's default diffuse), ``interior``/``exterior`` (medium
-    plugins; a shape with either is a medium boundary)."""
+    (triangles, where Mitsuba loads the shape as a mesh: meshes, ``cube``, ``rectangle``; ``None`` for
+    analytic shapes such as ``sphere`` and, in the JIT variants, ``disk``), ``emitter`` (carries an area
+    emitter), ``bsdf`` (the BSDF plugin, ``""`` for Mitsuba's default diffuse), ``interior``/``exterior``
+    (medium plugins; a shape with either is a medium boundary)."""
 
     type: str
     id: str
@@ -307,6 +314,11 @@ def _plain(value):
         return None
 
 
+def _floats(value) -> tuple[float, ...]:
+    """A Mitsuba/Dr.Jit number or vector (scalar, or a JIT array of width 1) as plain floats."""
+    return tuple(float(x) for x in np.asarray(value, dtype=float).ravel())
+
+
 def _props(node) -> dict:
     return {k: _plain(node.props[k]) for k in node.props.keys()}
 
@@ -340,7 +352,7 @@ def _sensor(mi, index: int, node, props: dict, obj, location: str) -> XmlSensor:
     origin = _column(m, 3)
     forward = _unit(_column(m, 2)) or (0.0, 0.0, 1.0)
     up = _unit(_column(m, 1)) or (0.0, 1.0, 0.0)
-    x_fov = float(params["x_fov"]) if "x_fov" in params else None
+    x_fov = _floats(params["x_fov"])[0] if "x_fov" in params else None
     size = obj.film().size()
     fov = props.get("fov")
     return XmlSensor(
@@ -405,7 +417,7 @@ def _emitter(mi, node, props: dict, location: str, obj, shape=None) -> XmlEmitte
         if kind == "sunsky":
             params = mi.traverse(obj) if obj is not None else {}
             if "sun_direction" in params:
-                extra["direction"] = _unit(params["sun_direction"])
+                extra["direction"] = _unit(_floats(params["sun_direction"]))
             aperture = props.get("sun_aperture", _SUN_APERTURE_DEG)
             extra["angular_radius_deg"] = float(aperture) / 2
             extra["spherical"] = float(aperture) > 0.0
