@@ -15,12 +15,22 @@ from rtfit.reference.mitsuba_xml import UP_AXES
 
 from .audit import AuditError, applicable_families, describe, inspect_scene
 
-__all__ = ["audit"]
+__all__ = ["AuditInputError", "audit"]
+
+
+class AuditInputError(click.ClickException):
+    """Bad audit input: exit status 2 and one line. ``rtfit``'s entry point prints it as ``rtfit: error: …``
+    (it handles every `click.ClickException` so); run standalone (click's own handling, e.g. under
+    `click.testing.CliRunner`), `show` prints the same line."""
+
+    exit_code = 2
+
+    def show(self, file=None) -> None:
+        click.echo(f"rtfit: error: {self.format_message()}", err=True, file=file)
 
 
 def _error(message: str):
-    click.echo(f"rtfit: error: {' '.join(str(message).split())}", err=True)
-    raise click.exceptions.Exit(2)
+    raise AuditInputError(" ".join(str(message).split()))
 
 
 def _defines(values: tuple[str, ...]) -> dict[str, str]:

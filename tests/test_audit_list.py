@@ -349,3 +349,19 @@ def test_rules_are_data_and_reach_every_method():
     found = applicable_families(everything)
     for family, table in FAMILIES.items():
         assert {m for a in found if a.family == family for m in a.methods} == set(table), family
+
+
+def test_through_rtfits_entry_point_errors_exit_2(tmp_path, monkeypatch, capsys):
+    """The lead adds ``cli.add_command(audit)``; here it is added for the test only. Through `main`, the
+    command's errors are one line and exit 2 (not click's standalone handling), and a listing exits 0."""
+    from rtfit.experiments.cli import cli, main
+
+    monkeypatch.setitem(cli.commands, "audit", audit)
+    xml = _cornell(tmp_path)
+    for argv in ([xml], [xml, "--list", "--approx", "phong"], [xml, "--list", "--camera", "-1"]):
+        assert main(["audit", *map(str, argv)]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == "" and captured.err.startswith("rtfit: error: ")
+        assert captured.err.count("\n") == 1
+    assert main(["audit", str(xml), "--list"]) == 0
+    assert "applies:" in capsys.readouterr().out
