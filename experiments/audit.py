@@ -27,7 +27,7 @@ import math
 import os
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from rtfit.realtime import (
@@ -581,12 +581,7 @@ def inspect_scene(
             raise AuditError(str(e)) from None
     if path.suffix.lower() != ".toml":
         raise AuditError(f"{text}: expected a .xml Mitsuba scene or a .toml rtfit scene")
-    for name, value in (
-        ("-D", defines),
-        ("--camera", camera or None),
-        ("--width", width),
-        ("--height", height),
-    ):
+    for name, value in (("-D", defines), ("--camera", camera or None)):
         if value:
             raise AuditError(f"{name} is for Mitsuba XML scenes; {text} is an rtfit TOML scene")
     try:
@@ -596,7 +591,11 @@ def inspect_scene(
     try:
         if fmt == "rtfit.sky/1":
             return _sky_info(str(path))
-        return _toml_info(load_scene(path), str(path), up)
+        toml = load_scene(path)
+        if width or height:
+            size = {"width": width or toml.camera.width, "height": height or toml.camera.height}
+            toml = replace(toml, camera=replace(toml.camera, **size))
+        return _toml_info(toml, str(path), up)
     except (SceneError, ValueError) as e:
         raise AuditError(str(e).splitlines()[0]) from None
 

@@ -328,6 +328,8 @@ def test_rtfit_toml_scenes(tmp_path):
     assert [a.family for a in sky] == ["nishita-sky"]
     code, _, err = _run(library_path("half_lambert_sphere"), "--list", "-D", "a=b")
     assert code == 2 and "-D is for Mitsuba XML scenes" in err
+    code, out, _ = _run(library_path("half_lambert_sphere"), "--list", "--width", "20", "--height", "10")
+    assert code == 0 and "camera: 20×10" in out and "up: +z: rtfit TOML scenes are +z up" in out
     xml = _cornell(tmp_path)
     with pytest.raises(AuditError, match="Mitsuba XML has no atmosphere type"):
         applicable_families(inspect_scene(xml), approx="nishita-sky")
