@@ -388,7 +388,9 @@ _XML_NOTES = (
     "nishita-sky: Mitsuba XML has no atmosphere type; the Nishita sky is audited on rtfit sky files "
     "(format rtfit.sky/1)",
 )
-_CONVEX_XML = frozenset({"sphere", "rectangle", "disk", "cube"})
+_CONVEX_XML = frozenset({"sphere", "rectangle", "disk", "cube"})  # one of these alone cannot occlude itself
+# Emitter kinds (`XmlEmitter.kind`) that are lights of their own; others (e.g. a projector) are not audited.
+_XML_LIGHTS = frozenset({"point", "spot", "directional", "sphere", "disk", "rectangle", "area"})
 
 
 def _short(location: str) -> str:
@@ -409,7 +411,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
                 sun = {"light", "spherical-light"} if e.spherical else {"light"}
                 parts.append(Part(frozenset(sun), f"the sun of the {label}"))
             kinds = {"environment"}
-        elif e.kind in ("point", "spot", "directional", "sphere", "disk", "rectangle", "area"):
+        elif e.kind in _XML_LIGHTS:
             kinds = {"light", "spherical-light"} if e.spherical else {"light"}
             what = f"{e.kind} area light" if e.shape else f"{e.kind} light"
             if e.shape and e.kind == "area":

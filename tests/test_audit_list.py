@@ -269,6 +269,8 @@ def test_defines_reach_the_parser(tmp_path):
     assert code == 0 and "24×24" in out
     code, _, err = _run(xml, "--list", "-D", "res")
     assert code == 2 and err == "rtfit: error: -D 'res': expected name=value\n"
+    code, _, err = _run(xml, "--list", "-D", "nosuch=3")  # Mitsuba refuses a parameter the scene never uses
+    assert code == 2 and err.count("\n") == 1 and "unused parameters" in err and "$nosuch=3" in err
 
 
 def test_camera_width_height_and_up_options(tmp_path):
