@@ -369,3 +369,24 @@ def test_through_rtfits_entry_point_errors_exit_2(tmp_path, monkeypatch, capsys)
         assert captured.err.count("\n") == 1
     assert main(["audit", str(xml), "--list"]) == 0
     assert "applies:" in capsys.readouterr().out
+
+
+def test_an_area_emitter_declared_in_an_include_and_referenced_by_id(tmp_path):
+    """The pattern of Mitsuba's ``cbox-rgb.xml`` (the one an ElementTree edit broke: "unresolved reference
+    to area-emitter"): the emitter is declared by id in an included file and ``<ref>``-ed by the shape."""
+    (tmp_path / "common.xml").write_text(
+        f'<scene version="3.0.0">{_sensor()}'
+        '<emitter type="area" id="area-emitter"><rgb name="radiance" value="18, 14, 7"/></emitter></scene>'
+    )
+    (tmp_path / "cbox-rgb.xml").write_text(
+        '<scene version="3.0.0"><default name="res" value="8"/><include filename="common.xml"/>\n'
+        '<shape type="sphere" id="bulb"><float name="radius" value="0.1"/><ref id="area-emitter"/></shape>\n'
+        '<shape type="cube"><transform name="to_world"><scale value="0.3"/></transform></shape></scene>'
+    )
+    x = inspect_xml(tmp_path / "cbox-rgb.xml")
+    (e,) = x.emitters  # once: attached to the sphere, not also a free emitter
+    assert (e.id, e.kind, e.shape, e.spherical) == ("area-emitter", "sphere", "sphere", True)
+    assert e.radius == pytest.approx(0.1) and "common.xml (line 7" in e.location
+    assert [s.emitter for s in x.shapes] == [True, False]
+    fams = _families(applicable_families(inspect_scene(tmp_path / "cbox-rgb.xml")))
+    assert "exact" in fams["diffuse"][0].methods
