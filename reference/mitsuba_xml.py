@@ -9,7 +9,16 @@ away, reached through an ``<include>`` and a ``<path>``, and the key changes (a 
 the XML missed exactly that, and returned a stale reference).
 
 Side effects are scoped: the parser adds ``<path>`` folders to Mitsuba's process-wide file resolver;
-`xml_dependencies` parses with a resolver of its own and puts the caller's back afterwards.
+`xml_dependencies` and `inspect_xml` parse with a resolver of their own (a copy of the caller's, so that
+plugins are still found) and put the caller's back afterwards, and the caller's Mitsuba variant too.
+
+`inspect_xml` reads what the scene contains — sensors, emitters, shapes, BSDFs, media, the integrator —
+from the parser's state, and instantiates the scene (`mitsuba.parser.instantiate`, under the same scoped
+resolver) for what the properties do not say: the film size and field of view Mitsuba derives (defaults,
+``focal_length``), the mesh face counts and the bounding boxes (a sphere light's centre and radius, the
+scene's extent). Instantiating also loads every mesh, so a mesh Mitsuba cannot read (a PLY with
+non-triangular faces: Mitsuba 3.9's PLY loader takes triangles only) is an `XMLSceneError` here, naming
+the XML file and line that declares it.
 
 Errors: a file Mitsuba refuses becomes one `XMLSceneError` line naming the file and line, as Mitsuba
 reports them (e.g. ``scene.xml: Parsing of XML file "scene.xml" failed: Start-end tags mismatch (line 4,
@@ -18,18 +27,33 @@ col 3)``), without Mitsuba's source-location prefixes.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import math
 import os
 import re
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, replace
+
+import numpy as np
 
 from .variants import use_variant
 
-__all__ = ["XMLSceneError", "XmlDependencies", "xml_dependencies"]
+__all__ = [
+    "UP_AXES",
+    "XMLSceneError",
+    "XmlDependencies",
+    "XmlEmitter",
+    "XmlMedium",
+    "XmlScene",
+    "XmlSensor",
+    "XmlShape",
+    "inspect_xml",
+    "xml_dependencies",
+]
 
 _CHUNK = 1 << 20
-_SOURCE_PREFIX = re.compile(r"\[[A-Za-z0-9_./-]+\.cpp:\d+\]\s*")
+_SOURCE_PREFIX = re.compile(r"\[[A-Za-z0-9_./-]+\.(?:cpp|h):\d+\]\s*")
 _FILE_PROPERTIES = ("filename",)  # plugins name their data files so (ply, obj, serialized, bitmap, envmap, …)
 
 
@@ -69,39 +93,46 @@ def _file_digest(h, path: str, root: str) -> None:
             h.update(chunk)
 
 
-def xml_dependencies(
-    path: str | os.PathLike, defines: Mapping[str, str] | None = None, variant: str = "scalar_rgb"
-) -> XmlDependencies:
-    """Parse ``path`` with Mitsuba's parser (``defines``: the ``-D name=value`` parameters) and return
-    every file it loads with their digest (`XmlDependencies`). Raises `XMLSceneError` (one line) when
-    Mitsuba refuses the file."""
-    path = os.path.abspath(os.fspath(path))
-    defines = {str(k): str(v) for k, v in (defines or {}).items()}
+@contextlib.contextmanager
+def _parsed(path: str, defines: Mapping[str, str], variant: str) -> Iterator[tuple]:
+    """Parse ``path`` under a file resolver of its own (a copy of the caller's, so that plugins are still
+    found, with the scene's folder first); yields ``(mi, parser, config, state)`` and puts the caller's
+    resolver back afterwards. Mitsuba's refusal becomes one `XMLSceneError` line."""
     if not os.path.isfile(path):
         raise XMLSceneError(f"{path}: no such file")
+    import mitsuba  # mitsuba: heavy, and it selects a variant process-wide
+
+    caller_variant = mitsuba.variant()
     mi = use_variant(variant)
     import mitsuba.parser as parser  # mitsuba: needs the variant set above
 
     previous = mi.file_resolver()
-    resolver = mi.FileResolver()
+    resolver = mi.FileResolver(previous)
     resolver.prepend(os.path.dirname(path))
     mi.set_file_resolver(resolver)
     try:
+        config = parser.ParserConfig(variant)
         try:
-            state = parser.parse_file(parser.ParserConfig(variant), path, **defines)
+            state = parser.parse_file(config, path, **defines)
         except RuntimeError as e:
             raise XMLSceneError(f"{path}: {_one_line(str(e))}") from None
-        xml_files = tuple(os.path.abspath(str(f)) for f in state.files)
-        names = set()
-        for node in state.nodes:
-            for key in _FILE_PROPERTIES:
-                if key in node.props:  # (has_property is deprecated in 3.9: a warning)
-                    value = node.props[key]
-                    if isinstance(value, str) and value:
-                        names.add(value)
-        data_files = tuple(sorted(str(mi.file_resolver().resolve(n)) for n in names))
+        yield mi, parser, config, state
     finally:
         mi.set_file_resolver(previous)
+        if caller_variant and caller_variant != mi.variant():  # the caller's variant back (scoped)
+            mi.set_variant(caller_variant)
+
+
+def _collect(mi, path: str, defines: Mapping[str, str], state) -> XmlDependencies:
+    xml_files = tuple(os.path.abspath(str(f)) for f in state.files)
+    names = set()
+    for node in state.nodes:
+        for key in _FILE_PROPERTIES:
+            if key in node.props:  # (has_property is deprecated in 3.9: a warning)
+                value = node.props[key]
+                if isinstance(value, str) and value:
+                    names.add(value)
+    data_files = tuple(sorted(str(mi.file_resolver().resolve(n)) for n in names))
     root = os.path.dirname(path)
     h = hashlib.sha256(b"rtfit.mitsuba_xml/1")
     for k in sorted(defines):
@@ -109,3 +140,471 @@ def xml_dependencies(
     for f in xml_files + data_files:
         _file_digest(h, f, root)
     return XmlDependencies(path, xml_files, data_files, h.hexdigest())
+
+
+def _normalise(path, defines) -> tuple[str, dict[str, str]]:
+    return os.path.abspath(os.fspath(path)), {str(k): str(v) for k, v in (defines or {}).items()}
+
+
+def xml_dependencies(
+    path: str | os.PathLike, defines: Mapping[str, str] | None = None, variant: str = "scalar_rgb"
+) -> XmlDependencies:
+    """Parse ``path`` with Mitsuba's parser (``defines``: the ``-D name=value`` parameters) and return
+    every file it loads with their digest (`XmlDependencies`). Raises `XMLSceneError` (one line) when
+    Mitsuba refuses the file."""
+    path, defines = _normalise(path, defines)
+    with _parsed(path, defines, variant) as (mi, _parser, _config, state):
+        return _collect(mi, path, defines, state)
+
+
+# ------------------------------------------------------------------------------------------ inspection
+Vec3 = tuple[float, float, float]
+
+UP_AXES: dict[str, Vec3] = {
+    "+x": (1.0, 0.0, 0.0),
+    "-x": (-1.0, 0.0, 0.0),
+    "+y": (0.0, 1.0, 0.0),
+    "-y": (0.0, -1.0, 0.0),
+    "+z": (0.0, 0.0, 1.0),
+    "-z": (0.0, 0.0, -1.0),
+}
+_ENVIRONMENT_PLUGINS = {
+    "envmap": "envmap",
+    "constant": "constant",
+    "sunsky": "sunsky",
+    "timed_sunsky": "sunsky",
+}
+_FREE_EMITTERS = {"point": "point", "spot": "spot", "directional": "directional", "projector": "projector"}
+# An area emitter takes its kind from the shape it sits on; every other shape (meshes, cubes, …) is "area".
+_AREA_ON = {"sphere": "sphere", "disk": "disk", "rectangle": "rectangle"}
+_SCALE_NAMES = ("radiance", "irradiance", "intensity", "scale")
+_MESH_PLUGINS = ("ply", "obj", "serialized")
+# Mitsuba 3.9's PLY loader reads triangle faces only; these are its messages for other faces.
+_PLY_FACE_ERRORS = ("trailing tokens", "non-triangular faces", "is this a triangle mesh")
+_PLY_HINT = "Mitsuba's PLY loader reads triangle faces only: triangulate the mesh, or save it as OBJ"
+_SUN_APERTURE_DEG = 0.5358  # Mitsuba's sunsky default `sun_aperture` (degrees, full angle)
+
+
+@dataclass(frozen=True)
+class XmlSensor:
+    """One ``<sensor>``: ``index`` in document order, plugin ``type``, ``id``, ``location`` (file and line);
+    the camera frame from ``to_world`` (``origin``, ``target`` = origin + viewing direction, ``up`` = the
+    frame's up column: the lookat ``up`` orthogonalised against the viewing direction), ``fov_deg`` along
+    ``fov_axis`` as written (or Mitsuba's derived horizontal field of view, axis ``x``, when the XML gives
+    ``focal_length`` or nothing), ``x_fov_deg`` (Mitsuba's horizontal field of view) and the film size."""
+
+    index: int
+    type: str
+    id: str
+    location: str
+    origin: Vec3
+    target: Vec3
+    up: Vec3
+    fov_deg: float | None
+    fov_axis: str
+    x_fov_deg: float | None
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class XmlEmitter:
+    """One emitter. ``kind``: ``point spot directional projector`` (free emitters), ``sphere disk rectangle``
+    (an area emitter on that shape), ``area`` (an area emitter on any other shape: a mesh, a cube, …),
+    ``envmap constant sunsky`` (environments), else the plugin name. ``shape``: the plugin of the shape it
+    sits on (``""`` for a free emitter). ``direction``: world unit vector **towards** the light (rtfit's
+    convention; Mitsuba's ``directional`` ``direction`` is the way the light travels, negated here), for
+    directional, spot (from the light to its axis: the negated axis) and sunsky (the sun). ``position``
+    and ``radius``: point/spot position; a sphere's centre and radius (from the instantiated shape's
+    bounding box), a disk's centre and radius. ``angular_radius_deg``: the sun's (sunsky, half its
+    ``sun_aperture``), 0 for a directional light. ``scale``/``scale_name``: the emitted quantity as
+    written (``radiance``, ``irradiance``, ``intensity`` or an envmap's ``scale``; a texture is
+    ``None``). ``spherical``: the light is a sphere (or a cap of directions), so the exact sphere-light
+    form applies."""
+
+    type: str
+    kind: str
+    id: str
+    location: str
+    shape: str = ""
+    position: Vec3 | None = None
+    direction: Vec3 | None = None
+    radius: float | None = None
+    angular_radius_deg: float | None = None
+    scale: tuple[float, ...] | None = None
+    scale_name: str = ""
+    spherical: bool = False
+    environment: bool = False
+    file: str = ""
+
+
+@dataclass(frozen=True)
+class XmlShape:
+    """One shape: plugin ``type``, ``id``, ``location``, ``file`` (a mesh's data file, resolved), ``faces``
+    (triangles, where Mitsuba loads the shape as a mesh: meshes, ``cube``, ``rectangle``; ``None`` for
+    analytic shapes such as ``sphere`` and, in the JIT variants, ``disk``), ``emitter`` (carries an area
+    emitter), ``bsdf`` (the BSDF plugin, ``""`` for Mitsuba's default diffuse), ``interior``/``exterior``
+    (medium plugins; a shape with either is a medium boundary)."""
+
+    type: str
+    id: str
+    location: str
+    file: str = ""
+    faces: int | None = None
+    emitter: bool = False
+    bsdf: str = ""
+    interior: str = ""
+    exterior: str = ""
+
+
+@dataclass(frozen=True)
+class XmlMedium:
+    """One medium: plugin ``type`` (``homogeneous``, ``heterogeneous``, …), ``id``, ``location``, and
+    whether a shape bounds it (``boundary``) or the sensor sits in it (``on_sensor``)."""
+
+    type: str
+    id: str
+    location: str
+    boundary: bool
+    on_sensor: bool
+
+
+@dataclass(frozen=True)
+class XmlScene:
+    """What a Mitsuba XML scene contains, read by Mitsuba's parser (`inspect_xml`).
+
+    ``camera``: the chosen sensor (``--camera N``) with ``width``/``height`` overrides applied (``None`` when
+    the scene has no sensor); ``sensors``: all of them as written. ``up``: the world up axis (a key of
+    `UP_AXES`) and ``up_reason``: where it came from. ``bbox``: (min, max) of all shapes as Mitsuba loads
+    them (``None`` without shapes). ``bsdfs``: the BSDF plugins declared, in document order, once each."""
+
+    path: str
+    dependencies: XmlDependencies
+    integrator: str
+    sensors: tuple[XmlSensor, ...]
+    camera: XmlSensor | None
+    up: str
+    up_reason: str
+    emitters: tuple[XmlEmitter, ...]
+    shapes: tuple[XmlShape, ...]
+    bsdfs: tuple[str, ...]
+    media: tuple[XmlMedium, ...]
+    bbox: tuple[Vec3, Vec3] | None
+
+
+def _unit(v) -> Vec3 | None:
+    n = math.sqrt(sum(float(x) ** 2 for x in v))
+    return None if not n > 0.0 else (float(v[0]) / n + 0.0, float(v[1]) / n + 0.0, float(v[2]) / n + 0.0)
+
+
+def _plain(value):
+    """A property value as plain Python: numbers and strings as they are, colours/vectors as tuples,
+    transforms as 4×4 row tuples, references as the node index (``("ref", i)``)."""
+    if isinstance(value, bool | int | float | str):
+        return value
+    index = getattr(value, "index", None)
+    if callable(index):
+        return ("ref", int(index()))
+    matrix = getattr(value, "matrix", None) if "Transform" in type(value).__name__ else None
+    if matrix is not None:
+        return tuple(tuple(float(x) for x in row) for row in np.asarray(matrix, dtype=float))
+    try:
+        return tuple(float(x) for x in value)
+    except TypeError:
+        return None
+
+
+def _floats(value) -> tuple[float, ...]:
+    """A Mitsuba/Dr.Jit number or vector (scalar, or a JIT array of width 1) as plain floats."""
+    return tuple(float(x) for x in np.asarray(value, dtype=float).ravel())
+
+
+def _props(node) -> dict:
+    return {k: _plain(node.props[k]) for k in node.props.keys()}
+
+
+def _column(matrix, j: int) -> Vec3:
+    return (matrix[0][j], matrix[1][j], matrix[2][j])
+
+
+def _bbox(box) -> tuple[Vec3, Vec3]:
+    lo, hi = box.min, box.max
+    return (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2]))
+
+
+def up_from_vector(up: Vec3, right: Vec3 | None = None) -> tuple[str, float]:
+    """The signed world axis nearest to ``up`` (among those perpendicular to the camera's ``right`` vector
+    when given: a world up axis lies in the plane of the camera's up and viewing direction unless the
+    camera is rolled) and the angle in degrees between them."""
+    best, best_dot = "+z", -2.0
+    for name, axis in UP_AXES.items():
+        if right is not None and abs(sum(a * r for a, r in zip(axis, right, strict=True))) > 0.5:
+            continue
+        dot = sum(a * u for a, u in zip(axis, up, strict=True))
+        if dot > best_dot:
+            best, best_dot = name, dot
+    return best, math.degrees(math.acos(max(-1.0, min(1.0, best_dot))))
+
+
+def _sensor(mi, index: int, node, props: dict, obj, location: str) -> XmlSensor:
+    params = mi.traverse(obj)
+    m = props.get("to_world") or tuple(tuple(float(i == j) for j in range(4)) for i in range(4))
+    origin = _column(m, 3)
+    forward = _unit(_column(m, 2)) or (0.0, 0.0, 1.0)
+    up = _unit(_column(m, 1)) or (0.0, 1.0, 0.0)
+    x_fov = _floats(params["x_fov"])[0] if "x_fov" in params else None
+    size = obj.film().size()
+    fov = props.get("fov")
+    return XmlSensor(
+        index=index,
+        type=node.props.plugin_name(),
+        id=node.props.id(),
+        location=location,
+        origin=origin,
+        target=tuple(o + f for o, f in zip(origin, forward, strict=True)),
+        up=up,
+        fov_deg=float(fov) if isinstance(fov, float | int) else x_fov,
+        fov_axis=str(props.get("fov_axis", "x")) if isinstance(fov, float | int) else "x",
+        x_fov_deg=x_fov,
+        width=int(size[0]),
+        height=int(size[1]),
+    )
+
+
+def _scale(props: dict) -> tuple[tuple[float, ...] | None, str]:
+    for name in _SCALE_NAMES:
+        if name in props:
+            v = props[name]
+            if isinstance(v, float | int) and not isinstance(v, bool):
+                return (float(v),), name
+            if isinstance(v, tuple) and v and v[0] != "ref":
+                return tuple(float(x) for x in v), name
+            return None, name  # a texture or spectrum node
+    return None, ""
+
+
+def _resolved(mi, name) -> str:
+    return str(mi.file_resolver().resolve(name)) if isinstance(name, str) and name else ""
+
+
+def _emitter(mi, node, props: dict, location: str, obj, shape=None) -> XmlEmitter:
+    plugin = node.props.plugin_name()
+    scale, scale_name = _scale(props)
+    base = dict(type=plugin, id=node.props.id(), location=location, scale=scale, scale_name=scale_name)
+    m = props.get("to_world")
+    if shape is not None:  # an area emitter: its kind and size from the shape it sits on
+        s_node, s_props, s_obj = shape
+        s_plugin = s_node.props.plugin_name()
+        kind = _AREA_ON.get(s_plugin, "area")
+        extra: dict = {"shape": s_plugin, "file": _resolved(mi, s_props.get("filename"))}
+        if s_obj is not None and kind == "sphere":
+            lo, hi = _bbox(s_obj.bbox())
+            extra["position"] = tuple((a + b) / 2 for a, b in zip(lo, hi, strict=True))
+            extra["radius"] = (hi[0] - lo[0]) / 2
+            extra["spherical"] = True
+        elif kind == "disk":
+            sm = s_props.get("to_world")
+            if sm is not None:
+                extra["position"] = _column(sm, 3)
+                extra["radius"] = math.sqrt(sum(x * x for x in _column(sm, 0)))
+                extra["direction"] = _unit(_column(sm, 2))
+            else:
+                extra["position"], extra["radius"], extra["direction"] = (0.0, 0.0, 0.0), 1.0, (0.0, 0.0, 1.0)
+        return XmlEmitter(kind=kind, **base, **extra)
+    if plugin in _ENVIRONMENT_PLUGINS:
+        kind = _ENVIRONMENT_PLUGINS[plugin]
+        extra = {"environment": True, "file": _resolved(mi, props.get("filename"))}
+        if kind == "sunsky":
+            params = mi.traverse(obj) if obj is not None else {}
+            if "sun_direction" in params:
+                extra["direction"] = _unit(_floats(params["sun_direction"]))
+            aperture = props.get("sun_aperture", _SUN_APERTURE_DEG)
+            extra["angular_radius_deg"] = float(aperture) / 2
+            extra["spherical"] = float(aperture) > 0.0
+        return XmlEmitter(kind=kind, **base, **extra)
+    kind = _FREE_EMITTERS.get(plugin, plugin)
+    extra = {}
+    if kind == "directional":
+        d = props.get("direction")
+        travel = d if isinstance(d, tuple) and len(d) == 3 else (_column(m, 2) if m else (0.0, 0.0, 1.0))
+        extra["direction"] = _unit(tuple(-x for x in travel))
+        extra["angular_radius_deg"] = 0.0
+    elif kind in ("point", "spot"):
+        p = props.get("position")
+        extra["position"] = (
+            p if isinstance(p, tuple) and len(p) == 3 else (_column(m, 3) if m else (0.0,) * 3)
+        )
+        if kind == "spot" and m:
+            extra["direction"] = _unit(tuple(-x for x in _column(m, 2)))
+    return XmlEmitter(kind=kind, **base, **extra)
+
+
+def _with_overrides(sensor: XmlSensor | None, width, height) -> XmlSensor | None:
+    if sensor is None:
+        return None
+    for name, v in (("--width", width), ("--height", height)):
+        if v is not None and (not isinstance(v, int) or v < 1):
+            raise XMLSceneError(f"{name} {v!r}: must be a positive integer")
+    return replace(sensor, width=width or sensor.width, height=height or sensor.height)
+
+
+def _up(camera: XmlSensor | None, up: str | None) -> tuple[str, str]:
+    if up is not None:
+        if up not in UP_AXES:
+            raise XMLSceneError(f"--up {up!r}: expected one of {', '.join(UP_AXES)}")
+        return up, f"{up} as given (--up)"
+    if camera is None:
+        return "+z", "+z: rtfit's default (the scene has no sensor to take an up vector from)"
+    forward = _unit(tuple(t - o for t, o in zip(camera.target, camera.origin, strict=True)))
+    right = None
+    if forward is not None:
+        c = camera.up
+        right = _unit(
+            (
+                c[1] * forward[2] - c[2] * forward[1],
+                c[2] * forward[0] - c[0] * forward[2],
+                c[0] * forward[1] - c[1] * forward[0],
+            )
+        )
+    axis, angle = up_from_vector(camera.up, right)
+    vec = ", ".join(f"{x:.3g}" for x in camera.up)
+    reason = f"{axis} from sensor {camera.index}'s up vector ({vec})"
+    if angle > 1e-3:
+        reason += f", the nearest axis ({angle:.1f}° off: the camera is tilted; pass --up if that is wrong)"
+    return axis, reason
+
+
+def inspect_xml(
+    path: str | os.PathLike,
+    defines: Mapping[str, str] | None = None,
+    variant: str = "scalar_rgb",
+    *,
+    camera: int = 0,
+    width: int | None = None,
+    height: int | None = None,
+    up: str | None = None,
+) -> XmlScene:
+    """What the Mitsuba XML scene ``path`` contains (`XmlScene`), read by Mitsuba's parser with the
+    ``-D`` ``defines`` and instantiated under the same scoped file resolver. ``camera`` picks the sensor
+    (document order), ``width``/``height`` override its film size, ``up`` (a key of `UP_AXES`) overrides
+    the up axis otherwise taken from the chosen sensor's up vector. Raises `XMLSceneError` (one line)
+    for anything Mitsuba refuses or an option the scene cannot satisfy."""
+    path, defines = _normalise(path, defines)
+    if up is not None and up not in UP_AXES:
+        raise XMLSceneError(f"--up {up!r}: expected one of {', '.join(UP_AXES)}")
+    with _parsed(path, defines, variant) as (mi, parser, config, state):
+        deps = _collect(mi, path, defines, state)
+        config.merge_meshes = False  # keep the user's shapes one by one (counts, ids, emitters)
+        config.merge_equivalent = False
+        try:
+            parser.transform_all(config, state)
+            # (read before instantiating: instantiation consumes the nodes' references)
+            nodes = list(state.nodes)
+            props = [_props(n) for n in nodes]
+            where = [parser.file_location(state, n) for n in nodes]
+            kind = {i: str(n.type).rsplit(".", 1)[-1] for i, n in enumerate(nodes)}
+            scene = parser.instantiate(config, state)
+        except RuntimeError as e:
+            text = _one_line(str(e))
+            if "PLYMesh" in text and any(m in text for m in _PLY_FACE_ERRORS):
+                text += f" ({_PLY_HINT})"
+            raise XMLSceneError(f"{path}: {text}") from None
+        if isinstance(scene, list | tuple) or not hasattr(scene, "shapes"):
+            raise XMLSceneError(f"{path}: the file's root is not a <scene>")
+
+        def refs(i: int) -> list[tuple[str, int]]:
+            return [(k, v[1]) for k, v in props[i].items() if isinstance(v, tuple) and v[:1] == ("ref",)]
+
+        def of_type(t: str) -> list[int]:
+            return [i for i in kind if kind[i] == t]
+
+        shape_objs = list(scene.shapes())
+        shape_nodes = [i for i in of_type("Shape") if nodes[i].props.plugin_name() not in ("shapegroup",)]
+        by_id = {s.id(): s for s in shape_objs}
+        shape_obj = {}
+        for k, i in enumerate(shape_nodes):
+            sid = nodes[i].props.id()
+            shape_obj[i] = (
+                by_id.get(sid) if sid else (shape_objs[k] if len(shape_objs) == len(shape_nodes) else None)
+            )
+        sensor_objs = list(scene.sensors())
+        sensors = tuple(
+            _sensor(mi, k, nodes[i], props[i], sensor_objs[k], where[i])
+            for k, i in enumerate(of_type("Sensor"))
+            if k < len(sensor_objs)
+        )
+        surface = mi.EmitterFlags.Surface
+        frees = [e for e in scene.emitters() if not mi.has_flag(e.flags(), surface)]
+        by_eid = {e.id(): e for e in frees}
+        owner = {j: i for i in shape_nodes for _, j in refs(i) if kind[j] == "Emitter"}
+        emitters = []
+        free = 0
+        for i in of_type("Emitter"):
+            if i in owner:
+                s = owner[i]
+                emitters.append(
+                    _emitter(mi, nodes[i], props[i], where[i], None, (nodes[s], props[s], shape_obj.get(s)))
+                )
+                continue
+            eid = nodes[i].props.id()
+            obj = by_eid.get(eid) if eid else (frees[free] if free < len(frees) else None)
+            emitters.append(_emitter(mi, nodes[i], props[i], where[i], obj))
+            free += 1
+        shapes = []
+        boundaries: set[int] = set()
+        for i in shape_nodes:
+            named = dict(refs(i))
+            bsdf = next((nodes[j].props.plugin_name() for _, j in refs(i) if kind[j] == "BSDF"), "")
+            media = {
+                k: nodes[j].props.plugin_name() for k, j in named.items() if k in ("interior", "exterior")
+            }
+            boundaries.update(j for k, j in named.items() if k in ("interior", "exterior"))
+            obj = shape_obj.get(i)
+            plugin = nodes[i].props.plugin_name()
+            filename = props[i].get("filename") if plugin in _MESH_PLUGINS else None  # (a mesh's data file)
+            shapes.append(
+                XmlShape(
+                    type=plugin,
+                    id=nodes[i].props.id(),
+                    location=where[i],
+                    file=_resolved(mi, filename),
+                    faces=int(obj.face_count()) if obj is not None and obj.is_mesh() else None,
+                    emitter=any(kind[j] == "Emitter" for _, j in refs(i)),
+                    bsdf=bsdf,
+                    interior=media.get("interior", ""),
+                    exterior=media.get("exterior", ""),
+                )
+            )
+        on_sensor = {j for i in of_type("Sensor") for _, j in refs(i) if kind[j] == "Medium"}
+        media_out = tuple(
+            XmlMedium(
+                nodes[i].props.plugin_name(), nodes[i].props.id(), where[i], i in boundaries, i in on_sensor
+            )
+            for i in of_type("Medium")
+        )
+        bsdfs = tuple(dict.fromkeys(nodes[i].props.plugin_name() for i in of_type("BSDF")))
+        integrators = of_type("Integrator")
+        integrator = nodes[integrators[0]].props.plugin_name() if integrators else ""
+        bbox = _bbox(scene.bbox()) if shape_objs else None
+    if sensors and not 0 <= camera < len(sensors):
+        raise XMLSceneError(
+            f"{path}: --camera {camera}: the scene has {len(sensors)} sensor(s), 0..{len(sensors) - 1}"
+        )
+    if not sensors and camera != 0:
+        raise XMLSceneError(f"{path}: --camera {camera}: the scene has no sensor")
+    chosen = _with_overrides(sensors[camera] if sensors else None, width, height)
+    axis, reason = _up(chosen, up)
+    return XmlScene(
+        path=path,
+        dependencies=deps,
+        integrator=integrator,
+        sensors=sensors,
+        camera=chosen,
+        up=axis,
+        up_reason=reason,
+        emitters=tuple(emitters),
+        shapes=tuple(shapes),
+        bsdfs=bsdfs,
+        media=media_out,
+        bbox=bbox,
+    )

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rtfit.reference import ReferenceCache, ReferenceRequest
-from rtfit.reference.mitsuba_xml import XMLSceneError, xml_dependencies
+from rtfit.reference.mitsuba_xml import XMLSceneError, inspect_xml, xml_dependencies
 from rtfit.scenes.model import Camera, ConstantEnv, MitsubaXML, ReferenceSettings, Scene
 
 PLY = (
@@ -84,3 +84,41 @@ def test_a_file_mitsuba_refuses_is_one_line_naming_it(tmp_path):
     missing.write_text('<scene version="3.0.0">\n<include filename="nope.xml"/>\n</scene>\n')
     with pytest.raises(XMLSceneError, match=r"nope\.xml"):
         xml_dependencies(missing)
+
+
+SPHERE_SCENE = """<scene version="3.0.0">
+  <sensor type="perspective">
+    <float name="fov" value="50"/>
+    <transform name="to_world"><lookat origin="1, -4, 2" target="1, 0, 2" up="0, 0, 1"/></transform>
+    <film type="hdrfilm"><integer name="width" value="$w"/><integer name="height" value="20"/></film>
+  </sensor>
+  <shape type="sphere">
+    <transform name="to_world"><scale value="0.5"/><translate x="1" y="2" z="3"/></transform>
+    <emitter type="area"><rgb name="radiance" value="2, 2, 2"/></emitter>
+  </shape>
+  <emitter type="directional"><vector name="direction" x="0" y="0" z="-2"/></emitter>
+</scene>
+"""
+
+
+@pytest.mark.parametrize("variant", ["scalar_rgb", "llvm_ad_rgb"])
+def test_inspect_reads_the_camera_and_lights_and_keeps_the_callers_variant(tmp_path, variant):
+    mi = pytest.importorskip("mitsuba")
+    (tmp_path / "s.xml").write_text(SPHERE_SCENE)
+    caller = "llvm_ad_rgb" if variant == "scalar_rgb" else "scalar_rgb"
+    mi.set_variant(caller)
+    x = inspect_xml(tmp_path / "s.xml", {"w": "30"}, variant)
+    assert mi.variant() == caller
+    cam = x.camera
+    assert cam.origin == pytest.approx((1.0, -4.0, 2.0)) and cam.target == pytest.approx((1.0, -3.0, 2.0))
+    assert cam.up == pytest.approx((0.0, 0.0, 1.0)) and (cam.width, cam.height) == (30, 20)
+    assert cam.fov_deg == 50.0 and cam.x_fov_deg == pytest.approx(50.0, rel=1e-6)
+    assert x.up == "+z" and x.up_reason == "+z from sensor 0's up vector (0, 0, 1)"
+    sphere, sun = x.emitters
+    assert (sphere.kind, sphere.spherical) == ("sphere", True)
+    assert sphere.position == pytest.approx((1.0, 2.0, 3.0), abs=1e-6) and sphere.radius == pytest.approx(0.5)
+    assert sphere.scale == (2.0, 2.0, 2.0)
+    assert (sun.kind, sun.direction, sun.angular_radius_deg) == ("directional", (0.0, 0.0, 1.0), 0.0)
+    assert inspect_xml(tmp_path / "s.xml", {"w": "30"}, variant, up="-y", width=8).up == "-y"
+    with pytest.raises(XMLSceneError, match=r"--camera 1: the scene has 1 sensor"):
+        inspect_xml(tmp_path / "s.xml", {"w": "30"}, variant, camera=1)

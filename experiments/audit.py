@@ -1,0 +1,645 @@
+"""`rtfit audit SCENE --list`: which approximation families apply to a user's scene, and why.
+
+The inspection layer of the audit (issue 15 §2, "model only what the scene requires"). A scene — a Mitsuba 3
+XML file read by Mitsuba's own parser (`rtfit.reference.mitsuba_xml.inspect_xml`), an rtfit TOML scene
+(`rtfit.scenes.load_scene`) or an rtfit sky file (format ``rtfit.sky/1``) — is reduced to its **parts**
+(`Part`): each light, the environment, the surfaces, the geometry that can occlude itself, each medium, an
+atmosphere. Each part *provides* the named inputs the method tables declare
+(`rtfit.realtime.<family>.METHODS`, ``Method.inputs``): a light gives ``cos_theta`` and ``irradiance``, a
+spherical light also ``alpha`` and ``radiance``, an environment the normal and the basis coefficients,
+geometry the SDF terms and aperture caps.
+
+`RULES` is the whole decision, as data: a rule names a family, the part kinds it needs (the first is the
+*trigger*: one applicability per such part; the others must be present in the scene), the inputs the
+rule itself supplies (e.g. the two caps of an aperture-cap intersection), the reason, the reference quantity
+and the integrator it would need. A method of the family applies when every one of its inputs is provided;
+so the exact sphere-light form is listed only for a spherical light, because only a spherical light
+provides ``alpha``. No code branches on a family's or a method's name.
+
+The AO radius: ``--ao-distance``, else `AO_FRACTION` × the diagonal of the scene's bounding box (all shapes
+as Mitsuba loads them). A ground plane much larger than the objects dominates that box: pass
+``--ao-distance`` for such scenes.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from rtfit.realtime import (
+    ambient_aperture,
+    diffuse,
+    height_fog,
+    irradiance_bases,
+    nishita_sky,
+    sdf_occlusion,
+)
+from rtfit.reference.build import load_dict, mitsuba_scene_dict
+from rtfit.reference.integrators import can_interreflect
+from rtfit.reference.mitsuba_xml import UP_AXES, XmlScene, XMLSceneError, inspect_xml
+from rtfit.reference.nishita_sky import load_atmosphere_scene
+from rtfit.reference.variants import use_variant
+from rtfit.scenes import ENVIRONMENT_KINDS, Scene, SceneError, library_names, library_path, load_scene
+
+from .registry import ALIASES
+
+__all__ = [
+    "AO_FRACTION",
+    "FAMILIES",
+    "RULES",
+    "Applicability",
+    "AuditError",
+    "Part",
+    "Rule",
+    "SceneInfo",
+    "applicable_families",
+    "describe",
+    "inspect_scene",
+]
+
+AO_FRACTION = 0.1
+"""Default AO radius as a fraction of the scene's bounding-box diagonal."""
+
+FAMILIES = {
+    "diffuse": diffuse.METHODS,
+    "irradiance-bases": irradiance_bases.METHODS,
+    "ambient-aperture": ambient_aperture.METHODS,
+    "sdf-occlusion": sdf_occlusion.METHODS,
+    "height-fog": height_fog.METHODS,
+    "nishita-sky": nishita_sky.METHODS,
+}
+"""Family name (the experiment's name) → its method table."""
+
+
+class AuditError(ValueError):
+    """Bad audit input: one line, exit 2."""
+
+
+# ------------------------------------------------------------------------------------------- scene parts
+# The inputs each kind of part provides (names of `Method.inputs`). A part has one or more kinds.
+_GEOMETRY_INPUTS = ("terms", "distance", "px", "py", "pz", "nx", "ny", "nz", "sdf", "t0", "t_max")
+PROVIDES: dict[str, frozenset[str]] = {
+    "light": frozenset({"cos_theta", "irradiance", "cos_nl"}),
+    "spherical-light": frozenset({"cos_theta", "irradiance", "cos_nl", "alpha", "radiance", "cos_al"}),
+    "environment": frozenset({"nx", "ny", "nz", "coeffs", "irradiance", "sky_radiance"}),
+    "surface": frozenset(),
+    "geometry": frozenset({*_GEOMETRY_INPUTS, "cos_na", "aperture"}),
+    "fog": frozenset({"z0", "z1", "distance", "cos_sun", "l0_r", "l0_g", "l0_b"}),
+    "medium": frozenset(),
+    "atmosphere": frozenset({"dx", "dy", "dz", "texel_mu", "texel_nu", "tau_r", "tau_m", "sun_x", "sun_z"}),
+}
+# What provides an input, for "not here" notes (the first kind of `PROVIDES` that has it).
+_INPUT_SOURCE = {name: kind for kind in reversed(PROVIDES) for name in PROVIDES[kind]}
+_KIND_TEXT = {
+    "light": "a light (sun, directional, point, spot, sphere, disk or area)",
+    "spherical-light": "a spherical light (a sphere light, or a sun of finite angular radius)",
+    "environment": "an environment (envmap, constant or sunsky)",
+    "surface": "a surface for the camera to see",
+    "geometry": "geometry that can occlude itself (two or more shapes, or one non-convex shape)",
+    "fog": "an exponential height-fog medium",
+    "medium": "a medium",
+    "atmosphere": "an atmosphere",
+}
+
+
+@dataclass(frozen=True)
+class Part:
+    """One thing in the scene that can make a family apply: ``kinds`` (keys of `PROVIDES`), ``label``
+    (human text naming it and where it is declared)."""
+
+    kinds: frozenset[str]
+    label: str
+
+    @property
+    def provides(self) -> frozenset[str]:
+        return frozenset().union(*(PROVIDES[k] for k in self.kinds))
+
+
+@dataclass(frozen=True)
+class SceneInfo:
+    """A scene reduced to what the audit needs. ``format``: ``mitsuba-xml``, ``rtfit-toml`` or
+    ``rtfit-sky``; ``parts``; ``bbox`` (min, max) or ``None``; ``up``/``up_reason``; ``camera`` (one line);
+    ``contents`` (one line each: what the scene holds); ``notes`` (what the inspection could not tell,
+    e.g. that XML has no atmosphere type); ``xml``: the full `XmlScene` of an XML input."""
+
+    source: str
+    format: str
+    parts: tuple[Part, ...]
+    bbox: tuple[tuple[float, float, float], tuple[float, float, float]] | None
+    up: str
+    up_reason: str
+    camera: str
+    contents: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+    xml: XmlScene | None = field(default=None, compare=False)
+
+    def has(self, kind: str) -> bool:
+        return any(kind in p.kinds for p in self.parts)
+
+    def first(self, kind: str) -> Part | None:
+        return next((p for p in self.parts if kind in p.kinds), None)
+
+    @property
+    def diagonal(self) -> float | None:
+        if self.bbox is None:
+            return None
+        lo, hi = self.bbox
+        d = math.dist(lo, hi)
+        return d if math.isfinite(d) and d > 0.0 else None
+
+
+# ------------------------------------------------------------------------------------------------- rules
+@dataclass(frozen=True)
+class Rule:
+    """A family applies for each part of kind ``needs[0]`` when the scene also has ``needs[1:]``.
+    ``supplies``: inputs the rule's own reference provides. ``reason``, ``reference`` and ``integrator`` are
+    templates (``{part}``, ``{with_}``: the other needed parts, ``{ao_distance}``)."""
+
+    family: str
+    role: str
+    needs: tuple[str, ...]
+    reason: str
+    reference: str
+    integrator: str
+    supplies: frozenset[str] = frozenset()
+
+
+RULES: tuple[Rule, ...] = (
+    Rule(
+        "diffuse",
+        "direct light",
+        ("light", "surface"),
+        "{part} lights the visible surfaces directly",
+        "that light's direct irradiance at the visible points, unshadowed and shadowed (reported separately)",
+        "direct, that light alone (emitter sampling; shadow rays for the shadowed pass)",
+    ),
+    Rule(
+        "irradiance-bases",
+        "environment irradiance",
+        ("environment", "surface"),
+        "{part} lights the visible normals from every direction",
+        "the environment's irradiance E(n) at the visible normals, unoccluded",
+        "quadrature of the environment over each visible normal's hemisphere (no scene rays)",
+    ),
+    Rule(
+        "sdf-occlusion",
+        "sky occlusion",
+        ("environment", "geometry"),
+        "{part} is occluded by {with_}",
+        "sky irradiance with visibility at the visible points (the environment's direct light, shadowed)",
+        "direct, environment only (shadow rays against the scene's own shapes)",
+    ),
+    Rule(
+        "ambient-aperture",
+        "sky occlusion (aperture fill)",
+        ("environment", "geometry"),
+        "{part} is occluded by {with_}: the visible cap of sky",
+        "sky irradiance with visibility at the visible points, and each point's visible cap (bent normal, "
+        "aperture)",
+        "direct, environment only (shadow rays); visibility caps by ray casts",
+    ),
+    Rule(
+        "sdf-occlusion",
+        "ambient occlusion",
+        ("geometry",),
+        "{part} occludes itself",
+        "ray-cast ambient occlusion within R = {ao_distance} (cosine-weighted visibility)",
+        "occlusion pass: cosine-distributed rays of length R from the visible points",
+    ),
+    Rule(
+        "ambient-aperture",
+        "ambient occlusion (aperture caps)",
+        ("geometry",),
+        "{part} occludes itself: each point's visible cap against a light's cap",
+        "the solid angle of the visible cap ∩ the light's cap (closed form), and ray-cast visibility caps",
+        "occlusion pass: cosine-distributed rays of length R = {ao_distance}",
+        frozenset({"r1", "r2", "d"}),
+    ),
+    Rule(
+        "ambient-aperture",
+        "occluded sphere light",
+        ("spherical-light", "geometry"),
+        "{part} is partly hidden by {with_}",
+        "that light's direct irradiance with visibility at the visible points",
+        "direct, that light alone (shadow rays)",
+    ),
+    Rule(
+        "height-fog",
+        "height fog",
+        ("fog",),
+        "{part} lies along the camera's rays",
+        "transmittance and in-scattered radiance along the camera's rays",
+        "volpathmis (unbiased with chromatic extinction; rtfit's exponential-fog medium)",
+    ),
+    Rule(
+        "nishita-sky",
+        "sky",
+        ("atmosphere",),
+        "{part} fills the camera's sky pixels",
+        "sky radiance along the camera's sky pixels (single and multiple scattering)",
+        "volpathmis in the spherical-shell atmosphere",
+    ),
+)
+
+
+@dataclass(frozen=True)
+class Applicability:
+    """One family applying for one reason: ``family``, ``role``, the ``part`` that triggers it, the
+    ``methods`` of its table that apply (ids), ``excluded`` (``(method id, why)`` for those that do not),
+    ``reason``, the ``reference`` quantity and ``integrator`` it would need."""
+
+    family: str
+    role: str
+    part: str
+    methods: tuple[str, ...]
+    excluded: tuple[tuple[str, str], ...]
+    reason: str
+    reference: str
+    integrator: str
+
+
+def _missing_text(missing: set[str]) -> str:
+    """``needs alpha, radiance: a spherical light …`` — the one part kind that provides them all (the
+    most specific), else each input's own."""
+    covering = [k for k in PROVIDES if missing <= PROVIDES[k]]
+    if covering:
+        kinds = [min(covering, key=lambda k: len(PROVIDES[k]))]
+    else:
+        kinds = list(dict.fromkeys(_INPUT_SOURCE.get(m, m) for m in sorted(missing)))
+    return f"needs {', '.join(sorted(missing))}: {' and '.join(_KIND_TEXT.get(k, k) for k in kinds)}"
+
+
+def _alternatives(rules) -> list[str]:
+    """The distinct ``needs`` of ``rules``, dropping any that includes another (the weaker one suffices)."""
+    sets = list(dict.fromkeys(frozenset(r.needs) for r in rules))
+    minimal = [a for a in sets if not any(b < a for b in sets)]
+    order = list(PROVIDES)
+    return [" and ".join(_KIND_TEXT[k] for k in sorted(a, key=order.index)) for a in minimal]
+
+
+def _requirement(family: str) -> str:
+    return " or ".join(_alternatives(r for r in RULES if r.family == family))
+
+
+def _resolve_approx(approx) -> list[str] | None:
+    if approx is None:
+        return None
+    names = [a.strip() for a in (approx.split(",") if isinstance(approx, str) else approx)]
+    out = []
+    for name in names:
+        family = ALIASES.get(name, name.replace("_", "-"))
+        if family not in FAMILIES:
+            raise AuditError(
+                f"--approx {name!r}: unknown approximation family (known: {', '.join(FAMILIES)})"
+            )
+        if family not in out:
+            out.append(family)
+    if not out:
+        raise AuditError(f"--approx {approx!r}: name at least one family (known: {', '.join(FAMILIES)})")
+    return out
+
+
+def applicable_families(
+    scene_info: SceneInfo, *, approx=None, ao_distance: float | None = None
+) -> list[Applicability]:
+    """Every (family, reason) that applies to ``scene_info`` by `RULES`, in rule order then part order.
+    ``approx`` (``"a,b"`` or a list of family names) restricts the families; a named family that does not
+    apply, or a scene to which none applies, raises `AuditError` (one line saying why)."""
+    wanted = _resolve_approx(approx)
+    radius = ao_distance if ao_distance is not None else default_ao_distance(scene_info)
+    radius_text = f"{radius:.4g}" if radius is not None else "(unknown: pass --ao-distance)"
+    out: list[Applicability] = []
+    for rule in RULES:
+        if wanted is not None and rule.family not in wanted:
+            continue
+        if not all(scene_info.has(k) for k in rule.needs[1:]):
+            continue
+        others = [scene_info.first(k) for k in rule.needs[1:] if k != "surface"]
+        with_ = " and ".join(p.label for p in others if p is not None) or "the scene"
+        for part in scene_info.parts:
+            if rule.needs[0] not in part.kinds:
+                continue
+            available = part.provides.union(*(p.provides for p in others if p is not None), rule.supplies)
+            methods, excluded = [], []
+            for mid, method in FAMILIES[rule.family].items():
+                missing = {i.name for i in method.inputs} - available
+                if missing:
+                    excluded.append((mid, _missing_text(missing)))
+                else:
+                    methods.append(mid)
+            if not methods:
+                continue
+            fmt = {"part": part.label, "with_": with_, "ao_distance": radius_text}
+            out.append(
+                Applicability(
+                    rule.family,
+                    rule.role,
+                    part.label,
+                    tuple(methods),
+                    tuple(excluded),
+                    rule.reason.format(**fmt),
+                    rule.reference.format(**fmt),
+                    rule.integrator.format(**fmt),
+                )
+            )
+    found = {a.family for a in out}
+    for family in wanted or ():
+        if family not in found:
+            raise AuditError(
+                f"{family} does not apply to {scene_info.source}: it needs {_requirement(family)}"
+                f"; the scene has {_summary(scene_info)}{_note_for(scene_info, family)}"
+            )
+    if not out:
+        raise AuditError(
+            f"no approximation family applies to {scene_info.source}: it has {_summary(scene_info)}; "
+            f"a family needs {_needs_overall()}"
+        )
+    return out
+
+
+def _needs_overall() -> str:
+    return "; or ".join(_alternatives(RULES))
+
+
+def _summary(info: SceneInfo) -> str:
+    return ", ".join(p.label for p in info.parts) if info.parts else "nothing a family uses"
+
+
+def _note_for(info: SceneInfo, family: str) -> str:
+    notes = [n for n in info.notes if n.startswith(f"{family}:")]
+    return "".join(f" ({n.split(':', 1)[1].strip()})" for n in notes)
+
+
+def default_ao_distance(info: SceneInfo) -> float | None:
+    """`AO_FRACTION` × the bounding-box diagonal (``None`` without a finite box)."""
+    d = info.diagonal
+    return None if d is None else AO_FRACTION * d
+
+
+# --------------------------------------------------------------------------------------------- inspection
+_XML_NOTES = (
+    "height-fog: Mitsuba XML has no exponential height-fog medium; rtfit's exponential fog is its own medium "
+    'plugin, declared in TOML scenes (`[[media]] type = "exponential_fog"`): a homogeneous medium has one '
+    "density, and a heterogeneous grid is not recognised as exponential",
+    "nishita-sky: Mitsuba XML has no atmosphere type; the Nishita sky is audited on rtfit sky files "
+    "(format rtfit.sky/1)",
+)
+_CONVEX_XML = frozenset({"sphere", "rectangle", "disk", "cube"})  # one of these alone cannot occlude itself
+# Emitter kinds (`XmlEmitter.kind`) that are lights of their own; others (e.g. a projector) are not audited.
+_XML_LIGHTS = frozenset({"point", "spot", "directional", "sphere", "disk", "rectangle", "area"})
+
+
+def _short(location: str) -> str:
+    """``/a/b/scene.xml (line 3, col 6)`` → ``scene.xml line 3``."""
+    head, _, rest = location.partition(" (")
+    line = rest.split(",")[0].rstrip(")") if rest else ""
+    return f"{os.path.basename(head)} {line}".strip()
+
+
+def _xml_info(x: XmlScene) -> SceneInfo:
+    parts: list[Part] = []
+    for e in x.emitters:
+        named = f" '{e.id}'" if e.id else ""
+        where = _short(e.location)
+        if e.environment:
+            label = f"{e.kind} environment{named} ({where})"
+            if e.direction is not None:  # a sunsky: its sun is a light of its own
+                sun = {"light", "spherical-light"} if e.spherical else {"light"}
+                parts.append(Part(frozenset(sun), f"the sun of the {label}"))
+            kinds = {"environment"}
+        elif e.kind in _XML_LIGHTS:
+            kinds = {"light", "spherical-light"} if e.spherical else {"light"}
+            what = f"{e.kind} area light" if e.shape else f"{e.kind} light"
+            if e.shape and e.kind == "area":
+                what = f"area light on a {e.shape}"
+            label = f"{what}{named} ({where})"
+        else:
+            continue
+        parts.append(Part(frozenset(kinds), label))
+    if x.shapes:
+        parts.append(Part(frozenset({"surface"}), f"{len(x.shapes)} shape(s)"))
+        if len(x.shapes) >= 2 or x.shapes[0].type not in _CONVEX_XML:
+            types = ", ".join(f"{t} ×{n}" if n > 1 else t for t, n in _counts(s.type for s in x.shapes))
+            parts.append(Part(frozenset({"geometry"}), f"the scene's geometry ({types})"))
+    for m in x.media:
+        where = " bounded by a shape" if m.boundary else (" around the sensor" if m.on_sensor else "")
+        parts.append(Part(frozenset({"medium"}), f"{m.type} medium{where} ({_short(m.location)})"))
+    cam = x.camera
+    camera = (
+        f"sensor {cam.index}{f' {cam.id!r}' if cam.id else ''} ({cam.type}, {_short(cam.location)}) of "
+        f"{len(x.sensors)}: {cam.width}×{cam.height}, fov {cam.fov_deg:.4g}° ({cam.fov_axis}), origin "
+        f"{_vec(cam.origin)} looking at {_vec(cam.target)}"
+        if cam is not None and cam.fov_deg is not None
+        else (
+            f"sensor {cam.index} ({cam.type}): {cam.width}×{cam.height}" if cam is not None else "no sensor"
+        )
+    )
+    shapes = ", ".join(f"{t} ×{n}" if n > 1 else t for t, n in _counts(s.type for s in x.shapes)) or "none"
+    meshes = [s for s in x.shapes if s.file]
+    contents = (
+        f"Mitsuba XML: {len(x.dependencies.xml_files)} XML file(s), {len(x.dependencies.data_files)} data "
+        f"file(s); integrator in the file: {x.integrator or 'none'} (each reference picks its own)",
+        f"emitters: {', '.join(e.kind for e in x.emitters) or 'none'}",
+        f"shapes: {shapes}"
+        + (
+            f"; meshes: {', '.join(f'{os.path.basename(s.file)} ({s.faces} triangles)' for s in meshes)}"
+            if meshes
+            else ""
+        ),
+        f"BSDFs: {', '.join(x.bsdfs) or 'none'}; media: {', '.join(m.type for m in x.media) or 'none'}",
+    )
+    return SceneInfo(
+        source=x.path,
+        format="mitsuba-xml",
+        parts=tuple(parts),
+        bbox=x.bbox,
+        up=x.up,
+        up_reason=x.up_reason,
+        camera=camera,
+        contents=contents,
+        notes=_XML_NOTES,
+        xml=x,
+    )
+
+
+def _counts(items) -> list[tuple[str, int]]:
+    out: dict[str, int] = {}
+    for t in items:
+        out[t] = out.get(t, 0) + 1
+    return list(out.items())
+
+
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{c:.4g}" for c in v) + ")"
+
+
+def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
+    parts: list[Part] = []
+    for i, light in enumerate(scene.lights):
+        where = f"lights[{i}]"
+        if light.kind in ENVIRONMENT_KINDS:
+            label = f"{light.kind} environment ({where})"
+            if getattr(light, "sun_direction", None) is not None:  # a sunsky: its sun is a light of its own
+                sun = {"light", "spherical-light"} if light.sun_aperture_deg > 0.0 else {"light"}
+                parts.append(Part(frozenset(sun), f"the sun of the {label}"))
+            parts.append(Part(frozenset({"environment"}), label))
+            continue
+        spherical = light.kind == "sphere_light" or getattr(light, "angular_radius_deg", 0.0) > 0.0
+        kinds = {"light", "spherical-light"} if spherical else {"light"}
+        parts.append(Part(frozenset(kinds), f"{light.kind.replace('_', ' ')} ({where})"))
+    if scene.shapes:
+        parts.append(Part(frozenset({"surface"}), f"{len(scene.shapes)} shape(s)"))
+        if can_interreflect(scene):
+            types = ", ".join(f"{t} ×{n}" if n > 1 else t for t, n in _counts(s.kind for s in scene.shapes))
+            parts.append(Part(frozenset({"geometry"}), f"the scene's geometry ({types})"))
+    for i, medium in enumerate(scene.media):
+        kind = {"exponential_fog": "fog"}.get(medium.kind, "medium")
+        parts.append(Part(frozenset({kind}), f"{medium.kind.replace('_', ' ')} medium (media[{i}])"))
+    c = scene.camera
+    axis = up or "+z"
+    reason = f"{up} as given (--up)" if up else "+z: rtfit TOML scenes are +z up (the world-frame convention)"
+    notes = (
+        "height-fog: only an exponential_fog medium is height fog; a homogeneous medium has one density",
+    )
+    return SceneInfo(
+        source=source,
+        format="rtfit-toml",
+        parts=tuple(parts),
+        bbox=_toml_bbox(scene),
+        up=axis,
+        up_reason=reason,
+        camera=f"{c.width}×{c.height}, fov {c.fov_deg:.4g}° (x), origin {_vec(c.origin)} looking at "
+        f"{_vec(c.target)}",
+        contents=(f"rtfit TOML scene {scene.name!r}: {', '.join(sorted(scene.parts()))}",),
+        notes=notes,
+    )
+
+
+def _toml_bbox(scene: Scene):
+    """The bounding box of the TOML scene's shapes as Mitsuba loads them (``None`` without shapes)."""
+    if not scene.shapes:
+        return None
+    import mitsuba  # mitsuba: heavy, and it selects a variant process-wide (the caller's is put back)
+
+    caller_variant = mitsuba.variant()
+    mi = use_variant("scalar_rgb")
+    try:
+        d = mitsuba_scene_dict(mi, Scene(name=scene.name, camera=scene.camera, shapes=scene.shapes))
+        box = load_dict(mi, d).bbox()
+        lo, hi = box.min, box.max
+    finally:
+        if caller_variant and caller_variant != mi.variant():
+            mi.set_variant(caller_variant)
+    return (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2]))
+
+
+def _sky_info(path: str) -> SceneInfo:
+    spec = load_atmosphere_scene(path)
+    return SceneInfo(
+        source=path,
+        format="rtfit-sky",
+        parts=(Part(frozenset({"atmosphere"}), "a spherical-shell atmosphere (rtfit.sky/1)"),),
+        bbox=None,
+        up="+z",
+        up_reason="+z: an rtfit sky file is +z up",
+        camera=f"viewer {spec.viewer_altitude_m:g} m above the ground, sun at {spec.sun_elevation_deg:g}°",
+        contents=(
+            f"rtfit sky file: planet {spec.planet_radius_m / 1e3:g} km, atmosphere top "
+            f"{spec.top_radius_m / 1e3:g} km, Rayleigh H = {spec.rayleigh_height_m:g} m, Mie H = "
+            f"{spec.mie_height_m:g} m",
+        ),
+    )
+
+
+def inspect_scene(
+    scene: str | os.PathLike,
+    *,
+    defines: Mapping[str, str] | None = None,
+    camera: int = 0,
+    width: int | None = None,
+    height: int | None = None,
+    up: str | None = None,
+) -> SceneInfo:
+    """Read ``scene`` (a ``.xml`` Mitsuba scene, a ``.toml`` rtfit scene or sky file, or a library scene
+    name) into a `SceneInfo`. Every bad input is an `AuditError` (one line)."""
+    if up is not None and up not in UP_AXES:
+        raise AuditError(f"--up {up!r}: expected one of {', '.join(UP_AXES)}")
+    text = os.fspath(scene)
+    path = Path(text)
+    if not path.exists() and text.removesuffix(".toml").replace("-", "_") in library_names():
+        path = library_path(text)
+    if not path.is_file():
+        raise AuditError(
+            f"{text}: no such scene file (a .xml Mitsuba scene, a .toml rtfit scene, or a library name)"
+        )
+    if path.suffix.lower() == ".xml":
+        try:
+            return _xml_info(inspect_xml(path, defines, camera=camera, width=width, height=height, up=up))
+        except XMLSceneError as e:
+            raise AuditError(str(e)) from None
+    if path.suffix.lower() != ".toml":
+        raise AuditError(f"{text}: expected a .xml Mitsuba scene or a .toml rtfit scene")
+    for name, value in (("-D", defines), ("--camera", camera or None)):
+        if value:
+            raise AuditError(f"{name} is for Mitsuba XML scenes; {text} is an rtfit TOML scene")
+    try:
+        fmt = tomllib.loads(path.read_text(encoding="utf-8")).get("format")
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError) as e:
+        raise AuditError(f"{text}: not a readable TOML file ({str(e).splitlines()[0]})") from None
+    try:
+        if fmt == "rtfit.sky/1":
+            return _sky_info(str(path))
+        toml = load_scene(path)
+        if width or height:
+            size = {"width": width or toml.camera.width, "height": height or toml.camera.height}
+            toml = replace(toml, camera=replace(toml.camera, **size))
+        return _toml_info(toml, str(path), up)
+    except (SceneError, ValueError) as e:
+        raise AuditError(str(e).splitlines()[0]) from None
+
+
+# ----------------------------------------------------------------------------------------------- listing
+def describe(
+    info: SceneInfo, found: list[Applicability], *, ao_distance: float | None = None, restricted: bool = False
+) -> list[str]:
+    """The ``--list`` text, line by line (``restricted``: ``--approx`` was given, so the families left out
+    are not listed as not applying)."""
+    lines = [f"scene: {info.source} ({info.format})"]
+    lines += [f"  {c}" for c in info.contents]
+    lines.append(f"camera: {info.camera}")
+    lines.append(f"up: {info.up_reason}")
+    if info.bbox is not None:
+        auto = default_ao_distance(info)
+        if ao_distance is not None:
+            lines.append(f"AO distance: {ao_distance:.4g} (--ao-distance)")
+        elif auto is not None:
+            lines.append(
+                f"AO distance: {auto:.4g} = {AO_FRACTION:g} × the bounding-box diagonal {info.diagonal:.4g} "
+                f"(box {_vec(info.bbox[0])}–{_vec(info.bbox[1])}; --ao-distance overrides)"
+            )
+    lines.append("")
+    lines.append("applies:")
+    for a in found:
+        lines.append(f"  {a.family} — {a.role}: {a.reason}")
+        lines.append(f"      methods:    {', '.join(a.methods)}")
+        lines.append(f"      reference:  {a.reference}")
+        lines.append(f"      integrator: {a.integrator}")
+    for family in dict.fromkeys(a.family for a in found):  # methods of an applying family that none use
+        used = {m for a in found if a.family == family for m in a.methods}
+        why: dict[str, list[str]] = {}
+        for a in found:
+            for mid, text in a.excluded:
+                if a.family == family and mid not in used and mid not in why.get(text, []):
+                    why.setdefault(text, []).append(mid)
+        for text, mids in why.items():
+            lines.append(f"  {family}, not here: {', '.join(mids)} ({text})")
+    missing = [f for f in FAMILIES if f not in {a.family for a in found}]
+    if missing and not restricted:
+        lines.append("does not apply:")
+        for family in missing:
+            lines.append(f"  {family}: needs {_requirement(family)}{_note_for(info, family)}")
+    return lines
