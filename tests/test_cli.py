@@ -222,8 +222,8 @@ def test_a_sweep_with_a_failed_point_exits_1(tmp_path, monkeypatch, capsys):
 
     spec = tmp_path / "half.toml"
     spec.write_text(
-        'experiment = "diffuse"\nquick = true\nspp = 16\n[fixed]\nalphas_deg = [2.0, 10.0]\nsky_radiances = [0.0]\n'
-        "probe_count = 7\nprobe_spp = 16\npass_spp = 16\n[grid]\nresolution = [8, 9]\n"
+        'experiment = "diffuse"\nquick = true\nspp = 16\n[fixed]\nalphas_deg = [2.0, 10.0]\n'
+        "sky_radiances = [0.0]\nprobe_count = 7\nprobe_spp = 16\npass_spp = 16\n[grid]\nresolution = [8, 9]\n"
     )
     real = sweep_mod.run_point
 
