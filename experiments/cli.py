@@ -1,35 +1,53 @@
 """The ``rtfit`` command line.
 
+    rtfit [-v|-q] [--version] COMMAND …
     rtfit list
     rtfit run EXPERIMENT... [--quick] [--variant V] [--spp N] [--out DIR] [--cache DIR]
                             [--executor inline|process|ray] [--address A] [--workers N] [--seed S]
     rtfit sweep SPEC.toml [--variant V] [--out DIR] [--cache DIR] [--executor …] [--address A] [--gpus 0,1]
     rtfit sweep --show-config EXPERIMENT [--quick]
     rtfit report DIR
-    rtfit bench EXPERIMENT [--variant V] [--size N]
+    rtfit bench EXPERIMENT [--variant V] [--size N] [--quick] [--json [FILE|-]]
+    rtfit cache info [--cache DIR]
+    rtfit cache prune [--cache DIR] [--older-than 30d] [--max-size 2G] [--dry-run]
 
 Errors in what the user typed or supplied (unknown experiment, bad option, malformed scene file,
-invalid value) print one line, ``rtfit: error: …``, write nothing and exit with status 2.
+invalid value) print one line, ``rtfit: error: …``, write nothing and exit with status 2. Exit status
+1: the work ran but part of it failed (``rtfit sweep`` with failed points).
+
+Progress goes to stderr through `logging` (loggers under ``rtfit``: ``rtfit.experiments`` one line per
+experiment start and end, ``rtfit.jobs`` one per finished job, ``rtfit.reference`` cache resumes),
+configured here once per call: INFO by default, ``-q`` warnings and errors only, ``-v`` DEBUG. On a
+terminal the jobs show as tqdm bars instead of lines (``--no-progress``: lines). Results go to stdout.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import json
+import logging
+import math
 import sys
+import time
+from importlib import metadata
 from pathlib import Path
 
 import click
+from tqdm import tqdm
 
+import rtfit
 from rtfit.reference import default_cache_dir, resolve_variant
+from rtfit.reference.io import atomic_write_json
 from rtfit.scenes import SceneError
 
 from . import scaling
 from .atomic import is_temporary_name
+from .cache_cli import cache_group
 from .executors import EXECUTORS, make_executor
 from .ray_executor import RAY_EXTRA_HINT
 from .registry import EXPERIMENTS, BenchContext, resolve_names
 from .report import write_index, write_report
-from .runner import device_description, run_experiments
+from .runner import created_now, device_description, run_experiments, versions
 from .sweep import load_sweep, run_sweep
 from .sweep import show_config as show_sweep_config
 
@@ -44,10 +62,91 @@ def _fail(message: str):
     raise UserError(message)
 
 
+def version_line() -> str:
+    """``rtfit X.Y.Z (mitsuba A, drjit B, Python C)``, from package metadata: nothing is imported."""
+
+    def v(dist):
+        try:
+            return metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            return "not installed"
+
+    return (
+        f"rtfit {rtfit.__version__} (mitsuba {v('mitsuba')}, drjit {v('drjit')}, "
+        f"Python {sys.version.split()[0]})"
+    )
+
+
+def _print_version(ctx, _param, value):
+    if value and not ctx.resilient_parsing:
+        click.echo(version_line())
+        ctx.exit(0)
+
+
+class _StderrLines(logging.Handler):
+    """Log records as ``rtfit: …`` lines on the *current* ``sys.stderr`` (looked up per record, since
+    tests and notebooks swap it), through ``tqdm.write`` while bars may be drawn so as not to tear them."""
+
+    def __init__(self, bars: bool, verbose: bool):
+        super().__init__()
+        self.bars, self.verbose = bars, verbose
+
+    def format(self, record):
+        text = record.getMessage()
+        if record.levelno >= logging.WARNING:
+            text = f"{record.levelname.lower()}: {text}"
+        if self.verbose:
+            text = f"{record.relativeCreated / 1000:7.1f}s {record.name}: {text}"
+        return f"rtfit: {text}"
+
+    def emit(self, record):
+        try:
+            line = self.format(record)
+            if self.bars:
+                tqdm.write(line, file=sys.stderr)
+            else:
+                sys.stderr.write(line + "\n")
+                sys.stderr.flush()
+        except Exception:
+            self.handleError(record)
+
+
+def configure_logging(verbose: bool, quiet: bool) -> bool:
+    """Configure the ``rtfit`` logger for one command (replacing what an earlier call in this process
+    set up); returns whether progress bars are drawn (stderr is a terminal, and not ``-q``)."""
+    bars = sys.stderr.isatty() and not quiet
+    logger = logging.getLogger("rtfit")
+    for h in [h for h in logger.handlers if isinstance(h, _StderrLines)]:
+        logger.removeHandler(h)
+    logger.addHandler(_StderrLines(bars, verbose))
+    logger.setLevel(logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO)
+    return bars
+
+
+def _bars(no_progress: bool) -> bool:
+    """Whether this command draws progress bars (``-q``/``--no-progress``/no terminal: no)."""
+    obj = click.get_current_context().find_root().obj or {}
+    return obj.get("bars", False) and not no_progress
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
-def cli():
+@click.option(
+    "--version",
+    is_flag=True,
+    expose_value=False,
+    is_eager=True,
+    callback=_print_version,
+    help="Print rtfit's version (and Mitsuba's, Dr.Jit's) and exit.",
+)
+@click.option("-v", "--verbose", is_flag=True, help="Debug lines too (every job, with times and loggers).")
+@click.option("-q", "--quiet", is_flag=True, help="Only warnings and errors; no progress bars.")
+@click.pass_context
+def cli(ctx, verbose, quiet):
     """rtfit: how wrong is a real-time rendering shortcut, where, at what cost, and which parameters
     make it least wrong (Mitsuba 3 ground truth, Dr.Jit approximations)."""
+    if verbose and quiet:
+        raise click.UsageError("-v and -q exclude each other")
+    ctx.obj = {"bars": configure_logging(verbose, quiet)}
 
 
 @cli.command("list")
@@ -113,7 +212,7 @@ def run_cmd(experiments, quick, variant, spp, out, cache, executor, address, wor
         cache_dir=cache or default_cache_dir(),
         executor=executor,
         workers=workers,
-        progress=not no_progress and sys.stderr.isatty(),
+        progress=_bars(no_progress),
         address=address,
     )
     click.echo(str((out / "index.html").resolve()))
@@ -166,7 +265,7 @@ def sweep_cmd(
     (_,), variant = _validated([sweep.experiment], variant)
     _check_executor(executor, address)
     gpu_ids = _parse_gpus(gpus, executor)
-    progress = not no_progress and sys.stderr.isatty()
+    progress = _bars(no_progress)
     pool = make_executor(executor, workers, progress, address=address, gpus=gpu_ids)
     try:
         summary = run_sweep(
@@ -176,7 +275,7 @@ def sweep_cmd(
             cache_dir=cache or default_cache_dir(),
             executor=pool,
             executor_name=executor,
-            log=lambda m: click.echo(f"rtfit: {m}", err=True) if not no_progress else None,
+            log=logging.getLogger("rtfit.experiments").info,
         )
     finally:
         pool.close()
@@ -184,7 +283,17 @@ def sweep_cmd(
         click.echo(f"rtfit: sweep {sweep.name}: point {pid} failed: {reason}", err=True)
     click.echo(str((summary.directory / "report.html").resolve()))
     if summary.failed:
+        total = len(summary.ran) + len(summary.resumed) + len(summary.failed)
+        ids = ", ".join(pid for pid, _ in summary.failed)
+        click.echo(
+            f"rtfit: sweep {sweep.name}: {len(summary.failed)} of {total} points failed ({ids}); "
+            "the report marks them, a rerun retries only them",
+            err=True,
+        )
         raise click.exceptions.Exit(1)
+
+
+cli.add_command(cache_group)
 
 
 def _check_executor(executor: str, address):
@@ -238,20 +347,88 @@ def report_cmd(directory):
     help="Elements per kernel launch (default: 2^22 on CPU, 2^24 on GPU).",
 )
 @click.option("--quick", is_flag=True, help="Fewer, smaller measurements.")
-def bench_cmd(experiment, variant, size, quick):
+@click.option(
+    "--json",
+    "json_out",
+    is_flag=False,
+    flag_value="-",
+    default=None,
+    metavar="[FILE|-]",
+    help="Also write the rows as JSON (format rtfit.bench/1) to FILE (atomically), or alone to stdout "
+    "with '-' or no value (put --json last, or write --json=FILE).",
+)
+def bench_cmd(experiment, variant, size, quick, json_out):
     """Throughput of each approximation (Dr.Jit vs NumPy, same run) and of the ground truth;
     'executors': per-job overhead and sweep scaling of inline / process / Ray (docs/scale-out.md)."""
+    target = _json_target(json_out)
     if experiment == "executors":
-        variant = resolve_variant(variant)
-        rows = scaling.bench(BenchContext(variant=variant, size=size, quick=quick))
-        click.echo(f"# rtfit bench executors — {device_description(variant)}")
+        name, variant = "executors", resolve_variant(variant)
+        bench = scaling.bench
+    else:
+        (spec,), variant = _validated([experiment], variant)
+        name, bench = spec.name, spec.load().bench
+    started, t0 = created_now(), time.perf_counter()
+    rows = bench(BenchContext(variant=variant, size=size, quick=quick))
+    device = device_description(variant)
+    if target != "-":
+        click.echo(f"# rtfit bench {name} — {device}")
         _print_table(rows)
+    if target is None:
         return
-    (spec,), variant = _validated([experiment], variant)
-    module = spec.load()
-    rows = module.bench(BenchContext(variant=variant, size=size, quick=quick))
-    click.echo(f"# rtfit bench {spec.name} — {device_description(variant)}")
-    _print_table(rows)
+    header = dict(device=device, variant=variant, size=size, quick=quick, created=started)
+    doc = bench_document(name, rows, **header, seconds=time.perf_counter() - t0)
+    if target == "-":
+        click.echo(json.dumps(doc, indent=2, allow_nan=False))
+    else:
+        atomic_write_json(target, doc)
+        logging.getLogger("rtfit.experiments").info("bench %s: rows written to %s", name, target)
+
+
+BENCH_FORMAT = "rtfit.bench/1"
+
+
+def bench_document(
+    name: str, rows: list[dict], *, device: str, variant: str, size, quick: bool, created: str, seconds: float
+) -> dict:
+    """``rtfit bench --json``: a header (format, experiment, rtfit version, date the bench started, its
+    duration, device, variant, options, package versions) and the rows as objects, each with its own
+    keys (rows of different keys are the separate tables of the text output). Non-finite numbers and
+    absent cells are null."""
+    return {
+        "format": BENCH_FORMAT,
+        "experiment": name,
+        "rtfit": rtfit.__version__,
+        "created": created,
+        "seconds": round(seconds, 3),
+        "device": device,
+        "variant": variant,
+        "size": size,
+        "quick": quick,
+        "versions": versions(),
+        "rows": [{k: _json_value(v) for k, v in r.items()} for r in rows],
+    }
+
+
+def _json_value(v):
+    if hasattr(v, "tolist"):  # NumPy scalars and arrays
+        v = v.tolist()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, (list, tuple)):
+        return [_json_value(x) for x in v]
+    return v
+
+
+def _json_target(value):
+    """``--json`` checked before the benchmark runs: None, '-' (stdout) or a writable file path."""
+    if value is None or value == "-":
+        return value
+    path = Path(value)
+    if path.is_dir():
+        _fail(f"--json {value}: is a directory (name a file)")
+    if not path.parent.is_dir():
+        _fail(f"--json {value}: no directory {path.parent}")
+    return path
 
 
 def _validated(names, variant: str):
@@ -287,8 +464,11 @@ def _fmt(v) -> str:
 
 def main(argv=None) -> int:
     """Entry point: one-line errors and exit status 2 for anything the user got wrong."""
+    logger, level = logging.getLogger("rtfit"), logging.getLogger("rtfit").level
     try:
-        cli.main(args=argv, prog_name="rtfit", standalone_mode=False)
+        # Without standalone mode click *returns* the status of a command that exits (`Exit(1)`: a
+        # sweep with failed points) instead of raising; a command that finishes returns None.
+        status = cli.main(args=argv, prog_name="rtfit", standalone_mode=False)
     except click.exceptions.Exit as e:
         return e.exit_code
     except (click.exceptions.Abort, KeyboardInterrupt):
@@ -301,7 +481,11 @@ def main(argv=None) -> int:
     except (SceneError, ValueError) as e:
         click.echo(f"rtfit: error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", err=True)
         return 2
-    return 0
+    finally:  # the logging set up for this command ends with it (a library caller's own stays)
+        for h in [h for h in logger.handlers if isinstance(h, _StderrLines)]:
+            logger.removeHandler(h)
+        logger.setLevel(level)
+    return status if isinstance(status, int) else 0
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ Executors:
 from __future__ import annotations
 
 import importlib
+import logging
 import multiprocessing
 import os
 import tempfile
@@ -44,6 +45,7 @@ from typing import Any
 from rtfit.reference.progress import progress_bar
 
 MAX_ATTEMPTS = 3
+log = logging.getLogger("rtfit.jobs")
 
 
 @dataclass
@@ -65,22 +67,36 @@ def error_line(exc: BaseException) -> str:
 
 
 class JobTracker:
-    """Progress over a job list: done / running / failed counts and an ETA (tqdm), or nothing."""
+    """Progress over a job list: done / running / failed counts and an ETA (tqdm), or nothing; and one
+    log line per finished job (``rtfit.jobs``: INFO without a bar, DEBUG beside one, which shows it)."""
 
     def __init__(self, total: int, desc: str, enabled: bool):
         self.done = self.failed = self.running = 0
+        self.total, self.desc = total, desc
+        self._level = logging.DEBUG if enabled and total else logging.INFO
+        self._t0 = time.perf_counter()
         self._bar = progress_bar(total, desc, enabled, unit="job")
 
     def started(self, n: int = 1):
         self.running += n
         self._show()
 
-    def finished(self, ok: bool, was_running: bool = True):
+    def finished(self, ok: bool, was_running: bool = True, label: str = ""):
         self.running -= int(was_running)
         self.done += int(ok)
         self.failed += int(not ok)
         self._bar.update(1)
         self._show()
+        log.log(
+            self._level,
+            "%s: %d/%d jobs done%s%s (%.1f s)",
+            self.desc,
+            self.done + self.failed,
+            self.total,
+            f", {self.failed} failed" if self.failed else "",
+            f": {label}{'' if ok else ' failed'}" if label else "",
+            time.perf_counter() - self._t0,
+        )
 
     def requeued(self):
         self.running -= 1
@@ -159,12 +175,15 @@ class InlineExecutor:
         self.progress = progress
 
     def map(self, jobs: list[Job], desc: str = "jobs") -> list:
-        bar = progress_bar(len(jobs), desc, self.progress, unit="job")
+        tracker = JobTracker(len(jobs), desc, self.progress)
         out = []
-        for job in jobs:
-            out.append(job.run())
-            bar.update(1)
-        bar.close()
+        try:
+            for job in jobs:
+                tracker.started()
+                out.append(job.run())
+                tracker.finished(True, label=job.label)
+        finally:
+            tracker.close()
         return out
 
     def run_all(self, jobs: list[Job], desc: str = "jobs") -> list[Outcome]:
@@ -179,7 +198,7 @@ class InlineExecutor:
                 out.append(
                     Outcome(i, job.label, False, error=error_line(e), seconds=time.perf_counter() - t0)
                 )
-            tracker.finished(out[-1].ok)
+            tracker.finished(out[-1].ok, label=job.label)
         tracker.close()
         return out
 
@@ -264,7 +283,7 @@ class ProcessExecutor:
                                 attempts=attempts[i],
                                 error=f"worker died {attempts[i]} times ({error_line(e)})",
                             )
-                            tracker.finished(False)
+                            tracker.finished(False, label=jobs[i].label)
                         else:
                             tracker.requeued()
                         continue
@@ -279,12 +298,12 @@ class ProcessExecutor:
                         )
                         if _exceptions is not None:
                             _exceptions[i] = e
-                        tracker.finished(False)
+                        tracker.finished(False, label=jobs[i].label)
                         continue
                     outcomes[i] = Outcome(
                         i, jobs[i].label, True, value, attempts=attempts[i], seconds=time.perf_counter() - t0
                     )
-                    tracker.finished(True)
+                    tracker.finished(True, label=jobs[i].label)
                 todo = [i for i in broken if outcomes[i] is None]
                 if broken:
                     self._pool.shutdown(wait=True, cancel_futures=True)

@@ -14,11 +14,13 @@ An experiment module exposes:
 from __future__ import annotations
 
 import importlib
+import logging
 import math
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
+
+log = logging.getLogger("rtfit.experiments")
 
 
 @dataclass(frozen=True)
@@ -158,8 +160,9 @@ class RunContext:
         return apply_overrides(defaults, self.overrides)
 
     def log(self, message: str):
-        if self.progress:
-            print(f"[rtfit] {message}", file=sys.stderr, flush=True)
+        """An INFO line of the experiment's progress (logger ``rtfit.experiments``; the command line
+        prints it on stderr unless ``-q``; as a library, configure ``logging`` to see it)."""
+        log.info("%s", message)
 
 
 @dataclass

@@ -9,9 +9,10 @@ reference cache (rendered passes are never rendered twice).
 from __future__ import annotations
 
 import datetime
+import logging
 import platform
 import subprocess
-import sys
+import time
 from collections.abc import Mapping
 from importlib import metadata
 from pathlib import Path
@@ -24,6 +25,8 @@ from .records import SCHEMA, Results, from_json, plain_json
 from .registry import ExperimentSpec, RunContext
 from .report import write_index, write_report
 from .results import RESULTS_FILE, write_results
+
+log = logging.getLogger("rtfit.experiments")
 
 
 def versions() -> dict:
@@ -139,6 +142,7 @@ def run_experiments(
     try:
         for spec in specs:
             final = out / spec.name
+            t0 = time.perf_counter()
             with atomic_directory(final) as tmp:
                 ctx = RunContext(
                     out_dir=Path(tmp),
@@ -153,7 +157,9 @@ def run_experiments(
                 )
                 run_experiment_into(spec, Path(tmp), ctx, executor)
             done.append(final)
-            print(f"rtfit: {spec.name}: report at {final / 'report.html'}", file=sys.stderr)
+            log.info(
+                "%s: done in %.1f s, report at %s", spec.name, time.perf_counter() - t0, final / "report.html"
+            )
     finally:
         pool.close()
     write_index(out, experiment_dirs(out))

@@ -1,6 +1,8 @@
 """``python -m rtfit``: the ``rtfit`` command line."""
 
+import sys
+
 from rtfit.experiments.cli import main
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -151,3 +151,130 @@ def test_report_regenerates_from_results_alone(quick_run, tmp_path):
         (copy / f).unlink()
     assert main(["report", str(copy)]) == 0
     assert (copy / "report.html").read_text() == (out / "diffuse" / "report.html").read_text()
+
+
+# ---------------------------------------------------------------------------------- --version, -v/-q
+def test_version_is_one_line_and_imports_nothing_heavy():
+    from importlib import metadata
+
+    r = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "rtfit", "--version"], capture_output=True, text=True
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    line = r.stdout.strip()
+    assert "\n" not in line
+    assert line.startswith(f"rtfit {metadata.version('rtfit')} (")
+    assert f"mitsuba {metadata.version('mitsuba')}" in line and f"drjit {metadata.version('drjit')}" in line
+    # -X importtime lists every module imported, one per line: "import time: self | cumulative | name".
+    imported = {ln.rsplit("|", 1)[-1].strip().split(".")[0] for ln in r.stderr.splitlines() if "|" in ln}
+    assert "rtfit" in imported  # the listing is what we think it is
+    assert not imported & {"mitsuba", "jax", "jaxlib", "matplotlib", "scipy", "optimistix"}
+
+
+def test_verbose_and_quiet_exclude_each_other(capsys):
+    err = _one_line_error(capsys, 2, ["-v", "-q", "list"])
+    assert "-v" in err and "-q" in err
+
+
+def _failing_sweep(tmp_path, name="bad"):
+    spec = tmp_path / f"{name}.toml"
+    # camera width 0 passes the sweep's kind check (an integer) and fails when the point runs.
+    spec.write_text('experiment = "diffuse"\nquick = true\n[grid]\nresolution = [0, -3]\n')
+    return spec
+
+
+def _entry_point(*argv, cwd):
+    return subprocess.run(
+        [sys.executable, "-m", "rtfit", *argv], capture_output=True, text=True, cwd=cwd, timeout=300
+    )
+
+
+def test_progress_lines_without_a_terminal_and_exit_status_of_a_failed_sweep(tmp_path):
+    """stderr is a pipe here (no terminal): the default prints INFO lines as the work goes (sweep start,
+    each experiment start, each job); -q prints only the failures; either way the status is 1."""
+    spec = _failing_sweep(tmp_path)
+    args = [str(spec), "--executor", "inline", "--out", "o", "--cache", "c"]
+    r = _entry_point("sweep", *args, cwd=tmp_path)
+    assert r.returncode == 1, r.stderr
+    lines = r.stderr.splitlines()
+    assert "rtfit: sweep bad: 2 points of diffuse, 0 already done, 2 to run on inline" in lines
+    assert "rtfit: diffuse: running (quick, llvm_ad_rgb)" in lines
+    assert any(ln.startswith("rtfit: sweep bad: 2/2 jobs done, 2 failed") for ln in lines), lines
+    failed = [ln for ln in lines if " failed: SceneError" in ln]
+    assert len(failed) == 2 and all("camera.width" in ln for ln in failed), lines
+    summary = lines[-1]
+    assert summary.startswith("rtfit: sweep bad: 2 of 2 points failed (p000-") and "p001-" in summary
+    assert r.stdout.strip().endswith("report.html")
+
+    q = _entry_point("-q", "sweep", *args, cwd=tmp_path)
+    assert q.returncode == 1
+    assert q.stderr.splitlines() == [ln for ln in lines if "failed: SceneError" in ln] + [summary]
+
+    v = _entry_point("-v", "sweep", *args, cwd=tmp_path)
+    assert v.returncode == 1
+    assert any("rtfit.jobs: sweep bad: 1/2 jobs done" in ln for ln in v.stderr.splitlines()), v.stderr
+
+
+def test_a_sweep_with_a_failed_point_exits_1(tmp_path, monkeypatch, capsys):
+    """In process, through `main`: one point raises at run time, the other completes (quick config
+    shrunk so that it renders in seconds)."""
+    from rtfit.experiments import sweep as sweep_mod
+
+    spec = tmp_path / "half.toml"
+    spec.write_text(
+        'experiment = "diffuse"\nquick = true\nspp = 16\n[fixed]\nalphas_deg = [2.0, 10.0]\n'
+        "sky_radiances = [0.0]\nprobe_count = 7\nprobe_spp = 16\npass_spp = 16\n[grid]\nresolution = [8, 9]\n"
+    )
+    real = sweep_mod.run_point
+
+    def flaky(**kw):
+        if kw["overrides"]["resolution"] == 9:
+            raise RuntimeError("planted failure")
+        return real(**kw)
+
+    monkeypatch.setattr(sweep_mod, "run_point", flaky)
+    argv = ["sweep", str(spec), "--executor", "inline", "--out", str(tmp_path / "o"), "--cache"]
+    assert main([*argv, str(tmp_path / "c")]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert any(
+        ln.startswith("rtfit: sweep half: point p001-") and "RuntimeError: planted failure" in ln
+        for ln in err
+    )
+    assert err[-1].startswith("rtfit: sweep half: 1 of 2 points failed (p001-")
+    assert (tmp_path / "o" / "half" / "points").is_dir()
+    done = [p.name for p in (tmp_path / "o" / "half" / "points").iterdir()]
+    assert len(done) == 1 and done[0].startswith("p000-")
+
+
+# -------------------------------------------------------------------------------------- bench --json
+def test_bench_json_file_and_stdout(tmp_path, capsys):
+    import datetime
+
+    import rtfit
+
+    target = tmp_path / "bench.json"
+    assert main(["bench", "diffuse", "--quick", "--size", "4096", "--json", str(target)]) == 0
+    text_out = capsys.readouterr().out
+    assert text_out.startswith("# rtfit bench diffuse — ")  # the table is still printed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bench.json"]  # atomic: no temporary left
+    doc = json.loads(target.read_text())
+    assert doc["format"] == "rtfit.bench/1" and doc["experiment"] == "diffuse"
+    assert doc["rtfit"] == rtfit.__version__ and doc["versions"]["mitsuba"]
+    assert doc["variant"] in ("llvm_ad_rgb", "cuda_ad_rgb") and doc["device"] in text_out
+    assert doc["size"] == 4096 and doc["quick"] is True and doc["seconds"] > 0
+    datetime.datetime.fromisoformat(doc["created"])
+    rows = doc["rows"]
+    assert isinstance(rows, list) and all(isinstance(r, dict) for r in rows)
+    assert {"Lambert", "Half-Lambert", "Exact closed form"} <= {r.get("what") for r in rows}
+    kernel_rows = [r for r in rows if r.get("elements") == 4096]
+    assert kernel_rows and all(r["ns_per_px"] > 0 for r in kernel_rows)
+
+    assert main(["bench", "diffuse", "--quick", "--size", "4096", "--json", "-"]) == 0
+    out = capsys.readouterr().out
+    assert json.loads(out)["format"] == "rtfit.bench/1"  # stdout holds the JSON alone
+
+
+def test_bench_json_to_a_missing_directory_is_refused_before_running(capsys, tmp_path):
+    err = _one_line_error(capsys, 2, ["bench", "diffuse", "--json", str(tmp_path / "no" / "b.json")])
+    assert "no directory" in err
+    assert not (tmp_path / "no").exists()
