@@ -42,6 +42,7 @@ from rtfit.scenes import SceneError
 
 from . import scaling
 from .atomic import is_temporary_name
+from .audit_cli import audit
 from .cache_cli import cache_group
 from .executors import EXECUTORS, make_executor
 from .ray_executor import RAY_EXTRA_HINT
@@ -294,6 +295,7 @@ def sweep_cmd(
 
 
 cli.add_command(cache_group)
+cli.add_command(audit)
 
 
 def _check_executor(executor: str, address):
