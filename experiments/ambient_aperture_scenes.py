@@ -8,7 +8,10 @@ of `write_library_meshes`, and a test regenerates them byte for byte):
   the square. Scaled/placed by the scene file. Seen from a point on the axis below it, the visible sky is
   exactly a spherical cap (a cone of half-angle atan(R/h)); off-axis it is an oblique cone, nearly a cap.
 * ``aperture_bumps.ply`` — a height field z = Σ hᵢ exp(−|p − cᵢ|²/(2sᵢ²)) over [−2, 2]² on a regular grid:
-  a general occluder whose visible region is only approximately a cap.
+  a general occluder whose visible region is only approximately a cap. It is shaded smoothly, so it
+  ships its vertex normals (`rtfit.experiments.mesh_normals.vertex_normals`, float64): Mitsuba's own
+  recomputation at load time is not deterministic, and the probe normals (part of the cache key) come from
+  the shading normals.
 
 The well scene uses Mitsuba's open cylinder around a floor disk: visibility through the top opening.
 """
@@ -20,6 +23,8 @@ import struct
 from pathlib import Path
 
 import numpy as np
+
+from .mesh_normals import vertex_normals
 
 HOLE_PLATE = "aperture_hole_plate.ply"
 BUMPS = "aperture_bumps.ply"
@@ -36,13 +41,18 @@ BUMPS_SPEC = (
 )
 
 
-def write_ply(path, vertices: np.ndarray, faces: np.ndarray) -> Path:
-    """Binary little-endian PLY with float32 x, y, z and uchar-counted int32 triangle indices."""
+def write_ply(path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> Path:
+    """Binary little-endian PLY with float32 x, y, z (and nx, ny, nz when ``normals`` are given) and
+    uchar-counted int32 triangle indices."""
     v = np.ascontiguousarray(vertices, dtype="<f4")
+    props = "property float x\nproperty float y\nproperty float z\n"
+    if normals is not None:
+        v = np.ascontiguousarray(np.concatenate([v, np.asarray(normals, dtype="<f4")], axis=1))
+        props += "property float nx\nproperty float ny\nproperty float nz\n"
     f = np.ascontiguousarray(faces, dtype="<i4")
     header = (
         f"ply\nformat binary_little_endian 1.0\ncomment rtfit ambient-aperture mesh\n"
-        f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element vertex {len(v)}\n{props}"
         f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n"
     ).encode("ascii")
     rows = b"".join(struct.pack("<B3i", 3, *tri) for tri in f.tolist())
@@ -103,7 +113,11 @@ def bumps(grid: int = BUMPS_GRID, half: float = BUMPS_HALF):
 def write_library_meshes(directory) -> list[Path]:
     """Write the experiment's meshes into ``directory`` (the shipped ones live in scenes/library/meshes)."""
     directory = Path(directory)
-    return [write_ply(directory / HOLE_PLATE, *hole_plate()), write_ply(directory / BUMPS, *bumps())]
+    bumps_v, bumps_f = bumps()
+    return [
+        write_ply(directory / HOLE_PLATE, *hole_plate()),
+        write_ply(directory / BUMPS, bumps_v, bumps_f, vertex_normals(bumps_v, bumps_f)),
+    ]
 
 
 # ------------------------------------------------------------------------------------------- cases

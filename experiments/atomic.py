@@ -5,13 +5,26 @@ A directory is built in a temporary directory beside its final path by :func:`at
 only when the body finishes does it replace the final path. Temporary names start with a dot and
 end in ``.tmp`` (under construction) or ``.old`` (being replaced); :func:`is_temporary_name`
 recognises them, so directory scans can skip what a killed process left behind.
+
+Beside each temporary directory under construction lies its owner file (`owner_file`: the directory's
+name plus ``.owner``, holding host, pid and the pid's start time), removed after the swap. A process
+killed with SIGKILL cannot clean up, so :func:`atomic_directory` first removes the temporary directories
+of its ``final_path`` that belong to processes that are gone (`remove_stale_temporaries`): owned by a pid
+of this host that no longer runs (or now runs another program: its start time differs), or, where that
+cannot be known (another host, no owner file), older than a bound. Each removal is reported in one line.
+Owner files are not shown by `is_temporary_name`; directory scans look for ``results.json`` in
+directories, so they never mistake one for output.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
-from collections.abc import Iterator
+import socket
+import sys
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -32,23 +45,158 @@ __all__ = [
     "atomic_write_json",
     "atomic_write_text",
     "is_temporary_name",
+    "remove_stale_temporaries",
 ]
+
+OWNER_SUFFIX = ".owner"
+"""Beside a temporary directory under construction, ``<its name>.owner`` says who builds it."""
+STALE_UNOWNED_SECONDS = 3600.0
+"""A temporary directory without an owner file (an ``.old`` one, or one from an older rtfit) is taken
+for abandoned once it has not been modified for this long."""
+STALE_OWNED_SECONDS = 7 * 24 * 3600.0
+"""One whose owner cannot be checked (another host) or seems alive is abandoned only after this long
+(a pid reused by an unrelated process with the same start time is the only way to get here)."""
+
+TORN_OWNER_SECONDS = 10.0
+"""An owner file that does not parse is taken for its writer's last act once it is this old."""
+
+
+def _process_start(pid: int) -> str | None:
+    """The start time of ``pid`` (clock ticks since boot, Linux ``/proc``), or None where unknown."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            stat = f.read()
+    except OSError:
+        return None
+    fields = stat.rsplit(")", 1)[-1].split()
+    return fields[19] if len(fields) > 19 else None
+
+
+def _process_state(pid: int) -> str | None:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[-1].split()
+    except OSError:
+        return None
+    return fields[0] if fields else None
+
+
+def _owner_alive(owner: dict) -> bool | None:
+    """True/False for an owner of this host, None when it cannot be checked (another host)."""
+    if owner.get("host") != socket.gethostname():
+        return None
+    pid = owner.get("pid")
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # exists, owned by another user
+    if _process_state(pid) == "Z":
+        return False  # killed, not yet reaped
+    start = owner.get("start")
+    now = _process_start(pid)
+    return not (start is not None and now is not None and start != now)
+
+
+def owner_file(tmp: Path) -> Path:
+    """The owner file of the temporary directory ``tmp`` (beside it, so that the directory stays empty
+    for the body and the owner never reaches the output)."""
+    return tmp.with_name(tmp.name + OWNER_SUFFIX)
+
+
+def _write_owner(tmp: Path) -> None:
+    owner = {"host": socket.gethostname(), "pid": os.getpid(), "start": _process_start(os.getpid())}
+    atomic_write_json(owner_file(tmp), {**owner, "created": time.time()})
+
+
+def _stale_reason(path: Path, now: float) -> str | None:
+    """Why the temporary directory ``path`` is abandoned, or None if it may still be in use."""
+    try:
+        st = path.lstat()
+        age = now - max(st.st_mtime, st.st_ctime)  # ctime: a rename (an .old directory) counts as a change
+    except FileNotFoundError:
+        return None
+    try:
+        owner = json.loads(owner_file(path).read_text())
+        if not isinstance(owner, dict):
+            raise ValueError("not an object")
+    except FileNotFoundError:
+        owner = None
+    except (OSError, ValueError):  # torn: its writer died between create and write (or is writing now)
+        try:
+            torn_age = now - owner_file(path).stat().st_mtime
+        except OSError:
+            return None
+        return "its owner file is torn" if torn_age > TORN_OWNER_SECONDS else None
+    if owner is None:
+        return f"no owner, unchanged for {age:.0f} s" if age > STALE_UNOWNED_SECONDS else None
+    alive = _owner_alive(owner)
+    who = f"pid {owner.get('pid')} on {owner.get('host')}"
+    if alive is False:
+        return f"its owner, {who}, is gone"
+    if age > STALE_OWNED_SECONDS:
+        return f"owner {who} unchecked, unchanged for {age:.0f} s"
+    return None
+
+
+def _say(message: str) -> None:
+    print(f"rtfit: {message}", file=sys.stderr, flush=True)
+
+
+def remove_stale_temporaries(final_path, log: Callable[[str], None] | None = _say) -> list[Path]:
+    """Remove the temporary directories of ``final_path`` (``.NAME.<hex>.tmp|old`` beside it) that their
+    builders abandoned (see the module docstring); ``log`` gets one line per removal. Returns them."""
+    final = Path(final_path)
+    prefix = f".{final.name}."
+    removed = []
+    try:
+        entries = sorted(final.parent.iterdir())
+    except OSError:
+        return removed
+    now = time.time()
+    for path in entries:
+        if not path.name.startswith(prefix):
+            continue
+        if path.name.endswith(OWNER_SUFFIX) and is_temporary_name(path.name.removesuffix(OWNER_SUFFIX)):
+            if not path.with_name(path.name.removesuffix(OWNER_SUFFIX)).exists():
+                path.unlink(missing_ok=True)  # its directory was swapped in or removed; its writer died
+            continue
+        if not is_temporary_name(path.name) or path.is_symlink() or not path.is_dir():
+            continue
+        reason = _stale_reason(path, now)
+        if reason is None:
+            continue
+        shutil.rmtree(path, ignore_errors=True)
+        if not path.exists():
+            owner_file(path).unlink(missing_ok=True)
+            removed.append(path)
+            if log is not None:
+                log(f"removed the abandoned temporary directory {path} ({reason})")
+    return removed
 
 
 @contextmanager
-def atomic_directory(final_path) -> Iterator[Path]:
+def atomic_directory(final_path, log: Callable[[str], None] | None = _say) -> Iterator[Path]:
     """Build a directory in a temporary directory beside ``final_path``, then swap it in.
 
     Yields the fresh, empty temporary directory (a :class:`~pathlib.Path`). When the body returns,
     an existing ``final_path`` is renamed aside, the new directory renamed into place, and the old
     one deleted (the two renames leave only a microsecond window without ``final_path``; if the
     second fails, the old directory is put back). When the body raises (KeyboardInterrupt
-    included), the temporary directory is deleted and ``final_path`` is left untouched.
+    included), the temporary directory is deleted and ``final_path`` is left untouched. Temporary
+    directories of ``final_path`` left by processes that are gone are removed first, each with one line
+    to ``log`` (`remove_stale_temporaries`).
+
+    While the body runs, `owner_file` of the temporary directory names this process.
     """
     final = Path(final_path)
     if final.exists() and not final.is_dir():
         raise NotADirectoryError(f"{final}: exists and is not a directory")
     final.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(final, log)
     while True:
         tmp = temp_name(final, "tmp")
         try:
@@ -57,9 +205,11 @@ def atomic_directory(final_path) -> Iterator[Path]:
         except FileExistsError:
             continue
     try:
+        _write_owner(tmp)
         yield tmp
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        owner_file(tmp).unlink(missing_ok=True)
         raise
     old = None
     try:
@@ -75,7 +225,9 @@ def atomic_directory(final_path) -> Iterator[Path]:
             raise
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        owner_file(tmp).unlink(missing_ok=True)
         raise
+    owner_file(tmp).unlink(missing_ok=True)
     fsync_dir(final.parent)
     if old is not None:
         if old.is_symlink() or not old.is_dir():

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import drjit as dr
 
+from rtfit.reference.cache import PASS_COUNTS
+
 from .atomic import atomic_directory, is_temporary_name
 from .executors import make_executor
 from .records import SCHEMA, Results, from_json, plain_json
@@ -155,7 +157,9 @@ def run_experiments(
                     progress=progress,
                     overrides=dict(overrides or {}),
                 )
+                before = PASS_COUNTS.snapshot()
                 run_experiment_into(spec, Path(tmp), ctx, executor)
+                print_resumed(spec.name, before, PASS_COUNTS.snapshot())
             done.append(final)
             log.info(
                 "%s: done in %.1f s, report at %s", spec.name, time.perf_counter() - t0, final / "report.html"
@@ -164,6 +168,22 @@ def run_experiments(
         pool.close()
     write_index(out, experiment_dirs(out))
     return done
+
+
+def resumed_line(name: str, before: tuple[int, int], after: tuple[int, int]) -> str | None:
+    """ "NAME: resumed K of N passes from the cache" from two `PASS_COUNTS` snapshots (requested,
+    rendered) taken around an experiment; None when nothing came from the cache."""
+    requested, rendered = after[0] - before[0], after[1] - before[1]
+    if requested - rendered <= 0:
+        return None
+    return f"{name}: resumed {requested - rendered} of {requested} passes from the cache"
+
+
+def print_resumed(name: str, before: tuple[int, int], after: tuple[int, int]) -> None:
+    """Say (on stderr, like the report line) how much of an experiment came from the cache."""
+    line = resumed_line(name, before, after)
+    if line is not None:
+        print(f"rtfit: {line}", file=sys.stderr, flush=True)
 
 
 def experiment_dirs(out: Path) -> list[Path]:

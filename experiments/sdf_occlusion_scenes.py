@@ -29,19 +29,28 @@ from rtfit.realtime.arrays import NUMPY_OPS
 from rtfit.realtime.sdf_grid import Box, Capsule, Sphere, primitive_sdf
 from rtfit.reference.io import atomic_write_bytes
 
+from .mesh_normals import vertex_normals
+
 CREASE_ANGLES = (30, 60, 90, 120)
 SCENE_NAMES = (*(f"crease_{a}" for a in CREASE_ANGLES), "sphere_plane", "room", "boxes", "character")
+# Scenes shaded with smooth vertex normals (``face_normals = false``): their PLYs carry the normals
+# (`rtfit.experiments.mesh_normals`), since Mitsuba's recomputation at load time is not deterministic.
+SMOOTH = ("sphere_plane", "character")
 
 
 # ------------------------------------------------------------------------------------------ PLY
-def write_ply(path, vertices, faces) -> None:
-    """Binary little-endian PLY (float32 x y z; uchar-count int32 faces), written atomically."""
+def write_ply(path, vertices, faces, normals=None) -> None:
+    """Binary little-endian PLY (float32 x y z, and nx ny nz when ``normals`` are given; uchar-count int32
+    faces), written atomically."""
     v = np.ascontiguousarray(vertices, dtype="<f4")
+    props = "property float x\nproperty float y\nproperty float z\n"
+    if normals is not None:
+        v = np.ascontiguousarray(np.concatenate([v, np.asarray(normals, dtype="<f4")], axis=1))
+        props += "property float nx\nproperty float ny\nproperty float nz\n"
     f = np.asarray(faces, dtype="<i4")
     head = (
-        f"ply\nformat binary_little_endian 1.0\nelement vertex {len(v)}\nproperty float x\n"
-        f"property float y\nproperty float z\nelement face {len(f)}\nproperty list uchar int vertex_indices\n"
-        "end_header\n"
+        f"ply\nformat binary_little_endian 1.0\nelement vertex {len(v)}\n{props}"
+        f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n"
     ).encode()
     rec = np.zeros(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
     rec["n"] = 3
@@ -50,14 +59,16 @@ def write_ply(path, vertices, faces) -> None:
 
 
 def read_ply(path):
-    """Read the PLY files written by `write_ply` (vertices (V, 3) float64, faces (F, 3) int64)."""
+    """Read the PLY files written by `write_ply` (vertices (V, 3) float64, faces (F, 3) int64; stored
+    normals are skipped)."""
     data = Path(path).read_bytes()
     end = data.index(b"end_header\n") + len(b"end_header\n")
     head = data[:end].decode()
     nv = int(head.split("element vertex ")[1].split()[0])
     nf = int(head.split("element face ")[1].split()[0])
-    v = np.frombuffer(data, dtype="<f4", count=3 * nv, offset=end).reshape(nv, 3).astype(np.float64)
-    rec = np.frombuffer(data, dtype=[("n", "u1"), ("i", "<i4", (3,))], count=nf, offset=end + 12 * nv)
+    k = 6 if "property float nx" in head else 3
+    v = np.frombuffer(data, dtype="<f4", count=k * nv, offset=end).reshape(nv, k)[:, :3].astype(np.float64)
+    rec = np.frombuffer(data, dtype=[("n", "u1"), ("i", "<i4", (3,))], count=nf, offset=end + 4 * k * nv)
     if not np.all(rec["n"] == 3):
         raise ValueError(f"{path}: only triangle faces are supported")
     return v, rec["i"].astype(np.int64)
@@ -297,11 +308,13 @@ def build(name: str):
 
 
 def write_library_meshes(folder) -> list[Path]:
+    """Write every scene's mesh as ``sdf_<name>.ply`` into ``folder``; the smoothly shaded ones
+    (`SMOOTH`) with their vertex normals."""
     folder = Path(folder)
     out = []
     for name in SCENE_NAMES:
         (v, f), _ = build(name)
         p = folder / f"sdf_{name}.ply"
-        write_ply(p, v, f)
+        write_ply(p, v, f, vertex_normals(v, f) if name in SMOOTH else None)
         out.append(p)
     return out

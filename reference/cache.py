@@ -356,6 +356,7 @@ class PassEntry:
         missing = [i for i, r in enumerate(results) if r is None]
         name = label or f"reference {self.key[:8]}"
         if not missing:
+            PASS_COUNTS.add(count, 0)
             return [r for r in results if r is not None], 0
         if count - len(missing):
             log.info("%s: resumed %d of %d passes from the cache", name, count - len(missing), count)
@@ -397,7 +398,33 @@ class PassEntry:
                     )
                 time.sleep(CLAIM_POLL_SECONDS)
         bar.close()
+        PASS_COUNTS.add(count, rendered)
         return [r for r in results if r is not None], rendered
+
+
+class PassCounts:
+    """Passes requested from `PassEntry.passes` in this process, and how many of them it rendered (the
+    rest came from the cache); thread-safe. The runner reads `PASS_COUNTS` before and after an
+    experiment to say how much of it was resumed. Passes of jobs run in other processes (the process
+    and Ray executors) are counted there, not here."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self.requested = 0
+        self.rendered = 0
+
+    def add(self, requested: int, rendered: int) -> None:
+        with self._lock:
+            self.requested += int(requested)
+            self.rendered += int(rendered)
+
+    def snapshot(self) -> tuple[int, int]:
+        """(requested, rendered) so far."""
+        with self._lock:
+            return self.requested, self.rendered
+
+
+PASS_COUNTS = PassCounts()
 
 
 CLAIM_STALE_SECONDS = 600.0
