@@ -19,10 +19,10 @@ directories, so they never mistake one for output.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import socket
-import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -37,6 +37,8 @@ from rtfit.reference.io import (
     is_temporary_name,
     temp_name,
 )
+
+log = logging.getLogger("rtfit.experiments")
 
 __all__ = [
     "NonFiniteJSONError",
@@ -143,7 +145,7 @@ def _stale_reason(path: Path, now: float) -> str | None:
 
 
 def _say(message: str) -> None:
-    print(f"rtfit: {message}", file=sys.stderr, flush=True)
+    log.info("%s", message)  # the CLI prints INFO lines as "rtfit: …" (-q silences them)
 
 
 def remove_stale_temporaries(final_path, log: Callable[[str], None] | None = _say) -> list[Path]:

@@ -180,10 +180,10 @@ def resumed_line(name: str, before: tuple[int, int], after: tuple[int, int]) -> 
 
 
 def print_resumed(name: str, before: tuple[int, int], after: tuple[int, int]) -> None:
-    """Say (on stderr, like the report line) how much of an experiment came from the cache."""
+    """Say (an INFO line, like the report line) how much of an experiment came from the cache."""
     line = resumed_line(name, before, after)
     if line is not None:
-        print(f"rtfit: {line}", file=sys.stderr, flush=True)
+        log.info("%s", line)
 
 
 def experiment_dirs(out: Path) -> list[Path]:

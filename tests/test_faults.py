@@ -5,6 +5,7 @@ of an uninterrupted run, so does a truncated cache pass; what a killed run leave
 from __future__ import annotations
 
 import json
+import logging
 import os
 import random
 import signal
@@ -26,9 +27,12 @@ from rtfit.reference.cache import PASS_COUNTS, PassEntry, PassResult
 # rendered in a few seconds; the fits, benchmarks and figures after them take longer).
 DRIVER = textwrap.dedent(
     """
+    import logging
     import sys
     from pathlib import Path
     from rtfit.experiments.registry import get_experiment
+
+    logging.basicConfig(level=logging.INFO, format="rtfit: %(message)s", stream=sys.stderr)
     from rtfit.experiments.runner import run_experiments
 
     overrides = {"alphas_deg": [5.0, 30.0, 60.0], "sky_radiances": [0.0], "resolution": 16, "pass_spp": 8,
@@ -144,7 +148,8 @@ def _leftover(final: Path, owner: dict | None, suffix: str = "tmp") -> Path:
     return tmp
 
 
-def test_a_dead_owners_temporary_directory_is_removed_with_one_line(tmp_path, capsys):
+def test_a_dead_owners_temporary_directory_is_removed_with_one_line(tmp_path, caplog):
+    caplog.set_level(logging.INFO, logger="rtfit.experiments")
     final = tmp_path / "diffuse"
     dead = _leftover(final, {"host": socket.gethostname(), "pid": _dead_pid(), "start": None})
     live = _leftover(final, {"host": socket.gethostname(), "pid": os.getpid(), "start": None})
@@ -154,7 +159,7 @@ def test_a_dead_owners_temporary_directory_is_removed_with_one_line(tmp_path, ca
     with atomic_directory(final) as tmp:
         assert json.loads(owner_file(tmp).read_text())["pid"] == os.getpid()
         (tmp / "a.txt").write_text("a")
-    err = capsys.readouterr().err.splitlines()
+    err = [f"rtfit: {r.getMessage()}" for r in caplog.records if r.name == "rtfit.experiments"]
     assert not dead.exists()
     assert len(err) == 1
     assert err[0].startswith(f"rtfit: removed the abandoned temporary directory {dead} (its owner, pid ")
