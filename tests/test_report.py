@@ -283,9 +283,9 @@ def test_write_report(exp_dir):
     assert "\\ensuremath{\\alpha} = 5\\ensuremath{^\\circ}" in tex
     assert "\\textit{" in tex and "\\ensuremath{\\dagger}" in tex
     for line in tex.splitlines():  # every table row has as many cells as its tabular has columns
-        if line.strip().endswith("\\\\"):
-            spec = re.findall(r"\\begin\{tabular\}\{(\w+)\}", tex[: tex.index(line)])[-1]
-            assert line.count(" & ") == len(spec) - 1, line
+        if line.strip().endswith("\\\\") and " & " in line:
+            spec = re.findall(r"\\begin\{(?:tabular|longtable)\}\{(.*)\}$", tex[: tex.index(line)], re.M)[-1]
+            assert line.count(" & ") == spec.count("p{") - 1, line
 
 
 def test_report_is_deterministic_and_regenerates(exp_dir):
