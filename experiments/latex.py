@@ -426,51 +426,55 @@ def _md_visible(text: str) -> str:
 
 
 # ------------------------------------------------------------------------------------------- widths
-# Advance widths (1/1000 em) of ASCII 33–126, the widest of cmr9, cmbx9 and cmti9 (from their TFM
-# files); characters typeset from the math fonts in OT1 (< > \ _ { } | ~ ^) are set by hand.
-_ASCII_EM = dict(
-    zip(
-        (chr(c) for c in range(33, 127)),
-        (
-            int(v) / 1000
-            for v in (
-                "360 618 986 786 986 920 329 460 460 592 920 329 394 329 592 592 592 592 592 592 "
-                "592 592 592 592 592 329 329 360 920 559 559 920 893 841 855 907 777 744 930 924 "
-                "446 611 926 711 1122 924 889 808 889 887 657 823 909 893 1222 893 893 723 329 618 "
-                "329 592 329 329 575 657 526 657 543 362 592 657 329 362 625 329 986 657 592 657 "
-                "625 488 467 460 657 625 855 625 625 526 592 1183 592 592"
-            ).split()
-        ),
-        strict=True,
-    )
+# Advance widths (1/1000 em) of ASCII 33–126 from the TFM files: regular text is the wider of cmr9 and
+# cmti9, bold is cmbx9. Characters typeset from the math fonts in OT1 (< > \ _ { } | ~ ^) are set by hand.
+def _em_table(widths: str) -> dict[str, float]:
+    table = dict(zip((chr(c) for c in range(33, 127)), (int(v) / 1000 for v in widths.split()), strict=True))
+    table.update({"<": 0.8, ">": 0.8, "\\": 0.55, "_": 0.55, "{": 0.55, "}": 0.55, "|": 0.3, "~": 0.55})
+    table.update({"^": 0.55, " ": 0.36})
+    return table
+
+
+_EM_REGULAR = _em_table(
+    "315 528 856 786 856 799 315 420 420 525 799 315 367 315 525 525 525 525 525 525 525 525 525 525 "
+    "525 315 315 315 799 525 525 799 771 728 742 785 699 671 806 771 396 539 799 644 942 771 799 699 "
+    "799 756 577 742 771 771 1056 771 771 630 315 528 315 525 315 315 525 571 472 571 472 315 514 571 "
+    "315 315 542 285 856 577 525 571 542 433 420 400 571 542 742 542 542 457 525 1049 525 525"
 )
-_ASCII_EM.update({"<": 0.8, ">": 0.8, "\\": 0.55, "_": 0.55, "{": 0.55, "}": 0.55, "|": 0.3, "~": 0.55})
-_ASCII_EM.update({"^": 0.55, " ": 0.36})
+_EM_BOLD = _em_table(
+    "360 618 986 786 986 920 329 460 460 592 920 329 394 329 592 592 592 592 592 592 592 592 592 592 "
+    "592 329 329 360 920 559 559 920 893 841 855 907 777 744 930 924 446 611 926 711 1122 924 889 808 "
+    "889 887 657 823 909 893 1222 893 893 723 329 618 329 592 329 329 575 657 526 657 543 362 592 657 "
+    "329 362 625 329 986 657 592 657 625 488 467 460 657 625 855 625 625 526 592 1183 592 592"
+)
+_EM_SPECIAL = {"—": 1.0, "–": 0.5, "…": 1.0, "†": 0.5, "‡": 0.5, "°": 0.5, "·": 0.9}
 _TT_EM = 0.525  # cmtt: every character
 _SAFETY = 1.06  # estimates are scaled by this, plus 1 pt
 
 
-def _char_em(ch: str) -> float:
-    if ch in _ASCII_EM:
-        return _ASCII_EM[ch]
+def _char_em(ch: str, table: dict[str, float]) -> float:
+    if ch in table:
+        return table[ch]
     if unicodedata.combining(ch):
         return 0.0
+    if ch in _EM_SPECIAL:
+        return _EM_SPECIAL[ch]
     if ch in _SUB or ch in _SUP:
         return 0.45
-    if ch in ("—", "…", "‡", "†"):
-        return 1.0
     if ch in _TEXT:
         return 0.6 * max(1, len(_TEXT[ch].lstrip("\\").rstrip("{}")))
     if ch in _GREEK or ch in _GREEK_LATIN:
-        return 0.85
-    if ch in _MATH:
-        return 1.0 if not _MATH[ch].startswith(r"\frac") else 0.8
-    return 0.6 * 9 if _is_fallback(ch) else 1.0
+        return 0.8
+    if ch in _MATH:  # a binary operator or relation with its spaces
+        return 1.35 if not _MATH[ch].startswith(r"\frac") else 0.8
+    return 0.6 * 9 if _is_fallback(ch) else 1.35
 
 
-def text_width(text: str, size_pt: float = BODY_PT, tt: bool = False) -> float:
+def text_width(text: str, size_pt: float = BODY_PT, tt: bool = False, bold: bool = False) -> float:
     """Estimated typeset width (pt) of ``text`` on one line at ``size_pt`` in Computer Modern, on the
-    safe side (the widest of roman, bold and italic). Text between \\x01 and \\x02 counts as typewriter."""
+    safe side (regular: the wider of roman and italic; ``bold``: bold extended). Text between \\x01 and
+    \\x02 counts as typewriter."""
+    table = _EM_BOLD if bold else _EM_REGULAR
     em, mono = 0.0, tt
     for ch in unicodedata.normalize("NFD", text):
         if ch == "\x01":
@@ -480,7 +484,7 @@ def text_width(text: str, size_pt: float = BODY_PT, tt: bool = False) -> float:
         elif mono and not unicodedata.combining(ch):
             em += _TT_EM
         else:
-            em += _char_em(ch)
+            em += _char_em(ch, table)
     return em * size_pt * _SAFETY + 1.0 if em else 0.0
 
 
@@ -509,7 +513,8 @@ def _cell_lines(c) -> list[tuple[str, float, str]]:
         elif c.style in ("unresolved", "at-bound"):
             value = r"\textit{" + value + "}"
         value += tex_text(c.mark)
-        lines = [(value, text_width(_sci_visible(text) + c.mark), "line")]
+        bold = c.style in ("best", "fail")
+        lines = [(value, text_width(_sci_visible(text) + c.mark, bold=bold), "line")]
         if extra:
             lines.append(
                 (r"{\scriptsize " + tex_number(extra) + "}", text_width(_sci_visible(extra), SUB_PT), "line")
@@ -522,10 +527,14 @@ def _cell_lines(c) -> list[tuple[str, float, str]]:
     elif c.style in ("unresolved", "at-bound"):
         body = r"\textit{" + body + "}"
     body += tex_text(c.mark)
-    lines = [(body, text_width(visible + c.mark), "word")]
+    lines = [(body, text_width(visible + c.mark, bold=_bold(c)), "word")]
     if c.sub:
         lines.append((r"{\scriptsize " + tex_text(c.sub) + "}", text_width(c.sub, SUB_PT), "word"))
     return lines
+
+
+def _bold(c) -> bool:
+    return c.style in ("best", "fail") or (c.md and "**" in c.text)
 
 
 def _is_fallback(ch: str) -> bool:
@@ -544,7 +553,8 @@ def _words_max(lines: list[tuple[str, float, str]], cell) -> float:
         text = "".join(c + "\x00" if _is_fallback(c) else c for c in text)  # breaks after [U+XXXX]
         for word in re.split(r"[ \-–—/\x00]+", text + (cell.mark if k == 0 else "")):
             tt = word.count("\x01") > word.count("\x02")
-            best = max(best, text_width(word.replace("\x01", "").replace("\x02", ""), size, tt) + 2.0)
+            word = word.replace("\x01", "").replace("\x02", "")
+            best = max(best, text_width(word, size, tt, bold=k == 0 and _bold(cell)) + 2.0)
     return best
 
 
@@ -619,17 +629,26 @@ def _layout(cols: list[_Column], n_key: int, width: float) -> list[tuple[list[in
     for j in rest:
         if not cols[j].numeric:
             cols[j].want = max(cols[j].min, min(cols[j].nat, width / 2))
+
+    def need(group: list[int]) -> float:
+        idx = keys + group
+        return sum(cols[i].want if cols[i].numeric else cols[i].min for i in idx) + _sep(len(idx))
+
     groups: list[list[int]] = []
     cur: list[int] = []
     for j in rest:
-        trial = keys + cur + [j]
-        need = sum(cols[i].want if cols[i].numeric else cols[i].min for i in trial) + _sep(len(trial))
-        if cur and need > width:
+        if cur and need([*cur, j]) > width:
             groups.append(cur)
             cur = []
         cur.append(j)
     if cur or not groups:
         groups.append(cur)
+    if len(groups) > 1:  # as many parts as the greedy split, but with the columns spread evenly
+        k, n = len(groups), len(rest)
+        sizes = [n // k + (1 if q < n % k else 0) for q in range(k)]
+        even = [rest[sum(sizes[:q]) : sum(sizes[: q + 1])] for q in range(k)]
+        if all(need(g) <= width for g in even):
+            groups = even
     out = []
     for g in groups:
         idx = keys + g

@@ -48,6 +48,7 @@ def _compile(tmp_path: Path, tables_tex: str) -> str:
     doc = _documented_preamble()
     assert "\\input{tables}" in doc
     (tmp_path / "doc.tex").write_text(doc, encoding="utf-8")
+    assert PDFLATEX is not None
     run = subprocess.run(
         [PDFLATEX, "-interaction=nonstopmode", "-halt-on-error", "doc.tex"],
         cwd=tmp_path,
