@@ -18,9 +18,9 @@
   accents as text accents), and a character it does not know becomes ``[U+XXXX]`` (or its
   compatibility decomposition when that is ASCII), so nothing can stop pdflatex or vanish silently.
 - **Width**: every column is a fixed ``p{…}`` column whose width comes from the Computer Modern
-  character widths (bold, roman and italic, the widest of the three), so the table's width is known
-  in advance. Labels wrap; numbers never do: a metric cell is its value over the noise floor in
-  small print, ``value ± s.e.`` is set the same way. A table wider than the text width
+  character widths (roman or italic; bold for bold cells), so the table's width is known in advance.
+  Labels wrap; numbers never do: a metric cell is its value over the noise floor in small print,
+  ``value ± s.e.`` is set the same way. A table wider than the text width
   (:data:`TEXT_WIDTH_PT`) is split into parts by column groups, each repeating the key column(s),
   "(part 1 of 2)" in the caption.
 - **Height**: a table estimated taller than :data:`LONG_TABLE_PT` becomes a ``longtable`` that breaks
@@ -495,9 +495,6 @@ def _sci_visible(text: str) -> str:
 
 
 # -------------------------------------------------------------------------------------------- cells
-_MARK = {"†", "‡"}
-
-
 def _cell_lines(c) -> list[tuple[str, float, str]]:
     """A cell as lines (LaTeX, estimated width in pt, 'word' or 'line'): a 'line' never breaks."""
     if c.numeric:
