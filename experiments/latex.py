@@ -485,13 +485,15 @@ def text_width(text: str, size_pt: float = BODY_PT, tt: bool = False, bold: bool
             em += _TT_EM
         else:
             em += _char_em(ch, table)
-    return em * size_pt * _SAFETY + 1.0 if em else 0.0
+    optical = 1.11 if size_pt < 8.5 else 1.0  # cmr7 is relatively wider than cmr9 (digits 0.569 vs 0.514 em)
+    return em * size_pt * optical * _SAFETY + 1.0 if em else 0.0
 
 
 def _sci_visible(text: str) -> str:
-    """A number's printed form for width estimates: ``1.234e-5`` → ``1.234×10⁻⁵``."""
+    """A number's printed form for width estimates: ``1.234e-5`` → ``1.234×10⁻⁵``, ``-1`` → ``−1``."""
     sup = str.maketrans("0123456789-+", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁺")
-    return _SCI.sub(lambda m: f"{m.group(1)}×10{str(int(m.group(2))).translate(sup)}", text)
+    text = _SCI.sub(lambda m: f"{m.group(1)}×10{str(int(m.group(2))).translate(sup)}", text)
+    return _NEG.sub("−", text)
 
 
 # -------------------------------------------------------------------------------------------- cells
@@ -511,11 +513,11 @@ def _cell_lines(c) -> list[tuple[str, float, str]]:
             value = r"\textit{" + value + "}"
         value += tex_text(c.mark)
         bold = c.style in ("best", "fail")
-        lines = [(value, text_width(_sci_visible(text) + c.mark, bold=bold), "line")]
+        # \mbox: a number never wraps; were an estimate short, pdflatex would report an overfull box.
+        lines = [(r"\mbox{" + value + "}", text_width(_sci_visible(text) + c.mark, bold=bold), "line")]
         if extra:
-            lines.append(
-                (r"{\scriptsize " + tex_number(extra) + "}", text_width(_sci_visible(extra), SUB_PT), "line")
-            )
+            sub = r"\mbox{\scriptsize " + tex_number(extra) + "}"
+            lines.append((sub, text_width(_sci_visible(extra), SUB_PT), "line"))
         return lines
     body = tex_markdown(c.text) if c.md else tex_text(c.text)
     visible = _md_visible(c.text) if c.md else c.text
@@ -702,7 +704,7 @@ def _table_parts(experiment: str, b, width: float) -> list[str]:
         label = base_label if p == 0 else f"{base_label}:part{p + 1}"
         spec = "".join(
             (r">{\raggedleft\arraybackslash}" if cols[i].numeric else r">{\raggedright\arraybackslash}")
-            + f"p{{{widths[i]:.1f}pt}}"
+            + f"p{{{math.floor(widths[i] * 10) / 10:.1f}pt}}"  # rounded down: the sum stays within
             for i in idx
         )
         head = " & ".join(_cell_tex([(cols[i].head_tex, 0.0, "")]) for i in idx) + r" \\"
