@@ -329,8 +329,8 @@ def tex_text(text) -> str:
                 j = i
                 while j < n and s[j] in table:
                     j += 1
-                run = " ".join(table[c] for c in s[i:j]) if any(len(table[c]) > 1 for c in s[i:j]) else ""
-                run = run or "".join(table[c] for c in s[i:j])
+                parts = [table[c] for c in s[i:j]]
+                run = (" " if any(len(x) > 1 for x in parts) else "").join(parts)  # "\beta i", not "\betai"
                 out.append(f"\\ensuremath{{{op}{{{run}}}}}")
                 i = j
                 break
@@ -499,6 +499,8 @@ def _sci_visible(text: str) -> str:
 # -------------------------------------------------------------------------------------------- cells
 def _cell_lines(c) -> list[tuple[str, float, str]]:
     """A cell as lines (LaTeX, estimated width in pt, 'word' or 'line'): a 'line' never breaks."""
+    if c.numeric and not c.text.strip() and not c.sub:
+        return [("", 0.0, "line")]
     if c.numeric:
         text, extra = c.text, ""
         if " ± " in text:  # value ± standard error: the ± part goes below in small print
@@ -684,9 +686,10 @@ def _table_parts(experiment: str, b, width: float) -> list[str]:
     header = [b.header[i] for i in idx_all]
     rows = [[row[i] for i in idx_all] for row in b.rows]
     cols = [_Column(h, [r[j] for r in rows]) for j, h in enumerate(header)]
-    # The fits table is keyed by (fit, parameter); every other table by its first column.
-    n_key = 2 if len(cols) > 2 and [h.text for h in header[:2]] == ["Fit", "Parameter"] else 1
-    n_key = min(n_key, len(cols))
+    # A table whose first column is left blank on continuation rows (the fits table: a fit's name on
+    # its first parameter only) is keyed by its first two columns; every other by its first.
+    grouped = len(cols) > 2 and any(cols[0].empty(r) and not cols[1].empty(r) for r in range(len(rows)))
+    n_key = 2 if grouped else 1
     groups = _layout(cols, n_key, width)
     base_label = _label(experiment, b.anchor.removeprefix("table-"))
     out = []

@@ -240,3 +240,17 @@ def test_wide_and_long_tables_are_split_and_broken(tmp_path):
         widths = [float(w) for w in re.findall(r"p\{([0-9.]+)pt\}", spec)]
         assert sum(widths) + 2 * latex.TABCOLSEP_PT * len(widths) <= latex.TEXT_WIDTH_PT
     _assert_clean(_compile(tmp_path, tex))
+
+
+def test_fits_table_split_keys_later_parts_by_fit():
+    """height-fog's fits table is split; its second part holds the per-fit columns, one row per fit,
+    without the Parameter column."""
+    doc = json.loads((ROOT / "tests" / "data" / "results" / "height-fog.json").read_text(encoding="utf-8"))
+    tex = render_report(doc)["tables.tex"]
+    part = tex[tex.index(r"\label{tab:height-fog:fits:part2}") :]
+    part = part[: part.index(r"\end{")]
+    lines = [line.strip() for line in part.splitlines()]
+    headers = {line for line in lines if line.startswith("Fit &")}
+    assert headers == {r"Fit & RMS residual & Residuals & Converged \\"}
+    rows = [line for line in lines if line.endswith("\\\\") and " & " in line and line not in headers]
+    assert len(rows) == len(doc["fits"])
