@@ -33,6 +33,7 @@ from pathlib import Path
 from markdown_it import MarkdownIt
 from markdown_it.rules_inline import StateInline
 
+from . import latex
 from .atomic import atomic_write_text, is_temporary_name
 from .records import (
     SCHEMA,
@@ -170,18 +171,6 @@ _MD.add_render_rule("table_close", _render_table_close)
 
 # Plain text that goes into markdown output is backslash-escaped where markdown would read it as markup.
 _MD_SPECIAL = re.compile(r"([\\`*_\[\]|<>$~]|&(?=#?\w+;))")
-
-# The inline subset that the LaTeX writer (``_tex_md``) understands. Kept from the former hand-written
-# converter for tables.tex alone; HTML goes through markdown-it (above).
-_INLINE = re.compile(
-    r"(?P<esc>\\[\\`*_{}\[\]()#+\-.!$|<>])"
-    r"|(?P<tick>`+)(?P<code>.+?)(?P=tick)"
-    r"|(?P<math>\$(?![\s$])[^$\n]*?(?<![\s\\])\$)"
-    r"|\[(?P<ltext>[^\]\n]+)\]\((?P<lurl>[^)\s]+)\)"
-    r"|<(?P<auto>https?://[^>\s]+)>"
-    r"|\*\*(?P<strong>(?!\s).+?(?<!\s))\*\*"
-    r"|\*(?P<em>(?![\s*])[^*\n]+?(?<!\s))\*"
-)
 
 
 def _esc(text) -> str:
@@ -905,155 +894,6 @@ def _render_html(d: _Doc) -> str:
     return _html_page(r.title, "\n".join(parts))
 
 
-# ---------------------------------------------------------------------------------------------- tex
-_TEX_SPECIAL = {
-    "\\": r"\textbackslash{}",
-    "&": r"\&",
-    "%": r"\%",
-    "$": r"\$",
-    "#": r"\#",
-    "_": r"\_",
-    "{": r"\{",
-    "}": r"\}",
-    "~": r"\textasciitilde{}",
-    "^": r"\textasciicircum{}",
-    "<": r"\textless{}",
-    ">": r"\textgreater{}",
-    "|": r"\textbar{}",
-}
-_TEX_GREEK = zip(
-    "αβγδεζηθικλμνξπρστυφχψωΓΔΘΛΞΠΣΥΦΨΩ",
-    "alpha beta gamma delta epsilon zeta eta theta iota kappa lambda mu nu xi pi rho sigma tau upsilon "
-    "phi chi psi omega Gamma Delta Theta Lambda Xi Pi Sigma Upsilon Phi Psi Omega".split(),
-    strict=True,
-)
-_TEX_UNICODE = {
-    **{c: rf"\ensuremath{{\{n}}}" for c, n in _TEX_GREEK},
-    "ε": r"\ensuremath{\varepsilon}",
-    "°": r"\ensuremath{^\circ}",
-    "±": r"\ensuremath{\pm}",
-    "≤": r"\ensuremath{\le}",
-    "≥": r"\ensuremath{\ge}",
-    "≈": r"\ensuremath{\approx}",
-    "≠": r"\ensuremath{\ne}",
-    "×": r"\ensuremath{\times}",
-    "·": r"\ensuremath{\cdot}",
-    "−": r"\ensuremath{-}",
-    "∞": r"\ensuremath{\infty}",
-    "→": r"\ensuremath{\to}",
-    "↓": r"\ensuremath{\downarrow}",
-    "↑": r"\ensuremath{\uparrow}",
-    "√": r"\ensuremath{\surd}",
-    "∑": r"\ensuremath{\sum}",
-    "∂": r"\ensuremath{\partial}",
-    "∫": r"\ensuremath{\int}",
-    "²": r"\textsuperscript{2}",
-    "³": r"\textsuperscript{3}",
-    "¹": r"\textsuperscript{1}",
-    "⁻": r"\textsuperscript{\ensuremath{-}}",
-    "—": "---",
-    "–": "--",
-    "…": r"\ldots{}",
-    "†": r"\ensuremath{\dagger}",
-    "‡": r"\ensuremath{\ddagger}",
-    "“": "``",
-    "”": "''",
-    "‘": "`",
-    "’": "'",
-    "\u00a0": "~",
-    "✓": "pass",
-    "✗": "FAIL",
-}
-
-
-def _tex(text) -> str:
-    """Escape plain text for LaTeX (text mode); common Greek letters and symbols become macros."""
-    return "".join(_TEX_SPECIAL.get(ch) or _TEX_UNICODE.get(ch) or ch for ch in str(text))
-
-
-_SCI = re.compile(r"(-?\d+(?:\.\d+)?)e(-?\d+)")
-
-
-def _tex_num(text: str) -> str:
-    return _SCI.sub(lambda m: rf"\ensuremath{{{m.group(1)}\times 10^{{{m.group(2)}}}}}", _tex(text))
-
-
-def _tex_md(text: str) -> str:
-    """Plain-text rendering of inline markdown for LaTeX (code, bold, italic kept; math verbatim)."""
-    out, pos = [], 0
-    for m in _INLINE.finditer(text):
-        out.append(_tex(text[pos : m.start()]))
-        pos = m.end()
-        if m.group("esc"):
-            out.append(_tex(m.group("esc")[1]))
-        elif m.group("tick"):
-            out.append(r"\texttt{" + _tex(m.group("code").strip()) + "}")
-        elif m.group("math"):
-            out.append(m.group("math"))
-        elif m.group("ltext") is not None:
-            out.append(_tex_md(m.group("ltext")))
-        elif m.group("auto"):
-            out.append(r"\texttt{" + _tex(m.group("auto")) + "}")
-        elif m.lastgroup == "strong":
-            out.append(r"\textbf{" + _tex_md(m.group("strong")) + "}")
-        else:
-            out.append(r"\emph{" + _tex_md(m.group("em")) + "}")
-    out.append(_tex(text[pos:]))
-    return "".join(out)
-
-
-def _tex_cell(c: _Cell) -> str:
-    t = _tex_num(c.text) if c.numeric else (_tex_md(c.text) if c.md else _tex(c.text))
-    if c.sub and c.numeric:
-        t += r"\,{\scriptsize(" + _tex_num(c.sub.removeprefix("floor ")) + ")}"
-    elif c.sub:
-        t += r" {\scriptsize(" + _tex(c.sub) + ")}"
-    if c.style in ("best", "fail"):
-        t = r"\textbf{" + t + "}"
-    elif c.style in ("unresolved", "at-bound"):
-        t = r"\textit{" + t + "}"
-    if c.mark:
-        t += _tex(c.mark)
-    return t
-
-
-def _tex_label(*parts: str) -> str:
-    return ":".join(re.sub(r"[^A-Za-z0-9\-]+", "-", p).strip("-") or "x" for p in parts)
-
-
-def _render_tex(d: _Doc) -> str:
-    r = d.r
-    out = [
-        f"% tables.tex — generated by rtfit from results.json (experiment {r.experiment}); do not edit.",
-        r"% \input{} it after \usepackage{booktabs}. Greek letters and common symbols are mapped to macros;",
-        "% other non-ASCII characters need a Unicode engine (xelatex, lualatex) or "
-        "\\usepackage[utf8]{inputenc}.",
-        "% Metric cells: value (noise floor of the reference).",
-        "",
-    ]
-    for b in d.blocks:
-        if not isinstance(b, _Table) or not b.tex:
-            continue
-        cols = b.tex_cols if b.tex_cols is not None else list(range(len(b.header)))
-        spec = "".join("r" if b.header[i].numeric else "l" for i in cols)
-        out += [
-            r"\begin{table}[htbp]",
-            r"  \centering\small",
-            f"  \\caption{{{_tex(b.caption)}}}",
-            f"  \\label{{tab:{_tex_label(r.experiment, b.anchor.removeprefix('table-'))}}}",
-            f"  \\begin{{tabular}}{{{spec}}}",
-            r"    \toprule",
-            "    " + " & ".join(_tex(b.header[i].text) for i in cols) + r" \\",
-            r"    \midrule",
-        ]
-        out += ["    " + " & ".join(_tex_cell(row[i]) for i in cols) + r" \\" for row in b.rows]
-        out += [r"    \bottomrule", r"  \end{tabular}"]
-        if b.notes:
-            out.append(r"  \par\smallskip{\footnotesize " + r" \par ".join(_tex(n) for n in b.notes) + "}")
-        out += [r"\end{table}", ""]
-    return "\n".join(out)
-
-
 # ------------------------------------------------------------------------------------------- public
 def render_report(results: Results | Mapping, directory=None) -> dict[str, str]:
     """Render results to ``{"report.md": …, "report.html": …, "tables.tex": …}``.
@@ -1065,7 +905,12 @@ def render_report(results: Results | Mapping, directory=None) -> dict[str, str]:
     if not isinstance(results, Results):
         results = from_json(Results, plain_json(results), "<results>")
     d = _build(results, Path(directory) if directory is not None else None)
-    return {"report.md": _render_md(d), "report.html": _render_html(d), "tables.tex": _render_tex(d)}
+    tables = [b for b in d.blocks if isinstance(b, _Table) and b.tex]
+    return {
+        "report.md": _render_md(d),
+        "report.html": _render_html(d),
+        "tables.tex": latex.render_tables(results.experiment, tables),
+    }
 
 
 def write_report(directory) -> list[Path]:
