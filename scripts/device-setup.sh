@@ -5,7 +5,7 @@
 # Needs, carried with the command (device tool `carry`):
 #   .device/mitsuba-drjit-cp312.tar.xz   bash ../shared/tools/pack-for-device.sh
 #   .whl/*.whl                           pure-Python or cp312 wheels of rtfit's other dependencies
-#                                        (click, tomli_w, OpenEXR, tqdm, flip_evaluator)
+#                                        (click, tomli_w, OpenEXR, tqdm, flip_evaluator, markdown_it_py, mdurl)
 #   .device-ray/ray-site-cp312.tar.xz    optional: Ray and its dependencies for cp312, unpacked
 #                                        (built as described in docs/scale-out.md)
 set -euo pipefail
