@@ -81,6 +81,7 @@ def test_decorator_makes_a_method_of_the_quantity(wrap_method):
     assert m.label == "Wrap lighting with exponent 2; g carries the quantity's named inputs."
     assert (m.params["w"].lower, m.params["w"].upper, m.params["w"].initial) == (0.0, 1.0, 0.5)
     assert m.source.endswith("my_wrap.py:4")
+    assert check_approximation(m) is None  # finite, right shape, NumPy = Dr.Jit on the whole domain
 
 
 def test_loads_from_a_module(tmp_path, monkeypatch):
