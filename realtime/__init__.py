@@ -24,6 +24,8 @@ Modules:
     sdf_occlusion  Evans multi-scale SDF skylight/occlusion, curvature term, cone-traced soft occlusion.
     nishita_sky Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
                 (docs/nishita-sky.md).
+    quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
+                decorator for a user's own formula (docs/audit.md, "Your own approximation").
 """
 
 # Star imports re-export each module's ``__all__`` (tests/test_layering.py checks that every public
@@ -37,6 +39,7 @@ from .irradiance_bases import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
 from .phase import *  # noqa: F403
+from .quantities import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
 
@@ -51,6 +54,7 @@ MODULES = (
     "sdf_grid",
     "sdf_occlusion",
     "nishita_sky",
+    "quantities",
 )
 """The modules whose public names this package re-exports."""
 

@@ -9,8 +9,13 @@ The subpackages (one namespace, folders at the repository's top level):
 * `rtfit.experiments` — one experiment per family, reports and the ``rtfit`` command line.
 
 Importing ``rtfit`` imports none of them (and neither Mitsuba nor Dr.Jit): ``rtfit.__version__`` is cheap.
+The user-approximation API is loaded on first use (module ``__getattr__``)::
+
+    from rtfit import approximation, Param           # rtfit.realtime.quantities, rtfit.realtime.methods
+    from rtfit import load_approximation, check_approximation   # rtfit.experiments.user_methods
 """
 
+from importlib import import_module as _import_module
 from importlib import metadata as _metadata
 
 try:
@@ -18,4 +23,25 @@ try:
 except _metadata.PackageNotFoundError:  # running from a source tree that was never installed
     __version__ = "0+unknown"
 
-__all__ = ["__version__"]
+_LAZY = {
+    "approximation": "rtfit.realtime.quantities",
+    "QUANTITIES": "rtfit.realtime.quantities",
+    "Param": "rtfit.realtime.methods",
+    "load_approximation": "rtfit.experiments.user_methods",
+    "check_approximation": "rtfit.experiments.user_methods",
+}
+
+__all__ = ["__version__", *_LAZY]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(_import_module(module), name)
+    globals()[name] = value  # later look-ups skip this hook
+    return value
+
+
+def __dir__():
+    return sorted([*globals(), *_LAZY])

@@ -242,7 +242,7 @@ def test_method_table():
     lam = ir.METHODS["sh-l2-lambda"].params["lam"]
     assert lam.lower == 0.0 and lam.upper == math.inf
     for m in ir.METHODS.values():
-        assert m.label and m.formula and m.source and m.quantity == "irradiance"
+        assert m.label and m.formula and m.source and m.quantity == "environment_irradiance"
         if not m.exact:
             assert m.input_names == ("nx", "ny", "nz", "coeffs")
     with pytest.raises(ValueError, match="not a basis"):

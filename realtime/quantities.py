@@ -1,0 +1,531 @@
+"""Quantities: what an approximation approximates, and the named inputs its ``g`` carries.
+
+A **quantity** is one thing a reference measures at a visible point (or along a camera ray) — the direct
+irradiance of one light, the sky's irradiance with occlusion, ambient occlusion, fog transmittance, sky
+radiance — together with the per-element inputs a real-time formula for it may read, each with its unit and
+domain. Every shipped method declares its quantity (``Method.quantity``); `QUANTITIES` documents them, and
+`Quantity.methods` lists the shipped methods that approximate each (derived from the families' ``METHODS``
+tables, so this module copies no formula).
+
+A user's own approximation is a function ``f(ops, g, **params)`` written against the same ops namespace as
+the shipped kernels (`rtfit.realtime.arrays`); `approximation` turns it into a `Method`::
+
+    from rtfit import approximation, Param
+
+    @approximation(quantity="light_irradiance", params={"w": Param(0.5, lower=0.0, upper=1.0)})
+    def my_wrap(ops, g, *, w):
+        t = ops.maximum((g.cos_theta + w) / (1.0 + w), 0.0)
+        return g.irradiance * t * t
+
+The method's inputs are the quantity's inputs; its kernel builds ``g`` (attribute access: ``g.cos_theta``,
+and for a vector group ``g.normal`` = ``(g.nx, g.ny, g.nz)``) and calls ``f``. So the same text runs on
+Dr.Jit, NumPy and JAX (``method.evaluate``) and `rtfit.fitting.fit_method` fits it through JAX like any
+shipped method. Loading from files, modules and entry points, and the validation of a user function on
+the quantity's domains, are `rtfit.experiments.user_methods`.
+
+Structured inputs (an SDF sampler, a list of SH coefficients) have no scalar domain (``Input.domain`` is
+None); `Quantity.examples` gives a value of each for validation.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+from . import ambient_aperture, diffuse, height_fog, irradiance_bases, nishita_sky, sdf_occlusion
+from .methods import Input, Method, Param
+from .sdf_grid import HalfSpace, Sphere
+from .sdf_occlusion import AnalyticSDF
+
+__all__ = [
+    "FAMILY_METHODS",
+    "QUANTITIES",
+    "ApproximationError",
+    "Quantity",
+    "QuantityInputs",
+    "UserKernel",
+    "approximation",
+    "get_quantity",
+    "is_user_approximation",
+    "quantities_markdown",
+]
+
+FAMILY_METHODS: Mapping[str, Mapping[str, Method]] = MappingProxyType(
+    {
+        "diffuse": diffuse.METHODS,
+        "irradiance-bases": irradiance_bases.METHODS,
+        "ambient-aperture": ambient_aperture.METHODS,
+        "sdf-occlusion": sdf_occlusion.METHODS,
+        "height-fog": height_fog.METHODS,
+        "nishita-sky": nishita_sky.METHODS,
+    }
+)
+"""Family (experiment name) → its method table: the shipped methods `Quantity.methods` is derived from."""
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """One approximated quantity: ``name``, ``unit`` of the result, ``description`` (one line), the
+    ``inputs`` its ``g`` carries (scalar inputs with a ``domain``; structured ones without), ``vectors``
+    (group name → its three component inputs, e.g. ``normal`` → ``(nx, ny, nz)``), ``unit_vectors`` (the
+    groups that are unit vectors: validation samples them on the sphere), ``channels`` (1: one array
+    per element; 3: a tuple of R, G, B arrays), ``examples`` (structured input → a factory of a value for
+    validation), ``reference`` (what the audit compares an approximation of it with) and ``note``."""
+
+    name: str
+    unit: str
+    description: str
+    inputs: tuple[Input, ...]
+    vectors: Mapping[str, tuple[str, str, str]] = field(default_factory=dict)
+    unit_vectors: tuple[str, ...] = ()
+    channels: int = 1
+    examples: Mapping[str, Callable[[], Any]] = field(default_factory=dict)
+    reference: str = ""
+    note: str = ""
+
+    def __post_init__(self):
+        object.__setattr__(self, "vectors", MappingProxyType(dict(self.vectors)))
+        object.__setattr__(self, "examples", MappingProxyType(dict(self.examples)))
+        names = self.input_names
+        for group, comps in self.vectors.items():
+            missing = [c for c in comps if c not in names]
+            if missing or group in names:
+                raise ValueError(f"quantity {self.name!r}: vector {group!r} is not three of its inputs")
+        structured = {i.name for i in self.inputs if i.domain is None}
+        if structured != set(self.examples):
+            raise ValueError(f"quantity {self.name!r}: give an example of each structured input")
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return tuple(i.name for i in self.inputs)
+
+    @property
+    def methods(self) -> tuple[str, ...]:
+        """The shipped methods of this quantity, as ``family:id`` (from the families' ``METHODS``)."""
+        return tuple(
+            f"{family}:{mid}"
+            for family, table in FAMILY_METHODS.items()
+            for mid, m in table.items()
+            if m.quantity == self.name
+        )
+
+
+def _vec(prefix: str, what: str, unit: str = "1", domain=(-1.0, 1.0)) -> tuple[Input, Input, Input]:
+    return tuple(Input(f"{prefix}{c}", unit, f"{what}, {c} component", domain) for c in "xyz")  # type: ignore[return-value]
+
+
+def _example_sdf():
+    """A ground plane with a sphere resting on it: something that occludes, for validation."""
+    return AnalyticSDF([HalfSpace((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)), Sphere((0.0, 0.0, 1.0), 1.0)])
+
+
+def _example_sh():
+    """SH L2 coefficients (27, channel-major) of a sky brighter above than below: L00 and L10 only."""
+    out = [0.0] * 27
+    for c, scale in enumerate((1.0, 0.9, 0.8)):
+        out[c * 9 + 0] = 2.0 * math.sqrt(math.pi) * scale  # L00 of a constant radiance 1 (× scale)
+        out[c * 9 + 2] = 0.8 * scale  # L10: brighter towards +Z
+    return out
+
+
+_NORMAL = _vec("n", "unit surface normal (world frame, +Z up)")
+_POINT = _vec("p", "surface point", "m", (-10.0, 10.0))
+_SDF = Input("sdf", "m", "the scene's distance field: ``g.sdf.sample(ops, level, x, y, z)`` (level 0 finest)")
+_GEOMETRY = (*_POINT, *_NORMAL, _SDF)
+_GEOMETRY_VECTORS = {"point": ("px", "py", "pz"), "normal": ("nx", "ny", "nz")}
+_FOG = (
+    *_vec("o", "ray origin (the camera)", "m", (-100.0, 100.0)),
+    *_vec("d", "unit ray direction (from the camera)"),
+    Input("length", "m", "segment length along the ray (to the visible point)", (0.0, 1.0e4)),
+    Input(
+        "z0", "m", "height of the segment's start (the camera end) along the fog gradient", (-100.0, 1000.0)
+    ),
+    Input("z1", "m", "height of the segment's end", (-100.0, 1000.0)),
+    Input("density", "1/m", "the fog's extinction b at height 0", (0.0, 0.2)),
+    Input("falloff", "1/m", "the fog's height falloff c (scale height 1/c); 0: homogeneous", (0.0, 0.4)),
+)
+_FOG_VECTORS = {"origin": ("ox", "oy", "oz"), "direction": ("dx", "dy", "dz")}
+_FOG_REFERENCE = "along the camera's rays through the fog medium (volpathmis)"
+
+QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
+    {
+        q.name: q
+        for q in (
+            Quantity(
+                "light_irradiance",
+                "W/m²",
+                "direct irradiance E of one light at a surface point",
+                (
+                    Input(
+                        "cos_theta", "1", "n·l: the normal · the direction to the light (centre)", (-1.0, 1.0)
+                    ),
+                    Input(
+                        "irradiance",
+                        "W/m²",
+                        "E⊥: the light's irradiance at normal incidence (π·L·sin²α for a sphere light)",
+                        (0.0, 10.0),
+                    ),
+                    Input(
+                        "alpha",
+                        "rad",
+                        "angular radius of the light seen from the point (0: point or directional light)",
+                        (0.0, 0.5 * math.pi),
+                    ),
+                    Input(
+                        "distance",
+                        "m",
+                        "distance to the light's centre (+inf for a directional light; checks draw finite)",
+                        (0.01, 100.0),
+                    ),
+                ),
+                reference="that light's direct irradiance at the visible points, unshadowed and shadowed",
+            ),
+            Quantity(
+                "sky_irradiance",
+                "W/m²",
+                "irradiance from a uniform sky at a surface point, with the scene's occlusion",
+                (
+                    *_NORMAL,
+                    *_vec("b", "unit bent normal: the mean unoccluded direction (what an engine bakes)"),
+                    Input(
+                        "visibility", "1", "cosine-weighted unoccluded fraction of the hemisphere", (0.0, 1.0)
+                    ),
+                    Input(
+                        "aperture",
+                        "rad",
+                        "half-angle of the visibility cap around the bent normal",
+                        (0.0, 0.5 * math.pi),
+                    ),
+                    Input("sky_radiance", "W/m²/sr", "radiance L_sky of the uniform sky", (0.0, 10.0)),
+                    *_POINT,
+                    _SDF,
+                ),
+                vectors={
+                    "normal": ("nx", "ny", "nz"),
+                    "bent_normal": ("bx", "by", "bz"),
+                    "point": ("px", "py", "pz"),
+                },
+                unit_vectors=("normal", "bent_normal"),
+                examples={"sdf": _example_sdf},
+                reference="sky irradiance with visibility at the visible points (direct, environment only)",
+            ),
+            Quantity(
+                "environment_irradiance",
+                "W/m²",
+                "irradiance E(n) of the environment at a normal, unoccluded, per RGB channel",
+                (
+                    *_NORMAL,
+                    Input(
+                        "sh",
+                        "W/m²",
+                        "27 floats: the environment's SH coefficients L_lm, l ≤ 2, channel-major",
+                    ),
+                ),
+                vectors={"normal": ("nx", "ny", "nz")},
+                unit_vectors=("normal",),
+                channels=3,
+                examples={"sh": _example_sh},
+                reference="environment irradiance at the visible normals (quadrature of the environment)",
+            ),
+            Quantity(
+                "sky_visibility",
+                "1",
+                "sky light reaching a point as a fraction of the unoccluded sky (an SDF skylight term)",
+                _GEOMETRY,
+                vectors=_GEOMETRY_VECTORS,
+                unit_vectors=("normal",),
+                examples={"sdf": _example_sdf},
+                reference="ray-cast sky visibility at the visible points",
+            ),
+            Quantity(
+                "ambient_occlusion",
+                "1",
+                "cosine-weighted ambient occlusion within a radius R (1: unoccluded)",
+                (*_GEOMETRY, Input("ao_distance", "m", "the AO radius R", (0.01, 10.0))),
+                vectors=_GEOMETRY_VECTORS,
+                unit_vectors=("normal",),
+                examples={"sdf": _example_sdf},
+                reference="ray-cast ambient occlusion within R (cosine-distributed rays of length R)",
+            ),
+            Quantity(
+                "crease_darkening",
+                "1",
+                "a darkening factor in creases from the blurred distance field (Evans' curvature term)",
+                (Input("distance", "m", "the blurred SDF s(P) at the point", (-1.0, 1.0)), *_GEOMETRY),
+                vectors=_GEOMETRY_VECTORS,
+                unit_vectors=("normal",),
+                examples={"sdf": _example_sdf},
+                reference="ray-cast ambient occlusion (as for ambient_occlusion)",
+            ),
+            Quantity(
+                "cap_intersection_solid_angle",
+                "sr",
+                "solid angle of the intersection of two spherical caps",
+                (
+                    Input("r1", "rad", "angular radius of the first cap", (0.0, math.pi)),
+                    Input("r2", "rad", "angular radius of the second cap", (0.0, math.pi)),
+                    Input("d", "rad", "angle between the cap centres", (0.0, math.pi)),
+                ),
+                reference="the closed form (Tovchigrechko & Vakser 2001)",
+            ),
+            Quantity(
+                "fog_optical_depth",
+                "1",
+                "optical depth τ of an exponential height fog along a segment",
+                _FOG,
+                vectors=_FOG_VECTORS,
+                unit_vectors=("direction",),
+                reference=_FOG_REFERENCE,
+            ),
+            Quantity(
+                "fog_transmittance",
+                "1",
+                "transmittance T = exp(−τ) of an exponential height fog along a segment",
+                _FOG,
+                vectors=_FOG_VECTORS,
+                unit_vectors=("direction",),
+                reference=_FOG_REFERENCE,
+                note="the shipped forms approximate τ (fog_optical_depth): T = exp(−τ)",
+            ),
+            Quantity(
+                "fog_inscatter",
+                "W/m²/sr",
+                "radiance scattered into the ray by the fog along the segment, per RGB channel",
+                (
+                    *_FOG,
+                    Input("cos_sun", "1", "v·l: ray direction · direction to the sun", (-1.0, 1.0)),
+                    *(
+                        Input(f"sun_{c}", "W/m²", f"the sun's irradiance, {c} channel", (0.0, 10.0))
+                        for c in "rgb"
+                    ),
+                ),
+                vectors=_FOG_VECTORS,
+                unit_vectors=("direction",),
+                channels=3,
+                reference=_FOG_REFERENCE,
+                note="the shipped shading models give it as C·(1 − T) inside fogged_radiance",
+            ),
+            Quantity(
+                "fogged_radiance",
+                "W/m²/sr",
+                "radiance at the camera: fog-free radiance attenuated plus the in-scatter, per RGB channel",
+                (
+                    *_FOG,
+                    Input("cos_sun", "1", "v·l: ray direction · direction to the sun", (-1.0, 1.0)),
+                    *(
+                        Input(f"l0_{c}", "W/m²/sr", f"fog-free radiance L₀, {c} channel", (0.0, 10.0))
+                        for c in "rgb"
+                    ),
+                ),
+                vectors=_FOG_VECTORS,
+                unit_vectors=("direction",),
+                channels=3,
+                reference=_FOG_REFERENCE,
+            ),
+            Quantity(
+                "sky_radiance",
+                "W/m²/sr",
+                "radiance of a clear sky (single + multiple scattering) in a view direction, per RGB channel",
+                (
+                    *_vec("d", "unit view direction (+Z up)"),
+                    *_vec("s", "unit direction to the sun"),
+                    Input("altitude", "m", "the viewer's altitude above the ground", (0.0, 1.0e4)),
+                ),
+                vectors={"direction": ("dx", "dy", "dz"), "sun": ("sx", "sy", "sz")},
+                unit_vectors=("direction", "sun"),
+                channels=3,
+                reference="sky radiance along the camera's sky pixels (volpathmis in the shell atmosphere)",
+            ),
+        )
+    }
+)
+"""Every documented quantity by name (docs/audit.md, "Your own approximation", is generated from it)."""
+
+
+class ApproximationError(ValueError):
+    """A wrong `approximation` declaration or an unknown quantity: one line."""
+
+
+def get_quantity(name: str) -> Quantity:
+    """The quantity ``name``; an unknown name is a one-line `ApproximationError` listing the known ones."""
+    q = QUANTITIES.get(name) if isinstance(name, str) else None
+    if q is None:
+        raise ApproximationError(f"unknown quantity {name!r} (known: {', '.join(QUANTITIES)})")
+    return q
+
+
+class QuantityInputs:
+    """The ``g`` a user function receives: attribute access to the quantity's named inputs, and to its
+    vector groups as 3-tuples. ``record`` (a set, optional) collects the names the function reads."""
+
+    __slots__ = ("_q", "_record", "_values")
+
+    def __init__(self, quantity: Quantity, values: Mapping[str, Any], record: set[str] | None = None):
+        object.__setattr__(self, "_q", quantity)
+        object.__setattr__(self, "_values", dict(values))
+        object.__setattr__(self, "_record", record)
+
+    def __getattr__(self, name: str):
+        q, values, record = self._q, self._values, self._record
+        if name in values:
+            if record is not None:
+                record.add(name)
+            return values[name]
+        if name in q.vectors:
+            comps = q.vectors[name]
+            if record is not None:
+                record.update(comps)
+            return tuple(values[c] for c in comps)
+        known = ", ".join([*q.input_names, *q.vectors])
+        raise AttributeError(f"{q.name} carries no input {name!r} (it carries: {known})")
+
+    def __setattr__(self, name, value):
+        raise AttributeError("g is read-only")
+
+    def __dir__(self):
+        return [*self._q.input_names, *self._q.vectors]
+
+    def __repr__(self):
+        return f"<g of {self._q.name}: {', '.join(self._q.input_names)}>"
+
+
+class UserKernel:
+    """The kernel of a user approximation: ``kernel(ops, **inputs, **params)`` builds ``g`` from the
+    quantity's inputs and returns ``function(ops, g, **params)``. ``run`` does the same with a record of
+    the inputs read (validation)."""
+
+    def __init__(self, function: Callable[..., Any], quantity: Quantity):
+        self.function = function
+        self.quantity = quantity
+        self.__name__ = getattr(function, "__name__", "approximation")
+        self.__doc__ = function.__doc__
+
+    def run(self, ops, values: Mapping[str, Any], params: Mapping[str, Any], record: set[str] | None = None):
+        return self.function(ops, QuantityInputs(self.quantity, values, record), **params)
+
+    def __call__(self, ops, **kw):
+        values = {n: kw.pop(n) for n in self.quantity.input_names if n in kw}
+        return self.run(ops, values, kw)
+
+    def __repr__(self):
+        return f"<user kernel {self.__name__} ({self.quantity.name})>"
+
+
+def is_user_approximation(obj: Any) -> bool:
+    """True for a `Method` made by `approximation`."""
+    return isinstance(obj, Method) and isinstance(obj.kernel, UserKernel)
+
+
+def _where(function) -> str:
+    try:
+        file = inspect.getsourcefile(function) or "?"
+        line = inspect.getsourcelines(function)[1]
+    except (OSError, TypeError):
+        return ""
+    return f"{file}:{line}"
+
+
+def approximation(
+    *,
+    quantity: str,
+    params: Mapping[str, Param] | None = None,
+    label: str | None = None,
+    id: str | None = None,
+) -> Callable[[Callable[..., Any]], Method]:
+    """Decorator: ``f(ops, g, **params)`` → a `Method` of ``quantity`` (module docstring).
+
+    ``params``: the free parameters, each a `Param` (start value and bounds: a fit stays within them);
+    ``label`` (default: the first line of ``f``'s docstring, else its name); ``id`` (default ``f``'s name).
+    A wrong declaration is a one-line `ApproximationError` naming the function: an unknown quantity (listing
+    the known ones), a parameter given as a bare number (no bounds), a parameter ``f`` does not take as a
+    keyword, a keyword ``f`` requires that is not declared."""
+    q = get_quantity(quantity)
+    declared = dict(params or {})
+
+    def wrap(f: Callable[..., Any]) -> Method:
+        name = id or getattr(f, "__name__", "approximation")
+        if not callable(f):
+            raise ApproximationError(f"{name}: @approximation decorates a function f(ops, g, **params)")
+        for k, p in declared.items():
+            if not isinstance(p, Param):
+                raise ApproximationError(
+                    f"{name}: parameter {k!r} = {p!r} has no bounds; declare it as "
+                    f"Param(initial, lower=…, upper=…)"
+                )
+        try:
+            sig = inspect.signature(f)
+        except (TypeError, ValueError):
+            sig = None
+        if sig is not None:
+            ps = list(sig.parameters.values())
+            var_kw = any(p.kind is p.VAR_KEYWORD for p in ps)
+            positional = [p for p in ps if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+            if len(positional) < 2 and not any(p.kind is p.VAR_POSITIONAL for p in ps):
+                raise ApproximationError(f"{name}: an approximation takes (ops, g, *, params…); got {sig}")
+            keywords = {p.name for p in ps[2:] if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+            extra = sorted(set(declared) - keywords) if not var_kw else []
+            if extra:
+                raise ApproximationError(
+                    f"{name}: parameter(s) {', '.join(extra)} declared but not taken by {name}{sig}"
+                )
+            required = sorted(
+                p.name
+                for p in ps[2:]
+                if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+                and p.default is p.empty
+                and p.name not in declared
+            )
+            if required:
+                raise ApproximationError(
+                    f"{name}: keyword(s) {', '.join(required)} of {name}{sig} are not declared in params="
+                )
+        doc = inspect.getdoc(f) or ""
+        first = doc.splitlines()[0].strip() if doc else ""
+        try:
+            return Method(
+                id=name,
+                label=label or first or name,
+                kernel=UserKernel(f, q),
+                inputs=q.inputs,
+                params=declared,
+                quantity=q.name,
+                formula=first,
+                source=_where(f),
+                description=doc,
+            )
+        except ValueError as e:
+            raise ApproximationError(f"{name}: {e}") from None
+
+    return wrap
+
+
+def quantities_markdown() -> str:
+    """The quantity table of docs/audit.md ("Your own approximation"), generated from `QUANTITIES`."""
+    lines = []
+    for q in QUANTITIES.values():
+        out = "one array" if q.channels == 1 else f"a tuple of {q.channels} arrays (R, G, B)"
+        lines.append(f"#### `{q.name}` [{q.unit}]")
+        lines.append("")
+        lines.append(f"{q.description[0].upper()}{q.description[1:]}; `f` returns {out}.")
+        lines.append(f"Reference: {q.reference}." if q.reference else "")
+        shipped = ", ".join(f"`{m}`" for m in q.methods) or "none"
+        lines.append(f"Shipped methods: {shipped}." + (f" ({q.note}.)" if q.note else ""))
+        lines.append("")
+        lines.append("| input | unit | domain | meaning |")
+        lines.append("|---|---|---|---|")
+        for i in q.inputs:
+            dom = "structured" if i.domain is None else f"[{i.domain[0]:g}, {i.domain[1]:g}]"
+            lines.append(f"| `{i.name}` | {i.unit} | {dom} | {i.description} |")
+        if q.vectors:
+            groups = "; ".join(
+                f"`g.{k}` = `({', '.join('g.' + c for c in v)})`" + (" (unit)" if k in q.unit_vectors else "")
+                for k, v in q.vectors.items()
+            )
+            lines.append("")
+            lines.append(f"Vectors: {groups}.")
+        lines.append("")
+    return "\n".join(line for line in lines).rstrip() + "\n"
