@@ -47,7 +47,7 @@ from .atomic import is_temporary_name
 from .audit_cli import audit
 from .cache_cli import cache_group
 from .executors import EXECUTORS, make_executor
-from .ray_executor import RAY_EXTRA_HINT
+from .ray_executor import RAY_EXTRA_HINT, check_address
 from .registry import EXPERIMENTS, SPP_MAX, BenchContext, describe_config, resolve_names, validate_config
 from .report import write_index, write_report
 from .runner import check_summary, created_now, device_description, run_experiments, versions
@@ -358,6 +358,8 @@ def _check_executor(executor: str, address):
     if executor == "ray":
         if importlib.util.find_spec("ray") is None:
             raise click.UsageError(RAY_EXTRA_HINT)
+        if address:  # a wrong host or port: one line in seconds, before anything runs
+            check_address(address)
 
 
 def _parse_gpus(text, executor: str):

@@ -139,10 +139,10 @@ def run_experiments(
     configuration keys replacing the experiments' defaults (as one `rtfit sweep` point does; validated
     by `registry.apply_overrides`: an unknown key or a value of another kind is a ValueError)."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    pool = make_executor(executor, workers, progress, address=address)  # a bad address: nothing written
     done: list[Path] = []
-    pool = make_executor(executor, workers, progress, address=address)
     try:
+        out.mkdir(parents=True, exist_ok=True)
         for spec in specs:
             final = out / spec.name
             t0 = time.perf_counter()
