@@ -94,7 +94,7 @@ CONFIG = {
     "probe_n": ConfigKey("int", "probe image side (pixels)", 4, 4096),
     "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
     "sky_spp": ConfigKey("int", "sky reference samples per pixel", 2, 4 * SPP_MAX),
-    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 1, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
     "bake_dirs": ConfigKey("int", "directions of the bake", 64, 1 << 22),
     "cap_quad": ConfigKey("int", "cap quadrature nodes (coarse, fine)", 2, 4096, (2,)),
     "cost_elements": ConfigKey("int", "elements per timed launch", 1024, 1 << 26),

@@ -86,7 +86,7 @@ CONFIG = {
     ),
     "resolution": ConfigKey("int", "image side (pixels)", 8, 4096),
     "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
-    "pass_spp": ConfigKey("int", "samples per pixel of one cached reference pass", 1, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached reference pass", 2, SPP_MAX),
     "probe_count": ConfigKey("int", "normals of the irradiance probe", 3, 1 << 20),
     "probe_spp": ConfigKey("int", "samples per probe normal", 2, SPP_MAX),
 }

@@ -91,7 +91,7 @@ CONFIG = {
     "sun_azimuth_deg": ConfigKey("float", "sun azimuth from the view direction (°)", -360.0, 360.0),
     "resolution": ConfigKey("int", "image (W, H) pixels", 8, 4096, (2,)),
     "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
-    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 1, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
     "check_resolution": ConfigKey("int", "check image side (pixels)", 4, 4096),
     "check_spp": ConfigKey("int", "check samples per pixel", 2, SPP_MAX),
     "volumes": ConfigKey("bool", "run the volume (scene) part"),

@@ -123,10 +123,10 @@ CONFIG = {
     ),
     "normals": ConfigKey("int", "normals of the irradiance comparison", 6, 1 << 20),
     "probe_spp": ConfigKey("int", "reference samples per probe normal", 2, SPP_MAX),
-    "probe_pass_spp": ConfigKey("int", "samples of one cached probe pass", 1, SPP_MAX),
+    "probe_pass_spp": ConfigKey("int", "samples of one cached probe pass", 2, SPP_MAX),
     "resolution": ConfigKey("int", "sphere image side (pixels)", 8, 4096),
     "spp": ConfigKey("int", "sphere image samples per pixel", 2, SPP_MAX),
-    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 1, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
     "map_height": ConfigKey("int", "rows of baked maps (2:1 lat-long)", 4, 4096),
     "probe_height": ConfigKey(
         "int", "rows of resampled probes; none: the file's own", 4, 8192, optional=True

@@ -245,8 +245,13 @@ def checked(declared: dict[str, ConfigKey], config: dict) -> dict:
 
 
 def declaration(experiment: str) -> dict[str, ConfigKey] | None:
-    """The ``CONFIG`` declaration of ``experiment``'s module (None: it declares none)."""
-    return getattr(get_experiment(experiment).load(), "CONFIG", None)
+    """The ``CONFIG`` declaration of ``experiment``'s module (None: it declares none, or ``experiment``
+    is not a registered name, as a test's stand-in experiment)."""
+    try:
+        spec = get_experiment(experiment)
+    except UnknownExperiment:
+        return None
+    return getattr(spec.load(), "CONFIG", None)
 
 
 def _same_kind(default, value) -> bool:

@@ -167,7 +167,7 @@ CONFIG = {
     "targets": ConfigKey("str", "reference targets", shape=(None,), choices=TARGETS_FULL),
     "resolution": ConfigKey("int", "image side (pixels)", 8, 4096),
     "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
-    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 1, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
     "grid": ConfigKey("int", "SDF grid side (voxels)", 8, 1024),
     "n_samples": ConfigKey("int", "Evans SDF samples", 1, 16),
     "ao_distance": ConfigKey("float", "AO radius (scene units)", 1e-6, 1e3),

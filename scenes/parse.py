@@ -145,17 +145,29 @@ def xml_problem(path: str) -> str | None:
 # ---------------------------------------------------------------------------------------------- schema
 @dataclass(frozen=True)
 class Bounds:
-    """A closed or open interval; ``None`` ends are unbounded."""
+    """A closed or open interval; ``None`` ends are unbounded. ``limit``: a sanity bound on the
+    magnitude besides (``|x| ≤ limit``), so that no finite but huge value (1e308) reaches a render."""
 
     lo: float | None = None
     hi: float | None = None
     lo_open: bool = False
     hi_open: bool = False
+    limit: float | None = None
 
     def contains(self, x: float) -> bool:
+        return self.within(x) and (self.limit is None or abs(x) <= self.limit)
+
+    def within(self, x: float) -> bool:
+        """In the interval (the limit aside)."""
         lo_ok = self.lo is None or (x > self.lo if self.lo_open else x >= self.lo)
         hi_ok = self.hi is None or (x < self.hi if self.hi_open else x <= self.hi)
         return lo_ok and hi_ok
+
+    def problem(self, x: float) -> str:
+        """Why ``x`` is not contained, as ``must be …``."""
+        if self.within(x):
+            return f"must be within ±{self.limit:g} (rtfit's limit for this quantity)"
+        return f"must be {self.text()}"
 
     def text(self) -> str:
         if self.lo is not None and self.hi is not None:
@@ -188,19 +200,19 @@ MAX_LENGTH = 1e8  # positions, sizes, radii, clip distances (scene units)
 MAX_RADIANCE = 1e12  # radiance, irradiance, emitter and map scales
 MAX_COEFFICIENT = 1e6  # extinction σ_t, fog density b (per unit length)
 MAX_FALLOFF = 1e3  # fog falloff c (per unit length)
-POSITIVE = Bounds(0.0, MAX_LENGTH, lo_open=True)
-NON_NEGATIVE = Bounds(0.0, MAX_RADIANCE)
+POSITIVE = Bounds(0.0, lo_open=True, limit=MAX_LENGTH)
+NON_NEGATIVE = Bounds(0.0, limit=MAX_RADIANCE)
 ZERO_ONE = Bounds(0.0, 1.0)
 OPEN_QUADRANT = Bounds(0.0, 90.0, lo_open=True, hi_open=True)  # angles strictly between 0° and 90°
-COORDINATE = Bounds(-MAX_LENGTH, MAX_LENGTH)
-ROTATION = Bounds(-3600.0, 3600.0)  # degrees (ten turns either way)
+COORDINATE = Bounds(limit=MAX_LENGTH)
+ROTATION = Bounds(limit=3600.0)  # degrees (ten turns either way)
 
 _VEC = Spec("vec3", COORDINATE)
 _UNIT = Spec("unit")
 _ANGLE = Spec("float", ROTATION)
 _POS = Spec("float", POSITIVE)
 _RADIANCE = Spec("rgb", NON_NEGATIVE)
-_EXTINCTION = Spec("rgb", Bounds(0.0, MAX_COEFFICIENT))
+_EXTINCTION = Spec("rgb", Bounds(0.0, limit=MAX_COEFFICIENT))
 _MATERIAL = Spec("material")
 _SIZE2 = Spec("vec2", POSITIVE)
 
@@ -284,8 +296,8 @@ SCHEMA: dict[type, dict[str, Spec]] = {
     },
     ExponentialFog: {
         "boundary": Spec("boundary"),
-        "density": Spec("float", Bounds(0.0, MAX_COEFFICIENT)),
-        "falloff": Spec("float", Bounds(0.0, MAX_FALLOFF)),
+        "density": Spec("float", Bounds(0.0, limit=MAX_COEFFICIENT)),
+        "falloff": Spec("float", Bounds(0.0, limit=MAX_FALLOFF)),
         "gradient": _UNIT,
         "gradient_origin": _VEC,
         "albedo": Spec("rgb", ZERO_ONE),
@@ -318,7 +330,7 @@ def _number(v: Any, key: str, bounds: Bounds | None = None) -> float:
     if not math.isfinite(x):
         raise _Invalid(key, f"must be finite (got {_show(v)})")
     if bounds is not None and not bounds.contains(x):
-        raise _Invalid(key, f"must be {bounds.text()} (got {_show(v)})")
+        raise _Invalid(key, f"{bounds.problem(x)} (got {_show(v)})")
     return x
 
 
@@ -326,7 +338,7 @@ def _integer(v: Any, key: str, bounds: Bounds | None = None) -> int:
     if isinstance(v, bool) or not isinstance(v, int):
         raise _Invalid(key, f"must be an integer (got {_show(v)})")
     if bounds is not None and not bounds.contains(v):
-        raise _Invalid(key, f"must be {bounds.text()} (got {_show(v)})")
+        raise _Invalid(key, f"{bounds.problem(v)} (got {_show(v)})")
     return v
 
 
