@@ -12,8 +12,11 @@
     rtfit cache prune [--cache DIR] [--older-than 30d] [--max-size 2G] [--dry-run]
 
 Errors in what the user typed or supplied (unknown experiment, bad option, malformed scene file,
-invalid value) print one line, ``rtfit: error: …``, write nothing and exit with status 2. Exit status
-1: the work ran but part of it failed (``rtfit sweep`` with failed points).
+invalid value, an unwritable ``--out``/``--cache``, an unreadable probe file, a Ray address that does
+not answer) print one line, ``rtfit: error: …``, write nothing and exit with status 2, before anything
+runs: every configuration value is checked against its key's declaration (`registry.validate_config`).
+Exit status 1: the work ran but part of it failed (``rtfit sweep`` with failed points; ``rtfit run``
+with failed self-checks: one line per experiment, ``rtfit: EXPERIMENT: N of M checks failed: …``).
 
 Progress goes to stderr through `logging` (loggers under ``rtfit``: ``rtfit.experiments`` one line per
 experiment start and end, ``rtfit.jobs`` one per finished job, ``rtfit.reference`` cache resumes),

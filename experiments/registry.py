@@ -8,7 +8,11 @@ An experiment module exposes:
 * ``bench(ctx: BenchContext) -> list[dict]`` — rows for ``rtfit bench``;
 * ``configure(quick: bool, spp: int | None) -> dict`` — its configuration (plain JSON data: case lists,
   resolution, spp, …). ``run`` must take its configuration as ``ctx.configured(configure(ctx.quick,
-  ctx.spp))``, so that a sweep (``rtfit sweep``) can override any key per point.
+  ctx.spp))``, so that a sweep (``rtfit sweep``) can override any key per point;
+* ``CONFIG: dict[str, ConfigKey]`` — every key of ``configure`` declared with its type, range and meaning.
+  ``configure`` returns ``checked(CONFIG, {...})``; `apply_overrides` checks each override against it,
+  and `validate_config` every value (with the deeper checks, e.g. probe files) before a run or sweep
+  starts; ``rtfit sweep --show-config`` prints it (`describe_config`).
 """
 
 from __future__ import annotations
