@@ -79,30 +79,62 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .registry import SPP_MAX, ConfigKey, checked
 
 PI = math.pi
 
 
 # ============================================================================================ configure
+CONFIG = {
+    "grid": ConfigKey("int", "(r1, r2, d) grid points per axis", 4, 1024),
+    "fit_grid": ConfigKey("int", "fit grid points per axis", 4, 1024),
+    "quad_nodes": ConfigKey("int", "Gauss–Legendre nodes per sub-interval", 2, 1024),
+    "lambert_configs": ConfigKey("int", "configurations of the Lambert check", 10, 1 << 20),
+    "lambert_quad": ConfigKey("int", "quadrature nodes (coarse, fine) of the Lambert check", 2, 4096, (2,)),
+    "probe_n": ConfigKey("int", "probe image side (pixels)", 4, 4096),
+    "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
+    "sky_spp": ConfigKey("int", "sky reference samples per pixel", 2, 4 * SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
+    "bake_dirs": ConfigKey("int", "directions of the bake", 64, 1 << 22),
+    "cap_quad": ConfigKey("int", "cap quadrature nodes (coarse, fine)", 2, 4096, (2,)),
+    "cost_elements": ConfigKey("int", "elements per timed launch", 1024, 1 << 26),
+    "scenes": ConfigKey(
+        "str", "library scenes", shape=(None,), choices=("aperture_hole", "aperture_well", "aperture_bumps")
+    ),
+    "metrics": ConfigKey(
+        "str",
+        "image metrics",
+        shape=(None,),
+        choices=("rmse", "rel_mse", "mae", "max_abs", "psnr", "ssim", "flip"),
+    ),
+}
+"""Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
+
+
 def configure(quick: bool, spp: int | None) -> dict:
-    return {
-        "grid": 40 if quick else 96,  # (r1, r2, d) grid points per axis
-        "fit_grid": 40 if quick else 72,
-        "quad_nodes": 48 if quick else 96,  # Gauss–Legendre nodes per sub-interval (function check)
-        "lambert_configs": 1500 if quick else 6000,
-        "lambert_quad": [24, 96] if quick else [48, 192],
-        "probe_n": 32 if quick else 64,  # probe image side
-        "spp": spp or (1024 if quick else 8192),
-        "sky_spp": 4 * spp if spp else (4096 if quick else 32768),  # the sky is seen through small apertures
-        "pass_spp": 512 if quick else 4096,
-        "bake_dirs": 4096 if quick else 16384,
-        "cap_quad": [24, 96] if quick else [48, 192],
-        "cost_elements": 1 << (20 if quick else 24),
-        "scenes": ["aperture_hole", "aperture_well", "aperture_bumps"],
-        # ꟻLIP costs ~0.15 s per call on a busy 2-core machine (5 calls per metric with its floor draws):
-        # the quick run leaves it out to stay within its time budget.
-        "metrics": ["rmse", "rel_mse", "mae", "max_abs", "psnr", "ssim"] + ([] if quick else ["flip"]),
-    }
+    return checked(
+        CONFIG,
+        {
+            "grid": 40 if quick else 96,  # (r1, r2, d) grid points per axis
+            "fit_grid": 40 if quick else 72,
+            "quad_nodes": 48 if quick else 96,  # Gauss–Legendre nodes per sub-interval (function check)
+            "lambert_configs": 1500 if quick else 6000,
+            "lambert_quad": [24, 96] if quick else [48, 192],
+            "probe_n": 32 if quick else 64,  # probe image side
+            "spp": spp or (1024 if quick else 8192),
+            "sky_spp": 4 * spp
+            if spp
+            else (4096 if quick else 32768),  # the sky is seen through small apertures
+            "pass_spp": 512 if quick else 4096,
+            "bake_dirs": 4096 if quick else 16384,
+            "cap_quad": [24, 96] if quick else [48, 192],
+            "cost_elements": 1 << (20 if quick else 24),
+            "scenes": ["aperture_hole", "aperture_well", "aperture_bumps"],
+            # ꟻLIP costs ~0.15 s per call on a busy 2-core machine (5 calls per metric with its floor draws):
+            # the quick run leaves it out to stay within its time budget.
+            "metrics": ["rmse", "rel_mse", "mae", "max_abs", "psnr", "ssim"] + ([] if quick else ["flip"]),
+        },
+    )
 
 
 # ============================================================================================== methods

@@ -12,8 +12,11 @@
     rtfit cache prune [--cache DIR] [--older-than 30d] [--max-size 2G] [--dry-run]
 
 Errors in what the user typed or supplied (unknown experiment, bad option, malformed scene file,
-invalid value) print one line, ``rtfit: error: …``, write nothing and exit with status 2. Exit status
-1: the work ran but part of it failed (``rtfit sweep`` with failed points).
+invalid value, an unwritable ``--out``/``--cache``, an unreadable probe file, a Ray address that does
+not answer) print one line, ``rtfit: error: …``, write nothing and exit with status 2, before anything
+runs: every configuration value is checked against its key's declaration (`registry.validate_config`).
+Exit status 1: the work ran but part of it failed (``rtfit sweep`` with failed points; ``rtfit run``
+with failed self-checks: one line per experiment, ``rtfit: EXPERIMENT: N of M checks failed: …``).
 
 Progress goes to stderr through `logging` (loggers under ``rtfit``: ``rtfit.experiments`` one line per
 experiment start and end, ``rtfit.jobs`` one per finished job, ``rtfit.reference`` cache resumes),
@@ -27,7 +30,9 @@ import importlib.util
 import json
 import logging
 import math
+import os
 import sys
+import tempfile
 import time
 from importlib import metadata
 from pathlib import Path
@@ -45,14 +50,14 @@ from .atomic import is_temporary_name
 from .audit_cli import audit
 from .cache_cli import cache_group
 from .executors import EXECUTORS, make_executor
-from .ray_executor import RAY_EXTRA_HINT
-from .registry import EXPERIMENTS, BenchContext, resolve_names
+from .ray_executor import RAY_EXTRA_HINT, check_address
+from .registry import EXPERIMENTS, SPP_MAX, BenchContext, describe_config, resolve_names, validate_config
 from .report import write_index, write_report
-from .runner import created_now, device_description, run_experiments, versions
+from .runner import check_summary, created_now, device_description, run_experiments, versions
 from .sweep import load_sweep, run_sweep
-from .sweep import show_config as show_sweep_config
 
-VARIANT_CHOICES = ("auto", "llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
+VARIANT_CHOICES = ("auto", "llvm_ad_rgb", "cuda_ad_rgb")
+"""The variants a run offers (Mitsuba's ``scalar_rgb`` renders one sample at a time: not one of them)."""
 
 
 class UserError(click.ClickException):
@@ -169,7 +174,10 @@ def list_cmd():
     help="Mitsuba variant for references and the Dr.Jit backend for approximations.",
 )
 @click.option(
-    "--spp", type=click.IntRange(min=2), default=None, help="Reference samples per pixel (overrides)."
+    "--spp",
+    type=click.IntRange(min=2, max=SPP_MAX),
+    default=None,
+    help=f"Reference samples per pixel (overrides; at most {SPP_MAX}).",
 )
 @click.option(
     "--out",
@@ -203,20 +211,29 @@ def run_cmd(experiments, quick, variant, spp, out, cache, executor, address, wor
     """Run EXPERIMENT... (or 'all') and write OUT/EXPERIMENT/{results.json,report.html,...}."""
     specs, variant = _validated(experiments, variant)  # before anything is written
     _check_executor(executor, address)
-    run_experiments(
+    cache = _writable_dir(cache, "--cache")
+    _writable_dir(out, "--out")
+    for spec in specs:  # every configuration value, its type, range and files, before anything runs
+        _config_ok(spec.name, quick, spp, {})
+    done = run_experiments(
         specs,
         out,
         quick=quick,
         variant=variant,
         spp=spp,
         seed=seed,
-        cache_dir=cache or default_cache_dir(),
+        cache_dir=cache,
         executor=executor,
         workers=workers,
         progress=_bars(no_progress),
         address=address,
     )
     click.echo(str((out / "index.html").resolve()))
+    failed = [line for line in map(check_summary, done) if line]
+    for line in failed:
+        click.echo(f"rtfit: {line}", err=True)
+    if failed:
+        raise click.exceptions.Exit(1)
 
 
 @cli.command("sweep")
@@ -258,13 +275,17 @@ def sweep_cmd(
     """Run the experiment of SPEC.toml over its grid of configuration points (docs/scale-out.md):
     one results.json per point in OUT/NAME/points/, and a combined table and report in OUT/NAME/."""
     if show_config:
-        click.echo(show_sweep_config(show_config, quick))
+        click.echo(describe_config(show_config, quick))
         return
     if spec_file is None:
         _fail("name a sweep file (SPEC.toml), or --show-config EXPERIMENT")
     sweep = load_sweep(spec_file)
     (_,), variant = _validated([sweep.experiment], variant)
     _check_executor(executor, address)
+    cache = _writable_dir(cache, "--cache")
+    _writable_dir(out, "--out")
+    for i, point in enumerate(sweep.points):  # every point's values and files, before any point runs
+        _config_ok(sweep.experiment, sweep.quick, sweep.spp, point, f"{spec_file}: point {i}: ")
     gpu_ids = _parse_gpus(gpus, executor)
     progress = _bars(no_progress)
     pool = make_executor(executor, workers, progress, address=address, gpus=gpu_ids)
@@ -273,7 +294,7 @@ def sweep_cmd(
             sweep,
             out,
             variant=variant,
-            cache_dir=cache or default_cache_dir(),
+            cache_dir=cache,
             executor=pool,
             executor_name=executor,
             log=logging.getLogger("rtfit.experiments").info,
@@ -298,12 +319,50 @@ cli.add_command(cache_group)
 cli.add_command(audit)
 
 
+def _config_ok(experiment: str, quick: bool, spp, overrides: dict, where: str = ""):
+    """``experiment``'s configuration with ``overrides``, every value checked against its declaration
+    (`registry.validate_config`: type, range, files readable): a one-line error otherwise."""
+    try:
+        validate_config(experiment, quick, spp, overrides)
+    except ValueError as e:
+        _fail(f"{where}{experiment}: {e}")
+
+
+def _writable_dir(path, option: str) -> Path:
+    """``path`` (``None``: the default cache directory, ``$RTFIT_CACHE`` or ``~/.cache/rtfit``) checked
+    as a directory this process can create and write to, before anything runs: its nearest existing
+    ancestor must be a directory, and a probe directory is made there and removed at once (``os.access``
+    says yes to root on a read-only filesystem). Nothing else is created."""
+    if path is None:
+        path = default_cache_dir()
+        if os.environ.get("RTFIT_CACHE"):
+            option = "$RTFIT_CACHE"
+    path = Path(path)
+    probe = path
+    while not probe.exists():
+        if probe.is_symlink():
+            _fail(f"{option} {path}: {probe} is a broken symbolic link")
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        what = "is a file" if probe == path else f"is under {probe}, a file"
+        _fail(f"{option} {path}: {what}, not a directory")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".rtfit-probe-", dir=probe))
+    except OSError as e:
+        _fail(f"{option} {path}: cannot create anything in {probe} ({e.strerror or e})")
+    return path
+
+
 def _check_executor(executor: str, address):
     if address and executor != "ray":
         raise click.UsageError("--address is for --executor ray")
     if executor == "ray":
         if importlib.util.find_spec("ray") is None:
             raise click.UsageError(RAY_EXTRA_HINT)
+        if address:  # a wrong host or port: one line in seconds, before anything runs
+            check_address(address)
 
 
 def _parse_gpus(text, executor: str):

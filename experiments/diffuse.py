@@ -70,6 +70,7 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .registry import SPP_MAX, ConfigKey, checked
 
 # ============================================================================================ configure
 # Cases: light angular radius (degrees) × sky radiance (relative to the lit peak radiance, 1).
@@ -78,16 +79,33 @@ ALPHAS_QUICK = (0.27, 5.0, 15.0, 30.0)
 SKIES = (0.0, 0.2)
 
 
+CONFIG = {
+    "alphas_deg": ConfigKey("float", "light angular radii (°), one case each", 0.01, 89.0, (None,)),
+    "sky_radiances": ConfigKey(
+        "float", "constant sky radiance relative to the light's (0: none)", 0.0, 100.0, (None,)
+    ),
+    "resolution": ConfigKey("int", "image side (pixels)", 8, 4096),
+    "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached reference pass", 2, SPP_MAX),
+    "probe_count": ConfigKey("int", "normals of the irradiance probe", 3, 1 << 20),
+    "probe_spp": ConfigKey("int", "samples per probe normal", 2, SPP_MAX),
+}
+"""Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
+
+
 def configure(quick: bool, spp: int | None) -> dict:
-    return {
-        "alphas_deg": list(ALPHAS_QUICK if quick else ALPHAS_FULL),
-        "sky_radiances": list(SKIES),
-        "resolution": 64 if quick else 160,
-        "spp": spp or (256 if quick else 4096),
-        "pass_spp": 128 if quick else 512,
-        "probe_count": 61 if quick else 181,
-        "probe_spp": 2048 if quick else 32768,
-    }
+    return checked(
+        CONFIG,
+        {
+            "alphas_deg": list(ALPHAS_QUICK if quick else ALPHAS_FULL),
+            "sky_radiances": list(SKIES),
+            "resolution": 64 if quick else 160,
+            "spp": spp or (256 if quick else 4096),
+            "pass_spp": 128 if quick else 512,
+            "probe_count": 61 if quick else 181,
+            "probe_spp": 2048 if quick else 32768,
+        },
+    )
 
 
 # ============================================================================================== methods

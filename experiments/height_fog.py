@@ -77,6 +77,7 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .registry import SPP_MAX, ConfigKey, checked
 
 # ============================================================================================ configure
 SUN_AZIMUTH_DEG = 50.0  # from the view direction (+y) towards +x: the sun is outside the frame
@@ -85,20 +86,39 @@ ELEVATIONS_QUICK = (10.0, 40.0)
 TRANSPORTS = ("single", "multiple")
 
 
+CONFIG = {
+    "sun_elevations_deg": ConfigKey("float", "sun elevations (°), one case each", 0.0, 90.0, (None,)),
+    "sun_azimuth_deg": ConfigKey("float", "sun azimuth from the view direction (°)", -360.0, 360.0),
+    "resolution": ConfigKey("int", "image (W, H) pixels", 8, 4096, (2,)),
+    "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
+    "check_resolution": ConfigKey("int", "check image side (pixels)", 4, 4096),
+    "check_spp": ConfigKey("int", "check samples per pixel", 2, SPP_MAX),
+    "volumes": ConfigKey("bool", "run the volume (scene) part"),
+    "map_size": ConfigKey("int", "error-map (W, H)", 4, 4096, (2,)),
+    "random_samples": ConfigKey("int", "random domain samples", 100, 1 << 26),
+    "cost_elements": ConfigKey("int", "elements per timed launch", 1024, 1 << 26),
+}
+"""Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
+
+
 def configure(quick: bool, spp: int | None) -> dict:
-    return {
-        "sun_elevations_deg": list(ELEVATIONS_QUICK if quick else ELEVATIONS_FULL),
-        "sun_azimuth_deg": SUN_AZIMUTH_DEG,
-        "resolution": [64, 32] if quick else [256, 128],
-        "spp": spp or (256 if quick else 2048),
-        "pass_spp": 128 if quick else 256,
-        "check_resolution": 24 if quick else 64,
-        "check_spp": 256 if quick else 2048,
-        "volumes": True,
-        "map_size": [48, 36] if quick else [200, 160],
-        "random_samples": 20000 if quick else 400000,
-        "cost_elements": 1 << (20 if quick else 22),
-    }
+    return checked(
+        CONFIG,
+        {
+            "sun_elevations_deg": list(ELEVATIONS_QUICK if quick else ELEVATIONS_FULL),
+            "sun_azimuth_deg": SUN_AZIMUTH_DEG,
+            "resolution": [64, 32] if quick else [256, 128],
+            "spp": spp or (256 if quick else 2048),
+            "pass_spp": 128 if quick else 256,
+            "check_resolution": 24 if quick else 64,
+            "check_spp": 256 if quick else 2048,
+            "volumes": True,
+            "map_size": [48, 36] if quick else [200, 160],
+            "random_samples": 20000 if quick else 400000,
+            "cost_elements": 1 << (20 if quick else 22),
+        },
+    )
 
 
 # ============================================================================================== methods

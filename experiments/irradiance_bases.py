@@ -45,6 +45,7 @@ Sections: configure · methods · cases · jobs · run · checks · figures · s
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import math
 import time
@@ -99,6 +100,7 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .registry import SPP_MAX, ConfigKey, checked
 
 # ============================================================================================ configure
 SUNSKY_ELEVATIONS_FULL = (2.0, 10.0, 30.0, 60.0, 90.0)
@@ -112,21 +114,86 @@ SUNSKY_BAKE_TOLERANCE = 0.01  # relative bias of baked sky + disc sun against Mi
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # linear sRGB → luminance (Rec. 709), for the error maps
 
 
+CONFIG = {
+    "environments": ConfigKey(
+        "str",
+        "constant, sun-<radius °>, sunsky-<elevation °>, studio, overcast, probe-<name>",
+        shape=(None,),
+        check=lambda name: environment_problem(name),
+    ),
+    "normals": ConfigKey("int", "normals of the irradiance comparison", 6, 1 << 20),
+    "probe_spp": ConfigKey("int", "reference samples per probe normal", 2, SPP_MAX),
+    "probe_pass_spp": ConfigKey("int", "samples of one cached probe pass", 2, SPP_MAX),
+    "resolution": ConfigKey("int", "sphere image side (pixels)", 8, 4096),
+    "spp": ConfigKey("int", "sphere image samples per pixel", 2, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
+    "map_height": ConfigKey("int", "rows of baked maps (2:1 lat-long)", 4, 4096),
+    "probe_height": ConfigKey(
+        "int", "rows of resampled probes; none: the file's own", 4, 8192, optional=True
+    ),
+    "quadrature_min_rows": ConfigKey("int", "quadrature supersampling: at least this many rows", 1, 16384),
+    "map_supersample": ConfigKey("int", "map supersampling per axis", 1, 16),
+    "sun_elevation_deg": ConfigKey("float", "elevation of the sun-<r> environments (°)", 0.0, 90.0),
+}
+"""Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
+
+
+def environment_problem(name: str) -> str | None:
+    """What is wrong with an environment name (None: it can be built): an unknown name, a number out of
+    range, a measured probe whose file is missing or does not read (checked before anything renders)."""
+    if name in ("constant", "studio", "overcast"):
+        return None
+    for prefix, lo, hi, what in (("sun-", 0.0, 90.0, "angular radius"), ("sunsky-", 0.0, 90.0, "elevation")):
+        if name.startswith(prefix):
+            try:
+                x = float(name[len(prefix) :])
+            except ValueError:
+                return f"{prefix}<{what} in degrees> expected"
+            return None if lo < x <= hi else f"{what} {name[len(prefix) :]}° out of range ({lo:g}, {hi:g}]"
+    if name.startswith("probe-"):
+        probe = name[6:]
+        if probe not in envs.PROBES:
+            return f"unknown probe {probe!r} (known: {', '.join(envs.PROBES)})"
+        path = envs.probe_dir() / envs.PROBES[probe][0]
+        if not path.is_file():
+            return f"probe file not found: {path} (set RTFIT_PROBE_DIR)"
+        stat = path.stat()
+        return _probe_file_problem(probe, str(path), stat.st_size, stat.st_mtime_ns)
+    return "unknown environment (constant, sun-<r>, sunsky-<e>, studio, overcast, probe-<name>)"
+
+
+@functools.lru_cache(maxsize=32)
+def _probe_file_problem(probe: str, path: str, _size: int, _mtime: int) -> str | None:
+    """Read the probe file once (keyed by its size and time): a truncated or corrupt file is a problem."""
+    try:
+        env = envs.probe_environment(probe, 8)
+    except Exception as e:  # any failure to read the file is the user's bad file
+        return f"probe file {path} does not read ({str(e).splitlines()[0] if str(e) else type(e).__name__})"
+    if not np.all(np.isfinite(env.radiance_map)):
+        return f"probe file {path} has non-finite pixels"
+    return None
+
+
 def configure(quick: bool, spp: int | None) -> dict:
-    return {
-        "environments": environment_names(quick),
-        "normals": 384 if quick else 2048,
-        "probe_spp": spp or (4096 if quick else 32768),
-        "probe_pass_spp": 1024 if quick else 4096,
-        "resolution": 40 if quick else 128,
-        "spp": 512 if quick else 4096,
-        "pass_spp": 128 if quick else 1024,
-        "map_height": 32 if quick else 128,
-        "probe_height": 64 if quick else None,  # None: the probe file's own resolution
-        "quadrature_min_rows": 256 if quick else 512,  # quadrature supersampling s = max(2, ceil(rows / H))
-        "map_supersample": 2,
-        "sun_elevation_deg": 45.0,
-    }
+    return checked(
+        CONFIG,
+        {
+            "environments": environment_names(quick),
+            "normals": 384 if quick else 2048,
+            "probe_spp": spp or (4096 if quick else 32768),
+            "probe_pass_spp": 1024 if quick else 4096,
+            "resolution": 40 if quick else 128,
+            "spp": 512 if quick else 4096,
+            "pass_spp": 128 if quick else 1024,
+            "map_height": 32 if quick else 128,
+            "probe_height": 64 if quick else None,  # None: the probe file's own resolution
+            "quadrature_min_rows": 256
+            if quick
+            else 512,  # quadrature supersampling s = max(2, ceil(rows / H))
+            "map_supersample": 2,
+            "sun_elevation_deg": 45.0,
+        },
+    )
 
 
 def environment_names(quick: bool) -> list[str]:

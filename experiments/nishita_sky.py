@@ -81,6 +81,7 @@ from rtfit.reference.nishita_sky import (
 from . import figures
 from .cost import attach_costs, time_drjit, time_numpy
 from .jobs import Job
+from .registry import SPP_MAX, ConfigKey, checked
 
 # ======================================================================================== configure
 ELEVATIONS_FULL = (90.0, 45.0, 10.0, 2.0, 0.0, -4.0)
@@ -92,35 +93,67 @@ SEED_CFG = SEED_SETTING.build_keywords()
 FINE_CFG = FINE_SETTING.build_keywords()
 
 
+_ELEV = (-10.0, 90.0)
+CONFIG = {
+    "sun_elevations_deg": ConfigKey("float", "sun elevations (°), one case each", *_ELEV, (None,)),
+    "resolution": ConfigKey("int", "sky image (W, H) pixels", 4, 4096, (2,)),
+    "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
+    "twilight_spp_factor": ConfigKey("int", "spp multiplier below the horizon", 1, 64),
+    "spectral_elevations_deg": ConfigKey("float", "spectral case elevations (°)", *_ELEV, (None,)),
+    "spectral_resolution": ConfigKey("int", "spectral image (W, H)", 4, 4096, (2,)),
+    "spectral_spp": ConfigKey("int", "spectral samples per pixel", 2, 4 * SPP_MAX),
+    "spectral_pass_spp": ConfigKey("int", "spectral samples of one cached pass", 2, SPP_MAX),
+    "spectral_quadrature_stride": ConfigKey("int", "spectral quadrature pixel stride (x, y)", 1, 256, (2,)),
+    "viewer_altitude_m": ConfigKey("float", "viewer altitude (m)", 0.0, 50000.0),
+    "quadrature_stride": ConfigKey("int", "quadrature pixel stride (x, y)", 1, 256, (2,)),
+    "quadrature_steps": ConfigKey("int", "quadrature steps per ray", 10, 100000),
+    "sweep_elevations_deg": ConfigKey("float", "elevations of the sweeps (°)", *_ELEV, (None,)),
+    "sweep_layers": ConfigKey("int", "layer counts of the sweep", 1, 1024, (None,)),
+    "sweep_textures": ConfigKey("int", "texture (W, H) of the sweep", 2, 4096, (None, 2)),
+    "sweep_tables": ConfigKey("int", "table sizes of the sweep", 2, 4096, (None,)),
+    "spectral_wavelengths": ConfigKey("int", "wavelengths of the spectral variant", 3, 128),
+    "fine": ConfigKey("table", "the fine setting (layers, width, height, table_size, mapping)"),
+    "sweep_fine": ConfigKey("bool", "include the fine setting in the sweeps"),
+    "fit_texture": ConfigKey("int", "texture (W, H) of the fit", 2, 4096, (2,)),
+    "altitude_cases": ConfigKey("float", "(viewer, sun-case) altitudes (m)", 0.0, 50000.0, (None, 2)),
+    "cost_elements": ConfigKey("int", "elements per timed launch", 1024, 1 << 26),
+}
+"""Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
+
+
 def configure(quick: bool, spp: int | None) -> dict:
     spp = spp or (256 if quick else 4096)
-    return {
-        "sun_elevations_deg": list(ELEVATIONS_QUICK if quick else ELEVATIONS_FULL),
-        "resolution": [32, 16] if quick else [128, 64],
-        "spp": spp,
-        "pass_spp": 128 if quick else 1024,
-        "twilight_spp_factor": 4 if quick else 1,
-        "spectral_elevations_deg": [45.0, 10.0] if quick else list(ELEVATIONS_FULL),
-        "spectral_resolution": [16, 8] if quick else [64, 32],
-        "spectral_spp": 4 * spp if quick else spp,
-        "spectral_pass_spp": 256 if quick else 1024,
-        "spectral_quadrature_stride": [2, 1] if quick else [4, 2],
-        "viewer_altitude_m": VIEWER_ALTITUDE_M,
-        "quadrature_stride": [4, 2] if quick else [8, 4],
-        "quadrature_steps": 400 if quick else 1500,
-        "sweep_elevations_deg": [10.0, -4.0],
-        "sweep_layers": [4, 8, 16, 32, 64, 128] if not quick else [4, 16, 32, 128],
-        "sweep_textures": [[32, 16], [64, 32], [128, 64], [256, 128], [512, 256]]
-        if not quick
-        else [[32, 16], [128, 64], [256, 128]],
-        "sweep_tables": [16, 32, 64, 128, 256] if not quick else [16, 128],
-        "spectral_wavelengths": METHODS["nishita-spectral"].fixed["setting"].wavelengths,
-        "fine": dict(FINE_CFG),
-        "sweep_fine": not quick,
-        "fit_texture": [64, 32],
-        "altitude_cases": [[10.0, 5000.0]] if quick else [[10.0, 5000.0], [10.0, 30000.0]],
-        "cost_elements": 1 << (18 if quick else 22),
-    }
+    return checked(
+        CONFIG,
+        {
+            "sun_elevations_deg": list(ELEVATIONS_QUICK if quick else ELEVATIONS_FULL),
+            "resolution": [32, 16] if quick else [128, 64],
+            "spp": spp,
+            "pass_spp": 128 if quick else 1024,
+            "twilight_spp_factor": 4 if quick else 1,
+            "spectral_elevations_deg": [45.0, 10.0] if quick else list(ELEVATIONS_FULL),
+            "spectral_resolution": [16, 8] if quick else [64, 32],
+            "spectral_spp": 4 * spp if quick else spp,
+            "spectral_pass_spp": 256 if quick else 1024,
+            "spectral_quadrature_stride": [2, 1] if quick else [4, 2],
+            "viewer_altitude_m": VIEWER_ALTITUDE_M,
+            "quadrature_stride": [4, 2] if quick else [8, 4],
+            "quadrature_steps": 400 if quick else 1500,
+            "sweep_elevations_deg": [10.0, -4.0],
+            "sweep_layers": [4, 8, 16, 32, 64, 128] if not quick else [4, 16, 32, 128],
+            "sweep_textures": [[32, 16], [64, 32], [128, 64], [256, 128], [512, 256]]
+            if not quick
+            else [[32, 16], [128, 64], [256, 128]],
+            "sweep_tables": [16, 32, 64, 128, 256] if not quick else [16, 128],
+            "spectral_wavelengths": METHODS["nishita-spectral"].fixed["setting"].wavelengths,
+            "fine": dict(FINE_CFG),
+            "sweep_fine": not quick,
+            "fit_texture": [64, 32],
+            "altitude_cases": [[10.0, 5000.0]] if quick else [[10.0, 5000.0], [10.0, 30000.0]],
+            "cost_elements": 1 << (18 if quick else 22),
+        },
+    )
 
 
 # ========================================================================================== methods

@@ -25,13 +25,104 @@ Faults
 from __future__ import annotations
 
 import os
+import socket
 import tempfile
+import threading
 import time
 import warnings
 
 from .jobs import MAX_ATTEMPTS, Job, JobTracker, Outcome, error_line, values_or_raise
 
 RAY_EXTRA_HINT = "--executor ray needs Ray: pip install 'rtfit[ray]'"
+
+CONNECT_TIMEOUT_S = 10.0
+"""Seconds to wait for a Ray cluster to answer at ``--address`` (``$RTFIT_RAY_TIMEOUT`` overrides): the
+TCP check of the address (`check_address`, before anything runs), then ``ray.init`` itself
+(`RayExecutor`), each a one-line error when it runs out, instead of Ray's minutes of retries."""
+
+DEFAULT_PORTS = {"ray": 10001, "": 6379}  # Ray Client (ray://) and the GCS port
+
+
+def connect_timeout() -> float:
+    """`CONNECT_TIMEOUT_S`, or ``$RTFIT_RAY_TIMEOUT`` seconds (a positive number)."""
+    text = os.environ.get("RTFIT_RAY_TIMEOUT")
+    if not text:
+        return CONNECT_TIMEOUT_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0 or value == float("inf"):
+        raise ValueError(f"RTFIT_RAY_TIMEOUT={text!r}: expected a positive number of seconds")
+    return value
+
+
+def address_endpoint(address: str) -> tuple[str, int] | None:
+    """(host, port) that a Ray address names (``ray://host[:port]`` → Ray Client, 10001 by default;
+    ``host[:port]`` → the GCS, 6379 by default); None for ``auto`` and ``local`` (Ray finds those itself).
+    A malformed address is a one-line ``ValueError``."""
+    text = address.strip()
+    if text in ("auto", "local"):
+        return None
+    scheme, sep, rest = text.partition("://")
+    if not sep:
+        scheme, rest = "", text
+    elif scheme != "ray":
+        raise ValueError(f"--address {address!r}: expected host:port or ray://host:port")
+    host, port = rest.rstrip("/"), str(DEFAULT_PORTS[scheme])
+    if host.startswith("["):  # [IPv6]:port
+        inner, _, tail = host[1:].partition("]")
+        host, port = inner, tail[1:] if tail.startswith(":") else port
+    elif host.count(":") == 1:
+        host, port = host.split(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--address {address!r}: expected host:port or ray://host:port")
+    return host, int(port)
+
+
+def check_address(address: str, timeout: float | None = None):
+    """A one-line ``ValueError`` unless something accepts a TCP connection at ``address`` within
+    ``timeout`` seconds (default `connect_timeout`): a wrong host or port fails in seconds, before
+    anything runs or is written, instead of hanging in Ray's retries."""
+    endpoint = address_endpoint(address)
+    if endpoint is None:
+        return
+    timeout = connect_timeout() if timeout is None else timeout
+    try:
+        with socket.create_connection(endpoint, timeout=timeout):
+            pass
+    except TimeoutError:
+        raise ValueError(
+            f"--address {address}: no answer from {endpoint[0]}:{endpoint[1]} within {timeout:g} s "
+            "(is the Ray cluster up? $RTFIT_RAY_TIMEOUT sets the wait)"
+        ) from None
+    except OSError as e:
+        raise ValueError(
+            f"--address {address}: cannot connect to {endpoint[0]}:{endpoint[1]} ({e.strerror or e})"
+        ) from None
+
+
+def _init_within(ray, timeout: float, address: str, **kwargs):
+    """``ray.init(address=address, **kwargs)``, or a one-line ``ValueError`` after ``timeout`` seconds
+    (the call runs in a daemon thread: a cluster that accepts the connection but never completes the
+    handshake cannot hold the command)."""
+    box: dict = {}
+
+    def target():
+        try:
+            box["value"] = ray.init(address=address, **kwargs)
+        except BaseException as e:  # handed to the caller's thread
+            box["error"] = e
+
+    thread = threading.Thread(target=target, name="rtfit-ray-init", daemon=True)
+    thread.start()
+    thread.join(timeout)
+    if thread.is_alive():
+        raise ValueError(f"--address {address}: Ray did not connect within {timeout:g} s")
+    if "error" in box:
+        e = box["error"]
+        raise ValueError(f"--address {address}: {error_line(e)}") from e
+    return box["value"]
 
 
 def _import_ray():
@@ -87,7 +178,8 @@ class RayExecutor:
             warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
             kwargs = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
             if address:
-                ray.init(address=address, **kwargs)
+                check_address(address)
+                _init_within(ray, 3 * connect_timeout(), address, **kwargs)
             elif os.environ.get("RAY_ADDRESS"):
                 ray.init(**kwargs)
             else:

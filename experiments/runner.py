@@ -8,6 +8,7 @@ reference cache (rendered passes are never rendered twice).
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import logging
 import platform
@@ -26,7 +27,7 @@ from .executors import make_executor
 from .records import SCHEMA, Results, from_json, plain_json
 from .registry import ExperimentSpec, RunContext
 from .report import write_index, write_report
-from .results import RESULTS_FILE, write_results
+from .results import RESULTS_FILE, load_results, write_results
 
 log = logging.getLogger("rtfit.experiments")
 
@@ -93,6 +94,8 @@ def run_experiment_into(
     ``extra_config``) and builds the :class:`~.records.Results` record before writing anything, so a
     body of the wrong shape is a one-line :class:`~.records.ResultsError` naming the key path and
     leaves no ``results.json`` behind."""
+    if ctx.experiment != spec.name:  # its CONFIG declaration checks the run's overrides
+        ctx = dataclasses.replace(ctx, experiment=spec.name)
     ctx.log(f"{spec.name}: running ({'quick' if ctx.quick else 'full'}, {ctx.variant})")
     body = spec.load().run(ctx)
     doc = {
@@ -138,10 +141,10 @@ def run_experiments(
     configuration keys replacing the experiments' defaults (as one `rtfit sweep` point does; validated
     by `registry.apply_overrides`: an unknown key or a value of another kind is a ValueError)."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    pool = make_executor(executor, workers, progress, address=address)  # a bad address: nothing written
     done: list[Path] = []
-    pool = make_executor(executor, workers, progress, address=address)
     try:
+        out.mkdir(parents=True, exist_ok=True)
         for spec in specs:
             final = out / spec.name
             t0 = time.perf_counter()
@@ -190,4 +193,32 @@ def experiment_dirs(out: Path) -> list[Path]:
     """Every complete experiment (or sweep) directory directly under ``out``."""
     return sorted(
         p for p in Path(out).iterdir() if not is_temporary_name(p.name) and (p / RESULTS_FILE).is_file()
+    )
+
+
+def failed_checks(results: Results) -> list:
+    """The self-checks of ``results`` that did not pass."""
+    return [c for c in results.checks if not c.passed]
+
+
+def check_summary(directory: Path, limit: int = 3) -> str | None:
+    """One line for an experiment whose self-checks failed (None: all passed), e.g. ``height-fog: 2 of
+    27 checks failed: a (value 3.1, expected ≤ 2), b``; the command line prints it and exits with 1."""
+    results = load_results(directory)
+    bad = failed_checks(results)
+    if not bad:
+        return None
+
+    def one(c) -> str:
+        if c.value is None:
+            return c.name
+        value = f"{c.value:.4g}" if isinstance(c.value, float) else str(c.value)
+        return f"{c.name} ({value}" + (f", expected {c.expected})" if c.expected else ")")
+
+    named = "; ".join(one(c) for c in bad[:limit]) + (
+        f"; … {len(bad) - limit} more" if len(bad) > limit else ""
+    )
+    return (
+        f"{results.experiment}: {len(bad)} of {len(results.checks)} checks failed: {named} "
+        f"(see {Path(directory) / 'report.html'})"
     )

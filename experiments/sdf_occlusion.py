@@ -126,6 +126,7 @@ from rtfit.scenes import library_path, load_scene, scene_hash
 from . import figures
 from .cost import attach_costs, time_drjit
 from .jobs import Job
+from .registry import SPP_MAX, ConfigKey, checked
 from .sdf_occlusion_scenes import SCENE_NAMES, build, read_ply
 
 # ============================================================================================ configure
@@ -161,35 +162,66 @@ FIT_POINTS = 2048  # pixels per scene used by the fits (padded: one JAX compile 
 METRICS = ("rmse", "rel_mse", "mae", "max_abs", "psnr", "ssim")
 
 
+CONFIG = {
+    "scenes": ConfigKey("str", "scenes", shape=(None,), choices=SCENE_NAMES),
+    "targets": ConfigKey("str", "reference targets", shape=(None,), choices=TARGETS_FULL),
+    "resolution": ConfigKey("int", "image side (pixels)", 8, 4096),
+    "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
+    "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
+    "grid": ConfigKey("int", "SDF grid side (voxels)", 8, 1024),
+    "n_samples": ConfigKey("int", "Evans SDF samples", 1, 16),
+    "ao_distance": ConfigKey("float", "AO radius (scene units)", 1e-6, 1e3),
+    "albedo": ConfigKey("float", "surface albedo", 0.0, 1.0),
+    "sweep_grids": ConfigKey("int", "grid sides of the sweep", 8, 1024, (None,)),
+    "sweep_n": ConfigKey("int", "sample counts of the sweep", 1, 16, (None,)),
+    "sweep_scenes": ConfigKey("str", "scenes of the sweep", shape=(None,), choices=SCENE_NAMES),
+    "alphas": ConfigKey("float", "blend weights α", 0.0, 1.0, (None,)),
+    "bases_vox": ConfigKey("float", "base distances (voxels)", 0.01, 64.0, (None,)),
+    "map_scenes": ConfigKey("str", "scenes with error maps", shape=(None,), choices=SCENE_NAMES),
+    "probe_spp": ConfigKey("int", "samples per probe point", 2, SPP_MAX),
+    "cost_points": ConfigKey("int", "points per timed launch", 1024, 1 << 26),
+    "cone_count": ConfigKey("int", "cones of the cone tracer", 1, 64),
+    "cone_steps": ConfigKey("int", "steps per cone", 1, 256),
+    "sun_elevation": ConfigKey("float", "sun elevation (°)", 0.0, 90.0),
+    "sun_azimuth": ConfigKey("float", "sun azimuth (°)", -360.0, 360.0),
+    "turbidity": ConfigKey("float", "sky turbidity", 1.0, 10.0),
+    "lm_max_iter": ConfigKey("int", "Levenberg–Marquardt iterations", 1, 10000),
+}
+"""Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
+
+
 def configure(quick: bool, spp: int | None) -> dict:
     cone = METHODS["cone"].fixed
-    return {
-        "scenes": list(SCENE_NAMES),
-        "targets": list(TARGETS_QUICK if quick else TARGETS_FULL),
-        "resolution": 36 if quick else 128,
-        "spp": spp or (64 if quick else 1024),
-        "pass_spp": 32 if quick else 256,
-        "grid": 64 if quick else 128,
-        "n_samples": EVANS_SAMPLES,
-        "ao_distance": 1.0,
-        "albedo": 0.8,
-        "sweep_grids": [32, 64] if quick else [32, 64, 128, 256],
-        "sweep_n": [1, 2, 4, 8] if quick else [1, 2, 3, 4, 5, 6, 7, 8],
-        "sweep_scenes": ["crease_90", "sphere_plane", "boxes"]
-        if quick
-        else ["crease_90", "boxes", "character"],
-        "alphas": [0.0, 0.5, 1.0] if quick else list(ALPHAS),
-        "bases_vox": [1.0] if quick else list(BASES_VOX),
-        "map_scenes": ["crease_90", "room", "boxes", "character"] if quick else list(SCENE_NAMES),
-        "probe_spp": 2048 if quick else 16384,
-        "cost_points": (1 << 17) if quick else (1 << 22),
-        "cone_count": cone["cones"],
-        "cone_steps": cone["steps"],
-        "sun_elevation": 30.0,
-        "sun_azimuth": 60.0,
-        "turbidity": 3.0,
-        "lm_max_iter": 100 if quick else 300,
-    }
+    return checked(
+        CONFIG,
+        {
+            "scenes": list(SCENE_NAMES),
+            "targets": list(TARGETS_QUICK if quick else TARGETS_FULL),
+            "resolution": 36 if quick else 128,
+            "spp": spp or (64 if quick else 1024),
+            "pass_spp": 32 if quick else 256,
+            "grid": 64 if quick else 128,
+            "n_samples": EVANS_SAMPLES,
+            "ao_distance": 1.0,
+            "albedo": 0.8,
+            "sweep_grids": [32, 64] if quick else [32, 64, 128, 256],
+            "sweep_n": [1, 2, 4, 8] if quick else [1, 2, 3, 4, 5, 6, 7, 8],
+            "sweep_scenes": ["crease_90", "sphere_plane", "boxes"]
+            if quick
+            else ["crease_90", "boxes", "character"],
+            "alphas": [0.0, 0.5, 1.0] if quick else list(ALPHAS),
+            "bases_vox": [1.0] if quick else list(BASES_VOX),
+            "map_scenes": ["crease_90", "room", "boxes", "character"] if quick else list(SCENE_NAMES),
+            "probe_spp": 2048 if quick else 16384,
+            "cost_points": (1 << 17) if quick else (1 << 22),
+            "cone_count": cone["cones"],
+            "cone_steps": cone["steps"],
+            "sun_elevation": 30.0,
+            "sun_azimuth": 60.0,
+            "turbidity": 3.0,
+            "lm_max_iter": 100 if quick else 300,
+        },
+    )
 
 
 # ============================================================================================== methods

@@ -29,6 +29,7 @@ import tomllib
 from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from typing import Any
+from xml.parsers import expat
 
 from .model import (
     ENVIRONMENT_KINDS,
@@ -109,20 +110,64 @@ def _join(key: str, name: str) -> str:
     return f"{key}.{name}" if key else name
 
 
+def xml_problem(path: str) -> str | None:
+    """What makes ``path`` unusable as a Mitsuba XML scene before anything renders (None: nothing
+    found): not well-formed XML (with its line), an entity declaration (refused: entity expansion is an
+    XXE / billion-laughs vector, and Mitsuba scenes use ``$name`` parameters instead), or a root element
+    other than ``<scene>``. Mitsuba's own loader still checks plugins and properties at render time."""
+    parser = expat.ParserCreate()
+    parser.SetParamEntityParsing(expat.XML_PARAM_ENTITY_PARSING_NEVER)
+    root: list[str] = []
+
+    def refuse_entity(name, *_):
+        raise ValueError(f"entity declaration {name!r} (not allowed in a scene file)")
+
+    def start(name, _attrs):
+        if not root:
+            root.append(name)
+
+    parser.EntityDeclHandler = refuse_entity
+    parser.StartElementHandler = start
+    try:
+        with open(path, "rb") as f:
+            parser.ParseFile(f)
+    except expat.ExpatError as e:
+        return f"not well-formed XML (line {e.lineno}, column {e.offset}: {expat.ErrorString(e.code)})"
+    except ValueError as e:
+        return str(e)
+    except OSError as e:
+        return f"cannot read ({e.strerror or e})"
+    if root and root[0] != "scene":
+        return f"the root element is <{root[0]}>, not <scene>"
+    return None
+
+
 # ---------------------------------------------------------------------------------------------- schema
 @dataclass(frozen=True)
 class Bounds:
-    """A closed or open interval; ``None`` ends are unbounded."""
+    """A closed or open interval; ``None`` ends are unbounded. ``limit``: a sanity bound on the
+    magnitude besides (``|x| ≤ limit``), so that no finite but huge value (1e308) reaches a render."""
 
     lo: float | None = None
     hi: float | None = None
     lo_open: bool = False
     hi_open: bool = False
+    limit: float | None = None
 
     def contains(self, x: float) -> bool:
+        return self.within(x) and (self.limit is None or abs(x) <= self.limit)
+
+    def within(self, x: float) -> bool:
+        """In the interval (the limit aside)."""
         lo_ok = self.lo is None or (x > self.lo if self.lo_open else x >= self.lo)
         hi_ok = self.hi is None or (x < self.hi if self.hi_open else x <= self.hi)
         return lo_ok and hi_ok
+
+    def problem(self, x: float) -> str:
+        """Why ``x`` is not contained, as ``must be …``."""
+        if self.within(x):
+            return f"must be within ±{self.limit:g} (rtfit's limit for this quantity)"
+        return f"must be {self.text()}"
 
     def text(self) -> str:
         if self.lo is not None and self.hi is not None:
@@ -148,16 +193,26 @@ class Spec:
     optional: bool = False
 
 
-POSITIVE = Bounds(0.0, lo_open=True)
-NON_NEGATIVE = Bounds(0.0)
+# Every number has finite bounds: a finite but huge value (1e308) would otherwise reach a render as an
+# infinite radiance or optical depth, and its reference the cache. The bounds are far outside any
+# physical scene in its units (metres: a planet is 6.4e6 m; radiance: the sun's is ~2e7 W·m⁻²·sr⁻¹).
+MAX_LENGTH = 1e8  # positions, sizes, radii, clip distances (scene units)
+MAX_RADIANCE = 1e12  # radiance, irradiance, emitter and map scales
+MAX_COEFFICIENT = 1e6  # extinction σ_t, fog density b (per unit length)
+MAX_FALLOFF = 1e3  # fog falloff c (per unit length)
+POSITIVE = Bounds(0.0, lo_open=True, limit=MAX_LENGTH)
+NON_NEGATIVE = Bounds(0.0, limit=MAX_RADIANCE)
 ZERO_ONE = Bounds(0.0, 1.0)
 OPEN_QUADRANT = Bounds(0.0, 90.0, lo_open=True, hi_open=True)  # angles strictly between 0° and 90°
+COORDINATE = Bounds(limit=MAX_LENGTH)
+ROTATION = Bounds(limit=3600.0)  # degrees (ten turns either way)
 
-_VEC = Spec("vec3")
+_VEC = Spec("vec3", COORDINATE)
 _UNIT = Spec("unit")
-_ANGLE = Spec("float")
+_ANGLE = Spec("float", ROTATION)
 _POS = Spec("float", POSITIVE)
 _RADIANCE = Spec("rgb", NON_NEGATIVE)
+_EXTINCTION = Spec("rgb", Bounds(0.0, limit=MAX_COEFFICIENT))
 _MATERIAL = Spec("material")
 _SIZE2 = Spec("vec2", POSITIVE)
 
@@ -235,14 +290,14 @@ SCHEMA: dict[type, dict[str, Spec]] = {
     },
     HomogeneousMedium: {
         "boundary": Spec("boundary"),
-        "sigma_t": _RADIANCE,
+        "sigma_t": _EXTINCTION,
         "albedo": Spec("rgb", ZERO_ONE),
         "g": Spec("float", Bounds(-1, 1, lo_open=True, hi_open=True)),
     },
     ExponentialFog: {
         "boundary": Spec("boundary"),
-        "density": Spec("float", NON_NEGATIVE),
-        "falloff": Spec("float", NON_NEGATIVE),
+        "density": Spec("float", Bounds(0.0, limit=MAX_COEFFICIENT)),
+        "falloff": Spec("float", Bounds(0.0, limit=MAX_FALLOFF)),
         "gradient": _UNIT,
         "gradient_origin": _VEC,
         "albedo": Spec("rgb", ZERO_ONE),
@@ -275,7 +330,7 @@ def _number(v: Any, key: str, bounds: Bounds | None = None) -> float:
     if not math.isfinite(x):
         raise _Invalid(key, f"must be finite (got {_show(v)})")
     if bounds is not None and not bounds.contains(x):
-        raise _Invalid(key, f"must be {bounds.text()} (got {_show(v)})")
+        raise _Invalid(key, f"{bounds.problem(x)} (got {_show(v)})")
     return x
 
 
@@ -283,7 +338,7 @@ def _integer(v: Any, key: str, bounds: Bounds | None = None) -> int:
     if isinstance(v, bool) or not isinstance(v, int):
         raise _Invalid(key, f"must be an integer (got {_show(v)})")
     if bounds is not None and not bounds.contains(v):
-        raise _Invalid(key, f"must be {bounds.text()} (got {_show(v)})")
+        raise _Invalid(key, f"{bounds.problem(v)} (got {_show(v)})")
     return v
 
 
@@ -306,7 +361,7 @@ def normalised(v: tuple[float, ...]) -> tuple[float, ...] | None:
 
 
 def _unit(v: Any, key: str) -> tuple[float, ...]:
-    u = normalised(_vector(v, key, 3))
+    u = normalised(_vector(v, key, 3, COORDINATE))
     if u is None:
         raise _Invalid(key, f"must be non-zero (got {_show(v)})")
     return u
@@ -390,6 +445,10 @@ class _Parser:
         path = os.path.abspath(os.path.join(self.base_dir, os.path.expanduser(v)))
         if not os.path.isfile(path):
             raise _Invalid(key, f"file not found: {path}")
+        if path.lower().endswith(".xml"):
+            problem = xml_problem(path)
+            if problem:
+                raise _Invalid(key, f"{path}: {problem}")
         return path
 
     # tables ------------------------------------------------------------------------------------
@@ -494,7 +553,7 @@ class _Parser:
                     f"missing required key '{k}' (a sphere light placed by direction needs "
                     "direction, distance and angular_radius_deg)",
                 )
-        target = _vector(t.get("target", [0.0, 0.0, 0.0]), _join(key, "target"), 3)
+        target = _vector(t.get("target", [0.0, 0.0, 0.0]), _join(key, "target"), 3, COORDINATE)
         direction = _unit(t["direction"], _join(key, "direction"))
         distance = _number(t["distance"], _join(key, "distance"), POSITIVE)
         alpha = _number(t["angular_radius_deg"], _join(key, "angular_radius_deg"), OPEN_QUADRANT)

@@ -178,8 +178,9 @@ def test_verbose_and_quiet_exclude_each_other(capsys):
 
 def _failing_sweep(tmp_path, name="bad"):
     spec = tmp_path / f"{name}.toml"
-    # camera width 0 passes the sweep's kind check (an integer) and fails when the point runs.
-    spec.write_text('experiment = "diffuse"\nquick = true\n[grid]\nresolution = [0, -3]\n')
+    # Each value is valid alone (checked before the sweep starts); together with the defaults they break
+    # the experiment's own cross-key rule (sky_radiances must include 0), found when the point runs.
+    spec.write_text('experiment = "diffuse"\nquick = true\n[grid]\nsky_radiances = [[0.2], [0.5]]\n')
     return spec
 
 
@@ -200,15 +201,15 @@ def test_progress_lines_without_a_terminal_and_exit_status_of_a_failed_sweep(tmp
     assert "rtfit: sweep bad: 2 points of diffuse, 0 already done, 2 to run on inline" in lines
     assert "rtfit: diffuse: running (quick, llvm_ad_rgb)" in lines
     assert any(ln.startswith("rtfit: sweep bad: 2/2 jobs done, 2 failed") for ln in lines), lines
-    failed = [ln for ln in lines if " failed: SceneError" in ln]
-    assert len(failed) == 2 and all("camera.width" in ln for ln in failed), lines
+    failed = [ln for ln in lines if " failed: ValueError" in ln]
+    assert len(failed) == 2 and all("sky_radiances must include 0" in ln for ln in failed), lines
     summary = lines[-1]
     assert summary.startswith("rtfit: sweep bad: 2 of 2 points failed (p000-") and "p001-" in summary
     assert r.stdout.strip().endswith("report.html")
 
     q = _entry_point("-q", "sweep", *args, cwd=tmp_path)
     assert q.returncode == 1
-    assert q.stderr.splitlines() == [ln for ln in lines if "failed: SceneError" in ln] + [summary]
+    assert q.stderr.splitlines() == [ln for ln in lines if "failed: ValueError" in ln] + [summary]
 
     v = _entry_point("-v", "sweep", *args, cwd=tmp_path)
     assert v.returncode == 1

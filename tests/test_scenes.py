@@ -300,8 +300,8 @@ INVALID = [  # (whole text, or "+" and what follows BASE), key path, reason frag
     (PLACED + "distance = 0\nangular_radius_deg = 5", "lights[0].distance", "must be > 0"),
     (
         PLACED + "distance = 1e308\nangular_radius_deg = 5\ntarget = [1e308, 0, 0]",
-        "lights[0]",
-        "must be finite",
+        "lights[0].target[0]",  # finite, but beyond the limit of a coordinate: refused where it is read
+        "must be within ±1e+08",
     ),
     (
         LIGHT + "direction = [0, 0, 0]\ndistance = 1\nangular_radius_deg = 5",

@@ -69,7 +69,7 @@ def test_apply_overrides_checks_keys_and_kinds():
             "experiment = 'diffuse'\n[grid]\nno_such_key = [1, 2]",
             "'no_such_key' is not a configuration key",
         ),
-        ("experiment = 'diffuse'\n[grid]\nresolution = ['a']", "expected a value like"),
+        ("experiment = 'diffuse'\n[grid]\nresolution = ['a']", 'resolution = "a": expected an integer'),
         ("experiment = 'diffuse'\n[grid]\nresolution = []", "grid.resolution: must be a non-empty list"),
         ("experiment = 'diffuse'\n[[points]]\nresolution = 8\n[[points]]\nresolution = 8", "duplicates"),
         ("experiment = 'diffuse'\nspp = 1", "spp: must be an integer"),
