@@ -315,6 +315,10 @@ class PassEntry:
                 continue
             with os.fdopen(fd, "w") as f:
                 json.dump({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}, f)
+            # Holding the claim, no other process writes this pass: temporary files of it are leftovers
+            # of a writer that was killed mid-write (atomic writes rename a `.NAME.<hex>.tmp` file).
+            for leftover in self.folder.glob(f".pass-{index:05d}.*.tmp"):
+                leftover.unlink(missing_ok=True)
             return True
         return False
 

@@ -96,3 +96,14 @@ def test_two_processes_on_one_cache_render_each_pass_once(tmp_path):
     assert sorted(rendered, key=int) == [str(i) for i in range(12)]  # every pass exactly once
     np.testing.assert_array_equal(np.load(tmp_path / "0.npy"), np.load(tmp_path / "1.npy"))
     assert not list((tmp_path / "cache").rglob("*.claim"))
+
+
+def test_a_killed_writers_temporary_files_are_removed_by_the_next_claim(tmp_path):
+    entry = PassEntry(tmp_path, IDENT)
+    entry.folder.mkdir(parents=True)
+    leftover = entry.folder / ".pass-00000.npz.0123456789ab.tmp"  # the name atomic writes use
+    leftover.write_bytes(b"half a pass")
+    other = entry.folder / ".pass-00001.npz.0123456789ab.tmp"
+    other.write_bytes(b"another pass's")
+    _, n = entry.passes(1, _render)
+    assert n == 1 and not leftover.exists() and other.exists()
