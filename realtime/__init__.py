@@ -24,6 +24,7 @@ Modules:
     sdf_occlusion  Evans multi-scale SDF skylight/occlusion, curvature term, cone-traced soft occlusion.
     nishita_sky Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
                 (docs/nishita-sky.md).
+    shader      GLSL/HLSL text traced from the kernels (`SHADER_OPS`, `shader_function`).
 """
 
 # Star imports re-export each module's ``__all__`` (tests/test_layering.py checks that every public
@@ -39,6 +40,7 @@ from .nishita_sky import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
+from .shader import *  # noqa: F403
 
 MODULES = (
     "arrays",
@@ -51,6 +53,7 @@ MODULES = (
     "sdf_grid",
     "sdf_occlusion",
     "nishita_sky",
+    "shader",
 )
 """The modules whose public names this package re-exports."""
 
