@@ -469,7 +469,7 @@ def write_fitted(out, cfg, fitted: Fitted, ctx=None, scenes=None, geom=None) -> 
         for a in cfg["alphas_deg"]:
             cid = case_id(a, s)
             f = fitted.per_case[cid]
-            dom = {"alpha": (math.radians(a), math.radians(a))}
+            dom = {"alpha": (math.radians(a), math.radians(a), "rad")}
             if geom and cid in geom:
                 c = np.asarray(geom[cid][1]["cos_theta"], np.float64)
                 dom["cos_theta"] = (float(c.min()), float(c.max()))

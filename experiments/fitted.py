@@ -250,27 +250,34 @@ def method_entry(
     id: str | None = None,
     label: str | None = None,
     case: str | None = None,
-    domain: Mapping[str, Range | tuple[float, float]] | None = None,
+    domain: Mapping[str, Range | tuple] | None = None,
     residual_units: str = "",
     outputs: Sequence[str] | None = None,
+    baked: Mapping[str, object] | None = None,
     data=None,
 ) -> FittedMethod:
     """The `FittedMethod` of ``method`` with the parameters of ``fit`` (a `FitResult.to_dict()`; None: the
-    given ``params``, or the declared defaults), its residual, domain and traced shader text."""
+    given ``params``, or the declared defaults), its residual, domain and traced shader text.
+
+    ``baked``: inputs given as constants (e.g. a basis' stored coefficients): written into the shader as
+    literals instead of arguments."""
+    baked = dict(baked or {})
     fit = fit or {}
     raw = fit.get("parameters") or {k: v for k, v in {**method.defaults(), **(params or {})}.items()}
     parameters = parameters_from_fit(method, raw)
     values = {k: p.value for k, p in parameters.items() if k in method.params}
     ranges = {}
-    units = {i.name: i.unit for i in method.inputs}
+    units = {i.name: i.unit for i in method.inputs if i.name not in baked}
     for k, r in (domain or {}).items():
-        ranges[k] = r if isinstance(r, Range) else Range(float(r[0]), float(r[1]), unit=units.get(k, ""))
+        if not isinstance(r, Range):  # (lower, upper) or (lower, upper, unit)
+            r = Range(float(r[0]), float(r[1]), unit=r[2] if len(r) > 2 else units.get(k, ""))
+        ranges[k] = r
     fn = "rtfit_" + (id or method.id) + (f"_{case}" if case else "")
     shader, note = shader_entry(
         fn,
         method.kernel,
-        method.input_names,
-        method.keywords(values),
+        [n for n in method.input_names if n not in baked],
+        {**baked, **method.keywords(values)},
         outputs=outputs,
         comment=f"{label or method.label}: {method.formula}",
     )
