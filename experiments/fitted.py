@@ -239,6 +239,8 @@ def shader_entry(
         fn = shader_function(name, kernel, arguments, constants, outputs=outputs, comment=comment)
     except Untraceable as e:
         return None, f"no shader text: {e}"
+    except TypeError as e:  # an operation the tracer does not define (Untraceable covers the known ones)
+        return None, f"no shader text: the kernel uses an operation the shader tracer lacks ({e})"
     return Shader(fn.name, list(fn.arguments), list(fn.outputs), fn.glsl, fn.hlsl), None
 
 

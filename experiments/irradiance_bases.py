@@ -559,7 +559,7 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
     costs = _costs(ctx)
     attach_costs(cases, costs)
     checks = _checks(names, cases, z_quad, z_img, furnace, bake)
-    fits = _write_fitted(out, cfg, rendered, bases, ctx)
+    fits = write_fitted(out, cfg, rendered, bases, ctx)
     figs = _figures(ctx, cfg, rendered, bases, per_env, cases, costs)
     return {
         "summary": _summary(cfg, cases, checks),
@@ -614,7 +614,7 @@ def _row_fit(row: Row, b: dict) -> dict:
     return {"parameters": out}
 
 
-def _write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
+def write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
     """One fitted file per environment (the cubes, the SH coefficients, λ) and its fit record: the fitted
     parameters of every row with parameters (bounds from `METHODS`), then the NNLS cube's green channel."""
     fitted_rows = [r for r in ROWS if r.params]

@@ -1628,52 +1628,50 @@ def write_fitted(out, cfg, joint, per_case, sds, ctx=None, hashes=()) -> list[di
         readable = _json_params(evans_readable(b, None))
         fname = f"fitted/evans_joint_{t}.json"
         names = list(b["fit"]["parameters"])
-        doc = dict(
-            {
-                "model": "C = B * exp(-k * sum_i w_i (d_i - s_{i-1}(P + d_i (N + alpha U)))), d_i = base * "
-                "2^(i-1)"
-                + ("; prediction g(N) * C, g = sunsky factor E_sky(N)/E_u(N)" if t in SUNSKY_TARGETS else ""),
-                "target": t,
-                "trained_on": train,
-                "held_out": HELD_OUT,
-                "units": {
-                    "k": "1/scene unit",
-                    "base_voxels": "voxels of the finest grid (each scene's own)",
-                    "base": "scene units",
-                    "alpha": "dimensionless",
-                    "B": "dimensionless",
-                    "w_i": "dimensionless (w_1 = 1)",
-                },
-                "parameters": readable,
-                "base_scene_units": {
-                    n: {
-                        "value": b["base_vox"] * sds[n].voxel,
-                        "stderr": (
-                            readable["base_voxels_stderr"] * sds[n].voxel
-                            if readable["base_voxels_stderr"] is not None
-                            else None
-                        ),
-                        "voxel": sds[n].voxel,
-                    }
-                    for n in train
-                },
-                "grid_cells": cfg["grid"],
-                "n": cfg["n_samples"],
-                "method": "grid profile (LM of log B, c_i at each (alpha, base) point) as initialisation, "
-                "then "
-                "bounded Levenberg-Marquardt over (log B, c_i, alpha, base_voxels) with the alpha/base "
-                "Jacobian "
-                "columns from Dr.Jit forward-mode autodiff; stderr = sqrt(diag(s^2 (J^T J)^+)), s^2 = "
-                "SSR/dof",
-                "grid_init": {"alphas": cfg["alphas"], "bases_voxels": cfg["bases_vox"], **b["grid"]},
-                "lm_fit": b["fit"],
-                "lm": b["lm"],
-                "covariance": {
-                    "names": names,
-                    "matrix": [[_json_params({"v": v})["v"] for v in row] for row in b["cov"]],
-                },
+        doc = {
+            "model": "C = B * exp(-k * sum_i w_i (d_i - s_{i-1}(P + d_i (N + alpha U)))), d_i = base * "
+            "2^(i-1)"
+            + ("; prediction g(N) * C, g = sunsky factor E_sky(N)/E_u(N)" if t in SUNSKY_TARGETS else ""),
+            "target": t,
+            "trained_on": train,
+            "held_out": HELD_OUT,
+            "units": {
+                "k": "1/scene unit",
+                "base_voxels": "voxels of the finest grid (each scene's own)",
+                "base": "scene units",
+                "alpha": "dimensionless",
+                "B": "dimensionless",
+                "w_i": "dimensionless (w_1 = 1)",
             },
-        )
+            "parameters": readable,
+            "base_scene_units": {
+                n: {
+                    "value": b["base_vox"] * sds[n].voxel,
+                    "stderr": (
+                        readable["base_voxels_stderr"] * sds[n].voxel
+                        if readable["base_voxels_stderr"] is not None
+                        else None
+                    ),
+                    "voxel": sds[n].voxel,
+                }
+                for n in train
+            },
+            "grid_cells": cfg["grid"],
+            "n": cfg["n_samples"],
+            "method": "grid profile (LM of log B, c_i at each (alpha, base) point) as initialisation, "
+            "then "
+            "bounded Levenberg-Marquardt over (log B, c_i, alpha, base_voxels) with the alpha/base "
+            "Jacobian "
+            "columns from Dr.Jit forward-mode autodiff; stderr = sqrt(diag(s^2 (J^T J)^+)), s^2 = "
+            "SSR/dof",
+            "grid_init": {"alphas": cfg["alphas"], "bases_voxels": cfg["bases_vox"], **b["grid"]},
+            "lm_fit": b["fit"],
+            "lm": b["lm"],
+            "covariance": {
+                "names": names,
+                "matrix": [[_json_params({"v": v})["v"] for v in row] for row in b["cov"]],
+            },
+        }
         entry = fitfiles.FittedMethod(
             id=f"evans-joint-{t}",
             label=f"Evans joint fit ({TARGET_LABEL[t]})",

@@ -184,6 +184,11 @@ class Sym:
 
     __ror__ = __or__
 
+    def __xor__(self, o):
+        return self._bin("!=", o, kind="bool")
+
+    __rxor__ = __xor__
+
     def __invert__(self):
         return self.trace.emit("bool", f"!{_atom(self)}")
 
