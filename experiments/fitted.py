@@ -68,11 +68,11 @@ class Parameter(Record):
     unbounded) and whether the fit ended on a bound (then the stderr does not describe the uncertainty)."""
 
     value: float
-    stderr: float | None = None
-    unit: str = ""
-    lower: float | None = None
-    upper: float | None = None
-    at_bound: bool = False
+    stderr: float | None = field(default=None, metadata={"required": True})
+    unit: str = field(default="", metadata={"required": True})
+    lower: float | None = field(default=None, metadata={"required": True})
+    upper: float | None = field(default=None, metadata={"required": True})
+    at_bound: bool = field(default=False, metadata={"required": True})
     description: str = ""
 
 
@@ -82,8 +82,8 @@ class Residual(Record):
     (n − number of parameters), in ``units`` (what each residual is divided by)."""
 
     rms: float | None
-    n: int | None = None
-    dof: int | None = None
+    n: int | None = field(default=None, metadata={"required": True})
+    dof: int | None = field(default=None, metadata={"required": True})
     units: str = ""
 
 
@@ -93,7 +93,7 @@ class Range(Record):
 
     lower: float
     upper: float
-    unit: str = ""
+    unit: str = field(default="", metadata={"required": True})
     description: str = ""
 
     def problems(self) -> list[tuple[str, str]]:
@@ -130,11 +130,11 @@ class FittedMethod(Record):
     quantity: str = ""
     case: str | None = None
     inputs: Mapping[str, str] = field(default_factory=dict)
-    residual: Residual | None = None
+    residual: Residual | None = field(default=None, metadata={"required": True})
     converged: bool | None = None
-    domain: Mapping[str, Range] = field(default_factory=dict)
-    shader: Shader | None = None
-    shader_note: str | None = None
+    domain: Mapping[str, Range] = field(default_factory=dict, metadata={"required": True})
+    shader: Shader | None = field(default=None, metadata={"required": True})
+    shader_note: str | None = field(default=None, metadata={"required": True})
     data: JSON = None
 
     def problems(self) -> list[tuple[str, str]]:

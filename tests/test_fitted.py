@@ -276,10 +276,12 @@ def test_loader_refuses_bad_files_with_one_line(tmp_path):
         assert "\n" not in str(e.value) and str(bad) in str(e.value)
 
     refused({**good, "format": "rtfit.fitted/0"}, "format: expected 'rtfit.fitted/1'")
-    m = dict(good["methods"][0])
-    m.pop("shader")
+    m = {**good["methods"][0], "shader": None, "shader_note": None}
     refused({**good, "methods": [m]}, r"methods\[0\].shader_note: a method without shader text")
     m = json.loads(json.dumps(good["methods"][0]))
     m["parameters"]["w1"]["value"] = "big"
     refused({**good, "methods": [m]}, r"methods\[0\].parameters.w1.value: expected a number")
     refused({**good, "extra_key": 1}, "extra_key: unknown key")
+    m = dict(good["methods"][0])
+    m.pop("shader")
+    refused({**good, "methods": [m]}, r"methods\[0\].shader: missing required key")
