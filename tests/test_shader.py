@@ -230,6 +230,8 @@ def test_shader_text_agrees_with_the_kernel_to_float32_precision(method, params,
             f"worst {float(np.max(err / ulp)):.3g} ulp"
         )
         assert float(np.max(err / ulp)) < 64 or method.id == "exact", float(np.max(err / ulp))
+        # the text is the kernel: the same float32 operations in the same order as its NumPy float32 run
+        np.testing.assert_array_equal(g, np.asarray(o, F32))
 
 
 GLSLANG = shutil.which("glslangValidator")
