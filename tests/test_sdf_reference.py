@@ -266,5 +266,5 @@ def test_tiny_experiment_run(tmp_path):
     params = joint["methods"][0]["parameters"]
     for key in ("k", "alpha", "base_voxels", "B", "w2"):
         assert key in params and "stderr" in params[key]
-    assert set(joint["data"]["base_scene_units"]) == {"crease_90"}
+    assert set(joint["methods"][0]["data"]["base_scene_units"]) == {"crease_90"}
     _ = dataclasses
