@@ -52,19 +52,17 @@ def float_literal(x: float) -> str:
     x = float(x)
     if math.isnan(x):
         raise Untraceable("a NaN constant has no shader literal")
-    if math.isinf(x):
-        return _INF if x > 0 else f"(-{_INF})"
-    text = np.format_float_scientific(np.float32(x), unique=True, trim="0")  # '1.e+00', '2.5e-01'
-    mant, exp = text.split("e")
-    mant = mant.rstrip(".") if mant.endswith(".") else mant
-    e = int(exp)
+    with np.errstate(over="ignore"):
+        f = np.float32(x)  # beyond float32's range: ±inf, as the kernel's float32 run would round it
+    if math.isinf(f):
+        return _INF if f > 0 else f"(-{_INF})"
+    e = int(np.format_float_scientific(f, unique=True).split("e")[1])
     if -4 <= e <= 6:
-        text = np.format_float_positional(np.float32(x), unique=True, trim="0")
-        text = text + "0" if text.endswith(".") else text
-        return text if "." in text else text + ".0"
-    if "." not in mant:
-        mant += ".0"
-    return f"{mant}e{e}"
+        text = np.format_float_positional(f, unique=True, trim="0")
+        return text + "0" if text.endswith(".") else text
+    mant, exp = np.format_float_scientific(f, unique=True, trim="0").split("e")
+    mant = mant + "0" if mant.endswith(".") else mant
+    return f"{mant}e{int(exp)}"
 
 
 class _Trace:

@@ -133,6 +133,8 @@ def test_float_literals_round_trip_in_float32():
         assert "." in lit or "e" in lit, lit
         assert F32(float(lit.strip("()"))) == F32(v), (v, lit)
     assert float_literal(math.inf) == "INF"
+    assert float_literal(1e39) == "INF" and float_literal(-1e39) == "(-INF)"  # beyond float32: rounds to inf
+    assert float_literal(0.5) == "0.5" and float_literal(1.0) == "1.0" and float_literal(1e-30) == "1.0e-30"
 
 
 # ------------------------------------------------------------------------------- tracing rules
