@@ -25,6 +25,7 @@ from rtfit.experiments.fitted import FORMAT, FittedError, fitted_json_schema, lo
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.diffuse import METHODS as DIFFUSE
 from rtfit.realtime.height_fog import METHODS as FOG
+from rtfit.realtime.irradiance_bases import basis_irradiance
 
 from .test_shader import compile_function
 
@@ -285,3 +286,16 @@ def test_loader_refuses_bad_files_with_one_line(tmp_path):
     m = dict(good["methods"][0])
     m.pop("shader")
     refused({**good, "methods": [m]}, r"methods\[0\].shader: missing required key")
+
+
+def test_irradiance_basis_shaders_reproduce_basis_irradiance(tmp_path):
+    _irradiance_bases(tmp_path)
+    doc = load_fitted(tmp_path / "fitted" / "grey.json")
+    rng = np.random.default_rng(7)
+    n = rng.normal(size=(1000, 3)).astype(np.float32)
+    for m in doc.methods:
+        key = "sh_l2" if m.id.startswith("sh") else m.id.replace("-", "_")
+        params = {k: p.value for k, p in m.parameters.items()}
+        ref = np.asarray(basis_irradiance(m.id, np.array(doc.data[key]), n.astype(np.float64), params))
+        got = np.stack(compile_function(m.shader.hlsl)(n[:, 0], n[:, 1], n[:, 2]), axis=-1)
+        np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(ref))))
