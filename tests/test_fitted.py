@@ -299,3 +299,18 @@ def test_irradiance_basis_shaders_reproduce_basis_irradiance(tmp_path):
         ref = np.asarray(basis_irradiance(m.id, np.array(doc.data[key]), n.astype(np.float64), params))
         got = np.stack(compile_function(m.shader.hlsl)(n[:, 0], n[:, 1], n[:, 2]), axis=-1)
         np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(ref))))
+
+
+@pytest.mark.parametrize("name", ["intersection", "lambert"])
+def test_ambient_aperture_shaders_are_the_kernels_in_float32(name, tmp_path):
+    _ambient_aperture(tmp_path)
+    entry = load_fitted(tmp_path / "fitted" / f"{name}.json").methods[0]
+    method = {"intersection": aa.FITTED_OMEGA, "lambert": aa.FITTED_LAMBERT}[name]
+    rng = np.random.default_rng(8)
+    inputs = {i.name: rng.uniform(*i.domain, 2000).astype(np.float32) for i in method.inputs}
+    params = {k: p.value for k, p in entry.parameters.items()}
+    own = method(NUMPY_OPS, inputs, {k: np.float32(v) for k, v in params.items()})  # float32 NumPy run
+    got = compile_function(entry.shader.glsl)(*(inputs[a] for a in entry.shader.arguments))
+    np.testing.assert_array_equal(got, np.asarray(own, np.float32))
+    ref = method(NUMPY_OPS, {k: v.astype(np.float64) for k, v in inputs.items()}, params)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6 * float(np.max(np.abs(ref))))
