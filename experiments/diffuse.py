@@ -132,7 +132,7 @@ def declared(fitted: Fitted, cid: str, alpha_rad: float) -> dict:
     return {}
 
 
-def fittedper_alpha(fitted: Fitted, cid: str, alpha_rad: float) -> dict:
+def fitted_per_alpha(fitted: Fitted, cid: str, alpha_rad: float) -> dict:
     """Parameter source "fitted per α": (w, p) of this case's wrap fit."""
     return {k: v["value"] for k, v in fitted.per_case[cid]["parameters"].items()}
 
@@ -171,7 +171,7 @@ class Row:
 ROWS = (
     Row("lambert", METHODS["lambert"], as_wrap={"w": 0.0, "p": 1.0}),
     Row("half-lambert", METHODS["half-lambert"], as_wrap={"w": 1.0, "p": 2.0}),
-    Row("wrap-fit", WRAP, fittedper_alpha, label="Wrap (fitted per α)"),
+    Row("wrap-fit", WRAP, fitted_per_alpha, label="Wrap (fitted per α)"),
     Row("wrap-smooth", WRAP, smooth_per_alpha, label="Wrap (smooth w(α), p(α))", in_figures=False),
     Row("exact", METHODS["exact"]),
 )
