@@ -61,11 +61,11 @@ from rtfit.realtime import (
 from rtfit.realtime.ambient_aperture import METHODS
 from rtfit.realtime.methods import Method
 from rtfit.reference import ReferenceCache, ReferenceRequest
-from rtfit.reference.io import atomic_write_json
 from rtfit.reference.visibility import bake_visibility, surface_points
 from rtfit.scenes import ConstantEnv, library_path, load_scene, scene_hash
 
 from . import figures
+from . import fitted as fitfiles
 from .ambient_aperture_doc import sections, summary
 from .ambient_aperture_scenes import LABELS as SCENE_LABELS
 from .ambient_aperture_scenes import PROBE_REGION, probe_grid
@@ -812,7 +812,7 @@ def assemble(ctx, cfg, results) -> dict:
         "config": cfg,
         "sections": sections(cfg, fl, fit_i, fit_l, dec, coeffs, fitted["k"]),
         "cases": cases,
-        "fits": write_fitted(out, fit_i, fit_l, fl),
+        "fits": write_fitted(out, fit_i, fit_l, fl, ctx, cfg, cases),
         "figures": figs,
         "costs": cost_rows,
         "checks": checks(fl, fit_i, fit_l, results["unoccluded"], arrays),
@@ -1113,16 +1113,46 @@ FITS = (
 """The two fits: (id, label, model, job label, residual units)."""
 
 
-def write_fitted(out, fit_i, fit_l, fl) -> list[dict]:
-    """fitted/<id>.json of each fit (every field of the fit, its model and its errors) and the fit rows."""
+FIT_METHODS = {"fit-intersection": FITTED_OMEGA, "fit-lambert": FITTED_LAMBERT}
+"""The method of `METHODS` whose parameters each fit determines (its shader text carries them)."""
+
+
+def write_fitted(out, fit_i, fit_l, fl, ctx=None, cfg=None, cases=()) -> list[dict]:
+    """fitted/<id>.json of each fit in format ``rtfit.fitted/1`` (`rtfit.experiments.fitted`: the fitted
+    method's parameters, residual, GLSL/HLSL; the fit's errors as data) and the results' fit rows."""
     fits = {"fit-intersection": fit_i, "fit-lambert": fit_l}
     errors = {"fit-intersection": fl["errors"][FITTED_OMEGA.id], "fit-lambert": fit_l["errors"]}
+    hashes = [
+        c["scene"]["hash"] for c in cases if isinstance(c.get("scene"), dict) and c["scene"].get("hash")
+    ]
+    prov = fitfiles.provenance(ctx, "ambient-aperture", hashes, (cfg or {}).get("spp"))
     docs = []
     for fid, label, model, job, units in FITS:
         fit = fits[job]
         file = f"fitted/{fid}.json"
-        extra = {"errors": errors[job], "residual_units": units}
-        atomic_write_json(out / file, {"model": model, **fit, **extra})
+        m = FIT_METHODS[job]
+        own = {k: v for k, v in fit["parameters"].items() if k in m.params}
+        entry = fitfiles.method_entry(
+            m,
+            {**fit, "parameters": own},
+            id=fid,
+            label=label,
+            residual_units=units,
+            data={
+                "model": model,
+                "errors": errors[job],
+                **{k: v for k, v in fit.items() if k not in ("parameters", "errors")},
+            },
+        )
+        fitfiles.write_fitted(
+            out / file,
+            fitfiles.FittedFile(
+                format=fitfiles.FORMAT,
+                title=f"ambient aperture: {label}",
+                provenance=prov,
+                methods=[entry],
+            ),
+        )
         docs.append(
             {
                 "id": fid,

@@ -56,10 +56,10 @@ from rtfit.reference import (
 )
 from rtfit.reference.build import load_dict
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
-from rtfit.reference.io import atomic_write_json
 from rtfit.scenes import ConstantEnv, library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 
 from . import figures
+from . import fitted as fitfiles
 from .cost import (
     attach_costs,
     baseline_row,
@@ -442,7 +442,7 @@ def assemble(ctx, cfg, cases, scenes, rendered, geom, fitted: Fitted) -> dict:
         "config": cfg,
         "sections": sections(cfg),
         "cases": case_docs,
-        "fits": write_fitted(ctx.out_dir, cfg, fitted),
+        "fits": write_fitted(ctx.out_dir, cfg, fitted, ctx, scenes, geom),
         "figures": figs,
         "costs": costs,
         "checks": checks,
@@ -450,47 +450,86 @@ def assemble(ctx, cfg, cases, scenes, rendered, geom, fitted: Fitted) -> dict:
     }
 
 
-def write_fitted(out, cfg, fitted: Fitted) -> list[dict]:
-    """``fitted/wrap_per_alpha.json`` and ``fitted/wrap_smooth.json``, and the results' ``fits`` records."""
+def smooth_wrap_kernel(ops, cos_theta, alpha, irradiance, w1, w2, p1, p2):
+    """Wrap lighting with (w, p) = `SMOOTH_LAW` at the light's angular radius α: the one function an
+    engine needs for any light size (the two kernel texts composed, nothing re-typed)."""
+    w, p = smooth_law_kernel(ops, alpha, w1, w2, p1, p2)
+    return WRAP.kernel(ops, cos_theta=cos_theta, w=w, p=p, irradiance=irradiance)
+
+
+SMOOTH_WRAP = Method(
+    "wrap-smooth",
+    "wrap lighting, smooth w(α), p(α)",
+    smooth_wrap_kernel,
+    inputs=(*WRAP.inputs, *SMOOTH_LAW.inputs),
+    params=SMOOTH_LAW.params,
+    quantity=WRAP.quantity,
+    formula=f"{WRAP.formula}; {SMOOTH_LAW.formula}",
+    source=WRAP.source,
+    description="Wrap lighting for a light of any angular radius α within the fitted range.",
+)
+
+RESIDUAL_UNITS = "E⊥ (irradiance at normal incidence): residual = (wrap − Mitsuba)/E⊥ per pixel"
+
+
+def _provenance(ctx, cfg, scenes):
+    return fitfiles.provenance(
+        ctx, "diffuse", [scene_hash(sc) for sc in (scenes or {}).values()], reference_spp=cfg["spp"]
+    )
+
+
+def write_fitted(out, cfg, fitted: Fitted, ctx=None, scenes=None, geom=None) -> list[dict]:
+    """``fitted/wrap_per_alpha.json`` and ``fitted/wrap_smooth.json`` (format ``rtfit.fitted/1``, see
+    `rtfit.experiments.fitted`), and the results' ``fits`` records."""
+    prov = _provenance(ctx, cfg, scenes)
     per_alpha = []
     for s in cfg["sky_radiances"]:
         for a in cfg["alphas_deg"]:
-            f = fitted.per_case[case_id(a, s)]
+            cid = case_id(a, s)
+            f = fitted.per_case[cid]
+            dom = {"alpha": (math.radians(a), math.radians(a), "rad")}
+            if geom and cid in geom:
+                c = np.asarray(geom[cid][1]["cos_theta"], np.float64)
+                dom["cos_theta"] = (float(c.min()), float(c.max()))
             per_alpha.append(
-                {
-                    "alpha_deg": a,
-                    "sky_radiance": s,
-                    **{k: v["value"] for k, v in f["parameters"].items()},
-                    **{f"{k}_stderr": v["stderr"] for k, v in f["parameters"].items()},
-                    "rms_residual": f["rms_residual"],
-                }
+                fitfiles.method_entry(
+                    WRAP,
+                    f,
+                    label=f"{WRAP.label}, α = {a:g}°" + (f", sky {s:g}" if s else ""),
+                    case=cid,
+                    domain=dom,
+                    residual_units=RESIDUAL_UNITS,
+                    data={"alpha_deg": a, "sky_radiance": s},
+                )
             )
-    atomic_write_json(
+    fitfiles.write_fitted(
         out / "fitted" / "wrap_per_alpha.json",
-        {
-            "model": WRAP.id,
-            "formula": "E = E_perp * max((cos_theta + w) / (1 + w), 0) ** p",
-            "units": {
-                "alpha_deg": "degrees (light angular radius)",
-                "E_perp": "irradiance at normal incidence",
-            },
-            "fitted_to": "Mitsuba point-sampled radiance of a white sphere, residual normalised by E_perp",
-            "cases": per_alpha,
-        },
+        fitfiles.FittedFile(
+            format=fitfiles.FORMAT,
+            title="wrap lighting (w, p) fitted per light angular radius α (Mitsuba sphere-light reference)",
+            provenance=prov,
+            methods=per_alpha,
+        ),
     )
     smooth = fitted.smooth
-    atomic_write_json(
+    alphas = [math.radians(a) for a in cfg["alphas_deg"]]
+    seen = [m.domain["cos_theta"] for m in per_alpha if "cos_theta" in m.domain]
+    cos_range = (min(r.lower for r in seen), max(r.upper for r in seen)) if seen else (-1.0, 1.0)
+    entry = fitfiles.method_entry(
+        SMOOTH_WRAP,
+        smooth,
+        domain={"alpha": (min(alphas), max(alphas)), "cos_theta": cos_range},
+        residual_units="the per-α fits' stderr (floored at 1e-3): residual = (law − per-α fit)/stderr",
+        data={"alpha_deg": [min(cfg["alphas_deg"]), max(cfg["alphas_deg"])]},
+    )
+    fitfiles.write_fitted(
         out / "fitted" / "wrap_smooth.json",
-        {
-            "model": "wrap with smooth w(alpha), p(alpha)",
-            "formula": "E = E_perp * max((cos_theta + w) / (1 + w), 0) ** p",
-            "w": "w1 * sin(alpha) + w2 * sin(alpha)**2",
-            "p": "1 + p1 * sin(alpha) + p2 * sin(alpha)**2",
-            "alpha_units": "radians",
-            "valid_alpha_deg": [min(cfg["alphas_deg"]), max(cfg["alphas_deg"])],
-            "coefficients": {k: v["value"] for k, v in smooth["parameters"].items()},
-            "stderr": {k: v["stderr"] for k, v in smooth["parameters"].items()},
-        },
+        fitfiles.FittedFile(
+            format=fitfiles.FORMAT,
+            title="wrap lighting with smooth w(α), p(α), fitted to the per-α fits of the no-sky cases",
+            provenance=prov,
+            methods=[entry],
+        ),
     )
     largest = case_id(cfg["alphas_deg"][-1], 0.0)
     first = fitted.per_case[largest]

@@ -66,7 +66,7 @@ from rtfit.reference.height_fog import region_matrix, sky_statistics
 from rtfit.scenes import library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 
 from . import figures as F
-from .atomic import atomic_write_json
+from . import fitted as fitfiles
 from .cost import (
     attach_costs,
     baseline_row,
@@ -581,7 +581,7 @@ def assemble(ctx, cfg, scenes, rendered, skies, geoms, fits, hashes) -> dict:
     checks += optical_depth_checks(forms)
     costs = cost_rows(ctx, cfg)
     attach_costs(case_docs, costs, key=cost_key)
-    fitted = write_fitted(ctx.out_dir, fits, vol_fit)
+    fitted = write_fitted(ctx.out_dir, fits, vol_fit, ctx, cfg, geoms, hashes)
     figs = make_figures(ctx.out_dir, cfg, rendered, geoms, images, residuals, case_docs, costs, forms)
     checks += fit_checks(fitted)
     return {
@@ -740,30 +740,59 @@ def error_maps(cfg, Float) -> dict:
     return {"x": x, "distance": dist, "maps": maps, "c": c, "b": b}
 
 
-def write_fitted(out, fits: dict, vol_fit: dict | None) -> list[dict]:
-    """fitted/fog-<case>-<method>.json per fit (the method's formula, units and residual), and the
-    fog-volume colours; returns the results' ``fits`` records."""
+FIT_RESIDUAL_UNITS = "(model − reference)/(0.02·|reference| + 0.01·mean|reference|) per pixel and channel"
+
+
+def _fit_domain(geom: dict) -> dict:
+    """The input ranges a fit saw: the finite per-pixel segment inputs of its view."""
+    out = {}
+    for key, name in (("z0", "z0"), ("z1", "z1"), ("length", "distance"), ("cos_sun", "cos_sun")):
+        v = np.asarray(geom[key], np.float64)
+        v = v[np.isfinite(v)]
+        if v.size:
+            out[name] = (float(v.min()), float(v.max()))
+    return out
+
+
+def write_fitted(out, fits: dict, vol_fit: dict | None, ctx=None, cfg=None, geoms=None, hashes=None):
+    """fitted/fog-<case>-<method>.json per fit and fitted/fog-volume-colours.json, format
+    ``rtfit.fitted/1`` (`rtfit.experiments.fitted`: parameters with units and bounds, residual, domain,
+    GLSL/HLSL of the fitted shading function); returns the results' ``fits`` records."""
     docs = []
+    spp = (cfg or {}).get("spp")
     for (cid, method), fit in fits.items():
         label = f"{cid}-{method}"
         fid = f"fog-{label}"
         file = f"fitted/{fid}.json"
-        model = METHODS[method].formula
-        units = {k: p.unit for k, p in METHODS[method].params.items()}
-        atomic_write_json(
+        m = METHODS[method]
+        geom = (geoms or {}).get(cid.split("-")[0])
+        entry = fitfiles.method_entry(
+            m,
+            fit,
+            label=f"{m.label}, {cid}",
+            case=cid,
+            domain=_fit_domain(geom) if geom is not None else None,
+            residual_units=FIT_RESIDUAL_UNITS,
+            outputs=("out_r", "out_g", "out_b"),
+            data={"correlation": fit.get("correlation"), "param_names": fit.get("param_names")},
+        )
+        prov = fitfiles.provenance(
+            ctx, "height-fog", [h for k, h in (hashes or {}).items() if k in (cid, f"{cid}-nofog")], spp
+        )
+        fitfiles.write_fitted(
             out / file,
-            {
-                "model": model,
-                "units": {"b": units["b"], "c": units["c"], "colour": "sunsky radiance"},
-                "residual": "(model − reference)/(0.02·|reference| + 0.01·mean|reference|)",
-                **fit,
-            },
+            fitfiles.FittedFile(
+                format=fitfiles.FORMAT,
+                title=f"height fog, {m.label}: artist parameters fitted to Mitsuba ({cid})",
+                provenance=prov,
+                methods=[entry],
+            ),
         )
         docs.append(
             {
                 "id": fid,
                 "label": f"artist parameters, {label}",
-                "model": model,
+                "model": m.formula,
                 "parameters": fit["parameters"],
                 "rms_residual": fit["rms_residual"],
                 "n_residuals": fit["n_residuals"],
@@ -773,7 +802,34 @@ def write_fitted(out, fits: dict, vol_fit: dict | None) -> list[dict]:
         )
     if vol_fit:
         file = "fitted/fog-volume-colours.json"
-        atomic_write_json(out / file, vol_fit)
+        entry = fitfiles.FittedMethod(
+            id=vol_fit["id"],
+            label=vol_fit["label"],
+            formula=vol_fit["model"],
+            source="rtfit (fog volumes: oriented box / ellipsoid with a shifted height gradient)",
+            quantity="fogged_radiance",
+            case="volumes",
+            parameters=fitfiles.parameters_from_fit(None, vol_fit["parameters"]),
+            residual=fitfiles.Residual(rms=None, n=vol_fit.get("n_residuals"), units="radiance"),
+            converged=vol_fit.get("converged"),
+            shader=None,
+            shader_note=(
+                "no shader text: the colours feed fog_volumes_shade, a loop over a list of volumes "
+                "(a shader needs the volume buffer); the colours vol<i>_<channel> are the fitted data"
+            ),
+        )
+        prov = fitfiles.provenance(
+            ctx, "height-fog", [(hashes or {}).get("volumes", "")] if hashes else [], spp
+        )
+        fitfiles.write_fitted(
+            out / file,
+            fitfiles.FittedFile(
+                format=fitfiles.FORMAT,
+                title="height fog: fog-volume colours fitted by linear least squares (true b, c)",
+                provenance=prov,
+                methods=[entry],
+            ),
+        )
         docs.append({**vol_fit, "file": file})
     return docs
 

@@ -76,7 +76,6 @@ from rtfit.realtime.irradiance_bases import (
 from rtfit.reference import ReferenceCache, ReferenceRequest, render_gbuffer, use_variant
 from rtfit.reference import environments as envs
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
-from rtfit.reference.io import atomic_write_json
 from rtfit.scenes import (
     ConstantEnv,
     EnvMap,
@@ -90,6 +89,7 @@ from rtfit.scenes import (
 )
 
 from . import figures
+from . import fitted as fitfiles
 from .cost import (
     attach_costs,
     baseline_row,
@@ -626,7 +626,7 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
     costs = _costs(ctx)
     attach_costs(cases, costs)
     checks = _checks(names, cases, z_quad, z_img, furnace, bake)
-    fits = _write_fitted(out, cfg, rendered, bases)
+    fits = write_fitted(out, cfg, rendered, bases, ctx)
     figs = _figures(ctx, cfg, rendered, bases, per_env, cases, costs)
     return {
         "summary": _summary(cfg, cases, checks),
@@ -671,7 +671,17 @@ def _fit_parameter(value: float, lower: float, upper: float, at_bound: bool) -> 
     }
 
 
-def _write_fitted(out, cfg, rendered, bases) -> list[dict]:
+def _row_fit(row: Row, b: dict) -> dict:
+    """A row's free parameters as a fit's ``parameters`` (λ is at a bound only where the bisection stopped
+    at its upper end: λ = 0 is an answer, "no window needed")."""
+    out = {}
+    for p, key in row.params.items():
+        spec = row.spec.params[p]
+        out[p] = _fit_parameter(b[key], spec.lower, spec.upper, bool(b[key] >= spec.upper))
+    return {"parameters": out}
+
+
+def write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
     """One fitted file per environment (the cubes, the SH coefficients, λ) and its fit record: the fitted
     parameters of every row with parameters (bounds from `METHODS`), then the NNLS cube's green channel."""
     fitted_rows = [r for r in ROWS if r.params]
@@ -693,7 +703,30 @@ def _write_fitted(out, cfg, rendered, bases) -> list[dict]:
             "lambda_window": b["lambda"],
             "lambda_window_formula": "w_l = 1 / (1 + lambda * l^2 (l+1)^2)",
         }
-        atomic_write_json(out / "fitted" / f"{name}.json", doc)
+        methods = [
+            fitfiles.method_entry(
+                row.spec,
+                _row_fit(row, b),
+                case=name,
+                baked={
+                    "coeffs": basis_inputs(row.spec, b[row.coeffs], np.array([[0.0, 0.0, 1.0]]))["coeffs"]
+                },
+                outputs=("out_r", "out_g", "out_b"),
+            )
+            for row in BASES
+        ]
+        fitfiles.write_fitted(
+            out / "fitted" / f"{name}.json",
+            fitfiles.FittedFile(
+                format=fitfiles.FORMAT,
+                title=f"irradiance bases baked for environment {name} ({doc['label']})",
+                provenance=fitfiles.provenance(
+                    ctx, "irradiance-bases", list(rendered[name]["hashes"].values()), cfg.get("spp")
+                ),
+                methods=methods,
+                data=doc,
+            ),
+        )
         params = {}
         for row in fitted_rows:
             for p, key in row.params.items():

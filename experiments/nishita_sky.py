@@ -64,7 +64,6 @@ from rtfit.realtime.nishita_sky import (
     sky_kernel_inputs,
     spectral_to_srgb,
 )
-from rtfit.reference.io import atomic_write_json
 from rtfit.reference.nishita_sky import (
     CIE_Y_NORMALIZATION,
     DEFAULT_SCENE,
@@ -79,6 +78,7 @@ from rtfit.reference.nishita_sky import (
 )
 
 from . import figures
+from . import fitted as fitfiles
 from .cost import attach_costs, time_drjit, time_numpy
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
@@ -745,7 +745,7 @@ def assemble(ctx, cfg, dirs, az, el, done, fits, backend, ref_seconds) -> dict:
     costs = _costs(ctx, backend, cfg, settings)
     attach_costs(cases, costs)
     (fit_id, fits), *_ = fits.items()  # the report's fit section, files and summary: the fitted method
-    fitted = _write_fits(out, cfg, fits, fit_id)
+    fitted = write_fitted(out, cfg, fits, fit_id, ctx)
     figs = _figures(out, cfg, dirs, az, el, done, images, sweep, irr_rows, fits)
     summary = _summary(cfg, cases, sweep, spread, spectral, fits)
     sections = (
@@ -1288,7 +1288,7 @@ def _fit_summary(fits) -> str:
     )
 
 
-def _write_fits(out, cfg, fits, method_id) -> list[dict]:
+def write_fitted(out, cfg, fits, method_id, ctx=None) -> list[dict]:
     method = METHODS[method_id]
     rows = []
     for e, f in fits.items():
@@ -1302,26 +1302,57 @@ def _write_fits(out, cfg, fits, method_id) -> list[dict]:
                 "at_bound": list(f["at_bound"]),
             }
         )
-    atomic_write_json(
+    data = {
+        "model": "Nishita sky, seed setting (n=32 layers, 128x64 texture, 128-entry sun table), rebuilt "
+        "per parameter set",
+        "parameters": {k: p.description for k, p in method.params.items()},
+        "use": "rtfit.realtime.nishita_sky.AtmosphereParams(rayleigh_scale=..., mie_scale=..., "
+        "mie_g=..., ambient=...)",
+        "fitted_to": "Mitsuba multiple-scattering sky (volpathmis, ground albedo 0.1), relative residuals",
+        "bounds": {k: [v["lower"], v["upper"]] for k, v in next(iter(fits.values()))["parameters"].items()}
+        if fits
+        else {},
+        "at_bound": "names of the parameters that ended on a bound: a constrained optimum (KKT "
+        "conditions hold), its stderr means nothing; do not use such a set without reading the report",
+        "units": {"sun_elevation_deg": "degrees", "others": "dimensionless"},
+        "per_sun_elevation": rows,
+    }
+    methods = [
+        fitfiles.FittedMethod(
+            id=method.id,
+            label=f"{method.label}, sun {e:g}°",
+            formula=method.formula,
+            source=method.source,
+            quantity=method.quantity,
+            case=case_id(e, "ms"),
+            parameters=fitfiles.parameters_from_fit(method, f["parameters"]),
+            residual=fitfiles.Residual(
+                rms=f["rms_residual"],
+                n=f["n_residuals"],
+                dof=f.get("dof"),
+                units="relative: (model − Mitsuba)/Mitsuba per pixel and channel",
+            ),
+            converged=f["converged"],
+            domain={"sun_elevation": fitfiles.Range(e, e, unit="deg", description="the fit's sun elevation")},
+            shader=None,
+            shader_note=(
+                "no shader text: the sky is a baked texture (the kernel reads the sky and sun tables by "
+                "gather and loops over atmosphere layers); the parameters rebuild it through "
+                "rtfit.realtime.nishita_sky.AtmosphereParams"
+            ),
+            data={"at_bound": list(f["at_bound"]), "message": f.get("message", "")},
+        )
+        for e, f in fits.items()
+    ]
+    fitfiles.write_fitted(
         out / "fitted" / "nishita_artist_params.json",
-        {
-            "model": "Nishita sky, seed setting (n=32 layers, 128x64 texture, 128-entry sun table), rebuilt "
-            "per parameter set",
-            "parameters": {k: p.description for k, p in method.params.items()},
-            "use": "rtfit.realtime.nishita_sky.AtmosphereParams(rayleigh_scale=..., mie_scale=..., "
-            "mie_g=..., ambient=...)",
-            "fitted_to": "Mitsuba multiple-scattering sky (volpathmis, ground albedo 0.1), relative "
-            "residuals",
-            "bounds": {
-                k: [v["lower"], v["upper"]] for k, v in next(iter(fits.values()))["parameters"].items()
-            }
-            if fits
-            else {},
-            "at_bound": "names of the parameters that ended on a bound: a constrained optimum (KKT "
-            "conditions hold), its stderr means nothing; do not use such a set without reading the report",
-            "units": {"sun_elevation_deg": "degrees", "others": "dimensionless"},
-            "per_sun_elevation": rows,
-        },
+        fitfiles.FittedFile(
+            format=fitfiles.FORMAT,
+            title="Nishita sky: artist parameters fitted to Mitsuba's multiple-scattering sky",
+            provenance=fitfiles.provenance(ctx, "nishita-sky", (), cfg.get("spp")),
+            methods=methods,
+            data=data,
+        ),
     )
     docs = []
     for e, f in fits.items():

@@ -59,6 +59,7 @@ __all__ = [
     "Section",
     "from_json",
     "plain_json",
+    "record_json_schema",
     "results_json_schema",
     "to_json",
 ]
@@ -688,6 +689,14 @@ def _schema_of(tp, defs: dict) -> dict:
 def _field_schema(f: dataclasses.Field, tp, defs: dict) -> dict:
     schema = _schema_of(tp, defs)
     return {"anyOf": [schema, {"type": "null"}]} if _null_is_empty(f, tp) else schema
+
+
+def record_json_schema(cls) -> tuple[dict, dict]:
+    """``(schema, defs)`` of record class ``cls``: its ``$ref`` and the ``$defs`` it needs (for documents
+    other than ``results.json`` built from records, e.g. `rtfit.experiments.fitted`)."""
+    defs: dict = {}
+    top = _schema_of(cls, defs)
+    return top, dict(sorted(defs.items()))
 
 
 def results_json_schema() -> dict:

@@ -111,7 +111,7 @@ from rtfit.realtime.sdf_occlusion import (
 )
 from rtfit.reference import load_mitsuba_scene
 from rtfit.reference.estimators import gbuffer
-from rtfit.reference.io import atomic_write_bytes, atomic_write_json
+from rtfit.reference.io import atomic_write_bytes
 from rtfit.reference.occlusion import (
     OcclusionCache,
     SunskySky,
@@ -124,6 +124,7 @@ from rtfit.reference.occlusion import (
 from rtfit.scenes import library_path, load_scene, scene_hash
 
 from . import figures
+from . import fitted as fitfiles
 from .cost import attach_costs, time_drjit
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
@@ -1104,7 +1105,9 @@ def run(ctx) -> dict:
     sweep = run_sweep(ctx, cfg, sds)
     ctx.log(f"sweep done ({time.perf_counter() - t_start:.1f} s)")
     figs = make_figures(out, cfg, sds, maps, case_docs, sweep, costs)
-    fits_out = write_fitted(out, cfg, joint, per_case_params, sds)
+    fits_out = write_fitted(
+        out, cfg, joint, per_case_params, sds, ctx, [sd.r["scene_hash"] for sd in sds.values()]
+    )
     checks = make_checks(cfg, sds, case_docs, fit_rows)
     return {
         "summary": summary(cfg, case_docs, joint, sweep, sds),
@@ -1636,62 +1639,108 @@ def summary(cfg, case_docs, joint, sweep, sds) -> str:
     )
 
 
-def write_fitted(out, cfg, joint, per_case, sds) -> list[dict]:
+_EVANS_UNITS = {
+    "k": "1/scene unit",
+    "base_voxels": "voxel",
+    "base": "scene unit",
+    "alpha": "1",
+    "B": "1",
+    "w": "1",
+}
+
+
+def write_fitted(out, cfg, joint, per_case, sds, ctx=None, hashes=()) -> list[dict]:
     """fitted/evans_joint_<target>.json (the joint continuous fit: k, w_i, B, α, base in voxels and in each
     training scene's units, all with standard errors; the raw LM parameters and covariance) and
     fitted/per_case.json (every case's parameters of every row, the continuous fits with stderrs)."""
     docs = []
+    prov = fitfiles.provenance(ctx, "sdf-occlusion", hashes, cfg.get("spp"))
     train = [n for n in cfg["scenes"] if n != HELD_OUT]
     for t, b in joint.items():
         readable = _json_params(evans_readable(b, None))
         fname = f"fitted/evans_joint_{t}.json"
         names = list(b["fit"]["parameters"])
-        atomic_write_json(
-            out / fname,
-            {
-                "model": "C = B * exp(-k * sum_i w_i (d_i - s_{i-1}(P + d_i (N + alpha U)))), d_i = base * "
-                "2^(i-1)"
-                + ("; prediction g(N) * C, g = sunsky factor E_sky(N)/E_u(N)" if t in SUNSKY_TARGETS else ""),
-                "target": t,
-                "trained_on": train,
-                "held_out": HELD_OUT,
-                "units": {
-                    "k": "1/scene unit",
-                    "base_voxels": "voxels of the finest grid (each scene's own)",
-                    "base": "scene units",
-                    "alpha": "dimensionless",
-                    "B": "dimensionless",
-                    "w_i": "dimensionless (w_1 = 1)",
-                },
-                "parameters": readable,
-                "base_scene_units": {
-                    n: {
-                        "value": b["base_vox"] * sds[n].voxel,
-                        "stderr": (
-                            readable["base_voxels_stderr"] * sds[n].voxel
-                            if readable["base_voxels_stderr"] is not None
-                            else None
-                        ),
-                        "voxel": sds[n].voxel,
-                    }
-                    for n in train
-                },
-                "grid_cells": cfg["grid"],
-                "n": cfg["n_samples"],
-                "method": "grid profile (LM of log B, c_i at each (alpha, base) point) as initialisation, "
-                "then "
-                "bounded Levenberg-Marquardt over (log B, c_i, alpha, base_voxels) with the alpha/base "
-                "Jacobian "
-                "columns from Dr.Jit forward-mode autodiff; stderr = sqrt(diag(s^2 (J^T J)^+)), s^2 = "
-                "SSR/dof",
-                "grid_init": {"alphas": cfg["alphas"], "bases_voxels": cfg["bases_vox"], **b["grid"]},
-                "lm_fit": b["fit"],
-                "lm": b["lm"],
-                "covariance": {
-                    "names": names,
-                    "matrix": [[_json_params({"v": v})["v"] for v in row] for row in b["cov"]],
-                },
+        doc = {
+            "model": "C = B * exp(-k * sum_i w_i (d_i - s_{i-1}(P + d_i (N + alpha U)))), d_i = base * "
+            "2^(i-1)"
+            + ("; prediction g(N) * C, g = sunsky factor E_sky(N)/E_u(N)" if t in SUNSKY_TARGETS else ""),
+            "target": t,
+            "trained_on": train,
+            "held_out": HELD_OUT,
+            "units": {
+                "k": "1/scene unit",
+                "base_voxels": "voxels of the finest grid (each scene's own)",
+                "base": "scene units",
+                "alpha": "dimensionless",
+                "B": "dimensionless",
+                "w_i": "dimensionless (w_1 = 1)",
             },
+            "parameters": readable,
+            "base_scene_units": {
+                n: {
+                    "value": b["base_vox"] * sds[n].voxel,
+                    "stderr": (
+                        readable["base_voxels_stderr"] * sds[n].voxel
+                        if readable["base_voxels_stderr"] is not None
+                        else None
+                    ),
+                    "voxel": sds[n].voxel,
+                }
+                for n in train
+            },
+            "grid_cells": cfg["grid"],
+            "n": cfg["n_samples"],
+            "method": "grid profile (LM of log B, c_i at each (alpha, base) point) as initialisation, "
+            "then "
+            "bounded Levenberg-Marquardt over (log B, c_i, alpha, base_voxels) with the alpha/base "
+            "Jacobian "
+            "columns from Dr.Jit forward-mode autodiff; stderr = sqrt(diag(s^2 (J^T J)^+)), s^2 = "
+            "SSR/dof",
+            "grid_init": {"alphas": cfg["alphas"], "bases_voxels": cfg["bases_vox"], **b["grid"]},
+            "lm_fit": b["fit"],
+            "lm": b["lm"],
+            "covariance": {
+                "names": names,
+                "matrix": [[_json_params({"v": v})["v"] for v in row] for row in b["cov"]],
+            },
+        }
+        entry = fitfiles.FittedMethod(
+            id=f"evans-joint-{t}",
+            label=f"Evans joint fit ({TARGET_LABEL[t]})",
+            formula=doc["model"],
+            source="Evans 2006, Fast approximations for global illumination on dynamic scenes (SIGGRAPH)",
+            quantity=t,
+            parameters={
+                name: fitfiles.Parameter(
+                    value=float(v),
+                    stderr=readable.get(f"{name}_stderr"),
+                    unit=_EVANS_UNITS.get(name.split("_")[0] if name.startswith("w") else name, "1"),
+                )
+                for name, v in readable.items()
+                if not name.endswith("_stderr") and v is not None
+            },
+            residual=fitfiles.Residual(
+                rms=b["fit"]["rms_residual"],
+                n=b["fit"]["n_residuals"],
+                dof=b["fit"].get("dof"),
+                units="occlusion / sky visibility (dimensionless)",
+            ),
+            converged=b["fit"]["converged"],
+            shader=None,
+            shader_note=(
+                "no shader text: the estimator samples the SDF grid at each step (gather on a 3D table); "
+                "a shader needs the volume texture binding — the parameters above are its constants"
+            ),
+            data={k: v for k, v in doc.items() if k not in ("model", "parameters")},
+        )
+        fitfiles.write_fitted(
+            out / fname,
+            fitfiles.FittedFile(
+                format=fitfiles.FORMAT,
+                title=f"SDF occlusion: Evans multi-scale estimator, joint fit ({TARGET_LABEL[t]})",
+                provenance=prov,
+                methods=[entry],
+            ),
         )
         docs.append(
             {
@@ -1706,20 +1755,26 @@ def write_fitted(out, cfg, joint, per_case, sds) -> list[dict]:
                 "file": fname,
             }
         )
-    atomic_write_json(
+    fitfiles.write_fitted(
         out / "fitted/per_case.json",
-        {
-            "units": {
-                "k": "1/scene unit",
-                "base": "scene units",
-                "base_voxels": "voxels",
-                "alpha": "dimensionless",
+        fitfiles.FittedFile(
+            format=fitfiles.FORMAT,
+            title="SDF occlusion: every case's parameters of every row (continuous fits with stderrs)",
+            provenance=prov,
+            methods=[],
+            data={
+                "units": {
+                    "k": "1/scene unit",
+                    "base": "scene units",
+                    "base_voxels": "voxels",
+                    "alpha": "dimensionless",
+                },
+                "note": "evans-fit / evans-analytic / evans-joint: continuous fits with standard errors "
+                "(*_stderr; None: "
+                "undetermined); *-lm: the fit's RMS residual before (grid) and after the continuous LM",
+                "cases": per_case,
             },
-            "note": "evans-fit / evans-analytic / evans-joint: continuous fits with standard errors "
-            "(*_stderr; None: "
-            "undetermined); *-lm: the fit's RMS residual before (grid) and after the continuous LM",
-            "cases": per_case,
-        },
+        ),
     )
     return docs
 

@@ -26,6 +26,7 @@ Modules:
                 (docs/nishita-sky.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
                 decorator for a user's own formula (docs/audit.md, "Your own approximation").
+    shader      GLSL/HLSL text traced from the kernels (`SHADER_OPS`, `shader_function`).
 """
 
 # Star imports re-export each module's ``__all__`` (tests/test_layering.py checks that every public
@@ -42,6 +43,7 @@ from .phase import *  # noqa: F403
 from .quantities import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
+from .shader import *  # noqa: F403
 
 MODULES = (
     "arrays",
@@ -55,6 +57,7 @@ MODULES = (
     "sdf_occlusion",
     "nishita_sky",
     "quantities",
+    "shader",
 )
 """The modules whose public names this package re-exports."""
 

@@ -173,7 +173,7 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     fitted = tmp_path / "out" / "nishita-sky" / "fitted" / "nishita_artist_params.json"
     import json
 
-    rows = json.loads(fitted.read_text())["per_sun_elevation"]
+    rows = json.loads(fitted.read_text())["data"]["per_sun_elevation"]
     assert all("at_bound" in r for r in rows)
     sp = res["spectral"]["rows"][0]
     assert sp["sun_elevation_deg"] == 30.0 and len(sp["rgb_model_vs_spectral_model"]) == 4

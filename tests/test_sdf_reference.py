@@ -262,7 +262,9 @@ def test_tiny_experiment_run(tmp_path):
     import json
 
     joint = json.loads((tmp_path / "sdf" / "fitted" / "evans_joint_sunsky.json").read_text())
+    assert joint["format"] == "rtfit.fitted/1"
+    params = joint["methods"][0]["parameters"]
     for key in ("k", "alpha", "base_voxels", "B", "w2"):
-        assert key in joint["parameters"] and f"{key}_stderr" in joint["parameters"]
-    assert set(joint["base_scene_units"]) == {"crease_90"}
+        assert key in params and "stderr" in params[key]
+    assert set(joint["methods"][0]["data"]["base_scene_units"]) == {"crease_90"}
     _ = dataclasses

@@ -1,0 +1,316 @@
+"""Fitted-parameter files (rtfit.fitted/1): every family's writer, the JSON Schema, the strict loader, and
+the shader text inside the files against the kernels.
+
+Each family's ``write_fitted`` runs on small synthetic fits (the shape `FitResult.to_dict()` returns);
+its files must validate against the shipped schema (jsonschema) and load with `load_fitted`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtfit.experiments import ambient_aperture as aa
+from rtfit.experiments import diffuse as df
+from rtfit.experiments import height_fog as hf
+from rtfit.experiments import irradiance_bases as ib
+from rtfit.experiments import nishita_sky as ns
+from rtfit.experiments import sdf_occlusion as so
+from rtfit.experiments.fitted import FORMAT, FittedError, fitted_json_schema, load_fitted
+from rtfit.realtime import NUMPY_OPS
+from rtfit.realtime.diffuse import METHODS as DIFFUSE
+from rtfit.realtime.height_fog import METHODS as FOG
+from rtfit.realtime.irradiance_bases import basis_irradiance
+
+from .test_shader import compile_function
+
+SHIPPED = Path(__file__).resolve().parent.parent / "docs" / "fitted.schema.json"
+
+
+def _fit(values: dict, n: int = 200, method=None) -> dict:
+    """A fit in the shape of `FitResult.to_dict()` (bounds from ``method`` where it declares the name)."""
+    params = {}
+    for k, v in values.items():
+        spec = method.params.get(k) if method is not None else None
+        lo = spec.lower if spec is not None and math.isfinite(spec.lower) else None
+        hi = spec.upper if spec is not None and math.isfinite(spec.upper) else None
+        params[k] = {"value": v, "stderr": 1e-3 * (1 + abs(v)), "lower": lo, "upper": hi, "at_bound": False}
+    names = list(values)
+    return {
+        "parameters": params,
+        "param_names": names,
+        "correlation": np.eye(len(names)).tolist(),
+        "rms_residual": 0.0123,
+        "ssr": 0.5,
+        "n_residuals": n,
+        "dof": n - len(names),
+        "steps": 7,
+        "converged": True,
+        "message": "converged",
+        "jacobian_rank": len(names),
+        "at_bound": [],
+    }
+
+
+def _diffuse(out: Path):
+    cfg = {"sky_radiances": [0.0, 0.2], "alphas_deg": [5.0, 30.0], "spp": 16}
+    per_case = {
+        df.case_id(a, s): _fit({"w": 0.1 + a / 100, "p": 1.0 + a / 50}, method=df.WRAP)
+        for s in cfg["sky_radiances"]
+        for a in cfg["alphas_deg"]
+    }
+    smooth = _fit({"w1": -0.07, "w2": 1.37, "p1": -0.05, "p2": 2.0}, n=8, method=df.SMOOTH_LAW)
+    geom = {cid: (None, {"cos_theta": np.linspace(-0.9, 0.95, 50)}) for cid in per_case}
+    df.write_fitted(out, cfg, df.Fitted(per_case, smooth), None, None, geom)
+    return per_case
+
+
+def _height_fog(out: Path):
+    fits = {
+        ("e5-single", "const"): _fit(
+            {"b": 1.1e-3, "c": 6.1e-3, "r0": 0.3, "g0": 0.4, "b0": 0.55}, method=FOG["const"]
+        ),
+        ("e5-single", "phase"): _fit(
+            {
+                "b": 1.1e-3,
+                "c": 6.1e-3,
+                **{"r0": 0.3, "g0": 0.4, "b0": 0.55, "r1": 0.05, "g1": 0.04, "b1": 0.02, "g": 0.7},
+            },
+            method=FOG["phase"],
+        ),
+    }
+    vol = {
+        "id": "volume-colours",
+        "label": "fog-volume colours (true b, c)",
+        "model": "L = L₀·T + Σᵢ (1 − T)·τᵢ/Στ·Cᵢ",
+        "parameters": {
+            "vol0_r": {"value": 0.2, "stderr": None, "lower": None, "upper": None, "at_bound": False}
+        },
+        "n_residuals": 30,
+        "converged": True,
+    }
+    rng = np.random.default_rng(1)
+    geoms = {
+        "e5": {
+            "z0": rng.uniform(0, 10, 20),
+            "z1": rng.uniform(0, 300, 20),
+            "length": rng.uniform(10, 900, 20),
+        }
+    }
+    geoms["e5"]["cos_sun"] = rng.uniform(-1, 1, 20)
+    hf.write_fitted(out, fits, vol, None, {"spp": 8}, geoms, {"e5-single": "ab12", "e5-single-nofog": "cd34"})
+    return fits
+
+
+def _irradiance_bases(out: Path):
+    rng = np.random.default_rng(2)
+    b = {
+        "cube_valve": rng.uniform(0, 1, (6, 3)),
+        "cube_nnls": rng.uniform(0, 1, (6, 3)),
+        "cube_nnls_rms": rng.uniform(0, 0.1, 3),
+        "sh": rng.normal(0, 1, (9, 3)),
+        "lambda": 0.02,
+    }
+    rendered = {"grey": {"env": types.SimpleNamespace(label="grey sky"), "hashes": {"sky": "ffee"}}}
+    ib.write_fitted(out, {"environments": ["grey"], "spp": 8}, rendered, {"grey": b})
+
+
+def _ambient_aperture(out: Path):
+    fit_i = _fit({f"c{i}": 0.01 * i for i in range(6)}, method=aa.FITTED_OMEGA)
+    fit_l = {**_fit({"k": 1.3}, method=aa.FITTED_LAMBERT), "k": 1.3, "errors": {"max": 0.02}}
+    fl = {"errors": {aa.FITTED_OMEGA.id: {"full": {"max": 0.01}}}}
+    aa.write_fitted(out, fit_i, fit_l, fl, None, {"spp": 8}, [{"scene": {"hash": "0a0b"}}])
+
+
+def _sdf_occlusion(out: Path):
+    train = ["bunny", "room"]
+    cfg = {
+        "scenes": [*train, so.HELD_OUT],
+        "grid": 16,
+        "n_samples": 4,
+        "alphas": [0.1, 0.2],
+        "bases_vox": [1.0, 2.0],
+        "spp": 8,
+    }
+    names = ["logB", "c1", "c2", "alpha", "base_voxels"]
+    fit = _fit(dict(zip(names, [0.0, 0.5, 0.3, 0.2, 1.5], strict=True)))
+    b = {
+        "fit": fit,
+        "cov": np.eye(5) * 1e-4,
+        "grid": {"alpha": 0.2, "base_vox": 1.5, "rms_residual": 0.05},
+        "lm": {"iterations": 5, "evaluations": 9, "message": "ok"},
+        "alpha": 0.2,
+        "base_vox": 1.5,
+    }
+    joint = {t: b for t in list(so.TARGET_LABEL)[:2]}
+    sds = {n: types.SimpleNamespace(voxel=0.01) for n in train}
+    so.write_fitted(out, cfg, joint, {"bunny": {"evans-fit": {"k": 0.5}}}, sds, None, ["h1", "h2"])
+
+
+def _nishita_sky(out: Path):
+    m = ns.METHODS["nishita-fitted"]
+    fits = {
+        e: _fit({"rayleigh_scale": 1.1, "mie_scale": 0.9, "mie_g": 0.76, "ambient": 0.01}, method=m)
+        for e in (5.0, 30.0)
+    }
+    ns.write_fitted(out, {"spp": 8}, fits, m.id)
+
+
+WRITERS = {
+    "diffuse": (_diffuse, ["wrap_per_alpha.json", "wrap_smooth.json"]),
+    "height-fog": (
+        _height_fog,
+        ["fog-e5-single-const.json", "fog-e5-single-phase.json", "fog-volume-colours.json"],
+    ),
+    "irradiance-bases": (_irradiance_bases, ["grey.json"]),
+    "ambient-aperture": (_ambient_aperture, ["intersection.json", "lambert.json"]),
+    "sdf-occlusion": (_sdf_occlusion, ["evans_joint_sky.json", "per_case.json"]),
+    "nishita-sky": (_nishita_sky, ["nishita_artist_params.json"]),
+}
+
+
+def _validate(doc):
+    jsonschema = pytest.importorskip("jsonschema")
+    schema = fitted_json_schema()
+    jsonschema.Draft202012Validator.check_schema(schema)
+    jsonschema.validate(doc, schema, cls=jsonschema.Draft202012Validator)
+
+
+def test_shipped_schema_is_current():
+    shipped = json.loads(SHIPPED.read_text(encoding="utf-8"))
+    assert shipped == fitted_json_schema(), (
+        "docs/fitted.schema.json is stale: regenerate it with "
+        "python -c 'import json; from rtfit.experiments.fitted import fitted_json_schema as s; "
+        "print(json.dumps(s(), indent=2, ensure_ascii=False))' > docs/fitted.schema.json"
+    )
+
+
+@pytest.mark.parametrize("family", list(WRITERS))
+def test_every_family_writes_files_that_validate(family, tmp_path):
+    write, files = WRITERS[family]
+    write(tmp_path)
+    written = sorted(p.name for p in (tmp_path / "fitted").glob("*.json"))
+    for f in files:
+        assert f in written, (f, written)
+    for name in written:
+        doc = json.loads((tmp_path / "fitted" / name).read_text(encoding="utf-8"))
+        assert doc["format"] == FORMAT
+        _validate(doc)
+        loaded = load_fitted(tmp_path / "fitted" / name)
+        for m in loaded.methods:
+            assert (m.shader is None) == bool(m.shader_note), (name, m.id)
+            for p in m.parameters.values():
+                assert math.isfinite(p.value)
+
+
+def test_diffuse_files_carry_the_fits_and_shaders_that_reproduce_the_kernel(tmp_path):
+    per_case = _diffuse(tmp_path)
+    doc = load_fitted(tmp_path / "fitted" / "wrap_per_alpha.json")
+    assert {m.case for m in doc.methods} == set(per_case)
+    rng = np.random.default_rng(5)
+    c = rng.uniform(-1, 1, 1000).astype(np.float32)
+    e = rng.uniform(0, 4, 1000).astype(np.float32)
+    for m in doc.methods:
+        want = per_case[m.case]["parameters"]
+        assert m.parameters["w"].value == want["w"]["value"]
+        assert m.parameters["p"].stderr == want["p"]["stderr"]
+        assert m.parameters["w"].lower == 0.0 and m.parameters["w"].upper == 1.0
+        assert m.residual.rms == 0.0123 and m.residual.n == 200 and m.residual.dof == 198
+        assert m.domain["alpha"].lower == m.domain["alpha"].upper == math.radians(m.data["alpha_deg"])
+        assert m.domain["cos_theta"].lower == pytest.approx(-0.9)
+        params = {k: p.value for k, p in m.parameters.items()}
+        ref = DIFFUSE["wrap"](
+            NUMPY_OPS, {"cos_theta": c.astype(np.float64), "irradiance": e.astype(np.float64)}, params
+        )
+        for lang in ("glsl", "hlsl"):
+            got = compile_function(getattr(m.shader, lang))(c, e)
+            np.testing.assert_allclose(got, ref, rtol=2e-6, atol=1e-6)
+    smooth = load_fitted(tmp_path / "fitted" / "wrap_smooth.json").methods[0]
+    assert smooth.shader.arguments == ["cos_theta", "irradiance", "alpha"]
+    a = rng.uniform(0.005, 0.5, 1000).astype(np.float32)
+    coeffs = {k: p.value for k, p in smooth.parameters.items()}
+    w, p = df.SMOOTH_LAW(NUMPY_OPS, {"alpha": a.astype(np.float64)}, coeffs)
+    ref = DIFFUSE["wrap"].kernel(
+        NUMPY_OPS, cos_theta=c.astype(np.float64), w=w, p=p, irradiance=e.astype(np.float64)
+    )
+    got = compile_function(smooth.shader.glsl)(c, e, a)
+    np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-6)
+
+
+def test_fog_file_shader_reproduces_the_fitted_shading(tmp_path):
+    fits = _height_fog(tmp_path)
+    m = load_fitted(tmp_path / "fitted" / "fog-e5-single-phase.json").methods[0]
+    assert m.shader.outputs == ["out_r", "out_g", "out_b"]
+    assert set(m.domain) == {"z0", "z1", "distance", "cos_sun"}
+    params = {k: v["value"] for k, v in fits[("e5-single", "phase")]["parameters"].items()}
+    rng = np.random.default_rng(6)
+    n = 500
+    z0, z1 = (rng.uniform(0, 300, n).astype(np.float32) for _ in range(2))
+    inputs = {
+        "z0": z0,
+        "z1": z1,
+        "distance": (np.abs(z1 - z0) * rng.uniform(1, 10, n)).astype(np.float32),
+        "cos_sun": rng.uniform(-1, 1, n).astype(np.float32),
+        **{f"l0_{ch}": rng.uniform(0, 2, n).astype(np.float32) for ch in "rgb"},
+    }
+    ref = FOG["phase"](NUMPY_OPS, {k: v.astype(np.float64) for k, v in inputs.items()}, params)
+    got = compile_function(m.shader.glsl)(*(inputs[a] for a in m.shader.arguments))
+    for g, r in zip(got, ref, strict=True):
+        np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-6)
+
+
+def test_loader_refuses_bad_files_with_one_line(tmp_path):
+    _diffuse(tmp_path)
+    path = tmp_path / "fitted" / "wrap_smooth.json"
+    good = json.loads(path.read_text(encoding="utf-8"))
+
+    def refused(doc, match):
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps(doc), encoding="utf-8")
+        with pytest.raises(FittedError, match=match) as e:
+            load_fitted(bad)
+        assert "\n" not in str(e.value) and str(bad) in str(e.value)
+
+    refused({**good, "format": "rtfit.fitted/0"}, "format: expected 'rtfit.fitted/1'")
+    m = {**good["methods"][0], "shader": None, "shader_note": None}
+    refused({**good, "methods": [m]}, r"methods\[0\].shader_note: a method without shader text")
+    m = json.loads(json.dumps(good["methods"][0]))
+    m["parameters"]["w1"]["value"] = "big"
+    refused({**good, "methods": [m]}, r"methods\[0\].parameters.w1.value: expected a number")
+    refused({**good, "extra_key": 1}, "extra_key: unknown key")
+    m = dict(good["methods"][0])
+    m.pop("shader")
+    refused({**good, "methods": [m]}, r"methods\[0\].shader: missing required key")
+
+
+def test_irradiance_basis_shaders_reproduce_basis_irradiance(tmp_path):
+    _irradiance_bases(tmp_path)
+    doc = load_fitted(tmp_path / "fitted" / "grey.json")
+    rng = np.random.default_rng(7)
+    n = rng.normal(size=(1000, 3)).astype(np.float32)
+    for m in doc.methods:
+        key = "sh_l2" if m.id.startswith("sh") else m.id.replace("-", "_")
+        params = {k: p.value for k, p in m.parameters.items()}
+        ref = np.asarray(basis_irradiance(m.id, np.array(doc.data[key]), n.astype(np.float64), params))
+        got = np.stack(compile_function(m.shader.hlsl)(n[:, 0], n[:, 1], n[:, 2]), axis=-1)
+        np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(ref))))
+
+
+@pytest.mark.parametrize("name", ["intersection", "lambert"])
+def test_ambient_aperture_shaders_are_the_kernels_in_float32(name, tmp_path):
+    _ambient_aperture(tmp_path)
+    entry = load_fitted(tmp_path / "fitted" / f"{name}.json").methods[0]
+    method = {"intersection": aa.FITTED_OMEGA, "lambert": aa.FITTED_LAMBERT}[name]
+    rng = np.random.default_rng(8)
+    inputs = {i.name: rng.uniform(*i.domain, 2000).astype(np.float32) for i in method.inputs}
+    params = {k: p.value for k, p in entry.parameters.items()}
+    own = method(NUMPY_OPS, inputs, {k: np.float32(v) for k, v in params.items()})  # float32 NumPy run
+    got = compile_function(entry.shader.glsl)(*(inputs[a] for a in entry.shader.arguments))
+    np.testing.assert_array_equal(got, np.asarray(own, np.float32))
+    ref = method(NUMPY_OPS, {k: v.astype(np.float64) for k, v in inputs.items()}, params)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6 * float(np.max(np.abs(ref))))
