@@ -41,6 +41,7 @@ MY_WRAP = '''\
 # my_wrap.py
 from rtfit import approximation, Param
 
+
 @approximation(quantity="light_irradiance", params={"w": Param(0.5, lower=0.0, upper=1.0)})
 def my_wrap(ops, g, *, w):
     """Wrap lighting with exponent 2; g carries the quantity's named inputs."""
