@@ -81,7 +81,7 @@ def test_decorator_makes_a_method_of_the_quantity(wrap_method):
     assert m.input_names == ("cos_theta", "irradiance", "alpha", "distance")
     assert m.label == "Wrap lighting with exponent 2; g carries the quantity's named inputs."
     assert (m.params["w"].lower, m.params["w"].upper, m.params["w"].initial) == (0.0, 1.0, 0.5)
-    assert m.source.endswith("my_wrap.py:4")
+    assert m.source.endswith("my_wrap.py:5")
     assert check_approximation(m) is None  # finite, right shape, NumPy = Dr.Jit on the whole domain
 
 
@@ -239,7 +239,7 @@ def test_loading_errors_are_one_line_naming_the_spec(tmp_path, wrap_file):
     msg = one_line_error(
         f"{bad_q}:my_wrap", r"unknown quantity 'light_irradience' \(known: light_irradiance, "
     )
-    assert all(q in msg for q in QUANTITIES) and "bad_q.py line 4" in msg
+    assert all(q in msg for q in QUANTITIES) and "bad_q.py line 5" in msg
     no_bounds = tmp_path / "no_bounds.py"
     no_bounds.write_text(MY_WRAP.replace("Param(0.5, lower=0.0, upper=1.0)", "0.5"))
     one_line_error(
