@@ -37,7 +37,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .variants import use_variant
+from .variants import scoped_variant
 
 __all__ = [
     "UP_AXES",
@@ -100,27 +100,22 @@ def _parsed(path: str, defines: Mapping[str, str], variant: str) -> Iterator[tup
     resolver back afterwards. Mitsuba's refusal becomes one `XMLSceneError` line."""
     if not os.path.isfile(path):
         raise XMLSceneError(f"{path}: no such file")
-    import mitsuba  # mitsuba: heavy, and it selects a variant process-wide
+    with scoped_variant(variant) as mi:  # the caller's variant is put back afterwards
+        import mitsuba.parser as parser  # mitsuba: needs the variant set above
 
-    caller_variant = mitsuba.variant()
-    mi = use_variant(variant)
-    import mitsuba.parser as parser  # mitsuba: needs the variant set above
-
-    previous = mi.file_resolver()
-    resolver = mi.FileResolver(previous)
-    resolver.prepend(os.path.dirname(path))
-    mi.set_file_resolver(resolver)
-    try:
-        config = parser.ParserConfig(variant)
+        previous = mi.file_resolver()
+        resolver = mi.FileResolver(previous)
+        resolver.prepend(os.path.dirname(path))
+        mi.set_file_resolver(resolver)
         try:
-            state = parser.parse_file(config, path, **defines)
-        except RuntimeError as e:
-            raise XMLSceneError(f"{path}: {_one_line(str(e))}") from None
-        yield mi, parser, config, state
-    finally:
-        mi.set_file_resolver(previous)
-        if caller_variant and caller_variant != mi.variant():  # the caller's variant back (scoped)
-            mi.set_variant(caller_variant)
+            config = parser.ParserConfig(variant)
+            try:
+                state = parser.parse_file(config, path, **defines)
+            except RuntimeError as e:
+                raise XMLSceneError(f"{path}: {_one_line(str(e))}") from None
+            yield mi, parser, config, state
+        finally:
+            mi.set_file_resolver(previous)
 
 
 def _collect(mi, path: str, defines: Mapping[str, str], state) -> XmlDependencies:

@@ -7,13 +7,15 @@ present and asked for with ``"auto"``; ``scalar_rgb`` is selectable for debuggin
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import drjit as dr
 
 KNOWN_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
 
 
 def cuda_available() -> bool:
-
     try:
         return bool(dr.has_backend(dr.JitBackend.CUDA))
     except RuntimeError:  # Dr.Jit raises when the CUDA driver is absent
@@ -39,6 +41,22 @@ def use_variant(name: str = "auto"):
     if mi.variant() != variant:
         mi.set_variant(variant)
     return mi
+
+
+@contextlib.contextmanager
+def scoped_variant(name: str = "auto") -> Iterator:
+    """`use_variant` for the duration of a ``with`` block: yields the ``mitsuba`` module and puts the
+    caller's variant back afterwards (Mitsuba's variant is process-wide state; a notebook's own variant
+    must survive an rtfit call)."""
+    import mitsuba
+
+    caller = mitsuba.variant()
+    mi = use_variant(name)
+    try:
+        yield mi
+    finally:
+        if caller and caller != mi.variant():
+            mi.set_variant(caller)
 
 
 def is_scalar(variant: str) -> bool:
