@@ -70,3 +70,26 @@ def upper_hemisphere_nodes(n_mu: int, n_phi: int):
     d = np.stack([st * np.cos(pp), st * np.sin(pp), mm], -1).reshape(-1, 3)
     w = (wmu[:, None] * np.full(n_phi, 2 * np.pi / n_phi)[None, :]).reshape(-1)
     return d, w
+
+
+def run_tiny_experiment(name: str, tmp_path, overrides: dict):
+    """Run experiment ``name`` (quick, llvm_ad_rgb, inline, seed 0) with configuration ``overrides`` into
+    ``tmp_path/out`` with its own cache, and return its loaded results record."""
+    from rtfit.experiments.registry import get_experiment
+    from rtfit.experiments.results import load_results
+    from rtfit.experiments.runner import run_experiments
+
+    run_experiments(
+        [get_experiment(name)],
+        tmp_path / "out",
+        quick=True,
+        variant="llvm_ad_rgb",
+        spp=None,
+        seed=0,
+        cache_dir=tmp_path / "cache",
+        executor="inline",
+        workers=None,
+        progress=False,
+        overrides=overrides,
+    )
+    return load_results(tmp_path / "out" / name)

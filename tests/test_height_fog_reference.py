@@ -123,9 +123,7 @@ def test_mitsuba_transmittance_equals_closed_form(mi, ellipsoid):
 
 
 def test_tiny_experiment_run(tmp_path, monkeypatch):
-    from rtfit.experiments.registry import get_experiment
-    from rtfit.experiments.report import load_results
-    from rtfit.experiments.runner import run_experiments
+    from .conftest import run_tiny_experiment
 
     tiny = dict(
         sun_elevations_deg=[30.0],
@@ -143,20 +141,7 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
 
     # figures are exercised by the quick run; here they would double the test's time
     monkeypatch.setattr(height_fog, "make_figures", lambda *a, **k: [])
-    run_experiments(
-        [get_experiment("height-fog")],
-        tmp_path / "out",
-        quick=True,
-        variant="llvm_ad_rgb",
-        spp=None,
-        seed=0,
-        cache_dir=tmp_path / "cache",
-        executor="inline",
-        workers=None,
-        progress=False,
-        overrides=tiny,
-    )
-    res = load_results(tmp_path / "out" / "height-fog")
+    res = run_tiny_experiment("height-fog", tmp_path, tiny)
     assert res["experiment"] == "height-fog"
     assert {c["id"] for c in res["cases"]} == {"e30-single", "e30-multiple", "volumes"}
     failed = [c["name"] for c in res["checks"] if not c["passed"]]

@@ -125,9 +125,8 @@ def test_library_sky_scenes_load_and_hold_the_realtime_defaults(tmp_path):
 
 def test_tiny_experiment_run(tmp_path, monkeypatch):
     from rtfit.experiments import nishita_sky
-    from rtfit.experiments.registry import get_experiment
-    from rtfit.experiments.report import load_results
-    from rtfit.experiments.runner import run_experiments
+
+    from .conftest import run_tiny_experiment
 
     tiny = dict(
         sun_elevations_deg=[30.0],
@@ -151,20 +150,7 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
         spectral_quadrature_stride=[2, 1],
     )
     monkeypatch.setattr(nishita_sky, "_figures", lambda *a, **k: [])
-    run_experiments(
-        [get_experiment("nishita-sky")],
-        tmp_path / "out",
-        quick=True,
-        variant="llvm_ad_rgb",
-        spp=None,
-        seed=0,
-        cache_dir=tmp_path / "cache",
-        executor="inline",
-        workers=None,
-        progress=False,
-        overrides=tiny,
-    )
-    res = load_results(tmp_path / "out" / "nishita-sky")
+    res = run_tiny_experiment("nishita-sky", tmp_path, tiny)
     assert {c["id"] for c in res["cases"]} == {"e30-ss", "e30-ms", "e30-h5000-ss", "e30-ss-spectral"}
     failed = [c["name"] for c in res["checks"] if not c["passed"]]
     assert not failed, failed
