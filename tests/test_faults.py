@@ -87,7 +87,9 @@ def _numbers(results_dir: Path):
 
 
 def _passes(cache: Path) -> list[Path]:
-    return sorted(cache.rglob("pass-*.exr"))
+    """The complete passes: a pass is stored when both its data (EXR) and its record (JSON) are written;
+    a kill between the two leaves an EXR that the rerun rightly renders again, so it is not counted."""
+    return sorted(p for p in cache.rglob("pass-*.exr") if p.with_suffix(".json").exists())
 
 
 def test_killed_runs_and_a_truncated_pass_give_the_uninterrupted_results(tmp_path):
