@@ -843,7 +843,7 @@ def _disc_sun(cfg, dirs, done, images) -> tuple[dict | None, list[dict]]:
         sigma = float(np.sqrt(np.sum(se**2)))
         effect = float(abs(np.sum(qp[keep][:, 1] - qd[keep][:, 1]))) / max(sigma, 1e-300)
         spp = reference_spp(cfg, e)
-        need = int(math.ceil(spp * (4.0 / effect) ** 2)) if effect > 0 else None
+        need = math.ceil(spp * (4.0 / effect) ** 2) if effect > 0 else None
         errs = []
         for m in models:
             img = images.get((e, "ss", m))
@@ -878,7 +878,8 @@ def _disc_sun(cfg, dirs, done, images) -> tuple[dict | None, list[dict]]:
         "run's reference noise (the SS cross-check compares the disc-sun quadrature, so it holds either "
         f"way; ≥ 4 σ would resolve the disc from the point). Computed for sun ≤ {DISC_MAX_DEG:g}°; "
         "above, the disc changes the sky by < 1e-4.\n\n"
-        "| sun | disc term (G) | low anti-solar sky (G) | model error vs disc SS (disc share) | disc effect |\n"
+        "| sun | disc term (G) | low anti-solar sky (G) | model error vs disc SS (disc share) "
+        "| disc effect |\n"
         "|---|---|---|---|---|\n" + "\n".join(lines)
     )
     return {
