@@ -60,7 +60,8 @@ from rtfit.realtime import (
 )
 from rtfit.realtime.ambient_aperture import METHODS
 from rtfit.realtime.methods import Method
-from rtfit.reference import ReferenceCache, ReferenceRequest
+from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene
+from rtfit.reference.estimators import gbuffer, irradiance_pass
 from rtfit.reference.visibility import bake_visibility, surface_points
 from rtfit.scenes import ConstantEnv, library_path, load_scene, scene_hash
 
@@ -70,11 +71,14 @@ from .ambient_aperture_doc import sections, summary
 from .ambient_aperture_scenes import LABELS as SCENE_LABELS
 from .ambient_aperture_scenes import PROBE_REGION, probe_grid
 from .cost import (
+    Stock,
     attach_costs,
     baseline_row,
     bench_backend,
     comparison_row,
     memory_baseline,
+    reference_vs_stock_rows,
+    stock_render,
     time_drjit,
     time_numpy,
 )
@@ -1296,8 +1300,38 @@ def costs(ctx, cfg, fitted) -> list[dict]:
     return rows
 
 
+def bench_reference(ctx) -> list[dict]:
+    """The probe reference's samples/s (direct irradiance: emitter + cosine sampling with MIS, as
+    `scene_job` renders it) beside ``mi.render`` of the same scene (``aperture_hole``, its sphere light)
+    with the same ``direct`` estimator, side by side (`reference_vs_stock_rows`). The probes are the
+    camera's first hits, so both estimate the same points; ``mi.render`` also traces the camera ray."""
+    res = 64 if ctx.quick else 256
+    spp = 64 if ctx.quick else 256
+    scene = load_scene(library_path("aperture_hole"))
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, width=res, height=res))
+    mi, ms = load_mitsuba_scene(scene, ctx.variant)
+    gb = gbuffer(mi, ms)
+    keep = gb.mask & ~gb.emitter
+    p, n = gb.position[keep], gb.normal[keep]
+    return reference_vs_stock_rows(
+        f"rtfit irradiance probes, direct MIS ({len(p)} first hits, {spp} spp)",
+        lambda seed: irradiance_pass(mi, ms, p, n, spp, seed),
+        len(p) * spp,
+        [
+            Stock(
+                f"mi.render, same scene and integrator ({res}², {spp} spp)",
+                stock_render(mi, ms, spp),
+                res * res * spp,
+            )
+        ],
+        ctx.variant,
+        rounds=3 if ctx.quick else 5,
+    )
+
+
 def bench(ctx) -> list[dict]:
-    """Evaluations/s of each intersection form, Dr.Jit vs NumPy (same kernel text, default parameters)."""
+    """Evaluations/s of each intersection form, Dr.Jit vs NumPy (same kernel text, default parameters),
+    then the reference beside ``mi.render`` (`bench_reference`)."""
     backend, n = bench_backend(ctx)
     np_args, dr_args = cost_inputs(n, backend)
     np64 = tuple(x.astype(np.float64) for x in np_args)
@@ -1308,4 +1342,5 @@ def bench(ctx) -> list[dict]:
         t_np = time_numpy(numpy_call(m), np64, n)
         rows.append(comparison_row(m.label, backend, t_dr, t_np, base))
     rows.append(baseline_row(base, backend))
+    rows += bench_reference(ctx)
     return rows

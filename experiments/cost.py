@@ -12,12 +12,14 @@ closed form is to the memory limit.
 
 from __future__ import annotations
 
+import math
 import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import drjit as dr
+import numpy as np
 
 from rtfit.realtime import set_default_backend
 
@@ -154,3 +156,66 @@ def baseline_row(
 ) -> dict:
     """The memory-traffic floor as a bench row (1× by definition)."""
     return comparison_row(what, backend, base, None, base, unit, per)
+
+
+# ----------------------------------------------------- ground truth vs its stock Mitsuba equivalent
+@dataclass(frozen=True)
+class Stock:
+    """A stock Mitsuba render comparable to an rtfit reference pass: its label, ``run(seed)`` (the whole
+    render, returning host data) and the samples one call draws."""
+
+    what: str
+    run: Callable[[int], object]
+    samples: int
+
+
+def stock_render(mi, mi_scene, spp: int) -> Callable[[int], object]:
+    """``seed ↦ mi.render(mi_scene, spp, seed)`` read back to the host: Mitsuba's own render of a scene."""
+    return lambda seed: np.asarray(mi.render(mi_scene, spp=spp, seed=seed))
+
+
+def reference_vs_stock_rows(
+    reference: str,
+    run_reference: Callable[[int], object],
+    samples: int,
+    stocks: list[Stock],
+    variant: str,
+    rounds: int = 5,
+) -> list[dict]:
+    """Samples/s of an rtfit reference pass beside the stock Mitsuba renders a user would otherwise run,
+    measured **side by side**: one warm-up call each (kernel compile or cache load), then ``rounds``
+    rounds of one call each, alternating, each round with a fresh seed (``run(seed)`` must do the whole
+    pass and return host data; ``dr.sync_thread`` is called around it too). The best (smallest) time of
+    each is kept: on a shared machine the minimum is the estimate least disturbed by other load, and
+    alternating exposes every side to the same load.
+
+    Rows: ``what``, ``backend`` (the variant), ``samples`` per call, ``Msamples_s``, ``ns_per_sample`` and,
+    on each stock row, ``rtfit_vs_this``: rtfit's samples/s over that render's (issue 21's goal: ≥ 0.9
+    against the same integrator, i.e. rtfit's pass machinery costs at most 11 % over ``mi.render``)."""
+
+    def timed(call, seed) -> float:
+        dr.sync_thread()
+        t0 = time.perf_counter()
+        call(seed)
+        dr.sync_thread()
+        return time.perf_counter() - t0
+
+    calls = [(reference, run_reference, samples)] + [(s.what, s.run, s.samples) for s in stocks]
+    best = [math.inf] * len(calls)
+    for k in range(rounds + 1):  # round 0: warm-up, not counted
+        for i, (_, run, _) in enumerate(calls):
+            t = timed(run, k)
+            if k:
+                best[i] = min(best[i], t)
+    rates = [n / t for (_, _, n), t in zip(calls, best, strict=True)]
+    return [
+        {
+            "what": what,
+            "backend": variant,
+            "samples": n,
+            "Msamples_s": rate / 1e6,
+            "ns_per_sample": 1e9 / rate,
+            "rtfit_vs_this": rates[0] / rate if i else None,
+        }
+        for i, ((what, _, n), rate) in enumerate(zip(calls, rates, strict=True))
+    ]

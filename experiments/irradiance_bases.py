@@ -48,6 +48,7 @@ import dataclasses
 import functools
 import hashlib
 import math
+import tempfile
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -73,9 +74,10 @@ from rtfit.realtime.irradiance_bases import (
     sh9_from_disk,
     sh_project_latlong,
 )
-from rtfit.reference import ReferenceCache, ReferenceRequest, render_gbuffer, use_variant
+from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene, render_gbuffer, use_variant
 from rtfit.reference import environments as envs
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
+from rtfit.reference.estimators import irradiance_pass, radiance_pass
 from rtfit.scenes import (
     ConstantEnv,
     EnvMap,
@@ -91,11 +93,14 @@ from rtfit.scenes import (
 from . import figures
 from . import fitted as fitfiles
 from .cost import (
+    Stock,
     attach_costs,
     baseline_row,
     bench_backend,
     comparison_row,
     memory_baseline,
+    reference_vs_stock_rows,
+    stock_render,
     time_drjit,
     time_numpy,
 )
@@ -1202,6 +1207,48 @@ def _bench_rows() -> list[Row]:
     return out
 
 
+def bench_reference(ctx, mi, cfg: dict) -> list[dict]:
+    """The references' samples/s beside ``mi.render`` of the same scene (the white sphere under the studio
+    map) with the same integrator, side by side (`reference_vs_stock_rows`): the sphere image (radiance
+    pass, the same estimator as ``mi.render``) and the irradiance probes (the same direct estimator per
+    sample, emitter + cosine sampling with MIS; ``mi.render`` also traces a camera ray per sample)."""
+    res = 64 if ctx.quick else 256
+    spp = 64 if ctx.quick else 256
+    env = make_environment("studio", cfg, mi)
+    with tempfile.TemporaryDirectory(prefix="rtfit-bench-") as tmp:
+        map_file = None
+        if env.radiance_map is not None:
+            map_file = str(envs.write_map_exr(env.radiance_map, Path(tmp) / "studio.exr"))
+        scene = sky_scene(env, map_file, res)
+        _, ms = load_mitsuba_scene(scene, ctx.variant)
+        n = fibonacci_sphere(res * res).astype(np.float32)
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        samples = res * res * spp
+        stock = [
+            Stock(
+                f"mi.render, same scene and integrator ({res}², {spp} spp)",
+                stock_render(mi, ms, spp),
+                samples,
+            )
+        ]
+        rounds = 3 if ctx.quick else 5
+        return reference_vs_stock_rows(
+            f"rtfit sphere image reference ({res}², {spp} spp)",
+            lambda seed: radiance_pass(mi, ms, spp, seed),
+            samples,
+            stock,
+            ctx.variant,
+            rounds,
+        ) + reference_vs_stock_rows(
+            f"rtfit irradiance probes, direct MIS ({res * res} normals, {spp} spp)",
+            lambda seed: irradiance_pass(mi, ms, n, n, spp, seed),
+            samples,
+            stock,
+            ctx.variant,
+            rounds,
+        )
+
+
 def bench(ctx) -> list[dict]:
     """Dr.Jit vs NumPy (same kernel text) per basis in normals/s, then projection time per environment."""
     backend, n = bench_backend(ctx)
@@ -1234,4 +1281,5 @@ def bench(ctx) -> list[dict]:
                 **{f"{k}_ms": v for k, v in bb["timing_ms"].items()},
             }
         )
+    rows += bench_reference(ctx, mi, cfg)
     return rows

@@ -110,6 +110,7 @@ from rtfit.realtime.sdf_occlusion import (
     evans_terms_jacobian,
 )
 from rtfit.reference import load_mitsuba_scene
+from rtfit.reference.build import load_dict, mitsuba_scene_dict
 from rtfit.reference.estimators import gbuffer
 from rtfit.reference.io import atomic_write_bytes
 from rtfit.reference.occlusion import (
@@ -125,7 +126,7 @@ from rtfit.scenes import library_path, load_scene, scene_hash
 
 from . import figures
 from . import fitted as fitfiles
-from .cost import attach_costs, time_drjit
+from .cost import Stock, attach_costs, reference_vs_stock_rows, stock_render, time_drjit
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
 from .sdf_occlusion_scenes import SCENE_NAMES, build, read_ply
@@ -1833,6 +1834,23 @@ def measure_costs(sds, cfg) -> list[dict]:
     return out
 
 
+def ao_stock_dict(mi, scene) -> dict:
+    """The stock Mitsuba way to render ambient occlusion (R = ∞) of ``scene``: its shapes with a white
+    diffuse BSDF (reflectance 1), no lights but a constant environment of radiance 1, and the ``direct``
+    integrator with one emitter sample and no BSDF sample, so a pixel's value is
+    (1/π)∫ V(ω) max(n·ω, 0) dω — the AO of rtfit's ray-cast reference at the first hit. Used by `bench`
+    as the equivalent a user would otherwise run."""
+    d = mitsuba_scene_dict(mi, scene)
+    out = {k: v for k, v in d.items() if not k.startswith("light")}
+    white = {"type": "diffuse", "reflectance": {"type": "rgb", "value": 1.0}}
+    for k, v in out.items():
+        if isinstance(v, dict) and "bsdf" in v:
+            out[k] = {**{kk: vv for kk, vv in v.items() if kk != "emitter"}, "bsdf": white}
+    out["integrator"] = {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0}
+    out["ao_sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}}
+    return out
+
+
 def bench(ctx) -> list[dict]:
     """Pixels/s of Evans (the ``evans-text`` row at its defaults: n = 4, k = 10) and the cone-traced row
     (their cost-row kernels, `Row.timed`) beside the Mitsuba AO estimator's samples/s, in the same run."""
@@ -1883,5 +1901,21 @@ def bench(ctx) -> list[dict]:
             "ns_per_px": r.seconds / len(pts) * 1e9,
             "Msamples_s": len(pts) * spp / r.seconds / 1e6,
         }
+    )
+    stock = load_dict(mi, ao_stock_dict(mi, sc))
+    rows += reference_vs_stock_rows(
+        f"rtfit AO reference, R = ∞ (1 shadow ray per sample, {len(pts)} G-buffer points, {spp} spp)",
+        lambda seed: occlusion_pass(mi, mi_scene, pts, nrm, spp, seed, quantity="ao"),
+        len(pts) * spp,
+        [
+            Stock(
+                f"mi.render, direct: white diffuse under a constant sky of 1 = AO (R = ∞; camera + shadow "
+                f"ray per sample; {res}², {spp} spp)",
+                stock_render(mi, stock, spp),
+                res * res * spp,
+            )
+        ],
+        variant,
+        rounds=3 if ctx.quick else 5,
     )
     return rows

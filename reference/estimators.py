@@ -12,7 +12,8 @@ same thing, so an exact approximation leaves only the reference's noise (unit-sp
 Every pass returns, per element, the sample mean and the unbiased sample variance of its ``spp``
 iid samples (Mitsuba's ``independent`` sampler: stratified samplers would bias that variance).
 Sums are taken in float64 on the device, so millions of samples never lose precision in a float32
-accumulator (mitsuba2 #82, mitsuba3 #1335).
+accumulator (mitsuba2 #82, mitsuba3 #1335); they are reduced inside the kernel that draws the samples
+(`channel_moments`), so a pass costs what ``mi.render`` costs for the same integrator.
 
 Irradiance probes estimate E(x, n) = ∫_Ω L_i(x, ω) max(n·ω, 0) dω at given points and normals
 with Mitsuba's own emitter sampling and ray tracing: emitter sampling and cosine-weighted
@@ -75,19 +76,34 @@ def chunk_ranges(n_elements: int, spp: int):
         yield start, min(n_elements, start + per)
 
 
-def moments(mi, dr, value, spp: int):
-    """Per-element float64 sums of a per-lane RGB value and of its square (lanes grouped by spp)."""
-    dr.eval(value)  # one kernel for all channels: block_sum evaluates only its own input, so without
-    # this each channel would re-run (and re-compile) the whole integrator kernel: 3x the work.
-    sums, sqs = [], []
-    for c in range(3):
-        v = mi.Float64(value[c])
-        sums.append(dr.block_sum(v, spp))
-        sqs.append(dr.block_sum(v * v, spp))
-    dr.eval(sums, sqs)
+def channel_moments(mi, dr, channels, spp: int):
+    """Per-element float64 sums Σ v and Σ v² of each per-lane value in ``channels`` (lanes grouped by
+    ``spp``: lanes [i·spp, (i + 1)·spp) are element i's samples); arrays of shape (elements, channels).
+
+    The sums are symbolic block reductions (``dr.block_sum(..., mode="symbolic")``: per-lane float64
+    atomic adds into the element's slot, combined within a SIMD packet or warp first), so they are part
+    of the kernel that computes the samples: one kernel launch per chunk, no per-lane array in memory.
+    The evaluated reduction (the default for arrays under 1 GiB) would first store every lane's value,
+    then launch one float64 conversion kernel and one reduction per sum (7 launches for RGB and ~2.2 GB
+    of memory traffic per 2^24 lanes): 0.75× `mi.render`'s throughput on an H200 (issue 21).
+    Precision is unchanged (float64 per lane). Only the order of the additions differs: on the CPU each
+    element's lanes are summed by one thread in lane order (deterministic, bit-identical run to run);
+    on the GPU, atomics from different warps of one element land in an unspecified order, so Σ v² can
+    differ from run to run by ~1 ulp of float64 (1e-16 relative). Passes are stored in float32
+    (`rtfit.reference.cache`), far coarser than this."""
+    vs = [mi.Float64(v) for v in channels]
+    sums = [dr.block_sum(v, spp, mode="symbolic") for v in vs]
+    sqs = [dr.block_sum(v * v, spp, mode="symbolic") for v in vs]
+    dr.eval(sums, sqs)  # one kernel: the samples and all 2·C sums
     s = np.stack([np.asarray(x, dtype=np.float64) for x in sums], axis=-1)
     q = np.stack([np.asarray(x, dtype=np.float64) for x in sqs], axis=-1)
     return s, q
+
+
+def moments(mi, dr, value, spp: int):
+    """Per-element float64 sums of a per-lane RGB value and of its square (`channel_moments` of its three
+    channels), each of shape (elements, 3)."""
+    return channel_moments(mi, dr, [value[c] for c in range(3)], spp)
 
 
 def mean_var(s: np.ndarray, q: np.ndarray, n: int):

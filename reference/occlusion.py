@@ -53,7 +53,7 @@ import numpy as np
 from .build import camera_dict
 from .cache import PassEntry, array_digest, pool_passes
 from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
-from .estimators import MAX_LANES, PassResult, sub_seed
+from .estimators import MAX_LANES, PassResult, channel_moments, mean_var, sub_seed
 
 QUANTITIES = ("ao", "sky_direct", "sky_global", "sunsky_direct", "sunsky_global")
 MAX_BOUNCES = 64
@@ -227,14 +227,9 @@ def occlusion_pass(
         h0, h1 = mi.sample_tea_32(mi.UInt32(sub_seed(seed, "chunk", c)), lane)
         rng = mi.PCG32(lanes, (mi.UInt64(h0) << 32) | mi.UInt64(h1), mi.UInt64(lane))
         v = _estimate(mi, dr, mi_scene, rng, p, n, quantity, float(max_distance), float(albedo), skyfn)
-        v64 = mi.Float64(v)
-        sums = dr.block_sum(v64, spp)
-        sqs = dr.block_sum(v64 * v64, spp)
-        dr.eval(sums, sqs)
-        s[a:b] = np.asarray(sums, dtype=np.float64)
-        q[a:b] = np.asarray(sqs, dtype=np.float64)
-    mean = s / spp
-    var = np.maximum(q - s * mean, 0.0) / (spp - 1)
+        sv, qv = channel_moments(mi, dr, [v], spp)
+        s[a:b], q[a:b] = sv[:, 0], qv[:, 0]
+    mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 

@@ -324,3 +324,42 @@ def test_spectral_reference_matches_spectral_quadrature(tmp_path):
     assert np.all(np.abs(zs) < 4)
     with pytest.raises(ValueError, match="spectral variant"):
         render_sky(spec, d, spp=4, pass_spp=2, seed=0, variant="llvm_mono_spectral", max_depth=2)
+
+
+def test_disc_sun_quadrature_against_a_two_dimensional_disc_integral():
+    """The disc-sun single scattering (`point_sun=False`: 1-D Gauss–Chebyshev across the disc diameter
+    through the zenith of each point) against an independent 2-D integral over the disc: a polar grid
+    (4 rings uniform in cos θ' × 12 azimuths) of point-sun quadratures, each sun direction ω reached by
+    its elevation and a rotation of the view about the zenith (the atmosphere is spherically
+    symmetric), weighted by L_d dω = E₀ dω/(π sin²α). Sun −4°, low anti-solar sky (elevation 16.9°):
+    the disc adds 2.3 % over the point sun there; the two disc integrals agree to 3.6e-5 relative
+    (measured; 0.16 % of the disc's effect). Bound: 2 % of the effect."""
+    import dataclasses
+
+    from rtfit.experiments.nishita_sky import atmosphere_spec
+    from rtfit.reference.nishita_sky import single_scattering_quadrature
+
+    spec = atmosphere_spec(-4.0, 0.0)
+    d = np.array([[-0.938553, 0.1866898, 0.29028468]])
+    d /= np.linalg.norm(d)
+    point = single_scattering_quadrature(spec, d, steps=150)[0, 1]
+    disc = single_scattering_quadrature(spec, d, steps=150, point_sun=False)[0, 1]
+    s, a = np.asarray(spec.sun_direction), spec.sun_angular_radius
+    e1 = np.cross(s, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(s, e1)
+    nr, nf = 4, 12
+    brute = 0.0
+    for i in range(nr):
+        ct = 1 - (i + 0.5) / nr * (1 - math.cos(a))
+        st = math.sqrt(1 - ct * ct)
+        for k in range(nf):
+            f = 2 * math.pi * (k + 0.5) / nf
+            om = ct * s + st * (math.cos(f) * e1 + math.sin(f) * e2)
+            sp = dataclasses.replace(spec, sun_elevation_deg=math.degrees(math.asin(om[2])))
+            c, sn = math.cos(-math.atan2(om[1], om[0])), math.sin(-math.atan2(om[1], om[0]))
+            dr_ = np.stack([c * d[:, 0] - sn * d[:, 1], sn * d[:, 0] + c * d[:, 1], d[:, 2]], -1)
+            q = single_scattering_quadrature(sp, dr_, steps=150)[0, 1]
+            brute += q * (2 * math.pi * (1 - math.cos(a)) / (nr * nf)) / (math.pi * math.sin(a) ** 2)
+    assert abs(brute / point - 1) > 0.02  # the disc is resolved here
+    assert abs(disc - brute) <= 0.02 * abs(brute - point), (point, disc, brute)

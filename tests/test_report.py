@@ -8,6 +8,7 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rtfit.experiments.atomic import (
@@ -18,6 +19,8 @@ from rtfit.experiments.atomic import (
     is_temporary_name,
 )
 from rtfit.experiments.report import (
+    INDEX_UNRESOLVED_NOTE,
+    UNRESOLVED_NOTE,
     ResultsError,
     format_number,
     load_results,
@@ -632,3 +635,30 @@ def test_index_cost_and_resolve_marker_on_height_fog(tmp_path):
     assert sum(r[0].endswith("not resolved†") for r in rows.values()) == 1  # others resolved somewhere
     for text in (md, page):
         assert "≤ floor" not in text and "within 2× the reference" in text
+
+
+def test_unresolved_marker_text_states_the_rule_it_applies():
+    """The † rule of `rtfit.fitting.metrics` and every text that describes it agree: an error is
+    unresolved up to 2× its noise floor (4× for the squared relMSE, 6.02 dB for PSNR), so a value at
+    1.5× its floor is marked although it lies *above* the floor: no text may call it "below"."""
+    from rtfit.fitting import compute_metrics
+
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(0.5, 1.0, (32, 32, 3))
+    sigma = np.full_like(ref, 1e-3)
+    names = ("rmse", "rel_mse", "psnr")
+    for k, resolved in ((1.5, False), (1.99, False), (2.01, True), (3.0, True)):
+        # A constant offset k·σ: RMSE = k·σ and floor σ exactly; relMSE and PSNR square both sides.
+        res = compute_metrics(ref + k * 1e-3, ref, sigma, names=names)
+        assert res["rmse"].value / res["rmse"].noise_floor == pytest.approx(k, rel=1e-9)
+        assert res["rmse"].resolved is resolved and res["rel_mse"].resolved is resolved
+        assert res["psnr"].resolved is resolved
+        assert (res["psnr"].noise_floor - res["psnr"].value > 20 * math.log10(2)) is resolved
+    factor = re.findall(r"within (\d+)× the reference's noise floor", UNRESOLVED_NOTE + INDEX_UNRESOLVED_NOTE)
+    assert factor == ["2", "2"]
+    assert "(4× for the squared relMSE" in UNRESOLVED_NOTE and "6.02 dB" in UNRESOLVED_NOTE
+    docs = Path(__file__).resolve().parent.parent / "docs"
+    for page in docs.glob("*.md"):
+        text = page.read_text(encoding="utf-8").lower()
+        for wrong in ("below the noise floor", "below its noise floor", "≤ floor"):
+            assert wrong not in text, f"{page.name} describes the † rule as {wrong!r}"
