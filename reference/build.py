@@ -175,6 +175,38 @@ def _medium_dict(medium: HomogeneousMedium) -> dict:
     }
 
 
+# (axis of the outward normal, sign, first in-plane axis, second in-plane axis): a × b = sign · normal axis
+_BOX_FACES = ((0, 1, 1, 2), (0, -1, 2, 1), (1, 1, 2, 0), (1, -1, 0, 2), (2, 1, 0, 1), (2, -1, 1, 0))
+
+
+def _boundary_dicts(mi, boundary) -> dict:
+    """``{key_suffix: shape dict}`` of a medium's boundary (its null-BSDF transition surfaces).
+
+    A box is six ``rectangle`` faces (outward normals, suffixes ``_px`` … ``_mz``), not Mitsuba's
+    ``cube`` mesh. The cube's two triangles per face have vertices at the box's full extent, and on
+    the GPU OptiX intersects them in float32 world coordinates: near the middle of a 120 km face the
+    hit point (from its barycentric coordinates, quantised to about 1e-7 of the face size) and the
+    plane test are off by millimetres, more than Mitsuba's spawn offset there ((1 + |p|)·8.9e-5 m,
+    0.7 mm at 7 m from the origin). A null-BSDF crossing then re-hits the same face from the far
+    side at the same quantised point, every time: an endless loop in ``volpathmis`` (issue 21, seen
+    on the fog_terrain box's bottom face 2 m under the ground, one lane of 8.4M, one pass in two on
+    an H200). A rectangle intersects in its own frame, where the normal axis keeps its scale (the
+    offset ray's local z is the exact signed distance to the plane): the offset always clears it."""
+    if boundary.kind != "cube":
+        return {"": _shape_dict(mi, boundary)}
+    rot = rotation_matrix(boundary.rotate_axis, boundary.rotate_deg)
+    half = np.asarray(boundary.size, dtype=np.float64) / 2
+    centre = np.asarray(boundary.center, dtype=np.float64)
+    out = {}
+    for axis, sign, a, b in _BOX_FACES:
+        normal = sign * rot[:, axis]
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2] = rot[:, a] * half[a], rot[:, b] * half[b], normal
+        m[:3, 3] = centre + normal * half[axis]
+        out[f"_{'pm'[sign < 0]}{'xyz'[axis]}"] = {"type": "rectangle", "to_world": _transform(mi, m)}
+    return out
+
+
 def _inside(boundary, point) -> bool:
     p = np.asarray(point, dtype=np.float64)
     if isinstance(boundary, Sphere):
@@ -278,10 +310,10 @@ def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = N
     _merge_environments(mi, scene, d)
     for i, medium in enumerate(scene.media):
         d[f"medium{i}"] = _medium_dict(medium)
-        boundary = _shape_dict(mi, medium.boundary)
-        boundary["bsdf"] = {"type": "null"}
-        boundary["interior"] = {"type": "ref", "id": f"medium{i}"}
-        d[f"medium{i}_boundary"] = boundary
+        for suffix, boundary in _boundary_dicts(mi, medium.boundary).items():
+            boundary["bsdf"] = {"type": "null"}
+            boundary["interior"] = {"type": "ref", "id": f"medium{i}"}
+            d[f"medium{i}_boundary{suffix}"] = boundary
         if _inside(medium.boundary, scene.camera.origin):
             d["sensor"]["medium"] = {"type": "ref", "id": f"medium{i}"}
     return d

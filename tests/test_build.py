@@ -36,7 +36,10 @@ def test_no_media_plugins_without_media_and_volpathmis_with(mi):
         boundary=Cube((0, 0, 0), (4, 4, 4)), sigma_t=(0.5,) * 3, albedo=(0.8,) * 3, g=0.3
     )
     with_medium = plugin_types(mitsuba_scene_dict(mi, dataclasses.replace(sphere_scene(), media=(medium,))))
-    assert {"volpathmis", "homogeneous", "hg", "null", "cube"} <= with_medium
+    # a box boundary is six rectangles (rtfit.reference.build._boundary_dicts: the cube mesh's float32
+    # triangles made null crossings loop forever on the GPU, issue 21)
+    assert {"volpathmis", "homogeneous", "hg", "null", "rectangle"} <= with_medium
+    assert "cube" not in with_medium
     assert "volpath" not in with_medium
 
 
