@@ -90,7 +90,7 @@ class LaneCounter:
             return 0
         hit = dr.zeros(dr.mask_t(self._type), self._lanes)
         for c in self.counts:
-            hit |= c >= self.cap
+            hit |= c > self.cap  # a lane past the cap had an event absorbed
         return _int(dr.count(hit))
 
     def peak(self) -> int:

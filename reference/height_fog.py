@@ -86,8 +86,9 @@ def majorant(density: float, falloff: float, gradient, gradient_origin, to_world
     return value * (1.0 + _MAJORANT_MARGIN)
 
 
-def medium_dict(mi, medium) -> dict:
-    """``mi.load_dict`` entry for a scene `ExponentialFog` (``mi``: the mitsuba module, variant set)."""
+def medium_dict(mi, medium, segment_majorant: bool = True) -> dict:
+    """``mi.load_dict`` entry for a scene `ExponentialFog` (``mi``: the mitsuba module, variant set).
+    ``segment_majorant=False``: the box-wide majorant (the slower estimator before issue 21; benches)."""
     m = region_matrix(medium.boundary)
     phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
     return {
@@ -99,6 +100,42 @@ def medium_dict(mi, medium) -> dict:
         "to_world": mi.ScalarTransform4f(m.tolist()),
         "ellipsoid": bool(medium.ellipsoid),
         "albedo": mi.ScalarVector3f(*[float(x) for x in medium.albedo]),
+        "phase": phase,
+        "segment_majorant": bool(segment_majorant),
+    }
+
+
+def grid_medium_dict(mi, medium, resolution: int = 512) -> dict:
+    """Mitsuba's native ``heterogeneous`` medium with a ``gridvolume`` of the same density over the same
+    region box: what a user without rtfit's medium would render (benches compare against it). The grid
+    holds b·exp(−c·h) at voxel centres (trilinear); axes of the box orthogonal to the gradient get 2
+    voxels, the others ``resolution``. Its majorant is the grid's maximum over the whole box."""
+    m = region_matrix(medium.boundary)
+    g = np.asarray(medium.gradient, dtype=np.float64)
+    g = g / np.linalg.norm(g)
+    res = [2 if abs(float(g @ m[:3, k])) < 1e-12 * np.linalg.norm(m[:3, k]) else resolution for k in range(3)]
+    axes = [(np.arange(n) + 0.5) / n * 2.0 - 1.0 for n in res]  # voxel centres in [−1, 1]
+    lz, ly, lx = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    local = np.stack([lx, ly, lz], axis=-1)
+    world = local @ m[:3, :3].T + m[:3, 3]
+    h = world @ g - np.asarray(medium.gradient_origin, dtype=np.float64) @ g
+    density = medium.density * np.exp(np.minimum(-medium.falloff * h, 700.0))
+    if medium.ellipsoid:
+        density = np.where(np.sum(local * local, axis=-1) <= 1.0, density, 0.0)
+    unit_to_box = affine(np.eye(3) * 2.0, (-1.0, -1.0, -1.0))  # gridvolume spans [0, 1]³
+    phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
+    return {
+        "type": "heterogeneous",
+        "albedo": {
+            "type": "constvolume",
+            "value": {"type": "rgb", "value": [float(x) for x in medium.albedo]},
+        },
+        "sigma_t": {
+            "type": "gridvolume",
+            "grid": mi.VolumeGrid(density[..., None].astype(np.float32)),
+            "to_world": mi.ScalarTransform4f((m @ unit_to_box).tolist()),
+        },
+        "scale": 1.0,
         "phase": phase,
     }
 
@@ -134,6 +171,8 @@ def register(mi) -> None:
             self.unit_box = mi.BoundingBox3f(
                 mi.ScalarPoint3f(-1.0, -1.0, -1.0), mi.ScalarPoint3f(1.0, 1.0, 1.0)
             )
+            # False: the box-wide majorant for every segment (the estimator before issue 21; benches)
+            self.segment_majorant = bool(props.get("segment_majorant", True))
             self.lane_counter = LaneCounter()
             self._pending = None
 
@@ -155,6 +194,8 @@ def register(mi) -> None:
             delta = SEGMENT_MARGIN * (1.0 + o_abs.x + o_abs.y + o_abs.z + abs(self.h_offset) + t0 + span)
             seg = self.b * dr.exp(dr.minimum(-self.c * (h_lo - delta), 85.0)) * (1.0 + _MAJORANT_MARGIN)
             seg = dr.clip(dr.select(hit & dr.isfinite(seg), seg, self.maj), MIN_MAJORANT, self.maj)
+            if not self.segment_majorant:
+                seg = mi.Float(self.maj)
             absorb = self.lane_counter.tick(ray.time)
             self._pending = dr.select(absorb, ABSORB, seg), absorb
             return hit, mint, maxt
