@@ -13,8 +13,10 @@ black: it emits, it does not reflect.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
+import tempfile
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -228,9 +230,6 @@ def box_boundary_mesh(boundary) -> tuple[np.ndarray, np.ndarray]:
 def _mesh_file(vertices: np.ndarray, triangles: np.ndarray) -> str:
     """A Wavefront OBJ of the mesh in the temporary directory, named by its content (written once,
     atomically: concurrent builders write the same bytes)."""
-    import hashlib
-    import tempfile
-
     text = "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist())
     text += "".join(f"f {i + 1} {j + 1} {k + 1}\n" for i, j, k in triangles.tolist())
     folder = os.path.join(tempfile.gettempdir(), "rtfit-meshes")

@@ -43,8 +43,8 @@ import numpy as np
 
 from rtfit.scenes import Scene, scene_hash, scene_to_dict
 
-from .build import load_mitsuba_scene
 from .budget import PassBudgetExceeded, PassWatchdog
+from .build import load_mitsuba_scene
 from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
 from .height_fog import ESTIMATOR as FOG_ESTIMATOR
 from .integrators import choose_integrator
