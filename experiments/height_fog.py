@@ -56,13 +56,13 @@ from rtfit.realtime.height_fog import METHODS, OPTICAL_DEPTH_FORMS
 from rtfit.reference import (
     ReferenceCache,
     ReferenceRequest,
-    load_mitsuba_scene,
     radiance_pass,
     render_gbuffer,
     use_variant,
 )
-from rtfit.reference.build import light_dicts
-from rtfit.reference.height_fog import region_matrix, sky_statistics
+from rtfit.reference.build import light_dicts, load_dict, mitsuba_scene_dict
+from rtfit.reference.height_fog import grid_medium_dict, region_matrix, sky_statistics
+from rtfit.reference.height_fog import medium_dict as fog_medium_dict
 from rtfit.scenes import library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 
 from . import figures as F
@@ -1385,27 +1385,54 @@ def bench(ctx) -> list[dict]:
     return rows
 
 
+BENCH_MEDIA = (
+    ("reference", "rtfit fog medium, per-segment majorant (the reference)"),
+    ("box", "rtfit fog medium, box-wide majorant (the estimator before issue 21)"),
+    ("grid", "Mitsuba heterogeneous + gridvolume of the same density"),
+)
+"""The media of the reference bench rows: rtfit's estimator beside what a user would otherwise run."""
+
+
+def bench_scene_dict(mi, scene, medium: str) -> dict:
+    """The Mitsuba scene of ``scene`` with its fog as one of `BENCH_MEDIA`."""
+    d = mitsuba_scene_dict(mi, scene)
+    fog = scene.media[0]
+    if medium == "box":
+        d["medium0"] = fog_medium_dict(mi, fog, segment_majorant=False)
+    elif medium == "grid":
+        d["medium0"] = grid_medium_dict(mi, fog)
+    return d
+
+
 def _bench_reference(ctx) -> list[dict]:
+    """Samples/s of the terrain reference pass (sun 30°, single and multiple scattering) with each of
+    `BENCH_MEDIA`, side by side in one process: one warm-up pass, then the best of two timed passes."""
     res = (64, 32) if ctx.quick else (256, 128)
     spp = 64 if ctx.quick else 256
+    samples = res[0] * res[1] * spp
     rows = []
+    mi = use_variant(ctx.variant)
     for tr in TRANSPORTS:
         scene = terrain_scene(30.0, tr, res)
-        mi, ms = load_mitsuba_scene(scene, ctx.variant)
-        radiance_pass(mi, ms, spp, 0)
-        t = min(radiance_pass(mi, ms, spp, k + 1).seconds for k in range(2))
-        samples = res[0] * res[1] * spp
-        rows.append(
-            {
-                "what": f"reference: volpathmis + Python fog medium, {tr} scattering ({res[0]}×{res[1]}, "
-                f"{spp} spp)",
-                "backend": ctx.variant,
-                "elements": samples,
-                "drjit_Mray_s": samples / t / 1e6,
-                "numpy_Mray_s": None,
-                "drjit/numpy": None,
-                "ns_per_ray": t / samples * 1e9,
-                "vs_memory_floor": None,
-            }
-        )
+        rates = {}
+        for medium, label in BENCH_MEDIA:
+            ms = load_dict(mi, bench_scene_dict(mi, scene, medium))
+            radiance_pass(mi, ms, spp, 0)
+            t = min(radiance_pass(mi, ms, spp, k + 1).seconds for k in range(2))
+            rates[medium] = samples / t
+            rows.append(
+                {
+                    "what": f"reference pass, {tr} scattering ({res[0]}×{res[1]}, {spp} spp): {label}",
+                    "backend": ctx.variant,
+                    "elements": samples,
+                    "drjit_Mray_s": samples / t / 1e6,
+                    "numpy_Mray_s": None,
+                    "drjit/numpy": None,
+                    "ns_per_ray": t / samples * 1e9,
+                    "vs_memory_floor": None,
+                }
+            )
+        for row, (medium, _) in zip(rows[-len(BENCH_MEDIA) :], BENCH_MEDIA, strict=True):
+            row["vs_native_grid"] = rates[medium] / rates["grid"]
+            row["vs_box_majorant"] = rates[medium] / rates["box"]
     return rows

@@ -70,12 +70,15 @@ from rtfit.reference.nishita_sky import (
     film_srgb,
     hemisphere_directions,
     library_atmosphere,
+    load_sky,
     render_sky,
     single_scattering_quadrature,
+    sky_pass,
     solar_spectrum,
     spectral_single_scattering_quadrature,
     sunsky_radiance,
 )
+from rtfit.reference.variants import use_variant
 
 from . import figures
 from . import fitted as fitfiles
@@ -1606,4 +1609,46 @@ def bench(ctx) -> list[dict]:
                 "seed_2006_s": 15.0,
             }
         )
+    return rows + _bench_reference(ctx)
+
+
+BENCH_MEDIA = (
+    ("reference", "rtfit atmosphere medium, per-segment majorant (the reference)"),
+    ("box", "rtfit atmosphere medium, ground-level majorant (the estimator before issue 21)"),
+    ("grid", "Mitsuba heterogeneous + gridvolume (256³) of the same extinction"),
+)
+"""The media of the reference bench rows: rtfit's estimator beside what a user would otherwise run."""
+
+
+def _bench_reference(ctx) -> list[dict]:
+    """Samples/s of the sky reference pass (sun 10°, single and multiple scattering) with each of
+    `BENCH_MEDIA`, side by side in one process: one warm-up pass, then the best of two timed passes."""
+    res = (32, 16) if ctx.quick else (128, 64)
+    spp = 128 if ctx.quick else 1024
+    dirs, _, _ = hemisphere_directions(*res)
+    dirs = dirs.reshape(-1, 3)
+    samples = dirs.shape[0] * spp
+    spec = atmosphere_spec(10.0, VIEWER_ALTITUDE_M)
+    origin = (0.0, 0.0, spec.planet_radius_km + spec.viewer_altitude_km)
+    mi = use_variant(ctx.variant)
+    rows = []
+    for depth, transport in ((2, "single"), (-1, "multiple")):
+        rates = {}
+        for medium, label in BENCH_MEDIA:
+            scene, med = load_sky(mi, spec, depth, medium)
+            sky_pass(mi, scene, med, origin, dirs, spp, 0)
+            t = min(sky_pass(mi, scene, med, origin, dirs, spp, k + 1).seconds for k in range(2))
+            rates[medium] = samples / t
+            rows.append(
+                {
+                    "what": f"reference pass, {transport} scattering ({res[0]}×{res[1]}, {spp} spp): {label}",
+                    "backend": ctx.variant,
+                    "elements": samples,
+                    "drjit_Mray_s": samples / t / 1e6,
+                    "ns_per_ray": t / samples * 1e9,
+                }
+            )
+        for row, (medium, _) in zip(rows[-len(BENCH_MEDIA) :], BENCH_MEDIA, strict=True):
+            row["vs_native_grid"] = rates[medium] / rates["grid"]
+            row["vs_box_majorant"] = rates[medium] / rates["box"]
     return rows

@@ -13,8 +13,10 @@ black: it emits, it does not reflect.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
+import tempfile
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -175,6 +177,82 @@ def _medium_dict(medium: HomogeneousMedium) -> dict:
     }
 
 
+# (axis of the outward normal, sign, first in-plane axis, second in-plane axis): a × b = sign · normal axis
+_BOX_FACES = ((0, 1, 1, 2), (0, -1, 2, 1), (1, 1, 2, 0), (1, -1, 0, 2), (2, 1, 0, 1), (2, -1, 1, 0))
+TILE_SIZE_FACTOR = 16.0
+"""A boundary tile's edge is at most this × (1 + its smallest |p|∞ in scene units) (`box_boundary_mesh`)."""
+
+
+def box_boundary_mesh(boundary) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3) float64, triangles (F, 3) int) of a box medium boundary, outward winding, each
+    face tiled by a quadtree until every tile's edge is ≤ `TILE_SIZE_FACTOR`·(1 + r), r the smallest
+    ∞-norm of the tile's points (a lower bound from its world bounding box).
+
+    Why (issue 21 §1): Mitsuba offsets a ray leaving a surface point p by (1 + |p|∞)·8.9e-5 along the
+    normal, but OptiX intersects triangles in float32 relative to their vertices, with errors of about
+    1e-7 × the triangle's size. The box of the fog_terrain scene as Mitsuba's ``cube`` (or six
+    ``rectangle``s, which Mitsuba 3.9 also turns into meshes and merges) has two 120 km triangles per
+    face; where a face passes near the world origin (its bottom, 2 m under the camera) the error
+    (~5 mm) exceeds the offset (0.7 mm at 7 m): a ray crossing the null boundary re-hits the same face
+    at the same quantised point, forever (one lane in 8.4M on an H200: the kernel never returned). With
+    tiles of at most 16·(1 + r) the error (≲ 4·6e-8·√2·16·(1 + r) = 5.4e-6·(1 + r)) stays about 16×
+    below the offset everywhere, for a few hundred triangles (288 for fog_terrain). Quadtree tiles of
+    different sizes meet in T-junctions: a ray through such a seam (float32 cracks) may miss the
+    boundary; the medium then keeps its state for that path (rare; not a loop)."""
+    rot = rotation_matrix(boundary.rotate_axis, boundary.rotate_deg)
+    half = np.asarray(boundary.size, dtype=np.float64) / 2
+    centre = np.asarray(boundary.center, dtype=np.float64)
+    verts: list = []
+    tris: list = []
+
+    def tile(origin, ea, eb, depth):
+        corners = np.array([origin, origin + ea, origin + eb, origin + ea + eb])
+        lo, hi = corners.min(axis=0), corners.max(axis=0)
+        r = float(np.max(np.maximum(np.maximum(lo, -hi), 0.0)))
+        edge = max(float(np.linalg.norm(ea)), float(np.linalg.norm(eb)))
+        if edge > TILE_SIZE_FACTOR * (1.0 + r) and depth < 40:
+            for i in (0, 1):
+                for j in (0, 1):
+                    tile(origin + i * ea / 2 + j * eb / 2, ea / 2, eb / 2, depth + 1)
+            return
+        k = len(verts)
+        verts.extend(corners[[0, 1, 3, 2]])  # 00, 10, 11, 01
+        tris.extend([(k, k + 1, k + 2), (k, k + 2, k + 3)])
+
+    for axis, sign, a, b in _BOX_FACES:
+        normal = sign * rot[:, axis]
+        ea, eb = rot[:, a] * 2 * half[a], rot[:, b] * 2 * half[b]
+        face_centre = centre + normal * half[axis]
+        tile(face_centre - ea / 2 - eb / 2, ea, eb, 0)
+    return np.asarray(verts), np.asarray(tris, dtype=np.int64)
+
+
+def _mesh_file(vertices: np.ndarray, triangles: np.ndarray) -> str:
+    """A Wavefront OBJ of the mesh in the temporary directory, named by its content (written once,
+    atomically: concurrent builders write the same bytes)."""
+    text = "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist())
+    text += "".join(f"f {i + 1} {j + 1} {k + 1}\n" for i, j, k in triangles.tolist())
+    folder = os.path.join(tempfile.gettempdir(), "rtfit-meshes")
+    os.makedirs(folder, exist_ok=True)
+    path = os.path.join(folder, hashlib.sha256(text.encode()).hexdigest()[:32] + ".obj")
+    if not os.path.exists(path):
+        tmp = f"{path}.{os.getpid()}.tmp"
+        with open(tmp, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    return path
+
+
+def _boundary_dicts(mi, boundary) -> dict:
+    """``{key_suffix: shape dict}`` of a medium's boundary (its null-BSDF transition surface): a box is
+    the tiled mesh of `box_boundary_mesh` (see there why not Mitsuba's ``cube``); a sphere is Mitsuba's
+    analytic ``sphere``."""
+    if boundary.kind != "cube":
+        return {"": _shape_dict(mi, boundary)}
+    vertices, triangles = box_boundary_mesh(boundary)
+    return {"": {"type": "obj", "filename": _mesh_file(vertices, triangles), "face_normals": True}}
+
+
 def _inside(boundary, point) -> bool:
     p = np.asarray(point, dtype=np.float64)
     if isinstance(boundary, Sphere):
@@ -278,10 +356,10 @@ def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = N
     _merge_environments(mi, scene, d)
     for i, medium in enumerate(scene.media):
         d[f"medium{i}"] = _medium_dict(medium)
-        boundary = _shape_dict(mi, medium.boundary)
-        boundary["bsdf"] = {"type": "null"}
-        boundary["interior"] = {"type": "ref", "id": f"medium{i}"}
-        d[f"medium{i}_boundary"] = boundary
+        for suffix, boundary in _boundary_dicts(mi, medium.boundary).items():
+            boundary["bsdf"] = {"type": "null"}
+            boundary["interior"] = {"type": "ref", "id": f"medium{i}"}
+            d[f"medium{i}_boundary{suffix}"] = boundary
         if _inside(medium.boundary, scene.camera.origin):
             d["sensor"]["medium"] = {"type": "ref", "id": f"medium{i}"}
     return d

@@ -43,8 +43,10 @@ import numpy as np
 
 from rtfit.scenes import Scene, scene_hash, scene_to_dict
 
+from .budget import PassBudgetExceeded, PassWatchdog
 from .build import load_mitsuba_scene
 from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
+from .height_fog import ESTIMATOR as FOG_ESTIMATOR
 from .integrators import choose_integrator
 from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr
 from .mitsuba_xml import xml_dependencies
@@ -142,6 +144,8 @@ class ReferenceRequest:
             "pass_spp": self.pass_spp,
             "versions": {"mitsuba": mitsuba.__version__, "drjit": dr.__version__},
         }
+        if any(m.kind == "exponential_fog" for m in self.scene.media):  # the estimator made the samples
+            ident["medium_estimator"] = FOG_ESTIMATOR
         xml = [sh.file for sh in self.scene.shapes if sh.kind == "mitsuba_xml"]
         if xml:  # every file Mitsuba's parser loads for them (includes, <path> meshes), not only the XML
             ident["xml_files"] = [xml_dependencies(f, variant=self.variant).digest for f in xml]
@@ -383,8 +387,13 @@ class PassEntry:
                             if not prepared and before_render is not None:
                                 before_render()
                             prepared = True
-                            with _Heartbeat(self._claim_file(i)):
-                                cached = self.save(i, render(i))
+                            what = f"{name} pass {i + 1} of {count}"
+                            with _Heartbeat(self._claim_file(i)), PassWatchdog(what):
+                                try:
+                                    result = render(i)
+                                except PassBudgetExceeded as e:  # one line naming the case and pass
+                                    raise PassBudgetExceeded(f"{what}: {e}") from None
+                                cached = self.save(i, result)
                             rendered += 1
                     finally:
                         self.release(i)

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from .budget import ArmedMedia, counters
+
 # Lanes per kernel launch: bounded so memory stays small and far from the 2^32 lane limit.
 MAX_LANES = 1 << 24
 
@@ -144,11 +146,16 @@ def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
     s = np.empty((n_pixels, 3))
     q = np.empty((n_pixels, 3))
     sampler = mi.load_dict({"type": "independent"})
+    media = counters(mi_scene)
     for k, (a, b) in enumerate(chunk_ranges(n_pixels, spp)):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
         ray, weight = _pixel_rays(mi, dr, sensor, width, a, b - a, spp)
-        value, _, _ = integrator.sample(mi_scene, sampler, ray, sensor.get_medium(), True)
-        s[a:b], q[a:b] = moments(mi, dr, value * weight, spp)
+        with ArmedMedia(media, mi.UInt32, (b - a) * spp) as armed:
+            if media:  # lane index for the media's event counts (rtfit.reference.budget)
+                ray.time = mi.Float(dr.arange(mi.UInt32, (b - a) * spp))
+            value, _, _ = integrator.sample(mi_scene, sampler, ray, sensor.get_medium(), True)
+            s[a:b], q[a:b] = moments(mi, dr, value * weight, spp)
+            armed.check()
     mean, var = mean_var(s, q, spp)
     shape = (height, width, 3)
     return PassResult(mean.reshape(shape), var.reshape(shape), spp, seed, time.perf_counter() - t0)

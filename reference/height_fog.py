@@ -11,11 +11,29 @@ m) — and it costs less (facts note §5: 3.6 s against 4.7 s for a 64³ grid). 
 Python volumes (clipped to [0, 1]³) does not arise: a ``Medium`` defines its own extent through
 ``intersect_aabb``, which here intersects the ray with the region box in the box's local frame.
 
-Majorant: Mitsuba calls ``get_majorant`` before it knows the sample position (one majorant per
-medium), so it is the largest density in the region: b·exp(−c·min over the box corners of (q − p₀)·ĝ),
-computed in float64 and raised by 1e-5 relative (float32 rounding of the density never exceeds it;
-densities are also clamped to it). Delta tracking with it is unbiased; its cost grows with
-majorant × path length, which is why the experiment's fog region stops at 20 scale heights.
+Free-flight sampling: delta tracking (and ratio tracking on shadow rays) with a **per-segment
+majorant**. Mitsuba's ``Medium::sample_interaction`` asks ``intersect_aabb(ray)`` for the segment
+[t₀, t₁] = [max(mint, 0), min(maxt, ray.maxt)] inside the region, then ``get_majorant`` (before it knows
+the sample position), draws t = t₀ − ln(1 − u)/m̄ and keeps it if t ≤ t₁. Along a ray the density is
+b·exp(−c·h(t)) with h linear in t, so its largest value on the segment is at the end lowest along ĝ:
+
+    m̄ = b·exp(−c·(h_lo − δ))·(1 + 1e-5),  h_lo = min(h(t₀), h(t₁)),
+
+δ = 2⁻¹⁸·(1 + |o|₁ + |p₀·ĝ| + t₁ − t₀) (scene units) covers the float32 rounding of h at any sample
+point (≥ 64 ulps of the coordinates), and the factor the rounding of exp; densities are clamped to m̄,
+which the margins make a no-op. ``intersect_aabb`` computes m̄ from its ray and leaves it for the
+``get_majorant`` and ``get_scattering_coefficients`` calls of the same ``sample_interaction``
+(σn = m̄ − σt). Each tentative collision restarts the segment at the collision, so the majorant
+follows the path: thinning a Poisson process of rate m̄(s) ≥ σt(s) chosen from the past of the path is
+exact (unbiased), and the null collisions drop from m̄_box·L to about the optical depth plus one for
+paths that climb or run level (the box-wide majorant b·exp(−c·h_min,box) paid for every metre of the
+20 scale heights of the region). A ray heading down still pays m̄ = σ(lowest point)·length.
+m̄ never exceeds the box majorant (`majorant`, float64, the lowest box corner): it is the fallback
+when ``get_majorant`` is called on its own.
+
+Every ``intersect_aabb`` also counts one event for the lane (`rtfit.reference.budget.LaneCounter`,
+lane index in ``ray.time``): a lane past the cap is absorbed at once and the pass fails with one line
+(no pass runs without bound).
 
 Properties: ``density`` (float b), ``falloff`` (float c), ``gradient`` and ``gradient_origin``
 (ScalarVector3f), ``to_world`` (ScalarTransform4f of the region box), ``ellipsoid`` (bool),
@@ -30,11 +48,18 @@ import math
 import drjit as dr
 import numpy as np
 
+from .budget import ABSORB, LaneCounter
 from .transforms import affine, rotation_matrix
 
 PLUGIN = "rtfit_expfog"
 _registered: set[str] = set()
 _MAJORANT_MARGIN = 1e-5
+SEGMENT_MARGIN = 2.0**-18
+"""δ of the segment majorant per scene unit of coordinate magnitude (module docstring)."""
+MIN_MAJORANT = 1e-30
+"""Floor of the segment majorant (1/scene unit): −ln(1 − u)/m̄ stays a number where σ underflows."""
+ESTIMATOR = "rtfit_expfog/2: delta/ratio tracking, per-segment majorant, medium-event cap"
+"""The free-flight estimator's identity: part of the reference cache key (`rtfit.reference.cache`)."""
 
 
 def region_matrix(boundary) -> np.ndarray:
@@ -61,8 +86,9 @@ def majorant(density: float, falloff: float, gradient, gradient_origin, to_world
     return value * (1.0 + _MAJORANT_MARGIN)
 
 
-def medium_dict(mi, medium) -> dict:
-    """``mi.load_dict`` entry for a scene `ExponentialFog` (``mi``: the mitsuba module, variant set)."""
+def medium_dict(mi, medium, segment_majorant: bool = True) -> dict:
+    """``mi.load_dict`` entry for a scene `ExponentialFog` (``mi``: the mitsuba module, variant set).
+    ``segment_majorant=False``: the box-wide majorant (the slower estimator before issue 21; benches)."""
     m = region_matrix(medium.boundary)
     phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
     return {
@@ -74,6 +100,42 @@ def medium_dict(mi, medium) -> dict:
         "to_world": mi.ScalarTransform4f(m.tolist()),
         "ellipsoid": bool(medium.ellipsoid),
         "albedo": mi.ScalarVector3f(*[float(x) for x in medium.albedo]),
+        "phase": phase,
+        "segment_majorant": bool(segment_majorant),
+    }
+
+
+def grid_medium_dict(mi, medium, resolution: int = 512) -> dict:
+    """Mitsuba's native ``heterogeneous`` medium with a ``gridvolume`` of the same density over the same
+    region box: what a user without rtfit's medium would render (benches compare against it). The grid
+    holds b·exp(−c·h) at voxel centres (trilinear); axes of the box orthogonal to the gradient get 2
+    voxels, the others ``resolution``. Its majorant is the grid's maximum over the whole box."""
+    m = region_matrix(medium.boundary)
+    g = np.asarray(medium.gradient, dtype=np.float64)
+    g = g / np.linalg.norm(g)
+    res = [2 if abs(float(g @ m[:3, k])) < 1e-12 * np.linalg.norm(m[:3, k]) else resolution for k in range(3)]
+    axes = [(np.arange(n) + 0.5) / n * 2.0 - 1.0 for n in res]  # voxel centres in [−1, 1]
+    lz, ly, lx = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    local = np.stack([lx, ly, lz], axis=-1)
+    world = local @ m[:3, :3].T + m[:3, 3]
+    h = world @ g - np.asarray(medium.gradient_origin, dtype=np.float64) @ g
+    density = medium.density * np.exp(np.minimum(-medium.falloff * h, 700.0))
+    if medium.ellipsoid:
+        density = np.where(np.sum(local * local, axis=-1) <= 1.0, density, 0.0)
+    unit_to_box = affine(np.eye(3) * 2.0, (-1.0, -1.0, -1.0))  # gridvolume spans [0, 1]³
+    phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
+    return {
+        "type": "heterogeneous",
+        "albedo": {
+            "type": "constvolume",
+            "value": {"type": "rgb", "value": [float(x) for x in medium.albedo]},
+        },
+        "sigma_t": {
+            "type": "gridvolume",
+            "grid": mi.VolumeGrid(density[..., None].astype(np.float32)),
+            "to_world": mi.ScalarTransform4f((m @ unit_to_box).tolist()),
+        },
+        "scale": 1.0,
         "phase": phase,
     }
 
@@ -109,6 +171,10 @@ def register(mi) -> None:
             self.unit_box = mi.BoundingBox3f(
                 mi.ScalarPoint3f(-1.0, -1.0, -1.0), mi.ScalarPoint3f(1.0, 1.0, 1.0)
             )
+            # False: the box-wide majorant for every segment (the estimator before issue 21; benches)
+            self.segment_majorant = bool(props.get("segment_majorant", True))
+            self.lane_counter = LaneCounter()
+            self._pending = None
 
         def _to_local_point(self, p):
             return self.inv_lin @ mi.Vector3f(p) + self.inv_t
@@ -116,28 +182,50 @@ def register(mi) -> None:
         def intersect_aabb(self, ray):
             o = mi.Point3f(self._to_local_point(ray.o))
             d = self.inv_lin @ mi.Vector3f(ray.d)  # not renormalised: t stays in world units
-            return self.unit_box.ray_intersect(mi.Ray3f(o, d))
+            hit, mint, maxt = self.unit_box.ray_intersect(mi.Ray3f(o, d))
+            # the segment majorant (module docstring), left for this sample_interaction's other calls
+            t0 = dr.maximum(mint, 0.0)
+            span = dr.maximum(dr.minimum(maxt, ray.maxt) - t0, 0.0)
+            span = dr.select(dr.isfinite(span), span, 0.0)
+            rate = dr.dot(mi.Vector3f(ray.d), self.grad)  # dh/dt
+            h0 = dr.dot(mi.Vector3f(ray.o), self.grad) - self.h_offset + t0 * rate
+            h_lo = h0 + dr.minimum(rate, 0.0) * span
+            o_abs = dr.abs(mi.Vector3f(ray.o))
+            delta = SEGMENT_MARGIN * (1.0 + o_abs.x + o_abs.y + o_abs.z + abs(self.h_offset) + t0 + span)
+            seg = self.b * dr.exp(dr.minimum(-self.c * (h_lo - delta), 85.0)) * (1.0 + _MAJORANT_MARGIN)
+            seg = dr.clip(dr.select(hit & dr.isfinite(seg), seg, self.maj), MIN_MAJORANT, self.maj)
+            if not self.segment_majorant:
+                seg = mi.Float(self.maj)
+            absorb = self.lane_counter.tick(ray.time)
+            self._pending = dr.select(absorb, ABSORB, seg), absorb
+            return hit, mint, maxt
+
+        def _segment(self):
+            pending = self.__dict__.get("_pending")
+            return pending if pending is not None else (mi.Float(self.maj), False)
 
         def get_majorant(self, mei, active=True):
-            return mi.UnpolarizedSpectrum(self.maj)
+            return mi.UnpolarizedSpectrum(self._segment()[0])
 
         def get_scattering_coefficients(self, mei, active=True):
+            m, absorb = self._segment()
+            self._pending = None  # the last call of this sample_interaction
             h = dr.dot(mi.Vector3f(mei.p), self.grad) - self.h_offset
             sig = self.b * dr.exp(dr.minimum(-self.c * h, 85.0))
-            sig = dr.minimum(sig, self.maj)
             if self.ellipsoid:
                 local = self._to_local_point(mei.p)
                 sig = dr.select(dr.squared_norm(local) <= 1.0, sig, 0.0)
+            sig = dr.select(absorb, ABSORB, dr.minimum(sig, m))
             sigma_t = mi.UnpolarizedSpectrum(sig)
-            sigma_s = self.albedo * sigma_t
-            sigma_n = mi.UnpolarizedSpectrum(self.maj) - sigma_t
+            sigma_s = dr.select(absorb, 0.0, self.albedo * sigma_t)
+            sigma_n = mi.UnpolarizedSpectrum(m) - sigma_t
             return sigma_s, sigma_n, sigma_t
 
         def traverse(self, callback):
             pass
 
         def to_string(self):
-            return f"ExpFog[b={self.b}, c={self.c}, majorant={self.maj}]"
+            return f"ExpFog[b={self.b}, c={self.c}, box majorant={self.maj}]"
 
     mi.register_medium(PLUGIN, lambda props: ExpFog(props))
     _registered.add(variant)

@@ -93,6 +93,7 @@ import numpy as np
 from rtfit.scenes import library_path
 
 from . import emitters
+from .budget import ABSORB, ArmedMedia, LaneCounter, counters
 from .cache import PassEntry, array_digest, pool_passes
 from .estimators import PassResult, chunk_ranges, mean_var, moments, sub_seed
 from .variants import cuda_available, use_variant
@@ -106,9 +107,11 @@ __all__ = [
     "cie1931_table",
     "film_srgb",
     "film_xyz_to_srgb",
+    "grid_medium_dict",
     "hemisphere_directions",
     "library_atmosphere",
     "load_atmosphere_scene",
+    "load_sky",
     "register",
     "render_sky",
     "scene_dict",
@@ -122,7 +125,9 @@ __all__ = [
 
 MEDIUM_PLUGIN = "rtfit_atmosphere"
 PHASE_PLUGIN = "rtfit_rayleigh_mie"
-_CACHE_FORMAT = 2  # 2: passes in rtfit.reference.cache.PassEntry (namespace "sky"), SI spec
+_CACHE_FORMAT = 3  # 2: passes in PassEntry (namespace "sky"), SI spec; 3: per-segment majorant (issue 21)
+SEGMENT_MARGIN = 2.0**-18
+"""δ of the segment majorant per km of coordinate magnitude (`register`'s medium)."""
 SPECTRAL_VARIANTS = ("llvm_ad_spectral", "cuda_ad_spectral")
 SOLAR_TEMPERATURE_K = 5778.0
 """Blackbody temperature of the spectral sun (the real-time spectral variant's default)."""
@@ -373,31 +378,62 @@ def register(mi) -> None:
             self.majorant = mi.Color3f(dr.max(self.prof.br + self.prof.bme))  # density ≤ 1 above ground
             self.m_is_homogeneous = False
             self.m_has_spectral_extinction = True
+            # False: the ground-level majorant for every segment (the estimator before issue 21; benches)
+            self.segment_majorant = bool(props.get("segment_majorant", True))
+            self.lane_counter = LaneCounter()
+            self._pending = None
+
+        def _segment_densities(self, ray, mint, maxt):
+            """(ρ_R, ρ_M) bounds on [t₀, t₁] = [max(mint, 0), min(maxt, ray.maxt)]: the densities at the
+            lowest point of the segment (the point nearest the planet centre: t* = −o·d/|d|² clamped to
+            the segment), lowered by δ = 2⁻¹⁸·(|o| + t₁ − t₀) km against float32 rounding."""
+            t0 = dr.maximum(mint, 0.0)
+            t1 = dr.maximum(dr.minimum(maxt, ray.maxt), t0)
+            t1 = dr.select(dr.isfinite(t1), t1, t0)
+            o, d = mi.Vector3f(ray.o), mi.Vector3f(ray.d)
+            t_star = dr.clip(-dr.dot(o, d) / dr.maximum(dr.squared_norm(d), 1e-30), t0, t1)
+            r_low = dr.norm(o + t_star * d)
+            delta = SEGMENT_MARGIN * (1.0 + dr.norm(o) + (t1 - t0) * dr.norm(d))
+            h = dr.maximum(r_low - delta - self.prof.rg, 0.0)
+            return dr.exp(-h / self.prof.hr), dr.exp(-h / self.prof.hm)
+
+        def _segment(self):
+            pending = self.__dict__.get("_pending")
+            return pending if pending is not None else (None, False)
 
         def _spectral_majorant(self, mei):
             # grey per path: the largest ground-level extinction over its 4 wavelengths
             br, _, bme = self.prof.coeffs(mei)
             return mi.Spectrum(dr.max(br + bme))
 
+        def _majorant(self, mei):
+            """Grey majorant of this sample_interaction's segment (module docstring): the largest
+            channel (RGB) or sampled wavelength (spectral) of β_R ρ_R + β_M^ext ρ_M at the segment's
+            lowest point; the ground-level extinction when no segment is pending; `ABSORB` for a lane
+            past its event cap."""
+            rho, absorb = self._segment()
+            if rho is None:
+                m = self._spectral_majorant(mei) if spectral else mi.Spectrum(self.majorant)
+            else:
+                br, _, bme = self.prof.coeffs(mei)
+                m = mi.Spectrum(dr.max(br * rho[0] + bme * rho[1]))
+            return dr.select(absorb, ABSORB, m), absorb
+
         def get_majorant(self, mei, active=True):
-            # Constant (the ground-level extinction). Mitsuba's sample_interaction calls this
-            # before mei.p is set, so an altitude-adaptive bound cannot be used here (it does set
-            # mei.wavelengths first: the spectral majorant depends on them).
-            if spectral:
-                return self._spectral_majorant(mei)
-            return mi.Spectrum(self.majorant)
+            # Mitsuba's sample_interaction calls this before mei.p is set; intersect_aabb, called just
+            # before with the ray, left the segment's density bounds (mei.wavelengths are set).
+            return self._majorant(mei)[0]
 
         def get_scattering_coefficients(self, mei, active=True):
+            majorant, absorb = self._majorant(mei)
+            self._pending = None  # the last call of this sample_interaction
             rr, rm = self.prof.rho(mei.p)
-            if spectral:
-                br, bm, bme = self.prof.coeffs(mei)
-                sigma_s = br * rr + bm * rm
-                sigma_t = br * rr + bme * rm
-                return sigma_s, self._spectral_majorant(mei) - sigma_t, sigma_t
-            sigma_s = self.prof.br * rr + self.prof.bm * rm
-            sigma_t = self.prof.br * rr + self.prof.bme * rm
-            sigma_n = self.majorant - sigma_t
-            return mi.Spectrum(sigma_s), mi.Spectrum(sigma_n), mi.Spectrum(sigma_t)
+            br, bm, bme = self.prof.coeffs(mei)
+            sigma_s = mi.Spectrum(br * rr + bm * rm)
+            sigma_t = dr.minimum(mi.Spectrum(br * rr + bme * rm), majorant)
+            sigma_s = dr.select(absorb, 0.0, sigma_s)
+            sigma_t = dr.select(absorb, majorant, sigma_t)
+            return sigma_s, majorant - sigma_t, sigma_t
 
         def intersect_aabb(self, ray):
             # The slab test of Mitsuba's BoundingBox3f.ray_intersect on [−R_t, R_t]³, written out:
@@ -417,7 +453,14 @@ def register(mi) -> None:
                 t2p.append(dr.maximum(t1, t2))
             mint = dr.maximum(dr.maximum(t1p[0], t1p[1]), t1p[2])
             maxt = dr.minimum(dr.minimum(t2p[0], t2p[1]), t2p[2])
-            return ok & (maxt >= mint), mint, maxt
+            hit = ok & (maxt >= mint)
+            absorb = self.lane_counter.tick(ray.time)
+            rho = None
+            if self.segment_majorant:
+                rr, rm = self._segment_densities(ray, mint, maxt)
+                rho = (dr.select(hit, rr, 1.0), dr.select(hit, rm, 1.0))
+            self._pending = (rho, absorb) if (rho is not None or absorb is not False) else None
+            return hit, mint, maxt
 
     mi.register_phase(PHASE_PLUGIN, lambda props: RayleighMiePhase(props))
     mi.register_medium(MEDIUM_PLUGIN, lambda props: AtmosphereMedium(props))
@@ -437,16 +480,26 @@ def _profile_props(spec: AtmosphereSpec, mi) -> dict:
     }
 
 
-def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
-    """The Mitsuba scene (km units): planet, atmosphere shell with the medium, distant-disc sun."""
+def scene_dict(mi, spec: AtmosphereSpec, max_depth: int, medium: str = "reference") -> dict:
+    """The Mitsuba scene (km units): planet, atmosphere shell with the medium, distant-disc sun.
+
+    ``medium``: ``"reference"`` (rtfit's medium, per-segment majorant), ``"box"`` (the same medium with
+    the ground-level majorant for every segment: the estimator before issue 21) or ``"grid"`` (Mitsuba's
+    native ``heterogeneous`` medium on a ``gridvolume`` of the extinction over the shell's bounding
+    cube, `grid_medium_dict`: what a user would otherwise render; for benches, not a reference)."""
     register(mi)
     props = _profile_props(spec, mi)
-    medium = {
+    if medium not in ("reference", "box", "grid"):
+        raise ValueError(f"medium must be 'reference', 'box' or 'grid' (got {medium!r})")
+    medium_d = {
         "type": MEDIUM_PLUGIN,
         "top_radius": spec.top_radius_km,
         **props,
+        "segment_majorant": medium == "reference",
         "phase": {"type": PHASE_PLUGIN, **props},
     }
+    if medium == "grid":
+        medium_d = grid_medium_dict(mi, spec)
     alpha = spec.sun_angular_radius
     radiance = [e / (math.pi * math.sin(alpha) ** 2) for e in spec.solar_irradiance]
     d = {
@@ -463,7 +516,7 @@ def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
             "center": [0, 0, 0],
             "radius": spec.top_radius_km,
             "bsdf": {"type": "null"},
-            "interior": medium,
+            "interior": medium_d,
         },
         "sun": {
             "type": emitters.PLUGIN,
@@ -487,8 +540,41 @@ def scene_dict(mi, spec: AtmosphereSpec, max_depth: int) -> dict:
     return d
 
 
-def _load(mi, spec, max_depth):
-    scene = mi.load_dict(scene_dict(mi, spec, max_depth))
+def grid_medium_dict(mi, spec: AtmosphereSpec, resolution: int = 256) -> dict:
+    """Mitsuba's ``heterogeneous`` medium with ``gridvolume``s of the atmosphere's extinction and albedo
+    (RGB, km⁻¹) at the voxel centres of a ``resolution``³ grid over the cube [−R_t, R_t]³, trilinear,
+    HG phase with the Mie g: a bench stand-in for "the same density on a grid" (a 50 km voxel cannot
+    resolve an 8 km scale height: not a reference). Its majorant is the grid's maximum, as Mitsuba
+    computes it, over the whole cube."""
+    rt = spec.top_radius_km
+    axis = ((np.arange(resolution) + 0.5) / resolution * 2.0 - 1.0) * rt
+    z, y, x = np.meshgrid(axis, axis, axis, indexing="ij")
+    h = np.maximum(np.sqrt(x * x + y * y + z * z) - spec.planet_radius_km, 0.0)
+    rr, rm = np.exp(-h / spec.rayleigh_height_km)[..., None], np.exp(-h / spec.mie_height_km)[..., None]
+    br, bm, bme = (np.asarray(v) for v in (spec.rayleigh_beta_km, spec.mie_beta_km, spec.mie_extinction_km))
+    sigma_t = br * rr + bme * rm
+    albedo = np.where(sigma_t > 0, (br * rr + bm * rm) / np.maximum(sigma_t, 1e-30), 0.0)
+    to_world = mi.ScalarTransform4f().translate([-rt, -rt, -rt]).scale(2.0 * rt)
+    return {
+        "type": "heterogeneous",
+        "sigma_t": {
+            "type": "gridvolume",
+            "grid": mi.VolumeGrid(sigma_t.astype(np.float32)),
+            "to_world": to_world,
+        },
+        "albedo": {
+            "type": "gridvolume",
+            "grid": mi.VolumeGrid(albedo.astype(np.float32)),
+            "to_world": to_world,
+        },
+        "scale": 1.0,
+        "phase": {"type": "hg", "g": spec.mie_g},
+    }
+
+
+def load_sky(mi, spec, max_depth, medium: str = "reference"):
+    """The loaded Mitsuba scene of `scene_dict` (``mi``: variant set) and its atmosphere medium."""
+    scene = mi.load_dict(scene_dict(mi, spec, max_depth, medium))
     emitters.attach(scene)
     medium = None
     for shape in scene.shapes():
@@ -507,25 +593,31 @@ def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -
     integrator = scene.integrator()
     sampler = mi.load_dict({"type": "independent"})
     dx, dy, dz = (mi.Float(d[:, k].astype(np.float32)) for k in range(3))
+    media = counters(scene)
     for k, (a, b) in enumerate(chunk_ranges(n, spp)):
         sampler.seed(sub_seed(seed, "sky", k), (b - a) * spp)
         idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + a
         direction = mi.Vector3f(
             dr.gather(mi.Float, dx, idx), dr.gather(mi.Float, dy, idx), dr.gather(mi.Float, dz, idx)
         )
-        if mi.is_spectral:
-            value = _spectral_sample(
-                mi, dr, scene, sampler, integrator, medium, origin, dr.normalize(direction)
-            )
-        else:
-            ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), dr.normalize(direction))
-            value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
-        s[a:b], q[a:b] = moments(mi, dr, value, spp)
+        # the lane index rides in ray.time for the medium's event cap (rtfit.reference.budget)
+        lanes = mi.Float(dr.arange(mi.UInt32, (b - a) * spp))
+        with ArmedMedia(media, mi.UInt32, (b - a) * spp) as armed:
+            if mi.is_spectral:
+                value = _spectral_sample(
+                    mi, dr, scene, sampler, integrator, medium, origin, dr.normalize(direction), lanes
+                )
+            else:
+                ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), dr.normalize(direction))
+                ray.time = lanes
+                value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
+            s[a:b], q[a:b] = moments(mi, dr, value, spp)
+            armed.check()
     mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 
-def _spectral_sample(mi, dr, scene, sampler, integrator, medium, origin, direction):
+def _spectral_sample(mi, dr, scene, sampler, integrator, medium, origin, direction, time=0.0):
     """One spectral sample per lane, as Mitsuba's sensor + RGB film do it: 4 stratified
     wavelengths u_j = (u + j/4) mod 1 through ``sample_rgb_spectrum`` (weight 1/pdf), the
     integrator's radiance at those wavelengths, then ``spectrum_to_xyz`` (mean over the 4 of
@@ -539,7 +631,7 @@ def _spectral_sample(mi, dr, scene, sampler, integrator, medium, origin, directi
         lams.append(lam)
         weights.append(w)
     wavelengths = mi.Spectrum(*lams)
-    ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), direction, 0.0, wavelengths)
+    ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), direction, time, wavelengths)
     value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
     return mi.xyz_to_srgb(mi.spectrum_to_xyz(value * mi.Spectrum(*weights), wavelengths))
 
@@ -606,7 +698,7 @@ def render_sky(
     loaded: dict = {}
 
     def load_scene():
-        loaded["scene"], loaded["medium"] = _load(mi, spec, max_depth)
+        loaded["scene"], loaded["medium"] = load_sky(mi, spec, max_depth)
 
     def render(i: int) -> PassResult:
         scene, medium = loaded["scene"], loaded["medium"]

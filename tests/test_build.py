@@ -36,8 +36,31 @@ def test_no_media_plugins_without_media_and_volpathmis_with(mi):
         boundary=Cube((0, 0, 0), (4, 4, 4)), sigma_t=(0.5,) * 3, albedo=(0.8,) * 3, g=0.3
     )
     with_medium = plugin_types(mitsuba_scene_dict(mi, dataclasses.replace(sphere_scene(), media=(medium,))))
-    assert {"volpathmis", "homogeneous", "hg", "null", "cube"} <= with_medium
+    # a box boundary is a tiled mesh (rtfit.reference.build.box_boundary_mesh: the cube's 2 triangles
+    # per face made null crossings loop forever on the GPU, issue 21)
+    assert {"volpathmis", "homogeneous", "hg", "null", "obj"} <= with_medium
+    assert "cube" not in with_medium
     assert "volpath" not in with_medium
+
+
+def test_box_boundary_mesh_is_closed_outward_and_tiled_finely_near_the_origin():
+    import numpy as np
+
+    from rtfit.reference.build import TILE_SIZE_FACTOR, box_boundary_mesh
+
+    box = Cube((0.0, 0.0, 2499.0), (120000.0, 120000.0, 5002.0))  # the fog_terrain region
+    v, t = box_boundary_mesh(box)
+    e1, e2 = v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]
+    n = np.cross(e1, e2)
+    centroid = v[t].mean(axis=1)
+    assert np.all(np.einsum("ij,ij->i", n, centroid - np.array(box.center)) > 0)  # outward winding
+    # the tiles cover the box's surface exactly (float64 sums of exact power-of-two subdivisions)
+    assert 0.5 * np.linalg.norm(n, axis=1).sum() == pytest.approx(2 * (120000.0**2 + 2 * 120000.0 * 5002.0))
+    longest = np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1))  # a tile's diagonal
+    r = np.abs(v[t]).max(axis=2).min(axis=1)  # ≥ a tile's smallest |p|∞ (the minimum over its corners)
+    near = r < 100.0
+    assert near.any() and np.all(longest[near] <= np.sqrt(2) * TILE_SIZE_FACTOR * (1.0 + r[near]))
+    assert len(t) < 1000
 
 
 def test_environment_plugins_only_when_declared(mi):
