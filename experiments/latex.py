@@ -744,8 +744,9 @@ def _table_parts(experiment: str, b, width: float, force_long: bool = False) -> 
         data = idx[1:] if len(idx) < len(widths) else idx[n_key:]
         keep = [r for r in range(len(rows)) if p == 0 or any(not cols[i].empty(r) for i in data)]
         caption = tex_text(b.caption)
-        if len(groups) > 1:
-            caption = (caption + " " if caption else "") + f"(part {p + 1} of {len(groups)})"
+        part = f"(part {p + 1} of {len(groups)})" if len(groups) > 1 else ""
+        if caption and part:
+            caption += " " + part
         label = base_label if p == 0 else f"{base_label}:part{p + 1}"
         spec = "".join(
             (r">{\raggedleft\arraybackslash}" if cols[i].numeric else r">{\raggedright\arraybackslash}")
@@ -766,6 +767,12 @@ def _table_parts(experiment: str, b, width: float, force_long: bool = False) -> 
                 r"\begingroup" + setup,
                 rf"\begin{{longtable}}{{{spec}}}",
                 *([rf"  \caption{{{caption}}}\label{{tab:{label}}} \\"] if caption else []),
+                # A table without a caption names its part in a line above it.
+                *(
+                    [rf"  \multicolumn{{{len(idx)}}}{{@{{}}l}}{{\footnotesize\itshape {part}}} \\"]
+                    if part and not caption
+                    else []
+                ),
                 r"    \toprule",
                 "    " + head,
                 r"    \midrule",
@@ -788,6 +795,7 @@ def _table_parts(experiment: str, b, width: float, force_long: bool = False) -> 
                 r"\begin{table}[htbp]",
                 r"  \centering" + setup,
                 *([f"  \\caption{{{caption}}}", f"  \\label{{tab:{label}}}"] if caption else []),
+                *([rf"  {{\footnotesize\itshape {part}}}\par"] if part and not caption else []),
                 f"  \\begin{{tabular}}{{{spec}}}",
                 r"    \toprule",
                 "    " + head,
