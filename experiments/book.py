@@ -195,7 +195,7 @@ def summary_plot(path, families: Sequence[tuple[str, list[FamilyPoint]]]) -> Pat
     per family, each point numbered as in the summary table; open markers: not resolved in any case."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
-    colours = plt.get_cmap("tab10").colors
+    colours = [plt.get_cmap("tab10")(i) for i in range(10)]
     k = 0
     for f, (name, pts) in enumerate(families):
         colour, marker = colours[f % len(colours)], _FAMILY_STYLE[f % len(_FAMILY_STYLE)]
