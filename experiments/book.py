@@ -44,7 +44,7 @@ from pathlib import Path
 from . import latex
 from .atomic import atomic_write_bytes, atomic_write_text
 from .figures import pareto_plot, pyplot, save_figure
-from .latex import TexCell, TexTable, render_table, tex_text
+from .latex import TexCell, TexTable, render_table, tex_label, tex_text
 from .records import Approximation, Figure, Results, ResultsError
 from .report import METRICS, format_number, headline_metric, markdown_tokens, report_tables
 from .results import load_results
@@ -213,7 +213,7 @@ def summary_plot(path, families: Sequence[tuple[str, list[FamilyPoint]]]) -> Pat
                 marker=marker,
                 facecolors=colour if filled else "none",
                 edgecolors=colour,
-                label=None if shown else name,
+                label=None if shown else name + (" (RMSE/RMS*)" if p.norm_kind == "rms" else ""),
                 zorder=3,
             )
             shown = True
@@ -415,10 +415,6 @@ def _figure(path: str, caption_tex: str, label: str, width: str = r"\linewidth")
     ]
 
 
-def _label(*parts: str) -> str:
-    return ":".join(re.sub(r"[^A-Za-z0-9\-]+", "-", p).strip("-") or "x" for p in parts)
-
-
 class _Family:
     """One family's section: collects LaTeX lines and counts figures (for :data:`FLOATS_PER_FLUSH`)."""
 
@@ -446,7 +442,7 @@ class _Family:
             ]
             return
         self.nfig += 1
-        self.lines += _figure(path, caption, _label(self.r.experiment, f"fig{self.nfig}"))
+        self.lines += _figure(path, caption, tex_label(self.r.experiment, f"fig{self.nfig}"))
         self.pending += 1
         if self.pending >= FLOATS_PER_FLUSH:
             self.lines += [r"\clearpage", ""]
@@ -537,7 +533,7 @@ def _family_section(fam: _Family) -> list[str]:
     where = "" if fam.rel == exp else f" in {_code_inline(fam.rel + '/')}"
     L += [
         rf"\section{{{tex_text(r.title)}}}",
-        rf"\label{{sec:{_label(exp)}}}",
+        rf"\label{{sec:{tex_label(exp)}}}",
         rf"{{\raggedright\noindent\textit{{Experiment {_code_inline(exp)}{where}; "
         rf"{tex_text(_when(r.created))}; {tex_text(r.device)}.}}\par}}\medskip",
         "",
@@ -580,12 +576,12 @@ def _family_section(fam: _Family) -> list[str]:
         name = tex_text(METRICS.get(head, (head,))[0])
         caption = (
             f"Error against cost for {tex_text(exp)}: mean {name} over the cases "
-            "against the measured ns/pixel (log scale); dashed: the Pareto front (no approximation is both "
+            "(log scale) against the measured ns/pixel; dashed: the Pareto front (no approximation is both "
             "cheaper and more accurate); dotted: the mean noise floor of the reference. Labels are the "
-            "approximations' ids (Table above); approximations without a measured cost are not drawn. "
-            "Drawn by the book from results.json."
+            f"approximations' ids (Table~\\ref{{tab:{tex_label(exp, 'error-cost')}}}); approximations "
+            "without a measured cost are not drawn. Drawn by the book from results.json."
         )
-        fam.lines += _figure(fam.pareto, caption, _label(exp, "pareto"), BOOK_FIGURE_WIDTH)
+        fam.lines += _figure(fam.pareto, caption, tex_label(exp, "pareto"), BOOK_FIGURE_WIDTH)
         fam.pending += 1
     if "overview" in tables:
         L += [render_table(exp, tables.pop("overview"), longtable=True), ""]

@@ -47,6 +47,7 @@ __all__ = [
     "TexTable",
     "render_table",
     "render_tables",
+    "tex_label",
     "tex_markdown",
     "tex_number",
     "tex_text",
@@ -714,7 +715,8 @@ def _row_height(cols: list[_Column], widths: dict[int, float], idx: list[int], r
     return h * 11.0
 
 
-def _label(*parts: str) -> str:
+def tex_label(*parts: str) -> str:
+    """A ``\\label`` key from parts: each reduced to letters, digits and hyphens, joined by ``:``."""
     return ":".join(re.sub(r"[^A-Za-z0-9\-]+", "-", p).strip("-") or "x" for p in parts)
 
 
@@ -733,7 +735,7 @@ def _table_parts(experiment: str, b, width: float, force_long: bool = False) -> 
     grouped = len(cols) > 2 and any(cols[0].empty(r) and not cols[1].empty(r) for r in range(len(rows)))
     n_key = 2 if grouped else 1
     groups = _layout(cols, n_key, width)
-    base_label = _label(experiment, b.anchor.removeprefix("table-"))
+    base_label = tex_label(experiment, b.anchor.removeprefix("table-"))
     out = []
     for p, (idx, widths) in enumerate(groups):
         if p > 0 and n_key == 2:
