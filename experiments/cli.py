@@ -48,6 +48,7 @@ from rtfit.scenes import SceneError
 from . import scaling
 from .atomic import is_temporary_name
 from .audit_cli import audit
+from .book import write_book
 from .cache_cli import cache_group
 from .executors import EXECUTORS, make_executor
 from .ray_executor import RAY_EXTRA_HINT, check_address
@@ -396,6 +397,15 @@ def report_cmd(directory):
         write_report(sub)
     write_index(directory, subdirs)
     click.echo(str((directory / "index.html").resolve()))
+    book = write_book(directory, subdirs)  # the audit book over the whole run (docs/book.md)
+    click.echo(str(book.tex.resolve()))
+    if book.pdf is not None:
+        click.echo(str(book.pdf.resolve()))
+    elif book.pdflatex:
+        click.echo(f"rtfit: {book.tex}: {book.error} (log: {directory / 'book.log'})", err=True)
+        raise click.exceptions.Exit(1)
+    else:
+        click.echo(f"rtfit: book.pdf not written: {book.error}", err=True)
 
 
 @cli.command("bench")

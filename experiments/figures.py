@@ -33,9 +33,13 @@ def srgb(linear: np.ndarray) -> np.ndarray:
 
 
 def save_figure(fig, path) -> Path:
-    """Write ``fig`` as a PNG atomically and close it."""
+    """Write ``fig`` atomically and close it: PDF (vector, no creation date, so the same figure gives
+    the same bytes) where ``path`` ends in ``.pdf``, PNG otherwise."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    if Path(path).suffix.lower() == ".pdf":
+        fig.savefig(buf, format="pdf", bbox_inches="tight", metadata={"CreationDate": None})
+    else:
+        fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     pyplot().close(fig)
     return atomic_write_bytes(path, buf.getvalue())
 

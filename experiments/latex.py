@@ -35,13 +35,19 @@ from __future__ import annotations
 import math
 import re
 import unicodedata
+from dataclasses import dataclass, field
 
 __all__ = [
     "KNOWN_CHARACTERS",
     "LONG_TABLE_PT",
     "PREAMBLE",
     "TEXT_WIDTH_PT",
+    "TT_EM",
+    "TexCell",
+    "TexTable",
+    "render_table",
     "render_tables",
+    "tex_label",
     "tex_markdown",
     "tex_number",
     "tex_text",
@@ -54,6 +60,37 @@ TABCOLSEP_PT = 4.0  # \tabcolsep inside the tables (LaTeX's default is 6 pt)
 BODY_PT = 9.0  # \small in a 10 pt document
 SUB_PT = 7.0  # \scriptsize in a 10 pt document
 PREAMBLE = "\\documentclass{article}\n\\usepackage{booktabs}\n\\usepackage{array}\n\\usepackage{longtable}\n"
+
+
+@dataclass
+class TexCell:
+    """A table cell as :func:`render_table` reads it (the report's cell model, for tables built
+    outside the report). ``text``: the value (``numeric``: a formatted number, right-aligned, never
+    wrapped, ``"value ± s.e."`` allowed) or text (``md``: inline markdown); ``sub``: a second line in
+    small print (a metric's noise floor as ``"floor 1.2e-3"``); ``style``: ``""``, ``"best"``/``"fail"``
+    (bold), ``"unresolved"``/``"at-bound"`` (italic); ``mark``: a footnote mark after the value."""
+
+    text: str = ""
+    sub: str = ""
+    numeric: bool = False
+    md: bool = False
+    style: str = ""
+    mark: str = ""
+
+
+@dataclass
+class TexTable:
+    """A table as :func:`render_table` reads it: ``anchor`` (label key, ``table-`` prefix dropped),
+    caption (plain text; empty: none), header and rows of :class:`TexCell`, notes under the table,
+    ``tex_cols``: the columns to show (None: all)."""
+
+    anchor: str
+    caption: str
+    header: list[TexCell]
+    rows: list[list[TexCell]]
+    notes: list[str] = field(default_factory=list)
+    tex_cols: list[int] | None = None
+
 
 # -------------------------------------------------------------------------------------------- text
 _SPECIAL = {
@@ -448,7 +485,7 @@ _EM_BOLD = _em_table(
     "329 362 625 329 986 657 592 657 625 488 467 460 657 625 855 625 625 526 592 1183 592 592"
 )
 _EM_SPECIAL = {"—": 1.0, "–": 0.5, "…": 1.0, "†": 0.5, "‡": 0.5, "°": 0.5, "·": 0.9}
-_TT_EM = 0.525  # cmtt: every character
+TT_EM = 0.525  # cmtt: every character (em)
 _SAFETY = 1.06  # estimates are scaled by this, plus 1 pt
 
 
@@ -482,7 +519,7 @@ def text_width(text: str, size_pt: float = BODY_PT, tt: bool = False, bold: bool
         elif ch == "\x02":
             mono = tt
         elif mono and not unicodedata.combining(ch):
-            em += _TT_EM
+            em += TT_EM
         else:
             em += _char_em(ch, table)
     optical = 1.11 if size_pt < 8.5 else 1.0  # cmr7 is relatively wider than cmr9 (digits 0.569 vs 0.514 em)
@@ -552,7 +589,13 @@ def _words_max(lines: list[tuple[str, float, str]], cell) -> float:
         text = (_md_visible(cell.text) if cell.md else cell.text) if k == 0 else cell.sub
         size = BODY_PT if k == 0 else SUB_PT
         text = "".join(c + "\x00" if _is_fallback(c) else c for c in text)  # breaks after [U+XXXX]
+        # Typewriter (code spans) never breaks at a hyphen or slash (cmtt has no hyphenchar): only
+        # their spaces split them.
+        text = re.sub(
+            "\x01[^\x02]*\x02?", lambda m: m.group(0).replace("-", "\x03").replace("/", "\x04"), text
+        )
         for word in re.split(r"[ \-–—/\x00]+", text + (cell.mark if k == 0 else "")):
+            word = word.replace("\x03", "-").replace("\x04", "/")
             tt = word.count("\x01") > word.count("\x02")
             word = word.replace("\x01", "").replace("\x02", "")
             best = max(best, text_width(word, size, tt, bold=k == 0 and _bold(cell)) + 2.0)
@@ -672,7 +715,8 @@ def _row_height(cols: list[_Column], widths: dict[int, float], idx: list[int], r
     return h * 11.0
 
 
-def _label(*parts: str) -> str:
+def tex_label(*parts: str) -> str:
+    """A ``\\label`` key from parts: each reduced to letters, digits and hyphens, joined by ``:``."""
     return ":".join(re.sub(r"[^A-Za-z0-9\-]+", "-", p).strip("-") or "x" for p in parts)
 
 
@@ -681,7 +725,7 @@ def _cell_tex(lines) -> str:
     return "{}" + t if t.startswith("[") else t  # a row's "\\" would read a leading [ as its option
 
 
-def _table_parts(experiment: str, b, width: float) -> list[str]:
+def _table_parts(experiment: str, b, width: float, force_long: bool = False) -> list[str]:
     idx_all = b.tex_cols if b.tex_cols is not None else list(range(len(b.header)))
     header = [b.header[i] for i in idx_all]
     rows = [[row[i] for i in idx_all] for row in b.rows]
@@ -691,7 +735,7 @@ def _table_parts(experiment: str, b, width: float) -> list[str]:
     grouped = len(cols) > 2 and any(cols[0].empty(r) and not cols[1].empty(r) for r in range(len(rows)))
     n_key = 2 if grouped else 1
     groups = _layout(cols, n_key, width)
-    base_label = _label(experiment, b.anchor.removeprefix("table-"))
+    base_label = tex_label(experiment, b.anchor.removeprefix("table-"))
     out = []
     for p, (idx, widths) in enumerate(groups):
         if p > 0 and n_key == 2:
@@ -702,8 +746,9 @@ def _table_parts(experiment: str, b, width: float) -> list[str]:
         data = idx[1:] if len(idx) < len(widths) else idx[n_key:]
         keep = [r for r in range(len(rows)) if p == 0 or any(not cols[i].empty(r) for i in data)]
         caption = tex_text(b.caption)
-        if len(groups) > 1:
-            caption += f" (part {p + 1} of {len(groups)})"
+        part = f"(part {p + 1} of {len(groups)})" if len(groups) > 1 else ""
+        if caption and part:
+            caption += " " + part
         label = base_label if p == 0 else f"{base_label}:part{p + 1}"
         spec = "".join(
             (r">{\raggedleft\arraybackslash}" if cols[i].numeric else r">{\raggedright\arraybackslash}")
@@ -719,11 +764,17 @@ def _table_parts(experiment: str, b, width: float) -> list[str]:
             else ""
         )
         setup = rf"\small\setlength{{\tabcolsep}}{{{TABCOLSEP_PT:g}pt}}"
-        if height > LONG_TABLE_PT:
+        if height > LONG_TABLE_PT or force_long:
             out += [
                 r"\begingroup" + setup,
                 rf"\begin{{longtable}}{{{spec}}}",
-                rf"  \caption{{{caption}}}\label{{tab:{label}}} \\",
+                *([rf"  \caption{{{caption}}}\label{{tab:{label}}} \\"] if caption else []),
+                # A table without a caption names its part in a line above it.
+                *(
+                    [rf"  \multicolumn{{{len(idx)}}}{{@{{}}l}}{{\footnotesize\itshape {part}}} \\"]
+                    if part and not caption
+                    else []
+                ),
                 r"    \toprule",
                 "    " + head,
                 r"    \midrule",
@@ -745,8 +796,8 @@ def _table_parts(experiment: str, b, width: float) -> list[str]:
             out += [
                 r"\begin{table}[htbp]",
                 r"  \centering" + setup,
-                f"  \\caption{{{caption}}}",
-                f"  \\label{{tab:{label}}}",
+                *([f"  \\caption{{{caption}}}", f"  \\label{{tab:{label}}}"] if caption else []),
+                *([rf"  {{\footnotesize\itshape {part}}}\par"] if part and not caption else []),
                 f"  \\begin{{tabular}}{{{spec}}}",
                 r"    \toprule",
                 "    " + head,
@@ -759,6 +810,15 @@ def _table_parts(experiment: str, b, width: float) -> list[str]:
                 out.append("  " + notes)
             out += [r"\end{table}", ""]
     return out
+
+
+def render_table(experiment: str, table, width_pt: float = TEXT_WIDTH_PT, longtable: bool = False) -> str:
+    """One report table as LaTeX (a ``table`` float, or a ``longtable`` when it is taller than
+    :data:`LONG_TABLE_PT` or ``longtable`` is set; split into parts where wider than ``width_pt``).
+    ``table``: as in :func:`render_tables` (e.g. a :class:`TexTable`). A table with an empty caption
+    gets no ``\\caption`` and no ``\\label``. A ``longtable`` is not a float: any number of them may
+    follow each other without "Too many unprocessed floats"."""
+    return "\n".join(_table_parts(experiment, table, width_pt, force_long=longtable))
 
 
 def render_tables(experiment: str, tables, width_pt: float = TEXT_WIDTH_PT) -> str:

@@ -53,10 +53,13 @@ __all__ = [
     "SCHEMA",
     "ResultsError",
     "format_number",
+    "headline_metric",
     "load_results",
     "markdown_inline",
     "markdown_to_html",
+    "markdown_tokens",
     "render_report",
+    "report_tables",
     "write_index",
     "write_report",
 ]
@@ -188,6 +191,12 @@ def markdown_inline(text: str) -> str:
     """Inline markdown (CommonMark: emphasis, code, links, autolinks, escapes; ``$math$`` kept as
     text in a ``span.math``) → HTML, no enclosing paragraph. Raw HTML is escaped."""
     return _MD.renderInline(str(text)).rstrip("\n")
+
+
+def markdown_tokens(text: str) -> list:
+    """Block markdown (the dialect of :func:`markdown_to_html`: CommonMark, pipe tables, ``$math$``
+    as ``math_inline`` tokens) parsed into markdown-it-py tokens, for renderers to other formats."""
+    return _MD.parse(str(text))
 
 
 def markdown_to_html(text: str, heading_offset: int = 2) -> str:
@@ -352,7 +361,9 @@ def _mark_best(cells: list[_Cell], entries: list[Metric | None], key: str) -> No
                 cells[i].mark, cells[i].tag = "†", UNRESOLVED_TAG
 
 
-def _headline_metric(cases: list[Case]) -> str | None:
+def headline_metric(cases: list[Case]) -> str | None:
+    """The metric the overview and the suite index show: rmse where measured, else the first known
+    metric (in :data:`METRICS` order) of the cases."""
     keys = _metric_keys([ap for c in cases for ap in c.approximations])
     return "rmse" if "rmse" in keys else (keys[0] if keys else None)
 
@@ -446,7 +457,7 @@ def _build(r: Results, directory: Path | None) -> _Doc:
     d.heading(2, "Results", "results")
     if not cases:
         d.prose("No cases were evaluated.")
-    head = _headline_metric(cases)
+    head = headline_metric(cases)
     if len(cases) > 1 and head:
         methods: dict[str, str] = {}  # method id -> label of its first appearance
         for c in cases:
@@ -913,6 +924,16 @@ def render_report(results: Results | Mapping, directory=None) -> dict[str, str]:
     }
 
 
+def report_tables(results: Results | Mapping, directory=None) -> list:
+    """The tables of ``tables.tex`` (the report's table model, readable by
+    :func:`rtfit.experiments.latex.render_table`), in report order. Their ``anchor`` names them:
+    ``table-overview``, ``table-case-CASEID``, ``table-costs``, ``table-fits``, ``table-checks``."""
+    if not isinstance(results, Results):
+        results = from_json(Results, plain_json(results), "<results>")
+    d = _build(results, Path(directory) if directory is not None else None)
+    return [b for b in d.blocks if isinstance(b, _Table) and b.tex]
+
+
 def write_report(directory) -> list[Path]:
     """Write ``report.md``, ``report.html`` and ``tables.tex`` into ``directory`` from its
     ``results.json``. Everything is rendered before anything is written, so an invalid results
@@ -955,7 +976,7 @@ def _index_entry(results: Results) -> tuple[list[tuple[str, str, bool]], list[tu
         facts.append(
             ("fits", f"{len(fits)} ({'all converged' if not bad else f'{bad} not converged'})", bad > 0)
         )
-    head = _headline_metric(cases)
+    head = headline_metric(cases)
     rows = []
     if head:
         # Cost rows (``costs``) are keyed by what was timed, which need not be an approximation's id;
@@ -1023,7 +1044,7 @@ def write_index(out_dir, experiment_dirs) -> list[Path]:
         md += [f"## [{_md_text(r.title)}]({link})", "", f"*{meta}*", "", summary, ""]
         md += ["  ·  ".join(f"**{k}:** {v}" for k, v, _ in facts), ""]
         any_unresolved |= any(b.endswith(INDEX_UNRESOLVED_MARK) for _, b, _ in rows)
-        head = _headline_metric(r.cases)
+        head = headline_metric(r.cases)
         hname = METRICS.get(head, (head,))[0] if head else ""
         if rows:
             md += [f"| Approximation | mean {hname} over cases | ns/pixel |", "|:---|---:|---:|"]

@@ -21,6 +21,7 @@ from pathlib import Path
 import drjit as dr
 
 from rtfit.reference.cache import PASS_COUNTS
+from rtfit.reference.variants import callers_variant
 
 from .atomic import atomic_directory, is_temporary_name
 from .executors import make_executor
@@ -143,32 +144,36 @@ def run_experiments(
     out = Path(out)
     pool = make_executor(executor, workers, progress, address=address)  # a bad address: nothing written
     done: list[Path] = []
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        for spec in specs:
-            final = out / spec.name
-            t0 = time.perf_counter()
-            with atomic_directory(final) as tmp:
-                ctx = RunContext(
-                    out_dir=Path(tmp),
-                    cache_dir=Path(cache_dir),
-                    executor=pool,
-                    quick=quick,
-                    variant=variant,
-                    spp=spp,
-                    seed=seed,
-                    progress=progress,
-                    overrides=dict(overrides or {}),
+    with callers_variant():  # the experiments activate their variants; the caller's comes back
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            for spec in specs:
+                final = out / spec.name
+                t0 = time.perf_counter()
+                with atomic_directory(final) as tmp:
+                    ctx = RunContext(
+                        out_dir=Path(tmp),
+                        cache_dir=Path(cache_dir),
+                        executor=pool,
+                        quick=quick,
+                        variant=variant,
+                        spp=spp,
+                        seed=seed,
+                        progress=progress,
+                        overrides=dict(overrides or {}),
+                    )
+                    before = PASS_COUNTS.snapshot()
+                    run_experiment_into(spec, Path(tmp), ctx, executor)
+                    print_resumed(spec.name, before, PASS_COUNTS.snapshot())
+                done.append(final)
+                log.info(
+                    "%s: done in %.1f s, report at %s",
+                    spec.name,
+                    time.perf_counter() - t0,
+                    final / "report.html",
                 )
-                before = PASS_COUNTS.snapshot()
-                run_experiment_into(spec, Path(tmp), ctx, executor)
-                print_resumed(spec.name, before, PASS_COUNTS.snapshot())
-            done.append(final)
-            log.info(
-                "%s: done in %.1f s, report at %s", spec.name, time.perf_counter() - t0, final / "report.html"
-            )
-    finally:
-        pool.close()
+        finally:
+            pool.close()
     write_index(out, experiment_dirs(out))
     return done
 

@@ -13,13 +13,14 @@ from .build import load_mitsuba_scene, mitsuba_scene_dict, plugin_types
 from .cache import Reference, ReferenceCache, ReferenceRequest, default_cache_dir, pool_passes
 from .estimators import GBuffer, PassResult, gbuffer, irradiance_pass, radiance_pass
 from .integrators import IntegratorChoice, can_interreflect, choose_integrator
-from .variants import KNOWN_VARIANTS, backend_of, resolve_variant, use_variant
+from .variants import KNOWN_VARIANTS, backend_of, callers_variant, resolve_variant, use_variant
 
 
 def render_gbuffer(scene, variant: str = "llvm_ad_rgb") -> GBuffer:
     """The pixel-centre G-buffer of ``scene``'s camera (not cached: it costs one ray per pixel)."""
-    mi, mi_scene = load_mitsuba_scene(scene, variant)
-    return gbuffer(mi, mi_scene)
+    with callers_variant():  # the caller's Mitsuba variant is put back afterwards
+        mi, mi_scene = load_mitsuba_scene(scene, variant)
+        return gbuffer(mi, mi_scene)
 
 
 __all__ = [

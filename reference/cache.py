@@ -51,6 +51,7 @@ from .integrators import choose_integrator
 from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr
 from .mitsuba_xml import xml_dependencies
 from .progress import progress_bar
+from .variants import callers_variant
 
 log = logging.getLogger("rtfit.reference")
 
@@ -516,14 +517,15 @@ class ReferenceCache:
                 return irradiance_pass(mi, mi_scene, points, normals, pass_spp, seed, request.transport)
             return radiance_pass(mi, mi_scene, pass_spp, seed)
 
-        passes, rendered = entry.passes(
-            request.passes,
-            render,
-            shape=(-1, 3) if as_points else None,
-            progress=progress,
-            label=label or f"reference {key[:8]}",
-            before_render=load_scene,
-        )
+        with callers_variant():  # rendering activates request.variant; the caller's comes back
+            passes, rendered = entry.passes(
+                request.passes,
+                render,
+                shape=(-1, 3) if as_points else None,
+                progress=progress,
+                label=label or f"reference {key[:8]}",
+                before_render=load_scene,
+            )
         mean, stderr, total = pool_passes(passes)
         if rendered:
             shape = (1, -1, 3) if as_points else mean.shape

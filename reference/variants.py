@@ -8,6 +8,7 @@ present and asked for with ``"auto"``; ``scalar_rgb`` is selectable for debuggin
 from __future__ import annotations
 
 import contextlib
+import sys
 from collections.abc import Iterator
 
 import drjit as dr
@@ -57,6 +58,25 @@ def scoped_variant(name: str = "auto") -> Iterator:
     finally:
         if caller and caller != mi.variant():
             mi.set_variant(caller)
+
+
+@contextlib.contextmanager
+def callers_variant() -> Iterator[None]:
+    """Put the caller's Mitsuba variant back at the end of the block, whatever the block activated.
+
+    For rtfit's entry points that render (`rtfit.reference.render_gbuffer`, `ReferenceCache.get`,
+    `rtfit.experiments.runner.run_experiments`): a notebook working in ``scalar_rgb`` keeps it. Where
+    Mitsuba was not imported yet, or no variant was set, there is nothing to put back."""
+    mi = sys.modules.get("mitsuba")
+    caller = mi.variant() if mi is not None else None
+    try:
+        yield
+    finally:
+        if caller:
+            import mitsuba
+
+            if mitsuba.variant() != caller:
+                mitsuba.set_variant(caller)
 
 
 def is_scalar(variant: str) -> bool:
