@@ -32,6 +32,7 @@ import base64
 import html
 import io
 import json
+import logging
 import re
 import shutil
 from collections.abc import Mapping
@@ -62,6 +63,7 @@ PIXELS_DIR = "pixels"
 VIEWER_DIR = "viewer"
 SINGLE_FILE = "report.single.html"
 PIXELS_FORMAT = "rtfit.pixels/1"
+log = logging.getLogger(__name__)
 ASSETS = Path(__file__).resolve().parent / "viewer_assets"
 ASSET_FILES = ("viewer.js", "viewer.css")
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]")
@@ -187,7 +189,7 @@ def load_case_pixels(directory, case_id: str) -> CasePixels | None:
             ch["mask"] > 0.5,
             {a["method"]: _group(ch, a["layer"]) for a in meta["approximations"]},
         )
-    except (KeyError, OSError) as e:
+    except (KeyError, OSError, RuntimeError) as e:
         raise ValueError(f"{meta_path}: cannot read its pixels ({type(e).__name__}: {e})") from None
 
 
@@ -313,7 +315,11 @@ def write_viewer(directory, results: Results, texts: dict[str, str], single_file
     written: list[Path] = []
     cases, scripts = [], {}
     for case in results.cases:
-        px = load_case_pixels(directory, case.id)
+        try:
+            px = load_case_pixels(directory, case.id)
+        except ValueError as e:  # a damaged pixels file costs its case's viewer, not the report
+            log.warning("viewer: case %s left out: %s", case.id, e)
+            continue
         if px is None:
             continue
         entry, data, previews = _build_case(directory, case, px)

@@ -174,6 +174,16 @@ def test_report_without_pixels_has_no_viewer(tmp_path):
     assert not (d / "viewer").exists()
 
 
+def test_a_damaged_pixels_file_costs_only_its_case(report_dir, caplog):
+    (report_dir / "pixels" / "c0.exr").write_bytes(b"not an EXR")
+    write_report(report_dir)
+    page = (report_dir / "report.html").read_text()
+    cases = json.loads(re.search(r'id="rtfit-viewer-manifest">(.*?)</script>', page).group(1))["cases"]
+    assert [c["id"] for c in cases] == ["c1/odd id"]
+    assert not (report_dir / "viewer" / "data" / "c0.js").exists()  # stale data removed
+    assert "case c0 left out" in caplog.text
+
+
 def test_single_file_refers_to_no_other_file(report_dir):
     page = (report_dir / viewer.SINGLE_FILE).read_text()
     assert not re.search(r'<(script|img)\b[^>]*\bsrc="(?!data:)', page)
