@@ -268,8 +268,10 @@ def test_viewer_in_headless_chromium(report_dir):
             page.mouse.move(*page.evaluate(f"{v}.clientPoint({x}, {y})"))
             assert f"x = {x}, y = {y}" in page.locator(".rv-where").inner_text()
             shown = _numbers(page.locator(".rv-ref-value").inner_text())
-            exr = [float(ch[c][y, x]) for c in "RGB"] + [float(ch[f"stderr.{c}"][y, x]) for c in "RGB"]
-            assert shown == pytest.approx(exr, rel=5e-6)  # six significant digits
+            sigma = _numbers(page.locator(".rv-ref-sigma").inner_text())
+            # six significant digits shown: 5e-6 relative
+            assert shown == pytest.approx([float(ch[c][y, x]) for c in "RGB"], rel=5e-6)
+            assert sigma == pytest.approx([float(ch[f"stderr.{c}"][y, x]) for c in "RGB"], rel=5e-6)
 
             # A false-colour image and its scale; another case loads from its data script.
             page.locator(".rv-a").select_option("signed/brighter")

@@ -554,38 +554,41 @@
     var layers = [ref, se];
     d.entry.approximations.forEach(function (a) { layers.push(trip(d.approx[a.method])); });
     var grey = layers.every(function (t) { return t[0] === t[1] && t[1] === t[2]; });
-    var show = function (t) {
-      return grey ? fmt(t[0]) : "(" + t.map(fmt).join(", ") + ")";
+    // One number per cell for a grey pixel; else R, G, B stacked in each cell (one line per channel).
+    var cell = function (t, cls) {
+      var td = el("td", cls ? { class: cls } : null);
+      (grey ? [t[0]] : t).forEach(function (v, c) {
+        if (c) td.appendChild(el("br"));
+        td.appendChild(document.createTextNode(fmt(v)));
+      });
+      return td;
     };
+    var blank = function () { return el("td", { text: "" }); };
+    var channels = el("td", { class: "rv-ch" });
+    if (!grey) channels.innerHTML = "R<br>G<br>B";
     var head = el("p", { class: "rv-where" }, [
       (this.pinned ? "pinned " : "") + "pixel x = " + p[0] + ", y = " + p[1] + " · " + (d.mask[i] ? "inside" : "outside") +
-        " the comparison mask" + (grey ? "" : " · values are (R, G, B)"),
+        " the comparison mask" + (grey ? " · R = G = B" : ""),
     ]);
     var table = el("table", { class: "rv-table" });
     table.appendChild(el("thead", null, [el("tr", null, [
-      el("th", { text: "" }), el("th", { text: "value" }), el("th", { text: "Δ = x − r" }),
-      el("th", { text: "z = Δ/σ" }), el("th", { text: "ꟻLIP" }),
+      el("th", { text: "" }), el("th", { text: "" }), el("th", { text: "value" }), el("th", { text: "σ" }),
+      el("th", { text: "Δ = x − r" }), el("th", { text: "z = Δ/σ" }), el("th", { text: "ꟻLIP" }),
     ])]));
     var body = el("tbody");
-    var refRow = el("tr", { class: "rv-ref" }, [
-      el("th", { text: "reference r ± σ" }),
-      el("td", { class: "rv-ref-value", "data-values": ref.join(","), text: show(ref) + " ± " + show(se) }),
-      el("td", { text: "" }), el("td", { text: "" }), el("td", { text: "" }),
-    ]);
-    body.appendChild(refRow);
+    body.appendChild(el("tr", { class: "rv-ref" }, [
+      el("th", { text: "reference r" }), channels.cloneNode(true), cell(ref, "rv-ref-value"), cell(se, "rv-ref-sigma"),
+      blank(), blank(), blank(),
+    ]));
     var self = this;
     d.entry.approximations.forEach(function (a) {
       var x = trip(d.approx[a.method]);
       var dl = [x[0] - ref[0], x[1] - ref[1], x[2] - ref[2]];
       var z = dl.map(function (v, c) { return se[c] > 0 ? v / se[c] : v === 0 ? 0 : v > 0 ? Infinity : -Infinity; });
-      var f = d.flip[a.method] ? fmt(d.flip[a.method][i]) : "—";
+      var f = el("td", { text: d.flip[a.method] ? fmt(d.flip[a.method][i]) : "—" });
       var shown = [self.image(self.state.a).method, self.image(self.state.b).method].indexOf(a.method) >= 0;
       body.appendChild(el("tr", { class: shown ? "rv-shown" : "" }, [
-        el("th", { text: a.label }),
-        el("td", { text: show(x) }),
-        el("td", { text: show(dl) }),
-        el("td", { text: show(z) }),
-        el("td", { text: f }),
+        el("th", { text: a.label }), channels.cloneNode(true), cell(x), blank(), cell(dl), cell(z), f,
       ]));
     });
     table.appendChild(body);
