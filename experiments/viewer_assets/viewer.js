@@ -625,7 +625,7 @@
       var lo, mid, hi, title;
       if (im.kind === "radiance") {
         lo = "0"; mid = short(info.white / 2); hi = short(info.white);
-        title = "radiance × 2^" + self.state.ev.toFixed(1) + ", sRGB-encoded; white = " + short(info.white) + " (brighter clips)";
+        title = "radiance × 2^" + self.state.ev.toFixed(1).replace("-", "−") + ", sRGB-encoded; white = " + short(info.white) + " (brighter clips)";
       } else {
         lo = short(info.range[0]); hi = short(info.range[1]); mid = short((info.range[0] + info.range[1]) / 2);
         var ch = self.state.channel === "Y" ? "luminance Y" : "channel " + self.state.channel;
