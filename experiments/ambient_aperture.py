@@ -84,6 +84,7 @@ from .cost import (
 )
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
+from .viewer import save_case_pixels
 
 PI = math.pi
 
@@ -802,6 +803,8 @@ def assemble(ctx, cfg, results) -> dict:
 
     fl = function_level(cfg, fitted, ctx.seed)
     cases, arrays = scene_cases(cfg, results, fitted)
+    for cid, a in arrays.items():  # the report's image viewer (probe grids as images, / peak)
+        save_case_pixels(out, cid, a["ref"], a["sigma"], a["images"], a["mask"])
     dec = decomposition(cases, arrays)
     cost_rows = costs(ctx, cfg, fitted)
     attach_costs(cases, cost_rows)

@@ -65,6 +65,12 @@ class UserError(click.ClickException):
     exit_code = 2
 
 
+SINGLE_FILE_HELP = (
+    "Also write EXPERIMENT/report.single.html: the report with its figures, image viewer and pixel data "
+    "embedded (one file to mail)."
+)
+
+
 def _fail(message: str):
     raise UserError(message)
 
@@ -208,7 +214,10 @@ def list_cmd():
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Pool size (process/ray on CPUs).")
 @click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
-def run_cmd(experiments, quick, variant, spp, out, cache, executor, address, workers, seed, no_progress):
+@click.option("--single-file", is_flag=True, help=SINGLE_FILE_HELP)
+def run_cmd(
+    experiments, quick, variant, spp, out, cache, executor, address, workers, seed, no_progress, single_file
+):
     """Run EXPERIMENT... (or 'all') and write OUT/EXPERIMENT/{results.json,report.html,...}."""
     specs, variant = _validated(experiments, variant)  # before anything is written
     _check_executor(executor, address)
@@ -228,6 +237,7 @@ def run_cmd(experiments, quick, variant, spp, out, cache, executor, address, wor
         workers=workers,
         progress=_bars(no_progress),
         address=address,
+        single_file=single_file,
     )
     click.echo(str((out / "index.html").resolve()))
     failed = [line for line in map(check_summary, done) if line]
@@ -382,11 +392,12 @@ def _parse_gpus(text, executor: str):
 
 @cli.command("report")
 @click.argument("directory", type=click.Path(exists=True, file_okay=False, path_type=Path))
-def report_cmd(directory):
+@click.option("--single-file", is_flag=True, help=SINGLE_FILE_HELP)
+def report_cmd(directory, single_file):
     """Regenerate report.md/html and tables.tex from DIRECTORY/results.json (or every experiment below it)."""
     if (directory / "results.json").is_file():
-        write_report(directory)
-        click.echo(str((directory / "report.html").resolve()))
+        write_report(directory, single_file=single_file)
+        click.echo(str((directory / ("report.single.html" if single_file else "report.html")).resolve()))
         return
     subdirs = sorted(
         p for p in directory.iterdir() if not is_temporary_name(p.name) and (p / "results.json").is_file()
@@ -394,7 +405,7 @@ def report_cmd(directory):
     if not subdirs:
         _fail(f"{directory}: no results.json here or in its subdirectories")
     for sub in subdirs:
-        write_report(sub)
+        write_report(sub, single_file=single_file)
     write_index(directory, subdirs)
     click.echo(str((directory / "index.html").resolve()))
     book = write_book(directory, subdirs)  # the audit book over the whole run (docs/book.md)

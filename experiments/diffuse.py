@@ -73,6 +73,7 @@ from .cost import (
 )
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
+from .viewer import save_case_pixels
 
 # ============================================================================================ configure
 # Cases: light angular radius (degrees) × sky radiance (relative to the lit peak radiance, 1).
@@ -420,6 +421,9 @@ def assemble(ctx, cfg, cases, scenes, rendered, geom, fitted: Fitted) -> dict:
                     "metrics": metrics.to_dict(),
                 }
             )
+        save_case_pixels(
+            ctx.out_dir, cid, ref.mean, ref.sigma(), {r.id: images[(cid, r.id)] for r in ROWS}, mask
+        )
         case_docs.append(
             {
                 "id": cid,

@@ -78,6 +78,7 @@ from .cost import (
 )
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
+from .viewer import save_case_pixels
 
 # ============================================================================================ configure
 SUN_AZIMUTH_DEG = 50.0  # from the view direction (+y) towards +x: the sun is outside the frame
@@ -552,6 +553,10 @@ def assemble(ctx, cfg, scenes, rendered, skies, geoms, fits, hashes) -> dict:
                 residuals[(cid, row.id)] = (img - ref.mean) / np.maximum(np.abs(ref.mean), 1e-12)
                 flat = {RESULT_NAMES[k]: float(v) for k, v in p.items()}
                 approx_docs.append(approximation_doc(row.id, row.label, row.fitted, flat, metrics))
+            # σ of the reference alone (the metrics add the fog-free render's noise through each row's T)
+            save_case_pixels(
+                ctx.out_dir, cid, ref.mean, ref.sigma(), {r.id: images[(cid, r.id)] for r in ROWS}
+            )
             case_docs.append(
                 {
                     "id": cid,
@@ -574,6 +579,9 @@ def assemble(ctx, cfg, scenes, rendered, skies, geoms, fits, hashes) -> dict:
     vol_doc, vol_fit = volume_case(cfg, scenes, rendered, hashes, images) if cfg["volumes"] else (None, None)
     if vol_doc:
         case_docs.append(vol_doc)
+        vref = rendered["volumes"]["image"]
+        vrow = VOLUME_ROW[0]
+        save_case_pixels(ctx.out_dir, "volumes", vref.mean, vref.sigma(), {vrow: images[("volumes", vrow)]})
 
     checks = transmittance_checks(scenes["check"], rendered["check"], "box")
     checks += transmittance_checks(scenes["check-ellipsoid"], rendered["check-ellipsoid"], "ellipsoid")

@@ -106,6 +106,7 @@ from .cost import (
 )
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
+from .viewer import save_case_pixels
 
 # ============================================================================================ configure
 SUNSKY_ELEVATIONS_FULL = (2.0, 10.0, 30.0, 60.0, 90.0)
@@ -563,11 +564,13 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
         img_mean, img_se, img_sig = combine(r["parts"], "image")
         mask = r["mask"]
         gn = r["gbuffer"].normal[mask].astype(np.float64)
-        approx_docs, evals = [], {}
+        approx_docs, evals, sphere = [], {}, {}
         for row in ROWS:
             x = evaluate_row(row, b, r["normals"], r["quadrature"])
             xi = evaluate_row(row, b, gn, r["quadrature_image"]) / math.pi
             evals[row.method] = x
+            sphere[row.method] = img_mean.copy()
+            sphere[row.method][mask] = xi
             met = point_metrics(x, mean, sig)
             met["image_rel_rmse"] = with_floor(rel_rmse, xi, img_mean[mask], img_sig[mask])
             approx_docs.append(
@@ -581,6 +584,7 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
                 }
             )
         per_env[name] = {"evals": evals, "mean": mean, "sig": sig}
+        save_case_pixels(out, name, img_mean, img_sig, sphere, mask)  # the report's viewer: the sphere image
         floor = RELATIVE_PRECISION_FLOOR
         z_quad.append(z_pair(r["quadrature"][:, 0], mean[:, 0], se[:, 0], sig[:, 0], floor))
         z_img.append(

@@ -85,6 +85,7 @@ from . import fitted as fitfiles
 from .cost import attach_costs, time_drjit, time_numpy
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
+from .viewer import save_case_pixels
 
 # ======================================================================================== configure
 ELEVATIONS_FULL = (90.0, 45.0, 10.0, 2.0, 0.0, -4.0)
@@ -433,6 +434,8 @@ def _main_cases(ctx, cfg, dirs, el, done, fits, backend, settings):
                         "passed": True,
                     }
                 )
+            # the report's image viewer: the sky images of the rows (the quadrature check is on a subset)
+            save_case_pixels(ctx.out_dir, case_id(e, kind), mean, se, {r[0]: r[1] for r in rows}, m)
             E_ref = _irradiance(mean, el, W, H)
             irr_rows.append(
                 {

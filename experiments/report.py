@@ -33,7 +33,7 @@ from pathlib import Path
 from markdown_it import MarkdownIt
 from markdown_it.rules_inline import StateInline
 
-from . import latex
+from . import latex, viewer
 from .atomic import atomic_write_text, is_temporary_name
 from .records import (
     SCHEMA,
@@ -934,13 +934,17 @@ def report_tables(results: Results | Mapping, directory=None) -> list:
     return [b for b in d.blocks if isinstance(b, _Table) and b.tex]
 
 
-def write_report(directory) -> list[Path]:
+def write_report(directory, single_file: bool = False) -> list[Path]:
     """Write ``report.md``, ``report.html`` and ``tables.tex`` into ``directory`` from its
-    ``results.json``. Everything is rendered before anything is written, so an invalid results
-    file (:class:`ResultsError`) leaves the directory as it was. Returns the written paths."""
+    ``results.json``, with the image viewer of its ``pixels/`` (:mod:`.viewer`); ``single_file``: also
+    ``report.single.html``, everything embedded. The report is rendered before anything is written, so
+    an invalid results file (:class:`ResultsError`) leaves the directory as it was. Returns the written
+    paths."""
     directory = Path(directory)
-    texts = render_report(load_results(directory), directory)
-    return [atomic_write_text(directory / name, texts[name]) for name in REPORT_FILES]
+    results = load_results(directory)
+    texts = render_report(results, directory)
+    extra = viewer.write_viewer(directory, results, texts, single_file=single_file)  # adds to report.html
+    return [atomic_write_text(directory / name, texts[name]) for name in REPORT_FILES] + extra
 
 
 def _first_paragraph(md: str) -> str:

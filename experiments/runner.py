@@ -86,6 +86,7 @@ def run_experiment_into(
     ctx: RunContext,
     executor_name: str,
     extra_config: Mapping | None = None,
+    single_file: bool = False,
 ) -> Results:
     """Run one experiment with ``ctx`` and write ``results.json`` and the report into ``directory``
     (which the caller makes atomic). Returns the results record.
@@ -119,7 +120,7 @@ def run_experiment_into(
     }
     results = from_json(Results, plain_json(doc), f"results of {spec.name}")
     write_results(directory, results)
-    write_report(Path(directory))
+    write_report(Path(directory), single_file=single_file)
     return results
 
 
@@ -137,6 +138,7 @@ def run_experiments(
     progress: bool,
     address: str | None = None,
     overrides: dict | None = None,
+    single_file: bool = False,
 ) -> list[Path]:
     """Run each experiment into ``out/<name>`` (atomically) and write the suite index. ``overrides``:
     configuration keys replacing the experiments' defaults (as one `rtfit sweep` point does; validated
@@ -163,7 +165,7 @@ def run_experiments(
                         overrides=dict(overrides or {}),
                     )
                     before = PASS_COUNTS.snapshot()
-                    run_experiment_into(spec, Path(tmp), ctx, executor)
+                    run_experiment_into(spec, Path(tmp), ctx, executor, single_file=single_file)
                     print_resumed(spec.name, before, PASS_COUNTS.snapshot())
                 done.append(final)
                 log.info(

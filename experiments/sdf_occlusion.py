@@ -130,6 +130,7 @@ from .cost import Stock, attach_costs, reference_vs_stock_rows, stock_render, ti
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
 from .sdf_occlusion_scenes import SCENE_NAMES, build, read_ply
+from .viewer import save_case_pixels
 
 # ============================================================================================ configure
 TARGETS_QUICK = ("ao", "sky", "sunsky")
@@ -876,6 +877,23 @@ def _lm_summary(b: dict) -> dict:
     }
 
 
+def case_id(scene: str, target: str) -> str:
+    """A case's id: scene and target, e.g. ``"boxes-ao"``."""
+    return f"{scene}-{target}".replace("_", "")
+
+
+def save_pixels(out, cfg, sds, maps) -> None:
+    """Each case's reference, stderr and row images (the `ROWS` of `evaluate_cases`, on the scene's mask) for
+    the report's image viewer (the sdfgrid rows use their own masks and are left out)."""
+    for n in cfg["scenes"]:
+        sd = sds[n]
+        for t in cfg["targets"]:
+            rows = {m: img for (sn, tn, m), img in maps.items() if (sn, tn) == (n, t) and m != "ref"}
+            save_case_pixels(
+                out, case_id(n, t), maps[(n, t, "ref")], sd.image(sd.target(t)[1]), rows, sd.mask
+            )
+
+
 def evaluate_cases(cfg, sds, joint):
     """Every (scene, target) case: each row of `ROWS` that applies, plus the sdfgrid rows for AO. Returns
     (case docs, per-case parameters, continuous-fit rows, maps {(scene, target, row or "ref"): image})."""
@@ -886,7 +904,7 @@ def evaluate_cases(cfg, sds, joint):
         for t in cfg["targets"]:
             ref, err = sd.target(t)
             ref_img, err_img = sd.image(ref), sd.image(err)
-            cid = f"{n}-{t}".replace("_", "")
+            cid = case_id(n, t)
             approx_docs, params, fitted = [], {}, {}
             for row in ROWS:
                 got = row.evaluate(row, sd, t, state)
@@ -1100,6 +1118,7 @@ def run(ctx) -> dict:
     joint = {t: fit_evans(train, t, cfg) for t in cfg["targets"]}
     ctx.log(f"joint fits done ({time.perf_counter() - t_start:.1f} s)")
     case_docs, per_case_params, fit_rows, maps = evaluate_cases(cfg, sds, joint)
+    save_pixels(out, cfg, sds, maps)
     ctx.log(f"per-case fits done ({time.perf_counter() - t_start:.1f} s)")
     costs = measure_costs(sds, cfg)
     attach_costs(case_docs, costs)

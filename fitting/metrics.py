@@ -87,6 +87,7 @@ __all__ = [
     "MetricValue",
     "ZScoreSummary",
     "compute_metrics",
+    "flip_error_map",
     "smape",
     "tone_map",
     "z_score_summary",
@@ -368,6 +369,10 @@ def _flip_input(a, name, peak, warn):
 
 
 def _flip_call(ref32, test32, m, params) -> float:
+    return float(np.mean(_flip_map(ref32, test32, params)[m]))
+
+
+def _flip_map(ref32, test32, params) -> np.ndarray:
     import flip_evaluator
 
     # flip_evaluator exits the process on bad arguments: check everything it checks, and more.
@@ -388,8 +393,7 @@ def _flip_call(ref32, test32, m, params) -> float:
     fmap, _, _ = flip_evaluator.evaluate(
         ref32, test32, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
     )
-    fmap = np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
-    return float(np.mean(fmap[m]))
+    return np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
 
 
 def _flip(x, r, s, m, seed, draws, **_):
@@ -457,6 +461,22 @@ def compute_metrics(
             continue
         out[name] = _METRICS[name](x, r, s, m, seed=seed, draws=int(floor_draws))
     return MetricResults(out, skipped)
+
+
+def flip_error_map(approx, reference, mask=None) -> np.ndarray:
+    """The per-pixel HDR-ꟻLIP error map (H, W) in [0, 1] of ``approx`` against ``reference``
+    (linear RGB images (H, W, 3)), with the exposure range of the ``flip`` metric (ꟻLIP's rule on the
+    luminances of the masked reference; see the module text). Its mean over ``mask`` is the ``flip``
+    metric's value. Raises ValueError with the reason where ꟻLIP does not apply (too small, not RGB,
+    black reference inside the mask)."""
+    x, r, _, m, is_image = _validate(approx, reference, np.zeros(np.shape(reference)), mask)
+    reason = _skip_reason("flip", x, r, m, is_image)
+    if reason is not None:
+        raise ValueError(reason)
+    peak = float(np.max(r[m]))
+    return _flip_map(
+        _flip_input(r, "reference", peak, False), _flip_input(x, "", peak, False), _flip_exposures(r, m)
+    )
 
 
 def smape(approx, reference, stderr, mask=None, seed: int = 0, floor_draws: int = 4) -> MetricValue:

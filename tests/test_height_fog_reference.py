@@ -148,3 +148,17 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     # at 64 spp and 12² pixels the transmittance z-spread check is loose; everything else must pass
     assert all("reference check" in name for name in failed), failed
     assert (tmp_path / "out" / "height-fog" / "fitted" / "fog-e30-single-const.json").is_file()
+    # the report's image viewer: every case's pixels (ꟻLIP needs 21 pixels: not at 12 rows, said so)
+    out = tmp_path / "out" / "height-fog"
+    assert {p.name for p in (out / "pixels").glob("*.exr")} == {
+        "e30-single.exr",
+        "e30-multiple.exr",
+        "volumes.exr",
+    }
+    import json
+    import re
+
+    page = (out / "report.html").read_text()
+    manifest = json.loads(re.search(r'id="rtfit-viewer-manifest">(.*?)</script>', page).group(1))
+    assert [c["id"] for c in manifest["cases"]] == ["e30-single", "e30-multiple", "volumes"]
+    assert all("at least 21x21 pixels" in c["flip_note"] for c in manifest["cases"])

@@ -167,6 +167,10 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     assert any(s["id"] == "spectral" for s in res["sections"]) and any(
         s["id"] == "twilight" for s in res["sections"]
     )
+    # the report's image viewer: the sky images of the main cases (the spectral case is a check)
+    out = tmp_path / "out" / "nishita-sky"
+    assert (out / "pixels" / "e30-ms.exr").is_file() and (out / "viewer" / "data" / "e30-ms.js").is_file()
+    assert 'id="viewer"' in (out / "report.html").read_text()
 
 
 # ------------------------------------------------------------------------------ spectral reference
