@@ -82,6 +82,7 @@ CONFIG = {
     "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
     "pass_spp": ConfigKey("int", "samples per pixel of one cached pass", 2, SPP_MAX),
     "random_samples": ConfigKey("int", "random domain samples of the float32 accuracy table", 100, 1 << 24),
+    "image_figures": ConfigKey("int", "cases with an image figure (the first and last ones first)", 0, 1000),
     "cost_elements": ConfigKey("int", "elements per timed launch", 1024, 1 << 26),
 }
 """Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
@@ -98,6 +99,7 @@ def configure(quick: bool, spp: int | None) -> dict:
             "spp": spp or (2048 if quick else 32768),
             "pass_spp": 1024 if quick else 4096,
             "random_samples": 20000 if quick else 400000,
+            "image_figures": 2 if quick else 1000,
             "cost_elements": 1 << (20 if quick else 22),
         },
     )
@@ -426,7 +428,7 @@ def assemble(ctx, cfg, params, scenes, rendered, fits, hashes) -> dict:
     costs = cost_rows(ctx, cfg)
     attach_costs(case_docs, costs, key=lambda ap: COST_KEYS[ap["method"]])
     fitted = write_fitted(ctx.out_dir, fits, params, ctx, cfg, hashes, rendered)
-    figs = make_figures(ctx.out_dir, params, rendered, images, case_docs, softening, accuracy)
+    figs = make_figures(ctx.out_dir, cfg, rendered, images, case_docs, softening)
     return {
         "summary": summary(case_docs, softening, accuracy, checks),
         "config": cfg,
@@ -726,10 +728,16 @@ def profile_keys(prof: dict) -> list[str]:
     return [k for k in prof if k not in ("h_over_D", "pixels", "core_levels", "exact")]
 
 
-def make_figures(out, params, rendered, images, case_docs, softening, accuracy) -> list[dict]:
+def figure_cases(case_docs: list[dict], count: int) -> list[dict]:
+    """The cases with an image figure: the first and the last, then the others in order; ``count`` in all."""
+    order = [*case_docs[:1], *case_docs[-1:], *case_docs[1:-1]] if len(case_docs) > 1 else case_docs
+    return order[:count]
+
+
+def make_figures(out, cfg, rendered, images, case_docs, softening) -> list[dict]:
     figs = []
     fdir = out / "figures"
-    for doc in case_docs:
+    for doc in figure_cases(case_docs, cfg["image_figures"]):
         cid = doc["id"]
         ref = rendered[cid]["image"].mean
         panels = [(ap["method"], _grey(images[(cid, ap["method"])])) for ap in doc["approximations"]]
