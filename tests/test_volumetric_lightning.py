@@ -13,9 +13,10 @@ The domain (`domain`): a ∈ {0} ∪ log-uniform [1e-6, 1e3] /m², |c| log-unifo
 between the end points. Inputs are drawn so that the float32 subtraction l − o is exact (o on the grid of
 c's ulps): the test measures the kernel, not the rounding of its inputs (docstring of the module).
 
-Tolerances with their measured maxima (1200 points + 300 near-axial at a = 100 and 1e3):
-float32 (Dr.Jit LLVM) 1e-5 relative, measured ≤ 7.6e-7; float64 (Dr.Jit LLVM Float64) 1e-12, measured ≤
-3e-15; NumPy text in float64 (Python floats; Dekker splitting instead of fma) 1e-12, measured ≤ 8e-16.
+Tolerances with their measured maxima (800 points + 200 near-axial at a = 100 and 1e3; a run on 1200 + 300
+gave the same bounds): float32 (Dr.Jit LLVM) 1e-5 relative, measured ≤ 7.6e-7; float64 (Dr.Jit LLVM
+Float64) 1e-12, measured ≤ 8e-16; NumPy text in float64 (Python floats; Dekker splitting instead of fma)
+1e-12, measured ≤ 8e-16.
 """
 
 from __future__ import annotations
@@ -81,8 +82,8 @@ def _rel(got, truth):
 
 @pytest.fixture(scope="module")
 def sample():
-    o, d, lpos, a = domain(1200, 1)
-    o2, d2, l2, a2 = domain(300, 2, near_axial=1.0, a_values=(100.0, 1e3))
+    o, d, lpos, a = domain(800, 1)
+    o2, d2, l2, a2 = domain(200, 2, near_axial=1.0, a_values=(100.0, 1e3))
     o, d, lpos, a = (np.concatenate(p) for p in ((o, o2), (d, d2), (lpos, l2), (a, a2)))
     return o, d, lpos, a, _oracle(o, d, lpos, a)
 
@@ -202,8 +203,10 @@ def test_seed_printed_form_fails_near_axis_at_a100():
     ok = truth > 0
     bad = ~np.isfinite(seed[ok])
     rel = np.where(np.isfinite(seed), _rel(seed, truth), np.inf)[ok]
-    assert bad.sum() >= 3  # measured: 13 of 300
-    assert np.sort(rel[np.isfinite(rel)])[-5:].min() > 1e-2  # measured: errors up to ~1
+    assert bad.sum() >= 20  # measured: 45 of 295 non-finite
+    assert (
+        np.sort(rel[np.isfinite(rel)])[-5:].min() > 1e-2
+    )  # measured: 8 % of the finite ones > 1e-2, up to 0.95
     stable = volumetric_lightning(o, d, lpos, 1.0, a)
     assert _rel(stable, truth)[ok].max() <= TOL32
 
