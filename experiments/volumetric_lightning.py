@@ -32,7 +32,7 @@ import drjit as dr
 import numpy as np
 
 from rtfit.fitting import Param, compute_metrics, fit_method, sidak_threshold
-from rtfit.realtime import set_default_backend
+from rtfit.realtime import NUMPY_OPS, set_default_backend
 from rtfit.realtime.volumetric_lightning import METHODS
 from rtfit.reference import (
     ReferenceCache,
@@ -974,8 +974,6 @@ def cost_rows(ctx, cfg) -> list[dict]:
 def bench(ctx) -> list[dict]:
     """Pixels/s of each closed form on Dr.Jit vs the same kernel text on NumPy (``method(NUMPY_OPS, …)``),
     then the reference's samples/s (volpathmis, point light, homogeneous medium)."""
-    from rtfit.realtime import NUMPY_OPS
-
     backend, n = bench_backend(ctx)
     Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
     np_inputs, inputs = _cost_inputs(n, Float)

@@ -146,8 +146,12 @@ def _segment_integral(ops, cx, cy, cz, dx, dy, dz, k, a):
     # g(z) = atan(z)/z = 1 + (atan z − z)/z; z is clamped into the series' range, and 0 stays 0 (no 0/0)
     z_c = ops.minimum(z, _SERIES_LIMIT)
     g = 1.0 + atan_minus_x_series(ops, z_c) / ops.select(z_c > 0.0, z_c, 1.0)
-    y_s = ops.select(series, 1.0, y)  # > 0 off the series branch unless the segment runs through the light
-    return length * ops.select(series, g / x_s, ops.atan2(y, x) / y_s)
+    # Y = 0 off the series branch only for k = 0 and a segment through the light (X ≤ 0): the integral of
+    # 1/r² diverges there (+∞); with k > 0, Y = 0 implies X ≥ k > 0 (series branch)
+    through = (~series) & (y <= 0.0)
+    y_s = ops.select(series | through, 1.0, y)
+    atan_branch = ops.select(through, math.inf, ops.atan2(y, x) / y_s)
+    return length * ops.select(series, g / x_s, atan_branch)
 
 
 def _components(ox, oy, oz, dx, dy, dz, lx, ly, lz):
@@ -186,9 +190,10 @@ _SEGMENT = (
     Input("dx", "m", "segment vector d (camera → scene point), x", (-1e4, 1e4)),
     Input("dy", "m", "segment vector d, y", (-1e4, 1e4)),
     Input("dz", "m", "segment vector d, z", (-1e4, 1e4)),
-    Input("lx", "m", "light position l, x", (-1e4, 1e4)),
-    Input("ly", "m", "light position l, y", (-1e4, 1e4)),
-    Input("lz", "m", "light position l, z", (-1e4, 1e4)),
+    # (the light's interval is narrower than o's only so that the domain's corners never put it on o)
+    Input("lx", "m", "light position l, x", (-9e3, 9e3)),
+    Input("ly", "m", "light position l, y", (-9e3, 9e3)),
+    Input("lz", "m", "light position l, z", (-9e3, 9e3)),
 )
 _SEED_PARAMS = {
     "i": Param(1.0, 0.0, math.inf, unit="W/m³/sr", description="source level: gathered light per metre at l"),
