@@ -4,7 +4,7 @@ along the view segment in closed form) against path-traced single scattering fro
 What is compared, and why (docs/volumetric-lightning.md):
 
 1. **The closed form in float32** (no rendering; `rtfit.realtime.volumetric_lightning.METHODS` ``stable`` and
-   ``seed``): relative error of rtfit's stable form and of the seed's printed form (000:2378, 002:411) in
+   ``seed``): relative error of rtfit's stable form and of the seed's printed form (000:2360, 002:409) in
    float32 against the stable form's float64 run (itself checked against mpmath quadrature in
    tests/test_volumetric_lightning.py) over the whole domain, near-axial rays at a = 100 and 1e3 included,
    and the limits a = 0, |d| = 0.
