@@ -86,6 +86,13 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "The 128×64 Nishita sky texture with per-pixel phase against single- and multiple-scattering "
             "Mitsuba references and sunsky, with layers-vs-error-vs-cost and fitted artist parameters.",
         ),
+        ExperimentSpec(
+            "volumetric-lightning",
+            "rtfit.experiments.volumetric_lightning",
+            "Volumetric lightning: the seed's softened point light along the view ray vs single scattering",
+            "The closed-form line integral of i/(1 + a·r²) (stable float32 form vs the printed one) against "
+            "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
+        ),
     ]
 }
 

@@ -24,6 +24,9 @@ Modules:
     sdf_occlusion  Evans multi-scale SDF skylight/occlusion, curvature term, cone-traced soft occlusion.
     nishita_sky Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
                 (docs/nishita-sky.md).
+    volumetric_lightning  the seed's volumetric lightning (softened point light gathered along the view
+                segment) in a float32-stable closed form; single scattering without extinction
+                (docs/volumetric-lightning.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
                 decorator for a user's own formula (docs/audit.md, "Your own approximation").
     shader      GLSL/HLSL text traced from the kernels (`SHADER_OPS`, `shader_function`).
@@ -44,6 +47,7 @@ from .quantities import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
 from .shader import *  # noqa: F403
+from .volumetric_lightning import *  # noqa: F403
 
 MODULES = (
     "arrays",
@@ -56,6 +60,7 @@ MODULES = (
     "sdf_grid",
     "sdf_occlusion",
     "nishita_sky",
+    "volumetric_lightning",
     "quantities",
     "shader",
 )

@@ -135,6 +135,8 @@ def light_dicts(mi, light) -> dict:
                 "emitter": {"type": "area", "radiance": _rgb(light.radiance)},
             }
         }
+    if kind == "point_light":
+        return {"": {"type": "point", "position": list(light.position), "intensity": _rgb(light.intensity)}}
     if kind == "constant_env":
         return {"": {"type": "constant", "radiance": _rgb(light.radiance)}}
     if kind == "envmap":

@@ -215,6 +215,18 @@ class RectLight:
 
 
 @dataclass(frozen=True)
+class PointLight:
+    """Isotropic point light of radiant ``intensity`` (W/sr per channel) at ``position`` (Mitsuba ``point``).
+
+    Seen directly it covers no pixel; it lights surfaces and media by next-event estimation only."""
+
+    position: Vec3
+    intensity: RGB = (1.0, 1.0, 1.0)
+
+    kind: ClassVar[str] = "point_light"
+
+
+@dataclass(frozen=True)
 class ConstantEnv:
     """Uniform environment of the given radiance from every direction."""
 
@@ -254,7 +266,7 @@ class SunSky:
     kind: ClassVar[str] = "sunsky"
 
 
-Light = Sun | SphereLight | RectLight | ConstantEnv | EnvMap | SunSky
+Light = Sun | SphereLight | RectLight | PointLight | ConstantEnv | EnvMap | SunSky
 ENVIRONMENT_KINDS = ("constant_env", "envmap", "sunsky")
 
 

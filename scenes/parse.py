@@ -45,6 +45,7 @@ from .model import (
     HomogeneousMedium,
     Mesh,
     MitsubaXML,
+    PointLight,
     Rectangle,
     RectLight,
     ReferenceSettings,
@@ -273,6 +274,7 @@ SCHEMA: dict[type, dict[str, Spec]] = {
         "radiance": _RADIANCE,
         "rotation_deg": _ANGLE,
     },
+    PointLight: {"position": _VEC, "intensity": _RADIANCE},
     ConstantEnv: {"radiance": _RADIANCE},
     EnvMap: {
         "file": Spec("file", suffixes=(".exr",)),
@@ -311,7 +313,7 @@ SCHEMA: dict[type, dict[str, Spec]] = {
 }
 
 SHAPE_TYPES = {c.kind: c for c in (Sphere, Rectangle, Disk, Cube, Cylinder, Mesh, MitsubaXML)}
-LIGHT_TYPES = {c.kind: c for c in (Sun, SphereLight, RectLight, ConstantEnv, EnvMap, SunSky)}
+LIGHT_TYPES = {c.kind: c for c in (Sun, SphereLight, RectLight, PointLight, ConstantEnv, EnvMap, SunSky)}
 MEDIUM_TYPES = {c.kind: c for c in (HomogeneousMedium, ExponentialFog)}
 BOUNDARY_TYPES = {c.kind: c for c in (Sphere, Cube)}
 BOUNDARY_EXCLUDES = ("material",)  # a medium boundary is an interface (null BSDF), not a surface

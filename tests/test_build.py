@@ -13,6 +13,7 @@ from rtfit.scenes.model import (
     Cube,
     Disk,
     HomogeneousMedium,
+    PointLight,
     Rectangle,
     RectLight,
     Sphere,
@@ -67,6 +68,17 @@ def test_environment_plugins_only_when_declared(mi):
     scene = sphere_scene(lights=(ConstantEnv((0.5, 0.5, 0.5)),))
     types = plugin_types(mitsuba_scene_dict(mi, scene))
     assert "constant" in types and "area" not in types and "envmap" not in types
+
+
+def test_point_light_is_a_point_emitter(mi):
+    scene = sphere_scene(lights=(PointLight(position=(1.0, 2.0, 3.0), intensity=(4.0, 4.0, 2.0)),))
+    d = mitsuba_scene_dict(mi, scene)
+    assert d["light0"] == {
+        "type": "point",
+        "position": [1.0, 2.0, 3.0],
+        "intensity": {"type": "rgb", "value": [4.0, 4.0, 2.0]},
+    }
+    assert "area" not in plugin_types(d)
 
 
 def test_directional_sun_flips_direction(mi):

@@ -21,6 +21,7 @@ from rtfit.experiments import height_fog as hf
 from rtfit.experiments import irradiance_bases as ib
 from rtfit.experiments import nishita_sky as ns
 from rtfit.experiments import sdf_occlusion as so
+from rtfit.experiments import volumetric_lightning as vl
 from rtfit.experiments.fitted import FORMAT, FittedError, fitted_json_schema, load_fitted
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.diffuse import METHODS as DIFFUSE
@@ -161,6 +162,15 @@ def _nishita_sky(out: Path):
     ns.write_fitted(out, {"spp": 8}, fits, m.id)
 
 
+def _volumetric_lightning(out: Path):
+    p = vl.case_parameters(4.0, 0.05)
+    dirs = np.array([[[0.0, 1.0, 0.0], [0.6, 0.8, 0.0]]])
+    fits = {"D4-s0.05": _fit({"i": 3.0, "a": 600.0}, method=vl.METHODS["stable"])}
+    vl.write_fitted(
+        out, fits, {"D4-s0.05": p}, None, {"spp": 8}, {"D4-s0.05": "ab12"}, {"D4-s0.05": {"view_dir": dirs}}
+    )
+
+
 WRITERS = {
     "diffuse": (_diffuse, ["wrap_per_alpha.json", "wrap_smooth.json"]),
     "height-fog": (
@@ -171,6 +181,7 @@ WRITERS = {
     "ambient-aperture": (_ambient_aperture, ["intersection.json", "lambert.json"]),
     "sdf-occlusion": (_sdf_occlusion, ["evans_joint_sky.json", "per_case.json"]),
     "nishita-sky": (_nishita_sky, ["nishita_artist_params.json"]),
+    "volumetric-lightning": (_volumetric_lightning, ["lightning-D4-s0.05.json"]),
 }
 
 
