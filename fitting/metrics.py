@@ -87,6 +87,7 @@ __all__ = [
     "MetricValue",
     "ZScoreSummary",
     "compute_metrics",
+    "flip_map",
     "smape",
     "tone_map",
     "z_score_summary",
@@ -368,6 +369,10 @@ def _flip_input(a, name, peak, warn):
 
 
 def _flip_call(ref32, test32, m, params) -> float:
+    return float(np.mean(_flip_map_call(ref32, test32, params)[m]))
+
+
+def _flip_map_call(ref32, test32, params) -> np.ndarray:
     import flip_evaluator
 
     # flip_evaluator exits the process on bad arguments: check everything it checks, and more.
@@ -388,8 +393,7 @@ def _flip_call(ref32, test32, m, params) -> float:
     fmap, _, _ = flip_evaluator.evaluate(
         ref32, test32, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
     )
-    fmap = np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
-    return float(np.mean(fmap[m]))
+    return np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
 
 
 def _flip(x, r, s, m, seed, draws, **_):
@@ -404,6 +408,21 @@ def _flip(x, r, s, m, seed, draws, **_):
         floors.append(_flip_call(noisy, r32, m, params))
     floor = float(np.mean(floors))
     return MetricValue(val, floor, _resolved_above(val, floor))
+
+
+def flip_map(approx, reference, mask=None) -> np.ndarray:
+    """The per-pixel HDR-ꟻLIP error map (H, W) of ``approx`` against ``reference`` (images (H, W, 3)), with
+    the exposure rule and the clipping of the ``flip`` metric: its mean over ``mask`` is that metric's
+    value. Images smaller than the ꟻLIP filter, or a reference black inside the mask, are a ValueError."""
+    x, r, _, m, is_image = _validate(approx, reference, np.zeros_like(np.asarray(reference, float)), mask)
+    reason = _skip_reason("flip", x, r, m, is_image)
+    if reason is not None:
+        raise ValueError(f"flip map: {reason}")
+    params = _flip_exposures(r, m)
+    peak = float(np.max(r[m]))
+    return _flip_map_call(
+        _flip_input(r, "reference", peak, False), _flip_input(x, "approx", peak, False), params
+    )
 
 
 def _smape_value(x, r):
