@@ -146,6 +146,8 @@ def audit(
         )
     except AuditError as e:
         _error(str(e))
+    click.echo(f"camera: {result.info.camera}", err=True)
+    click.echo(f"up: {result.info.up_reason}", err=True)
     for line in result.skipped:
         click.echo(f"note: {line}", err=True)
     t = result.timings

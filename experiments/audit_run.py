@@ -312,23 +312,23 @@ def _fit(method: Method, case: FamilyCase) -> dict:
     return fit_method(method, inputs, target).to_dict()
 
 
-def _cost(method: Method, case: FamilyCase, backend: str) -> dict:
+def _cost(method: Method, case: FamilyCase, backend: str, size: int = _COST_ELEMENTS) -> dict:
     """ns per pixel of ``method`` (declared parameters) on the backend, its inputs (channel 0 of the case)
-    tiled to `_COST_ELEMENTS` float32 elements."""
+    tiled to ``size`` float32 elements."""
     Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
     n = int(case.mask.sum())
-    reps = max(1, -(-_COST_ELEMENTS // max(n, 1)))
+    reps = max(1, -(-size // max(n, 1)))
     args, keys, consts = [], [], {}
     for name in method.input_names:
         v = case.channel_inputs[0][name]
         if np.ndim(v):
-            a = np.tile(np.asarray(v, np.float64), reps)[:_COST_ELEMENTS]
+            a = np.tile(np.asarray(v, np.float64), reps)[:size]
             a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
             args.append(Float(a))
             keys.append(name)
         else:
             consts[name] = float(v)
-    elements = len(np.tile(np.zeros(n), reps)[:_COST_ELEMENTS]) if keys else 1
+    elements = min(n * reps, size) if keys else 1
 
     def call(*xs):
         return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))})
@@ -356,13 +356,15 @@ def audit(
     progress: bool = False,
     ao_distance: float | None = None,
     say=None,
+    cost_elements: int = _COST_ELEMENTS,
 ) -> AuditResult:
     """Audit the scene ``scene_or_path`` (a Mitsuba ``.xml`` path; module docstring) and return an
     `AuditResult`; with ``out`` (a directory) also write the report there. ``approximations``: see
     `resolve_approximations`. ``spp``: reference samples per pixel (default `DEFAULT_SPP`), in passes of
     ``pass_spp``; ``variant``: the Mitsuba variant (default ``llvm_ad_rgb``; the caller's own variant is put
     back afterwards); ``fit``: fit free parameters to this scene. Bad input raises `AuditError` (one line)
-    before anything is rendered or written. ``say``: a function taking one progress line (default: log)."""
+    before anything is rendered or written. ``say``: a function taking one progress line (default: log).
+    ``cost_elements``: how many elements each method's cost is measured on (the scene's inputs, tiled)."""
     say = say or log.info
     try:
         variant = resolve_variant(variant or "llvm_ad_rgb")
@@ -398,6 +400,7 @@ def audit(
     for a in audited:
         if not _rows(AUDITED[a.family], a, sel):
             raise AuditError(f"{a.family}: none of the methods named in --approx applies to {a.part}")
+    say(f"camera: {info.camera}; up: {info.up_reason}")
     target = None
     if out is not None:
         target = Path(out) / f"audit-{_scene_name(info.source)}"
@@ -461,7 +464,7 @@ def audit(
                 case.id, row_id, method, method.label, img, metrics, method.defaults(), user=user
             )
             if method.id not in costs:
-                costs[method.id] = {"label": method.label, **_cost(method, case, backend)}
+                costs[method.id] = {"label": method.label, **_cost(method, case, backend, cost_elements)}
             timings["evaluation"] += time.perf_counter() - t1
             if fit and method.params:
                 t2 = time.perf_counter()
@@ -595,7 +598,7 @@ def _results(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selecti
     costs = [
         {"method": mid, "label": c["label"], "backend": c["backend"], "ns_per_pixel": c["ns_per_pixel"],
          "pixels_per_second": c["pixels_per_second"], "elements": c["elements"], "repeats": c["repeats"],
-         "note": "per pixel, the scene's own inputs tiled to 2^20 float32 elements, declared parameters"}
+         "note": "per pixel: the scene's own inputs, tiled, as float32; declared parameters"}
         for mid, c in r.costs.items()
     ]  # fmt: skip
     families = sorted({f.name for f, _a, _c in plan})
