@@ -354,7 +354,12 @@ def test_through_rtfits_entry_point_errors_exit_2(tmp_path, monkeypatch, capsys)
 
     monkeypatch.setitem(cli.commands, "audit", audit)
     xml = _cornell(tmp_path)
-    for argv in ([xml, "--approx", "phong"], [xml, "--list", "--approx", "phong"], [xml, "--list", "--camera", "-1"]):
+    bad = (
+        [xml, "--approx", "phong"],
+        [xml, "--list", "--approx", "phong"],
+        [xml, "--list", "--camera", "-1"],
+    )
+    for argv in bad:
         assert main(["audit", *map(str, argv)]) == 2
         captured = capsys.readouterr()
         assert captured.out == "" and captured.err.startswith("rtfit: error: ")

@@ -26,7 +26,9 @@ from rtfit.experiments.results import load_results
 DATA = Path(__file__).parent / "data" / "mitsuba"
 CBOX = DATA / "cbox"
 TEAPOT = DATA / "teapot" / "teapot.xml"
-FAST = {"cost_elements": 1 << 12}  # cost measured on few elements: the tests check values, not speed
+# Cost measured on few elements, and no ꟻLIP/SSIM (flip_evaluator takes ~0.4 s a call): the tests check
+# values, not speed; the command-line test keeps every metric.
+FAST = {"cost_elements": 1 << 12, "metrics": ("rmse", "rel_mse", "mae", "max_abs", "psnr")}
 
 
 def _run(*args):
@@ -64,15 +66,17 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
 
 def test_cornell_box_plain_and_includes_variants_see_the_same_light(tmp_path):
     """``cbox.xml`` (one file, spectral reflectances) and ``cbox-rgb.xml`` (includes) hold the same geometry
-    and light shape: the same pixels are compared, and the unshadowed irradiance differs only by the two
-    files' radiance spectra (rgb 18.387, 10.9873, 2.75357 vs a spectrum), so its green/red ratio is uniform."""
+    and light shape: the same pixels are compared, and the irradiance differs only by the two files'
+    radiance (rgb 18.387, 10.9873, 2.75357 vs a spectrum): per channel, one uniform ratio."""
     kw = dict(width=24, height=24, spp=4, pass_spp=2, fit=False, cache=tmp_path / "cache", **FAST)
     a = audit(CBOX / "cbox-rgb.xml", "lambert", **kw)
     b = audit(CBOX / "cbox.xml", "lambert", **kw)
     ca, cb = a.cases[0], b.cases[0]
     assert np.array_equal(ca.mask, cb.mask)
-    ref_a = ca.reference.mean[ca.mask]
-    assert np.all(np.isfinite(ref_a)) and ref_a[:, 0].max() > 0
+    ref_a, ref_b = ca.reference.mean[ca.mask], cb.reference.mean[cb.mask]
+    lit = ref_a[:, 1] > 1e-3 * ref_a[:, 1].max()
+    ratio = ref_b[lit] / ref_a[lit]  # the same emitter samples (same seed, same points): noise cancels
+    assert np.max(np.abs(ratio / np.median(ratio, axis=0) - 1.0)) < 1e-4
 
 
 def test_teapot_ascii_ply_point_light_lambert_is_exact(tmp_path):
@@ -118,7 +122,7 @@ MY_WRAP = '''
 from rtfit import approximation, Param
 
 
-@approximation(quantity="light_irradiance", params={"w": Param(0.5, lower=0.0, upper=1.0)})
+@approximation(quantity="light_irradiance", params={"w": Param(0.2, lower=0.0, upper=1.0)})
 def my_wrap(ops, g, *, w):
     """Wrap lighting with exponent 2."""
     t = ops.maximum((g.cos_theta + w) / (1.0 + w), 0.0)
@@ -147,9 +151,10 @@ def _cap_irradiance(cos_t, alpha, n_theta=96, n_phi=192):
 
 def test_user_wrap_fit_lands_where_a_quadrature_fit_lands(tmp_path):
     """The user's ``my_wrap`` (w only, exponent 2) fitted by the audit to the Mitsuba reference of a unit
-    sphere lit by a sphere light (α from 16.6° to 25.4° over the lit side), against w fitted by SciPy to
-    the same formula with the exact irradiance from quadrature at the same pixels (E⊥ = π sin²α). Measured:
-    |Δw| = 0.0019 at 32 spp, within 3 standard errors of the audit's fit."""
+    sphere lit by a sphere light (α ≈ 16°–22° over the visible side), against w fitted by SciPy to
+    the same formula with the exact irradiance from quadrature at the same pixels (E⊥ = π sin²α), the two
+    fits started at different values (0.2 declared, 0.9). Measured: audit w = 0.5026 ± 0.005 at 128 spp,
+    quadrature fit w = 0.5006 (|Δw| = 0.0021, within 3 standard errors)."""
     from scipy.optimize import least_squares
 
     (tmp_path / "sphere.xml").write_text(SPHERE_XML)
@@ -157,8 +162,8 @@ def test_user_wrap_fit_lands_where_a_quadrature_fit_lands(tmp_path):
     r = audit(
         tmp_path / "sphere.xml",
         [f"{tmp_path / 'my_wrap.py'}:my_wrap"],
-        spp=32,
-        pass_spp=16,
+        spp=128,
+        pass_spp=32,
         cache=tmp_path / "cache",
         **FAST,
     )
@@ -178,10 +183,18 @@ def test_user_wrap_fit_lands_where_a_quadrature_fit_lands(tmp_path):
         t = np.maximum((cos_t + w[0]) / (1.0 + w[0]), 0.0)
         return e_perp * t * t - e_exact
 
-    w_ref = least_squares(residual, [0.5], bounds=([0.0], [1.0])).x[0]
+    w_ref = least_squares(residual, [0.9], bounds=([0.0], [1.0])).x[0]
+    print(f"audit w = {fit['value']:.5f} ± {fit['stderr']:.2g}, quadrature fit w = {w_ref:.5f}")
     assert abs(fit["value"] - w_ref) <= max(3 * fit["stderr"], 5e-3), (fit, w_ref)
-    # the quadrature itself against the reference: the exact form's inputs are the same pixels
-    assert np.max(np.abs(e_exact - case.reference.mean[case.mask][:, 0])) < 0.05 * e_perp.max()
+    # the quadrature itself against the reference at the same pixels: z-scores of Monte Carlo noise
+    sigma = case.reference.sigma()[case.mask][:, 0]
+    z = (e_exact - case.reference.mean[case.mask][:, 0])[sigma > 0] / sigma[sigma > 0]
+    spread = 1.4826 * np.median(np.abs(z - np.median(z)))
+    print(
+        f"quadrature vs reference: {z.size} pixels, z median {np.median(z):.3f}, robust spread {spread:.3f}"
+    )
+    # (terminator pixels, where few samples see the light, have heavy tails: measured max |z| 6.2)
+    assert abs(np.median(z)) < 0.3 and 0.7 < spread < 1.3
 
 
 def test_user_approximation_through_the_cli_beside_the_shipped_ones(tmp_path):
@@ -208,7 +221,9 @@ PATH_SCENE = """<scene version="3.0.0">
     </sensor>
     <shape type="rectangle"><transform name="to_world"><scale value="2"/></transform></shape>
     <shape type="ply"><string name="filename" value="tet.ply"/></shape>
-    <emitter type="point"><point name="position" x="0.5" y="-0.5" z="2"/><rgb name="intensity" value="4, 4, 4"/></emitter>
+    <emitter type="point">
+        <point name="position" x="0.5" y="-0.5" z="2"/><rgb name="intensity" value="4, 4, 4"/>
+    </emitter>
 </scene>
 """
 TET = (
