@@ -12,8 +12,8 @@ mesh) and the pixel-centre G-buffer of the scene's own camera (points x, camera-
   ``cos_theta`` = n·t with t the unit direction from x to the light's centre (a point/spot light's
   position, a sphere's centre, the centre of an area light's bounding box, the direction of a directional
   light); ``irradiance`` E⊥ = the light's unshadowed irradiance on a surface facing t (estimated in the
-  same pass, per channel: for a sphere light π·L·sin²α); ``alpha`` = asin(r/d) for a sphere light of radius
-  r at distance d (0 for every other light); ``distance`` d = |c − x| (+inf for a directional light);
+  same pass from samples of its own, per channel: for a sphere light π·L·sin²α); ``alpha`` = asin(r/d)
+  for a sphere light of radius r at distance d (0 for every other light); ``distance`` d = |c − x| (+inf for a directional light);
   ``radiance`` L (a sphere light's declared radiance, else E⊥/(π sin²α));
 * shadowed case: each method's value times the hard shadow of the light's centre (one shadow ray from x
   towards t: 1 when nothing blocks it), which is what a shadow map gives an engine; so the shadowed case
@@ -36,7 +36,7 @@ from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, F
 
 __all__ = ["FAMILY", "light_geometry"]
 
-FORMAT = 1
+FORMAT = 2  # 2: E⊥ from samples of its own (`light_irradiance.PERP_SAMPLES`)
 _DIRECTIONAL_FAR = 1e7  # a directional light's "centre": this many scene diagonals away along its direction
 
 
@@ -229,7 +229,8 @@ FAMILY = AuditFamily(
         "unshadowed and shadowed (separate cases), estimated with Mitsuba's emitter sampling of that light "
         "alone and Mitsuba's shadow rays, in independent passes with per-pixel standard errors. Each method "
         "gets cos θ = n·t (t: towards the light's centre), E⊥ (the light's irradiance on a surface facing "
-        "t, from the same samples), the light's angular radius α (sphere lights; 0 otherwise) and distance. "
+        "t, from independent samples of the same pass), the light's angular radius α (sphere lights; 0 "
+        "otherwise) and distance. "
         "In the shadowed case each method is multiplied by the hard shadow of the light's centre (one "
         "shadow ray), as a shadow map would give it."
     ),

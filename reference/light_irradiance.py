@@ -14,8 +14,11 @@ Mitsuba's own shadow rays (``Scene.ray_test`` of ``spawn_ray_to``), exactly what
 integrator does for the emitter-sampling strategy on a white Lambertian receiver. Emitter sampling alone
 is unbiased for every light Mitsuba can sample (delta lights: point, spot, directional — one sample is
 exact; area lights: the sampled density covers the whole emitting surface), and the cheapest exact
-estimator of one light's direct irradiance: no BSDF sampling, no path continuation. The three estimates
-share their samples, so their differences are precise.
+estimator of one light's direct irradiance: no BSDF sampling, no path continuation. E_u and E_s share their
+samples (their difference, the shadow, is precise). E⊥ is an input of the approximations compared with E_u
+and E_s, so it is estimated from `PERP_SAMPLES` samples of its own per sample of theirs: its noise is
+independent of the reference's (shared noise would let an approximation follow the reference's noise and
+read below the noise floor) and smaller.
 
 Each pass returns per point the sample mean and unbiased sample variance of ``spp`` iid samples of the 9
 values (E_u, E_s, E⊥; RGB each), float64 sums on the device (`estimators.moments`).
@@ -30,7 +33,10 @@ import numpy as np
 
 from .estimators import PassResult, chunk_ranges, mean_var, sub_seed
 
-__all__ = ["CHANNELS", "light_irradiance_pass"]
+__all__ = ["CHANNELS", "PERP_SAMPLES", "light_irradiance_pass"]
+
+PERP_SAMPLES = 4
+"""Independent emitter samples of E⊥ per sample of E_u/E_s."""
 
 CHANNELS = ("unshadowed", "shadowed", "normal_incidence")
 """The three RGB triples of a pass, in order (columns 0–2, 3–5, 6–8)."""
@@ -80,8 +86,14 @@ def light_irradiance_pass(mi, mi_scene, emitter, points, normals, towards, spp: 
         e_u = weight * dr.maximum(dr.dot(ds.d, n), 0.0)
         visible = ok & ~mi_scene.ray_test(it.spawn_ray_to(ds.p), ok)
         e_s = dr.select(visible, e_u, 0.0)
-        e_perp = weight * dr.maximum(dr.dot(ds.d, t), 0.0)
-        values = [dr.select(ok, v[c], 0.0) for v in (e_u, e_s, e_perp) for c in range(3)]
+        e_perp = mi.Color3f(0.0)
+        for _ in range(PERP_SAMPLES):
+            ds2, w2 = emitter.sample_direction(it, sampler.next_2d(), True)
+            e_perp += dr.select(ds2.pdf > 0.0, w2 * dr.maximum(dr.dot(ds2.d, t), 0.0), 0.0)
+        e_perp = e_perp / PERP_SAMPLES
+        values = [dr.select(ok, e_u[c], 0.0) for c in range(3)]
+        values += [dr.select(ok, e_s[c], 0.0) for c in range(3)]
+        values += [e_perp[c] for c in range(3)]
         s[a:b], q[a:b] = _sums(mi, values, spp)
     mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
