@@ -13,8 +13,8 @@ mesh) and the pixel-centre G-buffer of the scene's own camera (points x, camera-
   position, a sphere's centre, the centre of an area light's bounding box, the direction of a directional
   light); ``irradiance`` E⊥ = the light's unshadowed irradiance on a surface facing t (estimated in the
   same pass from samples of its own, per channel: for a sphere light π·L·sin²α); ``alpha`` = asin(r/d)
-  for a sphere light of radius r at distance d (0 for every other light); ``distance`` d = |c − x| (+inf for a directional light);
-  ``radiance`` L (a sphere light's declared radiance, else E⊥/(π sin²α));
+  for a sphere light of radius r at distance d (0 for every other light); ``distance`` d = |c − x|
+  (+inf for a directional light); ``radiance`` L (a sphere light's declared radiance, else E⊥/(π sin²α));
 * shadowed case: each method's value times the hard shadow of the light's centre (one shadow ray from x
   towards t: 1 when nothing blocks it), which is what a shadow map gives an engine; so the shadowed case
   measures the formula together with a hard shadow against the true, soft one.
