@@ -58,7 +58,13 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
 @click.option(
     "--up", type=click.Choice(list(UP_AXES)), default=None, help="World up axis (default: the sensor's)."
 )
-@click.option("--approx", default=None, metavar="A,B", help="Only these families (comma-separated).")
+@click.option(
+    "--approx",
+    default=None,
+    metavar="A,B",
+    help="Families, shipped methods (wrap, diffuse:exact) and your approximations (my.py:f, module:f, "
+    "an entry point), comma-separated.",
+)
 @click.option(
     "--ao-distance",
     type=click.FloatRange(min=0.0, min_open=True),

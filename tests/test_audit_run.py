@@ -342,3 +342,26 @@ def test_approximation_names_resolve_to_families_methods_and_user_specs(tmp_path
     )
     with pytest.raises(AuditError, match="sky: approximates sky_radiance; the audit of that quantity"):
         resolve_approximations(f"{tmp_path / 'other.py'}:sky")
+
+
+def test_rtfit_toml_scenes_are_list_only_for_now(tmp_path):
+    from rtfit.scenes import library_path
+
+    with pytest.raises(AuditError, match="the audit itself runs on Mitsuba XML scenes"):
+        audit(library_path("half_lambert_sphere"), cache=tmp_path / "c")
+    assert not (tmp_path / "c").exists()
+
+
+def test_flip_map_mean_is_the_flip_metric():
+    """`rtfit.fitting.flip_map` (the audit's ꟻLIP figure) is the map whose masked mean the ``flip`` metric
+    reports: the same exposures, the same clipping (equal to float64 summation order)."""
+    from rtfit.fitting import compute_metrics, flip_map
+
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(0.05, 2.0, (32, 32, 3))
+    approx = ref * rng.uniform(0.8, 1.2, ref.shape)
+    mask = np.ones((32, 32), bool)
+    mask[:4] = False
+    value = compute_metrics(approx, ref, np.zeros_like(ref), mask, names=("flip",))["flip"].value
+    fmap = flip_map(approx, ref, mask)
+    assert fmap.shape == (32, 32) and float(np.mean(fmap[mask])) == pytest.approx(value, rel=1e-12)
