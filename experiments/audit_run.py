@@ -687,12 +687,9 @@ def _summary(r: AuditResult, plan) -> str:
 def _write(directory: Path, r: AuditResult) -> None:
     figs = _make_figures(directory, r)
     doc = plain_json(_to_doc(r.results))
-    doc["figures"] = figs
-    for case in doc["cases"]:
-        for ap in case["approximations"]:
-            ap["figures"] = [f["file"] for f in figs if f.get("_case") == case["id"]][:2]
-    for f in figs:
+    for f in figs:  # (the figures name their case: placed after the case tables, in case order)
         f.pop("_case", None)
+    doc["figures"] = figs
     results = from_json(Results, doc, f"audit of {r.info.source}")
     r.results = results
     _write_fitted(directory, r)
