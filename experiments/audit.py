@@ -113,6 +113,9 @@ class Part:
 
     kinds: frozenset[str]
     label: str
+    source: int | None = None
+    """Index of what the part stands for in its scene record (`XmlScene.emitters` for a light or an
+    environment of an XML scene); ``None`` for parts that stand for the whole scene (surfaces, geometry)."""
 
     @property
     def provides(self) -> frozenset[str]:
@@ -260,6 +263,7 @@ class Applicability:
     reason: str
     reference: str
     integrator: str
+    source: int | None = None  # the triggering part's `Part.source`
 
 
 def _missing_text(missing: set[str]) -> str:
@@ -344,6 +348,7 @@ def applicable_families(
                     rule.reason.format(**fmt),
                     rule.reference.format(**fmt),
                     rule.integrator.format(**fmt),
+                    part.source,
                 )
             )
     found = {a.family for a in out}
@@ -402,14 +407,14 @@ def _short(location: str) -> str:
 
 def _xml_info(x: XmlScene) -> SceneInfo:
     parts: list[Part] = []
-    for e in x.emitters:
+    for index, e in enumerate(x.emitters):
         named = f" '{e.id}'" if e.id else ""
         where = _short(e.location)
         if e.environment:
             label = f"{e.kind} environment{named} ({where})"
             if e.direction is not None:  # a sunsky: its sun is a light of its own
                 sun = {"light", "spherical-light"} if e.spherical else {"light"}
-                parts.append(Part(frozenset(sun), f"the sun of the {label}"))
+                parts.append(Part(frozenset(sun), f"the sun of the {label}", index))
             kinds = {"environment"}
         elif e.kind in _XML_LIGHTS:
             kinds = {"light", "spherical-light"} if e.spherical else {"light"}
@@ -419,7 +424,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
             label = f"{what}{named} ({where})"
         else:
             continue
-        parts.append(Part(frozenset(kinds), label))
+        parts.append(Part(frozenset(kinds), label, index))
     if x.shapes:
         parts.append(Part(frozenset({"surface"}), f"{len(x.shapes)} shape(s)"))
         if len(x.shapes) >= 2 or x.shapes[0].type not in _CONVEX_XML:

@@ -1,7 +1,9 @@
-"""The ``rtfit audit`` command (its ``--list`` inspection; the audit itself is built later).
+"""The ``rtfit audit`` command: the audit of a user's scene (`rtfit.experiments.audit_run`), or with
+``--list`` the inspection (`rtfit.experiments.audit`).
 
-    rtfit audit SCENE --list [-D name=value ...] [--camera N] [--width W --height H] [--up +y|-y|+z|…]
-                             [--approx a,b] [--ao-distance D]
+    rtfit audit SCENE [--list] [-D name=value ...] [--camera N] [--width W --height H] [--up +y|-y|+z|…]
+                      [--approx a,b] [--ao-distance D] [--variant V] [--spp N] [--pass-spp N] [--out DIR]
+                      [--cache DIR] [--seed S] [--no-fit] [--no-progress]
 
 ``audit`` is the click command object; the command line adds it with ``cli.add_command(audit)``. Bad input
 is one line, ``rtfit: error: …``, exit status 2, nothing written.
@@ -9,11 +11,14 @@ is one line, ``rtfit: error: …``, exit status 2, nothing written.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from rtfit.reference.mitsuba_xml import UP_AXES
 
 from .audit import AuditError, applicable_families, describe, inspect_scene
+from .audit_run import audit as run_audit
 
 __all__ = ["AuditInputError", "audit"]
 
@@ -53,24 +58,115 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
 @click.option(
     "--up", type=click.Choice(list(UP_AXES)), default=None, help="World up axis (default: the sensor's)."
 )
-@click.option("--approx", default=None, metavar="A,B", help="Only these families (comma-separated).")
+@click.option(
+    "--approx",
+    default=None,
+    metavar="A,B",
+    help="Families, shipped methods (wrap, diffuse:exact) and your approximations (my.py:f, module:f, "
+    "an entry point), comma-separated.",
+)
 @click.option(
     "--ao-distance",
     type=click.FloatRange(min=0.0, min_open=True),
     default=None,
     help="AO radius in scene units (default: 0.1 × the scene's bounding-box diagonal).",
 )
-def audit(scene, list_only, defines, camera, width, height, up, approx, ao_distance):
-    """Audit SCENE (a Mitsuba .xml scene, an rtfit .toml scene, or a library name); --list prints which
-    approximation families apply to it and why."""
-    if not list_only:
-        _error("the audit itself is not built yet; use --list")
+@click.option(
+    "--variant",
+    default="llvm_ad_rgb",
+    show_default=True,
+    type=click.Choice(["auto", "llvm_ad_rgb", "cuda_ad_rgb"]),
+    help="Mitsuba variant for references and the Dr.Jit backend for approximations.",
+)
+@click.option(
+    "--spp", type=click.IntRange(min=2, max=1 << 24), default=None, help="Reference samples per pixel (256)."
+)
+@click.option(
+    "--pass-spp", type=click.IntRange(min=2, max=1 << 24), default=None, help="Samples per cached pass (32)."
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("out"),
+    show_default=True,
+    help="Output directory: the report goes to OUT/audit-<scene>.",
+)
+@click.option(
+    "--cache",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit).",
+)
+@click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
+@click.option("--no-fit", is_flag=True, help="Do not fit free parameters to the scene.")
+@click.option("--no-progress", is_flag=True, help="No progress bars.")
+def audit(
+    scene,
+    list_only,
+    defines,
+    camera,
+    width,
+    height,
+    up,
+    approx,
+    ao_distance,
+    variant,
+    spp,
+    pass_spp,
+    out,
+    cache,
+    seed,
+    no_fit,
+    no_progress,
+):
+    """Audit SCENE (a Mitsuba .xml scene; --list also takes an rtfit .toml scene or a library name): every
+    applicable approximation against the scene's own reference, with noise floors, fits, costs and a report
+    in OUT/audit-<scene>. --list prints which approximation families apply to it and why."""
     try:
-        info = inspect_scene(
-            scene, defines=_defines(defines), camera=camera, width=width, height=height, up=up
+        if list_only:
+            info = inspect_scene(
+                scene, defines=_defines(defines), camera=camera, width=width, height=height, up=up
+            )
+            found = applicable_families(info, approx=approx, ao_distance=ao_distance)
+            for line in describe(info, found, ao_distance=ao_distance, restricted=approx is not None):
+                click.echo(line)
+            return
+        obj = click.get_current_context().find_root().obj or {}
+        result = run_audit(
+            scene,
+            approx,
+            spp=spp,
+            variant=variant,
+            fit=not no_fit,
+            out=out,
+            defines=_defines(defines),
+            camera=camera,
+            width=width,
+            height=height,
+            up=up,
+            seed=seed,
+            cache=cache,
+            pass_spp=pass_spp,
+            progress=bool(obj.get("bars", False)) and not no_progress,
+            ao_distance=ao_distance,
         )
-        found = applicable_families(info, approx=approx, ao_distance=ao_distance)
     except AuditError as e:
         _error(str(e))
-    for line in describe(info, found, ao_distance=ao_distance, restricted=approx is not None):
-        click.echo(line)
+    click.echo(f"camera: {result.info.camera}", err=True)
+    click.echo(f"up: {result.info.up_reason}", err=True)
+    for line in result.skipped:
+        click.echo(f"note: {line}", err=True)
+    t = result.timings
+    click.echo(
+        f"timings: reference {t['reference']:.1f} s, evaluation {t['evaluation']:.1f} s, "
+        f"fit {t['fit']:.1f} s",
+        err=True,
+    )
+    click.echo(f"summary: {result.results.summary}")
+    assert result.out is not None
+    click.echo(str((result.out / "report.html").resolve()))
+    failed = [c for c in result.results.checks if not c.passed]
+    for c in failed:
+        click.echo(f"rtfit: check failed: {c.name}: {c.value} (expected {c.expected})", err=True)
+    if failed:
+        raise click.exceptions.Exit(1)

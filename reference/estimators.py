@@ -181,10 +181,11 @@ def _radiance_scalar(mi, mi_scene, sensor, integrator, width, height, spp, seed)
 
 
 # ------------------------------------------------------------------------------------------ G-buffer
-def gbuffer(mi, mi_scene) -> GBuffer:
-    """First hits of the pixel-centre rays (the approximation's inputs)."""
+def gbuffer(mi, mi_scene, sensor=None) -> GBuffer:
+    """First hits of the pixel-centre rays (the approximation's inputs) of ``sensor`` (default: the
+    scene's first)."""
 
-    sensor = mi_scene.sensors()[0]
+    sensor = mi_scene.sensors()[0] if sensor is None else sensor
     width, height = sensor.film().crop_size()
     n = width * height
     if mi.variant().startswith("scalar"):

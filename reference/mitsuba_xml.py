@@ -41,6 +41,7 @@ from .variants import scoped_variant
 
 __all__ = [
     "UP_AXES",
+    "LoadedXml",
     "XMLSceneError",
     "XmlDependencies",
     "XmlEmitter",
@@ -49,6 +50,7 @@ __all__ = [
     "XmlSensor",
     "XmlShape",
     "inspect_xml",
+    "loaded_xml",
     "xml_dependencies",
 ]
 
@@ -603,3 +605,81 @@ def inspect_xml(
         media=media_out,
         bbox=bbox,
     )
+
+
+# -------------------------------------------------------------------------------------------- loading
+@dataclass(frozen=True)
+class LoadedXml:
+    """A Mitsuba XML scene instantiated for rendering (`loaded_xml`): ``mi`` (the module, in the scoped
+    variant), ``scene``, the chosen ``sensor`` (its film resized by ``--width``/``--height``) and
+    ``emitters``: the Mitsuba emitter objects in the document order of `XmlScene.emitters`."""
+
+    mi: object
+    scene: object
+    sensor: object
+    emitters: tuple
+
+
+@contextlib.contextmanager
+def loaded_xml(
+    path: str | os.PathLike,
+    defines: Mapping[str, str] | None = None,
+    variant: str = "llvm_ad_rgb",
+    *,
+    camera: int = 0,
+    width: int | None = None,
+    height: int | None = None,
+) -> Iterator[LoadedXml]:
+    """Instantiate the XML scene ``path`` in ``variant`` (scoped: the caller's variant and file resolver
+    are put back on exit) with only what the file declares: Mitsuba's parser, then the chosen sensor's film
+    resized (``width``/``height``; the field of view along ``fov_axis`` is kept), each emitter tagged so
+    that the rendered objects are matched to the document's emitters one to one. Raises `XMLSceneError`
+    (one line) for anything Mitsuba refuses."""
+    path, defines = _normalise(path, defines)
+    with _parsed(path, defines, variant) as (mi, parser, config, state):
+        config.merge_meshes = False
+        config.merge_equivalent = False
+        try:
+            parser.transform_all(config, state)
+            nodes = list(state.nodes)
+            kinds = [str(n.type).rsplit(".", 1)[-1] for n in nodes]
+            emitter_nodes = [i for i, k in enumerate(kinds) if k == "Emitter"]
+            for k, i in enumerate(emitter_nodes):  # references are resolved already: ids are free now
+                nodes[i].props.set_id(f"rtfit-emitter-{k}")
+            sensors = [i for i, k in enumerate(kinds) if k == "Sensor"]
+            if sensors and not 0 <= camera < len(sensors):
+                last = len(sensors) - 1
+                raise XMLSceneError(
+                    f"{path}: --camera {camera}: the scene has {len(sensors)} sensor(s), 0..{last}"
+                )
+            if not sensors:
+                raise XMLSceneError(
+                    f"{path}: the scene has no <sensor> (the audit renders the scene's own view)"
+                )
+            films = _films_of(state, nodes, kinds, sensors[camera])
+            for film in films:
+                if width is not None:
+                    film.props["width"] = int(width)
+                if height is not None:
+                    film.props["height"] = int(height)
+            scene = parser.instantiate(config, state)
+        except RuntimeError as e:
+            text = _one_line(str(e))
+            if "PLYMesh" in text and any(m in text for m in _PLY_FACE_ERRORS):
+                text += f" ({_PLY_HINT})"
+            raise XMLSceneError(f"{path}: {text}") from None
+        if isinstance(scene, list | tuple) or not hasattr(scene, "sensors"):
+            raise XMLSceneError(f"{path}: the file's root is not a <scene>")
+        by_id = {e.id(): e for e in scene.emitters()}
+        emitters = tuple(by_id.get(f"rtfit-emitter-{k}") for k in range(len(emitter_nodes)))
+        yield LoadedXml(mi, scene, scene.sensors()[camera], emitters)
+
+
+def _films_of(state, nodes, kinds, sensor_index: int) -> list:
+    """The film node(s) a sensor node refers to (its ``_arg_*``/named references)."""
+    out = []
+    for key in nodes[sensor_index].props.keys():
+        value = _plain(nodes[sensor_index].props[key])
+        if isinstance(value, tuple) and value[:1] == ("ref",) and kinds[value[1]] == "Film":
+            out.append(nodes[value[1]])
+    return out

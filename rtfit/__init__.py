@@ -13,6 +13,7 @@ The user-approximation API is loaded on first use (module ``__getattr__``)::
 
     from rtfit import approximation, Param           # rtfit.realtime.quantities, rtfit.realtime.methods
     from rtfit import load_approximation, check_approximation   # rtfit.experiments.user_methods
+    from rtfit import audit, AuditResult                         # rtfit.experiments.audit_run
 """
 
 from importlib import import_module as _import_module
@@ -29,6 +30,8 @@ _LAZY = {
     "Param": "rtfit.realtime.methods",
     "load_approximation": "rtfit.experiments.user_methods",
     "check_approximation": "rtfit.experiments.user_methods",
+    "audit": "rtfit.experiments.audit_run",
+    "AuditResult": "rtfit.experiments.audit_run",
 }
 
 __all__ = ["__version__", *_LAZY]

@@ -1,0 +1,117 @@
+"""The extension point of `rtfit audit`: what an audited family declares, and what it is given.
+
+A family joins the audit with **one declaration**, an `AuditFamily` in a module of its own
+(``experiments/audit_<family>.py``), listed in `rtfit.experiments.audit_run.AUDITED`:
+
+* ``name``: the family (a key of `rtfit.experiments.audit.FAMILIES`; `RULES` there says when it applies);
+* ``quantity``: the quantity its methods approximate (`rtfit.realtime.quantities.QUANTITIES`): a user's
+  approximation of that quantity (``--approx my.py:f``) is audited beside the shipped methods;
+* ``cases(setup, applicability) -> list[FamilyCase]``: the references this family needs for one
+  applicability (one light, one medium, …) and the methods' inputs on the same pixels.
+
+Everything else — evaluating every method with Dr.Jit, measuring its cost, fitting its free parameters
+through the JAX run of the same kernel text, metrics with noise floors, error maps, ``results.json``, the
+report and the fitted-parameter file — is the audit's, the same for every family. A family never imports
+the audit engine (this module is the only thing both sides share).
+
+A case's reference is an image (H, W, 3) with its per-pixel standard error; the methods are evaluated on the
+masked pixels only, once per RGB channel (``channel_inputs``: each input name → an array over the masked
+pixels, or a float), and each value is multiplied by ``factor`` where the case has one (e.g. the hard shadow
+of the light's centre, what a shadow map gives an engine). A fit uses the elements where the factor is
+positive, divided by it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
+from rtfit.reference.estimators import GBuffer
+
+from .audit import Applicability, AuditError, SceneInfo
+
+__all__ = ["AuditError", "AuditFamily", "AuditReference", "AuditSetup", "FamilyCase"]
+
+
+@dataclass(frozen=True)
+class AuditSetup:
+    """What a family's ``cases`` is given: the scene loaded in the audit's Mitsuba variant (``mi``,
+    ``scene``, the chosen ``sensor``, ``emitters`` in `XmlScene.emitters` order), its inspection
+    (``info``; ``info.xml`` for an XML scene), the pixel-centre G-buffer and the ``mask`` of pixels that
+    show a surface that is not itself a light; the cache and sampling settings; ``scene_digest``: the
+    digest over every file the scene loads (`XmlDependencies.digest`) plus the camera and film size — part
+    of every cache key. ``ao_distance``: the AO radius (scene units)."""
+
+    mi: Any
+    scene: Any
+    sensor: Any
+    emitters: tuple
+    info: SceneInfo
+    gbuffer: GBuffer
+    mask: np.ndarray
+    cache_root: Path
+    variant: str
+    spp: int
+    pass_spp: int
+    seed: int
+    progress: bool
+    scene_digest: str
+    ao_distance: float | None = None
+
+
+@dataclass(frozen=True)
+class AuditReference:
+    """A reference image: ``mean`` and ``stderr`` (H, W, 3, float64), ``spp`` samples per pixel in
+    ``passes`` passes (``passes_rendered`` of them by this run), ``cache_key``/``cache_path`` of its
+    `PassEntry`, ``seconds`` of rendering summed over the passes, ``quantity``, ``integrator`` and
+    ``integrator_reason`` (words)."""
+
+    mean: np.ndarray
+    stderr: np.ndarray
+    spp: int
+    passes: int
+    passes_rendered: int
+    cache_key: str
+    cache_path: str
+    seconds: float
+    quantity: str
+    integrator: str
+    integrator_reason: str
+
+    def sigma(self) -> np.ndarray:
+        """The standard error combined with the float32 precision floor (as `Reference.sigma`)."""
+        return np.sqrt(self.stderr**2 + (RELATIVE_PRECISION_FLOOR * self.mean) ** 2)
+
+
+@dataclass(frozen=True)
+class FamilyCase:
+    """One comparison: ``id`` (file-name safe), ``label``, ``parameters`` (free-form, into results.json),
+    the ``reference``, the ``mask`` (H, W) of compared pixels, ``channel_inputs`` (one mapping per RGB
+    channel: input name → array over the masked pixels, or a float), ``factor`` (over the masked pixels,
+    or None), ``units`` of the quantity and ``notes`` (sentences for the report)."""
+
+    id: str
+    label: str
+    reference: AuditReference
+    mask: np.ndarray
+    channel_inputs: tuple[Mapping[str, Any], ...]
+    parameters: Mapping[str, Any] = field(default_factory=dict)
+    factor: np.ndarray | None = None
+    units: str = ""
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class AuditFamily:
+    """One audited family (module docstring): ``name``, ``quantity``, ``cases``, and ``describe``: one
+    paragraph for the report's method section."""
+
+    name: str
+    quantity: str
+    cases: Callable[[AuditSetup, Applicability], list[FamilyCase]]
+    describe: str = ""

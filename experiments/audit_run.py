@@ -1,0 +1,790 @@
+"""`rtfit audit SCENE` and `rtfit.audit(...)`: errors, fits, costs and a report on a user's own scene.
+
+The run (issue 15 §3), for every applicable family that is audited (`AUDITED`; `rtfit audit --list` lists
+the families that apply, `rtfit.experiments.audit.RULES`):
+
+1. **Inputs checked first.** The scene is inspected (`audit.inspect_scene`: Mitsuba's own parser for XML),
+   ``--approx`` resolved (families, shipped methods, user approximations by spec or entry point) and every
+   user approximation validated (`user_methods.check_approximation`) — all before anything is rendered or
+   written; each refusal is one `AuditError` line.
+2. **References** (`AuditFamily.cases`): the scene is instantiated once in the run's Mitsuba variant
+   (scoped: the caller's variant is put back), the pixel-centre G-buffer of its own camera is traced, and
+   each family renders its references in independent passes through the pass cache (`PassEntry`, keyed on
+   the digest of every file Mitsuba's parser loaded, the camera and the film size): resumable, and
+   rendered once.
+3. **Evaluation**: every applicable method (and each user approximation of the family's quantity) on the
+   same pixels with Dr.Jit (`Method.evaluate`), per RGB channel; every metric with its noise floor
+   (`compute_metrics`); the cost per pixel measured on the run's backend (`cost.time_drjit`).
+4. **Fits**: each method with free parameters fitted to this scene's reference through the JAX run of its
+   kernel text (`fit_method`), with standard errors and bound flags, then evaluated and measured again.
+5. **Output** (with ``out``): ``results.json`` (schema ``rtfit.results/1``), ``report.html``/``.md``,
+   ``tables.tex``, figures (images with signed error, FLIP maps) and ``fitted/audit.json``
+   (``rtfit.fitted/1``), written atomically into ``OUT/audit-<scene>``.
+
+`audit` returns an `AuditResult` with the arrays, metrics, fits, costs and timings.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import re
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+from rtfit.fitting import ALL_METRICS, compute_metrics, concat_z_pairs, fit_method, flip_error_map, z_checks, z_pair
+from rtfit.realtime import set_default_backend
+from rtfit.realtime.methods import Method
+from rtfit.realtime.quantities import is_user_approximation
+from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, default_cache_dir
+from rtfit.reference.estimators import gbuffer
+from rtfit.reference.mitsuba_xml import XMLSceneError, loaded_xml
+from rtfit.reference.variants import resolve_variant
+
+from . import figures
+from . import fitted as fitfiles
+from .atomic import atomic_directory
+from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_families, inspect_scene
+from .audit_diffuse import FAMILY as DIFFUSE
+from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .cost import time_drjit
+from .records import SCHEMA, Results, from_json, plain_json, to_json
+from .registry import ALIASES
+from .report import write_report
+from .results import write_results
+from .runner import created_now, device_description, versions
+from .user_methods import UserMethodError, check_approximation, load_approximation
+
+__all__ = [
+    "AUDITED",
+    "DEFAULT_PASS_SPP",
+    "DEFAULT_SPP",
+    "AuditResult",
+    "MethodOutcome",
+    "audit",
+    "resolve_approximations",
+]
+
+log = logging.getLogger("rtfit.audit")
+
+AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE,)}
+"""The families the audit runs (name → declaration, `audit_family.AuditFamily`). A family listed by
+``--list`` but not here is named in the run's notes as not audited yet."""
+
+DEFAULT_SPP = 256
+DEFAULT_PASS_SPP = 32
+_COST_ELEMENTS = 1 << 20  # inputs are tiled to this many elements for the cost measurement
+
+
+# ----------------------------------------------------------------------------------------- approximations
+@dataclass(frozen=True)
+class Selection:
+    """What ``--approx`` asks for: ``families`` (None: all that apply), ``methods`` (family → shipped method
+    ids kept; a family absent here keeps all of its methods) and ``user`` approximations."""
+
+    families: tuple[str, ...] | None
+    methods: Mapping[str, frozenset[str]]
+    user: tuple[Method, ...]
+
+
+def _shipped(name: str) -> tuple[str, str] | None:
+    """``family:id`` or a bare method id of an audited family → (family, id)."""
+    fam, sep, mid = name.partition(":")
+    if sep:
+        fam = ALIASES.get(fam, fam.replace("_", "-"))
+        return (fam, mid) if fam in FAMILIES and mid in FAMILIES[fam] else None
+    hits = [(f, name) for f in AUDITED if name in FAMILIES[f]]
+    return hits[0] if len(hits) == 1 else None
+
+
+def resolve_approximations(approximations) -> Selection:
+    """``approximations``: None, ``"a,b"``, or a sequence of names, specs and `Method` objects made by
+    ``@rtfit.approximation``. A name is a family (``diffuse``, an alias such as ``half-lambert``), a shipped
+    method (``wrap``, ``diffuse:wrap``), a user approximation spec (``file.py:name``, ``module:name``) or an
+    entry point of ``rtfit.approximations``. Family and method names restrict the audit; user approximations
+    are added beside the shipped methods of their quantity's families. Each user approximation is validated
+    here. Raises `AuditError` (one line)."""
+    if approximations is None:
+        return Selection(None, {}, ())
+    items = approximations.split(",") if isinstance(approximations, str) else list(approximations)
+    families: list[str] = []
+    methods: dict[str, set[str]] = {}
+    user: list[Method] = []
+    for item in items:
+        if isinstance(item, Method):
+            if not is_user_approximation(item):
+                raise AuditError(
+                    f"{item.id!r}: not a user approximation (decorate it with @rtfit.approximation)"
+                )
+            user.append(item)
+            continue
+        name = str(item).strip()
+        if not name:
+            continue
+        family = ALIASES.get(name, name.replace("_", "-"))
+        if family in FAMILIES:
+            families.append(family)
+            continue
+        shipped = _shipped(name)
+        if shipped is not None:
+            methods.setdefault(shipped[0], set()).add(shipped[1])
+            continue
+        try:
+            user.append(load_approximation(name))
+        except UserMethodError as e:
+            known = ", ".join(FAMILIES)
+            raise AuditError(
+                f"--approx {name!r}: not a family ({known}), a shipped method (e.g. diffuse:wrap) or a user "
+                f"approximation ({e})"
+            ) from None
+    for m in user:
+        try:
+            check_approximation(m)
+        except UserMethodError as e:
+            raise AuditError(str(e)) from None
+        if not any(f.quantity == m.quantity for f in AUDITED.values()):
+            raise AuditError(
+                f"{m.id}: approximates {m.quantity}; the audit of that quantity is not built yet "
+                f"(audited: {', '.join(f'{f.quantity} ({f.name})' for f in AUDITED.values())})"
+            )
+    ids = [m.id for m in user]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise AuditError(f"--approx: approximation id {', '.join(dup)} given twice")
+    for m in user:
+        for fam in AUDITED.values():
+            if m.quantity == fam.quantity and m.id in FAMILIES[fam.name]:
+                raise AuditError(f"{m.id}: the id of a shipped {fam.name} method; give it id=… of its own")
+    named = list(dict.fromkeys([*families, *methods]))
+    if not named and user:
+        named = [f.name for f in AUDITED.values() if any(m.quantity == f.quantity for m in user)]
+    return Selection(tuple(named) or None, {k: frozenset(v) for k, v in methods.items()}, tuple(user))
+
+
+# ------------------------------------------------------------------------------------------------ result
+@dataclass
+class MethodOutcome:
+    """One method on one case: ``image`` (H, W, 3; 0 outside the mask), ``metrics`` (name → `MetricValue`),
+    ``parameters`` used, ``fit`` (`FitResult.to_dict()` of a fitted row, else None), ``user`` (a user
+    approximation)."""
+
+    case: str
+    row: str
+    method: Method
+    label: str
+    image: np.ndarray
+    metrics: Any
+    parameters: dict
+    fit: dict | None = None
+    user: bool = False
+
+
+@dataclass
+class AuditResult:
+    """What `audit` returns. ``cases`` (`FamilyCase`, with their references: ``case.reference.mean`` and
+    ``.stderr``), ``outcomes`` (case id → row id → `MethodOutcome`), ``costs`` (method id → ns per pixel
+    and the backend), ``timings`` (seconds: reference, evaluation, fit), ``results`` (the typed
+    `Results` record written as results.json), ``out`` (the report directory, if written), ``skipped``
+    (families that apply but are not audited yet, with why)."""
+
+    info: SceneInfo
+    cases: list[FamilyCase]
+    outcomes: dict[str, dict[str, MethodOutcome]]
+    costs: dict[str, dict]
+    timings: dict[str, float]
+    results: Results
+    skipped: list[str] = field(default_factory=list)
+    out: Path | None = None
+    _figures: list = field(default_factory=list, repr=False)
+
+    def reference(self, case: str) -> np.ndarray:
+        return self._case(case).reference.mean
+
+    def stderr(self, case: str) -> np.ndarray:
+        return self._case(case).reference.stderr
+
+    def image(self, case: str, row: str) -> np.ndarray:
+        return self.outcomes[case][row].image
+
+    def metrics(self, case: str, row: str) -> dict:
+        return {k: v.value for k, v in self.outcomes[case][row].metrics.items()}
+
+    @property
+    def fits(self) -> dict[str, dict]:
+        """``"case/row"`` → the fit's parameters ({name: {value, stderr, lower, upper, at_bound}})."""
+        return {
+            f"{c}/{r}": o.fit["parameters"]
+            for c, rows in self.outcomes.items()
+            for r, o in rows.items()
+            if o.fit
+        }
+
+    def _case(self, case: str) -> FamilyCase:
+        for c in self.cases:
+            if c.id == case:
+                return c
+        raise KeyError(f"no case {case!r} (cases: {', '.join(c.id for c in self.cases)})")
+
+    def write_report(self, directory) -> Path:
+        """Write results.json, the report, figures and fitted parameters into ``directory`` (atomically:
+        the directory is replaced only once everything is written). Returns the directory."""
+        directory = Path(directory)
+        with atomic_directory(directory) as tmp:
+            _write(Path(tmp), self)
+        self.out = directory
+        return directory
+
+
+# -------------------------------------------------------------------------------------------------- run
+def _scene_name(path: str) -> str:
+    stem = Path(path).stem
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", stem) or "scene"
+
+
+def _check_out(out: Path) -> None:
+    probe = out
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK):
+        raise AuditError(f"--out {out}: {probe} is not a writable directory")
+
+
+def _rows(family: AuditFamily, app: Applicability, sel: Selection) -> list[tuple[str, Method, bool]]:
+    """(row id, method, user?) of one applicability: its applicable shipped methods (restricted by
+    ``--approx`` method names) and the user approximations of the family's quantity."""
+    keep = sel.methods.get(family.name)
+    rows = [(m, FAMILIES[family.name][m], False) for m in app.methods if keep is None or m in keep]
+    rows += [(m.id, m, True) for m in sel.user if m.quantity == family.quantity]
+    return rows
+
+
+def _evaluate(method: Method, case: FamilyCase, params: Mapping[str, float]) -> np.ndarray:
+    """The method on the case's masked pixels, per channel, times the case's factor: an image (H, W, 3)."""
+    img = np.zeros((*case.mask.shape, 3))
+    vals = []
+    for inputs in case.channel_inputs:
+        v = np.asarray(method.evaluate(dict(inputs), dict(params)), np.float64)
+        vals.append(np.broadcast_to(v, (int(case.mask.sum()),)))
+    out = np.stack(vals, axis=-1)
+    if case.factor is not None:
+        out = out * case.factor[:, None]
+    img[case.mask] = out
+    return img
+
+
+def _bad_values(method: Method, img: np.ndarray, case: FamilyCase) -> str | None:
+    bad = ~np.isfinite(img[case.mask])
+    if not bad.any():
+        return None
+    k = int(np.argmax(bad.any(axis=1)))
+    inputs = {n: (np.asarray(v)[k] if np.ndim(v) else v) for n, v in case.channel_inputs[0].items()}
+    at = ", ".join(f"{n}={float(v):.6g}" for n, v in inputs.items() if n in method.input_names)
+    return f"{method.id}: returned a non-finite value on {case.label} at {at}"
+
+
+def _fit(method: Method, case: FamilyCase) -> dict:
+    """Fit ``method``'s free parameters to the case's reference over the masked pixels and the three channels
+    (where the case's factor is positive, the target divided by it), unweighted: the least-squares fit of the
+    image's RMSE in the quantity's units."""
+    ref = case.reference.mean[case.mask]
+    keep = np.ones(len(ref), bool) if case.factor is None else case.factor > 0
+    scale = np.ones(len(ref)) if case.factor is None else np.where(keep, case.factor, 1.0)
+    names = method.input_names
+    inputs: dict[str, Any] = {}
+    for n in names:
+        parts = []
+        for inp in case.channel_inputs:
+            v = inp[n]
+            parts.append(
+                np.asarray(v, np.float64)[keep] if np.ndim(v) else np.full(int(keep.sum()), float(v))
+            )
+        inputs[n] = np.concatenate(parts)
+    target = np.concatenate([ref[keep, c] / scale[keep] for c in range(3)])
+    return fit_method(method, inputs, target).to_dict()
+
+
+def _cost(method: Method, case: FamilyCase, backend: str, size: int = _COST_ELEMENTS) -> dict:
+    """ns per pixel of ``method`` (declared parameters) on the backend, its inputs (channel 0 of the case)
+    tiled to ``size`` float32 elements."""
+    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    n = int(case.mask.sum())
+    reps = max(1, -(-size // max(n, 1)))
+    args, keys, consts = [], [], {}
+    for name in method.input_names:
+        v = case.channel_inputs[0][name]
+        if np.ndim(v):
+            a = np.tile(np.asarray(v, np.float64), reps)[:size]
+            a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
+            args.append(Float(a))
+            keys.append(name)
+        else:
+            consts[name] = float(v)
+    elements = min(n * reps, size) if keys else 1
+
+    def call(*xs):
+        return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))})
+
+    t = time_drjit(call, tuple(args), elements)
+    return {**t.to_dict(), "backend": backend}
+
+
+def audit(
+    scene_or_path,
+    approximations=None,
+    *,
+    spp: int | None = None,
+    variant: str | None = None,
+    fit: bool = True,
+    out=None,
+    defines: Mapping[str, str] | None = None,
+    camera: int = 0,
+    width: int | None = None,
+    height: int | None = None,
+    up: str | None = None,
+    seed: int = 0,
+    cache=None,
+    pass_spp: int | None = None,
+    progress: bool = False,
+    ao_distance: float | None = None,
+    say=None,
+    cost_elements: int = _COST_ELEMENTS,
+    metrics: Sequence[str] = ALL_METRICS,
+) -> AuditResult:
+    """Audit the scene ``scene_or_path`` (a Mitsuba ``.xml`` path; module docstring) and return an
+    `AuditResult`; with ``out`` (a directory) also write the report there. ``approximations``: see
+    `resolve_approximations`. ``spp``: reference samples per pixel (default `DEFAULT_SPP`), in passes of
+    ``pass_spp``; ``variant``: the Mitsuba variant (default ``llvm_ad_rgb``; the caller's own variant is put
+    back afterwards); ``fit``: fit free parameters to this scene. Bad input raises `AuditError` (one line)
+    before anything is rendered or written. ``say``: a function taking one progress line (default: log).
+    ``cost_elements``: how many elements each method's cost is measured on (the scene's inputs, tiled);
+    ``metrics``: the metric names (`rtfit.fitting.ALL_METRICS`; ꟻLIP costs ~0.4 s per call on the CPU)."""
+    say = say or log.info
+    try:
+        variant = resolve_variant(variant or "llvm_ad_rgb")
+    except ValueError as e:
+        raise AuditError(f"--variant: {e}") from None
+    spp = int(spp or DEFAULT_SPP)
+    pass_spp = int(pass_spp or min(DEFAULT_PASS_SPP, spp))
+    if spp < 2 or pass_spp < 2:
+        raise AuditError(f"--spp {spp}: at least 2 samples per pixel (the variance needs two)")
+    if variant.startswith("scalar"):
+        raise AuditError(
+            f"--variant {variant}: the audit needs a vectorised variant (llvm_ad_rgb, cuda_ad_rgb)"
+        )
+    info = inspect_scene(scene_or_path, defines=defines, camera=camera, width=width, height=height, up=up)
+    if info.xml is None:
+        raise AuditError(
+            f"{info.source}: the audit itself runs on Mitsuba XML scenes ({info.format} scenes: --list only, "
+            "for now)"
+        )
+    sel = resolve_approximations(approximations)
+    found = applicable_families(info, approx=sel.families, ao_distance=ao_distance)
+    audited = [a for a in found if a.family in AUDITED]
+    skipped = [
+        f"{a.family} ({a.role}: {a.part}): listed by --list, not audited yet"
+        for a in found
+        if a.family not in AUDITED
+    ]
+    if not audited:
+        raise AuditError(
+            f"the audit of {', '.join(dict.fromkeys(a.family for a in found))} is not built yet "
+            f"(audited families: {', '.join(AUDITED)}); rtfit audit --list shows what applies"
+        )
+    for a in audited:
+        if not _rows(AUDITED[a.family], a, sel):
+            raise AuditError(f"{a.family}: none of the methods named in --approx applies to {a.part}")
+    say(f"camera: {info.camera}; up: {info.up_reason}")
+    target = None
+    if out is not None:
+        target = Path(out) / f"audit-{_scene_name(info.source)}"
+        _check_out(target)
+    cache_root = Path(cache) if cache is not None else default_cache_dir()
+    backend = "cuda" if variant.startswith("cuda") else "llvm"
+    set_default_backend(backend)
+
+    timings = {"reference": 0.0, "evaluation": 0.0, "fit": 0.0}
+    t0 = time.perf_counter()
+    xml = info.xml
+    digest = xml.dependencies.digest
+    cam = xml.camera
+    try:
+        with loaded_xml(xml.path, defines, variant, camera=camera, width=width, height=height) as loaded:
+            mi = loaded.mi
+            gb = gbuffer(mi, loaded.scene, loaded.sensor)
+            mask = gb.mask & ~gb.emitter
+            if not mask.any():
+                raise AuditError(f"{info.source}: the camera sees no surface that is not itself a light")
+            setup = AuditSetup(
+                mi=mi,
+                scene=loaded.scene,
+                sensor=loaded.sensor,
+                emitters=loaded.emitters,
+                info=info,
+                gbuffer=gb,
+                mask=mask,
+                cache_root=cache_root,
+                variant=variant,
+                spp=spp,
+                pass_spp=pass_spp,
+                seed=int(seed),
+                progress=progress,
+                scene_digest=f"{digest}:camera{camera}:{cam.width if cam else 0}x{cam.height if cam else 0}",
+                ao_distance=ao_distance,
+            )
+            plan: list[tuple[AuditFamily, Applicability, FamilyCase]] = []
+            for a in audited:
+                family = AUDITED[a.family]
+                say(f"{a.family}: references for {a.part} ({spp} spp in passes of {pass_spp})")
+                for case in family.cases(setup, a):
+                    plan.append((family, a, case))
+    except XMLSceneError as e:
+        raise AuditError(str(e)) from None
+    timings["reference"] = time.perf_counter() - t0
+
+    outcomes: dict[str, dict[str, MethodOutcome]] = {}
+    costs: dict[str, dict] = {}
+    for family, a, case in plan:
+        rows = outcomes.setdefault(case.id, {})
+        sigma = case.reference.sigma()
+        for row_id, method, user in _rows(family, a, sel):
+            t1 = time.perf_counter()
+            img = _evaluate(method, case, {})
+            bad = _bad_values(method, img, case)
+            if bad:
+                raise AuditError(bad)
+            metrics = compute_metrics(
+                img, case.reference.mean, sigma, case.mask, names=tuple(metrics), seed=int(seed)
+            )
+            rows[row_id] = MethodOutcome(
+                case.id, row_id, method, method.label, img, metrics, method.defaults(), user=user
+            )
+            if method.id not in costs:
+                costs[method.id] = {"label": method.label, **_cost(method, case, backend, cost_elements)}
+            timings["evaluation"] += time.perf_counter() - t1
+            if fit and method.params:
+                t2 = time.perf_counter()
+                result = _fit(method, case)
+                values = {k: v["value"] for k, v in result["parameters"].items()}
+                img_f = _evaluate(method, case, values)
+                metrics_f = compute_metrics(
+                    img_f, case.reference.mean, sigma, case.mask, names=tuple(metrics), seed=int(seed)
+                )
+                rows[f"{row_id}-fitted"] = MethodOutcome(
+                    case.id,
+                    f"{row_id}-fitted",
+                    method,
+                    f"{method.label} (fitted to this scene)",
+                    img_f,
+                    metrics_f,
+                    values,
+                    fit=result,
+                    user=user,
+                )
+                timings["fit"] += time.perf_counter() - t2
+        say(f"{case.id}: {len(rows)} rows evaluated")
+    result = AuditResult(
+        info=info,
+        cases=[c for _, _, c in plan],
+        outcomes=outcomes,
+        costs=costs,
+        timings=timings,
+        results=None,  # type: ignore[arg-type]  (built next)
+        skipped=skipped,
+    )
+    result.results = _results(
+        result, plan, variant=variant, spp=spp, pass_spp=pass_spp, seed=int(seed), sel=sel
+    )
+    if target is not None:
+        result.write_report(target)
+    return result
+
+
+# ---------------------------------------------------------------------------------------------- results
+def _checks(plan, outcomes) -> list[dict]:
+    """z-scores of the exact methods (``Method.exact``) against the unfactored references: an exact closed
+    form must sit at the reference's noise (the check that reference and inputs measure the same thing)."""
+    checks = []
+    for _family, _a, case in plan:
+        if case.factor is not None:
+            continue
+        for row in outcomes[case.id].values():
+            if not row.method.exact or row.fit:
+                continue
+            ref = case.reference
+            pair = z_pair(
+                row.image[case.mask],
+                ref.mean[case.mask],
+                ref.stderr[case.mask],
+                ref.sigma()[case.mask],
+                precision_floor=RELATIVE_PRECISION_FLOOR,
+            )
+            checks += z_checks(f"{row.row} vs the reference, {case.label}", *concat_z_pairs([pair]))
+    return checks
+
+
+def _fit_record(case: FamilyCase, row: MethodOutcome) -> dict:
+    f = row.fit or {}
+    return {
+        "id": f"{case.id}/{row.row}",
+        "label": f"{row.method.label}, {case.label}",
+        "model": row.method.formula or row.method.label,
+        "parameters": f.get("parameters", {}),
+        "rms_residual": f.get("rms_residual"),
+        "n_residuals": f.get("n_residuals"),
+        "converged": f.get("converged"),
+        "at_bound": [k for k, v in f.get("parameters", {}).items() if v.get("at_bound")],
+        "message": f.get("message"),
+        "file": "fitted/audit.json",
+    }
+
+
+def _results(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selection) -> Results:
+    info = r.info
+    case_docs = []
+    for _family, _a, case in plan:
+        ref = case.reference
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = ref.stderr[case.mask] / np.abs(ref.mean[case.mask])
+        rel = rel[np.isfinite(rel)]
+        approx = []
+        for row in r.outcomes[case.id].values():
+            c = r.costs.get(row.method.id)
+            approx.append(
+                {
+                    "method": row.row,
+                    "label": row.label + (" [yours]" if row.user else ""),
+                    "fitted": row.fit is not None,
+                    "parameters": {k: float(v) for k, v in row.parameters.items()},
+                    "metrics": row.metrics.to_dict(),
+                    "cost": {
+                        "ns_per_pixel": c["ns_per_pixel"],
+                        "pixels_per_second": c["pixels_per_second"],
+                        "backend": c["backend"],
+                    }
+                    if c
+                    else None,
+                }
+            )
+        case_docs.append(
+            {
+                "id": case.id,
+                "label": case.label,
+                "parameters": dict(case.parameters),
+                "scene": {
+                    "name": Path(info.source).name,
+                    "hash": info.xml.dependencies.digest if info.xml else None,
+                },
+                "reference": {
+                    "cache_key": ref.cache_key,
+                    "quantity": ref.quantity,
+                    "integrator": ref.integrator,
+                    "integrator_reason": ref.integrator_reason,
+                    "variant": variant,
+                    "spp": ref.spp,
+                    "passes": ref.passes,
+                    "mean_rel_stderr": float(np.mean(rel)) if rel.size else 0.0,
+                    "samples_per_second": float(case.mask.sum() * ref.spp / ref.seconds)
+                    if ref.seconds > 0
+                    else None,
+                },
+                "approximations": approx,
+            }
+        )
+    figs = r._figures
+    fits = [_fit_record(c, row) for _f, _a, c in plan for row in r.outcomes[c.id].values() if row.fit]
+    costs = [
+        {"method": mid, "label": c["label"], "backend": c["backend"], "ns_per_pixel": c["ns_per_pixel"],
+         "pixels_per_second": c["pixels_per_second"], "elements": c["elements"], "repeats": c["repeats"],
+         "note": "per pixel: the scene's own inputs, tiled, as float32; declared parameters"}
+        for mid, c in r.costs.items()
+    ]  # fmt: skip
+    families = sorted({f.name for f, _a, _c in plan})
+    sections = [
+        {
+            "id": "scene",
+            "title": "Scene",
+            "text": "\n\n".join(
+                [
+                    f"`{info.source}` ({info.format})",
+                    *info.contents,
+                    f"Camera: {info.camera}.",
+                    f"Up: {info.up_reason}.",
+                ]
+            ),
+        },
+        *({"id": f"method-{f}", "title": f"Method: {f}", "text": AUDITED[f].describe} for f in families),
+    ]
+    notes = [
+        "Every approximation is evaluated at the pixel centres the reference is point-sampled at, so an "
+        "exact formula leaves only the reference's noise; metrics below their noise floor are not resolved.",
+        "Rows '… (fitted to this scene)' have their free parameters least-squares fitted to this scene's "
+        "reference (all compared pixels and channels); the fitted values are in fitted/audit.json.",
+        *r.skipped,
+    ]
+    if sel.user:
+        notes.append(
+            "Your approximations: " + ", ".join(f"{m.id} ({m.source or m.quantity})" for m in sel.user) + "."
+        )
+    best = _summary(r, plan)
+    doc = {
+        "schema": SCHEMA,
+        "experiment": "audit",
+        "title": f"Audit of {Path(info.source).name}",
+        "created": created_now(),
+        "versions": versions(),
+        "device": device_description(variant),
+        "summary": best,
+        "config": {
+            "variant": variant,
+            "spp": spp,
+            "seed": seed,
+            "extra": {
+                "scene": info.source,
+                "families": families,
+                "pass_spp": pass_spp,
+                "approximations": [m.id for m in sel.user],
+                "timings_s": {k: round(v, 3) for k, v in r.timings.items()},
+            },
+        },
+        "sections": sections,
+        "cases": case_docs,
+        "fits": fits,
+        "figures": figs,
+        "costs": costs,
+        "checks": _checks(plan, r.outcomes),
+        "notes": notes,
+    }
+    return from_json(Results, plain_json(doc), f"audit of {info.source}")
+
+
+def _summary(r: AuditResult, plan) -> str:
+    lines = []
+    for _f, _a, case in plan:
+        rows = r.outcomes[case.id]
+        ranked = sorted(
+            rows.values(), key=lambda o: o.metrics["rmse"].value if "rmse" in o.metrics else math.inf
+        )
+        if not ranked:
+            continue
+        b = ranked[0]
+        m = b.metrics["rmse"]
+        lines.append(
+            f"{case.label}: best {b.label} (RMSE {m.value:.4g} {case.units}, noise floor {m.noise_floor:.2g})"
+        )
+    return "; ".join(lines) + "."
+
+
+# ------------------------------------------------------------------------------------------------ write
+def _write(directory: Path, r: AuditResult) -> None:
+    figs = _make_figures(directory, r)
+    doc = plain_json(_to_doc(r.results))
+    for f in figs:  # (the figures name their case: placed after the case tables, in case order)
+        f.pop("_case", None)
+    doc["figures"] = figs
+    results = from_json(Results, doc, f"audit of {r.info.source}")
+    r.results = results
+    _write_fitted(directory, r)
+    write_results(directory, results)
+    write_report(directory)
+
+
+def _to_doc(results: Results) -> dict:
+    return to_json(results)
+
+
+def _make_figures(directory: Path, r: AuditResult) -> list[dict]:
+    out = []
+    for case in r.cases:
+        rows = list(r.outcomes[case.id].values())
+        name = f"figures/{case.id}_images.png"
+        figures.image_comparison(
+            directory / name,
+            case.reference.mean,
+            [(o.label, o.image) for o in rows],
+            case.mask,
+            error_scale=float(np.max(case.reference.mean[case.mask])) or 1.0,
+            title=f"{case.label}: reference, each approximation, signed error (fraction of the peak)",
+        )
+        caption = (
+            f"{case.label}. Top: the reference and each approximation (same exposure). Bottom: signed error "
+            "as a fraction of the reference's peak (red: too bright)."
+        )
+        out.append({"file": name, "section": "results", "_case": case.id, "caption": caption})
+        maps = []
+        for o in rows:
+            try:
+                maps.append((o.label, flip_error_map(o.image, case.reference.mean, case.mask)))
+            except ValueError:
+                break
+        if maps:
+            name = f"figures/{case.id}_flip.png"
+            _flip_figure(directory / name, maps, case.mask, case.label)
+            out.append({"file": name, "section": "results", "_case": case.id,
+                        "caption": f"{case.label}: HDR-ꟻLIP error map of each approximation (0: no visible "
+                        "difference, 1: largest)."})  # fmt: skip
+    return out
+
+
+def _flip_figure(path: Path, maps, mask, title: str) -> None:
+    plt = figures.pyplot()
+    n = len(maps)
+    fig, axes = plt.subplots(1, n, figsize=(2.3 * n, 2.6), squeeze=False)
+    im = None
+    for ax, (label, m) in zip(axes[0], maps, strict=True):
+        im = ax.imshow(np.where(mask, m, np.nan), cmap="magma", vmin=0.0, vmax=1.0)
+        ax.set_title(f"{label}\nmean {float(np.mean(m[mask])):.3g}", fontsize=8)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if im is not None:
+        fig.colorbar(im, ax=list(axes[0]), shrink=0.8)
+    fig.suptitle(f"{title}: ꟻLIP", fontsize=10)
+    figures.save_figure(fig, path)
+
+
+def _write_fitted(directory: Path, r: AuditResult) -> None:
+    entries = []
+    for case in r.cases:
+        for o in r.outcomes[case.id].values():
+            if not o.fit:
+                continue
+            dom = {}
+            for name in o.method.input_names:
+                v = case.channel_inputs[0].get(name)
+                if v is not None and np.ndim(v):
+                    a = np.asarray(v, np.float64)
+                    a = a[np.isfinite(a)]
+                    if a.size:
+                        dom[name] = (float(a.min()), float(a.max()))
+            entries.append(
+                fitfiles.method_entry(
+                    o.method,
+                    o.fit,
+                    label=f"{o.method.label}, {case.label}",
+                    case=re.sub(r"[^A-Za-z0-9_]", "_", case.id),
+                    domain=dom,
+                    residual_units=f"{case.units}: residual = method − reference per pixel and channel",
+                    data={"scene": r.info.source, "case": case.id},
+                )
+            )
+    if not entries:
+        return
+    prov = fitfiles.provenance(None, "audit", [r.info.xml.dependencies.digest] if r.info.xml else [],
+                               reference_spp=max(c.reference.spp for c in r.cases))  # fmt: skip
+    fitfiles.write_fitted(
+        directory / "fitted" / "audit.json",
+        fitfiles.FittedFile(
+            format=fitfiles.FORMAT,
+            title=f"parameters fitted to {Path(r.info.source).name} by rtfit audit",
+            provenance=prov,
+            methods=entries,
+        ),
+    )

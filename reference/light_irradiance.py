@@ -1,0 +1,99 @@
+"""One light's direct irradiance at given surface points: unshadowed, shadowed, and at normal incidence.
+
+The audit's reference for the diffuse family (`rtfit.experiments.audit`): for each visible point x with
+unit normal n (the pixel-centre G-buffer) and one emitter of the scene,
+
+    E_u(x, n) = ∫ L_e(x ← ω) max(n·ω, 0) dω            (unshadowed: the light alone, nothing in between)
+    E_s(x, n) = ∫ L_e(x ← ω) V(x, ω) max(n·ω, 0) dω    (shadowed: V = 1 where nothing blocks the way)
+    E⊥(x)     = E_u(x, t)                               (at normal incidence: t = the unit direction
+                                                         from x to the light's centre)
+
+in W/m² per RGB channel, estimated with Mitsuba's own emitter sampling (``Emitter.sample_direction``:
+the light's value divided by the pdf of the sampled direction, solid-angle measure) and, for E_s,
+Mitsuba's own shadow rays (``Scene.ray_test`` of ``spawn_ray_to``), exactly what Mitsuba's ``direct``
+integrator does for the emitter-sampling strategy on a white Lambertian receiver. Emitter sampling alone
+is unbiased for every light Mitsuba can sample (delta lights: point, spot, directional — one sample is
+exact; area lights: the sampled density covers the whole emitting surface), and the cheapest exact
+estimator of one light's direct irradiance: no BSDF sampling, no path continuation. E_u and E_s share their
+samples (their difference, the shadow, is precise). E⊥ is an input of the approximations compared with E_u
+and E_s, so it is estimated from `PERP_SAMPLES` samples of its own per sample of theirs: its noise is
+independent of the reference's (shared noise would let an approximation follow the reference's noise and
+read below the noise floor) and smaller.
+
+Each pass returns per point the sample mean and unbiased sample variance of ``spp`` iid samples of the 9
+values (E_u, E_s, E⊥; RGB each), float64 sums on the device (`estimators.moments`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import drjit as dr
+import numpy as np
+
+from .estimators import PassResult, chunk_ranges, mean_var, sub_seed
+
+__all__ = ["CHANNELS", "PERP_SAMPLES", "light_irradiance_pass"]
+
+PERP_SAMPLES = 4
+"""Independent emitter samples of E⊥ per sample of E_u/E_s."""
+
+CHANNELS = ("unshadowed", "shadowed", "normal_incidence")
+"""The three RGB triples of a pass, in order (columns 0–2, 3–5, 6–8)."""
+
+
+def _sums(mi, values, spp: int):
+    dr.eval(values)
+    sums, sqs = [], []
+    for v in values:
+        v64 = mi.Float64(v)
+        sums.append(dr.block_sum(v64, spp))
+        sqs.append(dr.block_sum(v64 * v64, spp))
+    dr.eval(sums, sqs)
+    s = np.stack([np.asarray(x, dtype=np.float64) for x in sums], axis=-1)
+    q = np.stack([np.asarray(x, dtype=np.float64) for x in sqs], axis=-1)
+    return s, q
+
+
+def light_irradiance_pass(mi, mi_scene, emitter, points, normals, towards, spp: int, seed: int) -> PassResult:
+    """E_u, E_s, E⊥ (module docstring) of ``emitter`` at ``points`` (N, 3) with unit ``normals`` (N, 3);
+    ``towards`` (N, 3): the unit direction to the light's centre at each point. Mean and variance (N, 9)."""
+    if spp < 2:
+        raise ValueError(f"spp per pass must be >= 2 to estimate the variance (got {spp})")
+    if mi.variant().startswith("scalar"):
+        raise ValueError("the light-irradiance pass needs a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
+    t0 = time.perf_counter()
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    nrm = np.ascontiguousarray(normals, dtype=np.float32)
+    tow = np.ascontiguousarray(towards, dtype=np.float32)
+    n_points = len(pts)
+    s = np.empty((n_points, 9))
+    q = np.empty((n_points, 9))
+    sampler = mi.load_dict({"type": "independent"})
+    for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
+        sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
+        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp
+        p = dr.gather(mi.Point3f, mi.Point3f(pts[a:b].T), idx)
+        n = dr.gather(mi.Vector3f, mi.Vector3f(nrm[a:b].T), idx)
+        t = dr.gather(mi.Vector3f, mi.Vector3f(tow[a:b].T), idx)
+        it = dr.zeros(mi.SurfaceInteraction3f, dr.width(p))
+        it.p = p
+        it.n = n
+        it.sh_frame = mi.Frame3f(n)
+        it.wi = mi.Vector3f(0, 0, 1)
+        ds, weight = emitter.sample_direction(it, sampler.next_2d(), True)
+        ok = ds.pdf > 0.0
+        e_u = weight * dr.maximum(dr.dot(ds.d, n), 0.0)
+        visible = ok & ~mi_scene.ray_test(it.spawn_ray_to(ds.p), ok)
+        e_s = dr.select(visible, e_u, 0.0)
+        e_perp = mi.Color3f(0.0)
+        for _ in range(PERP_SAMPLES):
+            ds2, w2 = emitter.sample_direction(it, sampler.next_2d(), True)
+            e_perp += dr.select(ds2.pdf > 0.0, w2 * dr.maximum(dr.dot(ds2.d, t), 0.0), 0.0)
+        e_perp = e_perp / PERP_SAMPLES
+        values = [dr.select(ok, e_u[c], 0.0) for c in range(3)]
+        values += [dr.select(ok, e_s[c], 0.0) for c in range(3)]
+        values += [e_perp[c] for c in range(3)]
+        s[a:b], q[a:b] = _sums(mi, values, spp)
+    mean, var = mean_var(s, q, spp)
+    return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
