@@ -115,7 +115,8 @@ class Part:
     label: str
     source: int | None = None
     """Index of what the part stands for in its scene record (`XmlScene.emitters` for a light or an
-    environment of an XML scene); ``None`` for parts that stand for the whole scene (surfaces, geometry)."""
+    environment of an XML scene, `Scene.media` for a medium of a TOML scene); ``None`` for parts that stand
+    for the whole scene (surfaces, geometry)."""
 
     @property
     def provides(self) -> frozenset[str]:
@@ -503,7 +504,7 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
             parts.append(Part(frozenset({"geometry"}), f"the scene's geometry ({types})"))
     for i, medium in enumerate(scene.media):
         kind = {"exponential_fog": "fog"}.get(medium.kind, "medium")
-        parts.append(Part(frozenset({kind}), f"{medium.kind.replace('_', ' ')} medium (media[{i}])"))
+        parts.append(Part(frozenset({kind}), f"{medium.kind.replace('_', ' ')} medium (media[{i}])", i))
     c = scene.camera
     axis = up or "+z"
     reason = f"{up} as given (--up)" if up else "+z: rtfit TOML scenes are +z up (the world-frame convention)"

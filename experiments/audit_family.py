@@ -18,7 +18,16 @@ A case's reference is an image (H, W, 3) with its per-pixel standard error; the 
 masked pixels only, once per RGB channel (``channel_inputs``: each input name → an array over the masked
 pixels, or a float), and each value is multiplied by ``factor`` where the case has one (e.g. the hard shadow
 of the light's centre, what a shadow map gives an engine). A fit uses the elements where the factor is
-positive, divided by it.
+positive, divided by it. A case whose quantity is RGB-valued (``fogged_radiance``, ``sky_radiance``: the
+method returns the tuple (R, G, B)) has **one** mapping in ``channel_inputs``; a float or an array that is
+not per pixel (a table) is passed to the method as it is.
+
+A case may compare its own rows and quantity (the media families: the height-fog optical-depth forms are
+compared as transmittances T = e^(−τ), the shading models on the fogged image): ``methods`` (row id →
+`Method`, replacing the family's table for this case; a row whose ``Method.id`` is not among the
+applicability's methods is dropped), ``quantity`` (user approximations of it are its rows) and ``params``
+(row id → parameter name → `Param`: the value the row is evaluated with, ``Param.initial``, and the start
+and bounds of its fit, e.g. the scene's own fog density).
 """
 
 from __future__ import annotations
@@ -30,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from rtfit.realtime.methods import Method, Param
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
 from rtfit.reference.estimators import GBuffer
 
@@ -62,6 +72,10 @@ class AuditSetup:
     progress: bool
     scene_digest: str
     ao_distance: float | None = None
+    source: Any = None
+    """The rtfit `Scene` of a TOML input (its camera at the run's film size), or the `AtmosphereSpec` of an
+    rtfit sky file (whose camera is the azimuth × elevation panorama of `sky_view`); None for Mitsuba XML
+    (``info.xml``)."""
 
 
 @dataclass(frozen=True)
@@ -93,7 +107,8 @@ class FamilyCase:
     """One comparison: ``id`` (file-name safe), ``label``, ``parameters`` (free-form, into results.json),
     the ``reference``, the ``mask`` (H, W) of compared pixels, ``channel_inputs`` (one mapping per RGB
     channel: input name → array over the masked pixels, or a float), ``factor`` (over the masked pixels,
-    or None), ``units`` of the quantity and ``notes`` (sentences for the report)."""
+    or None), ``units`` of the quantity and ``notes`` (sentences for the report); ``methods``, ``quantity``
+    and ``params``: the case's own rows (module docstring; empty: the family's)."""
 
     id: str
     label: str
@@ -104,14 +119,23 @@ class FamilyCase:
     factor: np.ndarray | None = None
     units: str = ""
     notes: tuple[str, ...] = ()
+    methods: Mapping[str, Method] | None = None
+    quantity: str = ""
+    params: Mapping[str, Mapping[str, Param]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class AuditFamily:
-    """One audited family (module docstring): ``name``, ``quantity``, ``cases``, and ``describe``: one
-    paragraph for the report's method section."""
+    """One audited family (module docstring): ``name``, ``quantity``, ``cases``, ``describe``: one
+    paragraph for the report's method section, ``quantities``: further quantities its cases compare, and
+    ``formats``: the scene formats it reads."""
 
     name: str
     quantity: str
     cases: Callable[[AuditSetup, Applicability], list[FamilyCase]]
     describe: str = ""
+    quantities: tuple[str, ...] = ()
+    """Further quantities some of its cases compare (`FamilyCase.quantity`)."""
+    formats: tuple[str, ...] = ("mitsuba-xml",)
+    """The scene formats (`SceneInfo.format`: ``mitsuba-xml``, ``rtfit-toml``, ``rtfit-sky``) its cases read;
+    on another format the family is named in the run's notes as not audited for it."""

@@ -26,13 +26,15 @@ the families that apply, `rtfit.experiments.audit.RULES`):
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import logging
 import math
 import os
 import re
 import time
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -43,10 +45,13 @@ from rtfit.fitting import ALL_METRICS, compute_metrics, concat_z_pairs, fit_meth
 from rtfit.realtime import set_default_backend
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import is_user_approximation
+from rtfit.reference.build import load_dict, mitsuba_scene_dict
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, default_cache_dir
-from rtfit.reference.estimators import gbuffer
+from rtfit.reference.estimators import GBuffer, gbuffer
 from rtfit.reference.mitsuba_xml import XMLSceneError, loaded_xml
-from rtfit.reference.variants import resolve_variant
+from rtfit.reference.nishita_sky import hemisphere_directions, load_atmosphere_scene
+from rtfit.reference.variants import resolve_variant, scoped_variant
+from rtfit.scenes import load_scene, scene_hash
 
 from . import figures
 from . import fitted as fitfiles
@@ -54,6 +59,7 @@ from .atomic import atomic_directory
 from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_families, inspect_scene
 from .audit_diffuse import FAMILY as DIFFUSE
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_height_fog import FAMILY as HEIGHT_FOG
 from .cost import time_drjit
 from .records import SCHEMA, Results, from_json, plain_json, to_json
 from .registry import ALIASES
@@ -74,7 +80,7 @@ __all__ = [
 
 log = logging.getLogger("rtfit.audit")
 
-AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE,)}
+AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE, HEIGHT_FOG)}
 """The families the audit runs (name → declaration, `audit_family.AuditFamily`). A family listed by
 ``--list`` but not here is named in the run's notes as not audited yet."""
 
@@ -149,7 +155,7 @@ def resolve_approximations(approximations) -> Selection:
             check_approximation(m)
         except UserMethodError as e:
             raise AuditError(str(e)) from None
-        if not any(f.quantity == m.quantity for f in AUDITED.values()):
+        if not any(m.quantity in (f.quantity, *f.quantities) for f in AUDITED.values()):
             raise AuditError(
                 f"{m.id}: approximates {m.quantity}; the audit of that quantity is not built yet "
                 f"(audited: {', '.join(f'{f.quantity} ({f.name})' for f in AUDITED.values())})"
@@ -160,11 +166,13 @@ def resolve_approximations(approximations) -> Selection:
         raise AuditError(f"--approx: approximation id {', '.join(dup)} given twice")
     for m in user:
         for fam in AUDITED.values():
-            if m.quantity == fam.quantity and m.id in FAMILIES[fam.name]:
+            if m.quantity in (fam.quantity, *fam.quantities) and m.id in FAMILIES[fam.name]:
                 raise AuditError(f"{m.id}: the id of a shipped {fam.name} method; give it id=… of its own")
     named = list(dict.fromkeys([*families, *methods]))
     if not named and user:
-        named = [f.name for f in AUDITED.values() if any(m.quantity == f.quantity for m in user)]
+        named = [
+            f.name for f in AUDITED.values() if any(m.quantity in (f.quantity, *f.quantities) for m in user)
+        ]
     return Selection(tuple(named) or None, {k: frozenset(v) for k, v in methods.items()}, tuple(user))
 
 
@@ -258,22 +266,45 @@ def _check_out(out: Path) -> None:
         raise AuditError(f"--out {out}: {probe} is not a writable directory")
 
 
-def _rows(family: AuditFamily, app: Applicability, sel: Selection) -> list[tuple[str, Method, bool]]:
-    """(row id, method, user?) of one applicability: its applicable shipped methods (restricted by
-    ``--approx`` method names) and the user approximations of the family's quantity."""
+def _rows(
+    family: AuditFamily, app: Applicability, sel: Selection, case: FamilyCase | None = None
+) -> list[tuple[str, Method, bool]]:
+    """(row id, method, user?) of one applicability (or of one of its cases, which may carry rows and a
+    quantity of its own: `FamilyCase.methods`): its applicable shipped methods (restricted by ``--approx``
+    method names) and the user approximations of the quantity."""
     keep = sel.methods.get(family.name)
-    rows = [(m, FAMILIES[family.name][m], False) for m in app.methods if keep is None or m in keep]
-    rows += [(m.id, m, True) for m in sel.user if m.quantity == family.quantity]
+    table = FAMILIES[family.name] if case is None or case.methods is None else case.methods
+    rows = [
+        (r, m, False)
+        for r, m in table.items()
+        if m.id in app.methods and (keep is None or m.id in keep or r in keep)
+    ]
+    quantities = {family.quantity, *family.quantities} if case is None else {case.quantity or family.quantity}
+    rows += [(m.id, m, True) for m in sel.user if m.quantity in quantities]
     return rows
 
 
+def _given(case: FamilyCase, row: str, method: Method) -> dict[str, float]:
+    """The parameter values row ``row`` is evaluated with: the case's (`FamilyCase.params`) over the
+    method's declared defaults."""
+    own = case.params.get(row, {})
+    return {**method.defaults(), **{k: p.initial for k, p in own.items() if k in method.params}}
+
+
 def _evaluate(method: Method, case: FamilyCase, params: Mapping[str, float]) -> np.ndarray:
-    """The method on the case's masked pixels, per channel, times the case's factor: an image (H, W, 3)."""
+    """The method on the case's masked pixels, per channel (or once, returning (R, G, B), on a case with one
+    mapping), times the case's factor: an image (H, W, 3)."""
     img = np.zeros((*case.mask.shape, 3))
     vals = []
+    n = int(case.mask.sum())
     for inputs in case.channel_inputs:
-        v = np.asarray(method.evaluate(dict(inputs), dict(params)), np.float64)
-        vals.append(np.broadcast_to(v, (int(case.mask.sum()),)))
+        v = method.evaluate(dict(inputs), dict(params))
+        parts = v if isinstance(v, (tuple, list)) else (v,)
+        vals += [np.broadcast_to(np.asarray(p, np.float64), (n,)) for p in parts]
+    if len(vals) == 1:  # a grey value on a one-mapping case
+        vals *= 3
+    if len(vals) != 3:
+        raise AuditError(f"{method.id}: returned {len(vals)} channels on {case.label} (expected 3: R, G, B)")
     out = np.stack(vals, axis=-1)
     if case.factor is not None:
         out = out * case.factor[:, None]
@@ -291,11 +322,18 @@ def _bad_values(method: Method, img: np.ndarray, case: FamilyCase) -> str | None
     return f"{method.id}: returned a non-finite value on {case.label} at {at}"
 
 
-def _fit(method: Method, case: FamilyCase) -> dict:
+def _fit(method: Method, case: FamilyCase, row: str = "") -> dict:
     """Fit ``method``'s free parameters to the case's reference over the masked pixels and the three channels
     (where the case's factor is positive, the target divided by it), unweighted: the least-squares fit of the
-    image's RMSE in the quantity's units."""
+    image's RMSE in the quantity's units. On a one-mapping case the method returns (R, G, B) and its inputs
+    are passed as they are. Starts and bounds: the case's for the row (`FamilyCase.params`), else the
+    method's declared ones."""
     ref = case.reference.mean[case.mask]
+    start = {k: p for k, p in case.params.get(row, {}).items() if k in method.params}
+    params = {**method.params, **start}
+    if len(case.channel_inputs) == 1 and case.factor is None:
+        inputs = {n: case.channel_inputs[0][n] for n in method.input_names}
+        return fit_method(method, inputs, ref.T, params=params).to_dict()
     keep = np.ones(len(ref), bool) if case.factor is None else case.factor > 0
     scale = np.ones(len(ref)) if case.factor is None else np.where(keep, case.factor, 1.0)
     names = method.input_names
@@ -309,7 +347,7 @@ def _fit(method: Method, case: FamilyCase) -> dict:
             )
         inputs[n] = np.concatenate(parts)
     target = np.concatenate([ref[keep, c] / scale[keep] for c in range(3)])
-    return fit_method(method, inputs, target).to_dict()
+    return fit_method(method, inputs, target, params=params).to_dict()
 
 
 def _cost(method: Method, case: FamilyCase, backend: str, size: int = _COST_ELEMENTS) -> dict:
@@ -335,6 +373,58 @@ def _cost(method: Method, case: FamilyCase, backend: str, size: int = _COST_ELEM
 
     t = time_drjit(call, tuple(args), elements)
     return {**t.to_dict(), "backend": backend}
+
+
+SKY_VIEW = (64, 32)
+"""Default (W, H) of an rtfit sky file's camera: the azimuth × elevation panorama of the upper hemisphere
+(`rtfit.reference.nishita_sky.hemisphere_directions`: column i at azimuth 2π(i + ½)/W from the sun's, row j
+at elevation 90°·(1 − (j + ½)/H)); ``--width``/``--height`` override."""
+
+
+def sky_view(width: int, height: int) -> GBuffer:
+    """The G-buffer of a sky file's panorama camera: every pixel a sky pixel (``mask`` False) with its view
+    direction (`SKY_VIEW`)."""
+    dirs, _az, _el = hemisphere_directions(width, height)
+    zero = np.zeros((height, width, 3), np.float32)
+    none = np.zeros((height, width), bool)
+    return GBuffer(zero, zero, np.full((height, width), np.inf, np.float32), zero, none, none,
+                   dirs.astype(np.float32))  # fmt: skip
+
+
+@contextlib.contextmanager
+def _opened(info: SceneInfo, defines, variant: str, camera: int, width, height) -> Iterator[tuple]:
+    """The scene instantiated in ``variant`` (scoped: the caller's variant is put back): yields ``(mi,
+    Mitsuba scene, sensor, emitters, G-buffer, source, digest)``. Mitsuba XML: `loaded_xml`. An rtfit TOML
+    scene: rtfit's own Mitsuba build of its surfaces and lights (without its media, whose boundary shapes
+    are not surfaces; a family renders them itself), ``source`` the `Scene` at the run's film size. An
+    rtfit sky file: no Mitsuba scene (the family renders its own atmosphere), the panorama `sky_view`,
+    ``source`` the `AtmosphereSpec`. ``digest`` covers the content and the film size."""
+    if info.xml is not None:
+        xml = info.xml
+        cam = xml.camera
+        digest = (
+            f"{xml.dependencies.digest}:camera{camera}:{cam.width if cam else 0}x{cam.height if cam else 0}"
+        )
+        with loaded_xml(xml.path, defines, variant, camera=camera, width=width, height=height) as loaded:
+            gb = gbuffer(loaded.mi, loaded.scene, loaded.sensor)
+            yield loaded.mi, loaded.scene, loaded.sensor, loaded.emitters, gb, None, digest
+        return
+    if info.format == "rtfit-sky":
+        spec = load_atmosphere_scene(info.source)
+        w, h = int(width or SKY_VIEW[0]), int(height or SKY_VIEW[1])
+        digest = hashlib.sha256(repr((sorted(asdict(spec).items()), w, h)).encode()).hexdigest()
+        with scoped_variant(variant) as mi:
+            yield mi, None, None, (), sky_view(w, h), spec, digest
+        return
+    toml = load_scene(info.source)
+    if width or height:
+        size = {"width": int(width or toml.camera.width), "height": int(height or toml.camera.height)}
+        toml = replace(toml, camera=replace(toml.camera, **size))
+    digest = f"{scene_hash(toml)}:{toml.camera.width}x{toml.camera.height}"
+    with scoped_variant(variant) as mi:  # surfaces only: a medium's boundary shape is not a surface
+        mi_scene = load_dict(mi, mitsuba_scene_dict(mi, replace(toml, media=())))
+        sensor = mi_scene.sensors()[0]
+        yield mi, mi_scene, sensor, (), gbuffer(mi, mi_scene, sensor), toml, digest
 
 
 def audit(
@@ -381,23 +471,21 @@ def audit(
             f"--variant {variant}: the audit needs a vectorised variant (llvm_ad_rgb, cuda_ad_rgb)"
         )
     info = inspect_scene(scene_or_path, defines=defines, camera=camera, width=width, height=height, up=up)
-    if info.xml is None:
-        raise AuditError(
-            f"{info.source}: the audit itself runs on Mitsuba XML scenes ({info.format} scenes: --list only, "
-            "for now)"
-        )
     sel = resolve_approximations(approximations)
     found = applicable_families(info, approx=sel.families, ao_distance=ao_distance)
-    audited = [a for a in found if a.family in AUDITED]
+    audited = [a for a in found if a.family in AUDITED and info.format in AUDITED[a.family].formats]
     skipped = [
         f"{a.family} ({a.role}: {a.part}): listed by --list, not audited yet"
+        + (f" on {info.format} scenes" if a.family in AUDITED else "")
         for a in found
-        if a.family not in AUDITED
+        if a not in audited
     ]
     if not audited:
         raise AuditError(
-            f"the audit of {', '.join(dict.fromkeys(a.family for a in found))} is not built yet "
-            f"(audited families: {', '.join(AUDITED)}); rtfit audit --list shows what applies"
+            f"the audit of {', '.join(dict.fromkeys(a.family for a in found))} is not built yet for "
+            f"{info.format} scenes (audited families: "
+            + ", ".join(k + " (" + "/".join(f.formats) + ")" for k, f in AUDITED.items())
+            + "); rtfit audit --list shows what applies"
         )
     for a in audited:
         if not _rows(AUDITED[a.family], a, sel):
@@ -413,21 +501,17 @@ def audit(
 
     timings = {"reference": 0.0, "evaluation": 0.0, "fit": 0.0}
     t0 = time.perf_counter()
-    xml = info.xml
-    digest = xml.dependencies.digest
-    cam = xml.camera
     try:
-        with loaded_xml(xml.path, defines, variant, camera=camera, width=width, height=height) as loaded:
-            mi = loaded.mi
-            gb = gbuffer(mi, loaded.scene, loaded.sensor)
+        with _opened(info, defines, variant, camera, width, height) as opened:
+            mi, mi_scene, sensor, emitters, gb, source, scene_digest = opened
             mask = gb.mask & ~gb.emitter
-            if not mask.any():
+            if info.xml is not None and not mask.any():
                 raise AuditError(f"{info.source}: the camera sees no surface that is not itself a light")
             setup = AuditSetup(
                 mi=mi,
-                scene=loaded.scene,
-                sensor=loaded.sensor,
-                emitters=loaded.emitters,
+                scene=mi_scene,
+                sensor=sensor,
+                emitters=emitters,
                 info=info,
                 gbuffer=gb,
                 mask=mask,
@@ -437,8 +521,9 @@ def audit(
                 pass_spp=pass_spp,
                 seed=int(seed),
                 progress=progress,
-                scene_digest=f"{digest}:camera{camera}:{cam.width if cam else 0}x{cam.height if cam else 0}",
+                scene_digest=scene_digest,
                 ao_distance=ao_distance,
+                source=source,
             )
             plan: list[tuple[AuditFamily, Applicability, FamilyCase]] = []
             for a in audited:
@@ -452,12 +537,14 @@ def audit(
 
     outcomes: dict[str, dict[str, MethodOutcome]] = {}
     costs: dict[str, dict] = {}
+    plan = [(family, a, case) for family, a, case in plan if _rows(family, a, sel, case)]
     for family, a, case in plan:
         rows = outcomes.setdefault(case.id, {})
         sigma = case.reference.sigma()
-        for row_id, method, user in _rows(family, a, sel):
+        for row_id, method, user in _rows(family, a, sel, case):
             t1 = time.perf_counter()
-            img = _evaluate(method, case, {})
+            given = _given(case, row_id, method)
+            img = _evaluate(method, case, given)
             bad = _bad_values(method, img, case)
             if bad:
                 raise AuditError(bad)
@@ -465,14 +552,14 @@ def audit(
                 img, case.reference.mean, sigma, case.mask, names=tuple(metrics), seed=int(seed)
             )
             rows[row_id] = MethodOutcome(
-                case.id, row_id, method, method.label, img, metrics, method.defaults(), user=user
+                case.id, row_id, method, method.label, img, metrics, given, user=user
             )
             if method.id not in costs:
                 costs[method.id] = {"label": method.label, **_cost(method, case, backend, cost_elements)}
             timings["evaluation"] += time.perf_counter() - t1
             if fit and method.params:
                 t2 = time.perf_counter()
-                result = _fit(method, case)
+                result = _fit(method, case, row_id)
                 values = {k: v["value"] for k, v in result["parameters"].items()}
                 img_f = _evaluate(method, case, values)
                 metrics_f = compute_metrics(
