@@ -41,7 +41,15 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from rtfit.fitting import ALL_METRICS, compute_metrics, concat_z_pairs, fit_method, flip_error_map, z_checks, z_pair
+from rtfit.fitting import (
+    ALL_METRICS,
+    compute_metrics,
+    concat_z_pairs,
+    fit_method,
+    flip_error_map,
+    z_checks,
+    z_pair,
+)
 from rtfit.realtime import set_default_backend
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import is_user_approximation
