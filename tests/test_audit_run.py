@@ -353,8 +353,8 @@ def test_rtfit_toml_scenes_are_list_only_for_now(tmp_path):
 
 
 def test_flip_map_mean_is_the_flip_metric():
-    """`rtfit.fitting.flip_error_map` (the audit's ꟻLIP figure) is the map whose masked mean the ``flip`` metric
-    reports: the same exposures, the same clipping (equal to float64 summation order)."""
+    """`rtfit.fitting.flip_error_map` (the audit's ꟻLIP figure) is the map whose masked mean the
+    ``flip`` metric reports: the same exposures, the same clipping (equal to float64 summation order)."""
     from rtfit.fitting import compute_metrics, flip_error_map
 
     rng = np.random.default_rng(3)
