@@ -162,3 +162,83 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     manifest = json.loads(re.search(r'id="rtfit-viewer-manifest">(.*?)</script>', page).group(1))
     assert [c["id"] for c in manifest["cases"]] == ["e30-single", "e30-multiple", "volumes"]
     assert all("at least 21x21 pixels" in c["flip_note"] for c in manifest["cases"])
+
+
+
+INSCATTER_TOML = """
+name = "inscatter"
+[camera]
+origin = [0.3, -7.0, 1.1]
+target = [0.0, 0.0, 1.0]
+fov_deg = 30.0
+width = 4
+height = 4
+[reference]
+transport = "direct"
+[[lights]]
+type = "sun"
+direction = [0.35, -0.25, 0.9]
+irradiance = 3.0
+[[media]]
+type = "exponential_fog"
+boundary = { type = "cube", center = [0.0, 0.0, 1.0], size = [4.0, 4.0, 3.0] }
+density = 0.6
+falloff = 1.5
+gradient = [0.2, 0.1, 1.0]
+albedo = 0.8
+g = 0.0
+"""
+
+
+def _box_exit(lo, ld):
+    """Entry and exit t of the line lo + t·ld with the box [−1, 1]³ (local frame, float64)."""
+    with np.errstate(divide="ignore"):
+        a, b = (-1 - lo) / ld, (1 - lo) / ld
+    return np.max(np.minimum(a, b), axis=-1), np.min(np.maximum(a, b), axis=-1)
+
+
+def test_single_scattering_equals_gauss_legendre_quadrature(mi):
+    """In-scattered radiance of the segment-majorant medium (single scattering, isotropic phase, point
+    sun) against an independent float64 quadrature of L = ∫ σs(x) T(o→x) E T_sun(x) / (4π) dt along each
+    pixel ray: 256 Gauss–Legendre nodes over the chord, each transmittance in closed form,
+    b·e^(−c·h₀)·ℓ·(1 − e^(−c·Δh))/(c·Δh)."""
+    from rtfit.reference import load_mitsuba_scene, radiance_pass
+    from rtfit.reference.estimators import gbuffer
+    from rtfit.reference.height_fog import region_matrix
+
+    scene = parse_scene_text(INSCATTER_TOML)
+    m, sun = scene.media[0], scene.lights[0]
+    mi_, ms = load_mitsuba_scene(scene)
+    spp = 2048
+    p = radiance_pass(mi_, ms, spp, 11)
+    view = gbuffer(mi_, ms).view_dir.astype(np.float64)
+    inv = np.linalg.inv(region_matrix(m.boundary))
+    g = np.asarray(m.gradient) / np.linalg.norm(m.gradient)
+    s = np.asarray(sun.direction) / np.linalg.norm(sun.direction)
+    q0 = np.asarray(m.gradient_origin) @ g
+
+    def tau(x, d, length):  # optical depth from points x (N, 3) along unit d over length (N,)
+        y = m.falloff * length * (d @ g)
+        phi = np.where(np.abs(y) > 1e-12, -np.expm1(-y) / np.where(y == 0, 1, y), 1.0)
+        return m.density * np.exp(-m.falloff * (x @ g - q0)) * length * phi
+
+    o = np.asarray(scene.camera.origin, dtype=np.float64)
+    nodes, weights = np.polynomial.legendre.leggauss(256)
+    expected = np.zeros(view.shape[:2])
+    for idx in np.ndindex(*view.shape[:2]):
+        d = view[idx] / np.linalg.norm(view[idx])
+        t0, t1 = _box_exit(inv[:3, :3] @ o + inv[:3, 3], inv[:3, :3] @ d)
+        t0 = max(float(t0), 0.0)
+        if t1 <= t0:
+            continue
+        t = 0.5 * (t0 + t1) + 0.5 * (t1 - t0) * nodes
+        x = o + t[:, None] * d
+        _, ts = _box_exit(x @ inv[:3, :3].T + inv[:3, 3], inv[:3, :3] @ s)  # to the box exit towards the sun
+        sigma_s = m.albedo[0] * m.density * np.exp(-m.falloff * (x @ g - q0))
+        f = sigma_s * np.exp(-tau(np.broadcast_to(o + t0 * d, x.shape), d, t - t0) - tau(x, s, ts))
+        expected[idx] = 0.5 * (t1 - t0) * np.sum(weights * f) * sun.irradiance[0] / (4 * math.pi)
+    assert np.all(expected > 0.005)  # every pixel looks through the fog
+    z = (p.mean[..., 0] - expected) / np.sqrt(p.var[..., 0] / spp)
+    # 16 pixels: Šidák 1 % bound 3.4 (measured max |z| 2.07); the pooled z has unit spread (measured −0.06)
+    assert np.max(np.abs(z)) < 4.0, z
+    assert abs(z.sum() / 4.0) < 4.0

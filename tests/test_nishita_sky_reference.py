@@ -244,11 +244,11 @@ def test_spectral_medium_phase_and_sun_at_the_sampled_wavelengths():
     E₀(λ)/(π sin²α) of the 5778 K sun (closed forms)."""
     import drjit as dr
 
-    from rtfit.reference.nishita_sky import _load, _use_variant, library_atmosphere
+    from rtfit.reference.nishita_sky import _use_variant, library_atmosphere, load_sky
 
     mi = _use_variant("llvm_ad_spectral")
     spec = library_atmosphere()
-    scene, medium = _load(mi, spec, 2)
+    scene, medium = load_sky(mi, spec, 2)
     lam = [380.0, 450.0, 550.0, 700.0]
     n = 1 << 16
     mei = dr.zeros(mi.MediumInteraction3f, n)
