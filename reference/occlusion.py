@@ -224,7 +224,9 @@ def occlusion_pass(
         # Per-lane initial state hashed with TEA (as Mitsuba's independent sampler does): PCG32 streams
         # that share an initial state and differ only in their increment are correlated.
         lane = dr.arange(mi.UInt32, lanes)
-        h0, h1 = mi.sample_tea_32(mi.UInt32(sub_seed(seed, "chunk", c)), lane)
+        # The seed is opaque (a device value, not a literal in the kernel text): as a literal every pass
+        # compiled its own kernel (~1 s on 2 cores, 5× the ray casting of a 64² × 64 spp pass; issue 21).
+        h0, h1 = mi.sample_tea_32(dr.opaque(mi.UInt32, sub_seed(seed, "chunk", c)), lane)
         rng = mi.PCG32(lanes, (mi.UInt64(h0) << 32) | mi.UInt64(h1), mi.UInt64(lane))
         v = _estimate(mi, dr, mi_scene, rng, p, n, quantity, float(max_distance), float(albedo), skyfn)
         sv, qv = channel_moments(mi, dr, [v], spp)
