@@ -26,7 +26,10 @@ Modules:
                 (docs/nishita-sky.md).
     volumetric_lightning  the seed's volumetric lightning (softened point light gathered along the view
                 segment) in a float32-stable closed form; single scattering without extinction
-                (docs/volumetric-lightning.md).
+                (docs/volumetric-lightning.md). The package attribute ``volumetric_lightning`` is the
+                function (the issue's public name), so the module's names are imported with
+                ``from rtfit.realtime.volumetric_lightning import METHODS`` (``import
+                rtfit.realtime.volumetric_lightning as m`` binds the function).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
                 decorator for a user's own formula (docs/audit.md, "Your own approximation").
     shader      GLSL/HLSL text traced from the kernels (`SHADER_OPS`, `shader_function`).

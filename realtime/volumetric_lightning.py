@@ -74,6 +74,12 @@ Inputs: the segment's origin o, vector d and the light's position l, per compone
 single-scattering integral *with* extinction has no elementary closed form; the experiment evaluates it
 by quadrature (`rtfit.experiments.volumetric_lightning`).
 
+Importing
+---------
+``from rtfit.realtime import volumetric_lightning`` is the function; it shadows this module's name as an
+attribute of the package, so take the table with ``from rtfit.realtime.volumetric_lightning import METHODS``
+(``import rtfit.realtime.volumetric_lightning as m`` would bind the function).
+
 Validation
 ----------
 Python/NumPy values are validated at `volumetric_lightning` (non-finite positions, negative or NaN i or a →
