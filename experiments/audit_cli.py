@@ -119,7 +119,7 @@ def audit(
     no_fit,
     no_progress,
 ):
-    """Audit SCENE (a Mitsuba .xml scene; --list also takes an rtfit .toml scene or a library name): every
+    """Audit SCENE (a Mitsuba .xml scene, an rtfit .toml scene or sky file, or a library name): every
     applicable approximation against the scene's own reference, with noise floors, fits, costs and a report
     in OUT/audit-<scene>. --list prints which approximation families apply to it and why."""
     try:

@@ -50,7 +50,7 @@ from rtfit.fitting import (
     z_checks,
     z_pair,
 )
-from rtfit.realtime import set_default_backend
+from rtfit.realtime import get_default_backend, set_default_backend
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import is_user_approximation
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
@@ -68,6 +68,7 @@ from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_fa
 from .audit_diffuse import FAMILY as DIFFUSE
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .audit_height_fog import FAMILY as HEIGHT_FOG
+from .audit_nishita_sky import FAMILY as NISHITA_SKY
 from .cost import time_drjit
 from .records import SCHEMA, Results, from_json, plain_json, to_json
 from .registry import ALIASES
@@ -88,7 +89,7 @@ __all__ = [
 
 log = logging.getLogger("rtfit.audit")
 
-AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE, HEIGHT_FOG)}
+AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE, HEIGHT_FOG, NISHITA_SKY)}
 """The families the audit runs (name → declaration, `audit_family.AuditFamily`). A family listed by
 ``--list`` but not here is named in the run's notes as not audited yet."""
 
@@ -306,7 +307,7 @@ def _evaluate(method: Method, case: FamilyCase, params: Mapping[str, float]) -> 
     vals = []
     n = int(case.mask.sum())
     for inputs in case.channel_inputs:
-        v = method.evaluate(dict(inputs), dict(params))
+        v = method.evaluate(_tables_as_drjit(inputs), dict(params))
         parts = v if isinstance(v, (tuple, list)) else (v,)
         vals += [np.broadcast_to(np.asarray(p, np.float64), (n,)) for p in parts]
     if len(vals) == 1:  # a grey value on a one-mapping case
@@ -318,6 +319,18 @@ def _evaluate(method: Method, case: FamilyCase, params: Mapping[str, float]) -> 
         out = out * case.factor[:, None]
     img[case.mask] = out
     return img
+
+
+def _tables_as_drjit(inputs: Mapping[str, Any]) -> dict:
+    """The inputs as given, except that where arrays of several lengths meet (per-pixel inputs beside a
+    table, e.g. a sky texture's texel directions) every array becomes a float64 Dr.Jit array of the default
+    backend, which the kernel takes as it is (NumPy arrays would be broadcast against each other)."""
+    shapes = {np.shape(v) for v in inputs.values() if isinstance(v, np.ndarray) and v.ndim}
+    if len(shapes) <= 1:
+        return dict(inputs)
+    Float = dr.cuda.Float64 if get_default_backend() == "cuda" else dr.llvm.Float64
+    return {k: Float(np.ascontiguousarray(v, np.float64).reshape(-1)) if isinstance(v, np.ndarray) else v
+            for k, v in inputs.items()}  # fmt: skip
 
 
 def _bad_values(method: Method, img: np.ndarray, case: FamilyCase) -> str | None:
@@ -359,15 +372,17 @@ def _fit(method: Method, case: FamilyCase, row: str = "") -> dict:
 
 
 def _cost(method: Method, case: FamilyCase, backend: str, size: int = _COST_ELEMENTS) -> dict:
-    """ns per pixel of ``method`` (declared parameters) on the backend, its inputs (channel 0 of the case)
-    tiled to ``size`` float32 elements."""
+    """ns per pixel of ``method`` (declared parameters) on the backend, its per-pixel inputs (channel 0 of the
+    case) tiled to ``size`` float32 elements; a table (an array that is not per pixel) is passed as it is."""
     Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
     n = int(case.mask.sum())
     reps = max(1, -(-size // max(n, 1)))
     args, keys, consts = [], [], {}
     for name in method.input_names:
         v = case.channel_inputs[0][name]
-        if np.ndim(v):
+        if np.ndim(v) and np.size(v) != n:
+            consts[name] = Float(np.ascontiguousarray(v, np.float32).reshape(-1))
+        elif np.ndim(v):
             a = np.tile(np.asarray(v, np.float64), reps)[:size]
             a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
             args.append(Float(a))

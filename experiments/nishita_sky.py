@@ -181,7 +181,12 @@ def atmosphere_spec(elev: float, alt_m: float):
 @functools.cache
 def atmosphere_params() -> AtmosphereParams:
     """The real-time model's atmosphere: the same scene file's values (its fields carry the same names)."""
-    spec = atmosphere_spec(0.0, 0.0)
+    return atmosphere_params_of(atmosphere_spec(0.0, 0.0))
+
+
+def atmosphere_params_of(spec) -> AtmosphereParams:
+    """The real-time model's atmosphere for a reference `AtmosphereSpec` (any sky file): the fields both
+    carry, by name (the viewer and the sun are not atmosphere parameters)."""
     shared = {f.name for f in dataclasses.fields(AtmosphereParams)} & set(vars(spec))
     return AtmosphereParams(**{k: getattr(spec, k) for k in sorted(shared)})
 
@@ -296,7 +301,7 @@ def _approx_doc(method_id, img, mean, se, mask, metrics, params=None, fitted=Fal
     }
 
 
-def _near_sun(dirs, elev: float, degrees: float = 1.0) -> np.ndarray:
+def near_sun(dirs, elev: float, degrees: float = 1.0) -> np.ndarray:
     """Pixels within ``degrees`` of the sun (excluded from the metrics: the sun disc is a separate term)."""
     e = math.radians(elev)
     s_dir = np.array([math.cos(e), 0.0, math.sin(e)])
@@ -376,12 +381,12 @@ def _main_cases(ctx, cfg, dirs, el, done, fits, backend, settings):
     mask = np.ones((H, W), dtype=bool)
     cases, images, checks, irr_rows, quad_z = [], {}, [], [], []
     for e in cfg["sun_elevations_deg"]:
-        near_sun = _near_sun(dirs, e)
-        m = mask & ~near_sun
+        sun_px = near_sun(dirs, e)
+        m = mask & ~sun_px
         fit_of = {mid: f[e] for mid, f in fits.items()}
         imgs = {
             mid: np.where(
-                near_sun[..., None], 0.0, method_image(mid, e, dirs, settings, backend, fit=fit_of.get(mid))
+                sun_px[..., None], 0.0, method_image(mid, e, dirs, settings, backend, fit=fit_of.get(mid))
             )
             for mid in METHODS
         }
@@ -480,7 +485,7 @@ def _altitude_cases(ctx, cfg, dirs, done, backend, settings):
     for e, alt in cfg["altitude_cases"]:
         ref = done[altitude_id(e, alt, "ss")]
         mean, se = ref["mean"], ref["stderr"]
-        m = ~_near_sun(dirs, e)
+        m = ~near_sun(dirs, e)
         docs = []
         for name in rgb_methods(fitted=False):
             img = np.where(m[..., None], method_image(name, e, dirs, settings, backend, alt_m=alt), 0.0)
@@ -544,10 +549,10 @@ def _spectral_cases(ctx, cfg, done, backend, settings):
     for e in elevs:
         ref = done[case_id(e, "ss-spectral")]
         mean, se = ref["mean"] * k, ref["stderr"] * k
-        near_sun = _near_sun(d, e)
-        m = ~near_sun
+        sun_px = near_sun(d, e)
+        m = ~sun_px
         spec_img = method_image(sid, e, d, settings, backend)
-        rgb_img = np.where(near_sun[..., None], 0.0, method_image(rid, e, d, settings, backend))
+        rgb_img = np.where(sun_px[..., None], 0.0, method_image(rid, e, d, settings, backend))
         docs = [
             _approx_doc(name, img, mean, se, m, ("rel_mae", "tonemapped_rmse"))
             for name, img in ((sid, spec_img), (rid, rgb_img))

@@ -337,10 +337,10 @@ def test_approximation_names_resolve_to_families_methods_and_user_specs(tmp_path
     with pytest.raises(AuditError, match="not a family"):
         resolve_approximations("nope")
     (tmp_path / "other.py").write_text(
-        "from rtfit import approximation\n\n\n@approximation(quantity='sky_radiance')\n"
+        "from rtfit import approximation\n\n\n@approximation(quantity='fog_inscatter')\n"
         "def sky(ops, g):\n    return (g.dz, g.dz, g.dz)\n"
     )
-    with pytest.raises(AuditError, match="sky: approximates sky_radiance; the audit of that quantity"):
+    with pytest.raises(AuditError, match="sky: approximates fog_inscatter; the audit of that quantity"):
         resolve_approximations(f"{tmp_path / 'other.py'}:sky")
 
 
