@@ -845,7 +845,7 @@ def _disc_sun(cfg, dirs, done, images) -> tuple[dict | None, list[dict]]:
         sl = _subset(cfg["quadrature_stride"])
         qp, qd = quad["value"], quad["disc"]
         sub = dirs[sl]
-        keep = ~_near_sun(dirs, e)[sl]
+        keep = ~near_sun(dirs, e)[sl]
         low_anti = keep & (sub[..., 2] < math.sin(math.radians(15.0))) & (sub[..., 0] < 0)
         term = _rel_diff(qp[keep], qd[keep])
         low = _rel_diff(qp[low_anti], qd[low_anti]) if low_anti.any() else [float("nan")] * 4

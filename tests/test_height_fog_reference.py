@@ -164,7 +164,6 @@ def test_tiny_experiment_run(tmp_path, monkeypatch):
     assert all("at least 21x21 pixels" in c["flip_note"] for c in manifest["cases"])
 
 
-
 INSCATTER_TOML = """
 name = "inscatter"
 [camera]
