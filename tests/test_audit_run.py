@@ -153,7 +153,7 @@ def test_user_wrap_fit_lands_where_a_quadrature_fit_lands(tmp_path):
     """The user's ``my_wrap`` (w only, exponent 2) fitted by the audit to the Mitsuba reference of a unit
     sphere lit by a sphere light (α ≈ 16°–22° over the visible side), against w fitted by SciPy to
     the same formula with the exact irradiance from quadrature at the same pixels (E⊥ = π sin²α), the two
-    fits started at different values (0.2 declared, 0.9). Measured: audit w = 0.5026 ± 0.005 at 128 spp,
+    fits started at different values (0.2 declared, 0.9). Measured: audit w = 0.5026 ± 0.0050 at 128 spp,
     quadrature fit w = 0.5006 (|Δw| = 0.0021, within 3 standard errors)."""
     from scipy.optimize import least_squares
 
