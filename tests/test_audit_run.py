@@ -153,7 +153,7 @@ def test_user_wrap_fit_lands_where_a_quadrature_fit_lands(tmp_path):
     """The user's ``my_wrap`` (w only, exponent 2) fitted by the audit to the Mitsuba reference of a unit
     sphere lit by a sphere light (α ≈ 16°–22° over the visible side), against w fitted by SciPy to
     the same formula with the exact irradiance from quadrature at the same pixels (E⊥ = π sin²α), the two
-    fits started at different values (0.2 declared, 0.9). Measured: audit w = 0.5026 ± 0.005 at 128 spp,
+    fits started at different values (0.2 declared, 0.9). Measured: audit w = 0.5026 ± 0.0050 at 128 spp,
     quadrature fit w = 0.5006 (|Δw| = 0.0021, within 3 standard errors)."""
     from scipy.optimize import least_squares
 
@@ -365,3 +365,48 @@ def test_flip_map_mean_is_the_flip_metric():
     value = compute_metrics(approx, ref, np.zeros_like(ref), mask, names=("flip",))["flip"].value
     fmap = flip_error_map(approx, ref, mask)
     assert fmap.shape == (32, 32) and float(np.mean(fmap[mask])) == pytest.approx(value, rel=1e-12)
+
+
+KINDS_XML = """<scene version="3.0.0">
+    <sensor type="perspective">
+        <float name="fov" value="50"/>
+        <transform name="to_world"><lookat origin="0, -4, 3" target="0, 0, 0" up="0, 0, 1"/></transform>
+        <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="24"/></film>
+    </sensor>
+    <shape type="rectangle"><transform name="to_world"><scale value="3"/></transform></shape>
+    <shape type="cube"><transform name="to_world"><scale value="0.4"/><translate z="0.4"/></transform></shape>
+    <emitter type="directional">
+        <vector name="direction" x="-1" y="0.5" z="-2"/><rgb name="irradiance" value="2, 2, 2"/>
+    </emitter>
+    <emitter type="spot">
+        <transform name="to_world"><lookat origin="1, -1, 3" target="0, 0, 0"/></transform>
+        <rgb name="intensity" value="5, 5, 5"/><float name="cutoff_angle" value="40"/>
+    </emitter>
+    <shape type="rectangle">
+        <transform name="to_world">
+            <scale value="0.3"/><rotate x="1" angle="180"/><translate z="2.5"/>
+        </transform>
+        <emitter type="area"><rgb name="radiance" value="4, 4, 4"/></emitter>
+    </shape>
+</scene>
+"""
+
+
+def test_directional_spot_and_rectangle_lights(tmp_path):
+    """A directional light and a spot light are delta lights: Lambert with E⊥ (the light's irradiance at
+    normal incidence, its falloff included) is their exact unshadowed irradiance — float32 rounding only
+    (bound 1e-6 of the peak); a rectangle area light runs beside them, and the cube shadows the floor."""
+    (tmp_path / "kinds.xml").write_text(KINDS_XML)
+    r = audit(tmp_path / "kinds.xml", "lambert", spp=4, pass_spp=2, fit=False, cache=tmp_path / "c", **FAST)
+    ids = [c.id for c in r.cases]
+    assert ids == [f"light{k}-{s}" for k in range(3) for s in ("unshadowed", "shadowed")]
+    for k in (0, 1):
+        case = r.cases[2 * k]
+        peak = case.reference.mean[case.mask].max()
+        assert peak > 0
+        err = np.abs(r.image(case.id, "lambert") - case.reference.mean)[case.mask].max()
+        assert err <= 1e-6 * peak, (case.id, err, peak)
+        shadowed = r.cases[2 * k + 1]
+        assert shadowed.reference.mean[shadowed.mask].sum() < case.reference.mean[case.mask].sum()
+    rect = r.cases[4]
+    assert np.all(np.isfinite(rect.reference.mean)) and rect.reference.mean[rect.mask].max() > 0
