@@ -315,7 +315,7 @@ def _code_block(text: str) -> list[str]:
     return [f"\\par\\smallskip{{{size}\\noindent", "\\\\\n".join(lines) + "\\par}\\smallskip", ""]
 
 
-_NUMBER_CELL = re.compile(r"[\s\d.,:;eE+\-−–×%()±~≈<>≤≥x/—]*")
+_NUMBER_CELL = re.compile(r"(?:[\s\d.,:;eE+\-−–×%()±~≈<>≤≥x/—]|nan|inf|NaN|∞)*")
 
 
 def _md_table(tokens, i: int, experiment: str, key: str) -> tuple[list[str], int]:
@@ -337,8 +337,11 @@ def _md_table(tokens, i: int, experiment: str, key: str) -> tuple[list[str], int
         return [], i + 1
     n = max(len(r) for r in rows)
     rows = [r + [("", False)] * (n - len(r)) for r in rows]
-    # A right-aligned column of plain numbers is set as numbers (never wrapped); any other as text.
-    numeric = [rows[0][j][1] and all(_NUMBER_CELL.fullmatch(r[j][0]) for r in rows[1:]) for j in range(n)]
+    # A column of plain numbers (any alignment) is set as numbers: right-aligned, never wrapped, at
+    # its natural width, leaving the rest of the line to the text columns. Any other column is text.
+    numeric = [
+        len(rows) > 1 and all(_NUMBER_CELL.fullmatch(r[j][0].strip()) for r in rows[1:]) for j in range(n)
+    ]
     header = [TexCell(text, numeric=numeric[j], md=not numeric[j]) for j, (text, _) in enumerate(rows[0])]
     body = [
         [TexCell(text, numeric=numeric[j], md=not numeric[j]) for j, (text, _) in enumerate(r)]
