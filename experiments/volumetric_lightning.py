@@ -11,12 +11,15 @@ What is compared, and why (docs/volumetric-lightning.md):
 2. **Reference check**: an isotropic point light (Mitsuba ``point``) inside a homogeneous, non-absorbing
    (albedo 1) medium box around the camera; ``volpathmis`` with max_depth 2 (single scattering). Each pixel
    must equal σ_s/(4π)·∫ I·e^(−σ_t(s + r))/r² ds along its camera ray to the box's far wall, evaluated by an
-   independent quadrature (`single_scattering_quadrature`, analytic transmittance): z-scores of unit spread.
-3. **The seed's model against single scattering**, per light distance D and medium density (σ_t·D): rows
+   independent quadrature (`single_scattering_quadrature`, analytic transmittance): z-scores of unit spread,
+   on the pixels whose reference resolves the light's 1/r² peak (`CORE_EVENTS_MIN`: free-flight sampling
+   needs ≥ 10 scattering events near the ray's closest approach; the same pixels are compared below).
+3. **The seed's model against single scattering**, per light distance D and medium density σ_t: rows
    (`ROWS`) ``exact`` (the quadrature), ``inverse-square`` (single scattering without extinction, the seed's
    a → ∞ limit with i/a = σ_s·I/(4π)) and ``seed-fit`` (the stable form with i and a fitted through the JAX
-   run of its kernel, `rtfit.fitting.fit_method`). Residuals vs the ray's closest approach to the light show
-   where the softening 1/(1 + a r²) matters; thin vs dense media show what extinction adds.
+   run of its kernel, `rtfit.fitting.fit_method`), plus the stable form with fixed softening radii and only i
+   fitted. Residuals vs the ray's closest approach to the light show where the softening 1/(1 + a r²)
+   matters; thin vs dense media show what extinction adds.
 
 Sections: configure · methods (rows) · cases (scenes, geometry, quadrature) · jobs · run (results) · checks ·
 figures · summary (text) · bench (cost rows and ``rtfit bench``).
