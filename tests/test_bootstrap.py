@@ -16,7 +16,6 @@ BOOTSTRAP = ROOT / "scripts" / "bootstrap.sh"
 pytestmark = pytest.mark.skipif(shutil.which("bash") is None, reason="bash is not installed")
 
 
-
 def _bash(script: str, **env) -> subprocess.CompletedProcess:
     return subprocess.run(
         ["bash", "-c", script],
