@@ -42,7 +42,7 @@ from rtfit.reference.build import load_dict, mitsuba_scene_dict
 from rtfit.reference.integrators import can_interreflect
 from rtfit.reference.mitsuba_xml import UP_AXES, XmlScene, XMLSceneError, inspect_xml
 from rtfit.reference.nishita_sky import load_atmosphere_scene
-from rtfit.reference.variants import scoped_variant
+from rtfit.reference.variants import inspection_variant, scoped_variant
 from rtfit.scenes import ENVIRONMENT_KINDS, Scene, SceneError, library_names, library_path, load_scene
 
 from .registry import ALIASES
@@ -529,7 +529,7 @@ def _toml_bbox(scene: Scene):
     """The bounding box of the TOML scene's shapes as Mitsuba loads them (``None`` without shapes)."""
     if not scene.shapes:
         return None
-    with scoped_variant("scalar_rgb") as mi:  # the caller's variant is put back afterwards
+    with scoped_variant(inspection_variant()) as mi:  # the caller's variant is put back afterwards
         d = mitsuba_scene_dict(mi, Scene(name=scene.name, camera=scene.camera, shapes=scene.shapes))
         box = load_dict(mi, d).bbox()
         lo, hi = box.min, box.max

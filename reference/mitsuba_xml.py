@@ -37,7 +37,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .variants import scoped_variant
+from .variants import inspection_variant, scoped_variant
 
 __all__ = [
     "UP_AXES",
@@ -96,12 +96,13 @@ def _file_digest(h, path: str, root: str) -> None:
 
 
 @contextlib.contextmanager
-def _parsed(path: str, defines: Mapping[str, str], variant: str) -> Iterator[tuple]:
+def _parsed(path: str, defines: Mapping[str, str], variant: str | None) -> Iterator[tuple]:
     """Parse ``path`` under a file resolver of its own (a copy of the caller's, so that plugins are still
     found, with the scene's folder first); yields ``(mi, parser, config, state)`` and puts the caller's
     resolver back afterwards. Mitsuba's refusal becomes one `XMLSceneError` line."""
     if not os.path.isfile(path):
         raise XMLSceneError(f"{path}: no such file")
+    variant = variant or inspection_variant()
     with scoped_variant(variant) as mi:  # the caller's variant is put back afterwards
         import mitsuba.parser as parser  # mitsuba: needs the variant set above
 
@@ -144,7 +145,7 @@ def _normalise(path, defines) -> tuple[str, dict[str, str]]:
 
 
 def xml_dependencies(
-    path: str | os.PathLike, defines: Mapping[str, str] | None = None, variant: str = "scalar_rgb"
+    path: str | os.PathLike, defines: Mapping[str, str] | None = None, variant: str | None = None
 ) -> XmlDependencies:
     """Parse ``path`` with Mitsuba's parser (``defines``: the ``-D name=value`` parameters) and return
     every file it loads with their digest (`XmlDependencies`). Raises `XMLSceneError` (one line) when
@@ -474,7 +475,7 @@ def _up(camera: XmlSensor | None, up: str | None) -> tuple[str, str]:
 def inspect_xml(
     path: str | os.PathLike,
     defines: Mapping[str, str] | None = None,
-    variant: str = "scalar_rgb",
+    variant: str | None = None,
     *,
     camera: int = 0,
     width: int | None = None,

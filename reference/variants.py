@@ -34,6 +34,28 @@ def resolve_variant(name: str = "auto") -> str:
     return name
 
 
+INSPECTION_VARIANTS = ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
+"""The variants rtfit reads scenes in (parsing, listing, bounding boxes), in order of preference."""
+
+
+def inspection_variant() -> str:
+    """The variant to read a scene in: ``scalar_rgb`` (no JIT: nothing is compiled to look at a scene),
+    else the first installed JIT variant whose backend works here. A Mitsuba built or packed without the
+    scalar variants (the GPU machine's pack carries only the JIT variants) still reads scenes."""
+    import mitsuba
+
+    have = set(mitsuba.variants())
+    for v in INSPECTION_VARIANTS:
+        if v not in have:
+            continue
+        if v.startswith("llvm") and not dr.has_backend(dr.JitBackend.LLVM):
+            continue
+        if v.startswith("cuda") and not cuda_available():
+            continue
+        return v
+    raise RuntimeError(f"no Mitsuba variant to read scenes in (installed: {', '.join(sorted(have))})")
+
+
 def use_variant(name: str = "auto"):
     """Activate a Mitsuba variant and return the ``mitsuba`` module."""
     import mitsuba as mi
