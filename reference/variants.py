@@ -8,6 +8,7 @@ present and asked for with ``"auto"``; ``scalar_rgb`` is selectable for debuggin
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import sys
 from collections.abc import Iterator
 
@@ -44,9 +45,9 @@ def inspection_variant() -> str:
     scalar variants (the GPU machine's pack carries only the JIT variants) still reads scenes."""
     import mitsuba
 
-    have = set(mitsuba.variants())
-    for v in INSPECTION_VARIANTS:
-        if v not in have:
+    have = set(mitsuba.variants())  # the variants Mitsuba was built with; a pack may have dropped some:
+    for v in INSPECTION_VARIANTS:  # so look for the variant's module itself
+        if v not in have or importlib.util.find_spec(f"mitsuba.{v}") is None:
             continue
         if v.startswith("llvm") and not dr.has_backend(dr.JitBackend.LLVM):
             continue
