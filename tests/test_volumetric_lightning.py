@@ -30,8 +30,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rtfit.experiments.volumetric_lightning import estimator_variance, single_scattering_quadrature
 from rtfit.experiments.volumetric_lightning import random_domain as domain
-from rtfit.experiments.volumetric_lightning import single_scattering_quadrature
 from rtfit.realtime import NUMPY_OPS, inverse_square_airlight, volumetric_lightning
 from rtfit.realtime.volumetric_lightning import METHODS
 
@@ -272,16 +272,16 @@ def test_three_libraries_run_one_text():
 
 
 # ------------------------------------------------------------------------------- the experiment's pieces
-def _ss_mpmath(c, u, length, sigma_s, sigma_t, intensity):
-    """σ_s/(4π)·∫₀^S I·e^(−σ_t(s + r))/r² ds along the unit direction u (mpmath, split at the closest
-    approach and around it)."""
+def _ss_mpmath(c, u, length, sigma_s, sigma_t, intensity, power=1, rate=1.0):
+    """σ_s/(4π)·∫₀^S I·e^(−σ_t(s + rate·r))/r^(2·power) ds along the unit direction u (mpmath, split at the
+    closest approach and around it)."""
     with mp.workdps(30):
         c = [mp.mpf(float(x)) for x in c]
         u = [mp.mpf(float(x)) for x in u]
 
         def f(s):
             r2 = sum((ci - s * ui) ** 2 for ci, ui in zip(c, u, strict=True))
-            return mp.exp(-sigma_t * (s + mp.sqrt(r2))) / r2
+            return mp.exp(-sigma_t * (s + rate * mp.sqrt(r2))) / r2**power
 
         sp = sum(ci * ui for ci, ui in zip(c, u, strict=True))
         h = mp.sqrt(max(sum(ci * ci for ci in c) - sp * sp, 0))
@@ -309,6 +309,17 @@ def test_single_scattering_quadrature_matches_mpmath(sigma_t):
     got = single_scattering_quadrature((0.0, 0.0, 0.0), dirs, lengths, light, 3.0, 0.02, sigma_t)
     want = np.array([_ss_mpmath(light, u, s, 0.02, sigma_t, 3.0) for u, s in zip(dirs, lengths, strict=True)])
     assert _rel(got, want).max() <= 1e-12
+    if sigma_t > 0.0:  # the estimator's second moment (σ_s²/σ_t)·I²/(16π²)·∫ e^(−σ_t(s + 2r))/r⁴ ds
+        var = estimator_variance((0.0, 0.0, 0.0), dirs, lengths, light, 3.0, 0.02, sigma_t)
+        second = [
+            _ss_mpmath(light, u, s, 0.02, sigma_t, 3.0, power=2, rate=2.0)
+            * 0.02
+            * 3.0
+            / (4 * math.pi)
+            / sigma_t
+            for u, s in zip(dirs, lengths, strict=True)
+        ]
+        assert _rel(var, np.array(second) - want**2).max() <= 1e-9
     if sigma_t == 0.0:  # no extinction: the closed form K·|d|·θ/|c × d| (inverse_square_airlight)
         closed = inverse_square_airlight(
             np.zeros((5, 3)), dirs * lengths[:, None], light, 0.02 * 3.0 / (4 * math.pi)
