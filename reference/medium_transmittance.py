@@ -6,14 +6,17 @@ transmittance of a medium with extinction σt(x) is
     T = exp(−∫₀ᴰ σt(x(s)) ds)  ∈ [0, 1]   (dimensionless; σt in 1/scene unit, s in scene units).
 
 Ratio tracking (Novák, Selle & Jarosz 2014, "Residual ratio tracking for estimating attenuation in
-participating media", §3) samples tentative collisions with the medium's majorant σ̄ (Mitsuba's
-``Medium.sample_interaction``: free-flight distances −ln(1 − u)/σ̄ inside the medium's own bounding region,
-``intersect_aabb``, clipped to the segment) and multiplies the weight by the null-collision probability
-1 − σt(x_k)/σ̄ = σn(x_k)/σ̄ at every tentative collision x_k until the segment ends. Its expectation is T
-exactly (unbiased for any majorant σ̄ ≥ σt, which Mitsuba's ``get_majorant`` guarantees), and each sample lies
-in [0, 1]. The density is the medium's own ``get_scattering_coefficients`` — rtfit's exponential-fog medium
-(`rtfit.reference.height_fog`) evaluates b·exp(−c·h) analytically — so this estimator shares no formula with
-the closed form of the real-time optical depth it checks.
+participating media", §3) samples tentative collisions x_k with a majorant σ̄ ≥ σt on the segment's part
+inside the medium's own region (``Medium.intersect_aabb``, clipped to [0, D]): free-flight distances
+−ln(1 − u)/σ̄, and multiplies the weight by the null-collision probability 1 − σt(x_k)/σ̄ at each, until the
+segment ends. Its expectation is T exactly for any σ̄ ≥ max σt, and each sample lies in [0, 1]. Here σ̄ per ray
+is max(the medium's ``get_majorant``, `MIN_COLLISIONS`/L) with L the segment's length in the region: a short
+or thin segment still gets a few tentative collisions per sample, so that its weights vary and the sample
+variance of a pass is not 0 by chance (with the medium's majorant alone, a 0.4 m segment through thin fog
+sees no collision in 256 samples about a third of the time: T = 1 with a standard error of 0, a z-score of
+hundreds against the exact 0.9996). The density is the medium's own ``get_scattering_coefficients`` — rtfit's
+exponential-fog medium (`rtfit.reference.height_fog`) evaluates b·exp(−c·h) analytically — so this
+estimator shares no formula with the closed form of the real-time optical depth it checks.
 
 Grey extinction is assumed (channel 0 of σt/σ̄; rtfit's fog media are grey). Every pass runs at most
 ``max_steps`` tracking steps; a lane still active then is a one-line RuntimeError (a majorant too large for
@@ -29,10 +32,13 @@ import numpy as np
 
 from .estimators import PassResult, chunk_ranges, mean_var, sub_seed
 
-__all__ = ["MAX_STEPS", "transmittance_pass"]
+__all__ = ["MAX_STEPS", "MIN_COLLISIONS", "transmittance_pass"]
 
 MAX_STEPS = 100_000
-"""Bound on the tracking steps of one pass (expected steps per ray: σ̄ × its length in the region)."""
+"""Bound on the tracking steps of one pass (expected steps per ray: max(σ̄·L, `MIN_COLLISIONS`))."""
+
+MIN_COLLISIONS = 4.0
+"""Least expected number of tentative collisions per sample along a ray's segment in the region."""
 
 
 def transmittance_pass(
@@ -40,7 +46,8 @@ def transmittance_pass(
 ) -> PassResult:
     """One pass of ``spp`` ratio-tracking samples of the transmittance of ``medium`` (a loaded Mitsuba
     medium) along rays from ``origin`` (3,) in unit ``directions`` (N, 3) over [0, ``max_distance``] (N,;
-    +inf allowed). Returns a `PassResult` with mean and variance (N, 3): the grey T in each channel."""
+    +inf allowed). Returns a `PassResult` with mean and variance (N, 3): the grey T estimated independently
+    in each channel (3 × ``spp`` samples per ray), so that the three channels' errors are independent."""
     d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
     dist = np.asarray(max_distance, np.float64).reshape(-1)
     n = len(d)
@@ -50,29 +57,33 @@ def transmittance_pass(
     o = [float(x) for x in origin]
     dx, dy, dz = (mi.Float(d[:, k].astype(np.float32)) for k in range(3))
     far = mi.Float(np.where(np.isfinite(dist), dist, np.finfo(np.float32).max).astype(np.float32))
-    for k, (a, b) in enumerate(chunk_ranges(n, spp)):
-        m = (b - a) * spp
+    lanes = 3 * spp  # three independent estimates (one per channel) of spp samples each
+    for k, (a, b) in enumerate(chunk_ranges(n, lanes)):
+        m = (b - a) * lanes
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(sub_seed(seed, "transmittance", k), m)
-        idx = dr.arange(mi.UInt32, m) // spp + a
+        idx = dr.arange(mi.UInt32, m) // lanes + a
         direction = mi.Vector3f(
             dr.gather(mi.Float, dx, idx), dr.gather(mi.Float, dy, idx), dr.gather(mi.Float, dz, idx)
         )
         ray = mi.Ray3f(mi.Point3f(*o), dr.normalize(direction))
-        ray.maxt = dr.gather(mi.Float, far, idx)
+        hit_box, t_in, t_out = medium.intersect_aabb(ray)
+        t_in = dr.maximum(t_in, 0.0)
+        t_out = dr.minimum(t_out, dr.gather(mi.Float, far, idx))
+        active = hit_box & (t_out > t_in)
+        mei = dr.zeros(mi.MediumInteraction3f, m)
+        bar = dr.maximum(
+            medium.get_majorant(mei, active)[0], MIN_COLLISIONS / dr.maximum(t_out - t_in, 1e-30)
+        )
         weight = dr.full(mi.Float, 1.0, m)
-        active = dr.full(mi.Bool, True, m)
+        t = mi.Float(t_in)
         for _step in range(max_steps):
-            mei = medium.sample_interaction(ray, sampler.next_1d(active), 0, active)
-            hit = active & mei.is_valid() & (mei.t < ray.maxt)
-            _sigma_s, sigma_n, _sigma_t = medium.get_scattering_coefficients(mei, hit)
-            majorant = medium.get_majorant(mei, hit)
-            ratio = dr.select(majorant[0] > 0, sigma_n[0] / majorant[0], 0.0)
-            weight = dr.select(hit, weight * dr.clip(ratio, 0.0, 1.0), weight)
-            ray.o = dr.select(hit, mei.p, ray.o)
-            ray.maxt = dr.select(hit, ray.maxt - mei.t, ray.maxt)
-            active = hit
-            dr.eval(weight, ray.o, ray.maxt, active)
+            t = t - dr.log(1.0 - sampler.next_1d(active)) / bar
+            active &= t < t_out
+            mei.p = ray(t)
+            _sigma_s, _sigma_n, sigma_t = medium.get_scattering_coefficients(mei, active)
+            weight = dr.select(active, weight * dr.clip(1.0 - sigma_t[0] / bar, 0.0, 1.0), weight)
+            dr.eval(weight, t, active)
             if not dr.any(active):
                 break
         else:
@@ -80,8 +91,8 @@ def transmittance_pass(
                 f"transmittance_pass: rays still inside the medium after {max_steps} tracking steps "
                 "(majorant × segment length too large)"
             )
-        w = np.asarray(weight, np.float64).reshape(b - a, spp)
-        s[a:b] = w.sum(axis=1)[:, None]
-        q[a:b] = (w * w).sum(axis=1)[:, None]
+        w = np.asarray(weight, np.float64).reshape(b - a, spp, 3)
+        s[a:b] = w.sum(axis=1)
+        q[a:b] = (w * w).sum(axis=1)
     mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
