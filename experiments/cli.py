@@ -43,7 +43,7 @@ from tqdm import tqdm
 import rtfit
 from rtfit.reference import default_cache_dir, resolve_variant
 from rtfit.reference.io import atomic_write_json
-from rtfit.scenes import SceneError
+from rtfit.scenes import SceneError, library_path, load_scene
 
 from . import scaling
 from .atomic import is_temporary_name
@@ -417,6 +417,31 @@ def report_cmd(directory, single_file):
         raise click.exceptions.Exit(1)
     else:
         click.echo(f"rtfit: book.pdf not written: {book.error}", err=True)
+
+
+@cli.command("export-xml")
+@click.argument("scene")
+@click.argument("output", type=click.Path(dir_okay=False, path_type=Path))
+def export_xml_cmd(scene, output):
+    """Write an rtfit TOML SCENE (a file, or a shipped scene's name) as plain Mitsuba 3 XML to OUTPUT.
+
+    Mesh files go into a meshes/ folder beside OUTPUT. rtfit's own plugins (the distant-disc sun, the
+    exponential height fog, the Nishita atmosphere) are left out, one line each on stderr."""
+    from rtfit.reference.export_xml import export_xml
+
+    path = Path(scene)
+    try:
+        parsed = load_scene(path if path.suffix == ".toml" or path.exists() else library_path(scene))
+    except SceneError as e:
+        _fail(str(e))
+    if output.exists() and output.is_dir():
+        _fail(f"OUTPUT {output}: is a directory")
+    _writable_dir(output.parent, "OUTPUT")
+    output.parent.mkdir(parents=True, exist_ok=True)
+    result = export_xml(parsed, output)
+    for part in result.left_out:
+        click.echo(f"rtfit: left out {part}", err=True)
+    click.echo(str(result.path.resolve()))
 
 
 @cli.command("bench")
