@@ -344,10 +344,12 @@ def test_approximation_names_resolve_to_families_methods_and_user_specs(tmp_path
         resolve_approximations(f"{tmp_path / 'other.py'}:sky")
 
 
-def test_rtfit_toml_scenes_are_list_only_for_now(tmp_path):
+def test_a_toml_scene_whose_families_are_not_audited_for_toml_is_one_line(tmp_path):
+    """A TOML scene is audited by the families that read TOML (height fog); one that only a family for
+    another format applies to (a lit sphere: diffuse reads Mitsuba XML) is refused before anything runs."""
     from rtfit.scenes import library_path
 
-    with pytest.raises(AuditError, match="the audit itself runs on Mitsuba XML scenes"):
+    with pytest.raises(AuditError, match="the audit of diffuse is not built yet for rtfit-toml scenes"):
         audit(library_path("half_lambert_sphere"), cache=tmp_path / "c")
     assert not (tmp_path / "c").exists()
 
