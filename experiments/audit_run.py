@@ -68,6 +68,7 @@ from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_fa
 from .audit_diffuse import FAMILY as DIFFUSE
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .audit_height_fog import FAMILY as HEIGHT_FOG
+from .audit_irradiance_bases import FAMILY as IRRADIANCE_BASES
 from .audit_nishita_sky import FAMILY as NISHITA_SKY
 from .cost import time_drjit
 from .records import SCHEMA, Results, from_json, plain_json, to_json
@@ -89,7 +90,7 @@ __all__ = [
 
 log = logging.getLogger("rtfit.audit")
 
-AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE, HEIGHT_FOG, NISHITA_SKY)}
+AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE, IRRADIANCE_BASES, HEIGHT_FOG, NISHITA_SKY)}
 """The families the audit runs (name → declaration, `audit_family.AuditFamily`). A family listed by
 ``--list`` but not here is named in the run's notes as not audited yet."""
 
@@ -564,7 +565,11 @@ def audit(
     for family, a, case in plan:
         rows = outcomes.setdefault(case.id, {})
         sigma = case.reference.sigma()
-        for row_id, method, user in _rows(family, a, sel, case):
+        base = case
+        for row_id, method, user in _rows(family, a, sel, base):
+            case = (
+                replace(base, channel_inputs=base.row_inputs[row_id]) if row_id in base.row_inputs else base
+            )
             t1 = time.perf_counter()
             given = _given(case, row_id, method)
             img = _evaluate(method, case, given)

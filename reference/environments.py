@@ -384,6 +384,55 @@ def sunsky_environment(
     )
 
 
+def emitter_environment(
+    mi, emitter, kind: str, height: int, sun: tuple | None = None, name: str = ""
+) -> Environment:
+    """An `Environment` of a loaded Mitsuba environment emitter (``mi``: the mitsuba module in an RGB
+    variant), for a scene's own ``envmap``, ``constant`` or ``sunsky``:
+
+    * ``constant``: its radiance (the emitter evaluated in one direction), E = πL at every normal;
+    * otherwise a lat-long map of ``height`` × 2·``height`` nodes (the module's convention) holding the
+      emitter's own ``eval`` at the node directions (its ``to_world`` and ``scale`` included), bilinear in
+      between — the quadrature then integrates that bake, whose error against the emitter is O(h²) in the
+      node spacing h = π/(height − 1) for a smooth map (a sharper file is smoothed at that scale);
+    * ``sunsky`` with ``sun`` = (unit direction towards the sun, angular radius in degrees): the sky is
+      baked with the emitter's ``sun_scale`` set to 0 and the sun becomes a `DiscSun` whose E⊥ is
+      `sunsky_sun_irradiance` of the emitter with ``sky_scale`` 0 (the scales are put back afterwards).
+
+    Negative values of the bake (Hosek–Wilkie below the horizon, mitsuba3 #1777) are clamped to 0."""
+    import drjit as dr
+
+    if kind == "constant":
+        value = _eval_emitter(mi, dr, emitter, np.array([[0.0, 0.0, 1.0]]))[0]
+        return constant_environment(value)
+    dirs = node_directions(height, 2 * height).reshape(-1, 3)
+    if kind == "sunsky" and sun is not None:
+        params = mi.traverse(emitter)
+        sun_scale, sky_scale = float(params["sun_scale"]), float(params["sky_scale"])
+        try:
+            params["sun_scale"] = 0.0
+            params.update()
+            img = _eval_emitter(mi, dr, emitter, dirs)
+            params["sun_scale"], params["sky_scale"] = sun_scale, 0.0
+            params.update()
+            d_sun = np.asarray(sun[0], np.float64)
+            e_perp, _e_eval = sunsky_sun_irradiance(mi, emitter, d_sun / np.linalg.norm(d_sun))
+        finally:
+            params["sun_scale"], params["sky_scale"] = sun_scale, sky_scale
+            params.update()
+        u = d_sun / np.linalg.norm(d_sun)
+        e = np.maximum(e_perp, 0.0)
+        disc = DiscSun(
+            (float(u[0]), float(u[1]), float(u[2])), float(sun[1]), (float(e[0]), float(e[1]), float(e[2]))
+        )
+    else:
+        img, disc = _eval_emitter(mi, dr, emitter, dirs), None
+    img = np.maximum(img, 0.0).reshape(height, 2 * height, 3).astype(np.float32)
+    return Environment(
+        name or kind, name or kind, kind, radiance_map=img, sun=disc, params={"bake_rows": height}
+    )
+
+
 def sunsky_sun_irradiance(mi, sun_only, d_sun: np.ndarray, samples: int = 1 << 18):
     """Normal-incidence irradiance of a sunsky emitter with ``sky_scale`` 0, two ways (RGB W/m² each):
 

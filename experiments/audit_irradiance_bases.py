@@ -1,0 +1,231 @@
+"""The ``irradiance-bases`` family in `rtfit audit`: the environment's irradiance at the visible normals.
+
+For a Mitsuba XML scene with an environment emitter (``envmap``, ``constant``, ``sunsky``) and the
+pixel-centre G-buffer of the scene's own camera (camera-facing unit normals n at the visible points):
+
+* reference: the environment's irradiance E(n) = ∫ L(ω) max(n·ω, 0) dω (W/m², RGB) at each visible
+  normal, **unoccluded** (the environment alone; the scene's shapes do not block it — occluded sky light
+  is the sdf-occlusion / ambient-aperture families' question), estimated with Mitsuba's own importance
+  sampling of that emitter (`rtfit.reference.light_irradiance.light_irradiance_pass`, its unshadowed
+  column: ``Emitter.sample_direction`` weight × max(n·ω, 0)) in independent passes through the pass cache,
+  with per-pixel standard errors;
+* the environment as the bases see it: `rtfit.reference.environments.emitter_environment` bakes the
+  loaded emitter (its ``to_world`` and ``scale`` included) into a lat-long map of ``BAKE_ROWS`` rows (a
+  sunsky's sun as an exact disc, its E⊥ from the emitter itself; a constant as its radiance); from that
+  environment `rtfit.experiments.irradiance_bases.build_bases` bakes what an engine stores: SH L2 by
+  projection (the L1 bases read its first four coefficients), Valve's ambient cube (irradiance at the six
+  axes), the NNLS-optimal cube (fitted over a Fibonacci sphere of normals) and Sloan's λ (the smallest
+  window strength without negative irradiance);
+* rows: every method of `rtfit.realtime.irradiance_bases.METHODS`, each with its own stored coefficients
+  (`FamilyCase.row_inputs`), evaluated on Dr.Jit at the visible normals; the exact row ``quadrature`` is
+  the dense midpoint quadrature of the same environment at the same normals
+  (`environments.irradiance_quadrature`), which must sit at the reference's noise (the run's self-check
+  that the bake, the quadrature and Mitsuba's emitter agree). ``sh-l2-lambda`` is evaluated with the
+  environment's own λ and then refitted to this scene's pixels by the audit (least squares over the
+  visible normals, which weights the normals the camera sees rather than the whole sphere).
+
+A user approximation of ``environment_irradiance`` gets ``nx, ny, nz`` and ``sh`` (the 27 SH L2
+coefficients, channel-major) and returns (R, G, B).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import drjit as dr
+import numpy as np
+
+from rtfit.realtime.irradiance_bases import METHODS
+from rtfit.reference.cache import PassEntry, array_digest, pool_passes
+from rtfit.reference.environments import emitter_environment, irradiance_quadrature
+from rtfit.reference.estimators import sub_seed
+from rtfit.reference.light_irradiance import light_irradiance_pass
+
+from .audit import Applicability
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .irradiance_bases import ROW, build_bases, row_params, supersample_for
+
+__all__ = ["BAKE_ROWS", "FAMILY", "QUADRATURE_MIN_ROWS", "environment_of", "irradiance_bases_cases"]
+
+FORMAT = 1
+BAKE_ROWS = 128
+"""Rows of the lat-long bake of a scene's environment emitter (× 2 columns)."""
+QUADRATURE_MIN_ROWS = 256
+"""The quadrature of the bake uses at least this many rows (midpoint supersampling of the bilinear map)."""
+_FIT_NORMALS = 2048  # Fibonacci normals of the NNLS cube fit
+_CFG = {"map_supersample": 2, "quadrature_min_rows": QUADRATURE_MIN_ROWS}
+
+
+def environment_of(setup: AuditSetup, source: int, rows: int = BAKE_ROWS):
+    """The `Environment` of the scene's environment emitter ``setup.info.xml.emitters[source]``
+    (`emitter_environment`)."""
+    xml = setup.info.xml
+    if xml is None:
+        raise AuditError("irradiance-bases: the audit reads environments from Mitsuba XML scenes")
+    light = xml.emitters[source]
+    emitter = setup.emitters[source]
+    if emitter is None or not light.environment:
+        raise AuditError(
+            f"irradiance-bases: {light.kind} ({light.location}) is not an instantiated environment"
+        )
+    sun = None
+    if light.kind == "sunsky" and light.direction is not None:
+        sun = (light.direction, float(light.angular_radius_deg or 0.0))
+    return emitter_environment(setup.mi, emitter, light.kind, rows, sun=sun, name=f"{light.kind} environment")
+
+
+def _reference(setup: AuditSetup, source: int, normals: np.ndarray, label: str):
+    """Pooled passes of the emitter's unoccluded irradiance at ``normals``: (mean (N, 3), stderr (N, 3),
+    spp, passes, rendered, entry, seconds)."""
+    import mitsuba as mi
+
+    emitter = setup.emitters[source]
+    points = np.zeros_like(normals)  # a distant environment: E(n) does not depend on the point
+    ident = {
+        "format": FORMAT,
+        "quantity": "environment-irradiance",
+        "scene": setup.scene_digest,
+        "emitter": source,
+        "normals": array_digest(normals),
+        "variant": setup.variant,
+        "seed": setup.seed,
+        "pass_spp": setup.pass_spp,
+        "versions": {"mitsuba": mi.__version__, "drjit": getattr(dr, "__version__", "")},
+    }
+    entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
+    count = -(-setup.spp // setup.pass_spp)
+
+    def render(i: int):
+        spp = max(min(setup.pass_spp, setup.spp - i * setup.pass_spp), 2)
+        seed = sub_seed(setup.seed, "pass", i)
+        return light_irradiance_pass(setup.mi, setup.scene, emitter, points, normals, normals, spp, seed)
+
+    passes, rendered = entry.passes(count, render, shape=(-1, 9), progress=setup.progress, label=label)
+    mean, stderr, total = pool_passes(passes)
+    return (
+        mean[:, :3],
+        stderr[:, :3],
+        total,
+        len(passes),
+        rendered,
+        entry,
+        float(sum(p.seconds for p in passes)),
+    )
+
+
+def _inside(p, value: float) -> float:
+    """``value`` where strictly inside the parameter's bounds, else its declared start (a λ of 0 — an
+    environment without negative irradiance — is evaluated at the declared 10⁻⁶, the same image to
+    within 10⁻⁵ relative)."""
+    return value if p.lower < value < p.upper else p.initial
+
+
+def _image(mask, values) -> np.ndarray:
+    img = np.zeros((*mask.shape, 3))
+    img[mask] = values
+    return img
+
+
+def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """One case: every basis and the exact quadrature against the environment's irradiance (module
+    docstring)."""
+    if app.source is None:
+        raise AuditError(f"irradiance-bases: {app.part} is not an environment of the scene")
+    mask = setup.mask
+    normals = setup.gbuffer.normal[mask].astype(np.float64)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    env = environment_of(setup, app.source)
+    tag = f"env{app.source}"
+    mean, stderr, total, passes, rendered, entry, seconds = _reference(
+        setup, app.source, normals, f"{tag}: {app.part}"
+    )
+    bases = build_bases(env, _CFG, fit_normals=_FIT_NORMALS)
+    quad = irradiance_quadrature(env, normals, supersample_for(env, _CFG))
+    nx, ny, nz = (np.ascontiguousarray(normals[:, k]) for k in range(3))
+    sh = np.ascontiguousarray(np.asarray(bases["sh"], np.float64).T.reshape(-1))  # a table: 27 floats
+    default = ({"nx": nx, "ny": ny, "nz": nz, "sh": sh},)
+    row_inputs: dict = {}
+    params: dict = {}
+    for row_id, method in METHODS.items():
+        row = ROW[row_id]
+        if method.exact:
+            row_inputs[row_id] = tuple({"irradiance": quad[:, c]} for c in range(3))
+            continue
+        stored_rows = method.storage // 3 if method.storage else 0
+        coeffs = np.asarray(bases[row.coeffs], np.float64)[:stored_rows]
+        stored = np.ascontiguousarray(coeffs.T.reshape(-1))  # what an engine stores, channel-major
+        row_inputs[row_id] = ({"nx": nx, "ny": ny, "nz": nz, "coeffs": stored},)
+        own = row_params(row, bases)
+        if own:
+            params[row_id] = {
+                k: replace(method.params[k], initial=_inside(method.params[k], float(v)))
+                for k, v in own.items()
+            }
+    light = setup.info.xml.emitters[app.source] if setup.info.xml is not None else None
+    ref = AuditReference(
+        mean=_image(mask, mean),
+        stderr=_image(mask, stderr),
+        spp=total,
+        passes=passes,
+        passes_rendered=rendered,
+        cache_key=entry.key,
+        cache_path=str(entry.folder),
+        seconds=seconds,
+        quantity="environment irradiance E(n) at the visible normals, unoccluded (W/m²)",
+        integrator="environment irradiance (emitter sampling, no scene rays)",
+        integrator_reason=(
+            f"{light.kind if light else 'environment'}: Mitsuba's importance sampling of the environment "
+            "emitter alone (Emitter.sample_direction), white Lambertian receiver at each visible normal"
+        ),
+    )
+    sun = env.sun
+    parameters = {
+        "environment": app.part,
+        "kind": env.kind,
+        "bake_rows": BAKE_ROWS if env.radiance_map is not None else 0,
+        "quadrature_rows": (env.radiance_map.shape[0] * supersample_for(env, _CFG))
+        if env.radiance_map is not None
+        else 0,
+        "sun_angular_radius_deg": sun.angular_radius_deg if sun else 0.0,
+        "lambda": float(bases["lambda"]),
+        "cube_nnls_rms_rgb": [float(v) for v in np.ravel(bases["cube_nnls_rms"])],
+        "pixels": int(mask.sum()),
+    }
+    notes = (
+        "unoccluded: the environment alone, as an engine's probe gives it (no shadowing by the scene)",
+        f"bases baked from the emitter: {BAKE_ROWS}×{2 * BAKE_ROWS} lat-long nodes"
+        + (f" plus a disc sun of {sun.angular_radius_deg:.4g}°" if sun else "")
+        + f"; Sloan's λ of this environment {bases['lambda']:.4g} (row sh-l2-lambda, then refitted)",
+    )
+    return [
+        FamilyCase(
+            id=tag,
+            label=f"{app.part}, irradiance at the visible normals",
+            reference=ref,
+            mask=mask,
+            channel_inputs=default,
+            parameters=parameters,
+            units="W/m²",
+            notes=notes,
+            params=params,
+            row_inputs=row_inputs,
+        )
+    ]
+
+
+FAMILY = AuditFamily(
+    name="irradiance-bases",
+    quantity="environment_irradiance",
+    cases=irradiance_bases_cases,
+    describe=(
+        "Per environment (envmap, constant, sunsky): its irradiance E(n) (W/m², RGB) at each visible "
+        "normal, unoccluded, estimated with Mitsuba's importance sampling of that emitter alone in "
+        "independent passes with per-pixel standard errors. The emitter is baked into a lat-long map "
+        f"({BAKE_ROWS} rows; a sunsky's sun as an exact disc) from which each basis bakes what an engine "
+        "stores (SH L2 projection, the L1 bases its first four coefficients, Valve's axis cube, the NNLS "
+        "cube, Sloan's λ); each basis is evaluated on Dr.Jit at the visible normals. The exact row is the "
+        "dense quadrature of the same bake at the same normals: it must sit at the reference's noise."
+        f" ({math.pi:.4f}·L for a constant environment.)"
+    ),
+)
