@@ -77,6 +77,7 @@ from .report import write_report
 from .results import write_results
 from .runner import created_now, device_description, versions
 from .user_methods import UserMethodError, check_approximation, load_approximation
+from .viewer import save_case_pixels
 
 __all__ = [
     "AUDITED",
@@ -808,6 +809,9 @@ def _write(directory: Path, r: AuditResult) -> None:
     results = from_json(Results, doc, f"audit of {r.info.source}")
     r.results = results
     _write_fitted(directory, r)
+    for case in r.cases:  # the report's image viewer (pixels/CASE.exr + .json, experiments/viewer.py)
+        images = {row: o.image for row, o in r.outcomes[case.id].items()}
+        save_case_pixels(directory, case.id, case.reference.mean, case.reference.sigma(), images, case.mask)
     write_results(directory, results)
     write_report(directory)
 

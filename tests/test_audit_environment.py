@@ -122,6 +122,8 @@ def test_envmap_scene_audit_end_to_end(tmp_path):
     res = load_results(tmp_path / "out" / "audit-e")
     assert res.cases[0].id == case.id
     assert (tmp_path / "out" / "audit-e" / "fitted" / "audit.json").exists()
+    assert (tmp_path / "out" / "audit-e" / "pixels" / f"{case.id}.exr").exists()  # the report's viewer
+    assert "pixels/" in (tmp_path / "out" / "audit-e" / "report.html").read_text()
     assert any("quadrature" in c.name for c in res.checks)
     assert all(c.passed for c in res.checks if "quadrature" in c.name)  # the exact row at the noise
 
