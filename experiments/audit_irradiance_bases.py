@@ -5,10 +5,11 @@ pixel-centre G-buffer of the scene's own camera (camera-facing unit normals n at
 
 * reference: the environment's irradiance E(n) = ∫ L(ω) max(n·ω, 0) dω (W/m², RGB) at each visible
   normal, **unoccluded** (the environment alone; the scene's shapes do not block it — occluded sky light
-  is the sdf-occlusion / ambient-aperture families' question), estimated with Mitsuba's own importance
-  sampling of that emitter (`rtfit.reference.light_irradiance.light_irradiance_pass`, its unshadowed
-  column: ``Emitter.sample_direction`` weight × max(n·ω, 0)) in independent passes through the pass cache,
-  with per-pixel standard errors;
+  is the sdf-occlusion / ambient-aperture families' question), estimated by
+  `rtfit.reference.light_irradiance.environment_irradiance_pass`: multiple importance sampling of Mitsuba's
+  own sampling of that emitter and the cosine-weighted hemisphere (emitter sampling alone misses the
+  near-horizon sky of Mitsuba's sunsky), in independent passes through the pass cache, with per-pixel
+  standard errors;
 * the environment as the bases see it: `rtfit.reference.environments.emitter_environment` bakes the
   loaded emitter (its ``to_world`` and ``scale`` included) into a lat-long map of ``BAKE_ROWS`` rows (a
   sunsky's sun as an exact disc, its E⊥ from the emitter itself; a constant as its radiance); from that
@@ -18,11 +19,13 @@ pixel-centre G-buffer of the scene's own camera (camera-facing unit normals n at
   window strength without negative irradiance);
 * rows: every method of `rtfit.realtime.irradiance_bases.METHODS`, each with its own stored coefficients
   (`FamilyCase.row_inputs`), evaluated on Dr.Jit at the visible normals; the exact row ``quadrature`` is
-  the dense midpoint quadrature of the same environment at the same normals
-  (`environments.irradiance_quadrature`), which must sit at the reference's noise (the run's self-check
-  that the bake, the quadrature and Mitsuba's emitter agree). ``sh-l2-lambda`` is evaluated with the
-  environment's own λ and then refitted to this scene's pixels by the audit (least squares over the
-  visible normals, which weights the normals the camera sees rather than the whole sphere).
+  the midpoint quadrature of the emitter itself at the same normals (`QUADRATURE_ROWS` rows of cells, the
+  emitter's ``eval`` at each cell centre, a sunsky's sun as the exact disc:
+  `environments.emitter_irradiance_quadrature`), which must sit at the reference's noise (the run's
+  self-check that Mitsuba's sampling and a deterministic integral of the same emitter agree).
+  ``sh-l2-lambda`` is evaluated with the environment's own λ and then refitted to this scene's pixels by
+  the audit (least squares over the visible normals: it weights the normals the camera sees rather than
+  the whole sphere).
 
 A user approximation of ``environment_irradiance`` gets ``nx, ny, nz`` and ``sh`` (the 27 SH L2
 coefficients, channel-major) and returns (R, G, B).
@@ -38,21 +41,30 @@ import numpy as np
 
 from rtfit.realtime.irradiance_bases import METHODS
 from rtfit.reference.cache import PassEntry, array_digest, pool_passes
-from rtfit.reference.environments import emitter_environment, irradiance_quadrature
+from rtfit.reference.environments import emitter_environment, emitter_irradiance_quadrature
 from rtfit.reference.estimators import sub_seed
-from rtfit.reference.light_irradiance import light_irradiance_pass
+from rtfit.reference.light_irradiance import environment_irradiance_pass
 
 from .audit import Applicability
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
-from .irradiance_bases import ROW, build_bases, row_params, supersample_for
+from .irradiance_bases import ROW, build_bases, row_params
 
-__all__ = ["BAKE_ROWS", "FAMILY", "QUADRATURE_MIN_ROWS", "environment_of", "irradiance_bases_cases"]
+__all__ = [
+    "BAKE_ROWS",
+    "FAMILY",
+    "QUADRATURE_MIN_ROWS",
+    "QUADRATURE_ROWS",
+    "environment_of",
+    "irradiance_bases_cases",
+]
 
-FORMAT = 1
+FORMAT = 2  # 2: MIS of emitter and cosine sampling (`environment_irradiance_pass`)
 BAKE_ROWS = 128
 """Rows of the lat-long bake of a scene's environment emitter (× 2 columns)."""
 QUADRATURE_MIN_ROWS = 256
-"""The quadrature of the bake uses at least this many rows (midpoint supersampling of the bilinear map)."""
+"""The bases' own quadratures of the bake (Valve's axes, the NNLS fit) use at least this many rows."""
+QUADRATURE_ROWS = 256
+"""Rows (even: a cell boundary on the horizon) of the exact row's midpoint rule over the emitter itself."""
 _FIT_NORMALS = 2048  # Fibonacci normals of the NNLS cube fit
 _CFG = {"map_supersample": 2, "quadrature_min_rows": QUADRATURE_MIN_ROWS}
 
@@ -81,7 +93,6 @@ def _reference(setup: AuditSetup, source: int, normals: np.ndarray, label: str):
     import mitsuba as mi
 
     emitter = setup.emitters[source]
-    points = np.zeros_like(normals)  # a distant environment: E(n) does not depend on the point
     ident = {
         "format": FORMAT,
         "quantity": "environment-irradiance",
@@ -98,10 +109,9 @@ def _reference(setup: AuditSetup, source: int, normals: np.ndarray, label: str):
 
     def render(i: int):
         spp = max(min(setup.pass_spp, setup.spp - i * setup.pass_spp), 2)
-        seed = sub_seed(setup.seed, "pass", i)
-        return light_irradiance_pass(setup.mi, setup.scene, emitter, points, normals, normals, spp, seed)
+        return environment_irradiance_pass(setup.mi, emitter, normals, spp, sub_seed(setup.seed, "pass", i))
 
-    passes, rendered = entry.passes(count, render, shape=(-1, 9), progress=setup.progress, label=label)
+    passes, rendered = entry.passes(count, render, shape=(-1, 3), progress=setup.progress, label=label)
     mean, stderr, total = pool_passes(passes)
     return (
         mean[:, :3],
@@ -141,7 +151,10 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
         setup, app.source, normals, f"{tag}: {app.part}"
     )
     bases = build_bases(env, _CFG, fit_normals=_FIT_NORMALS)
-    quad = irradiance_quadrature(env, normals, supersample_for(env, _CFG))
+    light = setup.info.xml.emitters[app.source] if setup.info.xml is not None else None
+    kind = light.kind if light is not None else env.kind
+    emitter = setup.emitters[app.source]
+    quad = emitter_irradiance_quadrature(setup.mi, emitter, kind, normals, QUADRATURE_ROWS, sun=env.sun)
     nx, ny, nz = (np.ascontiguousarray(normals[:, k]) for k in range(3))
     sh = np.ascontiguousarray(np.asarray(bases["sh"], np.float64).T.reshape(-1))  # a table: 27 floats
     default = ({"nx": nx, "ny": ny, "nz": nz, "sh": sh},)
@@ -162,7 +175,6 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
                 k: replace(method.params[k], initial=_inside(method.params[k], float(v)))
                 for k, v in own.items()
             }
-    light = setup.info.xml.emitters[app.source] if setup.info.xml is not None else None
     ref = AuditReference(
         mean=_image(mask, mean),
         stderr=_image(mask, stderr),
@@ -173,10 +185,10 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
         cache_path=str(entry.folder),
         seconds=seconds,
         quantity="environment irradiance E(n) at the visible normals, unoccluded (W/m²)",
-        integrator="environment irradiance (emitter sampling, no scene rays)",
+        integrator="environment irradiance (MIS: emitter + cosine sampling, no scene rays)",
         integrator_reason=(
-            f"{light.kind if light else 'environment'}: Mitsuba's importance sampling of the environment "
-            "emitter alone (Emitter.sample_direction), white Lambertian receiver at each visible normal"
+            f"{kind}: the environment emitter alone, Mitsuba's Emitter.sample_direction and the cosine "
+            "hemisphere combined by the balance heuristic, white Lambertian receiver at each visible normal"
         ),
     )
     sun = env.sun
@@ -184,9 +196,7 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
         "environment": app.part,
         "kind": env.kind,
         "bake_rows": BAKE_ROWS if env.radiance_map is not None else 0,
-        "quadrature_rows": (env.radiance_map.shape[0] * supersample_for(env, _CFG))
-        if env.radiance_map is not None
-        else 0,
+        "quadrature_rows": QUADRATURE_ROWS if env.radiance_map is not None else 0,
         "sun_angular_radius_deg": sun.angular_radius_deg if sun else 0.0,
         "lambda": float(bases["lambda"]),
         "cube_nnls_rms_rgb": [float(v) for v in np.ravel(bases["cube_nnls_rms"])],
@@ -220,12 +230,14 @@ FAMILY = AuditFamily(
     cases=irradiance_bases_cases,
     describe=(
         "Per environment (envmap, constant, sunsky): its irradiance E(n) (W/m², RGB) at each visible "
-        "normal, unoccluded, estimated with Mitsuba's importance sampling of that emitter alone in "
-        "independent passes with per-pixel standard errors. The emitter is baked into a lat-long map "
-        f"({BAKE_ROWS} rows; a sunsky's sun as an exact disc) from which each basis bakes what an engine "
+        "normal, unoccluded, estimated by multiple importance sampling of that emitter alone (Mitsuba's "
+        "sampling of it and the cosine hemisphere) in independent passes with per-pixel standard errors. "
+        f"The emitter is baked into a lat-long map ({BAKE_ROWS} rows; a sunsky's sun as an exact disc) "
+        "from which each basis bakes what an engine "
         "stores (SH L2 projection, the L1 bases its first four coefficients, Valve's axis cube, the NNLS "
         "cube, Sloan's λ); each basis is evaluated on Dr.Jit at the visible normals. The exact row is the "
-        "dense quadrature of the same bake at the same normals: it must sit at the reference's noise."
+        "midpoint quadrature of the emitter itself (its eval at 256 × 512 cell centres; a sunsky's sun as an "
+        "exact disc) at the same normals: it must sit at the reference's noise."
         f" ({math.pi:.4f}·L for a constant environment.)"
     ),
 )
