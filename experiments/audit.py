@@ -187,7 +187,7 @@ RULES: tuple[Rule, ...] = (
         ("environment", "surface"),
         "{part} lights the visible normals from every direction",
         "the environment's irradiance E(n) at the visible normals, unoccluded",
-        "quadrature of the environment over each visible normal's hemisphere (no scene rays)",
+        "emitter sampling of the environment alone (no scene rays); its dense quadrature as the exact row",
     ),
     Rule(
         "sdf-occlusion",

@@ -27,7 +27,8 @@ compared as transmittances T = e^(−τ), the shading models on the fogged image
 `Method`, replacing the family's table for this case; a row whose ``Method.id`` is not among the
 applicability's methods is dropped), ``quantity`` (user approximations of it are its rows) and ``params``
 (row id → parameter name → `Param`: the value the row is evaluated with, ``Param.initial``, and the start
-and bounds of its fit, e.g. the scene's own fog density).
+and bounds of its fit, e.g. the scene's own fog density) and ``row_inputs`` (row id → that row's own
+``channel_inputs``, e.g. the stored coefficients of one irradiance basis).
 """
 
 from __future__ import annotations
@@ -122,6 +123,10 @@ class FamilyCase:
     methods: Mapping[str, Method] | None = None
     quantity: str = ""
     params: Mapping[str, Mapping[str, Param]] = field(default_factory=dict)
+    row_inputs: Mapping[str, tuple[Mapping[str, Any], ...]] = field(default_factory=dict)
+    """Row id → ``channel_inputs`` of that row alone, where a row's inputs differ from the case's (each
+    irradiance basis reads its own stored coefficients; the exact row one grey value per channel). Rows not
+    named here (and every user approximation) get ``channel_inputs``."""
 
 
 @dataclass(frozen=True)

@@ -68,6 +68,7 @@ from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_fa
 from .audit_diffuse import FAMILY as DIFFUSE
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .audit_height_fog import FAMILY as HEIGHT_FOG
+from .audit_irradiance_bases import FAMILY as IRRADIANCE_BASES
 from .audit_nishita_sky import FAMILY as NISHITA_SKY
 from .cost import time_drjit
 from .records import SCHEMA, Results, from_json, plain_json, to_json
@@ -76,6 +77,7 @@ from .report import write_report
 from .results import write_results
 from .runner import created_now, device_description, versions
 from .user_methods import UserMethodError, check_approximation, load_approximation
+from .viewer import save_case_pixels
 
 __all__ = [
     "AUDITED",
@@ -89,7 +91,7 @@ __all__ = [
 
 log = logging.getLogger("rtfit.audit")
 
-AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE, HEIGHT_FOG, NISHITA_SKY)}
+AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE, IRRADIANCE_BASES, HEIGHT_FOG, NISHITA_SKY)}
 """The families the audit runs (name → declaration, `audit_family.AuditFamily`). A family listed by
 ``--list`` but not here is named in the run's notes as not audited yet."""
 
@@ -564,7 +566,11 @@ def audit(
     for family, a, case in plan:
         rows = outcomes.setdefault(case.id, {})
         sigma = case.reference.sigma()
-        for row_id, method, user in _rows(family, a, sel, case):
+        base = case
+        for row_id, method, user in _rows(family, a, sel, base):
+            case = (
+                replace(base, channel_inputs=base.row_inputs[row_id]) if row_id in base.row_inputs else base
+            )
             t1 = time.perf_counter()
             given = _given(case, row_id, method)
             img = _evaluate(method, case, given)
@@ -803,6 +809,9 @@ def _write(directory: Path, r: AuditResult) -> None:
     results = from_json(Results, doc, f"audit of {r.info.source}")
     r.results = results
     _write_fitted(directory, r)
+    for case in r.cases:  # the report's image viewer (pixels/CASE.exr + .json, experiments/viewer.py)
+        images = {row: o.image for row, o in r.outcomes[case.id].items()}
+        save_case_pixels(directory, case.id, case.reference.mean, case.reference.sigma(), images, case.mask)
     write_results(directory, results)
     write_report(directory)
 

@@ -35,6 +35,7 @@ bilinear function Mitsuba sees, E(n) = Σ_k w_k L_k max(n·d_k, 0).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from dataclasses import dataclass, field
@@ -175,17 +176,27 @@ def irradiance_quadrature(
         e += math.pi * np.asarray(env.constant, np.float64)[None, :]
     if env.radiance_map is not None and len(n):
         d, w, L = quadrature_samples(env.radiance_map, supersample)
-        wl = L * w[:, None]
-        keep = np.any(wl != 0, axis=1)
-        d, wl = d[keep], wl[keep]
-        if backend is None:
-            chunk = max(256, (1 << 21) // max(len(n), 1))
-            for a in range(0, len(d), chunk):
-                e += np.maximum(n @ d[a : a + chunk].T, 0.0) @ wl[a : a + chunk]
-        elif len(d):
-            e += _quadrature_drjit(n, d, wl, backend)
+        e += samples_irradiance(n, d, w, L, backend)
     if include_sun and env.sun is not None:
         e += disc_irradiance(env.sun, n)
+    return e
+
+
+def samples_irradiance(normals, d, w, L, backend: str | None = None) -> np.ndarray:
+    """Σ_k w_k L_k max(n·d_k, 0) (N, 3) at unit ``normals`` (N, 3) over samples: directions ``d`` (M, 3),
+    solid-angle weights ``w`` (M,), radiance ``L`` (M, 3). ``backend``: None sums in NumPy (float64, blocks
+    of at most 2²¹ products), "llvm"/"cuda" with a Dr.Jit float64 kernel."""
+    n = np.asarray(normals, np.float64)
+    wl = np.asarray(L, np.float64) * np.asarray(w, np.float64)[:, None]
+    keep = np.any(wl != 0, axis=1)
+    d, wl = np.asarray(d, np.float64)[keep], wl[keep]
+    e = np.zeros((len(n), 3))
+    if backend is None:
+        chunk = max(256, (1 << 21) // max(len(n), 1))
+        for a in range(0, len(d), chunk):
+            e += np.maximum(n @ d[a : a + chunk].T, 0.0) @ wl[a : a + chunk]
+    elif len(d) and len(n):
+        e += _quadrature_drjit(n, d, wl, backend)
     return e
 
 
@@ -382,6 +393,96 @@ def sunsky_environment(
             "sun_negative_channels": negative,
         },
     )
+
+
+def emitter_environment(
+    mi, emitter, kind: str, height: int, sun: tuple | None = None, name: str = ""
+) -> Environment:
+    """An `Environment` of a loaded Mitsuba environment emitter (``mi``: the mitsuba module in an RGB
+    variant), for a scene's own ``envmap``, ``constant`` or ``sunsky``:
+
+    * ``constant``: its radiance (the emitter evaluated in one direction), E = πL at every normal;
+    * otherwise a lat-long map of ``height`` × 2·``height`` nodes (the module's convention) holding the
+      emitter's own ``eval`` at the node directions (its ``to_world`` and ``scale`` included), bilinear in
+      between — the quadrature then integrates that bake, whose error against the emitter is O(h²) in the
+      node spacing h = π/(height − 1) for a smooth map (a sharper file is smoothed at that scale);
+    * ``sunsky`` with ``sun`` = (unit direction towards the sun, angular radius in degrees): the sky is
+      baked with the emitter's ``sun_scale`` set to 0 and the sun becomes a `DiscSun` whose E⊥ is
+      `sunsky_sun_irradiance` of the emitter with ``sky_scale`` 0 (the scales are put back afterwards).
+
+    Negative values of the bake (Hosek–Wilkie below the horizon, mitsuba3 #1777) are clamped to 0."""
+    import drjit as dr
+
+    if kind == "constant":
+        value = _eval_emitter(mi, dr, emitter, np.array([[0.0, 0.0, 1.0]]))[0]
+        return constant_environment(value)
+    dirs = node_directions(height, 2 * height).reshape(-1, 3)
+    if kind == "sunsky" and sun is not None:
+        with _scales(mi, emitter, sun_scale=0.0):
+            img = _eval_emitter(mi, dr, emitter, dirs)
+        d_sun = np.asarray(sun[0], np.float64)
+        with _scales(mi, emitter, sky_scale=0.0):
+            e_perp, _e_eval = sunsky_sun_irradiance(mi, emitter, d_sun / np.linalg.norm(d_sun))
+        u = d_sun / np.linalg.norm(d_sun)
+        e = np.maximum(e_perp, 0.0)
+        disc = DiscSun(
+            (float(u[0]), float(u[1]), float(u[2])), float(sun[1]), (float(e[0]), float(e[1]), float(e[2]))
+        )
+    else:
+        img, disc = _eval_emitter(mi, dr, emitter, dirs), None
+    img = np.maximum(img, 0.0).reshape(height, 2 * height, 3).astype(np.float32)
+    return Environment(
+        name or kind, name or kind, kind, radiance_map=img, sun=disc, params={"bake_rows": height}
+    )
+
+
+@contextlib.contextmanager
+def _scales(mi, emitter, **scales):
+    """The emitter with its ``sun_scale``/``sky_scale`` set as given (a sunsky), put back afterwards."""
+    params = mi.traverse(emitter)
+    old = {k: float(params[k]) for k in scales}
+    try:
+        for k, v in scales.items():
+            params[k] = v
+        params.update()
+        yield emitter
+    finally:
+        for k, v in old.items():
+            params[k] = v
+        params.update()
+
+
+def emitter_irradiance_quadrature(
+    mi, emitter, kind: str, normals, rows: int, sun: DiscSun | None = None, backend: str | None = None
+) -> np.ndarray:
+    """Irradiance (N, 3) of a loaded Mitsuba environment emitter at unit ``normals``: the midpoint rule over
+    ``rows`` × 2·``rows`` lat-long cells (θ = π(j + ½)/rows, the module's frame) with the emitter's own
+    ``eval`` at each cell centre — no bake, no interpolation, so a radiance cut on a cell boundary (a
+    sunsky's horizon, with ``rows`` even) is integrated without smearing — plus, for a ``sunsky`` with
+    ``sun``, its sky alone (``sun_scale`` 0) and the disc sun's exact irradiance (`disc_irradiance`).
+    A ``constant``: πL."""
+    import drjit as dr
+
+    n = np.asarray(normals, np.float64)
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    if kind == "constant":
+        value = _eval_emitter(mi, dr, emitter, np.array([[0.0, 0.0, 1.0]]))[0]
+        return np.tile(math.pi * value, (len(n), 1))
+    r = int(rows)
+    u = (np.arange(2 * r) + 0.5) / (2 * r)
+    v = (np.arange(r) + 0.5) / r
+    uu, vv = np.meshgrid(u, v)
+    d = uv_to_direction(uu, vv).reshape(-1, 3)
+    w = ((2.0 * np.pi / (2 * r)) * (np.pi / r) * np.sin(np.pi * vv)).reshape(-1)
+    if kind == "sunsky" and sun is not None:
+        with _scales(mi, emitter, sun_scale=0.0):
+            L = _eval_emitter(mi, dr, emitter, d)
+    else:
+        L = _eval_emitter(mi, dr, emitter, d)
+    e = samples_irradiance(n, d, w, np.maximum(L, 0.0), backend)
+    if sun is not None:
+        e += disc_irradiance(sun, n)
+    return e
 
 
 def sunsky_sun_irradiance(mi, sun_only, d_sun: np.ndarray, samples: int = 1 << 18):

@@ -1,0 +1,243 @@
+"""The ``irradiance-bases`` family in `rtfit audit`: the environment's irradiance at the visible normals.
+
+For a Mitsuba XML scene with an environment emitter (``envmap``, ``constant``, ``sunsky``) and the
+pixel-centre G-buffer of the scene's own camera (camera-facing unit normals n at the visible points):
+
+* reference: the environment's irradiance E(n) = ∫ L(ω) max(n·ω, 0) dω (W/m², RGB) at each visible
+  normal, **unoccluded** (the environment alone; the scene's shapes do not block it — occluded sky light
+  is the sdf-occlusion / ambient-aperture families' question), estimated by
+  `rtfit.reference.light_irradiance.environment_irradiance_pass`: multiple importance sampling of Mitsuba's
+  own sampling of that emitter and the cosine-weighted hemisphere (emitter sampling alone misses the
+  near-horizon sky of Mitsuba's sunsky), in independent passes through the pass cache, with per-pixel
+  standard errors;
+* the environment as the bases see it: `rtfit.reference.environments.emitter_environment` bakes the
+  loaded emitter (its ``to_world`` and ``scale`` included) into a lat-long map of ``BAKE_ROWS`` rows (a
+  sunsky's sun as an exact disc, its E⊥ from the emitter itself; a constant as its radiance); from that
+  environment `rtfit.experiments.irradiance_bases.build_bases` bakes what an engine stores: SH L2 by
+  projection (the L1 bases read its first four coefficients), Valve's ambient cube (irradiance at the six
+  axes), the NNLS-optimal cube (fitted over a Fibonacci sphere of normals) and Sloan's λ (the smallest
+  window strength without negative irradiance);
+* rows: every method of `rtfit.realtime.irradiance_bases.METHODS`, each with its own stored coefficients
+  (`FamilyCase.row_inputs`), evaluated on Dr.Jit at the visible normals; the exact row ``quadrature`` is
+  the midpoint quadrature of the emitter itself at the same normals (`QUADRATURE_ROWS` rows of cells, the
+  emitter's ``eval`` at each cell centre, a sunsky's sun as the exact disc:
+  `environments.emitter_irradiance_quadrature`), which must sit at the reference's noise (the run's
+  self-check that Mitsuba's sampling and a deterministic integral of the same emitter agree).
+  ``sh-l2-lambda`` is evaluated with the environment's own λ and then refitted to this scene's pixels by
+  the audit (least squares over the visible normals: it weights the normals the camera sees rather than
+  the whole sphere).
+
+A user approximation of ``environment_irradiance`` gets ``nx, ny, nz`` and ``sh`` (the 27 SH L2
+coefficients, channel-major) and returns (R, G, B).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import drjit as dr
+import numpy as np
+
+from rtfit.realtime.irradiance_bases import METHODS
+from rtfit.reference.cache import PassEntry, array_digest, pool_passes
+from rtfit.reference.environments import emitter_environment, emitter_irradiance_quadrature
+from rtfit.reference.estimators import sub_seed
+from rtfit.reference.light_irradiance import environment_irradiance_pass
+
+from .audit import Applicability
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .irradiance_bases import ROW, build_bases, row_params
+
+__all__ = [
+    "BAKE_ROWS",
+    "FAMILY",
+    "QUADRATURE_MIN_ROWS",
+    "QUADRATURE_ROWS",
+    "environment_of",
+    "irradiance_bases_cases",
+]
+
+FORMAT = 2  # 2: MIS of emitter and cosine sampling (`environment_irradiance_pass`)
+BAKE_ROWS = 128
+"""Rows of the lat-long bake of a scene's environment emitter (× 2 columns)."""
+QUADRATURE_MIN_ROWS = 256
+"""The bases' own quadratures of the bake (Valve's axes, the NNLS fit) use at least this many rows."""
+QUADRATURE_ROWS = 256
+"""Rows (even: a cell boundary on the horizon) of the exact row's midpoint rule over the emitter itself."""
+_FIT_NORMALS = 2048  # Fibonacci normals of the NNLS cube fit
+_CFG = {"map_supersample": 2, "quadrature_min_rows": QUADRATURE_MIN_ROWS}
+
+
+def environment_of(setup: AuditSetup, source: int, rows: int = BAKE_ROWS):
+    """The `Environment` of the scene's environment emitter ``setup.info.xml.emitters[source]``
+    (`emitter_environment`)."""
+    xml = setup.info.xml
+    if xml is None:
+        raise AuditError("irradiance-bases: the audit reads environments from Mitsuba XML scenes")
+    light = xml.emitters[source]
+    emitter = setup.emitters[source]
+    if emitter is None or not light.environment:
+        raise AuditError(
+            f"irradiance-bases: {light.kind} ({light.location}) is not an instantiated environment"
+        )
+    sun = None
+    if light.kind == "sunsky" and light.direction is not None:
+        sun = (light.direction, float(light.angular_radius_deg or 0.0))
+    return emitter_environment(setup.mi, emitter, light.kind, rows, sun=sun, name=f"{light.kind} environment")
+
+
+def _reference(setup: AuditSetup, source: int, normals: np.ndarray, label: str):
+    """Pooled passes of the emitter's unoccluded irradiance at ``normals``: (mean (N, 3), stderr (N, 3),
+    spp, passes, rendered, entry, seconds)."""
+    import mitsuba as mi
+
+    emitter = setup.emitters[source]
+    ident = {
+        "format": FORMAT,
+        "quantity": "environment-irradiance",
+        "scene": setup.scene_digest,
+        "emitter": source,
+        "normals": array_digest(normals),
+        "variant": setup.variant,
+        "seed": setup.seed,
+        "pass_spp": setup.pass_spp,
+        "versions": {"mitsuba": mi.__version__, "drjit": getattr(dr, "__version__", "")},
+    }
+    entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
+    count = -(-setup.spp // setup.pass_spp)
+
+    def render(i: int):
+        spp = max(min(setup.pass_spp, setup.spp - i * setup.pass_spp), 2)
+        return environment_irradiance_pass(setup.mi, emitter, normals, spp, sub_seed(setup.seed, "pass", i))
+
+    passes, rendered = entry.passes(count, render, shape=(-1, 3), progress=setup.progress, label=label)
+    mean, stderr, total = pool_passes(passes)
+    return (
+        mean[:, :3],
+        stderr[:, :3],
+        total,
+        len(passes),
+        rendered,
+        entry,
+        float(sum(p.seconds for p in passes)),
+    )
+
+
+def _inside(p, value: float) -> float:
+    """``value`` where strictly inside the parameter's bounds, else its declared start (a λ of 0 — an
+    environment without negative irradiance — is evaluated at the declared 10⁻⁶, the same image to
+    within 10⁻⁵ relative)."""
+    return value if p.lower < value < p.upper else p.initial
+
+
+def _image(mask, values) -> np.ndarray:
+    img = np.zeros((*mask.shape, 3))
+    img[mask] = values
+    return img
+
+
+def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """One case: every basis and the exact quadrature against the environment's irradiance (module
+    docstring)."""
+    if app.source is None:
+        raise AuditError(f"irradiance-bases: {app.part} is not an environment of the scene")
+    mask = setup.mask
+    normals = setup.gbuffer.normal[mask].astype(np.float64)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    env = environment_of(setup, app.source)
+    tag = f"env{app.source}"
+    mean, stderr, total, passes, rendered, entry, seconds = _reference(
+        setup, app.source, normals, f"{tag}: {app.part}"
+    )
+    bases = build_bases(env, _CFG, fit_normals=_FIT_NORMALS)
+    light = setup.info.xml.emitters[app.source] if setup.info.xml is not None else None
+    kind = light.kind if light is not None else env.kind
+    emitter = setup.emitters[app.source]
+    quad = emitter_irradiance_quadrature(setup.mi, emitter, kind, normals, QUADRATURE_ROWS, sun=env.sun)
+    nx, ny, nz = (np.ascontiguousarray(normals[:, k]) for k in range(3))
+    sh = np.ascontiguousarray(np.asarray(bases["sh"], np.float64).T.reshape(-1))  # a table: 27 floats
+    default = ({"nx": nx, "ny": ny, "nz": nz, "sh": sh},)
+    row_inputs: dict = {}
+    params: dict = {}
+    for row_id, method in METHODS.items():
+        row = ROW[row_id]
+        if method.exact:
+            row_inputs[row_id] = tuple({"irradiance": quad[:, c]} for c in range(3))
+            continue
+        stored_rows = method.storage // 3 if method.storage else 0
+        coeffs = np.asarray(bases[row.coeffs], np.float64)[:stored_rows]
+        stored = np.ascontiguousarray(coeffs.T.reshape(-1))  # what an engine stores, channel-major
+        row_inputs[row_id] = ({"nx": nx, "ny": ny, "nz": nz, "coeffs": stored},)
+        own = row_params(row, bases)
+        if own:
+            params[row_id] = {
+                k: replace(method.params[k], initial=_inside(method.params[k], float(v)))
+                for k, v in own.items()
+            }
+    ref = AuditReference(
+        mean=_image(mask, mean),
+        stderr=_image(mask, stderr),
+        spp=total,
+        passes=passes,
+        passes_rendered=rendered,
+        cache_key=entry.key,
+        cache_path=str(entry.folder),
+        seconds=seconds,
+        quantity="environment irradiance E(n) at the visible normals, unoccluded (W/m²)",
+        integrator="environment irradiance (MIS: emitter + cosine sampling, no scene rays)",
+        integrator_reason=(
+            f"{kind}: the environment emitter alone, Mitsuba's Emitter.sample_direction and the cosine "
+            "hemisphere combined by the balance heuristic, white Lambertian receiver at each visible normal"
+        ),
+    )
+    sun = env.sun
+    parameters = {
+        "environment": app.part,
+        "kind": env.kind,
+        "bake_rows": BAKE_ROWS if env.radiance_map is not None else 0,
+        "quadrature_rows": QUADRATURE_ROWS if env.radiance_map is not None else 0,
+        "sun_angular_radius_deg": sun.angular_radius_deg if sun else 0.0,
+        "lambda": float(bases["lambda"]),
+        "cube_nnls_rms_rgb": [float(v) for v in np.ravel(bases["cube_nnls_rms"])],
+        "pixels": int(mask.sum()),
+    }
+    notes = (
+        "unoccluded: the environment alone, as an engine's probe gives it (no shadowing by the scene)",
+        f"bases baked from the emitter: {BAKE_ROWS}×{2 * BAKE_ROWS} lat-long nodes"
+        + (f" plus a disc sun of {sun.angular_radius_deg:.4g}°" if sun else "")
+        + f"; Sloan's λ of this environment {bases['lambda']:.4g} (row sh-l2-lambda, then refitted)",
+    )
+    return [
+        FamilyCase(
+            id=tag,
+            label=f"{app.part}, irradiance at the visible normals",
+            reference=ref,
+            mask=mask,
+            channel_inputs=default,
+            parameters=parameters,
+            units="W/m²",
+            notes=notes,
+            params=params,
+            row_inputs=row_inputs,
+        )
+    ]
+
+
+FAMILY = AuditFamily(
+    name="irradiance-bases",
+    quantity="environment_irradiance",
+    cases=irradiance_bases_cases,
+    describe=(
+        "Per environment (envmap, constant, sunsky): its irradiance E(n) (W/m², RGB) at each visible "
+        "normal, unoccluded, estimated by multiple importance sampling of that emitter alone (Mitsuba's "
+        "sampling of it and the cosine hemisphere) in independent passes with per-pixel standard errors. "
+        f"The emitter is baked into a lat-long map ({BAKE_ROWS} rows; a sunsky's sun as an exact disc) "
+        "from which each basis bakes what an engine "
+        "stores (SH L2 projection, the L1 bases its first four coefficients, Valve's axis cube, the NNLS "
+        "cube, Sloan's λ); each basis is evaluated on Dr.Jit at the visible normals. The exact row is the "
+        "midpoint quadrature of the emitter itself (its eval at 256 × 512 cell centres; a sunsky's sun as an "
+        "exact disc) at the same normals: it must sit at the reference's noise."
+        f" ({math.pi:.4f}·L for a constant environment.)"
+    ),
+)
