@@ -42,6 +42,7 @@ from tqdm import tqdm
 
 import rtfit
 from rtfit.reference import default_cache_dir, resolve_variant
+from rtfit.reference.export_xml import export_xml
 from rtfit.reference.io import atomic_write_json
 from rtfit.scenes import SceneError, library_path, load_scene
 
@@ -427,8 +428,6 @@ def export_xml_cmd(scene, output):
 
     Mesh files go into a meshes/ folder beside OUTPUT. rtfit's own plugins (the distant-disc sun, the
     exponential height fog, the Nishita atmosphere) are left out, one line each on stderr."""
-    from rtfit.reference.export_xml import export_xml
-
     path = Path(scene)
     try:
         parsed = load_scene(path if path.suffix == ".toml" or path.exists() else library_path(scene))
