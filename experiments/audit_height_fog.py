@@ -59,7 +59,8 @@ from .height_fog import fit_params, horizon_colour, segment_geometry, single_sca
 
 __all__ = ["FAMILY", "SHADING_ROWS", "fog_cases", "transmittance_method"]
 
-FORMAT = 3  # 2: at least MIN_COLLISIONS tentative collisions per ray; 3: independent channels
+# 2: at least MIN_COLLISIONS tentative collisions per ray; 3: independent channels; 4: σ̄ bounds the variance
+FORMAT = 4
 
 
 def transmittance_method(form: Method) -> Method:

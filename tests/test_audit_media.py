@@ -108,7 +108,7 @@ def test_height_fog_transmittance_against_quadrature_and_a_user_fit(tmp_path):
     ref, err = case.reference.mean[case.mask], case.reference.stderr[case.mask]
     assert case.mask.sum() == 20  # the rays that cross the box
     z = (ref - truth[:, None]) / err  # three independent estimates of the grey T per pixel
-    assert abs(float(np.mean(z))) < 0.6 and float(np.max(np.abs(z))) < 4.5  # measured: −0.12, 3.8
+    assert abs(float(np.mean(z))) < 0.6 and float(np.max(np.abs(z))) < 4.5  # measured: 0.026, 2.0
     assert truth.min() < 0.05 and truth.max() > 0.95  # from nearly opaque to nearly clear (0.014–0.994)
     exact = r.image(case.id, "exact")[case.mask][:, 0]  # a grey value in each channel
     assert np.max(np.abs(exact - truth)) < 1e-9  # measured 9.0e-12 (float64 inputs and kernel)
@@ -136,7 +136,7 @@ def test_height_fog_transmittance_against_quadrature_and_a_user_fit(tmp_path):
     checks = {c.name.rsplit(": ", 1)[1].split(" (")[0]: c for c in r.results.checks}
     assert set(checks) == {"robust z spread", "median z", "fraction with |z| > 4"}, checks
     assert checks["median z"].passed and checks["fraction with |z| > 4"].passed
-    assert abs(checks["robust z spread"].value - 1.0) < 0.35  # measured 1.22
+    assert abs(checks["robust z spread"].value - 1.0) < 0.35  # measured 1.25
 
 
 def test_height_fog_cli_end_to_end_with_the_radiance_case(tmp_path):
@@ -169,9 +169,14 @@ def test_height_fog_radiance_reference_of_an_absorbing_fog_is_the_transmittance(
     assert case.id == "fog0-radiance"
     g = case.channel_inputs[0]
     truth = _fog_truth(np.stack([g["dx"], g["dy"], g["dz"]], axis=1))
-    ref, err = case.reference.mean[case.mask], case.reference.stderr[case.mask]
-    z = (ref - truth[:, None]) / np.maximum(err, 1e-12)
-    assert abs(float(np.mean(z))) < 0.6 and float(np.max(np.abs(z))) < 4.5  # measured: 0.025, 3.6
+    ref = case.reference.mean[case.mask]
+    # Mitsuba's delta tracking through a purely absorbing fog in front of radiance 1: each sample is 1
+    # (the path got through) or 0, a Bernoulli(T) variable, so the 64-sample mean has the exact standard
+    # error √(T(1 − T)/64) under the hypothesis tested. The sample standard error is not usable here: at
+    # T ≈ 0.98 all 64 samples get through with probability 0.98⁶⁴ ≈ 0.27 (a stderr of 0: z = ∞ for an
+    # unbiased estimate; seen with the per-segment majorant's random stream)
+    z = (ref - truth[:, None]) / np.sqrt(truth * (1.0 - truth) / 64)[:, None]
+    assert abs(float(np.mean(z))) < 0.6 and float(np.max(np.abs(z))) < 4.5  # measured: −0.14, 2.7
     assert np.allclose(g["l0_r"], 1.0, atol=1e-6)  # the fog-free image: the backdrop's radiance 1
 
 
