@@ -405,7 +405,7 @@ def test_disc_sun_section_reports_the_disc_term_and_its_share():
     assert len(checks) == 1 and checks[0]["name"].startswith("sun -4°")
     row = [ln for ln in section["text"].splitlines() if ln.startswith("| -4°")]
     assert len(row) == 1 and "| 0.0099 | 0.0099 |" in row[0] and "(resolved)" in row[0]
-    keep = ~ns._near_sun(dirs, -4.0)[sl]
+    keep = ~ns.near_sun(dirs, -4.0)[sl]
     tot = np.abs(1.5e-3 - 1.01 * q[keep]).sum() / (1.01 * q[keep]).sum()  # the model's error, all channels
     assert f"{tot:.3g} (disc share {(0.01 / 1.01) / tot:.2g})" in row[0]
     assert ns._disc_sun({**cfg, "sun_elevations_deg": [10.0]}, dirs, done, images) == (None, [])
