@@ -7,6 +7,9 @@ key hashed from those normals change from process to process (a cold or warm Dr.
 shifts the timing). The generated meshes that are shaded smoothly therefore ship their normals, computed
 here once, in float64, in a fixed order, with Mitsuba's weighting (each face's unit normal weighted by
 its interior angle at the vertex; Thürmer & Wüthrich 1998), so Mitsuba loads them instead.
+The result is deterministic on one machine; across CPUs NumPy's SIMD arccos/norm may differ by ulps (a
+component that is 0 in exact arithmetic can come out as ±2e-18), which is why the shipped PLY files, not
+a regeneration, are what scenes and cache keys use.
 """
 
 from __future__ import annotations
