@@ -424,7 +424,10 @@ def _main_cases(ctx, cfg, dirs, el, done, fits, backend, settings):
                     sub_m,
                     sub_s,
                     "quadrature",
-                    {"pixels": int(q.shape[0] * q.shape[1]), "sun": sun},
+                    {
+                        "pixels": int(q.shape[0] * q.shape[1]),
+                        "sun_disc": float(disc is not None),
+                    },  # 1: disc, 0: point
                     f"sun {e:g}°: independent SS quadrature ({sun}) vs Mitsuba single scattering",
                 )
                 approx_docs.append(doc)
