@@ -88,10 +88,10 @@ def channel_moments(mi, dr, channels, spp: int):
     The evaluated reduction (the default for arrays under 1 GiB) would first store every lane's value,
     then launch one float64 conversion kernel and one reduction per sum (7 launches for RGB and ~2.2 GB
     of memory traffic per 2^24 lanes): 0.75× `mi.render`'s throughput on an H200 (issue 21).
-    Precision is unchanged (float64 per lane). Only the order of the additions differs: on the CPU each
-    element's lanes are summed by one thread in lane order (deterministic, bit-identical run to run);
-    on the GPU, atomics from different warps of one element land in an unspecified order, so Σ v² can
-    differ from run to run by ~1 ulp of float64 (1e-16 relative). Passes are stored in float32
+    Precision is unchanged (float64 per lane). Only the order of the additions differs: atomics from different
+    threads (CPU: where an element's lanes span two threads' work blocks) or warps (GPU) of one element land
+    in an unspecified order, so Σ v and Σ v² can differ from run to run by ~1 ulp of float64 (1e-16
+    relative; a re-render is not bit-identical, a pass loaded from the cache is). Passes are stored in float32
     (`rtfit.reference.cache`), far coarser than this."""
     vs = [mi.Float64(v) for v in channels]
     sums = [dr.block_sum(v, spp, mode="symbolic") for v in vs]

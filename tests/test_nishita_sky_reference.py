@@ -39,9 +39,13 @@ def test_single_scattering_reference_matches_independent_quadrature(tmp_path):
     )
     assert np.array_equal(r2["mean"], r["mean"])
     assert list((tmp_path / "sky").glob("*/*/pass-00001.npz"))  # the one pass store (PassEntry)
-    # without a store: the same passes, rounded to float32 as the store keeps them
+    # without a store: the same passes rendered again. The per-pixel float64 sums are atomic adds inside the
+    # sampling kernel (`estimators.channel_moments`): where a pixel's lanes span two threads' work blocks the
+    # order of the additions varies, so a re-render agrees to float64 round-off, not bit for bit (CI saw a
+    # difference of this kind once in two runs).
     r3 = render_sky(spec, d, spp=4096, pass_spp=2048, seed=3, variant="llvm_ad_rgb", max_depth=2)
-    assert np.array_equal(r3["mean"], r["mean"]) and np.array_equal(r3["stderr"], r["stderr"])
+    np.testing.assert_allclose(r3["mean"], r["mean"], rtol=1e-12, atol=0)
+    np.testing.assert_allclose(r3["stderr"], r["stderr"], rtol=1e-9, atol=0)  # a difference of sums: 1e-9
 
 
 def test_phase_mixture_is_normalised_and_sampling_consistent(mi):
