@@ -125,7 +125,7 @@ def _pixel_rays(mi, dr, sensor, width: int, first_pixel: int, n_pixels: int, spp
     return ray, weight
 
 
-def _check_spp(spp: int):
+def check_spp(spp: int):
     if spp < 2:
         raise ValueError(f"spp per pass must be >= 2 to estimate the variance (got {spp})")
 
@@ -134,7 +134,7 @@ def _check_spp(spp: int):
 def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
     """Point-sampled radiance at every pixel centre with the scene's own integrator."""
 
-    _check_spp(spp)
+    check_spp(spp)
     t0 = time.perf_counter()
     sensor = mi_scene.sensors()[0]
     width, height = sensor.film().crop_size()
@@ -247,7 +247,7 @@ def irradiance_pass(
 ) -> PassResult:
     """Irradiance (W/m², RGB) at ``points`` (N, 3) for unit ``normals`` (N, 3)."""
 
-    _check_spp(spp)
+    check_spp(spp)
     if mi.variant().startswith("scalar"):
         raise ValueError("irradiance probes need a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
     if transport not in ("direct", "global"):

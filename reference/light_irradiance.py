@@ -31,7 +31,7 @@ import time
 import drjit as dr
 import numpy as np
 
-from .estimators import PassResult, chunk_ranges, mean_var, sub_seed
+from .estimators import PassResult, channel_moments, check_spp, chunk_ranges, mean_var, sub_seed
 
 __all__ = ["CHANNELS", "PERP_SAMPLES", "environment_irradiance_pass", "light_irradiance_pass"]
 
@@ -42,24 +42,10 @@ CHANNELS = ("unshadowed", "shadowed", "normal_incidence")
 """The three RGB triples of a pass, in order (columns 0–2, 3–5, 6–8)."""
 
 
-def _sums(mi, values, spp: int):
-    dr.eval(values)
-    sums, sqs = [], []
-    for v in values:
-        v64 = mi.Float64(v)
-        sums.append(dr.block_sum(v64, spp))
-        sqs.append(dr.block_sum(v64 * v64, spp))
-    dr.eval(sums, sqs)
-    s = np.stack([np.asarray(x, dtype=np.float64) for x in sums], axis=-1)
-    q = np.stack([np.asarray(x, dtype=np.float64) for x in sqs], axis=-1)
-    return s, q
-
-
 def light_irradiance_pass(mi, mi_scene, emitter, points, normals, towards, spp: int, seed: int) -> PassResult:
     """E_u, E_s, E⊥ (module docstring) of ``emitter`` at ``points`` (N, 3) with unit ``normals`` (N, 3);
     ``towards`` (N, 3): the unit direction to the light's centre at each point. Mean and variance (N, 9)."""
-    if spp < 2:
-        raise ValueError(f"spp per pass must be >= 2 to estimate the variance (got {spp})")
+    check_spp(spp)
     if mi.variant().startswith("scalar"):
         raise ValueError("the light-irradiance pass needs a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
     t0 = time.perf_counter()
@@ -94,7 +80,7 @@ def light_irradiance_pass(mi, mi_scene, emitter, points, normals, towards, spp: 
         values = [dr.select(ok, e_u[c], 0.0) for c in range(3)]
         values += [dr.select(ok, e_s[c], 0.0) for c in range(3)]
         values += [e_perp[c] for c in range(3)]
-        s[a:b], q[a:b] = _sums(mi, values, spp)
+        s[a:b], q[a:b] = channel_moments(mi, dr, values, spp)
     mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
@@ -108,8 +94,7 @@ def environment_irradiance_pass(mi, emitter, normals, spp: int, seed: int) -> Pa
     wherever either density covers the integrand: emitter sampling alone misses radiance its sampling table
     gives density 0 (measured on Mitsuba 3.9's ``sunsky``: the sky just above the horizon, 0.04 W/m² on
     normals facing below it), the cosine strategy covers the whole hemisphere. Mean and variance (N, 3)."""
-    if spp < 2:
-        raise ValueError(f"spp per pass must be >= 2 to estimate the variance (got {spp})")
+    check_spp(spp)
     t0 = time.perf_counter()
     nrm = np.ascontiguousarray(normals, dtype=np.float32)
     n_points = len(nrm)
@@ -141,6 +126,6 @@ def environment_irradiance_pass(mi, emitter, normals, spp: int, seed: int) -> Pa
         pdf_e = emitter.pdf_direction(it, ds2)
         c_part = dr.select(cos_c > 0.0, radiance * cos_c / dr.maximum(pdf_e + cos_c / dr.pi, 1e-30), 0.0)
         total = e_part + c_part
-        s[a:b], q[a:b] = _sums(mi, [total[c] for c in range(3)], spp)
+        s[a:b], q[a:b] = channel_moments(mi, dr, [total[c] for c in range(3)], spp)
     mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
