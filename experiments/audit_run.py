@@ -65,6 +65,7 @@ from . import figures
 from . import fitted as fitfiles
 from .atomic import atomic_directory
 from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_families, inspect_scene
+from .audit_ambient_occlusion import FAMILY as AMBIENT_OCCLUSION
 from .audit_diffuse import FAMILY as DIFFUSE
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .audit_height_fog import FAMILY as HEIGHT_FOG
@@ -91,9 +92,21 @@ __all__ = [
 
 log = logging.getLogger("rtfit.audit")
 
-AUDITED: dict[str, AuditFamily] = {f.name: f for f in (DIFFUSE, IRRADIANCE_BASES, HEIGHT_FOG, NISHITA_SKY)}
+AUDITED: dict[str, AuditFamily] = {
+    f.name: f for f in (DIFFUSE, IRRADIANCE_BASES, AMBIENT_OCCLUSION, HEIGHT_FOG, NISHITA_SKY)
+}
 """The families the audit runs (name → declaration, `audit_family.AuditFamily`). A family listed by
 ``--list`` but not here is named in the run's notes as not audited yet."""
+
+
+def _audits(a: Applicability, scene_format: str) -> bool:
+    """True when `AUDITED` audits the applicability ``a`` (its family, role and the scene's format)."""
+    family = AUDITED.get(a.family)
+    return (
+        family is not None
+        and scene_format in family.formats
+        and (family.roles is None or a.role in family.roles)
+    )
 
 DEFAULT_SPP = 256
 DEFAULT_PASS_SPP = 32
@@ -362,6 +375,10 @@ def _fit(method: Method, case: FamilyCase, row: str = "") -> dict:
     names = method.input_names
     inputs: dict[str, Any] = {}
     for n in names:
+        first = case.channel_inputs[0][n]
+        if not np.ndim(first) and all(inp[n] is first for inp in case.channel_inputs):
+            inputs[n] = first  # one scalar or sampler object for every channel: a constant of the fit
+            continue
         parts = []
         for inp in case.channel_inputs:
             v = inp[n]
@@ -373,16 +390,30 @@ def _fit(method: Method, case: FamilyCase, row: str = "") -> dict:
     return fit_method(method, inputs, target, params=params).to_dict()
 
 
+_COST_PROBE = 1 << 12  # elements of the first, sizing call of a cost measurement
+_COST_CALL_SECONDS = 0.05  # the sized call's target duration: a slow kernel is timed on fewer elements
+
+
 def _cost(method: Method, case: FamilyCase, backend: str, size: int = _COST_ELEMENTS) -> dict:
     """ns per pixel of ``method`` (declared parameters) on the backend, its per-pixel inputs (channel 0 of the
-    case) tiled to ``size`` float32 elements; a table (an array that is not per pixel) is passed as it is."""
+    case) tiled to ``size`` float32 elements; a table (an array that is not per pixel) is passed as it is.
+
+    A kernel that would take longer than `_COST_CALL_SECONDS` a call at ``size`` (timed first on
+    `_COST_PROBE` elements) is timed on proportionally fewer, never fewer than `_COST_PROBE`: a cone tracer at
+    ~10 µs a pixel on 2 CPU cores took 10 s a call on 2^20 elements, 80 s for its 7 repeats + warm-up."""
+    if size > _COST_PROBE:
+        probe = _cost(method, case, backend, _COST_PROBE)
+        per_element = probe["ns_per_pixel"] * 1e-9
+        size = int(min(size, max(_COST_PROBE, _COST_CALL_SECONDS / max(per_element, 1e-15))))
     Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
     n = int(case.mask.sum())
     reps = max(1, -(-size // max(n, 1)))
     args, keys, consts = [], [], {}
     for name in method.input_names:
         v = case.channel_inputs[0][name]
-        if np.ndim(v) and np.size(v) != n:
+        if not isinstance(v, (int, float, np.ndarray, np.generic)):  # a sampler object (a distance field)
+            consts[name] = v
+        elif np.ndim(v) and np.size(v) != n:
             consts[name] = Float(np.ascontiguousarray(v, np.float32).reshape(-1))
         elif np.ndim(v):
             a = np.tile(np.asarray(v, np.float64), reps)[:size]
@@ -498,10 +529,10 @@ def audit(
     info = inspect_scene(scene_or_path, defines=defines, camera=camera, width=width, height=height, up=up)
     sel = resolve_approximations(approximations)
     found = applicable_families(info, approx=sel.families, ao_distance=ao_distance)
-    audited = [a for a in found if a.family in AUDITED and info.format in AUDITED[a.family].formats]
+    audited = [a for a in found if _audits(a, info.format)]
     skipped = [
         f"{a.family} ({a.role}: {a.part}): listed by --list, not audited yet"
-        + (f" on {info.format} scenes" if a.family in AUDITED else "")
+        + (f" on {info.format} scenes" if a.family in AUDITED and info.format not in AUDITED[a.family].formats else "")
         for a in found
         if a not in audited
     ]

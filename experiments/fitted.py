@@ -241,6 +241,8 @@ def shader_entry(
         return None, f"no shader text: {e}"
     except TypeError as e:  # an operation the tracer does not define (Untraceable covers the known ones)
         return None, f"no shader text: the kernel uses an operation the shader tracer lacks ({e})"
+    except AttributeError as e:  # an input read through its own methods (a distance field's sample())
+        return None, f"no shader text: an input is a sampler object, not a value ({e})"
     return Shader(fn.name, list(fn.arguments), list(fn.outputs), fn.glsl, fn.hlsl), None
 
 

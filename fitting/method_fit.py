@@ -42,8 +42,23 @@ def method_model(method: Method, output: Callable[[Any], Any] | None = None) -> 
     return model
 
 
-def _residual(method: Method, free: tuple[str, ...], held: tuple[str, ...], names: tuple[str, ...], output):
-    key = (id(method), free, held, names, output)
+def _is_sampler(v: Any) -> bool:
+    """An input the kernel reads through its own methods (a distance field: ``sdf.sample(ops, …)``), not an
+    array: it is closed over by the residual (static to JAX), not traced."""
+    return callable(getattr(v, "sample", None))
+
+
+def _residual(
+    method: Method,
+    free: tuple[str, ...],
+    held: tuple[str, ...],
+    names: tuple[str, ...],
+    output,
+    objects: Mapping[str, Any] | None = None,
+):
+    objects = dict(objects or {})
+    statics = tuple((n, v if isinstance(v, float) else id(v)) for n, v in sorted(objects.items()))
+    key = (id(method), free, held, names, output, statics)
     cached = _RESIDUALS.get(key)
     if cached is not None:
         return cached
@@ -53,12 +68,14 @@ def _residual(method: Method, free: tuple[str, ...], held: tuple[str, ...], name
         import jax.numpy as jnp  # jax: imported by fits only
 
         inputs, held_values, target, weights = args
-        pred = jnp.asarray(model({**held_values, **p}, inputs))
+        pred = jnp.asarray(model({**held_values, **p}, {**inputs, **objects}))
         return weights * (pred - target)
 
     fn.__qualname__ = f"fit_method.<{method.id}>"
     _RESIDUALS[key] = fn
     _KEEP_ALIVE[id(method)] = method  # the method's id is part of the key: keep the object alive
+    for v in objects.values():
+        _KEEP_ALIVE[id(v)] = v
     return fn
 
 
@@ -112,7 +129,13 @@ def fit_method(
     )
     if not np.all(np.isfinite(w)) or np.any(w < 0):
         raise ValueError(f"method {method.id!r}: weights must be finite and non-negative")
-    x = {n: (np.asarray(inputs[n], np.float64) if not np.isscalar(inputs[n]) else float(inputs[n]))
-         for n in method.input_names}  # fmt: skip
-    fn = _residual(method, tuple(params), tuple(sorted(held_values)), method.input_names, output)
+    # Scalars and samplers are constants of the fit, closed over by the residual (a kernel may shape its
+    # text by them: the cone tracer's march distances come from t0 and t_max); arrays are traced.
+    objects = {
+        n: (inputs[n] if _is_sampler(inputs[n]) else float(inputs[n]))
+        for n in method.input_names
+        if _is_sampler(inputs[n]) or np.isscalar(inputs[n])
+    }
+    x = {n: np.asarray(inputs[n], np.float64) for n in method.input_names if n not in objects}
+    fn = _residual(method, tuple(params), tuple(sorted(held_values)), method.input_names, output, objects)
     return fit_least_squares(fn, params, (x, held_values, target, np.ascontiguousarray(w)), **kwargs)

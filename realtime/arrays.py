@@ -358,9 +358,13 @@ def is_jax(x: Any) -> bool:
     return jax is not None and isinstance(x, jax.Array)
 
 
-def _as_float_scalar(x: Any) -> float:
+def _as_float_scalar(x: Any) -> Any:
+    """A number as a float; a sampler object (anything with a ``sample`` method, e.g. a distance field that
+    the kernel reads with ``sdf.sample(ops, level, x, y, z)``) is passed to the kernel as it is."""
     if isinstance(x, (bool, np.bool_)):
         raise TypeError(f"expected a real number (got {x!r})")
+    if callable(getattr(x, "sample", None)):
+        return x
     return float(x)
 
 

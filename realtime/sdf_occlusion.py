@@ -97,7 +97,7 @@ def _const(ops, like, value):
     grids of the same shape, any k, α, base), or the float itself for NumPy/JAX."""
     if ops.name == "drjit" and is_drjit(like):
         return dr.opaque(type(like), float(value))
-    return float(value)
+    return float(value) if isinstance(value, (int, float, np.number)) else value  # a JAX tracer (a fit) as is
 
 
 # ===================================================================================== SDF sources
@@ -138,7 +138,7 @@ class GridSDF:
 
     def _arrays(self, ops, Float, level):
         g = self.grids[min(level, self.levels - 1)]
-        if ops.name == "numpy":
+        if ops.name != "drjit":
             return g.values.astype(np.float64).reshape(-1)
         key = (Float, level)
         arr = self._dr_cache.get(key)
@@ -169,15 +169,7 @@ class GridSDF:
         fy0 = ops.minimum(ops.floor(cy), ny - 2.0)
         fz0 = ops.minimum(ops.floor(cz), nz - 2.0)
         fx, fy, fz = cx - fx0, cy - fy0, cz - fz0
-        if ops.name == "numpy":
-            vals = self._arrays(ops, None, level)
-            base = ((fz0 * ny + fy0) * nx + fx0).astype(np.int64)
-
-            def at_numpy(off):
-                return vals[base + off]
-
-            at = at_numpy
-        else:
+        if ops.name == "drjit":
             Float = type(x)
             vals = self._arrays(ops, Float, level)
             UInt = dr.uint32_array_t(Float)
@@ -187,6 +179,14 @@ class GridSDF:
                 return dr.gather(Float, vals, base + off)
 
             at = at_drjit
+        else:  # NumPy (float64) or JAX (a fit's trace): integer-valued float indices, exact below 2^53
+            vals = self._arrays(ops, None, level)
+            base = (fz0 * ny + fy0) * nx + fx0
+
+            def at_table(off):
+                return ops.gather(vals, base + off)
+
+            at = at_table
 
         sxy = nx * ny
         c00 = at(0) * (1 - fx) + at(1) * fx
