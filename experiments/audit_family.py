@@ -142,8 +142,8 @@ class AuditFamily:
     quantities: tuple[str, ...] = ()
     """Further quantities some of its cases compare (`FamilyCase.quantity`)."""
     roles: tuple[str, ...] | None = None
-    """The applicability roles (`rtfit.experiments.audit.RULES`) its cases audit; None: every role of the family.
-    A role not listed is named in the run's notes as not audited yet."""
+    """The applicability roles (`rtfit.experiments.audit.RULES`) its cases audit; None: every role of the
+    family. A role not listed is named in the run's notes as not audited yet."""
     formats: tuple[str, ...] = ("mitsuba-xml",)
     """The scene formats (`SceneInfo.format`: ``mitsuba-xml``, ``rtfit-toml``, ``rtfit-sky``) its cases read;
     on another format the family is named in the run's notes as not audited for it."""

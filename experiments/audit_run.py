@@ -99,6 +99,11 @@ AUDITED: dict[str, AuditFamily] = {
 ``--list`` but not here is named in the run's notes as not audited yet."""
 
 
+def _wrong_format(family: str, scene_format: str) -> bool:
+    """True when `AUDITED` audits ``family``, but not on scenes of ``scene_format``."""
+    return family in AUDITED and scene_format not in AUDITED[family].formats
+
+
 def _audits(a: Applicability, scene_format: str) -> bool:
     """True when `AUDITED` audits the applicability ``a`` (its family, role and the scene's format)."""
     family = AUDITED.get(a.family)
@@ -107,6 +112,7 @@ def _audits(a: Applicability, scene_format: str) -> bool:
         and scene_format in family.formats
         and (family.roles is None or a.role in family.roles)
     )
+
 
 DEFAULT_SPP = 256
 DEFAULT_PASS_SPP = 32
@@ -532,7 +538,7 @@ def audit(
     audited = [a for a in found if _audits(a, info.format)]
     skipped = [
         f"{a.family} ({a.role}: {a.part}): listed by --list, not audited yet"
-        + (f" on {info.format} scenes" if a.family in AUDITED and info.format not in AUDITED[a.family].formats else "")
+        + (f" on {info.format} scenes" if _wrong_format(a.family, info.format) else "")
         for a in found
         if a not in audited
     ]
