@@ -51,8 +51,8 @@ from typing import Any
 import numpy as np
 
 from .arrays import DRJIT_OPS, evaluate, is_drjit, is_jax, split3
-from .irradiance_bases import METHODS as BASIS_METHODS
 from .irradiance_bases import CUBE_AXES, sh9_from_directional
+from .irradiance_bases import METHODS as BASIS_METHODS
 from .methods import Input, Method, method_table
 
 __all__ = [
@@ -76,7 +76,7 @@ VOLUME_BASES = ("cube-valve", "cube-nnls", "sh-l2")
 @dataclass(frozen=True)
 class ProbeGrid:
     """A regular probe grid: first node ``origin`` (m), node ``spacing`` h (m) and ``dims`` (n_x, n_y, n_z)
-    nodes per axis (each ≥ 1). Node (i, j, k) sits at origin + h·(i, j, k); its index is (k·n_y + j)·n_x + i."""
+    nodes per axis (each ≥ 1). Node (i, j, k) sits at origin + h·(i, j, k), index (k·n_y + j)·n_x + i."""
 
     origin: tuple[float, float, float]
     spacing: float
@@ -118,7 +118,9 @@ class ProbeGrid:
         Each axis must have (n − 1) divisible by ``step``, so that both grids span the same box."""
         step = int(step)
         if step < 1 or any((n - 1) % step for n in self.dims):
-            raise ValueError(f"step {step} does not divide the grid's cells {tuple(n - 1 for n in self.dims)}")
+            raise ValueError(f"step {step} does not divide the cells {tuple(n - 1 for n in self.dims)}")
+                f"step {step} does not divide the grid's cells {tuple(n - 1 for n in self.dims)}"
+            )
         dims = tuple((n - 1) // step + 1 for n in self.dims)
         nx, ny, _ = self.dims
         k, j, i = np.meshgrid(*(np.arange(d) * step for d in dims[::-1]), indexing="ij")
@@ -196,9 +198,13 @@ _NORMAL = (
 )
 _TABLE = Input("table", "W/m²", "probes' stored floats, float-major (probe_table): table[s·count + node]")
 _GRID = Input("grid", "m", "the ProbeGrid (origin, spacing h, dims)")
-_LOOKUP_TEXT = {
+    "trilinear": ("trilinear", "8 nodes, weights Π(1 − f or f), f = frac((x − o)/h)", "3-D texture filter"),
     "nearest": ("nearest probe", "node clamp(⌊(x − o)/h + ½⌋), no filtering", "Valve; seed 000:2502-2515"),
-    "trilinear": ("trilinear", "8 nodes, weights Π(1 − f or f), f = frac((x − o)/h)", "standard 3-D texture filter"),
+    "trilinear": (
+        "trilinear",
+        "8 nodes, weights Π(1 − f or f), f = frac((x − o)/h)",
+        "standard 3-D texture filter",
+    ),
 }
 
 
@@ -277,13 +283,15 @@ def volume_irradiance(method, grid: ProbeGrid, table, points, normals):
     Returns (..., 3) for NumPy input (its dtype: float32 input runs the Dr.Jit kernel in float32, the
     shader's precision), a tuple (R, G, B) of lazy arrays for Dr.Jit input (3-vectors of Dr.Jit floats),
     JAX arrays for JAX input. NaN/Inf in NumPy points or normals raise (Dr.Jit input is not checked:
-    NaN coordinates look up the first node, ±Inf the boundary)."""
+        if not any(is_drjit(c) or is_jax(c) for c in comps) and not all(np.isfinite(c).all() for c in comps):
     m = _method(method)
     t = _checked_table(m, grid, table)
     pts = split3(points, "points")
     nrm = split3(normals, "normals")
     for name, comps in (("points", pts), ("normals", nrm)):
-        if not any(is_drjit(c) or is_jax(c) for c in comps) and not all(np.all(np.isfinite(c)) for c in comps):
+        if not any(is_drjit(c) or is_jax(c) for c in comps) and not all(
+            np.all(np.isfinite(c)) for c in comps
+        ):
             raise ValueError(f"{name} must be finite")
     keywords = m.keywords()
 
@@ -335,7 +343,7 @@ def cube_from_directional(direction, irradiance) -> np.ndarray:
 def fold_point_light(
     positions, light_position: Sequence[float], intensity, visible=None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Fold a point light into probes at ``positions`` (count, 3) (module docstring): per probe the
+        raise ValueError(f"positions must be (count, 3), light_position 3 numbers (got {p.shape}, {q.shape})")
     direction d (count, 3) to the light, E⊥ = V·I/r² (count, 3) (``intensity`` I RGB in W/sr, ``visible``
     V (count,) in [0, 1], default 1), and the light's additions to the probe's bases: SH L2 (count, 9, 3)
     and Valve's cube (count, 6, 3). A probe at the light's position is refused (E⊥ is infinite there)."""
@@ -343,7 +351,9 @@ def fold_point_light(
     q = np.asarray(light_position, dtype=np.float64)
     i = np.asarray(intensity, dtype=np.float64) * np.ones(3)
     if p.ndim != 2 or p.shape[1] != 3 or q.shape != (3,):
-        raise ValueError(f"positions must be (count, 3) and light_position 3 numbers (got {p.shape}, {q.shape})")
+        raise ValueError(
+            f"positions must be (count, 3) and light_position 3 numbers (got {p.shape}, {q.shape})"
+        )
     v = np.ones(len(p)) if visible is None else np.asarray(visible, dtype=np.float64)
     delta = q[None, :] - p
     r2 = np.einsum("ij,ij->i", delta, delta)

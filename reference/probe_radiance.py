@@ -170,4 +170,6 @@ class ProbeRadianceCache:
 
         results, _ = entry.passes(-(-int(spp) // int(pass_spp)), render)
         mean, stderr, total = pool_passes(results)
-        return ProbeRadiance(mean, stderr, total, len(results), float(sum(r.seconds for r in results)), entry.key)
+        return ProbeRadiance(
+            mean, stderr, total, len(results), float(sum(r.seconds for r in results)), entry.key
+        )
