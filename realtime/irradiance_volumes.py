@@ -118,7 +118,7 @@ class ProbeGrid:
         Each axis must have (n − 1) divisible by ``step``, so that both grids span the same box."""
         step = int(step)
         if step < 1 or any((n - 1) % step for n in self.dims):
-            raise ValueError(f"step {step} does not divide the cells {tuple(n - 1 for n in self.dims)}")
+            raise ValueError(
                 f"step {step} does not divide the grid's cells {tuple(n - 1 for n in self.dims)}"
             )
         dims = tuple((n - 1) // step + 1 for n in self.dims)
@@ -198,7 +198,7 @@ _NORMAL = (
 )
 _TABLE = Input("table", "W/m²", "probes' stored floats, float-major (probe_table): table[s·count + node]")
 _GRID = Input("grid", "m", "the ProbeGrid (origin, spacing h, dims)")
-    "trilinear": ("trilinear", "8 nodes, weights Π(1 − f or f), f = frac((x − o)/h)", "3-D texture filter"),
+_LOOKUP_TEXT = {
     "nearest": ("nearest probe", "node clamp(⌊(x − o)/h + ½⌋), no filtering", "Valve; seed 000:2502-2515"),
     "trilinear": (
         "trilinear",
@@ -283,7 +283,7 @@ def volume_irradiance(method, grid: ProbeGrid, table, points, normals):
     Returns (..., 3) for NumPy input (its dtype: float32 input runs the Dr.Jit kernel in float32, the
     shader's precision), a tuple (R, G, B) of lazy arrays for Dr.Jit input (3-vectors of Dr.Jit floats),
     JAX arrays for JAX input. NaN/Inf in NumPy points or normals raise (Dr.Jit input is not checked:
-        if not any(is_drjit(c) or is_jax(c) for c in comps) and not all(np.isfinite(c).all() for c in comps):
+    NaN coordinates look up the first node, ±Inf the boundary)."""
     m = _method(method)
     t = _checked_table(m, grid, table)
     pts = split3(points, "points")
@@ -343,7 +343,7 @@ def cube_from_directional(direction, irradiance) -> np.ndarray:
 def fold_point_light(
     positions, light_position: Sequence[float], intensity, visible=None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        raise ValueError(f"positions must be (count, 3), light_position 3 numbers (got {p.shape}, {q.shape})")
+    """Fold a point light into probes at ``positions`` (count, 3) (module docstring): per probe the
     direction d (count, 3) to the light, E⊥ = V·I/r² (count, 3) (``intensity`` I RGB in W/sr, ``visible``
     V (count,) in [0, 1], default 1), and the light's additions to the probe's bases: SH L2 (count, 9, 3)
     and Valve's cube (count, 6, 3). A probe at the light's position is refused (E⊥ is infinite there)."""
