@@ -363,13 +363,17 @@ def folded_bases(
 
 
 def evaluate_rows(grid: ProbeGrid, bases: dict[str, np.ndarray], points, normals) -> dict[str, np.ndarray]:
-    """Every method's irradiance (N, 3), float64 arrays of the float32 Dr.Jit run (the shader's precision)."""
+    """Every method's irradiance (N, 3) as float64 arrays of the kernel text run on float32 NumPy arrays (the
+    shader's precision; NumPy rather than Dr.Jit here because this run evaluates 6 methods × spacings ×
+    quantities on ~10³ points each, where Dr.Jit's per-call kernel builds would dominate: measured 0.15-2 s
+    per call on 2 shared cores. The Dr.Jit run of the same text is what `cost_rows` times)."""
     out = {}
     p32, n32 = np.asarray(points, np.float32), np.asarray(normals, np.float32)
     for mid, m in METHODS.items():
-        basis = m.fixed["basis"].id
-        table = probe_table(bases[basis]).astype(np.float32)
-        out[mid] = np.asarray(volume_irradiance(m, grid, table, p32, n32), dtype=np.float64)
+        table = probe_table(bases[m.fixed["basis"].id]).astype(np.float32)
+        with np.errstate(all="ignore"):  # NumPy evaluates both branches of every select
+            values = m(NUMPY_OPS, volume_inputs(m, grid, table, p32, n32))
+        out[mid] = np.stack([np.asarray(v, dtype=np.float64) for v in values], axis=-1)
     return out
 
 
@@ -415,7 +419,7 @@ def assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data) -> di
     }
     eval_p = np.concatenate([pts[:n_surf], pts[line]])
     eval_n = np.concatenate([nrm[:n_surf], nrm[line]])
-    case_docs, curves, pops, finite = [], {}, {}, True
+    case_docs, curves, pops, finite, indirect_values = [], {}, {}, True, {}
     for q in QUANTITIES:
         mean, se = refs[q]
         for level, (grid, index) in enumerate(grids):
@@ -441,9 +445,10 @@ def assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data) -> di
                         "metrics": metrics.to_dict(),
                     }
                 )
-            if q == "folded":
-                docs += direct_plus_rows(grid, bases["indirect"], index, direct["mean"][:n_surf], eval_p, eval_n,
-                                         n_surf, mean, se)  # fmt: skip
+            if q == "indirect":
+                indirect_values[level] = values
+            else:
+                docs += direct_plus_rows(indirect_values[level], direct["mean"][:n_surf], n_surf, mean, se)
             case_docs.append(
                 {
                     "id": f"{q}-h{grid.spacing:g}",
@@ -498,21 +503,19 @@ def assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data) -> di
     }
 
 
-def direct_plus_rows(
-    grid, indirect_bases, index, direct_mean, eval_p, eval_n, n_surf, mean, se
-) -> list[dict]:
-    """Rows ``direct+<method>``: the exact shadowed direct light plus the volume's indirect irradiance (the
-    engine's usual split), against the total irradiance."""
-    sub = {b: c[index] for b, c in indirect_bases.items()}
-    values = evaluate_rows(grid, sub, eval_p[:n_surf], eval_n[:n_surf])
+def direct_plus_rows(indirect_values: dict, direct_mean, n_surf: int, mean, se) -> list[dict]:
+    """Rows ``direct+<method>``: the exact shadowed direct light plus the volume's indirect irradiance
+    (``indirect_values``: each method's lookup of the unfolded probes; the engine's usual split), against the
+    total irradiance."""
     return [
         {
             "method": f"direct+{mid}",
             "label": f"exact direct + {METHODS[mid].label}",
-            "parameters": {"spacing_m": grid.spacing},
-            "metrics": compute_metrics(direct_mean + v, mean[:n_surf], se[:n_surf], names=METRICS).to_dict(),
+            "metrics": compute_metrics(
+                direct_mean + v[:n_surf], mean[:n_surf], se[:n_surf], names=METRICS
+            ).to_dict(),
         }
-        for mid, v in values.items()
+        for mid, v in indirect_values.items()
     ]
 
 

@@ -48,6 +48,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import drjit as dr
 import numpy as np
 
 from .arrays import DRJIT_OPS, evaluate, is_drjit, is_jax, split3
@@ -129,22 +130,23 @@ class ProbeGrid:
 
 
 # ============================================================================================= kernels
-def _axis(ops, x, origin, spacing):
+def _axis(ops, x, origin, inv_spacing):
     """t = (x − o)/h with NaN mapped to 0 (x ≠ x only for NaN), so that no NaN index reaches a gather."""
-    t = (x - origin) * (1.0 / spacing)
+    t = (x - origin) * inv_spacing
     return ops.select(t == t, t, 0.0)
 
 
-def _nearest_axis(ops, t, n):
-    """[(node index, weight)] of the nearest node along one axis: clamp(⌊t + ½⌋, 0, n − 1), weight 1."""
-    return [(ops.clip(ops.floor(t + 0.5), 0.0, float(n - 1)), 1.0)]
+def _nearest_axis(ops, t, n, last):
+    """[(node index, weight)] of the nearest node along one axis: clamp(⌊t + ½⌋, 0, n − 1), weight 1
+    (``last`` = n − 1 as a number of the kernel's kind)."""
+    return [(ops.clip(ops.floor(t + 0.5), 0.0, last), 1.0)]
 
 
-def _trilinear_axis(ops, t, n):
+def _trilinear_axis(ops, t, n, last):
     """[(node, weight)] of the two bracketing nodes: i₀ = clamp(⌊t⌋, 0, n − 2), f = clamp(t − i₀, 0, 1)."""
     if n == 1:
         return [(0.0 * t, 1.0)]
-    i0 = ops.clip(ops.floor(t), 0.0, float(n - 2))
+    i0 = ops.clip(ops.floor(t), 0.0, last - 1.0)
     f = ops.clip(t - i0, 0.0, 1.0)
     return [(i0, 1.0 - f), (i0 + 1.0, f)]
 
@@ -154,32 +156,47 @@ LOOKUPS = {"nearest": _nearest_axis, "trilinear": _trilinear_axis}
 tensor product: 1 node for ``nearest``, 8 for ``trilinear``)."""
 
 
-def _corners(ops, px, py, pz, grid: ProbeGrid, lookup: str):
-    """[(node index as a float, weight)] of the nodes the lookup blends at (px, py, pz)."""
+def _constants(grid: ProbeGrid, wrap=float) -> dict:
+    """The grid's numbers the kernel reads, each passed through ``wrap`` (Dr.Jit: ``dr.opaque``, so that one
+    compiled kernel serves every grid of the same shape class)."""
+    nx, ny, nz = grid.dims
+    values = {
+        "ox": grid.origin[0], "oy": grid.origin[1], "oz": grid.origin[2], "inv_h": 1.0 / grid.spacing,
+        "lx": nx - 1.0, "ly": ny - 1.0, "lz": nz - 1.0, "sy": float(nx), "sz": float(nx * ny),
+        "count": float(grid.count),
+    }  # fmt: skip
+    return {k: wrap(v) for k, v in values.items()}
+
+
+def _corners(ops, px, py, pz, grid: ProbeGrid, lookup: str, c: dict | None = None):
+    """[(node index as a float, weight)] of the nodes the lookup blends at (px, py, pz); ``c``: the grid's
+    `_constants` (default: Python floats)."""
+    c = c or _constants(grid)
     rule = LOOKUPS[lookup]
     nx, ny, nz = grid.dims
-    ox, oy, oz = grid.origin
-    h = grid.spacing
-    ax = rule(ops, _axis(ops, px, ox, h), nx)
-    ay = rule(ops, _axis(ops, py, oy, h), ny)
-    az = rule(ops, _axis(ops, pz, oz, h), nz)
-    return [((k * ny + j) * nx + i, wk * wj * wi) for k, wk in az for j, wj in ay for i, wi in ax]
+    ax = rule(ops, _axis(ops, px, c["ox"], c["inv_h"]), nx, c["lx"])
+    ay = rule(ops, _axis(ops, py, c["oy"], c["inv_h"]), ny, c["ly"])
+    az = rule(ops, _axis(ops, pz, c["oz"], c["inv_h"]), nz, c["lz"])
+    return [(k * c["sz"] + j * c["sy"] + i, wk * wj * wi) for k, wk in az for j, wj in ay for i, wi in ax]
 
 
-def _volume_kernel(ops, px, py, pz, nx, ny, nz, table, grid: ProbeGrid, lookup="trilinear", basis=None):
+def _volume_kernel(
+    ops, px, py, pz, nx, ny, nz, table, grid: ProbeGrid, lookup="trilinear", basis=None, constants=None
+):
     """E(x, n) = B(n; Σ_c w_c k_c) per channel (module docstring).
 
     ``table``: the probes' stored floats, float-major: table[s·count + node] is stored float s of the node
     (`probe_table`), an array of the ops namespace's kind; ``grid`` the `ProbeGrid`; ``lookup`` a key of
-    `LOOKUPS`; ``basis`` an `irradiance_bases.METHODS` entry (whose kernel reads ``storage`` floats)."""
+    `LOOKUPS`; ``basis`` an `irradiance_bases.METHODS` entry (whose kernel reads ``storage`` floats);
+    ``constants``: the grid's `_constants` as numbers of the kernel's kind (default: Python floats)."""
     assert basis is not None and basis.storage is not None
-    count = grid.count
-    corners = _corners(ops, px, py, pz, grid, lookup)
+    c = constants or _constants(grid)
+    corners = _corners(ops, px, py, pz, grid, lookup, c)
     coeffs = []
     for s in range(basis.storage):
         acc = None
         for node, w in corners:
-            v = ops.gather(table, node + float(s * count))
+            v = ops.gather(table, node + c["count"] * float(s))
             acc = v * w if acc is None else acc + v * w
         coeffs.append(acc)
     return basis(ops, {"nx": nx, "ny": ny, "nz": nz, "coeffs": coeffs})
@@ -266,13 +283,14 @@ def _checked_table(m: Method, grid: ProbeGrid, table) -> np.ndarray:
 
 def volume_inputs(method, grid: ProbeGrid, table, points, normals) -> dict[str, Any]:
     """The kernel inputs of ``method`` for NumPy ``points`` and ``normals`` (N, 3): components as views,
-    the table as a NumPy array, the grid. Run the NumPy text with ``method(NUMPY_OPS, inputs)``."""
+    the table as a NumPy array of its own dtype, the grid. Run the NumPy text with ``method(NUMPY_OPS, inputs)``."""
     m = _method(method)
     px, py, pz = split3(np.asarray(points), "points")
     nx, ny, nz = split3(np.asarray(normals), "normals")
+    _checked_table(m, grid, table)
     return {
         "px": px, "py": py, "pz": pz, "nx": nx, "ny": ny, "nz": nz,
-        "table": _checked_table(m, grid, table), "grid": grid,
+        "table": np.asarray(table).reshape(-1), "grid": grid,  # the caller's dtype (float32: a shader's)
     }  # fmt: skip
 
 
@@ -296,8 +314,14 @@ def volume_irradiance(method, grid: ProbeGrid, table, points, normals):
     keywords = m.keywords()
 
     def kernel(ops, px, py, pz, nx, ny, nz):
-        tab = type(px)(t) if ops is DRJIT_OPS else t
-        return m.kernel(ops, px=px, py=py, pz=pz, nx=nx, ny=ny, nz=nz, table=tab, grid=grid, **keywords)
+        if ops is DRJIT_OPS:  # the grid's numbers as opaque arrays: one compiled kernel for every grid
+            Float = type(px)
+            tab, c = Float(t), _constants(grid, lambda v: dr.opaque(Float, v))
+        else:
+            tab, c = t, None
+        return m.kernel(
+            ops, px=px, py=py, pz=pz, nx=nx, ny=ny, nz=nz, table=tab, grid=grid, constants=c, **keywords
+        )
 
     out = evaluate(kernel, *pts, *nrm)
     if isinstance(out[0], np.ndarray):
