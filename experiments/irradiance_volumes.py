@@ -41,7 +41,7 @@ import math
 import drjit as dr
 import numpy as np
 
-from rtfit.fitting import compute_metrics, robust_spread, sidak_threshold
+from rtfit.fitting import compute_metrics, robust_spread, sidak_threshold, smape
 from rtfit.realtime import NUMPY_OPS, set_default_backend
 from rtfit.realtime.irradiance_bases import (
     CUBE_AXES,
@@ -118,10 +118,10 @@ NNLS_NORMALS = 64
 """Fibonacci normals at which each probe's irradiance is estimated for the NNLS cube fit."""
 BOUNDARY_EPS = 1e-3
 """Half-distance (m) of the point pairs straddling each cell boundary on the popping line."""
-LINE_Y, LINE_Z = 0.55, 1.0
+LINE_Y, LINE_Z = 1.3, 1.0
 LINE_NORMAL = (-0.6, 0.0, 0.8)
-"""The popping line: x from −1.9 to 1.9 m at y = 0.55, z = 1.0 (a node plane of every grid, so only the x
-boundaries are crossed), normal towards the light's side and up."""
+"""The popping line: x from −1.9 to 1.9 m at y = 1.3 (beside the occluder, which spans |y| ≤ 1), z = 1.0 (a
+node plane of every grid, so only the x boundaries are crossed), normal towards the light's side and up."""
 QUANTITIES = ("indirect", "folded")
 
 
@@ -430,6 +430,7 @@ def assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data) -> di
                 finite &= bool(np.all(np.isfinite(v)))
                 surf = v[:n_surf]
                 metrics = compute_metrics(surf, mean[:n_surf], se[:n_surf], names=METRICS)
+                per_group = group_smape(surf, mean[:n_surf], se[:n_surf], cut, data["groups"])
                 pop = popping(data["line_x"], v[n_surf:], mean[line], grid)
                 pops[(q, level, mid)] = pop
                 curves[(q, level, mid)] = v[n_surf:]
@@ -441,6 +442,7 @@ def assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data) -> di
                             "spacing_m": grid.spacing,
                             "popping_max_step": pop["max_step"],
                             "popping_mean_step": pop["mean_step"],
+                            **per_group,
                         },
                         "metrics": metrics.to_dict(),
                     }
@@ -501,6 +503,23 @@ def assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data) -> di
         ],
         "notes": NOTES,
     }
+
+
+def group_slug(name: str) -> str:
+    return "".join(ch if ch.isalnum() else "_" for ch in name).strip("_").replace("__", "_")
+
+
+def group_smape(
+    values: np.ndarray, ref: np.ndarray, se: np.ndarray, cut, groups: list[str]
+) -> dict[str, float]:
+    """`rtfit.fitting.smape` (|a − r|/(|a| + |r|), mean over points and channels) per surface group, keyed
+    ``smape_<group>``: where the volume's error sits (e.g. light leaking through the occluder)."""
+    out = {}
+    for k, name in enumerate(groups):
+        mask = np.zeros(len(values), dtype=bool)
+        mask[cut[k] : cut[k + 1]] = True
+        out[f"smape_{group_slug(name)}"] = float(smape(values, ref, se, mask).value)
+    return out
 
 
 def direct_plus_rows(indirect_values: dict, direct_mean, n_surf: int, mean, se) -> list[dict]:
@@ -656,14 +675,14 @@ def make_figures(out, data, grids, refs, curves, table, costs, line) -> list[dic
         for mid in METHODS:
             rows = [r for r in table if r["quantity"] == q and r["method"] == mid]
             series.append({
-                "x": [r["spacing_m"] for r in rows], "y": [r["rel_rmse"] for r in rows], "label": mid,
+                "x": [r["spacing_m"] for r in rows], "y": [r["smape"] for r in rows], "label": mid,
                 "panel": q, "ls": "-" if mid.startswith("trilinear") else "--",
             })  # fmt: skip
     path = F.line_plot(
-        out / "error_vs_spacing.png", "grid spacing h (m)", "relative RMSE (surface points)", series,
+        out / "error_vs_spacing.png", "grid spacing h (m)", "sMAPE (surface points)", series,
         x_log=True, y_log=True, panels=list(QUANTITIES),
     )  # fmt: skip
-    figs.append({"file": path.name, "caption": "Relative RMSE over the surface points against grid spacing, "
+    figs.append({"file": path.name, "caption": "sMAPE over the surface points against grid spacing, "
                  "per lookup × basis; left: indirect irradiance, right: total with the light folded."})  # fmt: skip
     x = data["line_x"]
     mean, se = refs["indirect"]
@@ -674,7 +693,7 @@ def make_figures(out, data, grids, refs, curves, table, costs, line) -> list[dic
             pop_series.append({"x": x, "y": curves[("indirect", level, mid)].mean(axis=1), "label": mid,
                                "panel": f"h = {g.spacing:g} m"})  # fmt: skip
     path = F.line_plot(
-        out / "popping_line.png", "x (m) along the line y = 0.55, z = 1", "indirect irradiance (W/m², RGB mean)",
+        out / "popping_line.png", f"x (m) along the line y = {LINE_Y:g}, z = {LINE_Z:g}", "indirect irradiance (W/m², RGB mean)",
         pop_series, panels=[f"h = {g.spacing:g} m" for g, _ in grids],
     )  # fmt: skip
     figs.append({"file": path.name, "caption": "Popping: indirect irradiance along a line crossing the cells "
