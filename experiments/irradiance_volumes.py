@@ -63,7 +63,7 @@ from rtfit.realtime.irradiance_volumes import (
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene
 from rtfit.reference.probe_radiance import ProbeRadianceCache, point_light_visibility
 from rtfit.scenes import library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
-from rtfit.scenes.model import ConstantEnv, ReferenceSettings, Scene
+from rtfit.scenes.model import ConstantEnv, Cube, PointLight, ReferenceSettings, Scene
 
 from . import figures as F
 from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
@@ -123,6 +123,7 @@ LINE_NORMAL = (-0.6, 0.0, 0.8)
 """The popping line: x from −1.9 to 1.9 m at y = 1.3 (beside the occluder, which spans |y| ≤ 1), z = 1.0 (a
 node plane of every grid, so only the x boundaries are crossed), normal towards the light's side and up."""
 QUANTITIES = ("indirect", "folded")
+QUANTITY_LABELS = {"indirect": "indirect irradiance", "folded": "total irradiance, light folded"}
 
 
 def room_scene() -> Scene:
@@ -130,13 +131,13 @@ def room_scene() -> Scene:
 
 
 def point_light(scene: Scene):
-    (light,) = [x for x in scene.lights if x.kind == "point_light"]
+    (light,) = [x for x in scene.lights if isinstance(x, PointLight)]
     return np.asarray(light.position, dtype=np.float64), np.asarray(light.intensity, dtype=np.float64)
 
 
 def occluder_box(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi) corners of the scene's one cube (the occluding wall)."""
-    (box,) = [s for s in scene.shapes if s.kind == "cube"]
+    (box,) = [s for s in scene.shapes if isinstance(s, Cube)]
     c, h = np.asarray(box.center), np.asarray(box.size) / 2
     return c - h, c + h
 
@@ -233,18 +234,33 @@ def probe_job(
     mi, ms = load_mitsuba_scene(scene, variant)
     pos = np.asarray(positions, dtype=np.float64)
     ref = ProbeRadianceCache(cache_dir).get(
-        mi, ms, scene_hash(scene), pos, probe_features, FEATURES_NAME,
-        spp=spp, pass_spp=pass_spp, seed=seed, variant=variant,
-    )  # fmt: skip
-    lights = [x for x in scene.lights if x.kind == "point_light"]
+        mi,
+        ms,
+        scene_hash(scene),
+        pos,
+        probe_features,
+        FEATURES_NAME,
+        spp=spp,
+        pass_spp=pass_spp,
+        seed=seed,
+        variant=variant,
+    )
+    lights = [x for x in scene.lights if isinstance(x, PointLight)]
     visible = point_light_visibility(mi, ms, pos, lights[0].position) if lights else np.ones(len(pos))
     return {"mean": ref.mean, "stderr": ref.stderr, "reference": ref.to_dict(), "visible": visible}
 
 
 def surface_job(
-    scene_toml: str, points, normals, spp: int, pass_spp: int, seed: int, variant: str, cache_dir: str,
+    scene_toml: str,
+    points,
+    normals,
+    spp: int,
+    pass_spp: int,
+    seed: int,
+    variant: str,
+    cache_dir: str,
     progress: bool = False,
-) -> dict:  # fmt: skip
+) -> dict:
     """Job: indirect (path-traced along cosine directions) and direct (the point light, emitter sampling +
     shadow ray) irradiance at ``points`` with ``normals``, cached `ReferenceCache` entries."""
     scene = parse_scene_text(scene_toml)
@@ -261,7 +277,7 @@ def surface_job(
                 points=np.asarray(points),
                 normals=np.asarray(normals),
                 transport=transport,
-            ),  # fmt: skip
+            ),
             progress=progress,
             label=f"{scene.name} {name}",
         )
@@ -295,7 +311,7 @@ def run(ctx) -> dict:
                 spp=cfg["probe_spp"],
                 pass_spp=cfg["probe_pass_spp"],
                 **common,
-            ),  # fmt: skip
+            ),
             label=f"probes ({fine.count})",
         ),
         Job(
@@ -306,7 +322,7 @@ def run(ctx) -> dict:
                 spp=cfg["probe_spp"],
                 pass_spp=cfg["probe_pass_spp"],
                 **common,
-            ),  # fmt: skip
+            ),
             label="furnace probes",
         ),
         Job(
@@ -319,7 +335,7 @@ def run(ctx) -> dict:
                 pass_spp=cfg["pass_spp"],
                 progress=ctx.progress,
                 **common,
-            ),  # fmt: skip
+            ),
             label=f"surface references ({len(pts)} points)",
         ),
     ]
@@ -328,9 +344,14 @@ def run(ctx) -> dict:
     sizes = [len(g[0]) for g in groups.values()] + [len(line_p), len(chk_p)]
     cut = np.cumsum([0, *sizes])
     data = {
-        "points": pts, "normals": nrm, "cut": cut, "groups": list(groups), "line_x": xs,
-        "light": point_light(room), "occluder": occluder_box(room),
-    }  # fmt: skip
+        "points": pts,
+        "normals": nrm,
+        "cut": cut,
+        "groups": list(groups),
+        "line_x": xs,
+        "light": point_light(room),
+        "occluder": occluder_box(room),
+    }
     return assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data)
 
 
@@ -454,8 +475,7 @@ def assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data) -> di
             case_docs.append(
                 {
                     "id": f"{q}-h{grid.spacing:g}",
-                    "label": f"{'indirect irradiance' if q == 'indirect' else 'total irradiance, light folded'}"
-                    f", grid spacing {grid.spacing:g} m ({grid.count} probes)",
+                    "label": f"{QUANTITY_LABELS[q]}, grid spacing {grid.spacing:g} m ({grid.count} probes)",
                     "parameters": {
                         "quantity": q,
                         "spacing_m": grid.spacing,
@@ -483,9 +503,14 @@ def assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data) -> di
         for ap in doc["approximations"]:
             c = by_method.get(ap["method"].removeprefix("direct+"))
             ap["cost"] = (
-                {"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"],
-                 "backend": c["backend"]} if c else None
-            )  # fmt: skip
+                {
+                    "ns_per_pixel": c["ns_per_pixel"],
+                    "pixels_per_second": c["pixels_per_second"],
+                    "backend": c["backend"],
+                }
+                if c
+                else None
+            )
     table = error_table(case_docs)
     figs = make_figures(ctx.out_dir, data, grids, refs, curves, table, costs, line)
     return {
@@ -554,6 +579,7 @@ def error_table(case_docs: list[dict]) -> list[dict]:
                     "rel_rmse": rel,
                     "rel_rmse_floor": math.sqrt(floor) if floor is not None else None,
                     "smape": m["smape"]["value"] if "smape" in m else None,
+                    "smape_floor": m["smape"].get("noise_floor") if "smape" in m else None,
                 }
             )
     return rows
@@ -587,26 +613,42 @@ def self_checks(cfg, fine, grids, probes, furnace_probes, surface, data, bases, 
     noisy = fs > 0
     z = np.abs(diff[noisy] / fs[noisy])
     zmax = sidak_threshold(int(noisy.sum()))
-    checks.append(_check(
-        "white furnace: probe projections (SH, irradiance at 70 normals) match their closed forms within noise",
-        float(z.max()), f"max |z| ≤ {zmax:.2f} (Šidák, α = 0.01, n = {int(noisy.sum())})", z.max() <= zmax,
-    ))  # fmt: skip
+    checks.append(
+        _check(
+            "white furnace: probe projections (SH, irradiance at 70 normals) = closed forms within noise",
+            float(z.max()),
+            f"max |z| ≤ {zmax:.2f} (Šidák, α = 0.01, n = {int(noisy.sum())})",
+            z.max() <= zmax,
+        )
+    )
     exact_dc = float(np.max(np.abs(diff[~noisy]) / math.sqrt(4 * math.pi))) if (~noisy).any() else 0.0
-    checks.append(_check(
-        "white furnace: the noiseless SH DC projection is exact", exact_dc, "≤ 1e-6 relative", exact_dc <= 1e-6
-    ))  # fmt: skip
+    checks.append(
+        _check(
+            "white furnace: the noiseless SH DC projection is exact",
+            exact_dc,
+            "≤ 1e-6 relative",
+            exact_dc <= 1e-6,
+        )
+    )
     # 2. A volume of identical exact constant probes is π everywhere (inside, on boundaries, outside).
     rng = np.random.default_rng(5)
     p = rng.uniform(-3.0, 3.0, (4096, 3))
     p[:64] = fine.positions()[:64] + 0.5 * fine.spacing
     n = rng.normal(size=(4096, 3))
-    const = {"sh-l2": np.repeat(sh9_from_constant(1.0)[None], fine.count, 0),
-             "cube-valve": np.full((fine.count, 6, 3), math.pi), "cube-nnls": np.full((fine.count, 6, 3), math.pi)}  # fmt: skip
+    const = {
+        "sh-l2": np.repeat(sh9_from_constant(1.0)[None], fine.count, 0),
+        "cube-valve": np.full((fine.count, 6, 3), math.pi),
+        "cube-nnls": np.full((fine.count, 6, 3), math.pi),
+    }
     worst = max(float(np.max(np.abs(v / math.pi - 1.0))) for v in evaluate_rows(fine, const, p, n).values())
-    checks.append(_check(
-        "constant environment: every lookup × basis of identical exact probes returns π (float32)",
-        worst, "≤ 2e-6 relative (measured 4.8e-7)", worst <= 2e-6,
-    ))  # fmt: skip
+    checks.append(
+        _check(
+            "constant environment: every lookup × basis of identical exact probes returns π (float32)",
+            worst,
+            "≤ 2e-6 relative (measured 4.8e-7)",
+            worst <= 2e-6,
+        )
+    )
     # 3. The direct reference is I·max(n·d, 0)/r² with an analytic shadow test of the occluder.
     q, intensity = data["light"]
     lo, hi = data["occluder"]
@@ -620,10 +662,14 @@ def self_checks(cfg, fine, grids, probes, furnace_probes, surface, data, bases, 
     scale = np.maximum(np.abs(closed), 1e-3 * float(np.max(closed)))
     rel = np.abs(got - closed) / scale
     agree = float(np.mean(np.all(rel <= 1e-4, axis=1)))
-    checks.append(_check(
-        "direct reference = I·max(n·d, 0)/r² × analytic occluder shadow (points off shadow edges)",
-        agree, "≥ 0.99 of the points within 1e-4 relative", agree >= 0.99,
-    ))  # fmt: skip
+    checks.append(
+        _check(
+            "direct reference = I·max(n·d, 0)/r² × analytic occluder shadow (points off shadow edges)",
+            agree,
+            "≥ 0.99 of the points within 1e-4 relative",
+            agree >= 0.99,
+        )
+    )
     # 4. Two independent estimators of the indirect irradiance at the coarsest grid's nodes: the probes'
     #    uniform-sphere projection onto the six axes, and the surface estimator's cosine-sampled paths.
     coarse, cidx = grids[0]
@@ -633,13 +679,22 @@ def self_checks(cfg, fine, grids, probes, furnace_probes, surface, data, bases, 
     zz = ((pm - sm) / np.sqrt(ps**2 + ss**2 + 1e-30)).ravel()
     zlim = sidak_threshold(zz.size)
     spread = robust_spread(zz)
-    checks.append(_check(
-        "probe projection (uniform sphere) = surface estimator (cosine paths) at the coarse nodes × 6 axes",
-        float(np.abs(zz).max()), f"max |z| ≤ {zlim:.2f} (Šidák, α = 0.01, n = {zz.size})", np.abs(zz).max() <= zlim,
-    ))  # fmt: skip
-    checks.append(_check(
-        "  … and the z-scores have unit spread", spread, "robust spread in [0.6, 1.5]", 0.6 <= spread <= 1.5
-    ))  # fmt: skip
+    checks.append(
+        _check(
+            "probe projection (uniform sphere) = surface estimator (cosine paths), coarse nodes × 6 axes",
+            float(np.abs(zz).max()),
+            f"max |z| ≤ {zlim:.2f} (Šidák, α = 0.01, n = {zz.size})",
+            np.abs(zz).max() <= zlim,
+        )
+    )
+    checks.append(
+        _check(
+            "  … and the z-scores have unit spread",
+            spread,
+            "robust spread in [0.6, 1.5]",
+            0.6 <= spread <= 1.5,
+        )
+    )
     # 5. The lookups reproduce each probe at its node (finest grid, indirect bases, float32).
     nodes = fine.positions()
     normals = rng.normal(size=(fine.count, 3))
@@ -655,15 +710,19 @@ def self_checks(cfg, fine, grids, probes, furnace_probes, surface, data, bases, 
             axis=-1,
         )  # each node's own probe, the basis's NumPy text in float64
         worst = max(worst, float(np.max(np.abs(v - own) / (np.abs(own) + 1e-3 * np.abs(own).max()))))
-    checks.append(_check(
-        "nearest and trilinear lookups at the nodes return the node's own probe", worst,
-        "≤ 1e-5 relative (float32 weights; measured ≤ 1e-6)", worst <= 1e-5,
-    ))  # fmt: skip
+    checks.append(
+        _check(
+            "nearest and trilinear lookups at the nodes return the node's own probe",
+            worst,
+            "≤ 1e-5 relative (float32 weights; measured ≤ 1e-6)",
+            worst <= 1e-5,
+        )
+    )
     checks.append(_check("every lookup is finite", str(finite), "True", finite))
     rel_se = float(np.mean(surface["indirect"]["stderr"] / np.maximum(surface["indirect"]["mean"], 1e-12)))
-    checks.append(_check(
-        "indirect reference resolved (mean relative standard error)", rel_se, "≤ 0.1", rel_se <= 0.1
-    ))  # fmt: skip
+    checks.append(
+        _check("indirect reference resolved (mean relative standard error)", rel_se, "≤ 0.1", rel_se <= 0.1)
+    )
     return checks
 
 
@@ -674,47 +733,93 @@ def make_figures(out, data, grids, refs, curves, table, costs, line) -> list[dic
     for q in QUANTITIES:
         for mid in METHODS:
             rows = [r for r in table if r["quantity"] == q and r["method"] == mid]
-            series.append({
-                "x": [r["spacing_m"] for r in rows], "y": [r["smape"] for r in rows], "label": mid,
-                "panel": q, "ls": "-" if mid.startswith("trilinear") else "--",
-            })  # fmt: skip
+            series.append(
+                {
+                    "x": [r["spacing_m"] for r in rows],
+                    "y": [r["smape"] for r in rows],
+                    "label": mid,
+                    "panel": q,
+                    "ls": "-" if mid.startswith("trilinear") else "--",
+                }
+            )
     path = F.line_plot(
-        out / "error_vs_spacing.png", "grid spacing h (m)", "sMAPE (surface points)", series,
-        x_log=True, y_log=True, panels=list(QUANTITIES),
-    )  # fmt: skip
-    figs.append({"file": path.name, "caption": "sMAPE over the surface points against grid spacing, "
-                 "per lookup × basis; left: indirect irradiance, right: total with the light folded."})  # fmt: skip
+        out / "error_vs_spacing.png",
+        "grid spacing h (m)",
+        "sMAPE (surface points)",
+        series,
+        x_log=True,
+        y_log=True,
+        panels=list(QUANTITIES),
+    )
+    figs.append(
+        {
+            "file": path.name,
+            "caption": "sMAPE over the surface points against grid spacing, "
+            "per lookup × basis; left: indirect irradiance, right: total with the light folded.",
+        }
+    )
     x = data["line_x"]
     mean, se = refs["indirect"]
-    pop_series = [{"x": x, "y": mean[line].mean(axis=1), "yerr": se[line].mean(axis=1), "label": "reference",
-                   "style": "points", "panel": f"h = {g.spacing:g} m"} for g, _ in grids]  # fmt: skip
+    pop_series = [
+        {
+            "x": x,
+            "y": mean[line].mean(axis=1),
+            "yerr": se[line].mean(axis=1),
+            "label": "reference",
+            "style": "points",
+            "panel": f"h = {g.spacing:g} m",
+        }
+        for g, _ in grids
+    ]
     for level, (g, _) in enumerate(grids):
         for mid in ("nearest-sh-l2", "trilinear-sh-l2", "nearest-cube-valve"):
-            pop_series.append({"x": x, "y": curves[("indirect", level, mid)].mean(axis=1), "label": mid,
-                               "panel": f"h = {g.spacing:g} m"})  # fmt: skip
+            pop_series.append(
+                {
+                    "x": x,
+                    "y": curves[("indirect", level, mid)].mean(axis=1),
+                    "label": mid,
+                    "panel": f"h = {g.spacing:g} m",
+                }
+            )
     path = F.line_plot(
-        out / "popping_line.png", f"x (m) along the line y = {LINE_Y:g}, z = {LINE_Z:g}", "indirect irradiance (W/m², RGB mean)",
-        pop_series, panels=[f"h = {g.spacing:g} m" for g, _ in grids],
-    )  # fmt: skip
-    figs.append({"file": path.name, "caption": "Popping: indirect irradiance along a line crossing the cells "
-                 "(normal (−0.6, 0, 0.8)); the nearest lookup steps at every cell boundary, trilinear is "
-                 "continuous."})  # fmt: skip
+        out / "popping_line.png",
+        f"x (m) along the line y = {LINE_Y:g}, z = {LINE_Z:g}",
+        "indirect irradiance (W/m², RGB mean)",
+        pop_series,
+        panels=[f"h = {g.spacing:g} m" for g, _ in grids],
+    )
+    figs.append(
+        {
+            "file": path.name,
+            "caption": "Popping: indirect irradiance along a line crossing the cells "
+            "(normal (−0.6, 0, 0.8)); the nearest lookup steps at every cell boundary, trilinear is "
+            "continuous.",
+        }
+    )
     finest = grids[-1][0].spacing
     pts = [
         {"x": c["ns_per_pixel"], "y": r["rel_rmse"], "label": c["method"]}
-        for c in costs if c["method"] in METHODS
-        for r in table if r["method"] == c["method"] and r["quantity"] == "indirect" and r["spacing_m"] == finest
-    ]  # fmt: skip
+        for c in costs
+        if c["method"] in METHODS
+        for r in table
+        if r["method"] == c["method"] and r["quantity"] == "indirect" and r["spacing_m"] == finest
+    ]
     floor = next((r["rel_rmse_floor"] for r in table if r["quantity"] == "indirect"), None)
-    path = F.pareto_plot(out / "error_vs_cost.png", pts, "ns per lookup (Dr.Jit, float32)",
-                         f"relative RMSE, indirect, h = {finest:g} m", floor=floor)  # fmt: skip
+    path = F.pareto_plot(
+        out / "error_vs_cost.png",
+        pts,
+        "ns per lookup (Dr.Jit, float32)",
+        f"relative RMSE, indirect, h = {finest:g} m",
+        floor=floor,
+    )
     figs.append({"file": path.name, "caption": "Error against cost per lookup at the finest spacing."})
     return figs
 
 
 # ========================================================================================== summary
 NOTES = [
-    "Probes hold bounced light only (a point light is never hit by a sampled ray); the `folded` quantity adds "
+    "Probes hold bounced light only (a point light is never hit by a sampled ray); the `folded` quantity "
+    "adds "
     "the point light to each probe as a distant light from its direction at the probe, with the probe's own "
     "shadow ray, and is compared with the total irradiance.",
     "Floor, wall and ceiling points lie outside the grid (x, y ∈ [−1.5, 1.5], z ∈ [0.25, 1.75]) and are "
@@ -722,6 +827,16 @@ NOTES = [
     "Each probe's coefficients carry Monte Carlo noise of its own (probe_directions per probe): the finest "
     "spacing's error includes it.",
 ]
+
+
+METHOD_TEXT = (
+    "Valve's irradiance volume (seed 000:2502-2515) stores ambient cubes of *bounced* light on a coarse "
+    "grid and looks up the nearest one per model, without filtering; local lights beyond the two most "
+    "important are folded into the cube on the fly. Here the probes are path-traced in a room with a bright "
+    "point light and an occluder, stored as Valve's cube, the NNLS cube and SH L2, and looked up nearest or "
+    "trilinear at surface points. Where the error sits: `smape_<group>` per surface group (the occluder's "
+    "shadow side gets light leaking through the thin wall once a probe on the lit side is the nearest)."
+)
 
 
 def sections(cfg, grids, probes) -> list[dict]:
@@ -733,12 +848,8 @@ def sections(cfg, grids, probes) -> list[dict]:
         {
             "id": "method",
             "title": "Irradiance volumes: what is measured",
-            "text": "Valve's irradiance volume (seed 000:2502-2515) stores ambient cubes of *bounced* light on a "
-            "coarse grid and looks up the nearest one per model, without filtering; local lights beyond the two "
-            "most important are folded into the cube on the fly. Here the probes are path-traced in a room with "
-            "a bright point light and an occluder, stored as Valve's cube, the NNLS cube and SH L2, and looked "
-            "up nearest or trilinear at surface points.\n\n"
-            "| spacing (m) | nodes | probes | floats (cube) | floats (SH L2) |\n|---|---|---|---|---|\n"
+            "text": METHOD_TEXT
+            + "\n\n| spacing (m) | nodes | probes | floats (cube) | floats (SH L2) |\n|---|---|---|---|---|\n"
             + grid_rows
             + f"\n\nProbe directions per probe: {probes['reference']['spp']}.",
         }
@@ -750,20 +861,24 @@ def summary(table, pops, checks, grids) -> str:
 
     def rel(q, h, mid):
         r = next(r for r in table if r["quantity"] == q and r["spacing_m"] == h and r["method"] == mid)
-        return r["rel_rmse"]
+        return r["smape"]
 
+    floor = next(r["smape_floor"] for r in table if r["quantity"] == "indirect")
     lv = len(grids) - 1
     passed = sum(c["passed"] for c in checks)
     return (
-        f"Indirect irradiance, relative RMSE at h = {coarsest:g} → {finest:g} m: nearest SH L2 "
+        f"Indirect irradiance, sMAPE over the surface points (noise floor {floor:.3f}) at h = {coarsest:g} → "
+        f"{finest:g} m: nearest SH L2 "
         f"{rel('indirect', coarsest, 'nearest-sh-l2'):.3f} → {rel('indirect', finest, 'nearest-sh-l2'):.3f}, "
         f"trilinear SH L2 {rel('indirect', coarsest, 'trilinear-sh-l2'):.3f} → "
         f"{rel('indirect', finest, 'trilinear-sh-l2'):.3f}, trilinear Valve cube "
-        f"{rel('indirect', finest, 'trilinear-cube-valve'):.3f} at {finest:g} m. Popping at h = {finest:g} m: "
-        f"nearest SH L2 steps by up to {100 * pops[('indirect', lv, 'nearest-sh-l2')]['max_step']:.1f} % of the "
+        f"{rel('indirect', finest, 'trilinear-cube-valve'):.3f} at {finest:g} m. Popping at h = {finest:g} "
+        f"m: nearest SH L2 steps by up to {100 * pops[('indirect', lv, 'nearest-sh-l2')]['max_step']:.1f} "
+        "% of the "
         f"irradiance at a cell boundary, trilinear by "
         f"{100 * pops[('indirect', lv, 'trilinear-sh-l2')]['max_step']:.2f} % (the reference's own step: "
-        f"{100 * pops[('indirect', lv, 'nearest-sh-l2')]['reference_max_step']:.2f} %). With the light folded "
+        f"{100 * pops[('indirect', lv, 'nearest-sh-l2')]['reference_max_step']:.2f} %). With the light "
+        "folded "
         f"(total irradiance): trilinear SH L2 {rel('folded', finest, 'trilinear-sh-l2'):.3f} against "
         f"{rel('folded', finest, 'direct+trilinear-sh-l2'):.3f} for exact direct light plus the volume. "
         f"{passed} of {len(checks)} checks passed."
@@ -777,8 +892,10 @@ def _cost_inputs(grid: ProbeGrid, n: int, seed: int = 3):
     hi = np.asarray(grid.origin) + grid.spacing * (np.asarray(grid.dims) - 1) + 0.25
     p = rng.uniform(lo, hi, (n, 3)).astype(np.float32)
     nrm = rng.normal(size=(n, 3)).astype(np.float32)
-    tables = {b: rng.uniform(0.0, 1.0, grid.count * (18 if b.startswith("cube") else 27)).astype(np.float32)
-              for b in VOLUME_BASES}  # fmt: skip
+    tables = {
+        b: rng.uniform(0.0, 1.0, grid.count * (18 if b.startswith("cube") else 27)).astype(np.float32)
+        for b in VOLUME_BASES
+    }
     return p, nrm, tables
 
 
@@ -803,13 +920,27 @@ def cost_rows(ctx, cfg, grid: ProbeGrid) -> list[dict]:
     rows = []
     for mid, m in METHODS.items():
         t = _time(mid, grid, tables[m.fixed["basis"].id], P, N, n)
-        rows.append({
-            "method": mid, "label": m.label, "backend": backend, **t.to_dict(), "floats_per_probe": m.storage,
-            "note": f"per lookup: position and normal in, RGB out; {grid.count} probes, h = {grid.spacing:g} m",
-        })  # fmt: skip
+        rows.append(
+            {
+                "method": mid,
+                "label": m.label,
+                "backend": backend,
+                **t.to_dict(),
+                "floats_per_probe": m.storage,
+                "note": f"per lookup: position and normal in, RGB out; {grid.count} probes, "
+                f"h = {grid.spacing:g} m",
+            }
+        )
     base = memory_baseline(tuple(P + N), n)
-    rows.append({"method": "memory-baseline", "label": "memory traffic baseline (6 loads, 1 store)",
-                 "backend": backend, **base.to_dict(), "note": "the memory-bound floor"})  # fmt: skip
+    rows.append(
+        {
+            "method": "memory-baseline",
+            "label": "memory traffic baseline (6 loads, 1 store)",
+            "backend": backend,
+            **base.to_dict(),
+            "note": "the memory-bound floor",
+        }
+    )
     return rows
 
 

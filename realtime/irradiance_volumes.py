@@ -44,14 +44,14 @@ Dr.Jit → lazy, JAX arrays → the JAX text) or on an ops namespace with ``meth
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import drjit as dr
 import numpy as np
 
-from .arrays import DRJIT_OPS, evaluate, is_drjit, is_jax, split3
+from .arrays import DRJIT_OPS, NUMPY_OPS, evaluate, is_drjit, is_jax, split3
 from .irradiance_bases import CUBE_AXES, sh9_from_directional
 from .irradiance_bases import METHODS as BASIS_METHODS
 from .methods import Input, Method, method_table
@@ -156,7 +156,7 @@ LOOKUPS = {"nearest": _nearest_axis, "trilinear": _trilinear_axis}
 tensor product: 1 node for ``nearest``, 8 for ``trilinear``)."""
 
 
-def _constants(grid: ProbeGrid, wrap=float) -> dict:
+def _constants(grid: ProbeGrid, wrap: Callable[[float], Any] = float) -> dict:
     """The grid's numbers the kernel reads, each passed through ``wrap`` (Dr.Jit: ``dr.opaque``, so that one
     compiled kernel serves every grid of the same shape class)."""
     nx, ny, nz = grid.dims
@@ -283,7 +283,8 @@ def _checked_table(m: Method, grid: ProbeGrid, table) -> np.ndarray:
 
 def volume_inputs(method, grid: ProbeGrid, table, points, normals) -> dict[str, Any]:
     """The kernel inputs of ``method`` for NumPy ``points`` and ``normals`` (N, 3): components as views,
-    the table as a NumPy array of its own dtype, the grid. Run the NumPy text with ``method(NUMPY_OPS, inputs)``."""
+    the table as a NumPy array of its own dtype, the grid. Run the NumPy text with
+    ``method(NUMPY_OPS, inputs)``."""
     m = _method(method)
     px, py, pz = split3(np.asarray(points), "points")
     nx, ny, nz = split3(np.asarray(normals), "normals")
@@ -334,8 +335,6 @@ def volume_irradiance(method, grid: ProbeGrid, table, points, normals):
 def volume_weights(lookup: str, grid: ProbeGrid, points) -> tuple[np.ndarray, np.ndarray]:
     """The nodes and weights the ``lookup`` kind blends at NumPy ``points`` (N, 3): (index (N, K) int64,
     weight (N, K) float64), K = 1 (nearest) or 8 (trilinear); the kernel's own text on NumPy, float64."""
-    from .arrays import NUMPY_OPS
-
     if lookup not in LOOKUPS:
         raise ValueError(f"unknown lookup {lookup!r} (known: {', '.join(LOOKUPS)})")
     p = np.asarray(points, dtype=np.float64)
