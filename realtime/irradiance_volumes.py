@@ -230,7 +230,7 @@ def _volume_method(lookup: str, basis_id: str) -> Method:
     what, formula, source = _LOOKUP_TEXT[lookup]
     return Method(
         id=f"{lookup}-{basis_id}",
-        label=f"{basis.label.split(' (')[0]} volume, {what}",
+        label=f"{basis.label} volume, {what}",
         kernel=_volume_kernel,
         inputs=(*_POSITION, *_NORMAL, _TABLE, _GRID),
         fixed={"lookup": lookup, "basis": basis},
