@@ -43,8 +43,9 @@ __all__ = ["FORMAT", "ProbeRadiance", "ProbeRadianceCache", "point_light_visibil
 
 FORMAT = 1
 """Version of the probe-radiance cache entries."""
-MAX_LANES = 1 << 20
-"""Paths per launch (bounded so that the per-lane NumPy arrays stay ~100 MB at most)."""
+MAX_LANES = 1 << 18
+"""Paths per launch: the per-lane NumPy arrays (K function values and their squares, float64) stay at
+2 · 2^18 · K · 8 bytes (≈ 330 MB for the experiment's K = 79)."""
 _CHECK_DIRECTIONS = np.array(
     [[0.0, 0.0, 1.0], [0.6, 0.0, -0.8], [0.36, -0.48, 0.8], [-0.8, 0.36, 0.48], [0.0, -1.0, 0.0]]
 )
