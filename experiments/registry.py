@@ -59,6 +59,13 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "sun, sunsky, studio, overcast and measured light probes, with per-probe storage and cost.",
         ),
         ExperimentSpec(
+            "irradiance-volumes",
+            "rtfit.experiments.irradiance_volumes",
+            "Irradiance volumes: a grid of ambient cubes / SH L2 probes, nearest vs trilinear, light folding",
+            "Path-traced probes over a room with a bright point light and an occluder, looked up nearest and "
+            "trilinear against path-traced indirect and total irradiance: error vs spacing, popping, cost.",
+        ),
+        ExperimentSpec(
             "ambient-aperture",
             "rtfit.experiments.ambient_aperture",
             "Ambient aperture lighting: spherical-cap intersection, exact vs smoothstep vs fitted",
