@@ -15,6 +15,8 @@ Modules:
     ambient_aperture  ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection
                 and shading (docs/ambient-aperture.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
+    environment_maps  pre-convolved and localised cube maps, cosine look-up, distance-impostor Hit
+                (docs/environment-maps.md).
     irradiance_bases  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
                 (docs/irradiance-bases.md).
     height_fog  exponential height fog: stable closed-form optical depth, fog colour, fog volumes
@@ -41,6 +43,7 @@ from . import arrays
 from .ambient_aperture import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
+from .environment_maps import *  # noqa: F403
 from .height_fog import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .methods import *  # noqa: F403
@@ -58,6 +61,7 @@ MODULES = (
     "phase",
     "ambient_aperture",
     "diffuse",
+    "environment_maps",
     "height_fog",
     "irradiance_bases",
     "sdf_grid",
