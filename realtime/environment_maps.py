@@ -63,7 +63,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from .arrays import NUMPY_OPS, evaluate, safe_div, safe_sqrt
+from .arrays import NUMPY_OPS, evaluate, evaluate_numpy, safe_div, safe_sqrt
 from .diffuse import sphere_light_irradiance_kernel
 from .methods import Input, Method, Param, method_table
 
@@ -271,8 +271,9 @@ def _table_like(ops, table, like):
     return np.asarray(table)
 
 
-def cube_lookup(table: np.ndarray, directions, bilinear: bool = True):
-    """`cube_lookup_kernel` on directions (…, 3); the table's resolution is taken from its size."""
+def cube_lookup(table: np.ndarray, directions, bilinear: bool = True, numpy: bool = False):
+    """`cube_lookup_kernel` on directions (…, 3); the table's resolution is taken from its size.
+    ``numpy``: run the NumPy text in float64 (small batches: no kernel compilation)."""
     table = np.asarray(table, dtype=np.float64).reshape(-1)
     n = _resolution_of(table)
     d = np.asarray(directions, dtype=np.float64)
@@ -280,7 +281,9 @@ def cube_lookup(table: np.ndarray, directions, bilinear: bool = True):
     def k(ops, dx, dy, dz):
         return cube_lookup_kernel(ops, _table_like(ops, table, dx), dx, dy, dz, n, bilinear)
 
-    return evaluate(k, d[..., 0], d[..., 1], d[..., 2])
+    run = evaluate_numpy if numpy else evaluate
+    with np.errstate(all="ignore"):  # NumPy evaluates both sides of every select
+        return run(k, d[..., 0], d[..., 1], d[..., 2])
 
 
 def _resolution_of(table: np.ndarray) -> int:
@@ -338,9 +341,11 @@ def cap_lobe_table(shininess: float, size: int = 32, nodes: int = 48) -> np.ndar
     """K(c, Ω) = ∫_cap lobe dω over a cap of solid angle Ω whose axis makes cos c with the lobe axis,
     tabulated at node-aligned c = 2k/(size−1) − 1, Ω = 2π·l/(size−1) (size×size, row-major in c).
 
-    Gauss–Legendre quadrature in the cap's polar angle β ∈ [0, α] (``nodes`` points, cos β·… with the
-    sin β Jacobian) and the trapezoid rule in azimuth (2·nodes points, exact for the periodic integrand up
-    to its smoothness); the integrand is `lobe_kernel`, the one text. Replaces the seed's
+    Gauss–Legendre quadrature in the cap's polar angle β ∈ [0, α] (two panels of ``nodes`` points split
+    where the rim crosses the lobe's horizon, sin β Jacobian) and
+    in azimuth over the part of each ring where the lobe is non-zero, [0, φ*] with
+    cos φ* = −cot θ·cot β (twice, by symmetry), so that no rule straddles the clamp's kink; the
+    integrand is `lobe_kernel`, the one text. Replaces the seed's
     2M×2M×M regular-sample count of ``EnvMap::eval`` (001:440-447)."""
     if size < 2:
         raise ValueError(f"cap table size must be ≥ 2, got {size}")
@@ -348,14 +353,26 @@ def cap_lobe_table(shininess: float, size: int = 32, nodes: int = 48) -> np.ndar
     om = np.linspace(0.0, TWO_PI, size)
     alpha = np.arccos(np.clip(1.0 - om / TWO_PI, -1.0, 1.0))
     x, w = np.polynomial.legendre.leggauss(nodes)
-    phi = (np.arange(2 * nodes) + 0.5) * (TWO_PI / (2 * nodes))
     ct = c[:, None, None, None]
     st = np.sqrt(np.maximum(1.0 - ct * ct, 0.0))
-    beta = (0.5 * alpha)[None, :, None, None] * (x[None, None, :, None] + 1.0)
-    cos_g = ct * np.cos(beta) + st * np.sin(beta) * np.cos(phi)[None, None, None, :]
-    f = evaluate_lobe_numpy(cos_g, shininess) * np.sin(beta)
-    inner = f.sum(axis=3) * (TWO_PI / (2 * nodes))
-    return ((inner * w[None, None, :]).sum(axis=2) * (0.5 * alpha)[None, :]).reshape(-1)
+    # β panels split where the cap's rim crosses the lobe's horizon, β* = |π/2 − θ| (a kink in β)
+    kink = np.abs(0.5 * math.pi - np.arccos(np.clip(c, -1.0, 1.0)))[:, None]
+    split = np.minimum(alpha[None, :], kink)
+    total = np.zeros((size, size))
+    for lo, hi in ((np.zeros_like(split), split), (split, np.broadcast_to(alpha[None, :], split.shape))):
+        half = 0.5 * (hi - lo)
+        beta = lo[..., None, None] + half[..., None, None] * (x[None, None, :, None] + 1.0)
+        a = ct * np.cos(beta)
+        b = st * np.sin(beta)
+        # the lobe vanishes where a + b·cos φ < 0: integrate φ over [0, φ*] only (2× by symmetry), so that
+        # the Gauss rule never straddles the clamp's kink
+        with np.errstate(divide="ignore", invalid="ignore"):
+            phi_max = np.where(b > 0, np.arccos(np.clip(-a / b, -1.0, 1.0)), np.where(a > 0, math.pi, 0.0))
+        phi = 0.5 * phi_max * (x[None, None, None, :] + 1.0)
+        f = evaluate_lobe_numpy(a + b * np.cos(phi), shininess) * np.sin(beta)
+        inner = (f * w[None, None, None, :]).sum(axis=3) * phi_max[..., 0]
+        total += (inner * w[None, None, :]).sum(axis=2) * half
+    return total.reshape(-1)
 
 
 def evaluate_lobe_numpy(cos_angle: np.ndarray, shininess: float) -> np.ndarray:
@@ -460,11 +477,18 @@ def hit_iterative_kernel(ops, dist_map, x, y, z, rx, ry, rz, resolution, bilinea
 
 
 def impostor_hit(
-    dist_map: np.ndarray, origins, directions, *, iterations: int | None = None, bilinear: bool = True
+    dist_map: np.ndarray,
+    origins,
+    directions,
+    *,
+    iterations: int | None = None,
+    bilinear: bool = True,
+    numpy: bool = False,
 ) -> np.ndarray:
     """Approximate hit points (…, 3) of rays (origins relative to the reference point, unit directions) on
     the surface stored in ``dist_map``: the one-lookup form when ``iterations`` is None, else the secant
-    search with that many iterations. Runs on the default Dr.Jit backend in the arrays' precision."""
+    search with that many iterations. Runs on the default Dr.Jit backend in the arrays' precision, or
+    the NumPy text (``numpy``: small batches, where compiling the unrolled search would dominate)."""
     table = np.asarray(dist_map).reshape(-1)
     n = _resolution_of(table)
     o = np.asarray(origins)
@@ -476,7 +500,9 @@ def impostor_hit(
             return hit_parallax_kernel(ops, tab, x, y, z, rx, ry, rz, n, bilinear)
         return hit_iterative_kernel(ops, tab, x, y, z, rx, ry, rz, n, bilinear, iterations)
 
-    out = evaluate(k, o[..., 0], o[..., 1], o[..., 2], d[..., 0], d[..., 1], d[..., 2])
+    run = evaluate_numpy if numpy else evaluate
+    with np.errstate(all="ignore"):
+        out = run(k, o[..., 0], o[..., 1], o[..., 2], d[..., 0], d[..., 1], d[..., 2])
     return np.stack([np.asarray(c) for c in out], -1)
 
 
