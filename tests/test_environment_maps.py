@@ -210,7 +210,7 @@ def test_room_reference_white_furnace_and_polygon_formula():
     pts = np.array([[0.0, 0.0, 1.25], [1.7, -1.2, 0.4]])
     ax = np.array([[0.0, 0.0, 1.0], [-0.6, 0.8, 0.0]])
     e, s = room.lobe_integral_mc(pts, ax, samples=64, kind="uniform")
-    assert np.all(np.abs(e - math.pi) < 1e-12) and np.all(s < 1e-12)
+    assert np.all(np.abs(e - math.pi) < 1e-12) and np.all(s < 1e-7)  # s: rounding of E[f²] − E[f]², measured 5.3e-9
     m, s = room.lobe_integral_mc(pts, ax, samples=4096, kind="walls", seed=4)
     exact = np.array([room.polygon_irradiance(p, a) for p, a in zip(pts, ax, strict=True)])
     assert np.all(np.abs(m - exact) < 4.5 * s)  # measured |z| ≤ 1.3
