@@ -27,6 +27,7 @@ Every method's cost is measured (Dr.Jit, ns per shading point) and set beside it
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -37,25 +38,41 @@ from rtfit.realtime import environment_maps as em
 from rtfit.reference import environment_maps as room
 
 from . import figures as F
-from .cost import time_drjit
+from .cost import bench_backend, time_drjit
 from .registry import ConfigKey, checked
 
 # ============================================================================================ configure
 CONFIG = {
-    "conv_resolutions": ConfigKey("int", "cube resolutions N of the constant-environment analysis", 1, 256, (None,)),
-    "conv_normals": ConfigKey("int", "normals (Fibonacci sphere) of the constant-environment analysis", 8, 100000),
-    "cube_resolutions": ConfigKey("int", "cube resolutions N of the localised convolution (the seed: 4)", 1, 64, (None,)),
+    "conv_resolutions": ConfigKey(
+        "int", "cube resolutions N of the constant-environment analysis", 1, 256, (None,)
+    ),
+    "conv_normals": ConfigKey(
+        "int", "normals (Fibonacci sphere) of the constant-environment analysis", 8, 100000
+    ),
+    "cube_resolutions": ConfigKey(
+        "int", "cube resolutions N of the localised convolution (the seed: 4)", 1, 64, (None,)
+    ),
     "shininess": ConfigKey("float", "Phong exponent of the glossy lobe (the seed's figures: 6)", 1.0, 1000.0),
     "normals": ConfigKey("int", "lobe axes per room point (Fibonacci sphere)", 4, 4096),
-    "ref_samples": ConfigKey("int", "Monte Carlo directions per (point, axis) of the room reference", 64, 1 << 22),
-    "check_samples": ConfigKey("int", "directions per (point, axis) of the piecewise-constant-wall check", 64, 1 << 22),
+    "ref_samples": ConfigKey(
+        "int", "Monte Carlo directions per (point, axis) of the room reference", 64, 1 << 22
+    ),
+    "check_samples": ConfigKey(
+        "int", "directions per (point, axis) of the piecewise-constant-wall check", 64, 1 << 22
+    ),
     "lut_sizes": ConfigKey("int", "cosine look-up table sizes (size×size)", 2, 1024, (None,)),
-    "reduce_factor": ConfigKey("int", "samples per texel edge when reducing the room to an N×N cube map", 1, 64),
-    "impostor_resolutions": ConfigKey("int", "distance cube map resolutions of the impostor search", 2, 2048, (None,)),
+    "reduce_factor": ConfigKey(
+        "int", "samples per texel edge when reducing the room to an N×N cube map", 1, 64
+    ),
+    "impostor_resolutions": ConfigKey(
+        "int", "distance cube map resolutions of the impostor search", 2, 2048, (None,)
+    ),
     "iterations": ConfigKey("int", "secant iterations of the impostor search", 0, 64, (None,)),
     "image_size": ConfigKey("int", "sphere image width = height (pixels)", 8, 1024),
     "cost_elements": ConfigKey("int", "elements per timed launch", 1024, 1 << 26),
-    "cost_seconds": ConfigKey("float", "least wall time per timed kernel (s; the median of the launches counts)", 0.0, 10.0),
+    "cost_seconds": ConfigKey(
+        "float", "least wall time per timed kernel (s; the median of the launches counts)", 0.0, 10.0
+    ),
 }
 """Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
 
@@ -109,7 +126,12 @@ def room_cube_maps(resolution: int, factor: int, variant: str, point=room.REF_PO
     centre = em.cube_texels(resolution)
     dc = _unit(centre["point"])
     tc, hc = room.trace_room(np.broadcast_to(point, dc.shape), dc, variant)
-    return {"radiance": red(rad), "distance": red(t), "radiance_centre": room.room_radiance(hc), "distance_centre": tc}
+    return {
+        "radiance": red(rad),
+        "distance": red(t),
+        "radiance_centre": room.room_radiance(hc),
+        "distance_centre": tc,
+    }
 
 
 # ===================================================================== part 1: constant environment
@@ -125,9 +147,17 @@ def constant_environment(cfg) -> dict:
         row = {"N": n}
         row["midpoint_axis"] = float(em.convolve(env, axis, 0.0, "midpoint")[0] / math.pi)
         row["exact_axis"] = float(em.convolve(env, axis, 0.0, "exact")[0] / math.pi)
-        for label, rule, mode in (("seed", "seed", "point"), ("exact", "exact", "point"), ("cap", "exact", "cap")):
+        for label, rule, mode in (
+            ("seed", "seed", "point"),
+            ("exact", "exact", "point"),
+            ("cap", "exact", "cap"),
+        ):
             r = em.localised_convolve(env, dist, zero, q, rule=rule, mode=mode) / math.pi
-            row[f"{label}_min"], row[f"{label}_max"], row[f"{label}_mean"] = float(r.min()), float(r.max()), float(r.mean())
+            row[f"{label}_min"], row[f"{label}_max"], row[f"{label}_mean"] = (
+                float(r.min()),
+                float(r.max()),
+                float(r.mean()),
+            )
             k = float(np.sum(r) / np.sum(r * r))  # the best single scale (least squares on r·k ≈ 1)
             row[f"{label}_tuned_max_abs"] = float(np.max(np.abs(k * r - 1.0)))
         g = em.convolve(env, q[:64], cfg["shininess"], "midpoint")
@@ -146,7 +176,14 @@ ROOM_POINTS = {
 
 ROOM_ROWS = (
     # id, label, kind, solid-angle rule, mode, lut size
-    ("preconvolved-midpoint", "Pre-convolved at the reference point (midpoint Ω, seed)", "pre", "midpoint", None, None),
+    (
+        "preconvolved-midpoint",
+        "Pre-convolved at the reference point (midpoint Ω, seed)",
+        "pre",
+        "midpoint",
+        None,
+        None,
+    ),
     ("preconvolved-exact", "Pre-convolved at the reference point (exact Ω)", "pre", "exact", None, None),
     ("localised-seed", "Localised, seed (Ω = 4/(N²+2/π), point)", "loc", "seed", "point", None),
     ("localised-exact-omega", "Localised, exact texel Ω (point)", "loc", "exact", "point", None),
@@ -166,22 +203,39 @@ def room_rows(cfg, glossy: bool) -> list[dict]:
             for s in sizes:
                 suffix = f"-N{n}" + (f"-lut{s}" if s else "")
                 out.append(
-                    {"id": rid + suffix, "base": rid, "label": f"{label}, N = {n}" + (f", {s}² table" if s else ""),
-                     "kind": kind, "rule": rule, "mode": mode, "N": n, "lut": s}
-                )  # fmt: skip
+                    {
+                        "id": rid + suffix,
+                        "base": rid,
+                        "label": f"{label}, N = {n}" + (f", {s}² table" if s else ""),
+                        "kind": kind,
+                        "rule": rule,
+                        "mode": mode,
+                        "N": n,
+                        "lut": s,
+                    }
+                )
     return out
 
 
-def row_values(row: dict, maps: dict, points: np.ndarray, axes: np.ndarray, shininess: float, luts: dict) -> np.ndarray:
+def row_values(
+    row: dict, maps: dict, points: np.ndarray, axes: np.ndarray, shininess: float, luts: dict
+) -> np.ndarray:
     """One row's E or G at points (absolute) with axes."""
     m = maps[row["N"]]
     if row["kind"] == "pre":  # the classic map: convolved at the reference point, looked up by axis
         return em.convolve(m["radiance"], axes, shininess, row["rule"])
     lut = luts[(row["lut"], shininess)] if row["mode"] == "lut" else None
     return em.localised_convolve(
-        m["radiance"], m["distance"], points - room.REF_POINT, axes,
-        shininess=shininess, rule=row["rule"], mode=row["mode"], lut=lut, float32=True,
-    )  # fmt: skip
+        m["radiance"],
+        m["distance"],
+        points - room.REF_POINT,
+        axes,
+        shininess=shininess,
+        rule=row["rule"],
+        mode=row["mode"],
+        lut=lut,
+        float32=True,
+    )
 
 
 def room_part(ctx, cfg) -> dict:
@@ -194,7 +248,12 @@ def room_part(ctx, cfg) -> dict:
             pts = np.broadcast_to(p, axes.shape)
             ctx.log(f"room reference: {lobe_name} at {pid}")
             mean, se = room.lobe_integral_mc(
-                pts, axes, shininess=sh, samples=cfg["ref_samples"], seed=ctx.seed + len(cases), variant=ctx.variant
+                pts,
+                axes,
+                shininess=sh,
+                samples=cfg["ref_samples"],
+                seed=ctx.seed + len(cases),
+                variant=ctx.variant,
             )
             refs[(lobe_name, pid)] = (mean, se)
             docs = []
@@ -205,19 +264,34 @@ def room_part(ctx, cfg) -> dict:
                 ratio = v / mean
                 met["mean_ratio"] = {"value": float(ratio.mean())}
                 met["ratio_spread"] = {"value": float(ratio.max() / ratio.min() - 1.0)}
-                docs.append({"method": row["id"], "label": row["label"], "parameters": {"N": row["N"]}, "metrics": met})
+                docs.append(
+                    {
+                        "method": row["id"],
+                        "label": row["label"],
+                        "parameters": {"N": row["N"]},
+                        "metrics": met,
+                    }
+                )
             cases.append(
                 {
                     "id": f"{lobe_name}-{pid}",
                     "label": f"{'irradiance E' if sh == 0 else f'glossy G (s = {sh:g})'} {plabel}",
-                    "parameters": {"point": [float(x) for x in p], "axes": len(axes), "shininess": sh,
-                                   "reference_mean": float(mean.mean()),
-                                   "reference_rel_stderr": float(np.mean(se / np.abs(mean)))},
-                    "reference": {"quantity": lobe_name, "integrator": "depth-1 Monte Carlo (Mitsuba ray_intersect)",
-                                  "spp": cfg["ref_samples"], "mean_rel_stderr": float(np.mean(se / np.abs(mean)))},
+                    "parameters": {
+                        "point": [float(x) for x in p],
+                        "axes": len(axes),
+                        "shininess": sh,
+                        "reference_mean": float(mean.mean()),
+                        "reference_rel_stderr": float(np.mean(se / np.abs(mean))),
+                    },
+                    "reference": {
+                        "quantity": lobe_name,
+                        "integrator": "depth-1 Monte Carlo (Mitsuba ray_intersect)",
+                        "spp": cfg["ref_samples"],
+                        "mean_rel_stderr": float(np.mean(se / np.abs(mean))),
+                    },
                     "approximations": docs,
                 }
-            )  # fmt: skip
+            )
     return {"cases": cases, "values": values, "refs": refs, "axes": axes, "maps": maps, "luts": luts}
 
 
@@ -241,9 +315,10 @@ def seed_scale_fit(cfg, part: dict) -> list[dict]:
                 "model": "k·(seed localised convolution)",
                 "parameters": {"k": {"value": k, "stderr": se}},
                 "rms_residual": float(np.sqrt(np.mean(rel**2))),
-                "n_residuals": int(len(v)),
+                "n_residuals": len(v),
                 "converged": True,
-                "message": f"after the fitted scale the relative error still spans [{rel.min():.3f}, {rel.max():.3f}]",
+                "message": "after the fitted scale the relative error still spans "
+                f"[{rel.min():.3f}, {rel.max():.3f}]",
             }
         )
     return fits
@@ -314,18 +389,46 @@ def sphere_paths(sid: str, size: int, variant: str, bounces: int = 8) -> dict:
     _, hit_glass = room.trace_room(out_pos[done], out_dir[done], variant)
     glass = np.full(len(p0), np.nan)
     glass[done] = room.room_radiance(hit_glass)
-    return {"p0": p0, "n0": n0, "R": R, "T": T, "hit_R": hit_r, "hit_T": hit_t1,
-            "mirror": room.room_radiance(hit_r), "glass": glass, "glass_ok": done, "pixels": size * size}  # fmt: skip
+    return {
+        "p0": p0,
+        "n0": n0,
+        "R": R,
+        "T": T,
+        "hit_R": hit_r,
+        "hit_T": hit_t1,
+        "mirror": room.room_radiance(hit_r),
+        "glass": glass,
+        "glass_ok": done,
+        "pixels": size * size,
+    }
 
 
 def impostor_rows(cfg) -> list[dict]:
-    rows = [{"id": "classic", "label": "classic environment map (lookup at the ray direction)", "iterations": None, "hit": "classic"}]
-    rows.append({"id": "parallax", "label": "distance impostor, one lookup (001:539-546)", "iterations": None, "hit": "parallax"})
+    rows = [
+        {
+            "id": "classic",
+            "label": "classic environment map (lookup at the ray direction)",
+            "iterations": None,
+            "hit": "classic",
+        }
+    ]
+    rows.append(
+        {
+            "id": "parallax",
+            "label": "distance impostor, one lookup (001:539-546)",
+            "iterations": None,
+            "hit": "parallax",
+        }
+    )
     rows += [
-        {"id": f"iterative-{k}", "label": f"distance impostor, secant search, {k} iterations (001:812-839)",
-         "iterations": k, "hit": "iterative"}
+        {
+            "id": f"iterative-{k}",
+            "label": f"distance impostor, secant search, {k} iterations (001:812-839)",
+            "iterations": k,
+            "hit": "iterative",
+        }
         for k in cfg["iterations"]
-    ]  # fmt: skip
+    ]
     return rows
 
 
@@ -364,29 +467,62 @@ def impostor_part(ctx, cfg) -> dict:
                         "radiance_rel_rmse": {"value": float(np.sqrt(np.mean(rel**2)))},
                         "finite": {"value": 1.0 if finite else 0.0},
                     }
-                    docs.append({"method": f"{row['id']}-N{n}", "label": f"{row['label']}, N = {n}",
-                                 "parameters": {"N": n, **({"iterations": row["iterations"]} if row["iterations"] is not None else {})},
-                                 "metrics": met})  # fmt: skip
-                    curves.append({"sphere": sid, "kind": kind, "N": n, "row": row["id"], "iterations": row["iterations"],
-                                   "hit_error_mean_m": float(np.mean(err)), "radiance_rel_mae": float(np.mean(rel)),
-                                   "finite": finite})  # fmt: skip
+                    docs.append(
+                        {
+                            "method": f"{row['id']}-N{n}",
+                            "label": f"{row['label']}, N = {n}",
+                            "parameters": {
+                                "N": n,
+                                **(
+                                    {"iterations": row["iterations"]} if row["iterations"] is not None else {}
+                                ),
+                            },
+                            "metrics": met,
+                        }
+                    )
+                    curves.append(
+                        {
+                            "sphere": sid,
+                            "kind": kind,
+                            "N": n,
+                            "row": row["id"],
+                            "iterations": row["iterations"],
+                            "hit_error_mean_m": float(np.mean(err)),
+                            "radiance_rel_mae": float(np.mean(rel)),
+                            "finite": finite,
+                        }
+                    )
                 rel0 = np.abs(floor_rad[ok] - exact_rad[ok]) / np.mean(exact_rad[ok])
                 cases.append(
                     {
                         "id": f"impostor-{kind}-{sid}-N{n}",
-                        "label": f"{'mirror' if kind == 'mirror' else f'glass (n = {IOR:g})'} {slabel}, {n}×{n} distance map",
-                        "parameters": {"N": n, "pixels": int(paths["pixels"]), "sphere_pixels": int(len(x)),
-                                       "valid_pixels": int(ok.sum()), "sphere_centre": [float(c) for c in centre],
-                                       "radius_m": SPHERE_RADIUS,
-                                       "lookup_floor_rel_mae": float(np.mean(rel0))},
-                        "reference": {"quantity": "hit point / radiance", "integrator": "exact trace (Mitsuba ray_intersect)"},
+                        "label": f"{'mirror' if kind == 'mirror' else f'glass (n = {IOR:g})'} {slabel}, "
+                        f"{n}×{n} distance map",
+                        "parameters": {
+                            "N": n,
+                            "pixels": int(paths["pixels"]),
+                            "sphere_pixels": len(x),
+                            "valid_pixels": int(ok.sum()),
+                            "sphere_centre": [float(c) for c in centre],
+                            "radius_m": SPHERE_RADIUS,
+                            "lookup_floor_rel_mae": float(np.mean(rel0)),
+                        },
+                        "reference": {
+                            "quantity": "hit point / radiance",
+                            "integrator": "exact trace (Mitsuba ray_intersect)",
+                        },
                         "approximations": docs,
                     }
-                )  # fmt: skip
+                )
     return {"cases": cases, "curves": curves}
 
 
 # ================================================================================================ costs
+def _untyped(kernel) -> Any:
+    """A kernel called with a packed argument list (the type checker cannot count ``*a``)."""
+    return kernel
+
+
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per shading point: the localised convolution (one kernel launch over point×texel pairs, scaled
     to 6N² texels), the impostor searches and a cube lookup, all float32 Dr.Jit."""
@@ -400,30 +536,84 @@ def cost_rows(ctx, cfg) -> list[dict]:
     d = _unit(rng.normal(size=(m, 3)))
     p = rng.uniform(-0.8, 0.8, size=(m, 3))
     lut = Float(em.cap_lobe_table(0.0, 32).astype(np.float32))
-    for mode, rule in (("point", "seed"), ("cap", "exact"), ("lut", "exact")):
+    for mode in ("point", "cap", "lut"):
         t = time_drjit(
-            lambda *a, mode=mode: em.localised_term_kernel(DRJIT_OPS, *a, 0.0, mode, lut, 32),
-            (f(p[:, 0]), f(p[:, 1]), f(p[:, 2]), f(d[:, 0]), f(d[:, 1]), f(d[:, 2]),
-             f(d[:, 1] * 0 + 1.0), f(d[:, 0] * 0.3), f(d[:, 2] * 0.3), f(np.full(m, 1.5)), f(np.full(m, 0.1))),
-            m, **timing,
-        )  # fmt: skip
+            lambda *a, mode=mode: _untyped(em.localised_term_kernel)(DRJIT_OPS, *a, 0.0, mode, lut, 32),
+            (
+                f(p[:, 0]),
+                f(p[:, 1]),
+                f(p[:, 2]),
+                f(d[:, 0]),
+                f(d[:, 1]),
+                f(d[:, 2]),
+                f(d[:, 1] * 0 + 1.0),
+                f(d[:, 0] * 0.3),
+                f(d[:, 2] * 0.3),
+                f(np.full(m, 1.5)),
+                f(np.full(m, 0.1)),
+            ),
+            m,
+            **timing,
+        )
         for n in cfg["cube_resolutions"]:
-            rows.append({"method": f"localised-{mode}-N{n}", "label": f"localised convolution ({mode}), N = {n}",
-                         "backend": backend, "ns_per_pixel": t.ns_per_element * 6 * n * n,
-                         "pixels_per_second": t.elements_per_second / (6 * n * n), "elements": m, "repeats": t.repeats,
-                         "note": f"{t.ns_per_element:.3g} ns per point×texel pair × 6N² texels"})  # fmt: skip
+            rows.append(
+                {
+                    "method": f"localised-{mode}-N{n}",
+                    "label": f"localised convolution ({mode}), N = {n}",
+                    "backend": backend,
+                    "ns_per_pixel": t.ns_per_element * 6 * n * n,
+                    "pixels_per_second": t.elements_per_second / (6 * n * n),
+                    "elements": m,
+                    "repeats": t.repeats,
+                    "note": f"{t.ns_per_element:.3g} ns per point×texel pair × 6N² texels",
+                }
+            )
     x = rng.uniform(-0.4, 0.4, size=(m, 3))
-    for n in cfg["impostor_resolutions"][-1:]:  # the cost of a lookup barely depends on N: timed at the largest
+    for n in cfg["impostor_resolutions"][
+        -1:
+    ]:  # the cost of a lookup barely depends on N: timed at the largest
         dist = Float(room_cube_maps(n, 1, ctx.variant)["distance_centre"].astype(np.float32))
         args = (f(x[:, 0]), f(x[:, 1]), f(x[:, 2]), f(d[:, 0]), f(d[:, 1]), f(d[:, 2]))
-        t = time_drjit(lambda dx, dy, dz: em.cube_lookup_kernel(DRJIT_OPS, dist, dx, dy, dz, n, True), args[3:], m, **timing)
-        rows.append({"method": f"classic-N{n}", "label": f"cube lookup, N = {n}", "backend": backend, **t.to_dict()})
-        t = time_drjit(lambda *a: em.hit_parallax_kernel(DRJIT_OPS, dist, *a, n, True), args, m, **timing)
-        rows.append({"method": f"parallax-N{n}", "label": f"impostor, one lookup, N = {n}", "backend": backend, **t.to_dict()})
+        t = time_drjit(
+            lambda dx, dy, dz, dist=dist, n=n: em.cube_lookup_kernel(DRJIT_OPS, dist, dx, dy, dz, n, True),
+            args[3:],
+            m,
+            **timing,
+        )
+        rows.append(
+            {"method": f"classic-N{n}", "label": f"cube lookup, N = {n}", "backend": backend, **t.to_dict()}
+        )
+        t = time_drjit(
+            lambda *a, dist=dist, n=n: _untyped(em.hit_parallax_kernel)(DRJIT_OPS, dist, *a, n, True),
+            args,
+            m,
+            **timing,
+        )
+        rows.append(
+            {
+                "method": f"parallax-N{n}",
+                "label": f"impostor, one lookup, N = {n}",
+                "backend": backend,
+                **t.to_dict(),
+            }
+        )
         for k in cfg["iterations"]:
-            t = time_drjit(lambda *a, k=k: em.hit_iterative_kernel(DRJIT_OPS, dist, *a, n, True, k), args, m, **timing)
-            rows.append({"method": f"iterative-{k}-N{n}", "label": f"impostor, {k} iterations, N = {n}",
-                         "backend": backend, **t.to_dict()})  # fmt: skip
+            t = time_drjit(
+                lambda *a, k=k, dist=dist, n=n: _untyped(em.hit_iterative_kernel)(
+                    DRJIT_OPS, dist, *a, n, True, k
+                ),
+                args,
+                m,
+                **timing,
+            )
+            rows.append(
+                {
+                    "method": f"iterative-{k}-N{n}",
+                    "label": f"impostor, {k} iterations, N = {n}",
+                    "backend": backend,
+                    **t.to_dict(),
+                }
+            )
     return rows
 
 
@@ -438,11 +628,18 @@ def attach_cost(cases: list[dict], costs: list[dict]) -> None:
                 key = f"localised-{mode}-N{ap['parameters']['N']}"
             elif mid.startswith("preconvolved"):
                 key = f"classic-N{ap['parameters']['N']}"
-            c = by.get(key) or next((v for k, v in by.items() if k.rsplit("-N", 1)[0] == key.rsplit("-N", 1)[0]), None)
+            c = by.get(key) or next(
+                (v for k, v in by.items() if k.rsplit("-N", 1)[0] == key.rsplit("-N", 1)[0]), None
+            )
             ap["cost"] = (
-                {"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"], "backend": c["backend"]}
-                if c else None
-            )  # fmt: skip
+                {
+                    "ns_per_pixel": c["ns_per_pixel"],
+                    "pixels_per_second": c["pixels_per_second"],
+                    "backend": c["backend"],
+                }
+                if c
+                else None
+            )
 
 
 # =============================================================================================== checks
@@ -456,27 +653,63 @@ def constant_checks(const: dict) -> list[dict]:
     if 4 in rows:
         r4 = rows[4]
         b = r4["midpoint_axis"] - 1.0
-        out.append(_check("midpoint-rule bias of the 4×4 convolution, axis-aligned normal (claim: +3.6 %)",
-                          b, "∈ [0.0355, 0.0365] (confirmed)", 0.0355 <= b <= 0.0365))  # fmt: skip
+        out.append(
+            _check(
+                "midpoint-rule bias of the 4×4 convolution, axis-aligned normal (claim: +3.6 %)",
+                b,
+                "∈ [0.0355, 0.0365] (confirmed)",
+                0.0355 <= b <= 0.0365,
+            )
+        )
         spread = r4["seed_max"] / r4["seed_min"] - 1.0
-        out.append(_check("normal dependence of the seed's constant-Ω convolution at N = 4 (claim: ~7 %)",
-                          spread, "∈ [0.06, 0.08] (confirmed)", 0.06 <= spread <= 0.08))  # fmt: skip
-        out.append(_check("…that one scale cannot tune away: max |k·E/π − 1| with the best k at N = 4",
-                          r4["seed_tuned_max_abs"], "> 0.03 (confirmed)", r4["seed_tuned_max_abs"] > 0.03))  # fmt: skip
+        out.append(
+            _check(
+                "normal dependence of the seed's constant-Ω convolution at N = 4 (claim: ~7 %)",
+                spread,
+                "∈ [0.06, 0.08] (confirmed)",
+                0.06 <= spread <= 0.08,
+            )
+        )
+        out.append(
+            _check(
+                "…that one scale cannot tune away: max |k·E/π − 1| with the best k at N = 4",
+                r4["seed_tuned_max_abs"],
+                "> 0.03 (confirmed)",
+                r4["seed_tuned_max_abs"] > 0.03,
+            )
+        )
     big = [r for r in const["rows"] if r["N"] >= 4]
     lo = min(r["seed_min"] for r in big)
     hi = max(r["seed_max"] for r in big)
-    out.append(_check("over-weighting of a uniform environment by the seed's Ω over N ≥ 4 and all normals "
-                      "(claim: 1.8–1.97×)", f"{lo:.3f}–{hi:.3f}", "min ∈ [1.75, 1.85], max ∈ [1.93, 1.98]",
-                      1.75 <= lo <= 1.85 and 1.93 <= hi <= 1.98))  # fmt: skip
+    out.append(
+        _check(
+            "over-weighting of a uniform environment by the seed's Ω over N ≥ 4 and all normals "
+            "(claim: 1.8–1.97×)",
+            f"{lo:.3f}–{hi:.3f}",
+            "min ∈ [1.75, 1.85], max ∈ [1.93, 1.98]",
+            1.75 <= lo <= 1.85 and 1.93 <= hi <= 1.98,
+        )
+    )
     for r in const["rows"]:
         if r["N"] >= 8:
-            out.append(_check(f"exact-Ω cap convolution of a uniform environment, N = {r['N']}: |E/π − 1| over all normals",
-                              max(abs(r["cap_max"] - 1), abs(r["cap_min"] - 1)), "< 0.005",
-                              max(abs(r["cap_max"] - 1), abs(r["cap_min"] - 1)) < 0.005))  # fmt: skip
+            out.append(
+                _check(
+                    f"exact-Ω cap convolution of a uniform environment, N = {r['N']}: "
+                    "|E/π − 1| over all normals",
+                    max(abs(r["cap_max"] - 1), abs(r["cap_min"] - 1)),
+                    "< 0.005",
+                    max(abs(r["cap_max"] - 1), abs(r["cap_min"] - 1)) < 0.005,
+                )
+            )
     exact_tail = const["rows"][-1]
-    out.append(_check(f"midpoint bias → 0 with N (N = {exact_tail['N']})", exact_tail["midpoint_axis"] - 1.0,
-                      "< 2e-3", abs(exact_tail["midpoint_axis"] - 1.0) < 2e-3))  # fmt: skip
+    out.append(
+        _check(
+            f"midpoint bias → 0 with N (N = {exact_tail['N']})",
+            exact_tail["midpoint_axis"] - 1.0,
+            "< 2e-3",
+            abs(exact_tail["midpoint_axis"] - 1.0) < 2e-3,
+        )
+    )
     return out
 
 
@@ -489,22 +722,44 @@ def reference_checks(ctx, cfg) -> list[dict]:
     P = np.repeat(pts, len(axes), 0)
     A = np.tile(axes, (len(pts), 1))
     e, _ = room.lobe_integral_mc(P, A, samples=256, kind="uniform", variant=ctx.variant)
-    g, _ = room.lobe_integral_mc(P, A, shininess=cfg["shininess"], samples=256, kind="uniform", variant=ctx.variant)
-    out.append(_check("white furnace: depth-1 MC of a uniform room, max |E/π − 1|, |G − 1|",
-                      float(max(np.abs(e / math.pi - 1).max(), np.abs(g - 1).max())), "< 1e-12",
-                      max(np.abs(e / math.pi - 1).max(), np.abs(g - 1).max()) < 1e-12))  # fmt: skip
-    m, s = room.lobe_integral_mc(P, A, samples=cfg["check_samples"], kind="walls", seed=ctx.seed + 99, variant=ctx.variant)
+    g, _ = room.lobe_integral_mc(
+        P, A, shininess=cfg["shininess"], samples=256, kind="uniform", variant=ctx.variant
+    )
+    out.append(
+        _check(
+            "white furnace: depth-1 MC of a uniform room, max |E/π − 1|, |G − 1|",
+            float(max(np.abs(e / math.pi - 1).max(), np.abs(g - 1).max())),
+            "< 1e-12",
+            max(np.abs(e / math.pi - 1).max(), np.abs(g - 1).max()) < 1e-12,
+        )
+    )
+    m, s = room.lobe_integral_mc(
+        P, A, samples=cfg["check_samples"], kind="walls", seed=ctx.seed + 99, variant=ctx.variant
+    )
     exact = np.array([room.polygon_irradiance(p, a) for p, a in zip(P, A, strict=True)])
     z = np.abs(m - exact) / np.maximum(s, 1e-300)
     thr = sidak_threshold(len(z))
-    out.append(_check(f"MC irradiance of piecewise-constant walls vs Lambert's polygon formula ({len(z)} points): max |z|",
-                      float(z.max()), f"< {thr:.2f} (Šidák, α = 0.01)", z.max() < thr))  # fmt: skip
+    out.append(
+        _check(
+            "MC irradiance of piecewise-constant walls vs Lambert's polygon formula "
+            f"({len(z)} points): max |z|",
+            float(z.max()),
+            f"< {thr:.2f} (Šidák, α = 0.01)",
+            z.max() < thr,
+        )
+    )
     d = fibonacci_sphere(4096)
     o = np.broadcast_to(room.REF_POINT, d.shape)
     t, _ = room.trace_room(o, d, ctx.variant)
     err = float(np.max(np.abs(t - room.box_exit(o, d))))
-    out.append(_check("Mitsuba ray_intersect vs the slab method (4096 rays from the reference point): max |Δt| (m)",
-                      err, "< 2e-5", err < 2e-5))  # fmt: skip
+    out.append(
+        _check(
+            "Mitsuba ray_intersect vs the slab method (4096 rays from the reference point): max |Δt| (m)",
+            err,
+            "< 2e-5",
+            err < 2e-5,
+        )
+    )
     return out
 
 
@@ -517,52 +772,96 @@ def room_checks(cfg, part: dict) -> list[dict]:
         cen = part["values"][(lobe_name, "centre", f"localised-seed-N{n0}")]
         ref = part["refs"][(lobe_name, "centre")][0]
         ratio = float(np.mean(cen / ref))
-        out.append(_check(f"seed's localised {lobe_name} over-weights the room seen from its centre (N = {n0})",
-                          ratio, "> 1.5", ratio > 1.5))  # fmt: skip
+        out.append(
+            _check(
+                f"seed's localised {lobe_name} over-weights the room seen from its centre (N = {n0})",
+                ratio,
+                "> 1.5",
+                ratio > 1.5,
+            )
+        )
     # the cap form (localisation with exact Ω) beats the classic map away from the reference point
     nmax = cfg["cube_resolutions"][-1]
     ref = part["refs"][("irradiance", "near-wall")][0]
     ratio = float(np.mean(part["values"][("irradiance", "near-wall", f"localised-cap-N{nmax}")] / ref))
-    out.append(_check(f"0.25 m from a wall the localised form over-weights (N = {nmax}; the seed's own warning, 001:316)",
-                      ratio, "mean E/E_ref > 1.1 (confirmed)", ratio > 1.1))  # fmt: skip
+    out.append(
+        _check(
+            f"0.25 m from a wall the localised form over-weights (N = {nmax}; "
+            "the seed's own warning, 001:316)",
+            ratio,
+            "mean E/E_ref > 1.1 (confirmed)",
+            ratio > 1.1,
+        )
+    )
     for pid in ("off-centre", "corner"):
         ref = part["refs"][("irradiance", pid)][0]
-        e_cap = np.sqrt(np.mean((part["values"][("irradiance", pid, f"localised-cap-N{nmax}")] / ref - 1) ** 2))
-        e_pre = np.sqrt(np.mean((part["values"][("irradiance", pid, f"preconvolved-exact-N{nmax}")] / ref - 1) ** 2))
-        out.append(_check(f"localised (cap) irradiance beats the classic map {pid} (N = {nmax}): rel. RMSE",
-                          f"{e_cap:.3f} vs {e_pre:.3f}", "cap < classic", e_cap < e_pre))  # fmt: skip
+        e_cap = np.sqrt(
+            np.mean((part["values"][("irradiance", pid, f"localised-cap-N{nmax}")] / ref - 1) ** 2)
+        )
+        e_pre = np.sqrt(
+            np.mean((part["values"][("irradiance", pid, f"preconvolved-exact-N{nmax}")] / ref - 1) ** 2)
+        )
+        out.append(
+            _check(
+                f"localised (cap) irradiance beats the classic map {pid} (N = {nmax}): rel. RMSE",
+                f"{e_cap:.3f} vs {e_pre:.3f}",
+                "cap < classic",
+                e_cap < e_pre,
+            )
+        )
     diff = 0.0
     for sh in (0.0,):
         lut = part["luts"][(max(cfg["lut_sizes"]), sh)]
         s = max(cfg["lut_sizes"])
         c = np.linspace(-1, 1, s)
         om = np.linspace(0, 2 * math.pi, s)
-        C, O = np.meshgrid(c, om, indexing="ij")
-        alpha = np.arccos(np.clip(1 - O / (2 * math.pi), 0, 1))
-        exact = sphere_light_irradiance(C.ravel(), alpha.ravel(), 1.0)
+        cc, oo = np.meshgrid(c, om, indexing="ij")
+        alpha = np.arccos(np.clip(1 - oo / (2 * math.pi), 0, 1))
+        exact = sphere_light_irradiance(cc.ravel(), alpha.ravel(), 1.0)
         diff = float(np.max(np.abs(lut - exact)))
-    out.append(_check("diffuse cosine table (quadrature) vs Snyder's closed form at its nodes: max |Δ| (sr)",
-                      diff, "< 1e-6", diff < 1e-6))  # fmt: skip
+    out.append(
+        _check(
+            "diffuse cosine table (quadrature) vs Snyder's closed form at its nodes: max |Δ| (sr)",
+            diff,
+            "< 1e-6",
+            diff < 1e-6,
+        )
+    )
     return out
 
 
 def impostor_checks(cfg, imp: dict) -> list[dict]:
     out = []
     cur = imp["curves"]
-    out.append(_check("every impostor hit point and radiance finite", sum(not c["finite"] for c in cur), "0",
-                      all(c["finite"] for c in cur)))  # fmt: skip
+    out.append(
+        _check(
+            "every impostor hit point and radiance finite",
+            sum(not c["finite"] for c in cur),
+            "0",
+            all(c["finite"] for c in cur),
+        )
+    )
     kmax = max(cfg["iterations"])
     nmax = max(cfg["impostor_resolutions"])
     for sid in SPHERES:
         for kind in ("mirror", "glass"):
             sel = {c["row"]: c for c in cur if c["sphere"] == sid and c["kind"] == kind and c["N"] == nmax}
             it, cl = sel[f"iterative-{kmax}"], sel["classic"]
-            out.append(_check(f"{kind} {sid}, N = {nmax}: secant search ({kmax} it.) hit error < classic's (m)",
-                              f"{it['hit_error_mean_m']:.4f} vs {cl['hit_error_mean_m']:.4f}", "search < classic",
-                              it["hit_error_mean_m"] <= cl["hit_error_mean_m"] + 1e-9))  # fmt: skip
+            out.append(
+                _check(
+                    f"{kind} {sid}, N = {nmax}: secant search ({kmax} it.) hit error < classic's (m)",
+                    f"{it['hit_error_mean_m']:.4f} vs {cl['hit_error_mean_m']:.4f}",
+                    "search < classic",
+                    it["hit_error_mean_m"] <= cl["hit_error_mean_m"] + 1e-9,
+                )
+            )
     sel = {c["row"]: c for c in cur if c["sphere"] == "moved" and c["kind"] == "mirror" and c["N"] == nmax}
     e = sel[f"iterative-{kmax}"]["hit_error_mean_m"]
-    out.append(_check(f"moved mirror sphere, N = {nmax}, {kmax} iterations: mean hit error (m)", e, "< 0.05", e < 0.05))
+    out.append(
+        _check(
+            f"moved mirror sphere, N = {nmax}, {kmax} iterations: mean hit error (m)", e, "< 0.05", e < 0.05
+        )
+    )
     return out
 
 
@@ -602,7 +901,8 @@ def run(ctx) -> dict:
 
 NOTES = [
     "Radiance is grey (one channel); the room's wall texture is a closed-form function of the surface point "
-    "(rtfit.reference.environment_maps.room_radiance), so the reference is exact up to its Monte Carlo noise.",
+    "(rtfit.reference.environment_maps.room_radiance), so the reference is exact up to its Monte Carlo "
+    "noise.",
     "The glossy lobe is the normalised Phong lobe (s+1)/(2π)·max(R·ω, 0)^s about the reflection direction "
     "throughout; the seed mixes a Blinn lobe (N·H)^s·(s+2)/(2π) (001:690) with a Phong look-up (001:709).",
     "The glass sphere's exact radiance follows the transmitted path (two refractions, internal reflections "
@@ -612,20 +912,32 @@ NOTES = [
 
 
 def sections(const: dict, cfg) -> list[dict]:
-    lines = ["| N | midpoint E/π (axis) | seed-Ω E/π min–max | after best scale max err | exact-Ω point min–max | cap min–max |",
-             "|---|---|---|---|---|---|"]  # fmt: skip
+    lines = [
+        "| N | midpoint E/π (axis) | seed-Ω E/π min–max | after best scale max err "
+        "| exact-Ω point min–max | cap min–max |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in const["rows"]:
         lines.append(
             f"| {r['N']} | {r['midpoint_axis']:.4f} | {r['seed_min']:.3f}–{r['seed_max']:.3f} | "
-            f"{r['seed_tuned_max_abs']:.3f} | {r['exact_min']:.3f}–{r['exact_max']:.3f} | {r['cap_min']:.4f}–{r['cap_max']:.4f} |"
+            f"{r['seed_tuned_max_abs']:.3f} | {r['exact_min']:.3f}–{r['exact_max']:.3f} | "
+            f"{r['cap_min']:.4f}–{r['cap_max']:.4f} |"
         )
     text = (
         "A constant environment L = 1 must convolve to E = π for every normal. The table gives E/π over "
-        f"{cfg['conv_normals']} normals for the seed's midpoint rule (001:580), its constant per-texel Ω = 4/(N²+2/π) "
-        "(001:676), exact texel Ω with one sample per texel, and exact Ω with the cap integral.\n\n" + "\n".join(lines)
+        f"{cfg['conv_normals']} normals for the seed's midpoint rule (001:580), its constant per-texel "
+        "Ω = 4/(N²+2/π) "
+        "(001:676), exact texel Ω with one sample per texel, and exact Ω with the cap integral.\n\n"
+        + "\n".join(lines)
     )
-    return [{"id": "constant-environment", "title": "A constant environment: solid-angle rules", "text": text,
-             "placement": "before_results"}]  # fmt: skip
+    return [
+        {
+            "id": "constant-environment",
+            "title": "A constant environment: solid-angle rules",
+            "text": text,
+            "placement": "before_results",
+        }
+    ]
 
 
 def summary(const, fits, imp, checks, cfg) -> str:
@@ -639,13 +951,17 @@ def summary(const, fits, imp, checks, cfg) -> str:
     return (
         f"The 4×4 midpoint-rule convolution over-estimates a constant environment by "
         f"{100 * (r4['midpoint_axis'] - 1):.2f} % for an axis-aligned normal (claim +3.6 %: confirmed). The "
-        f"seed's constant texel solid angle over-weights a uniform environment by {r4['seed_min']:.2f}–{r4['seed_max']:.2f}× "
-        f"at N = 4 ({100 * (r4['seed_max'] / r4['seed_min'] - 1):.1f} % dependence on the normal; after the best "
-        f"single scale {100 * r4['seed_tuned_max_abs']:.1f} % remains); exact texel solid angles with the cap integral "
-        f"remove both. In the room, the fitted scale of the seed's form is {fits[0]['parameters']['k']['value']:.3f} "
-        f"({fits[0]['message']}). Distance impostors: for the moved mirror sphere the secant search ({kmax} iterations, "
-        f"{nmax}² map) misses the exact hit by {mv['hit_error_mean_m'] * 100:.2f} cm on average, classic environment "
-        f"mapping by {cl['hit_error_mean_m'] * 100:.1f} cm. {passed} of {len(checks)} checks passed."
+        "seed's constant texel solid angle over-weights a uniform environment by "
+        f"{r4['seed_min']:.2f}–{r4['seed_max']:.2f}× "
+        f"at N = 4 ({100 * (r4['seed_max'] / r4['seed_min'] - 1):.1f} % dependence on the normal; "
+        f"after the best single scale {100 * r4['seed_tuned_max_abs']:.1f} % remains); "
+        "exact texel solid angles with the cap integral "
+        "remove both. In the room, the fitted scale of the seed's form is "
+        f"{fits[0]['parameters']['k']['value']:.3f} ({fits[0]['message']}). Distance impostors: for the "
+        f"moved mirror sphere the secant search ({kmax} iterations, "
+        f"{nmax}² map) misses the exact hit by {mv['hit_error_mean_m'] * 100:.2f} cm on average, "
+        f"classic environment mapping by {cl['hit_error_mean_m'] * 100:.1f} cm. "
+        f"{passed} of {len(checks)} checks passed."
         if mv and cl
         else f"{passed} of {len(checks)} checks passed."
     )
@@ -655,23 +971,61 @@ def make_figures(out, cfg, const, imp, part, costs) -> list[dict]:
     figs = []
     rows = const["rows"]
     path = F.line_plot(
-        out / "constant_environment.png", "cube resolution N", "E/π for L = 1",
-        [{"x": [r["N"] for r in rows], "y": [r["midpoint_axis"] for r in rows], "label": "midpoint Ω, axis normal"},
-         {"x": [r["N"] for r in rows], "y": [r["seed_min"] for r in rows], "label": "seed Ω, min over normals"},
-         {"x": [r["N"] for r in rows], "y": [r["seed_max"] for r in rows], "label": "seed Ω, max over normals"},
-         {"x": [r["N"] for r in rows], "y": [r["cap_max"] for r in rows], "label": "exact Ω + cap, max"}],
+        out / "constant_environment.png",
+        "cube resolution N",
+        "E/π for L = 1",
+        [
+            {
+                "x": [r["N"] for r in rows],
+                "y": [r["midpoint_axis"] for r in rows],
+                "label": "midpoint Ω, axis normal",
+            },
+            {
+                "x": [r["N"] for r in rows],
+                "y": [r["seed_min"] for r in rows],
+                "label": "seed Ω, min over normals",
+            },
+            {
+                "x": [r["N"] for r in rows],
+                "y": [r["seed_max"] for r in rows],
+                "label": "seed Ω, max over normals",
+            },
+            {"x": [r["N"] for r in rows], "y": [r["cap_max"] for r in rows], "label": "exact Ω + cap, max"},
+        ],
         x_log=True,
-    )  # fmt: skip
-    figs.append({"file": path.name, "caption": "Constant environment: the solid-angle rules over N", "section": "constant-environment"})
+    )
+    figs.append(
+        {
+            "file": path.name,
+            "caption": "Constant environment: the solid-angle rules over N",
+            "section": "constant-environment",
+        }
+    )
     series = []
     kinds = [("mirror", "moved"), ("glass", "moved"), ("mirror", "at-reference")]
     for kind, sid in kinds:
         for n in cfg["impostor_resolutions"]:
-            c = [x for x in imp["curves"] if x["kind"] == kind and x["sphere"] == sid and x["N"] == n and x["iterations"] is not None]
-            series.append({"x": [x["iterations"] for x in c], "y": [max(x["hit_error_mean_m"], 1e-6) for x in c],
-                           "label": f"N = {n}", "panel": f"{kind}, {sid}"})  # fmt: skip
-    path = F.line_plot(out / "impostor_iterations.png", "secant iterations", "mean hit-point error (m)", series,
-                       y_log=True, panels=[f"{k}, {s}" for k, s in kinds])  # fmt: skip
+            c = [
+                x
+                for x in imp["curves"]
+                if x["kind"] == kind and x["sphere"] == sid and x["N"] == n and x["iterations"] is not None
+            ]
+            series.append(
+                {
+                    "x": [x["iterations"] for x in c],
+                    "y": [max(x["hit_error_mean_m"], 1e-6) for x in c],
+                    "label": f"N = {n}",
+                    "panel": f"{kind}, {sid}",
+                }
+            )
+    path = F.line_plot(
+        out / "impostor_iterations.png",
+        "secant iterations",
+        "mean hit-point error (m)",
+        series,
+        y_log=True,
+        panels=[f"{k}, {s}" for k, s in kinds],
+    )
     figs.append({"file": path.name, "caption": "Distance impostors: hit-point error vs iterations"})
     by = {c["method"]: c for c in costs}
     pts = []
@@ -680,10 +1034,17 @@ def make_figures(out, cfg, const, imp, part, costs) -> list[dict]:
         if c["sphere"] == "moved" and c["kind"] == "mirror" and c["N"] == nmax:
             key = f"{c['row']}-N{nmax}"
             if key in by:
-                pts.append({"x": by[key]["ns_per_pixel"], "y": max(c["hit_error_mean_m"], 1e-6), "label": c["row"]})
+                pts.append(
+                    {"x": by[key]["ns_per_pixel"], "y": max(c["hit_error_mean_m"], 1e-6), "label": c["row"]}
+                )
     if pts:
-        path = F.pareto_plot(out / "impostor_cost.png", pts, "ns per pixel", "mean hit error (m)",
-                             title=f"moved mirror sphere, N = {nmax}")  # fmt: skip
+        path = F.pareto_plot(
+            out / "impostor_cost.png",
+            pts,
+            "ns per pixel",
+            "mean hit error (m)",
+            title=f"moved mirror sphere, N = {nmax}",
+        )
         figs.append({"file": path.name, "caption": "Distance impostors: error vs cost"})
     return figs
 
@@ -691,8 +1052,6 @@ def make_figures(out, cfg, const, imp, part, costs) -> list[dict]:
 # ================================================================================================ bench
 def bench(ctx) -> list[dict]:
     """ns per shading point of the localised convolution and the impostor searches (Dr.Jit)."""
-    from .cost import bench_backend
-
     backend, _ = bench_backend(ctx)
     cfg = configure(ctx.quick, None)
 
@@ -701,7 +1060,16 @@ def bench(ctx) -> list[dict]:
 
     rows = []
     for c in cost_rows(_C, cfg):
-        rows.append({"what": c["label"], "backend": backend, "elements": c["elements"],
-                     "drjit_Mpx_s": c["pixels_per_second"] / 1e6, "numpy_Mpx_s": None, "drjit/numpy": None,
-                     "ns_per_px": c["ns_per_pixel"], "vs_memory_floor": None})  # fmt: skip
+        rows.append(
+            {
+                "what": c["label"],
+                "backend": backend,
+                "elements": c["elements"],
+                "drjit_Mpx_s": c["pixels_per_second"] / 1e6,
+                "numpy_Mpx_s": None,
+                "drjit/numpy": None,
+                "ns_per_px": c["ns_per_pixel"],
+                "vs_memory_floor": None,
+            }
+        )
     return rows

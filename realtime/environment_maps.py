@@ -58,7 +58,6 @@ This module imports only NumPy, Dr.Jit (through `rtfit.realtime.arrays`) and its
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -73,15 +72,25 @@ __all__ = [
     "IRRADIANCE_METHODS",
     "SEED_SOLID_ANGLE",
     "cap_lobe_table",
+    "convolution_term_kernel",
     "convolve",
     "cube_lookup",
+    "cube_lookup_kernel",
     "cube_texels",
+    "evaluate_lobe_numpy",
+    "hit_iterative_kernel",
+    "hit_parallax_kernel",
     "impostor_hit",
-    "localised_convolve",
     "lobe",
+    "lobe_kernel",
+    "localised_convolve",
+    "localised_solid_angle_kernel",
+    "localised_term_kernel",
     "midpoint_solid_angle",
+    "midpoint_solid_angle_kernel",
     "seed_solid_angle",
     "texel_solid_angle",
+    "texel_solid_angle_kernel",
 ]
 
 TWO_PI = 2.0 * math.pi
@@ -98,7 +107,10 @@ def cube_texels(resolution: int) -> dict[str, np.ndarray]:
     if n < 1:
         raise ValueError(f"cube resolution must be ≥ 1, got {resolution}")
     edges = np.linspace(-1.0, 1.0, n + 1)
-    lo, hi = np.meshgrid(edges[:-1], edges[:-1], indexing="ij"), np.meshgrid(edges[1:], edges[1:], indexing="ij")
+    lo, hi = (
+        np.meshgrid(edges[:-1], edges[:-1], indexing="ij"),
+        np.meshgrid(edges[1:], edges[1:], indexing="ij"),
+    )
     a0, b0 = (np.tile(x.ravel(), 6) for x in lo)
     a1, b1 = (np.tile(x.ravel(), 6) for x in hi)
     a, b = 0.5 * (a0 + a1), 0.5 * (b0 + b1)
@@ -199,7 +211,7 @@ def convolve(env: np.ndarray, query: np.ndarray, shininess: float = 0.0, rule: s
     ``rule`` picks the texel solid angles (`texel_solid_angle`). The per-texel term is
     `convolution_term_kernel` on the default Dr.Jit backend (float64); the sum over texels is NumPy."""
     env = np.asarray(env, dtype=np.float64).reshape(-1)
-    n = int(round(math.sqrt(env.size / 6)))
+    n = round(math.sqrt(env.size / 6))
     if 6 * n * n != env.size:
         raise ValueError(f"env must hold 6·N² texels, got {env.size}")
     q = np.asarray(query, dtype=np.float64).reshape(-1, 3)
@@ -211,10 +223,15 @@ def convolve(env: np.ndarray, query: np.ndarray, shininess: float = 0.0, rule: s
         qq = q[s : s + chunk]
         terms = evaluate(
             convolution_term_kernel,
-            qq[:, 0:1], qq[:, 1:2], qq[:, 2:3],
-            pts[None, :, 0], pts[None, :, 1], pts[None, :, 2],
-            dw[None, :], float(shininess),
-        )  # fmt: skip
+            qq[:, 0:1],
+            qq[:, 1:2],
+            qq[:, 2:3],
+            pts[None, :, 0],
+            pts[None, :, 1],
+            pts[None, :, 2],
+            dw[None, :],
+            float(shininess),
+        )
         out[s : s + chunk] = np.asarray(terms).sum(axis=1)
     return out
 
@@ -231,7 +248,9 @@ def _face_coords(ops, dx, dy, dz):
     u = ops.select(isx, dy, dx)
     v = ops.select(isz, dy, dz)
     face = ops.select(
-        isx, ops.select(dx >= 0.0, 0.0, 1.0), ops.select(isy, ops.select(dy >= 0.0, 2.0, 3.0), ops.select(dz >= 0.0, 4.0, 5.0))
+        isx,
+        ops.select(dx >= 0.0, 0.0, 1.0),
+        ops.select(isy, ops.select(dy >= 0.0, 2.0, 3.0), ops.select(dz >= 0.0, 4.0, 5.0)),
     )
     return face, ops.clip(u / major, -1.0, 1.0), ops.clip(v / major, -1.0, 1.0)
 
@@ -287,7 +306,7 @@ def cube_lookup(table: np.ndarray, directions, bilinear: bool = True, numpy: boo
 
 
 def _resolution_of(table: np.ndarray) -> int:
-    n = int(round(math.sqrt(table.size / 6)))
+    n = round(math.sqrt(table.size / 6))
     if 6 * n * n != table.size or n < 1:
         raise ValueError(f"a cube map holds 6·N² texels, got {table.size}")
     return n
@@ -302,7 +321,8 @@ def localised_solid_angle_kernel(ops, solid_angle, d_ref, d_point):
 
 
 def _cap_lut_kernel(ops, lut, cos_angle, omega, size):
-    """Bilinear read of a (size×size) cap table at x = (c + 1)/2, y = Ω/2π (node-aligned: node k at k/(size−1))."""
+    """Bilinear read of a (size×size) cap table at x = (c + 1)/2, y = Ω/2π (node-aligned: node k at
+    k/(size−1))."""
     m = float(size) - 1.0
     u = ops.clip((cos_angle + 1.0) * 0.5, 0.0, 1.0) * m
     v = ops.clip(omega / TWO_PI, 0.0, 1.0) * m
@@ -315,7 +335,9 @@ def _cap_lut_kernel(ops, lut, cos_angle, omega, size):
     return (t00 * (1.0 - fv) + t01 * fv) * (1.0 - fu) + (t10 * (1.0 - fv) + t11 * fv) * fu
 
 
-def localised_term_kernel(ops, px, py, pz, nx, ny, nz, lx, ly, lz, dist, solid_angle, shininess, mode, lut, lut_size):
+def localised_term_kernel(
+    ops, px, py, pz, nx, ny, nz, lx, ly, lz, dist, solid_angle, shininess, mode, lut, lut_size
+):
     """One texel's weight (to multiply its radiance) at shading point p (relative to the reference point)
     with lobe axis n (the normal, or the reflection direction for a glossy lobe); (lx, ly, lz) the texel
     point on the cube, ``dist`` its stored distance, ``solid_angle`` its Ω.
@@ -407,7 +429,7 @@ def localised_convolve(
     if mode == "lut" and lut is None:
         raise ValueError("mode 'lut' needs a cap table (cap_lobe_table)")
     lut_arr = np.zeros(4) if lut is None else np.asarray(lut, np.float64).reshape(-1)
-    lut_size = int(round(math.sqrt(lut_arr.size)))
+    lut_size = round(math.sqrt(lut_arr.size))
     pts = cube_texels(n)["point"]
     dw = texel_solid_angle(n, rule)
     dtype = np.float32 if float32 else np.float64
@@ -416,7 +438,9 @@ def localised_convolve(
 
     def k(ops, px, py, pz, nx, ny, nz, lx, ly, lz, d, w):
         table = _table_like(ops, lut_arr.astype(dtype), px)
-        return localised_term_kernel(ops, px, py, pz, nx, ny, nz, lx, ly, lz, d, w, float(shininess), mode, table, lut_size)
+        return localised_term_kernel(
+            ops, px, py, pz, nx, ny, nz, lx, ly, lz, d, w, float(shininess), mode, table, lut_size
+        )
 
     out = np.empty(len(p))
     chunk = max(1, (1 << 20) // env.size)
@@ -424,17 +448,26 @@ def localised_convolve(
         pp, aa = p[s : s + chunk].astype(dtype), ax[s : s + chunk].astype(dtype)
         w = evaluate(
             k,
-            pp[:, 0:1], pp[:, 1:2], pp[:, 2:3], aa[:, 0:1], aa[:, 1:2], aa[:, 2:3],
-            pts[None, :, 0].astype(dtype), pts[None, :, 1].astype(dtype), pts[None, :, 2].astype(dtype),
-            dist[None, :].astype(dtype), dw[None, :].astype(dtype),
-        )  # fmt: skip
+            pp[:, 0:1],
+            pp[:, 1:2],
+            pp[:, 2:3],
+            aa[:, 0:1],
+            aa[:, 1:2],
+            aa[:, 2:3],
+            pts[None, :, 0].astype(dtype),
+            pts[None, :, 1].astype(dtype),
+            pts[None, :, 2].astype(dtype),
+            dist[None, :].astype(dtype),
+            dw[None, :].astype(dtype),
+        )
         out[s : s + chunk] = (np.asarray(w, np.float64) * env[None, :]).sum(axis=1)
     return out
 
 
 # ================================================================================ distance impostors
 def hit_parallax_kernel(ops, dist_map, x, y, z, rx, ry, rz, resolution, bilinear):
-    """The one-lookup ``Hit`` (001:539-546): t = dist(R) − x·R, hit = x + t·R (x relative to the reference point)."""
+    """The one-lookup ``Hit`` (001:539-546): t = dist(R) − x·R, hit = x + t·R (x relative to the
+    reference point)."""
     r1 = cube_lookup_kernel(ops, dist_map, rx, ry, rz, resolution, bilinear)
     t = r1 - (x * rx + y * ry + z * rz)
     return x + rx * t, y + ry * t, z + rz * t
@@ -446,7 +479,9 @@ def _ratio(ops, dist_map, x, y, z, resolution, bilinear):
     return safe_sqrt(ops, x * x + y * y + z * z) / ops.maximum(d, 1e-30)
 
 
-def hit_iterative_kernel(ops, dist_map, x, y, z, rx, ry, rz, resolution, bilinear, iterations, tolerance=1e-3):
+def hit_iterative_kernel(
+    ops, dist_map, x, y, z, rx, ry, rz, resolution, bilinear, iterations, tolerance=1e-3
+):
     """The iterative ``Hit`` (001:812-839): secant search on λ(x + t·R) = 1, ``iterations`` steps.
 
     As printed except for two guards, both inert where the listing is finite: the secant denominators
@@ -584,4 +619,3 @@ HIT_METHODS = method_table(
 )
 """The impostor search methods as data; their knobs (cube resolution, filtering, iterations) are set
 per row by the experiment."""
-

@@ -63,9 +63,16 @@ def wall_of(p: np.ndarray) -> np.ndarray:
     """Index 0…5 (x hi, x lo, y hi, y lo, z lo, z hi) of the wall nearest each point (…, 3)."""
     p = np.asarray(p, np.float64)
     d = np.stack(
-        [ROOM_HI[0] - p[..., 0], p[..., 0] - ROOM_LO[0], ROOM_HI[1] - p[..., 1], p[..., 1] - ROOM_LO[1],
-         p[..., 2] - ROOM_LO[2], ROOM_HI[2] - p[..., 2]], -1,
-    )  # fmt: skip
+        [
+            ROOM_HI[0] - p[..., 0],
+            p[..., 0] - ROOM_LO[0],
+            ROOM_HI[1] - p[..., 1],
+            p[..., 1] - ROOM_LO[1],
+            p[..., 2] - ROOM_LO[2],
+            ROOM_HI[2] - p[..., 2],
+        ],
+        -1,
+    )
     return np.argmin(np.abs(d), axis=-1)
 
 
@@ -130,14 +137,19 @@ def _sphere_scene(variant: str, centre, radius: float):
     key = ("sphere", mi.variant(), tuple(float(c) for c in centre), float(radius))
     if key not in _SCENES:
         _SCENES[key] = mi.load_dict(
-            {"type": "scene", "s": {"type": "sphere", "center": [float(c) for c in centre], "radius": float(radius)}}
+            {
+                "type": "scene",
+                "s": {"type": "sphere", "center": [float(c) for c in centre], "radius": float(radius)},
+            }
         )
     return mi, _SCENES[key]
 
 
 def _intersect(mi, scene, o: np.ndarray, d: np.ndarray):
-    ray = mi.Ray3f(mi.Point3f(*[np.ascontiguousarray(o[:, k], np.float32) for k in range(3)]),
-                   mi.Vector3f(*[np.ascontiguousarray(d[:, k], np.float32) for k in range(3)]))  # fmt: skip
+    ray = mi.Ray3f(
+        mi.Point3f(*[np.ascontiguousarray(o[:, k], np.float32) for k in range(3)]),
+        mi.Vector3f(*[np.ascontiguousarray(d[:, k], np.float32) for k in range(3)]),
+    )
     si = scene.ray_intersect(ray)
     n = si.sh_frame.n
     dr.eval(si.t, si.p, n)
@@ -151,7 +163,8 @@ def _intersect(mi, scene, o: np.ndarray, d: np.ndarray):
 def trace_room(origins, dirs, variant: str = "llvm_ad_rgb") -> tuple[np.ndarray, np.ndarray]:
     """First hits of rays from inside the room on its walls: (t (N,), points (N, 3)) from Mitsuba's
     ``ray_intersect`` (float32). A ray that slips through a shared edge of the mesh's triangles (float32;
-    a handful in a million) takes the slab method's hit instead; an origin outside the room is a ValueError."""
+    a handful in a million) takes the slab method's hit instead; an origin outside the room is a
+    ValueError."""
     o = np.asarray(origins, np.float64).reshape(-1, 3)
     d = np.asarray(dirs, np.float64).reshape(-1, 3)
     if len(o) == 0:
@@ -201,7 +214,7 @@ def sample_lobe(axes: np.ndarray, u1: np.ndarray, u2: np.ndarray, shininess: flo
     st = np.sqrt(np.maximum(1.0 - ct * ct, 0.0))
     phi = 2.0 * math.pi * u2
     t, b = _frame(a)
-    return (t * (st * np.cos(phi))[..., None] + b * (st * np.sin(phi))[..., None] + a * ct[..., None])
+    return t * (st * np.cos(phi))[..., None] + b * (st * np.sin(phi))[..., None] + a * ct[..., None]
 
 
 def lobe_integral_mc(
