@@ -4,8 +4,8 @@ What is compared (seed 001, GameTools D5.3, lines 220-906; docs/environment-maps
 
 1. **Pre-convolution bias** (analytic): a constant environment convolves to E = π (diffuse) and G = 1
    (normalised Phong lobe) in the continuum. The seed's midpoint-rule texel solid angle
-   (``ConvolutionPS``, 001:557-585) and its constant per-texel solid angle 4/(N² + 2/π) (``GetContribution``,
-   001:676) are measured over cube resolutions N and over the sphere of normals: the bias at 4×4 for an
+   (``ConvolutionPS``, 001:569-594) and its constant per-texel solid angle 4/(N² + 2/π) (``GetContribution``,
+   001:688) are measured over cube resolutions N and over the sphere of normals: the bias at 4×4 for an
    axis-aligned normal (claim: +3.6 %), the over-weighting of a uniform environment by the constant
    (claim: 1.8–1.97×) and its dependence on the normal (claim: ~7 %, not removable by one scale).
 2. **Localised convolution in a room** (Monte Carlo reference): irradiance E(p, n) and lobe-filtered
@@ -16,7 +16,7 @@ What is compared (seed 001, GameTools D5.3, lines 220-906; docs/environment-maps
    look-up texture in the continuum) and with that look-up tabulated at 8² and 32² — each at cube
    resolutions N. A fitted global scale for the seed's form shows what tuning can and cannot remove.
 3. **Distance impostors**: the hit points of reflected and refracted rays of a sphere in the room from
-   the seed's one-lookup ``Hit`` (001:539-546) and its iterative secant search (001:812-839), against
+   the seed's one-lookup ``Hit`` (001:547-553) and its iterative secant search (001:841-866), against
    the exact hit points from Mitsuba's ``ray_intersect`` (noise-free): error vs iterations vs cube
    resolution, and the radiance error of a mirror sphere and a glass sphere (exact two-refraction
    trace) against classic environment mapping.
@@ -415,7 +415,7 @@ def impostor_rows(cfg) -> list[dict]:
     rows.append(
         {
             "id": "parallax",
-            "label": "distance impostor, one lookup (001:539-546)",
+            "label": "distance impostor, one lookup (001:547-553)",
             "iterations": None,
             "hit": "parallax",
         }
@@ -423,7 +423,7 @@ def impostor_rows(cfg) -> list[dict]:
     rows += [
         {
             "id": f"iterative-{k}",
-            "label": f"distance impostor, secant search, {k} iterations (001:812-839)",
+            "label": f"distance impostor, secant search, {k} iterations (001:841-866)",
             "iterations": k,
             "hit": "iterative",
         }
@@ -787,7 +787,7 @@ def room_checks(cfg, part: dict) -> list[dict]:
     out.append(
         _check(
             f"0.25 m from a wall the localised form over-weights (N = {nmax}; "
-            "the seed's own warning, 001:316)",
+            "the seed's own warning, 001:318)",
             ratio,
             "mean E/E_ref > 1.1 (confirmed)",
             ratio > 1.1,
@@ -904,9 +904,9 @@ NOTES = [
     "(rtfit.reference.environment_maps.room_radiance), so the reference is exact up to its Monte Carlo "
     "noise.",
     "The glossy lobe is the normalised Phong lobe (s+1)/(2π)·max(R·ω, 0)^s about the reflection direction "
-    "throughout; the seed mixes a Blinn lobe (N·H)^s·(s+2)/(2π) (001:690) with a Phong look-up (001:709).",
+    "throughout; the seed mixes a Blinn lobe (N·H)^s·(s+2)/(2π) (001:708) with a Phong look-up (001:723).",
     "The glass sphere's exact radiance follows the transmitted path (two refractions, internal reflections "
-    "on total internal reflection) without Fresnel weights; the seed's single refraction (001:521) ignores "
+    "on total internal reflection) without Fresnel weights; the seed's single refraction (001:530) ignores "
     "the exit refraction, which is part of its measured error.",
 ]
 
@@ -925,9 +925,9 @@ def sections(const: dict, cfg) -> list[dict]:
         )
     text = (
         "A constant environment L = 1 must convolve to E = π for every normal. The table gives E/π over "
-        f"{cfg['conv_normals']} normals for the seed's midpoint rule (001:580), its constant per-texel "
+        f"{cfg['conv_normals']} normals for the seed's midpoint rule (001:590), its constant per-texel "
         "Ω = 4/(N²+2/π) "
-        "(001:676), exact texel Ω with one sample per texel, and exact Ω with the cap integral.\n\n"
+        "(001:688), exact texel Ω with one sample per texel, and exact Ω with the cap integral.\n\n"
         + "\n".join(lines)
     )
     return [

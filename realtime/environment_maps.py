@@ -1,10 +1,10 @@
 """Pre-convolved and localised environment maps, and distance-impostor ray search (GameTools D5.3).
 
 Source: seed 001 (GameTools deliverable D5.3, 2006), lines 220-906: the convolution shader
-``ConvolutionPS`` (001:557-585), the localised convolution ``EnvMapDiffuseLocalizedPS`` /
-``GetContribution`` (001:616-696), the cosine look-up ``GetContributionWithCosLookup`` (001:700-716,
-tabulated by ``EnvMap::eval``, 001:440-447) and the distance-impostor ``Hit`` functions (one lookup,
-001:539-546; iterative secant search, 001:812-839).
+``ConvolutionPS`` (001:569-594), the localised convolution ``EnvMapDiffuseLocalizedPS`` /
+``GetContribution`` (001:637-710), the cosine look-up ``GetContributionWithCosLookup`` (001:716-729,
+tabulated by ``EnvMap::eval``, 001:453-457) and the distance-impostor ``Hit`` functions (one lookup,
+001:547-553; iterative secant search, 001:841-866).
 
 Cube-map layout (this module's, used by every function here). Face f ∈ {+X, −X, +Y, −Y, +Z, −Z} (0…5);
 on each face two coordinates a, b ∈ [−1, 1] — (y, z) on the X faces, (x, z) on the Y faces, (x, y) on the
@@ -18,7 +18,7 @@ F(a, b) = atan2(a·b, √(a² + b² + 1)) (the solid angle of the rectangle [0, 
 distance 1). The seed's ``ConvolutionPS`` uses the midpoint rule Ω ≈ h²/(1 + a² + b²)^{3/2} with
 h = 2/N ("4/(r³)/N²"), whose bias for a constant environment at N = 4 is +3.57 % for an axis-aligned
 normal (`convolve`); ``GetContribution`` uses one constant for every texel,
-Ω_seed = 4/(N² + 2/π) (001:676), which is neither the mean 4π/(6N²) nor any texel's solid angle.
+Ω_seed = 4/(N² + 2/π) (001:688), which is neither the mean 4π/(6N²) nor any texel's solid angle.
 
 Convolution (pre-convolved map). For a query axis q the diffuse map stores the irradiance
 E(q) = ∫ L(ω) max(q·ω, 0) dω (W/m² for L in W/(m²·sr)); the glossy map stores the lobe-filtered
@@ -31,20 +31,20 @@ surface seen through it. Seen from a shading point p (relative to the reference 
 surface patch lies at y_t = ω_t·d_t, at distance Δ = |y_t − p| in direction ω' = (y_t − p)/Δ, and the
 seed approximates its solid angle by
 
-    Ω' = d_t²·Ω / (Δ²·(1 − Ω/2π) + d_t²·Ω/2π)            (001:683, "dws localization")
+    Ω' = d_t²·Ω / (Δ²·(1 − Ω/2π) + d_t²·Ω/2π)            (001:696, "dws localization")
 
 (the solid angle of a cap of the same area moved from d_t to Δ; Ω' = Ω at p = 0 and Ω' → 2π as Δ → 0).
 The contribution of the texel is then L_t·lobe(axis·ω')·Ω' ("point": one sample at the patch centre,
-001:688-694), or L_t·K(axis·ω', Ω') where K is the integral of the lobe over a cap of solid angle Ω'
-about ω' ("cap": the cosine look-up texture of 001:700-716). For the diffuse lobe K is the irradiance of
+001:700-709), or L_t·K(axis·ω', Ω') where K is the integral of the lobe over a cap of solid angle Ω'
+about ω' ("cap": the cosine look-up texture of 001:716-729). For the diffuse lobe K is the irradiance of
 a unit-radiance sphere light of angular radius α = acos(1 − Ω'/2π): `rtfit.realtime.diffuse`'s
 horizon-clipped Snyder form, the same text. For the glossy lobe K is tabulated by quadrature
 (`cap_lobe_table`) and read bilinearly at ((c + 1)/2, Ω'/2π), as the seed's texture is.
 
 Distance impostors. ``Hit(x, R)`` finds the point where the ray x + t·R (x relative to the reference
 point) meets the surface stored in a distance cube map dist(·): a point l lies on it when
-|l| = dist(l), i.e. when the ratio λ(l) = |l|/dist(l) is 1. The one-lookup form (001:539-546) steps
-t = dist(R) − x·R; the iterative form (001:812-839) starts from t₀ = dist(R)·(1 − λ(x)) and does a
+|l| = dist(l), i.e. when the ratio λ(l) = |l|/dist(l) is 1. The one-lookup form (001:547-553) steps
+t = dist(R) − x·R; the iterative form (001:841-866) starts from t₀ = dist(R)·(1 − λ(x)) and does a
 secant search on λ over the last under- and overshoot, n iterations. The hit point selects the radiance
 texel (lookup direction l). "Classic" environment mapping looks up the radiance at R itself.
 
@@ -141,24 +141,24 @@ def texel_solid_angle_kernel(ops, a0, a1, b0, b1):
 
 
 def midpoint_solid_angle_kernel(ops, a, b, h):
-    """The seed's midpoint rule (001:580): h²/(1 + a² + b²)^{3/2} for a texel of side h centred at (a, b)."""
+    """The seed's midpoint rule (001:590): h²/(1 + a² + b²)^{3/2} for a texel of side h centred at (a, b)."""
     r2 = 1.0 + a * a + b * b
     return h * h / (r2 * ops.sqrt(r2))
 
 
 SEED_SOLID_ANGLE = "4/(N² + 2/π)"
-"""The seed's constant per-texel solid angle of ``GetContribution`` (001:676), as printed."""
+"""The seed's constant per-texel solid angle of ``GetContribution`` (001:688), as printed."""
 
 
 def seed_solid_angle(resolution: int) -> float:
-    """Ω_seed = 4/(N² + 4/2/π) (001:676): one solid angle for every texel (sr)."""
+    """Ω_seed = 4/(N² + 4/2/π) (001:688): one solid angle for every texel (sr)."""
     n = float(resolution)
     return 4.0 / (n * n + 4.0 / 2.0 / math.pi)
 
 
 def texel_solid_angle(resolution: int, rule: str = "exact") -> np.ndarray:
-    """Per-texel solid angles (6N²,) of an N×N cube map: ``exact``, ``midpoint`` (seed 001:580),
-    ``seed`` (the constant of 001:676) or ``equal`` (4π/6N², the mean)."""
+    """Per-texel solid angles (6N²,) of an N×N cube map: ``exact``, ``midpoint`` (seed 001:590),
+    ``seed`` (the constant of 001:688) or ``equal`` (4π/6N², the mean)."""
     t = cube_texels(resolution)
     if rule == "exact":
         return np.asarray(evaluate(texel_solid_angle_kernel, t["a0"], t["a1"], t["b0"], t["b1"]))
@@ -199,7 +199,7 @@ def _normalise(ops, x, y, z):
 
 
 def convolution_term_kernel(ops, qx, qy, qz, lx, ly, lz, solid_angle, shininess):
-    """One texel's term lobe(q·ω)·Ω of the pre-convolution (001:557-585); (lx, ly, lz) the texel point on
+    """One texel's term lobe(q·ω)·Ω of the pre-convolution (001:569-594); (lx, ly, lz) the texel point on
     the cube (normalised here), q a unit query axis."""
     wx, wy, wz = _normalise(ops, lx, ly, lz)
     return lobe_kernel(ops, qx * wx + qy * wy + qz * wz, shininess) * solid_angle
@@ -314,7 +314,7 @@ def _resolution_of(table: np.ndarray) -> int:
 
 # =========================================================================== localised convolution
 def localised_solid_angle_kernel(ops, solid_angle, d_ref, d_point):
-    """The seed's "dws localization" (001:683): Ω' = d²Ω / (Δ²(1 − Ω/2π) + d²Ω/2π) (sr), ≤ 2π."""
+    """The seed's "dws localization" (001:696): Ω' = d²Ω / (Δ²(1 − Ω/2π) + d²Ω/2π) (sr), ≤ 2π."""
     w = solid_angle / TWO_PI
     d2 = d_ref * d_ref
     return safe_div(ops, d2 * solid_angle, d_point * d_point * (1.0 - w) + d2 * w)
@@ -342,9 +342,9 @@ def localised_term_kernel(
     with lobe axis n (the normal, or the reflection direction for a glossy lobe); (lx, ly, lz) the texel
     point on the cube, ``dist`` its stored distance, ``solid_angle`` its Ω.
 
-    ``mode``: "point" lobe(n·ω')·Ω' (001:688-694); "cap" the clamped-cosine integral over the cap of
+    ``mode``: "point" lobe(n·ω')·Ω' (001:700-709); "cap" the clamped-cosine integral over the cap of
     solid angle Ω' about ω' (exact, diffuse only: Snyder's horizon-clipped sphere-light form);
-    "lut" the tabulated cap integral ``lut`` (size×size, `cap_lobe_table`) read bilinearly (001:700-716)."""
+    "lut" the tabulated cap integral ``lut`` (size×size, `cap_lobe_table`) read bilinearly (001:716-729)."""
     wx, wy, wz = _normalise(ops, lx, ly, lz)
     yx, yy, yz = wx * dist - px, wy * dist - py, wz * dist - pz
     delta = ops.sqrt(yx * yx + yy * yy + yz * yz)
@@ -368,7 +368,7 @@ def cap_lobe_table(shininess: float, size: int = 32, nodes: int = 48) -> np.ndar
     in azimuth over the part of each ring where the lobe is non-zero, [0, φ*] with
     cos φ* = −cot θ·cot β (twice, by symmetry), so that no rule straddles the clamp's kink; the
     integrand is `lobe_kernel`, the one text. Replaces the seed's
-    2M×2M×M regular-sample count of ``EnvMap::eval`` (001:440-447)."""
+    2M×2M×M regular-sample count of ``EnvMap::eval`` (001:453-457)."""
     if size < 2:
         raise ValueError(f"cap table size must be ≥ 2, got {size}")
     c = np.linspace(-1.0, 1.0, size)
@@ -415,7 +415,7 @@ def localised_convolve(
     lut: np.ndarray | None = None,
     float32: bool = False,
 ) -> np.ndarray:
-    """The localised convolution (001:616-716) at shading points (P, 3) (relative to the map's reference
+    """The localised convolution (001:637-729) at shading points (P, 3) (relative to the map's reference
     point) with lobe axes (P, 3) → (P,): Σ_t L_t · weight_t (`localised_term_kernel`).
 
     ``rule``: the base texel solid angle Ω (`texel_solid_angle`: "seed" is the listing's constant);
@@ -466,7 +466,7 @@ def localised_convolve(
 
 # ================================================================================ distance impostors
 def hit_parallax_kernel(ops, dist_map, x, y, z, rx, ry, rz, resolution, bilinear):
-    """The one-lookup ``Hit`` (001:539-546): t = dist(R) − x·R, hit = x + t·R (x relative to the
+    """The one-lookup ``Hit`` (001:547-553): t = dist(R) − x·R, hit = x + t·R (x relative to the
     reference point)."""
     r1 = cube_lookup_kernel(ops, dist_map, rx, ry, rz, resolution, bilinear)
     t = r1 - (x * rx + y * ry + z * rz)
@@ -482,7 +482,7 @@ def _ratio(ops, dist_map, x, y, z, resolution, bilinear):
 def hit_iterative_kernel(
     ops, dist_map, x, y, z, rx, ry, rz, resolution, bilinear, iterations, tolerance=1e-3
 ):
-    """The iterative ``Hit`` (001:812-839): secant search on λ(x + t·R) = 1, ``iterations`` steps.
+    """The iterative ``Hit`` (001:841-866): secant search on λ(x + t·R) = 1, ``iterations`` steps.
 
     As printed except for two guards, both inert where the listing is finite: the secant denominators
     (λ − λ_over, λ − λ_under) are kept away from 0 (the listing divides 0/0 when two lookups return the same
@@ -557,7 +557,7 @@ IRRADIANCE_METHODS = method_table(
             fixed={"mode": "point", "lut": None, "lut_size": 2},
             quantity="per-texel weight",
             formula="L_t·lobe(n·ω')·Ω', Ω' = d²Ω/(Δ²(1−Ω/2π) + d²Ω/2π), Ω = 4/(N² + 2/π)",
-            source="001:616-696",
+            source="001:637-710",
         ),
         Method(
             "localised-exact-omega",
@@ -568,7 +568,7 @@ IRRADIANCE_METHODS = method_table(
             fixed={"mode": "point", "lut": None, "lut_size": 2},
             quantity="per-texel weight",
             formula="L_t·lobe(n·ω')·Ω', Ω exact (atan2 form)",
-            source="001:616-696, Ω corrected",
+            source="001:637-710, Ω corrected",
         ),
         Method(
             "localised-cap",
@@ -579,7 +579,7 @@ IRRADIANCE_METHODS = method_table(
             fixed={"mode": "cap", "lut": None, "lut_size": 2},
             quantity="per-texel weight",
             formula="L_t·∫_cap(Ω') max(n·ω, 0) dω (Snyder's horizon-clipped form)",
-            source="001:700-716",
+            source="001:716-729",
         ),
     ]
 )
@@ -595,7 +595,7 @@ HIT_METHODS = method_table(
             inputs=(Input("dx", "1"), Input("dy", "1"), Input("dz", "1")),
             fixed={"table": None, "resolution": 1, "bilinear": True},
             formula="L(R)",
-            source="001:480-497",
+            source="001:482-497",
         ),
         Method(
             "parallax",
@@ -604,7 +604,7 @@ HIT_METHODS = method_table(
             inputs=(Input("x", "m"), Input("y", "m"), Input("z", "m"), Input("rx"), Input("ry"), Input("rz")),
             fixed={"dist_map": None, "resolution": 1, "bilinear": True},
             formula="x + R·(dist(R) − x·R)",
-            source="001:539-546",
+            source="001:547-553",
         ),
         Method(
             "iterative",
@@ -613,7 +613,7 @@ HIT_METHODS = method_table(
             inputs=(Input("x", "m"), Input("y", "m"), Input("z", "m"), Input("rx"), Input("ry"), Input("rz")),
             fixed={"dist_map": None, "resolution": 1, "bilinear": True, "iterations": 4},
             formula="secant search on |l|/dist(l) = 1",
-            source="001:812-839",
+            source="001:841-866",
         ),
     ]
 )

@@ -1,6 +1,6 @@
 """Ground truth for the environment-map family: a closed room with emissive walls, traced by Mitsuba.
 
-The scene is the seed's test room (001:374-390: a box whose walls carry a grid texture with an intensity
+The scene is the seed's test room (001:398-431: a box whose walls carry a grid texture with an intensity
 falloff): an axis-aligned box [``ROOM_LO``, ``ROOM_HI``] (m) whose inner walls emit a radiance
 `room_radiance` (W/(m²·sr), grey) given in closed form of the surface point. Everything else in the room
 (a probe point, a mirror or glass sphere) is non-emissive, so every quantity compared here is an integral

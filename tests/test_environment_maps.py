@@ -21,7 +21,7 @@ from rtfit.reference import environment_maps as room
 
 
 def _seed_convolution_axis(n: int) -> float:
-    """The seed's ConvolutionPS (001:557-585) for L = 1, q = +z, typed from the listing (its face order)."""
+    """The seed's ConvolutionPS (001:569-594) for L = 1, q = +z, typed from the listing (its face order)."""
     q = np.array([0.0, 0.0, 1.0])
     total = 0.0
     for i in range(n):
