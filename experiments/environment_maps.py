@@ -33,12 +33,12 @@ import drjit as dr
 import numpy as np
 
 from rtfit.fitting import compute_metrics, sidak_threshold
-from rtfit.realtime import DRJIT_OPS, set_default_backend, sphere_light_irradiance
+from rtfit.realtime import DRJIT_OPS, NUMPY_OPS, set_default_backend, sphere_light_irradiance
 from rtfit.realtime import environment_maps as em
 from rtfit.reference import environment_maps as room
 
 from . import figures as F
-from .cost import bench_backend, time_drjit
+from .cost import bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 from .registry import ConfigKey, checked
 
 # ============================================================================================ configure
@@ -523,97 +523,102 @@ def _untyped(kernel) -> Any:
     return kernel
 
 
-def cost_rows(ctx, cfg) -> list[dict]:
-    """ns per shading point: the localised convolution (one kernel launch over point×texel pairs, scaled
-    to 6N² texels), the impostor searches and a cube lookup, all float32 Dr.Jit."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+def timed_kernels(cfg, variant: str) -> list[dict]:
+    """The kernels whose cost is measured, as data: method key, label, ``fn(ops, tables, *args)``, the
+    per-element NumPy float32 inputs, the tables, and ``per`` = kernel elements per shading point (6N²
+    point×texel pairs for the localised convolution, 1 for a lookup or an impostor search)."""
     m = cfg["cost_elements"]
-    timing = {"repeats": 3 if cfg["cost_seconds"] < 0.1 else 7, "min_seconds": cfg["cost_seconds"]}
     rng = np.random.default_rng(5)
-    f = lambda a: Float(np.ascontiguousarray(a, np.float32))  # noqa: E731
-    rows = []
-    d = _unit(rng.normal(size=(m, 3)))
-    p = rng.uniform(-0.8, 0.8, size=(m, 3))
-    lut = Float(em.cap_lobe_table(0.0, 32).astype(np.float32))
+    d = _unit(rng.normal(size=(m, 3))).astype(np.float32)
+    p = rng.uniform(-0.8, 0.8, size=(m, 3)).astype(np.float32)
+    x = rng.uniform(-0.4, 0.4, size=(m, 3)).astype(np.float32)
+    texel = [np.ones(m, np.float32), (d[:, 0] * 0.3), (d[:, 2] * 0.3), np.full(m, 1.5, np.float32)]
+    loc_args = (*p.T, *d.T, *texel, np.full(m, 0.1, np.float32))
+    lut = em.cap_lobe_table(0.0, 32).astype(np.float32)
+    out = []
     for mode in ("point", "cap", "lut"):
-        t = time_drjit(
-            lambda *a, mode=mode: _untyped(em.localised_term_kernel)(DRJIT_OPS, *a, 0.0, mode, lut, 32),
-            (
-                f(p[:, 0]),
-                f(p[:, 1]),
-                f(p[:, 2]),
-                f(d[:, 0]),
-                f(d[:, 1]),
-                f(d[:, 2]),
-                f(d[:, 1] * 0 + 1.0),
-                f(d[:, 0] * 0.3),
-                f(d[:, 2] * 0.3),
-                f(np.full(m, 1.5)),
-                f(np.full(m, 0.1)),
-            ),
-            m,
-            **timing,
-        )
         for n in cfg["cube_resolutions"]:
-            rows.append(
+            out.append(
                 {
                     "method": f"localised-{mode}-N{n}",
                     "label": f"localised convolution ({mode}), N = {n}",
-                    "backend": backend,
-                    "ns_per_pixel": t.ns_per_element * 6 * n * n,
-                    "pixels_per_second": t.elements_per_second / (6 * n * n),
-                    "elements": m,
-                    "repeats": t.repeats,
-                    "note": f"{t.ns_per_element:.3g} ns per point×texel pair × 6N² texels",
+                    "fn": lambda ops, t, *a, mode=mode: _untyped(em.localised_term_kernel)(
+                        ops, *a, 0.0, mode, t[0], 32
+                    ),
+                    "args": loc_args,
+                    "tables": (lut,),
+                    "per": 6 * n * n,
                 }
             )
-    x = rng.uniform(-0.4, 0.4, size=(m, 3))
-    for n in cfg["impostor_resolutions"][
-        -1:
-    ]:  # the cost of a lookup barely depends on N: timed at the largest
-        dist = Float(room_cube_maps(n, 1, ctx.variant)["distance_centre"].astype(np.float32))
-        args = (f(x[:, 0]), f(x[:, 1]), f(x[:, 2]), f(d[:, 0]), f(d[:, 1]), f(d[:, 2]))
-        t = time_drjit(
-            lambda dx, dy, dz, dist=dist, n=n: em.cube_lookup_kernel(DRJIT_OPS, dist, dx, dy, dz, n, True),
-            args[3:],
-            m,
-            **timing,
-        )
-        rows.append(
-            {"method": f"classic-N{n}", "label": f"cube lookup, N = {n}", "backend": backend, **t.to_dict()}
-        )
-        t = time_drjit(
-            lambda *a, dist=dist, n=n: _untyped(em.hit_parallax_kernel)(DRJIT_OPS, dist, *a, n, True),
-            args,
-            m,
-            **timing,
-        )
-        rows.append(
+    n = cfg["impostor_resolutions"][-1]  # the cost of a lookup barely depends on N: timed at the largest
+    dist = room_cube_maps(n, 1, variant)["distance_centre"].astype(np.float32)
+    hit_args = (*x.T, *d.T)
+    out.append(
+        {
+            "method": f"classic-N{n}",
+            "label": f"cube lookup, N = {n}",
+            "fn": lambda ops, t, *a, n=n: _untyped(em.cube_lookup_kernel)(ops, t[0], *a[3:], n, True),
+            "args": hit_args,
+            "tables": (dist,),
+            "per": 1,
+        }
+    )
+    out.append(
+        {
+            "method": f"parallax-N{n}",
+            "label": f"impostor, one lookup, N = {n}",
+            "fn": lambda ops, t, *a, n=n: _untyped(em.hit_parallax_kernel)(ops, t[0], *a, n, True),
+            "args": hit_args,
+            "tables": (dist,),
+            "per": 1,
+        }
+    )
+    for k in cfg["iterations"]:
+        out.append(
             {
-                "method": f"parallax-N{n}",
-                "label": f"impostor, one lookup, N = {n}",
-                "backend": backend,
-                **t.to_dict(),
+                "method": f"iterative-{k}-N{n}",
+                "label": f"impostor, {k} iterations, N = {n}",
+                "fn": lambda ops, t, *a, n=n, k=k: _untyped(em.hit_iterative_kernel)(
+                    ops, t[0], *a, n, True, k
+                ),
+                "args": hit_args,
+                "tables": (dist,),
+                "per": 1,
             }
         )
-        for k in cfg["iterations"]:
-            t = time_drjit(
-                lambda *a, k=k, dist=dist, n=n: _untyped(em.hit_iterative_kernel)(
-                    DRJIT_OPS, dist, *a, n, True, k
-                ),
-                args,
-                m,
-                **timing,
-            )
-            rows.append(
-                {
-                    "method": f"iterative-{k}-N{n}",
-                    "label": f"impostor, {k} iterations, N = {n}",
-                    "backend": backend,
-                    **t.to_dict(),
-                }
-            )
+    return out
+
+
+def _timing(cfg) -> dict:
+    return {"repeats": 3 if cfg["cost_seconds"] < 0.1 else 7, "min_seconds": cfg["cost_seconds"]}
+
+
+def _time_kernel(k: dict, Float, cfg):
+    tables = tuple(Float(t) for t in k["tables"])
+    args = tuple(Float(np.ascontiguousarray(a)) for a in k["args"])
+    return time_drjit(lambda *a: k["fn"](DRJIT_OPS, tables, *a), args, len(k["args"][0]), **_timing(cfg))
+
+
+def cost_rows(ctx, cfg) -> list[dict]:
+    """ns per shading point of every timed kernel (`timed_kernels`), float32 Dr.Jit: the localised
+    convolution is one launch over point×texel pairs, scaled to 6N² texels per point."""
+    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
+    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    rows = []
+    for k in timed_kernels(cfg, ctx.variant):
+        t = _time_kernel(k, Float, cfg)
+        rows.append(
+            {
+                "method": k["method"],
+                "label": k["label"],
+                "backend": backend,
+                "ns_per_pixel": t.ns_per_element * k["per"],
+                "pixels_per_second": t.elements_per_second / k["per"],
+                "elements": t.elements,
+                "repeats": t.repeats,
+                "note": f"{k['per']} kernel elements per shading point" if k["per"] > 1 else None,
+            }
+        )
     return rows
 
 
@@ -1051,25 +1056,18 @@ def make_figures(out, cfg, const, imp, part, costs) -> list[dict]:
 
 # ================================================================================================ bench
 def bench(ctx) -> list[dict]:
-    """ns per shading point of the localised convolution and the impostor searches (Dr.Jit)."""
-    backend, _ = bench_backend(ctx)
-    cfg = configure(ctx.quick, None)
-
-    class _C:
-        variant = ctx.variant
-
+    """Throughput of every timed kernel on Dr.Jit vs the same text on NumPy (float32), beside the
+    memory-traffic floor; the localised rows count point×texel pairs (per = "pair")."""
+    backend, size = bench_backend(ctx)
+    cfg = {**configure(ctx.quick, None), "cost_elements": size}
+    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
     rows = []
-    for c in cost_rows(_C, cfg):
+    for k in timed_kernels(cfg, ctx.variant):
+        t_dr = _time_kernel(k, Float, cfg)
+        with np.errstate(all="ignore"):  # NumPy evaluates both branches of every select
+            t_np = time_numpy(lambda *a, k=k: k["fn"](NUMPY_OPS, k["tables"], *a), k["args"], size)
+        base = memory_baseline(tuple(Float(np.ascontiguousarray(a)) for a in k["args"]), size)
         rows.append(
-            {
-                "what": c["label"],
-                "backend": backend,
-                "elements": c["elements"],
-                "drjit_Mpx_s": c["pixels_per_second"] / 1e6,
-                "numpy_Mpx_s": None,
-                "drjit/numpy": None,
-                "ns_per_px": c["ns_per_pixel"],
-                "vs_memory_floor": None,
-            }
+            comparison_row(k["label"], backend, t_dr, t_np, base, per="pair" if k["per"] > 1 else None)
         )
     return rows
