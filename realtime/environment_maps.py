@@ -69,7 +69,6 @@ from .methods import Input, Method, Param, method_table
 __all__ = [
     "FACE_NAMES",
     "HIT_METHODS",
-    "IRRADIANCE_METHODS",
     "SEED_SOLID_ANGLE",
     "cap_lobe_table",
     "convolution_term_kernel",
@@ -542,40 +541,50 @@ def impostor_hit(
 
 
 # ====================================================================================== method tables
-_P = (Input("px", "m"), Input("py", "m"), Input("pz", "m"))
-_N = (Input("nx", "1"), Input("ny", "1"), Input("nz", "1"))
-_L = (Input("lx", "1"), Input("ly", "1"), Input("lz", "1"), Input("dist", "m"), Input("solid_angle", "sr"))
+_SHININESS = Param(6.0, -1.0, 1e4, unit="1", description="Phong exponent s; s ≤ 0 selects the clamped cosine")
 
-IRRADIANCE_METHODS = method_table(
+_P = tuple(
+    Input(f"p{c}", "m", f"shading point {c}, relative to the reference point", (-1.5, 1.5)) for c in "xyz"
+)
+_N = tuple(Input(f"n{c}", "1", f"lobe axis {c} (normal or reflection direction)", (-1.0, 1.0)) for c in "xyz")
+_L = (
+    *(Input(f"l{c}", "1", f"texel point {c} on the cube of edge 2", (-1.0, 1.0)) for c in "xyz"),
+    Input("dist", "m", "distance stored in the texel", (0.05, 5.0)),
+    Input("solid_angle", "sr", "the texel's base solid angle Ω", (1e-4, 1.0)),
+)
+
+METHODS = method_table(
     [
         Method(
             "localised-seed",
             "Localised, seed (constant Ω, point sample)",
             localised_term_kernel,
             inputs=_P + _N + _L,
-            params={"shininess": Param(0.5, -1.0, 1e4, unit="1")},
+            params={"shininess": _SHININESS},
             fixed={"mode": "point", "lut": None, "lut_size": 2},
             quantity="per-texel weight",
             formula="L_t·lobe(n·ω')·Ω', Ω' = d²Ω/(Δ²(1−Ω/2π) + d²Ω/2π), Ω = 4/(N² + 2/π)",
             source="001:637-710",
+            description="solid_angle input: seed_solid_angle(N) for every texel",
         ),
         Method(
             "localised-exact-omega",
             "Localised, exact texel Ω (point sample)",
             localised_term_kernel,
             inputs=_P + _N + _L,
-            params={"shininess": Param(0.5, -1.0, 1e4, unit="1")},
+            params={"shininess": _SHININESS},
             fixed={"mode": "point", "lut": None, "lut_size": 2},
             quantity="per-texel weight",
             formula="L_t·lobe(n·ω')·Ω', Ω exact (atan2 form)",
             source="001:637-710, Ω corrected",
+            description="solid_angle input: texel_solid_angle(N, 'exact')",
         ),
         Method(
             "localised-cap",
             "Localised, cap integral (cosine look-up, exact)",
             localised_term_kernel,
             inputs=_P + _N + _L,
-            params={"shininess": Param(0.5, -1.0, 1e4, unit="1")},
+            params={"shininess": _SHININESS},
             fixed={"mode": "cap", "lut": None, "lut_size": 2},
             quantity="per-texel weight",
             formula="L_t·∫_cap(Ω') max(n·ω, 0) dω (Snyder's horizon-clipped form)",
