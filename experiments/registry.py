@@ -100,6 +100,14 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "The closed-form line integral of i/(1 + a·r²) (stable float32 form vs the printed one) against "
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
         ),
+        ExperimentSpec(
+            "environment-maps",
+            "rtfit.experiments.environment_maps",
+            "Pre-convolved and localised environment maps, distance impostors vs exact traces in a room",
+            "Cube-map convolution solid-angle rules, the seed's localised diffuse/glossy convolution with "
+            "its cosine look-up against depth-1 Monte Carlo in an emissive room, and the impostor Hit search "
+            "against exact ray_intersect hit points of a mirror and a glass sphere.",
+        ),
     ]
 }
 

@@ -15,6 +15,8 @@ Modules:
     ambient_aperture  ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection
                 and shading (docs/ambient-aperture.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
+    environment_maps  pre-convolved and localised cube maps, cosine look-up, distance-impostor Hit
+                (docs/environment-maps.md).
     irradiance_bases  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
                 (docs/irradiance-bases.md).
     irradiance_volumes  irradiance volumes: a grid of ambient-cube / SH L2 probes, nearest and trilinear
@@ -43,6 +45,7 @@ from . import arrays
 from .ambient_aperture import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
+from .environment_maps import *  # noqa: F403
 from .height_fog import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
@@ -61,6 +64,7 @@ MODULES = (
     "phase",
     "ambient_aperture",
     "diffuse",
+    "environment_maps",
     "height_fog",
     "irradiance_bases",
     "irradiance_volumes",
