@@ -93,6 +93,13 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "The closed-form line integral of i/(1 + a·r²) (stable float32 form vs the printed one) against "
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
         ),
+        ExperimentSpec(
+            "parallax-occlusion",
+            "rtfit.experiments.parallax_occlusion",
+            "Parallax occlusion mapping with soft shadows vs a displaced mesh and ray-traced penumbrae",
+            "The seed's linear search + piecewise-linear intersection and 7-sample soft shadow (as printed and "
+            "stable) against ray_intersect on the displaced height field and area-light visibility.",
+        ),
     ]
 }
 
