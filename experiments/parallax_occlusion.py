@@ -30,7 +30,7 @@ import drjit as dr
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method
-from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime import NUMPY_OPS, Method, set_default_backend
 from rtfit.realtime.parallax_occlusion import (
     METHODS,
     SHADOW_METHODS,
@@ -61,7 +61,9 @@ CONFIG = {
     "light_deg": ConfigKey("float", "light zenith angle θ_l (degrees)", 0.0, 80.0, (None,)),
     "light_azimuth_deg": ConfigKey("float", "light azimuth (degrees)", -360.0, 360.0),
     "grid": ConfigKey("int", "pixels per side of the (u₀, v₀) grid on the unit tile", 4, 512),
-    "mesh_cells": ConfigKey("int", "cells per texture unit of the fine mesh (the check mesh has half)", 16, 2048),
+    "mesh_cells": ConfigKey(
+        "int", "cells per texture unit of the fine mesh (the check mesh has half)", 16, 2048
+    ),
     "light_samples": ConfigKey("int", "light samples per visible point", 16, SPP_MAX),
     "light_size": ConfigKey("float", "side of the square light (texture units)", 0.01, 10.0),
     "light_distance": ConfigKey("float", "distance of the light's centre from the tile centre", 0.5, 100.0),
@@ -77,22 +79,23 @@ def configure(quick: bool, spp: int | None) -> dict:
         CONFIG,
         {
             "fields": ["bumps", "ridges"],
-            "scale": 0.1,
+            "scale": 0.15,
             "view_deg": [0.0, 40.0, 70.0] if quick else [0.0, 20.0, 40.0, 55.0, 70.0, 80.0],
             "view_azimuth_deg": 30.0,
-            "light_deg": [55.0] if quick else [35.0, 55.0, 70.0],
+            "light_deg": [70.0] if quick else [50.0, 65.0, 75.0],
             "light_azimuth_deg": 200.0,
             "grid": 24 if quick else 64,
-            "mesh_cells": 256 if quick else 1024,
+            "mesh_cells": 512 if quick else 1024,
             "light_samples": spp or (256 if quick else 4096),
             "light_size": 1.0,
             "light_distance": 4.0,
-            "sample_ranges": [[2, 8], [4, 16], [8, 40], [16, 64]] if quick else [[2, 8], [4, 16], [8, 40],
-                                                                                 [16, 64], [32, 128]],
+            "sample_ranges": [[2, 8], [4, 16], [8, 40], [16, 64]]
+            if quick
+            else [[2, 8], [4, 16], [8, 40], [16, 64], [32, 128]],
             "n_range": [8, 40],
             "cost_elements": 1 << (16 if quick else 20),
         },
-    )  # fmt: skip
+    )
 
 
 # ================================================================================================= rows
@@ -119,15 +122,20 @@ ALBEDO = 0.8
 LIGHT_RADIANCE = 10.0
 
 
-def configured_method(method_id: str, cfg: dict, field: str, n_range) -> object:
+def configured_method(method_id: str, cfg: dict, field: str, n_range) -> Method:
     """The method with this run's scene settings as its fixed keywords."""
     m = METHODS[method_id]
-    fixed = {**m.fixed, "field": field, "scale": cfg["scale"], "n_min": int(n_range[0]),
-             "n_max": int(n_range[1])}  # fmt: skip
+    fixed = {
+        **m.fixed,
+        "field": field,
+        "scale": cfg["scale"],
+        "n_min": int(n_range[0]),
+        "n_max": int(n_range[1]),
+    }
     return dataclasses.replace(m, fixed=fixed)
 
 
-def configured_shadow(method_id: str, cfg: dict, field: str):
+def configured_shadow(method_id: str, cfg: dict, field: str) -> Method:
     m = SHADOW_METHODS[f"{method_id}-shadow"]
     return dataclasses.replace(m, fixed={**m.fixed, "field": field, "scale": cfg["scale"]})
 
@@ -157,14 +165,14 @@ def mesh_for(field: str, cfg: dict, cells: int) -> HeightFieldMesh:
     t_max = max(math.tan(math.radians(max(cfg["view_deg"]))), math.tan(math.radians(max(cfg["light_deg"]))))
     margin = cfg["scale"] * t_max + 0.05
     lo, hi = -margin, 1.0 + margin
-    n = int(math.ceil((hi - lo) * cells)) + 1
+    n = math.ceil((hi - lo) * cells) + 1
     xs = np.linspace(lo, hi, n)
     X, Y = np.meshgrid(xs, xs)
     h = np.clip(pom_height(field, X, Y), 0.0, 1.0)  # float64 NumPy in → float64 out
     return HeightFieldMesh(np.asarray(h, np.float64), lo, hi, lo, hi, cfg["scale"])
 
 
-ORACLE_STEPS = 4096
+ORACLE_STEPS = 1024
 """Uniform steps of the float64 root finder along the ray's depth range [0, s] before bisection."""
 
 
@@ -215,9 +223,16 @@ def reference_case(mi, scene, coarse, field: str, cfg: dict, view: np.ndarray) -
 # ============================================================================================== hazards
 def _inputs(u0, v0, view, light, mip=0.0, dtype=np.float32) -> dict:
     shape = np.shape(u0)
-    full = {k: np.full(shape, x, dtype) for k, x in zip(("vx", "vy", "vz", "lx", "ly", "lz"), (*view, *light),
-                                                         strict=True)}  # fmt: skip
-    return {"u0": np.asarray(u0, dtype), "v0": np.asarray(v0, dtype), **full, "mip": np.full(shape, mip, dtype)}
+    full = {
+        k: np.full(shape, x, dtype)
+        for k, x in zip(("vx", "vy", "vz", "lx", "ly", "lz"), (*view, *light), strict=True)
+    }
+    return {
+        "u0": np.asarray(u0, dtype),
+        "v0": np.asarray(v0, dtype),
+        **full,
+        "mip": np.full(shape, mip, dtype),
+    }
 
 
 def eval32(m, inputs: dict, params: dict | None = None):
@@ -235,7 +250,7 @@ def hazard_normal_incidence(cfg) -> dict:
     out = {}
     for mid in METHODS:
         m = configured_method(mid, cfg, "bumps", cfg["n_range"])
-        u, v, s = eval32(m, _inputs(u0, v0, (0.0, 0.0, 1.0), unit_vector(45.0, 0.0)))
+        u, v, _ = eval32(m, _inputs(u0, v0, (0.0, 0.0, 1.0), unit_vector(45.0, 0.0)))
         out[mid] = int(np.sum(~np.isfinite(u) | ~np.isfinite(v)))
     return {"pixels": int(u0.size), "non_finite": out}
 
@@ -284,7 +299,7 @@ def hazard_lod(cfg, field: str) -> dict:
     u0, v0 = pixel_grid(6)
     u0, v0 = np.repeat(u0.ravel(), mips.size), np.repeat(v0.ravel(), mips.size)
     mip = np.tile(mips, 36)
-    view, light = unit_vector(50.0, 30.0), unit_vector(60.0, 200.0)
+    view, light = unit_vector(50.0, 30.0), unit_vector(75.0, 200.0)
     out = {}
     for mid in METHODS:
         m = configured_method(mid, cfg, field, cfg["n_range"])
@@ -297,9 +312,10 @@ def hazard_lod(cfg, field: str) -> dict:
         out[mid] = {"max_uv_step": float(du), "max_shadow_step": float(ds), "at_mip": jump_at}
     # the isolated point mip = T exactly: the listing's frac(T) = 0 gives the full offset back
     m = configured_method("listing", cfg, field, cfg["n_range"])
-    a = [np.asarray(x) for x in eval32(m, _inputs(np.array([0.3]), np.array([0.3]), view, light, T - 1e-3))]
-    b = [np.asarray(x) for x in eval32(m, _inputs(np.array([0.3]), np.array([0.3]), view, light, T))]
-    out["listing_at_T"] = {"uv_jump": float(np.hypot(a[0] - b[0], a[1] - b[1])[0])}
+    u0, v0 = pixel_grid(6)
+    a = eval32(m, _inputs(u0.ravel(), v0.ravel(), view, light, T - 1e-3))
+    b = eval32(m, _inputs(u0.ravel(), v0.ravel(), view, light, T))
+    out["listing_at_T"] = {"uv_jump": float(np.max(np.hypot(a[0] - b[0], a[1] - b[1])))}
     return out
 
 
@@ -316,8 +332,10 @@ def fit_shadows(cfg, cases: list[dict]) -> dict:
             sel = [c for c in cases if c["field"] == field and c["fit_mask"].any()]
             if not sel:
                 continue
-            inputs = {k: np.concatenate([c["fit_inputs"][k][c["fit_mask"]] for c in sel]) for k in
-                      ("u", "v", "lx", "ly", "lz")}  # fmt: skip
+            inputs = {
+                k: np.concatenate([c["fit_inputs"][k][c["fit_mask"]] for c in sel])
+                for k in ("u", "v", "lx", "ly", "lz")
+            }
             target = np.concatenate([c["vis"][c["fit_mask"]] for c in sel])
             sig = np.concatenate([c["vis_stderr"][c["fit_mask"]] for c in sel])
             res = fit_method(
@@ -333,8 +351,10 @@ def run(ctx) -> dict:
     set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
     mi = use_variant(ctx.variant)
     light_dirs = {lt: unit_vector(lt, cfg["light_azimuth_deg"]) for lt in cfg["light_deg"]}
-    lights = {lt: rectangle_light(d, cfg["light_distance"], cfg["light_size"], LIGHT_RADIANCE)
-              for lt, d in light_dirs.items()}  # fmt: skip
+    lights = {
+        lt: rectangle_light(d, cfg["light_distance"], cfg["light_size"], LIGHT_RADIANCE)
+        for lt, d in light_dirs.items()
+    }
     cases, uv_table, mesh_info, checks = [], [], {}, []
     for field in cfg["fields"]:
         ctx.log(f"{field}: meshes")
@@ -352,9 +372,13 @@ def run(ctx) -> dict:
             for mid in METHODS:
                 for nr in cfg["sample_ranges"]:
                     m = configured_method(mid, cfg, field, nr)
-                    u, v, _ = eval32(m, _inputs(ref["u0"].ravel(), ref["v0"].ravel(), view, light_dirs[
-                        cfg["light_deg"][0]]))  # fmt: skip
-                    err = np.hypot(np.asarray(u, np.float64) - uv_ex[:, 0], np.asarray(v, np.float64) - uv_ex[:, 1])
+                    u, v, _ = eval32(
+                        m,
+                        _inputs(ref["u0"].ravel(), ref["v0"].ravel(), view, light_dirs[cfg["light_deg"][0]]),
+                    )
+                    err = np.hypot(
+                        np.asarray(u, np.float64) - uv_ex[:, 0], np.asarray(v, np.float64) - uv_ex[:, 1]
+                    )
                     fin = np.isfinite(err) & valid
                     uv_table.append(
                         {
@@ -381,7 +405,13 @@ def run(ctx) -> dict:
             for lt, light in lights.items():
                 ctx.log(f"{field} θ_v={vt:g}° θ_l={lt:g}°: light visibility")
                 lv = area_light_visibility(
-                    mi, scene, ref["p"], ref["n"], light, cfg["light_samples"], seed=ctx.seed + int(vt * 10 + lt)
+                    mi,
+                    scene,
+                    ref["p"],
+                    ref["n"],
+                    light,
+                    cfg["light_samples"],
+                    seed=ctx.seed + int(vt * 10 + lt),
                 )
                 ld = light_dirs[lt]
                 cases.append(
@@ -400,12 +430,15 @@ def run(ctx) -> dict:
                         "fit_inputs": {
                             "u": ref["p"][:, 0],
                             "v": ref["p"][:, 1],
-                            **{k: np.full(valid.size, x) for k, x in zip(("lx", "ly", "lz"), ld, strict=True)},
+                            **{
+                                k: np.full(valid.size, x) for k, x in zip(("lx", "ly", "lz"), ld, strict=True)
+                            },
                         },
                     }
                 )
     ctx.log("fitting the shadow parameters")
     fits = fit_shadows(cfg, cases)
+    ctx.log("hazards, checks, costs")
     return assemble(ctx, cfg, cases, uv_table, mesh_info, fits, lights, checks)
 
 
@@ -471,7 +504,8 @@ def assemble(ctx, cfg, cases, uv_table, mesh_info, fits, lights, checks) -> dict
         case_docs.append(
             {
                 "id": case["id"],
-                "label": f"{case['field']}, view θ_v = {case['view_deg']:g}°, light θ_l = {case['light_deg']:g}°",
+                "label": f"{case['field']}, view θ_v = {case['view_deg']:g}°, "
+                f"light θ_l = {case['light_deg']:g}°",
                 "parameters": {
                     "field": case["field"],
                     "view_zenith_deg": case["view_deg"],
@@ -504,8 +538,15 @@ def assemble(ctx, cfg, cases, uv_table, mesh_info, fits, lights, checks) -> dict
     for d in case_docs:
         for ap in d["approximations"]:
             c = cost_by.get(f"{ROW_BY_ID[ap['method']].method}-{cfg['n_range'][0]}-{cfg['n_range'][1]}")
-            ap["cost"] = {"ns_per_pixel": c["ns_per_pixel"], "pixels_per_second": c["pixels_per_second"],
-                          "backend": c["backend"]} if c else None  # fmt: skip
+            ap["cost"] = (
+                {
+                    "ns_per_pixel": c["ns_per_pixel"],
+                    "pixels_per_second": c["pixels_per_second"],
+                    "backend": c["backend"],
+                }
+                if c
+                else None
+            )
     figs = make_figures(out, cfg, case_docs, images, uv_table, costs)
     fit_docs = [
         {
@@ -550,16 +591,24 @@ def shadow_lz_summary(fits: dict) -> dict:
 
 # =============================================================================================== checks
 def _rms_of(table, method, nr, field=None, view=None) -> float:
-    vals = [t["rms_uv_error"] for t in table if t["method"] == method and [t["n_min"], t["n_max"]] == list(nr)
-            and (field is None or t["field"] == field) and (view is None or t["view_deg"] == view)
-            and t["rms_uv_error"] is not None]  # fmt: skip
+    vals = [
+        t["rms_uv_error"]
+        for t in table
+        if t["method"] == method
+        and [t["n_min"], t["n_max"]] == list(nr)
+        and (field is None or t["field"] == field)
+        and (view is None or t["view_deg"] == view)
+        and t["rms_uv_error"] is not None
+    ]
     return float(np.sqrt(np.mean(np.square(vals)))) if vals else float("nan")
 
 
 MESH_MARGIN = 0.25
-"""The mesh's error must stay below this fraction of the stable POM's RMS visible-point error (n range of
-the image rows) for every field and view angle; the half-resolution mesh's difference to the fine one is
-used as the (conservative, ≈ 4× for a Δ² error) estimate of the fine mesh's own error."""
+"""The mesh's own error must stay below this fraction of the stable POM's RMS visible-point error (n range of
+the image rows) for every field and oblique view angle. The mesh interpolates h linearly, an O(Δ²) error:
+with e(Δ) = c·Δ², the fine and half-resolution meshes differ by e(2Δ) − e(Δ) = 3·e(Δ), so the fine mesh's
+error is estimated as a third of their RMS difference (Richardson). Measured (quick, s = 0.15, Δ = 1/512):
+0.04–0.20 of the stable POM error at θ_v = 20°–70°."""
 
 
 def reference_checks(ctx, cfg, uv_table, lights) -> list[dict]:
@@ -574,11 +623,11 @@ def reference_checks(ctx, cfg, uv_table, lights) -> list[dict]:
             if vt > 0:
                 checks.append(
                     {
-                        "name": f"{field} θ_v={vt:g}°: mesh error (fine vs half mesh, RMS) below "
-                        f"{MESH_MARGIN:g}× the stable POM error (n {nr[0]}–{nr[1]})",
-                        "value": mesh / pom if pom > 0 else float("inf"),
+                        "name": f"{field} θ_v={vt:g}°: the fine mesh's own error (⅓ of its RMS difference to "
+                        f"the half-resolution mesh) over the stable POM error (n {nr[0]}–{nr[1]})",
+                        "value": mesh / 3.0 / pom if pom > 0 else float("inf"),
                         "expected": f"≤ {MESH_MARGIN:g}",
-                        "passed": bool(mesh <= MESH_MARGIN * pom),
+                        "passed": bool(mesh / 3.0 <= MESH_MARGIN * pom),
                     }
                 )
             checks.append(
@@ -639,10 +688,13 @@ def hazard_checks(h: dict) -> list[dict]:
         },
         {
             "name": f"hazard LOD pop: largest shadow change between mip values {LOD_STEP:g} apart",
-            "value": f"listing {lod['listing']['max_shadow_step']:.3g} (at mip {lod['listing']['at_mip']:g}), "
+            "value": f"listing {lod['listing']['max_shadow_step']:.3g} "
+            f"(at mip {lod['listing']['at_mip']:g}), "
             f"stable {lod['stable']['max_shadow_step']:.3g}",
             "expected": "listing ≥ 0.05 (confirmed), stable ≤ 0.01",
-            "passed": bool(lod["listing"]["max_shadow_step"] >= 0.05 and lod["stable"]["max_shadow_step"] <= 0.01),
+            "passed": bool(
+                lod["listing"]["max_shadow_step"] >= 0.05 and lod["stable"]["max_shadow_step"] <= 0.01
+            ),
         },
     ]
 
@@ -657,14 +709,25 @@ def make_figures(out, cfg, case_docs, images, uv_table, costs) -> list[dict]:
         cid = doc["id"]
         ref = _grey(images[(cid, "reference")])
         panels = [(r.id, _grey(images[(cid, r.id)])) for r in ROWS]
-        path = F.image_comparison(fdir / f"{cid}.png", ref, panels, np.ones((g, g), bool),
-                                  error_scale=float(np.mean(ref)) + 1e-12, title=doc["label"])  # fmt: skip
+        path = F.image_comparison(
+            fdir / f"{cid}.png",
+            ref,
+            panels,
+            np.ones((g, g), bool),
+            error_scale=float(np.mean(ref)) + 1e-12,
+            title=doc["label"],
+        )
         rel = f"figures/{path.name}"
         for ap in doc["approximations"]:
             ap["figures"] = [rel]
-        figs.append({"file": rel, "section": "results",
-                     "caption": f"{doc['label']}: ray-traced reference radiance (pixels on the unit tile) and "
-                     "the rows; error maps relative to the mean radiance."})  # fmt: skip
+        figs.append(
+            {
+                "file": rel,
+                "section": "results",
+                "caption": f"{doc['label']}: ray-traced reference radiance (pixels on the unit tile) and "
+                "the rows; error maps relative to the mean radiance.",
+            }
+        )
     cost_by = {c["method"]: c for c in costs}
     series = []
     for mid in METHODS:
@@ -676,11 +739,22 @@ def make_figures(out, cfg, case_docs, images, uv_table, costs) -> list[dict]:
                 xs.append(c["ns_per_pixel"])
                 ys.append(e)
         series.append({"x": xs, "y": ys, "label": METHODS[mid].label, "style": "line"})
-    p = F.line_plot(fdir / "uv_error_vs_cost.png", "measured cost (ns per pixel)", "RMS visible-point error "
-                    "(texture units)", series, x_log=True, y_log=True)  # fmt: skip
-    figs.append({"file": f"figures/{p.name}", "section": "results",
-                 "caption": "Visible-point error (RMS over fields, view angles and pixels; finite pixels) vs "
-                 "measured kernel cost, one point per (n_min, n_max) of the sample-range table."})  # fmt: skip
+    p = F.line_plot(
+        fdir / "uv_error_vs_cost.png",
+        "measured cost (ns per pixel)",
+        "RMS visible-point error (texture units)",
+        series,
+        x_log=True,
+        y_log=True,
+    )
+    figs.append(
+        {
+            "file": f"figures/{p.name}",
+            "section": "results",
+            "caption": "Visible-point error (RMS over fields, view angles and pixels; finite pixels) vs "
+            "measured kernel cost, one point per (n_min, n_max) of the sample-range table.",
+        }
+    )
     return figs
 
 
@@ -692,45 +766,66 @@ NOTES = [
     "through (u₀, v₀, 0) along −V.",
     "Non-finite shader outputs (the listing's hazards) are shown as 0 in the radiance images and left out of "
     "the visible-point error, where they are counted instead.",
-    "The reference radiance is direct lighting only (one bounce from the area light): what the shader models.",
+    "The reference radiance is direct lighting only (one bounce from the area light): what the shader "
+    "models.",
 ]
 
 
 def sections(cfg, uv_table, hazards, costs, mesh_info) -> list[dict]:
     cost_by = {c["method"]: c for c in costs}
-    rows = ["| method | n_min–n_max | RMS uv error | max uv error | non-finite | ns/pixel |", "|---|---|---|---|---|---|"]
+    rows = [
+        "| method | n_min–n_max | RMS uv error | max uv error | non-finite | ns/pixel |",
+        "|---|---|---|---|---|---|",
+    ]
     for mid in METHODS:
         for nr in cfg["sample_ranges"]:
             sel = [t for t in uv_table if t["method"] == mid and [t["n_min"], t["n_max"]] == list(nr)]
             mx = max((t["max_uv_error"] or 0.0) for t in sel)
             nf = sum(t["non_finite"] for t in sel)
             c = cost_by.get(f"{mid}-{nr[0]}-{nr[1]}")
-            rows.append(f"| {mid} | {nr[0]}–{nr[1]} | {_rms_of(uv_table, mid, nr):.3g} | {mx:.3g} | {nf} | "
-                        f"{c['ns_per_pixel']:.3g} |" if c else "")  # fmt: skip
-    views = ["| field | θ_v | listing RMS | stable RMS | mesh (fine vs half) | mesh vs float64 root |",
-             "|---|---|---|---|---|---|"]  # fmt: skip
+            rows.append(
+                f"| {mid} | {nr[0]}–{nr[1]} | {_rms_of(uv_table, mid, nr):.3g} | {mx:.3g} | {nf} | "
+                f"{c['ns_per_pixel']:.3g} |"
+                if c
+                else ""
+            )
+    views = [
+        "| field | θ_v | listing RMS | stable RMS | mesh (fine vs half) | mesh vs float64 root |",
+        "|---|---|---|---|---|---|",
+    ]
     nr = cfg["n_range"]
     for field in cfg["fields"]:
         for vt in cfg["view_deg"]:
             r0 = next(t for t in uv_table if t["field"] == field and t["view_deg"] == vt)
-            views.append(f"| {field} | {vt:g}° | {_rms_of(uv_table, 'listing', nr, field, vt):.3g} | "
-                         f"{_rms_of(uv_table, 'stable', nr, field, vt):.3g} | {r0['mesh_rms']:.2g} | "
-                         f"{r0['oracle_rms']:.2g} |")  # fmt: skip
+            views.append(
+                f"| {field} | {vt:g}° | {_rms_of(uv_table, 'listing', nr, field, vt):.3g} | "
+                f"{_rms_of(uv_table, 'stable', nr, field, vt):.3g} | {r0['mesh_rms']:.2g} | "
+                f"{r0['oracle_rms']:.2g} |"
+            )
     hz = hazard_text(hazards)
     meshes = ", ".join(f"{f}: {v['vertices']} vertices, Δ = {v['spacing']:.3g}" for f, v in mesh_info.items())
     return [
         {
             "id": "method",
             "title": "Method",
-            "text": "Parallax occlusion mapping (000:1372-2148; listings 000:1723-2147): a linear search along "
+            "text": "Parallax occlusion mapping (000:1372-2148; listings 000:1723-2147): a linear search "
+            "along "
             "the parallax offset P = s·V_xy/V_z with n = trunc(lerp(n_max, n_min, N·V)) samples, the hit "
             "intersected on the piecewise-linear height profile, and a 7-sample soft shadow along the light "
             "(weights 1…12, softening k, remap ·0.6 + 0.4). Ground truth: the same procedural height field "
-            f"as a displaced Mitsuba mesh ({meshes}), first hits by ray_intersect, and Monte Carlo visibility of a square light.",
+            f"as a displaced Mitsuba mesh ({meshes}), first hits by ray_intersect, and Monte Carlo "
+            "visibility of a square light.",
         },
-        {"id": "uv", "title": "Visible-point error vs samples vs cost", "text": "\n".join(r for r in rows if r)},
-        {"id": "views", "title": "Visible-point error per view angle (n range of the images)",
-         "text": "\n".join(views)},  # fmt: skip
+        {
+            "id": "uv",
+            "title": "Visible-point error vs samples vs cost",
+            "text": "\n".join(r for r in rows if r),
+        },
+        {
+            "id": "views",
+            "title": "Visible-point error per view angle (n range of the images)",
+            "text": "\n".join(views),
+        },
         {"id": "hazards", "title": "The listing's hazards", "text": hz, "placement": "after_results"},
     ]
 
@@ -741,11 +836,12 @@ def hazard_text(h: dict) -> str:
     gz = h["grazing"]
     lod = h["lod"]
     lz = h["shadow_lz"]
+    counts = ", ".join(map(str, nc["listing"][:12])) + (", …" if len(nc["listing"]) > 12 else "")
     lines = [
         f"- **0/0 at normal incidence** (normalize(V_xy), 000:1786): confirmed — listing {ni['listing']} of "
         f"{h['normal_incidence']['pixels']} pixels non-finite at V = (0, 0, 1); stable {ni['stable']}.",
         f"- **NaN without a crossing** (000:2050-2053): confirmed — on a surface at the floor (h = 0) the "
-        f"listing returns NaN for n ∈ {{{', '.join(map(str, nc['listing'][:12]))}{', …' if len(nc['listing']) > 12 else ''}}} "
+        f"listing returns NaN for n ∈ {{{counts}}} "
         "(where the running bound 1 − Σ1/n ends at ≥ 0 in float32); stable: none.",
         f"- **Unclamped parallax offset** (000:1791-1795): confirmed at V_z = 0 (listing "
         f"{gz['listing@vz=0']['non_finite']} of 16 non-finite); at V_z = 10⁻⁴ the listing's |u| reaches "
@@ -753,11 +849,14 @@ def hazard_text(h: dict) -> str:
         f"precision); stable clamps V_z ≥ {METHODS['stable'].fixed['min_cos']:g} (|u| ≤ "
         f"{gz['stable@vz=0.0001']['max_abs_u']:.3g}).",
         "- **Shadow ray not divided by L_z** (000:2086): "
-        + "; ".join(f"{f}: fitted RMS residual listing {v['listing_rms_residual']:.3g} vs stable "
-                    f"{v['stable_rms_residual']:.3g} ({'confirmed' if v['confirmed'] else 'refuted'})"
-                    for f, v in lz.items())  # fmt: skip
+        + "; ".join(
+            f"{f}: fitted RMS residual listing {v['listing_rms_residual']:.3g} vs stable "
+            f"{v['stable_rms_residual']:.3g} ({'confirmed' if v['confirmed'] else 'refuted'})"
+            for f, v in lz.items()
+        )
         + ".",
-        f"- **LOD pop** (000:1960-2078): the listing lerps the coordinate but keeps the shadow at full strength "
+        f"- **LOD pop** (000:1960-2078): the listing lerps the coordinate but keeps the shadow at full "
+        "strength "
         f"up to mip = T and drops it beyond: largest shadow change {lod['listing']['max_shadow_step']:.3g} "
         f"between mip values {LOD_STEP:g} apart (at mip {lod['listing']['at_mip']:g}) — confirmed; the "
         f"coordinate is continuous except at mip = T exactly (frac = 0 gives the full offset back: jump "
@@ -772,8 +871,12 @@ def summary(cfg, uv_table, case_docs, hazards, fits, checks) -> str:
     passed = sum(c["passed"] for c in checks)
 
     def rel(row):
-        v = [ap["metrics"]["rel_mse"]["value"] for d in case_docs for ap in d["approximations"]
-             if ap["method"] == row and "rel_mse" in ap["metrics"]]  # fmt: skip
+        v = [
+            ap["metrics"]["rel_mse"]["value"]
+            for d in case_docs
+            for ap in d["approximations"]
+            if ap["method"] == row and "rel_mse" in ap["metrics"]
+        ]
         return float(np.mean(v)) if v else float("nan")
 
     k = {f: fits["stable"][f]["parameters"]["softening"]["value"] for f in fits["stable"]}
@@ -797,21 +900,30 @@ def _cost_inputs(n: int, Float):
     sin_v = np.sqrt(1 - cos_v**2)
     light = unit_vector(55.0, 200.0)
     np_in = {
-        "u0": rng.random(n), "v0": rng.random(n), "vx": sin_v * np.cos(phi), "vy": sin_v * np.sin(phi),
-        "vz": cos_v, "lx": np.full(n, light[0]), "ly": np.full(n, light[1]), "lz": np.full(n, light[2]),
+        "u0": rng.random(n),
+        "v0": rng.random(n),
+        "vx": sin_v * np.cos(phi),
+        "vy": sin_v * np.sin(phi),
+        "vz": cos_v,
+        "lx": np.full(n, light[0]),
+        "ly": np.full(n, light[1]),
+        "lz": np.full(n, light[2]),
         "mip": np.zeros(n),
-    }  # fmt: skip
+    }
     np_in = {k: v.astype(np.float32) for k, v in np_in.items()}
     return np_in, {k: Float(v) for k, v in np_in.items()}
 
 
 def _time(m, inputs, n):
     names = m.input_names
-    return time_drjit(lambda *a: m.evaluate(dict(zip(names, a, strict=True))), tuple(inputs[k] for k in names), n)
+    return time_drjit(
+        lambda *a: m.evaluate(dict(zip(names, a, strict=True))), tuple(inputs[k] for k in names), n
+    )
 
 
 def cost_rows(ctx, cfg) -> list[dict]:
-    """ns per pixel of each variant and sample range (bumps field, view zenith uniform in cos θ ∈ [0.15, 1])."""
+    """ns per pixel of each variant and sample range (bumps field, view zenith uniform in
+    cos θ ∈ [0.15, 1])."""
     backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
     Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
     n = cfg["cost_elements"]
@@ -823,12 +935,25 @@ def cost_rows(ctx, cfg) -> list[dict]:
     for mid in METHODS:
         for nr in ranges:
             m = configured_method(mid, cfg, "bumps", nr)
-            rows.append({"method": f"{mid}-{nr[0]}-{nr[1]}", "label": f"{METHODS[mid].label}, n {nr[0]}–{nr[1]}",
-                         "backend": backend, **_time(m, inputs, n).to_dict(),
-                         "note": "march + 7-sample shadow + LOD blend, float32"})  # fmt: skip
+            rows.append(
+                {
+                    "method": f"{mid}-{nr[0]}-{nr[1]}",
+                    "label": f"{METHODS[mid].label}, n {nr[0]}–{nr[1]}",
+                    "backend": backend,
+                    **_time(m, inputs, n).to_dict(),
+                    "note": "march + 7-sample shadow + LOD blend, float32",
+                }
+            )
     base = memory_baseline(tuple(inputs.values()), n)
-    rows.append({"method": "memory-baseline", "label": "memory traffic baseline (9 loads, 1 store)",
-                 "backend": backend, **base.to_dict(), "note": "the memory-bound floor"})  # fmt: skip
+    rows.append(
+        {
+            "method": "memory-baseline",
+            "label": "memory traffic baseline (9 loads, 1 store)",
+            "backend": backend,
+            **base.to_dict(),
+            "note": "the memory-bound floor",
+        }
+    )
     return rows
 
 
@@ -846,8 +971,10 @@ def bench(ctx) -> list[dict]:
         t_dr = _time(m, inputs, n)
         names = m.input_names
         with np.errstate(all="ignore"):
-            t_np = time_numpy(lambda *a, m=m, names=names: m(NUMPY_OPS, dict(zip(names, a, strict=True))),
-                              tuple(np_in[k] for k in names), n)  # fmt: skip
+            t_np = time_numpy(
+                lambda *a, m=m, names=names: m(NUMPY_OPS, dict(zip(names, a, strict=True))),
+                tuple(np_in[k] for k in names),
+                n,
+            )
         rows.append(comparison_row(m.label, backend, t_dr, t_np, base))
     return rows
-

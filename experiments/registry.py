@@ -97,8 +97,8 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "parallax-occlusion",
             "rtfit.experiments.parallax_occlusion",
             "Parallax occlusion mapping with soft shadows vs a displaced mesh and ray-traced penumbrae",
-            "The seed's linear search + piecewise-linear intersection and 7-sample soft shadow (as printed and "
-            "stable) against ray_intersect on the displaced height field and area-light visibility.",
+            "The seed's linear search + piecewise-linear intersection and 7-sample soft shadow (as printed "
+            "and stable) against ray_intersect on the displaced height field and area-light visibility.",
         ),
     ]
 }

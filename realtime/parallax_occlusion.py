@@ -53,9 +53,9 @@ __all__ = [
     "POM_SHADOW_FRACTIONS",
     "POM_SHADOW_WEIGHTS",
     "pom_height",
+    "pom_kernel",
     "pom_march_kernel",
     "pom_normal_kernel",
-    "pom_kernel",
     "pom_sample_count",
     "pom_shadow_kernel",
 ]
@@ -86,9 +86,11 @@ def _bumps(ops, u, v):
 
 
 def _ridges(ops, u, v):
-    """Sharp ridges along v of period 1/2: h = 1 − |sin(2πu)|^½ ∈ [0, 1] (a cusp at each crest; the
-    valleys are flat-bottomed plateaus of h near 0)."""
-    return 1.0 - ops.sqrt(ops.abs(ops.sin(TWO_PI * u)) + v * 0.0)
+    """Narrow smooth crests along v, period 1/2: h = ((1 + cos 4πu)/2)⁴ ∈ [0, 1] (crests of half-width
+    ≈ 0.07, wide flat valleys near h = 0: a brick/groove-like profile that is hard for the linear search)."""
+    c = 0.5 + 0.5 * ops.cos(2.0 * TWO_PI * u) + v * 0.0
+    c2 = c * c
+    return c2 * c2
 
 
 POM_HEIGHT_FIELDS: dict[str, Callable] = {
@@ -196,10 +198,13 @@ def pom_shadow_kernel(ops, u, v, lx, ly, lz, *, scale, softening, floor, field, 
     else:
         rx, ry = lx * scale, ly * scale
     h0 = hf(ops, u, v)
-    worst = None
-    for f, w in zip(POM_SHADOW_FRACTIONS, POM_SHADOW_WEIGHTS, strict=True):
-        sh = (hf(ops, u + rx * f, v + ry * f) - h0 - f) * (w * softening)
-        worst = sh if worst is None else ops.maximum(worst, sh)
+    samples = [
+        (hf(ops, u + rx * f, v + ry * f) - h0 - f) * (w * softening)
+        for f, w in zip(POM_SHADOW_FRACTIONS, POM_SHADOW_WEIGHTS, strict=True)
+    ]
+    worst = samples[0]
+    for sh in samples[1:]:
+        worst = ops.maximum(worst, sh)
     vis = 1.0 - worst
     if stable:
         vis = ops.clip(vis, 0.0, 1.0)

@@ -26,19 +26,25 @@ S = 0.1  # height-map range used throughout
 
 def method(mid: str, field: str, n=(8, 40), **fixed):
     m = METHODS[mid]
-    return dataclasses.replace(m, fixed={**m.fixed, "field": field, "scale": S, "n_min": n[0], "n_max": n[1],
-                                         **fixed})  # fmt: skip
+    return dataclasses.replace(
+        m, fixed={**m.fixed, "field": field, "scale": S, "n_min": n[0], "n_max": n[1], **fixed}
+    )
 
 
 def view(theta: float, phi: float) -> tuple[float, float, float]:
     return (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
 
 
-def run(m, u0, v0, V, L=(0.5, 0.0, math.sqrt(0.75)), mip=0.0, dtype=np.float64, params=None):
+L_DEFAULT = (0.5, 0.0, math.sqrt(0.75))
+
+
+def run(m, u0, v0, V, L=L_DEFAULT, mip=0.0, dtype: type = np.float64, params=None):
     u0 = np.atleast_1d(np.asarray(u0, dtype))
     v0 = np.broadcast_to(np.asarray(v0, dtype), u0.shape)
-    full = {k: np.full(u0.shape, x, dtype) for k, x in zip(("vx", "vy", "vz", "lx", "ly", "lz"), (*V, *L),
-                                                           strict=True)}  # fmt: skip
+    full = {
+        k: np.full(u0.shape, x, dtype)
+        for k, x in zip(("vx", "vy", "vz", "lx", "ly", "lz"), (*V, *L), strict=True)
+    }
     inputs = {"u0": u0, "v0": v0, **full, "mip": np.full(u0.shape, mip, dtype)}
     with np.errstate(all="ignore"):
         return tuple(np.asarray(x) for x in m(NUMPY_OPS, inputs, params))
@@ -85,7 +91,7 @@ def test_ramp_hit_is_exact_for_both_variants(theta, phi, n):
 
 
 def test_listing_first_segment_assumes_height_one():
-    """Erratum (000:2019, fPrevHeight = 1.0): the first segment's upper end is taken at height 1, not
+    """Erratum (000:2004, fPrevHeight = 1.0): the first segment's upper end is taken at height 1, not
     h(uv₀). With one sample on the plane h = 0.5 (first sample already below), the listing intersects the
     segment (1, 1)–(0, 0.5): t* = 1, no offset at all; the stable variant samples h(uv₀) and is exact
     (t* = 0.5)."""
@@ -121,8 +127,8 @@ def test_no_crossing_listing_nan_stable_floor():
 
 
 def test_unclamped_offset_at_grazing():
-    """Hazard unclamped parallax offsets: V_z = 0 → P infinite → non-finite hit (listing); stable clamps V_z to
-    min_cos and stays within s·/min_cos of uv₀."""
+    """Hazard unclamped parallax offsets: V_z = 0 → P infinite → non-finite hit (listing); stable clamps
+    V_z to min_cos and stays within s/min_cos of uv₀."""
     V = (1.0, 0.0, 0.0)
     u, _, _ = run(method("listing", "bumps"), [0.3], 0.3, V, dtype=np.float32)
     assert not np.isfinite(u[0])
@@ -145,8 +151,13 @@ def test_shadow_ray_divided_by_lz_matches_true_ramp_shadowing(theta_l, phi_l, u)
         return
     m = SHADOW_METHODS["stable-shadow"]
     m = dataclasses.replace(m, fixed={**m.fixed, "field": "ramp", "scale": S})
-    inputs = {"u": np.array([u]), "v": np.array([0.0]), "lx": np.array([L[0]]), "ly": np.array([L[1]]),
-              "lz": np.array([L[2]])}  # fmt: skip
+    inputs = {
+        "u": np.array([u]),
+        "v": np.array([0.0]),
+        "lx": np.array([L[0]]),
+        "ly": np.array([L[1]]),
+        "lz": np.array([L[2]]),
+    }
     # the first sample at f = 0.88 decides for a plane (sh_f ∝ f·(0.25·R_x − 1)): shadowed iff vis < 1
     vis = m(NUMPY_OPS, inputs, {"softening": 1.0, "floor": 0.0})
     lifted = max(L[2], m.fixed["min_cos"])
@@ -163,8 +174,13 @@ def test_listing_shadow_misses_the_ramps_self_shadow():
         m = SHADOW_METHODS[f"{mid}-shadow"]
         m = dataclasses.replace(m, fixed={**m.fixed, "field": "ramp", "scale": S, "min_cos": 1e-3})
         L = (math.cos(math.radians(1.0)), 0.0, math.sin(math.radians(1.0)))
-        inputs = {"u": np.array([0.0]), "v": np.array([0.0]), "lx": np.array([L[0]]), "ly": np.array([0.0]),
-                  "lz": np.array([L[2]])}  # fmt: skip
+        inputs = {
+            "u": np.array([0.0]),
+            "v": np.array([0.0]),
+            "lx": np.array([L[0]]),
+            "ly": np.array([0.0]),
+            "lz": np.array([L[2]]),
+        }
         vis = float(m(NUMPY_OPS, inputs, {"softening": 1.0, "floor": 0.0})[0])
         assert (vis < 1.0) == expect, mid
 
@@ -207,9 +223,17 @@ def test_drjit_run_matches_numpy_run():
     th = rng.uniform(0.0, 1.3, n)
     ph = rng.uniform(-3, 3, n)
     V = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
-    inputs = {"u0": rng.random(n), "v0": rng.random(n), "vx": V[0], "vy": V[1], "vz": V[2],
-              "lx": np.full(n, 0.5), "ly": np.full(n, 0.0), "lz": np.full(n, math.sqrt(0.75)),
-              "mip": rng.uniform(0, 5, n)}  # fmt: skip
+    inputs = {
+        "u0": rng.random(n),
+        "v0": rng.random(n),
+        "vx": V[0],
+        "vy": V[1],
+        "vz": V[2],
+        "lx": np.full(n, 0.5),
+        "ly": np.full(n, 0.0),
+        "lz": np.full(n, math.sqrt(0.75)),
+        "mip": rng.uniform(0, 5, n),
+    }
     inputs = {k: v.astype(np.float32) for k, v in inputs.items()}
     m = method("stable", "bumps", (4, 12))  # a short unrolled loop: the Dr.Jit compilation dominates
     a = m.evaluate(inputs)
