@@ -29,7 +29,7 @@ import math
 import drjit as dr
 import numpy as np
 
-from rtfit.fitting import compute_metrics, fit_method
+from rtfit.fitting import ALL_METRICS, compute_metrics, fit_method
 from rtfit.realtime import NUMPY_OPS, Method, set_default_backend
 from rtfit.realtime.parallax_occlusion import (
     METHODS,
@@ -70,6 +70,7 @@ CONFIG = {
     "sample_ranges": ConfigKey("int", "(n_min, n_max) of the error-vs-samples table", 1, 256, (None, 2)),
     "n_range": ConfigKey("int", "(n_min, n_max) of the image rows", 1, 256, (2,)),
     "cost_elements": ConfigKey("int", "elements per timed launch", 1024, 1 << 24),
+    "metrics": ConfigKey("str", "image metrics of the radiance rows", shape=(None,), choices=ALL_METRICS),
 }
 """Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
 
@@ -94,6 +95,7 @@ def configure(quick: bool, spp: int | None) -> dict:
             else [[2, 8], [4, 16], [8, 40], [16, 64], [32, 128]],
             "n_range": [8, 40],
             "cost_elements": 1 << (16 if quick else 20),
+            "metrics": ["rmse", "rel_mse", "mae", "max_abs", "psnr"] + ([] if quick else ["ssim", "flip"]),
         },
     )
 
@@ -490,7 +492,13 @@ def assemble(ctx, cfg, cases, uv_table, mesh_info, fits, lights, checks) -> dict
             rad, params = row_radiance(row, case, cfg, fits, light)
             img = rad.reshape(g, g)
             images[(case["id"], row.id)] = img
-            metrics = compute_metrics(_grey(img), _grey(ref_rad), _grey(np.maximum(ref_err, 1e-12)), mask)
+            metrics = compute_metrics(
+                _grey(img),
+                _grey(ref_rad),
+                _grey(np.maximum(ref_err, 1e-12)),
+                mask,
+                names=tuple(cfg["metrics"]),
+            )
             docs.append(
                 {
                     "method": row.id,
