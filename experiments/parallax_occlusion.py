@@ -708,12 +708,22 @@ def hazard_checks(h: dict) -> list[dict]:
 
 
 # ============================================================================================== figures
+def _row_metric(doc: dict, row: str, metric: str) -> float:
+    return next(
+        (ap["metrics"][metric]["value"] for ap in doc["approximations"] if ap["method"] == row),
+        float("nan"),
+    )
+
+
 def make_figures(out, cfg, case_docs, images, uv_table, costs) -> list[dict]:
     figs = []
     fdir = out / "figures"
     g = cfg["grid"]
-    order = [*case_docs[-1:], *case_docs[:1]]
-    for doc in order[: 2 if len(case_docs) > 1 else 1]:
+    # the most shadowed case, then the one where the stable row's radiance error is largest
+    shadowed = min(case_docs, key=lambda d: d["parameters"]["mean_visibility"])
+    others = [d for d in case_docs if d is not shadowed]
+    worst = max(others, key=lambda d: _row_metric(d, "stable", "rmse"), default=None)
+    for doc in [shadowed, *([worst] if worst else [])]:
         cid = doc["id"]
         ref = _grey(images[(cid, "reference")])
         panels = [(r.id, _grey(images[(cid, r.id)])) for r in ROWS]
