@@ -48,6 +48,7 @@ from rtfit.reference.parallax_occlusion import (
 from rtfit.reference.variants import use_variant
 
 from . import figures as F
+from . import fitted as fitfiles
 from .cost import bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 from .registry import SPP_MAX, ConfigKey, checked
 
@@ -556,19 +557,7 @@ def assemble(ctx, cfg, cases, uv_table, mesh_info, fits, lights, checks) -> dict
                 else None
             )
     figs = make_figures(out, cfg, case_docs, images, uv_table, costs)
-    fit_docs = [
-        {
-            "id": f"shadow-{mid}-{field}",
-            "label": f"{METHODS[mid].label}: shadow (k, floor), {field}",
-            "model": SHADOW_METHODS[f"{mid}-shadow"].formula,
-            "parameters": fit["parameters"],
-            "rms_residual": fit["rms_residual"],
-            "n_residuals": fit["n_residuals"],
-            "converged": fit["converged"],
-        }
-        for mid, per in fits.items()
-        for field, fit in per.items()
-    ]
+    fit_docs = write_fit_files(ctx, cfg, fits)
     return {
         "summary": summary(cfg, uv_table, case_docs, hazards, fits, checks),
         "config": cfg,
@@ -585,6 +574,51 @@ def assemble(ctx, cfg, cases, uv_table, mesh_info, fits, lights, checks) -> dict
 
 
 ROW_BY_ID = {r.id: r for r in ROWS}
+
+
+def write_fit_files(ctx, cfg, fits: dict) -> list[dict]:
+    """One fitted-parameter file per (shadow variant, field) — (k, floor) with their standard errors and
+    the GLSL/HLSL of the shadow traced from the kernel text — and the results' ``fits`` entries."""
+    docs = []
+    for mid, per in fits.items():
+        for field, fit in per.items():
+            m = configured_shadow(mid, cfg, field)
+            file = f"fitted/pom-shadow-{mid}-{field}.json"
+            entry = fitfiles.method_entry(
+                m,
+                fit,
+                label=f"{m.label}, {field}",
+                case=field,
+                domain={
+                    "light_zenith": (min(cfg["light_deg"]), max(cfg["light_deg"]), "deg"),
+                    "view_zenith": (min(cfg["view_deg"]), max(cfg["view_deg"]), "deg"),
+                    "height_map_range": (cfg["scale"], cfg["scale"], "texture units"),
+                },
+                residual_units="visibility / √(σ² + 0.01²)",
+            )
+            fitfiles.write_fitted(
+                ctx.out_dir / file,
+                fitfiles.FittedFile(
+                    format=fitfiles.FORMAT,
+                    title=f"parallax occlusion mapping: {m.label} (k, floor) fitted to ray-traced "
+                    f"visibility ({field})",
+                    provenance=fitfiles.provenance(ctx, "parallax-occlusion", [], cfg["light_samples"]),
+                    methods=[entry],
+                ),
+            )
+            docs.append(
+                {
+                    "id": f"shadow-{mid}-{field}",
+                    "label": f"{METHODS[mid].label}: shadow (k, floor), {field}",
+                    "model": m.formula,
+                    "parameters": fit["parameters"],
+                    "rms_residual": fit["rms_residual"],
+                    "n_residuals": fit["n_residuals"],
+                    "converged": fit["converged"],
+                    "file": file,
+                }
+            )
+    return docs
 
 
 def shadow_lz_summary(fits: dict) -> dict:
