@@ -108,6 +108,13 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "its cosine look-up against depth-1 Monte Carlo in an emissive room, and the impostor Hit search "
             "against exact ray_intersect hit points of a mirror and a glass sphere.",
         ),
+        ExperimentSpec(
+            "parallax-occlusion",
+            "rtfit.experiments.parallax_occlusion",
+            "Parallax occlusion mapping with soft shadows vs a displaced mesh and ray-traced penumbrae",
+            "The seed's linear search + piecewise-linear intersection and 7-sample soft shadow (as printed "
+            "and stable) against ray_intersect on the displaced height field and area-light visibility.",
+        ),
     ]
 }
 

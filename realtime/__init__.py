@@ -34,6 +34,8 @@ Modules:
                 function (the issue's public name), so the module's names are imported with
                 ``from rtfit.realtime.volumetric_lightning import METHODS`` (``import
                 rtfit.realtime.volumetric_lightning as m`` binds the function).
+    parallax_occlusion  parallax occlusion mapping with soft self-shadowing: the seed's listing and a
+                stable variant, procedural height fields (docs/parallax-occlusion.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
                 decorator for a user's own formula (docs/audit.md, "Your own approximation").
     shader      GLSL/HLSL text traced from the kernels (`SHADER_OPS`, `shader_function`).
@@ -51,6 +53,7 @@ from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
+from .parallax_occlusion import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .quantities import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
@@ -72,6 +75,7 @@ MODULES = (
     "sdf_occlusion",
     "nishita_sky",
     "volumetric_lightning",
+    "parallax_occlusion",
     "quantities",
     "shader",
 )
