@@ -93,6 +93,14 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "The closed-form line integral of i/(1 + a·r²) (stable float32 form vs the printed one) against "
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
         ),
+        ExperimentSpec(
+            "obscurances",
+            "rtfit.experiments.obscurances",
+            "Obscurances (Zhukov/Iones) vs their Monte Carlo definition and uniform-ambient path tracing",
+            "The K-ray obscurance estimator with the seed's √(d/d_max) against the model's ray-cast definition "
+            "(error vs rays vs cost), and fitted d_max, exponent and ambient scale against path-traced "
+            "interreflections under a uniform ambient, on the sdf-occlusion scenes.",
+        ),
     ]
 }
 

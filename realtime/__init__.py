@@ -30,6 +30,8 @@ Modules:
                 function (the issue's public name), so the module's names are imported with
                 ``from rtfit.realtime.volumetric_lightning import METHODS`` (``import
                 rtfit.realtime.volumetric_lightning as m`` binds the function).
+    obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
+                estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
                 decorator for a user's own formula (docs/audit.md, "Your own approximation").
     shader      GLSL/HLSL text traced from the kernels (`SHADER_OPS`, `shader_function`).
@@ -45,6 +47,7 @@ from .height_fog import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
+from .obscurances import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .quantities import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
@@ -64,6 +67,7 @@ MODULES = (
     "sdf_occlusion",
     "nishita_sky",
     "volumetric_lightning",
+    "obscurances",
     "quantities",
     "shader",
 )
