@@ -90,11 +90,16 @@ def rho_exponential(ops, d, d_max):
 
 def rho_step(ops, d, d_max):
     """ρ(d) = [d ≥ d_max]: W becomes the ambient occlusion within R = d_max."""
-    return ops.select(d >= d_max, 1.0 + 0.0 * d, 0.0 * d)
+    zero = 0.0 * ops.minimum(d, d_max)  # (0·∞ would be NaN)
+    return ops.select(d >= d_max, zero + 1.0, zero)
 
 
 def _ray_mean(distances, rho) -> Any:
-    """(1/K) Σ_k ρ(d_k) over the K rows of ``distances`` (a sequence of arrays or a (K, N) array)."""
+    """(1/K) Σ_k ρ(d_k) over the K rows of ``distances``: a sequence of K arrays (Dr.Jit: one fused kernel),
+    or a (K, N) NumPy/JAX array (ρ on the whole array, then its mean over the rays: a small JAX graph for
+    the fits whatever K is)."""
+    if getattr(distances, "ndim", 0) == 2:
+        return rho(distances).mean(axis=0)
     k = len(distances)
     acc: Any = None
     for i in range(k):
