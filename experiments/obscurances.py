@@ -23,7 +23,8 @@ AO within d_max) and the d_max → ∞ limit (W → AO(∞)) are checked against
 
 Self-checks (closed forms, `rtfit.realtime.obscurances.plane_facing_obscurance`): an open plane gives W = 1
 exactly (reference and estimator); a point facing an infinite plane from height h matches the closed forms of
-the power, exponential and step ρ (z-test); a point at the centre of a sphere has W = ρ(R) exactly; the uniform
+the power, exponential and step ρ (z-test); a point at the centre of a sphere has W = ρ(R) exactly; the
+uniform
 ambient facing a plane of albedo a is a (white furnace); the d_max → 0 and → ∞ limits; the estimator's bias
 against reference (a) is zero within its noise; W_power ≥ AO(d_max) on every point.
 """
@@ -120,8 +121,22 @@ def _ref_dict(r) -> dict:
 
 
 # ================================================================================================= jobs
-def render_case(name, resolution, spp, pass_spp, seed, variant, cache_dir, d_max, exponent, rays, fit_rays,
-                albedo, ao_distance, identities) -> dict:  # fmt: skip
+def render_case(
+    name,
+    resolution,
+    spp,
+    pass_spp,
+    seed,
+    variant,
+    cache_dir,
+    d_max,
+    exponent,
+    rays,
+    fit_rays,
+    albedo,
+    ao_distance,
+    identities,
+) -> dict:
     """Job: one scene's G-buffer, references (a) and (b), the shared ``ao`` references, and the hit
     distances of the K-ray estimators (plain data out). ``identities``: also the step-ρ and d_max → ∞
     references of the identity checks."""
@@ -136,9 +151,18 @@ def render_case(name, resolution, spp, pass_spp, seed, variant, cache_dir, d_max
 
     def ref(quantity, **kw):
         return cache.get(
-            mi, mi_scene, geo, pts, nrm, spp=spp, pass_spp=pass_spp, seed=seed, variant=variant,
-            quantity=quantity, **kw
-        )  # fmt: skip
+            mi,
+            mi_scene,
+            geo,
+            pts,
+            nrm,
+            spp=spp,
+            pass_spp=pass_spp,
+            seed=seed,
+            variant=variant,
+            quantity=quantity,
+            **kw,
+        )
 
     fn, key = weight_of("power", d_max, exponent)
     refs = {
@@ -183,8 +207,9 @@ def _probe_scene(mi, kind: str):
     return mi.load_dict({"type": "scene", "shape": {**shape, "bsdf": white}})
 
 
-def probe_job(variant: str, cache_dir: str, seed: int, probe_spp: int, d_max: float, exponent: float,
-              albedo: float) -> dict:  # fmt: skip
+def probe_job(
+    variant: str, cache_dir: str, seed: int, probe_spp: int, d_max: float, exponent: float, albedo: float
+) -> dict:
     """Job: the closed-form configurations (plain data out)."""
     mi = __import__("mitsuba")
     mi.set_variant(variant)
@@ -194,8 +219,19 @@ def probe_job(variant: str, cache_dir: str, seed: int, probe_spp: int, d_max: fl
     per = min(probe_spp, 1024)
 
     def ref(scene, tag, pts, nrm, quantity, **kw):
-        return cache.get(mi, scene, f"obscurance-probe-{tag}", pts, nrm, spp=probe_spp, pass_spp=per,
-                         seed=seed, variant=variant, quantity=quantity, **kw)  # fmt: skip
+        return cache.get(
+            mi,
+            scene,
+            f"obscurance-probe-{tag}",
+            pts,
+            nrm,
+            spp=probe_spp,
+            pass_spp=per,
+            seed=seed,
+            variant=variant,
+            quantity=quantity,
+            **kw,
+        )
 
     # open plane: points on it facing up, nothing above
     op = np.column_stack([np.linspace(-2, 2, 16), np.linspace(-1, 1, 16), np.zeros(16)])
@@ -222,7 +258,9 @@ def probe_job(variant: str, cache_dir: str, seed: int, probe_spp: int, d_max: fl
     sn = np.vstack([np.eye(3), -np.eye(3)])
     fn, key = weight_of("power", d_max * 4.0, exponent)
     out["sphere_model"] = ref(sphere, "sphere", sp, sn, "obscurance", distance_weight=fn, weight_key=key).mean
-    out["sphere_distances"] = hit_distances(mi, sphere, sp, sn, cosine_spiral_directions(32), rotate_seed=seed)
+    out["sphere_distances"] = hit_distances(
+        mi, sphere, sp, sn, cosine_spiral_directions(32), rotate_seed=seed
+    )
     return out
 
 
@@ -280,9 +318,12 @@ def _values(fit: dict) -> dict:
 # ================================================================================================ cases
 def _metrics(img, ref_img, err_img, mask):
     return compute_metrics(
-        img[..., None].repeat(3, -1), ref_img[..., None].repeat(3, -1), err_img[..., None].repeat(3, -1),
-        mask, names=METRICS,
-    ).to_dict()  # fmt: skip
+        img[..., None].repeat(3, -1),
+        ref_img[..., None].repeat(3, -1),
+        err_img[..., None].repeat(3, -1),
+        mask,
+        names=METRICS,
+    ).to_dict()
 
 
 def _image(mask, values):
@@ -306,15 +347,29 @@ def _eval(method_id: str, distances, params: dict | None = None):
 def ambient_rows(cfg, r, fits, name):
     """(row id, label, fitted, parameters, prediction) of the uniform-ambient case of scene ``name``."""
     d = r["distances"][cfg["fit_rays"]]
-    rows = [("seed", METHODS["seed"].label, False, {"d_max": SEED_D_MAX, "exponent": SEED_EXPONENT},
-             _eval("seed", d))]  # fmt: skip
+    rows = [
+        (
+            "seed",
+            METHODS["seed"].label,
+            False,
+            {"d_max": SEED_D_MAX, "exponent": SEED_EXPONENT},
+            _eval("seed", d),
+        )
+    ]
     for mid in FIT_METHODS:
         for which, fit in (("", fits[mid]["per_scene"][name]), ("-joint", fits[mid]["joint"])):
             p = _values(fit)
             label = METHODS[mid].label + (" — one joint set" if which else " — fitted per scene")
             rows.append((mid + which, label, True, p, _eval(mid, d, p)))
-    rows.append(("ao", f"AO within {cfg['ao_distance']:g} (step ρ)", False, {"d_max": cfg["ao_distance"]},
-                 _eval("ao", d, {"d_max": cfg["ao_distance"]})))  # fmt: skip
+    rows.append(
+        (
+            "ao",
+            f"AO within {cfg['ao_distance']:g} (step ρ)",
+            False,
+            {"d_max": cfg["ao_distance"]},
+            _eval("ao", d, {"d_max": cfg["ao_distance"]}),
+        )
+    )
     return rows
 
 
@@ -323,8 +378,15 @@ def model_rows(cfg, r):
     out = []
     for k in cfg["rays"]:
         p = {"d_max": cfg["d_max"], "exponent": cfg["exponent"]}
-        out.append((f"rays-{k}", f"{k} rays per point", False, {"rays": k},
-                    _eval("power", r["distances"][k], {**p, "scale": 1.0})))  # fmt: skip
+        out.append(
+            (
+                f"rays-{k}",
+                f"{k} rays per point",
+                False,
+                {"rays": k},
+                _eval("power", r["distances"][k], {**p, "scale": 1.0}),
+            )
+        )
     return out
 
 
@@ -340,21 +402,40 @@ def evaluate_cases(cfg, rendered, fits):
             for rid, label, fitted, params, pred in rows:
                 met = _metrics(_image(mask, pred), ref_img, err_img, mask)
                 errors[(n, target, rid)] = met["rmse"]["value"]
-                approx.append({"method": rid, "label": label, "fitted": fitted,
-                               "parameters": {k: float(v) for k, v in params.items()}, "metrics": met,
-                               "cost": None, "figures": []})  # fmt: skip
-            docs.append({
-                "id": f"{n}-{target}".replace("_", ""),
-                "label": f"{n.replace('_', ' ')}: " + (
-                    f"obscurance W (ρ = min(d/{cfg['d_max']:g}, 1)^{cfg['exponent']:g}), Monte Carlo of the model"
-                    if target == "model" else f"uniform ambient with interreflections (albedo {cfg['albedo']:g}), E/πL"),
-                "parameters": {"scene": n, "target": target, "d_max": cfg["d_max"], "exponent": cfg["exponent"],
-                               "albedo": cfg["albedo"] if target == "ambient" else None,
-                               "fit_rays": cfg["fit_rays"] if target == "ambient" else None},
-                "scene": {"name": f"sdf-{n}", "hash": r["scene_hash"]},
-                "reference": ref["meta"],
-                "approximations": approx,
-            })  # fmt: skip
+                approx.append(
+                    {
+                        "method": rid,
+                        "label": label,
+                        "fitted": fitted,
+                        "parameters": {k: float(v) for k, v in params.items()},
+                        "metrics": met,
+                        "cost": None,
+                        "figures": [],
+                    }
+                )
+            docs.append(
+                {
+                    "id": f"{n}-{target}".replace("_", ""),
+                    "label": f"{n.replace('_', ' ')}: "
+                    + (
+                        f"obscurance W (ρ = min(d/{cfg['d_max']:g}, 1)^{cfg['exponent']:g}), "
+                        "Monte Carlo of the model"
+                        if target == "model"
+                        else f"uniform ambient with interreflections (albedo {cfg['albedo']:g}), E/πL"
+                    ),
+                    "parameters": {
+                        "scene": n,
+                        "target": target,
+                        "d_max": cfg["d_max"],
+                        "exponent": cfg["exponent"],
+                        "albedo": cfg["albedo"] if target == "ambient" else None,
+                        "fit_rays": cfg["fit_rays"] if target == "ambient" else None,
+                    },
+                    "scene": {"name": f"sdf-{n}", "hash": r["scene_hash"]},
+                    "reference": ref["meta"],
+                    "approximations": approx,
+                }
+            )
     return docs, errors
 
 
@@ -377,37 +458,75 @@ def make_checks(cfg, rendered, probes, errors) -> list[dict]:
     # open plane: exactly 1 (all rays escape: zero variance)
     for key, what in (("open_model", "reference (a)"), ("open_ambient", "reference (b)")):
         dev = float(np.max(np.abs(probes[key] - 1.0)))
-        checks.append(_check(f"open plane: {what} is exactly 1 (16 points)", dev, "max |W − 1| = 0", dev == 0.0))
+        checks.append(
+            _check(f"open plane: {what} is exactly 1 (16 points)", dev, "max |W − 1| = 0", dev == 0.0)
+        )
     w = _eval("power", probes["open_distances"], {"d_max": cfg["d_max"], "exponent": cfg["exponent"]})
     dev = float(np.max(np.abs(w - 1.0)))
     checks.append(_check("open plane: 64-ray estimator is exactly 1", dev, "max |W − 1| = 0", dev == 0.0))
     # point facing an infinite plane: closed forms
     for form, f in probes["facing"].items():
-        checks.append(_z_max(
-            f"point facing a plane at h = {', '.join(f'{h:g}' for h in PROBE_HEIGHTS)}: Monte Carlo W ({form} ρ) "
-            "vs closed form (max |z|)", f["mean"], f["stderr"], f["expected"], 0.0))  # fmt: skip
+        checks.append(
+            _z_max(
+                f"point facing a plane at h = {', '.join(f'{h:g}' for h in PROBE_HEIGHTS)}: "
+                f"Monte Carlo W ({form} ρ) "
+                "vs closed form (max |z|)",
+                f["mean"],
+                f["stderr"],
+                f["expected"],
+                0.0,
+            )
+        )
     fur = probes["furnace"]
-    checks.append(_z_max(f"uniform ambient facing a plane of albedo {cfg['albedo']:g} equals the albedo (max |z|)",
-                         fur["mean"], fur["stderr"], np.full(len(fur["mean"]), cfg["albedo"]), 0.0))  # fmt: skip
+    checks.append(
+        _z_max(
+            f"uniform ambient facing a plane of albedo {cfg['albedo']:g} equals the albedo (max |z|)",
+            fur["mean"],
+            fur["stderr"],
+            np.full(len(fur["mean"]), cfg["albedo"]),
+            0.0,
+        )
+    )
     # sphere centre: W = ρ(R) exactly
     rho_r = min(SPHERE_RADIUS / (4.0 * cfg["d_max"]), 1.0) ** cfg["exponent"]  # every ray hits at R
-    est = _eval("power", probes["sphere_distances"], {"d_max": 4.0 * cfg["d_max"], "exponent": cfg["exponent"]})
+    est = _eval(
+        "power", probes["sphere_distances"], {"d_max": 4.0 * cfg["d_max"], "exponent": cfg["exponent"]}
+    )
     dev = float(max(np.max(np.abs(probes["sphere_model"] - rho_r)), np.max(np.abs(est - rho_r))))
     # rays start at Mitsuba's spawn offset (≈ 9e-5 along n for |p| ≈ 0): |Δd| ≤ 1e-4, ρ'(0.7) = 0.48/unit
-    checks.append(_check("centre of a sphere: W = ρ(R) (reference and estimator)", dev,
-                         "≤ 1e-4 (spawn offset × ρ′)", dev <= 1e-4))  # fmt: skip
-    # identities on the first scene: step ρ = AO within R (sdf-occlusion's shared reference), d_max → ∞ = AO(∞)
+    checks.append(
+        _check(
+            "centre of a sphere: W = ρ(R) (reference and estimator)",
+            dev,
+            "≤ 1e-4 (spawn offset × ρ′)",
+            dev <= 1e-4,
+        )
+    )
+    # identities on the first scene: step ρ = AO within R (sdf-occlusion's shared reference),
+    # d_max → ∞ = AO(∞)
     first = rendered[cfg["scenes"][0]]["refs"]
     # Both quantities draw the same cosine directions from the same streams (common random numbers: same
     # seed, points and pass layout), so the identities hold sample by sample: a difference can come only from
     # a hit at exactly t = R (one sample: 1/spp) or from ρ(d) = √(d/1e30) ≤ 1e-14 at finite d.
     dev = float(np.max(np.abs(first["step"]["mean"] - first["ao"]["mean"])))
-    checks.append(_check(f"step ρ at d_max = {cfg['ao_distance']:g} equals sdf-occlusion's AO within R, sample by "
-                         f"sample ({cfg['scenes'][0]}, shared cache entry)", dev, f"≤ 1/spp = {1 / cfg['spp']:.3g}",
-                         dev <= 1.0 / cfg["spp"]))  # fmt: skip
+    checks.append(
+        _check(
+            f"step ρ at d_max = {cfg['ao_distance']:g} equals sdf-occlusion's AO within R, sample by "
+            f"sample ({cfg['scenes'][0]}, shared cache entry)",
+            dev,
+            f"≤ 1/spp = {1 / cfg['spp']:.3g}",
+            dev <= 1.0 / cfg["spp"],
+        )
+    )
     dev = float(np.max(np.abs(first["far"]["mean"] - first["ao_inf"]["mean"])))
-    checks.append(_check(f"d_max = 1e30 (→ ∞) equals AO with R = ∞, sample by sample ({cfg['scenes'][0]})", dev,
-                         "≤ 1e-12", dev <= 1e-12))  # fmt: skip
+    checks.append(
+        _check(
+            f"d_max = 1e30 (→ ∞) equals AO with R = ∞, sample by sample ({cfg['scenes'][0]})",
+            dev,
+            "≤ 1e-12",
+            dev <= 1e-12,
+        )
+    )
     # kernel limits and inequalities on the rendered distances
     worst_far = worst_zero = worst_order = 0.0
     for n in cfg["scenes"]:
@@ -420,11 +539,25 @@ def make_checks(cfg, rendered, probes, errors) -> list[dict]:
         wp = _eval("power", d, {"exponent": cfg["exponent"], "scale": 1.0, "d_max": cfg["ao_distance"]})
         ao = _eval("ao", d, {"d_max": cfg["ao_distance"]})
         worst_order = max(worst_order, float(np.max(ao - wp)))
-    checks.append(_check("estimator at d_max = 1e30 equals the escaping fraction (every scene)", worst_far,
-                         "≤ 1e-12", worst_far <= 1e-12))  # fmt: skip
-    checks.append(_check("estimator at d_max = 1e-30 is 1 (every scene)", worst_zero, "= 0", worst_zero == 0.0))
-    checks.append(_check("W_power(d_max) ≥ AO within d_max on every point (max AO − W)", worst_order, "≤ 1e-6",
-                         worst_order <= 1e-6))  # fmt: skip
+    checks.append(
+        _check(
+            "estimator at d_max = 1e30 equals the escaping fraction (every scene)",
+            worst_far,
+            "≤ 1e-12",
+            worst_far <= 1e-12,
+        )
+    )
+    checks.append(
+        _check("estimator at d_max = 1e-30 is 1 (every scene)", worst_zero, "= 0", worst_zero == 0.0)
+    )
+    checks.append(
+        _check(
+            "W_power(d_max) ≥ AO within d_max on every point (max AO − W)",
+            worst_order,
+            "≤ 1e-6",
+            worst_order <= 1e-6,
+        )
+    )
     # the estimator is unbiased for the model: mean difference to reference (a) within its noise, every K
     zs = []
     for n in cfg["scenes"]:
@@ -435,17 +568,39 @@ def make_checks(cfg, rendered, probes, errors) -> list[dict]:
             zs.append(float(np.mean(diff) / (np.std(diff, ddof=1) / math.sqrt(diff.size))))
     thr = max(4.0, sidak_threshold(len(zs)))
     v = float(np.max(np.abs(zs)))
-    checks.append(_check("K-ray estimator unbiased against reference (a): |mean difference|/its stderr, every "
-                         "scene and K", v, f"≤ {thr:.2f}", v <= thr))  # fmt: skip
+    checks.append(
+        _check(
+            "K-ray estimator unbiased against reference (a): |mean difference|/its stderr, every scene and K",
+            v,
+            f"≤ {thr:.2f}",
+            v <= thr,
+        )
+    )
     # error falls with rays
-    bad = [n for n in cfg["scenes"] if errors[(n, "model", f"rays-{max(cfg['rays'])}")]
-           >= errors[(n, "model", f"rays-{min(cfg['rays'])}")]]  # fmt: skip
-    checks.append(_check(f"RMSE at {max(cfg['rays'])} rays below {min(cfg['rays'])} rays (scenes failing)",
-                         len(bad), "0", not bad))  # fmt: skip
+    bad = [
+        n
+        for n in cfg["scenes"]
+        if errors[(n, "model", f"rays-{max(cfg['rays'])}")]
+        >= errors[(n, "model", f"rays-{min(cfg['rays'])}")]
+    ]
+    checks.append(
+        _check(
+            f"RMSE at {max(cfg['rays'])} rays below {min(cfg['rays'])} rays (scenes failing)",
+            len(bad),
+            "0",
+            not bad,
+        )
+    )
     # fits never worse than the seed
     bad = [n for n in cfg["scenes"] if errors[(n, "ambient", "power")] > errors[(n, "ambient", "seed")]]
-    checks.append(_check("fitted power obscurance no worse than the seed's (uniform ambient, scenes failing)",
-                         len(bad), "0", not bad))  # fmt: skip
+    checks.append(
+        _check(
+            "fitted power obscurance no worse than the seed's (uniform ambient, scenes failing)",
+            len(bad),
+            "0",
+            not bad,
+        )
+    )
     return checks
 
 
@@ -454,23 +609,66 @@ def make_figures(out, cfg, rendered, errors, costs) -> list[dict]:
     figs = []
     series = []
     for n in cfg["scenes"]:
-        series.append({"x": list(cfg["rays"]), "y": [errors[(n, "model", f"rays-{k}")] for k in cfg["rays"]],
-                       "label": n.replace("_", " "), "style": "line"})  # fmt: skip
+        series.append(
+            {
+                "x": list(cfg["rays"]),
+                "y": [errors[(n, "model", f"rays-{k}")] for k in cfg["rays"]],
+                "label": n.replace("_", " "),
+                "style": "line",
+            }
+        )
     k = np.array(cfg["rays"], dtype=float)
-    series.append({"x": k.tolist(), "y": (series[0]["y"][0] * np.sqrt(k[0] / k)).tolist(), "label": "∝ 1/√K",
-                   "style": "line"})  # fmt: skip
-    p = figures.line_plot(out / "rays_error.png", "rays per point K", "RMSE vs reference (a)", series,
-                          "Obscurance estimator: error vs rays", x_log=True, y_log=True)  # fmt: skip
-    figs.append({"file": p.name, "caption": "RMSE of the K-ray seed estimator against the model's Monte Carlo "
-                 "reference (a) for each scene; the dashed slope is 1/√K.", "section": "rays"})  # fmt: skip
+    series.append(
+        {
+            "x": k.tolist(),
+            "y": (series[0]["y"][0] * np.sqrt(k[0] / k)).tolist(),
+            "label": "∝ 1/√K",
+            "style": "line",
+        }
+    )
+    p = figures.line_plot(
+        out / "rays_error.png",
+        "rays per point K",
+        "RMSE vs reference (a)",
+        series,
+        "Obscurance estimator: error vs rays",
+        x_log=True,
+        y_log=True,
+    )
+    figs.append(
+        {
+            "file": p.name,
+            "caption": "RMSE of the K-ray seed estimator against the model's Monte Carlo "
+            "reference (a) for each scene; the dashed slope is 1/√K.",
+            "section": "rays",
+        }
+    )
     cs = [c for c in costs if c["method"].startswith("rays-")]
     if cs:
         mean_err = [float(np.mean([errors[(n, "model", c["method"])] for n in cfg["scenes"]])) for c in cs]
-        p = figures.line_plot(out / "rays_cost.png", "ns per point (ray casts + kernel, CPU)", "mean RMSE",
-                              [{"x": [c["ns_per_pixel"] for c in cs], "y": mean_err, "label": "seed estimator",
-                                "style": "line"}], "Error vs cost", x_log=True, y_log=True)  # fmt: skip
-        figs.append({"file": p.name, "caption": "Mean RMSE over the scenes against the measured cost per point.",
-                     "section": "rays"})  # fmt: skip
+        p = figures.line_plot(
+            out / "rays_cost.png",
+            "ns per point (ray casts + kernel, CPU)",
+            "mean RMSE",
+            [
+                {
+                    "x": [c["ns_per_pixel"] for c in cs],
+                    "y": mean_err,
+                    "label": "seed estimator",
+                    "style": "line",
+                }
+            ],
+            "Error vs cost",
+            x_log=True,
+            y_log=True,
+        )
+        figs.append(
+            {
+                "file": p.name,
+                "caption": "Mean RMSE over the scenes against the measured cost per point.",
+                "section": "rays",
+            }
+        )
     n0 = cfg["scenes"][-1]
     r = rendered[n0]
     return figs + _maps(out, cfg, r, n0)
@@ -480,11 +678,20 @@ def _maps(out, cfg, r, name) -> list[dict]:
     mask = r["mask"]
     ref = _image(mask, r["refs"]["ambient"]["mean"])
     d = r["distances"][cfg["fit_rays"]]
-    panels = [("seed", _image(mask, _eval("seed", d))), ("AO R=1", _image(mask, _eval("ao", d, {"d_max": 1.0})))]
-    p = figures.image_comparison(out / f"maps_{name}.png", ref, panels, mask, 0.5,
-                                 f"{name}: uniform ambient (E/πL) vs obscurance")  # fmt: skip
-    return [{"file": p.name, "caption": f"{name}: reference (b) and two estimators with their signed error.",
-             "section": "fits"}]  # fmt: skip
+    panels = [
+        ("seed", _image(mask, _eval("seed", d))),
+        ("AO R=1", _image(mask, _eval("ao", d, {"d_max": 1.0}))),
+    ]
+    p = figures.image_comparison(
+        out / f"maps_{name}.png", ref, panels, mask, 0.5, f"{name}: uniform ambient (E/πL) vs obscurance"
+    )
+    return [
+        {
+            "file": p.name,
+            "caption": f"{name}: reference (b) and two estimators with their signed error.",
+            "section": "fits",
+        }
+    ]
 
 
 # ================================================================================================= cost
@@ -497,18 +704,32 @@ def measure_costs(cfg, rendered) -> list[dict]:
     Float = _float()
     n = int(cfg["cost_points"])
     rng = np.random.default_rng(1)
+    kern = METHODS["power"].kernel
     for k in cfg["rays"]:
         secs = sum(rendered[s]["ray_seconds"][k] for s in cfg["scenes"])
         pts = sum(rendered[s]["points"].shape[0] for s in cfg["scenes"])
         rows_d = [Float(rng.exponential(0.5, n).astype(np.float32)) for _ in range(k)]
-        kern = METHODS["power"].kernel
-        t = time_drjit(lambda *x: kern(DRJIT_OPS, list(x), d_max=cfg["d_max"], exponent=cfg["exponent"]),
-                       tuple(rows_d), n, repeats=3, min_seconds=0.05)  # fmt: skip
+        t = time_drjit(
+            lambda *x: kern(DRJIT_OPS, list(x), d_max=cfg["d_max"], exponent=cfg["exponent"]),
+            tuple(rows_d),
+            n,
+            repeats=3,
+            min_seconds=0.05,
+        )
         ns = secs / pts * 1e9 + t.ns_per_element
-        rows.append({"method": f"rays-{k}", "label": f"{k} rays: ray casts + ρ kernel", "backend": get_default_backend(),
-                     "ns_per_pixel": ns, "pixels_per_second": 1e9 / ns, "elements": n, "repeats": t.repeats,
-                     "note": f"ray casts {secs / pts * 1e9:.0f} ns/point (Mitsuba, inside the render job, "
-                             f"wall clock), kernel {t.ns_per_element:.1f} ns/point"})  # fmt: skip
+        rows.append(
+            {
+                "method": f"rays-{k}",
+                "label": f"{k} rays: ray casts + ρ kernel",
+                "backend": get_default_backend(),
+                "ns_per_pixel": ns,
+                "pixels_per_second": 1e9 / ns,
+                "elements": n,
+                "repeats": t.repeats,
+                "note": f"ray casts {secs / pts * 1e9:.0f} ns/point (Mitsuba, inside the render job, "
+                f"wall clock), kernel {t.ns_per_element:.1f} ns/point",
+            }
+        )
     return rows
 
 
@@ -517,16 +738,43 @@ def run(ctx) -> dict:
     from .jobs import Job
 
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    common = dict(resolution=cfg["resolution"], spp=cfg["spp"], pass_spp=cfg["pass_spp"], seed=ctx.seed,
-                  variant=ctx.variant, cache_dir=str(ctx.cache_dir), d_max=cfg["d_max"],
-                  exponent=cfg["exponent"], rays=list(cfg["rays"]), fit_rays=cfg["fit_rays"],
-                  albedo=cfg["albedo"], ao_distance=cfg["ao_distance"])  # fmt: skip
-    jobs = [Job("rtfit.experiments.obscurances:render_case",
-                dict(name=n, identities=(n == cfg["scenes"][0]), **common), label=n) for n in cfg["scenes"]]
-    jobs.append(Job("rtfit.experiments.obscurances:probe_job",
-                    dict(variant=ctx.variant, cache_dir=str(ctx.cache_dir), seed=ctx.seed,
-                         probe_spp=cfg["probe_spp"], d_max=cfg["d_max"], exponent=cfg["exponent"],
-                         albedo=cfg["albedo"]), label="probes"))  # fmt: skip
+    common = dict(
+        resolution=cfg["resolution"],
+        spp=cfg["spp"],
+        pass_spp=cfg["pass_spp"],
+        seed=ctx.seed,
+        variant=ctx.variant,
+        cache_dir=str(ctx.cache_dir),
+        d_max=cfg["d_max"],
+        exponent=cfg["exponent"],
+        rays=list(cfg["rays"]),
+        fit_rays=cfg["fit_rays"],
+        albedo=cfg["albedo"],
+        ao_distance=cfg["ao_distance"],
+    )
+    jobs = [
+        Job(
+            "rtfit.experiments.obscurances:render_case",
+            dict(name=n, identities=(n == cfg["scenes"][0]), **common),
+            label=n,
+        )
+        for n in cfg["scenes"]
+    ]
+    jobs.append(
+        Job(
+            "rtfit.experiments.obscurances:probe_job",
+            dict(
+                variant=ctx.variant,
+                cache_dir=str(ctx.cache_dir),
+                seed=ctx.seed,
+                probe_spp=cfg["probe_spp"],
+                d_max=cfg["d_max"],
+                exponent=cfg["exponent"],
+                albedo=cfg["albedo"],
+            ),
+            label="probes",
+        )
+    )
     ctx.log(f"rendering references of {len(jobs) - 1} scenes and the closed-form probes")
     done = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references"), strict=True))
     probes = done.pop("probes")
@@ -546,9 +794,17 @@ def run(ctx) -> dict:
     fit_docs = []
     for mid, f in fits.items():
         for n, fit in [*f["per_scene"].items(), ("joint", f["joint"])]:
-            fit_docs.append({"id": f"{mid}-{n}", "label": f"{METHODS[mid].label}: {n}", "model": METHODS[mid].formula,
-                             "parameters": fit["parameters"], "rms_residual": fit.get("rms_residual"),
-                             "converged": fit.get("converged"), "message": str(fit.get("message", ""))[:200]})  # fmt: skip
+            fit_docs.append(
+                {
+                    "id": f"{mid}-{n}",
+                    "label": f"{METHODS[mid].label}: {n}",
+                    "model": METHODS[mid].formula,
+                    "parameters": fit["parameters"],
+                    "rms_residual": fit.get("rms_residual"),
+                    "converged": fit.get("converged"),
+                    "message": str(fit.get("message", ""))[:200],
+                }
+            )
     return {
         "summary": summary(cfg, errors, fits),
         "config": dict(cfg),
@@ -569,7 +825,8 @@ NOTES = [
     "the obscurance integral W = (1/π)∫ρ(d) cos θ dω (Zhukov et al. 1998) is what its global-line sampling "
     "estimates (uniformly distributed global lines hit a patch with density ∝ cos θ).",
     "Reference (b) is E/πL under a constant environment over the whole sphere with interreflections between "
-    "white diffuse surfaces of the configured albedo: it exceeds the one-bounce AO where walls face each other.",
+    "white diffuse surfaces of the configured albedo: it exceeds the one-bounce AO where walls face each "
+    "other.",
 ]
 
 
@@ -586,21 +843,28 @@ def sections(cfg, errors, fits) -> list[dict]:
     jp = {k: v["value"] for k, v in fits["power"]["joint"]["parameters"].items()}
     return [
         {"id": "rays", "title": "Rays per point", "text": "\n".join(lines)},
-        {"id": "fits", "title": "Obscurance as uniform-ambient light",
-         "text": "\n".join(rows) + "\n\nJoint power fit: " + json.dumps({k: round(v, 4) for k, v in jp.items()})},
-    ]  # fmt: skip
+        {
+            "id": "fits",
+            "title": "Obscurance as uniform-ambient light",
+            "text": "\n".join(rows)
+            + "\n\nJoint power fit: "
+            + json.dumps({k: round(v, 4) for k, v in jp.items()}),
+        },
+    ]
 
 
 def summary(cfg, errors, fits) -> str:
     jp = {k: v["value"] for k, v in fits["power"]["joint"]["parameters"].items()}
     k0, k1 = min(cfg["rays"]), max(cfg["rays"])
+    e0, e1 = (_mean_err(cfg, errors, "model", f"rays-{k}") for k in (k0, k1))
+    seed, power, joint, expo = (
+        _mean_err(cfg, errors, "ambient", r) for r in ("seed", "power", "power-joint", "exponential")
+    )
     return (
         f"Obscurance estimator with {k0}→{k1} rays: mean RMSE against the model's Monte Carlo "
-        f"{_mean_err(cfg, errors, 'model', f'rays-{k0}'):.3f}→{_mean_err(cfg, errors, 'model', f'rays-{k1}'):.3f}. "
-        f"As uniform-ambient light (albedo {cfg['albedo']:g}): seed {_mean_err(cfg, errors, 'ambient', 'seed'):.3f}, "
-        f"power fitted per scene {_mean_err(cfg, errors, 'ambient', 'power'):.3f}, joint "
-        f"{_mean_err(cfg, errors, 'ambient', 'power-joint'):.3f} (d_max {jp['d_max']:.3g}, p {jp['exponent']:.3g}, "
-        f"s {jp['scale']:.3g}), exponential per scene {_mean_err(cfg, errors, 'ambient', 'exponential'):.3f}."
+        f"{e0:.3f}→{e1:.3f}. As uniform-ambient light (albedo {cfg['albedo']:g}): seed {seed:.3f}, "
+        f"power fitted per scene {power:.3f}, joint {joint:.3f} (d_max {jp['d_max']:.3g}, "
+        f"p {jp['exponent']:.3g}, s {jp['scale']:.3g}), exponential per scene {expo:.3f}."
     )
 
 
@@ -620,5 +884,3 @@ def bench(ctx) -> list[dict]:
     t_np = time_numpy(lambda *x: kern(NUMPY_OPS, list(x)), tuple(rows_np), n)
     base = memory_baseline(rows_dr, n)
     return [comparison_row("obscurance ρ kernel (power, 16 rays)", backend, t_dr, t_np, base, unit="pt")]
-
-

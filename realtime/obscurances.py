@@ -125,7 +125,9 @@ def step_obscurance_kernel(ops, distances, d_max=1.0, scale=1.0):
 
 
 DISTANCES = Input("distances", "scene units", "hit distance of each of K cosine-distributed rays (∞: miss)")
-_D_MAX = Param(1.0, 1e-3, 1e3, unit="scene units", description="distance beyond which a hit no longer occludes")
+_D_MAX = Param(
+    1.0, 1e-3, 1e3, unit="scene units", description="distance beyond which a hit no longer occludes"
+)
 _EXPONENT = Param(0.5, 1e-2, 16.0, unit="1", description="exponent p of ρ = min(d/d_max, 1)^p")
 _SCALE = Param(1.0, 1e-2, 10.0, unit="1", description="ambient scale s (W is multiplied by it)")
 
@@ -218,7 +220,9 @@ def cosine_spiral_directions(k: int) -> np.ndarray:
     return np.column_stack([x, y, np.sqrt(np.maximum(1.0 - r * r, 0.0))])
 
 
-def plane_facing_obscurance(height: float, d_max: float, exponent: float | None = SEED_EXPONENT, form="power"):
+def plane_facing_obscurance(
+    height: float, d_max: float, exponent: float | None = SEED_EXPONENT, form="power"
+):
     """Closed form of W at a point at ``height`` h > 0 above an infinite plane, its normal facing the plane
     (ray at angle θ from the normal hits at d = h/μ, μ = cos θ; W = 2∫₀¹ ρ(h/μ) μ dμ). With a = h/d_max:
 

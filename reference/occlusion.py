@@ -67,7 +67,15 @@ from .cache import PassEntry, array_digest, pool_passes
 from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
 from .estimators import MAX_LANES, PassResult, channel_moments, mean_var, sub_seed
 
-QUANTITIES = ("ao", "sky_direct", "sky_global", "sunsky_direct", "sunsky_global", "ambient_global", "obscurance")
+QUANTITIES = (
+    "ao",
+    "sky_direct",
+    "sky_global",
+    "sunsky_direct",
+    "sunsky_global",
+    "ambient_global",
+    "obscurance",
+)
 GLOBAL_QUANTITIES = ("sky_global", "sunsky_global", "ambient_global")
 MAX_BOUNCES = 64
 FORMAT = 2
@@ -323,7 +331,7 @@ def hit_distances(mi, mi_scene, points, normals, directions, rotate_seed: int | 
     """Hit distances (K, N) (scene units, float64; +∞ for a miss) of the rays from each point along the K
     local ``directions`` (K, 3) (z = normal, Mitsuba's ``Frame3f(n)``), spawned as the references spawn
     theirs. ``rotate_seed``: rotate each point's direction set about its normal by a per-point random angle
-    (uniform; a Cranley–Patterson rotation of the stratified set: banding becomes noise); None: no rotation."""
+    (uniform; a Cranley–Patterson rotation of the stratified set: banding becomes noise); None: none."""
     if mi.variant().startswith("scalar"):
         raise ValueError("hit_distances needs a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
     pts = np.ascontiguousarray(points, dtype=np.float32)

@@ -3,6 +3,7 @@ quadrature oracles, limits, the extremes of the domain, and the Mitsuba estimato
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -35,8 +36,15 @@ def _rho_oracle(d, d_max, p, form):
 def _facing_quadrature(h, d_max, p, form):
     """W = 2 ∫₀¹ ρ(h/μ) μ dμ (point facing an infinite plane) by adaptive quadrature, kink at μ = h/d_max."""
     pts = [h / d_max] if 0 < h / d_max < 1 else None
-    val, _ = quad(lambda mu: 2.0 * mu * _rho_oracle(h / mu, d_max, p, form), 1e-300, 1.0, points=pts,
-                  epsabs=1e-13, epsrel=1e-12, limit=200)  # fmt: skip
+    val, _ = quad(
+        lambda mu: 2.0 * mu * _rho_oracle(h / mu, d_max, p, form),
+        1e-300,
+        1.0,
+        points=pts,
+        epsabs=1e-13,
+        epsrel=1e-12,
+        limit=200,
+    )
     return val
 
 
@@ -100,9 +108,9 @@ def test_limits_and_identities():
 def test_monotone_in_d_max_and_exponent():
     d = np.random.default_rng(5).exponential(0.4, (16, 300))
     ws = [obscurance(d, dm, 0.5) for dm in (0.05, 0.1, 0.3, 1.0, 10.0)]
-    assert all(np.all(a >= b - 1e-15) for a, b in zip(ws, ws[1:], strict=False))
+    assert all(np.all(a >= b - 1e-15) for a, b in itertools.pairwise(ws))
     ws = [obscurance(d, 0.3, p) for p in (0.0, 0.25, 0.5, 1.0, 4.0)]
-    assert all(np.all(a >= b - 1e-15) for a, b in zip(ws, ws[1:], strict=False))
+    assert all(np.all(a >= b - 1e-15) for a, b in itertools.pairwise(ws))
 
 
 # ---------------------------------------------------------------------------------------- the extremes
@@ -120,8 +128,11 @@ DIST = st.one_of(
 )
 def test_no_nan_inf_anywhere_and_the_three_runs_agree(d, d_max, p):
     rows = [np.array([x]) for x in d]
-    for mid, kw in (("power", {"d_max": d_max, "exponent": p}), ("exponential", {"d_max": d_max}),
-                    ("ao", {"d_max": d_max})):  # fmt: skip
+    for mid, kw in (
+        ("power", {"d_max": d_max, "exponent": p}),
+        ("exponential", {"d_max": d_max}),
+        ("ao", {"d_max": d_max}),
+    ):
         m = METHODS[mid]
         ref = m.kernel(NUMPY_OPS, rows, **kw, scale=1.0)
         assert np.all(np.isfinite(ref)) and np.all((ref >= 0) & (ref <= 1))
@@ -163,8 +174,16 @@ def plane():
 
     mi.set_variant("llvm_ad_rgb")
     white = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}}
-    scene = mi.load_dict({"type": "scene", "r": {"type": "rectangle", "bsdf": white,
-                          "to_world": mi.ScalarTransform4f().scale([5000.0, 5000.0, 1.0])}})  # fmt: skip
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "r": {
+                "type": "rectangle",
+                "bsdf": white,
+                "to_world": mi.ScalarTransform4f().scale([5000.0, 5000.0, 1.0]),
+            },
+        }
+    )
     return mi, scene
 
 
@@ -198,12 +217,23 @@ def test_mitsuba_obscurance_and_uniform_ambient_match_closed_forms(plane, tmp_pa
     kw = dict(spp=1 << 14, pass_spp=1 << 13, seed=1, variant="llvm_ad_rgb")
     for form, p in (("power", 0.5), ("exponential", None)):
         fn, key = weight_of(form, 0.3, p)
-        r = cache.get(mi, scene, "plane", pts, nrm, quantity="obscurance", distance_weight=fn, weight_key=key, **kw)
+        r = cache.get(
+            mi, scene, "plane", pts, nrm, quantity="obscurance", distance_weight=fn, weight_key=key, **kw
+        )
         expect = np.array([plane_facing_obscurance(x, 0.3, p, form) for x in h])
         assert np.max(np.abs(r.mean - expect) / r.stderr) < 4.0
     r = cache.get(mi, scene, "plane", pts, nrm, quantity="ambient_global", albedo=0.6, **kw)
     assert np.max(np.abs(r.mean - 0.6) / r.stderr) < 4.0
     fn, key = weight_of("power", 0.3, 0.5)
-    r = cache.get(mi, scene, "plane", pts * [1, 1, 0], -nrm, quantity="obscurance", distance_weight=fn,
-                  weight_key=key, **kw)  # fmt: skip
+    r = cache.get(
+        mi,
+        scene,
+        "plane",
+        pts * [1, 1, 0],
+        -nrm,
+        quantity="obscurance",
+        distance_weight=fn,
+        weight_key=key,
+        **kw,
+    )
     assert np.all(r.mean == 1.0) and np.all(r.stderr == 0.0)
