@@ -22,7 +22,8 @@ of the seed's meshes), 180 global directions (001:3324). rtfit generalises the s
 Limits (each checked by tests/test_obscurances.py and the experiment): d_max → ∞ with p fixed (power) or
 any form: ρ(d) → 0 for every finite d, so W → the unbounded AO (cosine-weighted fraction of escaping rays);
 d_max → 0 (or p → 0): W → 1; a point whose hemisphere is empty (an open plane) has W = 1 exactly.
-Convention at d = 0: ρ(0) = 0 for p > 0, 1 for p = 0 (0⁰ = 1); ray casts never return 0.
+Convention at d = 0: ρ(0) = 0 for p > 0, 1 for p = 0 (0⁰ = 1); ray casts never return 0. Dr.Jit's LLVM
+backend flushes subnormal inputs to zero, so there ρ(d) = ρ(0) for subnormal d (NumPy/JAX: the true value).
 
 The estimator: with directions ω_k distributed as cos θ/π (random or stratified), W ≈ (1/K) Σ_k ρ(d_k): the
 real-time bake (the seed's depth-peeled global lines, a ray-traced light-map baker or a screen-space
@@ -49,6 +50,7 @@ from .methods import Input, Method, Param, method_table
 
 __all__ = [
     "D_MAX_LIMIT",
+    "RAY_CHUNK",
     "SEED_D_MAX",
     "SEED_EXPONENT",
     "cosine_spiral_directions",
@@ -68,7 +70,9 @@ SEED_EXPONENT = 0.5
 """The seed's square root (001:3284)."""
 D_MAX_LIMIT = 1e30
 """Largest d_max the public functions accept (d_max → ∞ is reached by 1e30: ρ(d) ≤ (d/1e30)^p)."""
-_TINY = 1e-30
+RAY_CHUNK = 64
+"""Rays per fused Dr.Jit kernel in `obscurance` (more rays: several launches, their means combined)."""
+_TINY = 1e-300  # log guard of ρ_power below every ratio that matters (float32: 0, the branch is unselected)
 _EXP_CUT = 100.0  # e^{-100} = 3.7e-44: ρ_exp is 1 to float64 beyond 100 d_max
 
 
@@ -204,7 +208,14 @@ def obscurance(distances, d_max: float = SEED_D_MAX, exponent: float = SEED_EXPO
     }
     if form not in kernels:
         raise ValueError(f"form must be one of {', '.join(kernels)} (got {form!r})")
-    return np.asarray(evaluate(kernels[form], *list(d)), dtype=np.float64)
+    # Rays in chunks of ≤ RAY_CHUNK rows (one fused kernel each; a kernel with thousands of inputs takes
+    # minutes to compile): W = Σ_c (K_c/K)·W_c, the mean of the chunk means weighted by their ray counts.
+    k = d.shape[0]
+    out = np.zeros(d.shape[1])
+    for a in range(0, k, RAY_CHUNK):
+        rows = list(d[a : a + RAY_CHUNK])
+        out += (len(rows) / k) * np.asarray(evaluate(kernels[form], *rows), dtype=np.float64)
+    return out
 
 
 def cosine_spiral_directions(k: int) -> np.ndarray:
