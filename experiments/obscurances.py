@@ -59,6 +59,9 @@ from rtfit.reference.occlusion import OcclusionCache, hit_distances
 from rtfit.scenes import scene_hash
 
 from . import figures
+from . import fitted as fitfiles
+from .cost import attach_costs, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
 from .sdf_occlusion import load_case_scene
 from .sdf_occlusion_scenes import SCENE_NAMES
@@ -213,7 +216,8 @@ def probe_job(
     variant: str, cache_dir: str, seed: int, probe_spp: int, d_max: float, exponent: float, albedo: float
 ) -> dict:
     """Job: the closed-form configurations (plain data out)."""
-    mi = __import__("mitsuba")
+    import mitsuba as mi  # (heavy: only inside the job)
+
     mi.set_variant(variant)
     cache = OcclusionCache(cache_dir)
     out = {}
@@ -700,7 +704,6 @@ def _maps(out, cfg, r, name) -> list[dict]:
 def measure_costs(cfg, rendered) -> list[dict]:
     """Per K: the measured ray-cast time per point (Mitsuba ray_intersect on this backend, from the render
     job) plus the kernel's own time per point (`time_drjit`)."""
-    from .cost import time_drjit
 
     rows = []
     Float = _float()
@@ -737,7 +740,6 @@ def measure_costs(cfg, rendered) -> list[dict]:
 
 # ================================================================================================== run
 def run(ctx) -> dict:
-    from .jobs import Job
 
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     common = dict(
@@ -787,26 +789,12 @@ def run(ctx) -> dict:
     ctx.log(f"fits done ({time.perf_counter() - t0:.1f} s)")
     case_docs, errors = evaluate_cases(cfg, rendered, fits)
     costs = measure_costs(cfg, rendered)
-    from .cost import attach_costs
 
     attach_costs(case_docs, costs)
     out = ctx.out_dir
     figs = make_figures(out, cfg, rendered, errors, costs)
     checks = make_checks(cfg, rendered, probes, errors)
-    fit_docs = []
-    for mid, f in fits.items():
-        for n, fit in [*f["per_scene"].items(), ("joint", f["joint"])]:
-            fit_docs.append(
-                {
-                    "id": f"{mid}-{n}",
-                    "label": f"{METHODS[mid].label}: {n}",
-                    "model": METHODS[mid].formula,
-                    "parameters": fit["parameters"],
-                    "rms_residual": fit.get("rms_residual"),
-                    "converged": fit.get("converged"),
-                    "message": str(fit.get("message", ""))[:200],
-                }
-            )
+    fit_docs = write_fitted(out, cfg, fits, ctx, [rendered[n]["scene_hash"] for n in cfg["scenes"]])
     return {
         "summary": summary(cfg, errors, fits),
         "config": dict(cfg),
@@ -818,6 +806,52 @@ def run(ctx) -> dict:
         "checks": checks,
         "notes": NOTES,
     }
+
+
+FIT_RESIDUAL_UNITS = "s·W − E/πL (uniform ambient, albedo as configured), per pixel"
+
+
+def write_fitted(out, cfg, fits, ctx, hashes) -> list[dict]:
+    """fitted/obscurances.json (``rtfit.fitted/1``): every per-scene and joint fit with parameters, bounds,
+    units and residual (no shader text: the tracer has no loop over a ray array); returns the results'
+    ``fits`` records."""
+    file = "fitted/obscurances.json"
+    entries, docs = [], []
+    for mid, f in fits.items():
+        m = METHODS[mid]
+        for case, fit in [*f["per_scene"].items(), ("joint", f["joint"])]:
+            entries.append(
+                fitfiles.method_entry(
+                    m,
+                    fit,
+                    id=f"{mid}-{case}".replace("_", "-"),
+                    label=f"{m.label}: {case}",
+                    residual_units=FIT_RESIDUAL_UNITS,
+                )
+            )
+            docs.append(
+                {
+                    "id": f"{mid}-{case}",
+                    "label": f"{m.label}: {case}",
+                    "model": m.formula,
+                    "parameters": fit["parameters"],
+                    "rms_residual": fit.get("rms_residual"),
+                    "n_residuals": fit.get("n_residuals"),
+                    "converged": fit.get("converged"),
+                    "message": str(fit.get("message", ""))[:200],
+                    "file": file,
+                }
+            )
+    fitfiles.write_fitted(
+        out / file,
+        fitfiles.FittedFile(
+            format=fitfiles.FORMAT,
+            title=f"obscurances fitted to a uniform ambient with interreflections (albedo {cfg['albedo']:g})",
+            provenance=fitfiles.provenance(ctx, "obscurances", hashes, cfg["spp"]),
+            methods=entries,
+        ),
+    )
+    return docs
 
 
 NOTES = [
@@ -873,7 +907,6 @@ def summary(cfg, errors, fits) -> str:
 # ================================================================================================ bench
 def bench(ctx) -> list[dict]:
     """The ρ kernel (power, 16 rays) on Dr.Jit vs NumPy, one run."""
-    from .cost import bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 
     backend, n = bench_backend(ctx)
     n = min(n, 1 << 20)
