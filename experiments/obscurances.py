@@ -645,7 +645,8 @@ def make_figures(out, cfg, rendered, errors, costs) -> list[dict]:
         {
             "file": p.name,
             "caption": "RMSE of the K-ray seed estimator against the model's Monte Carlo "
-            "reference (a) for each scene; the dashed slope is 1/√K.",
+            "reference (a) for each scene, beside a 1/√K slope; where a curve flattens it has reached the "
+            "reference's own noise floor (see the case tables).",
             "section": "rays",
         }
     )
