@@ -115,6 +115,14 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "The seed's linear search + piecewise-linear intersection and 7-sample soft shadow (as printed "
             "and stable) against ray_intersect on the displaced height field and area-light visibility.",
         ),
+        ExperimentSpec(
+            "obscurances",
+            "rtfit.experiments.obscurances",
+            "Obscurances (Zhukov/Iones) vs their Monte Carlo definition and uniform-ambient path tracing",
+            "The K-ray obscurance estimator with the seed's √(d/d_max) against the model's ray-cast "
+            "definition (error vs rays vs cost), and fitted d_max, exponent and ambient scale against "
+            "path-traced interreflections under a uniform ambient, on the sdf-occlusion scenes.",
+        ),
     ]
 }
 

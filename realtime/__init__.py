@@ -36,6 +36,9 @@ Modules:
                 rtfit.realtime.volumetric_lightning as m`` binds the function).
     parallax_occlusion  parallax occlusion mapping with soft self-shadowing: the seed's listing and a
                 stable variant, procedural height fields (docs/parallax-occlusion.md).
+
+    obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
+                estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
                 decorator for a user's own formula (docs/audit.md, "Your own approximation").
     shader      GLSL/HLSL text traced from the kernels (`SHADER_OPS`, `shader_function`).
@@ -53,6 +56,7 @@ from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
+from .obscurances import *  # noqa: F403
 from .parallax_occlusion import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .quantities import *  # noqa: F403
@@ -76,6 +80,7 @@ MODULES = (
     "nishita_sky",
     "volumetric_lightning",
     "parallax_occlusion",
+    "obscurances",
     "quantities",
     "shader",
 )

@@ -30,6 +30,18 @@ onto the box of rtfit's cell centres: the two trilinear zero sets coincide.
   normalisation is the special case. Unoccluded and facing up it is 1.
 * ``"sunsky_global"``: the same sky with all interreflections (Russian roulette as ``sky_global``; an escaping
   path scores π L(ω)/E_h instead of 1).
+* ``"ambient_global"``: E(x)/(π L) under a *uniform ambient*: a constant environment of radiance L over the
+  whole sphere (no horizon), all interreflections between white diffuse surfaces of albedo ρ (Russian
+  roulette as ``sky_global``; every escaping path scores 1). Unoccluded it is 1 for any normal; the one-bounce
+  counterpart is ``"ao"`` with R = ∞. What obscurances stand in for (the ``obscurances`` experiment).
+* ``"obscurance"``: Zhukov/Iones obscurance W(x) = (1/π) ∫_{H(n)} ρ(d(x, ω)) (n·ω) dω, d the distance to
+  the first hit (∞ for a miss). Estimator: ρ(d(ω)), ω ~ cos/π. The distance function ρ is passed in as
+  ``distance_weight`` (a callable on Dr.Jit arrays: the one text of `rtfit.realtime.obscurances`, which
+  this package may not import) with ``weight_key`` (a JSON-able description: form and parameters) for the
+  cache key.
+
+`hit_distances` returns the raw hit distances of K given local directions per point (the inputs of the
+real-time obscurance estimator).
 
 Rays start at the points with Mitsuba's ``spawn_ray`` offset (relative epsilon along n). The constant-sky
 quantities use no Mitsuba emitter: the sky is defined here (radiance 1 above the horizon), which is exactly
@@ -55,7 +67,16 @@ from .cache import PassEntry, array_digest, pool_passes
 from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
 from .estimators import MAX_LANES, PassResult, channel_moments, mean_var, sub_seed
 
-QUANTITIES = ("ao", "sky_direct", "sky_global", "sunsky_direct", "sunsky_global")
+QUANTITIES = (
+    "ao",
+    "sky_direct",
+    "sky_global",
+    "sunsky_direct",
+    "sunsky_global",
+    "ambient_global",
+    "obscurance",
+)
+GLOBAL_QUANTITIES = ("sky_global", "sunsky_global", "ambient_global")
 MAX_BOUNCES = 64
 FORMAT = 2
 """Version of the occlusion cache entries (2: `PassEntry` layout, float32 passes with a .json each)."""
@@ -193,10 +214,14 @@ def occlusion_pass(
     max_distance: float = math.inf,
     albedo: float = 0.8,
     sky: SunskySky | None = None,
+    distance_weight=None,
 ) -> PassResult:
     """One pass of ``spp`` samples per point; mean/var arrays of shape (N,) (float64). ``sky``: the sky of
-    the sunsky quantities (None: ``SunskySky()``, 30° elevation, 60° azimuth, turbidity 3)."""
+    the sunsky quantities (None: ``SunskySky()``, 30° elevation, 60° azimuth, turbidity 3).
+    ``distance_weight``: ρ(d) of the ``obscurance`` quantity (a callable on Dr.Jit Float arrays)."""
     _check(quantity, spp, max_distance, albedo)
+    if (quantity == "obscurance") != (distance_weight is not None):
+        raise ValueError("distance_weight is required by (and only by) the obscurance quantity")
     if sky is not None and not isinstance(sky, SunskySky):
         raise ValueError(f"sky must be a SunskySky (got {type(sky).__name__})")
     skyfn = _sunsky_escape_value(mi, dr, sky or SunskySky()) if quantity.startswith("sunsky") else None
@@ -228,7 +253,9 @@ def occlusion_pass(
         # compiled its own kernel (~1 s on 2 cores, 5× the ray casting of a 64² × 64 spp pass; issue 21).
         h0, h1 = mi.sample_tea_32(dr.opaque(mi.UInt32, sub_seed(seed, "chunk", c)), lane)
         rng = mi.PCG32(lanes, (mi.UInt64(h0) << 32) | mi.UInt64(h1), mi.UInt64(lane))
-        v = _estimate(mi, dr, mi_scene, rng, p, n, quantity, float(max_distance), float(albedo), skyfn)
+        v = _estimate(
+            mi, dr, mi_scene, rng, p, n, quantity, float(max_distance), float(albedo), skyfn, distance_weight
+        )
         sv, qv = channel_moments(mi, dr, [v], spp)
         s[a:b], q[a:b] = sv[:, 0], qv[:, 0]
     mean, var = mean_var(s, q, spp)
@@ -265,9 +292,13 @@ def _cos_dir(mi, rng, n):
     return mi.Frame3f(n).to_world(mi.warp.square_to_cosine_hemisphere(u))
 
 
-def _estimate(mi, dr, mi_scene, rng, p, n, quantity, max_distance, albedo, skyfn=None):
-    """One sample per lane. ``skyfn(d)``: the escape value π L(d)/E_h of the sunsky quantities (None: 1)."""
+def _estimate(mi, dr, mi_scene, rng, p, n, quantity, max_distance, albedo, skyfn=None, weight=None):
+    """One sample per lane. ``skyfn(d)``: the escape value π L(d)/E_h of the sunsky quantities (None: 1);
+    ``weight(t)``: the obscurance's ρ of the hit distance t (∞ for a miss)."""
     d = _cos_dir(mi, rng, n)
+    if quantity == "obscurance":
+        si = mi_scene.ray_intersect(_spawn(mi, dr, p, n, d))
+        return weight(dr.select(si.is_valid(), si.t, dr.inf))
     if quantity == "ao":
         hit = mi_scene.ray_test(_spawn(mi, dr, p, n, d, max_distance))
         return dr.select(hit, 0.0, 1.0)
@@ -275,13 +306,15 @@ def _estimate(mi, dr, mi_scene, rng, p, n, quantity, max_distance, albedo, skyfn
         hit = mi_scene.ray_test(_spawn(mi, dr, p, n, d))
         sky = 1.0 if skyfn is None else skyfn(d)
         return dr.select(hit | (d.z <= 0), 0.0, sky)
-    # sky_global / sunsky_global: Russian roulette with q = albedo (weight stays 1).
+    # sky_global / sunsky_global / ambient_global: Russian roulette with q = albedo (weight stays 1).
+    upper_only = quantity != "ambient_global"
     value = dr.zeros(mi.Float, dr.width(p))
     alive = dr.full(mi.Bool, True, dr.width(p))
     for _ in range(MAX_BOUNCES):
         si = mi_scene.ray_intersect(_spawn(mi, dr, p, n, d), alive)
         escaped = alive & ~si.is_valid()
-        value = dr.select(escaped & (d.z > 0), value + (1.0 if skyfn is None else skyfn(d)), value)
+        lit = escaped & (d.z > 0) if upper_only else escaped
+        value = dr.select(lit, value + (1.0 if skyfn is None else skyfn(d)), value)
         cont = rng.next_float32() < albedo
         alive = alive & si.is_valid() & cont
         ng = dr.select(dr.dot(si.n, d) > 0, -si.n, si.n)
@@ -292,6 +325,50 @@ def _estimate(mi, dr, mi_scene, rng, p, n, quantity, max_distance, albedo, skyfn
         if not dr.any(alive):
             break
     return value
+
+
+def hit_distances(mi, mi_scene, points, normals, directions, rotate_seed: int | None = None) -> np.ndarray:
+    """Hit distances (K, N) (scene units, float64; +∞ for a miss) of the rays from each point along the K
+    local ``directions`` (K, 3) (z = normal, Mitsuba's ``Frame3f(n)``), spawned as the references spawn
+    theirs. ``rotate_seed``: rotate each point's direction set about its normal by a per-point random angle
+    (uniform; a Cranley–Patterson rotation of the stratified set: banding becomes noise); None: none."""
+    if mi.variant().startswith("scalar"):
+        raise ValueError("hit_distances needs a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    nrm = np.asarray(normals, dtype=np.float64)
+    dirs = np.asarray(directions, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or nrm.shape != pts.shape:
+        raise ValueError(f"points and normals must both be (N, 3) (got {pts.shape} and {nrm.shape})")
+    if dirs.ndim != 2 or dirs.shape[1] != 3 or len(dirs) < 1 or np.any(dirs[:, 2] < 0):
+        raise ValueError("directions must be (K, 3) local unit vectors with z >= 0")
+    nrm = np.ascontiguousarray(nrm / np.linalg.norm(nrm, axis=1, keepdims=True), dtype=np.float32)
+    n_pts, k = len(pts), len(dirs)
+    angle = (
+        np.zeros(n_pts)
+        if rotate_seed is None
+        else np.random.default_rng(sub_seed(rotate_seed, "rotate", 0)).uniform(0, 2 * math.pi, n_pts)
+    )
+    out = np.empty((k, n_pts))
+    per = max(1, MAX_LANES // k)
+    for a in range(0, n_pts, per):
+        b = min(n_pts, a + per)
+        lanes = (b - a) * k
+        idx = dr.arange(mi.UInt32, lanes) // k
+        kk = dr.arange(mi.UInt32, lanes) % k
+        c, s = np.cos(angle[a:b]), np.sin(angle[a:b])
+        lx = dr.gather(mi.Float, mi.Float(dirs[:, 0].astype(np.float32)), kk)
+        ly = dr.gather(mi.Float, mi.Float(dirs[:, 1].astype(np.float32)), kk)
+        lz = dr.gather(mi.Float, mi.Float(dirs[:, 2].astype(np.float32)), kk)
+        cc = dr.gather(mi.Float, mi.Float(c.astype(np.float32)), idx)
+        ss = dr.gather(mi.Float, mi.Float(s.astype(np.float32)), idx)
+        local = mi.Vector3f(cc * lx - ss * ly, ss * lx + cc * ly, lz)
+        p = dr.gather(mi.Point3f, mi.Point3f(pts[a:b].T), idx)
+        n = dr.gather(mi.Vector3f, mi.Vector3f(nrm[a:b].T), idx)
+        d = mi.Frame3f(n).to_world(local)
+        si = mi_scene.ray_intersect(_spawn(mi, dr, p, n, d))
+        t = np.asarray(dr.select(si.is_valid(), si.t, dr.inf), dtype=np.float64)
+        out[:, a:b] = t.reshape(b - a, k).T
+    return out
 
 
 # ------------------------------------------------------------------------------------ sdfgrid scene
@@ -376,6 +453,8 @@ class OcclusionCache:
         max_distance: float = math.inf,
         albedo: float = 0.8,
         sky: SunskySky | None = None,
+        distance_weight=None,
+        weight_key: dict | None = None,
     ) -> OcclusionReference:
         import mitsuba  # (only for its version; imported where Mitsuba is already in use)
 
@@ -388,12 +467,16 @@ class OcclusionCache:
             "points": array_digest(points, normals),
             "quantity": quantity,
             "max_distance": None if not math.isfinite(max_distance) else float(max_distance),
-            "albedo": float(albedo) if quantity in ("sky_global", "sunsky_global") else None,
+            "albedo": float(albedo) if quantity in GLOBAL_QUANTITIES else None,
             "seed": int(seed),
             "pass_spp": int(pass_spp),
             "variant": variant,
             "versions": [mitsuba.__version__, dr.__version__],
         }
+        if quantity == "obscurance":  # ρ's form and parameters (absent elsewhere: other keys unchanged)
+            if not isinstance(weight_key, dict) or not weight_key:
+                raise ValueError("the obscurance quantity needs weight_key (ρ's form and parameters)")
+            ident["distance_weight"] = weight_key
         if quantity.startswith("sunsky"):  # (absent for the other quantities: their keys are unchanged)
             ident["sky"] = {**sky.to_dict(), "bake_height": SKY_BAKE_HEIGHT}
         entry = PassEntry(self.root, ident, namespace="occlusion", storage="npz")
@@ -410,6 +493,7 @@ class OcclusionCache:
                 max_distance=max_distance,
                 albedo=albedo,
                 sky=sky,
+                distance_weight=distance_weight,
             )
 
         results, _ = entry.passes(-(-int(spp) // int(pass_spp)), render)
