@@ -289,7 +289,16 @@ ROWS = (
 ROW = {r.method: r for r in ROWS}
 BASES = tuple(r for r in ROWS if not r.spec.exact)  # the rows an engine would store and evaluate
 SPHERE_FIGURE_METHODS = ("cube-valve", "sh-l1", "sh-l2", "sh-l2-lambda")
-SUN_PROFILE_METHODS = ("cube-valve", "sh-l1", "sh-l1-geomerics", "sh-l2", "sh-l2-hann", "sh-l2-lambda")
+SUN_PROFILE_METHODS = (
+    "cube-valve",
+    "sh-l1",
+    "sh-l1-geomerics",
+    "sh-l2",
+    "sh-l2-hann",
+    "sh-l2-lambda",
+    "sh-l4",
+    "zh3-hallucinated",
+)
 NOISE_FLOOR_METHOD = "sh-l2"  # whose noise floor the per-environment figures draw (any row's is the same)
 
 
@@ -1209,8 +1218,10 @@ def _summary(cfg, cases, checks) -> str:
         f"average (opposite suns and bright softboxes) and L1 on {mean_of('sh-l1', 'neg_frac'):.3g}; the "
         "fitted λ window removes it at a large cost in accuracy, Geomerics' L1 never rings. sMAPE (mean "
         f"over environments): cube {mean_of('cube-valve', 'smape'):.3g}, L1 "
-        f"{mean_of('sh-l1', 'smape'):.3g}, L2 {mean_of('sh-l2', 'smape'):.3g}. {passed} of {len(checks)} "
-        "checks passed."
+        f"{mean_of('sh-l1', 'smape'):.3g}, L2 {mean_of('sh-l2', 'smape'):.3g}. Higher orders: SH L4 (75 "
+        f"floats) {mean_of('sh-l4'):.3g}, L3 (48) the same as L2 (Â_3 = 0); ZH3 (15 floats) "
+        f"{mean_of('zh3'):.3g}, hallucinated ZH3 (12) {mean_of('zh3-hallucinated'):.3g}. {passed} of "
+        f"{len(checks)} checks passed."
     )
 
 
