@@ -26,6 +26,7 @@ coefficients each one reads):
 * ``sh-l3*``, ``sh-l4*`` 16 and 25 SH coefficients per channel, plain and with the same three windows (λ
   fitted per order); L3 equals L2 in irradiance (Â_3 = 0) at 48 floats, a check;
 * ``zh3``             ZH3: L1 plus one zonal L2 coefficient about each channel's L1 direction (15 floats);
+* ``zh3-lum``         ZH3 with one axis for RGB (the luminance's L1 direction), 15 floats;
 * ``zh3-hallucinated`` ZH3 with the zonal coefficient guessed from L1 (12 floats, the cost of L1);
 * ``quadrature``      the dense quadrature itself (exact up to quadrature error: must sit at the noise floor).
 
@@ -283,6 +284,7 @@ ROWS = (
     Row("sh-l4-lanczos", "sh"),
     Row("sh-l4-lambda", "sh", params={"lam": "lambda_l4"}),
     Row("zh3", "zh3"),
+    Row("zh3-lum", "zh3_lum"),
     Row("zh3-hallucinated", "sh"),
     Row("quadrature", None),
 )
@@ -334,6 +336,7 @@ def build_bases(env, cfg: dict, fit_normals: int = 2048, backend: str | None = N
     out["timing_ms"]["sh-projection"] = 1e3 * (time.perf_counter() - t0)
     out["sh"] = sh
     out["zh3"] = zh3_from_sh(sh)
+    out["zh3_lum"] = zh3_from_sh(sh, shared_axis=True)
     t0 = time.perf_counter()
     ss = supersample_for(env, cfg)
     out["cube_valve"] = ambient_cube_from_axes(envs.irradiance_quadrature(env, np.array(CUBE_AXES), ss))
@@ -742,7 +745,9 @@ def write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
             "sh_l2": b["sh"][:9].tolist(),
             "sh_l4": b["sh"].tolist(),
             "zh3": b["zh3"].tolist(),
-            "zh3_layout": "per channel: L00, L1-1, L10, L11, zonal L2 coefficient about the L1 direction",
+            "zh3_lum": b["zh3_lum"].tolist(),
+            "zh3_layout": "per channel: L00, L1-1, L10, L11, zonal L2 coefficient about the L1 direction "
+            "(zh3: the channel's, zh3_lum: the Rec. 709 luminance's)",
             "lambda_window": b["lambda"],
             "lambda_window_l4": b["lambda_l4"],
             "lambda_window_formula": "w_l = 1 / (1 + lambda * l^2 (l+1)^2)",
@@ -843,10 +848,16 @@ def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[dict]:
     return checks + _order_checks(names, cases)
 
 
-ORDER_CHECKS = (("sh-l4", "sh-l2"), ("sh-l2", "zh3"), ("zh3", "sh-l1"))
+ORDER_CHECKS = (
+    ("sh-l4", "sh-l2"),
+    ("sh-l2", "zh3"),
+    ("zh3", "sh-l1"),
+    ("sh-l2", "zh3-lum"),
+    ("zh3-lum", "sh-l1"),
+)
 """(better, worse) pairs that orthogonality guarantees over the sphere of normals: SH L_n is the least-squares
 irradiance of its bands (adding bands never raises the error), and ZH3 keeps L1 and adds the projection of the
-L2 band onto one zonal harmonic (between L1 and L2)."""
+L2 band onto one zonal harmonic, about any axis (between L1 and L2)."""
 
 
 def _order_checks(names, cases) -> list[dict]:
@@ -1242,6 +1253,7 @@ def _demo_bases() -> dict:
     return {
         "sh": sh,
         "zh3": zh3_from_sh(sh),
+        "zh3_lum": zh3_from_sh(sh, shared_axis=True),
         "cube_valve": cube,
         "cube_nnls": cube,
         "lambda": 0.05,

@@ -76,6 +76,7 @@ __all__ = [
     "SH_C",
     "SH_MAX_ORDER",
     "WINDOWS",
+    "ZH3_LUMINANCE",
     "ambient_cube_from_axes",
     "ambient_cube_irradiance",
     "basis_inputs",
@@ -171,6 +172,8 @@ CUBE_AXES = (
 WINDOWS = ("none", "hann", "lanczos", "lambda")
 _BAND = tuple(b for b in range(SH_MAX_ORDER + 1) for _ in range(2 * b + 1))  # band of index k
 _TINY = 1e-30
+ZH3_LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 luminance weights of linear sRGB: the shared ZH3 axis is the L1 direction of the weighted sum."""
 _SQRT3 = math.sqrt(3.0)  # |L1|/L00 of a single direction: the largest ratio a non-negative environment has
 _R1_SCALE = 0.5 * A_HAT[1] * SH_C[1]  # Geomerics: R1 = ½ Â1 Y1 (L11, L1−1, L10)
 
@@ -279,24 +282,42 @@ def _sh_kernel(ops, nx, ny, nz, coeffs, order=2, window="none", lam=0.0):
     return tuple(out)
 
 
-def _zh3_kernel(ops, nx, ny, nz, coeffs, hallucinate=False):
-    """ZH3 (Roughton et al. 2024): linear SH plus one zonal L2 harmonic about the channel's L1 direction.
+def _zh3_axis(ops, lx, ly, lz):
+    """(âx, ây, âz, |l|): the unit vector of the L1 vector l = (lx, ly, lz), +z where |l| ≤ 1e-30."""
+    length = ops.sqrt(lx * lx + ly * ly + lz * lz)
+    has_axis = length > _TINY
+    inv = 1.0 / ops.maximum(length, _TINY)
+    return (
+        ops.select(has_axis, lx * inv, 0.0),
+        ops.select(has_axis, ly * inv, 0.0),
+        ops.select(has_axis, lz * inv, 1.0),
+        length,
+    )
 
-    E(n) = Â_0 Y00 L00 + Â_1 Y1(n)·L1 + Â_2 z Y20(â·n),  â = (L11, L1−1, L10)/|L1| (+z where L1 = 0),
-    Y20(t) = √5/(4√π) (3t² − 1). ``coeffs`` per channel, channel-major: (L00, L1−1, L10, L11, z) (15 floats)
-    with z stored, or (L00, L1−1, L10, L11) (12 floats) with ``hallucinate``: z = L00 r (0.08 + 0.6 r),
+
+def _zh3_kernel(ops, nx, ny, nz, coeffs, hallucinate=False, shared_axis=False):
+    """ZH3 (Roughton et al. 2024): linear SH plus one zonal L2 harmonic about an L1 direction â.
+
+    E(n) = Â_0 Y00 L00 + Â_1 Y1(n)·L1 + Â_2 z Y20(â·n),  Y20(t) = √5/(4√π) (3t² − 1),
+    â = (L11, L1−1, L10)/|L1| of the channel, or with ``shared_axis`` of the luminance-weighted L1
+    (`ZH3_LUMINANCE`, one â for RGB); +z where that L1 is 0.
+
+    ``coeffs`` per channel, channel-major: (L00, L1−1, L10, L11, z) (15 floats) with z stored, or
+    (L00, L1−1, L10, L11) (12 floats) with ``hallucinate`` (per-channel axis): z = L00 r (0.08 + 0.6 r),
     r = |L1|/L00 clamped to [0, √3] (the range of a non-negative environment; the paper's curve fit)."""
     x, y, z, valid = _unit(ops, nx, ny, nz)
     per = 4 if hallucinate else 5
+    chans = [coeffs[ch * per : ch * per + 4] for ch in range(3)]
+    if shared_axis:
+        w = ZH3_LUMINANCE
+        shared = _zh3_axis(
+            ops,
+            *(w[0] * chans[0][k] + w[1] * chans[1][k] + w[2] * chans[2][k] for k in (3, 1, 2)),
+        )
     out = []
     for ch in range(3):
-        l00, l1m1, l10, l11 = coeffs[ch * per : ch * per + 4]
-        length = ops.sqrt(l11 * l11 + l1m1 * l1m1 + l10 * l10)
-        has_axis = length > _TINY
-        inv = 1.0 / ops.maximum(length, _TINY)
-        ax = ops.select(has_axis, l11 * inv, 0.0)
-        ay = ops.select(has_axis, l1m1 * inv, 0.0)
-        az = ops.select(has_axis, l10 * inv, 1.0)
+        l00, l1m1, l10, l11 = chans[ch]
+        ax, ay, az, length = shared if shared_axis else _zh3_axis(ops, l11, l1m1, l10)
         if hallucinate:
             r = ops.clip(safe_div(ops, length, ops.maximum(l00, 0.0)), 0.0, _SQRT3)
             zc = l00 * r * (0.08 + 0.6 * r)
@@ -551,6 +572,26 @@ METHODS = method_table(
             description="exact for an L2 environment whose quadratic band is zonal about its L1 direction",
         ),
         Method(
+            id="zh3-lum",
+            label="ZH3, shared luminance axis",
+            kernel=_zh3_kernel,
+            inputs=(
+                *_NORMAL,
+                Input(
+                    "coeffs",
+                    "W/m²",
+                    "15 floats: per channel L00, L1−1, L10, L11 and the zonal L2 coefficient z about the "
+                    "luminance's L1 direction (zh3_from_sh(shared_axis=True)), channel-major",
+                ),
+            ),
+            fixed={"shared_axis": True},
+            storage=15,
+            quantity="environment_irradiance",
+            formula=f"{_ZH3_FORMULA} of the luminance (Rec. 709 weights), z_c = √(4π/5) Σ_m L_2m,c Y_2m(â)",
+            source=_ZH3,
+            description="one axis for RGB: one normalisation and one (â·n)² per pixel instead of three",
+        ),
+        Method(
             id="zh3-hallucinated",
             label="ZH3 hallucinated (L1 only)",
             kernel=_zh3_kernel,
@@ -777,15 +818,19 @@ def sh9_from_disk(direction, angular_radius: float, irradiance=1.0) -> np.ndarra
     return sh_from_disk(direction, angular_radius, irradiance, 2)
 
 
-def zh3_from_sh(coeffs) -> np.ndarray:
+def zh3_from_sh(coeffs, shared_axis: bool = False) -> np.ndarray:
     """The ZH3 probe (5, 3) of SH coefficients (≥ 9, 3) (or grey (≥ 9,)): per channel L00, L1−1, L10, L11 and
     z = ∫ L Y20(â·ω) dω = √(4π/5) Σ_m L_2m Y_2m(â), the projection of the channel's L2 band onto the zonal
-    harmonic about its L1 direction â (+z where L1 = 0, as the kernel): for that axis, the z with the least
-    squared error over the sphere (Y20(â·ω) = √(4π/5) Σ_m Y_2m(â) Y_2m(ω), the addition theorem)."""
+    harmonic about â: the channel's L1 direction, or with ``shared_axis`` the L1 direction of the
+    luminance (`ZH3_LUMINANCE`) for all three channels (+z where that L1 = 0, as the kernel). For a given
+    axis this z has the least squared error over the sphere (Y20(â·ω) = √(4π/5) Σ_m Y_2m(â) Y_2m(ω), the
+    addition theorem)."""
     c = _coeff_array(coeffs, 9, "coeffs")
     out = np.zeros((5, 3))
     out[:4] = c[:4]
     lin = c[[3, 1, 2], :].T  # (channel, xyz)
+    if shared_axis:
+        lin = np.repeat((np.asarray(ZH3_LUMINANCE) @ lin)[None, :], 3, axis=0)
     length = np.linalg.norm(lin, axis=1)
     axis = np.where((length > _TINY)[:, None], lin / np.maximum(length, _TINY)[:, None], [0.0, 0.0, 1.0])
     y2 = np.stack(_band_basis(axis[:, 0], axis[:, 1], axis[:, 2], 2), axis=-1)  # (channel, 5)

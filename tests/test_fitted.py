@@ -116,6 +116,7 @@ def _irradiance_bases(out: Path):
         "cube_nnls_rms": rng.uniform(0, 0.1, 3),
         "sh": rng.normal(0, 1, (25, 3)),
         "zh3": rng.normal(0, 1, (5, 3)),
+        "zh3_lum": rng.normal(0, 1, (5, 3)),
         "lambda": 0.02,
         "lambda_l3": 0.02,
         "lambda_l4": 0.03,

@@ -19,6 +19,13 @@ from rtfit.realtime import irradiance_bases as ir
 NEW = [m for m in ir.METHODS.values() if m.id.startswith(("sh-l3", "sh-l4", "zh3"))]
 
 
+def _coeffs_for(m, sh):
+    """What basis ``m`` stores for SH coefficients ``sh``: the ZH3 bakes, else the SH rows themselves."""
+    if m.id == "zh3":
+        return ir.zh3_from_sh(sh)
+    return ir.zh3_from_sh(sh, shared_axis=True) if m.id == "zh3-lum" else sh
+
+
 def _a_hat_quad(band: int) -> float:
     """2π ∫₀^{π/2} cos θ P_l(cos θ) sin θ dθ by scipy quad (the definition, not the closed form)."""
     f = lambda th: math.cos(th) * eval_legendre(band, math.cos(th)) * math.sin(th)  # noqa: E731
@@ -202,6 +209,10 @@ def test_zh3_exact_for_l2_environment_zonal_about_its_l1_direction(b):
     np.testing.assert_allclose(zh3, np.repeat(exact[:, None], 3, 1), rtol=1e-12, atol=1e-12)  # 2e-15
     l1 = ir.basis_irradiance("sh-l1", sh, n)
     assert np.max(np.abs(l1[:, 0] - exact)) > 0.1  # L1 alone misses the quadratic band
+    # the shared luminance axis: exact too when every channel's zonal axis is the same (scaled channels)
+    rgb = sh * np.array([1.0, 0.5, 2.0])
+    lum = ir.basis_irradiance("zh3-lum", ir.zh3_from_sh(rgb, shared_axis=True), n)
+    np.testing.assert_allclose(lum, exact[:, None] * np.array([1.0, 0.5, 2.0]), rtol=1e-12, atol=1e-12)
 
 
 def test_zh3_between_l1_and_l2_and_per_channel_axes():
@@ -215,11 +226,12 @@ def test_zh3_between_l1_and_l2_and_per_channel_axes():
         exact = ir.basis_irradiance("sh-l2", sh, dirs)
 
         def err(method, sh=sh, exact=exact):
-            coeffs = ir.zh3_from_sh(sh) if method == "zh3" else sh
+            coeffs = _coeffs_for(ir.METHODS[method], sh)
             return np.sum(w[:, None] * (ir.basis_irradiance(method, coeffs, dirs) - exact) ** 2, axis=0)
 
-        e1, e3 = err("sh-l1"), err("zh3")
+        e1, e3, e3l = err("sh-l1"), err("zh3"), err("zh3-lum")
         assert np.all(e3 <= e1 + 1e-12) and np.all(e3 < e1)
+        assert np.all(e3l <= e1 + 1e-12)  # a zonal projection about any axis cannot add error
     # each channel keeps its own axis: a red-only and a blue-only zonal environment, both exact
     sh = np.zeros((9, 3))
     sh[:, 0] = _zonal_environment_sh(_unit_vec([1, 0, 0]), 1.0, 0.5, 0.4)[:, 0]
@@ -266,7 +278,7 @@ def test_property_new_bases_finite_at_grazing_and_axis_aligned_normals(x, y, z, 
             return
     sh = sun_scale * ir.sh_from_disk(sun, 0.01, 1.0, 4)[:, None] * np.ones(3) + ir.sh_from_constant(0.5, 4)
     for m in NEW:
-        coeffs = ir.zh3_from_sh(sh) if m.id == "zh3" else sh
+        coeffs = _coeffs_for(m, sh)
         e64 = np.stack(m(NUMPY_OPS, ir.basis_inputs(m, coeffs, n), {"lam": 0.01} if m.params else None), -1)
         assert np.all(np.isfinite(e64)), m.id
 
@@ -280,7 +292,7 @@ def test_drjit_llvm_and_numpy_run_the_same_text():
     sh[0] = np.abs(sh[0]) + 2.0
     nd = dr.llvm.Array3f64(n.T)
     for m in NEW:
-        coeffs = ir.zh3_from_sh(sh) if m.id == "zh3" else sh
+        coeffs = _coeffs_for(m, sh)
         params = {"lam": 0.05} if m.params else None
         want = np.stack(m(NUMPY_OPS, ir.basis_inputs(m, coeffs, n), params), -1)
         got = ir.basis_irradiance(m, coeffs, nd, params)
@@ -292,16 +304,15 @@ def test_drjit_llvm_and_numpy_run_the_same_text():
         [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, 0, -1], [0, 1e-30, 1e-30], [0, 1e30, -1e30], [1e-8, 1, 0]]
     )
     for m in NEW:
-        coeffs = ir.zh3_from_sh(strong) if m.id == "zh3" else strong
+        coeffs = _coeffs_for(m, strong)
         got = ir.basis_irradiance(
             m, coeffs, dr.llvm.Array3f64(special.T), {"lam": 0.01} if m.params else None
         )
         assert np.all(np.isfinite(np.stack([np.array(g) for g in got]))), m.id
     # a zero normal on Dr.Jit (not checked there) gives the sphere average: the DC term
     zero = dr.llvm.Array3f64([0.0], [0.0], [0.0])
-    for mid in ("sh-l4", "zh3", "zh3-hallucinated"):
-        coeffs = ir.zh3_from_sh(sh) if mid == "zh3" else sh
-        got = np.array(ir.basis_irradiance(mid, coeffs, zero)[0])
+    for mid in ("sh-l4", "zh3", "zh3-lum", "zh3-hallucinated"):
+        got = np.array(ir.basis_irradiance(mid, _coeffs_for(ir.METHODS[mid], sh), zero)[0])
         assert got[0] == pytest.approx(math.pi * ir.SH_C[0] * sh[0, 0], rel=1e-12)
 
 
@@ -311,7 +322,7 @@ def test_method_rows_and_bad_input():
         ("sh-l3", "sh-l3-hann", "sh-l3-lanczos", "sh-l3-lambda"), 48
     )
     assert storage["sh-l4"] == storage["sh-l4-lambda"] == 75
-    assert storage["zh3"] == 15 and storage["zh3-hallucinated"] == 12
+    assert storage["zh3"] == storage["zh3-lum"] == 15 and storage["zh3-hallucinated"] == 12
     for m in NEW:
         assert m.formula and m.source and m.label
     with pytest.raises(ValueError, match="order"):
