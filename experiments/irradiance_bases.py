@@ -23,11 +23,16 @@ coefficients each one reads):
 * ``sh-l2-hann``, ``sh-l2-lanczos``  L2 with a fixed ringing window;
 * ``sh-l2-lambda``    L2 with Sloan's window 1/(1 + λl²(l + 1)²), λ fitted per environment as the smallest
   value that removes negative irradiance;
+* ``sh-l3*``, ``sh-l4*`` 16 and 25 SH coefficients per channel, plain and with the same three windows (λ
+  fitted per order); L3 equals L2 in irradiance (Â_3 = 0) at 48 floats, a check;
+* ``zh3``             ZH3: L1 plus one zonal L2 coefficient about each channel's L1 direction (15 floats);
+* ``zh3-lum``         ZH3 with one axis for RGB (the luminance's L1 direction), 15 floats;
+* ``zh3-hallucinated`` ZH3 with the zonal coefficient guessed from L1 (12 floats, the cost of L1);
 * ``quadrature``      the dense quadrature itself (exact up to quadrature error: must sit at the noise floor).
 
-The SH coefficients of a map come from `sh_project_latlong` (the bilinear function Mitsuba sees, 2×
-supersampled); a disc sun's from the closed form `sh9_from_disk`; cube-valve's axis irradiance and the
-NNLS targets from the quadrature.
+The SH coefficients (to L4) of a map come from `sh_project_latlong` (the bilinear function Mitsuba sees, 2×
+supersampled); a disc sun's from the closed form `sh_from_disk`; ZH3's from them (`zh3_from_sh`); cube-valve's
+axis irradiance and the NNLS targets from the quadrature.
 
 Metrics per environment × basis over the Fibonacci normals (all channels), each with the noise floor of
 the Mitsuba reference (the value the metric reads for an exact basis, seeded Monte Carlo):
@@ -64,15 +69,17 @@ from rtfit.realtime.irradiance_bases import (
     CUBE_AXES,
     CUBE_ORDER,
     METHODS,
+    SH_MAX_ORDER,
     ambient_cube_from_axes,
     basis_inputs,
     basis_irradiance,
     fibonacci_sphere,
     fit_ambient_cube_nnls,
     fit_window_lambda,
-    sh9_from_constant,
-    sh9_from_disk,
+    sh_from_constant,
+    sh_from_disk,
     sh_project_latlong,
+    zh3_from_sh,
 )
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene, render_gbuffer, use_variant
 from rtfit.reference import environments as envs
@@ -268,12 +275,32 @@ ROWS = (
     Row("sh-l2-hann", "sh"),
     Row("sh-l2-lanczos", "sh"),
     Row("sh-l2-lambda", "sh", params={"lam": "lambda"}),
+    Row("sh-l3", "sh"),
+    Row("sh-l3-hann", "sh"),
+    Row("sh-l3-lanczos", "sh"),
+    Row("sh-l3-lambda", "sh", params={"lam": "lambda_l3"}),
+    Row("sh-l4", "sh"),
+    Row("sh-l4-hann", "sh"),
+    Row("sh-l4-lanczos", "sh"),
+    Row("sh-l4-lambda", "sh", params={"lam": "lambda_l4"}),
+    Row("zh3", "zh3"),
+    Row("zh3-lum", "zh3_lum"),
+    Row("zh3-hallucinated", "sh"),
     Row("quadrature", None),
 )
 ROW = {r.method: r for r in ROWS}
 BASES = tuple(r for r in ROWS if not r.spec.exact)  # the rows an engine would store and evaluate
 SPHERE_FIGURE_METHODS = ("cube-valve", "sh-l1", "sh-l2", "sh-l2-lambda")
-SUN_PROFILE_METHODS = ("cube-valve", "sh-l1", "sh-l1-geomerics", "sh-l2", "sh-l2-hann", "sh-l2-lambda")
+SUN_PROFILE_METHODS = (
+    "cube-valve",
+    "sh-l1",
+    "sh-l1-geomerics",
+    "sh-l2",
+    "sh-l2-hann",
+    "sh-l2-lambda",
+    "sh-l4",
+    "zh3-hallucinated",
+)
 NOISE_FLOOR_METHOD = "sh-l2"  # whose noise floor the per-environment figures draw (any row's is the same)
 
 
@@ -295,16 +322,21 @@ def build_bases(env, cfg: dict, fit_normals: int = 2048, backend: str | None = N
     """Every basis's coefficients for ``env`` (what an engine would bake), with the time each took."""
     out: dict = {"timing_ms": {}}
     t0 = time.perf_counter()
-    sh = np.zeros((9, 3))
+    order = (
+        SH_MAX_ORDER  # one projection to L4 (25 rows) serves every SH row: lower orders read its first rows
+    )
+    sh = np.zeros(((order + 1) ** 2, 3))
     if env.constant is not None:
-        sh += sh9_from_constant(env.constant)
+        sh += sh_from_constant(env.constant, order)
     if env.radiance_map is not None:
-        sh += sh_project_latlong(env.radiance_map, cfg["map_supersample"])
+        sh += sh_project_latlong(env.radiance_map, cfg["map_supersample"], order)
     if env.sun is not None:
         s = env.sun
-        sh += sh9_from_disk(s.direction, math.radians(s.angular_radius_deg), np.asarray(s.irradiance))
+        sh += sh_from_disk(s.direction, math.radians(s.angular_radius_deg), np.asarray(s.irradiance), order)
     out["timing_ms"]["sh-projection"] = 1e3 * (time.perf_counter() - t0)
     out["sh"] = sh
+    out["zh3"] = zh3_from_sh(sh)
+    out["zh3_lum"] = zh3_from_sh(sh, shared_axis=True)
     t0 = time.perf_counter()
     ss = supersample_for(env, cfg)
     out["cube_valve"] = ambient_cube_from_axes(envs.irradiance_quadrature(env, np.array(CUBE_AXES), ss))
@@ -317,6 +349,8 @@ def build_bases(env, cfg: dict, fit_normals: int = 2048, backend: str | None = N
     t0 = time.perf_counter()
     out["lambda"] = fit_window_lambda(sh)
     out["timing_ms"]["lambda-fit"] = 1e3 * (time.perf_counter() - t0)
+    out["lambda_l3"] = out["lambda"]  # Â_3 = 0 and w_l does not depend on the order: the L2 answer
+    out["lambda_l4"] = fit_window_lambda(sh, order=4)
     return out
 
 
@@ -708,8 +742,14 @@ def write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
             "cube_nnls": b["cube_nnls"].tolist(),
             "cube_nnls_rms_residual": b["cube_nnls_rms"].tolist(),
             "sh_convention": "real SH, no Condon-Shortley phase, index l(l+1)+m",
-            "sh_l2": b["sh"].tolist(),
+            "sh_l2": b["sh"][:9].tolist(),
+            "sh_l4": b["sh"].tolist(),
+            "zh3": b["zh3"].tolist(),
+            "zh3_lum": b["zh3_lum"].tolist(),
+            "zh3_layout": "per channel: L00, L1-1, L10, L11, zonal L2 coefficient about the L1 direction "
+            "(zh3: the channel's, zh3_lum: the Rec. 709 luminance's)",
             "lambda_window": b["lambda"],
+            "lambda_window_l4": b["lambda_l4"],
             "lambda_window_formula": "w_l = 1 / (1 + lambda * l^2 (l+1)^2)",
         }
         methods = [
@@ -780,10 +820,12 @@ def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[dict]:
                 "passed": abs(bias) <= SUNSKY_BAKE_TOLERANCE,
             }
         )
-    neg = max(_metric(cases, n, "sh-l2-lambda", "neg_frac") for n in names)
+    lam_rows = [r.method for r in ROWS if "lam" in r.params]
+    neg = max(_metric(cases, n, m, "neg_frac") for n in names for m in lam_rows)
     checks.append(
         {
-            "name": "fitted λ window leaves no negative irradiance (max over environments)",
+            "name": f"fitted λ window leaves no negative irradiance ({', '.join(lam_rows)}; max over "
+            "environments)",
             "value": neg,
             "expected": "0",
             "passed": neg == 0.0,
@@ -801,6 +843,50 @@ def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[dict]:
             "value": ", ".join(worse) or "none worse",
             "expected": "none worse",
             "passed": not worse,
+        }
+    )
+    return checks + _order_checks(names, cases)
+
+
+ORDER_CHECKS = (
+    ("sh-l4", "sh-l2"),
+    ("sh-l2", "zh3"),
+    ("zh3", "sh-l1"),
+    ("sh-l2", "zh3-lum"),
+    ("zh3-lum", "sh-l1"),
+)
+"""(better, worse) pairs that orthogonality guarantees over the sphere of normals: SH L_n is the least-squares
+irradiance of its bands (adding bands never raises the error), and ZH3 keeps L1 and adds the projection of the
+L2 band onto one zonal harmonic, about any axis (between L1 and L2)."""
+
+
+def _order_checks(names, cases) -> list[dict]:
+    """Error does not grow with the SH order (`ORDER_CHECKS`, within 2 noise floors); L3 = L2 (Â_3 = 0)."""
+    checks = []
+    for better, than in ORDER_CHECKS:
+        bad = [
+            n
+            for n in names
+            if _metric(cases, n, better, "rel_rmse")
+            > _metric(cases, n, than, "rel_rmse") + 2 * _floor(cases, n, than, "rel_rmse")
+        ]
+        checks.append(
+            {
+                "name": f"{better} no worse than {than} (rel. RMSE, all environments, within 2 noise floors)",
+                "value": ", ".join(bad) or "none worse",
+                "expected": "none worse",
+                "passed": not bad,
+            }
+        )
+    diff = max(
+        abs(_metric(cases, n, "sh-l3", "rel_rmse") - _metric(cases, n, "sh-l2", "rel_rmse")) for n in names
+    )
+    checks.append(
+        {
+            "name": "SH L3 irradiance equals L2 (Â_3 = 0: odd bands above 1 vanish): max |Δ rel. RMSE|",
+            "value": diff,
+            "expected": "≤ 1e-12",
+            "passed": diff <= 1e-12,
         }
     )
     return checks
@@ -1143,8 +1229,10 @@ def _summary(cfg, cases, checks) -> str:
         f"average (opposite suns and bright softboxes) and L1 on {mean_of('sh-l1', 'neg_frac'):.3g}; the "
         "fitted λ window removes it at a large cost in accuracy, Geomerics' L1 never rings. sMAPE (mean "
         f"over environments): cube {mean_of('cube-valve', 'smape'):.3g}, L1 "
-        f"{mean_of('sh-l1', 'smape'):.3g}, L2 {mean_of('sh-l2', 'smape'):.3g}. {passed} of {len(checks)} "
-        "checks passed."
+        f"{mean_of('sh-l1', 'smape'):.3g}, L2 {mean_of('sh-l2', 'smape'):.3g}. Higher orders: SH L4 (75 "
+        f"floats) {mean_of('sh-l4'):.3g}, L3 (48) the same as L2 (Â_3 = 0); ZH3 (15 floats) "
+        f"{mean_of('zh3'):.3g}, hallucinated ZH3 (12) {mean_of('zh3-hallucinated'):.3g}. {passed} of "
+        f"{len(checks)} checks passed."
     )
 
 
@@ -1159,11 +1247,19 @@ def _cost_inputs(n: int, backend: str):
 def _demo_bases() -> dict:
     """Fixed coefficients for the timings (a disc sun over a constant sky, a random cube, λ = 0.05)."""
     rng = np.random.default_rng(3)
-    sh = sh9_from_disk([0.3, 0.4, 0.866], 0.1, np.array([3.0, 2.5, 2.0])) + np.array(
-        [[2.0, 2.0, 2.0]] + [[0.0] * 3] * 8
-    )
+    sh = sh_from_disk([0.3, 0.4, 0.866], 0.1, np.array([3.0, 2.5, 2.0]), SH_MAX_ORDER)
+    sh += sh_from_constant(2.0 / math.sqrt(4 * math.pi), SH_MAX_ORDER)
     cube = rng.uniform(0.2, 2.0, (6, 3))
-    return {"sh": sh, "cube_valve": cube, "cube_nnls": cube, "lambda": 0.05}
+    return {
+        "sh": sh,
+        "zh3": zh3_from_sh(sh),
+        "zh3_lum": zh3_from_sh(sh, shared_axis=True),
+        "cube_valve": cube,
+        "cube_nnls": cube,
+        "lambda": 0.05,
+        "lambda_l3": 0.05,
+        "lambda_l4": 0.05,
+    }
 
 
 def _costs(ctx) -> list[dict]:

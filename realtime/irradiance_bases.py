@@ -74,12 +74,16 @@ __all__ = [
     "CUBE_ORDER",
     "METHODS",
     "SH_C",
+    "SH_MAX_ORDER",
     "WINDOWS",
+    "ZH3_LUMINANCE",
     "ambient_cube_from_axes",
     "ambient_cube_irradiance",
     "basis_inputs",
     "basis_irradiance",
+    "clamped_cosine_band",
     "cube_design_matrix",
+    "disk_zonal_factors",
     "fibonacci_sphere",
     "fit_ambient_cube_nnls",
     "fit_window_lambda",
@@ -92,21 +96,69 @@ __all__ = [
     "sh9_from_directional",
     "sh9_from_disk",
     "sh9_irradiance",
+    "sh_basis",
+    "sh_from_constant",
+    "sh_from_directional",
+    "sh_from_disk",
     "sh_irradiance",
     "sh_project_latlong",
     "sh_project_samples",
     "sh_window",
+    "zh3_from_sh",
 ]
 
-# Normalisation constants of the real SH basis (no Condon–Shortley phase).
+# Normalisation constants of the real SH basis (no Condon–Shortley phase), in the order `_band_basis` uses.
 SH_C = (
-    0.28209479177387814,  # 1/(2√π)
-    0.4886025119029199,  # √3/(2√π)
-    1.0925484305920792,  # √15/(2√π)
-    0.31539156525252005,  # √5/(4√π)
-    0.5462742152960396,  # √15/(4√π)
+    0.28209479177387814,  # 0: 1/(2√π)                       Y00
+    0.4886025119029199,  # 1: √3/(2√π)                       Y1m
+    1.0925484305920792,  # 2: √15/(2√π)                      Y2,−2 Y2,−1 Y21
+    0.31539156525252005,  # 3: √5/(4√π)                      Y20
+    0.5462742152960396,  # 4: √15/(4√π)                      Y22
+    math.sqrt(35.0 / (2.0 * math.pi)) / 4.0,  # 5: Y3,±3
+    math.sqrt(105.0 / math.pi) / 2.0,  # 6: Y3,−2
+    math.sqrt(21.0 / (2.0 * math.pi)) / 4.0,  # 7: Y3,±1
+    math.sqrt(7.0 / math.pi) / 4.0,  # 8: Y30
+    math.sqrt(105.0 / math.pi) / 4.0,  # 9: Y32
+    3.0 * math.sqrt(35.0 / math.pi) / 4.0,  # 10: Y4,−4
+    3.0 * math.sqrt(35.0 / (2.0 * math.pi)) / 4.0,  # 11: Y4,±3
+    3.0 * math.sqrt(5.0 / math.pi) / 4.0,  # 12: Y4,−2
+    3.0 * math.sqrt(5.0 / (2.0 * math.pi)) / 4.0,  # 13: Y4,±1
+    3.0 / (16.0 * math.sqrt(math.pi)),  # 14: Y40
+    3.0 * math.sqrt(5.0 / math.pi) / 8.0,  # 15: Y42
+    3.0 * math.sqrt(35.0 / math.pi) / 16.0,  # 16: Y44
 )
-A_HAT = (math.pi, 2.0 * math.pi / 3.0, math.pi / 4.0)
+SH_MAX_ORDER = 4
+"""The highest SH band the kernels evaluate (L4: 25 coefficients per channel)."""
+
+
+def clamped_cosine_band(band: int) -> float:
+    """Â_l = 2π ∫₀¹ t P_l(t) dt: the band-l factor of the convolution with the clamped cosine max(cos θ, 0)
+    (Funk–Hecke; Ramamoorthi & Hanrahan 2001, eq. 8 with Â_l = √(4π/(2l+1)) A_l of their normalisation).
+
+    Â_0 = π, Â_1 = 2π/3; for odd l > 1, Â_l = 0: t P_l(t) is then even, so ∫₀¹ = ½ ∫₋₁¹ t P_l dt = 0
+    (t = P_1 is orthogonal to P_l). For even l ≥ 2, writing t P_l = ((l + 1) P_{l+1} + l P_{l−1})/(2l + 1),
+    using ∫₀¹ P_k dt = (P_{k−1}(0) − P_{k+1}(0))/(2k + 1) for odd k and P_{l±2}(0) in terms of P_l(0):
+
+        ∫₀¹ t P_l dt = −P_l(0) / ((l + 2)(l − 1)),   P_l(0) = (−1)^(l/2) l! / (2^l ((l/2)!)²),
+        Â_l = 2π (−1)^(l/2 − 1) / ((l + 2)(l − 1)) · l! / (2^l ((l/2)!)²)
+
+    (Â_2 = π/4, Â_4 = −π/24, Â_6 = π/64). Exact binomial arithmetic, any l ≥ 0; tested against scipy
+    quadrature of the integral."""
+    l = int(band)  # noqa: E741 (l is the band index of every formula here)
+    if l < 0:
+        raise ValueError(f"band l must be >= 0 (got {band})")
+    if l == 0:
+        return math.pi
+    if l == 1:
+        return 2.0 * math.pi / 3.0
+    if l % 2:
+        return 0.0
+    sign = -1.0 if (l // 2) % 2 == 0 else 1.0  # (−1)^(l/2 − 1)
+    return 2.0 * math.pi * sign / ((l + 2) * (l - 1)) * (math.comb(l, l // 2) / 2.0**l)
+
+
+A_HAT = tuple(clamped_cosine_band(b) for b in range(SH_MAX_ORDER + 1))
+"""Â_0..Â_4 = (π, 2π/3, π/4, 0, −π/24): the clamped-cosine band factors (`clamped_cosine_band`)."""
 CUBE_ORDER = ("+x", "-x", "+y", "-y", "+z", "-z")
 CUBE_AXES = (
     (1.0, 0.0, 0.0),
@@ -118,8 +170,11 @@ CUBE_AXES = (
 )
 """The unit directions of `CUBE_ORDER` (where Valve's cube samples the irradiance)."""
 WINDOWS = ("none", "hann", "lanczos", "lambda")
-_BAND = (0, 1, 1, 1, 2, 2, 2, 2, 2)
+_BAND = tuple(b for b in range(SH_MAX_ORDER + 1) for _ in range(2 * b + 1))  # band of index k
 _TINY = 1e-30
+ZH3_LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 luminance weights of linear sRGB: the shared ZH3 axis is the L1 direction of the weighted sum."""
+_SQRT3 = math.sqrt(3.0)  # |L1|/L00 of a single direction: the largest ratio a non-negative environment has
 _R1_SCALE = 0.5 * A_HAT[1] * SH_C[1]  # Geomerics: R1 = ½ Â1 Y1 (L11, L1−1, L10)
 
 
@@ -137,20 +192,46 @@ def _unit(ops, nx, ny, nz):
     )
 
 
-def _basis(x, y, z):
-    """The 9 real SH basis values Y_k, k = l(l + 1) + m, at unit (x, y, z) (any array type)."""
-    c0, c1, c2, c3, c4 = SH_C
-    return (
-        c0 + 0.0 * x,
-        c1 * y,
-        c1 * z,
-        c1 * x,
-        c2 * x * y,
-        c2 * y * z,
-        c3 * (3.0 * z * z - 1.0),
-        c2 * x * z,
-        c4 * (x * x - y * y),
-    )
+def _band_basis(x, y, z, l):  # noqa: E741 (the band index of every formula here)
+    """The 2l + 1 real SH basis values Y_lm, m = −l..l, of band ``l`` ≤ 4 at unit (x, y, z) (any array
+    type; no Condon–Shortley phase, so every entry is a positive constant times its polynomial). The
+    polynomials use x² + y² + z² = 1 (e.g. Y3,±1 ∝ (5z² − 1) instead of (4z² − x² − y²))."""
+    c = SH_C
+    if l == 0:
+        return (c[0] + 0.0 * x,)
+    if l == 1:
+        return (c[1] * y, c[1] * z, c[1] * x)
+    if l == 2:
+        return (c[2] * x * y, c[2] * y * z, c[3] * (3.0 * z * z - 1.0), c[2] * x * z, c[4] * (x * x - y * y))
+    x2, y2, z2 = x * x, y * y, z * z
+    if l == 3:
+        return (
+            c[5] * y * (3.0 * x2 - y2),
+            c[6] * x * y * z,
+            c[7] * y * (5.0 * z2 - 1.0),
+            c[8] * z * (5.0 * z2 - 3.0),
+            c[7] * x * (5.0 * z2 - 1.0),
+            c[9] * z * (x2 - y2),
+            c[5] * x * (x2 - 3.0 * y2),
+        )
+    if l == 4:
+        return (
+            c[10] * x * y * (x2 - y2),
+            c[11] * y * z * (3.0 * x2 - y2),
+            c[12] * x * y * (7.0 * z2 - 1.0),
+            c[13] * y * z * (7.0 * z2 - 3.0),
+            c[14] * ((35.0 * z2 - 30.0) * z2 + 3.0),
+            c[13] * x * z * (7.0 * z2 - 3.0),
+            c[15] * (x2 - y2) * (7.0 * z2 - 1.0),
+            c[11] * x * z * (x2 - 3.0 * y2),
+            c[16] * (x2 * (x2 - 3.0 * y2) - y2 * (3.0 * x2 - y2)),
+        )
+    raise ValueError(f"SH band must be in 0..{SH_MAX_ORDER} (got {l})")
+
+
+def _basis(x, y, z, order=2):
+    """The (order + 1)² real SH basis values Y_k, k = l(l + 1) + m, at unit (x, y, z) (any array type)."""
+    return tuple(v for b in range(order + 1) for v in _band_basis(x, y, z, b))
 
 
 def _hann(order, lam):
@@ -163,7 +244,7 @@ def _lanczos(order, lam):
 
 
 def _sloan(order, lam):
-    return [1.0 / (1.0 + lam * b * b * (b + 1.0) ** 2) for b in (0.0, 1.0, 2.0)[: order + 1]]
+    return [1.0 / (1.0 + lam * (b * b * (b + 1.0) ** 2)) for b in map(float, range(order + 1))]
 
 
 _WINDOW_FACTORS = {
@@ -177,22 +258,76 @@ namespace (the λ window is computed inside the kernel, so a fit or a bisection 
 
 
 def _sh_kernel(ops, nx, ny, nz, coeffs, order=2, window="none", lam=0.0):
-    """E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n) per channel.
+    """E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n) per channel, l ≤ ``order`` (1..4).
 
     ``coeffs``: 3·(order + 1)² SH coefficients L_lm (W/m²), channel-major (R then G then B), index
-    l(l + 1) + m; ``window`` a kind of `WINDOWS`, ``lam`` Sloan's λ (used by the "lambda" window only)."""
+    l(l + 1) + m; ``window`` a kind of `WINDOWS`, ``lam`` Sloan's λ (used by the "lambda" window only).
+    Bands with Â_l = 0 (odd l ≥ 3) are skipped: they are stored but cannot change the irradiance."""
     x, y, z, valid = _unit(ops, nx, ny, nz)
     w = _WINDOW_FACTORS[window](order, lam)
     per = (order + 1) ** 2
-    scale = [A_HAT[_BAND[i]] * w[_BAND[i]] for i in range(per)]
-    ys = _basis(x, y, z)
+    bands = [band for band in range(1, order + 1) if A_HAT[band] != 0.0]
+    ys = {band: _band_basis(x, y, z, band) for band in bands}
+    scale = {band: A_HAT[band] * w[band] for band in bands}
     out = []
     for c in range(3):
-        k = [coeffs[c * per + i] * scale[i] for i in range(per)]
-        rest = k[1] * ys[1] + k[2] * ys[2] + k[3] * ys[3]
-        for i in range(4, per):
-            rest = rest + k[i] * ys[i]
-        out.append(k[0] * SH_C[0] + ops.select(valid, rest, 0.0))
+        base = c * per
+        rest = None
+        for band in bands:
+            for j, yv in enumerate(ys[band]):
+                term = (coeffs[base + band * band + j] * scale[band]) * yv
+                rest = term if rest is None else rest + term
+        dc = (coeffs[base] * (A_HAT[0] * w[0])) * SH_C[0]
+        out.append(dc if rest is None else dc + ops.select(valid, rest, 0.0))
+    return tuple(out)
+
+
+def _zh3_axis(ops, lx, ly, lz):
+    """(âx, ây, âz, |l|): the unit vector of the L1 vector l = (lx, ly, lz), +z where |l| ≤ 1e-30."""
+    length = ops.sqrt(lx * lx + ly * ly + lz * lz)
+    has_axis = length > _TINY
+    inv = 1.0 / ops.maximum(length, _TINY)
+    return (
+        ops.select(has_axis, lx * inv, 0.0),
+        ops.select(has_axis, ly * inv, 0.0),
+        ops.select(has_axis, lz * inv, 1.0),
+        length,
+    )
+
+
+def _zh3_kernel(ops, nx, ny, nz, coeffs, hallucinate=False, shared_axis=False):
+    """ZH3 (Roughton et al. 2024): linear SH plus one zonal L2 harmonic about an L1 direction â.
+
+    E(n) = Â_0 Y00 L00 + Â_1 Y1(n)·L1 + Â_2 z Y20(â·n),  Y20(t) = √5/(4√π) (3t² − 1),
+    â = (L11, L1−1, L10)/|L1| of the channel, or with ``shared_axis`` of the luminance-weighted L1
+    (`ZH3_LUMINANCE`, one â for RGB); +z where that L1 is 0.
+
+    ``coeffs`` per channel, channel-major: (L00, L1−1, L10, L11, z) (15 floats) with z stored, or
+    (L00, L1−1, L10, L11) (12 floats) with ``hallucinate`` (per-channel axis): z = L00 r (0.08 + 0.6 r),
+    r = |L1|/L00 clamped to [0, √3] (the range of a non-negative environment; the paper's curve fit)."""
+    x, y, z, valid = _unit(ops, nx, ny, nz)
+    per = 4 if hallucinate else 5
+    chans = [coeffs[ch * per : ch * per + 4] for ch in range(3)]
+    if shared_axis:
+        w = ZH3_LUMINANCE
+        shared = _zh3_axis(
+            ops,
+            *(w[0] * chans[0][k] + w[1] * chans[1][k] + w[2] * chans[2][k] for k in (3, 1, 2)),
+        )
+    out = []
+    for ch in range(3):
+        l00, l1m1, l10, l11 = chans[ch]
+        ax, ay, az, length = shared if shared_axis else _zh3_axis(ops, l11, l1m1, l10)
+        if hallucinate:
+            r = ops.clip(safe_div(ops, length, ops.maximum(l00, 0.0)), 0.0, _SQRT3)
+            zc = l00 * r * (0.08 + 0.6 * r)
+        else:
+            zc = coeffs[ch * per + 4]
+        t = ax * x + ay * y + az * z
+        dc = l00 * (A_HAT[0] * SH_C[0])
+        lin = (A_HAT[1] * SH_C[1]) * (l11 * x + l1m1 * y + l10 * z)
+        quad = (zc * (A_HAT[2] * SH_C[3])) * (3.0 * t * t - 1.0)
+        out.append(dc + ops.select(valid, lin + quad, 0.0))
     return tuple(out)
 
 
@@ -253,6 +388,66 @@ _CUBE_FORMULA = "E(n) = n_x² C[±x] + n_y² C[±y] + n_z² C[±z] (the sign of 
 _SH_FORMULA = "E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n), Â = (π, 2π/3, π/4)"
 _RH = "Ramamoorthi & Hanrahan 2001, An efficient representation for irradiance environment maps"
 _SLOAN = "Sloan 2008, Stupid spherical harmonics (SH) tricks (windowing)"
+_ZH3 = (
+    "Roughton, Sloan, Silvennoinen, Iwanicki, Shirley 2024, ZH3: Quadratic Zonal Harmonics (i3D 2024, "
+    "PACMCGIT 7(1)); hallucination curve as in the authors' published code (Probulator ZH3Solver.h "
+    "zh3Coefficient, SHforHLSL CalculateIrradianceL1ZH3Hallucinate)"
+)
+_ZH3_FORMULA = "E(n) = Â_0 Y00 L00 + Â_1 Y1(n)·L1 + Â_2 z Y20(â·n), â = L1/|L1|"
+
+
+def _sh_order_methods(order: int) -> list[Method]:
+    """The four SH methods of one order ≥ 3 (plain, Hann, Lanczos, fitted λ): one kernel, four windows."""
+    per = (order + 1) ** 2
+    coeffs = Input(
+        "coeffs", "W/m²", f"{3 * per} floats: SH coefficients L_lm = ∫ L Y_lm dω, l ≤ {order}, channel-major"
+    )
+    a_hat = ", ".join(("π", "2π/3", "π/4", "0", "−π/24")[: order + 1])
+    formula = f"E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n), l ≤ {order}, Â = ({a_hat})"
+    note = "band 3 stored but Â_3 = 0: the irradiance equals the same window's L2 form at l ≤ 2"
+
+    def fmt(kind):
+        return "(" + ", ".join(f"{v:.3g}" for v in _WINDOW_FACTORS[kind](order, 0.0)) + ")"
+
+    def method(suffix, label, fixed, formula_tail, params=None):
+        return Method(
+            id=f"sh-l{order}{suffix}",
+            label=f"SH L{order} ({per}){label}" + (" window" if fixed else ""),
+            kernel=_sh_kernel,
+            inputs=(*_NORMAL, coeffs),
+            params=params or {},
+            fixed={"order": order, **fixed},
+            storage=3 * per,
+            quantity="environment_irradiance",
+            formula=f"{formula}, {formula_tail}",
+            source=_SLOAN if fixed else _RH,
+            description=note if order == 3 else "",
+        )
+
+    lam = Param(
+        1e-6,
+        0.0,
+        math.inf,
+        unit="1",
+        description="window strength λ of w_l = 1/(1 + λ l²(l + 1)²); fitted per environment as the "
+        f"smallest λ without negative L{order} irradiance (fit_window_lambda(order={order}))",
+    )
+    return [
+        method("", "", {}, "w_l = 1"),
+        method(
+            "-hann", ", Hann window", {"window": "hann"}, f"w_l = ½(1 + cos(πl/{order + 1})) = {fmt('hann')}"
+        ),
+        method(
+            "-lanczos",
+            ", Lanczos window",
+            {"window": "lanczos"},
+            f"w_l = sinc(l/{order + 1}) = {fmt('lanczos')}",
+        ),
+        method(
+            "-lambda", ", fitted λ window", {"window": "lambda"}, "w_l = 1/(1 + λ l²(l + 1)²)", {"lam": lam}
+        ),
+    ]
+
 
 METHODS = method_table(
     [
@@ -354,6 +549,59 @@ METHODS = method_table(
             quantity="environment_irradiance",
             formula=f"{_SH_FORMULA}, w_l = 1/(1 + λ l²(l + 1)²)",
             source=_SLOAN,
+        ),
+        *_sh_order_methods(3),
+        *_sh_order_methods(4),
+        Method(
+            id="zh3",
+            label="ZH3 (L1 + zonal L2)",
+            kernel=_zh3_kernel,
+            inputs=(
+                *_NORMAL,
+                Input(
+                    "coeffs",
+                    "W/m²",
+                    "15 floats: per channel L00, L1−1, L10, L11 and the zonal L2 coefficient z about the "
+                    "channel's L1 direction (zh3_from_sh), channel-major",
+                ),
+            ),
+            storage=15,
+            quantity="environment_irradiance",
+            formula=f"{_ZH3_FORMULA}, z = ∫ L Y20(â·ω) dω = √(4π/5) Σ_m L_2m Y_2m(â) (stored)",
+            source=_ZH3,
+            description="exact for an L2 environment whose quadratic band is zonal about its L1 direction",
+        ),
+        Method(
+            id="zh3-lum",
+            label="ZH3, shared luminance axis",
+            kernel=_zh3_kernel,
+            inputs=(
+                *_NORMAL,
+                Input(
+                    "coeffs",
+                    "W/m²",
+                    "15 floats: per channel L00, L1−1, L10, L11 and the zonal L2 coefficient z about the "
+                    "luminance's L1 direction (zh3_from_sh(shared_axis=True)), channel-major",
+                ),
+            ),
+            fixed={"shared_axis": True},
+            storage=15,
+            quantity="environment_irradiance",
+            formula=f"{_ZH3_FORMULA} of the luminance (Rec. 709 weights), z_c = √(4π/5) Σ_m L_2m,c Y_2m(â)",
+            source=_ZH3,
+            description="one axis for RGB: one normalisation and one (â·n)² per pixel instead of three",
+        ),
+        Method(
+            id="zh3-hallucinated",
+            label="ZH3 hallucinated (L1 only)",
+            kernel=_zh3_kernel,
+            inputs=(*_NORMAL, _SH1),
+            fixed={"hallucinate": True},
+            storage=12,
+            quantity="environment_irradiance",
+            formula=f"{_ZH3_FORMULA}, z = L00 r (0.08 + 0.6 r), r = min(|L1|/L00, √3) (curve fit)",
+            source=_ZH3,
+            description="L1 storage; the zonal L2 coefficient is guessed from the L1 length",
         ),
         Method(
             id="quadrature",
@@ -467,11 +715,17 @@ def basis_irradiance(method: str | Method, coeffs, normal, params: Mapping[str, 
 
 
 # ====================================================================================== SH: windows
+def _check_order(order) -> int:
+    if isinstance(order, bool) or order not in range(1, SH_MAX_ORDER + 1):
+        raise ValueError(f"order must be an integer in 1..{SH_MAX_ORDER} (got {order!r})")
+    return int(order)
+
+
 def sh_window(kind: str, order: int = 2, lam: float = 0.0) -> np.ndarray:
     """Per-band window factors w_0..w_order for ``kind`` in {"none", "hann", "lanczos", "lambda"} (the text
-    the SH kernel applies): Hann ½(1 + cos(πl/(L+1))), Lanczos sinc(l/(L+1)), λ 1/(1 + λ l²(l + 1)²)."""
-    if order not in (1, 2):
-        raise ValueError(f"order must be 1 or 2 (got {order!r})")
+    the SH kernel applies), L = ``order`` ∈ 1..4: Hann ½(1 + cos(πl/(L+1))), Lanczos sinc(l/(L+1)),
+    λ 1/(1 + λ l²(l + 1)²)."""
+    _check_order(order)
     if kind not in _WINDOW_FACTORS:
         raise ValueError(f"window kind must be one of {WINDOWS} (got {kind!r})")
     if kind == "lambda":  # guard: λ < 0 makes w_l grow with l (and divide by zero at λ = −1/4)
@@ -482,56 +736,116 @@ def sh_window(kind: str, order: int = 2, lam: float = 0.0) -> np.ndarray:
 
 
 # ====================================================================================== SH: public
-def sh9_basis(direction) -> np.ndarray:
-    """The 9 real SH basis values (no Condon–Shortley phase) at unit ``direction`` (..., 3) → (..., 9)."""
+def sh_basis(direction, order: int = 2) -> np.ndarray:
+    """The (order + 1)² real SH basis values (no Condon–Shortley phase, index l(l + 1) + m) at
+    ``direction`` (..., 3) (normalised here; zero length raises) → (..., (order + 1)²), float64."""
+    _check_order(order)
     d = np.asarray(direction, dtype=np.float64)
     _normal_args(d, "direction")
     d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    return np.stack(_basis(d[..., 0], d[..., 1], d[..., 2]), axis=-1)
+    return np.stack(_basis(d[..., 0], d[..., 1], d[..., 2], order), axis=-1)
 
 
-def sh9_from_constant(radiance) -> np.ndarray:
-    """SH coefficients (9, 3) of a constant environment of radiance ``radiance`` (W·m⁻²·sr⁻¹, scalar or
-    RGB): L_00 = ∫ L Y00 dω = L·4π·Y00 = L√(4π), every other coefficient 0."""
-    sh = np.zeros((9, 3))
+def sh9_basis(direction) -> np.ndarray:
+    """The 9 real SH basis values (no Condon–Shortley phase) at unit ``direction`` (..., 3) → (..., 9)."""
+    return sh_basis(direction, 2)
+
+
+def sh_from_constant(radiance, order: int = 2) -> np.ndarray:
+    """SH coefficients ((order + 1)², 3) of a constant environment of radiance ``radiance`` (W·m⁻²·sr⁻¹,
+    scalar or RGB): L_00 = ∫ L Y00 dω = L·4π·Y00 = L√(4π), every other coefficient 0."""
+    sh = np.zeros(((_check_order(order) + 1) ** 2, 3))
     sh[0] = np.asarray(radiance, dtype=np.float64) * math.sqrt(4 * math.pi)
     return sh
 
 
-def sh9_from_directional(direction) -> np.ndarray:
-    """SH coefficients (9,) of a distant light of unit irradiance at normal incidence towards
+def sh9_from_constant(radiance) -> np.ndarray:
+    """`sh_from_constant` at order 2 → (9, 3)."""
+    return sh_from_constant(radiance, 2)
+
+
+def sh_from_directional(direction, order: int = 2) -> np.ndarray:
+    """SH coefficients ((order + 1)²,) of a distant light of unit irradiance at normal incidence towards
     ``direction`` (a delta in direction: L_lm = Y_lm(d)); normalised here, zero length raises."""
     d = np.asarray(direction, dtype=np.float64)
     if d.shape != (3,):
         raise ValueError(f"direction must be 3 numbers (got shape {d.shape})")
-    return sh9_basis(d)
+    return sh_basis(d, order)
 
 
-def sh9_from_disk(direction, angular_radius: float, irradiance=1.0) -> np.ndarray:
-    """SH coefficients of a uniform disc light at infinity (angular radius ``angular_radius`` in radians,
-    [0, π/2]; irradiance ``irradiance`` W/m² at normal incidence, scalar or RGB) → (9,) or (9, 3)."""
+def sh9_from_directional(direction) -> np.ndarray:
+    """`sh_from_directional` at order 2 → (9,)."""
+    return sh_from_directional(direction, 2)
+
+
+def disk_zonal_factors(angular_radius: float, order: int = 2) -> np.ndarray:
+    """f_0..f_order with L_lm = E⊥ f_l Y_lm(d) for a uniform disc of angular radius α about d and
+    normal-incidence irradiance E⊥ (radiance E⊥/(π sin²α)).
+
+    Funk–Hecke with the cap's indicator: L_lm = L_disc 2π ∫_{cos α}^1 P_l(t) dt Y_lm(d), and
+    ∫_c^1 P_l = (P_{l−1}(c) − P_{l+1}(c))/(2l + 1) = (1 − c²) P_l'(c)/(l(l + 1)) (l ≥ 1), so
+
+        f_0 = 2/(1 + cos α),   f_l = 2 P_l'(cos α)/(l(l + 1))   (f_1 = 1, f_2 = cos α, f_3 = (5c² − 1)/4,
+        f_4 = c(7c² − 3)/4),
+
+    free of the 0/0 of the first form as α → 0 (f_l → 1: the directional light)."""
     alpha = float(angular_radius)
     if not (0.0 <= alpha <= math.pi / 2):
         raise ValueError(f"angular_radius must be in [0, pi/2] radians (got {angular_radius!r})")
-    y = sh9_from_directional(direction)
     c = math.cos(alpha)
-    band = np.array([2.0 / (1.0 + c), 1.0, 1.0, 1.0, c, c, c, c, c])
+    out = [2.0 / (1.0 + c)]
+    for band in range(1, _check_order(order) + 1):
+        deriv = np.polynomial.legendre.Legendre.basis(band).deriv()
+        out.append(2.0 * float(deriv(c)) / (band * (band + 1)))
+    return np.array(out)
+
+
+def sh_from_disk(direction, angular_radius: float, irradiance=1.0, order: int = 2) -> np.ndarray:
+    """SH coefficients of a uniform disc light at infinity (angular radius ``angular_radius`` in radians,
+    [0, π/2]; irradiance ``irradiance`` W/m² at normal incidence, scalar or RGB) → ((order + 1)²,) or
+    ((order + 1)², 3); L_lm = E⊥ f_l Y_lm(d) (`disk_zonal_factors`)."""
+    f = disk_zonal_factors(angular_radius, order)
+    y = sh_from_directional(direction, order)
     e = np.asarray(irradiance, dtype=np.float64)
     if not np.all(np.isfinite(e)) or np.any(e < 0):
         raise ValueError(f"irradiance must be finite and >= 0 (got {irradiance!r})")
-    base = y * band
+    base = y * f[list(_BAND[: len(y)])]
     return base * e if e.ndim == 0 else base[:, None] * e[None, :]
 
 
+def sh9_from_disk(direction, angular_radius: float, irradiance=1.0) -> np.ndarray:
+    """`sh_from_disk` at order 2 → (9,) or (9, 3)."""
+    return sh_from_disk(direction, angular_radius, irradiance, 2)
+
+
+def zh3_from_sh(coeffs, shared_axis: bool = False) -> np.ndarray:
+    """The ZH3 probe (5, 3) of SH coefficients (≥ 9, 3) (or grey (≥ 9,)): per channel L00, L1−1, L10, L11 and
+    z = ∫ L Y20(â·ω) dω = √(4π/5) Σ_m L_2m Y_2m(â), the projection of the channel's L2 band onto the zonal
+    harmonic about â: the channel's L1 direction, or with ``shared_axis`` the L1 direction of the
+    luminance (`ZH3_LUMINANCE`) for all three channels (+z where that L1 = 0, as the kernel). For a given
+    axis this z has the least squared error over the sphere (Y20(â·ω) = √(4π/5) Σ_m Y_2m(â) Y_2m(ω), the
+    addition theorem)."""
+    c = _coeff_array(coeffs, 9, "coeffs")
+    out = np.zeros((5, 3))
+    out[:4] = c[:4]
+    lin = c[[3, 1, 2], :].T  # (channel, xyz)
+    if shared_axis:
+        lin = np.repeat((np.asarray(ZH3_LUMINANCE) @ lin)[None, :], 3, axis=0)
+    length = np.linalg.norm(lin, axis=1)
+    axis = np.where((length > _TINY)[:, None], lin / np.maximum(length, _TINY)[:, None], [0.0, 0.0, 1.0])
+    y2 = np.stack(_band_basis(axis[:, 0], axis[:, 1], axis[:, 2], 2), axis=-1)  # (channel, 5)
+    out[4] = math.sqrt(4.0 * math.pi / 5.0) * np.sum(y2 * c[4:9].T, axis=1)
+    return out
+
+
 def sh_irradiance(coeffs, normal, order: int = 2, window=None):
-    """E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n) for coefficients (9, 3) (or (9,) grey; L1 uses the first 4).
+    """E(n) = Σ_l Â_l w_l Σ_m L_lm Y_lm(n), l ≤ ``order`` (1..4), for coefficients ((order + 1)², 3) or more
+    rows (or grey; lower orders use the first rows).
 
     ``window``: per-band factors (see `sh_window`) or None; they scale the coefficients (w_l L_lm) before
-    the ``sh-l1``/``sh-l2`` kernel. Returns (..., 3) for NumPy input, a length-3 array for a single normal,
+    the ``sh-l<order>`` kernel. Returns (..., 3) for NumPy input, a length-3 array for a single normal,
     a tuple (R, G, B) of lazy arrays for Dr.Jit input (see `basis_irradiance`)."""
-    if order not in (1, 2):
-        raise ValueError(f"order must be 1 or 2 (got {order!r})")
-    method = METHODS["sh-l2" if order == 2 else "sh-l1"]
+    method = METHODS[f"sh-l{_check_order(order)}"]
     c = _coeff_array(coeffs, (order + 1) ** 2, "coeffs")
     if window is not None:
         w = np.asarray(window, dtype=np.float64)
@@ -606,14 +920,20 @@ def fit_ambient_cube_nnls(normals, irradiance, weights=None) -> tuple[np.ndarray
 
 
 # ====================================================================================== λ window fit
-def fit_window_lambda(coeffs, normals=None, tolerance: float = 0.0, lam_max: float = 1e6) -> float:
-    """Smallest λ ≥ 0 such that the λ-windowed L2 irradiance is ≥ −tolerance·E_DC at every normal of
-    ``normals`` (default: 4096 Fibonacci normals plus the 26 axis/edge/corner directions), every channel.
+def fit_window_lambda(
+    coeffs, normals=None, tolerance: float = 0.0, lam_max: float = 1e6, order: int = 2
+) -> float:
+    """Smallest λ ≥ 0 such that the λ-windowed L``order`` irradiance (``sh-l<order>-lambda``, order 2..4) is
+    ≥ −tolerance·E_DC at every normal of ``normals`` (default: 4096 Fibonacci normals plus the 26
+    axis/edge/corner directions), every channel.
 
     Bisection on λ (60 steps, relative precision ~1e-6 of the bracket); λ → ∞ leaves the DC term, which is
-    ≥ 0 for a non-negative environment. Returns 0.0 when the plain L2 reconstruction is already
-    non-negative, and ``lam_max`` if even that does not remove the negative values."""
-    c = _coeff_array(coeffs, 9, "coeffs")
+    ≥ 0 for a non-negative environment. Returns 0.0 when the plain reconstruction is already non-negative,
+    and ``lam_max`` if even that does not remove the negative values. At order 3 the answer is the order-2
+    one (Â_3 = 0 and w_l does not depend on the order)."""
+    if _check_order(order) < 2:
+        raise ValueError(f"the λ window is declared for orders 2..{SH_MAX_ORDER} (got {order})")
+    c = _coeff_array(coeffs, (order + 1) ** 2, "coeffs")
     n = _default_check_normals() if normals is None else np.asarray(normals, dtype=np.float64)
     lin = c[[3, 1, 2], :].T  # (3 channels, xyz): the L1 direction of each channel, where ringing peaks
     ln = np.linalg.norm(lin, axis=1)
@@ -625,7 +945,7 @@ def fit_window_lambda(coeffs, normals=None, tolerance: float = 0.0, lam_max: flo
     # the experiment found 2 of 4096 normals slightly negative).
     thr = (-float(tolerance) if tolerance > 0 else 1e-4) * np.maximum(dc, 0.0)
 
-    method = METHODS["sh-l2-lambda"]
+    method = METHODS[f"sh-l{order}-lambda"]
     inputs = basis_inputs(method, c, n)
 
     def ok(lam):  # the NumPy text of the λ-window kernel, float64
@@ -713,12 +1033,23 @@ def latlong_samples(radiance, supersample: int = 2):
     return latlong_directions(uu, vv).reshape(-1, 3), wgt.reshape(-1), vals.reshape(-1, 3)
 
 
-def sh_project_samples(directions, weights, radiance) -> np.ndarray:
-    """L_lm ≈ Σ_k w_k L_k Y_lm(d_k) → (9, 3)."""
-    y = sh9_basis(directions)
-    return y.T @ (np.asarray(radiance, np.float64) * np.asarray(weights, np.float64)[:, None])
+_PROJECT_CHUNK = 1 << 17  # samples per block of the projection: (block, 25) float64 basis values, 26 MB
 
 
-def sh_project_latlong(radiance, supersample: int = 2) -> np.ndarray:
-    """SH L2 coefficients (9, 3) of a Mitsuba-convention lat-long radiance map (see `latlong_samples`)."""
-    return sh_project_samples(*latlong_samples(radiance, supersample))
+def sh_project_samples(directions, weights, radiance, order: int = 2) -> np.ndarray:
+    """L_lm ≈ Σ_k w_k L_k Y_lm(d_k) → ((order + 1)², 3), accumulated in blocks of samples (memory stays
+    bounded for full-resolution probes)."""
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
+    wl = (
+        np.asarray(radiance, np.float64).reshape(-1, 3) * np.asarray(weights, np.float64).reshape(-1)[:, None]
+    )
+    out = np.zeros(((_check_order(order) + 1) ** 2, 3))
+    for i in range(0, len(d), _PROJECT_CHUNK):
+        out += sh_basis(d[i : i + _PROJECT_CHUNK], order).T @ wl[i : i + _PROJECT_CHUNK]
+    return out
+
+
+def sh_project_latlong(radiance, supersample: int = 2, order: int = 2) -> np.ndarray:
+    """SH coefficients ((order + 1)², 3) of a Mitsuba-convention lat-long radiance map (see
+    `latlong_samples`)."""
+    return sh_project_samples(*latlong_samples(radiance, supersample), order=order)

@@ -114,8 +114,12 @@ def _irradiance_bases(out: Path):
         "cube_valve": rng.uniform(0, 1, (6, 3)),
         "cube_nnls": rng.uniform(0, 1, (6, 3)),
         "cube_nnls_rms": rng.uniform(0, 0.1, 3),
-        "sh": rng.normal(0, 1, (9, 3)),
+        "sh": rng.normal(0, 1, (25, 3)),
+        "zh3": rng.normal(0, 1, (5, 3)),
+        "zh3_lum": rng.normal(0, 1, (5, 3)),
         "lambda": 0.02,
+        "lambda_l3": 0.02,
+        "lambda_l4": 0.03,
     }
     rendered = {"grey": {"env": types.SimpleNamespace(label="grey sky"), "hashes": {"sky": "ffee"}}}
     ib.write_fitted(out, {"environments": ["grey"], "spp": 8}, rendered, {"grey": b})
@@ -305,7 +309,8 @@ def test_irradiance_basis_shaders_reproduce_basis_irradiance(tmp_path):
     rng = np.random.default_rng(7)
     n = rng.normal(size=(1000, 3)).astype(np.float32)
     for m in doc.methods:
-        key = "sh_l2" if m.id.startswith("sh") else m.id.replace("-", "_")
+        # SH rows and hallucinated ZH3 read the L4 table's first rows
+        key = "sh_l4" if m.id.startswith(("sh", "zh3-hallucinated")) else m.id.replace("-", "_")
         params = {k: p.value for k, p in m.parameters.items()}
         ref = np.asarray(basis_irradiance(m.id, np.array(doc.data[key]), n.astype(np.float64), params))
         got = np.stack(compile_function(m.shader.hlsl)(n[:, 0], n[:, 1], n[:, 2]), axis=-1)

@@ -207,7 +207,7 @@ def test_drjit_and_numpy_paths_agree():
     # the dispatched (Dr.Jit, opaque coefficients) run of every basis against its NumPy text
     rng = np.random.default_rng(5)
     n = rng.normal(size=(64, 3))
-    c = rng.normal(size=(9, 3))
+    c = rng.normal(size=(25, 3))  # enough rows for every SH order (L4: 25); lower orders read the first rows
     cube = rng.uniform(0, 2, (6, 3))
     for m in ir.METHODS.values():
         if m.exact:
@@ -238,7 +238,7 @@ def test_method_table():
     assert storage["sh-l1"] == storage["sh-l1-geomerics"] == 12
     assert storage["sh-l2"] == storage["sh-l2-lambda"] == 27
     assert [m.id for m in ir.METHODS.values() if m.exact] == ["quadrature"]
-    assert [m.id for m in ir.METHODS.values() if m.fitted] == ["sh-l2-lambda"]
+    assert [m.id for m in ir.METHODS.values() if m.fitted] == ["sh-l2-lambda", "sh-l3-lambda", "sh-l4-lambda"]
     lam = ir.METHODS["sh-l2-lambda"].params["lam"]
     assert lam.lower == 0.0 and lam.upper == math.inf
     for m in ir.METHODS.values():
@@ -248,7 +248,7 @@ def test_method_table():
     with pytest.raises(ValueError, match="not a basis"):
         ir.basis_irradiance("quadrature", np.ones((9, 3)), [0, 0, 1.0])
     with pytest.raises(ValueError, match="unknown irradiance basis"):
-        ir.basis_irradiance("sh-l3", np.ones((9, 3)), [0, 0, 1.0])
+        ir.basis_irradiance("sh-l9", np.ones((9, 3)), [0, 0, 1.0])
 
 
 def test_cube_design_matrix_against_its_definition():
