@@ -60,19 +60,31 @@ import numpy as np
 from rtfit.fitting import smape
 from rtfit.fitting.stats import concat_z_pairs, z_checks, z_pair
 from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime.ambient_dice import DICE_METHODS, fit_ambient_dice
 from rtfit.realtime.irradiance_bases import (
     CUBE_AXES,
     CUBE_ORDER,
-    METHODS,
     ambient_cube_from_axes,
     basis_inputs,
     basis_irradiance,
     fibonacci_sphere,
     fit_ambient_cube_nnls,
     fit_window_lambda,
+    latlong_samples,
     sh9_from_constant,
     sh9_from_disk,
     sh_project_latlong,
+)
+from rtfit.realtime.irradiance_bases import METHODS as SH_CUBE_METHODS
+from rtfit.realtime.methods import method_table
+from rtfit.realtime.spherical_gaussians import (
+    SG_COUNTS,
+    SG_FITS,
+    SG_METHODS,
+    disc_samples,
+    fit_sg_all,
+    sg_cosine_error,
+    sg_sharpness,
 )
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene, render_gbuffer, use_variant
 from rtfit.reference import environments as envs
@@ -236,6 +248,13 @@ def quadrature_backend(variant: str) -> str | None:
 
 
 # ============================================================================================== methods
+METHODS = method_table([*SH_CUBE_METHODS.values(), *SG_METHODS.values(), *DICE_METHODS.values()])
+"""Every basis of this experiment: cube and SH (`rtfit.realtime.irradiance_bases`), spherical Gaussians
+(`rtfit.realtime.spherical_gaussians`) and Ambient Dice (`rtfit.realtime.ambient_dice`)."""
+SG_ERROR_LAMBDAS = (1e-3, 0.1, 0.8, 10.0, 1000.0)  # the self-check's λ grid (plus each basis's own λ)
+SG_ERROR_BOUND = 0.051  # max |S̃ − S|/S(λ, 1) measured over λ ∈ [1e-3, 1e3]: 0.0503 at λ = 0.8
+
+
 @dataclass(frozen=True)
 class Row:
     """One row of the comparison: a method of `METHODS` and where its inputs come from.
@@ -268,6 +287,8 @@ ROWS = (
     Row("sh-l2-hann", "sh"),
     Row("sh-l2-lanczos", "sh"),
     Row("sh-l2-lambda", "sh", params={"lam": "lambda"}),
+    *(Row(f"sg{n}-{f}", f"sg{n}_{f}", fitted_coeffs=f != "naive") for n in SG_COUNTS for f in SG_FITS),
+    Row("ambient-dice", "ambient_dice", fitted_coeffs=True),
     Row("quadrature", None),
 )
 ROW = {r.method: r for r in ROWS}
@@ -317,7 +338,31 @@ def build_bases(env, cfg: dict, fit_normals: int = 2048, backend: str | None = N
     t0 = time.perf_counter()
     out["lambda"] = fit_window_lambda(sh)
     out["timing_ms"]["lambda-fit"] = 1e3 * (time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    out["ambient_dice"], out["ambient_dice_rms"] = fit_ambient_dice(fn, target)
+    out["timing_ms"]["ambient-dice"] = 1e3 * (time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    samples = _radiance_samples(env, cfg)
+    for n in SG_COUNTS:
+        for f, amplitudes in fit_sg_all(n, *samples, constant=env.constant).items():
+            out[f"sg{n}_{f}"] = amplitudes
+    out["timing_ms"]["sg-fits"] = 1e3 * (time.perf_counter() - t0)
     return out
+
+
+def _radiance_samples(env, cfg: dict):
+    """The environment's radiance as samples (directions, solid-angle weights, radiance) for the SG fits: the
+    bilinear map as `sh_project_latlong` sees it, plus the disc sun (`disc_samples`); the constant part is
+    passed to `fit_sg` separately (closed form)."""
+    parts = []
+    if env.radiance_map is not None:
+        parts.append(latlong_samples(env.radiance_map, cfg["map_supersample"]))
+    if env.sun is not None:
+        s = env.sun
+        parts.append(disc_samples(s.direction, math.radians(s.angular_radius_deg), np.asarray(s.irradiance)))
+    if not parts:
+        return np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
 
 
 # ================================================================================================ cases
@@ -789,6 +834,7 @@ def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[dict]:
             "passed": neg == 0.0,
         }
     )
+    checks += _sg_dice_checks(names, cases)
     worse = [
         n
         for n in names
@@ -804,6 +850,42 @@ def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[dict]:
         }
     )
     return checks
+
+
+def _sg_dice_checks(names, cases) -> list[dict]:
+    """The SG clamped-cosine approximation against quadrature, and Ambient Dice / SG-ambient exact for a
+    constant environment (their bases contain the constant)."""
+    lams = sorted({*SG_ERROR_LAMBDAS, *(sg_sharpness(n) for n in SG_COUNTS)})
+    err = sg_cosine_error(lams, np.linspace(-1.0, 1.0, 41))
+    worst = int(np.argmax(err["max_rel"]))
+    out = [
+        {
+            "name": "SG ⊗ clamped cosine: Hill's shape with exact end values vs quadrature, max |S̃ − S|/S(λ, 1) "
+            f"over λ ∈ {{{', '.join(f'{v:.3g}' for v in lams)}}} × 41 cosines (worst λ = "
+            f"{err['lam'][worst]:.3g})",
+            "value": err["max_rel"][worst],
+            "expected": f"≤ {SG_ERROR_BOUND}",
+            "passed": err["max_rel"][worst] <= SG_ERROR_BOUND,
+        }
+    ]
+    const = [n for n in names if n == "constant"]
+    for method in ("ambient-dice", *(f"sg{n}-ambient" for n in SG_COUNTS)):
+        if not const:
+            break
+        ap = _approximation(cases, "constant", method)
+        q = _approximation(cases, "constant", "quadrature")
+        if ap is None or q is None:
+            continue
+        gap = abs(ap["metrics"]["rel_rmse"]["value"] - q["metrics"]["rel_rmse"]["value"])
+        out.append(
+            {
+                "name": f"{method} reproduces a constant environment (rel. RMSE equal to the exact row's)",
+                "value": gap,
+                "expected": "≤ 1e-9",
+                "passed": gap <= 1e-9,
+            }
+        )
+    return out
 
 
 # ============================================================================================== figures
@@ -1163,7 +1245,9 @@ def _demo_bases() -> dict:
         [[2.0, 2.0, 2.0]] + [[0.0] * 3] * 8
     )
     cube = rng.uniform(0.2, 2.0, (6, 3))
-    return {"sh": sh, "cube_valve": cube, "cube_nnls": cube, "lambda": 0.05}
+    sg = {f"sg{n}_{f}": rng.uniform(0.2, 2.0, (n + 1, 3)) for n in SG_COUNTS for f in SG_FITS}
+    dice = rng.uniform(0.2, 2.0, (12, 3))
+    return {"sh": sh, "cube_valve": cube, "cube_nnls": cube, "lambda": 0.05, "ambient_dice": dice, **sg}
 
 
 def _costs(ctx) -> list[dict]:

@@ -96,6 +96,7 @@ __all__ = [
     "sh_project_latlong",
     "sh_project_samples",
     "sh_window",
+    "unit_normal",
 ]
 
 # Normalisation constants of the real SH basis (no Condon–Shortley phase).
@@ -124,8 +125,9 @@ _R1_SCALE = 0.5 * A_HAT[1] * SH_C[1]  # Geomerics: R1 = ½ Â1 Y1 (L11, L1−1, 
 
 
 # =========================================================================================== kernels
-def _unit(ops, nx, ny, nz):
-    """(x, y, z, valid): n/|n| and whether |n|² > 1e-30 (invalid normals become 0)."""
+def unit_normal(ops, nx, ny, nz):
+    """(x, y, z, valid): n/|n| and whether |n|² > 1e-30 (invalid normals become 0); shared by the bases'
+    kernels here and in `rtfit.realtime.spherical_gaussians` / `rtfit.realtime.ambient_dice`."""
     n2 = nx * nx + ny * ny + nz * nz
     valid = n2 > _TINY
     inv = 1.0 / ops.sqrt(ops.maximum(n2, _TINY))
@@ -135,6 +137,9 @@ def _unit(ops, nx, ny, nz):
         ops.select(valid, nz * inv, 0.0),
         valid,
     )
+
+
+_unit = unit_normal
 
 
 def _basis(x, y, z):
