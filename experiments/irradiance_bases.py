@@ -860,7 +860,8 @@ def _sg_dice_checks(names, cases) -> list[dict]:
     worst = int(np.argmax(err["max_rel"]))
     out = [
         {
-            "name": "SG ⊗ clamped cosine: Hill's shape with exact end values vs quadrature, max |S̃ − S|/S(λ, 1) "
+            "name": "SG ⊗ clamped cosine: Hill's shape with exact end values vs quadrature, "
+            "max |S̃ − S|/S(λ, 1) "
             f"over λ ∈ {{{', '.join(f'{v:.3g}' for v in lams)}}} × 41 cosines (worst λ = "
             f"{err['lam'][worst]:.3g})",
             "value": err["max_rel"][worst],

@@ -94,13 +94,17 @@ DICE_METHODS: Mapping[str, Method] = method_table(
                 Input("nx", "1", "normal x (world frame, +Z up; normalised by the kernel)"),
                 Input("ny", "1", "normal y"),
                 Input("nz", "1", "normal z"),
-                Input("coeffs", "W/m²", "36 floats: irradiance at the 12 icosahedron vertices, channel-major"),
+                Input(
+                    "coeffs", "W/m²", "36 floats: irradiance at the 12 icosahedron vertices, channel-major"
+                ),
             ),
             storage=36,
             quantity="environment_irradiance",
-            formula="E(n) = Σ_i (0.7·½c_i² + 0.3·(5/6)c_i⁴) E_i, c_i = max(v_i·n, 0), 12 icosahedron vertices",
+            formula="E(n) = Σ_i (0.7·½c_i² + 0.3·(5/6)c_i⁴) E_i, c_i = max(v_i·n, 0), "
+            "12 icosahedron vertices",
             source="Iwanicki & Sloan 2017, Ambient Dice (EGSR EI&I), RBF variant; weights as in Probulator",
-            description="least-squares irradiance values at the 12 vertices; exact for a constant environment",
+            description="least-squares irradiance values at the 12 vertices; exact for a constant "
+            "environment",
         )
     ]
 )
@@ -116,7 +120,8 @@ def dice_design_matrix(normals) -> np.ndarray:
     m = DICE_METHODS["ambient-dice"]
     eye = np.eye(36)
     cols = [
-        m(NUMPY_OPS, {"nx": n[:, 0], "ny": n[:, 1], "nz": n[:, 2], "coeffs": tuple(eye[j])})[0] for j in range(12)
+        m(NUMPY_OPS, {"nx": n[:, 0], "ny": n[:, 1], "nz": n[:, 2], "coeffs": tuple(eye[j])})[0]
+        for j in range(12)
     ]
     return np.stack(cols, axis=-1)
 

@@ -41,8 +41,9 @@ closed form, the polar one by adaptive Gauss–Kronrod, float64), as max |S̃ �
 re-measures it in its self-checks; docs/irradiance-bases.md has the table).
 
 **Guards (no NaN/Inf for any λ ≥ 0 and any t).** For λ < 0.1 the ratios e± come from their Taylor series
-(e₊ = p/d, e₋ = e^{−λ}q/d with p = (1 − h)/λ = ½ − λ/6 + λ²/24 − …, q = (h − e^{−λ})/λ = ½ − λ/3 + λ²/8 − …,
-d = (1 − e^{−2λ})/λ = 2 − 2λ + 4λ²/3 − …, six or seven terms each: truncation < 1e-9 relative at λ = 0.1), so λ = 0 gives the constant lobe
+(e₊ = p/d, e₋ = e^{−λ}q/d with p = (1 − h)/λ = ½ − λ/6 + λ²/24 − …,
+q = (h − e^{−λ})/λ = ½ − λ/3 + λ²/8 − …, d = (1 − e^{−2λ})/λ = 2 − 2λ + 4λ²/3 − …, six or seven terms
+each: truncation < 1e-9 relative at λ = 0.1), so λ = 0 gives the constant lobe
 exactly and no 0/0 is formed (the direct branch sees max(λ, 0.1)); λ < 0 is clamped to 0. For λ → ∞,
 e^{−λ} underflows to 0, s → 1, x → 0: the division by x uses max(x, 1e-30) and is only taken inside the
 blend region, whose half-width x/(4c₀²) then shrinks to 0 (y = clamp(t, 0, 1)). I = 2πd̃ with
@@ -245,7 +246,11 @@ def _sg_method(count: int, fit: str) -> Method:
             *_NORMAL,
             Input("coeffs", "W·m⁻²·sr⁻¹", f"{3 * per} floats: lobe amplitudes (+ ambient), channel-major"),
         ),
-        fixed={"axes": tuple(tuple(float(v) for v in a) for a in sg_axes(count)), "lam": lam, "ambient": ambient},
+        fixed={
+            "axes": tuple(tuple(float(v) for v in a) for a in sg_axes(count)),
+            "lam": lam,
+            "ambient": ambient,
+        },
         storage=3 * per,
         quantity="environment_irradiance",
         formula=f"{formula}; {how}",
@@ -309,7 +314,9 @@ def _projections(axes, lam, directions, weights, radiance, constant, ambient):
     """b_k = ⟨L, G_k⟩ (K, 3) (+ ⟨L, 1⟩ with ``ambient``)."""
     a = np.asarray(axes, np.float64)
     d = np.asarray(directions, np.float64).reshape(-1, 3)
-    wl = np.asarray(radiance, np.float64).reshape(-1, 3) * np.asarray(weights, np.float64).reshape(-1)[:, None]
+    wl = (
+        np.asarray(radiance, np.float64).reshape(-1, 3) * np.asarray(weights, np.float64).reshape(-1)[:, None]
+    )
     b = sg_lobe(NUMPY_OPS, float(lam), d @ a.T).T @ wl if len(d) else np.zeros((len(a), 3))
     c = np.zeros(3) if constant is None else np.broadcast_to(np.asarray(constant, np.float64), (3,))
     b = b + float(sg_integral(NUMPY_OPS, float(lam))) * c[None, :]
@@ -413,7 +420,8 @@ def sg_cosine_quadrature(lam: float, t: float) -> float:
 
 def sg_cosine_error(lams, ts=None) -> dict:
     """Max |S̃ − S|/S(λ, 1) of the kernel text (NumPy, float64) against `sg_cosine_quadrature`, per λ of
-    ``lams`` over ``ts`` (default 81 cosines in [−1, 1]): {"lam": [...], "max_rel": [...], "worst_t": [...]}."""
+    ``lams`` over ``ts`` (default 81 cosines in [−1, 1]): {"lam": [...], "max_rel": [...],
+    "worst_t": [...]}."""
     ts = np.linspace(-1.0, 1.0, 81) if ts is None else np.asarray(ts, np.float64)
     out: dict = {"lam": [], "max_rel": [], "worst_t": []}
     for lam in lams:

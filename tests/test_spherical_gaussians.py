@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from scipy import integrate
 
 from rtfit.realtime import NUMPY_OPS
-from rtfit.realtime.arrays import DRJIT_OPS
 from rtfit.realtime import spherical_gaussians as sg
+from rtfit.realtime.arrays import DRJIT_OPS
 from rtfit.realtime.irradiance_bases import basis_inputs, basis_irradiance, fibonacci_sphere
 
 
@@ -107,7 +107,9 @@ def test_least_squares_reproduces_environment_in_span(fit):
     radiance = np.exp(lam * (d @ sg.sg_axes(count).T - 1.0)) @ a_true + c_true
     got = sg.fit_sg(count, fit, d, wgt, radiance)
     want = np.concatenate([a_true, c_true[None]]) if fit == "ambient" else a_true
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-3)  # midpoint projections vs exact Gram; measured 3.2e-4
+    np.testing.assert_allclose(
+        got, want, rtol=0, atol=1e-3
+    )  # midpoint projections vs exact Gram; measured 3.2e-4
 
 
 def test_constant_environment():
@@ -116,7 +118,9 @@ def test_constant_environment():
     c = sg.fit_sg(6, "ambient", constant=(1.0, 2.0, 0.5))
     np.testing.assert_allclose(c[:6], 0.0, atol=1e-12)
     np.testing.assert_allclose(c[6], [1.0, 2.0, 0.5], rtol=1e-12)
-    np.testing.assert_allclose(basis_irradiance(sg.SG_METHODS["sg6-ambient"], c, n), np.pi * c[6] + 0 * n, rtol=1e-12)
+    np.testing.assert_allclose(
+        basis_irradiance(sg.SG_METHODS["sg6-ambient"], c, n), np.pi * c[6] + 0 * n, rtol=1e-12
+    )
     for fit in ("naive", "ls", "nnls"):
         e = basis_irradiance(sg.SG_METHODS[f"sg12-{fit}"], sg.fit_sg(12, fit, constant=(1.0, 1.0, 1.0)), n)
         assert np.all(np.abs(e - math.pi) <= 0.1 * math.pi)  # measured ≤ 0.078π (naive), 0.054π (ls)
@@ -155,7 +159,7 @@ def test_drjit_llvm_matches_numpy_text():
     rng = np.random.default_rng(5)
     n = rng.normal(size=(64, 3))
     for m in sg.SG_METHODS.values():
-        c = rng.uniform(0.0, 2.0, (m.storage // 3, 3))
+        c = rng.uniform(0.0, 2.0, ((m.storage or 0) // 3, 3))
         want = np.stack(m(NUMPY_OPS, basis_inputs(m, c, n), None), -1)
         got = basis_irradiance(m, c, dr.llvm.Array3f64(n.T))  # the Dr.Jit LLVM kernel, float64
         got = np.stack([np.asarray(v) for v in got], -1)
@@ -169,7 +173,9 @@ def test_drjit_llvm_matches_numpy_text():
 
 
 def test_method_table_and_sharpness():
-    assert list(sg.SG_METHODS) == [f"sg{n}-{f}" for n in (6, 9, 12) for f in ("naive", "ls", "nnls", "ambient")]
+    assert list(sg.SG_METHODS) == [
+        f"sg{n}-{f}" for n in (6, 9, 12) for f in ("naive", "ls", "nnls", "ambient")
+    ]
     for m in sg.SG_METHODS.values():
         n = int(m.id[2:].split("-")[0])
         assert m.storage == 3 * (n + (m.id.endswith("ambient")))
