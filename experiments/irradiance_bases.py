@@ -666,6 +666,8 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
                     "sh_projection_ms": b["timing_ms"]["sh-projection"],
                     "cube_nnls_fit_ms": b["timing_ms"]["cube-nnls"],
                     "lambda_fit_ms": b["timing_ms"]["lambda-fit"],
+                    "sg_fits_ms": b["timing_ms"]["sg-fits"],
+                    "ambient_dice_fit_ms": b["timing_ms"]["ambient-dice"],
                     "bake_s": r["bake_seconds"],
                 },
                 "scene": {
