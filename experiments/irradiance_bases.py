@@ -60,7 +60,7 @@ import numpy as np
 from rtfit.fitting import smape
 from rtfit.fitting.stats import concat_z_pairs, z_checks, z_pair
 from rtfit.realtime import NUMPY_OPS, set_default_backend
-from rtfit.realtime.ambient_dice import DICE_METHODS, fit_ambient_dice
+from rtfit.realtime.ambient_dice import DICE_METHODS, DICE_VERTICES, fit_ambient_dice
 from rtfit.realtime.irradiance_bases import (
     CUBE_AXES,
     CUBE_ORDER,
@@ -83,6 +83,7 @@ from rtfit.realtime.spherical_gaussians import (
     SG_METHODS,
     disc_samples,
     fit_sg_all,
+    sg_axes,
     sg_cosine_error,
     sg_sharpness,
 )
@@ -758,6 +759,13 @@ def write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
             "sh_l2": b["sh"].tolist(),
             "lambda_window": b["lambda"],
             "lambda_window_formula": "w_l = 1 / (1 + lambda * l^2 (l+1)^2)",
+            "sg_lobes": {
+                str(n): {"sharpness": sg_sharpness(n), "axes": sg_axes(n).tolist()} for n in SG_COUNTS
+            },
+            "sg_formula": "L(w) = sum_k a_k exp(lambda (mu_k . w - 1)) (+ c for the ambient fits)",
+            "ambient_dice_vertices": [list(v) for v in DICE_VERTICES],
+            "ambient_dice": b["ambient_dice"].tolist(),
+            **{f"sg{n}_{f}": b[f"sg{n}_{f}"].tolist() for n in SG_COUNTS for f in SG_FITS},
         }
         methods = [
             fitfiles.method_entry(

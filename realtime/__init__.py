@@ -17,6 +17,9 @@ Modules:
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
     irradiance_bases  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
                 (docs/irradiance-bases.md).
+    spherical_gaussians  spherical-Gaussian irradiance bases (N = 6, 9, 12 lobes; naive / LS / NNLS /
+                ambient fits; SG ⊗ clamped cosine) (docs/irradiance-bases.md).
+    ambient_dice  Ambient Dice (Iwanicki & Sloan 2017), RBF variant on 12 icosahedron vertices.
     height_fog  exponential height fog: stable closed-form optical depth, fog colour, fog volumes
                 (docs/height-fog.md).
     sdf_grid    signed distance fields: analytic primitives, mesh → voxel grid, mip chain, 8-bit
@@ -39,6 +42,7 @@ Modules:
 # function of every module is in its ``__all__`` and that no two modules export the same name).
 from . import arrays
 from .ambient_aperture import *  # noqa: F403
+from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .height_fog import *  # noqa: F403
@@ -50,6 +54,7 @@ from .quantities import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
 from .shader import *  # noqa: F403
+from .spherical_gaussians import *  # noqa: F403
 from .volumetric_lightning import *  # noqa: F403
 
 MODULES = (
@@ -60,6 +65,8 @@ MODULES = (
     "diffuse",
     "height_fog",
     "irradiance_bases",
+    "spherical_gaussians",
+    "ambient_dice",
     "sdf_grid",
     "sdf_occlusion",
     "nishita_sky",

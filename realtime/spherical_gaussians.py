@@ -160,7 +160,8 @@ def _hill_shape(ops, t, x):
     x1 = HILL_C1 * x
     n = x0 + x1
     blend = ops.abs(x0) <= x1
-    return ops.select(blend, n * n / ops.maximum(x, _TINY), ops.clip(t, 0.0, 1.0))
+    inv = 1.0 / max(x, _TINY) if isinstance(x, float) else 1.0 / ops.maximum(x, _TINY)
+    return ops.select(blend, n * n * inv, ops.clip(t, 0.0, 1.0))
 
 
 def _cosine_terms(ops, lam):
@@ -187,8 +188,10 @@ def _sg_kernel(ops, nx, ny, nz, coeffs, axes, lam, ambient=False):
     amplitudes a_k (W·m⁻²·sr⁻¹) and, with ``ambient``, the constant radiance c last; ``axes`` the N unit
     lobe axes (fixed), ``lam`` the shared sharpness."""
     x, y, z, valid = unit_normal(ops, nx, ny, nz)
-    lam = lam + 0.0 * x
-    scale, bias, integral, width = _cosine_terms(ops, lam)
+    if isinstance(lam, (int, float)):  # a fixed λ: its constants by the same text in float64, as literals
+        scale, bias, integral, width = (float(v) for v in _cosine_terms(NUMPY_OPS, float(lam)))
+    else:
+        scale, bias, integral, width = _cosine_terms(ops, lam + 0.0 * x)
     shapes = [_hill_shape(ops, ax * x + ay * y + az * z, width) for ax, ay, az in axes]
     count = len(axes)
     per = count + (1 if ambient else 0)

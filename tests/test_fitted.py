@@ -116,6 +116,12 @@ def _irradiance_bases(out: Path):
         "cube_nnls_rms": rng.uniform(0, 0.1, 3),
         "sh": rng.normal(0, 1, (9, 3)),
         "lambda": 0.02,
+        "ambient_dice": rng.uniform(0, 1, (12, 3)),
+        **{
+            f"sg{n}_{f}": rng.uniform(0, 1, (n + 1, 3))
+            for n in (6, 9, 12)
+            for f in ("naive", "ls", "nnls", "ambient")
+        },
     }
     rendered = {"grey": {"env": types.SimpleNamespace(label="grey sky"), "hashes": {"sky": "ffee"}}}
     ib.write_fitted(out, {"environments": ["grey"], "spp": 8}, rendered, {"grey": b})
@@ -307,7 +313,8 @@ def test_irradiance_basis_shaders_reproduce_basis_irradiance(tmp_path):
     for m in doc.methods:
         key = "sh_l2" if m.id.startswith("sh") else m.id.replace("-", "_")
         params = {k: p.value for k, p in m.parameters.items()}
-        ref = np.asarray(basis_irradiance(m.id, np.array(doc.data[key]), n.astype(np.float64), params))
+        spec = ib.METHODS[m.id]  # the experiment's table: cube/SH, spherical Gaussians, Ambient Dice
+        ref = np.asarray(basis_irradiance(spec, np.array(doc.data[key]), n.astype(np.float64), params))
         got = np.stack(compile_function(m.shader.hlsl)(n[:, 0], n[:, 1], n[:, 2]), axis=-1)
         np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(ref))))
 
