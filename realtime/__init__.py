@@ -21,6 +21,9 @@ Modules:
                 (docs/irradiance-bases.md).
     irradiance_volumes  irradiance volumes: a grid of ambient-cube / SH L2 probes, nearest and trilinear
                 lookup, point-light folding (docs/irradiance-volumes.md; ``METHODS`` from the module).
+    spherical_gaussians  spherical-Gaussian irradiance bases (N = 6, 9, 12 lobes; naive / LS / NNLS /
+                ambient fits; SG ⊗ clamped cosine) (docs/irradiance-bases.md).
+    ambient_dice  Ambient Dice (Iwanicki & Sloan 2017), RBF variant on 12 icosahedron vertices.
     height_fog  exponential height fog: stable closed-form optical depth, fog colour, fog volumes
                 (docs/height-fog.md).
     sdf_grid    signed distance fields: analytic primitives, mesh → voxel grid, mip chain, 8-bit
@@ -48,6 +51,7 @@ Modules:
 # function of every module is in its ``__all__`` and that no two modules export the same name).
 from . import arrays
 from .ambient_aperture import *  # noqa: F403
+from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .environment_maps import *  # noqa: F403
@@ -63,6 +67,7 @@ from .quantities import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
 from .shader import *  # noqa: F403
+from .spherical_gaussians import *  # noqa: F403
 from .volumetric_lightning import *  # noqa: F403
 
 MODULES = (
@@ -75,6 +80,8 @@ MODULES = (
     "height_fog",
     "irradiance_bases",
     "irradiance_volumes",
+    "spherical_gaussians",
+    "ambient_dice",
     "sdf_grid",
     "sdf_occlusion",
     "nishita_sky",

@@ -104,6 +104,7 @@ __all__ = [
     "sh_project_latlong",
     "sh_project_samples",
     "sh_window",
+    "unit_normal",
     "zh3_from_sh",
 ]
 
@@ -179,8 +180,9 @@ _R1_SCALE = 0.5 * A_HAT[1] * SH_C[1]  # Geomerics: R1 = ½ Â1 Y1 (L11, L1−1, 
 
 
 # =========================================================================================== kernels
-def _unit(ops, nx, ny, nz):
-    """(x, y, z, valid): n/|n| and whether |n|² > 1e-30 (invalid normals become 0)."""
+def unit_normal(ops, nx, ny, nz):
+    """(x, y, z, valid): n/|n| and whether |n|² > 1e-30 (invalid normals become 0); shared by the bases'
+    kernels here and in `rtfit.realtime.spherical_gaussians` / `rtfit.realtime.ambient_dice`."""
     n2 = nx * nx + ny * ny + nz * nz
     valid = n2 > _TINY
     inv = 1.0 / ops.sqrt(ops.maximum(n2, _TINY))
@@ -263,7 +265,7 @@ def _sh_kernel(ops, nx, ny, nz, coeffs, order=2, window="none", lam=0.0):
     ``coeffs``: 3·(order + 1)² SH coefficients L_lm (W/m²), channel-major (R then G then B), index
     l(l + 1) + m; ``window`` a kind of `WINDOWS`, ``lam`` Sloan's λ (used by the "lambda" window only).
     Bands with Â_l = 0 (odd l ≥ 3) are skipped: they are stored but cannot change the irradiance."""
-    x, y, z, valid = _unit(ops, nx, ny, nz)
+    x, y, z, valid = unit_normal(ops, nx, ny, nz)
     w = _WINDOW_FACTORS[window](order, lam)
     per = (order + 1) ** 2
     bands = [band for band in range(1, order + 1) if A_HAT[band] != 0.0]
@@ -305,7 +307,7 @@ def _zh3_kernel(ops, nx, ny, nz, coeffs, hallucinate=False, shared_axis=False):
     ``coeffs`` per channel, channel-major: (L00, L1−1, L10, L11, z) (15 floats) with z stored, or
     (L00, L1−1, L10, L11) (12 floats) with ``hallucinate`` (per-channel axis): z = L00 r (0.08 + 0.6 r),
     r = |L1|/L00 clamped to [0, √3] (the range of a non-negative environment; the paper's curve fit)."""
-    x, y, z, valid = _unit(ops, nx, ny, nz)
+    x, y, z, valid = unit_normal(ops, nx, ny, nz)
     per = 4 if hallucinate else 5
     chans = [coeffs[ch * per : ch * per + 4] for ch in range(3)]
     if shared_axis:
@@ -333,7 +335,7 @@ def _zh3_kernel(ops, nx, ny, nz, coeffs, hallucinate=False, shared_axis=False):
 
 def _cube_kernel(ops, nx, ny, nz, coeffs):
     """Σ n_i² C[sign of n_i]; ``coeffs``: 18 floats (W/m²), channel-major, each channel in `CUBE_ORDER`."""
-    x, y, z, valid = _unit(ops, nx, ny, nz)
+    x, y, z, valid = unit_normal(ops, nx, ny, nz)
     x2, y2, z2 = x * x, y * y, z * z
     out = []
     for ch in range(3):
@@ -351,7 +353,7 @@ def _cube_kernel(ops, nx, ny, nz, coeffs):
 def _geomerics_kernel(ops, nx, ny, nz, coeffs):
     """Geomerics' L1 reconstruction (module docstring); ``coeffs``: 12 floats, per channel the SH
     coefficients (L00, L1−1, L10, L11) (W/m²), channel-major."""
-    x, y, z, valid = _unit(ops, nx, ny, nz)
+    x, y, z, valid = unit_normal(ops, nx, ny, nz)
     out = []
     for ch in range(3):
         l00, l1m1, l10, l11 = coeffs[ch * 4 : (ch + 1) * 4]

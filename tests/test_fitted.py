@@ -120,6 +120,12 @@ def _irradiance_bases(out: Path):
         "lambda": 0.02,
         "lambda_l3": 0.02,
         "lambda_l4": 0.03,
+        "ambient_dice": rng.uniform(0, 1, (12, 3)),
+        **{
+            f"sg{n}_{f}": rng.uniform(0, 1, (n + 1, 3))
+            for n in (6, 9, 12)
+            for f in ("naive", "ls", "nnls", "ambient")
+        },
     }
     rendered = {"grey": {"env": types.SimpleNamespace(label="grey sky"), "hashes": {"sky": "ffee"}}}
     ib.write_fitted(out, {"environments": ["grey"], "spp": 8}, rendered, {"grey": b})
@@ -312,7 +318,8 @@ def test_irradiance_basis_shaders_reproduce_basis_irradiance(tmp_path):
         # SH rows and hallucinated ZH3 read the L4 table's first rows
         key = "sh_l4" if m.id.startswith(("sh", "zh3-hallucinated")) else m.id.replace("-", "_")
         params = {k: p.value for k, p in m.parameters.items()}
-        ref = np.asarray(basis_irradiance(m.id, np.array(doc.data[key]), n.astype(np.float64), params))
+        spec = ib.METHODS[m.id]  # the experiment's table: cube/SH, spherical Gaussians, Ambient Dice
+        ref = np.asarray(basis_irradiance(spec, np.array(doc.data[key]), n.astype(np.float64), params))
         got = np.stack(compile_function(m.shader.hlsl)(n[:, 0], n[:, 1], n[:, 2]), axis=-1)
         np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(ref))))
 
