@@ -92,6 +92,7 @@ from rtfit.scenes import (
 
 from . import figures
 from . import fitted as fitfiles
+from . import irradiance_hemisphere as hemisphere
 from .cost import (
     Stock,
     attach_costs,
@@ -556,7 +557,7 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
     out = ctx.out_dir
     names = cfg["environments"]
     cases, z_quad, z_img, furnace, bake = [], [], [], [], []
-    per_env = {}
+    per_env, hemi = {}, []
     for name in names:
         r = rendered[name]
         env, b = r["env"], bases[name]
@@ -584,6 +585,10 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
                 }
             )
         per_env[name] = {"evals": evals, "mean": mean, "sig": sig}
+        hemi += hemisphere.environment_section(
+            name, env, r["normals"], mean, sig, r["quadrature"], b["sh"], supersample_for(env, cfg),
+            quadrature_backend(ctx.variant), point_metrics,
+        )  # fmt: skip
         save_case_pixels(out, name, img_mean, img_sig, sphere, mask)  # the report's viewer: the sphere image
         floor = RELATIVE_PRECISION_FLOOR
         z_quad.append(z_pair(r["quadrature"][:, 0], mean[:, 0], se[:, 0], sig[:, 0], floor))
@@ -634,19 +639,23 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
 
     costs = _costs(ctx)
     attach_costs(cases, costs)
-    checks = _checks(names, cases, z_quad, z_img, furnace, bake)
+    checks = _checks(names, cases, z_quad, z_img, furnace, bake) + hemisphere.checks(hemi)
     fits = write_fitted(out, cfg, rendered, bases, ctx)
     figs = _figures(ctx, cfg, rendered, bases, per_env, cases, costs)
+    figs.append(hemisphere.figure(out, hemi, figures.line_plot))
+    hemi_text = hemisphere.section_text(hemi)
+    hemi_section = {"id": "hemisphere", "title": "Lightmap bases on the hemisphere", "text": hemi_text}
     return {
         "summary": _summary(cfg, cases, checks),
         "config": cfg,
-        "sections": _sections(cfg),
+        "sections": [*_sections(cfg), hemi_section],
         "cases": cases,
         "fits": fits,
         "figures": figs,
         "costs": costs,
         "checks": checks,
         "notes": _notes(ctx),
+        "hemisphere": hemi,  # per environment × surface frame: the lightmap bases' texel and metrics
     }
 
 

@@ -17,6 +17,8 @@ Modules:
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
     irradiance_bases  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
                 (docs/irradiance-bases.md).
+    hemisphere_bases  lightmap (hemispherical) irradiance bases: H-basis (4, 6), Half-Life 2 radiosity
+                normal mapping (docs/irradiance-bases.md).
     height_fog  exponential height fog: stable closed-form optical depth, fog colour, fog volumes
                 (docs/height-fog.md).
     sdf_grid    signed distance fields: analytic primitives, mesh → voxel grid, mip chain, 8-bit
@@ -42,6 +44,7 @@ from .ambient_aperture import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .height_fog import *  # noqa: F403
+from .hemisphere_bases import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
@@ -60,6 +63,7 @@ MODULES = (
     "diffuse",
     "height_fog",
     "irradiance_bases",
+    "hemisphere_bases",
     "sdf_grid",
     "sdf_occlusion",
     "nishita_sky",

@@ -1,0 +1,268 @@
+"""The hemisphere (lightmap) section of ``irradiance-bases``: H-basis and radiosity normal mapping.
+
+A lightmap texel sees bumped normals only in the upper hemisphere of its surface frame. For each
+environment and each surface frame of `FRAMES` (z up, and one tilted frame) this section bakes, as an
+engine's lightmapper would, the hemispherical bases of `rtfit.realtime.hemisphere_bases`:
+
+* ``hbasis-4``, ``hbasis-6``: the projection c_k = ∫_{Ω+} E(n) H_k(n) dn of the irradiance over the
+  hemisphere of normals (Gauss–Legendre × uniform-φ rule, `BAKE_RULE`, irradiance by the experiment's
+  dense quadrature of the environment);
+* ``rnm-linear``, ``rnm-squared``, ``rnm-normalized``: the three lightmaps E(b_i) at Valve's tangent-space
+  basis directions (the same quadrature), reconstructed with the three weightings;
+
+and compares them, with SH L1/L2 of the whole-sphere probe evaluated at the same normals (what a probe
+would give the texel), against Mitsuba's irradiance at the experiment's Fibonacci normals that lie in the
+frame's upper hemisphere (n·N > 0): the render the experiment already made, so the section adds no
+Mitsuba pass. The ``quadrature`` row (the dense quadrature at those normals) must sit at the noise floor.
+
+The truth is the unoccluded irradiance of the distant environment at n (the quantity of the rest of the
+experiment): light from below the surface plane reaches a tilted bumped normal. A lightmapper on a real
+plane would block it (the surface's own occlusion), which this section leaves out so that every row
+approximates one function of n.
+
+This module never imports the experiment module (it receives the metric function and the baked SH).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from rtfit.realtime import NUMPY_OPS
+from rtfit.realtime.hemisphere_bases import (
+    HEMISPHERE_METHODS,
+    RNM_BASIS,
+    hbasis_project,
+    hemisphere_irradiance,
+    hemisphere_quadrature,
+    surface_frame,
+    to_tangent,
+)
+from rtfit.realtime.irradiance_bases import METHODS, basis_irradiance
+from rtfit.reference import environments as envs
+
+_TILT = math.radians(60.0)
+_AZ = math.radians(30.0)
+FRAMES = (
+    ("up", (0.0, 0.0, 1.0)),
+    ("tilted-60", (math.sin(_TILT) * math.cos(_AZ), math.sin(_TILT) * math.sin(_AZ), math.cos(_TILT))),
+)
+"""Surface frames: name → geometric normal N (world); the tangent is world +X made orthogonal to N."""
+BAKE_RULE = (16, 32)
+"""Hemisphere rule of the H-basis bake: Gauss–Legendre nodes in cos θ × midpoints in φ (512 normals)."""
+HEMI_ROWS = (
+    "hbasis-4",
+    "hbasis-6",
+    "rnm-linear",
+    "rnm-squared",
+    "rnm-normalized",
+    "sh-l1",
+    "sh-l2",
+    "quadrature",
+)
+"""The rows of the section: the hemispherical bases, SH L1/L2 of the sphere probe, and the exact row."""
+EXACT_ON_CONSTANT = ("hbasis-4", "hbasis-6", "rnm-normalized", "sh-l1", "sh-l2", "quadrature")
+"""Rows that reproduce a constant environment exactly at every normal of the hemisphere."""
+
+
+def _spec(method: str):
+    return HEMISPHERE_METHODS[method] if method in HEMISPHERE_METHODS else METHODS[method]
+
+
+def bake_frame(env, frame: np.ndarray, irradiance_at: Callable[[np.ndarray], np.ndarray]) -> dict:
+    """The lightmap texel of ``env`` in ``frame`` (rows t, b, N): H-basis coefficients (6, 3) (the first 4
+    rows are the 4-term projection: the basis is orthonormal) and the RNM lightmaps (3, 3).
+    ``irradiance_at(world_normals (M, 3)) → (M, 3)`` is the environment's dense quadrature."""
+    dirs_t, weights = hemisphere_quadrature(*BAKE_RULE)
+    e = irradiance_at(dirs_t @ frame)  # tangent → world: rows of the frame are t, b, N
+    h6 = hbasis_project(dirs_t, weights, e, 6)
+    rnm = np.asarray(irradiance_at(np.asarray(RNM_BASIS) @ frame), np.float64)
+    return {"hbasis-4": h6[:4], "hbasis-6": h6, "rnm": rnm}
+
+
+def evaluate_rows(texel: dict, sh: np.ndarray, normals_world, frame, quadrature) -> dict[str, np.ndarray]:
+    """Irradiance (M, 3) of every row of `HEMI_ROWS` at ``normals_world`` (M, 3) in the upper hemisphere
+    of ``frame``; ``quadrature`` (M, 3) is the exact row's value there."""
+    nt = to_tangent(frame, normals_world)
+    out = {}
+    for m in HEMI_ROWS:
+        spec = _spec(m)
+        if spec.exact:
+            out[m] = np.asarray(spec(NUMPY_OPS, {"irradiance": quadrature}), np.float64)
+        elif m in METHODS:  # the sphere probe, in the world frame
+            out[m] = np.asarray(basis_irradiance(spec, sh, normals_world), np.float64)
+        else:
+            coeffs = texel["rnm"] if m.startswith("rnm") else texel[m]
+            out[m] = np.asarray(hemisphere_irradiance(spec, coeffs, nt), np.float64)
+    return out
+
+
+def environment_section(
+    name: str,
+    env,
+    normals: np.ndarray,
+    mean: np.ndarray,
+    sigma: np.ndarray,
+    quadrature: np.ndarray,
+    sh: np.ndarray,
+    supersample: int,
+    backend: str | None,
+    metrics: Callable[[np.ndarray, np.ndarray, np.ndarray], dict],
+) -> list[dict]:
+    """One record per frame of `FRAMES`: the frame, the number of hemisphere normals, the baked texel
+    and, per row, ``metrics(x, reference mean, reference σ)`` over the normals with n·N > 0."""
+
+    def irradiance_at(world):
+        return envs.irradiance_quadrature(env, world, supersample, backend)
+
+    out = []
+    for frame_name, geo in FRAMES:
+        frame = surface_frame(geo)
+        keep = normals @ frame[2] > 0.0
+        texel = bake_frame(env, frame, irradiance_at)
+        evals = evaluate_rows(texel, sh, normals[keep], frame, quadrature[keep])
+        rows = []
+        for m in HEMI_ROWS:
+            spec = _spec(m)
+            rows.append(
+                {
+                    "method": m,
+                    "label": spec.label,
+                    "floats": spec.storage,
+                    "metrics": metrics(evals[m], mean[keep], sigma[keep]),
+                }
+            )
+        out.append(
+            {
+                "environment": name,
+                "frame": frame_name,
+                "geometric_normal": [float(v) for v in geo],
+                "normals": int(keep.sum()),
+                "hbasis_6": texel["hbasis-6"].tolist(),
+                "rnm_lightmaps": texel["rnm"].tolist(),
+                "rows": rows,
+            }
+        )
+    return out
+
+
+def value(rec: dict, method: str, key: str = "rel_rmse") -> float:
+    """The metric ``key`` of row ``method`` in a frame record."""
+    for r in rec["rows"]:
+        if r["method"] == method:
+            return float(r["metrics"][key]["value"])
+    return float("nan")
+
+
+def floor(rec: dict, method: str, key: str = "rel_rmse") -> float:
+    for r in rec["rows"]:
+        if r["method"] == method:
+            return float(r["metrics"][key].get("noise_floor") or 0.0)
+    return 0.0
+
+
+def checks(records: list[dict]) -> list[dict]:
+    """The section's self-checks: exact rows at the noise floor on the constant environment; H6 no worse
+    than H4; the normalised RNM no worse than the squared one (its weights only differ where the squared
+    ones lose energy near the horizon)."""
+    out = []
+    const = [r for r in records if r["environment"] == "constant"]
+    if const:
+        bad = [
+            f"{r['frame']}/{m}"
+            for r in const
+            for m in EXACT_ON_CONSTANT
+            if value(r, m) > 2.0 * floor(r, m) + 1e-9
+        ]
+        out.append(
+            {
+                "name": "hemisphere: constant environment reproduced at the noise floor (H4, H6, normalised "
+                "RNM, SH, quadrature; rel. RMSE ≤ 2× floor)",
+                "value": ", ".join(bad) or "all at the floor",
+                "expected": "all at the floor",
+                "passed": not bad,
+            }
+        )
+    for better, worse in (("hbasis-6", "hbasis-4"), ("rnm-normalized", "rnm-squared")):
+        bad = [
+            f"{r['environment']}/{r['frame']}"
+            for r in records
+            if value(r, better) > value(r, worse) + 2.0 * floor(r, worse)
+        ]
+        out.append(
+            {
+                "name": f"hemisphere: {better} no worse than {worse} (rel. RMSE within 2× floor, every "
+                "environment and frame)",
+                "value": ", ".join(bad) or "none worse",
+                "expected": "none worse",
+                "passed": not bad,
+            }
+        )
+    return out
+
+
+def section_text(records: list[dict]) -> str:
+    """Markdown: what was compared, and a table of the relative RMSE per environment × frame × row
+    (the noise floor of the first row in the last column)."""
+    head = "| environment | frame | normals | " + " | ".join(HEMI_ROWS) + " | floor |"
+    sep = "|" + "---|" * (len(HEMI_ROWS) + 4)
+    lines = [head, sep]
+    for r in records:
+        vals = " | ".join(f"{value(r, m):.3g}" for m in HEMI_ROWS)
+        lines.append(
+            f"| {r['environment']} | {r['frame']} | {r['normals']} | {vals} | {floor(r, HEMI_ROWS[0]):.2g} |"
+        )
+    means = " | ".join(f"{np.mean([value(r, m) for r in records]):.3g}" for m in HEMI_ROWS)
+    lines.append(f"| **mean** | | | {means} | |")
+    storage = ", ".join(f"{m} {_spec(m).storage}" for m in HEMI_ROWS if _spec(m).storage)
+    intro = (
+        "Lightmap texels see bumped normals only in the upper hemisphere of their surface frame. Per "
+        "environment and frame (z up; tilted 60° at azimuth 30°), the H-basis is the projection of the "
+        f"irradiance over the hemisphere of normals ({BAKE_RULE[0]}×{BAKE_RULE[1]} Gauss–Legendre × φ rule), "
+        "the RNM lightmaps are the irradiance at Valve's three tangent-space directions, reconstructed with "
+        "linear, squared and normalised-squared weights; SH L1/L2 are the sphere probe's. All are compared "
+        "with Mitsuba's irradiance at the run's Fibonacci normals with n·N > 0 (unoccluded: light from "
+        f"below the surface plane counts). Relative RMSE; floats per texel (RGB): {storage}."
+    )
+    return intro + "\n\n" + "\n".join(lines)
+
+
+def figure(out, records: list[dict], line_plot) -> dict:
+    """Relative RMSE per environment × frame for every row (log scale), with the noise floor."""
+    ids = [f"{r['environment']}/{r['frame']}" for r in records]
+    x = list(range(len(ids)))
+    series = [
+        {
+            "x": x,
+            "y": [max(value(r, m), 1e-6) for r in records],
+            "label": m,
+            "style": "points" if _spec(m).exact else "line",
+        }
+        for m in HEMI_ROWS
+    ]
+    series.append(
+        {
+            "x": x,
+            "y": [max(floor(r, HEMI_ROWS[0]), 1e-6) for r in records],
+            "label": "noise floor",
+            "ls": ":",
+            "color": "0.5",
+        }
+    )
+    name = "figures/hemisphere_error.png"
+    line_plot(
+        out / name,
+        "environment/frame: " + ", ".join(f"{i}={e}" for i, e in enumerate(ids)),
+        "relative RMSE (upper hemisphere)",
+        series,
+        y_log=True,
+    )
+    return {
+        "file": name,
+        "section": "hemisphere",
+        "caption": "Relative RMSE of the lightmap bases (H-basis 4/6, RNM with three weightings) and of the "
+        "sphere probe's SH L1/L2 over the normals of each frame's upper hemisphere, against Mitsuba, with "
+        "the reference noise floor.",
+    }
