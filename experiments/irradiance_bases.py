@@ -587,7 +587,7 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
         per_env[name] = {"evals": evals, "mean": mean, "sig": sig}
         hemi += hemisphere.environment_section(
             name, env, r["normals"], mean, sig, r["quadrature"], b["sh"], supersample_for(env, cfg),
-            quadrature_backend(ctx.variant), point_metrics,
+            quadrature_backend(ctx.variant), point_metrics, ctx.quick,
         )  # fmt: skip
         save_case_pixels(out, name, img_mean, img_sig, sphere, mask)  # the report's viewer: the sphere image
         floor = RELATIVE_PRECISION_FLOOR
