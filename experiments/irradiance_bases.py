@@ -643,7 +643,7 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
     fits = write_fitted(out, cfg, rendered, bases, ctx)
     figs = _figures(ctx, cfg, rendered, bases, per_env, cases, costs)
     figs.append(hemisphere.figure(out, hemi, figures.line_plot))
-    hemi_text = hemisphere.section_text(hemi)
+    hemi_text = hemisphere.section_text(hemi, costs)
     hemi_section = {"id": "hemisphere", "title": "Lightmap bases on the hemisphere", "text": hemi_text}
     return {
         "summary": _summary(cfg, cases, checks),
@@ -1195,6 +1195,7 @@ def _costs(ctx) -> list[dict]:
                 "note": f"per normal (pixel): unit normal in memory, RGB out; {floats} floats per probe",
             }
         )
+    rows += hemisphere.cost_rows(nd, n, backend)  # the lightmap bases (hemisphere section)
     base = memory_baseline((nd.x, nd.y, nd.z), n)
     rows.append(
         {
@@ -1276,6 +1277,7 @@ def bench(ctx) -> list[dict]:
         inputs, params = basis_inputs(m, b[row.coeffs], n64), row_params(row, b)
         t_np = time_numpy(lambda m=m, inputs=inputs, params=params: m(NUMPY_OPS, inputs, params), (), n)
         rows.append(comparison_row(m.label, backend, t_dr, t_np, base, unit="normals", per="normal"))
+    rows += hemisphere.bench_rows(nd, n64, n, backend, base)  # the lightmap bases
     rows.append(baseline_row(base, backend, "memory baseline", unit="normals", per="normal"))
     mi = use_variant(ctx.variant)
     cfg = configure(ctx.quick, None)

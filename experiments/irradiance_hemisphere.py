@@ -41,8 +41,10 @@ from rtfit.realtime.hemisphere_bases import (
     surface_frame,
     to_tangent,
 )
-from rtfit.realtime.irradiance_bases import METHODS, basis_irradiance
+from rtfit.realtime.irradiance_bases import METHODS, basis_inputs, basis_irradiance
 from rtfit.reference import environments as envs
+
+from .cost import comparison_row, time_drjit, time_numpy
 
 _TILT = math.radians(60.0)
 _AZ = math.radians(30.0)
@@ -219,9 +221,10 @@ def checks(records: list[dict]) -> list[dict]:
     return out
 
 
-def section_text(records: list[dict]) -> str:
+def section_text(records: list[dict], costs: list[dict] | None = None) -> str:
     """Markdown: what was compared, and a table of the relative RMSE per environment × frame × row
-    (the noise floor of the first row in the last column)."""
+    (the noise floor of the first row in the last column), then floats per texel and, from ``costs``
+    (the experiment's cost rows), ns per normal."""
     head = "| environment | frame | normals | " + " | ".join(HEMI_ROWS) + " | floor |"
     sep = "|" + "---|" * (len(HEMI_ROWS) + 4)
     lines = [head, sep]
@@ -232,8 +235,13 @@ def section_text(records: list[dict]) -> str:
         )
     means = " | ".join(f"{np.mean([value(r, m) for r in records]):.3g}" for m in HEMI_ROWS)
     lines.append(f"| **mean** | | | {means} | |")
+    floats = " | ".join(str(_spec(m).storage or "—") for m in HEMI_ROWS)
+    lines.append(f"| floats per texel (RGB) | | | {floats} | |")
+    if costs:
+        ns = {c["method"]: c.get("ns_per_pixel") for c in costs}
+        cells = " | ".join(f"{ns[m]:.2g}" if ns.get(m) is not None else "—" for m in HEMI_ROWS)
+        lines.append(f"| ns per normal ({costs[0].get('backend', '')}) | | | {cells} | |")
     rule = records[0]["bake_rule"] if records else BAKE_RULE[False]
-    storage = ", ".join(f"{m} {_spec(m).storage}" for m in HEMI_ROWS if _spec(m).storage)
     intro = (
         "Lightmap texels see bumped normals only in the upper hemisphere of their surface frame. Per "
         "environment and frame (z up; tilted 60° at azimuth 30°), the H-basis is the projection of the "
@@ -241,7 +249,7 @@ def section_text(records: list[dict]) -> str:
         "the RNM lightmaps are the irradiance at Valve's three tangent-space directions, reconstructed with "
         "linear, squared and normalised-squared weights; SH L1/L2 are the sphere probe's. All are compared "
         "with Mitsuba's irradiance at the run's Fibonacci normals with n·N > 0 (unoccluded: light from "
-        f"below the surface plane counts). Relative RMSE; floats per texel (RGB): {storage}."
+        f"below the surface plane counts). Relative RMSE (floor: the reference's noise)."
     )
     return intro + "\n\n" + "\n".join(lines)
 
@@ -283,3 +291,52 @@ def figure(out, records: list[dict], line_plot) -> dict:
         "sphere probe's SH L1/L2 over the normals of each frame's upper hemisphere, against Mitsuba, with "
         "the reference noise floor.",
     }
+
+
+# ================================================================================================ costs
+def demo_texel() -> dict:
+    """A fixed texel for the timings (the kernels' cost does not depend on the values)."""
+    rng = np.random.default_rng(5)
+    return {"hbasis-4": rng.uniform(0.1, 2.0, (4, 3)), "hbasis-6": rng.uniform(0.1, 2.0, (6, 3)),
+            "rnm": rng.uniform(0.1, 2.0, (3, 3))}  # fmt: skip
+
+
+def _texel_coeffs(texel: dict, method: str):
+    return texel["rnm"] if method.startswith("rnm") else texel[method]
+
+
+def cost_rows(normals_drjit, n: int, backend: str) -> list[dict]:
+    """Dr.Jit cost per normal of every hemispherical basis (the experiment's ``costs`` rows): tangent-space
+    normal in memory, RGB out (the normals are the experiment's timing normals, any hemisphere)."""
+    texel = demo_texel()
+    rows = []
+    for m in HEMISPHERE_METHODS:  # the RNM weightings do different work: one row each
+        spec = HEMISPHERE_METHODS[m]
+        c = _texel_coeffs(texel, m)
+        t = time_drjit(lambda v, spec=spec, c=c: hemisphere_irradiance(spec, c, v), (normals_drjit,), n)
+        rows.append(
+            {
+                "method": m,
+                "label": spec.label,
+                "backend": backend,
+                **t.to_dict(),
+                "floats_per_probe": spec.storage,
+                "note": f"per bumped normal (lightmap texel): tangent-space normal in memory, RGB out; "
+                f"{spec.storage} floats per texel",
+            }
+        )
+    return rows
+
+
+def bench_rows(normals_drjit, normals64: np.ndarray, n: int, backend: str, base) -> list[dict]:
+    """`rtfit bench` rows: Dr.Jit vs the NumPy run of the same kernel text, per hemispherical basis."""
+    texel = demo_texel()
+    rows = []
+    for m in HEMISPHERE_METHODS:  # the RNM weightings do different work: one row each
+        spec = HEMISPHERE_METHODS[m]
+        c = _texel_coeffs(texel, m)
+        t_dr = time_drjit(lambda v, spec=spec, c=c: hemisphere_irradiance(spec, c, v), (normals_drjit,), n)
+        inputs = basis_inputs(spec, c, normals64)
+        t_np = time_numpy(lambda spec=spec, inputs=inputs: spec(NUMPY_OPS, inputs), (), n)
+        rows.append(comparison_row(spec.label, backend, t_dr, t_np, base, unit="normals", per="normal"))
+    return rows
