@@ -255,41 +255,46 @@ def section_text(records: list[dict], costs: list[dict] | None = None) -> str:
 
 
 def figure(out, records: list[dict], line_plot) -> dict:
-    """Relative RMSE per environment × frame for every row (log scale), with the noise floor."""
-    ids = [f"{r['environment']}/{r['frame']}" for r in records]
-    x = list(range(len(ids)))
-    series = [
-        {
-            "x": x,
-            "y": [max(value(r, m), 1e-6) for r in records],
-            "label": m,
-            "style": "points" if _spec(m).exact else "line",
-        }
-        for m in HEMI_ROWS
-    ]
-    series.append(
-        {
-            "x": x,
-            "y": [max(floor(r, HEMI_ROWS[0]), 1e-6) for r in records],
-            "label": "noise floor",
-            "ls": ":",
-            "color": "0.5",
-        }
-    )
+    """Relative RMSE per environment for every row (log scale), one panel per frame, with the noise floor."""
+    envs_ = list(dict.fromkeys(r["environment"] for r in records))
+    frames = [f for f, _ in FRAMES]
+    series = []
+    for fr in frames:
+        recs = [next(r for r in records if r["environment"] == e and r["frame"] == fr) for e in envs_]
+        x = list(range(len(recs)))
+        for m in HEMI_ROWS:
+            series.append(
+                {
+                    "x": x,
+                    "y": [max(value(r, m), 1e-6) for r in recs],
+                    "label": m,
+                    "panel": fr,
+                    "style": "points" if _spec(m).exact else "line",
+                }
+            )
+        series.append(
+            {
+                "x": x,
+                "y": [max(floor(r, HEMI_ROWS[0]), 1e-6) for r in recs],
+                "label": "noise floor",
+                "panel": fr,
+                "ls": ":",
+                "color": "0.5",
+            }
+        )
     name = "figures/hemisphere_error.png"
     line_plot(
-        out / name,
-        "environment/frame: " + ", ".join(f"{i}={e}" for i, e in enumerate(ids)),
-        "relative RMSE (upper hemisphere)",
-        series,
-        y_log=True,
-    )
+        out / name, "environment (numbered in the caption)", "relative RMSE (upper hemisphere)", series,
+        y_log=True, panels=frames,
+    )  # fmt: skip
     return {
         "file": name,
         "section": "hemisphere",
         "caption": "Relative RMSE of the lightmap bases (H-basis 4/6, RNM with three weightings) and of the "
-        "sphere probe's SH L1/L2 over the normals of each frame's upper hemisphere, against Mitsuba, with "
-        "the reference noise floor.",
+        "sphere probe's SH L1/L2 over the normals of each frame's upper hemisphere (panels: frames), against "
+        "Mitsuba, with the reference noise floor. Environments: "
+        + ", ".join(f"{i} {e}" for i, e in enumerate(envs_))
+        + ".",
     }
 
 
