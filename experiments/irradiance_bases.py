@@ -641,6 +641,8 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
     attach_costs(cases, costs)
     checks = _checks(names, cases, z_quad, z_img, furnace, bake) + hemisphere.checks(hemi)
     fits = write_fitted(out, cfg, rendered, bases, ctx)
+    hashes = {n: list(rendered[n]["hashes"].values()) for n in names}
+    hemisphere.write_fitted(out, hemi, ctx, hashes, cfg.get("spp"))  # fitted/<env>-lightmap.json
     figs = _figures(ctx, cfg, rendered, bases, per_env, cases, costs)
     figs.append(hemisphere.figure(out, hemi, figures.line_plot))
     hemi_text = hemisphere.section_text(hemi, costs)

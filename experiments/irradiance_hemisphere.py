@@ -345,3 +345,66 @@ def bench_rows(normals_drjit, normals64: np.ndarray, n: int, backend: str, base)
         t_np = time_numpy(lambda spec=spec, inputs=inputs: spec(NUMPY_OPS, inputs), (), n)
         rows.append(comparison_row(spec.label, backend, t_dr, t_np, base, unit="normals", per="normal"))
     return rows
+
+
+# ============================================================================================== fitted
+def write_fitted(out, records: list[dict], ctx=None, scene_hashes=None, reference_spp=None) -> list[str]:
+    """One ``fitted/<environment>-lightmap.json`` per environment (``rtfit.fitted/1``): per frame and
+    hemispherical basis the baked texel as shader literals (GLSL/HLSL taking the tangent-space normal),
+    and the frames, H6 coefficients and RNM lightmaps as data. Returns the written files (relative)."""
+    from . import fitted as fitfiles
+
+    written = []
+    for env in dict.fromkeys(r["environment"] for r in records):
+        recs = [r for r in records if r["environment"] == env]
+        methods = []
+        for r in recs:
+            texel = {"hbasis-6": np.asarray(r["hbasis_6"]), "rnm": np.asarray(r["rnm_lightmaps"])}
+            texel["hbasis-4"] = texel["hbasis-6"][:4]
+            for m, spec in HEMISPHERE_METHODS.items():
+                coeffs = basis_inputs(spec, _texel_coeffs(texel, m), np.array([[0.0, 0.0, 1.0]]))["coeffs"]
+                methods.append(
+                    fitfiles.method_entry(
+                        spec,
+                        None,
+                        id=f"{m}-{r['frame']}".replace(".", "_"),
+                        label=f"{spec.label}, frame {r['frame']}",
+                        case=env,
+                        baked={"coeffs": coeffs},
+                        outputs=("out_r", "out_g", "out_b"),
+                    )
+                )
+        data = {
+            "environment": env,
+            "units": "H-basis coefficients of the irradiance (W/m^2 per channel, c_k = integral of E H_k "
+            "over the hemisphere of normals); RNM lightmaps: irradiance W/m^2 at the basis directions",
+            "normal_frame": "tangent space: (n.t, n.b, n.N), frame rows t, b, N; t = world +X made "
+            "orthogonal to N, b = N x t",
+            "hbasis": "H1 = 1/sqrt(2pi), H2 = -sqrt(3/2pi) y, H3 = sqrt(3/2pi)(2z-1), H4 = -sqrt(3/2pi) x, "
+            "H5 = sqrt(15/2pi) xy, H6 = 0.5 sqrt(15/2pi)(x^2-y^2)",
+            "rnm_basis": [list(b) for b in RNM_BASIS],
+            "frames": [
+                {
+                    "frame": r["frame"],
+                    "geometric_normal": r["geometric_normal"],
+                    "hbasis_6": r["hbasis_6"],
+                    "rnm_lightmaps": r["rnm_lightmaps"],
+                }
+                for r in recs
+            ],
+        }
+        name = f"fitted/{env}-lightmap.json"
+        fitfiles.write_fitted(
+            out / name,
+            fitfiles.FittedFile(
+                format=fitfiles.FORMAT,
+                title=f"lightmap texels (H-basis, RNM) baked for environment {env}",
+                provenance=fitfiles.provenance(
+                    ctx, "irradiance-bases", list((scene_hashes or {}).get(env, [])), reference_spp
+                ),
+                methods=methods,
+                data=data,
+            ),
+        )
+        written.append(name)
+    return written

@@ -248,3 +248,20 @@ def test_bake_in_a_tilted_frame_reproduces_a_linear_irradiance():
         got = hemisphere_irradiance(m, texel[m], to_tangent(frame, n))
         np.testing.assert_allclose(got, sky(n), rtol=1e-12)
     np.testing.assert_allclose(texel["rnm"], sky(np.array(RNM_BASIS) @ frame), rtol=1e-15)
+
+
+def test_fitted_lightmap_file_loads_and_its_shader_literals_are_the_texel(tmp_path):
+    """The experiment's fitted file: it passes the ``rtfit.fitted/1`` loader, and the traced GLSL of the
+    normalised RNM carries the texel's lightmaps (float32 literals) in the order of the kernel."""
+    from rtfit.experiments.fitted import load_fitted
+    from rtfit.experiments.irradiance_hemisphere import write_fitted
+
+    lm = [[1.25, 2.5, 3.75], [0.5, 0.625, 0.75], [4.0, 4.5, 5.0]]  # rows E_0..E_2, RGB
+    rec = {"environment": "env", "frame": "up", "geometric_normal": [0.0, 0.0, 1.0], "rnm_lightmaps": lm}
+    rec["hbasis_6"] = np.arange(18.0).reshape(6, 3).tolist()
+    (name,) = write_fitted(tmp_path, [rec])
+    doc = load_fitted(tmp_path / name)
+    assert [m.id for m in doc.methods] == [f"{m}-up" for m in HEMISPHERE_METHODS]
+    glsl = next(m for m in doc.methods if m.id == "rnm-normalized-up").shader.glsl
+    for v in ("1.25", "0.5", "4.0", "2.5", "0.625", "4.5"):
+        assert f" {v}" in glsl or f"({v}" in glsl
