@@ -44,6 +44,7 @@ from rtfit.realtime.hemisphere_bases import (
 from rtfit.realtime.irradiance_bases import METHODS, basis_inputs, basis_irradiance
 from rtfit.reference import environments as envs
 
+from . import fitted as fitfiles
 from .cost import comparison_row, time_drjit, time_numpy
 
 _TILT = math.radians(60.0)
@@ -352,8 +353,6 @@ def write_fitted(out, records: list[dict], ctx=None, scene_hashes=None, referenc
     """One ``fitted/<environment>-lightmap.json`` per environment (``rtfit.fitted/1``): per frame and
     hemispherical basis the baked texel as shader literals (GLSL/HLSL taking the tangent-space normal),
     and the frames, H6 coefficients and RNM lightmaps as data. Returns the written files (relative)."""
-    from . import fitted as fitfiles
-
     written = []
     for env in dict.fromkeys(r["environment"] for r in records):
         recs = [r for r in records if r["environment"] == env]
