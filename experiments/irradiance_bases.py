@@ -112,6 +112,7 @@ from rtfit.scenes import (
 
 from . import figures
 from . import fitted as fitfiles
+from . import irradiance_hemisphere as hemisphere
 from .cost import (
     Stock,
     attach_costs,
@@ -636,7 +637,7 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
     out = ctx.out_dir
     names = cfg["environments"]
     cases, z_quad, z_img, furnace, bake = [], [], [], [], []
-    per_env = {}
+    per_env, hemi = {}, []
     for name in names:
         r = rendered[name]
         env, b = r["env"], bases[name]
@@ -664,6 +665,10 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
                 }
             )
         per_env[name] = {"evals": evals, "mean": mean, "sig": sig}
+        hemi += hemisphere.environment_section(
+            name, env, r["normals"], mean, sig, r["quadrature"], b["sh"], supersample_for(env, cfg),
+            quadrature_backend(ctx.variant), point_metrics, ctx.quick,
+        )  # fmt: skip
         save_case_pixels(out, name, img_mean, img_sig, sphere, mask)  # the report's viewer: the sphere image
         floor = RELATIVE_PRECISION_FLOOR
         z_quad.append(z_pair(r["quadrature"][:, 0], mean[:, 0], se[:, 0], sig[:, 0], floor))
@@ -716,19 +721,25 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
 
     costs = _costs(ctx)
     attach_costs(cases, costs)
-    checks = _checks(names, cases, z_quad, z_img, furnace, bake)
+    checks = _checks(names, cases, z_quad, z_img, furnace, bake) + hemisphere.checks(hemi)
     fits = write_fitted(out, cfg, rendered, bases, ctx)
+    hashes = {n: list(rendered[n]["hashes"].values()) for n in names}
+    hemisphere.write_fitted(out, hemi, ctx, hashes, cfg.get("spp"))  # fitted/<env>-lightmap.json
     figs = _figures(ctx, cfg, rendered, bases, per_env, cases, costs)
+    figs.append(hemisphere.figure(out, hemi, figures.line_plot))
+    hemi_text = hemisphere.section_text(hemi, costs)
+    hemi_section = {"id": "hemisphere", "title": "Lightmap bases on the hemisphere", "text": hemi_text}
     return {
         "summary": _summary(cfg, cases, checks),
         "config": cfg,
-        "sections": _sections(cfg),
+        "sections": [*_sections(cfg), hemi_section],
         "cases": cases,
         "fits": fits,
         "figures": figs,
         "costs": costs,
         "checks": checks,
         "notes": _notes(ctx),
+        "hemisphere": hemi,  # per environment × surface frame: the lightmap bases' texel and metrics
     }
 
 
@@ -1385,6 +1396,7 @@ def _costs(ctx) -> list[dict]:
                 "note": f"per normal (pixel): unit normal in memory, RGB out; {floats} floats per probe",
             }
         )
+    rows += hemisphere.cost_rows(nd, n, backend)  # the lightmap bases (hemisphere section)
     base = memory_baseline((nd.x, nd.y, nd.z), n)
     rows.append(
         {
@@ -1466,6 +1478,7 @@ def bench(ctx) -> list[dict]:
         inputs, params = basis_inputs(m, b[row.coeffs], n64), row_params(row, b)
         t_np = time_numpy(lambda m=m, inputs=inputs, params=params: m(NUMPY_OPS, inputs, params), (), n)
         rows.append(comparison_row(m.label, backend, t_dr, t_np, base, unit="normals", per="normal"))
+    rows += hemisphere.bench_rows(nd, n64, n, backend, base)  # the lightmap bases
     rows.append(baseline_row(base, backend, "memory baseline", unit="normals", per="normal"))
     mi = use_variant(ctx.variant)
     cfg = configure(ctx.quick, None)

@@ -24,6 +24,9 @@ Modules:
     spherical_gaussians  spherical-Gaussian irradiance bases (N = 6, 9, 12 lobes; naive / LS / NNLS /
                 ambient fits; SG ⊗ clamped cosine) (docs/irradiance-bases.md).
     ambient_dice  Ambient Dice (Iwanicki & Sloan 2017), RBF variant on 12 icosahedron vertices.
+
+    hemisphere_bases  lightmap (hemispherical) irradiance bases: H-basis (4, 6), Half-Life 2 radiosity
+                normal mapping (docs/irradiance-bases.md).
     height_fog  exponential height fog: stable closed-form optical depth, fog colour, fog volumes
                 (docs/height-fog.md).
     sdf_grid    signed distance fields: analytic primitives, mesh → voxel grid, mip chain, 8-bit
@@ -56,6 +59,7 @@ from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .environment_maps import *  # noqa: F403
 from .height_fog import *  # noqa: F403
+from .hemisphere_bases import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
 from .methods import *  # noqa: F403
@@ -82,6 +86,8 @@ MODULES = (
     "irradiance_volumes",
     "spherical_gaussians",
     "ambient_dice",
+
+    "hemisphere_bases",
     "sdf_grid",
     "sdf_occlusion",
     "nishita_sky",
