@@ -73,9 +73,11 @@ from rtfit.realtime.irradiance_bases import (
     sh9_from_constant,
     sh9_from_disk,
     sh_project_latlong,
+    sh_project_samples,
 )
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene, render_gbuffer, use_variant
 from rtfit.reference import environments as envs
+from rtfit.reference import probe_maps
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
 from rtfit.reference.estimators import irradiance_pass, radiance_pass
 from rtfit.scenes import (
@@ -140,6 +142,14 @@ CONFIG = {
     "quadrature_min_rows": ConfigKey("int", "quadrature supersampling: at least this many rows", 1, 16384),
     "map_supersample": ConfigKey("int", "map supersampling per axis", 1, 16),
     "sun_elevation_deg": ConfigKey("float", "elevation of the sun-<r> environments (°)", 0.0, 90.0),
+    "probes": ConfigKey(
+        "str",
+        "your own light probes, PATH[:MAPPING] (latlong, vcross, hcross, mirrorball, angular; "
+        "docs/irradiance-bases.md), run as environments probe-file-<stem>; none: only the built-in ones",
+        shape=(None,),
+        optional=True,
+        check=probe_maps.probe_spec_problem,
+    ),
 }
 """Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
 
@@ -198,6 +208,7 @@ def configure(quick: bool, spp: int | None) -> dict:
             else 512,  # quadrature supersampling s = max(2, ceil(rows / H))
             "map_supersample": 2,
             "sun_elevation_deg": 45.0,
+            "probes": None,
         },
     )
 
@@ -216,6 +227,25 @@ def environment_names(quick: bool) -> list[str]:
         + ["studio", "overcast"]
         + [f"probe-{p}" for p in probes]
     )
+
+
+def with_user_probes(cfg: dict) -> dict:
+    """``cfg`` with the user's probes (``probes``, `rtfit.reference.probe_maps`) appended to its
+    environments as ``probe-file-<stem>``."""
+    ids = probe_maps.user_probe_ids(cfg.get("probes"))
+    return {**cfg, "environments": list(cfg["environments"]) + [i for i in ids if i not in cfg["environments"]]}
+
+
+def rh2001_coefficients(radiance_map, supersample: int = 2, frame=None) -> tuple[np.ndarray, float]:
+    """The L2 radiance coefficients (9, 3) of a lat-long map of Grace Cathedral (rtfit's convention, e.g.
+    ``probe-grace``) in Ramamoorthi & Hanrahan 2001's frame (``frame``: the 3 × 3 map from world
+    directions, default `probe_maps.RH2001_FROM_WORLD`), scaled by the one exposure s that fits
+    `probe_maps.RH2001_GRACE_L2` best in least squares; returns (s·L, s)."""
+    m = probe_maps.RH2001_FROM_WORLD if frame is None else np.asarray(frame, np.float64)
+    d, w, L = envs.quadrature_samples(radiance_map, supersample)
+    c = sh_project_samples(d @ m.T, w, L)
+    s = float(np.sum(c * probe_maps.RH2001_GRACE_L2) / np.sum(c * c))
+    return s * c, s
 
 
 def missing_probes(quick: bool) -> list[str]:
@@ -340,6 +370,9 @@ def make_environment(name: str, cfg: dict, mi=None):
         return envs.map_environment(
             "overcast", "overcast (CIE sky, ground ρ = 0.2)", "overcast", envs.overcast_map(h, 2 * h)
         )
+    user = dict(zip(probe_maps.user_probe_ids(cfg.get("probes")), cfg.get("probes") or (), strict=True))
+    if name in user:
+        return probe_maps.user_probe_environment(name, user[name], cfg["probe_height"])
     if name.startswith("probe-"):
         return envs.probe_environment(name[6:], cfg["probe_height"])
     raise ValueError(f"unknown environment {name!r}")
@@ -454,7 +487,7 @@ def render_environment(
 
 # ================================================================================================== run
 def run(ctx) -> dict:
-    cfg = ctx.configured(configure(ctx.quick, ctx.spp))
+    cfg = with_user_probes(ctx.configured(configure(ctx.quick, ctx.spp)))
     jobs = [
         Job(
             "rtfit.experiments.irradiance_bases:render_environment",
