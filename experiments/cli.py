@@ -44,6 +44,7 @@ import rtfit
 from rtfit.reference import default_cache_dir, resolve_variant
 from rtfit.reference.export_xml import export_xml
 from rtfit.reference.io import atomic_write_json
+from rtfit.reference.probe_maps import parse_probe_spec
 from rtfit.scenes import SceneError, library_path, load_scene
 
 from . import scaling
@@ -359,8 +360,6 @@ def _probe_overrides(specs, quick: bool, probes) -> dict:
     kept), for experiments that declare it; none: no overrides."""
     if not probes:
         return {}
-    from rtfit.reference.probe_maps import parse_probe_spec
-
     without = [s.name for s in specs if "probes" not in validate_config(s.name, quick, None, {})]
     if without:
         _fail(f"--probe: {', '.join(without)} takes no probes (irradiance-bases does)")

@@ -1,4 +1,4 @@
-"""Your own light probes: lat-long, cube-cross, mirror-ball and angular maps resampled into rtfit's lat-long map.
+"""Your own light probes: lat-long, cube-cross, mirror-ball and angular maps, resampled to rtfit's lat-long.
 
 A probe is given as ``PATH[:MAPPING]`` (``rtfit run irradiance-bases --probe PATH[:MAPPING]``, or the
 ``probes`` key of a sweep file). The file is read with Mitsuba's ``Bitmap`` (OpenEXR ``.exr``, Radiance
@@ -60,7 +60,9 @@ __all__ = [
     "CROSSES",
     "EXTENSIONS",
     "MAPPINGS",
+    "RH2001_FROM_WORLD",
     "RH2001_GRACE_L2",
+    "RH2001_TOLERANCE",
     "ProbeSpec",
     "detect_mapping",
     "file_to_world",
@@ -71,8 +73,6 @@ __all__ = [
     "probe_spec_problem",
     "read_probe",
     "resample_latlong",
-    "RH2001_FROM_WORLD",
-    "RH2001_TOLERANCE",
     "user_probe_environment",
     "user_probe_ids",
     "world_to_file",
@@ -168,7 +168,7 @@ def mapping_direction(mapping: str, u, v) -> tuple[np.ndarray, np.ndarray]:
         col = np.clip(np.floor(cu), 0, cols - 1)
         row = np.clip(np.floor(rv), 0, rows - 1)
         a, b = 2.0 * (cu - col) - 1.0, 1.0 - 2.0 * (rv - row)
-        d = np.zeros(u.shape + (3,))
+        d = np.zeros((*u.shape, 3))
         valid = np.zeros(u.shape, bool)
         for c, r_, f, rt, up in faces:
             m = (col == c) & (row == r_)
@@ -191,7 +191,10 @@ def mapping_uv(mapping: str, d) -> tuple[np.ndarray, np.ndarray]:
         r = _disc_radius(mapping, al)
         h = np.hypot(d[..., 0], d[..., 1])
         k = np.where(h > 0, r / np.where(h > 0, h, 1.0), 0.0)
-        a, b = np.where(h > 0, k * d[..., 0], r), k * d[..., 1]  # on the axis: (r, 0) (the −Z pole is the rim)
+        a, b = (
+            np.where(h > 0, k * d[..., 0], r),
+            k * d[..., 1],
+        )  # on the axis: (r, 0) (the −Z pole is the rim)
         return 0.5 * (a + 1.0), 0.5 * (1.0 - b)
     if mapping in CROSSES:
         (cols, rows), faces = CROSSES[mapping]
@@ -250,7 +253,7 @@ def lookup(mapping: str, src: np.ndarray, d_world) -> np.ndarray:
     (cols, rows), faces = CROSSES[mapping]
     n = src.shape[0] // rows
     face = _face_of(mapping, u, v)
-    out = np.zeros(np.shape(u) + (3,))
+    out = np.zeros((*np.shape(u), 3))
     for i, (c, r_, _, _, _) in enumerate(faces):
         m = face == i
         if np.any(m):
@@ -477,4 +480,3 @@ permutations that matches all nine RGB coefficients (every other one misses by �
 RH2001_TOLERANCE = 0.01
 """|L_lm − table| allowed after the fitted exposure: the table's rounding (0.005) plus 0.005 for the EXR's
 half floats and the resampling. Measured: 0.0068 (L20, green) at the file's 512 rows, 0.0058 at 64 rows."""
-
