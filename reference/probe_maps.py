@@ -475,7 +475,8 @@ RH2001_FROM_WORLD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]
 """R&H's (x, y, z) of rtfit's world direction w of ``probe-grace`` (pbrt-v2's EXR of the same capture):
 (x, y, z)_RH = (w_y, w_z, −w_x). A signed permutation of determinant −1 (a mirror: R&H's ``prefilter.c``
 builds its frame from image rows and columns of the angular map), found as the one of the 48 signed
-permutations that matches all nine RGB coefficients (every other one misses by ≥ 0.1); R&H's frame is
+permutations that matches all nine RGB coefficients (every other one misses by ≥ 0.39 with its own fitted
+exposure); R&H's frame is
 +Y up like the world's +Z."""
 RH2001_TOLERANCE = 0.01
 """|L_lm − table| allowed after the fitted exposure: the table's rounding (0.005) plus 0.005 for the EXR's

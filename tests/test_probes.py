@@ -234,7 +234,7 @@ def test_grace_l2_matches_ramamoorthi_hanrahan_2001():
     in R&H's frame (x, y, z)_RH = (w_y, w_z, −w_x), after the one fitted exposure, against R&H 2001's table
     (2 decimals): max difference 0.0058 measured (≤ `RH2001_TOLERANCE` = 0.01: rounding 0.005 + 0.005);
     the exposure 9.95 (pbrt-v2 stores the probe at about 1/10 of the 2001 file). The identity frame
-    misses by > 0.1: the frame mapping is what makes the match."""
+    misses by 0.60 (every other signed permutation by ≥ 0.39): the frame mapping makes the match."""
     if not envs.probe_available("grace"):
         pytest.skip(f"Grace Cathedral probe not found in {envs.probe_dir()} (set RTFIT_PROBE_DIR)")
     env = envs.probe_environment("grace", 64)
@@ -242,4 +242,4 @@ def test_grace_l2_matches_ramamoorthi_hanrahan_2001():
     assert 9.8 < scale < 10.1
     assert np.max(np.abs(coeffs - pm.RH2001_GRACE_L2)) <= pm.RH2001_TOLERANCE
     wrong, _ = rh2001_coefficients(env.radiance_map, frame=np.eye(3))
-    assert np.max(np.abs(wrong - pm.RH2001_GRACE_L2)) > 0.1
+    assert np.max(np.abs(wrong - pm.RH2001_GRACE_L2)) > 0.3
