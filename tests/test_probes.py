@@ -243,3 +243,16 @@ def test_grace_l2_matches_ramamoorthi_hanrahan_2001():
     assert np.max(np.abs(coeffs - pm.RH2001_GRACE_L2)) <= pm.RH2001_TOLERANCE
     wrong, _ = rh2001_coefficients(env.radiance_map, frame=np.eye(3))
     assert np.max(np.abs(wrong - pm.RH2001_GRACE_L2)) > 0.3
+
+
+def test_probes_config_key(dirs, tmp_path):
+    """The sweep-file form: ``probes = ["FILE[:MAPPING]", …]`` is checked like --probe, and the run's
+    environments gain ``probe-file-<stem>``."""
+    from rtfit.experiments.irradiance_bases import with_user_probes
+    from rtfit.experiments.registry import validate_config
+
+    ok = _write(tmp_path / "ok.exr", np.ones((16, 32, 3)))
+    cfg = validate_config("irradiance-bases", True, None, {"probes": [ok]})
+    assert with_user_probes(cfg)["environments"][-1] == "probe-file-ok"
+    with pytest.raises(ValueError, match="probe file not found"):
+        validate_config("irradiance-bases", True, None, {"probes": [str(tmp_path / "gone.hdr:angular")]})
