@@ -360,7 +360,13 @@ def _probe_overrides(specs, quick: bool, probes) -> dict:
     kept), for experiments that declare it; none: no overrides."""
     if not probes:
         return {}
-    without = [s.name for s in specs if "probes" not in validate_config(s.name, quick, None, {})]
+    without = []
+    for s in specs:
+        try:
+            if "probes" not in validate_config(s.name, quick, None, {}):
+                without.append(s.name)
+        except ValueError as e:  # a bad default (e.g. a corrupt measured probe): the usual one line
+            _fail(f"{s.name}: {e}")
     if without:
         _fail(f"--probe: {', '.join(without)} takes no probes (irradiance-bases does)")
     out = []
