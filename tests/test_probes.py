@@ -119,13 +119,13 @@ def _uffizi() -> Path:
 @pytest.fixture(scope="module")
 def converted(tmp_path_factory):
     """Uffizi (256×128 lat-long) as a small vertical cross (faces 64², the source's angular resolution),
-    horizontal cross and angular map (256²) in EXR files, each texel the mean of 2 × 2 lookups of the
-    lat-long file over the texel."""
+    horizontal cross, angular map and mirror ball (256²) in EXR files, each texel the mean of 2 × 2
+    lookups of the lat-long file over the texel."""
     src_path = _uffizi()
     src = envs.read_image(src_path).astype(np.float64)
     tmp = tmp_path_factory.mktemp("probes")
     out = {"latlong": src_path}
-    for mapping, side in (("vcross", 64), ("hcross", 64), ("angular", 256)):
+    for mapping, side in (("vcross", 64), ("hcross", 64), ("angular", 256), ("mirrorball", 256)):
         aw, ah = pm.ASPECTS[mapping]
         w, h = aw * side, ah * side
         acc = np.zeros((h, w, 3))
@@ -139,10 +139,11 @@ def converted(tmp_path_factory):
 
 
 def test_converted_probe_gives_the_same_irradiance(converted):
-    """Uffizi as lat-long, cross and angular map, each resampled to 64 rows: the irradiance at 300 normals
-    agrees within the resampling error. Measured max relative difference to the lat-long route: vcross and
-    hcross 2.8e-3, angular 1.3e-3. The lat-long route itself is within 6.1e-3 of the file at its own
-    128 rows (the built-in probe-uffizi, a box filter and point lookup: 1.0e-2)."""
+    """Uffizi as lat-long, cross, angular map and mirror ball, each resampled to 64 rows: the irradiance at
+    300 normals agrees within the resampling error. Measured max relative difference to the lat-long
+    route: vcross and hcross 2.8e-3, angular 1.3e-3, mirror ball 5.4e-3 (its rim, the −Z pole, is
+    squeezed). The lat-long route itself is within 6.1e-3 of the file at its own 128 rows (the built-in
+    probe-uffizi, a box filter and point lookup: 1.0e-2)."""
     nrm = fibonacci_sphere(300)
     e = {}
     for mapping, path in converted.items():
@@ -153,7 +154,7 @@ def test_converted_probe_gives_the_same_irradiance(converted):
     ref = e["latlong"]
     full = envs.irradiance_quadrature(envs.probe_environment("uffizi", None), nrm, 2)
     assert np.max(np.abs(ref / full - 1)) < 0.01
-    for mapping in ("vcross", "hcross", "angular"):
+    for mapping in ("vcross", "hcross", "angular", "mirrorball"):
         rel = np.max(np.abs(e[mapping] / ref - 1))
         assert rel < 1e-2, (mapping, rel)
 
