@@ -1,7 +1,8 @@
 """Experiment ``irradiance-bases``: ambient cube and spherical harmonics against path-traced irradiance.
 
 For each distant environment (constant, disc suns, Mitsuba ``sunsky`` at several sun elevations, a
-high-contrast studio map, a low-contrast overcast sky, measured light probes) the ground truth is Mitsuba's
+high-contrast studio map, a low-contrast overcast sky, measured light probes, and the user's own probes,
+``--probe FILE[:MAPPING]``, see `rtfit.reference.probe_maps`) the ground truth is Mitsuba's
 irradiance at a Fibonacci sphere of normals (`rtfit.reference.estimators.irradiance_pass`: emitter
 sampling + cosine sampling, MIS) and Mitsuba's point-sampled image of a white diffuse unit sphere under the
 environment (`direct` integrator, the integrator rule's choice for one convex reflector). Both are checked
