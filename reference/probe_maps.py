@@ -29,8 +29,9 @@ Image coordinates (u, v) ∈ [0, 1]²: u to the right, v **down**, texel (i, j) 
 * ``vcross`` (3 × 4 faces) and ``hcross`` (4 × 3): six square faces, each a view from the centre with
   forward f, right r and up u (r × u = −f); F = normalise(f + a r + b u) with (a, b) ∈ [−1, 1]² the
   face coordinates (a right, b up). Layout (`CROSSES`): the front −Z in the middle of the cross row,
-  −X left of it, +X right of it, +Y above, −Y below; the back +Z below −Y, upside down (``vcross``,
-  HDRShop's cross), or right of +X (``hcross``). Lookups clamp to the face's own texels.
+  −X left of it, +X right of it, +Y above, −Y below; the back +Z below −Y, upside down (``vcross``),
+  or right of +X (``hcross``). Lookups clamp to the face's own texels. Tools differ in which way is
+  forward; a probe in another convention comes out turned (docs/irradiance-bases.md, orientation).
 
 `resample_latlong` samples the probe at rtfit's lat-long nodes (H × 2H, `rtfit.reference.environments`):
 each node's value is the solid-angle weighted mean of s × s bilinear lookups over the node's footprint
