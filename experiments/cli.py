@@ -44,6 +44,7 @@ import rtfit
 from rtfit.reference import default_cache_dir, resolve_variant
 from rtfit.reference.export_xml import export_xml
 from rtfit.reference.io import atomic_write_json
+from rtfit.reference.probe_maps import parse_probe_spec
 from rtfit.scenes import SceneError, library_path, load_scene
 
 from . import scaling
@@ -216,16 +217,38 @@ def list_cmd():
 @click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
 @click.option("--single-file", is_flag=True, help=SINGLE_FILE_HELP)
+@click.option(
+    "--probe",
+    "probes",
+    multiple=True,
+    metavar="FILE[:MAPPING]",
+    help="Your own light probe as one more environment (repeatable; experiments with a 'probes' key, "
+    "e.g. irradiance-bases): EXR/HDR lat-long, vcross, hcross, mirrorball or angular map; the mapping "
+    "from the aspect ratio unless named.",
+)
 def run_cmd(
-    experiments, quick, variant, spp, out, cache, executor, address, workers, seed, no_progress, single_file
+    experiments,
+    quick,
+    variant,
+    spp,
+    out,
+    cache,
+    executor,
+    address,
+    workers,
+    seed,
+    no_progress,
+    single_file,
+    probes,
 ):
     """Run EXPERIMENT... (or 'all') and write OUT/EXPERIMENT/{results.json,report.html,...}."""
     specs, variant = _validated(experiments, variant)  # before anything is written
     _check_executor(executor, address)
+    overrides = _probe_overrides(specs, quick, probes)
     cache = _writable_dir(cache, "--cache")
     _writable_dir(out, "--out")
     for spec in specs:  # every configuration value, its type, range and files, before anything runs
-        _config_ok(spec.name, quick, spp, {})
+        _config_ok(spec.name, quick, spp, overrides)
     done = run_experiments(
         specs,
         out,
@@ -239,6 +262,7 @@ def run_cmd(
         progress=_bars(no_progress),
         address=address,
         single_file=single_file,
+        overrides=overrides,
     )
     click.echo(str((out / "index.html").resolve()))
     failed = [line for line in map(check_summary, done) if line]
@@ -329,6 +353,28 @@ def sweep_cmd(
 
 cli.add_command(cache_group)
 cli.add_command(audit)
+
+
+def _probe_overrides(specs, quick: bool, probes) -> dict:
+    """``--probe`` values as the ``probes`` configuration key (paths made absolute, a ``:MAPPING`` suffix
+    kept), for experiments that declare it; none: no overrides."""
+    if not probes:
+        return {}
+    without = []
+    for s in specs:
+        try:
+            if "probes" not in validate_config(s.name, quick, None, {}):
+                without.append(s.name)
+        except ValueError as e:  # a bad default (e.g. a corrupt measured probe): the usual one line
+            _fail(f"{s.name}: {e}")
+    if without:
+        _fail(f"--probe: {', '.join(without)} takes no probes (irradiance-bases does)")
+    out = []
+    for text in probes:
+        p = parse_probe_spec(text)
+        path = str(Path(p.path).expanduser().absolute())
+        out.append(f"{path}:{p.mapping}" if p.mapping else path)
+    return {"probes": out}
 
 
 def _config_ok(experiment: str, quick: bool, spp, overrides: dict, where: str = ""):

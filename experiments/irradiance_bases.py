@@ -1,7 +1,8 @@
 """Experiment ``irradiance-bases``: ambient cube and spherical harmonics against path-traced irradiance.
 
 For each distant environment (constant, disc suns, Mitsuba ``sunsky`` at several sun elevations, a
-high-contrast studio map, a low-contrast overcast sky, measured light probes) the ground truth is Mitsuba's
+high-contrast studio map, a low-contrast overcast sky, measured light probes, and the user's own probes,
+``--probe FILE[:MAPPING]``, see `rtfit.reference.probe_maps`) the ground truth is Mitsuba's
 irradiance at a Fibonacci sphere of normals (`rtfit.reference.estimators.irradiance_pass`: emitter
 sampling + cosine sampling, MIS) and Mitsuba's point-sampled image of a white diffuse unit sphere under the
 environment (`direct` integrator, the integrator rule's choice for one convex reflector). Both are checked
@@ -80,6 +81,7 @@ from rtfit.realtime.irradiance_bases import (
     sh_from_constant,
     sh_from_disk,
     sh_project_latlong,
+    sh_project_samples,
     zh3_from_sh,
 )
 from rtfit.realtime.irradiance_bases import METHODS as SH_CUBE_METHODS
@@ -94,7 +96,14 @@ from rtfit.realtime.spherical_gaussians import (
     sg_cosine_error,
     sg_sharpness,
 )
-from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene, render_gbuffer, use_variant
+from rtfit.reference import (
+    ReferenceCache,
+    ReferenceRequest,
+    load_mitsuba_scene,
+    probe_maps,
+    render_gbuffer,
+    use_variant,
+)
 from rtfit.reference import environments as envs
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
 from rtfit.reference.estimators import irradiance_pass, radiance_pass
@@ -161,6 +170,14 @@ CONFIG = {
     "quadrature_min_rows": ConfigKey("int", "quadrature supersampling: at least this many rows", 1, 16384),
     "map_supersample": ConfigKey("int", "map supersampling per axis", 1, 16),
     "sun_elevation_deg": ConfigKey("float", "elevation of the sun-<r> environments (°)", 0.0, 90.0),
+    "probes": ConfigKey(
+        "str",
+        "your own light probes, PATH[:MAPPING] (latlong, vcross, hcross, mirrorball, angular; "
+        "docs/irradiance-bases.md), run as environments probe-file-<stem>; none: only the built-in ones",
+        shape=(None,),
+        optional=True,
+        check=probe_maps.probe_spec_problem,
+    ),
 }
 """Every key of `configure`: type, range, meaning (`registry.ConfigKey`)."""
 
@@ -219,6 +236,7 @@ def configure(quick: bool, spp: int | None) -> dict:
             else 512,  # quadrature supersampling s = max(2, ceil(rows / H))
             "map_supersample": 2,
             "sun_elevation_deg": 45.0,
+            "probes": None,
         },
     )
 
@@ -237,6 +255,28 @@ def environment_names(quick: bool) -> list[str]:
         + ["studio", "overcast"]
         + [f"probe-{p}" for p in probes]
     )
+
+
+def with_user_probes(cfg: dict) -> dict:
+    """``cfg`` with the user's probes (``probes``, `rtfit.reference.probe_maps`) appended to its
+    environments as ``probe-file-<stem>``."""
+    ids = probe_maps.user_probe_ids(cfg.get("probes"))
+    return {
+        **cfg,
+        "environments": list(cfg["environments"]) + [i for i in ids if i not in cfg["environments"]],
+    }
+
+
+def rh2001_coefficients(radiance_map, supersample: int = 2, frame=None) -> tuple[np.ndarray, float]:
+    """The L2 radiance coefficients (9, 3) of a lat-long map of Grace Cathedral (rtfit's convention, e.g.
+    ``probe-grace``) in Ramamoorthi & Hanrahan 2001's frame (``frame``: the 3 × 3 map from world
+    directions, default `probe_maps.RH2001_FROM_WORLD`), scaled by the one exposure s that fits
+    `probe_maps.RH2001_GRACE_L2` best in least squares; returns (s·L, s)."""
+    m = probe_maps.RH2001_FROM_WORLD if frame is None else np.asarray(frame, np.float64)
+    d, w, L = envs.quadrature_samples(radiance_map, supersample)
+    c = sh_project_samples(d @ m.T, w, L)
+    s = float(np.sum(c * probe_maps.RH2001_GRACE_L2) / np.sum(c * c))
+    return s * c, s
 
 
 def missing_probes(quick: bool) -> list[str]:
@@ -421,6 +461,9 @@ def make_environment(name: str, cfg: dict, mi=None):
         return envs.map_environment(
             "overcast", "overcast (CIE sky, ground ρ = 0.2)", "overcast", envs.overcast_map(h, 2 * h)
         )
+    user = dict(zip(probe_maps.user_probe_ids(cfg.get("probes")), cfg.get("probes") or (), strict=True))
+    if name in user:
+        return probe_maps.user_probe_environment(name, user[name], cfg["probe_height"])
     if name.startswith("probe-"):
         return envs.probe_environment(name[6:], cfg["probe_height"])
     raise ValueError(f"unknown environment {name!r}")
@@ -535,7 +578,7 @@ def render_environment(
 
 # ================================================================================================== run
 def run(ctx) -> dict:
-    cfg = ctx.configured(configure(ctx.quick, ctx.spp))
+    cfg = with_user_probes(ctx.configured(configure(ctx.quick, ctx.spp)))
     jobs = [
         Job(
             "rtfit.experiments.irradiance_bases:render_environment",
@@ -721,7 +764,11 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
 
     costs = _costs(ctx)
     attach_costs(cases, costs)
-    checks = _checks(names, cases, z_quad, z_img, furnace, bake) + hemisphere.checks(hemi)
+    checks = (
+        _checks(names, cases, z_quad, z_img, furnace, bake)
+        + hemisphere.checks(hemi)
+        + _published_checks(rendered)
+    )
     fits = write_fitted(out, cfg, rendered, bases, ctx)
     hashes = {n: list(rendered[n]["hashes"].values()) for n in names}
     hemisphere.write_fitted(out, hemi, ctx, hashes, cfg.get("spp"))  # fitted/<env>-lightmap.json
@@ -732,7 +779,12 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
     return {
         "summary": _summary(cfg, cases, checks),
         "config": cfg,
-        "sections": [*_sections(cfg), hemi_section],
+        "sections": [
+            *_sections(cfg),
+            *_probe_sections(cfg, rendered),
+            *_budget_sections(cases, costs),
+            hemi_section,
+        ],
         "cases": cases,
         "fits": fits,
         "figures": figs,
@@ -996,13 +1048,33 @@ def _sg_dice_checks(names, cases) -> list[dict]:
     return out
 
 
+def _published_checks(rendered) -> list[dict]:
+    """Grace Cathedral's L2 coefficients against Ramamoorthi & Hanrahan 2001's table (if probe-grace ran)."""
+    r = rendered.get("probe-grace")
+    if r is None:
+        return []
+    coeffs, scale = rh2001_coefficients(r["env"].radiance_map)
+    diff = float(np.max(np.abs(coeffs - probe_maps.RH2001_GRACE_L2)))
+    tol = probe_maps.RH2001_TOLERANCE
+    return [
+        {
+            "name": "probe-grace: L2 radiance coefficients vs Ramamoorthi & Hanrahan 2001's table (their "
+            "frame "
+            f"(x, y, z) = (w_y, w_z, −w_x), one fitted exposure ×{scale:.4g}): max |ΔL_lm| over 9 × RGB",
+            "value": diff,
+            "expected": f"≤ {tol} (the table's 2-decimal rounding 0.005 + 0.005)",
+            "passed": diff <= tol,
+        }
+    ]
+
+
 # ============================================================================================== figures
 def _figures(ctx, cfg, rendered, bases, per_env, cases, costs) -> list[dict]:
     out = ctx.out_dir
     figs = [
-        _error_map_figure(ctx, cfg, rendered, bases),
+        *_error_map_figures(ctx, cfg, rendered, bases),
         *_sphere_figures(out, cfg, rendered, bases),
-        *_pareto_figures(out, cases, costs),
+        _pareto_figure(out, cases, costs),
         _smape_figure(out, cfg, cases),
         _elevation_figure(out, cases),
         _sun_profile_figure(out, cfg, rendered, bases, per_env),
@@ -1022,11 +1094,31 @@ def _pick(names, *wanted) -> list[str]:
     return out
 
 
-def _error_map_figure(ctx, cfg, rendered, bases) -> dict:
+ERROR_MAP_ROWS = 6  # environments per error-map figure
+
+
+def _error_map_figures(ctx, cfg, rendered, bases) -> list[dict]:
+    """Error maps of every basis over the sphere of normals for every environment (the user's probes first),
+    `ERROR_MAP_ROWS` environments per figure."""
+    names = list(cfg["environments"])
+    user = [n for n in names if n in probe_maps.user_probe_ids(cfg.get("probes"))]
+    names = user + [n for n in names if n not in user]
+    chunks = [names[i : i + ERROR_MAP_ROWS] for i in range(0, len(names), ERROR_MAP_ROWS)]
+    return [
+        _error_map_figure(
+            ctx,
+            cfg,
+            rendered,
+            bases,
+            show,
+            "figures/error_maps.png" if k == 0 else f"figures/error_maps_{k + 1}.png",
+        )
+        for k, show in enumerate(chunks)
+    ]
+
+
+def _error_map_figure(ctx, cfg, rendered, bases, show, name) -> dict:
     plt = figures.pyplot()
-    show = _pick(
-        cfg["environments"], ("sun-", 1), ("sunsky-", 2), ("studio", 1), ("overcast", 1), ("probe-", 3)
-    )
     h, w = 24, 48
     v = (np.arange(h) + 0.5) / h
     u = (np.arange(w) + 0.5) / w
@@ -1035,12 +1127,13 @@ def _error_map_figure(ctx, cfg, rendered, bases) -> dict:
     fig, axes = plt.subplots(
         len(show), len(BASES), figsize=(2.2 * len(BASES), 1.3 * len(show) + 0.6), squeeze=False
     )
-    for i, name in enumerate(show):
-        env = rendered[name]["env"]
+    im = None
+    for i, env_name in enumerate(show):
+        env = rendered[env_name]["env"]
         ref = envs.irradiance_quadrature(env, nrm, supersample_for(env, cfg), quadrature_backend(ctx.variant))
         lum_r = ref @ LUMINANCE
         for j, row in enumerate(BASES):
-            x = evaluate_row(row, bases[name], nrm) @ LUMINANCE
+            x = evaluate_row(row, bases[env_name], nrm) @ LUMINANCE
             err = (x - lum_r) / np.maximum(np.abs(lum_r), 0.05 * np.mean(np.abs(lum_r)))
             im = axes[i, j].imshow(
                 err.reshape(h, w), cmap="RdBu_r", vmin=-1, vmax=1, extent=(0, 360, -90, 90)
@@ -1050,18 +1143,18 @@ def _error_map_figure(ctx, cfg, rendered, bases) -> dict:
             if i == 0:
                 axes[i, j].set_title(row.method, fontsize=8)
             if j == 0:
-                axes[i, j].set_ylabel(name, fontsize=7)
-    fig.colorbar(im, ax=axes, shrink=0.6, label="relative error (luminance)")
-    name = "figures/error_maps.png"
+                axes[i, j].set_ylabel(env_name, fontsize=7)
+    if im is not None:
+        fig.colorbar(im, ax=axes, shrink=0.6, label="relative error (luminance)")
     figures.save_figure(fig, ctx.out_dir / name)
     return {
         "file": name,
         "section": "results",
         "caption": "Relative irradiance error over the sphere of normals (lat-long: normal elevation "
-        "vertical, "
-        "azimuth horizontal, +Z up at the top) for each basis, against the dense quadrature "
-        "(validated against Mitsuba, see Checks); red too bright, blue too dark; errors are relative "
-        "to max(E, 5% of the mean E).",
+        "vertical, azimuth horizontal, +Z up at the top) for each basis and environment ("
+        + ", ".join(show)
+        + "), against the dense quadrature (validated against Mitsuba, see Checks); red too bright, blue "
+        "too dark; errors are relative to max(E, 5% of the mean E).",
     }
 
 
@@ -1102,45 +1195,59 @@ def _sphere_figures(out, cfg, rendered, bases) -> list[dict]:
     return figs
 
 
-def _pareto_figures(out, cases, costs) -> list[dict]:
-    cost = {c["method"]: c["ns_per_pixel"] for c in costs}
+def _mean_errors(cases, key: str = "rel_rmse") -> tuple[dict[str, float], float]:
+    """Each method's mean ``key`` over the environments, and the mean noise floor of that metric."""
     err: dict[str, list] = {}
     floors = []
     for doc in cases:
         for ap in doc["approximations"]:
-            err.setdefault(ap["method"], []).append(ap["metrics"]["rel_rmse"]["value"])
-            floors.append(ap["metrics"]["rel_rmse"]["noise_floor"])
-    mean_err = {m: float(np.mean(v)) for m, v in err.items()}
-    pts_f = [{"x": METHODS[m].storage, "y": e, "label": m} for m, e in mean_err.items() if METHODS[m].storage]
-    pts_c = [{"x": cost[m], "y": e, "label": m} for m, e in mean_err.items() if m in cost]
-    figures.pareto_plot(
-        out / "figures/pareto_floats.png",
-        pts_f,
-        "floats stored per probe (RGB)",
-        "mean relative RMSE over environments",
-        floor=float(np.mean(floors)),
+            err.setdefault(ap["method"], []).append(ap["metrics"][key]["value"])
+            floors.append(ap["metrics"][key].get("noise_floor") or 0.0)
+    return {m: float(np.mean(v)) for m, v in err.items()}, float(np.mean(floors)) if floors else 0.0
+
+
+def _pareto_figure(out, cases, costs) -> dict:
+    """One figure across every stored basis: mean relative RMSE against floats per channel (left) and
+    against the measured ns per normal (right), each with its Pareto front and the noise floor."""
+    plt = figures.pyplot()
+    cost = {c["method"]: c["ns_per_pixel"] for c in costs}
+    mean_err, floor = _mean_errors(cases)
+    fig, axes = plt.subplots(1, 2, figsize=(10.4, 4.0), sharey=True)
+    panels = (
+        (
+            "floats stored per channel (storage / 3)",
+            {m: METHODS[m].storage / 3 for m in mean_err if METHODS[m].storage},
+        ),
+        ("evaluation cost (ns per normal, measured)", {m: cost[m] for m in mean_err if m in cost}),
     )
-    figures.pareto_plot(
-        out / "figures/pareto_cost.png",
-        pts_c,
-        "evaluation cost (ns per normal, measured)",
-        "mean relative RMSE over environments",
-        floor=float(np.mean(floors)),
-    )
-    return [
-        {
-            "file": "figures/pareto_floats.png",
-            "section": "results",
-            "caption": "Error (relative RMSE of the irradiance, mean over all environments) vs storage per "
-            "probe.",
-        },
-        {
-            "file": "figures/pareto_cost.png",
-            "section": "costs",
-            "caption": "Error (relative RMSE, mean over all environments) vs measured evaluation cost per "
-            "normal.",
-        },
-    ]
+    for ax, (xlabel, xs) in zip(axes, panels, strict=True):
+        pts = sorted(((x, mean_err[m], m) for m, x in xs.items()), key=lambda p: (p[0], p[1]))
+        for x, y, m in pts:
+            ax.scatter([x], [y], s=26, zorder=3)
+            ax.annotate(m, (x, y), textcoords="offset points", xytext=(4, 3), fontsize=6.5)
+        front, best = [], np.inf
+        for x, y, _ in pts:
+            if y < best:
+                front.append((x, y))
+                best = y
+        if front:
+            ax.plot(*zip(*front, strict=True), "k--", lw=0.8, label="Pareto front")
+        if floor > 0:
+            ax.axhline(floor, color="0.5", lw=0.8, ls=":", label="reference noise floor")
+        ax.set_xlabel(xlabel)
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0].set_ylabel("mean relative RMSE over environments")
+    name = "figures/pareto.png"
+    figures.save_figure(fig, out / name)
+    return {
+        "file": name,
+        "section": "results",
+        "caption": "Every stored basis: error (relative RMSE of the irradiance, mean over all environments) "
+        "against floats stored per channel (left) and against the measured evaluation cost per normal "
+        "(right, see Cost), with each panel's Pareto front and the reference noise floor.",
+    }
 
 
 def _smape_figure(out, cfg, cases) -> dict:
@@ -1284,6 +1391,107 @@ def _sections(cfg) -> list[dict]:
     ]
 
 
+STORAGE_BUDGETS = (4, 6, 9, 12, 16, 25, None)
+"""Floats per channel of the budget table (None: 27 and more, no limit)."""
+
+
+def budget_winners(cases, costs) -> list[dict]:
+    """Which stored basis wins at each storage budget (`STORAGE_BUDGETS`, floats per channel = the method's
+    ``storage`` / 3), derived from the method table and the run's metrics: the lowest mean relative RMSE
+    over environments among the bases that fit in the budget, and among those that use exactly that much
+    (27+: at least 27 per channel)."""
+    err, _ = _mean_errors(cases)
+    sm, _ = _mean_errors(cases, "smape")
+    cost = {c["method"]: c.get("ns_per_pixel") for c in costs}
+    stored = [r for r in BASES if r.spec.storage and r.method in err]
+
+    def per_channel(r):
+        return r.spec.storage / 3
+
+    out = []
+    for b in STORAGE_BUDGETS:
+        within = [r for r in stored if b is None or per_channel(r) <= b + 1e-9]
+        exact = [r for r in stored if (per_channel(r) >= 27 if b is None else abs(per_channel(r) - b) < 1e-9)]
+        best = min(within, key=lambda r: err[r.method], default=None)
+        best_exact = min(exact, key=lambda r: err[r.method], default=None)
+        out.append(
+            {
+                "budget": "27+" if b is None else str(b),
+                "best": best.method if best else None,
+                "floats_per_channel": per_channel(best) if best else None,
+                "rel_rmse": err[best.method] if best else None,
+                "smape": sm.get(best.method) if best else None,
+                "ns_per_normal": cost.get(best.method) if best else None,
+                "best_at_budget": best_exact.method if best_exact else None,
+                "candidates": len(within),
+            }
+        )
+    return out
+
+
+def _budget_sections(cases, costs) -> list[dict]:
+    rows = budget_winners(cases, costs)
+
+    def num(x, fmt="{:.3g}"):
+        return "–" if x is None else fmt.format(x)
+
+    lines = [
+        "| floats per channel | best basis within the budget | its floats per channel | mean rel. RMSE "
+        "| mean sMAPE | ns per normal | best basis using exactly this budget |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['budget']} | {r['best'] or 'none fits'} | {num(r['floats_per_channel'], '{:g}')} | "
+            f"{num(r['rel_rmse'])} | {num(r['smape'])} | {num(r['ns_per_normal'])} | "
+            f"{r['best_at_budget'] or '–'} |"
+        )
+    return [
+        {
+            "id": "storage-budgets",
+            "title": "Which basis wins at each storage budget",
+            "text": "Derived from the method table (floats per channel = each method's stored floats per "
+            "probe / 3) and this run's metrics: the basis with the lowest relative RMSE of the irradiance, "
+            "mean over all environments, among those that fit in the budget, and among those that use "
+            "exactly that many floats (27+: 27 or more). sMAPE and the cost (see Cost) of the winner "
+            "beside it.\n\n" + "\n".join(lines),
+            "placement": "after_results",
+        }
+    ]
+
+
+def _probe_sections(cfg, rendered) -> list[dict]:
+    """The user's probes: file, mapping (named or read off the aspect ratio), size, resampled rows."""
+    ids = [n for n in probe_maps.user_probe_ids(cfg.get("probes")) if n in rendered]
+    if not ids:
+        return []
+    lines = [
+        "| environment | file | mapping | source (rows × columns) | resampled lat-long |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for n in ids:
+        p = rendered[n]["env"].params
+        how = "from the aspect ratio" if p.get("mapping_detected") else "named"
+        h, w = p["source_shape"]
+        m = rendered[n]["env"].radiance_map.shape
+        lines.append(
+            f"| {n} | `{Path(p['file']).name}` | {probe_maps.MAPPING_LABELS[p['mapping']]} ({how}) | "
+            f"{h} × {w} | {m[0]} × {m[1]} |"
+        )
+    return [
+        {
+            "id": "your-probes",
+            "title": "Your probes",
+            "text": "Probes given with `--probe FILE[:MAPPING]`, resampled into rtfit's lat-long map (solid-"
+            "angle weighted footprints, `rtfit.reference.probe_maps`). Their frame is the light-probe "
+            "convention, +Y up (lat-long: the top row is the zenith, the image centre looks along −Z; "
+            "angular and mirror-ball maps: the image centre is +Z, towards the camera; crosses: the "
+            "front face −Z in the middle), turned so that +Y is rtfit's +Z. They are evaluated like "
+            "every other environment (Mitsuba references, noise floors, error maps).\n\n" + "\n".join(lines),
+        }
+    ]
+
+
 def _notes(ctx) -> list[str]:
     storage = {m.id: m.storage for m in METHODS.values()}
     notes = [
@@ -1291,6 +1499,10 @@ def _notes(ctx) -> list[str]:
         "Errors are relative, so environments of different brightness compare directly.",
         "SH convention: real SH without the Condon–Shortley phase (R&H 2001); Dr.Jit's `sh_eval` has the "
         "phase (odd-m signs flipped).",
+        "sMAPE is Probulator's irradiance error, |x − r|/(x + r) per texel and channel (its Image.cpp "
+        "`imageSymmetricAbsolutePercentageError`: no factor 2, range [0, 1]); Probulator shows it as an "
+        "image over lat-long texels, here it is averaged over uniformly spread normals, with |x| + |r| in "
+        "the denominator so that ringing (x < 0) stays in [0, 1] (the same value wherever x ≥ 0).",
         "A sun and a lat-long map are rendered as two Mitsuba references (one environment emitter per "
         "scene) and added; the standard errors add in quadrature.",
         'Seed erratum: 000:2497 calls the nine SH colours "the first two orders"; nine coefficients are '

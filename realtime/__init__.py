@@ -86,7 +86,6 @@ MODULES = (
     "irradiance_volumes",
     "spherical_gaussians",
     "ambient_dice",
-
     "hemisphere_bases",
     "sdf_grid",
     "sdf_occlusion",

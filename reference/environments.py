@@ -532,7 +532,9 @@ def _eval_emitter(mi, dr, emitter, dirs: np.ndarray) -> np.ndarray:
 
 
 # =========================================================================================== probes
-def _read_image(path: Path) -> np.ndarray:
+def read_image(path: Path) -> np.ndarray:
+    """The RGB pixels (H, W, 3) float32 of an image file Mitsuba's ``Bitmap`` reads (EXR, Radiance HDR, PFM,
+    …); alpha and further channels are dropped. A file that does not read raises (Mitsuba's message)."""
     import mitsuba as mi
 
     arr = np.array(mi.Bitmap(str(path)), dtype=np.float32)
@@ -549,10 +551,13 @@ def _box_down(img: np.ndarray, factor: int) -> np.ndarray:
     return img[: h2 * factor, : w2 * factor].reshape(h2, factor, w2, factor, 3).mean(axis=(1, 3))
 
 
-def _source_lookup(src: np.ndarray, fu: np.ndarray, fv: np.ndarray) -> np.ndarray:
-    """Bilinear lookup with texel centres at ((i + ½)/W, (j + ½)/H), periodic in u, clamped in v."""
+def source_lookup(src: np.ndarray, fu: np.ndarray, fv: np.ndarray, periodic_u: bool = True) -> np.ndarray:
+    """Bilinear lookup with texel centres at ((i + ½)/W, (j + ½)/H), periodic in u (``periodic_u``; else
+    clamped to the edge texels like v), clamped in v. Needs W, H ≥ 2."""
     h, w = src.shape[:2]
     x = fu * w - 0.5
+    if not periodic_u:
+        x = np.clip(x, 0.0, w - 1.0 - 1e-9)
     y = np.clip(fv * h - 0.5, 0.0, h - 1.0)
     i0 = np.floor(x).astype(np.int64)
     j0 = np.clip(np.floor(y).astype(np.int64), 0, h - 2)
@@ -591,12 +596,12 @@ def probe_environment(name: str, height: int | None = None, probe_dir: Path | No
     path = Path(probe_dir or _probe_dir()) / fname
     if not path.is_file():
         raise ValueError(f"probe file not found: {path} (set RTFIT_PROBE_DIR)")
-    src = _read_image(path).astype(np.float64)
+    src = read_image(path).astype(np.float64)
     h = int(height or src.shape[0])
     factor = max(1, src.shape[0] // h)
     src = _box_down(src, factor)
     d = node_directions(h, 2 * h)
-    img = _source_lookup(src, *probe_source_uv(projection, d))
+    img = source_lookup(src, *probe_source_uv(projection, d))
     img = np.maximum(img, 0.0)
     return map_environment(
         f"probe-{name}",
