@@ -10,8 +10,6 @@ is uniform on [0, 1], so the closed form is A = (h/R)² (R ≥ h): 0.25 for R = 
 
 from __future__ import annotations
 
-import math
-
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -66,10 +64,11 @@ def test_scene_triangles_cover_every_shape(slab):
     assert any("sphere tessellated" in line for line in lines)
 
 
-def test_ao_reference_matches_the_closed_form_and_the_cone_fit_improves(slab, tmp_path):
+def test_ao_reference_matches_the_closed_form(slab, tmp_path):
     """The ray-cast AO of every floor pixel is (h/R)² = 0.25 within 4.5 standard errors (measured max |z|
-    3.1 at 256 spp); the cone row is evaluated on the baked field, its k fitted (finite, off its bounds)
-    lowers the RMSE; nothing is NaN; the case notes name the distance field and the geometry."""
+    3.1 at 256 spp); the cone and curvature rows are evaluated on the baked field with no NaN; the case notes
+    name the distance field and the geometry; the cone's cost is measured. (Without fits: the cone's JAX fit
+    compiles its 72 trilinear samples for ~70 s on 2 cores; the fit's plumbing is tested below.)"""
     r = audit(
         slab,
         "sdf-occlusion",
@@ -77,6 +76,7 @@ def test_ao_reference_matches_the_closed_form_and_the_cone_fit_improves(slab, tm
         pass_spp=128,
         ao_distance=R,
         cache=tmp_path / "cache",
+        fit=False,
         **FAST,
     )
     (case,) = r.cases
@@ -87,11 +87,41 @@ def test_ao_reference_matches_the_closed_form_and_the_cone_fit_improves(slab, tm
     z = np.abs(mean - want) / np.maximum(se, 1e-12)
     assert z.max() < 4.5, z.max()
     rows = r.outcomes["ao"]
-    assert {"cone", "cone-fitted", "curvature", "curvature-fitted"} <= set(rows)
+    assert set(rows) == {"cone", "curvature"}
     for o in rows.values():
         assert np.all(np.isfinite(o.image))
-    k = rows["cone-fitted"].fit["parameters"]["k"]
-    assert math.isfinite(k["value"]) and not k["at_bound"]
-    assert rows["cone-fitted"].metrics["rmse"].value <= rows["cone"].metrics["rmse"].value + 1e-12
     assert any("distance field" in n for n in case.notes) and any("geometry" in n for n in case.notes)
     assert "cone" in r.costs and r.costs["cone"]["ns_per_pixel"] > 0
+
+
+def test_a_fit_closes_over_the_distance_field_and_the_march_distances():
+    """`fit_method` on a method with a sampler input (the distance field) and scalar inputs that shape the
+    kernel text (t0, t_max give the march distances): both are constants of the fit, the arrays are traced.
+    A one-cone, two-step cone tracer over a plane's field recovers the k its own Dr.Jit run was made with
+    (to 1e-5 relative: float32 target; measured 3e-7)."""
+    from dataclasses import replace
+
+    from rtfit.fitting import fit_method
+    from rtfit.realtime.sdf_grid import HalfSpace, SdfGrid, union_grid
+    from rtfit.realtime.sdf_occlusion import METHODS, GridSDF
+
+    grid = union_grid([HalfSpace((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))], (-1.0, -1.0, -1.0), 0.125, (16, 16, 16))
+    assert isinstance(grid, SdfGrid)
+    sdf = GridSDF([grid])
+    method = replace(METHODS["cone"], fixed={"cones": 1, "steps": 2})
+    rng = np.random.default_rng(1)
+    n = 64
+    p = np.c_[rng.uniform(-0.5, 0.5, (n, 2)), np.full(n, 0.05)]
+    nrm = rng.normal(size=(n, 3)) * [0.6, 0.6, 0.0] + [0.0, 0.0, 1.0]
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    inputs = {
+        **{f"p{a}": p[:, i] for i, a in enumerate("xyz")},
+        **{f"n{a}": nrm[:, i] for i, a in enumerate("xyz")},
+        "sdf": sdf,
+        "t0": 0.125,
+        "t_max": 0.5,
+    }
+    target = np.asarray(method.evaluate(inputs, {"k": 0.7}), np.float64)
+    assert 0.05 < target.mean() < 0.95  # k = 0.7 is inside the clamp for most samples: identifiable
+    fit = fit_method(method, inputs, target)
+    assert fit.values["k"] == pytest.approx(0.7, rel=1e-5)

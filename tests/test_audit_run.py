@@ -41,7 +41,8 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
     """``rtfit audit cbox-rgb.xml`` (Mitsuba's includes variant: base, BSDF and shape fragments, the emitter
     declared by id and referenced from an included shape): exit 0, the report and its files, one light
     (an area light on the luminaire OBJ) with an unshadowed and a shadowed case, each with the three
-    applicable shipped methods; Y-up from the sensor."""
+    applicable shipped methods, and the scene's ambient occlusion (cone and curvature rows on the distance
+    field of its own meshes); Y-up from the sensor."""
     out = tmp_path / "out"
     code, stdout, stderr = _run(
         CBOX / "cbox-rgb.xml", "--width", 24, "--height", 24, "--spp", 4, "--pass-spp", 2,
@@ -53,13 +54,14 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
     for f in ("results.json", "report.html", "report.md", "tables.tex"):
         assert (report / f).is_file()
     r = load_results(report)
-    assert [c.id for c in r.cases] == ["light0-unshadowed", "light0-shadowed"]
+    assert [c.id for c in r.cases] == ["light0-unshadowed", "light0-shadowed", "ao"]
     for case in r.cases:
-        assert [a.method for a in case.approximations] == ["lambert", "half-lambert", "wrap"]
+        want = ["cone", "curvature"] if case.id == "ao" else ["lambert", "half-lambert", "wrap"]
+        assert [a.method for a in case.approximations] == want
         for a in case.approximations:
             assert {"rmse", "flip", "ssim"} <= set(a.metrics) and a.metrics["rmse"].noise_floor > 0
             assert a.cost is not None and a.cost.ns_per_pixel > 0
-    assert "not audited yet" in stderr and "sdf-occlusion" in stderr
+    assert "not audited yet" in stderr and "ambient-aperture" in stderr  # (its AO role is listed, not run)
     assert "up: +y from sensor 0's up vector" in stderr
     assert any(f.file.endswith("_flip.png") for f in r.figures)
 
