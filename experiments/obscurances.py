@@ -54,6 +54,7 @@ from rtfit.realtime.obscurances import (
     rho_step,
 )
 from rtfit.reference import load_mitsuba_scene
+from rtfit.reference.build import tiled_quad_shape
 from rtfit.reference.estimators import gbuffer
 from rtfit.reference.occlusion import OcclusionCache, hit_distances
 from rtfit.scenes import scene_hash
@@ -206,7 +207,10 @@ SPHERE_RADIUS = 0.7
 def _probe_scene(mi, kind: str):
     white = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}}
     if kind == "plane":  # z = 0, 10⁴ × 10⁴: a ray at μ from a point at height h misses only if μ < h/5000
-        shape = {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale([PLANE_HALF, PLANE_HALF, 1.0])}
+        # Tiled finely near the origin (`tiled_quad`): as one 10⁴ m rectangle, OptiX's float32 intersection
+        # re-hit the plane from the points on it (H200: the open plane's W came out 0.94, not 1).
+        a, b = (2 * PLANE_HALF, 0.0, 0.0), (0.0, 2 * PLANE_HALF, 0.0)
+        shape = tiled_quad_shape((-PLANE_HALF, -PLANE_HALF, 0.0), a, b)
     else:
         shape = {"type": "sphere", "radius": SPHERE_RADIUS, "flip_normals": True}
     return mi.load_dict({"type": "scene", "shape": {**shape, "bsdf": white}})

@@ -204,29 +204,46 @@ def box_boundary_mesh(boundary) -> tuple[np.ndarray, np.ndarray]:
     rot = rotation_matrix(boundary.rotate_axis, boundary.rotate_deg)
     half = np.asarray(boundary.size, dtype=np.float64) / 2
     centre = np.asarray(boundary.center, dtype=np.float64)
+    parts = []
+    for axis, sign, a, b in _BOX_FACES:
+        normal = sign * rot[:, axis]
+        ea, eb = rot[:, a] * 2 * half[a], rot[:, b] * 2 * half[b]
+        face_centre = centre + normal * half[axis]
+        parts.append(tiled_quad(face_centre - ea / 2 - eb / 2, ea, eb))
+    offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
+    triangles = [t + o for (_, t), o in zip(parts, offsets, strict=True)]
+    return np.concatenate([v for v, _ in parts]), np.concatenate(triangles)
+
+
+def tiled_quad(origin, ea, eb) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3) float64, triangles (F, 3) int) of the parallelogram origin + u·ea + v·eb (u, v ∈
+    [0, 1]; normal ea × eb), tiled by a quadtree until every tile's edge is ≤ `TILE_SIZE_FACTOR`·(1 + r), r
+    the smallest ∞-norm of the tile's points: the tiling of `box_boundary_mesh` (see there why: OptiX's
+    float32 re-hits of large triangles near the world origin), for any large flat surface."""
     verts: list = []
     tris: list = []
 
-    def tile(origin, ea, eb, depth):
-        corners = np.array([origin, origin + ea, origin + eb, origin + ea + eb])
+    def tile(o, a, b, depth):
+        corners = np.array([o, o + a, o + b, o + a + b])
         lo, hi = corners.min(axis=0), corners.max(axis=0)
         r = float(np.max(np.maximum(np.maximum(lo, -hi), 0.0)))
-        edge = max(float(np.linalg.norm(ea)), float(np.linalg.norm(eb)))
+        edge = max(float(np.linalg.norm(a)), float(np.linalg.norm(b)))
         if edge > TILE_SIZE_FACTOR * (1.0 + r) and depth < 40:
             for i in (0, 1):
                 for j in (0, 1):
-                    tile(origin + i * ea / 2 + j * eb / 2, ea / 2, eb / 2, depth + 1)
+                    tile(o + i * a / 2 + j * b / 2, a / 2, b / 2, depth + 1)
             return
         k = len(verts)
         verts.extend(corners[[0, 1, 3, 2]])  # 00, 10, 11, 01
         tris.extend([(k, k + 1, k + 2), (k, k + 2, k + 3)])
 
-    for axis, sign, a, b in _BOX_FACES:
-        normal = sign * rot[:, axis]
-        ea, eb = rot[:, a] * 2 * half[a], rot[:, b] * 2 * half[b]
-        face_centre = centre + normal * half[axis]
-        tile(face_centre - ea / 2 - eb / 2, ea, eb, 0)
+    tile(np.asarray(origin, np.float64), np.asarray(ea, np.float64), np.asarray(eb, np.float64), 0)
     return np.asarray(verts), np.asarray(tris, dtype=np.int64)
+
+
+def tiled_quad_shape(origin, ea, eb) -> dict:
+    """A Mitsuba shape dict (``obj``) of `tiled_quad`: a large plane that OptiX intersects without re-hits."""
+    return {"type": "obj", "filename": _mesh_file(*tiled_quad(origin, ea, eb)), "face_normals": True}
 
 
 def _mesh_file(vertices: np.ndarray, triangles: np.ndarray) -> str:
