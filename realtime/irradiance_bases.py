@@ -414,7 +414,7 @@ def _sh_order_methods(order: int) -> list[Method]:
     def method(suffix, label, fixed, formula_tail, params=None):
         return Method(
             id=f"sh-l{order}{suffix}",
-            label=f"SH L{order} ({per}){label}" + (" window" if fixed else ""),
+            label=f"SH L{order} ({per}){label}",
             kernel=_sh_kernel,
             inputs=(*_NORMAL, coeffs),
             params=params or {},
