@@ -38,7 +38,7 @@ from rtfit.realtime import environment_maps as em
 from rtfit.reference import environment_maps as room
 
 from . import figures as F
-from .cost import bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import attach_costs, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 from .registry import ConfigKey, checked
 
 # ============================================================================================ configure
@@ -622,29 +622,25 @@ def cost_rows(ctx, cfg) -> list[dict]:
     return rows
 
 
-def attach_cost(cases: list[dict], costs: list[dict]) -> None:
-    by = {c["method"]: c for c in costs}
-    for case in cases:
-        for ap in case["approximations"]:
-            mid = ap["method"]
-            key = mid
-            if mid.startswith("localised-"):
-                mode = "cap" if "cap" in mid else "lut" if "lut" in mid else "point"
-                key = f"localised-{mode}-N{ap['parameters']['N']}"
-            elif mid.startswith("preconvolved"):
-                key = f"classic-N{ap['parameters']['N']}"
-            c = by.get(key) or next(
-                (v for k, v in by.items() if k.rsplit("-N", 1)[0] == key.rsplit("-N", 1)[0]), None
-            )
-            ap["cost"] = (
-                {
-                    "ns_per_pixel": c["ns_per_pixel"],
-                    "pixels_per_second": c["pixels_per_second"],
-                    "backend": c["backend"],
-                }
-                if c
-                else None
-            )
+def cost_key(costs: list[dict]):
+    """The key of `attach_costs`: an approximation's cost row by its method and cube size N (the localised
+    rows by mode, the pre-convolved ones as the classic lookup); a size not measured falls back to the same
+    kind's row at another size."""
+    names = {c["method"] for c in costs}
+
+    def key(ap: dict) -> str | None:
+        mid = ap["method"]
+        k = mid
+        if mid.startswith("localised-"):
+            mode = "cap" if "cap" in mid else "lut" if "lut" in mid else "point"
+            k = f"localised-{mode}-N{ap['parameters']['N']}"
+        elif mid.startswith("preconvolved"):
+            k = f"classic-N{ap['parameters']['N']}"
+        if k in names:
+            return k
+        return next((n for n in names if n.rsplit("-N", 1)[0] == k.rsplit("-N", 1)[0]), None)
+
+    return key
 
 
 # =============================================================================================== checks
@@ -887,7 +883,7 @@ def run(ctx) -> dict:
     ctx.log("costs")
     costs = cost_rows(ctx, cfg)
     cases = part["cases"] + imp["cases"]
-    attach_cost(cases, costs)
+    attach_costs(cases, costs, key=cost_key(costs))
     fits = seed_scale_fit(cfg, part)
     figs = make_figures(ctx.out_dir, cfg, const, imp, part, costs)
     return {

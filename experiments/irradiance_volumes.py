@@ -66,7 +66,15 @@ from rtfit.scenes import library_path, load_scene, parse_scene_text, scene_hash,
 from rtfit.scenes.model import ConstantEnv, Cube, PointLight, ReferenceSettings, Scene
 
 from . import figures as F
-from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import (
+    attach_costs,
+    baseline_row,
+    bench_backend,
+    comparison_row,
+    memory_baseline,
+    time_drjit,
+    time_numpy,
+)
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
 
@@ -498,19 +506,7 @@ def assemble(ctx, cfg, room, grids, probes, furnace_probes, surface, data) -> di
             )
     checks = self_checks(cfg, fine, grids, probes, furnace_probes, surface, data, bases, chk, finite)
     costs = cost_rows(ctx, cfg, fine)
-    by_method = {c["method"]: c for c in costs}
-    for doc in case_docs:
-        for ap in doc["approximations"]:
-            c = by_method.get(ap["method"].removeprefix("direct+"))
-            ap["cost"] = (
-                {
-                    "ns_per_pixel": c["ns_per_pixel"],
-                    "pixels_per_second": c["pixels_per_second"],
-                    "backend": c["backend"],
-                }
-                if c
-                else None
-            )
+    attach_costs(case_docs, costs, key=lambda ap: ap["method"].removeprefix("direct+"))
     table = error_table(case_docs)
     figs = make_figures(ctx.out_dir, data, grids, refs, curves, table, costs, line)
     return {

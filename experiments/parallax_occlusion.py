@@ -49,7 +49,7 @@ from rtfit.reference.variants import use_variant
 
 from . import figures as F
 from . import fitted as fitfiles
-from .cost import bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import attach_costs, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 from .registry import SPP_MAX, ConfigKey, checked
 
 # ============================================================================================ configure
@@ -543,19 +543,8 @@ def assemble(ctx, cfg, cases, uv_table, mesh_info, fits, lights, checks) -> dict
     }
     checks += reference_checks(ctx, cfg, uv_table, lights) + hazard_checks(hazards)
     costs = cost_rows(ctx, cfg)
-    cost_by = {c["method"]: c for c in costs}
-    for d in case_docs:
-        for ap in d["approximations"]:
-            c = cost_by.get(f"{ROW_BY_ID[ap['method']].method}-{cfg['n_range'][0]}-{cfg['n_range'][1]}")
-            ap["cost"] = (
-                {
-                    "ns_per_pixel": c["ns_per_pixel"],
-                    "pixels_per_second": c["pixels_per_second"],
-                    "backend": c["backend"],
-                }
-                if c
-                else None
-            )
+    n_lo, n_hi = cfg["n_range"]
+    attach_costs(case_docs, costs, key=lambda ap: f"{ROW_BY_ID[ap['method']].method}-{n_lo}-{n_hi}")
     figs = make_figures(out, cfg, case_docs, images, uv_table, costs)
     fit_docs = write_fit_files(ctx, cfg, fits)
     return {

@@ -59,7 +59,7 @@ import math
 import numpy as np
 
 from .arrays import NUMPY_OPS, safe_div
-from .irradiance_bases import basis_inputs, basis_irradiance
+from .irradiance_bases import basis_inputs, basis_irradiance, unit_normal
 from .methods import Input, Method, method_table
 
 __all__ = [
@@ -90,23 +90,9 @@ RNM_BASIS = (
 )
 """Valve's radiosity normal mapping basis in tangent space (b0, b1, b2), orthonormal, b_i·ẑ = 1/√3."""
 RNM_WEIGHTINGS = ("linear", "squared", "normalized")
-_TINY = 1e-30
 
 
 # =========================================================================================== kernels
-def _tangent_unit(ops, nx, ny, nz):
-    """(x, y, z, valid): n/|n| in the tangent frame; a zero-length normal becomes 0 with valid False."""
-    n2 = nx * nx + ny * ny + nz * nz
-    valid = n2 > _TINY
-    inv = 1.0 / ops.sqrt(ops.maximum(n2, _TINY))
-    return (
-        ops.select(valid, nx * inv, 0.0),
-        ops.select(valid, ny * inv, 0.0),
-        ops.select(valid, nz * inv, 0.0),
-        valid,
-    )
-
-
 def _hbasis_values(x, y, z, count):
     """H1..H_count at unit tangent-space (x, y, z) (any array type)."""
     c1, c3, c15 = HBASIS_C
@@ -119,7 +105,7 @@ def _hbasis_values(x, y, z, count):
 def _hbasis_kernel(ops, nx, ny, nz, coeffs, count=4):
     """E(n) = Σ_k c_k H_k(n) per channel; ``coeffs``: 3·count H-basis coefficients of the irradiance
     (W/m²·sr^½: c_k = ∫_{Ω+} E H_k dn), channel-major; ``count`` 4 or 6."""
-    x, y, z, valid = _tangent_unit(ops, nx, ny, nz)
+    x, y, z, valid = unit_normal(ops, nx, ny, nz)
     h = _hbasis_values(x, y, z, count)
     out = []
     for ch in range(3):
@@ -134,7 +120,7 @@ def _hbasis_kernel(ops, nx, ny, nz, coeffs, count=4):
 def _rnm_kernel(ops, nx, ny, nz, coeffs, weighting="normalized"):
     """E(n) = Σ_i w_i E_i per channel with d_i = max(n·b_i, 0) and w_i = d_i, d_i² or d_i²/Σ_j d_j²
     (``weighting``); ``coeffs``: 9 floats, per channel the lightmaps (E0, E1, E2) (W/m²), channel-major."""
-    x, y, z, valid = _tangent_unit(ops, nx, ny, nz)
+    x, y, z, valid = unit_normal(ops, nx, ny, nz)
     d = [ops.maximum(b[0] * x + b[1] * y + b[2] * z, 0.0) for b in RNM_BASIS]
     if weighting == "linear":
         w = d
