@@ -161,6 +161,12 @@ def cli(ctx, verbose, quiet):
     make it least wrong (Mitsuba 3 ground truth, Dr.Jit approximations)."""
     if verbose and quiet:
         raise click.UsageError("-v and -q exclude each other")
+    from rtfit.reference.budget import pass_budget_seconds
+
+    try:  # checked before any command starts, not when the first pass arms its watchdog
+        pass_budget_seconds()
+    except ValueError as e:
+        raise click.UsageError(str(e)) from None
     ctx.obj = {"bars": configure_logging(verbose, quiet)}
 
 

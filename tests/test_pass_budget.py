@@ -99,3 +99,18 @@ def test_watchdog_ends_a_pass_past_its_budget_with_one_line(capsys, monkeypatch)
         pass_budget_seconds()
     monkeypatch.setenv("RTFIT_PASS_BUDGET_S", "120")
     assert pass_budget_seconds() == 120.0
+
+
+def test_a_bad_budget_is_refused_before_anything_runs(monkeypatch, tmp_path, capsys):
+    """``RTFIT_PASS_BUDGET_S=abc rtfit run …``: one line naming the variable, exit 2, nothing written (the
+    check runs before any command, not when the first pass arms its watchdog)."""
+    from rtfit.experiments.cli import main
+
+    for bad in ("abc", "0", "-3", "nan"):
+        monkeypatch.setenv("RTFIT_PASS_BUDGET_S", bad)
+        out = tmp_path / f"out-{bad}"
+        code = main(["run", "diffuse", "--quick", "--out", str(out), "--cache", str(tmp_path / "cache")])
+        err = capsys.readouterr().err
+        assert code == 2, bad
+        assert err.count("\n") == 1 and err.startswith("rtfit: error: ") and "RTFIT_PASS_BUDGET_S" in err
+        assert not out.exists() and not (tmp_path / "cache").exists()
