@@ -21,10 +21,14 @@ mip levels (`GridSDF.from_grid`). Rows (`rtfit.realtime.sdf_occlusion.METHODS`):
 * ``cone``: cone-traced distance-field AO (9 cones × 8 steps from one voxel to R), its aperture k fitted
   to this scene;
 * ``curvature``: Evans' crease term from the blurred field s₁(x) (its k fitted), which engines use as a
-  cheap AO stand-in.
-
-The Evans skylight rows approximate sky visibility (an environment's occlusion), not AO: they belong to the
-"sky occlusion" role, which is not audited yet.
+  cheap AO stand-in;
+* ``evans-text`` and ``evans-listing``: Evans' multi-scale skylight C = B·exp(−k Σ w_i D_i) (seed
+  000:2919-2987; k, and B for the listing, fitted), with its four samples along N + αU (U: the scene's up
+  axis, as `--list` reports it), compared with AO as the sdf-occlusion experiment compares it. The sample
+  terms D_i depend only on the geometry and the row's fixed α and base distance, so they are computed once
+  per row (`evans_terms`) and given to the row as four per-pixel inputs ``d1``..``d4``; the row's kernel is
+  the table's own (`METHODS[id].kernel`) on those terms. ``evans-fit`` (α and the base fitted too) is not
+  offered: its terms move with its parameters.
 """
 
 from __future__ import annotations
@@ -36,8 +40,16 @@ import drjit as dr
 import numpy as np
 
 from rtfit.realtime.arrays import NUMPY_OPS
+from rtfit.realtime.methods import Input, Method
 from rtfit.realtime.sdf_grid import grid_for_bounds, mesh_sdf_grid
-from rtfit.realtime.sdf_occlusion import CURVATURE_LEVEL, METHODS, GridSDF
+from rtfit.realtime.sdf_occlusion import (
+    CURVATURE_LEVEL,
+    EVANS_SAMPLES,
+    METHODS,
+    EvansParams,
+    GridSDF,
+    evans_terms,
+)
 from rtfit.reference.cache import PassEntry, array_digest, pool_passes
 from rtfit.reference.estimators import sub_seed
 from rtfit.reference.occlusion import occlusion_pass
@@ -54,7 +66,32 @@ GRID_CELLS = 64
 quick resolution)."""
 MIP_LEVELS = 5
 ROLE = "ambient occlusion"
-ROWS = ("cone", "curvature")
+ROWS = ("cone", "curvature", "evans-text", "evans-listing")
+EVANS_ROWS = ("evans-text", "evans-listing")
+
+
+def _up_vector(up: str) -> tuple[float, float, float]:
+    """``"+y"`` → (0, 1, 0): the scene's up axis as `SceneInfo.up` names it."""
+    v = [0.0, 0.0, 0.0]
+    v["xyz".index(up[-1])] = -1.0 if up.startswith("-") else 1.0
+    return (v[0], v[1], v[2])
+
+
+def evans_on_terms(method: Method) -> Method:
+    """``method`` (an Evans row of `METHODS`) reading its sample terms as the per-pixel inputs d1..dn: the
+    same kernel (``method.kernel``) given the tuple (d1, …, dn) as its ``terms``."""
+    names = tuple(f"d{i + 1}" for i in range(EVANS_SAMPLES))
+    base = method.kernel
+
+    def kernel(ops, **kw):
+        terms = tuple(kw.pop(n) for n in names)
+        return base(ops, terms, **kw)
+
+    inputs = tuple(
+        Input(n, "scene units", f"sample term D_{i + 1} = d_{i + 1} − s_{i}(P + d_{i + 1} N')")
+        for i, n in enumerate(names)
+    )
+    return replace(method, kernel=kernel, inputs=inputs)
 
 
 def scene_distance_field(mi, mi_scene, pad: float) -> tuple[GridSDF, str, list[str]]:
@@ -155,10 +192,28 @@ def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         integrator_reason="V_R(ω) with ω ~ cos/π is the cheapest exact estimator of cosine-weighted AO",
     )
     methods = {m: METHODS[m] for m in ROWS if m in app.methods}
-    # The curvature k is per scene unit (declared for the sdf-occlusion scenes, R = 1 m): scaled by 1/R so
-    # that k·s stays of order one in any unit (the Cornell box's millimetre-sized units gave e^(10·s) ~ 1e34).
-    k = METHODS["curvature"].params["k"]
-    scaled = replace(k, initial=k.initial / radius, lower=k.lower / radius, upper=k.upper / radius)
+    up = _up_vector(setup.info.up)
+    row_inputs = {}
+    for rid in EVANS_ROWS:
+        if rid not in methods:
+            continue
+        fixed = methods[rid].fixed
+        prm = EvansParams(
+            n=EVANS_SAMPLES, base=fixed["base_voxels"] * sdf.voxel, k=1.0, alpha=fixed["alpha"], up=up
+        )
+        terms = evans_terms(points, normals, sdf, prm)
+        methods[rid] = evans_on_terms(methods[rid])
+        row_inputs[rid] = ({f"d{i + 1}": terms[i] for i in range(EVANS_SAMPLES)},) * 3
+    # The curvature and Evans k are per scene unit (declared for the sdf-occlusion scenes, R = 1 m): scaled by
+    # 1/R so that k·s stays of order one in any unit (the Cornell box's millimetre-sized units gave
+    # e^(10·s) ~ 1e34 at the declared start, which no fit recovered from).
+    per_unit = {}
+    for rid in ("curvature", *EVANS_ROWS):
+        if rid in methods:
+            k = METHODS[rid].params["k"]
+            per_unit[rid] = {
+                "k": replace(k, initial=k.initial / radius, lower=k.lower / radius, upper=k.upper / radius)
+            }
     shape = sdf.grids[0].shape
     return [
         FamilyCase(
@@ -183,7 +238,8 @@ def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             ),
             methods=methods,
             quantity="ambient_occlusion",
-            params={"curvature": {"k": scaled}},
+            params=per_unit,
+            row_inputs=row_inputs,
         )
     ]
 

@@ -87,7 +87,7 @@ def test_ao_reference_matches_the_closed_form(slab, tmp_path):
     z = np.abs(mean - want) / np.maximum(se, 1e-12)
     assert z.max() < 4.5, z.max()
     rows = r.outcomes["ao"]
-    assert set(rows) == {"cone", "curvature"}
+    assert set(rows) == {"cone", "curvature", "evans-text", "evans-listing"}
     for o in rows.values():
         assert np.all(np.isfinite(o.image))
     assert any("distance field" in n for n in case.notes) and any("geometry" in n for n in case.notes)

@@ -56,7 +56,8 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
     r = load_results(report)
     assert [c.id for c in r.cases] == ["light0-unshadowed", "light0-shadowed", "ao"]
     for case in r.cases:
-        want = ["cone", "curvature"] if case.id == "ao" else ["lambert", "half-lambert", "wrap"]
+        ao_rows = ["cone", "curvature", "evans-text", "evans-listing"]
+        want = ao_rows if case.id == "ao" else ["lambert", "half-lambert", "wrap"]
         assert [a.method for a in case.approximations] == want
         for a in case.approximations:
             assert {"rmse", "flip", "ssim"} <= set(a.metrics) and a.metrics["rmse"].noise_floor > 0
