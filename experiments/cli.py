@@ -42,6 +42,7 @@ from tqdm import tqdm
 
 import rtfit
 from rtfit.reference import default_cache_dir, resolve_variant
+from rtfit.reference.budget import pass_budget_seconds
 from rtfit.reference.export_xml import export_xml
 from rtfit.reference.io import atomic_write_json
 from rtfit.reference.probe_maps import parse_probe_spec
@@ -161,8 +162,6 @@ def cli(ctx, verbose, quiet):
     make it least wrong (Mitsuba 3 ground truth, Dr.Jit approximations)."""
     if verbose and quiet:
         raise click.UsageError("-v and -q exclude each other")
-    from rtfit.reference.budget import pass_budget_seconds
-
     try:  # checked before any command starts, not when the first pass arms its watchdog
         pass_budget_seconds()
     except ValueError as e:
