@@ -301,6 +301,21 @@ class PassEntry:
             mean.astype(np.float64), var.astype(np.float64), result.spp, result.seed, result.seconds
         )
 
+    def _write_info(self) -> None:
+        """Write entry.json (every process that finds passes missing does, unclaimed: the bytes are the same
+        from every writer), then remove every other writer's temporary of it. Such a temporary is the
+        leftover of a writer killed mid-write (a Ray worker killed while its point set up left one behind),
+        or belongs to a writer about to rename it, which then finds it gone and stops (below): entry.json
+        already holds its bytes."""
+        final = self.folder / "entry.json"
+        try:
+            atomic_write_json(final, self.info)
+        except FileNotFoundError:  # another writer removed our temporary after writing the same bytes
+            if not final.is_file():
+                raise
+        for leftover in self.folder.glob(".entry.json.*.tmp"):
+            leftover.unlink(missing_ok=True)
+
     # -- claims: one process renders a pass, the others wait for it
     def _claim_file(self, index: int) -> Path:
         return self.folder / f"pass-{index:05d}.claim"
@@ -370,7 +385,7 @@ class PassEntry:
         if count - len(missing):
             log.info("%s: resumed %d of %d passes from the cache", name, count - len(missing), count)
         self.folder.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(self.folder / "entry.json", self.info)
+        self._write_info()
         prepared = False
         rendered = 0
         bar = progress_bar(len(missing), name, progress, unit="pass")
