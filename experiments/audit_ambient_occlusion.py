@@ -36,7 +36,6 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-import drjit as dr
 import numpy as np
 
 from rtfit.realtime.arrays import NUMPY_OPS
@@ -50,12 +49,11 @@ from rtfit.realtime.sdf_occlusion import (
     GridSDF,
     evans_terms,
 )
-from rtfit.reference.cache import PassEntry, array_digest, pool_passes
-from rtfit.reference.estimators import sub_seed
+from rtfit.reference.cache import array_digest
 from rtfit.reference.occlusion import occlusion_pass
 
 from .audit import Applicability, default_ao_distance
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
 from .audit_geometry import scene_triangles
 
 __all__ = ["FAMILY", "GRID_CELLS", "MIP_LEVELS", "scene_distance_field"]
@@ -114,32 +112,19 @@ def scene_distance_field(mi, mi_scene, pad: float) -> tuple[GridSDF, str, list[s
 
 def _reference(setup: AuditSetup, points, normals, radius: float, label: str):
     """The pooled AO passes: (mean (N,), stderr (N,), total spp, passes, rendered, entry, seconds)."""
-    import mitsuba as mi  # (its version is part of the key)
-
-    ident = {
+    what = {
         "format": FORMAT,
         "quantity": "ao",
-        "scene": setup.scene_digest,
         "radius": float(radius),
         "points": array_digest(points, normals),
-        "variant": setup.variant,
-        "seed": setup.seed,
-        "pass_spp": setup.pass_spp,
-        "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__},
     }
-    entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
-    count = -(-setup.spp // setup.pass_spp)
 
-    def render(i: int):
-        spp = max(min(setup.pass_spp, setup.spp - i * setup.pass_spp), 2)
-        seed = sub_seed(setup.seed, "ao-pass", i)
+    def render(spp: int, seed: int):
         return occlusion_pass(
             setup.mi, setup.scene, points, normals, spp, seed, quantity="ao", max_distance=radius
         )
 
-    passes, rendered = entry.passes(count, render, shape=(-1,), progress=setup.progress, label=label)
-    mean, stderr, total = pool_passes(passes)
-    return mean, stderr, total, len(passes), rendered, entry, float(sum(p.seconds for p in passes))
+    return pooled_passes(setup, what, render, (-1,), label, seed_label="ao-pass")
 
 
 def _image(mask, values) -> np.ndarray:

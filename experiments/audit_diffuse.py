@@ -27,12 +27,11 @@ import math
 import drjit as dr
 import numpy as np
 
-from rtfit.reference.cache import PassEntry, array_digest, pool_passes
-from rtfit.reference.estimators import sub_seed
+from rtfit.reference.cache import array_digest
 from rtfit.reference.light_irradiance import light_irradiance_pass
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
 
 __all__ = ["FAMILY", "light_geometry"]
 
@@ -105,31 +104,18 @@ def _radiance(setup: AuditSetup, source: int, e_perp: np.ndarray, alpha: np.ndar
 def _reference(setup: AuditSetup, source: int, points, normals, towards, label: str):
     """The light's pooled passes: (mean (N, 9), stderr (N, 9), total spp, passes, rendered, entry,
     seconds)."""
-    import mitsuba as mi  # (its version is part of the key)
-
     emitter = setup.emitters[source]
-    ident = {
+    what = {
         "format": FORMAT,
         "quantity": "light-irradiance",
-        "scene": setup.scene_digest,
         "emitter": source,
         "points": array_digest(points, normals, towards),
-        "variant": setup.variant,
-        "seed": setup.seed,
-        "pass_spp": setup.pass_spp,
-        "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__},
     }
-    entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
-    count = -(-setup.spp // setup.pass_spp)
 
-    def render(i: int):
-        spp = max(min(setup.pass_spp, setup.spp - i * setup.pass_spp), 2)
-        seed = sub_seed(setup.seed, "pass", i)
+    def render(spp: int, seed: int):
         return light_irradiance_pass(setup.mi, setup.scene, emitter, points, normals, towards, spp, seed)
 
-    passes, rendered = entry.passes(count, render, shape=(-1, 9), progress=setup.progress, label=label)
-    mean, stderr, total = pool_passes(passes)
-    return mean, stderr, total, len(passes), rendered, entry, float(sum(p.seconds for p in passes))
+    return pooled_passes(setup, what, render, (-1, 9), label)
 
 
 def _image(mask, values) -> np.ndarray:

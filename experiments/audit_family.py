@@ -38,15 +38,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import drjit as dr
 import numpy as np
 
 from rtfit.realtime.methods import Method, Param
-from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
-from rtfit.reference.estimators import GBuffer
+from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, PassEntry, pool_passes
+from rtfit.reference.estimators import GBuffer, PassResult, sub_seed
 
 from .audit import Applicability, AuditError, SceneInfo
 
-__all__ = ["AuditError", "AuditFamily", "AuditReference", "AuditSetup", "FamilyCase"]
+__all__ = ["AuditError", "AuditFamily", "AuditReference", "AuditSetup", "FamilyCase", "pooled_passes"]
 
 
 @dataclass(frozen=True)
@@ -147,3 +148,40 @@ class AuditFamily:
     formats: tuple[str, ...] = ("mitsuba-xml",)
     """The scene formats (`SceneInfo.format`: ``mitsuba-xml``, ``rtfit-toml``, ``rtfit-sky``) its cases read;
     on another format the family is named in the run's notes as not audited for it."""
+
+
+def pooled_passes(
+    setup: AuditSetup,
+    what: Mapping[str, Any],
+    render_pass: Callable[[int, int], PassResult],
+    shape: tuple[int, ...],
+    label: str,
+    seed_label: str = "pass",
+):
+    """A family's reference passes through the pass cache, pooled: ``(mean, stderr, total spp, passes,
+    passes rendered by this run, entry, seconds)``.
+
+    ``what``: the family's own part of the cache key (format, quantity, the emitter or medium, a digest of the
+    points or rays); the run's part (scene digest, variant, seed, pass size, Mitsuba and Dr.Jit versions) is
+    added here. ``render_pass(spp, seed)`` renders one pass; pass i has ``min(pass_spp, spp − i·pass_spp)``
+    samples (at least 2: the variance needs two) and the seed ``sub_seed(setup.seed, seed_label, i)``."""
+    import mitsuba as mi  # (its version is part of the key)
+
+    ident = {
+        **what,
+        "scene": setup.scene_digest,
+        "variant": setup.variant,
+        "seed": setup.seed,
+        "pass_spp": setup.pass_spp,
+        "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__},
+    }
+    entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
+    count = -(-setup.spp // setup.pass_spp)
+
+    def render(i: int):
+        spp = max(min(setup.pass_spp, setup.spp - i * setup.pass_spp), 2)
+        return render_pass(spp, sub_seed(setup.seed, seed_label, i))
+
+    passes, rendered = entry.passes(count, render, shape=shape, progress=setup.progress, label=label)
+    mean, stderr, total = pool_passes(passes)
+    return mean, stderr, total, len(passes), rendered, entry, float(sum(p.seconds for p in passes))

@@ -40,7 +40,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import drjit as dr
 import numpy as np
 
 from rtfit.fitting import Param
@@ -48,13 +47,12 @@ from rtfit.realtime.height_fog import METHODS, OPTICAL_DEPTH_FORMS
 from rtfit.realtime.methods import Method
 from rtfit.reference import ReferenceCache, ReferenceRequest
 from rtfit.reference.build import light_dicts
-from rtfit.reference.cache import PassEntry, array_digest, pool_passes
-from rtfit.reference.estimators import sub_seed
+from rtfit.reference.cache import array_digest
 from rtfit.reference.height_fog import medium_dict, register, sky_statistics
 from rtfit.reference.medium_transmittance import transmittance_pass
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
 from .height_fog import fit_params, horizon_colour, segment_geometry, single_scatter_colour
 
 __all__ = ["FAMILY", "SHADING_ROWS", "fog_cases", "transmittance_method"]
@@ -138,32 +136,20 @@ def _sky(setup: AuditSetup, scene):
 def _transmittance(setup: AuditSetup, index: int, medium, origin, dirs, dist, label: str):
     """Pooled ratio-tracking passes of the medium alone: (mean (N, 3), stderr, spp, passes, rendered,
     entry, seconds)."""
-    import mitsuba as mi_module  # (its version is part of the key)
-
     mi = setup.mi
     register(mi)
     med = mi.load_dict(medium_dict(mi, medium))
-    ident = {
+    what = {
         "format": FORMAT,
         "quantity": "fog-transmittance",
-        "scene": setup.scene_digest,
         "medium": index,
         "rays": array_digest(np.asarray(origin), dirs, np.where(np.isfinite(dist), dist, -1.0)),
-        "variant": setup.variant,
-        "seed": setup.seed,
-        "pass_spp": setup.pass_spp,
-        "versions": {"mitsuba": mi_module.__version__, "drjit": dr.__version__},
     }
-    entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
-    count = -(-setup.spp // setup.pass_spp)
 
-    def render(i: int):
-        spp = max(min(setup.pass_spp, setup.spp - i * setup.pass_spp), 2)
-        return transmittance_pass(mi, med, origin, dirs, dist, spp, sub_seed(setup.seed, "pass", i))
+    def render(spp: int, seed: int):
+        return transmittance_pass(mi, med, origin, dirs, dist, spp, seed)
 
-    passes, rendered = entry.passes(count, render, shape=(-1, 3), progress=setup.progress, label=label)
-    mean, stderr, total = pool_passes(passes)
-    return mean, stderr, total, len(passes), rendered, entry, float(sum(p.seconds for p in passes))
+    return pooled_passes(setup, what, render, (-1, 3), label)
 
 
 def _render(setup: AuditSetup, scene, label: str):

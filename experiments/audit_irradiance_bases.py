@@ -36,17 +36,15 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-import drjit as dr
 import numpy as np
 
 from rtfit.realtime.irradiance_bases import METHODS
-from rtfit.reference.cache import PassEntry, array_digest, pool_passes
+from rtfit.reference.cache import array_digest
 from rtfit.reference.environments import emitter_environment, emitter_irradiance_quadrature
-from rtfit.reference.estimators import sub_seed
 from rtfit.reference.light_irradiance import environment_irradiance_pass
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
 from .irradiance_bases import ROW, build_bases, row_params
 
 __all__ = [
@@ -90,38 +88,18 @@ def environment_of(setup: AuditSetup, source: int, rows: int = BAKE_ROWS):
 def _reference(setup: AuditSetup, source: int, normals: np.ndarray, label: str):
     """Pooled passes of the emitter's unoccluded irradiance at ``normals``: (mean (N, 3), stderr (N, 3),
     spp, passes, rendered, entry, seconds)."""
-    import mitsuba as mi
-
     emitter = setup.emitters[source]
-    ident = {
+    what = {
         "format": FORMAT,
         "quantity": "environment-irradiance",
-        "scene": setup.scene_digest,
         "emitter": source,
         "normals": array_digest(normals),
-        "variant": setup.variant,
-        "seed": setup.seed,
-        "pass_spp": setup.pass_spp,
-        "versions": {"mitsuba": mi.__version__, "drjit": getattr(dr, "__version__", "")},
     }
-    entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
-    count = -(-setup.spp // setup.pass_spp)
 
-    def render(i: int):
-        spp = max(min(setup.pass_spp, setup.spp - i * setup.pass_spp), 2)
-        return environment_irradiance_pass(setup.mi, emitter, normals, spp, sub_seed(setup.seed, "pass", i))
+    def render(spp: int, seed: int):
+        return environment_irradiance_pass(setup.mi, emitter, normals, spp, seed)
 
-    passes, rendered = entry.passes(count, render, shape=(-1, 3), progress=setup.progress, label=label)
-    mean, stderr, total = pool_passes(passes)
-    return (
-        mean[:, :3],
-        stderr[:, :3],
-        total,
-        len(passes),
-        rendered,
-        entry,
-        float(sum(p.seconds for p in passes)),
-    )
+    return pooled_passes(setup, what, render, (-1, 3), label)
 
 
 def _inside(p, value: float) -> float:
