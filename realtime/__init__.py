@@ -40,6 +40,8 @@ Modules:
                 function (the issue's public name), so the module's names are imported with
                 ``from rtfit.realtime.volumetric_lightning import METHODS`` (``import
                 rtfit.realtime.volumetric_lightning as m`` binds the function).
+    light_cones the seed's light-cone shell in fog (edge fade, v^q attenuation) and §1's integral over the
+                view ray's chord through a spot light's cone (docs/light-cones.md).
     parallax_occlusion  parallax occlusion mapping with soft self-shadowing: the seed's listing and a
                 stable variant, procedural height fields (docs/parallax-occlusion.md).
 
@@ -62,6 +64,7 @@ from .height_fog import *  # noqa: F403
 from .hemisphere_bases import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
+from .light_cones import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
 from .obscurances import *  # noqa: F403
@@ -91,6 +94,7 @@ MODULES = (
     "sdf_occlusion",
     "nishita_sky",
     "volumetric_lightning",
+    "light_cones",
     "parallax_occlusion",
     "obscurances",
     "quantities",
