@@ -28,7 +28,13 @@ import math
 
 import numpy as np
 
-__all__ = ["PIECE_PANELS", "cone_crossings", "spot_estimator_variance", "spot_profile", "spot_single_scattering"]
+__all__ = [
+    "PIECE_PANELS",
+    "cone_crossings",
+    "spot_estimator_variance",
+    "spot_profile",
+    "spot_single_scattering",
+]
 
 FOUR_PI = 4.0 * math.pi
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
@@ -37,8 +43,8 @@ PIECE_PANELS = 16
 
 
 def spot_profile(cos_theta, cutoff_rad: float, beam_rad: float) -> np.ndarray:
-    """Mitsuba ``spot``'s falloff f(θ) ∈ [0, 1] for cos θ (module docstring): 1 inside the beam width, linear in
-    θ down to 0 at the cutoff angle, 0 beyond (``cos θ > cos θ_c`` strictly, as Mitsuba)."""
+    """Mitsuba ``spot``'s falloff f(θ) ∈ [0, 1] for cos θ (module docstring): 1 inside the beam width,
+    linear in θ down to 0 at the cutoff angle, 0 beyond (``cos θ > cos θ_c`` strictly, as Mitsuba)."""
     c = np.clip(np.asarray(cos_theta, np.float64), -1.0, 1.0)
     ramp = (cutoff_rad - np.arccos(c)) / (cutoff_rad - beam_rad)
     return np.where(c > math.cos(cutoff_rad), np.where(c >= math.cos(beam_rad), 1.0, ramp), 0.0)
