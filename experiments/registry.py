@@ -103,9 +103,9 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
         ExperimentSpec(
             "light-cones",
             "rtfit.experiments.light_cones",
-            "Light cones in fog: the seed's shell (edge fade, v² attenuation) vs spot-light single scattering",
-            "The pseudo-volumetric cone shell and §1's integral over the view ray's chord against path-traced "
-            "single scattering of a spot light in fog, from beside, inside and along the cone, with fits.",
+            "Light cones in fog: the seed's shell (edge fade, v² attenuation) vs spot-light scattering",
+            "The pseudo-volumetric cone shell and §1's integral over the view ray's chord against path-traced"
+            " single scattering of a spot light in fog, from beside, inside and along the cone, with fits.",
         ),
         ExperimentSpec(
             "environment-maps",
