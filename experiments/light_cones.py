@@ -17,8 +17,8 @@ What is compared, and why (docs/light-cones.md):
    pooled over the views (a lamp's artist parameters do not change with the camera), through the JAX run
    of each kernel (`rtfit.fitting.fit_method`).
 3. **Where the shell's error comes from**: relative bias and RMS error over the mean radiance per bin of
-   the chord length through the cone (over the cone's length L) and per view; extremes of the kernels (camera inside the
-   cone, along the axis, grazing the shell, θ_c → 0, σ → 0 and dense media: no NaN/Inf).
+   the chord length through the cone (over the cone's length L) and per view; extremes of the kernels
+   (camera inside the cone, along the axis, grazing the shell, θ_c → 0, σ → 0 and dense media: no NaN/Inf).
 
 Sections: configure · methods (rows) · cases (scenes, geometry) · run · checks · figures · summary · bench.
 """
@@ -180,12 +180,14 @@ def case_scene(view: str, sigma_t: float, resolution) -> Scene:
                 beam_width_deg=LAMP["beam_deg"],
             ),
         ),
-        media=(HomogeneousMedium(boundary=box, sigma_t=(sigma_t,) * 3, albedo=(1.0, 1.0, 1.0)),),
+        media=(HomogeneousMedium(boundary=box, sigma_t=(sigma_t, sigma_t, sigma_t), albedo=(1.0, 1.0, 1.0)),),
         reference=ReferenceSettings(transport="direct"),  # volpathmis, max_depth 2: single scattering
     )
 
 
-def pixel_inputs(origin, dirs: np.ndarray, dtype=np.float64, half_angle_deg: float | None = None) -> dict:
+def pixel_inputs(
+    origin, dirs: np.ndarray, dtype: type[np.floating] = np.float64, half_angle_deg: float | None = None
+) -> dict:
     """The kernels' per-pixel inputs: camera, view direction, the lamp's cone (half-angle ``half_angle_deg``,
     default the shell's θ_½), depth = the medium's wall."""
     dirs = np.asarray(dirs, np.float64).reshape(-1, 3)
@@ -323,6 +325,7 @@ def run(ctx) -> dict:
         ]
         pooled = {k: np.concatenate([x[k] for x in inputs]) for k in inputs[0]}
         for row in FIT_ROWS:
+            assert row.method is not None
             unit = np.asarray(METHODS[row.method](NUMPY_OPS, pooled, {**row.held, "k": 1.0}), np.float64)
             k0 = max(fit_level(unit, ref), 1e-12)
             fit_jobs.append(
@@ -466,7 +469,9 @@ def assemble(ctx, cfg, cases, scenes, rendered, fits) -> dict:
 def inside_cone(point) -> bool:
     v = np.asarray(point, np.float64) - np.asarray(LAMP["apex"])
     t = float(v @ np.asarray(LAMP["axis"]))
-    return 0.0 <= t <= LAMP["length"] and t >= math.cos(math.radians(LAMP["cutoff_deg"])) * np.linalg.norm(v)
+    return bool(
+        0.0 <= t <= LAMP["length"] and t >= math.cos(math.radians(LAMP["cutoff_deg"])) * np.linalg.norm(v)
+    )
 
 
 # ------------------------------------------------------------------------------------ chord profile
@@ -753,8 +758,9 @@ def make_figures(out, cfg, cases, rendered, images, case_docs, profile) -> list[
         {
             "file": f"figures/{p.name}",
             "caption": "RMS error over the bin's mean reference radiance per bin of the view ray's chord "
-            "length through the cone (over the cone's length L), all views pooled: the shell's single fragment cannot follow the chord; §1's "
-            "integral over the chord can, up to the extinction and the beam's soft edge.",
+            "length through the cone (over the cone's length L), all views pooled: the shell's "
+            "single fragment cannot follow the chord; §1's integral over the chord can, up to the "
+            "extinction and the beam's soft edge.",
             "section": "results",
         }
     )
@@ -833,7 +839,8 @@ def sections(profile, extremes, fits) -> list[dict]:
             "placement": "after_results",
             "text": (
                 "Relative bias Σ(model − reference)/Σreference / RMS error over the mean reference per bin "
-                "of the view ray's chord length through the cone over the cone's length L (all views pooled):\n\n"
+                "of the view ray's chord length through the cone over the cone's length L (all views "
+                "pooled):\n\n"
                 + "\n".join(prof)
                 + "\n\nRMS error over the mean reference, per view:\n\n"
                 + "\n".join(views)

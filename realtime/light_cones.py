@@ -255,11 +255,8 @@ def light_cone_shell(origin, direction, apex, axis, half_angle, length, depth=1e
     ``depth`` (m) are hidden. Vectors: NumPy arrays of shape (..., 3) or 3-sequences; scalars broadcast.
     ``back``: add the exit (back-face) fragment too (culling off)."""
     args = _inputs(origin, direction, apex, axis, half_angle, length, depth)
-
-    def kernel(ops, *a):
-        return _shell_kernel(ops, *a, 1.0 if back else 0.0)
-
-    return evaluate(kernel, *args, k, p, q)
+    method = METHODS["shell" if back else "shell-front"]
+    return method.evaluate(dict(zip(method.input_names, args, strict=True)), {"k": k, "p": p, "q": q})
 
 
 def cone_chord(origin, direction, apex, axis, half_angle, length, depth=1e30):
