@@ -53,7 +53,9 @@ from __future__ import annotations
 
 import math
 
-from .arrays import clamp01, evaluate, safe_div, safe_sqrt
+import numpy as np
+
+from .arrays import check_range, clamp01, evaluate, is_drjit, is_jax, safe_div, safe_sqrt, split3
 from .methods import Input, Method, Param, method_table
 from .volumetric_lightning import METHODS as LIGHTNING_METHODS
 
@@ -242,9 +244,22 @@ CHORD_LENGTH = Method(
 
 # ===================================================================================== public API
 def _inputs(origin, direction, apex, axis, half_angle, length, depth) -> list:
+    """Validated kernel arguments: four 3-vectors (finite), θ_c ∈ (0, π/2), L > 0, depth ≥ 0 (one-line
+    ValueError otherwise; Dr.Jit and JAX arrays are not checked, the kernel clamps)."""
     out = []
-    for v in (origin, direction, apex, axis):
-        out += [v[..., 0], v[..., 1], v[..., 2]] if hasattr(v, "ndim") and v.ndim else list(v)
+    for v, name in ((origin, "origin"), (direction, "direction"), (apex, "apex"), (axis, "axis")):
+        comps = split3(v, name)
+        for cpt in comps:
+            if not (is_drjit(cpt) or is_jax(cpt)):
+                arr = np.asarray(cpt, dtype=np.float64)
+                if arr.size and not np.all(np.isfinite(arr)):
+                    raise ValueError(f"{name} must be finite (got {arr[~np.isfinite(arr)].flat[0]!r})")
+        out += list(comps)
+    half_angle = check_range(
+        "half_angle", half_angle, 0.0, math.pi / 2, lo_open=True, interval="(0, π/2) rad"
+    )
+    length = check_range("length", length, 0.0, 1e30, lo_open=True, interval="(0, 1e30] m")
+    depth = check_range("depth", depth, 0.0, 1e30, interval="[0, 1e30] m")
     return [*out, half_angle, length, depth]
 
 
@@ -255,6 +270,9 @@ def light_cone_shell(origin, direction, apex, axis, half_angle, length, depth=1e
     ``depth`` (m) are hidden. Vectors: NumPy arrays of shape (..., 3) or 3-sequences; scalars broadcast.
     ``back``: add the exit (back-face) fragment too (culling off)."""
     args = _inputs(origin, direction, apex, axis, half_angle, length, depth)
+    k = check_range("k", k, 0.0, 3.4e38, interval="[0, 3.4e38] W/m²/sr")
+    p = check_range("p", p, 0.0, 16.0)
+    q = check_range("q", q, 0.0, 16.0)
     method = METHODS["shell" if back else "shell-front"]
     return method.evaluate(dict(zip(method.input_names, args, strict=True)), {"k": k, "p": p, "q": q})
 
