@@ -52,6 +52,7 @@ W/m/sr.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -263,8 +264,10 @@ def _inputs(origin, direction, apex, axis, half_angle, length, depth) -> list:
     return [*out, half_angle, length, depth]
 
 
-def light_cone_shell(origin, direction, apex, axis, half_angle, length, depth=1e30, k=1.0, p=1.0, q=2.0,
-                     back=True):  # fmt: skip
+def light_cone_shell(
+    origin, direction, apex, axis, half_angle, length, depth: Any = 1e30, k: Any = 1.0, p: Any = 1.0,
+    q: Any = 2.0, back: bool = True,
+):  # fmt: skip
     """The seed's shell radiance k·Σ|n·ω|^p·v^q (module docstring) for view rays o + sω (``direction``
     unit), a cone of apex ``apex``, unit ``axis``, ``half_angle`` (rad) and ``length`` (m); fragments beyond
     ``depth`` (m) are hidden. Vectors: NumPy arrays of shape (..., 3) or 3-sequences; scalars broadcast.

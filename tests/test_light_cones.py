@@ -41,7 +41,7 @@ AXIS = np.array([0.0, 0.3, -1.0]) / math.hypot(0.3, 1.0)
 THETA, LENGTH, DEPTH = 0.5, 6.0, 20.0
 
 
-def _inputs(o, w, theta=THETA, length=LENGTH, depth=DEPTH, dtype=np.float64) -> dict:
+def _inputs(o, w, theta=THETA, length=LENGTH, depth=DEPTH, dtype: type = np.float64) -> dict:
     n = len(w)
     cols = [
         *np.broadcast_to(o, (n, 3)).T,
@@ -102,12 +102,12 @@ def test_shell_closed_form_horizontal_ray_through_vertical_cone():
         chord = cone_chord((0.0, -9.0, z), (0.0, 1.0, 0.0), APEX, (0, 0, -1), THETA, LENGTH)
         assert chord == pytest.approx(2 * (6.0 - z) * math.tan(THETA), rel=1e-12)
     # from inside the cone: one back-face fragment, none with culling
-    inside = dict(apex=APEX, axis=(0, 0, -1), half_angle=THETA, length=LENGTH)
-    assert light_cone_shell((0.2, 0.0, 2.0), (0.0, 1.0, 0.0), **inside, back=False) == 0.0
-    assert light_cone_shell((0.2, 0.0, 2.0), (0.0, 1.0, 0.0), **inside) > 0.0
+    cone = (APEX, (0, 0, -1), THETA, LENGTH)
+    assert light_cone_shell((0.2, 0.0, 2.0), (0.0, 1.0, 0.0), *cone, back=False) == 0.0
+    assert light_cone_shell((0.2, 0.0, 2.0), (0.0, 1.0, 0.0), *cone) > 0.0
 
 
-def _mp_spot(o, u, length, cutoff, beam, sigma_t, power=1):
+def _mp_spot(o, u, length, cutoff, beam, sigma_t, power=1) -> float:
     """∫₀^S f^p·e^(−σ_t(s + p·r))/r^(2p) ds by mpmath, split where the ray crosses both cones (solved here in
     mpmath) and around the closest approach to the apex."""
     with mp.workdps(30):
@@ -117,7 +117,7 @@ def _mp_spot(o, u, length, cutoff, beam, sigma_t, power=1):
         c = [mp.mpf(float(x)) for x in APEX]
         w = [oi - ci for oi, ci in zip(o, c, strict=True)]
         dot = lambda x, y: sum(xi * yi for xi, yi in zip(x, y, strict=True))  # noqa: E731
-        pts = {mp.mpf(0), mp.mpf(length)}
+        pts: set = {mp.mpf(0), mp.mpf(length)}
         for ang in (cutoff, beam):
             k = mp.cos(ang) ** 2
             qa, qb, qc = (
@@ -143,7 +143,7 @@ def _mp_spot(o, u, length, cutoff, beam, sigma_t, power=1):
             prof = 1 if cos_t >= mp.cos(beam) else (cutoff - mp.acos(cos_t)) / (cutoff - beam)
             return prof**power * mp.exp(-sigma_t * (s + power * r)) / r ** (2 * power)
 
-        return mp.quad(f, sorted(pts))
+        return float(mp.quad(f, sorted(pts)))  # pyright: ignore[reportArgumentType]
 
 
 def test_spot_quadrature_and_variance_match_mpmath():
