@@ -611,7 +611,7 @@ def medium_limits() -> list[dict]:
     out.append(
         {
             "what": "σ_t = 2 /m (optical depth 18 to the axis): L finite, ≥ 0",
-            "worst_rel_difference": float(np.max(dense)),
+            "max_radiance": float(np.max(dense)),
             "finite": bool(np.all(np.isfinite(dense)) and np.all(dense >= 0.0)),
         }
     )
