@@ -70,6 +70,8 @@ _TINY = 1e-30
 def _chord(ops, ox, oy, oz, wx, wy, wz, px, py, pz, ax, ay, az, half_angle, length, depth):
     """The view ray's chord through the cone (module docstring): (s_in, s_out, entry_is_shell,
     exit_is_shell, valid, entry n·ω, exit n·ω, entry v, exit v)."""
+    norm = ops.sqrt(wx * wx + wy * wy + wz * wz)  # any direction of non-zero length is normalised here
+    wx, wy, wz = safe_div(ops, wx, norm), safe_div(ops, wy, norm), safe_div(ops, wz, norm)
     cos_c = ops.cos(half_angle)
     sin_c = ops.sin(half_angle)
     kappa = cos_c * cos_c
@@ -167,12 +169,13 @@ INPUTS = (
     Input("ox", "m", "camera position o, x", (-100.0, 100.0)),
     Input("oy", "m", "camera position o, y", (-100.0, 100.0)),
     Input("oz", "m", "camera position o, z", (-100.0, 100.0)),
-    Input("wx", "1", "unit view direction ω, x", (-1.0, 1.0)),
-    Input("wy", "1", "unit view direction ω, y", (-1.0, 1.0)),
-    Input("wz", "1", "unit view direction ω, z", (-1.0, 1.0)),
-    Input("px", "m", "cone apex P (the lamp), x", (-100.0, 100.0)),
-    Input("py", "m", "cone apex P, y", (-100.0, 100.0)),
-    Input("pz", "m", "cone apex P, z", (-100.0, 100.0)),
+    Input("wx", "1", "view direction ω (normalised by the kernel), x", (-1.0, 1.0)),
+    Input("wy", "1", "view direction ω, y", (-1.0, 1.0)),
+    Input("wz", "1", "view direction ω, z", (-1.0, 1.0)),
+    # (the apex's interval is narrower than o's only so that the domain's corners never put it on o)
+    Input("px", "m", "cone apex P (the lamp), x", (-90.0, 90.0)),
+    Input("py", "m", "cone apex P, y", (-90.0, 90.0)),
+    Input("pz", "m", "cone apex P, z", (-90.0, 90.0)),
     Input("ax", "1", "unit cone axis a (the beam's direction), x", (-1.0, 1.0)),
     Input("ay", "1", "unit cone axis a, y", (-1.0, 1.0)),
     Input("az", "1", "unit cone axis a, z", (-1.0, 1.0)),
@@ -180,7 +183,8 @@ INPUTS = (
     Input("length", "m", "cone length L along the axis (the mesh's rim)", (1e-3, 100.0)),
     Input("depth", "m", "scene depth along the view ray (the depth test)", (0.0, 1e4)),
 )
-"""Per-pixel inputs of every method (directions unit length; the experiment passes float32 pixels)."""
+"""Per-pixel inputs of every method (the experiment passes float32 pixels). The kernels normalise ω (a zero
+direction gives 0); the axis must be unit length (the cone's frame)."""
 
 SHELL_PARAMS = {
     "k": Param(1.0, 0.0, math.inf, unit="W/m²/sr", description="overall level of a shell fragment"),
