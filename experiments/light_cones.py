@@ -392,9 +392,12 @@ def assemble(ctx, cfg, cases, scenes, rendered, fits) -> dict:
                     "metrics": metrics.to_dict(),
                 }
             )
-        checks += reference_checks(
+        spot_checks = reference_checks(
             cid, ref, c["exact"], mask, model_stderr(origin, dirs, c["sigma_t"], ref.spp)
         )
+        for chk in spot_checks:  # the shared checks name a point light's integrand; the spot's has f(θ)
+            chk["name"] = chk["name"].replace("∫ I·T/r² ds", "∫ I·f(θ)·T/r² ds")
+        checks += spot_checks
         dark = c["exact"] <= 0.0
         worst_dark = float(np.max(np.abs(ref.mean[..., 0][dark]))) if dark.any() else 0.0
         checks.append(
