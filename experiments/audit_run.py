@@ -544,6 +544,13 @@ def audit(
     info = inspect_scene(scene_or_path, defines=defines, camera=camera, width=width, height=height, up=up)
     sel = resolve_approximations(approximations)
     found = applicable_families(info, approx=sel.families, ao_distance=ao_distance)
+    for fam, ids in sel.methods.items():
+        for mid in sorted(ids):
+            if not any(a.family == fam and mid in a.methods for a in found):
+                why = next((w for a in found if a.family == fam for m, w in a.excluded if m == mid), "")
+                raise AuditError(
+                    f"--approx {fam}:{mid} does not apply to {info.source}" + (f": it {why}" if why else "")
+                )
     audited = [a for a in found if _audits(a, info.format)]
     skipped = [
         f"{a.family} ({a.role}: {a.part}): listed by --list, not audited yet"
