@@ -94,8 +94,8 @@ def wall_audit(tmp_path_factory):
     measurement take ~10 s a case on a shared core; `rtfit audit` runs it: docs/audit.md)."""
     d = tmp_path_factory.mktemp("wall")
     return audit(
-        _wall(d), "ambient-aperture,sdf-occlusion:curvature,sdf-occlusion:evans-text", spp=64, pass_spp=32, ao_distance=0.5,
-        cache=d / "cache", fit=False, **FAST,
+        _wall(d), "ambient-aperture,sdf-occlusion:curvature,sdf-occlusion:evans-text", spp=64,
+        pass_spp=32, ao_distance=0.5, cache=d / "cache", fit=False, **FAST,
     )  # fmt: skip
 
 
@@ -128,8 +128,8 @@ def test_fill_rows_on_an_open_floor(tmp_path):
     """500 m from the wall (it hides < 10⁻³ of the sky): V ≈ 1, b ≈ n, r_a ≈ π/2, so the projected fill is πL
     and the seed fill twice that (its missing cosine); the reference is πL within 4.5 standard errors
     (measured max |z| 2.6). The fills read the bake (256 uniform rays a point: its bent normal is off n by
-    ~0.07 rad; a ray that meets the far wall narrows one point's aperture), so they are πL to 2.5 % (measured
-    max 1.8 %, median 0.1 %)."""
+    ~0.07 rad, up to 0.25 at 3σ): the projected fill is πL to 2.5 % (measured max 1.8 %, median 0.1 %: second
+    order in that angle), the seed fill 2πL to 5 % (measured max 3.6 %: first order, its cos(n, b))."""
     r = audit(
         _wall(tmp_path, cy=-500.0), "ambient-aperture", spp=256, pass_spp=128, ao_distance=0.5,
         cache=tmp_path / "cache", fit=False, **FAST,
@@ -143,7 +143,7 @@ def test_fill_rows_on_an_open_floor(tmp_path):
     z = np.abs(ref - want) / np.maximum(se, 1e-9)
     assert z.max() < 4.5, z.max()
     np.testing.assert_allclose(proj, want, rtol=2.5e-2)
-    np.testing.assert_allclose(seed, 2.0 * want, rtol=2.5e-2)
+    np.testing.assert_allclose(seed, 2.0 * want, rtol=5e-2)
 
 
 def test_cli_list_then_audit_then_bad_input(tmp_path):
