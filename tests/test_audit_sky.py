@@ -171,8 +171,9 @@ def test_fill_rows_on_an_open_floor(tmp_path):
 
 def test_cli_list_then_audit_then_bad_input(tmp_path):
     """The scene → --list → audit path through the CLI: --list names both roles; the audit writes the
-    report with the two cases; ``--approx fill-projected`` on a scene without an environment is one line,
-    exit 2, nothing written."""
+    report; ``--approx ambient-aperture:fill-projected`` on a scene without an environment, and
+    ``--approx sdf-occlusion`` on a lone floor (no environment, nothing to occlude it), are one line each
+    saying what is missing, exit 2, nothing written."""
     scene = _wall(tmp_path)
     run = CliRunner().invoke(audit_cmd, [str(scene), "--list", "--ao-distance", "0.5"])
     assert run.exit_code == 0, run.stderr
@@ -197,5 +198,13 @@ def test_cli_list_then_audit_then_bad_input(tmp_path):
         audit_cmd, [str(dark), "--approx", "ambient-aperture:fill-projected", "--out", str(out2)]
     )
     assert run.exit_code == 2 and run.stdout == "" and run.stderr.count("\n") == 1, run.stderr
-    assert run.stderr.startswith("rtfit: error: ") and "environment" in run.stderr
+    assert run.stderr.startswith("rtfit: error: ") and "needs sky_radiance: an environment" in run.stderr
+    assert not out2.exists()
+    # a lone floor under a point light: neither an environment nor self-occluding geometry
+    lone = tmp_path / "lone.xml"
+    text = dark.read_text()
+    lone.write_text(text.split('<shape type="rectangle" id="wall">')[0] + text.split("</shape>")[-1])
+    run = CliRunner().invoke(audit_cmd, [str(lone), "--approx", "sdf-occlusion", "--out", str(out2)])
+    assert run.exit_code == 2 and run.stderr.count("\n") == 1, run.stderr
+    assert "sdf-occlusion does not apply" in run.stderr and "geometry that can occlude itself" in run.stderr
     assert not out2.exists()
