@@ -208,3 +208,31 @@ def test_cli_list_then_audit_then_bad_input(tmp_path):
     assert run.exit_code == 2 and run.stderr.count("\n") == 1, run.stderr
     assert "sdf-occlusion does not apply" in run.stderr and "geometry that can occlude itself" in run.stderr
     assert not out2.exists()
+
+
+def test_a_family_declared_once_per_role_is_one_audited_family():
+    """`by_name` joins declarations of one family by role: `cases` dispatches on the applicability's role,
+    the quantities are all of theirs; a role declared twice, or a declaration without roles beside another,
+    is refused."""
+    from dataclasses import replace
+
+    from rtfit.experiments.audit import Applicability
+    from rtfit.experiments.audit_family import AuditError, AuditFamily, by_name
+
+    def case_of(tag):
+        return lambda setup, app: [tag]
+
+    a = AuditFamily("fam", "q1", case_of("a"), roles=("r1",), quantities=("q3",))
+    b = AuditFamily("fam", "q2", case_of("b"), roles=("r2",))
+    other = AuditFamily("other", "q1", case_of("o"))
+    joined = by_name([a, other, b])
+    assert list(joined) == ["fam", "other"] and joined["other"] is other
+    fam = joined["fam"]
+    assert fam.roles == ("r1", "r2") and fam.quantity == "q1" and set(fam.quantities) == {"q2", "q3"}
+    app = Applicability("fam", "r2", "part", (), (), "", "", "")
+    assert fam.cases(None, app) == ["b"]  # type: ignore[arg-type]
+    assert fam.cases(None, replace(app, role="r1")) == ["a"]  # type: ignore[arg-type]
+    with pytest.raises(AuditError, match="declared twice"):
+        by_name([a, replace(b, roles=("r1",))])
+    with pytest.raises(AuditError, match="must name each declaration's roles"):
+        by_name([a, replace(b, roles=None)])
