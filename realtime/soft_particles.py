@@ -112,7 +112,7 @@ def _view_travel(ops, front, back, z_surface):
 def _box_fraction(ops, z, delta, radius):
     """ℓ_z/(2r): the view-z travel through the box's depth range [z − r, z + r] over its depth."""
     r = ops.maximum(radius, _S_MIN)
-    return _view_travel(ops, z - r, z + r, z + delta) / (2.0 * r)
+    return _saturate(ops, _view_travel(ops, z - r, z + r, z + delta) / (2.0 * r))  # rounding: ≤ 1
 
 
 def _linear_kernel(ops, alpha, delta, radius, s):
@@ -205,7 +205,9 @@ def _billboard_alpha_kernel(ops, alpha_c, radius, q):
 
 
 # ===================================================================================== methods (data)
-_ALPHA = Input("alpha", "1", "the billboard texture's opacity at the pixel (unclipped, along the view axis)", (0, 1))
+_ALPHA = Input(
+    "alpha", "1", "the billboard texture's opacity at the pixel (unclipped, along the view axis)", (0, 1)
+)
 _ALPHA_C = Input("alpha_c", "1", "the particle's opacity through its centre, 1 − exp(−2σr)", (0.0, 1.0))
 _Z = Input("z", "m", "view depth of the particle's centre (the billboard)", (-1e3, 1e3))
 _DELTA = Input("delta", "m", "Δ = scene view depth − particle view depth", (-1e3, 1e3))
