@@ -103,9 +103,9 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
         ExperimentSpec(
             "soft-particles",
             "rtfit.experiments.soft_particles",
-            "Soft particles: depth fade, 2007 box, spherical billboards vs the exact clipped Beer–Lambert chord",
-            "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned box, "
-            "spherical billboards and a fitted fade against analytic chords checked by Mitsuba volpathmis.",
+            "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",
+            "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned "
+            "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
         ),
         ExperimentSpec(
             "environment-maps",

@@ -69,8 +69,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from .arrays import check_range, evaluate
 from .methods import Input, Method, Param, method_table
 
