@@ -751,7 +751,7 @@ def particle_scene(cfg, fits: dict) -> dict:
     ts = scene_surface(dirs)
     parts = scene_particles(cfg["scene_particles"])
     log_t = {row: np.zeros(len(dirs)) for row in ("exact", *ROWS)}
-    straddle = 0
+    straddle, silhouette, silhouette_max = 0, 0, 0.0
     for c, r, a in zip(parts["centre"], parts["radius"], parts["alpha_c"], strict=True):
         sig = sigma_of(float(a), float(r))
         ex = exact64("sphere", ray_inputs(dirs, c, float(r), sig, ts))
@@ -759,6 +759,9 @@ def particle_scene(cfg, fits: dict) -> dict:
         straddle += int(np.any((ex < full - 1e-9) & (ex > 0)))
         log_t["exact"] += np.log1p(-np.minimum(ex, 1 - 1e-16))
         bb = billboard_inputs(dirs, c, float(r), float(a), "sphere", ts)
+        missed = (bb["alpha"] <= 0.0) & (ex > 0.0)  # the sphere's perspective silhouette beyond the billboard
+        silhouette += int(missed.sum())
+        silhouette_max = max(silhouette_max, float(np.max(ex[missed], initial=0.0)))
         for row in ROWS:
             kernel, par, _ = row_params(row, "sphere", float(a), fits)
             op = evaluate32(kernel, bb, par)
@@ -794,6 +797,8 @@ def particle_scene(cfg, fits: dict) -> dict:
             "particles_cut_by_geometry": straddle,
             "pixels": int(mask.size),
             "covered_pixels": int(mask.sum()),
+            "silhouette_pairs": silhouette,
+            "silhouette_max_opacity": silhouette_max,
         },
         "scene": None,
         "reference": None,
@@ -997,15 +1002,27 @@ def sections(study, extremes, scene) -> list[dict]:
             "id": "scene",
             "title": "100 particles straddling geometry",
             "placement": "after_results",
-            "text": "Composited opacity error per covered pixel:\n\n" + "\n".join(sc),
+            "text": "Composited opacity error per covered pixel:\n\n"
+            + "\n".join(sc)
+            + f"\n\n{scene['doc']['parameters']['silhouette_pairs']} (pixel, particle) pairs lie inside a "
+            "sphere's perspective silhouette but outside its view-plane billboard of radius r (α = 0): "
+            "every billboard method misses them, exact opacity up to "
+            f"{scene['doc']['parameters']['silhouette_max_opacity']:.2f} (particles far off-axis; the "
+            "largest errors of every row).",
         },
     ]
 
 
 def summary(study, scene, extremes, checks) -> str:
     def rms(method, alpha):
-        vals = [t["rms_error"] for t in study["table"] if t["method"] == method and t["alpha_c"] == alpha]
-        return float(np.mean(vals))
+        vals = [
+            t["rms_error"]
+            for t in study["table"]
+            if t["method"] == method and t["alpha_c"] == alpha and t["shape"] == shape
+        ]
+        return float(np.mean(vals)) if vals else float("nan")
+
+    shape = "sphere" if any(t["shape"] == "sphere" for t in study["table"]) else "box"
 
     alphas = sorted({t["alpha_c"] for t in study["table"]})
     hi = alphas[-1]
@@ -1017,7 +1034,7 @@ def summary(study, scene, extremes, checks) -> str:
         "scene. "
         "The issue's claim holds: a linear fade of α = 0.95 over half the chord gives 0.475 where the exact "
         "opacity is 1 − √0.05 = 0.776 (Beer–Lambert is concave in the chord, so every linear fade "
-        f"under-estimates). Over random particles and depths (α_c = {hi:g}) the RMS opacity error is "
+        f"under-estimates). Over random {shape} particles and depths (α_c = {hi:g}) the RMS opacity error is "
         f"{rms('linear', hi):.3f} for the seed's fade (s = r), {rms('linear-fit', hi):.3f} with s fitted, "
         f"{rms('box', hi):.3f} for the 2007 box, {rms('box-beer', hi):.3f} for the box through Beer–Lambert, "
         f"{rms('spherical', hi):.3f} for spherical billboards and {rms('fitted', hi):.3f} for the fitted "
@@ -1095,7 +1112,11 @@ def bench(ctx) -> list[dict]:
     rows.append(baseline_row(base, backend, "memory baseline (fma of the 6 billboard inputs)"))
     res = (32, 32) if ctx.quick else (128, 128)
     spp = 256 if ctx.quick else 1024
-    out = render_job("sphere", 0.95, 35.0, list(res), spp, 1, ctx.variant)
+    render_job("sphere", 0.95, 35.0, list(res), spp, 1, ctx.variant)  # warm-up: kernel compile
+    out = min(
+        (render_job("sphere", 0.95, 35.0, list(res), spp, k + 2, ctx.variant) for k in range(2)),
+        key=lambda o: o["seconds"],
+    )
     samples = res[0] * res[1] * spp
     rows.append(
         {
