@@ -63,6 +63,7 @@ CONFIG = {
     "fit_alphas": ConfigKey(
         "float", "particle opacities α_c of the domain study and fits", 0.01, 0.999, (None,)
     ),
+    "camera_inside": ConfigKey("bool", "also render a sphere case with the camera inside it (last α_c)"),
     "tilt_deg": ConfigKey("float", "tilt of the opaque plane from facing the camera (degrees)", 0.0, 80.0),
     "resolution": ConfigKey("int", "image (W, H) pixels of the rendered cases", 4, 4096, (2,)),
     "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
@@ -81,6 +82,7 @@ def configure(quick: bool, spp: int | None) -> dict:
             "shapes": ["sphere", "box"],
             "alphas": [0.95] if quick else [0.5, 0.95],
             "fit_alphas": [0.5, 0.95] if quick else [0.3, 0.5, 0.7, 0.9, 0.95],
+            "camera_inside": True,
             "tilt_deg": 35.0,
             "resolution": [20, 20] if quick else [64, 64],
             "spp": spp or (1024 if quick else 16384),
@@ -97,6 +99,12 @@ FOV_DEG = 40.0
 RADIUS = 1.0
 CENTRE = (0.3, 0.2, 4.0)
 """The rendered particle's centre (m, view space) and radius."""
+CENTRE_INSIDE = (0.1, 0.0, 0.6)
+"""The centre of the camera-inside case: the camera sits 0.6 r behind the centre, inside the sphere."""
+
+
+def centre_of(inside: bool):
+    return CENTRE_INSIDE if inside else CENTRE
 
 
 def sigma_of(alpha_c: float, radius: float) -> float:
@@ -190,26 +198,36 @@ def exact64(shape: str, inputs: dict) -> np.ndarray:
 
 # ================================================================================================= jobs
 def render_job(
-    shape: str, alpha_c: float, tilt_deg: float, resolution, spp: int, seed: int, variant: str
+    shape: str,
+    alpha_c: float,
+    tilt_deg: float,
+    resolution,
+    spp: int,
+    seed: int,
+    variant: str,
+    inside: bool = False,
 ) -> dict:
     """Job: Mitsuba's transmittance of one particle case at pixel centres (mean, variance, seconds)."""
     dirs = pixel_dirs(resolution).reshape(-1, 3)
-    point, normal = tilted_plane(tilt_deg)
+    centre = centre_of(inside)
+    point, normal = tilted_plane(tilt_deg, centre)
     res = transmittance_pass_particle(
-        shape, CENTRE, RADIUS, sigma_of(alpha_c, RADIUS), point, normal, dirs, spp, seed, variant
+        shape, centre, RADIUS, sigma_of(alpha_c, RADIUS), point, normal, dirs, spp, seed, variant, inside
     )
     return {"mean": res.mean[:, 0], "var": res.var[:, 0], "seconds": res.seconds}
 
 
-def case_id(shape: str, alpha_c: float) -> str:
-    return f"{shape}-a{alpha_c:g}"
+def case_id(shape: str, alpha_c: float, inside: bool = False) -> str:
+    return f"{shape}-a{alpha_c:g}" + ("-inside" if inside else "")
 
 
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
-    cases = [(s, a) for s in cfg["shapes"] for a in cfg["alphas"]]
+    cases = [(s, a, False) for s in cfg["shapes"] for a in cfg["alphas"]]
+    if cfg["camera_inside"]:
+        cases.append(("sphere", cfg["alphas"][-1], True))
     jobs = [
         Job(
             "rtfit.experiments.soft_particles:render_job",
@@ -221,10 +239,11 @@ def run(ctx) -> dict:
                 spp=cfg["spp"],
                 seed=ctx.seed,
                 variant=ctx.variant,
+                inside=i,
             ),
-            label=case_id(s, a),
+            label=case_id(s, a, i),
         )
-        for s, a in cases
+        for s, a, i in cases
     ]
     ctx.log(f"rendering {len(jobs)} references")
     rendered = dict(zip(cases, ctx.executor.map(jobs, desc="references"), strict=True))
@@ -232,8 +251,8 @@ def run(ctx) -> dict:
     study = domain_study(cfg)
     checks = claim_checks() + chord_checks() + finite_checks()
     case_docs, images = [], {}
-    for (shape, alpha_c), ref in rendered.items():
-        doc, imgs, cks = reference_case(cfg, shape, alpha_c, ref, study["fits"])
+    for (shape, alpha_c, inside), ref in rendered.items():
+        doc, imgs, cks = reference_case(cfg, shape, alpha_c, ref, study["fits"], inside)
         case_docs.append(doc)
         images[doc["id"]] = imgs
         checks += cks
@@ -280,21 +299,22 @@ ROWS = ("linear", "linear-fit", "box", "box-beer", "spherical", "fitted")
 """The report's rows: every approximation, and the seed's fade with its s fitted."""
 
 
-def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict):
+def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, inside: bool = False):
     """One rendered case: Mitsuba against the analytic chord (z-scores), and each row against Mitsuba."""
     w, h = cfg["resolution"]
     dirs = pixel_dirs(cfg["resolution"]).reshape(-1, 3)
-    point, normal = tilted_plane(cfg["tilt_deg"])
+    centre = centre_of(inside)
+    point, normal = tilted_plane(cfg["tilt_deg"], centre)
     ts = plane_distance(dirs, point, normal)
     sigma = sigma_of(alpha_c, RADIUS)
-    exact = exact64(shape, ray_inputs(dirs, CENTRE, RADIUS, sigma, ts))
+    exact = exact64(shape, ray_inputs(dirs, centre, RADIUS, sigma, ts))
     t_exact = 1.0 - exact
     spp = cfg["spp"]
     se = bernoulli_stderr(t_exact, spp)
-    inside = se > 0.0
-    z = (ref["mean"][inside] - t_exact[inside]) / se[inside]
+    covered = se > 0.0
+    z = (ref["mean"][covered] - t_exact[covered]) / se[covered]
     sample_se = np.sqrt(ref["var"] / spp)
-    cid = case_id(shape, alpha_c)
+    cid = case_id(shape, alpha_c, inside)
     sidak = sidak_threshold(max(z.size, 1))
     checks = [
         {
@@ -318,12 +338,12 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict):
         },
         {
             "name": f"reference {cid}: rays that miss the particle see T = 1 exactly",
-            "value": float(np.max(np.abs(ref["mean"][~inside] - t_exact[~inside]), initial=0.0)),
+            "value": float(np.max(np.abs(ref["mean"][~covered] - t_exact[~covered]), initial=0.0)),
             "expected": "0",
-            "passed": bool(np.all(ref["mean"][~inside] == t_exact[~inside])),
+            "passed": bool(np.all(ref["mean"][~covered] == t_exact[~covered])),
         },
     ]
-    bb = billboard_inputs(dirs, CENTRE, RADIUS, alpha_c, shape, ts)
+    bb = billboard_inputs(dirs, centre, RADIUS, alpha_c, shape, ts)
     ref_op = (1.0 - ref["mean"]).reshape(h, w)
     ref_se = np.sqrt(np.maximum(sample_se**2, se**2)).reshape(h, w)
     mask = ((bb["alpha"] > 0.0) | (exact > 0.0)).reshape(h, w)
@@ -344,12 +364,14 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict):
         )
     doc = {
         "id": cid,
-        "label": f"{shape}, α_c = {alpha_c:g}, opaque plane tilted {cfg['tilt_deg']:g}° through it",
+        "label": f"{shape}, α_c = {alpha_c:g}, opaque plane tilted {cfg['tilt_deg']:g}° through it"
+        + (", camera inside" if inside else ""),
         "parameters": {
             "alpha_c": alpha_c,
             "sigma_per_m": sigma,
             "radius_m": RADIUS,
-            "centre_m": list(CENTRE),
+            "centre_m": list(centre),
+            "camera_inside": inside,
             "tilt_deg": cfg["tilt_deg"],
             "pixels": int(mask.size),
             "particle_pixels": int(mask.sum()),
