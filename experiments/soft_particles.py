@@ -733,7 +733,7 @@ def extreme_checks(ext: dict) -> list[dict]:
 
 # ================================================================================ 100-particle scene
 GROUND_Y = -1.5
-SCENE_BOX = ((1.5, -0.5, 9.0), 1.0)
+SCENE_BOX = ((1.5, -0.5, 11.0), 1.0)
 """The composited scene's opaque ground plane y = −1.5 m and box (centre, half-size) in view space."""
 
 
@@ -755,13 +755,14 @@ def scene_surface(dirs: np.ndarray) -> np.ndarray:
 
 
 def scene_particles(n: int, seed: int = 21) -> dict:
-    """``n`` spherical particles near the geometry: centres x ∈ [−4, 4], y ∈ [−2, 0.5], z ∈ [5, 14] m,
-    radii 0.3–1 m, opacities α_c 0.3–0.95 (many straddle the ground or the box)."""
+    """``n`` spherical particles near the geometry: centres x ∈ [−7, 7], y ∈ [−2.3, −0.3], z ∈ [6, 20] m,
+    radii 0.3–1 m, opacities α_c 0.2–0.9 (many straddle the ground or the box; sparse enough that the
+    composite is not saturated everywhere)."""
     rng = np.random.default_rng(seed)
     return {
-        "centre": np.stack([rng.uniform(-4, 4, n), rng.uniform(-2.0, 0.5, n), rng.uniform(5, 14, n)], -1),
+        "centre": np.stack([rng.uniform(-7, 7, n), rng.uniform(-2.3, -0.3, n), rng.uniform(6, 20, n)], -1),
         "radius": rng.uniform(0.3, 1.0, n),
-        "alpha_c": rng.uniform(0.3, 0.95, n),
+        "alpha_c": rng.uniform(0.2, 0.9, n),
     }
 
 
@@ -834,10 +835,10 @@ def particle_scene(cfg, fits: dict) -> dict:
             "passed": finite,
         },
         {
-            "name": "100-particle scene: at least a quarter of the particles are cut by the geometry",
+            "name": "100-particle scene: at least a fifth of the particles are cut by the geometry",
             "value": straddle,
-            "expected": f"≥ {cfg['scene_particles'] // 4}",
-            "passed": bool(straddle >= cfg["scene_particles"] // 4),
+            "expected": f"≥ {cfg['scene_particles'] // 5}",
+            "passed": bool(straddle >= cfg["scene_particles"] // 5),
         },
     ]
     return {"doc": doc, "exact": exact, "images": images, "mask": mask, "checks": checks}
