@@ -260,3 +260,44 @@ def test_experiment_claim_and_extreme_checks_pass():
     failed = [c["name"] for c in checks if not c["passed"]]
     assert not failed, failed
     assert len(checks) == 9
+
+
+def test_fitted_file_loads_and_its_shaders_reproduce_the_kernel(tmp_path):
+    """fitted/soft-particles.json: strict load, and the traced GLSL/HLSL of the fitted fade equals the
+    kernel text's NumPy run (float32 shader vs float64: rtol 2e-6)."""
+    import types
+
+    from rtfit.experiments import soft_particles as exp
+    from rtfit.experiments.fitted import load_fitted
+
+    from .test_shader import compile_function
+
+    def fit(values, method):
+        params = {
+            k: {"value": v, "stderr": 1e-3, "lower": method.params[k].lower, "upper": method.params[k].upper}
+            | {"at_bound": False}
+            for k, v in values.items()
+        }
+        return {"parameters": params, "rms_residual": 0.01, "n_residuals": 100, "dof": 97, "converged": True}
+
+    study = {
+        "fits": {
+            ("sphere", "linear-fit", 0.95): fit({"s": 0.5}, METHODS["linear"]),
+            ("sphere", "fitted", 0.95): fit({"s": 1.2, "b": 0.68, "p": 0.71}, METHODS["fitted"]),
+        }
+    }
+    ctx = types.SimpleNamespace(out_dir=tmp_path, variant="llvm_ad_rgb", quick=True)
+    docs = exp.write_fitted(ctx, study)
+    assert [d["file"] for d in docs] == ["fitted/soft-particles.json"] * 2
+    loaded = load_fitted(tmp_path / "fitted" / "soft-particles.json")
+    (entry,) = [m for m in loaded.methods if m.id == "fitted"]
+    assert entry.parameters["p"].unit == "1" and entry.parameters["s"].unit == "r"
+    rng = np.random.default_rng(8)
+    a, d, r = (rng.uniform(0, 1, 200), rng.uniform(-2, 2, 200), rng.uniform(0.2, 2, 200))
+    ref = METHODS["fitted"](
+        NUMPY_OPS, {"alpha": a, "delta": d, "radius": r}, {"s": 1.2, "b": 0.68, "p": 0.71}
+    )
+    assert entry.shader is not None and entry.shader.arguments == ["alpha", "delta", "radius"]
+    for lang in ("glsl", "hlsl"):
+        got = compile_function(getattr(entry.shader, lang))(*(x.astype(np.float32) for x in (a, d, r)))
+        np.testing.assert_allclose(got, ref, rtol=2e-6, atol=1e-6)
