@@ -362,6 +362,25 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
                 "metrics": metrics.to_dict(),
             }
         )
+    exact_metrics = compute_metrics(_grey(imgs["exact"]), _grey(ref_op), _grey(ref_se), mask)
+    docs.append(
+        {
+            "method": f"exact-{shape}",
+            "label": METHODS[f"exact-{shape}"].label + " (analytic; at the noise floor)",
+            "fitted": False,
+            "parameters": {"sigma": sigma},
+            "metrics": exact_metrics.to_dict(),
+        }
+    )
+    rmse = exact_metrics["rmse"]
+    checks.append(
+        {
+            "name": f"reference {cid}: the analytic exact row sits at Mitsuba's noise floor (RMSE)",
+            "value": rmse.value,
+            "expected": f"not resolved above the noise floor {rmse.noise_floor:.3g}",
+            "passed": not rmse.resolved,
+        }
+    )
     doc = {
         "id": cid,
         "label": f"{shape}, α_c = {alpha_c:g}, opaque plane tilted {cfg['tilt_deg']:g}° through it"
