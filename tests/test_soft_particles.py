@@ -301,3 +301,14 @@ def test_fitted_file_loads_and_its_shaders_reproduce_the_kernel(tmp_path):
     for lang in ("glsl", "hlsl"):
         got = compile_function(getattr(entry.shader, lang))(*(x.astype(np.float32) for x in (a, d, r)))
         np.testing.assert_allclose(got, ref, rtol=2e-6, atol=1e-6)
+
+
+def test_public_opacity_function_and_bad_method():
+    from rtfit.realtime import soft_particle_opacity
+
+    got = soft_particle_opacity("box", {"alpha": 0.95, "z": 4.0, "delta": 0.0, "radius": 1.0})
+    assert got == pytest.approx(0.475, abs=1e-15)
+    with pytest.raises(ValueError, match="unknown soft-particle method 'nope'"):
+        soft_particle_opacity("nope", {})
+    with pytest.raises(ValueError, match="alpha"):
+        beer_fraction(1.5, 0.5)
