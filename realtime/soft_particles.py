@@ -23,6 +23,9 @@ view axis at that texel. The depth buffer gives the scene's view depth z_s behin
   it with Beer–Lambert at the particle's density: σ = −ln(1 − α_c)/(2r) from the centre opacity α_c, so
   α' = 1 − (1 − α_c)^(ℓ/(2r)). (Their paper writes α = 1 − exp(−τΔs) for the density τ and the
   travelled distance Δs; this is that formula with τ from α_c.)
+* ``box-beer-ray``, ``spherical-ray`` (rtfit): the same with the view-z length converted to ray length,
+  ℓ/cos θ, cos θ = d̂_z of the pixel's view ray (the shader has it from the view vector): removes the
+  cos θ loss below.
 * ``fitted`` (rtfit): α' = α·saturate(Δ/(s·r) + b)^p: the linear fade with an offset b (b = ½, s = 2 is
   the box's on-axis fraction) and an exponent p < 1 that bends the linear ramp towards the concave
   Beer–Lambert curve 1 − (1 − α)^f.
@@ -129,6 +132,24 @@ def _box_beer_kernel(ops, alpha, z, delta, radius):
     return _beer(ops, alpha, _box_fraction(ops, z, delta, radius))
 
 
+def _ray_scale(ops, cos_view):
+    """1/cos θ of the pixel's view ray (d̂_z), floored at cos θ = 1e-3 (a ray in the view plane)."""
+    return 1.0 / ops.maximum(cos_view, 1e-3)
+
+
+def _box_beer_ray_kernel(ops, alpha, z, delta, radius, cos_view):
+    """1 − (1 − α)^(ℓ_z/(2r cos θ)): the box's travel along the ray (ℓ_ray = ℓ_z/cos θ)."""
+    return _beer(ops, alpha, _box_fraction(ops, z, delta, radius) * _ray_scale(ops, cos_view))
+
+
+def _spherical_ray_kernel(ops, alpha_c, z, delta, radius, q, cos_view):
+    """The spherical billboard with its view-z chord converted to ray length: ℓ/cos θ."""
+    r = ops.maximum(radius, _S_MIN)
+    w = ops.sqrt(ops.maximum((r - q) * (r + q), 0.0))
+    chord = _view_travel(ops, z - w, z + w, z + delta) * _ray_scale(ops, cos_view)
+    return _beer(ops, alpha_c, chord / (2.0 * r))
+
+
 def _spherical_kernel(ops, alpha_c, z, delta, radius, q):
     """1 − (1 − α_c)^(ℓ/(2r)), ℓ the view-z chord of the sphere at lateral distance q, clipped."""
     r = ops.maximum(radius, _S_MIN)
@@ -211,6 +232,7 @@ _Z = Input("z", "m", "view depth of the particle's centre (the billboard)", (-1e
 _DELTA = Input("delta", "m", "Δ = scene view depth − particle view depth", (-1e3, 1e3))
 _RADIUS = Input("radius", "m", "particle radius (box half-size)", (1e-3, 1e2))
 _Q = Input("q", "m", "lateral distance of the pixel's billboard point from the centre", (0.0, 1e2))
+_COS = Input("cos_view", "1", "cos θ of the pixel's view ray from the view axis (d̂_z)", (0.0, 1.0))
 _RAY = (
     Input("dx", "1", "unit view ray d̂ (view space, camera at the origin), x", (-1.0, 1.0)),
     Input("dy", "1", "unit view ray, y", (-1.0, 1.0)),
@@ -268,6 +290,26 @@ METHODS = method_table(
             description="The sphere's chord along the view axis at the billboard point, Beer–Lambert.",
         ),
         Method(
+            "box-beer-ray",
+            "camera-aligned box, Beer–Lambert along the ray",
+            _box_beer_ray_kernel,
+            inputs=(_ALPHA, _Z, _DELTA, _RADIUS, _COS),
+            quantity="particle_opacity",
+            formula="α' = 1 − (1 − α)^(ℓ_z/(2r·cos θ))",
+            source="rtfit: box-beer with the view-z travel converted to ray length",
+            description="Removes the cos θ loss of optical depth off-axis (exact in the box's slab regime).",
+        ),
+        Method(
+            "spherical-ray",
+            "spherical billboard along the ray",
+            _spherical_ray_kernel,
+            inputs=(_ALPHA_C, _Z, _DELTA, _RADIUS, _Q, _COS),
+            quantity="particle_opacity",
+            formula="α' = 1 − (1 − α_c)^(ℓ/(2r·cos θ))",
+            source="rtfit: the spherical billboard's chord converted to ray length",
+            description="The spherical billboard with the 1/cos θ of the pixel's ray.",
+        ),
+        Method(
             "fitted",
             "fitted fade α·saturate(Δ/s + b)^p",
             _fitted_kernel,
@@ -308,7 +350,7 @@ METHODS = method_table(
 )
 """The family's methods (module docstring): ``METHODS[id](ops, inputs, params)``."""
 
-APPROXIMATIONS = ("linear", "box", "box-beer", "spherical", "fitted")
+APPROXIMATIONS = ("linear", "box", "box-beer", "box-beer-ray", "spherical", "spherical-ray", "fitted")
 """The real-time methods (the rest are the exact references)."""
 
 

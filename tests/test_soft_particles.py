@@ -259,7 +259,7 @@ def test_experiment_claim_and_extreme_checks_pass():
     checks = exp.claim_checks() + exp.extreme_checks(exp.extreme_values())
     failed = [c["name"] for c in checks if not c["passed"]]
     assert not failed, failed
-    assert len(checks) == 9
+    assert len(checks) == 10
 
 
 def test_fitted_file_loads_and_its_shaders_reproduce_the_kernel(tmp_path):
