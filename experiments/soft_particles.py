@@ -1092,9 +1092,12 @@ def summary(study, scene, extremes, checks) -> str:
         f"{rms('box', hi):.3f} for the 2007 box, {rms('box-beer', hi):.3f} for the box through Beer–Lambert, "
         f"{rms('spherical', hi):.3f} for spherical billboards and {rms('fitted', hi):.3f} for the fitted "
         f"fade α·saturate(Δ/s + b)^p. Off-axis the view-z methods lose optical depth by cos θ (40°: exact "
-        f"{off['exact']:.3f}, box-beer {off['box-beer']:.3f}). In the 100-particle scene the composited "
+        f"{off['exact']:.3f}, box-beer {off['box-beer']:.3f}); dividing the view-z length by cos θ of the "
+        f"pixel's ray (box-beer-ray, spherical-ray) restores it. In the 100-particle scene the composited "
         f"opacity's RMS error is {sc['linear']:.3f} (linear), {sc['box']:.3f} (box), {sc['spherical']:.3f} "
-        f"(spherical), {sc['fitted']:.3f} (fitted). {passed} of {len(checks)} checks passed."
+        f"(spherical), {sc['spherical-ray']:.3f} (spherical-ray), {sc['fitted']:.3f} (fitted); its largest "
+        "errors are the spheres' perspective silhouettes beyond their view-plane billboards. "
+        f"{passed} of {len(checks)} checks passed."
     )
 
 
