@@ -108,6 +108,13 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
         ),
         ExperimentSpec(
+            "light-cones",
+            "rtfit.experiments.light_cones",
+            "Light cones in fog: the seed's shell (edge fade, v² attenuation) vs spot-light scattering",
+            "The pseudo-volumetric cone shell and §1's integral over the view ray's chord against path-traced"
+            " single scattering of a spot light in fog, from beside, inside and along the cone, with fits.",
+        ),
+        ExperimentSpec(
             "environment-maps",
             "rtfit.experiments.environment_maps",
             "Pre-convolved and localised environment maps, distance impostors vs exact traces in a room",

@@ -142,6 +142,16 @@ def light_dicts(mi, light) -> dict:
         }
     if kind == "point_light":
         return {"": {"type": "point", "position": list(light.position), "intensity": _rgb(light.intensity)}}
+    if kind == "spot_light":  # Mitsuba's spot points along its local +Z
+        return {
+            "": {
+                "type": "spot",
+                "to_world": _transform(mi, affine(frame_from_normal(light.axis), light.position)),
+                "intensity": _rgb(light.intensity),
+                "cutoff_angle": light.cutoff_angle_deg,
+                "beam_width": light.beam_width_deg,
+            }
+        }
     if kind == "constant_env":
         return {"": {"type": "constant", "radiance": _rgb(light.radiance)}}
     if kind == "envmap":
