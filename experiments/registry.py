@@ -101,6 +101,13 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
         ),
         ExperimentSpec(
+            "aerial-perspective",
+            "rtfit.experiments.aerial_perspective",
+            "Aerial perspective matched to the sky: the fog blend under the Nishita atmosphere + height fog",
+            "Single scattering through atmosphere and fog by quadrature (checked against Mitsuba) against the "
+            "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c and colour.",
+        ),
+        ExperimentSpec(
             "environment-maps",
             "rtfit.experiments.environment_maps",
             "Pre-convolved and localised environment maps, distance impostors vs exact traces in a room",

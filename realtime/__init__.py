@@ -14,6 +14,8 @@ Modules:
     phase       phase functions (Rayleigh, Henyey–Greenstein, Cornette–Shanks), one text for all media.
     ambient_aperture  ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection
                 and shading (docs/ambient-aperture.md).
+    aerial_perspective  single scattering through the Nishita atmosphere + height fog together, the
+                seed's horizon-matched fog colour (docs/aerial-perspective.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
     environment_maps  pre-convolved and localised cube maps, cosine look-up, distance-impostor Hit
                 (docs/environment-maps.md).
@@ -73,6 +75,7 @@ from .sdf_occlusion import *  # noqa: F403
 from .shader import *  # noqa: F403
 from .spherical_gaussians import *  # noqa: F403
 from .volumetric_lightning import *  # noqa: F403
+from .aerial_perspective import *  # noqa: F403
 
 MODULES = (
     "arrays",
@@ -91,6 +94,7 @@ MODULES = (
     "sdf_occlusion",
     "nishita_sky",
     "volumetric_lightning",
+    "aerial_perspective",
     "parallax_occlusion",
     "obscurances",
     "quantities",
