@@ -103,9 +103,9 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
         ExperimentSpec(
             "aerial-perspective",
             "rtfit.experiments.aerial_perspective",
-            "Aerial perspective matched to the sky: the fog blend under the Nishita atmosphere + height fog",
-            "Single scattering through atmosphere and fog by quadrature (checked against Mitsuba) against the "
-            "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c and colour.",
+            "Aerial perspective matched to the sky: the fog blend under a Nishita atmosphere + height fog",
+            "Single scattering through atmosphere and fog by quadrature (checked against Mitsuba) vs the "
+            "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c, colour.",
         ),
         ExperimentSpec(
             "environment-maps",

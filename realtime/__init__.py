@@ -55,6 +55,7 @@ Modules:
 # Star imports re-export each module's ``__all__`` (tests/test_layering.py checks that every public
 # function of every module is in its ``__all__`` and that no two modules export the same name).
 from . import arrays
+from .aerial_perspective import *  # noqa: F403
 from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
@@ -75,7 +76,6 @@ from .sdf_occlusion import *  # noqa: F403
 from .shader import *  # noqa: F403
 from .spherical_gaussians import *  # noqa: F403
 from .volumetric_lightning import *  # noqa: F403
-from .aerial_perspective import *  # noqa: F403
 
 MODULES = (
     "arrays",
