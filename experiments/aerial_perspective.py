@@ -556,8 +556,16 @@ def extreme_checks(cfg: dict) -> list[dict]:
             ("huge fog b = 1/m", FogLayer(1.0, 4e-3, 0.6)),
         ):
             q = aerial_scattering(
-                NUMPY_OPS, cfg["camera_z_m"], dirs[:, 0], dirs[:, 1], dirs[:, 2], dist,
-                atmosphere=atm, sun=sun, fog=fog, panels=4 * cfg["panels"],
+                NUMPY_OPS,
+                cfg["camera_z_m"],
+                dirs[:, 0],
+                dirs[:, 1],
+                dirs[:, 2],
+                dist,
+                atmosphere=atm,
+                sun=sun,
+                fog=fog,
+                panels=4 * cfg["panels"],
             )  # fmt: skip  (4× the panels: t = D·u³ must resolve a 1 m mean free path)
             vals = np.concatenate([np.ravel(v) for k in q for v in q[k]])
             ok = bool(np.all(np.isfinite(vals)))
