@@ -46,6 +46,7 @@ from rtfit.reference.aerial_perspective import box_exit_distance, render_fog_sun
 from rtfit.reference.nishita_sky import library_atmosphere, single_scattering_quadrature
 
 from . import figures as F
+from . import fitted as fitfiles
 from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
@@ -459,20 +460,7 @@ def assemble(ctx, cfg, refs, check, fits, norms, floor) -> dict:
     checks += reference_checks(check)
     checks += extreme_checks(cfg)
     figs = make_figures(ctx.out_dir, cfg, refs, fits, budget)
-    fit_docs = [
-        {
-            "id": f"phase-{case_id(e)}",
-            "label": f"height-fog phase blend fitted at sun {e:g}°",
-            "model": "phase",
-            "parameters": f["parameters"],
-            "rms_residual": f.get("rms_residual"),
-            "n_residuals": f.get("n_residuals"),
-            "converged": f.get("converged"),
-            "at_bound": f.get("at_bound"),
-            "message": f.get("message"),
-        }
-        for e, f in fits.items()
-    ]
+    fit_docs = write_fitted(ctx, cfg, refs, fits)
     costs = cost_rows(ctx, cfg)
     return {
         "summary": summary(budget, checks),
@@ -490,6 +478,57 @@ def assemble(ctx, cfg, refs, check, fits, norms, floor) -> dict:
         },
         "notes": NOTES,
     }
+
+
+FIT_RESIDUAL_UNITS = "(model − reference)/(0.02·|reference| + 0.01·mean|reference|) per pixel and channel"
+
+
+def write_fitted(ctx, cfg, refs, fits) -> list[dict]:
+    """fitted/fog-<case>.json per fitted elevation (``rtfit.fitted/1``: b, c, C₀, C₁ with units, bounds and
+    the held g, the residual, the domain and the GLSL/HLSL of the height-fog ``phase`` kernel); returns the
+    results' ``fits`` records."""
+    m = FOG_METHODS["phase"]
+    docs = []
+    for e, fit in fits.items():
+        cid = case_id(e)
+        full = dict(fit, parameters={**fit["parameters"], "g": {"value": float(cfg["fog_g"])}})
+        g = refs[e]["geometry"]
+        file = f"fitted/fog-{cid}.json"
+        entry = fitfiles.method_entry(
+            m,
+            full,
+            label=f"{m.label}, sun {e:g}°",
+            case=cid,
+            domain={
+                "distance": (float(g["distance"].min()), float(g["distance"].max()), "m"),
+                "z1": (float(g["z1"].min()), float(g["z1"].max()), "m"),
+            },
+            residual_units=FIT_RESIDUAL_UNITS,
+            data={"sun_elevation_deg": e, "held": {"g": cfg["fog_g"]}},
+        )
+        fitfiles.write_fitted(
+            ctx.out_dir / file,
+            fitfiles.FittedFile(
+                format=fitfiles.FORMAT,
+                title=f"aerial perspective: height-fog blend fitted to atmosphere + fog at sun {e:g}°",
+                provenance=fitfiles.provenance(ctx, "aerial-perspective"),
+                methods=[entry],
+            ),
+        )
+        docs.append(
+            {
+                "id": f"fog-{cid}",
+                "label": f"height-fog phase blend fitted at sun {e:g}° (g held at {cfg['fog_g']:g})",
+                "model": m.formula,
+                "parameters": fit["parameters"],
+                "rms_residual": fit.get("rms_residual"),
+                "n_residuals": fit.get("n_residuals"),
+                "converged": fit.get("converged"),
+                "at_bound": fit.get("at_bound"),
+                "file": file,
+            }
+        )
+    return docs
 
 
 # =============================================================================================== checks
@@ -626,11 +665,13 @@ def make_figures(out, cfg, refs, fits, budget) -> list[dict]:
     fitted = [b["fitted"] if b["fitted"] is not None else np.nan for b in budget]
     ax.plot(x, fitted, "o", color="black", mfc="none", label="fitted b, c, colour")
     ax.axhline(0.0, color="grey", lw=0.5)
+    top = max([b["total"] for b in budget] + [float(np.max(pos))] + [1e-3])
+    ax.set_ylim(top=3.0 * top)
     ax.set_xticks(x, [f"{b['sun_elevation_deg']:g}°" for b in budget])
     ax.set_xlabel("sun elevation")
     ax.set_ylabel("RMS error / mean reference radiance")
     ax.set_yscale("symlog", linthresh=1e-3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="lower left")
     ax.set_title("aerial perspective: error budget of the fog blend per sun elevation")
     path = F.save_figure(fig, fdir / "error_budget.png")
     figs.append(

@@ -39,7 +39,9 @@ Variants (`aerial_scattering`'s outputs, one pass over the same nodes)
 * ``S`` — the integral above (the exact single scattering);
 * ``S_sun_frozen`` — T_sun,c(x) replaced by its value at the camera (the sun attenuated as at the camera
   all along the ray: simplification (1) of docs/aerial-perspective.md);
-* ``S_grey`` — one extinction for every channel (that of the ``grey_channel``, 550 nm) in T and T_sun;
+* ``S_grey`` — one extinction for every channel (that of the ``grey_channel``, 550 nm) in the view
+  transmittance T (the sun's path stays per channel: its reddening is the sky model's, spectral in the seed
+  too); simplification (3) alone;
 * ``T``, ``T_grey`` — T_c(D) per channel and with the grey extinction;
 * ``J_cam`` — the source function at the camera for the ray's direction (the constant a blend would need).
 
@@ -222,11 +224,10 @@ def aerial_scattering(
                 tv = ops.exp(-(br[c] * od_r + bme[c] * od_m + od_f))
                 tvg = ops.exp(-(br[gc] * od_r + bme[gc] * od_m + od_f))
                 ts = ops.select(occ, 0.0, ops.exp(-tau_sun[c]))
-                tsg = ops.select(occ, 0.0, ops.exp(-tau_sun[gc] + 0.0 * tau_sun[c]))
                 ss = br[c] * rr * p_r + bm[c] * rm * p_m + sf * p_f
                 S[c] = S[c] + w * E0[c] * tv * ts * ss
                 S_frozen[c] = S_frozen[c] + w * E0[c] * tv * cam_sun[c] * ss
-                S_grey[c] = S_grey[c] + w * E0[c] * tvg * tsg * ss
+                S_grey[c] = S_grey[c] + w * E0[c] * tvg * ts * ss
         acc_r = acc_r + half * pr_sum
         acc_m = acc_m + half * pm_sum
     end_z = ops.maximum(z0 + distance * dz, 0.0)
