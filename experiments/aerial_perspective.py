@@ -556,8 +556,8 @@ def reference_checks(check: dict) -> list[dict]:
     ]
     atm = AtmosphereParams()
     spec = library_atmosphere(sun_elevation_deg=20.0, viewer_altitude_m=50.0)
-    el = np.radians(np.array([2.0, 5.0, 10.0, 30.0, 60.0]))
-    az = np.radians(np.array([0.0, 90.0, 180.0]))
+    el = np.radians(np.array([2.0, 10.0, 60.0]))
+    az = np.radians(np.array([0.0, 150.0]))
     A, E = np.meshgrid(az, el)
     d = np.stack([np.cos(E) * np.cos(A), np.cos(E) * np.sin(A), np.sin(E)], -1).reshape(-1, 3)
     ref = single_scattering_quadrature(spec, d, steps=2000)
@@ -566,7 +566,7 @@ def reference_checks(check: dict) -> list[dict]:
     dist = -r0 * mu + np.sqrt(r0 * r0 * mu * mu + atm.top_radius_m**2 - r0 * r0)
     q = aerial_scattering(
         NUMPY_OPS, 50.0, d[:, 0], d[:, 1], d[:, 2], dist,
-        atmosphere=atm, sun=sun_direction(20.0, 90.0), fog=FogLayer(0.0, 1e-3, 0.0), panels=64,
+        atmosphere=atm, sun=sun_direction(20.0, 90.0), fog=FogLayer(0.0, 1e-3, 0.0), panels=32,
     )  # fmt: skip
     mine = np.stack(q["S"], -1)
     rel = float(np.max(np.abs(mine / ref - 1.0)))
@@ -604,8 +604,9 @@ def extreme_checks(cfg: dict) -> list[dict]:
                 atmosphere=atm,
                 sun=sun,
                 fog=fog,
-                panels=4 * cfg["panels"],
-            )  # fmt: skip  (4× the panels: t = D·u³ must resolve a 1 m mean free path)
+                # 4× the panels where the limit is compared (t = D·u³ must resolve a 1 m mean free path)
+                panels=4 * cfg["panels"] if name.startswith("huge") and e > 0 else 8,
+            )
             vals = np.concatenate([np.ravel(v) for k in q for v in q[k]])
             ok = bool(np.all(np.isfinite(vals)))
             out.append(
