@@ -55,6 +55,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import drjit as dr
 import numpy as np
 
 from .arrays import check_scalar
@@ -193,10 +194,13 @@ def aerial_scattering(
     S = [zero for _ in range(C)]
     S_frozen = [zero for _ in range(C)]
     S_grey = [zero for _ in range(C)]
+    device = ops.name == "drjit"
     for k in range(panels):
         ua, ub = k / panels, (k + 1) / panels
-        ta = distance * ua**3
-        tb = distance * ub**3
+        if device:  # one compiled kernel for every panel: the panel bounds as opaque values, not literals
+            ua, ub = dr.opaque(type(zero), ua), dr.opaque(type(zero), ub)
+        ta = distance * ua * ua * ua
+        tb = distance * ub * ub * ub
         half = 0.5 * (tb - ta)
         pr_sum, pm_sum = zero, zero
         for xn, wn in zip(_GL4_X, _GL4_W, strict=True):
@@ -230,6 +234,8 @@ def aerial_scattering(
                 S_grey[c] = S_grey[c] + w * E0[c] * tvg * ts * ss
         acc_r = acc_r + half * pr_sum
         acc_m = acc_m + half * pm_sum
+        if device:  # evaluate panel by panel: one mid-size kernel instead of a graph of all panels
+            dr.eval(acc_r, acc_m, S, S_frozen, S_grey)
     end_z = ops.maximum(z0 + distance * dz, 0.0)
     od_f = height_fog_optical_depth(z0 + zero, end_z, distance + zero, b, cf)
     T = [ops.exp(-(br[c] * acc_r + bme[c] * acc_m + od_f)) for c in range(C)]
