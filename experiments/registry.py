@@ -108,6 +108,13 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c, colour.",
         ),
         ExperimentSpec(
+            "soft-particles",
+            "rtfit.experiments.soft_particles",
+            "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",
+            "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned "
+            "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
+        ),
+        ExperimentSpec(
             "environment-maps",
             "rtfit.experiments.environment_maps",
             "Pre-convolved and localised environment maps, distance impostors vs exact traces in a room",
