@@ -47,7 +47,15 @@ from rtfit.reference.nishita_sky import library_atmosphere, single_scattering_qu
 
 from . import figures as F
 from . import fitted as fitfiles
-from .cost import baseline_row, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import (
+    attach_costs,
+    baseline_row,
+    bench_backend,
+    comparison_row,
+    memory_baseline,
+    time_drjit,
+    time_numpy,
+)
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
 
@@ -462,6 +470,9 @@ def assemble(ctx, cfg, refs, check, fits, norms, floor) -> dict:
     figs = make_figures(ctx.out_dir, cfg, refs, fits, budget)
     fit_docs = write_fitted(ctx, cfg, refs, fits)
     costs = cost_rows(ctx, cfg)
+    # the blend rows cost one fog pass per pixel; the integral rows have no real-time cost (see `bench`)
+    blend_rows = {"camera-source", "horizon-colour", "horizon-grey", "fitted"}
+    attach_costs(case_docs, costs, key=lambda ap: "horizon-grey" if ap["method"] in blend_rows else None)
     return {
         "summary": summary(budget, checks),
         "config": cfg,
