@@ -101,6 +101,13 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
         ),
         ExperimentSpec(
+            "aerial-perspective",
+            "rtfit.experiments.aerial_perspective",
+            "Aerial perspective matched to the sky: the fog blend under a Nishita atmosphere + height fog",
+            "Single scattering through atmosphere and fog by quadrature (checked against Mitsuba) vs the "
+            "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c, colour.",
+        ),
+        ExperimentSpec(
             "soft-particles",
             "rtfit.experiments.soft_particles",
             "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",

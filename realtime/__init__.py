@@ -14,6 +14,8 @@ Modules:
     phase       phase functions (Rayleigh, Henyey–Greenstein, Cornette–Shanks), one text for all media.
     ambient_aperture  ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection
                 and shading (docs/ambient-aperture.md).
+    aerial_perspective  single scattering through the Nishita atmosphere + height fog together, the
+                seed's horizon-matched fog colour (docs/aerial-perspective.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
     environment_maps  pre-convolved and localised cube maps, cosine look-up, distance-impostor Hit
                 (docs/environment-maps.md).
@@ -57,6 +59,7 @@ Modules:
 # Star imports re-export each module's ``__all__`` (tests/test_layering.py checks that every public
 # function of every module is in its ``__all__`` and that no two modules export the same name).
 from . import arrays
+from .aerial_perspective import *  # noqa: F403
 from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
@@ -97,6 +100,7 @@ MODULES = (
     "sdf_occlusion",
     "nishita_sky",
     "volumetric_lightning",
+    "aerial_perspective",
     "soft_particles",
     "light_cones",
     "parallax_occlusion",
