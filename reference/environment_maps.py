@@ -38,6 +38,7 @@ __all__ = [
     "WALL_LEVELS",
     "box_exit",
     "lobe_integral_mc",
+    "path_room_scene",
     "polygon_irradiance",
     "room_radiance",
     "sample_lobe",
@@ -391,7 +392,9 @@ def _wall_emitter(mi, k: int, kind: str) -> dict:
     }
 
 
-def _path_scene(variant: str, centre, radius: float, material: str, kind: str):
+def path_room_scene(variant: str, centre, radius: float, material: str, kind: str):
+    """(mi, scene): the room's six walls as `EMITTER_TEXEL` bitmap emitters (`room_radiance` ``kind``) and a
+    ``material`` sphere (`SPHERE_MATERIALS`); cached per arguments."""
     mi = use_variant(variant)
     key = ("path", mi.variant(), tuple(float(c) for c in centre), float(radius), material, kind)
     if key not in _SCENES:
@@ -439,7 +442,7 @@ def sphere_radiance_pass(
     o = o.reshape(-1, 3)
     if spp < 2:
         raise ValueError("spp must be >= 2 (the variance needs two samples)")
-    mi, scene = _path_scene(variant, centre, radius, material, kind)
+    mi, scene = path_room_scene(variant, centre, radius, material, kind)
     integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth), "rr_depth": int(max_depth)})
     t0 = time.perf_counter()
     s = np.zeros((len(d), 1))
