@@ -272,16 +272,15 @@ def _pinned_residual(residual_fn: Callable, names: tuple, pinned: tuple) -> Call
     """``residual_fn`` with the ``pinned`` parameters taken from ``args[1]`` (one object per key: the jitted
     solve is reused)."""
     key = (residual_fn, names, pinned)
-    fn = _PINNED.get(key)
-    if fn is None:
+    cached = _PINNED.get(key)
+    if cached is not None:
+        return cached
 
-        def fn(p, a):
-            inner, fixed = a
-            return residual_fn(
-                {nm: (fixed[pinned.index(nm)] if nm in pinned else p[nm]) for nm in names}, inner
-            )
+    def fn(p, a):
+        inner, fixed = a
+        return residual_fn({nm: (fixed[pinned.index(nm)] if nm in pinned else p[nm]) for nm in names}, inner)
 
-        _PINNED[key] = fn
+    _PINNED[key] = fn
     return fn
 
 
