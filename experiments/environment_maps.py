@@ -40,6 +40,8 @@ from rtfit.fitting import compute_metrics, sidak_threshold
 from rtfit.realtime import DRJIT_OPS, NUMPY_OPS, set_default_backend, sphere_light_irradiance
 from rtfit.realtime import environment_maps as em
 from rtfit.reference import environment_maps as room
+from rtfit.reference.cache import PassEntry, array_digest, pool_passes
+from rtfit.reference.estimators import sub_seed
 
 from . import figures as F
 from .cost import attach_costs, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
@@ -610,9 +612,6 @@ def sphere_reference(ctx, cfg, sid: str, paths: dict, material: str, kind: str, 
     """Mitsuba ``path`` radiance along the sphere pixels' camera rays through the pass cache: (mean, stderr,
     total spp, seconds rendered)."""
     import mitsuba as mi  # (its version is part of the key)
-
-    from rtfit.reference.cache import PassEntry, array_digest, pool_passes
-    from rtfit.reference.estimators import sub_seed
 
     centre = SPHERES[sid][1]
     pass_spp = min(cfg["sphere_pass_spp"], spp)

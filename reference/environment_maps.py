@@ -24,10 +24,12 @@ E = Σ_walls L_w·(Lambert's polygon formula of the wall clipped to the hemisphe
 from __future__ import annotations
 
 import math
+import time
 
 import drjit as dr
 import numpy as np
 
+from .estimators import PassResult, channel_moments, chunk_ranges, mean_var, sub_seed
 from .variants import use_variant
 
 __all__ = [
@@ -433,10 +435,6 @@ def sphere_radiance_pass(
     (W/(m²·sr), grey: channel R). ``max_depth`` counts interfaces (camera → sphere is 1); Russian roulette is
     off below it (``rr_depth = max_depth``), so every path has weight 1 and the noise is only the choice
     between reflection and refraction at each glass interface (none for the mirror)."""
-    import time
-
-    from .estimators import PassResult, channel_moments, chunk_ranges, mean_var, sub_seed
-
     o = np.ascontiguousarray(np.broadcast_to(np.asarray(origins, np.float64), np.shape(dirs)), np.float32)
     d = np.ascontiguousarray(np.asarray(dirs, np.float64), np.float32).reshape(-1, 3)
     o = o.reshape(-1, 3)
