@@ -862,8 +862,8 @@ def path_figures(out, cfg, pt: dict) -> list[dict]:
         {
             "file": path.name,
             "caption": "Radiance against Mitsuba path renders of a perfect-mirror and a glass sphere "
-            "(n = 1.5): the secant search vs iterations per map size, classic environment mapping, the exact-hit bound "
-            "and the renders' noise floor (floors below 1e-5 drawn at 1e-5).",
+            "(n = 1.5): the secant search vs iterations per map size, classic environment mapping, the "
+            "exact-hit bound and the renders' noise floor (floors below 1e-5 drawn at 1e-5).",
         }
     ]
 
