@@ -78,28 +78,89 @@ def chunk_ranges(n_elements: int, spp: int):
         yield start, min(n_elements, start + per)
 
 
+class PassMoments:
+    """Per-element float64 sums Σ v and Σ v² of ``channels`` per-lane values, accumulated **on the device**
+    over every chunk of a pass, then turned into the pass's mean and unbiased variance on the device and
+    read back to the host once (`result`).
+
+    Chunk k of a pass draws ``spp`` samples for each of its elements [a, b): lanes [i·spp, (i + 1)·spp)
+    are element a + i's samples. `add` sums them in the kernel that computes them: per-lane float64 atomic
+    adds (``dr.scatter_reduce``, Dr.Jit's symbolic block reduction: combined within a SIMD packet or warp
+    first; on the CPU, into one copy of the sums per worker thread, added after the launch) into the pass's
+    own arrays at offset a. The offset is an opaque device value, not a literal of the kernel text, so every
+    chunk of every pass of one size and ``spp`` is the same kernel: traced, and found in Dr.Jit's kernel
+    cache, once. No per-lane array reaches memory, and nothing reaches the host until the pass is done:
+    per chunk one kernel launch; per pass one more (mean and variance of every element, packed into one
+    float64 array) and one device→host copy.
+
+    Precision: float64 per lane, as before this class existed (issue 21 §3 moved the sums off the host;
+    they were copied to NumPy per chunk and per channel, stacked, and reduced to mean and variance there,
+    ~55 ns per pixel on an H200). The sums are the same float64 additions; atomics from different threads
+    (CPU: an element's lanes spanning two threads' work blocks) or warps (GPU) land in an unspecified
+    order, so a re-render can differ by ~1 ulp of float64 (1e-16 relative; a pass loaded from the cache
+    is bit-identical). mean = Σv/n and var = max(Σv² − Σv·mean, 0)/(n − 1) are the same IEEE operations
+    NumPy did (divisors opaque: Dr.Jit would turn a division by a literal into a multiplication by its
+    reciprocal); a backend that fuses Σv·mean into the subtraction (an FMA) changes var by at most
+    1 ulp of Σv² — within the 3.2e-11 relative bound the reordered sums already carry (docs/benchmarks.md).
+    Passes are stored in float32 (`rtfit.reference.cache`), far coarser than either."""
+
+    def __init__(self, mi, n_elements: int, channels: int, spp: int):
+        self.mi, self.n, self.channels, self.spp = mi, int(n_elements), int(channels), int(spp)
+        self.s = [dr.zeros(mi.Float64, self.n) for _ in range(self.channels)]
+        self.q = [dr.zeros(mi.Float64, self.n) for _ in range(self.channels)]
+        dr.make_opaque(self.s, self.q)  # device memory the chunks' atomics add into
+
+    def add(self, first: int, values) -> None:
+        """Add one chunk: ``values`` (one per-lane Float array per channel) are the samples of elements
+        [first, first + lanes/spp). Launches the kernel that computes them (one launch)."""
+        if len(values) != self.channels:
+            raise ValueError(f"expected {self.channels} channels (got {len(values)})")
+        mi = self.mi
+        lanes = dr.width(values[0])
+        if lanes % self.spp or first < 0 or first + lanes // self.spp > self.n:
+            raise ValueError(f"a chunk of {lanes} lanes at element {first} overruns {self.n} × {self.spp}")
+        idx = dr.arange(mi.UInt32, lanes) // self.spp + dr.opaque(mi.UInt32, first)
+        for c, v in enumerate(values):
+            v64 = mi.Float64(v)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.s[c], v64, idx)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.q[c], v64 * v64, idx)
+        dr.eval()  # one kernel: the samples and all 2·C sums (the pending scatters)
+
+    def sums(self) -> tuple[np.ndarray, np.ndarray]:
+        """Σ v and Σ v², each (elements, channels) float64, in one device→host copy."""
+        i = dr.arange(self.mi.UInt32, self.n) * self.channels
+        packed = dr.empty(self.mi.Float64, 2 * self.n * self.channels)
+        for c in range(self.channels):
+            dr.scatter(packed, self.s[c], i + c)
+            dr.scatter(packed, self.q[c], i + (self.n * self.channels + c))
+        a = np.asarray(packed, dtype=np.float64).reshape(2, self.n, self.channels)
+        return a[0], a[1]
+
+    def result(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-element mean and unbiased sample variance, each (elements, channels) float64: computed on
+        the device (`mean_var`'s formula), packed into one array, copied to the host once."""
+        mi = self.mi
+        n = dr.opaque(mi.Float64, self.spp)
+        n1 = dr.opaque(mi.Float64, self.spp - 1)
+        i = dr.arange(mi.UInt32, self.n) * self.channels
+        packed = dr.empty(mi.Float64, 2 * self.n * self.channels)  # every slot is written below
+        for c in range(self.channels):
+            s, q = self.s[c], self.q[c]
+            mean = s / n
+            var = dr.maximum(q - s * mean, 0.0) / n1
+            dr.scatter(packed, mean, i + c)
+            dr.scatter(packed, var, i + (self.n * self.channels + c))
+        a = np.asarray(packed, dtype=np.float64).reshape(2, self.n, self.channels)
+        return a[0], a[1]
+
+
 def channel_moments(mi, dr, channels, spp: int):
     """Per-element float64 sums Σ v and Σ v² of each per-lane value in ``channels`` (lanes grouped by
-    ``spp``: lanes [i·spp, (i + 1)·spp) are element i's samples); arrays of shape (elements, channels).
-
-    The sums are symbolic block reductions (``dr.block_sum(..., mode="symbolic")``: per-lane float64
-    atomic adds into the element's slot, combined within a SIMD packet or warp first), so they are part
-    of the kernel that computes the samples: one kernel launch per chunk, no per-lane array in memory.
-    The evaluated reduction (the default for arrays under 1 GiB) would first store every lane's value,
-    then launch one float64 conversion kernel and one reduction per sum (7 launches for RGB and ~2.2 GB
-    of memory traffic per 2^24 lanes): 0.75× `mi.render`'s throughput on an H200 (issue 21).
-    Precision is unchanged (float64 per lane). Only the order of the additions differs: atomics from different
-    threads (CPU: where an element's lanes span two threads' work blocks) or warps (GPU) of one element land
-    in an unspecified order, so Σ v and Σ v² can differ from run to run by ~1 ulp of float64 (1e-16
-    relative; a re-render is not bit-identical, a pass loaded from the cache is). Passes are stored in float32
-    (`rtfit.reference.cache`), far coarser than this."""
-    vs = [mi.Float64(v) for v in channels]
-    sums = [dr.block_sum(v, spp, mode="symbolic") for v in vs]
-    sqs = [dr.block_sum(v * v, spp, mode="symbolic") for v in vs]
-    dr.eval(sums, sqs)  # one kernel: the samples and all 2·C sums
-    s = np.stack([np.asarray(x, dtype=np.float64) for x in sums], axis=-1)
-    q = np.stack([np.asarray(x, dtype=np.float64) for x in sqs], axis=-1)
-    return s, q
+    ``spp``), arrays of shape (elements, channels): one `PassMoments` chunk (one kernel launch, one
+    device→host copy). Passes with several chunks use `PassMoments` directly (one copy per pass)."""
+    acc = PassMoments(mi, dr.width(channels[0]) // spp, len(channels), spp)
+    acc.add(0, channels)
+    return acc.sums()
 
 
 def moments(mi, dr, value, spp: int):
@@ -109,6 +170,7 @@ def moments(mi, dr, value, spp: int):
 
 
 def mean_var(s: np.ndarray, q: np.ndarray, n: int):
+    """Mean Σv/n and unbiased variance max(Σv² − Σv·mean, 0)/(n − 1) of n samples from their sums."""
     mean = s / n
     var = np.maximum(q - s * mean, 0.0) / (n - 1)
     return mean, var
@@ -116,7 +178,8 @@ def mean_var(s: np.ndarray, q: np.ndarray, n: int):
 
 def _pixel_rays(mi, dr, sensor, width: int, first_pixel: int, n_pixels: int, spp: int):
     idx = dr.arange(mi.UInt32, n_pixels * spp)
-    pix = idx // spp + first_pixel
+    # The first pixel is opaque (a device value): as a literal, every chunk of a pass was its own kernel.
+    pix = idx // spp + dr.opaque(mi.UInt32, first_pixel)
     x = mi.Float(pix % width)
     y = mi.Float(pix // width)
     film_size = sensor.film().crop_size()
@@ -143,8 +206,7 @@ def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
         mean, var = _radiance_scalar(mi, mi_scene, sensor, integrator, width, height, spp, seed)
         return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
     n_pixels = width * height
-    s = np.empty((n_pixels, 3))
-    q = np.empty((n_pixels, 3))
+    acc = PassMoments(mi, n_pixels, 3, spp)
     sampler = mi.load_dict({"type": "independent"})
     media = counters(mi_scene)
     for k, (a, b) in enumerate(chunk_ranges(n_pixels, spp)):
@@ -154,9 +216,10 @@ def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
             if media:  # lane index for the media's event counts (rtfit.reference.budget)
                 ray.time = mi.Float(dr.arange(mi.UInt32, (b - a) * spp))
             value, _, _ = integrator.sample(mi_scene, sampler, ray, sensor.get_medium(), True)
-            s[a:b], q[a:b] = moments(mi, dr, value * weight, spp)
+            value = value * weight
+            acc.add(a, [value[c] for c in range(3)])
             armed.check()
-    mean, var = mean_var(s, q, spp)
+    mean, var = acc.result()
     shape = (height, width, 3)
     return PassResult(mean.reshape(shape), var.reshape(shape), spp, seed, time.perf_counter() - t0)
 
@@ -256,8 +319,7 @@ def irradiance_pass(
     points = np.ascontiguousarray(points, dtype=np.float32)
     normals = np.ascontiguousarray(normals, dtype=np.float32)
     n_points = len(points)
-    s = np.empty((n_points, 3))
-    q = np.empty((n_points, 3))
+    acc = PassMoments(mi, n_points, 3, spp)
     sampler = mi.load_dict({"type": "independent"})
     for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
@@ -268,8 +330,8 @@ def irradiance_pass(
             value = _direct_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         else:
             value = _global_irradiance(mi, dr, mi_scene, sampler, p, nrm)
-        s[a:b], q[a:b] = moments(mi, dr, value, spp)
-    mean, var = mean_var(s, q, spp)
+        acc.add(a, [value[c] for c in range(3)])
+    mean, var = acc.result()
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 
