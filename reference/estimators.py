@@ -84,73 +84,92 @@ class PassMoments:
     read back to the host once (`result`).
 
     Chunk k of a pass draws ``spp`` samples for each of its elements [a, b): lanes [i·spp, (i + 1)·spp)
-    are element a + i's samples. `add` sums them in the kernel that computes them: per-lane float64 atomic
-    adds (``dr.scatter_reduce``, Dr.Jit's symbolic block reduction: combined within a SIMD packet or warp
-    first; on the CPU, into one copy of the sums per worker thread, added after the launch) into the pass's
-    own arrays at offset a. The offset is an opaque device value, not a literal of the kernel text, so every
-    chunk of every pass of one size and ``spp`` is the same kernel: traced, and found in Dr.Jit's kernel
-    cache, once. No per-lane array reaches memory, and nothing reaches the host until the pass is done:
-    per chunk one kernel launch; per pass one more (mean and variance of every element, packed into one
-    float64 array) and one device→host copy.
+    are element a + i's samples. `add` sums them inside the kernel that computes them (symbolic block
+    reductions, ``dr.block_sum(..., mode="symbolic")``: per-lane float64 atomic adds into the element's
+    slot, combined within a SIMD packet or warp first; on the CPU into one copy of the chunk's sums per
+    worker thread, added after the launch), then copies the chunk's sums into the pass's arrays at offset
+    a (a plain scatter: each element belongs to one chunk). The offset is an opaque device value, not a
+    literal of the kernel text, so every chunk of every pass with one ``spp`` is the same kernel, found in
+    Dr.Jit's kernel cache. Per chunk: the sampling kernel, the CPU's reduction of its per-thread copies,
+    one small copy kernel; per pass: one kernel for the mean and variance of every element, packed into one
+    float64 array, and one device→host copy. No per-lane array reaches memory and no per-element work
+    happens on the host (issue 21 §3: the sums were copied to NumPy per chunk and per channel, stacked and
+    reduced there, ~55 ns per pixel on an H200).
 
-    Precision: float64 per lane, as before this class existed (issue 21 §3 moved the sums off the host;
-    they were copied to NumPy per chunk and per channel, stacked, and reduced to mean and variance there,
-    ~55 ns per pixel on an H200). The sums are the same float64 additions; atomics from different threads
-    (CPU: an element's lanes spanning two threads' work blocks) or warps (GPU) land in an unspecified
-    order, so a re-render can differ by ~1 ulp of float64 (1e-16 relative; a pass loaded from the cache
-    is bit-identical). mean = Σv/n and var = max(Σv² − Σv·mean, 0)/(n − 1) are the same IEEE operations
-    NumPy did (divisors opaque: Dr.Jit would turn a division by a literal into a multiplication by its
-    reciprocal); a backend that fuses Σv·mean into the subtraction (an FMA) changes var by at most
-    1 ulp of Σv² — within the 3.2e-11 relative bound the reordered sums already carry (docs/benchmarks.md).
-    Passes are stored in float32 (`rtfit.reference.cache`), far coarser than either."""
+    Precision: float64 per lane; the same reduction as before this class existed, so the sums are the same
+    float64 additions. Atomics from different threads (CPU: an element's lanes spanning two threads' work
+    blocks) or warps (GPU) land in an unspecified order, so a re-render can differ by ~1 ulp of float64
+    (1e-16 relative; a pass loaded from the cache is bit-identical). mean = Σv/n and
+    var = max(Σv² − Σv·mean, 0)/(n − 1) are the operations NumPy did (`mean_var`; the divisors are opaque,
+    since Dr.Jit turns a division by a literal into a multiplication by its reciprocal): bit-identical on
+    the CPU (measured); a GPU compiler that fuses Σv·mean into the subtraction (an FMA) changes var by at
+    most 1 ulp of Σv², within the bound the reordered sums already carry (docs/benchmarks.md). Passes are
+    stored in float32 (`rtfit.reference.cache`), far coarser than either."""
 
     def __init__(self, mi, n_elements: int, channels: int, spp: int):
         self.mi, self.n, self.channels, self.spp = mi, int(n_elements), int(channels), int(spp)
         self.s = [dr.zeros(mi.Float64, self.n) for _ in range(self.channels)]
         self.q = [dr.zeros(mi.Float64, self.n) for _ in range(self.channels)]
-        dr.make_opaque(self.s, self.q)  # device memory the chunks' atomics add into
 
     def add(self, first: int, values) -> None:
         """Add one chunk: ``values`` (one per-lane Float array per channel) are the samples of elements
-        [first, first + lanes/spp). Launches the kernel that computes them (one launch)."""
+        [first, first + lanes/spp). Launches the kernel that computes them."""
         if len(values) != self.channels:
             raise ValueError(f"expected {self.channels} channels (got {len(values)})")
         mi = self.mi
         lanes = dr.width(values[0])
-        if lanes % self.spp or first < 0 or first + lanes // self.spp > self.n:
+        m = lanes // self.spp
+        if lanes % self.spp or first < 0 or first + m > self.n:
             raise ValueError(f"a chunk of {lanes} lanes at element {first} overruns {self.n} × {self.spp}")
-        idx = dr.arange(mi.UInt32, lanes) // self.spp + dr.opaque(mi.UInt32, first)
-        for c, v in enumerate(values):
-            v64 = mi.Float64(v)
-            dr.scatter_reduce(dr.ReduceOp.Add, self.s[c], v64, idx)
-            dr.scatter_reduce(dr.ReduceOp.Add, self.q[c], v64 * v64, idx)
-        dr.eval()  # one kernel: the samples and all 2·C sums (the pending scatters)
+        vs = [mi.Float64(v) for v in values]
+        sums = [dr.block_sum(v, self.spp, mode="symbolic") for v in vs]
+        sqs = [dr.block_sum(v * v, self.spp, mode="symbolic") for v in vs]
+        if m == self.n:  # the whole pass in one chunk: its sums are the pass's
+            self.s, self.q = sums, sqs
+            dr.eval(self.s, self.q)  # one kernel: the samples and all 2·C sums
+            return
+        dr.eval(sums, sqs)  # one kernel: the samples and all 2·C sums
+        dr.make_opaque(self.s, self.q)
+        idx = dr.arange(mi.UInt32, m) + dr.opaque(mi.UInt32, first)
+        for c in range(self.channels):
+            dr.scatter(self.s[c], sums[c], idx)
+            dr.scatter(self.q[c], sqs[c], idx)
+        dr.eval()  # the pending scatters: one kernel
+
+    def _packed(self, stats):
+        """One float64 array of 2·elements·channels values: ``stats(s, q)``'s two results for every
+        element and channel, [first][element][channel] then [second][element][channel]; one kernel."""
+        mi, n, ch = self.mi, self.n, self.channels
+        j = dr.arange(mi.UInt32, 2 * n * ch)
+        half, rest = j // (n * ch), j % (n * ch)
+        e, c = rest // ch, rest % ch
+        s = dr.zeros(mi.Float64, dr.width(j))
+        q = dr.zeros(mi.Float64, dr.width(j))
+        for k in range(ch):  # each lane reads its own channel's arrays
+            s = dr.select(c == k, dr.gather(mi.Float64, self.s[k], e), s)
+            q = dr.select(c == k, dr.gather(mi.Float64, self.q[k], e), q)
+        first, second = stats(s, q)
+        packed = dr.select(half == 0, first, second)
+        a = np.asarray(packed, dtype=np.float64)  # one kernel, one device→host copy
+        return a.reshape(2, n, ch)
 
     def sums(self) -> tuple[np.ndarray, np.ndarray]:
         """Σ v and Σ v², each (elements, channels) float64, in one device→host copy."""
-        i = dr.arange(self.mi.UInt32, self.n) * self.channels
-        packed = dr.empty(self.mi.Float64, 2 * self.n * self.channels)
-        for c in range(self.channels):
-            dr.scatter(packed, self.s[c], i + c)
-            dr.scatter(packed, self.q[c], i + (self.n * self.channels + c))
-        a = np.asarray(packed, dtype=np.float64).reshape(2, self.n, self.channels)
+        a = self._packed(lambda s, q: (s, q))
         return a[0], a[1]
 
     def result(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-element mean and unbiased sample variance, each (elements, channels) float64: computed on
-        the device (`mean_var`'s formula), packed into one array, copied to the host once."""
+        """Per-element mean and unbiased sample variance, each (elements, channels) float64: `mean_var`'s
+        formula evaluated on the device, packed into one array, copied to the host once."""
         mi = self.mi
         n = dr.opaque(mi.Float64, self.spp)
         n1 = dr.opaque(mi.Float64, self.spp - 1)
-        i = dr.arange(mi.UInt32, self.n) * self.channels
-        packed = dr.empty(mi.Float64, 2 * self.n * self.channels)  # every slot is written below
-        for c in range(self.channels):
-            s, q = self.s[c], self.q[c]
+
+        def stats(s, q):
             mean = s / n
-            var = dr.maximum(q - s * mean, 0.0) / n1
-            dr.scatter(packed, mean, i + c)
-            dr.scatter(packed, var, i + (self.n * self.channels + c))
-        a = np.asarray(packed, dtype=np.float64).reshape(2, self.n, self.channels)
+            return mean, dr.maximum(q - s * mean, 0.0) / n1
+
+        a = self._packed(stats)
         return a[0], a[1]
 
 

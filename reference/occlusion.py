@@ -65,7 +65,7 @@ import numpy as np
 from .build import camera_dict
 from .cache import PassEntry, array_digest, pool_passes
 from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
-from .estimators import MAX_LANES, PassResult, channel_moments, mean_var, sub_seed
+from .estimators import MAX_LANES, PassMoments, PassResult, sub_seed
 
 QUANTITIES = (
     "ao",
@@ -237,8 +237,7 @@ def occlusion_pass(
     normals = np.ascontiguousarray(normals / ln, dtype=np.float32)
     t0 = time.perf_counter()
     n_pts = len(points)
-    s = np.empty(n_pts)
-    q = np.empty(n_pts)
+    acc = PassMoments(mi, n_pts, 1, spp)
     per = max(1, MAX_LANES // spp)
     for c, a in enumerate(range(0, n_pts, per)):
         b = min(n_pts, a + per)
@@ -256,10 +255,9 @@ def occlusion_pass(
         v = _estimate(
             mi, dr, mi_scene, rng, p, n, quantity, float(max_distance), float(albedo), skyfn, distance_weight
         )
-        sv, qv = channel_moments(mi, dr, [v], spp)
-        s[a:b], q[a:b] = sv[:, 0], qv[:, 0]
-    mean, var = mean_var(s, q, spp)
-    return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
+        acc.add(a, [v])
+    mean, var = acc.result()
+    return PassResult(mean[:, 0], var[:, 0], spp, seed, time.perf_counter() - t0)
 
 
 def _sunsky_escape_value(mi, dr, sky: SunskySky):
