@@ -13,7 +13,8 @@ Every pass returns, per element, the sample mean and the unbiased sample varianc
 iid samples (Mitsuba's ``independent`` sampler: stratified samplers would bias that variance).
 Sums are taken in float64 on the device, so millions of samples never lose precision in a float32
 accumulator (mitsuba2 #82, mitsuba3 #1335); they are reduced inside the kernel that draws the samples
-(`channel_moments`), so a pass costs what ``mi.render`` costs for the same integrator.
+and stay on the device until the pass is done (`PassMoments`: the mean and variance are computed there
+and read back in one copy per pass), so a pass costs what ``mi.render`` costs for the same integrator.
 
 Irradiance probes estimate E(x, n) = ∫_Ω L_i(x, ω) max(n·ω, 0) dω at given points and normals
 with Mitsuba's own emitter sampling and ray tracing: emitter sampling and cosine-weighted
@@ -340,11 +341,12 @@ def irradiance_pass(
     n_points = len(points)
     acc = PassMoments(mi, n_points, 3, spp)
     sampler = mi.load_dict({"type": "independent"})
+    p_all, n_all = mi.Point3f(points.T), mi.Vector3f(normals.T)  # on the device once per pass
     for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
-        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp
-        p = dr.gather(mi.Point3f, mi.Point3f(points[a:b].T), idx)
-        nrm = dr.gather(mi.Vector3f, mi.Vector3f(normals[a:b].T), idx)
+        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + dr.opaque(mi.UInt32, a)
+        p = dr.gather(mi.Point3f, p_all, idx)
+        nrm = dr.gather(mi.Vector3f, n_all, idx)
         if transport == "direct":
             value = _direct_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         else:

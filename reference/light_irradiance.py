@@ -21,7 +21,7 @@ independent of the reference's (shared noise would let an approximation follow t
 read below the noise floor) and smaller.
 
 Each pass returns per point the sample mean and unbiased sample variance of ``spp`` iid samples of the 9
-values (E_u, E_s, E⊥; RGB each), float64 sums on the device (`estimators.moments`).
+values (E_u, E_s, E⊥; RGB each), float64 sums on the device (`estimators.PassMoments`).
 """
 
 from __future__ import annotations

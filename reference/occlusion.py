@@ -239,12 +239,13 @@ def occlusion_pass(
     n_pts = len(points)
     acc = PassMoments(mi, n_pts, 1, spp)
     per = max(1, MAX_LANES // spp)
+    p_all, n_all = mi.Point3f(points.T), mi.Vector3f(normals.T)  # on the device once per pass
     for c, a in enumerate(range(0, n_pts, per)):
         b = min(n_pts, a + per)
         lanes = (b - a) * spp
-        idx = dr.arange(mi.UInt32, lanes) // spp
-        p = dr.gather(mi.Point3f, mi.Point3f(points[a:b].T), idx)
-        n = dr.gather(mi.Vector3f, mi.Vector3f(normals[a:b].T), idx)
+        idx = dr.arange(mi.UInt32, lanes) // spp + dr.opaque(mi.UInt32, a)
+        p = dr.gather(mi.Point3f, p_all, idx)
+        n = dr.gather(mi.Vector3f, n_all, idx)
         # Per-lane initial state hashed with TEA (as Mitsuba's independent sampler does): PCG32 streams
         # that share an initial state and differ only in their increment are correlated.
         lane = dr.arange(mi.UInt32, lanes)
