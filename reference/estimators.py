@@ -114,7 +114,9 @@ class PassMoments:
 
     def add(self, first: int, values) -> None:
         """Add one chunk: ``values`` (one per-lane Float array per channel) are the samples of elements
-        [first, first + lanes/spp). Launches the kernel that computes them."""
+        [first, first + lanes/spp), all ``spp`` of them (chunks partition the elements: a chunk's sums
+        replace the elements' slots, they are not added to an earlier chunk's). Launches the kernel that
+        computes them."""
         if len(values) != self.channels:
             raise ValueError(f"expected {self.channels} channels (got {len(values)})")
         mi = self.mi
