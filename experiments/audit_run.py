@@ -67,10 +67,11 @@ from .atomic import atomic_directory
 from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_families, inspect_scene
 from .audit_ambient_occlusion import FAMILY as AMBIENT_OCCLUSION
 from .audit_diffuse import FAMILY as DIFFUSE
-from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_family import AuditFamily, AuditSetup, FamilyCase, by_name
 from .audit_height_fog import FAMILY as HEIGHT_FOG
 from .audit_irradiance_bases import FAMILY as IRRADIANCE_BASES
 from .audit_nishita_sky import FAMILY as NISHITA_SKY
+from .audit_sky_occlusion import APERTURE_FILL, SKY_OCCLUSION
 from .cost import time_drjit
 from .records import SCHEMA, Results, from_json, plain_json, to_json
 from .registry import ALIASES
@@ -92,9 +93,17 @@ __all__ = [
 
 log = logging.getLogger("rtfit.audit")
 
-AUDITED: dict[str, AuditFamily] = {
-    f.name: f for f in (DIFFUSE, IRRADIANCE_BASES, AMBIENT_OCCLUSION, HEIGHT_FOG, NISHITA_SKY)
-}
+AUDITED: dict[str, AuditFamily] = by_name(
+    (
+        DIFFUSE,
+        IRRADIANCE_BASES,
+        AMBIENT_OCCLUSION,
+        SKY_OCCLUSION,
+        APERTURE_FILL,
+        HEIGHT_FOG,
+        NISHITA_SKY,
+    )
+)
 """The families the audit runs (name → declaration, `audit_family.AuditFamily`). A family listed by
 ``--list`` but not here is named in the run's notes as not audited yet."""
 
@@ -535,6 +544,13 @@ def audit(
     info = inspect_scene(scene_or_path, defines=defines, camera=camera, width=width, height=height, up=up)
     sel = resolve_approximations(approximations)
     found = applicable_families(info, approx=sel.families, ao_distance=ao_distance)
+    for fam, ids in sel.methods.items():
+        for mid in sorted(ids):
+            if not any(a.family == fam and mid in a.methods for a in found):
+                why = next((w for a in found if a.family == fam for m, w in a.excluded if m == mid), "")
+                raise AuditError(
+                    f"--approx {fam}:{mid} does not apply to {info.source}" + (f": it {why}" if why else "")
+                )
     audited = [a for a in found if _audits(a, info.format)]
     skipped = [
         f"{a.family} ({a.role}: {a.part}): listed by --list, not audited yet"

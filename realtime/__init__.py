@@ -40,6 +40,10 @@ Modules:
                 function (the issue's public name), so the module's names are imported with
                 ``from rtfit.realtime.volumetric_lightning import METHODS`` (``import
                 rtfit.realtime.volumetric_lightning as m`` binds the function).
+    soft_particles  soft particles: depth fade, camera-aligned box, spherical billboards vs the exact
+                clipped Beer–Lambert chord (docs/soft-particles.md).
+    light_cones the seed's light-cone shell in fog (edge fade, v^q attenuation) and §1's integral over the
+                view ray's chord through a spot light's cone (docs/light-cones.md).
     parallax_occlusion  parallax occlusion mapping with soft self-shadowing: the seed's listing and a
                 stable variant, procedural height fields (docs/parallax-occlusion.md).
 
@@ -62,6 +66,7 @@ from .height_fog import *  # noqa: F403
 from .hemisphere_bases import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
+from .light_cones import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
 from .obscurances import *  # noqa: F403
@@ -71,6 +76,7 @@ from .quantities import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
 from .shader import *  # noqa: F403
+from .soft_particles import *  # noqa: F403
 from .spherical_gaussians import *  # noqa: F403
 from .volumetric_lightning import *  # noqa: F403
 
@@ -91,6 +97,8 @@ MODULES = (
     "sdf_occlusion",
     "nishita_sky",
     "volumetric_lightning",
+    "soft_particles",
+    "light_cones",
     "parallax_occlusion",
     "obscurances",
     "quantities",
