@@ -9,6 +9,7 @@ What is compared, and why (docs/soft-particles.md):
    an opaque tilted emitting plane (`rtfit.reference.soft_particles`): each pixel-centre ray's estimate is
    Bernoulli(T), checked against the analytic clipped chord (``exact-sphere`` / ``exact-box``) by z-scores
    with the known binomial noise. The approximations are then scored against Mitsuba's opacity 1 − T.
+   The references are cached passes (`particle_reference`): a rerun resumes from them.
 3. **The methods over their domain** (no rendering): random particles within 25° of the view axis, random
    pixels on their billboards and random scene depths Δ/r ∈ [−1.3, 1.3]; errors per method, shape and
    particle opacity α_c; the fade's (s) and the fitted fade's (s, b, p) fitted per shape and α_c through the

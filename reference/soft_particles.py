@@ -19,6 +19,11 @@ sample — the noise is known in closed form (`bernoulli_stderr`) besides the pa
 The estimate shares no formula with `rtfit.realtime.soft_particles`: the chord is found by Mitsuba's own
 ray–shape intersections (medium boundaries) and the optical depth by free-flight sampling. Rays start at
 the camera; a camera inside the particle starts in the particle's medium (``camera_inside``).
+
+`particle_reference` is the form experiments use: independent passes in rtfit's pass store
+(`rtfit.reference.cache.PassEntry`, namespace ``soft_particles``, key `particle_identity`), loaded where
+cached, rendered under the pass watchdog where not, pooled exactly; `transmittance_pass_particle` renders
+one uncached pass (tests, benchmarks).
 """
 
 from __future__ import annotations
@@ -85,10 +90,10 @@ def particle_scene_dict(
 
 
 def particle_pass(mi, scene, directions, spp: int, seed: int, camera_inside: bool = False) -> PassResult:
-    """One pass: ``spp`` volpathmis samples of T along each unit direction (N, 3) from the camera at the origin,
-    in a loaded ``scene`` (`particle_scene_dict`). Launches hold at most `MAX_LANES` paths; launch k is seeded
-    with ``sub_seed(seed, "soft-particle", k)``. Returns a `PassResult` with mean and unbiased sample variance
-    (N, 3) (the three channels are the same samples)."""
+    """One pass: ``spp`` volpathmis samples of T along each unit direction (N, 3) from the camera at the
+    origin, in a loaded ``scene`` (`particle_scene_dict`). Launches hold at most `MAX_LANES` paths; launch k
+    is seeded with ``sub_seed(seed, "soft-particle", k)``. Returns a `PassResult` with mean and unbiased
+    sample variance (N, 3) (the three channels are the same samples)."""
     check_spp(spp)
     d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
     n = len(d)
