@@ -82,6 +82,7 @@ CONFIG = {
 
 
 def configure(quick: bool, spp: int | None) -> dict:
+    total = spp or (1024 if quick else 16384)
     return checked(
         CONFIG,
         {
@@ -91,8 +92,8 @@ def configure(quick: bool, spp: int | None) -> dict:
             "camera_inside": True,
             "tilt_deg": 35.0,
             "resolution": [20, 20] if quick else [64, 64],
-            "spp": spp or (1024 if quick else 16384),
-            "pass_spp": 256 if quick else 4096,
+            "spp": total,
+            "pass_spp": min(total, 256 if quick else 4096),  # a pass never holds more than asked for
             "domain_samples": 4000 if quick else 100000,
             "scene_particles": 100,
             "scene_resolution": [64, 40] if quick else [256, 160],

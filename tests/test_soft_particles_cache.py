@@ -106,6 +106,30 @@ def test_a_truncated_pass_is_discarded_and_rendered_again(first, dirs, sigma, mo
         assert z["mean"].shape == (len(dirs), 3)
 
 
+def test_an_interrupted_reference_resumes_from_its_cache(tmp_path, dirs, sigma, monkeypatch, first):
+    """A run stopped during its second pass keeps the first; the rerun renders only the second and gives the
+    uninterrupted result."""
+    _, ref, _ = first
+    counter = Counter(monkeypatch)
+    counted = sp.particle_pass
+
+    def interrupted(mi, scene, directions, spp, seed, camera_inside=False):
+        if counter.calls:
+            raise KeyboardInterrupt  # Ctrl-C (or a kill) while the second pass renders
+        return counted(mi, scene, directions, spp, seed, camera_inside)
+
+    monkeypatch.setattr(sp, "particle_pass", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _reference(tmp_path, dirs, sigma)
+    assert len(counter.calls) == 1
+    (entry,) = tmp_path.glob("soft_particles/*/*")
+    assert sorted(f.name for f in entry.glob("pass-*")) == ["pass-00000.json", "pass-00000.npz"]
+    monkeypatch.setattr(sp, "particle_pass", counted)
+    again = _reference(tmp_path, dirs, sigma)
+    assert len(counter.calls) == 2 and again.passes_rendered == 1 and again.passes == 2
+    np.testing.assert_allclose(again.mean, ref.mean, rtol=0, atol=1e-12)  # measured difference 0
+
+
 def test_key_follows_the_physics_and_nothing_else(dirs, sigma):
     def key(**kw):
         base: dict[str, Any] = dict(
