@@ -1394,16 +1394,24 @@ def bench(ctx) -> list[dict]:
 
 
 BENCH_MEDIA = (
-    ("reference", "rtfit fog medium, per-segment majorant (the reference)"),
+    ("reference", "rtfit_fogpath: closed-form free flight and transmittance (the reference)"),
+    ("segment", "rtfit fog medium, per-segment majorant (volpathmis; the reference of session 4)"),
     ("box", "rtfit fog medium, box-wide majorant (the estimator before issue 21)"),
     ("grid", "Mitsuba heterogeneous + gridvolume of the same density"),
+    ("nofog", "Mitsuba path on the scene without fog (the floor: surfaces and emitters only)"),
 )
 """The media of the reference bench rows: rtfit's estimator beside what a user would otherwise run."""
 
 
 def bench_scene_dict(mi, scene, medium: str) -> dict:
     """The Mitsuba scene of ``scene`` with its fog as one of `BENCH_MEDIA`."""
-    d = mitsuba_scene_dict(mi, scene)
+    if medium == "reference":
+        return mitsuba_scene_dict(mi, scene)
+    if medium == "nofog":
+        d = mitsuba_scene_dict(mi, dataclasses.replace(scene, media=()))
+        d["integrator"] = {"type": "path", "max_depth": d["integrator"]["max_depth"]}
+        return d
+    d = mitsuba_scene_dict(mi, scene, fog_path=False)
     fog = scene.media[0]
     if medium == "box":
         d["medium0"] = fog_medium_dict(mi, fog, segment_majorant=False)
@@ -1443,4 +1451,5 @@ def _bench_reference(ctx) -> list[dict]:
         for row, (medium, _) in zip(rows[-len(BENCH_MEDIA) :], BENCH_MEDIA, strict=True):
             row["vs_native_grid"] = rates[medium] / rates["grid"]
             row["vs_box_majorant"] = rates[medium] / rates["box"]
+            row["vs_no_fog"] = rates[medium] / rates["nofog"]
     return rows
