@@ -1408,8 +1408,9 @@ def bench_scene_dict(mi, scene, medium: str) -> dict:
     if medium == "reference":
         return mitsuba_scene_dict(mi, scene)
     if medium == "nofog":
+        depth = mitsuba_scene_dict(mi, scene, fog_path=False)["integrator"]["max_depth"]
         d = mitsuba_scene_dict(mi, dataclasses.replace(scene, media=()))
-        d["integrator"] = {"type": "path", "max_depth": d["integrator"]["max_depth"]}
+        d["integrator"] = {"type": "path", "max_depth": depth}
         return d
     d = mitsuba_scene_dict(mi, scene, fog_path=False)
     fog = scene.media[0]

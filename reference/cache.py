@@ -43,10 +43,10 @@ import numpy as np
 
 from rtfit.scenes import Scene, scene_hash, scene_to_dict
 
+from . import fog_integrator
 from .budget import PassBudgetExceeded, PassWatchdog
 from .build import load_mitsuba_scene
 from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
-from . import fog_integrator
 from .height_fog import ESTIMATOR as FOG_ESTIMATOR
 from .integrators import choose_integrator
 from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr

@@ -1,4 +1,4 @@
-r"""rtfit's height-fog path tracer: closed-form free-flight sampling and transmittance (plugin ``rtfit_fogpath``).
+r"""rtfit's height-fog path tracer: closed-form free flight and transmittance (plugin ``rtfit_fogpath``).
 
 Why an integrator. Mitsuba 3.9.1's ``Medium.sample_interaction`` and ``transmittance_eval_pdf`` are not
 dispatched to Python overrides: a probe subclass overriding them (the C++ ``volpath``/``volpathmis`` loops
@@ -164,7 +164,9 @@ def register(mi) -> None:
             self.h_offset = float(qv @ gv)
             self.inv_lin = mi.Matrix3f(inv[:3, :3].tolist())
             self.inv_t = mi.Vector3f(*inv[:3, 3].tolist())
-            self.unit_box = mi.BoundingBox3f(mi.ScalarPoint3f(-1.0, -1.0, -1.0), mi.ScalarPoint3f(1.0, 1.0, 1.0))
+            self.unit_box = mi.BoundingBox3f(
+                mi.ScalarPoint3f(-1.0, -1.0, -1.0), mi.ScalarPoint3f(1.0, 1.0, 1.0)
+            )
             gg = float(props.get("g", 0.0))
             self.phase = mi.load_dict({"type": "isotropic"} if gg == 0.0 else {"type": "hg", "g": gg})
             self.lane_counter = LaneCounter()
@@ -230,7 +232,7 @@ def register(mi) -> None:
 
         @dr.syntax
         def sample(self, scene, sampler, ray, medium=None, active=True):
-            import mitsuba as mi  # noqa: PLC0415 (dr.syntax re-compiles this method without closures)
+            import mitsuba as mi
 
             ray = mi.Ray3f(ray)
             lane_time = mi.Float(ray.time)
@@ -299,13 +301,17 @@ def register(mi) -> None:
                 act_surface &= si.is_valid()
                 bsdf = si.bsdf(ray)
                 ctx = mi.BSDFContext()
-                act_nee = act_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & (depth + 1 < max_depth)
+                act_nee = (
+                    act_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & (depth + 1 < max_depth)
+                )
                 em_s, ds_s = self.nee(scene, sampler, si, act_nee)
                 wo_local = si.to_local(ds_s.d)
                 b_val, b_pdf = bsdf.eval_pdf(ctx, si, wo_local, act_nee)
                 w_s = self.mis(ds_s.pdf, dr.select(ds_s.delta, 0.0, b_pdf))
                 L[act_nee] += throughput * b_val * w_s * em_s
-                bs, b_w = bsdf.sample(ctx, si, sampler.next_1d(act_surface), sampler.next_2d(act_surface), act_surface)
+                bs, b_w = bsdf.sample(
+                    ctx, si, sampler.next_1d(act_surface), sampler.next_2d(act_surface), act_surface
+                )
                 act_surface &= bs.pdf > 0.0
                 throughput[act_surface] *= b_w
                 eta[act_surface] *= bs.eta

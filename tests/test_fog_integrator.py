@@ -87,7 +87,9 @@ def test_free_flight_chi2_against_exact_distribution(mi, dz):
     k = np.arange(1, 20)
     tau_edges = -np.log1p(-k * (1 - p_escape) / 20)
     tau_t = _tau64(med, o, d, t[collided])[0]
-    counts = np.concatenate([np.bincount(np.searchsorted(tau_edges, tau_t), minlength=20), [np.sum(~collided)]])
+    counts = np.concatenate(
+        [np.bincount(np.searchsorted(tau_edges, tau_t), minlength=20), [np.sum(~collided)]]
+    )
     expected = np.concatenate([np.full(20, n * (1 - p_escape) / 20), [n * p_escape]])
     keep = expected > 5
     chi2 = np.sum((counts[keep] - expected[keep]) ** 2 / expected[keep])
