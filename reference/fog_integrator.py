@@ -263,7 +263,17 @@ def register(mi) -> None:
                 act_medium &= active
                 act_surface = active & ~collided
 
-                # ---------------------------------------------------------- medium vertex
+                # ---------------------------------------------------------- emitter hit (escape / surface)
+                emitter = si.emitter(scene)
+                act_e = act_surface & (emitter != None)  # noqa: E711 (Dr.Jit pointer comparison)
+                ds_e = mi.DirectionSample3f(scene, si, prev)
+                em_pdf = scene.pdf_emitter_direction(prev, ds_e, act_e & ~specular_chain)
+                count_direct = (depth == 0) | specular_chain
+                w_e = dr.select(count_direct, 1.0, self.mis(prev_pdf, em_pdf))
+                L[act_e] += throughput * emitter.eval(si, act_e) * w_e
+                act_surface &= si.is_valid()
+
+                # ---------------------------------------------------------- the scattering vertex
                 mei = dr.zeros(mi.MediumInteraction3f)
                 mei.t = t_c
                 mei.p = ray(t_c)
@@ -277,41 +287,33 @@ def register(mi) -> None:
                 it_m.t = t_c
                 it_m.time = ray.time
                 it_m.wavelengths = ray.wavelengths
+                bsdf = si.bsdf(ray)
+                ctx = mi.BSDFContext()
                 pctx = mi.PhaseFunctionContext(sampler)
-                em_m, ds_m = self.nee(scene, sampler, it_m, act_medium)
-                ph_val, ph_pdf = self.phase.eval_pdf(pctx, mei, ds_m.d, act_medium)
-                w_m = self.mis(ds_m.pdf, dr.select(ds_m.delta, 0.0, ph_pdf))
-                L[act_medium] += throughput * ph_val * w_m * em_m
-                wo, ph_w, ph_spdf = self.phase.sample(
-                    pctx, mei, sampler.next_1d(act_medium), sampler.next_2d(act_medium), act_medium
+                nee_surface = (
+                    act_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & (depth + 1 < max_depth)
                 )
+                # one emitter sample and one shadow ray per lane, from its medium or surface vertex
+                ref = dr.zeros(mi.Interaction3f)
+                ref[act_medium] = it_m
+                ref[act_surface] = si
+                em, ds = self.nee(scene, sampler, ref, act_medium | nee_surface)
+                ph_val, ph_pdf = self.phase.eval_pdf(pctx, mei, ds.d, act_medium)
+                b_val, b_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), nee_surface)
+                f_val = dr.select(act_medium, mi.Spectrum(ph_val), b_val)
+                f_pdf = dr.select(act_medium, ph_pdf, b_pdf)
+                w = self.mis(ds.pdf, dr.select(ds.delta, 0.0, f_pdf))
+                L[act_medium | nee_surface] += throughput * f_val * w * em
+
+                # ---------------------------------------------------------- the next direction
+                u1 = sampler.next_1d(act_medium | act_surface)
+                u2 = sampler.next_2d(act_medium | act_surface)
+                wo, ph_w, ph_spdf = self.phase.sample(pctx, mei, u1, u2, act_medium)
                 act_medium &= ph_spdf > 0.0
                 throughput[act_medium] *= ph_w
                 valid_ray |= act_medium
                 specular_chain &= ~act_medium
-
-                # ---------------------------------------------------------- surface / escape
-                emitter = si.emitter(scene)
-                act_e = act_surface & (emitter != None)  # noqa: E711 (Dr.Jit pointer comparison)
-                ds_e = mi.DirectionSample3f(scene, si, prev)
-                em_pdf = scene.pdf_emitter_direction(prev, ds_e, act_e & ~specular_chain)
-                count_direct = (depth == 0) | specular_chain
-                w_e = dr.select(count_direct, 1.0, self.mis(prev_pdf, em_pdf))
-                L[act_e] += throughput * emitter.eval(si, act_e) * w_e
-                act_surface &= si.is_valid()
-                bsdf = si.bsdf(ray)
-                ctx = mi.BSDFContext()
-                act_nee = (
-                    act_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & (depth + 1 < max_depth)
-                )
-                em_s, ds_s = self.nee(scene, sampler, si, act_nee)
-                wo_local = si.to_local(ds_s.d)
-                b_val, b_pdf = bsdf.eval_pdf(ctx, si, wo_local, act_nee)
-                w_s = self.mis(ds_s.pdf, dr.select(ds_s.delta, 0.0, b_pdf))
-                L[act_nee] += throughput * b_val * w_s * em_s
-                bs, b_w = bsdf.sample(
-                    ctx, si, sampler.next_1d(act_surface), sampler.next_2d(act_surface), act_surface
-                )
+                bs, b_w = bsdf.sample(ctx, si, u1, u2, act_surface)
                 act_surface &= bs.pdf > 0.0
                 throughput[act_surface] *= b_w
                 eta[act_surface] *= bs.eta
