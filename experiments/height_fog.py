@@ -14,8 +14,9 @@ What is compared, and why (docs/height-fog.md):
    cases, special inputs), and their cost per ray beside NumPy.
 3. **Aerial perspective** (``scenes/library/fog_terrain.toml``): terrain with objects at 10 m–20 km under
    Mitsuba's ``sunsky`` with its own sun, inside scattering height fog (albedo 0.9, HG g = 0.6), single
-   (``volpathmis`` max_depth 2) and multiple scattering (unbounded), per sun elevation. The cheap model
-   L = L₀·T + C·(1 − T) on the fog-free image L₀ (the same scene without fog and the same transport): the
+   (max_depth 2) and multiple scattering (unbounded), per sun elevation; references by
+   `rtfit.reference.fog_integrator` (closed-form free flight; ``volpathmis`` where a scene has two fogs).
+   The cheap model L = L₀·T + C·(1 − T) on the fog-free image L₀ (the same scene without fog and the same transport): the
    shading methods ``const`` and ``phase`` of `METHODS`, each a row of `ROWS` with its parameter source —
    the true b, c with colours from the sky (seed's horizon average, with and without per-pixel phase; a
    single-scattering estimate), or artist parameters (b, c, C) and (b, c, C₀, C₁, g) fitted through the
@@ -1170,7 +1171,9 @@ def sections(forms) -> list[dict]:
                 "single-scattering estimate albedo·(E_sun·p_HG + mean sky/ground radiance), and fitted "
                 "artist parameters (b, c, C) or (b, c, C₀, C₁, g), fitted with Levenberg–Marquardt "
                 "(optimistix) per sun elevation and per scattering order to relative residuals.\n\nGround "
-                "truth: `volpathmis` with rtfit's Python exponential medium (`rtfit.reference.height_fog`), "
+                "truth: rtfit's path tracer with closed-form free flight through the exponential fog "
+                "(`rtfit.reference.fog_integrator`; `volpathmis` with rtfit's Python medium where a scene "
+                "has two fogs), "
                 "single scattering (max_depth 2) and multiple scattering (unbounded, Russian roulette), "
                 "point-sampled at pixel centres. The medium itself is checked first: an emissive backdrop "
                 "through a purely absorbing medium equals e^(−τ) within noise (Checks)."
@@ -1357,7 +1360,7 @@ def _pass_costs(n, Float, backend) -> list[dict]:
 def bench(ctx) -> list[dict]:
     """Rays/s of each optical-depth form on Dr.Jit vs the same kernel text on NumPy
     (``method(NUMPY_OPS, inputs, params)``), then the fog passes and the reference's samples/s
-    (volpathmis with the Python fog medium)."""
+    (rtfit_fogpath, beside volpathmis with the Python fog medium and Mitsuba's grid)."""
     backend, n = bench_backend(ctx)
     Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
     np_inputs, inputs = _cost_inputs(n, Float)

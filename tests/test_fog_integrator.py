@@ -142,3 +142,26 @@ def test_ellipsoid_and_budget(mi):
     assert not np.any(np.array(collided))
     ms = load_dict(mi, mitsuba_scene_dict(mi, dataclasses.replace(scene, media=(med,))))
     assert any(c is ms.integrator().lane_counter for c in counters(ms))
+
+
+def test_vertex_cap_fails_the_pass(mi, monkeypatch):
+    """A planted cap of 1 loop iteration per lane: every lane that needs a second vertex is stopped and
+    the pass raises `PassBudgetExceeded` with one line (the integrator's bound on a pass)."""
+    from rtfit.reference import fog_integrator
+    from rtfit.reference.budget import LaneCounter, PassBudgetExceeded
+    from rtfit.reference.build import load_dict, mitsuba_scene_dict
+    from rtfit.reference.estimators import radiance_pass
+
+    scene = load_scene(library_path("fog_transmittance"))
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, width=4, height=4))
+    monkeypatch.setattr(fog_integrator, "LaneCounter", lambda: LaneCounter(cap=1))
+    fog_integrator._registered.discard(mi.variant())  # re-register: the class reads the patch
+    try:
+        ms = load_dict(mi, mitsuba_scene_dict(mi, scene))
+        with pytest.raises(PassBudgetExceeded) as e:
+            radiance_pass(mi, ms, 4, 0)
+        assert "\n" not in str(e.value) and "lanes took more than 1" in str(e.value)
+    finally:
+        monkeypatch.undo()
+        fog_integrator._registered.discard(mi.variant())
+        fog_integrator.register(mi)
