@@ -18,10 +18,10 @@ What is compared, and why (docs/height-fog.md):
    `rtfit.reference.fog_integrator` (closed-form free flight; ``volpathmis`` where a scene has two fogs).
    The cheap model L = L₀·T + C·(1 − T) on the fog-free image L₀ (the same scene without fog and the same
    transport): the shading methods ``const`` and ``phase`` of `METHODS`, each a row of `ROWS` with its
-   parameter source — the true b, c with colours from the sky (seed's horizon average, with and without per-
-   pixel phase; a single-scattering estimate), or artist parameters (b, c, C) and (b, c, C₀, C₁, g) fitted
-   through the JAX run of the method's kernel (`rtfit.fitting.fit_method`). Residuals vs view elevation and
-   distance; fitted parameters as JSON.
+   parameter source — the true b, c with colours from the sky (seed's horizon average, with and without
+   per-pixel phase; a single-scattering estimate), or artist parameters (b, c, C) and (b, c, C₀, C₁, g)
+   fitted through the JAX run of the method's kernel (`rtfit.fitting.fit_method`). Residuals vs view
+   elevation and distance; fitted parameters as JSON.
 4. **Fog volumes** (``scenes/library/fog_volumes.toml``): an ellipsoid and a rotated box of fog with their
    own b, c and oriented gradients over the terrain; the volume model with its true b, c and a fitted
    constant colour per volume (linear least squares).
