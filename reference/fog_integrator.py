@@ -225,6 +225,12 @@ def register(mi) -> None:
             tr = dr.exp(-self.optical_depth(shadow.o, shadow.d, shadow.maxt))
             return dr.select(active & ~occluded, em_w * tr, 0.0), ds
 
+        def within_budget(self, lane_time):
+            """Tick the lane's vertex count: False where the lane is past the cap (True when unarmed:
+            ``mi.render`` and scalar variants)."""
+            stop = self.lane_counter.tick(lane_time)
+            return ~stop if dr.is_array_v(stop) else True
+
         @staticmethod
         def mis(a, b):
             a2 = dr.square(a)
@@ -248,7 +254,7 @@ def register(mi) -> None:
             max_depth = mi.UInt32(0xFFFFFFFF if self.max_depth < 0 else self.max_depth)
 
             while active:
-                active &= ~self.lane_counter.tick(lane_time)
+                active &= self.within_budget(lane_time)
                 active &= dr.max(throughput) != 0.0
                 q = dr.minimum(dr.max(throughput) * dr.square(eta), 0.95)
                 perform_rr = depth > self.rr_depth
