@@ -62,7 +62,7 @@ from .budget import LaneCounter
 from .height_fog import majorant, region_matrix
 
 PLUGIN = "rtfit_fogpath"
-ESTIMATOR = "rtfit_fogpath/1: closed-form free flight and transmittance (exponential fog, Python integrator)"
+ESTIMATOR = "rtfit_fogpath/2: closed-form free flight and transmittance (exponential fog, Python integrator)"
 """The estimator's identity: part of the reference cache key."""
 SERIES_CUTOFF = 0.05
 """|x| below which E(x) and G(z) use their series (module docstring)."""
@@ -222,7 +222,10 @@ def register(mi) -> None:
             active = active & (ds.pdf != 0.0)
             shadow = it.spawn_ray_to(ds.p)
             occluded = scene.ray_test(shadow, active)
-            tr = dr.exp(-self.optical_depth(shadow.o, shadow.d, shadow.maxt))
+            # an emitter at infinity is placed on the scene's bounding sphere, which need not enclose the
+            # fog (a scene of fog and sun only has an empty bbox): its fog reaches to t = ∞
+            far = mi.has_flag(ds.emitter.flags(), mi.EmitterFlags.Infinite)
+            tr = dr.exp(-self.optical_depth(shadow.o, shadow.d, dr.select(far, dr.inf, shadow.maxt)))
             return dr.select(active & ~occluded, em_w * tr, 0.0), ds
 
         def within_budget(self, lane_time):
