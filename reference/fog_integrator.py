@@ -62,7 +62,7 @@ from .budget import LaneCounter
 from .height_fog import majorant, region_matrix
 
 PLUGIN = "rtfit_fogpath"
-ESTIMATOR = "rtfit_fogpath/2: closed-form free flight and transmittance (exponential fog, Python integrator)"
+ESTIMATOR = "rtfit_fogpath/3: closed-form free flight and transmittance (exponential fog, Python integrator)"
 """The estimator's identity: part of the reference cache key."""
 SERIES_CUTOFF = 0.05
 """|x| below which E(x) and G(z) use their series (module docstring)."""
@@ -160,6 +160,7 @@ def register(mi) -> None:
             a = props.get("albedo")
             self.albedo = mi.Color3f(float(a[0]), float(a[1]), float(a[2]))
             self.maj = majorant(self.b, self.c, gv, qv, to_world)
+            self.log_b = float(np.log(self.b)) if self.b > 0.0 else -1e30
             self.grad = mi.Vector3f(*gv.tolist())
             self.h_offset = float(qv @ gv)
             self.inv_lin = mi.Matrix3f(inv[:3, :3].tolist())
@@ -190,29 +191,59 @@ def register(mi) -> None:
             return ta, dr.maximum(tb, ta)
 
         def start(self, o, d, ta):
-            """(σ_a, k): the density at o + t_a·d and k = c·(d·ĝ) (1/scene unit)."""
-            h_a = dr.dot(mi.Vector3f(o), self.grad) - self.h_offset + ta * dr.dot(mi.Vector3f(d), self.grad)
-            sigma_a = self.b * dr.exp(dr.minimum(-self.c * h_a, EXP_CLAMP))
-            return sigma_a, self.c * dr.dot(mi.Vector3f(d), self.grad)
+            """(ln σ_a, k): the log-density at o + t_a·d (ln(1/scene unit), never under- or overflows) and
+            k = c·(d·ĝ) (1/scene unit)."""
+            rate = dr.dot(mi.Vector3f(d), self.grad)
+            h_a = dr.dot(mi.Vector3f(o), self.grad) - self.h_offset + ta * rate
+            return self.log_b - self.c * h_a, self.c * rate
+
+        @staticmethod
+        def segment_depth(log_sigma_a, k, s):
+            """τ over [t_a, t_a + s] from the segment's densest end: σ_max·s·E(|k|·s), E ≤ 1, so a segment
+            spanning any number of scale heights neither overflows E nor underflows σ_a into 0·∞."""
+            log_max = log_sigma_a + dr.maximum(-k * s, 0.0)
+            sigma_max = dr.exp(dr.minimum(log_max, EXP_CLAMP))
+            return dr.select(s > 0.0, sigma_max * s * expm1_ratio(dr, dr.abs(k) * s), 0.0)
 
         def optical_depth(self, o, d, maxt):
             """τ of the fog along o + t·d over [0, maxt] (closed form)."""
             ta, tb = self.region(o, d, maxt)
-            sigma_a, k = self.start(o, d, ta)
-            s = tb - ta
-            return dr.select(s > 0.0, sigma_a * s * expm1_ratio(dr, k * s), 0.0)
+            log_sigma_a, k = self.start(o, d, ta)
+            return self.segment_depth(log_sigma_a, k, tb - ta)
 
         def free_flight(self, o, d, maxt, u):
-            """(collided, t): closed-form free-flight sample along o + t·d up to maxt (surface or inf)."""
+            """(collided, t): closed-form free-flight sample along o + t·d up to maxt (surface or inf).
+
+            Climbing or level (k ≥ 0): s = (τ*/σ_a)·G(k·τ*/σ_a). Descending (κ = −k > 0):
+            τ(s) = σ_a·(e^{κs} − 1)/κ, so s = ln(1 + w)/κ with w = κ·τ*/σ_a, evaluated as w·G(−w)/κ for
+            w < 0.05, ln(1 + w)/κ above, and ln(w)/κ for ln w > 15 (relative error < 1e-7), with
+            ln w = ln(κτ*) − ln σ_a: no overflow where σ_a underflows at the top of a tall region."""
             ta, tb = self.region(o, d, maxt)
-            sigma_a, k = self.start(o, d, ta)
+            log_sigma_a, k = self.start(o, d, ta)
             s_max = tb - ta
-            tau_seg = dr.select(s_max > 0.0, sigma_a * s_max * expm1_ratio(dr, k * s_max), 0.0)
             tau = -dr.log(1.0 - u)
-            collided = tau < tau_seg
-            sa = dr.select(collided, sigma_a, 1.0)
-            z = k * tau / sa
-            s = dr.minimum(tau / sa * log1m_ratio(dr, dr.minimum(z, 1.0 - 2.0**-23)), s_max)
+            collided = tau < self.segment_depth(log_sigma_a, k, s_max)
+            sigma_a = dr.exp(dr.minimum(log_sigma_a, EXP_CLAMP))
+            # climbing / level
+            sa = dr.select(collided & (sigma_a > 0.0), sigma_a, 1.0)
+            z = dr.minimum(dr.maximum(k, 0.0) * tau / sa, 1.0 - 2.0**-23)
+            s_up = tau / sa * log1m_ratio(dr, z)
+            # descending
+            kappa = dr.maximum(-k, 1e-30)
+            lw = dr.log(dr.maximum(kappa * tau, 1e-38)) - log_sigma_a
+            direct = collided & (sigma_a > 1e-30)  # w = κτ*/σ_a directly where σ_a is a normal float
+            w = dr.select(direct, kappa * tau / sa, dr.exp(dr.minimum(lw, 80.0)))
+            s_down = (
+                dr.select(
+                    lw > 15.0,
+                    lw,
+                    dr.select(
+                        w < SERIES_CUTOFF, w * log1m_ratio(dr, -dr.minimum(w, SERIES_CUTOFF)), dr.log(1.0 + w)
+                    ),
+                )
+                / kappa
+            )
+            s = dr.minimum(dr.select(k < 0.0, s_down, s_up), s_max)
             return collided, ta + s
 
         # -------------------------------------------------------------------- emitters

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from rtfit.scenes import library_path, load_scene
+from rtfit.scenes import library_path, load_scene, parse_scene_text
 
 
 def test_closed_forms_match_float64(mi):
@@ -64,16 +64,35 @@ def _tau64(medium, o, d, s):
     return medium.density * math.exp(-medium.falloff * h0) * ell * phi, t1
 
 
-@pytest.mark.parametrize("dz", [-0.3, 0.0, 0.02, 0.6])
-def test_free_flight_chi2_against_exact_distribution(mi, dz):
-    """Pearson χ² of 200k sampled distances (20 equiprobable collision bins + escape) along a ray of the
-    terrain fog from 2 m height; downward, level, shallow and steep rays."""
-    scene = load_scene(library_path("fog_terrain"))
-    med = scene.media[0]
+TALL_FOG = """
+name = "tall"
+[camera]
+origin = [0.0, 0.0, 10.0]
+target = [0.0, 1.0, 10.0]
+[[media]]
+type = "exponential_fog"
+boundary = { type = "cube", center = [0.0, 0.0, 100.0], size = [400.0, 400.0, 200.0] }
+density = 50.0
+falloff = 1.0
+"""
+
+
+@pytest.mark.parametrize(
+    "case,dz", [("terrain", -0.3), ("terrain", 0.0), ("terrain", 0.02), ("terrain", 0.6), ("tall", -0.9)]
+)
+def test_free_flight_chi2_against_exact_distribution(mi, case, dz):
+    """Pearson χ² of 200k sampled distances (20 equiprobable collision bins + escape) along a ray: the
+    terrain fog from 2 m height (downward, level, shallow and steep rays), and a fog 200 scale heights
+    tall entered at its top (σ there is 50·e^-199 ≈ 1e-85 /m, below float32's range: the log-space path)."""
+    if case == "terrain":
+        med = load_scene(library_path("fog_terrain")).media[0]
+        o = np.array([0.0, 0.0, 2.0])
+    else:
+        med = parse_scene_text(TALL_FOG).media[0]
+        o = np.array([0.0, 0.0, 199.0])
     integ = _integrator(mi, med)
     d = np.array([0.0, math.sqrt(1 - dz * dz), dz])
-    o = np.array([0.0, 0.0, 2.0])
-    t_surf = (o[2] - 0.0) / -dz if dz < 0 else math.inf  # the ground plane z = 0
+    t_surf = (o[2] - 0.0) / -dz if (dz < 0 and case == "terrain") else math.inf  # the ground plane z = 0
     n = 200_000
     rng = np.random.default_rng(5)
     u = mi.Float(rng.random(n).astype(np.float32))
