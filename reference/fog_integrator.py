@@ -28,7 +28,11 @@ collision), else the collision is at t_a + s with τ(t_a, t_a + s) = τ*:
     s = (τ*/σ_a)·G(z),   z = k·τ*/σ_a (< 1 on this branch when k > 0),  G(z) = −ln(1 − z)/z  (G(0) = 1),
 
 G again as a series (1 + z/2 + z²/3 + z³/4 + z⁴/5, |z| < 0.05, truncation < z⁵/6 ≈ 5e-8) or closed form.
-This samples t with the exact density p(t) = σt(t)·T(t) and P(no collision) = T(t_a, t_b). The path weights
+Both are evaluated from ln σ (never under- or overflowing): τ of a segment from its densest end,
+σ_max·s·E(|k|·s) with E ≤ 1, and a descending ray's inverse as ln(1 + w)/κ, w = κτ*/σ_a, κ = −k, with
+ln w = ln(κτ*) − ln σ_a where σ_a leaves float32's range (regions of any number of scale heights;
+`FogPath.free_flight`). This samples t with the exact density p(t) = σt(t)·T(t) and P(no collision) =
+T(t_a, t_b). The path weights
 are then exactly those of an analog (no-null-collision) tracker on a grey medium:
 
 * collision: σs(t)·T(t)/p(t) = albedo (per channel), then phase sampling as ``volpathmis`` does;
