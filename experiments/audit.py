@@ -33,8 +33,8 @@ from pathlib import Path
 from rtfit.realtime import (
     ambient_aperture,
     diffuse,
+    environment_bases,
     height_fog,
-    irradiance_bases,
     nishita_sky,
     sdf_occlusion,
 )
@@ -66,7 +66,7 @@ AO_FRACTION = 0.1
 
 FAMILIES = {
     "diffuse": diffuse.METHODS,
-    "irradiance-bases": irradiance_bases.METHODS,
+    "irradiance-bases": environment_bases.METHODS,
     "ambient-aperture": ambient_aperture.METHODS,
     "sdf-occlusion": sdf_occlusion.METHODS,
     "height-fog": height_fog.METHODS,
@@ -218,10 +218,13 @@ RULES: tuple[Rule, ...] = (
         "ambient-aperture",
         "ambient occlusion (aperture caps)",
         ("geometry",),
-        "{part} occludes itself: each point's visible cap against a light's cap",
-        "the solid angle of the visible cap ∩ the light's cap (closed form), and ray-cast visibility caps",
+        "{part} occludes itself: each point's visible cap (bent normal, aperture) against its hemisphere",
+        "ray-cast ambient occlusion within R = {ao_distance}, and each point's visibility cap baked by ray "
+        "casts of length R",
         "occlusion pass: cosine-distributed rays of length R = {ao_distance}",
-        frozenset({"r1", "r2", "d"}),
+        # The caps are intersected with the point's own hemisphere (the second cap: centre n, radius π/2,
+        # radiance 1/π, so that the light terms read AO), and the fills read 1/π as their sky.
+        frozenset({"r1", "r2", "d", "cos_nl", "cos_al", "alpha", "radiance", "sky_radiance"}),
     ),
     Rule(
         "ambient-aperture",

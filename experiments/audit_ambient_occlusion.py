@@ -56,7 +56,7 @@ from .audit import Applicability, default_ao_distance
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
 from .audit_geometry import scene_triangles
 
-__all__ = ["FAMILY", "GRID_CELLS", "MIP_LEVELS", "scene_distance_field"]
+__all__ = ["FAMILY", "GRID_CELLS", "MIP_LEVELS", "ao_reference", "ao_radius", "scene_distance_field"]
 
 FORMAT = 1
 GRID_CELLS = 64
@@ -110,8 +110,8 @@ def scene_distance_field(mi, mi_scene, pad: float) -> tuple[GridSDF, str, list[s
     return GridSDF.from_grid(grid, levels), sign, lines
 
 
-def _reference(setup: AuditSetup, points, normals, radius: float, label: str):
-    """The pooled AO passes: (mean (N,), stderr (N,), total spp, passes, rendered, entry, seconds)."""
+def ao_reference(setup: AuditSetup, points, normals, radius: float, label: str):
+    """The pooled AO passes (the ambient-aperture family's caps read the same entry): (mean (N,), stderr (N,), total spp, passes, rendered, entry, seconds)."""
     what = {
         "format": FORMAT,
         "quantity": "ao",
@@ -127,6 +127,15 @@ def _reference(setup: AuditSetup, points, normals, radius: float, label: str):
     return pooled_passes(setup, what, render, (-1,), label, seed_label="ao-pass")
 
 
+def ao_radius(setup: AuditSetup, family: str) -> float:
+    """The AO radius R: ``--ao-distance``, else `default_ao_distance` of the scene (`AuditError` when the
+    scene has no finite size)."""
+    radius = setup.ao_distance if setup.ao_distance is not None else default_ao_distance(setup.info)
+    if radius is None or not (math.isfinite(radius) and radius > 0):
+        raise AuditError(f"{family}: the scene has no finite size; give --ao-distance")
+    return float(radius)
+
+
 def _image(mask, values) -> np.ndarray:
     img = np.zeros((*mask.shape, 3))
     img[mask] = np.asarray(values, np.float64)[:, None]
@@ -137,15 +146,13 @@ def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """One case: the ray-cast AO of the visible points against the distance-field rows (module docstring)."""
     if app.role != ROLE:
         raise AuditError(f"sdf-occlusion: the {app.role} role is not audited yet")
-    radius = setup.ao_distance if setup.ao_distance is not None else default_ao_distance(setup.info)
-    if radius is None or not (math.isfinite(radius) and radius > 0):
-        raise AuditError("sdf-occlusion: the scene has no finite size; give --ao-distance")
+    radius = ao_radius(setup, "sdf-occlusion")
     mask = setup.mask
     gb = setup.gbuffer
     points = gb.position[mask].astype(np.float64)
     normals = gb.normal[mask].astype(np.float64)
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
-    mean, stderr, total, passes, rendered, entry, seconds = _reference(
+    mean, stderr, total, passes, rendered, entry, seconds = ao_reference(
         setup, points, normals, radius, f"ao: {app.part}"
     )
     sdf, sign, shapes = scene_distance_field(setup.mi, setup.scene, radius)

@@ -38,7 +38,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from rtfit.realtime.irradiance_bases import METHODS
+from rtfit.realtime.environment_bases import METHODS
 from rtfit.reference.cache import array_digest
 from rtfit.reference.environments import emitter_environment, emitter_irradiance_quadrature
 from rtfit.reference.light_irradiance import environment_irradiance_pass

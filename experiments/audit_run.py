@@ -65,6 +65,7 @@ from . import figures
 from . import fitted as fitfiles
 from .atomic import atomic_directory
 from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_families, inspect_scene
+from .audit_ambient_aperture import FAMILY as AMBIENT_APERTURE_CAPS
 from .audit_ambient_occlusion import FAMILY as AMBIENT_OCCLUSION
 from .audit_diffuse import FAMILY as DIFFUSE
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
@@ -92,11 +93,45 @@ __all__ = [
 
 log = logging.getLogger("rtfit.audit")
 
-AUDITED: dict[str, AuditFamily] = {
-    f.name: f for f in (DIFFUSE, IRRADIANCE_BASES, AMBIENT_OCCLUSION, HEIGHT_FOG, NISHITA_SKY)
-}
-"""The families the audit runs (name → declaration, `audit_family.AuditFamily`). A family listed by
-``--list`` but not here is named in the run's notes as not audited yet."""
+
+def _joined(*declarations: AuditFamily) -> dict[str, AuditFamily]:
+    """name → declaration. Several declarations of one family, each auditing its own roles in a module of its
+    own (`AuditFamily.roles`), are joined into one: its ``cases`` hands each applicability to the declaration
+    of its role; its roles, further quantities and formats are theirs together (the first one's quantity
+    first)."""
+    out: dict[str, AuditFamily] = {}
+    for f in declarations:
+        g = out.get(f.name)
+        if g is None:
+            out[f.name] = f
+            continue
+        if g.roles is None or f.roles is None or set(g.roles) & set(f.roles):
+            raise ValueError(f"audit family {f.name}: two declarations audit the same role")
+        parts = (*getattr(g.cases, "parts", (g,)), f)
+
+        def cases(setup, app, parts=parts):
+            return next(p for p in parts if app.role in (p.roles or ())).cases(setup, app)
+
+        cases.parts = parts  # type: ignore[attr-defined]
+        quantities = (*g.quantities, f.quantity, *f.quantities)
+        out[f.name] = AuditFamily(
+            name=f.name,
+            quantity=g.quantity,
+            cases=cases,
+            describe=f"{g.describe} {f.describe}".strip(),
+            quantities=tuple(q for q in dict.fromkeys(quantities) if q != g.quantity),
+            roles=(*g.roles, *f.roles),
+            formats=tuple(dict.fromkeys((*g.formats, *f.formats))),
+        )
+    return out
+
+
+AUDITED: dict[str, AuditFamily] = _joined(
+    DIFFUSE, IRRADIANCE_BASES, AMBIENT_OCCLUSION, AMBIENT_APERTURE_CAPS, HEIGHT_FOG, NISHITA_SKY
+)
+"""The families the audit runs (name → declaration, `audit_family.AuditFamily`; a family's roles may be
+declared in several modules, `_joined`). A family listed by ``--list`` but not here, or a role no
+declaration of it audits, is named in the run's notes as not audited yet."""
 
 
 def _wrong_format(family: str, scene_format: str) -> bool:

@@ -1,0 +1,392 @@
+"""The ``ambient-aperture`` family in `rtfit audit`, roles "ambient occlusion (aperture caps)" and "occluded
+sphere light": each visible point's visibility cap, on the scene's own geometry and camera.
+
+Ambient aperture lighting (Oat & Sander 2007; `rtfit.realtime.ambient_aperture`) stores a point's visibility
+as one spherical cap: a unit bent normal a and an aperture r_a. Here the cap of every visible pixel is baked
+as the ambient-aperture experiment bakes it (`rtfit.reference.visibility`, seed 000:2660-2670), with Mitsuba
+ray casts against the scene's own shapes (`bake_caps`): ``BAKE_DIRS`` = 256 directions uniform over the
+hemisphere of the pixel's normal n (a 16 × 16 stratified grid in (cos θ, φ), rotated about n by a random
+angle per pixel, so that banding becomes noise), V(ω) = 1 where the ray escapes,
+
+    V̂ = mean V(ωᵢ),   a = normalize(Σ V(ωᵢ) ωᵢ),   r_a = acos(1 − V̂)   (`aperture_from_visibility`),
+
+a = n and r_a = 0 where nothing escapes. The caps are baked by rays of their own, not from the references'
+rays: the pass cache keeps only each reference's pooled mean, and a bent normal needs the directions. The
+distance field is not used (its 64³ voxels blur the creases that decide the cap). The bake is
+deterministic (the seed fixes the rotations); its own noise (binomial, ≤ 0.031 in V̂ for 256 directions)
+is part of what is compared, as it is of an engine's bake.
+
+Case ``caps`` (role "ambient occlusion (aperture caps)"): the cap against ray-cast AO within R.
+
+* Reference: the sdf-occlusion AO role's ray-cast ambient occlusion A = (1/π)∫ V_R (n·ω) dω within
+  R = ``--ao-distance`` (`audit_ambient_occlusion.ao_reference`: the same cache entry, rendered once for
+  both families). The caps are baked with rays of length R (every shape occludes, the lights' too, as in
+  the reference).
+* Rows: the second cap is the point's own hemisphere (centre n, radius π/2) and its "radiance" is 1/π, so
+  that every irradiance form of the table reads AO:
+
+  - ``aa-<form>-<lambert>``: A ≈ (1/π)·Ω_form(r_a, π/2, ∠(a, n))·max(n·c, 0), the light term of the table
+    (`METHODS` rows, their kernel text) with l = n, α = π/2: the four intersection forms (``exact``,
+    ``smoothstep``, ``linear``, ``fitted``: c0..c5 fitted to this scene) and the two Lambert factors (the
+    seed's plain average, the fitted cap-size weight: k fitted). Under an open sky (a = n, r_a = π/2) they
+    read 2, not 1: the Lambert factor treats the intersection as a small cap around its centroid, which the
+    hemisphere is not (Ω·cos = 2π·1 where ∫cos dω = π). The rows show how far that is on a real scene.
+  - ``fill-projected``: A_cap = P(n·a, r_a)/π, the exact projected solid angle of the cap, clipped at the
+    horizon: what AO would be if visibility were exactly the baked cap. Its error is the cap model's own.
+  - ``fill-seed``: A ≈ A(r_a)·max(n·a, 0)/π, the seed's fill (000:2774-2782): 2 under an open sky.
+
+  The bare intersection forms (r1, r2, d → Ω in sr) are compared at the function level by the
+  ambient-aperture experiment; here each is a part of its ``aa-<form>-*`` rows. A user approximation of
+  ``ambient_occlusion`` is evaluated here too (the AO role's inputs, the scene's distance field included).
+
+Case ``light<i>-occluded`` (role "occluded sphere light", per spherical light): that light's direct
+irradiance with the scene's occluders against the ambient-aperture light term.
+
+* Reference: the diffuse family's **shadowed** irradiance of that light (`audit_diffuse.light_reference`:
+  Mitsuba's emitter sampling of the light alone with shadow rays; the same cache entry as the diffuse
+  family's, rendered once for both). W/m², RGB.
+* Caps: baked with unbounded rays, the emitters' own shapes seen through (a light does not occlude itself;
+  the experiment bakes the scene without its lights).
+* Rows: every ``aa-*`` row of `METHODS`: E ≈ L·Ω(r_a, α, ∠(a, l))·max(n·c, 0) with l towards the light's
+  centre, α = asin(r/d), L the light's radiance (the diffuse family's inputs, `light_geometry`,
+  `light_radiance`); the fitted forms' c0..c5 and k fitted to this scene. A user approximation of
+  ``light_irradiance`` gets cos_theta = n·l, E⊥, α and the distance, as in the diffuse family.
+
+Neither case has an exact row (the cap is a model of the visibility), so neither has a z-score self-check.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import drjit as dr
+import numpy as np
+
+from rtfit.realtime.ambient_aperture import METHODS, aperture_from_visibility
+from rtfit.realtime.arrays import NUMPY_OPS
+from rtfit.realtime.sdf_occlusion import CURVATURE_LEVEL
+from rtfit.reference.estimators import sub_seed
+
+from .audit import Applicability
+from .audit_ambient_occlusion import ao_radius, ao_reference, scene_distance_field
+from .audit_diffuse import light_geometry, light_radiance, light_reference
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+
+__all__ = ["BAKE_DIRS", "CAPS_ROLE", "FAMILY", "LIGHT_ROLE", "BakedCaps", "bake_caps"]
+
+CAPS_ROLE = "ambient occlusion (aperture caps)"
+LIGHT_ROLE = "occluded sphere light"
+BAKE_DIRS = 256
+"""Directions of each pixel's cap bake (a 16 × 16 stratified grid; the experiment's quick bake is 4096 per
+probe on far fewer points)."""
+_BAKE_LANES = 1 << 22  # rays per launch of the bake (memory: a few float32 arrays of this length)
+LIGHT_ROWS = tuple(m for m in METHODS if m.startswith("aa-"))
+CAP_ROWS = (*LIGHT_ROWS, "fill-projected", "fill-seed")
+_CAP_LABELS = {
+    "fill-projected": "Cap model: projected solid angle of the cap / π (exact for a cap)",
+    "fill-seed": "Seed fill: A(r_a)·max(n·a, 0) / π",
+}
+
+
+@dataclass(frozen=True)
+class BakedCaps:
+    """Per point: the visible fraction V̂ of uniform hemisphere directions, its binomial standard error, the
+    unit bent normal a (N, 3) and the aperture r_a = acos(1 − V̂) (rad, [0, π/2])."""
+
+    visible_fraction: np.ndarray
+    stderr: np.ndarray
+    bent_normal: np.ndarray
+    aperture: np.ndarray
+    n_dirs: int
+
+
+def _frames(n: np.ndarray):
+    """Two unit tangents (t1, t2) completing each unit normal of ``n`` (N, 3) to a right-handed frame
+    (Duff et al. 2017's branchless construction)."""
+    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t1 = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], 1)
+    t2 = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], 1)
+    return t1, t2
+
+
+def bake_caps(
+    mi,
+    mi_scene,
+    points,
+    normals,
+    *,
+    max_distance: float = math.inf,
+    see_through_emitters: bool = False,
+    n_dirs: int = BAKE_DIRS,
+    seed: int = 0,
+) -> BakedCaps:
+    """The visibility cap of each point (module docstring) by Mitsuba ray casts against ``mi_scene``:
+    ``points`` (N, 3) with unit ``normals`` (N, 3); rays of length ``max_distance`` (scene units) spawned
+    by Mitsuba's rule; ``see_through_emitters``: a ray that hits a shape carrying an emitter counts as
+    escaped. ``n_dirs`` must be a square ≥ 4."""
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    n = np.ascontiguousarray(normals, np.float64).reshape(-1, 3)
+    if p.shape != n.shape:
+        raise ValueError(f"points and normals must both be (N, 3) (got {p.shape} and {n.shape})")
+    side = round(math.sqrt(n_dirs))
+    if n_dirs < 4 or side * side != n_dirs:
+        raise ValueError(f"n_dirs must be a perfect square >= 4 (got {n_dirs})")
+    if not max_distance > 0:
+        raise ValueError(f"max_distance must be > 0 (got {max_distance!r})")
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    # Cell centres of a side × side grid in (z = cos θ, φ): z uniform is the uniform hemisphere.
+    z = ((np.arange(n_dirs) // side) + 0.5) / side
+    phi = 2.0 * math.pi * ((np.arange(n_dirs) % side) + 0.5) / side
+    sin_t = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    rot = np.random.default_rng(sub_seed(seed, "aperture-caps", 0)).uniform(0.0, 2.0 * math.pi, len(p))
+    t1, t2 = _frames(n)
+    visible = np.zeros(len(p))
+    bent = np.zeros((len(p), 3))
+    per = max(1, _BAKE_LANES // n_dirs)
+    for a in range(0, len(p), per):
+        b = min(len(p), a + per)
+        ang = phi[None, :] + rot[a:b, None]  # (m, K)
+        lx, ly = sin_t[None, :] * np.cos(ang), sin_t[None, :] * np.sin(ang)
+        d = (
+            lx[..., None] * t1[a:b, None, :]
+            + ly[..., None] * t2[a:b, None, :]
+            + z[None, :, None] * n[a:b, None, :]
+        )  # (m, K, 3) world directions
+        flat = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
+        idx = np.repeat(np.arange(b - a), n_dirs)
+        it = dr.zeros(mi.Interaction3f, len(flat))
+        it.p = mi.Point3f(np.ascontiguousarray(p[a:b][idx], np.float32).T)
+        it.n = mi.Vector3f(np.ascontiguousarray(n[a:b][idx], np.float32).T)
+        ray = it.spawn_ray(mi.Vector3f(flat.T))
+        if math.isfinite(max_distance):
+            ray.maxt = float(max_distance)
+        if see_through_emitters:
+            si = mi_scene.ray_intersect(ray)
+            blocked = si.is_valid() & ~si.shape.is_emitter()
+        else:
+            blocked = mi_scene.ray_test(ray)
+        v = (~np.asarray(blocked, dtype=bool)).astype(np.float64).reshape(b - a, n_dirs)
+        visible[a:b] = v.mean(axis=1)
+        bent[a:b] = np.einsum("mk,mkc->mc", v, d)
+    norm = np.linalg.norm(bent, axis=1, keepdims=True)
+    bent = np.where(norm > 1e-12, bent / np.maximum(norm, 1e-300), n)
+    aperture = np.asarray(aperture_from_visibility(np.clip(visible, 0.0, 1.0)), np.float64)
+    stderr = np.sqrt(visible * (1.0 - visible) / n_dirs)
+    return BakedCaps(visible, stderr, bent, aperture, n_dirs)
+
+
+def _visible_points(setup: AuditSetup):
+    gb = setup.gbuffer
+    points = gb.position[setup.mask].astype(np.float64)
+    normals = gb.normal[setup.mask].astype(np.float64)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    return points, normals
+
+
+def _image(mask, values) -> np.ndarray:
+    img = np.zeros((*mask.shape, 3))
+    v = np.asarray(values, np.float64)
+    img[mask] = v if v.ndim == 2 else v[:, None]
+    return img
+
+
+def _cap_parameters(caps: BakedCaps) -> dict:
+    return {
+        "bake_dirs": caps.n_dirs,
+        "mean_visible_fraction": float(caps.visible_fraction.mean()) if caps.aperture.size else 0.0,
+        "mean_aperture_deg": float(np.degrees(caps.aperture).mean()) if caps.aperture.size else 0.0,
+        "max_bake_stderr": float(caps.stderr.max()) if caps.aperture.size else 0.0,
+    }
+
+
+def _bake_note(caps: BakedCaps, reach: str) -> str:
+    return (
+        f"caps baked per pixel by {caps.n_dirs} Mitsuba ray casts ({reach}) uniform over the hemisphere "
+        f"(16×16 stratified, rotated per pixel): mean visible fraction {_cap_parameters(caps)['mean_visible_fraction']:.3f}, "
+        f"mean aperture {_cap_parameters(caps)['mean_aperture_deg']:.1f}°, bake standard error ≤ "
+        f"{_cap_parameters(caps)['max_bake_stderr']:.3f}"
+    )
+
+
+def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """The ``caps`` case: the baked caps against the AO role's ray-cast AO within R (module docstring)."""
+    radius = ao_radius(setup, "ambient-aperture")
+    mask = setup.mask
+    points, normals = _visible_points(setup)
+    mean, stderr, total, passes, rendered, entry, seconds = ao_reference(
+        setup, points, normals, radius, f"ao: {app.part}"
+    )
+    caps = bake_caps(setup.mi, setup.scene, points, normals, max_distance=radius, seed=setup.seed)
+    cos_na = np.clip(np.sum(normals * caps.bent_normal, axis=1), -1.0, 1.0)
+    # The AO role's inputs, for a user approximation of ambient_occlusion (the same distance field).
+    sdf, sign, _shapes = scene_distance_field(setup.mi, setup.scene, radius)
+    blurred = sdf.sample(NUMPY_OPS, CURVATURE_LEVEL, *points.T)
+    inputs = {
+        "cos_na": cos_na,
+        "cos_nl": np.ones(len(points)),
+        "cos_al": cos_na,
+        "aperture": caps.aperture,
+        "alpha": 0.5 * math.pi,
+        "radiance": 1.0 / math.pi,
+        "sky_radiance": 1.0 / math.pi,
+        "px": points[:, 0],
+        "py": points[:, 1],
+        "pz": points[:, 2],
+        "nx": normals[:, 0],
+        "ny": normals[:, 1],
+        "nz": normals[:, 2],
+        "sdf": sdf,
+        "t0": float(sdf.voxel),
+        "t_max": radius,
+        "ao_distance": radius,
+        "distance": np.asarray(blurred, np.float64),
+    }
+    methods = {}
+    for rid in CAP_ROWS:
+        if rid not in app.methods:
+            continue
+        m = METHODS[rid]
+        label = _CAP_LABELS.get(rid, f"{m.label}, cap ∩ hemisphere")
+        formula = (
+            f"(1/π)·{m.formula}" if rid.startswith("aa-") else f"(1/π)·{m.formula.replace('L_sky·', '')}"
+        )
+        methods[rid] = replace(m, label=label, formula=formula, exact=False)
+    ref = AuditReference(
+        mean=_image(mask, mean),
+        stderr=_image(mask, stderr),
+        spp=total,
+        passes=passes,
+        passes_rendered=rendered,
+        cache_key=entry.key,
+        cache_path=str(entry.folder),
+        seconds=seconds,
+        quantity=f"ambient occlusion within R = {radius:.4g} (1: unoccluded)",
+        integrator=f"occlusion pass (cosine-distributed rays of length R = {radius:.4g})",
+        integrator_reason="the sdf-occlusion AO role's reference (same cache entry): V_R(ω) with ω ~ cos/π",
+    )
+    return [
+        FamilyCase(
+            id="caps",
+            label=f"{app.part}: visibility caps against ambient occlusion within R = {radius:.4g}",
+            reference=ref,
+            mask=mask,
+            channel_inputs=(inputs,) * 3,
+            parameters={"ao_distance": radius, "pixels": int(mask.sum()), **_cap_parameters(caps)},
+            units="1",
+            notes=(
+                _bake_note(caps, f"of length R = {radius:.4g}, every shape occluding"),
+                "second cap: the point's own hemisphere (centre n, radius π/2) with radiance 1/π, so that "
+                "the light terms read AO; under an open sky the aa-* rows and the seed fill read 2 (the "
+                "centroid's Lambert factor on a hemisphere), the projected-cap row 1",
+                f"distance field for your ambient_occlusion approximations: sign by {sign}",
+            ),
+            methods=methods,
+            quantity="ambient_occlusion",
+        )
+    ]
+
+
+def light_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """The ``light<i>-occluded`` case of the spherical light ``app.source`` (module docstring)."""
+    xml = setup.info.xml
+    if app.source is None or xml is None:
+        raise AuditError(f"ambient-aperture: {app.part} is not a light of a Mitsuba XML scene")
+    light = xml.emitters[app.source]
+    if light.environment:
+        raise AuditError(
+            f"ambient-aperture: {app.part}: the audit samples lights, not environments, for this role"
+        )
+    mask = setup.mask
+    points, normals = _visible_points(setup)
+    towards, dist, alpha, _centre, _radius = light_geometry(setup, app.source, points)
+    tag = f"light{app.source}"
+    mean, stderr, total, passes, rendered, entry, seconds = light_reference(
+        setup, app.source, points, normals, towards, f"{tag}: {app.part}"
+    )
+    caps = bake_caps(setup.mi, setup.scene, points, normals, see_through_emitters=True, seed=setup.seed)
+    a = caps.bent_normal
+    e_perp = mean[:, 6:9]
+    radiance = light_radiance(setup, app.source, e_perp, alpha)
+    cos_nl = np.clip(np.sum(normals * towards, axis=1), -1.0, 1.0)
+    common = {
+        "cos_na": np.clip(np.sum(normals * a, axis=1), -1.0, 1.0),
+        "cos_nl": cos_nl,
+        "cos_al": np.clip(np.sum(a * towards, axis=1), -1.0, 1.0),
+        "aperture": caps.aperture,
+        "alpha": alpha,
+        "cos_theta": cos_nl,
+        "distance": dist,
+    }
+    inputs = tuple({**common, "irradiance": e_perp[:, c], "radiance": radiance[c]} for c in range(3))
+    methods = {rid: METHODS[rid] for rid in LIGHT_ROWS if rid in app.methods}
+    ref = AuditReference(
+        mean=_image(mask, mean[:, 3:6]),
+        stderr=_image(mask, stderr[:, 3:6]),
+        spp=total,
+        passes=passes,
+        passes_rendered=rendered,
+        cache_key=entry.key,
+        cache_path=str(entry.folder),
+        seconds=seconds,
+        quantity="direct irradiance of one sphere light with the scene's occluders (W/m²)",
+        integrator="light-irradiance (emitter sampling, shadow rays)",
+        integrator_reason=(
+            f"{light.kind} light: the diffuse family's shadowed reference (same cache entry): Mitsuba "
+            "emitter sampling of this light alone with shadow rays, white Lambertian receiver"
+        ),
+    )
+    return [
+        FamilyCase(
+            id=f"{tag}-occluded",
+            label=f"{app.part}, occluded: visibility cap ∩ light cap",
+            reference=ref,
+            mask=mask,
+            channel_inputs=inputs,
+            parameters={
+                "light": app.part,
+                "kind": light.kind,
+                "alpha_max_deg": float(np.degrees(alpha.max())) if alpha.size else 0.0,
+                "pixels": int(mask.sum()),
+                **_cap_parameters(caps),
+            },
+            units="W/m²",
+            notes=(
+                _bake_note(caps, "unbounded, the emitters' shapes seen through"),
+                "reference: the light's shadowed irradiance (soft shadows of the scene's occluders)",
+            ),
+            methods=methods,
+            quantity="light_irradiance",
+        )
+    ]
+
+
+_CASES = {CAPS_ROLE: caps_case, LIGHT_ROLE: light_case}
+
+
+def ambient_aperture_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """The cases of one applicability: by its role (`CAPS_ROLE`, `LIGHT_ROLE`)."""
+    if app.role not in _CASES:
+        raise AuditError(f"ambient-aperture: the {app.role} role is not audited by this module")
+    return _CASES[app.role](setup, app)
+
+
+FAMILY = AuditFamily(
+    name="ambient-aperture",
+    quantity="light_irradiance",
+    cases=ambient_aperture_cases,
+    roles=(CAPS_ROLE, LIGHT_ROLE),
+    quantities=("ambient_occlusion",),
+    describe=(
+        "Each visible pixel's visibility cap (bent normal and aperture r_a = acos(1 − V), V the visible "
+        f"fraction of {BAKE_DIRS} uniform hemisphere directions cast with Mitsuba against the scene's own "
+        "shapes). Aperture caps: the cap intersected with the pixel's own hemisphere (each intersection form "
+        "and Lambert factor, read as AO with radiance 1/π), the exact projected solid angle of the cap and "
+        "the seed's fill, against the sdf-occlusion role's ray-cast AO within R (the same reference). "
+        "Occluded sphere light: the cap intersected with the light's cap, L·Ω·max(n·c, 0), against that "
+        "light's shadowed direct irradiance (the diffuse family's reference). The fitted forms' "
+        "coefficients and the Lambert exponent are fitted to this scene."
+    ),
+)
