@@ -82,7 +82,7 @@ BAKE_DIRS = 256
 probe on far fewer points)."""
 _BAKE_LANES = 1 << 22  # rays per launch of the bake (memory: a few float32 arrays of this length)
 LIGHT_ROWS = tuple(m for m in METHODS if m.startswith("aa-"))
-CAP_ROWS = (*LIGHT_ROWS, "fill-projected", "fill-seed")
+CAP_ROWS = tuple(m for m in METHODS if m.startswith(("aa-", "fill-")))
 _CAP_LABELS = {
     "fill-projected": "Cap model: projected solid angle of the cap / π (exact for a cap)",
     "fill-seed": "Seed fill: A(r_a)·max(n·a, 0) / π",
@@ -203,11 +203,11 @@ def _cap_parameters(caps: BakedCaps) -> dict:
 
 
 def _bake_note(caps: BakedCaps, reach: str) -> str:
+    p = _cap_parameters(caps)
     return (
         f"caps baked per pixel by {caps.n_dirs} Mitsuba ray casts ({reach}) uniform over the hemisphere "
-        f"(16×16 stratified, rotated per pixel): mean visible fraction {_cap_parameters(caps)['mean_visible_fraction']:.3f}, "
-        f"mean aperture {_cap_parameters(caps)['mean_aperture_deg']:.1f}°, bake standard error ≤ "
-        f"{_cap_parameters(caps)['max_bake_stderr']:.3f}"
+        f"(16×16 stratified, rotated per pixel): mean visible fraction {p['mean_visible_fraction']:.3f}, "
+        f"mean aperture {p['mean_aperture_deg']:.1f}°, bake standard error ≤ {p['max_bake_stderr']:.3f}"
     )
 
 

@@ -56,7 +56,7 @@ from .audit import Applicability, default_ao_distance
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
 from .audit_geometry import scene_triangles
 
-__all__ = ["FAMILY", "GRID_CELLS", "MIP_LEVELS", "ao_reference", "ao_radius", "scene_distance_field"]
+__all__ = ["FAMILY", "GRID_CELLS", "MIP_LEVELS", "ao_radius", "ao_reference", "scene_distance_field"]
 
 FORMAT = 1
 GRID_CELLS = 64
@@ -111,7 +111,8 @@ def scene_distance_field(mi, mi_scene, pad: float) -> tuple[GridSDF, str, list[s
 
 
 def ao_reference(setup: AuditSetup, points, normals, radius: float, label: str):
-    """The pooled AO passes (the ambient-aperture family's caps read the same entry): (mean (N,), stderr (N,), total spp, passes, rendered, entry, seconds)."""
+    """The pooled AO passes (the ambient-aperture family's caps read the same entry): (mean (N,), stderr
+    (N,), total spp, passes, rendered, entry, seconds)."""
     what = {
         "format": FORMAT,
         "quantity": "ao",

@@ -103,8 +103,8 @@ def light_radiance(setup: AuditSetup, source: int, e_perp: np.ndarray, alpha: np
 
 def light_reference(setup: AuditSetup, source: int, points, normals, towards, label: str):
     """The light's pooled passes (columns 0–2 unshadowed, 3–5 shadowed, 6–8 E⊥; the ambient-aperture family
-    reads the same entry for its occluded sphere light): (mean (N, 9), stderr (N, 9), total spp, passes, rendered, entry,
-    seconds)."""
+    reads the same entry for its occluded sphere light): (mean (N, 9), stderr (N, 9), total spp, passes,
+    rendered, entry, seconds)."""
     emitter = setup.emitters[source]
     what = {
         "format": FORMAT,

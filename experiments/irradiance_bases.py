@@ -67,6 +67,7 @@ from rtfit.fitting import smape
 from rtfit.fitting.stats import concat_z_pairs, z_checks, z_pair
 from rtfit.realtime import NUMPY_OPS, set_default_backend
 from rtfit.realtime.ambient_dice import DICE_VERTICES, fit_ambient_dice
+from rtfit.realtime.environment_bases import METHODS as ENVIRONMENT_BASES
 from rtfit.realtime.irradiance_bases import (
     CUBE_AXES,
     CUBE_ORDER,
@@ -84,7 +85,6 @@ from rtfit.realtime.irradiance_bases import (
     sh_project_samples,
     zh3_from_sh,
 )
-from rtfit.realtime.environment_bases import METHODS as ENVIRONMENT_BASES
 from rtfit.realtime.spherical_gaussians import (
     SG_COUNTS,
     SG_FITS,

@@ -89,6 +89,7 @@ MODULES = (
     "irradiance_volumes",
     "spherical_gaussians",
     "ambient_dice",
+    "environment_bases",
     "hemisphere_bases",
     "sdf_grid",
     "sdf_occlusion",

@@ -35,7 +35,9 @@ def _sensor(z: float, res: int) -> str:
     return f"""<sensor type="perspective">
         <float name="fov" value="30"/>
         <transform name="to_world"><lookat origin="0, 0, {z}" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/></film>
+        <film type="hdrfilm">
+            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
+        </film>
     </sensor>"""
 
 
@@ -47,7 +49,9 @@ def _planes(root: Path, res: int = 6) -> Path:
     {_sensor(0.5, res)}
     <shape type="rectangle" id="floor"><transform name="to_world"><scale value="50"/></transform></shape>
     <shape type="rectangle" id="ceiling">
-        <transform name="to_world"><scale value="50"/><rotate x="1" angle="180"/><translate z="{GAP}"/></transform>
+        <transform name="to_world">
+            <scale value="50"/><rotate x="1" angle="180"/><translate z="{GAP}"/>
+        </transform>
     </shape>
 </scene>
 """
