@@ -94,6 +94,9 @@ PROVIDES: dict[str, frozenset[str]] = {
 }
 # What provides an input, for "not here" notes (the first kind of `PROVIDES` that has it).
 _INPUT_SOURCE = {name: kind for kind in reversed(PROVIDES) for name in PROVIDES[kind]}
+# The bare cap-intersection forms (r1, r2, d → Ω in sr) have no per-pixel counterpart in a scene: the
+# ambient-aperture experiment compares them over (r1, r2, d); the audit uses each inside its aa-<form>-* rows.
+_INPUT_SOURCE.update(dict.fromkeys(("r1", "r2", "d"), "caps"))
 _KIND_TEXT = {
     "light": "a light (sun, directional, point, spot, sphere, disk or area)",
     "spherical-light": "a spherical light (a sphere light, or a sun of finite angular radius)",
@@ -103,6 +106,8 @@ _KIND_TEXT = {
     "fog": "an exponential height-fog medium",
     "medium": "a medium",
     "atmosphere": "an atmosphere",
+    "caps": "two bare caps: compared over (r1, r2, d) by the ambient-aperture experiment; in a scene each "
+    "intersection form is audited inside its aa-<form>-* rows",
 }
 
 
@@ -224,7 +229,7 @@ RULES: tuple[Rule, ...] = (
         "occlusion pass: cosine-distributed rays of length R = {ao_distance}",
         # The caps are intersected with the point's own hemisphere (the second cap: centre n, radius π/2,
         # radiance 1/π, so that the light terms read AO), and the fills read 1/π as their sky.
-        frozenset({"r1", "r2", "d", "cos_nl", "cos_al", "alpha", "radiance", "sky_radiance"}),
+        frozenset({"cos_nl", "cos_al", "alpha", "radiance", "sky_radiance"}),
     ),
     Rule(
         "ambient-aperture",
