@@ -346,10 +346,8 @@ def test_rules_are_data_and_reach_every_method():
     # Except the bare cap-intersection forms (r1, r2, d → Ω in sr): a scene has no per-pixel pair of caps to
     # give them; the ambient-aperture experiment compares them over (r1, r2, d), the audit each inside its
     # aa-<form>-* rows (`--list` says so in its "not here" line).
-    bare = {
-        m for t in FAMILIES.values() for m, v in t.items() if v.quantity == "cap_intersection_solid_angle"
-    }
     for family, table in FAMILIES.items():
+        bare = {m for m, v in table.items() if v.quantity == "cap_intersection_solid_angle"}
         assert {m for a in found if a.family == family for m in a.methods} == set(table) - bare, family
 
 
