@@ -92,7 +92,7 @@ def test_caps_between_two_planes_match_the_closed_forms(planes):
     m = case.mask
     ref = case.reference.mean[m][:, 0]
     se = case.reference.stderr[m][:, 0]
-    # AO within R between planes h apart: (h/R)² = 0.25 (36 pixels × 64 rays: the mean's z within 4; measured 2.2)
+    # AO within R between planes h apart: (h/R)² = 0.25 (36 px × 64 rays: the mean's z within 4; measured 2.2)
     want = (GAP / R) ** 2
     assert abs(ref.mean() - want) < 4 * math.sqrt(np.mean(se**2) / len(ref)) + 1e-3
     # The bake: V = h/R = 0.5 exactly on the 16 × 16 grid (cos θ cell centres 0.469 / 0.531 either side of
