@@ -50,7 +50,9 @@ irradiance with the scene's occluders against the ambient-aperture light term.
 * Rows: every ``aa-*`` row of `METHODS`: E ≈ L·Ω(r_a, α, ∠(a, l))·max(n·c, 0) with l towards the light's
   centre, α = asin(r/d), L the light's radiance (the diffuse family's inputs, `light_geometry`,
   `light_radiance`); the fitted forms' c0..c5 and k fitted to this scene. A user approximation of
-  ``light_irradiance`` gets cos_theta = n·l, E⊥, α and the distance, as in the diffuse family.
+  ``light_irradiance`` is a row here only when ``--approx`` names this family too (alone it runs the diffuse
+  family, whose shadowed case gives it the hard shadow it lacks); it gets cos_theta = n·l, E⊥, α and the
+  distance, as in the diffuse family, and is compared with the shadowed irradiance as it is.
 
 Neither case has an exact row (the cap is a model of the visibility), so neither has a z-score self-check.
 """
@@ -375,10 +377,14 @@ def ambient_aperture_cases(setup: AuditSetup, app: Applicability) -> list[Family
 
 FAMILY = AuditFamily(
     name="ambient-aperture",
-    quantity="light_irradiance",
+    # The caps case compares AO, so a user's ambient_occlusion approximation brings this family in beside
+    # sdf-occlusion. The occluded-light case compares light_irradiance, but it is not listed in
+    # ``quantities``: a user's light formula (a wrap) reads no visibility, so `--approx my_wrap.py:f` alone
+    # runs the diffuse family (with its hard-shadow case) and not this one; named together with
+    # ``ambient-aperture`` it is a row of the occluded-light case too.
+    quantity="ambient_occlusion",
     cases=ambient_aperture_cases,
     roles=(CAPS_ROLE, LIGHT_ROLE),
-    quantities=("ambient_occlusion",),
     describe=(
         "Each visible pixel's visibility cap (bent normal and aperture r_a = acos(1 − V), V the visible "
         f"fraction of {BAKE_DIRS} uniform hemisphere directions cast with Mitsuba against the scene's own "

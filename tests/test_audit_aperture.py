@@ -25,6 +25,7 @@ from click.testing import CliRunner
 from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.results import load_results
+from rtfit.realtime.quantities import approximation
 
 FAST = {"cost_elements": 1 << 10, "metrics": ("rmse", "mae"), "fit": False}
 GAP = 1.0  # h: floor at z = 0, ceiling at z = 1
@@ -79,11 +80,17 @@ def _sphere_light(root: Path, res: int = 6) -> Path:
     return path
 
 
+@approximation(quantity="ambient_occlusion")
+def between_planes(ops, g):
+    """(h/R)² with h = 1: the closed form of this scene, as a user would write it."""
+    return 0.0 * g.px + (GAP / g.ao_distance) ** 2
+
+
 @pytest.fixture(scope="module")
 def planes(tmp_path_factory):
     root = tmp_path_factory.mktemp("planes")
-    return audit(_planes(root), "ambient-aperture", ao_distance=R, width=6, height=6, spp=64, pass_spp=32,
-                 cache=root / "cache", **FAST)  # fmt: skip
+    return audit(_planes(root), ["ambient-aperture", between_planes], ao_distance=R, width=6, height=6,
+                 spp=64, pass_spp=32, cache=root / "cache", **FAST)  # fmt: skip
 
 
 def test_caps_between_two_planes_match_the_closed_forms(planes):
@@ -104,7 +111,7 @@ def test_caps_between_two_planes_match_the_closed_forms(planes):
     # projected cap: sin²(π/3) = 0.75; seed fill: A(π/3)/π = 2π(1 − ½)/π = 1; the cap lies inside the
     # hemisphere (nested): Ω = A(π/3) = π, the centroid is n, so every aa row reads 1 (the seed's smoothstep,
     # the linear ramp and the fitted form are exact in the nested case).
-    closed = {"fill-projected": 0.75, "fill-seed": 1.0}
+    closed = {"fill-projected": 0.75, "fill-seed": 1.0, "between_planes": 0.25}  # (the user's row: (h/R)²)
     for rid in ("aa-exact-seed", "aa-smoothstep-seed", "aa-linear-seed", "aa-fitted-seed",
                 "aa-exact-fitted", "aa-fitted-fitted"):  # fmt: skip
         closed[rid] = 1.0
