@@ -11,10 +11,10 @@ geometry the SDF terms and aperture caps.
 
 `RULES` is the whole decision, as data: a rule names a family, the part kinds it needs (the first is the
 *trigger*: one applicability per such part; the others must be present in the scene), the inputs the
-rule itself supplies (e.g. the two caps of an aperture-cap intersection), the reason, the reference quantity
-and the integrator it would need. A method of the family applies when every one of its inputs is provided;
-so the exact sphere-light form is listed only for a spherical light, because only a spherical light
-provides ``alpha``. No code branches on a family's or a method's name.
+rule itself supplies (e.g. the aperture-caps role's second cap: the point's own hemisphere), the reason,
+the reference quantity and the integrator it would need. A method of the family applies when every one of
+its inputs is provided; so the exact sphere-light form is listed only for a spherical light, because only a
+spherical light provides ``alpha``. No code branches on a family's or a method's name.
 
 The AO radius: ``--ao-distance``, else `AO_FRACTION` × the diagonal of the scene's bounding box (all shapes
 as Mitsuba loads them). A ground plane much larger than the objects dominates that box: pass

@@ -82,7 +82,7 @@ LIGHT_ROLE = "occluded sphere light"
 BAKE_DIRS = 256
 """Directions of each pixel's cap bake (a 16 × 16 stratified grid; the experiment's quick bake is 4096 per
 probe on far fewer points)."""
-_BAKE_LANES = 1 << 22  # rays per launch of the bake (memory: a few float32 arrays of this length)
+_BAKE_LANES = 1 << 21  # rays per launch of the bake (host memory: ~100 bytes per ray in flight)
 LIGHT_ROWS = tuple(m for m in METHODS if m.startswith("aa-"))
 CAP_ROWS = tuple(m for m in METHODS if m.startswith(("aa-", "fill-")))
 _CAP_LABELS = {
