@@ -199,8 +199,9 @@ RULES: tuple[Rule, ...] = (
         "sky occlusion",
         ("environment", "geometry"),
         "{part} is occluded by {with_}",
-        "sky irradiance with visibility at the visible points (the environment's direct light, shadowed)",
-        "direct, environment only (shadow rays against the scene's own shapes)",
+        "sky irradiance with visibility at the visible points (the environment's direct light, shadowed; a "
+        "sunsky's sky alone)",
+        "the environment alone: emitter + cosine sampling (MIS) with shadow rays against the scene's shapes",
     ),
     Rule(
         "ambient-aperture",
@@ -209,7 +210,8 @@ RULES: tuple[Rule, ...] = (
         "{part} is occluded by {with_}: the visible cap of sky",
         "sky irradiance with visibility at the visible points, and each point's visible cap (bent normal, "
         "aperture)",
-        "direct, environment only (shadow rays); visibility caps by ray casts",
+        "the environment alone: emitter + cosine sampling (MIS) with shadow rays; the caps by unbounded ray "
+        "casts",
     ),
     Rule(
         "sdf-occlusion",

@@ -71,7 +71,7 @@ from rtfit.realtime.sdf_occlusion import CURVATURE_LEVEL
 from rtfit.reference.estimators import sub_seed
 
 from .audit import Applicability
-from .audit_ambient_occlusion import ao_radius, ao_reference, scene_distance_field
+from .audit_ambient_occlusion import ao_radius, ao_reference, scene_distance_field, visible_points
 from .audit_diffuse import light_geometry, light_radiance, light_reference
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
 
@@ -180,14 +180,6 @@ def bake_caps(
     return BakedCaps(visible, stderr, bent, aperture, n_dirs)
 
 
-def _visible_points(setup: AuditSetup):
-    gb = setup.gbuffer
-    points = gb.position[setup.mask].astype(np.float64)
-    normals = gb.normal[setup.mask].astype(np.float64)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
-    return points, normals
-
-
 def _image(mask, values) -> np.ndarray:
     img = np.zeros((*mask.shape, 3))
     v = np.asarray(values, np.float64)
@@ -217,7 +209,7 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """The ``caps`` case: the baked caps against the AO role's ray-cast AO within R (module docstring)."""
     radius = ao_radius(setup, "ambient-aperture")
     mask = setup.mask
-    points, normals = _visible_points(setup)
+    points, normals = visible_points(setup)
     mean, stderr, total, passes, rendered, entry, seconds = ao_reference(
         setup, points, normals, radius, f"ao: {app.part}"
     )
@@ -302,7 +294,7 @@ def light_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             f"ambient-aperture: {app.part}: the audit samples lights, not environments, for this role"
         )
     mask = setup.mask
-    points, normals = _visible_points(setup)
+    points, normals = visible_points(setup)
     towards, dist, alpha, _centre, _radius = light_geometry(setup, app.source, points)
     tag = f"light{app.source}"
     mean, stderr, total, passes, rendered, entry, seconds = light_reference(

@@ -34,7 +34,7 @@ mip levels (`GridSDF.from_grid`). Rows (`rtfit.realtime.sdf_occlusion.METHODS`):
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -56,7 +56,17 @@ from .audit import Applicability, default_ao_distance
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
 from .audit_geometry import scene_triangles
 
-__all__ = ["FAMILY", "GRID_CELLS", "MIP_LEVELS", "ao_radius", "ao_reference", "scene_distance_field"]
+__all__ = [
+    "FAMILY",
+    "GRID_CELLS",
+    "MIP_LEVELS",
+    "DistanceFieldRows",
+    "ao_radius",
+    "ao_reference",
+    "distance_field_rows",
+    "scene_distance_field",
+    "visible_points",
+]
 
 FORMAT = 1
 GRID_CELLS = 64
@@ -94,7 +104,10 @@ def evans_on_terms(method: Method) -> Method:
 
 def scene_distance_field(mi, mi_scene, pad: float) -> tuple[GridSDF, str, list[str]]:
     """(mip chain, sign mode used, one line per shape) of the scene's triangles on a grid over their bounding
-    box padded by ``pad`` (scene units) and two voxels."""
+    box padded by ``pad`` (scene units) and two voxels. The last bake is kept (both sdf-occlusion roles and
+    the aperture fill read the same field in one run)."""
+    if _LAST_FIELD.get("scene") is mi_scene and _LAST_FIELD.get("pad") == pad:
+        return _LAST_FIELD["value"]
     v, f, lines = scene_triangles(mi, mi_scene)
     lo = v.min(axis=0) - pad
     hi = v.max(axis=0) + pad
@@ -107,7 +120,13 @@ def scene_distance_field(mi, mi_scene, pad: float) -> tuple[GridSDF, str, list[s
             if sign == "unsigned":
                 raise
     levels = max(1, min(MIP_LEVELS, int(math.log2(max(2, min(shape)))) - 1))
-    return GridSDF.from_grid(grid, levels), sign, lines
+    value = (GridSDF.from_grid(grid, levels), sign, lines)
+    _LAST_FIELD.clear()
+    _LAST_FIELD.update(scene=mi_scene, pad=pad, value=value)
+    return value
+
+
+_LAST_FIELD: dict = {}
 
 
 def ao_reference(setup: AuditSetup, points, normals, radius: float, label: str):
@@ -128,34 +147,51 @@ def ao_reference(setup: AuditSetup, points, normals, radius: float, label: str):
     return pooled_passes(setup, what, render, (-1,), label, seed_label="ao-pass")
 
 
-def ao_radius(setup: AuditSetup, family: str) -> float:
-    """The AO radius R: ``--ao-distance``, else `default_ao_distance` of the scene (`AuditError` when the
-    scene has no finite size)."""
-    radius = setup.ao_distance if setup.ao_distance is not None else default_ao_distance(setup.info)
-    if radius is None or not (math.isfinite(radius) and radius > 0):
-        raise AuditError(f"{family}: the scene has no finite size; give --ao-distance")
-    return float(radius)
-
-
 def _image(mask, values) -> np.ndarray:
     img = np.zeros((*mask.shape, 3))
     img[mask] = np.asarray(values, np.float64)[:, None]
     return img
 
 
-def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
-    """One case: the ray-cast AO of the visible points against the distance-field rows (module docstring)."""
-    if app.role != ROLE:
-        raise AuditError(f"sdf-occlusion: the {app.role} role is not audited yet")
-    radius = ao_radius(setup, "sdf-occlusion")
-    mask = setup.mask
-    gb = setup.gbuffer
-    points = gb.position[mask].astype(np.float64)
-    normals = gb.normal[mask].astype(np.float64)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
-    mean, stderr, total, passes, rendered, entry, seconds = ao_reference(
-        setup, points, normals, radius, f"ao: {app.part}"
-    )
+@dataclass(frozen=True)
+class DistanceFieldRows:
+    """The distance-field rows of `METHODS` on one set of visible points, as both sdf-occlusion roles
+    evaluate them (ambient occlusion here; sky occlusion in `rtfit.experiments.audit_sky_occlusion`):
+    the baked field (``sdf``, its ``sign`` mode, one line per shape in ``shapes``), the per-pixel
+    ``inputs`` every row reads, the rows themselves (``methods``: the Evans rows read their sample terms
+    as d1..d4, `evans_on_terms`), the Evans rows' own ``row_inputs`` (one mapping: the same for every
+    channel) and ``params`` (the per-scene-unit k of the curvature and Evans rows, scaled by 1/R)."""
+
+    sdf: GridSDF
+    sign: str
+    shapes: list[str]
+    inputs: dict
+    methods: dict[str, Method]
+    row_inputs: dict
+    params: dict
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        shape = self.sdf.grids[0].shape
+        return (
+            f"distance field: {shape[0]}×{shape[1]}×{shape[2]} cells of {self.sdf.voxel:.4g} over the scene "
+            f"padded by R, {self.sdf.levels} mip levels, sign by "
+            + ("flood fill from outside" if self.sign == "flood" else "none (unsigned: flood fill failed)"),
+            "geometry: " + "; ".join(self.shapes),
+        )
+
+    @property
+    def parameters(self) -> dict:
+        return {"grid": list(self.sdf.grids[0].shape), "voxel": float(self.sdf.voxel), "sign": self.sign}
+
+
+def distance_field_rows(
+    setup: AuditSetup, wanted, points, normals, radius: float, t_max: float | None = None
+) -> DistanceFieldRows:
+    """The field baked from the scene's triangles over their bounds padded by ``radius`` (the AO radius R,
+    so that both roles read the same field), and the rows of `ROWS` among ``wanted`` (method ids) on
+    ``points``/``normals`` (float64 (N, 3), unit normals). The cone marches from one voxel to ``t_max``
+    (default R)."""
     sdf, sign, shapes = scene_distance_field(setup.mi, setup.scene, radius)
     blurred = sdf.sample(NUMPY_OPS, CURVATURE_LEVEL, *points.T.astype(np.float64))
     inputs = {
@@ -167,10 +203,64 @@ def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         "nz": normals[:, 2],
         "sdf": sdf,
         "t0": float(sdf.voxel),
-        "t_max": float(radius),
+        "t_max": float(radius if t_max is None else t_max),
         "ao_distance": float(radius),
         "distance": np.asarray(blurred, np.float64),
     }
+    methods = {m: METHODS[m] for m in ROWS if m in wanted}
+    up = _up_vector(setup.info.up)
+    row_inputs = {}
+    for rid in EVANS_ROWS:
+        if rid not in methods:
+            continue
+        fixed = methods[rid].fixed
+        prm = EvansParams(
+            n=EVANS_SAMPLES, base=fixed["base_voxels"] * sdf.voxel, k=1.0, alpha=fixed["alpha"], up=up
+        )
+        terms = evans_terms(points, normals, sdf, prm)
+        methods[rid] = evans_on_terms(methods[rid])
+        row_inputs[rid] = ({f"d{i + 1}": terms[i] for i in range(EVANS_SAMPLES)},)
+    # The curvature and Evans k are per scene unit (declared for the sdf-occlusion scenes, R = 1 m): scaled by
+    # 1/R so that k·s stays of order one in any unit (the Cornell box's millimetre-sized units gave
+    # e^(10·s) ~ 1e34 at the declared start, which no fit recovered from).
+    per_unit = {}
+    for rid in ("curvature", *EVANS_ROWS):
+        if rid in methods:
+            k = METHODS[rid].params["k"]
+            per_unit[rid] = {
+                "k": replace(k, initial=k.initial / radius, lower=k.lower / radius, upper=k.upper / radius)
+            }
+    return DistanceFieldRows(sdf, sign, shapes, inputs, methods, row_inputs, per_unit)
+
+
+def ao_radius(setup: AuditSetup, family: str = "sdf-occlusion") -> float:
+    """R: ``--ao-distance``, else the scene's default (`default_ao_distance`); finite and positive."""
+    radius = setup.ao_distance if setup.ao_distance is not None else default_ao_distance(setup.info)
+    if radius is None or not (math.isfinite(radius) and radius > 0):
+        raise AuditError(f"{family}: the scene has no finite size; give --ao-distance")
+    return float(radius)
+
+
+def visible_points(setup: AuditSetup) -> tuple[np.ndarray, np.ndarray]:
+    """(points, unit normals), float64 (N, 3), of the masked pixels of the G-buffer."""
+    gb = setup.gbuffer
+    points = gb.position[setup.mask].astype(np.float64)
+    normals = gb.normal[setup.mask].astype(np.float64)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    return points, normals
+
+
+def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """One case: the ray-cast AO of the visible points against the distance-field rows (module docstring)."""
+    if app.role != ROLE:
+        raise AuditError(f"sdf-occlusion: the {app.role} role is not audited here")
+    radius = ao_radius(setup)
+    mask = setup.mask
+    points, normals = visible_points(setup)
+    mean, stderr, total, passes, rendered, entry, seconds = ao_reference(
+        setup, points, normals, radius, f"ao: {app.part}"
+    )
+    rows = distance_field_rows(setup, app.methods, points, normals, radius)
     ref = AuditReference(
         mean=_image(mask, mean),
         stderr=_image(mask, stderr),
@@ -184,55 +274,20 @@ def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         integrator=f"occlusion pass (cosine-distributed rays of length R = {radius:.4g})",
         integrator_reason="V_R(ω) with ω ~ cos/π is the cheapest exact estimator of cosine-weighted AO",
     )
-    methods = {m: METHODS[m] for m in ROWS if m in app.methods}
-    up = _up_vector(setup.info.up)
-    row_inputs = {}
-    for rid in EVANS_ROWS:
-        if rid not in methods:
-            continue
-        fixed = methods[rid].fixed
-        prm = EvansParams(
-            n=EVANS_SAMPLES, base=fixed["base_voxels"] * sdf.voxel, k=1.0, alpha=fixed["alpha"], up=up
-        )
-        terms = evans_terms(points, normals, sdf, prm)
-        methods[rid] = evans_on_terms(methods[rid])
-        row_inputs[rid] = ({f"d{i + 1}": terms[i] for i in range(EVANS_SAMPLES)},) * 3
-    # The curvature and Evans k are per scene unit (declared for the sdf-occlusion scenes, R = 1 m): scaled by
-    # 1/R so that k·s stays of order one in any unit (the Cornell box's millimetre-sized units gave
-    # e^(10·s) ~ 1e34 at the declared start, which no fit recovered from).
-    per_unit = {}
-    for rid in ("curvature", *EVANS_ROWS):
-        if rid in methods:
-            k = METHODS[rid].params["k"]
-            per_unit[rid] = {
-                "k": replace(k, initial=k.initial / radius, lower=k.lower / radius, upper=k.upper / radius)
-            }
-    shape = sdf.grids[0].shape
     return [
         FamilyCase(
             id="ao",
             label=f"{app.part}: ambient occlusion within R = {radius:.4g}",
             reference=ref,
             mask=mask,
-            channel_inputs=(inputs,) * 3,
-            parameters={
-                "ao_distance": float(radius),
-                "grid": list(shape),
-                "voxel": float(sdf.voxel),
-                "sign": sign,
-                "pixels": int(mask.sum()),
-            },
+            channel_inputs=(rows.inputs,) * 3,
+            parameters={"ao_distance": float(radius), **rows.parameters, "pixels": int(mask.sum())},
             units="1",
-            notes=(
-                f"distance field: {shape[0]}×{shape[1]}×{shape[2]} cells of {sdf.voxel:.4g} over the scene "
-                f"padded by R, {sdf.levels} mip levels, sign by "
-                + ("flood fill from outside" if sign == "flood" else "none (unsigned: flood fill failed)"),
-                "geometry: " + "; ".join(shapes),
-            ),
-            methods=methods,
+            notes=rows.notes,
+            methods=rows.methods,
             quantity="ambient_occlusion",
-            params=per_unit,
-            row_inputs=row_inputs,
+            params=rows.params,
+            row_inputs={rid: v * 3 for rid, v in rows.row_inputs.items()},
         )
     ]
 

@@ -47,7 +47,15 @@ from rtfit.reference.estimators import GBuffer, PassResult, sub_seed
 
 from .audit import Applicability, AuditError, SceneInfo
 
-__all__ = ["AuditError", "AuditFamily", "AuditReference", "AuditSetup", "FamilyCase", "pooled_passes"]
+__all__ = [
+    "AuditError",
+    "AuditFamily",
+    "AuditReference",
+    "AuditSetup",
+    "FamilyCase",
+    "by_name",
+    "pooled_passes",
+]
 
 
 @dataclass(frozen=True)
@@ -148,6 +156,49 @@ class AuditFamily:
     formats: tuple[str, ...] = ("mitsuba-xml",)
     """The scene formats (`SceneInfo.format`: ``mitsuba-xml``, ``rtfit-toml``, ``rtfit-sky``) its cases read;
     on another format the family is named in the run's notes as not audited for it."""
+
+
+def _merged(family: list[AuditFamily]) -> AuditFamily:
+    """One declaration of a family from declarations of its roles (`by_name`)."""
+    first = family[0]
+    if len(family) == 1:
+        return first
+    roles: list[str] = []
+    for f in family:
+        if f.roles is None:
+            raise AuditError(f"{f.name}: a family declared more than once must name each declaration's roles")
+        clash = set(roles) & set(f.roles)
+        if clash:
+            raise AuditError(f"{f.name}: role {', '.join(sorted(clash))} declared twice")
+        roles += f.roles
+    owner = {r: f for f in family for r in f.roles or ()}
+
+    def cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+        return owner[app.role].cases(setup, app)
+
+    quantities = dict.fromkeys(q for f in family for q in (f.quantity, *f.quantities))
+    quantities.pop(first.quantity)
+    formats = tuple(x for x in first.formats if all(x in f.formats for f in family))
+    return AuditFamily(
+        name=first.name,
+        quantity=first.quantity,
+        cases=cases,
+        describe=" ".join(f.describe for f in family if f.describe),
+        quantities=tuple(quantities),
+        roles=tuple(roles),
+        formats=formats,
+    )
+
+
+def by_name(families) -> dict[str, AuditFamily]:
+    """Family name → one `AuditFamily`, from declarations in order. A family may be declared once per
+    role (each declaration's ``roles`` disjoint, e.g. sdf-occlusion's ambient-occlusion and sky-occlusion
+    roles in modules of their own): its declarations become one whose ``cases`` dispatches on the
+    applicability's role, whose ``quantities`` are all of theirs and whose ``describe`` joins theirs."""
+    groups: dict[str, list[AuditFamily]] = {}
+    for f in families:
+        groups.setdefault(f.name, []).append(f)
+    return {name: _merged(group) for name, group in groups.items()}
 
 
 def pooled_passes(

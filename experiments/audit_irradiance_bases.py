@@ -63,8 +63,10 @@ __all__ = [
     "FAMILY",
     "QUADRATURE_MIN_ROWS",
     "QUADRATURE_ROWS",
+    "environment_bases",
     "environment_of",
     "irradiance_bases_cases",
+    "sh_l2_table",
 ]
 
 FORMAT = 2  # 2: MIS of emitter and cosine sampling (`environment_irradiance_pass`)
@@ -94,6 +96,18 @@ def environment_of(setup: AuditSetup, source: int, rows: int = BAKE_ROWS):
     if light.kind == "sunsky" and light.direction is not None:
         sun = (light.direction, float(light.angular_radius_deg or 0.0))
     return emitter_environment(setup.mi, emitter, light.kind, rows, sun=sun, name=f"{light.kind} environment")
+
+
+def environment_bases(env) -> dict:
+    """What an engine bakes from ``env`` (`build_bases` with this family's settings): ``sh`` (SH to L4,
+    (25, 3)), the cubes, λ, … as the rows of this family read them."""
+    return build_bases(env, _CFG, fit_normals=_FIT_NORMALS)
+
+
+def sh_l2_table(bases: dict) -> np.ndarray:
+    """The 27 SH L2 coefficients L_lm (W/m²), channel-major: the ``sh`` input of `environment_irradiance`
+    and what ``sh-l2`` reads."""
+    return np.ascontiguousarray(np.asarray(bases["sh"], np.float64)[:9].T.reshape(-1))
 
 
 def _reference(setup: AuditSetup, source: int, normals: np.ndarray, label: str):
@@ -139,13 +153,13 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
     mean, stderr, total, passes, rendered, entry, seconds = _reference(
         setup, app.source, normals, f"{tag}: {app.part}"
     )
-    bases = build_bases(env, _CFG, fit_normals=_FIT_NORMALS)
+    bases = environment_bases(env)
     light = setup.info.xml.emitters[app.source] if setup.info.xml is not None else None
     kind = light.kind if light is not None else env.kind
     emitter = setup.emitters[app.source]
     quad = emitter_irradiance_quadrature(setup.mi, emitter, kind, normals, QUADRATURE_ROWS, sun=env.sun)
     nx, ny, nz = (np.ascontiguousarray(normals[:, k]) for k in range(3))
-    sh = np.ascontiguousarray(np.asarray(bases["sh"], np.float64).T.reshape(-1))  # a table: 27 floats
+    sh = sh_l2_table(bases)  # a table: 27 floats
     default = ({"nx": nx, "ny": ny, "nz": nz, "sh": sh},)
     row_inputs: dict = {}
     params: dict = {}

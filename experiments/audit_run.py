@@ -68,10 +68,11 @@ from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_fa
 from .audit_ambient_aperture import FAMILY as AMBIENT_APERTURE_CAPS
 from .audit_ambient_occlusion import FAMILY as AMBIENT_OCCLUSION
 from .audit_diffuse import FAMILY as DIFFUSE
-from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_family import AuditFamily, AuditSetup, FamilyCase, by_name
 from .audit_height_fog import FAMILY as HEIGHT_FOG
 from .audit_irradiance_bases import FAMILY as IRRADIANCE_BASES
 from .audit_nishita_sky import FAMILY as NISHITA_SKY
+from .audit_sky_occlusion import APERTURE_FILL, SKY_OCCLUSION
 from .cost import time_drjit
 from .records import SCHEMA, Results, from_json, plain_json, to_json
 from .registry import ALIASES
@@ -93,44 +94,20 @@ __all__ = [
 
 log = logging.getLogger("rtfit.audit")
 
-
-def _joined(*declarations: AuditFamily) -> dict[str, AuditFamily]:
-    """name → declaration. Several declarations of one family, each auditing its own roles in a module of its
-    own (`AuditFamily.roles`), are joined into one: its ``cases`` hands each applicability to the declaration
-    of its role; its roles, further quantities and formats are theirs together (the first one's quantity
-    first)."""
-    out: dict[str, AuditFamily] = {}
-    for f in declarations:
-        g = out.get(f.name)
-        if g is None:
-            out[f.name] = f
-            continue
-        if g.roles is None or f.roles is None or set(g.roles) & set(f.roles):
-            raise ValueError(f"audit family {f.name}: two declarations audit the same role")
-        parts = (*getattr(g.cases, "parts", (g,)), f)
-
-        def cases(setup, app, parts=parts):
-            return next(p for p in parts if app.role in (p.roles or ())).cases(setup, app)
-
-        cases.parts = parts  # type: ignore[attr-defined]
-        quantities = (*g.quantities, f.quantity, *f.quantities)
-        out[f.name] = AuditFamily(
-            name=f.name,
-            quantity=g.quantity,
-            cases=cases,
-            describe=f"{g.describe} {f.describe}".strip(),
-            quantities=tuple(q for q in dict.fromkeys(quantities) if q != g.quantity),
-            roles=(*g.roles, *f.roles),
-            formats=tuple(dict.fromkeys((*g.formats, *f.formats))),
-        )
-    return out
-
-
-AUDITED: dict[str, AuditFamily] = _joined(
-    DIFFUSE, IRRADIANCE_BASES, AMBIENT_OCCLUSION, AMBIENT_APERTURE_CAPS, HEIGHT_FOG, NISHITA_SKY
+AUDITED: dict[str, AuditFamily] = by_name(
+    (
+        DIFFUSE,
+        IRRADIANCE_BASES,
+        AMBIENT_OCCLUSION,
+        SKY_OCCLUSION,
+        APERTURE_FILL,
+        AMBIENT_APERTURE_CAPS,
+        HEIGHT_FOG,
+        NISHITA_SKY,
+    )
 )
 """The families the audit runs (name → declaration, `audit_family.AuditFamily`; a family's roles may be
-declared in several modules, `_joined`). A family listed by ``--list`` but not here, or a role no
+declared in several modules, joined by `by_name`). A family listed by ``--list`` but not here, or a role no
 declaration of it audits, is named in the run's notes as not audited yet."""
 
 
@@ -570,6 +547,13 @@ def audit(
     info = inspect_scene(scene_or_path, defines=defines, camera=camera, width=width, height=height, up=up)
     sel = resolve_approximations(approximations)
     found = applicable_families(info, approx=sel.families, ao_distance=ao_distance)
+    for fam, ids in sel.methods.items():
+        for mid in sorted(ids):
+            if not any(a.family == fam and mid in a.methods for a in found):
+                why = next((w for a in found if a.family == fam for m, w in a.excluded if m == mid), "")
+                raise AuditError(
+                    f"--approx {fam}:{mid} does not apply to {info.source}" + (f": it {why}" if why else "")
+                )
     audited = [a for a in found if _audits(a, info.format)]
     skipped = [
         f"{a.family} ({a.role}: {a.part}): listed by --list, not audited yet"

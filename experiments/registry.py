@@ -101,6 +101,13 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
         ),
         ExperimentSpec(
+            "soft-particles",
+            "rtfit.experiments.soft_particles",
+            "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",
+            "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned "
+            "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
+        ),
+        ExperimentSpec(
             "environment-maps",
             "rtfit.experiments.environment_maps",
             "Pre-convolved and localised environment maps, distance impostors vs exact traces in a room",

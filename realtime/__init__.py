@@ -42,6 +42,8 @@ Modules:
                 function (the issue's public name), so the module's names are imported with
                 ``from rtfit.realtime.volumetric_lightning import METHODS`` (``import
                 rtfit.realtime.volumetric_lightning as m`` binds the function).
+    soft_particles  soft particles: depth fade, camera-aligned box, spherical billboards vs the exact
+                clipped Beer–Lambert chord (docs/soft-particles.md).
     parallax_occlusion  parallax occlusion mapping with soft self-shadowing: the seed's listing and a
                 stable variant, procedural height fields (docs/parallax-occlusion.md).
 
@@ -74,6 +76,7 @@ from .quantities import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
 from .shader import *  # noqa: F403
+from .soft_particles import *  # noqa: F403
 from .spherical_gaussians import *  # noqa: F403
 from .volumetric_lightning import *  # noqa: F403
 
@@ -95,6 +98,7 @@ MODULES = (
     "sdf_occlusion",
     "nishita_sky",
     "volumetric_lightning",
+    "soft_particles",
     "parallax_occlusion",
     "obscurances",
     "quantities",

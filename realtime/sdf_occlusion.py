@@ -441,11 +441,18 @@ def cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
     total = px * 0.0
     kk = _const(ops, px, k)
     t_scale = _const(ops, px, t0)  # t_s = t0 · ratio^s: the geometric ratio is structural, t0 is an input
-    for axis in _cone_axes(cones):
-        # The axis enters as kernel inputs and each cone is evaluated on its own (Dr.Jit only): LLVM's
-        # build time grows about quadratically with kernel size (measured on one core under load: 929 ops
-        # 2.5 s, 2,605 ops 13 s, 7,615 ops = 9 cones × 8 steps 147 s), so nine identical one-cone kernels
-        # compile once (2.5 s) where the fused kernel took minutes. NumPy/JAX evaluate the same text eagerly.
+    axes = _cone_axes(cones)
+    if ops.name != "drjit":
+        # NumPy/JAX: every cone at once, the axes as a leading (cones, 1) dimension broadcast against the
+        # points — the same arithmetic as the loop below, traced once: a JAX fit compiles `steps` field
+        # samples instead of cones × steps (9 × 8 cones: a fit of k on 4096 points took 175 s on 2 loaded
+        # cores, the compile of 72 inlined trilinear samples; session 6).
+        axes = [tuple(np.asarray([a[i] for a in axes], dtype=np.float64)[:, None] for i in range(3))]
+    for axis in axes:
+        # Dr.Jit: the axis enters as kernel inputs and each cone is evaluated on its own: LLVM's build time
+        # grows about quadratically with kernel size (measured on one core under load: 929 ops 2.5 s,
+        # 2,605 ops 13 s, 7,615 ops = 9 cones × 8 steps 147 s), so nine identical one-cone kernels compile
+        # once (2.5 s) where the fused kernel took minutes.
         lx, ly, lz = (_const(ops, px, c) for c in axis)
         wx = lx * t1x + ly * t2x + lz * nx
         wy = lx * t1y + ly * t2y + lz * ny
@@ -459,9 +466,12 @@ def cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
                 level = max(0, min(sdf.levels - 1, math.floor(math.log2(max(width / sdf.voxel, 1.0)))))
             s = sdf.sample(ops, level, px + tt * wx, py + tt * wy, pz + tt * wz)
             vis = ops.minimum(vis, ops.clip(kk * s / tt, 0.0, 1.0))
-        total = total + vis
         if ops.name == "drjit":
+            total = total + vis
             dr.eval(total)
+        else:  # (cones, N): the cones' sum in the loop's order
+            for j in range(cones):
+                total = total + vis[j]
     ao = total * (1.0 / cones)
     return ops.select(nlen > 0, ao, 1.0 + px * 0.0)
 

@@ -418,10 +418,10 @@ def emitter_environment(
         return constant_environment(value)
     dirs = node_directions(height, 2 * height).reshape(-1, 3)
     if kind == "sunsky" and sun is not None:
-        with _scales(mi, emitter, sun_scale=0.0):
+        with emitter_scales(mi, emitter, sun_scale=0.0):
             img = _eval_emitter(mi, dr, emitter, dirs)
         d_sun = np.asarray(sun[0], np.float64)
-        with _scales(mi, emitter, sky_scale=0.0):
+        with emitter_scales(mi, emitter, sky_scale=0.0):
             e_perp, _e_eval = sunsky_sun_irradiance(mi, emitter, d_sun / np.linalg.norm(d_sun))
         u = d_sun / np.linalg.norm(d_sun)
         e = np.maximum(e_perp, 0.0)
@@ -437,7 +437,7 @@ def emitter_environment(
 
 
 @contextlib.contextmanager
-def _scales(mi, emitter, **scales):
+def emitter_scales(mi, emitter, **scales):
     """The emitter with its ``sun_scale``/``sky_scale`` set as given (a sunsky), put back afterwards."""
     params = mi.traverse(emitter)
     old = {k: float(params[k]) for k in scales}
@@ -475,7 +475,7 @@ def emitter_irradiance_quadrature(
     d = uv_to_direction(uu, vv).reshape(-1, 3)
     w = ((2.0 * np.pi / (2 * r)) * (np.pi / r) * np.sin(np.pi * vv)).reshape(-1)
     if kind == "sunsky" and sun is not None:
-        with _scales(mi, emitter, sun_scale=0.0):
+        with emitter_scales(mi, emitter, sun_scale=0.0):
             L = _eval_emitter(mi, dr, emitter, d)
     else:
         L = _eval_emitter(mi, dr, emitter, d)

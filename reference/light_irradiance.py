@@ -85,9 +85,14 @@ def light_irradiance_pass(mi, mi_scene, emitter, points, normals, towards, spp: 
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 
-def environment_irradiance_pass(mi, emitter, normals, spp: int, seed: int) -> PassResult:
+def environment_irradiance_pass(
+    mi, emitter, normals, spp: int, seed: int, *, mi_scene=None, points=None
+) -> PassResult:
     """An environment emitter's unoccluded irradiance E(n) = ∫ L(ω) max(n·ω, 0) dω (W/m², RGB) at unit
-    ``normals`` (N, 3), by multiple importance sampling of two strategies, one sample of each per sample:
+    ``normals`` (N, 3) — or, given ``mi_scene`` and ``points`` (N, 3), its irradiance **with visibility**
+    E(x, n) = ∫ L(ω) V(x, ω) max(n·ω, 0) dω, each strategy's sample multiplied by V from Mitsuba's shadow
+    ray (``Scene.ray_test`` of ``spawn_ray`` at x towards ω: the scene's shapes block the sky) — by
+    multiple importance sampling of two strategies, one sample of each per sample:
     the emitter's own (``Emitter.sample_direction``, density p_e) and the cosine-weighted hemisphere of n
     (p_c = max(n·ω, 0)/π, radiance from ``Emitter.eval``, p_e from ``Emitter.pdf_direction``), each
     weighted by the balance heuristic: L(ω) max(n·ω, 0)/(p_e(ω) + p_c(ω)) per strategy, summed. Unbiased
@@ -95,8 +100,11 @@ def environment_irradiance_pass(mi, emitter, normals, spp: int, seed: int) -> Pa
     gives density 0 (measured on Mitsuba 3.9's ``sunsky``: the sky just above the horizon, 0.04 W/m² on
     normals facing below it), the cosine strategy covers the whole hemisphere. Mean and variance (N, 3)."""
     check_spp(spp)
+    if (mi_scene is None) != (points is None):
+        raise ValueError("the occluded environment pass needs both mi_scene and points")
     t0 = time.perf_counter()
     nrm = np.ascontiguousarray(normals, dtype=np.float32)
+    pts = None if points is None else np.ascontiguousarray(points, dtype=np.float32)
     n_points = len(nrm)
     s = np.empty((n_points, 3))
     q = np.empty((n_points, 3))
@@ -109,15 +117,21 @@ def environment_irradiance_pass(mi, emitter, normals, spp: int, seed: int) -> Pa
         it.n = n
         it.sh_frame = mi.Frame3f(n)
         it.wi = mi.Vector3f(0, 0, 1)
+        if pts is not None:
+            it.p = dr.gather(mi.Point3f, mi.Point3f(pts[a:b].T), idx)
         # strategy 1: the emitter's sampling
         ds, weight = emitter.sample_direction(it, sampler.next_2d(), True)
         ok = ds.pdf > 0.0
+        if pts is not None:
+            ok = ok & ~mi_scene.ray_test(it.spawn_ray(ds.d), ok)
         cos_e = dr.maximum(dr.dot(ds.d, n), 0.0)
         f_e = weight * ds.pdf * cos_e  # L·cos
         e_part = dr.select(ok, f_e / dr.maximum(ds.pdf + cos_e / dr.pi, 1e-30), 0.0)
         # strategy 2: the cosine-weighted hemisphere
         d = it.sh_frame.to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
         cos_c = dr.maximum(dr.dot(d, n), 0.0)
+        if pts is not None:
+            cos_c = dr.select(mi_scene.ray_test(it.spawn_ray(d), cos_c > 0.0), 0.0, cos_c)
         si = dr.zeros(mi.SurfaceInteraction3f, dr.width(n))
         si.wi = -d
         radiance = emitter.eval(si)

@@ -65,7 +65,7 @@ import numpy as np
 from .build import camera_dict
 from .cache import PassEntry, array_digest, pool_passes
 from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
-from .estimators import MAX_LANES, PassResult, channel_moments, mean_var, sub_seed
+from .estimators import MAX_LANES, PassResult, channel_moments, check_spp, chunk_ranges, mean_var, sub_seed
 
 QUANTITIES = (
     "ao",
@@ -325,6 +325,43 @@ def _estimate(mi, dr, mi_scene, rng, p, n, quantity, max_distance, albedo, skyfn
         if not dr.any(alive):
             break
     return value
+
+
+CAP_CHANNELS = ("visible_fraction", "visibility", "bent_x", "bent_y", "bent_z")
+"""The five values of a `visibility_cap_pass`, in order."""
+
+
+def visibility_cap_pass(mi, mi_scene, points, normals, spp: int, seed: int) -> PassResult:
+    """What an engine bakes per point for sky occlusion, by unbounded ray casts against the scene's shapes:
+    with ω uniform on the hemisphere of n (pdf 1/(2π)) and V(ω) = 1 where the ray x + tω (t > 0) meets
+    nothing, per sample the five values (`CAP_CHANNELS`)
+
+    * V(ω): its mean is the visible **fraction** of the hemisphere V_u = (1/2π)∫ V dω (the aperture of
+      equal solid angle: r_a = acos(1 − V_u), `rtfit.realtime.ambient_aperture`, 000:2660-2668);
+    * 2 V(ω)(n·ω): its mean is the cosine-weighted visibility (1/π)∫ V (n·ω) dω (1: unoccluded);
+    * V(ω) ω: its mean is the unnormalised bent normal (1/2π)∫ V ω dω (normalise it: the mean unoccluded
+      direction; n itself where nothing blocks).
+
+    Mean and variance (N, 5) of ``spp`` iid samples per point; rays start at ``spawn_ray``'s offset."""
+    check_spp(spp)
+    t0 = time.perf_counter()
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    nrm = np.ascontiguousarray(normals, dtype=np.float32)
+    n_points = len(pts)
+    s = np.empty((n_points, 5))
+    q = np.empty((n_points, 5))
+    sampler = mi.load_dict({"type": "independent"})
+    for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
+        sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
+        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp
+        p = dr.gather(mi.Point3f, mi.Point3f(pts[a:b].T), idx)
+        n = dr.gather(mi.Vector3f, mi.Vector3f(nrm[a:b].T), idx)
+        d = mi.Frame3f(n).to_world(mi.warp.square_to_uniform_hemisphere(sampler.next_2d()))
+        v = dr.select(mi_scene.ray_test(_spawn(mi, dr, p, n, d)), 0.0, 1.0)
+        values = [v, 2.0 * v * dr.maximum(dr.dot(n, d), 0.0), v * d.x, v * d.y, v * d.z]
+        s[a:b], q[a:b] = channel_moments(mi, dr, values, spp)
+    mean, var = mean_var(s, q, spp)
+    return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 
 def hit_distances(mi, mi_scene, points, normals, directions, rotate_seed: int | None = None) -> np.ndarray:

@@ -186,6 +186,7 @@ def test_rect_light_plane_orientation(mi):
     "shape",
     [
         Rectangle((0, 0, -1), (0, 0, 1), (4.0, 4.0)),
+        Rectangle((0, 0, -1), (0, 0, 1), (120000.0, 120000.0)),  # built as its tiled mesh (next test)
         Disk((0, 0, -1), (0, 0, 1), 2.0),
         Cube((0, 0, -2), (4.0, 4.0, 2.0)),
     ],
@@ -206,3 +207,29 @@ def test_sphere_shape_is_where_declared(mi):
     # Looking up from the origin, the sphere of angular radius asin(1/3) blocks π sin²(asin 1/3) = π/9.
     e, se = _irradiance_at(mi, scene, (0, 0, 0), (0, 0, 1), spp=16384)
     assert abs(e[0] - (math.pi - math.pi / 9)) < 4 * se[0] + 1e-4
+
+
+@pytest.mark.parametrize("normal", [(0.0, 0.0, 1.0), (0.6, 0.0, 0.8), (0.0, -1.0, 0.0)])
+def test_huge_rectangle_is_its_tiled_mesh_with_the_same_plane_orientation_and_area(mi, normal):
+    # A 120 km rectangle (fog_terrain's ground) is built as a quadtree-tiled mesh (OptiX re-hits the
+    # 2-triangle one: reference.build.large_rectangle_mesh); a 4 m one stays Mitsuba's rectangle.
+    small = sphere_scene(shapes=(Rectangle((0, 0, 0), normal, (4.0, 4.0)),))
+    assert "rectangle" in plugin_types(mitsuba_scene_dict(mi, small))
+    size = (120000.0, 80000.0)
+    big = sphere_scene(shapes=(Rectangle((3.0, -2.0, 1.0), normal, size, rotation_deg=30.0),))
+    d = mitsuba_scene_dict(mi, big)
+    assert "rectangle" not in plugin_types(d) and "obj" in plugin_types(d)
+    (shape,) = [v for v in d.values() if isinstance(v, dict) and v.get("type") == "obj"]
+    mesh = mi.load_dict(shape)
+    params = mi.traverse(mesh)
+    v = np.asarray(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(params["faces"]).reshape(-1, 3)
+    assert len(f) > 2
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    # total area = the rectangle's (float32 vertices: relative 1e-6); every triangle faces the declared normal
+    assert abs(area.sum() / (size[0] * size[1]) - 1.0) < 1e-5
+    unit = cross / np.linalg.norm(cross, axis=1, keepdims=True)
+    assert np.max(np.abs(unit - np.asarray(normal))) < 1e-5
+    # and every vertex lies on the declared plane (float32 coordinates of up to 7e4: 1e-2 absolute)
+    assert np.max(np.abs((v - np.array([3.0, -2.0, 1.0])) @ np.asarray(normal))) < 1e-2
