@@ -3,18 +3,18 @@ sphere light": each visible point's visibility cap, on the scene's own geometry 
 
 Ambient aperture lighting (Oat & Sander 2007; `rtfit.realtime.ambient_aperture`) stores a point's visibility
 as one spherical cap: a unit bent normal a and an aperture r_a. Here the cap of every visible pixel is baked
-as the ambient-aperture experiment bakes it (`rtfit.reference.visibility`, seed 000:2660-2670), with Mitsuba
-ray casts against the scene's own shapes (`bake_caps`): ``BAKE_DIRS`` = 256 directions uniform over the
-hemisphere of the pixel's normal n (a 16 × 16 stratified grid in (cos θ, φ), rotated about n by a random
-angle per pixel, so that banding becomes noise), V(ω) = 1 where the ray escapes,
+as the ambient-aperture experiment bakes it (`rtfit.reference.visibility`, seed 000:2660-2670) and as the
+aperture-fill role bakes its own (`rtfit.reference.occlusion.visibility_cap_pass`, the same function), with
+Mitsuba ray casts against the scene's own shapes (`bake_caps`): ``--spp`` directions ω uniform over the
+hemisphere of the pixel's normal n, V(ω) = 1 where the ray escapes,
 
-    V̂ = mean V(ωᵢ),   a = normalize(Σ V(ωᵢ) ωᵢ),   r_a = acos(1 − V̂)   (`aperture_from_visibility`),
+    V̂ = mean V(ω),   a = normalize(mean V(ω) ω),   r_a = acos(1 − V̂)   (`aperture_from_visibility`),
 
-a = n and r_a = 0 where nothing escapes. The caps are baked by rays of their own, not from the references'
-rays: the pass cache keeps only each reference's pooled mean, and a bent normal needs the directions. The
-distance field is not used (its 64³ voxels blur the creases that decide the cap). The bake is
-deterministic (the seed fixes the rotations); its own noise (binomial, ≤ 0.031 in V̂ for 256 directions)
-is part of what is compared, as it is of an engine's bake.
+a = n where nothing escapes, in passes through the pass cache (a rerun reads them back). The caps are baked
+by rays of their own, not from the references' rays: the pass cache keeps only each reference's pooled
+mean, and a bent normal needs the directions. The distance field is not used (its 64³ voxels blur the
+creases that decide the cap). The bake's own noise (binomial: ≤ 0.031 in V̂ at 256 spp) is part of what is
+compared, as an engine's bake's is.
 
 Case ``caps`` (role "ambient occlusion (aperture caps)"): the cap against ray-cast AO within R.
 
@@ -62,27 +62,24 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import drjit as dr
 import numpy as np
 
 from rtfit.realtime.ambient_aperture import METHODS, aperture_from_visibility
 from rtfit.realtime.arrays import NUMPY_OPS
 from rtfit.realtime.sdf_occlusion import CURVATURE_LEVEL
-from rtfit.reference.estimators import sub_seed
+from rtfit.reference.cache import array_digest
+from rtfit.reference.occlusion import visibility_cap_pass
 
 from .audit import Applicability
 from .audit_ambient_occlusion import ao_radius, ao_reference, scene_distance_field, visible_points
 from .audit_diffuse import light_geometry, light_radiance, light_reference
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
 
-__all__ = ["BAKE_DIRS", "CAPS_ROLE", "FAMILY", "LIGHT_ROLE", "BakedCaps", "bake_caps"]
+__all__ = ["CAPS_ROLE", "FAMILY", "LIGHT_ROLE", "BakedCaps", "bake_caps"]
 
 CAPS_ROLE = "ambient occlusion (aperture caps)"
 LIGHT_ROLE = "occluded sphere light"
-BAKE_DIRS = 256
-"""Directions of each pixel's cap bake (a 16 × 16 stratified grid; the experiment's quick bake is 4096 per
-probe on far fewer points)."""
-_BAKE_LANES = 1 << 21  # rays per launch of the bake (host memory: ~100 bytes per ray in flight)
+FORMAT = 1
 LIGHT_ROWS = tuple(m for m in METHODS if m.startswith("aa-"))
 CAP_ROWS = tuple(m for m in METHODS if m.startswith(("aa-", "fill-")))
 _CAP_LABELS = {
@@ -93,91 +90,54 @@ _CAP_LABELS = {
 
 @dataclass(frozen=True)
 class BakedCaps:
-    """Per point: the visible fraction V̂ of uniform hemisphere directions, its binomial standard error, the
-    unit bent normal a (N, 3) and the aperture r_a = acos(1 − V̂) (rad, [0, π/2])."""
+    """Per point: the visible fraction V̂ of uniform hemisphere directions, its standard error, the unit bent
+    normal a (N, 3) and the aperture r_a = acos(1 − V̂) (rad, [0, π/2]); ``n_dirs`` rays per point, in
+    ``passes`` passes (``passes_rendered`` by this run) taking ``seconds``."""
 
     visible_fraction: np.ndarray
     stderr: np.ndarray
     bent_normal: np.ndarray
     aperture: np.ndarray
     n_dirs: int
-
-
-def _frames(n: np.ndarray):
-    """Two unit tangents (t1, t2) completing each unit normal of ``n`` (N, 3) to a right-handed frame
-    (Duff et al. 2017's branchless construction)."""
-    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    t1 = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], 1)
-    t2 = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], 1)
-    return t1, t2
+    passes: int = 0
+    passes_rendered: int = 0
+    seconds: float = 0.0
 
 
 def bake_caps(
-    mi,
-    mi_scene,
+    setup: AuditSetup,
     points,
     normals,
     *,
     max_distance: float = math.inf,
     see_through_emitters: bool = False,
-    n_dirs: int = BAKE_DIRS,
-    seed: int = 0,
+    label: str = "caps",
 ) -> BakedCaps:
-    """The visibility cap of each point (module docstring) by Mitsuba ray casts against ``mi_scene``:
-    ``points`` (N, 3) with unit ``normals`` (N, 3); rays of length ``max_distance`` (scene units) spawned
-    by Mitsuba's rule; ``see_through_emitters``: a ray that hits a shape carrying an emitter counts as
-    escaped. ``n_dirs`` must be a square ≥ 4."""
-    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
-    n = np.ascontiguousarray(normals, np.float64).reshape(-1, 3)
-    if p.shape != n.shape:
-        raise ValueError(f"points and normals must both be (N, 3) (got {p.shape} and {n.shape})")
-    side = round(math.sqrt(n_dirs))
-    if n_dirs < 4 or side * side != n_dirs:
-        raise ValueError(f"n_dirs must be a perfect square >= 4 (got {n_dirs})")
-    if not max_distance > 0:
-        raise ValueError(f"max_distance must be > 0 (got {max_distance!r})")
-    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-    # Cell centres of a side × side grid in (z = cos θ, φ): z uniform is the uniform hemisphere.
-    z = ((np.arange(n_dirs) // side) + 0.5) / side
-    phi = 2.0 * math.pi * ((np.arange(n_dirs) % side) + 0.5) / side
-    sin_t = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    rot = np.random.default_rng(sub_seed(seed, "aperture-caps", 0)).uniform(0.0, 2.0 * math.pi, len(p))
-    t1, t2 = _frames(n)
-    visible = np.zeros(len(p))
-    bent = np.zeros((len(p), 3))
-    per = max(1, _BAKE_LANES // n_dirs)
-    for a in range(0, len(p), per):
-        b = min(len(p), a + per)
-        ang = phi[None, :] + rot[a:b, None]  # (m, K)
-        lx, ly = sin_t[None, :] * np.cos(ang), sin_t[None, :] * np.sin(ang)
-        d = (
-            lx[..., None] * t1[a:b, None, :]
-            + ly[..., None] * t2[a:b, None, :]
-            + z[None, :, None] * n[a:b, None, :]
-        )  # (m, K, 3) world directions
-        flat = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
-        idx = np.repeat(np.arange(b - a), n_dirs)
-        it = dr.zeros(mi.Interaction3f, len(flat))
-        it.p = mi.Point3f(np.ascontiguousarray(p[a:b][idx], np.float32).T)
-        it.n = mi.Vector3f(np.ascontiguousarray(n[a:b][idx], np.float32).T)
-        ray = it.spawn_ray(mi.Vector3f(flat.T))
-        if math.isfinite(max_distance):
-            ray.maxt = float(max_distance)
-        if see_through_emitters:
-            si = mi_scene.ray_intersect(ray)
-            blocked = si.is_valid() & ~si.shape.is_emitter()
-        else:
-            blocked = mi_scene.ray_test(ray)
-        v = (~np.asarray(blocked, dtype=bool)).astype(np.float64).reshape(b - a, n_dirs)
-        visible[a:b] = v.mean(axis=1)
-        bent[a:b] = np.einsum("mk,mkc->mc", v, d)
+    """The visibility cap of each point (module docstring): `visibility_cap_pass` (uniform hemisphere rays
+    against the scene's own shapes, of length ``max_distance``; ``see_through_emitters``: a ray that hits an
+    emitter's shape escapes) in `setup.spp` samples per point through the pass cache (`pooled_passes`)."""
+    p = np.ascontiguousarray(points, np.float64)
+    n = np.ascontiguousarray(normals, np.float64)
+    what: dict = {"format": FORMAT, "quantity": "visibility-caps", "points": array_digest(p, n)}
+    if math.isfinite(max_distance):
+        what["max_distance"] = float(max_distance)
+    if see_through_emitters:
+        what["see_through_emitters"] = True
+
+    def render(spp: int, seed: int):
+        return visibility_cap_pass(
+            setup.mi, setup.scene, p, n, spp, seed, max_distance, see_through_emitters=see_through_emitters
+        )
+
+    mean, stderr, total, passes, rendered, _entry, seconds = pooled_passes(
+        setup, what, render, (-1, 5), label, seed_label="cap-pass"
+    )
+    visible = np.clip(mean[:, 0], 0.0, 1.0)
+    bent = mean[:, 2:5]
     norm = np.linalg.norm(bent, axis=1, keepdims=True)
     bent = np.where(norm > 1e-12, bent / np.maximum(norm, 1e-300), n)
-    aperture = np.asarray(aperture_from_visibility(np.clip(visible, 0.0, 1.0)), np.float64)
-    stderr = np.sqrt(visible * (1.0 - visible) / n_dirs)
-    return BakedCaps(visible, stderr, bent, aperture, n_dirs)
+    aperture = np.asarray(aperture_from_visibility(visible), np.float64)
+    return BakedCaps(visible, stderr[:, 0], bent, aperture, total, passes, rendered, seconds)
 
 
 def _image(mask, values) -> np.ndarray:
@@ -199,8 +159,8 @@ def _cap_parameters(caps: BakedCaps) -> dict:
 def _bake_note(caps: BakedCaps, reach: str) -> str:
     p = _cap_parameters(caps)
     return (
-        f"caps baked per pixel by {caps.n_dirs} Mitsuba ray casts ({reach}) uniform over the hemisphere "
-        f"(16×16 stratified, rotated per pixel): mean visible fraction {p['mean_visible_fraction']:.3f}, "
+        f"caps baked per pixel by {caps.n_dirs} Mitsuba ray casts ({reach}) uniform over the hemisphere, "
+        f"in {caps.passes} passes: mean visible fraction {p['mean_visible_fraction']:.3f}, "
         f"mean aperture {p['mean_aperture_deg']:.1f}°, bake standard error ≤ {p['max_bake_stderr']:.3f}"
     )
 
@@ -213,7 +173,7 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     mean, stderr, total, passes, rendered, entry, seconds = ao_reference(
         setup, points, normals, radius, f"ao: {app.part}"
     )
-    caps = bake_caps(setup.mi, setup.scene, points, normals, max_distance=radius, seed=setup.seed)
+    caps = bake_caps(setup, points, normals, max_distance=radius, label=f"caps: {app.part}")
     cos_na = np.clip(np.sum(normals * caps.bent_normal, axis=1), -1.0, 1.0)
     # The AO role's inputs, for a user approximation of ambient_occlusion (the same distance field).
     sdf, sign, _shapes = scene_distance_field(setup.mi, setup.scene, radius)
@@ -256,7 +216,7 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         passes_rendered=rendered,
         cache_key=entry.key,
         cache_path=str(entry.folder),
-        seconds=seconds,
+        seconds=seconds + caps.seconds,
         quantity=f"ambient occlusion within R = {radius:.4g} (1: unoccluded)",
         integrator=f"occlusion pass (cosine-distributed rays of length R = {radius:.4g})",
         integrator_reason="the sdf-occlusion AO role's reference (same cache entry): V_R(ω) with ω ~ cos/π",
@@ -300,7 +260,7 @@ def light_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     mean, stderr, total, passes, rendered, entry, seconds = light_reference(
         setup, app.source, points, normals, towards, f"{tag}: {app.part}"
     )
-    caps = bake_caps(setup.mi, setup.scene, points, normals, see_through_emitters=True, seed=setup.seed)
+    caps = bake_caps(setup, points, normals, see_through_emitters=True, label=f"caps: {app.part}")
     a = caps.bent_normal
     e_perp = mean[:, 6:9]
     radiance = light_radiance(setup, app.source, e_perp, alpha)
@@ -324,7 +284,7 @@ def light_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         passes_rendered=rendered,
         cache_key=entry.key,
         cache_path=str(entry.folder),
-        seconds=seconds,
+        seconds=seconds + caps.seconds,
         quantity="direct irradiance of one sphere light with the scene's occluders (W/m²)",
         integrator="light-irradiance (emitter sampling, shadow rays)",
         integrator_reason=(
@@ -379,7 +339,7 @@ FAMILY = AuditFamily(
     roles=(CAPS_ROLE, LIGHT_ROLE),
     describe=(
         "Each visible pixel's visibility cap (bent normal and aperture r_a = acos(1 − V), V the visible "
-        f"fraction of {BAKE_DIRS} uniform hemisphere directions cast with Mitsuba against the scene's own "
+        "fraction of --spp uniform hemisphere directions cast with Mitsuba against the scene's own "
         "shapes). Aperture caps: the cap intersected with the pixel's own hemisphere (each intersection form "
         "and Lambert factor, read as AO with radiance 1/π), the exact projected solid angle of the cap and "
         "the seed's fill, against the sdf-occlusion role's ray-cast AO within R (the same reference). "
