@@ -77,6 +77,7 @@ from .cost import (
     bench_backend,
     comparison_row,
     memory_baseline,
+    reference_sizes,
     reference_vs_stock_rows,
     stock_render,
     time_drjit,
@@ -1307,29 +1308,31 @@ def bench_reference(ctx) -> list[dict]:
     """The probe reference's samples/s (direct irradiance: emitter + cosine sampling with MIS, as
     `scene_job` renders it) beside ``mi.render`` of the same scene (``aperture_hole``, its sphere light)
     with the same ``direct`` estimator, side by side (`reference_vs_stock_rows`). The probes are the
-    camera's first hits, so both estimate the same points; ``mi.render`` also traces the camera ray."""
-    res = 64 if ctx.quick else 256
-    spp = 64 if ctx.quick else 256
-    scene = load_scene(library_path("aperture_hole"))
-    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, width=res, height=res))
-    mi, ms = load_mitsuba_scene(scene, ctx.variant)
-    gb = gbuffer(mi, ms)
-    keep = gb.mask & ~gb.emitter
-    p, n = gb.position[keep], gb.normal[keep]
-    return reference_vs_stock_rows(
-        f"rtfit irradiance probes, direct MIS ({len(p)} first hits, {spp} spp)",
-        lambda seed: irradiance_pass(mi, ms, p, n, spp, seed),
-        len(p) * spp,
-        [
-            Stock(
-                f"mi.render, same scene and integrator ({res}², {spp} spp)",
-                stock_render(mi, ms, spp),
-                res * res * spp,
-            )
-        ],
-        ctx.variant,
-        rounds=3 if ctx.quick else 5,
-    )
+    camera's first hits, so both estimate the same points; ``mi.render`` also traces the camera ray. At
+    each of `reference_sizes` (non-quick: 256² × 256 spp and the pixel-bound 1024² × 64 spp)."""
+    rows = []
+    for res, spp in reference_sizes(ctx.quick, (64, 64), (256, 256)):
+        scene = load_scene(library_path("aperture_hole"))
+        scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, width=res, height=res))
+        mi, ms = load_mitsuba_scene(scene, ctx.variant)
+        gb = gbuffer(mi, ms)
+        keep = gb.mask & ~gb.emitter
+        p, n = gb.position[keep], gb.normal[keep]
+        rows += reference_vs_stock_rows(
+            f"rtfit irradiance probes, direct MIS ({len(p)} first hits, {spp} spp)",
+            lambda seed, mi=mi, ms=ms, p=p, n=n, spp=spp: irradiance_pass(mi, ms, p, n, spp, seed),
+            len(p) * spp,
+            [
+                Stock(
+                    f"mi.render, same scene and integrator ({res}², {spp} spp)",
+                    stock_render(mi, ms, spp),
+                    res * res * spp,
+                )
+            ],
+            ctx.variant,
+            rounds=3 if ctx.quick else 5,
+        )
+    return rows
 
 
 def bench(ctx) -> list[dict]:

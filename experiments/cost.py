@@ -174,6 +174,20 @@ def stock_render(mi, mi_scene, spp: int) -> Callable[[int], object]:
     return lambda seed: np.asarray(mi.render(mi_scene, spp=spp, seed=seed))
 
 
+PIXEL_BOUND_SIZE = (1024, 64)
+"""(image side, spp) of the surface references' second bench row (non-``--quick``): 2^20 pixels at a low spp,
+where a pass's per-pixel cost (not its per-sample cost) shows. On an H200 this row measured 0.18×
+``mi.render`` before the moments stayed on the device (issue 21 §3; docs/benchmarks.md)."""
+
+
+def reference_sizes(
+    quick: bool, quick_size: tuple[int, int], full_size: tuple[int, int]
+) -> list[tuple[int, int]]:
+    """(image side, spp) of each reference-vs-stock measurement of a surface family's bench: ``quick_size``
+    with ``--quick``; else ``full_size`` (sample-bound) and `PIXEL_BOUND_SIZE` (pixel-bound)."""
+    return [quick_size] if quick else [full_size, PIXEL_BOUND_SIZE]
+
+
 def reference_vs_stock_rows(
     reference: str,
     run_reference: Callable[[int], object],

@@ -66,6 +66,7 @@ from .cost import (
     bench_backend,
     comparison_row,
     memory_baseline,
+    reference_sizes,
     reference_vs_stock_rows,
     stock_render,
     time_drjit,
@@ -875,24 +876,26 @@ def bench_reference(ctx) -> list[dict]:
     """Samples/s of rtfit's point-sampled reference pass beside ``mi.render`` of the same scene with the
     same integrator (``direct``: the pass machinery's own cost, issue 21's ≥ 0.9 goal) and with Mitsuba's
     ``path`` (what a user would otherwise run; the sphere is convex, so both give the same image),
-    measured side by side (`reference_vs_stock_rows`)."""
-    res = 128 if ctx.quick else 256
-    spp = 64 if ctx.quick else 256
-    scene = case_scene(5.0, 0.2, res)
-    mi, ms = load_mitsuba_scene(scene, ctx.variant)
-    d = mitsuba_scene_dict(mi, scene)
-    d["integrator"] = {"type": "path"}
-    ms_path = load_dict(mi, d)
-    samples = res * res * spp
-    stocks = [
-        Stock(f"mi.render, same integrator ({res}², {spp} spp)", stock_render(mi, ms, spp), samples),
-        Stock(f"mi.render, Mitsuba path ({res}², {spp} spp)", stock_render(mi, ms_path, spp), samples),
-    ]
-    return reference_vs_stock_rows(
-        f"rtfit reference: direct, point-sampled, float64 moments ({res}², {spp} spp)",
-        lambda seed: radiance_pass(mi, ms, spp, seed),
-        samples,
-        stocks,
-        ctx.variant,
-        rounds=3 if ctx.quick else 5,
-    )
+    measured side by side (`reference_vs_stock_rows`) at each of `reference_sizes` (non-quick: a
+    sample-bound 256² × 256 spp and a pixel-bound 1024² × 64 spp)."""
+    rows = []
+    for res, spp in reference_sizes(ctx.quick, (128, 64), (256, 256)):
+        scene = case_scene(5.0, 0.2, res)
+        mi, ms = load_mitsuba_scene(scene, ctx.variant)
+        d = mitsuba_scene_dict(mi, scene)
+        d["integrator"] = {"type": "path"}
+        ms_path = load_dict(mi, d)
+        samples = res * res * spp
+        stocks = [
+            Stock(f"mi.render, same integrator ({res}², {spp} spp)", stock_render(mi, ms, spp), samples),
+            Stock(f"mi.render, Mitsuba path ({res}², {spp} spp)", stock_render(mi, ms_path, spp), samples),
+        ]
+        rows += reference_vs_stock_rows(
+            f"rtfit reference: direct, point-sampled, float64 moments ({res}², {spp} spp)",
+            lambda seed, mi=mi, ms=ms, spp=spp: radiance_pass(mi, ms, spp, seed),
+            samples,
+            stocks,
+            ctx.variant,
+            rounds=3 if ctx.quick else 5,
+        )
+    return rows

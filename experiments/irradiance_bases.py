@@ -127,6 +127,7 @@ from .cost import (
     bench_backend,
     comparison_row,
     memory_baseline,
+    reference_sizes,
     reference_vs_stock_rows,
     stock_render,
     time_drjit,
@@ -1637,42 +1638,44 @@ def bench_reference(ctx, mi, cfg: dict) -> list[dict]:
     """The references' samples/s beside ``mi.render`` of the same scene (the white sphere under the studio
     map) with the same integrator, side by side (`reference_vs_stock_rows`): the sphere image (radiance
     pass, the same estimator as ``mi.render``) and the irradiance probes (the same direct estimator per
-    sample, emitter + cosine sampling with MIS; ``mi.render`` also traces a camera ray per sample)."""
-    res = 64 if ctx.quick else 256
-    spp = 64 if ctx.quick else 256
+    sample, emitter + cosine sampling with MIS; ``mi.render`` also traces a camera ray per sample), at each
+    of `reference_sizes` (non-quick: 256² × 256 spp and the pixel-bound 1024² × 64 spp)."""
     env = make_environment("studio", cfg, mi)
+    rows = []
     with tempfile.TemporaryDirectory(prefix="rtfit-bench-") as tmp:
         map_file = None
         if env.radiance_map is not None:
             map_file = str(envs.write_map_exr(env.radiance_map, Path(tmp) / "studio.exr"))
-        scene = sky_scene(env, map_file, res)
-        _, ms = load_mitsuba_scene(scene, ctx.variant)
-        n = fibonacci_sphere(res * res).astype(np.float32)
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
-        samples = res * res * spp
-        stock = [
-            Stock(
-                f"mi.render, same scene and integrator ({res}², {spp} spp)",
-                stock_render(mi, ms, spp),
+        for res, spp in reference_sizes(ctx.quick, (64, 64), (256, 256)):
+            scene = sky_scene(env, map_file, res)
+            _, ms = load_mitsuba_scene(scene, ctx.variant)
+            n = fibonacci_sphere(res * res).astype(np.float32)
+            n /= np.linalg.norm(n, axis=1, keepdims=True)
+            samples = res * res * spp
+            stock = [
+                Stock(
+                    f"mi.render, same scene and integrator ({res}², {spp} spp)",
+                    stock_render(mi, ms, spp),
+                    samples,
+                )
+            ]
+            rounds = 3 if ctx.quick else 5
+            rows += reference_vs_stock_rows(
+                f"rtfit sphere image reference ({res}², {spp} spp)",
+                lambda seed, ms=ms, spp=spp: radiance_pass(mi, ms, spp, seed),
                 samples,
+                stock,
+                ctx.variant,
+                rounds,
+            ) + reference_vs_stock_rows(
+                f"rtfit irradiance probes, direct MIS ({res * res} normals, {spp} spp)",
+                lambda seed, ms=ms, n=n, spp=spp: irradiance_pass(mi, ms, n, n, spp, seed),
+                samples,
+                stock,
+                ctx.variant,
+                rounds,
             )
-        ]
-        rounds = 3 if ctx.quick else 5
-        return reference_vs_stock_rows(
-            f"rtfit sphere image reference ({res}², {spp} spp)",
-            lambda seed: radiance_pass(mi, ms, spp, seed),
-            samples,
-            stock,
-            ctx.variant,
-            rounds,
-        ) + reference_vs_stock_rows(
-            f"rtfit irradiance probes, direct MIS ({res * res} normals, {spp} spp)",
-            lambda seed: irradiance_pass(mi, ms, n, n, spp, seed),
-            samples,
-            stock,
-            ctx.variant,
-            rounds,
-        )
+    return rows
 
 
 def bench(ctx) -> list[dict]:

@@ -35,6 +35,7 @@ import hashlib
 import json
 import math
 import time
+from dataclasses import replace
 
 import drjit as dr
 import numpy as np
@@ -282,10 +283,15 @@ def _pad(a, size):
     return out
 
 
-def _fit_size(cfg) -> int:
-    """Points per scene in a fit (padded to it: one JAX compile per size): all pixels up to 64², else a
-    fixed random subsample of 4096."""
-    return min(cfg["resolution"] ** 2, 4096)
+FIT_POINTS = 4096
+"""Residual points of every fit: a fixed random subsample of each scene's pixels for a per-scene fit, and
+FIT_POINTS/len(scenes) of each scene for the joint fit, so every fit has the same size (one JAX compile per
+method) and its cost does not grow with the resolution or the scene count (`fit_rows`)."""
+FIT_MAX_STEPS = 48
+"""Levenberg–Marquardt steps of a fit before a parameter crawling to its bound (d_max → 10³ of the power
+form) is pinned on it and the rest re-solved (`rtfit.fitting.fit_least_squares`)."""
+FIT_RETRY_STEPS = 256
+"""Further steps, from where the first solve stopped, for a fit that has not converged after those."""
 
 
 def _fit_inputs(r, fit_rays, seed_key: str, size: int):
@@ -298,27 +304,54 @@ def _fit_inputs(r, fit_rays, seed_key: str, size: int):
 
 
 def fit_rows(cfg, rendered) -> dict:
-    """Per scene and joint fits of each `FIT_METHODS` method to the uniform-ambient reference (b). Every fit
-    is padded (zero weight) to the joint fit's size: one JAX compile per method."""
+    """Per scene and joint fits of each `FIT_METHODS` method to the uniform-ambient reference (b), each on
+    `FIT_POINTS` residuals (padded with zero weight where a scene has fewer pixels): a per-scene fit on a
+    fixed subsample of its pixels, the joint fit on FIT_POINTS/len(scenes) of each scene's. One compiled
+    residual per method serves every fit (the data are traced arguments)."""
     out = {}
-    size = _fit_size(cfg)
-    size_all = size * len(cfg["scenes"])
+    per_joint = max(1, FIT_POINTS // len(cfg["scenes"]))
     for mid in FIT_METHODS:
         m = METHODS[mid]
         per = {}
         parts = []
         for n in cfg["scenes"]:
-            d, y = _fit_inputs(rendered[n], cfg["fit_rays"], n, size)
-            parts.append((d, y))
-            w = _pad(np.ones_like(y), size_all)
-            per[n] = fit_method(m, {"distances": _pad(d, size_all)}, _pad(y, size_all), weights=w).to_dict()
+            d, y = _fit_inputs(rendered[n], cfg["fit_rays"], n, FIT_POINTS)
+            parts.append(_fit_inputs(rendered[n], cfg["fit_rays"], f"{n}/joint", per_joint))
+            per[n] = _fit(m, d, y)
         d = np.concatenate([p[0] for p in parts], axis=1)
         y = np.concatenate([p[1] for p in parts])
-        joint = fit_method(
-            m, {"distances": _pad(d, size_all)}, _pad(y, size_all), weights=_pad(np.ones_like(y), size_all)
-        ).to_dict()
-        out[mid] = {"per_scene": per, "joint": joint}
+        out[mid] = {"per_scene": per, "joint": _fit(m, d, y)}
     return out
+
+
+def _fit(m, d, y) -> dict:
+    """One fit on ≤ `FIT_POINTS` residuals: `FIT_MAX_STEPS` steps (a parameter crawling to a bound is pinned
+    there by `fit_least_squares`), then, if still not converged, up to `FIT_RETRY_STEPS` more from where
+    it stopped."""
+    w = _pad(np.ones_like(y), FIT_POINTS)
+    x, yy = {"distances": _pad(d, FIT_POINTS)}, _pad(y, FIT_POINTS)
+    res = fit_method(m, x, yy, weights=w, max_steps=FIT_MAX_STEPS)
+    steps = res.steps
+    if not res.converged:
+        start = {}
+        for k, p in m.params.items():
+            eps = 1e-9 * (p.upper - p.lower)
+            start[k] = replace(p, initial=min(max(res.values[k], p.lower + eps), p.upper - eps))
+        res = fit_method(m, x, yy, weights=w, params=start, max_steps=FIT_RETRY_STEPS)
+        steps += res.steps
+    fit = res.to_dict()
+    fit["steps"] = int(steps)
+    # The padding carries zero weight: the statistics count the real residuals only.
+    n, k = int(y.size), len(fit["param_names"])
+    pad_dof = fit["dof"]
+    fit["n_residuals"], fit["dof"] = n, n - k
+    if fit.get("ssr") is not None:
+        fit["rms_residual"] = math.sqrt(fit["ssr"] / n)
+    if n > k:
+        for v in fit["parameters"].values():  # s² = SSR/dof: the padded fit divided by the padded dof
+            if v.get("stderr") is not None:
+                v["stderr"] *= math.sqrt(pad_dof / (n - k))
+    return fit
 
 
 def _values(fit: dict) -> dict:

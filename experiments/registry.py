@@ -101,11 +101,25 @@ EXPERIMENTS: dict[str, ExperimentSpec] = {
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
         ),
         ExperimentSpec(
+            "aerial-perspective",
+            "rtfit.experiments.aerial_perspective",
+            "Aerial perspective matched to the sky: the fog blend under a Nishita atmosphere + height fog",
+            "Single scattering through atmosphere and fog by quadrature (checked against Mitsuba) vs the "
+            "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c, colour.",
+        ),
+        ExperimentSpec(
             "soft-particles",
             "rtfit.experiments.soft_particles",
             "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",
             "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned "
             "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
+        ),
+        ExperimentSpec(
+            "light-cones",
+            "rtfit.experiments.light_cones",
+            "Light cones in fog: the seed's shell (edge fade, v² attenuation) vs spot-light scattering",
+            "The pseudo-volumetric cone shell and §1's integral over the view ray's chord against path-traced"
+            " single scattering of a spot light in fog, from beside, inside and along the cone, with fits.",
         ),
         ExperimentSpec(
             "environment-maps",

@@ -126,7 +126,7 @@ from rtfit.scenes import library_path, load_scene, scene_hash
 
 from . import figures
 from . import fitted as fitfiles
-from .cost import Stock, attach_costs, reference_vs_stock_rows, stock_render, time_drjit
+from .cost import Stock, attach_costs, reference_sizes, reference_vs_stock_rows, stock_render, time_drjit
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
 from .sdf_occlusion_scenes import SCENE_NAMES, build, read_ply
@@ -1921,20 +1921,32 @@ def bench(ctx) -> list[dict]:
             "Msamples_s": len(pts) * spp / r.seconds / 1e6,
         }
     )
-    stock = load_dict(mi, ao_stock_dict(mi, sc))
-    rows += reference_vs_stock_rows(
-        f"rtfit AO reference, R = ∞ (1 shadow ray per sample, {len(pts)} G-buffer points, {spp} spp)",
-        lambda seed: occlusion_pass(mi, mi_scene, pts, nrm, spp, seed, quantity="ao"),
-        len(pts) * spp,
-        [
-            Stock(
-                f"mi.render, direct: white diffuse under a constant sky of 1 = AO (R = ∞; camera + shadow "
-                f"ray per sample; {res}², {spp} spp)",
-                stock_render(mi, stock, spp),
-                res * res * spp,
-            )
-        ],
-        variant,
-        rounds=3 if ctx.quick else 5,
-    )
+    for r_res, r_spp in reference_sizes(ctx.quick, (res, spp), (res, spp)):  # + the pixel-bound size
+        r_sc, r_mi_scene, r_pts, r_nrm = sc, mi_scene, pts, nrm
+        if r_res != res:
+            r_sc = load_case_scene("boxes", r_res)
+            _, r_mi_scene = load_mitsuba_scene(r_sc, variant)
+            r_gb = gbuffer(mi, r_mi_scene)
+            r_pts = r_gb.position[r_gb.mask].astype(np.float64)
+            r_nrm = r_gb.normal[r_gb.mask].astype(np.float64)
+        stock = load_dict(mi, ao_stock_dict(mi, r_sc))
+
+        def run_ao(seed, s=r_mi_scene, p=r_pts, n=r_nrm, k=r_spp):
+            return occlusion_pass(mi, s, p, n, k, seed, quantity="ao")
+
+        rows += reference_vs_stock_rows(
+            f"rtfit AO reference, R = ∞ (1 shadow ray per sample, {len(r_pts)} G-buffer points, {r_spp} spp)",
+            run_ao,
+            len(r_pts) * r_spp,
+            [
+                Stock(
+                    "mi.render, direct: white diffuse under a constant sky of 1 = AO (R = ∞; camera + "
+                    f"shadow ray per sample; {r_res}², {r_spp} spp)",
+                    stock_render(mi, stock, r_spp),
+                    r_res * r_res * r_spp,
+                )
+            ],
+            variant,
+            rounds=3 if ctx.quick else 5,
+        )
     return rows

@@ -9,6 +9,7 @@ What is compared, and why (docs/soft-particles.md):
    an opaque tilted emitting plane (`rtfit.reference.soft_particles`): each pixel-centre ray's estimate is
    Bernoulli(T), checked against the analytic clipped chord (``exact-sphere`` / ``exact-box``) by z-scores
    with the known binomial noise. The approximations are then scored against Mitsuba's opacity 1 − T.
+   The references are cached passes (`particle_reference`): a rerun resumes from them.
 3. **The methods over their domain** (no rendering): random particles within 25° of the view axis, random
    pixels on their billboards and random scene depths Δ/r ∈ [−1.3, 1.3]; errors per method, shape and
    particle opacity α_c; the fade's (s) and the fitted fade's (s, b, p) fitted per shape and α_c through the
@@ -38,7 +39,11 @@ from rtfit.realtime.soft_particles import (
     linear_underestimate,
     sphere_chord,
 )
-from rtfit.reference.soft_particles import bernoulli_stderr, transmittance_pass_particle
+from rtfit.reference.soft_particles import (
+    bernoulli_stderr,
+    particle_reference,
+    transmittance_pass_particle,
+)
 
 from . import figures as F
 from . import fitted as fitfiles
@@ -67,6 +72,7 @@ CONFIG = {
     "tilt_deg": ConfigKey("float", "tilt of the opaque plane from facing the camera (degrees)", 0.0, 80.0),
     "resolution": ConfigKey("int", "image (W, H) pixels of the rendered cases", 4, 4096, (2,)),
     "spp": ConfigKey("int", "reference samples per pixel", 2, SPP_MAX),
+    "pass_spp": ConfigKey("int", "reference samples per pixel of one cached pass", 2, SPP_MAX),
     "domain_samples": ConfigKey("int", "random pixels per (shape, α_c) of the domain study", 100, 1 << 22),
     "scene_particles": ConfigKey("int", "particles of the composited scene", 1, 10000),
     "scene_resolution": ConfigKey("int", "image (W, H) of the composited scene", 4, 4096, (2,)),
@@ -76,6 +82,7 @@ CONFIG = {
 
 
 def configure(quick: bool, spp: int | None) -> dict:
+    total = spp or (1024 if quick else 16384)
     return checked(
         CONFIG,
         {
@@ -85,7 +92,8 @@ def configure(quick: bool, spp: int | None) -> dict:
             "camera_inside": True,
             "tilt_deg": 35.0,
             "resolution": [20, 20] if quick else [64, 64],
-            "spp": spp or (1024 if quick else 16384),
+            "spp": total,
+            "pass_spp": min(total, 256 if quick else 4096),  # a pass never holds more than asked for
             "domain_samples": 4000 if quick else 100000,
             "scene_particles": 100,
             "scene_resolution": [64, 40] if quick else [256, 160],
@@ -204,18 +212,54 @@ def render_job(
     tilt_deg: float,
     resolution,
     spp: int,
+    pass_spp: int,
     seed: int,
     variant: str,
+    cache_dir: str,
     inside: bool = False,
+    progress: bool = False,
 ) -> dict:
-    """Job: Mitsuba's transmittance of one particle case at pixel centres (mean, variance, seconds)."""
+    """Job: Mitsuba's transmittance of one particle case at pixel centres, from the pass cache
+    (`particle_reference`: passes loaded where cached, the rest rendered): pooled mean and variance per
+    pixel, total samples, passes (rendered by this job / in all), rendering seconds and the cache key."""
     dirs = pixel_dirs(resolution).reshape(-1, 3)
     centre = centre_of(inside)
     point, normal = tilted_plane(tilt_deg, centre)
-    res = transmittance_pass_particle(
-        shape, centre, RADIUS, sigma_of(alpha_c, RADIUS), point, normal, dirs, spp, seed, variant, inside
+    ref = particle_reference(
+        cache_dir,
+        shape,
+        centre,
+        RADIUS,
+        sigma_of(alpha_c, RADIUS),
+        point,
+        normal,
+        dirs,
+        spp=spp,
+        pass_spp=pass_spp,
+        seed=seed,
+        variant=variant,
+        camera_inside=inside,
+        progress=progress,
+        label=f"soft-particles {case_id(shape, alpha_c, inside)}",
     )
-    return {"mean": res.mean[:, 0], "var": res.var[:, 0], "seconds": res.seconds}
+    return {
+        "mean": ref.mean,
+        "var": ref.var,
+        "spp": ref.spp,
+        "passes": ref.passes,
+        "passes_rendered": ref.passes_rendered,
+        "seconds": ref.seconds,
+        "cache_key": ref.key,
+    }
+
+
+def bench_job(shape: str, alpha_c: float, tilt_deg: float, resolution, spp: int, seed: int, variant: str):
+    """One uncached pass of a particle case (for `bench`: a timing must render, not read the cache)."""
+    dirs = pixel_dirs(resolution).reshape(-1, 3)
+    point, normal = tilted_plane(tilt_deg, CENTRE)
+    return transmittance_pass_particle(
+        shape, CENTRE, RADIUS, sigma_of(alpha_c, RADIUS), point, normal, dirs, spp, seed, variant
+    )
 
 
 def case_id(shape: str, alpha_c: float, inside: bool = False) -> str:
@@ -238,9 +282,12 @@ def run(ctx) -> dict:
                 tilt_deg=cfg["tilt_deg"],
                 resolution=list(cfg["resolution"]),
                 spp=cfg["spp"],
+                pass_spp=cfg["pass_spp"],
                 seed=ctx.seed,
                 variant=ctx.variant,
+                cache_dir=str(ctx.cache_dir),
                 inside=i,
+                progress=ctx.progress,
             ),
             label=case_id(s, a, i),
         )
@@ -248,6 +295,9 @@ def run(ctx) -> dict:
     ]
     ctx.log(f"rendering {len(jobs)} references")
     rendered = dict(zip(cases, ctx.executor.map(jobs, desc="references"), strict=True))
+    n_pass = sum(r["passes"] for r in rendered.values())
+    n_new = sum(r["passes_rendered"] for r in rendered.values())
+    ctx.log(f"references: resumed {n_pass - n_new} of {n_pass} passes from the cache")
     ctx.log("domain study and fits")
     study = domain_study(cfg)
     checks = claim_checks() + chord_checks() + finite_checks()
@@ -310,11 +360,12 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
     sigma = sigma_of(alpha_c, RADIUS)
     exact = exact64(shape, ray_inputs(dirs, centre, RADIUS, sigma, ts))
     t_exact = 1.0 - exact
-    spp = cfg["spp"]
+    spp = int(ref["spp"])  # pooled over the passes: ceil(spp / pass_spp) · pass_spp samples
     se = bernoulli_stderr(t_exact, spp)
     covered = se > 0.0
     z = (ref["mean"][covered] - t_exact[covered]) / se[covered]
     sample_se = np.sqrt(ref["var"] / spp)
+    bern_gap = bernoulli_variance_gap(ref["mean"], ref["var"], spp)
     cid = case_id(shape, alpha_c, inside)
     sidak = sidak_threshold(max(z.size, 1))
     checks = [
@@ -342,6 +393,13 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
             "value": float(np.max(np.abs(ref["mean"][~covered] - t_exact[~covered]), initial=0.0)),
             "expected": "0",
             "passed": bool(np.all(ref["mean"][~covered] == t_exact[~covered])),
+        },
+        {
+            "name": f"reference {cid}: the pooled sample variance of the {ref['passes']} passes is the "
+            "Bernoulli variance N/(N − 1)·T̂(1 − T̂) of the pooled mean (largest gap)",
+            "value": bern_gap,
+            "expected": f"≤ {BERNOULLI_VARIANCE_TOL:g}",
+            "passed": bool(bern_gap <= BERNOULLI_VARIANCE_TOL),
         },
     ]
     bb = billboard_inputs(dirs, centre, RADIUS, alpha_c, shape, ts)
@@ -396,6 +454,7 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
             "pixels": int(mask.size),
             "particle_pixels": int(mask.sum()),
             "reference_seconds": float(ref["seconds"]),
+            "reference_passes_rendered": int(ref["passes_rendered"]),
         },
         "scene": None,
         "reference": {
@@ -403,7 +462,8 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
             "integrator": "volpathmis (albedo 0: Bernoulli transmittance) at pixel centres",
             "max_depth": 2,
             "spp": spp,
-            "passes": 1,
+            "passes": int(ref["passes"]),
+            "cache_key": ref["cache_key"],
             "samples_per_second": float(mask.size * spp / max(ref["seconds"], 1e-9)),
         },
         "approximations": docs,
@@ -412,6 +472,21 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
 
 
 # ------------------------------------------------------------------------------ domain study and fits
+BERNOULLI_VARIANCE_TOL = 1e-6
+"""Bound on |pooled variance − N/(N − 1)·T̂(1 − T̂)| (the variance itself is ≤ 0.25): each sample is 0 or 1
+up to float32 rounding of the volpathmis weight (the transmittance over its free-flight probability, 1 within
+a few ulp); measured maximum 1.1e-7 (quick run, 4 passes of 256 and 1 pass of 1024 samples)."""
+
+
+def bernoulli_variance_gap(mean: np.ndarray, var: np.ndarray, n: int) -> float:
+    """Largest |S² − N/(N − 1)·M(1 − M)| over pixels, S² the pooled unbiased sample variance of N samples of
+    pooled mean M. Zero (to rounding) iff every sample is 0 or 1: then Σv² = Σv and the unbiased variance of
+    each pass, and the exact pooling of them (`rtfit.reference.cache.pool_passes`), is that expression, so the
+    known binomial noise √(T(1 − T)/N) the z-tests use and the pooled standard error agree."""
+    m = np.asarray(mean, np.float64)
+    return float(np.max(np.abs(np.asarray(var, np.float64) - n / (n - 1) * m * (1.0 - m)), initial=0.0))
+
+
 def random_domain(shape: str, alpha_c: float, n: int, seed: int = 11) -> tuple[dict, dict]:
     """Random pixels of random particles (r = 1 m): centres at view distance 2–30 r within 25° of the view
     axis, pixels uniform on the billboard's disc (sphere) or square (box), scene depths Δ/r ∈ U(−1.3, 1.3)
@@ -1168,10 +1243,10 @@ def bench(ctx) -> list[dict]:
     rows.append(baseline_row(base, backend, "memory baseline (fma of the 7 billboard inputs)"))
     res = (32, 32) if ctx.quick else (128, 128)
     spp = 256 if ctx.quick else 1024
-    render_job("sphere", 0.95, 35.0, list(res), spp, 1, ctx.variant)  # warm-up: kernel compile
+    bench_job("sphere", 0.95, 35.0, list(res), spp, 1, ctx.variant)  # warm-up: kernel compile
     out = min(
-        (render_job("sphere", 0.95, 35.0, list(res), spp, k + 2, ctx.variant) for k in range(2)),
-        key=lambda o: o["seconds"],
+        (bench_job("sphere", 0.95, 35.0, list(res), spp, k + 2, ctx.variant) for k in range(2)),
+        key=lambda o: o.seconds,
     )
     samples = res[0] * res[1] * spp
     rows.append(
@@ -1179,10 +1254,10 @@ def bench(ctx) -> list[dict]:
             "what": f"reference: volpathmis, absorbing sphere cut by a plane ({res[0]}×{res[1]}, {spp} spp)",
             "backend": ctx.variant,
             "elements": samples,
-            "drjit_Mpx_s": samples / out["seconds"] / 1e6,
+            "drjit_Mpx_s": samples / out.seconds / 1e6,
             "numpy_Mpx_s": None,
             "drjit/numpy": None,
-            "ns_per_px": out["seconds"] / samples * 1e9,
+            "ns_per_px": out.seconds / samples * 1e9,
             "vs_memory_floor": None,
         }
     )

@@ -14,6 +14,8 @@ Modules:
     phase       phase functions (Rayleigh, Henyey–Greenstein, Cornette–Shanks), one text for all media.
     ambient_aperture  ambient aperture lighting: exact / smoothstep / fitted spherical-cap intersection
                 and shading (docs/ambient-aperture.md).
+    aerial_perspective  single scattering through the Nishita atmosphere + height fog together, the
+                seed's horizon-matched fog colour (docs/aerial-perspective.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
     environment_bases  every irradiance basis of an environment as one method table (the irradiance-bases
                 family: cube, SH, ZH3, SG, Ambient Dice; ``METHODS`` from the module).
@@ -44,6 +46,8 @@ Modules:
                 rtfit.realtime.volumetric_lightning as m`` binds the function).
     soft_particles  soft particles: depth fade, camera-aligned box, spherical billboards vs the exact
                 clipped Beer–Lambert chord (docs/soft-particles.md).
+    light_cones the seed's light-cone shell in fog (edge fade, v^q attenuation) and §1's integral over the
+                view ray's chord through a spot light's cone (docs/light-cones.md).
     parallax_occlusion  parallax occlusion mapping with soft self-shadowing: the seed's listing and a
                 stable variant, procedural height fields (docs/parallax-occlusion.md).
 
@@ -57,6 +61,7 @@ Modules:
 # Star imports re-export each module's ``__all__`` (tests/test_layering.py checks that every public
 # function of every module is in its ``__all__`` and that no two modules export the same name).
 from . import arrays
+from .aerial_perspective import *  # noqa: F403
 from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
@@ -67,6 +72,7 @@ from .height_fog import *  # noqa: F403
 from .hemisphere_bases import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
+from .light_cones import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
 from .obscurances import *  # noqa: F403
@@ -98,7 +104,9 @@ MODULES = (
     "sdf_occlusion",
     "nishita_sky",
     "volumetric_lightning",
+    "aerial_perspective",
     "soft_particles",
+    "light_cones",
     "parallax_occlusion",
     "obscurances",
     "quantities",

@@ -103,8 +103,11 @@ def _dr_expm1(x):
     u = dr.exp(x)
     d = dr.log(u)
     plain = (u == 0.0) | ~dr.isfinite(u)  # x → ±inf (or NaN): u − 1 is the answer (−1, inf, NaN)
-    ratio = (u - 1.0) * x / dr.select(plain | (u == 1.0), 1.0, d)
-    return dr.select(u == 1.0, x, dr.select(plain, u - 1.0, ratio))
+    # u ≠ 1 with log u = 0 happens on CUDA (approximate log of u = 1 ± 1 ulp): (u − 1)·x/0 was ±inf there
+    # (soft-particles' float32 domain check on an H200, session 6); e^x − 1 = x to first order then.
+    near_one = (u == 1.0) | (d == 0.0)
+    ratio = (u - 1.0) * x / dr.select(plain | near_one, 1.0, d)
+    return dr.select(near_one, x, dr.select(plain, u - 1.0, ratio))
 
 
 def _dr_log1p(x):

@@ -68,6 +68,7 @@ from .methods import Input, Method, Param, method_table
 
 __all__ = [
     "FACE_NAMES",
+    "FRESNEL_METHODS",
     "HIT_METHODS",
     "SEED_SOLID_ANGLE",
     "cap_lobe_table",
@@ -76,7 +77,9 @@ __all__ = [
     "cube_lookup",
     "cube_lookup_kernel",
     "cube_texels",
+    "dielectric_fresnel_kernel",
     "evaluate_lobe_numpy",
+    "fresnel_split_kernel",
     "hit_iterative_kernel",
     "hit_parallax_kernel",
     "impostor_hit",
@@ -87,6 +90,7 @@ __all__ = [
     "localised_term_kernel",
     "midpoint_solid_angle",
     "midpoint_solid_angle_kernel",
+    "schlick_fresnel_kernel",
     "seed_solid_angle",
     "texel_solid_angle",
     "texel_solid_angle_kernel",
@@ -553,6 +557,38 @@ _L = (
     Input("solid_angle", "sr", "the texel's base solid angle Ω", (1e-4, 1.0)),
 )
 
+
+# ================================================================================ Fresnel split
+def schlick_fresnel_kernel(ops, cos_i, f0):
+    """Schlick's approximation F = F₀ + (1 − F₀)(1 − cos θᵢ)⁵ of the unpolarised Fresnel reflectance of a
+    dielectric seen from outside; F₀ = ((n − 1)/(n + 1))² (1.5: 0.04). cos θᵢ is clamped to [0, 1]: F → 1
+    at grazing incidence (cos θᵢ → 0), F₀ head-on. Dimensionless."""
+    m = 1.0 - ops.minimum(ops.maximum(cos_i, 0.0), 1.0)
+    m2 = m * m
+    return f0 + (1.0 - f0) * (m2 * m2 * m)
+
+
+def dielectric_fresnel_kernel(ops, cos_i, eta):
+    """Exact unpolarised Fresnel reflectance F = ½(r_s² + r_p²) of a smooth interface, light arriving at
+    cos θᵢ from the side of index n₁ onto index n₂, eta = n₂/n₁ (outside→glass 1.5; inside→out 1/1.5):
+    r_s = (cos θᵢ − η cos θₜ)/(cos θᵢ + η cos θₜ), r_p = (η cos θᵢ − cos θₜ)/(η cos θᵢ + cos θₜ),
+    cos θₜ = √(1 − sin²θᵢ/η²). Total internal reflection (sin²θᵢ/η² ≥ 1): F = 1. Dimensionless; cos θᵢ
+    clamped to [0, 1] (F(0) = 1)."""
+    c = ops.minimum(ops.maximum(cos_i, 0.0), 1.0)
+    s2t = (1.0 - c * c) / (eta * eta)
+    ct = safe_sqrt(ops, 1.0 - s2t)
+    rs = safe_div(ops, c - eta * ct, c + eta * ct)
+    rp = safe_div(ops, eta * c - ct, eta * c + ct)
+    f = 0.5 * (rs * rs + rp * rp)
+    return ops.select(s2t >= 1.0, 1.0 + 0.0 * c, ops.minimum(f, 1.0))
+
+
+def fresnel_split_kernel(ops, l_reflect, l_refract, fresnel):
+    """What a real-time glass shader outputs from its two lookups: F·L_reflect + (1 − F)·L_refract (the
+    seed's ``F·reflect + (1 − F)·refract``); radiance in the lookups' units."""
+    return fresnel * l_reflect + (1.0 - fresnel) * l_refract
+
+
 METHODS = method_table(
     [
         Method(
@@ -628,3 +664,31 @@ HIT_METHODS = method_table(
 )
 """The impostor search methods as data; their knobs (cube resolution, filtering, iterations) are set
 per row by the experiment."""
+
+_COS_I = Input("cos_i", "1", "cosine of the incidence angle (outside, against the normal)", (0.0, 1.0))
+FRESNEL_METHODS = method_table(
+    [
+        Method(
+            "schlick",
+            "Schlick's Fresnel (F₀ = ((n − 1)/(n + 1))²)",
+            schlick_fresnel_kernel,
+            inputs=(_COS_I,),
+            params={"f0": Param(0.04, 0.0, 1.0, unit="1", description="reflectance at normal incidence")},
+            quantity="Fresnel reflectance",
+            formula="F₀ + (1 − F₀)(1 − cos θᵢ)⁵",
+            source="Schlick 1994 (the usual real-time form)",
+        ),
+        Method(
+            "exact",
+            "Exact dielectric Fresnel (unpolarised)",
+            dielectric_fresnel_kernel,
+            inputs=(_COS_I,),
+            params={"eta": Param(1.5, 1.0, 4.0, unit="1", description="n_inside/n_outside")},
+            quantity="Fresnel reflectance",
+            formula="½(r_s² + r_p²), 1 on total internal reflection",
+            source="Fresnel equations",
+        ),
+    ]
+)
+"""The Fresnel weights of the glass sphere's reflection/refraction split, as data (the experiment's radiance
+rows combine each with a hit-point method by `fresnel_split_kernel`)."""

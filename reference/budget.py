@@ -104,8 +104,9 @@ def _int(x) -> int:
 
 
 def counters(mi_scene) -> list[LaneCounter]:
-    """The `LaneCounter` of every rtfit Python medium in a loaded Mitsuba scene (sensor and shapes)."""
-    media = [s.get_medium() for s in mi_scene.sensors()]
+    """The `LaneCounter` of every rtfit Python medium in a loaded Mitsuba scene (sensor and shapes) and
+    of its integrator (`rtfit.reference.fog_integrator` counts its path vertices)."""
+    media = [s.get_medium() for s in mi_scene.sensors()] + [mi_scene.integrator()]
     for shape in mi_scene.shapes():
         media += [shape.interior_medium(), shape.exterior_medium()]
     out, seen = [], set()

@@ -29,7 +29,7 @@ from rtfit.scenes.model import (
     Sphere,
 )
 
-from . import emitters, height_fog
+from . import emitters, fog_integrator, height_fog
 from .integrators import IntegratorChoice, choose_integrator
 from .transforms import affine, frame_from_normal, rotation_matrix
 from .variants import use_variant
@@ -142,6 +142,16 @@ def light_dicts(mi, light) -> dict:
         }
     if kind == "point_light":
         return {"": {"type": "point", "position": list(light.position), "intensity": _rgb(light.intensity)}}
+    if kind == "spot_light":  # Mitsuba's spot points along its local +Z
+        return {
+            "": {
+                "type": "spot",
+                "to_world": _transform(mi, affine(frame_from_normal(light.axis), light.position)),
+                "intensity": _rgb(light.intensity),
+                "cutoff_angle": light.cutoff_angle_deg,
+                "beam_width": light.beam_width_deg,
+            }
+        }
     if kind == "constant_env":
         return {"": {"type": "constant", "radiance": _rgb(light.radiance)}}
     if kind == "envmap":
@@ -380,8 +390,14 @@ def _xml_shape_objects(mi, shape) -> list:
 
 
 # ------------------------------------------------------------------------------------- whole scene
-def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = None) -> dict:
-    """The ``mi.load_dict`` input for ``scene`` (``mi``: the mitsuba module with a variant set)."""
+def mitsuba_scene_dict(
+    mi, scene: Scene, integrator: IntegratorChoice | None = None, fog_path: bool = True
+) -> dict:
+    """The ``mi.load_dict`` input for ``scene`` (``mi``: the mitsuba module with a variant set).
+
+    A scene whose only medium is one exponential fog is rendered by `fog_integrator` (closed-form free
+    flight; same paths as ``volpathmis``) unless ``fog_path`` is False: then by ``volpathmis`` with
+    rtfit's fog medium (XML export, benches)."""
     integrator = integrator or choose_integrator(scene)
     d: dict = {
         "type": "scene",
@@ -406,6 +422,8 @@ def mitsuba_scene_dict(mi, scene: Scene, integrator: IntegratorChoice | None = N
             d[f"medium{i}_boundary{suffix}"] = boundary
         if _inside(medium.boundary, scene.camera.origin):
             d["sensor"]["medium"] = {"type": "ref", "id": f"medium{i}"}
+    if fog_path and fog_integrator.applies(scene, d["integrator"]):
+        return fog_integrator.scene_dict(mi, scene, d, int(d["integrator"]["max_depth"]))
     return d
 
 
@@ -460,6 +478,7 @@ def load_dict(mi, d: dict):
     """``mi.load_dict`` with rtfit's own plugins registered and attached to the loaded scene."""
     emitters.register(mi)
     height_fog.register(mi)
+    fog_integrator.register(mi)
     mi_scene = mi.load_dict(d)
     emitters.attach(mi_scene)
     return mi_scene

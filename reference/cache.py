@@ -43,6 +43,7 @@ import numpy as np
 
 from rtfit.scenes import Scene, scene_hash, scene_to_dict
 
+from . import fog_integrator
 from .budget import PassBudgetExceeded, PassWatchdog
 from .build import load_mitsuba_scene
 from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
@@ -146,7 +147,8 @@ class ReferenceRequest:
             "versions": {"mitsuba": mitsuba.__version__, "drjit": dr.__version__},
         }
         if any(m.kind == "exponential_fog" for m in self.scene.media):  # the estimator made the samples
-            ident["medium_estimator"] = FOG_ESTIMATOR
+            fog_path = fog_integrator.applies(self.scene, choose_integrator(self.scene).mitsuba_dict())
+            ident["medium_estimator"] = fog_integrator.ESTIMATOR if fog_path else FOG_ESTIMATOR
         xml = [sh.file for sh in self.scene.shapes if sh.kind == "mitsuba_xml"]
         if xml:  # every file Mitsuba's parser loads for them (includes, <path> meshes), not only the XML
             ident["xml_files"] = [xml_dependencies(f, variant=self.variant).digest for f in xml]

@@ -24,22 +24,28 @@ E = Σ_walls L_w·(Lambert's polygon formula of the wall clipped to the hemisphe
 from __future__ import annotations
 
 import math
+import time
 
 import drjit as dr
 import numpy as np
 
+from .estimators import PassResult, channel_moments, chunk_ranges, mean_var, sub_seed
 from .variants import use_variant
 
 __all__ = [
+    "EMITTER_TEXEL",
     "REF_POINT",
     "ROOM_HI",
     "ROOM_LO",
     "WALL_LEVELS",
     "box_exit",
     "lobe_integral_mc",
+    "path_room_scene",
     "polygon_irradiance",
     "room_radiance",
     "sample_lobe",
+    "sphere_radiance_pass",
+    "texel_centres",
     "trace_room",
     "trace_sphere",
     "wall_of",
@@ -81,9 +87,13 @@ def room_radiance(p, kind: str = "textured") -> np.ndarray:
 
     ``textured``: the wall's level × (1 − 0.6·g) with g = thin grid lines of pitch 0.5 m
     (cos^16 profile), × a smooth falloff 0.55 + 0.45·exp(−r²/2) from the wall's centre, plus a round
-    ceiling lamp of radiance 12 (radius 0.35 m, smooth 2 cm edge); ``walls``: each wall its uniform
+    ceiling lamp of radiance 12 (radius 0.35 m, smooth 2 cm edge); ``texels``: the textured radiance at
+    the centre of the `EMITTER_TEXEL` texel that contains p (what the Mitsuba room of
+    `sphere_radiance_pass` emits: one bitmap per wall, nearest filtering); ``walls``: each wall its uniform
     level (the polygon-formula check); ``uniform``: 1 everywhere (the white furnace)."""
     p = np.asarray(p, np.float64)
+    if kind == "texels":
+        return room_radiance(texel_centres(p), "textured")
     w = wall_of(p)
     level = WALL_LEVELS[w]
     if kind == "uniform":
@@ -91,7 +101,7 @@ def room_radiance(p, kind: str = "textured") -> np.ndarray:
     if kind == "walls":
         return level
     if kind != "textured":
-        raise ValueError(f"unknown room radiance {kind!r} (textured, walls, uniform)")
+        raise ValueError(f"unknown room radiance {kind!r} (textured, texels, walls, uniform)")
     centre = 0.5 * (ROOM_LO + ROOM_HI)
     axis = np.array([0, 0, 1, 1, 2, 2])[w]
     q = p - centre
@@ -103,6 +113,32 @@ def room_radiance(p, kind: str = "textured") -> np.ndarray:
     lamp_r = np.hypot(p[..., 0] - LAMP_CENTRE[0], p[..., 1] - LAMP_CENTRE[1])
     lamp = LAMP_RADIANCE / (1.0 + np.exp((lamp_r - LAMP_RADIUS) / 0.02 * 4.0))
     return level * grid * fall + np.where(w == 5, lamp, 0.0)
+
+
+EMITTER_TEXEL = 1.0 / 32.0
+"""Edge (m) of the square texels of the emitting walls of the path-traced room (`sphere_radiance_pass`):
+every wall's extent is a whole number of them (4, 3, 2.5 m: 128, 96, 80 texels)."""
+_WALL_SIDES = ((0, 1), (0, 0), (1, 1), (1, 0), (2, 0), (2, 1))  # (normal axis, 1: the hi side), wall_of order
+
+
+def _in_plane(axis: int) -> tuple[int, int]:
+    a, b = (k for k in range(3) if k != axis)
+    return a, b
+
+
+def texel_centres(p) -> np.ndarray:
+    """The centre of the `EMITTER_TEXEL` texel of the wall nearest each point p (…, 3), on that wall."""
+    p = np.asarray(p, np.float64)
+    q = p.copy()
+    w = wall_of(p)
+    for k, (axis, hi) in enumerate(_WALL_SIDES):
+        m = w == k
+        for a in _in_plane(axis):
+            n = round((ROOM_HI[a] - ROOM_LO[a]) / EMITTER_TEXEL)
+            i = np.clip(np.floor((p[m, a] - ROOM_LO[a]) / EMITTER_TEXEL), 0, n - 1)
+            q[m, a] = ROOM_LO[a] + (i + 0.5) * EMITTER_TEXEL
+        q[m, axis] = ROOM_HI[axis] if hi else ROOM_LO[axis]
+    return q
 
 
 def box_exit(origins, dirs) -> np.ndarray:
@@ -308,3 +344,116 @@ def polygon_irradiance(point, normal, levels=WALL_LEVELS) -> float:
             acc += math.atan2(s, float(np.dot(a, b))) * float(np.dot(n, c / s))
         total += float(level) * 0.5 * abs(acc)
     return total
+
+
+# ============================================================== path-traced spheres (Mitsuba `path`)
+SPHERE_MATERIALS = {
+    "mirror": {"type": "conductor", "material": "none"},
+    "glass": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0},
+}
+"""The sphere BSDFs of `sphere_radiance_pass`: a perfect mirror (``conductor``, material "none": reflectance 1
+at every angle) and smooth glass of index 1.5 in air (``dielectric``: Mitsuba chooses reflection or
+refraction with the exact Fresnel probability at every interface, internal reflections included)."""
+
+
+def _wall_emitter(mi, k: int, kind: str) -> dict:
+    """Wall k as a Mitsuba ``rectangle`` facing into the room, emitting the `EMITTER_TEXEL` bitmap of
+    `room_radiance` (``kind``) at its texel centres (nearest filtering: piecewise constant, exactly
+    ``room_radiance(p, "texels")`` for kind textured), black (non-reflecting)."""
+    axis, hi = _WALL_SIDES[k]
+    ua, va = _in_plane(axis)
+    nu, nv = (round((ROOM_HI[a] - ROOM_LO[a]) / EMITTER_TEXEL) for a in (ua, va))
+    u = ROOM_LO[ua] + (np.arange(nu) + 0.5) * EMITTER_TEXEL
+    v = ROOM_LO[va] + (np.arange(nv) + 0.5) * EMITTER_TEXEL
+    uu, vv = np.meshgrid(u, v)  # rows: v (the rectangle's uv.y), columns: u
+    pts = np.zeros((nv, nu, 3))
+    pts[..., ua], pts[..., va] = uu, vv
+    pts[..., axis] = ROOM_HI[axis] if hi else ROOM_LO[axis]
+    lum = room_radiance(pts.reshape(-1, 3), "textured" if kind == "texels" else kind).reshape(nv, nu)
+    m = np.eye(4)
+    m[:3, :3] = 0.0
+    m[ua, 0] = 0.5 * (ROOM_HI[ua] - ROOM_LO[ua])
+    m[va, 1] = 0.5 * (ROOM_HI[va] - ROOM_LO[va])
+    m[axis, 2] = -1.0 if hi else 1.0  # the rectangle's +z normal points into the room
+    c = 0.5 * (ROOM_LO + ROOM_HI)
+    c[axis] = ROOM_HI[axis] if hi else ROOM_LO[axis]
+    m[:3, 3] = c
+    bitmap = mi.Bitmap(np.repeat(lum[..., None], 3, -1).astype(np.float32))
+    texture = {
+        "type": "bitmap",
+        "bitmap": bitmap,
+        "raw": True,
+        "filter_type": "nearest",
+        "wrap_mode": "clamp",
+    }
+    return {
+        "type": "rectangle",
+        "to_world": mi.ScalarTransform4f(m.tolist()),
+        "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}},
+        "emitter": {"type": "area", "radiance": texture},
+    }
+
+
+def path_room_scene(variant: str, centre, radius: float, material: str, kind: str):
+    """(mi, scene): the room's six walls as `EMITTER_TEXEL` bitmap emitters (`room_radiance` ``kind``) and a
+    ``material`` sphere (`SPHERE_MATERIALS`); cached per arguments."""
+    mi = use_variant(variant)
+    key = ("path", mi.variant(), tuple(float(c) for c in centre), float(radius), material, kind)
+    if key not in _SCENES:
+        if material not in SPHERE_MATERIALS:
+            raise ValueError(f"unknown sphere material {material!r} ({', '.join(SPHERE_MATERIALS)})")
+        d: dict = {"type": "scene"}
+        for k in range(6):
+            d[f"wall{k}"] = _wall_emitter(mi, k, kind)
+        d["sphere"] = {
+            "type": "sphere",
+            "center": [float(c) for c in centre],
+            "radius": float(radius),
+            "bsdf": dict(SPHERE_MATERIALS[material]),
+        }
+        _SCENES[key] = mi.load_dict(d)
+    return mi, _SCENES[key]
+
+
+def sphere_radiance_pass(
+    origins,
+    dirs,
+    centre,
+    radius: float,
+    material: str,
+    spp: int,
+    seed: int,
+    *,
+    kind: str = "texels",
+    max_depth: int = 64,
+    variant: str = "llvm_ad_rgb",
+):
+    """One pass of Mitsuba's ``path`` integrator along the given rays (pixel-centre camera rays, (P, 3) each)
+    in the room whose walls emit `room_radiance` (``kind``; textured → the ``texels`` bitmap) and reflect
+    nothing, with a ``material`` sphere (`SPHERE_MATERIALS`): a `rtfit.reference.estimators.PassResult` of
+    the per-ray mean radiance and its unbiased sample variance over ``spp`` independent samples
+    (W/(m²·sr), grey: channel R). ``max_depth`` counts interfaces (camera → sphere is 1); Russian roulette is
+    off below it (``rr_depth = max_depth``), so every path has weight 1 and the noise is only the choice
+    between reflection and refraction at each glass interface (none for the mirror)."""
+    o = np.ascontiguousarray(np.broadcast_to(np.asarray(origins, np.float64), np.shape(dirs)), np.float32)
+    d = np.ascontiguousarray(np.asarray(dirs, np.float64), np.float32).reshape(-1, 3)
+    o = o.reshape(-1, 3)
+    if spp < 2:
+        raise ValueError("spp must be >= 2 (the variance needs two samples)")
+    mi, scene = path_room_scene(variant, centre, radius, material, kind)
+    integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth), "rr_depth": int(max_depth)})
+    t0 = time.perf_counter()
+    s = np.zeros((len(d), 1))
+    q = np.zeros((len(d), 1))
+    for a, b in chunk_ranges(len(d), spp):
+        n = b - a
+        el = dr.arange(mi.UInt32, n * spp) // spp
+        og = dr.gather(mi.Point3f, mi.Point3f(*(o[a:b, k] for k in range(3))), el)
+        dg = dr.gather(mi.Vector3f, mi.Vector3f(*(d[a:b, k] for k in range(3))), el)
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(sub_seed(seed, "sphere", a), n * spp)
+        value, _, _ = integrator.sample(scene, sampler, mi.Ray3f(og, dg))
+        ss, qq = channel_moments(mi, dr, [value[0]], spp)
+        s[a:b], q[a:b] = ss, qq
+    mean, var = mean_var(s[:, 0], q[:, 0], spp)
+    return PassResult(mean, var, int(spp), int(seed), time.perf_counter() - t0)

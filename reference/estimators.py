@@ -13,7 +13,8 @@ Every pass returns, per element, the sample mean and the unbiased sample varianc
 iid samples (Mitsuba's ``independent`` sampler: stratified samplers would bias that variance).
 Sums are taken in float64 on the device, so millions of samples never lose precision in a float32
 accumulator (mitsuba2 #82, mitsuba3 #1335); they are reduced inside the kernel that draws the samples
-(`channel_moments`), so a pass costs what ``mi.render`` costs for the same integrator.
+and stay on the device until the pass is done (`PassMoments`: the mean and variance are computed there
+and read back in one copy per pass), so a pass costs what ``mi.render`` costs for the same integrator.
 
 Irradiance probes estimate E(x, n) = ∫_Ω L_i(x, ω) max(n·ω, 0) dω at given points and normals
 with Mitsuba's own emitter sampling and ray tracing: emitter sampling and cosine-weighted
@@ -78,28 +79,107 @@ def chunk_ranges(n_elements: int, spp: int):
         yield start, min(n_elements, start + per)
 
 
+class PassMoments:
+    """Per-element float64 sums Σ v and Σ v² of ``channels`` per-lane values, accumulated **on the device**
+    over every chunk of a pass, then turned into the pass's mean and unbiased variance on the device and
+    read back to the host once (`result`).
+
+    Chunk k of a pass draws ``spp`` samples for each of its elements [a, b): lanes [i·spp, (i + 1)·spp)
+    are element a + i's samples. `add` sums them inside the kernel that computes them (symbolic block
+    reductions, ``dr.block_sum(..., mode="symbolic")``: per-lane float64 atomic adds into the element's
+    slot, combined within a SIMD packet or warp first; on the CPU into one copy of the chunk's sums per
+    worker thread, added after the launch), then copies the chunk's sums into the pass's arrays at offset
+    a (a plain scatter: each element belongs to one chunk). The offset is an opaque device value, not a
+    literal of the kernel text, so every chunk of every pass with one ``spp`` is the same kernel, found in
+    Dr.Jit's kernel cache. Per chunk: the sampling kernel, the CPU's reduction of its per-thread copies,
+    one small copy kernel; per pass: the mean and variance of every element, packed into one float64 array
+    on the device (2·channels small kernels), and one device→host copy. No per-lane array reaches memory
+    and no per-element work happens on the host (issue 21 §3: the sums were copied to NumPy per chunk and
+    per channel, stacked and reduced there, ~55 ns per pixel on an H200).
+
+    Precision: float64 per lane; the same reduction as before this class existed, so the sums are the same
+    float64 additions. Atomics from different threads (CPU: an element's lanes spanning two threads' work
+    blocks) or warps (GPU) land in an unspecified order, so a re-render can differ by ~1 ulp of float64
+    (1e-16 relative; a pass loaded from the cache is bit-identical). mean = Σv/n and
+    var = max(Σv² − Σv·mean, 0)/(n − 1) are the operations NumPy did (`mean_var`; the divisors are opaque,
+    since Dr.Jit turns a division by a literal into a multiplication by its reciprocal): bit-identical on
+    the CPU (measured); a GPU compiler that fuses Σv·mean into the subtraction (an FMA) changes var by at
+    most 1 ulp of Σv², within the bound the reordered sums already carry (docs/benchmarks.md). Passes are
+    stored in float32 (`rtfit.reference.cache`), far coarser than either."""
+
+    def __init__(self, mi, n_elements: int, channels: int, spp: int):
+        self.mi, self.n, self.channels, self.spp = mi, int(n_elements), int(channels), int(spp)
+        self.s = [dr.zeros(mi.Float64, self.n) for _ in range(self.channels)]
+        self.q = [dr.zeros(mi.Float64, self.n) for _ in range(self.channels)]
+
+    def add(self, first: int, values) -> None:
+        """Add one chunk: ``values`` (one per-lane Float array per channel) are the samples of elements
+        [first, first + lanes/spp), all ``spp`` of them (chunks partition the elements: a chunk's sums
+        replace the elements' slots, they are not added to an earlier chunk's). Launches the kernel that
+        computes them."""
+        if len(values) != self.channels:
+            raise ValueError(f"expected {self.channels} channels (got {len(values)})")
+        mi = self.mi
+        lanes = dr.width(values[0])
+        m = lanes // self.spp
+        if lanes % self.spp or first < 0 or first + m > self.n:
+            raise ValueError(f"a chunk of {lanes} lanes at element {first} overruns {self.n} × {self.spp}")
+        vs = [mi.Float64(v) for v in values]
+        sums = [dr.block_sum(v, self.spp, mode="symbolic") for v in vs]
+        sqs = [dr.block_sum(v * v, self.spp, mode="symbolic") for v in vs]
+        if m == self.n:  # the whole pass in one chunk: its sums are the pass's
+            self.s, self.q = sums, sqs
+            dr.eval(self.s, self.q)  # one kernel: the samples and all 2·C sums
+            return
+        dr.eval(sums, sqs)  # one kernel: the samples and all 2·C sums
+        dr.make_opaque(self.s, self.q)
+        idx = dr.arange(mi.UInt32, m) + dr.opaque(mi.UInt32, first)
+        for c in range(self.channels):
+            dr.scatter(self.s[c], sums[c], idx)
+            dr.scatter(self.q[c], sqs[c], idx)
+        dr.eval()  # the pending scatters: one kernel
+
+    def _packed(self, stats):
+        """One float64 array of 2·elements·channels values: ``stats(s, q)``'s two results for every
+        element and channel, [first][element][channel] then [second][element][channel], read back in one
+        device→host copy. Dr.Jit launches one small kernel per scatter into it (2·channels launches; on the
+        CPU 25 % faster than one kernel gathering each lane's channel, measured at 2^20 elements)."""
+        mi, n, ch = self.mi, self.n, self.channels
+        e = dr.arange(mi.UInt32, n) * ch
+        packed = dr.empty(mi.Float64, 2 * n * ch)  # every slot is written below
+        for c in range(ch):
+            first, second = stats(self.s[c], self.q[c])
+            dr.scatter(packed, first, e + c)
+            dr.scatter(packed, second, e + (n * ch + c))
+        return np.asarray(packed, dtype=np.float64).reshape(2, n, ch)
+
+    def sums(self) -> tuple[np.ndarray, np.ndarray]:
+        """Σ v and Σ v², each (elements, channels) float64, in one device→host copy."""
+        a = self._packed(lambda s, q: (s, q))
+        return a[0], a[1]
+
+    def result(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-element mean and unbiased sample variance, each (elements, channels) float64: `mean_var`'s
+        formula evaluated on the device, packed into one array, copied to the host once."""
+        mi = self.mi
+        n = dr.opaque(mi.Float64, self.spp)
+        n1 = dr.opaque(mi.Float64, self.spp - 1)
+
+        def stats(s, q):
+            mean = s / n
+            return mean, dr.maximum(q - s * mean, 0.0) / n1
+
+        a = self._packed(stats)
+        return a[0], a[1]
+
+
 def channel_moments(mi, dr, channels, spp: int):
     """Per-element float64 sums Σ v and Σ v² of each per-lane value in ``channels`` (lanes grouped by
-    ``spp``: lanes [i·spp, (i + 1)·spp) are element i's samples); arrays of shape (elements, channels).
-
-    The sums are symbolic block reductions (``dr.block_sum(..., mode="symbolic")``: per-lane float64
-    atomic adds into the element's slot, combined within a SIMD packet or warp first), so they are part
-    of the kernel that computes the samples: one kernel launch per chunk, no per-lane array in memory.
-    The evaluated reduction (the default for arrays under 1 GiB) would first store every lane's value,
-    then launch one float64 conversion kernel and one reduction per sum (7 launches for RGB and ~2.2 GB
-    of memory traffic per 2^24 lanes): 0.75× `mi.render`'s throughput on an H200 (issue 21).
-    Precision is unchanged (float64 per lane). Only the order of the additions differs: atomics from different
-    threads (CPU: where an element's lanes span two threads' work blocks) or warps (GPU) of one element land
-    in an unspecified order, so Σ v and Σ v² can differ from run to run by ~1 ulp of float64 (1e-16
-    relative; a re-render is not bit-identical, a pass loaded from the cache is). Passes are stored in float32
-    (`rtfit.reference.cache`), far coarser than this."""
-    vs = [mi.Float64(v) for v in channels]
-    sums = [dr.block_sum(v, spp, mode="symbolic") for v in vs]
-    sqs = [dr.block_sum(v * v, spp, mode="symbolic") for v in vs]
-    dr.eval(sums, sqs)  # one kernel: the samples and all 2·C sums
-    s = np.stack([np.asarray(x, dtype=np.float64) for x in sums], axis=-1)
-    q = np.stack([np.asarray(x, dtype=np.float64) for x in sqs], axis=-1)
-    return s, q
+    ``spp``), arrays of shape (elements, channels): one `PassMoments` chunk (one kernel launch, one
+    device→host copy). Passes with several chunks use `PassMoments` directly (one copy per pass)."""
+    acc = PassMoments(mi, dr.width(channels[0]) // spp, len(channels), spp)
+    acc.add(0, channels)
+    return acc.sums()
 
 
 def moments(mi, dr, value, spp: int):
@@ -109,6 +189,7 @@ def moments(mi, dr, value, spp: int):
 
 
 def mean_var(s: np.ndarray, q: np.ndarray, n: int):
+    """Mean Σv/n and unbiased variance max(Σv² − Σv·mean, 0)/(n − 1) of n samples from their sums."""
     mean = s / n
     var = np.maximum(q - s * mean, 0.0) / (n - 1)
     return mean, var
@@ -116,7 +197,8 @@ def mean_var(s: np.ndarray, q: np.ndarray, n: int):
 
 def _pixel_rays(mi, dr, sensor, width: int, first_pixel: int, n_pixels: int, spp: int):
     idx = dr.arange(mi.UInt32, n_pixels * spp)
-    pix = idx // spp + first_pixel
+    # The first pixel is opaque (a device value): as a literal, every chunk of a pass was its own kernel.
+    pix = idx // spp + dr.opaque(mi.UInt32, first_pixel)
     x = mi.Float(pix % width)
     y = mi.Float(pix // width)
     film_size = sensor.film().crop_size()
@@ -143,8 +225,7 @@ def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
         mean, var = _radiance_scalar(mi, mi_scene, sensor, integrator, width, height, spp, seed)
         return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
     n_pixels = width * height
-    s = np.empty((n_pixels, 3))
-    q = np.empty((n_pixels, 3))
+    acc = PassMoments(mi, n_pixels, 3, spp)
     sampler = mi.load_dict({"type": "independent"})
     media = counters(mi_scene)
     for k, (a, b) in enumerate(chunk_ranges(n_pixels, spp)):
@@ -154,9 +235,10 @@ def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
             if media:  # lane index for the media's event counts (rtfit.reference.budget)
                 ray.time = mi.Float(dr.arange(mi.UInt32, (b - a) * spp))
             value, _, _ = integrator.sample(mi_scene, sampler, ray, sensor.get_medium(), True)
-            s[a:b], q[a:b] = moments(mi, dr, value * weight, spp)
+            value = value * weight
+            acc.add(a, [value[c] for c in range(3)])
             armed.check()
-    mean, var = mean_var(s, q, spp)
+    mean, var = acc.result()
     shape = (height, width, 3)
     return PassResult(mean.reshape(shape), var.reshape(shape), spp, seed, time.perf_counter() - t0)
 
@@ -256,20 +338,20 @@ def irradiance_pass(
     points = np.ascontiguousarray(points, dtype=np.float32)
     normals = np.ascontiguousarray(normals, dtype=np.float32)
     n_points = len(points)
-    s = np.empty((n_points, 3))
-    q = np.empty((n_points, 3))
+    acc = PassMoments(mi, n_points, 3, spp)
     sampler = mi.load_dict({"type": "independent"})
+    p_all, n_all = mi.Point3f(points.T), mi.Vector3f(normals.T)  # on the device once per pass
     for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
-        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp
-        p = dr.gather(mi.Point3f, mi.Point3f(points[a:b].T), idx)
-        nrm = dr.gather(mi.Vector3f, mi.Vector3f(normals[a:b].T), idx)
+        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + dr.opaque(mi.UInt32, a)
+        p = dr.gather(mi.Point3f, p_all, idx)
+        nrm = dr.gather(mi.Vector3f, n_all, idx)
         if transport == "direct":
             value = _direct_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         else:
             value = _global_irradiance(mi, dr, mi_scene, sampler, p, nrm)
-        s[a:b], q[a:b] = moments(mi, dr, value, spp)
-    mean, var = mean_var(s, q, spp)
+        acc.add(a, [value[c] for c in range(3)])
+    mean, var = acc.result()
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 

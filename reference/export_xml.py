@@ -100,7 +100,7 @@ def export_xml(scene: Scene, path: str | os.PathLike) -> XmlExport:
     with scoped_variant(inspection_variant()) as mi:  # the caller's variant is put back afterwards
         import mitsuba.parser as parser  # mitsuba: needs the variant set above
 
-        d, left = exportable_dict(mitsuba_scene_dict(mi, scene))
+        d, left = exportable_dict(mitsuba_scene_dict(mi, scene, fog_path=False))
         config = parser.ParserConfig(mi.variant())
         state = parser.parse_dict(config, d)
         parser.transform_relocate(config, state, str(path.parent))

@@ -21,7 +21,7 @@ independent of the reference's (shared noise would let an approximation follow t
 read below the noise floor) and smaller.
 
 Each pass returns per point the sample mean and unbiased sample variance of ``spp`` iid samples of the 9
-values (E_u, E_s, E⊥; RGB each), float64 sums on the device (`estimators.moments`).
+values (E_u, E_s, E⊥; RGB each), float64 sums on the device (`estimators.PassMoments`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import time
 import drjit as dr
 import numpy as np
 
-from .estimators import PassResult, channel_moments, check_spp, chunk_ranges, mean_var, sub_seed
+from .estimators import PassMoments, PassResult, check_spp, chunk_ranges, sub_seed
 
 __all__ = ["CHANNELS", "PERP_SAMPLES", "environment_irradiance_pass", "light_irradiance_pass"]
 
@@ -53,8 +53,7 @@ def light_irradiance_pass(mi, mi_scene, emitter, points, normals, towards, spp: 
     nrm = np.ascontiguousarray(normals, dtype=np.float32)
     tow = np.ascontiguousarray(towards, dtype=np.float32)
     n_points = len(pts)
-    s = np.empty((n_points, 9))
-    q = np.empty((n_points, 9))
+    acc = PassMoments(mi, n_points, 9, spp)
     sampler = mi.load_dict({"type": "independent"})
     for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
@@ -80,8 +79,8 @@ def light_irradiance_pass(mi, mi_scene, emitter, points, normals, towards, spp: 
         values = [dr.select(ok, e_u[c], 0.0) for c in range(3)]
         values += [dr.select(ok, e_s[c], 0.0) for c in range(3)]
         values += [e_perp[c] for c in range(3)]
-        s[a:b], q[a:b] = channel_moments(mi, dr, values, spp)
-    mean, var = mean_var(s, q, spp)
+        acc.add(a, values)
+    mean, var = acc.result()
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 
@@ -106,8 +105,7 @@ def environment_irradiance_pass(
     nrm = np.ascontiguousarray(normals, dtype=np.float32)
     pts = None if points is None else np.ascontiguousarray(points, dtype=np.float32)
     n_points = len(nrm)
-    s = np.empty((n_points, 3))
-    q = np.empty((n_points, 3))
+    acc = PassMoments(mi, n_points, 3, spp)
     sampler = mi.load_dict({"type": "independent"})
     for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
@@ -140,6 +138,6 @@ def environment_irradiance_pass(
         pdf_e = emitter.pdf_direction(it, ds2)
         c_part = dr.select(cos_c > 0.0, radiance * cos_c / dr.maximum(pdf_e + cos_c / dr.pi, 1e-30), 0.0)
         total = e_part + c_part
-        s[a:b], q[a:b] = channel_moments(mi, dr, [total[c] for c in range(3)], spp)
-    mean, var = mean_var(s, q, spp)
+        acc.add(a, [total[c] for c in range(3)])
+    mean, var = acc.result()
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)

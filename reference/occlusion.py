@@ -65,7 +65,7 @@ import numpy as np
 from .build import camera_dict
 from .cache import PassEntry, array_digest, pool_passes
 from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
-from .estimators import MAX_LANES, PassResult, channel_moments, check_spp, chunk_ranges, mean_var, sub_seed
+from .estimators import MAX_LANES, PassMoments, PassResult, check_spp, chunk_ranges, sub_seed
 
 QUANTITIES = (
     "ao",
@@ -237,15 +237,15 @@ def occlusion_pass(
     normals = np.ascontiguousarray(normals / ln, dtype=np.float32)
     t0 = time.perf_counter()
     n_pts = len(points)
-    s = np.empty(n_pts)
-    q = np.empty(n_pts)
+    acc = PassMoments(mi, n_pts, 1, spp)
     per = max(1, MAX_LANES // spp)
+    p_all, n_all = mi.Point3f(points.T), mi.Vector3f(normals.T)  # on the device once per pass
     for c, a in enumerate(range(0, n_pts, per)):
         b = min(n_pts, a + per)
         lanes = (b - a) * spp
-        idx = dr.arange(mi.UInt32, lanes) // spp
-        p = dr.gather(mi.Point3f, mi.Point3f(points[a:b].T), idx)
-        n = dr.gather(mi.Vector3f, mi.Vector3f(normals[a:b].T), idx)
+        idx = dr.arange(mi.UInt32, lanes) // spp + dr.opaque(mi.UInt32, a)
+        p = dr.gather(mi.Point3f, p_all, idx)
+        n = dr.gather(mi.Vector3f, n_all, idx)
         # Per-lane initial state hashed with TEA (as Mitsuba's independent sampler does): PCG32 streams
         # that share an initial state and differ only in their increment are correlated.
         lane = dr.arange(mi.UInt32, lanes)
@@ -256,10 +256,9 @@ def occlusion_pass(
         v = _estimate(
             mi, dr, mi_scene, rng, p, n, quantity, float(max_distance), float(albedo), skyfn, distance_weight
         )
-        sv, qv = channel_moments(mi, dr, [v], spp)
-        s[a:b], q[a:b] = sv[:, 0], qv[:, 0]
-    mean, var = mean_var(s, q, spp)
-    return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
+        acc.add(a, [v])
+    mean, var = acc.result()
+    return PassResult(mean[:, 0], var[:, 0], spp, seed, time.perf_counter() - t0)
 
 
 def _sunsky_escape_value(mi, dr, sky: SunskySky):
@@ -361,14 +360,14 @@ def visibility_cap_pass(
     pts = np.ascontiguousarray(points, dtype=np.float32)
     nrm = np.ascontiguousarray(normals, dtype=np.float32)
     n_points = len(pts)
-    s = np.empty((n_points, 5))
-    q = np.empty((n_points, 5))
+    acc = PassMoments(mi, n_points, 5, spp)
     sampler = mi.load_dict({"type": "independent"})
+    p_all, n_all = mi.Point3f(pts.T), mi.Vector3f(nrm.T)  # on the device once per pass
     for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
-        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp
-        p = dr.gather(mi.Point3f, mi.Point3f(pts[a:b].T), idx)
-        n = dr.gather(mi.Vector3f, mi.Vector3f(nrm[a:b].T), idx)
+        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + dr.opaque(mi.UInt32, a)
+        p = dr.gather(mi.Point3f, p_all, idx)
+        n = dr.gather(mi.Vector3f, n_all, idx)
         d = mi.Frame3f(n).to_world(mi.warp.square_to_uniform_hemisphere(sampler.next_2d()))
         ray = _spawn(mi, dr, p, n, d, max_distance)
         if see_through_emitters:
@@ -378,8 +377,8 @@ def visibility_cap_pass(
             blocked = mi_scene.ray_test(ray)
         v = dr.select(blocked, 0.0, 1.0)
         values = [v, 2.0 * v * dr.maximum(dr.dot(n, d), 0.0), v * d.x, v * d.y, v * d.z]
-        s[a:b], q[a:b] = channel_moments(mi, dr, values, spp)
-    mean, var = mean_var(s, q, spp)
+        acc.add(a, values)
+    mean, var = acc.result()
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 

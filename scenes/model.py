@@ -227,6 +227,23 @@ class PointLight:
 
 
 @dataclass(frozen=True)
+class SpotLight:
+    """Spot light at ``position`` emitting around the unit ``axis`` (the direction it points to), Mitsuba
+    ``spot``: radiant intensity I(ω) = ``intensity``·f(θ) (W/sr per channel), θ the angle between ω and the
+    axis, f = 1 for θ ≤ ``beam_width_deg``, (θ_c − θ)/(θ_c − θ_b) (linear in the angle) up to
+    ``cutoff_angle_deg`` θ_c, 0 beyond (Mitsuba 3 ``spot.cpp`` ``falloff_curve``; ``beam_width_deg`` <
+    ``cutoff_angle_deg``). Like a point light it covers no pixel."""
+
+    position: Vec3
+    axis: Vec3 = (0.0, 0.0, -1.0)
+    intensity: RGB = (1.0, 1.0, 1.0)
+    cutoff_angle_deg: float = 20.0
+    beam_width_deg: float = 15.0
+
+    kind: ClassVar[str] = "spot_light"
+
+
+@dataclass(frozen=True)
 class ConstantEnv:
     """Uniform environment of the given radiance from every direction."""
 
@@ -266,7 +283,7 @@ class SunSky:
     kind: ClassVar[str] = "sunsky"
 
 
-Light = Sun | SphereLight | RectLight | PointLight | ConstantEnv | EnvMap | SunSky
+Light = Sun | SphereLight | RectLight | PointLight | SpotLight | ConstantEnv | EnvMap | SunSky
 ENVIRONMENT_KINDS = ("constant_env", "envmap", "sunsky")
 
 

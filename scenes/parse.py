@@ -52,6 +52,7 @@ from .model import (
     Scene,
     Sphere,
     SphereLight,
+    SpotLight,
     Sun,
     SunSky,
 )
@@ -275,6 +276,13 @@ SCHEMA: dict[type, dict[str, Spec]] = {
         "rotation_deg": _ANGLE,
     },
     PointLight: {"position": _VEC, "intensity": _RADIANCE},
+    SpotLight: {
+        "position": _VEC,
+        "axis": _UNIT,
+        "intensity": _RADIANCE,
+        "cutoff_angle_deg": Spec("float", OPEN_QUADRANT),
+        "beam_width_deg": Spec("float", OPEN_QUADRANT),
+    },
     ConstantEnv: {"radiance": _RADIANCE},
     EnvMap: {
         "file": Spec("file", suffixes=(".exr",)),
@@ -313,7 +321,9 @@ SCHEMA: dict[type, dict[str, Spec]] = {
 }
 
 SHAPE_TYPES = {c.kind: c for c in (Sphere, Rectangle, Disk, Cube, Cylinder, Mesh, MitsubaXML)}
-LIGHT_TYPES = {c.kind: c for c in (Sun, SphereLight, RectLight, PointLight, ConstantEnv, EnvMap, SunSky)}
+LIGHT_TYPES = {
+    c.kind: c for c in (Sun, SphereLight, RectLight, PointLight, SpotLight, ConstantEnv, EnvMap, SunSky)
+}
 MEDIUM_TYPES = {c.kind: c for c in (HomogeneousMedium, ExponentialFog)}
 BOUNDARY_TYPES = {c.kind: c for c in (Sphere, Cube)}
 BOUNDARY_EXCLUDES = ("material",)  # a medium boundary is an interface (null BSDF), not a surface
@@ -528,7 +538,13 @@ class _Parser:
     def light(self, t: dict, key: str):
         cls = self.check_type(t, key, LIGHT_TYPES, "light")
         if cls is not SphereLight:
-            return cls(**self.fields(cls, t, key))
+            args = self.fields(cls, t, key)
+            if cls is SpotLight and not args["beam_width_deg"] < args["cutoff_angle_deg"]:
+                raise _Invalid(
+                    _join(key, "beam_width_deg"),
+                    f"must be below cutoff_angle_deg (got {args['beam_width_deg']:g})",
+                )
+            return cls(**args)
         args = self.fields(cls, t, key, extra=SPHERE_LIGHT_PLACEMENT, check_required=False)
         alt = [k for k in SPHERE_LIGHT_PLACEMENT if k in t]
         if not alt:

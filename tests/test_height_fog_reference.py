@@ -54,7 +54,10 @@ def test_builder_uses_python_medium_and_volpathmis(mi):
     from rtfit.reference import choose_integrator, mitsuba_scene_dict, plugin_types
 
     s = load_scene(library_path("fog_terrain"))
-    d = mitsuba_scene_dict(mi, s)
+    ref = mitsuba_scene_dict(mi, s)  # the reference: rtfit_fogpath, no medium plugin, no boundary shape
+    assert ref["integrator"]["type"] == "rtfit_fogpath" and "medium" not in ref["sensor"]
+    assert not {"rtfit_expfog", "homogeneous", "heterogeneous"} & plugin_types(ref)
+    d = mitsuba_scene_dict(mi, s, fog_path=False)
     types = plugin_types(d)
     assert "rtfit_expfog" in types and "homogeneous" not in types and "heterogeneous" not in types
     assert choose_integrator(s).type == "volpathmis"

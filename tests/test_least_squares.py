@@ -212,3 +212,18 @@ def test_bad_inputs():
         fit_least_squares(slope_residual, {"a": 1.0}, (x, x))
     with pytest.raises(ValueError):
         fit_curve(exp_model, x, np.full(5, np.nan), {"a": Param(1.0), "b": Param(1.0), "c": Param(0.0)})
+
+
+def test_parameter_stopped_short_of_its_bound_is_pinned_and_flagged():
+    """A solve that runs out of steps while a parameter crawls to its bound (the sigmoid reaches it only at
+    z = ∞; the obscurance fit's d_max stopped at 999.4 of 1000, not flagged) pins it there and re-solves the
+    rest: the closed form with m on its bound is q = mean(y − 2x); the result is flagged at_bound."""
+    x = np.linspace(0.0, 1.0, 40)
+    y = 3.0 * x + 1.0  # the unconstrained optimum m = 3 lies above the upper bound 2
+    params = {"m": Param(0.5, 0.0, 2.0), "q": Param(0.0, -10.0, 10.0)}
+    res = fit_least_squares(line_residual, params, (x, y), max_steps=12)
+    q = float(np.mean(y - 2.0 * x))
+    assert res.values["m"] == 2.0
+    assert res.values["q"] == pytest.approx(q, abs=1e-8)
+    assert res.at_bound == {"m": True, "q": False}
+    assert res.converged

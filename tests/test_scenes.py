@@ -84,6 +84,8 @@ PARTS = {
     "rect_light": '[[lights]]\ntype = "rect_light"\ncenter = [0, 0, 3]\nnormal = [0, 0, -1]\nsize = [1, 2]\n'
     "radiance = [5, 5, 4]\nrotation_deg = 45",
     "point_light": '[[lights]]\ntype = "point_light"\nposition = [1, 2, 3]\nintensity = [4, 4, 2]',
+    "spot_light": '[[lights]]\ntype = "spot_light"\nposition = [0, 0, 6]\naxis = [0, 0, -1]\n'
+    "intensity = 100\ncutoff_angle_deg = 30\nbeam_width_deg = 22.5",
     "constant_env": '[[lights]]\ntype = "constant_env"\nradiance = 0.5',
     "envmap": '[[lights]]\ntype = "envmap"\nfile = "sky.exr"\nscale = 2\nrotate_deg = 90',
     "sunsky": '[[lights]]\ntype = "sunsky"\nsun_direction = [0, 1, 1]\nturbidity = 4\nalbedo = 0.2\n'
@@ -109,7 +111,7 @@ def test_round_trip_everything_in_one_file(files, monkeypatch):
     monkeypatch.chdir(files.parent)  # relative to the file, not to the cwd
     scene = load_scene(files / "all.toml")
     assert scene.source == str(files / "all.toml")
-    assert len(scene.shapes) == 9 and len(scene.lights) == 5 and len(scene.media) == 2
+    assert len(scene.shapes) == 9 and len(scene.lights) == 6 and len(scene.media) == 2
     assert_round_trip(scene)
 
 
