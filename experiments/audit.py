@@ -11,10 +11,10 @@ geometry the SDF terms and aperture caps.
 
 `RULES` is the whole decision, as data: a rule names a family, the part kinds it needs (the first is the
 *trigger*: one applicability per such part; the others must be present in the scene), the inputs the
-rule itself supplies (e.g. the two caps of an aperture-cap intersection), the reason, the reference quantity
-and the integrator it would need. A method of the family applies when every one of its inputs is provided;
-so the exact sphere-light form is listed only for a spherical light, because only a spherical light
-provides ``alpha``. No code branches on a family's or a method's name.
+rule itself supplies (e.g. the aperture-caps role's second cap: the point's own hemisphere), the reason,
+the reference quantity and the integrator it would need. A method of the family applies when every one of
+its inputs is provided; so the exact sphere-light form is listed only for a spherical light, because only a
+spherical light provides ``alpha``. No code branches on a family's or a method's name.
 
 The AO radius: ``--ao-distance``, else `AO_FRACTION` × the diagonal of the scene's bounding box (all shapes
 as Mitsuba loads them). A ground plane much larger than the objects dominates that box: pass
@@ -33,8 +33,8 @@ from pathlib import Path
 from rtfit.realtime import (
     ambient_aperture,
     diffuse,
+    environment_bases,
     height_fog,
-    irradiance_bases,
     nishita_sky,
     sdf_occlusion,
 )
@@ -66,7 +66,7 @@ AO_FRACTION = 0.1
 
 FAMILIES = {
     "diffuse": diffuse.METHODS,
-    "irradiance-bases": irradiance_bases.METHODS,
+    "irradiance-bases": environment_bases.METHODS,
     "ambient-aperture": ambient_aperture.METHODS,
     "sdf-occlusion": sdf_occlusion.METHODS,
     "height-fog": height_fog.METHODS,
@@ -94,6 +94,9 @@ PROVIDES: dict[str, frozenset[str]] = {
 }
 # What provides an input, for "not here" notes (the first kind of `PROVIDES` that has it).
 _INPUT_SOURCE = {name: kind for kind in reversed(PROVIDES) for name in PROVIDES[kind]}
+# The bare cap-intersection forms (r1, r2, d → Ω in sr) have no per-pixel counterpart in a scene: the
+# ambient-aperture experiment compares them over (r1, r2, d); the audit uses each inside its aa-<form>-* rows.
+_INPUT_SOURCE.update(dict.fromkeys(("r1", "r2", "d"), "caps"))
 _KIND_TEXT = {
     "light": "a light (sun, directional, point, spot, sphere, disk or area)",
     "spherical-light": "a spherical light (a sphere light, or a sun of finite angular radius)",
@@ -103,6 +106,8 @@ _KIND_TEXT = {
     "fog": "an exponential height-fog medium",
     "medium": "a medium",
     "atmosphere": "an atmosphere",
+    "caps": "two bare caps: compared over (r1, r2, d) by the ambient-aperture experiment; in a scene each "
+    "intersection form is audited inside its aa-<form>-* rows",
 }
 
 
@@ -220,10 +225,13 @@ RULES: tuple[Rule, ...] = (
         "ambient-aperture",
         "ambient occlusion (aperture caps)",
         ("geometry",),
-        "{part} occludes itself: each point's visible cap against a light's cap",
-        "the solid angle of the visible cap ∩ the light's cap (closed form), and ray-cast visibility caps",
+        "{part} occludes itself: each point's visible cap (bent normal, aperture) against its hemisphere",
+        "ray-cast ambient occlusion within R = {ao_distance}, and each point's visibility cap baked by ray "
+        "casts of length R",
         "occlusion pass: cosine-distributed rays of length R = {ao_distance}",
-        frozenset({"r1", "r2", "d"}),
+        # The caps are intersected with the point's own hemisphere (the second cap: centre n, radius π/2,
+        # radiance 1/π, so that the light terms read AO), and the fills read 1/π as their sky.
+        frozenset({"cos_nl", "cos_al", "alpha", "radiance", "sky_radiance"}),
     ),
     Rule(
         "ambient-aperture",

@@ -62,6 +62,7 @@ __all__ = [
     "MIP_LEVELS",
     "DistanceFieldRows",
     "ao_radius",
+    "ao_reference",
     "distance_field_rows",
     "scene_distance_field",
     "visible_points",
@@ -128,8 +129,9 @@ def scene_distance_field(mi, mi_scene, pad: float) -> tuple[GridSDF, str, list[s
 _LAST_FIELD: dict = {}
 
 
-def _reference(setup: AuditSetup, points, normals, radius: float, label: str):
-    """The pooled AO passes: (mean (N,), stderr (N,), total spp, passes, rendered, entry, seconds)."""
+def ao_reference(setup: AuditSetup, points, normals, radius: float, label: str):
+    """The pooled AO passes (the ambient-aperture family's caps read the same entry): (mean (N,), stderr
+    (N,), total spp, passes, rendered, entry, seconds)."""
     what = {
         "format": FORMAT,
         "quantity": "ao",
@@ -255,7 +257,7 @@ def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     radius = ao_radius(setup)
     mask = setup.mask
     points, normals = visible_points(setup)
-    mean, stderr, total, passes, rendered, entry, seconds = _reference(
+    mean, stderr, total, passes, rendered, entry, seconds = ao_reference(
         setup, points, normals, radius, f"ao: {app.part}"
     )
     rows = distance_field_rows(setup, app.methods, points, normals, radius)

@@ -33,7 +33,7 @@ from rtfit.reference.light_irradiance import light_irradiance_pass
 from .audit import Applicability
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
 
-__all__ = ["FAMILY", "light_geometry"]
+__all__ = ["FAMILY", "light_geometry", "light_radiance", "light_reference"]
 
 FORMAT = 2  # 2: E⊥ from samples of its own (`light_irradiance.PERP_SAMPLES`)
 _DIRECTIONAL_FAR = 1e7  # a directional light's "centre": this many scene diagonals away along its direction
@@ -91,7 +91,7 @@ def _hard_shadow(setup: AuditSetup, points, normals, towards, dist, radius) -> n
     return (~np.asarray(blocked, dtype=bool)).astype(np.float64)
 
 
-def _radiance(setup: AuditSetup, source: int, e_perp: np.ndarray, alpha: np.ndarray) -> list:
+def light_radiance(setup: AuditSetup, source: int, e_perp: np.ndarray, alpha: np.ndarray) -> list:
     """Per channel: a sphere light's declared radiance, else E⊥/(π sin²α) (0 where α = 0)."""
     light = setup.info.xml.emitters[source]
     if light.scale_name == "radiance" and light.scale is not None and len(light.scale) in (1, 3):
@@ -101,9 +101,10 @@ def _radiance(setup: AuditSetup, source: int, e_perp: np.ndarray, alpha: np.ndar
     return [np.where(s2 > 0, e_perp[:, c] / (math.pi * np.maximum(s2, 1e-300)), 0.0) for c in range(3)]
 
 
-def _reference(setup: AuditSetup, source: int, points, normals, towards, label: str):
-    """The light's pooled passes: (mean (N, 9), stderr (N, 9), total spp, passes, rendered, entry,
-    seconds)."""
+def light_reference(setup: AuditSetup, source: int, points, normals, towards, label: str):
+    """The light's pooled passes (columns 0–2 unshadowed, 3–5 shadowed, 6–8 E⊥; the ambient-aperture family
+    reads the same entry for its occluded sphere light): (mean (N, 9), stderr (N, 9), total spp, passes,
+    rendered, entry, seconds)."""
     emitter = setup.emitters[source]
     what = {
         "format": FORMAT,
@@ -138,12 +139,12 @@ def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
     towards, dist, alpha, _centre, radius = light_geometry(setup, app.source, points)
     tag = f"light{app.source}"
-    mean, stderr, total, passes, rendered, entry, seconds = _reference(
+    mean, stderr, total, passes, rendered, entry, seconds = light_reference(
         setup, app.source, points, normals, towards, f"{tag}: {app.part}"
     )
     cos = np.clip(np.sum(normals * towards, axis=1), -1.0, 1.0)
     e_perp = mean[:, 6:9]
-    radiance = _radiance(setup, app.source, e_perp, alpha)
+    radiance = light_radiance(setup, app.source, e_perp, alpha)
     inputs = tuple(
         {
             "cos_theta": cos,

@@ -17,7 +17,12 @@ pixel-centre G-buffer of the scene's own camera (camera-facing unit normals n at
   projection (the L1 bases read its first four coefficients), Valve's ambient cube (irradiance at the six
   axes), the NNLS-optimal cube (fitted over a Fibonacci sphere of normals) and Sloan's λ (the smallest
   window strength without negative irradiance);
-* rows: every method of `rtfit.realtime.irradiance_bases.METHODS`, each with its own stored coefficients
+* rows: every method of `rtfit.realtime.environment_bases.METHODS` — the cube and SH table
+  (`rtfit.realtime.irradiance_bases`: Valve's and the NNLS cube, SH L1/L2/L3/L4 plain and windowed, ZH3),
+  spherical Gaussians (``sg{6,9,12}-{naive,ls,nnls,ambient}``: lobe amplitudes fitted to the baked radiance,
+  `rtfit.realtime.spherical_gaussians`) and Ambient Dice (12 vertex values, least squares over the Fibonacci
+  normals, `rtfit.realtime.ambient_dice`), the same table and the same bake (`build_bases`) as the
+  irradiance-bases experiment — each with its own stored coefficients
   (`FamilyCase.row_inputs`), evaluated on Dr.Jit at the visible normals; the exact row ``quadrature`` is
   the midpoint quadrature of the emitter itself at the same normals (`QUADRATURE_ROWS` rows of cells, the
   emitter's ``eval`` at each cell centre, a sunsky's sun as the exact disc:
@@ -26,6 +31,12 @@ pixel-centre G-buffer of the scene's own camera (camera-facing unit normals n at
   ``sh-l2-lambda`` is evaluated with the environment's own λ and then refitted to this scene's pixels by
   the audit (least squares over the visible normals: it weights the normals the camera sees rather than
   the whole sphere).
+
+The lightmap (hemisphere) bases of `rtfit.realtime.hemisphere_bases` (H-basis, Half-Life 2's radiosity
+normal mapping) are not rows: they store irradiance in a surface's tangent frame (for normal-mapped
+lightmaps), and the audit's G-buffer carries the shading normal only — Mitsuba gives a tangent only for
+meshes with texture coordinates, and a scene without normal maps has nothing for those bases to add over
+the world-space ones.
 
 A user approximation of ``environment_irradiance`` gets ``nx, ny, nz`` and ``sh`` (the 27 SH L2
 coefficients, channel-major) and returns (R, G, B).
@@ -38,7 +49,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from rtfit.realtime.irradiance_bases import METHODS
+from rtfit.realtime.environment_bases import METHODS
 from rtfit.reference.cache import array_digest
 from rtfit.reference.environments import emitter_environment, emitter_irradiance_quadrature
 from rtfit.reference.light_irradiance import environment_irradiance_pass
@@ -226,8 +237,9 @@ FAMILY = AuditFamily(
         "sampling of it and the cosine hemisphere) in independent passes with per-pixel standard errors. "
         f"The emitter is baked into a lat-long map ({BAKE_ROWS} rows; a sunsky's sun as an exact disc) "
         "from which each basis bakes what an engine "
-        "stores (SH L2 projection, the L1 bases its first four coefficients, Valve's axis cube, the NNLS "
-        "cube, Sloan's λ); each basis is evaluated on Dr.Jit at the visible normals. The exact row is the "
+        "stores (SH projection to L4, the lower orders and ZH3 from it, Valve's axis cube, the NNLS "
+        "cube, Sloan's λ per order, spherical-Gaussian lobe amplitudes, Ambient Dice's vertex values); each "
+        "basis is evaluated on Dr.Jit at the visible normals. The exact row is the "
         "midpoint quadrature of the emitter itself (its eval at 256 × 512 cell centres; a sunsky's sun as an "
         "exact disc) at the same normals: it must sit at the reference's noise."
         f" ({math.pi:.4f}·L for a constant environment.)"

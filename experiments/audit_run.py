@@ -65,6 +65,7 @@ from . import figures
 from . import fitted as fitfiles
 from .atomic import atomic_directory
 from .audit import FAMILIES, Applicability, AuditError, SceneInfo, applicable_families, inspect_scene
+from .audit_ambient_aperture import FAMILY as AMBIENT_APERTURE_CAPS
 from .audit_ambient_occlusion import FAMILY as AMBIENT_OCCLUSION
 from .audit_diffuse import FAMILY as DIFFUSE
 from .audit_family import AuditFamily, AuditSetup, FamilyCase, by_name
@@ -100,12 +101,14 @@ AUDITED: dict[str, AuditFamily] = by_name(
         AMBIENT_OCCLUSION,
         SKY_OCCLUSION,
         APERTURE_FILL,
+        AMBIENT_APERTURE_CAPS,
         HEIGHT_FOG,
         NISHITA_SKY,
     )
 )
-"""The families the audit runs (name → declaration, `audit_family.AuditFamily`). A family listed by
-``--list`` but not here is named in the run's notes as not audited yet."""
+"""The families the audit runs (name → declaration, `audit_family.AuditFamily`; a family's roles may be
+declared in several modules, joined by `by_name`). A family listed by ``--list`` but not here, or a role no
+declaration of it audits, is named in the run's notes as not audited yet."""
 
 
 def _wrong_format(family: str, scene_format: str) -> bool:

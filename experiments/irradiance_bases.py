@@ -66,7 +66,8 @@ import numpy as np
 from rtfit.fitting import smape
 from rtfit.fitting.stats import concat_z_pairs, z_checks, z_pair
 from rtfit.realtime import NUMPY_OPS, set_default_backend
-from rtfit.realtime.ambient_dice import DICE_METHODS, DICE_VERTICES, fit_ambient_dice
+from rtfit.realtime.ambient_dice import DICE_VERTICES, fit_ambient_dice
+from rtfit.realtime.environment_bases import METHODS as ENVIRONMENT_BASES
 from rtfit.realtime.irradiance_bases import (
     CUBE_AXES,
     CUBE_ORDER,
@@ -84,12 +85,9 @@ from rtfit.realtime.irradiance_bases import (
     sh_project_samples,
     zh3_from_sh,
 )
-from rtfit.realtime.irradiance_bases import METHODS as SH_CUBE_METHODS
-from rtfit.realtime.methods import method_table
 from rtfit.realtime.spherical_gaussians import (
     SG_COUNTS,
     SG_FITS,
-    SG_METHODS,
     disc_samples,
     fit_sg_all,
     sg_axes,
@@ -298,9 +296,10 @@ def quadrature_backend(variant: str) -> str | None:
 
 
 # ============================================================================================== methods
-METHODS = method_table([*SH_CUBE_METHODS.values(), *SG_METHODS.values(), *DICE_METHODS.values()])
+METHODS = ENVIRONMENT_BASES
 """Every basis of this experiment: cube and SH (`rtfit.realtime.irradiance_bases`), spherical Gaussians
-(`rtfit.realtime.spherical_gaussians`) and Ambient Dice (`rtfit.realtime.ambient_dice`)."""
+(`rtfit.realtime.spherical_gaussians`) and Ambient Dice (`rtfit.realtime.ambient_dice`), joined once in
+`rtfit.realtime.environment_bases` (the table `rtfit audit` reads too)."""
 SG_ERROR_LAMBDAS = (1e-3, 0.1, 0.8, 10.0, 1000.0)  # the self-check's λ grid (plus each basis's own λ)
 SG_ERROR_BOUND = 0.051  # max |S̃ − S|/S(λ, 1) measured over λ ∈ [1e-3, 1e3]: 0.0503 at λ = 0.8
 

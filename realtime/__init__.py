@@ -17,6 +17,8 @@ Modules:
     aerial_perspective  single scattering through the Nishita atmosphere + height fog together, the
                 seed's horizon-matched fog colour (docs/aerial-perspective.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
+    environment_bases  every irradiance basis of an environment as one method table (the irradiance-bases
+                family: cube, SH, ZH3, SG, Ambient Dice; ``METHODS`` from the module).
     environment_maps  pre-convolved and localised cube maps, cosine look-up, distance-impostor Hit
                 (docs/environment-maps.md).
     irradiance_bases  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
@@ -64,6 +66,7 @@ from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
+from .environment_bases import *  # noqa: F403
 from .environment_maps import *  # noqa: F403
 from .height_fog import *  # noqa: F403
 from .hemisphere_bases import *  # noqa: F403
@@ -95,6 +98,7 @@ MODULES = (
     "irradiance_volumes",
     "spherical_gaussians",
     "ambient_dice",
+    "environment_bases",
     "hemisphere_bases",
     "sdf_grid",
     "sdf_occlusion",

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-from . import ambient_aperture, diffuse, height_fog, irradiance_bases, nishita_sky, sdf_occlusion
+from . import ambient_aperture, diffuse, environment_bases, height_fog, nishita_sky, sdf_occlusion
 from .methods import Input, Method, Param
 from .sdf_grid import HalfSpace, Sphere
 from .sdf_occlusion import AnalyticSDF
@@ -57,7 +57,7 @@ __all__ = [
 FAMILY_METHODS: Mapping[str, Mapping[str, Method]] = MappingProxyType(
     {
         "diffuse": diffuse.METHODS,
-        "irradiance-bases": irradiance_bases.METHODS,
+        "irradiance-bases": environment_bases.METHODS,
         "ambient-aperture": ambient_aperture.METHODS,
         "sdf-occlusion": sdf_occlusion.METHODS,
         "height-fog": height_fog.METHODS,

@@ -348,8 +348,19 @@ CAP_CHANNELS = ("visible_fraction", "visibility", "bent_x", "bent_y", "bent_z")
 """The five values of a `visibility_cap_pass`, in order."""
 
 
-def visibility_cap_pass(mi, mi_scene, points, normals, spp: int, seed: int) -> PassResult:
-    """What an engine bakes per point for sky occlusion, by unbounded ray casts against the scene's shapes:
+def visibility_cap_pass(
+    mi,
+    mi_scene,
+    points,
+    normals,
+    spp: int,
+    seed: int,
+    max_distance: float = math.inf,
+    see_through_emitters: bool = False,
+) -> PassResult:
+    """What an engine bakes per point for sky occlusion, by unbounded ray casts against the scene's shapes
+    (``max_distance``: rays of that length instead, for a cap of occlusion within R; ``see_through_emitters``:
+    a ray that hits a shape carrying an emitter counts as escaping, for the cap a light is seen through):
     with ω uniform on the hemisphere of n (pdf 1/(2π)) and V(ω) = 1 where the ray x + tω (t > 0) meets
     nothing, per sample the five values (`CAP_CHANNELS`)
 
@@ -361,6 +372,8 @@ def visibility_cap_pass(mi, mi_scene, points, normals, spp: int, seed: int) -> P
 
     Mean and variance (N, 5) of ``spp`` iid samples per point; rays start at ``spawn_ray``'s offset."""
     check_spp(spp)
+    if not max_distance > 0:
+        raise ValueError(f"max_distance must be > 0 (got {max_distance!r})")
     t0 = time.perf_counter()
     pts = np.ascontiguousarray(points, dtype=np.float32)
     nrm = np.ascontiguousarray(normals, dtype=np.float32)
@@ -374,7 +387,13 @@ def visibility_cap_pass(mi, mi_scene, points, normals, spp: int, seed: int) -> P
         p = dr.gather(mi.Point3f, p_all, idx)
         n = dr.gather(mi.Vector3f, n_all, idx)
         d = mi.Frame3f(n).to_world(mi.warp.square_to_uniform_hemisphere(sampler.next_2d()))
-        v = dr.select(mi_scene.ray_test(_spawn(mi, dr, p, n, d)), 0.0, 1.0)
+        ray = _spawn(mi, dr, p, n, d, max_distance)
+        if see_through_emitters:
+            si = mi_scene.ray_intersect(ray)
+            blocked = si.is_valid() & ~si.shape.is_emitter()
+        else:
+            blocked = mi_scene.ray_test(ray)
+        v = dr.select(blocked, 0.0, 1.0)
         values = [v, 2.0 * v * dr.maximum(dr.dot(n, d), 0.0), v * d.x, v * d.y, v * d.z]
         acc.add(a, values)
     mean, var = acc.result()

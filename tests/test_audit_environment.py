@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pytest
 
+from rtfit.experiments.audit import FAMILIES
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.results import load_results
 
@@ -70,6 +71,15 @@ def test_constant_environment_exact_rows_equal_pi_l(tmp_path):
     # quadrature: πL to float32 round-off (measured max relative error 2.8e-8)
     for row in ("quadrature", "sh-l1", "sh-l2", "sh-l2-hann", "sh-l2-lanczos", "sh-l1-geomerics",
                 "cube-valve", "cube-nnls", "sh-l2-lambda"):  # fmt: skip
+        img = rows[row].image[case.mask]
+        assert np.allclose(img, want[None, :], rtol=1e-5), row
+    # The joined table (rtfit.realtime.environment_bases): every basis is a row, SG and Ambient Dice too.
+    # Exact for a constant as well: SH L3/L4 and ZH3 (L00 only), the SG fits with a constant term, Ambient
+    # Dice (least squares of the 12 vertex values; its weights sum to 1): measured 1.4e-15 relative. The SG
+    # sums without a constant term ripple (a finite sum of lobes is not constant): measured 4.6–7.5 %.
+    assert set(rows) == set(FAMILIES["irradiance-bases"])
+    exact = [m for m in rows if m.startswith(("sh-l3", "sh-l4", "zh3")) or m.endswith("-ambient")]
+    for row in [*exact, "ambient-dice"]:
         img = rows[row].image[case.mask]
         assert np.allclose(img, want[None, :], rtol=1e-5), row
 

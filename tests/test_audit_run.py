@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from rtfit.experiments.audit import AuditError
+from rtfit.experiments.audit import FAMILIES, AuditError
 from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_run import audit, resolve_approximations
 from rtfit.experiments.results import load_results
@@ -41,7 +41,8 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
     """``rtfit audit cbox-rgb.xml`` (Mitsuba's includes variant: base, BSDF and shape fragments, the emitter
     declared by id and referenced from an included shape): exit 0, the report and its files, one light
     (an area light on the luminaire OBJ) with an unshadowed and a shadowed case, each with the three
-    applicable shipped methods, and the scene's ambient occlusion (cone and curvature rows on the distance
+    applicable shipped methods, the visibility caps of its geometry (ambient-aperture) and the scene's ambient
+    occlusion (cone and curvature rows on the distance
     field of its own meshes); Y-up from the sensor."""
     out = tmp_path / "out"
     code, stdout, stderr = _run(
@@ -54,15 +55,18 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
     for f in ("results.json", "report.html", "report.md", "tables.tex"):
         assert (report / f).is_file()
     r = load_results(report)
-    assert [c.id for c in r.cases] == ["light0-unshadowed", "light0-shadowed", "ao"]
+    assert [c.id for c in r.cases] == ["light0-unshadowed", "light0-shadowed", "ao", "caps"]
+    cap_rows = [m for m in FAMILIES["ambient-aperture"] if m.startswith(("aa-", "fill-"))]
     for case in r.cases:
-        ao_rows = ["cone", "curvature", "evans-text", "evans-listing"]
-        want = ao_rows if case.id == "ao" else ["lambert", "half-lambert", "wrap"]
+        want = {
+            "ao": ["cone", "curvature", "evans-text", "evans-listing"],
+            "caps": cap_rows,
+        }.get(case.id, ["lambert", "half-lambert", "wrap"])
         assert [a.method for a in case.approximations] == want
         for a in case.approximations:
             assert {"rmse", "flip", "ssim"} <= set(a.metrics) and a.metrics["rmse"].noise_floor > 0
             assert a.cost is not None and a.cost.ns_per_pixel > 0
-    assert "not audited yet" in stderr and "ambient-aperture" in stderr  # (its AO role is listed, not run)
+    assert "not audited yet" not in stderr  # (no environment: every role that applies is audited)
     assert "up: +y from sensor 0's up vector" in stderr
     assert any(f.file.endswith("_flip.png") for f in r.figures)
 

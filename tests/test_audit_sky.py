@@ -194,11 +194,14 @@ def test_cli_list_then_audit_then_bad_input(tmp_path):
     text = scene.read_text().replace('<emitter type="constant">', '<emitter type="point">')
     dark.write_text(text.replace('<rgb name="radiance"', point))
     out2 = tmp_path / "out2"
-    run = CliRunner().invoke(
-        audit_cmd, [str(dark), "--approx", "ambient-aperture:fill-projected", "--out", str(out2)]
-    )
+    # (the fill rows themselves also apply to geometry alone, read as AO by the aperture-caps role with a
+    # unit sky of radiance 1/π: experiments/audit_ambient_aperture.py; the environment's own family does not)
+    run = CliRunner().invoke(audit_cmd, [str(dark), "--approx", "irradiance-bases", "--out", str(out2)])
     assert run.exit_code == 2 and run.stdout == "" and run.stderr.count("\n") == 1, run.stderr
-    assert run.stderr.startswith("rtfit: error: ") and "needs sky_radiance: an environment" in run.stderr
+    assert (
+        run.stderr.startswith("rtfit: error: irradiance-bases does not apply")
+        and "an environment" in run.stderr
+    )
     assert not out2.exists()
     # a lone floor under a point light: neither an environment nor self-occluding geometry
     lone = tmp_path / "lone.xml"
