@@ -80,11 +80,6 @@ GLOBAL_QUANTITIES = ("sky_global", "sunsky_global", "ambient_global")
 MAX_BOUNCES = 64
 FORMAT = 2
 """Version of the occlusion cache entries (2: `PassEntry` layout, float32 passes with a .json each)."""
-OBSCURANCE_DISTANCE = "from x: t + m.(o - x)/(m.w)"
-"""How the obscurance's d(x, ω) is measured (in its cache key): from the point x itself
-(`_distance_from_point`), not as the ray parameter t of the spawned ray, whose origin sits ~1e-4·(1 + |x|)
-off x along n (session 6: with t, a point facing a plane from h = d_max read W = 0.99939 for the step ρ
-where 1 is exact, z = −6.3 at 65536 spp; every ray with n·ω ≈ 1 measured d just under d_max)."""
 LUMINANCE = (0.2126, 0.7152, 0.0722)
 """Rec. 709 / linear-sRGB luminance weights: the scalar the sunsky quantities integrate."""
 SKY_BAKE_HEIGHT = 257
@@ -291,18 +286,6 @@ def _spawn(mi, dr, p, n, d, maxt=math.inf):
     return ray
 
 
-def _distance_from_point(dr, ray, si, p):
-    """d(x, ω) of a ray spawned at x (`OBSCURANCE_DISTANCE`): where the ray from x itself meets the surface
-    the spawned ray hit, taken as its tangent plane (normal m = si.n): s = t + m·(o − x)/(m·ω), from the
-    spawn offset o − x and the hit's ray parameter t — exact for a planar hit, and neither ``si.p − x`` (a
-    hit on a large triangle is quantised to ~1e-7 × its size: 1e-3 m on a 10⁴ m plane) nor t alone (short
-    by ε/μ). Where m·ω is under 1e-3 (a grazing hit, where the plane extrapolates badly) t is kept."""
-    m_dot_w = dr.dot(si.n, ray.d)
-    graze = dr.abs(m_dot_w) < 1e-3
-    shift = dr.dot(si.n, ray.o - p) / dr.select(graze, 1.0, m_dot_w)
-    return si.t + dr.select(graze, 0.0, shift)
-
-
 def _cos_dir(mi, rng, n):
     u = mi.Point2f(rng.next_float32(), rng.next_float32())
     return mi.Frame3f(n).to_world(mi.warp.square_to_cosine_hemisphere(u))
@@ -313,9 +296,8 @@ def _estimate(mi, dr, mi_scene, rng, p, n, quantity, max_distance, albedo, skyfn
     ``weight(t)``: the obscurance's ρ of the hit distance t (∞ for a miss)."""
     d = _cos_dir(mi, rng, n)
     if quantity == "obscurance":
-        ray = _spawn(mi, dr, p, n, d)
-        si = mi_scene.ray_intersect(ray)
-        return weight(dr.select(si.is_valid(), _distance_from_point(dr, ray, si, p), dr.inf))
+        si = mi_scene.ray_intersect(_spawn(mi, dr, p, n, d))
+        return weight(dr.select(si.is_valid(), si.t, dr.inf))
     if quantity == "ao":
         hit = mi_scene.ray_test(_spawn(mi, dr, p, n, d, max_distance))
         return dr.select(hit, 0.0, 1.0)
@@ -438,10 +420,8 @@ def hit_distances(mi, mi_scene, points, normals, directions, rotate_seed: int | 
         p = dr.gather(mi.Point3f, mi.Point3f(pts[a:b].T), idx)
         n = dr.gather(mi.Vector3f, mi.Vector3f(nrm[a:b].T), idx)
         d = mi.Frame3f(n).to_world(local)
-        ray = _spawn(mi, dr, p, n, d)
-        si = mi_scene.ray_intersect(ray)
-        # the distance from the point itself, as the obscurance reference measures it (OBSCURANCE_DISTANCE)
-        t = np.asarray(dr.select(si.is_valid(), _distance_from_point(dr, ray, si, p), dr.inf), np.float64)
+        si = mi_scene.ray_intersect(_spawn(mi, dr, p, n, d))
+        t = np.asarray(dr.select(si.is_valid(), si.t, dr.inf), dtype=np.float64)
         out[:, a:b] = t.reshape(b - a, k).T
     return out
 
@@ -552,7 +532,6 @@ class OcclusionCache:
             if not isinstance(weight_key, dict) or not weight_key:
                 raise ValueError("the obscurance quantity needs weight_key (ρ's form and parameters)")
             ident["distance_weight"] = weight_key
-            ident["distance"] = OBSCURANCE_DISTANCE
         if quantity.startswith("sunsky"):  # (absent for the other quantities: their keys are unchanged)
             ident["sky"] = {**sky.to_dict(), "bake_height": SKY_BAKE_HEIGHT}
         entry = PassEntry(self.root, ident, namespace="occlusion", storage="npz")

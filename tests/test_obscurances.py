@@ -236,9 +236,8 @@ def test_hit_distances_facing_a_plane_are_h_over_mu(plane):
     pts = np.column_stack([np.zeros(3), np.zeros(3), h])
     nrm = np.tile([0.0, 0.0, -1.0], (3, 1))
     d = hit_distances(mi, scene, pts, nrm, dirs, rotate_seed=7)
-    # d is measured from the point itself (not from the spawn-offset origin, (1 + max|p|)·8.9e-5 along n,
-    # which made d·μ short by up to 1.8e-4 at h = 1): float32 relative error only, measured max 2.4e-7
-    np.testing.assert_allclose(d * dirs[:, 2:3], np.broadcast_to(h, d.shape), rtol=2e-6)
+    # d·μ is h less the spawn offset along n, (1 + max|p|)·8.9e-5: measured max |d·μ − h| 1.8e-4 (h = 1)
+    np.testing.assert_allclose(d * dirs[:, 2:3], np.broadcast_to(h, d.shape), atol=3e-4)
     up = hit_distances(mi, scene, pts * [1, 1, 0], -nrm, dirs)
     assert np.all(np.isinf(up))
 
@@ -261,9 +260,7 @@ def test_mitsuba_obscurance_and_uniform_ambient_match_closed_forms(plane, tmp_pa
             mi, scene, "plane", pts, nrm, quantity="obscurance", distance_weight=fn, weight_key=key, **kw
         )
         expect = np.array([plane_facing_obscurance(x, 0.3, p, form) for x in h])
-        # at h = d_max = 0.3 the power ρ is 1 on every ray (d ≥ h): exactly 1 with zero spread (the float32
-        # floor 1e-7 stands in for a zero stderr)
-        assert np.max(np.abs(r.mean - expect) / np.maximum(r.stderr, 1e-7)) < 4.0
+        assert np.max(np.abs(r.mean - expect) / r.stderr) < 4.0
     r = cache.get(mi, scene, "plane", pts, nrm, quantity="ambient_global", albedo=0.6, **kw)
     assert np.max(np.abs(r.mean - 0.6) / r.stderr) < 4.0
     fn, key = weight_of("power", 0.3, 0.5)
