@@ -102,9 +102,14 @@ def _dr_expm1(x):
     float32 exp/log are approximate and this degrades to their accuracy (≈ 2 ulp of e^x, not of e^x − 1)."""
     u = dr.exp(x)
     d = dr.log(u)
-    plain = (u == 0.0) | ~dr.isfinite(u)  # x → ±inf (or NaN): u − 1 is the answer (−1, inf, NaN)
-    # u ≠ 1 with log u = 0 happens on CUDA (approximate log of u = 1 ± 1 ulp): (u − 1)·x/0 was ±inf there
-    # (soft-particles' float32 domain check on an H200, session 6); e^x − 1 = x to first order then.
+    # u − 1 itself where it does not cancel (|x| ≥ 1/2: |u − 1| ≥ 0.39, error ≤ 1 ulp of u) and for x → ±inf
+    # or NaN (−1, inf, NaN). Only |x| < 1/2 takes Kahan's ratio: with CUDA's approximate log, the ratio for
+    # x = −20 (u − 1 = −1 exactly) came out −1.0000001, so 1 − e^(−σℓ) read 1.0000001 (soft-particles'
+    # float32 domain check on an H200, session 6).
+    plain = (u == 0.0) | ~dr.isfinite(u) | (dr.abs(x) >= 0.5)
+    # Guard: an approximate log (CUDA) may round log u to 0 for u = 1 ± 1 ulp, where (u − 1)·x/0 would be
+    # ±inf; e^x − 1 = x to first order there. (Not observed: an H200 sweep of x = ±10^(−45…2) gave no
+    # non-finite value with or without it.)
     near_one = (u == 1.0) | (d == 0.0)
     ratio = (u - 1.0) * x / dr.select(plain | near_one, 1.0, d)
     return dr.select(near_one, x, dr.select(plain, u - 1.0, ratio))

@@ -245,7 +245,7 @@ def test_hit_distances_facing_a_plane_are_h_over_mu(plane):
 def test_mitsuba_obscurance_and_uniform_ambient_match_closed_forms(plane, tmp_path):
     """Reference (a) facing the plane vs the closed form, and reference (b) (uniform ambient, albedo a)
     facing the plane = a: |z| ≤ 4 (measured max 1.6 at 2^14 samples); an open plane gives exactly 1."""
-    from rtfit.experiments.obscurances import weight_of
+    from rtfit.experiments.obscurances import spawn_height, weight_of
     from rtfit.reference.occlusion import OcclusionCache
 
     mi, scene = plane
@@ -259,7 +259,7 @@ def test_mitsuba_obscurance_and_uniform_ambient_match_closed_forms(plane, tmp_pa
         r = cache.get(
             mi, scene, "plane", pts, nrm, quantity="obscurance", distance_weight=fn, weight_key=key, **kw
         )
-        expect = np.array([plane_facing_obscurance(x, 0.3, p, form) for x in h])
+        expect = np.array([plane_facing_obscurance(spawn_height(x), 0.3, p, form) for x in h])
         assert np.max(np.abs(r.mean - expect) / r.stderr) < 4.0
     r = cache.get(mi, scene, "plane", pts, nrm, quantity="ambient_global", albedo=0.6, **kw)
     assert np.max(np.abs(r.mean - 0.6) / r.stderr) < 4.0
