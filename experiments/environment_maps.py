@@ -694,7 +694,12 @@ def path_traced_part(ctx, cfg) -> dict:
         # the glass z-test on pixels whose reflected and first three exit hits are off texel edges: elsewhere
         # the float32 trace of Mitsuba and the float64 series can see neighbouring texels (two pixels of 268
         # in the quick run, 0.08 apart at a grid line)
-        ok_g = uni & paths["glass_ok"] & calm
+        # Grazing pixels (cos θ_i < GRAZING_COS) are left out of the exact test: there the float32 sphere
+        # hit (Mitsuba solves the ray–sphere quadratic in float32; near the silhouette its root is
+        # ill-conditioned, error ~√ε·r) moves the normal enough to shift the Fresnel split and the refracted
+        # exits — on the CPU at 1024 spp the four largest |z| (2.96–4.84) were all at cos θ_i ≤ 0.1, each
+        # 1.6–2.4 % low. They stay in every error table (and in the grazing-pixel metric).
+        ok_g = uni & paths["glass_ok"] & calm & ~grazing
         gm, g_spp = refs["glass"][0], refs["glass"][2]
         z = ((gm - series) / np.maximum(np.sqrt(series_var / g_spp), 1e-12))[ok_g]
         checks_data[sid] = {
