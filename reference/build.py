@@ -303,8 +303,14 @@ def _boundary_dicts(mi, boundary) -> dict:
     analytic ``sphere``."""
     if boundary.kind != "cube":
         return {"": _shape_dict(mi, boundary)}
+    return {"": box_boundary_shape(boundary)}
+
+
+def box_boundary_shape(boundary) -> dict:
+    """The Mitsuba shape dict (``obj``) of `box_boundary_mesh`: a box medium's boundary that OptiX crosses
+    without re-hits (add ``bsdf``/``interior`` to it); never Mitsuba's ``cube`` for a large box."""
     vertices, triangles = box_boundary_mesh(boundary)
-    return {"": {"type": "obj", "filename": _mesh_file(vertices, triangles), "face_normals": True}}
+    return {"type": "obj", "filename": _mesh_file(vertices, triangles), "face_normals": True}
 
 
 def _inside(boundary, point) -> bool:
