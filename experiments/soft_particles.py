@@ -350,6 +350,28 @@ ROWS = ("linear", "linear-fit", "box", "box-beer", "box-beer-ray", "spherical", 
 """The report's rows: every approximation, and the seed's fade with its s fitted."""
 
 
+RAY_EPSILON = 1500.0 * 2.0**-24
+"""Mitsuba's ``math::RayEpsilon<float>``: a ray leaving a surface point p starts (1 + max|p|)·ε off it."""
+
+
+def spawn_offset_band(
+    dirs: np.ndarray, centre, radius: float = RADIUS, tolerance: float = 0.01
+) -> np.ndarray:
+    """Pixels whose ray passes so close to the sphere's silhouette that Mitsuba's spawn offset changes the
+    chord by more than ``tolerance`` (relative): at the grazing entry and exit the ray restarts
+    δ = (1 + max|p|)·`RAY_EPSILON` off the surface along its normal, nearly across the ray, which moves the
+    impact parameter b by ~δ, and ℓ = 2√(r² − b²) by |Δℓ/ℓ| ≈ b·δ/(r² − b²). Measured (session 6, full
+    run, 16384 spp, CPU and H200 alike): at b = 0.99964 r Mitsuba's T was 0.9054 against the exact 0.9226
+    (z = −8.3), a chord 23 % long; at b = 0.9990 and 0.9989, z = −4.6 and −4.2. These pixels (67 of 1601 in
+    the full run) are left out of the exact z-tests (then max |z| 3.06, spread 1.00); the rows are still
+    scored against Mitsuba on them."""
+    c = np.asarray(centre, dtype=np.float64)
+    b = np.linalg.norm(np.cross(dirs, c), axis=-1)
+    delta = (1.0 + float(np.max(np.abs(c))) + radius) * RAY_EPSILON
+    gap = radius * radius - b * b
+    return (gap > 0.0) & (b * delta > tolerance * gap)
+
+
 def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, inside: bool = False):
     """One rendered case: Mitsuba against the analytic chord (z-scores), and each row against Mitsuba."""
     w, h = cfg["resolution"]
@@ -363,7 +385,9 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
     spp = int(ref["spp"])  # pooled over the passes: ceil(spp / pass_spp) · pass_spp samples
     se = bernoulli_stderr(t_exact, spp)
     covered = se > 0.0
-    z = (ref["mean"][covered] - t_exact[covered]) / se[covered]
+    band = spawn_offset_band(dirs, centre) if shape == "sphere" else np.zeros(len(dirs), bool)
+    tested = covered & ~band  # (the band's pixels stay in every error table; `spawn_offset_band` says why)
+    z = (ref["mean"][tested] - t_exact[tested]) / se[tested]
     sample_se = np.sqrt(ref["var"] / spp)
     bern_gap = bernoulli_variance_gap(ref["mean"], ref["var"], spp)
     cid = case_id(shape, alpha_c, inside)
@@ -371,7 +395,8 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
     checks = [
         {
             "name": f"reference {cid}: Mitsuba T = exp(−σℓ) of the analytic clipped chord, z-score spread "
-            f"({z.size} pixels, binomial noise √(T(1 − T)/spp))",
+            f"({z.size} pixels, {int(np.sum(covered & band))} at the silhouette left out; binomial noise "
+            "√(T(1 − T)/spp))",
             "value": float(np.std(z)),
             "expected": "1 ± 0.2",
             "passed": bool(abs(np.std(z) - 1.0) <= 0.2),
