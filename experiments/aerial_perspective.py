@@ -281,7 +281,7 @@ def fitted_image(ref: dict, cfg: dict, fit: dict) -> np.ndarray:
     return np.stack([np.asarray(c) for c in out], -1).reshape(ref["l0"].shape)
 
 
-def check_job(cfg: dict, variant: str, seed: int) -> dict:
+def check_job(cfg: dict, variant: str, seed: int, cache_dir: str | None = None) -> dict:
     """Job: the fog-only Mitsuba check (passes) and the quadrature of the same rays."""
     atm0 = AtmosphereParams(rayleigh_scale=0.0, mie_scale=0.0)
     fog = FogLayer(cfg["fog_density"], cfg["fog_falloff"], cfg["fog_g"])
@@ -302,6 +302,7 @@ def check_job(cfg: dict, variant: str, seed: int) -> dict:
         variant, origin, dirs, density=fog.density, falloff=fog.falloff, g=fog.g, sun=sun,
         solar_irradiance=atm0.solar_irradiance, sun_angular_radius=atm0.sun_angular_radius,
         half_width=half_width, height=height, spp=cfg["check_spp"], passes=cfg["check_passes"], seed=seed,
+        cache_dir=cache_dir,
     )  # fmt: skip
     means = np.stack([p.mean for p in passes])
     seconds = sum(p.seconds for p in passes)
@@ -328,7 +329,7 @@ def run(ctx) -> dict:
     jobs.append(
         Job(
             "rtfit.experiments.aerial_perspective:check_job",
-            {"cfg": cfg, "variant": ctx.variant, "seed": ctx.seed},
+            {"cfg": cfg, "variant": ctx.variant, "seed": ctx.seed, "cache_dir": str(ctx.cache_dir)},
             label="mitsuba check",
         )
     )

@@ -28,6 +28,7 @@ import numpy as np
 from . import emitters
 from . import height_fog as fog_media
 from .build import box_boundary_shape
+from .cache import PassEntry, array_digest
 from .estimators import PassResult
 from .nishita_sky import sky_pass
 from .variants import use_variant
@@ -115,15 +116,56 @@ def render_fog_sun(
     spp: int,
     passes: int,
     seed: int,
+    cache_dir=None,
 ) -> list[PassResult]:
     """``passes`` independent single-scattering passes of ``spp`` along ``dirs`` (N, 3) from ``origin``
-    (m, inside the box): a list of `PassResult` (RGB means and variances per direction)."""
+    (m, inside the box): a list of `PassResult` (RGB means and variances per direction).
+
+    With ``cache_dir`` the passes go through the pass cache (`rtfit.reference.cache.PassEntry`, namespace
+    ``aerial-perspective``): loaded where cached, else rendered under the pass watchdog and saved, so an
+    interrupted run resumes and no pass runs without bound. The key holds the physics (fog, sun, box), the
+    rays, the integrator, the variant, the seed, ``spp`` per pass and the versions."""
+    import drjit as dr
+    import mitsuba
+
     mi = use_variant(variant)
-    scene = mi.load_dict(
-        fog_sun_scene_dict(
-            mi, density, falloff, g, sun, solar_irradiance, sun_angular_radius, half_width, height
+    state: dict = {}
+
+    def load():
+        scene = mi.load_dict(
+            fog_sun_scene_dict(
+                mi, density, falloff, g, sun, solar_irradiance, sun_angular_radius, half_width, height
+            )
         )
+        emitters.attach(scene)
+        state["scene"] = scene
+        state["medium"] = next(s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None)
+
+    def render(k: int) -> PassResult:
+        if "scene" not in state:
+            load()
+        return sky_pass(mi, state["scene"], state["medium"], origin, dirs, spp, seed * 7919 + k)
+
+    if cache_dir is None:
+        return [render(k) for k in range(passes)]
+    ident = {
+        "format": "aerial-perspective/fog-sun/1",
+        "fog": {"density": float(density), "falloff": float(falloff), "g": float(g)},
+        "box": {"half_width": float(half_width), "height": float(height), "mesh": "box_boundary_shape"},
+        "sun": {
+            "direction": [float(x) for x in sun],
+            "irradiance": [float(x) for x in solar_irradiance],
+            "angular_radius": float(sun_angular_radius),
+        },
+        "rays": array_digest(np.asarray(origin, np.float64).reshape(1, 3), np.asarray(dirs, np.float64)),
+        "integrator": {"type": "volpathmis", "max_depth": 2},
+        "variant": variant,
+        "seed": int(seed),
+        "pass_spp": int(spp),
+        "versions": [mitsuba.__version__, dr.__version__],
+    }
+    entry = PassEntry(cache_dir, ident, namespace="aerial-perspective", storage="npz")
+    out, _ = entry.passes(
+        passes, render, shape=(len(np.asarray(dirs).reshape(-1, 3)), 3), label="aerial-perspective fog check"
     )
-    emitters.attach(scene)
-    medium = next(s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None)
-    return [sky_pass(mi, scene, medium, origin, dirs, spp, seed * 7919 + k) for k in range(passes)]
+    return out
