@@ -63,7 +63,7 @@ import drjit as dr
 import numpy as np
 
 from .budget import LaneCounter
-from .height_fog import majorant, region_matrix
+from .height_fog import read_fog_properties, region_matrix
 
 PLUGIN = "rtfit_fogpath"
 ESTIMATOR = "rtfit_fogpath/3: closed-form free flight and transmittance (exponential fog, Python integrator)"
@@ -151,27 +151,8 @@ def register(mi) -> None:
             super().__init__(props)
             self.max_depth = int(props.get("max_depth", -1))
             self.rr_depth = int(props.get("rr_depth", 5))
-            self.b = float(props.get("density"))
-            self.c = float(props.get("falloff"))
-            g = props.get("gradient")
-            q = props.get("gradient_origin")
-            gv = np.array([float(g[i]) for i in range(3)])
-            gv /= np.linalg.norm(gv)
-            qv = np.array([float(q[i]) for i in range(3)])
-            to_world = np.array(props.get("to_world").matrix, dtype=np.float64)
-            inv = np.linalg.inv(to_world)
-            self.ellipsoid = bool(props.get("ellipsoid", False))
-            a = props.get("albedo")
-            self.albedo = mi.Color3f(float(a[0]), float(a[1]), float(a[2]))
-            self.maj = majorant(self.b, self.c, gv, qv, to_world)
+            read_fog_properties(mi, props, self)
             self.log_b = float(np.log(self.b)) if self.b > 0.0 else -1e30
-            self.grad = mi.Vector3f(*gv.tolist())
-            self.h_offset = float(qv @ gv)
-            self.inv_lin = mi.Matrix3f(inv[:3, :3].tolist())
-            self.inv_t = mi.Vector3f(*inv[:3, 3].tolist())
-            self.unit_box = mi.BoundingBox3f(
-                mi.ScalarPoint3f(-1.0, -1.0, -1.0), mi.ScalarPoint3f(1.0, 1.0, 1.0)
-            )
             gg = float(props.get("g", 0.0))
             self.phase = mi.load_dict({"type": "isotropic"} if gg == 0.0 else {"type": "hg", "g": gg})
             self.lane_counter = LaneCounter()

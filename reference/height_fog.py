@@ -140,6 +140,31 @@ def grid_medium_dict(mi, medium, resolution: int = 512) -> dict:
     }
 
 
+def read_fog_properties(mi, props, target) -> None:
+    """Set on ``target`` the fog that `medium_dict` (or `rtfit.reference.fog_integrator.integrator_dict`)
+    wrote into ``props``: ``b``, ``c`` (density at h = 0 and falloff), ``grad`` (unit ĝ) and ``h_offset``
+    (h(p) = p·ĝ − p₀·ĝ), ``ellipsoid``, ``albedo``, ``maj`` (the box majorant), ``inv_lin``/``inv_t`` (world
+    → the region's unit box or ball) and ``unit_box``. One reader for the medium plugin and the integrator."""
+    target.b = float(props.get("density"))
+    target.c = float(props.get("falloff"))
+    g = props.get("gradient")
+    q = props.get("gradient_origin")
+    gv = np.array([float(g[i]) for i in range(3)])
+    gv /= np.linalg.norm(gv)
+    qv = np.array([float(q[i]) for i in range(3)])
+    to_world = np.array(props.get("to_world").matrix, dtype=np.float64)
+    inv = np.linalg.inv(to_world)
+    target.ellipsoid = bool(props.get("ellipsoid", False))
+    a = props.get("albedo")
+    target.albedo = mi.Color3f(float(a[0]), float(a[1]), float(a[2]))
+    target.maj = majorant(target.b, target.c, gv, qv, to_world)
+    target.grad = mi.Vector3f(*gv.tolist())
+    target.h_offset = float(qv @ gv)  # h(p) = p·ĝ − p₀·ĝ
+    target.inv_lin = mi.Matrix3f(inv[:3, :3].tolist())
+    target.inv_t = mi.Vector3f(*inv[:3, 3].tolist())
+    target.unit_box = mi.BoundingBox3f(mi.ScalarPoint3f(-1.0, -1.0, -1.0), mi.ScalarPoint3f(1.0, 1.0, 1.0))
+
+
 def register(mi) -> None:
     """Register the medium for the active variant (once per variant)."""
     variant = mi.variant()
@@ -151,26 +176,7 @@ def register(mi) -> None:
             super().__init__(props)
             self.m_is_homogeneous = False
             self.m_has_spectral_extinction = False
-            self.b = float(props.get("density"))
-            self.c = float(props.get("falloff"))
-            g = props.get("gradient")
-            q = props.get("gradient_origin")
-            gv = np.array([float(g[i]) for i in range(3)])
-            gv /= np.linalg.norm(gv)
-            qv = np.array([float(q[i]) for i in range(3)])
-            to_world = np.array(props.get("to_world").matrix, dtype=np.float64)
-            inv = np.linalg.inv(to_world)
-            self.ellipsoid = bool(props.get("ellipsoid", False))
-            a = props.get("albedo")
-            self.albedo = mi.Color3f(float(a[0]), float(a[1]), float(a[2]))
-            self.maj = majorant(self.b, self.c, gv, qv, to_world)
-            self.grad = mi.Vector3f(*gv.tolist())
-            self.h_offset = float(qv @ gv)  # h(p) = p·ĝ − p₀·ĝ
-            self.inv_lin = mi.Matrix3f(inv[:3, :3].tolist())
-            self.inv_t = mi.Vector3f(*inv[:3, 3].tolist())
-            self.unit_box = mi.BoundingBox3f(
-                mi.ScalarPoint3f(-1.0, -1.0, -1.0), mi.ScalarPoint3f(1.0, 1.0, 1.0)
-            )
+            read_fog_properties(mi, props, self)
             # False: the box-wide majorant for every segment (the estimator before issue 21; benches)
             self.segment_majorant = bool(props.get("segment_majorant", True))
             self.lane_counter = LaneCounter()
