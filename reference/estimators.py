@@ -79,6 +79,22 @@ def chunk_ranges(n_elements: int, spp: int):
         yield start, min(n_elements, start + per)
 
 
+def point_chunks(mi, spp: int, seed: int, columns):
+    """The chunks (`chunk_ranges`) of a per-point pass of ``spp`` lanes per point: per chunk, ``(a,
+    sampler, gathered)`` — ``a`` its first point, ``sampler`` an ``independent`` sampler seeded with
+    ``sub_seed(seed, "chunk", k)`` for the chunk's lanes, ``gathered`` each of ``columns`` (pairs of a Mitsuba
+    type and an (N, 3) array, e.g. ``(mi.Point3f, points)``) gathered per lane. The columns go to the device
+    once per pass and are gathered at an opaque chunk offset, so every chunk after the first reuses the
+    first one's kernel (issue 21 §3)."""
+    on_device = [(t, t(np.ascontiguousarray(arr, dtype=np.float32).T)) for t, arr in columns]
+    n_points = len(columns[0][1])
+    sampler = mi.load_dict({"type": "independent"})
+    for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
+        sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
+        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + dr.opaque(mi.UInt32, a)
+        yield a, sampler, [dr.gather(t, v, idx) for t, v in on_device]
+
+
 class PassMoments:
     """Per-element float64 sums Σ v and Σ v² of ``channels`` per-lane values, accumulated **on the device**
     over every chunk of a pass, then turned into the pass's mean and unbiased variance on the device and
@@ -335,17 +351,8 @@ def irradiance_pass(
     if transport not in ("direct", "global"):
         raise ValueError(f"transport must be 'direct' or 'global' (got {transport!r})")
     t0 = time.perf_counter()
-    points = np.ascontiguousarray(points, dtype=np.float32)
-    normals = np.ascontiguousarray(normals, dtype=np.float32)
-    n_points = len(points)
-    acc = PassMoments(mi, n_points, 3, spp)
-    sampler = mi.load_dict({"type": "independent"})
-    p_all, n_all = mi.Point3f(points.T), mi.Vector3f(normals.T)  # on the device once per pass
-    for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
-        sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
-        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + dr.opaque(mi.UInt32, a)
-        p = dr.gather(mi.Point3f, p_all, idx)
-        nrm = dr.gather(mi.Vector3f, n_all, idx)
+    acc = PassMoments(mi, len(points), 3, spp)
+    for a, sampler, (p, nrm) in point_chunks(mi, spp, seed, [(mi.Point3f, points), (mi.Vector3f, normals)]):
         if transport == "direct":
             value = _direct_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         else:

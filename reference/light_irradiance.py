@@ -29,9 +29,8 @@ from __future__ import annotations
 import time
 
 import drjit as dr
-import numpy as np
 
-from .estimators import PassMoments, PassResult, check_spp, chunk_ranges, sub_seed
+from .estimators import PassMoments, PassResult, check_spp, point_chunks
 
 __all__ = ["CHANNELS", "PERP_SAMPLES", "environment_irradiance_pass", "light_irradiance_pass"]
 
@@ -49,18 +48,9 @@ def light_irradiance_pass(mi, mi_scene, emitter, points, normals, towards, spp: 
     if mi.variant().startswith("scalar"):
         raise ValueError("the light-irradiance pass needs a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
     t0 = time.perf_counter()
-    pts = np.ascontiguousarray(points, dtype=np.float32)
-    nrm = np.ascontiguousarray(normals, dtype=np.float32)
-    tow = np.ascontiguousarray(towards, dtype=np.float32)
-    n_points = len(pts)
-    acc = PassMoments(mi, n_points, 9, spp)
-    sampler = mi.load_dict({"type": "independent"})
-    for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
-        sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
-        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp
-        p = dr.gather(mi.Point3f, mi.Point3f(pts[a:b].T), idx)
-        n = dr.gather(mi.Vector3f, mi.Vector3f(nrm[a:b].T), idx)
-        t = dr.gather(mi.Vector3f, mi.Vector3f(tow[a:b].T), idx)
+    acc = PassMoments(mi, len(points), 9, spp)
+    columns = [(mi.Point3f, points), (mi.Vector3f, normals), (mi.Vector3f, towards)]
+    for a, sampler, (p, n, t) in point_chunks(mi, spp, seed, columns):
         it = dr.zeros(mi.SurfaceInteraction3f, dr.width(p))
         it.p = p
         it.n = n
@@ -102,25 +92,21 @@ def environment_irradiance_pass(
     if (mi_scene is None) != (points is None):
         raise ValueError("the occluded environment pass needs both mi_scene and points")
     t0 = time.perf_counter()
-    nrm = np.ascontiguousarray(normals, dtype=np.float32)
-    pts = None if points is None else np.ascontiguousarray(points, dtype=np.float32)
-    n_points = len(nrm)
-    acc = PassMoments(mi, n_points, 3, spp)
-    sampler = mi.load_dict({"type": "independent"})
-    for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
-        sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
-        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp
-        n = dr.gather(mi.Vector3f, mi.Vector3f(nrm[a:b].T), idx)
+    occluded = points is not None
+    acc = PassMoments(mi, len(normals), 3, spp)
+    columns = [(mi.Vector3f, normals)] + ([(mi.Point3f, points)] if occluded else [])
+    for a, sampler, gathered in point_chunks(mi, spp, seed, columns):
+        n = gathered[0]
         it = dr.zeros(mi.SurfaceInteraction3f, dr.width(n))
         it.n = n
         it.sh_frame = mi.Frame3f(n)
         it.wi = mi.Vector3f(0, 0, 1)
-        if pts is not None:
-            it.p = dr.gather(mi.Point3f, mi.Point3f(pts[a:b].T), idx)
+        if occluded:
+            it.p = gathered[1]
         # strategy 1: the emitter's sampling
         ds, weight = emitter.sample_direction(it, sampler.next_2d(), True)
         ok = ds.pdf > 0.0
-        if pts is not None:
+        if occluded:
             ok = ok & ~mi_scene.ray_test(it.spawn_ray(ds.d), ok)
         cos_e = dr.maximum(dr.dot(ds.d, n), 0.0)
         f_e = weight * ds.pdf * cos_e  # L·cos
@@ -128,7 +114,7 @@ def environment_irradiance_pass(
         # strategy 2: the cosine-weighted hemisphere
         d = it.sh_frame.to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
         cos_c = dr.maximum(dr.dot(d, n), 0.0)
-        if pts is not None:
+        if occluded:
             cos_c = dr.select(mi_scene.ray_test(it.spawn_ray(d), cos_c > 0.0), 0.0, cos_c)
         si = dr.zeros(mi.SurfaceInteraction3f, dr.width(n))
         si.wi = -d

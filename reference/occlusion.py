@@ -65,7 +65,7 @@ import numpy as np
 from .build import camera_dict
 from .cache import PassEntry, array_digest, pool_passes
 from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
-from .estimators import MAX_LANES, PassMoments, PassResult, check_spp, chunk_ranges, sub_seed
+from .estimators import MAX_LANES, PassMoments, PassResult, check_spp, point_chunks, sub_seed
 
 QUANTITIES = (
     "ao",
@@ -357,17 +357,8 @@ def visibility_cap_pass(
     if not max_distance > 0:
         raise ValueError(f"max_distance must be > 0 (got {max_distance!r})")
     t0 = time.perf_counter()
-    pts = np.ascontiguousarray(points, dtype=np.float32)
-    nrm = np.ascontiguousarray(normals, dtype=np.float32)
-    n_points = len(pts)
-    acc = PassMoments(mi, n_points, 5, spp)
-    sampler = mi.load_dict({"type": "independent"})
-    p_all, n_all = mi.Point3f(pts.T), mi.Vector3f(nrm.T)  # on the device once per pass
-    for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
-        sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
-        idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + dr.opaque(mi.UInt32, a)
-        p = dr.gather(mi.Point3f, p_all, idx)
-        n = dr.gather(mi.Vector3f, n_all, idx)
+    acc = PassMoments(mi, len(points), 5, spp)
+    for a, sampler, (p, n) in point_chunks(mi, spp, seed, [(mi.Point3f, points), (mi.Vector3f, normals)]):
         d = mi.Frame3f(n).to_world(mi.warp.square_to_uniform_hemisphere(sampler.next_2d()))
         ray = _spawn(mi, dr, p, n, d, max_distance)
         if see_through_emitters:
