@@ -637,7 +637,7 @@ def sphere_reference(ctx, cfg, sid: str, paths: dict, material: str, kind: str, 
     centre = SPHERES[sid][1]
     pass_spp = min(cfg["sphere_pass_spp"], spp)
     ident = {
-        "format": "environment-maps/path-sphere/2",  # 2: software texel lookup (accel off)
+        "format": "environment-maps/path-sphere/1",
         "material": room.SPHERE_MATERIALS[material],
         "emission": kind,
         "texel": room.EMITTER_TEXEL,

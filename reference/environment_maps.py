@@ -385,10 +385,6 @@ def _wall_emitter(mi, k: int, kind: str) -> dict:
         "raw": True,
         "filter_type": "nearest",
         "wrap_mode": "clamp",
-        # CUDA's texture units pick the texel from a fixed-point coordinate: with the default accel=True a
-        # lookup within ~1/512 texel of a texel edge can read the neighbour (the H200's mirror pixels off by
-        # 1 - 5.2e-4, one neighbour's ratio; LLVM: exact). The software lookup keeps the ground truth exact.
-        "accel": False,
     }
     return {
         "type": "rectangle",
