@@ -225,6 +225,28 @@ def covariance_from_jacobian(jac, ssr: float, dof: int, *, absolute_sigma: bool 
     return _covariance(jac, float(ssr), int(dof), bool(absolute_sigma))
 
 
+STATIONARY_DECREASE = 1e-8
+"""An interior solution at max_steps counts as converged when the Gauss–Newton step from it would lower the
+SSR by at most this fraction (`gauss_newton_stall`) …"""
+STATIONARY_STEP = 0.05
+"""… and move no parameter by more than this fraction of its standard error."""
+
+
+def gauss_newton_stall(jac, r, se) -> tuple[bool, float, float]:
+    """(stalled, predicted relative SSR decrease, largest |step|/stderr) of the Gauss–Newton step
+    δ = argmin‖r − Jδ‖ from the solver's last point: the decrease its linear model predicts is
+    rᵀJδ/rᵀr. Both below `STATIONARY_DECREASE` / `STATIONARY_STEP` mean no further step of the model
+    changes the fit at the precision its own standard errors give."""
+    rr = float(r @ r)
+    if rr == 0.0:
+        return True, 0.0, 0.0
+    step = np.linalg.lstsq(jac, r, rcond=None)[0]
+    pred = float(r @ (jac @ step)) / rr
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = float(np.max(np.abs(step) / se)) if np.all(np.isfinite(se)) and np.all(se > 0) else math.inf
+    return bool(pred <= STATIONARY_DECREASE and frac <= STATIONARY_STEP), pred, frac
+
+
 def _kkt_holds(jac, r, at_lower, at_upper, gtol: float = 1e-6) -> bool:
     """First-order optimality of ½‖r‖² in the original parameters: the gradient Jᵀr vanishes for
     interior parameters and points outward (into the bound) for parameters on a bound. Scale-free:
@@ -443,6 +465,25 @@ def fit_least_squares(
             converged = bool(result == optx.RESULTS.successful)
             message = "" if converged else str(optx.RESULTS[result])
             break
+    if (
+        not converged
+        and result == optx.RESULTS.nonlinear_max_steps_reached
+        and not any(at_bound.values())
+        and np.all(np.isfinite(r))
+        and np.all(np.isfinite(jac))
+    ):
+        stalled, pred, frac = gauss_newton_stall(jac.reshape(n, k), r, se)
+        if stalled:
+            # LM stops on two accepted steps that change neither x nor the SSR; residuals with a kink (a
+            # saturate() under a power with an unbounded slope at 0: the soft-particle fade) make it reject
+            # step after step at the optimum until max_steps. The Gauss–Newton step says whether any step
+            # of the model is left to take.
+            converged = True
+            message = (
+                f"stalled at the optimum: stopped at max_steps={int(max_steps)} with LM's step test unmet "
+                f"(non-smooth residuals); the Gauss–Newton step would lower the SSR by {pred:.1e} and move "
+                f"no parameter by more than {frac:.2g} standard errors"
+            )
     if (
         not converged
         and result == optx.RESULTS.nonlinear_max_steps_reached

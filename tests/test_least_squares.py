@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from rtfit.fitting import FitResult, Param, fit_curve, fit_least_squares
+from rtfit.fitting.least_squares import gauss_newton_stall
 
 
 # Module-level model functions: the jitted solve is reused for the same function object.
@@ -227,3 +228,35 @@ def test_parameter_stopped_short_of_its_bound_is_pinned_and_flagged():
     assert res.values["q"] == pytest.approx(q, abs=1e-8)
     assert res.at_bound == {"m": True, "q": False}
     assert res.converged
+
+
+def test_gauss_newton_stall_is_the_closed_form_least_squares_optimum():
+    """`_gauss_newton_stall` (the max_steps fallback for kinked residuals) against the closed form of a linear
+    model: at the normal-equation solution it reports stalled (decrease ≤ 1e-25, step 0); 0.2 standard errors
+    away it does not (step 0.2 σ > 0.05 σ); the predicted decrease equals the exact SSR drop of the linear
+    model, (SSR(x) − SSR*)/SSR(x)."""
+    rng = np.random.default_rng(5)
+    x = np.linspace(0.0, 1.0, 200)
+    jac = np.stack([x, np.ones_like(x)], axis=1)
+    y = 0.7 * x + 0.2 + rng.normal(0.0, 0.01, x.size)
+    best = np.linalg.lstsq(jac, y, rcond=None)[0]
+    r_best = jac @ best - y
+    ssr = float(r_best @ r_best)
+    se = np.sqrt(np.diag(ssr / (x.size - 2) * np.linalg.inv(jac.T @ jac)))
+    stalled, pred, frac = gauss_newton_stall(jac, r_best, se)
+    assert stalled and abs(pred) <= 1e-25 and frac <= 1e-9
+    off = best + np.array([0.2 * se[0], 0.0])
+    r_off = jac @ off - y
+    stalled, pred, frac = gauss_newton_stall(jac, r_off, se)
+    assert not stalled
+    assert frac == pytest.approx(0.2, rel=1e-6)
+    assert pred == pytest.approx((float(r_off @ r_off) - ssr) / float(r_off @ r_off), rel=1e-6)
+
+
+def test_max_steps_short_of_a_smooth_optimum_is_not_converged():
+    """The stall fallback must not accept a solve cut short far from its optimum: the exponential model with
+    3 steps from a poor start (its optimum is ≥ 1 standard error away) stays converged = False."""
+    x = np.linspace(0.0, 3.0, 60)
+    y = 2.0 * np.exp(-1.3 * x) + 0.5
+    res = fit_curve(exp_model, x, y, {"a": Param(0.3), "b": Param(4.0), "c": Param(-1.0)}, max_steps=3)
+    assert not res.converged
