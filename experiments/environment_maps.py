@@ -566,6 +566,13 @@ texel edges by weight): 2 of ~2600 pixels at cos θ_i 0.24–0.25 read 2–3 % l
 spp the four largest |z| were all at cos θ_i ≤ 0.1. Suspected, not proven: the spawn offset (1 + |p|)·ε
 along the normal at each of the many internal reflections of near-grazing paths, which the series does not
 apply. With this bound: max |z| 3.22 and 3.75, z spread 1.01 (731 and 1797 pixels)."""
+MIRROR_TOLERANCE = {"llvm": 1e-5, "cuda": 1e-3}
+"""Largest relative difference allowed between the path-traced mirror and the exact texel radiance, per
+backend. LLVM: ≤ 5.6e-8 measured. CUDA: Mitsuba's ``fresnel_conductor`` for material "none" (η = 0, k = 1)
+takes a = √(½(√(t²) + t)) with t = −1 − sin²θ; the exact value is 0, but where CUDA's float32 sqrt returns
+√(t²) one ulp above |t|, a = √(2⁻²⁴) = 2.4e-4 and R = 1 − 5.2e-4 (float32 emulation: 1 − 5.180e-4 at
+cos θ = 0.70820, 1 − 5.264e-4 at 0.75098; the H200 measured exactly these at 5 of 6456 pixels, the rest
+exact). Two ulps would give ≈ 7.3e-4, hence 1e-3."""
 EDGE_WEIGHT = 1e-3
 """An exit path of `glass_series` carrying at least this fraction of the pixel's radiance weight must land
 off texel edges for the pixel to enter the exact z-test."""
@@ -715,6 +722,7 @@ def path_traced_part(ctx, cfg) -> dict:
         z = ((gm - series) / np.maximum(np.sqrt(series_var / g_spp), 1e-12))[ok_g]
         checks_data[sid] = {
             "mirror_max_rel": float(np.max(np.abs(refs["mirror"][0][uni] - exact_r[uni]) / exact_r[uni])),
+            "mirror_tolerance": MIRROR_TOLERANCE["cuda" if ctx.variant.startswith("cuda") else "llvm"],
             "mirror_pixels": int(uni.sum()),
             "pixels": len(uni),
             "glass_max_z": float(np.max(np.abs(z))),
@@ -892,8 +900,8 @@ def path_checks(cfg, pt: dict) -> list[dict]:
                 f"path-traced mirror sphere ({sid}) = texel radiance at the exact reflected hit "
                 f"({c['mirror_pixels']} of {c['pixels']} pixels off texel edges; max relative difference)",
                 c["mirror_max_rel"],
-                "≤ 1e-5",
-                c["mirror_max_rel"] <= 1e-5 and c["mirror_pixels"] >= 0.5 * c["pixels"],
+                f"≤ {c['mirror_tolerance']:g}",
+                c["mirror_max_rel"] <= c["mirror_tolerance"] and c["mirror_pixels"] >= 0.5 * c["pixels"],
             )
         )
         thr = max(sidak_threshold(c["glass_z_pixels"]), 3.0)
