@@ -52,7 +52,10 @@ from .cost import (
     baseline_row,
     bench_backend,
     comparison_row,
+    cost_backend,
+    cost_row,
     memory_baseline,
+    memory_floor_row,
     time_drjit,
     time_numpy,
 )
@@ -776,8 +779,7 @@ def _quadrature_fn(ops, panels):
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per pixel of the seed's per-pixel fog pass (`height_fog.fog_pass` with the horizon colour and
     phase, Dr.Jit) beside the memory floor. The reference quadrature's cost is in ``rtfit bench``."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     d, dist = _cost_inputs(n)
     args = (
@@ -791,23 +793,10 @@ def cost_rows(ctx, cfg) -> list[dict]:
             cos_sun=cos_sun, phase_colour=(0.1, 0.1, 0.1), g=0.8,
         )  # fmt: skip
 
-    t = time_drjit(blend, args, n)
-    base = memory_baseline(args, n)
+    label = "the seed's fog pass (T + horizon colour × phase)"
     return [
-        {
-            "method": "horizon-grey",
-            "label": "the seed's fog pass (T + horizon colour × phase)",
-            "backend": backend,
-            **t.to_dict(),
-            "note": "per pixel",
-        },
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline",
-            "backend": backend,
-            **base.to_dict(),
-            "note": "7 loads, 1 store",
-        },
+        cost_row("horizon-grey", label, backend, time_drjit(blend, args, n), "per pixel"),
+        memory_floor_row(args, n, backend, "7 loads, 1 store", label="memory traffic baseline"),
     ]
 
 

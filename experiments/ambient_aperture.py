@@ -76,7 +76,9 @@ from .cost import (
     baseline_row,
     bench_backend,
     comparison_row,
+    cost_row,
     memory_baseline,
+    memory_floor_row,
     reference_sizes,
     reference_vs_stock_rows,
     stock_render,
@@ -1266,41 +1268,23 @@ def costs(ctx, cfg, fitted) -> list[dict]:
     backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
     n = cfg["cost_elements"]
     _, dr_args = cost_inputs(n, backend)
-    rows = []
-    for m in OMEGA:
-        t = time_drjit(drjit_call(m, params_of(m, fitted)), dr_args, n)
-        rows.append(
-            {
-                "method": f"omega-{m.id}",
-                "label": m.label,
-                "backend": backend,
-                **t.to_dict(),
-                "note": "per evaluation: r1, r2, d in memory (float32), one float out",
-            }
+    note = "per evaluation: r1, r2, d in memory (float32), one float out"
+    rows = [
+        cost_row(
+            f"omega-{m.id}",
+            m.label,
+            backend,
+            time_drjit(drjit_call(m, params_of(m, fitted)), dr_args, n),
+            note,
         )
-    base = memory_baseline(dr_args, n)
-    rows.append(
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline (3 loads, 1 store)",
-            "backend": backend,
-            **base.to_dict(),
-            "note": "the memory-bound floor for these kernels",
-        }
-    )
+        for m in OMEGA
+    ]
+    rows.append(memory_floor_row(dr_args, n, backend, "the memory-bound floor for these kernels"))
     sh = shading_inputs(n, backend)
-    for mid in COST_SHADING:
-        m = METHODS[mid]
+    note = "per pixel: cos(n,a), cos(n,l), cos(a,l), r_a, α in memory; light term only"
+    for m in (METHODS[mid] for mid in COST_SHADING):
         t = time_drjit(drjit_call(m, params_of(m, fitted), radiance=1.0), sh, n)
-        rows.append(
-            {
-                "method": m.id,
-                "label": m.label,
-                "backend": backend,
-                **t.to_dict(),
-                "note": "per pixel: cos(n,a), cos(n,l), cos(a,l), r_a, α in memory; light term only",
-            }
-        )
+        rows.append(cost_row(m.id, m.label, backend, t, note))
     return rows
 
 

@@ -73,7 +73,7 @@ from rtfit.reference.occlusion import visibility_cap_pass
 from .audit import Applicability
 from .audit_ambient_occlusion import ao_radius, ao_reference, scene_distance_field, visible_points
 from .audit_diffuse import light_geometry, light_radiance, light_reference
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
 
 __all__ = ["CAPS_ROLE", "FAMILY", "LIGHT_ROLE", "BakedCaps", "bake_caps"]
 
@@ -129,22 +129,15 @@ def bake_caps(
             setup.mi, setup.scene, p, n, spp, seed, max_distance, see_through_emitters=see_through_emitters
         )
 
-    mean, stderr, total, passes, rendered, _entry, seconds = pooled_passes(
-        setup, what, render, (-1, 5), label, seed_label="cap-pass"
-    )
-    visible = np.clip(mean[:, 0], 0.0, 1.0)
-    bent = mean[:, 2:5]
+    bake = pooled_passes(setup, what, render, (-1, 5), label, seed_label="cap-pass")
+    visible = np.clip(bake.mean[:, 0], 0.0, 1.0)
+    bent = bake.mean[:, 2:5]
     norm = np.linalg.norm(bent, axis=1, keepdims=True)
     bent = np.where(norm > 1e-12, bent / np.maximum(norm, 1e-300), n)
     aperture = np.asarray(aperture_from_visibility(visible), np.float64)
-    return BakedCaps(visible, stderr[:, 0], bent, aperture, total, passes, rendered, seconds)
-
-
-def _image(mask, values) -> np.ndarray:
-    img = np.zeros((*mask.shape, 3))
-    v = np.asarray(values, np.float64)
-    img[mask] = v if v.ndim == 2 else v[:, None]
-    return img
+    return BakedCaps(
+        visible, bake.stderr[:, 0], bent, aperture, bake.spp, bake.passes, bake.passes_rendered, bake.seconds
+    )
 
 
 def _cap_parameters(caps: BakedCaps) -> dict:
@@ -170,9 +163,7 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     radius = ao_radius(setup, "ambient-aperture")
     mask = setup.mask
     points, normals = visible_points(setup)
-    mean, stderr, total, passes, rendered, entry, seconds = ao_reference(
-        setup, points, normals, radius, f"ao: {app.part}"
-    )
+    ao = ao_reference(setup, points, normals, radius, f"ao: {app.part}")
     caps = bake_caps(setup, points, normals, max_distance=radius, label=f"caps: {app.part}")
     cos_na = np.clip(np.sum(normals * caps.bent_normal, axis=1), -1.0, 1.0)
     # The AO role's inputs, for a user approximation of ambient_occlusion (the same distance field).
@@ -208,18 +199,12 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             f"(1/π)·{m.formula}" if rid.startswith("aa-") else f"(1/π)·{m.formula.replace('L_sky·', '')}"
         )
         methods[rid] = replace(m, label=label, formula=formula, exact=False)
-    ref = AuditReference(
-        mean=_image(mask, mean),
-        stderr=_image(mask, stderr),
-        spp=total,
-        passes=passes,
-        passes_rendered=rendered,
-        cache_key=entry.key,
-        cache_path=str(entry.folder),
-        seconds=seconds + caps.seconds,
+    ref = ao.reference(
+        mask,
         quantity=f"ambient occlusion within R = {radius:.4g} (1: unoccluded)",
         integrator=f"occlusion pass (cosine-distributed rays of length R = {radius:.4g})",
         integrator_reason="the sdf-occlusion AO role's reference (same cache entry): V_R(ω) with ω ~ cos/π",
+        extra_seconds=caps.seconds,
     )
     return [
         FamilyCase(
@@ -257,12 +242,10 @@ def light_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     points, normals = visible_points(setup)
     towards, dist, alpha, _centre, _radius = light_geometry(setup, app.source, points)
     tag = f"light{app.source}"
-    mean, stderr, total, passes, rendered, entry, seconds = light_reference(
-        setup, app.source, points, normals, towards, f"{tag}: {app.part}"
-    )
+    pooled = light_reference(setup, app.source, points, normals, towards, f"{tag}: {app.part}")
     caps = bake_caps(setup, points, normals, see_through_emitters=True, label=f"caps: {app.part}")
     a = caps.bent_normal
-    e_perp = mean[:, 6:9]
+    e_perp = pooled.mean[:, 6:9]
     radiance = light_radiance(setup, app.source, e_perp, alpha)
     cos_nl = np.clip(np.sum(normals * towards, axis=1), -1.0, 1.0)
     common = {
@@ -276,21 +259,16 @@ def light_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     }
     inputs = tuple({**common, "irradiance": e_perp[:, c], "radiance": radiance[c]} for c in range(3))
     methods = {rid: METHODS[rid] for rid in LIGHT_ROWS if rid in app.methods}
-    ref = AuditReference(
-        mean=_image(mask, mean[:, 3:6]),
-        stderr=_image(mask, stderr[:, 3:6]),
-        spp=total,
-        passes=passes,
-        passes_rendered=rendered,
-        cache_key=entry.key,
-        cache_path=str(entry.folder),
-        seconds=seconds + caps.seconds,
+    ref = pooled.reference(
+        mask,
         quantity="direct irradiance of one sphere light with the scene's occluders (W/m²)",
         integrator="light-irradiance (emitter sampling, shadow rays)",
         integrator_reason=(
             f"{light.kind} light: the diffuse family's shadowed reference (same cache entry): Mitsuba "
             "emitter sampling of this light alone with shadow rays, white Lambertian receiver"
         ),
+        columns=slice(3, 6),
+        extra_seconds=caps.seconds,
     )
     return [
         FamilyCase(

@@ -53,7 +53,14 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.occlusion import occlusion_pass
 
 from .audit import Applicability, default_ao_distance
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditSetup,
+    FamilyCase,
+    PooledPasses,
+    pooled_passes,
+)
 from .audit_geometry import scene_triangles
 
 __all__ = [
@@ -129,9 +136,9 @@ def scene_distance_field(mi, mi_scene, pad: float) -> tuple[GridSDF, str, list[s
 _LAST_FIELD: dict = {}
 
 
-def ao_reference(setup: AuditSetup, points, normals, radius: float, label: str):
-    """The pooled AO passes (the ambient-aperture family's caps read the same entry): (mean (N,), stderr
-    (N,), total spp, passes, rendered, entry, seconds)."""
+def ao_reference(setup: AuditSetup, points, normals, radius: float, label: str) -> PooledPasses:
+    """The pooled AO passes (the ambient-aperture family's caps read the same entry): mean and stderr (N,),
+    the AO within ``radius`` of each point (1: unoccluded)."""
     what = {
         "format": FORMAT,
         "quantity": "ao",
@@ -145,12 +152,6 @@ def ao_reference(setup: AuditSetup, points, normals, radius: float, label: str):
         )
 
     return pooled_passes(setup, what, render, (-1,), label, seed_label="ao-pass")
-
-
-def _image(mask, values) -> np.ndarray:
-    img = np.zeros((*mask.shape, 3))
-    img[mask] = np.asarray(values, np.float64)[:, None]
-    return img
 
 
 @dataclass(frozen=True)
@@ -257,19 +258,10 @@ def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     radius = ao_radius(setup)
     mask = setup.mask
     points, normals = visible_points(setup)
-    mean, stderr, total, passes, rendered, entry, seconds = ao_reference(
-        setup, points, normals, radius, f"ao: {app.part}"
-    )
+    ao = ao_reference(setup, points, normals, radius, f"ao: {app.part}")
     rows = distance_field_rows(setup, app.methods, points, normals, radius)
-    ref = AuditReference(
-        mean=_image(mask, mean),
-        stderr=_image(mask, stderr),
-        spp=total,
-        passes=passes,
-        passes_rendered=rendered,
-        cache_key=entry.key,
-        cache_path=str(entry.folder),
-        seconds=seconds,
+    ref = ao.reference(
+        mask,
         quantity=f"ambient occlusion within R = {radius:.4g} (1: unoccluded)",
         integrator=f"occlusion pass (cosine-distributed rays of length R = {radius:.4g})",
         integrator_reason="V_R(ω) with ω ~ cos/π is the cheapest exact estimator of cosine-weighted AO",

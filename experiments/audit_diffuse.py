@@ -31,7 +31,14 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.light_irradiance import light_irradiance_pass
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditSetup,
+    FamilyCase,
+    PooledPasses,
+    pooled_passes,
+)
 
 __all__ = ["FAMILY", "light_geometry", "light_radiance", "light_reference"]
 
@@ -101,10 +108,9 @@ def light_radiance(setup: AuditSetup, source: int, e_perp: np.ndarray, alpha: np
     return [np.where(s2 > 0, e_perp[:, c] / (math.pi * np.maximum(s2, 1e-300)), 0.0) for c in range(3)]
 
 
-def light_reference(setup: AuditSetup, source: int, points, normals, towards, label: str):
-    """The light's pooled passes (columns 0–2 unshadowed, 3–5 shadowed, 6–8 E⊥; the ambient-aperture family
-    reads the same entry for its occluded sphere light): (mean (N, 9), stderr (N, 9), total spp, passes,
-    rendered, entry, seconds)."""
+def light_reference(setup: AuditSetup, source: int, points, normals, towards, label: str) -> PooledPasses:
+    """The light's pooled passes, mean and stderr (N, 9) in W/m²: columns 0–2 unshadowed, 3–5 shadowed, 6–8
+    E⊥ (the ambient-aperture family reads the same entry for its occluded sphere light)."""
     emitter = setup.emitters[source]
     what = {
         "format": FORMAT,
@@ -117,12 +123,6 @@ def light_reference(setup: AuditSetup, source: int, points, normals, towards, la
         return light_irradiance_pass(setup.mi, setup.scene, emitter, points, normals, towards, spp, seed)
 
     return pooled_passes(setup, what, render, (-1, 9), label)
-
-
-def _image(mask, values) -> np.ndarray:
-    img = np.zeros((*mask.shape, 3))
-    img[mask] = values
-    return img
 
 
 def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
@@ -139,11 +139,9 @@ def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
     towards, dist, alpha, _centre, radius = light_geometry(setup, app.source, points)
     tag = f"light{app.source}"
-    mean, stderr, total, passes, rendered, entry, seconds = light_reference(
-        setup, app.source, points, normals, towards, f"{tag}: {app.part}"
-    )
+    pooled = light_reference(setup, app.source, points, normals, towards, f"{tag}: {app.part}")
     cos = np.clip(np.sum(normals * towards, axis=1), -1.0, 1.0)
-    e_perp = mean[:, 6:9]
+    e_perp = pooled.mean[:, 6:9]
     radiance = light_radiance(setup, app.source, e_perp, alpha)
     inputs = tuple(
         {
@@ -178,18 +176,12 @@ def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             ),
         )
     ):
-        ref = AuditReference(
-            mean=_image(mask, mean[:, 3 * k : 3 * k + 3]),
-            stderr=_image(mask, stderr[:, 3 * k : 3 * k + 3]),
-            spp=total,
-            passes=passes,
-            passes_rendered=rendered,
-            cache_key=entry.key,
-            cache_path=str(entry.folder),
-            seconds=seconds,
+        ref = pooled.reference(
+            mask,
             quantity=f"direct irradiance of one light, {what} (W/m²)",
             integrator="light-irradiance (emitter sampling" + (", shadow rays)" if k else ")"),
             integrator_reason=reason,
+            columns=slice(3 * k, 3 * k + 3),
         )
         cases.append(
             FamilyCase(

@@ -53,7 +53,9 @@ __all__ = [
     "AuditReference",
     "AuditSetup",
     "FamilyCase",
+    "PooledPasses",
     "by_name",
+    "masked_image",
     "pooled_passes",
 ]
 
@@ -110,6 +112,63 @@ class AuditReference:
     def sigma(self) -> np.ndarray:
         """The standard error combined with the float32 precision floor (as `Reference.sigma`)."""
         return np.sqrt(self.stderr**2 + (RELATIVE_PRECISION_FLOOR * self.mean) ** 2)
+
+
+def masked_image(mask: np.ndarray, values) -> np.ndarray:
+    """An (H, W, 3) float64 image, zero outside ``mask`` (H, W), holding ``values`` on the masked pixels in
+    row-major order: (N, 3) one value per RGB channel, or (N,) one grey value copied to the three channels
+    (N = the masked pixels). The units are the values'."""
+    img = np.zeros((*mask.shape, 3))
+    v = np.asarray(values, np.float64)
+    img[mask] = v if v.ndim == 2 else v[:, None]
+    return img
+
+
+@dataclass(frozen=True)
+class PooledPasses:
+    """A family's reference passes through the pass cache, pooled (`pooled_passes`): the ``mean`` and its
+    ``stderr`` per element (point or ray) and pass column, (N,) or (N, C), in the quantity's units; ``spp``
+    samples per element in all, in ``passes`` passes, ``passes_rendered`` of them by this run (the rest read
+    from the cache); the cache ``entry`` (`PassEntry`) and ``seconds`` of rendering summed over the passes."""
+
+    mean: np.ndarray
+    stderr: np.ndarray
+    spp: int
+    passes: int
+    passes_rendered: int
+    entry: PassEntry
+    seconds: float
+
+    def reference(
+        self,
+        mask: np.ndarray,
+        quantity: str,
+        integrator: str,
+        integrator_reason: str,
+        columns: slice | None = None,
+        extra_seconds: float = 0.0,
+    ) -> AuditReference:
+        """The `AuditReference` these passes give on the pixels of ``mask`` (element i is the i-th masked
+        pixel, row-major): ``mean`` and ``stderr`` (their ``columns``: three RGB columns, or all of a grey
+        (N,) pass) as (H, W, 3) images (`masked_image`), the samples and passes, the cache entry's key and
+        folder, the seconds of rendering plus ``extra_seconds`` (another pass the case needed, e.g. a
+        bake), and the report's words (``quantity`` with units, ``integrator``, ``integrator_reason``)."""
+        mean, stderr = (
+            (self.mean, self.stderr) if columns is None else (self.mean[:, columns], self.stderr[:, columns])
+        )
+        return AuditReference(
+            mean=masked_image(mask, mean),
+            stderr=masked_image(mask, stderr),
+            spp=self.spp,
+            passes=self.passes,
+            passes_rendered=self.passes_rendered,
+            cache_key=self.entry.key,
+            cache_path=str(self.entry.folder),
+            seconds=self.seconds + extra_seconds,
+            quantity=quantity,
+            integrator=integrator,
+            integrator_reason=integrator_reason,
+        )
 
 
 @dataclass(frozen=True)
@@ -208,9 +267,9 @@ def pooled_passes(
     shape: tuple[int, ...],
     label: str,
     seed_label: str = "pass",
-):
-    """A family's reference passes through the pass cache, pooled: ``(mean, stderr, total spp, passes,
-    passes rendered by this run, entry, seconds)``.
+) -> PooledPasses:
+    """A family's reference passes through the pass cache, pooled (`PooledPasses`; its ``reference`` is the
+    case's `AuditReference`).
 
     ``what``: the family's own part of the cache key (format, quantity, the emitter or medium, a digest of the
     points or rays); the run's part (scene digest, variant, seed, pass size, Mitsuba and Dr.Jit versions) is
@@ -235,4 +294,6 @@ def pooled_passes(
 
     passes, rendered = entry.passes(count, render, shape=shape, progress=setup.progress, label=label)
     mean, stderr, total = pool_passes(passes)
-    return mean, stderr, total, len(passes), rendered, entry, float(sum(p.seconds for p in passes))
+    return PooledPasses(
+        mean, stderr, total, len(passes), rendered, entry, float(sum(p.seconds for p in passes))
+    )

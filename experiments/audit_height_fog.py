@@ -52,7 +52,16 @@ from rtfit.reference.height_fog import medium_dict, register, sky_statistics
 from rtfit.reference.medium_transmittance import transmittance_pass
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditReference,
+    AuditSetup,
+    FamilyCase,
+    PooledPasses,
+    masked_image,
+    pooled_passes,
+)
 from .height_fog import fit_params, horizon_colour, segment_geometry, single_scatter_colour
 
 __all__ = ["FAMILY", "SHADING_ROWS", "fog_cases", "transmittance_method"]
@@ -133,9 +142,8 @@ def _sky(setup: AuditSetup, scene):
     return stats, sun / np.linalg.norm(sun)
 
 
-def _transmittance(setup: AuditSetup, index: int, medium, origin, dirs, dist, label: str):
-    """Pooled ratio-tracking passes of the medium alone: (mean (N, 3), stderr, spp, passes, rendered,
-    entry, seconds)."""
+def _transmittance(setup: AuditSetup, index: int, medium, origin, dirs, dist, label: str) -> PooledPasses:
+    """Pooled ratio-tracking passes of the medium alone: mean and stderr (N, 3), the transmittance (1)."""
     mi = setup.mi
     register(mi)
     med = mi.load_dict(medium_dict(mi, medium))
@@ -158,12 +166,6 @@ def _render(setup: AuditSetup, scene, label: str):
         scene=scene, spp=setup.spp, pass_spp=setup.pass_spp, seed=setup.seed, variant=setup.variant
     )
     return ReferenceCache(setup.cache_root).get(request, progress=setup.progress, label=label)
-
-
-def _image(mask, values) -> np.ndarray:
-    img = np.zeros((*mask.shape, 3))
-    img[mask] = values
-    return img
 
 
 def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
@@ -208,18 +210,8 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     }
 
     # transmittance: ratio tracking through the Mitsuba medium alone
-    mean, stderr, total, passes, rendered, entry, seconds = _transmittance(
-        setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance"
-    )
-    t_ref = AuditReference(
-        mean=_image(mask, mean),
-        stderr=_image(mask, stderr),
-        spp=total,
-        passes=passes,
-        passes_rendered=rendered,
-        cache_key=entry.key,
-        cache_path=str(entry.folder),
-        seconds=seconds,
+    t_ref = _transmittance(setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance").reference(
+        mask,
         quantity="transmittance T of the medium along the camera's rays (1, grey)",
         integrator="ratio tracking (Mitsuba Medium.sample_interaction with the medium's majorant)",
         integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
@@ -257,8 +249,8 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         notes.append("no sunsky: the given rows use the method's declared colours (and cos_sun = 0)")
     reason = fogged.integrator.get("reason") or "rtfit's reference integrator rule"
     r_ref = AuditReference(
-        mean=_image(mask, fogged.mean[mask]),
-        stderr=_image(mask, fogged.stderr[mask]),
+        mean=masked_image(mask, fogged.mean[mask]),
+        stderr=masked_image(mask, fogged.stderr[mask]),
         spp=fogged.spp,
         passes=fogged.passes,
         passes_rendered=fogged.passes_rendered + l0.passes_rendered,

@@ -55,7 +55,14 @@ from rtfit.reference.environments import emitter_environment, emitter_irradiance
 from rtfit.reference.light_irradiance import environment_irradiance_pass
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditSetup,
+    FamilyCase,
+    PooledPasses,
+    pooled_passes,
+)
 from .irradiance_bases import ROW, build_bases, row_params
 
 __all__ = [
@@ -110,9 +117,8 @@ def sh_l2_table(bases: dict) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(bases["sh"], np.float64)[:9].T.reshape(-1))
 
 
-def _reference(setup: AuditSetup, source: int, normals: np.ndarray, label: str):
-    """Pooled passes of the emitter's unoccluded irradiance at ``normals``: (mean (N, 3), stderr (N, 3),
-    spp, passes, rendered, entry, seconds)."""
+def _reference(setup: AuditSetup, source: int, normals: np.ndarray, label: str) -> PooledPasses:
+    """Pooled passes of the emitter's unoccluded irradiance at ``normals``: mean and stderr (N, 3), W/m²."""
     emitter = setup.emitters[source]
     what = {
         "format": FORMAT,
@@ -134,12 +140,6 @@ def _inside(p, value: float) -> float:
     return value if p.lower < value < p.upper else p.initial
 
 
-def _image(mask, values) -> np.ndarray:
-    img = np.zeros((*mask.shape, 3))
-    img[mask] = values
-    return img
-
-
 def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """One case: every basis and the exact quadrature against the environment's irradiance (module
     docstring)."""
@@ -150,9 +150,7 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
     env = environment_of(setup, app.source)
     tag = f"env{app.source}"
-    mean, stderr, total, passes, rendered, entry, seconds = _reference(
-        setup, app.source, normals, f"{tag}: {app.part}"
-    )
+    pooled = _reference(setup, app.source, normals, f"{tag}: {app.part}")
     bases = environment_bases(env)
     light = setup.info.xml.emitters[app.source] if setup.info.xml is not None else None
     kind = light.kind if light is not None else env.kind
@@ -178,15 +176,8 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
                 k: replace(method.params[k], initial=_inside(method.params[k], float(v)))
                 for k, v in own.items()
             }
-    ref = AuditReference(
-        mean=_image(mask, mean),
-        stderr=_image(mask, stderr),
-        spp=total,
-        passes=passes,
-        passes_rendered=rendered,
-        cache_key=entry.key,
-        cache_path=str(entry.folder),
-        seconds=seconds,
+    ref = pooled.reference(
+        mask,
         quantity="environment irradiance E(n) at the visible normals, unoccluded (W/m²)",
         integrator="environment irradiance (MIS: emitter + cosine sampling, no scene rays)",
         integrator_reason=(

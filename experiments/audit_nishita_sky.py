@@ -34,7 +34,7 @@ from rtfit.realtime.nishita_sky import METHODS, sky_kernel_inputs
 from rtfit.reference.nishita_sky import render_sky
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, masked_image
 from .nishita_sky import atmosphere_params_of, near_sun
 
 __all__ = ["FAMILY", "SETTING_INPUTS", "SPECTRAL_NOTE", "setting_method", "sky_cases"]
@@ -112,13 +112,9 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             values = sky_kernel_inputs(atmosphere, elev, d, m.fixed["setting"], alt)
             inputs.update({(k + suffix if k in SETTING_INPUTS else k): v for k, v in values.items()})
         rows[mid] = setting_method(m, groups[key], atmosphere=atmosphere, altitude_m=alt)
-    img = np.zeros((*mask.shape, 3))
-    err = np.zeros((*mask.shape, 3))
-    img[mask] = ref["mean"]
-    err[mask] = ref["stderr"]
     reference = AuditReference(
-        mean=img,
-        stderr=err,
+        mean=masked_image(mask, ref["mean"]),
+        stderr=masked_image(mask, ref["stderr"]),
         spp=int(ref["spp"]),
         passes=int(ref["passes"]),
         passes_rendered=int(ref["passes"]),

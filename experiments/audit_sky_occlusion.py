@@ -123,7 +123,7 @@ class SkyInputs:
 
 
 def _passes(setup: AuditSetup, source: int, kind: str, points, normals, label: str):
-    """Pooled passes of the occluded sky irradiance (N, 3) and of the visibility bake (N, 5)."""
+    """Pooled passes of the occluded sky irradiance (N, 3), W/m², and of the visibility bake (N, 5)."""
     emitter = setup.emitters[source]
     digest = array_digest(points, normals)
     sky_only = kind == "sunsky"
@@ -171,10 +171,8 @@ def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:
     radius = ao_radius(setup, family)
     mask = setup.mask
     points, normals = visible_points(setup)
-    (mean, stderr, total, passes, rendered, entry, seconds), bake = _passes(
-        setup, app.source, light.kind, points, normals, app.part
-    )
-    caps = bake[0]
+    sky, bake = _passes(setup, app.source, light.kind, points, normals, app.part)
+    caps = bake.mean
     v_u = np.clip(caps[:, 0], 0.0, 1.0)
     vis = np.clip(caps[:, 1], 0.0, 1.0)
     bent = caps[:, 2:5]
@@ -208,15 +206,8 @@ def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:
         for c in range(3)
     )
     kind = light.kind
-    ref = AuditReference(
-        mean=_image(mask, mean),
-        stderr=_image(mask, stderr),
-        spp=total,
-        passes=passes,
-        passes_rendered=rendered,
-        cache_key=entry.key,
-        cache_path=str(entry.folder),
-        seconds=seconds + float(bake[6]),
+    ref = sky.reference(
+        mask,
         quantity="sky irradiance with visibility E = ∫ L_env V (n·ω) dω at the visible points (W/m²)",
         integrator="environment irradiance with shadow rays (MIS: emitter + cosine sampling)",
         integrator_reason=(
@@ -225,13 +216,14 @@ def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:
             + ": the environment emitter alone, Mitsuba's Emitter.sample_direction and the cosine hemisphere "
             "by the balance heuristic, each sample times Mitsuba's shadow ray against the scene's shapes"
         ),
+        extra_seconds=bake.seconds,
     )
     notes = (
         "occluded: the scene's shapes block the sky (one bounce: no interreflection)",
         "E_SH: the environment's SH L2 projection"
         + (" (the sky without its sun)" if kind == "sunsky" else "")
         + ", as the irradiance-bases family bakes it",
-        f"visibility bake: {int(bake[2])} uniform hemisphere rays per point (unbounded), in passes of "
+        f"visibility bake: {int(bake.spp)} uniform hemisphere rays per point (unbounded), in passes of "
         f"their own seed; mean cosine-weighted visibility {float(vis.mean()):.4g}",
         *rows.notes,
     )
@@ -239,12 +231,6 @@ def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:
     _MEMO.clear()
     _MEMO.update(key=key, setup=setup, value=value)
     return value
-
-
-def _image(mask, values) -> np.ndarray:
-    img = np.zeros((*mask.shape, 3))
-    img[mask] = values
-    return img
 
 
 def _parameters(app: Applicability, s: SkyInputs, setup: AuditSetup) -> dict:

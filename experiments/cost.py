@@ -38,10 +38,13 @@ class Timing:
     def elements_per_second(self) -> float:
         return self.elements / self.seconds
 
-    def to_dict(self) -> dict:
+    def to_dict(self, per: int = 1) -> dict:
+        """The results schema's timing columns: ``ns_per_pixel`` (ns), ``pixels_per_second`` (1/s), the
+        ``elements`` of one timed call and the ``repeats`` measured; ``per``: kernel elements per pixel
+        (a kernel launched over point × texel pairs counts ``per`` of its elements as one pixel)."""
         return {
-            "ns_per_pixel": self.ns_per_element,
-            "pixels_per_second": self.elements_per_second,
+            "ns_per_pixel": self.ns_per_element * per,
+            "pixels_per_second": self.elements_per_second / per,
             "elements": self.elements,
             "repeats": self.repeats,
         }
@@ -112,6 +115,42 @@ def attach_costs(case_docs: list[dict], cost_rows: list[dict], key: Callable | N
                 if c
                 else None
             )
+
+
+# -------------------------------------------------------------------------- the results' ``costs`` rows
+def cost_backend(variant: str) -> tuple[str, type]:
+    """The Dr.Jit backend of a Mitsuba ``variant`` (``cuda`` for the ``cuda_*`` variants, else ``llvm``) and
+    that backend's float32 array type, which the timed inputs are made of."""
+    backend = "cuda" if variant.startswith("cuda") else "llvm"
+    return backend, dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+
+
+def cost_row(
+    method: str, label: str, backend: str, timing: Timing, note: str | None = None, per: int = 1, **columns
+) -> dict:
+    """One row of a results' ``costs`` (docs/results-schema.md): the ``method`` id it is attached to
+    (`attach_costs`), its ``label``, the Dr.Jit ``backend``, the measured ``timing`` as ``ns_per_pixel``
+    (ns per pixel, ray, lookup or normal: what the experiment evaluates once), ``pixels_per_second``,
+    ``elements`` and ``repeats`` (``per``: kernel elements per pixel, `Timing.to_dict`), the family's own
+    ``columns`` (e.g. ``floats_per_probe``: storage per probe in floats) and the ``note`` (words)."""
+    return {
+        "method": method,
+        "label": label,
+        "backend": backend,
+        **timing.to_dict(per),
+        **columns,
+        "note": note,
+    }
+
+
+def memory_floor_row(inputs: tuple, elements: int, backend: str, note: str, label: str | None = None) -> dict:
+    """The ``memory-baseline`` row of a results' ``costs``: `memory_baseline` timed on the Dr.Jit arrays among
+    ``inputs`` (the timed kernels' own inputs, ``elements`` float32 each: one load of each, one fused
+    multiply-add per load, one float32 store), ns per pixel like the rows it bounds (`cost_row`). Labelled
+    ``memory traffic baseline (K loads, 1 store)`` with K the arrays counted, unless ``label`` is given."""
+    floats = tuple(a for a in inputs if dr.is_array_v(a))
+    label = label or f"memory traffic baseline ({len(floats)} loads, 1 store)"
+    return cost_row("memory-baseline", label, backend, memory_baseline(floats, elements), note)
 
 
 # ------------------------------------------------------------------------------ `rtfit bench` rows

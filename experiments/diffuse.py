@@ -65,7 +65,9 @@ from .cost import (
     baseline_row,
     bench_backend,
     comparison_row,
+    cost_row,
     memory_baseline,
+    memory_floor_row,
     reference_sizes,
     reference_vs_stock_rows,
     stock_render,
@@ -833,26 +835,12 @@ def measure_costs(ctx) -> list[dict]:
     n = 1 << (20 if ctx.quick else 22)
     dr_in, _ = cost_inputs(n, backend)
     args = (dr_in["cos_theta"], dr_in["alpha"])
+    note = "per pixel, inputs cos θ and α in memory, one float out"
     rows = [
-        {
-            "method": row.id,
-            "label": row.title,
-            "backend": backend,
-            **time_drjit(_drjit_call(row.method, dr_in), args, n).to_dict(),
-            "note": "per pixel, inputs cos θ and α in memory, one float out",
-        }
+        cost_row(row.id, row.title, backend, time_drjit(_drjit_call(row.method, dr_in), args, n), note)
         for row in ROWS
     ]
-    rows.append(
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline (2 loads, 1 store)",
-            "backend": backend,
-            **memory_baseline(args, n).to_dict(),
-            "note": "the memory-bound floor for these kernels",
-        }
-    )
-    return rows
+    return [*rows, memory_floor_row(args, n, backend, "the memory-bound floor for these kernels")]
 
 
 def bench(ctx) -> list[dict]:

@@ -44,7 +44,16 @@ from rtfit.reference.cache import PassEntry, array_digest, pool_passes
 from rtfit.reference.estimators import sub_seed
 
 from . import figures as F
-from .cost import attach_costs, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import (
+    attach_costs,
+    bench_backend,
+    comparison_row,
+    cost_backend,
+    cost_row,
+    memory_baseline,
+    time_drjit,
+    time_numpy,
+)
 from .registry import ConfigKey, checked
 
 # ============================================================================================ configure
@@ -1038,24 +1047,18 @@ def _time_kernel(k: dict, Float, cfg):
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per shading point of every timed kernel (`timed_kernels`), float32 Dr.Jit: the localised
     convolution is one launch over point×texel pairs, scaled to 6N² texels per point."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
-    rows = []
-    for k in timed_kernels(cfg, ctx.variant):
-        t = _time_kernel(k, Float, cfg)
-        rows.append(
-            {
-                "method": k["method"],
-                "label": k["label"],
-                "backend": backend,
-                "ns_per_pixel": t.ns_per_element * k["per"],
-                "pixels_per_second": t.elements_per_second / k["per"],
-                "elements": t.elements,
-                "repeats": t.repeats,
-                "note": f"{k['per']} kernel elements per shading point" if k["per"] > 1 else None,
-            }
+    backend, Float = cost_backend(ctx.variant)
+    return [
+        cost_row(
+            k["method"],
+            k["label"],
+            backend,
+            _time_kernel(k, Float, cfg),
+            f"{k['per']} kernel elements per shading point" if k["per"] > 1 else None,
+            per=k["per"],
         )
-    return rows
+        for k in timed_kernels(cfg, ctx.variant)
+    ]
 
 
 def cost_key(costs: list[dict]):

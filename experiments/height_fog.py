@@ -73,7 +73,10 @@ from .cost import (
     baseline_row,
     bench_backend,
     comparison_row,
+    cost_backend,
+    cost_row,
     memory_baseline,
+    memory_floor_row,
     time_drjit,
     time_numpy,
 )
@@ -1277,33 +1280,19 @@ def _time_form(form: str, inputs: dict, n: int):
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per ray of each optical-depth form, of the fog pass per shading method and of two fog volumes,
     beside the memory-traffic floor (the results' ``costs``)."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     _, inputs = _cost_inputs(n, Float)
-    rows = []
-    for form in OPTICAL_DEPTH_FORMS:
-        rows.append(
-            {
-                "method": f"tau-{form}",
-                "label": f"optical depth: {METHODS[form].label}",
-                "backend": backend,
-                **_time_form(form, inputs, n).to_dict(),
-                "note": "per ray: z₀, z₁, D in memory, τ out (float32)",
-            }
+    note = "per ray: z₀, z₁, D in memory, τ out (float32)"
+    rows = [
+        cost_row(
+            f"tau-{form}", f"optical depth: {METHODS[form].label}", backend, _time_form(form, inputs, n), note
         )
+        for form in OPTICAL_DEPTH_FORMS
+    ]
     rows += _pass_costs(n, Float, backend)
-    base = memory_baseline(tuple(inputs.values()), n)
-    rows.append(
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline (3 loads, 1 store)",
-            "backend": backend,
-            **base.to_dict(),
-            "note": "the memory-bound floor of the optical-depth kernels",
-        }
-    )
-    return rows
+    floor_note = "the memory-bound floor of the optical-depth kernels"
+    return [*rows, memory_floor_row(tuple(inputs.values()), n, backend, floor_note)]
 
 
 def _pass_inputs(n: int, Float, seed: int = 5):
@@ -1328,10 +1317,7 @@ def _pass_costs(n, Float, backend) -> list[dict]:
             return fog_pass(a[:3], a[3], a[4], a[5], 2e-4, 0.004, (0.2, 0.25, 0.3), cos_sun=cos_sun, **kw)
 
         args = (r, g, b, z0, dz, dist, cs) if kw else (r, g, b, z0, dz, dist)
-        t = time_drjit(one_pass, args, n)
-        rows.append(
-            {"method": f"fog-pass-{method}", "label": label, "backend": backend, **t.to_dict(), "note": note}
-        )
+        rows.append(cost_row(f"fog-pass-{method}", label, backend, time_drjit(one_pass, args, n), note))
     # two fog volumes (ray–ellipsoid and ray–box, oriented gradients)
     vols = [
         FogVolume(center=(0, 100, 10), half_size=(50, 30, 20), ellipsoid=True, density=0.01, falloff=0.05),
@@ -1351,17 +1337,9 @@ def _pass_costs(n, Float, backend) -> list[dict]:
         taus = fog_volumes_optical_depth(o, dirs, dist_, vols)
         return dr.exp(-(taus[0] + taus[1]))
 
-    t = time_drjit(vol_pass, (dist,), n)
-    rows.append(
-        {
-            "method": "volumes-2",
-            "label": "two fog volumes (intersection + τ + T)",
-            "backend": backend,
-            **t.to_dict(),
-            "note": "per pixel, ray–ellipsoid and ray–box in local frames, T out",
-        }
-    )
-    return rows
+    label = "two fog volumes (intersection + τ + T)"
+    note = "per pixel, ray–ellipsoid and ray–box in local frames, T out"
+    return [*rows, cost_row("volumes-2", label, backend, time_drjit(vol_pass, (dist,), n), note)]
 
 
 def bench(ctx) -> list[dict]:

@@ -126,7 +126,9 @@ from .cost import (
     baseline_row,
     bench_backend,
     comparison_row,
+    cost_row,
     memory_baseline,
+    memory_floor_row,
     reference_sizes,
     reference_vs_stock_rows,
     stock_render,
@@ -1594,32 +1596,22 @@ def _costs(ctx) -> list[dict]:
     n = 1 << (20 if ctx.quick else 24 if backend == "cuda" else 22)
     _, nd = _cost_inputs(n, backend)
     b = _demo_bases()
-    rows = []
-    for row in BASES:
-        t = time_drjit(lambda v, row=row: evaluate_row(row, b, v), (nd,), n)
-        floats = row.spec.storage
-        rows.append(
-            {
-                "method": row.method,
-                "label": row.spec.label,
-                "backend": backend,
-                **t.to_dict(),
-                "floats_per_probe": floats,
-                "note": f"per normal (pixel): unit normal in memory, RGB out; {floats} floats per probe",
-            }
+    rows = [
+        cost_row(
+            row.method,
+            row.spec.label,
+            backend,
+            time_drjit(lambda v, row=row: evaluate_row(row, b, v), (nd,), n),
+            f"per normal (pixel): unit normal in memory, RGB out; {row.spec.storage} floats per probe",
+            floats_per_probe=row.spec.storage,
         )
+        for row in BASES
+    ]
     rows += hemisphere.cost_rows(nd, n, backend)  # the lightmap bases (hemisphere section)
-    base = memory_baseline((nd.x, nd.y, nd.z), n)
-    rows.append(
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline (3 loads, 1 store)",
-            "backend": backend,
-            **base.to_dict(),
-            "note": "the memory-bound floor (one output channel)",
-        }
-    )
-    return rows
+    return [
+        *rows,
+        memory_floor_row((nd.x, nd.y, nd.z), n, backend, "the memory-bound floor (one output channel)"),
+    ]
 
 
 def _bench_rows() -> list[Row]:

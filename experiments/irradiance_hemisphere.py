@@ -45,7 +45,7 @@ from rtfit.realtime.irradiance_bases import METHODS, basis_inputs, basis_irradia
 from rtfit.reference import environments as envs
 
 from . import fitted as fitfiles
-from .cost import comparison_row, time_drjit, time_numpy
+from .cost import comparison_row, cost_row, time_drjit, time_numpy
 
 _TILT = math.radians(60.0)
 _AZ = math.radians(30.0)
@@ -320,17 +320,11 @@ def cost_rows(normals_drjit, n: int, backend: str) -> list[dict]:
         spec = HEMISPHERE_METHODS[m]
         c = _texel_coeffs(texel, m)
         t = time_drjit(lambda v, spec=spec, c=c: hemisphere_irradiance(spec, c, v), (normals_drjit,), n)
-        rows.append(
-            {
-                "method": m,
-                "label": spec.label,
-                "backend": backend,
-                **t.to_dict(),
-                "floats_per_probe": spec.storage,
-                "note": f"per bumped normal (lightmap texel): tangent-space normal in memory, RGB out; "
-                f"{spec.storage} floats per texel",
-            }
+        note = (
+            f"per bumped normal (lightmap texel): tangent-space normal in memory, RGB out; "
+            f"{spec.storage} floats per texel"
         )
+        rows.append(cost_row(m, spec.label, backend, t, note, floats_per_probe=spec.storage))
     return rows
 
 

@@ -71,7 +71,10 @@ from .cost import (
     baseline_row,
     bench_backend,
     comparison_row,
+    cost_backend,
+    cost_row,
     memory_baseline,
+    memory_floor_row,
     time_drjit,
     time_numpy,
 )
@@ -907,37 +910,24 @@ def _time(mid: str, grid: ProbeGrid, table, p, nrm, n: int):
 def cost_rows(ctx, cfg, grid: ProbeGrid) -> list[dict]:
     """ns per lookup of each method (Dr.Jit, float32, random points in and around ``grid``) beside the
     memory-traffic floor."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     p, nrm, tables = _cost_inputs(grid, n)
     P = [Float(p[:, k]) for k in range(3)]
     N = [Float(nrm[:, k]) for k in range(3)]
-    rows = []
-    for mid, m in METHODS.items():
-        t = _time(mid, grid, tables[m.fixed["basis"].id], P, N, n)
-        rows.append(
-            {
-                "method": mid,
-                "label": m.label,
-                "backend": backend,
-                **t.to_dict(),
-                "floats_per_probe": m.storage,
-                "note": f"per lookup: position and normal in, RGB out; {grid.count} probes, "
-                f"h = {grid.spacing:g} m",
-            }
+    note = f"per lookup: position and normal in, RGB out; {grid.count} probes, h = {grid.spacing:g} m"
+    rows = [
+        cost_row(
+            mid,
+            m.label,
+            backend,
+            _time(mid, grid, tables[m.fixed["basis"].id], P, N, n),
+            note,
+            floats_per_probe=m.storage,
         )
-    base = memory_baseline(tuple(P + N), n)
-    rows.append(
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline (6 loads, 1 store)",
-            "backend": backend,
-            **base.to_dict(),
-            "note": "the memory-bound floor",
-        }
-    )
-    return rows
+        for mid, m in METHODS.items()
+    ]
+    return [*rows, memory_floor_row(tuple(P + N), n, backend, "the memory-bound floor")]
 
 
 def bench(ctx) -> list[dict]:

@@ -47,7 +47,10 @@ from .cost import (
     baseline_row,
     bench_backend,
     comparison_row,
+    cost_backend,
+    cost_row,
     memory_baseline,
+    memory_floor_row,
     time_drjit,
     time_numpy,
 )
@@ -913,31 +916,15 @@ def _time(mid: str, inputs: dict, n: int):
 
 
 def cost_rows(ctx, cfg) -> list[dict]:
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     _, inputs, _, _ = _cost_inputs(n, Float)
-    rows = [
-        {
-            "method": mid,
-            "label": METHODS[mid].label,
-            "backend": backend,
-            **_time(mid, inputs, n).to_dict(),
-            "note": "per pixel: camera, view direction, cone (15 floats) in, radiance out (float32)",
-        }
-        for mid in METHODS
+    note = "per pixel: camera, view direction, cone (15 floats) in, radiance out (float32)"
+    rows = [cost_row(mid, m.label, backend, _time(mid, inputs, n), note) for mid, m in METHODS.items()]
+    return [
+        *rows,
+        memory_floor_row(tuple(inputs.values()), n, backend, "the memory-bound floor of the kernels"),
     ]
-    base = memory_baseline(tuple(inputs.values()), n)
-    rows.append(
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline (15 loads, 1 store)",
-            "backend": backend,
-            **base.to_dict(),
-            "note": "the memory-bound floor of the kernels",
-        }
-    )
-    return rows
 
 
 def bench(ctx) -> list[dict]:

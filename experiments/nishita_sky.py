@@ -82,7 +82,7 @@ from rtfit.reference.variants import use_variant
 
 from . import figures
 from . import fitted as fitfiles
-from .cost import attach_costs, time_drjit, time_numpy
+from .cost import attach_costs, cost_row, time_drjit, time_numpy
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
 from .viewer import save_case_pixels
@@ -1552,42 +1552,24 @@ def _costs(ctx, backend, cfg, settings) -> list[dict]:
         sky = build_sky(p, 10.0, VIEWER_ALTITUDE_M, backend=backend, **c)
         dr.eval(sky.rayleigh, sky.mie)
         t = time_drjit(lambda d, sky=sky: shade_sky(sky, d), (dirs,), n)
-        rows.append(
-            {
-                "method": name,
-                "label": LABELS[name],
-                "backend": backend,
-                **t.to_dict(),
-                "note": "per pixel: bilinear texture lookup (2 components × 3 channels) + phase + sun disc",
-            }
-        )
+        note = "per pixel: bilinear texture lookup (2 components × 3 channels) + phase + sun disc"
+        rows.append(cost_row(name, LABELS[name], backend, t, note))
         shader[settings[name]] = rows[-1]
         tb = time_drjit(
             _build_timer(p, 10.0, c, backend), (), c["width"] * c["height"], repeats=3, min_seconds=0.05
         )
-        rows.append(
-            {
-                "method": f"{name}-build",
-                "label": f"texture build, {LABELS[name]}",
-                "backend": backend,
-                **tb.to_dict(),
-                "note": f"whole texture incl. optical-depth table: {tb.seconds * 1e3:.3g} ms "
-                "(ns_per_pixel is per texel)",
-            }
+        note = (
+            f"whole texture incl. optical-depth table: {tb.seconds * 1e3:.3g} ms (ns_per_pixel is per texel)"
         )
-    for name in (m.id for m in METHODS.values() if m.fitted):
-        same = shader[settings[name]]
-        rows.append(
-            {
-                "method": name,
-                "label": LABELS[name],
-                "backend": backend,
-                **{k: same[k] for k in ("ns_per_pixel", "pixels_per_second", "elements", "repeats")},
-                "note": "same shader and texture size as the seed setting (the fitted parameters change the "
-                "texture's values only)",
-            }
-        )
-    return rows
+        rows.append(cost_row(f"{name}-build", f"texture build, {LABELS[name]}", backend, tb, note))
+    note = (
+        "same shader and texture size as the seed setting (the fitted parameters change the "
+        "texture's values only)"
+    )
+    fitted = (m.id for m in METHODS.values() if m.fitted)
+    return rows + [
+        {**shader[settings[name]], "method": name, "label": LABELS[name], "note": note} for name in fitted
+    ]
 
 
 def bench(ctx) -> list[dict]:

@@ -49,7 +49,17 @@ from rtfit.reference.variants import use_variant
 
 from . import figures as F
 from . import fitted as fitfiles
-from .cost import attach_costs, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
+from .cost import (
+    attach_costs,
+    bench_backend,
+    comparison_row,
+    cost_backend,
+    cost_row,
+    memory_baseline,
+    memory_floor_row,
+    time_drjit,
+    time_numpy,
+)
 from .registry import SPP_MAX, ConfigKey, checked
 
 # ============================================================================================ configure
@@ -965,37 +975,24 @@ def _time(m, inputs, n):
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per pixel of each variant and sample range (bumps field, view zenith uniform in
     cos θ ∈ [0.15, 1])."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     _, inputs = _cost_inputs(n, Float)
-    rows = []
     ranges = [list(r) for r in cfg["sample_ranges"]]
     if list(cfg["n_range"]) not in ranges:
         ranges.append(list(cfg["n_range"]))
-    for mid in METHODS:
-        for nr in ranges:
-            m = configured_method(mid, cfg, "bumps", nr)
-            rows.append(
-                {
-                    "method": f"{mid}-{nr[0]}-{nr[1]}",
-                    "label": f"{METHODS[mid].label}, n {nr[0]}–{nr[1]}",
-                    "backend": backend,
-                    **_time(m, inputs, n).to_dict(),
-                    "note": "march + 7-sample shadow + LOD blend, float32",
-                }
-            )
-    base = memory_baseline(tuple(inputs.values()), n)
-    rows.append(
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline (9 loads, 1 store)",
-            "backend": backend,
-            **base.to_dict(),
-            "note": "the memory-bound floor",
-        }
-    )
-    return rows
+    rows = [
+        cost_row(
+            f"{mid}-{lo}-{hi}",
+            f"{m.label}, n {lo}–{hi}",
+            backend,
+            _time(configured_method(mid, cfg, "bumps", [lo, hi]), inputs, n),
+            "march + 7-sample shadow + LOD blend, float32",
+        )
+        for mid, m in METHODS.items()
+        for lo, hi in ranges
+    ]
+    return [*rows, memory_floor_row(tuple(inputs.values()), n, backend, "the memory-bound floor")]
 
 
 def bench(ctx) -> list[dict]:

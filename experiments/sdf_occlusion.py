@@ -126,7 +126,15 @@ from rtfit.scenes import library_path, load_scene, scene_hash
 
 from . import figures
 from . import fitted as fitfiles
-from .cost import Stock, attach_costs, reference_sizes, reference_vs_stock_rows, stock_render, time_drjit
+from .cost import (
+    Stock,
+    attach_costs,
+    cost_row,
+    reference_sizes,
+    reference_vs_stock_rows,
+    stock_render,
+    time_drjit,
+)
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
 from .sdf_occlusion_scenes import SCENE_NAMES, build, read_ply
@@ -1827,30 +1835,22 @@ def measure_costs(sds, cfg) -> list[dict]:
         if row.timed is None:
             continue
         tm = time_drjit(row.timed(sd, cfg), cols, size, repeats=5, min_seconds=0.1)
-        out.append(
-            {
-                "method": row.id,
-                "label": row.title,
-                "backend": be,
-                **tm.to_dict(),
-                "note": f"Dr.Jit kernel incl. trilinear gathers from the mip chain, {size} surface points "
-                f"({cfg['grid']}³ grid), median wall time after warm-up",
-            }
+        note = (
+            f"Dr.Jit kernel incl. trilinear gathers from the mip chain, {size} surface points "
+            f"({cfg['grid']}³ grid), median wall time after warm-up"
         )
+        out.append(cost_row(row.id, row.title, be, tm, note))
     measured = {c["method"]: c for c in out}
-    for row in ROWS:
-        if row.cost_of is not None:
-            tm = measured[row.cost_of]
-            out.append(
-                {
-                    "method": row.id,
-                    "label": row.title,
-                    "backend": be,
-                    **{k: tm[k] for k in ("ns_per_pixel", "pixels_per_second", "elements", "repeats")},
-                    "note": f"same kernel as {row.cost_of}",
-                }
-            )
-    return out
+    shared = [row for row in ROWS if row.cost_of is not None]
+    return out + [
+        {
+            **measured[row.cost_of],
+            "method": row.id,
+            "label": row.title,
+            "note": f"same kernel as {row.cost_of}",
+        }
+        for row in shared
+    ]
 
 
 def ao_stock_dict(mi, scene) -> dict:

@@ -52,7 +52,10 @@ from .cost import (
     baseline_row,
     bench_backend,
     comparison_row,
+    cost_backend,
+    cost_row,
     memory_baseline,
+    memory_floor_row,
     time_drjit,
     time_numpy,
 )
@@ -1221,31 +1224,24 @@ def _time(mid: str, inputs: dict, n: int):
 
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per pixel of each method (the results' ``costs``) beside the memory-traffic floor."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     _, inputs = _cost_inputs(n, Float)
     rows = [
-        {
-            "method": mid,
-            "label": m.label,
-            "backend": backend,
-            **_time(mid, inputs, n).to_dict(),
-            "note": f"per pixel: {len(m.inputs)} floats in, opacity out (float32)",
-        }
+        cost_row(
+            mid,
+            m.label,
+            backend,
+            _time(mid, inputs, n),
+            f"per pixel: {len(m.inputs)} floats in, opacity out (float32)",
+        )
         for mid, m in METHODS.items()
     ]
-    base = memory_baseline(tuple(inputs[k] for k in COST_INPUTS), n)
-    rows.append(
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline (7 loads, 1 store)",
-            "backend": backend,
-            **base.to_dict(),
-            "note": "the memory-bound floor of the billboard methods",
-        }
-    )
-    return rows
+    floor_inputs = tuple(inputs[k] for k in COST_INPUTS)
+    return [
+        *rows,
+        memory_floor_row(floor_inputs, n, backend, "the memory-bound floor of the billboard methods"),
+    ]
 
 
 def bench(ctx) -> list[dict]:

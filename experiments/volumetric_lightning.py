@@ -61,7 +61,10 @@ from .cost import (
     baseline_row,
     bench_backend,
     comparison_row,
+    cost_backend,
+    cost_row,
     memory_baseline,
+    memory_floor_row,
     time_drjit,
     time_numpy,
 )
@@ -1027,31 +1030,13 @@ def _time(form: str, inputs: dict, n: int):
 
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per pixel of each closed form beside the memory-traffic floor (the results' ``costs``)."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     _, inputs = _cost_inputs(n, Float)
-    rows = [
-        {
-            "method": form,
-            "label": METHODS[form].label,
-            "backend": backend,
-            **_time(form, inputs, n).to_dict(),
-            "note": "per pixel: o, d, l (9 floats) in, F out (float32)",
-        }
-        for form in METHODS
-    ]
-    base = memory_baseline(tuple(inputs.values()), n)
-    rows.append(
-        {
-            "method": "memory-baseline",
-            "label": "memory traffic baseline (9 loads, 1 store)",
-            "backend": backend,
-            **base.to_dict(),
-            "note": "the memory-bound floor of the closed forms",
-        }
-    )
-    return rows
+    note = "per pixel: o, d, l (9 floats) in, F out (float32)"
+    rows = [cost_row(form, m.label, backend, _time(form, inputs, n), note) for form, m in METHODS.items()]
+    floor = memory_floor_row(tuple(inputs.values()), n, backend, "the memory-bound floor of the closed forms")
+    return [*rows, floor]
 
 
 def bench(ctx) -> list[dict]:

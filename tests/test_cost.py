@@ -1,15 +1,17 @@
 """`rtfit.experiments.cost.reference_vs_stock_rows`: the side-by-side protocol and its arithmetic, with
 callables whose durations are set here (no Mitsuba): the warm-up round is not counted, the calls
 alternate within each round, each side keeps its best time, and the ratio is rtfit's samples/s over
-the stock render's."""
+the stock render's. The results' ``costs`` rows (`cost_row`, `memory_floor_row`): their arithmetic by hand."""
 
 from __future__ import annotations
 
 import time
 
+import drjit as dr
+import numpy as np
 import pytest
 
-from rtfit.experiments.cost import Stock, reference_vs_stock_rows
+from rtfit.experiments.cost import Stock, Timing, cost_row, memory_floor_row, reference_vs_stock_rows
 
 
 def test_reference_vs_stock_rows_alternate_keep_the_best_and_divide_rates():
@@ -35,3 +37,44 @@ def test_reference_vs_stock_rows_alternate_keep_the_best_and_divide_rates():
     assert 0.3 * 4000 / 0.02 / 1e6 < s["Msamples_s"] <= 4000 / 0.02 / 1e6
     assert s["rtfit_vs_this"] == pytest.approx(r["Msamples_s"] / s["Msamples_s"], rel=1e-12)
     assert r["ns_per_sample"] == pytest.approx(1e3 / r["Msamples_s"], rel=1e-12)
+
+
+def test_cost_row_is_the_timing_per_pixel_with_the_familys_columns():
+    """A results' ``costs`` row: ns per pixel = seconds / elements × 10⁹ and pixels/s its reciprocal scaled,
+    by hand for 2 ms over 1000 elements; ``per`` kernel elements make one pixel; extra columns before the
+    note, in the schema's order."""
+    t = Timing(seconds=0.002, elements=1000, repeats=7)
+    row = cost_row("sh-l2", "SH L2", "llvm", t, "a note", floats_per_probe=27)
+    assert list(row) == [
+        "method",
+        "label",
+        "backend",
+        "ns_per_pixel",
+        "pixels_per_second",
+        "elements",
+        "repeats",
+        "floats_per_probe",
+        "note",
+    ]
+    assert (row["method"], row["label"], row["backend"], row["note"]) == ("sh-l2", "SH L2", "llvm", "a note")
+    assert row["ns_per_pixel"] == pytest.approx(2000.0, rel=1e-12)
+    assert row["pixels_per_second"] == pytest.approx(5e5, rel=1e-12)
+    assert (row["elements"], row["repeats"], row["floats_per_probe"]) == (1000, 7, 27)
+    six = cost_row("conv", "convolution", "cuda", t, per=6)
+    assert six["ns_per_pixel"] == pytest.approx(12000.0, rel=1e-12)
+    assert six["pixels_per_second"] == pytest.approx(5e5 / 6, rel=1e-12)
+    assert six["elements"] == 1000 and six["note"] is None
+
+
+def test_memory_floor_row_times_the_arrays_it_loads_and_counts_them():
+    """The memory-baseline row reads only the Dr.Jit arrays among the inputs (a float constant is no load)
+    and names their count in its label, unless a label is given."""
+    x = dr.llvm.Float(np.linspace(0.0, 1.0, 4096, dtype=np.float32))
+    row = memory_floor_row((x, x, 0.5, x), 4096, "llvm", "the floor")
+    assert (row["method"], row["label"], row["note"]) == (
+        "memory-baseline",
+        "memory traffic baseline (3 loads, 1 store)",
+        "the floor",
+    )
+    assert row["elements"] == 4096 and row["ns_per_pixel"] > 0 and row["repeats"] >= 7
+    assert memory_floor_row((x,), 4096, "llvm", "n", label="own words")["label"] == "own words"

@@ -1,0 +1,74 @@
+"""`rtfit.experiments.audit_family.pooled_passes` and its `PooledPasses`: through the pass cache, the pooled
+mean and standard error are those of all the passes' samples concatenated (NumPy over the raw samples, the
+oracle), a rerun reads every pass from the cache, and `PooledPasses.reference` lays the masked elements
+(RGB columns, or one grey value) onto the image, zero elsewhere."""
+
+from __future__ import annotations
+
+import types
+from typing import cast
+
+import numpy as np
+
+from rtfit.experiments.audit_family import AuditSetup, PooledPasses, masked_image, pooled_passes
+from rtfit.reference.cache import PassEntry
+from rtfit.reference.estimators import PassResult
+
+
+def test_pooled_passes_are_the_concatenated_samples_and_a_rerun_reads_the_cache(tmp_path):
+    rng = np.random.default_rng(7)
+    setup = types.SimpleNamespace(  # the fields pooled_passes reads
+        scene_digest="d",
+        variant="scalar_rgb",
+        seed=3,
+        pass_spp=4,
+        spp=10,
+        cache_root=tmp_path,
+        progress=False,
+    )
+    drawn = []
+
+    def render(spp: int, seed: int) -> PassResult:
+        x = rng.normal(1.0, 0.5, size=(spp, 5, 3))  # spp samples of 5 elements × 3 columns
+        drawn.append(x)
+        return PassResult(x.mean(axis=0), x.var(axis=0, ddof=1), spp, seed, 0.25)
+
+    p = pooled_passes(cast(AuditSetup, setup), {"quantity": "test"}, render, (-1, 3), "test")
+    samples = np.concatenate(drawn)  # passes of 4, 4 and 2 samples
+    assert [len(x) for x in drawn] == [4, 4, 2]
+    assert (p.spp, p.passes, p.passes_rendered, p.seconds) == (10, 3, 3, 0.75)
+    np.testing.assert_allclose(p.mean, samples.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(p.stderr, samples.std(axis=0, ddof=1) / np.sqrt(10), rtol=1e-12)
+    again = pooled_passes(cast(AuditSetup, setup), {"quantity": "test"}, render, (-1, 3), "test")
+    assert len(drawn) == 3 and again.passes_rendered == 0 and again.entry.key == p.entry.key
+    np.testing.assert_array_equal(again.mean, p.mean)
+    np.testing.assert_array_equal(again.stderr, p.stderr)
+
+
+def test_reference_lays_the_masked_elements_onto_the_image(tmp_path):
+    mask = np.array([[True, False, True], [False, True, False]])
+    mean = np.arange(27, dtype=np.float64).reshape(3, 9) + 1.0
+    entry = PassEntry(tmp_path, {"quantity": "test"}, namespace="audit", storage="npz")
+    pooled = PooledPasses(mean, mean / 10, 64, 2, 1, entry, 1.5)
+    ref = pooled.reference(mask, "q (W/m²)", "its integrator", "why", columns=slice(3, 6), extra_seconds=0.5)
+    want = np.zeros((2, 3, 3))
+    want[0, 0], want[0, 2], want[1, 1] = mean[0, 3:6], mean[1, 3:6], mean[2, 3:6]
+    np.testing.assert_array_equal(ref.mean, want)
+    np.testing.assert_array_equal(ref.stderr, want / 10)
+    assert (ref.spp, ref.passes, ref.passes_rendered, ref.cache_key, ref.cache_path, ref.seconds) == (
+        64,
+        2,
+        1,
+        entry.key,
+        str(entry.folder),
+        2.0,
+    )
+    assert (ref.quantity, ref.integrator, ref.integrator_reason) == ("q (W/m²)", "its integrator", "why")
+    grey = PooledPasses(mean[:, 0], mean[:, 1], 64, 2, 1, entry, 1.5).reference(mask, "q", "i", "r")
+    np.testing.assert_array_equal(grey.mean[1, 1], [19.0, 19.0, 19.0])
+    np.testing.assert_array_equal(grey.stderr[0, 2], [11.0, 11.0, 11.0])
+    assert grey.seconds == 1.5 and not grey.mean[~mask].any()
+    img = masked_image(
+        mask, np.asarray([1, 2, 3], np.float32)
+    )  # grey values in row-major pixel order, as float64
+    assert img.dtype == np.float64 and img[0, 2].tolist() == [2.0] * 3 and img[1, 0].tolist() == [0.0] * 3
