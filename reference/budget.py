@@ -93,9 +93,24 @@ class LaneCounter:
             hit |= c > self.cap  # a lane past the cap had an event absorbed
         return _int(dr.count(hit))
 
+    def means(self) -> list[float]:
+        """Events per lane of the launch at each call site, in the order they were traced (empty when
+        unarmed): the work per sample the benches report."""
+        return [_float(dr.mean(mean_type(c))) for c in self.counts or ()]
+
     def peak(self) -> int:
         """The most events one lane took at one call site (0 when unarmed)."""
         return max((_int(dr.max(c)) for c in self.counts or ()), default=0)
+
+
+def mean_type(counts):
+    """``counts`` (UInt32) as the Float array of its backend."""
+    return dr.float32_array_t(type(counts))(counts)
+
+
+def _float(x) -> float:
+    """A Dr.Jit reduction's result (a width-1 array or a Python number) as a float."""
+    return float(x[0]) if dr.is_array_v(x) else float(x)
 
 
 def _int(x) -> int:
