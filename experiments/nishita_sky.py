@@ -1624,16 +1624,23 @@ def bench(ctx) -> list[dict]:
 
 
 BENCH_MEDIA = (
-    ("reference", "rtfit atmosphere medium, per-segment majorant (the reference)"),
+    ("skypath", "rtfit_skypath: tangent-exponential majorants, spectral MIS, ratio-tracked sun (the reference)"),
+    ("segment", "rtfit atmosphere medium, per-segment majorant (volpathmis; the reference of session 4)"),
     ("box", "rtfit atmosphere medium, ground-level majorant (the estimator before issue 21)"),
     ("grid", "Mitsuba heterogeneous + gridvolume (256³) of the same extinction"),
+    ("none", "Mitsuba path on planet and sun without atmosphere (the floor)"),
 )
 """The media of the reference bench rows: rtfit's estimator beside what a user would otherwise run."""
 
 
 def _bench_reference(ctx) -> list[dict]:
     """Samples/s of the sky reference pass (sun 10°, single and multiple scattering) with each of
-    `BENCH_MEDIA`, side by side in one process: one warm-up pass, then the best of two timed passes."""
+    `BENCH_MEDIA`, side by side in one process: one warm-up pass, then the best of two timed passes. Each
+    row also gives the mean per-sample variance (G channel) over the pixels of the timed passes (its ratio
+    to the ground-level majorant's: ``variance_vs_box``; efficiency = samples/s ÷ variance:
+    ``efficiency_vs_box``) and the tracking events per lane of the warm-up pass (`LaneCounter.means` per
+    counted call site: ``volpathmis`` media count ``sample_interaction`` calls of the path and the shadow
+    rays, rtfit_skypath its path-loop, free-flight and ratio-tracking iterations)."""
     res = (32, 16) if ctx.quick else (128, 64)
     spp = 128 if ctx.quick else 1024
     dirs, _, _ = hemisphere_directions(*res)
@@ -1644,12 +1651,16 @@ def _bench_reference(ctx) -> list[dict]:
     mi = use_variant(ctx.variant)
     rows = []
     for depth, transport in ((2, "single"), (-1, "multiple")):
-        rates = {}
+        rates, variances = {}, {}
         for medium, label in BENCH_MEDIA:
             scene, med = load_sky(mi, spec, depth, medium)
-            sky_pass(mi, scene, med, origin, dirs, spp, 0)
-            t = min(sky_pass(mi, scene, med, origin, dirs, spp, k + 1).seconds for k in range(2))
+            events: list = []
+            sky_pass(mi, scene, med, origin, dirs, spp, 0, events=events)
+            timed = [sky_pass(mi, scene, med, origin, dirs, spp, k + 1) for k in range(2)]
+            t = min(p.seconds for p in timed)
             rates[medium] = samples / t
+            variances[medium] = float(np.mean([p.var[:, 1].mean() for p in timed]))
+            sites = [m for launch in events[:1] for counter in launch for m in counter]
             rows.append(
                 {
                     "what": f"reference pass, {transport} scattering ({res[0]}×{res[1]}, {spp} spp): {label}",
@@ -1657,9 +1668,16 @@ def _bench_reference(ctx) -> list[dict]:
                     "elements": samples,
                     "drjit_Mray_s": samples / t / 1e6,
                     "ns_per_ray": t / samples * 1e9,
+                    "sample_variance_g": variances[medium],
+                    "events_per_lane": sites,
                 }
             )
         for row, (medium, _) in zip(rows[-len(BENCH_MEDIA) :], BENCH_MEDIA, strict=True):
             row["vs_native_grid"] = rates[medium] / rates["grid"]
             row["vs_box_majorant"] = rates[medium] / rates["box"]
+            row["vs_segment"] = rates[medium] / rates["segment"]
+            row["vs_no_atmosphere"] = rates[medium] / rates["none"]
+            if variances["box"] > 0 and variances[medium] > 0:
+                row["variance_vs_box"] = variances[medium] / variances["box"]
+                row["efficiency_vs_box"] = row["vs_box_majorant"] / row["variance_vs_box"]
     return rows

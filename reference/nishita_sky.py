@@ -537,8 +537,8 @@ def scene_dict(mi, spec: AtmosphereSpec, max_depth: int, medium: str = "segment"
     if medium == "skypath":
         sky_integrator.register(mi)
         d["integrator"] = sky_integrator.integrator_dict(
-            props, spec.top_radius_km, max_depth, {"type": PHASE_PLUGIN, **props}
-        )
+            props, spec.top_radius_km, max_depth, {"type": PHASE_PLUGIN, **props}, nee_only=True
+        )  # the sun's sky radiance is 0 (below): NEE samples all of the emitter
     if medium in ("skypath", "none"):
         del d["atmosphere"]
     if medium == "none":
@@ -608,8 +608,12 @@ def load_sky(mi, spec, max_depth, medium: str | None = None):
     return scene, medium
 
 
-def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -> PassResult:
-    """Radiance along rays from ``origin`` (km) in directions ``dirs`` (N, 3): one pass of ``spp``."""
+def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int, events=None) -> PassResult:
+    """Radiance along rays from ``origin`` (km) in directions ``dirs`` (N, 3): one pass of ``spp``.
+
+    ``events``: a list to which each launch appends its `LaneCounter.means` (events per lane at each
+    counted call site of each counter, zero sites dropped: Dr.Jit traces a loop more than once) — the
+    work per sample the benches report."""
     t0 = time.perf_counter()
     d = np.ascontiguousarray(dirs, dtype=np.float64).reshape(-1, 3)
     n = d.shape[0]
@@ -638,6 +642,8 @@ def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -
                 value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
             s[a:b], q[a:b] = moments(mi, dr, value, spp)
             armed.check()
+            if events is not None:
+                events.append([[m for m in c.means() if m > 0.0] for c in media])
     mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 

@@ -58,7 +58,10 @@ NEE is the only estimator of the sun's disc at a scattering vertex (medium or gr
 sampled by the phase function or BSDF counts an emitter it hits only where the emitter cannot be
 sampled (``pdf_emitter_direction`` = 0: nothing for rtfit's sun with zero sky), so the two are
 complementary and need no MIS weights. A camera ray counts the directly seen disc with its tracked
-weight F.
+weight F. With ``nee_only`` (the sky scene: the sun's ``sky`` radiance is 0, so every direction of nonzero
+emitted radiance can be sampled by NEE) a sampled direction can never add anything, and a path ends at its
+last vertex that still receives NEE (single scattering: at the scattering vertex, without tracing the
+continuation ray that ``volpath`` traces only to look for emitter hits).
 
 Depth, Russian roulette and the emitter conventions follow ``volpath``/`rtfit.reference.fog_integrator`:
 ``max_depth`` counts path segments (2: single scattering, −1: all orders), RR after ``rr_depth`` with
@@ -91,15 +94,22 @@ variance of single scattering by 40 % for 11 % more time; the free flight keeps 
 _registered: set[str] = set()
 
 
-def integrator_dict(profile: dict, top_radius_km: float, max_depth: int, phase: dict, rr_depth: int = 5) -> dict:
+def integrator_dict(
+    profile: dict, top_radius_km: float, max_depth: int, phase: dict, nee_only: bool = False, rr_depth: int = 5
+) -> dict:
     """``mi.load_dict`` entry of the integrator: ``profile`` is the atmosphere's property dict
     (`rtfit.reference.nishita_sky` ``_profile_props``: planet_radius, rayleigh_height, mie_height,
     rayleigh_beta, mie_beta, mie_extinction, g; km and km⁻¹), ``phase`` the dict of its per-channel
-    Rayleigh + Mie phase mixture (``rtfit_rayleigh_mie``)."""
+    Rayleigh + Mie phase mixture (``rtfit_rayleigh_mie``). ``nee_only``: the scene's emitters are
+    entirely sampled by NEE (every direction of nonzero radiance has ``pdf_emitter_direction`` > 0, as
+    rtfit's sun disc with zero sky), so a path ends at its last vertex that can still receive NEE (with
+    ``max_depth`` 2: at the scattering vertex; the continuation could only hit an emitter, which counts
+    nothing: module docstring)."""
     return {
         "type": PLUGIN,
         "max_depth": int(max_depth),
         "rr_depth": int(rr_depth),
+        "nee_only": bool(nee_only),
         "top_radius": float(top_radius_km),
         **profile,
         "phase": phase,
@@ -123,6 +133,7 @@ def register(mi) -> None:
             super().__init__(props)
             self.max_depth = int(props.get("max_depth", -1))
             self.rr_depth = int(props.get("rr_depth", 5))
+            self.nee_only = bool(props.get("nee_only", False))
             self.rg = float(props.get("planet_radius"))
             self.rt = float(props.get("top_radius"))
             self.hr = float(props.get("rayleigh_height"))
@@ -349,6 +360,8 @@ def register(mi) -> None:
                 prev[act_medium] = it_m
                 prev[non_null] = si
                 active = act_medium | act_surface
+                if self.nee_only:  # the continuation could only hit an emitter, which counts nothing
+                    active &= depth + 1 < max_depth
 
             return L, valid_ray, []
 
