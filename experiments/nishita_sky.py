@@ -4,8 +4,8 @@ What is compared, and why. The seed's sky (Nishita et al. 1993 as CryEngine 2 us
 single-scattering integrals, built on the CPU from n atmosphere layers and a sun optical-depth table, with
 the phase function applied per pixel. Per sun elevation, the sky hemisphere (azimuth × elevation image,
 sun at azimuth 0, viewer 10 m above the ground) is rendered by Mitsuba (`rtfit.reference.nishita_sky`:
-planet + atmosphere shell with a Python Rayleigh + Mie medium and an exact chromatic phase mixture,
-``volpathmis``) with single scattering (max_depth 2: isolates the texture's numerical error) and with all
+planet + atmosphere with rtfit's integrator ``rtfit_skypath`` and an exact chromatic phase mixture; the
+spectral cases: a Python Rayleigh + Mie medium under ``volpathmis``) with single scattering (max_depth 2: isolates the texture's numerical error) and with all
 orders (max_depth −1, ground albedo 0.1: its physical error). The atmosphere is read from the scene file
 ``scenes/library/sky_sun_45.toml`` (`SCENE`; SI units, the real-time `AtmosphereParams` field names), the
 sun elevation and viewer altitude set per case. Approximations: the methods of
@@ -71,6 +71,7 @@ from rtfit.reference.nishita_sky import (
     hemisphere_directions,
     library_atmosphere,
     load_sky,
+    reference_integrator,
     render_sky,
     single_scattering_quadrature,
     sky_pass,
@@ -315,7 +316,7 @@ def _subset(stride) -> tuple[slice, slice]:
 
 def _reference_doc(ref, mean, se, mask, variant, max_depth, quantity, reason=None) -> dict:
     """The "reference" record of a case: integrator, variant, samples, noise and speed."""
-    doc = {"integrator": "volpathmis", "max_depth": max_depth}
+    doc = {"integrator": reference_integrator(variant), "max_depth": max_depth}
     if reason:
         doc["integrator_reason"] = reason
     return {
@@ -1179,7 +1180,9 @@ def _sections(cfg, ref_seconds) -> list[dict]:
             "title": "Method",
             "text": "A spherical-shell Earth atmosphere (planet 6360 km, top 6420 km, Rayleigh H = 8 km, Mie "
             "H = 1.2 km, Bruneton 2017's coefficients without ozone, Mie HG g = 0.8, ground albedo 0.1) is "
-            "path traced by Mitsuba 3 (`volpathmis`) with a Python medium and an exact Rayleigh/Mie phase "
+            "path traced in Mitsuba 3 by rtfit's integrator `rtfit_skypath` (closed-form free flight under "
+            "tangent-exponential majorants, spectral MIS, ratio-tracked sun; the spectral cases: `volpathmis` "
+            "with a Python medium) and an exact Rayleigh/Mie phase "
             f"mixture, from a viewer {cfg['viewer_altitude_m']:g} m above the ground, for sun elevations "
             f"{', '.join(f'{e:g}°' for e in cfg['sun_elevations_deg'])}; single scattering (max_depth 2) "
             "isolates the Nishita texture's numerical error, all orders show its physical error. The "
@@ -1418,7 +1421,7 @@ def write_fitted(out, cfg, fits, method_id, ctx=None) -> list[dict]:
         "parameters": {k: p.description for k, p in method.params.items()},
         "use": "rtfit.realtime.nishita_sky.AtmosphereParams(rayleigh_scale=..., mie_scale=..., "
         "mie_g=..., ambient=...)",
-        "fitted_to": "Mitsuba multiple-scattering sky (volpathmis, ground albedo 0.1), relative residuals",
+        "fitted_to": "Mitsuba multiple-scattering sky (rtfit_skypath, ground albedo 0.1), relative residuals",
         "bounds": {k: [v["lower"], v["upper"]] for k, v in next(iter(fits.values()))["parameters"].items()}
         if fits
         else {},

@@ -34,7 +34,11 @@ use one scalar weight for all channels, which is wrong for a chromatic Rayleigh/
 P_R(cos θ) = 3/(16π)(1 + cos²θ); P_M is Henyey–Greenstein with asymmetry g (Mitsuba's
 convention: cos θ = −wi·wo, wi pointing back along the incoming ray).
 
-Integrator: ``volpathmis`` (unbiased with chromatic extinction); ``max_depth = 2`` gives single
+Integrator (RGB variants, since session 7): ``rtfit_skypath`` (`rtfit.reference.sky_integrator`: the scene
+without the shell sphere and medium plugin, the atmosphere in the integrator: closed-form free flight under
+tangent-exponential majorants, spectral MIS over the channels, ratio-tracked sun transmittance); spectral
+variants and the benches' "segment"/"box" rows: ``volpathmis`` (unbiased with chromatic extinction) with the
+medium below. ``max_depth = 2`` gives single
 scattering (camera segment, one scattering event, next-event estimation to the sun), ``-1`` all
 orders including the ground bounce.
 
@@ -112,6 +116,7 @@ __all__ = [
     "library_atmosphere",
     "load_atmosphere_scene",
     "load_sky",
+    "reference_integrator",
     "register",
     "render_sky",
     "scene_dict",
@@ -593,6 +598,12 @@ def reference_medium(mi) -> str:
     """The `scene_dict` medium of the reference in the active variant: ``"skypath"`` (RGB) or
     ``"segment"`` (spectral: `rtfit.reference.sky_integrator` is RGB only)."""
     return "segment" if mi.is_spectral else "skypath"
+
+
+def reference_integrator(variant: str) -> str:
+    """The Mitsuba integrator of `render_sky` in ``variant``: ``rtfit_skypath`` (RGB variants) or
+    ``volpathmis`` (spectral variants, rtfit's medium with the per-segment majorant)."""
+    return "volpathmis" if "spectral" in variant else sky_integrator.PLUGIN
 
 
 def load_sky(mi, spec, max_depth, medium: str | None = None):
