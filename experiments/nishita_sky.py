@@ -5,10 +5,11 @@ single-scattering integrals, built on the CPU from n atmosphere layers and a sun
 the phase function applied per pixel. Per sun elevation, the sky hemisphere (azimuth × elevation image,
 sun at azimuth 0, viewer 10 m above the ground) is rendered by Mitsuba (`rtfit.reference.nishita_sky`:
 planet + atmosphere with rtfit's integrator ``rtfit_skypath`` and an exact chromatic phase mixture; the
-spectral cases: a Python Rayleigh + Mie medium under ``volpathmis``) with single scattering (max_depth 2: isolates the texture's numerical error) and with all
-orders (max_depth −1, ground albedo 0.1: its physical error). The atmosphere is read from the scene file
-``scenes/library/sky_sun_45.toml`` (`SCENE`; SI units, the real-time `AtmosphereParams` field names), the
-sun elevation and viewer altitude set per case. Approximations: the methods of
+spectral cases: a Python Rayleigh + Mie medium under ``volpathmis``) with single scattering (max_depth 2:
+isolates the texture's numerical error) and with all orders (max_depth −1, ground albedo 0.1: its
+physical error). The atmosphere is read from the scene file ``scenes/library/sky_sun_45.toml`` (`SCENE`;
+SI units, the real-time `AtmosphereParams` field names), the sun elevation and viewer altitude set per
+case. Approximations: the methods of
 `rtfit.realtime.nishita_sky.METHODS`, evaluated at the same pixel-centre directions:
 
 * ``nishita-seed``     n = 32 layers, 128×64 texture, 128-entry sun table (the seed's setting)
@@ -1181,8 +1182,8 @@ def _sections(cfg, ref_seconds) -> list[dict]:
             "text": "A spherical-shell Earth atmosphere (planet 6360 km, top 6420 km, Rayleigh H = 8 km, Mie "
             "H = 1.2 km, Bruneton 2017's coefficients without ozone, Mie HG g = 0.8, ground albedo 0.1) is "
             "path traced in Mitsuba 3 by rtfit's integrator `rtfit_skypath` (closed-form free flight under "
-            "tangent-exponential majorants, spectral MIS, ratio-tracked sun; the spectral cases: `volpathmis` "
-            "with a Python medium) and an exact Rayleigh/Mie phase "
+            "tangent-exponential majorants, spectral MIS, Poisson-corrected marched sun transmittance; the "
+            "spectral cases: `volpathmis` with a Python medium) and an exact Rayleigh/Mie phase "
             f"mixture, from a viewer {cfg['viewer_altitude_m']:g} m above the ground, for sun elevations "
             f"{', '.join(f'{e:g}°' for e in cfg['sun_elevations_deg'])}; single scattering (max_depth 2) "
             "isolates the Nishita texture's numerical error, all orders show its physical error. The "
@@ -1627,7 +1628,7 @@ def bench(ctx) -> list[dict]:
 
 
 BENCH_MEDIA = (
-    ("skypath", "rtfit_skypath: tangent-exponential majorants, spectral MIS, ratio-tracked sun (the reference)"),
+    ("skypath", "rtfit_skypath: tangent-exponential majorants, spectral MIS, marched sun (the reference)"),
     ("segment", "rtfit atmosphere medium, per-segment majorant (volpathmis; the reference of session 4)"),
     ("box", "rtfit atmosphere medium, ground-level majorant (the estimator before issue 21)"),
     ("grid", "Mitsuba heterogeneous + gridvolume (256³) of the same extinction"),

@@ -1,9 +1,9 @@
 """rtfit_skypath (the atmosphere's integrator) against independent computations.
 
-* its two trackers along fixed rays against the float64 optical depth of the independent quadrature
-  (`rtfit.reference.nishita_sky._sun_optical_depth`: Gauss–Legendre on geometric sub-intervals): the
-  ratio-tracked transmittance E[T̂_c] and the spectral-MIS free flight's escape weight E[F_c·1(escape)]
-  both equal exp(−τ_c) per channel (an analytic case: no scattering enters);
+* its transmittance estimators along fixed rays against the float64 optical depth of the independent
+  quadrature (`rtfit.reference.nishita_sky._sun_optical_depth`: Gauss–Legendre on geometric
+  sub-intervals): the Poisson-corrected marched and the ratio-tracked E[T̂_c] and the spectral-MIS free
+  flight's escape weight E[F_c·1(escape)] all equal exp(−τ_c) per channel (no scattering enters);
 * rendered skies against Mitsuba's ``volpathmis`` with rtfit's atmosphere medium (session 4's reference),
   single scattering and all orders, independent seeds: per-pixel z of zero mean and unit spread;
 * single scattering against the float64 quadrature `single_scattering_quadrature`;
@@ -52,8 +52,9 @@ def _tau64(spec, alt, el):
 
 @pytest.mark.parametrize("alt,el", RAYS)
 def test_transmittance_estimators_match_float64_optical_depth(sky, alt, el):
-    """E[T̂_c] (ratio tracking) and E[F_c·1(no collision)] (spectral-MIS delta tracking, hero channel uniform)
-    equal exp(−τ_c) per channel, τ by the independent float64 quadrature; 4σ per channel."""
+    """E[T̂_c] (Poisson-corrected marching and ratio tracking) and E[F_c·1(no collision)] (spectral-MIS delta
+    tracking, hero channel uniform) equal exp(−τ_c) per channel, τ by the independent float64 quadrature;
+    within 4σ (+ 1e-6 relative: float32) per channel."""
     import drjit as dr
 
     mi, spec = sky
@@ -66,16 +67,18 @@ def test_transmittance_estimators_match_float64_optical_depth(sky, alt, el):
     d = mi.Vector3f(*[float(x) for x in s])
     lanes = mi.Float(dr.arange(mi.UInt32, n))
     tr = integ.ratio_tracking(o, d, mi.Float(dr.inf), sampler, lanes, mi.Bool(True))
+    tm = integ.marched_transmittance(o, d, mi.Float(dr.inf), sampler, lanes, mi.Bool(True))
     hero = dr.minimum(mi.UInt32(sampler.next_1d() * 3.0), 2)
     collided, _, F, _ = integ.free_flight(
         o, d, mi.Float(dr.inf), hero, mi.Spectrum(1.0), mi.Spectrum(1.0), sampler, lanes, mi.Bool(True)
     )
     esc = dr.select(collided, 0.0, F)
     expected = np.exp(-tau)
-    for est in (tr, esc):
+    for est in (tm, tr, esc):
         x = np.stack([np.asarray(est[c], dtype=np.float64) for c in range(3)], axis=1)
-        z = (x.mean(0) - expected) / (x.std(0) / math.sqrt(n) + 1e-12)
-        assert np.all(np.abs(z) < 4.0), (alt, el, x.mean(0), expected, z)
+        # 4σ plus float32 rounding (the marched estimator is nearly deterministic where T ≈ 1)
+        tol = 4.0 * x.std(0) / math.sqrt(n) + 1e-6 * expected
+        assert np.all(np.abs(x.mean(0) - expected) < tol), (alt, el, x.mean(0), expected, tol)
 
 
 def test_render_matches_volpathmis(sky):
@@ -101,7 +104,8 @@ def test_single_scattering_matches_quadrature(sky, tmp_path):
     """`render_sky` (the reference: rtfit_skypath in llvm_ad_rgb) vs the float64 quadrature at sun 10° and
     at twilight (−4°, disc sun): z of the sums < 4, every |z| < 4.5 (10°) or 6 (−4°: most twilight paths
     never reach the lit air, the per-pixel sample is heavy-tailed and its stderr estimate noisy; measured at
-    16384 spp, two seeds: max |z| 2.1 and 3.8, volpathmis 4.4 and 3.6; noise 4–20 % at 32768 spp); the cache key names the estimator."""
+    16384 spp, two seeds: max |z| 2.1 and 3.8, volpathmis 4.4 and 3.6; noise 4–20 % at 32768 spp); the
+    cache key names the estimator."""
     from rtfit.reference import sky_integrator
     from rtfit.reference.nishita_sky import (
         hemisphere_directions,
