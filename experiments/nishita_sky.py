@@ -1639,12 +1639,14 @@ BENCH_MEDIA = (
 
 def _bench_reference(ctx) -> list[dict]:
     """Samples/s of the sky reference pass (sun 10°, single and multiple scattering) with each of
-    `BENCH_MEDIA`, side by side in one process: one warm-up pass, then the best of two timed passes. Each
-    row also gives the mean per-sample variance (G channel) over the pixels of the timed passes (its ratio
-    to the ground-level majorant's: ``variance_vs_box``; efficiency = samples/s ÷ variance:
-    ``efficiency_vs_box``) and the tracking events per lane of the warm-up pass (`LaneCounter.means` per
-    counted call site: ``volpathmis`` media count ``sample_interaction`` calls of the path and the shadow
-    rays, rtfit_skypath its path-loop, free-flight and ratio-tracking iterations)."""
+    `BENCH_MEDIA`, side by side in one process: one warm-up pass each, then `BENCH_ROUNDS` rounds that time
+    one pass of every medium in turn (interleaved, so a change of load on a shared machine hits every row
+    alike), the best pass per medium. Each row also gives the mean per-sample variance (G channel) over the
+    pixels of its timed passes (its ratio to the ground-level majorant's: ``variance_vs_box``; efficiency =
+    samples/s ÷ variance: ``efficiency_vs_box``) and the events per lane of the warm-up pass
+    (`LaneCounter.means` per counted call site: ``volpathmis`` media count ``sample_interaction`` calls of
+    the path and of the shadow rays, rtfit_skypath its path-loop, free-flight and Poisson-correction
+    iterations)."""
     res = (32, 16) if ctx.quick else (128, 64)
     spp = 128 if ctx.quick else 1024
     dirs, _, _ = hemisphere_directions(*res)
@@ -1655,33 +1657,37 @@ def _bench_reference(ctx) -> list[dict]:
     mi = use_variant(ctx.variant)
     rows = []
     for depth, transport in ((2, "single"), (-1, "multiple")):
-        rates, variances = {}, {}
+        loaded, events = {}, {}
+        for medium, _ in BENCH_MEDIA:
+            loaded[medium] = load_sky(mi, spec, depth, medium)
+            events[medium] = []
+            sky_pass(mi, *loaded[medium], origin, dirs, spp, 0, events=events[medium])
+        timed: dict = {medium: [] for medium in loaded}
+        for k in range(BENCH_ROUNDS):
+            for medium, (scene, med) in loaded.items():
+                timed[medium].append(sky_pass(mi, scene, med, origin, dirs, spp, k + 1))
+        rates = {m: samples / min(p.seconds for p in ps) for m, ps in timed.items()}
+        variances = {m: float(np.mean([p.var[:, 1].mean() for p in ps])) for m, ps in timed.items()}
         for medium, label in BENCH_MEDIA:
-            scene, med = load_sky(mi, spec, depth, medium)
-            events: list = []
-            sky_pass(mi, scene, med, origin, dirs, spp, 0, events=events)
-            timed = [sky_pass(mi, scene, med, origin, dirs, spp, k + 1) for k in range(2)]
-            t = min(p.seconds for p in timed)
-            rates[medium] = samples / t
-            variances[medium] = float(np.mean([p.var[:, 1].mean() for p in timed]))
-            sites = [m for launch in events[:1] for counter in launch for m in counter]
-            rows.append(
-                {
-                    "what": f"reference pass, {transport} scattering ({res[0]}×{res[1]}, {spp} spp): {label}",
-                    "backend": ctx.variant,
-                    "elements": samples,
-                    "drjit_Mray_s": samples / t / 1e6,
-                    "ns_per_ray": t / samples * 1e9,
-                    "sample_variance_g": variances[medium],
-                    "events_per_lane": sites,
-                }
-            )
-        for row, (medium, _) in zip(rows[-len(BENCH_MEDIA) :], BENCH_MEDIA, strict=True):
-            row["vs_native_grid"] = rates[medium] / rates["grid"]
-            row["vs_box_majorant"] = rates[medium] / rates["box"]
-            row["vs_segment"] = rates[medium] / rates["segment"]
-            row["vs_no_atmosphere"] = rates[medium] / rates["none"]
+            row = {
+                "what": f"reference pass, {transport} scattering ({res[0]}×{res[1]}, {spp} spp): {label}",
+                "backend": ctx.variant,
+                "elements": samples,
+                "drjit_Mray_s": rates[medium] / 1e6,
+                "ns_per_ray": 1e9 / rates[medium],
+                "sample_variance_g": variances[medium],
+                "events_per_lane": [m for launch in events[medium][:1] for site in launch for m in site],
+                "vs_native_grid": rates[medium] / rates["grid"],
+                "vs_box_majorant": rates[medium] / rates["box"],
+                "vs_segment": rates[medium] / rates["segment"],
+                "vs_no_atmosphere": rates[medium] / rates["none"],
+            }
             if variances["box"] > 0 and variances[medium] > 0:
                 row["variance_vs_box"] = variances[medium] / variances["box"]
                 row["efficiency_vs_box"] = row["vs_box_majorant"] / row["variance_vs_box"]
+            rows.append(row)
     return rows
+
+
+BENCH_ROUNDS = 3
+"""Interleaved timing rounds of `_bench_reference` (the best pass per medium counts)."""
