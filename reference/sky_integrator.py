@@ -105,6 +105,8 @@ ESTIMATOR = (
 """The estimator's identity: part of the reference cache key."""
 MARGIN = 2.0**-18
 """δ per km of |p| + s subtracted from the tangent altitude (float32 rounding of |p| near 6400 km)."""
+GROUND_LIFT = 2.0**-10
+"""km: scattering vertices are kept at least this far above the ground sphere (`above_ground`)."""
 FREE_FLIGHT_SCALE = 1.5
 """The free flight's candidates come at this multiple of the tangent majorant (still a bound: exact): the
 channels' null factors 1 − σ_t,c/μ̄ then differ less, so the spectral-MIS weights spread less. Measured on
@@ -244,6 +246,16 @@ def register(mi) -> None:
             """(σ_t/μ̄, σ_s/μ̄) per channel at a candidate from `candidate`'s ρ/μ̄ (σ_t/μ̄ ≤ 1)."""
             sigma_t = dr.minimum(self.br * rr + self.bme * rm, 1.0)
             return sigma_t, self.br * rr + self.bm * rm
+
+        def above_ground(self, p):
+            """``p`` moved radially to at least R_g + `GROUND_LIFT`. A collision before the ground hit is
+            above the ground in exact arithmetic, but its float32 position can fall inside the planet sphere,
+            and a ray spawned there would hit the sphere's far side from inside and track through the planet,
+            where the tangent majorant grows without bound (a lane stuck at sub-ulp steps: found by the lane
+            cap on a twilight all-orders reference). The move is ≤ 1 m, on points within float32 rounding of
+            the ground."""
+            r = dr.norm(p)
+            return p * dr.maximum(1.0, (self.rg + GROUND_LIFT) / dr.maximum(r, 1e-30))
 
         def within_budget(self, lane_time):
             """Tick the lane's count at this call site: False past the cap (True when unarmed)."""
@@ -421,7 +433,7 @@ def register(mi) -> None:
                 # ------------------------------------------------------ the scattering vertex
                 mei = dr.zeros(mi.MediumInteraction3f)
                 mei.t = t_c
-                mei.p = ray(t_c)
+                mei.p = self.above_ground(ray(t_c))
                 mei.wi = -ray.d
                 mei.sh_frame = mi.Frame3f(mei.wi)
                 mei.time = ray.time

@@ -148,3 +148,21 @@ def test_lane_cap_fails_the_pass_with_one_line(sky, monkeypatch):
         monkeypatch.undo()
         sky_integrator._registered.discard(mi.variant())
         sky_integrator.register(mi)
+
+
+def test_twilight_all_orders_pass_that_trapped_a_lane(sky, tmp_path):
+    """The quick run's sun −4° all-orders reference, pass 3 (seed 0): a scattering vertex whose float32
+    position fell inside the planet sphere spawned a ray that tracked through the planet at sub-ulp steps
+    until the lane cap stopped it. Vertices are now kept above the ground (`above_ground`): the pass renders,
+    and a point 1 m below the ground is lifted to R_g + 2⁻¹⁰ km along its radius."""
+    from rtfit.experiments.nishita_sky import render_job
+
+    mi, spec = sky
+    r = render_job(-4.0, -1, 32, 16, 1024, 128, 0, "llvm_ad_rgb", str(tmp_path), 10.0)
+    assert r["passes"] == 8 and np.isfinite(r["mean"]).all()
+    _, integ = _integrator(mi, spec)
+    rg = spec.planet_radius_km
+    p = np.array(integ.above_ground(mi.Point3f(0.6 * (rg - 1e-3), 0.0, 0.8 * (rg - 1e-3)))).ravel()
+    assert np.linalg.norm(p) == pytest.approx(rg + 2.0**-10, abs=1e-3) and p[0] / p[2] == pytest.approx(0.75)
+    q = np.array(integ.above_ground(mi.Point3f(0.0, 0.0, rg + 5.0))).ravel()
+    assert q[2] == pytest.approx(rg + 5.0, rel=1e-7)  # above the ground: unchanged
