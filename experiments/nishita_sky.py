@@ -1659,9 +1659,9 @@ def _bench_reference(ctx) -> list[dict]:
     for depth, transport in ((2, "single"), (-1, "multiple")):
         loaded, events = {}, {}
         for medium, _ in BENCH_MEDIA:
-            loaded[medium] = load_sky(mi, spec, depth, medium)
+            scene, med = loaded[medium] = load_sky(mi, spec, depth, medium)
             events[medium] = []
-            sky_pass(mi, *loaded[medium], origin, dirs, spp, 0, events=events[medium])
+            sky_pass(mi, scene, med, origin, dirs, spp, 0, events=events[medium])
         timed: dict = {medium: [] for medium in loaded}
         for k in range(BENCH_ROUNDS):
             for medium, (scene, med) in loaded.items():

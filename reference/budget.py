@@ -96,16 +96,11 @@ class LaneCounter:
     def means(self) -> list[float]:
         """Events per lane of the launch at each call site, in the order they were traced (empty when
         unarmed): the work per sample the benches report."""
-        return [_float(dr.mean(mean_type(c))) for c in self.counts or ()]
+        return [_float(dr.mean(c * 1.0)) for c in self.counts or ()]  # UInt32 × 1.0: the backend's Float
 
     def peak(self) -> int:
         """The most events one lane took at one call site (0 when unarmed)."""
         return max((_int(dr.max(c)) for c in self.counts or ()), default=0)
-
-
-def mean_type(counts):
-    """``counts`` (UInt32) as the Float array of its backend."""
-    return dr.float32_array_t(type(counts))(counts)
 
 
 def _float(x) -> float:
