@@ -8,7 +8,7 @@ pixel; ``--width``/``--height`` set its size). One case, ``sky``:
 
 * reference: the sky radiance L (W/m²/sr per the file's solar irradiance, RGB: the file's three
   wavelengths) along each pixel's direction from the viewer, single and multiple scattering with the ground
-  bounce (`rtfit.reference.nishita_sky.render_sky`, ``volpathmis`` in the shell atmosphere, ``max_depth``
+  bounce (`rtfit.reference.nishita_sky.render_sky`, ``rtfit_skypath`` in the shell atmosphere, ``max_depth``
   −1, its own pass cache), the experiment's multiple-scattering reference; pixels within 1° of the sun are
   left out (`rtfit.experiments.nishita_sky.near_sun`: the disc is a separate term);
 * rows: every RGB method of `rtfit.realtime.nishita_sky.METHODS` (the seed setting, the fine setting, the
@@ -122,7 +122,7 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         cache_path=str(setup.cache_root),
         seconds=float(ref["seconds"]),
         quantity="sky radiance along the panorama's directions, single + multiple scattering (RGB)",
-        integrator="volpathmis (max_depth −1) in the spherical-shell atmosphere",
+        integrator="rtfit_skypath (max_depth −1) in the spherical-shell atmosphere",
         integrator_reason="media with chromatic extinction; all scattering orders and the ground bounce",
     )
     return [
@@ -157,7 +157,7 @@ FAMILY = AuditFamily(
     describe=(
         "The sky radiance (RGB) of the file's atmosphere along the directions of an azimuth × elevation "
         "panorama of the upper hemisphere (sun at azimuth 0), seen from the file's viewer: Mitsuba's "
-        "volpathmis in the spherical-shell Rayleigh + Mie atmosphere with all scattering orders (the "
+        "rtfit_skypath in the spherical-shell Rayleigh + Mie atmosphere with all scattering orders (the "
         "Nishita-sky experiment's multiple-scattering reference), pixels within 1° of the sun left out. "
         "Every Nishita method runs with the file's atmosphere and altitude on its own texture setting; the "
         "fitted method's artist parameters are fitted to this sky."

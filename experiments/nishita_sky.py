@@ -4,11 +4,12 @@ What is compared, and why. The seed's sky (Nishita et al. 1993 as CryEngine 2 us
 single-scattering integrals, built on the CPU from n atmosphere layers and a sun optical-depth table, with
 the phase function applied per pixel. Per sun elevation, the sky hemisphere (azimuth × elevation image,
 sun at azimuth 0, viewer 10 m above the ground) is rendered by Mitsuba (`rtfit.reference.nishita_sky`:
-planet + atmosphere shell with a Python Rayleigh + Mie medium and an exact chromatic phase mixture,
-``volpathmis``) with single scattering (max_depth 2: isolates the texture's numerical error) and with all
-orders (max_depth −1, ground albedo 0.1: its physical error). The atmosphere is read from the scene file
-``scenes/library/sky_sun_45.toml`` (`SCENE`; SI units, the real-time `AtmosphereParams` field names), the
-sun elevation and viewer altitude set per case. Approximations: the methods of
+planet + atmosphere with rtfit's integrator ``rtfit_skypath`` and an exact chromatic phase mixture; the
+spectral cases: a Python Rayleigh + Mie medium under ``volpathmis``) with single scattering (max_depth 2:
+isolates the texture's numerical error) and with all orders (max_depth −1, ground albedo 0.1: its
+physical error). The atmosphere is read from the scene file ``scenes/library/sky_sun_45.toml`` (`SCENE`;
+SI units, the real-time `AtmosphereParams` field names), the sun elevation and viewer altitude set per
+case. Approximations: the methods of
 `rtfit.realtime.nishita_sky.METHODS`, evaluated at the same pixel-centre directions:
 
 * ``nishita-seed``     n = 32 layers, 128×64 texture, 128-entry sun table (the seed's setting)
@@ -71,6 +72,7 @@ from rtfit.reference.nishita_sky import (
     hemisphere_directions,
     library_atmosphere,
     load_sky,
+    reference_integrator,
     render_sky,
     single_scattering_quadrature,
     sky_pass,
@@ -315,7 +317,7 @@ def _subset(stride) -> tuple[slice, slice]:
 
 def _reference_doc(ref, mean, se, mask, variant, max_depth, quantity, reason=None) -> dict:
     """The "reference" record of a case: integrator, variant, samples, noise and speed."""
-    doc = {"integrator": "volpathmis", "max_depth": max_depth}
+    doc = {"integrator": reference_integrator(variant), "max_depth": max_depth}
     if reason:
         doc["integrator_reason"] = reason
     return {
@@ -1179,7 +1181,9 @@ def _sections(cfg, ref_seconds) -> list[dict]:
             "title": "Method",
             "text": "A spherical-shell Earth atmosphere (planet 6360 km, top 6420 km, Rayleigh H = 8 km, Mie "
             "H = 1.2 km, Bruneton 2017's coefficients without ozone, Mie HG g = 0.8, ground albedo 0.1) is "
-            "path traced by Mitsuba 3 (`volpathmis`) with a Python medium and an exact Rayleigh/Mie phase "
+            "path traced in Mitsuba 3 by rtfit's integrator `rtfit_skypath` (closed-form free flight under "
+            "tangent-exponential majorants, spectral MIS, Poisson-corrected marched sun transmittance; the "
+            "spectral cases: `volpathmis` with a Python medium) and an exact Rayleigh/Mie phase "
             f"mixture, from a viewer {cfg['viewer_altitude_m']:g} m above the ground, for sun elevations "
             f"{', '.join(f'{e:g}°' for e in cfg['sun_elevations_deg'])}; single scattering (max_depth 2) "
             "isolates the Nishita texture's numerical error, all orders show its physical error. The "
@@ -1418,7 +1422,7 @@ def write_fitted(out, cfg, fits, method_id, ctx=None) -> list[dict]:
         "parameters": {k: p.description for k, p in method.params.items()},
         "use": "rtfit.realtime.nishita_sky.AtmosphereParams(rayleigh_scale=..., mie_scale=..., "
         "mie_g=..., ambient=...)",
-        "fitted_to": "Mitsuba multiple-scattering sky (volpathmis, ground albedo 0.1), relative residuals",
+        "fitted_to": "Mitsuba multiple-scattering sky (rtfit_skypath, ground albedo 0.1), relative residuals",
         "bounds": {k: [v["lower"], v["upper"]] for k, v in next(iter(fits.values()))["parameters"].items()}
         if fits
         else {},
@@ -1606,16 +1610,25 @@ def bench(ctx) -> list[dict]:
 
 
 BENCH_MEDIA = (
-    ("reference", "rtfit atmosphere medium, per-segment majorant (the reference)"),
+    ("skypath", "rtfit_skypath: tangent-exponential majorants, spectral MIS, marched sun (the reference)"),
+    ("segment", "rtfit atmosphere medium, per-segment majorant (volpathmis; the reference of session 4)"),
     ("box", "rtfit atmosphere medium, ground-level majorant (the estimator before issue 21)"),
     ("grid", "Mitsuba heterogeneous + gridvolume (256³) of the same extinction"),
+    ("none", "Mitsuba path on planet and sun without atmosphere (the floor)"),
 )
 """The media of the reference bench rows: rtfit's estimator beside what a user would otherwise run."""
 
 
 def _bench_reference(ctx) -> list[dict]:
     """Samples/s of the sky reference pass (sun 10°, single and multiple scattering) with each of
-    `BENCH_MEDIA`, side by side in one process: one warm-up pass, then the best of two timed passes."""
+    `BENCH_MEDIA`, side by side in one process: one warm-up pass each, then `BENCH_ROUNDS` rounds that time
+    one pass of every medium in turn (interleaved, so a change of load on a shared machine hits every row
+    alike), the best pass per medium. Each row also gives the mean per-sample variance (G channel) over the
+    pixels of its timed passes (its ratio to the ground-level majorant's: ``variance_vs_box``; efficiency =
+    samples/s ÷ variance: ``efficiency_vs_box``) and the events per lane of the warm-up pass
+    (`LaneCounter.means` per counted call site: ``volpathmis`` media count ``sample_interaction`` calls of
+    the path and of the shadow rays, rtfit_skypath its path-loop, free-flight and Poisson-correction
+    iterations)."""
     res = (32, 16) if ctx.quick else (128, 64)
     spp = 128 if ctx.quick else 1024
     dirs, _, _ = hemisphere_directions(*res)
@@ -1626,22 +1639,37 @@ def _bench_reference(ctx) -> list[dict]:
     mi = use_variant(ctx.variant)
     rows = []
     for depth, transport in ((2, "single"), (-1, "multiple")):
-        rates = {}
+        loaded, events = {}, {}
+        for medium, _ in BENCH_MEDIA:
+            scene, med = loaded[medium] = load_sky(mi, spec, depth, medium)
+            events[medium] = []
+            sky_pass(mi, scene, med, origin, dirs, spp, 0, events=events[medium])
+        timed: dict = {medium: [] for medium in loaded}
+        for k in range(BENCH_ROUNDS):
+            for medium, (scene, med) in loaded.items():
+                timed[medium].append(sky_pass(mi, scene, med, origin, dirs, spp, k + 1))
+        rates = {m: samples / min(p.seconds for p in ps) for m, ps in timed.items()}
+        variances = {m: float(np.mean([p.var[:, 1].mean() for p in ps])) for m, ps in timed.items()}
         for medium, label in BENCH_MEDIA:
-            scene, med = load_sky(mi, spec, depth, medium)
-            sky_pass(mi, scene, med, origin, dirs, spp, 0)
-            t = min(sky_pass(mi, scene, med, origin, dirs, spp, k + 1).seconds for k in range(2))
-            rates[medium] = samples / t
-            rows.append(
-                {
-                    "what": f"reference pass, {transport} scattering ({res[0]}×{res[1]}, {spp} spp): {label}",
-                    "backend": ctx.variant,
-                    "elements": samples,
-                    "drjit_Mray_s": samples / t / 1e6,
-                    "ns_per_ray": t / samples * 1e9,
-                }
-            )
-        for row, (medium, _) in zip(rows[-len(BENCH_MEDIA) :], BENCH_MEDIA, strict=True):
-            row["vs_native_grid"] = rates[medium] / rates["grid"]
-            row["vs_box_majorant"] = rates[medium] / rates["box"]
+            row = {
+                "what": f"reference pass, {transport} scattering ({res[0]}×{res[1]}, {spp} spp): {label}",
+                "backend": ctx.variant,
+                "elements": samples,
+                "drjit_Mray_s": rates[medium] / 1e6,
+                "ns_per_ray": 1e9 / rates[medium],
+                "sample_variance_g": variances[medium],
+                "events_per_lane": [m for launch in events[medium][:1] for site in launch for m in site],
+                "vs_native_grid": rates[medium] / rates["grid"],
+                "vs_box_majorant": rates[medium] / rates["box"],
+                "vs_segment": rates[medium] / rates["segment"],
+                "vs_no_atmosphere": rates[medium] / rates["none"],
+            }
+            if variances["box"] > 0 and variances[medium] > 0:
+                row["variance_vs_box"] = variances[medium] / variances["box"]
+                row["efficiency_vs_box"] = row["vs_box_majorant"] / row["variance_vs_box"]
+            rows.append(row)
     return rows
+
+
+BENCH_ROUNDS = 3
+"""Interleaved timing rounds of `_bench_reference` (the best pass per medium counts)."""

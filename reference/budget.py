@@ -93,9 +93,19 @@ class LaneCounter:
             hit |= c > self.cap  # a lane past the cap had an event absorbed
         return _int(dr.count(hit))
 
+    def means(self) -> list[float]:
+        """Events per lane of the launch at each call site, in the order they were traced (empty when
+        unarmed): the work per sample the benches report."""
+        return [_float(dr.mean(c * 1.0)) for c in self.counts or ()]  # UInt32 × 1.0: the backend's Float
+
     def peak(self) -> int:
         """The most events one lane took at one call site (0 when unarmed)."""
         return max((_int(dr.max(c)) for c in self.counts or ()), default=0)
+
+
+def _float(x) -> float:
+    """A Dr.Jit reduction's result (a width-1 array or a Python number) as a float."""
+    return float(x[0]) if dr.is_array_v(x) else float(x)
 
 
 def _int(x) -> int:

@@ -34,7 +34,11 @@ use one scalar weight for all channels, which is wrong for a chromatic Rayleigh/
 P_R(cos θ) = 3/(16π)(1 + cos²θ); P_M is Henyey–Greenstein with asymmetry g (Mitsuba's
 convention: cos θ = −wi·wo, wi pointing back along the incoming ray).
 
-Integrator: ``volpathmis`` (unbiased with chromatic extinction); ``max_depth = 2`` gives single
+Integrator (RGB variants, since session 7): ``rtfit_skypath`` (`rtfit.reference.sky_integrator`: the scene
+without the shell sphere and medium plugin, the atmosphere in the integrator: closed-form free flight under
+tangent-exponential majorants, spectral MIS over the channels, ratio-tracked sun transmittance); spectral
+variants and the benches' "segment"/"box" rows: ``volpathmis`` (unbiased with chromatic extinction) with the
+medium below. ``max_depth = 2`` gives single
 scattering (camera segment, one scattering event, next-event estimation to the sun), ``-1`` all
 orders including the ground bounce.
 
@@ -92,7 +96,7 @@ import numpy as np
 
 from rtfit.scenes import library_path
 
-from . import emitters
+from . import emitters, sky_integrator
 from .budget import ABSORB, ArmedMedia, LaneCounter, counters
 from .cache import PassEntry, array_digest, pool_passes
 from .estimators import PassResult, chunk_ranges, mean_var, moments, sub_seed
@@ -112,6 +116,7 @@ __all__ = [
     "library_atmosphere",
     "load_atmosphere_scene",
     "load_sky",
+    "reference_integrator",
     "register",
     "render_sky",
     "scene_dict",
@@ -126,6 +131,10 @@ __all__ = [
 MEDIUM_PLUGIN = "rtfit_atmosphere"
 PHASE_PLUGIN = "rtfit_rayleigh_mie"
 _CACHE_FORMAT = 3  # 2: passes in PassEntry (namespace "sky"), SI spec; 3: per-segment majorant (issue 21)
+SEGMENT_ESTIMATOR = "rtfit_atmosphere/3: volpathmis, per-segment majorant, medium-event cap"
+"""The identity of the spectral variants' estimator (`scene_dict` ``"segment"``): part of the cache key."""
+SCENE_MEDIA = ("skypath", "segment", "box", "grid", "none")
+"""The atmospheres `scene_dict` builds (its docstring)."""
 SEGMENT_MARGIN = 2.0**-18
 """δ of the segment majorant per km of coordinate magnitude (`register`'s medium)."""
 SPECTRAL_VARIANTS = ("llvm_ad_spectral", "cuda_ad_spectral")
@@ -480,22 +489,26 @@ def _profile_props(spec: AtmosphereSpec, mi) -> dict:
     }
 
 
-def scene_dict(mi, spec: AtmosphereSpec, max_depth: int, medium: str = "reference") -> dict:
+def scene_dict(mi, spec: AtmosphereSpec, max_depth: int, medium: str = "segment") -> dict:
     """The Mitsuba scene (km units): planet, atmosphere shell with the medium, distant-disc sun.
 
-    ``medium``: ``"reference"`` (rtfit's medium, per-segment majorant), ``"box"`` (the same medium with
-    the ground-level majorant for every segment: the estimator before issue 21) or ``"grid"`` (Mitsuba's
-    native ``heterogeneous`` medium on a ``gridvolume`` of the extinction over the shell's bounding
-    cube, `grid_medium_dict`: what a user would otherwise render; for benches, not a reference)."""
+    ``medium``: ``"skypath"`` (planet and sun only, the atmosphere in rtfit's integrator
+    `rtfit.reference.sky_integrator`: the reference of the RGB variants since session 7),
+    ``"segment"`` (rtfit's medium with the per-segment majorant under ``volpathmis``: session 4's
+    reference, still the spectral variants' reference), ``"box"`` (the same medium with the ground-level
+    majorant for every segment: the estimator before issue 21), ``"grid"`` (Mitsuba's native
+    ``heterogeneous`` medium on a ``gridvolume`` of the extinction over the shell's bounding cube,
+    `grid_medium_dict`: what a user would otherwise render; for benches, not a reference) or ``"none"``
+    (Mitsuba's ``path`` on planet and sun without any atmosphere: the floor of the benches)."""
     register(mi)
     props = _profile_props(spec, mi)
-    if medium not in ("reference", "box", "grid"):
-        raise ValueError(f"medium must be 'reference', 'box' or 'grid' (got {medium!r})")
+    if medium not in SCENE_MEDIA:
+        raise ValueError(f"medium must be one of {', '.join(SCENE_MEDIA)} (got {medium!r})")
     medium_d = {
         "type": MEDIUM_PLUGIN,
         "top_radius": spec.top_radius_km,
         **props,
-        "segment_majorant": medium == "reference",
+        "segment_majorant": medium == "segment",
         "phase": {"type": PHASE_PLUGIN, **props},
     }
     if medium == "grid":
@@ -526,6 +539,15 @@ def scene_dict(mi, spec: AtmosphereSpec, max_depth: int, medium: str = "referenc
             "sky": mi.ScalarVector3f(0.0, 0.0, 0.0),
         },
     }
+    if medium == "skypath":
+        sky_integrator.register(mi)
+        d["integrator"] = sky_integrator.integrator_dict(
+            props, spec.top_radius_km, max_depth, {"type": PHASE_PLUGIN, **props}, nee_only=True
+        )  # the sun's sky radiance is 0 (below): NEE samples all of the emitter
+    if medium in ("skypath", "none"):
+        del d["atmosphere"]
+    if medium == "none":
+        d["integrator"] = {"type": "path", "max_depth": int(max_depth)}
     if mi.is_spectral:
         # grey ground; the sun's disc radiance E₀(λ)/(π sin²α) on a 1 nm grid over Mitsuba's range
         d["planet"]["bsdf"]["reflectance"] = {"type": "uniform", "value": float(spec.ground_albedo)}
@@ -572,8 +594,22 @@ def grid_medium_dict(mi, spec: AtmosphereSpec, resolution: int = 256) -> dict:
     }
 
 
-def load_sky(mi, spec, max_depth, medium: str = "reference"):
-    """The loaded Mitsuba scene of `scene_dict` (``mi``: variant set) and its atmosphere medium."""
+def reference_medium(mi) -> str:
+    """The `scene_dict` medium of the reference in the active variant: ``"skypath"`` (RGB) or
+    ``"segment"`` (spectral: `rtfit.reference.sky_integrator` is RGB only)."""
+    return "segment" if mi.is_spectral else "skypath"
+
+
+def reference_integrator(variant: str) -> str:
+    """The Mitsuba integrator of `render_sky` in ``variant``: ``rtfit_skypath`` (RGB variants) or
+    ``volpathmis`` (spectral variants, rtfit's medium with the per-segment majorant)."""
+    return "volpathmis" if "spectral" in variant else sky_integrator.PLUGIN
+
+
+def load_sky(mi, spec, max_depth, medium: str | None = None):
+    """The loaded Mitsuba scene of `scene_dict` (``mi``: variant set; ``medium`` None: the reference's,
+    `reference_medium`) and its atmosphere medium (None without a medium plugin)."""
+    medium = reference_medium(mi) if medium is None else medium
     scene = mi.load_dict(scene_dict(mi, spec, max_depth, medium))
     emitters.attach(scene)
     medium = None
@@ -583,8 +619,12 @@ def load_sky(mi, spec, max_depth, medium: str = "reference"):
     return scene, medium
 
 
-def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -> PassResult:
-    """Radiance along rays from ``origin`` (km) in directions ``dirs`` (N, 3): one pass of ``spp``."""
+def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int, events=None) -> PassResult:
+    """Radiance along rays from ``origin`` (km) in directions ``dirs`` (N, 3): one pass of ``spp``.
+
+    ``events``: a list to which each launch appends its `LaneCounter.means` (events per lane at each
+    counted call site of each counter, zero sites dropped: Dr.Jit traces a loop more than once) — the
+    work per sample the benches report."""
     t0 = time.perf_counter()
     d = np.ascontiguousarray(dirs, dtype=np.float64).reshape(-1, 3)
     n = d.shape[0]
@@ -613,6 +653,8 @@ def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int) -
                 value, _, _ = integrator.sample(scene, sampler, ray, medium, True)
             s[a:b], q[a:b] = moments(mi, dr, value, spp)
             armed.check()
+            if events is not None:
+                events.append([[m for m in c.means() if m > 0.0] for c in media])
     mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
@@ -692,6 +734,7 @@ def render_sky(
         "pass_spp": int(pass_spp),
         "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__},
         "directions": array_digest(dirs),
+        "estimator": sky_integrator.ESTIMATOR if reference_medium(mi) == "skypath" else SEGMENT_ESTIMATOR,
     }
     entry = PassEntry(cache_dir or ".", ident, namespace="sky", storage="npz")
     origin = (0.0, 0.0, spec.planet_radius_km + spec.viewer_altitude_km)
