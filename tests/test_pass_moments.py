@@ -68,8 +68,9 @@ def test_chunked_pass_matches_numpy_statistics_of_the_same_samples(scene_pass):
 
 
 def test_every_chunk_is_the_same_cached_kernel(scene_pass):
-    """Per chunk the sampling kernel (a cache hit: the chunk's offset and seed are opaque) and the copy of
-    its sums into the pass's arrays; per pass the packing of the mean and variance (one array, one copy)."""
+    """Per chunk only the sampling kernel (a cache hit: the chunk's offset and seed are opaque), whose
+    atomics sum straight into the pass's arrays; per pass one kernel packing the mean and variance (one
+    array, one copy), and no block reductions or per-thread copies of the sums to clear (CPU)."""
     mi, ms, _, _ = scene_pass
     mp = pytest.MonkeyPatch()
     mp.setattr(estimators, "MAX_LANES", CHUNK_LANES)
@@ -83,9 +84,13 @@ def test_every_chunk_is_the_same_cached_kernel(scene_pass):
         mp.undo()
     jit = [h for h in history if h["type"] == dr.KernelType.JIT]
     chunks = -(-RES * RES // (CHUNK_LANES // SPP))
-    # per chunk: sampling + copy; per pass: one scatter of the mean and one of the variance per channel
-    assert chunks == 4 and len(jit) == 2 * chunks + 2 * 3, [h.get("size") for h in jit]
+    # per chunk: sampling; per pass: the mean and variance of every pixel and channel, one kernel
+    assert chunks == 4 and len(jit) == chunks + 1, [h.get("size") for h in jit]
+    assert [h["size"] for h in jit][-1] == 2 * RES * RES * 3
     assert all(h.get("cache_hit") for h in jit)  # nothing traced into a new kernel: no literal per chunk
+    assert not [h for h in history if h["type"] == dr.KernelType.BlockReduce]
+    big_memsets = [h for h in history if h["type"] == dr.KernelType.Memset and h["size"] > RES * RES]
+    assert len(big_memsets) == 2, [h["size"] for h in big_memsets]  # Σv and Σv², cleared once per pass
 
 
 def test_pass_moments_of_known_values(mi):
