@@ -43,8 +43,8 @@ MAX_LANES = 1 << 24
 class PassResult:
     """One independent pass: per-element mean and unbiased sample variance of ``spp`` samples."""
 
-    mean: np.ndarray  # float64, (H, W, 3) or (N, 3)
-    var: np.ndarray  # float64, same shape
+    mean: np.ndarray  # float64 (float32 where the pass was asked to round to it), (H, W, 3) or (N, 3)
+    var: np.ndarray  # the same dtype and shape
     spp: int
     seed: int
     seconds: float
@@ -171,7 +171,7 @@ class PassMoments:
             out = mi.Float(out)  # round to nearest even on the device: NumPy's astype(float32)
         elif np.dtype(dtype) != np.float64:
             raise ValueError(f"dtype must be float32 or float64 (got {dtype})")
-        return np.asarray(out).astype(np.float64).reshape(2, self.n, self.channels)
+        return np.asarray(out).reshape(2, self.n, self.channels)
 
     def sums(self) -> tuple[np.ndarray, np.ndarray]:
         """Σ v and Σ v², each (elements, channels) float64, in one device→host copy."""
@@ -179,9 +179,9 @@ class PassMoments:
         return a[0], a[1]
 
     def result(self, dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
-        """Per-element mean and unbiased sample variance, each an (elements, channels) float64 array:
-        `mean_var`'s formula evaluated on the device, rounded to ``dtype`` (float64 or float32) there, copied
-        to the host once."""
+        """Per-element mean and unbiased sample variance, each an (elements, channels) array of ``dtype``
+        (float64 or float32): `mean_var`'s formula evaluated in float64 on the device, rounded to ``dtype``
+        there, copied to the host once (no conversion on the host)."""
         mi = self.mi
         n = dr.opaque(mi.Float64, self.spp)
         n1 = dr.opaque(mi.Float64, self.spp - 1)
@@ -236,8 +236,8 @@ def check_spp(spp: int):
 # ----------------------------------------------------------------------------------- radiance pass
 def radiance_pass(mi, mi_scene, spp: int, seed: int, dtype=np.float64) -> PassResult:
     """Point-sampled radiance at every pixel centre with the scene's own integrator. ``dtype``: the
-    precision the float64 mean and variance are rounded to on the device before the copy to the host
-    (`PassMoments.result`; the arrays returned are float64 either way)."""
+    precision (float64 or float32) the float64 mean and variance are rounded to on the device before the
+    copy to the host, and the dtype of the arrays returned (`PassMoments.result`)."""
 
     check_spp(spp)
     t0 = time.perf_counter()

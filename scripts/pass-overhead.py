@@ -15,15 +15,16 @@ For the diffuse experiment's scene (α = 5° sun + sky, ``direct``) at each RES�
    ``mi.render``'s of the same round: median [min, max] — on a shared machine the spread says how far to
    trust one run.
 2. **Stages** from Dr.Jit's kernel history of one call of each: launches by kind with their device time
-   (sampling kernels = JIT launches with at least a chunk's lanes; other JIT = copies, packing; block
-   reductions; memsets) and the wall time not spent in them (tracing, code generation, cache look-ups,
-   launches; on a GPU, device work overlapping the host is counted once).
+   (sampling kernels = JIT launches of a chunk's lanes, or all of ``mi.render``'s; other JIT = copies,
+   packing, ``mi.render``'s film development; block reductions; memsets) and the wall time not spent in
+   them (tracing, code generation, cache look-ups, launches; on a GPU, device work overlapping the host is
+   counted once).
 3. **Readback:** the device→host copy of the pass's packed mean and variance (2·pixels·3 values) in float64
    and float32 against ``mi.render``'s image (pixels·3 float32), each copied from an evaluated array (median).
 4. **Statistics:** the float32 and float64 readbacks agree (float32 = float64 rounded); with ``--baseline``
    the baseline pass of the same seed gives the same means and variances (largest difference in float64 ulp).
-5. **Host cost of one chunk:** a 64² × 16 spp pass cut into 64 chunks (``MAX_LANES`` = 1024), whose kernels are
-   tiny: its time per chunk is the tracing, code generation, cache look-up and launch of one chunk.
+5. **Host cost of one chunk:** a 64² × 16 spp pass cut into 64 chunks (``MAX_LANES`` = 1024), whose kernels
+   are tiny: its time per chunk is the tracing, code generation, cache look-up and launch of one chunk.
 """
 
 import argparse
@@ -50,9 +51,8 @@ REPO = Path(__file__).resolve().parent.parent
 def baseline_estimators(commit: str):
     """``reference/estimators.py`` at ``commit`` as a module of the package ``rtfit.reference`` (its relative
     imports resolve to this checkout's modules)."""
-    src = subprocess.run(
-        ["git", "show", f"{commit}:reference/estimators.py"], cwd=REPO, check=True, capture_output=True, text=True
-    ).stdout
+    show = ["git", "show", f"{commit}:reference/estimators.py"]
+    src = subprocess.run(show, cwd=REPO, check=True, capture_output=True, text=True).stdout
     name = f"rtfit.reference.estimators_at_{commit}"
     spec = importlib.util.spec_from_loader(name, loader=None)
     assert spec is not None
@@ -89,7 +89,7 @@ def side_by_side(calls: dict, samples: int, rounds: int, stock: str) -> None:
         print(line, flush=True)
 
 
-def stages(call, lanes_per_chunk: int) -> str:
+def stages(call, chunk_lanes: set[int]) -> str:
     call(0)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
@@ -103,7 +103,7 @@ def stages(call, lanes_per_chunk: int) -> str:
     for k in h:
         kind = str(k["type"]).split(".")[-1]
         if kind == "JIT":
-            kind = "sampling" if int(k.get("size", 0)) >= lanes_per_chunk else "other JIT"
+            kind = "sampling" if int(k.get("size", 0)) in chunk_lanes else "other JIT"
             misses += not k.get("cache_hit")
         by_kind[kind][0] += 1
         by_kind[kind][1] += float(k.get("execution_time", 0.0))
@@ -141,10 +141,9 @@ def measure(variant: str, res: int, spp: int, rounds: int, baseline) -> None:
     chunks = -(-res * res // per)
     samples = res * res * spp
     print(f"{res}² × {spp} spp ({chunks} chunks, {samples} samples), {variant}, {rounds} rounds:", flush=True)
+    cached = f"rtfit ({np.dtype(REFERENCE_PASS_DTYPE).name} readback, as cached)"
     calls = {
-        f"rtfit ({np.dtype(REFERENCE_PASS_DTYPE).name} readback, as cached)": lambda s: estimators.radiance_pass(
-            mi, ms, spp, s, REFERENCE_PASS_DTYPE
-        ),
+        cached: lambda s: estimators.radiance_pass(mi, ms, spp, s, REFERENCE_PASS_DTYPE),
         "rtfit (float64 readback)": lambda s: estimators.radiance_pass(mi, ms, spp, s, np.float64),
     }
     if baseline is not None:
@@ -153,7 +152,8 @@ def measure(variant: str, res: int, spp: int, rounds: int, baseline) -> None:
     calls["mi.render, same integrator"] = stock
     side_by_side(calls, samples, rounds, "mi.render, same integrator")
     for name, call in calls.items():
-        print(f"  stages, {name}: {stages(call, min(per, res * res) * spp)}", flush=True)
+        lanes = {(b - a) * spp for a, b in estimators.chunk_ranges(res * res, spp)} | {samples}
+        print(f"  stages, {name}: {stages(call, lanes)}", flush=True)
     px = res * res
     rb = {
         "float64 mean+var": readback(mi, 2 * px * 3, np.float64),

@@ -115,5 +115,10 @@ def test_pass_moments_of_known_values(mi):
     np.testing.assert_array_equal(var, v_np)
     # and within 1e-12 of NumPy's two-pass variance (measured 2.4e-14: the one-pass form's cancellation)
     np.testing.assert_allclose(var, v.var(axis=1, ddof=1), rtol=1e-12, atol=0)
+    # read back in float32 (what the EXR pass cache stores): NumPy's rounding of the float64 results
+    mean32, var32 = acc.result(np.float32)
+    assert mean32.dtype == var32.dtype == np.float32
+    np.testing.assert_array_equal(mean32, mean.astype(np.float32))
+    np.testing.assert_array_equal(var32, var.astype(np.float32))
     with pytest.raises(ValueError, match="overruns"):
         acc.add(45, [mi.Float(vals[:10, :, k].ravel()) for k in range(c)])
