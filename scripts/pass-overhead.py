@@ -3,6 +3,9 @@
     python3 scripts/pass-overhead.py [--variant V] [--rounds N] [--baseline COMMIT] [RES:SPP ...]
     python3 scripts/pass-overhead.py --variant cuda_ad_rgb --rounds 11 --baseline a4f68d1 256:256 1024:64
 
+(``--baseline`` also takes a file: ``git show a4f68d1:reference/estimators.py > scratch/est-a4f68d1.py``
+where the machine's copy of the checkout has no git history.)
+
 For the diffuse experiment's scene (α = 5° sun + sky, ``direct``) at each RES² × SPP (default: the bench's
 256:256 and 1024:64):
 
@@ -49,11 +52,15 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def baseline_estimators(commit: str):
-    """``reference/estimators.py`` at ``commit`` as a module of the package ``rtfit.reference`` (its relative
-    imports resolve to this checkout's modules)."""
-    show = ["git", "show", f"{commit}:reference/estimators.py"]
-    src = subprocess.run(show, cwd=REPO, check=True, capture_output=True, text=True).stdout
-    name = f"rtfit.reference.estimators_at_{commit}"
+    """``reference/estimators.py`` at ``commit`` (or the file at that path, for a copy without git history)
+    as a module of the package ``rtfit.reference`` (its relative imports resolve to this checkout's
+    modules)."""
+    if Path(commit).is_file():
+        src = Path(commit).read_text()
+    else:
+        show = ["git", "show", f"{commit}:reference/estimators.py"]
+        src = subprocess.run(show, cwd=REPO, check=True, capture_output=True, text=True).stdout
+    name = f"rtfit.reference.estimators_at_{Path(commit).stem.replace('.', '_').replace('-', '_')}"
     spec = importlib.util.spec_from_loader(name, loader=None)
     assert spec is not None
     mod = importlib.util.module_from_spec(spec)
@@ -183,7 +190,9 @@ def main(argv):
     ap.add_argument("sizes", nargs="*", default=["256:256", "1024:64"])
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--rounds", type=int, default=11)
-    ap.add_argument("--baseline", help="a commit whose reference/estimators.py runs beside this one")
+    ap.add_argument(
+        "--baseline", help="a commit (or a file) whose reference/estimators.py runs beside this one's"
+    )
     args = ap.parse_args(argv[1:])
     baseline = baseline_estimators(args.baseline) if args.baseline else None
     for size in args.sizes:
