@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
+from numpy.typing import DTypeLike
 
 from .budget import ArmedMedia, counters
 
@@ -157,7 +158,7 @@ class PassMoments:
             dr.scatter_reduce(dr.ReduceOp.Add, self.q, v64 * v64, slot + c, mode=self.REDUCE_MODE)
         dr.eval()  # one kernel: the samples and all 2·C atomic sums
 
-    def _packed(self, stats, dtype):
+    def _packed(self, stats, dtype: DTypeLike):
         """``stats(s, q)``'s two results for every element and channel, as one array of 2·elements·channels
         values ([first][element][channel] then [second][element][channel]) computed by one kernel and read
         back in one device→host copy, shaped (2, elements, channels)."""
@@ -178,7 +179,7 @@ class PassMoments:
         a = self._packed(lambda s, q: (s, q), np.float64)
         return a[0], a[1]
 
-    def result(self, dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
+    def result(self, dtype: DTypeLike = np.float64) -> tuple[np.ndarray, np.ndarray]:
         """Per-element mean and unbiased sample variance, each an (elements, channels) array of ``dtype``
         (float64 or float32): `mean_var`'s formula evaluated in float64 on the device, rounded to ``dtype``
         there, copied to the host once (no conversion on the host)."""
@@ -234,7 +235,7 @@ def check_spp(spp: int):
 
 
 # ----------------------------------------------------------------------------------- radiance pass
-def radiance_pass(mi, mi_scene, spp: int, seed: int, dtype=np.float64) -> PassResult:
+def radiance_pass(mi, mi_scene, spp: int, seed: int, dtype: DTypeLike = np.float64) -> PassResult:
     """Point-sampled radiance at every pixel centre with the scene's own integrator. ``dtype``: the
     precision (float64 or float32) the float64 mean and variance are rounded to on the device before the
     copy to the host, and the dtype of the arrays returned (`PassMoments.result`)."""
@@ -355,7 +356,7 @@ def irradiance_pass(
     spp: int,
     seed: int,
     transport: str = "direct",
-    dtype=np.float64,
+    dtype: DTypeLike = np.float64,
 ) -> PassResult:
     """Irradiance (W/m², RGB) at ``points`` (N, 3) for unit ``normals`` (N, 3); ``dtype`` as in
     `radiance_pass`."""

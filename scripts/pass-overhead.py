@@ -37,6 +37,7 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
 
 import drjit as dr
@@ -149,7 +150,7 @@ def measure(variant: str, res: int, spp: int, rounds: int, baseline) -> None:
     samples = res * res * spp
     print(f"{res}² × {spp} spp ({chunks} chunks, {samples} samples), {variant}, {rounds} rounds:", flush=True)
     cached = f"rtfit ({np.dtype(REFERENCE_PASS_DTYPE).name} readback, as cached)"
-    calls = {
+    calls: dict[str, Callable[[int], object]] = {
         cached: lambda s: estimators.radiance_pass(mi, ms, spp, s, REFERENCE_PASS_DTYPE),
         "rtfit (float64 readback)": lambda s: estimators.radiance_pass(mi, ms, spp, s, np.float64),
     }
