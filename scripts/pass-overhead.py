@@ -10,13 +10,14 @@ For the diffuse experiment's scene (α = 5° sun + sky, ``direct``) at each RES�
 256:256 and 1024:64):
 
 1. **Side by side, paired and interleaved:** rtfit's `radiance_pass` as the pass cache runs it (mean and
-   variance read back in `REFERENCE_PASS_DTYPE`), the same pass read back in float64, ``mi.render`` with the
-   same integrator and, with ``--baseline``, `radiance_pass` of ``reference/estimators.py`` at that commit
-   (loaded from git into this process). One warm-up call each, then ``--rounds`` rounds of one call each, the
-   order rotated every round, a fresh seed per round; every call ends in host data (``dr.sync_thread`` around
-   it). Printed: each call's median time and samples/s, and per round the ratio of its samples/s to
-   ``mi.render``'s of the same round: median [min, max] — on a shared machine the spread says how far to
-   trust one run.
+   variance read back in `REFERENCE_PASS_DTYPE`), the same pass read back in float64, where the pass has
+   several chunks the same pass in one launch (``MAX_LANES`` raised: what the chunking costs), ``mi.render``
+   with the same integrator and, with ``--baseline``, `radiance_pass` of ``reference/estimators.py`` at that
+   commit (loaded from git into this process). One warm-up call each, then ``--rounds`` rounds of one call
+   each, the order rotated every round, a fresh seed per round; every call ends in host data
+   (``dr.sync_thread`` around it). Printed: each call's median time and samples/s, and per round the ratio
+   of its samples/s to ``mi.render``'s of the same round: median [min, max] — on a shared machine the
+   spread says how far to trust one run.
 2. **Stages** from Dr.Jit's kernel history of one call of each: launches by kind with their device time
    (sampling kernels = JIT launches of a chunk's lanes, or all of ``mi.render``'s; other JIT = copies,
    packing, ``mi.render``'s film development; block reductions; memsets) and the wall time not spent in
@@ -138,6 +139,18 @@ def readback(mi, count: int, dtype) -> float:
     return statistics.median(times)
 
 
+def one_launch(mi, ms, spp: int, seed: int):
+    """`radiance_pass` as cached with ``MAX_LANES`` raised to the pass's lanes: one sampling launch, as
+    ``mi.render`` makes (the chunks' sampler streams change, so not a drop-in: it prices the chunking)."""
+    saved = estimators.MAX_LANES
+    width, height = ms.sensors()[0].film().crop_size()
+    estimators.MAX_LANES = max(saved, int(width) * int(height) * spp)
+    try:
+        return estimators.radiance_pass(mi, ms, spp, seed, REFERENCE_PASS_DTYPE)
+    finally:
+        estimators.MAX_LANES = saved
+
+
 def ulp_diff(a: np.ndarray, b: np.ndarray) -> float:
     scale = np.spacing(np.maximum(np.abs(a), np.abs(b)).max())
     return float(np.max(np.abs(a - b)) / scale) if scale > 0 else 0.0
@@ -154,6 +167,8 @@ def measure(variant: str, res: int, spp: int, rounds: int, baseline) -> None:
         cached: lambda s: estimators.radiance_pass(mi, ms, spp, s, REFERENCE_PASS_DTYPE),
         "rtfit (float64 readback)": lambda s: estimators.radiance_pass(mi, ms, spp, s, np.float64),
     }
+    if chunks > 1:
+        calls["rtfit, one launch (other streams)"] = lambda s: one_launch(mi, ms, spp, s)
     if baseline is not None:
         calls["rtfit baseline"] = lambda s: baseline.radiance_pass(mi, ms, spp, s)
     stock = stock_render(mi, ms, spp)
