@@ -61,6 +61,7 @@ from rtfit.realtime import (
 from rtfit.realtime.ambient_aperture import METHODS
 from rtfit.realtime.methods import Method
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene
+from rtfit.reference.cache import REFERENCE_PASS_DTYPE
 from rtfit.reference.estimators import gbuffer, irradiance_pass
 from rtfit.reference.visibility import bake_visibility, surface_points
 from rtfit.scenes import ConstantEnv, library_path, load_scene, scene_hash
@@ -1304,7 +1305,9 @@ def bench_reference(ctx) -> list[dict]:
         p, n = gb.position[keep], gb.normal[keep]
         rows += reference_vs_stock_rows(
             f"rtfit irradiance probes, direct MIS ({len(p)} first hits, {spp} spp)",
-            lambda seed, mi=mi, ms=ms, p=p, n=n, spp=spp: irradiance_pass(mi, ms, p, n, spp, seed),
+            lambda seed, mi=mi, ms=ms, p=p, n=n, spp=spp: irradiance_pass(
+                mi, ms, p, n, spp, seed, dtype=REFERENCE_PASS_DTYPE
+            ),
             len(p) * spp,
             [
                 Stock(

@@ -54,7 +54,7 @@ from rtfit.reference import (
     render_gbuffer,
 )
 from rtfit.reference.build import load_dict
-from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
+from rtfit.reference.cache import REFERENCE_PASS_DTYPE, RELATIVE_PRECISION_FLOOR
 from rtfit.scenes import ConstantEnv, library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 
 from . import figures
@@ -879,8 +879,8 @@ def bench_reference(ctx) -> list[dict]:
             Stock(f"mi.render, Mitsuba path ({res}², {spp} spp)", stock_render(mi, ms_path, spp), samples),
         ]
         rows += reference_vs_stock_rows(
-            f"rtfit reference: direct, point-sampled, float64 moments ({res}², {spp} spp)",
-            lambda seed, mi=mi, ms=ms, spp=spp: radiance_pass(mi, ms, spp, seed),
+            f"rtfit reference: direct, point-sampled, float64 moments, float32 as cached ({res}², {spp} spp)",
+            lambda seed, mi=mi, ms=ms, spp=spp: radiance_pass(mi, ms, spp, seed, REFERENCE_PASS_DTYPE),
             samples,
             stocks,
             ctx.variant,

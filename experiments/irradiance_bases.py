@@ -103,7 +103,7 @@ from rtfit.reference import (
     use_variant,
 )
 from rtfit.reference import environments as envs
-from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
+from rtfit.reference.cache import REFERENCE_PASS_DTYPE, RELATIVE_PRECISION_FLOOR
 from rtfit.reference.estimators import irradiance_pass, radiance_pass
 from rtfit.scenes import (
     ConstantEnv,
@@ -1654,14 +1654,16 @@ def bench_reference(ctx, mi, cfg: dict) -> list[dict]:
             rounds = 3 if ctx.quick else 5
             rows += reference_vs_stock_rows(
                 f"rtfit sphere image reference ({res}², {spp} spp)",
-                lambda seed, ms=ms, spp=spp: radiance_pass(mi, ms, spp, seed),
+                lambda seed, ms=ms, spp=spp: radiance_pass(mi, ms, spp, seed, REFERENCE_PASS_DTYPE),
                 samples,
                 stock,
                 ctx.variant,
                 rounds,
             ) + reference_vs_stock_rows(
                 f"rtfit irradiance probes, direct MIS ({res * res} normals, {spp} spp)",
-                lambda seed, ms=ms, n=n, spp=spp: irradiance_pass(mi, ms, n, n, spp, seed),
+                lambda seed, ms=ms, n=n, spp=spp: irradiance_pass(
+                    mi, ms, n, n, spp, seed, dtype=REFERENCE_PASS_DTYPE
+                ),
                 samples,
                 stock,
                 ctx.variant,

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
+from numpy.typing import DTypeLike
 
 from .budget import ArmedMedia, counters
 
@@ -43,8 +44,8 @@ MAX_LANES = 1 << 24
 class PassResult:
     """One independent pass: per-element mean and unbiased sample variance of ``spp`` samples."""
 
-    mean: np.ndarray  # float64, (H, W, 3) or (N, 3)
-    var: np.ndarray  # float64, same shape
+    mean: np.ndarray  # float64 (float32 where the pass was asked to round to it), (H, W, 3) or (N, 3)
+    var: np.ndarray  # the same dtype and shape
     spp: int
     seed: int
     seconds: float
@@ -100,39 +101,49 @@ class PassMoments:
     over every chunk of a pass, then turned into the pass's mean and unbiased variance on the device and
     read back to the host once (`result`).
 
-    Chunk k of a pass draws ``spp`` samples for each of its elements [a, b): lanes [i·spp, (i + 1)·spp)
-    are element a + i's samples. `add` sums them inside the kernel that computes them (symbolic block
-    reductions, ``dr.block_sum(..., mode="symbolic")``: per-lane float64 atomic adds into the element's
-    slot, combined within a SIMD packet or warp first; on the CPU into one copy of the chunk's sums per
-    worker thread, added after the launch), then copies the chunk's sums into the pass's arrays at offset
-    a (a plain scatter: each element belongs to one chunk). The offset is an opaque device value, not a
-    literal of the kernel text, so every chunk of every pass with one ``spp`` is the same kernel, found in
-    Dr.Jit's kernel cache. Per chunk: the sampling kernel, the CPU's reduction of its per-thread copies,
-    one small copy kernel; per pass: the mean and variance of every element, packed into one float64 array
-    on the device (2·channels small kernels), and one device→host copy. No per-lane array reaches memory
-    and no per-element work happens on the host (issue 21 §3: the sums were copied to NumPy per chunk and
-    per channel, stacked and reduced there, ~55 ns per pixel on an H200).
+    Layout: two float64 arrays ``s`` and ``q`` of elements × channels values, element-major (slot
+    e·channels + c holds element e's channel c). Chunk k of a pass draws ``spp`` samples for each of its
+    elements [a, b): lanes [i·spp, (i + 1)·spp) are element a + i's samples. `add` sums them inside the
+    kernel that computes them: per lane and channel, a float64 atomic add of v and of v² into the
+    element's slots of the pass's arrays (``dr.scatter_reduce``, `REDUCE_MODE`: the lanes of a SIMD packet
+    (CPU) or warp (GPU) that share an element are summed first, then one atomic per packet or warp). The
+    chunk's first element is an opaque device value, not a literal of the kernel text, so every chunk of
+    every pass with one ``spp`` and channel count is the same kernel, found in Dr.Jit's kernel cache.
+    Per pass: one clear of each array, one sampling kernel per chunk (nothing else per chunk: no per-chunk
+    sums, copies or, on the CPU, per-thread copies to clear and reduce), then one kernel that computes
+    every element's mean and variance (`result`) and one device→host copy. No per-lane array reaches
+    memory and no per-element work happens on the host (issue 21 §3).
 
-    Precision: float64 per lane; the same reduction as before this class existed, so the sums are the same
-    float64 additions. Atomics from different threads (CPU: an element's lanes spanning two threads' work
-    blocks) or warps (GPU) land in an unspecified order, so a re-render can differ by ~1 ulp of float64
-    (1e-16 relative; a pass loaded from the cache is bit-identical). mean = Σv/n and
-    var = max(Σv² − Σv·mean, 0)/(n − 1) are the operations NumPy did (`mean_var`; the divisors are opaque,
+    Precision: float64 per lane (the squares of float32 samples are exact in float64); the sums are float64
+    additions of the same values in an order set by the packet/warp pre-reduction and by the atomics'
+    arrival (threads or warps whose lanes share an element land in an unspecified order), so a re-render
+    can differ by ~1 ulp of float64 (1e-16 relative; a pass loaded from the cache is bit-identical); any
+    order is within Higham's bound (spp − 1)·u·Σ|v| of the exact sum, which tests/test_pass_moments.py
+    checks against NumPy's pairwise sums and two-pass variance of the same samples. mean = Σv/n and
+    var = max(Σv² − Σv·mean, 0)/(n − 1) are the operations NumPy does (`mean_var`; the divisors are opaque,
     since Dr.Jit turns a division by a literal into a multiplication by its reciprocal): bit-identical on
-    the CPU (measured); a GPU compiler that fuses Σv·mean into the subtraction (an FMA) changes var by at
-    most 1 ulp of Σv², within the bound the reordered sums already carry (docs/benchmarks.md). Passes are
-    stored in float32 (`rtfit.reference.cache`), far coarser than either."""
+    the CPU (tested); a GPU compiler that fuses Σv·mean into the subtraction (an FMA) changes var by at
+    most 1 ulp of Σv², within the bound the reordered sums already carry (docs/benchmarks.md).
+
+    ``dtype`` of `result`: float64 (default), or float32 — the mean and variance rounded to float32 on the
+    device (round to nearest even, as NumPy's ``astype``) before the copy, halving the bytes copied to the
+    host; the EXR pass cache stores float32 (`rtfit.reference.cache`), so for its passes the values are
+    bit-identical either way."""
+
+    REDUCE_MODE = dr.ReduceMode.Local
+    """Packet/warp pre-reduction, then atomics. On the CPU, Dr.Jit's default for targets of ≤ 2^20 slots
+    (``Expand``) gives every worker thread its own copy of the target: with per-chunk sums that was 6
+    memsets and 6 reductions per chunk, 1–2 % of a 1024² × 64 spp pass on 2 cores (docs/benchmarks.md)."""
 
     def __init__(self, mi, n_elements: int, channels: int, spp: int):
         self.mi, self.n, self.channels, self.spp = mi, int(n_elements), int(channels), int(spp)
-        self.s = [dr.zeros(mi.Float64, self.n) for _ in range(self.channels)]
-        self.q = [dr.zeros(mi.Float64, self.n) for _ in range(self.channels)]
+        self.s = dr.zeros(mi.Float64, self.n * self.channels)
+        self.q = dr.zeros(mi.Float64, self.n * self.channels)
 
     def add(self, first: int, values) -> None:
         """Add one chunk: ``values`` (one per-lane Float array per channel) are the samples of elements
-        [first, first + lanes/spp), all ``spp`` of them (chunks partition the elements: a chunk's sums
-        replace the elements' slots, they are not added to an earlier chunk's). Launches the kernel that
-        computes them."""
+        [first, first + lanes/spp), all ``spp`` of them (chunks partition the elements: each element's
+        samples are added once). Launches the kernel that computes them."""
         if len(values) != self.channels:
             raise ValueError(f"expected {self.channels} channels (got {len(values)})")
         mi = self.mi
@@ -140,43 +151,38 @@ class PassMoments:
         m = lanes // self.spp
         if lanes % self.spp or first < 0 or first + m > self.n:
             raise ValueError(f"a chunk of {lanes} lanes at element {first} overruns {self.n} × {self.spp}")
-        vs = [mi.Float64(v) for v in values]
-        sums = [dr.block_sum(v, self.spp, mode="symbolic") for v in vs]
-        sqs = [dr.block_sum(v * v, self.spp, mode="symbolic") for v in vs]
-        if m == self.n:  # the whole pass in one chunk: its sums are the pass's
-            self.s, self.q = sums, sqs
-            dr.eval(self.s, self.q)  # one kernel: the samples and all 2·C sums
-            return
-        dr.eval(sums, sqs)  # one kernel: the samples and all 2·C sums
-        dr.make_opaque(self.s, self.q)
-        idx = dr.arange(mi.UInt32, m) + dr.opaque(mi.UInt32, first)
-        for c in range(self.channels):
-            dr.scatter(self.s[c], sums[c], idx)
-            dr.scatter(self.q[c], sqs[c], idx)
-        dr.eval()  # the pending scatters: one kernel
+        slot = (dr.arange(mi.UInt32, lanes) // self.spp + dr.opaque(mi.UInt32, first)) * self.channels
+        for c, v in enumerate(values):
+            v64 = mi.Float64(v)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.s, v64, slot + c, mode=self.REDUCE_MODE)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.q, v64 * v64, slot + c, mode=self.REDUCE_MODE)
+        dr.eval()  # one kernel: the samples and all 2·C atomic sums
 
-    def _packed(self, stats):
-        """One float64 array of 2·elements·channels values: ``stats(s, q)``'s two results for every
-        element and channel, [first][element][channel] then [second][element][channel], read back in one
-        device→host copy. Dr.Jit launches one small kernel per scatter into it (2·channels launches; on the
-        CPU 25 % faster than one kernel gathering each lane's channel, measured at 2^20 elements)."""
-        mi, n, ch = self.mi, self.n, self.channels
-        e = dr.arange(mi.UInt32, n) * ch
-        packed = dr.empty(mi.Float64, 2 * n * ch)  # every slot is written below
-        for c in range(ch):
-            first, second = stats(self.s[c], self.q[c])
-            dr.scatter(packed, first, e + c)
-            dr.scatter(packed, second, e + (n * ch + c))
-        return np.asarray(packed, dtype=np.float64).reshape(2, n, ch)
+    def _packed(self, stats, dtype: DTypeLike):
+        """``stats(s, q)``'s two results for every element and channel, as one array of 2·elements·channels
+        values ([first][element][channel] then [second][element][channel]) computed by one kernel and read
+        back in one device→host copy, shaped (2, elements, channels)."""
+        mi, nc = self.mi, self.n * self.channels
+        j = dr.arange(mi.UInt32, 2 * nc)
+        second = j >= nc
+        k = dr.select(second, j - nc, j)
+        first_value, second_value = stats(dr.gather(mi.Float64, self.s, k), dr.gather(mi.Float64, self.q, k))
+        out = dr.select(second, second_value, first_value)
+        if np.dtype(dtype) == np.float32:
+            out = mi.Float(out)  # round to nearest even on the device: NumPy's astype(float32)
+        elif np.dtype(dtype) != np.float64:
+            raise ValueError(f"dtype must be float32 or float64 (got {dtype})")
+        return np.asarray(out).reshape(2, self.n, self.channels)
 
     def sums(self) -> tuple[np.ndarray, np.ndarray]:
         """Σ v and Σ v², each (elements, channels) float64, in one device→host copy."""
-        a = self._packed(lambda s, q: (s, q))
+        a = self._packed(lambda s, q: (s, q), np.float64)
         return a[0], a[1]
 
-    def result(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-element mean and unbiased sample variance, each (elements, channels) float64: `mean_var`'s
-        formula evaluated on the device, packed into one array, copied to the host once."""
+    def result(self, dtype: DTypeLike = np.float64) -> tuple[np.ndarray, np.ndarray]:
+        """Per-element mean and unbiased sample variance, each an (elements, channels) array of ``dtype``
+        (float64 or float32): `mean_var`'s formula evaluated in float64 on the device, rounded to ``dtype``
+        there, copied to the host once (no conversion on the host)."""
         mi = self.mi
         n = dr.opaque(mi.Float64, self.spp)
         n1 = dr.opaque(mi.Float64, self.spp - 1)
@@ -185,7 +191,7 @@ class PassMoments:
             mean = s / n
             return mean, dr.maximum(q - s * mean, 0.0) / n1
 
-        a = self._packed(stats)
+        a = self._packed(stats, dtype)
         return a[0], a[1]
 
 
@@ -229,8 +235,10 @@ def check_spp(spp: int):
 
 
 # ----------------------------------------------------------------------------------- radiance pass
-def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
-    """Point-sampled radiance at every pixel centre with the scene's own integrator."""
+def radiance_pass(mi, mi_scene, spp: int, seed: int, dtype: DTypeLike = np.float64) -> PassResult:
+    """Point-sampled radiance at every pixel centre with the scene's own integrator. ``dtype``: the
+    precision (float64 or float32) the float64 mean and variance are rounded to on the device before the
+    copy to the host, and the dtype of the arrays returned (`PassMoments.result`)."""
 
     check_spp(spp)
     t0 = time.perf_counter()
@@ -254,7 +262,7 @@ def radiance_pass(mi, mi_scene, spp: int, seed: int) -> PassResult:
             value = value * weight
             acc.add(a, [value[c] for c in range(3)])
             armed.check()
-    mean, var = acc.result()
+    mean, var = acc.result(dtype)
     shape = (height, width, 3)
     return PassResult(mean.reshape(shape), var.reshape(shape), spp, seed, time.perf_counter() - t0)
 
@@ -341,9 +349,17 @@ def _gbuffer_scalar(mi, mi_scene, sensor, width, height) -> GBuffer:
 
 # ---------------------------------------------------------------------------------- irradiance pass
 def irradiance_pass(
-    mi, mi_scene, points: np.ndarray, normals: np.ndarray, spp: int, seed: int, transport: str = "direct"
+    mi,
+    mi_scene,
+    points: np.ndarray,
+    normals: np.ndarray,
+    spp: int,
+    seed: int,
+    transport: str = "direct",
+    dtype: DTypeLike = np.float64,
 ) -> PassResult:
-    """Irradiance (W/m², RGB) at ``points`` (N, 3) for unit ``normals`` (N, 3)."""
+    """Irradiance (W/m², RGB) at ``points`` (N, 3) for unit ``normals`` (N, 3); ``dtype`` as in
+    `radiance_pass`."""
 
     check_spp(spp)
     if mi.variant().startswith("scalar"):
@@ -358,7 +374,7 @@ def irradiance_pass(
         else:
             value = _global_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         acc.add(a, [value[c] for c in range(3)])
-    mean, var = acc.result()
+    mean, var = acc.result(dtype)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
 

@@ -68,8 +68,9 @@ def test_chunked_pass_matches_numpy_statistics_of_the_same_samples(scene_pass):
 
 
 def test_every_chunk_is_the_same_cached_kernel(scene_pass):
-    """Per chunk the sampling kernel (a cache hit: the chunk's offset and seed are opaque) and the copy of
-    its sums into the pass's arrays; per pass the packing of the mean and variance (one array, one copy)."""
+    """Per chunk only the sampling kernel (a cache hit: the chunk's offset and seed are opaque), whose
+    atomics sum straight into the pass's arrays; per pass one kernel packing the mean and variance (one
+    array, one copy), and no block reductions or per-thread copies of the sums to clear (CPU)."""
     mi, ms, _, _ = scene_pass
     mp = pytest.MonkeyPatch()
     mp.setattr(estimators, "MAX_LANES", CHUNK_LANES)
@@ -83,9 +84,13 @@ def test_every_chunk_is_the_same_cached_kernel(scene_pass):
         mp.undo()
     jit = [h for h in history if h["type"] == dr.KernelType.JIT]
     chunks = -(-RES * RES // (CHUNK_LANES // SPP))
-    # per chunk: sampling + copy; per pass: one scatter of the mean and one of the variance per channel
-    assert chunks == 4 and len(jit) == 2 * chunks + 2 * 3, [h.get("size") for h in jit]
+    # per chunk: sampling; per pass: the mean and variance of every pixel and channel, one kernel
+    assert chunks == 4 and len(jit) == chunks + 1, [h.get("size") for h in jit]
+    assert [h["size"] for h in jit][-1] == 2 * RES * RES * 3
     assert all(h.get("cache_hit") for h in jit)  # nothing traced into a new kernel: no literal per chunk
+    assert not [h for h in history if h["type"] == dr.KernelType.BlockReduce]
+    big_memsets = [h for h in history if h["type"] == dr.KernelType.Memset and h["size"] > RES * RES]
+    assert len(big_memsets) == 2, [h["size"] for h in big_memsets]  # Σv and Σv², cleared once per pass
 
 
 def test_pass_moments_of_known_values(mi):
@@ -110,5 +115,10 @@ def test_pass_moments_of_known_values(mi):
     np.testing.assert_array_equal(var, v_np)
     # and within 1e-12 of NumPy's two-pass variance (measured 2.4e-14: the one-pass form's cancellation)
     np.testing.assert_allclose(var, v.var(axis=1, ddof=1), rtol=1e-12, atol=0)
+    # read back in float32 (what the EXR pass cache stores): NumPy's rounding of the float64 results
+    mean32, var32 = acc.result(np.float32)
+    assert mean32.dtype == var32.dtype == np.float32
+    np.testing.assert_array_equal(mean32, mean.astype(np.float32))
+    np.testing.assert_array_equal(var32, var.astype(np.float32))
     with pytest.raises(ValueError, match="overruns"):
         acc.add(45, [mi.Float(vals[:10, :, k].ravel()) for k in range(c)])
