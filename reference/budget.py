@@ -84,6 +84,13 @@ class LaneCounter:
         counts = self.counts[-1]
         return dr.scatter_inc(counts, self._type(time)) >= self.cap
 
+    def within(self, time):
+        """Count one event for the lanes whose index is ``time`` (`tick`); True where a lane may go on, i.e.
+        is not past the cap (Python ``True`` when unarmed: ``mi.render`` and scalar variants). The loop
+        guard of rtfit's path-tracing integrators."""
+        stop = self.tick(time)
+        return ~stop if dr.is_array_v(stop) else True
+
     def exhausted(self) -> int:
         """How many lanes reached the cap at some call site in the launch (0 when unarmed)."""
         if not self.counts:

@@ -89,6 +89,25 @@ def log1m_ratio(dr_, z):
     return dr_.select(dr_.abs(z) < SERIES_CUTOFF, series, -dr_.log(1.0 - safe) / safe)
 
 
+def medium_vertex(mi, ray, t, p):
+    """(``MediumInteraction3f``, ``Interaction3f``) of a scattering vertex at distance ``t`` along ``ray``, at
+    position ``p`` (normally ray(t)): the view the phase function evaluates (incoming direction −ray.d and its
+    shading frame) and the view the emitter sampler starts from (point, distance, time, wavelengths)."""
+    mei = dr.zeros(mi.MediumInteraction3f)
+    mei.t = t
+    mei.p = p
+    mei.wi = -ray.d
+    mei.sh_frame = mi.Frame3f(mei.wi)
+    mei.time = ray.time
+    mei.wavelengths = ray.wavelengths
+    it = dr.zeros(mi.Interaction3f)
+    it.p = p
+    it.t = t
+    it.time = ray.time
+    it.wavelengths = ray.wavelengths
+    return mei, it
+
+
 class _NumpyOps:
     """The two Dr.Jit functions the closed forms use, for float64 NumPy checks."""
 
@@ -244,12 +263,6 @@ def register(mi) -> None:
             tr = dr.exp(-self.optical_depth(shadow.o, shadow.d, dr.select(far, dr.inf, shadow.maxt)))
             return dr.select(active & ~occluded, em_w * tr, 0.0), ds
 
-        def within_budget(self, lane_time):
-            """Tick the lane's vertex count: False where the lane is past the cap (True when unarmed:
-            ``mi.render`` and scalar variants)."""
-            stop = self.lane_counter.tick(lane_time)
-            return ~stop if dr.is_array_v(stop) else True
-
         @staticmethod
         def mis(a, b):
             a2 = dr.square(a)
@@ -273,7 +286,7 @@ def register(mi) -> None:
             max_depth = mi.UInt32(0xFFFFFFFF if self.max_depth < 0 else self.max_depth)
 
             while active:
-                active &= self.within_budget(lane_time)
+                active &= self.lane_counter.within(lane_time)
                 active &= dr.max(throughput) != 0.0
                 q = dr.minimum(dr.max(throughput) * dr.square(eta), 0.95)
                 perform_rr = depth > self.rr_depth
@@ -299,19 +312,8 @@ def register(mi) -> None:
                 act_surface &= si.is_valid()
 
                 # ---------------------------------------------------------- the scattering vertex
-                mei = dr.zeros(mi.MediumInteraction3f)
-                mei.t = t_c
-                mei.p = ray(t_c)
-                mei.wi = -ray.d
-                mei.sh_frame = mi.Frame3f(mei.wi)
-                mei.time = ray.time
-                mei.wavelengths = ray.wavelengths
+                mei, it_m = medium_vertex(mi, ray, t_c, ray(t_c))
                 throughput[act_medium] *= self.albedo
-                it_m = dr.zeros(mi.Interaction3f)
-                it_m.p = mei.p
-                it_m.t = t_c
-                it_m.time = ray.time
-                it_m.wavelengths = ray.wavelengths
                 bsdf = si.bsdf(ray)
                 ctx = mi.BSDFContext()
                 pctx = mi.PhaseFunctionContext(sampler)

@@ -95,7 +95,7 @@ from __future__ import annotations
 import drjit as dr
 
 from .budget import LaneCounter
-from .fog_integrator import log1m_ratio
+from .fog_integrator import log1m_ratio, medium_vertex
 
 PLUGIN = "rtfit_skypath"
 ESTIMATOR = (
@@ -257,11 +257,6 @@ def register(mi) -> None:
             r = dr.norm(p)
             return p * dr.maximum(1.0, (self.rg + GROUND_LIFT) / dr.maximum(r, 1e-30))
 
-        def within_budget(self, lane_time):
-            """Tick the lane's count at this call site: False past the cap (True when unarmed)."""
-            stop = self.lane_counter.tick(lane_time)
-            return ~stop if dr.is_array_v(stop) else True
-
         # ------------------------------------------------------------------ tracking
         @dr.syntax
         def free_flight(self, o, d, maxt, hero, F, w, sampler, lane_time, active):
@@ -273,7 +268,7 @@ def register(mi) -> None:
             collided = mi.Bool(False)
             go = mi.Bool(active) & (tb > ta)
             while go:
-                go &= self.within_budget(lane_time)
+                go &= self.lane_counter.within(lane_time)
                 found, t_new, rr, rm = self.candidate(o, d, t, tb, sampler, go, self.free_flight_scale)
                 sigma_t, sigma_s = self.coefficients(rr, rm)
                 p_real = dr.select(hero == 0, sigma_t.x, dr.select(hero == 1, sigma_t.y, sigma_t.z))
@@ -299,7 +294,7 @@ def register(mi) -> None:
             tr = mi.Spectrum(1.0)
             go = mi.Bool(active) & (tb > ta)
             while go:
-                go &= self.within_budget(lane_time)
+                go &= self.lane_counter.within(lane_time)
                 found, t_new, rr, rm = self.candidate(o, d, t, tb, sampler, go, RATIO_TRACKING_SCALE)
                 tr[found] = tr * (1.0 - self.coefficients(rr, rm)[0])
                 t[found] = t_new
@@ -353,7 +348,7 @@ def register(mi) -> None:
             k = mi.UInt32(0)
             go &= u > cdf
             while go:
-                go &= self.within_budget(lane_time)
+                go &= self.lane_counter.within(lane_time)
                 tau_i = self.depth_estimate(o, d, ta, tb, sampler, go)
                 prod[go] = prod * (1.0 - (tau_i - c) / lam)
                 k[go] += 1
@@ -400,7 +395,7 @@ def register(mi) -> None:
             max_depth = mi.UInt32(0xFFFFFFFF if self.max_depth < 0 else self.max_depth)
 
             while active:
-                active &= self.within_budget(lane_time)
+                active &= self.lane_counter.within(lane_time)
                 active &= dr.max(F) != 0.0
                 q = dr.minimum(dr.max(F), 0.95)
                 perform_rr = depth > self.rr_depth
@@ -431,18 +426,7 @@ def register(mi) -> None:
                 act_surface &= si.is_valid()
 
                 # ------------------------------------------------------ the scattering vertex
-                mei = dr.zeros(mi.MediumInteraction3f)
-                mei.t = t_c
-                mei.p = self.above_ground(ray(t_c))
-                mei.wi = -ray.d
-                mei.sh_frame = mi.Frame3f(mei.wi)
-                mei.time = ray.time
-                mei.wavelengths = ray.wavelengths
-                it_m = dr.zeros(mi.Interaction3f)
-                it_m.p = mei.p
-                it_m.t = t_c
-                it_m.time = ray.time
-                it_m.wavelengths = ray.wavelengths
+                mei, it_m = medium_vertex(mi, ray, t_c, self.above_ground(ray(t_c)))
                 bsdf = si.bsdf(ray)
                 ctx = mi.BSDFContext()
                 pctx = mi.PhaseFunctionContext(sampler)
