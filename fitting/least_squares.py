@@ -430,13 +430,18 @@ def fit_least_squares(
         at_lower[nm] = bool(math.isfinite(p.lower) and x[i] - p.lower <= tol)
         at_upper[nm] = bool(math.isfinite(p.upper) and p.upper - x[i] <= tol)
     at_bound = {nm: at_lower[nm] or at_upper[nm] for nm in names}
-    if (
-        not converged
-        and result == optx.RESULTS.nonlinear_max_steps_reached
-        and not any(at_bound.values())
-        and np.all(np.isfinite(r))
-        and np.all(np.isfinite(jac))
-    ):
+
+    def ran_out_of_steps() -> bool:
+        """The solve (as it stands now: a fallback below may replace it) stopped at max_steps with finite
+        residuals and Jacobian: the case each fallback examines."""
+        return bool(
+            not converged
+            and result == optx.RESULTS.nonlinear_max_steps_reached
+            and np.all(np.isfinite(r))
+            and np.all(np.isfinite(jac))
+        )
+
+    if ran_out_of_steps() and not any(at_bound.values()):
         # An optimum on a bound is reached through the reparametrisation only at z = ±∞: the solver
         # crawls towards it until max_steps (the power obscurance's d_max → 1000 took all 256 steps
         # and stopped at 999.4, not flagged). Pin one parameter that the gradient pushes towards a bound
@@ -465,13 +470,7 @@ def fit_least_squares(
             converged = bool(result == optx.RESULTS.successful)
             message = "" if converged else str(optx.RESULTS[result])
             break
-    if (
-        not converged
-        and result == optx.RESULTS.nonlinear_max_steps_reached
-        and not any(at_bound.values())
-        and np.all(np.isfinite(r))
-        and np.all(np.isfinite(jac))
-    ):
+    if ran_out_of_steps() and not any(at_bound.values()):
         stalled, pred, frac = gauss_newton_stall(jac.reshape(n, k), r, se)
         if stalled:
             # LM stops on two accepted steps that change neither x nor the SSR; residuals with a kink (a
@@ -484,13 +483,7 @@ def fit_least_squares(
                 f"(non-smooth residuals); the Gauss–Newton step would lower the SSR by {pred:.1e} and move "
                 f"no parameter by more than {frac:.2g} standard errors"
             )
-    if (
-        not converged
-        and result == optx.RESULTS.nonlinear_max_steps_reached
-        and any(at_bound.values())
-        and np.all(np.isfinite(r))
-        and np.all(np.isfinite(jac))
-    ):
+    if ran_out_of_steps() and any(at_bound.values()):
         # An optimum on a bound sits at z = ±inf of the reparametrisation, which the solver only
         # approaches: accept it when the first-order (KKT) conditions hold in the original parameters.
         if _kkt_holds(jac.reshape(n, k), r, [at_lower[nm] for nm in names], [at_upper[nm] for nm in names]):
