@@ -22,6 +22,7 @@ import drjit as dr
 import numpy as np
 
 from rtfit.realtime import set_default_backend
+from rtfit.reference.variants import backend_of
 
 
 @dataclass(frozen=True)
@@ -119,9 +120,9 @@ def attach_costs(case_docs: list[dict], cost_rows: list[dict], key: Callable | N
 
 # -------------------------------------------------------------------------- the results' ``costs`` rows
 def cost_backend(variant: str) -> tuple[str, type]:
-    """The Dr.Jit backend of a Mitsuba ``variant`` (``cuda`` for the ``cuda_*`` variants, else ``llvm``) and
-    that backend's float32 array type, which the timed inputs are made of."""
-    backend = "cuda" if variant.startswith("cuda") else "llvm"
+    """The Dr.Jit backend of a Mitsuba ``variant`` (`backend_of`: ``cuda`` or ``llvm``; runs refuse scalar
+    variants) and that backend's float32 array type, which the timed inputs are made of."""
+    backend = backend_of(variant)
     return backend, dr.cuda.Float if backend == "cuda" else dr.llvm.Float
 
 

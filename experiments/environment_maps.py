@@ -42,6 +42,7 @@ from rtfit.realtime import environment_maps as em
 from rtfit.reference import environment_maps as room
 from rtfit.reference.cache import PassEntry, array_digest, pool_passes
 from rtfit.reference.estimators import sub_seed
+from rtfit.reference.variants import backend_of
 
 from . import figures as F
 from .cost import (
@@ -731,7 +732,7 @@ def path_traced_part(ctx, cfg) -> dict:
         z = ((gm - series) / np.maximum(np.sqrt(series_var / g_spp), 1e-12))[ok_g]
         checks_data[sid] = {
             "mirror_max_rel": float(np.max(np.abs(refs["mirror"][0][uni] - exact_r[uni]) / exact_r[uni])),
-            "mirror_tolerance": MIRROR_TOLERANCE["cuda" if ctx.variant.startswith("cuda") else "llvm"],
+            "mirror_tolerance": MIRROR_TOLERANCE[backend_of(ctx.variant)],
             "mirror_pixels": int(uni.sum()),
             "pixels": len(uni),
             "glass_max_z": float(np.max(np.abs(z))),
