@@ -50,6 +50,7 @@ import math
 import time
 
 import drjit as dr
+import mitsuba
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method, robust_spread, tone_map
@@ -65,9 +66,11 @@ from rtfit.realtime.nishita_sky import (
     sky_kernel_inputs,
     spectral_to_srgb,
 )
+from rtfit.reference.cache import ComputedEntry, array_digest
 from rtfit.reference.nishita_sky import (
     CIE_Y_NORMALIZATION,
     DEFAULT_SCENE,
+    DISC_NODES,
     film_srgb,
     hemisphere_directions,
     library_atmosphere,
@@ -675,34 +678,82 @@ DISC_MAX_DEG = 2.0
 far below any reference's noise above 2°, and the disc costs `DISC_NODES`× the point sun's time."""
 
 
-def quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt_m: float) -> dict:
+QUADRATURE_FORMAT = 1
+"""Version of the quadrature jobs' stored results (`ComputedEntry`, namespace "sky-quadrature"): bump it
+when `single_scattering_quadrature`, `spectral_single_scattering_quadrature` or what a job stores changes."""
+
+
+def _quadrature_entry(cache_dir, kind: str, spec, sub, steps: int) -> ComputedEntry | None:
+    """Where a quadrature job's arrays are kept (None without a cache): keyed on the atmosphere, the exact
+    directions, the steps, the disc rule and the versions of everything that computes them. The full run's
+    twilight quadratures (sun's disc, 8 nodes) take minutes each: a rerun or a resumed run reads them."""
+    if cache_dir is None:
+        return None
+    ident = {
+        "format": f"nishita-sky/{kind}-quadrature/{QUADRATURE_FORMAT}",
+        "spec": dataclasses.asdict(spec),
+        "directions": array_digest(sub),
+        "count": int(np.asarray(sub).size // 3),
+        "steps": int(steps),
+        "disc": {"nodes": DISC_NODES, "max_elevation_deg": DISC_MAX_DEG},
+        "versions": {"numpy": np.__version__, "mitsuba": mitsuba.__version__},
+    }
+    return ComputedEntry(cache_dir, ident, namespace="sky-quadrature")
+
+
+def _cached(entry: ComputedEntry | None, compute) -> dict:
+    """``compute()`` timed (``seconds``), through ``entry`` when there is one (``cached``: read back)."""
+
+    def timed() -> dict:
+        t0 = time.perf_counter()
+        out = compute()
+        return {**out, "seconds": time.perf_counter() - t0}
+
+    if entry is None:
+        return {**timed(), "cached": False}
+    arrays, computed = entry.get(timed)
+    return {**arrays, "seconds": float(arrays["seconds"]), "cached": not computed}
+
+
+def quadrature_job(
+    elev: float, width: int, height: int, stride, steps: int, alt_m: float, cache_dir=None
+) -> dict:
     """The float64 single-scattering quadrature on a pixel subset (every ``stride`` pixel) of the image:
     ``value`` for a point sun (the real-time model's sun, used by the sweep), ``disc`` for the sun's
-    disc (the Mitsuba reference's sun; None above `DISC_MAX_DEG`)."""
+    disc (the Mitsuba reference's sun; None above `DISC_MAX_DEG`); ``seconds`` it took to compute,
+    ``cached`` whether it was read from ``cache_dir``."""
     d, _, _ = hemisphere_directions(width, height)
     sub = d[_subset(stride)]
-    t0 = time.perf_counter()
     spec = atmosphere_spec(elev, alt_m)
-    q = single_scattering_quadrature(spec, sub, steps=steps)
-    # the disc sun the Mitsuba reference renders: only where it differs measurably from the point sun
-    disc = (
-        single_scattering_quadrature(spec, sub, steps=steps, point_sun=False)
-        if elev <= DISC_MAX_DEG
-        else None
-    )
-    return {"value": q, "disc": disc, "seconds": time.perf_counter() - t0}
+
+    def compute() -> dict:
+        q = single_scattering_quadrature(spec, sub, steps=steps)
+        # the disc sun the Mitsuba reference renders: only where it differs measurably from the point sun
+        disc = (
+            single_scattering_quadrature(spec, sub, steps=steps, point_sun=False)
+            if elev <= DISC_MAX_DEG
+            else None
+        )
+        return {"value": q, "disc": disc}
+
+    out = _cached(_quadrature_entry(cache_dir, "ss", spec, sub, steps), compute)
+    return {**out, "disc": out.get("disc")}
 
 
-def spectral_quadrature_job(elev: float, width: int, height: int, stride, steps: int, alt_m: float) -> dict:
+def spectral_quadrature_job(
+    elev: float, width: int, height: int, stride, steps: int, alt_m: float, cache_dir=None
+) -> dict:
     """The spectral float64 quadrature (film sRGB, spectra on 360–830 nm at 1 nm) and the RGB
     (3-wavelength) quadrature on the same pixel subset of a width × height hemisphere image."""
     d, _, _ = hemisphere_directions(width, height)
     sub = d[_subset(stride)]
-    t0 = time.perf_counter()
     spec = atmosphere_spec(elev, alt_m)
-    q = spectral_single_scattering_quadrature(spec, sub, steps=steps)
-    rgb = single_scattering_quadrature(spec, sub, steps=steps)
-    return {**q, "rgb": rgb, "seconds": time.perf_counter() - t0}
+
+    def compute() -> dict:
+        q = spectral_single_scattering_quadrature(spec, sub, steps=steps)
+        return {**q, "rgb": single_scattering_quadrature(spec, sub, steps=steps)}
+
+    return _cached(_quadrature_entry(cache_dir, "spectral", spec, sub, steps), compute)
 
 
 # ============================================================================================== run
@@ -722,7 +773,8 @@ def run(ctx) -> dict:
 
     def quadrature(label, job, elev, size, stride, alt_m):
         kw = dict(elev=elev, width=size[0], height=size[1], stride=stride, steps=cfg["quadrature_steps"])
-        return Job(f"rtfit.experiments.nishita_sky:{job}", {**kw, "alt_m": alt_m}, label=label)
+        kw.update(alt_m=alt_m, cache_dir=cache)
+        return Job(f"rtfit.experiments.nishita_sky:{job}", kw, label=label)
 
     alt0, stride = cfg["viewer_altitude_m"], cfg["quadrature_stride"]
     jobs = []

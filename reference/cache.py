@@ -575,6 +575,50 @@ class ReferenceCache:
         return {"scene_dict": scene_to_dict(request.scene), "scene_hash": scene_hash(request.scene)}
 
 
+class ComputedEntry:
+    """One deterministic computation's arrays (a float64 quadrature that takes minutes), stored once:
+    ``ROOT/NAMESPACE/<key[:2]>/<key>/result.npz`` beside ``entry.json``, the same folder layout as a
+    `PassEntry` (so ``rtfit cache info``/``prune`` see it as an entry of one complete item).
+
+    The key is `entry_key` of ``ident``, which must name everything the numbers depend on, including
+    a format version the computing code bumps when its arithmetic changes. `get` loads the arrays, or
+    computes, writes (atomically) and returns them; an unreadable or truncated file is recomputed, never
+    trusted. Two processes computing the same entry write identical bytes, so no claim is needed: the
+    cost of a rare duplicate is one computation."""
+
+    RESULT = "result.npz"
+
+    def __init__(self, root, ident: dict, *, namespace: str, info: dict | None = None):
+        self.key = entry_key(ident)
+        self.folder = Path(root) / namespace / self.key[:2] / self.key
+        self.info = {"key": self.key, **ident, **(info or {})}
+
+    def load(self) -> dict[str, np.ndarray] | None:
+        """The stored arrays (float64 as computed), or None if absent or unreadable."""
+        path = self.folder / self.RESULT
+        if not path.is_file():
+            return None
+        try:
+            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
+                return {k: z[k] for k in z.files}
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+            return None  # a truncated or corrupt file is recomputed
+
+    def get(self, compute: Callable[[], dict[str, np.ndarray]]) -> tuple[dict[str, np.ndarray], bool]:
+        """``(arrays, computed)``: the stored arrays, or ``compute()``'s, written first. Values that are
+        None are not stored (absent on load)."""
+        found = self.load()
+        if found is not None:
+            return found, False
+        arrays = {k: np.asarray(v) for k, v in compute().items() if v is not None}
+        self.folder.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(self.folder / "entry.json", self.info)
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        atomic_write_bytes(self.folder / self.RESULT, buf.getvalue())
+        return arrays, True
+
+
 # ------------------------------------------------------------------- inspection and pruning (rtfit cache)
 CACHE_NAMESPACES = {"images": "", "probes": "", "occlusion": "occlusion", "sky": "sky"}
 """What ``rtfit cache info`` reports, and the namespace folder each lives in (``""``: the root, where
@@ -624,6 +668,10 @@ def _scan_entry(folder: Path, namespace: str) -> CacheEntry:
         stem, _, ext = f.name.partition(".")
         if f.name == "entry.json" or (stem.startswith("pass-") and ext in ("json", "exr", "npz")):
             last = max(last, st.st_mtime)
+        if f.name == ComputedEntry.RESULT:  # a `ComputedEntry`: one complete item
+            last = max(last, st.st_mtime)
+            data.add(stem)
+            meta.add(stem)
         if stem.startswith("pass-"):
             if ext == "json":
                 meta.add(stem)

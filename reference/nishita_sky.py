@@ -86,8 +86,10 @@ import hashlib
 import itertools
 import json
 import math
+import os
 import time
 import tomllib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -881,8 +883,8 @@ def _ss_quadrature(
     deltas, wts = _disc_rule(alpha, disc_nodes) if disc_nodes else (None, None)
     disc_scale = 2.0 / (1.0 + math.cos(alpha))
     u = np.linspace(0.0, 1.0, steps) ** 2
-    out = np.zeros((d.shape[0], br.size))
-    for i in range(d.shape[0]):
+
+    def row(i: int) -> np.ndarray:
         t = u * t_max[i]
         x = o[None, :] + t[:, None] * d[i][None, :]
         h = np.maximum(np.linalg.norm(x, axis=1) - rg, 0.0)
@@ -913,8 +915,17 @@ def _ss_quadrature(
             f = np.einsum("k,knc->nc", wts, dens * t_sun)
             f *= disc_scale
         f = f * t_view
-        out[i] = np.sum(0.5 * (f[1:] + f[:-1]) * dt[:, None], axis=0)
-    return out
+        return np.sum(0.5 * (f[1:] + f[:-1]) * dt[:, None], axis=0)
+
+    # Rows are independent and each is whole-array NumPy work (exp, norms and sums over ~10⁵–10⁶ values,
+    # which release the GIL): threads give the same numbers, row for row, in a fraction of the time.
+    workers = max(1, min(d.shape[0], len(os.sched_getaffinity(0))))
+    if workers == 1:
+        rows = [row(i) for i in range(d.shape[0])]
+    else:
+        with ThreadPoolExecutor(workers) as pool:
+            rows = list(pool.map(row, range(d.shape[0])))
+    return np.array(rows, dtype=np.float64).reshape(d.shape[0], br.size)
 
 
 # ----------------------------------------------------------------------------- spectral helpers

@@ -371,3 +371,29 @@ def test_disc_sun_quadrature_against_a_two_dimensional_disc_integral():
             brute += q * (2 * math.pi * (1 - math.cos(a)) / (nr * nf)) / (math.pi * math.sin(a) ** 2)
     assert abs(brute / point - 1) > 0.02  # the disc is resolved here
     assert abs(disc - brute) <= 0.02 * abs(brute - point), (point, disc, brute)
+
+
+def test_quadrature_rows_on_threads_equal_rows_alone_and_the_job_caches(tmp_path):
+    """`_ss_quadrature` computes its rows on a thread pool: each row must be the number that row gives
+    when computed alone (one row: no pool), bit for bit, point and disc sun; and the experiment's
+    quadrature job reads the same arrays back from its cache (`ComputedEntry`) instead of recomputing."""
+    from rtfit.experiments.nishita_sky import atmosphere_spec, quadrature_job
+    from rtfit.reference.nishita_sky import single_scattering_quadrature
+
+    spec = atmosphere_spec(1.0, 0.0)
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(5, 3))
+    d[:, 2] = np.abs(d[:, 2])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    for point_sun in (True, False):
+        together = single_scattering_quadrature(spec, d, steps=60, point_sun=point_sun)
+        alone = np.concatenate(
+            [single_scattering_quadrature(spec, d[i : i + 1], steps=60, point_sun=point_sun) for i in range(5)]
+        )
+        assert np.array_equal(together, alone)
+    kw = dict(elev=1.0, width=8, height=4, stride=(4, 2), steps=40, alt_m=0.0, cache_dir=str(tmp_path))
+    first, again = quadrature_job(**kw), quadrature_job(**kw)
+    assert not first["cached"] and again["cached"]
+    assert np.array_equal(first["value"], again["value"]) and np.array_equal(first["disc"], again["disc"])
+    above = quadrature_job(**{**kw, "elev": 10.0})  # above DISC_MAX_DEG: no disc, read back as None too
+    assert above["disc"] is None and quadrature_job(**{**kw, "elev": 10.0})["disc"] is None

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from rtfit.reference.cache import PassEntry, entry_key, pool_passes
+from rtfit.reference.cache import ComputedEntry, PassEntry, entry_key, pool_passes
 from rtfit.reference.estimators import PassResult
 
 IDENT = {"what": "test", "format": 1}
@@ -107,3 +107,38 @@ def test_a_killed_writers_temporary_files_are_removed_by_the_next_claim(tmp_path
     other.write_bytes(b"another pass's")
     _, n = entry.passes(1, _render)
     assert n == 1 and not leftover.exists() and other.exists()
+
+
+# ---------------------------------------------------------------- ComputedEntry: one deterministic result
+def _quadrature_like(calls: list) -> dict:
+    calls.append(1)
+    x = np.linspace(0.0, 1.0, 7)
+    return {"value": np.exp(-x)[:, None] * np.ones(3), "disc": None, "seconds": np.float64(1.5)}
+
+
+def test_a_computed_entry_is_computed_once_and_read_back_bit_identical(tmp_path):
+    calls: list = []
+    first, computed = ComputedEntry(tmp_path, IDENT, namespace="q").get(lambda: _quadrature_like(calls))
+    again, computed2 = ComputedEntry(tmp_path, IDENT, namespace="q").get(lambda: _quadrature_like(calls))
+    assert computed and not computed2 and calls == [1]
+    assert "disc" not in first and "disc" not in again  # None values are not stored
+    assert again["value"].dtype == np.float64 and np.array_equal(first["value"], again["value"])
+    assert float(again["seconds"]) == 1.5
+    # another identity is another entry
+    _, computed3 = ComputedEntry(tmp_path, {**IDENT, "format": 2}, namespace="q").get(
+        lambda: _quadrature_like(calls)
+    )
+    assert computed3 and calls == [1, 1]
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "empty"])
+def test_a_corrupt_computed_entry_is_recomputed(tmp_path, damage):
+    calls: list = []
+    entry = ComputedEntry(tmp_path, IDENT, namespace="q")
+    want, _ = entry.get(lambda: _quadrature_like(calls))
+    path = entry.folder / ComputedEntry.RESULT
+    data = path.read_bytes()
+    path.write_bytes({"truncate": data[: len(data) // 2], "garbage": b"\x00junk" * 40, "empty": b""}[damage])
+    got, computed = ComputedEntry(tmp_path, IDENT, namespace="q").get(lambda: _quadrature_like(calls))
+    assert computed and calls == [1, 1] and np.array_equal(got["value"], want["value"])
+    assert ComputedEntry(tmp_path, IDENT, namespace="q").load() is not None  # rewritten whole
