@@ -44,6 +44,7 @@ from rtfit.realtime.height_fog import fog_pass
 from rtfit.realtime.nishita_sky import AtmosphereParams
 from rtfit.reference.aerial_perspective import box_exit_distance, render_fog_sun
 from rtfit.reference.nishita_sky import library_atmosphere, single_scattering_quadrature
+from rtfit.reference.variants import backend_of
 
 from . import figures as F
 from . import fitted as fitfiles
@@ -320,7 +321,7 @@ def check_job(cfg: dict, variant: str, seed: int, cache_dir: str | None = None) 
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     jobs = [
         Job(
             "rtfit.experiments.aerial_perspective:reference_job",

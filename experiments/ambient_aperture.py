@@ -63,6 +63,7 @@ from rtfit.realtime.methods import Method
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene
 from rtfit.reference.cache import REFERENCE_PASS_DTYPE
 from rtfit.reference.estimators import gbuffer, irradiance_pass
+from rtfit.reference.variants import backend_of
 from rtfit.reference.visibility import bake_visibility, surface_points
 from rtfit.scenes import ConstantEnv, library_path, load_scene, scene_hash
 
@@ -760,7 +761,7 @@ def unoccluded_job(
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     common = {
         "spp": cfg["spp"],
         "pass_spp": cfg["pass_spp"],
@@ -1266,7 +1267,7 @@ def numpy_call(method: Method, params=None) -> Callable:
 
 def costs(ctx, cfg, fitted) -> list[dict]:
     """Cost rows (same run): each intersection form, the memory floor, the timed shading methods."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
+    backend = backend_of(ctx.variant)
     n = cfg["cost_elements"]
     _, dr_args = cost_inputs(n, backend)
     note = "per evaluation: r1, r2, d in memory (float32), one float out"

@@ -58,7 +58,7 @@ from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, default_cache_dir
 from rtfit.reference.estimators import GBuffer, gbuffer
 from rtfit.reference.mitsuba_xml import XMLSceneError, loaded_xml
 from rtfit.reference.nishita_sky import hemisphere_directions, load_atmosphere_scene
-from rtfit.reference.variants import resolve_variant, scoped_variant
+from rtfit.reference.variants import backend_of, resolve_variant, scoped_variant
 from rtfit.scenes import load_scene, scene_hash
 
 from . import figures
@@ -577,7 +577,7 @@ def audit(
         target = Path(out) / f"audit-{_scene_name(info.source)}"
         _check_out(target)
     cache_root = Path(cache) if cache is not None else default_cache_dir()
-    backend = "cuda" if variant.startswith("cuda") else "llvm"
+    backend = backend_of(variant)
     set_default_backend(backend)
 
     timings = {"reference": 0.0, "evaluation": 0.0, "fit": 0.0}

@@ -42,7 +42,7 @@ from tqdm import tqdm
 
 import rtfit
 from rtfit.reference import default_cache_dir, resolve_variant
-from rtfit.reference.budget import pass_budget_seconds
+from rtfit.reference.budget import NonFinitePass, PassBudgetExceeded, pass_budget_seconds
 from rtfit.reference.export_xml import export_xml
 from rtfit.reference.io import atomic_write_json
 from rtfit.reference.probe_maps import parse_probe_spec
@@ -54,6 +54,7 @@ from .audit_cli import audit
 from .book import write_book
 from .cache_cli import cache_group
 from .executors import EXECUTORS, make_executor
+from .jobs import JobsFailed, error_line
 from .ray_executor import RAY_EXTRA_HINT, check_address
 from .registry import EXPERIMENTS, SPP_MAX, BenchContext, describe_config, resolve_names, validate_config
 from .report import write_index, write_report
@@ -638,6 +639,14 @@ def main(argv=None) -> int:
     except (SceneError, ValueError) as e:
         click.echo(f"rtfit: error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", err=True)
         return 2
+    except (PassBudgetExceeded, NonFinitePass, JobsFailed) as e:
+        # a reference that could not be made (a pass past its budget, a non-finite pass, a job whose worker
+        # kept dying): not the user's input, so exit 1 — one line, and the passes already stored are kept
+        click.echo(
+            f"rtfit: failed: {error_line(e)} (rendered passes are kept in the cache; rerun to resume)",
+            err=True,
+        )
+        return 1
     finally:  # the logging set up for this command ends with it (a library caller's own stays)
         for h in [h for h in logger.handlers if isinstance(h, _StderrLines)]:
             logger.removeHandler(h)

@@ -158,7 +158,7 @@ def memory_floor_row(inputs: tuple, elements: int, backend: str, note: str, labe
 def bench_backend(ctx) -> tuple[str, int]:
     """The Dr.Jit backend of ``ctx.variant`` (made the default) and the kernel size: ``ctx.size``,
     else 2^24 elements on the GPU and 2^22 on the CPU."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
+    backend = backend_of(ctx.variant)
     set_default_backend(backend)
     return backend, ctx.size or (1 << (24 if backend == "cuda" else 22))
 

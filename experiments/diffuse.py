@@ -55,6 +55,7 @@ from rtfit.reference import (
 )
 from rtfit.reference.build import load_dict
 from rtfit.reference.cache import REFERENCE_PASS_DTYPE, RELATIVE_PRECISION_FLOOR
+from rtfit.reference.variants import backend_of
 from rtfit.scenes import ConstantEnv, library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 
 from . import figures
@@ -359,7 +360,7 @@ def run(ctx) -> dict:
     ]
     ctx.log(f"rendering {len(jobs)} references")
     rendered = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references"), strict=True))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
 
     # Stage 2: per-case inputs (G-buffer) and the per-α wrap fits (independent jobs).
     geom, fit_jobs = {}, []
@@ -831,7 +832,7 @@ def _drjit_call(method: Method, inputs: dict) -> Callable:
 
 def measure_costs(ctx) -> list[dict]:
     """ns per pixel of each row's kernel on this run's backend (declared parameters), and the memory floor."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
+    backend = backend_of(ctx.variant)
     n = 1 << (20 if ctx.quick else 22)
     dr_in, _ = cost_inputs(n, backend)
     args = (dr_in["cos_theta"], dr_in["alpha"])

@@ -1309,7 +1309,7 @@ def impostor_checks(cfg, imp: dict) -> list[dict]:
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     ctx.log("constant environment: solid-angle rules over N and normals")
     const = constant_environment(cfg)
     checks = constant_checks(const)

@@ -64,6 +64,7 @@ from rtfit.reference import (
 from rtfit.reference.build import light_dicts, load_dict, mitsuba_scene_dict
 from rtfit.reference.height_fog import grid_medium_dict, region_matrix, sky_statistics
 from rtfit.reference.height_fog import medium_dict as fog_medium_dict
+from rtfit.reference.variants import backend_of
 from rtfit.scenes import library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 
 from . import figures as F
@@ -428,7 +429,7 @@ def fit_data(geom: dict, l0: np.ndarray, ref: np.ndarray) -> dict:
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     res = cfg["resolution"]
     common = dict(
         pass_spp=cfg["pass_spp"],

@@ -105,6 +105,7 @@ from rtfit.reference import (
 from rtfit.reference import environments as envs
 from rtfit.reference.cache import REFERENCE_PASS_DTYPE, RELATIVE_PRECISION_FLOOR
 from rtfit.reference.estimators import irradiance_pass, radiance_pass
+from rtfit.reference.variants import backend_of
 from rtfit.scenes import (
     ConstantEnv,
     EnvMap,
@@ -605,7 +606,7 @@ def run(ctx) -> dict:
     labels = [j.label for j in jobs]
     rendered = dict(zip(labels, ctx.executor.map(jobs, desc="environments"), strict=True))
 
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     ctx.log("projecting and fitting the bases")
     qb = quadrature_backend(ctx.variant)
     bases = {
@@ -1592,7 +1593,7 @@ def _demo_bases() -> dict:
 
 def _costs(ctx) -> list[dict]:
     """Dr.Jit evaluation cost of every basis per normal, and the memory-traffic floor."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
+    backend = backend_of(ctx.variant)
     n = 1 << (20 if ctx.quick else 24 if backend == "cuda" else 22)
     _, nd = _cost_inputs(n, backend)
     b = _demo_bases()

@@ -62,6 +62,7 @@ from rtfit.realtime.irradiance_volumes import (
 )
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene
 from rtfit.reference.probe_radiance import ProbeRadianceCache, point_light_visibility
+from rtfit.reference.variants import backend_of
 from rtfit.scenes import library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 from rtfit.scenes.model import ConstantEnv, Cube, PointLight, ReferenceSettings, Scene
 
@@ -299,7 +300,7 @@ def surface_job(
 # ============================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     room = room_scene()
     furnace = furnace_scene(room)
     grids = level_grids(cfg["levels"])

@@ -37,6 +37,7 @@ from rtfit.realtime import NUMPY_OPS, set_default_backend
 from rtfit.realtime.light_cones import CHORD_LENGTH, METHODS
 from rtfit.reference import load_mitsuba_scene, radiance_pass
 from rtfit.reference.light_cones import spot_estimator_variance, spot_single_scattering
+from rtfit.reference.variants import backend_of
 from rtfit.scenes import scene_hash, scene_to_toml
 from rtfit.scenes.model import Camera, Cube, HomogeneousMedium, ReferenceSettings, Scene, SpotLight
 
@@ -290,7 +291,7 @@ def fit_job(method: str, fit: tuple, held: dict, inputs: dict, target, scale, k0
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     cases, scenes, jobs = {}, {}, []
     for sigma in cfg["sigma_t_per_m"]:
         for view in cfg["views"]:

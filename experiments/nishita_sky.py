@@ -48,9 +48,9 @@ import dataclasses
 import functools
 import math
 import time
+from importlib import metadata
 
 import drjit as dr
-import mitsuba
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method, robust_spread, tone_map
@@ -83,7 +83,7 @@ from rtfit.reference.nishita_sky import (
     spectral_single_scattering_quadrature,
     sunsky_radiance,
 )
-from rtfit.reference.variants import use_variant
+from rtfit.reference.variants import backend_of, use_variant
 
 from . import figures
 from . import fitted as fitfiles
@@ -696,7 +696,7 @@ def _quadrature_entry(cache_dir, kind: str, spec, sub, steps: int) -> ComputedEn
         "count": int(np.asarray(sub).size // 3),
         "steps": int(steps),
         "disc": {"nodes": DISC_NODES, "max_elevation_deg": DISC_MAX_DEG},
-        "versions": {"numpy": np.__version__, "mitsuba": mitsuba.__version__},
+        "versions": {"numpy": np.__version__, "mitsuba": metadata.version("mitsuba")},
     }
     return ComputedEntry(cache_dir, ident, namespace="sky-quadrature")
 
@@ -760,7 +760,7 @@ def spectral_quadrature_job(
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     W, H = cfg["resolution"]
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
+    backend = backend_of(ctx.variant)
 
     set_default_backend(backend)
     dirs, az, el = hemisphere_directions(W, H)
@@ -1630,7 +1630,7 @@ def _costs(ctx, backend, cfg, settings) -> list[dict]:
 
 def bench(ctx) -> list[dict]:
     """Whole-texture build time per configuration: Dr.Jit (this backend) vs the NumPy loop."""
-    backend = "cuda" if ctx.variant.startswith("cuda") else "llvm"
+    backend = backend_of(ctx.variant)
     set_default_backend(backend)
     p = atmosphere_params()
     confs = [dict(SEED_CFG, layers=n) for n in (8, 32, 128)] + [

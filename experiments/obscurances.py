@@ -58,6 +58,7 @@ from rtfit.reference import load_mitsuba_scene
 from rtfit.reference.build import tiled_quad_shape
 from rtfit.reference.estimators import gbuffer
 from rtfit.reference.occlusion import OcclusionCache, hit_distances
+from rtfit.reference.variants import backend_of
 from rtfit.scenes import scene_hash
 
 from . import figures
@@ -833,7 +834,7 @@ def run(ctx) -> dict:
     done = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references"), strict=True))
     probes = done.pop("probes")
     rendered = done
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     t0 = time.perf_counter()
     fits = fit_rows(cfg, rendered)
     ctx.log(f"fits done ({time.perf_counter() - t0:.1f} s)")

@@ -45,7 +45,7 @@ from rtfit.reference.parallax_occlusion import (
     rectangle_light,
     square_irradiance,
 )
-from rtfit.reference.variants import use_variant
+from rtfit.reference.variants import backend_of, use_variant
 
 from . import figures as F
 from . import fitted as fitfiles
@@ -361,7 +361,7 @@ def fit_shadows(cfg, cases: list[dict]) -> dict:
 
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     mi = use_variant(ctx.variant)
     light_dirs = {lt: unit_vector(lt, cfg["light_azimuth_deg"]) for lt in cfg["light_deg"]}
     lights = {

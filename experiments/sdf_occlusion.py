@@ -122,6 +122,7 @@ from rtfit.reference.occlusion import (
     sunsky_irradiance,
     sunsky_sky_nodes,
 )
+from rtfit.reference.variants import backend_of
 from rtfit.scenes import library_path, load_scene, scene_hash
 
 from . import figures
@@ -1117,7 +1118,7 @@ def run(ctx) -> dict:
     ]
     ctx.log(f"rendering references of {len(jobs)} scenes")
     rendered = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references"), strict=True))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
 
     out = ctx.out_dir
     t_start = time.perf_counter()
@@ -1874,7 +1875,7 @@ def bench(ctx) -> list[dict]:
     """Pixels/s of Evans (the ``evans-text`` row at its defaults: n = 4, k = 10) and the cone-traced row
     (their cost-row kernels, `Row.timed`) beside the Mitsuba AO estimator's samples/s, in the same run."""
     variant = ctx.variant
-    be = "cuda" if variant.startswith("cuda") else "llvm"
+    be = backend_of(variant)
     set_default_backend(be)
     cfg = configure(ctx.quick, None)
     res = 64 if ctx.quick else 256

@@ -44,6 +44,7 @@ from rtfit.reference.soft_particles import (
     particle_reference,
     transmittance_pass_particle,
 )
+from rtfit.reference.variants import backend_of
 
 from . import figures as F
 from . import fitted as fitfiles
@@ -272,7 +273,7 @@ def case_id(shape: str, alpha_c: float, inside: bool = False) -> str:
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     cases = [(s, a, False) for s in cfg["shapes"] for a in cfg["alphas"]]
     if cfg["camera_inside"]:
         cases.append(("sphere", cfg["alphas"][-1], True))

@@ -44,6 +44,7 @@ from rtfit.reference import (
     radiance_pass,
     render_gbuffer,
 )
+from rtfit.reference.variants import backend_of
 from rtfit.scenes import parse_scene_text, scene_hash, scene_to_toml
 from rtfit.scenes.model import (
     Camera,
@@ -375,7 +376,7 @@ def fit_data(p: dict, dirs: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> di
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend("cuda" if ctx.variant.startswith("cuda") else "llvm")
+    set_default_backend(backend_of(ctx.variant))
     params, scenes, jobs = {}, {}, []
     for dist in cfg["distances_m"]:
         for sigma in cfg["sigma_t_per_m"]:

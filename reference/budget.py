@@ -31,6 +31,7 @@ import sys
 import threading
 
 import drjit as dr
+import numpy as np
 
 MEDIUM_EVENT_CAP = 1 << 16
 """Free-flight samples (``sample_interaction`` calls) one lane may take in one launch."""
@@ -44,6 +45,24 @@ MAX_TIMED_LANES = 1 << 24
 
 class PassBudgetExceeded(RuntimeError):
     """A pass broke its budget (medium events per lane or wall time); the message is one line."""
+
+
+class NonFinitePass(RuntimeError):
+    """A pass came back with a NaN or infinite mean or variance: it is never stored (a reference must be
+    finite everywhere; one bad sample poisons its pixel for every later fit and metric). The message is one
+    line naming the case, the pass and the first elements. Found this way: a float32 0/0 in one sample of ~10⁷
+    of the sky integrator on CUDA (`rtfit.reference.sky_integrator`, ``BELOW_ONE``)."""
+
+
+def check_finite(result) -> None:
+    """Raise `NonFinitePass` unless ``result.mean`` and ``result.var`` are finite everywhere."""
+    bad = ~(np.isfinite(result.mean) & np.isfinite(result.var))
+    if bad.any():
+        first = ", ".join(str(int(i)) for i in np.flatnonzero(bad)[:3])
+        raise NonFinitePass(
+            f"{int(bad.sum())} non-finite values in the mean or variance (first at flat indices {first}): "
+            "not stored"
+        )
 
 
 class LaneCounter:

@@ -99,7 +99,7 @@ from .fog_integrator import log1m_ratio, medium_vertex
 
 PLUGIN = "rtfit_skypath"
 ESTIMATOR = (
-    "rtfit_skypath/1: tangent-exponential majorants, spectral-MIS delta tracking, "
+    "rtfit_skypath/2: tangent-exponential majorants, spectral-MIS delta tracking, "
     "Poisson-corrected marched sun transmittance (Python integrator)"
 )
 """The estimator's identity: part of the reference cache key."""
@@ -118,6 +118,8 @@ smaller factors, lower variance; measured on the quick sky at sun 10°: × 3 cut
 scattering by 40 % for 11 % more time; the free flight keeps × 1)."""
 MARCH_NODES = 4
 """Stratified samples per leg and component of one optical-depth estimate (`marched_transmittance`)."""
+BELOW_ONE = 1.0 - 2.0**-24
+"""The largest float32 below 1: a stratified fraction (j + ξ)/N is capped there (`leg_depth`)."""
 POISSON_MEAN = 0.1
 POISSON_SCALE = 0.1
 """λ = max(`POISSON_MEAN`, `POISSON_SCALE`·max_c ĉ_c) of the Poisson-corrected transmittance: the expected
@@ -312,7 +314,12 @@ def register(mi) -> None:
             xi = sampler.next_1d(active)
             acc = mi.Float(0.0)
             for j in range(MARCH_NODES):
-                wj = (j + xi) / MARCH_NODES * mass
+                # (j + ξ)/N rounds to 1 in float32 for the last node when ξ ≥ 1 − 2⁻²³ (3 + ξ → 4.0); with
+                # mass = 1 (κL ≳ 17) that put the node at u = ∞, pdf = 0: 0/0 = NaN in one sample of ~10⁷
+                # (the H200's first all-orders sky run; LLVM reproduces it). Capped at the largest float32
+                # below 1: u ≤ 16.6/κ stays finite, only ξ within 2⁻²³ of 1 moves (within its own stratum's
+                # tail), and no other node changes.
+                wj = dr.minimum((j + xi) / MARCH_NODES, BELOW_ONE) * mass
                 u = -dr.log(1.0 - wj) / kappa
                 pdf = kappa * (1.0 - wj) / mass  # κ e^{−κu}/(1 − e^{−κL})
                 h = dr.maximum(dr.norm(q0 + u * d) - self.rg, 0.0)

@@ -385,12 +385,10 @@ def test_quadrature_rows_on_threads_equal_rows_alone_and_the_job_caches(tmp_path
     d = rng.normal(size=(5, 3))
     d[:, 2] = np.abs(d[:, 2])
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    for point_sun in (True, False):
-        together = single_scattering_quadrature(spec, d, steps=60, point_sun=point_sun)
-        alone = np.concatenate(
-            [single_scattering_quadrature(spec, d[i : i + 1], steps=60, point_sun=point_sun) for i in range(5)]
-        )
-        assert np.array_equal(together, alone)
+    for ps in (True, False):
+        together = single_scattering_quadrature(spec, d, steps=60, point_sun=ps)
+        rows = [single_scattering_quadrature(spec, d[i : i + 1], steps=60, point_sun=ps) for i in range(5)]
+        assert np.array_equal(together, np.concatenate(rows))
     kw = dict(elev=1.0, width=8, height=4, stride=(4, 2), steps=40, alt_m=0.0, cache_dir=str(tmp_path))
     first, again = quadrature_job(**kw), quadrature_job(**kw)
     assert not first["cached"] and again["cached"]

@@ -116,3 +116,24 @@ def test_a_bad_budget_is_refused_before_anything_runs(monkeypatch, tmp_path, cap
         assert code == 2, bad
         assert err.count("\n") == 1 and err.startswith("rtfit: error: ") and "RTFIT_PASS_BUDGET_S" in err
         assert not out.exists() and not (tmp_path / "cache").exists()
+
+
+def test_a_run_whose_reference_fails_exits_1_with_one_line(monkeypatch, tmp_path, capsys):
+    """A reference pass that cannot be stored (here a planted non-finite pass; a pass past its budget takes
+    the same path) ends ``rtfit run`` with one line naming the case and pass and exit status 1 (a failed
+    self-check, not bad input), no traceback and no half-written output folder."""
+    from rtfit.experiments.cli import main
+    from rtfit.reference import budget, cache
+
+    def planted(result):
+        raise budget.NonFinitePass("3 non-finite values (planted)")
+
+    monkeypatch.setattr(cache, "check_finite", planted)
+    out = tmp_path / "out"
+    code = main(
+        ["run", "diffuse", "--quick", "--out", str(out), "--cache", str(tmp_path / "cache"), "--no-progress"]
+    )
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("rtfit: failed")]
+    assert code == 1
+    assert len(err) == 1 and "NonFinitePass: " in err[0] and " pass 1 of " in err[0] and "planted" in err[0]
+    assert not out.exists() or not any(out.iterdir())

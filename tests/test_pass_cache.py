@@ -142,3 +142,24 @@ def test_a_corrupt_computed_entry_is_recomputed(tmp_path, damage):
     got, computed = ComputedEntry(tmp_path, IDENT, namespace="q").get(lambda: _quadrature_like(calls))
     assert computed and calls == [1, 1] and np.array_equal(got["value"], want["value"])
     assert ComputedEntry(tmp_path, IDENT, namespace="q").load() is not None  # rewritten whole
+
+
+def test_a_non_finite_pass_fails_with_one_line_and_is_not_stored(tmp_path):
+    """One NaN sample poisons its pixel for every later fit: such a pass is refused, never cached, and the
+    passes before it stay (the rerun resumes from them)."""
+    from rtfit.reference.budget import NonFinitePass
+
+    def render(i: int) -> PassResult:
+        r = _render(i)
+        if i == 1:
+            r.mean[2, 1] = np.nan
+        return r
+
+    entry = PassEntry(tmp_path, IDENT)
+    with pytest.raises(NonFinitePass) as err:
+        entry.passes(3, render, label="sky-e10-ms")
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith("sky-e10-ms pass 2 of 3: 1 non-finite values")
+    assert "flat indices 7" in msg  # row 2, channel 1 of a (4, 3) pass
+    assert entry.load(0) is not None and entry.load(1) is None  # pass 0 kept, pass 1 not written
+    assert not list(entry.folder.glob("pass-00001.*"))

@@ -166,3 +166,25 @@ def test_twilight_all_orders_pass_that_trapped_a_lane(sky, tmp_path):
     assert np.linalg.norm(p) == pytest.approx(rg + 2.0**-10, abs=1e-3) and p[0] / p[2] == pytest.approx(0.75)
     q = np.array(integ.above_ground(mi.Point3f(0.0, 0.0, rg + 5.0))).ravel()
     assert q[2] == pytest.approx(rg + 5.0, rel=1e-7)  # above the ground: unchanged
+
+
+def test_marched_leg_with_the_last_stratum_at_one_stays_finite(sky):
+    """ξ = 1 − 2⁻²⁴ (the largest `independent` sample): (3 + ξ)/4 rounds to 1 in float32, which put the last
+    node at u = ∞ with pdf 0 (0/0 = NaN: one sample in ~10⁷ of the first all-orders sky run on the H200).
+    On a vertical leg from 10 m with κ = 1/H the integrand/pdf ratio is constant, so every node gives the
+    exact ∫₀^∞ e^{−h/H} du = H e^{−h₀/H} (km): the estimate must equal it up to float32 rounding of the
+    altitude, h = |q| − R_g with ½ ulp(6360 km) = 2.4e-4 km, i.e. 3e-5 of e^{−h/H} (measured 2.2e-5)."""
+    mi, spec = sky
+    _, integ = _integrator(mi, spec)
+
+    class LastStratum:
+        def next_1d(self, active=True):
+            return mi.Float(1.0 - 2.0**-24)
+
+    h0, height = 0.01, spec.rayleigh_height_km
+    q0 = mi.Point3f(0.0, 0.0, spec.planet_radius_km + h0)
+    d = mi.Vector3f(0.0, 0.0, 1.0)
+    est = integ.leg_depth(q0, d, mi.Float(400.0), height, 1.0, LastStratum(), mi.Bool(True))
+    got = float(np.asarray(est)[0])
+    want = height * math.exp(-h0 / height)
+    assert math.isfinite(got) and abs(got / want - 1) < 3.5e-5, (got, want)
