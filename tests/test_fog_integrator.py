@@ -184,3 +184,31 @@ def test_vertex_cap_fails_the_pass(mi, monkeypatch):
         monkeypatch.undo()
         fog_integrator._registered.discard(mi.variant())
         fog_integrator.register(mi)
+
+
+def test_free_flight_at_the_extreme_samples(mi):
+    """u ∈ {0, 2⁻²³, ½, 1 − 2⁻²³} (PCG32's smallest and largest floats) on every kind of ray — up, level,
+    down, straight down onto the ground, grazing — in the terrain fog from 0 m (on the ground), 2 m and 300 m,
+    and through the tall fog from inside its top (σ below float32's range): a collision distance is finite,
+    in [0, surface], and a larger u goes no shorter than a smaller one."""
+    med = load_scene(library_path("fog_terrain")).media[0]
+    tall = parse_scene_text(TALL_FOG).media[0]
+    us = np.array([0.0, 2.0**-23, 0.5, 1.0 - 2.0**-23], dtype=np.float32)
+    dzs = [-1.0, -0.9, -0.3, -1e-4, 0.0, 1e-4, 0.02, 0.6, 1.0]
+    for m, heights in ((med, (0.0, 2.0, 300.0)), (tall, (199.0, 150.0))):
+        integ = _integrator(mi, m)
+        for h in heights:
+            for dz in dzs:
+                d = np.array([0.0, math.sqrt(1 - dz * dz), dz])
+                t_surf = h / -dz if (dz < 0 and m is med and h > 0) else 1e30
+                n = us.size
+                o = mi.Point3f(*[mi.Float(np.full(n, x, np.float32)) for x in (0.0, 0.0, h)])
+                collided, t = integ.free_flight(
+                    o, mi.Vector3f(*d.tolist()), mi.Float(np.full(n, t_surf, np.float32)), mi.Float(us)
+                )
+                c, t = np.array(collided), np.array(t, dtype=np.float64)
+                assert np.all(np.isfinite(t[c])), (h, dz, t)
+                assert np.all((t[c] >= 0.0) & (t[c] <= t_surf * (1 + 1e-6))), (h, dz, t)
+                # τ* = −ln(1 − u) rises with u: collisions are a prefix of the u's, at non-decreasing t
+                assert np.all(np.diff(c.astype(int)) <= 0), (h, dz, c)
+                assert np.all(np.diff(t[c]) >= -1e-6 * max(1.0, float(np.max(t[c], initial=0.0)))), (h, dz, t)
