@@ -58,7 +58,7 @@ from .jobs import JobsFailed, error_line
 from .ray_executor import RAY_EXTRA_HINT, check_address
 from .registry import EXPERIMENTS, SPP_MAX, BenchContext, describe_config, resolve_names, validate_config
 from .report import write_index, write_report
-from .runner import check_summary, created_now, device_description, run_experiments, versions
+from .runner import RunFailed, check_summary, created_now, device_description, run_experiments, versions
 from .sweep import load_sweep, run_sweep
 
 VARIANT_CHOICES = ("auto", "llvm_ad_rgb", "cuda_ad_rgb")
@@ -639,12 +639,13 @@ def main(argv=None) -> int:
     except (SceneError, ValueError) as e:
         click.echo(f"rtfit: error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", err=True)
         return 2
-    except (PassBudgetExceeded, NonFinitePass, JobsFailed) as e:
+    except (PassBudgetExceeded, NonFinitePass, JobsFailed, RunFailed) as e:
         # a reference that could not be made (a pass past its budget, a non-finite pass, a job whose worker
-        # kept dying): not the user's input, so exit 1 — one line, and the passes already stored are kept
+        # kept dying) or a run that failed inside (RunFailed): not the user's input, so exit 1 — one line,
+        # and the passes already stored are kept
+        what = str(e) if isinstance(e, RunFailed) else error_line(e)
         click.echo(
-            f"rtfit: failed: {error_line(e)} (rendered passes are kept in the cache; rerun to resume)",
-            err=True,
+            f"rtfit: failed: {what} (rendered passes are kept in the cache; rerun to resume)", err=True
         )
         return 1
     finally:  # the logging set up for this command ends with it (a library caller's own stays)

@@ -22,9 +22,11 @@ import drjit as dr
 
 from rtfit.reference.cache import PASS_COUNTS
 from rtfit.reference.variants import callers_variant
+from rtfit.scenes import SceneError
 
 from .atomic import atomic_directory, is_temporary_name
 from .executors import make_executor
+from .jobs import error_line
 from .records import SCHEMA, Results, from_json, plain_json
 from .registry import ExperimentSpec, RunContext
 from .report import write_index, write_report
@@ -124,6 +126,11 @@ def run_experiment_into(
     return results
 
 
+class RunFailed(RuntimeError):
+    """An experiment that started (its input valid) and could not finish: one line naming it and the cause;
+    ``rtfit`` prints it and exits with status 1 (README: exit statuses)."""
+
+
 def run_experiments(
     specs: list[ExperimentSpec],
     out: Path,
@@ -165,7 +172,14 @@ def run_experiments(
                         overrides=dict(overrides or {}),
                     )
                     before = PASS_COUNTS.snapshot()
-                    run_experiment_into(spec, Path(tmp), ctx, executor, single_file=single_file)
+                    try:
+                        run_experiment_into(spec, Path(tmp), ctx, executor, single_file=single_file)
+                    except (SceneError, ValueError) as e:
+                        # The input was validated before this loop (the CLI: every configuration value, file
+                        # and address): a ValueError from inside an experiment is the run failing — a fit
+                        # refusing a non-finite target, say — not bad input. The traceback: debug log (-v).
+                        log.debug("%s failed", spec.name, exc_info=True)
+                        raise RunFailed(f"{spec.name}: {error_line(e)}") from e
                     print_resumed(spec.name, before, PASS_COUNTS.snapshot())
                 done.append(final)
                 log.info(

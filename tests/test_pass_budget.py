@@ -137,3 +137,26 @@ def test_a_run_whose_reference_fails_exits_1_with_one_line(monkeypatch, tmp_path
     assert code == 1
     assert len(err) == 1 and "NonFinitePass: " in err[0] and " pass 1 of " in err[0] and "planted" in err[0]
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_value_error_inside_a_started_run_is_a_failure_not_bad_input(monkeypatch, tmp_path, capsys):
+    """Exit status 2 is for bad input found before anything runs. A ValueError raised inside an experiment
+    (the first full GPU sky run ended in "method 'nishita-fitted': the target must be a non-empty finite
+    array", exit 2) is the run failing: one line naming the experiment, exit 1."""
+    from rtfit.experiments import runner
+    from rtfit.experiments.cli import main
+
+    def planted(spec, *a, **k):
+        raise ValueError("the target must be a non-empty finite array (planted)")
+
+    monkeypatch.setattr(runner, "run_experiment_into", planted)
+    out = tmp_path / "out"
+    code = main(
+        ["run", "diffuse", "--quick", "--out", str(out), "--cache", str(tmp_path / "c"), "--no-progress"]
+    )
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("rtfit: ")]
+    assert code == 1
+    assert (
+        err[-1].startswith("rtfit: failed: diffuse: ValueError: the target must be") and "planted" in err[-1]
+    )
+    assert not (out / "diffuse").exists()
