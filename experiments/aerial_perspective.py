@@ -522,27 +522,19 @@ def write_fitted(ctx, cfg, refs, fits) -> list[dict]:
             residual_units=FIT_RESIDUAL_UNITS,
             data={"sun_elevation_deg": e, "held": {"g": cfg["fog_g"]}},
         )
-        fitfiles.write_fitted(
-            ctx.out_dir / file,
-            fitfiles.FittedFile(
-                format=fitfiles.FORMAT,
+        docs.append(
+            fitfiles.write_fit(
+                ctx.out_dir,
+                file,
                 title=f"aerial perspective: height-fog blend fitted to atmosphere + fog at sun {e:g}°",
                 provenance=fitfiles.provenance(ctx, "aerial-perspective"),
-                methods=[entry],
-            ),
-        )
-        docs.append(
-            {
-                "id": f"fog-{cid}",
-                "label": f"height-fog phase blend fitted at sun {e:g}° (g held at {cfg['fog_g']:g})",
-                "model": m.formula,
-                "parameters": fit["parameters"],
-                "rms_residual": fit.get("rms_residual"),
-                "n_residuals": fit.get("n_residuals"),
-                "converged": fit.get("converged"),
-                "at_bound": fit.get("at_bound"),
-                "file": file,
-            }
+                entry=entry,
+                doc_id=f"fog-{cid}",
+                label=f"height-fog phase blend fitted at sun {e:g}° (g held at {cfg['fog_g']:g})",
+                model=m.formula,
+                fit=fit,
+                at_bound=fit.get("at_bound"),
+            )
         )
     return docs
 

@@ -1156,26 +1156,18 @@ def write_fitted(out, fit_i, fit_l, fl, ctx=None, cfg=None, cases=()) -> list[di
                 **{k: v for k, v in fit.items() if k not in ("parameters", "errors")},
             },
         )
-        fitfiles.write_fitted(
-            out / file,
-            fitfiles.FittedFile(
-                format=fitfiles.FORMAT,
+        docs.append(
+            fitfiles.write_fit(
+                out,
+                file,
                 title=f"ambient aperture: {label}",
                 provenance=prov,
-                methods=[entry],
-            ),
-        )
-        docs.append(
-            {
-                "id": fid,
-                "label": label,
-                "model": model,
-                "parameters": fit["parameters"],
-                "rms_residual": fit.get("rms_residual"),
-                "n_residuals": fit.get("n_residuals"),
-                "converged": bool(fit["converged"]),
-                "file": file,
-            }
+                entry=entry,
+                doc_id=fid,
+                label=label,
+                model=model,
+                fit=fit,
+            )
         )
     return docs
 

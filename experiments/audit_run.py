@@ -704,19 +704,16 @@ def _checks(plan, outcomes) -> list[dict]:
 
 
 def _fit_record(case: FamilyCase, row: MethodOutcome) -> dict:
-    f = row.fit or {}
-    return {
-        "id": f"{case.id}/{row.row}",
-        "label": f"{row.method.label}, {case.label}",
-        "model": row.method.formula or row.method.label,
-        "parameters": f.get("parameters", {}),
-        "rms_residual": f.get("rms_residual"),
-        "n_residuals": f.get("n_residuals"),
-        "converged": f.get("converged"),
-        "at_bound": [k for k, v in f.get("parameters", {}).items() if v.get("at_bound")],
-        "message": f.get("message"),
-        "file": "fitted/audit.json",
-    }
+    f = {"parameters": {}, **(row.fit or {})}  # a row without a fit still gets its (empty) record
+    return fitfiles.fit_record(
+        f"{case.id}/{row.row}",
+        f"{row.method.label}, {case.label}",
+        row.method.formula or row.method.label,
+        f,
+        "fitted/audit.json",
+        at_bound=[k for k, v in f["parameters"].items() if v.get("at_bound")],
+        message=f.get("message"),
+    )
 
 
 def _results(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selection) -> Results:

@@ -544,26 +544,16 @@ def write_fitted(out, cfg, fitted: Fitted, ctx=None, scenes=None, geom=None) -> 
     largest = case_id(cfg["alphas_deg"][-1], 0.0)
     first = fitted.per_case[largest]
     return [
-        {
-            "id": f"wrap-{largest}",
-            "label": f"wrap (w, p) at α = {cfg['alphas_deg'][-1]:g}°",
-            "model": "max((cos θ + w)/(1 + w), 0)^p",
-            "parameters": first["parameters"],
-            "rms_residual": first["rms_residual"],
-            "n_residuals": first["n_residuals"],
-            "converged": first["converged"],
-            "file": "fitted/wrap_per_alpha.json",
-        },
-        {
-            "id": "wrap-smooth",
-            "label": SMOOTH_LAW.label,
-            "model": SMOOTH_LAW.formula,
-            "parameters": smooth["parameters"],
-            "rms_residual": smooth["rms_residual"],
-            "n_residuals": smooth["n_residuals"],
-            "converged": smooth["converged"],
-            "file": "fitted/wrap_smooth.json",
-        },
+        fitfiles.fit_record(
+            f"wrap-{largest}",
+            f"wrap (w, p) at α = {cfg['alphas_deg'][-1]:g}°",
+            "max((cos θ + w)/(1 + w), 0)^p",
+            first,
+            "fitted/wrap_per_alpha.json",
+        ),
+        fitfiles.fit_record(
+            "wrap-smooth", SMOOTH_LAW.label, SMOOTH_LAW.formula, smooth, "fitted/wrap_smooth.json"
+        ),
     ]
 
 

@@ -15,6 +15,8 @@ with the machinery of `rtfit.experiments.records`)::
 `method_entry` builds a `FittedMethod` from a `rtfit.realtime.Method` and its fit
 (`rtfit.fitting.FitResult.to_dict()`), tracing the kernel with `rtfit.realtime.shader.SHADER_OPS`;
 `write_fitted` validates a `FittedFile` (the loader's own checks) and writes it atomically;
+`write_fit` writes the usual one-method file of one fit and returns its results' ``fits`` record
+(`fit_record`, which files of several methods use alone);
 `load_fitted` reads one back strictly (one ``FILE: KEY.PATH: problem`` line on a bad file).
 """
 
@@ -44,12 +46,14 @@ __all__ = [
     "Range",
     "Residual",
     "Shader",
+    "fit_record",
     "fitted_json_schema",
     "load_fitted",
     "method_entry",
     "parameters_from_fit",
     "provenance",
     "shader_entry",
+    "write_fit",
     "write_fitted",
 ]
 
@@ -326,6 +330,50 @@ def write_fitted(path: Path, document: FittedFile) -> dict:
     _check(doc, str(path))
     atomic_write_json(Path(path), doc)
     return doc
+
+
+def fit_record(doc_id: str, label: str, model: str, fit: Mapping, file: str, **extra) -> dict:
+    """The results' ``fits`` record of one fit (what the report's fit table and ``results.json`` list):
+    ``id``, ``label``, ``model`` (the formula as the report names it), the fit's ``parameters`` as fitted,
+    its ``rms_residual``, ``n_residuals`` and ``converged`` (None where the fit lacks one), then a family's
+    own keys ``extra`` (e.g. ``at_bound``, ``message``), and the fitted-parameter ``file`` (relative to
+    the run folder) that carries it. One text for the record every experiment writes beside its file."""
+    return {
+        "id": doc_id,
+        "label": label,
+        "model": model,
+        "parameters": fit["parameters"],
+        "rms_residual": fit.get("rms_residual"),
+        "n_residuals": fit.get("n_residuals"),
+        "converged": fit.get("converged"),
+        **extra,
+        "file": file,
+    }
+
+
+def write_fit(
+    out: Path,
+    file: str,
+    *,
+    title: str,
+    provenance: Provenance,
+    entry: FittedMethod,
+    doc_id: str,
+    label: str,
+    model: str,
+    fit: Mapping,
+    **extra,
+) -> dict:
+    """Write ``out / file``, a fitted-parameter file (``rtfit.fitted/1``, `write_fitted`) holding the one
+    method ``entry`` under ``title`` and ``provenance``, and return the results' ``fits`` record of
+    ``fit`` (`fit_record`; ``extra``: the family's own record keys).
+
+    Most experiments write one such file per fit (per case, per variant); this is that pair of steps
+    once, so the file and its record cannot drift apart (same ``file`` path in both)."""
+    write_fitted(
+        Path(out) / file, FittedFile(format=FORMAT, title=title, provenance=provenance, methods=[entry])
+    )
+    return fit_record(doc_id, label, model, fit, file, **extra)
 
 
 def load_fitted(path: Path) -> FittedFile:

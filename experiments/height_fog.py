@@ -799,26 +799,18 @@ def write_fitted(out, fits: dict, vol_fit: dict | None, ctx=None, cfg=None, geom
         prov = fitfiles.provenance(
             ctx, "height-fog", [h for k, h in (hashes or {}).items() if k in (cid, f"{cid}-nofog")], spp
         )
-        fitfiles.write_fitted(
-            out / file,
-            fitfiles.FittedFile(
-                format=fitfiles.FORMAT,
+        docs.append(
+            fitfiles.write_fit(
+                out,
+                file,
                 title=f"height fog, {m.label}: artist parameters fitted to Mitsuba ({cid})",
                 provenance=prov,
-                methods=[entry],
-            ),
-        )
-        docs.append(
-            {
-                "id": fid,
-                "label": f"artist parameters, {label}",
-                "model": m.formula,
-                "parameters": fit["parameters"],
-                "rms_residual": fit["rms_residual"],
-                "n_residuals": fit["n_residuals"],
-                "converged": fit["converged"],
-                "file": file,
-            }
+                entry=entry,
+                doc_id=fid,
+                label=f"artist parameters, {label}",
+                model=m.formula,
+                fit=fit,
+            )
         )
     if vol_fit:
         file = "fitted/fog-volume-colours.json"

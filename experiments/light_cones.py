@@ -687,26 +687,18 @@ def write_fitted(out, fits, cases, scenes, ctx, cfg) -> list[dict]:
             data={"views": [cases[i]["view"] for i in ids], "correlation": fit.get("correlation")},
         )
         prov = fitfiles.provenance(ctx, "light-cones", [scene_hash(scenes[i]) for i in ids], cfg["spp"])
-        fitfiles.write_fitted(
-            out / file,
-            fitfiles.FittedFile(
-                format=fitfiles.FORMAT,
+        docs.append(
+            fitfiles.write_fit(
+                out,
+                file,
                 title=f"light cones: {row.label} fitted to spot-light single scattering (σ_t = {sigma:g} /m)",
                 provenance=prov,
-                methods=[entry],
-            ),
-        )
-        docs.append(
-            {
-                "id": f"light-cones-{tag}",
-                "label": f"{row.label}, σ_t = {sigma:g} /m",
-                "model": m.formula,
-                "parameters": fit["parameters"],
-                "rms_residual": fit["rms_residual"],
-                "n_residuals": fit["n_residuals"],
-                "converged": fit["converged"],
-                "file": file,
-            }
+                entry=entry,
+                doc_id=f"light-cones-{tag}",
+                label=f"{row.label}, σ_t = {sigma:g} /m",
+                model=m.formula,
+                fit=fit,
+            )
         )
     return docs
 

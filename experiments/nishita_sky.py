@@ -1523,18 +1523,15 @@ def write_fitted(out, cfg, fits, method_id, ctx=None) -> list[dict]:
     docs = []
     for e, f in fits.items():
         docs.append(
-            {
-                "id": f"artist-{case_id(e, 'ms')}",
-                "label": f"artist parameters at sun {e:g}°",
-                "model": "seed sky with β_R·s_R, Mie density·s_M, g, P_R + A/4π",
-                "parameters": f["parameters"],
-                "rms_residual": f["rms_residual"],
-                "n_residuals": f["n_residuals"],
-                "converged": f["converged"],
-                "at_bound": list(f["at_bound"]),
-                "message": f.get("message", ""),
-                "file": "fitted/nishita_artist_params.json",
-            }
+            fitfiles.fit_record(
+                f"artist-{case_id(e, 'ms')}",
+                f"artist parameters at sun {e:g}°",
+                "seed sky with β_R·s_R, Mie density·s_M, g, P_R + A/4π",
+                f,
+                "fitted/nishita_artist_params.json",
+                at_bound=list(f["at_bound"]),
+                message=f.get("message", ""),
+            )
         )
     return docs
 

@@ -881,17 +881,14 @@ def write_fitted(out, cfg, fits, ctx, hashes) -> list[dict]:
                 )
             )
             docs.append(
-                {
-                    "id": f"{mid}-{case}",
-                    "label": f"{m.label}: {case}",
-                    "model": m.formula,
-                    "parameters": fit["parameters"],
-                    "rms_residual": fit.get("rms_residual"),
-                    "n_residuals": fit.get("n_residuals"),
-                    "converged": fit.get("converged"),
-                    "message": str(fit.get("message", ""))[:200],
-                    "file": file,
-                }
+                fitfiles.fit_record(
+                    f"{mid}-{case}",
+                    f"{m.label}: {case}",
+                    m.formula,
+                    fit,
+                    file,
+                    message=str(fit.get("message", ""))[:200],
+                )
             )
     fitfiles.write_fitted(
         out / file,

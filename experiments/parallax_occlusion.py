@@ -595,27 +595,19 @@ def write_fit_files(ctx, cfg, fits: dict) -> list[dict]:
                 },
                 residual_units="visibility / √(σ² + 0.01²)",
             )
-            fitfiles.write_fitted(
-                ctx.out_dir / file,
-                fitfiles.FittedFile(
-                    format=fitfiles.FORMAT,
+            docs.append(
+                fitfiles.write_fit(
+                    ctx.out_dir,
+                    file,
                     title=f"parallax occlusion mapping: {m.label} (k, floor) fitted to ray-traced "
                     f"visibility ({field})",
                     provenance=fitfiles.provenance(ctx, "parallax-occlusion", [], cfg["light_samples"]),
-                    methods=[entry],
-                ),
-            )
-            docs.append(
-                {
-                    "id": f"shadow-{mid}-{field}",
-                    "label": f"{METHODS[mid].label}: shadow (k, floor), {field}",
-                    "model": m.formula,
-                    "parameters": fit["parameters"],
-                    "rms_residual": fit["rms_residual"],
-                    "n_residuals": fit["n_residuals"],
-                    "converged": fit["converged"],
-                    "file": file,
-                }
+                    entry=entry,
+                    doc_id=f"shadow-{mid}-{field}",
+                    label=f"{METHODS[mid].label}: shadow (k, floor), {field}",
+                    model=m.formula,
+                    fit=fit,
+                )
             )
     return docs
 

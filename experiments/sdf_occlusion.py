@@ -1762,27 +1762,19 @@ def write_fitted(out, cfg, joint, per_case, sds, ctx=None, hashes=()) -> list[di
             ),
             data={k: v for k, v in doc.items() if k not in ("model", "parameters")},
         )
-        fitfiles.write_fitted(
-            out / fname,
-            fitfiles.FittedFile(
-                format=fitfiles.FORMAT,
+        docs.append(
+            fitfiles.write_fit(
+                out,
+                fname,
                 title=f"SDF occlusion: Evans multi-scale estimator, joint fit ({TARGET_LABEL[t]})",
                 provenance=prov,
-                methods=[entry],
-            ),
-        )
-        docs.append(
-            {
-                "id": f"evans-joint-{t}",
-                "label": f"Evans joint fit ({TARGET_LABEL[t]})",
-                "model": "C = exp(log B − Σ c_i D_i(α, base)), c_i = k·w_i; all fitted together (LM, "
+                entry=entry,
+                doc_id=f"evans-joint-{t}",
+                label=f"Evans joint fit ({TARGET_LABEL[t]})",
+                model="C = exp(log B − Σ c_i D_i(α, base)), c_i = k·w_i; all fitted together (LM, "
                 "Dr.Jit autodiff for α and base)",
-                "parameters": b["fit"]["parameters"],
-                "rms_residual": b["fit"]["rms_residual"],
-                "n_residuals": b["fit"]["n_residuals"],
-                "converged": b["fit"]["converged"],
-                "file": fname,
-            }
+                fit=b["fit"],
+            )
         )
     fitfiles.write_fitted(
         out / "fitted/per_case.json",

@@ -1004,16 +1004,13 @@ def write_fitted(ctx, study) -> list[dict]:
             )
         )
         docs.append(
-            {
-                "id": f"{fid}-{shape}-a{alpha_c:g}",
-                "label": f"{METHODS[kernel].label}, {shape}, α_c = {alpha_c:g}",
-                "model": METHODS[kernel].formula,
-                "parameters": fit["parameters"],
-                "rms_residual": fit["rms_residual"],
-                "n_residuals": fit["n_residuals"],
-                "converged": fit["converged"],
-                "file": "fitted/soft-particles.json",
-            }
+            fitfiles.fit_record(
+                f"{fid}-{shape}-a{alpha_c:g}",
+                f"{METHODS[kernel].label}, {shape}, α_c = {alpha_c:g}",
+                METHODS[kernel].formula,
+                fit,
+                "fitted/soft-particles.json",
+            )
         )
     fitfiles.write_fitted(
         ctx.out_dir / "fitted/soft-particles.json",

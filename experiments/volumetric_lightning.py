@@ -779,26 +779,18 @@ def write_fitted(out, fits, params, ctx, cfg, hashes, rendered) -> list[dict]:
             data={"correlation": fit.get("correlation"), "param_names": fit.get("param_names")},
         )
         prov = fitfiles.provenance(ctx, "volumetric-lightning", [hashes[cid]], cfg["spp"])
-        fitfiles.write_fitted(
-            out / file,
-            fitfiles.FittedFile(
-                format=fitfiles.FORMAT,
+        docs.append(
+            fitfiles.write_fit(
+                out,
+                file,
                 title=f"volumetric lightning: seed model (i, a) fitted to single scattering ({cid})",
                 provenance=prov,
-                methods=[entry],
-            ),
-        )
-        docs.append(
-            {
-                "id": f"lightning-{cid}",
-                "label": f"seed model (i, a), {cid}",
-                "model": m.formula,
-                "parameters": fit["parameters"],
-                "rms_residual": fit["rms_residual"],
-                "n_residuals": fit["n_residuals"],
-                "converged": fit["converged"],
-                "file": file,
-            }
+                entry=entry,
+                doc_id=f"lightning-{cid}",
+                label=f"seed model (i, a), {cid}",
+                model=m.formula,
+                fit=fit,
+            )
         )
     return docs
 

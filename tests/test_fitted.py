@@ -22,7 +22,15 @@ from rtfit.experiments import irradiance_bases as ib
 from rtfit.experiments import nishita_sky as ns
 from rtfit.experiments import sdf_occlusion as so
 from rtfit.experiments import volumetric_lightning as vl
-from rtfit.experiments.fitted import FORMAT, FittedError, fitted_json_schema, load_fitted
+from rtfit.experiments.fitted import (
+    FORMAT,
+    FittedError,
+    fitted_json_schema,
+    load_fitted,
+    method_entry,
+    provenance,
+    write_fit,
+)
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.diffuse import METHODS as DIFFUSE
 from rtfit.realtime.height_fog import METHODS as FOG
@@ -307,6 +315,32 @@ def test_loader_refuses_bad_files_with_one_line(tmp_path):
     m = dict(good["methods"][0])
     m.pop("shader")
     refused({**good, "methods": [m]}, r"methods\[0\].shader: missing required key")
+
+
+def test_write_fit_writes_one_method_and_returns_its_record(tmp_path):
+    """`write_fit`: the file holds the one method under the title; the record carries the fit's numbers,
+    the family's extra keys before ``file``, and the same relative path the file was written at."""
+    fit = _fit({"w": 0.2, "p": 1.5}, method=df.WRAP)
+    entry = method_entry(df.WRAP, fit, case="c1", residual_units="1")
+    rec = write_fit(
+        tmp_path,
+        "fitted/one.json",
+        title="one fit",
+        provenance=provenance(None, "test"),
+        entry=entry,
+        doc_id="wrap-c1",
+        label="wrap, c1",
+        model="the model as the report names it",
+        fit=fit,
+        at_bound=["w"],
+    )
+    assert list(rec) == [
+        "id", "label", "model", "parameters", "rms_residual", "n_residuals", "converged", "at_bound", "file",
+    ]  # fmt: skip
+    assert rec["file"] == "fitted/one.json" and rec["parameters"] is fit["parameters"]
+    assert (rec["rms_residual"], rec["n_residuals"], rec["converged"]) == (0.0123, 200, True)
+    loaded = load_fitted(tmp_path / rec["file"])
+    assert loaded.title == "one fit" and [m.id for m in loaded.methods] == [entry.id]
 
 
 def test_irradiance_basis_shaders_reproduce_basis_irradiance(tmp_path):
