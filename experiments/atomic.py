@@ -114,6 +114,16 @@ def _write_owner(tmp: Path) -> None:
     atomic_write_json(owner_file(tmp), {**owner, "created": time.time()})
 
 
+def _owner_file_live(path: Path) -> bool:
+    """Whether the owner file ``path`` names a live process of this host (one about to create its directory:
+    the owner file is written first). Unreadable, foreign-host or dead owners: False (removable)."""
+    try:
+        owner = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(owner, dict) and _owner_alive(owner) is True
+
+
 def _stale_reason(path: Path, now: float) -> str | None:
     """Why the temporary directory ``path`` is abandoned, or None if it may still be in use."""
     try:
@@ -163,8 +173,10 @@ def remove_stale_temporaries(final_path, log: Callable[[str], None] | None = _sa
         if not path.name.startswith(prefix):
             continue
         if path.name.endswith(OWNER_SUFFIX) and is_temporary_name(path.name.removesuffix(OWNER_SUFFIX)):
-            if not path.with_name(path.name.removesuffix(OWNER_SUFFIX)).exists():
-                path.unlink(missing_ok=True)  # its directory was swapped in or removed; its writer died
+            if not path.with_name(path.name.removesuffix(OWNER_SUFFIX)).exists() and not _owner_file_live(
+                path
+            ):
+                path.unlink(missing_ok=True)  # its directory was swapped in or removed, or its writer died
             continue
         if not is_temporary_name(path.name) or path.is_symlink() or not path.is_dir():
             continue
@@ -201,13 +213,18 @@ def atomic_directory(final_path, log: Callable[[str], None] | None = _say) -> It
     remove_stale_temporaries(final, log)
     while True:
         tmp = temp_name(final, "tmp")
+        if tmp.exists() or owner_file(tmp).exists():
+            continue  # (random names: never in practice) another builder's: pick again
+        # The owner file first, then the directory: a process killed between the two leaves an owner file
+        # without its directory (removed by the next `remove_stale_temporaries`), never a directory without
+        # an owner, which would wait `STALE_UNOWNED_SECONDS` (tests/test_faults.py hit that under load).
+        _write_owner(tmp)
         try:
             tmp.mkdir(mode=0o777)
             break
         except FileExistsError:
             continue
     try:
-        _write_owner(tmp)
         yield tmp
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -186,6 +186,26 @@ def test_a_reused_pid_or_an_old_unowned_directory_is_stale(tmp_path, monkeypatch
     assert remove_stale_temporaries(final, log=None) == [unowned]
 
 
+def test_the_owner_file_comes_before_its_directory(tmp_path, monkeypatch):
+    """`atomic_directory` writes the owner file, then creates the directory, so a kill between the two never
+    leaves an ownerless directory (kept an hour: `STALE_UNOWNED_SECONDS`; the kill loop above hit it under
+    load). A live builder's owner file whose directory is not there yet is kept; a dead one's goes."""
+    final = tmp_path / "diffuse"
+    seen = []  # whether the directory existed when its owner file was written
+    real_write = atomic._write_owner
+    monkeypatch.setattr(atomic, "_write_owner", lambda tmp: seen.append(tmp.exists()) or real_write(tmp))
+    with atomic.atomic_directory(final, log=None) as tmp:
+        assert seen == [False] and owner_file(tmp).exists()
+    monkeypatch.undo()
+    me = {"host": socket.gethostname(), "pid": os.getpid(), "start": atomic._process_start(os.getpid())}
+    mine = owner_file(final.parent / f".{final.name}.{'cd' * 6}.tmp")
+    mine.write_text(json.dumps(me))
+    dead = owner_file(final.parent / f".{final.name}.{'ef' * 6}.tmp")
+    dead.write_text(json.dumps({**me, "pid": _dead_pid(), "start": None}))
+    assert remove_stale_temporaries(final, log=None) == []
+    assert mine.exists() and not dead.exists()
+
+
 def test_a_live_owners_temporary_directory_is_kept(tmp_path):
     final = tmp_path / "diffuse"
     child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
