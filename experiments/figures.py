@@ -87,6 +87,37 @@ def image_comparison(
     return save_figure(fig, path)
 
 
+def case_comparison(
+    out,
+    doc: dict,
+    reference: np.ndarray,
+    panels: list[tuple[str, np.ndarray]],
+    mask: np.ndarray,
+    error_scale: float,
+    caption: str,
+) -> dict:
+    """One case's image figure, linked from the case's rows.
+
+    Draws :func:`image_comparison` of ``reference`` and ``panels`` (the case's label as title) to
+    ``OUT/figures/CASE-ID.png``, where ``doc`` is the case document (``id``, ``label``,
+    ``approximations``), and points every approximation record of the case at it
+    (``ap["figures"]``, so the report shows the figure with the row). Returns the figure record for
+    the report: the file relative to ``out``, ``caption``, section "results".
+    """
+    path = image_comparison(
+        Path(out) / "figures" / f"{doc['id']}.png",
+        reference,
+        panels,
+        mask,
+        error_scale=error_scale,
+        title=doc["label"],
+    )
+    rel = f"figures/{path.name}"
+    for ap in doc["approximations"]:
+        ap["figures"] = [rel]
+    return {"file": rel, "caption": caption, "section": "results"}
+
+
 def line_plot(
     path,
     x_label: str,

@@ -958,24 +958,12 @@ def make_figures(out, cfg, rendered, geoms, images, residuals, case_docs, costs,
         cid = doc["id"]
         ref = rendered[cid]["image"].mean
         panels = [(ap["method"], images[(cid, ap["method"])]) for ap in doc["approximations"]]
-        path = F.image_comparison(
-            fdir / f"{cid}.png",
-            ref,
-            panels,
-            np.ones(ref.shape[:2], bool),
-            error_scale=float(np.mean(np.abs(ref))),
-            title=doc["label"],
-        )
-        rel = f"figures/{path.name}"
-        for ap in doc["approximations"]:
-            ap["figures"] = [rel]
+        caption = f"{doc['label']}: reference and models; error maps relative to the image's mean radiance."
+        scale = float(np.mean(np.abs(ref)))
         figs.append(
-            {
-                "file": rel,
-                "caption": f"{doc['label']}: reference and models; error maps relative to the "
-                "image's mean radiance.",
-                "section": "results",
-            }
+            F.case_comparison(
+                out, doc, ref, panels, np.ones(ref.shape[:2], bool), error_scale=scale, caption=caption
+            )
         )
     figs += _residual_figures(fdir, cfg, geoms, residuals, rendered)
     figs.append(_map_figure(fdir, forms))

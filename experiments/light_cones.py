@@ -711,25 +711,13 @@ def make_figures(out, cfg, cases, rendered, images, case_docs, profile) -> list[
         cid = doc["id"]
         ref = rendered[cid]["image"].mean
         panels = [(ap["method"], _grey(images[(cid, ap["method"])])) for ap in doc["approximations"]]
-        path = F.image_comparison(
-            fdir / f"{cid}.png",
-            ref,
-            panels,
-            cases[cid]["mask"],
-            error_scale=float(np.mean(np.abs(ref))),
-            title=doc["label"],
+        caption = (
+            f"{doc['label']}: Mitsuba single scattering of the spot light and the rows; error maps "
+            "relative to the image's mean radiance (compared pixels only)."
         )
-        rel = f"figures/{path.name}"
-        for ap in doc["approximations"]:
-            ap["figures"] = [rel]
+        scale = float(np.mean(np.abs(ref)))
         figs.append(
-            {
-                "file": rel,
-                "caption": f"{doc['label']}: Mitsuba single scattering of the spot light and the rows; "
-                "error maps "
-                "relative to the image's mean radiance (compared pixels only).",
-                "section": "results",
-            }
+            F.case_comparison(out, doc, ref, panels, cases[cid]["mask"], error_scale=scale, caption=caption)
         )
     series = []
     for sig, prof in profile.items():

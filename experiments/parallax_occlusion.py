@@ -752,24 +752,15 @@ def make_figures(out, cfg, case_docs, images, uv_table, costs) -> list[dict]:
         cid = doc["id"]
         ref = _grey(images[(cid, "reference")])
         panels = [(r.id, _grey(images[(cid, r.id)])) for r in ROWS]
-        path = F.image_comparison(
-            fdir / f"{cid}.png",
-            ref,
-            panels,
-            np.ones((g, g), bool),
-            error_scale=float(np.mean(ref)) + 1e-12,
-            title=doc["label"],
+        caption = (
+            f"{doc['label']}: ray-traced reference radiance (pixels on the unit tile) and the rows; error "
+            "maps relative to the mean radiance."
         )
-        rel = f"figures/{path.name}"
-        for ap in doc["approximations"]:
-            ap["figures"] = [rel]
+        scale = float(np.mean(ref)) + 1e-12
         figs.append(
-            {
-                "file": rel,
-                "section": "results",
-                "caption": f"{doc['label']}: ray-traced reference radiance (pixels on the unit tile) and "
-                "the rows; error maps relative to the mean radiance.",
-            }
+            F.case_comparison(
+                out, doc, ref, panels, np.ones((g, g), bool), error_scale=scale, caption=caption
+            )
         )
     cost_by = {c["method"]: c for c in costs}
     series = []

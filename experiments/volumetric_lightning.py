@@ -814,24 +814,15 @@ def make_figures(out, cfg, rendered, images, case_docs, softening) -> list[dict]
         cid = doc["id"]
         ref = rendered[cid]["image"].mean
         panels = [(ap["method"], _grey(images[(cid, ap["method"])])) for ap in doc["approximations"]]
-        path = F.image_comparison(
-            fdir / f"{cid}.png",
-            ref,
-            panels,
-            rendered[cid]["mask"],
-            error_scale=float(np.mean(np.abs(ref))),
-            title=doc["label"],
+        caption = (
+            f"{doc['label']}: Mitsuba single scattering and the rows; error maps relative to the image's "
+            "mean radiance."
         )
-        rel = f"figures/{path.name}"
-        for ap in doc["approximations"]:
-            ap["figures"] = [rel]
+        scale = float(np.mean(np.abs(ref)))
         figs.append(
-            {
-                "file": rel,
-                "caption": f"{doc['label']}: Mitsuba single scattering and the rows; error maps relative "
-                "to the image's mean radiance.",
-                "section": "results",
-            }
+            F.case_comparison(
+                out, doc, ref, panels, rendered[cid]["mask"], error_scale=scale, caption=caption
+            )
         )
     series, panels = [], list(softening)
     for cid, prof in softening.items():
