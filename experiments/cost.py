@@ -22,7 +22,6 @@ import drjit as dr
 import numpy as np
 
 from rtfit.realtime import set_default_backend
-from rtfit.reference.budget import NonFinitePass, check_finite
 from rtfit.reference.variants import backend_of
 
 
@@ -208,17 +207,6 @@ class Stock:
     what: str
     run: Callable[[int], object]
     samples: int
-
-
-def finite_pass(result, what: str):
-    """``result`` (a timed reference pass) if its mean and variance are finite, else `NonFinitePass` naming
-    ``what``: a bench must not print a rate and a ``nan`` variance for a pass that would never be stored (the
-    H200's first sky bench did, for a NaN sample the full run then hit)."""
-    try:
-        check_finite(result)
-    except NonFinitePass as e:
-        raise NonFinitePass(f"{what}: {e}") from None
-    return result
 
 
 def stock_render(mi, mi_scene, spp: int) -> Callable[[int], object]:

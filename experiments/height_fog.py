@@ -61,6 +61,7 @@ from rtfit.reference import (
     render_gbuffer,
     use_variant,
 )
+from rtfit.reference.budget import check_finite
 from rtfit.reference.build import light_dicts, load_dict, mitsuba_scene_dict
 from rtfit.reference.height_fog import grid_medium_dict, region_matrix, sky_statistics
 from rtfit.reference.height_fog import medium_dict as fog_medium_dict
@@ -76,7 +77,6 @@ from .cost import (
     comparison_row,
     cost_backend,
     cost_row,
-    finite_pass,
     memory_baseline,
     memory_floor_row,
     time_drjit,
@@ -1407,7 +1407,7 @@ def _bench_reference(ctx) -> list[dict]:
             radiance_pass(mi, ms, spp, 0)
             what = f"bench height-fog, {tr} scattering, {medium}, pass"
             t = min(
-                finite_pass(radiance_pass(mi, ms, spp, k + 1), f"{what} {k + 1}").seconds for k in range(2)
+                check_finite(radiance_pass(mi, ms, spp, k + 1), f"{what} {k + 1}").seconds for k in range(2)
             )
             rates[medium] = samples / t
             rows.append(

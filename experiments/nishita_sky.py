@@ -66,6 +66,7 @@ from rtfit.realtime.nishita_sky import (
     sky_kernel_inputs,
     spectral_to_srgb,
 )
+from rtfit.reference.budget import check_finite
 from rtfit.reference.cache import ComputedEntry, array_digest
 from rtfit.reference.nishita_sky import (
     CIE_Y_NORMALIZATION,
@@ -87,7 +88,7 @@ from rtfit.reference.variants import backend_of, use_variant
 
 from . import figures
 from . import fitted as fitfiles
-from .cost import attach_costs, cost_row, finite_pass, time_drjit, time_numpy
+from .cost import attach_costs, cost_row, time_drjit, time_numpy
 from .jobs import Job
 from .registry import SPP_MAX, ConfigKey, checked
 from .viewer import save_case_pixels
@@ -1697,7 +1698,7 @@ def _bench_reference(ctx) -> list[dict]:
         for k in range(BENCH_ROUNDS):
             for medium, (scene, med) in loaded.items():
                 what = f"bench nishita-sky, {transport} scattering, {medium}, round {k + 1}"
-                timed[medium].append(finite_pass(sky_pass(mi, scene, med, origin, dirs, spp, k + 1), what))
+                timed[medium].append(check_finite(sky_pass(mi, scene, med, origin, dirs, spp, k + 1), what))
         rates = {m: samples / min(p.seconds for p in ps) for m, ps in timed.items()}
         variances = {m: float(np.mean([p.var[:, 1].mean() for p in ps])) for m, ps in timed.items()}
         for medium, label in BENCH_MEDIA:

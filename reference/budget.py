@@ -54,15 +54,19 @@ class NonFinitePass(RuntimeError):
     of the sky integrator on CUDA (`rtfit.reference.sky_integrator`, ``BELOW_ONE``)."""
 
 
-def check_finite(result) -> None:
-    """Raise `NonFinitePass` unless ``result.mean`` and ``result.var`` are finite everywhere."""
+def check_finite(result, what: str):
+    """``result`` (a pass: ``mean`` and ``var`` arrays) if both are finite everywhere, else `NonFinitePass`
+    whose one line starts with ``what`` (the case and pass, or the bench row). The pass store refuses such a
+    pass; the media benches refuse to time one (the H200's first sky bench printed a rate beside a ``nan``
+    variance for the NaN sample the full run then hit)."""
     bad = ~(np.isfinite(result.mean) & np.isfinite(result.var))
     if bad.any():
         first = ", ".join(str(int(i)) for i in np.flatnonzero(bad)[:3])
         raise NonFinitePass(
-            f"{int(bad.sum())} non-finite values in the mean or variance (first at flat indices {first}): "
-            "not stored"
+            f"{what}: {int(bad.sum())} non-finite values in the mean or variance (first at flat indices "
+            f"{first}): not stored"
         )
+    return result
 
 
 class LaneCounter:

@@ -44,7 +44,7 @@ import numpy as np
 from rtfit.scenes import Scene, scene_hash, scene_to_dict
 
 from . import fog_integrator
-from .budget import NonFinitePass, PassBudgetExceeded, PassWatchdog, check_finite
+from .budget import PassBudgetExceeded, PassWatchdog, check_finite
 from .build import load_mitsuba_scene
 from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
 from .height_fog import ESTIMATOR as FOG_ESTIMATOR
@@ -414,12 +414,9 @@ class PassEntry:
                             with _Heartbeat(self._claim_file(i)), PassWatchdog(what):
                                 try:
                                     result = render(i)
-                                    check_finite(result)
                                 except PassBudgetExceeded as e:  # one line naming the case and pass
                                     raise PassBudgetExceeded(f"{what}: {e}") from None
-                                except NonFinitePass as e:
-                                    raise NonFinitePass(f"{what}: {e}") from None
-                                cached = self.save(i, result)
+                                cached = self.save(i, check_finite(result, what))
                             rendered += 1
                     finally:
                         self.release(i)

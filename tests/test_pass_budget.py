@@ -125,8 +125,8 @@ def test_a_run_whose_reference_fails_exits_1_with_one_line(monkeypatch, tmp_path
     from rtfit.experiments.cli import main
     from rtfit.reference import budget, cache
 
-    def planted(result):
-        raise budget.NonFinitePass("3 non-finite values (planted)")
+    def planted(result, what):
+        raise budget.NonFinitePass(f"{what}: 3 non-finite values (planted)")
 
     monkeypatch.setattr(cache, "check_finite", planted)
     out = tmp_path / "out"
