@@ -118,22 +118,29 @@ def test_a_bad_budget_is_refused_before_anything_runs(monkeypatch, tmp_path, cap
         assert not out.exists() and not (tmp_path / "cache").exists()
 
 
+def _run_quick_diffuse(tmp_path, capsys):
+    """``rtfit run diffuse --quick`` into ``tmp_path``: (out folder, exit status, stderr lines)."""
+    from rtfit.experiments.cli import main
+
+    out = tmp_path / "out"
+    code = main(
+        ["run", "diffuse", "--quick", "--out", str(out), "--cache", str(tmp_path / "c"), "--no-progress"]
+    )
+    return out, code, capsys.readouterr().err.splitlines()
+
+
 def test_a_run_whose_reference_fails_exits_1_with_one_line(monkeypatch, tmp_path, capsys):
     """A reference pass that cannot be stored (here a planted non-finite pass; a pass past its budget takes
     the same path) ends ``rtfit run`` with one line naming the case and pass and exit status 1 (a failed
     self-check, not bad input), no traceback and no half-written output folder."""
-    from rtfit.experiments.cli import main
     from rtfit.reference import budget, cache
 
     def planted(result, what):
         raise budget.NonFinitePass(f"{what}: 3 non-finite values (planted)")
 
     monkeypatch.setattr(cache, "check_finite", planted)
-    out = tmp_path / "out"
-    code = main(
-        ["run", "diffuse", "--quick", "--out", str(out), "--cache", str(tmp_path / "cache"), "--no-progress"]
-    )
-    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("rtfit: failed")]
+    out, code, err = _run_quick_diffuse(tmp_path, capsys)
+    err = [ln for ln in err if ln.startswith("rtfit: failed")]
     assert code == 1
     assert len(err) == 1 and "NonFinitePass: " in err[0] and " pass 1 of " in err[0] and "planted" in err[0]
     assert not out.exists() or not any(out.iterdir())
@@ -144,17 +151,13 @@ def test_a_value_error_inside_a_started_run_is_a_failure_not_bad_input(monkeypat
     (the first full GPU sky run ended in "method 'nishita-fitted': the target must be a non-empty finite
     array", exit 2) is the run failing: one line naming the experiment, exit 1."""
     from rtfit.experiments import runner
-    from rtfit.experiments.cli import main
 
     def planted(spec, *a, **k):
         raise ValueError("the target must be a non-empty finite array (planted)")
 
     monkeypatch.setattr(runner, "run_experiment_into", planted)
-    out = tmp_path / "out"
-    code = main(
-        ["run", "diffuse", "--quick", "--out", str(out), "--cache", str(tmp_path / "c"), "--no-progress"]
-    )
-    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("rtfit: ")]
+    out, code, err = _run_quick_diffuse(tmp_path, capsys)
+    err = [ln for ln in err if ln.startswith("rtfit: ")]
     assert code == 1
     assert (
         err[-1].startswith("rtfit: failed: diffuse: ValueError: the target must be") and "planted" in err[-1]
