@@ -38,6 +38,11 @@ from .budget import ArmedMedia, counters
 
 # Lanes per kernel launch: bounded so memory stays small and far from the 2^32 lane limit.
 MAX_LANES = 1 << 24
+MAX_LANES_CUDA = 1 << 26
+"""Lanes per launch of the radiance and per-point passes on the GPU: a 1024² × 64 spp pass in one launch, as
+``mi.render`` draws it (each further launch drains and refills the GPU: 4 chunks cost ≈ 0.045 of
+``mi.render``'s rate there, docs/benchmarks.md). Its stored samples (`PassMoments`, ``"stored"``) take
+2^26 · 4 B = 256 MiB per channel. The CPU keeps `MAX_LANES` (its launches cost nothing comparable)."""
 
 
 @dataclass(frozen=True)
@@ -74,10 +79,25 @@ def sub_seed(seed: int, *labels) -> int:
     return int.from_bytes(h[:4], "little")
 
 
-def chunk_ranges(n_elements: int, spp: int):
-    per = max(1, MAX_LANES // spp)
+def pass_max_lanes(mi) -> int:
+    """Lanes per launch of a radiance or per-point pass on ``mi``'s backend: `MAX_LANES_CUDA` on the GPU,
+    `MAX_LANES` on the CPU (the chunks, and with them the sampler streams, depend on it)."""
+    return MAX_LANES_CUDA if dr.backend_v(mi.Float) == dr.JitBackend.CUDA else MAX_LANES
+
+
+def chunk_ranges(n_elements: int, spp: int, max_lanes: int | None = None):
+    """[start, end) element ranges of at most ``max_lanes`` (default `MAX_LANES`) // ``spp`` elements."""
+    per = max(1, (MAX_LANES if max_lanes is None else max_lanes) // spp)
     for start in range(0, n_elements, per):
         yield start, min(n_elements, start + per)
+
+
+def device_vectors(vector_type, arr):
+    """An (N, 3) array as a Mitsuba 3-vector array ``vector_type`` (e.g. ``mi.Point3f``) of float32, through a
+    contiguous (3, N) float32 copy made by NumPy: from a transposed NumPy view (strided) Dr.Jit converts
+    element by element — 6–29 ms for 673k points on 2 cores, against 0.02 ms from contiguous rows, and on
+    the H200 machine it was most of an AO probe pass (issue 21 §3, docs/benchmarks.md)."""
+    return vector_type(np.ascontiguousarray(np.asarray(arr).T, dtype=np.float32))
 
 
 def point_chunks(mi, spp: int, seed: int, columns):
@@ -87,10 +107,10 @@ def point_chunks(mi, spp: int, seed: int, columns):
     type and an (N, 3) array, e.g. ``(mi.Point3f, points)``) gathered per lane. The columns go to the device
     once per pass and are gathered at an opaque chunk offset, so every chunk after the first reuses the
     first one's kernel (issue 21 §3)."""
-    on_device = [(t, t(np.ascontiguousarray(arr, dtype=np.float32).T)) for t, arr in columns]
+    on_device = [(t, device_vectors(t, arr)) for t, arr in columns]
     n_points = len(columns[0][1])
     sampler = mi.load_dict({"type": "independent"})
-    for k, (a, b) in enumerate(chunk_ranges(n_points, spp)):
+    for k, (a, b) in enumerate(chunk_ranges(n_points, spp, pass_max_lanes(mi))):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
         idx = dr.arange(mi.UInt32, (b - a) * spp) // spp + dr.opaque(mi.UInt32, a)
         yield a, sampler, [dr.gather(t, v, idx) for t, v in on_device]
@@ -103,27 +123,37 @@ class PassMoments:
 
     Layout: two float64 arrays ``s`` and ``q`` of elements × channels values, element-major (slot
     e·channels + c holds element e's channel c). Chunk k of a pass draws ``spp`` samples for each of its
-    elements [a, b): lanes [i·spp, (i + 1)·spp) are element a + i's samples. `add` sums them inside the
-    kernel that computes them: per lane and channel, a float64 atomic add of v and of v² into the
-    element's slots of the pass's arrays (``dr.scatter_reduce``, `REDUCE_MODE`: the lanes of a SIMD packet
-    (CPU) or warp (GPU) that share an element are summed first, then one atomic per packet or warp). The
-    chunk's first element is an opaque device value, not a literal of the kernel text, so every chunk of
-    every pass with one ``spp`` and channel count is the same kernel, found in Dr.Jit's kernel cache.
-    Per pass: one clear of each array, one sampling kernel per chunk (nothing else per chunk: no per-chunk
-    sums, copies or, on the CPU, per-thread copies to clear and reduce), then one kernel that computes
-    every element's mean and variance (`result`) and one device→host copy. No per-lane array reaches
-    memory and no per-element work happens on the host (issue 21 §3).
+    elements [a, b): lanes [i·spp, (i + 1)·spp) are element a + i's samples. `add` sums them in one of two
+    ways (``reduction``; default `default_reduction` of the backend):
 
-    Precision: float64 per lane (the squares of float32 samples are exact in float64); the sums are float64
-    additions of the same values in an order set by the packet/warp pre-reduction and by the atomics'
-    arrival (threads or warps whose lanes share an element land in an unspecified order), so a re-render
-    can differ by ~1 ulp of float64 (1e-16 relative; a pass loaded from the cache is bit-identical); any
-    order is within Higham's bound (spp − 1)·u·Σ|v| of the exact sum, which tests/test_pass_moments.py
-    checks against NumPy's pairwise sums and two-pass variance of the same samples. mean = Σv/n and
-    var = max(Σv² − Σv·mean, 0)/(n − 1) are the operations NumPy does (`mean_var`; the divisors are opaque,
-    since Dr.Jit turns a division by a literal into a multiplication by its reciprocal): bit-identical on
-    the CPU (tested); a GPU compiler that fuses Σv·mean into the subtraction (an FMA) changes var by at
-    most 1 ulp of Σv², within the bound the reordered sums already carry (docs/benchmarks.md).
+    * ``"atomic"`` (CPU): inside the kernel that computes them, per lane and channel a float64 atomic add of
+      v and of v² into the element's slots (``dr.scatter_reduce``, ``ReduceMode.Local``: the lanes of a SIMD
+      packet that share an element are summed first, then one atomic per packet). One kernel per chunk.
+    * ``"stored"`` (GPU): the sampling kernel only stores its float32 samples (12 B per lane for RGB), then a
+      reduction kernel of G = min(32, spp) lanes per element sums them: lane t of element e adds samples
+      t, t + G, t + 2G, … of e in float64 (adjacent lanes read adjacent samples: coalesced), the G lanes
+      of a warp are reduced in registers and one atomic per warp, element and channel lands in ``s`` and
+      ``q``. Measured on an H200 (1024² × 64 spp, `direct`): the sampling kernel's 6 float64 atomics per
+      lane cost ≈ 1.1 ms of its 10.7 ms (the sampling kernel alone 9.3 ms, ``mi.render`` 9.65 ms), the
+      reduction ≈ 0.3 ms (docs/benchmarks.md). Two kernels per chunk.
+
+    The chunk's first element is an opaque device value, not a literal of the kernel text, so every chunk of
+    every pass with one ``spp`` and channel count is the same kernel(s), found in Dr.Jit's kernel cache.
+    Per pass: one clear of each array, the chunk kernels (no per-chunk sums or copies to the host, and on
+    the CPU no per-thread copies to clear and reduce), then one kernel that computes every element's mean
+    and variance (`result`) and one device→host copy. No per-element work happens on the host (issue 21 §3).
+
+    Precision: float64 per sample (the squares of float32 samples are exact in float64); the sums are
+    float64 additions of the same values in an order set by the reduction (per-lane partial sums, the
+    packet/warp pre-reduction, the atomics' arrival: threads or warps whose lanes share an element land in
+    an unspecified order), so a re-render can differ by ~1 ulp of float64 (1e-16 relative; a pass loaded
+    from the cache is bit-identical); any order is within Higham's bound (spp − 1)·u·Σ|v| of the exact sum,
+    which tests/test_pass_moments.py checks against NumPy's pairwise sums and two-pass variance of the same
+    samples, for both reductions. mean = Σv/n and var = max(Σv² − Σv·mean, 0)/(n − 1) are the operations
+    NumPy does (`mean_var`; the divisors are opaque, since Dr.Jit turns a division by a literal into a
+    multiplication by its reciprocal): bit-identical on the CPU (tested); a GPU compiler that fuses Σv·mean
+    into the subtraction (an FMA) changes var by at most 1 ulp of Σv², within the bound the reordered sums
+    already carry (docs/benchmarks.md).
 
     ``dtype`` of `result`: float64 (default), or float32 — the mean and variance rounded to float32 on the
     device (round to nearest even, as NumPy's ``astype``) before the copy, halving the bytes copied to the
@@ -135,28 +165,74 @@ class PassMoments:
     (``Expand``) gives every worker thread its own copy of the target: with per-chunk sums that was 6
     memsets and 6 reductions per chunk, 1–2 % of a 1024² × 64 spp pass on 2 cores (docs/benchmarks.md)."""
 
-    def __init__(self, mi, n_elements: int, channels: int, spp: int):
+    REDUCTIONS = ("atomic", "stored")
+    WARP = 32
+    """Lanes per element of the ``"stored"`` reduction (at most; ``spp`` when smaller): one CUDA warp."""
+
+    def __init__(self, mi, n_elements: int, channels: int, spp: int, reduction: str | None = None):
         self.mi, self.n, self.channels, self.spp = mi, int(n_elements), int(channels), int(spp)
+        self.reduction = default_reduction(mi) if reduction is None else reduction
+        if self.reduction not in self.REDUCTIONS:
+            raise ValueError(f"reduction must be one of {self.REDUCTIONS} (got {reduction!r})")
         self.s = dr.zeros(mi.Float64, self.n * self.channels)
         self.q = dr.zeros(mi.Float64, self.n * self.channels)
 
     def add(self, first: int, values) -> None:
         """Add one chunk: ``values`` (one per-lane Float array per channel) are the samples of elements
         [first, first + lanes/spp), all ``spp`` of them (chunks partition the elements: each element's
-        samples are added once). Launches the kernel that computes them."""
+        samples are added once). Launches the kernel(s) that compute and sum them."""
         if len(values) != self.channels:
             raise ValueError(f"expected {self.channels} channels (got {len(values)})")
-        mi = self.mi
         lanes = dr.width(values[0])
         m = lanes // self.spp
         if lanes % self.spp or first < 0 or first + m > self.n:
             raise ValueError(f"a chunk of {lanes} lanes at element {first} overruns {self.n} × {self.spp}")
-        slot = (dr.arange(mi.UInt32, lanes) // self.spp + dr.opaque(mi.UInt32, first)) * self.channels
-        for c, v in enumerate(values):
-            v64 = mi.Float64(v)
-            dr.scatter_reduce(dr.ReduceOp.Add, self.s, v64, slot + c, mode=self.REDUCE_MODE)
-            dr.scatter_reduce(dr.ReduceOp.Add, self.q, v64 * v64, slot + c, mode=self.REDUCE_MODE)
+        if self.reduction == "atomic":
+            self._add_atomic(first, lanes, values)
+        else:
+            self._add_stored(first, m, values)
+
+    def _accumulate(self, element, sums, squares, mode) -> None:
+        """Scatter-add per-lane float64 partial sums of each channel into the elements' slots."""
+        slot = element * self.channels
+        for c, (sv, qv) in enumerate(zip(sums, squares, strict=True)):
+            dr.scatter_reduce(dr.ReduceOp.Add, self.s, sv, slot + c, mode=mode)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.q, qv, slot + c, mode=mode)
+
+    def _add_atomic(self, first: int, lanes: int, values) -> None:
+        mi = self.mi
+        element = dr.arange(mi.UInt32, lanes) // self.spp + dr.opaque(mi.UInt32, first)
+        v64 = [mi.Float64(v) for v in values]
+        self._accumulate(element, v64, [v * v for v in v64], self.REDUCE_MODE)
         dr.eval()  # one kernel: the samples and all 2·C atomic sums
+
+    def _add_stored(self, first: int, m: int, values) -> None:
+        mi, spp = self.mi, self.spp
+        stored = [mi.Float(v) for v in values]
+        dr.eval(*stored)  # kernel 1: the samples, stored (float32, element-major)
+        g = min(self.WARP, spp)
+        lane = dr.arange(mi.UInt32, m * g)
+        local, t = lane // g, lane % g
+        base = local * spp
+        n_samples = dr.opaque(mi.UInt32, spp)
+        zero = mi.Float64(0.0)
+
+        def more(k, *_):
+            return k < n_samples
+
+        c = self.channels
+
+        def step(k, *acc):  # acc: c partial sums Σv, then c partial sums Σv²
+            v = [mi.Float64(dr.gather(mi.Float, x, base + k)) for x in stored]
+            sums = [a + x for a, x in zip(acc[:c], v, strict=True)]
+            squares = [a + x * x for a, x in zip(acc[c:], v, strict=True)]
+            return (k + g, *sums, *squares)
+
+        out = dr.while_loop((t, *[zero] * (2 * c)), more, step)
+        self._accumulate(
+            local + dr.opaque(mi.UInt32, first), out[1 : 1 + c], out[1 + c :], dr.ReduceMode.Local
+        )
+        dr.eval()  # kernel 2: G lanes per element, one warp-reduced atomic per element and channel
 
     def _packed(self, stats, dtype: DTypeLike):
         """``stats(s, q)``'s two results for every element and channel, as one array of 2·elements·channels
@@ -193,6 +269,11 @@ class PassMoments:
 
         a = self._packed(stats, dtype)
         return a[0], a[1]
+
+
+def default_reduction(mi) -> str:
+    """`PassMoments`' reduction on ``mi``'s backend: ``"stored"`` on the GPU, ``"atomic"`` on the CPU."""
+    return "stored" if dr.backend_v(mi.Float) == dr.JitBackend.CUDA else "atomic"
 
 
 def channel_moments(mi, dr, channels, spp: int):
@@ -252,7 +333,7 @@ def radiance_pass(mi, mi_scene, spp: int, seed: int, dtype: DTypeLike = np.float
     acc = PassMoments(mi, n_pixels, 3, spp)
     sampler = mi.load_dict({"type": "independent"})
     media = counters(mi_scene)
-    for k, (a, b) in enumerate(chunk_ranges(n_pixels, spp)):
+    for k, (a, b) in enumerate(chunk_ranges(n_pixels, spp, pass_max_lanes(mi))):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
         ray, weight = _pixel_rays(mi, dr, sensor, width, a, b - a, spp)
         with ArmedMedia(media, mi.UInt32, (b - a) * spp) as armed:

@@ -37,7 +37,7 @@ import drjit as dr
 import numpy as np
 
 from .cache import PassEntry, array_digest, pool_passes
-from .estimators import PassResult, check_spp, mean_var, sub_seed
+from .estimators import PassResult, check_spp, device_vectors, mean_var, sub_seed
 
 __all__ = ["FORMAT", "ProbeRadiance", "ProbeRadianceCache", "point_light_visibility", "probe_radiance_pass"]
 
@@ -72,7 +72,7 @@ def probe_radiance_pass(
         lanes = (b - a) * spp
         sampler.seed(sub_seed(seed, "chunk", c), lanes)
         idx = dr.arange(mi.UInt32, lanes) // spp
-        o = dr.gather(mi.Point3f, mi.Point3f(pts[a:b].T), idx)
+        o = dr.gather(mi.Point3f, device_vectors(mi.Point3f, pts[a:b]), idx)
         d = mi.warp.square_to_uniform_sphere(sampler.next_2d())
         radiance, _, _ = integrator.sample(mi_scene, sampler, mi.Ray3f(o, d), None, True)
         dr.eval(radiance, d)

@@ -10,17 +10,19 @@ For the diffuse experiment's scene (α = 5° sun + sky, ``direct``) at each RES�
 256:256 and 1024:64):
 
 1. **Side by side, paired and interleaved:** rtfit's `radiance_pass` as the pass cache runs it (mean and
-   variance read back in `REFERENCE_PASS_DTYPE`), the same pass read back in float64, where the pass has
-   several chunks the same pass in one launch (``MAX_LANES`` raised: what the chunking costs), ``mi.render``
-   with the same integrator and, with ``--baseline``, `radiance_pass` of ``reference/estimators.py`` at that
-   commit (loaded from git into this process). One warm-up call each, then ``--rounds`` rounds of one call
-   each, the order rotated every round, a fresh seed per round; every call ends in host data
-   (``dr.sync_thread`` around it). Printed: each call's median time and samples/s, and per round the ratio
-   of its samples/s to ``mi.render``'s of the same round: median [min, max] — on a shared machine the
-   spread says how far to trust one run.
+   variance read back in `REFERENCE_PASS_DTYPE`), the same pass read back in float64, the pass with the
+   backend's other `PassMoments` reduction, where the pass has several chunks the same pass in one launch
+   (what the chunking costs), on the GPU both reductions in chunks of `MAX_LANES` (2^24) lanes,
+   ``mi.render`` with the same integrator and, with ``--baseline``, `radiance_pass` of
+   ``reference/estimators.py`` at that commit (loaded from git into this process). One warm-up call each,
+   then ``--rounds`` rounds of one call each, the order rotated every round, a fresh seed per round; every
+   call ends in host data (``dr.sync_thread`` around it). Printed: each call's median time and samples/s,
+   and per round the ratio of its samples/s to ``mi.render``'s of the same round: median [min, max] — on a
+   shared machine the spread says how far to trust one run.
 2. **Stages** from Dr.Jit's kernel history of one call of each: launches by kind with their device time
-   (sampling kernels = JIT launches of a chunk's lanes, or all of ``mi.render``'s; other JIT = copies,
-   packing, ``mi.render``'s film development; block reductions; memsets) and the wall time not spent in
+   (sampling kernels = JIT launches of a chunk's lanes, or all of ``mi.render``'s; reduction = the stored
+   samples' reduction kernels (`PassMoments`, ``stored``); other JIT = copies, packing, ``mi.render``'s film
+   development; block reductions; memsets) and the wall time not spent in
    them (tracing, code generation, cache look-ups, launches; on a GPU, device work overlapping the host is
    counted once).
 3. **Readback:** the device→host copy of the pass's packed mean and variance (2·pixels·3 values) in float64
@@ -39,6 +41,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable
+from contextlib import contextmanager
 from pathlib import Path
 
 import drjit as dr
@@ -98,7 +101,7 @@ def side_by_side(calls: dict, samples: int, rounds: int, stock: str) -> None:
         print(line, flush=True)
 
 
-def stages(call, chunk_lanes: set[int]) -> str:
+def stages(call, chunk_lanes: set[int], reduction_lanes: set[int]) -> str:
     call(0)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
@@ -112,7 +115,10 @@ def stages(call, chunk_lanes: set[int]) -> str:
     for k in h:
         kind = str(k["type"]).split(".")[-1]
         if kind == "JIT":
-            kind = "sampling" if int(k.get("size", 0)) in chunk_lanes else "other JIT"
+            size = int(k.get("size", 0))
+            kind = (
+                "sampling" if size in chunk_lanes else "reduction" if size in reduction_lanes else "other JIT"
+            )
             misses += not k.get("cache_hit")
         by_kind[kind][0] += 1
         by_kind[kind][1] += float(k.get("execution_time", 0.0))
@@ -139,16 +145,36 @@ def readback(mi, count: int, dtype) -> float:
     return statistics.median(times)
 
 
-def one_launch(mi, ms, spp: int, seed: int):
-    """`radiance_pass` as cached with ``MAX_LANES`` raised to the pass's lanes: one sampling launch, as
-    ``mi.render`` makes (the chunks' sampler streams change, so not a drop-in: it prices the chunking)."""
-    saved = estimators.MAX_LANES
-    width, height = ms.sensors()[0].film().crop_size()
-    estimators.MAX_LANES = max(saved, int(width) * int(height) * spp)
+@contextmanager
+def launch_lanes(lanes: int):
+    """Passes launched in chunks of at most ``lanes`` lanes on either backend (both lane limits set)."""
+    saved = estimators.MAX_LANES, estimators.MAX_LANES_CUDA
+    estimators.MAX_LANES = estimators.MAX_LANES_CUDA = lanes
     try:
-        return estimators.radiance_pass(mi, ms, spp, seed, REFERENCE_PASS_DTYPE)
+        yield
     finally:
-        estimators.MAX_LANES = saved
+        estimators.MAX_LANES, estimators.MAX_LANES_CUDA = saved
+
+
+@contextmanager
+def reduction(name: str):
+    """Passes whose `PassMoments` use the reduction ``name`` (``atomic`` or ``stored``) on either backend."""
+    saved = estimators.default_reduction
+    estimators.default_reduction = lambda mi: name
+    try:
+        yield
+    finally:
+        estimators.default_reduction = saved
+
+
+def variant_pass(mi, ms, spp: int, seed: int, lanes: int | None = None, name: str | None = None):
+    """`radiance_pass` as cached, in chunks of ``lanes`` lanes and with the reduction ``name`` (None: the
+    backend's own). Other chunks draw other sampler streams: not a drop-in, it prices the choice."""
+    with (
+        launch_lanes(lanes or estimators.pass_max_lanes(mi)),
+        reduction(name or estimators.default_reduction(mi)),
+    ):
+        return estimators.radiance_pass(mi, ms, spp, seed, REFERENCE_PASS_DTYPE)
 
 
 def ulp_diff(a: np.ndarray, b: np.ndarray) -> float:
@@ -158,7 +184,7 @@ def ulp_diff(a: np.ndarray, b: np.ndarray) -> float:
 
 def measure(variant: str, res: int, spp: int, rounds: int, baseline) -> None:
     mi, ms = load_mitsuba_scene(case_scene(5.0, 0.2, res), variant)
-    per = max(1, estimators.MAX_LANES // spp)
+    per = max(1, estimators.pass_max_lanes(mi) // spp)
     chunks = -(-res * res // per)
     samples = res * res * spp
     print(f"{res}² × {spp} spp ({chunks} chunks, {samples} samples), {variant}, {rounds} rounds:", flush=True)
@@ -167,17 +193,29 @@ def measure(variant: str, res: int, spp: int, rounds: int, baseline) -> None:
         cached: lambda s: estimators.radiance_pass(mi, ms, spp, s, REFERENCE_PASS_DTYPE),
         "rtfit (float64 readback)": lambda s: estimators.radiance_pass(mi, ms, spp, s, np.float64),
     }
+    own = estimators.default_reduction(mi)
+    other = next(r for r in estimators.PassMoments.REDUCTIONS if r != own)
+    calls[f"rtfit, {other} reduction"] = lambda s: variant_pass(mi, ms, spp, s, name=other)
     if chunks > 1:
-        calls["rtfit, one launch (other streams)"] = lambda s: one_launch(mi, ms, spp, s)
+        calls["rtfit, one launch (other streams)"] = lambda s: variant_pass(mi, ms, spp, s, lanes=samples)
+    if estimators.pass_max_lanes(mi) != estimators.MAX_LANES and samples > estimators.MAX_LANES:
+        for r in estimators.PassMoments.REDUCTIONS:
+            calls[f"rtfit, {r}, 2^24-lane chunks"] = lambda s, r=r: variant_pass(
+                mi, ms, spp, s, estimators.MAX_LANES, r
+            )
     if baseline is not None:
         calls["rtfit baseline"] = lambda s: baseline.radiance_pass(mi, ms, spp, s)
     stock = stock_render(mi, ms, spp)
     calls["mi.render, same integrator"] = stock
     side_by_side(calls, samples, rounds, "mi.render, same integrator")
-    for name, call in calls.items():
-        lanes = {(b - a) * spp for a, b in estimators.chunk_ranges(res * res, spp)} | {samples}
-        print(f"  stages, {name}: {stages(call, lanes)}", flush=True)
     px = res * res
+    for name, call in calls.items():
+        chunk_sizes = {
+            b - a for m in (estimators.MAX_LANES, samples) for a, b in estimators.chunk_ranges(px, spp, m)
+        }
+        lanes = {n * spp for n in chunk_sizes} | {samples}
+        reducing = {n * min(estimators.PassMoments.WARP, spp) for n in chunk_sizes}
+        print(f"  stages, {name}: {stages(call, lanes, reducing)}", flush=True)
     rb = {
         "float64 mean+var": readback(mi, 2 * px * 3, np.float64),
         "float32 mean+var": readback(mi, 2 * px * 3, np.float32),
@@ -215,14 +253,10 @@ def main(argv):
         res, spp = (int(x) for x in size.split(":"))
         measure(args.variant, res, spp, args.rounds, baseline)
     mi, ms = load_mitsuba_scene(case_scene(5.0, 0.2, 64), args.variant)
-    saved = estimators.MAX_LANES
-    estimators.MAX_LANES = 1024
-    try:
+    with launch_lanes(1024):
         call = lambda s: estimators.radiance_pass(mi, ms, 16, s, REFERENCE_PASS_DTYPE)  # noqa: E731
         call(0)
         t = statistics.median(timed(call, s) for s in range(1, 6))
-    finally:
-        estimators.MAX_LANES = saved
     print(f"host cost per chunk (64² × 16 spp in 64 chunks): {t / 64 * 1e3:.2f} ms", flush=True)
 
 
