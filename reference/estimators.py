@@ -92,12 +92,30 @@ def chunk_ranges(n_elements: int, spp: int, max_lanes: int | None = None):
         yield start, min(n_elements, start + per)
 
 
-def device_vectors(vector_type, arr):
-    """An (N, 3) array as a Mitsuba 3-vector array ``vector_type`` (e.g. ``mi.Point3f``) of float32, through a
-    contiguous (3, N) float32 copy made by NumPy: from a transposed NumPy view (strided) Dr.Jit converts
-    element by element — 6–29 ms for 673k points on 2 cores, against 0.02 ms from contiguous rows, and on
-    the H200 machine it was most of an AO probe pass (issue 21 §3, docs/benchmarks.md)."""
-    return vector_type(np.ascontiguousarray(np.asarray(arr).T, dtype=np.float32))
+def device_components(mi, arr) -> list:
+    """The three columns of an (N, 3) float32 or float64 array (other dtypes: converted to float64) as Dr.Jit
+    arrays of that precision, made **on the device**: the array's row-major bytes go there in one copy and
+    the columns are gathered there (lazily: they are evaluated with whatever uses them). Host-side NumPy work
+    per point (a transposed copy, a dtype conversion) cost more than the AO probe pass's kernels on the H200
+    machine's CPU (≈ 30 ms for 673k points against a 5 ms kernel; issue 21 §3, docs/benchmarks.md), and Dr.Jit
+    converts a transposed (strided) NumPy view element by element (6–29 ms for 673k points on 2 cores)."""
+    a = np.asarray(arr)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"expected an (N, 3) array (got shape {a.shape})")
+    if a.dtype not in (np.float32, np.float64):
+        a = a.astype(np.float64)
+    flat_type = mi.Float64 if a.dtype == np.float64 else mi.Float32
+    flat = flat_type(np.ascontiguousarray(a).reshape(-1))
+    row = dr.arange(mi.UInt32, len(a)) * 3
+    return [dr.gather(flat_type, flat, row + k) for k in range(3)]
+
+
+def device_vectors(mi, vector_type, arr):
+    """An (N, 3) array as a Mitsuba float32 3-vector array ``vector_type`` (e.g. ``mi.Point3f``), converted on
+    the device (`device_components`; float64 rounds to nearest, as NumPy's ``astype(float32)``), evaluated."""
+    v = vector_type(*[mi.Float32(c) for c in device_components(mi, arr)])
+    dr.eval(v)
+    return v
 
 
 def point_chunks(mi, spp: int, seed: int, columns):
@@ -107,7 +125,7 @@ def point_chunks(mi, spp: int, seed: int, columns):
     type and an (N, 3) array, e.g. ``(mi.Point3f, points)``) gathered per lane. The columns go to the device
     once per pass and are gathered at an opaque chunk offset, so every chunk after the first reuses the
     first one's kernel (issue 21 §3)."""
-    on_device = [(t, device_vectors(t, arr)) for t, arr in columns]
+    on_device = [(t, device_vectors(mi, t, arr)) for t, arr in columns]
     n_points = len(columns[0][1])
     sampler = mi.load_dict({"type": "independent"})
     for k, (a, b) in enumerate(chunk_ranges(n_points, spp, pass_max_lanes(mi))):

@@ -70,6 +70,7 @@ from .estimators import (
     PassMoments,
     PassResult,
     check_spp,
+    device_components,
     device_vectors,
     pass_max_lanes,
     point_chunks,
@@ -236,22 +237,23 @@ def occlusion_pass(
     skyfn = _sunsky_escape_value(mi, dr, sky or SunskySky()) if quantity.startswith("sunsky") else None
     if mi.variant().startswith("scalar"):
         raise ValueError("occlusion references need a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
-    points = np.asarray(points, dtype=np.float32)
-    normals = np.asarray(normals, dtype=np.float64)
+    points, normals = np.asarray(points), np.asarray(normals)
     if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
         raise ValueError(f"points and normals must both be (N, 3) (got {points.shape} and {normals.shape})")
-    # Normalised as (3, N) rows: NumPy's norm along axis 1 and Dr.Jit's copy of a transposed view took most of
-    # a 1024² G-buffer's AO pass on the H200 machine's CPU (`device_vectors`; docs/benchmarks.md).
-    rows = np.ascontiguousarray(normals.T)
-    length = np.sqrt(rows[0] * rows[0] + rows[1] * rows[1] + rows[2] * rows[2])
-    if not np.all(np.isfinite(length) & (length > 0)):  # NaN or ±inf components give a non-finite length
+    # Normalised in float64 on the device, then rounded to float32: NumPy's norm along axis 1 and the copies
+    # took most of a 1024² G-buffer's AO pass on the H200 machine's CPU (`device_components`).
+    x, y, z = device_components(mi, normals)
+    length = dr.sqrt(x * x + y * y + z * z)
+    dr.eval(x, y, z, length)
+    if not dr.all(dr.isfinite(length) & (length > 0)):  # NaN or ±inf components give a non-finite length
         raise ValueError("normals must be finite and non-zero (and their squared length below 1.8e308)")
     t0 = time.perf_counter()
     n_pts = len(points)
     acc = PassMoments(mi, n_pts, 1, spp)
     per = max(1, pass_max_lanes(mi) // spp)
-    # on the device once per pass
-    p_all, n_all = device_vectors(mi.Point3f, points), mi.Vector3f((rows / length).astype(np.float32))
+    p_all = device_vectors(mi, mi.Point3f, points)  # on the device once per pass
+    n_all = mi.Vector3f(mi.Float32(x / length), mi.Float32(y / length), mi.Float32(z / length))
+    dr.eval(n_all)
     for c, a in enumerate(range(0, n_pts, per)):
         b = min(n_pts, a + per)
         lanes = (b - a) * spp
@@ -420,8 +422,8 @@ def hit_distances(mi, mi_scene, points, normals, directions, rotate_seed: int | 
         cc = dr.gather(mi.Float, mi.Float(c.astype(np.float32)), idx)
         ss = dr.gather(mi.Float, mi.Float(s.astype(np.float32)), idx)
         local = mi.Vector3f(cc * lx - ss * ly, ss * lx + cc * ly, lz)
-        p = dr.gather(mi.Point3f, device_vectors(mi.Point3f, pts[a:b]), idx)
-        n = dr.gather(mi.Vector3f, device_vectors(mi.Vector3f, nrm[a:b]), idx)
+        p = dr.gather(mi.Point3f, device_vectors(mi, mi.Point3f, pts[a:b]), idx)
+        n = dr.gather(mi.Vector3f, device_vectors(mi, mi.Vector3f, nrm[a:b]), idx)
         d = mi.Frame3f(n).to_world(local)
         si = mi_scene.ray_intersect(_spawn(mi, dr, p, n, d))
         t = np.asarray(dr.select(si.is_valid(), si.t, dr.inf), dtype=np.float64)

@@ -72,7 +72,7 @@ def probe_radiance_pass(
         lanes = (b - a) * spp
         sampler.seed(sub_seed(seed, "chunk", c), lanes)
         idx = dr.arange(mi.UInt32, lanes) // spp
-        o = dr.gather(mi.Point3f, device_vectors(mi.Point3f, pts[a:b]), idx)
+        o = dr.gather(mi.Point3f, device_vectors(mi, mi.Point3f, pts[a:b]), idx)
         d = mi.warp.square_to_uniform_sphere(sampler.next_2d())
         radiance, _, _ = integrator.sample(mi_scene, sampler, mi.Ray3f(o, d), None, True)
         dr.eval(radiance, d)

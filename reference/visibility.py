@@ -85,8 +85,8 @@ def bake_visibility(
         cell = lane % n_dirs
         jitter = sampler.next_2d()
         u = mi.Point2f((mi.Float(cell % side) + jitter.x) / side, (mi.Float(cell // side) + jitter.y) / side)
-        p = dr.gather(mi.Point3f, device_vectors(mi.Point3f, points[a:b]), idx)
-        nrm = dr.gather(mi.Vector3f, device_vectors(mi.Vector3f, normals[a:b]), idx)
+        p = dr.gather(mi.Point3f, device_vectors(mi, mi.Point3f, points[a:b]), idx)
+        nrm = dr.gather(mi.Vector3f, device_vectors(mi, mi.Vector3f, normals[a:b]), idx)
         it = dr.zeros(mi.SurfaceInteraction3f)
         it.p = p
         it.n = nrm

@@ -68,6 +68,30 @@ def test_open_sky_and_global_on_an_unoccluded_point(crease_scene):
         occlusion_pass(mi, s, p, n, 16, 1, quantity="sky_global", albedo=1.0)
 
 
+def test_occlusion_pass_normalises_its_normals_and_refuses_degenerate_ones(crease_scene):
+    """The pass normalises its normals on the device (float64, then float32): a normal scaled by 2 or 1/8
+    (exact in binary) is the same unit normal, so the same seed gives a bit-identical pass; zero, NaN and
+    infinite normals (and lengths whose square overflows float64) are refused with one line."""
+    from rtfit.reference.occlusion import occlusion_pass
+
+    mi, s = crease_scene
+    xs = np.array(CREASE_PROBE_X)
+    p = np.column_stack([xs, np.zeros_like(xs), np.full_like(xs, 1e-6)])
+    n = np.column_stack([np.full_like(xs, 0.3), np.zeros_like(xs), np.ones_like(xs)])
+    base = occlusion_pass(mi, s, p, n, 64, 3, quantity="ao", max_distance=1.0)
+    for scale in (2.0, 0.125):
+        again = occlusion_pass(mi, s, p.astype(np.float32), n * scale, 64, 3, quantity="ao", max_distance=1.0)
+        np.testing.assert_array_equal(again.mean, base.mean)
+        np.testing.assert_array_equal(again.var, base.var)
+    for bad in ((0.0, 0.0, 0.0), (np.nan, 0.0, 1.0), (np.inf, 0.0, 1.0), (1e200, 0.0, 0.0)):
+        nb = n.copy()
+        nb[1] = bad
+        with pytest.raises(ValueError, match="normals must be finite and non-zero"):
+            occlusion_pass(mi, s, p, nb, 16, 1, quantity="ao")
+    with pytest.raises(ValueError, match=r"must both be \(N, 3\)"):
+        occlusion_pass(mi, s, p, n[:, :2], 16, 1, quantity="ao")
+
+
 def _sunsky_gauss_legendre(mi, sky, normals, n_mu=160, n_phi=720):
     """Independent quadrature of the sunsky emitter itself over the upper hemisphere (no bake): Gauss–Legendre
     in μ = cos θ ∈ (0, 1) × midpoint rule in φ; luminance irradiance E(n) = ∫ L(ω) max(n·ω, 0) dω."""
