@@ -62,7 +62,7 @@ from rtfit.realtime.ambient_aperture import METHODS
 from rtfit.realtime.methods import Method
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene
 from rtfit.reference.cache import REFERENCE_PASS_DTYPE
-from rtfit.reference.estimators import gbuffer, irradiance_pass
+from rtfit.reference.estimators import device_probes, gbuffer, irradiance_pass
 from rtfit.reference.variants import backend_of
 from rtfit.reference.visibility import bake_visibility, surface_points
 from rtfit.scenes import ConstantEnv, library_path, load_scene, scene_hash
@@ -1286,7 +1286,8 @@ def bench_reference(ctx) -> list[dict]:
     """The probe reference's samples/s (direct irradiance: emitter + cosine sampling with MIS, as
     `scene_job` renders it) beside ``mi.render`` of the same scene (``aperture_hole``, its sphere light)
     with the same ``direct`` estimator, side by side (`reference_vs_stock_rows`). The probes are the
-    camera's first hits, so both estimate the same points; ``mi.render`` also traces the camera ray. At
+    camera's first hits, so both estimate the same points; ``mi.render`` also traces the camera ray. The
+    probes are on the device before the timing (`device_probes`: a reference's passes share one upload). At
     each of `reference_sizes` (non-quick: 256² × 256 spp and the pixel-bound 1024² × 64 spp)."""
     rows = []
     for res, spp in reference_sizes(ctx.quick, (64, 64), (256, 256)):
@@ -1296,10 +1297,11 @@ def bench_reference(ctx) -> list[dict]:
         gb = gbuffer(mi, ms)
         keep = gb.mask & ~gb.emitter
         p, n = gb.position[keep], gb.normal[keep]
+        probes = device_probes(mi, p, n, normalise=False)  # once per reference, as the reference cache does
         rows += reference_vs_stock_rows(
-            f"rtfit irradiance probes, direct MIS ({len(p)} first hits, {spp} spp)",
-            lambda seed, mi=mi, ms=ms, p=p, n=n, spp=spp: irradiance_pass(
-                mi, ms, p, n, spp, seed, dtype=REFERENCE_PASS_DTYPE
+            f"rtfit irradiance probes, direct MIS ({len(p)} first hits on the device, {spp} spp)",
+            lambda seed, mi=mi, ms=ms, probes=probes, spp=spp: irradiance_pass(
+                mi, ms, probes, None, spp, seed, dtype=REFERENCE_PASS_DTYPE
             ),
             len(p) * spp,
             [

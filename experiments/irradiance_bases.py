@@ -104,7 +104,7 @@ from rtfit.reference import (
 )
 from rtfit.reference import environments as envs
 from rtfit.reference.cache import REFERENCE_PASS_DTYPE, RELATIVE_PRECISION_FLOOR
-from rtfit.reference.estimators import irradiance_pass, radiance_pass
+from rtfit.reference.estimators import device_probes, irradiance_pass, radiance_pass
 from rtfit.reference.variants import backend_of
 from rtfit.scenes import (
     ConstantEnv,
@@ -1631,8 +1631,9 @@ def bench_reference(ctx, mi, cfg: dict) -> list[dict]:
     """The references' samples/s beside ``mi.render`` of the same scene (the white sphere under the studio
     map) with the same integrator, side by side (`reference_vs_stock_rows`): the sphere image (radiance
     pass, the same estimator as ``mi.render``) and the irradiance probes (the same direct estimator per
-    sample, emitter + cosine sampling with MIS; ``mi.render`` also traces a camera ray per sample), at each
-    of `reference_sizes` (non-quick: 256² × 256 spp and the pixel-bound 1024² × 64 spp)."""
+    sample, emitter + cosine sampling with MIS; ``mi.render`` also traces a camera ray per sample; the probes
+    on the device before the timing, `device_probes`: a reference's passes share one upload), at each of
+    `reference_sizes` (non-quick: 256² × 256 spp and the pixel-bound 1024² × 64 spp)."""
     env = make_environment("studio", cfg, mi)
     rows = []
     with tempfile.TemporaryDirectory(prefix="rtfit-bench-") as tmp:
@@ -1653,6 +1654,9 @@ def bench_reference(ctx, mi, cfg: dict) -> list[dict]:
                 )
             ]
             rounds = 3 if ctx.quick else 5
+            probes = device_probes(
+                mi, n, n, normalise=False
+            )  # once per reference, as the reference cache does
             rows += reference_vs_stock_rows(
                 f"rtfit sphere image reference ({res}², {spp} spp)",
                 lambda seed, ms=ms, spp=spp: radiance_pass(mi, ms, spp, seed, REFERENCE_PASS_DTYPE),
@@ -1661,9 +1665,9 @@ def bench_reference(ctx, mi, cfg: dict) -> list[dict]:
                 ctx.variant,
                 rounds,
             ) + reference_vs_stock_rows(
-                f"rtfit irradiance probes, direct MIS ({res * res} normals, {spp} spp)",
-                lambda seed, ms=ms, n=n, spp=spp: irradiance_pass(
-                    mi, ms, n, n, spp, seed, dtype=REFERENCE_PASS_DTYPE
+                f"rtfit irradiance probes, direct MIS ({res * res} normals on the device, {spp} spp)",
+                lambda seed, ms=ms, probes=probes, spp=spp: irradiance_pass(
+                    mi, ms, probes, None, spp, seed, dtype=REFERENCE_PASS_DTYPE
                 ),
                 samples,
                 stock,

@@ -111,7 +111,7 @@ from rtfit.realtime.sdf_occlusion import (
 )
 from rtfit.reference import load_mitsuba_scene
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
-from rtfit.reference.estimators import gbuffer
+from rtfit.reference.estimators import device_probes, gbuffer
 from rtfit.reference.io import atomic_write_bytes
 from rtfit.reference.occlusion import (
     OcclusionCache,
@@ -1924,11 +1924,16 @@ def bench(ctx) -> list[dict]:
             r_nrm = r_gb.normal[r_gb.mask].astype(np.float64)
         stock = load_dict(mi, ao_stock_dict(mi, r_sc))
 
-        def run_ao(seed, s=r_mi_scene, p=r_pts, n=r_nrm, k=r_spp):
-            return occlusion_pass(mi, s, p, n, k, seed, quantity="ao")
+        probes = device_probes(
+            mi, r_pts, r_nrm, normalise=True
+        )  # once per reference, as the occlusion cache does
+
+        def run_ao(seed, s=r_mi_scene, probes=probes, k=r_spp):
+            return occlusion_pass(mi, s, probes, None, k, seed, quantity="ao")
 
         rows += reference_vs_stock_rows(
-            f"rtfit AO reference, R = ∞ (1 shadow ray per sample, {len(r_pts)} G-buffer points, {r_spp} spp)",
+            f"rtfit AO reference, R = ∞ (1 shadow ray per sample, {len(r_pts)} G-buffer points on the "
+            f"device, {r_spp} spp)",
             run_ao,
             len(r_pts) * r_spp,
             [

@@ -46,7 +46,7 @@ from rtfit.scenes import Scene, scene_hash, scene_to_dict
 from . import fog_integrator
 from .budget import PassBudgetExceeded, PassWatchdog, check_finite
 from .build import load_mitsuba_scene
-from .estimators import PassResult, irradiance_pass, radiance_pass, sub_seed
+from .estimators import PassResult, device_probes, irradiance_pass, radiance_pass, sub_seed
 from .height_fog import ESTIMATOR as FOG_ESTIMATOR
 from .integrators import choose_integrator
 from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr
@@ -529,15 +529,25 @@ class ReferenceCache:
 
         def load_scene():
             loaded["mi"], loaded["scene"] = load_mitsuba_scene(request.scene, request.variant)
+            if as_points:  # on the device once for all the passes rendered
+                loaded["probes"] = device_probes(
+                    loaded["mi"], request.points, request.normals, normalise=False
+                )
 
         def render(i: int) -> PassResult:
             pass_spp = max(min(request.pass_spp, request.spp - i * request.pass_spp), 2)
             seed = sub_seed(request.seed, "pass", i)
             mi, mi_scene = loaded["mi"], loaded["scene"]
             if as_points:
-                points, normals = np.asarray(request.points), np.asarray(request.normals)
                 return irradiance_pass(
-                    mi, mi_scene, points, normals, pass_spp, seed, request.transport, REFERENCE_PASS_DTYPE
+                    mi,
+                    mi_scene,
+                    loaded["probes"],
+                    None,
+                    pass_spp,
+                    seed,
+                    request.transport,
+                    REFERENCE_PASS_DTYPE,
                 )
             return radiance_pass(mi, mi_scene, pass_spp, seed, REFERENCE_PASS_DTYPE)
 

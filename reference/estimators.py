@@ -118,15 +118,67 @@ def device_vectors(mi, vector_type, arr):
     return v
 
 
+@dataclass(frozen=True)
+class DeviceProbes:
+    """Probe points and normals resident on the device (``mi.Point3f`` / ``mi.Vector3f``, float32), made once
+    by `device_probes` and used by every pass of a reference: a pass from host arrays copies them to the
+    device each time (25 MB for 1M probes: ≈ 4.7 ms on the H200 machine, a quarter of a 1M × 64 spp pass;
+    issue 21 §3, docs/benchmarks.md). ``unit``: the normals were normalised (`device_probes`)."""
+
+    points: object
+    normals: object
+    count: int
+    unit: bool
+
+
+def device_probes(mi, points, normals, normalise: bool) -> DeviceProbes:
+    """``points`` and ``normals`` ((N, 3) arrays) on the device. ``normalise``: the normals divided by their
+    length in float64 on the device, then rounded to float32 (zero, NaN, infinite normals and lengths whose
+    square overflows are refused: ValueError); otherwise rounded to float32 as they are."""
+    points, normals = np.asarray(points), np.asarray(normals)
+    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
+        raise ValueError(f"points and normals must both be (N, 3) (got {points.shape} and {normals.shape})")
+    if not normalise:
+        return DeviceProbes(
+            device_vectors(mi, mi.Point3f, points),
+            device_vectors(mi, mi.Vector3f, normals),
+            len(points),
+            False,
+        )
+    x, y, z = (mi.Float64(c) for c in device_components(mi, normals))
+    length = dr.sqrt(x * x + y * y + z * z)
+    dr.eval(x, y, z, length)
+    if not dr.all(dr.isfinite(length) & (length > 0)):  # NaN or ±inf components give a non-finite length
+        raise ValueError("normals must be finite and non-zero (and their squared length below 1.8e308)")
+    unit = mi.Vector3f(mi.Float32(x / length), mi.Float32(y / length), mi.Float32(z / length))
+    dr.eval(unit)
+    return DeviceProbes(device_vectors(mi, mi.Point3f, points), unit, len(points), True)
+
+
+def as_device_probes(mi, points, normals, normalise: bool) -> DeviceProbes:
+    """``points`` itself where it is `DeviceProbes` (``normals`` must then be None, and with ``normalise`` its
+    normals must have been normalised), else `device_probes` of the arrays."""
+    if not isinstance(points, DeviceProbes):
+        return device_probes(mi, points, normals, normalise)
+    if normals is not None:
+        raise ValueError("with DeviceProbes as the points, normals must be None (the probes carry them)")
+    if normalise and not points.unit:
+        raise ValueError(
+            "these DeviceProbes' normals were not normalised (device_probes(..., normalise=True))"
+        )
+    return points
+
+
 def point_chunks(mi, spp: int, seed: int, columns):
     """The chunks (`chunk_ranges`) of a per-point pass of ``spp`` lanes per point: per chunk, ``(a,
     sampler, gathered)`` — ``a`` its first point, ``sampler`` an ``independent`` sampler seeded with
     ``sub_seed(seed, "chunk", k)`` for the chunk's lanes, ``gathered`` each of ``columns`` (pairs of a Mitsuba
-    type and an (N, 3) array, e.g. ``(mi.Point3f, points)``) gathered per lane. The columns go to the device
-    once per pass and are gathered at an opaque chunk offset, so every chunk after the first reuses the
-    first one's kernel (issue 21 §3)."""
-    on_device = [(t, device_vectors(mi, t, arr)) for t, arr in columns]
-    n_points = len(columns[0][1])
+    type and an (N, 3) array, e.g. ``(mi.Point3f, points)``, or an array already of that type on the device)
+    gathered per lane. The columns go to the device once per pass (or once per reference, `DeviceProbes`) and
+    are gathered at an opaque chunk offset, so every chunk after the first reuses the first one's kernel
+    (issue 21 §3)."""
+    on_device = [(t, arr if isinstance(arr, t) else device_vectors(mi, t, arr)) for t, arr in columns]
+    n_points = dr.width(on_device[0][1])
     sampler = mi.load_dict({"type": "independent"})
     for k, (a, b) in enumerate(chunk_ranges(n_points, spp, pass_max_lanes(mi))):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
@@ -450,14 +502,15 @@ def _gbuffer_scalar(mi, mi_scene, sensor, width, height) -> GBuffer:
 def irradiance_pass(
     mi,
     mi_scene,
-    points: np.ndarray,
-    normals: np.ndarray,
+    points: np.ndarray | DeviceProbes,
+    normals: np.ndarray | None,
     spp: int,
     seed: int,
     transport: str = "direct",
     dtype: DTypeLike = np.float64,
 ) -> PassResult:
-    """Irradiance (W/m², RGB) at ``points`` (N, 3) for unit ``normals`` (N, 3); ``dtype`` as in
+    """Irradiance (W/m², RGB) at ``points`` (N, 3) for unit ``normals`` (N, 3), or at `DeviceProbes` passed as
+    ``points`` (``normals`` None: the passes of one reference share one upload); ``dtype`` as in
     `radiance_pass`."""
 
     check_spp(spp)
@@ -466,8 +519,10 @@ def irradiance_pass(
     if transport not in ("direct", "global"):
         raise ValueError(f"transport must be 'direct' or 'global' (got {transport!r})")
     t0 = time.perf_counter()
-    acc = PassMoments(mi, len(points), 3, spp)
-    for a, sampler, (p, nrm) in point_chunks(mi, spp, seed, [(mi.Point3f, points), (mi.Vector3f, normals)]):
+    probes = as_device_probes(mi, points, normals, normalise=False)
+    acc = PassMoments(mi, probes.count, 3, spp)
+    columns = [(mi.Point3f, probes.points), (mi.Vector3f, probes.normals)]
+    for a, sampler, (p, nrm) in point_chunks(mi, spp, seed, columns):
         if transport == "direct":
             value = _direct_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         else:

@@ -67,10 +67,12 @@ from .cache import PassEntry, array_digest, pool_passes
 from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
 from .estimators import (
     MAX_LANES,
+    DeviceProbes,
     PassMoments,
     PassResult,
+    as_device_probes,
     check_spp,
-    device_components,
+    device_probes,
     device_vectors,
     pass_max_lanes,
     point_chunks,
@@ -226,7 +228,9 @@ def occlusion_pass(
     sky: SunskySky | None = None,
     distance_weight=None,
 ) -> PassResult:
-    """One pass of ``spp`` samples per point; mean/var arrays of shape (N,) (float64). ``sky``: the sky of
+    """One pass of ``spp`` samples per point (``points`` and ``normals`` (N, 3) arrays, the normals normalised
+    here, or `DeviceProbes` made with ``normalise=True`` as ``points`` and None as ``normals``: the passes of
+    one reference share one upload); mean/var arrays of shape (N,) (float64). ``sky``: the sky of
     the sunsky quantities (None: ``SunskySky()``, 30° elevation, 60° azimuth, turbidity 3).
     ``distance_weight``: ρ(d) of the ``obscurance`` quantity (a callable on Dr.Jit Float arrays)."""
     _check(quantity, spp, max_distance, albedo)
@@ -237,23 +241,14 @@ def occlusion_pass(
     skyfn = _sunsky_escape_value(mi, dr, sky or SunskySky()) if quantity.startswith("sunsky") else None
     if mi.variant().startswith("scalar"):
         raise ValueError("occlusion references need a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
-    points, normals = np.asarray(points), np.asarray(normals)
-    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
-        raise ValueError(f"points and normals must both be (N, 3) (got {points.shape} and {normals.shape})")
-    # Normalised in float64 on the device, then rounded to float32: NumPy's norm along axis 1 and the copies
-    # took most of a 1024² G-buffer's AO pass on the H200 machine's CPU (`device_components`).
-    x, y, z = device_components(mi, normals)
-    length = dr.sqrt(x * x + y * y + z * z)
-    dr.eval(x, y, z, length)
-    if not dr.all(dr.isfinite(length) & (length > 0)):  # NaN or ±inf components give a non-finite length
-        raise ValueError("normals must be finite and non-zero (and their squared length below 1.8e308)")
+    # Normalised in float64 on the device, then rounded to float32 (`device_probes`): NumPy's norm along
+    # axis 1 and the copies took most of a 1024² G-buffer's AO pass on the H200 machine's CPU.
+    probes = as_device_probes(mi, points, normals, normalise=True)
     t0 = time.perf_counter()
-    n_pts = len(points)
+    n_pts = probes.count
     acc = PassMoments(mi, n_pts, 1, spp)
     per = max(1, pass_max_lanes(mi) // spp)
-    p_all = device_vectors(mi, mi.Point3f, points)  # on the device once per pass
-    n_all = mi.Vector3f(mi.Float32(x / length), mi.Float32(y / length), mi.Float32(z / length))
-    dr.eval(n_all)
+    p_all, n_all = probes.points, probes.normals
     for c, a in enumerate(range(0, n_pts, per)):
         b = min(n_pts, a + per)
         lanes = (b - a) * spp
@@ -540,13 +535,16 @@ class OcclusionCache:
         if quantity.startswith("sunsky"):  # (absent for the other quantities: their keys are unchanged)
             ident["sky"] = {**sky.to_dict(), "bake_height": SKY_BAKE_HEIGHT}
         entry = PassEntry(self.root, ident, namespace="occlusion", storage="npz")
+        resident: list[DeviceProbes] = []  # the probes on the device, once for all the passes rendered
 
         def render(i: int) -> PassResult:
+            if not resident:
+                resident.append(device_probes(mi, points, normals, normalise=True))
             return occlusion_pass(
                 mi,
                 mi_scene,
-                points,
-                normals,
+                resident[0],
+                None,
                 int(pass_spp),
                 sub_seed(seed, "pass", i),
                 quantity=quantity,

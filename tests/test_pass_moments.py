@@ -166,3 +166,20 @@ def test_stored_reduction_of_many_samples_per_element(mi, spp):
 def test_pass_moments_refuses_an_unknown_reduction(mi):
     with pytest.raises(ValueError, match="reduction must be one of"):
         PassMoments(mi, 4, 1, 2, "warp")
+
+
+def test_irradiance_pass_on_resident_probes_is_the_same_pass(scene_pass):
+    """`irradiance_pass` at `DeviceProbes` (uploaded once, as the reference cache does for a reference's
+    passes) and at the same host arrays: the same samples, so bit-identical means and variances."""
+    from rtfit.reference.estimators import device_probes, irradiance_pass
+
+    mi, ms, _, _, _ = scene_pass
+    rng = np.random.default_rng(3)
+    normals = rng.normal(size=(40, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    points = 2.0 * normals  # outside the unit sphere, facing away from it
+    host = irradiance_pass(mi, ms, points, normals, 8, seed=4)
+    resident = irradiance_pass(mi, ms, device_probes(mi, points, normals, normalise=False), None, 8, seed=4)
+    assert np.any(host.mean > 0)  # some probes face the light
+    np.testing.assert_array_equal(resident.mean, host.mean)
+    np.testing.assert_array_equal(resident.var, host.var)

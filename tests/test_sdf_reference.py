@@ -71,7 +71,9 @@ def test_open_sky_and_global_on_an_unoccluded_point(crease_scene):
 def test_occlusion_pass_normalises_its_normals_and_refuses_degenerate_ones(crease_scene):
     """The pass normalises its normals on the device (float64, then float32): a normal scaled by 2 or 1/8
     (exact in binary) is the same unit normal, so the same seed gives a bit-identical pass; zero, NaN and
-    infinite normals (and lengths whose square overflows float64) are refused with one line."""
+    infinite normals (and lengths whose square overflows float64) are refused with one line; probes made
+    resident on the device once (`device_probes`) give the same pass."""
+    from rtfit.reference.estimators import device_probes
     from rtfit.reference.occlusion import occlusion_pass
 
     mi, s = crease_scene
@@ -90,6 +92,15 @@ def test_occlusion_pass_normalises_its_normals_and_refuses_degenerate_ones(creas
             occlusion_pass(mi, s, p, nb, 16, 1, quantity="ao")
     with pytest.raises(ValueError, match=r"must both be \(N, 3\)"):
         occlusion_pass(mi, s, p, n[:, :2], 16, 1, quantity="ao")
+    # probes uploaded once (as the occlusion cache does for a reference's passes): the same pass, bit for bit
+    resident = device_probes(mi, p, n, normalise=True)
+    again = occlusion_pass(mi, s, resident, None, 64, 3, quantity="ao", max_distance=1.0)
+    np.testing.assert_array_equal(again.mean, base.mean)
+    np.testing.assert_array_equal(again.var, base.var)
+    with pytest.raises(ValueError, match="normals must be None"):
+        occlusion_pass(mi, s, resident, n, 16, 1, quantity="ao")
+    with pytest.raises(ValueError, match="not normalised"):
+        occlusion_pass(mi, s, device_probes(mi, p, n, normalise=False), None, 16, 1, quantity="ao")
 
 
 def _sunsky_gauss_legendre(mi, sky, normals, n_mu=160, n_phi=720):
