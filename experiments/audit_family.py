@@ -43,7 +43,7 @@ import numpy as np
 
 from rtfit.realtime.methods import Method, Param
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, PassEntry, pool_passes
-from rtfit.reference.estimators import GBuffer, PassResult, sub_seed
+from rtfit.reference.estimators import GBuffer, PassResult, launch_identity, sub_seed
 
 from .audit import Applicability, AuditError, SceneInfo
 
@@ -273,8 +273,9 @@ def pooled_passes(
 
     ``what``: the family's own part of the cache key (format, quantity, the emitter or medium, a digest of the
     points or rays); the run's part (scene digest, variant, seed, pass size, Mitsuba and Dr.Jit versions) is
-    added here. ``render_pass(spp, seed)`` renders one pass; pass i has ``min(pass_spp, spp − i·pass_spp)``
-    samples (at least 2: the variance needs two) and the seed ``sub_seed(setup.seed, seed_label, i)``."""
+    added here (with the GPU's launch layout, `launch_identity`). ``render_pass(spp, seed)`` renders one
+    pass; pass i has ``min(pass_spp, spp − i·pass_spp)`` samples (at least 2: the variance needs two) and the
+    seed ``sub_seed(setup.seed, seed_label, i)``."""
     import mitsuba as mi  # (its version is part of the key)
 
     ident = {
@@ -284,6 +285,7 @@ def pooled_passes(
         "seed": setup.seed,
         "pass_spp": setup.pass_spp,
         "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__},
+        **launch_identity(setup.variant),
     }
     entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
     count = -(-setup.spp // setup.pass_spp)

@@ -86,6 +86,18 @@ def time_numpy(
     return Timing(seconds, elements, n)
 
 
+NUMPY_MAX_ELEMENTS = 1 << 22
+"""The most elements a bench times a NumPy run on: its float64 arrays (32 MB each at 2^22) are past every
+cache level, where NumPy's per-element rate no longer depends on the size. At the GPU's 2^24 elements the
+irradiance-bases bench ran past 7 minutes on the H200 machine, its NumPy rows scaling with the elements (20 s
+of them at 2^20 on 2 cores; docs/benchmarks.md, session 10)."""
+
+
+def numpy_elements(elements: int) -> int:
+    """How many of a bench's ``elements`` its NumPy rows are timed on: at most `NUMPY_MAX_ELEMENTS`."""
+    return min(int(elements), NUMPY_MAX_ELEMENTS)
+
+
 def memory_baseline(args: tuple, elements: int) -> Timing:
     """A kernel reading the same inputs and writing one output: the memory-bound floor."""
 
@@ -181,7 +193,8 @@ def comparison_row(
         "elements": t_drjit.elements,
         f"drjit_M{unit}_s": t_drjit.elements_per_second / 1e6,
         f"numpy_M{unit}_s": t_numpy.elements_per_second / 1e6 if t_numpy else None,
-        "drjit/numpy": t_numpy.seconds / t_drjit.seconds if t_numpy else None,
+        # rates, not times: NumPy may be timed on fewer elements (`numpy_elements`)
+        "drjit/numpy": t_drjit.elements_per_second / t_numpy.elements_per_second if t_numpy else None,
         f"ns_per_{per}": t_drjit.ns_per_element,
         "vs_memory_floor": t_drjit.seconds / base.seconds,
     }

@@ -130,6 +130,7 @@ from .cost import (
     cost_row,
     memory_baseline,
     memory_floor_row,
+    numpy_elements,
     reference_sizes,
     reference_vs_stock_rows,
     stock_render,
@@ -1681,7 +1682,7 @@ def bench(ctx) -> list[dict]:
     """Dr.Jit vs NumPy (same kernel text) per basis in normals/s, then projection time per environment."""
     backend, n = bench_backend(ctx)
     nrm, nd = _cost_inputs(n, backend)
-    n64 = nrm.astype(np.float64)
+    n64 = nrm[: numpy_elements(n)].astype(np.float64)  # NumPy's rows: at most 2^22 normals
     b = _demo_bases()
     base = memory_baseline((nd.x, nd.y, nd.z), n)
     rows = []
@@ -1689,7 +1690,9 @@ def bench(ctx) -> list[dict]:
         m = row.spec
         t_dr = time_drjit(lambda v, row=row: evaluate_row(row, b, v), (nd,), n)
         inputs, params = basis_inputs(m, b[row.coeffs], n64), row_params(row, b)
-        t_np = time_numpy(lambda m=m, inputs=inputs, params=params: m(NUMPY_OPS, inputs, params), (), n)
+        t_np = time_numpy(
+            lambda m=m, inputs=inputs, params=params: m(NUMPY_OPS, inputs, params), (), len(n64)
+        )
         rows.append(comparison_row(m.label, backend, t_dr, t_np, base, unit="normals", per="normal"))
     rows += hemisphere.bench_rows(nd, n64, n, backend, base)  # the lightmap bases
     rows.append(baseline_row(base, backend, "memory baseline", unit="normals", per="normal"))

@@ -329,7 +329,8 @@ def cost_rows(normals_drjit, n: int, backend: str) -> list[dict]:
 
 
 def bench_rows(normals_drjit, normals64: np.ndarray, n: int, backend: str, base) -> list[dict]:
-    """`rtfit bench` rows: Dr.Jit vs the NumPy run of the same kernel text, per hemispherical basis."""
+    """`rtfit bench` rows: Dr.Jit (on ``n`` normals) vs the NumPy run of the same kernel text (on
+    ``normals64``, possibly fewer: rates are compared), per hemispherical basis."""
     texel = demo_texel()
     rows = []
     for m in HEMISPHERE_METHODS:  # the RNM weightings do different work: one row each
@@ -337,7 +338,7 @@ def bench_rows(normals_drjit, normals64: np.ndarray, n: int, backend: str, base)
         c = _texel_coeffs(texel, m)
         t_dr = time_drjit(lambda v, spec=spec, c=c: hemisphere_irradiance(spec, c, v), (normals_drjit,), n)
         inputs = basis_inputs(spec, c, normals64)
-        t_np = time_numpy(lambda spec=spec, inputs=inputs: spec(NUMPY_OPS, inputs), (), n)
+        t_np = time_numpy(lambda spec=spec, inputs=inputs: spec(NUMPY_OPS, inputs), (), len(normals64))
         rows.append(comparison_row(spec.label, backend, t_dr, t_np, base, unit="normals", per="normal"))
     return rows
 

@@ -46,7 +46,7 @@ from rtfit.scenes import Scene, scene_hash, scene_to_dict
 from . import fog_integrator
 from .budget import PassBudgetExceeded, PassWatchdog, check_finite
 from .build import load_mitsuba_scene
-from .estimators import PassResult, device_probes, irradiance_pass, radiance_pass, sub_seed
+from .estimators import PassResult, device_probes, irradiance_pass, launch_identity, radiance_pass, sub_seed
 from .height_fog import ESTIMATOR as FOG_ESTIMATOR
 from .integrators import choose_integrator
 from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr
@@ -150,6 +150,7 @@ class ReferenceRequest:
             "seed": self.seed,
             "pass_spp": self.pass_spp,
             "versions": {"mitsuba": mitsuba.__version__, "drjit": dr.__version__},
+            **launch_identity(self.variant),
         }
         if any(m.kind == "exponential_fog" for m in self.scene.media):  # the estimator made the samples
             fog_path = fog_integrator.applies(self.scene, choose_integrator(self.scene).mitsuba_dict())

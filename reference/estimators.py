@@ -85,6 +85,13 @@ def pass_max_lanes(mi) -> int:
     return MAX_LANES_CUDA if dr.backend_v(mi.Float) == dr.JitBackend.CUDA else MAX_LANES
 
 
+def launch_identity(variant: str) -> dict:
+    """What a pass cache's key needs of the launch layout for ``variant``: the GPU's passes are cut at
+    `MAX_LANES_CUDA` lanes (its chunks seed the sampler streams, so another layout draws other samples); the
+    CPU's layout (`MAX_LANES`) is the one its keys have always implied, so it adds nothing (its keys stay)."""
+    return {"launch_lanes": MAX_LANES_CUDA} if variant.startswith("cuda") else {}
+
+
 def chunk_ranges(n_elements: int, spp: int, max_lanes: int | None = None):
     """[start, end) element ranges of at most ``max_lanes`` (default `MAX_LANES`) // ``spp`` elements."""
     per = max(1, (MAX_LANES if max_lanes is None else max_lanes) // spp)

@@ -74,6 +74,7 @@ from .estimators import (
     check_spp,
     device_probes,
     device_vectors,
+    launch_identity,
     pass_max_lanes,
     point_chunks,
     sub_seed,
@@ -527,6 +528,7 @@ class OcclusionCache:
             "pass_spp": int(pass_spp),
             "variant": variant,
             "versions": [mitsuba.__version__, dr.__version__],
+            **launch_identity(variant),
         }
         if quantity == "obscurance":  # ρ's form and parameters (absent elsewhere: other keys unchanged)
             if not isinstance(weight_key, dict) or not weight_key:

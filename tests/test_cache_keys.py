@@ -176,3 +176,21 @@ def test_vertex_normals_of_a_closed_octahedron():
     f.append([0, 0, 0])  # a degenerate face contributes nothing
     n = vertex_normals(v, np.array(f))
     assert np.allclose(n, v, atol=1e-15)
+
+
+def test_gpu_keys_name_their_launch_layout_and_cpu_keys_do_not():
+    """The GPU cuts a pass into launches of `MAX_LANES_CUDA` lanes, whose chunks seed its sampler streams:
+    the GPU's keys carry that layout (a layout change re-renders instead of mixing streams), while the CPU's
+    keys, whose layout never changed, stay as they were."""
+    from rtfit.reference import ReferenceRequest
+    from rtfit.reference.estimators import MAX_LANES_CUDA
+    from rtfit.scenes import load_scene
+
+    scene = load_scene(library_path("aperture_hole"))
+    cpu = ReferenceRequest(scene=scene, spp=8, pass_spp=4, variant="llvm_ad_rgb").identity()
+    gpu = ReferenceRequest(scene=scene, spp=8, pass_spp=4, variant="cuda_ad_rgb").identity()
+    assert "launch_lanes" not in cpu
+    assert gpu["launch_lanes"] == MAX_LANES_CUDA
+    assert {k: v for k, v in gpu.items() if k not in ("launch_lanes", "variant")} == {
+        k: v for k, v in cpu.items() if k != "variant"
+    }

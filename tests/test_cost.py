@@ -11,7 +11,16 @@ import drjit as dr
 import numpy as np
 import pytest
 
-from rtfit.experiments.cost import Stock, Timing, cost_row, memory_floor_row, reference_vs_stock_rows
+from rtfit.experiments.cost import (
+    NUMPY_MAX_ELEMENTS,
+    Stock,
+    Timing,
+    comparison_row,
+    cost_row,
+    memory_floor_row,
+    numpy_elements,
+    reference_vs_stock_rows,
+)
 
 
 def test_reference_vs_stock_rows_alternate_keep_the_best_and_divide_rates():
@@ -78,3 +87,14 @@ def test_memory_floor_row_times_the_arrays_it_loads_and_counts_them():
     )
     assert row["elements"] == 4096 and row["ns_per_pixel"] > 0 and row["repeats"] >= 7
     assert memory_floor_row((x,), 4096, "llvm", "n", label="own words")["label"] == "own words"
+
+
+def test_comparison_row_compares_rates_when_numpy_ran_on_fewer_elements():
+    """NumPy rows are timed on at most `NUMPY_MAX_ELEMENTS` (`numpy_elements`): the Dr.Jit/NumPy column is the
+    ratio of elements per second, so 2^24 elements in 0.01 s against 2^22 in 0.1 s is 40×, not 10×."""
+    assert numpy_elements(1 << 24) == NUMPY_MAX_ELEMENTS == 1 << 22 and numpy_elements(4096) == 4096
+    dr_t, np_t, base = Timing(0.01, 1 << 24, 7), Timing(0.1, 1 << 22, 5), Timing(0.005, 1 << 24, 7)
+    row = comparison_row("x", "cuda", dr_t, np_t, base)
+    assert row["drjit/numpy"] == pytest.approx(40.0)
+    assert row["numpy_Mpx_s"] == pytest.approx((1 << 22) / 0.1 / 1e6)
+    assert row["elements"] == 1 << 24 and row["vs_memory_floor"] == pytest.approx(2.0)
