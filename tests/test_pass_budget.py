@@ -21,9 +21,14 @@ def _tiny(name: str, fog: bool = True):
     return dataclasses.replace(base, name=name, camera=camera, media=base.media if fog else ())
 
 
-def test_planted_stuck_medium_fails_one_job_with_one_line(tmp_path, monkeypatch):
+@pytest.mark.parametrize("reduction", ["atomic", "stored"])
+def test_planted_stuck_medium_fails_one_job_with_one_line(tmp_path, monkeypatch, reduction):
+    """With either of `PassMoments`' reductions (the CPU's ``atomic``, the GPU's ``stored``, whose sampling
+    kernel only stores its samples: the media's event counters must still be evaluated with it)."""
     from rtfit.experiments.jobs import InlineExecutor, Job
-    from rtfit.reference import fog_integrator, height_fog
+    from rtfit.reference import estimators, fog_integrator, height_fog
+
+    monkeypatch.setattr(estimators, "default_reduction", lambda mi: reduction)
 
     # the stuck medium: majorant 1e7 /m for the whole box, σt unchanged (every collision null), rendered
     # by volpathmis (not rtfit_fogpath, whose vertex cap tests/test_fog_integrator.py plants)
