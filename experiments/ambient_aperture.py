@@ -1297,7 +1297,8 @@ def bench_reference(ctx) -> list[dict]:
         gb = gbuffer(mi, ms)
         keep = gb.mask & ~gb.emitter
         p, n = gb.position[keep], gb.normal[keep]
-        probes = device_probes(mi, p, n, normalise=False)  # once per reference, as the reference cache does
+        # the probes on the device once per reference, as the reference cache does
+        probes = device_probes(mi, p, n, normalise=False)
         rows += reference_vs_stock_rows(
             f"rtfit irradiance probes, direct MIS ({len(p)} first hits on the device, {spp} spp)",
             lambda seed, mi=mi, ms=ms, probes=probes, spp=spp: irradiance_pass(

@@ -1655,9 +1655,8 @@ def bench_reference(ctx, mi, cfg: dict) -> list[dict]:
                 )
             ]
             rounds = 3 if ctx.quick else 5
-            probes = device_probes(
-                mi, n, n, normalise=False
-            )  # once per reference, as the reference cache does
+            # the probes on the device once per reference, as the reference cache does
+            probes = device_probes(mi, n, n, normalise=False)
             rows += reference_vs_stock_rows(
                 f"rtfit sphere image reference ({res}², {spp} spp)",
                 lambda seed, ms=ms, spp=spp: radiance_pass(mi, ms, spp, seed, REFERENCE_PASS_DTYPE),

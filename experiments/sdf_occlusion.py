@@ -1924,9 +1924,8 @@ def bench(ctx) -> list[dict]:
             r_nrm = r_gb.normal[r_gb.mask].astype(np.float64)
         stock = load_dict(mi, ao_stock_dict(mi, r_sc))
 
-        probes = device_probes(
-            mi, r_pts, r_nrm, normalise=True
-        )  # once per reference, as the occlusion cache does
+        # the points on the device once per reference, as the occlusion cache does
+        probes = device_probes(mi, r_pts, r_nrm, normalise=True)
 
         def run_ao(seed, s=r_mi_scene, probes=probes, k=r_spp):
             return occlusion_pass(mi, s, probes, None, k, seed, quantity="ao")

@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import DTypeLike
 
 from .budget import ArmedMedia, counters
+from .variants import backend_of
 
 # Lanes per kernel launch: bounded so memory stays small and far from the 2^32 lane limit.
 MAX_LANES = 1 << 24
@@ -89,7 +90,7 @@ def launch_identity(variant: str) -> dict:
     """What a pass cache's key needs of the launch layout for ``variant``: the GPU's passes are cut at
     `MAX_LANES_CUDA` lanes (its chunks seed the sampler streams, so another layout draws other samples); the
     CPU's layout (`MAX_LANES`) is the one its keys have always implied, so it adds nothing (its keys stay)."""
-    return {"launch_lanes": MAX_LANES_CUDA} if variant.startswith("cuda") else {}
+    return {"launch_lanes": MAX_LANES_CUDA} if backend_of(variant) == "cuda" else {}
 
 
 def chunk_ranges(n_elements: int, spp: int, max_lanes: int | None = None):
@@ -134,8 +135,12 @@ class DeviceProbes:
 
     points: object
     normals: object
-    count: int
     unit: bool
+
+    @property
+    def count(self) -> int:
+        """The number of probes."""
+        return dr.width(self.points)
 
 
 def device_probes(mi, points, normals, normalise: bool) -> DeviceProbes:
@@ -145,13 +150,9 @@ def device_probes(mi, points, normals, normalise: bool) -> DeviceProbes:
     points, normals = np.asarray(points), np.asarray(normals)
     if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
         raise ValueError(f"points and normals must both be (N, 3) (got {points.shape} and {normals.shape})")
+    on_device = device_vectors(mi, mi.Point3f, points)
     if not normalise:
-        return DeviceProbes(
-            device_vectors(mi, mi.Point3f, points),
-            device_vectors(mi, mi.Vector3f, normals),
-            len(points),
-            False,
-        )
+        return DeviceProbes(on_device, device_vectors(mi, mi.Vector3f, normals), False)
     x, y, z = (mi.Float64(c) for c in device_components(mi, normals))
     length = dr.sqrt(x * x + y * y + z * z)
     dr.eval(x, y, z, length)
@@ -159,7 +160,7 @@ def device_probes(mi, points, normals, normalise: bool) -> DeviceProbes:
         raise ValueError("normals must be finite and non-zero (and their squared length below 1.8e308)")
     unit = mi.Vector3f(mi.Float32(x / length), mi.Float32(y / length), mi.Float32(z / length))
     dr.eval(unit)
-    return DeviceProbes(device_vectors(mi, mi.Point3f, points), unit, len(points), True)
+    return DeviceProbes(on_device, unit, True)
 
 
 def as_device_probes(mi, points, normals, normalise: bool) -> DeviceProbes:

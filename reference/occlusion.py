@@ -72,6 +72,7 @@ from .estimators import (
     PassResult,
     as_device_probes,
     check_spp,
+    chunk_ranges,
     device_probes,
     device_vectors,
     launch_identity,
@@ -246,12 +247,9 @@ def occlusion_pass(
     # axis 1 and the copies took most of a 1024² G-buffer's AO pass on the H200 machine's CPU.
     probes = as_device_probes(mi, points, normals, normalise=True)
     t0 = time.perf_counter()
-    n_pts = probes.count
-    acc = PassMoments(mi, n_pts, 1, spp)
-    per = max(1, pass_max_lanes(mi) // spp)
+    acc = PassMoments(mi, probes.count, 1, spp)
     p_all, n_all = probes.points, probes.normals
-    for c, a in enumerate(range(0, n_pts, per)):
-        b = min(n_pts, a + per)
+    for c, (a, b) in enumerate(chunk_ranges(probes.count, spp, pass_max_lanes(mi))):
         lanes = (b - a) * spp
         idx = dr.arange(mi.UInt32, lanes) // spp + dr.opaque(mi.UInt32, a)
         p = dr.gather(mi.Point3f, p_all, idx)
