@@ -25,7 +25,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import drjit as dr
 import numpy as np
 
 from rtfit.fitting import Param, compute_metrics, fit_method
@@ -39,6 +38,7 @@ from rtfit.realtime.aerial_perspective import (
     sun_direction,
     sun_transmittance_at,
 )
+from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.height_fog import METHODS as FOG_METHODS
 from rtfit.realtime.height_fog import fog_pass
 from rtfit.realtime.nishita_sky import AtmosphereParams
@@ -61,7 +61,9 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
 
 # ============================================================================================ configure
 CONFIG = {
@@ -154,22 +156,15 @@ def surface_radiance(geo: dict, atm: AtmosphereParams, sun, fog: FogLayer) -> np
 
 
 # ============================================================================================== methods
-@dataclasses.dataclass(frozen=True)
-class Row:
-    """One compared row: its id, label, and whether it is a step of the ladder (its index) or not."""
-
-    id: str
-    label: str
-    ladder: int | None = None
-
-
+# Rows (`rows.Row`; ``method`` None: `row_images` computes every row's image): the ladder's steps (1),
+# (1 + 2), (1 + 2 + 3) add one simplification each, as their labels say.
 ROWS = (
     Row("sun-frozen", "exact integral, sun attenuated as at the camera (1 alone: sun attenuation)"),
-    Row("camera-source", "blend, C = source function at the camera per direction (1)", 1),
-    Row("horizon-colour", "blend, C = seed's horizon average × per-pixel phase (1 + 2)", 2),
-    Row("horizon-grey", "blend, horizon colour, grey extinction: the seed's model (1 + 2 + 3)", 3),
+    Row("camera-source", "blend, C = source function at the camera per direction (1)"),
+    Row("horizon-colour", "blend, C = seed's horizon average × per-pixel phase (1 + 2)"),
+    Row("horizon-grey", "blend, horizon colour, grey extinction: the seed's model (1 + 2 + 3)"),
     Row("grey-quadrature", "exact integral with grey extinction (3 alone)"),
-    Row("fitted", "height-fog phase blend, b, c, C₀, C₁, g fitted per elevation"),
+    Row("fitted", "height-fog phase blend, b, c, C₀, C₁, g fitted per elevation", fitted=True),
 )
 BUDGET_PARTS = ("(1) source frozen at the camera", "(2) horizon-averaged colour", "(3) grey extinction")
 
@@ -324,7 +319,7 @@ def run(ctx) -> dict:
     set_default_backend(backend_of(ctx.variant))
     jobs = [
         Job(
-            "rtfit.experiments.aerial_perspective:reference_job",
+            reference_job,
             {"cfg": cfg, "elevation": e},
             label=f"sun {e:g}°",
         )
@@ -332,7 +327,7 @@ def run(ctx) -> dict:
     ]
     jobs.append(
         Job(
-            "rtfit.experiments.aerial_perspective:check_job",
+            check_job,
             {"cfg": cfg, "variant": ctx.variant, "seed": ctx.seed, "cache_dir": str(ctx.cache_dir)},
             label="mitsuba check",
         )
@@ -352,7 +347,7 @@ def run(ctx) -> dict:
         scale = 0.02 * np.abs(target) + 0.01 * float(np.mean(np.abs(target)))
         fit_jobs.append(
             Job(
-                "rtfit.experiments.aerial_perspective:fit_job",
+                fit_job,
                 {
                     "inputs": fit_inputs(r, cfg),
                     "target": target,
@@ -395,7 +390,7 @@ def assemble(ctx, cfg, refs, check, fits, norms, floor) -> dict:
                 {
                     "method": row.id,
                     "label": row.label,
-                    "fitted": row.id == "fitted",
+                    "fitted": row.fitted,
                     "parameters": params,
                     "metrics": {**m.to_dict(), "rel_rms": {"value": errs[row.id]}},
                 }
@@ -415,31 +410,31 @@ def assemble(ctx, cfg, refs, check, fits, norms, floor) -> dict:
         )
         finite = all(np.all(np.isfinite(v)) for v in images.values())
         checks.append(
-            {
-                "name": f"sun {e:g}°: every row finite (no NaN/Inf)",
-                "value": str(finite),
-                "expected": "True",
-                "passed": bool(finite),
-            }
+            Check(
+                name=f"sun {e:g}°: every row finite (no NaN/Inf)",
+                value=str(finite),
+                expected="True",
+                passed=bool(finite),
+            )
         )
         conv = float(np.max(r["stderr"]) / max(float(np.mean(ref)), floor))
         checks.append(
-            {
-                "name": f"sun {e:g}°: quadrature converged, max |Q(P) − Q(P/2)| / mean level",
-                "value": conv,
-                "expected": "≤ 1e-3",
-                "passed": bool(conv <= 1e-3),
-            }
+            Check(
+                name=f"sun {e:g}°: quadrature converged, max |Q(P) − Q(P/2)| / mean level",
+                value=conv,
+                expected="≤ 1e-3",
+                passed=bool(conv <= 1e-3),
+            )
         )
         if e <= -2.0:
             dark = float(np.max(np.abs(ref)))
             checks.append(
-                {
-                    "name": f"sun {e:g}°: the planet occludes the sun at every scattering point and surface",
-                    "value": dark,
-                    "expected": "= 0",
-                    "passed": bool(dark == 0.0),
-                }
+                Check(
+                    name=f"sun {e:g}°: the planet occludes the sun at every scattering point and surface",
+                    value=dark,
+                    expected="= 0",
+                    passed=bool(dark == 0.0),
+                )
             )
         case_docs.append(
             {
@@ -463,12 +458,12 @@ def assemble(ctx, cfg, refs, check, fits, norms, floor) -> dict:
         )
         if e in fits:
             checks.append(
-                {
-                    "name": f"sun {e:g}°: fit converged",
-                    "value": str(fits[e]["converged"]),
-                    "expected": "True",
-                    "passed": bool(fits[e]["converged"]),
-                }
+                Check(
+                    name=f"sun {e:g}°: fit converged",
+                    value=str(fits[e]["converged"]),
+                    expected="True",
+                    passed=bool(fits[e]["converged"]),
+                )
             )
     checks += reference_checks(check)
     checks += extreme_checks(cfg)
@@ -540,7 +535,7 @@ def write_fitted(ctx, cfg, refs, fits) -> list[dict]:
 
 
 # =============================================================================================== checks
-def reference_checks(check: dict) -> list[dict]:
+def reference_checks(check: dict) -> list[Check]:
     """The fog-only quadrature against the Mitsuba render (z-scores), and the atmosphere-only quadrature
     against `rtfit.reference.nishita_sky.single_scattering_quadrature`."""
     m, se, q = check["mean"], np.maximum(check["stderr"], 1e-30), check["quadrature"]
@@ -548,19 +543,19 @@ def reference_checks(check: dict) -> list[dict]:
     bias = float(np.sum(m - q) / math.sqrt(float(np.sum(se**2))))
     med = float(np.median(np.abs(z)))
     out = [
-        {
-            "name": "fog-only quadrature vs path-traced Mitsuba (volpathmis, rtfit_expfog, distant sun): "
+        Check(
+            name="fog-only quadrature vs path-traced Mitsuba (volpathmis, rtfit_expfog, distant sun): "
             "summed bias in units of its standard error",
-            "value": bias,
-            "expected": "|z| ≤ 4",
-            "passed": bool(abs(bias) <= 4.0),
-        },
-        {
-            "name": "fog-only quadrature vs Mitsuba: median |z| per direction (t with passes − 1 dof: ≈ 0.7)",
-            "value": med,
-            "expected": "≤ 1.2",
-            "passed": bool(med <= 1.2),
-        },
+            value=bias,
+            expected="|z| ≤ 4",
+            passed=bool(abs(bias) <= 4.0),
+        ),
+        Check(
+            name="fog-only quadrature vs Mitsuba: median |z| per direction (t with passes − 1 dof: ≈ 0.7)",
+            value=med,
+            expected="≤ 1.2",
+            passed=bool(med <= 1.2),
+        ),
     ]
     atm = AtmosphereParams()
     spec = library_atmosphere(sun_elevation_deg=20.0, viewer_altitude_m=50.0)
@@ -579,18 +574,18 @@ def reference_checks(check: dict) -> list[dict]:
     mine = np.stack(q["S"], -1)
     rel = float(np.max(np.abs(mine / ref - 1.0)))
     out.append(
-        {
-            "name": "atmosphere-only quadrature (fog b = 0, sky rays to the top) vs nishita-sky's reference "
+        Check(
+            name="atmosphere-only quadrature (fog b = 0, sky rays to the top) vs nishita-sky's reference "
             "quadrature, max relative difference",
-            "value": rel,
-            "expected": "≤ 2e-3",
-            "passed": bool(rel <= 2e-3),
-        }
+            value=rel,
+            expected="≤ 2e-3",
+            passed=bool(rel <= 2e-3),
+        )
     )
     return out
 
 
-def extreme_checks(cfg: dict) -> list[dict]:
+def extreme_checks(cfg: dict) -> list[Check]:
     """Horizontal rays, zero and huge fog, the sun at −4°: finite values and the known limits."""
     atm = AtmosphereParams()
     dirs = np.array([[0.0, 1.0, 0.0], [0.3, 0.95393920141, 0.0], [0.0, 0.99984769515, -0.01745240644]])
@@ -618,33 +613,33 @@ def extreme_checks(cfg: dict) -> list[dict]:
             vals = np.concatenate([np.ravel(v) for k in q for v in q[k]])
             ok = bool(np.all(np.isfinite(vals)))
             out.append(
-                {
-                    "name": f"{name}, sun {e:g}°, horizontal rays: finite",
-                    "value": str(ok),
-                    "expected": "True",
-                    "passed": ok,
-                }
+                Check(
+                    name=f"{name}, sun {e:g}°, horizontal rays: finite",
+                    value=str(ok),
+                    expected="True",
+                    passed=ok,
+                )
             )
             if name.startswith("huge") and e > 0:
                 s, j = np.stack(q["S"])[:, :2], np.stack(q["J_cam"])[:, :2]  # the level rays: J constant
                 rel = float(np.max(np.abs(s / j - 1.0)))
                 out.append(
-                    {
-                        "name": "huge fog, level rays: in-scatter = the source function at the camera",
-                        "value": rel,
-                        "expected": "≤ 1e-3",
-                        "passed": bool(rel <= 1e-3),
-                    }
+                    Check(
+                        name="huge fog, level rays: in-scatter = the source function at the camera",
+                        value=rel,
+                        expected="≤ 1e-3",
+                        passed=bool(rel <= 1e-3),
+                    )
                 )
             if e < 0:
                 mx = float(np.max(np.abs(np.stack(q["S"]))))
                 out.append(
-                    {
-                        "name": f"{name}, sun {e:g}°: no single scattering (planet shadow)",
-                        "value": mx,
-                        "expected": "= 0",
-                        "passed": bool(mx == 0.0),
-                    }
+                    Check(
+                        name=f"{name}, sun {e:g}°: no single scattering (planet shadow)",
+                        value=mx,
+                        expected="= 0",
+                        passed=bool(mx == 0.0),
+                    )
                 )
     return out
 
@@ -796,7 +791,7 @@ def cost_rows(ctx, cfg) -> list[dict]:
 def bench(ctx) -> list[dict]:
     """Rays/s of the quadrature kernel text on Dr.Jit vs NumPy, side by side."""
     backend, n = bench_backend(ctx)
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     n = min(n, 1 << 16)
     d, dist = _cost_inputs(n)
     np_args = (np.full(n, 50.0), d[:, 0], d[:, 1], d[:, 2], dist)

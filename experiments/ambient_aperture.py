@@ -46,7 +46,6 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-import drjit as dr
 import numpy as np
 
 from rtfit.fitting import Param, compute_metrics, fit_method, robust_spread, z_pair
@@ -59,6 +58,7 @@ from rtfit.realtime import (
     sphere_light_irradiance,
 )
 from rtfit.realtime.ambient_aperture import METHODS
+from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.methods import Method
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene
 from rtfit.reference.cache import REFERENCE_PASS_DTYPE
@@ -88,6 +88,7 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
 from .viewer import save_case_pixels
 
@@ -770,10 +771,9 @@ def run(ctx) -> dict:
         "cache_dir": str(ctx.cache_dir),
         "progress": ctx.progress,
     }
-    job = "rtfit.experiments.ambient_aperture:"
     jobs = [
         Job(
-            job + "scene_job",
+            scene_job,
             {
                 "name": name,
                 "probe_n": cfg["probe_n"],
@@ -785,11 +785,11 @@ def run(ctx) -> dict:
         )
         for name in cfg["scenes"]
     ]
-    jobs.append(Job(job + "unoccluded_job", {"probe_n": cfg["probe_n"], **common}, label="unoccluded"))
-    jobs.append(Job(job + "fit_intersection_job", {"grid": cfg["fit_grid"]}, label="fit-intersection"))
+    jobs.append(Job(unoccluded_job, {"probe_n": cfg["probe_n"], **common}, label="unoccluded"))
+    jobs.append(Job(fit_intersection_job, {"grid": cfg["fit_grid"]}, label="fit-intersection"))
     jobs.append(
         Job(
-            job + "fit_lambert_job",
+            fit_lambert_job,
             {"count": cfg["lambert_configs"], "nodes": cfg["lambert_quad"]},
             label="fit-lambert",
         )
@@ -850,7 +850,7 @@ def hard_point_deviation(points=HARD_POINTS) -> float:
     return worst
 
 
-def unoccluded_check(res) -> list[dict]:
+def unoccluded_check(res) -> list[Check]:
     """Mitsuba vs the closed-form sphere-light irradiance with every occluder removed: the z-scores must
     be standard normal (tolerances: `rtfit.fitting.stats`)."""
     light = load_scene(library_path("aperture_hole")).lights[0]
@@ -860,84 +860,80 @@ def unoccluded_check(res) -> list[dict]:
     _, z = z_pair(exact, res["mean"][:, 0], res["stderr"][:, 0], res["sigma"][:, 0], 0.0)  # every σ > 0
     spread, med = robust_spread(z), float(np.median(z))
     return [
-        {
-            "name": "reference vs closed-form sphere-light irradiance, occluders removed: "
-            "z-score robust spread",
-            "value": spread,
-            "expected": f"1 ± {Z_SPREAD_TOLERANCE}",
-            "passed": bool(abs(spread - 1) <= Z_SPREAD_TOLERANCE),
-        },
-        {
-            "name": "same: z-score median",
-            "value": med,
-            "expected": f"|median| ≤ {Z_MEDIAN_TOLERANCE}",
-            "passed": bool(abs(med) <= Z_MEDIAN_TOLERANCE),
-        },
+        Check(
+            name="reference vs closed-form sphere-light irradiance, occluders removed: z-score robust spread",
+            value=spread,
+            expected=f"1 ± {Z_SPREAD_TOLERANCE}",
+            passed=bool(abs(spread - 1) <= Z_SPREAD_TOLERANCE),
+        ),
+        Check(
+            name="same: z-score median",
+            value=med,
+            expected=f"|median| ≤ {Z_MEDIAN_TOLERANCE}",
+            passed=bool(abs(med) <= Z_MEDIAN_TOLERANCE),
+        ),
     ]
 
 
-def checks(fl, fit_i, fit_l, unoccluded, arrays) -> list[dict]:
+def checks(fl, fit_i, fit_l, unoccluded, arrays) -> list[Check]:
     hard = hard_point_deviation()
     fitted_errors = fl["errors"][FITTED_OMEGA.id]
     seed_max = fl["errors"][SEED_OMEGA.id]["full"]["max"]
     finite = all(np.all(np.isfinite(img)) for a in arrays.values() for img in a["images"].values())
     return [
-        {
-            "name": "closed form vs independent quadrature over the grid (max |ΔΩ| / smaller cap)",
-            "value": fl["quad_dev"],
-            "expected": "≤ 1e-4",
-            "passed": fl["quad_dev"] <= 1e-4,
-        },
-        {
-            "name": "closed form vs adaptive quadrature (SciPy, float64) at 5 points incl. near-tangent tiny "
+        Check(
+            name="closed form vs independent quadrature over the grid (max |ΔΩ| / smaller cap)",
+            value=fl["quad_dev"],
+            expected="≤ 1e-4",
+            passed=fl["quad_dev"] <= 1e-4,
+        ),
+        Check(
+            name="closed form vs adaptive quadrature (SciPy, float64) at 5 points incl. near-tangent tiny "
             "caps (max |ΔΩ| / smaller cap)",
-            "value": hard,
-            "expected": "≤ 1e-10",
-            "passed": hard <= 1e-10,
-        },
-        {
-            "name": "closed form on nested / disjoint / covering grid points vs their closed values",
-            "value": fl["closed_dev"],
-            "expected": "≤ 1e-12",
-            "passed": fl["closed_dev"] <= 1e-12,
-        },
-        {
-            "name": "fitted form stays within [0, smaller cap] on the grid",
-            "value": str(fitted_errors["in_bounds"]),
-            "expected": "True",
-            "passed": fitted_errors["in_bounds"],
-        },
-        {
-            "name": "fitted form beats the smoothstep: max error, full domain",
-            "value": fitted_errors["full"]["max"],
-            "expected": f"< {seed_max:.4g}",
-            "passed": fitted_errors["full"]["max"] < seed_max,
-        },
-        {
-            "name": "intersection fit converged",
-            "value": str(fit_i["converged"]),
-            "expected": "True",
-            "passed": bool(fit_i["converged"]),
-        },
-        {
-            "name": "Lambert-weight fit converged",
-            "value": str(fit_l["converged"]),
-            "expected": "True",
-            "passed": bool(fit_l["converged"]),
-        },
-        {
-            "name": "Lambert-factor quadrature: change with doubled nodes (max, fraction of the light cap)",
-            "value": fit_l["quad_resolution"],
-            "expected": "≤ 0.01",
-            "passed": fit_l["quad_resolution"] <= 0.01,
-        },
+            value=hard,
+            expected="≤ 1e-10",
+            passed=hard <= 1e-10,
+        ),
+        Check(
+            name="closed form on nested / disjoint / covering grid points vs their closed values",
+            value=fl["closed_dev"],
+            expected="≤ 1e-12",
+            passed=fl["closed_dev"] <= 1e-12,
+        ),
+        Check(
+            name="fitted form stays within [0, smaller cap] on the grid",
+            value=str(fitted_errors["in_bounds"]),
+            expected="True",
+            passed=fitted_errors["in_bounds"],
+        ),
+        Check(
+            name="fitted form beats the smoothstep: max error, full domain",
+            value=fitted_errors["full"]["max"],
+            expected=f"< {seed_max:.4g}",
+            passed=fitted_errors["full"]["max"] < seed_max,
+        ),
+        Check(
+            name="intersection fit converged",
+            value=str(fit_i["converged"]),
+            expected="True",
+            passed=bool(fit_i["converged"]),
+        ),
+        Check(
+            name="Lambert-weight fit converged",
+            value=str(fit_l["converged"]),
+            expected="True",
+            passed=bool(fit_l["converged"]),
+        ),
+        Check(
+            name="Lambert-factor quadrature: change with doubled nodes (max, fraction of the light cap)",
+            value=fit_l["quad_resolution"],
+            expected="≤ 0.01",
+            passed=fit_l["quad_resolution"] <= 0.01,
+        ),
         *unoccluded_check(unoccluded),
-        {
-            "name": "every shaded probe finite (no NaN/Inf)",
-            "value": str(finite),
-            "expected": "True",
-            "passed": finite,
-        },
+        Check(
+            name="every shaded probe finite (no NaN/Inf)", value=str(finite), expected="True", passed=finite
+        ),
     ]
 
 
@@ -1218,7 +1214,7 @@ def cost_inputs(n: int, backend: str, seed: int = 1):
     r1 = rng.uniform(0, PI / 2, n).astype(np.float32)
     r2 = rng.uniform(0, PI / 2, n).astype(np.float32)
     d = rng.uniform(0, PI, n).astype(np.float32)
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     return (r1, r2, d), (Float(r1), Float(r2), Float(d))
 
 
@@ -1232,7 +1228,7 @@ def shading_inputs(n: int, backend: str, seed: int = 2):
         rng.uniform(0, PI / 2, n),
         rng.uniform(0.005, 0.3, n),
     )
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     return tuple(Float(x.astype(np.float32)) for x in arrs)
 
 

@@ -23,6 +23,7 @@ import logging
 import os
 import shutil
 import socket
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -101,6 +102,32 @@ def _owner_alive(owner: dict) -> bool | None:
     start = owner.get("start")
     now = _process_start(pid)
     return not (start is not None and now is not None and start != now)
+
+
+def writable_problem(path) -> str | None:
+    """Why ``path`` cannot become a directory this process writes (None: it can), checked before anything
+    runs: its nearest existing ancestor must be a directory (not a file, not a broken symbolic link), and a
+    probe directory is made there and removed at once — ``os.access`` says yes to root on ``/proc`` and on a
+    read-only filesystem. Nothing else is created. Shared by ``run``/``sweep`` (``--out``, ``--cache``) and
+    the audit (issue 32: ``audit --out /proc/x`` rendered first, then crashed)."""
+    path = Path(path)
+    probe = path
+    try:
+        while not probe.exists():
+            if probe.is_symlink():
+                return f"{probe} is a broken symbolic link"
+            if probe.parent == probe:
+                break
+            probe = probe.parent
+    except OSError as e:  # a folder this process may not look into (/proc/1/cwd), a symlink loop
+        return f"cannot look into {probe} ({e.strerror or e})"
+    if not probe.is_dir():
+        return ("is a file" if probe == path else f"is under {probe}, a file") + ", not a directory"
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".rtfit-probe-", dir=probe))
+    except OSError as e:
+        return f"cannot create anything in {probe} ({e.strerror or e})"
+    return None
 
 
 def owner_file(tmp: Path) -> Path:

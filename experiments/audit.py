@@ -35,15 +35,26 @@ from rtfit.realtime import (
     diffuse,
     environment_bases,
     height_fog,
+    irradiance_volumes,
     nishita_sky,
+    obscurances,
+    reflections,
     sdf_occlusion,
+    soft_particles,
 )
-from rtfit.reference.build import load_dict, mitsuba_scene_dict
+from rtfit.realtime.light_cones import INPUTS as CONE_INPUTS
+from rtfit.realtime.light_cones import METHODS as CONE_METHODS
+from rtfit.realtime.light_cones import QUADRATURE as CONE_QUADRATURE
+from rtfit.realtime.volumetric_lightning import METHODS as LIGHTNING_METHODS
+from rtfit.realtime.volumetric_lightning import QUADRATURE as LIGHTNING_QUADRATURE
+from rtfit.reference.build import inside_boundary, load_dict, mitsuba_scene_dict
 from rtfit.reference.integrators import can_interreflect
 from rtfit.reference.mitsuba_xml import UP_AXES, XmlScene, XMLSceneError, inspect_xml
 from rtfit.reference.nishita_sky import load_atmosphere_scene
+from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, shape_plugin
 from rtfit.reference.variants import inspection_variant, scoped_variant
 from rtfit.scenes import ENVIRONMENT_KINDS, Scene, SceneError, library_names, library_path, load_scene
+from rtfit.scenes.model import PointLight, SpotLight
 
 from .registry import ALIASES
 
@@ -51,6 +62,7 @@ __all__ = [
     "AO_FRACTION",
     "FAMILIES",
     "RULES",
+    "SURFACE_FREE_KINDS",
     "Applicability",
     "AuditError",
     "Part",
@@ -66,11 +78,17 @@ AO_FRACTION = 0.1
 
 FAMILIES = {
     "diffuse": diffuse.METHODS,
-    "irradiance-bases": environment_bases.METHODS,
+    "irradiance-bases": environment_bases.ALL_METHODS,
     "ambient-aperture": ambient_aperture.METHODS,
     "sdf-occlusion": sdf_occlusion.METHODS,
     "height-fog": height_fog.METHODS,
     "nishita-sky": nishita_sky.METHODS,
+    "obscurances": obscurances.METHODS,
+    "soft-particles": soft_particles.METHODS,
+    "volumetric-lightning": {**LIGHTNING_METHODS, "quadrature": LIGHTNING_QUADRATURE},
+    "light-cones": {**CONE_METHODS, "quadrature": CONE_QUADRATURE},
+    "environment-maps": reflections.METHODS,
+    "irradiance-volumes": irradiance_volumes.METHODS,
 }
 """Family name (the experiment's name) → its method table."""
 
@@ -82,6 +100,8 @@ class AuditError(ValueError):
 # ------------------------------------------------------------------------------------------- scene parts
 # The inputs each kind of part provides (names of `Method.inputs`). A part has one or more kinds.
 _GEOMETRY_INPUTS = ("terms", "distance", "px", "py", "pz", "nx", "ny", "nz", "sdf", "t0", "t_max")
+_SEGMENT_INPUTS = ("ox", "oy", "oz", "dx", "dy", "dz")  # a camera ray's stretch in a medium
+_LIT_MEDIUM_INPUTS = ("intensity", "sigma_s", "sigma_t", "g", "single_scattering")  # the light, the medium
 PROVIDES: dict[str, frozenset[str]] = {
     "light": frozenset({"cos_theta", "irradiance", "cos_nl"}),
     "spherical-light": frozenset({"cos_theta", "irradiance", "cos_nl", "alpha", "radiance", "cos_al"}),
@@ -89,8 +109,24 @@ PROVIDES: dict[str, frozenset[str]] = {
     "surface": frozenset(),
     "geometry": frozenset({*_GEOMETRY_INPUTS, "cos_na", "aperture"}),
     "fog": frozenset({"z0", "z1", "distance", "cos_sun", "l0_r", "l0_g", "l0_b"}),
+    # a scene's own medium as height fog (constant, or fitted to its grid)
+    "constant-fog": frozenset({"z0", "z1", "distance", "cos_sun", "l0_r", "l0_g", "l0_b"}),
+    "grid-fog": frozenset({"z0", "z1", "distance", "cos_sun", "l0_r", "l0_g", "l0_b"}),
     "medium": frozenset(),
     "atmosphere": frozenset({"dx", "dy", "dz", "texel_mu", "texel_nu", "tau_r", "tau_m", "sun_x", "sun_z"}),
+    # a sky emitter (Mitsuba's sunsky): the Nishita texture's inputs in the sky's frame (its zenith, its sun)
+    "sky": frozenset({"dx", "dy", "dz", "texel_mu", "texel_nu", "tau_r", "tau_m", "sun_x", "sun_z"}),
+    "particle": frozenset(
+        {"alpha", "alpha_c", "z", "delta", "radius", "q", "cos_view", "t_surface", "sigma"}
+        | {"dx", "dy", "dz", "cx", "cy", "cz"}
+    ),
+    "point-in-medium": frozenset({*_SEGMENT_INPUTS, "lx", "ly", "lz", *_LIT_MEDIUM_INPUTS}),
+    "spot-in-medium": frozenset({*(i.name for i in CONE_INPUTS), *_LIT_MEDIUM_INPUTS}),
+    "reflective-shape": frozenset(i.name for i in reflections.METHODS["classic"].inputs),
+    "volume": frozenset({"px", "py", "pz", "nx", "ny", "nz", "table", "grid"}),
+    "rough-shape": frozenset(
+        i.name for m in ("classic", "preconvolved") for i in reflections.METHODS[m].inputs
+    ),
 }
 # What provides an input, for "not here" notes (the first kind of `PROVIDES` that has it).
 _INPUT_SOURCE = {name: kind for kind in reversed(PROVIDES) for name in PROVIDES[kind]}
@@ -104,8 +140,17 @@ _KIND_TEXT = {
     "surface": "a surface for the camera to see",
     "geometry": "geometry that can occlude itself (two or more shapes, or one non-convex shape)",
     "fog": "an exponential height-fog medium",
+    "constant-fog": "a homogeneous medium (constant fog)",
+    "grid-fog": "a heterogeneous medium with a density grid (gridvolume)",
     "medium": "a medium",
     "atmosphere": "an atmosphere",
+    "sky": "a sky emitter (a Mitsuba sunsky)",
+    "particle": "a medium-filled convex shape (a homogeneous medium in a sphere, a cube or a convex mesh)",
+    "point-in-medium": "a point light inside a homogeneous medium",
+    "spot-in-medium": "a spot light inside a homogeneous medium",
+    "reflective-shape": "a mirror or glass shape (conductor, dielectric, thindielectric or plastic)",
+    "volume": "a scene with a finite bounding box for a probe grid",
+    "rough-shape": "a rough (glossy) reflective shape: roughconductor, roughdielectric or roughplastic",
     "caps": "two bare caps: compared over (r1, r2, d) by the ambient-aperture experiment; in a scene each "
     "intersection form is audited inside its aa-<form>-* rows",
 }
@@ -120,7 +165,8 @@ class Part:
     label: str
     source: int | None = None
     """Index of what the part stands for in its scene record (`XmlScene.emitters` for a light or an
-    environment of an XML scene, `Scene.media` for a medium of a TOML scene); ``None`` for parts that stand
+    environment of an XML scene, `XmlScene.shapes` for a particle of an XML scene, `Scene.lights` for a
+    light or an environment and `Scene.media` for a medium of a TOML scene); ``None`` for parts that stand
     for the whole scene (surfaces, geometry)."""
 
     @property
@@ -250,6 +296,53 @@ RULES: tuple[Rule, ...] = (
         "volpathmis (unbiased with chromatic extinction; rtfit's exponential-fog medium)",
     ),
     Rule(
+        "soft-particles",
+        "particle opacity",
+        ("particle", "surface"),
+        "{part} is a particle volume the camera sees; where opaque geometry cuts it, a soft-particle fade "
+        "replaces its clipped opacity",
+        "the opacity 1 − T of its medium along the pixel rays, clipped by the first opaque surface",
+        "free-flight sampling of the medium along the chord Mitsuba's intersections give (medium boundaries "
+        "are not surfaces)",
+    ),
+    Rule(
+        "volumetric-lightning",
+        "point light in a medium",
+        ("point-in-medium",),
+        "{part}: its light scatters into the camera's rays",
+        "that light's single-scattered radiance along the camera's rays in the medium (W/m²/sr, RGB)",
+        "equiangular sampling about the light with Mitsuba's emitter, phase function and shadow rays; "
+        "the quadrature of rtfit.reference.single_scattering as the exact row",
+    ),
+    Rule(
+        "light-cones",
+        "spot light in a medium",
+        ("spot-in-medium",),
+        "{part}: its beam scatters into the camera's rays",
+        "that spot's single-scattered radiance along the camera's rays in the medium (W/m²/sr, RGB)",
+        "equiangular sampling about the light with Mitsuba's emitter (its linear-in-angle falloff), phase "
+        "function and shadow rays; the quadrature of rtfit.reference.single_scattering as the exact row",
+    ),
+    Rule(
+        "height-fog",
+        "constant fog",
+        ("constant-fog",),
+        "{part} is constant fog (falloff c = 0, density b = its σt) along the camera's rays",
+        "transmittance along each camera ray's stretch inside the medium, and the radiance with this medium "
+        "alone",
+        "ratio tracking through the scene's own medium; volpathmis for the radiance",
+    ),
+    Rule(
+        "height-fog",
+        "grid fog",
+        ("grid-fog",),
+        "{part}: its grid is fitted with the exponential height density b·exp(−c·(p·ĝ − h₀)) (the fit's "
+        "residual is reported first)",
+        "transmittance along each camera ray's stretch inside the medium, and the radiance with this medium "
+        "alone",
+        "ratio tracking through the scene's own medium (its grid, trilinear); volpathmis for the radiance",
+    ),
+    Rule(
         "nishita-sky",
         "sky",
         ("atmosphere",),
@@ -257,7 +350,56 @@ RULES: tuple[Rule, ...] = (
         "sky radiance along the camera's sky pixels (single and multiple scattering)",
         "volpathmis in the spherical-shell atmosphere",
     ),
+    Rule(
+        "nishita-sky",
+        "sky emitter",
+        ("sky",),
+        "{part} fills the camera's sky pixels: which Nishita parameters best match it",
+        "the emitter's own sky radiance along the camera's sky pixels above its horizon (RGB; pixels within "
+        "1° of its sun left out: the sun's disc is the diffuse family's)",
+        "none: Mitsuba's emitter evaluated along each pixel-centre ray (emitter.eval, deterministic: noise "
+        "floor zero)",
+    ),
+    Rule(
+        "obscurances",
+        "obscurance",
+        ("geometry",),
+        "{part} occludes itself: ambient light as a function of the distance to the nearest surface",
+        "ray-cast obscurance W = (1/π)∫ρ(d)(n·ω)dω with ρ = √(d/R), R = {ao_distance}, and the uniform "
+        "ambient with interreflections it stands in for",
+        "occlusion passes: cosine-distributed rays from the visible points (hit distances; paths with "
+        "Russian roulette for the ambient)",
+        # The rule's own ray casts give every row its K hit distances per point.
+        frozenset({"distances"}),
+    ),
+    *(
+        Rule(
+            "environment-maps",
+            role,
+            (kind,),
+            "{part} shows its surroundings: a cube map captured at its centre stands in for them",
+            "path-traced radiance of the pixels that see the shape",
+            "path (unbounded depth, Russian roulette) along the pixel-centre camera rays; the cube maps "
+            "captured by the same integrator from the probe point, the shape itself hidden",
+        )
+        for role, kind in (("reflections", "reflective-shape"), ("glossy reflections", "rough-shape"))
+    ),
+    Rule(
+        "irradiance-volumes",
+        "probe grid",
+        ("volume", "geometry"),
+        "{part}: probes baked there stand in for the light that {with_} shapes over the visible points",
+        "path-traced irradiance at the visible points (every light a ray can reach, as the probes store it)",
+        "a cosine-distributed ray from each visible point, then path (unbounded depth); the probes: uniform "
+        "sphere directions from each node, the same integrator",
+    ),
 )
+
+
+SURFACE_FREE_KINDS = frozenset({"fog", "constant-fog", "grid-fog", "point-in-medium", "spot-in-medium", "sky",
+                                "atmosphere"})  # fmt: skip
+"""Trigger part kinds (a rule's ``needs[0]``) whose family audits the camera's rays, not the surfaces they
+hit: a scene whose camera sees only medium boundaries and lights still runs these (and only these)."""
 
 
 @dataclass(frozen=True)
@@ -398,13 +540,14 @@ def default_ao_distance(info: SceneInfo) -> float | None:
 
 # --------------------------------------------------------------------------------------------- inspection
 _XML_NOTES = (
-    "height-fog: Mitsuba XML has no exponential height-fog medium; rtfit's exponential fog is its own medium "
-    'plugin, declared in TOML scenes (`[[media]] type = "exponential_fog"`): a homogeneous medium has one '
-    "density, and a heterogeneous grid is not recognised as exponential",
-    "nishita-sky: Mitsuba XML has no atmosphere type; the Nishita sky is audited on rtfit sky files "
-    "(format rtfit.sky/1)",
+    "height-fog: a homogeneous medium is audited as constant fog (c = 0) and a heterogeneous gridvolume as "
+    "the exponential height density fitted to its grid; other media (a heterogeneous medium with another "
+    "volume) are not height fog",
+    "nishita-sky: Mitsuba XML has no atmosphere type: the Nishita sky is fitted to a sunsky emitter's sky; a "
+    "path-traced spherical-shell atmosphere is an rtfit sky file (format rtfit.sky/1)",
 )
 _CONVEX_XML = frozenset({"sphere", "rectangle", "disk", "cube"})  # one of these alone cannot occlude itself
+_PARTICLE_XML = frozenset({"sphere", "cube"})  # convex medium boundaries with an exact chord
 # Emitter kinds (`XmlEmitter.kind`) that are lights of their own; others (e.g. a projector) are not audited.
 _XML_LIGHTS = frozenset({"point", "spot", "directional", "sphere", "disk", "rectangle", "area"})
 
@@ -416,6 +559,23 @@ def _short(location: str) -> str:
     return f"{os.path.basename(head)} {line}".strip()
 
 
+def _unaudited(x: XmlScene) -> str | None:
+    """The ``--list`` line naming every emitter no family audits (a ``projector``, a plugin rtfit does not
+    know), and what happens to it: no family's reference includes it (each renders its own light, the
+    environment or the geometry alone), so it is neither audited nor lights another case (issue 31)."""
+    left = [
+        f"{e.kind}{f' {e.id!r}' if e.id else ''} ({_short(e.location)})"
+        for e in x.emitters
+        if not e.environment and e.kind not in _XML_LIGHTS
+    ]
+    if not left:
+        return None
+    return (
+        f"not audited: {', '.join(left)}: no family has a light model for this emitter kind; it is left "
+        "out of every reference (each family renders its own light, the environment or the geometry alone)"
+    )
+
+
 def _xml_info(x: XmlScene) -> SceneInfo:
     parts: list[Part] = []
     for index, e in enumerate(x.emitters):
@@ -423,10 +583,11 @@ def _xml_info(x: XmlScene) -> SceneInfo:
         where = _short(e.location)
         if e.environment:
             label = f"{e.kind} environment{named} ({where})"
-            if e.direction is not None:  # a sunsky: its sun is a light of its own
+            kinds = {"environment"}
+            if e.direction is not None:  # a sunsky: its sun is a light of its own, its sky a Nishita target
                 sun = {"light", "spherical-light"} if e.spherical else {"light"}
                 parts.append(Part(frozenset(sun), f"the sun of the {label}", index))
-            kinds = {"environment"}
+                kinds.add("sky")
         elif e.kind in _XML_LIGHTS:
             kinds = {"light", "spherical-light"} if e.spherical else {"light"}
             what = f"{e.kind} area light" if e.shape else f"{e.kind} light"
@@ -441,9 +602,29 @@ def _xml_info(x: XmlScene) -> SceneInfo:
         if len(x.shapes) >= 2 or x.shapes[0].type not in _CONVEX_XML:
             types = ", ".join(f"{t} ×{n}" if n > 1 else t for t, n in _counts(s.type for s in x.shapes))
             parts.append(Part(frozenset({"geometry"}), f"the scene's geometry ({types})"))
-    for m in x.media:
+    if x.shapes and x.bbox is not None:
+        parts.append(_volume_part(x.bbox))
+    # a medium's boundary is the medium's container, not a glass object (`shape_plugin`)
+    reflective = [s for s in x.shapes if s.bsdf in REFLECTIVE_BSDFS and not (s.interior or s.exterior)]
+    for ordinal, shape in enumerate(reflective):  # `Part.source`: the ordinal among the reflective shapes
+        named = f" '{shape.id}'" if shape.id else ""
+        text = f"{REFLECTIVE_BSDFS[shape.bsdf].text} {shape.type}{named} ({_short(shape.location)})"
+        parts.append(Part(_reflective_kinds(shape.bsdf), text, ordinal))
+    for index, m in enumerate(x.media):
         where = " bounded by a shape" if m.boundary else (" around the sensor" if m.on_sensor else "")
-        parts.append(Part(frozenset({"medium"}), f"{m.type} medium{where} ({_short(m.location)})"))
+        named = f" '{m.id}'" if m.id and m.id not in ("interior", "exterior", "medium") else ""
+        label = f"{m.type} medium{named}{where} ({_short(m.location)})"
+        constant = m.type == "homogeneous" or (m.type == "heterogeneous" and m.sigma_t == "constvolume")
+        grid = m.type == "heterogeneous" and m.sigma_t == "gridvolume"
+        kinds = {"medium", "constant-fog"} if constant else ({"medium", "grid-fog"} if grid else {"medium"})
+        parts.append(Part(frozenset(kinds), label, index if constant or grid else None))
+    for index, s in enumerate(x.shapes):  # a particle: a homogeneous medium in a convex shape
+        if s.interior == "homogeneous" and (s.type in _PARTICLE_XML or s.convex):
+            what = s.type if s.type in _PARTICLE_XML else f"convex {s.type} mesh"
+            label = f"homogeneous medium in a {what}{f' {s.id!r}' if s.id else ''} ({_short(s.location)})"
+            parts.append(Part(frozenset({"particle"}), label, index))
+    lit, lit_notes = _xml_lights_in_media(x)
+    parts += lit
     cam = x.camera
     camera = (
         f"sensor {cam.index}{f' {cam.id!r}' if cam.id else ''} ({cam.type}, {_short(cam.location)}) of "
@@ -468,6 +649,9 @@ def _xml_info(x: XmlScene) -> SceneInfo:
         ),
         f"BSDFs: {', '.join(x.bsdfs) or 'none'}; media: {', '.join(m.type for m in x.media) or 'none'}",
     )
+    unaudited = _unaudited(x)
+    if unaudited:
+        contents += (unaudited,)
     return SceneInfo(
         source=x.path,
         format="mitsuba-xml",
@@ -477,9 +661,51 @@ def _xml_info(x: XmlScene) -> SceneInfo:
         up_reason=x.up_reason,
         camera=camera,
         contents=contents,
-        notes=_XML_NOTES,
+        notes=_XML_NOTES + lit_notes,
         xml=x,
     )
+
+
+def _medium_text(m) -> str:
+    where = " bounded by a shape" if m.boundary else (" around the sensor" if m.on_sensor else "")
+    return f"the {m.type} medium{where} ({_short(m.location)})"
+
+
+_LIT_KINDS = {"point": ("point-in-medium", "volumetric-lightning"), "spot": ("spot-in-medium", "light-cones")}
+"""A light kind → the part kind it makes inside a homogeneous medium, and the family that part triggers."""
+
+
+def _xml_lights_in_media(x: XmlScene) -> tuple[list[Part], tuple[str, ...]]:
+    """A ``point-in-medium`` (``spot-in-medium``) part for each point (spot) light inside a homogeneous
+    medium (`XmlEmitter.medium`), and a note for each such light that is not."""
+    parts, notes = [], []
+    for index, e in enumerate(x.emitters):
+        if e.kind not in _LIT_KINDS:
+            continue
+        kind, family = _LIT_KINDS[e.kind]
+        label = f"{e.kind} light{f' {e.id!r}' if e.id else ''} ({_short(e.location)})"
+        medium = x.media[e.medium] if e.medium is not None else None
+        if medium is not None and medium.type == "homogeneous":
+            parts.append(Part(frozenset({kind}), f"{label} inside {_medium_text(medium)}", index))
+        elif medium is not None:
+            notes.append(f"{family}: {label} sits in {_medium_text(medium)}, not homogeneous")
+        else:
+            notes.append(f"{family}: {label} is not inside a medium")
+    return parts, tuple(notes)
+
+
+def _volume_part(bbox) -> Part:
+    """The probe grid's part: the scene's box, where it has a finite extent."""
+    lo, hi = bbox
+    extent = max(h - low for low, h in zip(lo, hi, strict=True))
+    finite = all(math.isfinite(v) for v in (*lo, *hi)) and extent > 0.0
+    kinds = frozenset({"volume"}) if finite else frozenset()
+    return Part(kinds, f"a probe grid over the scene's box {_vec(lo)}–{_vec(hi)}")
+
+
+def _reflective_kinds(plugin: str) -> frozenset[str]:
+    """The part kinds of a shape with the reflective BSDF ``plugin`` (`REFLECTIVE_BSDFS`)."""
+    return frozenset({"rough-shape" if REFLECTIVE_BSDFS[plugin].rough else "reflective-shape"})
 
 
 def _counts(items) -> list[tuple[str, int]]:
@@ -495,37 +721,54 @@ def _vec(v) -> str:
 
 def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
     parts: list[Part] = []
+    bbox = _toml_bbox(scene)
     for i, light in enumerate(scene.lights):
         where = f"lights[{i}]"
         if light.kind in ENVIRONMENT_KINDS:
             label = f"{light.kind} environment ({where})"
+            kinds = {"environment"}
             if getattr(light, "sun_direction", None) is not None:  # a sunsky: its sun is a light of its own
                 sun = {"light", "spherical-light"} if light.sun_aperture_deg > 0.0 else {"light"}
-                parts.append(Part(frozenset(sun), f"the sun of the {label}"))
-            parts.append(Part(frozenset({"environment"}), label))
+                parts.append(Part(frozenset(sun), f"the sun of the {label}", i))
+                kinds.add("sky")  # and its sky a Nishita target
+            parts.append(Part(frozenset(kinds), label, i))
             continue
         spherical = light.kind == "sphere_light" or getattr(light, "angular_radius_deg", 0.0) > 0.0
         kinds = {"light", "spherical-light"} if spherical else {"light"}
-        parts.append(Part(frozenset(kinds), f"{light.kind.replace('_', ' ')} ({where})"))
+        parts.append(Part(frozenset(kinds), f"{light.kind.replace('_', ' ')} ({where})", i))
     if scene.shapes:
         parts.append(Part(frozenset({"surface"}), f"{len(scene.shapes)} shape(s)"))
         if can_interreflect(scene):
             types = ", ".join(f"{t} ×{n}" if n > 1 else t for t, n in _counts(s.kind for s in scene.shapes))
             parts.append(Part(frozenset({"geometry"}), f"the scene's geometry ({types})"))
+        if bbox is not None:
+            parts.append(_volume_part(bbox))
+        for index, plugin, where in _toml_reflective(scene):
+            text = f"{REFLECTIVE_BSDFS[plugin].text} shape ({where}: {plugin})"
+            parts.append(Part(_reflective_kinds(plugin), text, index))
     for i, medium in enumerate(scene.media):
-        kind = {"exponential_fog": "fog"}.get(medium.kind, "medium")
-        parts.append(Part(frozenset({kind}), f"{medium.kind.replace('_', ' ')} medium (media[{i}])", i))
+        kind = {"exponential_fog": {"fog"}, "homogeneous": {"medium", "particle", "constant-fog"}}.get(
+            medium.kind, {"medium"}
+        )
+        label = f"{medium.kind.replace('_', ' ')} medium (media[{i}])"
+        if "particle" in kind:
+            label = f"homogeneous medium in a {medium.boundary.kind} (media[{i}])"
+        parts.append(Part(frozenset(kind), label, i))
+    lit, lit_notes = _toml_lights_in_media(scene)
+    parts += lit
     c = scene.camera
     axis = up or "+z"
     reason = f"{up} as given (--up)" if up else "+z: rtfit TOML scenes are +z up (the world-frame convention)"
     notes = (
-        "height-fog: only an exponential_fog medium is height fog; a homogeneous medium has one density",
+        "height-fog: an exponential_fog medium is height fog; a homogeneous medium is audited as constant "
+        "fog (c = 0)",
+        *lit_notes,
     )
     return SceneInfo(
         source=source,
         format="rtfit-toml",
         parts=tuple(parts),
-        bbox=_toml_bbox(scene),
+        bbox=bbox,
         up=axis,
         up_reason=reason,
         camera=f"{c.width}×{c.height}, fov {c.fov_deg:.4g}° (x), origin {_vec(c.origin)} looking at "
@@ -533,6 +776,27 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
         contents=(f"rtfit TOML scene {scene.name!r}: {', '.join(sorted(scene.parts()))}",),
         notes=notes,
     )
+
+
+def _toml_lights_in_media(scene: Scene) -> tuple[list[Part], tuple[str, ...]]:
+    """A ``point-in-medium`` (``spot-in-medium``) part (source: the light's index) for each point (spot)
+    light inside a homogeneous medium's boundary, and a note for each such light that is not."""
+    parts, notes = [], []
+    for i, light in enumerate(scene.lights):
+        if not isinstance(light, PointLight | SpotLight):
+            continue
+        kind, family = _LIT_KINDS["point" if isinstance(light, PointLight) else "spot"]
+        inside = [j for j, m in enumerate(scene.media) if inside_boundary(m.boundary, light.position)]
+        homogeneous = [j for j in inside if scene.media[j].kind == "homogeneous"]
+        what = light.kind.replace("_", " ")
+        if homogeneous:
+            text = f"{what} (lights[{i}]) inside the homogeneous medium (media[{homogeneous[0]}])"
+            parts.append(Part(frozenset({kind}), text, i))
+        elif inside:
+            notes.append(f"{family}: the {what} lights[{i}] sits in media[{inside[0]}], not homogeneous")
+        else:
+            notes.append(f"{family}: the {what} lights[{i}] is not inside a medium")
+    return parts, tuple(notes)
 
 
 def _toml_bbox(scene: Scene):
@@ -544,6 +808,26 @@ def _toml_bbox(scene: Scene):
         box = load_dict(mi, d).bbox()
         lo, hi = box.min, box.max
     return (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2]))
+
+
+def _toml_reflective(scene: Scene) -> list[tuple[int, str, str]]:
+    """(ordinal, BSDF plugin, where) of each reflective shape of a TOML scene, in the order of the Mitsuba
+    scene dict's keys (`mitsuba_scene_dict`: ``xml<i>_<j>``, the j-th shape of TOML shape i; the order
+    `rtfit.reference.reflective_shapes.reflective_shapes` gives them). rtfit's own materials are diffuse, so
+    these come from ``mitsuba_xml`` shapes that keep their file's BSDFs."""
+    keeps = [getattr(s, "override_material", None) is None for s in scene.shapes if s.kind == "mitsuba_xml"]
+    if not any(keeps):
+        return []
+    out = []
+    with scoped_variant(inspection_variant()) as mi:
+        d = mitsuba_scene_dict(mi, Scene(name=scene.name, camera=scene.camera, shapes=scene.shapes))
+        for key, obj in d.items():
+            if not (key.startswith("xml") and isinstance(obj, mi.Shape)):
+                continue
+            plugin = shape_plugin(obj)
+            if plugin is not None:
+                out.append((len(out), plugin, f"shapes[{key[3:].split('_')[0]}], {key}"))
+    return out
 
 
 def _sky_info(path: str) -> SceneInfo:

@@ -42,9 +42,10 @@ Case ``caps`` (role "ambient occlusion (aperture caps)"): the cap against ray-ca
 Case ``light<i>-occluded`` (role "occluded sphere light", per spherical light): that light's direct
 irradiance with the scene's occluders against the ambient-aperture light term.
 
-* Reference: the diffuse family's **shadowed** irradiance of that light (`audit_diffuse.light_reference`:
+* Reference: the diffuse family's **shadowed** irradiance of that light (`audit_lights.light_reference`:
   Mitsuba's emitter sampling of the light alone with shadow rays; the same cache entry as the diffuse
-  family's, rendered once for both). W/m², RGB.
+  family's, rendered once for both). W/m², RGB. The light is a Mitsuba XML emitter or an rtfit TOML light
+  (a ``sphere_light``, a ``sun`` of finite angular radius, a ``sunsky``'s sun: `audit_lights.scene_light`).
 * Caps: baked with unbounded rays, the emitters' own shapes seen through (a light does not occlude itself;
   the experiment bakes the scene without its lights).
 * Rows: every ``aa-*`` row of `METHODS`: E ≈ L·Ω(r_a, α, ∠(a, l))·max(n·c, 0) with l towards the light's
@@ -68,12 +69,14 @@ from rtfit.realtime.ambient_aperture import METHODS, aperture_from_visibility
 from rtfit.realtime.arrays import NUMPY_OPS
 from rtfit.realtime.sdf_occlusion import CURVATURE_LEVEL
 from rtfit.reference.cache import array_digest
+from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.occlusion import visibility_cap_pass
 
 from .audit import Applicability
-from .audit_ambient_occlusion import ao_radius, ao_reference, scene_distance_field, visible_points
-from .audit_diffuse import light_geometry, light_radiance, light_reference
+from .audit_ambient_occlusion import ao_reference, scene_distance_field
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit_geometry import ao_radius
+from .audit_lights import light_geometry, light_radiance, light_reference, scene_light
 
 __all__ = ["CAPS_ROLE", "FAMILY", "LIGHT_ROLE", "BakedCaps", "bake_caps"]
 
@@ -162,7 +165,7 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """The ``caps`` case: the baked caps against the AO role's ray-cast AO within R (module docstring)."""
     radius = ao_radius(setup, "ambient-aperture")
     mask = setup.mask
-    points, normals = visible_points(setup)
+    points, normals = gbuffer_points(setup.gbuffer, mask)
     ao = ao_reference(setup, points, normals, radius, f"ao: {app.part}")
     caps = bake_caps(setup, points, normals, max_distance=radius, label=f"caps: {app.part}")
     cos_na = np.clip(np.sum(normals * caps.bent_normal, axis=1), -1.0, 1.0)
@@ -230,16 +233,11 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 
 def light_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """The ``light<i>-occluded`` case of the spherical light ``app.source`` (module docstring)."""
-    xml = setup.info.xml
-    if app.source is None or xml is None:
-        raise AuditError(f"ambient-aperture: {app.part} is not a light of a Mitsuba XML scene")
-    light = xml.emitters[app.source]
-    if light.environment:
-        raise AuditError(
-            f"ambient-aperture: {app.part}: the audit samples lights, not environments, for this role"
-        )
+    if app.source is None:
+        raise AuditError(f"ambient-aperture: {app.part} is not a light of the scene")
+    light = scene_light(setup, app.source)  # either format; an environment (not a light) → AuditError
     mask = setup.mask
-    points, normals = visible_points(setup)
+    points, normals = gbuffer_points(setup.gbuffer, mask)
     towards, dist, alpha, _centre, _radius = light_geometry(setup, app.source, points)
     tag = f"light{app.source}"
     pooled = light_reference(setup, app.source, points, normals, towards, f"{tag}: {app.part}")
@@ -315,6 +313,7 @@ FAMILY = AuditFamily(
     quantity="ambient_occlusion",
     cases=ambient_aperture_cases,
     roles=(CAPS_ROLE, LIGHT_ROLE),
+    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Each visible pixel's visibility cap (bent normal and aperture r_a = acos(1 − V), V the visible "
         "fraction of --spp uniform hemisphere directions cast with Mitsuba against the scene's own "

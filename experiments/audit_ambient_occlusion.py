@@ -12,7 +12,8 @@ of length R against the scene's own shapes (Mitsuba's ray tracer), the cheapest 
 independent passes through the pass cache, with per-pixel standard errors.
 
 The approximations read a distance field baked from the scene's own triangles
-(`rtfit.experiments.audit_geometry.scene_triangles`: Mitsuba's mesh buffers, analytic shapes tessellated)
+(`rtfit.experiments.audit_geometry.scene_triangles`: Mitsuba's mesh buffers, analytic shapes tessellated —
+the loaded scene of a Mitsuba XML file or rtfit's Mitsuba build of a TOML scene's surfaces, read alike)
 on a grid over the scene's bounding box padded by R, `GRID_CELLS` cells along its longest side
 (`rtfit.realtime.sdf_grid.mesh_sdf_grid`: the sign by flood fill from outside, since user scenes are rarely
 watertight, or unsigned where that fails — both say so in the case's notes), with `MIP_LEVELS` prefiltered
@@ -50,9 +51,10 @@ from rtfit.realtime.sdf_occlusion import (
     evans_terms,
 )
 from rtfit.reference.cache import array_digest
+from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.occlusion import occlusion_pass
 
-from .audit import Applicability, default_ao_distance
+from .audit import Applicability
 from .audit_family import (
     AuditError,
     AuditFamily,
@@ -61,7 +63,7 @@ from .audit_family import (
     PooledPasses,
     pooled_passes,
 )
-from .audit_geometry import scene_triangles
+from .audit_geometry import ao_radius, scene_triangles
 
 __all__ = [
     "FAMILY",
@@ -72,7 +74,6 @@ __all__ = [
     "ao_reference",
     "distance_field_rows",
     "scene_distance_field",
-    "visible_points",
 ]
 
 FORMAT = 1
@@ -234,30 +235,13 @@ def distance_field_rows(
     return DistanceFieldRows(sdf, sign, shapes, inputs, methods, row_inputs, per_unit)
 
 
-def ao_radius(setup: AuditSetup, family: str = "sdf-occlusion") -> float:
-    """R: ``--ao-distance``, else the scene's default (`default_ao_distance`); finite and positive."""
-    radius = setup.ao_distance if setup.ao_distance is not None else default_ao_distance(setup.info)
-    if radius is None or not (math.isfinite(radius) and radius > 0):
-        raise AuditError(f"{family}: the scene has no finite size; give --ao-distance")
-    return float(radius)
-
-
-def visible_points(setup: AuditSetup) -> tuple[np.ndarray, np.ndarray]:
-    """(points, unit normals), float64 (N, 3), of the masked pixels of the G-buffer."""
-    gb = setup.gbuffer
-    points = gb.position[setup.mask].astype(np.float64)
-    normals = gb.normal[setup.mask].astype(np.float64)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
-    return points, normals
-
-
 def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """One case: the ray-cast AO of the visible points against the distance-field rows (module docstring)."""
     if app.role != ROLE:
         raise AuditError(f"sdf-occlusion: the {app.role} role is not audited here")
     radius = ao_radius(setup)
     mask = setup.mask
-    points, normals = visible_points(setup)
+    points, normals = gbuffer_points(setup.gbuffer, setup.mask)
     ao = ao_reference(setup, points, normals, radius, f"ao: {app.part}")
     rows = distance_field_rows(setup, app.methods, points, normals, radius)
     ref = ao.reference(
@@ -290,6 +274,7 @@ FAMILY = AuditFamily(
     cases=ao_cases,
     roles=(ROLE,),
     quantities=("crease_darkening",),
+    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Ambient occlusion A = (1/π)∫ V_R (n·ω) dω within the radius R at each visible point, by Mitsuba ray "
         "casts (cosine-distributed rays of length R against the scene's own shapes) in independent passes "

@@ -2,7 +2,8 @@
 ``--list`` the inspection (`rtfit.experiments.audit`).
 
     rtfit audit SCENE [--list] [-D name=value ...] [--camera N] [--width W --height H] [--up +y|-y|+z|…]
-                      [--approx a,b] [--ao-distance D] [--variant V] [--spp N] [--pass-spp N] [--out DIR]
+                      [--approx a,b] [--ao-distance D] [--probe-at X,Y,Z]
+                      [--grid NX,NY,NZ] [--variant V] [--spp N] [--pass-spp N] [--out DIR]
                       [--cache DIR] [--seed S] [--no-fit] [--no-progress]
 
 ``audit`` is the click command object; the command line adds it with ``cli.add_command(audit)``. Bad input
@@ -17,8 +18,10 @@ import click
 
 from rtfit.reference.mitsuba_xml import UP_AXES
 
-from .audit import AuditError, applicable_families, describe, inspect_scene
+from .audit import AuditError, describe, inspect_scene
+from .audit_run import AUDITED, check_ao_distance, resolve_approximations, selected_applicabilities, triple
 from .audit_run import audit as run_audit
+from .registry import RESOLUTION_MAX, SPP_MAX
 
 __all__ = ["AuditInputError", "audit"]
 
@@ -38,6 +41,12 @@ def _error(message: str):
     raise AuditInputError(" ".join(str(message).split()))
 
 
+def _quantities(family: str) -> tuple[str, ...]:
+    """The quantities an audited family compares (none for a family the audit does not run)."""
+    f = AUDITED.get(family)
+    return () if f is None else (f.quantity, *f.quantities)
+
+
 def _defines(values: tuple[str, ...]) -> dict[str, str]:
     out: dict[str, str] = {}
     for text in values:
@@ -53,8 +62,15 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
 @click.option("--list", "list_only", is_flag=True, help="Print which approximation families apply, and why.")
 @click.option("-D", "defines", multiple=True, metavar="NAME=VALUE", help="A Mitsuba XML parameter ($NAME).")
 @click.option("--camera", type=click.IntRange(min=0), default=0, show_default=True, help="XML sensor index.")
-@click.option("--width", type=click.IntRange(min=1), default=None, help="Film width (overrides the XML's).")
-@click.option("--height", type=click.IntRange(min=1), default=None, help="Film height (overrides the XML's).")
+@click.option(
+    "--width", type=click.IntRange(1, RESOLUTION_MAX), default=None, help="Film width (overrides XML's)."
+)
+@click.option(
+    "--height",
+    type=click.IntRange(1, RESOLUTION_MAX),
+    default=None,
+    help="Film height (overrides the XML's).",
+)
 @click.option(
     "--up", type=click.Choice(list(UP_AXES)), default=None, help="World up axis (default: the sensor's)."
 )
@@ -63,13 +79,26 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
     default=None,
     metavar="A,B",
     help="Families, shipped methods (wrap, diffuse:exact) and your approximations (my.py:f, module:f, "
-    "an entry point), comma-separated.",
+    "an entry point), comma-separated. Your approximations are Python code, run with your rights "
+    "(validated first in a child process, limited to $RTFIT_APPROX_TIMEOUT_S seconds, default 30).",
 )
 @click.option(
     "--ao-distance",
     type=click.FloatRange(min=0.0, min_open=True),
     default=None,
     help="AO radius in scene units (default: 0.1 × the scene's bounding-box diagonal).",
+)
+@click.option(
+    "--probe-at",
+    default=None,
+    metavar="X,Y,Z",
+    help="Where the environment-maps family captures its cube maps (default: each shape's centre).",
+)
+@click.option(
+    "--grid",
+    default=None,
+    metavar="NX,NY,NZ",
+    help="Probes of the irradiance-volumes grid over the scene's box (default: by the box's aspect).",
 )
 @click.option(
     "--variant",
@@ -79,10 +108,10 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
     help="Mitsuba variant for references and the Dr.Jit backend for approximations.",
 )
 @click.option(
-    "--spp", type=click.IntRange(min=2, max=1 << 24), default=None, help="Reference samples per pixel (256)."
+    "--spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Reference samples per pixel (256)."
 )
 @click.option(
-    "--pass-spp", type=click.IntRange(min=2, max=1 << 24), default=None, help="Samples per cached pass (32)."
+    "--pass-spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Samples per cached pass (32)."
 )
 @click.option(
     "--out",
@@ -100,6 +129,11 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
 @click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
 @click.option("--no-fit", is_flag=True, help="Do not fit free parameters to the scene.")
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
+@click.option(
+    "--profile",
+    is_flag=True,
+    help="Print where the time went: reference, evaluation and fit per family, scene set-up and report.",
+)
 def audit(
     scene,
     list_only,
@@ -110,6 +144,8 @@ def audit(
     up,
     approx,
     ao_distance,
+    probe_at,
+    grid,
     variant,
     spp,
     pass_spp,
@@ -118,18 +154,29 @@ def audit(
     seed,
     no_fit,
     no_progress,
+    profile,
 ):
     """Audit SCENE (a Mitsuba .xml scene, an rtfit .toml scene or sky file, or a library name): every
     applicable approximation against the scene's own reference, with noise floors, fits, costs and a report
     in OUT/audit-<scene>. --list prints which approximation families apply to it and why."""
     try:
+        triple("--probe-at", probe_at, float)  # bad values: one line before anything is read or rendered
+        triple("--grid", grid, int)
         if list_only:
+            check_ao_distance(ao_distance)
             info = inspect_scene(
                 scene, defines=_defines(defines), camera=camera, width=width, height=height, up=up
             )
-            found = applicable_families(info, approx=approx, ao_distance=ao_distance)
+            sel = resolve_approximations(approx)  # families, shipped methods and your own, as the run
+            found = selected_applicabilities(info, sel, ao_distance)
             for line in describe(info, found, ao_distance=ao_distance, restricted=approx is not None):
                 click.echo(line)
+            for m in sel.user:
+                fams = [a.family for a in found if m.quantity in _quantities(a.family)]
+                click.echo(
+                    f"yours: {m.id} ({m.quantity}) — audited beside "
+                    + (", ".join(dict.fromkeys(fams)) or "no family that applies here")
+                )
             return
         obj = click.get_current_context().find_root().obj or {}
         result = run_audit(
@@ -149,6 +196,8 @@ def audit(
             pass_spp=pass_spp,
             progress=bool(obj.get("bars", False)) and not no_progress,
             ao_distance=ao_distance,
+            probe_at=probe_at,
+            grid=grid,
         )
     except AuditError as e:
         _error(str(e))
@@ -159,9 +208,12 @@ def audit(
     t = result.timings
     click.echo(
         f"timings: reference {t['reference']:.1f} s, evaluation {t['evaluation']:.1f} s, "
-        f"fit {t['fit']:.1f} s",
+        f"fit {t['fit']:.1f} s" + (f", report {t['report']:.1f} s" if "report" in t else ""),
         err=True,
     )
+    if profile:
+        for line in result.profile_lines():
+            click.echo(f"profile: {line}", err=True)
     click.echo(f"summary: {result.results.summary}")
     assert result.out is not None
     click.echo(str((result.out / "report.html").resolve()))

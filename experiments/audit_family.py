@@ -88,6 +88,11 @@ class AuditSetup:
     """The rtfit `Scene` of a TOML input (its camera at the run's film size), or the `AtmosphereSpec` of an
     rtfit sky file (whose camera is the azimuth × elevation panorama of `sky_view`); None for Mitsuba XML
     (``info.xml``)."""
+    probe_at: tuple[float, float, float] | None = None
+    """``--probe-at``: where the environment-maps family captures its cube maps (None: each shape's
+    centre)."""
+    grid: tuple[int, int, int] | None = None
+    """``--grid``: the irradiance-volumes probe grid (None: the family's default for the scene's box)."""
 
 
 @dataclass(frozen=True)
@@ -195,6 +200,9 @@ class FamilyCase:
     """Row id → ``channel_inputs`` of that row alone, where a row's inputs differ from the case's (each
     irradiance basis reads its own stored coefficients; the exact row one grey value per channel). Rows not
     named here (and every user approximation) get ``channel_inputs``."""
+    uncosted: Mapping[str, str] = field(default_factory=dict)
+    """Row id → why its cost is not measured like the others' (a row whose value is computed outside its
+    kernel, which only passes it through: timing that kernel would print a cost of nothing)."""
 
 
 @dataclass(frozen=True)
@@ -215,6 +223,20 @@ class AuditFamily:
     formats: tuple[str, ...] = ("mitsuba-xml",)
     """The scene formats (`SceneInfo.format`: ``mitsuba-xml``, ``rtfit-toml``, ``rtfit-sky``) its cases read;
     on another format the family is named in the run's notes as not audited for it."""
+    role_formats: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    """Role → the formats that role's declaration reads, where declarations joined by `by_name` read
+    different ones (height-fog: rtfit TOML for exponential fog, XML and TOML for a scene's own media;
+    nishita-sky: rtfit sky files for an atmosphere, Mitsuba XML for a sky emitter); a role not here reads
+    ``formats``."""
+
+    def reads(self, role: str, scene_format: str) -> bool:
+        """Whether the declaration of ``role`` reads scenes of ``scene_format``."""
+        return scene_format in self.role_formats.get(role, self.formats)
+
+    def audits(self, role: str, scene_format: str) -> bool:
+        """True when this declaration audits the applicability role ``role`` on scenes of
+        ``scene_format``."""
+        return self.reads(role, scene_format) and (self.roles is None or role in self.roles)
 
 
 def _merged(family: list[AuditFamily]) -> AuditFamily:
@@ -237,7 +259,8 @@ def _merged(family: list[AuditFamily]) -> AuditFamily:
 
     quantities = dict.fromkeys(q for f in family for q in (f.quantity, *f.quantities))
     quantities.pop(first.quantity)
-    formats = tuple(x for x in first.formats if all(x in f.formats for f in family))
+    formats = tuple(dict.fromkeys(x for f in family for x in f.formats))  # each role keeps its own
+    role_formats = {r: f.formats for f in family for r in f.roles or ()}
     return AuditFamily(
         name=first.name,
         quantity=first.quantity,
@@ -246,6 +269,7 @@ def _merged(family: list[AuditFamily]) -> AuditFamily:
         quantities=tuple(quantities),
         roles=tuple(roles),
         formats=formats,
+        role_formats=role_formats,
     )
 
 
@@ -253,7 +277,9 @@ def by_name(families) -> dict[str, AuditFamily]:
     """Family name → one `AuditFamily`, from declarations in order. A family may be declared once per
     role (each declaration's ``roles`` disjoint, e.g. sdf-occlusion's ambient-occlusion and sky-occlusion
     roles in modules of their own): its declarations become one whose ``cases`` dispatches on the
-    applicability's role, whose ``quantities`` are all of theirs and whose ``describe`` joins theirs."""
+    applicability's role, whose ``quantities`` are all of theirs, whose ``describe`` joins theirs and whose
+    ``formats`` are any of theirs (``role_formats``: each role's own, e.g. height-fog's exponential fog on
+    rtfit TOML scenes and a scene's own media on Mitsuba XML and TOML)."""
     groups: dict[str, list[AuditFamily]] = {}
     for f in families:
         groups.setdefault(f.name, []).append(f)

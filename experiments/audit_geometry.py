@@ -10,8 +10,12 @@ mesh format Mitsuba loads (PLY ASCII/binary, OBJ, serialized, ``cube``, ``rectan
   ≤ 0.12 % of the radius), ``disk`` (unit disk in z = 0: a 64-gon fan, area error 0.16 %), ``cylinder``
   (radius 1, z ∈ [0, 1], open ends as Mitsuba's: 64 segments).
 
-A shape of any other kind (``sdfgrid``, curves) raises `AuditError` naming it: its distance field would be
-silently missing otherwise.
+An ``instance`` of a ``shapegroup`` is flattened: the group's members, read as above, carried by the
+instance's ``to_world`` (issue 31: instances are common in real scenes). A shape of any other kind
+(``sdfgrid``, curves) raises `AuditError` naming it: its distance field would be silently missing otherwise.
+
+The AO radius every geometry family shares (`ao_radius`: ``--ao-distance``, else the scene's default) lives
+here too, so that no family module imports another's (the visible points: `rtfit.reference.gbuffer_points`).
 """
 
 from __future__ import annotations
@@ -20,10 +24,11 @@ import math
 
 import numpy as np
 
-from .audit_family import AuditError
+from .audit import default_ao_distance
+from .audit_family import AuditError, AuditSetup
 from .sdf_occlusion_scenes import icosphere
 
-__all__ = ["scene_triangles"]
+__all__ = ["ao_radius", "scene_triangles"]
 
 _SEGMENTS = 64
 _SPHERE_SUBDIVISIONS = 4
@@ -63,28 +68,103 @@ def _kind(shape) -> str:
     return str(shape.class_name()).lower()
 
 
+def _shape_triangles(mi, shape) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """(vertices, faces, how) of one mesh or analytic shape in its own world (a shape group's space for a
+    group's member), or None for a kind this module cannot read."""
+    if shape.is_mesh():
+        v = np.asarray(shape.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+        f = np.asarray(shape.faces_buffer(), np.int64).reshape(-1, 3)
+        return v, f, f"{shape.id() or 'mesh'}: {len(f)} triangles from Mitsuba's buffers"
+    kind = _kind(shape)
+    unit = _unit_shape(kind)
+    if unit is None:
+        return None
+    u, f = unit
+    m = np.asarray(mi.traverse(shape)["to_world"].matrix, np.float64).reshape(4, 4)
+    v = u @ m[:3, :3].T + m[:3, 3]
+    return v, f, f"{shape.id() or kind}: {kind} tessellated ({len(f)} triangles) from its to_world"
+
+
+def _unreadable(shape, kind: str) -> AuditError:
+    return AuditError(
+        f"shape {shape.id() or kind!r} ({kind}): the audit's distance field reads meshes, spheres, disks, "
+        "cylinders and instances of shape groups of them only"
+    )
+
+
+def _shape_groups(mi, mi_scene) -> dict[str, list]:
+    """The members of each ``shapegroup`` of the scene, by group name: Mitsuba lists only the top-level
+    shapes (the ``instance`` shapes, not their group's members) in ``Scene.shapes()``; its parameter tree
+    names each member's parameters ``<group>.<member>.<parameter>`` with the member as their owner."""
+    top = {shape.ptr for shape in mi_scene.shapes()}
+    groups: dict[str, dict[int, object]] = {}
+    for key, entry in mi.traverse(mi_scene).properties.items():
+        owner = entry[2]
+        parts = key.split(".")
+        if len(parts) < 3 or not isinstance(owner, mi.Shape) or owner.ptr in top:
+            continue
+        groups.setdefault(parts[0], {})[owner.ptr] = owner
+    return {name: list(members.values()) for name, members in groups.items()}
+
+
+def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    return np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)], np.float64)
+
+
+def _instance_group(mi, shape, groups: dict[str, tuple]) -> tuple[str, np.ndarray]:
+    """(group name, 4×4 to_world) of an ``instance``: Mitsuba does not expose an instance's group, so it is
+    the group whose bounding box, carried by the instance's ``to_world``, is the instance's own
+    (``Instance.bbox()``: the 8 transformed corners' box), to 1e-4 of the box's size."""
+    m = np.asarray(mi.traverse(shape)["to_world"].matrix, np.float64).reshape(4, 4)
+    box = shape.bbox()
+    want = np.array([[float(box.min[i]) for i in range(3)], [float(box.max[i]) for i in range(3)]])
+    scale = max(float(np.abs(want).max()), 1e-30)
+    found = []
+    for name, (v, _f, _how) in groups.items():
+        c = _box_corners(v.min(0), v.max(0)) @ m[:3, :3].T + m[:3, 3]
+        if np.abs(np.array([c.min(0), c.max(0)]) - want).max() <= 1e-4 * scale:
+            found.append(name)
+    if len(found) != 1:
+        raise AuditError(
+            f"shape {shape.id() or 'instance'!r} (instance): its shape group could not be told from "
+            f"{'the groups ' + ', '.join(found) if found else 'no group'} by its bounding box"
+        )
+    return found[0], m
+
+
 def scene_triangles(mi, mi_scene) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """(vertices (V, 3) float64, faces (F, 3) int64, one line per shape saying how it was read) of every
-    shape of ``mi_scene`` (module docstring), emitters' shapes included (they occlude too)."""
+    shape of ``mi_scene`` (module docstring), emitters' shapes included (they occlude too). An ``instance``
+    is flattened: its shape group's members (meshes and analytic shapes, read as above in the group's
+    space) carried by the instance's ``to_world``."""
     vs, fs, lines = [], [], []
     offset = 0
+    groups = None
     for shape in mi_scene.shapes():
-        if shape.is_mesh():
-            v = np.asarray(shape.vertex_positions_buffer(), np.float64).reshape(-1, 3)
-            f = np.asarray(shape.faces_buffer(), np.int64).reshape(-1, 3)
-            how = f"{shape.id() or 'mesh'}: {len(f)} triangles from Mitsuba's buffers"
+        kind = _kind(shape)
+        if kind == "instance":
+            if groups is None:
+                groups = {}
+                for name, members in _shape_groups(mi, mi_scene).items():
+                    read = [_shape_triangles(mi, s) for s in members]
+                    if any(r is None for r in read):
+                        bad = next(s for s, r in zip(members, read, strict=True) if r is None)
+                        raise _unreadable(bad, _kind(bad))
+                    parts = [r for r in read if r is not None and len(r[1])]
+                    if parts:
+                        sizes = np.cumsum([0] + [len(p[0]) for p in parts])
+                        v = np.concatenate([p[0] for p in parts])
+                        f = np.concatenate([p[1] + o for p, o in zip(parts, sizes[:-1], strict=True)])
+                        groups[name] = (v, f, "; ".join(p[2] for p in parts))
+            name, m = _instance_group(mi, shape, groups)
+            gv, f, _ = groups[name]
+            v = gv @ m[:3, :3].T + m[:3, 3]
+            how = f"{shape.id() or 'instance'}: instance of shape group {name!r} ({len(f)} triangles)"
         else:
-            kind = _kind(shape)
-            unit = _unit_shape(kind)
-            if unit is None:
-                raise AuditError(
-                    f"shape {shape.id() or kind!r} ({kind}): the audit's distance field reads meshes, "
-                    "spheres, disks and cylinders only"
-                )
-            u, f = unit
-            m = np.asarray(mi.traverse(shape)["to_world"].matrix, np.float64).reshape(4, 4)
-            v = u @ m[:3, :3].T + m[:3, 3]
-            how = f"{shape.id() or kind}: {kind} tessellated ({len(f)} triangles) from its to_world"
+            read = _shape_triangles(mi, shape)
+            if read is None:
+                raise _unreadable(shape, kind)
+            v, f, how = read
         if not (np.all(np.isfinite(v)) and len(f)):
             continue
         vs.append(v)
@@ -94,3 +174,11 @@ def scene_triangles(mi, mi_scene) -> tuple[np.ndarray, np.ndarray, list[str]]:
     if not vs:
         raise AuditError("the scene has no shape to build a distance field from")
     return np.concatenate(vs), np.concatenate(fs), lines
+
+
+def ao_radius(setup: AuditSetup, family: str = "sdf-occlusion") -> float:
+    """R: ``--ao-distance``, else the scene's default (`default_ao_distance`); finite and positive."""
+    radius = setup.ao_distance if setup.ao_distance is not None else default_ao_distance(setup.info)
+    if radius is None or not (math.isfinite(radius) and radius > 0):
+        raise AuditError(f"{family}: the scene has no finite size; give --ao-distance")
+    return float(radius)

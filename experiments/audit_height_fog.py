@@ -43,8 +43,7 @@ import math
 import numpy as np
 
 from rtfit.fitting import Param
-from rtfit.realtime.height_fog import METHODS, OPTICAL_DEPTH_FORMS
-from rtfit.realtime.methods import Method
+from rtfit.realtime.height_fog import METHODS, OPTICAL_DEPTH_FORMS, TRANSMITTANCE_METHODS
 from rtfit.reference import ReferenceCache, ReferenceRequest
 from rtfit.reference.build import light_dicts
 from rtfit.reference.cache import array_digest
@@ -64,38 +63,11 @@ from .audit_family import (
 )
 from .height_fog import fit_params, horizon_colour, segment_geometry, single_scatter_colour
 
-__all__ = ["FAMILY", "SHADING_ROWS", "fog_cases", "transmittance_method"]
+__all__ = ["FAMILY", "SHADING_ROWS", "fog_cases"]
 
 # 2: at least MIN_COLLISIONS tentative collisions per ray; 3: independent channels; 4: σ̄ bounds the variance
 FORMAT = 4
 
-
-def transmittance_method(form: Method) -> Method:
-    """An optical-depth form of `METHODS` (quantity ``fog_optical_depth``) as a transmittance method: the
-    form's own kernel τ(z0, z1, D; b, c), then T = e^(−τ) (quantity ``fog_transmittance``; same id, inputs,
-    parameters and exactness)."""
-
-    def kernel(ops, **kw):
-        return ops.exp(-form.kernel(ops, **kw))
-
-    kernel.__qualname__ = kernel.__name__ = f"transmittance_of_{form.id}"
-    return Method(
-        id=form.id,
-        label=f"{form.label}, T = e^(−τ)",
-        kernel=kernel,
-        inputs=form.inputs,
-        params=form.params,
-        fixed=form.fixed,
-        exact=form.exact,
-        quantity="fog_transmittance",
-        formula=f"T = e^(−τ), {form.formula}",
-        source=form.source,
-        description=form.description,
-    )
-
-
-TRANSMITTANCE_METHODS = {f: transmittance_method(METHODS[f]) for f in OPTICAL_DEPTH_FORMS}
-"""The optical-depth forms as transmittance rows (one object each: a fit compiles once per method)."""
 
 SHADING_ROWS = {"const": horizon_colour, "phase": single_scatter_colour}
 """The shading models' given parameters: the height-fog experiment's colour from the sky (its public row
@@ -281,6 +253,7 @@ FAMILY = AuditFamily(
     name="height-fog",
     quantity="fog_transmittance",
     quantities=("fogged_radiance",),
+    roles=("height fog",),
     formats=("rtfit-toml",),
     cases=fog_cases,
     describe=(

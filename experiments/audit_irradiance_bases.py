@@ -1,7 +1,9 @@
 """The ``irradiance-bases`` family in `rtfit audit`: the environment's irradiance at the visible normals.
 
-For a Mitsuba XML scene with an environment emitter (``envmap``, ``constant``, ``sunsky``) and the
-pixel-centre G-buffer of the scene's own camera (camera-facing unit normals n at the visible points):
+For a scene with an environment — a Mitsuba XML ``envmap``, ``constant`` or ``sunsky`` emitter, or an rtfit
+TOML ``constant_env``, ``envmap`` or ``sunsky`` light (the Mitsuba emitter rtfit builds for it:
+`rtfit.experiments.audit_environment.scene_environment`) — and the pixel-centre G-buffer of the scene's own
+camera (camera-facing unit normals n at the visible points):
 
 * reference: the environment's irradiance E(n) = ∫ L(ω) max(n·ω, 0) dω (W/m², RGB) at each visible
   normal, **unoccluded** (the environment alone; the scene's shapes do not block it — occluded sky light
@@ -11,12 +13,12 @@ pixel-centre G-buffer of the scene's own camera (camera-facing unit normals n at
   near-horizon sky of Mitsuba's sunsky), in independent passes through the pass cache, with per-pixel
   standard errors;
 * the environment as the bases see it: `rtfit.reference.environments.emitter_environment` bakes the
-  loaded emitter (its ``to_world`` and ``scale`` included) into a lat-long map of ``BAKE_ROWS`` rows (a
-  sunsky's sun as an exact disc, its E⊥ from the emitter itself; a constant as its radiance); from that
-  environment `rtfit.experiments.irradiance_bases.build_bases` bakes what an engine stores: SH L2 by
-  projection (the L1 bases read its first four coefficients), Valve's ambient cube (irradiance at the six
-  axes), the NNLS-optimal cube (fitted over a Fibonacci sphere of normals) and Sloan's λ (the smallest
-  window strength without negative irradiance);
+  loaded emitter (its ``to_world`` and ``scale`` included; `audit_environment.environment_of`) into a
+  lat-long map of ``BAKE_ROWS`` rows (a sunsky's sun as an exact disc, its E⊥ from the emitter itself; a
+  constant as its radiance); from that environment `rtfit.experiments.irradiance_bases.build_bases` bakes
+  what an engine stores: SH L2 by projection (the L1 bases read its first four coefficients), Valve's
+  ambient cube (irradiance at the six axes), the NNLS-optimal cube (fitted over a Fibonacci sphere of
+  normals) and Sloan's λ (the smallest window strength without negative irradiance);
 * rows: every method of `rtfit.realtime.environment_bases.METHODS` — the cube and SH table
   (`rtfit.realtime.irradiance_bases`: Valve's and the NNLS cube, SH L1/L2/L3/L4 plain and windowed, ZH3),
   spherical Gaussians (``sg{6,9,12}-{naive,ls,nnls,ambient}``: lobe amplitudes fitted to the baked radiance,
@@ -33,10 +35,11 @@ pixel-centre G-buffer of the scene's own camera (camera-facing unit normals n at
   the whole sphere).
 
 The lightmap (hemisphere) bases of `rtfit.realtime.hemisphere_bases` (H-basis, Half-Life 2's radiosity
-normal mapping) are not rows: they store irradiance in a surface's tangent frame (for normal-mapped
-lightmaps), and the audit's G-buffer carries the shading normal only — Mitsuba gives a tangent only for
-meshes with texture coordinates, and a scene without normal maps has nothing for those bases to add over
-the world-space ones.
+normal mapping) store irradiance in a surface's tangent frame: they are a second case on the pixels whose
+shape has a UV parametrisation (`rtfit.experiments.audit_lightmap_bases`: the frame from Mitsuba's
+``dp_du``, each texel baked from the same environment, evaluated at the texel's own normal), with the same
+reference restricted to those pixels. Where the camera sees no such pixel (a mesh without texture
+coordinates), the main case's notes say why those rows are left out.
 
 A user approximation of ``environment_irradiance`` gets ``nx, ny, nz`` and ``sh`` (the 27 SH L2
 coefficients, channel-major) and returns (R, G, B).
@@ -51,10 +54,19 @@ import numpy as np
 
 from rtfit.realtime.environment_bases import METHODS
 from rtfit.reference.cache import array_digest
-from rtfit.reference.environments import emitter_environment, emitter_irradiance_quadrature
+from rtfit.reference.environments import emitter_irradiance_quadrature
+from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.light_irradiance import environment_irradiance_pass
 
 from .audit import Applicability
+from .audit_environment import (
+    BAKE_ROWS,
+    QUADRATURE_MIN_ROWS,
+    environment_bases,
+    environment_of,
+    scene_environment,
+    sh_l2_table,
+)
 from .audit_family import (
     AuditError,
     AuditFamily,
@@ -63,7 +75,8 @@ from .audit_family import (
     PooledPasses,
     pooled_passes,
 )
-from .irradiance_bases import ROW, build_bases, row_params
+from .audit_lightmap_bases import lightmap_rows, lightmaps, texel_reference
+from .irradiance_bases import ROW, row_params
 
 __all__ = [
     "BAKE_ROWS",
@@ -77,49 +90,12 @@ __all__ = [
 ]
 
 FORMAT = 2  # 2: MIS of emitter and cosine sampling (`environment_irradiance_pass`)
-BAKE_ROWS = 128
-"""Rows of the lat-long bake of a scene's environment emitter (× 2 columns)."""
-QUADRATURE_MIN_ROWS = 256
-"""The bases' own quadratures of the bake (Valve's axes, the NNLS fit) use at least this many rows."""
 QUADRATURE_ROWS = 256
 """Rows (even: a cell boundary on the horizon) of the exact row's midpoint rule over the emitter itself."""
-_FIT_NORMALS = 2048  # Fibonacci normals of the NNLS cube fit
-_CFG = {"map_supersample": 2, "quadrature_min_rows": QUADRATURE_MIN_ROWS}
 
 
-def environment_of(setup: AuditSetup, source: int, rows: int = BAKE_ROWS):
-    """The `Environment` of the scene's environment emitter ``setup.info.xml.emitters[source]``
-    (`emitter_environment`)."""
-    xml = setup.info.xml
-    if xml is None:
-        raise AuditError("irradiance-bases: the audit reads environments from Mitsuba XML scenes")
-    light = xml.emitters[source]
-    emitter = setup.emitters[source]
-    if emitter is None or not light.environment:
-        raise AuditError(
-            f"irradiance-bases: {light.kind} ({light.location}) is not an instantiated environment"
-        )
-    sun = None
-    if light.kind == "sunsky" and light.direction is not None:
-        sun = (light.direction, float(light.angular_radius_deg or 0.0))
-    return emitter_environment(setup.mi, emitter, light.kind, rows, sun=sun, name=f"{light.kind} environment")
-
-
-def environment_bases(env) -> dict:
-    """What an engine bakes from ``env`` (`build_bases` with this family's settings): ``sh`` (SH to L4,
-    (25, 3)), the cubes, λ, … as the rows of this family read them."""
-    return build_bases(env, _CFG, fit_normals=_FIT_NORMALS)
-
-
-def sh_l2_table(bases: dict) -> np.ndarray:
-    """The 27 SH L2 coefficients L_lm (W/m²), channel-major: the ``sh`` input of `environment_irradiance`
-    and what ``sh-l2`` reads."""
-    return np.ascontiguousarray(np.asarray(bases["sh"], np.float64)[:9].T.reshape(-1))
-
-
-def _reference(setup: AuditSetup, source: int, normals: np.ndarray, label: str) -> PooledPasses:
+def _reference(setup: AuditSetup, source: int, emitter, normals: np.ndarray, label: str) -> PooledPasses:
     """Pooled passes of the emitter's unoccluded irradiance at ``normals``: mean and stderr (N, 3), W/m²."""
-    emitter = setup.emitters[source]
     what = {
         "format": FORMAT,
         "quantity": "environment-irradiance",
@@ -146,15 +122,14 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
     if app.source is None:
         raise AuditError(f"irradiance-bases: {app.part} is not an environment of the scene")
     mask = setup.mask
-    normals = setup.gbuffer.normal[mask].astype(np.float64)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    _, normals = gbuffer_points(setup.gbuffer, mask)
+    scene_env = scene_environment(setup, app.source, "irradiance-bases")
     env = environment_of(setup, app.source)
     tag = f"env{app.source}"
-    pooled = _reference(setup, app.source, normals, f"{tag}: {app.part}")
+    emitter = scene_env.emitter
+    pooled = _reference(setup, app.source, emitter, normals, f"{tag}: {app.part}")
     bases = environment_bases(env)
-    light = setup.info.xml.emitters[app.source] if setup.info.xml is not None else None
-    kind = light.kind if light is not None else env.kind
-    emitter = setup.emitters[app.source]
+    kind = scene_env.kind
     quad = emitter_irradiance_quadrature(setup.mi, emitter, kind, normals, QUADRATURE_ROWS, sun=env.sun)
     nx, ny, nz = (np.ascontiguousarray(normals[:, k]) for k in range(3))
     sh = sh_l2_table(bases)  # a table: 27 floats
@@ -202,19 +177,44 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
         + (f" plus a disc sun of {sun.angular_radius_deg:.4g}°" if sun else "")
         + f"; Sloan's λ of this environment {bases['lambda']:.4g} (row sh-l2-lambda, then refitted)",
     )
+    maps = lightmaps(setup, env)
+    main = FamilyCase(
+        id=tag,
+        label=f"{app.part}, irradiance at the visible normals",
+        reference=ref,
+        mask=mask,
+        channel_inputs=default,
+        parameters=parameters,
+        units="W/m²",
+        notes=notes + ((maps,) if isinstance(maps, str) else ()),
+        methods=dict(METHODS),
+        params=params,
+        row_inputs=row_inputs,
+        uncosted={
+            row_id: "its value, a dense quadrature of the environment at each normal, is computed outside "
+            "the kernel (by the reference layer), which only passes it through"
+            for row_id, method in METHODS.items()
+            if method.exact
+        },
+    )
+    if isinstance(maps, str):
+        return [main]
+    methods, texel_inputs = lightmap_rows(maps)
+    sub = maps.mask[mask]
     return [
+        main,
         FamilyCase(
-            id=tag,
-            label=f"{app.part}, irradiance at the visible normals",
-            reference=ref,
-            mask=mask,
-            channel_inputs=default,
-            parameters=parameters,
+            id=f"{tag}-lightmap",
+            label=f"{app.part}, lightmap bases in the UV tangent frames",
+            reference=texel_reference(ref, maps.mask),
+            mask=maps.mask,
+            channel_inputs=({"nx": nx[sub], "ny": ny[sub], "nz": nz[sub], "sh": sh},),
+            parameters={**parameters, "pixels": int(maps.mask.sum()), "frames": len(maps.frames)},
             units="W/m²",
-            notes=notes,
-            params=params,
-            row_inputs=row_inputs,
-        )
+            notes=maps.notes(),
+            methods=methods,
+            row_inputs=texel_inputs,
+        ),
     ]
 
 
@@ -235,4 +235,5 @@ FAMILY = AuditFamily(
         "exact disc) at the same normals: it must sit at the reference's noise."
         f" ({math.pi:.4f}·L for a constant environment.)"
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
 )

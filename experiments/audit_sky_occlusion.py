@@ -8,7 +8,9 @@ visibility** at each visible point x with unit normal n,
     E(x) = ∫_{H(n)} L_env(ω) V(x, ω) (n·ω) dω,   V = 1 where the ray x + tω (t > 0) meets no shape,
 
 from the scene's own environment emitter (``envmap``, ``constant``; a ``sunsky``'s sky alone, its
-``sun_scale`` set to 0 for the passes: the sun is a spherical light, the occluded-sphere-light role's).
+``sun_scale`` set to 0 for the passes: the sun is a spherical light, the occluded-sphere-light role's): a
+Mitsuba XML scene's environment emitter or the emitter rtfit builds for an rtfit TOML scene's
+``constant_env``, ``envmap`` or ``sunsky`` light (`rtfit.experiments.audit_environment.scene_environment`).
 Reference: `rtfit.reference.light_irradiance.environment_irradiance_pass` with the scene's shapes as
 occluders (Mitsuba's emitter sampling and the cosine hemisphere by the balance heuristic, each sample times
 Mitsuba's shadow ray), in independent passes through the pass cache, with per-pixel standard errors.
@@ -16,7 +18,7 @@ Mitsuba's shadow ray), in independent passes through the pass cache, with per-pi
 What the rows read, on the same masked pixels:
 
 * E_SH(d): the environment's irradiance at a direction d from its SH L2 projection, as the irradiance-bases
-  family bakes it (`audit_irradiance_bases.environment_bases`, evaluated by the ``sh-l2`` row's own kernel)
+  family bakes it (`audit_environment.environment_bases`, evaluated by the ``sh-l2`` row's own kernel)
   — what an engine's probe gives. For a sunsky, the sky's projection without the sun.
 * The visibility bake (`rtfit.reference.occlusion.visibility_cap_pass`: unbounded ray casts against the
   scene's shapes, uniform on the hemisphere, pooled passes of their own seed): the visible fraction V_u,
@@ -58,13 +60,15 @@ from rtfit.realtime.irradiance_bases import METHODS as BASIS_METHODS
 from rtfit.realtime.methods import Input, Method
 from rtfit.reference.cache import array_digest
 from rtfit.reference.environments import emitter_scales
+from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.light_irradiance import environment_irradiance_pass
 from rtfit.reference.occlusion import visibility_cap_pass
 
 from .audit import Applicability
-from .audit_ambient_occlusion import DistanceFieldRows, ao_radius, distance_field_rows, visible_points
+from .audit_ambient_occlusion import DistanceFieldRows, distance_field_rows
+from .audit_environment import environment_bases, environment_of, scene_environment, sh_l2_table
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
-from .audit_irradiance_bases import environment_bases, environment_of, sh_l2_table
+from .audit_geometry import ao_radius
 
 __all__ = [
     "APERTURE_FILL",
@@ -122,9 +126,8 @@ class SkyInputs:
     notes: tuple[str, ...]
 
 
-def _passes(setup: AuditSetup, source: int, kind: str, points, normals, label: str):
+def _passes(setup: AuditSetup, source: int, emitter, kind: str, points, normals, label: str):
     """Pooled passes of the occluded sky irradiance (N, 3), W/m², and of the visibility bake (N, 5)."""
-    emitter = setup.emitters[source]
     digest = array_digest(points, normals)
     sky_only = kind == "sunsky"
 
@@ -162,16 +165,16 @@ _MEMO: dict[str, Any] = {}
 def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:
     """The reference, the bake and the rows' inputs for the environment ``app.source`` (module docstring);
     computed once per run and environment (both roles read them)."""
-    if app.source is None or setup.info.xml is None:
-        raise AuditError(f"{family}: {app.part} is not an environment of a Mitsuba XML scene")
+    if app.source is None:
+        raise AuditError(f"{family}: {app.part} is not an environment of the scene")
     key = (id(setup), app.source)
     if _MEMO.get("key") == key and _MEMO.get("setup") is setup:
         return _MEMO["value"]
-    light = setup.info.xml.emitters[app.source]
+    scene_env = scene_environment(setup, app.source, family)
     radius = ao_radius(setup, family)
     mask = setup.mask
-    points, normals = visible_points(setup)
-    sky, bake = _passes(setup, app.source, light.kind, points, normals, app.part)
+    points, normals = gbuffer_points(setup.gbuffer, setup.mask)
+    sky, bake = _passes(setup, app.source, scene_env.emitter, scene_env.kind, points, normals, app.part)
     caps = bake.mean
     v_u = np.clip(caps[:, 0], 0.0, 1.0)
     vis = np.clip(caps[:, 1], 0.0, 1.0)
@@ -179,7 +182,7 @@ def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:
     length = np.linalg.norm(bent, axis=1, keepdims=True)
     bent = np.where(length > 1e-12, bent / np.maximum(length, 1e-30), normals)  # fully occluded: n
     aperture = np.asarray(aperture_from_visibility(v_u), np.float64)
-    env = environment_of(setup, app.source)
+    env = environment_of(setup, app.source, family=family)
     sh27 = sh_l2_table(environment_bases(replace(env, sun=None)))
     e_n = _sh_irradiance(sh27, normals)
     e_b = _sh_irradiance(sh27, bent)
@@ -205,7 +208,7 @@ def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:
         {**common, "sky_radiance": np.maximum(e_b[:, c], 0.0) / math.pi, "irradiance_n": e_n[:, c]}
         for c in range(3)
     )
-    kind = light.kind
+    kind = scene_env.kind
     ref = sky.reference(
         mask,
         quantity="sky irradiance with visibility E = ∫ L_env V (n·ω) dω at the visible points (W/m²)",
@@ -248,7 +251,7 @@ def _parameters(app: Applicability, s: SkyInputs, setup: AuditSetup) -> dict:
 def sky_occlusion_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """sdf-occlusion, sky occlusion: the distance-field rows × E_SH(n) against the occluded sky irradiance."""
     s = sky_inputs(setup, app, "sdf-occlusion")
-    points, normals = visible_points(setup)
+    points, normals = gbuffer_points(setup.gbuffer, setup.mask)
     rows = distance_field_rows(setup, app.methods, points, normals, s.radius, t_max=s.march)
     methods = {rid: times_irradiance(m) for rid, m in rows.methods.items()}
     row_inputs = {
@@ -310,6 +313,7 @@ SKY_OCCLUSION = AuditFamily(
     quantity="sky_irradiance",
     cases=sky_occlusion_cases,
     roles=(SKY_ROLE,),
+    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Sky occlusion: "
         + _REFERENCE_TEXT
@@ -324,6 +328,7 @@ APERTURE_FILL = AuditFamily(
     quantity="sky_irradiance",
     cases=aperture_fill_cases,
     roles=(FILL_ROLE,),
+    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Aperture fill: "
         + _REFERENCE_TEXT

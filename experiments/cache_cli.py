@@ -20,6 +20,7 @@ with a unit ``K M G T`` (powers of 1024; ``2G``, ``500M``, ``1.5GiB``).
 from __future__ import annotations
 
 import datetime
+import os
 import re
 import time
 from pathlib import Path
@@ -107,6 +108,22 @@ CACHE_OPTION = click.option(
 )
 
 
+def _cache_root(cache) -> Path:
+    """The cache directory to read: ``--cache`` or the default, refused in one line (exit 2) when it is a
+    file, a broken or looping symbolic link, or a folder this process may not read (``/proc/1/cwd``)."""
+    root = Path(cache or default_cache_dir())
+    try:
+        if root.is_symlink() and not root.exists():
+            raise click.ClickException(f"--cache {root}: a broken symbolic link (or a loop)")
+        if root.exists() and not root.is_dir():
+            raise click.ClickException(f"--cache {root}: a file, not a directory")
+        if root.is_dir():
+            os.listdir(root)
+    except OSError as e:
+        raise click.ClickException(f"--cache {root}: cannot read it ({e.strerror or e})") from None
+    return root
+
+
 @click.group("cache")
 def cache_group():
     """Inspect the reference cache (info) or remove entries no longer used (prune)."""
@@ -116,7 +133,7 @@ def cache_group():
 @CACHE_OPTION
 def info_cmd(cache):
     """Entries, passes and bytes per namespace (images, probes, occlusion, sky), oldest and newest use."""
-    root = Path(cache or default_cache_dir())
+    root = _cache_root(cache)
     summary = scan_cache(root)
     entries = summary.entries
     total = sum(e.bytes for e in entries)
@@ -170,7 +187,7 @@ def prune_cmd(cache, older_than, max_size, dry_run):
     """Remove whole entries, oldest last use first (never one a running process is rendering into)."""
     if older_than is None and max_size is None:
         raise click.UsageError("say what to prune: --older-than DURATION and/or --max-size SIZE")
-    root = Path(cache or default_cache_dir())
+    root = _cache_root(cache)
     summary = scan_cache(root)
     remove, spared = prune_plan(summary.entries, older_than=older_than, max_size=max_size, now=time.time())
     verb = "would remove" if dry_run else "removed"

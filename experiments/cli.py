@@ -31,8 +31,9 @@ import json
 import logging
 import math
 import os
+import signal
 import sys
-import tempfile
+import threading
 import time
 from importlib import metadata
 from pathlib import Path
@@ -46,17 +47,26 @@ from rtfit.reference.budget import NonFinitePass, PassBudgetExceeded, pass_budge
 from rtfit.reference.export_xml import export_xml
 from rtfit.reference.io import atomic_write_json
 from rtfit.reference.probe_maps import parse_probe_spec
+from rtfit.reference.variants import cuda_available
 from rtfit.scenes import SceneError, library_path, load_scene
 
 from . import scaling
-from .atomic import is_temporary_name
+from .atomic import is_temporary_name, writable_problem
 from .audit_cli import audit
 from .book import write_book
 from .cache_cli import cache_group
 from .executors import EXECUTORS, make_executor
 from .jobs import JobsFailed, error_line
 from .ray_executor import RAY_EXTRA_HINT, check_address
-from .registry import EXPERIMENTS, SPP_MAX, BenchContext, describe_config, resolve_names, validate_config
+from .registry import (
+    EXPERIMENTS,
+    LIMITS,
+    SPP_MAX,
+    BenchContext,
+    describe_config,
+    resolve_names,
+    validate_config,
+)
 from .report import write_index, write_report
 from .runner import RunFailed, check_summary, created_now, device_description, run_experiments, versions
 from .sweep import load_sweep, run_sweep
@@ -402,20 +412,9 @@ def _writable_dir(path, option: str) -> Path:
         if os.environ.get("RTFIT_CACHE"):
             option = "$RTFIT_CACHE"
     path = Path(path)
-    probe = path
-    while not probe.exists():
-        if probe.is_symlink():
-            _fail(f"{option} {path}: {probe} is a broken symbolic link")
-        if probe.parent == probe:
-            break
-        probe = probe.parent
-    if not probe.is_dir():
-        what = "is a file" if probe == path else f"is under {probe}, a file"
-        _fail(f"{option} {path}: {what}, not a directory")
-    try:
-        os.rmdir(tempfile.mkdtemp(prefix=".rtfit-probe-", dir=probe))
-    except OSError as e:
-        _fail(f"{option} {path}: cannot create anything in {probe} ({e.strerror or e})")
+    problem = writable_problem(path)
+    if problem is not None:
+        _fail(f"{option} {path}: {problem}")
     return path
 
 
@@ -427,6 +426,8 @@ def _check_executor(executor: str, address):
             raise click.UsageError(RAY_EXTRA_HINT)
         if address:  # a wrong host or port: one line in seconds, before anything runs
             check_address(address)
+        elif os.environ.get("RAY_ADDRESS"):  # Ray reads it by itself: the same check
+            check_address(os.environ["RAY_ADDRESS"], option="$RAY_ADDRESS")
 
 
 def _parse_gpus(text, executor: str):
@@ -440,6 +441,10 @@ def _parse_gpus(text, executor: str):
         raise click.UsageError(f"--gpus {text!r}: expected comma-separated GPU ids, e.g. 0,1") from None
     if not ids or min(ids) < 0 or len(set(ids)) != len(ids):
         raise click.UsageError(f"--gpus {text!r}: expected distinct non-negative GPU ids, e.g. 0,1")
+    if not cuda_available():  # the workers would run on the CPU, silently (issue 32)
+        raise click.UsageError(
+            f"--gpus {text}: no CUDA GPU was found here (leave --gpus out to run on the CPU)"
+        )
     return ids
 
 
@@ -500,7 +505,7 @@ def export_xml_cmd(scene, output):
 @click.option("--variant", default="auto", show_default=True, type=click.Choice(VARIANT_CHOICES))
 @click.option(
     "--size",
-    type=click.IntRange(min=1024),
+    type=click.IntRange(min=LIMITS["bench_size"].lo, max=LIMITS["bench_size"].hi),
     default=None,
     help="Elements per kernel launch (default: 2^22 on CPU, 2^24 on GPU).",
 )
@@ -620,18 +625,41 @@ def _fmt(v) -> str:
     return "" if v is None else str(v)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a `timeout`, a batch system's stop) turned into an interruption: the work ends as after Ctrl-C
+    (a partial audit report, the cache kept), exit 143 (128 + 15)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _on_sigterm_interrupt():
+    """Make SIGTERM raise `Terminated` in the main thread for the command's duration; returns the handler to
+    put back (None where signals cannot be set: not the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _raise_terminated)
+
+
 def main(argv=None) -> int:
     """Entry point: one-line errors and exit status 2 for anything the user got wrong."""
     logger, level = logging.getLogger("rtfit"), logging.getLogger("rtfit").level
+    previous = _on_sigterm_interrupt()
     try:
         # Without standalone mode click *returns* the status of a command that exits (`Exit(1)`: a
         # sweep with failed points) instead of raising; a command that finishes returns None.
         status = cli.main(args=argv, prog_name="rtfit", standalone_mode=False)
     except click.exceptions.Exit as e:
         return e.exit_code
-    except (click.exceptions.Abort, KeyboardInterrupt):
+    except (click.exceptions.Abort, KeyboardInterrupt) as e:
+        if isinstance(e, click.exceptions.Abort):  # click wraps the KeyboardInterrupt it caught
+            e = e.__cause__ or e.__context__ or e
+        partial = getattr(e, "partial_report", None)
+        if partial is not None:
+            click.echo(f"rtfit: interrupted: the report of the finished cases is in {partial}", err=True)
         click.echo("rtfit: interrupted (rendered passes are kept in the cache; rerun to resume)", err=True)
-        return 130
+        return 143 if isinstance(e, Terminated) else 130
     except click.ClickException as e:
         msg = e.format_message().replace("\n", " ")
         click.echo(f"rtfit: error: {msg}", err=True)
@@ -649,6 +677,8 @@ def main(argv=None) -> int:
         )
         return 1
     finally:  # the logging set up for this command ends with it (a library caller's own stays)
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
         for h in [h for h in logger.handlers if isinstance(h, _StderrLines)]:
             logger.removeHandler(h)
         logger.setLevel(level)

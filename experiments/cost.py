@@ -22,6 +22,7 @@ import drjit as dr
 import numpy as np
 
 from rtfit.realtime import set_default_backend
+from rtfit.realtime.arrays import backend_float
 from rtfit.reference.variants import backend_of
 
 
@@ -135,7 +136,7 @@ def cost_backend(variant: str) -> tuple[str, type]:
     """The Dr.Jit backend of a Mitsuba ``variant`` (`backend_of`: ``cuda`` or ``llvm``; runs refuse scalar
     variants) and that backend's float32 array type, which the timed inputs are made of."""
     backend = backend_of(variant)
-    return backend, dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    return backend, backend_float(backend)
 
 
 def cost_row(

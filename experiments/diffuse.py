@@ -39,11 +39,11 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-import drjit as dr
 import numpy as np
 
 from rtfit.fitting import Param, compute_metrics, concat_z_pairs, fit_method, robust_spread, z_checks, z_pair
 from rtfit.realtime import NUMPY_OPS, Input, Method, set_default_backend
+from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.diffuse import METHODS
 from rtfit.reference import (
     ReferenceCache,
@@ -58,7 +58,7 @@ from rtfit.reference.cache import REFERENCE_PASS_DTYPE, RELATIVE_PRECISION_FLOOR
 from rtfit.reference.variants import backend_of
 from rtfit.scenes import ConstantEnv, library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 
-from . import figures
+from . import figures, prose
 from . import fitted as fitfiles
 from .cost import (
     Stock,
@@ -342,7 +342,7 @@ def run(ctx) -> dict:
     # Stage 1: references, G-buffers and probes (independent jobs).
     jobs = [
         Job(
-            f"{__name__}:render_case",
+            render_case,
             dict(
                 scene_toml=scene_to_toml(scenes[case_id(a, s)]),
                 spp=cfg["spp"],
@@ -373,7 +373,7 @@ def run(ctx) -> dict:
         geom[cid] = (mask, inputs)
         fit_jobs.append(
             Job(
-                f"{__name__}:fit_wrap_job",
+                fit_wrap_job,
                 dict(cos_theta=inputs["cos_theta"], target=ref_e, peak=inputs["irradiance"]),
                 label=cid,
             )
@@ -792,11 +792,11 @@ def summary(cfg, case_docs, fitted: Fitted, z_std: float) -> str:
         f"{rmse(large, 0.0, 'half-lambert'):.3g} at α = {large:g}°, against "
         f"{rmse(small, 0.0, 'lambert'):.3g} and {rmse(large, 0.0, 'lambert'):.3g} for plain Lambert. "
         f"Wrap lighting with (w, p) fitted per light size brings the error at α = {large:g}° to "
-        f"{rmse(large, 0.0, 'wrap-fit'):.3g}; one smooth law w(α) = {c['w1']:.3g}·sin α + "
-        f"{c['w2']:.3g}·sin²α, p(α) = 1 + {c['p1']:.3g}·sin α + "
-        f"{c['p2']:.3g}·sin²α gives {rmse(large, 0.0, 'wrap-smooth'):.3g}. The exact closed form sits at the "
-        f"reference's noise floor (robust z-score spread {z_std:.3f}), which validates both the formula and "
-        "the ground truth."
+        f"{rmse(large, 0.0, 'wrap-fit'):.3g}; one smooth law w(α) = "
+        f"{prose.law_text((c['w1'], 'sin α'), (c['w2'], 'sin²α'))}, p(α) = "
+        f"{prose.law_text((1, ''), (c['p1'], 'sin α'), (c['p2'], 'sin²α'))} gives "
+        f"{rmse(large, 0.0, 'wrap-smooth'):.3g}. The exact closed form sits at the reference's noise floor "
+        f"(robust z-score spread {z_std:.3f}), which validates both the formula and the ground truth."
     )
 
 
@@ -807,7 +807,7 @@ def cost_inputs(n: int, backend: str, seed: int = 1) -> tuple[dict, dict]:
     rng = np.random.default_rng(seed)
     cos_t = rng.uniform(-1, 1, n).astype(np.float32)
     alpha = np.radians(rng.uniform(0.27, 30, n)).astype(np.float32)
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     scale = {"irradiance": 1.0, "radiance": 1.0}
     return (
         {"cos_theta": Float(cos_t), "alpha": Float(alpha), **scale},

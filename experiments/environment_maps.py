@@ -39,6 +39,7 @@ import numpy as np
 from rtfit.fitting import compute_metrics, sidak_threshold
 from rtfit.realtime import DRJIT_OPS, NUMPY_OPS, set_default_backend, sphere_light_irradiance
 from rtfit.realtime import environment_maps as em
+from rtfit.realtime.arrays import backend_float
 from rtfit.reference import environment_maps as room
 from rtfit.reference.cache import PassEntry, array_digest, pool_passes
 from rtfit.reference.estimators import sub_seed
@@ -55,6 +56,7 @@ from .cost import (
     time_drjit,
     time_numpy,
 )
+from .records import Check
 from .registry import ConfigKey, checked
 
 # ============================================================================================ configure
@@ -1084,8 +1086,8 @@ def cost_key(costs: list[dict]):
 
 
 # =============================================================================================== checks
-def _check(name: str, value, expected: str, passed: bool) -> dict:
-    return {"name": name, "value": value, "expected": expected, "passed": bool(passed)}
+def _check(name: str, value, expected: str, passed: bool) -> Check:
+    return Check(name=name, value=value, expected=expected, passed=bool(passed))
 
 
 def constant_checks(const: dict) -> list[dict]:
@@ -1509,7 +1511,7 @@ def bench(ctx) -> list[dict]:
     memory-traffic floor; the localised rows count point×texel pairs (per = "pair")."""
     backend, size = bench_backend(ctx)
     cfg = {**configure(ctx.quick, None), "cost_elements": size}
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     rows = []
     for k in timed_kernels(cfg, ctx.variant):
         t_dr = _time_kernel(k, Float, cfg)

@@ -189,16 +189,21 @@ def provenance(
     experiment: str,
     scene_hashes: Sequence[str] = (),
     reference_spp: int | None = None,
+    *,
+    variant: str | None = None,
+    quick: bool | None = None,
 ) -> Provenance:
-    """The provenance of this run (``ctx``: the `RunContext`, or None outside a run)."""
+    """The provenance of this run: ``ctx`` the `RunContext` (its Mitsuba ``variant`` and ``quick``), or
+    None outside an experiment's run (the audit), which then gives ``variant`` and ``quick`` itself;
+    given values win over the context's."""
     return Provenance(
         rtfit_version=__version__,
         experiment=experiment,
         date=datetime.datetime.now(datetime.UTC).replace(microsecond=0).isoformat(),
         scene_hashes=sorted(set(scene_hashes)),
         reference_spp=None if reference_spp is None else int(reference_spp),
-        variant=getattr(ctx, "variant", None),
-        quick=getattr(ctx, "quick", None),
+        variant=variant if variant is not None else getattr(ctx, "variant", None),
+        quick=quick if quick is not None else getattr(ctx, "quick", None),
     )
 
 
@@ -209,9 +214,12 @@ def _num(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def parameters_from_fit(method: Method | None, fit_params: Mapping[str, object]) -> dict[str, Parameter]:
+def parameters_from_fit(
+    method: Method | None, fit_params: Mapping[str, object], unit: str = ""
+) -> dict[str, Parameter]:
     """`Parameter` records from a fit's ``parameters`` ({name: {value, stderr, lower, upper, at_bound}}
-    or {name: value}), units and descriptions from ``method``'s declaration where it has the name."""
+    or {name: value}), units and descriptions from ``method``'s declaration where it has the name, else
+    the parameter's own ``unit``, else ``unit`` (the unit of every undeclared parameter)."""
     out = {}
     for name, p in fit_params.items():
         spec = method.params.get(name) if method is not None else None
@@ -221,7 +229,7 @@ def parameters_from_fit(method: Method | None, fit_params: Mapping[str, object])
         out[name] = Parameter(
             value=float(d["value"]),
             stderr=_num(d.get("stderr")),
-            unit=spec.unit if spec else str(d.get("unit", "")),
+            unit=spec.unit if spec else str(d.get("unit", unit)),
             lower=_num(lower),
             upper=_num(upper),
             at_bound=bool(d.get("at_bound", False)),
@@ -324,8 +332,16 @@ def _check(doc, where: str) -> FittedFile:
 
 
 def write_fitted(path: Path, document: FittedFile) -> dict:
-    """Validate ``document`` as the loader would (schema types, no NaN, shader or note) and write it
+    """Validate ``document`` as the loader would (schema types, no NaN, shader or note), refuse a parameter
+    without a unit (a `FittedError` naming it; "1" is the unit of a dimensionless one) and write it
     atomically as JSON; returns the written JSON."""
+    for i, m in enumerate(document.methods):
+        for name, p in m.parameters.items():
+            if not p.unit.strip():  # a number without its unit cannot be loaded into an engine safely
+                raise FittedError(
+                    f"{path}: methods[{i}].parameters.{name}.unit: no unit for {m.id!r} parameter {name!r} "
+                    '(declare it: Param(unit=…), "1" if dimensionless)'
+                )
     doc = plain_json(to_json(document))
     _check(doc, str(path))
     atomic_write_json(Path(path), doc)

@@ -34,8 +34,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
-from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -48,11 +46,11 @@ from rtfit.realtime import (
     fog_volume_segment,
     fog_volumes_optical_depth,
     fog_volumes_shade,
-    get_default_backend,
     height_fog_optical_depth,
     height_fog_transmittance,
     set_default_backend,
 )
+from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.height_fog import METHODS, OPTICAL_DEPTH_FORMS
 from rtfit.reference import (
     ReferenceCache,
@@ -83,7 +81,9 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
 from .viewer import save_case_pixels
 
 # ============================================================================================ configure
@@ -179,18 +179,8 @@ def fitted_values(medium, sky: dict, fit: dict | None) -> dict:
     return {k: v["value"] for k, v in fit["parameters"].items()}
 
 
-@dataclasses.dataclass(frozen=True)
-class Row:
-    """One approximation row of the aerial-perspective cases: a shading method of `METHODS` and the source
-    of its parameters, ``params(medium, sky statistics, fit result or None) -> {name: value}``."""
-
-    id: str
-    label: str
-    method: str
-    params: Callable[[Any, dict, dict | None], dict]
-    fitted: bool = False
-
-
+# Rows (`rows.Row`): a shading method of `METHODS` and the source of its parameters,
+# ``params(medium, sky statistics, fit result or None) -> {name: value}``.
 ROWS = (
     Row("horizon-const", "true b, c; colour = sky horizon average", "const", horizon_colour),
     Row("horizon-phase", "true b, c; horizon average × 4π·HG phase (seed)", "phase", horizon_phase_colour),
@@ -444,7 +434,7 @@ def run(ctx) -> dict:
         scenes[label] = scene
         toml = scene_to_toml(scene)
         args = dict(scene_toml=toml, spp=spp, gbuffer_of=toml if gbuffer else None, **common)
-        jobs.append(Job("rtfit.experiments.height_fog:render_job", args, label=label))
+        jobs.append(Job(render_job, args, label=label))
 
     scenes, jobs = {}, []
     chk = check_scene(cfg["check_resolution"])
@@ -472,7 +462,7 @@ def run(ctx) -> dict:
         )
     sky_jobs = [
         Job(
-            "rtfit.experiments.height_fog:sky_job",
+            sky_job,
             dict(scene_toml=scene_to_toml(scenes[f"e{e:g}-single"]), variant=ctx.variant),
             label=f"sky-e{e:g}",
         )
@@ -503,7 +493,7 @@ def run(ctx) -> dict:
                 fit_keys.append((cid, method))
                 fit_jobs.append(
                     Job(
-                        "rtfit.experiments.height_fog:fit_fog_job",
+                        fit_fog_job,
                         dict(
                             method=method,
                             **data,
@@ -557,6 +547,7 @@ def assemble(ctx, cfg, scenes, rendered, skies, geoms, fits, hashes) -> dict:
             mask = np.ones(ref.mean.shape[:2], bool)
             approx_docs = []
             for row in ROWS:
+                assert row.method is not None  # every fog row is a shading method of METHODS
                 p = row.params(medium, skies[f"e{e:g}"], fits.get((cid, row.method)))
                 img = model_image(geom, clear.mean, row.method, p)
                 images[(cid, row.id)] = img
@@ -685,7 +676,7 @@ def float64_truth(z0, z1, distance, b, c) -> np.ndarray:
 
 
 def _drjit_float():
-    return dr.cuda.Float if get_default_backend() == "cuda" else dr.llvm.Float
+    return backend_float()
 
 
 def _form(form: str, z0, z1, distance, b, c):
@@ -822,7 +813,7 @@ def write_fitted(out, fits: dict, vol_fit: dict | None, ctx=None, cfg=None, geom
             source="rtfit (fog volumes: oriented box / ellipsoid with a shifted height gradient)",
             quantity="fogged_radiance",
             case="volumes",
-            parameters=fitfiles.parameters_from_fit(None, vol_fit["parameters"]),
+            parameters=fitfiles.parameters_from_fit(None, vol_fit["parameters"], unit="W/m²/sr"),  # radiances
             residual=fitfiles.Residual(rms=None, n=vol_fit.get("n_residuals"), units="radiance"),
             converged=vol_fit.get("converged"),
             shader=None,
@@ -848,7 +839,7 @@ def write_fitted(out, fits: dict, vol_fit: dict | None, ctx=None, cfg=None, geom
 
 
 # =============================================================================================== checks
-def transmittance_checks(scene, rendered, shape: str) -> list[dict]:
+def transmittance_checks(scene, rendered, shape: str) -> list[Check]:
     """Mitsuba through a purely absorbing medium against e^(−τ) of the closed form (float64) per pixel.
 
     The estimator is binary (a camera ray survives the absorbing medium or not): its variance is T(1 − T)
@@ -865,47 +856,47 @@ def transmittance_checks(scene, rendered, shape: str) -> list[dict]:
     pooled = float(np.sum(ref.mean[..., 0][m] - t[m]) / math.sqrt(np.sum(sig[m] ** 2)))
     sidak = sidak_threshold(int(m.sum()))
     return [
-        {
-            "name": f"reference check ({shape}): Mitsuba transmittance through absorbing exponential fog = "
+        Check(
+            name=f"reference check ({shape}): Mitsuba transmittance through absorbing exponential fog = "
             f"e^(−τ): z-score spread ({int(m.sum())} pixels)",
-            "value": float(np.std(z)),
-            "expected": "1 ± 0.15",
-            "passed": bool(abs(np.std(z) - 1) <= 0.15),
-        },
-        {
-            "name": f"reference check ({shape}): pooled z-score of (Mitsuba − e^(−τ)) over the fogged pixels",
-            "value": pooled,
-            "expected": "|z| ≤ 4",
-            "passed": bool(abs(pooled) <= 4),
-        },
-        {
-            "name": f"reference check ({shape}): largest |z| over fogged pixels",
-            "value": float(np.max(np.abs(z))),
-            "expected": f"≤ {sidak:.2f} (Šidák, 1 % family-wise)",
-            "passed": bool(np.max(np.abs(z)) <= sidak),
-        },
+            value=float(np.std(z)),
+            expected="1 ± 0.15",
+            passed=bool(abs(np.std(z) - 1) <= 0.15),
+        ),
+        Check(
+            name=f"reference check ({shape}): pooled z-score of (Mitsuba − e^(−τ)) over the fogged pixels",
+            value=pooled,
+            expected="|z| ≤ 4",
+            passed=bool(abs(pooled) <= 4),
+        ),
+        Check(
+            name=f"reference check ({shape}): largest |z| over fogged pixels",
+            value=float(np.max(np.abs(z))),
+            expected=f"≤ {sidak:.2f} (Šidák, 1 % family-wise)",
+            passed=bool(np.max(np.abs(z)) <= sidak),
+        ),
     ]
 
 
-def optical_depth_checks(forms: dict) -> list[dict]:
+def optical_depth_checks(forms: dict) -> list[Check]:
     """The stable form in float32: within its error bound everywhere, finite where τ is, right at the
     special inputs, and T = 0 exactly where it underflows."""
     ex = forms["per_form"][EXACT_FORM]
     samples = forms["table"][0]["samples"]
     checks = [
-        {
-            "name": "stable closed form, float32: worst relative error / (2e-6 + 2·2⁻²⁴·|c·z_min|) over "
+        Check(
+            name="stable closed form, float32: worst relative error / (2e-6 + 2·2⁻²⁴·|c·z_min|) over "
             f"{samples} random inputs",
-            "value": ex["bound_ratio"],
-            "expected": "≤ 1",
-            "passed": bool(ex["bound_ratio"] <= 1.0),
-        },
-        {
-            "name": "stable closed form: non-finite outputs where τ is finite",
-            "value": ex["non_finite"],
-            "expected": "0",
-            "passed": ex["non_finite"] == 0,
-        },
+            value=ex["bound_ratio"],
+            expected="≤ 1",
+            passed=bool(ex["bound_ratio"] <= 1.0),
+        ),
+        Check(
+            name="stable closed form: non-finite outputs where τ is finite",
+            value=ex["non_finite"],
+            expected="0",
+            passed=ex["non_finite"] == 0,
+        ),
     ]
     for label, (v, tv) in ex["specials"].items():
         good = (
@@ -914,12 +905,12 @@ def optical_depth_checks(forms: dict) -> list[dict]:
             or (math.isfinite(v) and tv > 0 and abs(v / tv - 1) < 1e-5)
         )
         checks.append(
-            {
-                "name": f"stable closed form at: {label}",
-                "value": v,
-                "expected": f"{tv:.6g} (±1e-5 rel.)",
-                "passed": bool(good),
-            }
+            Check(
+                name=f"stable closed form at: {label}",
+                value=v,
+                expected=f"{tv:.6g} (±1e-5 rel.)",
+                passed=bool(good),
+            )
         )
     t_under = float(
         np.asarray(
@@ -929,24 +920,24 @@ def optical_depth_checks(forms: dict) -> list[dict]:
         )[0]
     )
     checks.append(
-        {
-            "name": "transmittance underflow (b·D = 1e6) is exactly 0",
-            "value": t_under,
-            "expected": "0",
-            "passed": t_under == 0.0,
-        }
+        Check(
+            name="transmittance underflow (b·D = 1e6) is exactly 0",
+            value=t_under,
+            expected="0",
+            passed=t_under == 0.0,
+        )
     )
     return checks
 
 
-def fit_checks(fitted: list[dict]) -> list[dict]:
+def fit_checks(fitted: list[dict]) -> list[Check]:
     return [
-        {
-            "name": f"fit {f['id']} converged",
-            "value": str(f["converged"]),
-            "expected": "True",
-            "passed": bool(f["converged"]),
-        }
+        Check(
+            name=f"fit {f['id']} converged",
+            value=str(f["converged"]),
+            expected="True",
+            passed=bool(f["converged"]),
+        )
         for f in fitted
     ]
 
@@ -1329,7 +1320,7 @@ def bench(ctx) -> list[dict]:
     (``method(NUMPY_OPS, inputs, params)``), then the fog passes and the reference's samples/s
     (rtfit_fogpath, beside volpathmis with the Python fog medium and Mitsuba's grid)."""
     backend, n = bench_backend(ctx)
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     np_inputs, inputs = _cost_inputs(n, Float)
     base = memory_baseline(tuple(inputs.values()), n)
     rows = []

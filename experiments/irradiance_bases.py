@@ -138,6 +138,7 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
 from .viewer import save_case_pixels
 
@@ -585,7 +586,7 @@ def run(ctx) -> dict:
     cfg = with_user_probes(ctx.configured(configure(ctx.quick, ctx.spp)))
     jobs = [
         Job(
-            "rtfit.experiments.irradiance_bases:render_environment",
+            render_environment,
             dict(
                 name=n,
                 cfg=cfg,
@@ -923,7 +924,7 @@ def write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
 
 
 # =============================================================================================== checks
-def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[dict]:
+def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[Check | dict]:
     """Quadrature and furnace z-tests against Mitsuba, the sunsky bake, λ leaves no ringing, NNLS ≤ Valve."""
     checks = (
         z_checks(
@@ -934,24 +935,24 @@ def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[dict]:
     )
     for name, bias, bias_se in bake:
         checks.append(
-            {
-                "name": f"{name}: baked sky + disc sun vs Mitsuba's own sunsky: relative bias of the mean "
+            Check(
+                name=f"{name}: baked sky + disc sun vs Mitsuba's own sunsky: relative bias of the mean "
                 f"irradiance over normals, worst channel (± {bias_se:.2g} statistical)",
-                "value": bias,
-                "expected": f"|bias| ≤ {SUNSKY_BAKE_TOLERANCE}",
-                "passed": abs(bias) <= SUNSKY_BAKE_TOLERANCE,
-            }
+                value=bias,
+                expected=f"|bias| ≤ {SUNSKY_BAKE_TOLERANCE}",
+                passed=abs(bias) <= SUNSKY_BAKE_TOLERANCE,
+            )
         )
     lam_rows = [r.method for r in ROWS if "lam" in r.params]
     neg = max(_metric(cases, n, m, "neg_frac") for n in names for m in lam_rows)
     checks.append(
-        {
-            "name": f"fitted λ window leaves no negative irradiance ({', '.join(lam_rows)}; max over "
+        Check(
+            name=f"fitted λ window leaves no negative irradiance ({', '.join(lam_rows)}; max over "
             "environments)",
-            "value": neg,
-            "expected": "0",
-            "passed": neg == 0.0,
-        }
+            value=neg,
+            expected="0",
+            passed=neg == 0.0,
+        )
     )
     checks += _sg_dice_checks(names, cases)
     worse = [
@@ -961,12 +962,12 @@ def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[dict]:
         > _metric(cases, n, "cube-valve", "rel_rmse") + 2 * _floor(cases, n, "cube-valve", "rel_rmse")
     ]
     checks.append(
-        {
-            "name": "NNLS cube no worse than Valve's cube (rel. RMSE, all environments)",
-            "value": ", ".join(worse) or "none worse",
-            "expected": "none worse",
-            "passed": not worse,
-        }
+        Check(
+            name="NNLS cube no worse than Valve's cube (rel. RMSE, all environments)",
+            value=", ".join(worse) or "none worse",
+            expected="none worse",
+            passed=not worse,
+        )
     )
     return checks + _order_checks(names, cases)
 
@@ -983,7 +984,7 @@ irradiance of its bands (adding bands never raises the error), and ZH3 keeps L1 
 L2 band onto one zonal harmonic, about any axis (between L1 and L2)."""
 
 
-def _order_checks(names, cases) -> list[dict]:
+def _order_checks(names, cases) -> list[Check]:
     """Error does not grow with the SH order (`ORDER_CHECKS`, within 2 noise floors); L3 = L2 (Â_3 = 0)."""
     checks = []
     for better, than in ORDER_CHECKS:
@@ -994,43 +995,43 @@ def _order_checks(names, cases) -> list[dict]:
             > _metric(cases, n, than, "rel_rmse") + 2 * _floor(cases, n, than, "rel_rmse")
         ]
         checks.append(
-            {
-                "name": f"{better} no worse than {than} (rel. RMSE, all environments, within 2 noise floors)",
-                "value": ", ".join(bad) or "none worse",
-                "expected": "none worse",
-                "passed": not bad,
-            }
+            Check(
+                name=f"{better} no worse than {than} (rel. RMSE, all environments, within 2 noise floors)",
+                value=", ".join(bad) or "none worse",
+                expected="none worse",
+                passed=not bad,
+            )
         )
     diff = max(
         abs(_metric(cases, n, "sh-l3", "rel_rmse") - _metric(cases, n, "sh-l2", "rel_rmse")) for n in names
     )
     checks.append(
-        {
-            "name": "SH L3 irradiance equals L2 (Â_3 = 0: odd bands above 1 vanish): max |Δ rel. RMSE|",
-            "value": diff,
-            "expected": "≤ 1e-12",
-            "passed": diff <= 1e-12,
-        }
+        Check(
+            name="SH L3 irradiance equals L2 (Â_3 = 0: odd bands above 1 vanish): max |Δ rel. RMSE|",
+            value=diff,
+            expected="≤ 1e-12",
+            passed=diff <= 1e-12,
+        )
     )
     return checks
 
 
-def _sg_dice_checks(names, cases) -> list[dict]:
+def _sg_dice_checks(names, cases) -> list[Check]:
     """The SG clamped-cosine approximation against quadrature, and Ambient Dice / SG-ambient exact for a
     constant environment (their bases contain the constant)."""
     lams = sorted({*SG_ERROR_LAMBDAS, *(sg_sharpness(n) for n in SG_COUNTS)})
     err = sg_cosine_error(lams, np.linspace(-1.0, 1.0, 41))
     worst = int(np.argmax(err["max_rel"]))
     out = [
-        {
-            "name": "SG ⊗ clamped cosine: Hill's shape with exact end values vs quadrature, "
+        Check(
+            name="SG ⊗ clamped cosine: Hill's shape with exact end values vs quadrature, "
             "max |S̃ − S|/S(λ, 1) "
             f"over λ ∈ {{{', '.join(f'{v:.3g}' for v in lams)}}} × 41 cosines (worst λ = "
             f"{err['lam'][worst]:.3g})",
-            "value": err["max_rel"][worst],
-            "expected": f"≤ {SG_ERROR_BOUND}",
-            "passed": err["max_rel"][worst] <= SG_ERROR_BOUND,
-        }
+            value=err["max_rel"][worst],
+            expected=f"≤ {SG_ERROR_BOUND}",
+            passed=err["max_rel"][worst] <= SG_ERROR_BOUND,
+        )
     ]
     const = [n for n in names if n == "constant"]
     for method in ("ambient-dice", *(f"sg{n}-ambient" for n in SG_COUNTS)):
@@ -1042,17 +1043,17 @@ def _sg_dice_checks(names, cases) -> list[dict]:
             continue
         gap = abs(ap["metrics"]["rel_rmse"]["value"] - q["metrics"]["rel_rmse"]["value"])
         out.append(
-            {
-                "name": f"{method} reproduces a constant environment (rel. RMSE equal to the exact row's)",
-                "value": gap,
-                "expected": "≤ 1e-9",
-                "passed": gap <= 1e-9,
-            }
+            Check(
+                name=f"{method} reproduces a constant environment (rel. RMSE equal to the exact row's)",
+                value=gap,
+                expected="≤ 1e-9",
+                passed=gap <= 1e-9,
+            )
         )
     return out
 
 
-def _published_checks(rendered) -> list[dict]:
+def _published_checks(rendered) -> list[Check]:
     """Grace Cathedral's L2 coefficients against Ramamoorthi & Hanrahan 2001's table (if probe-grace ran)."""
     r = rendered.get("probe-grace")
     if r is None:
@@ -1061,14 +1062,14 @@ def _published_checks(rendered) -> list[dict]:
     diff = float(np.max(np.abs(coeffs - probe_maps.RH2001_GRACE_L2)))
     tol = probe_maps.RH2001_TOLERANCE
     return [
-        {
-            "name": "probe-grace: L2 radiance coefficients vs Ramamoorthi & Hanrahan 2001's table (their "
+        Check(
+            name="probe-grace: L2 radiance coefficients vs Ramamoorthi & Hanrahan 2001's table (their "
             "frame "
             f"(x, y, z) = (w_y, w_z, −w_x), one fitted exposure ×{scale:.4g}): max |ΔL_lm| over 9 × RGB",
-            "value": diff,
-            "expected": f"≤ {tol} (the table's 2-decimal rounding 0.005 + 0.005)",
-            "passed": diff <= tol,
-        }
+            value=diff,
+            expected=f"≤ {tol} (the table's 2-decimal rounding 0.005 + 0.005)",
+            passed=diff <= tol,
+        )
     ]
 
 

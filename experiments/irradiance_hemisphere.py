@@ -46,6 +46,7 @@ from rtfit.reference import environments as envs
 
 from . import fitted as fitfiles
 from .cost import comparison_row, cost_row, time_drjit, time_numpy
+from .records import Check
 
 _TILT = math.radians(60.0)
 _AZ = math.radians(30.0)
@@ -181,7 +182,7 @@ def floor(rec: dict, method: str, key: str = "rel_rmse") -> float:
     return 0.0
 
 
-def checks(records: list[dict]) -> list[dict]:
+def checks(records: list[dict]) -> list[Check]:
     """The section's self-checks: the rows exact for a constant environment sit at the noise floor there;
     H6 is no worse than H4 (both are projections onto nested subspaces of L²(Ω+), and the Fibonacci normals
     sample the hemisphere uniformly). (The normalised RNM is *not* always better than the squared one:
@@ -196,13 +197,13 @@ def checks(records: list[dict]) -> list[dict]:
             if value(r, m) > 2.0 * floor(r, m) + 1e-9
         ]
         out.append(
-            {
-                "name": "hemisphere: constant environment reproduced at the noise floor (H4, H6, normalised "
+            Check(
+                name="hemisphere: constant environment reproduced at the noise floor (H4, H6, normalised "
                 "RNM, SH, quadrature; rel. RMSE ≤ 2× floor)",
-                "value": ", ".join(bad) or "all at the floor",
-                "expected": "all at the floor",
-                "passed": not bad,
-            }
+                value=", ".join(bad) or "all at the floor",
+                expected="all at the floor",
+                passed=not bad,
+            )
         )
     for better, worse in (("hbasis-6", "hbasis-4"),):
         bad = [
@@ -211,13 +212,13 @@ def checks(records: list[dict]) -> list[dict]:
             if value(r, better) > value(r, worse) + 2.0 * floor(r, worse)
         ]
         out.append(
-            {
-                "name": f"hemisphere: {better} no worse than {worse} (rel. RMSE within 2× floor, every "
+            Check(
+                name=f"hemisphere: {better} no worse than {worse} (rel. RMSE within 2× floor, every "
                 "environment and frame)",
-                "value": ", ".join(bad) or "none worse",
-                "expected": "none worse",
-                "passed": not bad,
-            }
+                value=", ".join(bad) or "none worse",
+                expected="none worse",
+                passed=not bad,
+            )
         )
     return out
 

@@ -43,11 +43,9 @@ import numpy as np
 
 from rtfit.fitting import compute_metrics, robust_spread, sidak_threshold, smape
 from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.irradiance_bases import (
     CUBE_AXES,
-    fibonacci_sphere,
-    fit_ambient_cube_nnls,
-    sh9_basis,
     sh9_from_constant,
 )
 from rtfit.realtime.irradiance_volumes import (
@@ -80,6 +78,8 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .probe_projection import FEATURE_NORMALS, FEATURES_NAME, probe_bases, probe_features
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
 
 # ============================================================================================ configure
@@ -126,8 +126,6 @@ GRID_ORIGIN = (-1.5, -1.5, 0.25)
 COARSE_SPACING = 1.5
 COARSE_CELLS = (2, 2, 1)
 """Cells of the coarsest grid per axis; level k has 2^k times as many with spacing 1.5/2^k m."""
-NNLS_NORMALS = 64
-"""Fibonacci normals at which each probe's irradiance is estimated for the NNLS cube fit."""
 BOUNDARY_EPS = 1e-3
 """Half-distance (m) of the point pairs straddling each cell boundary on the popping line."""
 LINE_Y, LINE_Z = 1.3, 1.0
@@ -174,19 +172,6 @@ def level_grids(levels: int) -> list[tuple[ProbeGrid, np.ndarray]]:
     """(grid, indices of its nodes in the finest grid), coarsest first."""
     fine = finest_grid(levels)
     return [fine.subgrid(2 ** (levels - 1 - k)) for k in range(levels)]
-
-
-FEATURE_NORMALS = np.concatenate([np.asarray(CUBE_AXES), fibonacci_sphere(NNLS_NORMALS)])
-"""The normals whose clamped cosines the probes are projected on: the six cube axes (Valve's samples, in
-`CUBE_ORDER`), then the NNLS fit's Fibonacci normals."""
-FEATURES_NAME = f"sh9+clampedcos(axes6+fib{NNLS_NORMALS})"
-
-
-def probe_features(directions: np.ndarray) -> np.ndarray:
-    """f_k(ω) of the probe projections (M, 9 + 6 + `NNLS_NORMALS`): the 9 SH basis values, then
-    max(n_k·ω, 0) at `FEATURE_NORMALS` (∫ L f_k dω is then SH coefficient k, or the irradiance at n_k)."""
-    d = np.asarray(directions, dtype=np.float64)
-    return np.concatenate([sh9_basis(d), np.maximum(d @ FEATURE_NORMALS.T, 0.0)], axis=1)
 
 
 # =========================================================================================== points
@@ -316,7 +301,7 @@ def run(ctx) -> dict:
     furnace_pos = np.array([[0.0, 0.0, 0.0], [0.3, -0.7, 1.1], [-1.2, 0.4, 2.0]])
     jobs = [
         Job(
-            "rtfit.experiments.irradiance_volumes:probe_job",
+            probe_job,
             dict(
                 scene_toml=scene_to_toml(room),
                 positions=fine.positions(),
@@ -327,7 +312,7 @@ def run(ctx) -> dict:
             label=f"probes ({fine.count})",
         ),
         Job(
-            "rtfit.experiments.irradiance_volumes:probe_job",
+            probe_job,
             dict(
                 scene_toml=scene_to_toml(furnace),
                 positions=furnace_pos,
@@ -338,7 +323,7 @@ def run(ctx) -> dict:
             label="furnace probes",
         ),
         Job(
-            "rtfit.experiments.irradiance_volumes:surface_job",
+            surface_job,
             dict(
                 scene_toml=scene_to_toml(room),
                 points=pts,
@@ -368,16 +353,6 @@ def run(ctx) -> dict:
 
 
 # ========================================================================================= assembly
-def probe_bases(mean: np.ndarray, extra_irradiance: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Per-probe coefficients of every `VOLUME_BASES` entry from the projections ``mean`` (P, K, 3):
-    SH L2 (P, 9, 3), Valve's cube (the axis irradiance, P, 6, 3), and the NNLS cube fitted to the irradiance
-    at the Fibonacci normals (plus ``extra_irradiance`` (P, NNLS_NORMALS, 3) there, for a folded light)."""
-    sh = mean[:, :9]
-    valve = mean[:, 9:15]
-    target = mean[:, 15:] + (0.0 if extra_irradiance is None else extra_irradiance)
-    normals = FEATURE_NORMALS[6:]
-    nnls = np.stack([fit_ambient_cube_nnls(normals, target[i])[0] for i in range(len(mean))])
-    return {"cube-valve": valve, "cube-nnls": nnls, "sh-l2": sh}
 
 
 def folded_bases(
@@ -586,8 +561,8 @@ def error_table(case_docs: list[dict]) -> list[dict]:
 
 
 # =========================================================================================== checks
-def _check(name: str, value, expected: str, passed: bool) -> dict:
-    return {"name": name, "value": value, "expected": expected, "passed": bool(passed)}
+def _check(name: str, value, expected: str, passed: bool) -> Check:
+    return Check(name=name, value=value, expected=expected, passed=bool(passed))
 
 
 def segment_blocked(points: np.ndarray, light: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -934,7 +909,7 @@ def cost_rows(ctx, cfg, grid: ProbeGrid) -> list[dict]:
 def bench(ctx) -> list[dict]:
     """Lookups/s of each method on Dr.Jit vs the same kernel text on NumPy, on the finest quick grid."""
     backend, n = bench_backend(ctx)
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     grid = finest_grid(3 if ctx.quick else 4)
     p, nrm, tables = _cost_inputs(grid, n)
     P = [Float(p[:, k]) for k in range(3)]

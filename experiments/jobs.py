@@ -1,9 +1,12 @@
 """Jobs and executors: how an experiment's independent pieces of work are run.
 
-A :class:`Job` names a function by import path (``"rtfit.experiments.half_lambert:render_case"``)
-and carries keyword arguments of plain data only (scene TOML text, numbers, strings, NumPy arrays,
-file paths). Its result is plain data too. No Mitsuba or Dr.Jit object ever crosses a job
-boundary, so the same job list runs in this process, in a local process pool, or on a cluster.
+A :class:`Job` holds a function (``Job(render_case, {...})``) that is importable at its module's top
+level: the executors that leave this process send its import path ``module:qualname`` (see
+:func:`import_path`) and the worker imports it back, so a lambda, a nested function or a function of
+``__main__`` is refused with one line before anything runs. A job carries keyword arguments of plain
+data only (scene TOML text, numbers, strings, NumPy arrays, file paths). Its result is plain data too.
+No Mitsuba or Dr.Jit object ever crosses a job boundary, so the same job list runs in this process, in
+a local process pool, or on a cluster.
 
 Executors share two methods:
 
@@ -37,6 +40,7 @@ import multiprocessing
 import os
 import tempfile
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -132,15 +136,48 @@ class JobsFailed(RuntimeError):
 
 @dataclass(frozen=True)
 class Job:
-    """``func`` ("package.module:function") called with ``kwargs``; ``label`` names it in progress bars."""
+    """``func`` (a function importable at its module's top level) called with ``kwargs``; ``label`` names
+    it in progress bars."""
 
-    func: str
+    func: Callable[..., Any]
     kwargs: dict[str, Any] = field(default_factory=dict)
     label: str = ""
 
+    def __post_init__(self):
+        if not callable(self.func):  # the old string form ("module:function") would fail only when run
+            raise TypeError(f"Job takes the function itself, not {self.func!r}")
+
     def run(self):
-        module, _, name = self.func.partition(":")
-        return getattr(importlib.import_module(module), name)(**self.kwargs)
+        return self.func(**self.kwargs)
+
+    @property
+    def path(self) -> str:
+        """The function's import path ``module:qualname``, which another process imports back."""
+        return import_path(self.func)
+
+
+def import_path(func: Callable[..., Any]) -> str:
+    """``module:qualname`` of ``func``, or a one-line ``ValueError`` if a fresh process could not import
+    it back as that name: a lambda, a nested function, a method, or a function defined in ``__main__``
+    (a spawned worker's ``__main__`` is not the caller's)."""
+    module = getattr(func, "__module__", None)
+    qualname = getattr(func, "__qualname__", None)
+    name = f"{module}:{qualname}"
+    if not module or not qualname or module == "__main__" or "." in qualname or "<" in qualname:
+        raise ValueError(f"job function {name} is not importable at module top level; define it there")
+    try:
+        found = getattr(importlib.import_module(module), qualname, None)
+    except ImportError as e:
+        raise ValueError(f"job function {name} is not importable ({error_line(e)})") from None
+    if found is not func:
+        raise ValueError(f"job function {name} is not importable at module top level; define it there")
+    return name
+
+
+def run_path(path: str, kwargs: dict[str, Any]):
+    """Import ``module:qualname`` and call it with ``kwargs``: a job, in a worker process."""
+    module, _, name = path.partition(":")
+    return getattr(importlib.import_module(module), name)(**kwargs)
 
 
 def diagnostic_job(seconds: float = 0.0, fail: str | None = None) -> dict:
@@ -151,10 +188,6 @@ def diagnostic_job(seconds: float = 0.0, fail: str | None = None) -> dict:
     if fail:
         raise ValueError(fail)
     return {"pid": os.getpid(), "cuda_visible_devices": os.environ.get("CUDA_VISIBLE_DEVICES")}
-
-
-def _run_job(job: Job):
-    return job.run()
 
 
 def _worker_init(threads: int | None):
@@ -257,6 +290,7 @@ class ProcessExecutor:
         return [p.pid for p in (self._pool._processes or {}).values() if p.is_alive()]
 
     def run_all(self, jobs: list[Job], desc: str = "jobs", _exceptions: dict | None = None) -> list[Outcome]:
+        paths = [job.path for job in jobs]  # a function no worker could import: refused before any job runs
         tracker = JobTracker(len(jobs), desc, self.progress)
         outcomes: list[Outcome | None] = [None] * len(jobs)
         attempts = [0] * len(jobs)
@@ -264,7 +298,7 @@ class ProcessExecutor:
         try:
             while todo:
                 t0 = time.perf_counter()
-                futures = {self._pool.submit(_run_job, jobs[i]): i for i in todo}
+                futures = {self._pool.submit(run_path, paths[i], jobs[i].kwargs): i for i in todo}
                 for i in todo:
                     attempts[i] += 1
                 tracker.started(len(todo))

@@ -398,13 +398,15 @@ _SCI = re.compile(r"(?<![\w.])(-?\d+(?:\.\d+)?)e([-+]?\d+)\b")
 _NEG = re.compile(r"(?<![\w.])-(?=\.?\d)")
 
 
-def tex_number(text: str) -> str:
+def tex_number(text: str, italic: bool = False) -> str:
     """A formatted number (or text holding numbers) as LaTeX: ``1.234e-5`` → 1.234×10⁻⁵, and a
-    minus sign rather than a hyphen before a number."""
+    minus sign rather than a hyphen before a number. ``italic``: the maths of ×10ⁿ in ``\\mathit``
+    (``\\textit`` does not reach into maths, so an italic cell's digits would stay upright)."""
     parts, pos = [], 0
     for m in _SCI.finditer(text):
         parts.append(tex_text(_NEG.sub("−", text[pos : m.start()])))
-        parts.append(rf"\ensuremath{{{m.group(1)}\times 10^{{{int(m.group(2))}}}}}")
+        body = rf"{m.group(1)}\times 10^{{{int(m.group(2))}}}"
+        parts.append(rf"\ensuremath{{\mathit{{{body}}}}}" if italic else rf"\ensuremath{{{body}}}")
         pos = m.end()
     parts.append(tex_text(_NEG.sub("−", text[pos:])))
     return "".join(parts)
@@ -534,6 +536,14 @@ def _sci_visible(text: str) -> str:
 
 
 # -------------------------------------------------------------------------------------------- cells
+# Bold text and maths: \textbf alone leaves maths (a value's ×10ⁿ, a Greek letter) upright-medium;
+# the kernel's \boldmath switches the maths inside the group to bold too, with no package needed.
+_BOLD = r"\textbf{\boldmath "
+# Italic maths of one ×10ⁿ number: the italic corrections TeX adds in math after the mantissa (before
+# \times), before the superscript and after it (cmti9: 0.08-0.12 em each), with a margin.
+_ITALIC_MATH_EM = 0.45
+
+
 def _cell_lines(c) -> list[tuple[str, float, str]]:
     """A cell as lines (LaTeX, estimated width in pt, 'word' or 'line'): a 'line' never breaks."""
     if c.numeric and not c.text.strip() and not c.sub:
@@ -545,15 +555,19 @@ def _cell_lines(c) -> list[tuple[str, float, str]]:
             extra = "± " + extra
         elif c.sub:
             extra = "(" + c.sub.removeprefix("floor ") + ")"
-        value = tex_number(text)
+        italic = c.style in ("unresolved", "at-bound")
+        value = tex_number(text, italic=italic)
         if c.style in ("best", "fail"):
-            value = r"\textbf{" + value + "}"
-        elif c.style in ("unresolved", "at-bound"):
+            value = _BOLD + value + "}"
+        elif italic:
             value = r"\textit{" + value + "}"
         value += tex_text(c.mark)
         bold = c.style in ("best", "fail")
         # \mbox: a number never wraps; were an estimate short, pdflatex would report an overfull box.
-        lines = [(r"\mbox{" + value + "}", text_width(_sci_visible(text) + c.mark, bold=bold), "line")]
+        width = text_width(_sci_visible(text) + c.mark, bold=bold)
+        if italic:  # \mathit: TeX adds cmti's italic corrections (≈0.1 em each, three per ×10ⁿ)
+            width += _ITALIC_MATH_EM * BODY_PT * _SAFETY * len(_SCI.findall(text))
+        lines = [(r"\mbox{" + value + "}", width, "line")]
         if extra:
             sub = r"\mbox{\scriptsize " + tex_number(extra) + "}"
             lines.append((sub, text_width(_sci_visible(extra), SUB_PT), "line"))
@@ -561,7 +575,7 @@ def _cell_lines(c) -> list[tuple[str, float, str]]:
     body = tex_markdown(c.text) if c.md else tex_text(c.text)
     visible = _md_visible(c.text) if c.md else c.text
     if c.style in ("best", "fail"):
-        body = r"\textbf{" + body + "}"
+        body = _BOLD + body + "}"
     elif c.style in ("unresolved", "at-bound"):
         body = r"\textit{" + body + "}"
     body += tex_text(c.mark)

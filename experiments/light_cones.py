@@ -6,9 +6,9 @@ What is compared, and why (docs/light-cones.md):
 1. **Reference check**: a street lamp — Mitsuba ``spot`` (cutoff 30°, beam width 22.5°, pointing down from
    6 m) inside a homogeneous, non-absorbing medium box whose floor is the cone's base; ``volpathmis`` with
    max_depth 2 (single scattering). Each pixel must equal the quadrature
-   σ_s/(4π)∫ I·f(θ)·e^(−σ_t(s + r))/r² ds along its camera ray (`rtfit.reference.light_cones`, Mitsuba's
+   σ_s/(4π)∫ I·f(θ)·e^(−σ_t(s + r))/r² ds along its camera ray (`rtfit.reference.single_scattering`, Mitsuba's
    linear-in-angle profile f) within its noise: z-scores of unit spread (the checks of
-   `volumetric_lightning.reference_checks`), and exactly 0 outside the cutoff cone.
+   `scattering_reference.reference_checks`), and exactly 0 outside the cutoff cone.
 2. **The shell against single scattering**, per view (beside, oblique, inside the cone, up the axis,
    down the axis) and medium density: rows (`ROWS`) ``exact`` (the quadrature), ``shell-seed`` (the seed's
    shell, both faces, p = 1 and q = 2 as printed, level k fitted), ``shell-fit`` (k, p, q fitted),
@@ -29,14 +29,19 @@ import dataclasses
 import math
 import time
 
-import drjit as dr
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method
 from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.light_cones import CHORD_LENGTH, METHODS
 from rtfit.reference import load_mitsuba_scene, radiance_pass
-from rtfit.reference.light_cones import spot_estimator_variance, spot_single_scattering
+from rtfit.reference.single_scattering import (
+    FOUR_PI,
+    box_exit,
+    spot_estimator_variance,
+    spot_single_scattering,
+)
 from rtfit.reference.variants import backend_of
 from rtfit.scenes import scene_hash, scene_to_toml
 from rtfit.scenes.model import Camera, Cube, HomogeneousMedium, ReferenceSettings, Scene, SpotLight
@@ -56,8 +61,10 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
-from .volumetric_lightning import box_exit, fit_level, reference_checks, residual_scale
+from .rows import Row
+from .scattering_reference import fit_level, reference_checks, render_job, residual_scale
 
 # ============================================================================================ configure
 VIEWS = {
@@ -104,7 +111,6 @@ def configure(quick: bool, spp: int | None) -> dict:
 
 
 # ================================================================================================ lamp
-FOUR_PI = 4.0 * math.pi
 LAMP = {
     "apex": (0.0, 0.0, 6.0),
     "axis": (0.0, 0.0, -1.0),
@@ -125,26 +131,27 @@ FOV_DEG = 60.0
 
 
 # ============================================================================================== methods
-@dataclasses.dataclass(frozen=True)
-class Row:
-    """One approximation row: ``method`` (a `METHODS` id; None for the quadrature), the parameters fitted
-    (``fit``) and those held at the seed's values (``held``)."""
-
-    id: str
-    label: str
-    method: str | None
-    fit: tuple[str, ...] = ()
-    held: dict = dataclasses.field(default_factory=dict)
-
-
+# Rows (`rows.Row`): ``method`` None for the quadrature; ``fit`` the parameters fitted, ``held`` those held
+# at the seed's values.
 ROWS = (
     Row("exact", "single scattering of the spot (quadrature)", None),
     Row(
-        "shell-seed", "seed shell, both faces, p = 1, q = 2 (k fitted)", "shell", ("k",), {"p": 1.0, "q": 2.0}
+        "shell-seed",
+        "seed shell, both faces, p = 1, q = 2 (k fitted)",
+        "shell",
+        fitted=True,
+        fit=("k",),
+        held={"p": 1.0, "q": 2.0},
     ),
-    Row("shell-fit", "seed shell, both faces (k, p, q fitted)", "shell", ("k", "p", "q")),
-    Row("shell-front-fit", "seed shell, front faces (k, p, q fitted)", "shell-front", ("k", "p", "q")),
-    Row("chord-fit", "§1 integral over the chord (K fitted)", "chord", ("k",)),
+    Row("shell-fit", "seed shell, both faces (k, p, q fitted)", "shell", fitted=True, fit=("k", "p", "q")),
+    Row(
+        "shell-front-fit",
+        "seed shell, front faces (k, p, q fitted)",
+        "shell-front",
+        fitted=True,
+        fit=("k", "p", "q"),
+    ),
+    Row("chord-fit", "§1 integral over the chord (K fitted)", "chord", fitted=True, fit=("k",)),
 )
 FIT_ROWS = tuple(r for r in ROWS if r.method is not None)
 FIT_MAX_STEPS = 400
@@ -268,7 +275,7 @@ def resolved_pixels(origin, dirs: np.ndarray, sigma_t: float, spp: int, chord: n
 # ================================================================================================= jobs
 def fit_job(method: str, fit: tuple, held: dict, inputs: dict, target, scale, k0: float) -> dict:
     """Job: fit ``fit`` of METHODS[method] (others ``held``) to pooled pixels through the JAX run of its
-    kernel; residuals (model − reference)/scale (`volumetric_lightning.residual_scale`)."""
+    kernel; residuals (model − reference)/scale (`scattering_reference.residual_scale`)."""
     spec = METHODS[method].params
     params = {
         name: dataclasses.replace(spec[name], initial=k0, lower=k0 * 1e-4, upper=k0 * 1e4)
@@ -307,7 +314,7 @@ def run(ctx) -> dict:
                 cache_dir=str(ctx.cache_dir),
                 progress=ctx.progress,
             )
-            jobs.append(Job("rtfit.experiments.volumetric_lightning:render_job", args, label=cid))
+            jobs.append(Job(render_job, args, label=cid))
     ctx.log(f"rendering {len(jobs)} references")
     rendered = dict(zip(cases, ctx.executor.map(jobs, desc="references"), strict=True))
 
@@ -334,7 +341,7 @@ def run(ctx) -> dict:
             k0 = max(fit_level(unit, ref), 1e-12)
             fit_jobs.append(
                 Job(
-                    "rtfit.experiments.light_cones:fit_job",
+                    fit_job,
                     dict(
                         method=row.method,
                         fit=row.fit,
@@ -391,7 +398,7 @@ def assemble(ctx, cfg, cases, scenes, rendered, fits) -> dict:
                 {
                     "method": row.id,
                     "label": row.label,
-                    "fitted": bool(row.fit),
+                    "fitted": row.fitted,
                     "parameters": {k: float(v) for k, v in row_values(row, fit).items()},
                     "metrics": metrics.to_dict(),
                 }
@@ -399,30 +406,31 @@ def assemble(ctx, cfg, cases, scenes, rendered, fits) -> dict:
         spot_checks = reference_checks(
             cid, ref, c["exact"], mask, model_stderr(origin, dirs, c["sigma_t"], ref.spp)
         )
-        for chk in spot_checks:  # the shared checks name a point light's integrand; the spot's has f(θ)
-            chk["name"] = chk["name"].replace("∫ I·T/r² ds", "∫ I·f(θ)·T/r² ds")
-        checks += spot_checks
+        # the shared checks name a point light's integrand; the spot's has f(θ)
+        checks += [
+            dataclasses.replace(chk, name=chk.name.replace("∫ I·T/r² ds", "∫ I·f(θ)·T/r² ds"))
+            for chk in spot_checks
+        ]
         dark = c["exact"] <= 0.0
         worst_dark = float(np.max(np.abs(ref.mean[..., 0][dark]))) if dark.any() else 0.0
         checks.append(
-            {
-                "name": f"reference {cid}: Mitsuba is exactly 0 outside the cutoff cone "
+            Check(
+                name=f"reference {cid}: Mitsuba is exactly 0 outside the cutoff cone "
                 f"({int(dark.sum())} pixels)",
-                "value": worst_dark,
-                "expected": "0",
-                "passed": worst_dark == 0.0,
-            }
+                value=worst_dark,
+                expected="0",
+                passed=worst_dark == 0.0,
+            )
         )
         lit = c["exact"] > 0.0
         share = float(mask.sum() / max(lit.sum(), 1))
         checks.append(
-            {
-                "name": f"reference {cid} resolves at least half of the lit pixels "
-                f"(n ≥ {EVENTS_MIN:g} events)",
-                "value": share,
-                "expected": "≥ 0.5",
-                "passed": bool(share >= 0.5),
-            }
+            Check(
+                name=f"reference {cid} resolves at least half of the lit pixels (n ≥ {EVENTS_MIN:g} events)",
+                value=share,
+                expected="≥ 0.5",
+                passed=bool(share >= 0.5),
+            )
         )
         case_docs.append(
             {
@@ -443,12 +451,12 @@ def assemble(ctx, cfg, cases, scenes, rendered, fits) -> dict:
             }
         )
     checks += [
-        {
-            "name": f"fit {row} σ_t = {sigma:g} converged",
-            "value": str(fit["converged"]),
-            "expected": "True",
-            "passed": bool(fit["converged"]),
-        }
+        Check(
+            name=f"fit {row} σ_t = {sigma:g} converged",
+            value=str(fit["converged"]),
+            expected="True",
+            passed=bool(fit["converged"]),
+        )
         for (row, sigma), fit in fits.items()
     ]
     profile = chord_profile(cases, rendered, images)
@@ -625,34 +633,34 @@ def medium_limits() -> list[dict]:
     return out
 
 
-def extreme_checks(ext: dict) -> list[dict]:
+def extreme_checks(ext: dict) -> list[Check]:
     checks = []
     for row in ext["kernels"]:
         checks.append(
-            {
-                "name": f"{row['method']} float32, {row['inputs']}: non-finite outputs "
+            Check(
+                name=f"{row['method']} float32, {row['inputs']}: non-finite outputs "
                 f"({row['samples']} inputs)",
-                "value": row["non_finite"],
-                "expected": "0",
-                "passed": row["non_finite"] == 0,
-            }
+                value=row["non_finite"],
+                expected="0",
+                passed=row["non_finite"] == 0,
+            )
         )
     lim = ext["medium"]
     checks.append(
-        {
-            "name": "quadrature, σ → 0: L/σ_t at σ_t = 1e-6 vs 1e-9 /m (worst relative difference)",
-            "value": lim[0]["worst_rel_difference"],
-            "expected": "≤ 1e-4 (e^(−σ_t·s) ≈ 1 − σ_t·s, s ≤ 30 m)",
-            "passed": bool(lim[0]["finite"] and lim[0]["worst_rel_difference"] <= 1e-4),
-        }
+        Check(
+            name="quadrature, σ → 0: L/σ_t at σ_t = 1e-6 vs 1e-9 /m (worst relative difference)",
+            value=lim[0]["worst_rel_difference"],
+            expected="≤ 1e-4 (e^(−σ_t·s) ≈ 1 − σ_t·s, s ≤ 30 m)",
+            passed=bool(lim[0]["finite"] and lim[0]["worst_rel_difference"] <= 1e-4),
+        )
     )
     checks.append(
-        {
-            "name": "quadrature, dense medium σ_t = 2 /m: finite and non-negative",
-            "value": str(lim[1]["finite"]),
-            "expected": "True",
-            "passed": bool(lim[1]["finite"]),
-        }
+        Check(
+            name="quadrature, dense medium σ_t = 2 /m: finite and non-negative",
+            value=str(lim[1]["finite"]),
+            expected="True",
+            passed=bool(lim[1]["finite"]),
+        )
     )
     return checks
 
@@ -912,7 +920,7 @@ def bench(ctx) -> list[dict]:
     """Pixels/s of each kernel on Dr.Jit vs the same text on NumPy, the quadrature ("exact", NumPy float64)
     and the reference's samples/s (volpathmis + spot, homogeneous medium)."""
     backend, n = bench_backend(ctx)
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     np_inputs, inputs, origin, dirs = _cost_inputs(n, Float)
     base = memory_baseline(tuple(inputs.values()), n)
     rows = []

@@ -90,7 +90,9 @@ from . import figures
 from . import fitted as fitfiles
 from .cost import attach_costs, cost_row, time_drjit, time_numpy
 from .jobs import Job
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .sky_rows import near_sun
 from .viewer import save_case_pixels
 
 # ======================================================================================== configure
@@ -307,13 +309,6 @@ def _approx_doc(method_id, img, mean, se, mask, metrics, params=None, fitted=Fal
     }
 
 
-def near_sun(dirs, elev: float, degrees: float = 1.0) -> np.ndarray:
-    """Pixels within ``degrees`` of the sun (excluded from the metrics: the sun disc is a separate term)."""
-    e = math.radians(elev)
-    s_dir = np.array([math.cos(e), 0.0, math.sin(e)])
-    return np.degrees(np.arccos(np.clip(dirs @ s_dir, -1, 1))) < degrees
-
-
 def _subset(stride) -> tuple[slice, slice]:
     """The quadrature's pixel subset: every ``stride`` = (x, y) pixel, starting half a stride in."""
     return slice(stride[1] // 2, None, stride[1]), slice(stride[0] // 2, None, stride[0])
@@ -441,12 +436,12 @@ def _main_cases(ctx, cfg, dirs, el, done, fits, backend, settings):
                 checks.append(check)
                 ratio = q.sum(axis=(0, 1)) / np.maximum(sub_m.sum(axis=(0, 1)), 1e-30)
                 checks.append(
-                    {
-                        "name": f"sun {e:g}°: Σ quadrature / Σ Mitsuba SS (G)",
-                        "value": float(ratio[1]),
-                        "expected": "1 within 4 σ of the sum (previous check)",
-                        "passed": True,
-                    }
+                    Check(
+                        name=f"sun {e:g}°: Σ quadrature / Σ Mitsuba SS (G)",
+                        value=float(ratio[1]),
+                        expected="1 within 4 σ of the sum (previous check)",
+                        passed=True,
+                    )
                 )
             # the report's image viewer: the sky images of the rows (the quadrature check is on a subset)
             save_case_pixels(ctx.out_dir, case_id(e, kind), mean, se, {r[0]: r[1] for r in rows}, m)
@@ -632,25 +627,25 @@ def _spectral_cases(ctx, cfg, done, backend, settings):
     z = np.concatenate(zs)
     spread = robust_spread(z)
     checks.append(
-        {
-            "name": f"independent spectral SS quadrature vs Mitsuba spectral single scattering: robust z "
+        Check(
+            name=f"independent spectral SS quadrature vs Mitsuba spectral single scattering: robust z "
             f"spread ({z.size} values)",
-            "value": spread,
-            "expected": "1 ± 0.25" if not ctx.quick else "≈ 1 (informative in quick runs)",
-            "passed": bool(abs(spread - 1) <= 0.25) or ctx.quick,
-        }
+            value=spread,
+            expected="1 ± 0.25" if not ctx.quick else "≈ 1 (informative in quick runs)",
+            passed=bool(abs(spread - 1) <= 0.25) or ctx.quick,
+        )
     )
 
     rt_sun = np.asarray(atmosphere_params().spectral(lam16).solar_irradiance)
     dev = float(np.max(np.abs(rt_sun / solar_spectrum(lam16, e0[1]) - 1)))
     checks.append(
-        {
-            "name": "solar spectrum: reference (re-derived) vs the real-time spectral variant's, max "
+        Check(
+            name="solar spectrum: reference (re-derived) vs the real-time spectral variant's, max "
             "relative difference",
-            "value": dev,
-            "expected": "< 1e-12",
-            "passed": bool(dev < 1e-12),
-        }
+            value=dev,
+            expected="< 1e-12",
+            passed=bool(dev < 1e-12),
+        )
     )
     return cases, checks, rows, {"white_balance": wb, "robust_z_spread": spread, "rows": rows}
 
@@ -770,12 +765,12 @@ def run(ctx) -> dict:
     def render(label, elev, depth, size, spp, pass_spp, alt_m, variant=variant):
         kw = dict(elev=elev, depth=depth, width=size[0], height=size[1], spp=spp, pass_spp=pass_spp)
         kw.update(seed=seed, variant=variant, cache_dir=cache, alt_m=alt_m)
-        return Job("rtfit.experiments.nishita_sky:render_job", kw, label=label)
+        return Job(render_job, kw, label=label)
 
     def quadrature(label, job, elev, size, stride, alt_m):
         kw = dict(elev=elev, width=size[0], height=size[1], stride=stride, steps=cfg["quadrature_steps"])
         kw.update(alt_m=alt_m, cache_dir=cache)
-        return Job(f"rtfit.experiments.nishita_sky:{job}", kw, label=label)
+        return Job(job, kw, label=label)
 
     alt0, stride = cfg["viewer_altitude_m"], cfg["quadrature_stride"]
     jobs = []
@@ -784,10 +779,10 @@ def run(ctx) -> dict:
             jobs.append(
                 render(case_id(e, kind), e, depth, (W, H), reference_spp(cfg, e), cfg["pass_spp"], alt0)
             )
-        jobs.append(quadrature(case_id(e, "quad"), "quadrature_job", e, (W, H), stride, alt0))
+        jobs.append(quadrature(case_id(e, "quad"), quadrature_job, e, (W, H), stride, alt0))
     for e, alt in cfg["altitude_cases"]:
         jobs.append(render(altitude_id(e, alt, "ss"), e, 2, (W, H), cfg["spp"], cfg["pass_spp"], alt))
-        jobs.append(quadrature(altitude_id(e, alt, "quad"), "quadrature_job", e, (W, H), stride, alt))
+        jobs.append(quadrature(altitude_id(e, alt, "quad"), quadrature_job, e, (W, H), stride, alt))
     sv = spectral_variant(ctx.variant)
     if sv is None:
         cfg["spectral_elevations_deg"] = []
@@ -798,7 +793,7 @@ def run(ctx) -> dict:
             render(label, e, 2, size, cfg["spectral_spp"], cfg["spectral_pass_spp"], alt0, variant=sv)
         )
         jobs.append(
-            quadrature(case_id(e, "quad-spectral"), "spectral_quadrature_job", e, size, sp_stride, alt0)
+            quadrature(case_id(e, "quad-spectral"), spectral_quadrature_job, e, size, sp_stride, alt0)
         )
     ctx.log(f"rendering {len(jobs)} references / quadratures")
     t0 = time.perf_counter()
@@ -884,7 +879,7 @@ def assemble(ctx, cfg, dirs, az, el, done, fits, backend, ref_seconds) -> dict:
 
 
 # =========================================================================================== checks
-def _disc_sun(cfg, dirs, done, images) -> tuple[dict | None, list[dict]]:
+def _disc_sun(cfg, dirs, done, images) -> tuple[dict | None, list[Check]]:
     """The sun's disc as its own error term, at the elevations whose quadrature has it (`DISC_MAX_DEG`).
 
     The real-time sky is a point-sun model; the Mitsuba reference renders the 4.675 mrad disc. On the
@@ -925,13 +920,13 @@ def _disc_sun(cfg, dirs, done, images) -> tuple[dict | None, list[dict]]:
             f"({'resolved' if effect >= 4 else f'needs ≈ {need} spp' if need else '—'}) |"
         )
         checks.append(
-            {
-                "name": f"sun {e:g}°: the sun's disc vs a point sun in the SS quadrature (G)",
-                "value": f"Σ|point − disc| / Σ disc = {term[1]:.3g}, low anti-solar sky {low[1]:.3g}; "
+            Check(
+                name=f"sun {e:g}°: the sun's disc vs a point sun in the SS quadrature (G)",
+                value=f"Σ|point − disc| / Σ disc = {term[1]:.3g}, low anti-solar sky {low[1]:.3g}; "
                 f"{effect:.2g} σ of this run's SS reference sum",
-                "expected": "informative: the cross-check above uses the disc; ≥ 4 σ resolves the disc",
-                "passed": True,
-            }
+                expected="informative: the cross-check above uses the disc; ≥ 4 σ resolves the disc",
+                passed=True,
+            )
         )
     if not lines:
         return None, checks
@@ -974,16 +969,16 @@ def _quadrature_vs_mitsuba(q, mean, stderr, method, params, what):
     ok = stderr > 0
     z = ((q - mean)[ok] / stderr[ok]).ravel()
     zsum = (q.sum(axis=(0, 1)) - mean.sum(axis=(0, 1))) / np.sqrt((stderr**2).sum(axis=(0, 1)))
-    check = {
-        "name": f"{what}, z of the sum over {q.shape[0] * q.shape[1]} pixels (R, G, B)",
-        "value": ", ".join(f"{v:.2f}" for v in zsum),
-        "expected": "|z| ≤ 4 per channel",
-        "passed": bool(np.all(np.abs(zsum) <= 4)),
-    }
+    check = Check(
+        name=f"{what}, z of the sum over {q.shape[0] * q.shape[1]} pixels (R, G, B)",
+        value=", ".join(f"{v:.2f}" for v in zsum),
+        expected="|z| ≤ 4 per channel",
+        passed=bool(np.all(np.abs(zsum) <= 4)),
+    )
     return doc, z, zsum, check
 
 
-def _global_checks(ctx, quad_z, images) -> tuple[float, list[dict]]:
+def _global_checks(ctx, quad_z, images) -> tuple[float, list[Check]]:
     """The robust z spread of the SS quadrature against Mitsuba over all cases, and the image sanity check."""
     checks = []
     z = np.concatenate(quad_z) if quad_z else np.zeros(0)
@@ -991,22 +986,21 @@ def _global_checks(ctx, quad_z, images) -> tuple[float, list[dict]]:
     # Per-pixel z: informative only at low spp (heavy-tailed twilight samples make per-pixel
     # stderr estimates unreliable), a check in full runs.
     checks.append(
-        {
-            "name": f"independent SS quadrature vs Mitsuba single scattering: robust z spread ({z.size} "
-            "values)",
-            "value": spread,
-            "expected": "1 ± 0.25" if not ctx.quick else "≈ 1 (informative in quick runs)",
-            "passed": bool(abs(spread - 1) <= 0.25) or ctx.quick,
-        }
+        Check(
+            name=f"independent SS quadrature vs Mitsuba single scattering: robust z spread ({z.size} values)",
+            value=spread,
+            expected="1 ± 0.25" if not ctx.quick else "≈ 1 (informative in quick runs)",
+            passed=bool(abs(spread - 1) <= 0.25) or ctx.quick,
+        )
     )
     finite = all(np.isfinite(img).all() and (img >= 0).all() for img in images.values())
     checks.append(
-        {
-            "name": "all approximation images finite and non-negative",
-            "value": str(finite),
-            "expected": "True",
-            "passed": bool(finite),
-        }
+        Check(
+            name="all approximation images finite and non-negative",
+            value=str(finite),
+            expected="True",
+            passed=bool(finite),
+        )
     )
 
     return spread, checks

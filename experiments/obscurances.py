@@ -37,26 +37,23 @@ import math
 import time
 from dataclasses import replace
 
-import drjit as dr
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method
 from rtfit.fitting.stats import sidak_threshold
 from rtfit.realtime import get_default_backend, set_default_backend
-from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS
+from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float
 from rtfit.realtime.obscurances import (
     METHODS,
     SEED_D_MAX,
     SEED_EXPONENT,
     cosine_spiral_directions,
+    distance_weight,
     plane_facing_obscurance,
-    rho_exponential,
-    rho_power,
-    rho_step,
 )
 from rtfit.reference import load_mitsuba_scene
 from rtfit.reference.build import tiled_quad_shape
-from rtfit.reference.estimators import gbuffer
+from rtfit.reference.estimators import gbuffer, gbuffer_points
 from rtfit.reference.occlusion import OcclusionCache, hit_distances
 from rtfit.reference.variants import backend_of
 from rtfit.scenes import scene_hash
@@ -65,9 +62,9 @@ from . import figures
 from . import fitted as fitfiles
 from .cost import attach_costs, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
 from .jobs import Job
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
-from .sdf_occlusion import load_case_scene
-from .sdf_occlusion_scenes import SCENE_NAMES
+from .sdf_occlusion_scenes import SCENE_NAMES, load_case_scene
 
 # ============================================================================================ configure
 METRICS = ("rmse", "rel_mse", "mae", "max_abs", "psnr")
@@ -110,16 +107,9 @@ def configure(quick: bool, spp: int | None) -> dict:
 
 
 # ================================================================================== reference (a): the model
-def weight_of(form: str, d_max: float, exponent: float | None = None):
-    """(ρ as a callable on Dr.Jit arrays — the kernel text's ρ —, its cache key) for the ``obscurance``
-    reference quantity."""
-    table = {
-        "power": (lambda t: rho_power(DRJIT_OPS, t, d_max, exponent), {"exponent": exponent}),
-        "exponential": (lambda t: rho_exponential(DRJIT_OPS, t, d_max), {}),
-        "step": (lambda t: rho_step(DRJIT_OPS, t, d_max), {}),
-    }
-    fn, extra = table[form]
-    return fn, {"form": form, "d_max": float(d_max), **extra, "text": "rtfit.realtime.obscurances"}
+weight_of = distance_weight
+"""(ρ as a callable on Dr.Jit arrays, its cache key) for the ``obscurance`` reference quantity
+(`rtfit.realtime.obscurances.distance_weight`)."""
 
 
 def _ref_dict(r) -> dict:
@@ -150,8 +140,7 @@ def render_case(
     mi, mi_scene = load_mitsuba_scene(scene, variant)
     gb = gbuffer(mi, mi_scene)
     mask = gb.mask
-    pts, nrm = gb.position[mask].astype(np.float64), gb.normal[mask].astype(np.float64)
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    pts, nrm = gbuffer_points(gb, mask)
     cache = OcclusionCache(cache_dir)
     geo = scene_hash(scene)
 
@@ -389,7 +378,7 @@ def _image(mask, values):
 
 
 def _float():
-    return dr.cuda.Float if get_default_backend() == "cuda" else dr.llvm.Float
+    return backend_float()
 
 
 def _eval(method_id: str, distances, params: dict | None = None):
@@ -496,8 +485,8 @@ def evaluate_cases(cfg, rendered, fits):
 
 
 # ============================================================================================== checks
-def _check(name, value, expected, passed) -> dict:
-    return {"name": name, "value": value, "expected": expected, "passed": bool(passed)}
+def _check(name, value, expected, passed) -> Check:
+    return Check(name=name, value=value, expected=expected, passed=bool(passed))
 
 
 def _z_max(name, a, sa, b, sb, floor=1e-6):
@@ -809,7 +798,7 @@ def run(ctx) -> dict:
     )
     jobs = [
         Job(
-            "rtfit.experiments.obscurances:render_case",
+            render_case,
             dict(name=n, identities=(n == cfg["scenes"][0]), **common),
             label=n,
         )
@@ -817,7 +806,7 @@ def run(ctx) -> dict:
     ]
     jobs.append(
         Job(
-            "rtfit.experiments.obscurances:probe_job",
+            probe_job,
             dict(
                 variant=ctx.variant,
                 cache_dir=str(ctx.cache_dir),
@@ -960,7 +949,7 @@ def bench(ctx) -> list[dict]:
     n = min(n, 1 << 20)
     rng = np.random.default_rng(0)
     rows_np = [rng.exponential(0.5, n).astype(np.float32) for _ in range(16)]
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     rows_dr = tuple(Float(r) for r in rows_np)
     kern = METHODS["power"].kernel
     t_dr = time_drjit(lambda *x: kern(DRJIT_OPS, list(x)), rows_dr, n)

@@ -26,11 +26,11 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import drjit as dr
 import numpy as np
 
 from rtfit.fitting import ALL_METRICS, compute_metrics, fit_method
 from rtfit.realtime import NUMPY_OPS, Method, set_default_backend
+from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.parallax_occlusion import (
     METHODS,
     SHADOW_METHODS,
@@ -60,6 +60,7 @@ from .cost import (
     time_drjit,
     time_numpy,
 )
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
 
 # ============================================================================================ configure
@@ -408,12 +409,12 @@ def run(ctx) -> dict:
                         }
                     )
             checks.append(
-                {
-                    "name": f"{field} θ_v={vt:g}°: every view ray hits the fine and the half-resolution mesh",
-                    "value": float(valid.mean()),
-                    "expected": "= 1",
-                    "passed": bool(valid.all()),
-                }
+                Check(
+                    name=f"{field} θ_v={vt:g}°: every view ray hits the fine and the half-resolution mesh",
+                    value=float(valid.mean()),
+                    expected="= 1",
+                    passed=bool(valid.all()),
+                )
             )
             for lt, light in lights.items():
                 ctx.log(f"{field} θ_v={vt:g}° θ_l={lt:g}°: light visibility")
@@ -644,7 +645,7 @@ error is estimated as a third of their RMS difference (Richardson). Measured (qu
 0.04–0.20 of the stable POM error at θ_v = 20°–70°."""
 
 
-def reference_checks(ctx, cfg, uv_table, lights) -> list[dict]:
+def reference_checks(ctx, cfg, uv_table, lights) -> list[Check]:
     checks = []
     nr = cfg["n_range"]
     for field in cfg["fields"]:
@@ -655,22 +656,22 @@ def reference_checks(ctx, cfg, uv_table, lights) -> list[dict]:
             pom = _rms_of(uv_table, "stable", nr, field, vt)
             if vt > 0:
                 checks.append(
-                    {
-                        "name": f"{field} θ_v={vt:g}°: the fine mesh's own error (⅓ of its RMS difference to "
+                    Check(
+                        name=f"{field} θ_v={vt:g}°: the fine mesh's own error (⅓ of its RMS difference to "
                         f"the half-resolution mesh) over the stable POM error (n {nr[0]}–{nr[1]})",
-                        "value": mesh / 3.0 / pom if pom > 0 else float("inf"),
-                        "expected": f"≤ {MESH_MARGIN:g}",
-                        "passed": bool(mesh / 3.0 <= MESH_MARGIN * pom),
-                    }
+                        value=mesh / 3.0 / pom if pom > 0 else float("inf"),
+                        expected=f"≤ {MESH_MARGIN:g}",
+                        passed=bool(mesh / 3.0 <= MESH_MARGIN * pom),
+                    )
                 )
             checks.append(
-                {
-                    "name": f"{field} θ_v={vt:g}°: mesh hits vs the float64 root finder on h (RMS, texture "
+                Check(
+                    name=f"{field} θ_v={vt:g}°: mesh hits vs the float64 root finder on h (RMS, texture "
                     "units) within the mesh's own error estimate + 1e-5 (float32 hit positions)",
-                    "value": oracle,
-                    "expected": f"≤ {mesh + 1e-5:.3g}",
-                    "passed": bool(oracle <= mesh + 1e-5),
-                }
+                    value=oracle,
+                    expected=f"≤ {mesh + 1e-5:.3g}",
+                    passed=bool(oracle <= mesh + 1e-5),
+                )
             )
     # the Monte Carlo irradiance against Lambert's polygon formula on a flat field (no occluders)
     mi = use_variant(ctx.variant)
@@ -684,51 +685,51 @@ def reference_checks(ctx, cfg, uv_table, lights) -> list[dict]:
         rel = np.abs(lv.e_unoccluded / exact - 1.0)
         sd = float(np.max(rel))
         checks.append(
-            {
-                "name": f"light θ_l={lt:g}°: Monte Carlo irradiance on a flat field vs Lambert's polygon "
+            Check(
+                name=f"light θ_l={lt:g}°: Monte Carlo irradiance on a flat field vs Lambert's polygon "
                 "formula (max relative difference, 16384 samples; the estimator's relative σ ≈ 1e-3)",
-                "value": sd,
-                "expected": "≤ 5e-3",
-                "passed": bool(sd <= 5e-3 and np.all(lv.e_occluded == lv.e_unoccluded)),
-            }
+                value=sd,
+                expected="≤ 5e-3",
+                passed=bool(sd <= 5e-3 and np.all(lv.e_occluded == lv.e_unoccluded)),
+            )
         )
     return checks
 
 
-def hazard_checks(h: dict) -> list[dict]:
+def hazard_checks(h: dict) -> list[Check]:
     ni = h["normal_incidence"]["non_finite"]
     nc = h["no_crossing"]["n_with_nan"]
     gz = h["grazing"]
     lod = h["lod"]
     return [
-        {
-            "name": "hazard 0/0 at normal incidence: listing non-finite, stable finite (pixels of 64)",
-            "value": f"listing {ni['listing']}, stable {ni['stable']}",
-            "expected": "listing > 0 (confirmed), stable 0",
-            "passed": bool(ni["listing"] > 0 and ni["stable"] == 0),
-        },
-        {
-            "name": "hazard NaN without a crossing (h = 0): sample counts n ∈ 1..64 giving NaN",
-            "value": f"listing {len(nc['listing'])} counts, stable {len(nc['stable'])}",
-            "expected": "listing > 0 (confirmed), stable 0",
-            "passed": bool(len(nc["listing"]) > 0 and not nc["stable"]),
-        },
-        {
-            "name": "hazard unclamped offset at V_z = 0: non-finite (u, v) of 16",
-            "value": f"listing {gz['listing@vz=0']['non_finite']}, stable {gz['stable@vz=0']['non_finite']}",
-            "expected": "listing > 0 (confirmed), stable 0",
-            "passed": bool(gz["listing@vz=0"]["non_finite"] > 0 and gz["stable@vz=0"]["non_finite"] == 0),
-        },
-        {
-            "name": f"hazard LOD pop: largest shadow change between mip values {LOD_STEP:g} apart",
-            "value": f"listing {lod['listing']['max_shadow_step']:.3g} "
+        Check(
+            name="hazard 0/0 at normal incidence: listing non-finite, stable finite (pixels of 64)",
+            value=f"listing {ni['listing']}, stable {ni['stable']}",
+            expected="listing > 0 (confirmed), stable 0",
+            passed=bool(ni["listing"] > 0 and ni["stable"] == 0),
+        ),
+        Check(
+            name="hazard NaN without a crossing (h = 0): sample counts n ∈ 1..64 giving NaN",
+            value=f"listing {len(nc['listing'])} counts, stable {len(nc['stable'])}",
+            expected="listing > 0 (confirmed), stable 0",
+            passed=bool(len(nc["listing"]) > 0 and not nc["stable"]),
+        ),
+        Check(
+            name="hazard unclamped offset at V_z = 0: non-finite (u, v) of 16",
+            value=f"listing {gz['listing@vz=0']['non_finite']}, stable {gz['stable@vz=0']['non_finite']}",
+            expected="listing > 0 (confirmed), stable 0",
+            passed=bool(gz["listing@vz=0"]["non_finite"] > 0 and gz["stable@vz=0"]["non_finite"] == 0),
+        ),
+        Check(
+            name=f"hazard LOD pop: largest shadow change between mip values {LOD_STEP:g} apart",
+            value=f"listing {lod['listing']['max_shadow_step']:.3g} "
             f"(at mip {lod['listing']['at_mip']:g}), "
             f"stable {lod['stable']['max_shadow_step']:.3g}",
-            "expected": "listing ≥ 0.05 (confirmed), stable ≤ 0.01",
-            "passed": bool(
+            expected="listing ≥ 0.05 (confirmed), stable ≤ 0.01",
+            passed=bool(
                 lod["listing"]["max_shadow_step"] >= 0.05 and lod["stable"]["max_shadow_step"] <= 0.01
             ),
-        },
+        ),
     ]
 
 
@@ -982,7 +983,7 @@ def bench(ctx) -> list[dict]:
     """Pixels/s of each variant (n 8–40) on Dr.Jit vs the same kernel text on NumPy."""
     backend, n = bench_backend(ctx)
     n = min(n, 1 << 18)
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     np_in, inputs = _cost_inputs(n, Float)
     base = memory_baseline(tuple(inputs.values()), n)
     cfg = configure(ctx.quick, None)

@@ -10,8 +10,9 @@ Workers
     cache can corrupt, drjit #115/#130/#162), so kernels compile once per worker, not once per job.
 
 Jobs
-    A :class:`~rtfit.experiments.jobs.Job` is plain data (an import path and keyword arguments:
-    scene text, numbers, arrays, paths); its result is plain data. Workers import ``rtfit`` themselves,
+    A :class:`~rtfit.experiments.jobs.Job` travels as plain data (its function's import path
+    ``module:qualname`` and keyword arguments: scene text, numbers, arrays, paths); its result is plain
+    data. Workers import ``rtfit`` themselves,
     so every node needs the same rtfit installed (or a Ray ``runtime_env``), and the reference cache
     directory should be on a filesystem the nodes share: its entries are written pass by pass with an
     atomic rename, so two workers never leave a half-written entry (the last complete write wins).
@@ -31,7 +32,7 @@ import threading
 import time
 import warnings
 
-from .jobs import MAX_ATTEMPTS, Job, JobTracker, Outcome, error_line, values_or_raise
+from .jobs import MAX_ATTEMPTS, Job, JobTracker, Outcome, error_line, run_path, values_or_raise
 
 RAY_EXTRA_HINT = "--executor ray needs Ray: pip install 'rtfit[ray]'"
 
@@ -80,10 +81,11 @@ def address_endpoint(address: str) -> tuple[str, int] | None:
     return host, int(port)
 
 
-def check_address(address: str, timeout: float | None = None):
+def check_address(address: str, timeout: float | None = None, option: str = "--address"):
     """A one-line ``ValueError`` unless something accepts a TCP connection at ``address`` within
     ``timeout`` seconds (default `connect_timeout`): a wrong host or port fails in seconds, before
-    anything runs or is written, instead of hanging in Ray's retries."""
+    anything runs or is written, instead of hanging in Ray's retries. ``option``: how the message names
+    where the address came from (``--address``, or ``$RAY_ADDRESS``, which Ray reads by itself)."""
     endpoint = address_endpoint(address)
     if endpoint is None:
         return
@@ -93,16 +95,16 @@ def check_address(address: str, timeout: float | None = None):
             pass
     except TimeoutError:
         raise ValueError(
-            f"--address {address}: no answer from {endpoint[0]}:{endpoint[1]} within {timeout:g} s "
+            f"{option} {address}: no answer from {endpoint[0]}:{endpoint[1]} within {timeout:g} s "
             "(is the Ray cluster up? $RTFIT_RAY_TIMEOUT sets the wait)"
         ) from None
     except OSError as e:
         raise ValueError(
-            f"--address {address}: cannot connect to {endpoint[0]}:{endpoint[1]} ({e.strerror or e})"
+            f"{option} {address}: cannot connect to {endpoint[0]}:{endpoint[1]} ({e.strerror or e})"
         ) from None
 
 
-def _init_within(ray, timeout: float, address: str, **kwargs):
+def _init_within(ray, timeout: float, address: str, option: str = "--address", **kwargs):
     """``ray.init(address=address, **kwargs)``, or a one-line ``ValueError`` after ``timeout`` seconds
     (the call runs in a daemon thread: a cluster that accepts the connection but never completes the
     handshake cannot hold the command)."""
@@ -118,10 +120,10 @@ def _init_within(ray, timeout: float, address: str, **kwargs):
     thread.start()
     thread.join(timeout)
     if thread.is_alive():
-        raise ValueError(f"--address {address}: Ray did not connect within {timeout:g} s")
+        raise ValueError(f"{option} {address}: Ray did not connect within {timeout:g} s")
     if "error" in box:
         e = box["error"]
-        raise ValueError(f"--address {address}: {error_line(e)}") from e
+        raise ValueError(f"{option} {address}: {error_line(e)}") from e
     return box["value"]
 
 
@@ -143,7 +145,7 @@ class _Worker:
     def pid(self) -> int:
         return os.getpid()
 
-    def run(self, job: Job):
+    def run(self, path: str, kwargs: dict):
         if self.threads:
             # drjit stays lazy: importing it starts CUDA's initialisation (reading CUDA_VISIBLE_DEVICES),
             # which must happen in the actor after Ray has assigned its GPU, not when this module loads.
@@ -151,7 +153,7 @@ class _Worker:
 
             if dr.thread_count() != self.threads:
                 dr.set_thread_count(self.threads)
-        return job.run()
+        return run_path(path, kwargs)
 
 
 class RayExecutor:
@@ -180,8 +182,10 @@ class RayExecutor:
             if address:
                 check_address(address)
                 _init_within(ray, 3 * connect_timeout(), address, **kwargs)
-            elif os.environ.get("RAY_ADDRESS"):
-                ray.init(**kwargs)
+            elif os.environ.get("RAY_ADDRESS"):  # the same time limits as --address (issue 32: > 300 s)
+                env = os.environ["RAY_ADDRESS"]
+                check_address(env, option="$RAY_ADDRESS")
+                _init_within(ray, 3 * connect_timeout(), env, "$RAY_ADDRESS", **kwargs)
             else:
                 if num_gpus is not None:
                     kwargs["num_gpus"] = num_gpus  # a local cluster using only the first num_gpus GPUs
@@ -224,6 +228,7 @@ class RayExecutor:
         from ray.exceptions import RayActorError, RayTaskError, WorkerCrashedError
 
         lost_worker = (RayActorError, WorkerCrashedError)
+        paths = [job.path for job in jobs]  # a function no worker could import: refused before any job runs
         tracker = JobTracker(len(jobs), desc, self.progress)
         outcomes: list[Outcome | None] = [None] * len(jobs)
         attempts = [0] * len(jobs)
@@ -235,7 +240,7 @@ class RayExecutor:
                 while queue and idle:
                     i, slot = queue.pop(0), idle.pop(0)
                     attempts[i] += 1
-                    ref = self._actors[slot].run.remote(jobs[i])
+                    ref = self._actors[slot].run.remote(paths[i], jobs[i].kwargs)
                     in_flight[ref] = (i, slot, time.perf_counter())
                     self._busy[slot] = jobs[i].label or str(i)
                     tracker.started()

@@ -27,6 +27,7 @@ per-family top-level data) hold any finite JSON value (:data:`JSON`); every fiel
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import json
 import math
 import re
@@ -44,6 +45,7 @@ __all__ = [
     "Check",
     "Config",
     "Cost",
+    "DateTime",
     "Figure",
     "Fit",
     "FitParameter",
@@ -79,10 +81,21 @@ class _RelPathMark:
     """Marks :data:`RelPath`: a string that is a relative path inside the experiment directory."""
 
 
+class _DateTimeMark:
+    """Marks :data:`DateTime`: an ISO 8601 date and time with its time zone (RFC 3339)."""
+
+
 JSON = Annotated[object, _JSONMark()]
 """Any finite JSON value (free-form data: configuration values, a case's parameters, family extras)."""
 RelPath = Annotated[str, _RelPathMark()]
 """A relative path inside the experiment directory: ``/``-separated, not absolute, no ``..``, no scheme."""
+DateTime = Annotated[str, _DateTimeMark()]
+"""An ISO 8601 date and time with seconds and its time zone (RFC 3339, e.g. ``2026-11-23T10:00:00Z`` or
+``…+00:00``): a moment, not a local time; the date must exist (checked by `datetime.fromisoformat`)."""
+DATE_TIME_PATTERN = (
+    r"^[0-9]{4}-[0-9]{2}-[0-9]{2}T[0-9]{2}:[0-9]{2}:[0-9]{2}(\.[0-9]+)?(Z|[+-][0-9]{2}:[0-9]{2})$"
+)
+"""The shape of a `DateTime` (the schema's ``pattern``; the loader also checks that the day exists)."""
 
 _META_FIELDS = ("json_keys", "extra")
 
@@ -134,6 +147,10 @@ class Record:
         return []
 
 
+NON_NEGATIVE_METRICS = ("rmse", "rel_mse", "mae", "max_abs", "flip", "smape")
+"""Metrics that are errors or distances, never negative (`rtfit.fitting.ALL_METRICS`; psnr, ssim may be)."""
+
+
 @dataclass(frozen=True)
 class Metric(Record):
     """One metric of an approximation against the reference (same units as ``value``).
@@ -169,6 +186,19 @@ class Approximation(Record):
     metrics: Mapping[str, Metric] = field(default_factory=dict, metadata={"required": True})
     cost: PixelCost | None = None
     figures: list[RelPath] = field(default_factory=list)
+
+    def problems(self) -> list[tuple[str, str]]:
+        """A metric that cannot be negative (an error or distance: `NON_NEGATIVE_METRICS`) with a negative
+        value or floor: a results file edited or written wrong (issue 32: ``rmse.value = -5`` was shown)."""
+        out = []
+        for name, m in self.metrics.items():
+            if name not in NON_NEGATIVE_METRICS:
+                continue
+            for key in ("value", "noise_floor"):  # (``debiased`` subtracts the floor: it may be < 0)
+                v = getattr(m, key)
+                if isinstance(v, int | float) and not isinstance(v, bool) and v < 0:
+                    out.append((f"metrics.{name}.{key}", f"must be >= 0 (got {v!r}: {name} is an error)"))
+        return out
 
     @property
     def display(self) -> str:
@@ -356,7 +386,7 @@ class Results(Record):
     schema: Literal[SCHEMA]
     experiment: str
     title: str
-    created: str
+    created: DateTime
     versions: Mapping[str, str | None]
     device: str
     summary: str
@@ -416,7 +446,8 @@ def _is_record(tp) -> bool:
 
 def _mark(tp):
     if typing.get_origin(tp) is Annotated:
-        return next((m for m in tp.__metadata__ if isinstance(m, (_JSONMark, _RelPathMark))), None)
+        marks = (_JSONMark, _RelPathMark, _DateTimeMark)
+        return next((m for m in tp.__metadata__ if isinstance(m, marks)), None)
     return None
 
 
@@ -433,6 +464,8 @@ def _alternatives(tp) -> list[str]:
         return ["a JSON value"]
     if isinstance(mark, _RelPathMark):
         return ["a relative path inside the experiment directory"]
+    if isinstance(mark, _DateTimeMark):
+        return ["an ISO 8601 date and time with its time zone"]
     args = _union_args(tp)
     if args is not None:
         words = [w for a in args if a is not type(None) for w in _alternatives(a)]
@@ -503,6 +536,10 @@ def _build(tp, value, where: str):
         return _check_json(value, where)
     if isinstance(mark, _RelPathMark):
         if not isinstance(value, str) or not _is_relative_path(value):
+            raise _Refusal(where, f"expected {_describe(tp)}, got {_got(value)}")
+        return value
+    if isinstance(mark, _DateTimeMark):
+        if not isinstance(value, str) or not _is_date_time(value):
             raise _Refusal(where, f"expected {_describe(tp)}, got {_got(value)}")
         return value
     args = _union_args(tp)
@@ -610,6 +647,17 @@ def _is_relative_path(p: str) -> bool:
     )
 
 
+def _is_date_time(text: str) -> bool:
+    """Whether ``text`` has the `DATE_TIME_PATTERN` shape and names a real moment (no 30 February)."""
+    if not re.match(DATE_TIME_PATTERN, text):
+        return False
+    try:  # Python 3.11 reads "Z" and any fraction of a second
+        datetime.datetime.fromisoformat(text)
+    except ValueError:  # the shape is right, the values are not (month 13, hour 25, 30 February)
+        return False
+    return True
+
+
 def from_json(cls, obj, path) -> Any:
     """Build record class ``cls`` (e.g. :class:`Results`) from parsed JSON ``obj``.
 
@@ -623,11 +671,14 @@ def from_json(cls, obj, path) -> Any:
 
 
 def plain_json(obj):
-    """``obj`` as plain parsed JSON: NumPy scalars and arrays become numbers and lists, tuples lists.
+    """``obj`` as plain parsed JSON: records become their JSON objects (:func:`to_json`), NumPy scalars and
+    arrays numbers and lists, tuples lists.
 
     NaN and infinities pass through as floats (for :func:`from_json` to refuse with the key path)."""
 
     def default(o):
+        if isinstance(o, Record):  # e.g. an experiment's checks, built as `Check` records
+            return to_json(o)
         if hasattr(o, "tolist"):
             return o.tolist()
         raise TypeError(f"{type(o).__name__} is not JSON")
@@ -658,6 +709,13 @@ def _schema_of(tp, defs: dict) -> dict:
             "minLength": 1,
             "pattern": r"^(?![/\\])(?![A-Za-z][A-Za-z0-9+.-]*:)(?!(.*[/\\])?\.\.([/\\]|$))",
             "description": "relative path inside the experiment directory (no leading /, no .., no scheme)",
+        }
+    if isinstance(mark, _DateTimeMark):
+        return {
+            "type": "string",
+            "format": "date-time",
+            "pattern": DATE_TIME_PATTERN,
+            "description": "ISO 8601 date and time with its time zone (RFC 3339), e.g. 2026-11-23T10:00:00Z",
         }
     args = _union_args(tp)
     if args is not None:

@@ -161,6 +161,47 @@ SPP_MAX = 1 << 20
 ``*spp`` key): 2^20 = 1,048,576, 32× the largest default (a 128² image at that rate is ~17 G samples,
 hours on a GPU). Above it is a one-line error before anything runs."""
 
+RESOLUTION_MAX = 4096
+"""The largest image side in pixels a run, sweep or audit renders (an experiment's ``resolution`` keys, the
+audit's ``--width``/``--height`` and an audited scene's own film): 4096² = 16.8 M pixels, a G-buffer of
+~1 GB in Dr.Jit; a 100000² film overflows Dr.Jit's 2^32 variable counter (issue 32)."""
+PASSES_MAX = 65536
+"""The most cached passes one reference may be split into (spp / pass-spp): each pass is a render, a
+cache file and its JSON; 2^16 of them is days of work, and 2^24 spp in passes of 2 (8 M passes) a hang."""
+SWEEP_POINTS_MAX = 10_000
+"""The most points one sweep may hold (its grid's product plus its listed points), counted before the grid
+is expanded: a 10^6-point grid otherwise spends minutes expanding before it prints anything."""
+BENCH_SIZE_MAX = 1 << 28
+"""The most elements per kernel launch of ``rtfit bench --size``: 2^28 float32 inputs are 1 GiB each;
+``--size 1099511627776`` asked for an 8 TiB allocation."""
+
+
+@dataclass(frozen=True)
+class Limit:
+    """One entry of `LIMITS`: the closed range of an integer option and what it counts."""
+
+    lo: int
+    hi: int
+    what: str
+
+    def check(self, option: str, value: int) -> None:
+        """A one-line ``ValueError`` when ``value`` is outside [lo, hi]."""
+        if isinstance(value, bool) or not isinstance(value, int) or not self.lo <= value <= self.hi:
+            raise ValueError(
+                f"{option} {value!r}: {self.what} must be in [{self.lo}, {self.hi}] (registry.LIMITS)"
+            )
+
+
+LIMITS: dict[str, Limit] = {
+    "spp": Limit(2, SPP_MAX, "samples per pixel"),
+    "resolution": Limit(1, RESOLUTION_MAX, "an image side in pixels"),
+    "passes": Limit(1, PASSES_MAX, "the number of cached passes (spp / pass-spp, rounded up)"),
+    "sweep_points": Limit(1, SWEEP_POINTS_MAX, "the number of sweep points"),
+    "bench_size": Limit(1024, BENCH_SIZE_MAX, "the elements per kernel launch"),
+}
+"""The one table of size limits shared by ``run``, ``audit``, ``sweep`` and ``bench`` (issue 32): each
+command's options take their ranges from here; a value outside is a one-line error before anything runs."""
+
 TYPES = ("int", "float", "bool", "str", "table")
 
 

@@ -52,10 +52,13 @@ from .results import load_results
 __all__ = [
     "SCHEMA",
     "ResultsError",
+    "config_rows",
     "format_number",
     "headline_metric",
     "load_results",
     "markdown_inline",
+    "markdown_table",
+    "markdown_table_cell",
     "markdown_to_html",
     "markdown_tokens",
     "render_report",
@@ -133,6 +136,20 @@ def format_number(x, trim: bool = False) -> str:
     return str(x)
 
 
+def config_rows(config: dict, prefix: str = "") -> list[tuple[str, object]]:
+    """(setting, value) rows of a run's configuration for the Setup table: a non-empty dict value
+    (the audit's ``extra``) shows each of its keys as a row of its own, named ``extra.scene``
+    (nested dicts likewise: ``extra.timings_s.render``), instead of one cell of flattened
+    ``k = v, …`` text."""
+    rows: list[tuple[str, object]] = []
+    for k, v in config.items():
+        if isinstance(v, dict) and v:
+            rows += config_rows(v, f"{prefix}{k}.")
+        else:
+            rows.append((f"{prefix}{k}", v))
+    return rows
+
+
 # ----------------------------------------------------------------------------------- markdown text
 # The markdown of results (summary, sections, captions, notes, cost notes) is CommonMark with pipe
 # tables, rendered by markdown-it-py. Raw HTML is off (``html=False``): a ``<script>`` in a results
@@ -185,6 +202,30 @@ def _md_text(text) -> str:
     """Plain text for markdown output, on one line: characters markdown would read as markup are
     backslash-escaped (so the text reads the same in report.md and, through markdown-it, in HTML)."""
     return _MD_SPECIAL.sub(r"\\\1", str(text)).replace("\n", " ")
+
+
+# A "|" that is not already escaped (an even number of backslashes before it): in a pipe table it
+# would end the cell.
+_TABLE_PIPE = re.compile(r"(?<!\\)((?:\\\\)*)\|")
+
+
+def markdown_table_cell(text) -> str:
+    """Cell text (inline markdown) for a pipe table, on one line: every ``|`` not already escaped
+    becomes ``\\|`` (GFM reads it as a literal bar; an unescaped one would end the cell, so
+    ``mean |error|`` split one header cell into three). Idempotent, so text escaped by
+    :func:`_md_text` is not escaped twice."""
+    return _TABLE_PIPE.sub(r"\1\\|", str(text).replace("\n", " "))
+
+
+def markdown_table(header, rows, numeric=None) -> str:
+    """A markdown pipe table: ``header`` (cell texts), ``rows`` (lists of cell texts, inline
+    markdown), ``numeric``: per column, right-aligned (None: none). The one place a table's cell
+    text is escaped for the table (:func:`markdown_table_cell`)."""
+    numeric = list(numeric) if numeric is not None else [False] * len(header)
+    lines = ["| " + " | ".join(markdown_table_cell(h) for h in header) + " |"]
+    lines.append("|" + "|".join("---:" if n else ":---" for n in numeric) + "|")
+    lines += ["| " + " | ".join(markdown_table_cell(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
 
 
 def markdown_inline(text: str) -> str:
@@ -424,7 +465,7 @@ def _build(r: Results, directory: Path | None) -> _Doc:
 
     # Setup.
     d.heading(2, "Setup", "setup")
-    cfg = list(r.config.items())
+    cfg = config_rows(r.config)
     if cfg:
         d.table(
             "config",
@@ -665,12 +706,12 @@ def _md_cell(c: _Cell) -> str:
     if c.tag:
         t = f"{t} {_md_text(c.tag)}"
     if c.sub:
-        t = f"{t} ({c.sub.replace('|', chr(92) + '|')})"
+        t = f"{t} ({c.sub})"
     if c.style in ("unresolved", "at-bound"):
         t = f"*{t}*"
     if c.style == "fail":
         t = f"**{t}**"
-    return t.replace("\n", " ") + c.mark
+    return t + c.mark
 
 
 def _heading_text(h: _Heading) -> str:
@@ -714,9 +755,13 @@ def _render_md(d: _Doc) -> str:
             out += [f"- {item}" for item in b.items] + [""]
         elif isinstance(b, _Table):
             out += [f'<a id="{b.anchor}"></a>', "", f"**Table {b.number}:** {_md_text(b.caption)}", ""]
-            out.append("| " + " | ".join(_md_cell(c) for c in b.header) + " |")
-            out.append("|" + "|".join("---:" if c.numeric else ":---" for c in b.header) + "|")
-            out += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in b.rows]
+            out.append(
+                markdown_table(
+                    [_md_cell(c) for c in b.header],
+                    [[_md_cell(c) for c in row] for row in b.rows],
+                    [c.numeric for c in b.header],
+                )
+            )
             out += [""] + [f"{n}  " for n in b.notes] + ([""] if b.notes else [])
         elif isinstance(b, _Figure):
             out.append(f'<a id="{b.anchor}"></a>')

@@ -31,6 +31,8 @@ class _NonFinite:
 def _find_non_finite(obj, where: str):
     if isinstance(obj, _NonFinite):
         return where, obj.token
+    if isinstance(obj, int) and not isinstance(obj, bool) and obj.bit_length() > 1023:  # beyond a float
+        return where, f"an integer of {obj.bit_length()} bits"
     if isinstance(obj, dict):
         for k, v in obj.items():
             hit = _find_non_finite(v, f"{where}.{k}" if where else str(k))
@@ -61,10 +63,15 @@ def load_results(directory) -> Results:
         doc = json.loads(text, parse_constant=_NonFinite)
     except json.JSONDecodeError as e:
         raise ResultsError(f"{file}: invalid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+    except RecursionError:  # arrays or objects nested thousands deep: no results file is
+        raise ResultsError(f"{file}: invalid results: nested too deeply") from None
+    except ValueError as e:  # an integer of more than 4300 digits (Python's int-parsing limit)
+        raise ResultsError(f"{file}: invalid JSON: {' '.join(str(e).split())[:120]}") from None
     hit = _find_non_finite(doc, "")
     if hit:
         raise ResultsError(
-            f"{file}: {hit[0]}: {hit[1]} is not a valid result (NaN and infinities are refused)"
+            f"{file}: {hit[0]}: {hit[1]} is not a valid result (NaN, infinities and numbers beyond a float "
+            "are refused)"
         )
     return from_json(Results, doc, file)
 

@@ -22,11 +22,9 @@ import time
 from pathlib import Path
 
 from .executors import make_executor
-from .jobs import Job
+from .jobs import Job, diagnostic_job
 from .ray_executor import RayExecutor
 from .sweep import load_sweep, run_sweep
-
-NOOP = "rtfit.experiments.jobs:diagnostic_job"
 
 
 def _available(name: str) -> bool:
@@ -39,15 +37,15 @@ def _overhead_rows(name: str, n_jobs: int, workers: int | None, gpus=None) -> di
     t0 = time.perf_counter()
     ex = make_executor(name, workers, gpus=gpus)
     try:
-        ex.map([Job(NOOP, {}, "warm")] * (getattr(ex, "workers", 1) or 1))  # start every worker
+        ex.map([Job(diagnostic_job, {}, "warm")] * (getattr(ex, "workers", 1) or 1))  # start every worker
         startup = time.perf_counter() - t0
         lat = []
         for _ in range(15):
             t = time.perf_counter()
-            ex.map([Job(NOOP, {}, "one")])
+            ex.map([Job(diagnostic_job, {}, "one")])
             lat.append(time.perf_counter() - t)
         t = time.perf_counter()
-        ex.map([Job(NOOP, {}, f"j{i}") for i in range(n_jobs)])
+        ex.map([Job(diagnostic_job, {}, f"j{i}") for i in range(n_jobs)])
         batch = (time.perf_counter() - t) / n_jobs
     finally:
         ex.close()

@@ -111,7 +111,7 @@ from rtfit.realtime.sdf_occlusion import (
 )
 from rtfit.reference import load_mitsuba_scene
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
-from rtfit.reference.estimators import device_probes, gbuffer
+from rtfit.reference.estimators import device_probes, gbuffer, gbuffer_points
 from rtfit.reference.io import atomic_write_bytes
 from rtfit.reference.occlusion import (
     OcclusionCache,
@@ -123,7 +123,7 @@ from rtfit.reference.occlusion import (
     sunsky_sky_nodes,
 )
 from rtfit.reference.variants import backend_of
-from rtfit.scenes import library_path, load_scene, scene_hash
+from rtfit.scenes import scene_hash
 
 from . import figures
 from . import fitted as fitfiles
@@ -137,8 +137,9 @@ from .cost import (
     time_drjit,
 )
 from .jobs import Job
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
-from .sdf_occlusion_scenes import SCENE_NAMES, build, read_ply
+from .sdf_occlusion_scenes import SCENE_NAMES, build, load_case_scene, read_ply
 from .viewer import save_case_pixels
 
 # ============================================================================================ configure
@@ -773,11 +774,6 @@ MAP_ROWS = ("evans-text", "evans-listing", "evans-fit", "evans-joint", "cone")
 
 
 # ================================================================================================ cases
-def load_case_scene(name: str, resolution: int):
-    sc = load_scene(library_path(f"sdf_{name}"))
-    return dataclasses.replace(sc, camera=dataclasses.replace(sc.camera, width=resolution, height=resolution))
-
-
 def mesh_of(scene):
     vs, fs, off = [], [], 0
     for sh in scene.shapes:
@@ -992,8 +988,7 @@ def render_case(
     mi, mi_scene = load_mitsuba_scene(scene, variant)
     gb = gbuffer(mi, mi_scene)
     mask = gb.mask
-    pts, nrm = gb.position[mask].astype(np.float64), gb.normal[mask].astype(np.float64)
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    pts, nrm = gbuffer_points(gb, mask)
     cache = OcclusionCache(cache_dir)
     geo = scene_hash(scene)
     sky = SunskySky(sun_elevation, sun_azimuth, turbidity)
@@ -1049,8 +1044,7 @@ def render_case(
     if mi_sdf is not None:
         gb2 = gbuffer(mi, mi_sdf)
         m2 = gb2.mask
-        p2, n2 = gb2.position[m2].astype(np.float64), gb2.normal[m2].astype(np.float64)
-        n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-30)
+        p2, n2 = gbuffer_points(gb2, m2)
         ok = np.all(np.isfinite(n2), axis=1) & (np.linalg.norm(n2, axis=1) > 0.5)
         gh = hashlib.sha256(g.values.tobytes() + repr((g.origin, g.voxel)).encode()).hexdigest()
         r2 = reference(
@@ -1093,7 +1087,7 @@ def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     jobs = [
         Job(
-            "rtfit.experiments.sdf_occlusion:render_case",
+            render_case,
             dict(
                 name=n,
                 resolution=cfg["resolution"],
@@ -1239,8 +1233,8 @@ def run_sweep(ctx, cfg, sds) -> list[dict]:
 
 
 # =============================================================================================== checks
-def _check(name: str, value, expected: str, passed) -> dict:
-    return {"name": name, "value": value, "expected": expected, "passed": bool(passed)}
+def _check(name: str, value, expected: str, passed) -> Check:
+    return Check(name=name, value=value, expected=expected, passed=bool(passed))
 
 
 def _max_z_check(name: str, z) -> dict:
@@ -1875,8 +1869,7 @@ def bench(ctx) -> list[dict]:
     sc = load_case_scene("boxes", res)
     mi, mi_scene = load_mitsuba_scene(sc, variant)
     gb = gbuffer(mi, mi_scene)
-    pts, nrm = gb.position[gb.mask].astype(np.float64), gb.normal[gb.mask].astype(np.float64)
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    pts, nrm = gbuffer_points(gb)
     g = grid_of(sc, grid_res)
     scene = types.SimpleNamespace(points=pts, normals=nrm, sdf=GridSDF.from_grid(g, levels=8), voxel=g.voxel)
     size = ctx.size or (1 << 18 if ctx.quick else 1 << 22)
@@ -1920,8 +1913,7 @@ def bench(ctx) -> list[dict]:
             r_sc = load_case_scene("boxes", r_res)
             _, r_mi_scene = load_mitsuba_scene(r_sc, variant)
             r_gb = gbuffer(mi, r_mi_scene)
-            r_pts = r_gb.position[r_gb.mask].astype(np.float64)
-            r_nrm = r_gb.normal[r_gb.mask].astype(np.float64)
+            r_pts, r_nrm = gbuffer_points(r_gb)
         stock = load_dict(mi, ao_stock_dict(mi, r_sc))
 
         # the points on the device once per reference, as the occlusion cache does

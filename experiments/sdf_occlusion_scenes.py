@@ -20,6 +20,7 @@ Scenes (scene units: metres):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -28,6 +29,7 @@ import numpy as np
 from rtfit.realtime.arrays import NUMPY_OPS
 from rtfit.realtime.sdf_grid import Box, Capsule, Sphere, primitive_sdf
 from rtfit.reference.io import atomic_write_bytes
+from rtfit.scenes import library_path, load_scene
 
 from .mesh_normals import vertex_normals
 
@@ -318,3 +320,10 @@ def write_library_meshes(folder) -> list[Path]:
         write_ply(p, v, f, vertex_normals(v, f) if name in SMOOTH else None)
         out.append(p)
     return out
+
+
+def load_case_scene(name: str, resolution: int):
+    """The library scene ``sdf_<name>`` with a square film of ``resolution`` pixels (shared by the
+    sdf-occlusion and obscurances families)."""
+    sc = load_scene(library_path(f"sdf_{name}"))
+    return dataclasses.replace(sc, camera=dataclasses.replace(sc.camera, width=resolution, height=resolution))

@@ -26,11 +26,11 @@ from __future__ import annotations
 
 import math
 
-import drjit as dr
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method, sidak_threshold
 from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.soft_particles import (
     BIG,
     METHODS,
@@ -61,7 +61,10 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .particle_geometry import billboard_inputs
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .report import markdown_table
 
 # ============================================================================================ configure
 CONFIG = {
@@ -151,32 +154,6 @@ def tilted_plane(tilt_deg: float, centre=CENTRE, offset: float = 0.15):
     normal = np.array([0.0, math.sin(a), -math.cos(a)])
     point = np.asarray(centre, np.float64) + np.array([0.0, 0.0, offset * RADIUS])
     return point, normal
-
-
-def billboard_inputs(dirs: np.ndarray, centre, radius: float, alpha_c: float, shape: str, t_surface) -> dict:
-    """Per-pixel inputs of the billboard methods for a particle at ``centre``: the billboard at the centre's
-    view depth z, Δ = z_s − z (z_s = t_s·d_z the depth buffer), the lateral distance q of the ray's point on
-    the billboard plane, and the texture α (sphere: `billboard_alpha`; box: α_c on its square)."""
-    c = np.asarray(centre, np.float64)
-    z = c[2]
-    dz = np.maximum(dirs[:, 2], 1e-12)
-    px, py = dirs[:, 0] * z / dz - c[0], dirs[:, 1] * z / dz - c[1]
-    q = np.hypot(px, py)
-    z_s = np.where(np.asarray(t_surface) >= BIG, BIG, np.asarray(t_surface) * dirs[:, 2])
-    n = len(dirs)
-    if shape == "sphere":
-        alpha = np.asarray(billboard_alpha(np.full(n, alpha_c), np.full(n, radius), q), np.float64)
-    else:
-        alpha = np.where(np.maximum(np.abs(px), np.abs(py)) <= radius, alpha_c, 0.0)
-    return {
-        "alpha": alpha,
-        "alpha_c": np.full(n, alpha_c),
-        "z": np.full(n, z),
-        "delta": np.minimum(z_s - z, BIG),
-        "radius": np.full(n, radius),
-        "q": q,
-        "cos_view": dirs[:, 2].copy(),
-    }
 
 
 def ray_inputs(dirs: np.ndarray, centre, radius: float, sigma: float, t_surface) -> dict:
@@ -279,7 +256,7 @@ def run(ctx) -> dict:
         cases.append(("sphere", cfg["alphas"][-1], True))
     jobs = [
         Job(
-            "rtfit.experiments.soft_particles:render_job",
+            render_job,
             dict(
                 shape=s,
                 alpha_c=a,
@@ -397,39 +374,39 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
     cid = case_id(shape, alpha_c, inside)
     sidak = sidak_threshold(max(z.size, 1))
     checks = [
-        {
-            "name": f"reference {cid}: Mitsuba T = exp(−σℓ) of the analytic clipped chord, z-score spread "
+        Check(
+            name=f"reference {cid}: Mitsuba T = exp(−σℓ) of the analytic clipped chord, z-score spread "
             f"({z.size} pixels, {int(np.sum(covered & band))} at the silhouette left out; binomial noise "
             "√(T(1 − T)/spp))",
-            "value": float(np.std(z)),
-            "expected": "1 ± 0.2",
-            "passed": bool(abs(np.std(z) - 1.0) <= 0.2),
-        },
-        {
-            "name": f"reference {cid}: pooled z-score of (Mitsuba − analytic)",
-            "value": float(np.sum(z) / math.sqrt(z.size)),
-            "expected": "|z| ≤ 4",
-            "passed": bool(abs(np.sum(z) / math.sqrt(z.size)) <= 4.0),
-        },
-        {
-            "name": f"reference {cid}: largest |z|",
-            "value": float(np.max(np.abs(z))),
-            "expected": f"≤ {sidak:.2f} (Šidák, 1 % family-wise)",
-            "passed": bool(np.max(np.abs(z)) <= sidak),
-        },
-        {
-            "name": f"reference {cid}: rays that miss the particle see T = 1 exactly",
-            "value": float(np.max(np.abs(ref["mean"][~covered] - t_exact[~covered]), initial=0.0)),
-            "expected": "0",
-            "passed": bool(np.all(ref["mean"][~covered] == t_exact[~covered])),
-        },
-        {
-            "name": f"reference {cid}: the pooled sample variance of the {ref['passes']} passes is the "
+            value=float(np.std(z)),
+            expected="1 ± 0.2",
+            passed=bool(abs(np.std(z) - 1.0) <= 0.2),
+        ),
+        Check(
+            name=f"reference {cid}: pooled z-score of (Mitsuba − analytic)",
+            value=float(np.sum(z) / math.sqrt(z.size)),
+            expected="|z| ≤ 4",
+            passed=bool(abs(np.sum(z) / math.sqrt(z.size)) <= 4.0),
+        ),
+        Check(
+            name=f"reference {cid}: largest |z|",
+            value=float(np.max(np.abs(z))),
+            expected=f"≤ {sidak:.2f} (Šidák, 1 % family-wise)",
+            passed=bool(np.max(np.abs(z)) <= sidak),
+        ),
+        Check(
+            name=f"reference {cid}: rays that miss the particle see T = 1 exactly",
+            value=float(np.max(np.abs(ref["mean"][~covered] - t_exact[~covered]), initial=0.0)),
+            expected="0",
+            passed=bool(np.all(ref["mean"][~covered] == t_exact[~covered])),
+        ),
+        Check(
+            name=f"reference {cid}: the pooled sample variance of the {ref['passes']} passes is the "
             "Bernoulli variance N/(N − 1)·T̂(1 − T̂) of the pooled mean (largest gap)",
-            "value": bern_gap,
-            "expected": f"≤ {BERNOULLI_VARIANCE_TOL:g}",
-            "passed": bool(bern_gap <= BERNOULLI_VARIANCE_TOL),
-        },
+            value=bern_gap,
+            expected=f"≤ {BERNOULLI_VARIANCE_TOL:g}",
+            passed=bool(bern_gap <= BERNOULLI_VARIANCE_TOL),
+        ),
     ]
     bb = billboard_inputs(dirs, centre, RADIUS, alpha_c, shape, ts)
     ref_op = (1.0 - ref["mean"]).reshape(h, w)
@@ -462,12 +439,12 @@ def reference_case(cfg, shape: str, alpha_c: float, ref: dict, fits: dict, insid
     )
     rmse = exact_metrics["rmse"]
     checks.append(
-        {
-            "name": f"reference {cid}: the analytic exact row sits at Mitsuba's noise floor (RMSE)",
-            "value": rmse.value,
-            "expected": f"not resolved above the noise floor {rmse.noise_floor:.3g}",
-            "passed": not rmse.resolved,
-        }
+        Check(
+            name=f"reference {cid}: the analytic exact row sits at Mitsuba's noise floor (RMSE)",
+            value=rmse.value,
+            expected=f"not resolved above the noise floor {rmse.noise_floor:.3g}",
+            passed=not rmse.resolved,
+        )
     )
     doc = {
         "id": cid,
@@ -614,30 +591,30 @@ def domain_study(cfg) -> dict:
             profiles[(shape, alpha_c)] = prof
     for (shape, fid, alpha_c), res in fits.items():
         checks.append(
-            {
-                "name": f"fit {fid} ({shape}, α_c = {alpha_c:g}) converged",
-                "value": str(res["converged"]),
-                "expected": "True",
-                "passed": bool(res["converged"]),
-            }
+            Check(
+                name=f"fit {fid} ({shape}, α_c = {alpha_c:g}) converged",
+                value=str(res["converged"]),
+                expected="True",
+                passed=bool(res["converged"]),
+            )
         )
     for shape in cfg["shapes"]:
         for alpha_c in cfg["fit_alphas"]:
             by = {t["method"]: t for t in table if t["shape"] == shape and t["alpha_c"] == alpha_c}
             checks.append(
-                {
-                    "name": f"domain {shape}, α_c = {alpha_c:g}: the fitted fade's RMS error ≤ the fitted "
+                Check(
+                    name=f"domain {shape}, α_c = {alpha_c:g}: the fitted fade's RMS error ≤ the fitted "
                     "linear fade's (it contains it: b = 0, p = 1)",
-                    "value": by["fitted"]["rms_error"],
-                    "expected": f"≤ {by['linear-fit']['rms_error']:.4g}",
-                    "passed": bool(by["fitted"]["rms_error"] <= by["linear-fit"]["rms_error"] * (1 + 1e-6)),
-                }
+                    value=by["fitted"]["rms_error"],
+                    expected=f"≤ {by['linear-fit']['rms_error']:.4g}",
+                    passed=bool(by["fitted"]["rms_error"] <= by["linear-fit"]["rms_error"] * (1 + 1e-6)),
+                )
             )
     return {"table": table, "fits": fits, "checks": checks, "profiles": profiles}
 
 
 # ============================================================================================== checks
-def claim_checks() -> list[dict]:
+def claim_checks() -> list[Check]:
     """Issue 18's claim from the kernels: a box of α = 0.95 cut through its centre on the view axis."""
     alpha = 0.95
     bb = {"alpha": 0.95, "z": 4.0, "delta": 0.0, "radius": 1.0}
@@ -649,30 +626,30 @@ def claim_checks() -> list[dict]:
     f = np.linspace(0.0, 1.0, 1001)
     concave_ok = bool(np.all(1.0 - (1.0 - alpha) ** f >= alpha * f - 1e-15))
     return [
-        {
-            "name": "claim (issue 18): linear fade at α = 0.95, half the chord = 0.475",
-            "value": linear,
-            "expected": "0.475 ± 1e-12",
-            "passed": bool(abs(linear - 0.475) <= 1e-12),
-        },
-        {
-            "name": "claim (issue 18): exact Beer–Lambert opacity of half the chord = 1 − √0.05 = 0.7764 "
+        Check(
+            name="claim (issue 18): linear fade at α = 0.95, half the chord = 0.475",
+            value=linear,
+            expected="0.475 ± 1e-12",
+            passed=bool(abs(linear - 0.475) <= 1e-12),
+        ),
+        Check(
+            name="claim (issue 18): exact Beer–Lambert opacity of half the chord = 1 − √0.05 = 0.7764 "
             "(exact-box kernel on the view axis)",
-            "value": exact,
-            "expected": f"{closed:.6f} ± 1e-12",
-            "passed": bool(abs(exact - closed) <= 1e-12),
-        },
-        {
-            "name": "claim: 1 − (1 − α)^f ≥ α·f on f ∈ [0, 1] (concavity; the largest gap "
+            value=exact,
+            expected=f"{closed:.6f} ± 1e-12",
+            passed=bool(abs(exact - closed) <= 1e-12),
+        ),
+        Check(
+            name="claim: 1 − (1 − α)^f ≥ α·f on f ∈ [0, 1] (concavity; the largest gap "
             f"{gap:.3f} at f = {f_star:.3f} for α = 0.95)",
-            "value": str(concave_ok),
-            "expected": "True",
-            "passed": concave_ok,
-        },
+            value=str(concave_ok),
+            expected="True",
+            passed=concave_ok,
+        ),
     ]
 
 
-def chord_checks(n: int = 400, steps: int = 20000) -> list[dict]:
+def chord_checks(n: int = 400, steps: int = 20000) -> list[Check]:
     """The analytic chords against an independent count: the ray t ∈ [0, t_s] sampled at ``steps``
     midpoints, each tested for being inside the sphere / box (the count's error ≤ 2 steps)."""
     rng = np.random.default_rng(5)
@@ -693,18 +670,18 @@ def chord_checks(n: int = 400, steps: int = 20000) -> list[dict]:
             counted += inside.sum(-1) * dt
         err = np.max(np.abs(analytic - counted) / (2.0 * dt))
         out.append(
-            {
-                "name": f"{shape} chord: analytic clipped chord = midpoint count along the ray ({n} random "
+            Check(
+                name=f"{shape} chord: analytic clipped chord = midpoint count along the ray ({n} random "
                 f"rays, {steps} steps), in units of the step's 2-step bound",
-                "value": float(err),
-                "expected": "≤ 1",
-                "passed": bool(err <= 1.0),
-            }
+                value=float(err),
+                expected="≤ 1",
+                passed=bool(err <= 1.0),
+            )
         )
     return out
 
 
-def finite_checks(n: int = 20000) -> list[dict]:
+def finite_checks(n: int = 20000) -> list[Check]:
     """Every method in float32 over its inputs' whole declared domains (log-spread magnitudes, signs,
     zeros) and parameters at their bounds: no NaN or Inf, opacity in [0, 1]."""
     rng = np.random.default_rng(9)
@@ -728,13 +705,13 @@ def finite_checks(n: int = 20000) -> list[dict]:
             fin = v[np.isfinite(v)]
             lo_v, hi_v = min(lo_v, float(fin.min())), max(hi_v, float(fin.max()))
         out.append(
-            {
-                "name": f"{mid}: float32 over the whole input domain and parameter bounds: non-finite values "
+            Check(
+                name=f"{mid}: float32 over the whole input domain and parameter bounds: non-finite values "
                 f"(opacity range [{lo_v:.3g}, {hi_v:.3g}])",
-                "value": worst_bad,
-                "expected": "0, opacity in [0, 1]",
-                "passed": bool(worst_bad == 0 and lo_v >= 0.0 and hi_v <= 1.0),
-            }
+                value=worst_bad,
+                expected="0, opacity in [0, 1]",
+                passed=bool(worst_bad == 0 and lo_v >= 0.0 and hi_v <= 1.0),
+            )
         )
     return out
 
@@ -791,76 +768,76 @@ def extreme_values() -> dict:
     }
 
 
-def extreme_checks(ext: dict) -> list[dict]:
+def extreme_checks(ext: dict) -> list[Check]:
     out = []
     ins = ext["camera_inside"]
     ok = all(abs(v["spherical"] - v["exact"]) <= 1e-6 for v in ins.values())
     out.append(
-        {
-            "name": "camera inside the sphere (view axis): the spherical billboard clips at the camera "
+        Check(
+            name="camera inside the sphere (view axis): the spherical billboard clips at the camera "
             "plane and equals the exact opacity",
-            "value": max(abs(v["spherical"] - v["exact"]) for v in ins.values()),
-            "expected": "≤ 1e-6",
-            "passed": bool(ok),
-        }
+            value=max(abs(v["spherical"] - v["exact"]) for v in ins.values()),
+            expected="≤ 1e-6",
+            passed=bool(ok),
+        )
     )
     lin_err = max(v["linear"] - v["exact"] for v in ins.values())
     out.append(
-        {
-            "name": "camera inside the sphere: the linear fade ignores the camera plane and over-estimates",
-            "value": lin_err,
-            "expected": "> 0",
-            "passed": bool(lin_err > 0),
-        }
+        Check(
+            name="camera inside the sphere: the linear fade ignores the camera plane and over-estimates",
+            value=lin_err,
+            expected="> 0",
+            passed=bool(lin_err > 0),
+        )
     )
     s0 = ext["s_to_zero"]
     step_ok = all(v[0] == 0.0 and v[1] == 0.0 for v in s0.values()) and s0["s = 0 r"][2] == 0.95
     out.append(
-        {
-            "name": "s → 0: the linear fade becomes a hard step at Δ = 0 (0 at Δ ≤ 0, α above), never NaN",
-            "value": str(step_ok),
-            "expected": "True",
-            "passed": bool(step_ok),
-        }
+        Check(
+            name="s → 0: the linear fade becomes a hard step at Δ = 0 (0 at Δ ≤ 0, α above), never NaN",
+            value=str(step_ok),
+            expected="True",
+            passed=bool(step_ok),
+        )
     )
     behind = ext["delta"]
     fade_zero = all(behind[k]["linear"] == 0.0 for k in behind if not k.startswith("Δ = 0.5"))
     chord_zero = behind["Δ = -2 r"]["exact"] == 0.0 and behind["Δ = -2 r"]["spherical"] == 0.0
     out.append(
-        {
-            "name": "Δ ≤ 0: the linear fade is 0; the chords are 0 once the surface is in front of it",
-            "value": str(fade_zero and chord_zero),
-            "expected": "True",
-            "passed": bool(fade_zero and chord_zero),
-        }
+        Check(
+            name="Δ ≤ 0: the linear fade is 0; the chords are 0 once the surface is in front of it",
+            value=str(fade_zero and chord_zero),
+            expected="True",
+            passed=bool(fade_zero and chord_zero),
+        )
     )
     ray_err = max(abs(v["box-beer-ray"] - v["exact"]) for v in ext["off_axis"].values())
     out.append(
-        {
-            "name": "off-axis: box-beer-ray (view-z travel over cos θ) equals the exact opacity",
-            "value": ray_err,
-            "expected": "≤ 1e-6",
-            "passed": bool(ray_err <= 1e-6),
-        }
+        Check(
+            name="off-axis: box-beer-ray (view-z travel over cos θ) equals the exact opacity",
+            value=ray_err,
+            expected="≤ 1e-6",
+            passed=bool(ray_err <= 1e-6),
+        )
     )
     ratios = [abs(v["tau_ratio_box_beer"] - v["cos"]) for v in ext["off_axis"].values()]
     out.append(
-        {
-            "name": "off-axis (box, ray through the centre, surface at the centre's depth): the view-z "
+        Check(
+            name="off-axis (box, ray through the centre, surface at the centre's depth): the view-z "
             "methods' optical depth is the exact one times cos θ",
-            "value": max(ratios),
-            "expected": "≤ 1e-5",
-            "passed": bool(max(ratios) <= 1e-5),
-        }
+            value=max(ratios),
+            expected="≤ 1e-5",
+            passed=bool(max(ratios) <= 1e-5),
+        )
     )
     hv = list(ext["huge_sigma"].values())
     out.append(
-        {
-            "name": "huge σ: opacity 1 where the chord is positive, 0 where it is 0 (no 0·∞)",
-            "value": str(hv),
-            "expected": "[1, 1, 1, 1, 0]",
-            "passed": bool(hv[:-1] == [1.0] * (len(hv) - 1) and hv[-1] == 0.0),
-        }
+        Check(
+            name="huge σ: opacity 1 where the chord is positive, 0 where it is 0 (no 0·∞)",
+            value=str(hv),
+            expected="[1, 1, 1, 1, 0]",
+            passed=bool(hv[:-1] == [1.0] * (len(hv) - 1) and hv[-1] == 0.0),
+        )
     )
     return out
 
@@ -962,18 +939,18 @@ def particle_scene(cfg, fits: dict) -> dict:
         "approximations": docs,
     }
     checks = [
-        {
-            "name": "100-particle scene: composited opacity of every row finite",
-            "value": str(finite),
-            "expected": "True",
-            "passed": finite,
-        },
-        {
-            "name": "100-particle scene: at least a fifth of the particles are cut by the geometry",
-            "value": straddle,
-            "expected": f"≥ {cfg['scene_particles'] // 5}",
-            "passed": bool(straddle >= cfg["scene_particles"] // 5),
-        },
+        Check(
+            name="100-particle scene: composited opacity of every row finite",
+            value=str(finite),
+            expected="True",
+            passed=finite,
+        ),
+        Check(
+            name="100-particle scene: at least a fifth of the particles are cut by the geometry",
+            value=straddle,
+            expected=f"≥ {cfg['scene_particles'] // 5}",
+            passed=bool(straddle >= cfg["scene_particles"] // 5),
+        ),
     ]
     return {"doc": doc, "exact": exact, "images": images, "mask": mask, "checks": checks}
 
@@ -1099,15 +1076,12 @@ NOTES = [
 
 
 def sections(study, extremes, scene) -> list[dict]:
-    rows = [
-        "| shape | α_c | method | mean error | mean |error| | RMS | max |error| |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for t in study["table"]:
-        rows.append(
-            f"| {t['shape']} | {t['alpha_c']:g} | {t['method']} | {t['mean_error']:+.4f} | "
-            f"{t['mean_abs_error']:.4f} | {t['rms_error']:.4f} | {t['max_abs_error']:.3f} |"
-        )
+    head = ["shape", "α_c", "method", "mean error", "mean |error|", "RMS", "max |error|"]
+    keys = "shape alpha_c method mean_error mean_abs_error rms_error max_abs_error".split()
+    fmts = ("", "g", "", "+.4f", ".4f", ".4f", ".3f")
+    domain = markdown_table(
+        head, [[f"{t[k]:{f}}" for k, f in zip(keys, fmts, strict=True)] for t in study["table"]]
+    )
     fit_rows = ["| fit | shape | α_c | parameters | RMS residual |", "|---|---|---|---|---|"]
     for (shape, fid, alpha_c), f in study["fits"].items():
         par = ", ".join(f"{k} = {v['value']:.4g}" for k, v in f["parameters"].items())
@@ -1119,13 +1093,12 @@ def sections(study, extremes, scene) -> list[dict]:
             ext.append(
                 f"| {group}: {k} | {v['exact']:.4f} | " + " | ".join(f"{v[c]:.4f}" for c in cols) + " |"
             )
-    sc = ["| row | RMS | mean |error| | max |error| | mean error |", "|---|---|---|---|---|"]
-    for ap in scene["doc"]["approximations"]:
-        m = ap["metrics"]
-        sc.append(
-            f"| {ap['method']} | {m['rmse']['value']:.4f} | {m['mae']['value']:.4f} | "
-            f"{m['max_abs']['value']:.3f} | {m['mean_error']['value']:+.4f} |"
-        )
+    m_fmt = (("rmse", ".4f"), ("mae", ".4f"), ("max_abs", ".3f"), ("mean_error", "+.4f"))
+    sc_rows = [
+        [ap["method"], *(f"{ap['metrics'][k]['value']:{f}}" for k, f in m_fmt)]
+        for ap in scene["doc"]["approximations"]
+    ]
+    sc = markdown_table(["row", "RMS", "mean |error|", "max |error|", "mean error"], sc_rows)
     return [
         {
             "id": "method",
@@ -1140,7 +1113,7 @@ def sections(study, extremes, scene) -> list[dict]:
                 "fade under-estimates a dense particle (α = 0.95, half the chord: 0.475 against 0.776)."
             ),
         },
-        {"id": "domain", "title": "Errors over the domain", "text": "\n".join(rows)},
+        {"id": "domain", "title": "Errors over the domain", "text": domain},
         {"id": "fits", "title": "Fitted fade parameters", "text": "\n".join(fit_rows)},
         {
             "id": "extremes",
@@ -1157,7 +1130,7 @@ def sections(study, extremes, scene) -> list[dict]:
             "title": "100 particles straddling geometry",
             "placement": "after_results",
             "text": "Composited opacity error per covered pixel:\n\n"
-            + "\n".join(sc)
+            + sc
             + f"\n\n{scene['doc']['parameters']['silhouette_pairs']} (pixel, particle) pairs lie inside a "
             "sphere's perspective silhouette but outside its view-plane billboard of radius r (α = 0): "
             "every billboard method misses them, exact opacity up to "
@@ -1245,7 +1218,7 @@ def cost_rows(ctx, cfg) -> list[dict]:
 def bench(ctx) -> list[dict]:
     """Pixels/s of each method on Dr.Jit vs the same kernel text on NumPy, then the reference's samples/s."""
     backend, n = bench_backend(ctx)
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     np_inputs, inputs = _cost_inputs(n, Float)
     base = memory_baseline(tuple(inputs[k] for k in COST_INPUTS), n)
     rows = []

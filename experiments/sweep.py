@@ -38,6 +38,7 @@ import dataclasses
 import hashlib
 import itertools
 import json
+import math
 import shutil
 import tempfile
 import tomllib
@@ -46,8 +47,8 @@ from pathlib import Path
 
 from .atomic import atomic_directory
 from .jobs import InlineExecutor, Job, Outcome
-from .records import SCHEMA, Results, ResultsError, from_json, to_json
-from .registry import RunContext, apply_overrides, get_experiment
+from .records import SCHEMA, Check, Results, ResultsError, from_json, to_json
+from .registry import LIMITS, RunContext, apply_overrides, get_experiment
 from .report import write_index, write_report
 from .results import RESULTS_FILE, load_results, write_results
 from .runner import created_now, device_description, experiment_dirs, run_experiment_into, versions
@@ -168,6 +169,11 @@ def load_sweep(path) -> Sweep:
     for key, values in grid.items():
         if not isinstance(values, list) or not values:
             fail(f"grid.{key}", "must be a non-empty list of values")
+        if key in fixed:  # which one wins would be an accident of dict order
+            fail(f"grid.{key}", "is in [fixed] too: give it in one of them")
+    count = math.prod(len(v) for v in grid.values()) * bool(grid) + len(listed)
+    if count > LIMITS["sweep_points"].hi:  # counted before the grid is expanded
+        fail("grid", f"{count} points: at most {LIMITS['sweep_points'].hi} (registry.LIMITS)")
     points = (
         [dict(fixed, **dict(zip(grid, combo, strict=True))) for combo in itertools.product(*grid.values())]
         if grid
@@ -291,7 +297,7 @@ def run_sweep(
     )
     jobs = [
         Job(
-            "rtfit.experiments.sweep:run_point",
+            run_point,
             dict(
                 experiment=sweep.experiment,
                 overrides=p.overrides,
@@ -340,12 +346,14 @@ def combined_results(
         path = root / "points" / p.id / RESULTS_FILE
         if p.id in failed or not path.is_file():
             checks.append(
-                {
-                    "name": f"{p.id} ({p.label}) completed",
-                    "value": failed.get(p.id, "missing"),
-                    "expected": "completed",
-                    "passed": False,
-                }
+                to_json(
+                    Check(
+                        name=f"{p.id} ({p.label}) completed",
+                        value=failed.get(p.id, "missing"),
+                        expected="completed",
+                        passed=False,
+                    )
+                )
             )
             rows.append(f"| `{p.id}` | {p.label} | **failed**: {failed.get(p.id, 'missing')} |")
             continue

@@ -24,6 +24,7 @@ import importlib.util
 import math
 import sys
 import traceback
+import warnings
 from collections.abc import Mapping
 from importlib import metadata
 from pathlib import Path
@@ -37,6 +38,7 @@ from rtfit.realtime.quantities import (
     QUANTITIES,
     ApproximationError,
     Quantity,
+    UserCodeExit,
     get_quantity,
     is_user_approximation,
 )
@@ -55,12 +57,24 @@ ENTRY_POINT_GROUP = "rtfit.approximations"
 
 
 class UserMethodError(ValueError):
-    """A user approximation that cannot be loaded or fails validation: one line, exit 2."""
+    """A user approximation that cannot be loaded or fails validation: one line, exit 2. ``stage``:
+    ``"missing"`` (no such file, module or entry point: perhaps a misspelt name), ``"loading"`` (found, not
+    loadable), ``"checking"`` (loaded, failed validation) or ``""`` (the
+    process running the user's code ended or timed out: `rtfit.experiments.user_sandbox`)."""
+
+    def __init__(self, message: str, *, stage: str = ""):
+        super().__init__(message)
+        self.stage = stage
 
 
 def _one_line(e: BaseException) -> str:
     text = " ".join(str(e).split())
     return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+def _exit_text(e: SystemExit) -> str:
+    """A `SystemExit` from user code as a reason: user code must return or raise, never end rtfit's run."""
+    return f"called sys.exit({e.code!r}) (an approximation must return values or raise an exception)"
 
 
 def _looks_like_file(module: str) -> bool:
@@ -70,7 +84,7 @@ def _looks_like_file(module: str) -> bool:
 def _load_file(spec: str, path_text: str):
     path = Path(path_text).expanduser()
     if not path.is_file():
-        raise UserMethodError(f"{spec}: no such file {path_text}")
+        raise UserMethodError(f"{spec}: no such file {path_text}", stage="missing")
     path = path.resolve()
     name = "rtfit_user_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
     mspec = importlib.util.spec_from_file_location(name, path)
@@ -80,12 +94,14 @@ def _load_file(spec: str, path_text: str):
     sys.modules[name] = module  # dataclasses and pickling look the module up while it executes
     try:
         mspec.loader.exec_module(module)
-    except Exception as e:
+    except (Exception, SystemExit) as e:  # SystemExit: sys.exit at import must not end rtfit
         sys.modules.pop(name, None)
         lines = [f.lineno for f in traceback.extract_tb(e.__traceback__) if Path(f.filename) == path]
         where = f"{path_text} line {lines[-1]}" if lines else path_text
         if isinstance(e, ApproximationError):
             raise UserMethodError(f"{spec}: {e} ({where})") from None
+        if isinstance(e, SystemExit):
+            raise UserMethodError(f"{spec}: loading {where} {_exit_text(e)}") from None
         raise UserMethodError(f"{spec}: loading {where} failed: {_one_line(e)}") from None
     return module
 
@@ -95,10 +111,14 @@ def _load_module(spec: str, module_name: str):
         return importlib.import_module(module_name)
     except ModuleNotFoundError as e:
         if e.name and module_name.startswith(e.name):
-            raise UserMethodError(f"{spec}: no module named {e.name!r} (and no file {module_name})") from None
+            raise UserMethodError(
+                f"{spec}: no module named {e.name!r} (and no file {module_name})", stage="missing"
+            ) from None
         raise UserMethodError(f"{spec}: importing {module_name} failed: {_one_line(e)}") from None
     except ApproximationError as e:
         raise UserMethodError(f"{spec}: {e} (in {module_name})") from None
+    except SystemExit as e:  # sys.exit at import must not end rtfit
+        raise UserMethodError(f"{spec}: importing {module_name} {_exit_text(e)}") from None
     except Exception as e:
         raise UserMethodError(f"{spec}: importing {module_name} failed: {_one_line(e)}") from None
 
@@ -140,10 +160,13 @@ def load_approximation(spec: str) -> Method:
             known = ", ".join(sorted(eps)) or "none installed"
             raise UserMethodError(
                 f"{spec}: not FILE.py:NAME or MODULE:NAME, and no entry point {spec!r} in group "
-                f"{ENTRY_POINT_GROUP} ({known})"
+                f"{ENTRY_POINT_GROUP} ({known})",
+                stage="missing",
             )
         try:
             obj = eps[spec].load()
+        except SystemExit as e:  # sys.exit at import must not end rtfit
+            raise UserMethodError(f"{spec}: loading entry point {eps[spec].value} {_exit_text(e)}") from None
         except Exception as e:
             raise UserMethodError(
                 f"{spec}: loading entry point {eps[spec].value} failed: {_one_line(e)}"
@@ -218,6 +241,19 @@ def _raising(method: Method, inputs, params, n) -> list[int]:
     return out
 
 
+def _is_complex(value: Any) -> bool:
+    """Whether ``value`` (an array, a scalar, a Dr.Jit array, a list) holds complex numbers."""
+    if isinstance(value, complex | np.complexfloating):
+        return True
+    if isinstance(value, np.ndarray):
+        return np.iscomplexobj(value)
+    if is_drjit(value):
+        return "Complex" in type(value).__name__
+    if isinstance(value, list | tuple):
+        return any(_is_complex(v) for v in value)
+    return False
+
+
 def _as_outputs(method: Method, q: Quantity, out: Any, n: int, backend: str, params_text: str) -> list:
     name = method.id
     want = "one array" if q.channels == 1 else f"a tuple of {q.channels} arrays"
@@ -232,9 +268,16 @@ def _as_outputs(method: Method, q: Quantity, out: Any, n: int, backend: str, par
         )
     arrays = []
     for p in parts:
+        if _is_complex(p):  # refused before NumPy casts it (a ComplexWarning, the imaginary part dropped)
+            raise UserMethodError(
+                f"{name}: returned complex numbers on {backend} ({q.name} is real: take .real or abs() "
+                f"yourself if that is what you mean{params_text})"
+            )
         try:
-            a = np.asarray(p, dtype=np.float64)
-        except (TypeError, ValueError) as e:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", np.exceptions.ComplexWarning)
+                a = np.asarray(p, dtype=np.float64)
+        except (TypeError, ValueError, np.exceptions.ComplexWarning) as e:
             raise UserMethodError(
                 f"{name}: returned {type(p).__name__} on {backend}, not numbers ({_one_line(e)})"
             ) from None
@@ -271,6 +314,8 @@ def check_approximation(method: Method, n: int = 256, *, seed: int = 0, drjit: b
         try:
             with np.errstate(all="ignore"):
                 out_np = method.kernel.run(NUMPY_OPS, inputs, params, read)
+        except UserCodeExit as e:  # sys.exit in the function (the kernel turned it into this error)
+            raise UserMethodError(f"{e}{ptext}") from None
         except Exception as e:
             raising = _raising(method, inputs, params, n)
             if not raising:  # every sample runs alone: the text does not work on arrays
@@ -311,6 +356,8 @@ def check_approximation(method: Method, n: int = 256, *, seed: int = 0, drjit: b
 
         try:
             out_dr = evaluate(kernel, *[inputs[s] for s in scalar], *[float(v) for v in params.values()])
+        except UserCodeExit as e:
+            raise UserMethodError(f"{e} (on Dr.Jit{ptext})") from None
         except Exception as e:
             raise UserMethodError(
                 f"{name}: raised {_one_line(e)} on Dr.Jit (NumPy ran: use ops.* functions, not Python "

@@ -11,7 +11,8 @@ What is compared, and why (docs/volumetric-lightning.md):
 2. **Reference check**: an isotropic point light (Mitsuba ``point``) inside a homogeneous, non-absorbing
    (albedo 1) medium box around the camera; ``volpathmis`` with max_depth 2 (single scattering). Each pixel
    must equal σ_s/(4π)·∫ I·e^(−σ_t(s + r))/r² ds along its camera ray to the box's far wall, evaluated by an
-   independent quadrature (`single_scattering_quadrature`, analytic transmittance): z-scores of unit spread,
+   independent quadrature (`rtfit.reference.single_scattering.point_single_scattering`, analytic
+   transmittance): z-scores of unit spread,
    on the pixels whose reference resolves the light's 1/r² peak (`CORE_EVENTS_MIN`: free-flight sampling
    needs ≥ 10 scattering events near the ray's closest approach; the same pixels are compared below).
 3. **The seed's model against single scattering**, per light distance D and medium density σ_t: rows
@@ -27,25 +28,23 @@ figures · summary (text) · bench (cost rows and ``rtfit bench``).
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from collections.abc import Callable
 
-import drjit as dr
 import numpy as np
 
-from rtfit.fitting import Param, compute_metrics, fit_method, sidak_threshold
+from rtfit.fitting import compute_metrics, fit_method
 from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.volumetric_lightning import METHODS
-from rtfit.reference import (
-    ReferenceCache,
-    ReferenceRequest,
-    load_mitsuba_scene,
-    radiance_pass,
-    render_gbuffer,
+from rtfit.reference import load_mitsuba_scene, radiance_pass
+from rtfit.reference.single_scattering import (
+    FOUR_PI,
+    box_exit,
+    point_estimator_variance,
+    point_single_scattering,
 )
 from rtfit.reference.variants import backend_of
-from rtfit.scenes import parse_scene_text, scene_hash, scene_to_toml
+from rtfit.scenes import scene_hash, scene_to_toml
 from rtfit.scenes.model import (
     Camera,
     Cube,
@@ -70,7 +69,17 @@ from .cost import (
     time_numpy,
 )
 from .jobs import Job
+from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
+from .scattering_reference import (
+    FIT_METHOD,
+    fit_level,
+    fit_params,
+    reference_checks,
+    render_job,
+    residual_scale,
+)
 
 # ============================================================================================ configure
 CONFIG = {
@@ -113,19 +122,6 @@ def configure(quick: bool, spp: int | None) -> dict:
 
 
 # ============================================================================================== methods
-FOUR_PI = 4.0 * math.pi
-
-
-@dataclasses.dataclass(frozen=True)
-class Row:
-    """One approximation row of the scene cases: ``method`` (a `METHODS` id, or None for the quadrature)
-    and the source of its parameters, ``params(case, fit or None) -> {name: value}``."""
-
-    id: str
-    label: str
-    method: str | None
-    params: Callable[[dict, dict | None], dict]
-    fitted: bool = False
 
 
 def true_inverse_square(case: dict, fit: dict | None) -> dict:
@@ -144,43 +140,18 @@ def physical(case: dict, fit: dict | None) -> dict:
     return {"sigma_s": case["sigma_s"], "sigma_t": case["sigma_t"], "intensity": case["intensity"]}
 
 
+# Rows (`rows.Row`): ``params(case, fit or None) -> {name: value}``; ``method`` None for the quadrature.
 ROWS = (
     Row("exact", "single scattering with extinction (quadrature)", None, physical),
     Row("inverse-square", "single scattering, no extinction: K·θ/h", "inverse-square", true_inverse_square),
     Row("seed-fit", "seed model (stable form), fitted i, a", "stable", fitted_values, fitted=True),
 )
-FIT_METHOD = "stable"
-"""The method whose (i, a) are fitted per case."""
-
 RESULT_NAMES = {"i": "i", "a": "a_per_m2", "k": "K_W_per_m_sr", "sigma_s": "sigma_s_per_m",
                 "sigma_t": "sigma_t_per_m", "intensity": "I_W_per_sr"}  # fmt: skip
 """The results' names of each row's parameters."""
 
-FIT_RANGE = {"i": (1e-4, 1e4), "a": (1e-3, 1e2)}
-"""Fits start at a₀ = 100/D² (core radius D/10) and i₀ = a₀·σ_s·I/(4π) (the far field of the true light),
-bounded to these factors of the start: the core radius 1/√a stays within [D/100, 3.2·D]. The physics, a
-point light, would take a → ∞; a core below D/100 changes only the few pixels whose rays pass that close
-(none in the quick configuration, whose closest ray passes at 0.026·D)."""
-
-
 FIT_MAX_STEPS = 1024
 """Levenberg–Marquardt steps: a reaches its upper bound through the logistic reparametrisation in ~750."""
-
-
-def fit_params(case: dict) -> dict[str, Param]:
-    a0 = 100.0 / case["distance"] ** 2
-    start = {"a": a0, "i": a0 * case["sigma_s"] * case["intensity"] / FOUR_PI}
-    spec = METHODS[FIT_METHOD].params
-    return {
-        k: dataclasses.replace(spec[k], initial=x, lower=x * FIT_RANGE[k][0], upper=x * FIT_RANGE[k][1])
-        for k, x in start.items()
-    }
-
-
-def fit_level(model: np.ndarray, ref: np.ndarray) -> float:
-    """The level i (closed-form weighted least squares, weights of `fit_data`) of a model F/i = ``model``."""
-    w = 1.0 / residual_scale(ref)
-    return float(np.sum(w * w * model * ref) / np.sum(w * w * model * model))
 
 
 # ================================================================================================ cases
@@ -230,16 +201,6 @@ def case_scene(p: dict, resolution) -> Scene:
     )
 
 
-def box_exit(origin, dirs: np.ndarray, lo, hi) -> np.ndarray:
-    """Distance along unit ``dirs`` from ``origin`` (inside the box) to the box's far wall (float64)."""
-    o = np.asarray(origin, np.float64)
-    with np.errstate(divide="ignore"):
-        t_lo = (np.asarray(lo) - o) / dirs
-        t_hi = (np.asarray(hi) - o) / dirs
-    far = np.where(dirs > 0, t_hi, np.where(dirs < 0, t_lo, np.inf))
-    return np.min(far, axis=-1)
-
-
 def segment_inputs(p: dict, dirs: np.ndarray, dtype=np.float64) -> dict:
     """The kernels' per-pixel inputs (o, d, l components): camera → far wall of the medium."""
     s = box_exit((0.0, 0.0, 0.0), dirs, p["box_lo"], p["box_hi"])
@@ -272,80 +233,7 @@ def closest_approach(p: dict, dirs: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.cross(c, dirs), axis=-1)
 
 
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
-QUAD_PANELS = 48
-"""Composite Gauss–Legendre panels (8 nodes each) of `single_scattering_quadrature`."""
-
-
-def _u_integral(origin, dirs, length, light, sigma_t: float, power: int, r_rate: float) -> np.ndarray:
-    """∫₀^S e^(−σ_t·s − r_rate·σ_t·r)/r^(2·power) ds per ray by composite Gauss–Legendre in u, with
-    s = c_∥ + h·sinh u, r = h·cosh u, ds/r^(2p) = du/(h^(2p−1)·cosh^(2p−1) u) (see
-    `single_scattering_quadrature`)."""
-    c = np.asarray(light, np.float64) - np.asarray(origin, np.float64)
-    c_par = dirs @ c
-    h = np.linalg.norm(np.cross(c, dirs), axis=-1)
-    u0 = np.arcsinh(-c_par / h)
-    u1 = np.arcsinh((length - c_par) / h)
-    edges = np.linspace(0.0, 1.0, QUAD_PANELS + 1)
-    total = np.zeros_like(h)
-    for k in range(QUAD_PANELS):
-        a = u0 + (u1 - u0) * edges[k]
-        b = u0 + (u1 - u0) * edges[k + 1]
-        half = 0.5 * (b - a)
-        for x, w in zip(_GL_X, _GL_W, strict=True):
-            u = a + half * (x + 1.0)
-            r = h * np.cosh(u)
-            s = c_par + h * np.sinh(u)
-            total += w * half * np.exp(-sigma_t * s - r_rate * sigma_t * r) / np.cosh(u) ** (2 * power - 1)
-    return total / h ** (2 * power - 1)
-
-
-def single_scattering_quadrature(
-    origin, dirs: np.ndarray, length: np.ndarray, light, intensity: float, sigma_s: float, sigma_t: float
-) -> np.ndarray:
-    """L = σ_s/(4π)·∫₀^S I·e^(−σ_t(s + r(s)))/r(s)² ds per ray (float64, W/m²/sr): single scattering from an
-    isotropic point light of intensity I (W/sr) in a homogeneous medium holding the whole ray and light.
-
-    With c_∥ = (l − o)·ω and h the light's distance to the ray's line, s = c_∥ + h·sinh u makes
-    r = h·cosh u and ds/r² = du/(h·cosh u): the peak at the closest approach and the exponential tail are
-    both smooth in u; composite Gauss–Legendre (`QUAD_PANELS` × 8 nodes) over
-    u ∈ [asinh(−c_∥/h), asinh((S − c_∥)/h)]. Checked against mpmath in tests/test_volumetric_lightning.py."""
-    return sigma_s / FOUR_PI * intensity * _u_integral(origin, dirs, length, light, sigma_t, 1, 1.0)
-
-
-def estimator_variance(
-    origin, dirs: np.ndarray, length: np.ndarray, light, intensity: float, sigma_s: float, sigma_t: float
-) -> np.ndarray:
-    """Variance per sample of the reference's estimator of L: a free-flight distance s ~ σ_t·e^(−σ_t·s) (none
-    beyond S) and next-event estimation to the point light, W = (σ_s/σ_t)·I·e^(−σ_t·r)/(4π r²), so
-    E[W²] = (σ_s²/σ_t)·I²/(16π²)·∫₀^S e^(−σ_t·s − 2σ_t·r)/r⁴ ds and Var = E[W²] − L². For a point light the
-    phase-function sample cannot hit the light, so volpathmis's MIS weight of this NEE is 1."""
-    second = (
-        sigma_s**2
-        / sigma_t
-        * intensity**2
-        / FOUR_PI**2
-        * _u_integral(origin, dirs, length, light, sigma_t, 2, 2.0)
-    )
-    mean = single_scattering_quadrature(origin, dirs, length, light, intensity, sigma_s, sigma_t)
-    return np.maximum(second - mean**2, 0.0)
-
-
 # ================================================================================================= jobs
-def render_job(
-    scene_toml: str, spp: int, pass_spp: int, seed: int, variant: str, cache_dir: str, progress: bool = False
-) -> dict:
-    """Job: one cached reference image and the pixel-centre view directions of its camera."""
-    scene = parse_scene_text(scene_toml)
-    ref = ReferenceCache(cache_dir).get(
-        ReferenceRequest(scene=scene, spp=spp, pass_spp=pass_spp, seed=seed, variant=variant),
-        progress=progress,
-        label=scene.name,
-    )
-    gb = render_gbuffer(scene, variant)
-    return {"image": ref, "view_dir": gb.view_dir.astype(np.float64)}
-
-
 def fit_job(inputs: dict, target, scale, case: dict) -> dict:
     """Job: fit the stable form's (i, a) to one reference image (pixel-flattened) through the JAX run of its
     kernel; residuals (model − reference)/scale (`fit_data`)."""
@@ -358,12 +246,6 @@ def fit_job(inputs: dict, target, scale, case: dict) -> dict:
         max_steps=FIT_MAX_STEPS,
     )
     return result.to_dict()
-
-
-def residual_scale(ref: np.ndarray) -> np.ndarray:
-    """The fits' residual scale: 2 % of the reference plus 1 % of its mean (relative error, not dominated by
-    the pixels next to the light)."""
-    return 0.02 * np.abs(ref) + 0.01 * float(np.mean(np.abs(ref)))
 
 
 def fit_data(p: dict, dirs: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> dict:
@@ -392,7 +274,7 @@ def run(ctx) -> dict:
                 cache_dir=str(ctx.cache_dir),
                 progress=ctx.progress,
             )
-            jobs.append(Job("rtfit.experiments.volumetric_lightning:render_job", args, label=cid))
+            jobs.append(Job(render_job, args, label=cid))
     ctx.log(f"rendering {len(jobs)} references")
     rendered = dict(zip(params, ctx.executor.map(jobs, desc="references"), strict=True))
 
@@ -401,9 +283,7 @@ def run(ctx) -> dict:
         dirs = rendered[cid]["view_dir"]
         rendered[cid]["mask"] = resolved_pixels(p, dirs, cfg["spp"])
         data = fit_data(p, dirs, rendered[cid]["image"].mean[..., 0], rendered[cid]["mask"])
-        fit_jobs.append(
-            Job("rtfit.experiments.volumetric_lightning:fit_job", dict(**data, case=p), label=f"fit-{cid}")
-        )
+        fit_jobs.append(Job(fit_job, dict(**data, case=p), label=f"fit-{cid}"))
     ctx.log(f"fitting {len(fit_jobs)} seed models")
     fits = dict(zip(params, ctx.executor.map(fit_jobs, desc="fits"), strict=True))
     hashes = {k: scene_hash(v) for k, v in scenes.items()}
@@ -416,7 +296,7 @@ def row_image(row: Row, p: dict, dirs: np.ndarray, fit: dict | None) -> np.ndarr
     values = row.params(p, fit)
     if row.method is None:
         s = box_exit((0.0, 0.0, 0.0), dirs, p["box_lo"], p["box_hi"])
-        return single_scattering_quadrature((0.0, 0.0, 0.0), dirs, s, p["light"], **values)
+        return point_single_scattering((0.0, 0.0, 0.0), dirs, s, p["light"], **values)
     out = METHODS[row.method].evaluate(segment_inputs(p, dirs, np.float32), values)
     return np.asarray(out, dtype=np.float64)
 
@@ -450,13 +330,13 @@ def assemble(ctx, cfg, params, scenes, rendered, fits, hashes) -> dict:
             )
         checks += reference_checks(cid, ref, images[(cid, "exact")], mask, model_stderr(p, dirs, ref.spp))
         checks.append(
-            {
-                "name": f"reference {cid} resolves the light's peak (n ≥ {CORE_EVENTS_MIN:g} scattering "
+            Check(
+                name=f"reference {cid} resolves the light's peak (n ≥ {CORE_EVENTS_MIN:g} scattering "
                 "events near the closest approach) on at least half of the pixels",
-                "value": float(mask.mean()),
-                "expected": "≥ 0.5",
-                "passed": bool(mask.mean() >= 0.5),
-            }
+                value=float(mask.mean()),
+                expected="≥ 0.5",
+                passed=bool(mask.mean() >= 0.5),
+            )
         )
         cores = core_models(p, dirs, ref.mean[..., 0], cfg["core_radii"], mask)
         models = {row.id: images[(cid, row.id)] for row in ROWS} | {k: v[0] for k, v in cores.items()}
@@ -486,12 +366,12 @@ def assemble(ctx, cfg, params, scenes, rendered, fits, hashes) -> dict:
     accuracy = float32_accuracy(cfg)
     checks += accuracy_checks(accuracy)
     checks += [
-        {
-            "name": f"fit {cid} converged",
-            "value": str(fit["converged"]),
-            "expected": "True",
-            "passed": bool(fit["converged"]),
-        }
+        Check(
+            name=f"fit {cid} converged",
+            value=str(fit["converged"]),
+            expected="True",
+            passed=bool(fit["converged"]),
+        )
         for cid, fit in fits.items()
     ]
     costs = cost_rows(ctx, cfg)
@@ -575,43 +455,12 @@ def softening_profile(p: dict, dirs: np.ndarray, ref: np.ndarray, models: dict, 
 
 
 def model_stderr(p: dict, dirs: np.ndarray, spp: int) -> np.ndarray:
-    """The reference's standard error from the estimator's analytic variance (`estimator_variance`)."""
+    """The reference's standard error from the estimator's analytic variance (`point_estimator_variance`)."""
     s = box_exit((0.0, 0.0, 0.0), dirs, p["box_lo"], p["box_hi"])
-    var = estimator_variance((0.0, 0.0, 0.0), dirs, s, p["light"], p["intensity"], p["sigma_s"], p["sigma_t"])
+    var = point_estimator_variance(
+        (0.0, 0.0, 0.0), dirs, s, p["light"], p["intensity"], p["sigma_s"], p["sigma_t"]
+    )
     return np.sqrt(var / spp)
-
-
-def reference_checks(cid: str, ref, exact: np.ndarray, mask: np.ndarray, model_se: np.ndarray) -> list[dict]:
-    """Mitsuba against the quadrature on the resolved pixels (`CORE_EVENTS_MIN`): z-scores of unit spread,
-    pooled z, largest |z| (Šidák). Each z uses max(the sample standard error, the estimator's analytic one,
-    `model_stderr`): the sample's is low exactly when the rare near-light samples happened to be few (the
-    two agree to a median ratio 1.00 where the peak is well sampled; D = 1 m, σ_t = 0.01 /m, 48×32)."""
-    sig = np.sqrt(np.maximum(ref.sigma()[..., 0] ** 2, model_se**2))[mask]
-    diff = ref.mean[..., 0][mask] - exact[mask]
-    z = diff / sig
-    pooled = float(np.sum(diff) / math.sqrt(np.sum(sig**2)))
-    sidak = sidak_threshold(z.size)
-    return [
-        {
-            "name": f"reference check {cid}: Mitsuba single scattering = σ_s/(4π)∫ I·T/r² ds (quadrature): "
-            f"z-score spread ({z.size} pixels)",
-            "value": float(np.std(z)),
-            "expected": "1 ± 0.2",
-            "passed": bool(abs(np.std(z) - 1) <= 0.2),
-        },
-        {
-            "name": f"reference check {cid}: pooled z-score of (Mitsuba − quadrature)",
-            "value": pooled,
-            "expected": "|z| ≤ 4",
-            "passed": bool(abs(pooled) <= 4),
-        },
-        {
-            "name": f"reference check {cid}: largest |z|",
-            "value": float(np.max(np.abs(z))),
-            "expected": f"≤ {sidak:.2f} (Šidák, 1 % family-wise)",
-            "passed": bool(np.max(np.abs(z)) <= sidak),
-        },
-    ]
 
 
 # ------------------------------------------------------------------------------------ float32 accuracy
@@ -715,37 +564,34 @@ def limit_values() -> dict:
     return {"labels": ["a = 0, |d| = 5", "|d| = 0", "light 1e4 m ahead, a = 1e3"], "expected": expect, **out}
 
 
-def accuracy_checks(acc: dict) -> list[dict]:
+def accuracy_checks(acc: dict) -> list[Check]:
     checks = []
     for label, _ in ACCURACY_SETS:
         row = acc["worst"][(label, "stable")]
         checks.append(
-            {
-                "name": f"stable form, float32 vs float64: worst relative error, {label} "
+            Check(
+                name=f"stable form, float32 vs float64: worst relative error, {label} "
                 f"({row['samples']} inputs)",
-                "value": row["worst_rel_error"],
-                "expected": "≤ 1e-5",
-                "passed": bool(row["worst_rel_error"] <= 1e-5),
-            }
+                value=row["worst_rel_error"],
+                expected="≤ 1e-5",
+                passed=bool(row["worst_rel_error"] <= 1e-5),
+            )
         )
         checks.append(
-            {
-                "name": f"stable form, float32: non-finite outputs, {label}",
-                "value": row["non_finite"],
-                "expected": "0",
-                "passed": row["non_finite"] == 0,
-            }
+            Check(
+                name=f"stable form, float32: non-finite outputs, {label}",
+                value=row["non_finite"],
+                expected="0",
+                passed=row["non_finite"] == 0,
+            )
         )
     lim = acc["limits"]
     for label, e, v in zip(lim["labels"], lim["expected"], lim["stable"], strict=True):
         good = v == e if e == 0.0 else abs(v / e - 1.0) <= 1e-6
         checks.append(
-            {
-                "name": f"stable form at: {label}",
-                "value": v,
-                "expected": f"{e:.7g} (±1e-6 rel.)",
-                "passed": bool(good),
-            }
+            Check(
+                name=f"stable form at: {label}", value=v, expected=f"{e:.7g} (±1e-6 rel.)", passed=bool(good)
+            )
         )
     return checks
 
@@ -1027,7 +873,7 @@ def bench(ctx) -> list[dict]:
     """Pixels/s of each closed form on Dr.Jit vs the same kernel text on NumPy (``method(NUMPY_OPS, …)``),
     then the reference's samples/s (volpathmis, point light, homogeneous medium)."""
     backend, n = bench_backend(ctx)
-    Float = dr.cuda.Float if backend == "cuda" else dr.llvm.Float
+    Float = backend_float(backend)
     np_inputs, inputs = _cost_inputs(n, Float)
     base = memory_baseline(tuple(inputs.values()), n)
     rows = []

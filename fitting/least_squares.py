@@ -40,6 +40,7 @@ __all__ = [
     "AT_BOUND_RTOL",
     "FitResult",
     "Param",
+    "bound_flags",
     "covariance_from_jacobian",
     "fit_curve",
     "fit_least_squares",
@@ -189,14 +190,15 @@ def _to_f64_tree(args):
     return jax.tree_util.tree_map(conv, args)
 
 
-def _covariance(jac: np.ndarray, ssr: float, dof: int, absolute_sigma: bool):
-    """Covariance from the pseudo-inverse of JᵀJ on column-normalised J, and J's rank."""
+def _covariance(jac: np.ndarray, ssr: float, dof: int, absolute_sigma: bool, rcond: float = 0.0):
+    """Covariance from the pseudo-inverse of JᵀJ on column-normalised J, and J's rank (singular values
+    below max(n, k)·ε, or ``rcond`` where larger, of the largest are dropped)."""
     n, k = jac.shape
     norms = np.linalg.norm(jac, axis=0)
     live = norms > 0
     js = np.where(live, jac / np.where(live, norms, 1.0), 0.0)
     _, sv, vt = np.linalg.svd(js, full_matrices=False)
-    tol = (sv.max() if sv.size else 0.0) * max(n, k) * np.finfo(np.float64).eps
+    tol = (sv.max() if sv.size else 0.0) * max(max(n, k) * np.finfo(np.float64).eps, rcond)
     keep = sv > tol
     rank = int(np.sum(keep))
     v = vt[keep].T
@@ -213,16 +215,32 @@ def _covariance(jac: np.ndarray, ssr: float, dof: int, absolute_sigma: bool):
     return cov, rank
 
 
-def covariance_from_jacobian(jac, ssr: float, dof: int, *, absolute_sigma: bool = False):
+def bound_flags(names, params, x) -> tuple[dict[str, bool], dict[str, bool]]:
+    """(at_lower, at_upper): per parameter name, whether the value ``x[i]`` lies within `AT_BOUND_RTOL` of
+    its finite lower / upper bound (of (upper − lower) when both are finite, else of max(1, |bound|))."""
+    at_lower, at_upper = {}, {}
+    for i, (nm, p) in enumerate(zip(names, params, strict=True)):
+        if p.kind == "both":
+            tol = AT_BOUND_RTOL * (p.upper - p.lower)
+        else:
+            tol = AT_BOUND_RTOL * max(1.0, abs(p.lower if p.kind == "lower" else p.upper))
+        at_lower[nm] = bool(math.isfinite(p.lower) and x[i] - p.lower <= tol)
+        at_upper[nm] = bool(math.isfinite(p.upper) and p.upper - x[i] <= tol)
+    return at_lower, at_upper
+
+
+def covariance_from_jacobian(jac, ssr: float, dof: int, *, absolute_sigma: bool = False, rcond: float = 0.0):
     """The parameter covariance :func:`fit_least_squares` reports, for a fit solved elsewhere (e.g. a
     Levenberg–Marquardt loop whose Jacobian comes from Dr.Jit autodiff): ``jac`` (n, k) = ∂residual/∂x
     in the original parameters at the solution, ``ssr`` = Σ r², ``dof`` = n − k. Returns ``(cov, rank)``:
     cov = s²·(JᵀJ)⁺ (pseudo-inverse on the column-normalised J; s² = SSR/dof, or 1 with
-    ``absolute_sigma``), NaN rows/columns for parameters in J's null space, and J's rank."""
+    ``absolute_sigma``), NaN rows/columns for parameters in J's null space, and J's rank. ``rcond``: the
+    relative singular value below which a direction counts as null, where J carries an error of its own
+    (a finite-difference Jacobian: `rtfit.fitting.method_fit.FD_RCOND`); default max(n, k)·ε."""
     jac = np.asarray(jac, dtype=np.float64)
     if jac.ndim != 2 or jac.shape[1] == 0 or not np.all(np.isfinite(jac)):
         raise ValueError(f"jac must be a finite (n, k) array with k >= 1 (got shape {jac.shape})")
-    return _covariance(jac, float(ssr), int(dof), bool(absolute_sigma))
+    return _covariance(jac, float(ssr), int(dof), bool(absolute_sigma), float(rcond))
 
 
 STATIONARY_DECREASE = 1e-8
@@ -421,14 +439,7 @@ def fit_least_squares(
     if converged and not np.all(np.isfinite(r)):
         converged, message = False, "non-finite residuals at the solution"
 
-    at_lower, at_upper = {}, {}
-    for i, (nm, p) in enumerate(zip(names, ps, strict=True)):
-        if p.kind == "both":
-            tol = AT_BOUND_RTOL * (p.upper - p.lower)
-        else:
-            tol = AT_BOUND_RTOL * max(1.0, abs(p.lower if p.kind == "lower" else p.upper))
-        at_lower[nm] = bool(math.isfinite(p.lower) and x[i] - p.lower <= tol)
-        at_upper[nm] = bool(math.isfinite(p.upper) and p.upper - x[i] <= tol)
+    at_lower, at_upper = bound_flags(names, ps, x)
     at_bound = {nm: at_lower[nm] or at_upper[nm] for nm in names}
 
     def ran_out_of_steps() -> bool:

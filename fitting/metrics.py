@@ -66,13 +66,24 @@ black background would otherwise push the median to 0 and the range to ~25 stops
 replaced by the median of the positive luminances, and a one-stop range for a reference of constant
 luminance (where ꟻLIP itself would exit the process). flip_evaluator calls ``sys.exit`` on bad
 arguments, so everything is validated before it is called.
+
+Memoised (results bit-identical, only the time changes): a noise floor depends on the reference, its
+stderr, the mask, the seed and the draws — never on the approximation — so each is computed once per
+reference and reused for every row compared with it (`_memo_floor`); a ꟻLIP map is computed once per
+(reference, test, exposures) and reused by the report's error-map figure (`_flip_map`). Keys are content
+digests (BLAKE2b of the arrays' bytes, shapes and dtypes), so a changed array never hits a stale entry;
+the memos keep at most `_MEMO_ENTRIES` floors and `_MEMO_MAP_BYTES` of maps.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
+import threading
 import warnings
 import zlib
+from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -258,6 +269,40 @@ def _resolved_above(value, floor, factor=_RESOLVE_FACTOR) -> bool:
     return bool(value > factor * floor)
 
 
+_MEMO_ENTRIES = 256
+"""Noise floors kept (floats: a few kB)."""
+_MEMO_MAP_BYTES = 64 << 20
+"""Bytes of ꟻLIP maps kept (a 1024² map is 8 MiB)."""
+_memo_lock = threading.Lock()
+_floor_memo: OrderedDict[tuple, float] = OrderedDict()
+_map_memo: OrderedDict[tuple, np.ndarray] = OrderedDict()
+
+
+def _digest(*arrays) -> tuple:
+    """A content key of ``arrays``: shape, dtype and a BLAKE2b digest of the bytes of each."""
+    out = []
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        out.append((a.shape, a.dtype.str, hashlib.blake2b(a.tobytes(), digest_size=16).digest()))
+    return tuple(out)
+
+
+def _memo_floor(name: str, r, s, m, seed: int, draws: int, compute: Callable[[], float]) -> float:
+    """The noise floor ``compute()`` of metric ``name``, computed once per (reference ``r``, stderr ``s``,
+    mask ``m``, seed, draws): the floors depend on nothing else (module text)."""
+    key = (name, int(seed), int(draws), _digest(r, s, m))
+    with _memo_lock:
+        if key in _floor_memo:
+            _floor_memo.move_to_end(key)
+            return _floor_memo[key]
+    value = compute()
+    with _memo_lock:
+        _floor_memo[key] = value
+        while len(_floor_memo) > _MEMO_ENTRIES:
+            _floor_memo.popitem(last=False)
+    return value
+
+
 def _rmse(x, r, s, m, **_):
     d = _sel(x - r, m)
     mse = float(np.mean(d * d))
@@ -287,8 +332,12 @@ def _mae(x, r, s, m, **_):
 def _max_abs(x, r, s, m, seed, draws, **_):
     val = float(np.max(np.abs(_sel(x - r, m))))
     sm = _sel(s, m)
-    rng = _rng(seed, "max_abs")
-    floor = float(np.mean([np.max(np.abs(sm * rng.standard_normal(sm.shape))) for _ in range(draws)]))
+
+    def compute() -> float:
+        rng = _rng(seed, "max_abs")
+        return float(np.mean([np.max(np.abs(sm * rng.standard_normal(sm.shape))) for _ in range(draws)]))
+
+    floor = _memo_floor("max_abs", r, s, m, seed, draws, compute)
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
@@ -325,8 +374,12 @@ def _ssim_mean(a, b, m):
 
 def _ssim(x, r, s, m, seed, draws, **_):
     val = _ssim_mean(r, x, m)
-    rng = _rng(seed, "ssim")
-    floor = float(np.mean([_ssim_mean(r + s * rng.standard_normal(r.shape), r, m) for _ in range(draws)]))
+
+    def compute() -> float:
+        rng = _rng(seed, "ssim")
+        return float(np.mean([_ssim_mean(r + s * rng.standard_normal(r.shape), r, m) for _ in range(draws)]))
+
+    floor = _memo_floor("ssim", r, s, m, seed, draws, compute)
     return MetricValue(val, floor, _resolved_above(1.0 - val, 1.0 - floor))
 
 
@@ -373,6 +426,22 @@ def _flip_call(ref32, test32, m, params) -> float:
 
 
 def _flip_map(ref32, test32, params) -> np.ndarray:
+    """The ꟻLIP map of ``test32`` against ``ref32``, computed once per content and exposures (module
+    text); the caller gets its own copy."""
+    key = (_digest(ref32, test32), tuple(sorted(params.items())))
+    with _memo_lock:
+        if key in _map_memo:
+            _map_memo.move_to_end(key)
+            return _map_memo[key].copy()
+    fmap = _flip_map_uncached(ref32, test32, params)
+    with _memo_lock:
+        _map_memo[key] = fmap.copy()
+        while sum(v.nbytes for v in _map_memo.values()) > _MEMO_MAP_BYTES and len(_map_memo) > 1:
+            _map_memo.popitem(last=False)
+    return fmap
+
+
+def _flip_map_uncached(ref32, test32, params) -> np.ndarray:
     import flip_evaluator
 
     # flip_evaluator exits the process on bad arguments: check everything it checks, and more.
@@ -401,12 +470,16 @@ def _flip(x, r, s, m, seed, draws, **_):
     peak = float(np.max(r[m]))
     r32 = _flip_input(r, "reference", peak, True)
     val = _flip_call(r32, _flip_input(x, "approx", peak, True), m, params)
-    rng = _rng(seed, "flip")
-    floors = []
-    for _ in range(draws):
-        noisy = _flip_input(r + s * rng.standard_normal(r.shape), "", peak, False)
-        floors.append(_flip_call(noisy, r32, m, params))
-    floor = float(np.mean(floors))
+
+    def compute() -> float:
+        rng = _rng(seed, "flip")
+        floors = []
+        for _ in range(draws):
+            noisy = _flip_input(r + s * rng.standard_normal(r.shape), "", peak, False)
+            floors.append(_flip_call(noisy, r32, m, params))
+        return float(np.mean(floors))
+
+    floor = _memo_floor("flip", r, s, m, seed, draws, compute)
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
@@ -419,8 +492,13 @@ def _smape_value(x, r):
 def _smape(x, r, s, m, seed, draws, **_):
     xs, rs, ss = _sel(x, m), _sel(r, m), _sel(s, m)
     val = _smape_value(xs, rs)
-    rng = _rng(seed, "smape")
-    floor = float(np.mean([_smape_value(rs, rs + ss * rng.standard_normal(rs.shape)) for _ in range(draws)]))
+
+    def compute() -> float:
+        rng = _rng(seed, "smape")
+        draws_ = [_smape_value(rs, rs + ss * rng.standard_normal(rs.shape)) for _ in range(draws)]
+        return float(np.mean(draws_))
+
+    floor = _memo_floor("smape", r, s, m, seed, draws, compute)
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 

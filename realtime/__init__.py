@@ -21,6 +21,8 @@ Modules:
                 family: cube, SH, ZH3, SG, Ambient Dice; ``METHODS`` from the module).
     environment_maps  pre-convolved and localised cube maps, cosine look-up, distance-impostor Hit
                 (docs/environment-maps.md).
+    reflections  the environment-maps family on a user's shape: classic, distance-impostor and
+                pre-convolved cube-map lookups of a probe at the shape's centre (``METHODS``; docs/audit.md).
     irradiance_bases  irradiance bases: ambient cube (Valve, NNLS), SH L1/L2, windowed SH, Geomerics L1
                 (docs/irradiance-bases.md).
     irradiance_volumes  irradiance volumes: a grid of ambient-cube / SH L2 probes, nearest and trilinear
@@ -79,6 +81,7 @@ from .obscurances import *  # noqa: F403
 from .parallax_occlusion import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .quantities import *  # noqa: F403
+from .reflections import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
 from .shader import *  # noqa: F403
@@ -93,6 +96,7 @@ MODULES = (
     "ambient_aperture",
     "diffuse",
     "environment_maps",
+    "reflections",
     "height_fog",
     "irradiance_bases",
     "irradiance_volumes",

@@ -51,6 +51,7 @@ __all__ = [
     "NUMPY_OPS",
     "OP_NAMES",
     "atan_minus_x_series",
+    "backend_float",
     "check_range",
     "check_scalar",
     "clamp01",
@@ -349,9 +350,19 @@ def get_default_backend() -> str:
     return _default_backend
 
 
-def _backend_float(dtype) -> type:
-    mod = dr.cuda if _default_backend == "cuda" else dr.llvm
+def backend_float(backend: str | None = None, dtype: Any = np.float32) -> type:
+    """The Dr.Jit floating-point array type of ``backend`` ("llvm" or "cuda"; None: the default backend,
+    `set_default_backend`): ``Float64`` for a float64 ``dtype``, else ``Float`` (float32). The one place
+    that maps a backend name to Dr.Jit's array types."""
+    name = _default_backend if backend is None else backend
+    if name not in _BACKENDS:
+        raise ValueError(f"backend must be one of {_BACKENDS} (got {name!r})")
+    mod = dr.cuda if name == "cuda" else dr.llvm
     return mod.Float64 if np.dtype(dtype) == np.float64 else mod.Float
+
+
+def _backend_float(dtype) -> type:
+    return backend_float(None, dtype)
 
 
 # ----------------------------------------------------------------------------------------- dispatch

@@ -102,6 +102,7 @@ from .phase import hg_phase, hg_phase_kernel, rayleigh_phase
 
 __all__ = [
     "OPTICAL_DEPTH_FORMS",
+    "TRANSMITTANCE_METHODS",
     "FogVolume",
     "apply_fog",
     "fog_colour_phase",
@@ -113,6 +114,7 @@ __all__ = [
     "height_fog_optical_depth_ray",
     "height_fog_transmittance",
     "optical_depth_form",
+    "transmittance_method",
 ]
 
 _SERIES_LIMIT = 0.5
@@ -196,9 +198,13 @@ def _seed_kernel(ops, z0, z1, distance, b, c):
 def _taylor_kernel(ops, z0, z1, distance, b, c):
     """Engine form: clamped exponent, first-order Taylor polynomial near horizontal rays."""
     x = ops.maximum(c * (z1 - z0), _UE_CLAMP)
-    exact = (1.0 - ops.exp(-x)) / x
+    far = ops.abs(x) > _UE_EPS
+    # the division only where it is selected: c = 0 (constant fog) or Δz = 0 would compute 0/0 in the
+    # branch the select drops, which is harmless in a shader but poisons a JAX fit's gradient with NaN
+    xs = ops.select(far, x, 1.0)
+    exact = (1.0 - ops.exp(-xs)) / xs
     taylor = 1.0 - 0.5 * x
-    phi = ops.select(ops.abs(x) > _UE_EPS, exact, taylor)
+    phi = ops.select(far, exact, taylor)
     return b * distance * ops.exp(-c * z0) * phi
 
 
@@ -236,19 +242,19 @@ _SEGMENT = (
     Input("z1", "m", "height of the segment's end along the fog gradient"),
     Input("distance", "m", "segment length D (|z1 − z0| ≤ D)"),
 )
-_FOG_FREE = tuple(Input(f"l0_{ch}", "radiance", f"fog-free radiance L₀, {ch} channel") for ch in "rgb")
+_FOG_FREE = tuple(Input(f"l0_{ch}", "W/m²/sr", f"fog-free radiance L₀, {ch} channel") for ch in "rgb")
 _COS_SUN = Input("cos_sun", "1", "cos θ = v·l: view direction · direction to the sun")
 _DENSITY = {
     "b": Param(2e-4, 2e-7, 0.2, unit="1/m", description="density b: extinction at height 0"),
     "c": Param(4e-3, 4e-6, 0.4, unit="1/m", description="falloff c: the scale height is 1/c"),
 }
 _COLOUR = {
-    f"{ch}0": Param(0.1, 0.0, 100.0, unit="radiance", description=f"constant fog colour C₀, {ch} channel")
+    f"{ch}0": Param(0.1, 0.0, 100.0, unit="W/m²/sr", description=f"constant fog colour C₀, {ch} channel")
     for ch in "rgb"
 }
 _PHASE_COLOUR = {
     **{
-        f"{ch}1": Param(0.01, 0.0, 100.0, unit="radiance", description=f"phase-weighted colour C₁, {ch}")
+        f"{ch}1": Param(0.01, 0.0, 100.0, unit="W/m²/sr", description=f"phase-weighted colour C₁, {ch}")
         for ch in "rgb"
     },
     "g": Param(0.5, -0.95, 0.95, unit="1", description="Henyey–Greenstein mean cosine of the colour lobe"),
@@ -313,6 +319,34 @@ METHODS = method_table(
 
 OPTICAL_DEPTH_FORMS = tuple(k for k, m in METHODS.items() if m.quantity == "fog_optical_depth")
 """Optical-depth forms compared by the experiment: rtfit's stable form, the seed listing, the engine form."""
+
+
+def transmittance_method(form: Method) -> Method:
+    """An optical-depth form of `METHODS` (quantity ``fog_optical_depth``) as a transmittance method: the
+    form's own kernel τ(z0, z1, D; b, c), then T = e^(−τ) (quantity ``fog_transmittance``; same id, inputs,
+    parameters and exactness)."""
+
+    def kernel(ops, **kw):
+        return ops.exp(-form.kernel(ops, **kw))
+
+    kernel.__qualname__ = kernel.__name__ = f"transmittance_of_{form.id}"
+    return Method(
+        id=form.id,
+        label=f"{form.label}, T = e^(−τ)",
+        kernel=kernel,
+        inputs=form.inputs,
+        params=form.params,
+        fixed=form.fixed,
+        exact=form.exact,
+        quantity="fog_transmittance",
+        formula=f"T = e^(−τ), {form.formula}",
+        source=form.source,
+        description=form.description,
+    )
+
+
+TRANSMITTANCE_METHODS = {f: transmittance_method(METHODS[f]) for f in OPTICAL_DEPTH_FORMS}
+"""The optical-depth forms as transmittance rows (one object each: a fit compiles once per method)."""
 
 
 # ===================================================================================== validation

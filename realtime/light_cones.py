@@ -201,7 +201,7 @@ METHODS = method_table(
             inputs=INPUTS,
             params=SHELL_PARAMS,
             fixed={"back": 1.0},
-            quantity="inscattered_radiance",
+            quantity="spot_inscattered_radiance",
             formula="L = k·Σ_fragments |n·ω|^p·v^q, v = 1 − t/L (entry and exit fragments, culling off)",
             source="seed 000:1026-1044 (tangent-space edge fade, v² attenuation; noise left out)",
             description="The cone mesh drawn additively with culling off: entry and exit fragments add.",
@@ -213,7 +213,7 @@ METHODS = method_table(
             inputs=INPUTS,
             params=SHELL_PARAMS,
             fixed={"back": 0.0},
-            quantity="inscattered_radiance",
+            quantity="spot_inscattered_radiance",
             formula="L = k·|n·ω|^p·v^q at the entry fragment (back faces culled)",
             source="seed 000:1026-1044 (tangent-space edge fade, v² attenuation; noise left out)",
             description="Back faces culled: one fragment from outside, none from inside the cone.",
@@ -224,7 +224,7 @@ METHODS = method_table(
             _chord_kernel,
             inputs=INPUTS,
             params={"k": Param(1.0, 0.0, math.inf, unit="W/m/sr", description="σ_s·I/(4π)")},
-            quantity="inscattered_radiance",
+            quantity="spot_inscattered_radiance",
             formula="L = K·∫_chord ds/r² = K·|d|·∠/|c × d| on the ray's chord through the cone",
             source="§1 (volumetric-lightning inverse-square) restricted to the cone: hard edge, T = 1",
             description="Exact single scattering of a hard-edged spot light without extinction.",
@@ -233,6 +233,28 @@ METHODS = method_table(
 )
 """The family's methods: ``METHODS[id](ops, inputs, params)`` runs the kernel text on one ops namespace;
 `rtfit.fitting.fit_method` fits (k, p, q) of the shells and K of ``chord`` through their JAX runs."""
+
+
+def _given_kernel(ops, single_scattering):
+    """The exact row: single scattering of the spot (Mitsuba's linear-in-angle profile) with extinction and
+    the medium's phase function along the view ray's stretch, integrated by
+    `rtfit.reference.single_scattering.spot_single_scattering` (not importable from here), passed through."""
+    return single_scattering
+
+
+QUADRATURE = Method(
+    "quadrature",
+    "single scattering of the spot with extinction (quadrature, exact)",
+    _given_kernel,
+    inputs=(Input("single_scattering", "W/m²/sr", "the quadrature of the ray's single scattering"),),
+    exact=True,
+    quantity="spot_inscattered_radiance",
+    formula="L = σ_s ∫ I·f(θ)·p(cos ϑ)·e^(−σ_t(s − s₀ + r))/r² ds, f Mitsuba's linear-in-angle profile",
+    source="rtfit.reference.single_scattering.spot_single_scattering",
+    description="The exact row of `rtfit audit`: must sit at the reference's noise where nothing shadows "
+    "the medium (not one of `METHODS`: the experiment compares its quadrature on its own).",
+)
+"""The exact row the audit adds to `METHODS` (``rtfit.experiments.audit.FAMILIES``)."""
 
 CHORD_LENGTH = Method(
     "chord-length",

@@ -51,6 +51,9 @@ class Param:
     upper: float = math.inf
     unit: str = ""
     description: str = ""
+    published: bool = True
+    """False where the source gives no value (the seed's Evans contrast k): ``initial`` is then only the
+    fit's start, and a row evaluated at it is no result of the method (`Method.unpublished`)."""
 
     def __post_init__(self):
         for f in ("initial", "lower", "upper"):
@@ -150,6 +153,12 @@ class Method:
     @property
     def input_names(self) -> tuple[str, ...]:
         return tuple(i.name for i in self.inputs)
+
+    @property
+    def unpublished(self) -> tuple[str, ...]:
+        """The free parameters whose source gives no value (`Param.published` False): the method means
+        something only once they are fitted (or set by the user)."""
+        return tuple(k for k, p in self.params.items() if not p.published)
 
     @property
     def fitted(self) -> bool:

@@ -1040,6 +1040,7 @@ def nishita_sky_kernel(
     mie_scale=1.0,
     mie_g=None,
     ambient=None,
+    solar_scale=1.0,
 ):
     """The sky radiance along unit directions (dx, dy, dz), the texture rebuilt from its inputs, sun excluded.
 
@@ -1049,7 +1050,8 @@ def nishita_sky_kernel(
     lookup, Rayleigh + Mie phase, no sun disc): L_c = E₀,c [(P_R + A/(4π)) S_R,c + P_M(g) S_M,c] with
     β_R → s_R β_R and β_M, β_M^ext → s_M β_M, s_M β_M^ext. Artist parameters ``rayleigh_scale`` s_R,
     ``mie_scale`` s_M (multiplying ``atmosphere``'s own scales), ``mie_g`` g and ``ambient`` A (None:
-    ``atmosphere``'s value); they may be arrays (JAX tracers in a fit). (``sun_x``, 0, ``sun_z``): the
+    ``atmosphere``'s value) and ``solar_scale`` s_E (E₀ → s_E E₀: the sun's intensity, e.g. a user's sky in
+    other units); they may be arrays (JAX tracers in a fit). (``sun_x``, 0, ``sun_z``): the
     unit sun direction. ``setting`` (layers, table and texture size, mapping) and ``altitude_m`` (the
     viewer) are static. Returns a tuple of C arrays (one per channel).
 
@@ -1075,7 +1077,8 @@ def nishita_sky_kernel(
         p.ambient if ambient is None else ambient,
         p.mie_phase == "cs",
     )
-    return tuple(_shade_kernel(ops, dx, dy, dz, S_r, S_m, shape, (sun_x, 0.0, sun_z), consts))
+    L = _shade_kernel(ops, dx, dy, dz, S_r, S_m, shape, (sun_x, 0.0, sun_z), consts)
+    return tuple(c * solar_scale for c in L)  # L is linear in E₀
 
 
 def sky_kernel_inputs(

@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from .arrays import evaluate
+from .arrays import DRJIT_OPS, evaluate
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
@@ -54,6 +54,7 @@ __all__ = [
     "SEED_D_MAX",
     "SEED_EXPONENT",
     "cosine_spiral_directions",
+    "distance_weight",
     "exponential_obscurance_kernel",
     "obscurance",
     "plane_facing_obscurance",
@@ -184,6 +185,22 @@ METHODS = method_table(
 
 
 # ---------------------------------------------------------------------------------------- public helpers
+def distance_weight(form: str, d_max: float, exponent: float | None = None):
+    """(ρ as a callable on Dr.Jit arrays — this module's kernel text on `DRJIT_OPS` —, its cache key): the
+    ``distance_weight`` and ``weight_key`` of the ``obscurance`` reference quantity
+    (`rtfit.reference.occlusion`, which may not import this package). ``form``: ``power`` (with
+    ``exponent``), ``exponential`` or ``step``; ``d_max`` in scene units."""
+    table = {
+        "power": (lambda t: rho_power(DRJIT_OPS, t, d_max, exponent), {"exponent": exponent}),
+        "exponential": (lambda t: rho_exponential(DRJIT_OPS, t, d_max), {}),
+        "step": (lambda t: rho_step(DRJIT_OPS, t, d_max), {}),
+    }
+    if form not in table:
+        raise ValueError(f"form must be one of {', '.join(table)} (got {form!r})")
+    fn, extra = table[form]
+    return fn, {"form": form, "d_max": float(d_max), **extra, "text": "rtfit.realtime.obscurances"}
+
+
 def _check_params(d_max, exponent):
     if not (isinstance(d_max, (int, float)) and 0.0 < d_max <= D_MAX_LIMIT):
         raise ValueError(f"d_max must be in (0, {D_MAX_LIMIT:g}] scene units (got {d_max!r})")

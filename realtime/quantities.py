@@ -32,21 +32,34 @@ from __future__ import annotations
 import inspect
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
 
-from . import ambient_aperture, diffuse, environment_bases, height_fog, nishita_sky, sdf_occlusion
+from . import (
+    ambient_aperture,
+    diffuse,
+    environment_bases,
+    height_fog,
+    nishita_sky,
+    sdf_occlusion,
+    soft_particles,
+)
+from .light_cones import INPUTS as CONE_INPUTS
+from .light_cones import METHODS as CONE_METHODS
 from .methods import Input, Method, Param
 from .sdf_grid import HalfSpace, Sphere
 from .sdf_occlusion import AnalyticSDF
+from .volumetric_lightning import METHODS as LIGHTNING_METHODS
 
 __all__ = [
     "FAMILY_METHODS",
     "QUANTITIES",
+    "UNDECLARED_UNIT",
     "ApproximationError",
     "Quantity",
     "QuantityInputs",
+    "UserCodeExit",
     "UserKernel",
     "approximation",
     "get_quantity",
@@ -62,6 +75,9 @@ FAMILY_METHODS: Mapping[str, Mapping[str, Method]] = MappingProxyType(
         "sdf-occlusion": sdf_occlusion.METHODS,
         "height-fog": height_fog.METHODS,
         "nishita-sky": nishita_sky.METHODS,
+        "soft-particles": soft_particles.METHODS,
+        "volumetric-lightning": LIGHTNING_METHODS,
+        "light-cones": CONE_METHODS,
     }
 )
 """Family (experiment name) → its method table: the shipped methods `Quantity.methods` is derived from."""
@@ -149,7 +165,19 @@ _FOG = (
     Input("falloff", "1/m", "the fog's height falloff c (scale height 1/c); 0: homogeneous", (0.0, 0.4)),
 )
 _FOG_VECTORS = {"origin": ("ox", "oy", "oz"), "direction": ("dx", "dy", "dz")}
+_M100 = (-100.0, 100.0)
+_CONE_VECTORS = {"origin": ("ox", "oy", "oz"), "direction": ("wx", "wy", "wz"), "apex": ("px", "py", "pz"),
+                 "axis": ("ax", "ay", "az")}  # fmt: skip
+_MEDIUM_LIGHT = (
+    Input("intensity", "W/sr", "the light's radiant intensity I (a spot's, on its axis)", (0.0, 1.0e4)),
+    Input("sigma_s", "1/m", "the medium's scattering coefficient σ_s", (0.0, 10.0)),
+    Input("sigma_t", "1/m", "the medium's extinction coefficient σ_t", (0.0, 10.0)),
+    Input("g", "1", "the medium's Henyey–Greenstein asymmetry", (-0.99, 0.99)),
+)
+_LIGHT = ("lx", "ly", "lz")
 _FOG_REFERENCE = "along the camera's rays through the fog medium (volpathmis)"
+# The soft-particle methods' inputs, each once (billboard and exact kernels share `radius`), as declared.
+_PARTICLE = tuple({i.name: i for m in soft_particles.METHODS.values() for i in m.inputs}.values())
 
 QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
     {
@@ -327,6 +355,42 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 reference=_FOG_REFERENCE,
             ),
             Quantity(
+                "particle_opacity",
+                "1",
+                "opacity 1 − T of a particle (a medium-filled convex volume) along a camera ray, clipped by "
+                "the opaque surface behind it",
+                _PARTICLE,
+                vectors={"direction": ("dx", "dy", "dz"), "centre": ("cx", "cy", "cz")},
+                unit_vectors=("direction",),
+                reference="the particle medium's opacity along the camera's rays, clipped by the depth "
+                "buffer (Mitsuba's free-flight sampling)",
+            ),
+            Quantity(
+                "inscattered_radiance",
+                "W/m²/sr",
+                "radiance a point light scatters into a view segment through a homogeneous medium "
+                "(per channel)",
+                (
+                    *_vec("o", "segment start o (the camera, or where its ray enters)", "m", _M100),
+                    *_vec("d", "segment vector d (o → the segment's end: |d| is its length)", "m", _M100),
+                    *_vec("l", "light position l", "m", (-90.0, 90.0)),
+                    *_MEDIUM_LIGHT,
+                ),
+                vectors={"origin": ("ox", "oy", "oz"), "segment": ("dx", "dy", "dz"), "light": _LIGHT},
+                reference="single scattering of that light along the camera's rays in the medium "
+                "(equiangular sampling, Mitsuba's emitter, phase function and shadow rays)",
+            ),
+            Quantity(
+                "spot_inscattered_radiance",
+                "W/m²/sr",
+                "radiance a spot light scatters into a view ray through a homogeneous medium (per channel)",
+                (*CONE_INPUTS, *_MEDIUM_LIGHT),
+                vectors=_CONE_VECTORS,
+                unit_vectors=("direction", "axis"),
+                reference="single scattering of that spot along the camera's rays in the medium "
+                "(equiangular sampling, Mitsuba's emitter, phase function and shadow rays)",
+            ),
+            Quantity(
                 "sky_radiance",
                 "W/m²/sr",
                 "radiance of a clear sky (single + multiple scattering) in a view direction, per RGB channel",
@@ -393,6 +457,12 @@ class QuantityInputs:
         return f"<g of {self._q.name}: {', '.join(self._q.input_names)}>"
 
 
+class UserCodeExit(ValueError):
+    """A user approximation called ``sys.exit`` (or raised `SystemExit`) while it ran: one line naming it.
+    User code must never end the process that evaluates it: a CI job would read the exit status 0 of
+    ``sys.exit(0)`` as success, with no report written (issue 32)."""
+
+
 class UserKernel:
     """The kernel of a user approximation: ``kernel(ops, **inputs, **params)`` builds ``g`` from the
     quantity's inputs and returns ``function(ops, g, **params)``. ``run`` does the same with a record of
@@ -405,7 +475,13 @@ class UserKernel:
         self.__doc__ = function.__doc__
 
     def run(self, ops, values: Mapping[str, Any], params: Mapping[str, Any], record: set[str] | None = None):
-        return self.function(ops, QuantityInputs(self.quantity, values, record), **params)
+        try:
+            return self.function(ops, QuantityInputs(self.quantity, values, record), **params)
+        except SystemExit as e:  # wherever it runs (validation, the audit, a fit): never the process's exit
+            raise UserCodeExit(
+                f"{self.__name__}: called sys.exit({e.code!r}) (an approximation must return values or raise "
+                "an exception)"
+            ) from None
 
     def __call__(self, ops, **kw):
         values = {n: kw.pop(n) for n in self.quantity.input_names if n in kw}
@@ -429,6 +505,11 @@ def _where(function) -> str:
     return f"{file}:{line}"
 
 
+UNDECLARED_UNIT = "undeclared"
+"""The unit of a user approximation's parameter declared without ``unit=`` (in reports and fitted files:
+the number's unit is not known to rtfit)."""
+
+
 def approximation(
     *,
     quantity: str,
@@ -438,7 +519,8 @@ def approximation(
 ) -> Callable[[Callable[..., Any]], Method]:
     """Decorator: ``f(ops, g, **params)`` → a `Method` of ``quantity`` (module docstring).
 
-    ``params``: the free parameters, each a `Param` (start value and bounds: a fit stays within them);
+    ``params``: the free parameters, each a `Param` (start value and bounds: a fit stays within them; one
+    declared without ``unit=`` gets `UNDECLARED_UNIT`, so a fitted file says the unit is not known);
     ``label`` (default: the first line of ``f``'s docstring, else its name); ``id`` (default ``f``'s name).
     A wrong declaration is a one-line `ApproximationError` naming the function: an unknown quantity (listing
     the known ones), a parameter given as a bare number (no bounds), a parameter ``f`` does not take as a
@@ -491,7 +573,8 @@ def approximation(
                 label=label or first or name,
                 kernel=UserKernel(f, q),
                 inputs=q.inputs,
-                params=declared,
+                # a unit the user left out is said to be so (fitted files refuse an empty unit)
+                params={k: p if p.unit else replace(p, unit=UNDECLARED_UNIT) for k, p in declared.items()},
                 quantity=q.name,
                 formula=first,
                 source=_where(f),

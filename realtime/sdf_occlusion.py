@@ -575,11 +575,24 @@ _EVANS_INPUT = Input(
     "scene units",
     "the sample terms D_i = d_i − s_{i−1}(P + d_i N'), (n, N) (`evans_terms` at the row's α and base)",
 )
-_K = Param(10.0, 0.0, 1e4, unit="1/scene unit", description="contrast k (the seed's −k_text)")
-_LOG_B = Param(0.0, -5.0, 5.0, unit="1", description="log B, B the brightness (Listing 1's GlobalBrightness)")
+# The seed gives no contrast k, no per-sample c_i and no Listing-1 brightness (000:2946, 000:2982-2987): their
+# defaults are starts of the fit, not values of the method (`Param.published`).
+_K = Param(
+    10.0, 0.0, 1e4, unit="1/scene unit", description="contrast k (the seed's −k_text)", published=False
+)
+_LOG_B = Param(
+    0.0,
+    -5.0,
+    5.0,
+    unit="1",
+    description="log B, B the brightness (Listing 1's GlobalBrightness)",
+    published=False,
+)
 _ALPHA = Param(0.5, 0.0, 1.0, unit="1", description="sky weighting α of the bent normal N + αU")
 _BASE = Param(1.0, 0.25, 4.0, unit="voxels", description="base distance d_1 in voxels of the finest grid")
-_C = Param(10.0, 0.0, 1e4, unit="1/scene unit", description="per-sample coefficient c_i = k·w_i")
+_C = Param(
+    10.0, 0.0, 1e4, unit="1/scene unit", description="per-sample coefficient c_i = k·w_i", published=False
+)
 
 
 def _evans_row_kernel(
@@ -662,7 +675,11 @@ METHODS = method_table(
             inputs=(
                 Input("distance", "scene units", f"s_{CURVATURE_LEVEL}(P), the blurred SDF at the point"),
             ),
-            params={"k": Param(-10.0, -1e4, 1e4, unit="1/scene unit", description="the text's k_text")},
+            params={
+                "k": Param(
+                    -10.0, -1e4, 1e4, unit="1/scene unit", description="the text's k_text", published=False
+                )
+            },
             fixed={"norm": 1.5},
             quantity="crease_darkening",
             formula="(0.5 + exp(k_text·S_text(P)))/1.5, S_text = −s",

@@ -252,6 +252,28 @@ METHODS = method_table(
 one ops namespace, `rtfit.fitting.fit_method` fits ``stable``'s (i, a) through its JAX run."""
 
 
+def _given_kernel(ops, single_scattering):
+    """The exact row: single scattering with extinction and the medium's phase function along the segment,
+    integrated by `rtfit.reference.single_scattering` (the reference layer is not importable from here),
+    passed through."""
+    return single_scattering
+
+
+QUADRATURE = Method(
+    "quadrature",
+    "single scattering with extinction (quadrature, exact)",
+    _given_kernel,
+    inputs=(Input("single_scattering", "W/m²/sr", "the quadrature of the segment's single scattering"),),
+    exact=True,
+    quantity="inscattered_radiance",
+    formula="L = σ_s ∫ I·p(cos ϑ)·e^(−σ_t(s − s₀ + r))/r² ds (Gauss–Legendre in u, s = c_∥ + h sinh u)",
+    source="rtfit.reference.single_scattering.point_single_scattering",
+    description="The exact row of `rtfit audit`: must sit at the reference's noise where nothing shadows "
+    "the medium (not one of `METHODS`: the experiment compares its quadrature on its own).",
+)
+"""The exact row the audit adds to `METHODS` (``rtfit.experiments.audit.FAMILIES``)."""
+
+
 # ===================================================================================== public API
 def _vec(v, name):
     if isinstance(v, (tuple, list)) and len(v) == 3 and all(is_drjit(x) or is_jax(x) for x in v):

@@ -6,12 +6,13 @@
 * `ReferenceCache` / `ReferenceRequest` / `Reference` — resumable, content-addressed Monte Carlo
   references (radiance images point-sampled at pixel centres, irradiance probes), each with its
   per-element standard error.
-* `render_gbuffer` — pixel-centre G-buffer (position, normal, depth, albedo, masks) for the same camera.
+* `render_gbuffer` — pixel-centre G-buffer (position, normal, depth, albedo, masks) for the same camera;
+  `gbuffer_points` — its hits as float64 (points, unit normals), the per-point estimators' probes.
 """
 
 from .build import load_mitsuba_scene, mitsuba_scene_dict, plugin_types
 from .cache import Reference, ReferenceCache, ReferenceRequest, default_cache_dir, pool_passes
-from .estimators import GBuffer, PassResult, gbuffer, irradiance_pass, radiance_pass
+from .estimators import GBuffer, PassResult, gbuffer, gbuffer_points, irradiance_pass, radiance_pass
 from .integrators import IntegratorChoice, can_interreflect, choose_integrator
 from .variants import KNOWN_VARIANTS, backend_of, callers_variant, resolve_variant, use_variant
 
@@ -36,6 +37,7 @@ __all__ = [
     "choose_integrator",
     "default_cache_dir",
     "gbuffer",
+    "gbuffer_points",
     "irradiance_pass",
     "load_mitsuba_scene",
     "mitsuba_scene_dict",

@@ -186,11 +186,16 @@ def _medium_dict(medium: HomogeneousMedium) -> dict:
 
         return height_fog.medium_dict(mi, medium)
     phase = {"type": "isotropic"} if medium.g == 0.0 else {"type": "hg", "g": medium.g}
+    # Mitsuba reads an RGB `sigma_t` as a reflectance and refuses values above 1 (measured, 3.9: even a
+    # grey 2); a denser medium is σ_t = scale·rgb, scale its largest channel (σ_t ≤ 1: the dict is unchanged).
+    peak = max(medium.sigma_t)
+    dense = {"sigma_t": _rgb([v / peak for v in medium.sigma_t]), "scale": peak} if peak > 1.0 else {}
     return {
         "type": "homogeneous",
         "sigma_t": _rgb(medium.sigma_t),
         "albedo": _rgb(medium.albedo),
         "phase": phase,
+        **dense,
     }
 
 
@@ -311,6 +316,11 @@ def box_boundary_shape(boundary) -> dict:
     without re-hits (add ``bsdf``/``interior`` to it); never Mitsuba's ``cube`` for a large box."""
     vertices, triangles = box_boundary_mesh(boundary)
     return {"type": "obj", "filename": _mesh_file(vertices, triangles), "face_normals": True}
+
+
+def inside_boundary(boundary, point) -> bool:
+    """True when ``point`` lies strictly inside a medium's ``boundary`` (a `Sphere` or a rotated `Cube`)."""
+    return _inside(boundary, point)
 
 
 def _inside(boundary, point) -> bool:

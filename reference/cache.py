@@ -282,9 +282,15 @@ class PassEntry:
             mean, var = mean.astype(np.float64), var.astype(np.float64)
             if shape is not None:
                 mean, var = mean.reshape(shape), var.reshape(shape)
-            return PassResult(mean, var, int(info["spp"]), int(info["seed"]), float(info["seconds"]))
-        except (OSError, ValueError, RuntimeError, KeyError, EOFError, zipfile.BadZipFile):
-            return None  # unreadable leftovers are re-rendered, never trusted
+            spp = int(info["spp"])
+            if spp < 1:
+                raise ValueError(f"spp {spp}")
+            return PassResult(mean, var, spp, int(info["seed"]), float(info["seconds"]))
+        except (OSError, ValueError, RuntimeError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as e:
+            # unreadable leftovers are re-rendered, never trusted; one line says which (issue 32)
+            why = " ".join(f"{type(e).__name__}: {e}".split())[:160]
+            log.warning("cached pass %s is unreadable (%s): it is rendered again", data, why)
+            return None
 
     def save(self, index: int, result: PassResult) -> PassResult:
         """Write pass ``index`` atomically; returns it with the values exactly as stored, so that a fresh

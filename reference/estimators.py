@@ -74,6 +74,19 @@ class GBuffer:
     view_dir: np.ndarray  # unit direction from the camera through the pixel centre
 
 
+def gbuffer_points(gb: GBuffer, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(points, unit normals), float64 (N, 3), of the G-buffer's pixels under ``mask`` (default
+    ``gb.mask``: every hit), in row-major pixel order: the per-point estimators' probes for a scene.
+
+    The normals are renormalised in float64 (the float32 G-buffer's are unit only to ~1e-7); a zero normal
+    stays zero rather than becoming NaN (its length is floored at 1e-30), so a caller can drop it."""
+    mask = gb.mask if mask is None else mask
+    points = gb.position[mask].astype(np.float64)
+    normals = gb.normal[mask].astype(np.float64)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    return points, normals
+
+
 def sub_seed(seed: int, *labels) -> int:
     """A 32-bit seed derived from ``seed`` and labels (pass index, chunk index): independent streams."""
     h = hashlib.sha256(repr((int(seed), *labels)).encode()).digest()
@@ -394,16 +407,19 @@ def check_spp(spp: int):
 
 
 # ----------------------------------------------------------------------------------- radiance pass
-def radiance_pass(mi, mi_scene, spp: int, seed: int, dtype: DTypeLike = np.float64) -> PassResult:
-    """Point-sampled radiance at every pixel centre with the scene's own integrator. ``dtype``: the
-    precision (float64 or float32) the float64 mean and variance are rounded to on the device before the
-    copy to the host, and the dtype of the arrays returned (`PassMoments.result`)."""
+def radiance_pass(
+    mi, mi_scene, spp: int, seed: int, dtype: DTypeLike = np.float64, *, integrator=None, sensor=None
+) -> PassResult:
+    """Point-sampled radiance at every pixel centre with the scene's own integrator (or ``integrator``, a
+    loaded Mitsuba integrator) through its first sensor (or ``sensor``). ``dtype``: the precision (float64
+    or float32) the float64 mean and variance are rounded to on the device before the copy to the host, and
+    the dtype of the arrays returned (`PassMoments.result`)."""
 
     check_spp(spp)
     t0 = time.perf_counter()
-    sensor = mi_scene.sensors()[0]
+    sensor = sensor if sensor is not None else mi_scene.sensors()[0]
     width, height = sensor.film().crop_size()
-    integrator = mi_scene.integrator()
+    integrator = integrator if integrator is not None else mi_scene.integrator()
     if mi.variant().startswith("scalar"):
         mean, var = _radiance_scalar(mi, mi_scene, sensor, integrator, width, height, spp, seed)
         return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
@@ -446,9 +462,69 @@ def _radiance_scalar(mi, mi_scene, sensor, integrator, width, height, spp, seed)
 
 
 # ------------------------------------------------------------------------------------------ G-buffer
+MAX_PASS_THROUGH = 16
+"""At most this many medium boundaries are passed through along one camera ray (nested media boxes, a
+glass shell's two faces); a ray still on one after that keeps it as its first hit."""
+
+
+def is_pass_through(mi, shape) -> bool:
+    """True for a surface a real-time renderer does not shade as an opaque first hit (issue 31): a ``null``
+    BSDF (a medium's invisible boundary: flags Null and no reflection or transmission lobe), or a
+    boundary between media (``Shape.is_medium_transition``) whose BSDF has no diffuse or glossy lobe (a
+    smooth or thin dielectric around a medium: delta lobes only, drawn as a transparent volume, not as a
+    lit surface). Every other surface (diffuse, glossy, rough dielectric, a ``mask``'s opaque part) is a
+    first hit as before."""
+    bsdf = shape.bsdf()
+    if bsdf is None:
+        return False
+    flags = bsdf.flags()
+    f = mi.BSDFFlags
+    lobes = any(mi.has_flag(flags, k) for k in (f.Diffuse, f.Glossy))
+    if lobes:
+        return False
+    if mi.has_flag(flags, f.Null) and not mi.has_flag(flags, f.Delta):
+        return True
+    return bool(shape.is_medium_transition())
+
+
+def first_surface(mi, mi_scene, ray):
+    """(si, t): the first hit of the camera rays ``ray`` that is not a pass-through surface
+    (`is_pass_through`), and its distance along the ray (+inf where none). In a scene without such
+    surfaces this is exactly ``mi_scene.ray_intersect(ray)`` and its ``t`` (the same single trace)."""
+    si = mi_scene.ray_intersect(ray)
+    through_shapes = [shape for shape in mi_scene.shapes() if is_pass_through(mi, shape)]
+    if not through_shapes:
+        return si, si.t
+    t_before = dr.zeros(type(si.t), dr.width(si.t))
+    for _ in range(MAX_PASS_THROUGH):
+        through = dr.full(mi.Bool, False, dr.width(si.t))
+        for shape in through_shapes:
+            through |= si.shape == mi.ShapePtr(shape)
+        through &= si.is_valid()
+        if not dr.any(through):
+            break
+        t_before = dr.select(through, t_before + si.t, t_before)
+        nxt = mi_scene.ray_intersect(si.spawn_ray(ray.d), through)
+        si = dr.select(through, nxt, si)
+    return si, t_before + si.t
+
+
+def _first_surface_scalar(mi, mi_scene, ray):
+    """`first_surface` for one scalar ray."""
+    si = mi_scene.ray_intersect(ray)
+    t = 0.0
+    for _ in range(MAX_PASS_THROUGH):
+        if not (si.is_valid() and is_pass_through(mi, si.shape)):
+            break
+        t += float(si.t)
+        si = mi_scene.ray_intersect(si.spawn_ray(ray.d))
+    return si, t + float(si.t)
+
+
 def gbuffer(mi, mi_scene, sensor=None) -> GBuffer:
     """First hits of the pixel-centre rays (the approximation's inputs) of ``sensor`` (default: the
-    scene's first)."""
+    scene's first): the first surface a real-time renderer shades, through medium boundaries
+    (`first_surface`); ``depth`` is the distance along the ray to it."""
 
     sensor = mi_scene.sensors()[0] if sensor is None else sensor
     width, height = sensor.film().crop_size()
@@ -456,14 +532,14 @@ def gbuffer(mi, mi_scene, sensor=None) -> GBuffer:
     if mi.variant().startswith("scalar"):
         return _gbuffer_scalar(mi, mi_scene, sensor, width, height)
     ray, _ = _pixel_rays(mi, dr, sensor, width, 0, n, 1)
-    si = mi_scene.ray_intersect(ray)
+    si, t = first_surface(mi, mi_scene, ray)
     valid = si.is_valid()
     n_sh = si.sh_frame.n
     n_sh = dr.select(dr.dot(n_sh, ray.d) > 0, -n_sh, n_sh)
     albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
     emitter = si.emitter(mi_scene)
     is_emitter = valid & (emitter != None)  # noqa: E711  (Dr.Jit pointer-array comparison)
-    depth = dr.select(valid, si.t, math.inf)
+    depth = dr.select(valid, t, math.inf)
     dr.eval(si.p, n_sh, depth, albedo, valid, is_emitter, ray.d)
 
     def img(v, c=3):
@@ -475,6 +551,43 @@ def gbuffer(mi, mi_scene, sensor=None) -> GBuffer:
     nrm = np.where(mask[..., None], img(n_sh), 0.0).astype(np.float32)
     alb = np.where(mask[..., None], img(albedo), 0.0).astype(np.float32)
     return GBuffer(pos, nrm, img(depth, 1), alb, mask, img(is_emitter, 1).astype(bool), img(ray.d))
+
+
+_UV_ANALYTIC = frozenset({"sphere", "disk", "cylinder", "rectangle"})
+"""Mitsuba's analytic shapes, each with its own (u, v) parametrisation (a sphere: longitude, latitude)."""
+
+
+def shape_has_uv(shape) -> bool:
+    """True when Mitsuba gives ``shape`` a UV parametrisation of its own: a mesh with texture coordinates
+    (``has_vertex_texcoords``), or an analytic sphere, disk, cylinder or rectangle. A mesh without
+    texcoords has none: Mitsuba then reports the hit's barycentrics as ``uv`` and the triangle's edges
+    as ``dp_du``/``dp_dv`` (measured, Mitsuba 3.6), a frame no texture or lightmap is laid out in."""
+    if shape.is_mesh():
+        return bool(shape.has_vertex_texcoords())
+    return str(shape.class_name()).lower() in _UV_ANALYTIC
+
+
+def uv_tangents(mi, mi_scene, sensor=None) -> tuple[np.ndarray, np.ndarray]:
+    """The UV tangent ∂p/∂u (Mitsuba's ``dp_du``, world units per unit u) at the pixel-centre first hits of
+    ``sensor`` (the rays `gbuffer` traces), (H, W, 3) float32, and (H, W) bool: the hit lies on a shape
+    with a UV parametrisation (`shape_has_uv`) and its ``dp_du`` is finite and non-zero (a sphere's poles
+    have none). Zero where False."""
+    sensor = mi_scene.sensors()[0] if sensor is None else sensor
+    width, height = sensor.film().crop_size()
+    if mi.variant().startswith("scalar"):
+        raise ValueError("uv_tangents needs a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
+    ray, _ = _pixel_rays(mi, dr, sensor, width, 0, width * height, 1)
+    si, _ = first_surface(mi, mi_scene, ray)
+    has_uv = dr.full(mi.Bool, False, width * height)
+    for shape in mi_scene.shapes():
+        if shape_has_uv(shape):
+            has_uv |= si.shape == mi.ShapePtr(shape)
+    has_uv &= si.is_valid()
+    dr.eval(si.dp_du, has_uv)
+    t = np.array(si.dp_du, dtype=np.float64).T.reshape(height, width, 3)
+    ok = np.array(has_uv, dtype=bool).reshape(height, width)
+    ok &= np.all(np.isfinite(t), axis=-1) & (np.linalg.norm(t, axis=-1) > 0.0)
+    return np.where(ok[..., None], t, 0.0).astype(np.float32), ok
 
 
 def _gbuffer_scalar(mi, mi_scene, sensor, width, height) -> GBuffer:
@@ -491,7 +604,7 @@ def _gbuffer_scalar(mi, mi_scene, sensor, width, height) -> GBuffer:
                 0.0, 0.5, mi.Point2f((i + 0.5) / width, (j + 0.5) / height), mi.Point2f(0.5, 0.5)
             )
             view[j, i] = np.array(ray.d)
-            si = mi_scene.ray_intersect(ray)
+            si, t = _first_surface_scalar(mi, mi_scene, ray)
             if not si.is_valid():
                 continue
             n = np.array(si.sh_frame.n)
@@ -500,7 +613,7 @@ def _gbuffer_scalar(mi, mi_scene, sensor, width, height) -> GBuffer:
             mask[j, i] = True
             pos[j, i] = np.array(si.p)
             nrm[j, i] = n
-            depth[j, i] = si.t
+            depth[j, i] = t
             alb[j, i] = np.array(si.bsdf(ray).eval_diffuse_reflectance(si))
             emit[j, i] = si.emitter(mi_scene) is not None
     return GBuffer(pos, nrm, depth, alb, mask, emit, view)

@@ -68,15 +68,28 @@ MAX_COLLISIONS = 1024.0
 
 
 def transmittance_pass(
-    mi, medium, origin, directions, max_distance, spp: int, seed: int, max_steps: int = MAX_STEPS
+    mi,
+    medium,
+    origin,
+    directions,
+    max_distance,
+    spp: int,
+    seed: int,
+    max_steps: int = MAX_STEPS,
+    min_distance=None,
 ) -> PassResult:
     """One pass of ``spp`` ratio-tracking samples of the transmittance of ``medium`` (a loaded Mitsuba
-    medium) along rays from ``origin`` (3,) in unit ``directions`` (N, 3) over [0, ``max_distance``] (N,;
-    +inf allowed). Returns a `PassResult` with mean and variance (N, 3): the grey T estimated independently
-    in each channel (3 × ``spp`` samples per ray), so that the three channels' errors are independent."""
+    medium) along rays from ``origin`` (3,) in unit ``directions`` (N, 3) over [``min_distance``,
+    ``max_distance``] (N,; +inf allowed; ``min_distance`` None: 0), intersected with the medium's own region
+    (``intersect_aabb``). A medium that Mitsuba bounds by a shape rather than by its own region (a
+    ``homogeneous`` medium is unbounded) is clipped to the shape by the caller through these distances.
+    Returns a `PassResult` with mean and variance (N, 3): the grey T estimated independently in each channel
+    (3 × ``spp`` samples per ray), so that the three channels' errors are independent."""
     d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
     dist = np.asarray(max_distance, np.float64).reshape(-1)
     n = len(d)
+    near_np = np.zeros(n) if min_distance is None else np.asarray(min_distance, np.float64).reshape(-1)
+    near = mi.Float(np.maximum(near_np, 0.0).astype(np.float32))
     t0 = time.perf_counter()
     s = np.empty((n, 3))
     q = np.empty((n, 3))
@@ -94,7 +107,7 @@ def transmittance_pass(
         )
         ray = mi.Ray3f(mi.Point3f(*o), dr.normalize(direction))
         hit_box, t_in, t_out = medium.intersect_aabb(ray)
-        t_in = dr.maximum(t_in, 0.0)
+        t_in = dr.maximum(t_in, dr.gather(mi.Float, near, idx))
         t_out = dr.minimum(t_out, dr.gather(mi.Float, far, idx))
         active = hit_box & (t_out > t_in)
         mei = dr.zeros(mi.MediumInteraction3f, m)
@@ -110,6 +123,7 @@ def transmittance_pass(
             mei.p = ray(t)
             _sigma_s, _sigma_n, sigma_t = medium.get_scattering_coefficients(mei, active)
             weight = dr.select(active, weight * dr.clip(1.0 - sigma_t[0] / bar, 0.0, 1.0), weight)
+            sampler.schedule_state()  # else its state stays symbolic: step k's kernel holds all k before it
             dr.eval(weight, t, active)
             if not dr.any(active):
                 break

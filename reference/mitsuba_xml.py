@@ -21,8 +21,11 @@ non-triangular faces: Mitsuba 3.9's PLY loader takes triangles only) is an `XMLS
 the XML file and line that declares it.
 
 Errors: a file Mitsuba refuses becomes one `XMLSceneError` line naming the file and line, as Mitsuba
-reports them (e.g. ``scene.xml: Parsing of XML file "scene.xml" failed: Start-end tags mismatch (line 4,
-col 3)``), without Mitsuba's source-location prefixes.
+reports them (e.g. ``scene.xml: Error while loading scene.xml (line 9, col 6): encountered an unsupported XML
+element: <widget>``), without Mitsuba's source-location prefixes. Before Mitsuba parses a file,
+`rtfit.reference.xml_checks.prescan` refuses what would crash its parser (deep nesting), entity declarations,
+a newer ``version`` and XML that is not well-formed; before the scene is instantiated, `check_values` checks
+every value against the TOML scene's ranges and `mesh_problem` every mesh file (issue 32).
 """
 
 from __future__ import annotations
@@ -37,7 +40,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .particle_media import convex_mesh
 from .variants import inspection_variant, scoped_variant
+from .xml_checks import XmlNode, check_values, mesh_problem, prescan
 
 __all__ = [
     "UP_AXES",
@@ -102,6 +107,9 @@ def _parsed(path: str, defines: Mapping[str, str], variant: str | None) -> Itera
     resolver back afterwards. Mitsuba's refusal becomes one `XMLSceneError` line."""
     if not os.path.isfile(path):
         raise XMLSceneError(f"{path}: no such file")
+    problem = prescan(path)  # before Mitsuba parses it: its parser crashes on deep nesting
+    if problem is not None:
+        raise XMLSceneError(problem)
     variant = variant or inspection_variant()
     with scoped_variant(variant) as mi:  # the caller's variant is put back afterwards
         import mitsuba.parser as parser  # mitsuba: needs the variant set above
@@ -116,6 +124,10 @@ def _parsed(path: str, defines: Mapping[str, str], variant: str | None) -> Itera
                 state = parser.parse_file(config, path, **defines)
             except RuntimeError as e:
                 raise XMLSceneError(f"{path}: {_one_line(str(e))}") from None
+            except UnicodeDecodeError:  # Mitsuba's message quoted bytes of a file that is not text
+                raise XMLSceneError(
+                    f"{path}: Mitsuba could not parse it (a file it reads is not text)"
+                ) from None
             yield mi, parser, config, state
         finally:
             mi.set_file_resolver(previous)
@@ -218,7 +230,8 @@ class XmlEmitter:
     ``sun_aperture``), 0 for a directional light. ``scale``/``scale_name``: the emitted quantity as
     written (``radiance``, ``irradiance``, ``intensity`` or an envmap's ``scale``; a texture is
     ``None``). ``spherical``: the light is a sphere (or a cap of directions), so the exact sphere-light
-    form applies."""
+    form applies. ``medium``: for a point or spot light, the index in `XmlScene.media` of the medium it sits
+    in (`point_medium`), else None."""
 
     type: str
     kind: str
@@ -234,6 +247,7 @@ class XmlEmitter:
     spherical: bool = False
     environment: bool = False
     file: str = ""
+    medium: int | None = None
 
 
 @dataclass(frozen=True)
@@ -253,18 +267,24 @@ class XmlShape:
     bsdf: str = ""
     interior: str = ""
     exterior: str = ""
+    convex: bool | None = None
+    """For a mesh that bounds a medium (``interior``): whether it is convex (`particle_media.convex_mesh`);
+    None otherwise."""
 
 
 @dataclass(frozen=True)
 class XmlMedium:
     """One medium: plugin ``type`` (``homogeneous``, ``heterogeneous``, …), ``id``, ``location``, and
-    whether a shape bounds it (``boundary``) or the sensor sits in it (``on_sensor``)."""
+    whether a shape bounds it (``boundary``) or the sensor sits in it (``on_sensor``). ``sigma_t``: the
+    plugin of a nested extinction object (``gridvolume``, ``constvolume``, ``rgb``, …; ``""`` for a value
+    written inline)."""
 
     type: str
     id: str
     location: str
     boundary: bool
     on_sensor: bool
+    sigma_t: str = ""
 
 
 @dataclass(frozen=True)
@@ -288,6 +308,14 @@ class XmlScene:
     bsdfs: tuple[str, ...]
     media: tuple[XmlMedium, ...]
     bbox: tuple[Vec3, Vec3] | None
+
+
+def _convex(shape) -> bool | None:
+    """Whether a loaded mesh shape is convex (None: not a mesh)."""
+    if shape is None or not shape.is_mesh():
+        return None
+    v = np.asarray(shape.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+    return convex_mesh(v, np.asarray(shape.faces_buffer(), np.int64).reshape(-1, 3))
 
 
 def _unit(v) -> Vec3 | None:
@@ -501,12 +529,12 @@ def inspect_xml(
             props = [_props(n) for n in nodes]
             where = [parser.file_location(state, n) for n in nodes]
             kind = {i: str(n.type).rsplit(".", 1)[-1] for i, n in enumerate(nodes)}
+            _check(mi, nodes, [kind[i] for i in range(len(nodes))], props, where, camera)
             scene = parser.instantiate(config, state)
         except RuntimeError as e:
-            text = _one_line(str(e))
-            if "PLYMesh" in text and any(m in text for m in _PLY_FACE_ERRORS):
-                text += f" ({_PLY_HINT})"
-            raise XMLSceneError(f"{path}: {text}") from None
+            raise XMLSceneError(f"{path}: {_mitsuba_text(e)}") from None
+        except UnicodeDecodeError:  # Mitsuba's message quoted bytes of a data file that is not text
+            raise XMLSceneError(f"{path}: {_NOT_TEXT}") from None
         if isinstance(scene, list | tuple) or not hasattr(scene, "shapes"):
             raise XMLSceneError(f"{path}: the file's root is not a <scene>")
 
@@ -571,15 +599,26 @@ def inspect_xml(
                     bsdf=bsdf,
                     interior=media.get("interior", ""),
                     exterior=media.get("exterior", ""),
+                    convex=_convex(obj) if media.get("interior") else None,
                 )
             )
         on_sensor = {j for i in of_type("Sensor") for _, j in refs(i) if kind[j] == "Medium"}
         media_out = tuple(
             XmlMedium(
-                nodes[i].props.plugin_name(), nodes[i].props.id(), where[i], i in boundaries, i in on_sensor
+                nodes[i].props.plugin_name(),
+                nodes[i].props.id(),
+                where[i],
+                i in boundaries,
+                i in on_sensor,
+                next((nodes[j].props.plugin_name() for k, j in refs(i) if k == "sigma_t"), ""),
             )
             for i in of_type("Medium")
         )
+        media_objs = _medium_objects(
+            of_type("Medium"), shape_nodes, shape_obj, of_type("Sensor"), sensor_objs, refs
+        )
+        cam_obj = sensor_objs[camera] if 0 <= camera < len(sensor_objs) else None
+        emitters = [_with_medium(mi, scene, cam_obj, e, media_objs) for e in emitters]
         bsdfs = tuple(dict.fromkeys(nodes[i].props.plugin_name() for i in of_type("BSDF")))
         integrators = of_type("Integrator")
         integrator = nodes[integrators[0]].props.plugin_name() if integrators else ""
@@ -606,6 +645,73 @@ def inspect_xml(
         media=media_out,
         bbox=bbox,
     )
+
+
+# --------------------------------------------------------------------------------- lights inside media
+MAX_CROSSINGS = 16
+"""Surfaces a probe ray is followed through before it is given up (`first_transition`)."""
+OUTER = "outer"
+"""`first_transition`'s answer for a point outside every bounded medium."""
+_PROBE = (0.2672612419124244, 0.5345224838248488, 0.8017837257372732)  # (1, 2, 3)/√14: off every axis
+
+
+def first_transition(mi, scene, point):
+    """The medium on the incoming side of the first medium transition (a shape with an interior or exterior
+    medium) along a fixed probe ray from ``point`` (a Mitsuba Medium, or None for vacuum), surfaces that
+    are not transitions passed through; `OUTER` where the ray leaves the scene first; None after
+    `MAX_CROSSINGS` surfaces."""
+    ray = mi.Ray3f(mi.Point3f(*(float(x) for x in point)), mi.Vector3f(*_PROBE))
+    for _ in range(MAX_CROSSINGS):
+        si = scene.ray_intersect(ray)
+        if not bool(np.asarray(si.is_valid()).ravel()[0]):
+            return OUTER
+        if bool(np.asarray(si.is_medium_transition()).ravel()[0]):
+            medium = si.target_medium(-ray.d)  # a MediumPtr array in JIT variants, a Medium in scalar ones
+            return medium[0] if type(medium).__name__ == "MediumPtr" else medium
+        ray = si.spawn_ray(ray.d)
+    return None
+
+
+def camera_origin(mi, sensor) -> tuple[float, float, float]:
+    """The sensor's position: the translation of its ``to_world`` (a perspective camera's rays start there;
+    Mitsuba's own rays start at the near clip plane, a few mm along them)."""
+    m = np.asarray(sensor.world_transform().matrix, np.float64).reshape(4, 4, -1)[..., 0]
+    return float(m[0, 3]), float(m[1, 3]), float(m[2, 3])
+
+
+def point_medium(mi, scene, sensor, point):
+    """The Mitsuba medium ``point`` sits in, or None: the incoming side of the first transition along the
+    probe (`first_transition`); outside every bounded medium, the scene's unbounded medium — the
+    ``sensor``'s own medium when the sensor is outside every boundary too, else none."""
+    found = first_transition(mi, scene, point)
+    if found is not OUTER:
+        return found
+    if sensor is None:
+        return None
+    return sensor.get_medium() if first_transition(mi, scene, camera_origin(mi, sensor)) is OUTER else None
+
+
+def _medium_objects(medium_nodes, shape_nodes, shape_obj, sensor_nodes, sensor_objs, refs) -> list:
+    """(Mitsuba medium object, index in `XmlScene.media`) of every medium a shape or sensor refers to."""
+    out = []
+    for i in shape_nodes:
+        for name, j in refs(i):
+            if name in ("interior", "exterior") and shape_obj.get(i) is not None and j in medium_nodes:
+                out.append((getattr(shape_obj[i], f"{name}_medium")(), medium_nodes.index(j)))
+    for k, i in enumerate(sensor_nodes):
+        for _, j in refs(i):
+            if j in medium_nodes and k < len(sensor_objs):
+                out.append((sensor_objs[k].get_medium(), medium_nodes.index(j)))
+    return out
+
+
+def _with_medium(mi, scene, sensor, emitter: XmlEmitter, media_objs) -> XmlEmitter:
+    """``emitter`` with its `XmlEmitter.medium` (point and spot lights)."""
+    if emitter.kind not in ("point", "spot") or emitter.position is None:
+        return emitter
+    medium = point_medium(mi, scene, sensor, emitter.position)
+    index = next((k for obj, k in media_objs if medium is not None and obj is medium), None)
+    return replace(emitter, medium=index)
 
 
 # -------------------------------------------------------------------------------------------- loading
@@ -657,6 +763,14 @@ def loaded_xml(
                 raise XMLSceneError(
                     f"{path}: the scene has no <sensor> (the audit renders the scene's own view)"
                 )
+            _check(
+                mi,
+                nodes,
+                kinds,
+                [_props(n) for n in nodes],
+                [parser.file_location(state, n) for n in nodes],
+                camera,
+            )
             films = _films_of(state, nodes, kinds, sensors[camera])
             for film in films:
                 if width is not None:
@@ -665,15 +779,52 @@ def loaded_xml(
                     film.props["height"] = int(height)
             scene = parser.instantiate(config, state)
         except RuntimeError as e:
-            text = _one_line(str(e))
-            if "PLYMesh" in text and any(m in text for m in _PLY_FACE_ERRORS):
-                text += f" ({_PLY_HINT})"
-            raise XMLSceneError(f"{path}: {text}") from None
+            raise XMLSceneError(f"{path}: {_mitsuba_text(e)}") from None
+        except UnicodeDecodeError:
+            raise XMLSceneError(f"{path}: {_NOT_TEXT}") from None
         if isinstance(scene, list | tuple) or not hasattr(scene, "sensors"):
             raise XMLSceneError(f"{path}: the file's root is not a <scene>")
         by_id = {e.id(): e for e in scene.emitters()}
         emitters = tuple(by_id.get(f"rtfit-emitter-{k}") for k in range(len(emitter_nodes)))
         yield LoadedXml(mi, scene, scene.sensors()[camera], emitters)
+
+
+_NOT_TEXT = "Mitsuba could not load it, and its message is not text (a mesh or image file that is corrupt?)"
+
+
+def _mitsuba_text(e: RuntimeError) -> str:
+    text = _one_line(str(e))
+    if "PLYMesh" in text and any(m in text for m in _PLY_FACE_ERRORS):
+        text += f" ({_PLY_HINT})"
+    return text
+
+
+def _spectra(node) -> dict:
+    """A node's spectrum properties (``<spectrum value="5"/>``, wavelength:value lists) as their values."""
+    out = {}
+    for k in node.props.keys():
+        v = node.props[k]
+        if type(v).__name__ == "Spectrum":
+            out[k] = tuple(float(x) for x in np.asarray(v.values, dtype=float).ravel())
+    return out
+
+
+def _check(mi, nodes, kinds, props, where, camera: int) -> None:
+    """The scene's values in rtfit's ranges and its mesh files readable (`rtfit.reference.xml_checks`),
+    before it is instantiated: one `XMLSceneError` line naming the file, element, key and range."""
+    records = [
+        XmlNode(k, n.props.plugin_name(), {**p, **_spectra(n)}, w)
+        for n, k, p, w in zip(nodes, kinds, props, where, strict=True)
+    ]
+    problem = check_values(records, camera)
+    if problem is not None:
+        raise XMLSceneError(problem)
+    for r in records:
+        if r.kind == "Shape" and r.plugin in _MESH_PLUGINS and isinstance(r.props.get("filename"), str):
+            file = _resolved(mi, r.props["filename"])
+            problem = mesh_problem(file)
+            if problem is not None:
+                raise XMLSceneError(f'{r.location}: <shape type="{r.plugin}"> filename {file}: {problem}')
 
 
 def _films_of(state, nodes, kinds, sensor_index: int) -> list:

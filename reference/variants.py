@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import contextlib
 import importlib.util
+import os
 import sys
 from collections.abc import Iterator
 
 import drjit as dr
+
+from .mitsuba_log import route_mitsuba_log
 
 KNOWN_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
 
@@ -24,14 +27,32 @@ def cuda_available() -> bool:
         return False
 
 
+def _llvm_missing() -> str:
+    """Why the LLVM backend is unavailable, in one line (issue 32: a wrong ``$DRJIT_LIBLLVM_PATH`` gave 57
+    lines of traceback after ``out/`` and a cache entry were made)."""
+    path = os.environ.get("DRJIT_LIBLLVM_PATH", "")
+    where = (
+        f"$DRJIT_LIBLLVM_PATH={path} is not a file"
+        if path and not os.path.isfile(path)
+        else "libLLVM did not load"
+    )
+    return (
+        f"variant 'llvm_ad_rgb' needs Dr.Jit's LLVM backend, and {where} "
+        "(set $DRJIT_LIBLLVM_PATH to libLLVM 19; scripts/bootstrap.sh finds it)"
+    )
+
+
 def resolve_variant(name: str = "auto") -> str:
-    """Map ``"auto"`` to the best available variant; validate explicit names (one-line error)."""
+    """Map ``"auto"`` to the best available variant; validate explicit names (one-line error), and that
+    the variant's backend loads (an LLVM variant without libLLVM is refused here, before anything runs)."""
     if name == "auto":
-        return "cuda_ad_rgb" if cuda_available() else "llvm_ad_rgb"
+        name = "cuda_ad_rgb" if cuda_available() else "llvm_ad_rgb"
     if name not in KNOWN_VARIANTS:
         raise ValueError(f"unknown variant {name!r} (expected one of: auto, {', '.join(KNOWN_VARIANTS)})")
     if name == "cuda_ad_rgb" and not cuda_available():
         raise ValueError("variant 'cuda_ad_rgb' needs a CUDA GPU, and none was found")
+    if name.startswith("llvm") and not dr.has_backend(dr.JitBackend.LLVM):
+        raise ValueError(_llvm_missing())
     return name
 
 
@@ -64,6 +85,7 @@ def use_variant(name: str = "auto"):
     variant = resolve_variant(name)
     if mi.variant() != variant:
         mi.set_variant(variant)
+    route_mitsuba_log(mi)  # its warnings on stderr through logging, not on stdout in colour
     return mi
 
 

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 from xml.parsers import expat
 
+from .mesh_files import mesh_problem
 from .model import (
     ENVIRONMENT_KINDS,
     TRANSPORTS,
@@ -461,6 +462,9 @@ class _Parser:
             problem = xml_problem(path)
             if problem:
                 raise _Invalid(key, f"{path}: {problem}")
+        problem = mesh_problem(path, MAX_LENGTH)  # a .ply/.obj must be a readable mesh before it is used
+        if problem:
+            raise _Invalid(key, f"{path}: {problem}")
         return path
 
     # tables ------------------------------------------------------------------------------------
@@ -539,11 +543,11 @@ class _Parser:
         cls = self.check_type(t, key, LIGHT_TYPES, "light")
         if cls is not SphereLight:
             args = self.fields(cls, t, key)
-            if cls is SpotLight and not args["beam_width_deg"] < args["cutoff_angle_deg"]:
-                raise _Invalid(
-                    _join(key, "beam_width_deg"),
-                    f"must be below cutoff_angle_deg (got {args['beam_width_deg']:g})",
-                )
+            if cls is SpotLight:  # (either angle may be left at its default)
+                beam = args.get("beam_width_deg", SpotLight.beam_width_deg)
+                if not beam < args.get("cutoff_angle_deg", SpotLight.cutoff_angle_deg):
+                    what = f"must be below cutoff_angle_deg (got {beam:g})"
+                    raise _Invalid(_join(key, "beam_width_deg"), what)
             return cls(**args)
         args = self.fields(cls, t, key, extra=SPHERE_LIGHT_PLACEMENT, check_required=False)
         alt = [k for k in SPHERE_LIGHT_PLACEMENT if k in t]

@@ -14,9 +14,9 @@ import math
 import numpy as np
 import pytest
 
-from rtfit.experiments.audit import FAMILIES
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.results import load_results
+from rtfit.realtime.environment_bases import METHODS
 
 FAST = {"cost_elements": 1 << 10, "metrics": ("rmse", "rel_mse", "mae", "max_abs")}
 
@@ -59,7 +59,7 @@ def test_constant_environment_exact_rows_equal_pi_l(tmp_path):
     (tmp_path / "c.xml").write_text(CONSTANT_XML)
     r = audit(tmp_path / "c.xml", "irradiance-bases", spp=32, pass_spp=16, fit=False,
               cache=tmp_path / "cache", **FAST)  # fmt: skip
-    (case,) = r.cases
+    case = r.cases[0]  # (the second: the lightmap bases on the sphere's UV frames)
     want = math.pi * np.array([0.5, 1.0, 2.0])
     ref = case.reference.mean[case.mask]
     # the reference (MIS of emitter and cosine sampling) is noisy, its mean is πL
@@ -77,7 +77,7 @@ def test_constant_environment_exact_rows_equal_pi_l(tmp_path):
     # Exact for a constant as well: SH L3/L4 and ZH3 (L00 only), the SG fits with a constant term, Ambient
     # Dice (least squares of the 12 vertex values; its weights sum to 1): measured 1.4e-15 relative. The SG
     # sums without a constant term ripple (a finite sum of lobes is not constant): measured 4.6–7.5 %.
-    assert set(rows) == set(FAMILIES["irradiance-bases"])
+    assert set(rows) == set(METHODS)  # (the lightmap bases are the second case: tests/test_audit_lightmap.py)
     exact = [m for m in rows if m.startswith(("sh-l3", "sh-l4", "zh3")) or m.endswith("-ambient")]
     for row in [*exact, "ambient-dice"]:
         img = rows[row].image[case.mask]
@@ -109,7 +109,7 @@ def test_envmap_scene_audit_end_to_end(tmp_path):
     (tmp_path / "e.xml").write_text(ENVMAP_XML)
     r = audit(tmp_path / "e.xml", "irradiance-bases", spp=16, pass_spp=8, fit=True,
               cache=tmp_path / "cache", out=tmp_path / "out", **FAST)  # fmt: skip
-    (case,) = r.cases
+    case = r.cases[0]  # (the second: the lightmap bases on the sphere's UV frames)
     with scoped_variant("llvm_ad_rgb") as mi:
         scene = mi.load_file(str(tmp_path / "e.xml"))
         gb_normals = _visible_normals(mi, scene, case.mask)
@@ -171,7 +171,7 @@ def test_sunsky_reference_sees_the_horizon_sky(tmp_path):
     (tmp_path / "s.xml").write_text(SUNSKY_XML)
     r = audit(tmp_path / "s.xml", "irradiance-bases", spp=64, pass_spp=32, fit=False,
               cache=tmp_path / "cache", **FAST)  # fmt: skip
-    (case,) = r.cases
+    case = r.cases[0]  # (the second: the lightmap bases on the sphere's UV frames)
     assert case.parameters["sun_angular_radius_deg"] > 0.2
     quad = r.outcomes[case.id]["quadrature"].image[case.mask]
     z = (quad - case.reference.mean[case.mask]) / case.reference.sigma()[case.mask]

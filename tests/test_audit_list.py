@@ -131,7 +131,7 @@ def test_cornell_like_scene_with_include_lists_diffuse_and_ao(tmp_path):
 
     info = inspect_scene(xml)
     fams = _families(applicable_families(info))
-    assert set(fams) == {"diffuse", "sdf-occlusion", "ambient-aperture"}
+    assert set(fams) == {"diffuse", "sdf-occlusion", "ambient-aperture", "obscurances", "irradiance-volumes"}
     (diffuse,) = fams["diffuse"]
     assert diffuse.methods == ("lambert", "half-lambert", "wrap")  # no exact form: the light is a rectangle
     assert dict(diffuse.excluded)["exact"].startswith("needs alpha, radiance: a spherical light")
@@ -225,7 +225,8 @@ def test_an_environment_with_geometry_adds_sky_occlusion(tmp_path):
     assert {"sky occlusion", "ambient occlusion", "sky occlusion (aperture fill)"} <= roles
 
 
-def test_a_homogeneous_medium_is_not_height_fog(tmp_path):
+def test_a_homogeneous_medium_is_constant_height_fog(tmp_path):
+    """Issue 30 §2: a Mitsuba homogeneous medium is height fog with c = 0 (it used to be refused)."""
     medium = (
         '<shape type="cube"><transform name="to_world"><scale value="0.3"/></transform>'
         '<bsdf type="null"/><medium type="homogeneous" name="interior"><rgb name="sigma_t" value="1, 1, 1"/>'
@@ -235,11 +236,12 @@ def test_a_homogeneous_medium_is_not_height_fog(tmp_path):
     x = inspect_xml(xml)
     assert [(m.type, m.boundary) for m in x.media] == [("homogeneous", True)]
     assert [s.interior for s in x.shapes if s.type == "cube"] == ["homogeneous"]
-    assert "height-fog" not in {a.family for a in applicable_families(inspect_scene(xml))}
+    (fog,) = _families(applicable_families(inspect_scene(xml)))["height-fog"]
+    assert fog.role == "constant fog" and "falloff c = 0" in fog.reason
+    assert fog.methods == tuple(FAMILIES["height-fog"])  # the optical-depth forms and the shading models
     code, out, err = _run(xml, "--list", "--approx", "height-fog")
-    assert code == 2 and out == "" and err.count("\n") == 1
-    assert err.startswith("rtfit: error: height-fog does not apply to")
-    assert "homogeneous medium" in err and "exponential_fog" in err and "TOML" in err
+    assert code == 0 and err == ""
+    assert "height-fog — constant fog: homogeneous medium bounded by a shape" in out
     # The same family on an rtfit TOML scene with its own exponential-fog medium: it applies.
     fog = _families(applicable_families(inspect_scene(library_path("fog_volumes"))))
     assert len(fog["height-fog"]) == 2 and fog["height-fog"][0].methods == tuple(FAMILIES["height-fog"])
@@ -298,9 +300,31 @@ def test_unknown_approx_is_one_line(tmp_path):
     xml = _cornell(tmp_path)
     code, out, err = _run(xml, "--list", "--approx", "diffuse,phong")
     assert code == 2 and out == "" and err.count("\n") == 1
-    assert "--approx 'phong': unknown approximation family (known: diffuse, irradiance-bases" in err
+    assert "--approx 'phong': not a family (diffuse, irradiance-bases" in err
     code, out, _ = _run(xml, "--list", "--approx", "diffuse")
     assert code == 0 and "diffuse —" in out and "sdf-occlusion —" not in out and "does not apply" not in out
+
+
+def test_list_previews_the_run_of_method_names_and_user_files(tmp_path):
+    """``--list --approx`` takes what the run takes: a shipped method (``half-lambert`` is the diffuse row,
+    not the former experiment's whole family) lists that row alone, and a user file is validated and named
+    with the families it is audited beside; a method that does not apply here is one line, exit 2."""
+    xml = _cornell(tmp_path)
+    code, out, err = _run(xml, "--list", "--approx", "half-lambert")
+    assert code == 0, err
+    assert "methods:    half-lambert\n" in out and "wrap" not in out and "sdf-occlusion" not in out
+    mine = tmp_path / "mine.py"
+    mine.write_text(
+        "from rtfit import approximation\n\n\n@approximation(quantity='light_irradiance')\n"
+        "def flat(ops, g):\n    return g.irradiance * ops.maximum(g.cos_theta, 0.0)\n"
+    )
+    code, out, err = _run(xml, "--list", "--approx", f"wrap,{mine}:flat")
+    assert code == 0, err
+    assert "methods:    wrap\n" in out and out.rstrip().endswith(
+        "yours: flat (light_irradiance) — audited beside diffuse"
+    )
+    code, out, err = _run(xml, "--list", "--approx", "diffuse:exact")
+    assert code == 2 and out == "" and err.count("\n") == 1 and "diffuse:exact does not apply" in err
 
 
 def test_a_scene_no_family_applies_to_is_one_line(tmp_path):
@@ -316,7 +340,7 @@ def test_a_scene_no_family_applies_to_is_one_line(tmp_path):
 
 def test_rtfit_toml_scenes(tmp_path):
     fams = _families(applicable_families(inspect_scene(library_path("irradiance_sphere_sunsky"))))
-    assert set(fams) == {"diffuse", "irradiance-bases"}
+    assert set(fams) == {"diffuse", "irradiance-bases", "nishita-sky"}  # the sunsky's sky: a Nishita target
     assert "exact" in fams["diffuse"][0].methods  # the sunsky's sun has an angular radius
     sky = applicable_families(inspect_scene(library_path("sky_sun_10")))
     assert [a.family for a in sky] == ["nishita-sky"]

@@ -35,7 +35,7 @@ KEYS_SCRIPT = textwrap.dedent(
     from rtfit.reference.visibility import surface_points
     from rtfit.scenes import library_path, load_scene, scene_hash
     from rtfit.experiments.ambient_aperture_scenes import PROBE_REGION, probe_grid
-    from rtfit.experiments.sdf_occlusion import load_case_scene
+    from rtfit.experiments.sdf_occlusion_scenes import load_case_scene
 
     mi.set_variant("llvm_ad_rgb")
     dr.set_thread_count(8)

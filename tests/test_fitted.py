@@ -7,6 +7,7 @@ its files must validate against the shipped schema (jsonschema) and load with `l
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import types
@@ -25,11 +26,15 @@ from rtfit.experiments import volumetric_lightning as vl
 from rtfit.experiments.fitted import (
     FORMAT,
     FittedError,
+    FittedFile,
+    FittedMethod,
+    Parameter,
     fitted_json_schema,
     load_fitted,
     method_entry,
     provenance,
     write_fit,
+    write_fitted,
 )
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.diffuse import METHODS as DIFFUSE
@@ -371,3 +376,70 @@ def test_ambient_aperture_shaders_are_the_kernels_in_float32(name, tmp_path):
     np.testing.assert_array_equal(got, np.asarray(own, np.float32))
     ref = method(NUMPY_OPS, {k: v.astype(np.float64) for k, v in inputs.items()}, params)
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6 * float(np.max(np.abs(ref))))
+
+
+def test_audit_fitted_file_names_its_variant_and_that_it_is_not_quick(tmp_path):
+    """The audit's ``fitted/audit.json`` (issue 32): its provenance carries the Mitsuba variant it rendered
+    with and ``quick: false`` (an audit has no quick mode), like every experiment's fitted file, and the file
+    validates against the shipped schema. A 32² lit sphere, 4 spp, lambert/half-lambert/wrap rows fitted."""
+    from rtfit.experiments.audit_run import audit
+
+    from .test_audit_run import FAST, SPHERE_XML
+
+    (tmp_path / "sphere.xml").write_text(SPHERE_XML)
+    r = audit(
+        tmp_path / "sphere.xml", "diffuse", spp=4, pass_spp=2, variant="llvm_ad_rgb",
+        cache=tmp_path / "cache", out=tmp_path / "out", **FAST,
+    )  # fmt: skip
+    path = r.out / "fitted" / "audit.json"
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    _validate(doc)
+    prov = doc["provenance"]
+    assert prov["experiment"] == "audit" and prov["variant"] == "llvm_ad_rgb" and prov["quick"] is False, prov
+    assert load_fitted(path).provenance.variant == "llvm_ad_rgb"
+
+
+def test_a_parameter_without_a_unit_is_refused_at_write_time(tmp_path):
+    """A fitted file whose parameter has ``unit: ""`` (issue 32: fog-volume-colours.json's 6 colours) is not
+    written: one line naming the method and parameter; with its unit it is."""
+    entry = FittedMethod(
+        id="vol",
+        label="volume colours",
+        formula="c",
+        parameters={"vol0_r": Parameter(value=0.5, unit="")},
+        shader_note="data only",
+    )
+    doc = FittedFile(
+        format=FORMAT, title="t", provenance=provenance(None, "test", variant="llvm_ad_rgb"), methods=[entry]
+    )
+    path = tmp_path / "fitted" / "x.json"
+    with pytest.raises(FittedError) as e:
+        write_fitted(path, doc)
+    assert "\n" not in str(e.value) and "methods[0].parameters.vol0_r.unit: no unit" in str(e.value)
+    assert not path.exists()
+    good = dataclasses.replace(entry, parameters={"vol0_r": Parameter(value=0.5, unit="W/m²/sr")})
+    write_fitted(path, dataclasses.replace(doc, methods=[good]))
+    assert load_fitted(path).methods[0].parameters["vol0_r"].unit == "W/m²/sr"
+
+
+def test_a_user_parameter_declared_without_a_unit_is_written_as_undeclared(tmp_path):
+    """A user's ``Param`` without ``unit=`` (the audit's ``--approx`` files) is not refused: its fitted file
+    says the unit is ``undeclared``; one with a unit keeps it."""
+    from rtfit import Param, approximation
+    from rtfit.realtime.quantities import UNDECLARED_UNIT
+
+    @approximation(
+        quantity="light_irradiance",
+        params={"w": Param(0.2, lower=0.0, upper=1.0), "k": Param(1.0, lower=0.0, upper=2.0, unit="1")},
+    )
+    def my_wrap(ops, g, *, w, k):
+        """Wrap lighting, scaled."""
+        return k * g.irradiance * ops.maximum((g.cos_theta + w) / (1.0 + w), 0.0)
+
+    assert UNDECLARED_UNIT == "undeclared"
+    entry = method_entry(my_wrap, params={"w": 0.5, "k": 1.0})
+    path = tmp_path / "user.json"
+    prov = provenance(None, "t")
+    write_fitted(path, FittedFile(format=FORMAT, title="t", provenance=prov, methods=[entry]))
+    units = {k: p.unit for k, p in load_fitted(path).methods[0].parameters.items()}
+    assert units == {"w": "undeclared", "k": "1"}

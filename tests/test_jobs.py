@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from rtfit.experiments.diffuse import render_case
 from rtfit.experiments.executors import make_executor
 from rtfit.experiments.jobs import InlineExecutor, Job, ProcessExecutor
 from rtfit.scenes import scene_to_toml
@@ -12,7 +13,7 @@ from .conftest import sphere_scene
 def _jobs(tmp_path):
     return [
         Job(
-            "rtfit.experiments.diffuse:render_case",
+            render_case,
             dict(
                 scene_toml=scene_to_toml(sphere_scene(alpha_deg=a, res=12)),
                 spp=32,
@@ -47,3 +48,30 @@ def test_unknown_executor_is_clear():
 
     with pytest.raises(ValueError, match="unknown executor 'dask'"):
         make_executor("dask")
+
+
+def _nested_job():
+    def inner():
+        return 1
+
+    return inner
+
+
+def test_job_refuses_a_function_no_worker_could_import():
+    """A lambda or a nested function has no top-level import path: the process pool refuses the job list
+    with one line before any job runs; inline, where nothing is imported back, it just runs."""
+    import pytest
+
+    from rtfit.experiments.jobs import diagnostic_job, import_path
+
+    assert import_path(diagnostic_job) == "rtfit.experiments.jobs:diagnostic_job"
+    pool = ProcessExecutor(workers=1)
+    try:
+        for func in (lambda: 1, _nested_job()):
+            job = Job(func, {}, "bad")
+            assert InlineExecutor().map([job]) == [1]
+            with pytest.raises(ValueError, match="not importable at module top level") as err:
+                pool.map([Job(diagnostic_job, {}, "ok"), job])
+            assert "\n" not in str(err.value)
+    finally:
+        pool.close()

@@ -254,3 +254,38 @@ def test_fits_table_split_keys_later_parts_by_fit():
     assert headers == {r"Fit & RMS residual & Residuals & Converged \\"}
     rows = [line for line in lines if line.endswith("\\\\") and " & " in line and line not in headers]
     assert len(rows) == len(doc["fits"])
+
+
+# ------------------------------------------------------------------------- bold and italic maths
+def _one_value_table(style: str) -> latex.TexTable:
+    """A one-column table whose only value, 4.458e-4, is set in ``style`` (its ×10ⁿ is maths)."""
+    return latex.TexTable(
+        anchor="table-style",
+        caption="",
+        header=[latex.TexCell("value", numeric=True)],
+        rows=[[latex.TexCell("4.458e-4", numeric=True, style=style)]],
+    )
+
+
+def test_best_and_unresolved_values_mark_their_maths():
+    """``\\textbf``/``\\textit`` do not reach into ``\\ensuremath``: a best value written with ×10ⁿ
+    must switch the maths to bold (``\\boldmath``), an unresolved one set its maths in ``\\mathit``."""
+    bold = latex.render_table("x", _one_value_table("best"))
+    assert r"\textbf{\boldmath \ensuremath{4.458\times 10^{-4}}}" in bold
+    italic = latex.render_table("x", _one_value_table("unresolved"))
+    assert r"\textit{\ensuremath{\mathit{4.458\times 10^{-4}}}}" in italic
+    plain = latex.render_table("x", _one_value_table(""))
+    assert r"\boldmath" not in plain and r"\mathit" not in plain
+    assert latex.tex_number("4.458e-4", italic=True) == r"\ensuremath{\mathit{4.458\times 10^{-4}}}"
+
+
+@needs_pdflatex
+@pytest.mark.parametrize("style, font", [("best", "cmbx"), ("unresolved", "cmti"), ("", None)])
+def test_marked_values_compile_in_their_font(tmp_path, style, font):
+    """Compiled, the value's digits come from the bold (cmbx) or text-italic (cmti) font: pdflatex's
+    log lists every Type 1 font it embedded. An unmarked value uses neither."""
+    log = _compile(tmp_path, latex.render_table("x", _one_value_table(style)))
+    _assert_clean(log)
+    embedded = set(re.findall(r"/(cm[a-z]+)\d+\.pfb", log))
+    marks = {"cmbx", "cmti"}
+    assert embedded & marks == ({font} if font else set()), embedded

@@ -10,9 +10,15 @@
    anything else is a finding.
 5. Every public function of `rtfit.realtime` is importable from the package root, and no two modules
    export the same name.
+6. No family module imports another family module (issue 30 §3): the family modules are the experiment
+   modules of `registry.EXPERIMENTS` and the ``audit_<family>.py`` modules that declare an `AuditFamily`
+   (an audit module importing its experiment module counts too: what both need goes in a shared module).
+   Today's violations are an explicit allow-list (`FAMILY_IMPORTS_ALLOWED`) that may only shrink.
+7. A family module has at most `FAMILY_MAX_LINES` lines; today's larger ones are listed with their line
+   counts as ceilings (`FAMILY_LINES_CEILING`): a ratchet, none may grow.
 
-Rules 2–4 are plain functions of a directory, so the tests below also run them on planted packages to show
-that each rule catches what it is meant to.
+Rules 2–4, 6 and 7 are plain functions of a directory, so the tests below also run them on planted
+packages to show that each rule catches what it is meant to.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from __future__ import annotations
 import ast
 import importlib
 import inspect
+import re
 from pathlib import Path
 
 import pytest
@@ -56,6 +63,36 @@ LAZY_OK = {
     "Imath",
     "mpmath",
     "tqdm",
+}
+FAMILY_IMPORTS_ALLOWED = {
+    # Rule 6's violations today; remove an entry when its import goes (the test fails on a stale entry).
+    # The audit roles share the AO reference, the light geometry and the environment bases by importing
+    # each other's modules (these belong in a shared audit module):
+    "audit_ambient_aperture -> audit_ambient_occlusion",  # ao_reference, scene_distance_field
+    "audit_sky_occlusion -> audit_ambient_occlusion",  # DistanceFieldRows, distance_field_rows
+    # An audit declaration reads its experiment module's parameter sources and fits:
+    "audit_height_fog -> height_fog",  # fit_params, horizon_colour, segment_geometry, single_scatter_colour
+    "audit_irradiance_bases -> irradiance_bases",  # ROW, row_params
+    "audit_nishita_sky -> nishita_sky",  # atmosphere_params_of
+}
+FAMILY_MAX_LINES = 600
+FAMILY_LINES_CEILING = {
+    # Rule 7's ratchet: today's family modules over FAMILY_MAX_LINES, each at most its line count of today.
+    # Lower a ceiling when its module shrinks; drop it at FAMILY_MAX_LINES or below.
+    "aerial_perspective": 809,
+    "ambient_aperture": 1331,
+    "diffuse": 880,
+    "environment_maps": 1524,
+    "height_fog": 1420,
+    "irradiance_bases": 1717,
+    "irradiance_volumes": 926,
+    "light_cones": 977,  # (+4: the shared quadrature's import, wrapped at the line limit)
+    "nishita_sky": 1726,
+    "obscurances": 967,
+    "parallax_occlusion": 1002,
+    "sdf_occlusion": 1941,
+    "soft_particles": 1259,
+    "volumetric_lightning": 913,
 }
 
 
@@ -231,6 +268,40 @@ def find_lazy_imports(root: Path, package: str) -> list[str]:
     return bad
 
 
+def family_modules(root: Path) -> set[str]:
+    """Stems of the family modules of ``root``/experiments: the modules `registry.EXPERIMENTS` names (read
+    from registry.py's text, ``"rtfit.experiments.<name>"``) and the ``audit_*.py`` modules declaring an
+    `AuditFamily` at their top level (``NAME = AuditFamily(...)``)."""
+    pkg = root / "experiments"
+    registry = (pkg / "registry.py").read_text(encoding="utf-8")
+    names = set(re.findall(r'"rtfit\.experiments\.([a-z0-9_]+)"', registry))
+    for path in pkg.glob("audit_*.py"):
+        for node in _tree(path).body:
+            call = node.value if isinstance(node, (ast.Assign, ast.AnnAssign)) else None
+            if isinstance(call, ast.Call) and getattr(call.func, "id", None) == "AuditFamily":
+                names.add(path.stem)
+                break
+    return {n for n in names if (pkg / f"{n}.py").is_file()}
+
+
+def find_family_imports(root: Path) -> list[str]:
+    """``module -> other``: a family module importing (anywhere in it) another family module."""
+    families = family_modules(root)
+    edges = _module_edges(root, "experiments")
+    return [f"{m} -> {t}" for m in sorted(families) for t in sorted(edges.get(m, ())) if t in families]
+
+
+def find_large_families(root: Path, ceilings: dict[str, int]) -> list[str]:
+    """Family modules longer than `FAMILY_MAX_LINES` lines, or than their ceiling in ``ceilings``."""
+    bad = []
+    for m in sorted(family_modules(root)):
+        n = len((root / "experiments" / f"{m}.py").read_text(encoding="utf-8").splitlines())
+        limit = max(FAMILY_MAX_LINES, ceilings.get(m, 0))
+        if n > limit:
+            bad.append(f"{m}.py: {n} lines > {limit}")
+    return bad
+
+
 # ------------------------------------------------------------------------------------------- the tree
 @pytest.mark.parametrize("package", PACKAGES)
 def test_imports_follow_the_layering(package):
@@ -282,6 +353,20 @@ def test_every_public_realtime_function_is_importable_from_the_root():
     assert not dup, f"two realtime modules export the same name: {dup}"
 
 
+def test_no_family_module_imports_another():
+    found = set(find_family_imports(ROOT))
+    new, stale = sorted(found - FAMILY_IMPORTS_ALLOWED), sorted(FAMILY_IMPORTS_ALLOWED - found)
+    assert not new, f"family modules import other family modules (use a shared module): {new}"
+    assert not stale, f"FAMILY_IMPORTS_ALLOWED lists imports that are gone; remove them: {stale}"
+
+
+def test_family_modules_do_not_grow():
+    bad = find_large_families(ROOT, FAMILY_LINES_CEILING)
+    assert not bad, f"family modules over their line limit (split a study into a leaf module): {bad}"
+    stale = sorted(set(FAMILY_LINES_CEILING) - family_modules(ROOT))
+    assert not stale, f"FAMILY_LINES_CEILING names modules that are not family modules: {stale}"
+
+
 # ----------------------------------------------------------------------------------- planted defects
 def _plant(tmp_path: Path, files: dict[str, str]) -> Path:
     pkg = tmp_path / "experiments"
@@ -326,3 +411,37 @@ def test_a_planted_lazy_import_is_found(tmp_path):
         {"__init__.py": "", "a.py": "def f():\n    import jax\n    import json\n    from . import b\n"},
     )
     assert find_lazy_imports(root, "experiments") == ["a.py:3: json", "a.py:4: rtfit.experiments"]
+
+
+def _planted_families(tmp_path: Path, files: dict[str, str]) -> Path:
+    registry = 'EXPERIMENTS = [Spec("a", "rtfit.experiments.a"), Spec("b", "rtfit.experiments.b")]\n'
+    return _plant(tmp_path, {"__init__.py": "", "registry.py": registry, **files})
+
+
+def test_a_planted_family_import_is_found(tmp_path):
+    declared = "from .audit_family import AuditFamily\nFAMILY = AuditFamily(name='a')\n"
+    root = _planted_families(
+        tmp_path,
+        {
+            "a.py": "from .b import x\nfrom .shared import y\nfrom .audit_helper import z\n",
+            "b.py": "from . import shared\n",
+            "shared.py": "",  # not a family: anyone may import it
+            "c.py": "from . import a, b\n",  # not a family (not registered): may import families
+            "audit_a.py": declared + "def f():\n    from . import b\n    import rtfit.experiments.a\n",
+            "audit_helper.py": "from . import a\n",  # declares no family: a shared audit module
+            "audit_family.py": "class AuditFamily:\n    pass\n",
+        },
+    )
+    assert family_modules(root) == {"a", "b", "audit_a"}
+    assert find_family_imports(root) == ["a -> b", "audit_a -> a", "audit_a -> b"]
+
+
+def test_a_planted_large_family_is_found(tmp_path):
+    lines = "x = 1\n"
+    root = _planted_families(
+        tmp_path,
+        {"a.py": lines * (FAMILY_MAX_LINES + 1), "b.py": lines * 700, "c.py": lines * 900},  # c: no family
+    )
+    n = FAMILY_MAX_LINES
+    assert find_large_families(root, {"b": 700}) == [f"a.py: {n + 1} lines > {n}"]
+    assert find_large_families(root, {"a": 601, "b": 699}) == ["b.py: 700 lines > 699"]

@@ -1,4 +1,4 @@
-"""Tests of the light-cones family (rtfit.realtime.light_cones, rtfit.reference.light_cones) against
+"""Tests of the light-cones family (rtfit.realtime.light_cones, rtfit.reference.single_scattering) against
 independent values only.
 
 References (none is the code's own output):
@@ -29,10 +29,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtfit.experiments.volumetric_lightning import single_scattering_quadrature
 from rtfit.realtime import NUMPY_OPS, cone_chord, light_cone_shell
 from rtfit.realtime.light_cones import CHORD_LENGTH, METHODS
-from rtfit.reference.light_cones import spot_estimator_variance, spot_profile, spot_single_scattering
+from rtfit.reference.single_scattering import (
+    point_single_scattering,
+    spot_estimator_variance,
+    spot_profile,
+    spot_single_scattering,
+)
 from rtfit.scenes import SceneError, parse_scene_text, scene_to_toml
 from rtfit.scenes.model import Camera, Scene, SpotLight
 
@@ -178,7 +182,7 @@ def test_spot_quadrature_inside_a_wide_beam_is_the_point_light_quadrature():
     cos_t = ((pts - APEX) @ AXIS) / np.linalg.norm(pts - APEX, axis=-1)
     assert cos_t.min() > math.cos(math.radians(70))
     got = spot_single_scattering(o, dirs, s, APEX, AXIS, math.radians(85), math.radians(80), 7.0, 0.03, 0.05)
-    want = single_scattering_quadrature(o, dirs, s, APEX, 7.0, 0.03, 0.05)
+    want = point_single_scattering(o, dirs, s, APEX, 7.0, 0.03, 0.05)
     assert np.max(np.abs(got / want - 1)) <= 1e-10
 
 
@@ -292,6 +296,11 @@ def test_spot_light_scene_round_trip_and_bad_beam():
     assert parse_scene_text(text) == scene
     with pytest.raises(SceneError, match=r"beam_width_deg.*must be below cutoff_angle_deg"):
         parse_scene_text(text.replace("beam_width_deg = 20.0", "beam_width_deg = 35.0"))
+    # either angle may be left out: Mitsuba's defaults (cutoff 20°, beam 15°), checked against each other
+    bare = text.replace("cutoff_angle_deg = 30.0\n", "").replace("beam_width_deg = 20.0\n", "")
+    assert bare != text and parse_scene_text(bare).lights[0].beam_width_deg == 15.0
+    with pytest.raises(SceneError, match=r"beam_width_deg.*must be below cutoff_angle_deg"):
+        parse_scene_text(text.replace("cutoff_angle_deg = 30.0\n", ""))  # 20° beam, default 20° cutoff
 
 
 def test_tiny_experiment_runs_and_passes(tmp_path):

@@ -349,3 +349,32 @@ def test_bad_inputs_raise_one_line_value_errors(case):
     if case in ("nan", "neg_stderr", "shape"):
         with pytest.raises(ValueError):
             z_scores(a, r, s)
+
+
+def test_noise_floors_are_computed_once_per_reference_and_never_stale(monkeypatch):
+    """The MC floors depend only on the reference, its stderr, the mask, the seed and the draws: a second row
+    against the same reference reuses them (no further ꟻLIP or SSIM call), and any change of the reference
+    or the stderr computes them afresh, equal to a computation with the memo emptied."""
+    from rtfit.fitting import metrics as M
+
+    rng = np.random.default_rng(7)
+    ref = rng.uniform(0.2, 1.0, (32, 32, 3))
+    err = np.full_like(ref, 0.01)
+    M._floor_memo.clear()
+    M._map_memo.clear()
+    first = compute_metrics(ref * 1.1, ref, err, seed=3)
+    calls = []
+    real = M._flip_map_uncached
+    monkeypatch.setattr(M, "_flip_map_uncached", lambda *a: calls.append(1) or real(*a))
+    second = compute_metrics(ref * 0.9, ref, err, seed=3)
+    assert len(calls) == 1  # the row's own map only; the four floor draws are reused
+    for k in ("ssim", "flip", "max_abs"):
+        assert second[k].noise_floor == first[k].noise_floor
+    # a changed stderr: fresh floors, equal to those of an empty memo
+    moved = compute_metrics(ref * 0.9, ref, err * 2, seed=3)
+    M._floor_memo.clear()
+    M._map_memo.clear()
+    fresh = compute_metrics(ref * 0.9, ref, err * 2, seed=3)
+    for k in ("ssim", "flip", "max_abs"):
+        assert moved[k].noise_floor == fresh[k].noise_floor != first[k].noise_floor
+        assert moved[k].value == fresh[k].value

@@ -25,6 +25,7 @@ def _tiny(name: str, fog: bool = True):
 def test_planted_stuck_medium_fails_one_job_with_one_line(tmp_path, monkeypatch, reduction):
     """With either of `PassMoments`' reductions (the CPU's ``atomic``, the GPU's ``stored``, whose sampling
     kernel only stores its samples: the media's event counters must still be evaluated with it)."""
+    from rtfit.experiments.height_fog import render_job
     from rtfit.experiments.jobs import InlineExecutor, Job
     from rtfit.reference import estimators, fog_integrator, height_fog
 
@@ -40,7 +41,7 @@ def test_planted_stuck_medium_fails_one_job_with_one_line(tmp_path, monkeypatch,
     common = dict(spp=4, pass_spp=4, seed=0, variant="llvm_ad_rgb", cache_dir=str(tmp_path / "cache"))
     jobs = [
         Job(
-            "rtfit.experiments.height_fog:render_job",
+            render_job,
             dict(scene_toml=scene_to_toml(s), **common),
             label=s.name,
         )

@@ -163,6 +163,14 @@ BAD = [
         "cases[0].approximations[5].method: duplicate method 'lambert' in this case (also approximations[0])",
     ),
     (lambda r: r.update(notes=["ok", 3]), "notes[1]: expected a string, got int 3"),
+    (
+        lambda r: r.update(created="yesterday"),  # issue 32: the doc says ISO 8601 UTC
+        "created: expected an ISO 8601 date and time with its time zone, got str 'yesterday'",
+    ),
+    (
+        lambda r: r.update(created="2026-11-23T10:00:00"),  # no time zone: which moment is it?
+        "created: expected an ISO 8601 date and time with its time zone, got str",
+    ),
     (lambda r: r["config"].update(seed=1.5), "config.seed: expected an integer or null, got float 1.5"),
 ]
 
@@ -312,3 +320,38 @@ def test_schema_refuses_what_the_loader_refuses(mutate):
     doc = _doc("half-lambert")
     mutate(doc)
     assert _validate(schema, doc, schema)
+
+
+@pytest.mark.parametrize(
+    "created", ["2026-11-23T10:00:00Z", "2026-11-23T10:00:00.25+01:30", "2026-12-01T22:31:40+00:00"]
+)
+def test_created_accepts_iso_8601_with_a_time_zone(created, tmp_path):
+    """What `created_now` writes (``+00:00``), the doc's example (``Z``) and fractions of a second load,
+    and the shipped schema accepts them."""
+    doc = _doc("half-lambert")
+    doc["created"] = created
+    assert load_results(_write(tmp_path / "x", doc)).created == created
+    schema = results_json_schema()
+    assert _validate(schema, doc, schema) == []
+
+
+def test_created_must_be_a_real_day(tmp_path):
+    """30 February has the pattern's shape (so JSON Schema passes it); the loader refuses it."""
+    doc = _doc("half-lambert")
+    doc["created"] = "2026-02-30T10:00:00Z"
+    with pytest.raises(ResultsError, match="created: expected an ISO 8601 date and time"):
+        load_results(_write(tmp_path / "x", doc))
+
+
+def test_report_of_a_results_file_created_yesterday(capsys, tmp_path):
+    """`rtfit report` on ``created: "yesterday"``: one line, exit 2, nothing written (issue 32)."""
+    from rtfit.experiments.cli import main
+
+    doc = _doc("half-lambert")
+    doc["created"] = "yesterday"
+    d = _write(tmp_path / "exp", doc)
+    rc = main(["report", str(d)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith("rtfit: error: "), err
+    assert "created: expected an ISO 8601 date and time" in err[0], err
+    assert sorted(p.name for p in d.iterdir()) == ["results.json"]

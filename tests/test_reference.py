@@ -211,3 +211,22 @@ def test_bad_requests_are_clear():
         ReferenceRequest(
             scene=scene, spp=64, quantity="irradiance", points=np.zeros((2, 3)), normals=np.ones((2, 3))
         )
+
+
+def test_gbuffer_points_are_the_sphere_hits_with_unit_normals():
+    """A sphere's first hits: every point lies on the sphere and its normal is the radial direction
+    (closed form), unit in float64; a zero normal stays zero rather than NaN."""
+    from rtfit.reference import gbuffer_points
+
+    scene = sphere_scene(res=16)
+    gb = render_gbuffer(scene, "llvm_ad_rgb")
+    points, normals = gbuffer_points(gb)
+    assert points.dtype == normals.dtype == np.float64 and len(points) == gb.mask.sum() > 0
+    sphere = next(s for s in scene.shapes if isinstance(s, Sphere))
+    radial = points - np.asarray(sphere.center)
+    r = np.linalg.norm(radial, axis=1)
+    np.testing.assert_allclose(r, sphere.radius, rtol=1e-4)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(normals, radial / r[:, None], atol=1e-3)
+    flat = dataclasses.replace(gb, normal=np.zeros_like(gb.normal))
+    assert np.all(gbuffer_points(flat)[1] == 0.0)

@@ -286,7 +286,7 @@ def test_write_report(exp_dir):
     assert "\\label{tab:half-lambert:case-a05-sky0}" in tex
     assert "\\ensuremath{9.100\\times 10^{-4}}" in tex
     assert "\\ensuremath{\\alpha} = 5\\ensuremath{^\\circ}" in tex
-    assert "\\textbf{\\ensuremath{9.100\\times 10^{-4}}" in tex and "\\ensuremath{\\dagger}" in tex
+    assert "\\textbf{\\boldmath \\ensuremath{9.100\\times 10^{-4}}" in tex and "\\ensuremath{\\dagger}" in tex
     for line in tex.splitlines():  # every table row has as many cells as its tabular has columns
         if line.strip().endswith("\\\\") and " & " in line:
             spec = re.findall(r"\\begin\{(?:tabular|longtable)\}\{(.*)\}$", tex[: tex.index(line)], re.M)[-1]
@@ -546,7 +546,7 @@ def test_bold_is_the_smallest_value_even_when_not_resolved():
     assert '<td class="num best" title="not resolved' in page and '9.300e-5 <span class="tag">' in page
     assert page.count('class="num best"') == 1
     tex_rows = {line.split(" & ")[0].strip(): line for line in tex.splitlines() if " & " in line}
-    assert "\\textbf{\\ensuremath{9.300\\times 10^{-5}}}\\ensuremath{\\dagger}" in tex_rows["M1"]
+    assert "\\textbf{\\boldmath \\ensuremath{9.300\\times 10^{-5}}}\\ensuremath{\\dagger}" in tex_rows["M1"]
     assert "\\textbf" not in tex_rows["M0"] and "\\textbf" not in tex_rows["M2"]
 
 
@@ -662,3 +662,86 @@ def test_unresolved_marker_text_states_the_rule_it_applies():
         text = page.read_text(encoding="utf-8").lower()
         for wrong in ("below the noise floor", "below its noise floor", "≤ floor"):
             assert wrong not in text, f"{page.name} describes the † rule as {wrong!r}"
+
+
+# ------------------------------------------------------------------------- pipe tables: "|" in cells
+def _html_table_cells(html_text: str) -> list[list[str]]:
+    """Rows of cell texts of the (one) HTML table in ``html_text``."""
+    rows = re.findall(r"<tr>(.*?)</tr>", html_text, re.S)
+    return [re.findall(r"<t[hd][^>]*>(.*?)</t[hd]>", r, re.S) for r in rows]
+
+
+def test_markdown_table_escapes_bars_in_cells_once():
+    """A ``|`` in a header or cell is a literal bar, not a cell boundary: 2 columns stay 2 (before the
+    fix, "mean |error|" made 4 header cells), and a bar escaped already is not escaped twice."""
+    from rtfit.experiments.report import markdown_table, markdown_table_cell
+
+    md = markdown_table(["case", "mean |error|"], [["a|b", "1.0"], ["c\\|d", "2"]], [False, True])
+    assert md.splitlines()[0] == "| case | mean \\|error\\| |"
+    assert md.splitlines()[3] == "| c\\|d | 2 |"  # escaped once, not "c\\\\|d"
+    cells = _html_table_cells(markdown_to_html(md))
+    assert cells == [["case", "mean |error|"], ["a|b", "1.0"], ["c|d", "2"]]
+    assert markdown_table_cell(markdown_table_cell("x|y")) == markdown_table_cell("x|y") == "x\\|y"
+    assert markdown_table_cell("a\\\\|b") == "a\\\\\\|b"  # an escaped backslash, then a bare bar
+
+
+def test_soft_particles_domain_tables_keep_their_columns():
+    """soft-particles' "Errors over the domain" and scene tables, from a synthetic study: every row has
+    as many cells as the header, and the header reads "mean |error|" (issue 32)."""
+    from rtfit.experiments.soft_particles import sections
+
+    study = {
+        "table": [
+            {
+                "shape": "sphere",
+                "alpha_c": 0.5,
+                "method": "linear",
+                "mean_error": -0.01,
+                "mean_abs_error": 0.02,
+                "rms_error": 0.03,
+                "max_abs_error": 0.1,
+            }
+        ],
+        "fits": {},
+    }
+    extremes = {"camera_inside": {}, "delta": {}, "off_axis": {}}
+    metric = {"value": 0.25}
+    scene = {
+        "doc": {
+            "approximations": [
+                {"method": "linear", "metrics": {k: metric for k in ("rmse", "mae", "max_abs", "mean_error")}}
+            ],
+            "parameters": {"silhouette_pairs": 3, "silhouette_max_opacity": 0.5},
+        }
+    }
+    by_id = {s["id"]: s["text"] for s in sections(study, extremes, scene)}
+    for key, n_cols in (("domain", 7), ("scene", 5)):
+        cells = _html_table_cells(markdown_to_html(by_id[key]))
+        assert len(cells) == 2 and all(len(r) == n_cols for r in cells), cells
+        assert "mean |error|" in cells[0] and "max |error|" in cells[0]
+    assert _html_table_cells(markdown_to_html(by_id["domain"]))[1][:3] == ["sphere", "0.5", "linear"]
+
+
+# ------------------------------------------------------------------------- Setup: a dict config value
+def test_setup_table_shows_a_dict_settings_keys_as_rows():
+    """The audit's ``config.extra`` (a dict, with a nested dict) becomes one Setup row per key,
+    ``extra.scene`` … ``extra.timings_s.render``, not one cell of flattened "k = v, …" text."""
+    r = _results()
+    r["config"] = {
+        "spp": 64,
+        "extra": {
+            "scene": "scenes/a.xml",
+            "families": ["diffuse", "height-fog"],
+            "timings_s": {"load": 0.5, "render": 2.25},
+            "none": {},
+        },
+    }
+    md = render_report(r)["report.md"]
+    setup = md[md.index("| Setting | Value |") : md.index("Software versions")]
+    assert _md_row(setup, "`spp`") == "| `spp` | 64 |"
+    assert _md_row(setup, "`extra.scene`") == "| `extra.scene` | scenes/a.xml |"
+    assert _md_row(setup, "`extra.families`") == "| `extra.families` | diffuse, height-fog |"
+    assert _md_row(setup, "`extra.timings_s.load`") == "| `extra.timings_s.load` | 0.5 |"
+    assert _md_row(setup, "`extra.timings_s.render`") == "| `extra.timings_s.render` | 2.25 |"
+    assert "| `extra.none` |" in setup  # an empty dict keeps its row
+    assert "| `extra` |" not in setup and " = " not in setup

@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from rtfit.experiments.sdf_occlusion import CREASE_PROBE_X, crease_ao, load_case_scene
+from rtfit.experiments.sdf_occlusion import CREASE_PROBE_X, crease_ao
+from rtfit.experiments.sdf_occlusion_scenes import load_case_scene
 from rtfit.realtime.sdf_grid import HalfSpace, Sphere, union_grid
 
 from .conftest import upper_hemisphere_nodes
@@ -232,6 +233,7 @@ def test_cache_resumes_identically(tmp_path, crease_scene):
 def test_tiny_experiment_run(tmp_path):
     from rtfit.experiments import sdf_occlusion as exp
     from rtfit.experiments.executors import make_executor
+    from rtfit.experiments.records import plain_json
     from rtfit.experiments.registry import RunContext
     from rtfit.experiments.report import load_results, write_report
     from rtfit.experiments.results import SCHEMA
@@ -274,7 +276,7 @@ def test_tiny_experiment_run(tmp_path):
         "device": "cpu",
         **body,
     }
-    atomic_write_json(tmp_path / "sdf" / "results.json", doc)
+    atomic_write_json(tmp_path / "sdf" / "results.json", plain_json(doc))  # the run's checks are records
     write_report(tmp_path / "sdf")
     res = load_results(tmp_path / "sdf")
     assert all(c["passed"] for c in res["checks"]), [c for c in res["checks"] if not c["passed"]]

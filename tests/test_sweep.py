@@ -15,7 +15,7 @@ import pytest
 from rtfit.experiments.atomic import is_temporary_name
 from rtfit.experiments.cli import main
 from rtfit.experiments.executors import make_executor
-from rtfit.experiments.jobs import Job, ProcessExecutor
+from rtfit.experiments.jobs import Job, ProcessExecutor, diagnostic_job
 from rtfit.experiments.registry import apply_overrides
 from rtfit.experiments.sweep import SweepError, load_sweep, run_sweep
 
@@ -202,8 +202,8 @@ def _assert_cache_complete(cache: Path):
 def test_process_worker_killed_mid_job_is_retried():
     ex = ProcessExecutor(workers=2)
     try:
-        jobs = [Job("rtfit.experiments.jobs:diagnostic_job", {"seconds": 2.0}, f"j{i}") for i in range(2)]
-        jobs.append(Job("rtfit.experiments.jobs:diagnostic_job", {"fail": "this job fails"}, "bad"))
+        jobs = [Job(diagnostic_job, {"seconds": 2.0}, f"j{i}") for i in range(2)]
+        jobs.append(Job(diagnostic_job, {"fail": "this job fails"}, "bad"))
 
         def kill_one():
             for _ in range(100):

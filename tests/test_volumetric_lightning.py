@@ -30,10 +30,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtfit.experiments.volumetric_lightning import estimator_variance, single_scattering_quadrature
 from rtfit.experiments.volumetric_lightning import random_domain as domain
 from rtfit.realtime import NUMPY_OPS, inverse_square_airlight, volumetric_lightning
 from rtfit.realtime.volumetric_lightning import METHODS
+from rtfit.reference.single_scattering import point_estimator_variance, point_single_scattering
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # kernels must not warn (0/0, overflow)
 
@@ -306,11 +306,11 @@ def test_single_scattering_quadrature_matches_mpmath(sigma_t):
         dirs.append(u / np.linalg.norm(u))
         lengths.append(rng.uniform(5, 40))
     dirs, lengths = np.array(dirs), np.array(lengths)
-    got = single_scattering_quadrature((0.0, 0.0, 0.0), dirs, lengths, light, 3.0, 0.02, sigma_t)
+    got = point_single_scattering((0.0, 0.0, 0.0), dirs, lengths, light, 3.0, 0.02, sigma_t)
     want = np.array([_ss_mpmath(light, u, s, 0.02, sigma_t, 3.0) for u, s in zip(dirs, lengths, strict=True)])
     assert _rel(got, want).max() <= 1e-12
     if sigma_t > 0.0:  # the estimator's second moment (σ_s²/σ_t)·I²/(16π²)·∫ e^(−σ_t(s + 2r))/r⁴ ds
-        var = estimator_variance((0.0, 0.0, 0.0), dirs, lengths, light, 3.0, 0.02, sigma_t)
+        var = point_estimator_variance((0.0, 0.0, 0.0), dirs, lengths, light, 3.0, 0.02, sigma_t)
         second = [
             _ss_mpmath(light, u, s, 0.02, sigma_t, 3.0, power=2, rate=2.0)
             * 0.02

@@ -1,0 +1,263 @@
+"""The ``environment-maps`` family in `rtfit audit`: a mirror, glass or glossy shape of the user's scene
+shaded from one cube map captured at its centre, against the path-traced radiance of the pixels that see it.
+
+For each reflective shape (`rtfit.reference.reflective_shapes.REFLECTIVE_BSDFS`: ``conductor``,
+``dielectric``, ``thindielectric``, ``plastic`` and their rough versions) of a Mitsuba XML scene, or of an
+rtfit TOML scene (a ``mitsuba_xml`` shape keeping its file's BSDFs), one case ``shape<i>``:
+
+* **pixels**: the pixel-centre camera rays whose first hit is that shape (`shape_pixels`);
+* **reference**: Mitsuba's ``path`` integrator (unbounded depth, Russian roulette) along those rays, in
+  independent passes through the pass cache, with per-pixel standard errors (W/(m²·sr), RGB);
+* **the probe** an engine would capture, at the shape's bounding-box centre c (``--probe-at X,Y,Z``
+  overrides): the radiance cube map of `PROBE_RESOLUTION`² texels a face by the same integrator along the
+  texel-centre directions from c, with the shape itself hidden (each ray passes through it first: an
+  engine leaves an object out of its own probe), `--spp` samples a texel in passes of their own; the
+  distance cube map (first hits from c, the shape hidden; a ray that leaves the scene stores
+  `FAR_FACTOR` × the scene's bounding-box diagonal, a finite stand-in for infinity); from the radiance
+  map, by `rtfit.realtime.environment_maps.convolve` with exact texel solid angles, the irradiance map
+  (`IRRADIANCE_RESOLUTION`², cosine lobe) and, for a rough BSDF, the glossy pre-filtered map
+  (`GLOSSY_RESOLUTION`², normalised Phong lobe of exponent s = (2/α² − 2)/4 from the BSDF's roughness α:
+  Walter et al. 2007's Beckmann–Phong correspondence on the half vector, a quarter of it on the mirror
+  direction, whose angle from R is about twice the half vector's from n);
+* **what the shape does with light** (`surface_lobes`, from Mitsuba's own BSDF at each first hit): the
+  mirror direction R, the refracted direction T (straight through for thin glass) and the lobe weights per
+  channel — Fresnel × reflectance for a delta reflection, (1 − F) × transmittance for a delta transmission,
+  the directional albedo of a glossy or diffuse lobe (`LOBE_SAMPLES` BSDF samples a pixel);
+* **rows**: `rtfit.realtime.reflections.METHODS` — ``classic`` (L at R and T), ``parallax`` and
+  ``iterative`` (the distance impostor's one-lookup and secant hits), and on rough shapes
+  ``preconvolved`` and ``preconvolved-parallax`` (the glossy map). No row has free parameters.
+
+What the numbers mean: under a distant environment alone (nothing else in the scene) the cube map is the
+environment wherever it is captured and ``classic`` is exact for a mirror (L·F); the reference's noise is
+then its only error (tests/test_audit_environment_maps.py checks it against the closed form). Nearby
+geometry (a floor) is where the probe's position matters: the impostor rows correct the parallax the
+classic lookup ignores. Glass rows use one refraction (what the shader does), not the path through the
+shape; rough rows show what pre-filtering with one lobe shape misses.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rtfit.realtime import environment_maps as em
+from rtfit.realtime.reflections import (
+    GLOSSY_RESOLUTION,
+    IRRADIANCE_RESOLUTION,
+    PROBE_RESOLUTION,
+)
+from rtfit.reference.cache import array_digest
+from rtfit.reference.estimators import sub_seed
+from rtfit.reference.reflective_shapes import (
+    REFLECTIVE_BSDFS,
+    bsdf_roughness,
+    first_hits,
+    ray_radiance_pass,
+    reflective_shapes,
+    shape_pixels,
+    surface_lobes,
+)
+
+from .audit import Applicability
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+
+__all__ = [
+    "FAMILY",
+    "FAR_FACTOR",
+    "LOBE_SAMPLES",
+    "environment_maps_cases",
+    "filtered_tables",
+    "phong_exponent",
+]
+
+FORMAT = 1
+FAR_FACTOR = 100.0
+"""A ray that leaves the scene stores this many bounding-box diagonals in the distance map."""
+LOBE_SAMPLES = 256
+"""BSDF samples a pixel for the albedo of a glossy or diffuse lobe."""
+
+
+def phong_exponent(alpha: float) -> float:
+    """The normalised-Phong exponent of the mirror-direction lobe for a Beckmann roughness α (module
+    docstring): (2/α² − 2)/4, within [10⁻³, 10⁴] (a Phong lobe, not the clamped cosine of s ≤ 0)."""
+    if alpha <= 0.0:
+        return 1e4  # a smooth BSDF: the sharpest lobe the table allows
+    return min(max((2.0 / (alpha * alpha) - 2.0) / 4.0, 1e-3), 1e4)
+
+
+def _unit_texels(resolution: int) -> np.ndarray:
+    p = em.cube_texels(resolution)["point"]
+    return p / np.linalg.norm(p, axis=1, keepdims=True)
+
+
+def filtered_tables(prefix: str, rad: np.ndarray, resolution: int, shininess: float) -> dict[str, np.ndarray]:
+    """The radiance map ``rad`` (6N², 3) convolved with the lobe of ``shininess`` (0: clamped cosine) at the
+    texel centres of a ``resolution``² map, one table per channel: Σ_t L_t·lobe(q·ω_t)·Ω_t divided by the
+    lobe's own sum Σ_t lobe(q·ω_t)·Ω_t and times its integral (π for the cosine, 1 for the normalised Phong
+    lobe), as an engine's filter normalises its weights, so that a lobe narrower than a texel (a nearly
+    smooth BSDF: s in the thousands) keeps its energy; where no texel centre falls inside it at all, the
+    map's own bilinear value at q."""
+    q = _unit_texels(resolution)
+    weight = em.convolve(np.ones(len(rad)), q, shininess, "exact")
+    integral = math.pi if shininess <= 0.0 else 1.0
+    out = {}
+    for k, c in enumerate("rgb"):
+        sums = em.convolve(rad[:, k], q, shininess, "exact")
+        direct = np.asarray(em.cube_lookup(rad[:, k], q, numpy=True), np.float64) * integral
+        out[f"{prefix}_{c}"] = np.where(weight > 1e-6, integral * sums / np.maximum(weight, 1e-300), direct)
+    return out
+
+
+def _shape(setup: AuditSetup, app: Applicability):
+    """(index in the loaded scene's shapes, Mitsuba shape, BSDF plugin) of the applicability's shape:
+    ``app.source`` is its ordinal among the scene's reflective shapes (`reflective_shapes`)."""
+    found = reflective_shapes(setup.scene)
+    k = app.source
+    if k is None or not 0 <= k < len(found) or REFLECTIVE_BSDFS[found[k][1]].text not in app.part:
+        raise AuditError(f"environment-maps: {app.part} is not a reflective shape of the loaded scene")
+    index, plugin = found[k]
+    return index, setup.scene.shapes()[index], plugin
+
+
+def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """One case per reflective shape the camera sees (module docstring); none where it sees none of it."""
+    mi, scene = setup.mi, setup.scene
+    index, shape, plugin = _shape(setup, app)
+    gb = setup.gbuffer
+    visible = setup.mask
+    points = gb.position[visible].astype(np.float64)
+    dirs = gb.view_dir[visible].astype(np.float64)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    origins = points - gb.depth[visible].astype(np.float64)[:, None] * dirs
+    sees = shape_pixels(mi, scene, index, origins, dirs)
+    if not sees.any():
+        return []
+    mask = np.zeros_like(visible)
+    mask[visible] = sees
+    origins, dirs, points = origins[sees], dirs[sees], points[sees]
+    box = shape.bbox()
+    centre = 0.5 * (np.array(box.min, np.float64) + np.array(box.max, np.float64))
+    probe = np.array(setup.probe_at, np.float64) if setup.probe_at is not None else centre
+    sbox = scene.bbox()
+    far = FAR_FACTOR * max(float(np.linalg.norm(np.array(sbox.max) - np.array(sbox.min))), 1e-6)
+    tag = f"shape{index}"
+    texels = _unit_texels(PROBE_RESOLUTION)
+    dist = np.minimum(first_hits(mi, scene, probe, texels, skip=shape), far)
+    capture = pooled_passes(
+        setup,
+        {
+            "format": FORMAT,
+            "quantity": "probe-radiance",
+            "shape": index,
+            "probe": [float(c) for c in probe],
+            "resolution": PROBE_RESOLUTION,
+        },
+        lambda spp, seed: ray_radiance_pass(mi, scene, probe, texels, spp, seed, skip=shape),
+        (-1, 3),
+        f"{tag}: cube map at {_vec(probe)}",
+        seed_label="probe",
+    )
+    rad = capture.mean
+    pooled = pooled_passes(
+        setup,
+        {"format": FORMAT, "quantity": "shape-radiance", "shape": index, "rays": array_digest(dirs)},
+        lambda spp, seed: ray_radiance_pass(mi, scene, origins, dirs, spp, seed),
+        (-1, 3),
+        f"{tag}: {app.part}",
+    )
+    lobes = surface_lobes(mi, scene, origins, dirs, LOBE_SAMPLES, sub_seed(setup.seed, "lobes", index))
+    rough = REFLECTIVE_BSDFS[plugin].rough
+    alpha = bsdf_roughness(mi, shape) if rough else 0.0
+    shininess = phong_exponent(alpha)
+    inputs: dict = {
+        **{c: np.ascontiguousarray(points[:, k] - probe[k]) for k, c in enumerate("xyz")},
+        **_columns("r", lobes.reflect),
+        **_columns("t", lobes.refract),
+        **_columns("n", lobes.normal),
+        **_channels("wr", lobes.w_reflect),
+        **_channels("wt", lobes.w_refract),
+        **_channels("wd", lobes.w_diffuse),
+        **{f"rad_{c}": np.ascontiguousarray(rad[:, k]) for k, c in enumerate("rgb")},
+        **filtered_tables("irr", rad, IRRADIANCE_RESOLUTION, 0.0),
+        "dist": dist,
+    }
+    if rough:
+        inputs.update(filtered_tables("glossy", rad, GLOSSY_RESOLUTION, shininess))
+    ref = pooled.reference(
+        mask,
+        quantity="radiance of the pixels that see the shape (W/m²/sr)",
+        integrator="path (unbounded depth, Russian roulette) along the pixel-centre camera rays",
+        integrator_reason=(
+            f"{plugin}: Mitsuba's own BSDF and every path through and around the shape; the real-time rows "
+            "read one cube map captured at the probe point"
+        ),
+        extra_seconds=capture.seconds,
+    )
+    missed = int(np.sum(dist >= far))
+    parameters = {
+        "shape": app.part,
+        "bsdf": plugin,
+        "probe": [float(c) for c in probe],
+        "probe_from": "--probe-at" if setup.probe_at is not None else "the shape's bounding-box centre",
+        "resolution": PROBE_RESOLUTION,
+        "glossy_resolution": GLOSSY_RESOLUTION if rough else 0,
+        "irradiance_resolution": IRRADIANCE_RESOLUTION,
+        "alpha": alpha,
+        "shininess": shininess if rough else 0.0,
+        "far_distance": far,
+        "texels_missing_the_scene": missed,
+        "capture_spp": capture.spp,
+        "pixels": int(mask.sum()),
+    }
+    notes = (
+        f"cube maps captured at {_vec(probe)} ({parameters['probe_from']}), the shape hidden: "
+        f"{PROBE_RESOLUTION}² texels a face, {capture.spp} path samples a texel; {missed} of {len(texels)} "
+        f"texels see no surface (distance {far:.4g}, {FAR_FACTOR:g} × the scene's diagonal)",
+        "lobe weights from Mitsuba's BSDF: delta lobes exact, glossy and diffuse albedos from "
+        f"{LOBE_SAMPLES} BSDF samples a pixel"
+        + (f"; glossy map: Phong s = {shininess:.4g} from α = {alpha:.4g}" if rough else ""),
+    )
+    return [
+        FamilyCase(
+            id=tag,
+            label=f"{app.part}, radiance",
+            reference=ref,
+            mask=mask,
+            channel_inputs=(inputs,),
+            parameters=parameters,
+            units="W/m²/sr",
+            notes=notes,
+        )
+    ]
+
+
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{float(c):.4g}" for c in v) + ")"
+
+
+def _columns(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
+    return {f"{prefix}{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("xyz")}
+
+
+def _channels(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
+    return {f"{prefix}_{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("rgb")}
+
+
+FAMILY = AuditFamily(
+    name="environment-maps",
+    quantity="reflected_radiance",
+    cases=environment_maps_cases,
+    formats=("mitsuba-xml", "rtfit-toml"),
+    describe=(
+        "Per reflective shape (conductor, dielectric, thin dielectric, plastic and their rough versions): "
+        "the radiance of the pixels that see it, path-traced along the pixel-centre camera rays (unbounded "
+        "depth), against what an engine shades from one probe captured at the shape's centre (or "
+        "--probe-at): a radiance and a distance cube map "
+        f"({PROBE_RESOLUTION}² a face, the shape hidden), an irradiance map ({IRRADIANCE_RESOLUTION}²) and, "
+        f"for a rough BSDF, a glossy pre-filtered map ({GLOSSY_RESOLUTION}², Phong s from the BSDF's α). "
+        "Each row is w_r·M(R) + w_t·M(T) + w_d·E(n)/π with the BSDF's own lobe weights (Fresnel, albedo) "
+        "and the row's lookup M: classic (L at the direction), the distance impostor's one-lookup and "
+        "secant hits, the pre-convolved glossy map."
+    ),
+)

@@ -1,0 +1,576 @@
+r"""The ``height-fog`` family on a scene's own media: constant fog and fitted grid fog (`rtfit audit`).
+
+The second declaration of the height-fog family (`audit_height_fog` audits rtfit's ``exponential_fog``; the
+two are joined by `audit_family.by_name`). Its roles (`rtfit.experiments.audit.RULES`):
+
+* ``constant fog``: a Mitsuba ``homogeneous`` medium (bounded by a shape, or around the sensor: unbounded),
+  a ``heterogeneous`` one whose ``sigma_t`` is a ``constvolume``, or an rtfit TOML ``homogeneous`` medium.
+  It is height fog with falloff c = 0 and density b = σt (1/scene unit), the medium's own, read from the
+  loaded medium (``get_scattering_coefficients``) — an RGB σt whose channels differ gives one case per
+  channel (b = that channel's σt; the reference tracks that channel).
+* ``grid fog``: a Mitsuba ``heterogeneous`` medium whose ``sigma_t`` is a ``gridvolume``. Its grid (data ×
+  ``scale``, box from the volume's transform) is fitted with σ(p) = b·exp(−c·(p·ĝ − h₀))
+  (`rtfit.reference.grid_fit.fit_height_density`: b, c, ĝ, h₀ = the box's lowest corner along ĝ), and the
+  case states how far the grid is from that model (RMS and largest relative residual, empty voxels, the
+  trilinear interpolation error (c·h)²/8 of the fitted model over one cell) **before** its rows' errors:
+  in its label, its first note and its parameters. A grid far from exponential is audited all the same; where
+  its largest residual or the interpolation error exceeds `MODEL_TOLERANCE` it is not the model, so its rows
+  are not marked exact (no z-check runs on them) and their errors are the model's.
+
+Two cases per medium, on the pixels whose camera ray crosses it:
+
+* ``mediaK-transmittance`` (one per channel of a chromatic σt: ``mediaK-r-transmittance``, …): the
+  transmittance T = exp(−∫σt ds) (dimensionless) along each camera ray's first interval inside the medium,
+  against the optical-depth forms of `rtfit.realtime.height_fog.METHODS` as T = e^(−τ)
+  (`rtfit.realtime.height_fog.TRANSMITTANCE_METHODS`), with the medium's b, c (given) and fitted, and your
+  approximations of ``fog_transmittance``;
+* ``mediaK-radiance`` (grey media in a scene with a light): the radiance at the camera with this medium alone
+  (the scene's other media switched off: ``scale`` 0), path traced by Mitsuba's ``volpathmis`` through the
+  run's sensor, against the shading models ``const`` and ``phase`` on the fog-free image L₀ (every medium
+  switched off; same integrator, spp and seed), given the medium's b, c and the models' declared colours,
+  then fitted (b, c and the colours), and your approximations of ``fogged_radiance``.
+
+The interval (`medium_intervals`): each pixel-centre ray from the camera is walked through the scene as
+Mitsuba's volumetric path tracers walk it: a medium-transition shape (``interior``/``exterior``) switches
+the current medium to ``SurfaceInteraction3f.target_medium`` (a medium is entered where its shape's
+interior is the target), a shape with only a ``null`` BSDF is passed, any other surface ends the ray; the
+camera ray starts in the sensor's medium. [t_in, t_out] is the first stretch spent in the audited medium.
+Straight lines: a dielectric boundary does not bend the ray here (a real-time fog does not either); pixels
+whose ray never enters, or whose interval is infinite (an unbounded medium seen against the sky: T = 0
+exactly), are left out. A grid's rows take the interval clipped to the grid's box (its heights z0, z1 along
+ĝ and its length); the reference is the medium as Mitsuba renders it over [t_in, t_out] (its
+``intersect_aabb``: the grid's axis-aligned bounds, where a rotated grid's texture clamps to its faces).
+
+Reference: ratio tracking through the loaded Mitsuba medium over [t_in, t_out]
+(`rtfit.reference.medium_transmittance.transmittance_pass`), in passes through the pass cache. Self-check
+(the engine's): the ``exact`` row's z-scores are standard normal — on a grid filled from the model, within
+the interpolation error above.
+
+Rows left out: the ``seed`` listing on constant fog (its (1 − e^(−cΔz))/(cΔz) is 0/0 = NaN at c = 0 for every
+ray with |Δz| > 0.01 m: docs/height-fog.md).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+from rtfit.fitting import Param
+from rtfit.realtime.height_fog import METHODS, TRANSMITTANCE_METHODS
+from rtfit.reference.build import load_dict, mitsuba_scene_dict
+from rtfit.reference.cache import array_digest
+from rtfit.reference.estimators import PassResult, radiance_pass
+from rtfit.reference.grid_fit import GridDensity, HeightFit, fit_height_density, grid_of_medium
+from rtfit.reference.medium_transmittance import transmittance_pass
+from rtfit.reference.mitsuba_xml import UP_AXES
+
+from .audit import Applicability
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+
+__all__ = ["FAMILY", "MAX_SURFACES", "media_cases", "medium_intervals"]
+
+FORMAT = 1
+MAX_SURFACES = 32
+"""Most surfaces a camera ray is walked through (null-BSDF shapes and medium boundaries)."""
+RESTART = 2.0**-16
+"""A walked ray restarts this far past a hit along itself, per unit of coordinate magnitude (≥ 250 float32
+ulps: no hit of the same surface again; a surface closer than that behind it is skipped)."""
+CONSTANT_ROWS = ("exact", "taylor")
+"""The optical-depth forms audited on constant fog (the seed listing is NaN at c = 0)."""
+GRID_ROWS = ("exact", "seed", "taylor")
+SHADING_ROWS = ("const", "phase")
+MODEL_TOLERANCE = 1e-3
+"""A grid holds the exponential model where its largest relative residual and the model's trilinear
+interpolation error over a cell are both within this: then the exact form's z-check is run on it."""
+RADIANCE_INTEGRATOR = "volpathmis"
+
+
+@dataclass(frozen=True)
+class _Medium:
+    """One audited medium: the loaded Mitsuba ``medium``, the Mitsuba ``scene`` whose shapes bound it, its
+    pointer id in that scene's ``MediumPtr`` arrays (None: no shape refers to it), whether the camera starts
+    inside it, the camera ``origin`` and the ``sensor`` the pixels are seen through."""
+
+    medium: Any
+    scene: Any
+    ptr: int | None
+    on_sensor: bool
+    origin: np.ndarray
+    sensor: Any = None
+    media: tuple = ()
+    """Every medium of ``scene`` (this one included): the radiance case renders this one alone."""
+
+
+class _Channel:
+    """A medium seen through one channel ``k`` of its extinction (the ratio tracker reads channel 0)."""
+
+    def __init__(self, medium, k: int):
+        self.medium, self.k = medium, k
+
+    def intersect_aabb(self, ray):
+        return self.medium.intersect_aabb(ray)
+
+    def get_majorant(self, mei, active=True):
+        return (self.medium.get_majorant(mei, active)[self.k],)
+
+    def get_scattering_coefficients(self, mei, active=True):
+        s, n, t = self.medium.get_scattering_coefficients(mei, active)
+        return s, n, (t[self.k],)
+
+
+def _pointer(mi, scene, medium) -> int | None:
+    """The id of ``medium`` in ``scene``'s ``MediumPtr`` arrays: that of the first shape holding it as its
+    interior or exterior (None where no shape does)."""
+    shapes = list(scene.shapes())
+    for side in ("interior_medium", "exterior_medium"):
+        ids = np.asarray(dr.reinterpret_array(mi.UInt32, getattr(scene.shapes_dr(), side)()))
+        for k, s in enumerate(shapes):
+            if getattr(s, side)() is medium:
+                return int(ids[k])
+    return None
+
+
+def _held(scene, medium) -> bool:
+    """Whether a shape of ``scene`` holds ``medium`` as its interior or exterior."""
+    return any(medium is s.interior_medium() or medium is s.exterior_medium() for s in scene.shapes())
+
+
+def _xml_medium(setup: AuditSetup, app: Applicability) -> _Medium:
+    """The loaded medium of ``app.source`` (an index of `XmlScene.media`): the sensor's, or the k-th medium
+    of its plugin among the shapes' interiors and exteriors (by its ``id`` where the file names it)."""
+    mi, scene, xml = setup.mi, setup.scene, setup.info.xml
+    index = app.source
+    if xml is None or index is None or not 0 <= index < len(xml.media):
+        raise AuditError(f"height-fog: {app.part} is not a medium of the scene")
+    want = xml.media[index]
+    origin = np.asarray(xml.camera.origin, np.float64)
+    found: list = []
+    sensor_medium = setup.sensor.get_medium()
+    if sensor_medium is not None:
+        found.append(sensor_medium)
+    for s in scene.shapes():
+        for m in (s.interior_medium(), s.exterior_medium()):
+            if m is not None and not any(m is f for f in found):
+                found.append(m)
+    if want.on_sensor and sensor_medium is not None:
+        obj = sensor_medium
+    else:
+        kind = "Homogeneous" if want.type == "homogeneous" else "Heterogeneous"
+        # (the sensor's medium is not one of the shapes' unless a shape names it too)
+        held = [m for m in found if m is not sensor_medium or _held(scene, m)]
+        same = [m for m in held if str(m).startswith(kind)]
+        named = [m for m in same if want.id and m.id() == want.id]
+        rank = sum(1 for m in xml.media[:index] if m.type == want.type and not m.on_sensor)
+        obj = named[0] if named else (same[rank] if rank < len(same) else None)
+    if obj is None:
+        raise AuditError(f"height-fog: {app.part}: the loaded scene has no such medium")
+    on_sensor = obj is sensor_medium
+    return _Medium(obj, scene, _pointer(mi, scene, obj), on_sensor, origin, setup.sensor, tuple(found))
+
+
+def _toml_medium(setup: AuditSetup, app: Applicability) -> _Medium:
+    """The TOML scene's medium ``app.source`` in a Mitsuba scene of its own (the surfaces and this medium)."""
+    toml, mi = setup.source, setup.mi
+    index = app.source
+    if toml is None or index is None or not 0 <= index < len(toml.media):
+        raise AuditError(f"height-fog: {app.part} is not a medium of the scene")
+    scene = load_dict(mi, mitsuba_scene_dict(mi, dataclasses.replace(toml, media=(toml.media[index],))))
+    obj = next((s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None), None)
+    if obj is None:
+        raise AuditError(f"height-fog: {app.part}: its boundary shape holds no medium")
+    origin = np.asarray(toml.camera.origin, np.float64)
+    return _Medium(obj, scene, _pointer(mi, scene, obj), False, origin, scene.sensors()[0], (obj,))
+
+
+def medium_intervals(mi, scene, origin, dirs, ptr: int | None, on_sensor: bool) -> tuple[np.ndarray, ...]:
+    """The first stretch [t_in, t_out] (scene units from ``origin``; NaN where the ray never enters, t_out
+    = +inf where it leaves the scene inside) each ray from ``origin`` along unit ``dirs`` (N, 3) spends in
+    the medium whose scene pointer id is ``ptr``, walked as the module docstring says (at most
+    `MAX_SURFACES` surfaces; a ray still walking then ends there). A ray that runs exactly along a mesh edge
+    may slip between its triangles (as Mitsuba's own rays do there: keep the camera off such symmetries)."""
+    n = len(dirs)
+    d64 = np.asarray(dirs, np.float64)
+    inside = np.full(n, bool(on_sensor))
+    t_in = np.where(inside, 0.0, np.nan)
+    t_out = np.full(n, np.nan)
+    done = np.zeros(n, bool)
+    t_at = np.zeros(n)
+    d = mi.Vector3f(d64.T.astype(np.float32))
+    ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), d)
+    null = int(mi.BSDFFlags.Null)
+    scale = float(np.max(np.abs(origin)))
+    for _ in range(MAX_SURFACES):
+        si = scene.ray_intersect(ray, mi.Bool(~done))
+        hit = np.asarray(si.is_valid(), bool) & ~done
+        t_hit = np.where(hit, np.sum((np.asarray(si.p, np.float64).T - origin) * d64, axis=1), np.inf)
+        transition = np.asarray(si.shape.is_medium_transition(), bool) & hit
+        only_null = (np.asarray(si.bsdf().flags(), np.int64) == null) & hit
+        target = np.asarray(dr.reinterpret_array(mi.UInt32, si.target_medium(ray.d)), np.int64)
+        enters = transition & (ptr is not None) & (target == (ptr if ptr is not None else -1))
+        miss = ~hit & ~done
+        t_out = np.where(miss & inside, np.inf, t_out)
+        stop = hit & ~transition & ~only_null
+        leave = hit & inside & ((transition & ~enters) | stop)
+        t_out = np.where(leave, t_hit, t_out)
+        start = hit & ~inside & enters
+        t_in = np.where(start, t_hit, t_in)
+        inside = (inside | start) & ~leave
+        done |= miss | leave | stop
+        t_at = np.where(hit, t_hit, t_at)
+        if done.all():
+            break
+        # the next ray starts on the camera ray itself, just past the hit: Mitsuba's spawn_ray offsets the
+        # origin along the normal by ~(1 + |p|)·9e-5, off the line, which moved a grazing exit through a
+        # sphere by 1.1e-4 (measured); on the line the hits are exact to float32
+        start_at = t_at + RESTART * (1.0 + scale + t_at)
+        ray = mi.Ray3f(mi.Point3f((origin + start_at[:, None] * d64).T.astype(np.float32)), d)
+    t_out = np.where(~done & inside, t_at, t_out)  # walked MAX_SURFACES surfaces: end at the last one
+    return t_in, t_out
+
+
+def _finite_stretch(t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
+    """Where [t0, t1] is a finite, non-empty stretch."""
+    return np.isfinite(t0) & np.isfinite(t1) & (t1 > t0)
+
+
+def _box_interval(to_world: np.ndarray, origin, dirs, t_in, t_out) -> tuple[np.ndarray, np.ndarray]:
+    """[t_in, t_out] clipped to the box ``to_world``·[0, 1]³ (slab test in its unit frame; world units)."""
+    inv = np.linalg.inv(to_world)
+    o = inv[:3, :3] @ np.asarray(origin, np.float64) + inv[:3, 3]
+    d = np.asarray(dirs, np.float64) @ inv[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (0.0 - o) / d, (1.0 - o) / d
+    lo = np.where(d == 0.0, np.where((o >= 0) & (o <= 1), -np.inf, np.inf), np.minimum(a, b))
+    hi = np.where(d == 0.0, np.where((o >= 0) & (o <= 1), np.inf, -np.inf), np.maximum(a, b))
+    return np.maximum(t_in, lo.max(axis=1)), np.minimum(t_out, hi.min(axis=1))
+
+
+def _sigma_t(mi, medium, points: np.ndarray) -> np.ndarray:
+    """The medium's extinction (RGB, 1/scene unit) at ``points`` (N, 3)."""
+    mei = dr.zeros(mi.MediumInteraction3f, len(points))
+    mei.p = mi.Point3f(np.asarray(points, np.float32).T)
+    return np.asarray(medium.get_scattering_coefficients(mei)[2], np.float64).T
+
+
+def _density_params(b: float, c: float, span: float) -> dict[str, Param]:
+    """Given values and fit bounds of (b, c): b within 10⁻³…10³ × its value; c within the same factors of
+    a fitted falloff, or ±10/``span`` (span: the largest segment length) around c = 0 for constant fog."""
+    bp = Param(b, 1e-3 * b, 1e3 * b, unit="1/scene unit", description="density b: extinction at height 0")
+    width = 10.0 / max(span, 1e-12)
+    cp = (
+        Param(c, 1e-3 * c, 1e3 * c, unit="1/scene unit", description="falloff c: the scale height is 1/c")
+        if c > 0.0
+        else Param(0.0, -width, width, unit="1/scene unit", description="falloff c (0: constant fog)")
+    )
+    return {"b": bp, "c": cp}
+
+
+def _residual_text(fit: HeightFit) -> str:
+    return (
+        f"grid vs the exponential height model: RMS relative residual {fit.rms_relative:.3g}, largest "
+        f"{fit.max_relative:.3g}, {100.0 * fit.empty_fraction:.3g} % empty voxels ({fit.voxels} voxels; "
+        f"trilinear interpolation error of the model over a cell ≈ {fit.interpolation_error:.2g})"
+    )
+
+
+def _cases(
+    setup: AuditSetup,
+    app: Applicability,
+    med: _Medium,
+    t_in: np.ndarray,
+    t_out: np.ndarray,
+    rows_span: tuple[np.ndarray, np.ndarray],
+    height,
+    b: float,
+    c: float,
+    channel: int | None,
+    extra: dict,
+    notes: list[str],
+    rows: tuple[str, ...],
+    label_tail: str,
+    radiance: bool,
+    exact: bool = True,
+) -> list[FamilyCase]:
+    """The transmittance case: the reference over [t_in, t_out] of the pixels whose row interval is a
+    finite non-empty stretch, rows on ``rows_span`` (heights from ``height``), given (b, c); and where
+    ``radiance`` and the scene has a light, the radiance case (`_radiance_case`) on the same pixels.
+    ``exact`` False: the medium is not the model, so no row is exact (the engine runs no z-check on it)."""
+    mi = setup.mi
+    h, w = setup.gbuffer.view_dir.shape[:2]
+    dirs = np.asarray(setup.gbuffer.view_dir, np.float64).reshape(-1, 3)
+    r0, r1 = rows_span
+    ok = _finite_stretch(t_in, t_out) & _finite_stretch(r0, r1)
+    mask = ok.reshape(h, w)
+    if not mask.any():
+        raise AuditError(f"height-fog: no camera ray crosses {app.part} over a finite stretch")
+    d = dirs[ok]
+    o = med.origin
+    start, end = o + r0[ok, None] * d, o + r1[ok, None] * d
+    length = r1[ok] - r0[ok]
+    n = int(ok.sum())
+    common = {
+        "z0": height(start),
+        "z1": height(end),
+        "distance": length,
+        "length": length,
+        **{f"o{a}": start[:, k] for k, a in enumerate("xyz")},
+        **{f"d{a}": d[:, k] for k, a in enumerate("xyz")},
+        "density": np.full(n, b),
+        "falloff": np.full(n, c),
+    }
+    tracked = med.medium if channel is None else _Channel(med.medium, channel)
+    suffix = "" if channel is None else f"-{'rgb'[channel]}"
+    tag = f"media{app.source}{suffix}"
+    what = {
+        "format": FORMAT,
+        "quantity": "medium-transmittance",
+        "medium": app.source,
+        "channel": channel,
+        "rays": array_digest(o, d, t_in[ok], t_out[ok]),
+    }
+
+    def render(spp: int, seed: int):
+        return transmittance_pass(mi, tracked, o, d, t_out[ok], spp, seed, min_distance=t_in[ok])
+
+    ref = pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance").reference(
+        mask,
+        quantity="transmittance T of the medium along the camera's rays (1, grey)",
+        integrator="ratio tracking (Mitsuba Medium.get_scattering_coefficients with the medium's majorant)",
+        integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
+    )
+    given = _density_params(b, c, float(length.max()))
+    parameters = {
+        "medium": app.part,
+        "density": b,
+        "falloff": c,
+        "channel": None if channel is None else "rgb"[channel],
+        "pixels": n,
+        "length_max": float(length.max()),
+        **extra,
+    }
+    t_case = FamilyCase(
+        id=f"{tag}-transmittance",
+        label=f"{app.part}{label_tail}, transmittance",
+        reference=ref,
+        mask=mask,
+        channel_inputs=(common, common, common),
+        parameters={**parameters, "quantity": "transmittance"},
+        units="1",
+        notes=tuple(notes),
+        methods={f: _as_exact(TRANSMITTANCE_METHODS[f], exact) for f in rows},
+        quantity="fog_transmittance",
+        params={f: given for f in rows},
+    )
+    if not radiance:
+        return [t_case]
+    if not len(med.scene.emitters()):
+        return [dataclasses.replace(t_case, notes=(*notes, "no light in the scene: no fogged-radiance case"))]
+    what = {**what, "quantity": "medium-radiance", "integrator": RADIANCE_INTEGRATOR}
+    r_case = _radiance_case(setup, med, ok, mask, common, what, given, tag)
+    label = f"{app.part}{label_tail}, fogged radiance"
+    r_notes = (*notes, *r_case.notes)
+    return [t_case, dataclasses.replace(r_case, label=label, parameters={**parameters, **r_case.parameters},
+                                        notes=r_notes)]  # fmt: skip
+
+
+def _as_exact(method, exact: bool):
+    """``method``, or a copy of it that is not exact (the medium is not the model it is exact for)."""
+    return method if exact or not method.exact else dataclasses.replace(method, exact=False)
+
+
+def _sun(setup: AuditSetup) -> np.ndarray | None:
+    """The unit direction towards the scene's sun (a ``sunsky``), or None."""
+    xml, toml = setup.info.xml, setup.source
+    if xml is not None:
+        sun = next((e.direction for e in xml.emitters if e.kind == "sunsky" and e.direction), None)
+    else:
+        env = toml.environment() if toml is not None and hasattr(toml, "environment") else None
+        sun = getattr(env, "sun_direction", None)
+    return None if sun is None else np.asarray(sun, np.float64) / np.linalg.norm(sun)
+
+
+@contextlib.contextmanager
+def _without(mi, media):
+    """The ``media`` switched off (their ``scale`` 0) inside the block, then put back as they were."""
+    saved = []
+    try:
+        for m in media:
+            params = mi.traverse(m)
+            saved.append((params, float(params["scale"])))
+            params["scale"] = 0.0
+            params.update()
+        yield
+    finally:
+        for params, value in saved:
+            params["scale"] = value
+            params.update()
+
+
+def _radiance_case(setup, med: _Medium, ok, mask, common, what, given, tag) -> FamilyCase:
+    """The radiance at the camera with this medium alone (the scene's other media switched off), path
+    traced with `RADIANCE_INTEGRATOR` through the run's sensor, against the shading models on the fog-free
+    image L₀ (every medium switched off; same integrator, spp and seed); given: the medium's b, c and the
+    models' declared colours; fitted: b, c and the colours."""
+    mi = setup.mi
+    integrator = mi.load_dict({"type": RADIANCE_INTEGRATOR})
+    others = tuple(m for m in med.media if m is not med.medium)
+
+    def passes(off, quantity: str, label: str):
+        def render(spp: int, seed: int):
+            with _without(mi, off):
+                r = radiance_pass(mi, med.scene, spp, seed, integrator=integrator, sensor=med.sensor)
+            return PassResult(r.mean.reshape(-1, 3)[ok], r.var.reshape(-1, 3)[ok], r.spp, r.seed, r.seconds)
+
+        return pooled_passes(setup, {**what, "quantity": quantity}, render, (-1, 3), label)
+
+    fogged = passes(others, "medium-radiance-alone", f"{tag}: radiance with the medium")
+    clear = passes(med.media, "medium-radiance-clear", f"{tag}: fog-free radiance L0")
+    sun = _sun(setup)
+    d = np.stack([common["dx"], common["dy"], common["dz"]], axis=1)
+    inputs = {
+        **common,
+        "cos_sun": d @ sun if sun is not None else np.zeros(len(d)),
+        **{f"l0_{ch}": clear.mean[:, k] for k, ch in enumerate("rgb")},
+    }
+    ref = fogged.reference(
+        mask,
+        quantity="radiance at the camera with this medium alone (W/m²/sr, RGB)",
+        integrator=RADIANCE_INTEGRATOR,
+        integrator_reason="unbiased for the scene's media (Mitsuba's volumetric path tracer, all bounces)",
+        extra_seconds=clear.seconds,
+    )
+    return FamilyCase(
+        id=f"{tag}-radiance",
+        label="",
+        reference=ref,
+        mask=mask,
+        channel_inputs=(inputs,),
+        parameters={"quantity": "fogged radiance", "l0_cache_key": clear.entry.key},
+        units="W/m²/sr",
+        notes=(
+            "L₀: the same scene with every medium switched off (scale 0), same integrator and spp (its noise "
+            "is part of every row's error); given rows: the medium's b, c and the models' declared colours "
+            "(the scene's sky is not sampled for them), then fitted",
+        )
+        + (() if sun is not None else ("no sunsky: cos_sun = 0",)),
+        methods={mid: METHODS[mid] for mid in SHADING_ROWS},
+        quantity="fogged_radiance",
+        params={mid: given for mid in SHADING_ROWS},
+    )
+
+
+def _opened(setup: AuditSetup, app: Applicability):
+    """The medium, the pixel rays and their intervals inside it."""
+    med = _xml_medium(setup, app) if setup.info.xml is not None else _toml_medium(setup, app)
+    dirs = np.asarray(setup.gbuffer.view_dir, np.float64).reshape(-1, 3)
+    t_in, t_out = medium_intervals(setup.mi, med.scene, med.origin, dirs, med.ptr, med.on_sensor)
+    return med, dirs, t_in, t_out
+
+
+def constant_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """Constant fog (c = 0, b = σt): one case, or one per channel of a chromatic σt (module docstring)."""
+    med, dirs, t_in, t_out = _opened(setup, app)
+    ok = _finite_stretch(t_in, t_out)
+    if not ok.any():
+        raise AuditError(f"height-fog: no camera ray crosses {app.part} over a finite stretch")
+    k = int(np.argmax(ok))
+    mid = med.origin + 0.5 * (t_in[k] + t_out[k]) * dirs[k]
+    sigma = _sigma_t(setup.mi, med.medium, mid[None, :])[0]
+    up = np.asarray(UP_AXES.get(setup.info.up, (0.0, 0.0, 1.0)), np.float64)
+
+    def height(p):
+        return p @ up
+
+    notes = [
+        f"constant fog: falloff c = 0, density b = σt = {', '.join(f'{s:.4g}' for s in sigma)} /scene unit "
+        f"(the medium's, at a point inside); heights along the scene's up axis {setup.info.up}",
+        "the seed listing is left out: at c = 0 its (1 − e^(−cΔz))/(cΔz) is 0/0 = NaN (docs/height-fog.md)",
+    ]
+    if med.on_sensor:
+        notes.append("the camera sits in this medium: rays that leave the scene (T = 0 exactly) are left out")
+    grey = bool(np.allclose(sigma, sigma[0], rtol=1e-6, atol=0.0))
+    channels: list[int | None] = [None] if grey else [0, 1, 2]
+    out = []
+    for ch in channels:
+        b = float(sigma[0 if ch is None else ch])
+        if not b > 0.0:
+            continue  # σt = 0 in this channel: no fog (T = 1 exactly)
+        tail = "" if ch is None else f" ({'rgb'[ch]} channel)"
+        extra = {"model": "constant fog (c = 0)", "up": setup.info.up}
+        out += _cases(setup, app, med, t_in, t_out, (t_in, t_out), height, b, 0.0, ch, extra, notes,
+                      CONSTANT_ROWS, tail, grey)  # fmt: skip
+    if not out:
+        raise AuditError(f"height-fog: {app.part} has σt = 0: no fog to audit")
+    return out
+
+
+def grid_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """Grid fog: the grid fitted with the exponential height density, then one transmittance case."""
+    med, dirs, t_in, t_out = _opened(setup, app)
+    try:
+        grid: GridDensity = grid_of_medium(setup.mi, med.medium)
+    except ValueError as e:
+        raise AuditError(f"height-fog: {app.part}: {e}") from None
+    up = UP_AXES.get(setup.info.up, (0.0, 0.0, 1.0))
+    fit = fit_height_density(grid, up=up)
+    if not fit.b > 0.0:
+        raise AuditError(f"height-fog: {app.part}: its grid is empty (zero density everywhere)")
+    r0, r1 = _box_interval(grid.to_world, med.origin, dirs, t_in, t_out)
+    residual = _residual_text(fit)
+    holds = fit.max_relative <= MODEL_TOLERANCE and fit.interpolation_error <= MODEL_TOLERANCE
+    notes = [
+        residual
+        + (
+            ""
+            if holds
+            else f": the grid is not the model (beyond {MODEL_TOLERANCE:g}), so the exact form is not exact "
+            "for this medium and its z-check is not run; its error is the model's"
+        ),
+        f"fitted model: σ(p) = b·exp(−c·(p·ĝ − h₀)), b = {fit.b:.6g}, c = {fit.c:.6g} /scene unit, "
+        f"ĝ = ({', '.join(f'{x:.4g}' for x in fit.gradient)}), h₀ = {fit.h0:.6g} (the box's lowest corner)",
+        "rows: the stretch inside the grid's box; reference: the medium as Mitsuba renders it (ratio "
+        "tracking)",
+    ]
+    nx, ny, nz = grid.resolution
+    extra = {
+        "model": "exponential height density fitted to the grid",
+        "gradient": list(fit.gradient),
+        "h0": fit.h0,
+        "grid_resolution": [nx, ny, nz],
+        "fit_rms_relative_residual": fit.rms_relative,
+        "fit_max_relative_residual": fit.max_relative,
+        "fit_empty_fraction": fit.empty_fraction,
+        "fit_interpolation_error": fit.interpolation_error,
+    }
+    tail = f" (grid fit: RMS relative residual {fit.rms_relative:.2g})"
+    return _cases(setup, app, med, t_in, t_out, (r0, r1), fit.height, fit.b, fit.c, None, extra, notes,
+                  GRID_ROWS, tail, True, holds)  # fmt: skip
+
+
+ROLES = {"constant fog": constant_fog_cases, "grid fog": grid_fog_cases}
+
+
+def media_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """The cases of one applicability (its role: `ROLES`)."""
+    return ROLES[app.role](setup, app)
+
+
+FAMILY = AuditFamily(
+    name="height-fog",
+    quantity="fog_transmittance",
+    roles=tuple(ROLES),
+    formats=("mitsuba-xml", "rtfit-toml"),
+    cases=media_cases,
+    describe=(
+        "Per medium of the scene that is not rtfit's exponential fog: a homogeneous medium is constant fog "
+        "(c = 0, b = σt), a heterogeneous grid is fitted with the exponential height density "
+        "b·exp(−c·(p·ĝ − h₀)) and the fit's residual is stated first; the transmittance along each camera "
+        "ray's first stretch inside the medium, by ratio tracking through the loaded Mitsuba medium, against "
+        "the optical-depth forms as T = e^(−τ) with the medium's (or the fitted) b, c, and fitted."
+    ),
+)

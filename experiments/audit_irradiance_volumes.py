@@ -1,0 +1,194 @@
+"""The ``irradiance-volumes`` family in `rtfit audit`: a regular grid of path-traced probes over the user's
+scene, looked up at the visible points, against path-traced irradiance there.
+
+For a Mitsuba XML or rtfit TOML scene with surfaces and a finite bounding box, one case ``volume``:
+
+* **The grid** (`probe_grid`): cubic cells (`rtfit.realtime.irradiance_volumes.ProbeGrid` has one spacing h),
+  the nodes centred in the scene's box with h = max over the axes of extent/n (each node the centre of one
+  of n equal cells along the longest axis, so that no probe sits on the box's faces, where the walls and the
+  floor of a room are). ``--grid NX,NY,NZ`` sets n per axis; the default puts `DEFAULT_NODES` nodes on the
+  longest side and round(extent/h) (at least 1) on the others, so the cells follow the box's aspect.
+* **The probes** (the family's reference, `rtfit.reference.probe_radiance.probe_radiance_pass` with the
+  irradiance-volumes experiment's `probe_features`): at each node, `PROBE_SPP_FACTOR` × ``--spp``
+  directions uniform on the sphere, one Mitsuba ``path`` sample of the incident radiance each (unbounded
+  depth), projected on SH L2, on the clamped cosines of the six axes (Valve's ambient cube) and of
+  `NNLS_NORMALS` Fibonacci normals (the NNLS cube's fit); `probe_bases` turns them into the stored
+  coefficients, exactly as the experiment bakes its volume.
+* **Reference**: the irradiance at each visible point with the camera-facing normal,
+  `rtfit.reference.estimators.irradiance_pass` with ``global`` transport (a cosine-distributed ray, then
+  Mitsuba's ``path``: unbounded depth), in independent passes through the pass cache with per-pixel standard
+  errors (W/m², RGB). It counts every light a ray can reach, as the probes do: an area light, an
+  environment, and all light after one bounce; the *direct* light of a point, spot or directional light
+  reaches neither (a ray never hits it: an engine adds it per pixel and keeps the volume for the rest).
+* **Rows**: `rtfit.realtime.irradiance_volumes.METHODS` — nearest and trilinear lookup × Valve's cube, the
+  NNLS cube and SH L2 — each reading its own basis's table (`FamilyCase.row_inputs`); no free parameters.
+
+What the numbers mean: a probe stores the light at its node, a visible point receives the light at its own
+position and normal; the rows' error is the volume's spatial resolution (nearest: popping between cells;
+trilinear: blur) plus the basis's angular resolution, plus **leaking**: a probe inside an object or behind a
+wall sees darkness (or light) a surface point next to it does not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from rtfit.realtime.irradiance_volumes import METHODS, ProbeGrid, probe_table
+from rtfit.reference.cache import array_digest
+from rtfit.reference.estimators import irradiance_pass
+from rtfit.reference.probe_radiance import probe_radiance_pass
+
+from .audit import Applicability
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .probe_projection import FEATURES_NAME, NNLS_NORMALS, probe_bases, probe_features
+
+__all__ = ["DEFAULT_NODES", "FAMILY", "PROBE_SPP_FACTOR", "irradiance_volume_cases", "probe_grid"]
+
+FORMAT = 1
+DEFAULT_NODES = 4
+"""Nodes along the longest side of the scene's box by default."""
+PROBE_SPP_FACTOR = 64
+"""Each probe takes this many times ``--spp`` directions (a probe is baked once, offline, with many)."""
+
+
+def probe_grid(lo, hi, dims=None) -> ProbeGrid:
+    """The probe grid over the box [lo, hi] (module docstring): ``dims`` (n_x, n_y, n_z) nodes, or the
+    default by the box's aspect. Refuses a box that is not finite or has no extent (`AuditError`)."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    extent = hi - lo
+    longest = float(np.max(extent)) if np.all(np.isfinite(extent)) else math.nan
+    if not (math.isfinite(longest) and longest > 0.0):
+        raise AuditError(
+            f"irradiance-volumes: the scene's box {lo}–{hi} has no finite extent for a probe grid"
+        )
+    if dims is None:
+        h = longest / DEFAULT_NODES
+        dims = tuple(max(1, round(float(e) / h)) for e in extent)
+    else:
+        h = max(float(e) / n for e, n in zip(extent, dims, strict=True))
+    n = np.asarray(dims, np.float64)
+    origin = 0.5 * (lo + hi) - 0.5 * (n - 1.0) * h
+    return ProbeGrid(tuple(float(v) for v in origin), h, tuple(int(v) for v in dims))  # type: ignore[arg-type]
+
+
+def irradiance_volume_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """One case: the six volume rows against the global irradiance at the visible points."""
+    mi, scene = setup.mi, setup.scene
+    box = setup.info.bbox
+    if box is None:
+        b = scene.bbox()
+        box = (tuple(b.min), tuple(b.max))
+    grid = probe_grid(box[0], box[1], setup.grid)
+    positions = grid.positions()
+    mask = setup.mask
+    points = setup.gbuffer.position[mask].astype(np.float64)
+    normals = setup.gbuffer.normal[mask].astype(np.float64)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    k = probe_features(np.array([[0.0, 0.0, 1.0]])).shape[1]
+    baking = replace(setup, spp=PROBE_SPP_FACTOR * setup.spp, pass_spp=PROBE_SPP_FACTOR * setup.pass_spp)
+    probes = pooled_passes(
+        baking,
+        {
+            "format": FORMAT,
+            "quantity": "probe-radiance",
+            "features": FEATURES_NAME,
+            "positions": array_digest(positions),
+        },
+        lambda spp, seed: probe_radiance_pass(mi, scene, positions, probe_features, spp, seed),
+        (-1, k, 3),
+        f"volume: {grid.count} probes",
+        seed_label="probes",
+    )
+    pooled = pooled_passes(
+        setup,
+        {"format": FORMAT, "quantity": "irradiance-global", "points": array_digest(points, normals)},
+        lambda spp, seed: irradiance_pass(mi, scene, points, normals, spp, seed, transport="global"),
+        (-1, 3),
+        f"volume: irradiance at {len(points)} points",
+    )
+    bases = probe_bases(probes.mean)
+    geometry = {
+        **{f"p{c}": np.ascontiguousarray(points[:, j]) for j, c in enumerate("xyz")},
+        **{f"n{c}": np.ascontiguousarray(normals[:, j]) for j, c in enumerate("xyz")},
+    }
+    row_inputs = {
+        mid: ({**geometry, "table": probe_table(bases[m.fixed["basis"].id])},) for mid, m in METHODS.items()
+    }
+    # the grid is this scene's constant, not a per-pixel input: each row gets it as a fixed keyword
+    methods = {
+        mid: replace(
+            m, inputs=tuple(i for i in m.inputs if i.name != "grid"), fixed={**m.fixed, "grid": grid}
+        )
+        for mid, m in METHODS.items()
+    }
+    ref = pooled.reference(
+        mask,
+        quantity="irradiance at the visible points (W/m²): every light a ray can reach",
+        integrator="global irradiance: a cosine-distributed ray, then path (unbounded depth)",
+        integrator_reason=(
+            "the light a probe can store: emitters a ray hits and every bounce; the direct light of point, "
+            "spot and directional lights reaches neither the probes nor this reference"
+        ),
+        extra_seconds=probes.seconds,
+    )
+    lo, hi = np.asarray(box[0], np.float64), np.asarray(box[1], np.float64)
+    outside = int(np.sum(np.any((positions < lo) | (positions > hi), axis=1)))
+    parameters = {
+        "grid_dims": list(grid.dims),
+        "grid_origin": list(grid.origin),
+        "grid_spacing": grid.spacing,
+        "grid_from": "--grid" if setup.grid is not None else f"{DEFAULT_NODES} nodes on the longest side",
+        "probes": grid.count,
+        "probes_outside_the_box": outside,
+        "probe_spp": probes.spp,
+        "nnls_normals": NNLS_NORMALS,
+        "pixels": int(mask.sum()),
+    }
+    dims = "×".join(str(d) for d in grid.dims)
+    notes = (
+        f"probe grid {dims} ({parameters['grid_from']}), spacing {grid.spacing:.4g}, centred in the "
+        f"scene's box {_vec(lo)}–{_vec(hi)}; {outside} probe(s) outside it",
+        f"each probe: {probes.spp} path-traced directions, projected on SH L2, Valve's six axes and "
+        f"{NNLS_NORMALS} normals (the NNLS cube)",
+    )
+    return [
+        FamilyCase(
+            id="volume",
+            label=f"probe grid {dims}, irradiance at the visible points",
+            reference=ref,
+            mask=mask,
+            channel_inputs=row_inputs["trilinear-sh-l2"],
+            parameters=parameters,
+            units="W/m²",
+            notes=notes,
+            methods=methods,
+            row_inputs=row_inputs,
+        )
+    ]
+
+
+def _without_grid(method):
+    return tuple(i for i in method.inputs if i.name != "grid")
+
+
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{float(c):.4g}" for c in v) + ")"
+
+
+FAMILY = AuditFamily(
+    name="irradiance-volumes",
+    quantity="volume_irradiance",
+    cases=irradiance_volume_cases,
+    formats=("mitsuba-xml", "rtfit-toml"),
+    describe=(
+        "A regular grid of probes over the scene's bounding box (cubic cells, nodes centred in the box; "
+        f"--grid NX,NY,NZ, default {DEFAULT_NODES} nodes on the longest side), each path-traced along "
+        "uniform sphere directions and projected on SH L2, Valve's ambient cube and the NNLS cube's normals, "
+        "as the irradiance-volumes experiment bakes them; the nearest and trilinear lookups of each basis at "
+        "the visible points and camera-facing normals, against the path-traced irradiance there (a "
+        "cosine-distributed ray, then unbounded path tracing: every light a ray can reach, as the probes)."
+    ),
+)

@@ -1,0 +1,284 @@
+"""The lights of a user's scene as the light-irradiance families of `rtfit audit` see them.
+
+Shared by the families that compare one light's direct irradiance (the diffuse family, the ambient-aperture
+family's occluded sphere light), so that neither imports the other. A light of either scene format — a
+Mitsuba XML emitter (`XmlScene.emitters`) or an rtfit TOML light (`Scene.lights`) — becomes one
+`AuditLight`: the Mitsuba emitter its reference samples, and the geometry its methods read:
+
+* **local lights** (point, spot, sphere, rectangle, disk, an area light on any mesh): the centre c (a
+  point/spot position, a sphere's centre, the centre of an area light's bounding box) and, for a sphere,
+  its radius r; seen from x: t = (c − x)/|c − x|, d = |c − x| (scene units), α = asin(r/d) (rad);
+* **distant lights** (a directional light, a sun of finite angular radius, the sun of a ``sunsky``): the
+  unit direction towards the light t, d = +inf, α = the sun's angular radius (0 for a directional light):
+  a uniform disc of directions of angular radius α gives the irradiance of a sphere light of the same
+  angular radius, so the exact sphere-light form applies to it too.
+
+The light's radiance L (W/m²/sr, per RGB channel, for the exact form) is the declared one where the scene
+declares it (a sphere light's ``radiance``; a TOML sun's E/(π sin²α), read from the Mitsuba plugin rtfit
+builds for it), else E⊥/(π sin²α) from the reference's own E⊥.
+
+**The light alone.** The reference samples the light with nothing else emitting: a ``sunsky``'s sun is
+sampled with the emitter's ``sky_scale`` set to 0 for the duration of the passes (its sky is the
+irradiance-bases family's question), and a TOML sun of finite size (whose Mitsuba emitter carries a
+``constant_env`` sky folded into it, `rtfit.reference.build`) by a disc emitter of its own, without the
+sky, sized to the scene for its shadow rays.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+from rtfit.reference import emitters as rtfit_emitters
+from rtfit.reference.build import light_dicts
+from rtfit.reference.cache import array_digest
+from rtfit.reference.environments import emitter_scales
+from rtfit.reference.light_irradiance import light_irradiance_pass
+
+from .audit_family import AuditError, AuditSetup, PooledPasses, pooled_passes
+
+__all__ = [
+    "AuditLight",
+    "hard_shadow",
+    "light_geometry",
+    "light_radiance",
+    "light_reference",
+    "scene_light",
+    "small_sphere_caveat",
+]
+
+FORMAT = 2  # 2: E⊥ from samples of its own (`light_irradiance.PERP_SAMPLES`)
+_DIRECTIONAL_FAR = 1e7  # a distant light's "centre": this many scene diagonals away along its direction
+
+
+@dataclass(frozen=True)
+class AuditLight:
+    """One light (module docstring): ``kind`` (words for the report), the Mitsuba ``emitter`` its reference
+    samples, ``centre`` (local lights, scene units) or ``direction`` (distant lights: unit, towards the
+    light), ``radius`` (a sphere light's, scene units; else 0), ``angular_radius`` (a distant disc's α, rad;
+    else 0), ``radiance`` (the declared L per channel, or None), ``scales`` (emitter parameters set during
+    the passes: a sunsky's ``sky_scale`` 0) and ``key`` (what the cache key adds for this light)."""
+
+    kind: str
+    emitter: Any
+    centre: np.ndarray | None = None
+    direction: np.ndarray | None = None
+    radius: float = 0.0
+    angular_radius: float = 0.0
+    radiance: tuple[float, float, float] | None = None
+    scales: Mapping[str, float] = field(default_factory=dict)
+    key: Mapping[str, Any] = field(default_factory=dict)
+
+
+def _unit(v) -> np.ndarray:
+    a = np.asarray(v, np.float64)
+    return a / np.linalg.norm(a)
+
+
+def _bbox_centre(emitter, what: str) -> np.ndarray:
+    shape = emitter.get_shape()
+    if shape is None:
+        raise AuditError(f"{what}: no shape to take its centre from")
+    box = shape.bbox()
+    lo = np.array([float(box.min[i]) for i in range(3)])
+    hi = np.array([float(box.max[i]) for i in range(3)])
+    return (lo + hi) / 2
+
+
+def _xml_light(setup: AuditSetup, source: int) -> AuditLight:
+    light = setup.info.xml.emitters[source]
+    emitter = setup.emitters[source]
+    if emitter is None:
+        raise AuditError(f"{light.kind} light ({light.location}): Mitsuba did not instantiate it")
+    declared = None
+    if light.scale_name == "radiance" and light.scale is not None and len(light.scale) in (1, 3):
+        declared = tuple(float(v) for v in light.scale * (3 // len(light.scale)))
+    if light.kind == "directional":
+        return AuditLight("directional", emitter, direction=_unit(light.direction))
+    if light.kind == "sunsky" and light.direction is not None:
+        alpha = math.radians(light.angular_radius_deg or 0.0)
+        return AuditLight(
+            "sunsky sun", emitter, direction=_unit(light.direction), angular_radius=alpha,
+            scales={"sky_scale": 0.0}, key={"light": "sunsky sun (sky_scale 0)"},
+        )  # fmt: skip
+    if light.environment:
+        raise AuditError(f"{light.kind} environment ({light.location}): not a light of its own")
+    if light.kind in ("point", "spot"):
+        centre = np.asarray(light.position, np.float64)
+        return AuditLight(light.kind, emitter, centre=centre, radiance=declared)
+    what = f"{light.kind} light ({light.location})"
+    centre = _bbox_centre(emitter, what)
+    radius = 0.0
+    if light.spherical:
+        box = emitter.get_shape().bbox()
+        radius = float(box.max[0] - box.min[0]) / 2
+    return AuditLight(light.kind, emitter, centre=centre, radius=radius, radiance=declared)
+
+
+def _toml_emitter(mi_scene, index: int, what: str):
+    """The emitter that rtfit's Mitsuba build made of ``lights[index]`` (named ``light<index>``: a free
+    emitter's own id, an area light's shape's id)."""
+    name = f"light{index}"
+    for e in mi_scene.emitters():
+        shape = e.get_shape()
+        if e.id() == name or (shape is not None and shape.id() == name):
+            return e
+    raise AuditError(f"{what}: Mitsuba did not instantiate it")
+
+
+def _toml_light(setup: AuditSetup, source: int) -> AuditLight:
+    light = setup.source.lights[source]
+    what = f"{light.kind} (lights[{source}])"
+    mi = setup.mi
+    if light.kind == "sun" and light.angular_radius_deg > 0.0:
+        # a disc of its own: the scene's carries a constant sky folded into it (module docstring)
+        plugin = light_dicts(mi, light)[""]
+        rtfit_emitters.register(mi)
+        disc = mi.load_dict(plugin)
+        disc.attach_to_scene(setup.scene)
+        radiance = tuple(float(plugin["radiance"][c]) for c in range(3))
+        alpha = math.radians(light.angular_radius_deg)
+        return AuditLight("sun disc", disc, direction=_unit(light.direction), angular_radius=alpha,
+                          radiance=radiance, key={"light": "sun disc (no sky)"})  # fmt: skip
+    emitter = _toml_emitter(setup.scene, source, what)
+    if light.kind == "sun":
+        return AuditLight("directional", emitter, direction=_unit(light.direction))
+    if light.kind == "sunsky":
+        alpha = math.radians(light.sun_aperture_deg / 2)
+        return AuditLight(
+            "sunsky sun", emitter, direction=_unit(light.sun_direction), angular_radius=alpha,
+            scales={"sky_scale": 0.0}, key={"light": "sunsky sun (sky_scale 0)"},
+        )  # fmt: skip
+    if light.kind in ("point_light", "spot_light"):
+        return AuditLight(light.kind.split("_")[0], emitter, centre=np.asarray(light.position, np.float64))
+    if light.kind == "sphere_light":
+        return AuditLight("sphere", emitter, centre=np.asarray(light.center, np.float64),
+                          radius=float(light.radius), radiance=tuple(light.radiance))  # fmt: skip
+    if light.kind == "rect_light":
+        return AuditLight("rectangle", emitter, centre=_bbox_centre(emitter, what),
+                          radiance=tuple(light.radiance))  # fmt: skip
+    raise AuditError(f"{what}: an environment, not a light of its own")
+
+
+def scene_light(setup: AuditSetup, source: int) -> AuditLight:
+    """The `AuditLight` of the scene's light ``source`` (an index into `XmlScene.emitters` for a Mitsuba
+    XML scene, into `Scene.lights` for an rtfit TOML scene)."""
+    if setup.info.xml is not None:
+        return _xml_light(setup, source)
+    if setup.info.format == "rtfit-toml" and setup.source is not None:
+        return _toml_light(setup, source)
+    raise AuditError(f"the audit reads lights of Mitsuba XML and rtfit TOML scenes, not {setup.info.format}")
+
+
+def light_geometry(setup: AuditSetup, source: int, points: np.ndarray):
+    """(towards (N, 3) unit, distance (N,), alpha (N,), centre-or-None, radius) of the light ``source``
+    seen from ``points`` (N, 3) (module docstring)."""
+    light = scene_light(setup, source)
+    p = np.asarray(points, np.float64)
+    n = len(p)
+    if light.direction is not None:
+        alpha = np.full(n, light.angular_radius)
+        return np.tile(light.direction, (n, 1)), np.full(n, math.inf), alpha, None, 0.0
+    v = light.centre - p
+    dist = np.linalg.norm(v, axis=1)
+    towards = v / np.maximum(dist, 1e-30)[:, None]
+    r = light.radius
+    alpha = np.arcsin(np.clip(r / np.maximum(dist, 1e-30), 0.0, 1.0)) if r > 0 else np.zeros(n)
+    return towards, dist, alpha, light.centre, r
+
+
+def hard_shadow(setup: AuditSetup, points, normals, towards, dist, radius, shape=None) -> np.ndarray:
+    """1 where a shadow ray from each point towards the light's centre reaches the light (its surface for a
+    sphere, the centre's neighbourhood otherwise; `_DIRECTIONAL_FAR` scene diagonals away for a distant
+    light), else 0.
+
+    An area light on a shape (``shape``: the emitter's own Mitsuba shape) is reached when the ray's first
+    hit is that shape: the centre of a closed mesh's bounding box (an OBJ bulb, a cube light) lies inside
+    the mesh, so a ray that must arrive there unblocked would always be stopped by the light's own surface
+    (issue 31: a black shadowed case for every method). The first hit of a ray of length d − r is taken
+    instead: nothing (the light's centre reached), or the light's own shape (its surface facing the point)
+    means lit; any other shape means shadowed."""
+    mi = setup.mi
+    reach = np.where(np.isfinite(dist), np.maximum(dist - radius, 0.0) * (1.0 - 1e-4), 0.0)
+    diag = setup.info.diagonal or 1.0
+    reach = np.where(np.isfinite(dist), reach, _DIRECTIONAL_FAR * diag)
+    target = np.asarray(points, np.float64) + towards * reach[:, None]
+    it = dr.zeros(mi.SurfaceInteraction3f, len(points))
+    it.p = mi.Point3f(np.ascontiguousarray(points, np.float32).T)
+    it.n = mi.Vector3f(np.ascontiguousarray(normals, np.float32).T)
+    it.sh_frame = mi.Frame3f(it.n)
+    ray = it.spawn_ray_to(mi.Point3f(np.ascontiguousarray(target, np.float32).T))
+    if shape is None:
+        blocked = setup.scene.ray_test(ray)
+        return (~np.asarray(blocked, dtype=bool)).astype(np.float64)
+    si = setup.scene.ray_intersect(ray)
+    lit = ~si.is_valid() | (si.shape == mi.ShapePtr(shape))
+    return np.asarray(lit, dtype=bool).astype(np.float64)
+
+
+def small_sphere_caveat(alpha: np.ndarray, mean: np.ndarray, stderr: np.ndarray) -> tuple[str, ...]:
+    """A note where the reference of a very small sphere light is biased beyond its own noise (issue 31 g):
+    ``alpha`` the light's angular radius per point (rad), ``mean``/``stderr`` the reference's first channel.
+
+    Mitsuba samples a sphere light's cone with the density 1/(2π(1 − cos α)), cos α rounded to float32
+    (ulp 2⁻²⁴ just below 1), so for small α its estimate carries a relative bias of the order of
+    2⁻²⁴/(1 − cos α) ≈ 2⁻²³/α². Measured (tests/test_audit_real.py) against the closed form in float64,
+    which the float32 exact row matches to 5e-7: +2.5e-4 at α = 0.011 rad (Veach's r = 0.033 sphere at
+    d ≈ 3), +3.8e-3 at α = 0.0033, 3e-5 (within noise) at α = 0.033. The closed form is right; the exact
+    row's self-check against this reference is meaningful only where that bias is below the noise."""
+    one_minus_cos = 2.0 * np.sin(np.asarray(alpha, np.float64) / 2.0) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bias = np.where(one_minus_cos > 0, 2.0**-24 / one_minus_cos, 0.0)
+        rel = np.asarray(stderr, np.float64) / np.abs(np.asarray(mean, np.float64))
+    rel = rel[np.isfinite(rel) & (rel > 0)]
+    if not rel.size or np.median(bias) <= 0.5 * np.median(rel):
+        return ()
+    return (
+        f"a very small sphere light (α down to {float(np.min(alpha)):.3g} rad): Mitsuba's float32 cone "
+        f"sampling biases this reference by ~2⁻²⁴/(1 − cos α), median {float(np.median(bias)):.2g} relative "
+        f"(its noise: {float(np.median(rel)):.2g}); the exact row's self-check may fail on the "
+        "reference's bias, not the closed form's",
+    )
+
+
+def light_radiance(setup: AuditSetup, source: int, e_perp: np.ndarray, alpha: np.ndarray) -> list:
+    """Per channel: the light's declared radiance, else E⊥/(π sin²α) (0 where α = 0)."""
+    declared = scene_light(setup, source).radiance
+    if declared is not None:
+        return [float(v) for v in declared]
+    s2 = np.sin(alpha) ** 2
+    return [np.where(s2 > 0, e_perp[:, c] / (math.pi * np.maximum(s2, 1e-300)), 0.0) for c in range(3)]
+
+
+def light_reference(setup: AuditSetup, source: int, points, normals, towards, label: str) -> PooledPasses:
+    """The light's pooled passes, mean and stderr (N, 9) in W/m²: columns 0–2 unshadowed, 3–5 shadowed, 6–8
+    E⊥ (`rtfit.reference.light_irradiance`), the light alone (module docstring)."""
+    light = scene_light(setup, source)
+    what = {
+        "format": FORMAT,
+        "quantity": "light-irradiance",
+        "emitter": source,
+        "points": array_digest(points, normals, towards),
+        **light.key,
+    }
+
+    def render(spp: int, seed: int):
+        with _alone(setup.mi, light):
+            return light_irradiance_pass(
+                setup.mi, setup.scene, light.emitter, points, normals, towards, spp, seed
+            )
+
+    return pooled_passes(setup, what, render, (-1, 9), label)
+
+
+def _alone(mi, light: AuditLight):
+    """The light's emitter with its `AuditLight.scales` set (put back afterwards)."""
+    if not light.scales:
+        return contextlib.nullcontext(light.emitter)
+    return emitter_scales(mi, light.emitter, **light.scales)

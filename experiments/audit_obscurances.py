@@ -1,0 +1,183 @@
+r"""The ``obscurances`` family in `rtfit audit`: Zhukov/Iones obscurances of the scene's own geometry, on the
+scene's own camera (Mitsuba XML or rtfit TOML).
+
+At each visible point x with unit normal n (the pixel-centre G-buffer, `rtfit.reference.gbuffer_points`) the
+obscurance with distance function ρ is
+
+    W(x) = (1/π) ∫_{H(n)} ρ(d(x, ω)) (n·ω) dω,   d = distance to the first surface along ω (∞: a miss),
+
+the quantity of `rtfit.realtime.obscurances` (GameTools D5.3 §2.10, 001:3251-3380). The scale is the scene's
+AO radius R (``--ao-distance``, else `rtfit.experiments.audit.AO_FRACTION` × the bounding-box diagonal, as
+the sdf-occlusion audit uses it): the seed's d_max = 0.3 (001:3326) is in the units of the seed's meshes, so
+here d_max = R wherever a row declares it, and the fitted d_max starts at R with bounds [10⁻³ R, 10³ R].
+
+Two references per scene, each by Mitsuba ray casts from the visible points (`rtfit.reference.occlusion`,
+cosine-distributed directions, independent passes through the pass cache, per-pixel standard errors):
+
+* ``obscurance`` — the model itself: W with the seed's ρ = min(d/R, 1)^½ (`distance_weight`, the kernel
+  text's own ρ). Exact for the model: the rows' error against it is the K-ray estimator's error (and, for
+  the other ρ, the difference of the forms);
+* ``ambient_global`` — what obscurances stand in for: E(x)/(πL) under a uniform ambient of radiance L (the
+  whole sphere, no horizon) with every interreflection between white diffuse surfaces of albedo
+  `AMBIENT_ALBEDO` (Russian roulette): 1 at an unoccluded point, as W is.
+
+Rows (`rtfit.realtime.obscurances.METHODS`), all on the same K = `RAYS` hit distances per point
+(`hit_distances` along `cosine_spiral_directions`, rotated per point: the real-time bake): ``seed`` (ρ = √,
+d_max = R), ``power`` (d_max, p, s fitted), ``exponential`` (d_max, s fitted), ``ao`` (the step ρ: AO within
+d_max, d_max fitted). A row reads its K distances as K per-pixel inputs d1..dK (`on_rays`: the table's own
+kernel given the tuple); a miss is given as `MISS` (finite, so that JAX fits and float32 costs stay finite:
+every ρ is 1 there for d_max ≤ 10²⁸).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from rtfit.realtime.methods import Input, Method
+from rtfit.realtime.obscurances import (
+    METHODS,
+    SEED_EXPONENT,
+    cosine_spiral_directions,
+    distance_weight,
+)
+from rtfit.reference.cache import array_digest
+from rtfit.reference.estimators import gbuffer_points
+from rtfit.reference.occlusion import hit_distances, occlusion_pass
+
+from .audit import Applicability
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit_geometry import ao_radius
+
+__all__ = ["AMBIENT_ALBEDO", "FAMILY", "MISS", "RAYS", "obscurance_cases", "on_rays"]
+
+FORMAT = 1
+RAYS = 32
+"""Rays per point of the rows' estimator (the obscurances experiment's quick ``fit_rays``)."""
+AMBIENT_ALBEDO = 0.8
+"""Albedo of every surface in the uniform-ambient reference (the obscurances experiment's ``albedo``)."""
+MISS = 1e30
+"""A ray that escapes, as a hit distance (the obscurances experiment's fits use the same)."""
+ROLE = "obscurance"
+
+
+def on_rays(method: Method, rays: int, **fixed) -> Method:
+    """``method`` (a row of `METHODS`) reading its ``distances`` as the ``rays`` per-pixel inputs d1..dK: the
+    same kernel (``method.kernel``) given the tuple (d1, …, dK), with ``fixed`` keywords over its own."""
+    names = tuple(f"d{k + 1}" for k in range(rays))
+    base = method.kernel
+
+    def kernel(ops, **kw):
+        distances = tuple(kw.pop(n) for n in names)
+        return base(ops, distances, **kw)
+
+    inputs = tuple(Input(n, "scene units", f"hit distance of ray {k + 1} (a miss: {MISS:g})") for k, n in
+                   enumerate(names))  # fmt: skip
+    return replace(method, kernel=kernel, inputs=inputs, fixed={**method.fixed, **fixed})
+
+
+def _rows(radius: float) -> tuple[dict[str, Method], dict]:
+    """(row id → method on `RAYS` rays, row id → parameter → `Param` scaled to R): the seed row with
+    d_max = R; every fitted d_max starting at R within [10⁻³ R, 10³ R]."""
+    methods = {mid: on_rays(m, RAYS, **({"d_max": radius} if "d_max" in m.fixed else {}))
+               for mid, m in METHODS.items()}  # fmt: skip
+    methods["seed"] = replace(
+        methods["seed"],
+        label=f"Seed obscurance (√(d/d_max), d_max = R = {radius:.4g})",
+        formula=f"W = (1/K) Σ_k min(d_k/R, 1)^½, R = {radius:.4g}",
+    )
+    params = {}
+    for mid, m in METHODS.items():
+        if "d_max" in m.params:
+            p = m.params["d_max"]
+            params[mid] = {"d_max": replace(p, initial=radius, lower=1e-3 * radius, upper=1e3 * radius)}
+    return methods, params
+
+
+def _reference(setup: AuditSetup, points, normals, quantity: str, radius: float, label: str):
+    """Pooled passes of ``quantity`` (``obscurance`` with the seed's ρ at d_max = R, or ``ambient_global``)
+    at the visible points: mean and stderr (N,), dimensionless."""
+    what: dict = {"format": FORMAT, "quantity": quantity, "points": array_digest(points, normals)}
+    kw: dict = {"quantity": quantity}
+    if quantity == "obscurance":
+        fn, key = distance_weight("power", radius, SEED_EXPONENT)
+        what["distance_weight"] = key
+        kw["distance_weight"] = fn
+    else:
+        what["albedo"] = AMBIENT_ALBEDO
+        kw["albedo"] = AMBIENT_ALBEDO
+
+    def render(spp: int, seed: int):
+        return occlusion_pass(setup.mi, setup.scene, points, normals, spp, seed, **kw)
+
+    return pooled_passes(setup, what, render, (-1,), label, seed_label=f"{quantity}-pass")
+
+
+def obscurance_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """Two cases on the visible points: the model's own W (seed ρ, d_max = R) and the uniform ambient with
+    interreflections (module docstring)."""
+    if app.role != ROLE:
+        raise AuditError(f"obscurances: the {app.role} role is not audited here")
+    radius = ao_radius(setup, "obscurances")
+    mask = setup.mask
+    points, normals = gbuffer_points(setup.gbuffer, setup.mask)
+    dist = hit_distances(setup.mi, setup.scene, points, normals, cosine_spiral_directions(RAYS),
+                         rotate_seed=setup.seed + RAYS)  # fmt: skip
+    dist = np.minimum(dist, MISS)
+    inputs = {f"d{k + 1}": np.ascontiguousarray(dist[k]) for k in range(RAYS)}
+    methods, params = _rows(radius)
+    escaped = float(np.mean(dist >= MISS))
+    notes = (
+        f"rows: the K-ray estimator on K = {RAYS} stratified cosine directions per point (a golden-angle "
+        f"spiral rotated per point), {100 * escaped:.3g} % of the rays escaping; d_max in scene units, "
+        f"R = {radius:.4g}",
+    )
+    parameters = {"ao_distance": radius, "rays": RAYS, "pixels": int(mask.sum())}
+    cases = []
+    for quantity, tag, what, words in (
+        ("obscurance", "model", f"obscurance W with ρ = min(d/R, 1)^½, R = {radius:.4g}",
+         "ρ(d(ω)) with ω ~ cos/π is the exact estimator of W (the model's own definition)"),
+        ("ambient_global", "ambient", f"uniform ambient E/(πL), albedo {AMBIENT_ALBEDO:g}, all bounces",
+         "cosine-sampled paths with Russian roulette (q = albedo) score 1 when they escape"),
+    ):  # fmt: skip
+        pooled = _reference(setup, points, normals, quantity, radius, f"obscurances {tag}: {app.part}")
+        ref = pooled.reference(
+            mask,
+            quantity=f"{what} (1: unoccluded)",
+            integrator=f"occlusion pass ({quantity}: Mitsuba ray casts from the visible points)",
+            integrator_reason=words,
+        )
+        cases.append(
+            FamilyCase(
+                id=f"obscurance-{tag}",
+                label=f"{app.part}: {what}",
+                reference=ref,
+                mask=mask,
+                channel_inputs=(inputs,) * 3,
+                parameters={**parameters, "reference_quantity": quantity},
+                units="1",
+                notes=notes,
+                methods=methods,
+                quantity="obscurance",
+                params=params,
+            )
+        )
+    return cases
+
+
+FAMILY = AuditFamily(
+    name="obscurances",
+    quantity="obscurance",
+    cases=obscurance_cases,
+    roles=(ROLE,),
+    formats=("mitsuba-xml", "rtfit-toml"),
+    describe=(
+        "Obscurances W = (1/π)∫ρ(d)(n·ω)dω of the scene's own geometry at each visible point, the distance "
+        "scale being the AO radius R. Two references by Mitsuba ray casts from the visible points in "
+        "independent passes: the model itself (the seed's ρ = √(d/R)) and the uniform ambient with every "
+        f"interreflection (albedo {AMBIENT_ALBEDO:g}) that obscurances stand in for. The rows are the K-ray "
+        f"estimator an engine bakes (K = {RAYS} stratified cosine rays per point) with the seed's, power, "
+        "exponential and step ρ, their d_max, exponent and ambient scale fitted to this scene."
+    ),
+)

@@ -1,0 +1,138 @@
+r"""The ``volumetric-lightning`` family in `rtfit audit`: a point light inside a homogeneous medium, the light
+it scatters into the camera's rays.
+
+For each point light of the scene that sits inside a homogeneous medium (`rtfit.experiments.audit`: a Mitsuba
+XML ``point`` emitter in the sensor's medium or inside a shape that bounds one, `XmlEmitter.medium`; an rtfit
+TOML ``point_light`` inside a ``homogeneous`` medium's boundary), one case ``lightK-inscatter`` on the pixels
+whose camera ray has a stretch in that medium:
+
+* **Geometry** (`rtfit.reference.medium_lights`, on the Mitsuba scene: the XML file as loaded, a TOML scene
+  built with its media): the camera's position o_c (a perspective sensor's ``to_world``), the pixel-centre
+  view directions ω of the audit's G-buffer, and per pixel the first stretch [s₀, s₁] of the ray inside the
+  light's medium before the first surface that is not ``null`` (`medium_segments`); pixels whose ray never
+  enters the medium, or leaves the scene inside it (an unbounded stretch), are left out.
+* **Reference**: the light's single-scattered radiance along the stretch (W/m²/sr, RGB), by equiangular
+  sampling about the light with Mitsuba's own emitter sample (``I(ω)/r²``), phase function and shadow rays,
+  the homogeneous transmittance of both legs in closed form (`inscatter_pass`), in passes through the pass
+  cache with per-pixel standard errors.
+* **Rows**: the methods of `rtfit.realtime.volumetric_lightning.METHODS` (``stable``, ``seed``: the seed's
+  softened light, parameters i, a; ``inverse-square``: single scattering without extinction, K), each on the
+  segment o = o_c + s₀ω, d = (s₁ − s₀)ω and the light's position l, evaluated with the scene's values —
+  K = σ_s·I/(4π) (the channels' mean), and for the seed's model the experiment's start a₀ = 100/D²
+  (core radius D/10, D the camera-to-light distance), i₀ = a₀·K — then fitted to this scene
+  (`rtfit.experiments.scattering_reference.fit_params`' bounds for (i, a)). The shipped rows carry one level
+  for the three channels: a coloured light or medium leaves them a colour error. The exact row
+  ``quadrature`` (`QUADRATURE`) is `rtfit.reference.single_scattering.point_single_scattering` per channel
+  with the medium's σ_s, σ_t and Henyey–Greenstein g over the same stretch, no visibility: the engine's
+  self-check requires its z-scores against the reference to be standard normal — true where nothing
+  shadows the medium from the light (a shape between them darkens the reference only).
+* Your approximations of ``inscattered_radiance`` get ox…dz (the segment), lx, ly, lz, ``intensity``,
+  ``sigma_s``, ``sigma_t`` (per channel) and ``g``.
+
+Assumptions (named in each case's notes): the light-to-point segment stays inside the medium (a convex
+boundary around the light, or the sensor's unbounded medium); a medium seen through a non-null boundary
+(glass) has no stretch here (its rays refract).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from rtfit.fitting import Param
+from rtfit.realtime.volumetric_lightning import METHODS
+from rtfit.reference.single_scattering import FOUR_PI, point_single_scattering
+
+from .audit import Applicability
+from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_lit_media import (
+    NOTES,
+    LitMedium,
+    Stretches,
+    inscatter_reference,
+    light_parameters,
+    lit_medium,
+    quantity_inputs,
+    stretches,
+)
+from .scattering_reference import fit_params
+
+__all__ = ["FAMILY", "lightning_cases"]
+
+
+def _quadrature(lit: LitMedium, rays: Stretches, c: int) -> np.ndarray:
+    """The exact row's values on channel ``c`` (W/m²/sr; `point_single_scattering` over each stretch)."""
+    return point_single_scattering(
+        rays.origin, rays.dirs, rays.end, lit.position, float(lit.intensity[c]), float(lit.sigma_s[c]),
+        float(lit.sigma_t[c]), start=rays.start, g=lit.g,
+    )  # fmt: skip
+
+
+def _row_params(k: float, distance: float, sigma_s: float, intensity: float) -> dict[str, dict[str, Param]]:
+    """The rows' given values and fit bounds (module docstring)."""
+    # (a camera on the light: the start's core radius D/10 needs some D)
+    seed_model = fit_params({"distance": max(distance, 1e-3), "sigma_s": sigma_s, "intensity": intensity})
+    k_param = dataclasses.replace(METHODS["inverse-square"].params["k"], initial=k)
+    return {"stable": seed_model, "seed": seed_model, "inverse-square": {"k": k_param}}
+
+
+def lightning_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """One case: the light's in-scattered radiance along the camera's stretches in its medium (module
+    docstring)."""
+    lit = lit_medium(setup, app, "point")
+    rays = stretches(setup, app, lit)
+    tag = f"light{app.source}"
+    ref = inscatter_reference(setup, app, lit, rays, tag)
+    start = rays.segment_start
+    seg = (rays.end - rays.start)[:, None] * rays.dirs
+    n = len(rays.start)
+    geometry = {
+        **{f"o{x}": start[:, k] for k, x in enumerate("xyz")},
+        **{f"d{x}": seg[:, k] for k, x in enumerate("xyz")},
+        **{f"l{x}": np.full(n, lit.position[k]) for k, x in enumerate("xyz")},
+    }
+    exact = [_quadrature(lit, rays, c) for c in range(3)]
+    channels = tuple({**geometry, **quantity_inputs(lit, c), "single_scattering": exact[c]} for c in range(3))
+    k = float(np.mean(lit.sigma_s * lit.intensity)) / FOUR_PI
+    parameters = {"light": app.part, **light_parameters(lit, rays), "K_W_per_m_sr": k}
+    params = _row_params(
+        k, parameters["camera_to_light_m"], float(np.mean(lit.sigma_s)), float(np.mean(lit.intensity))
+    )
+    notes = (
+        *NOTES,
+        "the shipped rows carry one level for the three channels (K = the channels' mean of σ_s·I/(4π))",
+        f"{n} pixels; camera {'inside' if rays.inside else 'outside'} the medium",
+    )
+    return [
+        FamilyCase(
+            id=f"{tag}-inscatter",
+            label=f"{app.part}, in-scattered radiance",
+            reference=ref,
+            mask=rays.mask,
+            channel_inputs=channels,
+            parameters=parameters,
+            units="W/m²/sr",
+            notes=notes,
+            params=params,
+        )
+    ]
+
+
+FAMILY = AuditFamily(
+    name="volumetric-lightning",
+    quantity="inscattered_radiance",
+    formats=("mitsuba-xml", "rtfit-toml"),
+    cases=lightning_cases,
+    describe=(
+        "Per point light inside a homogeneous medium, on the pixels whose camera ray has a stretch in "
+        "that medium (the first one, before an opaque surface): the light's single-scattered radiance "
+        "along the stretch (W/m²/sr, RGB), estimated by equiangular sampling about the light with "
+        "Mitsuba's own emitter, phase function and shadow rays, against the seed's softened point light "
+        "(stable and printed forms, i and a) and single scattering without extinction (K) on the "
+        "stretch's segment, with the scene's values and fitted; the exact row is the Gauss–Legendre "
+        "quadrature of single scattering with extinction and the medium's phase function "
+        "(rtfit.reference.single_scattering), which must sit at the reference's noise where nothing "
+        "shadows the medium."
+    ),
+)

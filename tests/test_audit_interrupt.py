@@ -1,0 +1,80 @@
+"""An interrupted audit leaves a partial report of its finished cases, and the rerun completes it from the
+pass cache (issue 31). Oracles: the report's own files (which cases, the PARTIAL note), the exit status
+a shell sees for SIGTERM (143), and the cache's pass counts (a resumed case renders no pass)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from rtfit.experiments import audit_run
+from rtfit.experiments.audit_run import audit
+from rtfit.experiments.results import load_results
+
+CBOX = Path(__file__).parent / "data" / "mitsuba" / "cbox" / "cbox-rgb.xml"
+FAST = {"cost_elements": 1 << 12, "metrics": ("rmse", "mae")}
+SMALL = {"width": 16, "height": 16, "spp": 4, "pass_spp": 2, "fit": False}
+
+
+def test_an_interrupted_audit_reports_its_finished_cases_and_the_rerun_completes_it(tmp_path, monkeypatch):
+    """Ctrl-C while the second family renders: the diffuse cases (finished) are in a valid report marked
+    partial, naming what is missing; the rerun renders no diffuse pass again and reports every case."""
+    family = audit_run.AUDITED["sdf-occlusion"]
+
+    def interrupted(setup, app):
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(
+        audit_run.AUDITED, "sdf-occlusion", type(family)(**{**family.__dict__, "cases": interrupted})
+    )
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    with pytest.raises(KeyboardInterrupt) as caught:
+        audit(CBOX, out=out, cache=cache, **SMALL, **FAST)
+    report = out / "audit-cbox-rgb"
+    assert caught.value.partial_report == report  # type: ignore[attr-defined]
+    partial = load_results(report)
+    assert [c.id for c in partial.cases] == ["light0-unshadowed", "light0-shadowed"]
+    assert (
+        partial.notes[0].startswith("PARTIAL REPORT")
+        and "sdf-occlusion (ambient occlusion" in partial.notes[0]
+    )
+    assert partial.summary.startswith("Partial (interrupted).")
+    assert (report / "report.html").is_file()
+    monkeypatch.undo()
+    full = audit(CBOX, out=out, cache=cache, **SMALL, **FAST)
+    assert [c.id for c in full.cases][:4] == ["light0-unshadowed", "light0-shadowed", "ao", "caps"]
+    assert all(c.reference.passes_rendered == 0 for c in full.cases[:2])  # from the cache
+    assert not any(n.startswith("PARTIAL") for n in load_results(report).notes)
+
+
+def test_sigterm_ends_the_command_with_143_and_a_partial_report(tmp_path):
+    """``timeout`` sends SIGTERM: the audit stops as after Ctrl-C, exit 143, one line naming the partial
+    report, the finished cases in it."""
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "rtfit", "audit", str(CBOX), "--width", "16", "--height", "16", "--spp", "4",
+           "--pass-spp", "2", "--no-fit", "--out", str(out), "--cache", str(tmp_path / "cache")]  # fmt: skip
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    assert proc.stderr is not None
+    deadline = time.monotonic() + 300
+    lines = []
+    for line in proc.stderr:
+        lines.append(line)
+        if "light0-shadowed:" in line and "rows evaluated" in line:
+            proc.send_signal(signal.SIGTERM)
+            break
+        assert time.monotonic() < deadline, "".join(lines)
+    _, err = proc.communicate(timeout=300)
+    if proc.returncode == 0:
+        pytest.skip("the audit finished before SIGTERM arrived (nothing to interrupt)")
+    assert proc.returncode == 143, "".join(lines) + err
+    assert f"the report of the finished cases is in {out / 'audit-cbox-rgb'}" in err
+    assert "Traceback" not in err
+    ids = [c.id for c in load_results(out / "audit-cbox-rgb").cases]
+    assert ids[:2] == ["light0-unshadowed", "light0-shadowed"] and "caps" not in ids
