@@ -31,22 +31,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from rtfit.realtime import (
-    ambient_aperture,
-    diffuse,
-    environment_bases,
-    height_fog,
-    irradiance_volumes,
-    nishita_sky,
-    obscurances,
     reflections,
-    sdf_occlusion,
-    soft_particles,
 )
 from rtfit.realtime.light_cones import INPUTS as CONE_INPUTS
-from rtfit.realtime.light_cones import METHODS as CONE_METHODS
-from rtfit.realtime.light_cones import QUADRATURE as CONE_QUADRATURE
-from rtfit.realtime.volumetric_lightning import METHODS as LIGHTNING_METHODS
-from rtfit.realtime.volumetric_lightning import QUADRATURE as LIGHTNING_QUADRATURE
 from rtfit.reference.build import inside_boundary, load_dict, mitsuba_scene_dict
 from rtfit.reference.integrators import can_interreflect
 from rtfit.reference.mitsuba_xml import UP_AXES, XmlScene, XMLSceneError, inspect_xml
@@ -56,41 +43,26 @@ from rtfit.reference.variants import inspection_variant, scoped_variant
 from rtfit.scenes import ENVIRONMENT_KINDS, Scene, SceneError, library_names, library_path, load_scene
 from rtfit.scenes.model import PointLight, SpotLight
 
-from .registry import ALIASES
-
 __all__ = [
     "AO_FRACTION",
-    "FAMILIES",
-    "RULES",
+    "PROVIDES",
     "SURFACE_FREE_KINDS",
     "Applicability",
     "AuditError",
     "Part",
     "Rule",
     "SceneInfo",
-    "applicable_families",
-    "describe",
+    "alternatives",
+    "default_ao_distance",
+    "family_note",
     "inspect_scene",
+    "missing_text",
+    "scene_summary",
+    "vec_text",
 ]
 
 AO_FRACTION = 0.1
 """Default AO radius as a fraction of the scene's bounding-box diagonal."""
-
-FAMILIES = {
-    "diffuse": diffuse.METHODS,
-    "irradiance-bases": environment_bases.ALL_METHODS,
-    "ambient-aperture": ambient_aperture.METHODS,
-    "sdf-occlusion": sdf_occlusion.METHODS,
-    "height-fog": height_fog.METHODS,
-    "nishita-sky": nishita_sky.METHODS,
-    "obscurances": obscurances.METHODS,
-    "soft-particles": soft_particles.METHODS,
-    "volumetric-lightning": {**LIGHTNING_METHODS, "quadrature": LIGHTNING_QUADRATURE},
-    "light-cones": {**CONE_METHODS, "quadrature": CONE_QUADRATURE},
-    "environment-maps": reflections.METHODS,
-    "irradiance-volumes": irradiance_volumes.METHODS,
-}
-"""Family name (the experiment's name) → its method table."""
 
 
 class AuditError(ValueError):
@@ -223,179 +195,6 @@ class Rule:
     supplies: frozenset[str] = frozenset()
 
 
-RULES: tuple[Rule, ...] = (
-    Rule(
-        "diffuse",
-        "direct light",
-        ("light", "surface"),
-        "{part} lights the visible surfaces directly",
-        "that light's direct irradiance at the visible points, unshadowed and shadowed (reported separately)",
-        "direct, that light alone (emitter sampling; shadow rays for the shadowed pass)",
-    ),
-    Rule(
-        "irradiance-bases",
-        "environment irradiance",
-        ("environment", "surface"),
-        "{part} lights the visible normals from every direction",
-        "the environment's irradiance E(n) at the visible normals, unoccluded",
-        "emitter sampling of the environment alone (no scene rays); its dense quadrature as the exact row",
-    ),
-    Rule(
-        "sdf-occlusion",
-        "sky occlusion",
-        ("environment", "geometry"),
-        "{part} is occluded by {with_}",
-        "sky irradiance with visibility at the visible points (the environment's direct light, shadowed; a "
-        "sunsky's sky alone)",
-        "the environment alone: emitter + cosine sampling (MIS) with shadow rays against the scene's shapes",
-    ),
-    Rule(
-        "ambient-aperture",
-        "sky occlusion (aperture fill)",
-        ("environment", "geometry"),
-        "{part} is occluded by {with_}: the visible cap of sky",
-        "sky irradiance with visibility at the visible points, and each point's visible cap (bent normal, "
-        "aperture)",
-        "the environment alone: emitter + cosine sampling (MIS) with shadow rays; the caps by unbounded ray "
-        "casts",
-    ),
-    Rule(
-        "sdf-occlusion",
-        "ambient occlusion",
-        ("geometry",),
-        "{part} occludes itself",
-        "ray-cast ambient occlusion within R = {ao_distance} (cosine-weighted visibility)",
-        "occlusion pass: cosine-distributed rays of length R from the visible points",
-    ),
-    Rule(
-        "ambient-aperture",
-        "ambient occlusion (aperture caps)",
-        ("geometry",),
-        "{part} occludes itself: each point's visible cap (bent normal, aperture) against its hemisphere",
-        "ray-cast ambient occlusion within R = {ao_distance}, and each point's visibility cap baked by ray "
-        "casts of length R",
-        "occlusion pass: cosine-distributed rays of length R = {ao_distance}",
-        # The caps are intersected with the point's own hemisphere (the second cap: centre n, radius π/2,
-        # radiance 1/π, so that the light terms read AO), and the fills read 1/π as their sky.
-        frozenset({"cos_nl", "cos_al", "alpha", "radiance", "sky_radiance"}),
-    ),
-    Rule(
-        "ambient-aperture",
-        "occluded sphere light",
-        ("spherical-light", "geometry"),
-        "{part} is partly hidden by {with_}",
-        "that light's direct irradiance with visibility at the visible points",
-        "direct, that light alone (shadow rays)",
-    ),
-    Rule(
-        "height-fog",
-        "height fog",
-        ("fog",),
-        "{part} lies along the camera's rays",
-        "transmittance and in-scattered radiance along the camera's rays",
-        "volpathmis (unbiased with chromatic extinction; rtfit's exponential-fog medium)",
-    ),
-    Rule(
-        "soft-particles",
-        "particle opacity",
-        ("particle", "surface"),
-        "{part} is a particle volume the camera sees; where opaque geometry cuts it, a soft-particle fade "
-        "replaces its clipped opacity",
-        "the opacity 1 − T of its medium along the pixel rays, clipped by the first opaque surface",
-        "free-flight sampling of the medium along the chord Mitsuba's intersections give (medium boundaries "
-        "are not surfaces)",
-    ),
-    Rule(
-        "volumetric-lightning",
-        "point light in a medium",
-        ("point-in-medium",),
-        "{part}: its light scatters into the camera's rays",
-        "that light's single-scattered radiance along the camera's rays in the medium (W/m²/sr, RGB)",
-        "equiangular sampling about the light with Mitsuba's emitter, phase function and shadow rays; "
-        "the quadrature of rtfit.reference.single_scattering as the exact row",
-    ),
-    Rule(
-        "light-cones",
-        "spot light in a medium",
-        ("spot-in-medium",),
-        "{part}: its beam scatters into the camera's rays",
-        "that spot's single-scattered radiance along the camera's rays in the medium (W/m²/sr, RGB)",
-        "equiangular sampling about the light with Mitsuba's emitter (its linear-in-angle falloff), phase "
-        "function and shadow rays; the quadrature of rtfit.reference.single_scattering as the exact row",
-    ),
-    Rule(
-        "height-fog",
-        "constant fog",
-        ("constant-fog",),
-        "{part} is constant fog (falloff c = 0, density b = its σt) along the camera's rays",
-        "transmittance along each camera ray's stretch inside the medium, and the radiance with this medium "
-        "alone",
-        "ratio tracking through the scene's own medium; volpathmis for the radiance",
-    ),
-    Rule(
-        "height-fog",
-        "grid fog",
-        ("grid-fog",),
-        "{part}: its grid is fitted with the exponential height density b·exp(−c·(p·ĝ − h₀)) (the fit's "
-        "residual is reported first)",
-        "transmittance along each camera ray's stretch inside the medium, and the radiance with this medium "
-        "alone",
-        "ratio tracking through the scene's own medium (its grid, trilinear); volpathmis for the radiance",
-    ),
-    Rule(
-        "nishita-sky",
-        "sky",
-        ("atmosphere",),
-        "{part} fills the camera's sky pixels",
-        "sky radiance along the camera's sky pixels (single and multiple scattering)",
-        "volpathmis in the spherical-shell atmosphere",
-    ),
-    Rule(
-        "nishita-sky",
-        "sky emitter",
-        ("sky",),
-        "{part} fills the camera's sky pixels: which Nishita parameters best match it",
-        "the emitter's own sky radiance along the camera's sky pixels above its horizon (RGB; pixels within "
-        "1° of its sun left out: the sun's disc is the diffuse family's)",
-        "none: Mitsuba's emitter evaluated along each pixel-centre ray (emitter.eval, deterministic: noise "
-        "floor zero)",
-    ),
-    Rule(
-        "obscurances",
-        "obscurance",
-        ("geometry",),
-        "{part} occludes itself: ambient light as a function of the distance to the nearest surface",
-        "ray-cast obscurance W = (1/π)∫ρ(d)(n·ω)dω with ρ = √(d/R), R = {ao_distance}, and the uniform "
-        "ambient with interreflections it stands in for",
-        "occlusion passes: cosine-distributed rays from the visible points (hit distances; paths with "
-        "Russian roulette for the ambient)",
-        # The rule's own ray casts give every row its K hit distances per point.
-        frozenset({"distances"}),
-    ),
-    *(
-        Rule(
-            "environment-maps",
-            role,
-            (kind,),
-            "{part} shows its surroundings: a cube map captured at its centre stands in for them",
-            "path-traced radiance of the pixels that see the shape",
-            "path (unbounded depth, Russian roulette) along the pixel-centre camera rays; the cube maps "
-            "captured by the same integrator from the probe point, the shape itself hidden",
-        )
-        for role, kind in (("reflections", "reflective-shape"), ("glossy reflections", "rough-shape"))
-    ),
-    Rule(
-        "irradiance-volumes",
-        "probe grid",
-        ("volume", "geometry"),
-        "{part}: probes baked there stand in for the light that {with_} shapes over the visible points",
-        "path-traced irradiance at the visible points (every light a ray can reach, as the probes store it)",
-        "a cosine-distributed ray from each visible point, then path (unbounded depth); the probes: uniform "
-        "sphere directions from each node, the same integrator",
-    ),
-)
-
-
 SURFACE_FREE_KINDS = frozenset({"fog", "constant-fog", "grid-fog", "point-in-medium", "spot-in-medium", "sky",
                                 "atmosphere"})  # fmt: skip
 """Trigger part kinds (a rule's ``needs[0]``) whose family audits the camera's rays, not the surfaces they
@@ -419,7 +218,7 @@ class Applicability:
     source: int | None = None  # the triggering part's `Part.source`
 
 
-def _missing_text(missing: set[str]) -> str:
+def missing_text(missing: set[str]) -> str:
     """``needs alpha, radiance: a spherical light …`` — the one part kind that provides them all (the
     most specific), else each input's own."""
     covering = [k for k in PROVIDES if missing <= PROVIDES[k]]
@@ -430,7 +229,7 @@ def _missing_text(missing: set[str]) -> str:
     return f"needs {', '.join(sorted(missing))}: {' and '.join(_KIND_TEXT.get(k, k) for k in kinds)}"
 
 
-def _alternatives(rules) -> list[str]:
+def alternatives(rules) -> list[str]:
     """The distinct ``needs`` of ``rules``, dropping any that includes another (the weaker one suffices)."""
     sets = list(dict.fromkeys(frozenset(r.needs) for r in rules))
     minimal = [a for a in sets if not any(b < a for b in sets)]
@@ -438,96 +237,11 @@ def _alternatives(rules) -> list[str]:
     return [" and ".join(_KIND_TEXT[k] for k in sorted(a, key=order.index)) for a in minimal]
 
 
-def _requirement(family: str) -> str:
-    return " or ".join(_alternatives(r for r in RULES if r.family == family))
-
-
-def _resolve_approx(approx) -> list[str] | None:
-    if approx is None:
-        return None
-    names = [a.strip() for a in (approx.split(",") if isinstance(approx, str) else approx)]
-    out = []
-    for name in names:
-        family = ALIASES.get(name, name.replace("_", "-"))
-        if family not in FAMILIES:
-            raise AuditError(
-                f"--approx {name!r}: unknown approximation family (known: {', '.join(FAMILIES)})"
-            )
-        if family not in out:
-            out.append(family)
-    if not out:
-        raise AuditError(f"--approx {approx!r}: name at least one family (known: {', '.join(FAMILIES)})")
-    return out
-
-
-def applicable_families(
-    scene_info: SceneInfo, *, approx=None, ao_distance: float | None = None
-) -> list[Applicability]:
-    """Every (family, reason) that applies to ``scene_info`` by `RULES`, in rule order then part order.
-    ``approx`` (``"a,b"`` or a list of family names) restricts the families; a named family that does not
-    apply, or a scene to which none applies, raises `AuditError` (one line saying why)."""
-    wanted = _resolve_approx(approx)
-    radius = ao_distance if ao_distance is not None else default_ao_distance(scene_info)
-    radius_text = f"{radius:.4g}" if radius is not None else "(unknown: pass --ao-distance)"
-    out: list[Applicability] = []
-    for rule in RULES:
-        if wanted is not None and rule.family not in wanted:
-            continue
-        if not all(scene_info.has(k) for k in rule.needs[1:]):
-            continue
-        others = [scene_info.first(k) for k in rule.needs[1:] if k != "surface"]
-        with_ = " and ".join(p.label for p in others if p is not None) or "the scene"
-        for part in scene_info.parts:
-            if rule.needs[0] not in part.kinds:
-                continue
-            available = part.provides.union(*(p.provides for p in others if p is not None), rule.supplies)
-            methods, excluded = [], []
-            for mid, method in FAMILIES[rule.family].items():
-                missing = {i.name for i in method.inputs} - available
-                if missing:
-                    excluded.append((mid, _missing_text(missing)))
-                else:
-                    methods.append(mid)
-            if not methods:
-                continue
-            fmt = {"part": part.label, "with_": with_, "ao_distance": radius_text}
-            out.append(
-                Applicability(
-                    rule.family,
-                    rule.role,
-                    part.label,
-                    tuple(methods),
-                    tuple(excluded),
-                    rule.reason.format(**fmt),
-                    rule.reference.format(**fmt),
-                    rule.integrator.format(**fmt),
-                    part.source,
-                )
-            )
-    found = {a.family for a in out}
-    for family in wanted or ():
-        if family not in found:
-            raise AuditError(
-                f"{family} does not apply to {scene_info.source}: it needs {_requirement(family)}"
-                f"; the scene has {_summary(scene_info)}{_note_for(scene_info, family)}"
-            )
-    if not out:
-        raise AuditError(
-            f"no approximation family applies to {scene_info.source}: it has {_summary(scene_info)}; "
-            f"a family needs {_needs_overall()}"
-        )
-    return out
-
-
-def _needs_overall() -> str:
-    return "; or ".join(_alternatives(RULES))
-
-
-def _summary(info: SceneInfo) -> str:
+def scene_summary(info: SceneInfo) -> str:
     return ", ".join(p.label for p in info.parts) if info.parts else "nothing a family uses"
 
 
-def _note_for(info: SceneInfo, family: str) -> str:
+def family_note(info: SceneInfo, family: str) -> str:
     notes = [n for n in info.notes if n.startswith(f"{family}:")]
     return "".join(f" ({n.split(':', 1)[1].strip()})" for n in notes)
 
@@ -629,7 +343,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
     camera = (
         f"sensor {cam.index}{f' {cam.id!r}' if cam.id else ''} ({cam.type}, {_short(cam.location)}) of "
         f"{len(x.sensors)}: {cam.width}×{cam.height}, fov {cam.fov_deg:.4g}° ({cam.fov_axis}), origin "
-        f"{_vec(cam.origin)} looking at {_vec(cam.target)}"
+        f"{vec_text(cam.origin)} looking at {vec_text(cam.target)}"
         if cam is not None and cam.fov_deg is not None
         else (
             f"sensor {cam.index} ({cam.type}): {cam.width}×{cam.height}" if cam is not None else "no sensor"
@@ -700,7 +414,7 @@ def _volume_part(bbox) -> Part:
     extent = max(h - low for low, h in zip(lo, hi, strict=True))
     finite = all(math.isfinite(v) for v in (*lo, *hi)) and extent > 0.0
     kinds = frozenset({"volume"}) if finite else frozenset()
-    return Part(kinds, f"a probe grid over the scene's box {_vec(lo)}–{_vec(hi)}")
+    return Part(kinds, f"a probe grid over the scene's box {vec_text(lo)}–{vec_text(hi)}")
 
 
 def _reflective_kinds(plugin: str) -> frozenset[str]:
@@ -715,7 +429,7 @@ def _counts(items) -> list[tuple[str, int]]:
     return list(out.items())
 
 
-def _vec(v) -> str:
+def vec_text(v) -> str:
     return "(" + ", ".join(f"{c:.4g}" for c in v) + ")"
 
 
@@ -771,8 +485,8 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
         bbox=bbox,
         up=axis,
         up_reason=reason,
-        camera=f"{c.width}×{c.height}, fov {c.fov_deg:.4g}° (x), origin {_vec(c.origin)} looking at "
-        f"{_vec(c.target)}",
+        camera=f"{c.width}×{c.height}, fov {c.fov_deg:.4g}° (x), origin {vec_text(c.origin)} looking at "
+        f"{vec_text(c.target)}",
         contents=(f"rtfit TOML scene {scene.name!r}: {', '.join(sorted(scene.parts()))}",),
         notes=notes,
     )
@@ -893,46 +607,3 @@ def inspect_scene(
         return _toml_info(toml, str(path), up)
     except (SceneError, ValueError) as e:
         raise AuditError(str(e).splitlines()[0]) from None
-
-
-# ----------------------------------------------------------------------------------------------- listing
-def describe(
-    info: SceneInfo, found: list[Applicability], *, ao_distance: float | None = None, restricted: bool = False
-) -> list[str]:
-    """The ``--list`` text, line by line (``restricted``: ``--approx`` was given, so the families left out
-    are not listed as not applying)."""
-    lines = [f"scene: {info.source} ({info.format})"]
-    lines += [f"  {c}" for c in info.contents]
-    lines.append(f"camera: {info.camera}")
-    lines.append(f"up: {info.up_reason}")
-    if info.bbox is not None:
-        auto = default_ao_distance(info)
-        if ao_distance is not None:
-            lines.append(f"AO distance: {ao_distance:.4g} (--ao-distance)")
-        elif auto is not None:
-            lines.append(
-                f"AO distance: {auto:.4g} = {AO_FRACTION:g} × the bounding-box diagonal {info.diagonal:.4g} "
-                f"(box {_vec(info.bbox[0])}–{_vec(info.bbox[1])}; --ao-distance overrides)"
-            )
-    lines.append("")
-    lines.append("applies:")
-    for a in found:
-        lines.append(f"  {a.family} — {a.role}: {a.reason}")
-        lines.append(f"      methods:    {', '.join(a.methods)}")
-        lines.append(f"      reference:  {a.reference}")
-        lines.append(f"      integrator: {a.integrator}")
-    for family in dict.fromkeys(a.family for a in found):  # methods of an applying family that none use
-        used = {m for a in found if a.family == family for m in a.methods}
-        why: dict[str, list[str]] = {}
-        for a in found:
-            for mid, text in a.excluded:
-                if a.family == family and mid not in used and mid not in why.get(text, []):
-                    why.setdefault(text, []).append(mid)
-        for text, mids in why.items():
-            lines.append(f"  {family}, not here: {', '.join(mids)} ({text})")
-    missing = [f for f in FAMILIES if f not in {a.family for a in found}]
-    if missing and not restricted:
-        lines.append("does not apply:")
-        for family in missing:
-            lines.append(f"  {family}: needs {_requirement(family)}{_note_for(info, family)}")
-    return lines

@@ -72,7 +72,7 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.occlusion import visibility_cap_pass
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_ambient_occlusion import ao_reference, scene_distance_field
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
 from .audit_geometry import ao_radius
@@ -312,7 +312,6 @@ FAMILY = AuditFamily(
     # ``ambient-aperture`` it is a row of the occluded-light case too.
     quantity="ambient_occlusion",
     cases=ambient_aperture_cases,
-    roles=(CAPS_ROLE, LIGHT_ROLE),
     formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Each visible pixel's visibility cap (bent normal and aperture r_a = acos(1 − V), V the visible "
@@ -323,5 +322,27 @@ FAMILY = AuditFamily(
         "Occluded sphere light: the cap intersected with the light's cap, L·Ω·max(n·c, 0), against that "
         "light's shadowed direct irradiance (the diffuse family's reference). The fitted forms' "
         "coefficients and the Lambert exponent are fitted to this scene."
+    ),
+    rules=(
+        Rule(
+            "ambient-aperture",
+            "ambient occlusion (aperture caps)",
+            ("geometry",),
+            "{part} occludes itself: each point's visible cap (bent normal, aperture) against its hemisphere",
+            "ray-cast ambient occlusion within R = {ao_distance}, and each point's visibility cap baked by "
+            "ray casts of length R",
+            "occlusion pass: cosine-distributed rays of length R = {ao_distance}",
+            # The caps are intersected with the point's own hemisphere (the second cap: centre n, radius π/2,
+            # radiance 1/π, so that the light terms read AO), and the fills read 1/π as their sky.
+            frozenset({"cos_nl", "cos_al", "alpha", "radiance", "sky_radiance"}),
+        ),
+        Rule(
+            "ambient-aperture",
+            "occluded sphere light",
+            ("spherical-light", "geometry"),
+            "{part} is partly hidden by {with_}",
+            "that light's direct irradiance with visibility at the visible points",
+            "direct, that light alone (shadow rays)",
+        ),
     ),
 )

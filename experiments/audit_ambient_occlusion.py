@@ -54,7 +54,7 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.occlusion import occlusion_pass
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import (
     AuditError,
     AuditFamily,
@@ -272,7 +272,6 @@ FAMILY = AuditFamily(
     name="sdf-occlusion",
     quantity="ambient_occlusion",
     cases=ao_cases,
-    roles=(ROLE,),
     quantities=("crease_darkening",),
     formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
@@ -281,5 +280,15 @@ FAMILY = AuditFamily(
         "with per-pixel standard errors. The rows read a distance field baked from the scene's own "
         "triangles (Mitsuba's mesh buffers; spheres, disks and cylinders tessellated): cone-traced AO and "
         "Evans' curvature term, each with its free parameter fitted to this scene."
+    ),
+    rules=(
+        Rule(
+            "sdf-occlusion",
+            "ambient occlusion",
+            ("geometry",),
+            "{part} occludes itself",
+            "ray-cast ambient occlusion within R = {ao_distance} (cosine-weighted visibility)",
+            "occlusion pass: cosine-distributed rays of length R from the visible points",
+        ),
     ),
 )

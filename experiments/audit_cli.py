@@ -18,9 +18,11 @@ import click
 
 from rtfit.reference.mitsuba_xml import UP_AXES
 
-from .audit import AuditError, describe, inspect_scene
-from .audit_run import AUDITED, check_ao_distance, resolve_approximations, selected_applicabilities, triple
+from .applicability import describe
+from .audit import AuditError, inspect_scene
 from .audit_run import audit as run_audit
+from .audit_run import check_ao_distance, resolve_approximations, selected_applicabilities, triple
+from .families import AUDITED
 from .registry import RESOLUTION_MAX, SPP_MAX
 
 __all__ = ["AuditInputError", "audit"]

@@ -30,7 +30,7 @@ import numpy as np
 
 from rtfit.reference.estimators import gbuffer_points
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase
 from .audit_lights import (
     hard_shadow,
@@ -131,4 +131,15 @@ FAMILY = AuditFamily(
         "sunsky) is sampled alone (without its sky) and has α = its angular radius."
     ),
     formats=("mitsuba-xml", "rtfit-toml"),
+    rules=(
+        Rule(
+            "diffuse",
+            "direct light",
+            ("light", "surface"),
+            "{part} lights the visible surfaces directly",
+            "that light's direct irradiance at the visible points, unshadowed and shadowed (reported "
+            "separately)",
+            "direct, that light alone (emitter sampling; shadow rays for the shadowed pass)",
+        ),
+    ),
 )

@@ -59,7 +59,7 @@ from rtfit.reference.reflective_shapes import (
     surface_lobes,
 )
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
 
 __all__ = [
@@ -259,5 +259,19 @@ FAMILY = AuditFamily(
         "Each row is w_r·M(R) + w_t·M(T) + w_d·E(n)/π with the BSDF's own lobe weights (Fresnel, albedo) "
         "and the row's lookup M: classic (L at the direction), the distance impostor's one-lookup and "
         "secant hits, the pre-convolved glossy map."
+    ),
+    rules=(
+        *(
+            Rule(
+                "environment-maps",
+                role,
+                (kind,),
+                "{part} shows its surroundings: a cube map captured at its centre stands in for them",
+                "path-traced radiance of the pixels that see the shape",
+                "path (unbounded depth, Russian roulette) along the pixel-centre camera rays; the cube maps "
+                "captured by the same integrator from the probe point, the shape itself hidden",
+            )
+            for role, kind in (("reflections", "reflective-shape"), ("glossy reflections", "rough-shape"))
+        ),
     ),
 )

@@ -1,9 +1,10 @@
 """The extension point of `rtfit audit`: what an audited family declares, and what it is given.
 
 A family joins the audit with **one declaration**, an `AuditFamily` in a module of its own
-(``experiments/audit_<family>.py``), listed in `rtfit.experiments.audit_run.AUDITED`:
+(``experiments/audit_<family>.py``), listed in its family's entry of the registry (`experiments/families.py`):
 
-* ``name``: the family (a key of `rtfit.experiments.audit.FAMILIES`; `RULES` there says when it applies);
+* ``name``: the family (its name in the registry, `rtfit.experiments.families.FAMILIES`);
+* ``rules``: when it applies (`rtfit.experiments.audit.Rule`, one per role; ``--list`` prints them);
 * ``quantity``: the quantity its methods approximate (`rtfit.realtime.quantities.QUANTITIES`): a user's
   approximation of that quantity (``--approx my.py:f``) is audited beside the shipped methods;
 * ``cases(setup, applicability) -> list[FamilyCase]``: the references this family needs for one
@@ -45,7 +46,7 @@ from rtfit.realtime.methods import Method, Param
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, PassEntry, pool_passes
 from rtfit.reference.estimators import GBuffer, PassResult, launch_identity, sub_seed
 
-from .audit import Applicability, AuditError, SceneInfo
+from .audit import Applicability, AuditError, Rule, SceneInfo
 
 __all__ = [
     "AuditError",
@@ -218,7 +219,7 @@ class AuditFamily:
     quantities: tuple[str, ...] = ()
     """Further quantities some of its cases compare (`FamilyCase.quantity`)."""
     roles: tuple[str, ...] | None = None
-    """The applicability roles (`rtfit.experiments.audit.RULES`) its cases audit; None: every role of the
+    """The applicability roles (its ``rules``) its cases audit; None: every role of the
     family. A role not listed is named in the run's notes as not audited yet."""
     formats: tuple[str, ...] = ("mitsuba-xml",)
     """The scene formats (`SceneInfo.format`: ``mitsuba-xml``, ``rtfit-toml``, ``rtfit-sky``) its cases read;
@@ -228,6 +229,19 @@ class AuditFamily:
     different ones (height-fog: rtfit TOML for exponential fog, XML and TOML for a scene's own media;
     nishita-sky: rtfit sky files for an atmosphere, Mitsuba XML for a sky emitter); a role not here reads
     ``formats``."""
+
+    rules: tuple[Rule, ...] = ()
+    """When the family applies (`rtfit.experiments.audit.Rule`: the scene parts it needs, the reason, the
+    reference and integrator ``--list`` prints), one per applicability role this declaration audits; the
+    registry (`rtfit.experiments.families`) gathers every declaration's rules. A declaration with rules and
+    no ``roles`` audits exactly its rules' roles."""
+
+    def __post_init__(self):
+        stray = [r.role for r in self.rules if r.family != self.name]
+        if stray:
+            raise AuditError(f"{self.name}: rules of another family ({', '.join(stray)})")
+        if self.rules and self.roles is None:
+            object.__setattr__(self, "roles", tuple(dict.fromkeys(r.role for r in self.rules)))
 
     def reads(self, role: str, scene_format: str) -> bool:
         """Whether the declaration of ``role`` reads scenes of ``scene_format``."""
@@ -270,6 +284,7 @@ def _merged(family: list[AuditFamily]) -> AuditFamily:
         roles=tuple(roles),
         formats=formats,
         role_formats=role_formats,
+        rules=tuple(r for f in family for r in f.rules),
     )
 
 

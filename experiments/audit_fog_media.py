@@ -1,7 +1,7 @@
 r"""The ``height-fog`` family on a scene's own media: constant fog and fitted grid fog (`rtfit audit`).
 
 The second declaration of the height-fog family (`audit_height_fog` audits rtfit's ``exponential_fog``; the
-two are joined by `audit_family.by_name`). Its roles (`rtfit.experiments.audit.RULES`):
+two are joined by `audit_family.by_name`). Its roles (its ``rules``):
 
 * ``constant fog``: a Mitsuba ``homogeneous`` medium (bounded by a shape, or around the sensor: unbounded),
   a ``heterogeneous`` one whose ``sigma_t`` is a ``constvolume``, or an rtfit TOML ``homogeneous`` medium.
@@ -69,7 +69,7 @@ from rtfit.reference.grid_fit import GridDensity, HeightFit, fit_height_density,
 from rtfit.reference.medium_transmittance import transmittance_pass
 from rtfit.reference.mitsuba_xml import UP_AXES
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
 
 __all__ = ["FAMILY", "MAX_SURFACES", "media_cases", "medium_intervals"]
@@ -563,7 +563,6 @@ def media_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="height-fog",
     quantity="fog_transmittance",
-    roles=tuple(ROLES),
     formats=("mitsuba-xml", "rtfit-toml"),
     cases=media_cases,
     describe=(
@@ -572,5 +571,27 @@ FAMILY = AuditFamily(
         "b·exp(−c·(p·ĝ − h₀)) and the fit's residual is stated first; the transmittance along each camera "
         "ray's first stretch inside the medium, by ratio tracking through the loaded Mitsuba medium, against "
         "the optical-depth forms as T = e^(−τ) with the medium's (or the fitted) b, c, and fitted."
+    ),
+    rules=(
+        Rule(
+            "height-fog",
+            "constant fog",
+            ("constant-fog",),
+            "{part} is constant fog (falloff c = 0, density b = its σt) along the camera's rays",
+            "transmittance along each camera ray's stretch inside the medium, and the radiance with this "
+            "medium alone",
+            "ratio tracking through the scene's own medium; volpathmis for the radiance",
+        ),
+        Rule(
+            "height-fog",
+            "grid fog",
+            ("grid-fog",),
+            "{part}: its grid is fitted with the exponential height density b·exp(−c·(p·ĝ − h₀)) (the fit's "
+            "residual is reported first)",
+            "transmittance along each camera ray's stretch inside the medium, and the radiance with this "
+            "medium alone",
+            "ratio tracking through the scene's own medium (its grid, trilinear); volpathmis for the "
+            "radiance",
+        ),
     ),
 )

@@ -50,7 +50,7 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.height_fog import medium_dict, register, sky_statistics
 from rtfit.reference.medium_transmittance import transmittance_pass
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import (
     AuditError,
     AuditFamily,
@@ -253,7 +253,6 @@ FAMILY = AuditFamily(
     name="height-fog",
     quantity="fog_transmittance",
     quantities=("fogged_radiance",),
-    roles=("height fog",),
     formats=("rtfit-toml",),
     cases=fog_cases,
     describe=(
@@ -264,5 +263,15 @@ FAMILY = AuditFamily(
         "with the medium's true b, c and fitted; (2) the radiance at the camera with this medium alone "
         "(rtfit's volpathmis reference), against the shading models L₀·T + C·(1 − T) on the fog-free image "
         "L₀ (same transport and spp), with the true b, c and the sky colours of the experiment, and fitted."
+    ),
+    rules=(
+        Rule(
+            "height-fog",
+            "height fog",
+            ("fog",),
+            "{part} lies along the camera's rays",
+            "transmittance and in-scattered radiance along the camera's rays",
+            "volpathmis (unbiased with chromatic extinction; rtfit's exponential-fog medium)",
+        ),
     ),
 )

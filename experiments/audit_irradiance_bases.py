@@ -58,7 +58,7 @@ from rtfit.reference.environments import emitter_irradiance_quadrature
 from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.light_irradiance import environment_irradiance_pass
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_environment import (
     BAKE_ROWS,
     QUADRATURE_MIN_ROWS,
@@ -236,4 +236,15 @@ FAMILY = AuditFamily(
         f" ({math.pi:.4f}·L for a constant environment.)"
     ),
     formats=("mitsuba-xml", "rtfit-toml"),
+    rules=(
+        Rule(
+            "irradiance-bases",
+            "environment irradiance",
+            ("environment", "surface"),
+            "{part} lights the visible normals from every direction",
+            "the environment's irradiance E(n) at the visible normals, unoccluded",
+            "emitter sampling of the environment alone (no scene rays); its dense quadrature as the exact "
+            "row",
+        ),
+    ),
 )

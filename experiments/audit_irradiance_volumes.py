@@ -41,7 +41,7 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import irradiance_pass
 from rtfit.reference.probe_radiance import probe_radiance_pass
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
 from .probe_projection import FEATURES_NAME, NNLS_NORMALS, probe_bases, probe_features
 
@@ -190,5 +190,17 @@ FAMILY = AuditFamily(
         "as the irradiance-volumes experiment bakes them; the nearest and trilinear lookups of each basis at "
         "the visible points and camera-facing normals, against the path-traced irradiance there (a "
         "cosine-distributed ray, then unbounded path tracing: every light a ray can reach, as the probes)."
+    ),
+    rules=(
+        Rule(
+            "irradiance-volumes",
+            "probe grid",
+            ("volume", "geometry"),
+            "{part}: probes baked there stand in for the light that {with_} shapes over the visible points",
+            "path-traced irradiance at the visible points (every light a ray can reach, as the probes store "
+            "it)",
+            "a cosine-distributed ray from each visible point, then path (unbounded depth); the probes: "
+            "uniform sphere directions from each node, the same integrator",
+        ),
     ),
 )

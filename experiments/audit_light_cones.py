@@ -38,7 +38,7 @@ from rtfit.realtime.light_cones import METHODS
 from rtfit.reference.medium_lights import medium_segments
 from rtfit.reference.single_scattering import FOUR_PI, spot_single_scattering
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .audit_lit_media import (
     NOTES,
@@ -161,5 +161,17 @@ FAMILY = AuditFamily(
         "angle, with the scene's values and fitted; the exact row is the quadrature of the spot's single "
         "scattering with extinction and the medium's phase function (rtfit.reference.single_scattering), "
         "which must sit at the reference's noise where nothing shadows the medium."
+    ),
+    rules=(
+        Rule(
+            "light-cones",
+            "spot light in a medium",
+            ("spot-in-medium",),
+            "{part}: its beam scatters into the camera's rays",
+            "that spot's single-scattered radiance along the camera's rays in the medium (W/m²/sr, RGB)",
+            "equiangular sampling about the light with Mitsuba's emitter (its linear-in-angle falloff), "
+            "phase function and shadow rays; the quadrature of rtfit.reference.single_scattering as the "
+            "exact row",
+        ),
     ),
 )

@@ -28,7 +28,7 @@ import numpy as np
 
 from rtfit.reference.nishita_sky import render_sky
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, masked_image
 from .nishita_sky import atmosphere_params_of
 from .sky_rows import SPECTRAL_NOTE, near_sun, nishita_rows
@@ -100,7 +100,6 @@ FAMILY = AuditFamily(
     name="nishita-sky",
     quantity="sky_radiance",
     formats=("rtfit-sky",),
-    roles=(ROLE,),
     cases=sky_cases,
     describe=(
         "The sky radiance (RGB) of the file's atmosphere along the directions of an azimuth × elevation "
@@ -109,5 +108,15 @@ FAMILY = AuditFamily(
         "Nishita-sky experiment's multiple-scattering reference), pixels within 1° of the sun left out. "
         "Every Nishita method runs with the file's atmosphere and altitude on its own texture setting; the "
         "fitted method's artist parameters are fitted to this sky."
+    ),
+    rules=(
+        Rule(
+            "nishita-sky",
+            "sky",
+            ("atmosphere",),
+            "{part} fills the camera's sky pixels",
+            "sky radiance along the camera's sky pixels (single and multiple scattering)",
+            "volpathmis in the spherical-shell atmosphere",
+        ),
     ),
 )

@@ -46,7 +46,7 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.occlusion import hit_distances, occlusion_pass
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
 from .audit_geometry import ao_radius
 
@@ -170,7 +170,6 @@ FAMILY = AuditFamily(
     name="obscurances",
     quantity="obscurance",
     cases=obscurance_cases,
-    roles=(ROLE,),
     formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Obscurances W = (1/π)∫ρ(d)(n·ω)dω of the scene's own geometry at each visible point, the distance "
@@ -179,5 +178,19 @@ FAMILY = AuditFamily(
         f"interreflection (albedo {AMBIENT_ALBEDO:g}) that obscurances stand in for. The rows are the K-ray "
         f"estimator an engine bakes (K = {RAYS} stratified cosine rays per point) with the seed's, power, "
         "exponential and step ρ, their d_max, exponent and ambient scale fitted to this scene."
+    ),
+    rules=(
+        Rule(
+            "obscurances",
+            "obscurance",
+            ("geometry",),
+            "{part} occludes itself: ambient light as a function of the distance to the nearest surface",
+            "ray-cast obscurance W = (1/π)∫ρ(d)(n·ω)dω with ρ = √(d/R), R = {ao_distance}, and the uniform "
+            "ambient with interreflections it stands in for",
+            "occlusion passes: cosine-distributed rays from the visible points (hit distances; paths with "
+            "Russian roulette for the ambient)",
+            # The rule's own ray casts give every row its K hit distances per point.
+            frozenset({"distances"}),
+        ),
     ),
 )

@@ -64,34 +64,12 @@ from rtfit.scenes.parse import MAX_LENGTH
 
 from . import figures
 from . import fitted as fitfiles
+from .applicability import applicable_families
 from .atomic import atomic_directory, writable_problem
-from .audit import (
-    FAMILIES,
-    RULES,
-    SURFACE_FREE_KINDS,
-    Applicability,
-    AuditError,
-    SceneInfo,
-    applicable_families,
-    inspect_scene,
-)
-from .audit_ambient_aperture import FAMILY as AMBIENT_APERTURE_CAPS
-from .audit_ambient_occlusion import FAMILY as AMBIENT_OCCLUSION
-from .audit_diffuse import FAMILY as DIFFUSE
-from .audit_environment_maps import FAMILY as ENVIRONMENT_MAPS
-from .audit_family import AuditFamily, AuditSetup, FamilyCase, by_name
-from .audit_fog_media import FAMILY as FOG_MEDIA
-from .audit_height_fog import FAMILY as HEIGHT_FOG
-from .audit_irradiance_bases import FAMILY as IRRADIANCE_BASES
-from .audit_irradiance_volumes import FAMILY as IRRADIANCE_VOLUMES
-from .audit_light_cones import FAMILY as LIGHT_CONES
-from .audit_nishita_sky import FAMILY as NISHITA_SKY
-from .audit_obscurances import FAMILY as OBSCURANCES
-from .audit_sky_emitter import FAMILY as NISHITA_SKY_EMITTER
-from .audit_sky_occlusion import APERTURE_FILL, SKY_OCCLUSION
-from .audit_soft_particles import FAMILY as SOFT_PARTICLES
-from .audit_volumetric_lightning import FAMILY as VOLUMETRIC_LIGHTNING
+from .audit import SURFACE_FREE_KINDS, Applicability, AuditError, SceneInfo, inspect_scene
+from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .cost import time_drjit
+from .families import AUDITED, METHOD_TABLES, RULES
 from .records import SCHEMA, Results, from_json, plain_json, to_json
 from .registry import ALIASES, LIMITS
 from .report import write_report
@@ -116,30 +94,6 @@ __all__ = [
 ]
 
 log = logging.getLogger("rtfit.audit")
-
-AUDITED: dict[str, AuditFamily] = by_name(
-    (
-        DIFFUSE,
-        IRRADIANCE_BASES,
-        AMBIENT_OCCLUSION,
-        SKY_OCCLUSION,
-        APERTURE_FILL,
-        AMBIENT_APERTURE_CAPS,
-        HEIGHT_FOG,
-        NISHITA_SKY,
-        OBSCURANCES,
-        SOFT_PARTICLES,
-        VOLUMETRIC_LIGHTNING,
-        LIGHT_CONES,
-        ENVIRONMENT_MAPS,
-        IRRADIANCE_VOLUMES,
-        FOG_MEDIA,
-        NISHITA_SKY_EMITTER,
-    )
-)
-"""The families the audit runs (name → declaration, `audit_family.AuditFamily`; a family's roles may be
-declared in several modules, joined by `by_name`). A family listed by ``--list`` but not here, or a role no
-declaration of it audits, is named in the run's notes as not audited yet."""
 
 
 def _wrong_format(a: Applicability, scene_format: str) -> bool:
@@ -189,8 +143,8 @@ def _shipped(name: str) -> tuple[str, str] | None:
     fam, sep, mid = name.partition(":")
     if sep:
         fam = ALIASES.get(fam, fam.replace("_", "-"))
-        return (fam, mid) if fam in FAMILIES and mid in FAMILIES[fam] else None
-    hits = [(f, name) for f in AUDITED if name in FAMILIES[f]]
+        return (fam, mid) if fam in METHOD_TABLES and mid in METHOD_TABLES[fam] else None
+    hits = [(f, name) for f in AUDITED if name in METHOD_TABLES[f]]
     return hits[0] if len(hits) == 1 else None
 
 
@@ -224,7 +178,7 @@ def resolve_approximations(approximations) -> Selection:
         if not name:
             continue
         family = name.replace("_", "-")
-        if family in FAMILIES:
+        if family in METHOD_TABLES:
             families.append(family)
             continue
         # A shipped method before a former family name: "half-lambert" is the diffuse method (a user asking
@@ -233,14 +187,14 @@ def resolve_approximations(approximations) -> Selection:
         if shipped is not None:
             methods.setdefault(shipped[0], set()).add(shipped[1])
             continue
-        if ALIASES.get(name) in FAMILIES:
+        if ALIASES.get(name) in METHOD_TABLES:
             families.append(ALIASES[name])
             continue
         try:
             m = load_validated(name)  # user code: loaded and checked in a child process first
         except UserMethodError as e:
             if e.stage == "missing":  # no such file, module or entry point: maybe a misspelt family
-                known = ", ".join(FAMILIES)
+                known = ", ".join(METHOD_TABLES)
                 raise AuditError(
                     f"--approx {name!r}: not a family ({known}), a shipped method (e.g. diffuse:wrap) or a "
                     f"user approximation ({e})"
@@ -265,7 +219,7 @@ def resolve_approximations(approximations) -> Selection:
         raise AuditError(f"--approx: approximation id {', '.join(dup)} given twice")
     for m in user:
         for fam in AUDITED.values():
-            if m.quantity in (fam.quantity, *fam.quantities) and m.id in FAMILIES[fam.name]:
+            if m.quantity in (fam.quantity, *fam.quantities) and m.id in METHOD_TABLES[fam.name]:
                 raise AuditError(f"{m.id}: the id of a shipped {fam.name} method; give it id=… of its own")
     named = list(dict.fromkeys([*families, *methods]))
     if not named and user:
@@ -450,7 +404,7 @@ def _rows(
     quantity of its own: `FamilyCase.methods`): its applicable shipped methods (restricted by ``--approx``
     method names) and the user approximations of the quantity."""
     keep = sel.methods.get(family.name)
-    table = FAMILIES[family.name] if case is None or case.methods is None else case.methods
+    table = METHOD_TABLES[family.name] if case is None or case.methods is None else case.methods
     rows = [
         (r, m, False)
         for r, m in table.items()

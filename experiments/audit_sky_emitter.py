@@ -45,7 +45,7 @@ import numpy as np
 from rtfit.realtime.methods import Param
 from rtfit.realtime.nishita_sky import AtmosphereParams
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, masked_image
 from .sky_rows import SPECTRAL_NOTE, near_sun, nishita_rows
 
@@ -168,7 +168,6 @@ FAMILY = AuditFamily(
     name="nishita-sky",
     quantity="sky_radiance",
     formats=("mitsuba-xml", "rtfit-toml"),
-    roles=(ROLE,),
     cases=sky_emitter_cases,
     describe=(
         "A Mitsuba sunsky's sky radiance (RGB) along the camera's sky pixels (rays that escape the scene, "
@@ -176,5 +175,17 @@ FAMILY = AuditFamily(
         "noise floor zero. Every RGB Nishita method runs with the published atmosphere, the viewer on the "
         "ground and the sunsky's own sun direction; nishita-fitted's artist parameters and the sun's "
         "intensity scale (solar_scale) are fitted to this sky: which Nishita parameters best match it."
+    ),
+    rules=(
+        Rule(
+            "nishita-sky",
+            "sky emitter",
+            ("sky",),
+            "{part} fills the camera's sky pixels: which Nishita parameters best match it",
+            "the emitter's own sky radiance along the camera's sky pixels above its horizon (RGB; pixels "
+            "within 1° of its sun left out: the sun's disc is the diffuse family's)",
+            "none: Mitsuba's emitter evaluated along each pixel-centre ray (emitter.eval, deterministic: "
+            "noise floor zero)",
+        ),
     ),
 )

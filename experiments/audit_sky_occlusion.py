@@ -64,7 +64,7 @@ from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.light_irradiance import environment_irradiance_pass
 from rtfit.reference.occlusion import visibility_cap_pass
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_ambient_occlusion import DistanceFieldRows, distance_field_rows
 from .audit_environment import environment_bases, environment_of, scene_environment, sh_l2_table
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
@@ -312,7 +312,6 @@ SKY_OCCLUSION = AuditFamily(
     name="sdf-occlusion",
     quantity="sky_irradiance",
     cases=sky_occlusion_cases,
-    roles=(SKY_ROLE,),
     formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Sky occlusion: "
@@ -322,12 +321,23 @@ SKY_OCCLUSION = AuditFamily(
         "visibility factor times the environment's SH L2 irradiance at the normal, with its free "
         "parameters fitted to this scene."
     ),
+    rules=(
+        Rule(
+            "sdf-occlusion",
+            "sky occlusion",
+            ("environment", "geometry"),
+            "{part} is occluded by {with_}",
+            "sky irradiance with visibility at the visible points (the environment's direct light, "
+            "shadowed; a sunsky's sky alone)",
+            "the environment alone: emitter + cosine sampling (MIS) with shadow rays against the scene's "
+            "shapes",
+        ),
+    ),
 )
 APERTURE_FILL = AuditFamily(
     name="ambient-aperture",
     quantity="sky_irradiance",
     cases=aperture_fill_cases,
-    roles=(FILL_ROLE,),
     formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Aperture fill: "
@@ -335,5 +345,17 @@ APERTURE_FILL = AuditFamily(
         + "The fill rows read each point's visibility cap as an engine bakes it by ray casts (the "
         "bent normal b, the aperture acos(1 − V) of the visible fraction V) and the uniform sky "
         "radiance E_SH(b)/π of the environment's SH L2 projection."
+    ),
+    rules=(
+        Rule(
+            "ambient-aperture",
+            "sky occlusion (aperture fill)",
+            ("environment", "geometry"),
+            "{part} is occluded by {with_}: the visible cap of sky",
+            "sky irradiance with visibility at the visible points, and each point's visible cap (bent "
+            "normal, aperture)",
+            "the environment alone: emitter + cosine sampling (MIS) with shadow rays; the caps by unbounded "
+            "ray casts",
+        ),
     ),
 )

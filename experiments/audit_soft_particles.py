@@ -57,7 +57,7 @@ from rtfit.reference.particle_media import (
 from rtfit.reference.transforms import rotation_matrix
 from rtfit.scenes import Scene
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, PooledPasses, pooled_passes
 from .particle_geometry import billboard_inputs
 
@@ -365,4 +365,16 @@ FAMILY = AuditFamily(
         "chord in the shape's own frame."
     ),
     formats=("mitsuba-xml", "rtfit-toml"),
+    rules=(
+        Rule(
+            "soft-particles",
+            "particle opacity",
+            ("particle", "surface"),
+            "{part} is a particle volume the camera sees; where opaque geometry cuts it, a soft-particle "
+            "fade replaces its clipped opacity",
+            "the opacity 1 − T of its medium along the pixel rays, clipped by the first opaque surface",
+            "free-flight sampling of the medium along the chord Mitsuba's intersections give (medium "
+            "boundaries are not surfaces)",
+        ),
+    ),
 )

@@ -44,7 +44,7 @@ from rtfit.fitting import Param
 from rtfit.realtime.volumetric_lightning import METHODS
 from rtfit.reference.single_scattering import FOUR_PI, point_single_scattering
 
-from .audit import Applicability
+from .audit import Applicability, Rule
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .audit_lit_media import (
     NOTES,
@@ -134,5 +134,16 @@ FAMILY = AuditFamily(
         "quadrature of single scattering with extinction and the medium's phase function "
         "(rtfit.reference.single_scattering), which must sit at the reference's noise where nothing "
         "shadows the medium."
+    ),
+    rules=(
+        Rule(
+            "volumetric-lightning",
+            "point light in a medium",
+            ("point-in-medium",),
+            "{part}: its light scatters into the camera's rays",
+            "that light's single-scattered radiance along the camera's rays in the medium (W/m²/sr, RGB)",
+            "equiangular sampling about the light with Mitsuba's emitter, phase function and shadow rays; "
+            "the quadrature of rtfit.reference.single_scattering as the exact row",
+        ),
     ),
 )

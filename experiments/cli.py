@@ -14,7 +14,7 @@
 Errors in what the user typed or supplied (unknown experiment, bad option, malformed scene file,
 invalid value, an unwritable ``--out``/``--cache``, an unreadable probe file, a Ray address that does
 not answer) print one line, ``rtfit: error: …``, write nothing and exit with status 2, before anything
-runs: every configuration value is checked against its key's declaration (`registry.validate_config`).
+runs: every configuration value is checked against its key's declaration (`families.validate_config`).
 Exit status 1: the work ran but part of it failed (``rtfit sweep`` with failed points; ``rtfit run``
 with failed self-checks: one line per experiment, ``rtfit: EXPERIMENT: N of M checks failed: …``).
 
@@ -56,17 +56,10 @@ from .audit_cli import audit
 from .book import write_book
 from .cache_cli import cache_group
 from .executors import EXECUTORS, make_executor
+from .families import EXPERIMENTS, describe_config, resolve_names, validate_config
 from .jobs import JobsFailed, error_line
 from .ray_executor import RAY_EXTRA_HINT, check_address
-from .registry import (
-    EXPERIMENTS,
-    LIMITS,
-    SPP_MAX,
-    BenchContext,
-    describe_config,
-    resolve_names,
-    validate_config,
-)
+from .registry import LIMITS, SPP_MAX, BenchContext
 from .report import write_index, write_report
 from .runner import RunFailed, check_summary, created_now, device_description, run_experiments, versions
 from .sweep import load_sweep, run_sweep
@@ -395,7 +388,7 @@ def _probe_overrides(specs, quick: bool, probes) -> dict:
 
 def _config_ok(experiment: str, quick: bool, spp, overrides: dict, where: str = ""):
     """``experiment``'s configuration with ``overrides``, every value checked against its declaration
-    (`registry.validate_config`: type, range, files readable): a one-line error otherwise."""
+    (`families.validate_config`: type, range, files readable): a one-line error otherwise."""
     try:
         validate_config(experiment, quick, spp, overrides)
     except ValueError as e:

@@ -1,4 +1,7 @@
-"""The experiment registry: one line per experiment (name used on the command line and in paths).
+"""What an experiment module provides, and the shared limits and configuration checks of every run.
+
+The families themselves (name, experiment module, methods, audit declarations) are listed once, in
+`rtfit.experiments.families`.
 
 An experiment module exposes:
 
@@ -21,7 +24,7 @@ import importlib
 import json
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
@@ -40,112 +43,10 @@ class ExperimentSpec:
     def load(self) -> ModuleType:
         return importlib.import_module(self.module)
 
-
-EXPERIMENTS: dict[str, ExperimentSpec] = {
-    spec.name: spec
-    for spec in [
-        ExperimentSpec(
-            "diffuse",
-            "rtfit.experiments.diffuse",
-            "Half-Lambert and wrap lighting vs exact sphere-light irradiance",
-            "White diffuse sphere under a spherical light of angular radius 0.27°–30°, with and without "
-            "a constant sky: Lambert, half-Lambert and fitted wrap lighting against Mitsuba.",
-        ),
-        ExperimentSpec(
-            "irradiance-bases",
-            "rtfit.experiments.irradiance_bases",
-            "Irradiance bases: ambient cube vs spherical harmonics against path-traced irradiance",
-            "Valve ambient cube (axis-sampled and NNLS-optimal), SH L1/L2 and windowed SH under constant, "
-            "sun, sunsky, studio, overcast and measured light probes, with per-probe storage and cost.",
-        ),
-        ExperimentSpec(
-            "irradiance-volumes",
-            "rtfit.experiments.irradiance_volumes",
-            "Irradiance volumes: a grid of ambient cubes / SH L2 probes, nearest vs trilinear, light folding",
-            "Path-traced probes over a room with a bright point light and an occluder, looked up nearest and "
-            "trilinear against path-traced indirect and total irradiance: error vs spacing, popping, cost.",
-        ),
-        ExperimentSpec(
-            "ambient-aperture",
-            "rtfit.experiments.ambient_aperture",
-            "Ambient aperture lighting: spherical-cap intersection, exact vs smoothstep vs fitted",
-            "Solid angle of two intersecting spherical caps over the whole domain, and ambient-aperture "
-            "shading of area-light occlusion against Mitsuba renders.",
-        ),
-        ExperimentSpec(
-            "sdf-occlusion",
-            "rtfit.experiments.sdf_occlusion",
-            "SDF occlusion and skylight (Evans) vs path-traced ambient occlusion and sky light",
-            "Multi-scale signed-distance sampling and cone-traced soft occlusion against Mitsuba AO and "
-            "sky-lit irradiance, with steps-vs-error-vs-cost and fitted contrast.",
-        ),
-        ExperimentSpec(
-            "height-fog",
-            "rtfit.experiments.height_fog",
-            "Exponential height fog: closed-form optical depth and fog colour vs path-traced media",
-            "Closed-form, seed-listing and Taylor optical-depth forms over the whole domain, and fog "
-            "shading against Mitsuba transmittance and aerial perspective, with fitted artist parameters.",
-        ),
-        ExperimentSpec(
-            "nishita-sky",
-            "rtfit.experiments.nishita_sky",
-            "Nishita sky: single-scattering sky texture vs a path-traced spherical-shell atmosphere",
-            "The 128×64 Nishita sky texture with per-pixel phase against single- and multiple-scattering "
-            "Mitsuba references and sunsky, with layers-vs-error-vs-cost and fitted artist parameters.",
-        ),
-        ExperimentSpec(
-            "volumetric-lightning",
-            "rtfit.experiments.volumetric_lightning",
-            "Volumetric lightning: the seed's softened point light along the view ray vs single scattering",
-            "The closed-form line integral of i/(1 + a·r²) (stable float32 form vs the printed one) against "
-            "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
-        ),
-        ExperimentSpec(
-            "aerial-perspective",
-            "rtfit.experiments.aerial_perspective",
-            "Aerial perspective matched to the sky: the fog blend under a Nishita atmosphere + height fog",
-            "Single scattering through atmosphere and fog by quadrature (checked against Mitsuba) vs the "
-            "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c, colour.",
-        ),
-        ExperimentSpec(
-            "soft-particles",
-            "rtfit.experiments.soft_particles",
-            "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",
-            "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned "
-            "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
-        ),
-        ExperimentSpec(
-            "light-cones",
-            "rtfit.experiments.light_cones",
-            "Light cones in fog: the seed's shell (edge fade, v² attenuation) vs spot-light scattering",
-            "The pseudo-volumetric cone shell and §1's integral over the view ray's chord against path-traced"
-            " single scattering of a spot light in fog, from beside, inside and along the cone, with fits.",
-        ),
-        ExperimentSpec(
-            "environment-maps",
-            "rtfit.experiments.environment_maps",
-            "Pre-convolved and localised environment maps, distance impostors vs exact traces in a room",
-            "Cube-map convolution solid-angle rules, the seed's localised diffuse/glossy convolution with "
-            "its cosine look-up against depth-1 Monte Carlo in an emissive room, and the impostor Hit search "
-            "against exact ray_intersect hit points of a mirror and a glass sphere.",
-        ),
-        ExperimentSpec(
-            "parallax-occlusion",
-            "rtfit.experiments.parallax_occlusion",
-            "Parallax occlusion mapping with soft shadows vs a displaced mesh and ray-traced penumbrae",
-            "The seed's linear search + piecewise-linear intersection and 7-sample soft shadow (as printed "
-            "and stable) against ray_intersect on the displaced height field and area-light visibility.",
-        ),
-        ExperimentSpec(
-            "obscurances",
-            "rtfit.experiments.obscurances",
-            "Obscurances (Zhukov/Iones) vs their Monte Carlo definition and uniform-ambient path tracing",
-            "The K-ray obscurance estimator with the seed's √(d/d_max) against the model's ray-cast "
-            "definition (error vs rays vs cost), and fitted d_max, exponent and ambient scale against "
-            "path-traced interreflections under a uniform ambient, on the sdf-occlusion scenes.",
-        ),
-    ]
-}
+    @property
+    def config(self) -> dict[str, ConfigKey] | None:
+        """Its module's ``CONFIG`` declaration (None: it declares none)."""
+        return getattr(self.load(), "CONFIG", None)
 
 
 ALIASES: dict[str, str] = {"half-lambert": "diffuse"}
@@ -347,16 +248,6 @@ def checked(declared: dict[str, ConfigKey], config: dict) -> dict:
     return config
 
 
-def declaration(experiment: str) -> dict[str, ConfigKey] | None:
-    """The ``CONFIG`` declaration of ``experiment``'s module (None: it declares none, or ``experiment``
-    is not a registered name, as a test's stand-in experiment)."""
-    try:
-        spec = get_experiment(experiment)
-    except UnknownExperiment:
-        return None
-    return getattr(spec.load(), "CONFIG", None)
-
-
 def _same_kind(default, value) -> bool:
     if isinstance(default, bool) or isinstance(value, bool):
         return isinstance(default, bool) and isinstance(value, bool)
@@ -369,14 +260,20 @@ def _same_kind(default, value) -> bool:
     return type(default) is type(value) or default is None
 
 
-def apply_overrides(defaults: dict, overrides: dict, experiment: str = "", deep: bool = False) -> dict:
+def apply_overrides(
+    defaults: dict,
+    overrides: dict,
+    experiment: str = "",
+    deep: bool = False,
+    declared: Mapping[str, ConfigKey] | None = None,
+) -> dict:
     """A copy of ``defaults`` with ``overrides`` applied; an unknown key, or a value outside the key's
     declaration (`ConfigKey`: ``resolution = 64.5``, a negative radiance, an unknown environment) is a
-    one-line ``ValueError``. With ``experiment`` named, its module's ``CONFIG`` declaration checks every
-    override (``deep``: also every value's deeper ``check``, defaults included, as `validate_config`
-    does); without one, a value must only be of the default's kind (a number for a number, …)."""
+    one-line ``ValueError``. With ``declared`` (the experiment module's ``CONFIG``; ``experiment``: its name
+    for the messages) every override is checked against its declaration (``deep``: also every value's
+    deeper ``check``, defaults included, as `families.validate_config` does); without one, a value must
+    only be of the default's kind (a number for a number, …)."""
     where = f" of {experiment}" if experiment else ""
-    declared = declaration(experiment) if experiment else None
     out = dict(defaults)
     for key, value in overrides.items():
         if key not in defaults:
@@ -396,55 +293,6 @@ def apply_overrides(defaults: dict, overrides: dict, experiment: str = "", deep:
     return out
 
 
-def validate_config(experiment: str, quick: bool, spp: int | None, overrides: dict | None = None) -> dict:
-    """The configuration ``experiment`` will run with, every value checked (type, range and the deeper
-    checks: files readable, names known) — what the command line calls before anything runs or is
-    written. A one-line ``ValueError`` otherwise."""
-    if spp is not None and not 2 <= spp <= SPP_MAX:
-        raise ValueError(f"spp = {spp}: out of range [2, {SPP_MAX}] (registry.SPP_MAX)")
-    spec = get_experiment(experiment)
-    defaults = spec.load().configure(quick, spp)
-    return apply_overrides(defaults, dict(overrides or {}), spec.name, deep=True)
-
-
-def describe_config(experiment: str, quick: bool) -> str:
-    """``key = default  # type and range — meaning`` lines (``rtfit sweep --show-config``)."""
-    spec = get_experiment(experiment)
-    module = spec.load()
-    cfg = module.configure(quick, None)
-    declared = getattr(module, "CONFIG", None) or {}
-    lines = []
-    for k, v in cfg.items():
-        line = f"{k} = {json.dumps(v)}"
-        if k in declared:
-            d = declared[k]
-            line += f"  # {d.describe()}" + (f" — {d.doc}" if d.doc else "")
-        lines.append(line)
-    return "\n".join(lines)
-
-
-def get_experiment(name: str) -> ExperimentSpec:
-    """The experiment called ``name`` (or an `ALIASES` name of it)."""
-    try:
-        return EXPERIMENTS[ALIASES.get(name, name)]
-    except KeyError:
-        raise UnknownExperiment(
-            f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)}; or 'all')"
-        ) from None
-
-
-def resolve_names(names: tuple[str, ...] | list[str]) -> list[ExperimentSpec]:
-    """Expand ``all`` and validate every name before anything runs."""
-    if not names:
-        raise UnknownExperiment(f"name an experiment (known: {', '.join(EXPERIMENTS)}; or 'all')")
-    specs: list[ExperimentSpec] = []
-    for name in names:
-        for spec in list(EXPERIMENTS.values()) if name == "all" else [get_experiment(name)]:
-            if spec not in specs:
-                specs.append(spec)
-    return specs
-
-
 @dataclass
 class RunContext:
     """Everything an experiment's ``run`` needs; plain attributes, set by the runner."""
@@ -458,11 +306,12 @@ class RunContext:
     seed: int
     progress: bool
     overrides: dict = field(default_factory=dict)
-    experiment: str = ""  # the running experiment's name (set by the runner): its CONFIG checks overrides
+    experiment: str = ""  # the running experiment's name (set by the runner)
+    config: Mapping[str, ConfigKey] | None = None  # its module's CONFIG (set by the runner): checks overrides
 
     def configured(self, defaults: dict) -> dict:
         """``defaults`` (the experiment's ``configure``) with this run's sweep overrides applied."""
-        return apply_overrides(defaults, self.overrides, self.experiment)
+        return apply_overrides(defaults, self.overrides, self.experiment, declared=self.config)
 
     def log(self, message: str):
         """An INFO line of the experiment's progress (logger ``rtfit.experiments``; the command line

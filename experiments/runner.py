@@ -99,7 +99,7 @@ def run_experiment_into(
     body of the wrong shape is a one-line :class:`~.records.ResultsError` naming the key path and
     leaves no ``results.json`` behind."""
     if ctx.experiment != spec.name:  # its CONFIG declaration checks the run's overrides
-        ctx = dataclasses.replace(ctx, experiment=spec.name)
+        ctx = dataclasses.replace(ctx, experiment=spec.name, config=spec.config)
     ctx.log(f"{spec.name}: running ({'quick' if ctx.quick else 'full'}, {ctx.variant})")
     body = spec.load().run(ctx)
     doc = {

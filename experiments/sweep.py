@@ -46,9 +46,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .atomic import atomic_directory
+from .families import get_experiment
 from .jobs import InlineExecutor, Job, Outcome
 from .records import SCHEMA, Check, Results, ResultsError, from_json, to_json
-from .registry import LIMITS, RunContext, apply_overrides, get_experiment
+from .registry import LIMITS, RunContext, apply_overrides
 from .report import write_index, write_report
 from .results import RESULTS_FILE, load_results, write_results
 from .runner import created_now, device_description, experiment_dirs, run_experiment_into, versions
@@ -185,7 +186,7 @@ def load_sweep(path) -> Sweep:
     defaults = spec.load().configure(quick, spp)
     for i, p in enumerate(points):
         try:
-            apply_overrides(defaults, p, spec.name)
+            apply_overrides(defaults, p, spec.name, declared=spec.config)
         except ValueError as e:
             fail(f"point {i}", str(e))
     seen = set()

@@ -4,8 +4,8 @@ A **quantity** is one thing a reference measures at a visible point (or along a 
 irradiance of one light, the sky's irradiance with occlusion, ambient occlusion, fog transmittance, sky
 radiance — together with the per-element inputs a real-time formula for it may read, each with its unit and
 domain. Every shipped method declares its quantity (``Method.quantity``); `QUANTITIES` documents them, and
-`Quantity.methods` lists the shipped methods that approximate each (derived from the families' ``METHODS``
-tables, so this module copies no formula).
+`Quantity.methods` lists the shipped methods that approximate each (from the registry's method tables,
+`rtfit.experiments.families.METHOD_TABLES`, so this module copies no formula).
 
 A user's own approximation is a function ``f(ops, g, **params)`` written against the same ops namespace as
 the shipped kernels (`rtfit.realtime.arrays`); `approximation` turns it into a `Method`::
@@ -36,24 +36,13 @@ from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
 
-from . import (
-    ambient_aperture,
-    diffuse,
-    environment_bases,
-    height_fog,
-    nishita_sky,
-    sdf_occlusion,
-    soft_particles,
-)
+from . import soft_particles
 from .light_cones import INPUTS as CONE_INPUTS
-from .light_cones import METHODS as CONE_METHODS
 from .methods import Input, Method, Param
 from .sdf_grid import HalfSpace, Sphere
 from .sdf_occlusion import AnalyticSDF
-from .volumetric_lightning import METHODS as LIGHTNING_METHODS
 
 __all__ = [
-    "FAMILY_METHODS",
     "QUANTITIES",
     "UNDECLARED_UNIT",
     "ApproximationError",
@@ -66,21 +55,6 @@ __all__ = [
     "is_user_approximation",
     "quantities_markdown",
 ]
-
-FAMILY_METHODS: Mapping[str, Mapping[str, Method]] = MappingProxyType(
-    {
-        "diffuse": diffuse.METHODS,
-        "irradiance-bases": environment_bases.METHODS,
-        "ambient-aperture": ambient_aperture.METHODS,
-        "sdf-occlusion": sdf_occlusion.METHODS,
-        "height-fog": height_fog.METHODS,
-        "nishita-sky": nishita_sky.METHODS,
-        "soft-particles": soft_particles.METHODS,
-        "volumetric-lightning": LIGHTNING_METHODS,
-        "light-cones": CONE_METHODS,
-    }
-)
-"""Family (experiment name) → its method table: the shipped methods `Quantity.methods` is derived from."""
 
 
 @dataclass(frozen=True)
@@ -119,12 +93,12 @@ class Quantity:
     def input_names(self) -> tuple[str, ...]:
         return tuple(i.name for i in self.inputs)
 
-    @property
-    def methods(self) -> tuple[str, ...]:
-        """The shipped methods of this quantity, as ``family:id`` (from the families' ``METHODS``)."""
+    def methods(self, tables: Mapping[str, Mapping[str, Method]]) -> tuple[str, ...]:
+        """The shipped methods of this quantity, as ``family:id``, from ``tables`` (family → its ``METHODS``
+        table: the registry's, `rtfit.experiments.families.METHOD_TABLES`)."""
         return tuple(
             f"{family}:{mid}"
-            for family, table in FAMILY_METHODS.items()
+            for family, table in tables.items()
             for mid, m in table.items()
             if m.quantity == self.name
         )
@@ -586,8 +560,9 @@ def approximation(
     return wrap
 
 
-def quantities_markdown() -> str:
-    """The quantity table of docs/audit.md ("Your own approximation"), generated from `QUANTITIES`."""
+def quantities_markdown(tables: Mapping[str, Mapping[str, Method]]) -> str:
+    """The quantity table of docs/audit.md ("Your own approximation"), generated from `QUANTITIES`; the
+    shipped methods from ``tables`` (family → method table, `rtfit.experiments.families.METHOD_TABLES`)."""
     lines = []
     for q in QUANTITIES.values():
         out = "one array" if q.channels == 1 else f"a tuple of {q.channels} arrays (R, G, B)"
@@ -595,7 +570,7 @@ def quantities_markdown() -> str:
         lines.append("")
         lines.append(f"{q.description[0].upper()}{q.description[1:]}; `f` returns {out}.")
         lines.append(f"Reference: {q.reference}." if q.reference else "")
-        shipped = ", ".join(f"`{m}`" for m in q.methods) or "none"
+        shipped = ", ".join(f"`{m}`" for m in q.methods(tables)) or "none"
         lines.append(f"Shipped methods: {shipped}." + (f" ({q.note}.)" if q.note else ""))
         lines.append("")
         lines.append("| input | unit | domain | meaning |")

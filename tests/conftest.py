@@ -75,7 +75,7 @@ def upper_hemisphere_nodes(n_mu: int, n_phi: int):
 def run_tiny_experiment(name: str, tmp_path, overrides: dict):
     """Run experiment ``name`` (quick, llvm_ad_rgb, inline, seed 0) with configuration ``overrides`` into
     ``tmp_path/out`` with its own cache, and return its loaded results record."""
-    from rtfit.experiments.registry import get_experiment
+    from rtfit.experiments.families import get_experiment
     from rtfit.experiments.results import load_results
     from rtfit.experiments.runner import run_experiments
 

@@ -151,7 +151,8 @@ def _visible_normals(mi, scene, mask):
 
 @pytest.mark.parametrize("xml", [CONSTANT_XML])
 def test_list_names_irradiance_bases(tmp_path, xml):
-    from rtfit.experiments.audit import applicable_families, inspect_scene
+    from rtfit.experiments.applicability import applicable_families
+    from rtfit.experiments.audit import inspect_scene
 
     (tmp_path / "s.xml").write_text(xml)
     found = applicable_families(inspect_scene(tmp_path / "s.xml"))

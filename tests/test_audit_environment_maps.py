@@ -18,9 +18,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from rtfit.experiments.audit import FAMILIES, applicable_families, describe, inspect_scene
+from rtfit.experiments.applicability import applicable_families, describe
+from rtfit.experiments.audit import inspect_scene
 from rtfit.experiments.audit_cli import audit as audit_command
 from rtfit.experiments.audit_run import audit
+from rtfit.experiments.families import METHOD_TABLES
 
 FAST = {"cost_elements": 1 << 10, "metrics": ("rmse", "rel_mse", "mae", "max_abs")}
 ETA = np.array([0.2, 0.9, 1.1])
@@ -146,7 +148,7 @@ def test_a_floor_a_glass_and_a_rough_shape(tmp_path):
         ("reflections", "glass sphere"),
         ("glossy reflections", "rough conductor sphere"),
     ]
-    assert found[2].methods == tuple(FAMILIES["environment-maps"])
+    assert found[2].methods == tuple(METHOD_TABLES["environment-maps"])
     r = audit(tmp_path / "f.xml", "environment-maps", spp=16, pass_spp=8, fit=False,
               cache=tmp_path / "cache", **FAST)  # fmt: skip
     by = {c.parameters["bsdf"]: c for c in r.cases}
@@ -157,7 +159,7 @@ def test_a_floor_a_glass_and_a_rough_shape(tmp_path):
     rough = by["roughconductor"]
     assert rough.parameters["alpha"] == pytest.approx(0.2)
     rows = r.outcomes[rough.id]
-    assert set(rows) == set(FAMILIES["environment-maps"])
+    assert set(rows) == set(METHOD_TABLES["environment-maps"])
     # measured (24², 16 spp): rel. MSE 0.65 unfiltered (classic), 0.15 pre-filtered
     assert rows["preconvolved"].metrics["rel_mse"].value < 0.5 * rows["classic"].metrics["rel_mse"].value
     glass_ref = by["dielectric"].reference.mean[by["dielectric"].mask]
@@ -262,7 +264,7 @@ def test_the_rows_run_one_text_on_drjit_numpy_and_jax():
     inputs["dist"] = rng.uniform(1.0, 3.0, 6 * PROBE_RESOLUTION**2)
     const = {**inputs, **{k: np.full_like(v, 0.7) for k, v in inputs.items() if k[:3] in ("rad", "glo")}}
     const.update({f"irr_{c}": np.full_like(inputs["irr_r"], 2.0) for c in "rgb"})
-    for method in FAMILIES["environment-maps"].values():
+    for method in METHOD_TABLES["environment-maps"].values():
         mine = {k: inputs[k] for k in method.input_names}
         ref = method(NUMPY_OPS, mine)
         dr_out = method(DRJIT_OPS, {k: Float(v) for k, v in mine.items()})

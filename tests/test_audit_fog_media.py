@@ -356,7 +356,7 @@ def test_list_names_height_fog_for_each_medium_with_its_reason(grid_scene, tmp_p
 def test_height_fogs_declarations_keep_their_own_formats():
     """`by_name` joins the exponential-fog declaration (rtfit TOML only) and the media one (XML and TOML):
     the joined family reads both formats, each role only its own declaration's."""
-    from rtfit.experiments.audit_run import AUDITED
+    from rtfit.experiments.families import AUDITED
 
     fog = AUDITED["height-fog"]
     assert set(fog.formats) == {"rtfit-toml", "mitsuba-xml"}

@@ -18,10 +18,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from rtfit.experiments.audit import FAMILIES, applicable_families, inspect_scene
+from rtfit.experiments.applicability import applicable_families
+from rtfit.experiments.audit import inspect_scene
 from rtfit.experiments.audit_cli import audit as audit_command
 from rtfit.experiments.audit_irradiance_volumes import probe_grid
 from rtfit.experiments.audit_run import audit
+from rtfit.experiments.families import METHOD_TABLES
 
 FAST = {"cost_elements": 1 << 10, "metrics": ("rmse", "rel_mse", "mae", "max_abs")}
 SKY = np.array([0.8, 0.9, 1.0])
@@ -53,7 +55,7 @@ def test_floor_under_a_constant_sky(tmp_path):
     (tmp_path / "f.xml").write_text(FLOOR_XML)
     info = inspect_scene(tmp_path / "f.xml")
     (app,) = [a for a in applicable_families(info) if a.family == "irradiance-volumes"]
-    assert app.methods == tuple(FAMILIES["irradiance-volumes"])
+    assert app.methods == tuple(METHOD_TABLES["irradiance-volumes"])
     assert app.part.startswith("a probe grid over the scene's box (-3, -3, 0)–(3, 3, 2.05)")
     r = audit(tmp_path / "f.xml", "irradiance-volumes", spp=32, pass_spp=16, fit=False,
               cache=tmp_path / "cache", **FAST)  # fmt: skip
@@ -65,7 +67,7 @@ def test_floor_under_a_constant_sky(tmp_path):
     # the closed form within 6e-4 of πL (the tiny sphere's shadow), at the reference's noise
     assert np.all(np.abs(ref - want) <= 5 * se + 1e-3 * want)  # measured max |z| 0 (no ray met the sphere)
     rows = r.outcomes[case.id]
-    assert set(rows) == set(FAMILIES["irradiance-volumes"])
+    assert set(rows) == set(METHOD_TABLES["irradiance-volumes"])
     for row in rows.values():
         assert np.all(np.isfinite(row.image[m])), row.row
     # Valve's cube at the floor's upward normal reads each probe's +z entry: the sky's πL, probe noise

@@ -1,5 +1,5 @@
 """`rtfit audit SCENE --list` (issue 15 §1–2): real Mitsuba scenes read by Mitsuba's parser, and the families
-that apply to them by `rtfit.experiments.audit.RULES`.
+that apply to them by the rules of its declarations, `rtfit.experiments.families.RULES`.
 
 The scenes are written here (no network): a Cornell-box-like scene with an ``<include>``, a ``<path>`` mesh
 folder and a Y-up sensor; Mitsuba's own ``mi.cornell_box()`` written out by Mitsuba's XML writer; ASCII PLY
@@ -14,17 +14,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from rtfit.experiments.audit import (
-    FAMILIES,
-    PROVIDES,
-    RULES,
-    AuditError,
-    Part,
-    SceneInfo,
-    applicable_families,
-    inspect_scene,
-)
+from rtfit.experiments.applicability import applicable_families
+from rtfit.experiments.audit import PROVIDES, AuditError, Part, SceneInfo, inspect_scene
 from rtfit.experiments.audit_cli import audit
+from rtfit.experiments.families import METHOD_TABLES, RULES
 from rtfit.reference.mitsuba_xml import inspect_xml
 from rtfit.scenes import library_path
 
@@ -137,7 +130,7 @@ def test_cornell_like_scene_with_include_lists_diffuse_and_ao(tmp_path):
     assert dict(diffuse.excluded)["exact"].startswith("needs alpha, radiance: a spherical light")
     assert "direct irradiance" in diffuse.reference and "shadowed" in diffuse.reference
     (ao,) = [a for a in fams["sdf-occlusion"] if a.role == "ambient occlusion"]
-    assert ao.methods == tuple(FAMILIES["sdf-occlusion"])
+    assert ao.methods == tuple(METHOD_TABLES["sdf-occlusion"])
     # The walls span [−1, 1]³ (the light and the mesh sit inside): R = 0.1 × 2√3.
     assert f"R = {0.2 * math.sqrt(3):.4g}" in ao.reference
 
@@ -180,7 +173,7 @@ def test_a_sphere_light_adds_the_exact_form(tmp_path):
     assert fams["diffuse"][0].methods == ("lambert", "half-lambert", "wrap", "exact")
     aa = {a.role: a for a in fams["ambient-aperture"]}
     assert aa["occluded sphere light"].methods == tuple(
-        m for m in FAMILIES["ambient-aperture"] if m.startswith("aa-")
+        m for m in METHOD_TABLES["ambient-aperture"] if m.startswith("aa-")
     )
 
 
@@ -213,7 +206,7 @@ def test_an_environment_lists_irradiance_bases(tmp_path, env):
         assert x.dependencies.data_files == (str(tmp_path / "sky.exr"),)
     fams = _families(applicable_families(inspect_scene(tmp_path / "env.xml")))
     assert set(fams) == {"irradiance-bases"}  # one convex sphere: nothing occludes it
-    assert fams["irradiance-bases"][0].methods == tuple(FAMILIES["irradiance-bases"])
+    assert fams["irradiance-bases"][0].methods == tuple(METHOD_TABLES["irradiance-bases"])
     assert "unoccluded" in fams["irradiance-bases"][0].reference
 
 
@@ -238,13 +231,13 @@ def test_a_homogeneous_medium_is_constant_height_fog(tmp_path):
     assert [s.interior for s in x.shapes if s.type == "cube"] == ["homogeneous"]
     (fog,) = _families(applicable_families(inspect_scene(xml)))["height-fog"]
     assert fog.role == "constant fog" and "falloff c = 0" in fog.reason
-    assert fog.methods == tuple(FAMILIES["height-fog"])  # the optical-depth forms and the shading models
+    assert fog.methods == tuple(METHOD_TABLES["height-fog"])  # the optical-depth forms and the shading models
     code, out, err = _run(xml, "--list", "--approx", "height-fog")
     assert code == 0 and err == ""
     assert "height-fog — constant fog: homogeneous medium bounded by a shape" in out
     # The same family on an rtfit TOML scene with its own exponential-fog medium: it applies.
     fog = _families(applicable_families(inspect_scene(library_path("fog_volumes"))))
-    assert len(fog["height-fog"]) == 2 and fog["height-fog"][0].methods == tuple(FAMILIES["height-fog"])
+    assert len(fog["height-fog"]) == 2 and fog["height-fog"][0].methods == tuple(METHOD_TABLES["height-fog"])
 
 
 def test_ascii_ply_and_obj_meshes_load_through_mitsuba(tmp_path):
@@ -356,7 +349,7 @@ def test_rtfit_toml_scenes(tmp_path):
 def test_rules_are_data_and_reach_every_method():
     """Every family has a rule, and in a scene holding every kind of part every method of every table
     applies through some rule: nothing is reachable only by a name-specific branch."""
-    assert {r.family for r in RULES} == set(FAMILIES)
+    assert {r.family for r in RULES} == set(METHOD_TABLES)
     everything = SceneInfo(
         source="all",
         format="test",
@@ -370,7 +363,7 @@ def test_rules_are_data_and_reach_every_method():
     # Except the bare cap-intersection forms (r1, r2, d → Ω in sr): a scene has no per-pixel pair of caps to
     # give them; the ambient-aperture experiment compares them over (r1, r2, d), the audit each inside its
     # aa-<form>-* rows (`--list` says so in its "not here" line).
-    for family, table in FAMILIES.items():
+    for family, table in METHOD_TABLES.items():
         bare = {m for m, v in table.items() if v.quantity == "cap_intersection_solid_angle"}
         assert {m for a in found if a.family == family for m in a.methods} == set(table) - bare, family
 

@@ -22,8 +22,10 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from rtfit.experiments.audit import FAMILIES, applicable_families, describe, inspect_scene
+from rtfit.experiments.applicability import applicable_families, describe
+from rtfit.experiments.audit import inspect_scene
 from rtfit.experiments.audit_run import audit
+from rtfit.experiments.families import METHOD_TABLES
 from rtfit.realtime.obscurances import distance_weight, plane_facing_obscurance
 from rtfit.reference.occlusion import occlusion_pass
 from rtfit.reference.variants import scoped_variant
@@ -104,7 +106,7 @@ def test_slab_reference_and_rows_match_the_closed_forms(slab, tmp_path):
     z = (ref.mean() - want) / (np.sqrt(np.sum(err**2)) / len(err))
     assert abs(z) < 4.0
     rows = r.outcomes[model.id]
-    assert set(rows) == set(FAMILIES["obscurances"])
+    assert set(rows) == set(METHOD_TABLES["obscurances"])
     np.testing.assert_allclose(rows["seed"].image[m], want, atol=2e-3)
     np.testing.assert_allclose(rows["ao"].image[m], (H / R) ** 2, atol=1e-6)
     for case in r.cases:

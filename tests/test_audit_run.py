@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from rtfit.experiments.audit import FAMILIES, AuditError
+from rtfit.experiments.audit import AuditError
 from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_run import audit, resolve_approximations
+from rtfit.experiments.families import METHOD_TABLES
 from rtfit.experiments.results import load_results
 
 DATA = Path(__file__).parent / "data" / "mitsuba"
@@ -68,14 +69,14 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
         "light0-unshadowed", "light0-shadowed", "ao", "caps",
         "obscurance-model", "obscurance-ambient", "volume",
     ]  # fmt: skip
-    cap_rows = [m for m in FAMILIES["ambient-aperture"] if m.startswith(("aa-", "fill-"))]
+    cap_rows = [m for m in METHOD_TABLES["ambient-aperture"] if m.startswith(("aa-", "fill-"))]
     for case in r.cases:
         want = {
             "ao": ["cone"],  # (curvature and Evans: no k of their own, left out with --no-fit)
             "caps": cap_rows,
-            "obscurance-model": list(FAMILIES["obscurances"]),
-            "obscurance-ambient": list(FAMILIES["obscurances"]),
-            "volume": list(FAMILIES["irradiance-volumes"]),
+            "obscurance-model": list(METHOD_TABLES["obscurances"]),
+            "obscurance-ambient": list(METHOD_TABLES["obscurances"]),
+            "volume": list(METHOD_TABLES["irradiance-volumes"]),
         }.get(case.id, ["lambert", "half-lambert", "wrap"])
         assert [a.method for a in case.approximations] == want
         for a in case.approximations:

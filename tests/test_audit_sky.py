@@ -24,7 +24,8 @@ from click.testing import CliRunner
 
 from rtfit import Param, approximation
 from rtfit.experiments.audit_cli import audit as audit_cmd
-from rtfit.experiments.audit_run import AUDITED, audit
+from rtfit.experiments.audit_run import audit
+from rtfit.experiments.families import AUDITED
 from rtfit.reference.light_irradiance import environment_irradiance_pass
 from rtfit.reference.occlusion import visibility_cap_pass
 from rtfit.reference.variants import scoped_variant

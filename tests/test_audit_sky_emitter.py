@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from rtfit.experiments.audit import applicable_families, inspect_scene
+from rtfit.experiments.applicability import applicable_families
+from rtfit.experiments.audit import inspect_scene
 from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.audit_sky_emitter import emitter_radiance, sky_frame

@@ -240,7 +240,8 @@ def test_a_convex_mesh_of_medium_is_a_particle_and_a_non_convex_one_is_not(tmp_p
     a convex mesh is a particle (no exact row: the reference is compared with the fades alone), and its
     reference is the clipped chord of the sphere it approximates (an icosphere of 1280 faces, radius 1, half
     sunk) within noise and tessellation; two disjoint tetrahedra in one mesh are not convex: no particle."""
-    from rtfit.experiments.audit import applicable_families, inspect_scene
+    from rtfit.experiments.applicability import applicable_families
+    from rtfit.experiments.audit import inspect_scene
     from rtfit.experiments.sdf_occlusion_scenes import icosphere
 
     v, f = icosphere((0.0, 0.0, 0.0), 1.0, 3)

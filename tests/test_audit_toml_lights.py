@@ -15,7 +15,8 @@ import numpy as np
 from click.testing import CliRunner
 
 import rtfit
-from rtfit.experiments.audit import applicable_families, inspect_scene
+from rtfit.experiments.applicability import applicable_families
+from rtfit.experiments.audit import inspect_scene
 from rtfit.experiments.audit_cli import audit as audit_cli
 from rtfit.scenes import library_path, load_scene
 

@@ -24,7 +24,8 @@ import numpy as np
 import pytest
 
 import rtfit
-from rtfit.experiments.audit import applicable_families, inspect_scene
+from rtfit.experiments.applicability import applicable_families
+from rtfit.experiments.audit import inspect_scene
 
 FAST = {"metrics": ("rmse",), "cost_elements": 1 << 10}
 EXACT_AND_SH = ["irradiance-bases:quadrature", "irradiance-bases:sh-l2"]  # (the other rows: the first test)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from rtfit.experiments import cli, registry
+from rtfit.experiments import cli, families, registry
 from rtfit.experiments.cli import main
 from rtfit.experiments.registry import SPP_MAX, ConfigKey, ExperimentSpec, apply_overrides, check_value
 from rtfit.scenes import SceneError, library_path, parse_scene_text
@@ -178,12 +178,12 @@ def test_corrupt_probe_file(capsys, dirs, tmp_path, monkeypatch):
 
 
 def test_every_experiment_declares_every_key():
-    for name, spec in registry.EXPERIMENTS.items():
+    for name, spec in families.EXPERIMENTS.items():
         declared = spec.load().CONFIG
         for quick in (True, False):
             cfg = spec.load().configure(quick, None)
             assert set(cfg) == set(declared), name
-            assert registry.apply_overrides(cfg, cfg, name) == cfg  # its own defaults are valid
+            assert registry.apply_overrides(cfg, cfg, name, declared=declared) == cfg  # defaults valid
 
 
 def test_show_config_prints_type_and_range(capsys):
@@ -284,7 +284,7 @@ def test_failed_self_checks_exit_1(capsys, dirs, monkeypatch):
     module.run = lambda ctx: copy.deepcopy(body)  # type: ignore[attr-defined]
     monkeypatch.setitem(sys.modules, module.__name__, module)
     monkeypatch.setitem(
-        registry.EXPERIMENTS, "fake-checks", ExperimentSpec("fake-checks", module.__name__, "Fake", "A fake.")
+        families.EXPERIMENTS, "fake-checks", ExperimentSpec("fake-checks", module.__name__, "Fake", "A fake.")
     )
     rc = main(["run", "fake-checks", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress"])
     err = [line for line in capsys.readouterr().err.splitlines() if "checks failed" in line]

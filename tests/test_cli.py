@@ -24,7 +24,7 @@ def test_list(capsys):
 
 
 def test_former_experiment_name_is_an_alias():
-    from rtfit.experiments.registry import get_experiment, resolve_names
+    from rtfit.experiments.families import get_experiment, resolve_names
 
     assert get_experiment("half-lambert") is get_experiment("diffuse")
     assert resolve_names(["half-lambert", "diffuse"]) == [get_experiment("diffuse")]

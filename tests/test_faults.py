@@ -30,7 +30,7 @@ DRIVER = textwrap.dedent(
     import logging
     import sys
     from pathlib import Path
-    from rtfit.experiments.registry import get_experiment
+    from rtfit.experiments.families import get_experiment
 
     logging.basicConfig(level=logging.INFO, format="rtfit: %(message)s", stream=sys.stderr)
     from rtfit.experiments.runner import run_experiments

@@ -11,7 +11,7 @@
 5. Every public function of `rtfit.realtime` is importable from the package root, and no two modules
    export the same name.
 6. No family module imports another family module (issue 30 §3): the family modules are the experiment
-   modules of `registry.EXPERIMENTS` and the ``audit_<family>.py`` modules that declare an `AuditFamily`
+   modules of the registry (`families.FAMILIES`) and the ``audit_<family>.py`` modules that declare an `AuditFamily`
    (an audit module importing its experiment module counts too: what both need goes in a shared module).
    Today's violations are an explicit allow-list (`FAMILY_IMPORTS_ALLOWED`) that may only shrink.
 7. A family module has at most `FAMILY_MAX_LINES` lines; today's larger ones are listed with their line
@@ -269,11 +269,11 @@ def find_lazy_imports(root: Path, package: str) -> list[str]:
 
 
 def family_modules(root: Path) -> set[str]:
-    """Stems of the family modules of ``root``/experiments: the modules `registry.EXPERIMENTS` names (read
-    from registry.py's text, ``"rtfit.experiments.<name>"``) and the ``audit_*.py`` modules declaring an
+    """Stems of the family modules of ``root``/experiments: the experiment modules the registry names (read
+    from families.py's text, ``"rtfit.experiments.<name>"``) and the ``audit_*.py`` modules declaring an
     `AuditFamily` at their top level (``NAME = AuditFamily(...)``)."""
     pkg = root / "experiments"
-    registry = (pkg / "registry.py").read_text(encoding="utf-8")
+    registry = (pkg / "families.py").read_text(encoding="utf-8") if (pkg / "families.py").is_file() else ""
     names = set(re.findall(r'"rtfit\.experiments\.([a-z0-9_]+)"', registry))
     for path in pkg.glob("audit_*.py"):
         for node in _tree(path).body:
@@ -415,7 +415,7 @@ def test_a_planted_lazy_import_is_found(tmp_path):
 
 def _planted_families(tmp_path: Path, files: dict[str, str]) -> Path:
     registry = 'EXPERIMENTS = [Spec("a", "rtfit.experiments.a"), Spec("b", "rtfit.experiments.b")]\n'
-    return _plant(tmp_path, {"__init__.py": "", "registry.py": registry, **files})
+    return _plant(tmp_path, {"__init__.py": "", "families.py": registry, **files})
 
 
 def test_a_planted_family_import_is_found(tmp_path):

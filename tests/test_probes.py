@@ -249,8 +249,8 @@ def test_grace_l2_matches_ramamoorthi_hanrahan_2001():
 def test_probes_config_key(dirs, tmp_path):
     """The sweep-file form: ``probes = ["FILE[:MAPPING]", …]`` is checked like --probe, and the run's
     environments gain ``probe-file-<stem>``."""
+    from rtfit.experiments.families import validate_config
     from rtfit.experiments.irradiance_bases import with_user_probes
-    from rtfit.experiments.registry import validate_config
 
     ok = _write(tmp_path / "ok.exr", np.ones((16, 32, 3)))
     cfg = validate_config("irradiance-bases", True, None, {"probes": [ok]})

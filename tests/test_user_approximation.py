@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rtfit.experiments.families import METHOD_TABLES
 from rtfit.experiments.user_methods import (
     ENTRY_POINT_GROUP,
     UserMethodError,
@@ -27,7 +28,6 @@ from rtfit.experiments.user_methods import (
 from rtfit.fitting import fit_method
 from rtfit.realtime import NUMPY_OPS, diffuse, sphere_light_irradiance
 from rtfit.realtime.quantities import (
-    FAMILY_METHODS,
     QUANTITIES,
     ApproximationError,
     approximation,
@@ -371,12 +371,23 @@ def test_a_shipped_style_formula_passes_validation_for_every_quantity():
 
 
 # ------------------------------------------------------------------------------------ quantities table
+NOT_USER_QUANTITIES = {"volume_irradiance", "reflected_radiance", "obscurance"}
+"""Quantities of shipped rows that a user's ``@approximation`` cannot approximate yet (issue 30 §4): the
+list may only shrink."""
+
+
 def test_every_shipped_method_has_a_documented_quantity():
-    for family, table in FAMILY_METHODS.items():
+    seen = set()
+    for family, table in METHOD_TABLES.items():
         for mid, m in table.items():
+            seen.add(m.quantity)
+            if m.quantity in NOT_USER_QUANTITIES:
+                continue
             assert m.quantity in QUANTITIES, (family, mid, m.quantity)
-            assert f"{family}:{mid}" in QUANTITIES[m.quantity].methods
-    assert QUANTITIES["light_irradiance"].methods[:4] == tuple(f"diffuse:{k}" for k in diffuse.METHODS)
+            assert f"{family}:{mid}" in QUANTITIES[m.quantity].methods(METHOD_TABLES)
+    assert NOT_USER_QUANTITIES <= seen - set(QUANTITIES), "a quantity became user-approximable: drop it"
+    light = QUANTITIES["light_irradiance"].methods(METHOD_TABLES)
+    assert light[:4] == tuple(f"diffuse:{k}" for k in diffuse.METHODS)
     assert [i.name for i in QUANTITIES["light_irradiance"].inputs] == [
         "cos_theta",
         "irradiance",
@@ -392,7 +403,7 @@ def test_every_shipped_method_has_a_documented_quantity():
 
 def test_doc_lists_the_table():
     doc = (ROOT / "docs" / "audit.md").read_text()
-    assert quantities_markdown() in doc
+    assert quantities_markdown(METHOD_TABLES) in doc
     section = doc.split("## Your own approximation", 1)[1]
     listed = re.findall(r"^#### `([a-z_]+)`", section, flags=re.M)
     assert listed == list(QUANTITIES)

@@ -1,0 +1,297 @@
+"""The family registry: one entry per approximation family, the one list that ``rtfit list``, ``rtfit run``,
+``rtfit audit`` and the user-quantity tables read (issue 30 §3).
+
+A `Family` says everything the tools need to know about a family, in one place:
+
+* ``name`` — on the command line (``rtfit run NAME``, ``rtfit audit --approx NAME``), in paths and results;
+* ``module``, ``title``, ``description`` — its experiment (`rtfit run NAME` on its shipped scenes; the
+  module is imported only when it runs, `registry.ExperimentSpec`);
+* ``methods`` — its rows: the method table of its ``rtfit.realtime`` module (kernel text, inputs with units
+  and domains, free parameters), which the audit evaluates and fits on a user's scene and a user's
+  ``@approximation`` of the same quantity joins; ``None`` for a family not audited yet;
+* ``audits`` — its audit declarations (`audit_family.AuditFamily`, one per module ``audit_<family>.py``,
+  each with the `audit.Rule` s saying when it applies to a scene and why).
+
+Everything else is derived here: `EXPERIMENTS` (``rtfit list``/``run``), `METHOD_TABLES` (the audit's rows
+per family, in registry order), `RULES` (``--list``'s decision, in registry order, then declaration order)
+and `AUDITED` (name → one declaration joining its roles, `audit_family.by_name`). Adding a family is one
+entry here beside its realtime module, its experiment or audit module, its tests and its doc page
+(docs/architecture.md, "Adding a family").
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from rtfit.realtime import (
+    ambient_aperture,
+    diffuse,
+    environment_bases,
+    height_fog,
+    irradiance_volumes,
+    nishita_sky,
+    obscurances,
+    reflections,
+    sdf_occlusion,
+    soft_particles,
+)
+from rtfit.realtime.light_cones import METHODS as CONE_METHODS
+from rtfit.realtime.light_cones import QUADRATURE as CONE_QUADRATURE
+from rtfit.realtime.methods import Method
+from rtfit.realtime.volumetric_lightning import METHODS as LIGHTNING_METHODS
+from rtfit.realtime.volumetric_lightning import QUADRATURE as LIGHTNING_QUADRATURE
+
+from . import (
+    audit_ambient_aperture,
+    audit_ambient_occlusion,
+    audit_diffuse,
+    audit_environment_maps,
+    audit_fog_media,
+    audit_height_fog,
+    audit_irradiance_bases,
+    audit_irradiance_volumes,
+    audit_light_cones,
+    audit_nishita_sky,
+    audit_obscurances,
+    audit_sky_emitter,
+    audit_sky_occlusion,
+    audit_soft_particles,
+    audit_volumetric_lightning,
+)
+from .audit import Rule
+from .audit_family import AuditFamily, by_name
+from .registry import ALIASES, SPP_MAX, ExperimentSpec, UnknownExperiment, apply_overrides
+
+__all__ = [
+    "AUDITED",
+    "EXPERIMENTS",
+    "FAMILIES",
+    "METHOD_TABLES",
+    "RULES",
+    "Family",
+    "describe_config",
+    "get_experiment",
+    "resolve_names",
+    "validate_config",
+]
+
+
+@dataclass(frozen=True)
+class Family:
+    """One family of the registry (module docstring)."""
+
+    name: str
+    module: str
+    title: str
+    description: str
+    methods: Mapping[str, Method] | None = None
+    audits: tuple[AuditFamily, ...] = ()
+
+    def __post_init__(self):
+        stray = [a.name for a in self.audits if a.name != self.name]
+        if stray:
+            raise ValueError(f"family {self.name!r}: declarations of another family ({', '.join(stray)})")
+        if self.audits and self.methods is None:
+            raise ValueError(f"family {self.name!r}: an audited family needs its method table")
+
+    @property
+    def experiment(self) -> ExperimentSpec:
+        return ExperimentSpec(self.name, self.module, self.title, self.description)
+
+
+FAMILIES: dict[str, Family] = {
+    f.name: f
+    for f in (
+        Family(
+            "diffuse",
+            "rtfit.experiments.diffuse",
+            "Half-Lambert and wrap lighting vs exact sphere-light irradiance",
+            "White diffuse sphere under a spherical light of angular radius 0.27°–30°, with and without "
+            "a constant sky: Lambert, half-Lambert and fitted wrap lighting against Mitsuba.",
+            methods=diffuse.METHODS,
+            audits=(audit_diffuse.FAMILY,),
+        ),
+        Family(
+            "irradiance-bases",
+            "rtfit.experiments.irradiance_bases",
+            "Irradiance bases: ambient cube vs spherical harmonics against path-traced irradiance",
+            "Valve ambient cube (axis-sampled and NNLS-optimal), SH L1/L2 and windowed SH under constant, "
+            "sun, sunsky, studio, overcast and measured light probes, with per-probe storage and cost.",
+            methods=environment_bases.ALL_METHODS,
+            audits=(audit_irradiance_bases.FAMILY,),
+        ),
+        Family(
+            "irradiance-volumes",
+            "rtfit.experiments.irradiance_volumes",
+            "Irradiance volumes: a grid of ambient cubes / SH L2 probes, nearest vs trilinear, light folding",
+            "Path-traced probes over a room with a bright point light and an occluder, looked up nearest and "
+            "trilinear against path-traced indirect and total irradiance: error vs spacing, popping, cost.",
+            methods=irradiance_volumes.METHODS,
+            audits=(audit_irradiance_volumes.FAMILY,),
+        ),
+        Family(
+            "ambient-aperture",
+            "rtfit.experiments.ambient_aperture",
+            "Ambient aperture lighting: spherical-cap intersection, exact vs smoothstep vs fitted",
+            "Solid angle of two intersecting spherical caps over the whole domain, and ambient-aperture "
+            "shading of area-light occlusion against Mitsuba renders.",
+            methods=ambient_aperture.METHODS,
+            audits=(audit_sky_occlusion.APERTURE_FILL, audit_ambient_aperture.FAMILY),
+        ),
+        Family(
+            "sdf-occlusion",
+            "rtfit.experiments.sdf_occlusion",
+            "SDF occlusion and skylight (Evans) vs path-traced ambient occlusion and sky light",
+            "Multi-scale signed-distance sampling and cone-traced soft occlusion against Mitsuba AO and "
+            "sky-lit irradiance, with steps-vs-error-vs-cost and fitted contrast.",
+            methods=sdf_occlusion.METHODS,
+            audits=(audit_sky_occlusion.SKY_OCCLUSION, audit_ambient_occlusion.FAMILY),
+        ),
+        Family(
+            "height-fog",
+            "rtfit.experiments.height_fog",
+            "Exponential height fog: closed-form optical depth and fog colour vs path-traced media",
+            "Closed-form, seed-listing and Taylor optical-depth forms over the whole domain, and fog "
+            "shading against Mitsuba transmittance and aerial perspective, with fitted artist parameters.",
+            methods=height_fog.METHODS,
+            audits=(audit_height_fog.FAMILY, audit_fog_media.FAMILY),
+        ),
+        Family(
+            "nishita-sky",
+            "rtfit.experiments.nishita_sky",
+            "Nishita sky: single-scattering sky texture vs a path-traced spherical-shell atmosphere",
+            "The 128×64 Nishita sky texture with per-pixel phase against single- and multiple-scattering "
+            "Mitsuba references and sunsky, with layers-vs-error-vs-cost and fitted artist parameters.",
+            methods=nishita_sky.METHODS,
+            audits=(audit_nishita_sky.FAMILY, audit_sky_emitter.FAMILY),
+        ),
+        Family(
+            "volumetric-lightning",
+            "rtfit.experiments.volumetric_lightning",
+            "Volumetric lightning: the seed's softened point light along the view ray vs single scattering",
+            "The closed-form line integral of i/(1 + a·r²) (stable float32 form vs the printed one) against "
+            "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
+            methods={**LIGHTNING_METHODS, "quadrature": LIGHTNING_QUADRATURE},
+            audits=(audit_volumetric_lightning.FAMILY,),
+        ),
+        Family(
+            "aerial-perspective",
+            "rtfit.experiments.aerial_perspective",
+            "Aerial perspective matched to the sky: the fog blend under a Nishita atmosphere + height fog",
+            "Single scattering through atmosphere and fog by quadrature (checked against Mitsuba) vs the "
+            "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c, colour.",
+            methods=None,  # not audited yet (issue 30 §2)
+        ),
+        Family(
+            "soft-particles",
+            "rtfit.experiments.soft_particles",
+            "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",
+            "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned "
+            "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
+            methods=soft_particles.METHODS,
+            audits=(audit_soft_particles.FAMILY,),
+        ),
+        Family(
+            "light-cones",
+            "rtfit.experiments.light_cones",
+            "Light cones in fog: the seed's shell (edge fade, v² attenuation) vs spot-light scattering",
+            "The pseudo-volumetric cone shell and §1's integral over the view ray's chord against path-traced"
+            " single scattering of a spot light in fog, from beside, inside and along the cone, with fits.",
+            methods={**CONE_METHODS, "quadrature": CONE_QUADRATURE},
+            audits=(audit_light_cones.FAMILY,),
+        ),
+        Family(
+            "environment-maps",
+            "rtfit.experiments.environment_maps",
+            "Pre-convolved and localised environment maps, distance impostors vs exact traces in a room",
+            "Cube-map convolution solid-angle rules, the seed's localised diffuse/glossy convolution with "
+            "its cosine look-up against depth-1 Monte Carlo in an emissive room, and the impostor Hit search "
+            "against exact ray_intersect hit points of a mirror and a glass sphere.",
+            methods=reflections.METHODS,
+            audits=(audit_environment_maps.FAMILY,),
+        ),
+        Family(
+            "parallax-occlusion",
+            "rtfit.experiments.parallax_occlusion",
+            "Parallax occlusion mapping with soft shadows vs a displaced mesh and ray-traced penumbrae",
+            "The seed's linear search + piecewise-linear intersection and 7-sample soft shadow (as printed "
+            "and stable) against ray_intersect on the displaced height field and area-light visibility.",
+            methods=None,  # not audited yet (issue 30 §2)
+        ),
+        Family(
+            "obscurances",
+            "rtfit.experiments.obscurances",
+            "Obscurances (Zhukov/Iones) vs their Monte Carlo definition and uniform-ambient path tracing",
+            "The K-ray obscurance estimator with the seed's √(d/d_max) against the model's ray-cast "
+            "definition (error vs rays vs cost), and fitted d_max, exponent and ambient scale against "
+            "path-traced interreflections under a uniform ambient, on the sdf-occlusion scenes.",
+            methods=obscurances.METHODS,
+            audits=(audit_obscurances.FAMILY,),
+        ),
+    )
+}
+"""Every family, by name, in the order ``rtfit list`` and ``rtfit run all`` use."""
+
+EXPERIMENTS: dict[str, ExperimentSpec] = {name: f.experiment for name, f in FAMILIES.items()}
+"""Family name → its experiment (``rtfit run NAME``)."""
+
+METHOD_TABLES: dict[str, Mapping[str, Method]] = {
+    name: f.methods for name, f in FAMILIES.items() if f.methods is not None and f.audits
+}
+"""Audited family → its method table (the rows the audit evaluates on a user's scene)."""
+
+RULES: tuple[Rule, ...] = tuple(r for f in FAMILIES.values() for a in f.audits for r in a.rules)
+"""When each audited family applies to a scene: every declaration's rules, in registry order."""
+
+AUDITED: dict[str, AuditFamily] = by_name(a for f in FAMILIES.values() for a in f.audits)
+"""Audited family → one declaration joining its roles (`audit_family.by_name`)."""
+
+
+def get_experiment(name: str) -> ExperimentSpec:
+    """The experiment called ``name`` (or an `registry.ALIASES` name of it)."""
+    try:
+        return EXPERIMENTS[ALIASES.get(name, name)]
+    except KeyError:
+        raise UnknownExperiment(
+            f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)}; or 'all')"
+        ) from None
+
+
+def resolve_names(names: tuple[str, ...] | list[str]) -> list[ExperimentSpec]:
+    """Expand ``all`` and validate every name before anything runs."""
+    if not names:
+        raise UnknownExperiment(f"name an experiment (known: {', '.join(EXPERIMENTS)}; or 'all')")
+    specs: list[ExperimentSpec] = []
+    for name in names:
+        for spec in list(EXPERIMENTS.values()) if name == "all" else [get_experiment(name)]:
+            if spec not in specs:
+                specs.append(spec)
+    return specs
+
+
+def validate_config(experiment: str, quick: bool, spp: int | None, overrides: dict | None = None) -> dict:
+    """The configuration ``experiment`` will run with, every value checked (type, range and the deeper
+    checks: files readable, names known) — what the command line calls before anything runs or is
+    written. A one-line ``ValueError`` otherwise."""
+    if spp is not None and not 2 <= spp <= SPP_MAX:
+        raise ValueError(f"spp = {spp}: out of range [2, {SPP_MAX}] (registry.SPP_MAX)")
+    spec = get_experiment(experiment)
+    defaults = spec.load().configure(quick, spp)
+    return apply_overrides(defaults, dict(overrides or {}), spec.name, deep=True, declared=spec.config)
+
+
+def describe_config(experiment: str, quick: bool) -> str:
+    """``key = default  # type and range — meaning`` lines (``rtfit sweep --show-config``)."""
+    spec = get_experiment(experiment)
+    cfg = spec.load().configure(quick, None)
+    declared = spec.config or {}
+    lines = []
+    for k, v in cfg.items():
+        line = f"{k} = {json.dumps(v)}"
+        if k in declared:
+            d = declared[k]
+            line += f"  # {d.describe()}" + (f" — {d.doc}" if d.doc else "")
+        lines.append(line)
+    return "\n".join(lines)
