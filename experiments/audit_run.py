@@ -75,6 +75,7 @@ from .audit import (
     applicable_families,
     inspect_scene,
 )
+from .audit_aerial_perspective import FAMILY as AERIAL_PERSPECTIVE
 from .audit_ambient_aperture import FAMILY as AMBIENT_APERTURE_CAPS
 from .audit_ambient_occlusion import FAMILY as AMBIENT_OCCLUSION
 from .audit_diffuse import FAMILY as DIFFUSE
@@ -135,6 +136,7 @@ AUDITED: dict[str, AuditFamily] = by_name(
         IRRADIANCE_VOLUMES,
         FOG_MEDIA,
         NISHITA_SKY_EMITTER,
+        AERIAL_PERSPECTIVE,
     )
 )
 """The families the audit runs (name → declaration, `audit_family.AuditFamily`; a family's roles may be

@@ -45,6 +45,7 @@ from . import (
     sdf_occlusion,
     soft_particles,
 )
+from .aerial_perspective import METHODS as AERIAL_METHODS
 from .light_cones import INPUTS as CONE_INPUTS
 from .light_cones import METHODS as CONE_METHODS
 from .methods import Input, Method, Param
@@ -78,6 +79,7 @@ FAMILY_METHODS: Mapping[str, Mapping[str, Method]] = MappingProxyType(
         "soft-particles": soft_particles.METHODS,
         "volumetric-lightning": LIGHTNING_METHODS,
         "light-cones": CONE_METHODS,
+        "aerial-perspective": AERIAL_METHODS,
     }
 )
 """Family (experiment name) → its method table: the shipped methods `Quantity.methods` is derived from."""
