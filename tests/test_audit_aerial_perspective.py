@@ -49,8 +49,20 @@ def _directions(case) -> np.ndarray:
     return np.stack([g["dx"], g["dy"], g["dz"]], axis=1)
 
 
-def _run(tmp_path, scene: str, defines: dict[str, str], spp: int = 64, **kw):
-    return audit(str(DATA / scene), "aerial-perspective", defines=defines, spp=spp, pass_spp=32,
+WHITE_FOG = '''
+from rtfit import Param, approximation
+
+
+@approximation(quantity="fogged_radiance", params={"k": Param(1.0, lower=0.1, upper=10.0)})
+def white_fog(ops, g, *, k):
+    """Beer–Lambert with the medium's density scaled by k, towards a white fog."""
+    t = ops.exp(-k * g.density * g.length)
+    return (g.l0_r * t + (1.0 - t), g.l0_g * t + (1.0 - t), g.l0_b * t + (1.0 - t))
+'''
+
+
+def _run(tmp_path, scene: str, defines: dict[str, str], spp: int = 64, approx="aerial-perspective", **kw):
+    return audit(str(DATA / scene), approx, defines=defines, spp=spp, pass_spp=32,
                  cache=tmp_path / "c", **{**FAST, **kw})  # fmt: skip
 
 
@@ -105,12 +117,16 @@ def test_a_non_absorbing_fog_leaves_a_uniform_sky_unchanged(tmp_path):
     """Albedo 1, isotropic, sky of radiance 1: the radiance field stays 1 everywhere (all bounces), so the
     reference is 1 within its noise; the source function J = ∫ 1·(1/4π) dω = 1 (the constant sky is sampled
     uniformly: every weight is 4π) and both camera-source and horizon-flat are 1 exactly — the blend is
-    exact when the source function is constant, whatever T."""
-    r = _run(tmp_path, "uniform_sky.xml", {"sigma": "1.5", "albedo": "1"}, spp=128)
+    exact when the source function is constant, whatever T. A user's approximation of ``fogged_radiance``
+    (a white fog) joins the rows and is 1 too."""
+    user = tmp_path / "white_fog.py"
+    user.write_text(WHITE_FOG)
+    approx = f"aerial-perspective,{user}:white_fog"
+    r = _run(tmp_path, "uniform_sky.xml", {"sigma": "1.5", "albedo": "1"}, spp=128, approx=approx)
     (case,) = r.cases
     g = case.channel_inputs[0]
     assert np.allclose([g["j_r"], g["j_g"], g["j_b"]], 1.0, rtol=1e-5)
-    for row in ("camera-source", "horizon-flat", "horizon-phase"):
+    for row in ("camera-source", "horizon-flat", "horizon-phase", "white_fog"):
         assert np.max(np.abs(r.image(case.id, row)[case.mask] - 1.0)) < 1e-5, row
     ref, err = case.reference.mean[case.mask], case.reference.stderr[case.mask]
     pooled = float(np.mean(ref))
