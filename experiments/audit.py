@@ -85,6 +85,8 @@ PROVIDES: dict[str, frozenset[str]] = {
     "constant-fog": frozenset({"z0", "z1", "distance", "cos_sun", "l0_r", "l0_g", "l0_b"}),
     "grid-fog": frozenset({"z0", "z1", "distance", "cos_sun", "l0_r", "l0_g", "l0_b"}),
     "medium": frozenset(),
+    # a medium the fog blend reads as height fog (constant, or fitted to its grid), under a sky
+    "fog-medium": frozenset({"z0", "z1", "distance", "cos_sun", "l0_r", "l0_g", "l0_b"}),
     "atmosphere": frozenset({"dx", "dy", "dz", "texel_mu", "texel_nu", "tau_r", "tau_m", "sun_x", "sun_z"}),
     # a sky emitter (Mitsuba's sunsky): the Nishita texture's inputs in the sky's frame (its zenith, its sun)
     "sky": frozenset({"dx", "dy", "dz", "texel_mu", "texel_nu", "tau_r", "tau_m", "sun_x", "sun_z"}),
@@ -115,6 +117,7 @@ _KIND_TEXT = {
     "constant-fog": "a homogeneous medium (constant fog)",
     "grid-fog": "a heterogeneous medium with a density grid (gridvolume)",
     "medium": "a medium",
+    "fog-medium": "a medium the camera looks through that reads as height fog (homogeneous, or a gridvolume)",
     "atmosphere": "an atmosphere",
     "sky": "a sky emitter (a Mitsuba sunsky)",
     "particle": "a medium-filled convex shape (a homogeneous medium in a sphere, a cube or a convex mesh)",
@@ -196,7 +199,7 @@ class Rule:
 
 
 SURFACE_FREE_KINDS = frozenset({"fog", "constant-fog", "grid-fog", "point-in-medium", "spot-in-medium", "sky",
-                                "atmosphere"})  # fmt: skip
+                                "atmosphere", "fog-medium"})  # fmt: skip
 """Trigger part kinds (a rule's ``needs[0]``) whose family audits the camera's rays, not the surfaces they
 hit: a scene whose camera sees only medium boundaries and lights still runs these (and only these)."""
 
@@ -331,6 +334,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
         constant = m.type == "homogeneous" or (m.type == "heterogeneous" and m.sigma_t == "constvolume")
         grid = m.type == "heterogeneous" and m.sigma_t == "gridvolume"
         kinds = {"medium", "constant-fog"} if constant else ({"medium", "grid-fog"} if grid else {"medium"})
+        kinds |= {"fog-medium"} if constant or grid else set()
         parts.append(Part(frozenset(kinds), label, index if constant or grid else None))
     for index, s in enumerate(x.shapes):  # a particle: a homogeneous medium in a convex shape
         if s.interior == "homogeneous" and (s.type in _PARTICLE_XML or s.convex):
@@ -461,9 +465,10 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
             text = f"{REFLECTIVE_BSDFS[plugin].text} shape ({where}: {plugin})"
             parts.append(Part(_reflective_kinds(plugin), text, index))
     for i, medium in enumerate(scene.media):
-        kind = {"exponential_fog": {"fog"}, "homogeneous": {"medium", "particle", "constant-fog"}}.get(
-            medium.kind, {"medium"}
-        )
+        kind = {
+            "exponential_fog": {"fog"},
+            "homogeneous": {"medium", "particle", "constant-fog", "fog-medium"},
+        }.get(medium.kind, {"medium"})
         label = f"{medium.kind.replace('_', ' ')} medium (media[{i}])"
         if "particle" in kind:
             label = f"homogeneous medium in a {medium.boundary.kind} (media[{i}])"

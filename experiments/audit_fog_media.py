@@ -52,34 +52,35 @@ ray with |Δz| > 0.01 m: docs/height-fog.md).
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-from dataclasses import dataclass
-from typing import Any
 
-import drjit as dr
 import numpy as np
 
-from rtfit.fitting import Param
 from rtfit.realtime.height_fog import METHODS, TRANSMITTANCE_METHODS
-from rtfit.reference.build import load_dict, mitsuba_scene_dict
 from rtfit.reference.cache import array_digest
-from rtfit.reference.estimators import PassResult, radiance_pass
 from rtfit.reference.grid_fit import GridDensity, HeightFit, fit_height_density, grid_of_medium
 from rtfit.reference.medium_transmittance import transmittance_pass
 from rtfit.reference.mitsuba_xml import UP_AXES
 
 from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit_media import (
+    MAX_SURFACES,
+    RADIANCE_INTEGRATOR,
+    Medium,
+    box_interval,
+    density_params,
+    finite_stretch,
+    medium_intervals,
+    opened_medium,
+    radiance_passes,
+    sigma_t_at,
+    sun_direction_of,
+)
 
 __all__ = ["FAMILY", "MAX_SURFACES", "media_cases", "medium_intervals"]
 
 FORMAT = 1
-MAX_SURFACES = 32
-"""Most surfaces a camera ray is walked through (null-BSDF shapes and medium boundaries)."""
-RESTART = 2.0**-16
-"""A walked ray restarts this far past a hit along itself, per unit of coordinate magnitude (≥ 250 float32
-ulps: no hit of the same surface again; a surface closer than that behind it is skipped)."""
 CONSTANT_ROWS = ("exact", "taylor")
 """The optical-depth forms audited on constant fog (the seed listing is NaN at c = 0)."""
 GRID_ROWS = ("exact", "seed", "taylor")
@@ -87,23 +88,6 @@ SHADING_ROWS = ("const", "phase")
 MODEL_TOLERANCE = 1e-3
 """A grid holds the exponential model where its largest relative residual and the model's trilinear
 interpolation error over a cell are both within this: then the exact form's z-check is run on it."""
-RADIANCE_INTEGRATOR = "volpathmis"
-
-
-@dataclass(frozen=True)
-class _Medium:
-    """One audited medium: the loaded Mitsuba ``medium``, the Mitsuba ``scene`` whose shapes bound it, its
-    pointer id in that scene's ``MediumPtr`` arrays (None: no shape refers to it), whether the camera starts
-    inside it, the camera ``origin`` and the ``sensor`` the pixels are seen through."""
-
-    medium: Any
-    scene: Any
-    ptr: int | None
-    on_sensor: bool
-    origin: np.ndarray
-    sensor: Any = None
-    media: tuple = ()
-    """Every medium of ``scene`` (this one included): the radiance case renders this one alone."""
 
 
 class _Channel:
@@ -123,153 +107,6 @@ class _Channel:
         return s, n, (t[self.k],)
 
 
-def _pointer(mi, scene, medium) -> int | None:
-    """The id of ``medium`` in ``scene``'s ``MediumPtr`` arrays: that of the first shape holding it as its
-    interior or exterior (None where no shape does)."""
-    shapes = list(scene.shapes())
-    for side in ("interior_medium", "exterior_medium"):
-        ids = np.asarray(dr.reinterpret_array(mi.UInt32, getattr(scene.shapes_dr(), side)()))
-        for k, s in enumerate(shapes):
-            if getattr(s, side)() is medium:
-                return int(ids[k])
-    return None
-
-
-def _held(scene, medium) -> bool:
-    """Whether a shape of ``scene`` holds ``medium`` as its interior or exterior."""
-    return any(medium is s.interior_medium() or medium is s.exterior_medium() for s in scene.shapes())
-
-
-def _xml_medium(setup: AuditSetup, app: Applicability) -> _Medium:
-    """The loaded medium of ``app.source`` (an index of `XmlScene.media`): the sensor's, or the k-th medium
-    of its plugin among the shapes' interiors and exteriors (by its ``id`` where the file names it)."""
-    mi, scene, xml = setup.mi, setup.scene, setup.info.xml
-    index = app.source
-    if xml is None or index is None or not 0 <= index < len(xml.media):
-        raise AuditError(f"height-fog: {app.part} is not a medium of the scene")
-    want = xml.media[index]
-    origin = np.asarray(xml.camera.origin, np.float64)
-    found: list = []
-    sensor_medium = setup.sensor.get_medium()
-    if sensor_medium is not None:
-        found.append(sensor_medium)
-    for s in scene.shapes():
-        for m in (s.interior_medium(), s.exterior_medium()):
-            if m is not None and not any(m is f for f in found):
-                found.append(m)
-    if want.on_sensor and sensor_medium is not None:
-        obj = sensor_medium
-    else:
-        kind = "Homogeneous" if want.type == "homogeneous" else "Heterogeneous"
-        # (the sensor's medium is not one of the shapes' unless a shape names it too)
-        held = [m for m in found if m is not sensor_medium or _held(scene, m)]
-        same = [m for m in held if str(m).startswith(kind)]
-        named = [m for m in same if want.id and m.id() == want.id]
-        rank = sum(1 for m in xml.media[:index] if m.type == want.type and not m.on_sensor)
-        obj = named[0] if named else (same[rank] if rank < len(same) else None)
-    if obj is None:
-        raise AuditError(f"height-fog: {app.part}: the loaded scene has no such medium")
-    on_sensor = obj is sensor_medium
-    return _Medium(obj, scene, _pointer(mi, scene, obj), on_sensor, origin, setup.sensor, tuple(found))
-
-
-def _toml_medium(setup: AuditSetup, app: Applicability) -> _Medium:
-    """The TOML scene's medium ``app.source`` in a Mitsuba scene of its own (the surfaces and this medium)."""
-    toml, mi = setup.source, setup.mi
-    index = app.source
-    if toml is None or index is None or not 0 <= index < len(toml.media):
-        raise AuditError(f"height-fog: {app.part} is not a medium of the scene")
-    scene = load_dict(mi, mitsuba_scene_dict(mi, dataclasses.replace(toml, media=(toml.media[index],))))
-    obj = next((s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None), None)
-    if obj is None:
-        raise AuditError(f"height-fog: {app.part}: its boundary shape holds no medium")
-    origin = np.asarray(toml.camera.origin, np.float64)
-    return _Medium(obj, scene, _pointer(mi, scene, obj), False, origin, scene.sensors()[0], (obj,))
-
-
-def medium_intervals(mi, scene, origin, dirs, ptr: int | None, on_sensor: bool) -> tuple[np.ndarray, ...]:
-    """The first stretch [t_in, t_out] (scene units from ``origin``; NaN where the ray never enters, t_out
-    = +inf where it leaves the scene inside) each ray from ``origin`` along unit ``dirs`` (N, 3) spends in
-    the medium whose scene pointer id is ``ptr``, walked as the module docstring says (at most
-    `MAX_SURFACES` surfaces; a ray still walking then ends there). A ray that runs exactly along a mesh edge
-    may slip between its triangles (as Mitsuba's own rays do there: keep the camera off such symmetries)."""
-    n = len(dirs)
-    d64 = np.asarray(dirs, np.float64)
-    inside = np.full(n, bool(on_sensor))
-    t_in = np.where(inside, 0.0, np.nan)
-    t_out = np.full(n, np.nan)
-    done = np.zeros(n, bool)
-    t_at = np.zeros(n)
-    d = mi.Vector3f(d64.T.astype(np.float32))
-    ray = mi.Ray3f(mi.Point3f(*[float(x) for x in origin]), d)
-    null = int(mi.BSDFFlags.Null)
-    scale = float(np.max(np.abs(origin)))
-    for _ in range(MAX_SURFACES):
-        si = scene.ray_intersect(ray, mi.Bool(~done))
-        hit = np.asarray(si.is_valid(), bool) & ~done
-        t_hit = np.where(hit, np.sum((np.asarray(si.p, np.float64).T - origin) * d64, axis=1), np.inf)
-        transition = np.asarray(si.shape.is_medium_transition(), bool) & hit
-        only_null = (np.asarray(si.bsdf().flags(), np.int64) == null) & hit
-        target = np.asarray(dr.reinterpret_array(mi.UInt32, si.target_medium(ray.d)), np.int64)
-        enters = transition & (ptr is not None) & (target == (ptr if ptr is not None else -1))
-        miss = ~hit & ~done
-        t_out = np.where(miss & inside, np.inf, t_out)
-        stop = hit & ~transition & ~only_null
-        leave = hit & inside & ((transition & ~enters) | stop)
-        t_out = np.where(leave, t_hit, t_out)
-        start = hit & ~inside & enters
-        t_in = np.where(start, t_hit, t_in)
-        inside = (inside | start) & ~leave
-        done |= miss | leave | stop
-        t_at = np.where(hit, t_hit, t_at)
-        if done.all():
-            break
-        # the next ray starts on the camera ray itself, just past the hit: Mitsuba's spawn_ray offsets the
-        # origin along the normal by ~(1 + |p|)·9e-5, off the line, which moved a grazing exit through a
-        # sphere by 1.1e-4 (measured); on the line the hits are exact to float32
-        start_at = t_at + RESTART * (1.0 + scale + t_at)
-        ray = mi.Ray3f(mi.Point3f((origin + start_at[:, None] * d64).T.astype(np.float32)), d)
-    t_out = np.where(~done & inside, t_at, t_out)  # walked MAX_SURFACES surfaces: end at the last one
-    return t_in, t_out
-
-
-def _finite_stretch(t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
-    """Where [t0, t1] is a finite, non-empty stretch."""
-    return np.isfinite(t0) & np.isfinite(t1) & (t1 > t0)
-
-
-def _box_interval(to_world: np.ndarray, origin, dirs, t_in, t_out) -> tuple[np.ndarray, np.ndarray]:
-    """[t_in, t_out] clipped to the box ``to_world``·[0, 1]³ (slab test in its unit frame; world units)."""
-    inv = np.linalg.inv(to_world)
-    o = inv[:3, :3] @ np.asarray(origin, np.float64) + inv[:3, 3]
-    d = np.asarray(dirs, np.float64) @ inv[:3, :3].T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a, b = (0.0 - o) / d, (1.0 - o) / d
-    lo = np.where(d == 0.0, np.where((o >= 0) & (o <= 1), -np.inf, np.inf), np.minimum(a, b))
-    hi = np.where(d == 0.0, np.where((o >= 0) & (o <= 1), np.inf, -np.inf), np.maximum(a, b))
-    return np.maximum(t_in, lo.max(axis=1)), np.minimum(t_out, hi.min(axis=1))
-
-
-def _sigma_t(mi, medium, points: np.ndarray) -> np.ndarray:
-    """The medium's extinction (RGB, 1/scene unit) at ``points`` (N, 3)."""
-    mei = dr.zeros(mi.MediumInteraction3f, len(points))
-    mei.p = mi.Point3f(np.asarray(points, np.float32).T)
-    return np.asarray(medium.get_scattering_coefficients(mei)[2], np.float64).T
-
-
-def _density_params(b: float, c: float, span: float) -> dict[str, Param]:
-    """Given values and fit bounds of (b, c): b within 10⁻³…10³ × its value; c within the same factors of
-    a fitted falloff, or ±10/``span`` (span: the largest segment length) around c = 0 for constant fog."""
-    bp = Param(b, 1e-3 * b, 1e3 * b, unit="1/scene unit", description="density b: extinction at height 0")
-    width = 10.0 / max(span, 1e-12)
-    cp = (
-        Param(c, 1e-3 * c, 1e3 * c, unit="1/scene unit", description="falloff c: the scale height is 1/c")
-        if c > 0.0
-        else Param(0.0, -width, width, unit="1/scene unit", description="falloff c (0: constant fog)")
-    )
-    return {"b": bp, "c": cp}
-
-
 def _residual_text(fit: HeightFit) -> str:
     return (
         f"grid vs the exponential height model: RMS relative residual {fit.rms_relative:.3g}, largest "
@@ -281,7 +118,7 @@ def _residual_text(fit: HeightFit) -> str:
 def _cases(
     setup: AuditSetup,
     app: Applicability,
-    med: _Medium,
+    med: Medium,
     t_in: np.ndarray,
     t_out: np.ndarray,
     rows_span: tuple[np.ndarray, np.ndarray],
@@ -304,7 +141,7 @@ def _cases(
     h, w = setup.gbuffer.view_dir.shape[:2]
     dirs = np.asarray(setup.gbuffer.view_dir, np.float64).reshape(-1, 3)
     r0, r1 = rows_span
-    ok = _finite_stretch(t_in, t_out) & _finite_stretch(r0, r1)
+    ok = finite_stretch(t_in, t_out) & finite_stretch(r0, r1)
     mask = ok.reshape(h, w)
     if not mask.any():
         raise AuditError(f"height-fog: no camera ray crosses {app.part} over a finite stretch")
@@ -343,7 +180,7 @@ def _cases(
         integrator="ratio tracking (Mitsuba Medium.get_scattering_coefficients with the medium's majorant)",
         integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
     )
-    given = _density_params(b, c, float(length.max()))
+    given = density_params(b, c, float(length.max()))
     parameters = {
         "medium": app.part,
         "density": b,
@@ -383,54 +220,13 @@ def _as_exact(method, exact: bool):
     return method if exact or not method.exact else dataclasses.replace(method, exact=False)
 
 
-def _sun(setup: AuditSetup) -> np.ndarray | None:
-    """The unit direction towards the scene's sun (a ``sunsky``), or None."""
-    xml, toml = setup.info.xml, setup.source
-    if xml is not None:
-        sun = next((e.direction for e in xml.emitters if e.kind == "sunsky" and e.direction), None)
-    else:
-        env = toml.environment() if toml is not None and hasattr(toml, "environment") else None
-        sun = getattr(env, "sun_direction", None)
-    return None if sun is None else np.asarray(sun, np.float64) / np.linalg.norm(sun)
-
-
-@contextlib.contextmanager
-def _without(mi, media):
-    """The ``media`` switched off (their ``scale`` 0) inside the block, then put back as they were."""
-    saved = []
-    try:
-        for m in media:
-            params = mi.traverse(m)
-            saved.append((params, float(params["scale"])))
-            params["scale"] = 0.0
-            params.update()
-        yield
-    finally:
-        for params, value in saved:
-            params["scale"] = value
-            params.update()
-
-
-def _radiance_case(setup, med: _Medium, ok, mask, common, what, given, tag) -> FamilyCase:
+def _radiance_case(setup, med: Medium, ok, mask, common, what, given, tag) -> FamilyCase:
     """The radiance at the camera with this medium alone (the scene's other media switched off), path
     traced with `RADIANCE_INTEGRATOR` through the run's sensor, against the shading models on the fog-free
     image L₀ (every medium switched off; same integrator, spp and seed); given: the medium's b, c and the
     models' declared colours; fitted: b, c and the colours."""
-    mi = setup.mi
-    integrator = mi.load_dict({"type": RADIANCE_INTEGRATOR})
-    others = tuple(m for m in med.media if m is not med.medium)
-
-    def passes(off, quantity: str, label: str):
-        def render(spp: int, seed: int):
-            with _without(mi, off):
-                r = radiance_pass(mi, med.scene, spp, seed, integrator=integrator, sensor=med.sensor)
-            return PassResult(r.mean.reshape(-1, 3)[ok], r.var.reshape(-1, 3)[ok], r.spp, r.seed, r.seconds)
-
-        return pooled_passes(setup, {**what, "quantity": quantity}, render, (-1, 3), label)
-
-    fogged = passes(others, "medium-radiance-alone", f"{tag}: radiance with the medium")
-    clear = passes(med.media, "medium-radiance-clear", f"{tag}: fog-free radiance L0")
-    sun = _sun(setup)
+    fogged, clear = radiance_passes(setup, med, ok, what, tag)
+    sun = sun_direction_of(setup)
     d = np.stack([common["dx"], common["dy"], common["dz"]], axis=1)
     inputs = {
         **common,
@@ -464,23 +260,15 @@ def _radiance_case(setup, med: _Medium, ok, mask, common, what, given, tag) -> F
     )
 
 
-def _opened(setup: AuditSetup, app: Applicability):
-    """The medium, the pixel rays and their intervals inside it."""
-    med = _xml_medium(setup, app) if setup.info.xml is not None else _toml_medium(setup, app)
-    dirs = np.asarray(setup.gbuffer.view_dir, np.float64).reshape(-1, 3)
-    t_in, t_out = medium_intervals(setup.mi, med.scene, med.origin, dirs, med.ptr, med.on_sensor)
-    return med, dirs, t_in, t_out
-
-
 def constant_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """Constant fog (c = 0, b = σt): one case, or one per channel of a chromatic σt (module docstring)."""
-    med, dirs, t_in, t_out = _opened(setup, app)
-    ok = _finite_stretch(t_in, t_out)
+    med, dirs, t_in, t_out = opened_medium(setup, app, "height-fog")
+    ok = finite_stretch(t_in, t_out)
     if not ok.any():
         raise AuditError(f"height-fog: no camera ray crosses {app.part} over a finite stretch")
     k = int(np.argmax(ok))
     mid = med.origin + 0.5 * (t_in[k] + t_out[k]) * dirs[k]
-    sigma = _sigma_t(setup.mi, med.medium, mid[None, :])[0]
+    sigma = sigma_t_at(setup.mi, med.medium, mid[None, :])[0]
     up = np.asarray(UP_AXES.get(setup.info.up, (0.0, 0.0, 1.0)), np.float64)
 
     def height(p):
@@ -511,7 +299,7 @@ def constant_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase
 
 def grid_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """Grid fog: the grid fitted with the exponential height density, then one transmittance case."""
-    med, dirs, t_in, t_out = _opened(setup, app)
+    med, dirs, t_in, t_out = opened_medium(setup, app, "height-fog")
     try:
         grid: GridDensity = grid_of_medium(setup.mi, med.medium)
     except ValueError as e:
@@ -520,7 +308,7 @@ def grid_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     fit = fit_height_density(grid, up=up)
     if not fit.b > 0.0:
         raise AuditError(f"height-fog: {app.part}: its grid is empty (zero density everywhere)")
-    r0, r1 = _box_interval(grid.to_world, med.origin, dirs, t_in, t_out)
+    r0, r1 = box_interval(grid.to_world, med.origin, dirs, t_in, t_out)
     residual = _residual_text(fit)
     holds = fit.max_relative <= MODEL_TOLERANCE and fit.interpolation_error <= MODEL_TOLERANCE
     notes = [

@@ -37,6 +37,7 @@ from rtfit.realtime import (
     sdf_occlusion,
     soft_particles,
 )
+from rtfit.realtime.aerial_perspective import METHODS as AERIAL_METHODS
 from rtfit.realtime.light_cones import METHODS as CONE_METHODS
 from rtfit.realtime.light_cones import QUADRATURE as CONE_QUADRATURE
 from rtfit.realtime.methods import Method
@@ -44,6 +45,7 @@ from rtfit.realtime.volumetric_lightning import METHODS as LIGHTNING_METHODS
 from rtfit.realtime.volumetric_lightning import QUADRATURE as LIGHTNING_QUADRATURE
 
 from . import (
+    audit_aerial_perspective,
     audit_ambient_aperture,
     audit_ambient_occlusion,
     audit_diffuse,
@@ -182,7 +184,8 @@ FAMILIES: dict[str, Family] = {
             "Aerial perspective matched to the sky: the fog blend under a Nishita atmosphere + height fog",
             "Single scattering through atmosphere and fog by quadrature (checked against Mitsuba) vs the "
             "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c, colour.",
-            methods=None,  # not audited yet (issue 30 §2)
+            methods=AERIAL_METHODS,
+            audits=(audit_aerial_perspective.FAMILY,),
         ),
         Family(
             "soft-particles",

@@ -59,12 +59,14 @@ import drjit as dr
 import numpy as np
 
 from .arrays import check_scalar
+from .height_fog import METHODS as FOG_METHODS
 from .height_fog import (
     apply_fog,
     fog_colour_phase,
     height_fog_optical_depth,
     height_fog_optical_depth_ray,
 )
+from .methods import Input, Method, method_table
 from .nishita_sky import AtmosphereParams, atmosphere_optical_depth, build_sky, lookup_components
 from .phase import cornette_shanks_phase_kernel, hg_phase_kernel, rayleigh_phase_kernel
 
@@ -296,3 +298,61 @@ def fog_blend(l0, t, colour):
         apply_fog(np.asarray(l0[c])[..., None], np.asarray(t[c]), np.asarray(colour[c])[..., None])[..., 0]
         for c in range(len(l0))
     ]
+
+
+# ============================================================================= methods (data): the audit
+# The blends a renderer draws aerial perspective with, as rows of `rtfit audit` on a scene where a sky
+# (an environment emitter) and a medium meet (`rtfit.experiments.audit_aerial_perspective`): the height-fog
+# shading models' kernels (`height_fog.METHODS`, the one text of the blend), each with its fog colour taken
+# from the scene's sky as the experiment's ladder takes it (docs/aerial-perspective.md).
+_CONST, _PHASE = FOG_METHODS["const"], FOG_METHODS["phase"]
+_SOURCE = tuple(
+    Input(f"j_{ch}", "W/m²/sr", f"the sky's single-scattering source function at the camera, {ch} channel")
+    for ch in "rgb"
+)
+
+
+def _camera_source_kernel(ops, z0, z1, distance, l0_r, l0_g, l0_b, j_r, j_g, j_b, b, c):
+    """``const``'s blend with the colour the source function J(camera, v) per pixel (step (1))."""
+    return _CONST.kernel(ops, z0, z1, distance, l0_r, l0_g, l0_b, b, c, j_r, j_g, j_b)
+
+
+METHODS = method_table(
+    [
+        Method(
+            id="camera-source",
+            label="fog blend, C = the sky's source function at the camera per direction (1)",
+            kernel=_camera_source_kernel,
+            inputs=(*_CONST.inputs, *_SOURCE),
+            params={k: _CONST.params[k] for k in ("b", "c")},
+            quantity="fogged_radiance",
+            formula="L = L₀·T(b, c) + J(v)·(1 − T), J(v) = a·∫ L_sky(ω) p(v·ω) dω (unshadowed, unattenuated)",
+            source="rtfit (the experiment's camera-source step; height_fog const kernel)",
+        ),
+        Method(
+            id="horizon-flat",
+            label="fog blend, C = the sky's horizon average (1 + 2, no phase)",
+            kernel=_CONST.kernel,
+            inputs=_CONST.inputs,
+            params=_CONST.params,
+            quantity="fogged_radiance",
+            formula="L = L₀·T(b, c) + H·(1 − T), H the sky's radiance averaged over its horizon band",
+            source="seed 000:2247-2254 (the horizon average; height_fog const kernel)",
+        ),
+        Method(
+            id="horizon-phase",
+            label="fog blend, C = the sky's horizon average × 4π·p_HG(θ, g) per pixel (1 + 2)",
+            kernel=_PHASE.kernel,
+            inputs=_PHASE.inputs,
+            params=_PHASE.params,
+            quantity="fogged_radiance",
+            formula="L = L₀·T(b, c) + (C₀ + H·4π·p_HG(θ, g))·(1 − T), C₀ = 0, g the medium's",
+            source="seed 000:2247-2254, 002:224-290 (per-pixel phase on the horizon average; height_fog "
+            "phase kernel)",
+        ),
+    ]
+)
+"""The aerial-perspective blends on a scene's own sky and medium (`rtfit audit`): ``camera-source`` (the
+source function of the sky's light at the camera, step (1) of the ladder), ``horizon-flat`` and
+``horizon-phase`` (the seed's horizon average, without and with the per-pixel phase). A user's sky has no
+Rayleigh/Mie split, so the seed's H_R·P_R + H_M·P_HG becomes H·4π·p_HG (the medium is the Mie part)."""

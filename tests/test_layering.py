@@ -11,7 +11,8 @@
 5. Every public function of `rtfit.realtime` is importable from the package root, and no two modules
    export the same name.
 6. No family module imports another family module (issue 30 §3): the family modules are the experiment
-   modules of the registry (`families.FAMILIES`) and the ``audit_<family>.py`` modules that declare an `AuditFamily`
+   modules of the registry (`families.FAMILIES`) and the ``audit_<family>.py`` modules that declare an
+   `AuditFamily`
    (an audit module importing its experiment module counts too: what both need goes in a shared module).
    Today's violations are an explicit allow-list (`FAMILY_IMPORTS_ALLOWED`) that may only shrink.
 7. A family module has at most `FAMILY_MAX_LINES` lines; today's larger ones are listed with their line
