@@ -38,6 +38,7 @@ from rtfit.realtime import (
     irradiance_volumes,
     nishita_sky,
     obscurances,
+    parallax_occlusion,
     reflections,
     sdf_occlusion,
     soft_particles,
@@ -89,6 +90,7 @@ FAMILIES = {
     "light-cones": {**CONE_METHODS, "quadrature": CONE_QUADRATURE},
     "environment-maps": reflections.METHODS,
     "irradiance-volumes": irradiance_volumes.METHODS,
+    "parallax-occlusion": parallax_occlusion.DEPTH_METHODS,
 }
 """Family name (the experiment's name) → its method table."""
 
@@ -127,6 +129,7 @@ PROVIDES: dict[str, frozenset[str]] = {
     "rough-shape": frozenset(
         i.name for m in ("classic", "preconvolved") for i in reflections.METHODS[m].inputs
     ),
+    "height-field": frozenset(i.name for i in parallax_occlusion.DEPTH_METHODS["pom-stable"].inputs),
 }
 # What provides an input, for "not here" notes (the first kind of `PROVIDES` that has it).
 _INPUT_SOURCE = {name: kind for kind in reversed(PROVIDES) for name in PROVIDES[kind]}
@@ -151,6 +154,7 @@ _KIND_TEXT = {
     "reflective-shape": "a mirror or glass shape (conductor, dielectric, thindielectric or plastic)",
     "volume": "a scene with a finite bounding box for a probe grid",
     "rough-shape": "a rough (glossy) reflective shape: roughconductor, roughdielectric or roughplastic",
+    "height-field": "a shape whose BSDF is a bumpmap with a bitmap texture (its height field)",
     "caps": "two bare caps: compared over (r1, r2, d) by the ambient-aperture experiment; in a scene each "
     "intersection form is audited inside its aa-<form>-* rows",
 }
@@ -383,6 +387,16 @@ RULES: tuple[Rule, ...] = (
             "captured by the same integrator from the probe point, the shape itself hidden",
         )
         for role, kind in (("reflections", "reflective-shape"), ("glossy reflections", "rough-shape"))
+    ),
+    Rule(
+        "parallax-occlusion",
+        "height field",
+        ("height-field",),
+        "{part}: parallax occlusion mapping marches it on the flat shape instead of displacing the mesh",
+        "the visible point's depth below the shape along each pixel-centre ray, on the shape displaced along "
+        "its normals by the height field (range --pom-depth texture units)",
+        "none: Mitsuba ray_intersect of the pixel-centre rays with the displaced mesh (exact first hits, "
+        "deterministic: noise floor zero)",
     ),
     Rule(
         "irradiance-volumes",
@@ -625,6 +639,8 @@ def _xml_info(x: XmlScene) -> SceneInfo:
             parts.append(Part(frozenset({"particle"}), label, index))
     lit, lit_notes = _xml_lights_in_media(x)
     parts += lit
+    bumps, bump_notes = _xml_height_fields(x)
+    parts += bumps
     cam = x.camera
     camera = (
         f"sensor {cam.index}{f' {cam.id!r}' if cam.id else ''} ({cam.type}, {_short(cam.location)}) of "
@@ -661,7 +677,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
         up_reason=x.up_reason,
         camera=camera,
         contents=contents,
-        notes=_XML_NOTES + lit_notes,
+        notes=_XML_NOTES + lit_notes + bump_notes,
         xml=x,
     )
 
@@ -691,6 +707,27 @@ def _xml_lights_in_media(x: XmlScene) -> tuple[list[Part], tuple[str, ...]]:
             notes.append(f"{family}: {label} sits in {_medium_text(medium)}, not homogeneous")
         else:
             notes.append(f"{family}: {label} is not inside a medium")
+    return parts, tuple(notes)
+
+
+def _xml_height_fields(x: XmlScene) -> tuple[list[Part], tuple[str, ...]]:
+    """A ``height-field`` part (source: the shape's index in `XmlScene.shapes`) for each shape whose BSDF is a
+    ``bumpmap`` of a ``bitmap`` texture, and a note for each bump or normal map that cannot serve as one."""
+    parts, notes = [], []
+    for index, s in enumerate(x.shapes):
+        if not s.bump:
+            continue
+        what = f"the {s.bump} on the {s.type}{f' {s.id!r}' if s.id else ''} ({_short(s.location)})"
+        if s.bump == "normalmap":
+            why = "stores normals, not heights (integrating them into a height field is not done: give the "
+            notes.append(f"parallax-occlusion: {what} {why}shape a bumpmap of its height texture)")
+        elif s.bump_texture != "bitmap":
+            tex = s.bump_texture or "constant"
+            notes.append(f"parallax-occlusion: {what} has a {tex} texture, not a bitmap: no texels to march")
+        else:
+            parts.append(
+                Part(frozenset({"height-field"}), f"{what}: its bitmap texture as a height field", index)
+            )
     return parts, tuple(notes)
 
 

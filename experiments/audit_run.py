@@ -87,6 +87,8 @@ from .audit_irradiance_volumes import FAMILY as IRRADIANCE_VOLUMES
 from .audit_light_cones import FAMILY as LIGHT_CONES
 from .audit_nishita_sky import FAMILY as NISHITA_SKY
 from .audit_obscurances import FAMILY as OBSCURANCES
+from .audit_parallax_occlusion import FAMILY as PARALLAX_OCCLUSION
+from .audit_parallax_occlusion import check_pom_depth
 from .audit_sky_emitter import FAMILY as NISHITA_SKY_EMITTER
 from .audit_sky_occlusion import APERTURE_FILL, SKY_OCCLUSION
 from .audit_soft_particles import FAMILY as SOFT_PARTICLES
@@ -135,6 +137,7 @@ AUDITED: dict[str, AuditFamily] = by_name(
         IRRADIANCE_VOLUMES,
         FOG_MEDIA,
         NISHITA_SKY_EMITTER,
+        PARALLAX_OCCLUSION,
     )
 )
 """The families the audit runs (name → declaration, `audit_family.AuditFamily`; a family's roles may be
@@ -687,6 +690,7 @@ def audit(
     ao_distance: float | None = None,
     probe_at=None,
     grid=None,
+    pom_depth: float | None = None,
     say=None,
     cost_elements: int = _COST_ELEMENTS,
     metrics: Sequence[str] = ALL_METRICS,
@@ -700,10 +704,12 @@ def audit(
     ``cost_elements``: how many elements each method's cost is measured on (the scene's inputs, tiled);
     ``metrics``: the metric names (`rtfit.fitting.ALL_METRICS`; ꟻLIP costs ~0.4 s per call on the CPU).
     ``probe_at``: (x, y, z) where the environment-maps family captures its cube maps (default: each shape's
-    centre); ``grid``: (nx, ny, nz) probes of the irradiance-volumes grid (default: by the scene's box)."""
+    centre); ``grid``: (nx, ny, nz) probes of the irradiance-volumes grid (default: by the scene's box);
+    ``pom_depth``: the parallax-occlusion height range in texture units (`check_pom_depth`)."""
     say = say or log.info
     probe_at = triple("--probe-at", probe_at, float)
     grid = triple("--grid", grid, int)
+    pom_depth = check_pom_depth(pom_depth)
     try:
         variant = resolve_variant(variant or "llvm_ad_rgb")
     except ValueError as e:
@@ -803,6 +809,7 @@ def audit(
                 source=source,
                 probe_at=probe_at,
                 grid=grid,
+                pom_depth=pom_depth,
             )
             timings["reference"] += time.perf_counter() - t0
             # Family by family, each case evaluated and fitted as soon as its references are made: an
