@@ -28,7 +28,8 @@ instead of displacing the mesh. One case per such shape:
   intersected with the same pixel-centre rays by Mitsuba (``ray_intersect``): the visible point's depth
   below the shape, (p₀ − p_hit)·n/(s·L), as a fraction of the height range — deterministic, noise floor
   zero. The mesh's own error (piecewise-linear over its cells) is measured against a mesh of half as many
-  cells per side and reported; pixels whose ray misses either mesh (through the carved shape's open border)
+  cells per side and reported (the RMS difference; the fine mesh's own error is about a third of it: it
+  shrinks with the cell's area); pixels whose ray misses either mesh (through the carved shape's open border)
   are left out.
 * **rows** (`DEPTH_METHODS`, the family's ``listing`` and ``stable`` marches with the depth as output, the
   height field and s as their fixed keywords): ``pom-listing`` and ``pom-stable`` with the family's sample
@@ -82,8 +83,9 @@ POM_DEPTH_DEFAULT = float(DEPTH_METHODS["pom-stable"].fixed["scale"])
 """``--pom-depth`` when not given: the family's own default height range (0.1 texture units)."""
 POM_DEPTH_RANGE = (0.001, 1.0)
 """``--pom-depth`` bounds (texture units): a range of 1 is a valley as deep as the tile is wide."""
-CELLS_PER_TEXEL = 4
-"""Cells of the displaced mesh per texel along each UV axis (its own error then ∝ (¼ texel)²)."""
+CELLS_PER_TEXEL = 8
+"""Cells of the displaced mesh per texel along each UV axis (the cells lie inside the texels' bilinear
+patches; the mesh's own error, the patches' twist, ∝ (⅛ texel)²)."""
 MIN_CELLS, MAX_CELLS = 16, 1024
 """Cells per side of the displaced mesh's UV grid: at least, at most (2·1024² triangles)."""
 MIN_COS = 1e-3
