@@ -52,6 +52,7 @@ from rtfit.reference.build import inside_boundary, load_dict, mitsuba_scene_dict
 from rtfit.reference.integrators import can_interreflect
 from rtfit.reference.mitsuba_xml import UP_AXES, XmlScene, XMLSceneError, inspect_xml
 from rtfit.reference.nishita_sky import load_atmosphere_scene
+from rtfit.reference.parallax_occlusion import bump_kind
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, shape_plugin
 from rtfit.reference.variants import inspection_variant, scoped_variant
 from rtfit.scenes import ENVIRONMENT_KINDS, Scene, SceneError, library_names, library_path, load_scene
@@ -793,6 +794,8 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
         parts.append(Part(frozenset(kind), label, i))
     lit, lit_notes = _toml_lights_in_media(scene)
     parts += lit
+    bumps, bump_notes = _toml_height_fields(scene)
+    parts += bumps
     c = scene.camera
     axis = up or "+z"
     reason = f"{up} as given (--up)" if up else "+z: rtfit TOML scenes are +z up (the world-frame convention)"
@@ -800,6 +803,7 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
         "height-fog: an exponential_fog medium is height fog; a homogeneous medium is audited as constant "
         "fog (c = 0)",
         *lit_notes,
+        *bump_notes,
     )
     return SceneInfo(
         source=source,
@@ -833,6 +837,35 @@ def _toml_lights_in_media(scene: Scene) -> tuple[list[Part], tuple[str, ...]]:
             notes.append(f"{family}: the {what} lights[{i}] sits in media[{inside[0]}], not homogeneous")
         else:
             notes.append(f"{family}: the {what} lights[{i}] is not inside a medium")
+    return parts, tuple(notes)
+
+
+def _toml_height_fields(scene: Scene) -> tuple[list[Part], tuple[str, ...]]:
+    """A ``height-field`` part (source: its ordinal, the order of `height_field_shapes`) for each shape of a
+    ``mitsuba_xml`` shape that keeps its file's BSDFs, where that BSDF is a bumpmap of a bitmap; a note for
+    each bump or normal map that cannot serve (rtfit's own materials are diffuse: they have none)."""
+    keeps = [getattr(s, "override_material", None) is None for s in scene.shapes if s.kind == "mitsuba_xml"]
+    if not any(keeps):
+        return [], ("parallax-occlusion: rtfit TOML materials are diffuse: a bump map comes only with a "
+                    "mitsuba_xml shape that keeps its file's BSDFs",)  # fmt: skip
+    parts, notes = [], []
+    with scoped_variant(inspection_variant()) as mi:
+        d = mitsuba_scene_dict(mi, Scene(name=scene.name, camera=scene.camera, shapes=scene.shapes))
+        for key, obj in d.items():
+            if not (key.startswith("xml") and isinstance(obj, mi.Shape)):
+                continue
+            kind = bump_kind(mi, obj.bsdf())
+            plugin = "normalmap" if kind == "normalmap" else "bumpmap"
+            what = f"the {plugin} on shapes[{key[3:].split('_')[0]}] ({key})"
+            if kind == "bitmap":
+                label = f"{what}: its bitmap texture as a height field"
+                parts.append(Part(frozenset({"height-field"}), label, len(parts)))
+            elif kind == "normalmap":
+                notes.append(f"parallax-occlusion: {what} stores normals, not heights")
+            elif kind:
+                notes.append(
+                    f"parallax-occlusion: {what} has a texture that is not a bitmap: no texels to march"
+                )
     return parts, tuple(notes)
 
 

@@ -1,6 +1,7 @@
 r"""The ``parallax-occlusion`` family in `rtfit audit`: parallax occlusion mapping on a bump-mapped shape.
 
-A shape whose BSDF is a ``bumpmap`` of a ``bitmap`` texture (directly or inside a ``twosided``; the rule's
+A shape whose BSDF is a ``bumpmap`` of a ``bitmap`` texture (directly or inside a ``twosided``; in a Mitsuba
+XML scene, or in an rtfit TOML scene's ``mitsuba_xml`` shape that keeps its file's BSDFs; the rule's
 ``height-field`` part, `rtfit.experiments.audit.RULES`) carries a height field h(u, v): what the bump map
 differentiates for its normals, an engine marches with parallax occlusion mapping (POM) on the flat shape
 instead of displacing the mesh. One case per such shape:
@@ -58,6 +59,7 @@ from rtfit.reference.parallax_occlusion import (
     bump_texture,
     displaced_shape,
     exact_hits,
+    height_field_shapes,
     pixel_surface,
     texture_texels,
     texture_values,
@@ -163,7 +165,13 @@ def tangent_view(w: np.ndarray, t_u: np.ndarray, t_v: np.ndarray, n: np.ndarray,
 
 
 def _shape(setup: AuditSetup, app: Applicability):
-    """The loaded Mitsuba shape the applicability names (`Part.source`: its index in `XmlScene.shapes`)."""
+    """The loaded Mitsuba shape the applicability names (`Part.source`: its index in `XmlScene.shapes`; in an
+    rtfit TOML scene, its ordinal among `height_field_shapes`)."""
+    if setup.info.format == "rtfit-toml":
+        shapes = height_field_shapes(setup.mi, setup.scene.shapes())
+        if app.source is None or not 0 <= app.source < len(shapes):
+            raise AuditError(f"parallax-occlusion: {app.part} is not a shape of the loaded scene")
+        return shapes[app.source]
     xml = setup.info.xml
     if xml is None or app.source is None or not 0 <= app.source < len(xml.shapes):
         raise AuditError(f"parallax-occlusion: {app.part} is not a shape of the loaded scene")
@@ -300,6 +308,7 @@ def parallax_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="parallax-occlusion",
     quantity="parallax_depth",
+    formats=("mitsuba-xml", "rtfit-toml"),
     cases=parallax_cases,
     describe=(
         "A shape whose BSDF is a bumpmap of a bitmap texture: the texture as a height field, carved "

@@ -21,6 +21,7 @@ reference of the parallax-occlusion audit.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,10 +32,12 @@ __all__ = [
     "LightVisibility",
     "PixelSurface",
     "area_light_visibility",
+    "bump_kind",
     "bump_texture",
     "displaced_shape",
     "exact_hits",
     "height_field_scene",
+    "height_field_shapes",
     "mesh_scene",
     "pixel_surface",
     "rectangle_light",
@@ -261,6 +264,35 @@ def bump_texture(mi, bsdf, depth: int = 0):
                 if found is not None:
                     return found
     return None
+
+
+def bump_kind(mi, bsdf, depth: int = 0) -> str:
+    """What ``bsdf`` (or the BSDF a ``twosided`` wraps) offers as a height field: ``"bitmap"`` (a bumpmap of a
+    bitmap texture), ``"texture"`` (a bumpmap of another texture), ``"normalmap"`` or ``""`` (neither)."""
+    if bsdf is None or depth > 4:
+        return ""
+    name = str(bsdf.class_name())
+    if name == "NormalMap":
+        return "normalmap"
+    if name == "BumpMap":
+        tex = bump_texture(mi, bsdf)
+        return "bitmap" if tex is not None and "data" in mi.traverse(tex) else "texture"
+    if name == "TwoSidedBRDF":
+        kinds = [bump_kind(mi, c, depth + 1) for c in _children(mi, bsdf).values() if isinstance(c, mi.BSDF)]
+        return next((k for k in kinds if k), "")
+    return ""
+
+
+def height_field_shapes(mi, shapes) -> list:
+    """The shapes among ``shapes`` whose BSDF is a bumpmap of a bitmap (`bump_kind`), in their order, except
+    that shapes of a scene built from an rtfit TOML file (ids ``xml<i>_<j>``) are ordered by (i, j): the
+    order of its scene dict (`rtfit.reference.build.mitsuba_scene_dict`), which Mitsuba does not keep."""
+    found = [s for s in shapes if bump_kind(mi, s.bsdf()) == "bitmap"]
+    keys = [re.fullmatch(r"xml(\d+)_(\d+)", str(s.id())) for s in found]
+    if found and all(keys):
+        order = sorted(range(len(found)), key=lambda k: (int(keys[k].group(1)), int(keys[k].group(2))))  # type: ignore[union-attr]
+        found = [found[k] for k in order]
+    return found
 
 
 _LUMINANCE = (0.212671, 0.715160, 0.072169)

@@ -150,3 +150,38 @@ def test_a_normal_map_alone_does_not_apply_and_says_why(tmp_path):
     line = next(x for x in result.stdout.splitlines() if x.strip().startswith("parallax-occlusion:"))
     assert "needs a shape whose BSDF is a bumpmap with a bitmap texture" in line
     assert "the normalmap on the rectangle 'tiles'" in line and "stores normals, not heights" in line
+
+
+def test_toml_scene_with_the_bumped_floor_as_a_mitsuba_xml_shape(tmp_path):
+    """rtfit TOML has no bump map of its own (its materials are diffuse); a ``mitsuba_xml`` shape keeps its
+    file's BSDFs, so the same floor in a TOML scene (the XML's default height, h = ½) is audited alike: half
+    the range deep for the reference and the stable march, the inputs those of the camera's floor rays."""
+    toml = DATA / "bumped_floor.toml"
+    listing = CliRunner().invoke(audit_cli, [str(toml), "--list"])
+    assert listing.exit_code == 0, listing.output
+    assert "parallax-occlusion — height field: the bumpmap on shapes[0] (xml0_" in listing.stdout
+    r = rtfit.audit(toml, "parallax-occlusion:pom-stable", cache=tmp_path / "c", metrics=("rmse",),
+                    cost_elements=4096)  # fmt: skip
+    (case,) = r.cases
+    assert case.parameters["pixels"] > 400 and case.parameters["texel_length"] == pytest.approx(1.0, rel=1e-6)
+    assert np.allclose(case.reference.mean[case.mask], 0.5, atol=1e-6)
+    assert np.allclose(r.image(case.id, "pom-stable")[case.mask], 0.5, atol=1e-6)
+    p, _ = _floor_rays(case)
+    inp = case.channel_inputs[0]
+    w = (EYE - p) / np.linalg.norm(EYE - p, axis=1, keepdims=True)
+    assert np.allclose(np.stack([inp["vx"], inp["vy"], inp["vz"]], axis=1), w, atol=2e-5)
+
+
+def test_a_toml_scene_without_a_bump_map_says_why(tmp_path):
+    (tmp_path / "s.toml").write_text(
+        (DATA / "bumped_floor.toml")
+        .read_text()
+        .replace(
+            'type = "mitsuba_xml"\nfile = "bumped_floor.xml"',
+            'type = "rectangle"\ncenter = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\nsize = [1.0, 1.0]',
+        )
+    )
+    result = CliRunner().invoke(audit_cli, [str(tmp_path / "s.toml"), "--list"])
+    assert result.exit_code == 0, result.output
+    line = next(x for x in result.stdout.splitlines() if x.strip().startswith("parallax-occlusion:"))
+    assert "rtfit TOML materials are diffuse" in line
