@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from rtfit.realtime import (
+    parallax_occlusion,
     reflections,
 )
 from rtfit.realtime.light_cones import INPUTS as CONE_INPUTS
@@ -38,6 +39,7 @@ from rtfit.reference.build import inside_boundary, load_dict, mitsuba_scene_dict
 from rtfit.reference.integrators import can_interreflect
 from rtfit.reference.mitsuba_xml import UP_AXES, XmlScene, XMLSceneError, inspect_xml
 from rtfit.reference.nishita_sky import load_atmosphere_scene
+from rtfit.reference.parallax_occlusion import bump_kind
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, shape_plugin
 from rtfit.reference.variants import inspection_variant, scoped_variant
 from rtfit.scenes import ENVIRONMENT_KINDS, Scene, SceneError, library_names, library_path, load_scene
@@ -101,6 +103,7 @@ PROVIDES: dict[str, frozenset[str]] = {
     "rough-shape": frozenset(
         i.name for m in ("classic", "preconvolved") for i in reflections.METHODS[m].inputs
     ),
+    "height-field": frozenset(i.name for i in parallax_occlusion.DEPTH_METHODS["pom-stable"].inputs),
 }
 # What provides an input, for "not here" notes (the first kind of `PROVIDES` that has it).
 _INPUT_SOURCE = {name: kind for kind in reversed(PROVIDES) for name in PROVIDES[kind]}
@@ -126,6 +129,7 @@ _KIND_TEXT = {
     "reflective-shape": "a mirror or glass shape (conductor, dielectric, thindielectric or plastic)",
     "volume": "a scene with a finite bounding box for a probe grid",
     "rough-shape": "a rough (glossy) reflective shape: roughconductor, roughdielectric or roughplastic",
+    "height-field": "a shape whose BSDF is a bumpmap with a bitmap texture (its height field)",
     "caps": "two bare caps: compared over (r1, r2, d) by the ambient-aperture experiment; in a scene each "
     "intersection form is audited inside its aa-<form>-* rows",
 }
@@ -343,6 +347,8 @@ def _xml_info(x: XmlScene) -> SceneInfo:
             parts.append(Part(frozenset({"particle"}), label, index))
     lit, lit_notes = _xml_lights_in_media(x)
     parts += lit
+    bumps, bump_notes = _xml_height_fields(x)
+    parts += bumps
     cam = x.camera
     camera = (
         f"sensor {cam.index}{f' {cam.id!r}' if cam.id else ''} ({cam.type}, {_short(cam.location)}) of "
@@ -379,7 +385,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
         up_reason=x.up_reason,
         camera=camera,
         contents=contents,
-        notes=_XML_NOTES + lit_notes,
+        notes=_XML_NOTES + lit_notes + bump_notes,
         xml=x,
     )
 
@@ -409,6 +415,27 @@ def _xml_lights_in_media(x: XmlScene) -> tuple[list[Part], tuple[str, ...]]:
             notes.append(f"{family}: {label} sits in {_medium_text(medium)}, not homogeneous")
         else:
             notes.append(f"{family}: {label} is not inside a medium")
+    return parts, tuple(notes)
+
+
+def _xml_height_fields(x: XmlScene) -> tuple[list[Part], tuple[str, ...]]:
+    """A ``height-field`` part (source: the shape's index in `XmlScene.shapes`) for each shape whose BSDF is a
+    ``bumpmap`` of a ``bitmap`` texture, and a note for each bump or normal map that cannot serve as one."""
+    parts, notes = [], []
+    for index, s in enumerate(x.shapes):
+        if not s.bump:
+            continue
+        what = f"the {s.bump} on the {s.type}{f' {s.id!r}' if s.id else ''} ({_short(s.location)})"
+        if s.bump == "normalmap":
+            why = "stores normals, not heights (integrating them into a height field is not done: give the "
+            notes.append(f"parallax-occlusion: {what} {why}shape a bumpmap of its height texture)")
+        elif s.bump_texture != "bitmap":
+            tex = s.bump_texture or "constant"
+            notes.append(f"parallax-occlusion: {what} has a {tex} texture, not a bitmap: no texels to march")
+        else:
+            parts.append(
+                Part(frozenset({"height-field"}), f"{what}: its bitmap texture as a height field", index)
+            )
     return parts, tuple(notes)
 
 
@@ -475,6 +502,8 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
         parts.append(Part(frozenset(kind), label, i))
     lit, lit_notes = _toml_lights_in_media(scene)
     parts += lit
+    bumps, bump_notes = _toml_height_fields(scene)
+    parts += bumps
     c = scene.camera
     axis = up or "+z"
     reason = f"{up} as given (--up)" if up else "+z: rtfit TOML scenes are +z up (the world-frame convention)"
@@ -482,6 +511,7 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
         "height-fog: an exponential_fog medium is height fog; a homogeneous medium is audited as constant "
         "fog (c = 0)",
         *lit_notes,
+        *bump_notes,
     )
     return SceneInfo(
         source=source,
@@ -515,6 +545,35 @@ def _toml_lights_in_media(scene: Scene) -> tuple[list[Part], tuple[str, ...]]:
             notes.append(f"{family}: the {what} lights[{i}] sits in media[{inside[0]}], not homogeneous")
         else:
             notes.append(f"{family}: the {what} lights[{i}] is not inside a medium")
+    return parts, tuple(notes)
+
+
+def _toml_height_fields(scene: Scene) -> tuple[list[Part], tuple[str, ...]]:
+    """A ``height-field`` part (source: its ordinal, the order of `height_field_shapes`) for each shape of a
+    ``mitsuba_xml`` shape that keeps its file's BSDFs, where that BSDF is a bumpmap of a bitmap; a note for
+    each bump or normal map that cannot serve (rtfit's own materials are diffuse: they have none)."""
+    keeps = [getattr(s, "override_material", None) is None for s in scene.shapes if s.kind == "mitsuba_xml"]
+    if not any(keeps):
+        return [], ("parallax-occlusion: rtfit TOML materials are diffuse: a bump map comes only with a "
+                    "mitsuba_xml shape that keeps its file's BSDFs",)  # fmt: skip
+    parts, notes = [], []
+    with scoped_variant(inspection_variant()) as mi:
+        d = mitsuba_scene_dict(mi, Scene(name=scene.name, camera=scene.camera, shapes=scene.shapes))
+        for key, obj in d.items():
+            if not (key.startswith("xml") and isinstance(obj, mi.Shape)):
+                continue
+            kind = bump_kind(mi, obj.bsdf())
+            plugin = "normalmap" if kind == "normalmap" else "bumpmap"
+            what = f"the {plugin} on shapes[{key[3:].split('_')[0]}] ({key})"
+            if kind == "bitmap":
+                label = f"{what}: its bitmap texture as a height field"
+                parts.append(Part(frozenset({"height-field"}), label, len(parts)))
+            elif kind == "normalmap":
+                notes.append(f"parallax-occlusion: {what} stores normals, not heights")
+            elif kind:
+                notes.append(
+                    f"parallax-occlusion: {what} has a texture that is not a bitmap: no texels to march"
+                )
     return parts, tuple(notes)
 
 

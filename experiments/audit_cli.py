@@ -3,7 +3,7 @@
 
     rtfit audit SCENE [--list] [-D name=value ...] [--camera N] [--width W --height H] [--up +y|-y|+z|…]
                       [--approx a,b] [--ao-distance D] [--probe-at X,Y,Z]
-                      [--grid NX,NY,NZ] [--variant V] [--spp N] [--pass-spp N] [--out DIR]
+                      [--grid NX,NY,NZ] [--pom-depth S] [--variant V] [--spp N] [--pass-spp N] [--out DIR]
                       [--cache DIR] [--seed S] [--no-fit] [--no-progress]
 
 ``audit`` is the click command object; the command line adds it with ``cli.add_command(audit)``. Bad input
@@ -20,6 +20,7 @@ from rtfit.reference.mitsuba_xml import UP_AXES
 
 from .applicability import describe
 from .audit import AuditError, inspect_scene
+from .audit_parallax_occlusion import check_pom_depth
 from .audit_run import audit as run_audit
 from .audit_run import check_ao_distance, resolve_approximations, selected_applicabilities, triple
 from .families import AUDITED
@@ -103,6 +104,12 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
     help="Probes of the irradiance-volumes grid over the scene's box (default: by the box's aspect).",
 )
 @click.option(
+    "--pom-depth",
+    default=None,
+    metavar="S",
+    help="Height range of a bump map's height field for parallax occlusion, in texture units (default 0.1).",
+)
+@click.option(
     "--variant",
     default="llvm_ad_rgb",
     show_default=True,
@@ -148,6 +155,7 @@ def audit(
     ao_distance,
     probe_at,
     grid,
+    pom_depth,
     variant,
     spp,
     pass_spp,
@@ -164,6 +172,7 @@ def audit(
     try:
         triple("--probe-at", probe_at, float)  # bad values: one line before anything is read or rendered
         triple("--grid", grid, int)
+        check_pom_depth(pom_depth)
         if list_only:
             check_ao_distance(ao_distance)
             info = inspect_scene(
@@ -200,6 +209,7 @@ def audit(
             ao_distance=ao_distance,
             probe_at=probe_at,
             grid=grid,
+            pom_depth=pom_depth,
         )
     except AuditError as e:
         _error(str(e))

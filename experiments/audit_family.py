@@ -94,6 +94,8 @@ class AuditSetup:
     centre)."""
     grid: tuple[int, int, int] | None = None
     """``--grid``: the irradiance-volumes probe grid (None: the family's default for the scene's box)."""
+    pom_depth: float | None = None
+    """``--pom-depth``: the parallax-occlusion height range in texture units (None: the family's default)."""
 
 
 @dataclass(frozen=True)

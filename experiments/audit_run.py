@@ -68,6 +68,7 @@ from .applicability import applicable_families
 from .atomic import atomic_directory, writable_problem
 from .audit import SURFACE_FREE_KINDS, Applicability, AuditError, SceneInfo, inspect_scene
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_parallax_occlusion import check_pom_depth
 from .cost import time_drjit
 from .families import AUDITED, METHOD_TABLES, RULES
 from .records import SCHEMA, Results, from_json, plain_json, to_json
@@ -641,6 +642,7 @@ def audit(
     ao_distance: float | None = None,
     probe_at=None,
     grid=None,
+    pom_depth: float | None = None,
     say=None,
     cost_elements: int = _COST_ELEMENTS,
     metrics: Sequence[str] = ALL_METRICS,
@@ -654,10 +656,12 @@ def audit(
     ``cost_elements``: how many elements each method's cost is measured on (the scene's inputs, tiled);
     ``metrics``: the metric names (`rtfit.fitting.ALL_METRICS`; ꟻLIP costs ~0.4 s per call on the CPU).
     ``probe_at``: (x, y, z) where the environment-maps family captures its cube maps (default: each shape's
-    centre); ``grid``: (nx, ny, nz) probes of the irradiance-volumes grid (default: by the scene's box)."""
+    centre); ``grid``: (nx, ny, nz) probes of the irradiance-volumes grid (default: by the scene's box);
+    ``pom_depth``: the parallax-occlusion height range in texture units (`check_pom_depth`)."""
     say = say or log.info
     probe_at = triple("--probe-at", probe_at, float)
     grid = triple("--grid", grid, int)
+    pom_depth = check_pom_depth(pom_depth)
     try:
         variant = resolve_variant(variant or "llvm_ad_rgb")
     except ValueError as e:
@@ -757,6 +761,7 @@ def audit(
                 source=source,
                 probe_at=probe_at,
                 grid=grid,
+                pom_depth=pom_depth,
             )
             timings["reference"] += time.perf_counter() - t0
             # Family by family, each case evaluated and fitted as soon as its references are made: an

@@ -33,6 +33,7 @@ from rtfit.realtime import (
     irradiance_volumes,
     nishita_sky,
     obscurances,
+    parallax_occlusion,
     reflections,
     sdf_occlusion,
     soft_particles,
@@ -57,6 +58,7 @@ from . import (
     audit_light_cones,
     audit_nishita_sky,
     audit_obscurances,
+    audit_parallax_occlusion,
     audit_sky_emitter,
     audit_sky_occlusion,
     audit_soft_particles,
@@ -221,7 +223,8 @@ FAMILIES: dict[str, Family] = {
             "Parallax occlusion mapping with soft shadows vs a displaced mesh and ray-traced penumbrae",
             "The seed's linear search + piecewise-linear intersection and 7-sample soft shadow (as printed "
             "and stable) against ray_intersect on the displaced height field and area-light visibility.",
-            methods=None,  # not audited yet (issue 30 §2)
+            methods=parallax_occlusion.DEPTH_METHODS,
+            audits=(audit_parallax_occlusion.FAMILY,),
         ),
         Family(
             "obscurances",

@@ -37,21 +37,35 @@ Methods (`METHODS`, one kernel text `pom_kernel`, variant chosen by the ``fixed`
   one LOD weight w = clip(mip − (T − 1), 0, 1) that fades both the coordinate and the shadow.
 
 Height fields (`POM_HEIGHT_FIELDS`, selected by the ``field`` keyword) are procedural kernel texts, so the
-Mitsuba reference (`rtfit.reference.parallax_occlusion`) displaces its mesh with the same text.
+Mitsuba reference (`rtfit.reference.parallax_occlusion`) displaces its mesh with the same text. ``field`` may
+also be a `HeightMap`: a sampled texture (a user's bump map, `rtfit audit`), looked up bilinearly (or nearest)
+with ``ops.gather`` the way Mitsuba's ``bitmap`` texture is: texel centres at ((i + ½)/W, (j + ½)/H), row j
+along v, no flip, wrap ``repeat``, ``clamp`` or ``mirror``.
+
+`DEPTH_METHODS`: the march alone, returning the visible point's depth 1 − t* (a fraction of the height
+range s) — what `rtfit audit` compares with the displaced mesh's first hit.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import drjit as dr
+import numpy as np
 
 from .arrays import evaluate
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
+    "DEPTH_METHODS",
+    "DEPTH_SAMPLE_RANGES",
     "POM_HEIGHT_FIELDS",
     "POM_SHADOW_FRACTIONS",
     "POM_SHADOW_WEIGHTS",
+    "HeightMap",
+    "pom_depth_kernel",
     "pom_height",
     "pom_kernel",
     "pom_march_kernel",
@@ -103,16 +117,90 @@ POM_HEIGHT_FIELDS: dict[str, Callable] = {
 """Procedural height fields h(u, v) ∈ [0, 1] by name (kernel texts against the ops namespace)."""
 
 
-def pom_height(field: str, u, v):
-    """h(u, v) of the named height field (dispatching like every public function of the package)."""
-    f = POM_HEIGHT_FIELDS[field]
+WRAP_MODES = ("repeat", "clamp", "mirror")
+"""Texture addressing of a `HeightMap` (Mitsuba's ``bitmap`` ``wrap_mode`` values)."""
+
+
+@dataclass(frozen=True, eq=False)
+class HeightMap:
+    """A sampled height field: ``texels`` (H, W) ∈ [0, 1] (row j along v), ``wrap`` (`WRAP_MODES`) and
+    ``nearest`` (nearest-texel lookup instead of bilinear). Called as a height field, ``h(ops, u, v)``: the
+    texture lookup of Mitsuba's ``bitmap`` (module docstring) written against the ops namespace; the texels
+    are handed to each namespace once, as its array kind (a Dr.Jit array of the coordinates' own type)."""
+
+    texels: np.ndarray
+    wrap: str = "repeat"
+    nearest: bool = False
+    _tables: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self):
+        t = np.asarray(self.texels, np.float64)
+        if t.ndim != 2 or min(t.shape) < 1:
+            raise ValueError(f"HeightMap: texels must be a 2-D array (got shape {t.shape})")
+        if self.wrap not in WRAP_MODES:
+            raise ValueError(f"HeightMap: wrap {self.wrap!r} is not one of {', '.join(WRAP_MODES)}")
+        object.__setattr__(self, "texels", t)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.texels.shape  # type: ignore[return-value]
+
+    def _table(self, ops, like):
+        key = (ops.name, type(like) if ops.name == "drjit" and dr.is_array_v(like) else None)
+        if key not in self._tables:
+            flat = np.ascontiguousarray(self.texels.reshape(-1))
+            if ops.name == "drjit":
+                Float = type(like) if dr.is_array_v(like) else dr.llvm.Float64
+                self._tables[key] = Float(flat)
+            elif ops.name == "jax":
+                import jax.numpy as jnp
+
+                self._tables[key] = jnp.asarray(flat)
+            else:
+                self._tables[key] = flat
+        return self._tables[key]
+
+    def _wrapped(self, ops, i, n: float):
+        if self.wrap == "clamp":
+            return ops.clip(i, 0.0, n - 1.0)
+        if self.wrap == "repeat":
+            return i - n * ops.floor(i / n)
+        m = i - 2.0 * n * ops.floor(i / (2.0 * n))
+        return ops.select(m >= n, 2.0 * n - 1.0 - m, m)
+
+    def __call__(self, ops, u, v):
+        h, w = (float(x) for x in self.shape)
+        table = self._table(ops, u)
+        if self.nearest:
+            i = self._wrapped(ops, ops.floor(u * w), w)
+            j = self._wrapped(ops, ops.floor(v * h), h)
+            return ops.gather(table, j * w + i)
+        x, y = u * w - 0.5, v * h - 0.5
+        x0, y0 = ops.floor(x), ops.floor(y)
+        fx, fy = x - x0, y - y0
+        i0, i1 = self._wrapped(ops, x0, w), self._wrapped(ops, x0 + 1.0, w)
+        j0, j1 = self._wrapped(ops, y0, h) * w, self._wrapped(ops, y0 + 1.0, h) * w
+        t00, t10 = ops.gather(table, j0 + i0), ops.gather(table, j0 + i1)
+        t01, t11 = ops.gather(table, j1 + i0), ops.gather(table, j1 + i1)
+        return (t00 * (1.0 - fx) + t10 * fx) * (1.0 - fy) + (t01 * (1.0 - fx) + t11 * fx) * fy
+
+
+def _height_field(field) -> Callable:
+    """The kernel text of ``field``: a name of `POM_HEIGHT_FIELDS`, or a `HeightMap` (itself callable)."""
+    return POM_HEIGHT_FIELDS[field] if isinstance(field, str) else field
+
+
+def pom_height(field, u, v):
+    """h(u, v) of the named height field, or of a `HeightMap` (dispatching like every public function of the
+    package)."""
+    f = _height_field(field)
     return evaluate(lambda ops, a, b: f(ops, a, b), u, v)
 
 
 def pom_normal_kernel(ops, u, v, *, scale, field, eps=1e-3):
     """Unit normal of the surface z = −s·(1 − h): (−s·∂h/∂u, −s·∂h/∂v, 1)/‖·‖ with central differences of
     step ``eps`` (texture units; what a normal map baked from the height map holds). Returns (nx, ny, nz)."""
-    hf = POM_HEIGHT_FIELDS[field]
+    hf = _height_field(field)
     k = -scale / (2.0 * eps)
     gx = (hf(ops, u + eps, v) - hf(ops, u - eps, v)) * k
     gy = (hf(ops, u, v + eps) - hf(ops, u, v - eps)) * k
@@ -140,7 +228,7 @@ def pom_march_kernel(ops, u0, v0, vx, vy, vz, *, scale, n_min, n_max, field, sta
 
     ``n_max`` (a Python int) bounds the unrolled loop; lanes stop after their own n samples or at their
     first sample below the surface. Returns (u, v, t*)."""
-    hf = POM_HEIGHT_FIELDS[field]
+    hf = _height_field(field)
     if stable:
         inv = 1.0 / ops.maximum(vz, min_cos)
         px, py = scale * vx * inv, scale * vy * inv
@@ -191,7 +279,7 @@ def pom_shadow_kernel(ops, u, v, lx, ly, lz, *, scale, softening, floor, field, 
 
     ``floor``: the remap x·(1 − floor) + floor (0.4 in the listing). The stable form divides the light
     offset by max(lz, ``min_cos``) and clamps 1 − max sh to [0, 1] before the remap."""
-    hf = POM_HEIGHT_FIELDS[field]
+    hf = _height_field(field)
     if stable:
         inv = scale / ops.maximum(lz, min_cos)
         rx, ry = lx * inv, ly * inv
@@ -209,6 +297,17 @@ def pom_shadow_kernel(ops, u, v, lx, ly, lz, *, scale, softening, floor, field, 
     if stable:
         vis = ops.clip(vis, 0.0, 1.0)
     return vis * (1.0 - floor) + floor
+
+
+def pom_depth_kernel(ops, u0, v0, vx, vy, vz, *, scale, n_min, n_max, field, stable, min_cos):
+    """The depth below the reference surface of the visible point the march finds, 1 − t*, as a fraction
+    of the height range s (0: on the reference surface, 1: the deepest valley h = 0); the visible point is
+    s·(1 − t*) deep on the view ray (`pom_march_kernel`)."""
+    _, _, t_hit = pom_march_kernel(
+        ops, u0, v0, vx, vy, vz, scale=scale, n_min=n_min, n_max=n_max, field=field, stable=stable,
+        min_cos=min_cos,
+    )  # fmt: skip
+    return 1.0 - t_hit
 
 
 def pom_kernel(
@@ -314,3 +413,50 @@ SHADOW_METHODS = method_table(
     ]
 )
 """The shadow factor alone at a given (u, v) (what the softening fit runs through)."""
+
+DEPTH_FORMULAS = {
+    "listing": "1 − t*: linear search t_i = 1 − i/n, P = s·normalize(V_xy)·|V_xy|/V_z, piecewise-linear hit",
+    "stable": "1 − t*: the same search, P = s·V_xy/max(V_z, c), floor fallback (t* = 0) when nothing is hit",
+}
+
+DEPTH_SAMPLE_RANGES = ((4, 16), (16, 64))
+"""Further (n_min, n_max) of the stable march in `DEPTH_METHODS` beside the declared (8, 40)."""
+
+DEPTH_METHODS = method_table(
+    [
+        *(
+            Method(
+                f"pom-{m.id}",
+                f"{m.label}: visible depth",
+                pom_depth_kernel,
+                inputs=_VIEW,
+                fixed={k: m.fixed[k] for k in ("scale", "n_min", "n_max", "field", "stable", "min_cos")},
+                quantity="parallax_depth",
+                formula=DEPTH_FORMULAS[m.id],
+                source="000:1723-2064" + (" (fixed)" if m.fixed["stable"] else ""),
+            )
+            for m in METHODS.values()
+        ),
+        *(
+            Method(
+                f"pom-stable-n{lo}-{hi}",
+                f"{METHODS['stable'].label}, n {lo}…{hi}: visible depth",
+                pom_depth_kernel,
+                inputs=_VIEW,
+                fixed={
+                    **{k: METHODS["stable"].fixed[k] for k in ("scale", "field", "stable", "min_cos")},
+                    "n_min": lo,
+                    "n_max": hi,
+                },
+                quantity="parallax_depth",
+                formula=DEPTH_FORMULAS["stable"],
+                source="000:1723-2064 (fixed)",
+            )
+            for lo, hi in DEPTH_SAMPLE_RANGES
+        ),
+    ]
+)
+"""The march of each variant alone (`pom_depth_kernel`; ``pom-<id>`` of `METHODS`' ``<id>``: a bare
+``stable`` is volumetric lightning's in ``--approx``), and the stable march at the sample ranges
+`DEPTH_SAMPLE_RANGES` (``pom-stable-n<lo>-<hi>``): the visible point's depth, a fraction of the height range
+(what `rtfit audit` compares with the displaced mesh's first hit)."""

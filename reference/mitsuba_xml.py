@@ -267,6 +267,10 @@ class XmlShape:
     bsdf: str = ""
     interior: str = ""
     exterior: str = ""
+    bump: str = ""
+    """``bumpmap`` or ``normalmap`` where the shape's BSDF is one (or a ``twosided`` wraps one), else ""."""
+    bump_texture: str = ""
+    """The texture plugin of that ``bump`` (``bitmap``, ``checkerboard``, …; ``""`` without one)."""
     convex: bool | None = None
     """For a mesh that bounds a medium (``interior``): whether it is convex (`particle_media.convex_mesh`);
     None otherwise."""
@@ -576,11 +580,23 @@ def inspect_xml(
             obj = by_eid.get(eid) if eid else (frees[free] if free < len(frees) else None)
             emitters.append(_emitter(mi, nodes[i], props[i], where[i], obj))
             free += 1
+
+        def bump(j: int, depth: int = 0) -> tuple[str, str]:
+            """(bump BSDF plugin, its texture plugin) of BSDF node ``j``, through ``twosided`` wrappers."""
+            plugin = nodes[j].props.plugin_name()
+            if plugin in ("bumpmap", "normalmap"):
+                tex = next((nodes[k].props.plugin_name() for _, k in refs(j) if kind[k] == "Texture"), "")
+                return plugin, tex
+            inner = [k for _, k in refs(j) if kind[k] == "BSDF"]
+            return bump(inner[0], depth + 1) if plugin == "twosided" and inner and depth < 4 else ("", "")
+
         shapes = []
         boundaries: set[int] = set()
         for i in shape_nodes:
             named = dict(refs(i))
-            bsdf = next((nodes[j].props.plugin_name() for _, j in refs(i) if kind[j] == "BSDF"), "")
+            bsdf_node = next((j for _, j in refs(i) if kind[j] == "BSDF"), None)
+            bsdf = nodes[bsdf_node].props.plugin_name() if bsdf_node is not None else ""
+            bump_plugin, bump_texture = bump(bsdf_node) if bsdf_node is not None else ("", "")
             media = {
                 k: nodes[j].props.plugin_name() for k, j in named.items() if k in ("interior", "exterior")
             }
@@ -597,6 +613,8 @@ def inspect_xml(
                     faces=int(obj.face_count()) if obj is not None and obj.is_mesh() else None,
                     emitter=any(kind[j] == "Emitter" for _, j in refs(i)),
                     bsdf=bsdf,
+                    bump=bump_plugin,
+                    bump_texture=bump_texture,
                     interior=media.get("interior", ""),
                     exterior=media.get("exterior", ""),
                     convex=_convex(obj) if media.get("interior") else None,

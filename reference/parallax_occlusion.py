@@ -9,24 +9,43 @@ grid spacings).
 
 Frame: tangent space of the POM kernels, texture units = scene units; the surface is
 z = −s·(1 − h(x, y)) with s the height-map range.
+
+A user's shape (`rtfit audit`): `bump_texture` finds the texture of a ``bumpmap`` BSDF, `texture_texels` and
+`texture_values` read it and evaluate it with Mitsuba's own lookup, and `displaced_shape` builds the shape
+displaced along its normals by that height field — a grid over the shape's UV range, each vertex
+``shape.eval_parameterization(uv)`` moved by −depth·(1 − h(uv))·n (h from Mitsuba's ``eval_1``): the carved
+surface whose first hits along the camera's pixel-centre rays (`pixel_surface`, `exact_hits`) are the
+reference of the parallax-occlusion audit.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = [
+    "DisplacedShape",
     "HeightFieldMesh",
     "LightVisibility",
+    "PixelSurface",
     "area_light_visibility",
+    "bump_kind",
+    "bump_texture",
+    "displaced_shape",
     "exact_hits",
     "height_field_scene",
+    "height_field_shapes",
+    "mesh_scene",
+    "pixel_surface",
     "rectangle_light",
     "square_irradiance",
     "square_solid_angle",
+    "texture_texels",
+    "texture_values",
+    "uv_range",
 ]
 
 
@@ -56,15 +75,31 @@ def _mesh(mi, grid: HeightFieldMesh):
     X, Y = np.meshgrid(xs, ys)
     Z = -grid.scale * (1.0 - grid.h)
     pos = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=0).astype(np.float32)
+    return _mesh_of(mi, "heightfield", pos.T, _grid_faces(ny, nx))
+
+
+def _grid_faces(ny: int, nx: int) -> np.ndarray:
+    """(F, 3) two triangles per cell of an (ny, nx) vertex grid (row-major vertex indices)."""
     i = np.arange(ny - 1)[:, None] * nx + np.arange(nx - 1)[None, :]
     a, b, c, d = i.ravel(), i.ravel() + 1, i.ravel() + nx, i.ravel() + nx + 1
-    faces = np.concatenate([np.stack([a, b, d], 0), np.stack([a, d, c], 0)], axis=1).astype(np.uint32)
-    mesh = mi.Mesh("heightfield", nx * ny, faces.shape[1], has_vertex_normals=False)
+    return np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)], axis=0)
+
+
+def _mesh_of(mi, name: str, positions: np.ndarray, faces: np.ndarray):
+    """A Mitsuba mesh from ``positions`` (N, 3) and ``faces`` (F, 3)."""
+    pos = np.ascontiguousarray(positions, np.float32)
+    tri = np.ascontiguousarray(faces, np.uint32)
+    mesh = mi.Mesh(name, pos.shape[0], tri.shape[0], has_vertex_normals=False)
     params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(pos.T.ravel())
-    params["faces"] = mi.UInt32(faces.T.ravel())
+    params["vertex_positions"] = mi.Float(pos.ravel())
+    params["faces"] = mi.UInt32(tri.ravel())
     params.update()
     return mesh
+
+
+def mesh_scene(mi, positions: np.ndarray, faces: np.ndarray, name: str = "surface"):
+    """A Mitsuba scene holding only the mesh (``positions`` (N, 3), ``faces`` (F, 3) vertex indices)."""
+    return mi.load_dict({"type": "scene", "surface": _mesh_of(mi, name, positions, faces)})
 
 
 def height_field_scene(mi, grid: HeightFieldMesh):
@@ -187,3 +222,210 @@ def square_irradiance(point: np.ndarray, normal: np.ndarray, light: dict) -> flo
         beta = math.atan2(np.linalg.norm(g), float(p @ q))
         total += beta * float(np.asarray(normal, float) @ (g / np.linalg.norm(g)))
     return 0.5 * float(light["radiance"]) * abs(total)
+
+
+# ------------------------------------------------------------------------------------------ a user's shape
+def _children(mi, obj) -> dict:
+    """The objects ``obj`` holds (``traverse``'s ``put_object``: a BSDF's nested BSDF and textures)."""
+
+    class _Objects(mi.TraversalCallback):
+        def __init__(self):
+            super().__init__()
+            self.found = {}
+
+        def put_object(self, name, child, flags):
+            self.found[name] = child
+
+        def put(self, name, value, *args, **kwargs):
+            if isinstance(value, mi.Object):
+                self.found[name] = value
+
+        def put_parameter(self, *args, **kwargs):
+            pass
+
+    cb = _Objects()
+    obj.traverse(cb)
+    return cb.found
+
+
+def bump_texture(mi, bsdf, depth: int = 0):
+    """The texture of the ``bumpmap`` that is ``bsdf`` or that a ``twosided`` ``bsdf`` wraps (None without
+    one): the height field the bump map perturbs the normals with."""
+    if bsdf is None or depth > 4:
+        return None
+    name = str(bsdf.class_name())
+    kids = _children(mi, bsdf)
+    if name == "BumpMap":
+        return kids.get("nested_texture")
+    if name == "TwoSidedBRDF":
+        for child in kids.values():
+            if isinstance(child, mi.BSDF):
+                found = bump_texture(mi, child, depth + 1)
+                if found is not None:
+                    return found
+    return None
+
+
+def bump_kind(mi, bsdf, depth: int = 0) -> str:
+    """What ``bsdf`` (or the BSDF a ``twosided`` wraps) offers as a height field: ``"bitmap"`` (a bumpmap of a
+    bitmap texture), ``"texture"`` (a bumpmap of another texture), ``"normalmap"`` or ``""`` (neither)."""
+    if bsdf is None or depth > 4:
+        return ""
+    name = str(bsdf.class_name())
+    if name == "NormalMap":
+        return "normalmap"
+    if name == "BumpMap":
+        tex = bump_texture(mi, bsdf)
+        return "bitmap" if tex is not None and "data" in mi.traverse(tex) else "texture"
+    if name == "TwoSidedBRDF":
+        kinds = [bump_kind(mi, c, depth + 1) for c in _children(mi, bsdf).values() if isinstance(c, mi.BSDF)]
+        return next((k for k in kinds if k), "")
+    return ""
+
+
+def height_field_shapes(mi, shapes) -> list:
+    """The shapes among ``shapes`` whose BSDF is a bumpmap of a bitmap (`bump_kind`), in their order, except
+    that shapes of a scene built from an rtfit TOML file (ids ``xml<i>_<j>``) are ordered by (i, j): the
+    order of its scene dict (`rtfit.reference.build.mitsuba_scene_dict`), which Mitsuba does not keep."""
+    found = [s for s in shapes if bump_kind(mi, s.bsdf()) == "bitmap"]
+    keys = [re.fullmatch(r"xml(\d+)_(\d+)", str(s.id())) for s in found]
+    if found and all(keys):
+        order = sorted(range(len(found)), key=lambda k: (int(keys[k].group(1)), int(keys[k].group(2))))  # type: ignore[union-attr]
+        found = [found[k] for k in order]
+    return found
+
+
+_LUMINANCE = (0.212671, 0.715160, 0.072169)
+"""Mitsuba's ``luminance`` weights: a texture's one-channel value (``eval_1``) of RGB texels."""
+
+
+def texture_texels(mi, texture) -> np.ndarray:
+    """The texels of a ``bitmap`` ``texture`` (H, W), float64: its ``data`` as Mitsuba holds it (after its own
+    sRGB decoding unless ``raw``), one channel as is, RGB as the luminance ``eval_1`` returns."""
+    params = mi.traverse(texture)
+    if "data" not in params:
+        raise ValueError(f"{texture.class_name()} has no texels (not a bitmap)")
+    data = np.array(params["data"], np.float64)
+    if data.ndim == 2:
+        return data
+    if data.shape[-1] == 1:
+        return data[..., 0]
+    return data[..., :3] @ np.array(_LUMINANCE)
+
+
+def texture_values(mi, texture, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``texture.eval_1`` at texture coordinates (u, v) (before the texture's ``to_uv``: the shape's own),
+    float64 (N,): Mitsuba's own lookup (filter, wrap mode, transform)."""
+    import drjit as dr
+
+    n = int(np.size(u))
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.uv = mi.Point2f(
+        np.ascontiguousarray(u, np.float32).ravel(), np.ascontiguousarray(v, np.float32).ravel()
+    )
+    return np.array(texture.eval_1(si), np.float64).reshape(-1)
+
+
+def uv_range(mi, shape) -> tuple[float, float, float, float]:
+    """(u0, u1, v0, v1): the UV box of a mesh's texture coordinates, else the unit square."""
+    if shape.is_mesh() and shape.has_vertex_texcoords():
+        t = np.array(shape.vertex_texcoords_buffer(), np.float64).reshape(-1, 2)
+        return float(t[:, 0].min()), float(t[:, 0].max()), float(t[:, 1].min()), float(t[:, 1].max())
+    return 0.0, 1.0, 0.0, 1.0
+
+
+@dataclass(frozen=True)
+class DisplacedShape:
+    """A shape displaced along its normals by a height field: ``positions`` (N, 3) and ``faces`` (F, 3) of
+    the carved mesh, the ``cells`` (nu, nv) of its UV grid over ``uv_range`` (u0, u1, v0, v1) and ``spacing``
+    (the larger UV step)."""
+
+    positions: np.ndarray
+    faces: np.ndarray
+    cells: tuple[int, int]
+    uv_range: tuple[float, float, float, float]
+    spacing: float
+
+    def scene(self, mi):
+        return mesh_scene(mi, self.positions, self.faces, "displaced")
+
+
+def displaced_shape(mi, shape, texture, depth: float, side: float, cells: tuple[int, int]) -> DisplacedShape:
+    """``shape`` carved by the height field of ``texture``: a (nu + 1) × (nv + 1) vertex grid over its UV
+    range (`uv_range`), each vertex p(u, v) (``eval_parameterization``) moved by −side·d·(1 − h)·n(u, v),
+    d = ``depth`` (the height range, scene units), h Mitsuba's ``eval_1`` of the texture, n the shading
+    normal, ``side`` ±1 (the face the camera sees). Triangles with a vertex outside the shape's UV charts, or
+    longer than 8× the median (a cell spanning two charts), are left out."""
+    import drjit as dr
+
+    u0, u1, v0, v1 = uv_range(mi, shape)
+    nu, nv = cells
+    uu, vv = np.meshgrid(np.linspace(u0, u1, nu + 1), np.linspace(v0, v1, nv + 1))
+    uv = mi.Point2f(
+        np.ascontiguousarray(uu, np.float32).ravel(), np.ascontiguousarray(vv, np.float32).ravel()
+    )
+    si = shape.eval_parameterization(uv)
+    dr.eval(si.p, si.sh_frame.n)
+    p = np.array(si.p, np.float64).T.reshape(-1, 3)
+    n = np.array(si.sh_frame.n, np.float64).T.reshape(-1, 3)
+    valid = np.array(si.is_valid(), bool).reshape(-1) & np.all(np.isfinite(p), axis=1)
+    h = texture_values(mi, texture, uu, vv)
+    pos = p - (side * depth * (1.0 - h))[:, None] * n
+    faces = _grid_faces(nv + 1, nu + 1)
+    keep = valid[faces].all(axis=1)
+    edges = np.stack(
+        [np.linalg.norm(pos[faces[:, a]] - pos[faces[:, b]], axis=1) for a, b in ((0, 1), (1, 2), (2, 0))], 1
+    )
+    longest = edges.max(axis=1)
+    if keep.any():
+        keep &= longest <= 8.0 * np.median(longest[keep])
+    pos = np.where(valid[:, None], pos, 0.0)
+    spacing = max((u1 - u0) / nu, (v1 - v0) / nv)
+    return DisplacedShape(pos, faces[keep], (nu, nv), (u0, u1, v0, v1), spacing)
+
+
+@dataclass(frozen=True)
+class PixelSurface:
+    """The pixel-centre camera rays (``origins``, ``dirs``: (H·W, 3), float64) and what they hit first on
+    the user's scene: ``on_shape`` (H·W,) True where that is the given shape, and there the hit ``p``, its
+    ``uv``, ``dp_du``, ``dp_dv`` and the shading normal ``n``."""
+
+    origins: np.ndarray
+    dirs: np.ndarray
+    on_shape: np.ndarray
+    p: np.ndarray
+    uv: np.ndarray
+    dp_du: np.ndarray
+    dp_dv: np.ndarray
+    n: np.ndarray
+
+
+def pixel_surface(mi, scene, sensor, shape) -> PixelSurface:
+    """`PixelSurface` of ``sensor``'s pixel-centre rays (film crop size, rays through (x + ½, y + ½)) on
+    ``scene``, for ``shape``."""
+    import drjit as dr
+
+    width, height = sensor.film().crop_size()
+    idx = np.arange(width * height)
+    x = ((idx % width) + 0.5) / width
+    y = ((idx // width) + 0.5) / height
+    ray, _ = sensor.sample_ray(
+        0.0, 0.5, mi.Point2f(x.astype(np.float32), y.astype(np.float32)), mi.Point2f(0.5, 0.5)
+    )
+    si = scene.ray_intersect(ray)
+    on = si.is_valid() & (si.shape == mi.ShapePtr(shape))
+    dr.eval(si.p, si.uv, si.dp_du, si.dp_dv, si.sh_frame.n, on, ray.o, ray.d)
+
+    def arr(v, c=3):
+        return np.array(v, np.float64).T.reshape(-1, c)
+
+    return PixelSurface(
+        arr(ray.o),
+        arr(ray.d),
+        np.array(on, bool).reshape(-1),
+        arr(si.p),
+        arr(si.uv, 2),
+        arr(si.dp_du),
+        arr(si.dp_dv),
+        arr(si.sh_frame.n),
+    )

@@ -1,0 +1,187 @@
+"""The parallax-occlusion family audits a user's scene (issue 30 §2): a floor whose BSDF is a ``bumpmap`` of a
+bitmap height texture (tests/data/pom/bumped_floor.xml), against the floor displaced by that height field.
+
+Expected values are independent of the code: the texture lookup against Mitsuba's own ``eval_1``; the
+pixels' texture coordinates and tangent-space view vectors from the camera rays meeting the plane z = 0,
+written here; the visible depth of a flat height field (h = ½: half the range, wherever the ray looks) and of
+a linear ramp (the ray against the tilted plane z = −d·(1 − h(x)), solved here in closed form)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import mitsuba as mi
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import rtfit
+from rtfit.experiments.audit import AuditError
+from rtfit.experiments.audit_cli import audit as audit_cli
+from rtfit.experiments.audit_parallax_occlusion import POM_DEPTH_DEFAULT, check_pom_depth
+from rtfit.realtime import NUMPY_OPS
+from rtfit.realtime.parallax_occlusion import WRAP_MODES, HeightMap
+
+DATA = Path(__file__).parent / "data" / "pom"
+SCENE = DATA / "bumped_floor.xml"
+EYE = np.array([0.0, -1.1, 1.1])
+
+
+def _audit(tmp_path, height: str, rows, **kw):
+    return rtfit.audit(SCENE, rows, defines={"height": height}, cache=tmp_path / "c",
+                       metrics=("rmse", "max_abs"), cost_elements=4096, **kw)  # fmt: skip
+
+
+def _floor_rays(case):
+    """Per masked pixel: the floor point the camera ray meets on z = 0 (from the case's own (u₀, v₀): the
+    floor is [−½, ½]², u = x + ½, v = y + ½) and the unit direction of that ray (from the eye)."""
+    inp = case.channel_inputs[0]
+    p = np.stack([inp["u0"] - 0.5, inp["v0"] - 0.5, np.zeros_like(inp["u0"])], axis=1)
+    d = p - EYE
+    return p, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_height_map_lookup_is_mitsubas_bitmap():
+    """`HeightMap` (the kernel text's texture lookup) against Mitsuba's bitmap ``eval_1``: every wrap mode,
+    bilinear and nearest, at coordinates well outside the tile."""
+    mi.set_variant("llvm_ad_rgb")
+    rng = np.random.default_rng(3)
+    texels = rng.random((5, 7))
+    uv = rng.uniform(-1.7, 2.4, (2000, 2))
+    for wrap in WRAP_MODES:
+        for filt in ("bilinear", "nearest"):
+            tex = mi.load_dict({"type": "bitmap", "data": mi.TensorXf(texels[..., None].astype(np.float32)),
+                                "raw": True, "wrap_mode": wrap, "filter_type": filt})  # fmt: skip
+            si = mi.SurfaceInteraction3f()
+            si.uv = mi.Point2f(uv[:, 0].astype(np.float32), uv[:, 1].astype(np.float32))
+            want = np.array(tex.eval_1(si), np.float64)
+            got = HeightMap(texels.astype(np.float32), wrap, filt == "nearest")(NUMPY_OPS, uv[:, 0], uv[:, 1])
+            assert np.max(np.abs(got - want)) < 2e-6, (wrap, filt)
+
+
+def test_flat_height_field_is_half_the_range_deep_for_every_row(tmp_path):
+    """h = ½ everywhere: the displaced floor is the plane ½·d below it, so the visible depth is ½ of the range
+    at every pixel, whatever the view; the listing and the stable march find it exactly. The inputs are the
+    floor's own: (u₀, v₀) where the pixel's ray meets z = 0, V the unit vector to the eye (the floor's tangent
+    frame is the world's: ∂p/∂u = x̂, ∂p/∂v = ŷ, one texture unit = one scene unit)."""
+    r = _audit(tmp_path, "flat.exr", ["parallax-occlusion:pom-listing", "parallax-occlusion:pom-stable"])
+    (case,) = r.cases
+    assert set(r.outcomes[case.id]) == {"pom-listing", "pom-stable"}
+    assert case.parameters["texel_length"] == pytest.approx(1.0, rel=1e-6)
+    assert case.parameters["depth_scene"] == pytest.approx(POM_DEPTH_DEFAULT, rel=1e-6)
+    assert case.parameters["pixels"] > 400
+    ref = case.reference.mean[case.mask]
+    assert np.allclose(ref, 0.5, atol=1e-6)
+    for row in ("pom-listing", "pom-stable"):
+        assert np.allclose(r.image(case.id, row)[case.mask], 0.5, atol=1e-6), row
+    p, _ = _floor_rays(case)
+    inp = case.channel_inputs[0]
+    w = EYE - p
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    assert np.allclose(np.stack([inp["vx"], inp["vy"], inp["vz"]], axis=1), w, atol=2e-5)
+    # every compared pixel's ray does meet the floor inside [−½, ½]²
+    assert np.all(np.abs(p[:, :2]) <= 0.5 + 1e-5)
+
+
+def test_ramp_against_the_closed_form_tilted_plane(tmp_path):
+    """h = 0.1 + 0.8·u (texel centres of a 16-texel ramp along u, clamped beyond them), --pom-depth 0.2: the
+    displaced floor is the plane z = −0.2·(0.9 − 0.8·u), u = x + ½. The ray from the eye meets it at the
+    closed-form t below; the reference (Mitsuba's hit on the displaced mesh) and the stable march with
+    n 16…64 (exact on a linear profile) give its depth −z/0.2 where the ray stays within the ramp."""
+    d_range = 0.2
+    r = _audit(tmp_path, "ramp.exr", ["parallax-occlusion:pom-stable-n16-64"], pom_depth=d_range)
+    (case,) = r.cases
+    assert case.parameters["pom_depth"] == d_range
+    p, d = _floor_rays(case)
+    # EYE + t·d on z = −D·(0.9 − 0.8·(x + ½)) = −D·(0.5 − 0.8·x)
+    t = (-d_range * 0.5 + 0.8 * d_range * EYE[0] - EYE[2]) / (d[:, 2] - 0.8 * d_range * d[:, 0])
+    hit = EYE + t[:, None] * d
+    want = -hit[:, 2] / d_range
+    lo, hi = 0.5 / 16, 1.0 - 0.5 / 16  # the texel centres: linear between them
+    inside = (hit[:, 0] + 0.5 > lo) & (hit[:, 0] + 0.5 < hi) & (p[:, 0] + 0.5 > lo) & (p[:, 0] + 0.5 < hi)
+    assert inside.sum() > 300
+    ref = case.reference.mean[case.mask][:, 0]
+    assert np.max(np.abs(ref[inside] - want[inside])) < 2e-5
+    got = r.image(case.id, "pom-stable-n16-64")[case.mask][:, 0]
+    assert np.max(np.abs(got[inside] - want[inside])) < 2e-5
+    assert want[inside].min() < 0.3 and want[inside].max() > 0.7  # the ramp spans most of the range
+
+
+@pytest.mark.parametrize("value", ["0", "5", "-0.1", "deep", "nan"])
+def test_bad_pom_depth_is_one_line_and_exit_2(tmp_path, value):
+    for extra in (["--list"], ["--out", str(tmp_path / "o")]):
+        result = CliRunner().invoke(audit_cli, [str(SCENE), "--pom-depth", value, *extra])
+        assert result.exit_code == 2, result.output
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("rtfit: error: --pom-depth"), result.output
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(AuditError, match="--pom-depth"):
+        rtfit.audit(SCENE, "parallax-occlusion", pom_depth=value, cache=tmp_path / "c")
+
+
+def test_default_pom_depth_is_the_familys():
+    assert check_pom_depth(None) == POM_DEPTH_DEFAULT == 0.1
+    assert check_pom_depth("0.25") == 0.25
+
+
+def test_list_names_the_family_with_its_reason(tmp_path):
+    result = CliRunner().invoke(audit_cli, [str(SCENE), "--list"])
+    assert result.exit_code == 0, result.output
+    out = result.stdout
+    assert (
+        "parallax-occlusion — height field: the bumpmap on the rectangle 'floor' (bumped_floor.xml line"
+        in out
+    )
+    assert "marches it on the flat shape instead of displacing the mesh" in out
+    assert "methods:    pom-listing, pom-stable, pom-stable-n4-16, pom-stable-n16-64" in out
+
+
+def test_a_normal_map_alone_does_not_apply_and_says_why(tmp_path):
+    """A normal map stores normals, not heights: with only the normal-mapped square, the family is listed as
+    not applying, with that reason."""
+    shutil.copy(DATA / "flat.exr", tmp_path / "flat.exr")
+    text = SCENE.read_text()
+    start = text.index('<bsdf type="bumpmap">')
+    text = text[:start] + text[text.index("</shape>", start) :]  # the floor keeps Mitsuba's default BSDF
+    (tmp_path / "s.xml").write_text(text)
+    result = CliRunner().invoke(audit_cli, [str(tmp_path / "s.xml"), "--list"])
+    assert result.exit_code == 0, result.output
+    line = next(x for x in result.stdout.splitlines() if x.strip().startswith("parallax-occlusion:"))
+    assert "needs a shape whose BSDF is a bumpmap with a bitmap texture" in line
+    assert "the normalmap on the rectangle 'tiles'" in line and "stores normals, not heights" in line
+
+
+def test_toml_scene_with_the_bumped_floor_as_a_mitsuba_xml_shape(tmp_path):
+    """rtfit TOML has no bump map of its own (its materials are diffuse); a ``mitsuba_xml`` shape keeps its
+    file's BSDFs, so the same floor in a TOML scene (the XML's default height, h = ½) is audited alike: half
+    the range deep for the reference and the stable march, the inputs those of the camera's floor rays."""
+    toml = DATA / "bumped_floor.toml"
+    listing = CliRunner().invoke(audit_cli, [str(toml), "--list"])
+    assert listing.exit_code == 0, listing.output
+    assert "parallax-occlusion — height field: the bumpmap on shapes[0] (xml0_" in listing.stdout
+    r = rtfit.audit(toml, "parallax-occlusion:pom-stable", cache=tmp_path / "c", metrics=("rmse",),
+                    cost_elements=4096)  # fmt: skip
+    (case,) = r.cases
+    assert case.parameters["pixels"] > 400 and case.parameters["texel_length"] == pytest.approx(1.0, rel=1e-6)
+    assert np.allclose(case.reference.mean[case.mask], 0.5, atol=1e-6)
+    assert np.allclose(r.image(case.id, "pom-stable")[case.mask], 0.5, atol=1e-6)
+    p, _ = _floor_rays(case)
+    inp = case.channel_inputs[0]
+    w = (EYE - p) / np.linalg.norm(EYE - p, axis=1, keepdims=True)
+    assert np.allclose(np.stack([inp["vx"], inp["vy"], inp["vz"]], axis=1), w, atol=2e-5)
+
+
+def test_a_toml_scene_without_a_bump_map_says_why(tmp_path):
+    (tmp_path / "s.toml").write_text(
+        (DATA / "bumped_floor.toml")
+        .read_text()
+        .replace(
+            'type = "mitsuba_xml"\nfile = "bumped_floor.xml"',
+            'type = "rectangle"\ncenter = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\nsize = [1.0, 1.0]',
+        )
+    )
+    result = CliRunner().invoke(audit_cli, [str(tmp_path / "s.toml"), "--list"])
+    assert result.exit_code == 0, result.output
+    line = next(x for x in result.stdout.splitlines() if x.strip().startswith("parallax-occlusion:"))
+    assert "rtfit TOML materials are diffuse" in line
