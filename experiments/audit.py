@@ -570,15 +570,16 @@ _TOML_MODEL_KIND = {
 
 def _model_kinds(kind: str, uniform: bool) -> set[str]:
     """The light-model kinds (`PROVIDES`) of a light of ``kind`` (an `XmlEmitter.kind`): what its own
-    parameters give the rows of `rtfit.realtime.light_models`. An area light needs a uniform radiance
-    (``uniform``: declared as one value, not a texture); an area light on a mesh or a cylinder has no
-    intensity rtfit computes (its rows are left out, saying so)."""
+    parameters give the rows of `rtfit.realtime.light_models`. Every light needs a uniform emission
+    (``uniform``: its intensity or radiance declared as values, not a texture; a spot projecting no
+    texture); an area light on a mesh or a cylinder has no intensity rtfit computes (its rows are left out,
+    saying so)."""
+    if not uniform:
+        return set()
     if kind == "point":
         return {"punctual-light"}
     if kind == "spot":
         return {"spot-light"}
-    if not uniform:
-        return set()
     return {"sphere": {"punctual-light"}, "disk": {"punctual-light"}}.get(
         kind, {"punctual-light", "rect-light"} if kind == "rectangle" else set()
     )
@@ -622,7 +623,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
                 kinds.add("sky")
         elif e.kind in _XML_LIGHTS:
             kinds = {"light", "spherical-light"} if e.spherical else {"light"}
-            kinds |= _model_kinds(e.kind, e.scale_name == "radiance" and e.scale is not None)
+            kinds |= _model_kinds(e.kind, e.scale is not None and not e.patterned)
             what = f"{e.kind} area light" if e.shape else f"{e.kind} light"
             if e.shape and e.kind == "area":
                 what = f"area light on a {e.shape}"

@@ -424,3 +424,29 @@ def test_the_diffuse_table_carries_the_light_models_once():
     assert METHODS["unreal-window"].unpublished == ("r",) and METHODS["frostbite-window"].unpublished == (
         "r",
     )
+
+
+def test_mitsubas_various_emitters_get_the_models_their_parameters_allow():
+    """Mitsuba's own various-emitters test scene (tests/data/real): a rectangle of uniform radiance gets the
+    inverse square, the windows and the polygon; a rectangle whose radiance is a texture, a textured OBJ, a
+    spot projecting a texture get none (left out, saying which light each needs); a plain spot gets the
+    cones, a point light the inverse square. No rendering: `applicable_families` only."""
+    from pathlib import Path
+
+    from rtfit.experiments.audit import applicable_families, inspect_scene
+
+    xml = Path(__file__).parent / "data/real/mitsuba-data/tests/scenes/various_emitters"
+    info = inspect_scene(xml / "test_various_emitters_ptracer.xml")
+    rows = {a.part.split("'")[1]: a for a in applicable_families(info, approx="diffuse")}
+    models = set(METHODS)
+    assert models & set(rows["light_1"].methods) == {
+        "punctual",
+        "unreal-window",
+        "frostbite-window",
+        "polygon",
+    }
+    for textured in ("light_1_mesh", "light_2_mesh", "light_2", "light_4"):
+        assert not models & set(rows[textured].methods), textured
+        assert "polygon" in dict(rows[textured].excluded)
+    assert models & set(rows["light_3"].methods) == {"spot-linear", "spot-smoothstep", "spot-squared"}
+    assert models & set(rows["light_6"].methods) == {"punctual", "unreal-window", "frostbite-window"}
