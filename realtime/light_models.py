@@ -29,7 +29,7 @@ Formulas (one kernel text each)
   Shading in Unreal Engine 4", SIGGRAPH course notes, "Lighting model", inverse-square falloff windowed to
   zero at the light's radius r; the "+1" of the paper is 1 cm² in Unreal's centimetre units).
 * ``frostbite-window`` — E = I·max(cos θ, 0)·saturate(1 − (d²/r²)²)² / max(d², d₀²), d₀ = 1 cm (Lagarde &
-  de Rousiers 2014, "Moving Frostbite to Physically Based Rendering", §4.3 "Punctual lights", listing
+  de Rousiers 2014, "Moving Frostbite to Physically Based Rendering", punctual-light section, listing
   smoothDistanceAtt/getDistanceAtt: ``1/max(sqrDist, 0.01²)``). The two windows are the same function of
   d/r; they differ only in how they bound the inverse square near the light. r is an artist's setting with
   no published value (``Param.published`` False): the audit shows it fitted only, its start 2 × the
@@ -38,9 +38,9 @@ Formulas (one kernel text each)
   the representative point is the centre (a sphere above the horizon lights a surface exactly as a point
   light of I = π r² L does), E = π sin²α L · w(cos θ, sin α) with w = cos θ above the horizon
   (cos θ ≥ sin α), 0 below (cos θ ≤ −sin α) and, across the horizon band, Unreal's smooth wrap
-  w = (sin α + cos θ)²/(4 sin α) (UE4 ``SphereHorizonCosWrap``, the approximation of the exact clipped
-  form that Lagarde & de Rousiers 2014 §4.7.2 give). Tube lights: rtfit's scenes have none (Mitsuba has no
-  capsule emitter; a ``cylinder`` area light is left out of these rows, docs/diffuse.md).
+  w = (sin α + cos θ)²/(4 sin α) (UE4 ``SphereHorizonCosWrap``, a smooth stand-in for the exact clipped
+  form of Lagarde & de Rousiers 2014's sphere-light section). Tube lights: rtfit's scenes have none
+  (Mitsuba has no capsule emitter; a ``cylinder`` area light is left out of these rows, docs/diffuse.md).
 * ``polygon`` (LTC, diffuse) — a rectangle light by Lambert's formula for a polygon of uniform radiance L,
   horizon-clipped: E = L·max(−½ Σᵢ Θᵢ (n·Γᵢ), 0) over the clipped polygon's edges (vᵢ, vᵢ₊₁) seen from x,
   Θᵢ the angle between them, Γᵢ the unit normal of their plane (Lambert 1760; Arvo 1994, "The irradiance
@@ -59,7 +59,7 @@ Formulas (one kernel text each)
   tests/test_light_models.py asserts the agreement instead.
 * ``spot-smoothstep`` — three.js ``getSpotAttenuation``: f = smoothstep(cos φ_c, cos φ_b, cos φ).
 * ``spot-squared`` — Unreal's ``SpotAttenuation`` and Frostbite's getAngleAtt (Lagarde & de Rousiers 2014,
-  §4.3): f = saturate((cos φ − cos φ_c)/(cos φ_b − cos φ_c))², quadratic in the cosine.
+  punctual lights): f = saturate((cos φ − cos φ_c)/(cos φ_b − cos φ_c))², quadratic in the cosine.
 
 Guards (each keeps a value finite where the formula has none; none changes a value in its domain)
 --------------------------------------------------------------------------------------------------
@@ -295,7 +295,7 @@ METHODS = method_table(
             params={"r": _WINDOW_R},
             quantity="light_irradiance",
             formula="E = I·max(cos θ, 0)·saturate(1 − (d²/r²)²)²/max(d², (1 cm)²)",
-            source="Lagarde & de Rousiers 2014, Moving Frostbite to PBR, §4.3 (smoothDistanceAtt)",
+            source="Lagarde & de Rousiers 2014, Moving Frostbite to PBR, punctual lights (smoothDistanceAtt)",
             description="Unreal's window with the inverse square floored at 1 cm instead of offset.",
         ),
         Method(
@@ -345,7 +345,7 @@ METHODS = method_table(
             inputs=_SPOT_INPUTS,
             quantity="light_irradiance",
             formula="E = I₀·saturate((cos φ − cos φ_c)/(cos φ_b − cos φ_c))²·max(cos θ, 0)/d²",
-            source="Karis 2013 / UE4 SpotAttenuation; Lagarde & de Rousiers 2014 §4.3 getAngleAtt",
+            source="Karis 2013 / UE4 SpotAttenuation; Lagarde & de Rousiers 2014 getAngleAtt",
             description="Unreal's and Frostbite's cone: the linear ramp in cos φ, squared.",
         ),
     ]
