@@ -139,6 +139,14 @@ def describe(
         lines.append(f"      methods:    {', '.join(a.methods)}")
         lines.append(f"      reference:  {a.reference}")
         lines.append(f"      integrator: {a.integrator}")
+        elsewhere = {m for b in found if b.family == a.family for m in b.methods} - set(a.methods)
+        left: dict[str, list[str]] = {}  # the kind of part each needs → rows (what follows "needs …: ")
+        for m, reason in a.excluded:
+            if m in elsewhere:  # a row this family runs on another part (a light model of another light)
+                left.setdefault(reason.rsplit(": ", 1)[-1], []).append(m)
+        if left:
+            said = "; ".join(f"{', '.join(ms)} (need {kind})" for kind, ms in left.items())
+            lines.append(f"      left out:   {said}")
     for family in dict.fromkeys(a.family for a in found):  # methods of an applying family that none use
         used = {m for a in found if a.family == family for m in a.methods}
         why: dict[str, list[str]] = {}

@@ -79,6 +79,10 @@ _LIT_MEDIUM_INPUTS = ("intensity", "sigma_s", "sigma_t", "g", "single_scattering
 PROVIDES: dict[str, frozenset[str]] = {
     "light": frozenset({"cos_theta", "irradiance", "cos_nl"}),
     "spherical-light": frozenset({"cos_theta", "irradiance", "cos_nl", "alpha", "radiance", "cos_al"}),
+    # the light models (`rtfit.realtime.light_models`): the light's own parameters, per kind of light
+    "punctual-light": frozenset({"cos_theta", "distance", "intensity"}),
+    "spot-light": frozenset({"cos_theta", "distance", "axis_intensity", "cos_axis", "cutoff", "beam"}),
+    "rect-light": frozenset({f"{v}{a}" for v in ("p", "n", "lc", "lu", "lv") for a in "xyz"} | {"radiance"}),
     "environment": frozenset({"nx", "ny", "nz", "coeffs", "irradiance", "sky_radiance"}),
     "surface": frozenset(),
     "geometry": frozenset({*_GEOMETRY_INPUTS, "cos_na", "aperture"}),
@@ -113,6 +117,10 @@ _INPUT_SOURCE.update(dict.fromkeys(("r1", "r2", "d"), "caps"))
 _KIND_TEXT = {
     "light": "a light (sun, directional, point, spot, sphere, disk or area)",
     "spherical-light": "a spherical light (a sphere light, or a sun of finite angular radius)",
+    "punctual-light": "a local light of known intensity (a point light, or a sphere, rectangle or disk light "
+    "of uniform radiance)",
+    "spot-light": "a spot light",
+    "rect-light": "a rectangle light of uniform radiance",
     "environment": "an environment (envmap, constant or sunsky)",
     "surface": "a surface for the camera to see",
     "geometry": "geometry that can occlude itself (two or more shapes, or one non-convex shape)",
@@ -273,6 +281,31 @@ _PARTICLE_XML = frozenset({"sphere", "cube"})  # convex medium boundaries with a
 _XML_LIGHTS = frozenset({"point", "spot", "directional", "sphere", "disk", "rectangle", "area"})
 
 
+_TOML_MODEL_KIND = {
+    "point_light": "point",
+    "spot_light": "spot",
+    "sphere_light": "sphere",
+    "rect_light": "rectangle",
+}
+
+
+def _model_kinds(kind: str, uniform: bool) -> set[str]:
+    """The light-model kinds (`PROVIDES`) of a light of ``kind`` (an `XmlEmitter.kind`): what its own
+    parameters give the rows of `rtfit.realtime.light_models`. Every light needs a uniform emission
+    (``uniform``: its intensity or radiance declared as values, not a texture; a spot projecting no
+    texture); an area light on a mesh or a cylinder has no intensity rtfit computes (its rows are left out,
+    saying so)."""
+    if not uniform:
+        return set()
+    if kind == "point":
+        return {"punctual-light"}
+    if kind == "spot":
+        return {"spot-light"}
+    return {"sphere": {"punctual-light"}, "disk": {"punctual-light"}}.get(
+        kind, {"punctual-light", "rect-light"} if kind == "rectangle" else set()
+    )
+
+
 def _short(location: str) -> str:
     """``/a/b/scene.xml (line 3, col 6)`` → ``scene.xml line 3``."""
     head, _, rest = location.partition(" (")
@@ -311,6 +344,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
                 kinds.add("sky")
         elif e.kind in _XML_LIGHTS:
             kinds = {"light", "spherical-light"} if e.spherical else {"light"}
+            kinds |= _model_kinds(e.kind, e.scale is not None and not e.patterned)
             what = f"{e.kind} area light" if e.shape else f"{e.kind} light"
             if e.shape and e.kind == "area":
                 what = f"area light on a {e.shape}"
@@ -480,6 +514,7 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
             continue
         spherical = light.kind == "sphere_light" or getattr(light, "angular_radius_deg", 0.0) > 0.0
         kinds = {"light", "spherical-light"} if spherical else {"light"}
+        kinds |= _model_kinds(_TOML_MODEL_KIND.get(light.kind, light.kind), True)
         parts.append(Part(frozenset(kinds), f"{light.kind.replace('_', ' ')} ({where})", i))
     if scene.shapes:
         parts.append(Part(frozenset({"surface"}), f"{len(scene.shapes)} shape(s)"))

@@ -19,6 +19,10 @@ camera-facing unit normals n):
   for a sphere light of radius r at distance d, a distant sun's angular radius (0 for every other light);
   ``distance`` d = |c − x| (+inf for a distant light); ``radiance`` L (a sphere light's or a TOML sun's
   declared radiance, else E⊥/(π sin²α));
+* the light models' inputs from the light's own parameters (`audit_lights.light_model_inputs`: a point's
+  or spot's intensity, a spot's cone angles and axis, a sphere's, rectangle's or disk's radiance and size
+  as an intensity towards x, a rectangle's corners), never from the reference; the windows' radius r is
+  fitted (`window_params`);
 * shadowed case: each method's value times the hard shadow of the light's centre (one shadow ray from x
   towards t: 1 when nothing blocks it), which is what a shadow map gives an engine; so the shadowed case
   measures the formula together with a hard shadow against the true, soft one.
@@ -28,6 +32,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from rtfit.realtime.light_models import METHODS as LIGHT_MODELS
+from rtfit.realtime.methods import Param
 from rtfit.reference.estimators import gbuffer_points
 
 from .audit import Applicability, Rule
@@ -35,6 +41,7 @@ from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase
 from .audit_lights import (
     hard_shadow,
     light_geometry,
+    light_model_inputs,
     light_radiance,
     light_reference,
     scene_light,
@@ -57,6 +64,7 @@ def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     cos = np.clip(np.sum(normals * towards, axis=1), -1.0, 1.0)
     e_perp = pooled.mean[:, 6:9]
     radiance = light_radiance(setup, app.source, e_perp, alpha)
+    own = light_model_inputs(setup, app.source, points, normals, towards, dist)
     inputs = tuple(
         {
             "cos_theta": cos,
@@ -64,12 +72,14 @@ def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             "alpha": alpha,
             "distance": dist,
             "radiance": radiance[c],
+            **own[c],  # the light models' inputs, from the light's own parameters (a rectangle's L too)
         }
         for c in range(3)
     )
-    own = light.emitter.get_shape() if light.emitter is not None else None  # point, spot, sun: None
-    shadow = hard_shadow(setup, points, normals, towards, dist, radius, own)
+    shape = light.emitter.get_shape() if light.emitter is not None else None  # point, spot, sun: None
+    shadow = hard_shadow(setup, points, normals, towards, dist, radius, shape)
     caveat = small_sphere_caveat(alpha, pooled.mean[:, 0], pooled.stderr[:, 0]) if radius > 0 else ()
+    caveat = (*caveat, *_left_out(app))
     params = {
         "light": app.part,
         "kind": light.kind,
@@ -110,9 +120,36 @@ def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 factor=factor,
                 units="W/m²",
                 notes=(note, *caveat),
+                params=window_params(dist),
             )
         )
     return cases
+
+
+def _left_out(app: Applicability) -> tuple[str, ...]:
+    """One note naming the light-model rows that do not apply to this light, each with the kind of light it
+    needs (`Applicability.excluded`)."""
+    left: dict[str, list[str]] = {}
+    for m, why in app.excluded:
+        if m in LIGHT_MODELS:
+            left.setdefault(why.rsplit(": ", 1)[-1], []).append(m)
+    if not left:
+        return ()
+    text = "; ".join(f"{', '.join(ms)} (need {kind})" for kind, ms in left.items())
+    return (f"light models left out for this light: {text}",)
+
+
+def window_params(dist: np.ndarray) -> dict[str, dict[str, Param]]:
+    """The windowed falloffs' radius r for this light (`rtfit.realtime.light_models`): no published value
+    (an artist sets it per light), so only its fit is shown; the fit starts at 2 × the largest distance from
+    the light to a visible point (every pixel inside the window), bounded by [10⁻³, 10³] × that distance."""
+    finite = dist[np.isfinite(dist)]
+    if not finite.size or float(finite.max()) <= 0.0:
+        return {}
+    far = float(finite.max())
+    r = Param(2.0 * far, 1e-3 * far, 1e3 * far, unit="scene units", published=False,
+              description="window radius r: the falloff reaches 0 at d = r")  # fmt: skip
+    return {"unreal-window": {"r": r}, "frostbite-window": {"r": r}}
 
 
 FAMILY = AuditFamily(
@@ -125,7 +162,11 @@ FAMILY = AuditFamily(
         "alone and Mitsuba's shadow rays, in independent passes with per-pixel standard errors. Each method "
         "gets cos θ = n·t (t: towards the light's centre), E⊥ (the light's irradiance on a surface facing "
         "t, from independent samples of the same pass), the light's angular radius α (sphere lights; 0 "
-        "otherwise) and distance. "
+        "otherwise) and distance. The light models (punctual inverse square, the Unreal and Frostbite "
+        "windows with a fitted radius, the representative point of a sphere, the LTC polygon of a rectangle, "
+        "the spot cones) read the light's own parameters instead of E⊥: its intensity or radiance and size, "
+        "its rectangle, its cone angles (`rtfit.experiments.audit_lights.light_model_inputs`); a row whose "
+        "light lacks them is left out, saying what it needs. "
         "In the shadowed case each method is multiplied by the hard shadow of the light's centre (one "
         "shadow ray), as a shadow map would give it. A sun of finite size (a TOML sun, the sun of a "
         "sunsky) is sampled alone (without its sky) and has α = its angular radius."

@@ -47,6 +47,7 @@ __all__ = [
     "AuditLight",
     "hard_shadow",
     "light_geometry",
+    "light_model_inputs",
     "light_radiance",
     "light_reference",
     "scene_light",
@@ -254,6 +255,76 @@ def light_radiance(setup: AuditSetup, source: int, e_perp: np.ndarray, alpha: np
         return [float(v) for v in declared]
     s2 = np.sin(alpha) ** 2
     return [np.where(s2 > 0, e_perp[:, c] / (math.pi * np.maximum(s2, 1e-300)), 0.0) for c in range(3)]
+
+
+def _rgb(params, key: str) -> np.ndarray | None:
+    """A uniform RGB parameter of a Mitsuba object's `mi.traverse` (None where it is a texture)."""
+    if key not in params:
+        return None
+    v = np.asarray(params[key], np.float64).reshape(-1)
+    return np.resize(v, 3) if v.size in (1, 3) else None
+
+
+def _matrix(transform) -> np.ndarray:
+    return np.asarray(transform.matrix, np.float64).reshape(4, 4)
+
+
+def light_model_inputs(setup: AuditSetup, source: int, points, normals, towards, dist) -> list[dict]:
+    """Per RGB channel, the inputs the light models (`rtfit.realtime.light_models`) read **from the light's
+    own parameters** (Mitsuba's instantiated emitter and shape, `mi.traverse`), never from the reference:
+
+    * a point light: ``intensity`` I (W/sr, its ``intensity``);
+    * a spot light: ``axis_intensity`` I₀, ``cutoff``/``beam`` (rad, its ``cutoff_angle``/``beam_width``),
+      ``cos_axis`` = the spot's axis (to_world's +z) · the direction from the light to the point;
+    * a sphere light of uniform radiance L and radius r: ``intensity`` π r² L (its projected area × L);
+    * a rectangle or disk light of uniform radiance L (one-sided, towards to_world's +z): ``intensity``
+      L·A·max(cos θ_l, 0) (A = 4|u × v| or π|u × v|, u, v the images of the x and y axes); a rectangle also
+      gives the polygon row its centre, half-edges u, v and the points and normals (``px``…, ``nx``…);
+
+    an empty mapping per channel for any other light (its light-model rows are left out by `PROVIDES`)."""
+    mi = setup.mi
+    light = scene_light(setup, source)
+    out: dict[str, Any] = {}
+    if light.emitter is None or light.centre is None:
+        return [{}, {}, {}]
+    params = mi.traverse(light.emitter)
+    shape = light.emitter.get_shape()
+    per_channel: dict[str, np.ndarray] = {}
+    if light.kind in ("point", "spot") and (i0 := _rgb(params, "intensity.value")) is not None:
+        if light.kind == "point":
+            per_channel["intensity"] = i0
+        else:
+            m = _matrix(params["to_world"])
+            axis = _unit(m[:3, 2])
+            out["cos_axis"] = np.clip(-(towards @ axis), -1.0, 1.0)
+            out["cutoff"] = math.radians(float(np.asarray(params["cutoff_angle"]).reshape(-1)[0]))
+            out["beam"] = math.radians(float(np.asarray(params["beam_width"]).reshape(-1)[0]))
+            per_channel["axis_intensity"] = i0
+    radiance = _rgb(params, "radiance.value")
+    kind = str(shape).split("[", 1)[0].strip() if shape is not None else ""
+    scale: np.ndarray | float | None = None  # intensity / radiance (sr·m² per … : the projected area)
+    if radiance is not None and light.radius > 0:
+        scale = math.pi * light.radius**2  # a sphere: π r²
+    elif radiance is not None and kind in ("Rectangle", "Disk"):
+        m = _matrix(mi.traverse(shape)["to_world"])
+        u, v, c = m[:3, 0], m[:3, 1], m[:3, 3]
+        cross = np.cross(u, v)
+        area = (4.0 if kind == "Rectangle" else math.pi) * float(np.linalg.norm(cross))
+        scale = area * np.clip(-(towards @ _unit(cross)), 0.0, None)  # A·max(cos θ_l, 0): one-sided
+        if kind == "Rectangle":
+            p, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+            for k, a in enumerate("xyz"):
+                out |= {f"p{a}": p[:, k], f"n{a}": n[:, k], f"lc{a}": float(c[k])}
+                out |= {f"lu{a}": float(u[k]), f"lv{a}": float(v[k])}
+            per_channel["radiance"] = radiance
+    channels = []
+    for ch in range(3):
+        d = dict(out)
+        d.update({k: float(v[ch]) for k, v in per_channel.items()})
+        if scale is not None and radiance is not None:
+            d["intensity"] = scale * float(radiance[ch])
+        channels.append(d)
+    return channels
 
 
 def light_reference(setup: AuditSetup, source: int, points, normals, towards, label: str) -> PooledPasses:

@@ -17,6 +17,8 @@ Modules:
     aerial_perspective  single scattering through the Nishita atmosphere + height fog together, the
                 seed's horizon-matched fog colour (docs/aerial-perspective.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
+    light_models  the diffuse family's light models from the light's own parameters: punctual, Unreal and
+                Frostbite windows, representative point, LTC polygon, spot cones (docs/diffuse.md).
     environment_bases  every irradiance basis of an environment as one method table (the irradiance-bases
                 family: cube, SH, ZH3, SG, Ambient Dice; ``METHODS`` from the module).
     environment_maps  pre-convolved and localised cube maps, cosine look-up, distance-impostor Hit
@@ -75,6 +77,7 @@ from .hemisphere_bases import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
 from .light_cones import *  # noqa: F403
+from .light_models import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
 from .obscurances import *  # noqa: F403
@@ -95,6 +98,7 @@ MODULES = (
     "phase",
     "ambient_aperture",
     "diffuse",
+    "light_models",
     "environment_maps",
     "reflections",
     "height_fog",

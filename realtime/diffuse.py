@@ -66,10 +66,13 @@ Dr.Jit type, lazily; see `rtfit.realtime.arrays`). Parameters are validated at t
 
 Methods as data
 ---------------
-``METHODS`` (`rtfit.realtime.methods.method_table`: ``lambert``, ``half-lambert``, ``wrap``, ``exact``)
-declares each formula once: its kernel text, its inputs with units (``cos_theta`` "1", ``irradiance``
-"W/m²", ``alpha`` "rad", ``radiance`` "W/m²/sr"), wrap's free parameters w ∈ [0, 1], p ∈ [0.25, 8]
-(dimensionless, defaults 0.5 and 1.5) and ``exact=True`` for the sphere-light closed form.
+``METHODS`` (`rtfit.realtime.methods.method_table`: ``lambert``, ``half-lambert``, ``wrap``, ``exact``, then
+the light models of `rtfit.realtime.light_models`: ``punctual``, ``unreal-window``, ``frostbite-window``,
+``representative-point``, ``polygon``, ``spot-linear``, ``spot-smoothstep``, ``spot-squared``, which read
+the light's own parameters instead of E⊥) declares each formula once: its kernel text, its inputs with
+units (``cos_theta`` "1", ``irradiance`` "W/m²", ``alpha`` "rad", ``radiance`` "W/m²/sr"), wrap's free
+parameters w ∈ [0, 1], p ∈ [0.25, 8] (dimensionless, defaults 0.5 and 1.5) and ``exact=True`` for the
+sphere-light closed form.
 ``METHODS[id](NUMPY_OPS, inputs, params)`` is the NumPy run of the same text (benchmarks, references);
 `rtfit.fitting.fit_method` fits through its JAX run. ``METHODS`` is not re-exported by
 `rtfit.realtime` (every family has one): use ``rtfit.realtime.diffuse.METHODS``.
@@ -99,6 +102,7 @@ from .arrays import (
     sincos_first_quadrant,
     split3,
 )
+from .light_models import METHODS as LIGHT_MODELS
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
@@ -339,6 +343,7 @@ METHODS = method_table(
             source="Snyder 1996, MSR-TR-96-11; Lagarde & de Rousiers 2014, §4.7",
             description="Closed-form irradiance of a uniform sphere light incl. horizon clipping.",
         ),
+        *LIGHT_MODELS.values(),  # the light models, evaluated from the light's own parameters
     ]
 )
 """The diffuse family's methods: ``METHODS[id](ops, inputs, params)`` runs the kernel text on one ops

@@ -248,6 +248,9 @@ class XmlEmitter:
     environment: bool = False
     file: str = ""
     medium: int | None = None
+    patterned: bool = False
+    """A spot light that projects a ``texture`` (its intensity varies across the cone, not only with the
+    angle from its axis): no cone profile models it."""
 
 
 @dataclass(frozen=True)
@@ -466,6 +469,8 @@ def _emitter(mi, node, props: dict, location: str, obj, shape=None) -> XmlEmitte
         )
         if kind == "spot" and m:
             extra["direction"] = _unit(tuple(-x for x in _column(m, 2)))
+        if kind == "spot":
+            extra["patterned"] = "texture" in props
     return XmlEmitter(kind=kind, **base, **extra)
 
 

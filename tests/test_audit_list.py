@@ -126,8 +126,12 @@ def test_cornell_like_scene_with_include_lists_diffuse_and_ao(tmp_path):
     fams = _families(applicable_families(info))
     assert set(fams) == {"diffuse", "sdf-occlusion", "ambient-aperture", "obscurances", "irradiance-volumes"}
     (diffuse,) = fams["diffuse"]
-    assert diffuse.methods == ("lambert", "half-lambert", "wrap")  # no exact form: the light is a rectangle
-    assert dict(diffuse.excluded)["exact"].startswith("needs alpha, radiance: a spherical light")
+    # no exact form (a rectangle); its light models: the inverse square and its windows, the polygon
+    assert diffuse.methods == (
+        "lambert", "half-lambert", "wrap", "punctual", "unreal-window", "frostbite-window", "polygon",
+    )  # fmt: skip
+    # (a rectangle of uniform radiance gives its radiance to the polygon row: only α is missing)
+    assert dict(diffuse.excluded)["exact"].startswith("needs alpha: a spherical light")
     assert "direct irradiance" in diffuse.reference and "shadowed" in diffuse.reference
     (ao,) = [a for a in fams["sdf-occlusion"] if a.role == "ambient occlusion"]
     assert ao.methods == tuple(METHOD_TABLES["sdf-occlusion"])
@@ -159,7 +163,9 @@ def test_mitsubas_own_cornell_box_written_by_its_xml_writer(tmp_path):
         1 for v in d.values() if isinstance(v, dict) and v.get("type") in ("rectangle", "cube")
     )
     fams = _families(applicable_families(inspect_scene(path)))
-    assert fams["diffuse"][0].methods == ("lambert", "half-lambert", "wrap")
+    assert fams["diffuse"][0].methods == (
+        "lambert", "half-lambert", "wrap", "punctual", "unreal-window", "frostbite-window", "polygon",
+    )  # fmt: skip
     assert "sdf-occlusion" in fams and "irradiance-bases" not in fams
 
 
@@ -170,7 +176,16 @@ def test_a_sphere_light_adds_the_exact_form(tmp_path):
     assert emitter.position == pytest.approx((0.0, 0.6, 0.0), abs=1e-6)
     assert emitter.radius == pytest.approx(0.25, rel=1e-6)
     fams = _families(applicable_families(inspect_scene(xml)))
-    assert fams["diffuse"][0].methods == ("lambert", "half-lambert", "wrap", "exact")
+    assert fams["diffuse"][0].methods == (
+        "lambert",
+        "half-lambert",
+        "wrap",
+        "exact",
+        "punctual",
+        "unreal-window",
+        "frostbite-window",
+        "representative-point",
+    )  # fmt: skip (and a sphere light's models)
     aa = {a.role: a for a in fams["ambient-aperture"]}
     assert aa["occluded sphere light"].methods == tuple(
         m for m in METHOD_TABLES["ambient-aperture"] if m.startswith("aa-")
@@ -346,6 +361,9 @@ def test_rtfit_toml_scenes(tmp_path):
         applicable_families(inspect_scene(xml), approx="nishita-sky")
 
 
+_LIGHT_KINDS = {"spherical-light", "punctual-light", "spot-light", "rect-light"}  # always with "light"
+
+
 def test_rules_are_data_and_reach_every_method():
     """Every family has a rule, and in a scene holding every kind of part every method of every table
     applies through some rule: nothing is reachable only by a name-specific branch."""
@@ -353,7 +371,7 @@ def test_rules_are_data_and_reach_every_method():
     everything = SceneInfo(
         source="all",
         format="test",
-        parts=tuple(Part(frozenset({k, "light"} if k == "spherical-light" else {k}), k) for k in PROVIDES),
+        parts=tuple(Part(frozenset({k, "light"} if k in _LIGHT_KINDS else {k}), k) for k in PROVIDES),
         bbox=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)),
         up="+z",
         up_reason="",

@@ -519,12 +519,15 @@ def test_sphere_light_geometry():
 
 
 def test_method_table():
-    assert set(d.METHODS) == {"lambert", "half-lambert", "wrap", "exact"}
+    from rtfit.realtime.light_models import METHODS as LIGHT_MODELS  # (tests/test_light_models.py)
+
+    assert set(d.METHODS) == {"lambert", "half-lambert", "wrap", "exact", *LIGHT_MODELS}
+    formulas = [m for k, m in d.METHODS.items() if k not in LIGHT_MODELS]
     w = d.METHODS["wrap"]
     assert w.defaults() == {"w": 0.5, "p": 1.5}
     assert w.bounds() == {"w": (0.0, 1.0), "p": (0.25, 8.0)}
     assert [m.id for m in d.METHODS.values() if m.exact] == ["exact"]
-    units = {i.name: i.unit for m in d.METHODS.values() for i in m.inputs}
+    units = {i.name: i.unit for m in formulas for i in m.inputs}
     assert units == {"cos_theta": "1", "irradiance": "W/m²", "alpha": "rad", "radiance": "W/m²/sr"}
     assert all(p.unit == "1" for p in w.params.values())
     for m in d.METHODS.values():

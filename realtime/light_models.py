@@ -1,0 +1,353 @@
+r"""Light models of the diffuse family: each evaluated from the light's own parameters, not from a reference.
+
+The diffuse family's first rows (`rtfit.realtime.diffuse`: Lambert, half-Lambert, wrap) are handed the light's
+irradiance at normal incidence E⊥, so they compare an angular falloff only. The rows here are what an engine
+does instead: they read the light as the engine stores it (position, intensity or radiance and size, cone
+angles) and compute the irradiance E (W/m²) on a surface of unit normal n at a point x themselves.
+
+Conventions and units
+---------------------
+* ``cos_theta`` = n·t, t the unit direction from x to the light's centre; ``distance`` d = |c − x| (scene
+  units, read as metres where a constant has a unit: the engines' 1 cm guards below).
+* ``intensity`` I (W/sr): the light's radiant intensity towards x, from its own parameters
+  (`rtfit.experiments.audit_lights.light_intensity`): a point light's I; a uniform sphere of radiance L and
+  radius r: I = π r² L (its projected area times L, Φ/4π); a one-sided planar light of area A (rectangle,
+  disc): I = L A max(cos θ_l, 0), θ_l the angle at the light between its normal and x.
+* ``alpha`` α = asin(r/d) (rad), ``radiance`` L (W/m²/sr): a sphere light's, as in `diffuse`.
+* A rectangle light: centre (``lcx``, ``lcy``, ``lcz``) and half-edge vectors u (``lux``…) and v (``lvx``…),
+  corners c ± u ± v, emitting on the side of u × v (Mitsuba's ``rectangle``: to_world of [−1, 1]² at z = 0,
+  normal +z); the point ``px``…, its normal ``nx``… (need not be unit length).
+* A spot light: on-axis ``axis_intensity`` I₀, ``cos_axis`` = cos φ, φ the angle at the light between its axis
+  and the direction to x, ``cutoff`` φ_c and ``beam`` φ_b (rad; Mitsuba's ``cutoff_angle`` and
+  ``beam_width``).
+
+Formulas (one kernel text each)
+-------------------------------
+* ``punctual`` — inverse-square at the light's centre: E = I·max(cos θ, 0)/d². Exact for a point light; the
+  far-field limit of every local light (a sphere: exact above the horizon, `diffuse` ``exact``).
+* ``unreal-window`` — E = I·max(cos θ, 0)·saturate(1 − (d/r)⁴)² / (d² + d₀²), d₀ = 1 cm (Karis 2013, "Real
+  Shading in Unreal Engine 4", SIGGRAPH course notes, "Lighting model", inverse-square falloff windowed to
+  zero at the light's radius r; the "+1" of the paper is 1 cm² in Unreal's centimetre units).
+* ``frostbite-window`` — E = I·max(cos θ, 0)·saturate(1 − (d²/r²)²)² / max(d², d₀²), d₀ = 1 cm (Lagarde &
+  de Rousiers 2014, "Moving Frostbite to Physically Based Rendering", punctual-light section, listing
+  smoothDistanceAtt/getDistanceAtt: ``1/max(sqrDist, 0.01²)``). The two windows are the same function of
+  d/r; they differ only in how they bound the inverse square near the light. r is an artist's setting with
+  no published value (``Param.published`` False): the audit shows it fitted only, its start 2 × the
+  largest distance from the light to a visible point.
+* ``representative-point`` — a sphere light in Karis 2013's "Area lights" scheme: for a Lambertian receiver
+  the representative point is the centre (a sphere above the horizon lights a surface exactly as a point
+  light of I = π r² L does), E = π sin²α L · w(cos θ, sin α) with w = cos θ above the horizon
+  (cos θ ≥ sin α), 0 below (cos θ ≤ −sin α) and, across the horizon band, Unreal's smooth wrap
+  w = (sin α + cos θ)²/(4 sin α) (UE4 ``SphereHorizonCosWrap``, a smooth stand-in for the exact clipped
+  form of Lagarde & de Rousiers 2014's sphere-light section). Tube lights: rtfit's scenes have none
+  (Mitsuba has no capsule emitter; a ``cylinder`` area light is left out of these rows, docs/diffuse.md).
+* ``polygon`` (LTC, diffuse) — a rectangle light by Lambert's formula for a polygon of uniform radiance L,
+  horizon-clipped: E = L·max(−½ Σᵢ Θᵢ (n·Γᵢ), 0) over the clipped polygon's edges (vᵢ, vᵢ₊₁) seen from x,
+  Θᵢ the angle between them, Γᵢ the unit normal of their plane (Lambert 1760; Arvo 1994, "The irradiance
+  Jacobian for partially occluded polyhedral sources", eq. 9). For a diffuse receiver the linearly
+  transformed cosine of Heitz, Dupuy, Hill & Neubelt 2016 ("Real-time polygonal-light shading with
+  linearly transformed cosines") is the clamped cosine itself (its matrix M is the identity), so this is
+  the LTC-diffuse evaluation; no fit table is involved. One-sided: a point behind the light's plane sees
+  the polygon wound the other way, −½ Σ is ≤ 0 and E = 0. Discs: left out (an LTC disc needs the
+  ellipse form of Heitz & Hill 2017, not written here). Exact, but not marked ``exact`` (no z-check in the
+  audit): Mitsuba samples a rectangle uniformly by area, and near the light its estimates are heavy-tailed
+  (a 0.8 × 0.4 light 0.6 above a floor, 16 spp: z spread 0.77, 3 % of |z| > 4), so a z-check would fail on
+  the reference's noise, not the formula; tests/test_light_models.py checks it against quadrature.
+* ``spot-linear`` — Mitsuba 3's ``spot`` (spot.cpp ``falloff_curve``): E = I₀ f(φ) max(cos θ, 0)/d² with
+  f = clamp((φ_c − φ)/(φ_c − φ_b), 0, 1), linear in the angle. Exact for Mitsuba's spot, but not marked
+  ``exact``: a spot's reference (one emitter sample per pixel is exact) has no noise to z-score against;
+  tests/test_light_models.py asserts the agreement instead.
+* ``spot-smoothstep`` — three.js ``getSpotAttenuation``: f = smoothstep(cos φ_c, cos φ_b, cos φ).
+* ``spot-squared`` — Unreal's ``SpotAttenuation`` and Frostbite's getAngleAtt (Lagarde & de Rousiers 2014,
+  punctual lights): f = saturate((cos φ − cos φ_c)/(cos φ_b − cos φ_c))², quadratic in the cosine.
+
+Guards (each keeps a value finite where the formula has none; none changes a value in its domain)
+--------------------------------------------------------------------------------------------------
+* d² ≥ 1e-20 in ``punctual`` and the spots (`_D2_MIN`): the inverse square is infinite at the light's centre
+  (d → 0); the floor only keeps the output finite, 1e-10 scene units being far below any pixel's distance.
+* r ≥ 1e-30 in the windows (`safe_div`): r = 0 gives a window of 0, not 0/0.
+* the polygon: a zero vertex vector (x at a corner) or antipodal vertices (x on an edge) give an edge term
+  of 0, the bound |n·(â×b̂)| ≤ |â×b̂| keeps Θ·(n·Γ) ≤ π without dividing by sin Θ → 0; the horizon crossing
+  parameter is clipped to [0, 1]; E is clipped at 0 (one-sided light, rounding).
+* the spots: φ_c − φ_b ≥ 1e-30 (a hard cone when the beam fills it); cos φ clamped to [−1, 1] before acos.
+
+Accuracy (tests/test_light_models.py): the polygon form against 2-D Gauss–Legendre quadrature over the
+rectangle at 200 random configurations, many partly below the horizon: ≤ 1e-9 relative in float64; in
+float32 its four edge terms of size ~s/d cancel to a sum of size ~(s/d)², so its relative error grows as
+~1e-7·d/s for a light of size s at distance d.
+
+Methods as data: ``METHODS`` (`rtfit.realtime.methods.method_table`) declares each formula once; the diffuse
+family's table (`rtfit.realtime.diffuse.METHODS`) includes them, so the audit evaluates them on every light
+whose part provides their inputs (`rtfit.experiments.audit.PROVIDES`) and lists the rest as left out.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .arrays import clamp01, clamp_cos, safe_div, safe_sqrt
+from .methods import Input, Method, Param, method_table
+
+__all__: list[str] = []
+
+D0 = 0.01
+"""The engines' near-field guard, 1 cm in metres (Unreal's "+1" in cm², Frostbite's ``0.01*0.01``)."""
+_D2_MIN = 1e-20  # the inverse square's floor at the light's centre (module docstring, Guards)
+_TINY = 1e-30
+
+
+# ===================================================================================== kernels (ops text)
+def _inverse_square(ops, cos_theta, distance, intensity):
+    """I·max(cos θ, 0)/max(d², 1e-20): the punctual term every row below shares."""
+    d2 = ops.maximum(distance * distance, _D2_MIN)  # d → 0: finite (Guards)
+    return intensity * ops.clip(cos_theta, 0.0, 1.0) / d2
+
+
+def _punctual_kernel(ops, cos_theta, distance, intensity):
+    """Inverse square at the light's centre: E = I·max(cos θ, 0)/d²."""
+    return _inverse_square(ops, cos_theta, distance, intensity)
+
+
+def _window(ops, distance, r):
+    """saturate(1 − (d/r)⁴)², written (d²/r²)² as Frostbite does; r = 0 gives 0 (safe_div)."""
+    x = safe_div(ops, distance * distance, r * r)
+    w = clamp01(ops, 1.0 - x * x)
+    return w * w
+
+
+def _unreal_window_kernel(ops, cos_theta, distance, intensity, r):
+    """E = I·max(cos θ, 0)·saturate(1 − (d/r)⁴)²/(d² + d₀²) (Karis 2013)."""
+    c = ops.clip(cos_theta, 0.0, 1.0)
+    return intensity * c * _window(ops, distance, r) / (distance * distance + D0 * D0)
+
+
+def _frostbite_window_kernel(ops, cos_theta, distance, intensity, r):
+    """E = I·max(cos θ, 0)·saturate(1 − (d²/r²)²)²/max(d², d₀²) (Lagarde & de Rousiers 2014)."""
+    c = ops.clip(cos_theta, 0.0, 1.0)
+    return intensity * c * _window(ops, distance, r) / ops.maximum(distance * distance, D0 * D0)
+
+
+def _representative_point_kernel(ops, cos_theta, alpha, radiance):
+    """E = π sin²α L · w: w = cos θ above the horizon, (sin α + cos θ)²/(4 sin α) across it, 0 below."""
+    c = clamp_cos(ops, cos_theta)
+    s = ops.sin(ops.clip(alpha, 0.0, 0.5 * math.pi))
+    band = safe_div(ops, (s + c) * (s + c), 4.0 * s)  # s = 0: the band is empty; finite anyway
+    w = ops.select(c >= s, c, ops.select(c <= -s, 0.0, band))
+    return (math.pi * radiance) * (s * s) * w
+
+
+def _unit3(ops, x, y, z):
+    """(x, y, z)/|(x, y, z)|; the zero vector stays zero (safe_div)."""
+    n = safe_sqrt(ops, x * x + y * y + z * z)
+    return safe_div(ops, x, n), safe_div(ops, y, n), safe_div(ops, z, n)
+
+
+def _edge(ops, a, b, n):
+    """Θ·(n·Γ) for the arc from a to b (unnormalised 3-tuples), n a unit normal: Θ = atan2(|â×b̂|, â·b̂),
+    n·Γ = n·(â×b̂)/|â×b̂| ∈ [−1, 1] (clipped: 0/0 where â×b̂ = 0, then Θ·0 = 0)."""
+    ax, ay, az = _unit3(ops, *a)
+    bx, by, bz = _unit3(ops, *b)
+    wx, wy, wz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    s = safe_sqrt(ops, wx * wx + wy * wy + wz * wz)
+    c = ax * bx + ay * by + az * bz
+    q = ops.clip(safe_div(ops, n[0] * wx + n[1] * wy + n[2] * wz, s), -1.0, 1.0)
+    return ops.atan2(s, c) * q
+
+
+def _lerp3(a, b, t):
+    return tuple(ai + (bi - ai) * t for ai, bi in zip(a, b, strict=True))
+
+
+def _select3(ops, m, a, b):
+    return tuple(ops.select(m, ai, bi) for ai, bi in zip(a, b, strict=True))
+
+
+def _polygon_kernel(
+    ops, px, py, pz, nx, ny, nz, lcx, lcy, lcz, lux, luy, luz, lvx, lvy, lvz, radiance
+):  # fmt: skip
+    """E = L·max(−½ Σ Θᵢ n·Γᵢ, 0) over the rectangle c ± u ± v clipped to the horizon n·ω ≥ 0 at x.
+
+    Edge by edge: both ends above the horizon — the edge; one above — the part above, ending (exit) or
+    starting (entry) on the horizon; none — nothing. A convex polygon crosses the horizon plane through x
+    at most twice, so the clipped polygon is closed by one arc along the horizon, from the exit point to the
+    entry point."""
+    n = _unit3(ops, nx, ny, nz)
+    cx, cy, cz = lcx - px, lcy - py, lcz - pz
+    corners = [
+        (cx + su * lux + sv * lvx, cy + su * luy + sv * lvy, cz + su * luz + sv * lvz)
+        for su, sv in ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))
+    ]  # counter-clockwise seen from the side u × v points to, where Σ Θᵢ n·Γᵢ ≤ 0
+    h = [n[0] * v[0] + n[1] * v[1] + n[2] * v[2] for v in corners]
+    total = 0.0 * px
+    exit_pt = entry_pt = (0.0 * px, 0.0 * px, 0.0 * px)
+    crossed = h[0] > 1e300  # all False, of the backend's mask type
+    for i in range(4):
+        j = (i + 1) % 4
+        a, b, ha, hb = corners[i], corners[j], h[i], h[j]
+        up_a, up_b = ha > 0.0, hb > 0.0
+        t = clamp01(ops, safe_div(ops, ha, ops.abs(ha - hb)) * ops.select(ha > hb, 1.0, -1.0))
+        x = _lerp3(a, b, t)  # the horizon crossing of edge a→b (used only where it crosses)
+        leaving = up_a & (hb <= 0.0)
+        entering = (ha <= 0.0) & up_b
+        start = _select3(ops, entering, x, a)
+        end = _select3(ops, leaving, x, b)
+        term = _edge(ops, start, end, n)
+        total = total + ops.select(up_a | up_b, term, 0.0)
+        exit_pt = _select3(ops, leaving, x, exit_pt)
+        entry_pt = _select3(ops, entering, x, entry_pt)
+        crossed = crossed | leaving
+    total = total + ops.select(crossed, _edge(ops, exit_pt, entry_pt, n), 0.0)
+    return radiance * ops.maximum(-0.5 * total, 0.0)  # counter-clockwise seen from x: Σ ≤ 0 (front)
+
+
+def _spot_cos(ops, cos_axis):
+    return clamp_cos(ops, cos_axis)
+
+
+def _spot_linear_kernel(ops, cos_theta, distance, axis_intensity, cos_axis, cutoff, beam):
+    """Mitsuba's spot: f = clamp((φ_c − φ)/(φ_c − φ_b), 0, 1), E = I₀ f max(cos θ, 0)/d²."""
+    phi = ops.acos(_spot_cos(ops, cos_axis))
+    f = clamp01(ops, safe_div(ops, cutoff - phi, ops.maximum(cutoff - beam, 0.0)))
+    f = ops.select(cutoff - beam > 0.0, f, ops.select(phi < cutoff, 1.0, 0.0))  # a hard cone (Guards)
+    return f * _inverse_square(ops, cos_theta, distance, axis_intensity)
+
+
+def _smooth_t(ops, cos_axis, cutoff, beam):
+    """saturate((cos φ − cos φ_c)/(cos φ_b − cos φ_c)); a hard cone where cos φ_b ≤ cos φ_c."""
+    ca = _spot_cos(ops, cos_axis)
+    lo, hi = ops.cos(cutoff), ops.cos(beam)
+    t = clamp01(ops, safe_div(ops, ca - lo, ops.maximum(hi - lo, 0.0)))
+    return ops.select(hi - lo > 0.0, t, ops.select(ca > lo, 1.0, 0.0))
+
+
+def _spot_smoothstep_kernel(ops, cos_theta, distance, axis_intensity, cos_axis, cutoff, beam):
+    """three.js: f = smoothstep(cos φ_c, cos φ_b, cos φ) = t²(3 − 2t)."""
+    t = _smooth_t(ops, cos_axis, cutoff, beam)
+    return t * t * (3.0 - 2.0 * t) * _inverse_square(ops, cos_theta, distance, axis_intensity)
+
+
+def _spot_squared_kernel(ops, cos_theta, distance, axis_intensity, cos_axis, cutoff, beam):
+    """Unreal / Frostbite: f = saturate((cos φ − cos φ_c)/(cos φ_b − cos φ_c))²."""
+    t = _smooth_t(ops, cos_axis, cutoff, beam)
+    return t * t * _inverse_square(ops, cos_theta, distance, axis_intensity)
+
+
+# ===================================================================================== methods as data
+_COS = Input(
+    "cos_theta", "1", "n·t, cosine between the normal and the direction to the light's centre", (-1.0, 1.0)
+)
+_DIST = Input("distance", "m", "d, distance from the point to the light's centre", (1e-3, 100.0))
+_INTENSITY = Input("intensity", "W/sr", "the light's radiant intensity towards the point", (0.0, 100.0))
+_ALPHA = Input("alpha", "rad", "angular radius of the sphere light seen from the point", (0.0, 0.5 * math.pi))
+_RADIANCE = Input("radiance", "W/m²/sr", "the light's uniform radiance L", (0.0, 10.0))
+_WINDOW_R = Param(
+    10.0, 1e-3, 1e6, unit="m", published=False,
+    description="window radius r: the falloff reaches 0 at d = r (an artist's setting per light)",
+)  # fmt: skip
+_POLYGON_INPUTS = tuple(
+    Input(name, "m", text, (lo, hi))
+    for name, text, lo, hi in (
+        *((f"p{a}", f"the shaded point, {a}", -1.0, 1.0) for a in "xyz"),
+        *((f"n{a}", f"the point's normal, {a}", -1.0, 1.0) for a in "xyz"),
+        *((f"lc{a}", f"the rectangle's centre, {a}", -3.0, 3.0) for a in "xyz"),
+        *((f"lu{a}", f"the rectangle's first half-edge u, {a}", -1.0, 1.0) for a in "xyz"),
+        *((f"lv{a}", f"the rectangle's second half-edge v, {a}", -1.0, 1.0) for a in "xyz"),
+    )
+)
+_SPOT_INPUTS = (
+    _COS,
+    _DIST,
+    Input("axis_intensity", "W/sr", "the spot's on-axis radiant intensity I₀", (0.0, 100.0)),
+    Input("cos_axis", "1", "cos φ: the spot's axis · the direction from the light to the point", (-1.0, 1.0)),
+    Input("cutoff", "rad", "φ_c, Mitsuba's cutoff_angle", (0.3, 1.2)),
+    Input("beam", "rad", "φ_b, Mitsuba's beam_width", (0.0, 0.29)),
+)
+_SPOT_SOURCE = "cone angles φ_b (beam_width), φ_c (cutoff_angle) of Mitsuba's spot"
+
+METHODS = method_table(
+    [
+        Method(
+            "punctual",
+            "Punctual (inverse square)",
+            _punctual_kernel,
+            inputs=(_COS, _DIST, _INTENSITY),
+            quantity="light_irradiance",
+            formula="E = I·max(cos θ, 0)/d²",
+            source="inverse-square law at the light's centre (I: the light's intensity towards the point)",
+            description="The light as a point at its centre: exact for a point light, the far field of any.",
+        ),
+        Method(
+            "unreal-window",
+            "Unreal windowed falloff",
+            _unreal_window_kernel,
+            inputs=(_COS, _DIST, _INTENSITY),
+            params={"r": _WINDOW_R},
+            quantity="light_irradiance",
+            formula="E = I·max(cos θ, 0)·saturate(1 − (d/r)⁴)²/(d² + (1 cm)²)",
+            source="Karis 2013, Real Shading in Unreal Engine 4, lighting model (inverse-square falloff)",
+            description="Inverse square windowed to 0 at the radius r (fitted); +1 cm² near the light.",
+        ),
+        Method(
+            "frostbite-window",
+            "Frostbite smooth window",
+            _frostbite_window_kernel,
+            inputs=(_COS, _DIST, _INTENSITY),
+            params={"r": _WINDOW_R},
+            quantity="light_irradiance",
+            formula="E = I·max(cos θ, 0)·saturate(1 − (d²/r²)²)²/max(d², (1 cm)²)",
+            source="Lagarde & de Rousiers 2014, Moving Frostbite to PBR, punctual lights (smoothDistanceAtt)",
+            description="Unreal's window with the inverse square floored at 1 cm instead of offset.",
+        ),
+        Method(
+            "representative-point",
+            "Representative point (sphere)",
+            _representative_point_kernel,
+            inputs=(_COS, _ALPHA, _RADIANCE),
+            quantity="light_irradiance",
+            formula="E = π sin²α L·{cos θ; (sin α + cos θ)²/(4 sin α) across the horizon; 0}",
+            source="Karis 2013, area lights (sphere = point above the horizon); UE4 SphereHorizonCosWrap",
+            description="A sphere light as its centre, with Unreal's smooth wrap across the horizon.",
+        ),
+        Method(
+            "polygon",
+            "LTC polygon (diffuse)",
+            _polygon_kernel,
+            inputs=(*_POLYGON_INPUTS, _RADIANCE),
+            quantity="light_irradiance",
+            formula="E = L·max(−½ Σᵢ Θᵢ n·Γᵢ, 0) (corners counter-clockwise), edges clipped to the horizon",
+            source="Lambert's polygon formula (Arvo 1994 eq. 9) = LTC with M = I (Heitz et al. 2016)",
+            description="Exact irradiance of a uniform rectangle light: LTC for a diffuse BRDF.",
+        ),
+        Method(
+            "spot-linear",
+            "Spot, Mitsuba's linear profile",
+            _spot_linear_kernel,
+            inputs=_SPOT_INPUTS,
+            quantity="light_irradiance",
+            formula="E = I₀·clamp((φ_c − φ)/(φ_c − φ_b), 0, 1)·max(cos θ, 0)/d²",
+            source=f"Mitsuba 3 spot.cpp falloff_curve ({_SPOT_SOURCE})",
+            description="Mitsuba's own spot profile, linear in the angle: the exact row for its spot.",
+        ),
+        Method(
+            "spot-smoothstep",
+            "Spot, smoothstep cone",
+            _spot_smoothstep_kernel,
+            inputs=_SPOT_INPUTS,
+            quantity="light_irradiance",
+            formula="E = I₀·smoothstep(cos φ_c, cos φ_b, cos φ)·max(cos θ, 0)/d²",
+            source="three.js getSpotAttenuation (smoothstep in the cosine)",
+            description="The engines' smooth cone, Hermite in cos φ between the two cone angles.",
+        ),
+        Method(
+            "spot-squared",
+            "Spot, squared linear-in-cosine",
+            _spot_squared_kernel,
+            inputs=_SPOT_INPUTS,
+            quantity="light_irradiance",
+            formula="E = I₀·saturate((cos φ − cos φ_c)/(cos φ_b − cos φ_c))²·max(cos θ, 0)/d²",
+            source="Karis 2013 / UE4 SpotAttenuation; Lagarde & de Rousiers 2014 getAngleAtt",
+            description="Unreal's and Frostbite's cone: the linear ramp in cos φ, squared.",
+        ),
+    ]
+)
+"""The light models (module docstring); part of `rtfit.realtime.diffuse.METHODS`."""
