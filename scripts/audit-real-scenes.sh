@@ -2,7 +2,8 @@
 # Audit the real scenes of tests/data/real (issue 31) as a user would: the default `rtfit audit` at
 # 64² × 32 spp, one scene after another, printing each one's exit status, wall time and the audit's own
 # timings line. Usage: bash scripts/audit-real-scenes.sh OUT_DIR [FIRST [LAST]] [-- extra audit options]
-# (FIRST/LAST: 1-based indices into the scene list below, to split the list over several calls).
+# (FIRST/LAST: 1-based indices into the scene list below, to split the list over several calls;
+# AUDIT_TIMEOUT_S: a limit per scene, exit 124 past it).
 set -uo pipefail
 out=${1:?usage: audit-real-scenes.sh OUT_DIR [FIRST [LAST]] [-- options]}; shift
 first=${1:-1}; last=${2:-99}; shift $(( $# >= 2 ? 2 : $# ))
@@ -25,7 +26,7 @@ for i in "${!scenes[@]}"; do
   n=$((i + 1)); [ "$n" -lt "$first" ] || [ "$n" -gt "$last" ] && continue
   s=${scenes[$i]}; name=$(basename "$s" .xml)
   t0=$(date +%s.%N)
-  rtfit audit "$s" --width 64 --height 64 --spp 32 --out "$out" --cache "$out/cache" --no-progress --profile "$@" \
+  timeout "${AUDIT_TIMEOUT_S:-0}" rtfit audit "$s" --width 64 --height 64 --spp 32 --out "$out" --cache "$out/cache" --no-progress --profile "$@" \
     > "$out/$name.log" 2>&1
   rc=$?
   t1=$(date +%s.%N)
