@@ -73,13 +73,12 @@ from .ambient_aperture_doc import sections, summary
 from .ambient_aperture_scenes import LABELS as SCENE_LABELS
 from .ambient_aperture_scenes import PROBE_REGION, probe_grid
 from .cost import (
+    BASELINE,
     Stock,
     attach_costs,
-    baseline_row,
     bench_backend,
-    comparison_row,
+    comparison_rows,
     cost_row,
-    memory_baseline,
     memory_floor_row,
     reference_sizes,
     reference_vs_stock_rows,
@@ -1320,12 +1319,7 @@ def bench(ctx) -> list[dict]:
     backend, n = bench_backend(ctx)
     np_args, dr_args = cost_inputs(n, backend)
     np64 = tuple(x.astype(np.float64) for x in np_args)
-    base = memory_baseline(dr_args, n)
-    rows = []
-    for m in OMEGA:
-        t_dr = time_drjit(drjit_call(m), dr_args, n)
-        t_np = time_numpy(numpy_call(m), np64, n)
-        rows.append(comparison_row(m.label, backend, t_dr, t_np, base))
-    rows.append(baseline_row(base, backend))
-    rows += bench_reference(ctx)
-    return rows
+    timed = (
+        (m.label, time_drjit(drjit_call(m), dr_args, n), time_numpy(numpy_call(m), np64, n)) for m in OMEGA
+    )
+    return comparison_rows(backend, dr_args, n, timed, baseline=BASELINE) + bench_reference(ctx)

@@ -61,13 +61,12 @@ from rtfit.scenes import ConstantEnv, library_path, load_scene, parse_scene_text
 from . import figures, prose
 from . import fitted as fitfiles
 from .cost import (
+    BASELINE,
     Stock,
     attach_costs,
-    baseline_row,
     bench_backend,
-    comparison_row,
+    comparison_rows,
     cost_row,
-    memory_baseline,
     memory_floor_row,
     reference_sizes,
     reference_vs_stock_rows,
@@ -840,15 +839,15 @@ def bench(ctx) -> list[dict]:
     backend, n = bench_backend(ctx)
     dr_in, np_in = cost_inputs(n, backend)
     args = (dr_in["cos_theta"], dr_in["alpha"])
-    base = memory_baseline(args, n)
-    rows = []
-    for row in ROWS:
-        t_dr = time_drjit(_drjit_call(row.method, dr_in), args, n)
-        t_np = time_numpy(row.method, (NUMPY_OPS, np_in), n)
-        rows.append(comparison_row(row.title, backend, t_dr, t_np, base))
-    rows.append(baseline_row(base, backend))
-    rows += bench_reference(ctx)
-    return rows
+    timed = (
+        (
+            row.title,
+            time_drjit(_drjit_call(row.method, dr_in), args, n),
+            time_numpy(row.method, (NUMPY_OPS, np_in), n),
+        )
+        for row in ROWS
+    )
+    return comparison_rows(backend, args, n, timed, baseline=BASELINE) + bench_reference(ctx)
 
 
 def bench_reference(ctx) -> list[dict]:

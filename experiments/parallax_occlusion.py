@@ -52,13 +52,11 @@ from . import fitted as fitfiles
 from .cost import (
     attach_costs,
     bench_backend,
-    comparison_row,
     cost_backend,
     cost_row,
-    memory_baseline,
     memory_floor_row,
-    time_drjit,
-    time_numpy,
+    method_bench_rows,
+    time_method,
 )
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
@@ -949,13 +947,6 @@ def _cost_inputs(n: int, Float):
     return np_in, {k: Float(v) for k, v in np_in.items()}
 
 
-def _time(m, inputs, n):
-    names = m.input_names
-    return time_drjit(
-        lambda *a: m.evaluate(dict(zip(names, a, strict=True))), tuple(inputs[k] for k in names), n
-    )
-
-
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per pixel of each variant and sample range (bumps field, view zenith uniform in
     cos θ ∈ [0.15, 1])."""
@@ -970,7 +961,7 @@ def cost_rows(ctx, cfg) -> list[dict]:
             f"{mid}-{lo}-{hi}",
             f"{m.label}, n {lo}–{hi}",
             backend,
-            _time(configured_method(mid, cfg, "bumps", [lo, hi]), inputs, n),
+            time_method(configured_method(mid, cfg, "bumps", [lo, hi]), inputs, n),
             "march + 7-sample shadow + LOD blend, float32",
         )
         for mid, m in METHODS.items()
@@ -985,18 +976,6 @@ def bench(ctx) -> list[dict]:
     n = min(n, 1 << 18)
     Float = backend_float(backend)
     np_in, inputs = _cost_inputs(n, Float)
-    base = memory_baseline(tuple(inputs.values()), n)
     cfg = configure(ctx.quick, None)
-    rows = []
-    for mid in METHODS:
-        m = configured_method(mid, cfg, "bumps", cfg["n_range"])
-        t_dr = _time(m, inputs, n)
-        names = m.input_names
-        with np.errstate(all="ignore"):
-            t_np = time_numpy(
-                lambda *a, m=m, names=names: m(NUMPY_OPS, dict(zip(names, a, strict=True))),
-                tuple(np_in[k] for k in names),
-                n,
-            )
-        rows.append(comparison_row(m.label, backend, t_dr, t_np, base))
-    return rows
+    methods = {mid: configured_method(mid, cfg, "bumps", cfg["n_range"]) for mid in METHODS}
+    return method_bench_rows(methods, backend, inputs, np_in, n)
