@@ -89,6 +89,7 @@ from .cost import (
 from .jobs import Job
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
 from .viewer import save_case_pixels
 
 PI = math.pi
@@ -182,15 +183,8 @@ def params_of(method: Method, fitted: Mapping[str, float]) -> dict[str, float]:
     return {p: float(fitted[p]) for p in method.params}
 
 
-@dataclass(frozen=True)
-class Row:
-    """One compared row of a scene case: ``value(probes, fitted)`` is the irradiance per probe (W/m²);
-    ``params`` names the fitted values it uses (recorded beside its metrics)."""
-
-    id: str
-    label: str
-    value: Callable[[dict, Mapping[str, float]], np.ndarray]
-    params: tuple[str, ...] = ()
+# A compared row of a scene case (`rows.Row`): ``evaluate(probes, fitted)`` is the irradiance per probe
+# (W/m²); ``fit`` names the fitted values it uses (recorded beside its metrics; ``fitted`` when any).
 
 
 def method_row(method: Method) -> Row:
@@ -199,7 +193,8 @@ def method_row(method: Method) -> Row:
     def value(probes, fitted):
         return np.asarray(method.evaluate(probes, params_of(method, fitted)), dtype=np.float64)
 
-    return Row(method.id, method.label, value, tuple(method.params))
+    names = tuple(method.params)
+    return Row(method.id, method.label, method.id, evaluate=value, fitted=bool(names), fit=names)
 
 
 def _cap_model_light(probes, fitted):
@@ -242,9 +237,9 @@ LIGHTINGS = (
         label="sphere light",
         scene_suffix="",
         rows=(
-            Row("cap-model", "Cap model, exact integral", _cap_model_light),
+            Row("cap-model", "Cap model, exact integral", evaluate=_cap_model_light),
             *_rows("light_irradiance"),
-            Row("unshadowed", "No occlusion (exact sphere light)", _unshadowed),
+            Row("unshadowed", "No occlusion (exact sphere light)", evaluate=_unshadowed),
         ),
         show=("cap-model", "aa-smoothstep-seed", "aa-exact-seed", "aa-fitted-fitted"),
         parameters=lambda probes, peak: {
@@ -259,9 +254,13 @@ LIGHTINGS = (
         rows=(
             # For a uniform sky the exact integral over the baked cap is its projected solid angle: the
             # closed form of the ``fill-projected`` kernel (no light to subtract).
-            Row("cap-model", "Cap model, exact integral", method_row(METHODS["fill-projected"]).value),
+            Row(
+                "cap-model",
+                "Cap model, exact integral",
+                evaluate=method_row(METHODS["fill-projected"]).evaluate,
+            ),
             *_rows("sky_irradiance"),
-            Row("unoccluded", "No occlusion (π L_sky)", _unoccluded_sky),
+            Row("unoccluded", "No occlusion (π L_sky)", evaluate=_unoccluded_sky),
         ),
         show=("cap-model", "fill-seed", "fill-projected"),
         parameters=lambda probes, peak: {"sky_radiance": probes["sky_radiance"]},
@@ -512,7 +511,7 @@ def scene_cases(cfg, results, fitted) -> tuple[list[dict], dict]:
         }
         for lighting in LIGHTINGS:
             ref = r["refs"][lighting.id]
-            values = {row.id: row.value(probes, fitted) for row in lighting.rows}
+            values = {row.id: row.evaluate(probes, fitted) for row in lighting.rows}
             peak = float(np.max(values[lighting.rows[-1].id]))
             ref_img = _as_image(mask, ref["mean"][:, 0] / peak, np.zeros(mask.shape))
             sig_img = _as_image(mask, ref["sigma"][:, 0] / peak, np.zeros(mask.shape))
@@ -525,8 +524,8 @@ def scene_cases(cfg, results, fitted) -> tuple[list[dict], dict]:
                     {
                         "method": row.id,
                         "label": row.label,
-                        "fitted": bool(row.params),
-                        "parameters": {p: float(fitted[p]) for p in row.params},
+                        "fitted": row.fitted,
+                        "parameters": {p: float(fitted[p]) for p in row.fit},
                         "metrics": met.to_dict(),
                     }
                 )

@@ -206,41 +206,23 @@ def pixel_inputs(
     return {k: np.ascontiguousarray(c, dtype=dtype) for k, c in zip(names, cols, strict=True)}
 
 
-def exact_image(origin, dirs: np.ndarray, sigma_t: float) -> np.ndarray:
-    """The quadrature per pixel (float64, shape of ``dirs`` without the last axis)."""
+def _spot_arguments(origin, dirs: np.ndarray, sigma_t: float) -> tuple:
+    """The arguments of the spot's quadrature and estimator variance for the rays (origin, ``dirs``) up to
+    the box's exit, the lamp and σ_s = σ_t = ``sigma_t``."""
     flat = np.asarray(dirs, np.float64).reshape(-1, 3)
     s = box_exit(origin, flat, BOX_LO, BOX_HI)
-    val = spot_single_scattering(
-        origin,
-        flat,
-        s,
-        LAMP["apex"],
-        LAMP["axis"],
-        math.radians(LAMP["cutoff_deg"]),
-        math.radians(LAMP["beam_deg"]),
-        LAMP["intensity"],
-        sigma_t,
-        sigma_t,
-    )
-    return val.reshape(dirs.shape[:-1])
+    lamp = (LAMP["apex"], LAMP["axis"], math.radians(LAMP["cutoff_deg"]), math.radians(LAMP["beam_deg"]))
+    return (origin, flat, s, *lamp, LAMP["intensity"], sigma_t, sigma_t)
+
+
+def exact_image(origin, dirs: np.ndarray, sigma_t: float) -> np.ndarray:
+    """The quadrature per pixel (float64, shape of ``dirs`` without the last axis)."""
+    return spot_single_scattering(*_spot_arguments(origin, dirs, sigma_t)).reshape(dirs.shape[:-1])
 
 
 def model_stderr(origin, dirs: np.ndarray, sigma_t: float, spp: int) -> np.ndarray:
     """The reference's standard error from the estimator's analytic variance (`spot_estimator_variance`)."""
-    flat = np.asarray(dirs, np.float64).reshape(-1, 3)
-    s = box_exit(origin, flat, BOX_LO, BOX_HI)
-    var = spot_estimator_variance(
-        origin,
-        flat,
-        s,
-        LAMP["apex"],
-        LAMP["axis"],
-        math.radians(LAMP["cutoff_deg"]),
-        math.radians(LAMP["beam_deg"]),
-        LAMP["intensity"],
-        sigma_t,
-        sigma_t,
-    )
+    var = spot_estimator_variance(*_spot_arguments(origin, dirs, sigma_t))
     return np.sqrt(var / spp).reshape(dirs.shape[:-1])
 
 

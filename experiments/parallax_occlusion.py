@@ -60,6 +60,7 @@ from .cost import (
 )
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
 
 # ============================================================================================ configure
 FIELDS = ("bumps", "ridges")
@@ -111,24 +112,14 @@ def configure(quick: bool, spp: int | None) -> dict:
 
 
 # ================================================================================================= rows
-@dataclasses.dataclass(frozen=True)
-class Row:
-    """One approximation row of the radiance cases: a kernel variant, its shadow parameters (None: the
-    declared defaults; "fit": the joint fit of that variant), and whether the shadow is applied."""
-
-    id: str
-    label: str
-    method: str
-    shadow_params: str | None = None
-    shadow: bool = True
-
-
+# One approximation row of the radiance cases (`rows.Row`): a kernel variant with its shadow parameters
+# declared (``fitted``: the joint fit of that variant) and ``options={"shadow": False}``: no shadow applied.
 ROWS = (
     Row("listing", "POM as printed (k = 0.5, floor 0.4)", "listing"),
     Row("stable", "POM stable (k = 0.5, floor 0.4)", "stable"),
-    Row("listing-fit", "POM as printed, (k, floor) fitted", "listing", shadow_params="fit"),
-    Row("stable-fit", "POM stable, (k, floor) fitted", "stable", shadow_params="fit"),
-    Row("no-shadow", "POM stable without the shadow query", "stable", shadow=False),
+    Row("listing-fit", "POM as printed, (k, floor) fitted", "listing", fitted=True),
+    Row("stable-fit", "POM stable, (k, floor) fitted", "stable", fitted=True),
+    Row("no-shadow", "POM stable without the shadow query", "stable", options={"shadow": False}),
 )
 ALBEDO = 0.8
 LIGHT_RADIANCE = 10.0
@@ -466,11 +457,11 @@ def row_radiance(row: Row, case: dict, cfg: dict, fits: dict, light: dict) -> tu
     ref = case["ref"]
     m = configured_method(row.method, cfg, case["field"], cfg["n_range"])
     params = m.defaults()
-    if row.shadow_params == "fit":
+    if row.fitted:
         params = {k: v["value"] for k, v in fits[row.method][case["field"]]["parameters"].items()}
     u, v, s = eval32(m, _inputs(ref["u0"].ravel(), ref["v0"].ravel(), case["view"], case["light"]), params)
     u, v, s = (np.asarray(a, np.float64) for a in (u, v, s))
-    if not row.shadow:
+    if not row.options.get("shadow", True):
         s = np.ones_like(s)
     with np.errstate(all="ignore"):
         nx, ny, nz = pom_normal_kernel(
@@ -513,7 +504,7 @@ def assemble(ctx, cfg, cases, uv_table, mesh_info, fits, lights, checks) -> dict
                 {
                     "method": row.id,
                     "label": row.label,
-                    "fitted": row.shadow_params == "fit",
+                    "fitted": row.fitted,
                     "parameters": {k: float(v) for k, v in params.items()},
                     "metrics": metrics.to_dict(),
                 }
