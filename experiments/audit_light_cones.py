@@ -34,6 +34,7 @@ import math
 import numpy as np
 
 from rtfit.fitting import Param
+from rtfit.realtime.arrays import xyz_columns
 from rtfit.realtime.light_cones import METHODS
 from rtfit.reference.medium_lights import medium_segments
 from rtfit.reference.single_scattering import spot_single_scattering
@@ -97,8 +98,8 @@ def cone_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     n = len(rays.start)
     axis = np.asarray(lit.axis, np.float64)
     geometry = {
-        **{f"o{x}": start[:, k] for k, x in enumerate("xyz")},
-        **{f"w{x}": rays.dirs[:, k] for k, x in enumerate("xyz")},
+        **xyz_columns("o", start),
+        **xyz_columns("w", rays.dirs),
         **{f"p{x}": np.full(n, lit.position[k]) for k, x in enumerate("xyz")},
         **{f"a{x}": np.full(n, axis[k]) for k, x in enumerate("xyz")},
         "half_angle": np.full(n, half_angle),

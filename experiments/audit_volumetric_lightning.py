@@ -41,6 +41,7 @@ import dataclasses
 import numpy as np
 
 from rtfit.fitting import Param
+from rtfit.realtime.arrays import xyz_columns
 from rtfit.realtime.volumetric_lightning import METHODS
 from rtfit.reference.single_scattering import point_single_scattering
 
@@ -83,8 +84,8 @@ def lightning_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     seg = (rays.end - rays.start)[:, None] * rays.dirs
     n = len(rays.start)
     geometry = {
-        **{f"o{x}": start[:, k] for k, x in enumerate("xyz")},
-        **{f"d{x}": seg[:, k] for k, x in enumerate("xyz")},
+        **xyz_columns("o", start),
+        **xyz_columns("d", seg),
         **{f"l{x}": np.full(n, lit.position[k]) for k, x in enumerate("xyz")},
     }
     exact = [_quadrature(lit, rays, c) for c in range(3)]

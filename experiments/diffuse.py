@@ -74,7 +74,7 @@ from .cost import (
     time_drjit,
     time_numpy,
 )
-from .jobs import Job
+from .jobs import Job, reference_args
 from .registry import SPP_MAX, ConfigKey, checked
 from .rows import Row
 from .viewer import save_case_pixels
@@ -329,11 +329,7 @@ def run(ctx) -> dict:
             render_case,
             dict(
                 scene_toml=scene_to_toml(scenes[case_id(a, s)]),
-                spp=cfg["spp"],
-                pass_spp=cfg["pass_spp"],
-                seed=ctx.seed,
-                variant=ctx.variant,
-                cache_dir=str(ctx.cache_dir),
+                **reference_args(ctx, cfg),
                 probe_count=cfg["probe_count"],
                 probe_spp=cfg["probe_spp"],
                 progress=ctx.progress,

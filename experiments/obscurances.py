@@ -61,7 +61,7 @@ from rtfit.scenes import scene_hash
 from . import figures
 from . import fitted as fitfiles
 from .cost import attach_costs, bench_backend, comparison_rows, time_drjit, time_numpy
-from .jobs import Job
+from .jobs import Job, reference_args
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
 from .sdf_occlusion_scenes import SCENE_NAMES, load_case_scene
@@ -773,11 +773,7 @@ def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     common = dict(
         resolution=cfg["resolution"],
-        spp=cfg["spp"],
-        pass_spp=cfg["pass_spp"],
-        seed=ctx.seed,
-        variant=ctx.variant,
-        cache_dir=str(ctx.cache_dir),
+        **reference_args(ctx, cfg),
         d_max=cfg["d_max"],
         exponent=cfg["exponent"],
         rays=list(cfg["rays"]),

@@ -29,7 +29,7 @@ from rtfit.reference.single_scattering import FOUR_PI
 from rtfit.scenes import parse_scene_text, scene_to_toml
 
 from .cost import rate_row
-from .jobs import Job
+from .jobs import Job, reference_args
 from .records import Check
 from .zchecks import pixel_z_checks
 
@@ -73,11 +73,7 @@ def render_references(ctx, cfg: dict, scenes: dict) -> dict:
             render_job,
             dict(
                 scene_toml=scene_to_toml(scene),
-                spp=cfg["spp"],
-                pass_spp=cfg["pass_spp"],
-                seed=ctx.seed,
-                variant=ctx.variant,
-                cache_dir=str(ctx.cache_dir),
+                **reference_args(ctx, cfg),
                 progress=ctx.progress,
             ),
             label=cid,

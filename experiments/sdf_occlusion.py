@@ -142,7 +142,7 @@ from .cost import (
     stock_render,
     time_drjit,
 )
-from .jobs import Job
+from .jobs import Job, reference_args
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
 from .rows import Row
@@ -1068,11 +1068,7 @@ def run(ctx) -> dict:
             dict(
                 name=n,
                 resolution=cfg["resolution"],
-                spp=cfg["spp"],
-                pass_spp=cfg["pass_spp"],
-                seed=ctx.seed,
-                variant=ctx.variant,
-                cache_dir=str(ctx.cache_dir),
+                **reference_args(ctx, cfg),
                 targets=cfg["targets"],
                 ao_distance=cfg["ao_distance"],
                 albedo=cfg["albedo"],

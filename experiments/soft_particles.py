@@ -30,7 +30,7 @@ import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method, sidak_threshold
 from rtfit.realtime import NUMPY_OPS, set_default_backend
-from rtfit.realtime.arrays import backend_float
+from rtfit.realtime.arrays import backend_float, xyz_columns
 from rtfit.realtime.soft_particles import (
     BIG,
     METHODS,
@@ -49,7 +49,7 @@ from rtfit.reference.variants import backend_of
 from . import figures as F
 from . import fitted as fitfiles
 from .cost import attach_costs, bench_backend, cost_backend, method_bench_rows, method_cost_rows, rate_row
-from .jobs import Job
+from .jobs import Job, reference_args
 from .particle_geometry import billboard_inputs
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
@@ -150,9 +150,7 @@ def ray_inputs(dirs: np.ndarray, centre, radius: float, sigma: float, t_surface)
     n = len(dirs)
     c = np.asarray(centre, np.float64)
     return {
-        "dx": dirs[:, 0],
-        "dy": dirs[:, 1],
-        "dz": dirs[:, 2],
+        **xyz_columns("d", dirs),
         "cx": np.full(n, c[0]),
         "cy": np.full(n, c[1]),
         "cz": np.full(n, c[2]),
@@ -251,11 +249,7 @@ def run(ctx) -> dict:
                 alpha_c=a,
                 tilt_deg=cfg["tilt_deg"],
                 resolution=list(cfg["resolution"]),
-                spp=cfg["spp"],
-                pass_spp=cfg["pass_spp"],
-                seed=ctx.seed,
-                variant=ctx.variant,
-                cache_dir=str(ctx.cache_dir),
+                **reference_args(ctx, cfg),
                 inside=i,
                 progress=ctx.progress,
             ),
@@ -505,12 +499,8 @@ def random_domain(shape: str, alpha_c: float, n: int, seed: int = 11) -> tuple[d
     ts = (c[:, 2] + delta) / dirs[:, 2]
     bb = _per_sample_billboard(dirs, c, alpha_c, shape, ts)
     ex = {
-        "dx": dirs[:, 0],
-        "dy": dirs[:, 1],
-        "dz": dirs[:, 2],
-        "cx": c[:, 0],
-        "cy": c[:, 1],
-        "cz": c[:, 2],
+        **xyz_columns("d", dirs),
+        **xyz_columns("c", c),
         "t_surface": ts,
         "radius": np.full(n, RADIUS),
         "sigma": np.full(n, sigma_of(alpha_c, RADIUS)),
