@@ -50,12 +50,10 @@ from . import figures as F
 from . import fitted as fitfiles
 from .cost import (
     attach_costs,
-    baseline_row,
     bench_backend,
-    comparison_row,
+    comparison_rows,
     cost_backend,
     cost_row,
-    memory_baseline,
     memory_floor_row,
     time_drjit,
     time_numpy,
@@ -796,14 +794,12 @@ def bench(ctx) -> list[dict]:
     d, dist = _cost_inputs(n)
     np_args = (np.full(n, 50.0), d[:, 0], d[:, 1], d[:, 2], dist)
     args = tuple(Float(a) for a in np_args)
-    base = memory_baseline(args, n)
-    rows = []
-    for panels in (4, 16):
-        t_dr = time_drjit(_quadrature_fn(DRJIT_OPS, panels), args, n, repeats=3, min_seconds=0.05)
-        with np.errstate(all="ignore"):
-            t_np = time_numpy(_quadrature_fn(NUMPY_OPS, panels), np_args, n, repeats=2, min_seconds=0.05)
-        rows.append(
-            comparison_row(f"aerial quadrature, {panels} panels", backend, t_dr, t_np, base, unit="ray")
-        )
-    rows.append(baseline_row(base, backend, "memory baseline", unit="ray"))
-    return rows
+
+    def timed():
+        for panels in (4, 16):
+            t_dr = time_drjit(_quadrature_fn(DRJIT_OPS, panels), args, n, repeats=3, min_seconds=0.05)
+            with np.errstate(all="ignore"):
+                t_np = time_numpy(_quadrature_fn(NUMPY_OPS, panels), np_args, n, repeats=2, min_seconds=0.05)
+            yield f"aerial quadrature, {panels} panels", t_dr, t_np
+
+    return comparison_rows(backend, args, n, timed(), unit="ray", baseline="memory baseline")

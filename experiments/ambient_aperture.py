@@ -73,13 +73,12 @@ from .ambient_aperture_doc import sections, summary
 from .ambient_aperture_scenes import LABELS as SCENE_LABELS
 from .ambient_aperture_scenes import PROBE_REGION, probe_grid
 from .cost import (
+    BASELINE,
     Stock,
     attach_costs,
-    baseline_row,
     bench_backend,
-    comparison_row,
+    comparison_rows,
     cost_row,
-    memory_baseline,
     memory_floor_row,
     reference_sizes,
     reference_vs_stock_rows,
@@ -90,6 +89,7 @@ from .cost import (
 from .jobs import Job
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
 from .viewer import save_case_pixels
 
 PI = math.pi
@@ -183,15 +183,8 @@ def params_of(method: Method, fitted: Mapping[str, float]) -> dict[str, float]:
     return {p: float(fitted[p]) for p in method.params}
 
 
-@dataclass(frozen=True)
-class Row:
-    """One compared row of a scene case: ``value(probes, fitted)`` is the irradiance per probe (W/m²);
-    ``params`` names the fitted values it uses (recorded beside its metrics)."""
-
-    id: str
-    label: str
-    value: Callable[[dict, Mapping[str, float]], np.ndarray]
-    params: tuple[str, ...] = ()
+# A compared row of a scene case (`rows.Row`): ``evaluate(probes, fitted)`` is the irradiance per probe
+# (W/m²); ``fit`` names the fitted values it uses (recorded beside its metrics; ``fitted`` when any).
 
 
 def method_row(method: Method) -> Row:
@@ -200,7 +193,8 @@ def method_row(method: Method) -> Row:
     def value(probes, fitted):
         return np.asarray(method.evaluate(probes, params_of(method, fitted)), dtype=np.float64)
 
-    return Row(method.id, method.label, value, tuple(method.params))
+    names = tuple(method.params)
+    return Row(method.id, method.label, method.id, evaluate=value, fitted=bool(names), fit=names)
 
 
 def _cap_model_light(probes, fitted):
@@ -243,9 +237,9 @@ LIGHTINGS = (
         label="sphere light",
         scene_suffix="",
         rows=(
-            Row("cap-model", "Cap model, exact integral", _cap_model_light),
+            Row("cap-model", "Cap model, exact integral", evaluate=_cap_model_light),
             *_rows("light_irradiance"),
-            Row("unshadowed", "No occlusion (exact sphere light)", _unshadowed),
+            Row("unshadowed", "No occlusion (exact sphere light)", evaluate=_unshadowed),
         ),
         show=("cap-model", "aa-smoothstep-seed", "aa-exact-seed", "aa-fitted-fitted"),
         parameters=lambda probes, peak: {
@@ -260,9 +254,13 @@ LIGHTINGS = (
         rows=(
             # For a uniform sky the exact integral over the baked cap is its projected solid angle: the
             # closed form of the ``fill-projected`` kernel (no light to subtract).
-            Row("cap-model", "Cap model, exact integral", method_row(METHODS["fill-projected"]).value),
+            Row(
+                "cap-model",
+                "Cap model, exact integral",
+                evaluate=method_row(METHODS["fill-projected"]).evaluate,
+            ),
             *_rows("sky_irradiance"),
-            Row("unoccluded", "No occlusion (π L_sky)", _unoccluded_sky),
+            Row("unoccluded", "No occlusion (π L_sky)", evaluate=_unoccluded_sky),
         ),
         show=("cap-model", "fill-seed", "fill-projected"),
         parameters=lambda probes, peak: {"sky_radiance": probes["sky_radiance"]},
@@ -513,7 +511,7 @@ def scene_cases(cfg, results, fitted) -> tuple[list[dict], dict]:
         }
         for lighting in LIGHTINGS:
             ref = r["refs"][lighting.id]
-            values = {row.id: row.value(probes, fitted) for row in lighting.rows}
+            values = {row.id: row.evaluate(probes, fitted) for row in lighting.rows}
             peak = float(np.max(values[lighting.rows[-1].id]))
             ref_img = _as_image(mask, ref["mean"][:, 0] / peak, np.zeros(mask.shape))
             sig_img = _as_image(mask, ref["sigma"][:, 0] / peak, np.zeros(mask.shape))
@@ -526,8 +524,8 @@ def scene_cases(cfg, results, fitted) -> tuple[list[dict], dict]:
                     {
                         "method": row.id,
                         "label": row.label,
-                        "fitted": bool(row.params),
-                        "parameters": {p: float(fitted[p]) for p in row.params},
+                        "fitted": row.fitted,
+                        "parameters": {p: float(fitted[p]) for p in row.fit},
                         "metrics": met.to_dict(),
                     }
                 )
@@ -1320,12 +1318,7 @@ def bench(ctx) -> list[dict]:
     backend, n = bench_backend(ctx)
     np_args, dr_args = cost_inputs(n, backend)
     np64 = tuple(x.astype(np.float64) for x in np_args)
-    base = memory_baseline(dr_args, n)
-    rows = []
-    for m in OMEGA:
-        t_dr = time_drjit(drjit_call(m), dr_args, n)
-        t_np = time_numpy(numpy_call(m), np64, n)
-        rows.append(comparison_row(m.label, backend, t_dr, t_np, base))
-    rows.append(baseline_row(base, backend))
-    rows += bench_reference(ctx)
-    return rows
+    timed = (
+        (m.label, time_drjit(drjit_call(m), dr_args, n), time_numpy(numpy_call(m), np64, n)) for m in OMEGA
+    )
+    return comparison_rows(backend, dr_args, n, timed, baseline=BASELINE) + bench_reference(ctx)

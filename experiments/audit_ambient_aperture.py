@@ -66,7 +66,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from rtfit.realtime.ambient_aperture import METHODS, aperture_from_visibility
-from rtfit.realtime.arrays import NUMPY_OPS
+from rtfit.realtime.arrays import NUMPY_OPS, xyz_columns
 from rtfit.realtime.sdf_occlusion import CURVATURE_LEVEL
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import gbuffer_points
@@ -180,12 +180,8 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         "alpha": 0.5 * math.pi,
         "radiance": 1.0 / math.pi,
         "sky_radiance": 1.0 / math.pi,
-        "px": points[:, 0],
-        "py": points[:, 1],
-        "pz": points[:, 2],
-        "nx": normals[:, 0],
-        "ny": normals[:, 1],
-        "nz": normals[:, 2],
+        **xyz_columns("p", points),
+        **xyz_columns("n", normals),
         "sdf": sdf,
         "t0": float(sdf.voxel),
         "t_max": radius,

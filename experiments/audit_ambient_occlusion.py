@@ -39,7 +39,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rtfit.realtime.arrays import NUMPY_OPS
+from rtfit.realtime.arrays import NUMPY_OPS, xyz_columns
 from rtfit.realtime.methods import Input, Method
 from rtfit.realtime.sdf_grid import grid_for_bounds, mesh_sdf_grid
 from rtfit.realtime.sdf_occlusion import (
@@ -197,12 +197,8 @@ def distance_field_rows(
     sdf, sign, shapes = scene_distance_field(setup.mi, setup.scene, radius)
     blurred = sdf.sample(NUMPY_OPS, CURVATURE_LEVEL, *points.T.astype(np.float64))
     inputs = {
-        "px": points[:, 0],
-        "py": points[:, 1],
-        "pz": points[:, 2],
-        "nx": normals[:, 0],
-        "ny": normals[:, 1],
-        "nz": normals[:, 2],
+        **xyz_columns("p", points),
+        **xyz_columns("n", normals),
         "sdf": sdf,
         "t0": float(sdf.voxel),
         "t_max": float(radius if t_max is None else t_max),

@@ -12,8 +12,6 @@ is one line, ``rtfit: error: …``, exit status 2, nothing written.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
 from rtfit.reference.mitsuba_xml import UP_AXES
@@ -23,6 +21,7 @@ from .audit import AuditError, inspect_scene
 from .audit_parallax_occlusion import check_pom_depth
 from .audit_run import audit as run_audit
 from .audit_run import check_ao_distance, resolve_approximations, selected_applicabilities, triple
+from .cli_options import cache_option, out_option
 from .families import AUDITED
 from .registry import RESOLUTION_MAX, SPP_MAX
 
@@ -122,19 +121,8 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
 @click.option(
     "--pass-spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Samples per cached pass (32)."
 )
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out"),
-    show_default=True,
-    help="Output directory: the report goes to OUT/audit-<scene>.",
-)
-@click.option(
-    "--cache",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit).",
-)
+@out_option("Output directory: the report goes to OUT/audit-<scene>.")
+@cache_option()
 @click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
 @click.option("--no-fit", is_flag=True, help="Do not fit free parameters to the scene.")
 @click.option("--no-progress", is_flag=True, help="No progress bars.")

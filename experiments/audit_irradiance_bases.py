@@ -142,7 +142,7 @@ def irradiance_bases_cases(setup: AuditSetup, app: Applicability) -> list[Family
             row_inputs[row_id] = tuple({"irradiance": quad[:, c]} for c in range(3))
             continue
         stored_rows = method.storage // 3 if method.storage else 0
-        coeffs = np.asarray(bases[row.coeffs], np.float64)[:stored_rows]
+        coeffs = np.asarray(bases[row.source], np.float64)[:stored_rows]
         stored = np.ascontiguousarray(coeffs.T.reshape(-1))  # what an engine stores, channel-major
         row_inputs[row_id] = ({"nx": nx, "ny": ny, "nz": nz, "coeffs": stored},)
         own = row_params(row, bases)

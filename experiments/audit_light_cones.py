@@ -34,21 +34,18 @@ import math
 import numpy as np
 
 from rtfit.fitting import Param
+from rtfit.realtime.arrays import xyz_columns
 from rtfit.realtime.light_cones import METHODS
 from rtfit.reference.medium_lights import medium_segments
-from rtfit.reference.single_scattering import FOUR_PI, spot_single_scattering
+from rtfit.reference.single_scattering import spot_single_scattering
 
 from .audit import Applicability, Rule
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .audit_lit_media import (
-    NOTES,
     LitMedium,
     Stretches,
-    inscatter_reference,
-    light_parameters,
-    lit_medium,
-    quantity_inputs,
-    stretches,
+    inscatter,
+    inscatter_case,
 )
 
 __all__ = ["FAMILY", "cone_cases"]
@@ -93,57 +90,36 @@ def _row_params(k: float, half_angle: float, length: float) -> dict[str, dict[st
 def cone_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """One case: the spot's in-scattered radiance along the camera's stretches in its medium (module
     docstring)."""
-    lit = lit_medium(setup, app, "spot")
-    rays = stretches(setup, app, lit)
-    tag = f"light{app.source}"
-    ref = inscatter_reference(setup, app, lit, rays, tag)
+    case = inscatter(setup, app, "spot")
+    lit, rays = case.lit, case.rays
     half_angle = math.radians(0.5 * (lit.cutoff_deg + lit.beam_deg))
     length = cone_length(setup, lit)
     start = rays.segment_start
     n = len(rays.start)
     axis = np.asarray(lit.axis, np.float64)
     geometry = {
-        **{f"o{x}": start[:, k] for k, x in enumerate("xyz")},
-        **{f"w{x}": rays.dirs[:, k] for k, x in enumerate("xyz")},
+        **xyz_columns("o", start),
+        **xyz_columns("w", rays.dirs),
         **{f"p{x}": np.full(n, lit.position[k]) for k, x in enumerate("xyz")},
         **{f"a{x}": np.full(n, axis[k]) for k, x in enumerate("xyz")},
         "half_angle": np.full(n, half_angle),
         "length": np.full(n, length),
         "depth": rays.end - rays.start,
     }
-    exact = [_quadrature(lit, rays, c) for c in range(3)]
-    channels = tuple({**geometry, **quantity_inputs(lit, c), "single_scattering": exact[c]} for c in range(3))
-    k = float(np.mean(lit.sigma_s * lit.intensity)) / FOUR_PI
     parameters = {
-        "light": app.part,
-        **light_parameters(lit, rays),
         "axis": [float(x) for x in axis],
         "cutoff_deg": lit.cutoff_deg,
         "beam_width_deg": lit.beam_deg,
         "shell_half_angle_deg": math.degrees(half_angle),
         "cone_length_m": length,
-        "K_W_per_m_sr": k,
     }
     notes = (
-        *NOTES,
-        "the shipped rows carry one level for the three channels (K = the channels' mean of σ_s·I/(4π))",
         f"the shell mesh: half-angle θ_½ = {math.degrees(half_angle):.4g}° (between beam width "
         f"{lit.beam_deg:.4g}° and cutoff {lit.cutoff_deg:.4g}°), length {length:.4g} m",
-        f"{n} pixels; camera {'inside' if rays.inside else 'outside'} the medium",
     )
-    return [
-        FamilyCase(
-            id=f"{tag}-beam",
-            label=f"{app.part}, in-scattered radiance",
-            reference=ref,
-            mask=rays.mask,
-            channel_inputs=channels,
-            parameters=parameters,
-            units="W/m²/sr",
-            notes=notes,
-            params=_row_params(k, half_angle, length),
-        )
-    ]
+    exact = [_quadrature(lit, rays, c) for c in range(3)]
+    params = _row_params(case.k, half_angle, length)
+    return [inscatter_case(app, case, "beam", geometry, exact, parameters, notes, params)]
 
 
 FAMILY = AuditFamily(

@@ -14,6 +14,8 @@ light's single-scattered radiance along them as the case's reference.
   `rtfit.reference.medium_lights.inscatter_pass` (equiangular sampling with Mitsuba's emitter, phase
   function and shadow rays; a spot's distances drawn inside its cutoff cone widened by
   `WINDOW_MARGIN_DEG`, `cone_window`) in passes through the pass cache.
+* `inscatter` and `inscatter_case` — a family's one case per light: the three above and the shipped rows'
+  one level K, then the case itself around the family's own geometry inputs, exact values and parameters.
 * `quantity_inputs` — the inputs every in-scattering quantity gives a user's approximation per channel:
   ``intensity``, ``sigma_s``, ``sigma_t`` and ``g``.
 """
@@ -35,14 +37,18 @@ from rtfit.reference.medium_lights import (
     medium_segments,
     point_medium,
 )
+from rtfit.reference.single_scattering import FOUR_PI
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditReference, AuditSetup, pooled_passes
+from .audit_family import AuditError, AuditReference, AuditSetup, FamilyCase, pooled_passes
 
 __all__ = [
     "NOTES",
+    "Inscatter",
     "LitMedium",
     "Stretches",
+    "inscatter",
+    "inscatter_case",
     "inscatter_reference",
     "light_parameters",
     "lit_medium",
@@ -242,3 +248,58 @@ NOTES = (
     "each pixel's segment is the first stretch of its ray in the medium before an opaque surface",
 )
 """Notes every case of both families carries."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Inscatter:
+    """A light's in-scattering case in the making: the light in its medium, the camera's stretches, the
+    reference along them (`inscatter_reference`), the case's tag and the shipped rows' one level
+    ``k`` = K, the channels' mean of σ_s·I/(4π) (W/m/sr)."""
+
+    lit: LitMedium
+    rays: Stretches
+    reference: AuditReference
+    tag: str
+    k: float
+
+
+def inscatter(setup: AuditSetup, app: Applicability, kind: str) -> Inscatter:
+    """The light ``app.source`` (a ``kind`` emitter) in its medium, its stretches, reference and level."""
+    lit = lit_medium(setup, app, kind)
+    rays = stretches(setup, app, lit)
+    tag = f"light{app.source}"
+    k = float(np.mean(lit.sigma_s * lit.intensity)) / FOUR_PI
+    return Inscatter(lit, rays, inscatter_reference(setup, app, lit, rays, tag), tag, k)
+
+
+def inscatter_case(
+    app: Applicability,
+    case: Inscatter,
+    suffix: str,
+    geometry: dict,
+    exact: list,
+    parameters: dict,
+    notes: tuple[str, ...],
+    params: dict,
+) -> FamilyCase:
+    """The family's case ``<tag>-<suffix>``: per channel the ``geometry`` inputs, `quantity_inputs` and
+    ``exact[c]`` as ``single_scattering``; as parameters the light, `light_parameters`, the family's own
+    ``parameters`` and K; as notes `NOTES`, the level's, the family's ``notes`` and the pixel count."""
+    lit, rays = case.lit, case.rays
+    channels = tuple({**geometry, **quantity_inputs(lit, c), "single_scattering": exact[c]} for c in range(3))
+    return FamilyCase(
+        id=f"{case.tag}-{suffix}",
+        label=f"{app.part}, in-scattered radiance",
+        reference=case.reference,
+        mask=rays.mask,
+        channel_inputs=channels,
+        parameters={"light": app.part, **light_parameters(lit, rays), **parameters, "K_W_per_m_sr": case.k},
+        units="W/m²/sr",
+        notes=(
+            *NOTES,
+            "the shipped rows carry one level for the three channels (K = the channels' mean of σ_s·I/(4π))",
+            *notes,
+            f"{len(rays.start)} pixels; camera {'inside' if rays.inside else 'outside'} the medium",
+        ),
+        params=params,
+    )

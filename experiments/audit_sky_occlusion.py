@@ -55,7 +55,7 @@ import numpy as np
 
 from rtfit.realtime.ambient_aperture import METHODS as APERTURE_METHODS
 from rtfit.realtime.ambient_aperture import aperture_from_visibility
-from rtfit.realtime.arrays import NUMPY_OPS
+from rtfit.realtime.arrays import NUMPY_OPS, xyz_columns
 from rtfit.realtime.irradiance_bases import METHODS as BASIS_METHODS
 from rtfit.realtime.methods import Input, Method
 from rtfit.reference.cache import array_digest
@@ -190,15 +190,9 @@ def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:
     rows = distance_field_rows(setup, (), points, normals, radius, t_max=diagonal)
     sdf = rows.sdf
     common = {
-        "px": points[:, 0],
-        "py": points[:, 1],
-        "pz": points[:, 2],
-        "nx": normals[:, 0],
-        "ny": normals[:, 1],
-        "nz": normals[:, 2],
-        "bx": bent[:, 0],
-        "by": bent[:, 1],
-        "bz": bent[:, 2],
+        **xyz_columns("p", points),
+        **xyz_columns("n", normals),
+        **xyz_columns("b", bent),
         "visibility": vis,
         "aperture": aperture,
         "cos_na": np.clip(np.sum(normals * bent, axis=1), -1.0, 1.0),

@@ -41,20 +41,18 @@ import dataclasses
 import numpy as np
 
 from rtfit.fitting import Param
+from rtfit.realtime.arrays import xyz_columns
 from rtfit.realtime.volumetric_lightning import METHODS
-from rtfit.reference.single_scattering import FOUR_PI, point_single_scattering
+from rtfit.reference.single_scattering import point_single_scattering
 
 from .audit import Applicability, Rule
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .audit_lit_media import (
-    NOTES,
     LitMedium,
     Stretches,
-    inscatter_reference,
+    inscatter,
+    inscatter_case,
     light_parameters,
-    lit_medium,
-    quantity_inputs,
-    stretches,
 )
 from .scattering_reference import fit_params
 
@@ -80,43 +78,20 @@ def _row_params(k: float, distance: float, sigma_s: float, intensity: float) -> 
 def lightning_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """One case: the light's in-scattered radiance along the camera's stretches in its medium (module
     docstring)."""
-    lit = lit_medium(setup, app, "point")
-    rays = stretches(setup, app, lit)
-    tag = f"light{app.source}"
-    ref = inscatter_reference(setup, app, lit, rays, tag)
+    case = inscatter(setup, app, "point")
+    lit, rays = case.lit, case.rays
     start = rays.segment_start
     seg = (rays.end - rays.start)[:, None] * rays.dirs
     n = len(rays.start)
     geometry = {
-        **{f"o{x}": start[:, k] for k, x in enumerate("xyz")},
-        **{f"d{x}": seg[:, k] for k, x in enumerate("xyz")},
+        **xyz_columns("o", start),
+        **xyz_columns("d", seg),
         **{f"l{x}": np.full(n, lit.position[k]) for k, x in enumerate("xyz")},
     }
     exact = [_quadrature(lit, rays, c) for c in range(3)]
-    channels = tuple({**geometry, **quantity_inputs(lit, c), "single_scattering": exact[c]} for c in range(3))
-    k = float(np.mean(lit.sigma_s * lit.intensity)) / FOUR_PI
-    parameters = {"light": app.part, **light_parameters(lit, rays), "K_W_per_m_sr": k}
-    params = _row_params(
-        k, parameters["camera_to_light_m"], float(np.mean(lit.sigma_s)), float(np.mean(lit.intensity))
-    )
-    notes = (
-        *NOTES,
-        "the shipped rows carry one level for the three channels (K = the channels' mean of σ_s·I/(4π))",
-        f"{n} pixels; camera {'inside' if rays.inside else 'outside'} the medium",
-    )
-    return [
-        FamilyCase(
-            id=f"{tag}-inscatter",
-            label=f"{app.part}, in-scattered radiance",
-            reference=ref,
-            mask=rays.mask,
-            channel_inputs=channels,
-            parameters=parameters,
-            units="W/m²/sr",
-            notes=notes,
-            params=params,
-        )
-    ]
+    distance = light_parameters(lit, rays)["camera_to_light_m"]
+    params = _row_params(case.k, distance, float(np.mean(lit.sigma_s)), float(np.mean(lit.intensity)))
+    return [inscatter_case(app, case, "inscatter", geometry, exact, {}, (), params)]
 
 
 FAMILY = AuditFamily(

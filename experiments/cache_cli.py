@@ -37,6 +37,8 @@ from rtfit.reference.cache import (
     scan_cache,
 )
 
+from .cli_options import cache_option
+
 DURATION_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
 SIZE_UNITS = {"": 1, "k": 1024, "m": 1024**2, "g": 1024**3, "t": 1024**4}
 NAMESPACE_ORDER = ("images", "probes", "images/probes", "occlusion", "sky")
@@ -99,13 +101,7 @@ def _describe(e: CacheEntry, root: Path) -> str:
     )
 
 
-CACHE_OPTION = click.option(
-    "--cache",
-    "cache",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit).",
-)
+CACHE_OPTION = cache_option()
 
 
 def _cache_root(cache) -> Path:

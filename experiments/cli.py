@@ -55,6 +55,7 @@ from .atomic import is_temporary_name, writable_problem
 from .audit_cli import audit
 from .book import write_book
 from .cache_cli import cache_group
+from .cli_options import CACHE_HELP, cache_option, out_option
 from .executors import EXECUTORS, make_executor
 from .families import EXPERIMENTS, describe_config, resolve_names, validate_config
 from .jobs import JobsFailed, error_line
@@ -197,21 +198,8 @@ def list_cmd():
     default=None,
     help=f"Reference samples per pixel (overrides; at most {SPP_MAX}).",
 )
-@click.option(
-    "--out",
-    "out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out"),
-    show_default=True,
-    help="Output directory.",
-)
-@click.option(
-    "--cache",
-    "cache",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit).",
-)
+@out_option()
+@cache_option()
 @click.option(
     "--executor",
     type=click.Choice(EXECUTORS),
@@ -292,21 +280,8 @@ def run_cmd(
 )
 @click.option("--quick", is_flag=True, help="With --show-config: the quick configuration.")
 @click.option("--variant", default="llvm_ad_rgb", show_default=True, type=click.Choice(VARIANT_CHOICES))
-@click.option(
-    "--out",
-    "out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out"),
-    show_default=True,
-    help="Output directory (the sweep goes to OUT/NAME).",
-)
-@click.option(
-    "--cache",
-    "cache",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit); share it between nodes.",
-)
+@out_option("Output directory (the sweep goes to OUT/NAME).")
+@cache_option(CACHE_HELP[:-1] + "; share it between nodes.")
 @click.option("--executor", type=click.Choice(EXECUTORS), default="process", show_default=True)
 @click.option(
     "--address", default=None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster)."

@@ -15,13 +15,14 @@ from __future__ import annotations
 import math
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime import set_default_backend
+from rtfit.realtime import NUMPY_OPS, set_default_backend
 from rtfit.realtime.arrays import backend_float
 from rtfit.reference.variants import backend_of
 
@@ -201,15 +202,131 @@ def comparison_row(
     }
 
 
+BASELINE = "memory baseline (fma of the inputs)"
+"""The default name of a bench's memory-floor row."""
+
+
 def baseline_row(
     base: Timing,
     backend: str,
-    what: str = "memory baseline (fma of the inputs)",
+    what: str = BASELINE,
     unit: str = "px",
     per: str | None = None,
 ) -> dict:
     """The memory-traffic floor as a bench row (1× by definition)."""
     return comparison_row(what, backend, base, None, base, unit, per)
+
+
+def time_method(method, inputs: Mapping[str, Any], elements: int, params: Mapping | None = None) -> Timing:
+    """Dr.Jit time of ``method.evaluate`` on its named ``inputs`` (Dr.Jit arrays, one per input name)."""
+    names = method.input_names
+    return time_drjit(
+        lambda *a: method.evaluate(dict(zip(names, a, strict=True)), params),
+        tuple(inputs[k] for k in names),
+        elements,
+    )
+
+
+def time_method_numpy(
+    method, inputs: Mapping[str, Any], elements: int, params: Mapping | None = None
+) -> Timing:
+    """NumPy time of the same kernel text, ``method(NUMPY_OPS, inputs, params)``, on NumPy ``inputs``."""
+    names = method.input_names
+    with np.errstate(all="ignore"):  # NumPy evaluates both branches of every select
+        return time_numpy(
+            lambda *a: method(NUMPY_OPS, dict(zip(names, a, strict=True)), params),
+            tuple(inputs[k] for k in names),
+            elements,
+        )
+
+
+def comparison_rows(
+    backend: str,
+    floor_inputs: tuple,
+    elements: int,
+    timed: Iterable[tuple[str, Timing, Timing | None]],
+    unit: str = "px",
+    per: str | None = None,
+    baseline: str | None = None,
+) -> list[dict]:
+    """Bench rows of kernels timed against one memory floor: the `memory_baseline` of ``floor_inputs`` is
+    measured first, then ``timed`` (a generator, so that its kernels run after the floor) yields (what, Dr.Jit
+    timing, NumPy timing or None) per kernel, each a `comparison_row`; last the floor itself as a
+    `baseline_row` named ``baseline`` (None: no such row)."""
+    base = memory_baseline(floor_inputs, elements)
+    rows = [comparison_row(what, backend, t_dr, t_np, base, unit, per) for what, t_dr, t_np in timed]
+    return rows if baseline is None else [*rows, baseline_row(base, backend, baseline, unit, per)]
+
+
+def method_bench_rows(
+    methods: Mapping[str, Any],
+    backend: str,
+    inputs: Mapping[str, Any],
+    numpy_inputs: Mapping[str, Any],
+    elements: int,
+    params: Mapping[str, Mapping] | None = None,
+    unit: str = "px",
+    floor_inputs: tuple | None = None,
+    baseline: str | None = None,
+) -> list[dict]:
+    """`comparison_rows` of every method of ``methods`` (id → method) with ``params[id]`` (None: the declared
+    defaults): `time_method` on the Dr.Jit ``inputs`` beside `time_method_numpy` on ``numpy_inputs``, against
+    the floor of ``floor_inputs`` (default: every array of ``inputs``)."""
+    params = params or {}
+
+    timed = (
+        (m.label, time_method(m, inputs, elements, p), time_method_numpy(m, numpy_inputs, elements, p))
+        for mid, m in methods.items()
+        for p in (params.get(mid),)
+    )
+    floor = tuple(inputs.values()) if floor_inputs is None else floor_inputs
+    return comparison_rows(backend, floor, elements, timed, unit, baseline=baseline)
+
+
+def method_cost_rows(
+    methods: Mapping[str, Any],
+    backend: str,
+    inputs: Mapping[str, Any],
+    elements: int,
+    note: str | Callable[[Any], str],
+    floor_note: str,
+    params: Mapping[str, Mapping] | None = None,
+    floor_inputs: tuple | None = None,
+) -> list[dict]:
+    """The results' ``costs``: `cost_row` of every method of ``methods`` (`time_method` on ``inputs`` with
+    ``params[id]``; ``note`` text or ``note(method)``), then the `memory_floor_row` of ``floor_inputs``
+    (default: every array of ``inputs``)."""
+    params = params or {}
+    rows = [
+        cost_row(
+            mid,
+            m.label,
+            backend,
+            time_method(m, inputs, elements, params.get(mid)),
+            note(m) if callable(note) else note,
+        )
+        for mid, m in methods.items()
+    ]
+    floor = tuple(inputs.values()) if floor_inputs is None else floor_inputs
+    return [*rows, memory_floor_row(floor, elements, backend, floor_note)]
+
+
+def rate_row(
+    what: str, backend: str, elements: int, seconds: float, numpy: bool = False, unit: str = "px"
+) -> dict:
+    """A bench row timed alone (a reference pass, a NumPy quadrature): its rate in the Dr.Jit column (the
+    NumPy one if ``numpy``), no ratio and no memory floor."""
+    rate = elements / seconds / 1e6
+    return {
+        "what": what,
+        "backend": backend,
+        "elements": elements,
+        f"drjit_M{unit}_s": None if numpy else rate,
+        f"numpy_M{unit}_s": rate if numpy else None,
+        "drjit/numpy": None,
+        f"ns_per_{unit}": seconds / elements * 1e9,
+        "vs_memory_floor": None,
+    }
 
 
 # ----------------------------------------------------- ground truth vs its stock Mitsuba equivalent

@@ -37,7 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -61,13 +61,12 @@ from rtfit.scenes import ConstantEnv, library_path, load_scene, parse_scene_text
 from . import figures, prose
 from . import fitted as fitfiles
 from .cost import (
+    BASELINE,
     Stock,
     attach_costs,
-    baseline_row,
     bench_backend,
-    comparison_row,
+    comparison_rows,
     cost_row,
-    memory_baseline,
     memory_floor_row,
     reference_sizes,
     reference_vs_stock_rows,
@@ -75,8 +74,9 @@ from .cost import (
     time_drjit,
     time_numpy,
 )
-from .jobs import Job
+from .jobs import Job, reference_args
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
 from .viewer import save_case_pixels
 
 # ============================================================================================ configure
@@ -152,11 +152,6 @@ class Fitted:
     smooth: dict
 
 
-def declared(fitted: Fitted, cid: str, alpha_rad: float) -> dict:
-    """Parameter source "declared": the method's own (no free parameters, or their defaults)."""
-    return {}
-
-
 def fitted_per_alpha(fitted: Fitted, cid: str, alpha_rad: float) -> dict:
     """Parameter source "fitted per α": (w, p) of this case's wrap fit."""
     return {k: v["value"] for k, v in fitted.per_case[cid]["parameters"].items()}
@@ -170,42 +165,31 @@ def smooth_per_alpha(fitted: Fitted, cid: str, alpha_rad: float) -> dict:
     return {k: float(np.clip(v, *WRAP.bounds()[k])) for k, v in (("w", w), ("p", p))}
 
 
-@dataclass(frozen=True)
-class Row:
-    """One row of the comparison: ``method`` (a `METHODS` entry) with its parameters from ``params``
-    (one of the parameter sources above). ``as_wrap``: the wrap (w, p) that equal a fixed method's
-    formula, reported in the results beside the fitted rows' (w, p). ``in_figures``: shown in the image
-    and terminator figures."""
+# One row of the comparison (`rows.Row`): ``method`` (a `METHODS` id) with its parameters from ``params``
+# (one of the parameter sources above: ``params(fitted, cid, alpha_rad)``; default `rows.no_params`: the
+# method's own). ``reported``: the wrap (w, p)
+# that equal a fixed method's formula, reported in the results beside the fitted rows' (w, p).
+# ``in_figures``: shown in the image and terminator figures.
 
-    id: str
-    method: Method
-    params: Callable[[Fitted, str, float], dict] = declared
-    label: str = ""
-    as_wrap: Mapping[str, float] = field(default_factory=dict)
-    in_figures: bool = True
 
-    @property
-    def title(self) -> str:
-        return self.label or self.method.label
-
-    def parameters(self, fitted: Fitted, cid: str, alpha_rad: float) -> dict:
-        """The parameters this row reports for a case: ``as_wrap`` for fixed formulas, else its source's."""
-        return {**self.as_wrap, **self.params(fitted, cid, alpha_rad)}
+def row_parameters(row: Row, fitted: Fitted, cid: str, alpha_rad: float) -> dict:
+    """The parameters ``row`` reports for a case: ``reported`` for fixed formulas, else its source's."""
+    return {**row.reported, **row.params(fitted, cid, alpha_rad)}
 
 
 ROWS = (
-    Row("lambert", METHODS["lambert"], as_wrap={"w": 0.0, "p": 1.0}),
-    Row("half-lambert", METHODS["half-lambert"], as_wrap={"w": 1.0, "p": 2.0}),
-    Row("wrap-fit", WRAP, fitted_per_alpha, label="Wrap (fitted per α)"),
-    Row("wrap-smooth", WRAP, smooth_per_alpha, label="Wrap (smooth w(α), p(α))", in_figures=False),
-    Row("exact", METHODS["exact"]),
+    Row("lambert", method="lambert", reported={"w": 0.0, "p": 1.0}),
+    Row("half-lambert", method="half-lambert", reported={"w": 1.0, "p": 2.0}),
+    Row("wrap-fit", "Wrap (fitted per α)", "wrap", fitted_per_alpha),
+    Row("wrap-smooth", "Wrap (smooth w(α), p(α))", "wrap", smooth_per_alpha, in_figures=False),
+    Row("exact", method="exact"),
 )
 
 
 def evaluate_row(row: Row, inputs: Mapping, fitted: Fitted, cid: str, alpha_rad: float):
     """Irradiance (W/m²) of ``row`` for one case: its method's kernel on the inputs' arrays (Dr.Jit for
     NumPy inputs, see `Method.evaluate`), with the row's parameters."""
-    return row.method.evaluate(inputs, row.params(fitted, cid, alpha_rad))
+    return METHODS[row.method].evaluate(inputs, row.params(fitted, cid, alpha_rad))
 
 
 # ================================================================================================ cases
@@ -345,11 +329,7 @@ def run(ctx) -> dict:
             render_case,
             dict(
                 scene_toml=scene_to_toml(scenes[case_id(a, s)]),
-                spp=cfg["spp"],
-                pass_spp=cfg["pass_spp"],
-                seed=ctx.seed,
-                variant=ctx.variant,
-                cache_dir=str(ctx.cache_dir),
+                **reference_args(ctx, cfg),
                 probe_count=cfg["probe_count"],
                 probe_spp=cfg["probe_spp"],
                 progress=ctx.progress,
@@ -406,7 +386,7 @@ def assemble(ctx, cfg, cases, scenes, rendered, geom, fitted: Fitted) -> dict:
             img = _image(mask, gb.albedo.astype(np.float64), e, ref.mean)
             images[(cid, row.id)] = img
             metrics = compute_metrics(img, ref.mean, ref.sigma(), mask)
-            if row.method.exact:  # channel 0 only: the scene is grey, the channels are one estimate
+            if METHODS[row.method].exact:  # channel 0 only: the scene is grey, the channels are one estimate
                 exact_z.append(
                     z_pair(
                         img[..., 0][mask],
@@ -419,9 +399,9 @@ def assemble(ctx, cfg, cases, scenes, rendered, geom, fitted: Fitted) -> dict:
             approx_docs.append(
                 {
                     "method": row.id,
-                    "label": row.title,
-                    "fitted": row.method.fitted,
-                    "parameters": row.parameters(fitted, cid, math.radians(a)),
+                    "label": row.title(METHODS),
+                    "fitted": METHODS[row.method].fitted,
+                    "parameters": row_parameters(row, fitted, cid, math.radians(a)),
                     "metrics": metrics.to_dict(),
                 }
             )
@@ -560,7 +540,7 @@ def write_fitted(out, cfg, fitted: Fitted, ctx=None, scenes=None, geom=None) -> 
 # =============================================================================================== checks
 def probe_z(cfg, cases, rendered, scenes) -> list:
     """`z_pair` of the exact closed form (plus the sky) against each case's irradiance probes."""
-    exact = next(r.method for r in ROWS if r.method.exact)
+    exact = next(METHODS[r.method] for r in ROWS if METHODS[r.method].exact)
     zs = []
     for a, s in cases:
         cid = case_id(a, s)
@@ -586,7 +566,7 @@ def make_figures(out, cfg, rendered, geom, images, fitted, case_docs, costs) -> 
         figures.image_comparison(
             out / name,
             rendered[cid]["image"].mean,
-            [(r.title, images[(cid, r.id)]) for r in shown],
+            [(r.title(METHODS), images[(cid, r.id)]) for r in shown],
             geom[cid][0],
             error_scale=1.0,
             title=f"α = {a:g}°, sky {s:g}: reference, approximations, signed error "
@@ -630,15 +610,15 @@ def terminator_figure(out, cfg, rendered, fitted) -> dict:
                 "color": "k",
             }
         )
-        approx = [r for r in ROWS if r.in_figures and not r.method.exact]
-        for row in [r for r in ROWS if r.in_figures and r.method.exact] + approx:
+        approx = [r for r in ROWS if r.in_figures and not METHODS[r.method].exact]
+        for row in [r for r in ROWS if r.in_figures and METHODS[r.method].exact] + approx:
             e = np.asarray(evaluate_row(row, inputs, fitted, cid, math.radians(a))) / math.pi
             style = (
                 {"color": "0.4"}
-                if row.method.exact
+                if METHODS[row.method].exact
                 else {"color": f"C{approx.index(row)}", "ls": "--"}  # exact: solid grey; the rest dashed
             )
-            series.append({"x": deg, "y": e, "label": row.title, "panel": panel, **style})
+            series.append({"x": deg, "y": e, "label": row.title(METHODS), "panel": panel, **style})
     name = "figures/terminator.png"
     figures.line_plot(
         out / name, "angle θ between normal and light direction (°)", "E / E⊥", series, panels=panels
@@ -682,7 +662,7 @@ def params_figure(out, cfg, fitted: Fitted) -> dict:
 
 
 def error_vs_alpha_figure(out, case_docs) -> dict:
-    titles = {r.id: r.title for r in ROWS}
+    titles = {r.id: r.title(METHODS) for r in ROWS}
     by_row: dict[str, list] = {}
     floor = []
     for doc in case_docs:
@@ -726,7 +706,7 @@ def error_vs_alpha_figure(out, case_docs) -> dict:
 
 
 def pareto_figure(out, case_docs, costs) -> dict:
-    titles = {r.id: r.title for r in ROWS}
+    titles = {r.id: r.title(METHODS) for r in ROWS}
     cost = {c["method"]: c["ns_per_pixel"] for c in costs}
     err: dict[str, list] = {}
     floors = []
@@ -828,7 +808,13 @@ def measure_costs(ctx) -> list[dict]:
     args = (dr_in["cos_theta"], dr_in["alpha"])
     note = "per pixel, inputs cos θ and α in memory, one float out"
     rows = [
-        cost_row(row.id, row.title, backend, time_drjit(_drjit_call(row.method, dr_in), args, n), note)
+        cost_row(
+            row.id,
+            row.title(METHODS),
+            backend,
+            time_drjit(_drjit_call(METHODS[row.method], dr_in), args, n),
+            note,
+        )
         for row in ROWS
     ]
     return [*rows, memory_floor_row(args, n, backend, "the memory-bound floor for these kernels")]
@@ -840,15 +826,15 @@ def bench(ctx) -> list[dict]:
     backend, n = bench_backend(ctx)
     dr_in, np_in = cost_inputs(n, backend)
     args = (dr_in["cos_theta"], dr_in["alpha"])
-    base = memory_baseline(args, n)
-    rows = []
-    for row in ROWS:
-        t_dr = time_drjit(_drjit_call(row.method, dr_in), args, n)
-        t_np = time_numpy(row.method, (NUMPY_OPS, np_in), n)
-        rows.append(comparison_row(row.title, backend, t_dr, t_np, base))
-    rows.append(baseline_row(base, backend))
-    rows += bench_reference(ctx)
-    return rows
+    timed = (
+        (
+            row.title(METHODS),
+            time_drjit(_drjit_call(METHODS[row.method], dr_in), args, n),
+            time_numpy(METHODS[row.method], (NUMPY_OPS, np_in), n),
+        )
+        for row in ROWS
+    )
+    return comparison_rows(backend, args, n, timed, baseline=BASELINE) + bench_reference(ctx)
 
 
 def bench_reference(ctx) -> list[dict]:

@@ -143,20 +143,25 @@ def line_plot(
                 )
             else:
                 ax.plot(x, y, s.get("ls", "-"), label=s["label"], lw=1.4, color=s.get("color"))
-        ax.set_xlabel(x_label)
-        ax.set_ylabel(y_label)
-        if x_log:
-            ax.set_xscale("log")
-        if y_log:
-            ax.set_yscale("log")
-        if panel:
-            ax.set_title(panel, fontsize=10)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        _axes(ax, x_label, y_label, "log" if x_log else None, "log" if y_log else None, panel)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def _axes(ax, x_label: str, y_label: str, x_scale: str | None, y_scale: str | None, title: str) -> None:
+    """Labels, scales (None: linear), a title (empty: none), the grid and the legend of one panel."""
+    ax.set_xlabel(x_label)
+    ax.set_ylabel(y_label)
+    if x_scale:
+        ax.set_xscale(x_scale)
+    if y_scale:
+        ax.set_yscale(y_scale)
+    if title:
+        ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
 
 
 def pareto_plot(
@@ -177,12 +182,6 @@ def pareto_plot(
     ax.plot([p["x"] for p in front], [p["y"] for p in front], "k--", lw=0.8, label="Pareto front")
     if floor is not None and floor > 0:
         ax.axhline(floor, color="0.5", lw=0.8, ls=":", label="reference noise floor")
-    ax.set_xlabel(x_label)
-    ax.set_ylabel(y_label)
-    ax.set_yscale("log")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    if title:
-        ax.set_title(title, fontsize=10)
+    _axes(ax, x_label, y_label, None, "log", title)
     fig.tight_layout()
     return save_figure(fig, path)

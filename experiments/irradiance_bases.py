@@ -57,7 +57,6 @@ import math
 import tempfile
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import drjit as dr
@@ -140,6 +139,7 @@ from .cost import (
 from .jobs import Job
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
 from .viewer import save_case_pixels
 
 # ============================================================================================ configure
@@ -309,55 +309,47 @@ SG_ERROR_LAMBDAS = (1e-3, 0.1, 0.8, 10.0, 1000.0)  # the self-check's λ grid (p
 SG_ERROR_BOUND = 0.051  # max |S̃ − S|/S(λ, 1) measured over λ ∈ [1e-3, 1e3]: 0.0503 at λ = 0.8
 
 
-@dataclass(frozen=True)
-class Row:
-    """One row of the comparison: a method of `METHODS` and where its inputs come from.
-
-    ``coeffs``: the key of `build_bases`'s result holding the baked coefficients the basis reads (None for
-    the exact row, which reads the quadrature); ``params``: kernel parameter → key of the per-environment
-    value fitted by `build_bases` (also the parameter's name in the results); ``fitted_coeffs``: the
-    coefficients themselves are fitted (NNLS) rather than sampled or projected."""
-
-    method: str
-    coeffs: str | None
-    params: Mapping[str, str] = field(default_factory=dict)
-    fitted_coeffs: bool = False
-
-    @property
-    def spec(self):
-        return METHODS[self.method]
-
-    @property
-    def fitted(self) -> bool:
-        return bool(self.params) or self.fitted_coeffs
+def basis_row(
+    method: str, coeffs: str | None, params: Mapping[str, str] | None = None, fitted_coeffs: bool = False
+) -> Row:
+    """One row of the comparison (`rows.Row`, its id the method's): a method of `METHODS` and where its
+    inputs come from. ``coeffs`` (the row's ``source``): the key of `build_bases`'s result holding the baked
+    coefficients the basis reads (None for the exact row, which reads the quadrature); ``params`` (the row's
+    ``fitted_keys``): kernel parameter → key of the per-environment value fitted by `build_bases` (also the
+    parameter's name in the results); ``fitted_coeffs``: the coefficients themselves are fitted (NNLS)
+    rather than sampled or projected. The row is ``fitted`` when either is."""
+    keys = dict(params or {})
+    return Row(method, method=method, source=coeffs, fitted_keys=keys, fitted=bool(keys) or fitted_coeffs)
 
 
 ROWS = (
-    Row("cube-valve", "cube_valve"),
-    Row("cube-nnls", "cube_nnls", fitted_coeffs=True),
-    Row("sh-l1", "sh"),
-    Row("sh-l1-geomerics", "sh"),
-    Row("sh-l2", "sh"),
-    Row("sh-l2-hann", "sh"),
-    Row("sh-l2-lanczos", "sh"),
-    Row("sh-l2-lambda", "sh", params={"lam": "lambda"}),
-    Row("sh-l3", "sh"),
-    Row("sh-l3-hann", "sh"),
-    Row("sh-l3-lanczos", "sh"),
-    Row("sh-l3-lambda", "sh", params={"lam": "lambda_l3"}),
-    Row("sh-l4", "sh"),
-    Row("sh-l4-hann", "sh"),
-    Row("sh-l4-lanczos", "sh"),
-    Row("sh-l4-lambda", "sh", params={"lam": "lambda_l4"}),
-    Row("zh3", "zh3"),
-    Row("zh3-lum", "zh3_lum"),
-    Row("zh3-hallucinated", "sh"),
-    *(Row(f"sg{n}-{f}", f"sg{n}_{f}", fitted_coeffs=f != "naive") for n in SG_COUNTS for f in SG_FITS),
-    Row("ambient-dice", "ambient_dice", fitted_coeffs=True),
-    Row("quadrature", None),
+    basis_row("cube-valve", "cube_valve"),
+    basis_row("cube-nnls", "cube_nnls", fitted_coeffs=True),
+    basis_row("sh-l1", "sh"),
+    basis_row("sh-l1-geomerics", "sh"),
+    basis_row("sh-l2", "sh"),
+    basis_row("sh-l2-hann", "sh"),
+    basis_row("sh-l2-lanczos", "sh"),
+    basis_row("sh-l2-lambda", "sh", params={"lam": "lambda"}),
+    basis_row("sh-l3", "sh"),
+    basis_row("sh-l3-hann", "sh"),
+    basis_row("sh-l3-lanczos", "sh"),
+    basis_row("sh-l3-lambda", "sh", params={"lam": "lambda_l3"}),
+    basis_row("sh-l4", "sh"),
+    basis_row("sh-l4-hann", "sh"),
+    basis_row("sh-l4-lanczos", "sh"),
+    basis_row("sh-l4-lambda", "sh", params={"lam": "lambda_l4"}),
+    basis_row("zh3", "zh3"),
+    basis_row("zh3-lum", "zh3_lum"),
+    basis_row("zh3-hallucinated", "sh"),
+    *(basis_row(f"sg{n}-{f}", f"sg{n}_{f}", fitted_coeffs=f != "naive") for n in SG_COUNTS for f in SG_FITS),
+    basis_row("ambient-dice", "ambient_dice", fitted_coeffs=True),
+    basis_row("quadrature", None),
 )
 ROW = {r.method: r for r in ROWS}
-BASES = tuple(r for r in ROWS if not r.spec.exact)  # the rows an engine would store and evaluate
+UP = np.array([[0.0, 0.0, 1.0]])
+"""The one normal at which a fitted file's baked coefficients are read (they do not depend on it)."""
+BASES = tuple(r for r in ROWS if not METHODS[r.method].exact)  # the rows an engine would store and evaluate
 SPHERE_FIGURE_METHODS = ("cube-valve", "sh-l1", "sh-l2", "sh-l2-lambda")
 SUN_PROFILE_METHODS = (
     "cube-valve",
@@ -374,16 +366,16 @@ NOISE_FLOOR_METHOD = "sh-l2"  # whose noise floor the per-environment figures dr
 
 def row_params(row: Row, bases: dict) -> dict[str, float]:
     """The kernel parameters of ``row`` for one environment's ``bases``."""
-    return {p: bases[key] for p, key in row.params.items()}
+    return {p: bases[key] for p, key in row.fitted_keys.items()}
 
 
 def evaluate_row(row: Row, bases: dict, normals, quadrature=None):
     """Irradiance (N, 3) of ``row`` at ``normals`` (N, 3) (or a tuple of Dr.Jit arrays for Dr.Jit normals);
     the exact row passes ``quadrature`` (the irradiance at the same normals) through its method."""
-    m = row.spec
+    m = METHODS[row.method]
     if m.exact:
         return np.asarray(m(NUMPY_OPS, {"irradiance": quadrature}), np.float64)
-    return basis_irradiance(m, bases[row.coeffs], normals, row_params(row, bases))
+    return basis_irradiance(m, bases[row.source], normals, row_params(row, bases))
 
 
 def build_bases(env, cfg: dict, fit_normals: int = 2048, backend: str | None = None) -> dict:
@@ -661,9 +653,9 @@ def point_metrics(x, r, sigma) -> dict:
 
 def _row_parameters(row: Row, b: dict) -> dict:
     """The approximation record's parameters: the fitted values, else the storage per probe."""
-    if row.params:
-        return {key: b[key] for key in row.params.values()}
-    return {"floats": row.spec.storage} if row.spec.storage else {}
+    if row.fitted_keys:
+        return {key: b[key] for key in row.fitted_keys.values()}
+    return {"floats": METHODS[row.method].storage} if METHODS[row.method].storage else {}
 
 
 def _sunsky_bias(name: str, env, r: dict, mean, se) -> tuple[str, float, float]:
@@ -705,7 +697,7 @@ def assemble(ctx, cfg, rendered, bases) -> dict:
             approx_docs.append(
                 {
                     "method": row.method,
-                    "label": row.spec.label,
+                    "label": METHODS[row.method].label,
                     "fitted": row.fitted,
                     "parameters": _row_parameters(row, b),
                     "metrics": met,
@@ -834,8 +826,8 @@ def _row_fit(row: Row, b: dict) -> dict:
     """A row's free parameters as a fit's ``parameters`` (λ is at a bound only where the bisection stopped
     at its upper end: λ = 0 is an answer, "no window needed")."""
     out = {}
-    for p, key in row.params.items():
-        spec = row.spec.params[p]
+    for p, key in row.fitted_keys.items():
+        spec = METHODS[row.method].params[p]
         out[p] = _fit_parameter(b[key], spec.lower, spec.upper, bool(b[key] >= spec.upper))
     return {"parameters": out}
 
@@ -843,7 +835,7 @@ def _row_fit(row: Row, b: dict) -> dict:
 def write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
     """One fitted file per environment (the cubes, the SH coefficients, λ) and its fit record: the fitted
     parameters of every row with parameters (bounds from `METHODS`), then the NNLS cube's green channel."""
-    fitted_rows = [r for r in ROWS if r.params]
+    fitted_rows = [r for r in ROWS if r.fitted_keys]
     axes = [ax.replace("+", "p").replace("-", "n") for ax in CUBE_ORDER]  # "+x" → "px", "-x" → "nx"
     fits = []
     for name in cfg["environments"]:
@@ -877,12 +869,10 @@ def write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
         }
         methods = [
             fitfiles.method_entry(
-                row.spec,
+                METHODS[row.method],
                 _row_fit(row, b),
                 case=name,
-                baked={
-                    "coeffs": basis_inputs(row.spec, b[row.coeffs], np.array([[0.0, 0.0, 1.0]]))["coeffs"]
-                },
+                baked={"coeffs": basis_inputs(METHODS[row.method], b[row.source], UP)["coeffs"]},
                 outputs=("out_r", "out_g", "out_b"),
             )
             for row in BASES
@@ -901,8 +891,8 @@ def write_fitted(out, cfg, rendered, bases, ctx=None) -> list[dict]:
         )
         params = {}
         for row in fitted_rows:
-            for p, key in row.params.items():
-                spec = row.spec.params[p]
+            for p, key in row.fitted_keys.items():
+                spec = METHODS[row.method].params[p]
                 # λ = 0 is an answer ("no window needed"), not a bound the search ran into: at the bound
                 # only if the bisection stopped at its upper end
                 params[key] = _fit_parameter(b[key], spec.lower, spec.upper, bool(b[key] >= spec.upper))
@@ -943,7 +933,7 @@ def _checks(names, cases, z_quad, z_img, furnace, bake) -> list[Check | dict]:
                 passed=abs(bias) <= SUNSKY_BAKE_TOLERANCE,
             )
         )
-    lam_rows = [r.method for r in ROWS if "lam" in r.params]
+    lam_rows = [r.method for r in ROWS if "lam" in r.fitted_keys]
     neg = max(_metric(cases, n, m, "neg_frac") for n in names for m in lam_rows)
     checks.append(
         Check(
@@ -1268,7 +1258,7 @@ def _smape_figure(out, cfg, cases) -> dict:
                     "y": [max(_metric(cases, e, row.method, key), 1e-6) for e in env_ids],
                     "label": row.method,
                     "panel": panel,
-                    "style": "points" if row.spec.exact else "line",
+                    "style": "points" if METHODS[row.method].exact else "line",
                 }
             )
         series.append(
@@ -1408,10 +1398,10 @@ def budget_winners(cases, costs) -> list[dict]:
     err, _ = _mean_errors(cases)
     sm, _ = _mean_errors(cases, "smape")
     cost = {c["method"]: c.get("ns_per_pixel") for c in costs}
-    stored = [r for r in BASES if r.spec.storage and r.method in err]
+    stored = [r for r in BASES if METHODS[r.method].storage and r.method in err]
 
     def per_channel(r):
-        return r.spec.storage / 3
+        return METHODS[r.method].storage / 3
 
     out = []
     for b in STORAGE_BUDGETS:
@@ -1602,11 +1592,12 @@ def _costs(ctx) -> list[dict]:
     rows = [
         cost_row(
             row.method,
-            row.spec.label,
+            METHODS[row.method].label,
             backend,
             time_drjit(lambda v, row=row: evaluate_row(row, b, v), (nd,), n),
-            f"per normal (pixel): unit normal in memory, RGB out; {row.spec.storage} floats per probe",
-            floats_per_probe=row.spec.storage,
+            f"per normal (pixel): unit normal in memory, RGB out; {METHODS[row.method].storage} floats "
+            "per probe",
+            floats_per_probe=METHODS[row.method].storage,
         )
         for row in BASES
     ]
@@ -1622,7 +1613,7 @@ def _bench_rows() -> list[Row]:
     kernel, and Hann/Lanczos are L2 with constant factors (the cost of plain L2)."""
     seen, out = set(), []
     for row in BASES:
-        key = (row.spec.kernel, row.spec.storage, tuple(row.spec.params))
+        key = (METHODS[row.method].kernel, METHODS[row.method].storage, tuple(METHODS[row.method].params))
         if key not in seen:
             seen.add(key)
             out.append(row)
@@ -1687,9 +1678,9 @@ def bench(ctx) -> list[dict]:
     base = memory_baseline((nd.x, nd.y, nd.z), n)
     rows = []
     for row in _bench_rows():
-        m = row.spec
+        m = METHODS[row.method]
         t_dr = time_drjit(lambda v, row=row: evaluate_row(row, b, v), (nd,), n)
-        inputs, params = basis_inputs(m, b[row.coeffs], n64), row_params(row, b)
+        inputs, params = basis_inputs(m, b[row.source], n64), row_params(row, b)
         t_np = time_numpy(
             lambda m=m, inputs=inputs, params=params: m(NUMPY_OPS, inputs, params), (), len(n64)
         )

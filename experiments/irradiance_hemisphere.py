@@ -315,12 +315,8 @@ def _texel_coeffs(texel: dict, method: str):
 def cost_rows(normals_drjit, n: int, backend: str) -> list[dict]:
     """Dr.Jit cost per normal of every hemispherical basis (the experiment's ``costs`` rows): tangent-space
     normal in memory, RGB out (the normals are the experiment's timing normals, any hemisphere)."""
-    texel = demo_texel()
     rows = []
-    for m in HEMISPHERE_METHODS:  # the RNM weightings do different work: one row each
-        spec = HEMISPHERE_METHODS[m]
-        c = _texel_coeffs(texel, m)
-        t = time_drjit(lambda v, spec=spec, c=c: hemisphere_irradiance(spec, c, v), (normals_drjit,), n)
+    for m, spec, _, t in _timed(normals_drjit, n):
         note = (
             f"per bumped normal (lightmap texel): tangent-space normal in memory, RGB out; "
             f"{spec.storage} floats per texel"
@@ -329,15 +325,21 @@ def cost_rows(normals_drjit, n: int, backend: str) -> list[dict]:
     return rows
 
 
+def _timed(normals_drjit, n: int):
+    """Per hemispherical basis (the RNM weightings do different work: one each): its id, method, the demo
+    texel's coefficients and the Dr.Jit timing on ``n`` normals."""
+    texel = demo_texel()
+    for m, spec in HEMISPHERE_METHODS.items():
+        c = _texel_coeffs(texel, m)
+        t = time_drjit(lambda v, spec=spec, c=c: hemisphere_irradiance(spec, c, v), (normals_drjit,), n)
+        yield m, spec, c, t
+
+
 def bench_rows(normals_drjit, normals64: np.ndarray, n: int, backend: str, base) -> list[dict]:
     """`rtfit bench` rows: Dr.Jit (on ``n`` normals) vs the NumPy run of the same kernel text (on
     ``normals64``, possibly fewer: rates are compared), per hemispherical basis."""
-    texel = demo_texel()
     rows = []
-    for m in HEMISPHERE_METHODS:  # the RNM weightings do different work: one row each
-        spec = HEMISPHERE_METHODS[m]
-        c = _texel_coeffs(texel, m)
-        t_dr = time_drjit(lambda v, spec=spec, c=c: hemisphere_irradiance(spec, c, v), (normals_drjit,), n)
+    for _, spec, c, t_dr in _timed(normals_drjit, n):
         inputs = basis_inputs(spec, c, normals64)
         t_np = time_numpy(lambda spec=spec, inputs=inputs: spec(NUMPY_OPS, inputs), (), len(normals64))
         rows.append(comparison_row(spec.label, backend, t_dr, t_np, base, unit="normals", per="normal"))

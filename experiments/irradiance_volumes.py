@@ -67,12 +67,10 @@ from rtfit.scenes.model import ConstantEnv, Cube, PointLight, ReferenceSettings,
 from . import figures as F
 from .cost import (
     attach_costs,
-    baseline_row,
     bench_backend,
-    comparison_row,
+    comparison_rows,
     cost_backend,
     cost_row,
-    memory_baseline,
     memory_floor_row,
     time_drjit,
     time_numpy,
@@ -914,13 +912,13 @@ def bench(ctx) -> list[dict]:
     p, nrm, tables = _cost_inputs(grid, n)
     P = [Float(p[:, k]) for k in range(3)]
     N = [Float(nrm[:, k]) for k in range(3)]
-    base = memory_baseline(tuple(P + N), n)
-    rows = []
-    for mid, m in METHODS.items():
-        table = tables[m.fixed["basis"].id]
-        t_dr = _time(mid, grid, table, P, N, n)
-        inputs = volume_inputs(m, grid, table, p, nrm)
-        t_np = time_numpy(lambda inputs=inputs, m=m: m(NUMPY_OPS, inputs), (), n)
-        rows.append(comparison_row(m.label, backend, t_dr, t_np, base, unit="lookup"))
-    rows.append(baseline_row(base, backend, "memory baseline (fma of the 6 inputs)", unit="lookup"))
-    return rows
+
+    def timed():
+        for mid, m in METHODS.items():
+            table = tables[m.fixed["basis"].id]
+            t_dr = _time(mid, grid, table, P, N, n)
+            inputs = volume_inputs(m, grid, table, p, nrm)
+            yield m.label, t_dr, time_numpy(lambda inputs=inputs, m=m: m(NUMPY_OPS, inputs), (), n)
+
+    baseline = "memory baseline (fma of the 6 inputs)"
+    return comparison_rows(backend, tuple(P + N), n, timed(), unit="lookup", baseline=baseline)

@@ -156,6 +156,18 @@ class Job:
         return import_path(self.func)
 
 
+def reference_args(ctx, cfg: dict) -> dict[str, Any]:
+    """The keywords every reference job of a run takes: ``cfg``'s ``spp`` and ``pass_spp``, the run's
+    seed, variant and cache directory (as text: a job's arguments are plain data)."""
+    return dict(
+        spp=cfg["spp"],
+        pass_spp=cfg["pass_spp"],
+        seed=ctx.seed,
+        variant=ctx.variant,
+        cache_dir=str(ctx.cache_dir),
+    )
+
+
 def import_path(func: Callable[..., Any]) -> str:
     """``module:qualname`` of ``func``, or a one-line ``ValueError`` if a fresh process could not import
     it back as that name: a lambda, a nested function, a method, or a function defined in ``__main__``

@@ -35,7 +35,6 @@ from rtfit.fitting import compute_metrics, fit_method
 from rtfit.realtime import NUMPY_OPS, set_default_backend
 from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.light_cones import CHORD_LENGTH, METHODS
-from rtfit.reference import load_mitsuba_scene, radiance_pass
 from rtfit.reference.single_scattering import (
     FOUR_PI,
     box_exit,
@@ -43,28 +42,23 @@ from rtfit.reference.single_scattering import (
     spot_single_scattering,
 )
 from rtfit.reference.variants import backend_of
-from rtfit.scenes import scene_hash, scene_to_toml
+from rtfit.scenes import scene_hash
 from rtfit.scenes.model import Camera, Cube, HomogeneousMedium, ReferenceSettings, Scene, SpotLight
 
 from . import figures as F
 from . import fitted as fitfiles
-from .cost import (
-    attach_costs,
-    baseline_row,
-    bench_backend,
-    comparison_row,
-    cost_backend,
-    cost_row,
-    memory_baseline,
-    memory_floor_row,
-    time_drjit,
-    time_numpy,
-)
+from .cost import attach_costs, bench_backend, cost_backend, method_bench_rows, method_cost_rows, rate_row
 from .jobs import Job
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
 from .rows import Row
-from .scattering_reference import fit_level, reference_checks, render_job, residual_scale
+from .scattering_reference import (
+    fit_level,
+    reference_checks,
+    reference_rate_row,
+    render_references,
+    residual_scale,
+)
 
 # ============================================================================================ configure
 VIEWS = {
@@ -212,41 +206,23 @@ def pixel_inputs(
     return {k: np.ascontiguousarray(c, dtype=dtype) for k, c in zip(names, cols, strict=True)}
 
 
-def exact_image(origin, dirs: np.ndarray, sigma_t: float) -> np.ndarray:
-    """The quadrature per pixel (float64, shape of ``dirs`` without the last axis)."""
+def _spot_arguments(origin, dirs: np.ndarray, sigma_t: float) -> tuple:
+    """The arguments of the spot's quadrature and estimator variance for the rays (origin, ``dirs``) up to
+    the box's exit, the lamp and σ_s = σ_t = ``sigma_t``."""
     flat = np.asarray(dirs, np.float64).reshape(-1, 3)
     s = box_exit(origin, flat, BOX_LO, BOX_HI)
-    val = spot_single_scattering(
-        origin,
-        flat,
-        s,
-        LAMP["apex"],
-        LAMP["axis"],
-        math.radians(LAMP["cutoff_deg"]),
-        math.radians(LAMP["beam_deg"]),
-        LAMP["intensity"],
-        sigma_t,
-        sigma_t,
-    )
-    return val.reshape(dirs.shape[:-1])
+    lamp = (LAMP["apex"], LAMP["axis"], math.radians(LAMP["cutoff_deg"]), math.radians(LAMP["beam_deg"]))
+    return (origin, flat, s, *lamp, LAMP["intensity"], sigma_t, sigma_t)
+
+
+def exact_image(origin, dirs: np.ndarray, sigma_t: float) -> np.ndarray:
+    """The quadrature per pixel (float64, shape of ``dirs`` without the last axis)."""
+    return spot_single_scattering(*_spot_arguments(origin, dirs, sigma_t)).reshape(dirs.shape[:-1])
 
 
 def model_stderr(origin, dirs: np.ndarray, sigma_t: float, spp: int) -> np.ndarray:
     """The reference's standard error from the estimator's analytic variance (`spot_estimator_variance`)."""
-    flat = np.asarray(dirs, np.float64).reshape(-1, 3)
-    s = box_exit(origin, flat, BOX_LO, BOX_HI)
-    var = spot_estimator_variance(
-        origin,
-        flat,
-        s,
-        LAMP["apex"],
-        LAMP["axis"],
-        math.radians(LAMP["cutoff_deg"]),
-        math.radians(LAMP["beam_deg"]),
-        LAMP["intensity"],
-        sigma_t,
-        sigma_t,
-    )
+    var = spot_estimator_variance(*_spot_arguments(origin, dirs, sigma_t))
     return np.sqrt(var / spp).reshape(dirs.shape[:-1])
 
 
@@ -299,24 +275,13 @@ def fit_job(method: str, fit: tuple, held: dict, inputs: dict, target, scale, k0
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     set_default_backend(backend_of(ctx.variant))
-    cases, scenes, jobs = {}, {}, []
+    cases, scenes = {}, {}
     for sigma in cfg["sigma_t_per_m"]:
         for view in cfg["views"]:
             cid = case_id(view, sigma)
             cases[cid] = {"view": view, "sigma_t": sigma}
             scenes[cid] = case_scene(view, sigma, cfg["resolution"])
-            args = dict(
-                scene_toml=scene_to_toml(scenes[cid]),
-                spp=cfg["spp"],
-                pass_spp=cfg["pass_spp"],
-                seed=ctx.seed,
-                variant=ctx.variant,
-                cache_dir=str(ctx.cache_dir),
-                progress=ctx.progress,
-            )
-            jobs.append(Job(render_job, args, label=cid))
-    ctx.log(f"rendering {len(jobs)} references")
-    rendered = dict(zip(cases, ctx.executor.map(jobs, desc="references"), strict=True))
+    rendered = render_references(ctx, cfg, scenes)
 
     for cid, c in cases.items():
         origin = VIEWS[c["view"]][0]
@@ -894,26 +859,13 @@ def _cost_inputs(n: int, Float):
     return np_inputs, {k: Float(v) for k, v in np_inputs.items()}, origin, dirs
 
 
-def _time(mid: str, inputs: dict, n: int):
-    m = METHODS[mid]
-    names = m.input_names
-    return time_drjit(
-        lambda *a: m.evaluate(dict(zip(names, a, strict=True)), COST_PARAMS[mid]),
-        tuple(inputs[k] for k in names),
-        n,
-    )
-
-
 def cost_rows(ctx, cfg) -> list[dict]:
     backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     _, inputs, _, _ = _cost_inputs(n, Float)
     note = "per pixel: camera, view direction, cone (15 floats) in, radiance out (float32)"
-    rows = [cost_row(mid, m.label, backend, _time(mid, inputs, n), note) for mid, m in METHODS.items()]
-    return [
-        *rows,
-        memory_floor_row(tuple(inputs.values()), n, backend, "the memory-bound floor of the kernels"),
-    ]
+    floor = "the memory-bound floor of the kernels"
+    return method_cost_rows(METHODS, backend, inputs, n, note, floor, COST_PARAMS)
 
 
 def bench(ctx) -> list[dict]:
@@ -922,56 +874,17 @@ def bench(ctx) -> list[dict]:
     backend, n = bench_backend(ctx)
     Float = backend_float(backend)
     np_inputs, inputs, origin, dirs = _cost_inputs(n, Float)
-    base = memory_baseline(tuple(inputs.values()), n)
-    rows = []
-    for mid, m in METHODS.items():
-        t_dr = _time(mid, inputs, n)
-        names = m.input_names
-        with np.errstate(all="ignore"):  # NumPy evaluates both branches of every select
-            t_np = time_numpy(
-                lambda *a, m=m, names=names, mid=mid: m(
-                    NUMPY_OPS, dict(zip(names, a, strict=True)), COST_PARAMS[mid]
-                ),
-                tuple(np_inputs[k] for k in names),
-                n,
-            )
-        rows.append(comparison_row(m.label, backend, t_dr, t_np, base))
-    rows.append(baseline_row(base, backend, "memory baseline (fma of the 15 inputs)"))
+    baseline = "memory baseline (fma of the 15 inputs)"
+    rows = method_bench_rows(METHODS, backend, inputs, np_inputs, n, COST_PARAMS, baseline=baseline)
     nq = min(n, 1 << 14)
     t0 = time.perf_counter()
     exact_image(origin, dirs[:nq], 0.05)
     tq = time.perf_counter() - t0
-    rows.append(
-        {
-            "what": f"exact: spot single-scattering quadrature (NumPy float64, {nq} rays, 6 pieces × "
-            "16 panels × 8 nodes)",
-            "backend": "numpy",
-            "elements": nq,
-            "drjit_Mpx_s": None,
-            "numpy_Mpx_s": nq / tq / 1e6,
-            "drjit/numpy": None,
-            "ns_per_px": tq / nq * 1e9,
-            "vs_memory_floor": None,
-        }
+    what = (
+        f"exact: spot single-scattering quadrature (NumPy float64, {nq} rays, 6 pieces × 16 panels × 8 nodes)"
     )
-    res = (32, 24) if ctx.quick else (128, 96)
-    spp = 256 if ctx.quick else 1024
-    mi, ms = load_mitsuba_scene(case_scene("beside", 0.05, res), ctx.variant)
-    radiance_pass(mi, ms, spp, 0)
-    t = min(radiance_pass(mi, ms, spp, k + 1).seconds for k in range(2))
-    samples = res[0] * res[1] * spp
-    rows.append(
-        {
-            "what": "reference: volpathmis + spot, homogeneous medium, single scattering "
-            f"({res[0]}×{res[1]}, "
-            f"{spp} spp)",
-            "backend": ctx.variant,
-            "elements": samples,
-            "drjit_Mpx_s": samples / t / 1e6,
-            "numpy_Mpx_s": None,
-            "drjit/numpy": None,
-            "ns_per_px": t / samples * 1e9,
-            "vs_memory_floor": None,
-        }
-    )
+    rows.append(rate_row(what, "numpy", nq, tq, numpy=True))
+    res, spp = ((32, 24), 256) if ctx.quick else ((128, 96), 1024)
+    what = "reference: volpathmis + spot, homogeneous medium, single scattering"
+    rows.append(reference_rate_row(what, case_scene("beside", 0.05, res), spp, ctx.variant))
     return rows

@@ -39,7 +39,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from rtfit.fitting import compute_metrics, fit_method
+from rtfit.fitting import fit_method, grey_metrics, zero_padded
 from rtfit.fitting.stats import sidak_threshold
 from rtfit.realtime import get_default_backend, set_default_backend
 from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float
@@ -60,8 +60,8 @@ from rtfit.scenes import scene_hash
 
 from . import figures
 from . import fitted as fitfiles
-from .cost import attach_costs, bench_backend, comparison_row, memory_baseline, time_drjit, time_numpy
-from .jobs import Job
+from .cost import attach_costs, bench_backend, comparison_rows, time_drjit, time_numpy
+from .jobs import Job, reference_args
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
 from .sdf_occlusion_scenes import SCENE_NAMES, load_case_scene
@@ -278,11 +278,6 @@ def probe_job(
 
 
 # ================================================================================================= fits
-def _pad(a, size):
-    a = np.asarray(a, dtype=np.float64)
-    out = np.zeros((*a.shape[:-1], size))
-    out[..., : a.shape[-1]] = a
-    return out
 
 
 FIT_POINTS = 4096
@@ -330,8 +325,8 @@ def _fit(m, d, y) -> dict:
     """One fit on ≤ `FIT_POINTS` residuals: `FIT_MAX_STEPS` steps (a parameter crawling to a bound is pinned
     there by `fit_least_squares`), then, if still not converged, up to `FIT_RETRY_STEPS` more from where
     it stopped."""
-    w = _pad(np.ones_like(y), FIT_POINTS)
-    x, yy = {"distances": _pad(d, FIT_POINTS)}, _pad(y, FIT_POINTS)
+    w = zero_padded(np.ones_like(y), FIT_POINTS)
+    x, yy = {"distances": zero_padded(d, FIT_POINTS)}, zero_padded(y, FIT_POINTS)
     res = fit_method(m, x, yy, weights=w, max_steps=FIT_MAX_STEPS)
     steps = res.steps
     if not res.converged:
@@ -362,13 +357,7 @@ def _values(fit: dict) -> dict:
 
 # ================================================================================================ cases
 def _metrics(img, ref_img, err_img, mask):
-    return compute_metrics(
-        img[..., None].repeat(3, -1),
-        ref_img[..., None].repeat(3, -1),
-        err_img[..., None].repeat(3, -1),
-        mask,
-        names=METRICS,
-    ).to_dict()
+    return grey_metrics(img, ref_img, err_img, mask, METRICS)
 
 
 def _image(mask, values):
@@ -784,11 +773,7 @@ def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     common = dict(
         resolution=cfg["resolution"],
-        spp=cfg["spp"],
-        pass_spp=cfg["pass_spp"],
-        seed=ctx.seed,
-        variant=ctx.variant,
-        cache_dir=str(ctx.cache_dir),
+        **reference_args(ctx, cfg),
         d_max=cfg["d_max"],
         exponent=cfg["exponent"],
         rays=list(cfg["rays"]),
@@ -952,7 +937,13 @@ def bench(ctx) -> list[dict]:
     Float = backend_float(backend)
     rows_dr = tuple(Float(r) for r in rows_np)
     kern = METHODS["power"].kernel
-    t_dr = time_drjit(lambda *x: kern(DRJIT_OPS, list(x)), rows_dr, n)
-    t_np = time_numpy(lambda *x: kern(NUMPY_OPS, list(x)), tuple(rows_np), n)
-    base = memory_baseline(rows_dr, n)
-    return [comparison_row("obscurance ρ kernel (power, 16 rays)", backend, t_dr, t_np, base, unit="pt")]
+
+    def timed():
+        t_dr = time_drjit(lambda *x: kern(DRJIT_OPS, list(x)), rows_dr, n)
+        yield (
+            "obscurance ρ kernel (power, 16 rays)",
+            t_dr,
+            time_numpy(lambda *x: kern(NUMPY_OPS, list(x)), tuple(rows_np), n),
+        )
+
+    return comparison_rows(backend, rows_dr, n, timed(), unit="pt")

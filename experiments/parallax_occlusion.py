@@ -52,16 +52,15 @@ from . import fitted as fitfiles
 from .cost import (
     attach_costs,
     bench_backend,
-    comparison_row,
     cost_backend,
     cost_row,
-    memory_baseline,
     memory_floor_row,
-    time_drjit,
-    time_numpy,
+    method_bench_rows,
+    time_method,
 )
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
 
 # ============================================================================================ configure
 FIELDS = ("bumps", "ridges")
@@ -113,24 +112,14 @@ def configure(quick: bool, spp: int | None) -> dict:
 
 
 # ================================================================================================= rows
-@dataclasses.dataclass(frozen=True)
-class Row:
-    """One approximation row of the radiance cases: a kernel variant, its shadow parameters (None: the
-    declared defaults; "fit": the joint fit of that variant), and whether the shadow is applied."""
-
-    id: str
-    label: str
-    method: str
-    shadow_params: str | None = None
-    shadow: bool = True
-
-
+# One approximation row of the radiance cases (`rows.Row`): a kernel variant with its shadow parameters
+# declared (``fitted``: the joint fit of that variant) and ``options={"shadow": False}``: no shadow applied.
 ROWS = (
     Row("listing", "POM as printed (k = 0.5, floor 0.4)", "listing"),
     Row("stable", "POM stable (k = 0.5, floor 0.4)", "stable"),
-    Row("listing-fit", "POM as printed, (k, floor) fitted", "listing", shadow_params="fit"),
-    Row("stable-fit", "POM stable, (k, floor) fitted", "stable", shadow_params="fit"),
-    Row("no-shadow", "POM stable without the shadow query", "stable", shadow=False),
+    Row("listing-fit", "POM as printed, (k, floor) fitted", "listing", fitted=True),
+    Row("stable-fit", "POM stable, (k, floor) fitted", "stable", fitted=True),
+    Row("no-shadow", "POM stable without the shadow query", "stable", options={"shadow": False}),
 )
 ALBEDO = 0.8
 LIGHT_RADIANCE = 10.0
@@ -468,11 +457,11 @@ def row_radiance(row: Row, case: dict, cfg: dict, fits: dict, light: dict) -> tu
     ref = case["ref"]
     m = configured_method(row.method, cfg, case["field"], cfg["n_range"])
     params = m.defaults()
-    if row.shadow_params == "fit":
+    if row.fitted:
         params = {k: v["value"] for k, v in fits[row.method][case["field"]]["parameters"].items()}
     u, v, s = eval32(m, _inputs(ref["u0"].ravel(), ref["v0"].ravel(), case["view"], case["light"]), params)
     u, v, s = (np.asarray(a, np.float64) for a in (u, v, s))
-    if not row.shadow:
+    if not row.options.get("shadow", True):
         s = np.ones_like(s)
     with np.errstate(all="ignore"):
         nx, ny, nz = pom_normal_kernel(
@@ -515,7 +504,7 @@ def assemble(ctx, cfg, cases, uv_table, mesh_info, fits, lights, checks) -> dict
                 {
                     "method": row.id,
                     "label": row.label,
-                    "fitted": row.shadow_params == "fit",
+                    "fitted": row.fitted,
                     "parameters": {k: float(v) for k, v in params.items()},
                     "metrics": metrics.to_dict(),
                 }
@@ -949,13 +938,6 @@ def _cost_inputs(n: int, Float):
     return np_in, {k: Float(v) for k, v in np_in.items()}
 
 
-def _time(m, inputs, n):
-    names = m.input_names
-    return time_drjit(
-        lambda *a: m.evaluate(dict(zip(names, a, strict=True))), tuple(inputs[k] for k in names), n
-    )
-
-
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per pixel of each variant and sample range (bumps field, view zenith uniform in
     cos θ ∈ [0.15, 1])."""
@@ -970,7 +952,7 @@ def cost_rows(ctx, cfg) -> list[dict]:
             f"{mid}-{lo}-{hi}",
             f"{m.label}, n {lo}–{hi}",
             backend,
-            _time(configured_method(mid, cfg, "bumps", [lo, hi]), inputs, n),
+            time_method(configured_method(mid, cfg, "bumps", [lo, hi]), inputs, n),
             "march + 7-sample shadow + LOD blend, float32",
         )
         for mid, m in METHODS.items()
@@ -985,18 +967,6 @@ def bench(ctx) -> list[dict]:
     n = min(n, 1 << 18)
     Float = backend_float(backend)
     np_in, inputs = _cost_inputs(n, Float)
-    base = memory_baseline(tuple(inputs.values()), n)
     cfg = configure(ctx.quick, None)
-    rows = []
-    for mid in METHODS:
-        m = configured_method(mid, cfg, "bumps", cfg["n_range"])
-        t_dr = _time(m, inputs, n)
-        names = m.input_names
-        with np.errstate(all="ignore"):
-            t_np = time_numpy(
-                lambda *a, m=m, names=names: m(NUMPY_OPS, dict(zip(names, a, strict=True))),
-                tuple(np_in[k] for k in names),
-                n,
-            )
-        rows.append(comparison_row(m.label, backend, t_dr, t_np, base))
-    return rows
+    methods = {mid: configured_method(mid, cfg, "bumps", cfg["n_range"]) for mid in METHODS}
+    return method_bench_rows(methods, backend, inputs, np_in, n)

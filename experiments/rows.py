@@ -33,6 +33,18 @@ class Row:
     ``fitted``: its values come from a fit to the reference;
     ``fit``: the names of the parameters that fit frees (empty: the family's fit decides);
     ``held``: parameters held at fixed values during the fit and reported beside the fitted ones.
+
+    Optional, for the families that need them (defaults: not used):
+    ``short``: a short name for narrow table columns and figure panels;
+    ``evaluate``: the family's own evaluation of the row (its signature is the family's, its docstring says);
+    ``timed``: builds the Dr.Jit kernel the row's cost row times; ``cost_of``: the id of the row whose
+    measured cost this row shares (None: its own, or none);
+    ``source``: the key of the family's inputs the row reads (e.g. which baked coefficients);
+    ``fitted_keys``: kernel parameter → the key of the family's fitted value it takes;
+    ``reported``: values reported as the row's parameters though nothing is fitted (e.g. the (w, p) a
+    fixed formula equals);
+    ``in_figures``: shown in the family's image figures;
+    ``options``: the family's own switches of the row (its docstring says which).
     """
 
     id: str
@@ -42,3 +54,16 @@ class Row:
     fitted: bool = False
     fit: tuple[str, ...] = ()
     held: Mapping[str, float] = dataclasses.field(default_factory=dict, hash=False)
+    short: str = ""
+    evaluate: Callable | None = None
+    timed: Callable | None = None
+    cost_of: str | None = None
+    source: str | None = None
+    fitted_keys: Mapping[str, str] = dataclasses.field(default_factory=dict, hash=False)
+    reported: Mapping[str, float] = dataclasses.field(default_factory=dict, hash=False)
+    in_figures: bool = True
+    options: Mapping[str, Any] = dataclasses.field(default_factory=dict, hash=False)
+
+    def title(self, methods: Mapping) -> str:
+        """The row's name: its ``label``, else the label of its method in the family's ``methods``."""
+        return self.label or methods[self.method].label

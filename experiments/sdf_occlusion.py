@@ -74,13 +74,19 @@ import io
 import math
 import time
 import types
-from collections.abc import Callable
 from pathlib import Path
 
 import drjit as dr
 import numpy as np
 
-from rtfit.fitting import bounded_lm, bounded_lm_result, compute_metrics, fit_method, param_bounds
+from rtfit.fitting import (
+    bounded_lm,
+    bounded_lm_result,
+    fit_method,
+    grey_metrics,
+    param_bounds,
+    zero_padded,
+)
 from rtfit.realtime import get_default_backend, set_default_backend
 from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS
 from rtfit.realtime.sdf_grid import (
@@ -136,9 +142,10 @@ from .cost import (
     stock_render,
     time_drjit,
 )
-from .jobs import Job
+from .jobs import Job, reference_args
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
+from .rows import Row
 from .sdf_occlusion_scenes import SCENE_NAMES, build, load_case_scene, read_ply
 from .viewer import save_case_pixels
 
@@ -429,13 +436,6 @@ def _subsample(n_pts: int, seed: int, size: int = FIT_POINTS):
     return idx, w
 
 
-def _pad(a, size):
-    a = np.asarray(a, dtype=np.float64)
-    out = np.zeros((*a.shape[:-1], size))
-    out[..., : a.shape[-1]] = a
-    return out
-
-
 class SceneData:
     """One scene's rendered data (G-buffer points, references, voxel grid) with memoised Evans terms."""
 
@@ -493,7 +493,7 @@ class SceneData:
             gs = np.maximum(g[self.fit_idx], 1e-6)
             y = y / gs
             w[: len(gs)] *= gs
-        return _pad(y, FIT_POINTS), w
+        return zero_padded(y, FIT_POINTS), w
 
     def fit_data(self, t, analytic=False) -> EvansFitData:
         """The fit subsample as `EvansFitData` for the continuous fit."""
@@ -524,7 +524,7 @@ def _fit_kernel(method, sd: SceneData, t, inputs: dict, start: dict):
     subsample through the JAX run of its kernel (`fit_method`); ``inputs`` are full per-point arrays."""
     y, fw = sd.fit_target(t)
     params = {k: dataclasses.replace(p, initial=start[k]) for k, p in method.params.items()}
-    sub = {k: _pad(np.asarray(v)[..., sd.fit_idx], FIT_POINTS) for k, v in inputs.items()}
+    sub = {k: zero_padded(np.asarray(v)[..., sd.fit_idx], FIT_POINTS) for k, v in inputs.items()}
     return fit_method(method, sub, y, weights=fw, params=params).to_dict()
 
 
@@ -702,58 +702,40 @@ def _cone_timed(sd, cfg):
     )
 
 
-@dataclasses.dataclass(frozen=True)
-class Row:
-    """A row of the comparison: ``method`` (an id of `METHODS`) plus where its parameters come from
-    (``evaluate(row, scene, target, state) -> (g·C per point, parameters, continuous fit or None)``, or None
-    where the row does not apply). ``timed``: builds the per-pixel Dr.Jit kernel for the cost row (None:
-    ``cost_of`` names the row whose measured kernel this row runs, or no cost row)."""
-
-    id: str
-    short: str
-    method: str
-    evaluate: Callable
-    label: str | None = None
-    timed: Callable | None = None
-    cost_of: str | None = None
-
-    @property
-    def title(self) -> str:
-        return self.label or METHODS[self.method].label
-
-
+# A row of the comparison (`rows.Row`): ``method`` (an id of `METHODS`) plus where its parameters come from
+# (``evaluate(row, scene, target, state) -> (g·C per point, parameters, continuous fit or None)``, or None
+# where the row does not apply); ``short``: its name in narrow columns. ``timed``: builds the per-pixel
+# Dr.Jit kernel for the cost row (None: ``cost_of`` names the row whose measured kernel this row runs, or
+# no cost row). Its title: its ``label``, else its method's.
 ROWS = (
-    Row(
-        "evans-text",
-        "Evans text",
-        "evans-text",
-        _row_seed,
-        timed=_evans_timed(METHODS["evans-text"], {"k": 1.0}),
-    ),
-    Row(
-        "evans-listing",
-        "Evans listing",
-        "evans-listing",
-        _row_seed,
-        timed=_evans_timed(METHODS["evans-listing"], {"k": 1.0}),
+    *(
+        Row(m, method=m, short=short, evaluate=_row_seed, timed=_evans_timed(METHODS[m], {"k": 1.0}))
+        for m, short in (("evans-text", "Evans text"), ("evans-listing", "Evans listing"))
     ),
     Row(
         "evans-fit",
-        "Evans fit",
-        "evans-fit",
-        _row_case,
+        method="evans-fit",
+        short="Evans fit",
+        evaluate=_row_case,
         # representative fitted values (the cost does not depend on them)
         timed=_evans_timed(METHODS["evans-fit"], {"alpha": 0.3, "c1": 1.0, "c2": 0.9, "c3": 0.8, "c4": 0.7}),
     ),
-    Row("evans-joint", "Evans joint", "evans-fit", _row_joint, label="Evans, joint fit", cost_of="evans-fit"),
-    Row("curvature", "curvature", "curvature", _row_curvature, timed=_curvature_timed),
-    Row("cone", "cone DF AO", "cone", _row_cone, timed=_cone_timed),
+    Row(
+        "evans-joint",
+        "Evans, joint fit",
+        "evans-fit",
+        short="Evans joint",
+        evaluate=_row_joint,
+        cost_of="evans-fit",
+    ),
+    Row("curvature", method="curvature", short="curvature", evaluate=_row_curvature, timed=_curvature_timed),
+    Row("cone", method="cone", short="cone DF AO", evaluate=_row_cone, timed=_cone_timed),
     Row(
         "evans-analytic",
-        "Evans fit, exact SDF",
+        "Evans fitted, exact analytic SDF (no grid, no blur)",
         "evans-fit",
-        _row_analytic,
-        label="Evans fitted, exact analytic SDF (no grid, no blur)",
+        short="Evans fit, exact SDF",
+        evaluate=_row_analytic,
     ),
 )
 """The model rows, in table order. The AO cases add two rows on Mitsuba's ``sdfgrid`` geometry
@@ -768,7 +750,7 @@ GRID_ROWS = {
 """id → (short, label) of the rows on the voxelised geometry: the sdfgrid's own AO (grid error) and Evans
 fitted at its surface points against it (model error alone)."""
 SHORT = {**{r.id: r.short for r in ROWS}, **{k: v[0] for k, v in GRID_ROWS.items()}}
-LABELS = {**{r.id: r.title for r in ROWS}, **{k: v[1] for k, v in GRID_ROWS.items()}}
+LABELS = {**{r.id: r.title(METHODS) for r in ROWS}, **{k: v[1] for k, v in GRID_ROWS.items()}}
 MAP_ROWS = ("evans-text", "evans-listing", "evans-fit", "evans-joint", "cone")
 """Rows shown in the error-map figures."""
 
@@ -807,13 +789,7 @@ def grid_of(scene, resolution: int, cache_dir=None):
 
 
 def _metrics(img, ref_img, err_img, mask):
-    return compute_metrics(
-        img[..., None].repeat(3, -1),
-        ref_img[..., None].repeat(3, -1),
-        err_img[..., None].repeat(3, -1),
-        mask,
-        names=METRICS,
-    ).to_dict()
+    return grey_metrics(img, ref_img, err_img, mask, METRICS)
 
 
 def _approx_doc(method, label, fitted, parameters, metrics) -> dict:
@@ -919,7 +895,8 @@ def evaluate_cases(cfg, sds, joint):
                 img = sd.image(pred)
                 maps[(n, t, row.id)] = img
                 met = _metrics(img, ref_img, err_img, sd.mask)
-                approx_docs.append(_approx_doc(row.id, row.title, True, _approx_params(params[row.id]), met))
+                row_params = _approx_params(params[row.id])
+                approx_docs.append(_approx_doc(row.id, LABELS[row.id], True, row_params, met))
             if t == "ao" and sd.r["sdfgrid_ao"] is not None:
                 approx_docs.append(_sdfgrid_doc(sd))
                 approx_docs.append(_model_only_doc(sd, cfg))
@@ -1091,11 +1068,7 @@ def run(ctx) -> dict:
             dict(
                 name=n,
                 resolution=cfg["resolution"],
-                spp=cfg["spp"],
-                pass_spp=cfg["pass_spp"],
-                seed=ctx.seed,
-                variant=ctx.variant,
-                cache_dir=str(ctx.cache_dir),
+                **reference_args(ctx, cfg),
                 targets=cfg["targets"],
                 ao_distance=cfg["ao_distance"],
                 albedo=cfg["albedo"],
@@ -1826,14 +1799,14 @@ def measure_costs(sds, cfg) -> list[dict]:
             f"Dr.Jit kernel incl. trilinear gathers from the mip chain, {size} surface points "
             f"({cfg['grid']}³ grid), median wall time after warm-up"
         )
-        out.append(cost_row(row.id, row.title, be, tm, note))
+        out.append(cost_row(row.id, row.title(METHODS), be, tm, note))
     measured = {c["method"]: c for c in out}
     shared = [row for row in ROWS if row.cost_of is not None]
     return out + [
         {
             **measured[row.cost_of],
             "method": row.id,
-            "label": row.title,
+            "label": row.title(METHODS),
             "note": f"same kernel as {row.cost_of}",
         }
         for row in shared

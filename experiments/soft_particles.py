@@ -30,7 +30,7 @@ import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method, sidak_threshold
 from rtfit.realtime import NUMPY_OPS, set_default_backend
-from rtfit.realtime.arrays import backend_float
+from rtfit.realtime.arrays import backend_float, xyz_columns
 from rtfit.realtime.soft_particles import (
     BIG,
     METHODS,
@@ -48,19 +48,8 @@ from rtfit.reference.variants import backend_of
 
 from . import figures as F
 from . import fitted as fitfiles
-from .cost import (
-    attach_costs,
-    baseline_row,
-    bench_backend,
-    comparison_row,
-    cost_backend,
-    cost_row,
-    memory_baseline,
-    memory_floor_row,
-    time_drjit,
-    time_numpy,
-)
-from .jobs import Job
+from .cost import attach_costs, bench_backend, cost_backend, method_bench_rows, method_cost_rows, rate_row
+from .jobs import Job, reference_args
 from .particle_geometry import billboard_inputs
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
@@ -161,9 +150,7 @@ def ray_inputs(dirs: np.ndarray, centre, radius: float, sigma: float, t_surface)
     n = len(dirs)
     c = np.asarray(centre, np.float64)
     return {
-        "dx": dirs[:, 0],
-        "dy": dirs[:, 1],
-        "dz": dirs[:, 2],
+        **xyz_columns("d", dirs),
         "cx": np.full(n, c[0]),
         "cy": np.full(n, c[1]),
         "cz": np.full(n, c[2]),
@@ -262,11 +249,7 @@ def run(ctx) -> dict:
                 alpha_c=a,
                 tilt_deg=cfg["tilt_deg"],
                 resolution=list(cfg["resolution"]),
-                spp=cfg["spp"],
-                pass_spp=cfg["pass_spp"],
-                seed=ctx.seed,
-                variant=ctx.variant,
-                cache_dir=str(ctx.cache_dir),
+                **reference_args(ctx, cfg),
                 inside=i,
                 progress=ctx.progress,
             ),
@@ -516,12 +499,8 @@ def random_domain(shape: str, alpha_c: float, n: int, seed: int = 11) -> tuple[d
     ts = (c[:, 2] + delta) / dirs[:, 2]
     bb = _per_sample_billboard(dirs, c, alpha_c, shape, ts)
     ex = {
-        "dx": dirs[:, 0],
-        "dy": dirs[:, 1],
-        "dz": dirs[:, 2],
-        "cx": c[:, 0],
-        "cy": c[:, 1],
-        "cz": c[:, 2],
+        **xyz_columns("d", dirs),
+        **xyz_columns("c", c),
         "t_surface": ts,
         "radius": np.full(n, RADIUS),
         "sigma": np.full(n, sigma_of(alpha_c, RADIUS)),
@@ -1185,34 +1164,18 @@ def _cost_inputs(n: int, Float):
     return np_inputs, {k: Float(v) for k, v in np_inputs.items()}
 
 
-def _time(mid: str, inputs: dict, n: int):
-    m = METHODS[mid]
-    names = m.input_names
-    return time_drjit(
-        lambda *a: m.evaluate(dict(zip(names, a, strict=True))), tuple(inputs[k] for k in names), n
-    )
-
-
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per pixel of each method (the results' ``costs``) beside the memory-traffic floor."""
     backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     _, inputs = _cost_inputs(n, Float)
-    rows = [
-        cost_row(
-            mid,
-            m.label,
-            backend,
-            _time(mid, inputs, n),
-            f"per pixel: {len(m.inputs)} floats in, opacity out (float32)",
-        )
-        for mid, m in METHODS.items()
-    ]
+
+    def note(m) -> str:
+        return f"per pixel: {len(m.inputs)} floats in, opacity out (float32)"
+
     floor_inputs = tuple(inputs[k] for k in COST_INPUTS)
-    return [
-        *rows,
-        memory_floor_row(floor_inputs, n, backend, "the memory-bound floor of the billboard methods"),
-    ]
+    floor = "the memory-bound floor of the billboard methods"
+    return method_cost_rows(METHODS, backend, inputs, n, note, floor, floor_inputs=floor_inputs)
 
 
 def bench(ctx) -> list[dict]:
@@ -1220,19 +1183,9 @@ def bench(ctx) -> list[dict]:
     backend, n = bench_backend(ctx)
     Float = backend_float(backend)
     np_inputs, inputs = _cost_inputs(n, Float)
-    base = memory_baseline(tuple(inputs[k] for k in COST_INPUTS), n)
-    rows = []
-    for mid, m in METHODS.items():
-        t_dr = _time(mid, inputs, n)
-        names = m.input_names
-        with np.errstate(all="ignore"):
-            t_np = time_numpy(
-                lambda *a, m=m, names=names: m(NUMPY_OPS, dict(zip(names, a, strict=True))),
-                tuple(np_inputs[k] for k in names),
-                n,
-            )
-        rows.append(comparison_row(m.label, backend, t_dr, t_np, base))
-    rows.append(baseline_row(base, backend, "memory baseline (fma of the 7 billboard inputs)"))
+    floor = tuple(inputs[k] for k in COST_INPUTS)
+    base = "memory baseline (fma of the 7 billboard inputs)"
+    rows = method_bench_rows(METHODS, backend, inputs, np_inputs, n, floor_inputs=floor, baseline=base)
     res = (32, 32) if ctx.quick else (128, 128)
     spp = 256 if ctx.quick else 1024
     bench_job("sphere", 0.95, 35.0, list(res), spp, 1, ctx.variant)  # warm-up: kernel compile
@@ -1241,16 +1194,6 @@ def bench(ctx) -> list[dict]:
         key=lambda o: o.seconds,
     )
     samples = res[0] * res[1] * spp
-    rows.append(
-        {
-            "what": f"reference: volpathmis, absorbing sphere cut by a plane ({res[0]}×{res[1]}, {spp} spp)",
-            "backend": ctx.variant,
-            "elements": samples,
-            "drjit_Mpx_s": samples / out.seconds / 1e6,
-            "numpy_Mpx_s": None,
-            "drjit/numpy": None,
-            "ns_per_px": out.seconds / samples * 1e9,
-            "vs_memory_floor": None,
-        }
-    )
+    what = f"reference: volpathmis, absorbing sphere cut by a plane ({res[0]}×{res[1]}, {spp} spp)"
+    rows.append(rate_row(what, ctx.variant, samples, out.seconds))
     return rows

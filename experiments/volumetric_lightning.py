@@ -33,10 +33,9 @@ import math
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method
-from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime import set_default_backend
 from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.volumetric_lightning import METHODS
-from rtfit.reference import load_mitsuba_scene, radiance_pass
 from rtfit.reference.single_scattering import (
     FOUR_PI,
     box_exit,
@@ -44,7 +43,7 @@ from rtfit.reference.single_scattering import (
     point_single_scattering,
 )
 from rtfit.reference.variants import backend_of
-from rtfit.scenes import scene_hash, scene_to_toml
+from rtfit.scenes import scene_hash
 from rtfit.scenes.model import (
     Camera,
     Cube,
@@ -56,18 +55,7 @@ from rtfit.scenes.model import (
 
 from . import figures as F
 from . import fitted as fitfiles
-from .cost import (
-    attach_costs,
-    baseline_row,
-    bench_backend,
-    comparison_row,
-    cost_backend,
-    cost_row,
-    memory_baseline,
-    memory_floor_row,
-    time_drjit,
-    time_numpy,
-)
+from .cost import attach_costs, bench_backend, cost_backend, method_bench_rows, method_cost_rows
 from .jobs import Job
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
@@ -77,7 +65,8 @@ from .scattering_reference import (
     fit_level,
     fit_params,
     reference_checks,
-    render_job,
+    reference_rate_row,
+    render_references,
     residual_scale,
 )
 
@@ -259,24 +248,13 @@ def fit_data(p: dict, dirs: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> di
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
     set_default_backend(backend_of(ctx.variant))
-    params, scenes, jobs = {}, {}, []
+    params, scenes = {}, {}
     for dist in cfg["distances_m"]:
         for sigma in cfg["sigma_t_per_m"]:
             cid = case_id(dist, sigma)
             params[cid] = case_parameters(dist, sigma)
             scenes[cid] = case_scene(params[cid], cfg["resolution"])
-            args = dict(
-                scene_toml=scene_to_toml(scenes[cid]),
-                spp=cfg["spp"],
-                pass_spp=cfg["pass_spp"],
-                seed=ctx.seed,
-                variant=ctx.variant,
-                cache_dir=str(ctx.cache_dir),
-                progress=ctx.progress,
-            )
-            jobs.append(Job(render_job, args, label=cid))
-    ctx.log(f"rendering {len(jobs)} references")
-    rendered = dict(zip(params, ctx.executor.map(jobs, desc="references"), strict=True))
+    rendered = render_references(ctx, cfg, scenes)
 
     fit_jobs = []
     for cid, p in params.items():
@@ -848,25 +826,14 @@ def _cost_inputs(n: int, Float):
     return np_inputs, {k: Float(v) for k, v in np_inputs.items()}
 
 
-def _time(form: str, inputs: dict, n: int):
-    m = METHODS[form]
-    names = m.input_names
-    return time_drjit(
-        lambda *a: m.evaluate(dict(zip(names, a, strict=True)), COST_PARAMS[form]),
-        tuple(inputs[k] for k in names),
-        n,
-    )
-
-
 def cost_rows(ctx, cfg) -> list[dict]:
     """ns per pixel of each closed form beside the memory-traffic floor (the results' ``costs``)."""
     backend, Float = cost_backend(ctx.variant)
     n = cfg["cost_elements"]
     _, inputs = _cost_inputs(n, Float)
     note = "per pixel: o, d, l (9 floats) in, F out (float32)"
-    rows = [cost_row(form, m.label, backend, _time(form, inputs, n), note) for form, m in METHODS.items()]
-    floor = memory_floor_row(tuple(inputs.values()), n, backend, "the memory-bound floor of the closed forms")
-    return [*rows, floor]
+    floor = "the memory-bound floor of the closed forms"
+    return method_cost_rows(METHODS, backend, inputs, n, note, floor, COST_PARAMS)
 
 
 def bench(ctx) -> list[dict]:
@@ -875,39 +842,9 @@ def bench(ctx) -> list[dict]:
     backend, n = bench_backend(ctx)
     Float = backend_float(backend)
     np_inputs, inputs = _cost_inputs(n, Float)
-    base = memory_baseline(tuple(inputs.values()), n)
-    rows = []
-    for form, m in METHODS.items():
-        t_dr = _time(form, inputs, n)
-        names = m.input_names
-        with np.errstate(all="ignore"):  # NumPy evaluates both branches of every select
-            t_np = time_numpy(
-                lambda *a, m=m, names=names, form=form: m(
-                    NUMPY_OPS, dict(zip(names, a, strict=True)), COST_PARAMS[form]
-                ),
-                tuple(np_inputs[k] for k in names),
-                n,
-            )
-        rows.append(comparison_row(m.label, backend, t_dr, t_np, base))
-    rows.append(baseline_row(base, backend, "memory baseline (fma of the 9 inputs)"))
-    res = (32, 24) if ctx.quick else (128, 96)
-    spp = 256 if ctx.quick else 1024
-    p = case_parameters(8.0, 0.5)
-    mi, ms = load_mitsuba_scene(case_scene(p, res), ctx.variant)
-    radiance_pass(mi, ms, spp, 0)
-    t = min(radiance_pass(mi, ms, spp, k + 1).seconds for k in range(2))
-    samples = res[0] * res[1] * spp
-    rows.append(
-        {
-            "what": "reference: volpathmis + point light, homogeneous medium, single scattering "
-            f"({res[0]}×{res[1]}, {spp} spp)",
-            "backend": ctx.variant,
-            "elements": samples,
-            "drjit_Mpx_s": samples / t / 1e6,
-            "numpy_Mpx_s": None,
-            "drjit/numpy": None,
-            "ns_per_px": t / samples * 1e9,
-            "vs_memory_floor": None,
-        }
-    )
+    baseline = "memory baseline (fma of the 9 inputs)"
+    rows = method_bench_rows(METHODS, backend, inputs, np_inputs, n, COST_PARAMS, baseline=baseline)
+    res, spp = ((32, 24), 256) if ctx.quick else ((128, 96), 1024)
+    what = "reference: volpathmis + point light, homogeneous medium, single scattering"
+    rows.append(reference_rate_row(what, case_scene(case_parameters(8.0, 0.5), res), spp, ctx.variant))
     return rows

@@ -29,7 +29,7 @@ from .least_squares import (
     fit_curve,
     fit_least_squares,
 )
-from .method_fit import fit_method, method_model
+from .method_fit import fit_method, method_model, zero_padded
 from .metrics import (
     ALL_METRICS,
     EXTRA_METRICS,
@@ -41,6 +41,7 @@ from .metrics import (
     ZScoreSummary,
     compute_metrics,
     flip_error_map,
+    grey_metrics,
     smape,
     tone_map,
     z_score_summary,
@@ -77,6 +78,7 @@ __all__ = [
     "fit_least_squares",
     "fit_method",
     "flip_error_map",
+    "grey_metrics",
     "method_model",
     "param_bounds",
     "robust_spread",
@@ -87,4 +89,5 @@ __all__ = [
     "z_pair",
     "z_score_summary",
     "z_scores",
+    "zero_padded",
 ]

@@ -32,7 +32,7 @@ from rtfit.realtime.methods import Method, Param
 
 from .least_squares import FitResult, bound_flags, covariance_from_jacobian, fit_least_squares
 
-__all__ = ["FD_RCOND", "fit_method", "method_model"]
+__all__ = ["FD_RCOND", "fit_method", "method_model", "zero_padded"]
 
 TRF_TOL_FACTOR = 1e-3
 """SciPy's TRF stops on *relative* changes of the cost, the step and the scaled gradient; at the LM fits'
@@ -48,6 +48,15 @@ fits report a rank-deficient one."""
 
 _RESIDUALS: dict[tuple, Callable] = {}
 _KEEP_ALIVE: dict[int, Method] = {}
+
+
+def zero_padded(a, size: int) -> np.ndarray:
+    """``a`` (float64) with its last axis zero-padded to ``size`` elements: fits of one fixed size (with zero
+    weights on the padding) compile once."""
+    a = np.asarray(a, dtype=np.float64)
+    out = np.zeros((*a.shape[:-1], size))
+    out[..., : a.shape[-1]] = a
+    return out
 
 
 def method_model(method: Method, output: Callable[[Any], Any] | None = None) -> Callable:

@@ -99,6 +99,7 @@ __all__ = [
     "ZScoreSummary",
     "compute_metrics",
     "flip_error_map",
+    "grey_metrics",
     "smape",
     "tone_map",
     "z_score_summary",
@@ -539,6 +540,13 @@ def compute_metrics(
             continue
         out[name] = _METRICS[name](x, r, s, m, seed=seed, draws=int(floor_draws))
     return MetricResults(out, skipped)
+
+
+def grey_metrics(approx, reference, stderr, mask, names) -> dict:
+    """`compute_metrics` (as plain data, `MetricResults.to_dict`) of single-channel images (H, W), each
+    repeated to three equal channels."""
+    x, r, s = (np.asarray(a)[..., None].repeat(3, -1) for a in (approx, reference, stderr))
+    return compute_metrics(x, r, s, mask, names=names).to_dict()
 
 
 def flip_error_map(approx, reference, mask=None) -> np.ndarray:

@@ -69,6 +69,7 @@ __all__ = [
     "sin_from_cos",
     "sincos_first_quadrant",
     "split3",
+    "xyz_columns",
 ]
 
 # ----------------------------------------------------------------------------------------- ops namespaces
@@ -485,3 +486,9 @@ def split3(v: Any, name: str) -> tuple:
     if a.ndim == 1 and not _is_numpy_array(v):
         return tuple(_as_float_scalar(c) for c in a)
     return a[..., 0], a[..., 1], a[..., 2]
+
+
+def xyz_columns(prefix: str, a) -> dict[str, Any]:
+    """The columns of an (N, 3) array as the kernel inputs ``{prefix}x``, ``{prefix}y``, ``{prefix}z``
+    (views of ``a``, no copy)."""
+    return {f"{prefix}{c}": a[:, k] for k, c in enumerate("xyz")}
