@@ -23,8 +23,9 @@ SMALL = {"width": 16, "height": 16, "spp": 4, "pass_spp": 2, "fit": False}
 
 
 def test_an_interrupted_audit_reports_its_finished_cases_and_the_rerun_completes_it(tmp_path, monkeypatch):
-    """Ctrl-C while the second family renders: the diffuse cases (finished) are in a valid report marked
-    partial, naming what is missing; the rerun renders no diffuse pass again and reports every case."""
+    """Ctrl-C while sdf-occlusion renders: the cases before it (diffuse, irradiance-volumes,
+    ambient-aperture, in registry order) are in a valid report marked partial, naming what is missing; the
+    rerun renders none of their passes again and reports every case."""
     family = audit_run.AUDITED["sdf-occlusion"]
 
     def interrupted(setup, app):
@@ -39,7 +40,8 @@ def test_an_interrupted_audit_reports_its_finished_cases_and_the_rerun_completes
     report = out / "audit-cbox-rgb"
     assert caught.value.partial_report == report  # type: ignore[attr-defined]
     partial = load_results(report)
-    assert [c.id for c in partial.cases] == ["light0-unshadowed", "light0-shadowed"]
+    # the families before sdf-occlusion in registry order: diffuse, irradiance-volumes, ambient-aperture
+    assert [c.id for c in partial.cases] == ["light0-unshadowed", "light0-shadowed", "volume", "caps"]
     assert (
         partial.notes[0].startswith("PARTIAL REPORT")
         and "sdf-occlusion (ambient occlusion" in partial.notes[0]
@@ -48,8 +50,8 @@ def test_an_interrupted_audit_reports_its_finished_cases_and_the_rerun_completes
     assert (report / "report.html").is_file()
     monkeypatch.undo()
     full = audit(CBOX, out=out, cache=cache, **SMALL, **FAST)
-    assert [c.id for c in full.cases][:4] == ["light0-unshadowed", "light0-shadowed", "ao", "caps"]
-    assert all(c.reference.passes_rendered == 0 for c in full.cases[:2])  # from the cache
+    assert [c.id for c in full.cases][:5] == ["light0-unshadowed", "light0-shadowed", "volume", "caps", "ao"]
+    assert all(c.reference.passes_rendered == 0 for c in full.cases[:4])  # from the cache
     assert not any(n.startswith("PARTIAL") for n in load_results(report).notes)
 
 

@@ -56,7 +56,9 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
     # --profile: one row per audited family, the shared scene set-up, the report, and the phases' shares
     profile = [line.removeprefix("profile: ") for line in stderr.splitlines() if line.startswith("profile: ")]
     scene = next(i for i, line in enumerate(profile) if line.startswith("scene load + G-buffer"))
-    assert [line.split()[0] for line in profile[1:4]] == ["diffuse", "sdf-occlusion", "ambient-aperture"]
+    assert [line.split()[0] for line in profile[1:5]] == [  # registry order
+        "diffuse", "irradiance-volumes", "ambient-aperture", "sdf-occlusion"
+    ]  # fmt: skip
     assert profile[scene + 1].startswith("report (figures, viewer)")
     shares = [float(x.split()[-2]) for x in profile[-1].split(": ", 1)[1].split(", ")]
     assert profile[-1].startswith("total ") and abs(sum(shares) - 100) <= 2  # (each share rounded to 1 %)
@@ -66,8 +68,8 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
         assert (report / f).is_file()
     r = load_results(report)
     assert [c.id for c in r.cases] == [
-        "light0-unshadowed", "light0-shadowed", "ao", "caps",
-        "obscurance-model", "obscurance-ambient", "volume",
+        "light0-unshadowed", "light0-shadowed", "volume", "caps", "ao",
+        "obscurance-model", "obscurance-ambient",
     ]  # fmt: skip
     cap_rows = [m for m in METHOD_TABLES["ambient-aperture"] if m.startswith(("aa-", "fill-"))]
     for case in r.cases:
