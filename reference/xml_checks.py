@@ -137,6 +137,17 @@ def _installed_mitsuba() -> tuple[int, ...] | None:
         return None
 
 
+_COMMENT = re.compile(rb"<!--.*?-->", re.DOTALL)
+
+
+def _without_comments(data: bytes) -> bytes:
+    """``data`` with every ``<!-- … -->`` comment replaced by its own newlines (line numbers kept). XML 1.0
+    forbids ``--`` inside a comment and Expat refuses it, but Mitsuba's parser (pugixml) reads a comment up
+    to the first ``-->``, as real scenes rely on: Sionna's scenes open with ``<!--`` then ``-- SPDX-…``
+    lines. The pre-scan must not refuse what Mitsuba loads; a comment hides no element either way."""
+    return _COMMENT.sub(lambda m: b"\n" * m.group().count(b"\n"), data)
+
+
 class _Scan:
     """The state of one pre-scan: files on the include stack, files read, `<path>` folders."""
 
@@ -200,7 +211,7 @@ class _Scan:
         parser.EndElementHandler = end
         try:
             with open(path, "rb") as f:
-                parser.ParseFile(f)
+                parser.Parse(_without_comments(f.read()), True)
         except expat.ExpatError as e:
             what = expat.ErrorString(e.code)
             raise XmlProblem(

@@ -435,6 +435,19 @@ def test_xml_structure(capsys, tmp_path, make, says):
     assert says in line
 
 
+def test_double_hyphens_in_a_comment_pass_as_mitsuba_reads_them(capsys, tmp_path):
+    """XML 1.0 forbids ``--`` inside a comment (Expat refuses it), but Mitsuba's parser reads a comment up to
+    its first ``-->`` and Sionna's scenes open with one (``<!--`` / ``-- SPDX-…``, tests/data/real/sionna):
+    the pre-scan lets it through, and a later problem is still found on its own line."""
+    comment = "<!--\n-- SPDX-License-Identifier: Apache-2.0\n-- two -- hyphens\n  -->\n"
+    path = write(tmp_path, comment + scene())
+    assert main(["audit", str(path), "--list"]) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    bad = write(tmp_path, comment + scene().replace("</scene>", ""), "bad.xml")
+    line = refuse(capsys, tmp_path, bad)
+    assert "not well-formed XML" in line
+
+
 def test_camera_out_of_range(capsys, tmp_path):
     assert "--camera 3" in refuse(capsys, tmp_path, write(tmp_path, scene()), "--camera", "3")
 
