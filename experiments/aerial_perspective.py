@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from rtfit.fitting import Param, compute_metrics, fit_method
-from rtfit.realtime import DRJIT_OPS, NUMPY_OPS, set_default_backend
+from rtfit.realtime import DRJIT_OPS, NUMPY_OPS
 from rtfit.realtime.aerial_perspective import (
     FogLayer,
     aerial_scattering,
@@ -44,7 +44,6 @@ from rtfit.realtime.height_fog import fog_pass
 from rtfit.realtime.nishita_sky import AtmosphereParams
 from rtfit.reference.aerial_perspective import box_exit_distance, render_fog_sun
 from rtfit.reference.nishita_sky import library_atmosphere, single_scattering_quadrature
-from rtfit.reference.variants import backend_of
 
 from . import figures as F
 from . import fitted as fitfiles
@@ -314,7 +313,6 @@ def check_job(cfg: dict, variant: str, seed: int, cache_dir: str | None = None) 
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend(backend_of(ctx.variant))
     jobs = [
         Job(
             reference_job,

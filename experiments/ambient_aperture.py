@@ -54,7 +54,6 @@ from rtfit.realtime import (
     NUMPY_OPS,
     cap_area,
     cap_intersection_solid_angle,
-    set_default_backend,
     sphere_light_irradiance,
 )
 from rtfit.realtime.ambient_aperture import METHODS
@@ -760,7 +759,6 @@ def unoccluded_job(
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend(backend_of(ctx.variant))
     common = {
         "spp": cfg["spp"],
         "pass_spp": cfg["pass_spp"],

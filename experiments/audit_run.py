@@ -49,7 +49,6 @@ from rtfit.fitting import (
     z_checks,
     z_pair,
 )
-from rtfit.realtime import set_default_backend
 from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import is_user_approximation
@@ -58,7 +57,7 @@ from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, default_cache_dir
 from rtfit.reference.estimators import GBuffer, gbuffer, is_pass_through
 from rtfit.reference.mitsuba_xml import XMLSceneError, loaded_xml
 from rtfit.reference.nishita_sky import hemisphere_directions, load_atmosphere_scene
-from rtfit.reference.variants import backend_of, resolve_variant, scoped_variant
+from rtfit.reference.variants import resolve_variant, scoped_variant
 from rtfit.scenes import load_scene, scene_hash
 from rtfit.scenes.parse import MAX_LENGTH
 
@@ -75,7 +74,7 @@ from .records import SCHEMA, Results, from_json, plain_json, to_json
 from .registry import ALIASES, LIMITS
 from .report import write_report
 from .results import write_results
-from .runner import created_now, device_description, versions
+from .runner import created_now, device_description, use_variant_backend, versions
 from .user_methods import UserMethodError, check_approximation
 from .user_sandbox import load_validated
 from .viewer import save_case_pixels
@@ -712,8 +711,7 @@ def audit(
     _check_out(Path(cache) if cache is not None else default_cache_dir(), "--cache")
     say(f"camera: {info.camera}; up: {info.up_reason}")  # (after every refusal: one line, then progress)
     cache_root = Path(cache) if cache is not None else default_cache_dir()
-    backend = backend_of(variant)
-    set_default_backend(backend)
+    backend = use_variant_backend(variant)
 
     timings = {"reference": 0.0, "evaluation": 0.0, "fit": 0.0}
     by_family: dict[str, dict[str, float]] = {}

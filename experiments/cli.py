@@ -62,7 +62,15 @@ from .jobs import JobsFailed, error_line
 from .ray_executor import RAY_EXTRA_HINT, check_address
 from .registry import LIMITS, SPP_MAX, BenchContext
 from .report import write_index, write_report
-from .runner import RunFailed, check_summary, created_now, device_description, run_experiments, versions
+from .runner import (
+    RunFailed,
+    check_summary,
+    created_now,
+    device_description,
+    run_experiments,
+    use_variant_backend,
+    versions,
+)
 from .sweep import load_sweep, run_sweep
 
 VARIANT_CHOICES = ("auto", "llvm_ad_rgb", "cuda_ad_rgb")
@@ -499,6 +507,7 @@ def bench_cmd(experiment, variant, size, quick, json_out):
         (spec,), variant = _validated([experiment], variant)
         name, bench = spec.name, spec.load().bench
     started, t0 = created_now(), time.perf_counter()
+    use_variant_backend(variant)
     rows = bench(BenchContext(variant=variant, size=size, quick=quick))
     device = device_description(variant)
     if target != "-":

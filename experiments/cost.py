@@ -22,7 +22,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.arrays import backend_float
 from rtfit.reference.variants import backend_of
 
@@ -170,10 +170,10 @@ def memory_floor_row(inputs: tuple, elements: int, backend: str, note: str, labe
 
 # ------------------------------------------------------------------------------ `rtfit bench` rows
 def bench_backend(ctx) -> tuple[str, int]:
-    """The Dr.Jit backend of ``ctx.variant`` (made the default) and the kernel size: ``ctx.size``,
-    else 2^24 elements on the GPU and 2^22 on the CPU."""
+    """The Dr.Jit backend of ``ctx.variant`` (``rtfit bench`` made it the default,
+    `runner.use_variant_backend`) and the kernel size: ``ctx.size``, else 2^24 elements on the GPU and 2^22
+    on the CPU."""
     backend = backend_of(ctx.variant)
-    set_default_backend(backend)
     return backend, ctx.size or (1 << (24 if backend == "cuda" else 22))
 
 

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rtfit.fitting import Param, compute_metrics, concat_z_pairs, fit_method, robust_spread, z_checks, z_pair
-from rtfit.realtime import NUMPY_OPS, Input, Method, set_default_backend
+from rtfit.realtime import NUMPY_OPS, Input, Method
 from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.diffuse import METHODS
 from rtfit.reference import (
@@ -340,7 +340,6 @@ def run(ctx) -> dict:
     ]
     ctx.log(f"rendering {len(jobs)} references")
     rendered = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references"), strict=True))
-    set_default_backend(backend_of(ctx.variant))
 
     # Stage 2: per-case inputs (G-buffer) and the per-α wrap fits (independent jobs).
     geom, fit_jobs = {}, []

@@ -37,7 +37,7 @@ import drjit as dr
 import numpy as np
 
 from rtfit.fitting import compute_metrics, sidak_threshold
-from rtfit.realtime import DRJIT_OPS, NUMPY_OPS, set_default_backend, sphere_light_irradiance
+from rtfit.realtime import DRJIT_OPS, NUMPY_OPS, sphere_light_irradiance
 from rtfit.realtime import environment_maps as em
 from rtfit.realtime.arrays import backend_float
 from rtfit.reference import environment_maps as room
@@ -1311,7 +1311,6 @@ def impostor_checks(cfg, imp: dict) -> list[dict]:
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend(backend_of(ctx.variant))
     ctx.log("constant environment: solid-angle rules over N and normals")
     const = constant_environment(cfg)
     checks = constant_checks(const)

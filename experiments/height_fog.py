@@ -48,7 +48,6 @@ from rtfit.realtime import (
     fog_volumes_shade,
     height_fog_optical_depth,
     height_fog_transmittance,
-    set_default_backend,
 )
 from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.height_fog import METHODS, OPTICAL_DEPTH_FORMS
@@ -63,7 +62,6 @@ from rtfit.reference.budget import check_finite
 from rtfit.reference.build import light_dicts, load_dict, mitsuba_scene_dict
 from rtfit.reference.height_fog import grid_medium_dict, region_matrix, sky_statistics
 from rtfit.reference.height_fog import medium_dict as fog_medium_dict
-from rtfit.reference.variants import backend_of
 from rtfit.scenes import library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 
 from . import figures as F
@@ -421,7 +419,6 @@ def fit_data(geom: dict, l0: np.ndarray, ref: np.ndarray) -> dict:
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend(backend_of(ctx.variant))
     res = cfg["resolution"]
     common = dict(
         pass_spp=cfg["pass_spp"],

@@ -64,7 +64,7 @@ import numpy as np
 
 from rtfit.fitting import smape
 from rtfit.fitting.stats import concat_z_pairs, z_checks, z_pair
-from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.ambient_dice import DICE_VERTICES, fit_ambient_dice
 from rtfit.realtime.environment_bases import METHODS as ENVIRONMENT_BASES
 from rtfit.realtime.irradiance_bases import (
@@ -600,7 +600,6 @@ def run(ctx) -> dict:
     labels = [j.label for j in jobs]
     rendered = dict(zip(labels, ctx.executor.map(jobs, desc="environments"), strict=True))
 
-    set_default_backend(backend_of(ctx.variant))
     ctx.log("projecting and fitting the bases")
     qb = quadrature_backend(ctx.variant)
     bases = {

@@ -42,8 +42,8 @@ import drjit as dr
 import numpy as np
 
 from rtfit.fitting import compute_metrics, robust_spread, sidak_threshold, smape
-from rtfit.realtime import NUMPY_OPS, set_default_backend
-from rtfit.realtime.arrays import backend_float
+from rtfit.realtime import NUMPY_OPS
+from rtfit.realtime.arrays import backend_float, backend_type
 from rtfit.realtime.irradiance_bases import (
     CUBE_AXES,
     sh9_from_constant,
@@ -60,7 +60,6 @@ from rtfit.realtime.irradiance_volumes import (
 )
 from rtfit.reference import ReferenceCache, ReferenceRequest, load_mitsuba_scene
 from rtfit.reference.probe_radiance import ProbeRadianceCache, point_light_visibility
-from rtfit.reference.variants import backend_of
 from rtfit.scenes import library_path, load_scene, parse_scene_text, scene_hash, scene_to_toml
 from rtfit.scenes.model import ConstantEnv, Cube, PointLight, ReferenceSettings, Scene
 
@@ -283,7 +282,6 @@ def surface_job(
 # ============================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend(backend_of(ctx.variant))
     room = room_scene()
     furnace = furnace_scene(room)
     grids = level_grids(cfg["levels"])
@@ -873,7 +871,7 @@ def _cost_inputs(grid: ProbeGrid, n: int, seed: int = 3):
 
 
 def _time(mid: str, grid: ProbeGrid, table, p, nrm, n: int):
-    Array3f = dr.cuda.Array3f if dr.backend_v(p[0]) == dr.JitBackend.CUDA else dr.llvm.Array3f
+    Array3f = backend_type("Array3f", "cuda" if dr.backend_v(p[0]) == dr.JitBackend.CUDA else "llvm")
 
     def call(px, py, pz, nx, ny, nz):
         return volume_irradiance(mid, grid, table, Array3f(px, py, pz), Array3f(nx, ny, nz))

@@ -32,7 +32,7 @@ import time
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method
-from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.light_cones import CHORD_LENGTH, METHODS
 from rtfit.reference.single_scattering import (
@@ -41,7 +41,6 @@ from rtfit.reference.single_scattering import (
     spot_estimator_variance,
     spot_single_scattering,
 )
-from rtfit.reference.variants import backend_of
 from rtfit.scenes import scene_hash
 from rtfit.scenes.model import Camera, Cube, HomogeneousMedium, ReferenceSettings, Scene, SpotLight
 
@@ -274,7 +273,6 @@ def fit_job(method: str, fit: tuple, held: dict, inputs: dict, target, scale, k0
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend(backend_of(ctx.variant))
     cases, scenes = {}, {}
     for sigma in cfg["sigma_t_per_m"]:
         for view in cfg["views"]:

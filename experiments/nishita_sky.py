@@ -54,7 +54,7 @@ import drjit as dr
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method, robust_spread, tone_map
-from rtfit.realtime import set_default_backend
+from rtfit.realtime.arrays import backend_type
 from rtfit.realtime.nishita_sky import (
     FINE_SETTING,
     METHODS,
@@ -758,7 +758,6 @@ def run(ctx) -> dict:
     W, H = cfg["resolution"]
     backend = backend_of(ctx.variant)
 
-    set_default_backend(backend)
     dirs, az, el = hemisphere_directions(W, H)
     seed, variant, cache = ctx.seed, ctx.variant, str(ctx.cache_dir)
 
@@ -1591,7 +1590,7 @@ def _costs(ctx, backend, cfg, settings) -> list[dict]:
     v = rng.normal(size=(n, 3))
     v[:, 2] = np.abs(v[:, 2])
     v /= np.linalg.norm(v, axis=1, keepdims=True)
-    D = dr.llvm.Array3f if backend == "llvm" else dr.cuda.Array3f
+    D = backend_type("Array3f", backend)
     dirs = D(Float(v[:, 0]), Float(v[:, 1]), Float(v[:, 2]))
     rows = []
     shader = {}  # setting → the cost row of its shader (a fitted method shares its setting's)
@@ -1623,7 +1622,6 @@ def _costs(ctx, backend, cfg, settings) -> list[dict]:
 def bench(ctx) -> list[dict]:
     """Whole-texture build time per configuration: Dr.Jit (this backend) vs the NumPy loop."""
     backend = backend_of(ctx.variant)
-    set_default_backend(backend)
     p = atmosphere_params()
     confs = [dict(SEED_CFG, layers=n) for n in (8, 32, 128)] + [
         dict(SEED_CFG, width=512, height=256),

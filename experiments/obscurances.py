@@ -41,7 +41,7 @@ import numpy as np
 
 from rtfit.fitting import fit_method, grey_metrics, zero_padded
 from rtfit.fitting.stats import sidak_threshold
-from rtfit.realtime import get_default_backend, set_default_backend
+from rtfit.realtime import get_default_backend
 from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float
 from rtfit.realtime.obscurances import (
     METHODS,
@@ -55,7 +55,6 @@ from rtfit.reference import load_mitsuba_scene
 from rtfit.reference.build import tiled_quad_shape
 from rtfit.reference.estimators import gbuffer, gbuffer_points
 from rtfit.reference.occlusion import OcclusionCache, hit_distances
-from rtfit.reference.variants import backend_of
 from rtfit.scenes import scene_hash
 
 from . import figures
@@ -808,7 +807,6 @@ def run(ctx) -> dict:
     done = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references"), strict=True))
     probes = done.pop("probes")
     rendered = done
-    set_default_backend(backend_of(ctx.variant))
     t0 = time.perf_counter()
     fits = fit_rows(cfg, rendered)
     ctx.log(f"fits done ({time.perf_counter() - t0:.1f} s)")

@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from rtfit.fitting import ALL_METRICS, compute_metrics, fit_method
-from rtfit.realtime import NUMPY_OPS, Method, set_default_backend
+from rtfit.realtime import NUMPY_OPS, Method
 from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.parallax_occlusion import (
     METHODS,
@@ -45,7 +45,7 @@ from rtfit.reference.parallax_occlusion import (
     rectangle_light,
     square_irradiance,
 )
-from rtfit.reference.variants import backend_of, use_variant
+from rtfit.reference.variants import use_variant
 
 from . import figures as F
 from . import fitted as fitfiles
@@ -351,7 +351,6 @@ def fit_shadows(cfg, cases: list[dict]) -> dict:
 
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend(backend_of(ctx.variant))
     mi = use_variant(ctx.variant)
     light_dirs = {lt: unit_vector(lt, cfg["light_azimuth_deg"]) for lt in cfg["light_deg"]}
     lights = {

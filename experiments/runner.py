@@ -20,8 +20,9 @@ from pathlib import Path
 
 import drjit as dr
 
+from rtfit.realtime import set_default_backend
 from rtfit.reference.cache import PASS_COUNTS
-from rtfit.reference.variants import callers_variant
+from rtfit.reference.variants import backend_of, callers_variant
 from rtfit.scenes import SceneError
 
 from .atomic import atomic_directory, is_temporary_name
@@ -82,6 +83,15 @@ def created_now() -> str:
     return datetime.datetime.now(datetime.UTC).replace(microsecond=0).isoformat()
 
 
+def use_variant_backend(variant: str) -> str:
+    """Make the Dr.Jit backend of the Mitsuba ``variant`` (``llvm`` or ``cuda``) the default of every kernel
+    that follows, and return it: the one place it is set, by the engine's entry points (`run_experiment_into`
+    for ``rtfit run`` and ``rtfit sweep``, ``rtfit bench``, ``rtfit audit``), never by a family."""
+    backend = backend_of(variant)
+    set_default_backend(backend)
+    return backend
+
+
 def run_experiment_into(
     spec: ExperimentSpec,
     directory: Path,
@@ -101,6 +111,7 @@ def run_experiment_into(
     if ctx.experiment != spec.name:  # its CONFIG declaration checks the run's overrides
         ctx = dataclasses.replace(ctx, experiment=spec.name, config=spec.config)
     ctx.log(f"{spec.name}: running ({'quick' if ctx.quick else 'full'}, {ctx.variant})")
+    use_variant_backend(ctx.variant)
     body = spec.load().run(ctx)
     doc = {
         "schema": SCHEMA,

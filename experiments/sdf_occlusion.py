@@ -87,7 +87,7 @@ from rtfit.fitting import (
     param_bounds,
     zero_padded,
 )
-from rtfit.realtime import get_default_backend, set_default_backend
+from rtfit.realtime import get_default_backend
 from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS
 from rtfit.realtime.sdf_grid import (
     HalfSpace,
@@ -1085,7 +1085,6 @@ def run(ctx) -> dict:
     ]
     ctx.log(f"rendering references of {len(jobs)} scenes")
     rendered = dict(zip([j.label for j in jobs], ctx.executor.map(jobs, desc="references"), strict=True))
-    set_default_backend(backend_of(ctx.variant))
 
     out = ctx.out_dir
     t_start = time.perf_counter()
@@ -1835,7 +1834,6 @@ def bench(ctx) -> list[dict]:
     (their cost-row kernels, `Row.timed`) beside the Mitsuba AO estimator's samples/s, in the same run."""
     variant = ctx.variant
     be = backend_of(variant)
-    set_default_backend(be)
     cfg = configure(ctx.quick, None)
     res = 64 if ctx.quick else 256
     grid_res = 64 if ctx.quick else 128

@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method, sidak_threshold
-from rtfit.realtime import NUMPY_OPS, set_default_backend
+from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.arrays import backend_float, xyz_columns
 from rtfit.realtime.soft_particles import (
     BIG,
@@ -44,7 +44,6 @@ from rtfit.reference.soft_particles import (
     particle_reference,
     transmittance_pass_particle,
 )
-from rtfit.reference.variants import backend_of
 
 from . import figures as F
 from . import fitted as fitfiles
@@ -237,7 +236,6 @@ def case_id(shape: str, alpha_c: float, inside: bool = False) -> str:
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend(backend_of(ctx.variant))
     cases = [(s, a, False) for s in cfg["shapes"] for a in cfg["alphas"]]
     if cfg["camera_inside"]:
         cases.append(("sphere", cfg["alphas"][-1], True))

@@ -33,7 +33,6 @@ import math
 import numpy as np
 
 from rtfit.fitting import compute_metrics, fit_method
-from rtfit.realtime import set_default_backend
 from rtfit.realtime.arrays import backend_float
 from rtfit.realtime.volumetric_lightning import METHODS
 from rtfit.reference.single_scattering import (
@@ -42,7 +41,6 @@ from rtfit.reference.single_scattering import (
     point_estimator_variance,
     point_single_scattering,
 )
-from rtfit.reference.variants import backend_of
 from rtfit.scenes import scene_hash
 from rtfit.scenes.model import (
     Camera,
@@ -247,7 +245,6 @@ def fit_data(p: dict, dirs: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> di
 # ================================================================================================== run
 def run(ctx) -> dict:
     cfg = ctx.configured(configure(ctx.quick, ctx.spp))
-    set_default_backend(backend_of(ctx.variant))
     params, scenes = {}, {}
     for dist in cfg["distances_m"]:
         for sigma in cfg["sigma_t_per_m"]:

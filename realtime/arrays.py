@@ -52,6 +52,7 @@ __all__ = [
     "OP_NAMES",
     "atan_minus_x_series",
     "backend_float",
+    "backend_type",
     "check_range",
     "check_scalar",
     "clamp01",
@@ -358,8 +359,18 @@ def backend_float(backend: str | None = None, dtype: Any = np.float32) -> type:
     name = _default_backend if backend is None else backend
     if name not in _BACKENDS:
         raise ValueError(f"backend must be one of {_BACKENDS} (got {name!r})")
+    return backend_type("Float64" if np.dtype(dtype) == np.float64 else "Float", name)
+
+
+def backend_type(type_name: str, backend: str | None = None, ad: bool = False) -> type:
+    """Dr.Jit's array type ``type_name`` (``"Float"``, ``"Array3f"``, …) of ``backend`` ("llvm" or "cuda";
+    None: the default backend), differentiable with ``ad``: e.g. ``backend_type("Array3f", "cuda")`` is
+    ``dr.cuda.Array3f``. With `backend_float`, the one place that maps a backend name to an array type."""
+    name = _default_backend if backend is None else backend
+    if name not in _BACKENDS:
+        raise ValueError(f"backend must be one of {_BACKENDS} (got {name!r})")
     mod = dr.cuda if name == "cuda" else dr.llvm
-    return mod.Float64 if np.dtype(dtype) == np.float64 else mod.Float
+    return getattr(mod.ad if ad else mod, type_name)
 
 
 def _backend_float(dtype) -> type:

@@ -61,7 +61,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from .arrays import DRJIT_OPS, NUMPY_OPS, check_scalar, get_default_backend, is_drjit
+from .arrays import DRJIT_OPS, NUMPY_OPS, backend_type, check_scalar, get_default_backend, is_drjit
 from .methods import Input, Method, Param, method_table
 from .sdf_grid import EMPTY_DISTANCE, SdfGrid, build_mips, primitives_sdf
 
@@ -386,7 +386,7 @@ def evans_terms_jacobian(points, normals, sdf, params: EvansParams, *, backend: 
         raise ValueError(f"points and normals must have the same shape (got {p.shape} and {nrm.shape})")
     if not np.all(np.isfinite(p)) or not np.all(np.isfinite(nrm)):
         raise ValueError("points and normals must be finite")
-    Float = (dr.cuda.ad if be == "cuda" else dr.llvm.ad).Float
+    Float = backend_type("Float", be, ad=True)
     cols = [Float(np.ascontiguousarray(a[:, i], dtype=np.float32)) for a in (p, nrm) for i in range(3)]
     values, grads = None, []
     for wrt in ("alpha", "base"):

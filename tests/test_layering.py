@@ -17,8 +17,11 @@
    Today's violations are an explicit allow-list (`FAMILY_IMPORTS_ALLOWED`) that may only shrink.
 7. A family module has at most `FAMILY_MAX_LINES` lines; today's larger ones are listed with their line
    counts as ceilings (`FAMILY_LINES_CEILING`): a ratchet, none may grow.
+8. One backend switch (issue 30 §3): ``set_default_backend(…)`` is called in `BACKEND_SWITCH` alone (the
+   engine's entry points call `runner.use_variant_backend`), and no module picks an array type by hand
+   (``dr.cuda.Float if …``; `rtfit.realtime.arrays.backend_float` is the one place).
 
-Rules 2–4, 6 and 7 are plain functions of a directory, so the tests below also run them on planted
+Rules 2–4 and 6–8 are plain functions of a directory, so the tests below also run them on planted
 packages to show that each rule catches what it is meant to.
 """
 
@@ -303,7 +306,36 @@ def find_large_families(root: Path, ceilings: dict[str, int]) -> list[str]:
     return bad
 
 
+BACKEND_SWITCH = {"experiments/runner.py", "realtime/arrays.py"}
+"""Where ``set_default_backend`` may be called (the engine's `use_variant_backend`; its definition)."""
+_HAND_SWITCH = re.compile(r"dr\.(cuda|llvm)\.\w+ if ")
+
+
+def find_backend_switches(root: Path) -> list[str]:
+    """Calls of ``set_default_backend`` outside `BACKEND_SWITCH`, and array types picked by hand."""
+    bad = []
+    for package in PACKAGES:
+        for path in sorted((root / package).glob("*.py")):
+            rel = f"{package}/{path.name}"
+            text = path.read_text(encoding="utf-8")
+            for node in ast.walk(_tree(path)):
+                if isinstance(node, ast.Call) and getattr(
+                    node.func, "id", getattr(node.func, "attr", None)
+                ) == ("set_default_backend"):
+                    if rel not in BACKEND_SWITCH:
+                        bad.append(f"{rel}:{node.lineno}: set_default_backend")
+            for i, line in enumerate(text.splitlines(), 1):
+                if _HAND_SWITCH.search(line):
+                    bad.append(f"{rel}:{i}: {line.strip()}")
+    return bad
+
+
 # ------------------------------------------------------------------------------------------- the tree
+def test_one_backend_switch():
+    bad = find_backend_switches(ROOT)
+    assert not bad, f"the Dr.Jit backend is set outside the engine's entry points: {bad}"
+
+
 @pytest.mark.parametrize("package", PACKAGES)
 def test_imports_follow_the_layering(package):
     bad = find_layer_violations(ROOT, package)
@@ -446,3 +478,18 @@ def test_a_planted_large_family_is_found(tmp_path):
     n = FAMILY_MAX_LINES
     assert find_large_families(root, {"b": 700}) == [f"a.py: {n + 1} lines > {n}"]
     assert find_large_families(root, {"a": 601, "b": 699}) == ["b.py: 700 lines > 699"]
+
+
+def test_a_planted_backend_switch_is_found(tmp_path):
+    root = _plant(
+        tmp_path,
+        {
+            "runner.py": "def use(v):\n    set_default_backend(v)\n",
+            "family.py": "import drjit as dr\nF = dr.cuda.Float if GPU else dr.llvm.Float\n"
+            "def run(ctx):\n    realtime.set_default_backend('llvm')\n",
+        },
+    )
+    assert find_backend_switches(root) == [
+        "experiments/family.py:4: set_default_backend",
+        "experiments/family.py:2: F = dr.cuda.Float if GPU else dr.llvm.Float",
+    ]
