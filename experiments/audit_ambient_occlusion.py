@@ -171,11 +171,13 @@ class DistanceFieldRows:
     methods: dict[str, Method]
     row_inputs: dict
     params: dict
+    range_notes: tuple[str, ...] = ()
 
     @property
     def notes(self) -> tuple[str, ...]:
         shape = self.sdf.grids[0].shape
         return (
+            *self.range_notes,
             f"distance field: {shape[0]}×{shape[1]}×{shape[2]} cells of {self.sdf.voxel:.4g} over the scene "
             f"padded by R, {self.sdf.levels} mip levels, sign by "
             + ("flood fill from outside" if self.sign == "flood" else "none (unsigned: flood fill failed)"),
@@ -228,7 +230,80 @@ def distance_field_rows(
             per_unit[rid] = {
                 "k": replace(k, initial=k.initial / radius, lower=k.lower / radius, upper=k.upper / radius)
             }
-    return DistanceFieldRows(sdf, sign, shapes, inputs, methods, row_inputs, per_unit)
+    notes = _bound_to_unit_range(methods, per_unit, inputs["distance"], row_inputs)
+    return DistanceFieldRows(sdf, sign, shapes, inputs, methods, row_inputs, per_unit, notes)
+
+
+def _bound_to_unit_range(methods: dict, params: dict, distance, row_inputs: dict) -> tuple[str, ...]:
+    """Bound the fits of the curvature and Evans rows so that each stays in [0, 1] (it approximates AO, a
+    visibility) on these pixels, or leave the row out saying why; edits ``methods`` and ``params`` in place.
+
+    The seed clamps neither formula: Evans' C = e^{k Σ SDF(P + d_i N) + d_i} (000:2946; Listing 1,
+    000:2982-2987, returns exp(…)·GlobalBrightness) and the crease term 0.5 + exp(k·S) (000:2902) are
+    written without saturate, and the seed's claim that the samples make the exponent ≤ 0 (000:2929-2931)
+    fails for its own unnormalised bent normal N + αU (a sample lies d_i·|N'| > d_i away). So the bounds are
+    the fit's, from each row's terms on this scene: with m = min over pixels of Σ_i w_i D_i,
+
+    * evans-listing: C = b·exp(−k (Σ w_i D_i − m)) with log b ∈ [−5, 0], i.e. Listing 1's brightness
+      B = b·e^{k·m} bounded by the scene's least occluded pixel: 0 < C ≤ 1 (the kernel gets log B);
+    * evans-text (B = 1 in the text): in range for every k ≥ 0 when m ≥ 0; for m < 0 no darkening k is,
+      so the row is left out;
+    * curvature ((0.5 + e^{k·S})/1.5, S = −s): k·S ≤ 0 on every pixel bounds k to one sign when S keeps
+      one sign; when it takes both, only k = 0 is in range and the row is left out."""
+    notes = []
+    for rid in EVANS_ROWS:
+        if rid not in methods:
+            continue
+        weights = methods[rid].fixed["weights"] or (1.0,) * EVANS_SAMPLES
+        terms = row_inputs[rid][0]
+        m = float(np.min(sum(w * terms[f"d{i + 1}"] for i, w in enumerate(weights))))
+        if m >= 0:
+            if "logB" in methods[rid].params:
+                params[rid]["logB"] = replace(methods[rid].params["logB"], initial=-0.05, upper=0.0)
+            continue
+        if rid == "evans-text":
+            del methods[rid], params[rid], row_inputs[rid]
+            notes.append(
+                f"evans-text: left out: its unnormalised bent normal gives Σ D_i = {m:.4g} < 0 at the least "
+                "occluded pixel, where C = e^(−k Σ D_i) > 1 for every darkening k > 0 (the seed has no "
+                "clamp)"
+            )
+            continue
+        methods[rid] = _relative_brightness(methods[rid], m)
+        params[rid]["logB"] = replace(
+            methods[rid].params["logB"],
+            initial=-0.05,
+            upper=0.0,
+            description=f"log b, B = b·e^(k·m) with m = {m:.4g} = min Σ w_i D_i here (b ≤ 1: C ≤ 1)",
+        )
+        notes.append(
+            f"evans-listing: brightness B = b·e^(k·m), m = {m:.4g} the least occluded pixel's Σ w_i D_i, "
+            "b ≤ 1, so that C ≤ 1 (the seed does not clamp)"
+        )
+    if "curvature" in methods:
+        s_text = -np.asarray(distance, np.float64)
+        k = params["curvature"]["k"]
+        if np.max(s_text) <= 0:
+            params["curvature"]["k"] = replace(k, initial=abs(k.initial), lower=0.0)
+        elif np.min(s_text) >= 0:
+            params["curvature"]["k"] = replace(k, initial=-abs(k.initial), upper=0.0)
+        else:
+            del methods["curvature"], params["curvature"]
+            notes.append(
+                f"curvature: left out: S = −s₁ spans [{np.min(s_text):.3g}, {np.max(s_text):.3g}] here, so "
+                "(0.5 + e^(k·S))/1.5 exceeds 1 somewhere for every k ≠ 0 (the seed does not clamp)"
+            )
+    return tuple(notes)
+
+
+def _relative_brightness(method: Method, m: float) -> Method:
+    """The Evans listing row with its ``logB`` read as log b, log B = log b + k·m (`_bound_to_unit_range`)."""
+    base = method.kernel
+
+    def kernel(ops, *args, logB, k, **kw):
+        return base(ops, *args, logB=logB + k * m, k=k, **kw)
+
+    return replace(method, kernel=kernel, formula=f"{method.formula}; B = b·e^(k·m), m = {m:.4g}")
 
 
 def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:

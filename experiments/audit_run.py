@@ -940,7 +940,9 @@ def _checks(plan, outcomes) -> list[dict]:
                 ref.sigma()[case.mask],
                 precision_floor=RELATIVE_PRECISION_FLOOR,
             )
-            checks += z_checks(f"{row.row} vs the reference, {case.label}", *concat_z_pairs([pair]))
+            checks += z_checks(
+                f"{row.row} vs the reference, {case.label}", *concat_z_pairs([pair]), samples=int(ref.spp)
+            )
     return checks
 
 

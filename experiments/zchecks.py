@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from rtfit.fitting import sidak_threshold
+from rtfit.fitting.stats import Z_MIN_SAMPLES, expected_spread, z_not_meaningful
 
 from .records import Check
 
@@ -15,17 +16,34 @@ __all__ = ["pixel_z_checks"]
 
 
 def pixel_z_checks(
-    z: np.ndarray, pooled: float, names: tuple[str, str, str], spread_tolerance: float
+    z: np.ndarray,
+    pooled: float,
+    names: tuple[str, str, str],
+    spread_tolerance: float,
+    samples: int | None = None,
 ) -> list[Check]:
     """Checks named ``names`` (spread, pooled, largest) of the per-pixel z-scores ``z`` and of ``pooled``,
-    the z-score of the summed difference."""
-    spread, largest, sidak = float(np.std(z)), float(np.max(np.abs(z))), sidak_threshold(z.size)
+    the z-score of the summed difference. ``samples``: the samples per pixel each standard error was
+    estimated from; z then follows t(samples − 1) (`rtfit.fitting.stats`): the spread is expected at its
+    standard deviation √(ν/(ν − 2)) and the largest |z| below t's Šidák threshold, and below
+    `Z_MIN_SAMPLES` the checks report without judging. None: the normal limit (as before)."""
+    spread, largest = float(np.std(z)), float(np.max(np.abs(z)))
+    if z_not_meaningful(samples):
+        text = f"not judged: {samples} samples per pixel (< {Z_MIN_SAMPLES}): z follows a too-noisy t"
+        return [
+            Check(name=n, value=v, expected=text, passed=True)
+            for n, v in zip(names, (spread, pooled, largest), strict=True)
+        ]
+    sidak = sidak_threshold(z.size, samples=samples)
+    centre = expected_spread(samples)
     return [
         Check(
             name=names[0],
             value=spread,
-            expected=f"1 ± {spread_tolerance}",
-            passed=bool(abs(spread - 1) <= spread_tolerance),
+            expected=f"1 ± {spread_tolerance}"
+            if samples is None
+            else f"{centre:.4g} ± {spread_tolerance} (t({samples - 1}))",
+            passed=bool(abs(spread - centre) <= spread_tolerance),
         ),
         Check(name=names[1], value=pooled, expected="|z| ≤ 4", passed=bool(abs(pooled) <= 4)),
         Check(

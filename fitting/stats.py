@@ -14,6 +14,14 @@ Tolerances of `z_checks` (defaults, each derived):
 * with normal z-scores only 6.3e-5 of the elements exceed |z| > 4, so a tail fraction ≤ 1 % leaves room
   for the few-hit elements alone.
 
+Few samples per element (``samples`` = n, the count each element's standard error was estimated from):
+the z of a mean whose variance is estimated from n samples follows Student's t with n − 1 degrees of
+freedom (normal samples), heavier-tailed than the normal. The checks then expect its values: robust spread
+1.4826·t⁻¹(¾; n − 1) (1.054 at n = 8, 1.012 at 32, 1.001 at 256), tail fraction ≤ 1 % + P(|t| > 4)
+(0.52 % at n = 8, 0.037 % at 32; the normal's 0.0063 %), the same tolerances around them; below
+`Z_MIN_SAMPLES` the estimated variance is too noisy for any of them and the checks say so instead of
+failing (`z_not_meaningful`). ``samples=None`` is the normal limit (a variance known or from many samples).
+
 `sidak_threshold` gives the |z| that n independent normal elements all stay below with probability 1 − α
 (family-wise error α): the largest |z| of a set is judged against it.
 """
@@ -27,12 +35,17 @@ import numpy as np
 __all__ = [
     "MAD_TO_SIGMA",
     "Z_MEDIAN_TOLERANCE",
+    "Z_MIN_SAMPLES",
     "Z_SPREAD_TOLERANCE",
     "Z_TAIL_FRACTION",
     "concat_z_pairs",
+    "expected_robust_spread",
+    "expected_spread",
     "robust_spread",
     "sidak_threshold",
+    "t_tail",
     "z_checks",
+    "z_not_meaningful",
     "z_pair",
 ]
 
@@ -41,6 +54,57 @@ MAD_TO_SIGMA = 1.4826
 Z_SPREAD_TOLERANCE = 0.15
 Z_MEDIAN_TOLERANCE = 0.15
 Z_TAIL_FRACTION = 0.01
+Z_MIN_SAMPLES = 8
+"""Fewest samples per element for which the z checks are judged: below, the variance estimated from n
+samples has a relative standard deviation ≥ √(2/(n − 1)) = 0.58 (normal samples, n = 7), so a z-score
+says little about the reference."""
+
+
+def t_dof(samples: int | None) -> float:
+    """Degrees of freedom of the z of a mean over ``samples`` values with an estimated variance (n − 1;
+    inf for None: the normal limit)."""
+    return math.inf if samples is None else float(samples) - 1.0
+
+
+def expected_robust_spread(samples: int | None = None) -> float:
+    """1.4826·(upper quartile of t(n − 1)): the robust spread (`robust_spread`) of exact z-scores whose
+    variance is estimated from n = ``samples`` normal samples (1 for None)."""
+    if samples is None:
+        return 1.0
+    from scipy.stats import t
+
+    return float(MAD_TO_SIGMA * t.ppf(0.75, t_dof(samples)))
+
+
+def expected_spread(samples: int | None = None) -> float:
+    """The standard deviation √(ν/(ν − 2)) of t(ν), ν = n − 1 (needs n > 3; 1 for None)."""
+    if samples is None:
+        return 1.0
+    nu = t_dof(samples)
+    if nu <= 2:
+        raise ValueError(f"the standard deviation of t({nu:g}) is infinite (samples must be > 3)")
+    return math.sqrt(nu / (nu - 2))
+
+
+def t_tail(threshold: float, samples: int | None = None) -> float:
+    """P(|T| > threshold) for T ~ t(n − 1) (the standard normal for None)."""
+    from scipy.stats import norm, t
+
+    if samples is None:
+        return float(2 * norm.sf(threshold))
+    return float(2 * t.sf(threshold, t_dof(samples)))
+
+
+def z_not_meaningful(samples: int | None) -> bool:
+    """True when ``samples`` is below `Z_MIN_SAMPLES` (the z checks then report and do not judge)."""
+    return samples is not None and samples < Z_MIN_SAMPLES
+
+
+def _not_meaningful_text(samples: int) -> str:
+    return (
+        f"not judged: {samples} samples per element (< {Z_MIN_SAMPLES}); the variance each z divides by is "
+        f"estimated from them, so z follows t({samples - 1}), too noisy to test (use more spp)"
+    )
 
 
 def robust_spread(z) -> float:
@@ -81,10 +145,14 @@ def z_checks(
     spread_tolerance: float = Z_SPREAD_TOLERANCE,
     median_tolerance: float = Z_MEDIAN_TOLERANCE,
     tail_fraction: float = Z_TAIL_FRACTION,
+    samples: int | None = None,
 ) -> list[dict]:
     """Three check records (name, value, expected, passed) for z-scores that should be standard normal:
     robust spread 1 ± tol, median 0 ± tol, and the fraction of ``z_all`` (default ``z``) beyond |z| > 4.
-    No element at all is one failed check."""
+    No element at all is one failed check. ``samples``: the samples per element the standard errors were
+    estimated from; the spread is then expected at `expected_robust_spread` and the tail fraction allowed
+    `t_tail` (4) more (module docstring); below `Z_MIN_SAMPLES` each check reports its value, passes and
+    says it was not judged."""
     z = np.asarray(z, dtype=np.float64).ravel()
     z_all = z if z_all is None else np.asarray(z_all, dtype=np.float64).ravel()
     if z.size == 0:
@@ -93,34 +161,53 @@ def z_checks(
         ]
     spread, median = robust_spread(z), float(np.median(z))
     tail = float(np.mean(np.abs(z_all) > 4)) if z_all.size else 0.0
+    names = (
+        f"{what}: robust z spread (1.4826·MAD, {z.size} elements)",
+        f"{what}: median z",
+        f"{what}: fraction with |z| > 4 ({z_all.size} elements)",
+    )
+    if samples is not None and z_not_meaningful(samples):
+        text = _not_meaningful_text(samples)
+        return [
+            {"name": n, "value": v, "expected": text, "passed": True}
+            for n, v in zip(names, (spread, median, tail), strict=True)
+        ]
+    centre = expected_robust_spread(samples)
+    allowed = tail_fraction + (0.0 if samples is None else t_tail(4.0, samples))
+    of_t = "" if samples is None else f" (t({samples - 1}): {samples} samples per element)"
     return [
         {
-            "name": f"{what}: robust z spread (1.4826·MAD, {z.size} elements)",
+            "name": names[0],
             "value": spread,
-            "expected": f"1 ± {spread_tolerance}",
-            "passed": bool(abs(spread - 1) <= spread_tolerance),
+            "expected": (
+                f"1 ± {spread_tolerance}" if samples is None else f"{centre:.4g} ± {spread_tolerance}"
+            )
+            + of_t,
+            "passed": bool(abs(spread - centre) <= spread_tolerance),
         },
         {
-            "name": f"{what}: median z",
+            "name": names[1],
             "value": median,
             "expected": f"0 ± {median_tolerance}",
             "passed": bool(abs(median) <= median_tolerance),
         },
         {
-            "name": f"{what}: fraction with |z| > 4 ({z_all.size} elements)",
+            "name": names[2],
             "value": tail,
-            "expected": f"≤ {tail_fraction}",
-            "passed": bool(tail <= tail_fraction),
+            "expected": f"≤ {allowed:.4g}" + of_t if samples is not None else f"≤ {tail_fraction}",
+            "passed": bool(tail <= allowed),
         },
     ]
 
 
-def sidak_threshold(n: int, alpha: float = 0.01) -> float:
+def sidak_threshold(n: int, alpha: float = 0.01, samples: int | None = None) -> float:
     """|z| below which n independent standard-normal values all fall with probability 1 − α (two-sided):
-    Φ⁻¹(1 − p/2) with p = 1 − (1 − α)^(1/n) (Šidák 1967)."""
-    from scipy.stats import norm  # scipy is a dependency; imported here to keep `rtfit.fitting` light
+    Φ⁻¹(1 − p/2) with p = 1 − (1 − α)^(1/n) (Šidák 1967); with ``samples``, of t(samples − 1) instead."""
+    from scipy.stats import norm, t  # scipy is a dependency; imported here to keep `rtfit.fitting` light
 
     if not 0 < alpha < 1:
         raise ValueError(f"alpha must be in (0, 1) (got {alpha!r})")
     p = -math.expm1(math.log1p(-alpha) / max(int(n), 1))
-    return float(norm.isf(p / 2))
+    if samples is None:
+        return float(norm.isf(p / 2))
+    return float(t.isf(p / 2, t_dof(samples)))

@@ -276,3 +276,29 @@ def test_curvature_row_is_the_curvature_term_over_its_norm(plane_grid):
     got = METHODS["curvature"](NUMPY_OPS, {"distance": s}, {"k": -4.0})
     want = curvature_term(pts, plane_grid, k=-4.0, level=CURVATURE_LEVEL, backend="numpy") / 1.5
     np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(-1e4, 1e4), min_size=4, max_size=4),
+    st.sampled_from([0.0, 1e-6, 1.0, 1e4]),
+    st.sampled_from([-5.0, 0.0, 5.0]),
+    st.floats(-1e4, 1e4),
+    st.sampled_from([-1e4, -1.0, 0.0, 1.0, 1e4]),
+)
+def test_evans_and_curvature_kernels_over_their_whole_domain(terms, k, log_b, distance, k_text):
+    """The seed's Evans and curvature formulas do not saturate (000:2946, 000:2982-2987, 000:2902), so the
+    kernels are not clamped to [0, 1]; over the whole input domain at the parameters' extreme bounds they
+    stay finite and non-negative (the exponent clip [−87, 80]) — and within [0, 1] exactly when the audit's
+    bounds hold: Σ D_i ≥ 0 with log B ≤ 0 (C = B·e^(−kD) ≤ 1 by closed form), k·S ≤ 0 for the crease term."""
+    ev = METHODS["evans-listing"]
+    d = tuple(np.array([t], np.float64) for t in terms)
+    c = float(np.asarray(ev.kernel(NUMPY_OPS, d, logB=log_b, k=k, weights=ev.fixed["weights"]))[0])
+    assert math.isfinite(c) and c >= 0
+    if sum(w * t for w, t in zip(ev.fixed["weights"], terms, strict=True)) >= 0 and log_b <= 0:
+        assert c <= 1
+    cv = METHODS["curvature"]
+    v = float(np.asarray(cv.kernel(NUMPY_OPS, np.array([distance]), k_text, **cv.fixed))[0])
+    assert math.isfinite(v) and v >= 0.5 / 1.5 - 1e-12
+    if k_text * -distance <= 0:
+        assert v <= 1 + 1e-12
