@@ -46,6 +46,8 @@ from .light_cones import INPUTS as CONE_INPUTS
 from .methods import Input, Method, Param
 from .obscurances import MISS
 from .parallax_occlusion import HeightMap
+from .reflections import INPUTS as REFLECTION_INPUTS
+from .reflections import IRRADIANCE_RESOLUTION, PROBE_RESOLUTION
 from .sdf_grid import HalfSpace, Sphere
 from .sdf_occlusion import AnalyticSDF
 
@@ -177,6 +179,24 @@ def _example_field(n: int) -> HeightMap:
     """An egg-crate height field h = ½ + ½·sin 2πu·sin 2πv on 16 × 16 texels (bilinear, repeating)."""
     c = (np.arange(16) + 0.5) / 16.0
     return HeightMap(0.5 + 0.5 * np.outer(np.sin(2.0 * math.pi * c), np.sin(2.0 * math.pi * c)))
+
+
+def _example_map(resolution: int, low: float, high: float) -> Callable[[int], np.ndarray]:
+    """A cube map of 6·N² texels rising from ``low`` to ``high`` through the texel order (any ``n``)."""
+    return lambda n: np.linspace(low, high, 6 * resolution * resolution)
+
+
+def _example_resolution(resolution: int) -> Callable[[int], int]:
+    return lambda n: resolution
+
+
+_REFLECTION_MAPS = {
+    **{f"rad_{c}": _example_map(PROBE_RESOLUTION, 0.2, 2.0 - 0.3 * k) for k, c in enumerate("rgb")},
+    **{f"irr_{c}": _example_map(IRRADIANCE_RESOLUTION, 0.5, 5.0 - k) for k, c in enumerate("rgb")},
+    "dist": _example_map(PROBE_RESOLUTION, 20.0, 40.0),  # a room around the points' domain [-10, 10]³
+    "resolution": _example_resolution(PROBE_RESOLUTION),
+    "irr_resolution": _example_resolution(IRRADIANCE_RESOLUTION),
+}
 
 
 _NORMAL = _vec("n", "unit surface normal (world frame, +Z up)")
@@ -492,6 +512,33 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 examples={"field": _example_field},
                 reference="Mitsuba ray_intersect of the pixel-centre rays with the shape displaced by the "
                 "height field",
+            ),
+            Quantity(
+                "reflected_radiance",
+                "W/m²/sr",
+                "radiance of a mirror, glass or glossy surface from cube maps captured at a probe point, "
+                "per RGB channel",
+                (
+                    *REFLECTION_INPUTS,
+                    Input(
+                        "resolution",
+                        "texels",
+                        "texels per face edge N of the radiance and distance maps (a Python int; the maps' "
+                        "layout: `rtfit.realtime.environment_maps`, read with its cube_lookup_kernel)",
+                    ),
+                    Input("irr_resolution", "texels", "texels per face edge of the irradiance map (an int)"),
+                ),
+                vectors={
+                    "point": ("x", "y", "z"),
+                    "reflect": ("rx", "ry", "rz"),
+                    "refract": ("tx", "ty", "tz"),
+                    "normal": ("nx", "ny", "nz"),
+                },
+                unit_vectors=("reflect", "normal"),
+                channels=3,
+                examples=_REFLECTION_MAPS,
+                reference="path-traced radiance of the pixels that see the shape (Mitsuba's own BSDF)",
+                note="the glossy pre-filtered map of the preconvolved rows is not in g",
             ),
             Quantity(
                 "volume_irradiance",
