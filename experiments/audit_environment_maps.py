@@ -25,7 +25,9 @@ rtfit TOML scene (a ``mitsuba_xml`` shape keeping its file's BSDFs), one case ``
   the directional albedo of a glossy or diffuse lobe (`LOBE_SAMPLES` BSDF samples a pixel);
 * **rows**: `rtfit.realtime.reflections.METHODS` — ``classic`` (L at R and T), ``parallax`` and
   ``iterative`` (the distance impostor's one-lookup and secant hits), and on rough shapes
-  ``preconvolved`` and ``preconvolved-parallax`` (the glossy map). No row has free parameters.
+  ``preconvolved`` and ``preconvolved-parallax`` (the glossy map). No row has free parameters. A user's
+  ``@approximation(quantity="reflected_radiance")`` reads the same pixel inputs, the radiance, irradiance
+  and distance maps and their resolutions (`on_probe`); the glossy map is not in its ``g``.
 
 What the numbers mean: under a distant environment alone (nothing else in the scene) the cube map is the
 environment wherever it is captured and ``classic`` is exact for a mirror (L·F); the reference's noise is
@@ -38,10 +40,12 @@ shape; rough rows show what pre-filtering with one lobe shape misses.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from rtfit.realtime import environment_maps as em
+from rtfit.realtime.methods import Method
 from rtfit.realtime.reflections import (
     GLOSSY_RESOLUTION,
     IRRADIANCE_RESOLUTION,
@@ -68,6 +72,7 @@ __all__ = [
     "LOBE_SAMPLES",
     "environment_maps_cases",
     "filtered_tables",
+    "on_probe",
     "phong_exponent",
 ]
 
@@ -228,8 +233,18 @@ def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[Family
             parameters=parameters,
             units="W/m²/sr",
             notes=notes,
+            user_rows=on_probe,
         )
     ]
+
+
+def on_probe(method: Method) -> Method:
+    """A user's approximation of ``reflected_radiance`` with the maps' resolutions as fixed keywords (as
+    the rows hold them: `rtfit.realtime.reflections`): Python ints its text may loop over, not arrays."""
+    sizes = {"resolution": PROBE_RESOLUTION, "irr_resolution": IRRADIANCE_RESOLUTION}
+    return replace(
+        method, inputs=tuple(i for i in method.inputs if i.name not in sizes), fixed={**method.fixed, **sizes}
+    )
 
 
 def _vec(v) -> str:

@@ -203,6 +203,11 @@ class FamilyCase:
     """Row id → ``channel_inputs`` of that row alone, where a row's inputs differ from the case's (each
     irradiance basis reads its own stored coefficients; the exact row one grey value per channel). Rows not
     named here (and every user approximation) get ``channel_inputs``."""
+    user_rows: Callable[[Method], Method] | None = None
+    """How a user approximation of the case's quantity reads the case's inputs: the same adaptation the
+    shipped rows get (obscurances: the K hit distances as the per-pixel inputs d1..dK, `on_rays`; irradiance
+    volumes: the probe grid as a fixed keyword), so that the user's ``g`` holds what the shipped rows read.
+    None: the user's method reads ``channel_inputs`` by its quantity's input names."""
     uncosted: Mapping[str, str] = field(default_factory=dict)
     """Row id → why its cost is not measured like the others' (a row whose value is computed outside its
     kernel, which only passes it through: timing that kernel would print a cost of nothing)."""

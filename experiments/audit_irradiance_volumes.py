@@ -22,6 +22,8 @@ For a Mitsuba XML or rtfit TOML scene with surfaces and a finite bounding box, o
   reaches neither (a ray never hits it: an engine adds it per pixel and keeps the volume for the rest).
 * **Rows**: `rtfit.realtime.irradiance_volumes.METHODS` — nearest and trilinear lookup × Valve's cube, the
   NNLS cube and SH L2 — each reading its own basis's table (`FamilyCase.row_inputs`); no free parameters.
+  A user's ``@approximation(quantity="volume_irradiance")`` reads the same points, normals and grid, with
+  the SH L2 table as ``g.table`` and both cubes' as ``g.cube_table`` and ``g.nnls_table``.
 
 What the numbers mean: a probe stores the light at its node, a visible point receives the light at its own
 position and normal; the rows' error is the volume's spatial resolution (nearest: popping between cells;
@@ -33,10 +35,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
 from rtfit.realtime.irradiance_volumes import METHODS, ProbeGrid, probe_table
+from rtfit.realtime.methods import Method
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import irradiance_pass
 from rtfit.reference.probe_radiance import probe_radiance_pass
@@ -45,7 +49,7 @@ from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
 from .probe_projection import FEATURES_NAME, NNLS_NORMALS, probe_bases, probe_features
 
-__all__ = ["DEFAULT_NODES", "FAMILY", "PROBE_SPP_FACTOR", "irradiance_volume_cases", "probe_grid"]
+__all__ = ["DEFAULT_NODES", "FAMILY", "PROBE_SPP_FACTOR", "irradiance_volume_cases", "on_grid", "probe_grid"]
 
 FORMAT = 1
 DEFAULT_NODES = 4
@@ -114,16 +118,12 @@ def irradiance_volume_cases(setup: AuditSetup, app: Applicability) -> list[Famil
         **{f"p{c}": np.ascontiguousarray(points[:, j]) for j, c in enumerate("xyz")},
         **{f"n{c}": np.ascontiguousarray(normals[:, j]) for j, c in enumerate("xyz")},
     }
-    row_inputs = {
-        mid: ({**geometry, "table": probe_table(bases[m.fixed["basis"].id])},) for mid, m in METHODS.items()
-    }
-    # the grid is this scene's constant, not a per-pixel input: each row gets it as a fixed keyword
-    methods = {
-        mid: replace(
-            m, inputs=tuple(i for i in m.inputs if i.name != "grid"), fixed={**m.fixed, "grid": grid}
-        )
-        for mid, m in METHODS.items()
-    }
+    tables = {b: probe_table(c) for b, c in bases.items()}
+    row_inputs = {mid: ({**geometry, "table": tables[m.fixed["basis"].id]},) for mid, m in METHODS.items()}
+    # what a user's volume_irradiance reads (rtfit.realtime.quantities): the SH L2 table, and both cubes'
+    user_inputs = {**geometry, "table": tables["sh-l2"], "cube_table": tables["cube-valve"],
+                   "nnls_table": tables["cube-nnls"]}  # fmt: skip
+    methods = {mid: on_grid(m, grid) for mid, m in METHODS.items()}
     ref = pooled.reference(
         mask,
         quantity="irradiance at the visible points (W/m²): every light a ray can reach",
@@ -160,18 +160,25 @@ def irradiance_volume_cases(setup: AuditSetup, app: Applicability) -> list[Famil
             label=f"probe grid {dims}, irradiance at the visible points",
             reference=ref,
             mask=mask,
-            channel_inputs=row_inputs["trilinear-sh-l2"],
+            channel_inputs=(user_inputs,),
             parameters=parameters,
             units="W/m²",
             notes=notes,
             methods=methods,
             row_inputs=row_inputs,
+            user_rows=partial(on_grid, grid=grid),
         )
     ]
 
 
-def _without_grid(method):
-    return tuple(i for i in method.inputs if i.name != "grid")
+def on_grid(method: Method, grid: ProbeGrid) -> Method:
+    """``method`` (a row of `METHODS`, or a user's approximation of ``volume_irradiance``) with the grid as
+    a fixed keyword: the grid is this scene's constant, not a per-pixel input."""
+    return replace(
+        method,
+        inputs=tuple(i for i in method.inputs if i.name != "grid"),
+        fixed={**method.fixed, "grid": grid},
+    )
 
 
 def _vec(v) -> str:

@@ -26,18 +26,21 @@ Rows (`rtfit.realtime.obscurances.METHODS`), all on the same K = `RAYS` hit dist
 d_max = R), ``power`` (d_max, p, s fitted), ``exponential`` (d_max, s fitted), ``ao`` (the step ρ: AO within
 d_max, d_max fitted). A row reads its K distances as K per-pixel inputs d1..dK (`on_rays`: the table's own
 kernel given the tuple); a miss is given as `MISS` (finite, so that JAX fits and float32 costs stay finite:
-every ρ is 1 there for d_max ≤ 10²⁸).
+every ρ is 1 there for d_max ≤ 10²⁸). A user's ``@approximation(quantity="obscurance")`` reads the same
+K distances as ``g.distances`` (a tuple of K per-pixel arrays: `on_rays` adapts it as it adapts the rows).
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
 from rtfit.realtime.methods import Input, Method
 from rtfit.realtime.obscurances import (
     METHODS,
+    MISS,
     SEED_EXPONENT,
     cosine_spiral_directions,
     distance_weight,
@@ -57,8 +60,6 @@ RAYS = 32
 """Rays per point of the rows' estimator (the obscurances experiment's quick ``fit_rays``)."""
 AMBIENT_ALBEDO = 0.8
 """Albedo of every surface in the uniform-ambient reference (the obscurances experiment's ``albedo``)."""
-MISS = 1e30
-"""A ray that escapes, as a hit distance (the obscurances experiment's fits use the same)."""
 ROLE = "obscurance"
 
 
@@ -70,7 +71,7 @@ def on_rays(method: Method, rays: int, **fixed) -> Method:
 
     def kernel(ops, **kw):
         distances = tuple(kw.pop(n) for n in names)
-        return base(ops, distances, **kw)
+        return base(ops, distances=distances, **kw)
 
     inputs = tuple(Input(n, "scene units", f"hit distance of ray {k + 1} (a miss: {MISS:g})") for k, n in
                    enumerate(names))  # fmt: skip
@@ -161,6 +162,7 @@ def obscurance_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 methods=methods,
                 quantity="obscurance",
                 params=params,
+                user_rows=partial(on_rays, rays=RAYS),  # a user's g.distances: the rows' own K distances
             )
         )
     return cases

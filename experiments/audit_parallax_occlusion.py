@@ -36,7 +36,8 @@ instead of displacing the mesh. One case per such shape:
   height field and s as their fixed keywords): ``pom-listing`` and ``pom-stable`` with the family's sample
   range (n 8 … 40), and the stable march at n 4 … 16 and 16 … 64 (``pom-stable-n4-16``,
   ``pom-stable-n16-64``): error and cost against the sample budget. mip 0 (full POM: the LOD blend is not
-  audited).
+  audited). A user's ``@approximation(quantity="parallax_depth")`` reads the same (u₀, v₀) and view vector,
+  with the height field as ``g.field(ops, u, v)`` and the range as ``g.scale`` (`on_field`, as the rows).
 
 The soft self-shadow of the family (``METHODS``' third output) is not audited here: it needs a light and a
 visibility reference the experiment (`rtfit run parallax-occlusion`) builds for its area light. A
@@ -46,6 +47,7 @@ visibility reference the experiment (`rtfit run parallax-occlusion`) builds for 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import math
 import time
@@ -53,6 +55,7 @@ import time
 import numpy as np
 
 from rtfit.realtime import NUMPY_OPS
+from rtfit.realtime.methods import Method
 from rtfit.realtime.parallax_occlusion import DEPTH_METHODS, WRAP_MODES, HeightMap
 from rtfit.reference.estimators import is_pass_through
 from rtfit.reference.parallax_occlusion import (
@@ -77,6 +80,7 @@ __all__ = [
     "POM_DEPTH_RANGE",
     "check_pom_depth",
     "height_map_of",
+    "on_field",
     "parallax_cases",
     "tangent_view",
 ]
@@ -247,8 +251,7 @@ def parallax_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         "vy": view[idx, 1],
         "vz": view[idx, 2],
     }
-    rows = {mid: dataclasses.replace(m, fixed={**m.fixed, "field": hm, "scale": depth})
-            for mid, m in DEPTH_METHODS.items()}  # fmt: skip
+    rows = {mid: on_field(m, hm, depth) for mid, m in DEPTH_METHODS.items()}
     mesh_rms = float(np.sqrt(np.mean((ref - ref_half) ** 2)))
     texels = hm.texels
     key = hashlib.sha256(repr((setup.scene_digest, app.part, depth, fine.cells)).encode()).hexdigest()[:16]
@@ -301,8 +304,19 @@ def parallax_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             notes=tuple(notes),
             methods=rows,
             quantity="parallax_depth",
+            user_rows=functools.partial(on_field, field=hm, scale=depth),
         )
     ]
+
+
+def on_field(method: Method, field: HeightMap, scale: float) -> Method:
+    """``method`` (a row of `DEPTH_METHODS`, or a user's approximation of ``parallax_depth``, whose ``g``
+    carries them) with the scene's height field and range as fixed keywords: constants of the case."""
+    return dataclasses.replace(
+        method,
+        inputs=tuple(i for i in method.inputs if i.name not in ("field", "scale")),
+        fixed={**method.fixed, "field": field, "scale": scale},
+    )
 
 
 FAMILY = AuditFamily(

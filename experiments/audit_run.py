@@ -402,7 +402,8 @@ def _rows(
 ) -> list[tuple[str, Method, bool]]:
     """(row id, method, user?) of one applicability (or of one of its cases, which may carry rows and a
     quantity of its own: `FamilyCase.methods`): its applicable shipped methods (restricted by ``--approx``
-    method names) and the user approximations of the quantity."""
+    method names) and the user approximations of the quantity (each as the case reads it:
+    `FamilyCase.user_rows`)."""
     keep = sel.methods.get(family.name)
     table = METHOD_TABLES[family.name] if case is None or case.methods is None else case.methods
     rows = [
@@ -411,7 +412,8 @@ def _rows(
         if m.id in app.methods and (keep is None or m.id in keep or r in keep)
     ]
     quantities = {family.quantity, *family.quantities} if case is None else {case.quantity or family.quantity}
-    rows += [(m.id, m, True) for m in sel.user if m.quantity in quantities]
+    adapt = (lambda m: m) if case is None or case.user_rows is None else case.user_rows
+    rows += [(m.id, adapt(m), True) for m in sel.user if m.quantity in quantities]
     return rows
 
 

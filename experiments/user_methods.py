@@ -10,10 +10,12 @@ own approximation"). `load_approximation(spec)` finds one:
 
 `check_approximation(method, n=256)` evaluates it on ``n`` samples of its quantity's input domains (each
 scalar input on an even grid over its domain, endpoints included, independently shuffled; vector groups on
-the unit sphere; structured inputs from the quantity's examples), at its parameters' defaults and at their
-finite bounds, on NumPy and on Dr.Jit. Every failure is a one-line `UserMethodError` naming the function
-and the first offending input: an exception, NaN or Inf, a result of the wrong shape, or a NumPy and a
-Dr.Jit run that disagree.
+the unit sphere; structured inputs from the quantity's examples, made for ``n`` samples: a per-element one,
+such as the obscurance's K hit distances, is a tuple of arrays of ``n`` values, run on Dr.Jit as Dr.Jit
+arrays like the scalar inputs; a table, as the probe grid's, a Dr.Jit array too), at its parameters'
+defaults and at their finite bounds, on NumPy and on Dr.Jit. Every failure is a one-line `UserMethodError`
+naming the function and the first offending input: an exception, NaN or Inf, a result of the wrong shape,
+or a NumPy and a Dr.Jit run that disagree.
 """
 
 from __future__ import annotations
@@ -189,7 +191,7 @@ def load_approximation(spec: str) -> Method:
 # ------------------------------------------------------------------------------------------- validation
 def sample_inputs(quantity: Quantity | str, n: int = 256, seed: int = 0) -> dict[str, Any]:
     """``n`` samples of ``quantity``'s inputs (module docstring): NumPy float64 arrays of shape (n,) for
-    the scalar inputs, the quantity's examples for structured ones."""
+    the scalar inputs, the quantity's examples for structured ones (each factory called with ``n``)."""
     q = get_quantity(quantity) if isinstance(quantity, str) else quantity
     if not (isinstance(n, int) and n >= 2):
         raise ValueError(f"n must be an integer ≥ 2 (got {n!r})")
@@ -197,7 +199,7 @@ def sample_inputs(quantity: Quantity | str, n: int = 256, seed: int = 0) -> dict
     out: dict[str, Any] = {}
     for i in q.inputs:
         if i.domain is None:
-            out[i.name] = q.examples[i.name]()
+            out[i.name] = q.examples[i.name](n)
         else:
             lo, hi = i.domain
             out[i.name] = rng.permutation(np.linspace(lo, hi, n))
@@ -213,9 +215,30 @@ def _fmt(v: float) -> str:
     return f"{float(v):.6g}"
 
 
+def _per_element(value: Any, n: int) -> bool:
+    """Whether a structured input is per element: a tuple or list of arrays of ``n`` values each (the K hit
+    distances of each point)."""
+    return (
+        isinstance(value, tuple | list)
+        and len(value) > 0
+        and all(isinstance(v, np.ndarray) and v.shape == (n,) for v in value)
+    )
+
+
 def _at(q: Quantity, inputs: Mapping[str, Any], read: set[str], k: int) -> str:
-    names = [i.name for i in q.inputs if i.domain is not None and (i.name in read or not read)]
-    return ", ".join(f"{n}={_fmt(inputs[n][k])}" for n in names)
+    parts = []
+    for i in q.inputs:
+        v = inputs[i.name]
+        if read and i.name not in read:
+            continue
+        if i.domain is not None:
+            parts.append(f"{i.name}={_fmt(v[k])}")
+        elif (
+            isinstance(v, tuple | list) and v and _per_element(v, len(v[0]) if hasattr(v[0], "shape") else -1)
+        ):
+            shown = ", ".join(_fmt(a[k]) for a in v[:4]) + (", …" if len(v) > 4 else "")
+            parts.append(f"{i.name}=({shown})")
+    return ", ".join(parts)
 
 
 def _params_text(method: Method, params: Mapping[str, float]) -> str:
@@ -230,7 +253,13 @@ def _raising(method: Method, inputs, params, n) -> list[int]:
     out = []
     for k in range(n):
         one = {
-            name: (float(v[k]) if isinstance(v, np.ndarray) and v.shape == (n,) else v)
+            name: (
+                float(v[k])
+                if isinstance(v, np.ndarray) and v.shape == (n,)
+                else tuple(float(a[k]) for a in v)
+                if _per_element(v, n)
+                else v
+            )
             for name, v in inputs.items()
         }
         try:
@@ -282,10 +311,10 @@ def _as_outputs(method: Method, q: Quantity, out: Any, n: int, backend: str, par
                 f"{name}: returned {type(p).__name__} on {backend}, not numbers ({_one_line(e)})"
             ) from None
         if a.shape != (n,):
+            first = next((i.name for i in q.inputs if i.domain is not None), f"{q.inputs[0].name}[0]")
             raise UserMethodError(
                 f"{name}: returned shape {a.shape} on {backend} for {n} samples (expected ({n},): one value "
-                f"per element; a constant needs the inputs' shape, e.g. 0*g.{q.inputs[0].name} + c"
-                f"{params_text})"
+                f"per element; a constant needs the inputs' shape, e.g. 0*g.{first} + c{params_text})"
             )
         arrays.append(a)
     return arrays
@@ -302,6 +331,9 @@ def check_approximation(method: Method, n: int = 256, *, seed: int = 0, drjit: b
     inputs = sample_inputs(q, n, seed)
     scalar = [i.name for i in q.inputs if i.domain is not None]
     structured = {i.name: inputs[i.name] for i in q.inputs if i.domain is None}
+    # per-element structured inputs (tuples of arrays of n values) go to Dr.Jit as arrays beside the scalars
+    sequences = {k: len(v) for k, v in structured.items() if _per_element(v, n)}
+    flat = [a for k in sequences for a in structured[k]]
     name = method.id
     param_sets = [method.defaults()]
     for k, p in method.params.items():
@@ -346,8 +378,19 @@ def check_approximation(method: Method, n: int = 256, *, seed: int = 0, drjit: b
         keys = scalar + list(params)
 
         def kernel(ops, *args, _keys=keys, _free=tuple(params)):
-            kw = dict(zip(_keys, args, strict=True))
-            values = {**{s: kw[s] for s in scalar}, **structured}
+            kw = dict(zip(_keys, args[: len(_keys)], strict=True))
+            rest = list(args[len(_keys) :])
+            Float = next(type(a) for a in args if is_drjit(a))
+            values = {**{s: kw[s] for s in scalar}}
+            for k, v in structured.items():
+                if k in sequences:
+                    values[k] = tuple(rest.pop(0) for _ in range(sequences[k]))
+                elif isinstance(
+                    v, np.ndarray
+                ):  # a table: an array of the kernel's kind (ops.gather reads it)
+                    values[k] = Float(np.ascontiguousarray(v, np.float64).reshape(-1))
+                else:
+                    values[k] = v
             out = method.kernel.run(ops, values, {p: kw[p] for p in _free})
             for part in out if isinstance(out, tuple | list) else (out,):
                 if not is_drjit(part):  # NumPy calls on Dr.Jit arrays: round trips, not one fused kernel
@@ -355,7 +398,9 @@ def check_approximation(method: Method, n: int = 256, *, seed: int = 0, drjit: b
             return out
 
         try:
-            out_dr = evaluate(kernel, *[inputs[s] for s in scalar], *[float(v) for v in params.values()])
+            out_dr = evaluate(
+                kernel, *[inputs[s] for s in scalar], *[float(v) for v in params.values()], *flat
+            )
         except UserCodeExit as e:
             raise UserMethodError(f"{e} (on Dr.Jit{ptext})") from None
         except Exception as e:

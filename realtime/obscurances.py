@@ -50,6 +50,7 @@ from .methods import Input, Method, Param, method_table
 
 __all__ = [
     "D_MAX_LIMIT",
+    "MISS",
     "RAY_CHUNK",
     "SEED_D_MAX",
     "SEED_EXPONENT",
@@ -71,6 +72,9 @@ SEED_EXPONENT = 0.5
 """The seed's square root (001:3284)."""
 D_MAX_LIMIT = 1e30
 """Largest d_max the public functions accept (d_max → ∞ is reached by 1e30: ρ(d) ≤ (d/1e30)^p)."""
+MISS = 1e30
+"""A ray that escapes, as the hit distance the audit gives a row (finite, so that JAX fits and float32 costs
+stay finite: every ρ is 1 there for d_max ≤ 10²⁸)."""
 RAY_CHUNK = 64
 """Rays per fused Dr.Jit kernel in `obscurance` (more rays: several launches, their means combined)."""
 _TINY = 1e-300  # log guard of ρ_power below every ratio that matters (float32: 0, the branch is unselected)

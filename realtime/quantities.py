@@ -23,8 +23,10 @@ Dr.Jit, NumPy and JAX (``method.evaluate``) and `rtfit.fitting.fit_method` fits 
 shipped method. Loading from files, modules and entry points, and the validation of a user function on
 the quantity's domains, are `rtfit.experiments.user_methods`.
 
-Structured inputs (an SDF sampler, a list of SH coefficients) have no scalar domain (``Input.domain`` is
-None); `Quantity.examples` gives a value of each for validation.
+Structured inputs (an SDF sampler, a list of SH coefficients, a probe grid and its table, the K hit
+distances of each point) have no scalar domain (``Input.domain`` is None); `Quantity.examples` gives a value
+of each for validation: a factory called with the number of samples ``n`` (a per-element structured input,
+such as the K hit distances, is a tuple of arrays of ``n`` values).
 """
 
 from __future__ import annotations
@@ -36,9 +38,16 @@ from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
 
+import numpy as np
+
 from . import soft_particles
+from .irradiance_volumes import ProbeGrid, probe_table
 from .light_cones import INPUTS as CONE_INPUTS
 from .methods import Input, Method, Param
+from .obscurances import MISS
+from .parallax_occlusion import HeightMap
+from .reflections import INPUTS as REFLECTION_INPUTS
+from .reflections import IRRADIANCE_RESOLUTION, PROBE_RESOLUTION
 from .sdf_grid import HalfSpace, Sphere
 from .sdf_occlusion import AnalyticSDF
 
@@ -63,8 +72,9 @@ class Quantity:
     ``inputs`` its ``g`` carries (scalar inputs with a ``domain``; structured ones without), ``vectors``
     (group name → its three component inputs, e.g. ``normal`` → ``(nx, ny, nz)``), ``unit_vectors`` (the
     groups that are unit vectors: validation samples them on the sphere), ``channels`` (1: one array
-    per element; 3: a tuple of R, G, B arrays), ``examples`` (structured input → a factory of a value for
-    validation), ``reference`` (what the audit compares an approximation of it with) and ``note``."""
+    per element; 3: a tuple of R, G, B arrays), ``examples`` (structured input → a factory ``f(n)`` of a
+    value for validation on ``n`` samples), ``reference`` (what the audit compares an approximation of it
+    with) and ``note``."""
 
     name: str
     unit: str
@@ -73,7 +83,7 @@ class Quantity:
     vectors: Mapping[str, tuple[str, str, str]] = field(default_factory=dict)
     unit_vectors: tuple[str, ...] = ()
     channels: int = 1
-    examples: Mapping[str, Callable[[], Any]] = field(default_factory=dict)
+    examples: Mapping[str, Callable[[int], Any]] = field(default_factory=dict)
     reference: str = ""
     note: str = ""
 
@@ -108,18 +118,85 @@ def _vec(prefix: str, what: str, unit: str = "1", domain=(-1.0, 1.0)) -> tuple[I
     return tuple(Input(f"{prefix}{c}", unit, f"{what}, {c} component", domain) for c in "xyz")  # type: ignore[return-value]
 
 
-def _example_sdf():
-    """A ground plane with a sphere resting on it: something that occludes, for validation."""
+def _example_sdf(n: int):
+    """A ground plane with a sphere resting on it: something that occludes, for validation (any ``n``)."""
     return AnalyticSDF([HalfSpace((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)), Sphere((0.0, 0.0, 1.0), 1.0)])
 
 
-def _example_sh():
-    """SH L2 coefficients (27, channel-major) of a sky brighter above than below: L00 and L10 only."""
+def _example_sh(n: int = 0):
+    """SH L2 coefficients (27, channel-major) of a sky brighter above than below: L00 and L10 only (any
+    ``n``)."""
     out = [0.0] * 27
     for c, scale in enumerate((1.0, 0.9, 0.8)):
         out[c * 9 + 0] = 2.0 * math.sqrt(math.pi) * scale  # L00 of a constant radiance 1 (× scale)
         out[c * 9 + 2] = 0.8 * scale  # L10: brighter towards +Z
     return out
+
+
+EXAMPLE_RAYS = 8
+"""Rays per point of the ``obscurance`` quantity's example (validation)."""
+
+
+def _example_distances(n: int) -> tuple[np.ndarray, ...]:
+    """`EXAMPLE_RAYS` hit distances at each of ``n`` points: an even grid over (0, 10] scene units, shuffled
+    per ray, and one ray in four a miss (`rtfit.realtime.obscurances.MISS`, as the audit gives it)."""
+    rng = np.random.default_rng(1)
+    hits = np.linspace(10.0 / n, 10.0, n)
+    out = []
+    for _ in range(EXAMPLE_RAYS):
+        d = rng.permutation(hits)
+        d[rng.random(n) < 0.25] = MISS
+        out.append(d)
+    return tuple(out)
+
+
+EXAMPLE_GRID = ProbeGrid((-10.0, -10.0, -10.0), 20.0, (2, 2, 2))
+"""The ``volume_irradiance`` quantity's example grid: 2 × 2 × 2 probes at the corners of the points'
+domain."""
+
+
+def _example_grid(n: int) -> ProbeGrid:
+    return EXAMPLE_GRID
+
+
+def _example_coefficients(rows: int) -> np.ndarray:
+    """Per-probe basis coefficients (count, rows, 3) of the example grid: each probe's light brighter above
+    than below (the SH sky of `_example_sh`; a cube of 1 + the axis's z), scaled by the probe's index."""
+    count = EXAMPLE_GRID.count
+    scale = 1.0 + 0.25 * np.arange(count)[:, None, None]
+    if rows == 9:
+        one = np.asarray(_example_sh(), np.float64).reshape(3, 9).T  # (9, RGB)
+    else:  # +x, −x, +y, −y, +z, −z (irradiance_bases.CUBE_ORDER)
+        one = np.array([1.0, 1.0, 1.0, 1.0, 2.0, 0.5])[:, None] * np.array([1.0, 0.9, 0.8])[None, :]
+    return scale * one[None, :, :]
+
+
+def _example_table(rows: int) -> Callable[[int], np.ndarray]:
+    return lambda n: probe_table(_example_coefficients(rows))
+
+
+def _example_field(n: int) -> HeightMap:
+    """An egg-crate height field h = ½ + ½·sin 2πu·sin 2πv on 16 × 16 texels (bilinear, repeating)."""
+    c = (np.arange(16) + 0.5) / 16.0
+    return HeightMap(0.5 + 0.5 * np.outer(np.sin(2.0 * math.pi * c), np.sin(2.0 * math.pi * c)))
+
+
+def _example_map(resolution: int, low: float, high: float) -> Callable[[int], np.ndarray]:
+    """A cube map of 6·N² texels rising from ``low`` to ``high`` through the texel order (any ``n``)."""
+    return lambda n: np.linspace(low, high, 6 * resolution * resolution)
+
+
+def _example_resolution(resolution: int) -> Callable[[int], int]:
+    return lambda n: resolution
+
+
+_REFLECTION_MAPS = {
+    **{f"rad_{c}": _example_map(PROBE_RESOLUTION, 0.2, 2.0 - 0.3 * k) for k, c in enumerate("rgb")},
+    **{f"irr_{c}": _example_map(IRRADIANCE_RESOLUTION, 0.5, 5.0 - k) for k, c in enumerate("rgb")},
+    "dist": _example_map(PROBE_RESOLUTION, 20.0, 40.0),  # a room around the points' domain [-10, 10]³
+    "resolution": _example_resolution(PROBE_RESOLUTION),
+    "irr_resolution": _example_resolution(IRRADIANCE_RESOLUTION),
+}
 
 
 _NORMAL = _vec("n", "unit surface normal (world frame, +Z up)")
@@ -377,6 +454,132 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 unit_vectors=("direction", "sun"),
                 channels=3,
                 reference="sky radiance along the camera's sky pixels (volpathmis in the shell atmosphere)",
+            ),
+            Quantity(
+                "obscurance",
+                "1",
+                "obscurance W = (1/π)∫ρ(d)(n·ω)dω at a surface point, from the hit distances of K "
+                "cosine-distributed rays (1: unoccluded)",
+                (
+                    Input(
+                        "distances",
+                        "scene units",
+                        f"the K rays' hit distances: a tuple of K arrays, g.distances[k] per point (a miss: "
+                        f"{MISS:g}); validation draws K = {EXAMPLE_RAYS}",
+                    ),
+                ),
+                examples={"distances": _example_distances},
+                reference="ray-cast obscurance with the seed's ρ = √(d/R), and the uniform ambient with "
+                "interreflections (E/(πL)) it stands in for",
+            ),
+            Quantity(
+                "parallax_depth",
+                "1",
+                "depth below a height-mapped surface of the point a view ray sees, as a fraction of the "
+                "height range (0: on the surface, 1: the deepest valley h = 0)",
+                (
+                    Input(
+                        "u0",
+                        "texture units",
+                        "the pixel's texture coordinate u (on the surface)",
+                        (-2.0, 2.0),
+                    ),
+                    Input("v0", "texture units", "the pixel's texture coordinate v", (-2.0, 2.0)),
+                    *(
+                        Input(f"v{c}", "1", f"unit view vector (to the eye), tangent space {c}", (-1.0, 1.0))
+                        for c in "xy"
+                    ),
+                    Input(
+                        "vz",
+                        "1",
+                        "unit view vector, tangent space z = N·V (the audit leaves out pixels below 10⁻³; "
+                        "validation draws vx, vy, vz independently)",
+                        (1.0e-3, 1.0),
+                    ),
+                    Input(
+                        "scale",
+                        "texture units",
+                        "the height range s (--pom-depth): h = 0 lies s·L below the surface",
+                        (1.0e-3, 1.0),
+                    ),
+                    Input(
+                        "field",
+                        "1",
+                        "the height field h(u, v) ∈ [0, 1]: g.field(ops, u, v) (the bump map's texture as "
+                        "Mitsuba looks it up)",
+                    ),
+                ),
+                examples={"field": _example_field},
+                reference="Mitsuba ray_intersect of the pixel-centre rays with the shape displaced by the "
+                "height field",
+            ),
+            Quantity(
+                "reflected_radiance",
+                "W/m²/sr",
+                "radiance of a mirror, glass or glossy surface from cube maps captured at a probe point, "
+                "per RGB channel",
+                (
+                    *REFLECTION_INPUTS,
+                    Input(
+                        "resolution",
+                        "texels",
+                        "texels per face edge N of the radiance and distance maps (a Python int; the maps' "
+                        "layout: `rtfit.realtime.environment_maps`, read with its cube_lookup_kernel)",
+                    ),
+                    Input("irr_resolution", "texels", "texels per face edge of the irradiance map (an int)"),
+                ),
+                vectors={
+                    "point": ("x", "y", "z"),
+                    "reflect": ("rx", "ry", "rz"),
+                    "refract": ("tx", "ty", "tz"),
+                    "normal": ("nx", "ny", "nz"),
+                },
+                unit_vectors=("reflect", "normal"),
+                channels=3,
+                examples=_REFLECTION_MAPS,
+                reference="path-traced radiance of the pixels that see the shape (Mitsuba's own BSDF)",
+                note="the glossy pre-filtered map of the preconvolved rows is not in g",
+            ),
+            Quantity(
+                "volume_irradiance",
+                "W/m²",
+                "irradiance at a surface point looked up in a regular grid of baked probes, per RGB channel",
+                (
+                    *_POINT,
+                    *_NORMAL,
+                    Input(
+                        "table",
+                        "W/m²",
+                        "SH L2 probes, float-major: g.table[s·count + node], s = channel·9 + lm "
+                        "(`irradiance_volumes.probe_table`; read with ops.gather)",
+                    ),
+                    Input(
+                        "cube_table",
+                        "W/m²",
+                        "Valve's ambient cube (six axes sampled) of each probe, float-major as g.table: 18 "
+                        "floats (channel·6 + face, faces +x −x +y −y +z −z)",
+                    ),
+                    Input(
+                        "nnls_table", "W/m²", "the NNLS-fitted ambient cube of each probe, as g.cube_table"
+                    ),
+                    Input(
+                        "grid",
+                        "m",
+                        "the ProbeGrid: g.grid.origin, g.grid.spacing h, g.grid.dims (n_x, n_y, n_z), "
+                        "g.grid.count; node (i, j, k) at origin + h·(i, j, k), index (k·n_y + j)·n_x + i",
+                    ),
+                ),
+                vectors={"point": ("px", "py", "pz"), "normal": ("nx", "ny", "nz")},
+                unit_vectors=("normal",),
+                channels=3,
+                examples={
+                    "table": _example_table(9),
+                    "cube_table": _example_table(6),
+                    "nnls_table": _example_table(6),
+                    "grid": _example_grid,
+                },
+                reference="path-traced irradiance at the visible points (every light a ray can reach, as "
+                "the probes store it)",
             ),
         )
     }

@@ -35,6 +35,7 @@ from .methods import Input, Method, method_table
 
 __all__ = [
     "GLOSSY_RESOLUTION",
+    "INPUTS",
     "IRRADIANCE_RESOLUTION",
     "ITERATIONS",
     "PROBE_RESOLUTION",
@@ -134,6 +135,10 @@ _TABLES = (
     *(Input(f"irr_{c}", "W/m²", f"irradiance cube map, {c} channel (6·N² texels)") for c in "rgb"),
     Input("dist", "m", "distance cube map: from the probe point to the surface seen (6·N² texels)"),
 )
+INPUTS = (*_GEOMETRY, *_RADIANCE, *_TABLES)
+"""The inputs of the ``classic``, ``parallax`` and ``iterative`` rows: the pixel's geometry and lobe weights,
+the radiance, irradiance and distance cube maps (the ``reflected_radiance`` quantity's, with the maps'
+resolutions: `rtfit.realtime.quantities`)."""
 _FIXED = {"resolution": PROBE_RESOLUTION, "irr_resolution": IRRADIANCE_RESOLUTION, "iterations": ITERATIONS}
 _QUANTITY = "reflected_radiance"
 

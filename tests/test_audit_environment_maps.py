@@ -306,3 +306,51 @@ def test_filtered_maps_keep_the_lobes_energy():
         for k, c in enumerate("rgb"):
             assert np.allclose(maps[f"m_{c}"], integral * SKY[k], rtol=1e-9), (s, c)
     assert phong_exponent(0.2) == pytest.approx(12.0) and phong_exponent(0.001) == 1e4
+
+
+def my_classic(ops, g):
+    """The classic environment map typed through ops: w_r·L(R) + w_t·L(T) + w_d·E(n)/π per channel, each map
+    read with the family's cube lookup (bilinear within a face)."""
+    from rtfit.realtime.environment_maps import cube_lookup_kernel
+
+    out = []
+    for c in "rgb":
+        rad, irr = getattr(g, f"rad_{c}"), getattr(g, f"irr_{c}")
+        lr = cube_lookup_kernel(ops, rad, g.rx, g.ry, g.rz, g.resolution, True)
+        lt = cube_lookup_kernel(ops, rad, g.tx, g.ty, g.tz, g.resolution, True)
+        e = cube_lookup_kernel(ops, irr, g.nx, g.ny, g.nz, g.irr_resolution, True)
+        out.append(
+            getattr(g, f"wr_{c}") * lr + getattr(g, f"wt_{c}") * lt + getattr(g, f"wd_{c}") * e / math.pi
+        )
+    return tuple(out)
+
+
+def test_a_user_reflection_reads_the_rows_own_maps(tmp_path):
+    """A user's ``@approximation(quantity="reflected_radiance")`` restating the classic row's shading gives
+    the shipped ``classic`` row's values on a mirror sphere over a floor (the same lobes, radiance,
+    irradiance and distance maps and resolutions through ``g``: measured max difference 0, the red channel
+    spanning 0.55 between floor and sky); one that takes a square root of R_z (NaN below the horizon) is
+    refused in one line before anything renders."""
+    from rtfit.experiments.audit import AuditError
+    from rtfit.realtime.quantities import approximation
+
+    mine = approximation(quantity="reflected_radiance")(my_classic)
+    (tmp_path / "m.xml").write_text(_scene(MIRROR + FLOOR))
+    r = audit(tmp_path / "m.xml", ["environment-maps:classic", mine], spp=8, pass_spp=4, fit=False,
+              cache=tmp_path / "cache", **FAST)  # fmt: skip
+    (case,) = r.cases
+    m = case.mask
+    rows = r.outcomes[case.id]
+    assert set(rows) == {"classic", "my_classic"} and rows["my_classic"].user
+    np.testing.assert_allclose(rows["my_classic"].image[m], rows["classic"].image[m], rtol=1e-12, atol=1e-12)
+    assert np.ptp(rows["classic"].image[m][:, 0]) > 0.05  # the floor and the sky: a map that varies
+
+    @approximation(quantity="reflected_radiance")
+    def root_rz(ops, g):
+        v = ops.sqrt(g.rz) * g.wr_r
+        return v, v, v
+
+    with pytest.raises(AuditError) as e:
+        audit(tmp_path / "m.xml", [root_rz], spp=2, pass_spp=2, cache=tmp_path / "c2", **FAST)
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith("root_rz: returned NaN at rz=")

@@ -132,3 +132,87 @@ def test_a_toml_scene_with_its_own_grid(tmp_path):
     (case,) = r.cases
     assert case.parameters["probes_outside_the_box"] == 18
     assert r.outcomes[case.id]["trilinear-sh-l2"].metrics["rel_mse"].value > 5 * good
+
+
+def _trilinear(ops, g, table, floats):
+    """The probes' ``floats`` stored floats blended trilinearly at g.point (typed here: i₀ = clamp(⌊t⌋, 0,
+    n − 2), f = clamp(t − i₀, 0, 1) per axis, an axis of one node weight 1 on it)."""
+    grid = g.grid
+    axes = []
+    for x, o, n in zip(g.point, grid.origin, grid.dims, strict=True):
+        if n == 1:
+            axes.append([(0.0 * x, 1.0 + 0.0 * x)])
+            continue
+        t = (x - o) / grid.spacing
+        i0 = ops.minimum(ops.maximum(ops.floor(t), 0.0), n - 2.0)
+        f = ops.minimum(ops.maximum(t - i0, 0.0), 1.0)
+        axes.append([(i0, 1.0 - f), (i0 + 1.0, f)])
+    nx, ny, _ = grid.dims
+    corners = [
+        ((k * ny + j) * nx + i, wk * wj * wi) for k, wk in axes[2] for j, wj in axes[1] for i, wi in axes[0]
+    ]
+    out = []
+    for s in range(floats):
+        acc = 0.0
+        for node, w in corners:
+            acc = acc + w * ops.gather(table, node + float(grid.count * s))
+        out.append(acc)
+    return out
+
+
+def my_trilinear_cube(ops, g):
+    """Valve's cube blended trilinearly, typed through ops: Σ n_i² C[sign of n_i] per channel."""
+    c = _trilinear(ops, g, g.cube_table, 18)
+    n = ops.sqrt(g.nx * g.nx + g.ny * g.ny + g.nz * g.nz)
+    x, y, z = g.nx / n, g.ny / n, g.nz / n
+    return tuple(
+        x * x * ops.select(x < 0.0, c[6 * ch + 1], c[6 * ch])
+        + y * y * ops.select(y < 0.0, c[6 * ch + 3], c[6 * ch + 2])
+        + z * z * ops.select(z < 0.0, c[6 * ch + 5], c[6 * ch + 4])
+        for ch in range(3)
+    )
+
+
+def test_a_user_volume_reads_the_rows_own_probes(tmp_path):
+    """A user's ``@approximation(quantity="volume_irradiance")`` restating the trilinear Valve-cube lookup
+    gives the shipped row's values on the floor (the same points, normals, grid and cube table: measured max
+    difference 0), and so does a user row reading the SH L2 table, with the shipped basis text, as
+    ``nearest-sh-l2``; both inside the closed form's band of the floor test. A user row that gathers outside
+    the table is refused in one line before anything renders."""
+    from rtfit.experiments.audit import AuditError
+    from rtfit.realtime.irradiance_bases import METHODS as BASES
+    from rtfit.realtime.quantities import approximation
+
+    cube = approximation(quantity="volume_irradiance")(my_trilinear_cube)
+
+    @approximation(quantity="volume_irradiance")
+    def my_nearest_sh(ops, g):
+        """The nearest probe's SH L2 (node clamp(⌊t + ½⌋)), evaluated with the shipped basis text."""
+        grid, idx = g.grid, []
+        for x, o, n in zip(g.point, grid.origin, grid.dims, strict=True):
+            idx.append(ops.minimum(ops.maximum(ops.floor((x - o) / grid.spacing + 0.5), 0.0), n - 1.0))
+        node = (idx[2] * grid.dims[1] + idx[1]) * grid.dims[0] + idx[0]
+        coeffs = [ops.gather(g.table, node + float(grid.count * s)) for s in range(27)]
+        return BASES["sh-l2"](ops, {"nx": g.nx, "ny": g.ny, "nz": g.nz, "coeffs": coeffs})
+
+    (tmp_path / "f.xml").write_text(FLOOR_XML)
+    shipped = ["irradiance-volumes:trilinear-cube-valve", "irradiance-volumes:nearest-sh-l2"]
+    r = audit(tmp_path / "f.xml", [*shipped, cube, my_nearest_sh], spp=32, pass_spp=16, fit=False,
+              cache=tmp_path / "cache", **FAST)  # fmt: skip
+    (case,) = r.cases
+    m = case.mask
+    rows = r.outcomes[case.id]
+    assert set(rows) == {"trilinear-cube-valve", "nearest-sh-l2", "my_trilinear_cube", "my_nearest_sh"}
+    for mine, shipped in (("my_trilinear_cube", "trilinear-cube-valve"), ("my_nearest_sh", "nearest-sh-l2")):
+        assert rows[mine].user and not rows[shipped].user
+        np.testing.assert_allclose(rows[mine].image[m], rows[shipped].image[m], rtol=1e-12, atol=1e-12)
+    v = rows["my_trilinear_cube"].image[m] / (math.pi * SKY)
+    assert abs(np.mean(v) - 1) < 0.03 and np.all(np.abs(v - 1) < 0.12)
+
+    @approximation(quantity="volume_irradiance")
+    def past_the_end(ops, g):
+        return tuple(ops.gather(g.table, 0.0 * g.px + float(27 * g.grid.count + c)) for c in range(3))
+
+    with pytest.raises(AuditError) as e:
+        audit(tmp_path / "f.xml", [past_the_end], spp=4, pass_spp=4, cache=tmp_path / "cache2", **FAST)
+    assert "\n" not in str(e.value) and str(e.value).startswith("past_the_end: raised IndexError")

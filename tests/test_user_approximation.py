@@ -359,11 +359,16 @@ def test_validation_runs_drjit_too():
 def test_a_shipped_style_formula_passes_validation_for_every_quantity():
     for q in QUANTITIES.values():
         scalar = [i.name for i in q.inputs if i.domain is not None]
+        # per-element structured inputs (the obscurance's K hit distances): a tuple of arrays, each summed too
+        per_element = [
+            i.name for i in q.inputs if i.domain is None and isinstance(q.examples[i.name](4), tuple)
+        ]
 
-        def f(ops, g, _names=tuple(scalar), _ch=q.channels):
-            total = 0.0 * getattr(g, _names[0])
-            for name in _names:
-                total = total + ops.minimum(ops.maximum(getattr(g, name), -1.0), 1.0)
+        def f(ops, g, _names=tuple(scalar), _seqs=tuple(per_element), _ch=q.channels):
+            terms = [getattr(g, name) for name in _names] + [d for s in _seqs for d in getattr(g, s)]
+            total = 0.0 * terms[0]
+            for t in terms:
+                total = total + ops.minimum(ops.maximum(t, -1.0), 1.0)
             return total if _ch == 1 else (total,) * _ch
 
         f.__name__ = f"sum_{q.name}"
@@ -371,7 +376,7 @@ def test_a_shipped_style_formula_passes_validation_for_every_quantity():
 
 
 # ------------------------------------------------------------------------------------ quantities table
-NOT_USER_QUANTITIES = {"volume_irradiance", "reflected_radiance", "obscurance", "parallax_depth"}
+NOT_USER_QUANTITIES: set[str] = set()
 """Quantities of shipped rows that a user's ``@approximation`` cannot approximate yet (issue 30 §4): the
 list may only shrink."""
 
