@@ -19,8 +19,8 @@ tail are both smooth in u. The ray is split at breakpoints (0 and S, plus, for a
 of the two cones θ = θ_b and θ = θ_c where the profile has kinks and jumps) and each piece is summed by
 composite Gauss–Legendre (`panels` × 8 nodes).
 
-* `point_single_scattering` (`POINT_PANELS` = 48 panels over one piece: the volumetric-lightning experiment's
-  quadrature) and `point_estimator_variance`;
+* `point_single_scattering` (`POINT_PANELS` = 48 panels per piece, the pieces broken at `DECAY_BREAKS`:
+  the volumetric-lightning experiment's quadrature) and `point_estimator_variance`;
 * `spot_single_scattering` (`PIECE_PANELS` = 16 panels per piece between the cone crossings: the light-cone
   experiment's) and `spot_estimator_variance`, with Mitsuba 3's ``spot`` profile `spot_profile`
   (``falloff_curve`` in ``src/emitters/spot.cpp``): f = 1 for θ ≤ θ_b (``beam_width``),
@@ -65,6 +65,9 @@ POINT_PANELS = 48
 """Composite Gauss–Legendre panels (8 nodes each) over a point light's ray (one smooth piece)."""
 PIECE_PANELS = 16
 """Composite Gauss–Legendre panels (8 nodes each) per smooth piece of a spot light's ray."""
+DECAY_BREAKS = np.array([2.0, 8.0, 32.0])
+"""More breakpoints at s₀ + DECAY_BREAKS/σ_t, where e^(−σ_t(s − s₀)) has fallen by e², e⁸, e³² (each piece
+gets its panels): an optically thick segment (σ_t·S ≫ 1) is integrated where its light is."""
 
 
 def hg_phase(cos_theta, g: float) -> np.ndarray:
@@ -137,6 +140,11 @@ def _u_integral(
     # a ray through the light itself: the integral diverges there; keep h finite and positive
     h = np.maximum(h, 1e-12 * max(float(np.max(np.linalg.norm(c, axis=-1), initial=0.0)), 1e-30))
     s0 = np.asarray(start, np.float64)
+    if sigma_t > 0.0:  # breaks where the extinction has decayed by e², e⁸, e³²: optically thick segments
+        # (σ_t·S ≫ 1, the light behind the camera) left its whole decay inside one or two panels (issue 32)
+        decay = np.broadcast_to(s0, edges.shape[:-1])[..., None] + DECAY_BREAKS / sigma_t
+        decay = np.clip(decay, edges[..., :1], edges[..., -1:])
+        edges = np.sort(np.concatenate([edges, decay], axis=-1), axis=-1)
     u_edges = np.arcsinh((edges - c_par[..., None]) / h[..., None])
     frac = np.linspace(0.0, 1.0, panels + 1)
     total = np.zeros_like(h)
