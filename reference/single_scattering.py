@@ -150,6 +150,8 @@ def _u_integral(
     total = np.zeros_like(h)
     for j in range(edges.shape[-1] - 1):
         u0, u1 = u_edges[..., j], u_edges[..., j + 1]
+        if not np.any(u1 > u0):  # an empty piece on every ray (a break clipped to S) adds exactly 0
+            continue
         for k in range(panels):
             lo = u0 + (u1 - u0) * frac[k]
             half = 0.5 * (u1 - u0) * (frac[k + 1] - frac[k])
