@@ -119,7 +119,11 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
     "--spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Reference samples per pixel (256)."
 )
 @click.option(
-    "--pass-spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Samples per cached pass (32)."
+    "--pass-spp",
+    type=click.IntRange(min=2, max=SPP_MAX),
+    default=None,
+    help="Samples per cached pass (32); the last pass holds the rest of --spp (at least 2), and one larger "
+    "than --spp means one pass of --spp.",
 )
 @out_option("Output directory: the report goes to OUT/audit-<scene>.")
 @cache_option()

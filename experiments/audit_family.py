@@ -43,7 +43,7 @@ import drjit as dr
 import numpy as np
 
 from rtfit.realtime.methods import Method, Param
-from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, PassEntry, pool_passes
+from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, PassEntry, pass_size, pool_passes
 from rtfit.reference.estimators import GBuffer, PassResult, launch_identity, sub_seed
 
 from .audit import Applicability, AuditError, Rule, SceneInfo
@@ -338,11 +338,15 @@ def pooled_passes(
     entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
     count = -(-setup.spp // setup.pass_spp)
 
-    def render(i: int):
-        spp = max(min(setup.pass_spp, setup.spp - i * setup.pass_spp), 2)
-        return render_pass(spp, sub_seed(setup.seed, seed_label, i))
+    def size(i: int) -> int:
+        return pass_size(setup.spp, setup.pass_spp, i)
 
-    passes, rendered = entry.passes(count, render, shape=shape, progress=setup.progress, label=label)
+    def render(i: int):
+        return render_pass(size(i), sub_seed(setup.seed, seed_label, i))
+
+    passes, rendered = entry.passes(
+        count, render, shape=shape, progress=setup.progress, label=label, spp_of=size
+    )
     mean, stderr, total = pool_passes(passes)
     return PooledPasses(
         mean, stderr, total, len(passes), rendered, entry, float(sum(p.seconds for p in passes))

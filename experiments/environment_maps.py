@@ -41,7 +41,7 @@ from rtfit.realtime import DRJIT_OPS, NUMPY_OPS, sphere_light_irradiance
 from rtfit.realtime import environment_maps as em
 from rtfit.realtime.arrays import backend_float
 from rtfit.reference import environment_maps as room
-from rtfit.reference.cache import PassEntry, array_digest, pool_passes
+from rtfit.reference.cache import PassEntry, array_digest, pass_size, pool_passes
 from rtfit.reference.estimators import sub_seed
 from rtfit.reference.variants import backend_of
 
@@ -673,22 +673,22 @@ def sphere_reference(ctx, cfg, sid: str, paths: dict, material: str, kind: str, 
     count = -(-spp // pass_spp)
 
     def render(i: int):
-        n = max(min(pass_spp, spp - i * pass_spp), 2)
         return room.sphere_radiance_pass(
             CAMERA,
             paths["d"],
             centre,
             SPHERE_RADIUS,
             material,
-            n,
+            pass_size(spp, pass_spp, i),
             sub_seed(ctx.seed, "sphere-pass", material, kind, i),
             kind=kind,
             max_depth=cfg["sphere_max_depth"],
             variant=ctx.variant,
         )
 
+    label, shape = f"{material} sphere {sid} ({kind})", (len(paths["d"]),)
     passes, _ = entry.passes(
-        count, render, shape=(len(paths["d"]),), label=f"{material} sphere {sid} ({kind})"
+        count, render, shape=shape, label=label, spp_of=lambda i: pass_size(spp, pass_spp, i)
     )
     mean, stderr, total = pool_passes(passes)
     return mean, stderr, total, float(sum(p.seconds for p in passes))

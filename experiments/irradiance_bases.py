@@ -139,7 +139,7 @@ from .cost import (
 from .jobs import Job
 from .records import Check
 from .registry import SPP_MAX, ConfigKey, checked
-from .rows import Row
+from .rows import Row, resolved_means
 from .viewer import save_case_pixels
 
 # ============================================================================================ configure
@@ -1390,14 +1390,12 @@ STORAGE_BUDGETS = (4, 6, 9, 12, 16, 25, None)
 
 
 def budget_winners(cases, costs) -> list[dict]:
-    """Which stored basis wins at each storage budget (`STORAGE_BUDGETS`, floats per channel = the method's
-    ``storage`` / 3), derived from the method table and the run's metrics: the lowest mean relative RMSE
-    over environments among the bases that fit in the budget, and among those that use exactly that much
-    (27+: at least 27 per channel)."""
-    err, _ = _mean_errors(cases)
+    """Which stored basis wins at each storage budget (`STORAGE_BUDGETS`, floats per channel = ``storage``/3):
+    the lowest mean relative RMSE among the bases that fit in it, and among those that use exactly that much
+    (27+: ≥ 27), each mean over the environments where every candidate is resolved (`resolved_means`)."""
     sm, _ = _mean_errors(cases, "smape")
     cost = {c["method"]: c.get("ns_per_pixel") for c in costs}
-    stored = [r for r in BASES if METHODS[r.method].storage and r.method in err]
+    stored = [r for r in BASES if METHODS[r.method].storage and r.method in _mean_errors(cases)[0]]
 
     def per_channel(r):
         return METHODS[r.method].storage / 3
@@ -1406,8 +1404,9 @@ def budget_winners(cases, costs) -> list[dict]:
     for b in STORAGE_BUDGETS:
         within = [r for r in stored if b is None or per_channel(r) <= b + 1e-9]
         exact = [r for r in stored if (per_channel(r) >= 27 if b is None else abs(per_channel(r) - b) < 1e-9)]
-        best = min(within, key=lambda r: err[r.method], default=None)
-        best_exact = min(exact, key=lambda r: err[r.method], default=None)
+        err, at = (resolved_means(cases, [r.method for r in rs]) for rs in (within, exact))
+        best = min((r for r in within if r.method in err), key=lambda r: err[r.method], default=None)
+        best_exact = min((r for r in exact if r.method in at), key=lambda r: at[r.method], default=None)
         out.append(
             {
                 "budget": "27+" if b is None else str(b),
@@ -1446,7 +1445,8 @@ def _budget_sections(cases, costs) -> list[dict]:
             "title": "Which basis wins at each storage budget",
             "text": "Derived from the method table (floats per channel = each method's stored floats per "
             "probe / 3) and this run's metrics: the basis with the lowest relative RMSE of the irradiance, "
-            "mean over all environments, among those that fit in the budget, and among those that use "
+            "mean over the environments where every candidate is resolved (errors within 2× the noise "
+            "floor are not ranked), among those that fit in the budget, and among those that use "
             "exactly that many floats (27+: 27 or more). sMAPE and the cost (see Cost) of the winner "
             "beside it.\n\n" + "\n".join(lines),
             "placement": "after_results",

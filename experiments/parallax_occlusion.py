@@ -612,16 +612,15 @@ def shadow_lz_summary(fits: dict) -> dict:
 
 
 # =============================================================================================== checks
-def _rms_of(table, method, nr, field=None, view=None) -> float:
-    vals = [
-        t["rms_uv_error"]
-        for t in table
-        if t["method"] == method
-        and [t["n_min"], t["n_max"]] == list(nr)
-        and (field is None or t["field"] == field)
-        and (view is None or t["view_deg"] == view)
-        and t["rms_uv_error"] is not None
-    ]
+def uv_rms(table, method, nr, field=None, view=None) -> float:
+    """RMS visible-point error of ``method`` at n range ``nr`` over the matching cases; over several cases,
+    only those where every method is finite (like with like: the listing's 0/0 at θ_v = 0, issue 32)."""
+    at = [t for t in table if [t["n_min"], t["n_max"]] == list(nr)]
+    sel = [t for t in at if field in (None, t["field"]) and view in (None, t["view_deg"])]
+    undefined = {(t["field"], t["view_deg"]) for t in sel if t["rms_uv_error"] is None}
+    if len({(t["field"], t["view_deg"]) for t in sel}) > 1:
+        sel = [t for t in sel if (t["field"], t["view_deg"]) not in undefined]
+    vals = [t["rms_uv_error"] for t in sel if t["method"] == method and t["rms_uv_error"] is not None]
     return float(np.sqrt(np.mean(np.square(vals)))) if vals else float("nan")
 
 
@@ -641,7 +640,7 @@ def reference_checks(ctx, cfg, uv_table, lights) -> list[Check]:
             rows = [t for t in uv_table if t["field"] == field and t["view_deg"] == vt]
             mesh = rows[0]["mesh_rms"]
             oracle = rows[0]["oracle_rms"]
-            pom = _rms_of(uv_table, "stable", nr, field, vt)
+            pom = uv_rms(uv_table, "stable", nr, field, vt)
             if vt > 0:
                 checks.append(
                     Check(
@@ -757,7 +756,7 @@ def make_figures(out, cfg, case_docs, images, uv_table, costs) -> list[dict]:
         xs, ys = [], []
         for nr in cfg["sample_ranges"]:
             c = cost_by.get(f"{mid}-{nr[0]}-{nr[1]}")
-            e = _rms_of(uv_table, mid, nr)
+            e = uv_rms(uv_table, mid, nr)
             if c and np.isfinite(e):
                 xs.append(c["ns_per_pixel"])
                 ys.append(e)
@@ -807,7 +806,7 @@ def sections(cfg, uv_table, hazards, costs, mesh_info) -> list[dict]:
             nf = sum(t["non_finite"] for t in sel)
             c = cost_by.get(f"{mid}-{nr[0]}-{nr[1]}")
             rows.append(
-                f"| {mid} | {nr[0]}–{nr[1]} | {_rms_of(uv_table, mid, nr):.3g} | {mx:.3g} | {nf} | "
+                f"| {mid} | {nr[0]}–{nr[1]} | {uv_rms(uv_table, mid, nr):.3g} | {mx:.3g} | {nf} | "
                 f"{c['ns_per_pixel']:.3g} |"
                 if c
                 else ""
@@ -821,8 +820,8 @@ def sections(cfg, uv_table, hazards, costs, mesh_info) -> list[dict]:
         for vt in cfg["view_deg"]:
             r0 = next(t for t in uv_table if t["field"] == field and t["view_deg"] == vt)
             views.append(
-                f"| {field} | {vt:g}° | {_rms_of(uv_table, 'listing', nr, field, vt):.3g} | "
-                f"{_rms_of(uv_table, 'stable', nr, field, vt):.3g} | {r0['mesh_rms']:.2g} | "
+                f"| {field} | {vt:g}° | {uv_rms(uv_table, 'listing', nr, field, vt):.3g} | "
+                f"{uv_rms(uv_table, 'stable', nr, field, vt):.3g} | {r0['mesh_rms']:.2g} | "
                 f"{r0['oracle_rms']:.2g} |"
             )
     hz = hazard_text(hazards)
@@ -842,7 +841,8 @@ def sections(cfg, uv_table, hazards, costs, mesh_info) -> list[dict]:
         {
             "id": "uv",
             "title": "Visible-point error vs samples vs cost",
-            "text": "\n".join(r for r in rows if r),
+            "text": "\n".join(r for r in rows if r)
+            + "\n\nRMS over the cases where every method is finite (the listing's 0/0 leaves θ_v = 0 out).",
         },
         {
             "id": "views",
@@ -906,9 +906,9 @@ def summary(cfg, uv_table, case_docs, hazards, fits, checks) -> str:
     fl = {f: fits["stable"][f]["parameters"]["floor"]["value"] for f in fits["stable"]}
     return (
         f"Parallax occlusion mapping against a displaced Mitsuba mesh. Visible-point RMS error with n "
-        f"{nr[0]}–{nr[1]}: listing {_rms_of(uv_table, 'listing', nr):.3g}, stable "
-        f"{_rms_of(uv_table, 'stable', nr):.3g} texture units (s = {cfg['scale']:g}). Radiance relMSE "
-        f"(mean over cases): listing {rel('listing'):.3g}, stable {rel('stable'):.3g}, stable fitted "
+        f"{nr[0]}–{nr[1]}: listing {uv_rms(uv_table, 'listing', nr):.3g}, stable "
+        f"{uv_rms(uv_table, 'stable', nr):.3g} texture units, same cases (s = {cfg['scale']:g}). Radiance "
+        f"relMSE (mean over cases): listing {rel('listing'):.3g}, stable {rel('stable'):.3g}, stable fitted "
         f"{rel('stable-fit'):.3g}, no shadow {rel('no-shadow'):.3g}. Fitted softening k "
         + ", ".join(f"{f} {v:.3g} (floor {fl[f]:.3g})" for f, v in k.items())
         + f". Hazards: see the section. {passed} of {len(checks)} checks passed."

@@ -439,6 +439,35 @@ _BUILTIN_TARGETS = {
 }
 
 
+def _case_figure(d: _Doc, label: str, aps, placed: dict[tuple[str, str], list[Figure]]) -> None:
+    """The figure under a case's table: each distinct file of its approximations' ``figures`` once, labelled
+    with the approximations that point at it. A file every approximation shares (one composite image of
+    the case, `figures.case_comparison`) is shown once with its own figure record's caption, and that record
+    is not shown again elsewhere (height-fog's report showed one composite seven times)."""
+    groups: dict[str, list[str]] = {}
+    for ap in aps:
+        for f in ap.figures:
+            names = groups.setdefault(str(f), [])
+            if ap.display not in names:
+                names.append(ap.display)
+    if not groups:
+        return
+    records = {str(fig.file): fig for figs in placed.values() for fig in figs}
+    if len(groups) == 1:
+        (file,) = groups
+        fig = records.get(file)
+        own = fig.caption if fig is not None else None
+        caption = own or f"{label}: " + ", ".join(groups[file]) + "."
+        d.figure([(file, "")], caption)
+    else:
+        imgs = [(f, ", ".join(names)) for f, names in groups.items()]
+        d.figure(imgs, f"{label}: " + "; ".join(lab for _, lab in imgs) + " (left to right).")
+    for key in list(placed):  # records of files shown here are not shown a second time
+        placed[key] = [fig for fig in placed[key] if str(fig.file) not in groups]
+        if not placed[key]:
+            del placed[key]
+
+
 def _build(r: Results, directory: Path | None) -> _Doc:
     d = _Doc(r, directory)
     cases = r.cases
@@ -562,9 +591,7 @@ def _build(r: Results, directory: Path | None) -> _Doc:
             [UNRESOLVED_NOTE] if unresolved else [],
             tex_cols=list(range(1 + len(keys))),
         )
-        imgs = [(f, ap.display) for ap in aps for f in ap.figures]
-        if imgs:
-            d.figure(imgs, f"{c.label}: " + ", ".join(lab for _, lab in imgs) + " (left to right).")
+        _case_figure(d, c.label, aps, placed)
     emit_figures(("builtin", "results"))
 
     # Cost.
@@ -808,11 +835,13 @@ nav.toc { font-size: .92rem; margin: 1.5rem 0 2rem; }
 nav.toc h2 { font-size: 1rem; border: 0; margin: 0 0 .4rem; }
 nav.toc ol { list-style: none; padding-left: 0; margin: 0; }
 nav.toc ol ol { padding-left: 1.6rem; }
-.table-wrap { overflow-x: auto; margin: 1.2rem 0 1.6rem; }
+.table-block { margin: 1.2rem 0 1.6rem; }
+.table-wrap { overflow-x: auto; max-width: 100%; margin: 1.2rem 0 1.6rem; }
+.table-block .table-wrap { margin: 0; }
+.table-caption { font-size: .86rem; margin: 0 0 .5rem; }
+.table-caption b { margin-right: .3rem; }
 table { border-collapse: collapse; font-size: .86rem; margin: 0 auto;
         border-top: 2px solid var(--rule); border-bottom: 2px solid var(--rule); }
-caption { caption-side: top; text-align: left; font-size: .86rem; padding: 0 0 .5rem; color: var(--fg); }
-caption b { margin-right: .3rem; }
 th, td { padding: .3rem .65rem; vertical-align: top; text-align: left; }
 thead th { border-bottom: 1px solid var(--rule); font-weight: 600; white-space: nowrap; }
 tbody tr:hover { background: var(--bg-alt); }
@@ -869,10 +898,13 @@ def _html_table(b: _Table) -> str:
     head = "".join(_html_cell(c, "th") for c in b.header)
     body = "\n".join("<tr>" + "".join(_html_cell(c) for c in row) + "</tr>" for row in b.rows)
     notes = "".join(f'<p class="table-note">{_esc(n)}</p>' for n in b.notes)
+    # The caption and notes sit outside the scrolling box, at the column's width: a wide table scrolls
+    # sideways inside `div.table-wrap` without carrying its caption off-screen.
     return (
-        f'<div class="table-wrap" id="{b.anchor}"><table>\n'
-        f"<caption><b>Table {b.number}:</b> {_esc(b.caption)}"
-        f"</caption>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody></table>{notes}</div>"
+        f'<div class="table-block" id="{b.anchor}">'
+        f'<p class="table-caption"><b>Table {b.number}:</b> {_esc(b.caption)}</p>\n'
+        f'<div class="table-wrap" role="region" tabindex="0" aria-label="Table {b.number}"><table>\n'
+        f"<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody></table></div>{notes}</div>"
     )
 
 

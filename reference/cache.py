@@ -212,6 +212,13 @@ class Reference:
         }
 
 
+def pass_size(spp: int, pass_spp: int, index: int) -> int:
+    """Samples of pass ``index`` of a request for ``spp`` in passes of ``pass_spp``: ``pass_spp``, the last
+    pass the remainder, at least 2 (the variance needs two: a remainder of 1 renders one sample more). A
+    ``pass_spp`` above ``spp`` gives one pass of ``spp``."""
+    return max(min(int(pass_spp), int(spp) - int(index) * int(pass_spp)), 2)
+
+
 def pool_passes(passes: list[PassResult]) -> tuple[np.ndarray, np.ndarray, int]:
     """Exact pooling of independent passes → (mean, standard error of the mean, total samples)."""
     n_i = np.array([p.spp for p in passes], dtype=np.float64)
@@ -266,8 +273,13 @@ class PassEntry:
     def _files(self, index: int) -> tuple[Path, Path]:
         return self.folder / f"pass-{index:05d}.{self.storage}", self.folder / f"pass-{index:05d}.json"
 
-    def load(self, index: int, shape: tuple[int, ...] | None = None) -> PassResult | None:
-        """Pass ``index`` as stored (float32 values in float64 arrays), or None if absent or unreadable."""
+    def load(
+        self, index: int, shape: tuple[int, ...] | None = None, spp: int | None = None
+    ) -> PassResult | None:
+        """Pass ``index`` as stored (float32 values in float64 arrays), or None if absent or unreadable, or
+        (``spp`` given) if it holds another number of samples: the entry's key covers the pass size, not
+        the total, so a short last pass of an earlier, smaller request (or an edited ``spp``) is rendered
+        again at this request's size rather than pooled short (issue 32)."""
         data, meta = self._files(index)
         if not (data.exists() and meta.exists()):
             return None
@@ -282,10 +294,18 @@ class PassEntry:
             mean, var = mean.astype(np.float64), var.astype(np.float64)
             if shape is not None:
                 mean, var = mean.reshape(shape), var.reshape(shape)
-            spp = int(info["spp"])
-            if spp < 1:
-                raise ValueError(f"spp {spp}")
-            return PassResult(mean, var, spp, int(info["seed"]), float(info["seconds"]))
+            n = int(info["spp"])
+            if n < 1:
+                raise ValueError(f"spp {n}")
+            if spp is not None and n != spp:
+                log.info(
+                    "cached pass %s holds %d samples, this request needs %d: it is rendered again",
+                    data,
+                    n,
+                    spp,
+                )
+                return None
+            return PassResult(mean, var, n, int(info["seed"]), float(info["seconds"]))
         except (OSError, ValueError, RuntimeError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as e:
             # unreadable leftovers are re-rendered, never trusted; one line says which (issue 32)
             why = " ".join(f"{type(e).__name__}: {e}".split())[:160]
@@ -381,16 +401,19 @@ class PassEntry:
         progress: bool = False,
         label: str | None = None,
         before_render: Callable[[], None] | None = None,
+        spp_of: Callable[[int], int] | None = None,
     ) -> tuple[list[PassResult], int]:
         """The first ``count`` passes: loaded where cached, else ``render(i)`` and saved. Returns the passes
         and how many were rendered by this call. ``before_render`` runs once, only if something is
-        missing (load the Mitsuba scene there, not before).
+        missing (load the Mitsuba scene there, not before). ``spp_of(i)``: the samples pass i must hold
+        (`pass_size`); a cached pass of another size is rendered again (`load`).
 
         Several processes may share one cache: each missing pass is claimed (`claim`) by exactly one of
         them; the others render the passes nobody holds, then wait for the claimed ones to appear
         (polling; a claim whose owner died is taken over). While rendering, the claim's mtime is
         refreshed by a heartbeat thread, so that a claim is stale only when its owner is gone."""
-        results = [self.load(i, shape) for i in range(count)]
+        size = spp_of or (lambda _i: None)
+        results = [self.load(i, shape, size(i)) for i in range(count)]
         missing = [i for i, r in enumerate(results) if r is None]
         name = label or f"reference {self.key[:8]}"
         if not missing:
@@ -407,12 +430,12 @@ class PassEntry:
         while missing:
             held_elsewhere = []
             for i in missing:
-                cached = self.load(i, shape)  # another process may have finished it meanwhile
+                cached = self.load(i, shape, size(i))  # another process may have finished it meanwhile
                 if cached is None and self.claim(i):
                     try:
                         # Look again now that we hold the claim: the owner before us saves a pass before
                         # it releases it, so a pass finished between our load and our claim is seen here.
-                        cached = self.load(i, shape)
+                        cached = self.load(i, shape, size(i))
                         if cached is None:
                             if not prepared and before_render is not None:
                                 before_render()
@@ -542,7 +565,7 @@ class ReferenceCache:
                 )
 
         def render(i: int) -> PassResult:
-            pass_spp = max(min(request.pass_spp, request.spp - i * request.pass_spp), 2)
+            pass_spp = pass_size(request.spp, request.pass_spp, i)
             seed = sub_seed(request.seed, "pass", i)
             mi, mi_scene = loaded["mi"], loaded["scene"]
             if as_points:
@@ -566,6 +589,7 @@ class ReferenceCache:
                 progress=progress,
                 label=label or f"reference {key[:8]}",
                 before_render=load_scene,
+                spp_of=lambda i: pass_size(request.spp, request.pass_spp, i),
             )
         mean, stderr, total = pool_passes(passes)
         if rendered:

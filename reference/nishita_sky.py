@@ -751,7 +751,7 @@ def render_sky(
 
     n_pass = -(-spp // pass_spp)
     if cache_dir is not None:
-        passes, _ = entry.passes(n_pass, render, before_render=load_scene)
+        passes, _ = entry.passes(n_pass, render, before_render=load_scene, spp_of=lambda _i: pass_spp)
     else:  # no store: the passes as rendered (the npz store keeps the same float64 values)
         load_scene()
         passes = [render(i) for i in range(n_pass)]

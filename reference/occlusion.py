@@ -554,7 +554,7 @@ class OcclusionCache:
                 distance_weight=distance_weight,
             )
 
-        results, _ = entry.passes(-(-int(spp) // int(pass_spp)), render)
+        results, _ = entry.passes(-(-int(spp) // int(pass_spp)), render, spp_of=lambda _i: int(pass_spp))
         mean, stderr, total = pool_passes(results)
         return OcclusionReference(
             mean,

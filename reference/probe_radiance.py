@@ -169,7 +169,7 @@ class ProbeRadianceCache:
         def render(i: int) -> PassResult:
             return probe_radiance_pass(mi, mi_scene, pos, features, int(pass_spp), sub_seed(seed, "pass", i))
 
-        results, _ = entry.passes(-(-int(spp) // int(pass_spp)), render)
+        results, _ = entry.passes(-(-int(spp) // int(pass_spp)), render, spp_of=lambda _i: int(pass_spp))
         mean, stderr, total = pool_passes(results)
         return ProbeRadiance(
             mean, stderr, total, len(results), float(sum(r.seconds for r in results)), entry.key

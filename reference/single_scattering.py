@@ -19,8 +19,8 @@ tail are both smooth in u. The ray is split at breakpoints (0 and S, plus, for a
 of the two cones θ = θ_b and θ = θ_c where the profile has kinks and jumps) and each piece is summed by
 composite Gauss–Legendre (`panels` × 8 nodes).
 
-* `point_single_scattering` (`POINT_PANELS` = 48 panels over one piece: the volumetric-lightning experiment's
-  quadrature) and `point_estimator_variance`;
+* `point_single_scattering` (`POINT_PANELS` = 48 panels per piece, the pieces broken at `DECAY_BREAKS`:
+  the volumetric-lightning experiment's quadrature) and `point_estimator_variance`;
 * `spot_single_scattering` (`PIECE_PANELS` = 16 panels per piece between the cone crossings: the light-cone
   experiment's) and `spot_estimator_variance`, with Mitsuba 3's ``spot`` profile `spot_profile`
   (``falloff_curve`` in ``src/emitters/spot.cpp``): f = 1 for θ ≤ θ_b (``beam_width``),
@@ -65,6 +65,9 @@ POINT_PANELS = 48
 """Composite Gauss–Legendre panels (8 nodes each) over a point light's ray (one smooth piece)."""
 PIECE_PANELS = 16
 """Composite Gauss–Legendre panels (8 nodes each) per smooth piece of a spot light's ray."""
+DECAY_BREAKS = np.array([2.0, 8.0, 32.0])
+"""More breakpoints at s₀ + DECAY_BREAKS/σ_t, where e^(−σ_t(s − s₀)) has fallen by e², e⁸, e³² (each piece
+gets its panels): an optically thick segment (σ_t·S ≫ 1) is integrated where its light is."""
 
 
 def hg_phase(cos_theta, g: float) -> np.ndarray:
@@ -99,17 +102,24 @@ def cone_crossings(origin, dirs: np.ndarray, apex, axis, angle_rad: float) -> np
     a = np.asarray(axis, np.float64)
     w = np.asarray(origin, np.float64) - np.asarray(apex, np.float64)
     k = math.cos(angle_rad) ** 2
+    # Solved about the ray's closest approach to the apex, s = s_p + t with m = w + s_p·d ⟂ d: the quadratic
+    # qa t² + 2 qb t + qc = 0 then has qb = (d·a)(m·a), qc = (m·a)² − k|m|², and its discriminant is
+    # k[(m·a)² + |m|² qa] without the cancellation of terms of size |w|² that qb² − qa qc suffers in s
+    # (a ray passing 1e-6 m from the apex 5.7 m away lost 3 digits of its crossings: issue 32).
     da = dirs @ a
+    s_p = -(dirs @ w)
+    m = w + s_p[..., None] * dirs
+    ma = m @ a
     qa = da * da - k
-    qb = da * (w @ a) - k * (dirs @ w)
-    qc = (w @ a) ** 2 - k * (w @ w)
-    disc = qb * qb - qa * qc
+    qb = da * ma
+    qc = ma * ma - k * np.sum(m * m, axis=-1)
+    disc = k * (ma * ma + np.sum(m * m, axis=-1) * qa)
     sq = np.sqrt(np.maximum(disc, 0.0))
     q = -(qb + np.where(qb >= 0.0, sq, -sq))
     with np.errstate(divide="ignore", invalid="ignore"):
         r1 = np.where(qa != 0.0, q / qa, np.nan)
         r2 = np.where(q != 0.0, qc / q, np.nan)
-    out = np.stack([r1, r2], axis=-1)
+    out = s_p[..., None] + np.stack([r1, r2], axis=-1)
     return np.where((disc >= 0.0)[..., None], out, np.nan)
 
 
@@ -130,11 +140,18 @@ def _u_integral(
     # a ray through the light itself: the integral diverges there; keep h finite and positive
     h = np.maximum(h, 1e-12 * max(float(np.max(np.linalg.norm(c, axis=-1), initial=0.0)), 1e-30))
     s0 = np.asarray(start, np.float64)
+    if sigma_t > 0.0:  # breaks where the extinction has decayed by e², e⁸, e³²: optically thick segments
+        # (σ_t·S ≫ 1, the light behind the camera) left its whole decay inside one or two panels (issue 32)
+        decay = np.broadcast_to(s0, edges.shape[:-1])[..., None] + DECAY_BREAKS / sigma_t
+        decay = np.clip(decay, edges[..., :1], edges[..., -1:])
+        edges = np.sort(np.concatenate([edges, decay], axis=-1), axis=-1)
     u_edges = np.arcsinh((edges - c_par[..., None]) / h[..., None])
     frac = np.linspace(0.0, 1.0, panels + 1)
     total = np.zeros_like(h)
     for j in range(edges.shape[-1] - 1):
         u0, u1 = u_edges[..., j], u_edges[..., j + 1]
+        if not np.any(u1 > u0):  # an empty piece on every ray (a break clipped to S) adds exactly 0
+            continue
         for k in range(panels):
             lo = u0 + (u1 - u0) * frac[k]
             half = 0.5 * (u1 - u0) * (frac[k + 1] - frac[k])

@@ -269,6 +269,7 @@ def particle_reference(
             progress=progress,
             label=label or f"soft particle {shape} {entry.key[:8]}",
             before_render=load_scene,
+            spp_of=lambda _i: pass_spp,
         )
     mean, stderr, total = pool_passes(results)
     return ParticleReference(

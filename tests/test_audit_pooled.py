@@ -72,3 +72,43 @@ def test_reference_lays_the_masked_elements_onto_the_image(tmp_path):
         mask, np.asarray([1, 2, 3], np.float32)
     )  # grey values in row-major pixel order, as float64
     assert img.dtype == np.float64 and img[0, 2].tolist() == [2.0] * 3 and img[1, 0].tolist() == [0.0] * 3
+
+
+def test_pass_sizes_and_a_short_cached_pass_is_never_pooled_short(tmp_path):
+    """--pass-spp and --spp (issue 32): pass i holds min(pass_spp, spp − i·pass_spp) samples, at least 2
+    (a remainder of 1 renders one more); pass_spp > spp is one pass of spp. The cache key covers the pass
+    size, not the total, so `--spp 33` leaves a 2-sample pass 1 that a later `--spp 64` would have pooled as
+    if whole (34 samples instead of 64, a result that depended on the cache's history): it is rendered
+    again at 32, and so is a pass whose JSON ``spp`` was edited."""
+    import json
+
+    from rtfit.reference.cache import pass_size
+
+    assert [pass_size(10, 4, i) for i in range(3)] == [4, 4, 2]
+    assert [pass_size(9, 4, i) for i in range(3)] == [4, 4, 2]  # remainder 1: two samples
+    assert pass_size(5, 32, 0) == 5
+    rng = np.random.default_rng(1)
+    drawn = []
+
+    def render(spp: int, seed: int) -> PassResult:
+        x = rng.normal(2.0, 0.5, size=(spp, 4, 3))
+        drawn.append(spp)
+        return PassResult(x.mean(axis=0), x.var(axis=0, ddof=1), spp, seed, 0.1)
+
+    def setup(spp):
+        return cast(
+            AuditSetup,
+            types.SimpleNamespace(
+                scene_digest="d", variant="scalar_rgb", seed=0, pass_spp=32, spp=spp, cache_root=tmp_path,
+                progress=False,
+            ),
+        )  # fmt: skip
+
+    small = pooled_passes(setup(33), {"quantity": "t"}, render, (-1, 3), "t")
+    assert drawn == [32, 2] and small.spp == 34
+    big = pooled_passes(setup(64), {"quantity": "t"}, render, (-1, 3), "t")
+    assert drawn == [32, 2, 32] and (big.spp, big.passes_rendered) == (64, 1)
+    meta = big.entry.folder / "pass-00000.json"
+    meta.write_text(json.dumps({**json.loads(meta.read_text()), "spp": 320}))
+    again = pooled_passes(setup(64), {"quantity": "t"}, render, (-1, 3), "t")
+    assert drawn == [32, 2, 32, 32] and (again.spp, again.passes_rendered) == (64, 1)

@@ -171,6 +171,19 @@ def test_version_is_one_line_and_imports_nothing_heavy():
     assert not imported & {"mitsuba", "jax", "jaxlib", "matplotlib", "scipy", "optimistix"}
 
 
+@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["audit", "--help"], ["sweep", "--help"]])
+def test_help_imports_nothing_heavy(argv):
+    """Issue 32: `rtfit --help` must not pay for JAX, matplotlib, SciPy, Mitsuba or Ray at import (they are
+    imported inside the functions that need them: tests/test_layering.py's LAZY_OK)."""
+    r = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "rtfit", *argv], capture_output=True, text=True
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    imported = {ln.rsplit("|", 1)[-1].strip().split(".")[0] for ln in r.stderr.splitlines() if "|" in ln}
+    assert "rtfit" in imported
+    assert not imported & {"mitsuba", "jax", "jaxlib", "matplotlib", "scipy", "optimistix", "ray", "mpmath"}
+
+
 def test_verbose_and_quiet_exclude_each_other(capsys):
     err = _one_line_error(capsys, 2, ["-v", "-q", "list"])
     assert "-v" in err and "-q" in err

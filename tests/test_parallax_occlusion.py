@@ -287,3 +287,28 @@ def test_exact_hits_on_a_flat_mesh_match_the_closed_form():
     t = (o[:, 2] + 0.5 * S) / V[2]
     np.testing.assert_allclose(p, o - t[:, None] * V, atol=1e-6)
     np.testing.assert_allclose(n, np.tile([0.0, 0.0, 1.0], (2, 1)), atol=1e-6)
+
+
+def test_aggregate_uv_error_compares_methods_on_the_same_cases():
+    """Issue 32: the listing is non-finite at θ_v = 0 (its 0/0), so its aggregate covered 4 cases while the
+    stable variant's covered 6, including its error-free 0° view. An aggregate now covers only the cases where
+    every method is finite; a single case is still reported per method."""
+    from rtfit.experiments.parallax_occlusion import uv_rms
+
+    nr = (8, 40)
+    errors = {  # (field, view) -> (listing, stable)
+        ("bumps", 0.0): (None, 0.0),
+        ("bumps", 40.0): (3e-3, 1e-3),
+        ("ridges", 0.0): (None, 0.0),
+        ("ridges", 40.0): (4e-3, 2e-3),
+    }
+    table = [
+        {"field": f, "view_deg": v, "method": m, "n_min": 8, "n_max": 40, "rms_uv_error": e}
+        for (f, v), pair in errors.items()
+        for m, e in zip(("listing", "stable"), pair, strict=True)
+    ]
+    assert uv_rms(table, "listing", nr) == pytest.approx(math.sqrt((9e-6 + 16e-6) / 2))
+    assert uv_rms(table, "stable", nr) == pytest.approx(math.sqrt((1e-6 + 4e-6) / 2))  # not /4
+    assert uv_rms(table, "stable", nr, "bumps", 0.0) == 0.0  # one case: its own value
+    assert math.isnan(uv_rms(table, "listing", nr, "bumps", 0.0))
+    assert uv_rms(table, "stable", nr, view=40.0) == pytest.approx(math.sqrt(2.5e-6))

@@ -327,6 +327,75 @@ def test_missing_figure_is_flagged(exp_dir):
     assert "(missing: figures/pareto.png)" in (exp_dir / "report.html").read_text(encoding="utf-8")
 
 
+def test_a_case_composite_shared_by_every_approximation_is_shown_once(tmp_path):
+    """figures.case_comparison points every approximation of a case at one composite PNG and also returns a
+    figure record for it (height-fog, light-cones, …): the page shows that image once, under the case's
+    table, with the record's caption (issue 32: height-fog's report showed each composite 7 times)."""
+    r = _results()
+    case = r["cases"][0]
+    for ap in case["approximations"]:
+        ap["figures"] = ["figures/case.png"]
+    own = {"file": "figures/case.png", "caption": "Composite of case a05.", "section": "results"}
+    r["figures"].append(own)
+    texts = render_report(r)
+    page, md = texts["report.html"], texts["report.md"]
+    assert page.count('src="figures/case.png"') == 1 and md.count("(figures/case.png)") == 1
+    assert "Composite of case a05." in page
+    # The image sits under the case's table, before the next case's heading.
+    assert (
+        page.index('id="table-case-a05-sky0"')
+        < page.index('src="figures/case.png"')
+        < page.index(f'id="case-{r["cases"][1]["id"]}"')
+    )
+    # Two files in one case: each once, labelled with the approximations showing it.
+    case["approximations"][1]["figures"] = ["figures/terminator.png"]
+    page = render_report(r)["report.html"]
+    assert page.count('src="figures/case.png"') == 1 and page.count('src="figures/terminator.png"') == 1
+
+
+def test_wide_tables_scroll_inside_the_column_with_their_caption_outside():
+    """Issue 32: per-case tables 1,800+ px wide in a 944 px column. Every table of the page (metric tables
+    and pipe tables of the markdown) is the only child of a ``div.table-wrap`` that scrolls sideways
+    (``overflow-x: auto``); the caption and notes are outside that box, so they wrap at the column's width."""
+    from html.parser import HTMLParser
+
+    r = _results()
+    many = {f"m{i}": _metric(0.01 * (i + 1), 0.001) for i in range(12)}  # 12 metric columns: wide
+    for ap in r["cases"][0]["approximations"]:
+        ap["metrics"] = {**ap["metrics"], **many}
+    r["sections"][0]["text"] += "\n\n| a | b |\n|---|---|\n| 1 | 2 |\n"
+    page = render_report(r)["report.html"]
+
+    class Tables(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.stack: list[tuple[str, str]] = []
+            self.parents: list[str] = []
+            self.captions_in_wrap = 0
+
+        def handle_starttag(self, tag, attrs):
+            cls = dict(attrs).get("class") or ""
+            if tag == "table":
+                self.parents.append(self.stack[-1][1] if self.stack else "")
+            if cls == "table-caption" and any(c == "table-wrap" for _, c in self.stack):
+                self.captions_in_wrap += 1
+            if tag not in ("br", "img", "meta", "link", "hr", "input"):
+                self.stack.append((tag, cls))
+
+        def handle_endtag(self, tag):
+            while self.stack and self.stack.pop()[0] != tag:
+                pass
+
+    p = Tables()
+    p.feed(page)
+    assert len(p.parents) >= 4 and set(p.parents) == {"table-wrap"}, p.parents
+    assert p.captions_in_wrap == 0 and page.count('class="table-caption"') >= 3
+    assert "<caption>" not in page
+    css = re.search(r"\.table-wrap \{([^}]*)\}", page)
+    assert css is not None and "overflow-x: auto" in css.group(1) and "max-width: 100%" in css.group(1)
+    assert 'id="table-case-a05-sky0"' in page  # the anchors that the contents and links use are kept
+
+
 # ------------------------------------------------------------------------------------------- errors
 def test_nan_in_results_is_an_error_and_nothing_is_written(exp_dir):
     r = _results()

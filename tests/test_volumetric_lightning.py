@@ -286,7 +286,9 @@ def _ss_mpmath(c, u, length, sigma_s, sigma_t, intensity, power=1, rate=1.0):
         sp = sum(ci * ui for ci, ui in zip(c, u, strict=True))
         h = mp.sqrt(max(sum(ci * ci for ci in c) - sp * sp, 0))
         pts = sorted(
-            {mp.mpf(0), mp.mpf(length)} | {sp + m * h for m in (-10, -1, 0, 1, 10) if 0 < sp + m * h < length}
+            {mp.mpf(0), mp.mpf(length)}
+            | {sp + m * h for m in (-10, -1, 0, 1, 10) if 0 < sp + m * h < length}
+            | {mp.mpf(2) ** k / 100 for k in range(24) if 0 < mp.mpf(2) ** k / 100 < length}  # thick media
         )
         return float(sigma_s / (4 * mp.pi) * intensity * mp.quad(f, pts))
 
@@ -325,6 +327,33 @@ def test_single_scattering_quadrature_matches_mpmath(sigma_t):
             np.zeros((5, 3)), dirs * lengths[:, None], light, 0.02 * 3.0 / (4 * math.pi)
         )
         assert _rel(got, closed).max() <= 1e-12
+
+
+@pytest.mark.parametrize(
+    "light, h_rel, sigma_t, length, tol",
+    [
+        ((0.8, 12.0, 0.3), 1e-5, 0.05, 30.0, 1e-12),  # near-axial: the edge of the ≤ 1e-12 domain
+        ((0.8, 12.0, 0.3), 1e-6, 0.05, 30.0, 2e-11),  # beyond it: float64's conditioning of h
+        ((0.8, -12.0, 0.3), None, 10.0, 1e4, 1e-10),  # optically thick (σ_t·S = 1e5), light behind
+        ((0.8, -12.0, 0.3), None, 2.0, 1e3, 1e-12),
+    ],
+)
+def test_single_scattering_quadrature_at_the_edges_of_its_domain(light, h_rel, sigma_t, length, tol):
+    """Issue 32: docs/volumetric-lightning.md's bound held only where tested (h/|c| ≥ 1e-3, σ_t·S ≤ 20): a
+    near-axial ray gave 2e-12, and σ_t = 10/m over 1e4 m with the light behind the camera 1.8e-4 (the whole
+    decay fell inside one or two of the 48 panels; now the pieces break at s₀ + 2, 8, 32 /σ_t). Measured:
+    5.9e-13, 8.2e-12, 2.2e-12 (2.6e-3 before the breaks), 1.8e-15 (2.3e-14 before)."""
+    light = np.array(light)
+    if h_rel is None:
+        u = np.array([0.1, 1.0, 0.05])
+    else:
+        axis = light / np.linalg.norm(light)
+        perp = np.cross(axis, np.array([0.3, -0.2, 0.9]))
+        u = axis + h_rel * perp / np.linalg.norm(perp)
+    u /= np.linalg.norm(u)
+    got = point_single_scattering((0.0, 0.0, 0.0), u[None], np.array([length]), light, 3.0, 0.02, sigma_t)
+    want = _ss_mpmath(light, u, length, 0.02, sigma_t, 3.0)
+    assert abs(got[0] / want - 1) <= tol
 
 
 def test_tiny_experiment_runs_and_passes(tmp_path):
