@@ -88,7 +88,8 @@ def use_variant_backend(variant: str) -> str:
     that follows, and return it: the one place it is set, by the engine's entry points (`run_experiment_into`
     for ``rtfit run`` and ``rtfit sweep``, ``rtfit bench``, ``rtfit audit``), never by a family."""
     backend = backend_of(variant)
-    set_default_backend(backend)
+    if backend in ("llvm", "cuda"):  # a scalar variant has no JIT backend: the kernels keep the default
+        set_default_backend(backend)
     return backend
 
 
