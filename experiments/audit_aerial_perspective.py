@@ -5,7 +5,7 @@ one; in a Mitsuba XML scene or an rtfit TOML scene) and a medium the camera look
 ``homogeneous`` medium, or a ``heterogeneous`` one whose ``sigma_t`` is a ``constvolume`` or a
 ``gridvolume``; an rtfit TOML ``homogeneous`` medium), a renderer draws aerial perspective with the fog blend
 L = L₀·T + C·(1 − T), its colour C taken from the sky (CryEngine 2's horizon average, seed 000:2247-2287,
-002:224-290: docs/aerial-perspective.md). One case per such medium (`rtfit.experiments.audit.RULES`, role
+002:224-290: docs/aerial-perspective.md). One case per such medium (`rtfit.experiments.families.RULES`, role
 "sky through a medium"), ``mediaK-aerial``, on the pixels whose camera ray crosses the medium over a finite
 stretch [t_in, t_out] (`audit_media.medium_intervals`):
 

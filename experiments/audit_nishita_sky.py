@@ -93,7 +93,7 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 
 
 ROLE = "sky"
-"""The applicability role (`rtfit.experiments.audit.RULES`) this module audits: an rtfit sky file's
+"""The applicability role (`rtfit.experiments.families.RULES`) this module audits: an rtfit sky file's
 atmosphere (a Mitsuba sky emitter's role is `rtfit.experiments.audit_sky_emitter`'s)."""
 
 FAMILY = AuditFamily(

@@ -1,7 +1,7 @@
 """`rtfit audit SCENE` and `rtfit.audit(...)`: errors, fits, costs and a report on a user's own scene.
 
 The run (issue 15 §3), for every applicable family that is audited (`AUDITED`; `rtfit audit --list` lists
-the families that apply, `rtfit.experiments.audit.RULES`):
+the families that apply, `rtfit.experiments.families.RULES`):
 
 1. **Inputs checked first.** The scene is inspected (`audit.inspect_scene`: Mitsuba's own parser for XML),
    ``--approx`` resolved (families, shipped methods, user approximations by spec or entry point) and every

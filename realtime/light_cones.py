@@ -254,7 +254,7 @@ QUADRATURE = Method(
     description="The exact row of `rtfit audit`: must sit at the reference's noise where nothing shadows "
     "the medium (not one of `METHODS`: the experiment compares its quadrature on its own).",
 )
-"""The exact row the audit adds to `METHODS` (``rtfit.experiments.audit.FAMILIES``)."""
+"""The exact row the audit adds to `METHODS` in the registry (``experiments.families.METHOD_TABLES``)."""
 
 CHORD_LENGTH = Method(
     "chord-length",
