@@ -34,6 +34,7 @@ and bounds of its fit, e.g. the scene's own fog density) and ``row_inputs`` (row
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -120,6 +121,37 @@ class AuditReference:
     def sigma(self) -> np.ndarray:
         """The standard error combined with the float32 precision floor (as `Reference.sigma`)."""
         return np.sqrt(self.stderr**2 + (RELATIVE_PRECISION_FLOOR * self.mean) ** 2)
+
+    @classmethod
+    def deterministic(
+        cls,
+        mask: np.ndarray,
+        values,
+        key_parts: tuple,
+        seconds: float,
+        quantity: str,
+        integrator: str,
+        integrator_reason: str,
+    ) -> AuditReference:
+        """A reference computed without sampling (Mitsuba's exact first hits, an emitter's closed form): one
+        "pass" rendered now, standard error zero, not cached; ``values`` on the masked pixels as
+        `masked_image` takes them; ``key_parts`` (the scene digest, the part, the settings) make its
+        ``cache_key``, which names the reference in the results."""
+        image = masked_image(mask, values)
+        key = hashlib.sha256(repr(key_parts).encode()).hexdigest()[:16]
+        return cls(
+            mean=image,
+            stderr=np.zeros_like(image),
+            spp=1,
+            passes=1,
+            passes_rendered=1,
+            cache_key=key,
+            cache_path="",
+            seconds=seconds,
+            quantity=quantity,
+            integrator=integrator,
+            integrator_reason=integrator_reason,
+        )
 
 
 def masked_image(mask: np.ndarray, values) -> np.ndarray:

@@ -2,7 +2,7 @@ r"""The ``parallax-occlusion`` family in `rtfit audit`: parallax occlusion mappi
 
 A shape whose BSDF is a ``bumpmap`` of a ``bitmap`` texture (directly or inside a ``twosided``; in a Mitsuba
 XML scene, or in an rtfit TOML scene's ``mitsuba_xml`` shape that keeps its file's BSDFs; the rule's
-``height-field`` part, `rtfit.experiments.audit.RULES`) carries a height field h(u, v): what the bump map
+``height-field`` part, `rtfit.experiments.families.RULES`) carries a height field h(u, v): what the bump map
 differentiates for its normals, an engine marches with parallax occlusion mapping (POM) on the flat shape
 instead of displacing the mesh. One case per such shape:
 
@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
 import math
 import time
 
@@ -70,7 +69,7 @@ from rtfit.reference.parallax_occlusion import (
 )
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, masked_image
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
 
 __all__ = [
     "CELLS_PER_TEXEL",
@@ -254,20 +253,15 @@ def parallax_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     rows = {mid: on_field(m, hm, depth) for mid, m in DEPTH_METHODS.items()}
     mesh_rms = float(np.sqrt(np.mean((ref - ref_half) ** 2)))
     texels = hm.texels
-    key = hashlib.sha256(repr((setup.scene_digest, app.part, depth, fine.cells)).encode()).hexdigest()[:16]
-    reference = AuditReference(
-        mean=masked_image(mask, ref),
-        stderr=masked_image(mask, np.zeros_like(ref)),
-        spp=1,
-        passes=1,
-        passes_rendered=1,
-        cache_key=key,
-        cache_path="",
-        seconds=seconds,
-        quantity="the visible point's depth below the shape, a fraction of the height range (1: h = 0)",
-        integrator="Mitsuba ray_intersect of the pixel-centre rays with the shape displaced by the height "
+    reference = AuditReference.deterministic(
+        mask,
+        ref,
+        (setup.scene_digest, app.part, depth, fine.cells),
+        seconds,
+        "the visible point's depth below the shape, a fraction of the height range (1: h = 0)",
+        "Mitsuba ray_intersect of the pixel-centre rays with the shape displaced by the height "
         f"field ({fine.cells[0]}×{fine.cells[1]} cells; no sampling, not cached)",
-        integrator_reason="first hits are exact: deterministic, noise floor zero; the mesh's own "
+        "first hits are exact: deterministic, noise floor zero; the mesh's own "
         f"(piecewise-linear) error, against a mesh of half the cells: RMS {mesh_rms:.3g}",
     )
     notes = [

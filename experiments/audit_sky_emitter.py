@@ -3,7 +3,7 @@ r"""The ``nishita-sky`` family in `rtfit audit`, role "sky emitter": the Nishita
 A Mitsuba ``sunsky`` emitter (Hosek–Wilkie sky + sun; in a Mitsuba XML scene, or a ``sunsky`` light of an
 rtfit TOML scene as rtfit builds it for Mitsuba) is a sky the user already has; the question the audit answers
 is *which Nishita parameters best match it, and how far the best is from it*. One case, ``sky``,
-per sunsky the scene holds (the rule's ``sky`` part, `rtfit.experiments.audit.RULES`):
+per sunsky the scene holds (the rule's ``sky`` part, `rtfit.experiments.families.RULES`):
 
 * **sky pixels**: the pixels whose pixel-centre camera ray escapes the scene (``~gbuffer.mask``; their view
   directions ``gbuffer.view_dir``), above the sky's horizon (Mitsuba's sunsky is 0 below it and the Nishita
@@ -35,7 +35,6 @@ reference is 0 and the fit drives ``solar_scale`` to its lower bound; every row 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import math
 import time
 
@@ -46,13 +45,13 @@ from rtfit.realtime.methods import Param
 from rtfit.realtime.nishita_sky import AtmosphereParams
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, masked_image
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
 from .sky_rows import SPECTRAL_NOTE, near_sun, nishita_rows
 
 __all__ = ["FAMILY", "ROLE", "SOLAR_SCALE", "emitter_radiance", "sky_emitter_cases", "sky_frame"]
 
 ROLE = "sky emitter"
-"""The applicability role (`rtfit.experiments.audit.RULES`) this module audits."""
+"""The applicability role (`rtfit.experiments.families.RULES`) this module audits."""
 
 SOLAR_SCALE = Param(
     1.0, 1e-6, 1e6, unit="1", description="multiplies the solar irradiance E0 (the sky's intensity)"
@@ -126,19 +125,14 @@ def sky_emitter_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]
     rows["nishita-fitted"] = dataclasses.replace(fitted, params={**fitted.params, "solar_scale": SOLAR_SCALE})
     params = mi.traverse(emitter)
     knobs = {k: float(np.asarray(params[k]).reshape(-1)[0]) for k in ("turbidity", "sky_scale", "sun_scale")}
-    key = hashlib.sha256(repr((setup.scene_digest, app.part, knobs, elev)).encode()).hexdigest()[:16]
-    reference = AuditReference(
-        mean=masked_image(mask, ref),
-        stderr=masked_image(mask, np.zeros_like(ref)),
-        spp=1,
-        passes=1,
-        passes_rendered=1,
-        cache_key=key,
-        cache_path="",
-        seconds=seconds,
-        quantity="the sunsky's sky radiance along the camera's sky pixels (RGB, the emitter's units)",
-        integrator="emitter.eval of the scene's sunsky along each pixel-centre ray (no sampling, not cached)",
-        integrator_reason="the emitter is a closed-form function of direction: deterministic, noise floor "
+    reference = AuditReference.deterministic(
+        mask,
+        ref,
+        (setup.scene_digest, app.part, knobs, elev),
+        seconds,
+        "the sunsky's sky radiance along the camera's sky pixels (RGB, the emitter's units)",
+        "emitter.eval of the scene's sunsky along each pixel-centre ray (no sampling, not cached)",
+        "the emitter is a closed-form function of direction: deterministic, noise floor "
         "zero; what any integrator's render of an escaping camera ray converges to",
     )
     return [
