@@ -56,6 +56,9 @@ __all__ = [
     "AuditSetup",
     "FamilyCase",
     "PooledPasses",
+    "ShippedScene",
+    "Study",
+    "StudyContext",
     "by_name",
     "masked_image",
     "pooled_passes",
@@ -290,6 +293,57 @@ class AuditFamily:
         """True when this declaration audits the applicability role ``role`` on scenes of
         ``scene_format``."""
         return self.reads(role, scene_format) and (self.roles is None or role in self.roles)
+
+
+@dataclass(frozen=True)
+class ShippedScene:
+    """A scene a family ships for ``rtfit run FAMILY`` (issue 30 §1): the engine audits it for this family
+    alone, exactly as ``rtfit audit`` audits a user's scene. ``file``: a Mitsuba XML or rtfit TOML file in
+    rtfit's scene library (``scenes/library/``); ``label``: one line for the report; ``size`` (width,
+    height) and ``spp`` of the full run, ``quick_size`` and ``quick_spp`` of ``--quick``; ``options``: the
+    audit's keyword options for this scene (``ao_distance``, ``grid``, ``probe_at``, ``pom_depth``)."""
+
+    file: str
+    label: str
+    size: tuple[int, int] = (128, 128)
+    spp: int = 1024
+    quick_size: tuple[int, int] = (32, 32)
+    quick_spp: int = 64
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self):
+        if "/" in self.file or not self.file.endswith((".xml", ".toml")):
+            raise ValueError(f"shipped scene {self.file!r}: a .xml or .toml file name in scenes/library/")
+
+
+@dataclass(frozen=True)
+class StudyContext:
+    """What a family's own study (`Study`) is given: the run's ``out_dir`` (figures go under
+    ``out_dir/figures/``), ``quick``, ``variant``, ``seed``, the ``cache_dir`` of reference passes, and
+    ``audits``: the engine's `rtfit.experiments.audit_run.AuditResult` of each shipped scene, in
+    declaration order (the study may read their references and rows; it never re-renders them)."""
+
+    out_dir: Path
+    quick: bool
+    variant: str
+    seed: int
+    cache_dir: Path
+    audits: tuple[Any, ...] = ()
+
+
+@dataclass(frozen=True)
+class Study:
+    """The tables and figures only this family has, added to its ``rtfit run`` report after the engine's:
+    typed records (`rtfit.experiments.records`) — ``sections`` (text and Markdown tables), ``figures``
+    (files under ``figures/``), ``checks`` (its own self-checks: a failed one fails the run), ``notes``,
+    ``headline`` numbers and ``extra`` (plain JSON)."""
+
+    sections: tuple[Any, ...] = ()
+    figures: tuple[Any, ...] = ()
+    checks: tuple[Any, ...] = ()
+    notes: tuple[str, ...] = ()
+    headline: tuple[Any, ...] = ()
+    extra: Mapping[str, Any] = field(default_factory=dict)
 
 
 def _merged(family: list[AuditFamily]) -> AuditFamily:

@@ -22,7 +22,7 @@ entry here beside its realtime module, its experiment or audit module, its tests
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from rtfit.realtime import (
@@ -65,7 +65,7 @@ from . import (
     audit_volumetric_lightning,
 )
 from .audit import Rule
-from .audit_family import AuditFamily, by_name
+from .audit_family import AuditFamily, ShippedScene, Study, StudyContext, by_name
 from .registry import ALIASES, SPP_MAX, ExperimentSpec, UnknownExperiment, apply_overrides
 
 __all__ = [
@@ -82,6 +82,10 @@ __all__ = [
 ]
 
 
+ENGINE = "rtfit.experiments.engine_run"
+"""The experiment module of every family born on the engine: ``rtfit run NAME`` audits its shipped scenes."""
+
+
 @dataclass(frozen=True)
 class Family:
     """One family of the registry (module docstring)."""
@@ -92,6 +96,12 @@ class Family:
     description: str
     methods: Mapping[str, Method] | None = None
     audits: tuple[AuditFamily, ...] = ()
+    scenes: tuple[ShippedScene, ...] = ()
+    """Its shipped scenes, for a family born on the engine (``module`` `ENGINE`): ``rtfit run NAME`` is the
+    audit engine on each of them, for this family alone (`rtfit.experiments.engine_run`)."""
+    study: Callable[[StudyContext], Study] | None = None
+    """Its own study (tables and figures only it has), run after the engine on its shipped scenes: a
+    function of a leaf module that imports no other family."""
 
     def __post_init__(self):
         stray = [a.name for a in self.audits if a.name != self.name]
@@ -99,6 +109,8 @@ class Family:
             raise ValueError(f"family {self.name!r}: declarations of another family ({', '.join(stray)})")
         if self.audits and self.methods is None:
             raise ValueError(f"family {self.name!r}: an audited family needs its method table")
+        if (self.module == ENGINE) != bool(self.scenes) or (self.study and not self.scenes):
+            raise ValueError(f"family {self.name!r}: a family run by the engine ({ENGINE}) ships its scenes")
 
     @property
     def experiment(self) -> ExperimentSpec:
