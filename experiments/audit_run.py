@@ -45,7 +45,6 @@ from rtfit.fitting import (
     compute_metrics,
     concat_z_pairs,
     fit_method,
-    flip_error_map,
     z_checks,
     z_pair,
 )
@@ -61,23 +60,20 @@ from rtfit.reference.variants import resolve_variant, scoped_variant
 from rtfit.scenes import load_scene, scene_hash
 from rtfit.scenes.parse import MAX_LENGTH
 
-from . import figures
 from . import fitted as fitfiles
 from .applicability import applicable_families
 from .atomic import atomic_directory, writable_problem
 from .audit import SURFACE_FREE_KINDS, Applicability, AuditError, SceneInfo, inspect_scene
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_output import write_audit
 from .audit_parallax_occlusion import check_pom_depth
 from .cost import time_drjit
 from .families import AUDITED, METHOD_TABLES, RULES
-from .records import SCHEMA, Results, from_json, plain_json, to_json
+from .records import SCHEMA, Results, from_json, plain_json
 from .registry import ALIASES, LIMITS
-from .report import write_report
-from .results import write_results
 from .runner import created_now, device_description, use_variant_backend, versions
 from .user_methods import UserMethodError, check_approximation
 from .user_sandbox import load_validated
-from .viewer import save_case_pixels
 
 __all__ = [
     "AUDITED",
@@ -329,7 +325,7 @@ class AuditResult:
         directory = Path(directory)
         t0 = time.perf_counter()
         with atomic_directory(directory) as tmp:
-            _write(Path(tmp), self)
+            write_audit(Path(tmp), self)
         self.out = directory
         self.timings["report"] = time.perf_counter() - t0
         return directory
@@ -647,6 +643,7 @@ def audit(
     say=None,
     cost_elements: int = _COST_ELEMENTS,
     metrics: Sequence[str] = ALL_METRICS,
+    tag: tuple[str, str] | None = None,
 ) -> AuditResult:
     """Audit the scene ``scene_or_path`` (a Mitsuba ``.xml`` path; module docstring) and return an
     `AuditResult`; with ``out`` (a directory) also write the report there. ``approximations``: see
@@ -658,7 +655,9 @@ def audit(
     ``metrics``: the metric names (`rtfit.fitting.ALL_METRICS`; ꟻLIP costs ~0.4 s per call on the CPU).
     ``probe_at``: (x, y, z) where the environment-maps family captures its cube maps (default: each shape's
     centre); ``grid``: (nx, ny, nz) probes of the irradiance-volumes grid (default: by the scene's box);
-    ``pom_depth``: the parallax-occlusion height range in texture units (`check_pom_depth`)."""
+    ``pom_depth``: the parallax-occlusion height range in texture units (`check_pom_depth`). ``tag``: (id
+    prefix, label prefix) put before every case's id and label, where one report holds the audits of
+    several scenes (``rtfit run`` of a family born on the engine, `engine_run`)."""
     say = say or log.info
     probe_at = triple("--probe-at", probe_at, float)
     grid = triple("--grid", grid, int)
@@ -772,6 +771,8 @@ def audit(
                 say(f"{a.family}: references for {a.part} ({spp} spp in passes of {pass_spp})")
                 tf = time.perf_counter()
                 cases = [c for c in family.cases(setup, a) if _rows(family, a, sel, c)]
+                if tag is not None:
+                    cases = [replace(c, id=f"{tag[0]}{c.id}", label=f"{tag[1]}{c.label}") for c in cases]
                 spent["reference"] += time.perf_counter() - tf
                 timings["reference"] += time.perf_counter() - tf
                 for case in cases:
@@ -1119,114 +1120,3 @@ def _summary(r: AuditResult, plan) -> str:
             + (f", tied within the noise floor with {', '.join(tied)}" if tied else "")
         )
     return "; ".join(lines) + "."
-
-
-# ------------------------------------------------------------------------------------------------ write
-def _write(directory: Path, r: AuditResult) -> None:
-    figs = _make_figures(directory, r)
-    doc = plain_json(_to_doc(r.results))
-    for f in figs:  # (the figures name their case: placed after the case tables, in case order)
-        f.pop("_case", None)
-    doc["figures"] = figs
-    results = from_json(Results, doc, f"audit of {r.info.source}")
-    r.results = results
-    _write_fitted(directory, r)
-    for case in r.cases:  # the report's image viewer (pixels/CASE.exr + .json, experiments/viewer.py)
-        images = {row: o.image for row, o in r.outcomes[case.id].items()}
-        save_case_pixels(directory, case.id, case.reference.mean, case.reference.sigma(), images, case.mask)
-    write_results(directory, results)
-    write_report(directory)
-
-
-def _to_doc(results: Results) -> dict:
-    return to_json(results)
-
-
-def _make_figures(directory: Path, r: AuditResult) -> list[dict]:
-    out = []
-    for case in r.cases:
-        rows = list(r.outcomes[case.id].values())
-        name = f"figures/{case.id}_images.png"
-        figures.image_comparison(
-            directory / name,
-            case.reference.mean,
-            [(o.label, o.image) for o in rows],
-            case.mask,
-            error_scale=float(np.max(case.reference.mean[case.mask])) or 1.0,
-            title=f"{case.label}: reference, each approximation, signed error (fraction of the peak)",
-        )
-        caption = (
-            f"{case.label}. Top: the reference and each approximation (same exposure). Bottom: signed error "
-            "as a fraction of the reference's peak (red: too bright)."
-        )
-        out.append({"file": name, "section": "results", "_case": case.id, "caption": caption})
-        maps = []
-        for o in rows:
-            try:
-                maps.append((o.label, flip_error_map(o.image, case.reference.mean, case.mask)))
-            except ValueError:
-                break
-        if maps:
-            name = f"figures/{case.id}_flip.png"
-            _flip_figure(directory / name, maps, case.mask, case.label)
-            out.append({"file": name, "section": "results", "_case": case.id,
-                        "caption": f"{case.label}: HDR-ꟻLIP error map of each approximation (0: no visible "
-                        "difference, 1: largest)."})  # fmt: skip
-    return out
-
-
-def _flip_figure(path: Path, maps, mask, title: str) -> None:
-    plt = figures.pyplot()
-    n = len(maps)
-    fig, axes = plt.subplots(1, n, figsize=(2.3 * n, 2.6), squeeze=False)
-    im = None
-    for ax, (label, m) in zip(axes[0], maps, strict=True):
-        im = ax.imshow(np.where(mask, m, np.nan), cmap="magma", vmin=0.0, vmax=1.0)
-        ax.set_title(f"{label}\nmean {float(np.mean(m[mask])):.3g}", fontsize=8)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    if im is not None:
-        fig.colorbar(im, ax=list(axes[0]), shrink=0.8)
-    fig.suptitle(f"{title}: ꟻLIP", fontsize=10)
-    figures.save_figure(fig, path)
-
-
-def _write_fitted(directory: Path, r: AuditResult) -> None:
-    entries = []
-    for case in r.cases:
-        for o in r.outcomes[case.id].values():
-            if not o.fit:
-                continue
-            dom = {}
-            for name in o.method.input_names:
-                v = case.channel_inputs[0].get(name)
-                if v is not None and np.ndim(v):
-                    a = np.asarray(v, np.float64)
-                    a = a[np.isfinite(a)]
-                    if a.size:
-                        dom[name] = (float(a.min()), float(a.max()))
-            entries.append(
-                fitfiles.method_entry(
-                    o.method,
-                    o.fit,
-                    label=f"{o.method.label}, {case.label}",
-                    case=re.sub(r"[^A-Za-z0-9_]", "_", case.id),
-                    domain=dom,
-                    residual_units=f"{case.units}: residual = method − reference per pixel and channel",
-                    data={"scene": r.info.source, "case": case.id},
-                )
-            )
-    if not entries:
-        return
-    prov = fitfiles.provenance(None, "audit", [r.info.xml.dependencies.digest] if r.info.xml else [],
-                               reference_spp=max(c.reference.spp for c in r.cases),
-                               variant=r.results.config.variant, quick=False)  # fmt: skip
-    fitfiles.write_fitted(
-        directory / "fitted" / "audit.json",
-        fitfiles.FittedFile(
-            format=fitfiles.FORMAT,
-            title=f"parameters fitted to {Path(r.info.source).name} by rtfit audit",
-            provenance=prov,
-            methods=entries,
-        ),
-    )

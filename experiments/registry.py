@@ -27,7 +27,6 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 log = logging.getLogger("rtfit.experiments")
@@ -40,8 +39,12 @@ class ExperimentSpec:
     title: str
     description: str
 
-    def load(self) -> ModuleType:
-        return importlib.import_module(self.module)
+    def load(self) -> Any:
+        """Its experiment: the module, or for a family born on the engine (a module with ``experiment``,
+        `rtfit.experiments.engine_run`) the experiment that module makes for this family."""
+        module = importlib.import_module(self.module)
+        make = getattr(module, "experiment", None)
+        return make(self.name) if callable(make) else module
 
     @property
     def config(self) -> dict[str, ConfigKey] | None:

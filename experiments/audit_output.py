@@ -1,0 +1,147 @@
+"""The files of an audit (`audit_run.audit`, and ``rtfit run`` of a family born on the engine,
+`engine_run`): per-case figures, the viewer's pixels, ``fitted/audit.json``, results.json and the report."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rtfit.fitting import flip_error_map
+
+from . import figures
+from . import fitted as fitfiles
+from .records import Results, from_json, plain_json, to_json
+from .report import write_report
+from .results import write_results
+from .viewer import save_case_pixels
+
+AuditResult = Any
+"""An `audit_run.AuditResult` (not imported: audit_run imports this module)."""
+
+__all__ = ["case_figures", "fitted_entries", "save_pixels", "write_audit"]
+
+
+def write_audit(directory: Path, r: AuditResult) -> None:
+    """Write an audit into ``directory``: figures, results.json (with the figures), fitted/audit.json, the
+    viewer's pixels and the report."""
+    figs = case_figures(directory, r)
+    doc = plain_json(to_json(r.results))
+    assert isinstance(doc, dict)
+    for f in figs:  # (the figures name their case: placed after the case tables, in case order)
+        f.pop("_case", None)
+    doc["figures"] = figs
+    results = from_json(Results, doc, f"audit of {r.info.source}")
+    r.results = results
+    _write_fitted(directory, r)
+    save_pixels(directory, r)
+    write_results(directory, results)
+    write_report(directory)
+
+
+def save_pixels(directory: Path, r: AuditResult) -> None:
+    """The report's image viewer data of every case (pixels/CASE.exr + .json, `viewer.save_case_pixels`)."""
+    for case in r.cases:
+        images = {row: o.image for row, o in r.outcomes[case.id].items()}
+        save_case_pixels(directory, case.id, case.reference.mean, case.reference.sigma(), images, case.mask)
+
+
+def case_figures(directory: Path, r: AuditResult) -> list[dict]:
+    """Per case: the reference beside each row with its signed error, and each row's ꟻLIP map, written under
+    ``directory/figures/``; the figure entries of results.json, each with ``_case`` (its case id)."""
+    out = []
+    for case in r.cases:
+        rows = list(r.outcomes[case.id].values())
+        name = f"figures/{case.id}_images.png"
+        figures.image_comparison(
+            directory / name,
+            case.reference.mean,
+            [(o.label, o.image) for o in rows],
+            case.mask,
+            error_scale=float(np.max(case.reference.mean[case.mask])) or 1.0,
+            title=f"{case.label}: reference, each approximation, signed error (fraction of the peak)",
+        )
+        caption = (
+            f"{case.label}. Top: the reference and each approximation (same exposure). Bottom: signed error "
+            "as a fraction of the reference's peak (red: too bright)."
+        )
+        out.append({"file": name, "section": "results", "_case": case.id, "caption": caption})
+        maps = []
+        for o in rows:
+            try:
+                maps.append((o.label, flip_error_map(o.image, case.reference.mean, case.mask)))
+            except ValueError:
+                break
+        if maps:
+            name = f"figures/{case.id}_flip.png"
+            _flip_figure(directory / name, maps, case.mask, case.label)
+            out.append({"file": name, "section": "results", "_case": case.id,
+                        "caption": f"{case.label}: HDR-ꟻLIP error map of each approximation (0: no visible "
+                        "difference, 1: largest)."})  # fmt: skip
+    return out
+
+
+def _flip_figure(path: Path, maps, mask, title: str) -> None:
+    plt = figures.pyplot()
+    n = len(maps)
+    fig, axes = plt.subplots(1, n, figsize=(2.3 * n, 2.6), squeeze=False)
+    im = None
+    for ax, (label, m) in zip(axes[0], maps, strict=True):
+        im = ax.imshow(np.where(mask, m, np.nan), cmap="magma", vmin=0.0, vmax=1.0)
+        ax.set_title(f"{label}\nmean {float(np.mean(m[mask])):.3g}", fontsize=8)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if im is not None:
+        fig.colorbar(im, ax=list(axes[0]), shrink=0.8)
+    fig.suptitle(f"{title}: ꟻLIP", fontsize=10)
+    figures.save_figure(fig, path)
+
+
+def fitted_entries(r: AuditResult) -> list:
+    """One `fitted.method_entry` per fitted row of every case (kernel text, values with their uncertainties,
+    the inputs' domain on this scene)."""
+    entries = []
+    for case in r.cases:
+        for o in r.outcomes[case.id].values():
+            if not o.fit:
+                continue
+            dom = {}
+            for name in o.method.input_names:
+                v = case.channel_inputs[0].get(name)
+                if v is not None and np.ndim(v):
+                    a = np.asarray(v, np.float64)
+                    a = a[np.isfinite(a)]
+                    if a.size:
+                        dom[name] = (float(a.min()), float(a.max()))
+            entries.append(
+                fitfiles.method_entry(
+                    o.method,
+                    o.fit,
+                    label=f"{o.method.label}, {case.label}",
+                    case=re.sub(r"[^A-Za-z0-9_]", "_", case.id),
+                    domain=dom,
+                    residual_units=f"{case.units}: residual = method − reference per pixel and channel",
+                    data={"scene": r.info.source, "case": case.id},
+                )
+            )
+    return entries
+
+
+def _write_fitted(directory: Path, r: AuditResult) -> None:
+    entries = fitted_entries(r)
+    if not entries:
+        return
+    prov = fitfiles.provenance(None, "audit", [r.info.xml.dependencies.digest] if r.info.xml else [],
+                               reference_spp=max(c.reference.spp for c in r.cases),
+                               variant=r.results.config.variant, quick=False)  # fmt: skip
+    fitfiles.write_fitted(
+        directory / "fitted" / "audit.json",
+        fitfiles.FittedFile(
+            format=fitfiles.FORMAT,
+            title=f"parameters fitted to {Path(r.info.source).name} by rtfit audit",
+            provenance=prov,
+            methods=entries,
+        ),
+    )

@@ -1,0 +1,224 @@
+"""``rtfit run FAMILY`` for a family born on the engine (issue 30 §1): the audit engine on its shipped scenes.
+
+A family declared in the registry with ``module = ENGINE`` (`rtfit.experiments.families`) has no experiment
+module of its own. Its run is the same engine that audits a user's scene (`audit_run.audit`), run on each of
+the family's shipped scenes (`audit_family.ShippedScene`, files of ``scenes/library/``) for that family alone,
+then its own study if it declares one (`audit_family.Study`):
+
+1. **Each shipped scene audited** at its own size and samples (``--quick``: its quick size and samples;
+   ``resolution``/``spp`` override both), through the pass cache of the run: references with their noise,
+   every method evaluated, its cost measured, its free parameters fitted through the one kernel text, metrics
+   beside the noise floor and the engine's z-checks of the exact rows. Case ids and labels carry the scene
+   (``<scene stem>-<case id>``, ``<scene label>: <case label>``).
+2. **One report** of every scene: the cases, fits, costs (the first scene's cost of each method: each is
+   timed on that scene's own inputs), checks (each named with its scene), figures (reference, rows, signed
+   error, ꟻLIP per case), the viewer's pixels and ``fitted/<family>.json`` with every fitted row of every
+   scene — the results schema, report and viewer of every run.
+3. **The study** (`Family.study`): a leaf module's function given the audits (`audit_family.StudyContext`)
+   adds its own sections, figures, checks, notes and headline numbers; a failed check fails the run like the
+   engine's.
+
+`experiment(name)` is what `registry.ExperimentSpec.load` returns for such a family: an object with the
+``configure``, ``CONFIG``, ``run`` and ``bench`` of an experiment module (`registry`). ``rtfit bench FAMILY``
+times every method of the family on inputs drawn over their declared domains (`bench`).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rtfit.realtime.arrays import backend_float
+from rtfit.scenes.parse import LIBRARY_DIR
+
+from . import fitted as fitfiles
+from .audit_family import ShippedScene, StudyContext
+from .audit_output import case_figures, fitted_entries, save_pixels
+from .audit_run import audit
+from .cost import bench_backend, method_bench_rows
+from .families import FAMILIES, Family
+from .records import to_json
+from .registry import SPP_MAX, ConfigKey, RunContext, checked
+
+__all__ = ["EngineExperiment", "experiment"]
+
+
+def _scene_id(scene: ShippedScene) -> str:
+    return re.sub(r"[^A-Za-z0-9_]", "_", Path(scene.file).stem)
+
+
+def _check_scene_file(name: str) -> str | None:
+    return None if (LIBRARY_DIR / name).is_file() else f"no scene {name!r} in {LIBRARY_DIR}"
+
+
+@dataclass(frozen=True)
+class EngineExperiment:
+    """The experiment of one family born on the engine (module docstring)."""
+
+    family: Family
+
+    @property
+    def CONFIG(self) -> dict[str, ConfigKey]:
+        files = tuple(s.file for s in self.family.scenes)
+        return {
+            "scenes": ConfigKey(
+                "str", "the shipped scenes audited (scenes/library/)", shape=(None,), choices=files,
+                check=_check_scene_file,
+            ),
+            "spp": ConfigKey("int", "reference samples per pixel (none: each scene's own)", lo=2, hi=SPP_MAX,
+                             optional=True),
+            "resolution": ConfigKey("int", "image width in pixels, the height by the scene's aspect (none: "
+                                    "each scene's own size)", lo=4, hi=4096, optional=True),
+            "fit": ConfigKey("bool", "fit every method's free parameters to each scene"),
+        }  # fmt: skip
+
+    def configure(self, quick: bool, spp: int | None) -> dict:
+        return checked(
+            self.CONFIG,
+            {"scenes": [s.file for s in self.family.scenes], "spp": spp, "resolution": None, "fit": True},
+        )
+
+    # ------------------------------------------------------------------------------------------------ run
+    def run(self, ctx: RunContext) -> dict:
+        cfg = ctx.configured(self.configure(ctx.quick, ctx.spp))
+        shipped = {s.file: s for s in self.family.scenes}
+        audits, tags = [], []
+        t0 = time.perf_counter()
+        for file in cfg["scenes"]:
+            scene = shipped[file]
+            width, height = scene.quick_size if ctx.quick else scene.size
+            if cfg["resolution"] is not None:
+                width, height = cfg["resolution"], max(1, round(cfg["resolution"] * height / width))
+            spp = cfg["spp"] or (scene.quick_spp if ctx.quick else scene.spp)
+            ctx.log(f"{self.family.name}: auditing {file} ({width}×{height}, {spp} spp)")
+            tag = (f"{_scene_id(scene)}-", f"{scene.label}: ")
+            audits.append(
+                audit(
+                    LIBRARY_DIR / file,
+                    [self.family.name],
+                    spp=spp,
+                    variant=ctx.variant,
+                    fit=cfg["fit"],
+                    width=width,
+                    height=height,
+                    seed=ctx.seed,
+                    cache=ctx.cache_dir,
+                    progress=ctx.progress,
+                    say=ctx.log,
+                    tag=tag,
+                    **dict(scene.options),
+                )
+            )
+            tags.append((scene, tag))
+        engine_seconds = time.perf_counter() - t0
+        body = self._merged(ctx, audits, tags, cfg)
+        body["config"]["extra"]["engine_seconds"] = round(engine_seconds, 3)
+        if self.family.study is not None:
+            ctx.log(f"{self.family.name}: study")
+            study = self.family.study(
+                StudyContext(ctx.out_dir, ctx.quick, ctx.variant, ctx.seed, ctx.cache_dir, tuple(audits))
+            )
+            for key in ("sections", "figures", "checks", "notes", "headline"):
+                body[key] += [to_json(x) if not isinstance(x, str) else x for x in getattr(study, key)]
+            body["extra"] = {**body.get("extra", {}), **dict(study.extra)}
+        return body
+
+    def _merged(self, ctx: RunContext, audits: list, tags: list, cfg: Mapping) -> dict:
+        """One results body (`registry`: without the runner's header) from the audits of every scene, their
+        figures, viewer pixels and fitted parameters written under ``ctx.out_dir``."""
+        out = Path(ctx.out_dir)
+        cases, fits, checks, notes, figs, costs, sections, summary = [], [], [], [], [], {}, [], []
+        entries = []
+        scene_lines = []
+        for r, (scene, _tag) in zip(audits, tags, strict=True):
+            doc: Any = to_json(r.results)
+            cases += doc["cases"]
+            fits += [{**f, "file": f"fitted/{self.family.name}.json"} for f in doc["fits"]]
+            checks += [{**c, "name": f"{scene.label}: {c['name']}"} for c in doc["checks"]]
+            notes += [f"{scene.label}: {n}" for n in doc["notes"]]
+            for c in doc["costs"]:
+                costs.setdefault(c["method"], {**c, "note": f"{c.get('note') or ''} ({scene.label})".strip()})
+            for f in case_figures(out, r):
+                f.pop("_case", None)
+                figs.append(f)
+            save_pixels(out, r)
+            entries += fitted_entries(r)
+            summary.append(doc["summary"])
+            spp = max((c.reference.spp for c in r.cases), default=0)
+            scene_lines.append(f"- `{scene.file}` — {scene.label} ({len(r.cases)} cases, {spp} spp)")
+            if not sections:
+                sections = [s for s in doc["sections"] if s["id"] != "scene"]
+        if entries:
+            self._write_fitted(out, entries, audits, ctx)
+        intro = {
+            "id": "scenes",
+            "title": "Shipped scenes",
+            "text": f"`rtfit run {self.family.name}` is the audit engine (`rtfit audit`) on the family's own "
+            "scenes, each audited for this family alone:\n\n" + "\n".join(scene_lines),
+            "placement": "before_results",
+        }
+        return {
+            "summary": " ".join(summary),
+            "config": {
+                "spp": cfg["spp"],
+                "extra": {"scenes": list(cfg["scenes"]), "resolution": cfg["resolution"], "fit": cfg["fit"]},
+            },
+            "sections": [intro, *sections],
+            "cases": cases,
+            "fits": fits,
+            "figures": figs,
+            "costs": list(costs.values()),
+            "checks": checks,
+            "notes": notes,
+            "headline": [],
+        }
+
+    def _write_fitted(self, out: Path, entries: list, audits: list, ctx: RunContext) -> None:
+        digests = [r.info.xml.dependencies.digest for r in audits if r.info.xml is not None]
+        spp = max((c.reference.spp for r in audits for c in r.cases), default=0)
+        prov = fitfiles.provenance(
+            None, self.family.name, digests, reference_spp=spp, variant=ctx.variant, quick=ctx.quick
+        )
+        fitfiles.write_fitted(
+            out / "fitted" / f"{self.family.name}.json",
+            fitfiles.FittedFile(
+                format=fitfiles.FORMAT,
+                title=f"{self.family.name}: parameters fitted to its shipped scenes by the audit engine",
+                provenance=prov,
+                methods=entries,
+            ),
+        )
+
+    # ---------------------------------------------------------------------------------------------- bench
+    def bench(self, ctx) -> list[dict]:
+        """Every method with only declared-domain inputs (a table or sampler input is left out): Dr.Jit vs
+        NumPy of the same kernel text on ``size`` elements drawn uniformly over each input's domain (a
+        fixed seed), at its declared parameters, against the memory floor of its inputs."""
+        backend, n = bench_backend(ctx)
+        Float = backend_float(backend)
+        rng = np.random.default_rng(1)
+        methods = {
+            k: m
+            for k, m in (self.family.methods or {}).items()
+            if all(i.domain is not None for i in m.inputs) and not m.fixed
+        }
+        names = dict.fromkeys(i.name for m in methods.values() for i in m.inputs)
+        domain = {i.name: i.domain for m in methods.values() for i in m.inputs}
+        np_inputs: dict[str, Any] = {}
+        for name in names:
+            lo, hi = domain[name]  # type: ignore[misc]
+            np_inputs[name] = rng.uniform(lo, hi, n).astype(np.float32)
+        inputs = {k: Float(v) for k, v in np_inputs.items()}
+        base = f"memory baseline (fma of the {len(inputs)} inputs)"
+        return method_bench_rows(methods, backend, inputs, np_inputs, n, baseline=base)
+
+
+def experiment(name: str) -> EngineExperiment:
+    """The experiment of the family ``name`` (a family of the registry run by the engine)."""
+    return EngineExperiment(FAMILIES[name])

@@ -1,0 +1,124 @@
+"""``rtfit run FAMILY`` of a family born on the engine (issue 30 §1, `rtfit.experiments.engine_run`).
+
+A planted family — the diffuse audit declaration, shipping rtfit's ``sphere_light.toml`` — is run as
+``rtfit run`` runs it: the engine audits its shipped scene, and the results document, report, viewer pixels
+and ``fitted/<family>.json`` are those of every run. Expected values are independent: the exact row of the
+unshadowed case against the reference within its noise (the engine's z-check, which a planted reference bias
+makes fail), and a planted study's check failing the run."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from rtfit.experiments import audit_diffuse, engine_run
+from rtfit.experiments.audit_family import ShippedScene, Study
+from rtfit.experiments.families import ENGINE, FAMILIES, Family
+from rtfit.experiments.records import Check, Section
+from rtfit.experiments.registry import ExperimentSpec
+from rtfit.experiments.results import load_results
+from rtfit.experiments.runner import failed_checks, run_experiments
+from rtfit.realtime import diffuse
+
+SCENE = ShippedScene("sphere_light.toml", "sphere light", quick_size=(16, 16), quick_spp=8)
+
+
+def _planted(monkeypatch, study=None) -> ExperimentSpec:
+    fam = Family(
+        "diffuse",
+        ENGINE,
+        "planted",
+        "the diffuse audit as a family born on the engine",
+        methods=diffuse.METHODS,
+        audits=(audit_diffuse.FAMILY,),
+        scenes=(SCENE,),
+        study=study,
+    )
+    monkeypatch.setattr(engine_run, "FAMILIES", {**FAMILIES, "diffuse": fam})
+    return ExperimentSpec("diffuse", ENGINE, "planted", "d")
+
+
+def _run(spec, tmp_path):
+    out = tmp_path / "out"
+    run_experiments(
+        [spec], out, quick=True, variant="llvm_ad_rgb", spp=None, seed=0, cache_dir=tmp_path / "cache",
+        executor="inline", workers=None, progress=False,
+    )  # fmt: skip
+    return out / "diffuse"
+
+
+def test_the_engine_runs_a_family_on_its_shipped_scene(tmp_path, monkeypatch):
+    seen = []
+
+    def study(ctx):
+        seen.append(ctx)
+        rows = ctx.audits[0].outcomes["sphere_light-light0-unshadowed"]
+        return Study(
+            sections=(Section(id="study", title="Its own study", text=f"{len(rows)} rows"),),
+            checks=(Check(name="study ran", value=len(rows), expected="> 0", passed=len(rows) > 0),),
+            extra={"rows": len(rows)},
+        )
+
+    spec = _planted(monkeypatch, study)
+    assert isinstance(spec.load(), engine_run.EngineExperiment)
+    d = _run(spec, tmp_path)
+    doc = json.loads((d / "results.json").read_text())
+    ids = [c["id"] for c in doc["cases"]]
+    assert ids == ["sphere_light-light0-unshadowed", "sphere_light-light0-shadowed"]
+    assert all(c["label"].startswith("sphere light: ") for c in doc["cases"])
+    assert doc["config"]["extra"]["scenes"] == ["sphere_light.toml"] and doc["config"]["quick"] is True
+    assert doc["cases"][0]["reference"]["spp"] == 8
+    # the engine's z-check of the exact row (closed form vs path-traced reference) and the study's check
+    names = [c["name"] for c in doc["checks"]]
+    assert any(n.startswith("sphere light: exact vs the reference") for n in names), names
+    assert "study ran" in names and not failed_checks(json_results(d))
+    assert [s["id"] for s in doc["sections"]][:2] == ["scenes", "method-diffuse"]
+    assert doc["sections"][-1]["id"] == "study" and doc["extra"] == {"rows": 9}
+    fitted = json.loads((d / "fitted" / "diffuse.json").read_text())
+    assert {m["case"] for m in fitted["methods"]} >= {"sphere_light_light0_unshadowed"}
+    assert all(f["file"] == "fitted/diffuse.json" for f in doc["fits"]) and doc["fits"]
+    assert all((d / f["file"]).is_file() for f in doc["figures"])
+    assert (d / "pixels").is_dir() and (d / "report.html").is_file()
+    assert seen[0].quick and seen[0].out_dir.name != "diffuse"  # (the atomic directory being written)
+
+
+def json_results(d):
+    return load_results(d)
+
+
+def test_a_failed_study_check_fails_the_run(tmp_path, monkeypatch):
+    spec = _planted(monkeypatch, lambda ctx: Study(checks=(Check(name="planted", value=1.0, passed=False),)))
+    d = _run(spec, tmp_path)
+    assert [c.name for c in failed_checks(json_results(d))] == ["planted"]
+
+
+def test_configuration_is_declared_and_checked(monkeypatch):
+    spec = _planted(monkeypatch)
+    exp = spec.load()
+    cfg = exp.configure(True, None)
+    assert cfg == {"scenes": ["sphere_light.toml"], "spp": None, "resolution": None, "fit": True}
+    assert exp.configure(False, 64)["spp"] == 64
+    from rtfit.experiments.registry import apply_overrides
+
+    with pytest.raises(ValueError, match="expected one of sphere_light.toml"):
+        apply_overrides(cfg, {"scenes": ["other.xml"]}, "diffuse", declared=exp.CONFIG)
+    with pytest.raises(ValueError, match=r"out of range \[2, "):
+        apply_overrides(cfg, {"spp": 1}, "diffuse", declared=exp.CONFIG)
+
+
+def test_a_family_run_by_the_engine_ships_scenes():
+    with pytest.raises(ValueError, match="ships its scenes"):
+        Family("x", ENGINE, "t", "d")
+    with pytest.raises(ValueError, match="a .xml or .toml file name"):
+        ShippedScene("../x.xml", "x")
+
+
+def test_bench_times_every_method_with_declared_domains(monkeypatch):
+    from rtfit.experiments.registry import BenchContext
+
+    spec = _planted(monkeypatch)
+    rows = spec.load().bench(BenchContext(variant="llvm_ad_rgb", size=1 << 12, quick=True))
+    whats = [r["what"] for r in rows]
+    assert whats[-1].startswith("memory baseline") and len(whats) >= 3
+    assert all(r["ns_per_px"] > 0 for r in rows)
