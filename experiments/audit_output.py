@@ -76,27 +76,11 @@ def case_figures(directory: Path, r: AuditResult) -> list[dict]:
                 break
         if maps:
             name = f"figures/{case.id}_flip.png"
-            _flip_figure(directory / name, maps, case.mask, case.label)
+            figures.flip_maps_figure(directory / name, maps, case.mask, f"{case.label}: ꟻLIP")
             out.append({"file": name, "section": "results", "_case": case.id,
                         "caption": f"{case.label}: HDR-ꟻLIP error map of each approximation (0: no visible "
                         "difference, 1: largest)."})  # fmt: skip
     return out
-
-
-def _flip_figure(path: Path, maps, mask, title: str) -> None:
-    plt = figures.pyplot()
-    n = len(maps)
-    fig, axes = plt.subplots(1, n, figsize=(2.3 * n, 2.6), squeeze=False)
-    im = None
-    for ax, (label, m) in zip(axes[0], maps, strict=True):
-        im = ax.imshow(np.where(mask, m, np.nan), cmap="magma", vmin=0.0, vmax=1.0)
-        ax.set_title(f"{label}\nmean {float(np.mean(m[mask])):.3g}", fontsize=8)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    if im is not None:
-        fig.colorbar(im, ax=list(axes[0]), shrink=0.8)
-    fig.suptitle(f"{title}: ꟻLIP", fontsize=10)
-    figures.save_figure(fig, path)
 
 
 def fitted_entries(r: AuditResult) -> list:

@@ -45,6 +45,7 @@ from rtfit.fitting import (
     compute_metrics,
     concat_z_pairs,
     fit_method,
+    prime_flip,
     z_checks,
     z_pair,
 )
@@ -889,8 +890,9 @@ class _CaseRun:
                 bad = _bad_values(method, img, case)
                 if bad:
                     raise AuditError(bad)
-                m = self.metrics_of(img, case, sigma, row_id)
-                rows[row_id] = MethodOutcome(case.id, row_id, method, method.label, img, m, given, user=user)
+                rows[row_id] = MethodOutcome(
+                    case.id, row_id, method, method.label, img, None, given, user=user
+                )
             if method.id not in self.costs and row_id in case.uncosted:
                 self.costs[method.id] = {
                     "label": method.label, "ns_per_pixel": None, "pixels_per_second": None,
@@ -907,20 +909,29 @@ class _CaseRun:
                 result = _fit(method, case, row_id)
                 values = {k: v["value"] for k, v in result["parameters"].items()}
                 img_f = _evaluate(method, case, values)
-                metrics_f = self.metrics_of(img_f, case, sigma, f"{row_id}-fitted")
                 rows[f"{row_id}-fitted"] = MethodOutcome(
                     case.id,
                     f"{row_id}-fitted",
                     method,
                     f"{method.label} (fitted to this scene)",
                     img_f,
-                    metrics_f,
+                    None,
                     values,
                     fit=result,
                     user=user,
                 )
                 self.timings["fit"] += time.perf_counter() - t2
                 spent["fit"] += time.perf_counter() - t2
+        # Every row's metrics beside the noise floor, once all are evaluated: their ꟻLIP maps (and the
+        # floor's) in one tiled call (`prime_flip`: the same maps, ~0.1 s a call saved per row on a CPU).
+        t3 = time.perf_counter()
+        if "flip" in self.metrics:
+            images = [o.image for o in rows.values()]
+            prime_flip(images, base.reference.mean, sigma, base.mask, seed=self.seed)
+        for row_id, o in rows.items():
+            o.metrics = self.metrics_of(o.image, base, sigma, row_id)
+        self.timings["evaluation"] += time.perf_counter() - t3
+        spent["evaluation"] += time.perf_counter() - t3
         return rows
 
 

@@ -378,3 +378,37 @@ def test_noise_floors_are_computed_once_per_reference_and_never_stale(monkeypatc
     for k in ("ssim", "flip", "max_abs"):
         assert moved[k].noise_floor == fresh[k].noise_floor != first[k].noise_floor
         assert moved[k].value == fresh[k].value
+
+
+def test_prime_flip_gives_the_maps_and_values_of_separate_calls():
+    """`prime_flip` computes a reference's ꟻLIP maps side by side in one call; each must equal ꟻLIP of its
+    pair alone (flip_evaluator called directly, independently of the memo), and `compute_metrics` after it
+    the same flip value and floor as without it."""
+    import flip_evaluator
+
+    from rtfit.fitting import metrics as M
+
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(0.05, 2.0, (40, 48, 3))
+    sd = 0.02 * ref
+    mask = np.ones((40, 48), bool)
+    mask[:5] = False
+    approxes = [ref * (1 + 0.2 * rng.standard_normal(ref.shape)).clip(0.1) for _ in range(5)]
+    M._map_memo.clear()
+    M._floor_memo.clear()
+    alone = [compute_metrics(a, ref, sd, mask, names=("flip",))["flip"] for a in approxes]
+    M._map_memo.clear()
+    M._floor_memo.clear()
+    assert M.prime_flip(approxes, ref, sd, mask) == 5 + 4  # each approximation's map and 4 floor draws
+    primed = [compute_metrics(a, ref, sd, mask, names=("flip",))["flip"] for a in approxes]
+    assert [(p.value, p.noise_floor) for p in primed] == [(a.value, a.noise_floor) for a in alone]
+    params = M._flip_exposures(ref, mask)
+    peak = float(ref[mask].max())
+    r32 = M._flip_input(ref, "", peak, False)
+    for a in approxes[:2]:
+        direct, _, _ = flip_evaluator.evaluate(
+            r32, M._flip_input(a, "", peak, False), "HDR", applyMagma=False, computeMeanError=False,
+            parameters=dict(params),
+        )  # fmt: skip
+        assert np.array_equal(np.asarray(direct, np.float64).reshape(40, 48), M.flip_error_map(a, ref, mask))
+    assert M.prime_flip(approxes, ref, sd, mask) == 0  # all known now
