@@ -66,9 +66,8 @@ from __future__ import annotations
 from .arrays import check_range, clamp01, evaluate, safe_div, safe_sqrt
 from .methods import Input, Method, Param, method_table
 
-__all__ = [
-    "INPUTS",
-    "METHODS",
+__all__ = [  # METHODS and INPUTS stay out: every family has its own (not re-exported by rtfit.realtime)
+    "F82_COS",
     "conductor_fresnel",
     "dielectric_fresnel",
     "f0_from_ior",

@@ -293,3 +293,32 @@ def test_list_names_fresnel_with_its_reason():
     assert len(lines) == 3
     assert all("Fresnel approximation (Schlick)" in ln for ln in lines)
     assert any("gold" in ln for ln in lines) and any("copper" in ln for ln in lines)
+
+
+def test_plastic_rough_glass_and_thin_glass(tmp_path):
+    """A plastic's coating and a rough dielectric are audited through Mitsuba's ``fresnel`` on their own η
+    (each pixel at mpmath's Fresnel within 2e-6); a thin dielectric (two interfaces) gives no case."""
+    spheres = "".join(
+        f'<shape type="sphere"><point name="center" x="{x}" y="0" z="0"/><float name="radius" value="0.9"/>'
+        f"{bsdf}</shape>"
+        for x, bsdf in (
+            (-2.0, '<bsdf type="plastic"/>'),
+            (0.0, '<bsdf type="roughdielectric"><float name="alpha" value="0.3"/></bsdf>'),
+            (2.0, '<bsdf type="thindielectric"/>'),
+        )
+    )
+    xml = tmp_path / "coated.xml"
+    xml.write_text(f"""<scene version="3.0.0">
+    <sensor type="perspective"><float name="fov" value="60"/>
+        <transform name="to_world"><lookat origin="0, -6, 0" target="0, 0, 0" up="0, 0, 1"/></transform>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
+    </sensor>
+    <emitter type="constant"/>{spheres}
+</scene>""")
+    r = _audit(tmp_path, xml)
+    assert sorted(c.parameters["bsdf"] for c in r.cases) == ["plastic", "roughdielectric"]
+    for case in r.cases:
+        assert case.parameters["reference"] == "fresnel formula"
+        inp = case.channel_inputs[0]
+        want = [fresnel_mp(c, e, 0.0) for c, e in zip(inp["cos_theta"], inp["eta"], strict=True)]
+        assert np.max(np.abs(case.reference.mean[case.mask][:, 0] - want)) < 2e-6, case.id
