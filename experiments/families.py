@@ -29,6 +29,7 @@ from rtfit.realtime import (
     ambient_aperture,
     diffuse,
     environment_bases,
+    fresnel,
     height_fog,
     irradiance_volumes,
     nishita_sky,
@@ -52,6 +53,7 @@ from . import (
     audit_diffuse,
     audit_environment_maps,
     audit_fog_media,
+    audit_fresnel,
     audit_height_fog,
     audit_irradiance_bases,
     audit_irradiance_volumes,
@@ -247,6 +249,17 @@ FAMILIES: dict[str, Family] = {
             "path-traced interreflections under a uniform ambient, on the sdf-occlusion scenes.",
             methods=obscurances.METHODS,
             audits=(audit_obscurances.FAMILY,),
+        ),
+        Family(
+            "fresnel",
+            ENGINE,
+            "Fresnel reflectance: Schlick, its fitted exponent, the seeds' forms and F82 vs exact Fresnel",
+            "The reflectance of every visible conductor and dielectric at its viewing angle, from Mitsuba's "
+            "own BSDF, against Schlick (F0 from the IOR, fitted exponent), the seeds' slider, rim and metal "
+            "forms, Hoffman's F82 tint and the exact dielectric and conductor formulas.",
+            methods=fresnel.METHODS,
+            audits=(audit_fresnel.FAMILY,),
+            scenes=audit_fresnel.SCENES,
         ),
     )
 }

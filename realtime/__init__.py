@@ -55,6 +55,8 @@ Modules:
     parallax_occlusion  parallax occlusion mapping with soft self-shadowing: the seed's listing and a
                 stable variant, procedural height fields (docs/parallax-occlusion.md).
 
+    fresnel     Fresnel reflectance: Schlick (from the IOR, fitted exponent), the seeds' slider, rim and metal
+                forms, Hoffman's F82 tint, the exact dielectric and conductor Fresnel (docs/fresnel.md).
     obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
                 estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
@@ -72,6 +74,7 @@ from .arrays import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .environment_bases import *  # noqa: F403
 from .environment_maps import *  # noqa: F403
+from .fresnel import *  # noqa: F403
 from .height_fog import *  # noqa: F403
 from .hemisphere_bases import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
@@ -117,6 +120,7 @@ MODULES = (
     "light_cones",
     "parallax_occlusion",
     "obscurances",
+    "fresnel",
     "quantities",
     "shader",
 )

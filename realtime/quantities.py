@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from . import soft_particles
+from .fresnel import INPUTS as FRESNEL_INPUTS
 from .irradiance_volumes import ProbeGrid, probe_table
 from .light_cones import INPUTS as CONE_INPUTS
 from .methods import Input, Method, Param
@@ -580,6 +581,15 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 },
                 reference="path-traced irradiance at the visible points (every light a ray can reach, as "
                 "the probes store it)",
+            ),
+            Quantity(
+                "fresnel_reflectance",
+                "1",
+                "Fresnel reflectance F of a smooth interface at the viewing angle (the mirror direction's), "
+                "per RGB channel through η and k",
+                FRESNEL_INPUTS,
+                reference="Mitsuba's own Fresnel of the visible conductor or dielectric: the smooth BSDF's "
+                "delta-reflection weight, fresnel()/fresnel_conductor() on a rough BSDF's η, k",
             ),
         )
     }
