@@ -8,8 +8,8 @@ then its own study if it declares one (`audit_family.Study`):
 1. **Each shipped scene audited** at its own size and samples (``--quick``: its quick size and samples;
    ``resolution``/``spp`` override both), through the pass cache of the run: references with their noise,
    every method evaluated, its cost measured, its free parameters fitted through the one kernel text, metrics
-   beside the noise floor and the engine's z-checks of the exact rows. Case ids and labels carry the scene
-   (``<scene stem>-<case id>``, ``<scene label>: <case label>``).
+   beside the noise floor and the engine's z-checks of the exact rows. Case ids carry the scene
+   (``<scene stem>-<case id>``), and so do case labels where the family ships several scenes.
 2. **One report** of every scene: the cases, fits, costs (the first scene's cost of each method: each is
    timed on that scene's own inputs), checks (each named with its scene), figures (reference, rows, signed
    error, ꟻLIP per case), the viewer's pixels and ``fitted/<family>.json`` with every fitted row of every
@@ -97,7 +97,9 @@ class EngineExperiment:
                 width, height = cfg["resolution"], max(1, round(cfg["resolution"] * height / width))
             spp = cfg["spp"] or (scene.quick_spp if ctx.quick else scene.spp)
             ctx.log(f"{self.family.name}: auditing {file} ({width}×{height}, {spp} spp)")
-            tag = (f"{_scene_id(scene)}-", f"{scene.label}: ")
+            # Case ids carry the scene's file stem; labels too where the family ships several scenes.
+            several = len(cfg["scenes"]) > 1
+            tag = (f"{_scene_id(scene)}-", f"{Path(scene.file).stem}: " if several else "")
             audits.append(
                 audit(
                     LIBRARY_DIR / file,
@@ -140,10 +142,10 @@ class EngineExperiment:
             doc: Any = to_json(r.results)
             cases += doc["cases"]
             fits += [{**f, "file": f"fitted/{self.family.name}.json"} for f in doc["fits"]]
-            checks += [{**c, "name": f"{scene.label}: {c['name']}"} for c in doc["checks"]]
-            notes += [f"{scene.label}: {n}" for n in doc["notes"]]
+            checks += doc["checks"]  # (each names its case, whose label names the scene)
+            notes += [f"{scene.file}: {n}" if len(audits) > 1 else n for n in doc["notes"]]
             for c in doc["costs"]:
-                costs.setdefault(c["method"], {**c, "note": f"{c.get('note') or ''} ({scene.label})".strip()})
+                costs.setdefault(c["method"], {**c, "note": f"{c.get('note') or ''} ({scene.file})".strip()})
             for f in case_figures(out, r):
                 f.pop("_case", None)
                 figs.append(f)

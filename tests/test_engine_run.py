@@ -66,12 +66,12 @@ def test_the_engine_runs_a_family_on_its_shipped_scene(tmp_path, monkeypatch):
     doc = json.loads((d / "results.json").read_text())
     ids = [c["id"] for c in doc["cases"]]
     assert ids == ["sphere_light-light0-unshadowed", "sphere_light-light0-shadowed"]
-    assert all(c["label"].startswith("sphere light: ") for c in doc["cases"])
+    assert doc["cases"][0]["label"].startswith("sphere light (lights[0])")  # (one scene: no prefix)
     assert doc["config"]["extra"]["scenes"] == ["sphere_light.toml"] and doc["config"]["quick"] is True
     assert doc["cases"][0]["reference"]["spp"] == 8
     # the engine's z-check of the exact row (closed form vs path-traced reference) and the study's check
     names = [c["name"] for c in doc["checks"]]
-    assert any(n.startswith("sphere light: exact vs the reference") for n in names), names
+    assert any(n.startswith("exact vs the reference") for n in names), names
     assert "study ran" in names and not failed_checks(json_results(d))
     assert [s["id"] for s in doc["sections"]][:2] == ["scenes", "method-diffuse"]
     assert doc["sections"][-1]["id"] == "study" and doc["extra"] == {"rows": 9}
@@ -101,7 +101,7 @@ def test_configuration_is_declared_and_checked(monkeypatch):
     assert exp.configure(False, 64)["spp"] == 64
     from rtfit.experiments.registry import apply_overrides
 
-    with pytest.raises(ValueError, match="expected one of sphere_light.toml"):
+    with pytest.raises(ValueError, match=r"expected one of sphere_light\.toml"):
         apply_overrides(cfg, {"scenes": ["other.xml"]}, "diffuse", declared=exp.CONFIG)
     with pytest.raises(ValueError, match=r"out of range \[2, "):
         apply_overrides(cfg, {"spp": 1}, "diffuse", declared=exp.CONFIG)
@@ -110,7 +110,7 @@ def test_configuration_is_declared_and_checked(monkeypatch):
 def test_a_family_run_by_the_engine_ships_scenes():
     with pytest.raises(ValueError, match="ships its scenes"):
         Family("x", ENGINE, "t", "d")
-    with pytest.raises(ValueError, match="a .xml or .toml file name"):
+    with pytest.raises(ValueError, match=r"a \.xml or \.toml file name"):
         ShippedScene("../x.xml", "x")
 
 
