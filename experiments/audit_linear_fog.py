@@ -136,6 +136,9 @@ def homogeneous_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyC
     ]
     if med.on_sensor:
         notes.append("the camera sits in this medium: rays that leave the scene (T = 0 exactly) are left out")
+    if not grey:
+        notes.append("chromatic σt: one transmittance case per channel, no fogged-radiance case (a fog blend "
+                     "takes one density for the three channels)")  # fmt: skip
     out = []
     for ch in [None] if grey else [0, 1, 2]:
         s = float(sigma[0 if ch is None else ch])

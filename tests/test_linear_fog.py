@@ -285,6 +285,34 @@ def test_toml_homogeneous_medium(tmp_path):
     assert max(abs(beer.parameters[f"c_{ch}"]) for ch in "rgb") < 0.05  # no in-scatter: C = 0
 
 
+def test_chromatic_sensor_medium_one_case_per_channel(tmp_path):
+    """A chromatic homogeneous medium around the sensor (`audit_media.MediumChannel`): one transmittance case
+    per channel, d the distance to the backdrop plane y = 3 (computed here), fog-exp = exp(−σt·d) per channel;
+    rays that miss the backdrop (T = 0 exactly) are left out; no radiance case (no light, chromatic)."""
+    body = """<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="0.031,-6,0.517" target="0.031,0,0.517" up="0,0,1"/>
+    </transform>
+    <film type="hdrfilm"><integer name="width" value="12"/><integer name="height" value="12"/></film>
+    <medium type="homogeneous"><rgb name="sigma_t" value="0.05, 0.1, 0.2"/></medium>
+  </sensor>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="2"/><rotate x="1" angle="90"/><translate y="3"/></transform>
+  </shape>
+</scene>"""
+    path = tmp_path / "haze.xml"
+    path.write_text(body)
+    r = audit(str(path), "linear-fog", spp=64, pass_spp=32, cache=tmp_path / "c", fit=False, **FAST)
+    assert [c.id for c in r.cases] == [f"linfog0-{ch}-transmittance" for ch in "rgb"]
+    for case, sigma in zip(r.cases, (0.05, 0.1, 0.2), strict=True):
+        g = case.channel_inputs[0]
+        d = (3.0 - ORIGIN[1]) / g["dy"]
+        assert 0 < case.mask.sum() < case.mask.size and np.max(np.abs(g["length"] - d)) < 1e-5
+        got = r.outcomes[case.id]["fog-exp"].image[case.mask][:, 0]
+        assert np.max(np.abs(got - np.exp(-sigma * d))) < 1e-6
+    assert all(c.passed for c in r.results.checks)
+
+
 def test_list_names_linear_fog_with_its_reason():
     result = CliRunner().invoke(audit_cmd, [str(BOX), "--list"])
     assert result.exit_code == 0, result.output
