@@ -68,6 +68,7 @@ from .audit_media import (
     MAX_SURFACES,
     RADIANCE_INTEGRATOR,
     Medium,
+    MediumChannel,
     box_interval,
     density_params,
     finite_stretch,
@@ -88,23 +89,6 @@ SHADING_ROWS = ("const", "phase")
 MODEL_TOLERANCE = 1e-3
 """A grid holds the exponential model where its largest relative residual and the model's trilinear
 interpolation error over a cell are both within this: then the exact form's z-check is run on it."""
-
-
-class _Channel:
-    """A medium seen through one channel ``k`` of its extinction (the ratio tracker reads channel 0)."""
-
-    def __init__(self, medium, k: int):
-        self.medium, self.k = medium, k
-
-    def intersect_aabb(self, ray):
-        return self.medium.intersect_aabb(ray)
-
-    def get_majorant(self, mei, active=True):
-        return (self.medium.get_majorant(mei, active)[self.k],)
-
-    def get_scattering_coefficients(self, mei, active=True):
-        s, n, t = self.medium.get_scattering_coefficients(mei, active)
-        return s, n, (t[self.k],)
 
 
 def _residual_text(fit: HeightFit) -> str:
@@ -160,7 +144,7 @@ def _cases(
         "density": np.full(n, b),
         "falloff": np.full(n, c),
     }
-    tracked = med.medium if channel is None else _Channel(med.medium, channel)
+    tracked = med.medium if channel is None else MediumChannel(med.medium, channel)
     suffix = "" if channel is None else f"-{'rgb'[channel]}"
     tag = f"media{app.source}{suffix}"
     what = {

@@ -28,6 +28,7 @@ __all__ = [
     "MAX_SURFACES",
     "RADIANCE_INTEGRATOR",
     "Medium",
+    "MediumChannel",
     "box_interval",
     "density_params",
     "finite_stretch",
@@ -63,6 +64,24 @@ class Medium:
     sensor: Any = None
     media: tuple = ()
     """Every medium of ``scene`` (this one included): the radiance case renders this one alone."""
+
+
+class MediumChannel:
+    """A medium seen through one channel ``k`` of its extinction (the ratio tracker reads channel 0): the
+    transmittance of that channel alone."""
+
+    def __init__(self, medium, k: int):
+        self.medium, self.k = medium, k
+
+    def intersect_aabb(self, ray):
+        return self.medium.intersect_aabb(ray)
+
+    def get_majorant(self, mei, active=True):
+        return (self.medium.get_majorant(mei, active)[self.k],)
+
+    def get_scattering_coefficients(self, mei, active=True):
+        s, n, t = self.medium.get_scattering_coefficients(mei, active)
+        return s, n, (t[self.k],)
 
 
 def medium_pointer(mi, scene, medium) -> int | None:

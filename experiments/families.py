@@ -32,6 +32,7 @@ from rtfit.realtime import (
     fresnel,
     height_fog,
     irradiance_volumes,
+    linear_fog,
     nishita_sky,
     obscurances,
     parallax_occlusion,
@@ -58,6 +59,7 @@ from . import (
     audit_irradiance_bases,
     audit_irradiance_volumes,
     audit_light_cones,
+    audit_linear_fog,
     audit_nishita_sky,
     audit_obscurances,
     audit_parallax_occlusion,
@@ -260,6 +262,17 @@ FAMILIES: dict[str, Family] = {
             methods=fresnel.METHODS,
             audits=(audit_fresnel.FAMILY,),
             scenes=audit_fresnel.SCENES,
+        ),
+        Family(
+            "linear-fog",
+            ENGINE,
+            "Linear, exp and exp² distance fog (the seed's luminance-faded linear fog) vs Beer–Lambert",
+            "Classic fixed-function fog factors on the view distance through a homogeneous medium, given "
+            "(ρ = σt: Beer–Lambert) and fitted, against ratio-tracked transmittance, and the fog blend "
+            "L₀·f + C·(1 − f) with fitted colour against the path-traced fogged radiance.",
+            methods=linear_fog.METHODS,
+            audits=(audit_linear_fog.FAMILY,),
+            scenes=audit_linear_fog.SCENES,
         ),
     )
 }

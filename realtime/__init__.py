@@ -35,6 +35,8 @@ Modules:
 
     hemisphere_bases  lightmap (hemispherical) irradiance bases: H-basis (4, 6), Half-Life 2 radiosity
                 normal mapping (docs/irradiance-bases.md).
+    linear_fog  classic distance fog (linear, exp, exp², the seed's luminance-faded linear fog) and
+                Beer–Lambert transmittance (docs/linear-fog.md).
     height_fog  exponential height fog: stable closed-form optical depth, fog colour, fog volumes
                 (docs/height-fog.md).
     sdf_grid    signed distance fields: analytic primitives, mesh → voxel grid, mip chain, 8-bit
@@ -81,6 +83,7 @@ from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
 from .light_cones import *  # noqa: F403
 from .light_models import *  # noqa: F403
+from .linear_fog import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
 from .obscurances import *  # noqa: F403
@@ -105,6 +108,7 @@ MODULES = (
     "environment_maps",
     "reflections",
     "height_fog",
+    "linear_fog",
     "irradiance_bases",
     "irradiance_volumes",
     "spherical_gaussians",

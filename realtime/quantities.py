@@ -369,7 +369,8 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 vectors=_FOG_VECTORS,
                 unit_vectors=("direction",),
                 reference=_FOG_REFERENCE,
-                note="the shipped forms approximate τ (fog_optical_depth): T = exp(−τ)",
+                note="height-fog's shipped forms approximate τ (fog_optical_depth): T = exp(−τ); "
+                "linear-fog's fog factors f(d) read the stretch's length d (`length`) and give T directly",
             ),
             Quantity(
                 "fog_inscatter",
