@@ -35,6 +35,7 @@ and bounds of its fit, e.g. the scene's own fog density) and ``row_inputs`` (row
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -310,10 +311,20 @@ class ShippedScene:
     quick_size: tuple[int, int] = (32, 32)
     quick_spp: int = 64
     options: Mapping[str, Any] = field(default_factory=dict)
+    defines: Mapping[str, str] = field(default_factory=dict)
+    """Values of the XML file's ``<default name=… value=…/>`` parameters (Mitsuba's ``$name``; ``rtfit audit
+    -D name=value``): one scene file, several shipped scenes (a light's angular radius, a sky's radiance)."""
+    name: str = ""
+    """Its id in case ids (file-name safe); default: the file's stem, then the defines (``name-value``)."""
 
     def __post_init__(self):
         if "/" in self.file or not self.file.endswith((".xml", ".toml")):
             raise ValueError(f"shipped scene {self.file!r}: a .xml or .toml file name in scenes/library/")
+        if self.defines and not self.file.endswith(".xml"):
+            raise ValueError(f"shipped scene {self.file!r}: defines are for Mitsuba XML files")
+        if not self.name:
+            parts = [self.file.rsplit(".", 1)[0], *(f"{k}{v}" for k, v in self.defines.items())]
+            object.__setattr__(self, "name", re.sub(r"[^A-Za-z0-9_-]", "_", "-".join(parts)))
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,6 @@ times every method of the family on inputs drawn over their declared domains (`b
 
 from __future__ import annotations
 
-import re
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -38,7 +37,7 @@ from rtfit.realtime.arrays import backend_float
 from rtfit.scenes.parse import LIBRARY_DIR
 
 from . import fitted as fitfiles
-from .audit_family import ShippedScene, StudyContext
+from .audit_family import StudyContext
 from .audit_output import case_figures, fitted_entries, save_pixels
 from .audit_run import audit
 from .cost import bench_backend, method_bench_rows
@@ -49,14 +48,6 @@ from .registry import SPP_MAX, ConfigKey, RunContext, checked
 __all__ = ["EngineExperiment", "experiment"]
 
 
-def _scene_id(scene: ShippedScene) -> str:
-    return re.sub(r"[^A-Za-z0-9_]", "_", Path(scene.file).stem)
-
-
-def _check_scene_file(name: str) -> str | None:
-    return None if (LIBRARY_DIR / name).is_file() else f"no scene {name!r} in {LIBRARY_DIR}"
-
-
 @dataclass(frozen=True)
 class EngineExperiment:
     """The experiment of one family born on the engine (module docstring)."""
@@ -65,12 +56,10 @@ class EngineExperiment:
 
     @property
     def CONFIG(self) -> dict[str, ConfigKey]:
-        files = tuple(s.file for s in self.family.scenes)
+        names = tuple(s.name for s in self.family.scenes)
         return {
-            "scenes": ConfigKey(
-                "str", "the shipped scenes audited (scenes/library/)", shape=(None,), choices=files,
-                check=_check_scene_file,
-            ),
+            "scenes": ConfigKey("str", "the shipped scenes audited (their names)",
+                                shape=(None,), choices=names),
             "spp": ConfigKey("int", "reference samples per pixel (none: each scene's own)", lo=2, hi=SPP_MAX,
                              optional=True),
             "resolution": ConfigKey("int", "image width in pixels, the height by the scene's aspect (none: "
@@ -81,28 +70,28 @@ class EngineExperiment:
     def configure(self, quick: bool, spp: int | None) -> dict:
         return checked(
             self.CONFIG,
-            {"scenes": [s.file for s in self.family.scenes], "spp": spp, "resolution": None, "fit": True},
+            {"scenes": [s.name for s in self.family.scenes], "spp": spp, "resolution": None, "fit": True},
         )
 
     # ------------------------------------------------------------------------------------------------ run
     def run(self, ctx: RunContext) -> dict:
         cfg = ctx.configured(self.configure(ctx.quick, ctx.spp))
-        shipped = {s.file: s for s in self.family.scenes}
+        shipped = {s.name: s for s in self.family.scenes}
         audits, tags = [], []
         t0 = time.perf_counter()
-        for file in cfg["scenes"]:
-            scene = shipped[file]
+        for name in cfg["scenes"]:
+            scene = shipped[name]
             width, height = scene.quick_size if ctx.quick else scene.size
             if cfg["resolution"] is not None:
                 width, height = cfg["resolution"], max(1, round(cfg["resolution"] * height / width))
             spp = cfg["spp"] or (scene.quick_spp if ctx.quick else scene.spp)
-            ctx.log(f"{self.family.name}: auditing {file} ({width}×{height}, {spp} spp)")
+            ctx.log(f"{self.family.name}: auditing {scene.name} ({width}×{height}, {spp} spp)")
             # Case ids carry the scene's file stem; labels too where the family ships several scenes.
             several = len(cfg["scenes"]) > 1
-            tag = (f"{_scene_id(scene)}-", f"{Path(scene.file).stem}: " if several else "")
+            tag = (f"{scene.name}-", f"{scene.name}: " if several else "")
             audits.append(
                 audit(
-                    LIBRARY_DIR / file,
+                    LIBRARY_DIR / scene.file,
                     [self.family.name],
                     spp=spp,
                     variant=ctx.variant,
@@ -114,6 +103,7 @@ class EngineExperiment:
                     progress=ctx.progress,
                     say=ctx.log,
                     tag=tag,
+                    defines=dict(scene.defines) or None,
                     **dict(scene.options),
                 )
             )
@@ -143,9 +133,9 @@ class EngineExperiment:
             cases += doc["cases"]
             fits += [{**f, "file": f"fitted/{self.family.name}.json"} for f in doc["fits"]]
             checks += doc["checks"]  # (each names its case, whose label names the scene)
-            notes += [f"{scene.file}: {n}" if len(audits) > 1 else n for n in doc["notes"]]
+            notes += [f"{scene.name}: {n}" if len(audits) > 1 else n for n in doc["notes"]]
             for c in doc["costs"]:
-                costs.setdefault(c["method"], {**c, "note": f"{c.get('note') or ''} ({scene.file})".strip()})
+                costs.setdefault(c["method"], {**c, "note": f"{c.get('note') or ''} ({scene.name})".strip()})
             for f in case_figures(out, r):
                 f.pop("_case", None)
                 figs.append(f)
@@ -153,7 +143,8 @@ class EngineExperiment:
             entries += fitted_entries(r)
             summary.append(doc["summary"])
             spp = max((c.reference.spp for c in r.cases), default=0)
-            scene_lines.append(f"- `{scene.file}` — {scene.label} ({len(r.cases)} cases, {spp} spp)")
+            defines = "".join(f" -D {k}={v}" for k, v in scene.defines.items())
+            scene_lines.append(f"- `{scene.file}{defines}` — {scene.label} ({len(r.cases)} cases, {spp} spp)")
             if not sections:
                 sections = [s for s in doc["sections"] if s["id"] != "scene"]
         if entries:

@@ -67,7 +67,7 @@ def test_the_engine_runs_a_family_on_its_shipped_scene(tmp_path, monkeypatch):
     ids = [c["id"] for c in doc["cases"]]
     assert ids == ["sphere_light-light0-unshadowed", "sphere_light-light0-shadowed"]
     assert doc["cases"][0]["label"].startswith("sphere light (lights[0])")  # (one scene: no prefix)
-    assert doc["config"]["extra"]["scenes"] == ["sphere_light.toml"] and doc["config"]["quick"] is True
+    assert doc["config"]["extra"]["scenes"] == ["sphere_light"] and doc["config"]["quick"] is True
     assert doc["cases"][0]["reference"]["spp"] == 8
     # the engine's z-check of the exact row (closed form vs path-traced reference) and the study's check
     names = [c["name"] for c in doc["checks"]]
@@ -97,11 +97,11 @@ def test_configuration_is_declared_and_checked(monkeypatch):
     spec = _planted(monkeypatch)
     exp = spec.load()
     cfg = exp.configure(True, None)
-    assert cfg == {"scenes": ["sphere_light.toml"], "spp": None, "resolution": None, "fit": True}
+    assert cfg == {"scenes": ["sphere_light"], "spp": None, "resolution": None, "fit": True}
     assert exp.configure(False, 64)["spp"] == 64
     from rtfit.experiments.registry import apply_overrides
 
-    with pytest.raises(ValueError, match=r"expected one of sphere_light\.toml"):
+    with pytest.raises(ValueError, match="expected one of sphere_light"):
         apply_overrides(cfg, {"scenes": ["other.xml"]}, "diffuse", declared=exp.CONFIG)
     with pytest.raises(ValueError, match=r"out of range \[2, "):
         apply_overrides(cfg, {"spp": 1}, "diffuse", declared=exp.CONFIG)
@@ -122,3 +122,21 @@ def test_bench_times_every_method_with_declared_domains(monkeypatch):
     whats = [r["what"] for r in rows]
     assert whats[-1].startswith("memory baseline") and len(whats) >= 3
     assert all(r["ns_per_px"] > 0 for r in rows)
+
+
+def test_every_shipped_scene_of_the_registry_is_in_the_library():
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    shipped = [(f.name, s) for f in FAMILIES.values() for s in f.scenes]
+    assert shipped, "no family is born on the engine"
+    for family, s in shipped:
+        assert (LIBRARY_DIR / s.file).is_file(), f"{family}: {s.file}"
+    names = [f"{family}/{s.name}" for family, s in shipped]
+    assert len(set(names)) == len(names)
+
+
+def test_defines_name_the_scene_and_reach_the_audit():
+    s = ShippedScene("x.xml", "x", defines={"alpha": "5", "sky": "0.2"})
+    assert s.name == "x-alpha5-sky0_2"
+    with pytest.raises(ValueError, match="defines are for Mitsuba XML"):
+        ShippedScene("x.toml", "x", defines={"a": "1"})
