@@ -498,10 +498,18 @@ def _fit(method: Method, case: FamilyCase, row: str = "") -> dict:
 
 _COST_PROBE = 1 << 12  # elements of the first, sizing call of a cost measurement
 _COST_CALL_SECONDS = 0.05  # the sized call's target duration: a slow kernel is timed on fewer elements
+_COST_MIN_SECONDS = 0.05
+"""The least time the measured call is repeated for (and at least 7 times; the median is the cost): a kernel
+at ~1 ns a pixel is one 1 ms call at 2^20 elements, so 50 ms is ~50 repeats; a slow kernel sized to
+`_COST_CALL_SECONDS` a call runs its 7. At 0.2 s, 23 methods spent ~4.6 s of a Cornell-box audit here."""
 
 
 def _cost(
-    method: Method, case: FamilyCase, backend: str, size: int = _COST_ELEMENTS, min_seconds: float = 0.2
+    method: Method,
+    case: FamilyCase,
+    backend: str,
+    size: int = _COST_ELEMENTS,
+    min_seconds: float = _COST_MIN_SECONDS,
 ) -> dict:
     """ns per pixel of ``method`` (declared parameters) on the backend, its per-pixel inputs (channel 0 of the
     case) tiled to ``size`` float32 elements; a table (an array that is not per pixel) is passed as it is.
@@ -510,8 +518,8 @@ def _cost(
     `_COST_PROBE` elements) is timed on proportionally fewer, never fewer than `_COST_PROBE`: a cone tracer at
     ~10 µs a pixel on 2 CPU cores took 10 s a call on 2^20 elements, 80 s for its 7 repeats + warm-up. The
     sizing call is the median of 7 repeats with no minimum duration (``min_seconds`` 0: it only sizes the
-    measured call, which keeps its 0.2 s): 15 methods' sizing calls took 2.9 s of a Cornell-box audit's
-    evaluation at 0.2 s each."""
+    measured call, which keeps its `_COST_MIN_SECONDS`): 15 methods' sizing calls took 2.9 s of a
+    Cornell-box audit's evaluation at 0.2 s each."""
     if size > _COST_PROBE:
         probe = _cost(method, case, backend, _COST_PROBE, min_seconds=0.0)
         per_element = probe["ns_per_pixel"] * 1e-9
