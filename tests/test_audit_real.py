@@ -313,8 +313,15 @@ def test_only_medium_boundaries_in_view_audits_the_medium_and_says_why_not_the_r
     assert result.exit_code == 0, result.output
     assert "sees through 1 medium boundaries" in result.stderr
     cases = load_results(out / "audit-glass").cases
-    # height-fog (constant fog), then aerial-perspective (the medium under the scene's envmap sky)
-    assert [c.id for c in cases] == ["media0-transmittance", "media0-radiance", "media0-aerial"]
+    # height-fog (constant fog), aerial-perspective (the medium under the scene's envmap sky), then
+    # linear-fog (the homogeneous medium's distance fog), in registry order
+    assert [c.id for c in cases] == [
+        "media0-transmittance",
+        "media0-radiance",
+        "media0-aerial",
+        "linfog0-transmittance",
+        "linfog0-radiance",
+    ]
 
 
 def test_sunsky_sun_occluded_case_of_ambient_aperture(tmp_path):
