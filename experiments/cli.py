@@ -59,6 +59,7 @@ from .cli_complete import complete_experiments, family_list
 from .cli_options import CACHE_HELP, cache_option, out_option
 from .executors import EXECUTORS, make_executor
 from .families import EXPERIMENTS, describe_config, resolve_names, validate_config
+from .fitted_cli import fitted_group
 from .jobs import JobsFailed, error_line
 from .ray_executor import RAY_EXTRA_HINT, check_address
 from .registry import LIMITS, SPP_MAX, BenchContext
@@ -351,6 +352,7 @@ def sweep_cmd(
 
 
 cli.add_command(cache_group)
+cli.add_command(fitted_group)
 cli.add_command(audit)
 
 

@@ -1,0 +1,214 @@
+"""``rtfit fitted convert FILE --engine unreal|unity-hdrp|godot`` (issue 37 §3): fitted height fog in an
+engine's own properties (`rtfit.experiments.engine_presets`).
+
+Round trip: converting to the engine and back reproduces the fitted b, c and colour. Formula: each engine's
+fog, written from its documentation and source in `engine_presets` (Unreal's base-2 line integral in cm with
+its ×1000 scales, HDRP's ``OpticalDepthHeightFog``, Godot's FogMaterial density) and evaluated with the
+converted values, against rtfit's own kernel (`rtfit.realtime.height_fog.METHODS`) on random segments: to
+float64 round-off in float64, and within float32 round-off (with the conditioning of the engine's own
+float32 text) in float32."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from rtfit.experiments.cli import cli
+from rtfit.experiments.engine_presets import (
+    ENGINES,
+    HDRP_SCALE_HEIGHT,
+    godot_extinction,
+    hdrp_optical_depth,
+    unreal_optical_depth,
+)
+from rtfit.experiments.fitted import FittedFile, Provenance, method_entry, write_fitted
+from rtfit.realtime import NUMPY_OPS
+from rtfit.realtime.height_fog import METHODS
+
+EPS32 = float(np.finfo(np.float32).eps)
+# (b, c) over the fit's bounds (2e-7…0.2 /m, 4e-6…0.4 /m), the seed's values and a fitted pair
+PAIRS = [(2e-4, 4e-3), (2e-7, 4e-6), (0.2, 0.4), (1.3266e-4, 2.8982e-3), (0.05, 1e-4)]
+
+
+def _tau(method: str, z0, z1, d, b, c):
+    """rtfit's kernel: τ along the segment (NumPy float64, or the inputs' dtype)."""
+    return np.asarray(METHODS[method](NUMPY_OPS, {"z0": z0, "z1": z1, "distance": d}, {"b": b, "c": c}))
+
+
+def _segments(rng, n, lo=0.0, hi=3000.0):
+    z0 = rng.uniform(lo, hi, n)
+    z1 = rng.uniform(lo, hi, n)
+    d = np.abs(z1 - z0) * rng.uniform(1.0, 20.0, n) + rng.uniform(0.1, 50.0, n)
+    return z0, z1, d
+
+
+@pytest.mark.parametrize("engine", list(ENGINES))
+@pytest.mark.parametrize(("b", "c"), PAIRS)
+def test_round_trip_reproduces_the_fitted_values(engine, b, c):
+    e = ENGINES[engine]
+    colour = (0.068, 0.0466, 0.0315)
+    for base in (0.0, 2.0, -50.0):
+        values = e.to_engine(b, c, base, colour if e.colour else None)
+        b2, c2, colour2 = e.from_engine(values, base)
+        assert b2 == pytest.approx(b, rel=1e-12) and c2 == pytest.approx(c, rel=1e-12)
+        assert colour2 == (colour if e.colour else None)
+
+
+def test_unreal_scales_as_documented():
+    """Unreal's defaults (FogDensity 0.02, FogHeightFalloff 0.2) are b = 0.02·(ln 2)²/10 per m and
+    c = 0.2·ln 2/10 per m (÷1000 per cm, ×100 cm per m, base 2, the line integral's extra ln 2)."""
+    b, c, _ = ENGINES["unreal"].from_engine({"FogDensity": 0.02, "FogHeightFalloff": 0.2}, 0.0)
+    assert b == pytest.approx(0.02 * math.log(2) ** 2 / 10, rel=1e-15)
+    assert c == pytest.approx(0.2 * math.log(2) / 10, rel=1e-15)
+
+
+@pytest.mark.parametrize(("b", "c"), PAIRS)
+def test_unreal_formula_matches_the_kernel(b, c):
+    """Unreal's fog with the converted values, actor at 2 m: where its exact branch runs (|F·Δz| > 0.01),
+    rtfit's stable form to float64 round-off, and in float32 within 8 ulp·(1 + 1/|x|) plus the
+    conditioning of 2^(−F·z₀) (the engine's own cancellation in (1 − 2^(−x))/x); where it takes its Taylor
+    polynomial, rtfit's ``taylor`` row (the same engine form, base e) to round-off, and the exact form within
+    the polynomial's truncation (ln 2·x)²/6. (Unreal's float32 text leaves float32's range for c·z₀ or
+    |c·Δz| past ~80, where rtfit's form stays finite: those rays are not compared in float32.)"""
+    rng = np.random.default_rng(37)
+    z0, z1, d = _segments(rng, 4000)
+    base = 2.0
+    v = ENGINES["unreal"].to_engine(b, c, base, None)
+    args = (v["FogDensity"], v["FogHeightFalloff"], v["ActorLocationZ"], 100 * z0, 100 * z1, 100 * d)
+    x = v["FogHeightFalloff"] / 1000 * 100 * (z1 - z0)
+    exact, taylor = _tau("exact", z0, z1, d, b, c), _tau("taylor", z0, z1, d, b, c)
+    ue64 = unreal_optical_depth(*args, dtype=np.float64)
+    far = np.abs(x) > 0.01
+    ok = far & (x > -127) & (exact > 1e-200)  # (far from float64's subnormals)
+    np.testing.assert_allclose(ue64[ok], exact[ok], rtol=1e-10)
+    np.testing.assert_allclose(ue64[~far], taylor[~far], rtol=1e-12)
+    trunc = (math.log(2) * x[~far]) ** 2 / 6  # over φ ≥ 1 − ln 2·|x|/2 ≥ 0.996: within 1 %
+    assert np.all(np.abs(ue64[~far] / exact[~far] - 1) <= 1.01 * trunc + 1e-12)
+    ue32 = unreal_optical_depth(*args, dtype=np.float32).astype(np.float64)
+    cond = c * (np.abs(z0 - base) + np.abs(z1 - z0))  # the exponents' own conditioning
+    bound = 8 * EPS32 * (1 + 1 / np.maximum(np.abs(x), 1e-30)) + 4 * EPS32 * cond
+    fine = ok & np.isfinite(ue32) & (exact > 1e-30)  # (above float32 subnormals: τ < 1e-30 is T = 1)
+    # Unreal's float32 text takes 2^(−F·z) at the camera's height and 2^(−x) apart: where either leaves
+    # float32's range (c·z₀ or |c·Δz| past ~80: a camera high above dense fog) it returns 0 or ∞ where
+    # rtfit's form stays finite; compared where both are in range
+    fine &= (c * np.abs(z0 - base) < 80) & (c * np.abs(z1 - z0) < 80)
+    assert np.all(np.abs(ue32[fine] / exact[fine] - 1) <= bound[fine])
+
+
+@pytest.mark.parametrize(("b", "c"), PAIRS)
+def test_hdrp_formula_matches_the_kernel_above_its_base(b, c):
+    """HDRP's ``OpticalDepthHeightFog`` with the converted values (base 1 m), on segments above the base with
+    |cos zenith| ≥ 0.001: rtfit's stable form to float64 round-off; in float32 within 8 ulp·(1 + 1/y), y the
+    segment's c·|Δz| (HDRP's 1 − e^(−y) cancels), plus 4 ulp·c·(heights): the float32 heights' rounding."""
+    rng = np.random.default_rng(38)
+    base = 1.0
+    z0, z1, d = _segments(rng, 4000, lo=base, hi=3000.0)
+    cosz = (z1 - z0) / d
+    keep = np.abs(cosz) >= 0.001
+    z0, z1, d, cosz = z0[keep], z1[keep], d[keep], cosz[keep]
+    v = ENGINES["unity-hdrp"].to_engine(b, c, base, None)
+    args = (v["FogAttenuationDistance"], v["BaseHeight"], v["MaximumHeight"], cosz, z0, d)
+    exact = _tau("exact", z0, z1, d, b, c)
+    hd64 = hdrp_optical_depth(*args, dtype=np.float64)
+    ok = exact > 1e-200
+    np.testing.assert_allclose(hd64[ok], exact[ok], rtol=1e-9)
+    hd32 = hdrp_optical_depth(*args, dtype=np.float32).astype(np.float64)
+    y = c * np.abs(z1 - z0)
+    cond = c * (np.maximum(z0, z1) + np.abs(z1 - z0))  # heights and end height rounded: c·δh
+    bound = 8 * EPS32 * (1 + 1 / np.maximum(y, 1e-30)) + 4 * EPS32 * cond
+    fine = ok & np.isfinite(hd32) & (exact > 1e-30)  # (above float32 subnormals: τ < 1e-30 is T = 1)
+    assert np.all(np.abs(hd32[fine] / exact[fine] - 1) <= bound[fine])
+    # the layer depth HDRP is given puts e^(−d/H) = 0.001 at the Maximum Height: H = 1/c
+    assert HDRP_SCALE_HEIGHT * (v["MaximumHeight"] - v["BaseHeight"]) == pytest.approx(1 / c, rel=1e-12)
+
+
+@pytest.mark.parametrize(("b", "c"), PAIRS)
+def test_godot_density_and_its_integral_match_the_kernel(b, c):
+    """Godot's FogMaterial density with the converted values (origin at 1 m): b·e^(−c·y) above the origin
+    (float64 round-off; float32 within 4 ulp plus the conditioning of 2^(−h·(y − y₀))), and its integral
+    along segments above the origin (Gauss–Legendre, 64 nodes) rtfit's optical depth."""
+    base = 1.0
+    v = ENGINES["godot"].to_engine(b, c, base, None)
+    args = (v["FogMaterial.density"], v["FogMaterial.height_falloff"], v["FogVolume.position.y"])
+    y = np.linspace(base, 3000.0, 501)
+    ref = b * np.exp(-c * y)
+    np.testing.assert_allclose(godot_extinction(*args, y, dtype=np.float64), ref, rtol=1e-12)
+    g32 = godot_extinction(*args, y, dtype=np.float32).astype(np.float64)
+    big = ref > 1e-30
+    assert np.all(np.abs(g32[big] / ref[big] - 1) <= 4 * EPS32 + 2 * EPS32 * c * (y[big] - base))
+    assert np.all(
+        godot_extinction(*args, np.array([base - 10.0]), dtype=np.float64) == v["FogMaterial.density"]
+    )
+    rng = np.random.default_rng(39)
+    z0, z1, d = _segments(rng, 50, lo=base, hi=500.0)
+    t, w = np.polynomial.legendre.leggauss(64)
+    s = 0.5 * (t + 1.0)
+    heights = z0[:, None] + (z1 - z0)[:, None] * s[None, :]
+    quad = 0.5 * d * (godot_extinction(*args, heights, dtype=np.float64) * w[None, :]).sum(axis=1)
+    np.testing.assert_allclose(quad, _tau("exact", z0, z1, d, b, c), rtol=1e-9)
+
+
+# ------------------------------------------------------------------------------------ files and the CLI
+def _fitted_file(tmp_path, method_id: str, values: dict) -> str:
+    m = METHODS[method_id]
+    entry = method_entry(
+        m, params=values, case="test", domain={"z0": (2.0, 2.0), "z1": (0.5, 5000.0), "distance": (7.0, 7e4)}
+    )
+    doc = FittedFile(
+        format="rtfit.fitted/1",
+        title=f"height fog {method_id} (test)",
+        provenance=Provenance(rtfit_version="0", experiment="height-fog", date="2026-12-05T00:00:00+00:00"),
+        methods=[entry],
+    )
+    path = tmp_path / f"fog-{method_id}.json"
+    write_fitted(path, doc)
+    return str(path)
+
+
+@pytest.mark.parametrize("engine", list(ENGINES))
+def test_convert_command_round_trips_a_fitted_file(tmp_path, engine):
+    """``rtfit fitted convert`` on a ``const`` height-fog file: stdout is the preset document; its values,
+    read back through the engine's inverse, are the file's b, c and colour; HDRP and Godot anchor at the
+    lowest height of the fit's domain (0.5 m), Unreal at rtfit's origin; what is lost is listed."""
+    values = {"b": 3.164e-4, "c": 3.109e-2, "r0": 0.068, "g0": 0.0466, "b0": 0.0315}
+    path = _fitted_file(tmp_path, "const", values)
+    out = CliRunner().invoke(cli, ["fitted", "convert", path, "--engine", engine])
+    assert out.exit_code == 0, out.output
+    doc = json.loads(out.stdout)
+    assert doc["format"] == "rtfit.engine-preset/1" and doc["engine"] == engine and doc["sources"]
+    (preset,) = doc["presets"]
+    got = {
+        v["name"]: (tuple(v["value"]) if isinstance(v["value"], list) else v["value"])
+        for v in preset["values"]
+    }
+    base = preset["base_height_m"]
+    assert base == (0.0 if engine == "unreal" else 0.5)
+    b, c, colour = ENGINES[engine].from_engine(got, base)
+    assert b == pytest.approx(values["b"], rel=1e-12) and c == pytest.approx(values["c"], rel=1e-12)
+    if engine == "godot":
+        assert colour is None and any("colour C₀" in line for line in preset["lost"])
+    else:
+        assert colour == pytest.approx((values["r0"], values["g0"], values["b0"]), rel=1e-15)
+
+
+def test_convert_refuses_what_it_cannot_convert(tmp_path):
+    """A file without a fog method, a file that is not rtfit.fitted/1: one line each, exit 2."""
+    from rtfit.realtime.diffuse import METHODS as DIFFUSE
+
+    m = DIFFUSE["wrap"]
+    doc = FittedFile(
+        format="rtfit.fitted/1",
+        title="wrap",
+        provenance=Provenance(rtfit_version="0", experiment="diffuse", date="2026-12-05T00:00:00+00:00"),
+        methods=[method_entry(m)],
+    )
+    write_fitted(tmp_path / "wrap.json", doc)
+    out = CliRunner().invoke(cli, ["fitted", "convert", str(tmp_path / "wrap.json"), "--engine", "unreal"])
+    assert out.exit_code == 2 and "no height-fog method" in out.stderr and len(out.stderr.splitlines()) == 1
+    (tmp_path / "bad.json").write_text('{"format": "other"}')
+    out = CliRunner().invoke(cli, ["fitted", "convert", str(tmp_path / "bad.json"), "--engine", "godot"])
+    assert out.exit_code == 2 and "expected 'rtfit.fitted/1'" in out.stderr
