@@ -73,6 +73,20 @@ Set ``edge_fade`` 0 and size the volume over the scene. Lost: the colours (Godot
 its lights with ``albedo`` and adds ``emission``; a fitted constant or phase-lobe colour has no property), fog
 below y₀ (constant there), fog beyond ``Environment.volumetric_fog_length`` (64 m by default) and the froxel
 grid's discretisation of the integral.
+
+The Nishita sky — Unreal's SkyAtmosphere (4.26+/5)
+---------------------------------------------------
+The sky's artist fit (``rayleigh_scale``, ``mie_scale``, ``mie_g``, ``ambient``: `AtmosphereParams`) is
+written as SkyAtmosphere properties (`sky_to_unreal`; the properties page
+https://dev.epicgames.com/documentation/en-us/unreal-engine/sky-atmosphere-component-properties-in-unreal-engine):
+Ground Radius and Atmosphere Height in km; each scattering or absorption coefficient as a scale (1/km) times
+a colour, at altitude 0; the exponential distributions ("the altitude in kilometers at which the scattering
+effect is reduced to 40%", i.e. e^(−1): the scale heights) in km; Mie Anisotropy = g. rtfit's unscaled
+parameters (Bruneton's) are Unreal's defaults — 0.0331 × (0.175287, 0.409607, 1), 8 km, 0.003996, 0.000444,
+1.2 km, 0.8 — which `tests/test_fitted_convert.py` checks. Lost: ``ambient`` (Unreal computes multiple
+scattering itself; MultiScattering is set to 0 to keep the fitted single-scattering model), the sun's
+irradiance (Unreal's directional light), Unreal's ozone (set to 0). HDRP's physically based sky and Godot's
+sky are not converted yet.
 """
 
 from __future__ import annotations
@@ -82,6 +96,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from rtfit.realtime.nishita_sky import AtmosphereParams
 
 from .fitted import FittedFile, FittedMethod
 
@@ -96,7 +112,10 @@ __all__ = [
     "convert_fitted",
     "godot_extinction",
     "hdrp_optical_depth",
+    "sky_from_unreal",
+    "sky_to_unreal",
     "unreal_optical_depth",
+    "unreal_sky_coefficients",
 ]
 
 PRESET_FORMAT = "rtfit.engine-preset/1"
@@ -389,16 +408,128 @@ def convert_method(m: FittedMethod, engine: Engine, base: float | None = None) -
     )
 
 
+# --------------------------------------------------------------------- the Nishita sky: Unreal only
+SKY_UNREAL_SOURCES = (
+    "https://dev.epicgames.com/documentation/en-us/unreal-engine/sky-atmosphere-component-properties-in-unreal-engine",
+    "https://dev.epicgames.com/documentation/en-us/unreal-engine/python-api/class/SkyAtmosphereComponent?application_version=5.1",
+)
+SKY_UNREAL_LOST = (
+    "ambient: rtfit's isotropic multiple-scattering term (P_R → P_R + A/4π) has no property; Unreal computes "
+    "multiple scattering itself (MultiScattering, set to 0 here to keep the fitted single-scattering model)",
+    "the sun: rtfit's solar irradiance E₀ per channel (W·m⁻²·nm⁻¹) is the directional light's illuminance "
+    "in Unreal (lux), set there",
+    "Unreal's ozone (Other Absorption, a tent profile): set to 0, rtfit's atmosphere has none",
+    "mie_phase: Unreal evaluates its own Mie phase with Mie Anisotropy = g; rtfit's fit used the file's "
+    "phase",
+)
+_SKY_KEYS = ("rayleigh_scale", "mie_scale", "mie_g")
+
+
+def _is_sky(m: FittedMethod) -> bool:
+    return all(k in m.parameters for k in _SKY_KEYS)
+
+
+def sky_to_unreal(params) -> dict[str, float | tuple]:
+    """`rtfit.realtime.nishita_sky.AtmosphereParams` (with the fitted artist scales) as SkyAtmosphere
+    properties: lengths in km, scattering and absorption coefficients per km as a scale times a colour
+    (the defaults 0.0331 and 0.003996 are Bruneton's β_R(440 nm) and β_M in 1/km), the exponential
+    distributions = the scale heights in km ("the altitude at which the scattering is reduced to 40%":
+    e^(−1)); the colour is the per-channel β over its largest channel."""
+    br, bm, bme = params.betas()
+    rs = max(br) * 1e3
+    ms = max(bm) * 1e3
+    absorption = [(e - s) * 1e3 for e, s in zip(bme, bm, strict=True)]
+    ma = max(absorption)
+    return {
+        "GroundRadius": params.planet_radius_m / 1e3,
+        "AtmosphereHeight": params.top_m / 1e3,
+        "MultiScatteringFactor": 0.0,
+        "GroundAlbedo": (params.ground_albedo,) * 3,
+        "RayleighScatteringScale": rs,
+        "RayleighScattering": tuple(b * 1e3 / rs for b in br),
+        "RayleighExponentialDistribution": params.rayleigh_height_m / 1e3,
+        "MieScatteringScale": ms,
+        "MieScattering": tuple(b * 1e3 / ms for b in bm),
+        "MieAbsorptionScale": ma,
+        "MieAbsorption": tuple(a / ma for a in absorption) if ma > 0 else (0.0, 0.0, 0.0),
+        "MieAnisotropy": params.mie_g,
+        "MieExponentialDistribution": params.mie_height_m / 1e3,
+        "OtherAbsorptionScale": 0.0,
+    }
+
+
+def sky_from_unreal(values: Mapping, params) -> tuple[float, float, float]:
+    """(rayleigh_scale, mie_scale, mie_g) of SkyAtmosphere ``values`` against the base ``params`` (the
+    unscaled `AtmosphereParams`): the inverse of `sky_to_unreal` on the blue channel."""
+    k = max(range(len(params.rayleigh_beta)), key=lambda i: params.rayleigh_beta[i])
+    rayleigh = (
+        values["RayleighScatteringScale"] * values["RayleighScattering"][k] / 1e3 / params.rayleigh_beta[k]
+    )
+    j = max(range(len(params.mie_beta)), key=lambda i: params.mie_beta[i])
+    mie = values["MieScatteringScale"] * values["MieScattering"][j] / 1e3 / params.mie_beta[j]
+    return rayleigh, mie, float(values["MieAnisotropy"])
+
+
+def unreal_sky_coefficients(values: Mapping, altitude_km, dtype=np.float64):
+    """SkyAtmosphere's medium at ``altitude_km`` as its documentation defines it: (Rayleigh scattering,
+    Mie scattering, Mie absorption) per channel in 1/km, each scale × colour × e^(−h/distribution)."""
+    h = np.asarray(altitude_km, dtype)
+    ray = np.exp(-h / dtype(values["RayleighExponentialDistribution"]))
+    mie = np.exp(-h / dtype(values["MieExponentialDistribution"]))
+    return (
+        [dtype(values["RayleighScatteringScale"] * c) * ray for c in values["RayleighScattering"]],
+        [dtype(values["MieScatteringScale"] * c) * mie for c in values["MieScattering"]],
+        [dtype(values["MieAbsorptionScale"] * c) * mie for c in values["MieAbsorption"]],
+    )
+
+
+def _sky_preset(m: FittedMethod, engine: str) -> dict:
+    p = {k: float(m.parameters[k].value) for k in (*_SKY_KEYS, "ambient") if k in m.parameters}
+    params = AtmosphereParams(rayleigh_scale=p["rayleigh_scale"], mie_scale=p["mie_scale"], mie_g=p["mie_g"])
+    values = sky_to_unreal(params)
+    km = ("GroundRadius", "AtmosphereHeight", "RayleighExponentialDistribution", "MieExponentialDistribution")
+    per_km = ("RayleighScatteringScale", "MieScatteringScale", "MieAbsorptionScale")
+    units = {**dict.fromkeys(km, "km"), **dict.fromkeys(per_km, "1/km")}
+    return Preset(
+        engine,
+        m.id,
+        m.case,
+        0.0,
+        tuple(EngineValue(k, v, units.get(k, "1")) for k, v in values.items()),
+        SKY_UNREAL_LOST if p.get("ambient", 0.0) > 0 else SKY_UNREAL_LOST[1:],
+        p,
+    ).to_json()
+
+
 def convert_fitted(doc: FittedFile, engine: str, base: float | None = None, source: str = "") -> dict:
     """The ``rtfit.engine-preset/1`` document of every fog method of ``doc`` in ``engine``; `ConvertError`
     (one line) when the file holds none."""
     eng = ENGINES[engine]
     fog = [m for m in doc.methods if _is_fog(m)]
+    sky = [m for m in doc.methods if _is_sky(m)]
+    if sky and not fog:
+        if engine != "unreal":
+            raise ConvertError(
+                f"{source or doc.title}: the Nishita sky converts to Unreal's SkyAtmosphere only (--engine "
+                f"unreal); HDRP's physically based sky and Godot's sky are not converted yet"
+            )
+        return {
+            "format": PRESET_FORMAT,
+            "source": source,
+            "experiment": doc.provenance.experiment,
+            "engine": "unreal",
+            "engine_title": "Unreal Engine 4.26+/5 SkyAtmosphere",
+            "anchor": "the planet's centre at -GroundRadius below the origin (Transform Mode: planet top at "
+            "absolute world origin)",
+            "sources": list(SKY_UNREAL_SOURCES),
+            "presets": [_sky_preset(m, engine) for m in sky],
+        }
     if not fog:
         ids = ", ".join(m.id for m in doc.methods) or "none"
         raise ConvertError(
             f"{source or doc.title}: no height-fog method (parameters b and c in 1/m) to convert for "
-            f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits)"
+            f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits, and the "
+            f"Nishita sky's artist fits for unreal)"
         )
     return {
         "format": PRESET_FORMAT,

@@ -212,3 +212,77 @@ def test_convert_refuses_what_it_cannot_convert(tmp_path):
     (tmp_path / "bad.json").write_text('{"format": "other"}')
     out = CliRunner().invoke(cli, ["fitted", "convert", str(tmp_path / "bad.json"), "--engine", "godot"])
     assert out.exit_code == 2 and "expected 'rtfit.fitted/1'" in out.stderr
+
+
+# ------------------------------------------------------------------------ the Nishita sky: SkyAtmosphere
+def test_unscaled_sky_is_unreals_documented_default():
+    """rtfit's atmosphere (Bruneton's parameters) as SkyAtmosphere properties: Unreal's documented defaults
+    (Rayleigh 0.0331 × (0.175287, 0.409607, 1) per km over 8 km, Mie 0.003996 / absorption 0.000444 per km
+    over 1.2 km, anisotropy 0.8, ground 6360 km, atmosphere 60 km)."""
+    from rtfit.experiments.engine_presets import sky_to_unreal
+    from rtfit.realtime.nishita_sky import AtmosphereParams
+
+    v = sky_to_unreal(AtmosphereParams())
+    assert v["RayleighScatteringScale"] == pytest.approx(0.0331, rel=1e-12)
+    assert v["RayleighScattering"] == pytest.approx((0.175287, 0.409607, 1.0), abs=5e-7)
+    assert v["MieScatteringScale"] == pytest.approx(0.003996) and v["MieAbsorptionScale"] == pytest.approx(
+        0.000444
+    )
+    assert v["RayleighExponentialDistribution"] == 8.0 and v["MieExponentialDistribution"] == 1.2
+    assert (v["MieAnisotropy"], v["GroundRadius"], v["AtmosphereHeight"]) == (0.8, 6360.0, 60.0)
+
+
+@pytest.mark.parametrize(("s_r", "s_m", "g"), [(0.6937, 1.1615, 0.7797), (0.3, 0.05, 0.0), (3.0, 20.0, 0.95)])
+def test_sky_round_trip_and_the_engine_medium(s_r, s_m, g):
+    """The fitted scales to SkyAtmosphere and back; Unreal's medium (scale × colour × e^(−h/distribution),
+    per km) is rtfit's β·e^(−h/H) per m at every altitude, and its vertical optical depth (Gauss–Legendre
+    over 0…60 km) gives rtfit's sun transmittance at the zenith."""
+    from rtfit.experiments.engine_presets import sky_from_unreal, sky_to_unreal, unreal_sky_coefficients
+    from rtfit.realtime.nishita_sky import AtmosphereParams, sun_transmittance
+
+    params = AtmosphereParams(rayleigh_scale=s_r, mie_scale=s_m, mie_g=g)
+    v = sky_to_unreal(params)
+    assert sky_from_unreal(v, AtmosphereParams()) == pytest.approx((s_r, s_m, g), rel=1e-12)
+    br, bm, bme = params.betas()
+    h_km = np.linspace(0.0, 60.0, 61)
+    ray, mie, absorption = unreal_sky_coefficients(v, h_km)
+    for k in range(3):
+        np.testing.assert_allclose(
+            ray[k] / 1e3, br[k] * np.exp(-h_km * 1e3 / params.rayleigh_height_m), rtol=1e-12
+        )
+        np.testing.assert_allclose(
+            mie[k] / 1e3, bm[k] * np.exp(-h_km * 1e3 / params.mie_height_m), rtol=1e-12
+        )
+        np.testing.assert_allclose(
+            (mie[k] + absorption[k]) / 1e3, bme[k] * np.exp(-h_km * 1e3 / params.mie_height_m), rtol=1e-12
+        )
+    t, w = np.polynomial.legendre.leggauss(200)
+    h = 30.0 * (t + 1.0)
+    ray, mie, absorption = unreal_sky_coefficients(v, h)
+    tau = [30.0 * np.sum(w * (ray[k] + mie[k] + absorption[k])) for k in range(3)]
+    np.testing.assert_allclose(np.exp(-np.array(tau)), sun_transmittance(params, 0.0, 1.0), rtol=1e-9)
+
+
+def test_sky_file_converts_for_unreal_only(tmp_path):
+    """A Nishita-sky fitted file: ``--engine unreal`` gives the SkyAtmosphere preset with ``ambient`` listed
+    as lost; another engine is one line, exit 2."""
+    par = {"value": 0.0, "stderr": None, "unit": "1", "lower": 0.0, "upper": 10.0, "at_bound": False}
+    method = {
+        "id": "nishita-fitted", "label": "Nishita fitted", "formula": "L", "case": "e45-ms",
+        "quantity": "sky_radiance", "residual": None, "domain": {}, "shader": None,
+        "shader_note": "a texture",
+        "parameters": {k: {**par, "value": x} for k, x in
+                       (("rayleigh_scale", 0.69), ("mie_scale", 1.16), ("mie_g", 0.78), ("ambient", 0.71))},
+    }  # fmt: skip
+    provenance = {"rtfit_version": "0", "experiment": "nishita-sky", "date": "2026-12-05"}
+    doc = {"format": "rtfit.fitted/1", "title": "sky", "methods": [method], "provenance": provenance}
+    path = tmp_path / "sky.json"
+    path.write_text(json.dumps(doc))
+    out = CliRunner().invoke(cli, ["fitted", "convert", str(path), "--engine", "unreal"])
+    assert out.exit_code == 0, out.output
+    (preset,) = json.loads(out.stdout)["presets"]
+    got = {v["name"]: v["value"] for v in preset["values"]}
+    assert got["RayleighScatteringScale"] == pytest.approx(0.0331 * 0.69, rel=1e-12)
+    assert got["MultiScatteringFactor"] == 0.0 and any(line.startswith("ambient") for line in preset["lost"])
+    out = CliRunner().invoke(cli, ["fitted", "convert", str(path), "--engine", "unity-hdrp"])
+    assert out.exit_code == 2 and "SkyAtmosphere only" in out.stderr
