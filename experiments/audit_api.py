@@ -5,9 +5,10 @@
 
 * `summary_rows(result)` — one `SummaryRow` per case × row: label, RMSE with its noise floor and resolved
   flag, the fit's flag, the cost per pixel (the numbers the report's first table shows);
-* `summary_html(result)` — those rows as an HTML table, with the run's one-sentence findings per case and
-  what was skipped: what `AuditResult._repr_html_` shows inline in Jupyter (the interactive viewer stays in
-  ``write_report``'s ``viewer.html``: it needs its own files);
+* `summary_html(result)` — those rows as an HTML table, with the run's one-sentence findings per case,
+  what was skipped and small inline images (each case's reference beside its rows, PNG data URIs written
+  by `png_data_uri`): what `AuditResult._repr_html_` shows inline in Jupyter (the interactive viewer stays
+  in ``write_report``'s ``viewer.html``: it needs its own files);
 * `summary_document(result)` — the JSON document of ``rtfit audit … --json FILE`` (`SUMMARY_FORMAT`);
 * `to_dataframe(result)` — the same rows as a ``pandas.DataFrame`` when pandas is installed (rtfit does not
   depend on it: without it, one `ImportError` line saying so).
@@ -18,11 +19,25 @@ module).
 
 from __future__ import annotations
 
+import base64
 import html
 import math
+import struct
+import zlib
 from dataclasses import asdict, dataclass
 
-__all__ = ["SUMMARY_FORMAT", "SummaryRow", "summary_document", "summary_html", "summary_rows", "to_dataframe"]
+import numpy as np
+
+__all__ = [
+    "SUMMARY_FORMAT",
+    "THUMBNAIL_MAX_PIXELS",
+    "SummaryRow",
+    "png_data_uri",
+    "summary_document",
+    "summary_html",
+    "summary_rows",
+    "to_dataframe",
+]
 
 
 @dataclass(frozen=True)
@@ -76,10 +91,55 @@ def _num(x: float | None, fmt: str = ".3g") -> str:
     return format(x, fmt) if math.isfinite(x) else str(x)
 
 
-def summary_html(result) -> str:
+THUMBNAIL_MAX_PIXELS = 256 * 256
+"""Largest image (pixels) `summary_html` shows inline; larger audits show the table alone (the report has
+the figures)."""
+
+
+def png_data_uri(rgb: np.ndarray, scale: float) -> str:
+    """An (H, W, 3) linear image as an 8-bit sRGB-ish PNG data URI (values / ``scale``, clipped, gamma
+    1/2.2): a stdlib PNG writer (zlib), so that a notebook's inline view needs no imaging library."""
+    img = np.nan_to_num(np.asarray(rgb, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    img = np.clip(img / scale if scale > 0 else img * 0.0, 0.0, 1.0) ** (1 / 2.2)
+    pix = (img * 255.0 + 0.5).astype(np.uint8)
+    h, w = pix.shape[:2]
+    raw = b"".join(b"\x00" + pix[y].tobytes() for y in range(h))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+    png += chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b"")
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def _thumbnails(result) -> str:
+    """Per case: the reference and each row's image on one exposure (the reference's 99th percentile)."""
+    out = []
+    for c in result.cases:
+        ref = np.asarray(c.reference.mean)
+        rows = result.outcomes.get(c.id, {})
+        if ref.ndim != 3 or ref.shape[0] * ref.shape[1] > THUMBNAIL_MAX_PIXELS or not rows:
+            continue
+        finite = ref[np.isfinite(ref)]
+        scale = float(np.percentile(finite, 99)) if finite.size else 1.0
+        cells = [("reference", ref)] + [(o.label, o.image) for o in rows.values()]
+        figs = "".join(
+            f"<figure style='display:inline-block;margin:2px'><img src='{png_data_uri(img, scale)}' "
+            f"style='width:96px;image-rendering:pixelated'><figcaption style='font-size:small'>"
+            f"{html.escape(label)}</figcaption></figure>"
+            for label, img in cells
+            if np.asarray(img).shape == ref.shape
+        )
+        out.append(f"<div><b>{html.escape(c.label)}</b><br>{figs}</div>")
+    return "".join(out)
+
+
+def summary_html(result, images: bool = True) -> str:
     """The inline summary: a table of case × row (RMSE, noise floor, resolved, fitted, cost), the findings
-    sentence and the skipped families. Plain HTML (no scripts), so that it renders in Jupyter, VS Code and
-    exported notebooks alike."""
+    sentence and the skipped families, then (``images``, for images up to `THUMBNAIL_MAX_PIXELS`) each case's
+    reference beside its rows' images on one exposure. Plain HTML (no scripts; images as PNG data URIs), so
+    that it renders in Jupyter, VS Code and exported notebooks alike."""
     e = html.escape
     labels = {c.id: c.label for c in result.cases}
     head = (
@@ -109,6 +169,10 @@ def summary_html(result) -> str:
         parts.append(
             f"<details><summary>not audited ({len(result.skipped)})</summary><ul>{items}</ul></details>"
         )
+    if images:
+        thumbs = _thumbnails(result)
+        if thumbs:
+            parts.append(f"<details open><summary>images</summary>{thumbs}</details>")
     if result.out is not None:
         parts.append(f"<p>report: {e(str(result.out))}/report.html</p>")
     parts.append("</div>")

@@ -128,6 +128,26 @@ def test_inline_summary_lists_every_row_with_its_floor(audited):
     for s in rows:
         assert f"{s.rmse:.4g}" in page and f"{s.rmse_floor:.2g}" in page
     assert "within the noise" in page and "<script" not in page
+    # the images: per case its reference and every row, as PNG data URIs
+    assert page.count("data:image/png;base64,") == sum(1 + len(v) for v in r.outcomes.values())
+
+
+def test_inline_png_decodes_to_the_image():
+    """`png_data_uri` read back by Matplotlib's PNG decoder: the 8-bit values (x/scale)^(1/2.2), clipped."""
+    import base64
+    import io
+
+    from matplotlib.image import imread
+
+    from rtfit.experiments.audit_api import png_data_uri
+
+    img = np.random.default_rng(3).uniform(0.0, 3.0, (5, 7, 3))
+    img[0, 0] = np.nan
+    uri = png_data_uri(img, 2.0)
+    back = imread(io.BytesIO(base64.b64decode(uri.split(",", 1)[1])), format="png")
+    expect = np.clip(np.nan_to_num(img) / 2.0, 0.0, 1.0) ** (1 / 2.2)
+    assert back.shape == (5, 7, 3)
+    np.testing.assert_allclose(back, expect, atol=0.5 / 255 + 1e-6)
 
 
 def test_to_dataframe_without_pandas_says_so(audited):
