@@ -33,11 +33,14 @@ T = 2^(−that). Since (1 − 2^(−x))/x = ln 2·∫₀¹ 2^(−x·t) dt, the n
 and back FogDensity = 10·b·e^(−c·z_fog)/(ln 2)², FogHeightFalloff = 10·c/ln 2. Exact for every ray: the
 height law is the same. Kept: ``StartDistance`` 0, ``FogMaxOpacity`` 1, ``FogCutoffDistance`` 0 (rtfit's
 fog has none of these). The constant colour C₀ is ``FogInscatteringColor`` (UE's blend is L₀·T + C·(1 − T),
-the same). Lost: the ``phase`` model's C₁·4π·p_HG(θ, g) — Unreal's directional inscattering is
-DirectionalInscatteringColor·max(v·l, 0)^Exponent with its own start distance, another lobe; UE 5 clamps the
-camera's height above the fog (its maximum observer height), which rtfit's fog does not; and its float32
-text takes 2^(−F·z) at the camera's height and 2^(−F·Δz) apart, which leave float32's range once c·z or
-|c·Δz| passes ~80 (a camera high above dense fog), where rtfit's stable form stays finite.
+the same). The ``phase`` model's lobe C₁·4π·p_HG(θ, g) becomes Unreal's directional inscattering,
+DirectionalInscatteringColor·max(v·l, 0)^Exponent (start distance 0, so its fog factor is the same T):
+4π·p_HG ≈ a + k·max(cos θ, 0)^n by least squares over the sphere (`hg_as_power_lobe`), so
+FogInscatteringColor = C₀ + a·C₁, DirectionalInscatteringColor = k·C₁, Exponent = n; the fit's relative RMS
+error over the sphere is listed as lost (0.14 at g = 0.58: the power lobe has no backward tail). UE 5
+clamps the camera's height above the fog (its maximum observer height), which rtfit's fog does not; and
+its float32 text takes 2^(−F·z) at the camera's height and 2^(−F·Δz) apart, which leave float32's range
+once c·z or |c·Δz| passes ~80 (a camera high above dense fog), where rtfit's stable form stays finite.
 
 Unity HDRP — Fog volume override
 --------------------------------
@@ -97,7 +100,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.nishita_sky import AtmosphereParams
+from rtfit.realtime.phase import hg_phase_kernel
 
 from .fitted import FittedFile, FittedMethod
 
@@ -228,6 +233,9 @@ ENGINES: dict[str, Engine] = {
             "FogMaxOpacity": "1",
             "FogCutoffDistance": "cm",
             "FogInscatteringColor": "linear RGB, the scene's radiance units",
+            "DirectionalInscatteringColor": "linear RGB, the scene's radiance units",
+            "DirectionalInscatteringExponent": "1",
+            "DirectionalInscatteringStartDistance": "cm",
         },
         True,
         (
@@ -335,6 +343,30 @@ def godot_extinction(density, height_falloff, y0, y, dtype=np.float32):
     return dtype(density) * np.clip(np.exp2(-dtype(height_falloff) * (y - dtype(y0))), dtype(0.0), dtype(1.0))
 
 
+# ------------------------------------------------------------------ the phase lobe as Unreal's power lobe
+_MU, _MU_W = np.polynomial.legendre.leggauss(512)
+LOBE_EXPONENTS = np.geomspace(1.0, 512.0, 600)
+"""The exponents n `hg_as_power_lobe` searches (Unreal's DirectionalInscatteringExponent)."""
+
+
+def _lobe_fit(w: np.ndarray, n: float) -> tuple[float, float, float]:
+    """(a, k, squared error) of the least-squares a + k·max(μ, 0)^n ≈ w(μ) over the sphere (dΩ = 2π dμ)."""
+    basis = np.stack([np.ones_like(_MU), np.maximum(_MU, 0.0) ** n], axis=1)
+    sw = np.sqrt(_MU_W)
+    (a, k), *_ = np.linalg.lstsq(basis * sw[:, None], w * sw, rcond=None)
+    return float(a), float(k), float(np.sum(_MU_W * (basis @ (a, k) - w) ** 2))
+
+
+def hg_as_power_lobe(g: float) -> tuple[float, float, float, float]:
+    """The fitted colour lobe 4π·p_HG(θ, g) (`rtfit.realtime.phase`, mean 1 over the sphere) as
+    a + k·max(cos θ, 0)^n, Unreal's constant plus directional inscattering: (a, k, n, relative RMS error
+    over the sphere). n from `LOBE_EXPONENTS`, (a, k) by linear least squares for each."""
+    w = 4.0 * math.pi * np.asarray(hg_phase_kernel(NUMPY_OPS, _MU, float(g)), dtype=np.float64)
+    fits = [(*_lobe_fit(w, float(n)), float(n)) for n in LOBE_EXPONENTS]
+    a, k, err, n = min(fits, key=lambda f: f[2])
+    return a, k, n, math.sqrt(err / float(np.sum(_MU_W * w**2)))
+
+
 # ------------------------------------------------------------------------------------------ the files
 @dataclass(frozen=True)
 class Preset:
@@ -389,6 +421,23 @@ def convert_method(m: FittedMethod, engine: Engine, base: float | None = None) -
         raise ConvertError(f"{m.id}: b = {b}, c = {c}: the engines' height fog needs b > 0 and c > 0")
     at = _base(m, engine, base)
     colour = tuple(float(p[k].value) for k in _COLOUR) if all(k in p for k in _COLOUR) else None
+    lobe = tuple(float(p[k].value) for k in _LOBE) if all(k in p for k in _LOBE) else None
+    if engine.name == "unreal" and lobe is not None and colour is not None:
+        a, k, n, rel = hg_as_power_lobe(lobe[3])
+        colour = tuple(c0 + a * c1 for c0, c1 in zip(colour, lobe[:3], strict=True))
+        values = engine.to_engine(b, c, at, colour)
+        values |= {
+            "DirectionalInscatteringColor": tuple(k * c1 for c1 in lobe[:3]),
+            "DirectionalInscatteringExponent": n,
+            "DirectionalInscatteringStartDistance": 0.0,
+        }
+        lost = [
+            f"the phase lobe's shape: 4π·p_HG(θ, g = {lobe[3]:.3g}) as {a:.4g} + {k:.4g}·"
+            f"max(cos θ, 0)^{n:.3g} (relative RMS error over the sphere {rel:.2g}); "
+            f"FogInscatteringColor holds C₀ + {a:.4g}·C₁",
+            *engine.lost[1:],
+        ]
+        return _preset(engine, m, at, values, lost, p, colour_kept=True)
     values = engine.to_engine(b, c, at, colour if engine.colour else None)
     lost = list(engine.lost)
     if not engine.colour and colour is not None:
@@ -396,7 +445,11 @@ def convert_method(m: FittedMethod, engine: Engine, base: float | None = None) -
     if any(k in p for k in _LOBE):
         lobe = ", ".join(f"{k} = {float(p[k].value):.4g}" for k in _LOBE if k in p)
         lost.insert(0, f"the fitted phase lobe ({lobe})")
-    kept = [k for k in ("b", "c", *_COLOUR) if k in p]
+    return _preset(engine, m, at, values, lost, p)
+
+
+def _preset(engine: Engine, m: FittedMethod, at: float, values: dict, lost, p, colour_kept: bool = False):
+    kept = [k for k in ("b", "c", *_COLOUR, *(_LOBE if colour_kept else ())) if k in p]
     return Preset(
         engine.name,
         m.id,

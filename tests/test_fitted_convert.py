@@ -286,3 +286,50 @@ def test_sky_file_converts_for_unreal_only(tmp_path):
     assert got["MultiScatteringFactor"] == 0.0 and any(line.startswith("ambient") for line in preset["lost"])
     out = CliRunner().invoke(cli, ["fitted", "convert", str(path), "--engine", "unity-hdrp"])
     assert out.exit_code == 2 and "SkyAtmosphere only" in out.stderr
+
+
+def test_phase_lobe_as_unreals_directional_inscattering():
+    """The fitted lobe 4π·p_HG(θ, g) as a + k·max(cos θ, 0)^n (Unreal's inscattering plus directional
+    inscattering): isotropic (g = 0) is a = 1, k = 0 exactly; for g = 0.58 the reported relative RMS error is
+    the one a midpoint rule over 20 000 cosines gives for the returned (a, k, n), and no exponent 5 % away
+    (with its own least-squares a, k on that grid) does better."""
+    from rtfit.experiments.engine_presets import hg_as_power_lobe
+
+    a, k, n, rel = hg_as_power_lobe(0.0)
+    assert a == pytest.approx(1.0, abs=1e-9) and k == pytest.approx(0.0, abs=1e-9) and rel < 1e-9
+    g = 0.58
+    a, k, n, rel = hg_as_power_lobe(g)
+    mu = (np.arange(20000) + 0.5) / 10000 - 1.0
+    w = (1 - g * g) / (1 + g * g - 2 * g * mu) ** 1.5  # 4π·p_HG, written here from its definition
+
+    def err(a_, k_, n_):
+        return math.sqrt(np.mean((a_ + k_ * np.maximum(mu, 0.0) ** n_ - w) ** 2) / np.mean(w**2))
+
+    assert err(a, k, n) == pytest.approx(rel, rel=1e-3)
+    for m in (0.95 * n, 1.05 * n):
+        basis = np.stack([np.ones_like(mu), np.maximum(mu, 0.0) ** m], axis=1)
+        (a2, k2), *_ = np.linalg.lstsq(basis, w, rcond=None)
+        assert err(a2, k2, m) >= rel * (1 - 1e-3)
+
+
+def test_phase_file_for_unreal_carries_the_lobe(tmp_path):
+    """A ``phase`` height-fog file for Unreal: b and c round-trip, FogInscatteringColor = C₀ + a·C₁ and
+    DirectionalInscatteringColor = k·C₁ with the lobe fit's (a, k, n), the fit's error listed as lost."""
+    from rtfit.experiments.engine_presets import hg_as_power_lobe
+
+    values = {"b": 1.3266e-4, "c": 2.898e-3, "r0": 0.0109, "g0": 0.0188, "b0": 0.0245}
+    values |= {"r1": 0.0704, "g1": 0.0431, "b1": 0.0159, "g": 0.58}
+    out = CliRunner().invoke(
+        cli, ["fitted", "convert", _fitted_file(tmp_path, "phase", values), "--engine", "unreal"]
+    )
+    assert out.exit_code == 0, out.output
+    (preset,) = json.loads(out.stdout)["presets"]
+    got = {v["name"]: v["value"] for v in preset["values"]}
+    b, c, _ = ENGINES["unreal"].from_engine(got, 0.0)
+    assert b == pytest.approx(values["b"], rel=1e-12) and c == pytest.approx(values["c"], rel=1e-12)
+    a, k, n, rel = hg_as_power_lobe(0.58)
+    c0, c1 = [values[x] for x in ("r0", "g0", "b0")], [values[x] for x in ("r1", "g1", "b1")]
+    assert got["FogInscatteringColor"] == pytest.approx([x + a * y for x, y in zip(c0, c1, strict=True)])
+    assert got["DirectionalInscatteringColor"] == pytest.approx([k * y for y in c1])
+    assert got["DirectionalInscatteringExponent"] == pytest.approx(n)
+    assert f"{rel:.2g}" in preset["lost"][0]
