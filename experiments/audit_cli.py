@@ -186,6 +186,8 @@ def audit(
     """Audit SCENE (a Mitsuba .xml scene, an rtfit .toml scene or sky file, or a library name): every
     applicable approximation against the scene's own reference, with noise floors, fits, costs and a report
     in OUT/audit-<scene>. --list prints which approximation families apply to it and why."""
+    if json_out is not None and list_only:
+        _error("--json writes the run's summary; --list prints what applies as text (drop one of them)")
     if json_out is not None and json_out != "-":
         _json_target(json_out)
     try:

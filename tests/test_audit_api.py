@@ -266,3 +266,22 @@ def test_list_json_and_name_completion():
     assert "height-fog" in complete(["run", "diffuse"], "he") and "all" in complete(["bench"], "a")
     assert complete(["audit", "x.xml", "--approx"], "diffuse,diffuse:wr") == ["diffuse,diffuse:wrap"]
     assert "sphere_light" in complete(["audit"], "sphere_l")
+
+
+def test_audit_json_bad_targets_are_one_line(tmp_path):
+    """``--json`` into a folder, into a missing folder, or with ``--list``: one line, exit 2, nothing run."""
+    from click.testing import CliRunner
+
+    from rtfit.experiments.cli import cli
+
+    path = tmp_path / "ball.xml"
+    path.write_text(XML)
+    for args, text in (
+        (["--json", str(tmp_path)], "a folder"),
+        (["--json", str(tmp_path / "no" / "x.json")], "no folder"),
+        (["--list", "--json", "-"], "--list prints"),
+    ):
+        out = CliRunner().invoke(cli, ["audit", str(path), *args])
+        assert out.exit_code == 2 and text in out.stderr and len(out.stderr.strip().splitlines()) == 1, (
+            out.output
+        )
