@@ -88,8 +88,20 @@ effect is reduced to 40%", i.e. e^(−1): the scale heights) in km; Mie Anisotro
 parameters (Bruneton's) are Unreal's defaults — 0.0331 × (0.175287, 0.409607, 1), 8 km, 0.003996, 0.000444,
 1.2 km, 0.8 — which `tests/test_fitted_convert.py` checks. Lost: ``ambient`` (Unreal computes multiple
 scattering itself; MultiScattering is set to 0 to keep the fitted single-scattering model), the sun's
-irradiance (Unreal's directional light), Unreal's ozone (set to 0). HDRP's physically based sky and Godot's
-sky are not converted yet.
+irradiance (Unreal's directional light), Unreal's ozone (set to 0). Godot's sky is not converted yet.
+
+The Nishita sky — Unity HDRP's Physically Based Sky (Type: Custom)
+-------------------------------------------------------------------
+Properties (metres) Planetary Radius, Air/Aerosol Maximum Altitude, Air Density (per channel) and Aerosol
+Density — "opacity … as measured by an observer on the ground looking towards the zenith" — Air/Aerosol
+Tint, Aerosol Anisotropy (https://docs.unity3d.com/Packages/com.unity.render-pipelines.high-definition@16.0/
+manual/physically-based-sky-volume-override-reference.html). HDRP's ``PhysicallyBasedSky.cs`` turns them
+into the medium: H = 0.144765 × Maximum Altitude, extinction −ln(1 − α)/H at sea level, scattering =
+extinction × tint (`hdrp_sky_coefficients`). So (`sky_to_hdrp`) Maximum Altitude = H/0.144765, Density =
+1 − e^(−σt·H), Air Tint 1 (rtfit's air does not absorb), Aerosol Tint = β_M/β_M^ext (0.9), Anisotropy = g,
+Number Of Bounces 1. rtfit's unscaled air is HDRP's built-in Earth air (5.8e-6, 1.35e-5, 3.31e-5 per m)
+within 0.5 %. Lost: ``ambient``, the sun, the atmosphere's top (HDRP's ends at 55.3 km for this air, rtfit's
+at 60 km) and HDRP's ozone where the version has one (set to 0).
 """
 
 from __future__ import annotations
@@ -117,7 +129,10 @@ __all__ = [
     "convert_fitted",
     "godot_extinction",
     "hdrp_optical_depth",
+    "hdrp_sky_coefficients",
+    "sky_from_hdrp",
     "sky_from_unreal",
+    "sky_to_hdrp",
     "sky_to_unreal",
     "unreal_optical_depth",
     "unreal_sky_coefficients",
@@ -536,20 +551,90 @@ def unreal_sky_coefficients(values: Mapping, altitude_km, dtype=np.float64):
     )
 
 
+SKY_HDRP_SOURCES = (
+    "https://docs.unity3d.com/Packages/com.unity.render-pipelines.high-definition@16.0/manual/"
+    "physically-based-sky-volume-override-reference.html",
+)
+SKY_HDRP_LOST = (
+    SKY_UNREAL_LOST[0]
+    .replace("Unreal computes", "HDRP computes")
+    .replace("MultiScattering, set to 0 here", "Number Of Bounces, set to 1 here"),
+    "the sun: rtfit's solar irradiance E₀ per channel is the directional light's intensity in HDRP",
+    "the atmosphere's top: HDRP's ends at the larger layer depth (e^(−d/H) = 0.001: 55.3 km for rtfit's "
+    "air), rtfit's at 60 km",
+    "HDRP's ozone layer (versions that have one): set its density to 0, rtfit's atmosphere has none",
+)
+
+
+def sky_to_hdrp(params) -> dict[str, float | tuple]:
+    """`AtmosphereParams` as HDRP Physically Based Sky properties (Type: Custom; metres): each layer's
+    Maximum Altitude = H/0.144765 (HDRP's ``ScaleHeightFromLayerDepth``), its Density the zenith opacity
+    1 − e^(−σt·H) that HDRP turns back into the extinction σt = −ln(1 − α)/H (``ExtinctionFromZenithOpacity
+    AndScaleHeight``), its Tint the single-scattering albedo (scattering = extinction × tint)."""
+    br, bm, bme = params.betas()
+    mie_ext = max(bme)
+    return {
+        "PlanetaryRadius": params.planet_radius_m,
+        "AirMaximumAltitude": params.rayleigh_height_m / HDRP_SCALE_HEIGHT,
+        "AirDensity": tuple(-math.expm1(-b * params.rayleigh_height_m) for b in br),
+        "AirTint": (1.0, 1.0, 1.0),
+        "AerosolMaximumAltitude": params.mie_height_m / HDRP_SCALE_HEIGHT,
+        "AerosolDensity": -math.expm1(-mie_ext * params.mie_height_m),
+        "AerosolTint": tuple(s / mie_ext for s in bm),
+        "AerosolAnisotropy": params.mie_g,
+        "NumberOfBounces": 1,
+    }
+
+
+def hdrp_sky_coefficients(values: Mapping, altitude_m, dtype=np.float64):
+    """HDRP's Physically Based Sky medium at ``altitude_m`` (its ``PhysicallyBasedSky.cs``): (air
+    scattering, aerosol scattering, aerosol extinction) per channel in 1/m."""
+    h = np.asarray(altitude_m, dtype)
+    h_air = dtype(HDRP_SCALE_HEIGHT * values["AirMaximumAltitude"])
+    h_aer = dtype(HDRP_SCALE_HEIGHT * values["AerosolMaximumAltitude"])
+    air = [-np.log1p(-dtype(a)) / h_air * dtype(t) * np.exp(-h / h_air)
+           for a, t in zip(values["AirDensity"], values["AirTint"], strict=True)]  # fmt: skip
+    ext = -np.log1p(-dtype(min(values["AerosolDensity"], 0.999999))) / h_aer * np.exp(-h / h_aer)
+    return air, [dtype(t) * ext for t in values["AerosolTint"]], [ext] * len(values["AerosolTint"])
+
+
+def sky_from_hdrp(values: Mapping, params) -> tuple[float, float, float]:
+    """(rayleigh_scale, mie_scale, mie_g) of HDRP ``values`` against the unscaled ``params``."""
+    air, _aer, ext = hdrp_sky_coefficients(values, 0.0)
+    k = max(range(len(params.rayleigh_beta)), key=lambda i: params.rayleigh_beta[i])
+    j = max(range(len(params.mie_extinction)), key=lambda i: params.mie_extinction[i])
+    return (
+        float(air[k]) / params.rayleigh_beta[k],
+        float(ext[j]) / params.mie_extinction[j],
+        float(values["AerosolAnisotropy"]),
+    )
+
+
 def _sky_preset(m: FittedMethod, engine: str) -> dict:
     p = {k: float(m.parameters[k].value) for k in (*_SKY_KEYS, "ambient") if k in m.parameters}
     params = AtmosphereParams(rayleigh_scale=p["rayleigh_scale"], mie_scale=p["mie_scale"], mie_g=p["mie_g"])
-    values = sky_to_unreal(params)
-    km = ("GroundRadius", "AtmosphereHeight", "RayleighExponentialDistribution", "MieExponentialDistribution")
-    per_km = ("RayleighScatteringScale", "MieScatteringScale", "MieAbsorptionScale")
-    units = {**dict.fromkeys(km, "km"), **dict.fromkeys(per_km, "1/km")}
+    if engine == "unity-hdrp":
+        values = sky_to_hdrp(params)
+        units = {"PlanetaryRadius": "m", "AirMaximumAltitude": "m", "AerosolMaximumAltitude": "m"}
+        lost = SKY_HDRP_LOST
+    else:
+        values = sky_to_unreal(params)
+        km = (
+            "GroundRadius",
+            "AtmosphereHeight",
+            "RayleighExponentialDistribution",
+            "MieExponentialDistribution",
+        )
+        per_km = ("RayleighScatteringScale", "MieScatteringScale", "MieAbsorptionScale")
+        units = {**dict.fromkeys(km, "km"), **dict.fromkeys(per_km, "1/km")}
+        lost = SKY_UNREAL_LOST
     return Preset(
         engine,
         m.id,
         m.case,
         0.0,
         tuple(EngineValue(k, v, units.get(k, "1")) for k, v in values.items()),
-        SKY_UNREAL_LOST if p.get("ambient", 0.0) > 0 else SKY_UNREAL_LOST[1:],
+        lost if p.get("ambient", 0.0) > 0 else lost[1:],
         p,
     ).to_json()
 
@@ -561,20 +646,24 @@ def convert_fitted(doc: FittedFile, engine: str, base: float | None = None, sour
     fog = [m for m in doc.methods if _is_fog(m)]
     sky = [m for m in doc.methods if _is_sky(m)]
     if sky and not fog:
-        if engine != "unreal":
+        if engine == "godot":
             raise ConvertError(
-                f"{source or doc.title}: the Nishita sky converts to Unreal's SkyAtmosphere only (--engine "
-                f"unreal); HDRP's physically based sky and Godot's sky are not converted yet"
+                f"{source or doc.title}: the Nishita sky converts to Unreal's SkyAtmosphere and HDRP's "
+                f"Physically Based Sky (--engine unreal|unity-hdrp); Godot's sky is not converted yet"
             )
+        hdrp = engine == "unity-hdrp"
         return {
             "format": PRESET_FORMAT,
             "source": source,
             "experiment": doc.provenance.experiment,
-            "engine": "unreal",
-            "engine_title": "Unreal Engine 4.26+/5 SkyAtmosphere",
-            "anchor": "the planet's centre at -GroundRadius below the origin (Transform Mode: planet top at "
-            "absolute world origin)",
-            "sources": list(SKY_UNREAL_SOURCES),
+            "engine": engine,
+            "engine_title": "Unity HDRP Physically Based Sky (Type: Custom)"
+            if hdrp
+            else "Unreal Engine 4.26+/5 SkyAtmosphere",
+            "anchor": "sea level at the world origin (Spherical Mode off)"
+            if hdrp
+            else "the planet's top at the world origin (Transform Mode: planet top at absolute world origin)",
+            "sources": list(SKY_HDRP_SOURCES if hdrp else SKY_UNREAL_SOURCES),
             "presets": [_sky_preset(m, engine) for m in sky],
         }
     if not fog:
@@ -582,7 +671,7 @@ def convert_fitted(doc: FittedFile, engine: str, base: float | None = None, sour
         raise ConvertError(
             f"{source or doc.title}: no height-fog method (parameters b and c in 1/m) to convert for "
             f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits, and the "
-            f"Nishita sky's artist fits for unreal)"
+            f"Nishita sky's artist fits for unreal and unity-hdrp)"
         )
     return {
         "format": PRESET_FORMAT,

@@ -263,9 +263,9 @@ def test_sky_round_trip_and_the_engine_medium(s_r, s_m, g):
     np.testing.assert_allclose(np.exp(-np.array(tau)), sun_transmittance(params, 0.0, 1.0), rtol=1e-9)
 
 
-def test_sky_file_converts_for_unreal_only(tmp_path):
+def test_sky_file_converts_for_unreal_and_hdrp(tmp_path):
     """A Nishita-sky fitted file: ``--engine unreal`` gives the SkyAtmosphere preset with ``ambient`` listed
-    as lost; another engine is one line, exit 2."""
+    as lost, ``unity-hdrp`` the Physically Based Sky one; Godot is one line, exit 2."""
     par = {"value": 0.0, "stderr": None, "unit": "1", "lower": 0.0, "upper": 10.0, "at_bound": False}
     method = {
         "id": "nishita-fitted", "label": "Nishita fitted", "formula": "L", "case": "e45-ms",
@@ -285,7 +285,12 @@ def test_sky_file_converts_for_unreal_only(tmp_path):
     assert got["RayleighScatteringScale"] == pytest.approx(0.0331 * 0.69, rel=1e-12)
     assert got["MultiScatteringFactor"] == 0.0 and any(line.startswith("ambient") for line in preset["lost"])
     out = CliRunner().invoke(cli, ["fitted", "convert", str(path), "--engine", "unity-hdrp"])
-    assert out.exit_code == 2 and "SkyAtmosphere only" in out.stderr
+    assert out.exit_code == 0, out.output
+    (preset,) = json.loads(out.stdout)["presets"]
+    got = {v["name"]: v["value"] for v in preset["values"]}
+    assert got["NumberOfBounces"] == 1 and got["AerosolAnisotropy"] == 0.78
+    out = CliRunner().invoke(cli, ["fitted", "convert", str(path), "--engine", "godot"])
+    assert out.exit_code == 2 and "Godot's sky is not converted" in out.stderr
 
 
 def test_phase_lobe_as_unreals_directional_inscattering():
@@ -333,3 +338,36 @@ def test_phase_file_for_unreal_carries_the_lobe(tmp_path):
     assert got["DirectionalInscatteringColor"] == pytest.approx([k * y for y in c1])
     assert got["DirectionalInscatteringExponent"] == pytest.approx(n)
     assert f"{rel:.2g}" in preset["lost"][0]
+
+
+@pytest.mark.parametrize(("s_r", "s_m", "g"), [(0.6937, 1.1615, 0.7797), (0.3, 0.05, 0.0), (3.0, 20.0, 0.95)])
+def test_hdrp_sky_round_trip_and_medium(s_r, s_m, g):
+    """The fitted scales as HDRP Physically Based Sky properties and back; HDRP's medium (zenith opacity →
+    extinction −ln(1 − α)/H, H = 0.144765 × Maximum Altitude, scattering = extinction × tint) is rtfit's
+    β·e^(−h/H) at every altitude."""
+    from rtfit.experiments.engine_presets import hdrp_sky_coefficients, sky_from_hdrp, sky_to_hdrp
+    from rtfit.realtime.nishita_sky import AtmosphereParams
+
+    params = AtmosphereParams(rayleigh_scale=s_r, mie_scale=s_m, mie_g=g)
+    v = sky_to_hdrp(params)
+    assert sky_from_hdrp(v, AtmosphereParams()) == pytest.approx((s_r, s_m, g), rel=1e-12)
+    br, bm, bme = params.betas()
+    h = np.linspace(0.0, 60e3, 61)
+    air, aer, ext = hdrp_sky_coefficients(v, h)
+    for k in range(3):
+        np.testing.assert_allclose(air[k], br[k] * np.exp(-h / params.rayleigh_height_m), rtol=1e-12)
+        np.testing.assert_allclose(aer[k], bm[k] * np.exp(-h / params.mie_height_m), rtol=1e-12)
+        np.testing.assert_allclose(ext[k], bme[k] * np.exp(-h / params.mie_height_m), rtol=1e-12)
+
+
+def test_unscaled_sky_is_close_to_hdrps_earth():
+    """rtfit's unscaled air, converted and read back as HDRP does, is HDRP's built-in Earth air extinction
+    (5.8e-6, 1.35e-5, 3.31e-5 per m) within 0.5 % (both are Bruneton's coefficients, HDRP's rounded), and the
+    aerosol's scale height is Earth's 1200 m: the units (per metre, metres) agree."""
+    from rtfit.experiments.engine_presets import hdrp_sky_coefficients, sky_to_hdrp
+    from rtfit.realtime.nishita_sky import AtmosphereParams
+
+    v = sky_to_hdrp(AtmosphereParams())
+    air, _aer, _ext = hdrp_sky_coefficients(v, 0.0)
+    np.testing.assert_allclose([float(a) for a in air], [5.8e-6, 1.35e-5, 3.31e-5], rtol=5e-3)
+    assert HDRP_SCALE_HEIGHT * v["AerosolMaximumAltitude"] == pytest.approx(1200.0, rel=1e-12)
