@@ -196,7 +196,8 @@ def _unreal_to(b, c, base, colour):
 
 def _unreal_from(v, base):
     c = LN2 * v["FogHeightFalloff"] / 10.0
-    b = LN2**2 * v["FogDensity"] / 10.0 * math.exp(c * base)
+    z_fog = v.get("ActorLocationZ", 100.0 * base) / 100.0  # the actor's height (cm) in rtfit's metres
+    b = LN2**2 * v["FogDensity"] / 10.0 * math.exp(c * z_fog)
     colour = v.get("FogInscatteringColor")
     return b, c, (tuple(colour) if colour is not None else None)
 
