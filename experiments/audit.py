@@ -661,8 +661,21 @@ def _sky_info(path: str) -> SceneInfo:
     )
 
 
+def _not_a_scene(scene) -> str:
+    """The refusal of a scene that is neither a path nor a scene dict (one line; a loaded ``mi.Scene`` says
+    why it cannot be read)."""
+    kind = type(scene)
+    if kind.__name__ == "Scene" and kind.__module__.startswith("mitsuba"):
+        return (
+            "a loaded mitsuba Scene cannot be audited: it no longer holds the plugin names, ids and "
+            "properties the audit reads (which lights, BSDFs and media, as declared); pass the dict you gave "
+            "mi.load_dict, or the scene file's path"
+        )
+    return f"{kind.__name__}: expected a scene file's path or a scene dict (mi.load_dict style)"
+
+
 def inspect_scene(
-    scene: str | os.PathLike,
+    scene: str | os.PathLike | Mapping,
     *,
     defines: Mapping[str, str] | None = None,
     camera: int = 0,
@@ -670,10 +683,18 @@ def inspect_scene(
     height: int | None = None,
     up: str | None = None,
 ) -> SceneInfo:
-    """Read ``scene`` (a ``.xml`` Mitsuba scene, a ``.toml`` rtfit scene or sky file, or a library scene
-    name) into a `SceneInfo`. Every bad input is an `AuditError` (one line)."""
+    """Read ``scene`` (a ``.xml`` Mitsuba scene, a ``.toml`` rtfit scene or sky file, a library scene
+    name, or a Mitsuba scene dict as ``mi.load_dict`` takes it) into a `SceneInfo`. Every bad input is an
+    `AuditError` (one line)."""
     if up is not None and up not in UP_AXES:
         raise AuditError(f"--up {up!r}: expected one of {', '.join(UP_AXES)}")
+    if isinstance(scene, Mapping):  # a scene dict: Mitsuba's parser reads it as it reads XML
+        try:
+            return _xml_info(inspect_xml(scene, defines, camera=camera, width=width, height=height, up=up))
+        except XMLSceneError as e:
+            raise AuditError(str(e)) from None
+    if not isinstance(scene, str | os.PathLike):
+        raise AuditError(_not_a_scene(scene))
     text = os.fspath(scene)
     path = Path(text)
     if not path.exists() and text.removesuffix(".toml").replace("-", "_") in library_names():

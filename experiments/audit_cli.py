@@ -4,7 +4,7 @@
     rtfit audit SCENE [--list] [-D name=value ...] [--camera N] [--width W --height H] [--up +y|-y|+z|…]
                       [--approx a,b] [--ao-distance D] [--probe-at X,Y,Z]
                       [--grid NX,NY,NZ] [--pom-depth S] [--variant V] [--spp N] [--pass-spp N] [--out DIR]
-                      [--cache DIR] [--seed S] [--no-fit] [--no-progress]
+                      [--cache DIR] [--seed S] [--no-fit] [--json FILE|-] [--no-progress]
 
 ``audit`` is the click command object; the command line adds it with ``cli.add_command(audit)``. Bad input
 is one line, ``rtfit: error: …``, exit status 2, nothing written.
@@ -12,15 +12,20 @@ is one line, ``rtfit: error: …``, exit status 2, nothing written.
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import click
 
 from rtfit.reference.mitsuba_xml import UP_AXES
 
 from .applicability import describe
 from .audit import AuditError, inspect_scene
+from .audit_api import summary_document
 from .audit_parallax_occlusion import check_pom_depth
 from .audit_run import audit as run_audit
 from .audit_run import check_ao_distance, resolve_approximations, selected_applicabilities, triple
+from .cli_complete import complete_approx, complete_scene
 from .cli_options import cache_option, out_option
 from .families import AUDITED
 from .registry import RESOLUTION_MAX, SPP_MAX
@@ -49,6 +54,16 @@ def _quantities(family: str) -> tuple[str, ...]:
     return () if f is None else (f.quantity, *f.quantities)
 
 
+def _json_target(path: str) -> None:
+    """``--json FILE``: a file that can be written (its folder exists, it is not a folder), checked before
+    anything runs."""
+    p = Path(path)
+    if p.is_dir():
+        _error(f"--json {path}: a folder (expected a file name, or - for stdout)")
+    if not p.parent.is_dir():
+        _error(f"--json {path}: no folder {p.parent}")
+
+
 def _defines(values: tuple[str, ...]) -> dict[str, str]:
     out: dict[str, str] = {}
     for text in values:
@@ -60,7 +75,7 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
 
 
 @click.command("audit")
-@click.argument("scene")
+@click.argument("scene", shell_complete=complete_scene)
 @click.option("--list", "list_only", is_flag=True, help="Print which approximation families apply, and why.")
 @click.option("-D", "defines", multiple=True, metavar="NAME=VALUE", help="A Mitsuba XML parameter ($NAME).")
 @click.option("--camera", type=click.IntRange(min=0), default=0, show_default=True, help="XML sensor index.")
@@ -80,6 +95,7 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
     "--approx",
     default=None,
     metavar="A,B",
+    shell_complete=complete_approx,
     help="Families, shipped methods (wrap, diffuse:exact) and your approximations (my.py:f, module:f, "
     "an entry point), comma-separated. Your approximations are Python code, run with your rights "
     "(validated first in a child process, limited to $RTFIT_APPROX_TIMEOUT_S seconds, default 30).",
@@ -129,6 +145,14 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
 @cache_option()
 @click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
 @click.option("--no-fit", is_flag=True, help="Do not fit free parameters to the scene.")
+@click.option(
+    "--json",
+    "json_out",
+    default=None,
+    metavar="FILE",
+    help="Also write the run's summary as JSON (rtfit.audit-summary/1) to FILE; '-': to stdout, and only "
+    "that on stdout (the other lines go to stderr).",
+)
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
 @click.option(
     "--profile",
@@ -155,12 +179,17 @@ def audit(
     cache,
     seed,
     no_fit,
+    json_out,
     no_progress,
     profile,
 ):
     """Audit SCENE (a Mitsuba .xml scene, an rtfit .toml scene or sky file, or a library name): every
     applicable approximation against the scene's own reference, with noise floors, fits, costs and a report
     in OUT/audit-<scene>. --list prints which approximation families apply to it and why."""
+    if json_out is not None and list_only:
+        _error("--json writes the run's summary; --list prints what applies as text (drop one of them)")
+    if json_out is not None and json_out != "-":
+        _json_target(json_out)
     try:
         triple("--probe-at", probe_at, float)  # bad values: one line before anything is read or rendered
         triple("--grid", grid, int)
@@ -218,9 +247,16 @@ def audit(
     if profile:
         for line in result.profile_lines():
             click.echo(f"profile: {line}", err=True)
-    click.echo(f"summary: {result.results.summary}")
+    to_stdout = json_out == "-"  # then stdout holds the JSON document alone
+    click.echo(f"summary: {result.results.summary}", err=to_stdout)
     assert result.out is not None
-    click.echo(str((result.out / "report.html").resolve()))
+    click.echo(str((result.out / "report.html").resolve()), err=to_stdout)
+    if json_out is not None:
+        text = json.dumps(summary_document(result), indent=2, allow_nan=False)
+        if to_stdout:
+            click.echo(text)
+        else:
+            Path(json_out).write_text(text + "\n", encoding="utf-8")
     failed = [c for c in result.results.checks if not c.passed]
     for c in failed:
         click.echo(f"rtfit: check failed: {c.name}: {c.value} (expected {c.expected})", err=True)

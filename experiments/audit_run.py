@@ -61,6 +61,7 @@ from rtfit.reference.variants import resolve_variant, scoped_variant
 from rtfit.scenes import load_scene, scene_hash
 from rtfit.scenes.parse import MAX_LENGTH
 
+from . import audit_api
 from . import fitted as fitfiles
 from .applicability import applicable_families
 from .atomic import atomic_directory, writable_problem
@@ -302,7 +303,25 @@ class AuditResult:
         return self.outcomes[case][row].image
 
     def metrics(self, case: str, row: str) -> dict:
+        """Metric name → `MetricValue` (``value``, ``noise_floor``, ``resolved``, ``debiased``; ``float(m)``
+        is the value). `metric_values` gives the bare floats."""
+        return dict(self.outcomes[case][row].metrics)
+
+    def metric_values(self, case: str, row: str) -> dict[str, float]:
+        """Metric name → its value alone (`metrics` without the noise floor and resolved flag)."""
         return {k: v.value for k, v in self.outcomes[case][row].metrics.items()}
+
+    def summary_rows(self) -> list:
+        """One `audit_api.SummaryRow` per case × row (RMSE, noise floor, resolved, fitted, cost)."""
+        return audit_api.summary_rows(self)
+
+    def to_dataframe(self):
+        """`summary_rows` as a ``pandas.DataFrame`` (needs pandas, which rtfit does not depend on)."""
+        return audit_api.to_dataframe(self)
+
+    def _repr_html_(self) -> str:
+        """Jupyter's inline view: the summary table (`audit_api.summary_html`)."""
+        return audit_api.summary_html(self)
 
     @property
     def fits(self) -> dict[str, dict]:
@@ -580,7 +599,7 @@ def _opened(info: SceneInfo, defines, variant: str, camera: int, width, height) 
         digest = (
             f"{xml.dependencies.digest}:camera{camera}:{cam.width if cam else 0}x{cam.height if cam else 0}"
         )
-        with loaded_xml(xml.path, defines, variant, camera=camera, width=width, height=height) as loaded:
+        with loaded_xml(xml.source, defines, variant, camera=camera, width=width, height=height) as loaded:
             gb = gbuffer(loaded.mi, loaded.scene, loaded.sensor)
             yield loaded.mi, loaded.scene, loaded.sensor, loaded.emitters, gb, None, digest
         return
@@ -654,7 +673,8 @@ def audit(
     metrics: Sequence[str] = ALL_METRICS,
     tag: tuple[str, str] | None = None,
 ) -> AuditResult:
-    """Audit the scene ``scene_or_path`` (a Mitsuba ``.xml`` path; module docstring) and return an
+    """Audit the scene ``scene_or_path`` (a Mitsuba ``.xml`` or rtfit ``.toml`` path, or a Mitsuba scene
+    dict as ``mi.load_dict`` takes it; a loaded ``mi.Scene`` is refused: `inspect_scene`) and return an
     `AuditResult`; with ``out`` (a directory) also write the report there. ``approximations``: see
     `resolve_approximations`. ``spp``: reference samples per pixel (default `DEFAULT_SPP`), in passes of
     ``pass_spp``; ``variant``: the Mitsuba variant (default ``llvm_ad_rgb``; the caller's own variant is put

@@ -55,9 +55,11 @@ from .atomic import is_temporary_name, writable_problem
 from .audit_cli import audit
 from .book import write_book
 from .cache_cli import cache_group
+from .cli_complete import complete_experiments, family_list
 from .cli_options import CACHE_HELP, cache_option, out_option
 from .executors import EXECUTORS, make_executor
 from .families import EXPERIMENTS, describe_config, resolve_names, validate_config
+from .fitted_cli import fitted_group
 from .jobs import JobsFailed, error_line
 from .ray_executor import RAY_EXTRA_HINT, check_address
 from .registry import LIMITS, SPP_MAX, BenchContext
@@ -183,15 +185,21 @@ def cli(ctx, verbose, quiet):
 
 
 @cli.command("list")
-def list_cmd():
+@click.option(
+    "--json", "as_json", is_flag=True, help="One JSON document: name, title, audited, methods, quantities."
+)
+def list_cmd(as_json):
     """List the experiments."""
+    if as_json:
+        click.echo(json.dumps({"families": family_list()}, indent=2))
+        return
     width = max(len(n) for n in EXPERIMENTS)
     for name, spec in EXPERIMENTS.items():
         click.echo(f"{name:<{width}}  {spec.title}")
 
 
 @cli.command("run")
-@click.argument("experiments", nargs=-1)
+@click.argument("experiments", nargs=-1, shell_complete=complete_experiments)
 @click.option("--quick", is_flag=True, help="Small images, few samples, fewer cases (minutes on 2 cores).")
 @click.option(
     "--variant",
@@ -344,6 +352,7 @@ def sweep_cmd(
 
 
 cli.add_command(cache_group)
+cli.add_command(fitted_group)
 cli.add_command(audit)
 
 
@@ -477,7 +486,7 @@ def export_xml_cmd(scene, output):
 
 
 @cli.command("bench")
-@click.argument("experiment")
+@click.argument("experiment", shell_complete=complete_experiments)
 @click.option("--variant", default="auto", show_default=True, type=click.Choice(VARIANT_CHOICES))
 @click.option(
     "--size",

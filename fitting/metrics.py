@@ -141,6 +141,9 @@ class MetricValue:
     resolved: bool
     debiased: float | None = None
 
+    def __float__(self) -> float:
+        return float(self.value)
+
     def to_dict(self) -> dict:
         """JSON-ready plain data; non-finite numbers (e.g. the PSNR of an exact match) become None."""
         return {

@@ -36,7 +36,7 @@ import math
 import os
 import re
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -45,6 +45,7 @@ from .variants import inspection_variant, scoped_variant
 from .xml_checks import XmlNode, check_values, mesh_problem, prescan
 
 __all__ = [
+    "DICT_SOURCE",
     "UP_AXES",
     "LoadedXml",
     "XMLSceneError",
@@ -101,13 +102,15 @@ def _file_digest(h, path: str, root: str) -> None:
 
 
 @contextlib.contextmanager
-def _parsed(path: str, defines: Mapping[str, str], variant: str | None) -> Iterator[tuple]:
-    """Parse ``path`` under a file resolver of its own (a copy of the caller's, so that plugins are still
-    found, with the scene's folder first); yields ``(mi, parser, config, state)`` and puts the caller's
+def _parsed(path, defines: Mapping[str, str], variant: str | None) -> Iterator[tuple]:
+    """Parse ``path`` (or a scene dict, `DICT_SOURCE`, with ``mitsuba.parser.parse_dict``) under a file
+    resolver of its own (a copy of the caller's, so that plugins are still found, with the scene's folder
+    first); yields ``(mi, parser, config, state)`` and puts the caller's
     resolver back afterwards. Mitsuba's refusal becomes one `XMLSceneError` line."""
-    if not os.path.isfile(path):
+    given = path if isinstance(path, Mapping) else None
+    if given is None and not os.path.isfile(path):
         raise XMLSceneError(f"{path}: no such file")
-    problem = prescan(path)  # before Mitsuba parses it: its parser crashes on deep nesting
+    problem = prescan(path) if given is None else None  # its parser crashes on deep nesting
     if problem is not None:
         raise XMLSceneError(problem)
     variant = variant or inspection_variant()
@@ -116,14 +119,24 @@ def _parsed(path: str, defines: Mapping[str, str], variant: str | None) -> Itera
 
         previous = mi.file_resolver()
         resolver = mi.FileResolver(previous)
-        resolver.prepend(os.path.dirname(path))
+        if given is None:
+            resolver.prepend(os.path.dirname(path))
         mi.set_file_resolver(resolver)
         try:
             config = parser.ParserConfig(variant)
             try:
-                state = parser.parse_file(config, path, **defines)
+                if given is not None:
+                    state = parser.parse_dict(config, dict(given))
+                    parser.write_string(state)  # refuses what the dict cannot describe as text
+                else:
+                    state = parser.parse_file(config, path, **defines)
             except RuntimeError as e:
-                raise XMLSceneError(f"{path}: {_one_line(str(e))}") from None
+                hint = (
+                    " (give each part as its plugin dict, {'type': ...}, not an instantiated object)"
+                    if given is not None and "object" in str(e)
+                    else ""
+                )
+                raise XMLSceneError(f"{_label(path)}: {_one_line(str(e))}{hint}") from None
             except UnicodeDecodeError:  # Mitsuba's message quoted bytes of a file that is not text
                 raise XMLSceneError(
                     f"{path}: Mitsuba could not parse it (a file it reads is not text)"
@@ -133,8 +146,9 @@ def _parsed(path: str, defines: Mapping[str, str], variant: str | None) -> Itera
             mi.set_file_resolver(previous)
 
 
-def _collect(mi, path: str, defines: Mapping[str, str], state) -> XmlDependencies:
+def _collect(mi, path, defines: Mapping[str, str], state) -> XmlDependencies:
     xml_files = tuple(os.path.abspath(str(f)) for f in state.files)
+    given = isinstance(path, Mapping)
     names = set()
     for node in state.nodes:
         for key in _FILE_PROPERTIES:
@@ -143,17 +157,39 @@ def _collect(mi, path: str, defines: Mapping[str, str], state) -> XmlDependencie
                 if isinstance(value, str) and value:
                     names.add(value)
     data_files = tuple(sorted(str(mi.file_resolver().resolve(n)) for n in names))
-    root = os.path.dirname(path)
+    root = os.getcwd() if given else os.path.dirname(path)
     h = hashlib.sha256(b"rtfit.mitsuba_xml/1")
     for k in sorted(defines):
         h.update(f"\0define\0{k}={defines[k]}".encode())
+    if given:  # a scene dict: its parsed nodes (plugin, id, every property's value) stand for the XML text
+        for node in state.nodes:
+            what = (str(node.type), node.props.plugin_name(), node.props.id(), _props(node), _spectra(node))
+            h.update(f"\0node\0{what!r}".encode())
     for f in xml_files + data_files:
         _file_digest(h, f, root)
-    return XmlDependencies(path, xml_files, data_files, h.hexdigest())
+    return XmlDependencies(_label(path), xml_files, data_files, h.hexdigest())
 
 
-def _normalise(path, defines) -> tuple[str, dict[str, str]]:
-    return os.path.abspath(os.fspath(path)), {str(k): str(v) for k, v in (defines or {}).items()}
+DICT_SOURCE = "scene dict"
+"""What stands for the file name of a scene given as a dict (``mitsuba.load_dict`` style): in
+`XmlScene.path`, `XmlDependencies.path` and the first words of every error line."""
+
+
+def _label(path) -> str:
+    return DICT_SOURCE if isinstance(path, Mapping) else str(path)
+
+
+def _normalise(path, defines) -> tuple[str | Mapping, dict[str, str]]:
+    """(the absolute path, or the scene dict as given; the ``-D`` parameters as strings). A scene dict
+    takes no ``-D`` parameters (they are XML's ``$name`` substitution)."""
+    defines = {str(k): str(v) for k, v in (defines or {}).items()}
+    if isinstance(path, Mapping):
+        if defines:
+            raise XMLSceneError(
+                f"{DICT_SOURCE}: -D parameters are for XML files (put the values in the dict)"
+            )
+        return path, defines
+    return os.path.abspath(os.fspath(path)), defines
 
 
 def xml_dependencies(
@@ -315,6 +351,13 @@ class XmlScene:
     bsdfs: tuple[str, ...]
     media: tuple[XmlMedium, ...]
     bbox: tuple[Vec3, Vec3] | None
+    scene_dict: Mapping | None = field(default=None, compare=False, repr=False)
+    """The scene dict it was read from (``path`` is then `DICT_SOURCE`); `loaded_xml` takes either."""
+
+    @property
+    def source(self):
+        """What `loaded_xml` instantiates: the scene dict, else the file's path."""
+        return self.scene_dict if self.scene_dict is not None else self.path
 
 
 def _convex(shape) -> bool | None:
@@ -510,7 +553,7 @@ def _up(camera: XmlSensor | None, up: str | None) -> tuple[str, str]:
 
 
 def inspect_xml(
-    path: str | os.PathLike,
+    path: str | os.PathLike | Mapping,
     defines: Mapping[str, str] | None = None,
     variant: str | None = None,
     *,
@@ -519,12 +562,14 @@ def inspect_xml(
     height: int | None = None,
     up: str | None = None,
 ) -> XmlScene:
-    """What the Mitsuba XML scene ``path`` contains (`XmlScene`), read by Mitsuba's parser with the
+    """What the Mitsuba XML scene ``path`` (or a scene dict, ``mitsuba.load_dict`` style, read by
+    ``mitsuba.parser.parse_dict``) contains (`XmlScene`), read by Mitsuba's parser with the
     ``-D`` ``defines`` and instantiated under the same scoped file resolver. ``camera`` picks the sensor
     (document order), ``width``/``height`` override its film size, ``up`` (a key of `UP_AXES`) overrides
     the up axis otherwise taken from the chosen sensor's up vector. Raises `XMLSceneError` (one line)
     for anything Mitsuba refuses or an option the scene cannot satisfy."""
     path, defines = _normalise(path, defines)
+    label = _label(path)
     if up is not None and up not in UP_AXES:
         raise XMLSceneError(f"--up {up!r}: expected one of {', '.join(UP_AXES)}")
     with _parsed(path, defines, variant) as (mi, parser, config, state):
@@ -541,11 +586,11 @@ def inspect_xml(
             _check(mi, nodes, [kind[i] for i in range(len(nodes))], props, where, camera)
             scene = parser.instantiate(config, state)
         except RuntimeError as e:
-            raise XMLSceneError(f"{path}: {_mitsuba_text(e)}") from None
+            raise XMLSceneError(f"{label}: {_mitsuba_text(e)}") from None
         except UnicodeDecodeError:  # Mitsuba's message quoted bytes of a data file that is not text
-            raise XMLSceneError(f"{path}: {_NOT_TEXT}") from None
+            raise XMLSceneError(f"{label}: {_NOT_TEXT}") from None
         if isinstance(scene, list | tuple) or not hasattr(scene, "shapes"):
-            raise XMLSceneError(f"{path}: the file's root is not a <scene>")
+            raise XMLSceneError(f"{label}: the file's root is not a <scene>")
 
         def refs(i: int) -> list[tuple[str, int]]:
             return [(k, v[1]) for k, v in props[i].items() if isinstance(v, tuple) and v[:1] == ("ref",)]
@@ -648,14 +693,14 @@ def inspect_xml(
         bbox = _bbox(scene.bbox()) if shape_objs else None
     if sensors and not 0 <= camera < len(sensors):
         raise XMLSceneError(
-            f"{path}: --camera {camera}: the scene has {len(sensors)} sensor(s), 0..{len(sensors) - 1}"
+            f"{label}: --camera {camera}: the scene has {len(sensors)} sensor(s), 0..{len(sensors) - 1}"
         )
     if not sensors and camera != 0:
-        raise XMLSceneError(f"{path}: --camera {camera}: the scene has no sensor")
+        raise XMLSceneError(f"{label}: --camera {camera}: the scene has no sensor")
     chosen = _with_overrides(sensors[camera] if sensors else None, width, height)
     axis, reason = _up(chosen, up)
     return XmlScene(
-        path=path,
+        path=label,
         dependencies=deps,
         integrator=integrator,
         sensors=sensors,
@@ -667,6 +712,7 @@ def inspect_xml(
         bsdfs=bsdfs,
         media=media_out,
         bbox=bbox,
+        scene_dict=path if isinstance(path, Mapping) else None,
     )
 
 
@@ -752,7 +798,7 @@ class LoadedXml:
 
 @contextlib.contextmanager
 def loaded_xml(
-    path: str | os.PathLike,
+    path: str | os.PathLike | Mapping,
     defines: Mapping[str, str] | None = None,
     variant: str = "llvm_ad_rgb",
     *,
@@ -760,12 +806,14 @@ def loaded_xml(
     width: int | None = None,
     height: int | None = None,
 ) -> Iterator[LoadedXml]:
-    """Instantiate the XML scene ``path`` in ``variant`` (scoped: the caller's variant and file resolver
-    are put back on exit) with only what the file declares: Mitsuba's parser, then the chosen sensor's film
-    resized (``width``/``height``; the field of view along ``fov_axis`` is kept), each emitter tagged so
+    """Instantiate the XML scene ``path`` (or a scene dict, `XmlScene.source`) in ``variant`` (scoped: the
+    caller's variant and file resolver are put back on exit) with only what the file declares: Mitsuba's
+    parser, then the chosen sensor's film resized (``width``/``height``; the field of view along
+    ``fov_axis`` is kept), each emitter tagged so
     that the rendered objects are matched to the document's emitters one to one. Raises `XMLSceneError`
     (one line) for anything Mitsuba refuses."""
     path, defines = _normalise(path, defines)
+    label = _label(path)
     with _parsed(path, defines, variant) as (mi, parser, config, state):
         config.merge_meshes = False
         config.merge_equivalent = False
@@ -780,11 +828,11 @@ def loaded_xml(
             if sensors and not 0 <= camera < len(sensors):
                 last = len(sensors) - 1
                 raise XMLSceneError(
-                    f"{path}: --camera {camera}: the scene has {len(sensors)} sensor(s), 0..{last}"
+                    f"{label}: --camera {camera}: the scene has {len(sensors)} sensor(s), 0..{last}"
                 )
             if not sensors:
                 raise XMLSceneError(
-                    f"{path}: the scene has no <sensor> (the audit renders the scene's own view)"
+                    f"{label}: the scene has no <sensor> (the audit renders the scene's own view)"
                 )
             _check(
                 mi,
@@ -802,11 +850,11 @@ def loaded_xml(
                     film.props["height"] = int(height)
             scene = parser.instantiate(config, state)
         except RuntimeError as e:
-            raise XMLSceneError(f"{path}: {_mitsuba_text(e)}") from None
+            raise XMLSceneError(f"{label}: {_mitsuba_text(e)}") from None
         except UnicodeDecodeError:
-            raise XMLSceneError(f"{path}: {_NOT_TEXT}") from None
+            raise XMLSceneError(f"{label}: {_NOT_TEXT}") from None
         if isinstance(scene, list | tuple) or not hasattr(scene, "sensors"):
-            raise XMLSceneError(f"{path}: the file's root is not a <scene>")
+            raise XMLSceneError(f"{label}: the file's root is not a <scene>")
         by_id = {e.id(): e for e in scene.emitters()}
         emitters = tuple(by_id.get(f"rtfit-emitter-{k}") for k in range(len(emitter_nodes)))
         yield LoadedXml(mi, scene, scene.sensors()[camera], emitters)

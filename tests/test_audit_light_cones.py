@@ -122,7 +122,7 @@ def test_xml_spot_reference_is_mitsubas_single_scattering(tmp_path):
     assert abs(case.parameters["cone_length_m"] - 3.0) < 1e-4  # apex 3 m above the floor, axis straight down
     half = math.radians(35.0)
     assert abs(rows["shell"].parameters["k"] - 8 * k * math.tan(half) / 3.0) < 1e-6
-    rmse = {row: r.metrics(case.id, row)["rmse"] for row in rows}
+    rmse = {row: r.metrics(case.id, row)["rmse"].value for row in rows}
     assert rmse["shell-fitted"] < rmse["shell"] and rmse["quadrature"] < rmse["shell-fitted"]
 
     with scoped_variant("llvm_ad_rgb"):

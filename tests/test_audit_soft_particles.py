@@ -90,7 +90,7 @@ def test_xml_sphere_of_medium_half_sunk_into_a_floor(tmp_path):
     assert np.max(want) > 0.9 and np.sum(chord == 0) > 10  # dense where deep, nothing behind the floor
     s = r.fits[f"{case.id}/linear-fitted"]["s"]["value"]
     assert math.isfinite(s)
-    assert r.metrics(case.id, "linear-fitted")["rmse"] <= r.metrics(case.id, "linear")["rmse"]
+    assert r.metric_values(case.id, "linear-fitted")["rmse"] <= r.metric_values(case.id, "linear")["rmse"]
 
 
 def test_a_particle_that_cuts_no_geometry_still_applies_and_says_so(tmp_path):
@@ -195,7 +195,7 @@ def test_a_users_fade_of_particle_opacity_is_audited_and_fitted(tmp_path):
     (case,) = r.cases
     assert {"exact-sphere", "my_fade", "my_fade-fitted", "my_exact"} == set(r.outcomes[case.id])
     assert np.allclose(r.image(case.id, "my_exact"), r.image(case.id, "exact-sphere"), atol=2e-5)
-    assert r.metrics(case.id, "my_fade-fitted")["rmse"] <= r.metrics(case.id, "my_fade")["rmse"]
+    assert r.metric_values(case.id, "my_fade-fitted")["rmse"] <= r.metric_values(case.id, "my_fade")["rmse"]
 
 
 def test_a_non_uniformly_scaled_xml_sphere_is_audited_as_the_sphere_mitsuba_renders(tmp_path):

@@ -60,7 +60,7 @@ def test_python_audit_of_the_sphere_light_scene_returns_metrics_and_fits_and_kee
         "representative-point",
     }  # fmt: skip (the light models of a sphere light; the windows' r has no published value: fitted only)
     for row in r.outcomes["light0-unshadowed"]:
-        assert math.isfinite(r.metrics("light0-unshadowed", row)["rmse"])
+        assert math.isfinite(r.metrics("light0-unshadowed", row)["rmse"].value)
     fit = r.fits["light0-unshadowed/wrap-fitted"]
     assert set(fit) == {"w", "p"} and all(math.isfinite(v["value"]) for v in fit.values())
     assert all(c.passed for c in r.results.checks)  # the exact form's z-scores are standard normal
@@ -164,7 +164,7 @@ def test_every_light_of_a_toml_scene_is_audited_alone(tmp_path):
     cos, dist = case.channel_inputs[0]["cos_theta"], case.channel_inputs[0]["distance"]
     want = 4.0 * np.maximum(cos, 0.0) / dist**2
     assert np.allclose(case.reference.mean[case.mask][:, 0], want, rtol=1e-5, atol=1e-7)
-    assert r.metrics(case.id, "lambert")["rmse"] < 1e-6
+    assert r.metrics(case.id, "lambert")["rmse"].value < 1e-6
     assert np.all(dist > 0) and pos[2] == 3.0
     sun = next(c for c in r.cases if c.id == "light3-unshadowed")
     assert "exact" in r.outcomes[sun.id]  # a finite sun is a spherical light

@@ -137,7 +137,7 @@ def test_xml_sensor_medium_reference_is_mitsubas_single_scattering(tmp_path):
     # the inverse-square row with the scene's K = σ_s·I/(4π)
     k = 0.8 * 0.3 * 5.0 / (4 * math.pi)
     assert abs(r.outcomes[case.id]["inverse-square"].parameters["k"] - k) < 1e-7
-    rmse = {row: r.metrics(case.id, row)["rmse"] for row in rows}
+    rmse = {row: r.metrics(case.id, row)["rmse"].value for row in rows}
     assert rmse["stable-fitted"] < 0.3 * rmse["stable"] and rmse["quadrature"] < rmse["stable-fitted"]
 
     with scoped_variant("llvm_ad_rgb"):

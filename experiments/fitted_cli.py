@@ -1,0 +1,60 @@
+"""``rtfit fitted convert FILE --engine unreal|unity-hdrp|godot``: a fitted file's height fog in an engine's
+own properties (`rtfit.experiments.engine_presets`, format ``rtfit.engine-preset/1``).
+
+    rtfit fitted convert fitted/fog-e10-single-const.json --engine unreal [--base-height M] [--out FILE|-]
+
+The document goes to stdout (``--out -``, the default) or to FILE. Bad input (a file that is not
+``rtfit.fitted/1``, one without a height-fog method) is one line, ``rtfit: error: …``, exit status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+
+from .engine_presets import ENGINES, ConvertError, convert_fitted
+from .fitted import FittedError, load_fitted
+
+__all__ = ["fitted_group"]
+
+
+class _InputError(click.ClickException):
+    exit_code = 2
+
+    def show(self, file=None) -> None:
+        click.echo(f"rtfit: error: {self.format_message()}", err=True, file=file)
+
+
+@click.group("fitted")
+def fitted_group():
+    """Fitted-parameter files (rtfit.fitted/1)."""
+
+
+@fitted_group.command("convert")
+@click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--engine", required=True, type=click.Choice(list(ENGINES)), help="The engine's properties.")
+@click.option(
+    "--base-height",
+    type=float,
+    default=None,
+    metavar="M",
+    help="Height (m, rtfit's frame) the engine's fog is anchored at (default: Unreal 0; HDRP and Godot the "
+    "lowest height the fit saw, below which their fog is constant).",
+)
+@click.option("--out", "out", default="-", metavar="FILE", help="Where the document goes ('-': stdout).")
+def convert_cmd(file, engine, base_height, out):
+    """Convert FILE's height-fog fits into ENGINE's own fog properties, with what the engine cannot hold."""
+    if base_height is not None and not math.isfinite(base_height):
+        raise _InputError(f"--base-height {base_height}: expected a finite height in metres")
+    try:
+        doc = convert_fitted(load_fitted(file), engine, base_height, source=str(file))
+    except (FittedError, ConvertError) as e:
+        raise _InputError(" ".join(str(e).split())) from None
+    text = json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False)
+    if out == "-":
+        click.echo(text)
+    else:
+        Path(out).write_text(text + "\n", encoding="utf-8")
