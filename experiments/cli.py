@@ -56,6 +56,7 @@ from .audit_cli import audit
 from .book import write_book
 from .cache_cli import cache_group
 from .cli_options import CACHE_HELP, cache_option, out_option
+from .compare_cli import compare
 from .executors import EXECUTORS, make_executor
 from .families import EXPERIMENTS, describe_config, resolve_names, validate_config
 from .jobs import JobsFailed, error_line
@@ -345,6 +346,7 @@ def sweep_cmd(
 
 cli.add_command(cache_group)
 cli.add_command(audit)
+cli.add_command(compare)
 
 
 def _probe_overrides(specs, quick: bool, probes) -> dict:

@@ -1,0 +1,359 @@
+"""What ``rtfit compare`` measures on one frame against the reference (`rtfit.experiments.compare`): the best
+global scale, the registration offset, the metrics with noise floors, the z-scores, the error per shape, the
+verdict naming its causes, and the depth AOV's alignment with Mitsuba's first hits.
+
+Statistics (each against the reference's per-pixel standard error σ, which includes the float32 precision
+floor):
+
+* scale s = Σ f·r / Σ r² (least squares over every pixel and channel: frame ≈ s × reference), standard error
+  σ_s = √(Σ r²·e²) / Σ r² with e = f − s·r (the sandwich estimate: the frame's and the reference's noise and
+  any structured error all widen it); consistent with 1 when |s − 1| ≤ `SCALE_SIGMAS`·σ_s (or 10⁻⁴).
+* registration: the integer shift (dx, dy) in ±`MAX_SHIFT` px for which frame[y + dy, x + dx] ≈ reference[y,
+  x] (after the scale) has the least squared error on the interior that every shift sees; it counts only when
+  it beats no shift by more than `SHIFT_SIGMAS` standard errors of the per-pixel paired difference.
+* per shape (the first hit of each pixel's centre ray; −1: no surface): the relative bias Σ(f − r)/Σ r with
+  its uncertainty (the larger of the reference's √Σσ² and the spread of f − r, over Σ r), and the RMS z-score.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rtfit.fitting import MetricResults, compute_metrics, z_score_summary
+
+from . import figures
+from .audit import AuditError
+
+__all__ = [
+    "DEPTH_TOLERANCE",
+    "FrameAnalysis",
+    "ShapeError",
+    "analyse_frame",
+    "depth_alignment",
+    "frame_checks",
+    "shape_table",
+    "z_figure",
+]
+
+SCALE_SIGMAS = 4.0
+MAX_SHIFT = 2
+SHIFT_SIGMAS = 3.0
+BIAS_SIGMAS = 3.0
+Z_RMS_MAX = 2.0
+"""A shape is within noise when its bias is within `BIAS_SIGMAS` of zero and its RMS z-score ≤ this (a frame
+path-traced at 4× the reference's samples has ≈ 1.1)."""
+OUTLIER_Z = 5.0
+OUTLIER_FRACTION = 0.01
+"""A frame is flagged when more than this fraction of its pixel channels lie beyond `OUTLIER_Z` σ."""
+DEPTH_TOLERANCE = 0.02
+"""A pixel's depth is misaligned when it differs from Mitsuba's first-hit distance by more than this
+fraction."""
+DEPTH_REFUSE = 0.5
+"""Misaligned fraction above which the camera is refused (one line naming the likely cause)."""
+
+
+@dataclass(frozen=True)
+class ShapeError:
+    """The error of a frame on the pixels whose first hit is one shape (``index`` −1: no surface)."""
+
+    index: int
+    name: str
+    pixels: int
+    reference_mean: float
+    bias: float
+    """Σ(frame − reference) / Σ reference over the shape's pixels and channels."""
+    uncertainty: float
+    z_rms: float
+
+    @property
+    def within_noise(self) -> bool:
+        return abs(self.bias) <= BIAS_SIGMAS * self.uncertainty and self.z_rms <= Z_RMS_MAX
+
+    def words(self) -> str:
+        if self.within_noise:
+            return f"within noise ({self.bias:+.1%} ± {self.uncertainty:.1%})"
+        return f"{self.bias:+.1%} ± {self.uncertainty:.1%} (z rms {self.z_rms:.1f})"
+
+
+@dataclass(frozen=True)
+class FrameAnalysis:
+    """One frame against the reference (module docstring)."""
+
+    scale: float
+    scale_stderr: float
+    scale_consistent: bool
+    offset: tuple[int, int]
+    offset_significant: bool
+    offset_errors: dict[tuple[int, int], float]
+    metrics: MetricResults
+    z_map: np.ndarray
+    z: dict
+    outlier_fraction: float
+    shapes: list[ShapeError]
+    hits: np.ndarray
+    fit_exposure: bool
+    causes: list[str] = field(default_factory=list)
+
+    @property
+    def within_noise(self) -> bool:
+        return not self.causes
+
+    @property
+    def verdict(self) -> str:
+        after = (
+            f" after the scale ×{self.scale:.4g}" if self.fit_exposure and not self.scale_consistent else ""
+        )
+        if self.within_noise:
+            return f"within the reference's noise{after}"
+        return "differs" + after + ": " + "; ".join(self.causes)
+
+    @property
+    def lines(self) -> list[str]:
+        m = self.metrics
+        z = self.z
+        out = [
+            f"**Verdict**: {self.verdict}.",
+            "",
+            f"- Best global scale (frame ≈ s × reference): s = {self.scale:.5g} ± {self.scale_stderr:.2g}"
+            + (" (consistent with 1)" if self.scale_consistent else " (**not 1**)"),
+            f"- Registration offset minimising the error: ({self.offset[0]:+d}, {self.offset[1]:+d}) px"
+            + (" (**the frame is shifted**)" if self.offset_significant else " (none beyond the noise)"),
+            f"- z-scores (frame − reference)/σ: mean {z['mean']:.3g}, std {z['std']:.3g}, "
+            f"max |z| {z['max_abs']:.3g}, "
+            f"{self.outlier_fraction:.2%} beyond {OUTLIER_Z:g}σ",
+        ]
+        for k, v in m.items():
+            out.append(
+                f"- {k}: {v.value:.4g} (noise floor {v.noise_floor:.2g}"
+                + (", resolved)" if v.resolved else ", not resolved: within noise)")
+            )
+        out += [f"- {k}: not computed ({why})" for k, why in m.skipped.items()]
+        return out
+
+
+def _z(diff: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(sigma > 0, diff / sigma, np.where(diff == 0, 0.0, np.sign(diff) * np.inf))
+    return z
+
+
+def best_scale(frame: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
+    """(s, σ_s): the least-squares s of frame ≈ s × reference over ``mask`` (module docstring)."""
+    f, r = frame[mask].ravel(), ref[mask].ravel()
+    rr = float(np.sum(r * r))
+    if rr <= 0:
+        return 1.0, float("inf")
+    s = float(np.sum(f * r)) / rr
+    e = f - s * r
+    return s, float(np.sqrt(np.sum(r * r * e * e))) / rr
+
+
+def registration(frame: np.ndarray, ref: np.ndarray) -> tuple[tuple[int, int], bool, dict]:
+    """The shift (dx, dy), whether it beats no shift beyond the noise, and the mean squared error of each."""
+    h, w = ref.shape[:2]
+    k = MAX_SHIFT
+    if h <= 2 * k + 2 or w <= 2 * k + 2:
+        return (0, 0), False, {}
+    core = ref[k : h - k, k : w - k]
+    errs, per_pixel = {}, {}
+    for dy in range(-k, k + 1):
+        for dx in range(-k, k + 1):
+            win = frame[k + dy : h - k + dy, k + dx : w - k + dx]
+            e = np.sum((win - core) ** 2, axis=-1).ravel()
+            per_pixel[(dx, dy)], errs[(dx, dy)] = e, float(np.mean(e))
+    best = min(errs, key=lambda s: (errs[s], abs(s[0]) + abs(s[1])))
+    d = per_pixel[(0, 0)] - per_pixel[best]
+    sd = float(np.std(d)) / np.sqrt(d.size)
+    significant = best != (0, 0) and float(np.mean(d)) > SHIFT_SIGMAS * sd
+    return best, significant, errs
+
+
+def shape_errors(frame, ref, sigma, hits, names) -> list[ShapeError]:
+    """`ShapeError` per shape seen at the pixels' first hits, most pixels first."""
+    out = []
+    for idx in np.unique(hits):
+        m = hits == idx
+        f, r, s = frame[m], ref[m], sigma[m]
+        d = f - r
+        total = float(np.sum(r))
+        u_abs = max(float(np.sqrt(np.sum(s * s))), float(np.std(d)) * np.sqrt(d.size))
+        z = _z(d, s)
+        z = z[np.isfinite(z)]
+        denom = total if total > 0 else float("nan")
+        out.append(
+            ShapeError(
+                int(idx),
+                "no surface (background)" if idx < 0 else names.get(int(idx), str(idx)),
+                int(m.sum()),
+                float(np.mean(r)),
+                float(np.sum(d)) / denom,
+                u_abs / denom,
+                float(np.sqrt(np.mean(z * z))) if z.size else 0.0,
+            )
+        )
+    return sorted(out, key=lambda e: -e.pixels)
+
+
+def analyse_frame(
+    frame, ref, sigma, mask, hits, names, fit_exposure: bool, metrics, seed: int
+) -> FrameAnalysis:
+    """The `FrameAnalysis` of ``frame`` against the reference (mean ``ref``, standard error ``sigma``)."""
+    s, s_err = best_scale(frame, ref, mask)
+    consistent = abs(s - 1.0) <= max(SCALE_SIGMAS * s_err, 1e-4)
+    compared = frame / s if fit_exposure and s > 0 else frame
+    if fit_exposure and s > 0 and np.isfinite(s_err):  # the scale's own uncertainty joins the reference's
+        sigma = np.sqrt(sigma**2 + (ref * s_err / s) ** 2)
+    offset, significant, errs = registration(frame / s if s > 0 else frame, ref)
+    res = compute_metrics(compared, ref, sigma, mask, names=metrics, seed=seed)
+    zmap = _z(compared - ref, sigma)
+    zs = z_score_summary(compared, ref, sigma, mask).to_dict()
+    zf = zmap[mask]
+    outliers = float(np.mean(~(np.abs(zf) <= OUTLIER_Z)))
+    shapes = shape_errors(compared, ref, sigma, hits, names)
+    causes = []
+    if not consistent and not fit_exposure:
+        causes.append(f"scale ×{s:.4g} ± {s_err:.2g} (a constant factor: --fit-exposure compares after it)")
+    if significant:
+        causes.append(f"misaligned: the error is least shifted by ({offset[0]:+d}, {offset[1]:+d}) px")
+    rmse = res.get("rmse")
+    if rmse is not None and rmse.resolved:
+        causes.append(
+            f"RMSE {rmse.value:.3g} is {rmse.value / max(rmse.noise_floor, 1e-300):.1f}× its noise floor"
+        )
+    if outliers > OUTLIER_FRACTION:
+        causes.append(f"{outliers:.1%} of pixel channels beyond {OUTLIER_Z:g}σ")
+    wrong = sorted((e for e in shapes if not e.within_noise), key=lambda e: -abs(e.bias) * e.pixels)
+    if wrong and causes:
+        causes.append("error on " + ", ".join(f"{e.name}: {e.words()}" for e in wrong[:3]))
+    return FrameAnalysis(
+        s,
+        s_err,
+        consistent,
+        offset,
+        significant,
+        errs,
+        res,
+        zmap,
+        zs,
+        outliers,
+        shapes,
+        hits,
+        fit_exposure,
+        causes,
+    )
+
+
+def frame_checks(label: str, a: FrameAnalysis) -> list[dict]:
+    """The results' checks of one frame: within noise, scale, registration."""
+    return [
+        {
+            "name": f"{label}: within the reference's noise",
+            "value": a.verdict,
+            "expected": "within noise",
+            "passed": a.within_noise,
+        },
+        {
+            "name": f"{label}: global scale",
+            "value": a.scale,
+            "expected": f"1 within {SCALE_SIGMAS:g}σ ({a.scale_stderr:.2g})"
+            + (" (or --fit-exposure)" if not a.scale_consistent else ""),
+            "passed": a.scale_consistent or a.fit_exposure,
+        },
+        {
+            "name": f"{label}: registration offset",
+            "value": f"({a.offset[0]:+d}, {a.offset[1]:+d}) px",
+            "expected": "(+0, +0) px or not beyond the noise",
+            "passed": not a.offset_significant,
+        },
+    ]
+
+
+def shape_table(shapes: list[ShapeError]) -> list[str]:
+    """Markdown lines: the error per shape at the pixels' first hits."""
+    rows = [
+        "| shape at the first hit | pixels | mean reference | error (frame − reference) / reference "
+        "| z rms |",
+        "|---|---:|---:|---|---:|",
+    ]
+    rows += [
+        f"| {e.name} | {e.pixels} | {e.reference_mean:.4g} | {e.words()} | {e.z_rms:.2f} |" for e in shapes
+    ]
+    return rows
+
+
+def z_figure(path: Path, a: FrameAnalysis, label: str) -> None:
+    """The frame's z-score map (mean over RGB), clipped at ±6, with the shapes' outlines."""
+    plt = figures.pyplot()
+    fig, ax = plt.subplots(figsize=(3.6, 3.2))
+    z = np.clip(np.nan_to_num(np.mean(a.z_map, axis=-1), posinf=6.0, neginf=-6.0), -6.0, 6.0)
+    im = ax.imshow(z, cmap="coolwarm", vmin=-6.0, vmax=6.0, interpolation="nearest")
+    levels = np.unique(a.hits)
+    if levels.size > 1:
+        ax.contour(a.hits, levels=(levels[:-1] + 0.5), colors="k", linewidths=0.6)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_title(f"{label}: z (frame − ref)/σ", fontsize=8)
+    fig.colorbar(im, ax=ax, shrink=0.8)
+    figures.save_figure(fig, path)
+
+
+def depth_alignment(depth: np.ndarray, gb, text: str, channel: str) -> dict:
+    """The depth AOV against Mitsuba's first hits of the same pixel-centre rays: which convention it holds
+    (the distance along the ray, or planar depth along the view axis), the fraction of pixels misaligned by
+    more than `DEPTH_TOLERANCE` and the median relative difference. `AuditError` (one line, naming the likely
+    cause) when more than `DEPTH_REFUSE` of them are: the camera does not match the scene's."""
+    t = np.asarray(gb.depth, np.float64)
+    dirs = np.asarray(gb.view_dir, np.float64)
+    fwd = dirs.reshape(-1, 3).sum(axis=0)
+    fwd /= np.linalg.norm(fwd)
+    conventions = {"ray distance": t, "planar depth": t * np.abs(dirs @ fwd)}
+
+    def misaligned(d: np.ndarray) -> tuple[float, str, float, int]:
+        best = (2.0, "", float("nan"), 0)
+        for name, x in conventions.items():
+            ok = gb.mask & np.isfinite(d) & np.isfinite(x)
+            if not ok.any():
+                continue
+            rel = np.abs(d[ok] - x[ok]) / x[ok]
+            frac = float(np.mean(rel > DEPTH_TOLERANCE))
+            both = int(ok.sum())
+            covered = both / max(int(gb.mask.sum()), 1)
+            frac = 1.0 - (1.0 - frac) * covered  # a surface pixel without the frame's depth is misaligned too
+            if frac < best[0]:
+                best = (frac, name, float(np.median(rel)), both)
+        return best
+
+    frac, name, median, n = misaligned(depth)
+    if n == 0:
+        raise AuditError(
+            f"--aov depth {text}: no pixel where both the frame's depth and the scene have a surface"
+        )
+    if frac > DEPTH_REFUSE:
+        why = "its field of view, position, aspect or a half-pixel offset differ"
+        for label, flipped in (
+            (
+                "its image is upside down: a flipped up axis (Y-up against Z-up?) or image origin",
+                depth[::-1, :],
+            ),
+            ("its image is mirrored: the other handedness", depth[:, ::-1]),
+            ("its image is rotated by 180°", depth[::-1, ::-1]),
+        ):
+            if misaligned(flipped)[0] < DEPTH_REFUSE / 2:
+                why = label
+                break
+        raise AuditError(
+            f"--aov depth {text}: the frame's camera does not match the scene's sensor: {why} ({frac:.0%} of "
+            f"pixels' depth off by more than {DEPTH_TOLERANCE:.0%})"
+        )
+    return {
+        "convention": name,
+        "channel": channel,
+        "misaligned_fraction": frac,
+        "median_rel_diff": median,
+        "pixels": n,
+        "text": f"channel {channel!r} holds the {name}; {frac:.1%} of surface pixels differ from "
+        f"Mitsuba's first hit by more than {DEPTH_TOLERANCE:.0%} (median {median:.2%}).",
+    }

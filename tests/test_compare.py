@@ -1,0 +1,173 @@
+"""``rtfit compare`` (issue 36): frames of the 24 × 24 test scene tests/data/compare/two_shapes.xml rendered
+by plain Mitsuba (``mi.render``, box filter: each pixel's area average) against rtfit's reference of the same
+scene.
+
+Independent values: the frame is Mitsuba's own renderer at 4× the reference's samples (not rtfit's passes);
+the ×1.1 frame's scale is known by construction; the shifted frame is ``np.roll`` by one pixel;
+the depth AOV is Mitsuba's ``aov`` integrator; the PNG decode is the closed-form sRGB transfer function.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from rtfit.experiments.audit import AuditError
+from rtfit.experiments.cli import cli
+from rtfit.experiments.compare import compare, render_size
+from rtfit.experiments.compare_frames import read_frame
+from rtfit.reference.io import write_exr
+
+SCENE = Path(__file__).parent / "data" / "compare" / "two_shapes.xml"
+SPP = 128
+FRAME_SPP = 512
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    import mitsuba as mi
+
+    from rtfit.reference.variants import scoped_variant
+
+    d = tmp_path_factory.mktemp("compare")
+    with scoped_variant("llvm_ad_rgb"):
+        scene = mi.load_file(str(SCENE))
+        img = np.array(mi.render(scene, spp=FRAME_SPP, seed=7), dtype=np.float64)
+        depth = np.array(
+            mi.render(scene, integrator=mi.load_dict({"type": "aov", "aovs": "dd:depth"}), spp=16)
+        )
+    paths = {
+        "good": d / "good.exr",
+        "bright": d / "bright.exr",
+        "shift": d / "shift.exr",
+        "depth": d / "depth.exr",
+        "flipped": d / "flipped.exr",
+    }
+    write_exr(paths["good"], {"RGB": img})
+    write_exr(paths["bright"], {"RGB": 1.1 * img})
+    write_exr(paths["shift"], {"RGB": np.roll(img, 1, axis=1)})  # frame[y, x] = image[y, x − 1]
+    write_exr(paths["depth"], {"Z": depth[..., 0]})
+    write_exr(paths["flipped"], {"Z": depth[::-1, :, 0].copy()})
+    return d, paths
+
+
+@pytest.fixture(scope="module")
+def result(frames):
+    d, p = frames
+    return compare(SCENE, [str(p["good"]), str(p["bright"]), str(p["shift"])], spp=SPP, cache=d / "cache",
+                   aov=f"depth={p['depth']}", metrics=("rmse", "rel_mse", "ssim"))  # fmt: skip
+
+
+def test_mitsuba_frame_is_within_noise(result):
+    a = result.frame("good.exr").analysis
+    assert a.within_noise, a.verdict
+    assert abs(a.scale - 1.0) <= 4 * a.scale_stderr
+    assert a.offset == (0, 0) or not a.offset_significant
+    assert not a.metrics["rmse"].resolved
+    assert 0.8 < a.z["std"] < 1.4  # the frame's own noise (4× the samples) adds ≈ 12 %
+    assert all(e.within_noise for e in a.shapes), [e.words() for e in a.shapes]
+    assert {e.name for e in a.shapes} == {"floor", "ball", "no surface (background)"}
+
+
+def test_scaled_frame_is_flagged_with_its_scale(result):
+    a = result.frame("bright.exr").analysis
+    assert not a.within_noise
+    assert a.scale == pytest.approx(1.1, abs=0.01)
+    assert abs(a.scale - 1.1) <= 4 * a.scale_stderr
+    assert not a.scale_consistent
+    assert f"scale ×{a.scale:.4g}" in a.verdict
+    assert all(e.bias == pytest.approx(0.1, abs=0.03) for e in a.shapes if e.index >= 0)
+
+
+def test_shifted_frame_gives_registration_offset(result):
+    a = result.frame("shift.exr").analysis
+    assert a.offset == (1, 0) and a.offset_significant
+    assert "misaligned" in a.verdict
+
+
+def test_depth_aov_alignment(result):
+    dep = result.frames[0].depth
+    assert dep is not None and dep["convention"] == "ray distance"
+    assert (
+        dep["misaligned_fraction"] < 0.15
+    )  # edge pixels: the AOV averages over the pixel, Mitsuba's hit is central
+
+
+def test_fit_exposure_separates_the_scale(frames):
+    d, p = frames
+    r = compare(SCENE, str(p["bright"]), spp=SPP, cache=d / "cache", fit_exposure=True, metrics=("rmse",))
+    a = r.frames[0].analysis
+    assert a.within_noise, a.verdict
+    assert a.scale == pytest.approx(1.1, abs=0.01)
+    assert np.allclose(r.frames[0].image, r.frames[0].frame.image / a.scale)
+
+
+def test_flipped_depth_is_refused(frames):
+    d, p = frames
+    with pytest.raises(AuditError, match="upside down"):
+        compare(SCENE, str(p["good"]), spp=SPP, cache=d / "cache", aov=f"depth={p['flipped']}")
+
+
+def test_cli_writes_the_report_and_exits_1_on_a_flagged_frame(frames):
+    d, p = frames
+    out = d / "out"
+    runner = CliRunner()
+    common = [str(SCENE), "--spp", str(SPP), "--cache", str(d / "cache"), "--out", str(out), "--no-progress"]
+    res = runner.invoke(cli, ["compare", *common[:1], str(p["good"]), *common[1:]])
+    assert res.exit_code == 0, res.output
+    assert "within the reference's noise" in res.output
+    doc = json.loads((out / "compare-two_shapes" / "results.json").read_text())
+    assert doc["schema"] == "rtfit.results/1" and doc["experiment"] == "compare"
+    assert doc["cases"][0]["approximations"][0]["method"] == "good"
+    for name in ("report.html", "report.md", "tables.tex", "pixels/radiance.exr", "figures/good_z.png"):
+        assert (out / "compare-two_shapes" / name).is_file(), name
+    res = runner.invoke(cli, ["compare", *common[:1], str(p["bright"]), *common[1:]])
+    assert res.exit_code == 1, res.output
+    assert "differs: scale ×1.0" in res.output or "differs: scale ×1.1" in res.output
+
+
+def _one_line_exit_2(args, needle):
+    res = CliRunner().invoke(cli, ["compare", *args])
+    assert res.exit_code == 2, res.output
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("rtfit: error:") and needle in lines[0], res.output
+
+
+def test_bad_frames_are_one_line_exit_2(frames, tmp_path):
+    d, p = frames
+    junk = tmp_path / "junk.exr"
+    junk.write_bytes(b"not an exr at all")
+    small = tmp_path / "small.exr"
+    write_exr(small, {"RGB": np.ones((24, 25, 3))})
+    nan = tmp_path / "nan.exr"
+    write_exr(nan, {"RGB": np.full((24, 24, 3), np.nan)})
+    cache = ["--cache", str(d / "cache")]
+    _one_line_exit_2([str(SCENE), str(tmp_path / "missing.exr"), *cache], "no such file")
+    _one_line_exit_2([str(SCENE), str(junk), *cache], "not a readable OpenEXR file")
+    _one_line_exit_2([str(SCENE), str(small), *cache], "not one integer factor apart")
+    _one_line_exit_2([str(SCENE), str(nan), *cache], "not finite")
+    _one_line_exit_2([str(SCENE), f"{p['good']}:beauty", *cache], "no layer 'beauty'")
+    _one_line_exit_2([str(SCENE), str(tmp_path / "frame.jpg"), *cache], "no such file")
+    _one_line_exit_2([str(SCENE), *cache], "no frame to compare")
+    _one_line_exit_2([str(SCENE), str(p["good"]), "--aov", "normal=n.exr", *cache], "not read yet")
+
+
+def test_render_size_integer_factors():
+    assert render_size((24, 24), (48, 48), "f") == (48, 48)
+    assert render_size((48, 32), (24, 16), "f") == (24, 16)
+    with pytest.raises(AuditError, match="integer factor"):
+        render_size((24, 24), (48, 24), "f")
+
+
+def test_png_srgb_decoded(tmp_path):
+    from matplotlib import image as mpimg
+
+    png = tmp_path / "f.png"
+    mpimg.imsave(png, np.full((4, 4, 3), 128, np.uint8))
+    f = read_frame(str(png))
+    assert "sRGB" in f.encoding
+    assert f.image[0, 0, 0] == pytest.approx(((128 / 255 + 0.055) / 1.055) ** 2.4, rel=1e-6)
