@@ -122,16 +122,16 @@ def compare(
         )
     except AuditError as e:
         _error(str(e))
-    click.echo(f"camera: {result.info.camera}", err=True)
     for f in result.frames:
         a = f.analysis
         click.echo(f"{f.label}: {a.verdict}")
         click.echo(
             f"  scale {a.scale:.5g} ± {a.scale_stderr:.2g}; offset ({a.offset[0]:+d}, {a.offset[1]:+d}) px"
-            + ("" if a.offset_significant else " (none beyond noise)")
+            + (" (misaligned)" if a.misaligned else " (no misalignment)")
         )
-        if f.depth is not None:
-            click.echo(f"  depth: {f.depth['text']}")
+    depth = result.frames[0].depth
+    if depth is not None:
+        click.echo(f"depth AOV: {depth['text']}")
     assert result.out is not None
     click.echo(str((result.out / "report.html").resolve()))
     assert result.results is not None

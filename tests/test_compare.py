@@ -10,6 +10,7 @@ the depth AOV is Mitsuba's ``aov`` integrator; the PNG decode is the closed-form
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -40,18 +41,36 @@ def frames(tmp_path_factory):
         depth = np.array(
             mi.render(scene, integrator=mi.load_dict({"type": "aov", "aovs": "dd:depth"}), spp=16)
         )
+        # Shadows removed: the floor's pixels (every sample on the floor: Mitsuba's shape_index AOV)
+        # from the scene without the ball (no shadow), every other pixel from the full scene.
+        index = mi.load_dict({"type": "aov", "aovs": "i:shape_index"})
+        shape_index = np.array(mi.render(scene, integrator=index, spp=16))[..., 0]
+        floor = [s.id() for s in scene.shapes()].index("floor")
+        text = re.sub(r'<shape type="sphere" id="ball">.*?</shape>', "", SCENE.read_text(), flags=re.S)
+        no_ball = np.array(mi.render(mi.load_string(text), spp=FRAME_SPP, seed=8), dtype=np.float64)
+        no_shadow = np.where((shape_index == floor)[..., None], no_ball, img)
+        big = np.array(mi.render(mi.load_string(SCENE.read_text().replace('value="24"', 'value="48"')),
+                                 spp=FRAME_SPP, seed=9), dtype=np.float64)  # fmt: skip
+    padded = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    blurred = sum(padded[1 + dy : 25 + dy, 1 + dx : 25 + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9
     paths = {
         "good": d / "good.exr",
         "bright": d / "bright.exr",
         "shift": d / "shift.exr",
         "depth": d / "depth.exr",
         "flipped": d / "flipped.exr",
+        "no_shadow": d / "no_shadow.exr",
+        "blurred": d / "blurred.exr",
+        "big": d / "big.exr",
     }
     write_exr(paths["good"], {"RGB": img})
     write_exr(paths["bright"], {"RGB": 1.1 * img})
     write_exr(paths["shift"], {"RGB": np.roll(img, 1, axis=1)})  # frame[y, x] = image[y, x − 1]
     write_exr(paths["depth"], {"Z": depth[..., 0]})
     write_exr(paths["flipped"], {"Z": depth[::-1, :, 0].copy()})
+    write_exr(paths["no_shadow"], {"RGB": no_shadow})
+    write_exr(paths["blurred"], {"RGB": blurred})
+    write_exr(paths["big"], {"RGB": big})
     return d, paths
 
 
@@ -66,7 +85,7 @@ def test_mitsuba_frame_is_within_noise(result):
     a = result.frame("good.exr").analysis
     assert a.within_noise, a.verdict
     assert abs(a.scale - 1.0) <= 4 * a.scale_stderr
-    assert a.offset == (0, 0) or not a.offset_significant
+    assert not a.misaligned
     assert not a.metrics["rmse"].resolved
     assert 0.8 < a.z["std"] < 1.4  # the frame's own noise (4× the samples) adds ≈ 12 %
     assert all(e.within_noise for e in a.shapes), [e.words() for e in a.shapes]
@@ -85,8 +104,34 @@ def test_scaled_frame_is_flagged_with_its_scale(result):
 
 def test_shifted_frame_gives_registration_offset(result):
     a = result.frame("shift.exr").analysis
-    assert a.offset == (1, 0) and a.offset_significant
+    assert a.offset == (1, 0) and a.misaligned
     assert "misaligned" in a.verdict
+
+
+def test_removed_shadows_are_on_the_floor(frames):
+    d, p = frames
+    r = compare(SCENE, str(p["no_shadow"]), spp=SPP, cache=d / "cache", metrics=("rmse",))
+    a = r.frames[0].analysis
+    assert not a.within_noise and not a.misaligned
+    by = {e.name: e for e in a.shapes}
+    assert not by["floor"].within_noise and by["floor"].bias > 0  # brighter where its shadow was
+    assert by["ball"].within_noise, by["ball"].words()
+    assert "error on floor" in a.verdict
+
+
+def test_blurred_frame_has_structured_error_at_outlines(frames):
+    d, p = frames
+    r = compare(SCENE, str(p["blurred"]), spp=SPP, cache=d / "cache", metrics=("rmse",))
+    a = r.frames[0].analysis
+    assert not a.within_noise and not a.misaligned
+    assert a.edge_share >= 0.5 and "structured error at shape outlines" in a.verdict
+
+
+def test_frame_at_twice_the_film_size(frames):
+    d, p = frames
+    r = compare(SCENE, str(p["big"]), spp=4 * SPP, cache=d / "cache", metrics=("rmse",))
+    assert r.reference.mean.shape == (48, 48, 3)
+    assert r.frames[0].analysis.within_noise, r.frames[0].analysis.verdict
 
 
 def test_depth_aov_alignment(result):
