@@ -273,7 +273,6 @@ def compare(
         _writable(target, "--out")
     cache_root = Path(cache) if cache is not None else default_cache_dir()
     _writable(cache_root, "--cache")
-    say(f"camera: {info.camera}; reference {quantity} at {width}×{height}, {spp} spp in passes of {pass_spp}")
     timings: dict[str, float] = {}
     try:
         with loaded_xml(path, defines, variant, camera=camera, width=width, height=height) as loaded:
@@ -283,8 +282,11 @@ def compare(
             names = {i: _shape_name(s, i) for i, s in enumerate(mi_scene.shapes())}
             alignment = None
             if depth is not None:  # refused here, before the reference renders
-                alignment = depth_alignment(depth[0], gb, aovs["depth"], depth[1])
+                alignment = depth_alignment(depth[0], gb, aovs["depth"], depth[1], cam.x_fov_deg)
             timings["setup"] = time.perf_counter() - t0
+            say(
+                f"camera: {info.camera}; reference {quantity} at {width}×{height}, {spp} spp in passes of {pass_spp}"
+            )
             t1 = time.perf_counter()
             reference = _reference(
                 mi,

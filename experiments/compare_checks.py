@@ -355,7 +355,26 @@ def z_figure(path: Path, a: FrameAnalysis, label: str) -> None:
     figures.save_figure(fig, path)
 
 
-def depth_alignment(depth: np.ndarray, gb, text: str, channel: str) -> dict:
+def _zoomed(depth: np.ndarray, k: float) -> np.ndarray:
+    """The frame's depth seen as a camera whose view is ``k``× narrower: pixel offsets from the image centre
+    scaled by k, bilinear (NaN outside the frame or next to a pixel without depth)."""
+    h, w = depth.shape
+    y = h / 2 + ((np.arange(h) + 0.5) - h / 2) * k - 0.5
+    x = w / 2 + ((np.arange(w) + 0.5) - w / 2) * k - 0.5
+    y0, x0 = np.floor(y).astype(int), np.floor(x).astype(int)
+    fy, fx = (y - y0)[:, None], (x - x0)[None, :]
+    ok = ((y0 >= 0) & (y0 + 1 < h))[:, None] & ((x0 >= 0) & (x0 + 1 < w))[None, :]
+    yy, xx = np.clip(y0, 0, h - 2)[:, None], np.clip(x0, 0, w - 2)[None, :]
+    v = ((1 - fy) * (1 - fx) * depth[yy, xx] + (1 - fy) * fx * depth[yy, xx + 1]
+         + fy * (1 - fx) * depth[yy + 1, xx] + fy * fx * depth[yy + 1, xx + 1])  # fmt: skip
+    return np.where(ok, v, np.nan)
+
+
+ZOOMS = np.geomspace(0.5, 2.0, 121)
+"""The view-width ratios tried when the depth does not match: a field of view that differs."""
+
+
+def depth_alignment(depth: np.ndarray, gb, text: str, channel: str, x_fov_deg: float | None = None) -> dict:
     """The depth AOV against Mitsuba's first hits of the same pixel-centre rays: which convention it holds
     (the distance along the ray, or planar depth along the view axis), the fraction of pixels misaligned by
     more than `DEPTH_TOLERANCE` and the median relative difference. `AuditError` (one line, naming the likely
@@ -366,7 +385,7 @@ def depth_alignment(depth: np.ndarray, gb, text: str, channel: str) -> dict:
     fwd /= np.linalg.norm(fwd)
     conventions = {"ray distance": t, "planar depth": t * np.abs(dirs @ fwd)}
 
-    def misaligned(d: np.ndarray) -> tuple[float, str, float, int]:
+    def misaligned(d: np.ndarray, coverage: bool = True) -> tuple[float, str, float, int]:
         best = (2.0, "", float("nan"), 0)
         for name, x in conventions.items():
             ok = gb.mask & np.isfinite(d) & np.isfinite(x)
@@ -376,7 +395,10 @@ def depth_alignment(depth: np.ndarray, gb, text: str, channel: str) -> dict:
             frac = float(np.mean(rel > DEPTH_TOLERANCE))
             both = int(ok.sum())
             covered = both / max(int(gb.mask.sum()), 1)
-            frac = 1.0 - (1.0 - frac) * covered  # a surface pixel without the frame's depth is misaligned too
+            if coverage:  # a surface pixel without the frame's depth is misaligned too
+                frac = 1.0 - (1.0 - frac) * covered
+            elif covered < 0.5:
+                continue
             if frac < best[0]:
                 best = (frac, name, float(np.median(rel)), both)
         return best
@@ -399,6 +421,15 @@ def depth_alignment(depth: np.ndarray, gb, text: str, channel: str) -> dict:
             if misaligned(flipped)[0] < DEPTH_REFUSE / 2:
                 why = label
                 break
+        else:
+            zooms = [(misaligned(_zoomed(depth, k), coverage=False)[0], k) for k in ZOOMS]
+            best, k = min(zooms)
+            if best < DEPTH_REFUSE / 2 and abs(k - 1.0) > 0.02:
+                fov = ""
+                if x_fov_deg:
+                    f = np.degrees(2 * np.arctan(np.tan(np.radians(x_fov_deg) / 2) / k))
+                    fov = f" (x fov ≈ {f:.0f}° against the scene's {x_fov_deg:.0f}°)"
+                why = f"its field of view differs: the frame's view is {1 / k:.2f}× the scene's width{fov}"
         raise AuditError(
             f"--aov depth {text}: the frame's camera does not match the scene's sensor: {why} ({frac:.0%} of "
             f"pixels' depth off by more than {DEPTH_TOLERANCE:.0%})"

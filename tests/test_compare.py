@@ -51,6 +51,12 @@ def frames(tmp_path_factory):
         no_shadow = np.where(floor[..., None], no_ball, img)
         big = np.array(mi.render(mi.load_string(SCENE.read_text().replace('value="24"', 'value="48"')),
                                  spp=FRAME_SPP, seed=9), dtype=np.float64)  # fmt: skip
+        wide = SCENE.read_text().replace('name="fov" value="40"', 'name="fov" value="50"')
+        wide_depth = np.array(
+            mi.render(
+                mi.load_string(wide), integrator=mi.load_dict({"type": "aov", "aovs": "dd:depth"}), spp=16
+            )
+        )
     padded = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
     blurred = sum(padded[1 + dy : 25 + dy, 1 + dx : 25 + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9
     paths = {
@@ -62,6 +68,7 @@ def frames(tmp_path_factory):
         "no_shadow": d / "no_shadow.exr",
         "blurred": d / "blurred.exr",
         "big": d / "big.exr",
+        "wide_depth": d / "wide_depth.exr",
     }
     write_exr(paths["good"], {"RGB": img})
     write_exr(paths["bright"], {"RGB": 1.1 * img})
@@ -71,6 +78,7 @@ def frames(tmp_path_factory):
     write_exr(paths["no_shadow"], {"RGB": no_shadow})
     write_exr(paths["blurred"], {"RGB": blurred})
     write_exr(paths["big"], {"RGB": big})
+    write_exr(paths["wide_depth"], {"Z": wide_depth[..., 0]})
     return d, paths
 
 
@@ -155,6 +163,12 @@ def test_flipped_depth_is_refused(frames):
     d, p = frames
     with pytest.raises(AuditError, match="upside down"):
         compare(SCENE, str(p["good"]), spp=SPP, cache=d / "cache", aov=f"depth={p['flipped']}")
+
+
+def test_other_fov_is_refused_in_one_line(frames):
+    d, p = frames
+    args = [str(SCENE), str(p["good"]), "--aov", f"depth={p['wide_depth']}", "--cache", str(d / "cache")]
+    _one_line_exit_2(args, "its field of view differs")
 
 
 def test_cli_writes_the_report_and_exits_1_on_a_flagged_frame(frames):
