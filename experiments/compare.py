@@ -284,9 +284,8 @@ def compare(
             if depth is not None:  # refused here, before the reference renders
                 alignment = depth_alignment(depth[0], gb, aovs["depth"], depth[1], cam.x_fov_deg)
             timings["setup"] = time.perf_counter() - t0
-            say(
-                f"camera: {info.camera}; reference {quantity} at {width}×{height}, {spp} spp in passes of {pass_spp}"
-            )
+            plan = f"{width}×{height}, {spp} spp in passes of {pass_spp}"
+            say(f"camera: {info.camera}; reference {quantity} at {plan}")
             t1 = time.perf_counter()
             reference = _reference(
                 mi,
