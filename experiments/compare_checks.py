@@ -55,6 +55,9 @@ DEPTH_TOLERANCE = 0.02
 """A pixel's depth is misaligned when it differs from Mitsuba's first-hit distance by more than this
 fraction."""
 DEPTH_REFUSE = 0.5
+DEPTH_WARN = 0.2
+"""Misaligned fraction above which the depth is examined for a flip, a half-pixel offset or another field of
+view (refused, naming it, when one of them explains the depth)."""
 """Misaligned fraction above which the camera is refused (one line naming the likely cause)."""
 
 
@@ -355,12 +358,13 @@ def z_figure(path: Path, a: FrameAnalysis, label: str) -> None:
     figures.save_figure(fig, path)
 
 
-def _zoomed(depth: np.ndarray, k: float) -> np.ndarray:
-    """The frame's depth seen as a camera whose view is ``k``× narrower: pixel offsets from the image centre
-    scaled by k, bilinear (NaN outside the frame or next to a pixel without depth)."""
+def _resampled(depth: np.ndarray, k: float = 1.0, dx: float = 0.0, dy: float = 0.0) -> np.ndarray:
+    """The frame's depth at each pixel's centre offset from the image centre scaled by ``k`` (a view ``k``×
+    narrower) and moved by (``dx``, ``dy``) px, bilinear (NaN outside the frame or next to a pixel without
+    depth): frame[y + dy, x + dx] for k = 1, as the registration offset reads."""
     h, w = depth.shape
-    y = h / 2 + ((np.arange(h) + 0.5) - h / 2) * k - 0.5
-    x = w / 2 + ((np.arange(w) + 0.5) - w / 2) * k - 0.5
+    y = h / 2 + ((np.arange(h) + 0.5) - h / 2) * k + dy - 0.5
+    x = w / 2 + ((np.arange(w) + 0.5) - w / 2) * k + dx - 0.5
     y0, x0 = np.floor(y).astype(int), np.floor(x).astype(int)
     fy, fx = (y - y0)[:, None], (x - x0)[None, :]
     ok = ((y0 >= 0) & (y0 + 1 < h))[:, None] & ((x0 >= 0) & (x0 + 1 < w))[None, :]
@@ -370,8 +374,40 @@ def _zoomed(depth: np.ndarray, k: float) -> np.ndarray:
     return np.where(ok, v, np.nan)
 
 
+HALF_PIXELS = tuple((dx, dy) for dy in (-0.5, 0.0, 0.5) for dx in (-0.5, 0.0, 0.5) if (dx, dy) != (0.0, 0.0))
 ZOOMS = np.geomspace(0.5, 2.0, 121)
 """The view-width ratios tried when the depth does not match: a field of view that differs."""
+
+
+def _camera_mismatch(depth, frac: float, misaligned, x_fov_deg) -> str | None:
+    """Which simple change of the camera makes the frame's depth match (misaligned at most `DEPTH_WARN` and
+    half of ``frac``): a flip, a half-pixel offset or another field of view; None when none does."""
+    good = min(DEPTH_WARN, frac / 2)
+    flips = (
+        ("its image is upside down: a flipped up axis (Y-up against Z-up?) or image origin", depth[::-1, :]),
+        ("its image is mirrored: the other handedness", depth[:, ::-1]),
+        ("its image is rotated by 180°", depth[::-1, ::-1]),
+    )
+    for label, flipped in flips:
+        if misaligned(flipped)[0] <= good:
+            return label
+    shifts = [
+        (misaligned(_resampled(depth, 1.0, dx, dy), coverage=False)[0], (dx, dy)) for dx, dy in HALF_PIXELS
+    ]
+    best, (dx, dy) = min(shifts)
+    if best <= good:
+        return (
+            f"its pixel centres are offset by half a pixel (its depth matches at ({dx:+.1f}, {dy:+.1f}) px)"
+        )
+    zooms = [(misaligned(_resampled(depth, k), coverage=False)[0], k) for k in ZOOMS]
+    best, k = min(zooms)
+    if best <= good and abs(k - 1.0) > 0.02:
+        fov = ""
+        if x_fov_deg:
+            f = np.degrees(2 * np.arctan(np.tan(np.radians(x_fov_deg) / 2) / k))
+            fov = f" (x fov ≈ {f:.0f}° against the scene's {x_fov_deg:.0f}°)"
+        return f"its field of view differs: the frame's view is {1 / k:.2f}× the scene's width{fov}"
+    return None
 
 
 def depth_alignment(depth: np.ndarray, gb, text: str, channel: str, x_fov_deg: float | None = None) -> dict:
@@ -408,32 +444,14 @@ def depth_alignment(depth: np.ndarray, gb, text: str, channel: str, x_fov_deg: f
         raise AuditError(
             f"--aov depth {text}: no pixel where both the frame's depth and the scene have a surface"
         )
-    if frac > DEPTH_REFUSE:
-        why = "its field of view, position, aspect or a half-pixel offset differ"
-        for label, flipped in (
-            (
-                "its image is upside down: a flipped up axis (Y-up against Z-up?) or image origin",
-                depth[::-1, :],
-            ),
-            ("its image is mirrored: the other handedness", depth[:, ::-1]),
-            ("its image is rotated by 180°", depth[::-1, ::-1]),
-        ):
-            if misaligned(flipped)[0] < DEPTH_REFUSE / 2:
-                why = label
-                break
-        else:
-            zooms = [(misaligned(_zoomed(depth, k), coverage=False)[0], k) for k in ZOOMS]
-            best, k = min(zooms)
-            if best < DEPTH_REFUSE / 2 and abs(k - 1.0) > 0.02:
-                fov = ""
-                if x_fov_deg:
-                    f = np.degrees(2 * np.arctan(np.tan(np.radians(x_fov_deg) / 2) / k))
-                    fov = f" (x fov ≈ {f:.0f}° against the scene's {x_fov_deg:.0f}°)"
-                why = f"its field of view differs: the frame's view is {1 / k:.2f}× the scene's width{fov}"
-        raise AuditError(
-            f"--aov depth {text}: the frame's camera does not match the scene's sensor: {why} ({frac:.0%} of "
-            f"pixels' depth off by more than {DEPTH_TOLERANCE:.0%})"
-        )
+    if frac > DEPTH_WARN:
+        why = _camera_mismatch(depth, frac, misaligned, x_fov_deg)
+        if why is not None or frac > DEPTH_REFUSE:
+            why = why or "its field of view, position, aspect or a half-pixel offset differ"
+            raise AuditError(
+                f"--aov depth {text}: the frame's camera does not match the scene's sensor: {why} "
+                f"({frac:.0%} of pixels' depth off by more than {DEPTH_TOLERANCE:.0%})"
+            )
     return {
         "convention": name,
         "channel": channel,

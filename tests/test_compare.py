@@ -37,10 +37,9 @@ def frames(tmp_path_factory):
     d = tmp_path_factory.mktemp("compare")
     with scoped_variant("llvm_ad_rgb"):
         scene = mi.load_file(str(SCENE))
+        depth_aov = mi.load_dict({"type": "aov", "aovs": "dd:depth"})
         img = np.array(mi.render(scene, spp=FRAME_SPP, seed=7), dtype=np.float64)
-        depth = np.array(
-            mi.render(scene, integrator=mi.load_dict({"type": "aov", "aovs": "dd:depth"}), spp=16)
-        )
+        depth = np.array(mi.render(scene, integrator=depth_aov, spp=16))
         # Shadows removed: the floor's pixels (every sample on the floor: Mitsuba's geo_normal AOV is
         # exactly the floor's +z there) from the scene without the ball, every other pixel from the full one.
         normal = mi.load_dict({"type": "aov", "aovs": "nn:geo_normal"})
@@ -52,11 +51,12 @@ def frames(tmp_path_factory):
         big = np.array(mi.render(mi.load_string(SCENE.read_text().replace('value="24"', 'value="48"')),
                                  spp=FRAME_SPP, seed=9), dtype=np.float64)  # fmt: skip
         wide = SCENE.read_text().replace('name="fov" value="40"', 'name="fov" value="50"')
-        wide_depth = np.array(
-            mi.render(
-                mi.load_string(wide), integrator=mi.load_dict({"type": "aov", "aovs": "dd:depth"}), spp=16
-            )
-        )
+        wide_depth = np.array(mi.render(mi.load_string(wide), integrator=depth_aov, spp=16))
+        # Half a pixel lower: each pixel the mean of 2×2 depths of the 48×48 film one fine row down.
+        fine_text = SCENE.read_text().replace('value="24"', 'value="48"')
+        fine = np.array(mi.render(mi.load_string(fine_text), integrator=depth_aov, spp=16))[..., 0]
+        fine = np.pad(fine, ((0, 1), (0, 0)), mode="edge")
+        half_depth = fine[1:49].reshape(24, 2, 24, 2).mean(axis=(1, 3))
     padded = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
     blurred = sum(padded[1 + dy : 25 + dy, 1 + dx : 25 + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9
     paths = {
@@ -69,6 +69,7 @@ def frames(tmp_path_factory):
         "blurred": d / "blurred.exr",
         "big": d / "big.exr",
         "wide_depth": d / "wide_depth.exr",
+        "half_depth": d / "half_depth.exr",
     }
     write_exr(paths["good"], {"RGB": img})
     write_exr(paths["bright"], {"RGB": 1.1 * img})
@@ -79,6 +80,7 @@ def frames(tmp_path_factory):
     write_exr(paths["blurred"], {"RGB": blurred})
     write_exr(paths["big"], {"RGB": big})
     write_exr(paths["wide_depth"], {"Z": wide_depth[..., 0]})
+    write_exr(paths["half_depth"], {"Z": half_depth})
     return d, paths
 
 
@@ -169,6 +171,14 @@ def test_other_fov_is_refused_in_one_line(frames):
     d, p = frames
     args = [str(SCENE), str(p["good"]), "--aov", f"depth={p['wide_depth']}", "--cache", str(d / "cache")]
     _one_line_exit_2(args, "its field of view differs")
+
+
+def test_half_pixel_offset_is_refused(frames):
+    d, p = frames
+    with pytest.raises(
+        AuditError, match=r"offset by half a pixel \(its depth matches at \(\+0\.0, -0\.5\) px\)"
+    ):
+        compare(SCENE, str(p["good"]), spp=SPP, cache=d / "cache", aov=f"depth={p['half_depth']}")
 
 
 def test_cli_writes_the_report_and_exits_1_on_a_flagged_frame(frames):
