@@ -50,7 +50,9 @@ from .compare_checks import (
     FrameAnalysis,
     analyse_frame,
     depth_alignment,
+    distance_bands,
     frame_checks,
+    group_labels,
     shape_table,
     z_figure,
 )
@@ -280,6 +282,10 @@ def compare(
             gb = gbuffer(mi, mi_scene, sensor)
             hits = first_hit_shapes(mi, mi_scene, sensor)
             names = {i: _shape_name(s, i) for i, s in enumerate(mi_scene.shapes())}
+            groups = {
+                "BSDF at the first hit": group_labels(hits, _bsdf_names(list(mi_scene.shapes()), names)),
+                "first-hit distance band": distance_bands(gb.depth),
+            }
             alignment = None
             if depth is not None:  # refused here, before the reference renders
                 alignment = depth_alignment(depth[0], gb, aovs["depth"], depth[1], cam.x_fov_deg)
@@ -313,7 +319,16 @@ def compare(
     outcomes = []
     for f in read:
         a = analyse_frame(
-            f.image, reference.mean, reference.sigma(), mask, hits, names, fit_exposure, tuple(metrics), seed
+            f.image,
+            reference.mean,
+            reference.sigma(),
+            mask,
+            hits,
+            names,
+            fit_exposure,
+            tuple(metrics),
+            seed,
+            groups,
         )
         image = f.image / a.scale if fit_exposure and a.scale > 0 else f.image
         outcomes.append(
@@ -347,8 +362,32 @@ def _shape_name(shape, index: int) -> str:
     sid = str(shape.id())
     bsdf = shape.bsdf()
     b = str(bsdf.id()) if bsdf is not None else ""
-    name = sid if sid and not sid.startswith("_unnamed") else f"shape {index} ({shape.class_().name()})"
+    name = sid if sid and not sid.startswith("_unnamed") else f"shape {index} ({_class_name(shape)})"
     return name + (f" [bsdf {b}]" if b and not b.startswith("_unnamed") else "")
+
+
+def _class_name(obj) -> str:
+    name = getattr(obj, "class_name", None)
+    return str(name()) if callable(name) else type(obj).__name__
+
+
+def _bsdf_names(shapes, names: dict[int, str]) -> dict[int, str]:
+    """Shape index → its BSDF's name: the XML id, or (unnamed) its type and the shapes sharing one such BSDF
+    (equal type and parameters)."""
+    keys: dict[int, object] = {}
+    for i, shape in enumerate(shapes):
+        bsdf = shape.bsdf()
+        b = "" if bsdf is None else str(bsdf.id())
+        keys[i] = b if b and not b.startswith("_unnamed") else ("", str(bsdf) if bsdf is not None else "none")
+    out = {}
+    for i, key in keys.items():
+        kind = "none" if shapes[i].bsdf() is None else _class_name(shapes[i].bsdf())
+        if isinstance(key, str):
+            out[i] = f"{key} ({kind})"
+        else:
+            users = [names[k].split(" [bsdf")[0] for k, other in keys.items() if other == key]
+            out[i] = f"{kind} of {', '.join(users)}"
+    return out
 
 
 def _reference(
@@ -463,6 +502,8 @@ def _results(r: CompareResult, *, variant, spp, pass_spp, seed, fit_exposure, fo
         if f.depth is not None:
             lines += [f"Depth AOV: {f.depth['text']}", ""]
         lines += shape_table(a.shapes)
+        for title, errors in a.groups.items():
+            lines += ["", *shape_table(errors, title)]
         sections.append({"id": f"frame-{f.id}", "title": f"Frame: {f.label}", "text": "\n".join(lines)})
     notes = [
         f"The reference is {ref.quantity}, {ref.spp} spp per pixel in {ref.passes} passes; each sample's "

@@ -33,7 +33,9 @@ __all__ = [
     "ShapeError",
     "analyse_frame",
     "depth_alignment",
+    "distance_bands",
     "frame_checks",
+    "group_labels",
     "shape_table",
     "z_figure",
 ]
@@ -114,6 +116,8 @@ class FrameAnalysis:
     """The share of the excess squared error (beyond σ²) on pixels at shape outlines (`edge_pixels`)."""
     edge_fraction: float
     causes: list[str] = field(default_factory=list)
+    groups: dict[str, list[ShapeError]] = field(default_factory=dict)
+    """Further breakdowns: title (the BSDF, the distance band) → the error per group."""
 
     @property
     def within_noise(self) -> bool:
@@ -242,9 +246,10 @@ def edge_pixels(hits: np.ndarray) -> np.ndarray:
 
 
 def analyse_frame(
-    frame, ref, sigma, mask, hits, names, fit_exposure: bool, metrics, seed: int
+    frame, ref, sigma, mask, hits, names, fit_exposure: bool, metrics, seed: int, groups=None
 ) -> FrameAnalysis:
-    """The `FrameAnalysis` of ``frame`` against the reference (mean ``ref``, standard error ``sigma``)."""
+    """The `FrameAnalysis` of ``frame`` against the reference (mean ``ref``, standard error ``sigma``).
+    ``groups``: title → (labels (H, W), names) of further breakdowns (the BSDF, the distance band)."""
     s, s_err = best_scale(frame, ref, mask)
     consistent = abs(s - 1.0) <= max(SCALE_SIGMAS * s_err, 1e-4)
     mse_raw = float(np.mean((frame - ref)[mask] ** 2))
@@ -261,6 +266,9 @@ def analyse_frame(
     outliers = float(np.mean(~(np.abs(zmap[mask]) <= OUTLIER_Z)))
     rel_err = s_err / s if fit_exposure and s > 0 and np.isfinite(s_err) else 0.0
     shapes = shape_errors(compared, ref, sigma, hits, names, rel_err)
+    by_group = {
+        t: shape_errors(compared, ref, sigma, lab, nm, rel_err) for t, (lab, nm) in (groups or {}).items()
+    }
     edges = edge_pixels(hits) & mask
     excess = np.maximum(np.sum((compared - ref) ** 2 - sigma**2, axis=-1), 0.0) * mask
     edge_share = float(excess[edges].sum() / excess.sum()) if excess.sum() > 0 else 0.0
@@ -300,7 +308,7 @@ def analyse_frame(
     causes += evidence
     return FrameAnalysis(
         s, s_err, consistent, offset, significant, errs, res, zmap, zs, outliers, shapes, hits, fit_exposure,
-        scale_gain, shift_gain, edge_share, edge_fraction, causes,
+        scale_gain, shift_gain, edge_share, edge_fraction, causes, by_group,
     )  # fmt: skip
 
 
@@ -329,11 +337,33 @@ def frame_checks(label: str, a: FrameAnalysis) -> list[dict]:
     ]
 
 
-def shape_table(shapes: list[ShapeError]) -> list[str]:
-    """Markdown lines: the error per shape at the pixels' first hits."""
+def distance_bands(depth: np.ndarray, bands: int = 3) -> tuple[np.ndarray, dict[int, str]]:
+    """(labels (H, W), names): the pixels' first-hit distances in ``bands`` bands of equal pixel counts
+    (−1: no surface), each named by its range in scene units."""
+    d = np.asarray(depth, np.float64)
+    ok = np.isfinite(d)
+    labels = np.full(d.shape, -1, np.int32)
+    if not ok.any():
+        return labels, {}
+    edges = np.quantile(d[ok], np.linspace(0.0, 1.0, bands + 1))
+    labels[ok] = np.clip(np.searchsorted(edges[1:-1], d[ok], side="right"), 0, bands - 1)
+    words = ("near", "middle", "far") if bands == 3 else tuple(f"band {i + 1}" for i in range(bands))
+    return labels, {i: f"{words[i]} ({edges[i]:.3g}–{edges[i + 1]:.3g})" for i in range(bands)}
+
+
+def group_labels(hits: np.ndarray, of_shape: dict[int, str]) -> tuple[np.ndarray, dict[int, str]]:
+    """Shapes grouped by a name per shape (e.g. its BSDF): (labels (H, W), names); −1 stays no surface."""
+    distinct = sorted(set(of_shape.values()))
+    index = {name: i for i, name in enumerate(distinct)}
+    table = {k: index[v] for k, v in of_shape.items()}
+    labels = np.vectorize(lambda k: table.get(int(k), -1), otypes=[np.int32])(hits) if hits.size else hits
+    return labels.astype(np.int32), dict(enumerate(distinct))
+
+
+def shape_table(shapes: list[ShapeError], what: str = "shape at the first hit") -> list[str]:
+    """Markdown lines: the error per shape (or per group ``what``) at the pixels' first hits."""
     rows = [
-        "| shape at the first hit | pixels | mean reference | error (frame − reference) / reference "
-        "| z rms |",
+        f"| {what} | pixels | mean reference | error (frame − reference) / reference | z rms |",
         "|---|---:|---:|---|---:|",
     ]
     rows += [

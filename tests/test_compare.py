@@ -127,6 +127,10 @@ def test_removed_shadows_are_on_the_floor(frames):
     assert not by["floor"].within_noise and by["floor"].bias > 0  # brighter where its shadow was
     assert by["ball"].within_noise, by["ball"].words()
     assert "error on floor" in a.verdict
+    bsdfs = {e.name: e for e in a.groups["BSDF at the first hit"]}
+    assert not bsdfs["SmoothDiffuse of floor"].within_noise and bsdfs["SmoothDiffuse of ball"].within_noise
+    bands = a.groups["first-hit distance band"]
+    assert sum(e.pixels for e in bands) == 24 * 24 and len(bands) == 4  # near, middle, far, no surface
 
 
 def test_blurred_frame_has_structured_error_at_outlines(frames):
