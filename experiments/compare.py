@@ -45,18 +45,17 @@ from .atomic import atomic_directory, writable_problem
 from .audit import AuditError, SceneInfo, inspect_scene
 from .audit_family import AuditReference, AuditSetup, FamilyCase, pooled_passes
 from .audit_output import case_figures, save_pixels
+from .compare_aovs import DEPTH_TOLERANCE, align_aovs, parse_aovs, read_aovs
 from .compare_checks import (
-    DEPTH_TOLERANCE,
     FrameAnalysis,
     analyse_frame,
-    depth_alignment,
     distance_bands,
     frame_checks,
     group_labels,
     shape_table,
     z_figure,
 )
-from .compare_frames import Frame, frame_id, read_depth, read_frame
+from .compare_frames import Frame, frame_id, read_frame
 from .records import SCHEMA, Results, from_json, plain_json, to_json
 from .registry import LIMITS
 from .report import write_report
@@ -82,7 +81,6 @@ QUANTITIES = {
 """The quantities ``--quantity`` renders a reference of (issue 36 also names irradiance, AO,
 transmittance)."""
 FOOTPRINTS = ("box", "centre")
-AOVS = ("depth",)
 DEFAULT_SPP = 256
 DEFAULT_PASS_SPP = 32
 FORMAT = 1
@@ -93,15 +91,15 @@ FORMAT = 1
 class FrameOutcome:
     """One compared frame (a row of the report): ``id`` (its ``approximations[].method``), ``label``,
     ``frame`` as read, ``image`` as compared (divided by the scale with ``--fit-exposure``), its
-    `FrameAnalysis` (scale, offset, metrics, z-scores, per-shape errors, verdict) and ``depth`` (the AOV's
-    alignment, or None)."""
+    `FrameAnalysis` (scale, offset, metrics, z-scores, per-shape errors, verdict) and ``aovs`` (each AOV's
+    alignment with the scene's first hits)."""
 
     id: str
     label: str
     frame: Frame
     image: np.ndarray
     analysis: FrameAnalysis
-    depth: Mapping[str, Any] | None = None
+    aovs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     fit: None = None  # (read by audit_output: a frame has no fitted parameters)
 
 
@@ -151,24 +149,6 @@ class CompareResult:
             _write(Path(tmp), self)
         self.out = directory
         return directory
-
-
-def parse_aovs(values: Sequence[str] | str | None) -> dict[str, str]:
-    """``--aov depth=D.exr[,normal=N.exr]`` (repeatable) → {name: file}; `AuditError` on anything else."""
-    if values is None:
-        return {}
-    items = [values] if isinstance(values, str) else list(values)
-    out: dict[str, str] = {}
-    for item in items:
-        for part in str(item).split(","):
-            name, eq, path = part.partition("=")
-            name = name.strip()
-            if not eq or not path.strip():
-                raise AuditError(f"--aov {part!r}: expected NAME=FILE (e.g. depth=D.exr)")
-            if name not in AOVS:
-                raise AuditError(f"--aov {name}: not read yet (AOVs read: {', '.join(AOVS)})")
-            out[name] = path.strip()
-    return out
 
 
 def render_size(film: tuple[int, int], frame: tuple[int, int], source: str) -> tuple[int, int]:
@@ -244,14 +224,7 @@ def compare(
                 f"{size[0]}×{size[1]} (one size per comparison)"
             )
     aovs = parse_aovs(aov)
-    depth = None
-    if "depth" in aovs:
-        depth = read_depth(aovs["depth"])
-        if depth[0].shape != read[0].image.shape[:2]:
-            raise AuditError(
-                f"--aov depth {aovs['depth']}: {depth[0].shape[1]}×{depth[0].shape[0]}, the frames "
-                f"are {size[0]}×{size[1]}"
-            )
+    aov_data = read_aovs(aovs, read[0].image.shape[:2])
     path = Path(str(scene))
     if path.suffix.lower() != ".xml":
         raise AuditError(
@@ -286,9 +259,7 @@ def compare(
                 "BSDF at the first hit": group_labels(hits, _bsdf_names(list(mi_scene.shapes()), names)),
                 "first-hit distance band": distance_bands(gb.depth),
             }
-            alignment = None
-            if depth is not None:  # refused here, before the reference renders
-                alignment = depth_alignment(depth[0], gb, aovs["depth"], depth[1], cam.x_fov_deg)
+            alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg)  # refused here, before rendering
             timings["setup"] = time.perf_counter() - t0
             plan = f"{width}×{height}, {spp} spp in passes of {pass_spp}"
             say(f"camera: {info.camera}; reference {quantity} at {plan}")
@@ -499,8 +470,7 @@ def _results(r: CompareResult, *, variant, spp, pass_spp, seed, fit_exposure, fo
     for f in r.frames:
         a = f.analysis
         lines = [f"`{f.frame.source}`: {f.frame.encoding}.", "", *a.lines, ""]
-        if f.depth is not None:
-            lines += [f"Depth AOV: {f.depth['text']}", ""]
+        lines += [f"{name.capitalize()} AOV: {a['text']}\n" for name, a in f.aovs.items()]
         lines += shape_table(a.shapes)
         for title, errors in a.groups.items():
             lines += ["", *shape_table(errors, title)]

@@ -1,6 +1,6 @@
 """What ``rtfit compare`` measures on one frame against the reference (`rtfit.experiments.compare`): the best
 global scale, the registration offset, the metrics with noise floors, the z-scores, the error per shape, the
-verdict naming its causes, and the depth AOV's alignment with Mitsuba's first hits.
+verdict naming its causes (the AOVs' alignment: `compare_aovs`).
 
 Statistics (each against the reference's per-pixel standard error σ, which includes the float32 precision
 floor):
@@ -25,14 +25,11 @@ import numpy as np
 from rtfit.fitting import MetricResults, compute_metrics, z_score_summary
 
 from . import figures
-from .audit import AuditError
 
 __all__ = [
-    "DEPTH_TOLERANCE",
     "FrameAnalysis",
     "ShapeError",
     "analyse_frame",
-    "depth_alignment",
     "distance_bands",
     "frame_checks",
     "group_labels",
@@ -53,14 +50,6 @@ the squared error."""
 OUTLIER_Z = 5.0
 OUTLIER_FRACTION = 0.01
 """A frame is flagged when more than this fraction of its pixel channels lie beyond `OUTLIER_Z` σ."""
-DEPTH_TOLERANCE = 0.02
-"""A pixel's depth is misaligned when it differs from Mitsuba's first-hit distance by more than this
-fraction."""
-DEPTH_REFUSE = 0.5
-DEPTH_WARN = 0.2
-"""Misaligned fraction above which the depth is examined for a flip, a half-pixel offset or another field of
-view (refused, naming it, when one of them explains the depth)."""
-"""Misaligned fraction above which the camera is refused (one line naming the likely cause)."""
 
 
 @dataclass(frozen=True)
@@ -386,108 +375,3 @@ def z_figure(path: Path, a: FrameAnalysis, label: str) -> None:
     ax.set_title(f"{label}: z (frame − ref)/σ", fontsize=8)
     fig.colorbar(im, ax=ax, shrink=0.8)
     figures.save_figure(fig, path)
-
-
-def _resampled(depth: np.ndarray, k: float = 1.0, dx: float = 0.0, dy: float = 0.0) -> np.ndarray:
-    """The frame's depth at each pixel's centre offset from the image centre scaled by ``k`` (a view ``k``×
-    narrower) and moved by (``dx``, ``dy``) px, bilinear (NaN outside the frame or next to a pixel without
-    depth): frame[y + dy, x + dx] for k = 1, as the registration offset reads."""
-    h, w = depth.shape
-    y = h / 2 + ((np.arange(h) + 0.5) - h / 2) * k + dy - 0.5
-    x = w / 2 + ((np.arange(w) + 0.5) - w / 2) * k + dx - 0.5
-    y0, x0 = np.floor(y).astype(int), np.floor(x).astype(int)
-    fy, fx = (y - y0)[:, None], (x - x0)[None, :]
-    ok = ((y0 >= 0) & (y0 + 1 < h))[:, None] & ((x0 >= 0) & (x0 + 1 < w))[None, :]
-    yy, xx = np.clip(y0, 0, h - 2)[:, None], np.clip(x0, 0, w - 2)[None, :]
-    v = ((1 - fy) * (1 - fx) * depth[yy, xx] + (1 - fy) * fx * depth[yy, xx + 1]
-         + fy * (1 - fx) * depth[yy + 1, xx] + fy * fx * depth[yy + 1, xx + 1])  # fmt: skip
-    return np.where(ok, v, np.nan)
-
-
-HALF_PIXELS = tuple((dx, dy) for dy in (-0.5, 0.0, 0.5) for dx in (-0.5, 0.0, 0.5) if (dx, dy) != (0.0, 0.0))
-ZOOMS = np.geomspace(0.5, 2.0, 121)
-"""The view-width ratios tried when the depth does not match: a field of view that differs."""
-
-
-def _camera_mismatch(depth, frac: float, misaligned, x_fov_deg) -> str | None:
-    """Which simple change of the camera makes the frame's depth match (misaligned at most `DEPTH_WARN` and
-    half of ``frac``): a flip, a half-pixel offset or another field of view; None when none does."""
-    good = min(DEPTH_WARN, frac / 2)
-    flips = (
-        ("its image is upside down: a flipped up axis (Y-up against Z-up?) or image origin", depth[::-1, :]),
-        ("its image is mirrored: the other handedness", depth[:, ::-1]),
-        ("its image is rotated by 180°", depth[::-1, ::-1]),
-    )
-    for label, flipped in flips:
-        if misaligned(flipped)[0] <= good:
-            return label
-    shifts = [
-        (misaligned(_resampled(depth, 1.0, dx, dy), coverage=False)[0], (dx, dy)) for dx, dy in HALF_PIXELS
-    ]
-    best, (dx, dy) = min(shifts)
-    if best <= good:
-        return (
-            f"its pixel centres are offset by half a pixel (its depth matches at ({dx:+.1f}, {dy:+.1f}) px)"
-        )
-    zooms = [(misaligned(_resampled(depth, k), coverage=False)[0], k) for k in ZOOMS]
-    best, k = min(zooms)
-    if best <= good and abs(k - 1.0) > 0.02:
-        fov = ""
-        if x_fov_deg:
-            f = np.degrees(2 * np.arctan(np.tan(np.radians(x_fov_deg) / 2) / k))
-            fov = f" (x fov ≈ {f:.0f}° against the scene's {x_fov_deg:.0f}°)"
-        return f"its field of view differs: the frame's view is {1 / k:.2f}× the scene's width{fov}"
-    return None
-
-
-def depth_alignment(depth: np.ndarray, gb, text: str, channel: str, x_fov_deg: float | None = None) -> dict:
-    """The depth AOV against Mitsuba's first hits of the same pixel-centre rays: which convention it holds
-    (the distance along the ray, or planar depth along the view axis), the fraction of pixels misaligned by
-    more than `DEPTH_TOLERANCE` and the median relative difference. `AuditError` (one line, naming the likely
-    cause) when more than `DEPTH_REFUSE` of them are: the camera does not match the scene's."""
-    t = np.asarray(gb.depth, np.float64)
-    dirs = np.asarray(gb.view_dir, np.float64)
-    fwd = dirs.reshape(-1, 3).sum(axis=0)
-    fwd /= np.linalg.norm(fwd)
-    conventions = {"ray distance": t, "planar depth": t * np.abs(dirs @ fwd)}
-
-    def misaligned(d: np.ndarray, coverage: bool = True) -> tuple[float, str, float, int]:
-        best = (2.0, "", float("nan"), 0)
-        for name, x in conventions.items():
-            ok = gb.mask & np.isfinite(d) & np.isfinite(x)
-            if not ok.any():
-                continue
-            rel = np.abs(d[ok] - x[ok]) / x[ok]
-            frac = float(np.mean(rel > DEPTH_TOLERANCE))
-            both = int(ok.sum())
-            covered = both / max(int(gb.mask.sum()), 1)
-            if coverage:  # a surface pixel without the frame's depth is misaligned too
-                frac = 1.0 - (1.0 - frac) * covered
-            elif covered < 0.5:
-                continue
-            if frac < best[0]:
-                best = (frac, name, float(np.median(rel)), both)
-        return best
-
-    frac, name, median, n = misaligned(depth)
-    if n == 0:
-        raise AuditError(
-            f"--aov depth {text}: no pixel where both the frame's depth and the scene have a surface"
-        )
-    if frac > DEPTH_WARN:
-        why = _camera_mismatch(depth, frac, misaligned, x_fov_deg)
-        if why is not None or frac > DEPTH_REFUSE:
-            why = why or "its field of view, position, aspect or a half-pixel offset differ"
-            raise AuditError(
-                f"--aov depth {text}: the frame's camera does not match the scene's sensor: {why} "
-                f"({frac:.0%} of pixels' depth off by more than {DEPTH_TOLERANCE:.0%})"
-            )
-    return {
-        "convention": name,
-        "channel": channel,
-        "misaligned_fraction": frac,
-        "median_rel_diff": median,
-        "pixels": n,
-        "text": f"channel {channel!r} holds the {name}; {frac:.1%} of surface pixels differ from "
-        f"Mitsuba's first hit by more than {DEPTH_TOLERANCE:.0%} (median {median:.2%}).",
-    }

@@ -2,9 +2,9 @@
 path-traced reference of the same Mitsuba XML scene.
 
     rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity radiance|direct]
-                  [--aov depth=D.exr] [--fit-exposure] [--footprint box|centre] [-D name=value ...] [--camera
-                  N]
-                  [--variant V] [--spp N] [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
+                  [--aov depth=D.exr,normal=N.exr] [--fit-exposure] [--footprint box|centre]
+                  [-D name=value ...] [--camera N] [--variant V] [--spp N] [--pass-spp N] [--out DIR]
+                  [--cache DIR] [--seed S] [--no-progress]
 
 Bad input is one line, ``rtfit: error: …``, exit status 2, nothing rendered or written. A frame that is not
 within the reference's noise (a failed check) exits with status 1 after the report is written.
@@ -41,8 +41,9 @@ def _error(message: str):
 @click.option(
     "--aov",
     multiple=True,
-    metavar="depth=D.exr",
-    help="The frame's depth AOV (ray distance or planar depth): its alignment with the scene's camera.",
+    metavar="depth=D.exr,normal=N.exr",
+    help="The frames' depth AOV (ray distance or planar depth) and normal AOV (world or view space): their "
+    "alignment with the scene's camera.",
 )
 @click.option(
     "--fit-exposure", is_flag=True, help="Compare the frames after dividing by their best global scale."
@@ -129,9 +130,8 @@ def compare(
             f"  scale {a.scale:.5g} ± {a.scale_stderr:.2g}; offset ({a.offset[0]:+d}, {a.offset[1]:+d}) px"
             + (" (misaligned)" if a.misaligned else " (no misalignment)")
         )
-    depth = result.frames[0].depth
-    if depth is not None:
-        click.echo(f"depth AOV: {depth['text']}")
+    for name, a in result.frames[0].aovs.items():
+        click.echo(f"{name} AOV: {a['text']}")
     assert result.out is not None
     click.echo(str((result.out / "report.html").resolve()))
     assert result.results is not None

@@ -52,6 +52,9 @@ def frames(tmp_path_factory):
                                  spp=FRAME_SPP, seed=9), dtype=np.float64)  # fmt: skip
         wide = SCENE.read_text().replace('name="fov" value="40"', 'name="fov" value="50"')
         wide_depth = np.array(mi.render(mi.load_string(wide), integrator=depth_aov, spp=16))
+        normals = np.array(
+            mi.render(scene, integrator=mi.load_dict({"type": "aov", "aovs": "nn:sh_normal"}), spp=16)
+        )
         # Half a pixel lower: each pixel the mean of 2×2 depths of the 48×48 film one fine row down.
         fine_text = SCENE.read_text().replace('value="24"', 'value="48"')
         fine = np.array(mi.render(mi.load_string(fine_text), integrator=depth_aov, spp=16))[..., 0]
@@ -71,6 +74,23 @@ def frames(tmp_path_factory):
         "wide_depth": d / "wide_depth.exr",
         "half_depth": d / "half_depth.exr",
     }
+    # The normal AOV in the conventions engines use; the camera's axes from the XML's lookat.
+    f = np.array([0.0, 4.0, -1.8]) / np.linalg.norm([0.0, 4.0, -1.8])
+    right = np.cross(f, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, f)
+    n = normals.astype(np.float64)
+    conventions = {
+        "n_world": n,
+        "n_encoded": 0.5 * n + 0.5,
+        "n_yup": np.stack([n[..., 0], n[..., 2], -n[..., 1]], axis=-1),
+        "n_view_gl": np.stack([n @ right, n @ up, -(n @ f)], axis=-1),
+        "n_random": np.random.default_rng(1).normal(size=n.shape),
+    }
+    conventions["n_random"] /= np.linalg.norm(conventions["n_random"], axis=-1, keepdims=True)
+    for name, v in conventions.items():
+        paths[name] = d / f"{name}.exr"
+        write_exr(paths[name], {"RGB": v})
     write_exr(paths["good"], {"RGB": img})
     write_exr(paths["bright"], {"RGB": 1.1 * img})
     write_exr(paths["shift"], {"RGB": np.roll(img, 1, axis=1)})  # frame[y, x] = image[y, x − 1]
@@ -148,9 +168,32 @@ def test_frame_at_twice_the_film_size(frames):
     assert r.frames[0].analysis.within_noise, r.frames[0].analysis.verdict
 
 
+@pytest.mark.parametrize(
+    ("aov", "convention", "encoding"),
+    [
+        ("n_world", "world space with the scene's axes", "stored as they are"),
+        ("n_encoded", "world space with the scene's axes", "encoded as n/2 + ½"),
+        ("n_yup", "world space with Y up (the scene's z)", "stored as they are"),
+        ("n_view_gl", "view space looking down −z (OpenGL)", "stored as they are"),
+    ],
+)
+def test_normal_aov_conventions(frames, aov, convention, encoding):
+    d, p = frames
+    r = compare(SCENE, str(p["good"]), spp=SPP, cache=d / "cache", aov=f"normal={p[aov]}", metrics=("rmse",))
+    a = r.frames[0].aovs["normal"]
+    assert (a["convention"], a["encoding"]) == (convention, encoding)
+    assert a["median_angle_deg"] < 1.0 and a["misaligned_fraction"] < 0.1  # edge pixels: blended normals
+
+
+def test_random_normals_are_refused(frames):
+    d, p = frames
+    with pytest.raises(AuditError, match="normals do not match the scene's in any convention"):
+        compare(SCENE, str(p["good"]), spp=SPP, cache=d / "cache", aov=f"normal={p['n_random']}")
+
+
 def test_depth_aov_alignment(result):
-    dep = result.frames[0].depth
-    assert dep is not None and dep["convention"] == "ray distance"
+    dep = result.frames[0].aovs["depth"]
+    assert dep["convention"] == "ray distance"
     assert (
         dep["misaligned_fraction"] < 0.15
     )  # edge pixels: the AOV averages over the pixel, Mitsuba's hit is central
@@ -226,7 +269,7 @@ def test_bad_frames_are_one_line_exit_2(frames, tmp_path):
     _one_line_exit_2([str(SCENE), f"{p['good']}:beauty", *cache], "no layer 'beauty'")
     _one_line_exit_2([str(SCENE), str(tmp_path / "frame.jpg"), *cache], "no such file")
     _one_line_exit_2([str(SCENE), *cache], "no frame to compare")
-    _one_line_exit_2([str(SCENE), str(p["good"]), "--aov", "normal=n.exr", *cache], "not read yet")
+    _one_line_exit_2([str(SCENE), str(p["good"]), "--aov", "albedo=a.exr", *cache], "not read yet")
 
 
 def test_render_size_integer_factors():
