@@ -7,6 +7,7 @@
 * PNG (matplotlib's reader, Pillow): 8- or 16-bit grey, RGB or RGBA; the sRGB transfer function
   (IEC 61966-2-1) is decoded to linear values, and the report says so
   (an LDR frame is also clipped to [0, 1] by its format).
+* Radiance RGBE (``.hdr``) and PFM (``.pfm``) through Mitsuba's ``Bitmap``: linear values.
 * A depth AOV (``--aov depth=D.exr``): one channel of an EXR (``Z``, ``depth``, ``Y``, ``R`` or its only one).
 
 Anything unreadable, of another format, without the channels asked for or with values that are not finite is
@@ -21,12 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
+from rtfit.reference.variants import scoped_variant
+
 from .audit import AuditError
 
 __all__ = ["Frame", "frame_id", "read_depth", "read_frame", "split_layer", "srgb_to_linear"]
 
 EXR_SUFFIXES = (".exr",)
 PNG_SUFFIXES = (".png",)
+HDR_SUFFIXES = (".hdr", ".pfm")
 
 
 @dataclass(frozen=True)
@@ -137,9 +141,33 @@ def read_frame(text: str) -> Frame:
         raise AuditError(f"frame {text}: a layer is read from an OpenEXR file only")
     if suffix in PNG_SUFFIXES:
         return _read_png(path, text)
+    if suffix in HDR_SUFFIXES:
+        return _read_hdr(path, text, suffix)
     raise AuditError(
-        f"frame {text}: unsupported format {suffix or '(no suffix)'!r} (OpenEXR .exr or PNG .png)"
+        f"frame {text}: unsupported format {suffix or '(no suffix)'!r} "
+        "(OpenEXR .exr, PNG .png, Radiance .hdr or .pfm)"
     )
+
+
+def _read_hdr(path: Path, text: str, suffix: str) -> Frame:
+    """A Radiance RGBE (.hdr) or PFM frame through Mitsuba's `Bitmap`: linear values (RGBE: 8-bit mantissas
+    with a shared exponent, ≈ 1 % steps)."""
+    with scoped_variant("scalar_rgb") as mi:
+        try:
+            bitmap = mi.Bitmap(str(path))
+        except Exception as e:  # Mitsuba's RuntimeError with its own message
+            raise AuditError(
+                f"frame {text}: not a readable {suffix} file ({' '.join(str(e).split())[:120]})"
+            ) from None
+        a = np.array(bitmap, dtype=np.float64)
+        gamma = bool(bitmap.srgb_gamma())
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.shape[-1] == 1:
+        a = np.repeat(a, 3, axis=-1)
+    img = srgb_to_linear(a[..., :3]) if gamma else a[..., :3]
+    what = "Radiance RGBE (8-bit mantissas, shared exponent)" if suffix == ".hdr" else "PFM 32-bit float"
+    return Frame(text, path, None, _finite(img, text, "frame"), f"{what}, linear")
 
 
 def _read_png(path: Path, text: str) -> Frame:

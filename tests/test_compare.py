@@ -279,6 +279,19 @@ def test_render_size_integer_factors():
         render_size((24, 24), (48, 24), "f")
 
 
+def test_radiance_hdr_frame(tmp_path):
+    import mitsuba as mi
+
+    from rtfit.reference.variants import scoped_variant
+
+    values = np.full((4, 5, 3), [0.5, 2.0, 8.0], np.float32)  # powers of two: exact in RGBE
+    with scoped_variant("scalar_rgb"):
+        mi.Bitmap(values).write(str(tmp_path / "f.hdr"))
+    f = read_frame(str(tmp_path / "f.hdr"))
+    assert "RGBE" in f.encoding and f.image.shape == (4, 5, 3)
+    assert np.allclose(f.image, values)
+
+
 def test_png_srgb_decoded(tmp_path):
     from matplotlib import image as mpimg
 
