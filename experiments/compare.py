@@ -254,7 +254,7 @@ def compare(
             mi, mi_scene, sensor = loaded.mi, loaded.scene, loaded.sensor
             gb = gbuffer(mi, mi_scene, sensor)
             hits = first_hit_shapes(mi, mi_scene, sensor)
-            names = {i: _shape_name(s, i) for i, s in enumerate(mi_scene.shapes())}
+            names = {i: _shape_name(s) for i, s in enumerate(mi_scene.shapes())}
             groups = {
                 "BSDF at the first hit": group_labels(hits, _bsdf_names(list(mi_scene.shapes()), names)),
                 "first-hit distance band": distance_bands(gb.depth),
@@ -329,11 +329,15 @@ def _writable(path: Path, option: str) -> None:
         raise AuditError(f"{option} {path}: {problem}")
 
 
-def _shape_name(shape, index: int) -> str:
+def _shape_name(shape) -> str:
     sid = str(shape.id())
     bsdf = shape.bsdf()
     b = str(bsdf.id()) if bsdf is not None else ""
-    name = sid if sid and not sid.startswith("_unnamed") else f"shape {index} ({_class_name(shape)})"
+    if sid and not sid.startswith("_unnamed"):
+        name = sid
+    else:  # unnamed: its type and the centre of its bounding box (stable; the shapes' order is not)
+        c = shape.bbox().center()
+        name = f"{_class_name(shape)} at ({float(c[0]):.3g}, {float(c[1]):.3g}, {float(c[2]):.3g})"
     return name + (f" [bsdf {b}]" if b and not b.startswith("_unnamed") else "")
 
 
