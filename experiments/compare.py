@@ -289,10 +289,13 @@ def compare(
     taken: set[str] = set()
     outcomes = []
     for f in read:
+        sigma = reference.sigma()
+        if f.precision is not None:  # the frame format's own rounding joins the reference's noise
+            sigma = np.sqrt(sigma**2 + f.precision**2)
         a = analyse_frame(
             f.image,
             reference.mean,
-            reference.sigma(),
+            sigma,
             mask,
             hits,
             names,

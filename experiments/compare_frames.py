@@ -43,6 +43,10 @@ class Frame:
     layer: str | None
     image: np.ndarray
     encoding: str
+    precision: np.ndarray | None = None
+    """(H, W, 3) standard deviation of the format's rounding in linear units (a uniform error over one step:
+    step/√12): 8- or 16-bit sRGB steps, half floats' 11-bit and RGBE's 8-bit mantissas; None: negligible
+    (32-bit floats). It joins the reference's σ where the frame is compared."""
 
 
 def split_layer(text: str) -> tuple[Path, str | None]:
@@ -136,7 +140,9 @@ def read_frame(text: str) -> Frame:
             )
         img = np.stack([np.asarray(p, np.float64) for p in parts], axis=-1)
         enc = f"OpenEXR {_bits(parts[0])}, linear" + (f", layer {layer!r}" if layer else "")
-        return Frame(text, path, layer, _finite(img, text, "frame"), enc)
+        half = parts[0].dtype == np.float16  # 10 stored mantissa bits: a step of 2^(e − 10)
+        prec = _float_step(img, 10) if half else None
+        return Frame(text, path, layer, _finite(img, text, "frame"), enc, prec)
     if layer is not None:
         raise AuditError(f"frame {text}: a layer is read from an OpenEXR file only")
     if suffix in PNG_SUFFIXES:
@@ -167,7 +173,13 @@ def _read_hdr(path: Path, text: str, suffix: str) -> Frame:
         a = np.repeat(a, 3, axis=-1)
     img = srgb_to_linear(a[..., :3]) if gamma else a[..., :3]
     what = "Radiance RGBE (8-bit mantissas, shared exponent)" if suffix == ".hdr" else "PFM 32-bit float"
-    return Frame(text, path, None, _finite(img, text, "frame"), f"{what}, linear")
+    prec = None
+    if (
+        suffix == ".hdr"
+    ):  # one exponent per pixel, from its largest channel: a step of 2^(e − 8) for all three
+        peak = np.max(np.abs(img), axis=-1, keepdims=True)
+        prec = np.repeat(_float_step(peak, 7), 3, axis=-1)
+    return Frame(text, path, None, _finite(img, text, "frame"), f"{what}, linear", prec)
 
 
 def _read_png(path: Path, text: str) -> Frame:
@@ -186,8 +198,20 @@ def _read_png(path: Path, text: str) -> Frame:
         a = np.repeat(a[..., :1], 3, axis=-1)
     else:
         raise AuditError(f"frame {text}: PNG of shape {a.shape} (expected grey, RGB or RGBA)")
-    img = srgb_to_linear(np.clip(a, 0.0, 1.0))
-    return Frame(text, path, None, img, "PNG, sRGB transfer function decoded to linear (LDR: clipped at 1)")
+    a = np.clip(a, 0.0, 1.0)
+    levels = 255.0 if np.allclose(a * 255.0, np.round(a * 255.0), atol=1e-4) else 65535.0
+    img = srgb_to_linear(a)
+    slope = np.where(a <= 0.04045, 1 / 12.92, 2.4 / 1.055 * ((a + 0.055) / 1.055) ** 1.4)  # d linear / d code
+    prec = slope / levels / np.sqrt(12.0)
+    bits = "8-bit" if levels == 255.0 else "16-bit"
+    enc = f"PNG {bits}, sRGB transfer function decoded to linear (LDR: clipped at 1)"
+    return Frame(text, path, None, img, enc, prec)
+
+
+def _float_step(v: np.ndarray, mantissa_bits: int) -> np.ndarray:
+    """The rounding error's standard deviation (step/√12) of floats with ``mantissa_bits`` stored bits."""
+    e = np.floor(np.log2(np.maximum(np.abs(v), 1e-30)))
+    return 2.0 ** (e - mantissa_bits) / np.sqrt(12.0)
 
 
 DEPTH_CHANNELS = ("Z", "depth", "Depth", "distance", "Y", "R")

@@ -279,6 +279,21 @@ def test_render_size_integer_factors():
         render_size((24, 24), (48, 24), "f")
 
 
+def test_8bit_png_frame_is_within_noise_with_its_steps(frames):
+    """An 8-bit sRGB PNG of the faithful frame: its steps (≈ 0.4 % at mid-grey, more than the sky's
+    noiseless reference allows) join σ, so it is within noise; its encoding is stated."""
+    from matplotlib import image as mpimg
+
+    d, p = frames
+    img = read_frame(str(p["good"])).image
+    code = np.where(img <= 0.0031308, 12.92 * img, 1.055 * np.clip(img, 0, 1) ** (1 / 2.4) - 0.055)
+    mpimg.imsave(d / "good.png", np.round(np.clip(code, 0, 1) * 255).astype(np.uint8))
+    r = compare(SCENE, str(d / "good.png"), spp=SPP, cache=d / "cache", metrics=("rmse",))
+    f = r.frames[0]
+    assert f.frame.encoding.startswith("PNG 8-bit, sRGB") and f.frame.precision is not None
+    assert f.analysis.within_noise, f.analysis.verdict
+
+
 def test_radiance_hdr_frame(tmp_path):
     import mitsuba as mi
 
