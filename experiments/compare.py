@@ -2,7 +2,7 @@
 same Mitsuba XML scene (issue 36).
 
     rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity radiance|direct]
-                  [--aov depth=D.exr] [--fit-exposure] [--spp N] [--out DIR] …
+                  [--aov depth=D.exr,normal=N.exr] [--fit-exposure] [--camera-path sensors] [--spp N] …
 
 The reference is the scene's own sensor at the frame's resolution (the film's, or the frame's where the two
 differ by an integer factor: the field of view is kept), rendered in passes through the pass cache
@@ -20,7 +20,9 @@ With a depth AOV, the frame's depth against Mitsuba's first-hit distance (ray di
 whichever the frame holds): the fraction of pixels misaligned, and a one-line refusal when the camera clearly
 does not match (the depth matches upside down or mirrored, or not at all). The report, results.json, figures
 and the viewer's pixels are written as for ``rtfit audit`` (`audit_output.case_figures`, `save_pixels`,
-`report.write_report`).
+`report.write_report`: `compare_report`). A sequence (``camera_path="sensors"``: frame i through sensor i)
+has one reference per frame and the frame-to-frame change of its error beside its noise floor
+(`compare_report.temporal_stability`).
 """
 
 from __future__ import annotations
@@ -44,23 +46,17 @@ from rtfit.reference.variants import resolve_variant
 from .atomic import atomic_directory, writable_problem
 from .audit import AuditError, SceneInfo, inspect_scene
 from .audit_family import AuditReference, AuditSetup, FamilyCase, pooled_passes
-from .audit_output import case_figures, save_pixels
-from .compare_aovs import DEPTH_TOLERANCE, align_aovs, parse_aovs, read_aovs
+from .compare_aovs import align_aovs, parse_aovs, read_aovs
 from .compare_checks import (
     FrameAnalysis,
     analyse_frame,
     distance_bands,
-    frame_checks,
     group_labels,
-    shape_table,
-    z_figure,
 )
 from .compare_frames import Frame, frame_id, read_frame
-from .records import SCHEMA, Results, from_json, plain_json, to_json
+from .compare_report import results_record, temporal_stability, write_compare
+from .records import Results
 from .registry import LIMITS
-from .report import write_report
-from .results import write_results
-from .runner import created_now, device_description, versions
 
 __all__ = [
     "FOOTPRINTS",
@@ -91,8 +87,8 @@ FORMAT = 1
 class FrameOutcome:
     """One compared frame (a row of the report): ``id`` (its ``approximations[].method``), ``label``,
     ``frame`` as read, ``image`` as compared (divided by the scale with ``--fit-exposure``), its
-    `FrameAnalysis` (scale, offset, metrics, z-scores, per-shape errors, verdict) and ``aovs`` (each AOV's
-    alignment with the scene's first hits)."""
+    `FrameAnalysis` (scale, offset, metrics, z-scores, per-shape errors, verdict), ``aovs`` (each AOV's
+    alignment with the scene's first hits) and ``case``: the id of its reference (its camera's)."""
 
     id: str
     label: str
@@ -100,39 +96,56 @@ class FrameOutcome:
     image: np.ndarray
     analysis: FrameAnalysis
     aovs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    case: str = ""
     fit: None = None  # (read by audit_output: a frame has no fitted parameters)
 
 
 @dataclass
 class CompareResult:
-    """What `compare` returns: ``info`` (the scene's inspection), ``reference`` (`AuditReference`), ``frames``
-    (`FrameOutcome` in the order given), ``shapes`` (shape index → name), ``results`` (the `Results` record
-    written as results.json), ``out`` (the report's directory, or None) and ``timings`` (seconds)."""
+    """What `compare` returns: ``info`` (the scene's inspection, first camera), ``references`` (case id →
+    `AuditReference`: one per camera), ``frames`` (`FrameOutcome` in the order given), ``shapes`` (shape
+    index → name), ``temporal`` (`compare_report.temporal_stability` of two frames or more), ``results`` (the
+    `Results` record written as results.json), ``out`` (the report's directory, or None) and ``timings``."""
 
     info: SceneInfo
-    reference: AuditReference
+    references: dict[str, AuditReference]
     frames: list[FrameOutcome]
     shapes: dict[int, str]
     mask: np.ndarray
     quantity: str
+    camera_of_case: dict[str, int] = field(default_factory=dict)
+    camera_path: str | None = None
+    temporal: list[dict] = field(default_factory=list)
     results: Results | None = None
     out: Path | None = None
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
-    def cases(self) -> list[FamilyCase]:  # (the audit's writers read one case: the reference and its rows)
-        case = FamilyCase(
-            id=self.quantity,
-            label=f"{self.quantity} of {Path(self.info.source).name}",
-            reference=self.reference,
-            mask=self.mask,
-            channel_inputs=(),
-        )
-        return [case]
+    def reference(self) -> AuditReference:
+        """The reference of the first camera (the only one without ``camera_path``)."""
+        return next(iter(self.references.values()))
+
+    def reference_of(self, frame: FrameOutcome) -> AuditReference:
+        return self.references[frame.case]
+
+    @property
+    def cases(self) -> list[FamilyCase]:  # (the audit's writers read cases: a reference and its rows)
+        name = Path(self.info.source).name
+        return [
+            FamilyCase(
+                id=cid,
+                label=f"{self.quantity} of {name}"
+                + (f", camera {self.camera_of_case[cid]}" if len(self.references) > 1 else ""),
+                reference=ref,
+                mask=self.mask,
+                channel_inputs=(),
+            )
+            for cid, ref in self.references.items()
+        ]
 
     @property
     def outcomes(self) -> dict[str, dict[str, FrameOutcome]]:
-        return {self.quantity: {f.id: f for f in self.frames}}
+        return {cid: {f.id: f for f in self.frames if f.case == cid} for cid in self.references}
 
     def frame(self, name: str) -> FrameOutcome:
         """The outcome of frame ``name`` (its id, its file name or the text it was given as)."""
@@ -146,7 +159,7 @@ class CompareResult:
         (replaced atomically)."""
         directory = Path(directory)
         with atomic_directory(directory) as tmp:
-            _write(Path(tmp), self)
+            write_compare(Path(tmp), self)
         self.out = directory
         return directory
 
@@ -183,11 +196,13 @@ def compare(
     aov: Sequence[str] | str | None = None,
     footprint: str = "box",
     metrics: Sequence[str] = ALL_METRICS,
+    camera_path: str | None = None,
     progress: bool = False,
     say=None,
 ) -> CompareResult:
     """Compare ``frames`` (paths, ``FRAME.exr:layer``) with the reference of ``quantity`` for the Mitsuba XML
-    ``scene``'s sensor ``camera`` (module docstring). Returns a `CompareResult`; with ``out`` also writes the
+    ``scene``'s sensor ``camera`` (module docstring); ``camera_path="sensors"``: frame i through the scene's
+    sensor i (a sequence: one reference per frame). Returns a `CompareResult`; with ``out`` also writes the
     report to ``out/compare-<scene>``. Bad input raises `AuditError` (one line) before anything renders."""
     say = say or log.info
     t0 = time.perf_counter()
@@ -225,18 +240,31 @@ def compare(
             )
     aovs = parse_aovs(aov)
     aov_data = read_aovs(aovs, read[0].image.shape[:2])
+    if camera_path not in (None, "sensors"):
+        raise AuditError(f"--camera-path {camera_path}: expected 'sensors' (frame i through sensor i)")
+    if camera_path and aovs:
+        raise AuditError("--aov with --camera-path: not read yet (one AOV per frame of a sequence)")
     path = Path(str(scene))
     if path.suffix.lower() != ".xml":
         raise AuditError(
             f"{scene}: rtfit compare reads a Mitsuba XML scene (.xml), whose sensor the frame shows"
         )
-    info = inspect_scene(str(path), defines=defines, camera=camera)
-    cam = info.xml.camera if info.xml is not None else None
-    if cam is None:
-        raise AuditError(f"{scene}: the scene has no <sensor> (the frame must show the scene's own view)")
-    width, height = render_size(
-        (int(cam.width), int(cam.height)), (int(size[0]), int(size[1])), read[0].source
-    )
+    cams = list(range(len(read))) if camera_path else [camera]
+    infos = {c: inspect_scene(str(path), defines=defines, camera=c) for c in cams}
+    info = infos[cams[0]]
+    sizes = set()
+    for inf in infos.values():
+        cam = inf.xml.camera if inf.xml is not None else None
+        if cam is None:
+            raise AuditError(f"{scene}: the scene has no <sensor> (the frame must show the scene's own view)")
+        sizes.add(
+            render_size((int(cam.width), int(cam.height)), (int(size[0]), int(size[1])), read[0].source)
+        )
+    if len(sizes) > 1:
+        raise AuditError(
+            f"--camera-path: the sensors' films render the frames at {sorted(sizes)}: one size only"
+        )
+    width, height = sizes.pop()
     try:
         for side in (width, height):
             LIMITS["resolution"].check(f"frame {read[0].source}: its size", side)
@@ -248,71 +276,69 @@ def compare(
         _writable(target, "--out")
     cache_root = Path(cache) if cache is not None else default_cache_dir()
     _writable(cache_root, "--cache")
-    timings: dict[str, float] = {}
-    try:
-        with loaded_xml(path, defines, variant, camera=camera, width=width, height=height) as loaded:
-            mi, mi_scene, sensor = loaded.mi, loaded.scene, loaded.sensor
-            gb = gbuffer(mi, mi_scene, sensor)
-            hits = first_hit_shapes(mi, mi_scene, sensor)
-            names = {i: _shape_name(s) for i, s in enumerate(mi_scene.shapes())}
-            groups = {
-                "BSDF at the first hit": group_labels(hits, _bsdf_names(list(mi_scene.shapes()), names)),
-                "first-hit distance band": distance_bands(gb.depth),
-            }
-            alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg)  # refused here, before rendering
-            timings["setup"] = time.perf_counter() - t0
-            plan = f"{width}×{height}, {spp} spp in passes of {pass_spp}"
-            say(f"camera: {info.camera}; reference {quantity} at {plan}")
-            t1 = time.perf_counter()
-            reference = _reference(
-                mi,
-                mi_scene,
-                sensor,
-                info,
-                gb,
-                quantity,
-                footprint,
-                cache_root,
-                variant,
-                spp,
-                pass_spp,
-                seed,
-                progress,
-                camera,
-                (width, height),
-            )
-            timings["reference"] = time.perf_counter() - t1
-    except XMLSceneError as e:
-        raise AuditError(str(e)) from None
-    t2 = time.perf_counter()
-    mask = np.ones(gb.mask.shape, bool)
+    timings: dict[str, float] = {"setup": 0.0, "reference": 0.0, "comparison": 0.0}
+    references: dict[str, AuditReference] = {}
+    camera_of_case: dict[str, int] = {}
+    outcomes: list[FrameOutcome] = []
     taken: set[str] = set()
-    outcomes = []
-    for f in read:
-        sigma = reference.sigma()
-        if f.precision is not None:  # the frame format's own rounding joins the reference's noise
-            sigma = np.sqrt(sigma**2 + f.precision**2)
-        a = analyse_frame(
-            f.image,
-            reference.mean,
-            sigma,
-            mask,
-            hits,
-            names,
-            fit_exposure,
-            tuple(metrics),
-            seed,
-            groups,
-        )
-        image = f.image / a.scale if fit_exposure and a.scale > 0 else f.image
-        outcomes.append(
-            FrameOutcome(
-                frame_id(f, taken), f.path.name + (f":{f.layer}" if f.layer else ""), f, image, a, alignment
+    settings = (quantity, footprint, cache_root, variant, spp, pass_spp, seed, progress)
+    names: dict[int, str] = {}
+    for c in cams:
+        case = quantity if not camera_path else f"{quantity}-camera{c}"
+        mine = [f for i, f in enumerate(read) if not camera_path or i == c]
+        t0 = time.perf_counter()
+        try:
+            with loaded_xml(path, defines, variant, camera=c, width=width, height=height) as loaded:
+                mi, mi_scene, sensor = loaded.mi, loaded.scene, loaded.sensor
+                gb = gbuffer(mi, mi_scene, sensor)
+                hits = first_hit_shapes(mi, mi_scene, sensor)
+                shapes = list(mi_scene.shapes())
+                names = {i: _shape_name(sh) for i, sh in enumerate(shapes)}
+                groups = {
+                    "BSDF at the first hit": group_labels(hits, _bsdf_names(shapes, names)),
+                    "first-hit distance band": distance_bands(gb.depth),
+                }
+                cam = infos[c].xml.camera
+                alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg)  # refused here, before rendering
+                timings["setup"] += time.perf_counter() - t0
+                plan = f"{width}×{height}, {spp} spp in passes of {pass_spp}"
+                say(f"camera: {infos[c].camera}; reference {quantity} at {plan}")
+                t1 = time.perf_counter()
+                references[case] = _reference(
+                    mi, mi_scene, sensor, infos[c], gb, c, (width, height), *settings
+                )
+                camera_of_case[case] = c
+                timings["reference"] += time.perf_counter() - t1
+        except XMLSceneError as e:
+            raise AuditError(str(e)) from None
+        t2 = time.perf_counter()
+        reference = references[case]
+        for f in mine:
+            sigma = reference.sigma()
+            if f.precision is not None:  # the frame format's own rounding joins the reference's noise
+                sigma = np.sqrt(sigma**2 + f.precision**2)
+            a = analyse_frame(
+                f.image,
+                reference.mean,
+                sigma,
+                np.ones(hits.shape, bool),
+                hits,
+                names,
+                fit_exposure,
+                tuple(metrics),
+                seed,
+                groups,
             )
-        )
-    timings["comparison"] = time.perf_counter() - t2
-    result = CompareResult(info, reference, outcomes, names, mask, quantity, timings=timings)
-    result.results = _results(
+            image = f.image / a.scale if fit_exposure and a.scale > 0 else f.image
+            label = f.path.name + (f":{f.layer}" if f.layer else "")
+            outcomes.append(FrameOutcome(frame_id(f, taken), label, f, image, a, alignment, case))
+        timings["comparison"] += time.perf_counter() - t2
+    mask = np.ones((height, width), bool)
+    result = CompareResult(
+        info, references, outcomes, names, mask, quantity, camera_of_case, camera_path, timings=timings
+    )
+    result.temporal = temporal_stability(result) if len(outcomes) > 1 else []
+    result.results = results_record(
         result,
         variant=variant,
         spp=spp,
@@ -374,6 +400,8 @@ def _reference(
     sensor,
     info,
     gb,
+    camera,
+    size,
     quantity,
     footprint,
     cache_root,
@@ -382,8 +410,6 @@ def _reference(
     pass_spp,
     seed,
     progress,
-    camera,
-    size,
 ) -> AuditReference:
     """The reference of ``quantity`` through the pass cache (`pooled_passes`), every pixel an element."""
     integrator = None
@@ -418,143 +444,3 @@ def _reference(
     what = {"format": FORMAT, "kind": "compare", "quantity": quantity, "footprint": footprint}
     pooled = pooled_passes(setup, what, render, (-1, 3), f"compare: {quantity}")
     return pooled.reference(mask, QUANTITIES[quantity], name, reason + f"; pixel footprint: {footprint}")
-
-
-def _results(r: CompareResult, *, variant, spp, pass_spp, seed, fit_exposure, footprint) -> Results:
-    info, ref = r.info, r.reference
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel = ref.stderr / np.abs(ref.mean)
-    rel = rel[np.isfinite(rel)]
-    rows = []
-    for f in r.frames:
-        a = f.analysis
-        rows.append(
-            {
-                "method": f.id,
-                "label": f.label,
-                "fitted": fit_exposure,
-                "parameters": {
-                    "scale": a.scale,
-                    "scale_stderr": a.scale_stderr,
-                    "offset_x": float(a.offset[0]),
-                    "offset_y": float(a.offset[1]),
-                },
-                "metrics": a.metrics.to_dict(),
-            }
-        )
-    case = {
-        "id": r.quantity,
-        "label": f"{r.quantity} of {Path(info.source).name}",
-        "parameters": {"width": int(r.mask.shape[1]), "height": int(r.mask.shape[0]), "footprint": footprint},
-        "scene": {"name": Path(info.source).name, "hash": info.xml.dependencies.digest if info.xml else None},
-        "reference": {
-            "cache_key": ref.cache_key,
-            "quantity": ref.quantity,
-            "integrator": ref.integrator,
-            "integrator_reason": ref.integrator_reason,
-            "variant": variant,
-            "spp": ref.spp,
-            "passes": ref.passes,
-            "mean_rel_stderr": float(np.mean(rel)) if rel.size else 0.0,
-            "samples_per_second": float(r.mask.size * ref.spp / ref.seconds) if ref.seconds > 0 else None,
-        },
-        "approximations": rows,
-    }
-    sections = [
-        {
-            "id": "scene",
-            "title": "Scene",
-            "text": "\n\n".join(
-                [
-                    f"`{info.source}` ({info.format})",
-                    *info.contents,
-                    f"Camera: {info.camera}.",
-                    f"Up: {info.up_reason}.",
-                ]
-            ),
-        }
-    ]
-    for f in r.frames:
-        a = f.analysis
-        lines = [f"`{f.frame.source}`: {f.frame.encoding}.", "", *a.lines, ""]
-        lines += [f"{name.capitalize()} AOV: {a['text']}\n" for name, a in f.aovs.items()]
-        lines += shape_table(a.shapes)
-        for title, errors in a.groups.items():
-            lines += ["", *shape_table(errors, title)]
-        sections.append({"id": f"frame-{f.id}", "title": f"Frame: {f.label}", "text": "\n".join(lines)})
-    notes = [
-        f"The reference is {ref.quantity}, {ref.spp} spp per pixel in {ref.passes} passes; each sample's "
-        "ray goes "
-        + (
-            "through a uniform point of its pixel (the pixel's area average: a box-filtered or antialiased "
-            "frame)."
-            if footprint == "box"
-            else "through the pixel centre (a frame without antialiasing)."
-        ),
-        "Metrics are noise-floored against the reference's standard error only: a frame's own noise (a "
-        "frame path-traced at few samples) shows as error.",
-        "The scale s is the least-squares factor frame ≈ s × reference; "
-        + (
-            "the metrics are of frame / s (--fit-exposure)."
-            if fit_exposure
-            else "the metrics are of the frame as given (--fit-exposure compares after the scale)."
-        ),
-    ]
-    checks = [c for f in r.frames for c in frame_checks(f.label, f.analysis)]
-    summary = "; ".join(f"{f.label}: {f.analysis.verdict}" for f in r.frames) + "."
-    doc = {
-        "schema": SCHEMA,
-        "experiment": "compare",
-        "title": f"Frames against the reference of {Path(info.source).name}",
-        "created": created_now(),
-        "versions": versions(),
-        "device": device_description(variant),
-        "summary": summary,
-        "config": {
-            "variant": variant,
-            "spp": spp,
-            "seed": int(seed),
-            "extra": {
-                "scene": info.source,
-                "frames": [f.frame.source for f in r.frames],
-                "quantity": r.quantity,
-                "pass_spp": pass_spp,
-                "fit_exposure": bool(fit_exposure),
-                "footprint": footprint,
-                "depth_tolerance": DEPTH_TOLERANCE,
-                "timings_s": {k: round(v, 3) for k, v in r.timings.items()},
-            },
-        },
-        "sections": sections,
-        "cases": [case],
-        "checks": checks,
-        "notes": notes,
-    }
-    return from_json(Results, plain_json(doc), f"compare of {info.source}")
-
-
-def _write(directory: Path, r: CompareResult) -> None:
-    """Figures (the audit's reference/frame/error and ꟻLIP panels, plus each frame's z-score map), the
-    viewer's pixels, results.json and the report."""
-    assert r.results is not None
-    figs = case_figures(directory, r)
-    for f in figs:
-        f.pop("_case", None)
-    for f in r.frames:
-        name = f"figures/{f.id}_z.png"
-        z_figure(directory / name, f.analysis, f.label)
-        figs.append(
-            {
-                "file": name,
-                "section": "results",
-                "caption": f"{f.label}: z-score (frame − reference)/σ per pixel (mean over RGB), clipped at "
-                "±6; black lines: the outlines of the shapes at the pixels' first hits.",
-            }
-        )
-    doc = plain_json(to_json(r.results))
-    assert isinstance(doc, dict)
-    doc["figures"] = figs
-    r.results = from_json(Results, doc, f"compare of {r.info.source}")
-    save_pixels(directory, r)
-    write_results(directory, r.results)
-    write_report(directory)

@@ -3,11 +3,12 @@ path-traced reference of the same Mitsuba XML scene.
 
     rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity radiance|direct]
                   [--aov depth=D.exr,normal=N.exr] [--fit-exposure] [--footprint box|centre]
-                  [-D name=value ...] [--camera N] [--variant V] [--spp N] [--pass-spp N] [--out DIR]
-                  [--cache DIR] [--seed S] [--no-progress]
+                  [--camera-path sensors] [-D name=value ...] [--camera N] [--variant V] [--spp N]
+                  [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
 
 Bad input is one line, ``rtfit: error: …``, exit status 2, nothing rendered or written. A frame that is not
-within the reference's noise (a failed check) exits with status 1 after the report is written.
+within the reference's noise, or a step of a sequence that flickers (a failed check), exits with status 1
+after the report is written.
 """
 
 from __future__ import annotations
@@ -55,6 +56,13 @@ def _error(message: str):
     show_default=True,
     help="Reference samples over each pixel's area (box: antialiased frames) or at its centre.",
 )
+@click.option(
+    "--camera-path",
+    type=click.Choice(["sensors"]),
+    default=None,
+    help="A sequence: frame i through the scene's sensor i (one reference each), with its temporal "
+    "stability.",
+)
 @click.option("-D", "defines", multiple=True, metavar="NAME=VALUE", help="A Mitsuba XML parameter ($NAME).")
 @click.option("--camera", type=click.IntRange(min=0), default=0, show_default=True, help="XML sensor index.")
 @click.option(
@@ -81,6 +89,7 @@ def compare(
     aov,
     fit_exposure,
     footprint,
+    camera_path,
     defines,
     camera,
     variant,
@@ -119,6 +128,7 @@ def compare(
             fit_exposure=fit_exposure,
             aov=aov,
             footprint=footprint,
+            camera_path=camera_path,
             progress=bool(obj.get("bars", False)) and not no_progress,
         )
     except AuditError as e:
@@ -129,6 +139,11 @@ def compare(
         click.echo(
             f"  scale {a.scale:.5g} ± {a.scale_stderr:.2g}; offset ({a.offset[0]:+d}, {a.offset[1]:+d}) px"
             + (" (misaligned)" if a.misaligned else " (no misalignment)")
+        )
+    for step in result.temporal:
+        click.echo(
+            f"{step['from']} → {step['to']}: error change {step['error_change']:.3g} (noise floor "
+            f"{step['noise_floor']:.2g}): " + ("stable" if step["stable"] else "flickers")
         )
     for name, a in result.frames[0].aovs.items():
         click.echo(f"{name} AOV: {a['text']}")

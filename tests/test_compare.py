@@ -315,3 +315,54 @@ def test_png_srgb_decoded(tmp_path):
     f = read_frame(str(png))
     assert "sRGB" in f.encoding
     assert f.image[0, 0, 0] == pytest.approx(((128 / 255 + 0.055) / 1.055) ** 2.4, rel=1e-6)
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    """The test scene with a second sensor beside the first, and a faithful frame through each."""
+    import mitsuba as mi
+
+    from rtfit.reference.variants import scoped_variant
+
+    d = tmp_path_factory.mktemp("sequence")
+    text = SCENE.read_text()
+    first = text[text.index("<sensor") : text.index("</sensor>") + len("</sensor>")]
+    second = first.replace('origin="0, -4, 2.2"', 'origin="0.3, -4, 2.2"')
+    xml = d / "two_views.xml"
+    xml.write_text(text.replace(first, first + "\n    " + second))
+    paths = []
+    with scoped_variant("llvm_ad_rgb"):
+        scene = mi.load_file(str(xml))
+        for i in range(2):
+            img = np.array(mi.render(scene, sensor=i, spp=FRAME_SPP, seed=20 + i), dtype=np.float64)
+            paths.append(d / f"view{i}.exr")
+            write_exr(paths[-1], {"RGB": img})
+            if i == 1:
+                paths.append(d / "view1_flicker.exr")  # a probe that pops: 30 % brighter for one frame
+                write_exr(paths[-1], {"RGB": 1.3 * img})
+    return d, xml, paths
+
+
+def test_sequence_through_each_sensor_is_stable(sequence):
+    d, xml, (v0, v1, _) = sequence
+    r = compare(xml, [str(v0), str(v1)], spp=SPP, cache=d / "cache", camera_path="sensors", metrics=("rmse",))
+    assert [r.camera_of_case[f.case] for f in r.frames] == [0, 1]
+    assert len(r.references) == 2 and all(f.analysis.within_noise for f in r.frames)
+    (step,) = r.temporal
+    assert step["stable"] and step["reference_change"] > 0  # the view moved, the error held still
+
+
+def test_sequence_flicker_is_flagged(sequence):
+    d, xml, (v0, _, bright) = sequence
+    r = compare(
+        xml, [str(v0), str(bright)], spp=SPP, cache=d / "cache", camera_path="sensors", metrics=("rmse",)
+    )
+    (step,) = r.temporal
+    assert not step["stable"] and step["error_change"] > 2 * step["noise_floor"]
+    assert "flickers" in r.results.summary
+
+
+def test_sequence_with_more_frames_than_sensors_is_one_line(sequence):
+    d, xml, (v0, v1, bright) = sequence
+    args = [str(xml), str(v0), str(v1), str(bright), "--camera-path", "sensors", "--cache", str(d / "cache")]
+    _one_line_exit_2(args, "--camera 2")
