@@ -20,9 +20,9 @@ With a depth AOV, the frame's depth against Mitsuba's first-hit distance (ray di
 whichever the frame holds): the fraction of pixels misaligned, and a one-line refusal when the camera clearly
 does not match (the depth matches upside down or mirrored, or not at all). The report, results.json, figures
 and the viewer's pixels are written as for ``rtfit audit`` (`audit_output.case_figures`, `save_pixels`,
-`report.write_report`: `compare_report`). A sequence (``camera_path="sensors"``: frame i through sensor i)
-has one reference per frame and the frame-to-frame change of its error beside its noise floor
-(`compare_report.temporal_stability`).
+`report.write_report`: `compare_report`). A sequence (``camera_path="sensors"``: frame i through sensor
+i, one reference each; ``"static"``: one sensor) has the frame-to-frame change of its error beside its noise
+floor (`compare_report.temporal_stability`).
 """
 
 from __future__ import annotations
@@ -201,9 +201,11 @@ def compare(
     say=None,
 ) -> CompareResult:
     """Compare ``frames`` (paths, ``FRAME.exr:layer``) with the reference of ``quantity`` for the Mitsuba XML
-    ``scene``'s sensor ``camera`` (module docstring); ``camera_path="sensors"``: frame i through the scene's
-    sensor i (a sequence: one reference per frame). Returns a `CompareResult`; with ``out`` also writes the
-    report to ``out/compare-<scene>``. Bad input raises `AuditError` (one line) before anything renders."""
+    ``scene``'s sensor ``camera`` (module docstring). ``camera_path``: the frames are a sequence, with its
+    temporal stability: ``"sensors"``: frame i through the scene's sensor i (one reference per
+    frame); ``"static"``: every frame through ``camera`` (one reference). Returns a `CompareResult`; with
+    ``out`` also writes the report to ``out/compare-<scene>``. Bad input raises `AuditError` (one line) before
+    anything renders."""
     say = say or log.info
     t0 = time.perf_counter()
     if quantity not in QUANTITIES:
@@ -240,16 +242,20 @@ def compare(
             )
     aovs = parse_aovs(aov)
     aov_data = read_aovs(aovs, read[0].image.shape[:2])
-    if camera_path not in (None, "sensors"):
-        raise AuditError(f"--camera-path {camera_path}: expected 'sensors' (frame i through sensor i)")
-    if camera_path and aovs:
+    if camera_path not in (None, "sensors", "static"):
+        raise AuditError(
+            f"--camera-path {camera_path}: expected 'sensors' (frame i through sensor i) or 'static' (every "
+            "frame through --camera)"
+        )
+    moving = camera_path == "sensors"
+    if moving and aovs:
         raise AuditError("--aov with --camera-path: not read yet (one AOV per frame of a sequence)")
     path = Path(str(scene))
     if path.suffix.lower() != ".xml":
         raise AuditError(
             f"{scene}: rtfit compare reads a Mitsuba XML scene (.xml), whose sensor the frame shows"
         )
-    cams = list(range(len(read))) if camera_path else [camera]
+    cams = list(range(len(read))) if moving else [camera]
     infos = {c: inspect_scene(str(path), defines=defines, camera=c) for c in cams}
     info = infos[cams[0]]
     sizes = set()
@@ -284,8 +290,8 @@ def compare(
     settings = (quantity, footprint, cache_root, variant, spp, pass_spp, seed, progress)
     names: dict[int, str] = {}
     for c in cams:
-        case = quantity if not camera_path else f"{quantity}-camera{c}"
-        mine = [f for i, f in enumerate(read) if not camera_path or i == c]
+        case = quantity if not moving else f"{quantity}-camera{c}"
+        mine = [f for i, f in enumerate(read) if not moving or i == c]
         t0 = time.perf_counter()
         try:
             with loaded_xml(path, defines, variant, camera=c, width=width, height=height) as loaded:
@@ -337,7 +343,7 @@ def compare(
     result = CompareResult(
         info, references, outcomes, names, mask, quantity, camera_of_case, camera_path, timings=timings
     )
-    result.temporal = temporal_stability(result) if len(outcomes) > 1 else []
+    result.temporal = temporal_stability(result) if camera_path and len(outcomes) > 1 else []
     result.results = results_record(
         result,
         variant=variant,

@@ -3,7 +3,7 @@ path-traced reference of the same Mitsuba XML scene.
 
     rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity radiance|direct]
                   [--aov depth=D.exr,normal=N.exr] [--fit-exposure] [--footprint box|centre]
-                  [--camera-path sensors] [-D name=value ...] [--camera N] [--variant V] [--spp N]
+                  [--camera-path sensors|static] [-D name=value ...] [--camera N] [--variant V] [--spp N]
                   [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
 
 Bad input is one line, ``rtfit: error: …``, exit status 2, nothing rendered or written. A frame that is not
@@ -58,10 +58,10 @@ def _error(message: str):
 )
 @click.option(
     "--camera-path",
-    type=click.Choice(["sensors"]),
+    type=click.Choice(["sensors", "static"]),
     default=None,
-    help="A sequence: frame i through the scene's sensor i (one reference each), with its temporal "
-    "stability.",
+    help="The frames are a sequence (with its temporal stability): frame i through the scene's sensor i "
+    "(sensors), or every frame through --camera (static).",
 )
 @click.option("-D", "defines", multiple=True, metavar="NAME=VALUE", help="A Mitsuba XML parameter ($NAME).")
 @click.option("--camera", type=click.IntRange(min=0), default=0, show_default=True, help="XML sensor index.")

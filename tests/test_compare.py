@@ -362,6 +362,15 @@ def test_sequence_flicker_is_flagged(sequence):
     assert "flickers" in r.results.summary
 
 
+def test_static_sequence_flicker_and_plain_frames_without_one(frames):
+    d, p = frames
+    r = compare(SCENE, [str(p["good"]), str(p["bright"])], spp=SPP, cache=d / "cache", camera_path="static",
+                metrics=("rmse",))  # fmt: skip
+    assert len(r.references) == 1 and len(r.temporal) == 1  # one view, a frame that pops by 10 %
+    r = compare(SCENE, [str(p["good"]), str(p["bright"])], spp=SPP, cache=d / "cache", metrics=("rmse",))
+    assert r.temporal == []  # frames given without --camera-path are not a sequence
+
+
 def test_sequence_with_more_frames_than_sensors_is_one_line(sequence):
     d, xml, (v0, v1, bright) = sequence
     args = [str(xml), str(v0), str(v1), str(bright), "--camera-path", "sensors", "--cache", str(d / "cache")]
