@@ -57,6 +57,7 @@ from .book import write_book
 from .cache_cli import cache_group
 from .cli_complete import complete_experiments, family_list
 from .cli_options import CACHE_HELP, cache_option, out_option
+from .compare_cli import compare
 from .executors import EXECUTORS, make_executor
 from .families import EXPERIMENTS, describe_config, resolve_names, validate_config
 from .fitted_cli import fitted_group
@@ -354,6 +355,7 @@ def sweep_cmd(
 cli.add_command(cache_group)
 cli.add_command(fitted_group)
 cli.add_command(audit)
+cli.add_command(compare)
 
 
 def _probe_overrides(specs, quick: bool, probes) -> dict:

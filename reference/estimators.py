@@ -389,14 +389,17 @@ def mean_var(s: np.ndarray, q: np.ndarray, n: int):
     return mean, var
 
 
-def _pixel_rays(mi, dr, sensor, width: int, first_pixel: int, n_pixels: int, spp: int):
+def _pixel_rays(mi, dr, sensor, width: int, first_pixel: int, n_pixels: int, spp: int, offset=None):
+    """Camera rays through the pixels ``first_pixel …`` (``spp`` each): through the pixel centres, or with
+    ``offset`` (a Point2f in [0, 1)², one per lane) at that point of each pixel."""
     idx = dr.arange(mi.UInt32, n_pixels * spp)
     # The first pixel is opaque (a device value): as a literal, every chunk of a pass was its own kernel.
     pix = idx // spp + dr.opaque(mi.UInt32, first_pixel)
     x = mi.Float(pix % width)
     y = mi.Float(pix // width)
     film_size = sensor.film().crop_size()
-    uv = mi.Point2f((x + 0.5) / film_size[0], (y + 0.5) / film_size[1])
+    ox, oy = (0.5, 0.5) if offset is None else (offset.x, offset.y)
+    uv = mi.Point2f((x + ox) / film_size[0], (y + oy) / film_size[1])
     ray, weight = sensor.sample_ray(0.0, 0.5, uv, mi.Point2f(0.5, 0.5))
     return ray, weight
 
@@ -408,19 +411,33 @@ def check_spp(spp: int):
 
 # ----------------------------------------------------------------------------------- radiance pass
 def radiance_pass(
-    mi, mi_scene, spp: int, seed: int, dtype: DTypeLike = np.float64, *, integrator=None, sensor=None
+    mi,
+    mi_scene,
+    spp: int,
+    seed: int,
+    dtype: DTypeLike = np.float64,
+    *,
+    integrator=None,
+    sensor=None,
+    footprint: str = "centre",
 ) -> PassResult:
     """Point-sampled radiance at every pixel centre with the scene's own integrator (or ``integrator``, a
     loaded Mitsuba integrator) through its first sensor (or ``sensor``). ``dtype``: the precision (float64
     or float32) the float64 mean and variance are rounded to on the device before the copy to the host, and
-    the dtype of the arrays returned (`PassMoments.result`)."""
+    the dtype of the arrays returned (`PassMoments.result`). ``footprint="box"``: each sample's ray through a
+    uniformly drawn point of its pixel instead (the pixel's area average: a film with a box filter, an
+    antialiased frame; `rtfit compare`)."""
 
     check_spp(spp)
     t0 = time.perf_counter()
     sensor = sensor if sensor is not None else mi_scene.sensors()[0]
     width, height = sensor.film().crop_size()
     integrator = integrator if integrator is not None else mi_scene.integrator()
+    if footprint not in ("centre", "box"):
+        raise ValueError(f"footprint {footprint!r}: expected 'centre' or 'box'")
     if mi.variant().startswith("scalar"):
+        if footprint != "centre":
+            raise ValueError("scalar variants render pixel centres only")
         mean, var = _radiance_scalar(mi, mi_scene, sensor, integrator, width, height, spp, seed)
         return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
     n_pixels = width * height
@@ -429,7 +446,8 @@ def radiance_pass(
     media = counters(mi_scene)
     for k, (a, b) in enumerate(chunk_ranges(n_pixels, spp, pass_max_lanes(mi))):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
-        ray, weight = _pixel_rays(mi, dr, sensor, width, a, b - a, spp)
+        offset = sampler.next_2d() if footprint == "box" else None
+        ray, weight = _pixel_rays(mi, dr, sensor, width, a, b - a, spp, offset)
         with ArmedMedia(media, mi.UInt32, (b - a) * spp) as armed:
             if media:  # lane index for the media's event counts (rtfit.reference.budget)
                 ray.time = mi.Float(dr.arange(mi.UInt32, (b - a) * spp))
@@ -551,6 +569,24 @@ def gbuffer(mi, mi_scene, sensor=None) -> GBuffer:
     nrm = np.where(mask[..., None], img(n_sh), 0.0).astype(np.float32)
     alb = np.where(mask[..., None], img(albedo), 0.0).astype(np.float32)
     return GBuffer(pos, nrm, img(depth, 1), alb, mask, img(is_emitter, 1).astype(bool), img(ray.d))
+
+
+def first_hit_shapes(mi, mi_scene, sensor=None) -> np.ndarray:
+    """(H, W) int32: the index in ``mi_scene.shapes()`` of the shape each pixel-centre ray of ``sensor``
+    (default: the scene's first) hits first, through medium boundaries as `gbuffer`; −1 where it hits none.
+    Vectorised variants only."""
+    sensor = mi_scene.sensors()[0] if sensor is None else sensor
+    width, height = sensor.film().crop_size()
+    ray, _ = _pixel_rays(mi, dr, sensor, width, 0, width * height, 1)
+    si, _t = first_surface(mi, mi_scene, ray)
+    hit = np.array(si.is_valid(), dtype=bool)
+    ids = np.array(dr.reinterpret_array(mi.UInt32, si.shape), dtype=np.int64)
+    index = {}
+    for i, shape in enumerate(mi_scene.shapes()):
+        key = np.array(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape)), dtype=np.int64)
+        index[int(key[0])] = i
+    out = np.array([index.get(int(k), -1) for k in ids], dtype=np.int32)
+    return np.where(hit, out, -1).reshape(height, width).astype(np.int32)
 
 
 _UV_ANALYTIC = frozenset({"sphere", "disk", "cylinder", "rectangle"})

@@ -14,6 +14,7 @@ The user-approximation API is loaded on first use (module ``__getattr__``)::
     from rtfit import approximation, Param           # rtfit.realtime.quantities, rtfit.realtime.methods
     from rtfit import load_approximation, check_approximation   # rtfit.experiments.user_methods
     from rtfit import audit, AuditResult                         # rtfit.experiments.audit_run
+    from rtfit import compare, CompareResult                     # rtfit.experiments.compare
 """
 
 from importlib import import_module as _import_module
@@ -32,6 +33,8 @@ _LAZY = {
     "check_approximation": "rtfit.experiments.user_methods",
     "audit": "rtfit.experiments.audit_run",
     "AuditResult": "rtfit.experiments.audit_run",
+    "compare": "rtfit.experiments.compare",
+    "CompareResult": "rtfit.experiments.compare",
 }
 
 __all__ = ["__version__", *_LAZY]

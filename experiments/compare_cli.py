@@ -1,0 +1,154 @@
+"""The ``rtfit compare`` command (`rtfit.experiments.compare`): frames a user's engine rendered against the
+path-traced reference of the same Mitsuba XML scene.
+
+    rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity radiance|direct]
+                  [--aov depth=D.exr,normal=N.exr] [--fit-exposure] [--footprint box|centre]
+                  [--camera-path sensors|static] [-D name=value ...] [--camera N] [--variant V] [--spp N]
+                  [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
+
+Bad input is one line, ``rtfit: error: …``, exit status 2, nothing rendered or written. A frame that is not
+within the reference's noise, or a step of a sequence that flickers (a failed check), exits with status 1
+after the report is written.
+"""
+
+from __future__ import annotations
+
+import click
+
+from .audit import AuditError
+from .audit_cli import AuditInputError
+from .cli_options import cache_option, out_option
+from .compare import FOOTPRINTS, QUANTITIES
+from .compare import compare as run_compare
+from .registry import SPP_MAX
+
+__all__ = ["compare"]
+
+
+def _error(message: str):
+    raise AuditInputError(" ".join(str(message).split()))
+
+
+@click.command("compare")
+@click.argument("scene")
+@click.argument("frames", nargs=-1)
+@click.option(
+    "--quantity",
+    type=click.Choice(list(QUANTITIES)),
+    default="radiance",
+    show_default=True,
+    help="What the frames show: radiance (the scene's integrator) or direct (max_depth 2).",
+)
+@click.option(
+    "--aov",
+    multiple=True,
+    metavar="depth=D.exr,normal=N.exr",
+    help="The frames' depth AOV (ray distance or planar depth) and normal AOV (world or view space): their "
+    "alignment with the scene's camera.",
+)
+@click.option(
+    "--fit-exposure", is_flag=True, help="Compare the frames after dividing by their best global scale."
+)
+@click.option(
+    "--footprint",
+    type=click.Choice(list(FOOTPRINTS)),
+    default="box",
+    show_default=True,
+    help="Reference samples over each pixel's area (box: antialiased frames) or at its centre.",
+)
+@click.option(
+    "--camera-path",
+    type=click.Choice(["sensors", "static"]),
+    default=None,
+    help="The frames are a sequence (with its temporal stability): frame i through the scene's sensor i "
+    "(sensors), or every frame through --camera (static).",
+)
+@click.option("-D", "defines", multiple=True, metavar="NAME=VALUE", help="A Mitsuba XML parameter ($NAME).")
+@click.option("--camera", type=click.IntRange(min=0), default=0, show_default=True, help="XML sensor index.")
+@click.option(
+    "--variant",
+    default="llvm_ad_rgb",
+    show_default=True,
+    type=click.Choice(["auto", "llvm_ad_rgb", "cuda_ad_rgb"]),
+    help="Mitsuba variant of the reference.",
+)
+@click.option(
+    "--spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Reference samples per pixel (256)."
+)
+@click.option(
+    "--pass-spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Samples per cached pass (32)."
+)
+@out_option("Output directory: the report goes to OUT/compare-<scene>.")
+@cache_option()
+@click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
+@click.option("--no-progress", is_flag=True, help="No progress bars.")
+def compare(
+    scene,
+    frames,
+    quantity,
+    aov,
+    fit_exposure,
+    footprint,
+    camera_path,
+    defines,
+    camera,
+    variant,
+    spp,
+    pass_spp,
+    out,
+    cache,
+    seed,
+    no_progress,
+):
+    """Compare FRAMES (OpenEXR, FRAME.exr:layer, or PNG) rendered by your engine with the path-traced
+    reference of SCENE (Mitsuba XML) through its own sensor: metrics beside the reference's noise, the best
+    global scale, the registration offset, the error per shape, and a report in OUT/compare-<scene>."""
+    if not frames:
+        _error("no frame to compare (rtfit compare SCENE.xml FRAME.exr …)")
+    defs: dict[str, str] = {}
+    for text in defines:
+        name, eq, value = text.partition("=")
+        if not eq or not name.strip():
+            _error(f"-D {text!r}: expected name=value")
+        defs[name.strip()] = value
+    obj = click.get_current_context().find_root().obj or {}
+    try:
+        result = run_compare(
+            scene,
+            frames,
+            quantity=quantity,
+            spp=spp,
+            pass_spp=pass_spp,
+            variant=variant,
+            out=out,
+            cache=cache,
+            seed=seed,
+            defines=defs,
+            camera=camera,
+            fit_exposure=fit_exposure,
+            aov=aov,
+            footprint=footprint,
+            camera_path=camera_path,
+            progress=bool(obj.get("bars", False)) and not no_progress,
+        )
+    except AuditError as e:
+        _error(str(e))
+    for f in result.frames:
+        a = f.analysis
+        click.echo(f"{f.label}: {a.verdict}")
+        click.echo(
+            f"  scale {a.scale:.5g} ± {a.scale_stderr:.2g}; offset ({a.offset[0]:+d}, {a.offset[1]:+d}) px"
+            + (" (misaligned)" if a.misaligned else " (no misalignment)")
+        )
+    for step in result.temporal:
+        click.echo(
+            f"{step['from']} → {step['to']}: error change {step['error_change']:.3g} (noise floor "
+            f"{step['noise_floor']:.2g}): " + ("stable" if step["stable"] else "flickers")
+        )
+    for name, a in result.frames[0].aovs.items():
+        click.echo(f"{name} AOV: {a['text']}")
+    assert result.out is not None
+    click.echo(str((result.out / "report.html").resolve()))
+    assert result.results is not None
+    if any(not c.passed for c in result.results.checks):
+        raise click.exceptions.Exit(1)
