@@ -41,6 +41,9 @@ Rows:
   irradiance along the bent normal is the probe's: exactly L for a constant environment). They have no
   free parameter.
 
+The reference and the visibility bake are `rtfit.experiments.audit_sky.occluded_sky`'s (shared with the
+sh-sky-bent-normal family: one set of passes per environment).
+
 A user approximation of ``sky_irradiance`` is a row of both cases; its ``g`` carries n, b, V, r_a, L_sky (per
 channel, as above), the point and the distance field.
 """
@@ -54,21 +57,16 @@ from typing import Any
 import numpy as np
 
 from rtfit.realtime.ambient_aperture import METHODS as APERTURE_METHODS
-from rtfit.realtime.ambient_aperture import aperture_from_visibility
 from rtfit.realtime.arrays import NUMPY_OPS, xyz_columns
 from rtfit.realtime.irradiance_bases import METHODS as BASIS_METHODS
 from rtfit.realtime.methods import Input, Method
-from rtfit.reference.cache import array_digest
-from rtfit.reference.environments import emitter_scales
 from rtfit.reference.estimators import gbuffer_points
-from rtfit.reference.light_irradiance import environment_irradiance_pass
-from rtfit.reference.occlusion import visibility_cap_pass
 
 from .audit import Applicability, Rule
 from .audit_ambient_occlusion import DistanceFieldRows, distance_field_rows
-from .audit_environment import environment_bases, environment_of, scene_environment, sh_l2_table
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
 from .audit_geometry import ao_radius
+from .audit_sky import occluded_sky
 
 __all__ = [
     "APERTURE_FILL",
@@ -80,7 +78,6 @@ __all__ = [
     "times_irradiance",
 ]
 
-FORMAT = 1
 SKY_ROLE = "sky occlusion"
 FILL_ROLE = "sky occlusion (aperture fill)"
 _IRRADIANCE = Input("irradiance_n", "W/m²", "E_SH(n): the environment's SH L2 irradiance at the normal")
@@ -126,105 +123,46 @@ class SkyInputs:
     notes: tuple[str, ...]
 
 
-def _passes(setup: AuditSetup, source: int, emitter, kind: str, points, normals, label: str):
-    """Pooled passes of the occluded sky irradiance (N, 3), W/m², and of the visibility bake (N, 5)."""
-    digest = array_digest(points, normals)
-    sky_only = kind == "sunsky"
-
-    def sky(spp: int, seed: int):
-        if sky_only:
-            with emitter_scales(setup.mi, emitter, sun_scale=0.0):
-                return environment_irradiance_pass(
-                    setup.mi, emitter, normals, spp, seed, mi_scene=setup.scene, points=points
-                )
-        return environment_irradiance_pass(
-            setup.mi, emitter, normals, spp, seed, mi_scene=setup.scene, points=points
-        )
-
-    def caps(spp: int, seed: int):
-        return visibility_cap_pass(setup.mi, setup.scene, points, normals, spp, seed)
-
-    what = {"format": FORMAT, "quantity": "sky-irradiance-occluded", "emitter": source, "sky_only": sky_only}
-    ref = pooled_passes(
-        setup, {**what, "points": digest}, sky, (-1, 3), f"sky: {label}", seed_label="sky-pass"
-    )
-    bake = pooled_passes(
-        setup,
-        {"format": FORMAT, "quantity": "visibility-caps", "points": digest},
-        caps,
-        (-1, 5),
-        f"caps: {label}",
-        seed_label="cap-pass",
-    )
-    return ref, bake
-
-
 _MEMO: dict[str, Any] = {}
 
 
 def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:
-    """The reference, the bake and the rows' inputs for the environment ``app.source`` (module docstring);
+    """The reference, the bake and the rows' inputs for the environment ``app.source`` (module docstring;
+    the reference and the bake are `audit_sky.occluded_sky`'s, shared with the sh-sky-bent-normal family);
     computed once per run and environment (both roles read them)."""
-    if app.source is None:
-        raise AuditError(f"{family}: {app.part} is not an environment of the scene")
+    sky = occluded_sky(setup, app, family)
     key = (id(setup), app.source)
     if _MEMO.get("key") == key and _MEMO.get("setup") is setup:
         return _MEMO["value"]
-    scene_env = scene_environment(setup, app.source, family)
     radius = ao_radius(setup, family)
-    mask = setup.mask
-    points, normals = gbuffer_points(setup.gbuffer, setup.mask)
-    sky, bake = _passes(setup, app.source, scene_env.emitter, scene_env.kind, points, normals, app.part)
-    caps = bake.mean
-    v_u = np.clip(caps[:, 0], 0.0, 1.0)
-    vis = np.clip(caps[:, 1], 0.0, 1.0)
-    bent = caps[:, 2:5]
-    length = np.linalg.norm(bent, axis=1, keepdims=True)
-    bent = np.where(length > 1e-12, bent / np.maximum(length, 1e-30), normals)  # fully occluded: n
-    aperture = np.asarray(aperture_from_visibility(v_u), np.float64)
-    env = environment_of(setup, app.source, family=family)
-    sh27 = sh_l2_table(environment_bases(replace(env, sun=None)))
-    e_n = _sh_irradiance(sh27, normals)
-    e_b = _sh_irradiance(sh27, bent)
+    points, normals, bent = sky.points, sky.normals, sky.bent
+    e_n = _sh_irradiance(sky.sh, normals)
+    e_b = _sh_irradiance(sky.sh, bent)
     diagonal = setup.info.diagonal or radius
     rows = distance_field_rows(setup, (), points, normals, radius, t_max=diagonal)
-    sdf = rows.sdf
     common = {
         **xyz_columns("p", points),
         **xyz_columns("n", normals),
         **xyz_columns("b", bent),
-        "visibility": vis,
-        "aperture": aperture,
+        "visibility": sky.visibility,
+        "aperture": sky.aperture,
         "cos_na": np.clip(np.sum(normals * bent, axis=1), -1.0, 1.0),
-        "sdf": sdf,
+        "sdf": rows.sdf,
     }
     channel_inputs = tuple(
         {**common, "sky_radiance": np.maximum(e_b[:, c], 0.0) / math.pi, "irradiance_n": e_n[:, c]}
         for c in range(3)
     )
-    kind = scene_env.kind
-    ref = sky.reference(
-        mask,
-        quantity="sky irradiance with visibility E = ∫ L_env V (n·ω) dω at the visible points (W/m²)",
-        integrator="environment irradiance with shadow rays (MIS: emitter + cosine sampling)",
-        integrator_reason=(
-            f"{kind}"
-            + (" (sky only: sun_scale 0)" if kind == "sunsky" else "")
-            + ": the environment emitter alone, Mitsuba's Emitter.sample_direction and the cosine hemisphere "
-            "by the balance heuristic, each sample times Mitsuba's shadow ray against the scene's shapes"
-        ),
-        extra_seconds=bake.seconds,
+    value = SkyInputs(
+        sky.reference,
+        sky.kind,
+        channel_inputs,
+        rows,
+        radius,
+        float(diagonal),
+        float(sky.visibility.mean()),
+        (*sky.notes, *rows.notes),
     )
-    notes = (
-        "occluded: the scene's shapes block the sky (one bounce: no interreflection)",
-        "E_SH: the environment's SH L2 projection"
-        + (" (the sky without its sun)" if kind == "sunsky" else "")
-        + ", as the irradiance-bases family bakes it",
-        f"visibility bake: {int(bake.spp)} uniform hemisphere rays per point (unbounded), in passes of "
-        f"their own seed; mean cosine-weighted visibility {float(vis.mean()):.4g}",
-        *rows.notes,
-    )
-    value = SkyInputs(ref, kind, channel_inputs, rows, radius, float(diagonal), float(vis.mean()), notes)
     _MEMO.clear()
     _MEMO.update(key=key, setup=setup, value=value)
     return value

@@ -38,6 +38,7 @@ from rtfit.realtime import (
     parallax_occlusion,
     reflections,
     sdf_occlusion,
+    sh_sky_bent_normal,
     soft_particles,
 )
 from rtfit.realtime.aerial_perspective import METHODS as AERIAL_METHODS
@@ -63,6 +64,7 @@ from . import (
     audit_nishita_sky,
     audit_obscurances,
     audit_parallax_occlusion,
+    audit_sh_sky_bent_normal,
     audit_sky_emitter,
     audit_sky_occlusion,
     audit_soft_particles,
@@ -273,6 +275,17 @@ FAMILIES: dict[str, Family] = {
             methods=linear_fog.METHODS,
             audits=(audit_linear_fog.FAMILY,),
             scenes=audit_linear_fog.SCENES,
+        ),
+        Family(
+            "sh-sky-bent-normal",
+            ENGINE,
+            "Sky ambient from the sky's SH along the bent normal (the skybox's lookup) vs occluded sky",
+            "The seed's SH L2 sky radiance read at the bent normal × AO, the SH irradiance at the bent "
+            "normal and at the normal × AO, and the SH irradiance through the visible cone, with scale and "
+            "AO exponent fitted, against the sky's irradiance with the scene's occlusion (shadow rays).",
+            methods=sh_sky_bent_normal.METHODS,
+            audits=(audit_sh_sky_bent_normal.FAMILY,),
+            scenes=audit_sh_sky_bent_normal.SCENES,
         ),
     )
 }

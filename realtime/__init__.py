@@ -59,6 +59,9 @@ Modules:
 
     fresnel     Fresnel reflectance: Schlick (from the IOR, fitted exponent), the seeds' slider, rim and metal
                 forms, Hoffman's F82 tint, the exact dielectric and conductor Fresnel (docs/fresnel.md).
+    sh_sky_bent_normal  sky ambient from the sky's SH along the bent normal (the seed's radiance
+                lookup × AO), the SH irradiance at the bent normal / normal × AO, the visible cone
+                (docs/sh-sky-bent-normal.md).
     obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
                 estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
@@ -93,6 +96,7 @@ from .quantities import *  # noqa: F403
 from .reflections import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
+from .sh_sky_bent_normal import *  # noqa: F403
 from .shader import *  # noqa: F403
 from .soft_particles import *  # noqa: F403
 from .spherical_gaussians import *  # noqa: F403
@@ -125,6 +129,7 @@ MODULES = (
     "parallax_occlusion",
     "obscurances",
     "fresnel",
+    "sh_sky_bent_normal",
     "quantities",
     "shader",
 )

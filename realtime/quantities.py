@@ -51,6 +51,7 @@ from .reflections import INPUTS as REFLECTION_INPUTS
 from .reflections import IRRADIANCE_RESOLUTION, PROBE_RESOLUTION
 from .sdf_grid import HalfSpace, Sphere
 from .sdf_occlusion import AnalyticSDF
+from .sh_sky_bent_normal import INPUTS as SH_SKY_INPUTS
 
 __all__ = [
     "QUANTITIES",
@@ -291,6 +292,22 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 },
                 unit_vectors=("normal", "bent_normal"),
                 examples={"sdf": _example_sdf},
+                reference="sky irradiance with visibility at the visible points (direct, environment only)",
+            ),
+            Quantity(
+                "sky_irradiance_sh",
+                "W/m²",
+                "irradiance from the sky at a surface point, with the scene's occlusion, from the sky's SH "
+                "L2 projection and a visibility bake (AO, bent normal, visible cone), per RGB channel",
+                SH_SKY_INPUTS,
+                vectors={
+                    "normal": ("nx", "ny", "nz"),
+                    "bent_normal": ("bx", "by", "bz"),
+                    "point": ("px", "py", "pz"),
+                },
+                unit_vectors=("normal", "bent_normal"),
+                channels=3,
+                examples={"coeffs": _example_sh},
                 reference="sky irradiance with visibility at the visible points (direct, environment only)",
             ),
             Quantity(
