@@ -25,11 +25,7 @@ experiment = "diffuse"
 quick = true
 spp = 32
 [fixed]
-alphas_deg = [5.0, 30.0]
-sky_radiances = [0.0]
-probe_count = 11
-probe_spp = 64
-pass_spp = 16
+scenes = ["diffuse_sphere_a5", "diffuse_sphere_a30"]
 [grid]
 resolution = [16, 20]
 """
