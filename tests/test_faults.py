@@ -54,6 +54,7 @@ TIMINGS = {
     "samples_per_second",
     "seconds",
     "render_seconds",
+    "engine_seconds",
 }
 
 
