@@ -37,7 +37,7 @@ from rtfit.realtime.methods import Param
 from rtfit.reference.estimators import gbuffer_points
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene
 from .audit_lights import (
     hard_shadow,
     light_geometry,
@@ -48,7 +48,27 @@ from .audit_lights import (
     small_sphere_caveat,
 )
 
-__all__ = ["FAMILY", "light_geometry", "light_radiance", "light_reference"]
+__all__ = ["ALPHAS_DEG", "FAMILY", "SCENES", "light_geometry", "light_radiance", "light_reference"]
+
+ALPHAS_DEG = (0.27, 1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 30.0)
+"""The sun's angular radii (°) of the shipped scenes, one file each (``diffuse_sphere_a<α>.toml``)."""
+
+SCENES = tuple(
+    ShippedScene(
+        f"diffuse_sphere_a{a:g}".replace(".", "p") + ".toml",
+        f"white unit sphere side-lit by a sun of {a:g}° angular radius (E⊥ = π), seen from −Y",
+        size=(128, 128),
+        spp=4096,
+        quick_size=(32, 32),
+        quick_spp=256,
+    )
+    for a in ALPHAS_DEG
+)
+"""The scenes ``rtfit run diffuse`` audits (scenes/library/): the half_lambert_sphere scene with its sun
+resized to each α of `ALPHAS_DEG`. One rtfit TOML file per α: the finite sun is rtfit's own Mitsuba emitter
+(a disc at infinity, `rtfit.reference.emitters`), which a Mitsuba XML file cannot name (``rtfit export-xml``
+leaves it out; a far ``sphere`` emitter is biased by +0.39 % at 0.27°), and TOML scenes take no ``-D``
+defines. No sky: the family audits each light alone, so a constant sky would change no number."""
 
 
 def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:

@@ -69,6 +69,7 @@ from . import (
     audit_sky_occlusion,
     audit_soft_particles,
     audit_volumetric_lightning,
+    diffuse_study,
 )
 from .audit import Rule
 from .audit_family import AuditFamily, ShippedScene, Study, StudyContext, by_name
@@ -128,12 +129,14 @@ FAMILIES: dict[str, Family] = {
     for f in (
         Family(
             "diffuse",
-            "rtfit.experiments.diffuse",
+            ENGINE,
             "Half-Lambert and wrap lighting vs exact sphere-light irradiance",
-            "White diffuse sphere under a spherical light of angular radius 0.27°–30°, with and without "
-            "a constant sky: Lambert, half-Lambert and fitted wrap lighting against Mitsuba.",
+            "White diffuse sphere under a distant spherical light of angular radius 0.27°–30°: Lambert, "
+            "half-Lambert and wrap lighting (fitted per α and as one smooth law w(α), p(α)) against Mitsuba.",
             methods=diffuse.METHODS,
             audits=(audit_diffuse.FAMILY,),
+            scenes=audit_diffuse.SCENES,
+            study=diffuse_study.study,
         ),
         Family(
             "irradiance-bases",

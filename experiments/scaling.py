@@ -60,15 +60,14 @@ def _overhead_rows(name: str, n_jobs: int, workers: int | None, gpus=None) -> di
 
 
 def sweep_spec_text(points: int, variant: str) -> str:
-    """A small diffuse sweep: ``points`` configuration points (light sizes) of equal cost."""
-    alphas = [1.0 + 2.0 * i for i in range(points)]
+    """A small diffuse sweep: ``points`` configuration points of (nearly) equal cost: the α = 5° and 30°
+    shipped scenes at image widths res, res + 1, …"""
     gpu = variant.startswith("cuda")
     res, spp = (192, 1024) if gpu else (40, 128)
     return (
         f'name = "scaling"\nexperiment = "diffuse"\nquick = true\nspp = {spp}\n'
-        f"[fixed]\nsky_radiances = [0.0]\nresolution = {res}\npass_spp = {spp // 4}\n"
-        f"probe_count = 31\nprobe_spp = {spp}\n"
-        "[grid]\nalphas_deg = [" + ", ".join(f"[{a}, 30.0]" for a in alphas) + "]\n"
+        '[fixed]\nscenes = ["diffuse_sphere_a5", "diffuse_sphere_a30"]\n'
+        "[grid]\nresolution = [" + ", ".join(str(res + i) for i in range(points)) + "]\n"
     )
 
 

@@ -9,11 +9,11 @@ Sweep file (TOML)::
     seed = 0                         # optional
 
     [fixed]                          # optional: configuration overrides shared by every point
-    probe_count = 31
+    fit = true
 
     [grid]                           # optional: Cartesian product, key -> list of values
     resolution = [32, 48]
-    alphas_deg = [[1.0, 5.0], [5.0, 30.0]]
+    scenes = [["diffuse_sphere_a1", "diffuse_sphere_a5"], ["diffuse_sphere_a5", "diffuse_sphere_a30"]]
 
     [[points]]                       # optional: explicit points, appended after the grid
     resolution = 64

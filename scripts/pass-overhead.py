@@ -34,6 +34,7 @@ For the diffuse experiment's scene (α = 5° sun + sky, ``direct``) at each RES�
 """
 
 import argparse
+import dataclasses
 import importlib.util
 import statistics
 import subprocess
@@ -48,10 +49,10 @@ import drjit as dr
 import numpy as np
 
 from rtfit.experiments.cost import stock_render
-from rtfit.experiments.diffuse import case_scene
 from rtfit.reference import estimators
 from rtfit.reference.build import load_mitsuba_scene
 from rtfit.reference.cache import REFERENCE_PASS_DTYPE
+from rtfit.scenes import ConstantEnv, library_path, load_scene
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -182,8 +183,16 @@ def ulp_diff(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.abs(a - b)) / scale) if scale > 0 else 0.0
 
 
+def case_scene(res: int):
+    """The diffuse scene of the numbers above: scenes/library/diffuse_sphere_a5.toml (α = 5° sun, E⊥ = π)
+    with a constant sky of radiance 0.2, at res²."""
+    base = load_scene(library_path("diffuse_sphere_a5"))
+    camera = dataclasses.replace(base.camera, width=res, height=res)
+    return dataclasses.replace(base, camera=camera, lights=(*base.lights, ConstantEnv(radiance=(0.2,) * 3)))
+
+
 def measure(variant: str, res: int, spp: int, rounds: int, baseline) -> None:
-    mi, ms = load_mitsuba_scene(case_scene(5.0, 0.2, res), variant)
+    mi, ms = load_mitsuba_scene(case_scene(res), variant)
     per = max(1, estimators.pass_max_lanes(mi) // spp)
     chunks = -(-res * res // per)
     samples = res * res * spp
@@ -252,7 +261,7 @@ def main(argv):
     for size in args.sizes:
         res, spp = (int(x) for x in size.split(":"))
         measure(args.variant, res, spp, args.rounds, baseline)
-    mi, ms = load_mitsuba_scene(case_scene(5.0, 0.2, 64), args.variant)
+    mi, ms = load_mitsuba_scene(case_scene(64), args.variant)
     with launch_lanes(1024):
         call = lambda s: estimators.radiance_pass(mi, ms, 16, s, REFERENCE_PASS_DTYPE)  # noqa: E731
         call(0)

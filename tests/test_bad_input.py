@@ -136,13 +136,13 @@ def test_sweep_resolution_must_be_an_integer(capsys, dirs, tmp_path):
     assert "resolution = 64.5: expected an integer" in line
 
 
-def test_negative_sky_radiance(capsys, dirs, tmp_path):
+def test_unknown_shipped_scene(capsys, dirs, tmp_path):
     out, cache = dirs
     spec = _sweep_file(
-        tmp_path, 'experiment = "diffuse"\nquick = true\n[fixed]\nsky_radiances = [0.0, -1.0]\n'
+        tmp_path, 'experiment = "diffuse"\nquick = true\n[fixed]\nscenes = ["diffuse_sphere_a5", "nope"]\n'
     )
     line = _refused(capsys, _sweep(spec, out, cache), out, cache)
-    assert "sky_radiances" in line and "-1.0: out of range [0, 100]" in line
+    assert "scenes" in line and "nope" in line
 
 
 def test_unknown_environment(capsys, dirs, tmp_path):
@@ -189,8 +189,8 @@ def test_every_experiment_declares_every_key():
 def test_show_config_prints_type_and_range(capsys):
     assert main(["sweep", "--show-config", "diffuse", "--quick"]) == 0
     out = capsys.readouterr().out
-    assert "resolution = 64  # int in [8, 4096]" in out
-    assert f"spp = 256  # int in [2, {SPP_MAX}]" in out
+    assert "resolution = null  # int in [4, 4096], or none" in out
+    assert f"spp = null  # int in [2, {SPP_MAX}], or none" in out
 
 
 def test_config_key_checks():

@@ -34,15 +34,7 @@ needs_pdflatex = pytest.mark.skipif(
     PDFLATEX is None,
     reason="pdflatex is not installed (apt-get install texlive-latex-base texlive-latex-recommended)",
 )
-TINY_DIFFUSE = dict(
-    alphas_deg=[5.0, 30.0],
-    sky_radiances=[0.0],
-    resolution=24,
-    spp=64,
-    pass_spp=32,
-    probe_count=19,
-    probe_spp=256,
-)
+TINY_DIFFUSE = dict(scenes=["diffuse_sphere_a5", "diffuse_sphere_a30"], resolution=24, spp=64)
 
 
 def _stored_run(out: Path) -> list[Path]:

@@ -546,3 +546,69 @@ def test_method_table():
         d.sphere_light_irradiance(c, 0.3, 1.5),
     )
     np.testing.assert_array_equal(w.evaluate({"cos_theta": c, "irradiance": 1.0}), d.wrap(c, 0.5, 1.5))
+
+
+# --------------------------------------------------------------------- rtfit run diffuse: engine + study
+def test_run_diffuse_is_the_engine_on_its_shipped_suns_plus_the_study(tmp_path):
+    """``rtfit run diffuse`` = the engine's audits of the shipped scenes + `diffuse_study.study`, on two of
+    them (α = 5°, 30°, 12² pixels) as the engine hands them over. Independent values: each file's α (its
+    TOML), half-Lambert's error against the mpmath cap quadrature on the same pixels (its error ≫ the
+    reference noise, so the Mitsuba reference must give it within that noise), and the smooth law, which
+    with two α has exactly as many coefficients as targets: the 2 × 2 linear solves of the per-α fits."""
+    import tomllib
+
+    from rtfit.experiments import audit_diffuse, diffuse_study
+    from rtfit.experiments.audit_family import StudyContext
+    from rtfit.experiments.audit_run import audit
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    fam = FAMILIES["diffuse"]
+    assert fam.module == ENGINE and fam.scenes == audit_diffuse.SCENES and fam.study is diffuse_study.study
+    shipped = {s.name: s for s in audit_diffuse.SCENES}
+    declared = {
+        n: tomllib.loads((LIBRARY_DIR / s.file).read_text())["lights"][0]["angular_radius_deg"]
+        for n, s in shipped.items()
+    }
+    assert sorted(declared.values()) == [0.27, 1, 2, 5, 10, 15, 20, 30]
+    audits = tuple(
+        audit(
+            LIBRARY_DIR / shipped[n].file,
+            ["diffuse"],
+            spp=64,
+            width=12,
+            height=12,
+            cache=tmp_path / "cache",
+            tag=(f"{n}-", f"{n}: "),
+            metrics=("rmse",),
+        )
+        for n in ("diffuse_sphere_a5", "diffuse_sphere_a30")
+    )
+    ctx = StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "cache", audits)
+    cases = diffuse_study.alpha_cases(audits)
+    assert [c.alpha_deg for c in cases] == pytest.approx([5.0, 30.0], rel=1e-12)
+    res = diffuse_study.study(ctx)
+    table = {round(t["alpha_deg"]): t for t in res.extra["per_alpha"]}
+    for ac in cases:
+        c = ac.case
+        cos = np.asarray(c.channel_inputs[0]["cos_theta"], np.float64)
+        a = math.radians(ac.alpha_deg)
+        exact = np.array([cap_quadrature(math.acos(x), a) for x in cos]) / math.sin(a) ** 2 / math.pi
+        hl = (0.5 * cos + 0.5) ** 2
+        rmse_quad = float(np.sqrt(np.mean((hl - exact) ** 2)))  # E/E⊥, one value per pixel (grey light)
+        t = table[round(ac.alpha_deg)]
+        assert t["rmse"]["half-lambert"] == pytest.approx(rmse_quad, abs=3 * t["floor"] + 1e-3)
+        assert ac.e_perp == pytest.approx(math.pi, rel=2e-3)  # the reference's own E⊥: the file's π
+    # two α, four coefficients: w(α) = w1 s + w2 s², p(α) − 1 = p1 s + p2 s² through both fits exactly
+    s = np.sin(np.radians([5.0, 30.0]))
+    m = np.stack([s, s**2], axis=1)
+    w = np.linalg.solve(m, [table[5]["wp"]["w"]["value"], table[30]["wp"]["w"]["value"]])
+    p = np.linalg.solve(m, [table[5]["wp"]["p"]["value"] - 1, table[30]["wp"]["p"]["value"] - 1])
+    law = res.extra["smooth_law"]
+    np.testing.assert_allclose([law["w1"], law["w2"], law["p1"], law["p2"]], [*w, *p], rtol=1e-4, atol=1e-6)
+    assert all(ch.passed for ch in res.checks), res.checks
+    assert {f.file for f in res.figures} == {
+        "figures/error_vs_alpha.png", "figures/terminator.png", "figures/wrap_parameters.png"
+    }  # fmt: skip
+    assert all((tmp_path / f.file).is_file() for f in res.figures)
+    assert (tmp_path / "fitted" / "wrap_smooth.json").is_file()

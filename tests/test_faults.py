@@ -23,8 +23,8 @@ from rtfit.experiments.atomic import atomic_directory, is_temporary_name, owner_
 from rtfit.experiments.runner import resumed_line
 from rtfit.reference.cache import PASS_COUNTS, PassEntry, PassResult
 
-# A tiny diffuse run (16² pixels, 3 lights, 32 passes of 8 samples per image reference: 99 passes in all,
-# rendered in a few seconds; the fits, benchmarks and figures after them take longer).
+# A tiny diffuse run (three shipped scenes at 16² pixels, 8 passes of 32 samples per light reference: 24
+# passes in all, rendered in a few seconds; the fits, costs, figures and study after them take longer).
 DRIVER = textwrap.dedent(
     """
     import logging
@@ -35,8 +35,8 @@ DRIVER = textwrap.dedent(
     logging.basicConfig(level=logging.INFO, format="rtfit: %(message)s", stream=sys.stderr)
     from rtfit.experiments.runner import run_experiments
 
-    overrides = {"alphas_deg": [5.0, 30.0, 60.0], "sky_radiances": [0.0], "resolution": 16, "pass_spp": 8,
-                 "probe_count": 11, "probe_spp": 64}
+    scenes = ["diffuse_sphere_a5", "diffuse_sphere_a20", "diffuse_sphere_a30"]
+    overrides = {"scenes": scenes, "resolution": 16}
     run_experiments([get_experiment("diffuse")], Path(sys.argv[1]), quick=True, variant="llvm_ad_rgb",
                     spp=256, seed=0, cache_dir=Path(sys.argv[2]), executor="inline", workers=None,
                     progress=False, overrides=overrides)
@@ -54,6 +54,7 @@ TIMINGS = {
     "samples_per_second",
     "seconds",
     "render_seconds",
+    "engine_seconds",
 }
 
 
@@ -87,9 +88,11 @@ def _numbers(results_dir: Path):
 
 
 def _passes(cache: Path) -> list[Path]:
-    """The complete passes: a pass is stored when both its data (EXR) and its record (JSON) are written;
-    a kill between the two leaves an EXR that the rerun rightly renders again, so it is not counted."""
-    return sorted(p for p in cache.rglob("pass-*.exr") if p.with_suffix(".json").exists())
+    """The complete passes: a pass is stored when both its data (EXR, or NPZ for the audit's passes) and
+    its record (JSON) are written; a kill between the two leaves data that the rerun rightly renders again,
+    so it is not counted."""
+    data = [*cache.rglob("pass-*.exr"), *cache.rglob("pass-*.npz")]
+    return sorted(p for p in data if p.with_suffix(".json").exists())
 
 
 def test_killed_runs_and_a_truncated_pass_give_the_uninterrupted_results(tmp_path):
@@ -99,7 +102,7 @@ def test_killed_runs_and_a_truncated_pass_give_the_uninterrupted_results(tmp_pat
     expected = _numbers(clean_out / "diffuse")
     done = sorted(p.stat().st_mtime for p in _passes(clean_cache))
     total = len(done)
-    assert total == 99
+    assert total == 24
     # Kill while passes are rendered: after the start-up (until the first pass), at a random point of
     # what is left to render (estimated from the uninterrupted run).
     startup, render = done[0] - t0, done[-1] - done[0]

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from rtfit.experiments import ambient_aperture as aa
-from rtfit.experiments import diffuse as df
+from rtfit.experiments import diffuse_study as df
 from rtfit.experiments import height_fog as hf
 from rtfit.experiments import irradiance_bases as ib
 from rtfit.experiments import nishita_sky as ns
@@ -72,15 +72,25 @@ def _fit(values: dict, n: int = 200, method=None) -> dict:
 
 
 def _diffuse(out: Path):
-    cfg = {"sky_radiances": [0.0, 0.2], "alphas_deg": [5.0, 30.0], "spp": 16}
-    per_case = {
-        df.case_id(a, s): _fit({"w": 0.1 + a / 100, "p": 1.0 + a / 50}, method=df.WRAP)
-        for s in cfg["sky_radiances"]
-        for a in cfg["alphas_deg"]
-    }
+    """The diffuse run's fitted files: the engine's per-α wrap fits (`method_entry` of each fitted row, as
+    `audit_output.fitted_entries` writes them into ``fitted/diffuse.json``) and the study's smooth law."""
+    alphas = (5.0, 30.0)
+    per_case = {f"a{a:g}": _fit({"w": 0.1 + a / 100, "p": 1.0 + a / 50}, method=df.WRAP) for a in alphas}
+    entries = [
+        method_entry(
+            df.WRAP,
+            per_case[f"a{a:g}"],
+            case=f"a{a:g}",
+            residual_units="W/m²",
+            domain={"alpha": (math.radians(a), math.radians(a), "rad"), "cos_theta": (-0.9, 0.95)},
+            data={"alpha_deg": a},
+        )
+        for a in alphas
+    ]
+    prov = provenance(None, "diffuse")
+    write_fitted(out / "fitted" / "diffuse.json", FittedFile(FORMAT, "per-α wrap fits", prov, entries))
     smooth = _fit({"w1": -0.07, "w2": 1.37, "p1": -0.05, "p2": 2.0}, n=8, method=df.SMOOTH_LAW)
-    geom = {cid: (None, {"cos_theta": np.linspace(-0.9, 0.95, 50)}) for cid in per_case}
-    df.write_fitted(out, cfg, df.Fitted(per_case, smooth), None, None, geom)
+    df.write_smooth_fitted(out, smooth, alphas, (-0.9, 0.95), prov)
     return per_case
 
 
@@ -195,7 +205,7 @@ def _volumetric_lightning(out: Path):
 
 
 WRITERS = {
-    "diffuse": (_diffuse, ["wrap_per_alpha.json", "wrap_smooth.json"]),
+    "diffuse": (_diffuse, ["diffuse.json", "wrap_smooth.json"]),
     "height-fog": (
         _height_fog,
         ["fog-e5-single-const.json", "fog-e5-single-phase.json", "fog-volume-colours.json"],
@@ -244,7 +254,7 @@ def test_every_family_writes_files_that_validate(family, tmp_path):
 
 def test_diffuse_files_carry_the_fits_and_shaders_that_reproduce_the_kernel(tmp_path):
     per_case = _diffuse(tmp_path)
-    doc = load_fitted(tmp_path / "fitted" / "wrap_per_alpha.json")
+    doc = load_fitted(tmp_path / "fitted" / "diffuse.json")
     assert {m.case for m in doc.methods} == set(per_case)
     rng = np.random.default_rng(5)
     c = rng.uniform(-1, 1, 1000).astype(np.float32)

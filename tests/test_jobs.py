@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from rtfit.experiments.diffuse import render_case
 from rtfit.experiments.executors import make_executor
+from rtfit.experiments.height_fog import render_job
 from rtfit.experiments.jobs import InlineExecutor, Job, ProcessExecutor
 from rtfit.scenes import scene_to_toml
 
@@ -11,18 +11,18 @@ from .conftest import sphere_scene
 
 
 def _jobs(tmp_path):
+    tomls = {a: scene_to_toml(sphere_scene(alpha_deg=a, res=12)) for a in (5.0, 20.0)}
     return [
         Job(
-            render_case,
+            render_job,
             dict(
-                scene_toml=scene_to_toml(sphere_scene(alpha_deg=a, res=12)),
+                scene_toml=tomls[a],
                 spp=32,
                 pass_spp=16,
                 seed=3,
                 variant="llvm_ad_rgb",
                 cache_dir=str(tmp_path / f"cache-{tag}"),
-                probe_count=5,
-                probe_spp=32,
+                gbuffer_of=tomls[a],
             ),
             label=f"a{a}",
         )
@@ -39,7 +39,7 @@ def test_process_pool_matches_inline(tmp_path):
         pool.close()
     for a, b in zip(inline, spawned, strict=True):
         np.testing.assert_array_equal(a["image"].mean, b["image"].mean)  # same seeds → same samples
-        np.testing.assert_array_equal(a["probes"].stderr, b["probes"].stderr)
+        np.testing.assert_array_equal(a["image"].stderr, b["image"].stderr)
         np.testing.assert_array_equal(a["gbuffer"].normal, b["gbuffer"].normal)
 
 

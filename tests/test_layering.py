@@ -86,7 +86,6 @@ FAMILY_LINES_CEILING = {
     # Lower a ceiling when its module shrinks; drop it at FAMILY_MAX_LINES or below.
     "aerial_perspective": 805,
     "ambient_aperture": 1324,
-    "diffuse": 866,
     "environment_maps": 1524,
     "height_fog": 1406,
     "irradiance_bases": 1708,

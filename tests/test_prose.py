@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import re
-from types import SimpleNamespace
 
 from rtfit.experiments.prose import MINUS, law_text, prose_number
 
@@ -26,11 +25,13 @@ def test_law_text_joins_signed_terms():
 def test_diffuse_summary_prints_the_smooth_law_with_minus_signs():
     """The diffuse summary on a synthetic fitted law with negative coefficients: "1 − 0.0516·sin α",
     never "1 + -0.0516·sin α", and no ASCII hyphen as a number's sign anywhere in the text."""
-    from rtfit.experiments.diffuse import summary
+    from rtfit.experiments.diffuse_study import _summary
 
     params = {"w1": 0.61, "w2": -0.125, "p1": -0.0516, "p2": 0.3}
-    fitted = SimpleNamespace(smooth={"parameters": {k: {"value": v} for k, v in params.items()}})
-    text = summary({"alphas_deg": [0.27, 30.0]}, [], fitted, 1.02)
+    smooth = {"parameters": {k: {"value": v} for k, v in params.items()}}
+    rows = ("lambert", "half-lambert", "wrap-fitted", "wrap-smooth", "exact")
+    table = [{"alpha_deg": a, "rmse": dict.fromkeys(rows, 0.01), "floor": 0.001} for a in (0.27, 30.0)]
+    text = _summary(table, smooth)
     assert "w(α) = 0.61·sin α \u2212 0.125·sin²α" in text
     assert "p(α) = 1 \u2212 0.0516·sin α + 0.3·sin²α" in text
     assert "+ -" not in text and "+ \u2212" not in text

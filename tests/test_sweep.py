@@ -25,11 +25,7 @@ experiment = "diffuse"
 quick = true
 spp = 32
 [fixed]
-alphas_deg = [5.0, 30.0]
-sky_radiances = [0.0]
-probe_count = 11
-probe_spp = 64
-pass_spp = 16
+scenes = ["diffuse_sphere_a5", "diffuse_sphere_a30"]
 [grid]
 resolution = [16, 20]
 """
@@ -157,7 +153,7 @@ def sweeps(tmp_path_factory):
 def test_executors_give_identical_numbers(sweeps):
     _, _, out = sweeps
     inline = _numbers(out["inline"])
-    assert len(inline) == 2 * 2 * 5  # 2 points × 2 light sizes × 5 methods
+    assert len(inline) == 2 * 2 * 2 * 6  # 2 points × 2 suns × (unshadowed, shadowed) × 6 rows
     assert _numbers(out["process"]) == inline
     if "ray" in out:
         assert _numbers(out["ray"]) == inline
