@@ -52,6 +52,8 @@ __all__ = ["ALPHAS_DEG", "FAMILY", "SCENES", "light_geometry", "light_radiance",
 
 ALPHAS_DEG = (0.27, 1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 30.0)
 """The sun's angular radii (°) of the shipped scenes, one file each (``diffuse_sphere_a<α>.toml``)."""
+QUICK_ALPHAS_DEG = (0.27, 5.0, 15.0, 30.0)
+"""Those ``--quick`` audits (the smooth law's four parameters still have four light sizes to fit)."""
 
 SCENES = tuple(
     ShippedScene(
@@ -61,6 +63,7 @@ SCENES = tuple(
         spp=4096,
         quick_size=(32, 32),
         quick_spp=256,
+        quick=a in QUICK_ALPHAS_DEG,
     )
     for a in ALPHAS_DEG
 )

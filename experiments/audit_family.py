@@ -316,6 +316,8 @@ class ShippedScene:
     -D name=value``): one scene file, several shipped scenes (a light's angular radius, a sky's radiance)."""
     name: str = ""
     """Its id in case ids (file-name safe); default: the file's stem, then the defines (``name-value``)."""
+    quick: bool = True
+    """Whether ``--quick`` audits it too (False: the full run only, e.g. the in-between light sizes)."""
 
     def __post_init__(self):
         if "/" in self.file or not self.file.endswith((".xml", ".toml")):

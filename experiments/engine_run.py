@@ -70,7 +70,12 @@ class EngineExperiment:
     def configure(self, quick: bool, spp: int | None) -> dict:
         return checked(
             self.CONFIG,
-            {"scenes": [s.name for s in self.family.scenes], "spp": spp, "resolution": None, "fit": True},
+            {
+                "scenes": [s.name for s in self.family.scenes if s.quick or not quick],
+                "spp": spp,
+                "resolution": None,
+                "fit": True,
+            },
         )
 
     # ------------------------------------------------------------------------------------------------ run
