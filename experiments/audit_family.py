@@ -348,12 +348,15 @@ class StudyContext:
 class Study:
     """The tables and figures only this family has, added to its ``rtfit run`` report after the engine's:
     typed records (`rtfit.experiments.records`) — ``sections`` (text and Markdown tables), ``figures``
-    (files under ``figures/``), ``checks`` (its own self-checks: a failed one fails the run), ``notes``,
-    ``headline`` numbers and ``extra`` (plain JSON)."""
+    (files under ``figures/``), ``checks`` (its own self-checks: a failed one fails the run), ``fits``,
+    ``notes``, ``headline`` numbers and ``extra`` (plain JSON)."""
 
     sections: tuple[Any, ...] = ()
     figures: tuple[Any, ...] = ()
     checks: tuple[Any, ...] = ()
+    fits: tuple[Any, ...] = ()
+    """Its own fits (`records.Fit`: a law fitted across the scenes' fits), in the report's fit table and
+    tables.tex beside the engine's."""
     notes: tuple[str, ...] = ()
     headline: tuple[Any, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=dict)

@@ -121,7 +121,7 @@ class EngineExperiment:
             study = self.family.study(
                 StudyContext(ctx.out_dir, ctx.quick, ctx.variant, ctx.seed, ctx.cache_dir, tuple(audits))
             )
-            for key in ("sections", "figures", "checks", "notes", "headline"):
+            for key in ("sections", "figures", "checks", "fits", "notes", "headline"):
                 body[key] += [to_json(x) if not isinstance(x, str) else x for x in getattr(study, key)]
             body["extra"] = {**body.get("extra", {}), **dict(study.extra)}
         return body

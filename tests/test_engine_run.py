@@ -15,7 +15,7 @@ import pytest
 from rtfit.experiments import audit_diffuse, engine_run
 from rtfit.experiments.audit_family import ShippedScene, Study
 from rtfit.experiments.families import ENGINE, FAMILIES, Family
-from rtfit.experiments.records import Check, Section
+from rtfit.experiments.records import Check, Fit, Section
 from rtfit.experiments.registry import ExperimentSpec
 from rtfit.experiments.results import load_results
 from rtfit.experiments.runner import failed_checks, run_experiments
@@ -57,6 +57,7 @@ def test_the_engine_runs_a_family_on_its_shipped_scene(tmp_path, monkeypatch):
         return Study(
             sections=(Section(id="study", title="Its own study", text=f"{len(rows)} rows"),),
             checks=(Check(name="study ran", value=len(rows), expected="> 0", passed=len(rows) > 0),),
+            fits=(Fit(id="study-law", label="a law across scenes", parameters={"a": 1.5}),),
             extra={"rows": len(rows)},
         )
 
@@ -77,7 +78,8 @@ def test_the_engine_runs_a_family_on_its_shipped_scene(tmp_path, monkeypatch):
     assert doc["sections"][-1]["id"] == "study" and doc["extra"] == {"rows": 9}
     fitted = json.loads((d / "fitted" / "diffuse.json").read_text())
     assert {m["case"] for m in fitted["methods"]} >= {"sphere_light_light0_unshadowed"}
-    assert all(f["file"] == "fitted/diffuse.json" for f in doc["fits"]) and doc["fits"]
+    assert doc["fits"][-1]["id"] == "study-law" and doc["fits"][-1]["parameters"] == {"a": 1.5}
+    assert all(f["file"] == "fitted/diffuse.json" for f in doc["fits"][:-1]) and doc["fits"][:-1]
     assert all((d / f["file"]).is_file() for f in doc["figures"])
     assert (d / "pixels").is_dir() and (d / "report.html").is_file()
     assert seen[0].quick and seen[0].out_dir.name != "diffuse"  # (the atomic directory being written)
