@@ -72,11 +72,10 @@ from .audit_media import (
     box_interval,
     density_params,
     finite_stretch,
+    fogged_radiance_inputs,
     medium_intervals,
     opened_medium,
-    radiance_passes,
     sigma_t_at,
-    sun_direction_of,
 )
 
 __all__ = ["FAMILY", "MAX_SURFACES", "media_cases", "medium_intervals"]
@@ -209,28 +208,14 @@ def _radiance_case(setup, med: Medium, ok, mask, common, what, given, tag) -> Fa
     traced with `RADIANCE_INTEGRATOR` through the run's sensor, against the shading models on the fog-free
     image L₀ (every medium switched off; same integrator, spp and seed); given: the medium's b, c and the
     models' declared colours; fitted: b, c and the colours."""
-    fogged, clear = radiance_passes(setup, med, ok, what, tag)
-    sun = sun_direction_of(setup)
-    d = np.stack([common["dx"], common["dy"], common["dz"]], axis=1)
-    inputs = {
-        **common,
-        "cos_sun": d @ sun if sun is not None else np.zeros(len(d)),
-        **{f"l0_{ch}": clear.mean[:, k] for k, ch in enumerate("rgb")},
-    }
-    ref = fogged.reference(
-        mask,
-        quantity="radiance at the camera with this medium alone (W/m²/sr, RGB)",
-        integrator=RADIANCE_INTEGRATOR,
-        integrator_reason="unbiased for the scene's media (Mitsuba's volumetric path tracer, all bounces)",
-        extra_seconds=clear.seconds,
-    )
+    ref, inputs, l0_key, sun = fogged_radiance_inputs(setup, med, ok, mask, common, what, tag)
     return FamilyCase(
         id=f"{tag}-radiance",
         label="",
         reference=ref,
         mask=mask,
         channel_inputs=(inputs,),
-        parameters={"quantity": "fogged radiance", "l0_cache_key": clear.entry.key},
+        parameters={"quantity": "fogged radiance", "l0_cache_key": l0_key},
         units="W/m²/sr",
         notes=(
             "L₀: the same scene with every medium switched off (scale 0), same integrator and spp (its noise "

@@ -46,10 +46,9 @@ from .audit_media import (
     RADIANCE_INTEGRATOR,
     MediumChannel,
     finite_stretch,
+    fogged_radiance_inputs,
     opened_medium,
-    radiance_passes,
     sigma_t_at,
-    sun_direction_of,
 )
 
 __all__ = ["FAMILY", "SCENES", "homogeneous_fog_cases"]
@@ -201,28 +200,14 @@ def homogeneous_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyC
 def _radiance_case(setup, app, med, ok, mask, common, what, given, tag, parameters, notes) -> FamilyCase:
     """The radiance at the camera with this medium alone against the fog blends on the fog-free L₀."""
     what = {**what, "quantity": "medium-radiance", "integrator": RADIANCE_INTEGRATOR}
-    fogged, clear = radiance_passes(setup, med, ok, what, tag)
-    sun = sun_direction_of(setup)
-    d = np.stack([common["dx"], common["dy"], common["dz"]], axis=1)
-    inputs = {
-        **common,
-        "cos_sun": d @ sun if sun is not None else np.zeros(len(d)),
-        **{f"l0_{ch}": clear.mean[:, k] for k, ch in enumerate("rgb")},
-    }
-    ref = fogged.reference(
-        mask,
-        quantity="radiance at the camera with this medium alone (W/m²/sr, RGB)",
-        integrator=RADIANCE_INTEGRATOR,
-        integrator_reason="unbiased for the scene's media (Mitsuba's volumetric path tracer, all bounces)",
-        extra_seconds=clear.seconds,
-    )
+    ref, inputs, l0_key, _sun = fogged_radiance_inputs(setup, med, ok, mask, common, what, tag)
     return FamilyCase(
         id=f"{tag}-radiance",
         label=f"{app.part}, fogged radiance",
         reference=ref,
         mask=mask,
         channel_inputs=(inputs,),
-        parameters={**parameters, "quantity": "fogged radiance", "l0_cache_key": clear.entry.key},
+        parameters={**parameters, "quantity": "fogged radiance", "l0_cache_key": l0_key},
         units="W/m²/sr",
         notes=(
             *notes,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import drjit as dr
 import numpy as np
@@ -22,16 +22,18 @@ from rtfit.reference.build import load_dict, mitsuba_scene_dict
 from rtfit.reference.estimators import PassResult, radiance_pass
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditSetup, pooled_passes
+from .audit_family import AuditError, AuditReference, AuditSetup, pooled_passes
 
 __all__ = [
     "MAX_SURFACES",
     "RADIANCE_INTEGRATOR",
+    "FoggedRadiance",
     "Medium",
     "MediumChannel",
     "box_interval",
     "density_params",
     "finite_stretch",
+    "fogged_radiance_inputs",
     "medium_intervals",
     "medium_pointer",
     "opened_medium",
@@ -293,3 +295,39 @@ def radiance_passes(setup: AuditSetup, med: Medium, ok: np.ndarray, what: dict, 
     fogged = passes(others, "medium-radiance-alone", f"{tag}: radiance with the medium")
     clear = passes(med.media, "medium-radiance-clear", f"{tag}: fog-free radiance L0")
     return fogged, clear
+
+
+class FoggedRadiance(NamedTuple):
+    """`fogged_radiance_inputs`: the case's ``reference``, its rows' ``inputs``, the cache key of the
+    fog-free image L₀ and the ``sun`` direction (None: no sun; ``cos_sun`` is then 0)."""
+
+    reference: AuditReference
+    inputs: dict
+    l0_cache_key: str
+    sun: np.ndarray | None
+
+
+def fogged_radiance_inputs(
+    setup: AuditSetup, med, ok, mask, common: dict, what: dict, tag: str
+) -> FoggedRadiance:
+    """The reference of a fogged-radiance case and its rows' inputs: the radiance at the camera with this
+    medium alone (`radiance_passes`: the scene's other media switched off), path traced with
+    `RADIANCE_INTEGRATOR` through the run's sensor, as an `AuditReference` on ``mask``; and ``common``
+    (the rays' inputs) with ``cos_sun`` (each ray's direction · the sun's; 0 without a sun) and the fog-free
+    image L₀ (``l0_r``, ``l0_g``, ``l0_b``: every medium switched off, same integrator, spp and seed)."""
+    fogged, clear = radiance_passes(setup, med, ok, what, tag)
+    sun = sun_direction_of(setup)
+    d = np.stack([common["dx"], common["dy"], common["dz"]], axis=1)
+    inputs = {
+        **common,
+        "cos_sun": d @ sun if sun is not None else np.zeros(len(d)),
+        **{f"l0_{ch}": clear.mean[:, k] for k, ch in enumerate("rgb")},
+    }
+    ref = fogged.reference(
+        mask,
+        quantity="radiance at the camera with this medium alone (W/m²/sr, RGB)",
+        integrator=RADIANCE_INTEGRATOR,
+        integrator_reason="unbiased for the scene's media (Mitsuba's volumetric path tracer, all bounces)",
+        extra_seconds=clear.seconds,
+    )
+    return FoggedRadiance(ref, inputs, clear.entry.key, sun)
