@@ -26,9 +26,9 @@ from .audit_parallax_occlusion import check_pom_depth
 from .audit_run import audit as run_audit
 from .audit_run import check_ao_distance, resolve_approximations, selected_applicabilities, triple
 from .cli_complete import complete_approx, complete_scene
-from .cli_options import cache_option, out_option
+from .cli_options import cache_option, out_option, pass_spp_option, spp_option, variant_option
 from .families import AUDITED
-from .registry import RESOLUTION_MAX, SPP_MAX
+from .registry import RESOLUTION_MAX
 
 __all__ = ["AuditInputError", "audit"]
 
@@ -124,22 +124,11 @@ def _defines(values: tuple[str, ...]) -> dict[str, str]:
     metavar="S",
     help="Height range of a bump map's height field for parallax occlusion, in texture units (default 0.1).",
 )
-@click.option(
-    "--variant",
-    default="llvm_ad_rgb",
-    show_default=True,
-    type=click.Choice(["auto", "llvm_ad_rgb", "cuda_ad_rgb"]),
-    help="Mitsuba variant for references and the Dr.Jit backend for approximations.",
-)
-@click.option(
-    "--spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Reference samples per pixel (256)."
-)
-@click.option(
-    "--pass-spp",
-    type=click.IntRange(min=2, max=SPP_MAX),
-    default=None,
-    help="Samples per cached pass (32); the last pass holds the rest of --spp (at least 2), and one larger "
-    "than --spp means one pass of --spp.",
+@variant_option()
+@spp_option()
+@pass_spp_option(
+    "Samples per cached pass (32); the last pass holds the rest of --spp (at least 2), and one larger "
+    "than --spp means one pass of --spp."
 )
 @out_option("Output directory: the report goes to OUT/audit-<scene>.")
 @cache_option()

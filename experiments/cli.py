@@ -56,7 +56,7 @@ from .audit_cli import audit
 from .book import write_book
 from .cache_cli import cache_group
 from .cli_complete import complete_experiments, family_list
-from .cli_options import CACHE_HELP, cache_option, out_option
+from .cli_options import CACHE_HELP, VARIANT_CHOICES, cache_option, out_option, spp_option, variant_option
 from .compare_cli import compare
 from .executors import EXECUTORS, make_executor
 from .families import EXPERIMENTS, describe_config, resolve_names, validate_config
@@ -75,9 +75,6 @@ from .runner import (
     versions,
 )
 from .sweep import load_sweep, run_sweep
-
-VARIANT_CHOICES = ("auto", "llvm_ad_rgb", "cuda_ad_rgb")
-"""The variants a run offers (Mitsuba's ``scalar_rgb`` renders one sample at a time: not one of them)."""
 
 
 class UserError(click.ClickException):
@@ -202,19 +199,8 @@ def list_cmd(as_json):
 @cli.command("run")
 @click.argument("experiments", nargs=-1, shell_complete=complete_experiments)
 @click.option("--quick", is_flag=True, help="Small images, few samples, fewer cases (minutes on 2 cores).")
-@click.option(
-    "--variant",
-    default="llvm_ad_rgb",
-    show_default=True,
-    type=click.Choice(VARIANT_CHOICES),
-    help="Mitsuba variant for references and the Dr.Jit backend for approximations.",
-)
-@click.option(
-    "--spp",
-    type=click.IntRange(min=2, max=SPP_MAX),
-    default=None,
-    help=f"Reference samples per pixel (overrides; at most {SPP_MAX}).",
-)
+@variant_option()
+@spp_option(f"Reference samples per pixel (overrides; at most {SPP_MAX}).")
 @out_option()
 @cache_option()
 @click.option(

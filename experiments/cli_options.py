@@ -6,9 +6,19 @@ from pathlib import Path
 
 import click
 
-__all__ = ["CACHE_HELP", "cache_option", "out_option"]
+__all__ = [
+    "CACHE_HELP",
+    "VARIANT_CHOICES",
+    "cache_option",
+    "out_option",
+    "pass_spp_option",
+    "spp_option",
+    "variant_option",
+]
 
 CACHE_HELP = "Reference cache directory (default: $RTFIT_CACHE or ~/.cache/rtfit)."
+VARIANT_CHOICES = ("auto", "llvm_ad_rgb", "cuda_ad_rgb")
+"""The variants a command offers (Mitsuba's ``scalar_rgb`` renders one sample at a time: not one of them)."""
 
 
 def out_option(help_text: str = "Output directory."):
@@ -32,3 +42,27 @@ def cache_option(help_text: str = CACHE_HELP):
         default=None,
         help=help_text,
     )
+
+
+def variant_option(
+    help_text: str = "Mitsuba variant for references and the Dr.Jit backend for approximations.",
+    default: str = "llvm_ad_rgb",
+):
+    """``--variant`` (one of `VARIANT_CHOICES`), as the argument ``variant``."""
+    return click.option(
+        "--variant", default=default, show_default=True, type=click.Choice(VARIANT_CHOICES), help=help_text
+    )
+
+
+def spp_option(help_text: str = "Reference samples per pixel (256)."):
+    """``--spp N`` (2 … `registry.SPP_MAX`; default None: the command's own), as the argument ``spp``."""
+    from .registry import SPP_MAX
+
+    return click.option("--spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help=help_text)
+
+
+def pass_spp_option(help_text: str = "Samples per cached pass (32)."):
+    """``--pass-spp N`` (2 … `registry.SPP_MAX`; default None), as the argument ``pass_spp``."""
+    from .registry import SPP_MAX
+
+    return click.option("--pass-spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help=help_text)

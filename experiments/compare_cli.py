@@ -17,10 +17,9 @@ import click
 
 from .audit import AuditError
 from .audit_cli import AuditInputError
-from .cli_options import cache_option, out_option
+from .cli_options import cache_option, out_option, pass_spp_option, spp_option, variant_option
 from .compare import FOOTPRINTS, QUANTITIES
 from .compare import compare as run_compare
-from .registry import SPP_MAX
 
 __all__ = ["compare"]
 
@@ -65,19 +64,9 @@ def _error(message: str):
 )
 @click.option("-D", "defines", multiple=True, metavar="NAME=VALUE", help="A Mitsuba XML parameter ($NAME).")
 @click.option("--camera", type=click.IntRange(min=0), default=0, show_default=True, help="XML sensor index.")
-@click.option(
-    "--variant",
-    default="llvm_ad_rgb",
-    show_default=True,
-    type=click.Choice(["auto", "llvm_ad_rgb", "cuda_ad_rgb"]),
-    help="Mitsuba variant of the reference.",
-)
-@click.option(
-    "--spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Reference samples per pixel (256)."
-)
-@click.option(
-    "--pass-spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help="Samples per cached pass (32)."
-)
+@variant_option("Mitsuba variant of the reference.")
+@spp_option()
+@pass_spp_option()
 @out_option("Output directory: the report goes to OUT/compare-<scene>.")
 @cache_option()
 @click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
