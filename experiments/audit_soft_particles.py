@@ -77,8 +77,8 @@ _EXACT = {"sphere": "exact-sphere", "box": "exact-box"}
 SCENES = tuple(
     ShippedScene(
         f"soft_particles_{c.shape}.xml",
-        f"{c.shape} of absorbing medium, α_c = {c.alpha_c:g} (σ = {c.sigma:.4g}), cut by an opaque plane tilted "
-        f"{c.tilt_deg:g}°" + (", the camera inside it" if c.inside else ""),
+        f"{c.shape} of absorbing medium, α_c = {c.alpha_c:g} (σ = {c.sigma:.4g}), cut by an opaque plane "
+        f"tilted {c.tilt_deg:g}°" + (", the camera inside it" if c.inside else ""),
         size=(64, 64),
         spp=16384,
         quick_size=(20, 20),

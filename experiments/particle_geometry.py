@@ -62,10 +62,10 @@ def billboard_inputs(dirs: np.ndarray, centre, radius: float, alpha_c: float, sh
 
 @dataclass(frozen=True)
 class CutScene:
-    """One shipped soft-particles scene (``scenes/library/soft_particles_<shape>.xml``): a particle of radius 1
-    at view-space ``centre`` (the camera at the origin looking along +z), opacity ``alpha_c`` through its
-    centre (σ = −ln(1 − α_c)/2), cut by an opaque plane 0.15 r behind the centre tilted ``tilt_deg`` about x
-    from facing the camera; ``quick``: audited by ``--quick`` too."""
+    """One shipped soft-particles scene (``scenes/library/soft_particles_<shape>.xml``): a particle of
+    radius 1 at view-space ``centre`` (the camera at the origin looking along +z), opacity ``alpha_c``
+    through its centre (σ = −ln(1 − α_c)/2), cut by an opaque plane 0.15 r behind the centre tilted
+    ``tilt_deg`` about x from facing the camera; ``quick``: audited by ``--quick`` too."""
 
     shape: str
     alpha_c: float
