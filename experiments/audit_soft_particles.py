@@ -58,13 +58,40 @@ from rtfit.reference.transforms import rotation_matrix
 from rtfit.scenes import Scene
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, PooledPasses, pooled_passes
-from .particle_geometry import billboard_inputs
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditSetup,
+    FamilyCase,
+    PooledPasses,
+    ShippedScene,
+    pooled_passes,
+)
+from .particle_geometry import CUT_SCENES, billboard_inputs
 
-__all__ = ["FAMILY", "Particle"]
+__all__ = ["FAMILY", "SCENES", "Particle"]
 
 FORMAT = 1
 _EXACT = {"sphere": "exact-sphere", "box": "exact-box"}
+
+SCENES = tuple(
+    ShippedScene(
+        f"soft_particles_{c.shape}.xml",
+        f"{c.shape} of absorbing medium, α_c = {c.alpha_c:g} (σ = {c.sigma:.4g}), cut by an opaque plane "
+        f"tilted {c.tilt_deg:g}°" + (", the camera inside it" if c.inside else ""),
+        size=(64, 64),
+        spp=16384,
+        quick_size=(20, 20),
+        quick_spp=1024,
+        defines=c.defines(),
+        name=c.name,
+        quick=c.quick,
+    )
+    for c in CUT_SCENES
+)
+"""The scenes ``rtfit run soft-particles`` audits (scenes/library/soft_particles_{sphere,box}.xml, one file
+per shape, its ``<default>`` parameters set per case by `particle_geometry.CUT_SCENES`): the canned cases of
+the experiment before the engine, at its sizes and samples (20×20 at 1024 spp quick, 64×64 at 16384 full)."""
 
 
 @dataclass(frozen=True)

@@ -70,6 +70,7 @@ from . import (
     audit_soft_particles,
     audit_volumetric_lightning,
     diffuse_study,
+    soft_particles_study,
 )
 from .audit import Rule
 from .audit_family import AuditFamily, ShippedScene, Study, StudyContext, by_name
@@ -212,12 +213,14 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "soft-particles",
-            "rtfit.experiments.soft_particles",
+            ENGINE,
             "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",
             "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned "
             "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
             methods=soft_particles.METHODS,
             audits=(audit_soft_particles.FAMILY,),
+            scenes=audit_soft_particles.SCENES,
+            study=soft_particles_study.study,
         ),
         Family(
             "light-cones",

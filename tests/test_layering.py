@@ -95,7 +95,6 @@ FAMILY_LINES_CEILING = {
     "obscurances": 949,
     "parallax_occlusion": 972,
     "sdf_occlusion": 1914,
-    "soft_particles": 1199,
     "volumetric_lightning": 850,
 }
 

@@ -755,11 +755,11 @@ def test_markdown_table_escapes_bars_in_cells_once():
 
 
 def test_soft_particles_domain_tables_keep_their_columns():
-    """soft-particles' "Errors over the domain" and scene tables, from a synthetic study: every row has
-    as many cells as the header, and the header reads "mean |error|" (issue 32)."""
-    from rtfit.experiments.soft_particles import sections
+    """soft-particles' study: its "Errors over the domain" and 100-particle scene tables, from a synthetic
+    study: every row has as many cells as the header, and the header reads "mean |error|" (issue 32)."""
+    from rtfit.experiments.soft_particles_study import _text
 
-    study = {
+    dom = {
         "table": [
             {
                 "shape": "sphere",
@@ -774,16 +774,16 @@ def test_soft_particles_domain_tables_keep_their_columns():
         "fits": {},
     }
     extremes = {"camera_inside": {}, "delta": {}, "off_axis": {}}
-    metric = {"value": 0.25}
     scene = {
-        "doc": {
-            "approximations": [
-                {"method": "linear", "metrics": {k: metric for k in ("rmse", "mae", "max_abs", "mean_error")}}
-            ],
-            "parameters": {"silhouette_pairs": 3, "silhouette_max_opacity": 0.5},
-        }
+        "n": 100,
+        "straddle": 30,
+        "metrics": {"linear": {k: 0.25 for k in ("rmse", "mae", "max_abs", "mean_error")}},
+        "silhouette": 3,
+        "silhouette_max": 0.5,
     }
-    by_id = {s["id"]: s["text"] for s in sections(study, extremes, scene)}
+    parts = _text(dom, extremes, scene, []).split("\n\n**")
+    by_id = {"domain": next(p for p in parts if p.startswith("Errors over the domain")),
+             "scene": next(p for p in parts if p.startswith("100 particles"))}  # fmt: skip
     for key, n_cols in (("domain", 7), ("scene", 5)):
         cells = _html_table_cells(markdown_to_html(by_id[key]))
         assert len(cells) == 2 and all(len(r) == n_cols for r in cells), cells

@@ -219,7 +219,7 @@ def test_drjit_numpy_jax_agree(mid):
 # ------------------------------------------------------------------------------------- Mitsuba reference
 @pytest.fixture(scope="module")
 def _dirs():
-    from rtfit.experiments.soft_particles import pixel_dirs
+    from rtfit.experiments.soft_particles_kernels import pixel_dirs
 
     return pixel_dirs((8, 8), 40.0).reshape(-1, 3)
 
@@ -228,7 +228,8 @@ def _dirs():
 def test_mitsuba_transmittance_matches_the_analytic_chord(_dirs, shape, inside):
     """volpathmis through an absorbing particle cut by a tilted emitting plane: Bernoulli(T) per sample,
     z-scores against exp(−σℓ) of the analytic chord. Camera inside: the rays start in the medium."""
-    from rtfit.experiments.soft_particles import plane_distance, ray_inputs, sigma_of
+    from rtfit.experiments.particle_geometry import sigma_of
+    from rtfit.experiments.soft_particles_kernels import plane_distance, ray_inputs
     from rtfit.reference.soft_particles import bernoulli_stderr, transmittance_pass_particle
 
     centre = (0.1, 0.0, 0.6) if inside else (0.2, 0.1, 4.0)
@@ -251,24 +252,23 @@ def test_mitsuba_transmittance_matches_the_analytic_chord(_dirs, shape, inside):
     assert np.all(res.mean[~ok, 0] == t[~ok])
 
 
-def test_experiment_claim_and_extreme_checks_pass():
-    """The experiment's own claim, chord-independent and extreme checks (the end-to-end run with its JAX
-    fits is `rtfit run soft-particles --quick`, ~20 s of CPU: too long for this file's budget)."""
-    from rtfit.experiments import soft_particles as exp
+def test_study_claim_and_extreme_checks_pass():
+    """The study's own claim and extreme checks (kernel-only; the whole study with its JAX fits runs in
+    `test_run_soft_particles_is_the_engine_on_its_shipped_scenes_plus_the_study`)."""
+    from rtfit.experiments.soft_particles_kernels import claim_checks, extreme_checks, extreme_values
 
-    checks = exp.claim_checks() + exp.extreme_checks(exp.extreme_values())
-    failed = [c["name"] for c in checks if not c["passed"]]
+    checks = claim_checks() + extreme_checks(extreme_values())
+    failed = [c.name for c in checks if not c.passed]
     assert not failed, failed
     assert len(checks) == 10
 
 
 def test_fitted_file_loads_and_its_shaders_reproduce_the_kernel(tmp_path):
-    """fitted/soft-particles.json: strict load, and the traced GLSL/HLSL of the fitted fade equals the
-    kernel text's NumPy run (float32 shader vs float64: rtol 2e-6)."""
-    import types
-
-    from rtfit.experiments import soft_particles as exp
+    """fitted/soft-particles-domain.json (the study's domain fits): strict load, and the traced GLSL/HLSL of
+    the fitted fade equals the kernel text's NumPy run (float32 shader vs float64: rtol 2e-6)."""
+    from rtfit.experiments import fitted as fitfiles
     from rtfit.experiments.fitted import load_fitted
+    from rtfit.experiments.soft_particles_study import write_fitted
 
     from .test_shader import compile_function
 
@@ -280,16 +280,13 @@ def test_fitted_file_loads_and_its_shaders_reproduce_the_kernel(tmp_path):
         }
         return {"parameters": params, "rms_residual": 0.01, "n_residuals": 100, "dof": 97, "converged": True}
 
-    study = {
-        "fits": {
-            ("sphere", "linear-fit", 0.95): fit({"s": 0.5}, METHODS["linear"]),
-            ("sphere", "fitted", 0.95): fit({"s": 1.2, "b": 0.68, "p": 0.71}, METHODS["fitted"]),
-        }
+    fits = {
+        ("sphere", "linear-fit", 0.95): fit({"s": 0.5}, METHODS["linear"]),
+        ("sphere", "fitted", 0.95): fit({"s": 1.2, "b": 0.68, "p": 0.71}, METHODS["fitted"]),
     }
-    ctx = types.SimpleNamespace(out_dir=tmp_path, variant="llvm_ad_rgb", quick=True)
-    docs = exp.write_fitted(ctx, study)
-    assert [d["file"] for d in docs] == ["fitted/soft-particles.json"] * 2
-    loaded = load_fitted(tmp_path / "fitted" / "soft-particles.json")
+    prov = fitfiles.provenance(None, "soft-particles", [], variant="llvm_ad_rgb", quick=True)
+    assert write_fitted(tmp_path, fits, prov) == "fitted/soft-particles-domain.json"
+    loaded = load_fitted(tmp_path / "fitted" / "soft-particles-domain.json")
     (entry,) = [m for m in loaded.methods if m.id == "fitted"]
     assert entry.parameters["p"].unit == "1" and entry.parameters["s"].unit == "r"
     rng = np.random.default_rng(8)
@@ -312,3 +309,114 @@ def test_public_opacity_function_and_bad_method():
         soft_particle_opacity("nope", {})
     with pytest.raises(ValueError, match="alpha"):
         beer_fraction(1.5, 0.5)
+
+
+# ------------------------------------------------------------ rtfit run soft-particles: engine + study
+def _hand_chord(d: np.ndarray, shape: str, centre, sigma: float, tilt_deg: float = 35.0) -> np.ndarray:
+    """Opacity 1 − exp(−σℓ) of the unit rays ``d`` from the origin through the unit sphere / the cube
+    [−1, 1]³ at ``centre``, clipped by the plane through centre + (0, 0, 0.15) of normal (0, sin t, −cos t):
+    the quadratic's roots or the slab test, written here."""
+    c = np.asarray(centre, np.float64)
+    a = math.radians(tilt_deg)
+    n = np.array([0.0, math.sin(a), -math.cos(a)])
+    dn = d @ n
+    point = c + np.array([0.0, 0.0, 0.15])
+    t_s = np.where(np.abs(dn) > 1e-12, (point @ n) / np.where(np.abs(dn) > 1e-12, dn, 1), -1)
+    t_s = np.where(t_s > 0, t_s, np.inf)
+    if shape == "sphere":
+        b = d @ c
+        disc = b * b - (c @ c - 1.0)
+        w = np.sqrt(np.maximum(disc, 0.0))
+        t0, t1 = np.where(disc > 0, b - w, np.inf), np.where(disc > 0, b + w, -np.inf)
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lo, hi = (c - 1.0) / d, (c + 1.0) / d
+        t0, t1 = np.max(np.minimum(lo, hi), axis=1), np.min(np.maximum(lo, hi), axis=1)
+    chord = np.maximum(np.minimum(t1, t_s) - np.maximum(t0, 0.0), 0.0)
+    return -np.expm1(-sigma * chord)
+
+
+def test_run_soft_particles_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path, monkeypatch):
+    """``rtfit run soft-particles`` = the engine's audits of the shipped scenes + the study
+    (`soft_particles_study.study`), on the quick sphere and cube (12² pixels, 256 spp) as the engine hands
+    them over, the study's domain shrunk. Independent values: each scene's σ gives its α_c = 1 − e^(−2σ);
+    the exact rows equal the clipped chords written here (quadratic, slab test, the tilted plane), and the
+    reference's z statistics against them are the study's."""
+    import xml.etree.ElementTree as ET
+
+    from rtfit.experiments import audit_soft_particles, soft_particles_study
+    from rtfit.experiments.audit_family import StudyContext
+    from rtfit.experiments.audit_run import audit
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    fam = FAMILIES["soft-particles"]
+    assert fam.module == ENGINE and fam.scenes == audit_soft_particles.SCENES
+    assert fam.study is soft_particles_study.study
+    shipped = {s.name: s for s in audit_soft_particles.SCENES}
+    assert {n for n, s in shipped.items() if s.quick} == {"sphere-a0p95", "box-a0p95", "sphere-a0p95-inside"}
+    for s in shipped.values():
+        alpha = float(s.name.split("-a")[1].split("-")[0].replace("p", "."))
+        assert -math.expm1(-2.0 * float(s.defines["sigma"])) == pytest.approx(alpha, rel=1e-12)
+        defaults = {e.get("name") for e in ET.parse(LIBRARY_DIR / s.file).getroot().iter("default")}
+        assert set(s.defines) <= defaults
+    names = ("sphere-a0p95", "box-a0p95")
+    audits = tuple(
+        audit(LIBRARY_DIR / shipped[n].file, ["soft-particles"], spp=256, width=12, height=12,
+              cache=tmp_path / "cache", tag=(f"{n}-", f"{n}: "), metrics=("rmse",),
+              defines=dict(shipped[n].defines))
+        for n in names
+    )  # fmt: skip
+    spreads = {}
+    for n, r in zip(names, audits, strict=True):
+        (case,) = r.cases
+        shape = case.parameters["shape"]
+        inp = case.channel_inputs[0]
+        # the exact kernels' rays in the unit shape's frame: for the cube a signed permutation A of the
+        # world axes (its faces' order), recovered from the centre c_local = Aᵀ(0.3, 0.2, 4)
+        c_local = np.array([inp["cx"][0], inp["cy"][0], inp["cz"][0]])
+        b = np.array([0.3, 0.2, 4.0])
+        perm = np.array(
+            [[round(ci / bj) if abs(abs(ci) - abs(bj)) < 1e-5 else 0 for ci in c_local] for bj in b]
+        )
+        assert sorted(np.abs(perm).sum(axis=0)) == [1, 1, 1]
+        d = np.stack([inp["dx"], inp["dy"], inp["dz"]], axis=1) @ perm.T  # world rays
+        want = _hand_chord(d, shape, (0.3, 0.2, 4.0), float(shipped[n].defines["sigma"]))
+        assert case.parameters["cut_pixels"] > 20
+        assert np.allclose(r.image(case.id, f"exact-{shape}")[case.mask][:, 0], want, atol=3e-6)
+        ref, t = case.reference.mean[case.mask][:, 0], 1.0 - want
+        ok = t * (1 - t) > 0
+        spreads[case.id] = np.std((ref[ok] - want[ok]) / np.sqrt(t[ok] * (1 - t[ok]) / 256))
+    small = {"fit_alphas": (0.95,), "samples": 600, "scene": (24, 16)}
+    monkeypatch.setitem(soft_particles_study.DOMAIN, True, small)
+    res = soft_particles_study.study(
+        StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "cache", audits)
+    )
+    failed = [c.name for c in res.checks if not c.passed]
+    assert not failed, failed
+    for cid, spread in spreads.items():
+        (chk,) = [c for c in res.checks if c.name.startswith(f"reference {cid}") and "spread" in c.name]
+        assert chk.value == pytest.approx(spread, rel=1e-4)
+    assert {f.file for f in res.figures} == {"figures/scene-100.png", "figures/error_vs_delta.png"}
+    assert all((tmp_path / f.file).is_file() for f in res.figures)
+    assert (tmp_path / "fitted" / "soft-particles-domain.json").is_file()
+    assert {t["method"] for t in res.extra["domain_study"]} >= {"linear", "linear-fit", "spherical", "fitted"}
+
+
+def test_audit_list_names_soft_particles_on_the_shipped_scenes():
+    """``rtfit audit SCENE -D … --list`` on each shipped file with a scene's defines names the family."""
+    from click.testing import CliRunner
+
+    from rtfit.experiments.audit_cli import audit as audit_cli
+    from rtfit.experiments.audit_soft_particles import SCENES
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    for s in (SCENES[1], SCENES[2]):  # the cube; the sphere around the camera
+        args = [
+            str(LIBRARY_DIR / s.file),
+            "--list",
+            *(x for k, v in s.defines.items() for x in ("-D", f"{k}={v}")),
+        ]
+        result = CliRunner().invoke(audit_cli, args)
+        assert result.exit_code == 0, result.output
+        assert "soft-particles — particle opacity: homogeneous medium in a" in result.stdout

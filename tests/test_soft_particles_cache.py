@@ -26,14 +26,14 @@ SPP, PASS_SPP = 256, 128
 
 @pytest.fixture(scope="module")
 def dirs():
-    from rtfit.experiments.soft_particles import pixel_dirs
+    from rtfit.experiments.soft_particles_kernels import pixel_dirs
 
     return pixel_dirs((6, 6), 40.0).reshape(-1, 3)
 
 
 @pytest.fixture(scope="module")
 def sigma():
-    from rtfit.experiments.soft_particles import sigma_of
+    from rtfit.experiments.particle_geometry import sigma_of
 
     return sigma_of(0.9, 1.0)
 
@@ -183,7 +183,7 @@ def test_every_pass_runs_under_the_watchdog(tmp_path, dirs, sigma, monkeypatch):
 def test_pooled_reference_matches_the_chord_and_the_binomial_noise(first, dirs, sigma):
     """z-scores of the pooled mean against exp(−σℓ) of the analytic chord with √(T(1 − T)/N), and the pooled
     sample variance equal to N/(N − 1)·T̂(1 − T̂) (every sample is 0 or 1 up to float32 rounding)."""
-    from rtfit.experiments.soft_particles import plane_distance, ray_inputs
+    from rtfit.experiments.soft_particles_kernels import plane_distance, ray_inputs
 
     _, ref, _ = first
     ts = plane_distance(dirs, np.asarray(POINT), np.asarray(NORMAL))
