@@ -301,7 +301,7 @@ def test_run_obscurances_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_
     90° crease (14² pixels, 256 spp) as the engine hands it over. Independent values: on the crease's inner
     faces (away from its ends, where nothing within R = 0.3 is missing) W is a function of the distance to
     the other face alone, by scipy quadrature (`_perpendicular_plane_obscurance`): the engine's model
-    reference matches it (|z| ≤ 5) and the 64-ray estimator of the study is unbiased for it."""
+    reference matches it (|z| < 5) and the rows' 32-ray estimator is unbiased for it."""
     from rtfit.experiments import audit_obscurances, obscurances_study
     from rtfit.experiments.audit_family import StudyContext
     from rtfit.experiments.audit_run import audit
@@ -345,6 +345,7 @@ def test_run_obscurances_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_
     assert rays["64"]["rmse"] < rays["4"]["rmse"]
     assert {f.file for f in study.figures} == {"figures/rays_error.png", "figures/rays_cost.png"}
     assert all((tmp_path / f.file).is_file() for f in study.figures)
+    assert (tmp_path / study.extra["joint_fits_file"]).is_file()
     # the rows' 32 distances on the picked points: the seed estimator's mean against the quadrature
     seed = obscurances_study._eval("power", sc.distances()[:, pick], {"d_max": 0.3, "exponent": 0.5})
     diff = seed - expect
