@@ -41,6 +41,7 @@ from rtfit.realtime.methods import Input, Method
 from rtfit.realtime.obscurances import (
     METHODS,
     MISS,
+    SEED_D_MAX,
     SEED_EXPONENT,
     cosine_spiral_directions,
     distance_weight,
@@ -50,10 +51,10 @@ from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.occlusion import hit_distances, occlusion_pass
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
 from .audit_geometry import ao_radius
 
-__all__ = ["AMBIENT_ALBEDO", "FAMILY", "MISS", "RAYS", "obscurance_cases", "on_rays"]
+__all__ = ["AMBIENT_ALBEDO", "FAMILY", "MISS", "RAYS", "SCENES", "obscurance_cases", "on_rays"]
 
 FORMAT = 1
 RAYS = 32
@@ -61,6 +62,38 @@ RAYS = 32
 AMBIENT_ALBEDO = 0.8
 """Albedo of every surface in the uniform-ambient reference (the obscurances experiment's ``albedo``)."""
 ROLE = "obscurance"
+
+SCENE_LABELS = {
+    "crease_90": "thick V of interior angle 90° (a crease)",
+    "sphere_plane": "sphere of radius 0.5 resting on a 4 × 4 slab (smooth normals)",
+    "room": "closed 2 × 2 × 1.4 room with an open window, seen from inside",
+    "boxes": "city block: a 4 × 4 grid of boxes of seeded heights on a 5 × 5 slab",
+    "crease_30": "thick V of interior angle 30°, seen from the open side",
+    "crease_60": "thick V of interior angle 60°",
+    "crease_120": "thick V of interior angle 120°",
+    "character": "procedural character standing on a slab (smooth normals)",
+}
+"""The sdf-occlusion scenes (``scenes/library/sdf_<name>.toml``, geometry by
+`rtfit.experiments.sdf_occlusion_scenes`) the family ships, the first four ``--quick``."""
+QUICK_SCENES = ("crease_90", "sphere_plane", "room", "boxes")
+
+SCENES = tuple(
+    ShippedScene(
+        f"sdf_{name}.toml",
+        f"{label}; white diffuse, R = d_max = {SEED_D_MAX:g} (the seed's)",
+        size=(128, 128),
+        spp=1024,
+        quick_size=(36, 36),
+        quick_spp=64,
+        options={"ao_distance": SEED_D_MAX},
+        quick=name in QUICK_SCENES,
+    )
+    for name, label in SCENE_LABELS.items()
+)
+"""The scenes ``rtfit run obscurances`` audits (scenes/library/): the sdf-occlusion scenes at the seed's
+d_max = 0.3 (001:3326) as the AO radius R (``ao_distance``), so the model reference is the seed's W and the
+``seed`` row is the seed's estimator; sizes and samples those of the experiment before the engine (quick:
+36², 64 spp; full: 128², 1024 spp)."""
 
 
 def on_rays(method: Method, rays: int, **fixed) -> Method:

@@ -70,6 +70,7 @@ from . import (
     audit_soft_particles,
     audit_volumetric_lightning,
     diffuse_study,
+    obscurances_study,
     soft_particles_study,
 )
 from .audit import Rule
@@ -252,13 +253,15 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "obscurances",
-            "rtfit.experiments.obscurances",
+            ENGINE,
             "Obscurances (Zhukov/Iones) vs their Monte Carlo definition and uniform-ambient path tracing",
             "The K-ray obscurance estimator with the seed's √(d/d_max) against the model's ray-cast "
             "definition (error vs rays vs cost), and fitted d_max, exponent and ambient scale against "
             "path-traced interreflections under a uniform ambient, on the sdf-occlusion scenes.",
             methods=obscurances.METHODS,
             audits=(audit_obscurances.FAMILY,),
+            scenes=audit_obscurances.SCENES,
+            study=obscurances_study.study,
         ),
         Family(
             "fresnel",

@@ -92,7 +92,6 @@ FAMILY_LINES_CEILING = {
     "irradiance_volumes": 924,
     "light_cones": 890,
     "nishita_sky": 1726,
-    "obscurances": 949,
     "parallax_occlusion": 972,
     "sdf_occlusion": 1914,
     "volumetric_lightning": 850,

@@ -245,7 +245,8 @@ def test_hit_distances_facing_a_plane_are_h_over_mu(plane):
 def test_mitsuba_obscurance_and_uniform_ambient_match_closed_forms(plane, tmp_path):
     """Reference (a) facing the plane vs the closed form, and reference (b) (uniform ambient, albedo a)
     facing the plane = a: |z| ≤ 4 (measured max 1.6 at 2^14 samples); an open plane gives exactly 1."""
-    from rtfit.experiments.obscurances import spawn_height, weight_of
+    from rtfit.experiments.obscurances_study import spawn_height
+    from rtfit.realtime.obscurances import distance_weight as weight_of
     from rtfit.reference.occlusion import OcclusionCache
 
     mi, scene = plane
@@ -276,3 +277,76 @@ def test_mitsuba_obscurance_and_uniform_ambient_match_closed_forms(plane, tmp_pa
         **kw,
     )
     assert np.all(r.mean == 1.0) and np.all(r.stderr == 0.0)
+
+
+# ------------------------------------------------------------------ rtfit run obscurances: engine + study
+def _perpendicular_plane_obscurance(h: float, radius: float, p: float = 0.5) -> float:
+    """W of a point at distance h from a plane perpendicular to its own surface (the 90° crease: a floor
+    point facing +z, the wall x = 0 at distance h), ρ = min(d/R, 1)^p, by scipy quadrature over the
+    hemisphere: a ray towards the wall with t = −ω_x hits it at d = h/t; only d < R (t > h/R) lowers W."""
+    from scipy.integrate import dblquad
+
+    def integrand(phi, theta):
+        t = -math.sin(theta) * math.cos(phi)
+        if t <= h / radius:
+            return 0.0
+        return (1.0 - (h / (t * radius)) ** p) * math.cos(theta) * math.sin(theta)
+
+    lost, _ = dblquad(integrand, 0.0, math.pi / 2, math.pi / 2, 3 * math.pi / 2, epsabs=1e-10)
+    return 1.0 - lost / math.pi
+
+
+def test_run_obscurances_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
+    """``rtfit run obscurances`` = the engine's audit of the shipped sdf-occlusion scenes + the study, on the
+    90° crease (14² pixels, 256 spp) as the engine hands it over. Independent values: on the crease's inner
+    faces (away from its ends, where nothing within R = 0.3 is missing) W is a function of the distance to
+    the other face alone, by scipy quadrature (`_perpendicular_plane_obscurance`): the engine's model
+    reference matches it (|z| < 5) and the rows' 32-ray estimator is unbiased for it."""
+    from rtfit.experiments import audit_obscurances, obscurances_study
+    from rtfit.experiments.audit_family import StudyContext
+    from rtfit.experiments.audit_run import audit
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    fam = FAMILIES["obscurances"]
+    assert fam.module == ENGINE and fam.scenes == audit_obscurances.SCENES
+    assert fam.study is obscurances_study.study
+    assert all((LIBRARY_DIR / s.file).is_file() for s in fam.scenes)
+    shipped = {s.name: s for s in fam.scenes}
+    assert [s.name for s in fam.scenes if s.quick] == [
+        "sdf_crease_90",
+        "sdf_sphere_plane",
+        "sdf_room",
+        "sdf_boxes",
+    ]
+    s = shipped["sdf_crease_90"]
+    res = audit(LIBRARY_DIR / s.file, ["obscurances"], spp=256, width=14, height=14, cache=tmp_path / "c",
+                tag=("sdf_crease_90-", ""), metrics=("rmse",), **dict(s.options))  # fmt: skip
+    ctx = StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "c", (res,))
+    (sc,) = obscurances_study.scene_cases(ctx.audits)
+    assert sc.radius == pytest.approx(0.3)
+    with obscurances_study._visible_points(sc, "llvm_ad_rgb") as (_mi, _scene, pts, nrm):
+        pts, nrm = np.array(pts), np.array(nrm)
+    floor = (nrm[:, 2] > 0.99) & (pts[:, 0] > 0.01) & (pts[:, 0] < 1.6) & (np.abs(pts[:, 1]) < 0.6)
+    wall = (nrm[:, 0] > 0.99) & (pts[:, 2] > 0.01) & (pts[:, 2] < 1.6) & (np.abs(pts[:, 1]) < 0.6)
+    pick = np.flatnonzero(floor | wall)
+    assert pick.size >= 20
+    h = np.where(floor, pts[:, 0], pts[:, 2])[pick]
+    expect = np.array([_perpendicular_plane_obscurance(x, 0.3) for x in h])
+    assert expect.min() < 0.95  # some points see the other face within R
+    ref = sc.model.reference.mean[sc.mask][:, 0][pick]
+    err = sc.model.reference.stderr[sc.mask][:, 0][pick]
+    z = (ref - expect) / np.sqrt(err**2 + 1e-6**2)
+    assert np.max(np.abs(z)) < 5.0, z
+    study = obscurances_study.study(ctx)
+    assert all(ch.passed for ch in study.checks), study.checks
+    rays = study.extra["rays"]["sdf_crease_90"]
+    assert set(rays) == {str(k) for k in obscurances_study.RAYS_QUICK}
+    assert rays["64"]["rmse"] < rays["4"]["rmse"]
+    assert {f.file for f in study.figures} == {"figures/rays_error.png", "figures/rays_cost.png"}
+    assert all((tmp_path / f.file).is_file() for f in study.figures)
+    assert (tmp_path / study.extra["joint_fits_file"]).is_file()
+    # the rows' 32 distances on the picked points: the seed estimator's mean against the quadrature
+    seed = obscurances_study._eval("power", sc.distances()[:, pick], {"d_max": 0.3, "exponent": 0.5})
+    diff = seed - expect
+    assert abs(diff.mean()) < 4 * diff.std(ddof=1) / math.sqrt(diff.size) + 1e-3
