@@ -96,7 +96,6 @@ FAMILY_LINES_CEILING = {
     "parallax_occlusion": 972,
     "sdf_occlusion": 1914,
     "soft_particles": 1199,
-    "volumetric_lightning": 850,
 }
 
 
