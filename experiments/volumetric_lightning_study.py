@@ -31,6 +31,7 @@ import mpmath
 import numpy as np
 
 from rtfit.realtime.volumetric_lightning import METHODS
+from rtfit.reference.single_scattering import FOUR_PI
 
 from . import figures
 from .audit_family import Study, StudyContext
@@ -50,7 +51,6 @@ __all__ = [
     "study",
 ]
 
-FOUR_PI = 4.0 * math.pi
 CORE_RADII = (0.03, 0.1, 0.3)
 """Fixed softening radii ρ = 1/√a of the seed model, over the light's distance D, each with i fitted alone."""
 SOFTENING_BINS = np.array([0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 10.0])
@@ -400,7 +400,9 @@ def _summary(acc: dict, soft: dict) -> str:
         text += (
             f" {bound} of {len(fitted)} fits put a on its upper bound (fitted 1/√a = {min(core):.2g}–"
             f"{max(core):.2g}·D): a point light wants no softening. The fitted far-field level i/a is "
-            f"{min(keff):.2f}–{max(keff):.2f} of σ_s·I/(4π) (below 1 where extinction dims the light). "
+            f"{min(keff):.2f}–{max(keff):.2f} of σ_s·I/(4π) (extinction lowers it; "
+            "a core pinned at its bound wider than the nearest rays' "
+            "closest approach raises it). "
             f"A fixed core ρ costs more than 10 % over the fitted model for rays passing within {reach_text}."
         )
     return text
