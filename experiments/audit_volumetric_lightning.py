@@ -46,7 +46,7 @@ from rtfit.realtime.volumetric_lightning import METHODS
 from rtfit.reference.single_scattering import point_single_scattering
 
 from .audit import Applicability, Rule
-from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_family import AuditFamily, AuditSetup, FamilyCase, ShippedScene
 from .audit_lit_media import (
     LitMedium,
     Stretches,
@@ -56,7 +56,35 @@ from .audit_lit_media import (
 )
 from .scattering_reference import fit_params
 
-__all__ = ["FAMILY", "lightning_cases"]
+__all__ = ["DISTANCES_M", "FAMILY", "SCENES", "SIGMAS_T", "lightning_cases"]
+
+DISTANCES_M = (1.0, 4.0, 16.0, 32.0)
+"""The light's distance scale D (m) of the shipped scenes: the light at D·(0.1, 1, 0.04), I = D² W/sr."""
+SIGMAS_T = (0.002, 0.01, 0.05)
+"""The media's extinction σ_t = σ_s (1/m, albedo 1) of the shipped scenes: thin to dense."""
+QUICK = {"D": (4.0, 16.0), "sigma_t": (0.01, 0.05)}
+"""Those ``--quick`` audits (as the experiment before the engine)."""
+
+
+def _scene(distance: float, sigma_t: float) -> ShippedScene:
+    return ShippedScene(
+        "volumetric_lightning_point.xml",
+        f"point light at D = {distance:g} m (I = D² W/sr) in a medium of σ_t = {sigma_t:g} /m, albedo 1",
+        size=(96, 64),
+        spp=4096,
+        quick_size=(24, 16),
+        quick_spp=512,
+        defines={"D": f"{distance:g}", "intensity": f"{distance * distance:g}", "sigma_t": f"{sigma_t:g}"},
+        name=f"D{distance:g}-s{sigma_t:g}".replace(".", "p"),
+        quick=distance in QUICK["D"] and sigma_t in QUICK["sigma_t"],
+    )
+
+
+SCENES = tuple(_scene(d, s) for d in DISTANCES_M for s in SIGMAS_T)
+"""The scenes ``rtfit run volumetric-lightning`` audits (scenes/library/volumetric_lightning_point.xml, one
+per (D, σ_t)): an isotropic point light in a non-absorbing homogeneous medium that fills a 40 × 41 × 40 m box
+around the camera, nothing else (the cases of the experiment before the engine). Each view ray's stretch
+runs from the camera to the box's far wall."""
 
 
 def _quadrature(lit: LitMedium, rays: Stretches, c: int) -> np.ndarray:

@@ -72,6 +72,7 @@ from . import (
     diffuse_study,
     obscurances_study,
     soft_particles_study,
+    volumetric_lightning_study,
 )
 from .audit import Rule
 from .audit_family import AuditFamily, ShippedScene, Study, StudyContext, by_name
@@ -196,12 +197,14 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "volumetric-lightning",
-            "rtfit.experiments.volumetric_lightning",
+            ENGINE,
             "Volumetric lightning: the seed's softened point light along the view ray vs single scattering",
             "The closed-form line integral of i/(1 + a·r²) (stable float32 form vs the printed one) against "
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
             methods={**LIGHTNING_METHODS, "quadrature": LIGHTNING_QUADRATURE},
             audits=(audit_volumetric_lightning.FAMILY,),
+            scenes=audit_volumetric_lightning.SCENES,
+            study=volumetric_lightning_study.study,
         ),
         Family(
             "aerial-perspective",

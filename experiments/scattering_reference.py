@@ -1,8 +1,9 @@
-"""The pieces the volumetric-lightning and light-cones experiments share (neither imports the other): the
-reference render job of a single-scattering scene, the fits' residual scale and closed-form level fit, the
-reference checks of Mitsuba's single scattering against the quadrature of `rtfit.reference.single_scattering`,
-and the point light's fit parameters (`fit_params`: start and bounds of the stable form's (i, a) from a
-case's physics), which the volumetric-lightning audit reads too.
+"""The pieces of single scattering from a light in a medium that several modules share: the reference render
+job of a single-scattering scene, the fits' residual scale and closed-form level fit (the light-cones
+experiment; `fit_level` also the volumetric-lightning study's fixed-core models), the reference checks of
+Mitsuba's single scattering against the quadrature of `rtfit.reference.single_scattering`, and the point
+light's fit parameters (`fit_params`: start and bounds of the stable form's (i, a) from a case's physics),
+which the volumetric-lightning audit reads.
 
 A pixel's reference is Mitsuba ``volpathmis`` with max_depth 2 (single scattering) of a light inside a
 homogeneous medium box around the camera; the checks compare it with the quadrature on the pixels whose

@@ -22,7 +22,6 @@ from rtfit.experiments import height_fog as hf
 from rtfit.experiments import irradiance_bases as ib
 from rtfit.experiments import nishita_sky as ns
 from rtfit.experiments import sdf_occlusion as so
-from rtfit.experiments import volumetric_lightning as vl
 from rtfit.experiments.fitted import (
     FORMAT,
     FittedError,
@@ -40,6 +39,7 @@ from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.diffuse import METHODS as DIFFUSE
 from rtfit.realtime.height_fog import METHODS as FOG
 from rtfit.realtime.irradiance_bases import basis_irradiance
+from rtfit.realtime.volumetric_lightning import METHODS as LIGHTNING
 
 from .test_shader import compile_function
 
@@ -196,12 +196,19 @@ def _nishita_sky(out: Path):
 
 
 def _volumetric_lightning(out: Path):
-    p = vl.case_parameters(4.0, 0.05)
-    dirs = np.array([[[0.0, 1.0, 0.0], [0.6, 0.8, 0.0]]])
-    fits = {"D4-s0.05": _fit({"i": 3.0, "a": 600.0}, method=vl.METHODS["stable"])}
-    vl.write_fitted(
-        out, fits, {"D4-s0.05": p}, None, {"spp": 8}, {"D4-s0.05": "ab12"}, {"D4-s0.05": {"view_dir": dirs}}
+    """The engine's fitted file of ``rtfit run volumetric-lightning``: the stable form's (i, a) fitted on one
+    shipped scene (`method_entry` of the fitted row, as `audit_output.fitted_entries` writes it)."""
+    m = LIGHTNING["stable"]
+    entry = method_entry(
+        m,
+        _fit({"i": 3.0, "a": 600.0}, method=m),
+        case="D4-s0p05-light0-inscatter",
+        residual_units="W/m²/sr",
+        domain={"camera_to_light_m": (4.02, 4.02, "m")},
     )
+    prov = provenance(None, "volumetric-lightning")
+    doc = FittedFile(FORMAT, "stable form fitted per scene", prov, [entry])
+    write_fitted(out / "fitted" / "volumetric-lightning.json", doc)
 
 
 WRITERS = {
@@ -214,7 +221,7 @@ WRITERS = {
     "ambient-aperture": (_ambient_aperture, ["intersection.json", "lambert.json"]),
     "sdf-occlusion": (_sdf_occlusion, ["evans_joint_sky.json", "per_case.json"]),
     "nishita-sky": (_nishita_sky, ["nishita_artist_params.json"]),
-    "volumetric-lightning": (_volumetric_lightning, ["lightning-D4-s0.05.json"]),
+    "volumetric-lightning": (_volumetric_lightning, ["volumetric-lightning.json"]),
 }
 
 

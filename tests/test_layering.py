@@ -94,7 +94,6 @@ FAMILY_LINES_CEILING = {
     "nishita_sky": 1726,
     "parallax_occlusion": 972,
     "sdf_occlusion": 1914,
-    "volumetric_lightning": 850,
 }
 
 

@@ -27,13 +27,21 @@ import drjit as dr
 import mpmath as mp
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtfit.experiments.volumetric_lightning import random_domain as domain
+from rtfit.experiments import audit_volumetric_lightning
+from rtfit.experiments import volumetric_lightning_study as study
+from rtfit.experiments.audit_cli import audit as audit_cmd
+from rtfit.experiments.audit_family import StudyContext
+from rtfit.experiments.audit_run import audit
+from rtfit.experiments.families import ENGINE, FAMILIES
+from rtfit.experiments.volumetric_lightning_study import random_domain as domain
 from rtfit.realtime import NUMPY_OPS, inverse_square_airlight, volumetric_lightning
 from rtfit.realtime.volumetric_lightning import METHODS
 from rtfit.reference.single_scattering import point_estimator_variance, point_single_scattering
+from rtfit.scenes.parse import LIBRARY_DIR
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # kernels must not warn (0/0, overflow)
 
@@ -356,30 +364,78 @@ def test_single_scattering_quadrature_at_the_edges_of_its_domain(light, h_rel, s
     assert abs(got[0] / want - 1) <= tol
 
 
-def test_tiny_experiment_runs_and_passes(tmp_path):
-    """End to end on a tiny configuration: every check passes, the fitted file loads with its units and
-    bounds, and the reference resolves the light's peak on most pixels."""
-    from rtfit.experiments.fitted import load_fitted
+def test_study_mpmath_closed_form_matches_the_quadrature(sample):
+    """The study's mpmath truth (the closed form at 50 digits, `mpmath_value`) against `quad_integral` (no
+    closed form) at 40 points of the domain, the first 20 of them generic and the last 20 near-axial at
+    a = 100 and 1e3, and at the limits a = 0 and |d| = 0."""
+    o, d, lpos, a, truth = sample
+    for j in [*range(20), *range(len(a) - 20, len(a))]:
+        got = study.mpmath_value(o[j], d[j], lpos[j], a[j])
+        assert abs(got - truth[j]) <= 1e-13 * abs(truth[j]), (j, got, truth[j])
+    assert study.mpmath_value((0, 0, 0), (3.0, 4.0, 0.0), (1.0, 2.0, 3.0), 0.0) == 5.0
+    assert study.mpmath_value((0, 0, 0), (0.0, 0.0, 0.0), (1.0, 2.0, 3.0), 0.5) == 0.0
 
-    from .conftest import run_tiny_experiment
 
-    tiny = {
-        "distances_m": [4.0],
-        "sigma_t_per_m": [0.05],
-        "core_radii": [0.1],
-        "resolution": [12, 8],
-        "spp": 1024,
-        "pass_spp": 512,
-        "random_samples": 2000,
-        "cost_elements": 4096,
-        "image_figures": 1,
-    }
-    res = run_tiny_experiment("volumetric-lightning", tmp_path, tiny)
-    failed = [c.name for c in res.checks if not c.passed]
-    assert not failed, failed
-    fitted = load_fitted(tmp_path / "out" / "volumetric-lightning" / "fitted" / "lightning-D4-s0.05.json")
-    (entry,) = fitted.methods
-    assert set(entry.parameters) == {"i", "a"} and entry.shader is not None
-    assert entry.parameters["a"].unit == "1/m²" and entry.parameters["a"].upper is not None
-    case = res.cases[0]
-    assert case.parameters["pixels_resolved"] >= case.parameters["pixels"] // 2
+def _shipped_audit(tmp_path, name: str, width: int = 12, height: int = 8):
+    shipped = {s.name: s for s in audit_volumetric_lightning.SCENES}[name]
+    tag = (f"{shipped.name}-", f"{shipped.name}: ")
+    return audit(LIBRARY_DIR / shipped.file, ["volumetric-lightning"], spp=256, width=width, height=height,
+                 defines=shipped.defines, cache=tmp_path / "cache", tag=tag, metrics=("rmse",))  # fmt: skip
+
+
+def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
+    """``rtfit run volumetric-lightning`` = the engine's audits of the shipped scenes (one XML file, a point
+    light in a homogeneous medium, with ``-D`` values per scene) + `volumetric_lightning_study.study`, on two
+    of them (D = 4 m, σ_t = 0.01 and 0.05 /m; 12×8 pixels, 256 spp). Independent values: the light's
+    position, intensity and σ_t as Mitsuba loaded them from the defines (D·(0.1, 1, 0.04), D², σ_t); the
+    engine's z-checks of the quadrature row; the softening profile's inverse-square column against the
+    textbook airlight K·(atan(s₁/h) − atan(s₀/h))/h per pixel; the float32 table's known failure of the
+    printed form near the axis; every study check passes."""
+    fam = FAMILIES["volumetric-lightning"]
+    assert fam.module == ENGINE and fam.scenes == audit_volumetric_lightning.SCENES
+    assert fam.study is study.study
+    assert len(fam.scenes) == 12 and sum(s.quick for s in fam.scenes) == 4
+    audits = tuple(_shipped_audit(tmp_path, n) for n in ("D4-s0p01", "D4-s0p05"))
+    for r, sigma in zip(audits, (0.01, 0.05), strict=True):
+        (case,) = r.cases
+        p = case.parameters
+        np.testing.assert_allclose(p["position_m"], [0.4, 4.0, 0.16], rtol=1e-6)
+        np.testing.assert_allclose(p["intensity_W_per_sr"], [16.0] * 3, rtol=1e-6)
+        np.testing.assert_allclose(p["sigma_t_per_m"], [sigma] * 3, rtol=1e-6)
+        assert p["pixels"] == 12 * 8 and p["camera_inside_medium"]
+        assert all(c.passed for c in r.results.checks), [c.name for c in r.results.checks if not c.passed]
+    ctx = StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "cache", audits)
+    res = study.study(ctx)
+    assert all(c.passed for c in res.checks), [c.name for c in res.checks if not c.passed]
+    near = [t for t in res.extra["float32_accuracy"] if t["inputs"].startswith("near-axial rays, a = 100 ")]
+    assert {t["form"]: t["non_finite"] > 0 for t in near} == {"stable": False, "seed": True}
+    for r in audits:
+        (case,) = r.cases
+        soft = res.extra["softening"][case.id]
+        g = case.channel_inputs[0]
+        o = np.stack([g["ox"], g["oy"], g["oz"]], 1)
+        d = np.stack([g["dx"], g["dy"], g["dz"]], 1)
+        c = np.stack([g["lx"], g["ly"], g["lz"]], 1) - o
+        length = np.linalg.norm(d, axis=1)
+        u = d / length[:, None]
+        along = np.sum(c * u, axis=1)
+        h = np.linalg.norm(c - along[:, None] * u, axis=1)
+        k = float(case.parameters["K_W_per_m_sr"])
+        airlight = k * (np.arctan((length - along) / h) + np.arctan(along / h)) / h
+        ref = case.reference.mean[case.mask][:, 0]
+        bins = np.digitize(h / soft["distance_m"], study.SOFTENING_BINS) - 1
+        prof = soft["profile"]
+        for (lo, _hi), mean in zip(prof["h_over_D"], prof["inverse-square"], strict=True):
+            sel = bins == int(np.searchsorted(study.SOFTENING_BINS, lo))
+            assert mean == pytest.approx(float(np.mean(airlight[sel] / ref[sel] - 1)), rel=1e-4, abs=1e-6)
+    dense, thin = (res.extra["softening"][r.cases[0].id]["fitted_K_over_true_K"] for r in audits[::-1])
+    assert dense < thin < 1.05  # extinction dims the far field, more in the denser medium
+    assert (tmp_path / "figures" / "error_vs_closest_approach.png").is_file()
+
+
+def test_audit_list_names_the_family_on_the_shipped_scene():
+    scene = LIBRARY_DIR / "volumetric_lightning_point.xml"
+    out = CliRunner().invoke(audit_cmd, [str(scene), "--list", "-D", "sigma_t=0.002"])
+    assert out.exit_code == 0, out.output
+    line = next(x for x in out.output.splitlines() if x.strip().startswith("volumetric-lightning"))
+    assert "point light 'lamp'" in line and "inside the homogeneous medium" in line
