@@ -44,6 +44,7 @@ from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, shape_plugin
 from rtfit.reference.variants import inspection_variant, scoped_variant
 from rtfit.scenes import ENVIRONMENT_KINDS, Scene, SceneError, library_names, library_path, load_scene
 from rtfit.scenes.model import PointLight, SpotLight
+from rtfit.scenes.parse import LIBRARY_DIR
 
 __all__ = [
     "AO_FRACTION",
@@ -699,9 +700,13 @@ def inspect_scene(
     path = Path(text)
     if not path.exists() and text.removesuffix(".toml").replace("-", "_") in library_names():
         path = library_path(text)
+    elif not path.exists() and "/" not in text and os.sep not in text:  # a shipped Mitsuba XML scene
+        xml = LIBRARY_DIR / f"{text.removesuffix('.xml').replace('-', '_')}.xml"
+        path = xml if xml.is_file() else path
     if not path.is_file():
         raise AuditError(
-            f"{text}: no such scene file (a .xml Mitsuba scene, a .toml rtfit scene, or a library name)"
+            f"{text}: no such scene file (a .xml Mitsuba scene, a .toml rtfit scene, or the name of a scene "
+            "of rtfit's library, scenes/library/)"
         )
     if path.suffix.lower() == ".xml":
         try:

@@ -142,3 +142,15 @@ def test_defines_name_the_scene_and_reach_the_audit():
     assert s.name == "x-alpha5-sky0_2"
     with pytest.raises(ValueError, match="defines are for Mitsuba XML"):
         ShippedScene("x.toml", "x", defines={"a": "1"})
+
+
+def test_a_shipped_xml_scene_is_named_like_a_toml_one():
+    """`rtfit audit NAME` finds the library's Mitsuba XML scenes by name, as it finds its TOML ones."""
+    from rtfit.experiments.audit import AuditError, inspect_scene
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    info = inspect_scene("fresnel_spheres")
+    assert info.format == "mitsuba-xml" and info.source == str(LIBRARY_DIR / "fresnel_spheres.xml")
+    assert inspect_scene("fresnel-spheres.xml").source == info.source
+    with pytest.raises(AuditError, match="no such scene file"):
+        inspect_scene("no_such_shipped_scene")
