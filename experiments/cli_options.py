@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .registry import SPP_MAX
+
 __all__ = [
     "CACHE_HELP",
     "VARIANT_CHOICES",
@@ -56,13 +58,9 @@ def variant_option(
 
 def spp_option(help_text: str = "Reference samples per pixel (256)."):
     """``--spp N`` (2 … `registry.SPP_MAX`; default None: the command's own), as the argument ``spp``."""
-    from .registry import SPP_MAX
-
     return click.option("--spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help=help_text)
 
 
 def pass_spp_option(help_text: str = "Samples per cached pass (32)."):
     """``--pass-spp N`` (2 … `registry.SPP_MAX`; default None), as the argument ``pass_spp``."""
-    from .registry import SPP_MAX
-
     return click.option("--pass-spp", type=click.IntRange(min=2, max=SPP_MAX), default=None, help=help_text)

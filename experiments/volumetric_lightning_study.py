@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import mpmath
 import numpy as np
 
 from rtfit.realtime.volumetric_lightning import METHODS
@@ -106,6 +105,8 @@ def mpmath_value(o, d, lpos, a, i: float = 1.0, dps: int = 50) -> float:
     """∫₀¹ i|d|/(1 + a|o + t·d − l|²) dt for one input, in mpmath at ``dps`` digits from the exact float
     inputs: with u = a|d|², v = −2a·d·c, w = 1 + a|c|² (c = l − o) and Δ = 4uw − v², the integral is
     i|d|·2/√Δ·[atan((2u + v)/√Δ) − atan(v/√Δ)] (a = 0: i|d|; |d| = 0: 0). Independent of the kernel text."""
+    import mpmath  # (heavy: imported by the study only, not by `rtfit --help` through the registry)
+
     with mpmath.workdps(dps):
         o, d, lpos = ([mpmath.mpf(float(x)) for x in v] for v in (o, d, lpos))
         a, i = mpmath.mpf(float(a)), mpmath.mpf(i)
