@@ -25,6 +25,7 @@ import numpy as np
 from rtfit.fitting import MetricResults, compute_metrics, z_score_summary
 
 from . import figures
+from .records import Check
 
 __all__ = [
     "FrameAnalysis",
@@ -301,28 +302,28 @@ def analyse_frame(
     )  # fmt: skip
 
 
-def frame_checks(label: str, a: FrameAnalysis) -> list[dict]:
+def frame_checks(label: str, a: FrameAnalysis) -> list[Check]:
     """The results' checks of one frame: within noise, scale, registration."""
     return [
-        {
-            "name": f"{label}: within the reference's noise",
-            "value": a.verdict,
-            "expected": "within noise",
-            "passed": a.within_noise,
-        },
-        {
-            "name": f"{label}: global scale",
-            "value": a.scale,
-            "expected": f"1 within {SCALE_SIGMAS:g}σ ({a.scale_stderr:.2g})"
+        Check(
+            name=f"{label}: within the reference's noise",
+            value=a.verdict,
+            expected="within noise",
+            passed=a.within_noise,
+        ),
+        Check(
+            name=f"{label}: global scale",
+            value=a.scale,
+            expected=f"1 within {SCALE_SIGMAS:g}σ ({a.scale_stderr:.2g})"
             + (" (or --fit-exposure)" if not a.scale_consistent else ""),
-            "passed": a.scale_consistent or a.fit_exposure,
-        },
-        {
-            "name": f"{label}: registration offset",
-            "value": f"({a.offset[0]:+d}, {a.offset[1]:+d}) px",
-            "expected": "(+0, +0) px or not beyond the noise",
-            "passed": not a.misaligned,
-        },
+            passed=bool(a.scale_consistent or a.fit_exposure),
+        ),
+        Check(
+            name=f"{label}: registration offset",
+            value=f"({a.offset[0]:+d}, {a.offset[1]:+d}) px",
+            expected="(+0, +0) px or not beyond the noise",
+            passed=not a.misaligned,
+        ),
     ]
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from .audit_output import case_figures, save_pixels
 from .compare_aovs import DEPTH_TOLERANCE
 from .compare_checks import frame_checks, shape_table, z_figure
-from .records import SCHEMA, Results, from_json, plain_json, to_json
+from .records import SCHEMA, Check, Results, from_json, plain_json, to_json
 from .report import write_report
 from .results import write_results
 from .runner import created_now, device_description, versions
@@ -147,12 +147,12 @@ def results_record(r: CompareResult, *, variant, spp, pass_spp, seed, fit_exposu
     if r.temporal:
         sections.append(_temporal_section(r.temporal))
         checks += [
-            {
-                "name": f"temporal stability {s['from']} → {s['to']}",
-                "value": s["error_change"],
-                "expected": f"≤ {FLICKER_FACTOR:g} × {s['noise_floor']:.2g}",
-                "passed": s["stable"],
-            }
+            Check(
+                name=f"temporal stability {s['from']} → {s['to']}",
+                value=s["error_change"],
+                expected=f"≤ {FLICKER_FACTOR:g} × {s['noise_floor']:.2g}",
+                passed=bool(s["stable"]),
+            )
             for s in r.temporal
         ]
     box = "through a uniform point of its pixel (the pixel's area average: a box-filtered or antialiased "
@@ -195,7 +195,7 @@ def results_record(r: CompareResult, *, variant, spp, pass_spp, seed, fit_exposu
         "config": {"variant": variant, "spp": spp, "seed": int(seed), "extra": extra},
         "sections": sections,
         "cases": cases,
-        "checks": checks,
+        "checks": [to_json(c) for c in checks],
         "notes": notes,
     }
     return from_json(Results, plain_json(doc), f"compare of {info.source}")
