@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -82,7 +83,7 @@ def lit_pixels(case, outcomes) -> np.ndarray:
     return case.reference.mean[case.mask][:, 0] > 0.0
 
 
-def chord_profile(items: list[tuple[str, object, dict]]) -> dict:
+def chord_profile(items: list[tuple[str, Any, dict]]) -> dict:
     """Per density: bias and RMS error over the mean (`bias_nrmse`) of each row per chord/L bin (views
     pooled), the RMS error per case, and the correlation of log(model/reference) with log chord, on the lit
     pixels (`lit_pixels`). ``items``: (case id, `FamilyCase`, its outcomes)."""
