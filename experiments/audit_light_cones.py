@@ -40,7 +40,7 @@ from rtfit.reference.medium_lights import medium_segments
 from rtfit.reference.single_scattering import spot_single_scattering
 
 from .audit import Applicability, Rule
-from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_family import AuditFamily, AuditSetup, FamilyCase, ShippedScene
 from .audit_lit_media import (
     LitMedium,
     Stretches,
@@ -48,7 +48,44 @@ from .audit_lit_media import (
     inscatter_case,
 )
 
-__all__ = ["FAMILY", "cone_cases"]
+__all__ = ["FAMILY", "SCENES", "SIGMAS_T", "VIEWS", "cone_cases"]
+
+VIEWS = {
+    "beside": ("0, -9, 3", "0, 0, 3", "0, 0, 1"),
+    "oblique": ("-5, -8, 1", "0, 0, 3.5", "0, 0, 1"),
+    "inside": ("0.5, -0.5, 1", "0.5, 6, 1.5", "0, 0, 1"),
+    "up-axis": ("0, 0, 0.4", "0, 0, 6", "0, 1, 0"),
+    "down-axis": ("0, 0, 10", "0, 0, 0", "0, 1, 0"),
+}
+"""The shipped scenes' cameras (origin, target, up; m) in scenes/library/light_cones_spot.xml, whose lamp
+hangs at (0, 0, 6) pointing down: beside the cone (view ⟂ axis), oblique from below, inside the cone looking
+out through the shell, up the axis at the lamp from inside, down the axis through the apex."""
+SIGMAS_T = (0.01, 0.05, 0.2)
+"""The media's extinction σ_t = σ_s (1/m, albedo 1) of the shipped scenes: thin to dense."""
+QUICK = {"views": ("beside", "inside", "up-axis"), "sigma_t": (0.05,)}
+"""Those ``--quick`` audits (as the experiment before the engine)."""
+
+
+def _scene(view: str, sigma_t: float) -> ShippedScene:
+    origin, target, up = VIEWS[view]
+    return ShippedScene(
+        "light_cones_spot.xml",
+        f"street lamp (spot, cutoff 30°, beam 22.5°, 100 W/sr, 6 m up) seen {view}, σ_t = {sigma_t:g} /m, "
+        "albedo 1",
+        size=(96, 72),
+        spp=4096,
+        quick_size=(24, 18),
+        quick_spp=1024,
+        defines={"origin": origin, "target": target, "up": up, "sigma_t": f"{sigma_t:g}"},
+        name=f"{view}-s{sigma_t:g}".replace(".", "p"),
+        quick=view in QUICK["views"] and sigma_t in QUICK["sigma_t"],
+    )
+
+
+SCENES = tuple(_scene(v, s) for s in SIGMAS_T for v in VIEWS)
+"""The scenes ``rtfit run light-cones`` audits (scenes/library/light_cones_spot.xml, one per view and σ_t): a
+street lamp in a non-absorbing homogeneous medium that fills a 24 × 24 × 12 m box around the camera, its
+floor the cone's base, nothing else (the cases of the experiment before the engine)."""
 
 LENGTH_DOMAIN = (1e-3, 100.0)
 """The cone length's interval (m): the methods' declared domain of ``length``."""

@@ -70,6 +70,7 @@ from . import (
     audit_soft_particles,
     audit_volumetric_lightning,
     diffuse_study,
+    light_cones_study,
     obscurances_study,
     soft_particles_study,
     volumetric_lightning_study,
@@ -228,12 +229,14 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "light-cones",
-            "rtfit.experiments.light_cones",
+            ENGINE,
             "Light cones in fog: the seed's shell (edge fade, v² attenuation) vs spot-light scattering",
             "The pseudo-volumetric cone shell and §1's integral over the view ray's chord against path-traced"
             " single scattering of a spot light in fog, from beside, inside and along the cone, with fits.",
             methods={**CONE_METHODS, "quadrature": CONE_QUADRATURE},
             audits=(audit_light_cones.FAMILY,),
+            scenes=audit_light_cones.SCENES,
+            study=light_cones_study.study,
         ),
         Family(
             "environment-maps",

@@ -26,9 +26,16 @@ import math
 import mpmath as mp
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rtfit.experiments import audit_light_cones
+from rtfit.experiments import light_cones_study as study
+from rtfit.experiments.audit_cli import audit as audit_cmd
+from rtfit.experiments.audit_family import StudyContext
+from rtfit.experiments.audit_run import audit
+from rtfit.experiments.families import ENGINE, FAMILIES
 from rtfit.realtime import NUMPY_OPS, cone_chord, light_cone_shell
 from rtfit.realtime.light_cones import CHORD_LENGTH, METHODS
 from rtfit.reference.single_scattering import (
@@ -39,6 +46,7 @@ from rtfit.reference.single_scattering import (
 )
 from rtfit.scenes import SceneError, parse_scene_text, scene_to_toml
 from rtfit.scenes.model import Camera, Scene, SpotLight
+from rtfit.scenes.parse import LIBRARY_DIR
 
 APEX = np.array([0.0, 0.0, 6.0])
 AXIS = np.array([0.0, 0.3, -1.0]) / math.hypot(0.3, 1.0)
@@ -331,25 +339,79 @@ def test_spot_light_scene_round_trip_and_bad_beam():
         parse_scene_text(text.replace("cutoff_angle_deg = 30.0\n", ""))  # 20° beam, default 20° cutoff
 
 
-def test_tiny_experiment_runs_and_passes(tmp_path):
-    """End to end on a tiny configuration: every check passes and a fitted file loads with its units."""
-    from rtfit.experiments.fitted import load_fitted
+def _shipped_audit(tmp_path, name: str, width: int = 12, height: int = 9, spp: int = 1024):
+    shipped = {s.name: s for s in audit_light_cones.SCENES}[name]
+    tag = (f"{shipped.name}-", f"{shipped.name}: ")
+    return audit(LIBRARY_DIR / shipped.file, ["light-cones"], spp=spp, width=width, height=height,
+                 defines=shipped.defines, cache=tmp_path / "cache", tag=tag, metrics=("rmse",))  # fmt: skip
 
-    from .conftest import run_tiny_experiment
 
-    tiny = {
-        "views": ["beside"],
-        "sigma_t_per_m": [0.05],
-        "resolution": [12, 9],
-        "spp": 1024,
-        "pass_spp": 1024,
-        "image_figures": 1,
-        "cost_elements": 4096,
-        "extreme_samples": 500,
-    }
-    res = run_tiny_experiment("light-cones", tmp_path, tiny)
-    failed = [c.name for c in res.checks if not c.passed]
-    assert not failed, failed
-    fitted = load_fitted(tmp_path / "out" / "light-cones" / "fitted" / "light-cones-shell-fit-s0_05.json")
-    (entry,) = fitted.methods
-    assert set(entry.parameters) >= {"k", "p", "q"} and entry.parameters["k"].unit == "W/m²/sr"
+def _march_cone(o, w, apex, axis, theta, length, depth, step=1e-3):
+    """Chord length (m) of each ray (o, w) through the cone (apex, axis, half-angle θ, length L) up to
+    ``depth``, by marching the membership test t ≥ cos θ·r, 0 ≤ t ≤ L (independent of `CHORD_LENGTH`)."""
+    out = np.zeros(len(w))
+    for j in range(len(w)):
+        s = np.arange(0.5 * step, depth[j], step)
+        x = o[j] + s[:, None] * w[j] - apex
+        t = x @ axis
+        inside = (t >= math.cos(theta) * np.linalg.norm(x, axis=1)) & (t >= 0.0) & (t <= length)
+        out[j] = inside.sum() * step
+    return out
+
+
+def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
+    """``rtfit run light-cones`` = the engine's audits of the shipped scenes (one XML file, a street lamp in a
+    homogeneous medium box, ``-D`` camera and σ_t per scene) + `light_cones_study.study`, on two of them
+    (beside and inside the cone, σ_t = 0.05 /m; 12×9 pixels, 1024 spp). Independent values: the lamp and
+    medium as Mitsuba loaded them from the file and the defines (apex (0, 0, 6), axis −z, 30°/22.5°, σ_t);
+    the cone length L = 6 m (apex to the box's floor); the engine's z-checks of the quadrature row; the
+    study's chords through the shell's cone against ray marching, and its lit pixels (those it profiles)
+    against the rays that marching finds crossing the cutoff cone; every study check passes."""
+    fam = FAMILIES["light-cones"]
+    assert fam.module == ENGINE and fam.scenes == audit_light_cones.SCENES
+    assert fam.study is study.study
+    assert len(fam.scenes) == 15 and {s.name for s in fam.scenes if s.quick} == {
+        "beside-s0p05", "inside-s0p05", "up-axis-s0p05"
+    }  # fmt: skip
+    audits = tuple(_shipped_audit(tmp_path, n) for n in ("beside-s0p05", "inside-s0p05"))
+    for r in audits:
+        (case,) = r.cases
+        p = case.parameters
+        np.testing.assert_allclose(p["position_m"], [0.0, 0.0, 6.0], atol=1e-6)
+        np.testing.assert_allclose(p["axis"], [0.0, 0.0, -1.0], atol=1e-6)
+        assert (p["cutoff_deg"], p["beam_width_deg"]) == pytest.approx((30.0, 22.5))
+        assert p["shell_half_angle_deg"] == pytest.approx(26.25)
+        assert p["cone_length_m"] == pytest.approx(6.0, rel=1e-5)
+        np.testing.assert_allclose(p["sigma_t_per_m"], [0.05] * 3, rtol=1e-6)
+        np.testing.assert_allclose(p["intensity_W_per_sr"], [100.0] * 3, rtol=1e-6)
+        assert p["pixels"] == 12 * 9 and p["camera_inside_medium"]
+        assert all(c.passed for c in r.results.checks), [c.name for c in r.results.checks if not c.passed]
+    ctx = StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "cache", audits)
+    res = study.study(ctx)
+    assert all(c.passed for c in res.checks), [c.name for c in res.checks if not c.passed]
+    lit_total = 0
+    for r in audits:
+        (case,) = r.cases
+        g = case.channel_inputs[0]
+        o = np.stack([g["ox"], g["oy"], g["oz"]], 1)
+        w = np.stack([g["wx"], g["wy"], g["wz"]], 1)
+        depth = np.asarray(g["depth"], np.float64)
+        apex, axis = np.array([0.0, 0.0, 6.0]), np.array([0.0, 0.0, -1.0])
+        marched = _march_cone(o, w, apex, axis, math.radians(26.25), 6.0, depth)
+        np.testing.assert_allclose(study.case_chords(case), marched, atol=2e-3)
+        lit = _march_cone(o, w, apex, axis, math.radians(30.0), 6.0, depth) > 0.0
+        got = study.lit_pixels(case, r.outcomes[case.id])
+        assert np.sum(got != lit) <= 1 and lit.sum() > 10
+        lit_total += int(lit.sum())
+    prof = res.extra["chord_profile"]["0.05"]
+    assert abs(sum(prof["pixels"]) - lit_total) <= 2
+    assert set(prof["views_rms"]) == {r.cases[0].id for r in audits}
+    assert (tmp_path / "figures" / "error_vs_chord.png").is_file()
+
+
+def test_audit_list_names_the_family_on_the_shipped_scene():
+    scene = LIBRARY_DIR / "light_cones_spot.xml"
+    out = CliRunner().invoke(audit_cmd, [str(scene), "--list", "-D", "sigma_t=0.2"])
+    assert out.exit_code == 0, out.output
+    line = next(x for x in out.output.splitlines() if x.strip().startswith("light-cones"))
+    assert "spot light 'lamp'" in line and "inside the homogeneous medium" in line
