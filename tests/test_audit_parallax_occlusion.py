@@ -85,13 +85,27 @@ def test_flat_height_field_is_half_the_range_deep_for_every_row(tmp_path):
     assert np.all(np.abs(p[:, :2]) <= 0.5 + 1e-5)
 
 
-def test_ramp_against_the_closed_form_tilted_plane(tmp_path):
+RAMP_DEPTH = 0.2
+
+
+@pytest.fixture(scope="module")
+def ramp(tmp_path_factory):
+    """The ramp height field at --pom-depth `RAMP_DEPTH`, audited once for the two tests that read it: the
+    shipped stable march (n 16…64) and the user's restatement of it (`my_stable_march`) on one case."""
+    from rtfit.realtime.quantities import approximation
+
+    mine = approximation(quantity="parallax_depth")(my_stable_march)
+    rows = ["parallax-occlusion:pom-stable-n16-64", mine]
+    return _audit(tmp_path_factory.mktemp("ramp"), "ramp.exr", rows, pom_depth=RAMP_DEPTH)
+
+
+def test_ramp_against_the_closed_form_tilted_plane(ramp):
     """h = 0.1 + 0.8·u (texel centres of a 16-texel ramp along u, clamped beyond them), --pom-depth 0.2: the
     displaced floor is the plane z = −0.2·(0.9 − 0.8·u), u = x + ½. The ray from the eye meets it at the
     closed-form t below; the reference (Mitsuba's hit on the displaced mesh) and the stable march with
     n 16…64 (exact on a linear profile) give its depth −z/0.2 where the ray stays within the ramp."""
-    d_range = 0.2
-    r = _audit(tmp_path, "ramp.exr", ["parallax-occlusion:pom-stable-n16-64"], pom_depth=d_range)
+    d_range = RAMP_DEPTH
+    r = ramp
     (case,) = r.cases
     assert case.parameters["pom_depth"] == d_range
     p, d = _floor_rays(case)
@@ -212,7 +226,7 @@ def my_stable_march(ops, g):
     return 1.0 - t
 
 
-def test_a_user_parallax_depth_reads_the_rows_own_height_field(tmp_path):
+def test_a_user_parallax_depth_reads_the_rows_own_height_field(ramp, tmp_path):
     """A user's ``@approximation(quantity="parallax_depth")`` restating the stable march (n 16 … 64) gives the
     shipped ``pom-stable-n16-64`` row's depths on the ramp (the same (u₀, v₀), view vector, height field and
     range through ``g``: measured max difference 2.2e-16, the user's i/n where the kernel writes i·(1/n)) and
@@ -221,8 +235,7 @@ def test_a_user_parallax_depth_reads_the_rows_own_height_field(tmp_path):
     before anything renders."""
     from rtfit.realtime.quantities import approximation
 
-    mine = approximation(quantity="parallax_depth")(my_stable_march)
-    r = _audit(tmp_path, "ramp.exr", ["parallax-occlusion:pom-stable-n16-64", mine], pom_depth=0.2)
+    r = ramp  # the ramp audited with the shipped row and the user's `my_stable_march` (fixture)
     (case,) = r.cases
     m = case.mask
     got, want = r.image(case.id, "my_stable_march")[m], r.image(case.id, "pom-stable-n16-64")[m]

@@ -83,14 +83,16 @@ def test_python_audit_of_the_sphere_light_scene_returns_metrics_and_fits_and_kee
 
 
 def test_cli_audits_the_sphere_light_library_scene(tmp_path):
-    """`rtfit audit sphere_light --width 24 --height 24 --spp 32` exits 0 with a report. irradiance-volumes'
-    nearest-sh-l2 rings below 0 on 3 pixels of this scene (min −8.5e-4: SH L2 ringing, a property of the
-    basis); ꟻLIP clips them to 0 and warns: the engine keeps that as a note of the report (under the suite's
-    filterwarnings = error a warning leaking out of the run would fail it)."""
+    """`rtfit audit sphere_light --width 24 --height 24 --spp 32 --approx irradiance-volumes` exits 0 with a
+    report. irradiance-volumes' nearest-sh-l2 rings below 0 on 3 pixels of this scene (min −8.5e-4: SH L2
+    ringing, a property of the basis); ꟻLIP clips them to 0 and warns: the engine keeps that as a note of the
+    report (under the suite's filterwarnings = error a warning leaking out of the run would fail it). (Every
+    family of this scene is audited by the Python test above through the same engine; here the command line
+    runs the one family whose note it checks: 1.5 s instead of 13 s.)"""
     result = CliRunner().invoke(
         audit_cli,
-        ["sphere_light", "--width", "24", "--height", "24", "--spp", "32", "--out", str(tmp_path / "out"),
-         "--cache", str(tmp_path / "c"), "--no-progress"],
+        ["sphere_light", "--width", "24", "--height", "24", "--spp", "32", "--approx", "irradiance-volumes",
+         "--out", str(tmp_path / "out"), "--cache", str(tmp_path / "c"), "--no-progress"],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     report = tmp_path / "out" / "audit-sphere_light"
