@@ -55,7 +55,7 @@ from rtfit.reference.grid_fit import fit_height_density, grid_of_medium
 from rtfit.reference.mitsuba_xml import UP_AXES
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene
 from .audit_media import (
     RADIANCE_INTEGRATOR,
     box_interval,
@@ -66,7 +66,15 @@ from .audit_media import (
     sun_direction_of,
 )
 
-__all__ = ["FAMILY", "HORIZON_ELEVATIONS_DEG", "aerial_cases", "horizon_average", "source_function"]
+__all__ = [
+    "FAMILY",
+    "HORIZON_ELEVATIONS_DEG",
+    "SCENES",
+    "SUN_ELEVATIONS_DEG",
+    "aerial_cases",
+    "horizon_average",
+    "source_function",
+]
 
 NAME = "aerial-perspective"
 FORMAT = 1
@@ -85,6 +93,35 @@ COLOUR_FLOOR = 1e-6
 """The smallest colour a row starts from (W/m²/sr): horizon-phase's C₀ (0 in the seed's model) and a black
 sky's H."""
 _CHUNK = 512
+SUN_ELEVATIONS_DEG = (60.0, 30.0, 15.0, 8.0, 4.0, 2.0)
+"""The sun elevations of the shipped scenes (degrees above the horizon; Mitsuba's sunsky has no sun below
+it, so the experiment's −2° and −4° are the study's quadrature alone)."""
+QUICK_ELEVATIONS_DEG = (60.0, 4.0)
+SUN_AZIMUTH_DEG = 120.0
+"""The sun's azimuth from the view axis +y towards +x (the experiment's)."""
+
+
+def _sun_scene(elevation: float) -> ShippedScene:
+    e, a = math.radians(elevation), math.radians(SUN_AZIMUTH_DEG)
+    sun = (math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e))
+    return ShippedScene(
+        "aerial_perspective_fog_bank.xml",
+        f"sunsky (turbidity 3), sun at {elevation:g}° elevation, through a fog bank of σt = 0.35, albedo "
+        "0.9, g = 0.6",
+        size=(96, 64),
+        spp=1024,
+        quick_size=(24, 16),
+        quick_spp=64,
+        defines={k: f"{v:.6f}" for k, v in zip(("sx", "sy", "sz"), sun, strict=True)},
+        name=f"fog_bank-sun{elevation:g}",
+        quick=elevation in QUICK_ELEVATIONS_DEG,
+    )
+
+
+SCENES = tuple(_sun_scene(e) for e in SUN_ELEVATIONS_DEG)
+"""The scenes ``rtfit run aerial-perspective`` audits (scenes/library/aerial_perspective_fog_bank.xml, one per
+sun elevation in `SUN_ELEVATIONS_DEG`, azimuth `SUN_AZIMUTH_DEG`): Mitsuba's sunsky over a grey ground seen
+through a scattering homogeneous fog bank; the quick run the highest and a low sun."""
 
 
 def _frame(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
