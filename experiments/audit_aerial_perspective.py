@@ -69,6 +69,7 @@ from .audit_media import (
 __all__ = [
     "FAMILY",
     "HORIZON_ELEVATIONS_DEG",
+    "MEDIA",
     "SCENES",
     "SUN_ELEVATIONS_DEG",
     "aerial_cases",
@@ -96,32 +97,37 @@ _CHUNK = 512
 SUN_ELEVATIONS_DEG = (60.0, 30.0, 15.0, 8.0, 4.0, 2.0)
 """The sun elevations of the shipped scenes (degrees above the horizon; Mitsuba's sunsky has no sun below
 it, so the experiment's −2° and −4° are the study's quadrature alone)."""
-QUICK_ELEVATIONS_DEG = (60.0, 4.0)
 SUN_AZIMUTH_DEG = 120.0
 """The sun's azimuth from the view axis +y towards +x (the experiment's)."""
+MEDIA = {
+    "fog_bank": "a homogeneous fog bank of σt = 0.35 /unit",
+    "height_fog": "an exponential height fog (grid) of σt = 0.6·exp(−0.96·z) /unit",
+}
+"""The shipped media (scenes/library/aerial_perspective_<medium>.xml), each albedo 0.9, hg g = 0.6."""
+QUICK = (("fog_bank", 60.0), ("height_fog", 4.0))
+"""The ``--quick`` scenes: a high sun through the constant fog, a low sun through the height fog."""
 
 
-def _sun_scene(elevation: float) -> ShippedScene:
+def _sun_scene(medium: str, elevation: float) -> ShippedScene:
     e, a = math.radians(elevation), math.radians(SUN_AZIMUTH_DEG)
     sun = (math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e))
     return ShippedScene(
-        "aerial_perspective_fog_bank.xml",
-        f"sunsky (turbidity 3), sun at {elevation:g}° elevation, through a fog bank of σt = 0.35, albedo "
-        "0.9, g = 0.6",
+        f"aerial_perspective_{medium}.xml",
+        f"sunsky (turbidity 3), sun at {elevation:g}° elevation, through {MEDIA[medium]}",
         size=(96, 64),
         spp=1024,
         quick_size=(24, 16),
         quick_spp=64,
         defines={k: f"{v:.6f}" for k, v in zip(("sx", "sy", "sz"), sun, strict=True)},
-        name=f"fog_bank-sun{elevation:g}",
-        quick=elevation in QUICK_ELEVATIONS_DEG,
+        name=f"{medium}-sun{elevation:g}",
+        quick=(medium, elevation) in QUICK,
     )
 
 
-SCENES = tuple(_sun_scene(e) for e in SUN_ELEVATIONS_DEG)
-"""The scenes ``rtfit run aerial-perspective`` audits (scenes/library/aerial_perspective_fog_bank.xml, one per
-sun elevation in `SUN_ELEVATIONS_DEG`, azimuth `SUN_AZIMUTH_DEG`): Mitsuba's sunsky over a grey ground seen
-through a scattering homogeneous fog bank; the quick run the highest and a low sun."""
+SCENES = tuple(_sun_scene(m, e) for m in MEDIA for e in SUN_ELEVATIONS_DEG)
+"""The scenes ``rtfit run aerial-perspective`` audits: Mitsuba's sunsky over a grey ground seen through each
+of `MEDIA` (scenes/library/aerial_perspective_<medium>.xml), one scene per sun elevation in
+`SUN_ELEVATIONS_DEG` (azimuth `SUN_AZIMUTH_DEG`, the sun's direction by ``defines``); ``--quick``: `QUICK`."""
 
 
 def _frame(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

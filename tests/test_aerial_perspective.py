@@ -200,28 +200,31 @@ def _shipped_audit(tmp_path, name: str):
 
 
 def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
-    """``rtfit run aerial-perspective`` = the engine's audits of the shipped scenes (one XML file: a sunsky
-    over a ground seen through a fog bank, the sun's direction per scene by ``-D``) + the study, on the quick
-    two (sun at 60° and 4°; 12×8 pixels, 32 spp). Independent values: the sun's direction as Mitsuba's sunsky
-    loaded it (cos e·sin 120°, cos e·cos 120°, sin e), the fog bank's σt, albedo and g as written in the file,
-    each pixel's stretch by the slab test; the study's error budget (its parts sum to the total; the sun below
-    the horizon: a black reference), every study check (the fog-only quadrature against Mitsuba within its
-    noise, the atmosphere-only quadrature against nishita-sky's) passes."""
+    """``rtfit run aerial-perspective`` = the engine's audits of the shipped scenes (two XML files: a sunsky
+    over a ground seen through a homogeneous fog bank or a height-fog grid, the sun's direction per scene by
+    ``-D``) + the study, on the quick two (fog bank, sun at 60°; height fog, sun at 4°; 12×8 pixels, 32 spp).
+    Independent values: the sun's direction as Mitsuba's sunsky loaded it (cos e·sin 120°, cos e·cos 120°, sin
+    e); the medium's b, c (the bank's σt; the grid's exp(−1.2·z) over 2.4 units stretched over 3, times its
+    scale 0.6), albedo and g as written in the files; each pixel's stretch by the slab test; the study's error
+    budget (its parts sum to the total; the sun below the horizon: a black reference); every study check (the
+    fog-only quadrature against Mitsuba within its noise, the atmosphere-only quadrature against
+    nishita-sky's) passes."""
     fam = FAMILIES["aerial-perspective"]
     assert fam.module == ENGINE and fam.scenes == audit_aerial_perspective.SCENES
     assert fam.study is ap.study
-    assert len(fam.scenes) == 6 and [s.name for s in fam.scenes if s.quick] == [
+    assert len(fam.scenes) == 12 and [s.name for s in fam.scenes if s.quick] == [
         "fog_bank-sun60",
-        "fog_bank-sun4",
+        "height_fog-sun4",
     ]
-    audits = tuple(_shipped_audit(tmp_path, n) for n in ("fog_bank-sun60", "fog_bank-sun4"))
-    for r, e in zip(audits, (60.0, 4.0), strict=True):
+    audits = tuple(_shipped_audit(tmp_path, n) for n in ("fog_bank-sun60", "height_fog-sun4"))
+    # (b, c): the fog bank's σt; the grid's exp(−1.2·z) over 2.4 units stretched over 3: c = 1.2·2.4/3
+    for r, e, (b, c) in zip(audits, (60.0, 4.0), ((0.35, 0.0), (0.6, 0.96)), strict=True):
         (case,) = r.cases
         p = case.parameters
         el, az = math.radians(e), math.radians(120.0)
         want = [math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)]
         np.testing.assert_allclose(p["sun_direction"], want, atol=1e-5)
-        assert p["density"] == pytest.approx(0.35, rel=1e-6) and p["falloff"] == 0.0
+        assert p["density"] == pytest.approx(b, rel=1e-5) and p["falloff"] == pytest.approx(c, rel=1e-5)
         assert p["albedo"] == pytest.approx([0.9] * 3, rel=1e-6) and p["g"] == pytest.approx(0.6, rel=1e-6)
         g = case.channel_inputs[0]
         o = np.array([0.031, -7.0, 1.217])
