@@ -55,7 +55,7 @@ from rtfit.reference.grid_fit import fit_height_density, grid_of_medium
 from rtfit.reference.mitsuba_xml import UP_AXES
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene
 from .audit_media import (
     RADIANCE_INTEGRATOR,
     box_interval,
@@ -66,7 +66,16 @@ from .audit_media import (
     sun_direction_of,
 )
 
-__all__ = ["FAMILY", "HORIZON_ELEVATIONS_DEG", "aerial_cases", "horizon_average", "source_function"]
+__all__ = [
+    "FAMILY",
+    "HORIZON_ELEVATIONS_DEG",
+    "MEDIA",
+    "SCENES",
+    "SUN_ELEVATIONS_DEG",
+    "aerial_cases",
+    "horizon_average",
+    "source_function",
+]
 
 NAME = "aerial-perspective"
 FORMAT = 1
@@ -85,6 +94,40 @@ COLOUR_FLOOR = 1e-6
 """The smallest colour a row starts from (W/m²/sr): horizon-phase's C₀ (0 in the seed's model) and a black
 sky's H."""
 _CHUNK = 512
+SUN_ELEVATIONS_DEG = (60.0, 30.0, 15.0, 8.0, 4.0, 2.0)
+"""The sun elevations of the shipped scenes (degrees above the horizon; Mitsuba's sunsky has no sun below
+it, so the experiment's −2° and −4° are the study's quadrature alone)."""
+SUN_AZIMUTH_DEG = 120.0
+"""The sun's azimuth from the view axis +y towards +x (the experiment's)."""
+MEDIA = {
+    "fog_bank": "a homogeneous fog bank of σt = 0.35 /unit",
+    "height_fog": "an exponential height fog (grid) of σt = 0.6·exp(−0.96·z) /unit",
+}
+"""The shipped media (scenes/library/aerial_perspective_<medium>.xml), each albedo 0.9, hg g = 0.6."""
+QUICK = (("fog_bank", 60.0), ("height_fog", 4.0))
+"""The ``--quick`` scenes: a high sun through the constant fog, a low sun through the height fog."""
+
+
+def _sun_scene(medium: str, elevation: float) -> ShippedScene:
+    e, a = math.radians(elevation), math.radians(SUN_AZIMUTH_DEG)
+    sun = (math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e))
+    return ShippedScene(
+        f"aerial_perspective_{medium}.xml",
+        f"sunsky (turbidity 3), sun at {elevation:g}° elevation, through {MEDIA[medium]}",
+        size=(96, 64),
+        spp=1024,
+        quick_size=(24, 16),
+        quick_spp=64,
+        defines={k: f"{v:.6f}" for k, v in zip(("sx", "sy", "sz"), sun, strict=True)},
+        name=f"{medium}-sun{elevation:g}",
+        quick=(medium, elevation) in QUICK,
+    )
+
+
+SCENES = tuple(_sun_scene(m, e) for m in MEDIA for e in SUN_ELEVATIONS_DEG)
+"""The scenes ``rtfit run aerial-perspective`` audits: Mitsuba's sunsky over a grey ground seen through each
+of `MEDIA` (scenes/library/aerial_perspective_<medium>.xml), one scene per sun elevation in
+`SUN_ELEVATIONS_DEG` (azimuth `SUN_AZIMUTH_DEG`, the sun's direction by ``defines``); ``--quick``: `QUICK`."""
 
 
 def _frame(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -49,6 +49,7 @@ from rtfit.realtime.volumetric_lightning import METHODS as LIGHTNING_METHODS
 from rtfit.realtime.volumetric_lightning import QUADRATURE as LIGHTNING_QUADRATURE
 
 from . import (
+    aerial_perspective_study,
     audit_aerial_perspective,
     audit_ambient_aperture,
     audit_ambient_occlusion,
@@ -209,12 +210,15 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "aerial-perspective",
-            "rtfit.experiments.aerial_perspective",
+            ENGINE,
             "Aerial perspective matched to the sky: the fog blend under a Nishita atmosphere + height fog",
-            "Single scattering through atmosphere and fog by quadrature (checked against Mitsuba) vs the "
-            "seed's horizon-matched fog blend: error budget per sun elevation, fitted b, c, colour.",
+            "The seed's sky-matched fog blend on Mitsuba sunsky scenes through a fog bank and a height fog "
+            "(given and fitted b, c, colour), and its error budget per sun elevation under a Nishita "
+            "atmosphere + height fog by quadrature (checked against Mitsuba).",
             methods=AERIAL_METHODS,
             audits=(audit_aerial_perspective.FAMILY,),
+            scenes=audit_aerial_perspective.SCENES,
+            study=aerial_perspective_study.study,
         ),
         Family(
             "soft-particles",

@@ -53,7 +53,7 @@ the phase per pixel, seed 000:2247-2254, 002:224-290) via `height_fog.fog_colour
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import numpy as np
@@ -306,6 +306,22 @@ def fog_blend(l0, t, colour):
 # shading models' kernels (`height_fog.METHODS`, the one text of the blend), each with its fog colour taken
 # from the scene's sky as the experiment's ladder takes it (docs/aerial-perspective.md).
 _CONST, _PHASE = FOG_METHODS["const"], FOG_METHODS["phase"]
+DOMAINS = {
+    "z0": (0.0, 100.0),
+    "z1": (0.0, 100.0),
+    "distance": (100.0, 1000.0),
+    "cos_sun": (-1.0, 1.0),
+    **{f"{k}_{ch}": (0.0, 10.0) for k in ("l0", "j") for ch in "rgb"},
+}
+"""The blends' input domains (units of the inputs; ``rtfit bench`` and the three-library test draw from them):
+heights within 100 below stretches of 100–1000, so that |z1 − z0| ≤ D always holds when drawn apart."""
+
+
+def _with_domains(inputs) -> tuple[Input, ...]:
+    """The height-fog kernels' inputs with `DOMAINS` (the height-fog family's own table leaves them open)."""
+    return tuple(replace(i, domain=DOMAINS[i.name]) for i in inputs)
+
+
 _SOURCE = tuple(
     Input(f"j_{ch}", "W/m²/sr", f"the sky's single-scattering source function at the camera, {ch} channel")
     for ch in "rgb"
@@ -323,7 +339,7 @@ METHODS = method_table(
             id="camera-source",
             label="fog blend, C = the sky's source function at the camera per direction (1)",
             kernel=_camera_source_kernel,
-            inputs=(*_CONST.inputs, *_SOURCE),
+            inputs=_with_domains((*_CONST.inputs, *_SOURCE)),
             params={k: _CONST.params[k] for k in ("b", "c")},
             quantity="fogged_radiance",
             formula="L = L₀·T(b, c) + J(v)·(1 − T), J(v) = a·∫ L_sky(ω) p(v·ω) dω (unshadowed, unattenuated)",
@@ -333,7 +349,7 @@ METHODS = method_table(
             id="horizon-flat",
             label="fog blend, C = the sky's horizon average (1 + 2, no phase)",
             kernel=_CONST.kernel,
-            inputs=_CONST.inputs,
+            inputs=_with_domains(_CONST.inputs),
             params=_CONST.params,
             quantity="fogged_radiance",
             formula="L = L₀·T(b, c) + H·(1 − T), H the sky's radiance averaged over its horizon band",
@@ -343,7 +359,7 @@ METHODS = method_table(
             id="horizon-phase",
             label="fog blend, C = the sky's horizon average × 4π·p_HG(θ, g) per pixel (1 + 2)",
             kernel=_PHASE.kernel,
-            inputs=_PHASE.inputs,
+            inputs=_with_domains(_PHASE.inputs),
             params=_PHASE.params,
             quantity="fogged_radiance",
             formula="L = L₀·T(b, c) + (C₀ + H·4π·p_HG(θ, g))·(1 − T), C₀ = 0, g the medium's",

@@ -1,8 +1,8 @@
-"""Aerial perspective (issue 18 §4): the single-scattering quadrature through atmosphere + height fog against
-closed forms and nishita-sky's independent reference quadrature; extremes; the experiment's scene geometry.
-
-The path-traced check (fog alone against Mitsuba within its noise) is a self-check of
-``rtfit run aerial-perspective --quick`` (a render does not fit this file's time budget)."""
+"""Aerial perspective (issue 18 §4, issue 30 §1): the single-scattering quadrature through atmosphere + height
+fog against closed forms and nishita-sky's independent reference quadrature; extremes; the study's terrain
+geometry; ``rtfit run aerial-perspective`` = the engine on the shipped sunsky + fog-bank scenes + the study
+(`rtfit.experiments.aerial_perspective_study`), whose path-traced check (fog alone against Mitsuba within its
+noise) runs here at the quick size."""
 
 from __future__ import annotations
 
@@ -10,10 +10,16 @@ import math
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtfit.experiments import aerial_perspective as ap
+from rtfit.experiments import aerial_perspective_study as ap
+from rtfit.experiments import audit_aerial_perspective
+from rtfit.experiments.audit_cli import audit as audit_cmd
+from rtfit.experiments.audit_family import StudyContext
+from rtfit.experiments.audit_run import audit
+from rtfit.experiments.families import ENGINE, FAMILIES
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.aerial_perspective import (
     FogLayer,
@@ -25,6 +31,7 @@ from rtfit.realtime.aerial_perspective import (
 )
 from rtfit.realtime.nishita_sky import AtmosphereParams
 from rtfit.reference.nishita_sky import library_atmosphere, single_scattering_quadrature
+from rtfit.scenes.parse import LIBRARY_DIR
 
 NO_ATMOSPHERE = AtmosphereParams(rayleigh_scale=0.0, mie_scale=0.0)
 
@@ -170,3 +177,76 @@ def test_scene_distances_are_the_ray_plane_intersections():
     on_ground = ~geo["ridge"]
     np.testing.assert_allclose(p[on_ground][:, 2], 0.0, atol=1e-9)
     np.testing.assert_allclose(p[geo["ridge"]][:, 1] - k * p[geo["ridge"]][:, 0], y0, rtol=1e-12)
+
+
+BOX_LO, BOX_HI = np.array([-3.0, -2.0, 0.0]), np.array([3.0, 2.0, 3.0])
+"""The fog bank of scenes/library/aerial_perspective_fog_bank.xml: the unit cube scaled (3, 2, 1.5),
+raised 1.5."""
+
+
+def _slab(o: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Each ray's stretch inside the fog bank (the classic slab test, written here)."""
+    with np.errstate(divide="ignore"):
+        a, b = (BOX_LO - o) / d, (BOX_HI - o) / d
+    return np.min(np.maximum(a, b), axis=1) - np.max(np.minimum(a, b), axis=1).clip(min=0.0)
+
+
+def _shipped_audit(tmp_path, name: str):
+    shipped = {s.name: s for s in audit_aerial_perspective.SCENES}[name]
+    tag = (f"{shipped.name}-", f"{shipped.name}: ")
+    return audit(LIBRARY_DIR / shipped.file, ["aerial-perspective"], spp=32, pass_spp=32, width=12, height=8,
+                 defines=shipped.defines, cache=tmp_path / "cache", tag=tag, metrics=("rmse",), fit=False,
+                 cost_elements=1 << 10)  # fmt: skip
+
+
+def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
+    """``rtfit run aerial-perspective`` = the engine's audits of the shipped scenes (two XML files: a sunsky
+    over a ground seen through a homogeneous fog bank or a height-fog grid, the sun's direction per scene by
+    ``-D``) + the study, on the quick two (fog bank, sun at 60°; height fog, sun at 4°; 12×8 pixels, 32 spp).
+    Independent values: the sun's direction as Mitsuba's sunsky loaded it (cos e·sin 120°, cos e·cos 120°, sin
+    e); the medium's b, c (the bank's σt; the grid's exp(−1.2·z) over 2.4 units stretched over 3, times its
+    scale 0.6), albedo and g as written in the files; each pixel's stretch by the slab test; the study's error
+    budget (its parts sum to the total; the sun below the horizon: a black reference); every study check (the
+    fog-only quadrature against Mitsuba within its noise, the atmosphere-only quadrature against
+    nishita-sky's) passes."""
+    fam = FAMILIES["aerial-perspective"]
+    assert fam.module == ENGINE and fam.scenes == audit_aerial_perspective.SCENES
+    assert fam.study is ap.study
+    assert len(fam.scenes) == 12 and [s.name for s in fam.scenes if s.quick] == [
+        "fog_bank-sun60",
+        "height_fog-sun4",
+    ]
+    audits = tuple(_shipped_audit(tmp_path, n) for n in ("fog_bank-sun60", "height_fog-sun4"))
+    # (b, c): the fog bank's σt; the grid's exp(−1.2·z) over 2.4 units stretched over 3: c = 1.2·2.4/3
+    for r, e, (b, c) in zip(audits, (60.0, 4.0), ((0.35, 0.0), (0.6, 0.96)), strict=True):
+        (case,) = r.cases
+        p = case.parameters
+        el, az = math.radians(e), math.radians(120.0)
+        want = [math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)]
+        np.testing.assert_allclose(p["sun_direction"], want, atol=1e-5)
+        assert p["density"] == pytest.approx(b, rel=1e-5) and p["falloff"] == pytest.approx(c, rel=1e-5)
+        assert p["albedo"] == pytest.approx([0.9] * 3, rel=1e-6) and p["g"] == pytest.approx(0.6, rel=1e-6)
+        g = case.channel_inputs[0]
+        o = np.array([0.031, -7.0, 1.217])
+        d = np.stack([g["dx"], g["dy"], g["dz"]], 1)
+        np.testing.assert_allclose(g["distance"], _slab(np.broadcast_to(o, d.shape), d), atol=1e-4)
+        for row, out in r.outcomes[case.id].items():
+            assert np.all(np.isfinite(out.image[case.mask])), row
+    ctx = StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "cache", audits)
+    res = ap.study(ctx)
+    assert all(c.passed for c in res.checks), [c.name for c in res.checks if not c.passed]
+    budget = {b["sun_elevation_deg"]: b for b in res.extra["error_budget"]}
+    assert set(budget) == {60.0, 4.0, -4.0}
+    for b in budget.values():
+        assert sum(b["parts"].values()) == pytest.approx(b["total"], rel=1e-12)
+    assert budget[-4.0]["sun_attenuation_alone"] == 0.0  # the planet's shadow: no sun anywhere
+    assert [s["case"] for s in res.extra["scenes_by_sun"]] == [a.cases[0].id for a in audits]
+    assert (tmp_path / "figures" / "error_budget.png").is_file()
+
+
+def test_audit_list_names_the_family_on_the_shipped_scene():
+    scene = LIBRARY_DIR / "aerial_perspective_fog_bank.xml"
+    out = CliRunner().invoke(audit_cmd, [str(scene), "--list", "-D", "sz=0.25882"])
+    assert out.exit_code == 0, out.output
+    line = next(x for x in out.output.splitlines() if x.strip().startswith("aerial-perspective"))
+    assert "sky through a medium" in line and "sunsky" in line
