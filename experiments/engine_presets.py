@@ -641,8 +641,8 @@ def _sky_preset(m: FittedMethod, engine: str) -> dict:
 
 
 def convert_fitted(doc: FittedFile, engine: str, base: float | None = None, source: str = "") -> dict:
-    """The ``rtfit.engine-preset/1`` document of every fog method of ``doc`` in ``engine``; `ConvertError`
-    (one line) when the file holds none."""
+    """The ``rtfit.engine-preset/1`` document of every fog method of ``doc`` in ``engine`` (``skipped``: the
+    fits an engine's fog cannot hold, each with why); `ConvertError` (one line) when none converts."""
     eng = ENGINES[engine]
     fog = [m for m in doc.methods if _is_fog(m)]
     sky = [m for m in doc.methods if _is_sky(m)]
@@ -674,6 +674,16 @@ def convert_fitted(doc: FittedFile, engine: str, base: float | None = None, sour
             f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits, and the "
             f"Nishita sky's artist fits for unreal and unity-hdrp)"
         )
+    # Each fit on its own: one an engine cannot hold (a constant fog fitted to c < 0) is named in ``skipped``,
+    # the others converted; none convertible is the first one's error.
+    presets, skipped = [], []
+    for m in fog:
+        try:
+            presets.append(convert_method(m, eng, base).to_json())
+        except ConvertError as e:
+            skipped.append(str(e))
+    if not presets:
+        raise ConvertError(skipped[0])
     return {
         "format": PRESET_FORMAT,
         "source": source,
@@ -682,5 +692,6 @@ def convert_fitted(doc: FittedFile, engine: str, base: float | None = None, sour
         "engine_title": eng.title,
         "anchor": eng.anchor,
         "sources": list(eng.sources),
-        "presets": [convert_method(m, eng, base).to_json() for m in fog],
+        "presets": presets,
+        **({"skipped": skipped} if skipped else {}),
     }

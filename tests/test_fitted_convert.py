@@ -214,6 +214,38 @@ def test_convert_refuses_what_it_cannot_convert(tmp_path):
     assert out.exit_code == 2 and "expected 'rtfit.fitted/1'" in out.stderr
 
 
+def test_a_fit_an_engine_cannot_hold_is_named_and_the_others_converted(tmp_path):
+    """A file with a fog fit of c < 0 (constant fog fitted upward) beside a valid one: the valid one is
+    converted (its b, c back through Unreal's inverse), the other named in ``skipped`` with why; a file of
+    only the invalid one is one line and exit 2."""
+    good = {"b": 3.164e-4, "c": 3.109e-2, "r0": 0.068, "g0": 0.0466, "b0": 0.0315}
+    bad = {**good, "c": -1.92}
+    m = METHODS["const"]
+    dom = {"z0": (2.0, 2.0), "z1": (0.5, 5000.0), "distance": (7.0, 7e4)}
+    doc = FittedFile(
+        format="rtfit.fitted/1",
+        title="two fits",
+        provenance=Provenance(rtfit_version="0", experiment="height-fog", date="2026-12-05T00:00:00+00:00"),
+        methods=[
+            method_entry(m, params=good, case="good", domain=dom),
+            method_entry(m, params=bad, case="bad", domain=dom),
+        ],
+    )
+    write_fitted(tmp_path / "two.json", doc)
+    out = CliRunner().invoke(cli, ["fitted", "convert", str(tmp_path / "two.json"), "--engine", "unreal"])
+    assert out.exit_code == 0, out.output
+    got = json.loads(out.stdout)
+    (preset,) = got["presets"]
+    values = {v["name"]: v["value"] for v in preset["values"]}
+    b, c, _ = ENGINES["unreal"].from_engine(values, 0.0)
+    assert b == pytest.approx(good["b"], rel=1e-12) and c == pytest.approx(good["c"], rel=1e-12)
+    (why,) = got["skipped"]
+    assert "c = -1.92" in why and "c > 0" in why
+    only_bad = _fitted_file(tmp_path, "const", bad)
+    out = CliRunner().invoke(cli, ["fitted", "convert", only_bad, "--engine", "unreal"])
+    assert out.exit_code == 2 and "c > 0" in out.stderr and len(out.stderr.splitlines()) == 1
+
+
 # ------------------------------------------------------------------------ the Nishita sky: SkyAtmosphere
 def test_unscaled_sky_is_unreals_documented_default():
     """rtfit's atmosphere (Bruneton's parameters) as SkyAtmosphere properties: Unreal's documented defaults
