@@ -334,7 +334,8 @@ class StudyContext:
     """What a family's own study (`Study`) is given: the run's ``out_dir`` (figures go under
     ``out_dir/figures/``), ``quick``, ``variant``, ``seed``, the ``cache_dir`` of reference passes, and
     ``audits``: the engine's `rtfit.experiments.audit_run.AuditResult` of each shipped scene, in
-    declaration order (the study may read their references and rows; it never re-renders them)."""
+    declaration order (the study may read their references, rows and ``gbuffer``, the camera's pixel-centre
+    G-buffer the cases were computed on; it never re-renders them)."""
 
     out_dir: Path
     quick: bool

@@ -291,6 +291,10 @@ class AuditResult:
     by_family: dict[str, dict[str, float]] = field(default_factory=dict)
     """Family → seconds of its ``reference`` (its cases' passes; the scene's load and G-buffer, shared by
     all, are the rest of ``timings["reference"]``), ``evaluation`` and ``fit`` (`profile_lines`)."""
+    gbuffer: GBuffer | None = None
+    """The pixel-centre G-buffer of the scene's camera the cases were computed on (its ``mask``, points,
+    normals, depths): what a family's study reads instead of tracing it again
+    (`audit_family.StudyContext`)."""
     _figures: list = field(default_factory=list, repr=False)
 
     def reference(self, case: str) -> np.ndarray:
@@ -819,6 +823,7 @@ def audit(
             e.partial_report = target  # type: ignore[attr-defined]  (read by rtfit's entry point)
         raise
     result = _assemble(info, plan, outcomes, run, skipped, settings)
+    result.gbuffer = gb
     if target is not None:
         result.write_report(target)
     return result

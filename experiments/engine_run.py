@@ -25,6 +25,7 @@ times every method of the family on inputs drawn over their declared domains (`b
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -46,6 +47,8 @@ from .records import to_json
 from .registry import SPP_MAX, ConfigKey, RunContext, checked
 
 __all__ = ["EngineExperiment", "experiment"]
+
+log = logging.getLogger("rtfit.experiments")
 
 
 @dataclass(frozen=True)
@@ -206,6 +209,16 @@ class EngineExperiment:
             for k, m in (self.family.methods or {}).items()
             if all(i.domain is not None for i in m.inputs) and not m.fixed
         }
+        left = sorted(set(self.family.methods or {}) - set(methods))
+        if left:
+            log.info(
+                "bench %s: %s not timed here (an input without a declared domain: a table, K rays, a "
+                "sampler; or fixed values): their cost per pixel on a scene's own inputs is in the report of "
+                "rtfit run %s",
+                self.family.name,
+                ", ".join(left),
+                self.family.name,
+            )
         if not methods:  # every method reads a table (the SH coefficients of a sky): timed by the audit only
             return []
         names = dict.fromkeys(i.name for m in methods.values() for i in m.inputs)

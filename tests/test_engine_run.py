@@ -83,6 +83,9 @@ def test_the_engine_runs_a_family_on_its_shipped_scene(tmp_path, monkeypatch):
     assert all((d / f["file"]).is_file() for f in doc["figures"])
     assert (d / "pixels").is_dir() and (d / "report.html").is_file()
     assert seen[0].quick and seen[0].out_dir.name != "diffuse"  # (the atomic directory being written)
+    gb = seen[0].audits[0].gbuffer  # the G-buffer the cases were computed on, for the study
+    case = seen[0].audits[0].cases[0]
+    assert gb.mask.shape == (16, 16) and (case.mask <= gb.mask).all() and case.mask.any()
 
 
 def json_results(d):
