@@ -245,6 +245,14 @@ def _fit_trf(
     at_bound = {nm: at_lower[nm] or at_upper[nm] for nm in names}
     converged = bool(sol.status > 0 and np.all(np.isfinite(r)))
     message = "" if converged else f"scipy least_squares (trf): {sol.message}"
+    # A parameter the residuals do not change with at the solution (every central difference exactly 0: a
+    # step such as an AO radius, between the samples' distances) was not fitted, only left at its start.
+    flat = [nm for i, nm in enumerate(names) if np.all(np.isfinite(jac[:, i])) and not np.any(jac[:, i])]
+    if flat:
+        message = "; ".join(
+            [*([message] if message else []), f"{', '.join(flat)}: the residuals do not change with it "
+             "(zero derivative at every element): left at its start, not fitted"]
+        )  # fmt: skip
     return FitResult(
         values={nm: float(x[i]) for i, nm in enumerate(names)},
         stderr={nm: float(se[i]) for i, nm in enumerate(names)},

@@ -119,6 +119,9 @@ def test_trf_solver_lands_where_an_independent_fit_lands_and_flags_bounds_and_nu
     # p only scales the exponent of a base that is 1 everywhere (cos θ = 1): w and p are not determined.
     flat = fit_method(WRAP, {"cos_theta": np.ones(50)}, np.ones(50), solver="trf")
     assert math.isnan(flat.stderr["p"]) and flat.jacobian_rank < 2
+    # ((1 + w)/(1 + w))^p = 1 for every w, p: neither moves the residuals, which the fit says.
+    assert "w, p: the residuals do not change with it" in flat.message
+    assert "not fitted" not in trf.message and "not fitted" not in at.message
     with pytest.raises(ValueError, match="solver must be"):
         fit_method(WRAP, {"cos_theta": c}, target, solver="newton")
     with pytest.raises(ValueError, match="non-finite residuals"):
