@@ -272,6 +272,14 @@ def inscatter(setup: AuditSetup, app: Applicability, kind: str) -> Inscatter:
     return Inscatter(lit, rays, inscatter_reference(setup, app, lit, rays, tag), tag, k)
 
 
+QUADRATURE_UNCOSTED = (
+    "the exact row's values come from the single-scattering quadrature (rtfit.reference.single_scattering, "
+    "float64 NumPy, run once per case outside its kernel, which only passes them through): timing that "
+    "kernel would print a cost of nothing"
+)
+"""Why the ``quadrature`` row has no cost per pixel (`FamilyCase.uncosted`): it measured 0.008 ns a pixel."""
+
+
 def inscatter_case(
     app: Applicability,
     case: Inscatter,
@@ -302,4 +310,5 @@ def inscatter_case(
             f"{len(rays.start)} pixels; camera {'inside' if rays.inside else 'outside'} the medium",
         ),
         params=params,
+        uncosted={"quadrature": QUADRATURE_UNCOSTED},
     )
