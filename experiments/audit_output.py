@@ -21,7 +21,14 @@ from .viewer import save_case_pixels
 AuditResult = Any
 """An `audit_run.AuditResult` (not imported: audit_run imports this module)."""
 
-__all__ = ["case_figures", "fitted_entries", "save_pixels", "write_audit"]
+__all__ = [
+    "case_figures",
+    "fitted_entries",
+    "reference_record",
+    "save_pixels",
+    "write_audit",
+    "write_fitted_file",
+]
 
 
 def write_audit(directory: Path, r: AuditResult) -> None:
@@ -115,17 +122,46 @@ def fitted_entries(r: AuditResult) -> list:
 
 def _write_fitted(directory: Path, r: AuditResult) -> None:
     entries = fitted_entries(r)
-    if not entries:
-        return
-    prov = fitfiles.provenance(None, "audit", [r.info.xml.dependencies.digest] if r.info.xml else [],
-                               reference_spp=max(c.reference.spp for c in r.cases),
-                               variant=r.results.config.variant, quick=False)  # fmt: skip
+    if entries:
+        write_fitted_file(
+            directory / "fitted" / "audit.json",
+            f"parameters fitted to {Path(r.info.source).name} by rtfit audit",
+            "audit",
+            entries,
+            [r],
+            r.results.config.variant,
+            quick=False,
+        )
+
+
+def write_fitted_file(
+    path: Path, title: str, experiment: str, entries: list, audits, variant: str, quick: bool
+) -> None:
+    """``rtfit.fitted/1`` file at ``path`` of ``entries`` (`fitted_entries`) from ``audits``: its provenance
+    names every XML scene's digest and the largest reference spp of their cases."""
+    digests = [r.info.xml.dependencies.digest for r in audits if r.info.xml is not None]
+    spp = max((c.reference.spp for r in audits for c in r.cases), default=0)
+    prov = fitfiles.provenance(None, experiment, digests, reference_spp=spp, variant=variant, quick=quick)
     fitfiles.write_fitted(
-        directory / "fitted" / "audit.json",
-        fitfiles.FittedFile(
-            format=fitfiles.FORMAT,
-            title=f"parameters fitted to {Path(r.info.source).name} by rtfit audit",
-            provenance=prov,
-            methods=entries,
-        ),
+        path, fitfiles.FittedFile(format=fitfiles.FORMAT, title=title, provenance=prov, methods=entries)
     )
+
+
+def reference_record(ref, variant: str, mask: np.ndarray) -> dict:
+    """The results' ``reference`` record of an `audit_family.AuditReference` compared on ``mask``: its cache
+    key, quantity, integrator and why, variant, spp and passes, the mean relative standard error over the
+    compared pixels, and samples per second of rendering (None when no time was spent)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = ref.stderr[mask] / np.abs(ref.mean[mask])
+    rel = rel[np.isfinite(rel)]
+    return {
+        "cache_key": ref.cache_key,
+        "quantity": ref.quantity,
+        "integrator": ref.integrator,
+        "integrator_reason": ref.integrator_reason,
+        "variant": variant,
+        "spp": ref.spp,
+        "passes": ref.passes,
+        "mean_rel_stderr": float(np.mean(rel)) if rel.size else 0.0,
+        "samples_per_second": float(mask.sum() * ref.spp / ref.seconds) if ref.seconds > 0 else None,
+    }

@@ -67,7 +67,7 @@ from .applicability import applicable_families
 from .atomic import atomic_directory, writable_problem
 from .audit import SURFACE_FREE_KINDS, Applicability, AuditError, SceneInfo, inspect_scene
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
-from .audit_output import write_audit
+from .audit_output import reference_record, write_audit
 from .audit_parallax_occlusion import check_pom_depth
 from .cost import time_drjit
 from .families import AUDITED, METHOD_TABLES, RULES
@@ -1047,10 +1047,6 @@ def _results(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selecti
     info = r.info
     case_docs = []
     for _family, _a, case in plan:
-        ref = case.reference
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel = ref.stderr[case.mask] / np.abs(ref.mean[case.mask])
-        rel = rel[np.isfinite(rel)]
         approx = []
         for row in r.outcomes[case.id].values():
             c = r.costs.get(row.method.id)
@@ -1079,19 +1075,7 @@ def _results(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selecti
                     "name": Path(info.source).name,
                     "hash": info.xml.dependencies.digest if info.xml else None,
                 },
-                "reference": {
-                    "cache_key": ref.cache_key,
-                    "quantity": ref.quantity,
-                    "integrator": ref.integrator,
-                    "integrator_reason": ref.integrator_reason,
-                    "variant": variant,
-                    "spp": ref.spp,
-                    "passes": ref.passes,
-                    "mean_rel_stderr": float(np.mean(rel)) if rel.size else 0.0,
-                    "samples_per_second": float(case.mask.sum() * ref.spp / ref.seconds)
-                    if ref.seconds > 0
-                    else None,
-                },
+                "reference": reference_record(case.reference, variant, case.mask),
                 "approximations": approx,
             }
         )

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .audit_output import case_figures, save_pixels
+from .audit_output import case_figures, reference_record, save_pixels
 from .compare_aovs import DEPTH_TOLERANCE
 from .compare_checks import frame_checks, shape_table, z_figure
 from .records import SCHEMA, Check, Results, from_json, plain_json, to_json
@@ -54,10 +54,7 @@ def temporal_stability(r: CompareResult) -> list[dict]:
 
 
 def _case_doc(r: CompareResult, case, variant: str, fit_exposure: bool, footprint: str) -> dict:
-    info, ref = r.info, case.reference
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel = ref.stderr / np.abs(ref.mean)
-    rel = rel[np.isfinite(rel)]
+    info = r.info
     rows = []
     for f in r.outcomes[case.id].values():
         a = f.analysis
@@ -86,17 +83,7 @@ def _case_doc(r: CompareResult, case, variant: str, fit_exposure: bool, footprin
             "camera": r.camera_of_case[case.id],
         },
         "scene": {"name": Path(info.source).name, "hash": info.xml.dependencies.digest if info.xml else None},
-        "reference": {
-            "cache_key": ref.cache_key,
-            "quantity": ref.quantity,
-            "integrator": ref.integrator,
-            "integrator_reason": ref.integrator_reason,
-            "variant": variant,
-            "spp": ref.spp,
-            "passes": ref.passes,
-            "mean_rel_stderr": float(np.mean(rel)) if rel.size else 0.0,
-            "samples_per_second": float(case.mask.size * ref.spp / ref.seconds) if ref.seconds > 0 else None,
-        },
+        "reference": reference_record(case.reference, variant, np.ones(case.mask.shape, bool)),  # every pixel
         "approximations": rows,
     }
 

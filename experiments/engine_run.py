@@ -37,9 +37,8 @@ import numpy as np
 from rtfit.realtime.arrays import backend_float
 from rtfit.scenes.parse import LIBRARY_DIR
 
-from . import fitted as fitfiles
 from .audit_family import StudyContext
-from .audit_output import case_figures, fitted_entries, save_pixels
+from .audit_output import case_figures, fitted_entries, save_pixels, write_fitted_file
 from .audit_run import audit
 from .cost import bench_backend, method_bench_rows
 from .families import FAMILIES, Family
@@ -156,7 +155,15 @@ class EngineExperiment:
             if not sections:
                 sections = [s for s in doc["sections"] if s["id"] != "scene"]
         if entries:
-            self._write_fitted(out, entries, audits, ctx)
+            write_fitted_file(
+                out / "fitted" / f"{self.family.name}.json",
+                f"{self.family.name}: parameters fitted to its shipped scenes by the audit engine",
+                self.family.name,
+                entries,
+                audits,
+                ctx.variant,
+                quick=ctx.quick,
+            )
         intro = {
             "id": "scenes",
             "title": "Shipped scenes",
@@ -179,22 +186,6 @@ class EngineExperiment:
             "notes": notes,
             "headline": [],
         }
-
-    def _write_fitted(self, out: Path, entries: list, audits: list, ctx: RunContext) -> None:
-        digests = [r.info.xml.dependencies.digest for r in audits if r.info.xml is not None]
-        spp = max((c.reference.spp for r in audits for c in r.cases), default=0)
-        prov = fitfiles.provenance(
-            None, self.family.name, digests, reference_spp=spp, variant=ctx.variant, quick=ctx.quick
-        )
-        fitfiles.write_fitted(
-            out / "fitted" / f"{self.family.name}.json",
-            fitfiles.FittedFile(
-                format=fitfiles.FORMAT,
-                title=f"{self.family.name}: parameters fitted to its shipped scenes by the audit engine",
-                provenance=prov,
-                methods=entries,
-            ),
-        )
 
     # ---------------------------------------------------------------------------------------------- bench
     def bench(self, ctx) -> list[dict]:
