@@ -282,36 +282,13 @@ def test_homogeneous_medium_on_the_sensor_is_unbounded_constant_fog_per_channel(
     assert all(c.passed for c in r.results.checks)
 
 
-TOML = """
-name = "homogeneous_box"
-[camera]
-origin = [0.0, -7.0, 1.2]
-target = [0.0, 0.0, 1.0]
-fov_deg = 50.0
-width = 12
-height = 12
-
-[[lights]]
-type = "rect_light"
-center = [0.0, 3.0, 1.0]
-normal = [0.0, -1.0, 0.0]
-size = [12.0, 12.0]
-radiance = 1.0
-
-[[media]]
-type = "homogeneous"
-boundary = { type = "cube", center = [0.0, 0.0, 1.0], size = [4.0, 4.0, 3.0], rotate_deg = 20.0 }
-sigma_t = 0.4
-albedo = 0.0
-"""
+HOMOGENEOUS_BOX = Path(__file__).parent / "data" / "homogeneous_box.toml"
 
 
 def test_toml_homogeneous_medium_audits_as_constant_fog(tmp_path):
     """An rtfit TOML homogeneous medium in a rotated box: constant fog, exp(−σt·L) with L from a slab test in
     the box's own frame."""
-    path = tmp_path / "homogeneous_box.toml"
-    path.write_text(TOML)
-    r = audit(str(path), "height-fog", spp=64, pass_spp=32, cache=tmp_path / "c", **FAST)
+    r = audit(str(HOMOGENEOUS_BOX), "height-fog", spp=64, pass_spp=32, cache=tmp_path / "c", **FAST)
     case, radiance = r.cases
     assert case.id == "media0-transmittance" and case.parameters["falloff"] == 0.0
     a = math.radians(20.0)

@@ -242,37 +242,15 @@ def test_shipped_box_exp_row_is_beer_lambert_and_fitted_linear_beats_given(box_a
     assert inp["l0_b"].mean() > inp["l0_r"].mean()  # the blue wall seen without fog
 
 
-TOML = """
-name = "linear_fog_box"
-[camera]
-origin = [0.0, -7.0, 1.2]
-target = [0.0, 0.0, 1.0]
-fov_deg = 50.0
-width = 12
-height = 12
-
-[[lights]]
-type = "rect_light"
-center = [0.0, 3.0, 1.0]
-normal = [0.0, -1.0, 0.0]
-size = [12.0, 12.0]
-radiance = 1.0
-
-[[media]]
-type = "homogeneous"
-boundary = { type = "cube", center = [0.0, 0.0, 1.0], size = [4.0, 4.0, 3.0], rotate_deg = 20.0 }
-sigma_t = 0.4
-albedo = 0.0
-"""
+HOMOGENEOUS_BOX = Path(__file__).parent / "data" / "homogeneous_box.toml"
+"""The rotated absorbing box of tests/test_audit_fog_media.py (one file for both families' tests)."""
 
 
 def test_toml_homogeneous_medium(tmp_path):
     """An rtfit TOML homogeneous medium in a box rotated 20° about z: fog-exp is exp(−σt·L) (slab test
     here); the purely absorbing box in front of a rect light of radiance 1: the fogged radiance is T, and
     blend-beer-lambert with C fitted lands on C ≈ 0."""
-    path = tmp_path / "linear_fog_box.toml"
-    path.write_text(TOML)
-    r = audit(str(path), "linear-fog", spp=64, pass_spp=32, cache=tmp_path / "c", **FAST)
+    r = audit(str(HOMOGENEOUS_BOX), "linear-fog", spp=64, pass_spp=32, cache=tmp_path / "c", **FAST)
     t_case, r_case = r.cases
     g = t_case.channel_inputs[0]
     dirs = np.stack([g["dx"], g["dy"], g["dz"]], axis=1)
