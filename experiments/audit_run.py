@@ -38,6 +38,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import drjit as dr
 import numpy as np
 
 from rtfit.fitting import (
@@ -48,7 +49,7 @@ from rtfit.fitting import (
     z_checks,
     z_pair,
 )
-from rtfit.realtime.arrays import backend_float
+from rtfit.realtime.arrays import Uniforms, backend_float
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import is_user_approximation
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
@@ -448,6 +449,9 @@ def _bad_values(method: Method, img: np.ndarray, case: FamilyCase) -> str | None
     return f"{method.id}: returned a non-finite value on {case.label} at {at}"
 
 
+_UNIFORM_FLOATS = 16384
+"""A table of at most this many floats, where the kernel reads it by index, is timed as a shader's constant
+buffer (`rtfit.realtime.arrays.Uniforms`): a D3D11/12 constant buffer holds 4096 float4 = 16384 floats."""
 _COST_PROBE = 1 << 12  # elements of the first, sizing call of a cost measurement
 _COST_CALL_SECONDS = 0.05  # the sized call's target duration: a slow kernel is timed on fewer elements
 _COST_MIN_SECONDS = 0.05
@@ -479,13 +483,16 @@ def _cost(
     Float = backend_float(backend)
     n = int(case.mask.sum())
     reps = max(1, -(-size // max(n, 1)))
-    args, keys, consts = [], [], {}
+    args, keys, consts, uniforms = [], [], {}, {}
     for name in method.input_names:
         v = case.channel_inputs[0][name]
         if not isinstance(v, (int, float, np.ndarray, np.generic)):  # a sampler object (a distance field)
             consts[name] = v
         elif np.ndim(v) and np.size(v) != n:
-            consts[name] = Float(np.ascontiguousarray(v, np.float32).reshape(-1))
+            table = np.ascontiguousarray(v, np.float32).reshape(-1)
+            consts[name] = Float(table)
+            if table.size <= _UNIFORM_FLOATS:
+                uniforms[name] = Uniforms.of(table)
         elif np.ndim(v):
             a = np.tile(np.asarray(v, np.float64), reps)[:size]
             a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
@@ -494,6 +501,12 @@ def _cost(
         else:
             consts[name] = float(v)
     elements = min(n * reps, size) if keys else 1
+    if uniforms:  # a small table read by index, as a shader's constant buffer (`Uniforms`: nothing folded)
+        try:
+            dr.eval(method.evaluate({**consts, **uniforms, **dict(zip(keys, args, strict=True))}))
+            consts.update(uniforms)
+        except (TypeError, IndexError, AttributeError, RuntimeError):  # a kernel that gathers from it
+            pass
 
     def call(*xs):
         return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))})

@@ -67,3 +67,26 @@ def test_a_case_with_a_zero_reference_is_left_out_and_named():
     assert pf is not None and pf.cases == ("c1", "c2")
     assert "zero everywhere" in pf.left_out["dark"]
     assert pooled_fit(LINE, cases[:1]) is None  # one case: nothing to pool
+
+
+def test_a_small_table_is_timed_as_distinct_unfoldable_literals():
+    """`Uniforms` (the cost's constant buffer): a constant sky's SH table (24 zeros, equal channels) becomes
+    27 distinct values none of which is 0 or ±1, each within 2⁻²⁰·(|v| + 1)·27 of its own, and a kernel that
+    reads the table by index gives the same values as on the table itself (to that change)."""
+    from rtfit.realtime import sh_sky_bent_normal
+    from rtfit.realtime.arrays import Uniforms, backend_float
+
+    sky = np.zeros(27)
+    sky[[0, 9, 18]] = 3.5
+    u = Uniforms.of(sky)
+    assert len(set(u)) == 27 and not {0.0, 1.0, -1.0} & set(u)
+    assert np.all(np.abs(np.array(u) - sky) <= 2.0**-20 * (np.abs(sky) + 1.0) * 27 + 1e-15)
+    n = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    m = sh_sky_bent_normal.METHODS["irradiance-normal"]
+    Float = backend_float(None, np.float64)  # (a NumPy table would broadcast against the pixels)
+    inputs = {"nx": Float(n[:, 0]), "ny": Float(n[:, 1]), "nz": Float(n[:, 2]), "ao": Float(np.ones(2))}
+    exact = np.array([np.asarray(c) for c in m.evaluate({**inputs, "coeffs": Float(sky)})])
+    timed = np.array([np.asarray(c) for c in m.evaluate({**inputs, "coeffs": u})])
+    assert timed == pytest.approx(exact, rel=1e-4)
+    # a constant sky of radiance L lights every normal with E = π L: L00 = 2√π·L, so L = 3.5/(2√π)
+    assert exact == pytest.approx(np.pi * 3.5 / (2 * np.sqrt(np.pi)), rel=1e-6)
