@@ -416,11 +416,13 @@ class PassEntry:
         results = [self.load(i, shape, size(i)) for i in range(count)]
         missing = [i for i, r in enumerate(results) if r is None]
         name = label or f"reference {self.key[:8]}"
+        # A pass this process rendered earlier (two cases sharing a reference) is not resumed from the cache.
+        ours = sum(1 for i, r in enumerate(results) if r is not None and PASS_COUNTS.made(self._files(i)[0]))
         if not missing:
-            PASS_COUNTS.add(count, 0)
+            PASS_COUNTS.add(count, ours)
             return [r for r in results if r is not None], 0
-        if count - len(missing):
-            log.info("%s: resumed %d of %d passes from the cache", name, count - len(missing), count)
+        if count - len(missing) - ours:
+            log.info("%s: resumed %d of %d passes from the cache", name, count - len(missing) - ours, count)
         self.folder.mkdir(parents=True, exist_ok=True)
         self._write_info()
         prepared = False
@@ -448,6 +450,7 @@ class PassEntry:
                                     raise PassBudgetExceeded(f"{what}: {e}") from None
                                 cached = self.save(i, check_finite(result, what))
                             rendered += 1
+                            PASS_COUNTS.mark(self._files(i)[0])
                     finally:
                         self.release(i)
                 if cached is None:
@@ -464,25 +467,38 @@ class PassEntry:
                     )
                 time.sleep(CLAIM_POLL_SECONDS)
         bar.close()
-        PASS_COUNTS.add(count, rendered)
+        PASS_COUNTS.add(count, rendered + ours)
         return [r for r in results if r is not None], rendered
 
 
 class PassCounts:
     """Passes requested from `PassEntry.passes` in this process, and how many of them it rendered (the
-    rest came from the cache); thread-safe. The runner reads `PASS_COUNTS` before and after an
-    experiment to say how much of it was resumed. Passes of jobs run in other processes (the process
-    and Ray executors) are counted there, not here."""
+    rest came from the cache); thread-safe. A pass this process rendered and then reads again from the
+    cache (two cases or experiments sharing a reference) counts as rendered: "resumed" names only passes
+    that existed before the process started (`mark`, `made`). The runner reads `PASS_COUNTS` before and
+    after an experiment to say how much of it was resumed. Passes of jobs run in other processes (the
+    process and Ray executors) are counted there, not here."""
 
     def __init__(self):
         self._lock = threading.Lock()
         self.requested = 0
         self.rendered = 0
+        self._made: set[str] = set()
 
     def add(self, requested: int, rendered: int) -> None:
         with self._lock:
             self.requested += int(requested)
             self.rendered += int(rendered)
+
+    def mark(self, path: Path) -> None:
+        """Record the pass file ``path`` as rendered by this process."""
+        with self._lock:
+            self._made.add(str(path))
+
+    def made(self, path: Path) -> bool:
+        """True when this process rendered the pass file ``path`` (`mark`)."""
+        with self._lock:
+            return str(path) in self._made
 
     def snapshot(self) -> tuple[int, int]:
         """(requested, rendered) so far."""

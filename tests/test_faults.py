@@ -240,21 +240,32 @@ def test_a_live_owners_temporary_directory_is_kept(tmp_path):
 
 # ------------------------------------------------------------------------------------ resume count
 def test_pass_counts_and_the_resumed_line(tmp_path):
+    """"resumed" names only passes that existed before this process: passes it rendered itself and reads
+    again (two cases sharing a reference) count as rendered (issue 37: "resumed 2 of 24 passes" on a cache
+    the run had just created)."""
     import numpy as np
 
     def render(i):
         return PassResult(np.full((2, 3), float(i)), np.ones((2, 3)), 4, i, 0.0)
 
-    entry = PassEntry(tmp_path, {"test": 1}, storage="npz")
+    entry = PassEntry(tmp_path / "ours", {"test": 1}, storage="npz")
     before = PASS_COUNTS.snapshot()
     entry.passes(3, render)
     middle = PASS_COUNTS.snapshot()
     entry.passes(5, render)
     after = PASS_COUNTS.snapshot()
     assert (middle[0] - before[0], middle[1] - before[1]) == (3, 3)
-    assert (after[0] - middle[0], after[1] - middle[1]) == (5, 2)
+    assert (after[0] - middle[0], after[1] - middle[1]) == (5, 5)
     assert resumed_line("diffuse", before, middle) is None
-    assert resumed_line("diffuse", middle, after) == "diffuse: resumed 3 of 5 passes from the cache"
+    assert resumed_line("diffuse", middle, after) is None
+    # Passes saved by an earlier process (`save` alone, as a previous run left them) are resumed.
+    earlier = PassEntry(tmp_path / "earlier", {"test": 2}, storage="npz")
+    for i in range(3):
+        earlier.save(i, render(i))
+    before = PASS_COUNTS.snapshot()
+    PassEntry(tmp_path / "earlier", {"test": 2}, storage="npz").passes(5, render)
+    after = PASS_COUNTS.snapshot()
+    assert resumed_line("diffuse", before, after) == "diffuse: resumed 3 of 5 passes from the cache"
 
 
 @pytest.mark.parametrize("suffix", ["tmp", "old"])
