@@ -243,7 +243,7 @@ def _room(dims: tuple[int, int, int]) -> ShippedScene:
         size=(64, 64),
         spp=256,
         quick_size=(24, 24),
-        quick_spp=16,
+        quick_spp=64,
         options={"grid": dims},
         name=f"volume_room-h{h:g}".replace(".", "p"),
         quick=dims in QUICK_GRIDS,
