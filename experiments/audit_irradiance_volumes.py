@@ -46,10 +46,20 @@ from rtfit.reference.estimators import irradiance_pass
 from rtfit.reference.probe_radiance import probe_radiance_pass
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
 from .probe_projection import FEATURES_NAME, NNLS_NORMALS, probe_bases, probe_features
 
-__all__ = ["DEFAULT_NODES", "FAMILY", "PROBE_SPP_FACTOR", "irradiance_volume_cases", "on_grid", "probe_grid"]
+__all__ = [
+    "DEFAULT_NODES",
+    "FAMILY",
+    "GRIDS",
+    "PROBE_SPP_FACTOR",
+    "QUICK_GRIDS",
+    "SCENES",
+    "irradiance_volume_cases",
+    "on_grid",
+    "probe_grid",
+]
 
 FORMAT = 1
 DEFAULT_NODES = 4
@@ -211,3 +221,36 @@ FAMILY = AuditFamily(
         ),
     ),
 )
+
+
+GRIDS = ((2, 2, 2), (4, 4, 4), (8, 8, 8))
+"""The probe grids of the shipped scenes: the room's box is 4 m on every side (its bounding box, the camera
+and the light included), so spacings 2, 1 and 0.5 m (each grid's nodes are not a subset of the next: nodes
+sit at cell centres)."""
+
+
+QUICK_GRIDS = (GRIDS[0], GRIDS[-1])
+"""Those ``--quick`` audits: the coarsest and the finest (the engine times every row's cost per scene: ~7 s a
+scene on 2 CPU cores, so the middle grid is the full run's)."""
+
+
+def _room(dims: tuple[int, int, int]) -> ShippedScene:
+    h = 4.0 / dims[0]
+    return ShippedScene(
+        "volume_room.toml",
+        f"the room with a bright point light and an occluder, probe grid {'×'.join(map(str, dims))} "
+        f"(spacing {h:g} m)",
+        size=(64, 64),
+        spp=256,
+        quick_size=(24, 24),
+        quick_spp=64,
+        options={"grid": dims},
+        name=f"volume_room-h{h:g}".replace(".", "p"),
+        quick=dims in QUICK_GRIDS,
+    )
+
+
+SCENES = tuple(_room(d) for d in GRIDS)
+"""The scenes ``rtfit run irradiance-volumes`` audits: scenes/library/volume_room.toml (the experiment's
+closed 4 × 4 × 2.5 m room, red and green side walls, a 20 W/sr point light and a thin occluding wall) once
+per probe grid of `GRIDS`; `QUICK_GRIDS` in ``--quick`` (probes: `PROBE_SPP_FACTOR` × spp directions each)."""

@@ -216,3 +216,54 @@ def test_a_user_volume_reads_the_rows_own_probes(tmp_path):
     with pytest.raises(AuditError) as e:
         audit(tmp_path / "f.xml", [past_the_end], spp=4, pass_spp=4, cache=tmp_path / "cache2", **FAST)
     assert "\n" not in str(e.value) and str(e.value).startswith("past_the_end: raised IndexError")
+
+
+def test_study_popping_against_the_closed_form_of_probes_scaled_along_x():
+    """Three probes along x (h = 1 m) holding the same light scaled 1, 2, 3: the irradiance at node k is
+    (k + 1)·E₀ for every basis and normal, so the nearest lookup jumps by |2 − 1|/1.5 = 2/3 (first boundary)
+    and 1/2.5 (second) of the mean there, the largest 2/3; the trilinear lookup is continuous (~ε)."""
+    from rtfit.experiments.irradiance_volumes_study import COEFFICIENTS, popping
+    from rtfit.realtime.irradiance_volumes import ProbeGrid, probe_table
+
+    rng = np.random.default_rng(1)
+    grid = ProbeGrid((0.0, 0.0, 0.0), 1.0, (3, 1, 1))
+    tables = {}
+    for basis, k in COEFFICIENTS.items():
+        base = rng.uniform(0.5, 1.0, (1, k, 3))
+        if basis == "sh-l2":  # a dominant DC term: a positive irradiance for every normal
+            base[:, 1:] *= 0.1
+        tables[basis] = probe_table(base * np.array([1.0, 2.0, 3.0])[:, None, None])
+    steps = popping(grid, tables)
+    for mid, step in steps.items():
+        if mid.startswith("nearest"):
+            assert step == pytest.approx(2.0 / 3.0, rel=1e-4)
+        else:
+            assert step < 1e-3
+
+
+def test_run_is_the_engine_on_the_shipped_room_plus_the_study(tmp_path):
+    """``rtfit run irradiance-volumes`` = the engine's audits of scenes/library/volume_room.toml, one probe
+    grid per shipped scene, + `irradiance_volumes_study.study`. Independent values: the room's box is 4 m on
+    every side (grid 2×2×2: spacing 2 m, 8 probes); storage 3 × 6 and 3 × 9 floats per probe, a table of
+    4 bytes × floats × probes; every study check passes (continuity of the trilinear lookup)."""
+    from rtfit.experiments import audit_irradiance_volumes as decl
+    from rtfit.experiments import irradiance_volumes_study as study
+    from rtfit.experiments.audit_family import StudyContext
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.scenes import library_path
+
+    fam = FAMILIES["irradiance-volumes"]
+    assert fam.module == ENGINE and fam.scenes == decl.SCENES and fam.study is study.study
+    assert [s.options["grid"] for s in fam.scenes] == [(2, 2, 2), (4, 4, 4), (8, 8, 8)]
+    assert {s.name for s in fam.scenes if s.quick} == {"volume_room-h2", "volume_room-h0p5"}
+    shipped = fam.scenes[0]
+    r = audit(library_path("volume_room"), "irradiance-volumes", spp=4, pass_spp=4, width=8, height=8,
+              fit=False, grid=shipped.options["grid"], cache=tmp_path / "cache", **FAST)  # fmt: skip
+    (case,) = r.cases
+    assert case.parameters["grid_spacing"] == pytest.approx(2.0) and case.parameters["probes"] == 8
+    res = study.study(StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "cache", (r,)))
+    assert all(c.passed for c in res.checks), [c.name for c in res.checks if not c.passed]
+    rows = {x["row"]: x for x in res.extra["per_spacing"]}
+    assert rows["trilinear-sh-l2"]["table_bytes"] == 4 * 27 * 8
+    assert rows["nearest-cube-valve"]["table_bytes"] == 4 * 18 * 8
+    assert rows["nearest-sh-l2"]["popping_max_step"] > rows["trilinear-sh-l2"]["popping_max_step"]
