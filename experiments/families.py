@@ -160,7 +160,7 @@ FAMILIES: dict[str, Family] = {
             "Path-traced probes over a room with a bright point light and an occluder (one shipped scene per "
             "probe grid), looked up nearest and trilinear against path-traced irradiance at the visible "
             "points: error vs spacing, popping, storage per probe.",
-            methods=irradiance_volumes.METHODS,
+            methods={**irradiance_volumes.METHODS, **irradiance_volumes.SPLIT_METHODS},
             audits=(audit_irradiance_volumes.FAMILY,),
             scenes=audit_irradiance_volumes.SCENES,
             study=irradiance_volumes_study.study,
