@@ -281,7 +281,7 @@ def with_direct(method: Method) -> Method:
 
 
 SPLIT_METHODS = method_table(with_direct(m) for m in METHODS.values())
-"""`with_direct` of every `METHODS` entry (ids ``direct-<lookup>-<basis>``): exact direct light + the volume."""
+"""`with_direct` of every `METHODS` entry (ids ``direct-<lookup>-<basis>``): exact direct + the volume."""
 
 
 # ============================================================================================= public

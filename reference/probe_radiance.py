@@ -132,8 +132,9 @@ def delta_light_irradiance(mi, mi_scene, points, normals=None) -> list[tuple[np.
         else:
             ray.maxt = ray.maxt * (1.0 - 1e-4)
         visible = ~np.asarray(mi_scene.ray_test(ray), dtype=bool)
-        d = np.asarray(ds.d, dtype=np.float64).reshape(3, -1).T
-        e = np.asarray(weight, dtype=np.float64).reshape(3, -1).T * visible[:, None]
+        # (a directional light's direction and weight come back as one value for every point: broadcast)
+        d = np.broadcast_to(np.asarray(ds.d, dtype=np.float64).reshape(3, -1).T, p.shape)
+        e = np.broadcast_to(np.asarray(weight, dtype=np.float64).reshape(3, -1).T, p.shape) * visible[:, None]
         out.append((np.ascontiguousarray(d), np.ascontiguousarray(e)))
     return out
 
