@@ -20,6 +20,13 @@ For a Mitsuba XML or rtfit TOML scene with surfaces and a finite bounding box, o
   errors (W/m², RGB). It counts every light a ray can reach, as the probes do: an area light, an
   environment, and all light after one bounce; the *direct* light of a point, spot or directional light
   reaches neither (a ray never hits it: an engine adds it per pixel and keeps the volume for the rest).
+* **Total irradiance** (case `TOTAL_CASE`, only where the scene has delta lights: point, spot, directional):
+  the reference above plus each delta light's exact direct light at the visible points
+  (`rtfit.reference.probe_radiance.delta_light_irradiance`: Mitsuba's emitter sample × cos × a shadow ray),
+  against the six rows reading probes with the delta lights *folded* in (`folded_bases`: a distant light from
+  the light's direction at each probe, its E⊥ through the probe's own shadow ray; seed 7.4.3) and against
+  the six ``direct-…`` rows (`SPLIT_METHODS`: that exact direct light + the unfolded volume's lookup, the
+  engine's usual split). Both cases share the probe bake and the global pass.
 * **Rows**: `rtfit.realtime.irradiance_volumes.METHODS` — nearest and trilinear lookup × Valve's cube, the
   NNLS cube and SH L2 — each reading its own basis's table (`FamilyCase.row_inputs`); no free parameters.
   A user's ``@approximation(quantity="volume_irradiance")`` reads the same points, normals and grid, with
@@ -201,7 +208,9 @@ def irradiance_volume_cases(setup: AuditSetup, app: Applicability) -> list[Famil
     if not at_probes:
         return [volume]
     at_pixels = delta_light_irradiance(mi, scene, points, normals)
-    direct = sum(e * np.maximum(np.einsum("ij,ij->i", normals, d), 0.0)[:, None] for d, e in at_pixels)
+    direct = np.zeros_like(normals)  # each delta light's E⊥·max(n·d, 0) at the visible points
+    for d, e in at_pixels:
+        direct += e * np.maximum(np.einsum("ij,ij->i", normals, d), 0.0)[:, None]
     folded = {b: probe_table(c) for b, c in folded_bases(probes.mean, at_probes).items()}
     rows = {**methods, **{f"direct-{mid}": with_direct(m) for mid, m in methods.items()}}  # SPLIT_METHODS
     split = {f"direct-{mid}": ({**v[0], **{f"direct_{c}": direct[:, j] for j, c in enumerate("rgb")}},)
