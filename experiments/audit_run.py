@@ -38,18 +38,18 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import drjit as dr
 import numpy as np
 
 from rtfit.fitting import (
     ALL_METRICS,
     compute_metrics,
     concat_z_pairs,
-    fit_method,
     prime_flip,
     z_checks,
     z_pair,
 )
-from rtfit.realtime.arrays import backend_float
+from rtfit.realtime.arrays import Uniforms, backend_float
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import is_user_approximation
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
@@ -67,6 +67,7 @@ from .applicability import applicable_families
 from .atomic import atomic_directory, writable_problem
 from .audit import SURFACE_FREE_KINDS, Applicability, AuditError, SceneInfo, inspect_scene
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_fit import evaluate_case, fit_case
 from .audit_output import reference_record, write_audit
 from .audit_parallax_occlusion import check_pom_depth
 from .cost import time_drjit
@@ -117,12 +118,6 @@ def _audits(a: Applicability, scene_format: str) -> bool:
 DEFAULT_SPP = 256
 DEFAULT_PASS_SPP = 32
 _COST_ELEMENTS = 1 << 20  # inputs are tiled to this many elements for the cost measurement
-FIT_SOLVER = "trf"
-"""The audit's fits: SciPy's trust-region reflective solver on the NumPy run of each kernel text
-(`rtfit.fitting.fit_method`, ``solver="trf"``): nothing is compiled per scene. On Mitsuba's Cornell box at
-64² × 32 spp (2 loaded CPU cores) its 9 fits took 3.1 s against 34.3 s through the JAX run (optimistix LM),
-with the same values to ~1e-9 where both converge, and a lower SSR where LM stopped early (the Evans
-listing form's logB, stuck on its bound through the change of variables: SSR 8928 → 262.5)."""
 
 
 # ----------------------------------------------------------------------------------------- approximations
@@ -444,39 +439,6 @@ def _given(case: FamilyCase, row: str, method: Method) -> dict[str, float]:
     return {**method.defaults(), **{k: p.initial for k, p in own.items() if k in method.params}}
 
 
-def _evaluate(method: Method, case: FamilyCase, params: Mapping[str, float]) -> np.ndarray:
-    """The method on the case's masked pixels, per channel (or once, returning (R, G, B), on a case with one
-    mapping), times the case's factor: an image (H, W, 3)."""
-    img = np.zeros((*case.mask.shape, 3))
-    vals = []
-    n = int(case.mask.sum())
-    for inputs in case.channel_inputs:
-        v = method.evaluate(_tables_as_drjit(inputs), dict(params))
-        parts = v if isinstance(v, (tuple, list)) else (v,)
-        vals += [np.broadcast_to(np.asarray(p, np.float64), (n,)) for p in parts]
-    if len(vals) == 1:  # a grey value on a one-mapping case
-        vals *= 3
-    if len(vals) != 3:
-        raise AuditError(f"{method.id}: returned {len(vals)} channels on {case.label} (expected 3: R, G, B)")
-    out = np.stack(vals, axis=-1)
-    if case.factor is not None:
-        out = out * case.factor[:, None]
-    img[case.mask] = out
-    return img
-
-
-def _tables_as_drjit(inputs: Mapping[str, Any]) -> dict:
-    """The inputs as given, except that where arrays of several lengths meet (per-pixel inputs beside a
-    table, e.g. a sky texture's texel directions) every array becomes a float64 Dr.Jit array of the default
-    backend, which the kernel takes as it is (NumPy arrays would be broadcast against each other)."""
-    shapes = {np.shape(v) for v in inputs.values() if isinstance(v, np.ndarray) and v.ndim}
-    if len(shapes) <= 1:
-        return dict(inputs)
-    Float = backend_float(None, np.float64)
-    return {k: Float(np.ascontiguousarray(v, np.float64).reshape(-1)) if isinstance(v, np.ndarray) else v
-            for k, v in inputs.items()}  # fmt: skip
-
-
 def _bad_values(method: Method, img: np.ndarray, case: FamilyCase) -> str | None:
     bad = ~np.isfinite(img[case.mask])
     if not bad.any():
@@ -487,38 +449,9 @@ def _bad_values(method: Method, img: np.ndarray, case: FamilyCase) -> str | None
     return f"{method.id}: returned a non-finite value on {case.label} at {at}"
 
 
-def _fit(method: Method, case: FamilyCase, row: str = "") -> dict:
-    """Fit ``method``'s free parameters to the case's reference over the masked pixels and the three channels
-    (where the case's factor is positive, the target divided by it), unweighted: the least-squares fit of the
-    image's RMSE in the quantity's units. On a one-mapping case the method returns (R, G, B) and its inputs
-    are passed as they are. Starts and bounds: the case's for the row (`FamilyCase.params`), else the
-    method's declared ones."""
-    ref = case.reference.mean[case.mask]
-    start = {k: p for k, p in case.params.get(row, {}).items() if k in method.params}
-    params = {**method.params, **start}
-    if len(case.channel_inputs) == 1 and case.factor is None:
-        inputs = {n: case.channel_inputs[0][n] for n in method.input_names}
-        return fit_method(method, inputs, ref.T, params=params, solver=FIT_SOLVER).to_dict()
-    keep = np.ones(len(ref), bool) if case.factor is None else case.factor > 0
-    scale = np.ones(len(ref)) if case.factor is None else np.where(keep, case.factor, 1.0)
-    names = method.input_names
-    inputs: dict[str, Any] = {}
-    for n in names:
-        first = case.channel_inputs[0][n]
-        if not np.ndim(first) and all(inp[n] is first for inp in case.channel_inputs):
-            inputs[n] = first  # one scalar or sampler object for every channel: a constant of the fit
-            continue
-        parts = []
-        for inp in case.channel_inputs:
-            v = inp[n]
-            parts.append(
-                np.asarray(v, np.float64)[keep] if np.ndim(v) else np.full(int(keep.sum()), float(v))
-            )
-        inputs[n] = np.concatenate(parts)
-    target = np.concatenate([ref[keep, c] / scale[keep] for c in range(3)])
-    return fit_method(method, inputs, target, params=params, solver=FIT_SOLVER).to_dict()
-
-
+_UNIFORM_FLOATS = 16384
+"""A table of at most this many floats, where the kernel reads it by index, is timed as a shader's constant
+buffer (`rtfit.realtime.arrays.Uniforms`): a D3D11/12 constant buffer holds 4096 float4 = 16384 floats."""
 _COST_PROBE = 1 << 12  # elements of the first, sizing call of a cost measurement
 _COST_CALL_SECONDS = 0.05  # the sized call's target duration: a slow kernel is timed on fewer elements
 _COST_MIN_SECONDS = 0.05
@@ -550,13 +483,16 @@ def _cost(
     Float = backend_float(backend)
     n = int(case.mask.sum())
     reps = max(1, -(-size // max(n, 1)))
-    args, keys, consts = [], [], {}
+    args, keys, consts, uniforms = [], [], {}, {}
     for name in method.input_names:
         v = case.channel_inputs[0][name]
         if not isinstance(v, (int, float, np.ndarray, np.generic)):  # a sampler object (a distance field)
             consts[name] = v
         elif np.ndim(v) and np.size(v) != n:
-            consts[name] = Float(np.ascontiguousarray(v, np.float32).reshape(-1))
+            table = np.ascontiguousarray(v, np.float32).reshape(-1)
+            consts[name] = Float(table)
+            if table.size <= _UNIFORM_FLOATS:
+                uniforms[name] = Uniforms.of(table)
         elif np.ndim(v):
             a = np.tile(np.asarray(v, np.float64), reps)[:size]
             a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
@@ -565,6 +501,12 @@ def _cost(
         else:
             consts[name] = float(v)
     elements = min(n * reps, size) if keys else 1
+    if uniforms:  # a small table read by index, as a shader's constant buffer (`Uniforms`: nothing folded)
+        try:
+            dr.eval(method.evaluate({**consts, **uniforms, **dict(zip(keys, args, strict=True))}))
+            consts.update(uniforms)
+        except (TypeError, IndexError, AttributeError, RuntimeError):  # a kernel that gathers from it
+            pass
 
     def call(*xs):
         return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))})
@@ -676,6 +618,7 @@ def audit(
     cost_elements: int = _COST_ELEMENTS,
     metrics: Sequence[str] = ALL_METRICS,
     tag: tuple[str, str] | None = None,
+    costs: dict[str, dict] | None = None,
 ) -> AuditResult:
     """Audit the scene ``scene_or_path`` (a Mitsuba ``.xml`` or rtfit ``.toml`` path, or a Mitsuba scene
     dict as ``mi.load_dict`` takes it; a loaded ``mi.Scene`` is refused: `inspect_scene`) and return an
@@ -690,7 +633,9 @@ def audit(
     centre); ``grid``: (nx, ny, nz) probes of the irradiance-volumes grid (default: by the scene's box);
     ``pom_depth``: the parallax-occlusion height range in texture units (`check_pom_depth`). ``tag``: (id
     prefix, label prefix) put before every case's id and label, where one report holds the audits of
-    several scenes (``rtfit run`` of a family born on the engine, `engine_run`)."""
+    several scenes (``rtfit run`` of a family born on the engine, `engine_run`). ``costs``: the costs already
+    measured by the audits of the same run (method id → record; filled in place): a method is timed once per
+    run, not once per scene."""
     say = say or log.info
     probe_at = triple("--probe-at", probe_at, float)
     grid = triple("--grid", grid, int)
@@ -750,7 +695,7 @@ def audit(
     timings = {"reference": 0.0, "evaluation": 0.0, "fit": 0.0}
     by_family: dict[str, dict[str, float]] = {}
     outcomes: dict[str, dict[str, MethodOutcome]] = {}
-    costs: dict[str, dict] = {}
+    costs = {} if costs is None else costs
     plan: list[tuple[AuditFamily, Applicability, FamilyCase]] = []  # the finished cases, in order
     done: list[Applicability] = []
     run = _CaseRun(
@@ -919,7 +864,7 @@ class _CaseRun:
                 )
                 continue
             if not unset:
-                img = _evaluate(method, case, given)
+                img = evaluate_case(method, case, given)
                 bad = _bad_values(method, img, case)
                 if bad:
                     raise AuditError(bad)
@@ -939,9 +884,9 @@ class _CaseRun:
             spent["evaluation"] += time.perf_counter() - t1
             if self.fit and method.params:
                 t2 = time.perf_counter()
-                result = _fit(method, case, row_id)
+                result = fit_case(method, case, row_id)
                 values = {k: v["value"] for k, v in result["parameters"].items()}
-                img_f = _evaluate(method, case, values)
+                img_f = evaluate_case(method, case, values)
                 rows[f"{row_id}-fitted"] = MethodOutcome(
                     case.id,
                     f"{row_id}-fitted",

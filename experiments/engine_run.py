@@ -10,10 +10,11 @@ then its own study if it declares one (`audit_family.Study`):
    every method evaluated, its cost measured, its free parameters fitted through the one kernel text, metrics
    beside the noise floor and the engine's z-checks of the exact rows. Case ids carry the scene
    (``<scene stem>-<case id>``), and so do case labels where the family ships several scenes.
-2. **One report** of every scene: the cases, fits, costs (the first scene's cost of each method: each is
-   timed on that scene's own inputs), checks (each named with its scene), figures (reference, rows, signed
+2. **One report** of every scene: the cases, fits, costs (each method timed once, on the inputs of the first
+   scene that has it), checks (each named with its scene), figures (reference, rows, signed
    error, ꟻLIP per case), the viewer's pixels and ``fitted/<family>.json`` with every fitted row of every
-   scene — the results schema, report and viewer of every run.
+   scene — the results schema, report and viewer of every run — and, for each method fitted on two or more
+   cases, its **pooled fit**: one value for every scene (`engine_pooled`).
 3. **The study** (`Family.study`): a leaf module's function given the audits (`audit_family.StudyContext`)
    adds its own sections, figures, checks, notes and headline numbers; a failed check fails the run like the
    engine's.
@@ -41,6 +42,7 @@ from .audit_family import StudyContext
 from .audit_output import case_figures, fitted_entries, save_pixels, write_fitted_file
 from .audit_run import audit
 from .cost import bench_backend, method_bench_rows
+from .engine_pooled import pooled_fits
 from .families import FAMILIES, Family
 from .records import to_json
 from .registry import SPP_MAX, ConfigKey, RunContext, checked
@@ -85,6 +87,7 @@ class EngineExperiment:
         cfg = ctx.configured(self.configure(ctx.quick, ctx.spp))
         shipped = {s.name: s for s in self.family.scenes}
         audits, tags = [], []
+        costs: dict[str, dict] = {}  # each method timed once, on the first scene that has it
         t0 = time.perf_counter()
         for name in cfg["scenes"]:
             scene = shipped[name]
@@ -110,6 +113,7 @@ class EngineExperiment:
                     progress=ctx.progress,
                     say=ctx.log,
                     tag=tag,
+                    costs=costs,
                     defines=dict(scene.defines) or None,
                     **dict(scene.options),
                 )
@@ -154,6 +158,10 @@ class EngineExperiment:
             scene_lines.append(f"- `{scene.file}{defines}` — {scene.label} ({len(r.cases)} cases, {spp} spp)")
             if not sections:
                 sections = [s for s in doc["sections"] if s["id"] != "scene"]
+        pooled = pooled_fits(self.family.name, audits)
+        fits += pooled.fits
+        entries += pooled.entries
+        notes += pooled.notes
         if entries:
             write_fitted_file(
                 out / "fitted" / f"{self.family.name}.json",
@@ -177,7 +185,7 @@ class EngineExperiment:
                 "spp": cfg["spp"],
                 "extra": {"scenes": list(cfg["scenes"]), "resolution": cfg["resolution"], "fit": cfg["fit"]},
             },
-            "sections": [intro, *sections],
+            "sections": [intro, *sections, *([pooled.section] if pooled.section else [])],
             "cases": cases,
             "fits": fits,
             "figures": figs,

@@ -1,0 +1,92 @@
+"""The pooled fit of one method to several cases (`rtfit.experiments.audit_fit.pooled_fit`): the values it
+returns are the weighted least-squares solution computed independently here (the normal equations of a
+model linear in its parameters), with each case weighted by 1/(rms(reference)·√N) as its docstring states."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rtfit.experiments.audit_family import AuditReference, FamilyCase
+from rtfit.experiments.audit_fit import fit_case, pooled_fit
+from rtfit.realtime.methods import Input, Method, Param
+
+
+def _line(ops, x, a, b):
+    return a * x + b
+
+
+LINE = Method(
+    id="line",
+    label="a·x + b",
+    kernel=_line,
+    inputs=(Input("x", "1", "abscissa", domain=(0.0, 10.0)),),
+    params={"a": Param(1.0, -10.0, 10.0, unit="1"), "b": Param(0.0, -10.0, 10.0, unit="1")},
+    formula="a·x + b",
+)
+
+
+def _case(cid: str, x: np.ndarray, y: np.ndarray) -> FamilyCase:
+    """A grey case over a 1 × n image: the same reference in the three channels, read per channel."""
+    n = len(x)
+    mean = np.repeat(y[None, :, None], 3, axis=2)
+    ref = AuditReference(mean, np.full_like(mean, 0.01), 16, 1, 1, "k", "p", 0.0, "q", "none", "planted")
+    inputs = ({"x": x},) * 3
+    return FamilyCase(cid, cid, ref, np.ones((1, n), bool), inputs)
+
+
+def test_pooled_values_are_the_weighted_least_squares_solution():
+    rng = np.random.default_rng(3)
+    x1, x2 = rng.uniform(0, 10, 40), rng.uniform(0, 10, 25)
+    y1 = 2.0 * x1 + 1.0 + rng.normal(0, 0.3, x1.size)  # one case bright,
+    y2 = 0.2 * x2 + 0.5 + rng.normal(0, 0.05, x2.size)  # one dim: unweighted, the bright one would decide
+    c1, c2 = _case("bright", x1, y1), _case("dim", x2, y2)
+    own = [fit_case(LINE, c, "line")["parameters"] for c in (c1, c2)]
+    pf = pooled_fit(LINE, [(c1, "line", {k: v["value"] for k, v in own[0].items()}),
+                           (c2, "line", {k: v["value"] for k, v in own[1].items()})])  # fmt: skip
+    assert pf is not None and pf.cases == ("bright", "dim") and not pf.left_out
+    # Independent: the normal equations of the weighted problem (three channels: each element 3 times).
+    rows, rhs, w = [], [], []
+    for x, y in ((x1, y1), (x2, y2)):
+        t = np.tile(y, 3)
+        weight = 1.0 / (np.sqrt(np.mean(t**2)) * np.sqrt(t.size))
+        rows.append(np.stack([np.tile(x, 3), np.ones(t.size)], axis=1))
+        rhs.append(t)
+        w.append(np.full(t.size, weight))
+    A, t, W = np.concatenate(rows), np.concatenate(rhs), np.concatenate(w)
+    expected = np.linalg.lstsq(A * W[:, None], t * W, rcond=None)[0]
+    got = [pf.fit["parameters"][k]["value"] for k in ("a", "b")]
+    assert got == pytest.approx(expected, rel=1e-6, abs=1e-8)
+
+
+def test_a_case_with_a_zero_reference_is_left_out_and_named():
+    x = np.linspace(0, 1, 10)
+    cases = [(_case("c1", x, 2 * x + 1), "line", {}), (_case("c2", x, 3 * x), "line", {}),
+             (_case("dark", x, 0 * x), "line", {})]  # fmt: skip
+    pf = pooled_fit(LINE, cases)
+    assert pf is not None and pf.cases == ("c1", "c2")
+    assert "zero everywhere" in pf.left_out["dark"]
+    assert pooled_fit(LINE, cases[:1]) is None  # one case: nothing to pool
+
+
+def test_a_small_table_is_timed_as_distinct_unfoldable_literals():
+    """`Uniforms` (the cost's constant buffer): a constant sky's SH table (24 zeros, equal channels) becomes
+    27 distinct values none of which is 0 or ±1, each within 2⁻²⁰·(|v| + 1)·27 of its own, and a kernel that
+    reads the table by index gives the same values as on the table itself (to that change)."""
+    from rtfit.realtime import sh_sky_bent_normal
+    from rtfit.realtime.arrays import Uniforms, backend_float
+
+    sky = np.zeros(27)
+    sky[[0, 9, 18]] = 3.5
+    u = Uniforms.of(sky)
+    assert len(set(u)) == 27 and not {0.0, 1.0, -1.0} & set(u)
+    assert np.all(np.abs(np.array(u) - sky) <= 2.0**-20 * (np.abs(sky) + 1.0) * 27 + 1e-15)
+    n = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    m = sh_sky_bent_normal.METHODS["irradiance-normal"]
+    Float = backend_float(None, np.float64)  # (a NumPy table would broadcast against the pixels)
+    inputs = {"nx": Float(n[:, 0]), "ny": Float(n[:, 1]), "nz": Float(n[:, 2]), "ao": Float(np.ones(2))}
+    exact = np.array([np.asarray(c) for c in m.evaluate({**inputs, "coeffs": Float(sky)})])
+    timed = np.array([np.asarray(c) for c in m.evaluate({**inputs, "coeffs": u})])
+    assert timed == pytest.approx(exact, rel=1e-4)
+    # a constant sky of radiance L lights every normal with E = π L: L00 = 2√π·L, so L = 3.5/(2√π)
+    assert exact == pytest.approx(np.pi * 3.5 / (2 * np.sqrt(np.pi)), rel=1e-6)
