@@ -20,6 +20,13 @@ For a Mitsuba XML or rtfit TOML scene with surfaces and a finite bounding box, o
   errors (W/m², RGB). It counts every light a ray can reach, as the probes do: an area light, an
   environment, and all light after one bounce; the *direct* light of a point, spot or directional light
   reaches neither (a ray never hits it: an engine adds it per pixel and keeps the volume for the rest).
+* **Total irradiance** (case `TOTAL_CASE`, only where the scene has delta lights: point, spot, directional):
+  the reference above plus each delta light's exact direct light at the visible points
+  (`rtfit.reference.probe_radiance.delta_light_irradiance`: Mitsuba's emitter sample × cos × a shadow ray),
+  against the six rows reading probes with the delta lights *folded* in (`folded_bases`: a distant light from
+  the light's direction at each probe, its E⊥ through the probe's own shadow ray; seed 7.4.3) and against
+  the six ``direct-…`` rows (`SPLIT_METHODS`: that exact direct light + the unfolded volume's lookup, the
+  engine's usual split). Both cases share the probe bake and the global pass.
 * **Rows**: `rtfit.realtime.irradiance_volumes.METHODS` — nearest and trilinear lookup × Valve's cube, the
   NNLS cube and SH L2 — each reading its own basis's table (`FamilyCase.row_inputs`); no free parameters.
   A user's ``@approximation(quantity="volume_irradiance")`` reads the same points, normals and grid, with
@@ -39,23 +46,53 @@ from functools import partial
 
 import numpy as np
 
-from rtfit.realtime.irradiance_volumes import METHODS, ProbeGrid, probe_table
+from rtfit.realtime.irradiance_volumes import (
+    METHODS,
+    ProbeGrid,
+    directional_irradiance,
+    fold_directional,
+    probe_table,
+    with_direct,
+)
 from rtfit.realtime.methods import Method
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import irradiance_pass
-from rtfit.reference.probe_radiance import probe_radiance_pass
+from rtfit.reference.probe_radiance import delta_light_irradiance, probe_radiance_pass
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
-from .probe_projection import FEATURES_NAME, NNLS_NORMALS, probe_bases, probe_features
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditSetup,
+    FamilyCase,
+    ShippedScene,
+    masked_image,
+    pooled_passes,
+)
+from .probe_projection import FEATURE_NORMALS, FEATURES_NAME, NNLS_NORMALS, probe_bases, probe_features
 
-__all__ = ["DEFAULT_NODES", "FAMILY", "PROBE_SPP_FACTOR", "irradiance_volume_cases", "on_grid", "probe_grid"]
+__all__ = [
+    "DEFAULT_NODES",
+    "FAMILY",
+    "GRIDS",
+    "PROBE_SPP_FACTOR",
+    "QUICK_GRIDS",
+    "SCENES",
+    "TOTAL_CASE",
+    "folded_bases",
+    "irradiance_volume_cases",
+    "on_grid",
+    "probe_grid",
+]
 
 FORMAT = 1
 DEFAULT_NODES = 4
 """Nodes along the longest side of the scene's box by default."""
 PROBE_SPP_FACTOR = 64
 """Each probe takes this many times ``--spp`` directions (a probe is baked once, offline, with many)."""
+TOTAL_CASE = "volume-total"
+"""The case of a scene with delta lights (point, spot, directional): the total irradiance, against the
+volume with those lights folded into its probes and against exact direct light + the volume."""
 
 
 def probe_grid(lo, hi, dims=None) -> ProbeGrid:
@@ -154,21 +191,95 @@ def irradiance_volume_cases(setup: AuditSetup, app: Applicability) -> list[Famil
         f"each probe: {probes.spp} path-traced directions, projected on SH L2, Valve's six axes and "
         f"{NNLS_NORMALS} normals (the NNLS cube)",
     )
-    return [
-        FamilyCase(
-            id="volume",
-            label=f"probe grid {dims}, irradiance at the visible points",
-            reference=ref,
-            mask=mask,
-            channel_inputs=(user_inputs,),
-            parameters=parameters,
-            units="W/m²",
-            notes=notes,
-            methods=methods,
-            row_inputs=row_inputs,
-            user_rows=partial(on_grid, grid=grid),
-        )
-    ]
+    volume = FamilyCase(
+        id="volume",
+        label=f"probe grid {dims}, irradiance at the visible points",
+        reference=ref,
+        mask=mask,
+        channel_inputs=(user_inputs,),
+        parameters=parameters,
+        units="W/m²",
+        notes=notes,
+        methods=methods,
+        row_inputs=row_inputs,
+        user_rows=partial(on_grid, grid=grid),
+    )
+    at_probes = delta_light_irradiance(mi, scene, positions)
+    if not at_probes:
+        return [volume]
+    at_pixels = delta_light_irradiance(mi, scene, points, normals)
+    direct = np.zeros_like(normals)  # each delta light's E⊥·max(n·d, 0) at the visible points
+    for d, e in at_pixels:
+        direct += e * np.maximum(np.einsum("ij,ij->i", normals, d), 0.0)[:, None]
+    folded = {b: probe_table(c) for b, c in folded_bases(probes.mean, at_probes).items()}
+    rows = {**methods, **{f"direct-{mid}": with_direct(m) for mid, m in methods.items()}}  # SPLIT_METHODS
+    split = {f"direct-{mid}": ({**v[0], **{f"direct_{c}": direct[:, j] for j, c in enumerate("rgb")}},)
+             for mid, v in row_inputs.items()}  # fmt: skip
+    folded_inputs = {mid: ({**geometry, "table": folded[m.fixed["basis"].id]},) for mid, m in METHODS.items()}
+    n_lights = len(at_probes)
+    total_ref = replace(
+        ref,
+        mean=ref.mean + masked_image(mask, direct),
+        quantity="total irradiance at the visible points (W/m²): the delta lights' direct light + every "
+        "light a ray can reach",
+        integrator=f"{ref.integrator}, plus the direct light of {n_lights} delta light(s): Mitsuba's "
+        "emitter sample (I/r², a spot's falloff) × cos × a shadow ray (exact: one direction, no noise)",
+        integrator_reason="what an engine shows: a delta light's direct light, which no probe ray hits, "
+        "added to the global irradiance",
+    )
+    lit = np.concatenate([e for _, e in at_probes], axis=1)
+    total = FamilyCase(
+        id=TOTAL_CASE,
+        label=f"probe grid {dims}, total irradiance: {n_lights} delta light(s) folded into the probes, or "
+        "exact direct + the volume",
+        reference=total_ref,
+        mask=mask,
+        channel_inputs=(
+            {
+                **geometry,
+                "table": folded["sh-l2"],
+                "cube_table": folded["cube-valve"],
+                "nnls_table": folded["cube-nnls"],
+            },
+        ),
+        parameters={
+            **parameters,
+            "delta_lights": n_lights,
+            "probes_seeing_a_delta_light": int(np.sum(np.any(lit > 0.0, axis=1))),
+        },
+        units="W/m²",
+        notes=(
+            *notes,
+            f"folded rows: each of the {n_lights} delta light(s) added to every probe as a distant light "
+            "from its direction at the probe, E⊥ = V·I/r² (V: the probe's own shadow ray; seed 7.4.3, "
+            "fold_directional); the NNLS cube refitted on the folded irradiance",
+            "direct-… rows: the delta lights' exact direct light per pixel (the reference's own) + the "
+            "unfolded volume: the engine's usual split; their cost is the lookup's plus three adds (the "
+            "direct light's shadow rays are not timed)",
+        ),
+        methods=rows,
+        row_inputs={**folded_inputs, **split},
+        user_rows=partial(on_grid, grid=grid),
+    )
+    return [volume, total]
+
+
+def folded_bases(mean: np.ndarray, lights) -> dict[str, np.ndarray]:
+    """`probe_bases` of the probes' projections ``mean`` (P, K, 3) with ``lights`` folded in: per light
+    (d (P, 3), E⊥ (P, 3)) as `delta_light_irradiance` gives them at the probes (`fold_directional`; the
+    NNLS cube refitted on the folded irradiance at its normals)."""
+    normals = FEATURE_NORMALS[6:]
+    extra = np.zeros((len(mean), len(normals), 3))
+    sh = np.zeros((len(mean), 9, 3))
+    cube = np.zeros((len(mean), 6, 3))
+    for d, e in lights:
+        for k in range(len(mean)):
+            if np.any(e[k]):
+                extra[k] += directional_irradiance(d[k], e[k], normals)
+        dsh, dcube = fold_directional(d, e)
+        sh, cube = sh + dsh, cube + dcube
+    bases = probe_bases(mean, extra)
+    return {**bases, "sh-l2": bases["sh-l2"] + sh, "cube-valve": bases["cube-valve"] + cube}
 
 
 def on_grid(method: Method, grid: ProbeGrid) -> Method:
@@ -208,6 +319,40 @@ FAMILY = AuditFamily(
             "it)",
             "a cosine-distributed ray from each visible point, then path (unbounded depth); the probes: "
             "uniform sphere directions from each node, the same integrator",
+            supplies=frozenset({"direct_r", "direct_g", "direct_b"}),  # the delta lights' exact direct light
         ),
     ),
 )
+
+
+GRIDS = ((2, 2, 2), (4, 4, 4), (8, 8, 8))
+"""The probe grids of the shipped scenes: the room's box is 4 m on every side (its bounding box, the camera
+and the light included), so spacings 2, 1 and 0.5 m (each grid's nodes are not a subset of the next: nodes
+sit at cell centres)."""
+
+
+QUICK_GRIDS = (GRIDS[0], GRIDS[-1])
+"""Those ``--quick`` audits: the coarsest and the finest (the engine times every row's cost per scene: ~7 s a
+scene on 2 CPU cores, so the middle grid is the full run's)."""
+
+
+def _room(dims: tuple[int, int, int]) -> ShippedScene:
+    h = 4.0 / dims[0]
+    return ShippedScene(
+        "volume_room.toml",
+        f"the room with a bright point light and an occluder, probe grid {'×'.join(map(str, dims))} "
+        f"(spacing {h:g} m)",
+        size=(64, 64),
+        spp=256,
+        quick_size=(24, 24),
+        quick_spp=64,
+        options={"grid": dims},
+        name=f"volume_room-h{h:g}".replace(".", "p"),
+        quick=dims in QUICK_GRIDS,
+    )
+
+
+SCENES = tuple(_room(d) for d in GRIDS)
+"""The scenes ``rtfit run irradiance-volumes`` audits: scenes/library/volume_room.toml (the experiment's
+closed 4 × 4 × 2.5 m room, red and green side walls, a 20 W/sr point light and a thin occluding wall) once
+per probe grid of `GRIDS`; `QUICK_GRIDS` in ``--quick`` (probes: `PROBE_SPP_FACTOR` × spp directions each)."""

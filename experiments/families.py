@@ -71,6 +71,7 @@ from . import (
     audit_soft_particles,
     audit_volumetric_lightning,
     diffuse_study,
+    irradiance_volumes_study,
     light_cones_study,
     obscurances_study,
     soft_particles_study,
@@ -154,12 +155,15 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "irradiance-volumes",
-            "rtfit.experiments.irradiance_volumes",
-            "Irradiance volumes: a grid of ambient cubes / SH L2 probes, nearest vs trilinear, light folding",
-            "Path-traced probes over a room with a bright point light and an occluder, looked up nearest and "
-            "trilinear against path-traced indirect and total irradiance: error vs spacing, popping, cost.",
-            methods=irradiance_volumes.METHODS,
+            ENGINE,
+            "Irradiance volumes: a grid of ambient cubes / SH L2 probes, nearest vs trilinear",
+            "Path-traced probes over a room with a bright point light and an occluder (one shipped scene per "
+            "probe grid), looked up nearest and trilinear against path-traced irradiance at the visible "
+            "points: error vs spacing, popping, storage per probe.",
+            methods={**irradiance_volumes.METHODS, **irradiance_volumes.SPLIT_METHODS},
             audits=(audit_irradiance_volumes.FAMILY,),
+            scenes=audit_irradiance_volumes.SCENES,
+            study=irradiance_volumes_study.study,
         ),
         Family(
             "ambient-aperture",

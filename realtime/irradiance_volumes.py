@@ -31,7 +31,12 @@ I (W/sr) at q, the probe at p gets a directional light of irradiance E⊥ = V·I
 from d = (q − p)/|q − p| (V: 1 when the probe sees the light). In the bases' own projections: SH L2
 coefficients L_lm += E⊥ Y_lm(d) (`irradiance_bases.sh9_from_directional`); Valve's cube samples the
 irradiance at its six axes, C[±a] += E⊥ max(±d_a, 0). (The NNLS cube is refitted on the folded probe's
-irradiance by the experiment, not here.)
+irradiance by the family's audit, not here.) `fold_directional` folds any light given per probe as
+(direction, E⊥), e.g. every delta light of a Mitsuba scene (`rtfit.reference.probe_radiance
+.delta_light_irradiance`); `fold_point_light` is its closed form for one point light.
+
+The engine's usual split (`with_direct`): the direct light of the local lights computed exactly per pixel,
+the volume only for the bounced rest: E = E_direct + E_volume(x, n), the row ``direct-<method>``.
 
 Methods as data: `METHODS` holds one `rtfit.realtime.methods.Method` per lookup × basis
 (``nearest-cube-valve``, ``trilinear-sh-l2``, …); the lookup is the ``lookup`` keyword (`LOOKUPS`), the
@@ -62,11 +67,13 @@ __all__ = [
     "ProbeGrid",
     "cube_from_directional",
     "directional_irradiance",
+    "fold_directional",
     "fold_point_light",
     "probe_table",
     "volume_inputs",
     "volume_irradiance",
     "volume_weights",
+    "with_direct",
 ]
 
 VOLUME_BASES = ("cube-valve", "cube-nnls", "sh-l2")
@@ -246,6 +253,37 @@ METHODS = method_table(_volume_method(lookup, b) for lookup in LOOKUPS for b in 
 """One method per lookup × basis (ids ``<lookup>-<basis>``), in that order."""
 
 
+_DIRECT = tuple(Input(f"direct_{c}", "W/m²", f"exact direct irradiance of the local lights, {c} channel")
+                for c in "rgb")  # fmt: skip
+
+
+def _direct_kernel(ops, direct_r, direct_g, direct_b, volume: Method, **inputs):
+    """E = E_direct + E_volume per channel: the volume row's own kernel text, plus the exact direct light."""
+    return tuple(e + v for e, v in zip((direct_r, direct_g, direct_b), volume(ops, inputs), strict=True))
+
+
+def with_direct(method: Method) -> Method:
+    """The row ``direct-<id>`` of a volume ``method`` (`METHODS` entry, with its grid fixed or as an input):
+    the exact direct light of the local lights per pixel (inputs ``direct_r/g/b``, W/m²) plus the volume's
+    lookup for the bounced rest (module docstring: the engine's usual split)."""
+    return Method(
+        id=f"direct-{method.id}",
+        label=f"exact direct + {method.label}",
+        kernel=_direct_kernel,
+        inputs=(*_DIRECT, *method.inputs),
+        fixed={"volume": method},
+        storage=method.storage,
+        quantity=method.quantity,
+        formula=f"E = E_direct + E_volume; E_volume: {method.formula}",
+        source=f"the usual real-time split (exact local lights, the volume for the rest); {method.source}",
+        description=f"{method.description}; the direct light evaluated per pixel, not stored",
+    )
+
+
+SPLIT_METHODS = method_table(with_direct(m) for m in METHODS.values())
+"""`with_direct` of every `METHODS` entry (ids ``direct-<lookup>-<basis>``): exact direct + the volume."""
+
+
 # ============================================================================================= public
 def probe_table(coeffs) -> np.ndarray:
     """The float-major table of a volume from per-probe basis coefficients ``coeffs`` (count, rows, 3):
@@ -363,6 +401,24 @@ def cube_from_directional(direction, irradiance) -> np.ndarray:
     return directional_irradiance(direction, irradiance, np.asarray(CUBE_AXES))
 
 
+def fold_directional(directions, irradiance) -> tuple[np.ndarray, np.ndarray]:
+    """The additions to probes of lights given per probe as a direction d (count, 3) towards the light and
+    its irradiance E⊥ (count, 3) W/m² at normal incidence (module docstring, light folding): SH L2
+    (count, 9, 3) L_lm = E⊥ Y_lm(d) and Valve's cube (count, 6, 3) C[a] = E⊥ max(a·d, 0)."""
+    d = np.asarray(directions, dtype=np.float64)
+    e = np.asarray(irradiance, dtype=np.float64)
+    if d.ndim != 2 or d.shape[1] != 3 or e.shape != d.shape:
+        raise ValueError(f"directions and irradiance must both be (count, 3) (got {d.shape}, {e.shape})")
+    sh = np.zeros((len(d), 9, 3))
+    cube = np.zeros((len(d), 6, 3))
+    for k in range(len(d)):
+        if not np.any(e[k]):
+            continue
+        sh[k] = sh9_from_directional(d[k])[:, None] * e[k][None, :]
+        cube[k] = cube_from_directional(d[k], e[k])
+    return sh, cube
+
+
 def fold_point_light(
     positions, light_position: Sequence[float], intensity, visible=None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -384,9 +440,5 @@ def fold_point_light(
         raise ValueError("a probe sits at the light's position (E⊥ = I/r² is infinite there)")
     d = delta / np.sqrt(r2)[:, None]
     e_perp = (v / r2)[:, None] * i[None, :]
-    sh = np.zeros((len(p), 9, 3))
-    cube = np.zeros((len(p), 6, 3))
-    for k in range(len(p)):
-        sh[k] = sh9_from_directional(d[k])[:, None] * e_perp[k][None, :]
-        cube[k] = cube_from_directional(d[k], e_perp[k])
+    sh, cube = fold_directional(d, e_perp)
     return d, e_perp, sh, cube

@@ -22,7 +22,9 @@ does not import the real-time bases. Radiance is reduced against them in float64
 name and values at fixed directions), seed, samples per pass, variant and versions.
 
 `point_light_visibility` tests, with Mitsuba's shadow rays, whether each probe sees a point light (for
-folding the light into the probe).
+folding the light into the probe); `delta_light_irradiance` gives, for every delta light of a scene (point,
+spot, directional), its direction and shadowed irradiance at normal incidence at given points, from
+Mitsuba's own emitter sampling (exact: a delta light has one direction, no noise).
 """
 
 from __future__ import annotations
@@ -100,6 +102,41 @@ def point_light_visibility(mi, mi_scene, positions, light_position) -> np.ndarra
     ray.maxt = mi.Float((dist * (1.0 - 1e-4)).astype(np.float32))
     blocked = mi_scene.ray_test(ray)
     return np.where(np.asarray(blocked, dtype=bool), 0.0, 1.0)
+
+
+def delta_light_irradiance(mi, mi_scene, points, normals=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For every delta emitter of ``mi_scene`` (Mitsuba ``EmitterFlags.Delta``: point, spot, directional) in
+    ``mi_scene.emitters()`` order: (d (N, 3) unit direction towards the light, E⊥ (N, 3) W/m² RGB) at
+    ``points`` (N, 3): the emitter's ``sample_direction`` (for a delta light its one direction, weight
+    I/r² with a spot's falloff), times 1/0 from a Mitsuba shadow ray (``ray_test``, 1e-4 relative margin at
+    the light's end). With ``normals`` (N, 3) the points are on a surface: the shadow ray leaves it as
+    Mitsuba spawns rays (offset along the normal). The irradiance at normal n is Σ E⊥·max(n·d, 0)."""
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3) (got {p.shape})")
+    if normals is None:
+        it = dr.zeros(mi.Interaction3f, len(p))
+    else:
+        it = dr.zeros(mi.SurfaceInteraction3f, len(p))
+        it.n = mi.Normal3f(np.asarray(normals, dtype=np.float64).T.astype(np.float32))
+    it.p = mi.Point3f(p.T.astype(np.float32))
+    out = []
+    for emitter in mi_scene.emitters():
+        if not mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta):
+            continue
+        ds, weight = emitter.sample_direction(it, mi.Point2f(0.5, 0.5), True)
+        ray = it.spawn_ray_to(ds.p) if normals is not None else mi.Ray3f(it.p, ds.d)
+        dist = np.asarray(ds.dist, dtype=np.float64)
+        if normals is None:
+            ray.maxt = mi.Float(np.where(np.isfinite(dist), dist * (1.0 - 1e-4), np.inf).astype(np.float32))
+        else:
+            ray.maxt = ray.maxt * (1.0 - 1e-4)
+        visible = ~np.asarray(mi_scene.ray_test(ray), dtype=bool)
+        # (a directional light's direction and weight come back as one value for every point: broadcast)
+        d = np.broadcast_to(np.asarray(ds.d, dtype=np.float64).reshape(3, -1).T, p.shape)
+        e = np.broadcast_to(np.asarray(weight, dtype=np.float64).reshape(3, -1).T, p.shape) * visible[:, None]
+        out.append((np.ascontiguousarray(d), np.ascontiguousarray(e)))
+    return out
 
 
 @dataclass(frozen=True)

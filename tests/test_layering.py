@@ -88,7 +88,6 @@ FAMILY_LINES_CEILING = {
     "environment_maps": 1524,
     "height_fog": 1406,
     "irradiance_bases": 1708,
-    "irradiance_volumes": 924,
     "nishita_sky": 1726,
     "parallax_occlusion": 972,
     "sdf_occlusion": 1914,
