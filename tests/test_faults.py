@@ -240,7 +240,7 @@ def test_a_live_owners_temporary_directory_is_kept(tmp_path):
 
 # ------------------------------------------------------------------------------------ resume count
 def test_pass_counts_and_the_resumed_line(tmp_path):
-    """"resumed" names only passes that existed before this process: passes it rendered itself and reads
+    """ "resumed" names only passes that existed before this process: passes it rendered itself and reads
     again (two cases sharing a reference) count as rendered (issue 37: "resumed 2 of 24 passes" on a cache
     the run had just created)."""
     import numpy as np
