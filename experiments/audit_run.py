@@ -770,6 +770,7 @@ def audit(
     result = _assemble(info, plan, outcomes, run, skipped, settings)
     result.gbuffer = gb
     if target is not None:
+        say(f"writing the report: figures, viewer pixels and fitted parameters of {len(plan)} case(s)")
         result.write_report(target)
     return result
 

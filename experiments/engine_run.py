@@ -120,6 +120,7 @@ class EngineExperiment:
             )
             tags.append((scene, tag))
         engine_seconds = time.perf_counter() - t0
+        ctx.log(f"{self.family.name}: figures, viewer pixels and pooled fits of {len(audits)} scene(s)")
         body = self._merged(ctx, audits, tags, cfg)
         body["config"]["extra"]["engine_seconds"] = round(engine_seconds, 3)
         if self.family.study is not None:
