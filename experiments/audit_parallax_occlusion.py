@@ -40,7 +40,8 @@ instead of displacing the mesh. One case per such shape:
   with the height field as ``g.field(ops, u, v)`` and the range as ``g.scale`` (`on_field`, as the rows).
 
 The soft self-shadow of the family (``METHODS``' third output) is not audited here: it needs a light and a
-visibility reference the experiment (`rtfit run parallax-occlusion`) builds for its area light. A
+per-pixel area-light visibility reference (not built yet). `SCENES`: the bump-mapped floor ``rtfit run
+parallax-occlusion`` audits (scenes/library/parallax_occlusion_floor.xml, three views, two depths). A
 ``normalmap`` stores normals, not heights: `rtfit audit --list` names such a shape as not applying.
 """
 
@@ -69,7 +70,7 @@ from rtfit.reference.parallax_occlusion import (
 )
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, ShippedScene
 
 __all__ = [
     "CELLS_PER_TEXEL",
@@ -77,6 +78,8 @@ __all__ = [
     "MAX_CELLS",
     "POM_DEPTH_DEFAULT",
     "POM_DEPTH_RANGE",
+    "SCENES",
+    "VIEWS",
     "check_pom_depth",
     "height_map_of",
     "on_field",
@@ -269,8 +272,8 @@ def parallax_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         f"height range --pom-depth {depth:g} texture units = {d_scene:.4g} scene units "
         f"(L = {length:.4g} scene units per texture unit)",
         f"the displaced mesh's own error (fine vs half the cells per side): RMS {mesh_rms:.3g} of the range",
-        "mip 0 (full POM: the LOD blend is not audited); the soft self-shadow is not audited here (it needs "
-        "a light and a visibility reference: rtfit run parallax-occlusion)",
+        "mip 0 (full POM: the LOD blend is not audited); the soft self-shadow is not audited (it needs a "
+        "light and an area-light visibility reference; its LOD pop: rtfit run parallax-occlusion)",
     ]
     if texels.min() < 0.0 or texels.max() > 1.0:
         notes.append(
@@ -340,3 +343,30 @@ FAMILY = AuditFamily(
         ),
     ),
 )
+
+
+VIEWS = {"overhead": "0, -0.532, 1.462", "45deg": "0, -1.1, 1.1", "grazing": "0, -1.462, 0.532"}
+"""The shipped scenes' cameras (scenes/library/parallax_occlusion_floor.xml ``origin``; scene units), 1.556
+from the floor's centre and looking at it: 20°, 45° and 70° from the floor's normal."""
+DEPTHS = (0.1, 0.15)
+"""The shipped scenes' ``pom_depth`` (texture units): the family's default and the old experiment's s."""
+
+
+def _scene(view: str, depth: float) -> ShippedScene:
+    return ShippedScene(
+        "parallax_occlusion_floor.xml",
+        f"egg-crate height texture (32×32 texels) on a 1×1 floor seen {view}, carved {depth:g} texture units",
+        size=(64, 64),
+        quick_size=(24, 24),
+        quick_spp=2,
+        spp=2,
+        options={"pom_depth": depth},
+        defines={"origin": VIEWS[view]},
+        name=f"{view}-d{depth:g}".replace(".", "p"),
+        quick=view == "45deg" and depth == 0.15,
+    )
+
+
+SCENES = tuple(_scene(v, d) for d in DEPTHS for v in VIEWS)
+"""The scenes ``rtfit run parallax-occlusion`` audits (one per view and depth; ``--quick``: 45°, s = 0.15):
+the reference is deterministic (exact first hits on the displaced mesh), so ``spp`` does not apply."""

@@ -90,7 +90,6 @@ FAMILY_LINES_CEILING = {
     "irradiance_bases": 1708,
     "irradiance_volumes": 924,
     "nishita_sky": 1726,
-    "parallax_occlusion": 972,
     "sdf_occlusion": 1914,
 }
 

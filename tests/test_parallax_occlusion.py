@@ -289,26 +289,36 @@ def test_exact_hits_on_a_flat_mesh_match_the_closed_form():
     np.testing.assert_allclose(n, np.tile([0.0, 0.0, 1.0], (2, 1)), atol=1e-6)
 
 
-def test_aggregate_uv_error_compares_methods_on_the_same_cases():
-    """Issue 32: the listing is non-finite at θ_v = 0 (its 0/0), so its aggregate covered 4 cases while the
-    stable variant's covered 6, including its error-free 0° view. An aggregate now covers only the cases where
-    every method is finite; a single case is still reported per method."""
-    from rtfit.experiments.parallax_occlusion import uv_rms
+def test_shipped_scenes_and_study_through_the_engine(tmp_path):
+    """``rtfit run parallax-occlusion`` on the engine (issue 30 §1): the registry entry, the shipped floor
+    (one texture unit = one scene unit: L = 1, so the carved depth in scene units is --pom-depth), its audit
+    against Mitsuba's first hits on the displaced mesh, and the study's checks."""
+    import rtfit
+    from rtfit.experiments import audit_parallax_occlusion, parallax_occlusion_study
+    from rtfit.experiments.audit_family import StudyContext
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.scenes.parse import LIBRARY_DIR as lib
 
-    nr = (8, 40)
-    errors = {  # (field, view) -> (listing, stable)
-        ("bumps", 0.0): (None, 0.0),
-        ("bumps", 40.0): (3e-3, 1e-3),
-        ("ridges", 0.0): (None, 0.0),
-        ("ridges", 40.0): (4e-3, 2e-3),
-    }
-    table = [
-        {"field": f, "view_deg": v, "method": m, "n_min": 8, "n_max": 40, "rms_uv_error": e}
-        for (f, v), pair in errors.items()
-        for m, e in zip(("listing", "stable"), pair, strict=True)
-    ]
-    assert uv_rms(table, "listing", nr) == pytest.approx(math.sqrt((9e-6 + 16e-6) / 2))
-    assert uv_rms(table, "stable", nr) == pytest.approx(math.sqrt((1e-6 + 4e-6) / 2))  # not /4
-    assert uv_rms(table, "stable", nr, "bumps", 0.0) == 0.0  # one case: its own value
-    assert math.isnan(uv_rms(table, "listing", nr, "bumps", 0.0))
-    assert uv_rms(table, "stable", nr, view=40.0) == pytest.approx(math.sqrt(2.5e-6))
+    fam = FAMILIES["parallax-occlusion"]
+    assert fam.module == ENGINE and fam.scenes == audit_parallax_occlusion.SCENES
+    assert fam.study is parallax_occlusion_study.study
+    assert len(fam.scenes) == 6 and [s.name for s in fam.scenes if s.quick] == ["45deg-d0p15"]
+    assert all((lib / s.file).is_file() for s in fam.scenes)
+    assert (lib / "parallax_occlusion_bumps.exr").is_file()
+    scene = next(s for s in fam.scenes if s.quick)
+    r = rtfit.audit(lib / scene.file, "parallax-occlusion", defines=dict(scene.defines), cache=tmp_path / "c",
+                    width=12, height=12, spp=2, metrics=("rmse",), cost_elements=4096,
+                    tag=(f"{scene.name}-", ""), **dict(scene.options))  # fmt: skip
+    (case,) = r.cases
+    p = case.parameters
+    assert p["texel_length"] == pytest.approx(1.0, rel=1e-4)
+    assert p["depth_scene"] == pytest.approx(0.15, rel=1e-4)
+    assert p["lookup"] == "32×32 texels, bilinear, wrap clamp"
+    rmse = {k: o.metrics["rmse"].value for k, o in r.outcomes[case.id].items()}
+    assert rmse["pom-stable-n16-64"] < rmse["pom-stable"] < rmse["pom-listing"] < 0.05
+    assert rmse["pom-stable-n16-64"] < 2e-3  # against Mitsuba's hits on the displaced mesh
+    res = parallax_occlusion_study.study(StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "c", (r,)))
+    assert res.checks and all(c.passed for c in res.checks), [c.name for c in res.checks if not c.passed]
+    # normalize((0, 0)) is 0/0 at every pixel for the printed listing; the stable form clamps it
+    assert res.extra["hazards"]["normal_incidence"] == {"listing": 64, "stable": 0}
+    assert [row["row"] for row in res.extra["samples"]] == list(parallax_occlusion_study.SAMPLE_ROWS)
