@@ -261,7 +261,7 @@ FAMILIES: dict[str, Family] = {
             "ranges) against Mitsuba's first hits on the displaced height field of a shipped bump-mapped "
             "floor at three views and two depths; the printed listing's float32 hazards (normal incidence, "
             "no crossing, unclamped offset, the soft shadow's LOD pop) against the stable form.",
-            methods=parallax_occlusion.DEPTH_METHODS,
+            methods={**parallax_occlusion.DEPTH_METHODS, **parallax_occlusion.SHADOW_AUDIT_METHODS},
             audits=(audit_parallax_occlusion.FAMILY,),
             scenes=audit_parallax_occlusion.SCENES,
             study=parallax_occlusion_study.study,
