@@ -149,7 +149,10 @@ def test_list_names_the_family_with_its_reason(tmp_path):
         in out
     )
     assert "marches it on the flat shape instead of displacing the mesh" in out
-    assert "methods:    pom-listing, pom-stable, pom-stable-n4-16, pom-stable-n16-64" in out
+    assert (
+        "methods:    pom-listing, pom-stable, pom-stable-n4-16, pom-stable-n16-64, pom-listing-shadow, "
+        "pom-stable-shadow, listing-shadow, stable-shadow, pom-no-shadow" in out
+    )
 
 
 def test_a_normal_map_alone_does_not_apply_and_says_why(tmp_path):
