@@ -10,14 +10,19 @@ stable march at three sample ranges, metrics, costs, figures per case and the fi
 * **error vs sample range vs cost**: per scene, each row's RMSE of the visible depth (a fraction of the
   height range) beside its measured ns/pixel and the displaced mesh's own error, and the stable march's
   error falling with its sample range (a check: n 16…64 ≤ n 4…16 on every scene);
+* **the soft self-shadow** (the engine's ``parallax_shadow`` case of each scene: the fraction of the square
+  area light's irradiance the height field lets through, from Mitsuba's light samples cast from the
+  displaced mesh's first hit): per scene each shadow row's RMSE at its declared and its fitted (softening,
+  floor), and the hazard of the printed shadow's light offset R = s·L_xy (not divided by L_z): at the low
+  light its fit cannot follow the visibility (fitted listing RMSE > fitted stable RMSE: confirmed);
+* **the references' own checks** (the old experiment's, on the engine's data): the displaced mesh's hits
+  against a float64 root finder on the bilinear height field along the same rays (within the mesh's own
+  error), the mesh's own error small beside the stable march's (≤ `MESH_MARGIN`), and the light-sample
+  estimator's unoccluded irradiance against Lambert's closed-form polygon irradiance on a flat field;
 * **the listing's hazards** (no rendering: the kernels in float32 on analytic height fields, the printed
   listing against the stable variant, including the soft shadow's form): 0/0 at normal incidence, NaN
   without a crossing (h = 0, n = 1 … 64), the unclamped offset at V_z = 0 and 10⁻⁴, and the LOD pop of the
   printed shadow (mip swept over [0, T + 1]); each confirmed for the listing and refuted for the stable form.
-
-Not here (the experiment before the engine had them): the soft shadow against Monte Carlo area-light
-visibility and its fitted (softening, floor); the engine audits no shadow quantity yet
-(docs/parallax-occlusion.md).
 """
 
 from __future__ import annotations
@@ -30,11 +35,31 @@ import numpy as np
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.methods import Method
 from rtfit.realtime.parallax_occlusion import METHODS
+from rtfit.reference.parallax_occlusion import (
+    HeightFieldMesh,
+    emitter_visibility,
+    height_field_scene,
+    rectangle_light,
+    square_irradiance,
+)
+from rtfit.reference.variants import use_variant
 
 from .audit_family import Study, StudyContext
 from .records import Check, Headline, Section
 
-__all__ = ["LOD_STEP", "SAMPLE_ROWS", "hazard_checks", "hazards", "scene_table", "study"]
+__all__ = [
+    "LOD_STEP",
+    "MESH_MARGIN",
+    "SAMPLE_ROWS",
+    "SHADOW_ROWS",
+    "hazard_checks",
+    "hazards",
+    "irradiance_check",
+    "oracle_depth",
+    "scene_table",
+    "shadow_table",
+    "study",
+]
 
 SCALE = 0.15
 """Height range s of the hazard probes (texture units; the old experiment's)."""
@@ -45,6 +70,17 @@ LOD_STEP = 1e-3
 SAMPLE_ROWS = ("pom-listing", "pom-stable", "pom-stable-n4-16", "pom-stable-n16-64")
 """The engine's rows compared per scene (`DEPTH_METHODS`): both marches at n 8…40, the stable at 4…16 and
 16…64."""
+SHADOW_ROWS = ("pom-listing-shadow", "pom-stable-shadow", "listing-shadow", "stable-shadow", "pom-no-shadow")
+"""The engine's soft-shadow rows per scene (`SHADOW_AUDIT_METHODS`): the pixel shader's (march, then shadow),
+the shadow model at the exact visible point, the unshadowed baseline; each with its ``-fitted`` row."""
+MESH_MARGIN = 0.25
+"""The displaced mesh's own error (a third of its RMS difference to the half-resolution mesh: the error is
+O(Δ²), so e(2Δ) − e(Δ) = 3·e(Δ)) must stay below this fraction of the stable march's RMSE on every scene
+(the old experiment's bound: measured 0.03–0.11 there)."""
+ORACLE_STEPS = 1024
+"""Uniform steps of the float64 root finder along the ray's depth range before 60 bisections."""
+FLAT_SAMPLES = 1 << 14
+"""Light samples per point of the estimator's check on a flat field (its relative σ ≈ 1e-3)."""
 
 
 def configured(method_id: str, field: str, n_range=N_RANGE, scale: float = SCALE) -> Method:
@@ -254,15 +290,183 @@ def _sample_checks(table: list[dict]) -> list[Check]:
     return checks
 
 
+# ---------------------------------------------------------------------------- the references' own checks
+def oracle_depth(field, scale: float, inputs) -> np.ndarray:
+    """The visible depth (a fraction of the range) of the ray from (u₀, v₀, 0) along −V on the surface
+    z = −s·(1 − h(u, v)) in the texture's tangent frame, found in float64 without the mesh: the ray's depth
+    range [0, s] in `ORACLE_STEPS` uniform steps (the first step below the surface), then 60 bisections.
+    Exact for a flat, affinely mapped shape (the shipped floor), where the case's V is the texture-space
+    ray."""
+    o = np.stack([np.asarray(inputs[k], np.float64) for k in ("u0", "v0")], axis=1)
+    v = np.stack([np.asarray(inputs[k], np.float64) for k in ("vx", "vy", "vz")], axis=1)
+    step = scale * v[:, :2] / v[:, 2:3]  # texture offset per unit of depth fraction
+
+    def below(t):  # > 0 while the ray (at depth fraction t) is above the surface
+        uv = o - t[:, None] * step
+        return (1.0 - np.asarray(field(NUMPY_OPS, uv[:, 0], uv[:, 1]), np.float64)) - t
+
+    lo, hi = np.zeros(len(o)), np.ones(len(o))
+    found = np.zeros(len(o), bool)
+    prev = lo.copy()
+    for k in range(1, ORACLE_STEPS + 1):
+        t = np.full(len(o), k / ORACLE_STEPS)
+        crossed = (below(t) <= 0.0) & ~found
+        lo, hi = np.where(crossed, prev, lo), np.where(crossed, t, hi)
+        found |= crossed
+        prev = t
+        if found.all():
+            break
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        b = below(mid) <= 0.0
+        hi, lo = np.where(b, mid, hi), np.where(b, lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def reference_checks(audits, table: list[dict]) -> list[Check]:
+    """Per scene: the mesh's first hits against `oracle_depth` (RMS within the fine-vs-half mesh difference +
+    1e-5: float32 hit positions), and the mesh's own error beside the stable march's (`MESH_MARGIN`)."""
+    checks = []
+    stable = {(r["case"]): r["rmse"] for r in table if r["row"] == "pom-stable"}
+    for audit in audits:
+        for case in audit.cases:
+            if case.quantity != "parallax_depth":
+                continue
+            scene = case.id.removesuffix("-pom-0")
+            par = case.parameters
+            field = case.methods["pom-stable"].fixed["field"]
+            got = oracle_depth(field, par["pom_depth"], case.channel_inputs[0])
+            rms = float(np.sqrt(np.mean((got - case.reference.mean[case.mask][:, 0]) ** 2)))
+            bound = par["mesh_rms"] + 1e-5
+            checks.append(
+                Check(
+                    name=f"{scene}: the displaced mesh's hits vs a float64 root finder on the bilinear "
+                    "height field (RMS, fraction of the range) within the fine-vs-half mesh RMS + 1e-5",
+                    value=rms,
+                    expected=f"≤ {bound:.3g}",
+                    passed=bool(rms <= bound),
+                )
+            )
+            if case.id in stable:
+                ratio = par["mesh_rms"] / 3.0 / stable[case.id]
+                checks.append(
+                    Check(
+                        name=f"{scene}: the fine mesh's own error (⅓ of its RMS difference to the "
+                        "half-resolution mesh) over the stable march's RMSE (n 8…40)",
+                        value=ratio,
+                        expected=f"≤ {MESH_MARGIN:g}",
+                        passed=bool(ratio <= MESH_MARGIN),
+                    )
+                )
+    return checks
+
+
+def irradiance_check(variant: str, seed: int) -> Check:
+    """The light-sample estimator of the shadow's reference (`emitter_visibility`: Mitsuba's own sampling of
+    an area emitter) against Lambert's closed-form polygon irradiance (`square_irradiance`) at three points
+    of a flat field under the shipped scene's light (1 × 1, radiance 10, 4 units away, 70° from the normal,
+    azimuth 200°), which must not occlude anything."""
+    mi = use_variant(variant)
+    light = rectangle_light(np.array(unit_vector(70.0, 200.0)), 4.0, 1.0, 10.0)
+    centre = [float(c) for c in light["center"]]
+    target = [float(c) for c in light["normal_to"]]
+    emitter_shape = mi.load_dict({
+        "type": "rectangle",
+        "to_world": mi.ScalarTransform4f().look_at(origin=centre, target=target, up=[0.0, 0.0, 1.0])
+        @ mi.ScalarTransform4f().scale([0.5 * light["size"], 0.5 * light["size"], 1.0]),
+        "emitter": {"type": "area", "radiance": {"type": "rgb", "value": light["radiance"]}},
+    })  # fmt: skip
+    emitter = emitter_shape.emitter()
+    flat = height_field_scene(mi, HeightFieldMesh(np.full((3, 3), 1.0), -10.0, 10.0, -10.0, 10.0, SCALE))
+    pts = np.array([[0.5, 0.5, 0.0], [0.1, 0.8, 0.0], [0.9, 0.2, 0.0]])
+    nrm = np.tile([0.0, 0.0, 1.0], (3, 1))
+    lv = emitter_visibility(mi, emitter, flat, pts, nrm, FLAT_SAMPLES, seed=seed + 7)
+    exact = np.array([square_irradiance(q, m, light) for q, m in zip(pts, nrm, strict=True)])
+    rel = float(np.max(np.abs(lv.e_unoccluded / exact - 1.0)))
+    return Check(
+        name="the shadow reference's light samples on a flat field vs Lambert's polygon formula (max "
+        f"relative difference of E_unoccluded, {FLAT_SAMPLES} samples; relative σ ≈ 1e-3), nothing occluded",
+        value=rel,
+        expected="≤ 5e-3, E_occluded = E_unoccluded",
+        passed=bool(rel <= 5e-3 and np.all(lv.e_occluded == lv.e_unoccluded)),
+    )
+
+
+# --------------------------------------------------------------------------------------------- shadow
+def shadow_table(audits) -> list[dict]:
+    """One row per (scene, shadow case, row of `SHADOW_ROWS` and its fitted row): RMSE of the visible
+    fraction of the light, the parameters (softening, floor), the reference's mean visibility and stderr."""
+    rows = []
+    for audit in audits:
+        for case in audit.cases:
+            if case.quantity != "parallax_shadow":
+                continue
+            outs = audit.outcomes.get(case.id, {})
+            for rid in (r for base in SHADOW_ROWS for r in (base, f"{base}-fitted")):
+                if rid not in outs:
+                    continue
+                o = outs[rid]
+                rows.append({
+                    "scene": case.id.split("-pom-")[0],
+                    "case": case.id,
+                    "row": rid,
+                    "rmse": float(o.metrics["rmse"].value),
+                    "softening": _finite(o.parameters.get("softening", math.nan)),
+                    "floor": _finite(o.parameters.get("floor", math.nan)),
+                    "mean_visibility": case.parameters["mean_visibility"],
+                    "mean_stderr": case.parameters["mean_stderr"],
+                })  # fmt: skip
+    return rows
+
+
+def _shadow_markdown(table: list[dict]) -> str:
+    lines = ["| scene | row | RMSE (fraction of the light) | softening k | floor |", "|---|---|---|---|---|"]
+    for r in table:
+        k, f = ("—" if x is None else f"{x:.3g}" for x in (r["softening"], r["floor"]))
+        lines.append(f"| {r['scene']} | {r['row']} | {r['rmse']:.3g} | {k} | {f} |")
+    return "\n".join(lines)
+
+
+def _shadow_checks(table: list[dict]) -> list[Check]:
+    """The printed light offset's hazard per scene: the listing's fitted shadow stays further from the
+    visibility than the stable form's (the old experiment's fitted-residual comparison)."""
+    by = {(r["case"], r["row"]): r["rmse"] for r in table}
+    checks = []
+    for case in dict.fromkeys(r["case"] for r in table):
+        a, b = by.get((case, "listing-shadow-fitted")), by.get((case, "stable-shadow-fitted"))
+        if a is None or b is None:
+            continue
+        checks.append(
+            Check(
+                name=f"{case}: hazard R = s·L_xy (not divided by L_z): the listing's shadow fitted at the "
+                "exact visible points stays further from the visibility than the stable form's (RMSE)",
+                value=f"listing {a:.3g}, stable {b:.3g}",
+                expected="listing > stable (confirmed)",
+                passed=bool(a > b),
+            )
+        )
+    return checks
+
+
 def study(ctx: StudyContext) -> Study:
     """The study of ``rtfit run parallax-occlusion`` (module docstring)."""
     h = hazards()
     table = scene_table(ctx.audits)
+    shadows = shadow_table(ctx.audits)
     text = (
         "Visible depth below the floor (a fraction of the height range) of each engine row per shipped "
         "scene, "
         "beside the displaced mesh's own error (fine vs half the cells; the fine mesh's own error is about a "
         "third of it) and the measured kernel cost.\n\n" + _markdown(table)
+    )
+    shadow_text = (
+        "The fraction of the area light's irradiance the height field lets through at each pixel's visible "
+        "point: Mitsuba's light samples cast from the displaced mesh's first hit (the reference; mean "
+        "visibility and its mean standard error per scene in the engine's case notes) against the POM "
+        "shadow rows at their declared (k = 0.5, floor 0.4) and their fitted (softening k, floor). "
+        "``pom-*-shadow``: the pixel shader (march n 8…40, then the 7-sample shadow); ``listing-shadow``, "
+        "``stable-shadow``: the shadow model alone at the exact visible point; ``pom-no-shadow``: 1.\n\n"
+        + _shadow_markdown(shadows)
     )
     stable = [r["rmse"] for r in table if r["row"] == "pom-stable"]
     listing = [r["rmse"] for r in table if r["row"] == "pom-listing"]
@@ -272,16 +476,32 @@ def study(ctx: StudyContext) -> Study:
             Headline(label="listing RMSE (n 8…40, max over scenes)", value=float(max(listing)), unit="1"),
             Headline(label="stable RMSE (n 8…40, max over scenes)", value=float(max(stable)), unit="1"),
         ]
+    fitted = [r["rmse"] for r in shadows if r["row"] == "pom-stable-shadow-fitted"]
+    if fitted:
+        headline.append(
+            Headline(
+                label="stable soft shadow fitted, RMSE (max over scenes)", value=float(max(fitted)), unit="1"
+            )
+        )
     return Study(
         sections=(
             Section(id="study-samples", title="Visible depth: error vs sample range vs cost", text=text),
+            Section(
+                id="study-shadow", title="Soft self-shadow: error vs area-light visibility", text=shadow_text
+            ),
             Section(
                 id="study-hazards",
                 title="The listing's hazards (float32 kernels, no rendering)",
                 text=hazard_text(h),
             ),
         ),
-        checks=(*_sample_checks(table), *hazard_checks(h)),
+        checks=(
+            *_sample_checks(table),
+            *reference_checks(ctx.audits, table),
+            irradiance_check(ctx.variant, ctx.seed),
+            *_shadow_checks(shadows),
+            *hazard_checks(h),
+        ),
         headline=tuple(headline),
-        extra={"samples": table, "hazards": h},
+        extra={"samples": table, "shadow": shadows, "hazards": h},
     )
