@@ -283,20 +283,29 @@ def test_flat_height_field_casts_no_shadow(tmp_path):
     1 − max_f (−f·w_f·k) = 1 + k·min_f f·w_f = 1 + 0.5·0.88 before the remap, 0.6·1.44 + 0.4 = 1.264 after;
     no shadow is 1. The inputs are the floor's own: L the unit vector from the floor point under the pixel
     to the light's centre (the floor's tangent frame is the world's), (u, v) the texture coordinates where
-    the pixel's ray meets the plane z = −d/2 (closed form)."""
-    r = rtfit.audit(_lit_scene(tmp_path), "parallax-occlusion", defines={"height": "flat.exr"}, spp=16,
-                    cache=tmp_path / "c", metrics=("rmse",), cost_elements=4096, fit=False)  # fmt: skip
+    the pixel's ray meets the plane z = −d/2 (closed form). A user's ``parallax_shadow`` approximation reads
+    the same inputs through ``g`` (here L_z, times h(u, v)/h(u, v) from the case's height field)."""
+    from rtfit.realtime.quantities import approximation
+
+    @approximation(quantity="parallax_shadow")
+    def light_height(ops, g):
+        return g.lz * g.field(ops, g.u, g.v) / ops.maximum(g.field(ops, g.u, g.v), 0.01)
+
+    rows = ["parallax-occlusion", light_height]
+    r = rtfit.audit(_lit_scene(tmp_path), rows, defines={"height": "flat.exr"}, spp=16, cache=tmp_path / "c",
+                    metrics=("rmse",), cost_elements=4096, fit=False)  # fmt: skip
     depth_case, shadow = r.cases
     assert shadow.quantity == "parallax_shadow" and shadow.parameters["light"] == "lamp"
     assert shadow.parameters["pixels"] == depth_case.parameters["pixels"] > 400
     assert np.all(shadow.reference.mean[shadow.mask] == 1.0) and not shadow.reference.stderr.any()
     want = {"pom-stable-shadow": 1.0, "stable-shadow": 1.0, "pom-no-shadow": 1.0}
     want |= {"pom-listing-shadow": 1.264, "listing-shadow": 1.264}
-    assert set(r.outcomes[shadow.id]) == set(want)
+    assert set(r.outcomes[shadow.id]) == set(want) | {"light_height"}
     for row, value in want.items():
         assert np.allclose(r.image(shadow.id, row)[shadow.mask], value, atol=1e-6), row
     p, d = _floor_rays(shadow)
     inp = shadow.channel_inputs[0]
+    assert np.allclose(r.image(shadow.id, "light_height")[shadow.mask][:, 0], inp["lz"], atol=1e-6)
     to_light = (LIGHT_CENTRE - p) / np.linalg.norm(LIGHT_CENTRE - p, axis=1, keepdims=True)
     assert np.allclose(np.stack([inp["lx"], inp["ly"], inp["lz"]], axis=1), to_light, atol=2e-5)
     t = (-0.5 * POM_DEPTH_DEFAULT - EYE[2]) / d[:, 2]  # the ray from the eye meets z = −d/2
