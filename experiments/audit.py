@@ -108,7 +108,13 @@ PROVIDES: dict[str, frozenset[str]] = {
     "rough-shape": frozenset(
         i.name for m in ("classic", "preconvolved") for i in reflections.METHODS[m].inputs
     ),
-    "height-field": frozenset(i.name for i in parallax_occlusion.DEPTH_METHODS["pom-stable"].inputs),
+    # the march's inputs; toward each area light, the soft shadow's too (the family's case computes those)
+    "height-field": frozenset(
+        i.name
+        for table in (parallax_occlusion.DEPTH_METHODS, parallax_occlusion.SHADOW_AUDIT_METHODS)
+        for m in table.values()
+        for i in m.inputs
+    ),
 }
 # What provides an input, for "not here" notes (the first kind of `PROVIDES` that has it).
 _INPUT_SOURCE = {name: kind for kind in reversed(PROVIDES) for name in PROVIDES[kind]}

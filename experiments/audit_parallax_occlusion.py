@@ -39,15 +39,33 @@ instead of displacing the mesh. One case per such shape:
   audited). A user's ``@approximation(quantity="parallax_depth")`` reads the same (u₀, v₀) and view vector,
   with the height field as ``g.field(ops, u, v)`` and the range as ``g.scale`` (`on_field`, as the rows).
 
-The soft self-shadow of the family (``METHODS``' third output) is not audited here: it needs a light and a
-visibility reference the experiment (`rtfit run parallax-occlusion`) builds for its area light. A
-``normalmap`` stores normals, not heights: `rtfit audit --list` names such a shape as not applying.
+**The soft self-shadow** (``METHODS``' third output), one more case per area light of the scene (an
+emitter shape other than the bumped one; none: a note says the shadow is not audited), quantity
+``parallax_shadow``, on the depth case's pixels whose light vector to the light's centre (bounding-box
+centre) has L_z > `MIN_COS` in the same tangent frame (V's construction applied to it) and whose visible
+point sees some of the light:
+
+* **the reference**: at the displaced mesh's first hit (its normal towards the camera's side), the fraction
+  V = E_occluded/E_unoccluded of the light's irradiance that reaches it past the displaced mesh (Mitsuba's
+  own light sampling, ``emitter.sample_direction``, ``--spp`` samples per pixel, ``ray_test`` against the
+  displaced mesh alone: the height field's own shadow, what the shadow query models; other occluders are a
+  shadow map's), with its delta-method standard error (`emitter_visibility`);
+* **rows** (`SHADOW_AUDIT_METHODS`): the pixel shader's shadow (``pom-listing-shadow``,
+  ``pom-stable-shadow``: the march n 8…40, then the 7-sample shadow at the marched (u, v)), the shadow
+  model alone at the exact visible point's texture coordinates (``listing-shadow``, ``stable-shadow``:
+  inputs ``u``, ``v`` from the hit's barycentric coordinates, `displaced_hits`), each with (softening,
+  floor) declared and fitted, and POM without the shadow query (``pom-no-shadow``: 1).
+
+`SCENES`: the bump-mapped floor ``rtfit run parallax-occlusion`` audits (scenes/library/
+parallax_occlusion_floor.xml, three views, two depths, one square area light at 70°). A ``normalmap`` stores
+normals, not heights: `rtfit audit --list` names such a shape as not applying.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import math
 import time
 
@@ -55,11 +73,13 @@ import numpy as np
 
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.methods import Method
-from rtfit.realtime.parallax_occlusion import DEPTH_METHODS, WRAP_MODES, HeightMap
+from rtfit.realtime.parallax_occlusion import DEPTH_METHODS, SHADOW_AUDIT_METHODS, WRAP_MODES, HeightMap
 from rtfit.reference.estimators import is_pass_through
 from rtfit.reference.parallax_occlusion import (
     bump_texture,
+    displaced_hits,
     displaced_shape,
+    emitter_visibility,
     exact_hits,
     height_field_shapes,
     pixel_surface,
@@ -69,7 +89,15 @@ from rtfit.reference.parallax_occlusion import (
 )
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditReference,
+    AuditSetup,
+    FamilyCase,
+    ShippedScene,
+    masked_image,
+)
 
 __all__ = [
     "CELLS_PER_TEXEL",
@@ -77,6 +105,8 @@ __all__ = [
     "MAX_CELLS",
     "POM_DEPTH_DEFAULT",
     "POM_DEPTH_RANGE",
+    "SCENES",
+    "VIEWS",
     "check_pom_depth",
     "height_map_of",
     "on_field",
@@ -95,6 +125,9 @@ MIN_CELLS, MAX_CELLS = 16, 1024
 """Cells per side of the displaced mesh's UV grid: at least, at most (2·1024² triangles)."""
 MIN_COS = 1e-3
 """Pixels whose view vector makes γ = w·n below this with the shape's normal are left out."""
+SHADOW_OFFSET = 1e-3
+"""The shadow rays start this fraction of the height range (scene units) off the displaced mesh, along its
+normal."""
 _PROBES = 4096
 _MATCH = 1e-4
 
@@ -229,10 +262,12 @@ def parallax_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     fine = displaced_shape(mi, shape, texture, d_scene, side, _cells(hm, a, span, 1.0))
     coarse = displaced_shape(mi, shape, texture, d_scene, side, _cells(hm, a, span, 0.5))
     idx = np.flatnonzero(on)
-    p_hit, _, ok = exact_hits(mi, fine.scene(mi), ps.origins[idx], ps.dirs[idx])
+    fine_scene = fine.scene(mi)
+    p_hit, n_hit, uv_hit, ok = displaced_hits(mi, fine, fine_scene, ps.origins[idx], ps.dirs[idx])
     p_half, _, ok_half = exact_hits(mi, coarse.scene(mi), ps.origins[idx], ps.dirs[idx])
     keep = ok & ok_half
-    idx, p_hit, p_half = idx[keep], p_hit[keep], p_half[keep]
+    missed = int(idx.size - keep.sum())
+    idx, p_hit, p_half, n_hit, uv_hit = idx[keep], p_hit[keep], p_half[keep], n_hit[keep], uv_hit[keep]
     if idx.size == 0:
         return []
     ref = np.einsum("ij,ij->i", ps.p[idx] - p_hit, n[idx]) / d_scene
@@ -269,14 +304,28 @@ def parallax_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         f"height range --pom-depth {depth:g} texture units = {d_scene:.4g} scene units "
         f"(L = {length:.4g} scene units per texture unit)",
         f"the displaced mesh's own error (fine vs half the cells per side): RMS {mesh_rms:.3g} of the range",
-        "mip 0 (full POM: the LOD blend is not audited); the soft self-shadow is not audited here (it needs "
-        "a light and a visibility reference: rtfit run parallax-occlusion)",
+        "mip 0 (full POM: the LOD blend is not audited; its LOD pop: rtfit run parallax-occlusion)",
     ]
+    if missed:
+        notes.append(f"{missed} pixels of the shape left out: their ray misses the fine or the coarse mesh")
     if texels.min() < 0.0 or texels.max() > 1.0:
         notes.append(
             f"the texels span {texels.min():.3g} … {texels.max():.3g}, outside the march's [0, 1]: the "
             "reference displaces by them as they are"
         )
+    flip = np.einsum("ij,ij->i", n_hit, n[idx]) < 0  # the hit's normal towards the camera's side
+    n_hit = np.where(flip[:, None], -n_hit, n_hit)
+    hit = _Hits(idx, inputs, p_hit, n_hit, uv_hit @ a.T + b, t_u[idx], t_v[idx], n[idx], ps.p[idx], length)
+    lights = _area_lights(mi, setup.scene, shape)
+    if not lights:
+        notes.append("the soft self-shadow is not audited: the scene has no area light")
+    shadows = [
+        case
+        for k, (light_id, emitter, centre) in enumerate(lights)
+        for case in _shadow_cases(
+            setup, app, k, light_id, emitter, centre, hit, fine_scene, hm, depth, d_scene
+        )
+    ]
     return [
         FamilyCase(
             id=f"pom-{app.source}",
@@ -293,11 +342,129 @@ def parallax_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "mesh_cells": list(fine.cells),
                 "mesh_rms": mesh_rms,
                 "pixels": int(idx.size),
+                "missed": missed,
             },
             units="1 (fraction of the height range)",
             notes=tuple(notes),
             methods=rows,
             quantity="parallax_depth",
+            user_rows=functools.partial(on_field, field=hm, scale=depth),
+        ),
+        *shadows,
+    ]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Hits:
+    """The depth case's pixels (``idx``, flat indices; ``inputs``: its per-pixel inputs) and, per pixel, the
+    displaced mesh's first hit ``p`` with its normal ``n`` (towards the camera's side), the texture
+    coordinates ``tex`` there, the tangents ``t_u``, ``t_v``, the shape's normal ``n0`` and point ``p0``
+    under the pixel, and L (``length``)."""
+
+    idx: np.ndarray
+    inputs: dict
+    p: np.ndarray
+    n: np.ndarray
+    tex: np.ndarray
+    t_u: np.ndarray
+    t_v: np.ndarray
+    n0: np.ndarray
+    p0: np.ndarray
+    length: float
+
+
+def _area_lights(mi, scene, shape) -> list[tuple[str, object, np.ndarray]]:
+    """(id, emitter, centre of its shape's bounding box) of each area light of ``scene`` other than
+    ``shape``."""
+    out = []
+    for k, s in enumerate(scene.shapes()):
+        if not s.is_emitter() or s == shape:
+            continue
+        e = s.emitter()
+        if not mi.has_flag(e.flags(), mi.EmitterFlags.Surface):
+            continue
+        out.append((s.id() or f"area light {k}", e, np.array(s.bbox().center(), np.float64).reshape(3)))
+    return out
+
+
+def _shadow_cases(setup, app, k, light_id, emitter, centre, hit, fine_scene, hm, depth, d_scene):
+    """The soft self-shadow toward one area light (module docstring): the case over the depth case's pixels
+    where the light's centre lies above the shape (L_z > `MIN_COS`) and the visible point sees some of it."""
+    mi = setup.mi
+    t0 = time.perf_counter()
+    w = centre[None, :] - hit.p0
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    light, lz = tangent_view(w, hit.t_u, hit.t_v, hit.n0, hit.length)
+    up = np.isfinite(light).all(axis=1) & (lz > MIN_COS)
+    seed = int.from_bytes(
+        hashlib.sha256(f"{setup.seed}:{app.part}:{light_id}".encode()).digest()[:4], "little"
+    )
+    lv = emitter_visibility(mi, emitter, fine_scene, hit.p[up], hit.n[up], setup.spp, seed=seed,
+                            offset=SHADOW_OFFSET * d_scene)  # fmt: skip
+    sel = np.flatnonzero(up)[lv.e_unoccluded > 0]
+    keep = lv.e_unoccluded > 0
+    if sel.size == 0:
+        return []
+    seconds = time.perf_counter() - t0
+    height, width = setup.mask.shape
+    mask = np.zeros(height * width, bool)
+    mask[hit.idx[sel]] = True
+    mask = mask.reshape(height, width)
+    inputs = {
+        **{n: v[sel] for n, v in hit.inputs.items()},
+        "lx": light[sel, 0],
+        "ly": light[sel, 1],
+        "lz": light[sel, 2],
+        "u": hit.tex[sel, 0],
+        "v": hit.tex[sel, 1],
+    }
+    vis, err = lv.visibility[keep], lv.visibility_stderr[keep]
+    key = hashlib.sha256(repr((setup.scene_digest, app.part, light_id, depth, setup.spp, seed)).encode())
+    reference = AuditReference(
+        mean=masked_image(mask, vis),
+        stderr=masked_image(mask, err),
+        spp=setup.spp,
+        passes=1,
+        passes_rendered=1,
+        cache_key=key.hexdigest()[:16],
+        cache_path="",
+        seconds=seconds,
+        quantity="the fraction of the area light's irradiance at the visible point that the height field "
+        "lets through, E_occluded/E_unoccluded",
+        integrator="Mitsuba's light sampling (emitter.sample_direction) from the displaced mesh's first hit, "
+        "ray_test against the displaced mesh only (no sampling of the camera ray; not cached)",
+        integrator_reason="the height field's own shadow, what POM's shadow query models: other occluders "
+        "are a shadow map's; standard error by the delta method on the paired samples",
+    )
+    rows = {mid: on_field(m, hm, depth) for mid, m in SHADOW_AUDIT_METHODS.items()}
+    label = f"parallax occlusion soft shadow, {app.part.split(':')[0]}, {light_id}"
+    return [
+        FamilyCase(
+            id=f"pom-{app.source}-shadow-{k}",
+            label=label,
+            reference=reference,
+            mask=mask,
+            channel_inputs=(inputs,),
+            parameters={
+                "pom_depth": depth,
+                "light": light_id,
+                "light_centre": [float(c) for c in centre],
+                "light_samples": setup.spp,
+                "mean_visibility": float(np.mean(vis)),
+                "mean_stderr": float(np.mean(err)),
+                "pixels": int(sel.size),
+            },
+            units="1 (fraction of the light's irradiance)",
+            notes=(
+                f"{light_id}: light vector to its centre {tuple(round(float(c), 4) for c in centre)}; "
+                f"{setup.spp} light samples per pixel, mean visibility {np.mean(vis):.3g} "
+                f"(mean standard error {np.mean(err):.2g})",
+            ),
+            methods=rows,
+            quantity="parallax_shadow",
+            uncosted={
+                "pom-no-shadow": "POM without the shadow query returns the constant 1: no work to time"
+            },
             user_rows=functools.partial(on_field, field=hm, scale=depth),
         )
     ]
@@ -317,6 +484,7 @@ FAMILY = AuditFamily(
     name="parallax-occlusion",
     quantity="parallax_depth",
     formats=("mitsuba-xml", "rtfit-toml"),
+    quantities=("parallax_shadow",),
     cases=parallax_cases,
     describe=(
         "A shape whose BSDF is a bumpmap of a bitmap texture: the texture as a height field, carved "
@@ -325,7 +493,11 @@ FAMILY = AuditFamily(
         "field, intersected with the pixel-centre rays by Mitsuba (exact first hits, noise floor zero); the "
         "compared quantity is the visible point's depth below the shape as a fraction of the height range. "
         "Rows: the family's listing and stable marches on the flat shape (the texture looked up as Mitsuba "
-        "does, the view vector in the texture's tangent frame), the stable march at three sample ranges."
+        "does, the view vector in the texture's tangent frame), the stable march at three sample ranges. "
+        "Toward each area light of the scene, the soft self-shadow: the fraction of the light's irradiance "
+        "that reaches the displaced mesh's visible point past the displaced mesh (Mitsuba's light samples, "
+        "with standard errors) against the POM shadow query after the march and at the exact visible point, "
+        "declared and fitted (softening, floor), and no shadow."
     ),
     rules=(
         Rule(
@@ -334,9 +506,39 @@ FAMILY = AuditFamily(
             ("height-field",),
             "{part}: parallax occlusion mapping marches it on the flat shape instead of displacing the mesh",
             "the visible point's depth below the shape along each pixel-centre ray, on the shape displaced "
-            "along its normals by the height field (range --pom-depth texture units)",
+            "along its normals by the height field (range --pom-depth texture units); toward each area "
+            "light, the fraction of its irradiance the displaced height field lets through to that point",
             "none: Mitsuba ray_intersect of the pixel-centre rays with the displaced mesh (exact first hits, "
-            "deterministic: noise floor zero)",
+            "deterministic: noise floor zero); the shadow: Mitsuba's light samples, ray_test against the "
+            "displaced mesh (--spp per pixel)",
         ),
     ),
 )
+
+
+VIEWS = {"overhead": "0, -0.532, 1.462", "45deg": "0, -1.1, 1.1", "grazing": "0, -1.462, 0.532"}
+"""The shipped scenes' cameras (scenes/library/parallax_occlusion_floor.xml ``origin``; scene units), 1.556
+from the floor's centre and looking at it: 20°, 45° and 70° from the floor's normal."""
+DEPTHS = (0.1, 0.15)
+"""The shipped scenes' ``pom_depth`` (texture units): the family's default and the old experiment's s."""
+
+
+def _scene(view: str, depth: float) -> ShippedScene:
+    return ShippedScene(
+        "parallax_occlusion_floor.xml",
+        f"egg-crate height texture (32×32 texels) on a 1×1 floor seen {view}, carved {depth:g} texture units",
+        size=(64, 64),
+        quick_size=(24, 24),
+        quick_spp=256,
+        spp=1024,
+        options={"pom_depth": depth},
+        defines={"origin": VIEWS[view]},
+        name=f"{view}-d{depth:g}".replace(".", "p"),
+        quick=view == "45deg" and depth == 0.15,
+    )
+
+
+SCENES = tuple(_scene(v, d) for d in DEPTHS for v in VIEWS)
+"""The scenes ``rtfit run parallax-occlusion`` audits (one per view and depth; ``--quick``: 45°, s = 0.15):
+the depth reference is deterministic (exact first hits on the displaced mesh); ``spp`` is the light samples
+per pixel of the soft shadow's reference (the old experiment's 256 with ``--quick``)."""

@@ -74,6 +74,7 @@ from . import (
     irradiance_volumes_study,
     light_cones_study,
     obscurances_study,
+    parallax_occlusion_study,
     soft_particles_study,
     volumetric_lightning_study,
 )
@@ -258,12 +259,16 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "parallax-occlusion",
-            "rtfit.experiments.parallax_occlusion",
-            "Parallax occlusion mapping with soft shadows vs a displaced mesh and ray-traced penumbrae",
-            "The seed's linear search + piecewise-linear intersection and 7-sample soft shadow (as printed "
-            "and stable) against ray_intersect on the displaced height field and area-light visibility.",
-            methods=parallax_occlusion.DEPTH_METHODS,
+            ENGINE,
+            "Parallax occlusion mapping vs a displaced mesh, error vs samples vs cost, the listing's hazards",
+            "The seed's linear search + piecewise-linear intersection (as printed and stable, three sample "
+            "ranges) against Mitsuba's first hits on the displaced height field of a shipped bump-mapped "
+            "floor at three views and two depths; the printed listing's float32 hazards (normal incidence, "
+            "no crossing, unclamped offset, the soft shadow's LOD pop) against the stable form.",
+            methods={**parallax_occlusion.DEPTH_METHODS, **parallax_occlusion.SHADOW_AUDIT_METHODS},
             audits=(audit_parallax_occlusion.FAMILY,),
+            scenes=audit_parallax_occlusion.SCENES,
+            study=parallax_occlusion_study.study,
         ),
         Family(
             "obscurances",

@@ -44,6 +44,12 @@ along v, no flip, wrap ``repeat``, ``clamp`` or ``mirror``.
 
 `DEPTH_METHODS`: the march alone, returning the visible point's depth 1 − t* (a fraction of the height
 range s) — what `rtfit audit` compares with the displaced mesh's first hit.
+
+`SHADOW_AUDIT_METHODS` (quantity ``parallax_shadow``): the soft shadow alone, as the fraction of an area
+light's irradiance the height field lets through — the pixel shader's (the march to the visible (u, v), then
+the 7-sample shadow there: `pom_pixel_shadow_kernel`, `pom_kernel`'s third output at mip 0), the shadow
+model isolated from the march (`SHADOW_METHODS` at the exact visible point), and POM without the shadow query
+(1) — what `rtfit audit` compares with Mitsuba's area-light visibility from the displaced mesh.
 """
 
 from __future__ import annotations
@@ -64,14 +70,17 @@ __all__ = [
     "POM_HEIGHT_FIELDS",
     "POM_SHADOW_FRACTIONS",
     "POM_SHADOW_WEIGHTS",
+    "SHADOW_AUDIT_METHODS",
     "HeightMap",
     "pom_depth_kernel",
     "pom_height",
     "pom_kernel",
     "pom_march_kernel",
     "pom_normal_kernel",
+    "pom_pixel_shadow_kernel",
     "pom_sample_count",
     "pom_shadow_kernel",
+    "pom_unshadowed_kernel",
 ]
 
 TWO_PI = 2.0 * math.pi
@@ -310,6 +319,28 @@ def pom_depth_kernel(ops, u0, v0, vx, vy, vz, *, scale, n_min, n_max, field, sta
     return 1.0 - t_hit
 
 
+def pom_pixel_shadow_kernel(
+    ops, u0, v0, vx, vy, vz, lx, ly, lz, *, scale, softening, floor, n_min, n_max, field, stable, min_cos,
+):  # fmt: skip
+    """The pixel shader's soft self-shadow at full POM (mip 0): the march (`pom_march_kernel`) to the visible
+    (u, v), then the 7-sample shadow there (`pom_shadow_kernel`) — `pom_kernel`'s third output at mip 0, the
+    fraction of the light the shader lets through."""
+    u, v, _ = pom_march_kernel(
+        ops, u0, v0, vx, vy, vz, scale=scale, n_min=n_min, n_max=n_max, field=field, stable=stable,
+        min_cos=min_cos,
+    )  # fmt: skip
+    return pom_shadow_kernel(
+        ops, u, v, lx, ly, lz, scale=scale, softening=softening, floor=floor, field=field, stable=stable,
+        min_cos=min_cos,
+    )  # fmt: skip
+
+
+def pom_unshadowed_kernel(ops, u0, *, scale, field):
+    """POM without the shadow query: the whole light let through (1) at every pixel — the baseline a shadow
+    row improves on. ``scale`` and ``field`` are the case's, as every row's, and unused."""
+    return u0 * 0.0 + 1.0
+
+
 def pom_kernel(
     ops, u0, v0, vx, vy, vz, lx, ly, lz, mip, *, scale, softening, floor, n_min, n_max, lod_threshold,
     field, stable, min_cos,
@@ -402,17 +433,22 @@ SHADOW_METHODS = method_table(
             f"{m.id}-shadow",
             f"{m.label}: soft shadow",
             pom_shadow_kernel,
-            inputs=(Input("u", "texture units"), Input("v", "texture units"), *_LIGHT),
+            inputs=(
+                Input("u", "texture units", "texture coordinate u of the shaded (visible) point"),
+                Input("v", "texture units", "texture coordinate v of the shaded (visible) point"),
+                *_LIGHT,
+            ),
             params=SHADOW_PARAMS,
             fixed={k: m.fixed[k] for k in ("scale", "field", "stable", "min_cos")},
-            quantity="light visibility (fraction)",
+            quantity="parallax_shadow",
             formula="(1 − max_f (h(uv + f·R) − h₀ − f)·w_f·k)·(1 − floor) + floor",
             source="000:2084-2117",
         )
         for m in METHODS.values()
     ]
 )
-"""The shadow factor alone at a given (u, v) (what the softening fit runs through)."""
+"""The shadow factor alone at a given (u, v): in `rtfit audit` the exact visible point's (the shadow model
+isolated from the march)."""
 
 DEPTH_FORMULAS = {
     "listing": "1 − t*: linear search t_i = 1 − i/n, P = s·normalize(V_xy)·|V_xy|/V_z, piecewise-linear hit",
@@ -460,3 +496,39 @@ DEPTH_METHODS = method_table(
 ``stable`` is volumetric lightning's in ``--approx``), and the stable march at the sample ranges
 `DEPTH_SAMPLE_RANGES` (``pom-stable-n<lo>-<hi>``): the visible point's depth, a fraction of the height range
 (what `rtfit audit` compares with the displaced mesh's first hit)."""
+
+SHADOW_AUDIT_METHODS = method_table(
+    [
+        *(
+            Method(
+                f"pom-{m.id}-shadow",
+                f"{m.label}: soft shadow at the marched point",
+                pom_pixel_shadow_kernel,
+                inputs=(*_VIEW, *_LIGHT),
+                params=SHADOW_PARAMS,
+                fixed={k: m.fixed[k] for k in ("scale", "n_min", "n_max", "field", "stable", "min_cos")},
+                quantity="parallax_shadow",
+                formula="the march (n 8…40) to (u, v), then "
+                + SHADOW_METHODS[f"{m.id}-shadow"].formula
+                + (" with R = s·L_xy/max(L_z, c), clamped" if m.fixed["stable"] else " with R = s·L_xy"),
+                source="000:1723-2117" + (" (fixed)" if m.fixed["stable"] else ""),
+            )
+            for m in METHODS.values()
+        ),
+        *SHADOW_METHODS.values(),
+        Method(
+            "pom-no-shadow",
+            "POM without the shadow query",
+            pom_unshadowed_kernel,
+            inputs=(_VIEW[0],),
+            fixed={"scale": _DEFAULT_FIXED["scale"], "field": _DEFAULT_FIXED["field"]},
+            quantity="parallax_shadow",
+            formula="1 (the whole light let through)",
+            source="000:2084-2117 (the query left out)",
+        ),
+    ]
+)
+"""The soft shadow as `rtfit audit` compares it with the area-light visibility from the displaced mesh
+(quantity ``parallax_shadow``): the pixel shader's (``pom-listing-shadow``, ``pom-stable-shadow``: march then
+shadow, mip 0), the shadow model alone at the exact visible point (``listing-shadow``, ``stable-shadow``:
+`SHADOW_METHODS`, reading (u, v)) and the unshadowed baseline (``pom-no-shadow``)."""

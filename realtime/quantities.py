@@ -533,6 +533,65 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 "height field",
             ),
             Quantity(
+                "parallax_shadow",
+                "1",
+                "fraction of an area light's irradiance at the visible point of a height-mapped surface that "
+                "the height field itself lets through (its soft self-shadow; 1: unshadowed)",
+                (
+                    Input(
+                        "u0",
+                        "texture units",
+                        "the pixel's texture coordinate u (on the surface)",
+                        (-2.0, 2.0),
+                    ),
+                    Input("v0", "texture units", "the pixel's texture coordinate v", (-2.0, 2.0)),
+                    *(
+                        Input(f"v{c}", "1", f"unit view vector (to the eye), tangent space {c}", (-1.0, 1.0))
+                        for c in "xy"
+                    ),
+                    Input("vz", "1", "unit view vector, tangent space z = N·V", (1.0e-3, 1.0)),
+                    *(
+                        Input(
+                            f"l{c}", "1", f"unit vector to the light's centre, tangent space {c}", (-1.0, 1.0)
+                        )
+                        for c in "xy"
+                    ),
+                    Input(
+                        "lz",
+                        "1",
+                        "unit vector to the light's centre, tangent space z = N·L (the audit leaves out "
+                        "pixels below 10⁻³)",
+                        (1.0e-3, 1.0),
+                    ),
+                    Input(
+                        "u",
+                        "texture units",
+                        "texture coordinate u of the exact visible point (the displaced mesh's first hit): "
+                        "what a shadow model isolated from the march reads; an engine has only its march's",
+                        (-2.0, 2.0),
+                    ),
+                    Input(
+                        "v", "texture units", "texture coordinate v of the exact visible point", (-2.0, 2.0)
+                    ),
+                    Input(
+                        "scale",
+                        "texture units",
+                        "the height range s (--pom-depth): h = 0 lies s·L below the surface",
+                        (1.0e-3, 1.0),
+                    ),
+                    Input(
+                        "field",
+                        "1",
+                        "the height field h(u, v) ∈ [0, 1]: g.field(ops, u, v) (the bump map's texture as "
+                        "Mitsuba looks it up)",
+                    ),
+                ),
+                vectors={"view": ("vx", "vy", "vz"), "light": ("lx", "ly", "lz")},
+                examples={"field": _example_field},
+                reference="Mitsuba ray_test from the displaced mesh's first hit to samples of the area light "
+                "(the light's own sampling): unoccluded-weighted fraction with its standard error",
+            ),
+            Quantity(
                 "reflected_radiance",
                 "W/m²/sr",
                 "radiance of a mirror, glass or glossy surface from cube maps captured at a probe point, "

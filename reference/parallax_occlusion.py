@@ -34,7 +34,9 @@ __all__ = [
     "area_light_visibility",
     "bump_kind",
     "bump_texture",
+    "displaced_hits",
     "displaced_shape",
+    "emitter_visibility",
     "exact_hits",
     "height_field_scene",
     "height_field_shapes",
@@ -177,15 +179,7 @@ def area_light_visibility(
         for j, val in enumerate((e_u, e_o, e_u * e_u, e_o * e_o, e_u * e_o)):
             sums[j] += np.bincount(idx, val, n_pts)
         done += k
-    m = float(samples)
-    mu, mo = sums[0] / m, sums[1] / m
-    vu = np.maximum(sums[2] / m - mu * mu, 0.0)
-    vo = np.maximum(sums[3] / m - mo * mo, 0.0)
-    cuo = sums[4] / m - mu * mo
-    safe = np.where(mu > 0, mu, 1.0)
-    vis = np.where(mu > 0, mo / safe, 1.0)
-    var = (vo - 2.0 * vis * cuo + vis * vis * vu) / (safe * safe) / m
-    return LightVisibility(mu, mo, vis, np.sqrt(np.maximum(var, 0.0)), samples)
+    return _visibility(sums, samples)
 
 
 def rectangle_light(direction: np.ndarray, distance: float, size: float, radiance: float) -> dict:
@@ -348,6 +342,96 @@ class DisplacedShape:
 
     def scene(self, mi):
         return mesh_scene(mi, self.positions, self.faces, "displaced")
+
+    def vertex_uv(self) -> np.ndarray:
+        """(N, 2): the shape's (u, v) of each vertex of the grid (row-major over v, then u)."""
+        u0, u1, v0, v1 = self.uv_range
+        nu, nv = self.cells
+        uu, vv = np.meshgrid(np.linspace(u0, u1, nu + 1), np.linspace(v0, v1, nv + 1))
+        return np.stack([uu.ravel(), vv.ravel()], axis=1)
+
+
+def displaced_hits(mi, displaced: DisplacedShape, scene, origins: np.ndarray, dirs: np.ndarray):
+    """First hits of rays on the displaced mesh (``scene``: ``displaced.scene(mi)``): positions (N, 3), the
+    hit triangles' geometric normals (N, 3, unoriented), the shape's (u, v) there (N, 2: the barycentric
+    coordinates of the hit in its triangle, from the float64 vertex positions, interpolating the vertices'
+    `DisplacedShape.vertex_uv`) and a validity mask (N,)."""
+    o = mi.Point3f(*[mi.Float(np.ascontiguousarray(origins[:, k], np.float32)) for k in range(3)])
+    dv = mi.Vector3f(*[mi.Float(np.ascontiguousarray(dirs[:, k], np.float32)) for k in range(3)])
+    si = scene.ray_intersect(mi.Ray3f(o, dv))
+    p = np.array(si.p, dtype=np.float64).T.reshape(-1, 3)
+    n = np.array(si.n, dtype=np.float64).T.reshape(-1, 3)
+    valid = np.array(si.is_valid(), dtype=bool).reshape(-1)
+    prim = np.where(valid, np.array(si.prim_index, dtype=np.int64).reshape(-1), 0)
+    tri = displaced.faces[prim]
+    a, b, c = (displaced.positions[tri[:, k]] for k in range(3))
+    e1, e2, r = b - a, c - a, p - a
+    d11, d12, d22 = (np.einsum("ij,ij->i", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
+    r1, r2 = np.einsum("ij,ij->i", r, e1), np.einsum("ij,ij->i", r, e2)
+    det = d11 * d22 - d12 * d12
+    det = np.where(np.abs(det) > 0, det, 1.0)
+    beta = (d22 * r1 - d12 * r2) / det
+    gamma = (d11 * r2 - d12 * r1) / det
+    uv = displaced.vertex_uv()
+    t_a, t_b, t_c = (uv[tri[:, k]] for k in range(3))
+    uv_hit = t_a + beta[:, None] * (t_b - t_a) + gamma[:, None] * (t_c - t_a)
+    return p, n, uv_hit, valid
+
+
+def emitter_visibility(
+    mi, emitter, occluders, points: np.ndarray, normals: np.ndarray, samples: int, seed: int = 0,
+    offset: float = 1e-4, chunk: int = 1 << 18,
+) -> LightVisibility:  # fmt: skip
+    """`LightVisibility` of a Mitsuba area ``emitter`` at ``points`` with unit ``normals``. Each of the
+    ``samples`` per point is Mitsuba's own light sampling (``emitter.sample_direction``: a point y on the
+    emitter and its weight L_e/pdf in solid angle, zero where y faces away); it adds weight·max(n·ω, 0)
+    (the mean of the RGB channels) to E_unoccluded and, where ``occluders.ray_test`` finds nothing between
+    the point (offset by ``offset`` along n) and y, to E_occluded. Uniform 2D samples from NumPy's PCG64
+    with ``seed``; float64 accumulation; V = E_occ/E_unocc with its delta-method standard error (paired
+    samples, as `area_light_visibility`)."""
+    n_pts = points.shape[0]
+    rng = np.random.default_rng(seed)
+    sums = np.zeros((5, n_pts))
+    per = max(1, chunk // max(n_pts, 1))
+    done = 0
+    while done < samples:
+        k = min(per, samples - done)
+        idx = np.repeat(np.arange(n_pts), k)
+        x = points[idx] + offset * normals[idx]
+        it = mi.Interaction3f()
+        it.p = mi.Point3f(*[mi.Float(np.ascontiguousarray(x[:, j], np.float32)) for j in range(3)])
+        u = rng.random((idx.size, 2))
+        ds, weight = emitter.sample_direction(
+            it, mi.Point2f(mi.Float(u[:, 0].astype(np.float32)), mi.Float(u[:, 1].astype(np.float32)))
+        )
+        y = np.array(ds.p, np.float64).T.reshape(-1, 3)
+        w = np.array(weight, np.float64).T.reshape(idx.size, -1).mean(axis=1)
+        d = y - x
+        r = np.sqrt(np.einsum("ij,ij->i", d, d))
+        cos_x = np.maximum(np.einsum("ij,ij->i", normals[idx], d) / np.where(r > 0, r, 1.0), 0.0)
+        e_u = np.where(np.isfinite(w), w, 0.0) * cos_x
+        dv = mi.Vector3f(*[mi.Float(np.ascontiguousarray(d[:, j], np.float32)) for j in range(3)])
+        ray = mi.Ray3f(it.p, dv)
+        ray.maxt = 0.999  # the segment x → y (d unnormalised)
+        occluded = np.array(occluders.ray_test(ray), dtype=bool).reshape(-1)
+        e_o = np.where(occluded, 0.0, e_u)
+        for j, val in enumerate((e_u, e_o, e_u * e_u, e_o * e_o, e_u * e_o)):
+            sums[j] += np.bincount(idx, val, n_pts)
+        done += k
+    return _visibility(sums, samples)
+
+
+def _visibility(sums: np.ndarray, samples: int) -> LightVisibility:
+    """`LightVisibility` from the sums of E_u, E_o, E_u², E_o², E_u·E_o over ``samples`` paired samples."""
+    m = float(samples)
+    mu, mo = sums[0] / m, sums[1] / m
+    vu = np.maximum(sums[2] / m - mu * mu, 0.0)
+    vo = np.maximum(sums[3] / m - mo * mo, 0.0)
+    cuo = sums[4] / m - mu * mo
+    safe = np.where(mu > 0, mu, 1.0)
+    vis = np.where(mu > 0, mo / safe, 1.0)
+    var = (vo - 2.0 * vis * cuo + vis * vis * vu) / (safe * safe) / m
+    return LightVisibility(mu, mo, vis, np.sqrt(np.maximum(var, 0.0)), samples)
 
 
 def displaced_shape(mi, shape, texture, depth: float, side: float, cells: tuple[int, int]) -> DisplacedShape:

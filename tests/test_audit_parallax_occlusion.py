@@ -149,7 +149,10 @@ def test_list_names_the_family_with_its_reason(tmp_path):
         in out
     )
     assert "marches it on the flat shape instead of displacing the mesh" in out
-    assert "methods:    pom-listing, pom-stable, pom-stable-n4-16, pom-stable-n16-64" in out
+    assert (
+        "methods:    pom-listing, pom-stable, pom-stable-n4-16, pom-stable-n16-64, pom-listing-shadow, "
+        "pom-stable-shadow, listing-shadow, stable-shadow, pom-no-shadow" in out
+    )
 
 
 def test_a_normal_map_alone_does_not_apply_and_says_why(tmp_path):
@@ -253,3 +256,67 @@ def test_a_user_parallax_depth_reads_the_rows_own_height_field(ramp, tmp_path):
     msg = str(e.value)
     assert "\n" not in msg
     assert re.match(r"root_height: returned NaN at u0=\S+, v0=\S+ \(first of \d+ of 256 samples\)$", msg)
+
+
+LIGHT_CENTRE = np.array([-2.0, -1.0, 2.5])
+
+
+def _lit_scene(tmp_path) -> Path:
+    """The test floor with a 1 × 1 square area light added (radiance 5, centred at `LIGHT_CENTRE`, facing the
+    floor's centre), the height textures beside it."""
+    for f in DATA.glob("*.exr"):
+        shutil.copy(f, tmp_path / f.name)
+    c = ", ".join(f"{x:g}" for x in LIGHT_CENTRE)
+    light = (
+        f'<shape type="rectangle" id="lamp"><transform name="to_world"><scale value="0.5"/>'
+        f'<lookat origin="{c}" target="0, 0, 0" up="0, 0, 1"/></transform>'
+        f'<emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>'
+    )
+    (tmp_path / "lit.xml").write_text(SCENE.read_text().replace("</scene>", light + "</scene>"))
+    return tmp_path / "lit.xml"
+
+
+def test_flat_height_field_casts_no_shadow(tmp_path):
+    """h = ½ everywhere: the displaced floor is a plane, which shadows none of a light above it, so the
+    reference visibility is exactly 1 (every light sample reaches the visible point; standard error 0). The
+    stable shadow (clamped) is 1 after the march and at the exact point; the printed listing is over-bright:
+    1 − max_f (−f·w_f·k) = 1 + k·min_f f·w_f = 1 + 0.5·0.88 before the remap, 0.6·1.44 + 0.4 = 1.264 after;
+    no shadow is 1. The inputs are the floor's own: L the unit vector from the floor point under the pixel
+    to the light's centre (the floor's tangent frame is the world's), (u, v) the texture coordinates where
+    the pixel's ray meets the plane z = −d/2 (closed form). A user's ``parallax_shadow`` approximation reads
+    the same inputs through ``g`` (here L_z, times h(u, v)/h(u, v) from the case's height field)."""
+    from rtfit.realtime.quantities import approximation
+
+    @approximation(quantity="parallax_shadow")
+    def light_height(ops, g):
+        return g.lz * g.field(ops, g.u, g.v) / ops.maximum(g.field(ops, g.u, g.v), 0.01)
+
+    rows = ["parallax-occlusion", light_height]
+    r = rtfit.audit(_lit_scene(tmp_path), rows, defines={"height": "flat.exr"}, spp=16, cache=tmp_path / "c",
+                    metrics=("rmse",), cost_elements=4096, fit=False)  # fmt: skip
+    depth_case, shadow = r.cases
+    assert shadow.quantity == "parallax_shadow" and shadow.parameters["light"] == "lamp"
+    assert shadow.parameters["pixels"] == depth_case.parameters["pixels"] > 400
+    assert np.all(shadow.reference.mean[shadow.mask] == 1.0) and not shadow.reference.stderr.any()
+    want = {"pom-stable-shadow": 1.0, "stable-shadow": 1.0, "pom-no-shadow": 1.0}
+    want |= {"pom-listing-shadow": 1.264, "listing-shadow": 1.264}
+    assert set(r.outcomes[shadow.id]) == set(want) | {"light_height"}
+    for row, value in want.items():
+        assert np.allclose(r.image(shadow.id, row)[shadow.mask], value, atol=1e-6), row
+    p, d = _floor_rays(shadow)
+    inp = shadow.channel_inputs[0]
+    assert np.allclose(r.image(shadow.id, "light_height")[shadow.mask][:, 0], inp["lz"], atol=1e-6)
+    to_light = (LIGHT_CENTRE - p) / np.linalg.norm(LIGHT_CENTRE - p, axis=1, keepdims=True)
+    assert np.allclose(np.stack([inp["lx"], inp["ly"], inp["lz"]], axis=1), to_light, atol=2e-5)
+    t = (-0.5 * POM_DEPTH_DEFAULT - EYE[2]) / d[:, 2]  # the ray from the eye meets z = −d/2
+    hit = EYE + t[:, None] * d
+    assert np.allclose(inp["u"], hit[:, 0] + 0.5, atol=2e-5) and np.allclose(
+        inp["v"], hit[:, 1] + 0.5, atol=2e-5
+    )
+
+
+def test_a_scene_without_an_area_light_audits_no_shadow(tmp_path):
+    """The test floor has only a constant sky: the depth case alone, and a note saying why."""
+    r = _audit(tmp_path, "flat.exr", ["parallax-occlusion:pom-stable", "parallax-occlusion:stable-shadow"])
+    (case,) = r.cases
+    assert "the soft self-shadow is not audited: the scene has no area light" in case.notes

@@ -89,7 +89,6 @@ FAMILY_LINES_CEILING = {
     "height_fog": 1406,
     "irradiance_bases": 1708,
     "nishita_sky": 1726,
-    "parallax_occlusion": 972,
     "sdf_occlusion": 1914,
 }
 
