@@ -64,7 +64,15 @@ from .audit_family import Study, StudyContext
 from .cost import cost_row, memory_floor_row, time_method
 from .records import Check, Fit, FitParameter, Headline, Section
 
-__all__ = ["CONFIG", "HARD_POINTS", "fit_intersection", "fit_lambert", "function_level", "study"]
+__all__ = [
+    "CONFIG",
+    "HARD_POINTS",
+    "fit_intersection",
+    "fit_lambert",
+    "function_level",
+    "study",
+    "write_fit_file",
+]
 
 PI = math.pi
 CONFIG = {
@@ -265,7 +273,7 @@ def fit_lambert(count: int, nodes) -> dict:
     }
 
 
-def _fit_record(fid: str, label: str, model: str, fit: Mapping, method: Method, out: Path, prov) -> Fit:
+def write_fit_file(fid: str, label: str, model: str, fit: Mapping, method: Method, out: Path, prov) -> Fit:
     """``fitted/<fid>.json`` (``rtfit.fitted/1``: the method at its fitted parameters, GLSL/HLSL) and its
     record for the report's fit table."""
     own = {k: v for k, v in fit["parameters"].items() if k in method.params}
@@ -467,7 +475,7 @@ def study(ctx: StudyContext) -> Study:
         None, "ambient-aperture", [], reference_spp=None, variant=ctx.variant, quick=ctx.quick
     )
     fits = (
-        _fit_record(
+        write_fit_file(
             "intersection",
             "Fitted cap-intersection form",
             "f = sat(t²(3−2t) + t(1−t)[c0 + c1u + ρ(c2 + c3u) + σ(c4 + c5u)]), u = 1 − 2t, after the "
@@ -477,7 +485,7 @@ def study(ctx: StudyContext) -> Study:
             out,
             prov,
         ),
-        _fit_record(
+        write_fit_file(
             "lambert",
             "Centroid weight of the Lambert factor",
             "c = normalize(w l + (1 − w) a), w = A(r_a)^k / (A(r_a)^k + A(α)^k)",
