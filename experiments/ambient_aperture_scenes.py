@@ -1,4 +1,4 @@
-"""Scenes of the ``ambient-aperture`` experiment: mesh generators, library scenes, probe grids.
+"""Meshes of the ``ambient-aperture`` scenes (scenes/library/aperture_*.toml): their generators.
 
 Meshes (written as binary little-endian PLY; the shipped copies in ``scenes/library/meshes/`` are the output
 of `write_library_meshes`, and a test regenerates them byte for byte):
@@ -118,32 +118,3 @@ def write_library_meshes(directory) -> list[Path]:
         write_ply(directory / HOLE_PLATE, *hole_plate()),
         write_ply(directory / BUMPS, bumps_v, bumps_f, vertex_normals(bumps_v, bumps_f)),
     ]
-
-
-# ------------------------------------------------------------------------------------------- cases
-SCENES = ("aperture_hole", "aperture_well", "aperture_bumps")
-LABELS = {
-    "aperture_hole": "plate with a circular hole",
-    "aperture_well": "cylindrical well",
-    "aperture_bumps": "bumpy height field",
-}
-# Region of the receiver covered by the probe grid (x0, x1, y0, y1) and the z from which to cast down.
-PROBE_REGION = {
-    "aperture_hole": (-1.5, 1.5, -1.5, 1.5, 0.5),
-    "aperture_well": (-0.62, 0.62, -0.62, 0.62, 0.5),
-    "aperture_bumps": (-1.6, 1.6, -1.6, 1.6, 3.0),
-}
-WELL_RADIUS = 0.7
-
-
-def probe_grid(name: str, n: int):
-    """(xy (n², 2), inside (n²,)) for the probe image of a scene; the well keeps points inside its floor."""
-    x0, x1, y0, y1, _ = PROBE_REGION[name]
-    xs = np.linspace(x0, x1, n)
-    ys = np.linspace(y1, y0, n)  # image rows top (max y) to bottom
-    x, y = np.meshgrid(xs, ys, indexing="xy")
-    xy = np.stack([x.ravel(), y.ravel()], axis=-1)
-    inside = np.ones(len(xy), bool)
-    if name == "aperture_well":
-        inside = np.hypot(xy[:, 0], xy[:, 1]) < WELL_RADIUS * 0.97
-    return xy, inside

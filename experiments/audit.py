@@ -119,7 +119,7 @@ PROVIDES: dict[str, frozenset[str]] = {
 # What provides an input, for "not here" notes (the first kind of `PROVIDES` that has it).
 _INPUT_SOURCE = {name: kind for kind in reversed(PROVIDES) for name in PROVIDES[kind]}
 # The bare cap-intersection forms (r1, r2, d → Ω in sr) have no per-pixel counterpart in a scene: the
-# ambient-aperture experiment compares them over (r1, r2, d); the audit uses each inside its aa-<form>-* rows.
+# ambient-aperture study compares them over (r1, r2, d); the audit uses each inside its aa-<form>-* rows.
 _INPUT_SOURCE.update(dict.fromkeys(("r1", "r2", "d"), "caps"))
 _KIND_TEXT = {
     "light": "a light (sun, directional, point, spot, sphere, disk or area)",
@@ -145,7 +145,7 @@ _KIND_TEXT = {
     "volume": "a scene with a finite bounding box for a probe grid",
     "rough-shape": "a rough (glossy) reflective shape: roughconductor, roughdielectric or roughplastic",
     "height-field": "a shape whose BSDF is a bumpmap with a bitmap texture (its height field)",
-    "caps": "two bare caps: compared over (r1, r2, d) by the ambient-aperture experiment; in a scene each "
+    "caps": "two bare caps: compared over (r1, r2, d) by rtfit run ambient-aperture's study; in a scene each "
     "intersection form is audited inside its aa-<form>-* rows",
 }
 

@@ -3,8 +3,8 @@ sphere light": each visible point's visibility cap, on the scene's own geometry 
 
 Ambient aperture lighting (Oat & Sander 2007; `rtfit.realtime.ambient_aperture`) stores a point's visibility
 as one spherical cap: a unit bent normal a and an aperture r_a. Here the cap of every visible pixel is baked
-as the ambient-aperture experiment bakes it (`rtfit.reference.visibility`, seed 000:2660-2670) and as the
-aperture-fill role bakes its own (`rtfit.reference.occlusion.visibility_cap_pass`, the same function), with
+as an engine bakes it (seed 000:2660-2670) and as the aperture-fill role bakes its own
+(`rtfit.reference.occlusion.visibility_cap_pass`, the same function), with
 Mitsuba ray casts against the scene's own shapes (`bake_caps`): ``--spp`` directions ω uniform over the
 hemisphere of the pixel's normal n, V(ω) = 1 where the ray escapes,
 
@@ -36,8 +36,9 @@ Case ``caps`` (role "ambient occlusion (aperture caps)"): the cap against ray-ca
   - ``fill-seed``: A ≈ A(r_a)·max(n·a, 0)/π, the seed's fill (000:2774-2782): 2 under an open sky.
 
   The bare intersection forms (r1, r2, d → Ω in sr) are compared at the function level by the
-  ambient-aperture experiment; here each is a part of its ``aa-<form>-*`` rows. A user approximation of
-  ``ambient_occlusion`` is evaluated here too (the AO role's inputs, the scene's distance field included).
+  family's study (`ambient_aperture_study`, in ``rtfit run ambient-aperture``); here each is a part of its
+  ``aa-<form>-*`` rows. A user approximation of ``ambient_occlusion`` is evaluated here too (the AO role's
+  inputs, the scene's distance field included).
 
 Case ``light<i>-occluded`` (role "occluded sphere light", per spherical light): that light's direct
 irradiance with the scene's occluders against the ambient-aperture light term.
@@ -74,11 +75,11 @@ from rtfit.reference.occlusion import visibility_cap_pass
 
 from .audit import Applicability, Rule
 from .audit_ambient_occlusion import ao_reference, scene_distance_field
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
 from .audit_geometry import ao_radius
 from .audit_lights import light_geometry, light_radiance, light_reference, scene_light
 
-__all__ = ["CAPS_ROLE", "FAMILY", "LIGHT_ROLE", "BakedCaps", "bake_caps"]
+__all__ = ["CAPS_ROLE", "FAMILY", "LIGHT_ROLE", "SCENES", "BakedCaps", "bake_caps"]
 
 CAPS_ROLE = "ambient occlusion (aperture caps)"
 LIGHT_ROLE = "occluded sphere light"
@@ -342,3 +343,39 @@ FAMILY = AuditFamily(
         ),
     ),
 )
+
+
+SCENES = (
+    ShippedScene(
+        "aperture_hole.toml",
+        "white floor under a plate with a circular hole (radius 0.6, 1 up), seen from under the plate; a "
+        "sphere light above, offset, and a constant sky of radiance 1",
+        size=(64, 64),
+        spp=8192,
+        quick_size=(24, 24),
+        quick_spp=1024,
+    ),
+    ShippedScene(
+        "aperture_well.toml",
+        "white floor of an open cylindrical well (radius 0.7, depth 1.2), seen down its axis; a sphere light "
+        "above, offset, and a constant sky of radiance 1",
+        size=(64, 64),
+        spp=8192,
+        quick_size=(24, 24),
+        quick_spp=1024,
+    ),
+    ShippedScene(
+        "aperture_bumps.toml",
+        "white height field of six Gaussian bumps under a low sphere light (soft shadows of the bumps on "
+        "each other) and a constant sky of radiance 1",
+        size=(64, 64),
+        spp=8192,
+        quick_size=(24, 24),
+        quick_spp=1024,
+    ),
+)
+"""The scenes ``rtfit run ambient-aperture`` audits (scenes/library/aperture_*.toml): the three receivers of
+the experiment before the engine (a hole in a plate, a well, bumps), each with its sphere light and a
+constant sky of radiance 1, the camera on the receiver. Every role applies to each: the occluded sphere
+light (the cap ∩ the light's cap against the shadowed irradiance), the aperture fill (the cap's fill against
+the occluded sky) and the aperture caps (against ray-cast AO within R)."""

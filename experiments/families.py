@@ -50,6 +50,7 @@ from rtfit.realtime.volumetric_lightning import QUADRATURE as LIGHTNING_QUADRATU
 
 from . import (
     aerial_perspective_study,
+    ambient_aperture_study,
     audit_aerial_perspective,
     audit_ambient_aperture,
     audit_ambient_occlusion,
@@ -168,12 +169,15 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "ambient-aperture",
-            "rtfit.experiments.ambient_aperture",
+            ENGINE,
             "Ambient aperture lighting: spherical-cap intersection, exact vs smoothstep vs fitted",
-            "Solid angle of two intersecting spherical caps over the whole domain, and ambient-aperture "
-            "shading of area-light occlusion against Mitsuba renders.",
+            "Solid angle of two intersecting spherical caps over the whole domain (study), and each visible "
+            "point's baked cap against a sphere light's shadowed irradiance, the occluded sky and ray-cast "
+            "AO on a plate with a hole, a well and bumps (the engine), with fitted Ω and Lambert weights.",
             methods=ambient_aperture.METHODS,
             audits=(audit_sky_occlusion.APERTURE_FILL, audit_ambient_aperture.FAMILY),
+            scenes=audit_ambient_aperture.SCENES,
+            study=ambient_aperture_study.study,
         ),
         Family(
             "sdf-occlusion",

@@ -154,15 +154,16 @@ _PI_MAX = 3.1415927410125732  # float32(π) > π: accepted (rounds to π), the k
 _HALF_PI_MAX = 1.5707963705062866
 
 FITTED_COEFFS: tuple[float, ...] = (-0.278338, 0.103612, -0.37048, 0.380772, 0.646645, 0.381637)
-"""c0..c5 of the fitted form (see module docstring): `rtfit.experiments.ambient_aperture.fit_intersection_job`
-with its full configuration (72³ cell-centred grid of (r1, r2, d) ∈ (0, π)³, its 124 464 partial-overlap
-points), least squares of (Ω_fit − Ω_exact)/A(r_min); RMS residual 0.0085, max 0.064."""
+"""c0..c5 of the fitted form (see module docstring):
+`rtfit.experiments.ambient_aperture_study.fit_intersection` with its full configuration (72³ cell-centred
+grid of (r1, r2, d) ∈ (0, π)³, its 124 464 partial-overlap points), least squares of
+(Ω_fit − Ω_exact)/A(r_min); RMS residual 0.0085, max 0.064."""
 
 FITTED_LAMBERT_K: float = 1.19
 """Exponent k of the fitted centroid weight w = A(r_a)^k/(A(r_a)^k + A(α)^k):
-`rtfit.experiments.ambient_aperture.fit_lambert_job` with its full configuration (6000 random configurations,
-2018 with overlap; k = 1.190 ± 0.019); RMS error of the Lambert-weighted intersection 0.015 of the light cap,
-against 0.159 for the seed's plain average."""
+`rtfit.experiments.ambient_aperture_study.fit_lambert` with its full configuration (6000 random
+configurations, 2018 with overlap; k = 1.190 ± 0.019); RMS error of the Lambert-weighted intersection 0.015
+of the light cap, against 0.159 for the seed's plain average."""
 
 
 # ===================================================================================== kernels (ops text)
@@ -558,7 +559,7 @@ METHODS: Mapping[str, Method] = method_table(
             "fitted",
             "Ω fitted (complement + corrected smoothstep)",
             "Ω ≈ L + A(r_min)·sat(t²(3 − 2t) + t(1 − t)[c0 + c1u + ρ(c2 + c3u) + σ(c4 + c5u)])",
-            "rtfit (ambient-aperture experiment)",
+            "rtfit (ambient-aperture study)",
             params=COEFF_PARAMS,
         ),
         _shading("exact", "seed", "AA: exact Ω, seed Lambert"),

@@ -379,7 +379,7 @@ def test_rules_are_data_and_reach_every_method():
     )
     found = applicable_families(everything)
     # Except the bare cap-intersection forms (r1, r2, d → Ω in sr): a scene has no per-pixel pair of caps to
-    # give them; the ambient-aperture experiment compares them over (r1, r2, d), the audit each inside its
+    # give them; the ambient-aperture study compares them over (r1, r2, d), the audit each inside its
     # aa-<form>-* rows (`--list` says so in its "not here" line).
     for family, table in METHOD_TABLES.items():
         bare = {m for m, v in table.items() if v.quantity == "cap_intersection_solid_angle"}

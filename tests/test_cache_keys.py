@@ -27,6 +27,7 @@ from rtfit.scenes import library_path, load_scene
 KEYS_SCRIPT = textwrap.dedent(
     """
     import json, sys
+    import numpy as np
     import drjit as dr
     import mitsuba as mi
     from rtfit.reference import ReferenceRequest, load_mitsuba_scene
@@ -34,15 +35,15 @@ KEYS_SCRIPT = textwrap.dedent(
     from rtfit.reference.estimators import gbuffer
     from rtfit.reference.visibility import surface_points
     from rtfit.scenes import library_path, load_scene, scene_hash
-    from rtfit.experiments.ambient_aperture_scenes import PROBE_REGION, probe_grid
     from rtfit.experiments.sdf_occlusion_scenes import load_case_scene
 
     mi.set_variant("llvm_ad_rgb")
     dr.set_thread_count(8)
     scene = load_scene(library_path("aperture_bumps"))
-    xy, inside = probe_grid("aperture_bumps", 24)
-    pts, nrm, valid = surface_points(scene, xy, PROBE_REGION["aperture_bumps"][4], "llvm_ad_rgb")
-    m = inside & valid
+    g = np.linspace(-1.6, 1.6, 24)
+    x, y = np.meshgrid(g, g[::-1], indexing="xy")
+    xy = np.stack([x.ravel(), y.ravel()], axis=-1)
+    pts, nrm, m = surface_points(scene, xy, 3.0, "llvm_ad_rgb")
     req = ReferenceRequest(scene=scene, spp=64, quantity="irradiance", points=pts[m], normals=nrm[m])
     sc = load_case_scene("character", 40)
     mi_, ms = load_mitsuba_scene(sc, "llvm_ad_rgb")

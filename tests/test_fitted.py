@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rtfit.experiments import ambient_aperture as aa
+from rtfit.experiments import ambient_aperture_study as aa
 from rtfit.experiments import diffuse_study as df
 from rtfit.experiments import height_fog as hf
 from rtfit.experiments import irradiance_bases as ib
@@ -155,10 +155,11 @@ def _irradiance_bases(out: Path):
 
 
 def _ambient_aperture(out: Path):
-    fit_i = _fit({f"c{i}": 0.01 * i for i in range(6)}, method=aa.FITTED_OMEGA)
+    prov = provenance(None, "ambient-aperture")
+    fit_i = {**_fit({f"c{i}": 0.01 * i for i in range(6)}, method=aa.FITTED_OMEGA), "errors": {"max": 0.01}}
+    aa.write_fit_file("intersection", "intersection form", "Ω ≈ …", fit_i, aa.FITTED_OMEGA, out, prov)
     fit_l = {**_fit({"k": 1.3}, method=aa.FITTED_LAMBERT), "k": 1.3, "errors": {"max": 0.02}}
-    fl = {"errors": {aa.FITTED_OMEGA.id: {"full": {"max": 0.01}}}}
-    aa.write_fitted(out, fit_i, fit_l, fl, None, {"spp": 8}, [{"scene": {"hash": "0a0b"}}])
+    aa.write_fit_file("lambert", "Lambert weight", "w = …", fit_l, aa.FITTED_LAMBERT, out, prov)
 
 
 def _sdf_occlusion(out: Path):
