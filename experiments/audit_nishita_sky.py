@@ -45,7 +45,7 @@ from .audit_family import (
     ShippedScene,
     masked_image,
 )
-from .sky_rows import SPECTRAL_NOTE, near_sun, nishita_rows
+from .sky_rows import SPECTRAL_NOTE, TEXTURE_UNCOSTED, near_sun, nishita_rows
 
 __all__ = ["FAMILY", "ROLE", "SCENES", "SUN_ELEVATIONS_DEG", "atmosphere_params_of", "sky_cases"]
 
@@ -135,6 +135,7 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 SPECTRAL_NOTE,
             ),
             methods=rows,
+            uncosted=dict.fromkeys(rows, TEXTURE_UNCOSTED),
             quantity="sky_radiance",
         )
     ]
