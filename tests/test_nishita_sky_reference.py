@@ -390,3 +390,27 @@ def test_quadrature_rows_on_threads_equal_rows_alone_and_the_job_caches(tmp_path
     high = dataclasses.replace(spec, sun_elevation_deg=10.0)  # above DISC_MAX_DEG: no disc, read back too
     assert cached_quadrature(high, sub, 40, tmp_path)["disc"] is None
     assert cached_quadrature(high, sub, 40, tmp_path)["disc"] is None
+
+
+def test_run_is_the_engine_on_the_shipped_sky_files():
+    """``rtfit run nishita-sky`` = the engine on one shipped sky file per sun elevation (the old experiment's
+    90, 45, 10, 2, 0, −4°; quick 45, 10, −4° with 4× the samples below the horizon) plus the study; each file
+    holds its elevation and the shared atmosphere, and the audit's list names the family on it."""
+    from rtfit.experiments import audit_nishita_sky, nishita_sky_study
+    from rtfit.experiments.applicability import applicable_families
+    from rtfit.experiments.audit import inspect_scene
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.reference.nishita_sky import library_atmosphere, load_atmosphere_scene
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    fam = FAMILIES["nishita-sky"]
+    assert fam.module == ENGINE and fam.scenes == audit_nishita_sky.SCENES
+    assert fam.study is nishita_sky_study.study
+    assert [s.name for s in fam.scenes if s.quick] == ["sky_sun_45", "sky_sun_10", "sky_sun_m4"]
+    assert [s.quick_spp for s in fam.scenes if s.quick] == [256, 256, 1024]
+    base = dataclasses.asdict(library_atmosphere())
+    for s, e in zip(fam.scenes, (90.0, 45.0, 10.0, 2.0, 0.0, -4.0), strict=True):
+        spec = dataclasses.asdict(load_atmosphere_scene(LIBRARY_DIR / s.file))
+        assert spec.pop("sun_elevation_deg") == e
+        assert spec == {k: v for k, v in base.items() if k != "sun_elevation_deg"}
+        assert [a.family for a in applicable_families(inspect_scene(LIBRARY_DIR / s.file))] == ["nishita-sky"]
