@@ -483,7 +483,8 @@ def study(ctx: StudyContext) -> Study:
     spectral = spectral_part(ctx, cfg, sks, backend)
     sweep = sweep_part(cfg, sks, main["quads"], backend)
     costs = cost_part(ctx, cfg, backend)
-    bench = [] if ctx.quick else bench_media(ctx.variant, library_atmosphere(sun_elevation_deg=10.0))
+    sun10 = library_atmosphere(sun_elevation_deg=10.0)
+    bench = [] if ctx.quick else bench_media(ctx.variant, sun10, res=(128, 64), spp=1024)  # the old bench's
     z = np.concatenate(main["z"])  # the viewer-altitude cases have their own z check
     spread, spread_check = _spread_check(z, "independent SS quadrature vs Mitsuba SS", ctx.quick)
     finite = all(np.isfinite(i).all() and (i >= 0).all() for s in sks for i in s.images.values())
