@@ -20,20 +20,68 @@ pixel; ``--width``/``--height`` set its size). One case, ``sky``:
   parameters (Rayleigh scale, Mie density scale, Mie g, isotropic ambient) are fitted to this sky through
   the JAX run of the same kernel; and your approximations of ``sky_radiance`` (inputs dx, dy, dz: the unit
   view direction; sx, sy, sz: the unit direction to the sun; altitude: the viewer's, m).
+
+``rtfit run nishita-sky`` is this audit on the sky files the family ships (`SCENES`: one per sun elevation)
+plus its study (`rtfit.experiments.nishita_sky_study`: single-scattering references and the independent
+quadrature, viewer altitude, the spectral reference, the layer/texture/table sweep, the sun's disc).
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from rtfit.realtime.nishita_sky import AtmosphereParams
 from rtfit.reference.nishita_sky import render_sky
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, masked_image
-from .nishita_sky import atmosphere_params_of
-from .sky_rows import SPECTRAL_NOTE, near_sun, nishita_rows
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditReference,
+    AuditSetup,
+    FamilyCase,
+    ShippedScene,
+    masked_image,
+)
+from .sky_rows import SPECTRAL_NOTE, TEXTURE_UNCOSTED, near_sun, nishita_rows
 
-__all__ = ["FAMILY", "ROLE", "sky_cases"]
+__all__ = ["FAMILY", "ROLE", "SCENES", "SUN_ELEVATIONS_DEG", "atmosphere_params_of", "sky_cases"]
+
+SUN_ELEVATIONS_DEG = (90.0, 45.0, 10.0, 2.0, 0.0, -4.0)
+"""The sun elevations of the shipped sky files (scenes/library/sky_sun_<e>.toml, ``m4`` for −4°)."""
+QUICK = (45.0, 10.0, -4.0)
+TWILIGHT_SPP_FACTOR = 4
+"""The quick run's samples below the horizon: at 256 spp the −4° multiple-scattering reference has 65 %
+per-pixel noise and the artist fit ended on the bound ambient = 0; at 1024 spp its optimum is interior
+(docs/nishita-sky.md)."""
+
+
+def _sky_scene(e: float) -> ShippedScene:
+    stem = f"sky_sun_{e:g}".replace("-", "m")
+    return ShippedScene(
+        f"{stem}.toml",
+        f"Bruneton's atmosphere (no ozone), viewer 10 m, sun at {e:g}°",
+        size=(128, 64),
+        spp=4096,
+        quick_size=(32, 16),
+        quick_spp=256 * (TWILIGHT_SPP_FACTOR if e < 0 else 1),
+        name=stem,
+        quick=e in QUICK,
+    )
+
+
+SCENES = tuple(_sky_scene(e) for e in SUN_ELEVATIONS_DEG)
+"""The sky files ``rtfit run nishita-sky`` audits (the azimuth × elevation panorama of each, 128×64 at 4096
+spp; ``--quick``: 45°, 10°, −4° at 32×16, 256 spp and 4× that below the horizon)."""
+
+
+def atmosphere_params_of(spec) -> AtmosphereParams:
+    """The real-time model's atmosphere for a reference `AtmosphereSpec` (any sky file): the fields both
+    carry, by name (the viewer and the sun are not atmosphere parameters)."""
+    shared = {f.name for f in dataclasses.fields(AtmosphereParams)} & set(vars(spec))
+    return AtmosphereParams(**{k: getattr(spec, k) for k in sorted(shared)})
 
 
 def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
@@ -87,6 +135,7 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 SPECTRAL_NOTE,
             ),
             methods=rows,
+            uncosted=dict.fromkeys(rows, TEXTURE_UNCOSTED),
             quantity="sky_radiance",
         )
     ]

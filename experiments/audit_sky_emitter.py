@@ -46,7 +46,7 @@ from rtfit.realtime.nishita_sky import AtmosphereParams
 
 from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
-from .sky_rows import SPECTRAL_NOTE, near_sun, nishita_rows
+from .sky_rows import SPECTRAL_NOTE, TEXTURE_UNCOSTED, near_sun, nishita_rows
 
 __all__ = ["FAMILY", "ROLE", "SOLAR_SCALE", "emitter_radiance", "sky_emitter_cases", "sky_frame"]
 
@@ -153,6 +153,7 @@ def sky_emitter_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]
                 SPECTRAL_NOTE,
             ),
             methods=rows,
+            uncosted=dict.fromkeys(rows, TEXTURE_UNCOSTED),
             quantity="sky_radiance",
         )
     ]

@@ -74,6 +74,7 @@ from . import (
     diffuse_study,
     irradiance_volumes_study,
     light_cones_study,
+    nishita_sky_study,
     obscurances_study,
     parallax_occlusion_study,
     soft_particles_study,
@@ -199,12 +200,15 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "nishita-sky",
-            "rtfit.experiments.nishita_sky",
+            ENGINE,
             "Nishita sky: single-scattering sky texture vs a path-traced spherical-shell atmosphere",
-            "The 128×64 Nishita sky texture with per-pixel phase against single- and multiple-scattering "
-            "Mitsuba references and sunsky, with layers-vs-error-vs-cost and fitted artist parameters.",
+            "The 128×64 Nishita sky texture with per-pixel phase on shipped sky files, one per sun elevation "
+            "(multiple-scattering Mitsuba reference, fitted artist parameters), and its study: single "
+            "scattering checked by quadrature, viewer altitude, spectral reference, sunsky, layers-vs-error.",
             methods=nishita_sky.METHODS,
             audits=(audit_nishita_sky.FAMILY, audit_sky_emitter.FAMILY),
+            scenes=audit_nishita_sky.SCENES,
+            study=nishita_sky_study.study,
         ),
         Family(
             "volumetric-lightning",

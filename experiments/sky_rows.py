@@ -16,7 +16,14 @@ import numpy as np
 from rtfit.realtime.methods import Input, Method
 from rtfit.realtime.nishita_sky import METHODS, AtmosphereParams, sky_kernel_inputs
 
-__all__ = ["SETTING_INPUTS", "SPECTRAL_NOTE", "near_sun", "nishita_rows", "setting_method"]
+__all__ = [
+    "SETTING_INPUTS",
+    "SPECTRAL_NOTE",
+    "TEXTURE_UNCOSTED",
+    "near_sun",
+    "nishita_rows",
+    "setting_method",
+]
 
 
 def near_sun(dirs, elev: float, degrees: float = 1.0) -> np.ndarray:
@@ -33,6 +40,15 @@ SPECTRAL_NOTE = (
     "wavelengths by SkySetting.radiance, outside the method's kernel), so it would repeat nishita-seed"
 )
 """Why the spectral variant is left out of the audit's rows."""
+
+TEXTURE_UNCOSTED = (
+    "the kernel rebuilds the whole sky texture (n layers, W×H texels, 2n + 4 path steps each) on every call, "
+    "so that a fit can change its parameters: timed per pixel it would divide one texture build by this "
+    "image's pixel count. An engine builds the texture once per sun or atmosphere change and looks it up per "
+    "pixel; `rtfit run nishita-sky`'s study times both (lookup ns/pixel and build ms per setting)"
+)
+"""Why the Nishita rows have no cost per pixel (`FamilyCase.uncosted`): timing the kernel took 44 s of a
+52-s evaluation of one 32×16 sky file (2 CPU cores), for a number that was not a per-pixel cost (issue 33)."""
 
 SETTING_INPUTS = ("texel_mu", "texel_nu", "tau_r", "tau_m")
 """The kernel inputs that depend on a method's texture setting (its texel grid and sun table)."""

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from rtfit.realtime.arrays import NUMPY_OPS, jax_ops
+from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float, jax_ops
 from rtfit.realtime.methods import Method, Param
 
 from .least_squares import FitResult, bound_flags, covariance_from_jacobian, fit_least_squares
@@ -178,6 +178,29 @@ def fit_method(
     return fit_least_squares(fn, params, (x, held_values, target, np.ascontiguousarray(w)), **kwargs)
 
 
+def _drjit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[str, float]], Any]:
+    """``run(params) -> prediction``: ``method``'s kernel text on float64 Dr.Jit arrays of the default backend
+    (`Method.fit_ops` ``"drjit"``), back as NumPy (a tuple output stacked). The array inputs are converted
+    once; each parameter value is ``dr.opaque``, so every evaluation replays one compiled kernel instead of
+    compiling one per value. Scalars and samplers pass as they are (constants of the fit)."""
+    import drjit as dr
+
+    Float = backend_float(None, np.float64)
+    x = {
+        n: Float(np.ascontiguousarray(v, np.float64).ravel()) if isinstance(v, np.ndarray) else v
+        for n, v in inputs.items()
+    }
+
+    def run(params: Mapping[str, float]):
+        out = method(DRJIT_OPS, x, {k: dr.opaque(Float, float(v)) for k, v in params.items()})
+        parts = out if isinstance(out, tuple | list) else (out,)
+        dr.eval(*parts)
+        arrays = [np.asarray(p, np.float64) for p in parts]
+        return tuple(arrays) if isinstance(out, tuple | list) else arrays[0]
+
+    return run
+
+
 def _fit_trf(
     method: Method,
     params: Mapping[str, Param],
@@ -202,8 +225,11 @@ def _fit_trf(
     hi = np.array([p.upper for p in ps], np.float64)
     x0 = np.clip(np.array([p.initial for p in ps], np.float64), lo, hi)
 
+    run = _drjit_run(method, inputs) if method.fit_ops == "drjit" else None
+
     def residual(v: np.ndarray) -> np.ndarray:
-        pred = method(NUMPY_OPS, inputs, {**held, **dict(zip(names, (float(a) for a in v), strict=True))})
+        values = {**held, **dict(zip(names, (float(a) for a in v), strict=True))}
+        pred = method(NUMPY_OPS, inputs, values) if run is None else run(values)
         if output is not None:
             pred = output(pred)
         r = weights * (np.asarray(pred, np.float64) - target)

@@ -138,8 +138,15 @@ class Method:
     formula: str = ""
     source: str = ""
     description: str = ""
+    fit_ops: str = "numpy"
+    """The run of the kernel text a ``solver="trf"`` fit (`rtfit.fitting.fit_method`) evaluates: ``"numpy"``
+    (float64 NumPy), or ``"drjit"`` (float64 Dr.Jit of the default backend, inputs converted once, the free
+    parameters opaque so that one compiled kernel serves every evaluation): for a kernel whose NumPy run is a
+    long Python loop over large arrays (the Nishita sky's texture rebuild: 68 steps over 8192 texels)."""
 
     def __post_init__(self):
+        if self.fit_ops not in ("numpy", "drjit"):
+            raise ValueError(f"method {self.id!r}: fit_ops must be 'numpy' or 'drjit' (got {self.fit_ops!r})")
         if not self.id or not all(ch.isalnum() or ch in "-_." for ch in self.id):
             raise ValueError(f"method id {self.id!r}: use letters, digits, '-', '_' or '.'")
         object.__setattr__(self, "inputs", tuple(_as_input(i) for i in self.inputs))

@@ -469,6 +469,9 @@ def _inscatter_kernel(ops, mu, nu_, h0, sz, cfg, tab_r, tab_m, betas):
 
         out = dr.while_loop(state=(i, *state), cond=lambda i, *rest: i < slots, body=body)
         S_r, S_m = out[-2], out[-1]
+        # Every output in one launch: evaluated one at a time (the texture lookup gathers from each), each
+        # would run the whole loop again (2·C launches of 2n + 4 steps: 6 for RGB, measured; issue 33).
+        dr.eval(S_r, S_m)
     elif loop == "jax":  # one traced body (lax.fori_loop): fast to compile, differentiable (forward mode)
         import jax  # jax: heavy, only the fits run this branch
 
@@ -1142,6 +1145,9 @@ def _sky_method(id, label, setting, description, **kw) -> Method:
             **kw.pop("fixed", {}),
         },
         storage=2 * (setting.wavelengths or 3),  # floats per texel: S_R and S_M per channel
+        # the fits' residual: the Dr.Jit run (one compiled loop) instead of NumPy's 2n + 4 Python steps over
+        # every texel per evaluation (issue 33; the same text, float64)
+        fit_ops="drjit",
         quantity="sky_radiance",
         formula=_SKY_FORMULA,
         source="Nishita et al. 1993; CryEngine 2 (seed 000:2178-2187, 002:130-164)",

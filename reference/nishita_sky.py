@@ -91,6 +91,7 @@ import time
 import tomllib
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
+from importlib import metadata
 from pathlib import Path
 
 import drjit as dr
@@ -99,8 +100,8 @@ import numpy as np
 from rtfit.scenes import library_path
 
 from . import emitters, sky_integrator
-from .budget import ABSORB, ArmedMedia, LaneCounter, counters
-from .cache import PassEntry, array_digest, pool_passes
+from .budget import ABSORB, ArmedMedia, LaneCounter, check_finite, counters
+from .cache import ComputedEntry, PassEntry, array_digest, pool_passes
 from .estimators import PassResult, chunk_ranges, mean_var, moments, sub_seed
 from .variants import cuda_available, use_variant
 
@@ -1093,3 +1094,106 @@ def sunsky_radiance(
     sun_l = evaluate(emitter(1.0, 0.0), np.array([sd]))[0]
     omega = 2.0 * math.pi * (1.0 - math.cos(math.radians(aperture / 2.0)))
     return {"sky": sky, "sun_irradiance": sun_l * omega, "turbidity": turbidity, "albedo": albedo}
+
+
+# ====================================================================== cached quadratures, bench
+DISC_MAX_DEG = 2.0
+"""Sun elevations (°) up to which `cached_quadrature` also integrates over the sun's disc: Σ|disc − point| /
+Σ disc is 6e-4 at +2° and 6e-5 at +10° (`single_scattering_quadrature`), far below any reference's noise
+above 2°, and the disc costs `DISC_NODES`× the point sun's time."""
+QUADRATURE_FORMAT = 1
+"""Version of the stored quadratures (`ComputedEntry`, namespace "sky-quadrature"): bump it when
+`single_scattering_quadrature`, `spectral_single_scattering_quadrature` or what is stored changes."""
+
+
+def cached_quadrature(spec: AtmosphereSpec, dirs, steps: int, cache_dir=None, spectral: bool = False) -> dict:
+    """The float64 single-scattering quadrature along unit ``dirs`` (…, 3), through the cache when
+    ``cache_dir`` is given (keyed on the atmosphere, the exact directions, the steps, the disc rule and the
+    versions; the full run's twilight quadratures take minutes each). Single scattering: ``value`` for a
+    point sun (the real-time model's), ``disc`` for the sun's disc (the Mitsuba reference's; None above
+    `DISC_MAX_DEG`); ``spectral``: `spectral_single_scattering_quadrature`'s arrays plus ``rgb`` (the
+    3-wavelength point-sun quadrature). ``seconds`` it took to compute, ``cached`` whether it was read."""
+    sub = np.asarray(dirs, dtype=np.float64)
+    elev = float(spec.sun_elevation_deg)
+
+    def compute() -> dict:
+        t0 = time.perf_counter()
+        if spectral:
+            out = dict(spectral_single_scattering_quadrature(spec, sub, steps=steps))
+            out["rgb"] = single_scattering_quadrature(spec, sub, steps=steps)
+        else:
+            out = {"value": single_scattering_quadrature(spec, sub, steps=steps)}
+            if elev <= DISC_MAX_DEG:
+                out["disc"] = single_scattering_quadrature(spec, sub, steps=steps, point_sun=False)
+        return {**out, "seconds": np.float64(time.perf_counter() - t0)}
+
+    if cache_dir is None:
+        return {"disc": None, **compute(), "cached": False}
+    ident = {
+        "format": f"nishita-sky/{'spectral' if spectral else 'ss'}-quadrature/{QUADRATURE_FORMAT}",
+        "spec": asdict(spec),
+        "directions": array_digest(sub),
+        "count": int(sub.size // 3),
+        "steps": int(steps),
+        "disc": {"nodes": DISC_NODES, "max_elevation_deg": DISC_MAX_DEG},
+        "versions": {"numpy": np.__version__, "mitsuba": metadata.version("mitsuba")},
+    }
+    arrays, computed = ComputedEntry(cache_dir, ident, namespace="sky-quadrature").get(compute)
+    return {"disc": None, **arrays, "seconds": float(arrays["seconds"]), "cached": not computed}
+
+
+BENCH_MEDIA = (
+    ("skypath", "rtfit_skypath: tangent-exponential majorants, spectral MIS, marched sun (the reference)"),
+    ("segment", "rtfit atmosphere medium, per-segment majorant (volpathmis; the reference of session 4)"),
+    ("box", "rtfit atmosphere medium, ground-level majorant (the estimator before issue 21)"),
+    ("grid", "Mitsuba heterogeneous + gridvolume (256³) of the same extinction"),
+    ("none", "Mitsuba path on planet and sun without atmosphere (the floor)"),
+)
+"""The media of `bench_media`: rtfit's estimator beside what a user would otherwise run."""
+BENCH_ROUNDS = 3
+
+
+def bench_media(variant: str, spec: AtmosphereSpec, res=(32, 16), spp: int = 128) -> list[dict]:
+    """Samples/s of the sky reference pass (single and multiple scattering) with each of `BENCH_MEDIA`,
+    side by side in one process: one warm-up pass each, then `BENCH_ROUNDS` interleaved rounds (a change of
+    load hits every row alike), the best pass per medium. Each row also gives the mean per-sample variance
+    (G) of its timed passes (``variance_vs_box``: its ratio to the ground-level majorant's; efficiency =
+    samples/s ÷ variance: ``efficiency_vs_box``) and the events per lane of the warm-up pass
+    (`LaneCounter.means` per counted call site)."""
+    dirs = hemisphere_directions(*res)[0].reshape(-1, 3)
+    samples = dirs.shape[0] * spp
+    origin = (0.0, 0.0, spec.planet_radius_km + spec.viewer_altitude_km)
+    mi = use_variant(variant)
+    rows = []
+    for depth, transport in ((2, "single"), (-1, "multiple")):
+        loaded, events = {}, {}
+        for medium, _ in BENCH_MEDIA:
+            scene, med = loaded[medium] = load_sky(mi, spec, depth, medium)
+            events[medium] = []
+            sky_pass(mi, scene, med, origin, dirs, spp, 0, events=events[medium])
+        timed: dict = {medium: [] for medium in loaded}
+        for k in range(BENCH_ROUNDS):
+            for medium, (scene, med) in loaded.items():
+                what = f"bench nishita-sky, {transport} scattering, {medium}, round {k + 1}"
+                timed[medium].append(check_finite(sky_pass(mi, scene, med, origin, dirs, spp, k + 1), what))
+        rates = {m: samples / min(p.seconds for p in ps) for m, ps in timed.items()}
+        var = {m: float(np.mean([p.var[:, 1].mean() for p in ps])) for m, ps in timed.items()}
+        for medium, label in BENCH_MEDIA:
+            row = {
+                "what": f"reference pass, {transport} scattering ({res[0]}×{res[1]}, {spp} spp): {label}",
+                "backend": variant,
+                "elements": samples,
+                "drjit_Mray_s": rates[medium] / 1e6,
+                "ns_per_ray": 1e9 / rates[medium],
+                "sample_variance_g": var[medium],
+                "events_per_lane": [m for launch in events[medium][:1] for site in launch for m in site],
+                "vs_native_grid": rates[medium] / rates["grid"],
+                "vs_box_majorant": rates[medium] / rates["box"],
+                "vs_segment": rates[medium] / rates["segment"],
+                "vs_no_atmosphere": rates[medium] / rates["none"],
+            }
+            if var["box"] > 0 and var[medium] > 0:
+                row["variance_vs_box"] = var[medium] / var["box"]
+                row["efficiency_vs_box"] = row["vs_box_majorant"] / row["variance_vs_box"]
+            rows.append(row)
+    return rows

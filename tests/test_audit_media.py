@@ -17,8 +17,8 @@ from click.testing import CliRunner
 from scipy.optimize import least_squares
 
 from rtfit.experiments.audit_cli import audit as audit_cmd
+from rtfit.experiments.audit_nishita_sky import atmosphere_params_of
 from rtfit.experiments.audit_run import audit
-from rtfit.experiments.nishita_sky import atmosphere_params_of
 from rtfit.experiments.results import load_results
 from rtfit.realtime.nishita_sky import METHODS as SKY_METHODS
 from rtfit.reference.nishita_sky import library_atmosphere, single_scattering_quadrature

@@ -20,7 +20,6 @@ from rtfit.experiments import ambient_aperture_study as aa
 from rtfit.experiments import diffuse_study as df
 from rtfit.experiments import height_fog as hf
 from rtfit.experiments import irradiance_bases as ib
-from rtfit.experiments import nishita_sky as ns
 from rtfit.experiments import sdf_occlusion as so
 from rtfit.experiments.fitted import (
     FORMAT,
@@ -39,6 +38,7 @@ from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.diffuse import METHODS as DIFFUSE
 from rtfit.realtime.height_fog import METHODS as FOG
 from rtfit.realtime.irradiance_bases import basis_irradiance
+from rtfit.realtime.nishita_sky import METHODS as SKY_METHODS
 from rtfit.realtime.volumetric_lightning import METHODS as LIGHTNING
 
 from .test_shader import compile_function
@@ -188,12 +188,19 @@ def _sdf_occlusion(out: Path):
 
 
 def _nishita_sky(out: Path):
-    m = ns.METHODS["nishita-fitted"]
-    fits = {
-        e: _fit({"rayleigh_scale": 1.1, "mie_scale": 0.9, "mie_g": 0.76, "ambient": 0.01}, method=m)
-        for e in (5.0, 30.0)
-    }
-    ns.write_fitted(out, {"spp": 8}, fits, m.id)
+    """The engine's fitted file of ``rtfit run nishita-sky``: the artist parameters fitted on one shipped sky
+    file (`method_entry` of the fitted row, as `audit_output.fitted_entries` writes it)."""
+    m = SKY_METHODS["nishita-fitted"]
+    entry = method_entry(
+        m,
+        _fit({"rayleigh_scale": 1.1, "mie_scale": 0.9, "mie_g": 0.76, "ambient": 0.01}, method=m),
+        case="sky_sun_10-sky",
+        residual_units="W/m²/sr",
+        domain={"sun_elevation": (10.0, 10.0, "deg")},
+    )
+    prov = provenance(None, "nishita-sky")
+    doc = FittedFile(FORMAT, "artist parameters fitted per sky file", prov, [entry])
+    write_fitted(out / "fitted" / "nishita-sky.json", doc)
 
 
 def _volumetric_lightning(out: Path):
@@ -221,7 +228,7 @@ WRITERS = {
     "irradiance-bases": (_irradiance_bases, ["grey.json"]),
     "ambient-aperture": (_ambient_aperture, ["intersection.json", "lambert.json"]),
     "sdf-occlusion": (_sdf_occlusion, ["evans_joint_sky.json", "per_case.json"]),
-    "nishita-sky": (_nishita_sky, ["nishita_artist_params.json"]),
+    "nishita-sky": (_nishita_sky, ["nishita-sky.json"]),
     "volumetric-lightning": (_volumetric_lightning, ["volumetric-lightning.json"]),
 }
 

@@ -78,7 +78,6 @@ FAMILY_IMPORTS_ALLOWED = {
     # An audit declaration reads its experiment module's parameter sources and fits:
     "audit_height_fog -> height_fog",  # fit_params, horizon_colour, segment_geometry, single_scatter_colour
     "audit_irradiance_bases -> irradiance_bases",  # ROW, row_params
-    "audit_nishita_sky -> nishita_sky",  # atmosphere_params_of
 }
 FAMILY_MAX_LINES = 600
 FAMILY_LINES_CEILING = {
@@ -87,7 +86,6 @@ FAMILY_LINES_CEILING = {
     "environment_maps": 1524,
     "height_fog": 1406,
     "irradiance_bases": 1708,
-    "nishita_sky": 1726,
     "sdf_occlusion": 1914,
 }
 

@@ -1,5 +1,7 @@
 """The Mitsuba atmosphere reference (rtfit.reference.nishita_sky) and the nishita-sky experiment."""
 
+import dataclasses
+import json
 import math
 
 import numpy as np
@@ -127,54 +129,45 @@ def test_library_sky_scenes_load_and_hold_the_realtime_defaults(tmp_path):
         load_atmosphere_scene(bad)
 
 
-def test_tiny_experiment_run(tmp_path, monkeypatch):
-    from rtfit.experiments import nishita_sky
+def test_tiny_engine_run(tmp_path, monkeypatch):
+    """``rtfit run nishita-sky`` on one shipped sky file (16×8, 64 spp) with a tiny study: the engine's sky
+    case and fitted row, and every study check (the independent quadratures against Mitsuba's single
+    scattering, point and spectral; the solar spectrum; finite images) passes."""
+    from rtfit.experiments import nishita_sky_report, nishita_sky_study
 
     from .conftest import run_tiny_experiment
 
-    tiny = dict(
-        sun_elevations_deg=[30.0],
-        resolution=[16, 8],
-        spp=64,
-        pass_spp=32,
-        quadrature_steps=200,
-        sweep_elevations_deg=[30.0],
-        sweep_layers=[8],
-        sweep_textures=[[32, 16]],
-        sweep_tables=[32],
-        spectral_wavelengths=6,
-        cost_elements=1 << 12,
-        fine=dict(layers=32, width=64, height=32, table_size=64, mapping="sqrt"),
-        fit_texture=[32, 16],
-        altitude_cases=[[30.0, 5000.0]],
-        spectral_elevations_deg=[30.0],
-        spectral_resolution=[8, 4],
-        spectral_spp=128,
-        spectral_pass_spp=64,
-        spectral_quadrature_stride=[2, 1],
-    )
-    monkeypatch.setattr(nishita_sky, "_figures", lambda *a, **k: [])
-    res = run_tiny_experiment("nishita-sky", tmp_path, tiny)
-    assert {c["id"] for c in res["cases"]} == {"e30-ss", "e30-ms", "e30-h5000-ss", "e30-ss-spectral"}
+    tiny = {
+        **nishita_sky_study.config(True),
+        "quadrature_steps": 200,
+        "altitude_cases": [(10.0, 5000.0)],
+        "spectral_resolution": (8, 4),
+        "spectral_spp": 128,
+        "spectral_pass_spp": 64,
+        "sweep_layers": [8],
+        "sweep_textures": [(32, 16)],
+        "sweep_tables": [32],
+        "cost_elements": 1 << 12,
+    }
+    monkeypatch.setattr(nishita_sky_study, "config", lambda quick: tiny)
+    monkeypatch.setattr(nishita_sky_report, "figures", lambda *a, **k: [])
+    one = {"scenes": ["sky_sun_10"], "resolution": 16, "spp": 64}
+    res = run_tiny_experiment("nishita-sky", tmp_path, one)
+    assert [c["id"] for c in res["cases"]] == ["sky_sun_10-sky"]
     failed = [c["name"] for c in res["checks"] if not c["passed"]]
     assert not failed, failed
-    assert all(f["converged"] for f in res["fits"])
-    assert all(isinstance(f["at_bound"], list) for f in res["fits"])
-    fitted = tmp_path / "out" / "nishita-sky" / "fitted" / "nishita_artist_params.json"
-    import json
-
-    rows = json.loads(fitted.read_text())["data"]["per_sun_elevation"]
-    assert all("at_bound" in r for r in rows)
-    sp = res["spectral"]["rows"][0]
-    assert sp["sun_elevation_deg"] == 30.0 and len(sp["rgb_model_vs_spectral_model"]) == 4
-    assert np.isfinite(sp["rgb_over_spectral_sum"]).all()
-    assert any(s["id"] == "spectral" for s in res["sections"]) and any(
-        s["id"] == "twilight" for s in res["sections"]
-    )
-    # the report's image viewer: the sky images of the main cases (the spectral case is a check)
+    names = " ".join(c["name"] for c in res["checks"])
+    for what in ("SS quadrature (point sun)", "viewer at 5000 m", "spectral SS quadrature", "solar spectrum"):
+        assert what in names, what
+    assert all(f["converged"] for f in res["fits"]) and len(res["fits"]) == 1
+    fitted = json.loads((tmp_path / "out" / "nishita-sky" / "fitted" / "nishita-sky.json").read_text())
+    assert fitted["methods"][0]["id"].startswith("nishita-fitted")
+    study = res["extra"]["nishita_study"]
+    sp = study["spectral"]["rows"][0]
+    assert sp["sun"] == 10.0 and len(sp["rgb_model_vs_spectral_model"]) == 4
+    assert {s["id"] for s in res["sections"]} >= {"ss-reference", "twilight", "sweep", "spectral"}
     out = tmp_path / "out" / "nishita-sky"
-    assert (out / "pixels" / "e30-ms.exr").is_file() and (out / "viewer" / "data" / "e30-ms.js").is_file()
-    assert 'id="viewer"' in (out / "report.html").read_text()
+    assert (out / "viewer" / "data").is_dir() and 'id="viewer"' in (out / "report.html").read_text()
 
 
 # ------------------------------------------------------------------------------ spectral reference
@@ -342,12 +335,9 @@ def test_disc_sun_quadrature_against_a_two_dimensional_disc_integral():
     symmetric), weighted by L_d dω = E₀ dω/(π sin²α). Sun −4°, low anti-solar sky (elevation 16.9°):
     the disc adds 2.3 % over the point sun there; the two disc integrals agree to 3.6e-5 relative
     (measured; 0.16 % of the disc's effect). Bound: 2 % of the effect."""
-    import dataclasses
+    from rtfit.reference.nishita_sky import library_atmosphere, single_scattering_quadrature
 
-    from rtfit.experiments.nishita_sky import atmosphere_spec
-    from rtfit.reference.nishita_sky import single_scattering_quadrature
-
-    spec = atmosphere_spec(-4.0, 0.0)
+    spec = library_atmosphere(sun_elevation_deg=-4.0, viewer_altitude_m=0.0)
     d = np.array([[-0.938553, 0.1866898, 0.29028468]])
     d /= np.linalg.norm(d)
     point = single_scattering_quadrature(spec, d, steps=150)[0, 1]
@@ -375,12 +365,16 @@ def test_disc_sun_quadrature_against_a_two_dimensional_disc_integral():
 
 def test_quadrature_rows_on_threads_equal_rows_alone_and_the_job_caches(tmp_path):
     """`_ss_quadrature` computes its rows on a thread pool: each row must be the number that row gives
-    when computed alone (one row: no pool), bit for bit, point and disc sun; and the experiment's
-    quadrature job reads the same arrays back from its cache (`ComputedEntry`) instead of recomputing."""
-    from rtfit.experiments.nishita_sky import atmosphere_spec, quadrature_job
-    from rtfit.reference.nishita_sky import single_scattering_quadrature
+    when computed alone (one row: no pool), bit for bit, point and disc sun; and `cached_quadrature` reads
+    the same arrays back from its cache (`ComputedEntry`) instead of recomputing."""
+    from rtfit.reference.nishita_sky import (
+        cached_quadrature,
+        hemisphere_directions,
+        library_atmosphere,
+        single_scattering_quadrature,
+    )
 
-    spec = atmosphere_spec(1.0, 0.0)
+    spec = library_atmosphere(sun_elevation_deg=1.0, viewer_altitude_m=0.0)
     rng = np.random.default_rng(5)
     d = rng.normal(size=(5, 3))
     d[:, 2] = np.abs(d[:, 2])
@@ -389,9 +383,34 @@ def test_quadrature_rows_on_threads_equal_rows_alone_and_the_job_caches(tmp_path
         together = single_scattering_quadrature(spec, d, steps=60, point_sun=ps)
         rows = [single_scattering_quadrature(spec, d[i : i + 1], steps=60, point_sun=ps) for i in range(5)]
         assert np.array_equal(together, np.concatenate(rows))
-    kw = dict(elev=1.0, width=8, height=4, stride=(4, 2), steps=40, alt_m=0.0, cache_dir=str(tmp_path))
-    first, again = quadrature_job(**kw), quadrature_job(**kw)
+    sub = hemisphere_directions(8, 4)[0][1::2, 2::4]
+    first, again = (cached_quadrature(spec, sub, 40, tmp_path) for _ in range(2))
     assert not first["cached"] and again["cached"]
     assert np.array_equal(first["value"], again["value"]) and np.array_equal(first["disc"], again["disc"])
-    above = quadrature_job(**{**kw, "elev": 10.0})  # above DISC_MAX_DEG: no disc, read back as None too
-    assert above["disc"] is None and quadrature_job(**{**kw, "elev": 10.0})["disc"] is None
+    high = dataclasses.replace(spec, sun_elevation_deg=10.0)  # above DISC_MAX_DEG: no disc, read back too
+    assert cached_quadrature(high, sub, 40, tmp_path)["disc"] is None
+    assert cached_quadrature(high, sub, 40, tmp_path)["disc"] is None
+
+
+def test_run_is_the_engine_on_the_shipped_sky_files():
+    """``rtfit run nishita-sky`` = the engine on one shipped sky file per sun elevation (the old experiment's
+    90, 45, 10, 2, 0, −4°; quick 45, 10, −4° with 4× the samples below the horizon) plus the study; each file
+    holds its elevation and the shared atmosphere, and the audit's list names the family on it."""
+    from rtfit.experiments import audit_nishita_sky, nishita_sky_study
+    from rtfit.experiments.applicability import applicable_families
+    from rtfit.experiments.audit import inspect_scene
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.reference.nishita_sky import library_atmosphere, load_atmosphere_scene
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    fam = FAMILIES["nishita-sky"]
+    assert fam.module == ENGINE and fam.scenes == audit_nishita_sky.SCENES
+    assert fam.study is nishita_sky_study.study
+    assert [s.name for s in fam.scenes if s.quick] == ["sky_sun_45", "sky_sun_10", "sky_sun_m4"]
+    assert [s.quick_spp for s in fam.scenes if s.quick] == [256, 256, 1024]
+    base = dataclasses.asdict(library_atmosphere())
+    for s, e in zip(fam.scenes, (90.0, 45.0, 10.0, 2.0, 0.0, -4.0), strict=True):
+        spec = dataclasses.asdict(load_atmosphere_scene(LIBRARY_DIR / s.file))
+        assert spec.pop("sun_elevation_deg") == e
+        assert spec == {k: v for k, v in base.items() if k != "sun_elevation_deg"}
+        assert [a.family for a in applicable_families(inspect_scene(LIBRARY_DIR / s.file))] == ["nishita-sky"]

@@ -155,10 +155,12 @@ def test_twilight_all_orders_pass_that_trapped_a_lane(sky, tmp_path):
     position fell inside the planet sphere spawned a ray that tracked through the planet at sub-ulp steps
     until the lane cap stopped it. Vertices are now kept above the ground (`above_ground`): the pass renders,
     and a point 1 m below the ground is lifted to R_g + 2⁻¹⁰ km along its radius."""
-    from rtfit.experiments.nishita_sky import render_job
+    from rtfit.reference.nishita_sky import hemisphere_directions, library_atmosphere, render_sky
 
     mi, spec = sky
-    r = render_job(-4.0, -1, 32, 16, 1024, 128, 0, "llvm_ad_rgb", str(tmp_path), 10.0)
+    d = hemisphere_directions(32, 16)[0]
+    twilight = library_atmosphere(sun_elevation_deg=-4.0, viewer_altitude_m=10.0)
+    r = render_sky(twilight, d, 1024, 128, 0, "llvm_ad_rgb", -1, str(tmp_path))
     assert r["passes"] == 8 and np.isfinite(r["mean"]).all()
     _, integ = _integrator(mi, spec)
     rg = spec.planet_radius_km
