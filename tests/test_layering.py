@@ -91,7 +91,6 @@ FAMILY_LINES_CEILING = {
     "irradiance_volumes": 924,
     "nishita_sky": 1726,
     "parallax_occlusion": 972,
-    "sdf_occlusion": 1914,
 }
 
 
