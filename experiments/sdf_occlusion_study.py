@@ -244,23 +244,28 @@ def evaluate(cfg: dict, sds: dict, extra: dict, joint: dict) -> tuple[list[dict]
                 ba = fit_evans([sd], t, cfg, analytic=True)
                 rows["evans-analytic"] = _rmse(sd, t, predict_free(sd, ba, analytic=True, t=t))
                 params["evans-analytic"] = lm_summary(ba)
+            own = list(ENGINE_ROWS)
             if t == "ao":
                 for rid in ENGINE_ROWS:  # the engine's rows of this case (fitted), for the table
                     got = engine_row(extra[n]["rows"], rid)
                     if got is not None:
                         m = got.metrics["rmse"]
                         rows[rid] = {"value": float(m.value), "floor": float(m.noise_floor or 0.0)}
+                        own.remove(rid)
                 sg = extra[n]["sdfgrid"]
                 if sg is not None:
                     rows.update(_sdfgrid_rows(sd, sg, cfg))
-            else:
-                for rid in ("evans-text", "evans-listing"):
+            # the rows the engine has no case for (sky targets) or leaves out here (AO: a seed form or the
+            # curvature term that exceeds 1 for every darkening k, unclamped): as before the engine, k free
+            for rid in own:
+                if rid == "curvature":
+                    pred = fit_curvature(sd, t)[1]
+                elif rid == "cone":
+                    k, pred = cone_best(sd, t, {**cfg, "ao_distance": extra[n]["radius"]})
+                    params["cone"] = {"k": k}
+                else:
                     _, pred, params[rid] = fit_seed(sd, t, rid)
-                    rows[rid] = _rmse(sd, t, pred)
-                _, pred = fit_curvature(sd, t)
-                rows["curvature"] = _rmse(sd, t, pred)
-                k, pred = cone_best(sd, t, {**cfg, "ao_distance": extra[n]["radius"]})
-                rows["cone"], params["cone"] = _rmse(sd, t, pred), {"k": k}
+                rows[rid] = {**_rmse(sd, t, pred), "study": True}
             table.append({"case": cid, "scene": n, "target": t, "rows": rows})
             per_case[cid] = params
     return table, fit_rows, per_case
@@ -380,13 +385,16 @@ def _tables(cfg, table, fit_rows, joint, sweep) -> list[Section]:
     rows = [*ENGINE_ROWS, *STUDY_ROWS, "sdfgrid", "evans-on-sdfgrid"]
     lines = ["| case | " + " | ".join(rows) + " | noise floor |", "|" + "---|" * (len(rows) + 2)]
     for r in table:
-        cells = [f"{r['rows'][k]['value']:.4f}" if k in r["rows"] else "–" for k in rows]
+        cells = [f"{c['value']:.4f}" + ("†" if c.get("study") and r["target"] == "ao" else "") if c else "–"
+                 for c in (r["rows"].get(k) for k in rows)]  # fmt: skip
         floor = r["rows"]["evans-fit"]["floor"]
         lines.append(f"| {r['case']} | " + " | ".join(cells) + f" | {floor:.4f} |")
     sky = f"{cfg['sun_elevation']:g}° elevation, {cfg['sun_azimuth']:g}° azimuth, "
     sky += f"turbidity {cfg['turbidity']:g}"
     rmse = (
-        "RMSE per case (scene-target). AO: the engine's rows (fitted per scene) beside the study's. Sky "
+        "RMSE per case (scene-target). AO: the engine's rows (fitted per scene) beside the study's († the "
+        "engine leaves the row out here, the seed form or crease term exceeding 1 for every darkening k: "
+        "fitted unclamped, as before the engine). Sky "
         f"targets (sunsky at {sky}): the study's references at the engine's points, every row computed "
         "here "
         "(seed forms: k, B fitted; curvature: k fitted; cone: aperture grid-searched). *evans-joint*: "
