@@ -29,8 +29,18 @@ from pathlib import Path
 import numpy as np
 
 from rtfit.fitting import grey_metrics
+from rtfit.realtime.arrays import DRJIT_OPS, backend_float
 from rtfit.realtime.sdf_grid import HalfSpace
-from rtfit.realtime.sdf_occlusion import METHODS, AnalyticSDF, EvansParams, GridSDF, evans_occlusion
+from rtfit.realtime.sdf_occlusion import (
+    CURVATURE_LEVEL,
+    METHODS,
+    AnalyticSDF,
+    EvansParams,
+    GridSDF,
+    cone_kernel,
+    evans_kernel,
+    evans_occlusion,
+)
 from rtfit.reference import load_mitsuba_scene
 from rtfit.reference.estimators import gbuffer, gbuffer_points
 from rtfit.reference.occlusion import (
@@ -45,6 +55,7 @@ from rtfit.scenes import scene_hash
 
 from . import figures
 from .audit_family import Study, StudyContext
+from .cost import time_drjit
 from .records import Check, Figure, Headline, Section
 from .sdf_occlusion_fit import (
     ALPHAS,
@@ -52,6 +63,7 @@ from .sdf_occlusion_fit import (
     HELD_OUT,
     TARGET_LABEL,
     SceneData,
+    columns,
     cone_best,
     evans_readable,
     finite,
@@ -68,10 +80,8 @@ from .sdf_occlusion_scenes import build, grid_of, load_case_scene
 __all__ = ["CREASE_PROBE_X", "HELD_OUT", "TARGET_LABEL", "configure", "study"]
 
 TARGET_QUANTITY = {
-    "sky": "sky_direct",
-    "sky-gi": "sky_global",
-    "sunsky": "sunsky_direct",
-    "sunsky-gi": "sunsky_global",
+    t: t.split("-")[0] + ("_global" if "-" in t else "_direct")
+    for t in ("sky", "sky-gi", "sunsky", "sunsky-gi")
 }
 SKY_FACTOR_HEIGHT = 129
 """Rows of the baked sky map whose quadrature gives the unoccluded sky factor g(N) (`sky_factor`): 0.2% from
@@ -83,6 +93,8 @@ CREASE_PROBE_X = (0.05, 0.1, 0.2, 0.4)
 ENGINE_ROWS = ("evans-text", "evans-listing", "curvature", "cone")
 """The engine's rows of the AO case (`audit_ambient_occlusion.ROWS`; not imported: the study is a leaf)."""
 STUDY_ROWS = ("evans-fit", "evans-joint", "evans-analytic")
+EVANS_FIT = {"alpha": 0.3, "c1": 1.0, "c2": 0.9, "c3": 0.8, "c4": 0.7}
+"""Representative fitted values of ``evans-fit`` for its cost (the cost does not depend on them)."""
 
 
 def configure(quick: bool) -> dict:
@@ -111,12 +123,10 @@ def configure(quick: bool) -> dict:
     }
 
 
-def _rmse(sd: SceneData, t: str, pred, ref=None, err=None, mask=None) -> dict:
+def _rmse(sd: SceneData, t: str, pred) -> dict:
     """RMSE and its noise floor of ``pred`` (per point) against target t (`grey_metrics`)."""
-    ref, err = sd.target(t) if ref is None else (ref, err)
-    m = grey_metrics(
-        sd.image(pred), sd.image(ref), sd.image(err), sd.mask if mask is None else mask, ("rmse",)
-    )
+    ref, err = sd.target(t)
+    m = grey_metrics(sd.image(pred), sd.image(ref), sd.image(err), sd.mask, ("rmse",))
     return {"value": float(m["rmse"]["value"]), "floor": float(m["rmse"]["noise_floor"] or 0.0)}
 
 
@@ -139,30 +149,12 @@ def _scene_data(ctx: StudyContext, cfg: dict) -> tuple[dict, dict]:
         spp = int(case.reference.spp)
 
         def ref(p, n, quantity, n_spp, per, *, geometry=(mi_scene, geo), mi=mi, **kw):
-            return cache.get(
-                mi,
-                *geometry,
-                p,
-                n,
-                spp=n_spp,
-                pass_spp=per,
-                seed=ctx.seed,
-                variant=ctx.variant,
-                quantity=quantity,
-                **kw,
-            )
+            return cache.get(mi, *geometry, p, n, spp=n_spp, pass_spp=per, quantity=quantity, **kw,
+                             seed=ctx.seed, variant=ctx.variant)  # fmt: skip
 
+        sky_kw = {"max_distance": math.inf, "albedo": cfg["albedo"], "sky": sky}
         for t in cfg["targets"]:
-            got = ref(
-                points,
-                normals,
-                TARGET_QUANTITY[t],
-                spp,
-                cfg["pass_spp"],
-                max_distance=math.inf,
-                albedo=cfg["albedo"],
-                sky=sky,
-            )
+            got = ref(points, normals, TARGET_QUANTITY[t], spp, cfg["pass_spp"], **sky_kw)
             refs[t] = (got.mean, got.stderr)
         factor = sky_factor(normals, *sunsky_sky_nodes(mi, sky, SKY_FACTOR_HEIGHT, 2))
         prims = build(name)[1] if name in ANALYTIC_SCENES else None
@@ -213,15 +205,8 @@ def _sdfgrid(mi, scene, cfg, ref, spp, radius, cache_dir):
     img, err = np.full(gb2.mask.shape, np.nan), np.full(gb2.mask.shape, np.nan)
     idx = np.flatnonzero(gb2.mask)[ok]
     img.reshape(-1)[idx], err.reshape(-1)[idx] = r2.mean, r2.stderr
-    return {
-        "grid": g,
-        "image": img,
-        "stderr": err,
-        "points": p2[ok],
-        "normals": n2[ok],
-        "mask": np.isfinite(img),
-        "ao": (r2.mean, r2.stderr),
-    }
+    return {"grid": g, "image": img, "stderr": err, "points": p2[ok], "normals": n2[ok],
+            "mask": np.isfinite(img), "ao": (r2.mean, r2.stderr)}  # fmt: skip
 
 
 def evaluate(cfg: dict, sds: dict, extra: dict, joint: dict) -> tuple[list[dict], list[dict], dict]:
@@ -315,6 +300,25 @@ def pm(v, e, fmt="{:.3g}") -> str:
     return fmt.format(v) + (f" ± {e:.2g}" if finite(e) else " ± –")
 
 
+def costs(sd: SceneData, cfg: dict, radius: float) -> dict[str, float]:
+    """ns per pixel of each row's whole per-pixel Dr.Jit kernel, its SDF gathers included (the engine's cost
+    of the Evans and curvature rows times their combination of the samples alone, which are its inputs
+    there), on ``cost_points`` surface points of ``sd`` and its field, median after warm-up."""
+    size, v, sdf = int(cfg["cost_points"]), sd.voxel, sd.sdf
+    cols = columns(sd, np.random.default_rng(0).integers(0, len(sd.points), size), backend_float())
+    out = {}
+    for rid, values in (("evans-text", {"k": 1.0}), ("evans-listing", {"k": 1.0}), ("evans-fit", EVANS_FIT)):
+        kw = METHODS[rid].keywords(values)
+        w = kw["weights"] if "weights" in kw else [kw[f"c{i + 1}"] for i in range(4)]
+        prm = EvansParams(n=4, base=kw["base_voxels"] * v, k=kw["k"], alpha=kw["alpha"], weights=w)
+        out[rid] = lambda *a, prm=prm: evans_kernel(DRJIT_OPS, sdf, prm, *a)
+    out["curvature"] = lambda *a: METHODS["curvature"](
+        DRJIT_OPS, {"distance": sdf.sample(DRJIT_OPS, CURVATURE_LEVEL, *a[:3])}, {"k": -1.0})  # fmt: skip
+    k, n = METHODS["cone"].params["k"].initial, (cfg["cone_count"], cfg["cone_steps"])
+    out["cone"] = lambda *a: cone_kernel(DRJIT_OPS, sdf, *n, v, radius, k, *a)
+    return {m: time_drjit(f, cols, size, repeats=5, min_seconds=0.1).ns_per_element for m, f in out.items()}
+
+
 def make_checks(cfg, sds, extra, table, fit_rows) -> list[Check]:
     checks = []
     # The continuous LM starts at the grid's best point and accepts only steps that lower the SSR.
@@ -380,7 +384,7 @@ def _max_z(name: str, z) -> Check:
     return Check(name=name, value=value, expected="≤ 4", passed=value <= 4.0)
 
 
-def _tables(cfg, table, fit_rows, joint, sweep) -> list[Section]:
+def _tables(cfg, table, fit_rows, joint, sweep, cost) -> list[Section]:
     """The RMSE table per case and row, the continuous-fit table and the sweep table."""
     rows = [*ENGINE_ROWS, *STUDY_ROWS, "sdfgrid", "evans-on-sdfgrid"]
     lines = ["| case | " + " | ".join(rows) + " | noise floor |", "|" + "---|" * (len(rows) + 2)]
@@ -435,7 +439,10 @@ def _tables(cfg, table, fit_rows, joint, sweep) -> list[Section]:
         "8 bits: "
         "mean RMSE over the sweep scenes against the engine's AO reference; cost: the Dr.Jit kernel per "
         "pixel."
-        "\n\n"
+        f"\n\nWhole per-pixel kernels, SDF gathers included ({cost[0]}, {cfg['cost_points']} points; the "
+        "engine's cost table times the Evans and curvature rows on their sampled inputs): "
+        + ", ".join(f"{m} {ns:.3g} ns" for m, ns in cost[1].items())
+        + ".\n\n"
     )
     return [
         Section(id="study-rmse", title="Every row against every target (RMSE)", text=rmse + "\n".join(lines),
@@ -518,35 +525,24 @@ def study(ctx: StudyContext, overrides: dict | None = None) -> Study:
     train = [sds[n] for n in sds if n != HELD_OUT] or list(sds.values())
     joint = {t: fit_evans(train, t, cfg) for t in ["ao", *cfg["targets"]]}
     table, fit_rows, per_case = evaluate(cfg, sds, extra, joint)
-    grids = {
-        (n, res): grid_of(extra[n]["scene"], res, ctx.cache_dir)
-        for n in cfg["sweep_scenes"]
-        if n in sds
-        for res in cfg["sweep_grids"]
-    }
+    grids = {(n, res): grid_of(extra[n]["scene"], res, ctx.cache_dir)
+             for n in cfg["sweep_scenes"] if n in sds for res in cfg["sweep_grids"]}  # fmt: skip
     sweep_cfg = {**cfg, "sweep_scenes": [n for n in cfg["sweep_scenes"] if n in sds]}
     sweep = run_sweep(sweep_cfg, sds, grids) if sweep_cfg["sweep_scenes"] else []
-    write_fitted(
-        ctx.out_dir,
-        joint,
-        per_case,
-        {sd.name: sd.voxel for sd in train},
-        ctx,
-        [e["hash"] for e in extra.values()],
-    )
+    hashes = [e["hash"] for e in extra.values()]
+    write_fitted(ctx.out_dir, joint, per_case, {sd.name: sd.voxel for sd in train}, ctx, hashes)
     checks = make_checks(cfg, sds, extra, table, fit_rows)
+    at = "boxes" if "boxes" in sds else next(iter(sds))
+    cost = costs(sds[at], cfg, extra[at]["radius"])
 
     def mean(row, t):
         v = [r["rows"][row]["value"] for r in table if r["target"] == t and row in r["rows"]]
         return float(np.mean(v)) if v else float("nan")
 
     jp = evans_readable(joint["ao"], None)
-    headline = [
-        Headline(label=f"mean RMSE vs {t}: {row}", value=mean(row, t))
-        for t in ("ao", "sky", "sunsky")
-        if t == "ao" or t in cfg["targets"]
-        for row in ("evans-listing", "evans-fit", "evans-joint", "cone")
-    ]
+    headline = [Headline(label=f"mean RMSE vs {t}: {row}", value=mean(row, t))
+                for t in ("ao", "sky", "sunsky") if t == "ao" or t in cfg["targets"]
+                for row in ("evans-listing", "evans-fit", "evans-joint", "cone")]  # fmt: skip
     notes = (
         f"Evans joint fit on the AO of every scene but the {HELD_OUT}: k = "
         f"{pm(jp['k'], jp['k_stderr'])}/unit, "
@@ -562,12 +558,12 @@ def study(ctx: StudyContext, overrides: dict | None = None) -> Study:
         "use the scene mesh's cubic grid; the fits use the engine's field.",
     )
     return Study(
-        sections=tuple(_tables(cfg, table, fit_rows, joint, sweep)),
+        sections=tuple(_tables(cfg, table, fit_rows, joint, sweep, (at, cost))),
         figures=tuple(_figures(ctx.out_dir, sds, extra, sweep)),
         checks=tuple(checks),
         notes=notes,
         headline=tuple(headline),
-        extra={"study_rmse": table, "continuous_fits": fit_rows, "sweep": sweep},
+        extra={"study_rmse": table, "continuous_fits": fit_rows, "sweep": sweep, "kernel_ns_per_pixel": cost},
     )
 
 

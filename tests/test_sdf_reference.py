@@ -273,6 +273,9 @@ def test_run_sdf_occlusion_is_the_engine_on_its_shipped_scenes_plus_the_study(tm
     assert {"evans-text", "evans-listing", "evans-fit", "curvature", "cone"} <= set(sun["rows"])
     # the continuous fit has α and base free: never worse than the seed listing (k, B fitted) on its own case
     assert sun["rows"]["evans-fit"]["value"] <= sun["rows"]["evans-listing"]["value"] + 1e-9
+    cost = study.extra["kernel_ns_per_pixel"]
+    assert set(cost) == {"evans-text", "evans-listing", "evans-fit", "curvature", "cone"}
+    assert all(0 < ns < 1e7 for ns in cost.values())
     assert {f.file for f in study.figures} == {"figures/pareto_steps.png", "figures/crease_profile.png"}
     assert all((tmp_path / f.file).is_file() for f in study.figures)
     joint = json.loads((tmp_path / "fitted" / "evans_joint_sunsky.json").read_text())
