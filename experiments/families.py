@@ -77,6 +77,7 @@ from . import (
     nishita_sky_study,
     obscurances_study,
     parallax_occlusion_study,
+    sdf_occlusion_study,
     soft_particles_study,
     volumetric_lightning_study,
 )
@@ -182,12 +183,14 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "sdf-occlusion",
-            "rtfit.experiments.sdf_occlusion",
+            ENGINE,
             "SDF occlusion and skylight (Evans) vs path-traced ambient occlusion and sky light",
             "Multi-scale signed-distance sampling and cone-traced soft occlusion against Mitsuba AO and "
             "sky-lit irradiance, with steps-vs-error-vs-cost and fitted contrast.",
             methods=sdf_occlusion.METHODS,
             audits=(audit_sky_occlusion.SKY_OCCLUSION, audit_ambient_occlusion.FAMILY),
+            scenes=audit_ambient_occlusion.SCENES,
+            study=sdf_occlusion_study.study,
         ),
         Family(
             "height-fog",

@@ -21,13 +21,24 @@ Scenes (scene units: metres):
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import io
 import math
 from pathlib import Path
 
 import numpy as np
 
 from rtfit.realtime.arrays import NUMPY_OPS
-from rtfit.realtime.sdf_grid import Box, Capsule, Sphere, primitive_sdf
+from rtfit.realtime.sdf_grid import (
+    Box,
+    Capsule,
+    SdfGrid,
+    Sphere,
+    grid_for_bounds,
+    mesh_bounds,
+    mesh_sdf_grid,
+    primitive_sdf,
+)
 from rtfit.reference.io import atomic_write_bytes
 from rtfit.scenes import library_path, load_scene
 
@@ -327,3 +338,36 @@ def load_case_scene(name: str, resolution: int):
     sdf-occlusion and obscurances families)."""
     sc = load_scene(library_path(f"sdf_{name}"))
     return dataclasses.replace(sc, camera=dataclasses.replace(sc.camera, width=resolution, height=resolution))
+
+
+def mesh_of(scene):
+    """(vertices, faces) of every mesh shape of an sdf-occlusion library ``scene`` in world units."""
+    vs, fs, off = [], [], 0
+    for sh in scene.shapes:
+        v, f = read_ply(sh.file)
+        vs.append(v * np.asarray(sh.scale) + np.asarray(sh.translate))  # library meshes: no rotation
+        fs.append(f + off)
+        off += len(v)
+    return np.concatenate(vs), np.concatenate(fs)
+
+
+def grid_of(scene, resolution: int, cache_dir=None):
+    """The scene mesh's voxel SDF at ``resolution`` cells on the longest axis (cached as .npz by content)."""
+    v, f = mesh_of(scene)
+    h = hashlib.sha256(
+        v.astype(np.float32).tobytes() + f.astype(np.int32).tobytes() + str(resolution).encode()
+    )
+    path = None
+    if cache_dir is not None:
+        path = Path(cache_dir) / "sdf-grids" / f"{h.hexdigest()[:24]}-{resolution}.npz"
+        if path.exists():
+            z = np.load(path)
+            return SdfGrid(z["values"], tuple(z["origin"]), float(z["voxel"]), meta={"source": "mesh"})
+    lo, hi = mesh_bounds(v)
+    origin, voxel, shape = grid_for_bounds(lo, hi, resolution, pad_voxels=3.0, cubic=True)
+    g = mesh_sdf_grid(v, f, origin, voxel, shape)
+    if path is not None:
+        buf = io.BytesIO()
+        np.savez(buf, values=g.values, origin=np.asarray(g.origin), voxel=g.voxel)
+        atomic_write_bytes(path, buf.getvalue())
+    return g

@@ -20,7 +20,7 @@ from rtfit.experiments import ambient_aperture_study as aa
 from rtfit.experiments import diffuse_study as df
 from rtfit.experiments import height_fog as hf
 from rtfit.experiments import irradiance_bases as ib
-from rtfit.experiments import sdf_occlusion as so
+from rtfit.experiments import sdf_occlusion_fit as so
 from rtfit.experiments.fitted import (
     FORMAT,
     FittedError,
@@ -163,15 +163,7 @@ def _ambient_aperture(out: Path):
 
 
 def _sdf_occlusion(out: Path):
-    train = ["bunny", "room"]
-    cfg = {
-        "scenes": [*train, so.HELD_OUT],
-        "grid": 16,
-        "n_samples": 4,
-        "alphas": [0.1, 0.2],
-        "bases_vox": [1.0, 2.0],
-        "spp": 8,
-    }
+    """The study's fitted files of ``rtfit run sdf-occlusion`` (`sdf_occlusion_fit.write_fitted`)."""
     names = ["logB", "c1", "c2", "alpha", "base_voxels"]
     fit = _fit(dict(zip(names, [0.0, 0.5, 0.3, 0.2, 1.5], strict=True)))
     b = {
@@ -183,8 +175,9 @@ def _sdf_occlusion(out: Path):
         "base_vox": 1.5,
     }
     joint = {t: b for t in list(so.TARGET_LABEL)[:2]}
-    sds = {n: types.SimpleNamespace(voxel=0.01) for n in train}
-    so.write_fitted(out, cfg, joint, {"bunny": {"evans-fit": {"k": 0.5}}}, sds, None, ["h1", "h2"])
+    so.write_fitted(
+        out, joint, {"bunny-ao": {"evans-fit": {"k": 0.5}}}, {"bunny": 0.01, "room": 0.01}, None, ["h1"]
+    )
 
 
 def _nishita_sky(out: Path):
@@ -227,7 +220,7 @@ WRITERS = {
     ),
     "irradiance-bases": (_irradiance_bases, ["grey.json"]),
     "ambient-aperture": (_ambient_aperture, ["intersection.json", "lambert.json"]),
-    "sdf-occlusion": (_sdf_occlusion, ["evans_joint_sky.json", "per_case.json"]),
+    "sdf-occlusion": (_sdf_occlusion, ["evans_joint_ao.json", "evans_joint_sky.json", "per_case.json"]),
     "nishita-sky": (_nishita_sky, ["nishita-sky.json"]),
     "volumetric-lightning": (_volumetric_lightning, ["volumetric-lightning.json"]),
 }

@@ -86,7 +86,6 @@ FAMILY_LINES_CEILING = {
     "environment_maps": 1524,
     "height_fog": 1406,
     "irradiance_bases": 1708,
-    "sdf_occlusion": 1914,
 }
 
 

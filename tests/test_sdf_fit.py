@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from rtfit.experiments.sdf_occlusion import (
+from rtfit.experiments.sdf_occlusion_fit import (
     EvansFitData,
     evans_fit_residuals,
     evans_param_names,

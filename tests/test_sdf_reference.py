@@ -1,16 +1,15 @@
 """Ground truth of the sdf-occlusion family (Mitsuba ray casts) against closed forms and quadrature,
-the sdfgrid geometry, the pass cache, and a tiny end-to-end run of the experiment."""
+the sdfgrid geometry, the pass cache, and a tiny ``rtfit run sdf-occlusion``: the engine + the study."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from rtfit.experiments.sdf_occlusion import CREASE_PROBE_X, crease_ao
-from rtfit.experiments.sdf_occlusion_scenes import load_case_scene
+from rtfit.experiments.sdf_occlusion_scenes import SCENE_NAMES, load_case_scene
+from rtfit.experiments.sdf_occlusion_study import CREASE_PROBE_X, crease_ao
 from rtfit.realtime.sdf_grid import HalfSpace, Sphere, union_grid
 
 from .conftest import upper_hemisphere_nodes
@@ -230,78 +229,58 @@ def test_cache_resumes_identically(tmp_path, crease_scene):
     assert a.passes == 2 and np.array_equal(a.mean, b.mean) and np.array_equal(a.stderr, b.stderr)
 
 
-def test_tiny_experiment_run(tmp_path):
-    from rtfit.experiments import sdf_occlusion as exp
-    from rtfit.experiments.executors import make_executor
-    from rtfit.experiments.records import plain_json
-    from rtfit.experiments.registry import RunContext
-    from rtfit.experiments.report import load_results, write_report
-    from rtfit.experiments.results import SCHEMA
-    from rtfit.reference.io import atomic_write_json
-
-    tiny = dict(
-        scenes=["crease_90", "character"],
-        targets=["ao", "sunsky"],
-        resolution=10,
-        spp=8,
-        pass_spp=4,
-        grid=32,
-        alphas=[0.0],
-        bases_vox=[1.0],
-        sweep_grids=[24],
-        sweep_n=[1, 2],
-        sweep_scenes=["crease_90"],
-        probe_spp=256,
-        cost_points=4096,
-    )
-    ctx = RunContext(
-        out_dir=tmp_path / "sdf",
-        cache_dir=tmp_path / "cache",
-        executor=make_executor("inline"),
-        quick=True,
-        variant="llvm_ad_rgb",
-        spp=None,
-        seed=0,
-        progress=False,
-        overrides=tiny,
-    )
-    (tmp_path / "sdf").mkdir()
-    body = exp.run(ctx)
-    doc = {
-        "schema": SCHEMA,
-        "experiment": "sdf-occlusion",
-        "title": "t",
-        "created": "2026-01-01T00:00:00+00:00",
-        "versions": {},
-        "device": "cpu",
-        **body,
-    }
-    atomic_write_json(tmp_path / "sdf" / "results.json", plain_json(doc))  # the run's checks are records
-    write_report(tmp_path / "sdf")
-    res = load_results(tmp_path / "sdf")
-    assert all(c["passed"] for c in res["checks"]), [c for c in res["checks"] if not c["passed"]]
-    assert {a["method"] for a in res["cases"][0]["approximations"]} >= {
-        "evans-text",
-        "evans-fit",
-        "cone",
-        "sdfgrid",
-    }
-    names = [c["name"] for c in res["checks"]]
-    assert any("sunsky one bounce" in nm for nm in names) and any(
-        "continuous Evans fit" in nm for nm in names
-    )
-    sun = [c for c in res["cases"] if c["parameters"]["target"] == "sunsky"]
-    assert (
-        sun
-        and sun[0]["parameters"]["sun_elevation_deg"] == 30.0
-        and sun[0]["reference"]["sky"]["turbidity"] == 3.0
-    )
+def test_run_sdf_occlusion_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
+    """``rtfit run sdf-occlusion`` = the engine's audit of the shipped scenes + the study, on the 90° crease
+    (12² pixels, 16 spp) as the engine hands it over, with a tiny sweep. Independent values, through the
+    study's checks: Mitsuba AO at the crease's floor probes against the wedge integral (`crease_ao`), the
+    sunsky reference at an open point against the sky-irradiance quadrature, Evans on an unoccluded plane = 1;
+    and the continuous fit never above its grid start."""
     import json
 
-    joint = json.loads((tmp_path / "sdf" / "fitted" / "evans_joint_sunsky.json").read_text())
+    from rtfit.experiments import audit_ambient_occlusion, sdf_occlusion_study
+    from rtfit.experiments.audit_family import StudyContext
+    from rtfit.experiments.audit_run import audit
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    fam = FAMILIES["sdf-occlusion"]
+    assert fam.module == ENGINE and fam.scenes == audit_ambient_occlusion.SCENES
+    assert fam.study is sdf_occlusion_study.study
+    assert all((LIBRARY_DIR / s.file).is_file() for s in fam.scenes)
+    assert [s.name for s in fam.scenes if s.quick] == [f"sdf_{n}" for n in SCENE_NAMES]
+    s = {s.name: s for s in fam.scenes}["sdf_crease_90"]
+    assert dict(s.options) == {"ao_distance": 1.0}
+    res = audit(LIBRARY_DIR / s.file, ["sdf-occlusion"], spp=16, width=12, height=12, cache=tmp_path / "c",
+                tag=("sdf_crease_90-", ""), metrics=("rmse",), **dict(s.options))  # fmt: skip
+    (tmp_path / "figures").mkdir()
+    ctx = StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "c", (res,))
+    tiny = dict(
+        targets=["sunsky"], alphas=[0.0], sweep_grids=[24], sweep_n=[1, 2], probe_spp=256, cost_points=4096
+    )
+    study = sdf_occlusion_study.study(ctx, tiny)
+    assert all(c.passed for c in study.checks), [c for c in study.checks if not c.passed]
+    names = [c.name for c in study.checks]
+    for part in (
+        "floor probes of the 90° crease",
+        "sunsky one bounce",
+        "continuous Evans fit",
+        "unoccluded plane",
+    ):
+        assert any(part in nm for nm in names), (part, names)
+    (ao, sun) = study.extra["study_rmse"]
+    assert (ao["target"], sun["target"]) == ("ao", "sunsky")
+    assert {"evans-fit", "evans-joint", "sdfgrid", "evans-on-sdfgrid", "evans-listing"} <= set(ao["rows"])
+    assert {"evans-text", "evans-listing", "evans-fit", "curvature", "cone"} <= set(sun["rows"])
+    # the continuous fit has α and base free: never worse than the seed listing (k, B fitted) on its own case
+    assert sun["rows"]["evans-fit"]["value"] <= sun["rows"]["evans-listing"]["value"] + 1e-9
+    cost = study.extra["kernel_ns_per_pixel"]
+    assert set(cost) == {"evans-text", "evans-listing", "evans-fit", "curvature", "cone"}
+    assert all(0 < ns < 1e7 for ns in cost.values())
+    assert {f.file for f in study.figures} == {"figures/pareto_steps.png", "figures/crease_profile.png"}
+    assert all((tmp_path / f.file).is_file() for f in study.figures)
+    joint = json.loads((tmp_path / "fitted" / "evans_joint_sunsky.json").read_text())
     assert joint["format"] == "rtfit.fitted/1"
     params = joint["methods"][0]["parameters"]
     for key in ("k", "alpha", "base_voxels", "B", "w2"):
         assert key in params and "stderr" in params[key]
     assert set(joint["methods"][0]["data"]["base_scene_units"]) == {"crease_90"}
-    _ = dataclasses
