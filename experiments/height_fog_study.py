@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -61,7 +62,8 @@ def random_domain(n: int, seed: int = 7, log10_distance: tuple = (-1.0, 6.0)):
     tests/test_height_fog.py."""
     rng = np.random.default_rng(seed)
     z0 = (rng.choice([-1, 1], n) * 10 ** rng.uniform(-3, 4, n)).astype(np.float32)
-    dist = (10 ** rng.uniform(*log10_distance, n)).astype(np.float32)
+    lo, hi = log10_distance
+    dist = (10 ** rng.uniform(lo, hi, n)).astype(np.float32)
     frac = rng.uniform(-1, 1, n) * 10 ** rng.uniform(-9, 0, n)
     z1 = (z0 + frac * np.minimum(dist, 2e4)).astype(np.float32)
     b = (10 ** rng.uniform(-6, 0, n)).astype(np.float32)
@@ -246,6 +248,7 @@ def _map_figure(fdir: Path, forms) -> Figure:
         ax.set_title(METHODS[form].label, fontsize=9)
         ax.set_xlabel("sign(cΔz)·(log₁₀|cΔz| + 9)")
         ax.set_ylabel("log₁₀ D (m)")
+    assert im is not None  # one panel per form
     fig.colorbar(im, ax=axes[0].tolist(), label="log₁₀ relative error of τ (float32)")
     path = F.save_figure(fig, fdir / "optical_depth_error_maps.png")
     return Figure(
@@ -275,7 +278,7 @@ def render_job(
         progress=progress,
         label=scene.name,
     )
-    out = {"image": ref}
+    out: dict[str, Any] = {"image": ref}
     if gbuffer_of is not None:
         out["gbuffer"] = render_gbuffer(parse_scene_text(gbuffer_of), variant)
     return out
