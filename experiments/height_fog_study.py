@@ -41,7 +41,7 @@ from rtfit.scenes import load_scene, parse_scene_text
 from . import figures as F
 from .audit_family import Study, StudyContext
 from .audit_height_fog import pixel_rays, volume_from_medium
-from .records import Check, Figure, Headline, Section
+from .records import Check, Figure, Fit, Headline, Section
 from .zchecks import pixel_z_checks
 
 __all__ = ["SPECIAL_INPUTS", "float64_truth", "optical_depth_errors", "random_domain", "render_job", "study"]
@@ -551,10 +551,23 @@ def study(ctx: StudyContext) -> Study:
             + "."
         )
     notes.append(f"{sum(c.passed for c in checks)} of {len(checks)} study checks passed.")
+    fits = ()
+    if volumes is not None:
+        fits = (
+            Fit(
+                id="volume-colours",
+                label="fog-volume colours (true b, c)",
+                model="L = L₀·T + Σᵢ (1 − T)·τᵢ/Στ·Cᵢ (linear least squares per channel)",
+                parameters=dict(volumes["colours"]),
+                n_residuals=3 * volumes["fogged_pixels"],
+                converged=True,
+            ),
+        )
     return Study(
         sections=tuple(sections),
         figures=tuple(figures),
         checks=tuple(checks),
+        fits=fits,
         notes=tuple(notes),
         headline=(Headline(label="stable optical depth, worst float32 relative error", value=ex["worst"]),),
         extra={"optical_depth_forms": forms["table"], "fog_volumes": volumes},

@@ -192,6 +192,7 @@ def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
     assert len(ref_checks) == 6 and any("(ellipsoid)" in n for n in ref_checks)  # box and ellipsoid, 3 each
     vol = res.extra["fog_volumes"]
     assert vol["fogged_pixels"] > 0 and all(np.isfinite(v) for v in vol["colours"].values())
+    assert [f.id for f in res.fits] == ["volume-colours"] and dict(res.fits[0].parameters) == vol["colours"]
     assert {f.file for f in res.figures} >= {
         "figures/optical_depth_error_maps.png",
         "figures/rmse_vs_sun.png",
