@@ -72,6 +72,7 @@ from . import (
     audit_soft_particles,
     audit_volumetric_lightning,
     diffuse_study,
+    height_fog_study,
     irradiance_volumes_study,
     light_cones_study,
     nishita_sky_study,
@@ -194,12 +195,14 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "height-fog",
-            "rtfit.experiments.height_fog",
+            ENGINE,
             "Exponential height fog: closed-form optical depth and fog colour vs path-traced media",
             "Closed-form, seed-listing and Taylor optical-depth forms over the whole domain, and fog "
             "shading against Mitsuba transmittance and aerial perspective, with fitted artist parameters.",
             methods=height_fog.METHODS,
             audits=(audit_height_fog.FAMILY, audit_fog_media.FAMILY),
+            scenes=audit_height_fog.SCENES,
+            study=height_fog_study.study,
         ),
         Family(
             "nishita-sky",

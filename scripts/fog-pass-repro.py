@@ -1,4 +1,5 @@
-"""Render chosen passes of one height-fog terrain case, as `rtfit run height-fog` does (issue 21 §1 repro).
+"""Render chosen passes of one height-fog terrain scene (scenes/library/fog_terrain_e<E>_<TRANSPORT>.toml,
+E the ELEVATION: 5, 10, 15, 30, 40 or 60) as `rtfit run height-fog` renders it (issue 21 §1 repro).
 
     python3 scripts/fog-pass-repro.py VARIANT ELEVATION TRANSPORT PASSES [WIDTH HEIGHT SPP]
     python3 scripts/fog-pass-repro.py cuda_ad_rgb 5 single 0,1,2,3,4,5,6,7
@@ -9,19 +10,22 @@ medium-event cap prints the one-line budget error. Run it under ``timeout``: bef
 pass 1 of ``5 single`` never returned on an H200.
 """
 
+import dataclasses
 import sys
 import time
 
-from rtfit.experiments.height_fog import terrain_scene
 from rtfit.reference.budget import PassBudgetExceeded
 from rtfit.reference.build import load_mitsuba_scene
 from rtfit.reference.estimators import radiance_pass, sub_seed
+from rtfit.scenes import library_path, load_scene
 
 
 def main(argv):
     variant, elevation, transport, passes = argv[1], float(argv[2]), argv[3], argv[4]
     width, height, spp = (int(x) for x in (argv[5:8] if len(argv) > 7 else (256, 128, 256)))
-    mi, ms = load_mitsuba_scene(terrain_scene(elevation, transport, (width, height)), variant)
+    scene = load_scene(library_path(f"fog_terrain_e{elevation:g}_{transport}"))
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, width=width, height=height))
+    mi, ms = load_mitsuba_scene(scene, variant)
     for i in (int(x) for x in passes.split(",")):
         t0 = time.perf_counter()
         try:

@@ -18,7 +18,6 @@ import pytest
 
 from rtfit.experiments import ambient_aperture_study as aa
 from rtfit.experiments import diffuse_study as df
-from rtfit.experiments import height_fog as hf
 from rtfit.experiments import irradiance_bases as ib
 from rtfit.experiments import sdf_occlusion_fit as so
 from rtfit.experiments.fitted import (
@@ -108,26 +107,15 @@ def _height_fog(out: Path):
             method=FOG["phase"],
         ),
     }
-    vol = {
-        "id": "volume-colours",
-        "label": "fog-volume colours (true b, c)",
-        "model": "L = L₀·T + Σᵢ (1 − T)·τᵢ/Στ·Cᵢ",
-        "parameters": {
-            "vol0_r": {"value": 0.2, "stderr": None, "lower": None, "upper": None, "at_bound": False}
-        },
-        "n_residuals": 30,
-        "converged": True,
-    }
-    rng = np.random.default_rng(1)
-    geoms = {
-        "e5": {
-            "z0": rng.uniform(0, 10, 20),
-            "z1": rng.uniform(0, 300, 20),
-            "length": rng.uniform(10, 900, 20),
-        }
-    }
-    geoms["e5"]["cos_sun"] = rng.uniform(-1, 1, 20)
-    hf.write_fitted(out, fits, vol, None, {"spp": 8}, geoms, {"e5-single": "ab12", "e5-single-nofog": "cd34"})
+    domain = {"z0": (0.0, 10.0), "z1": (0.0, 300.0), "distance": (10.0, 900.0), "cos_sun": (-1.0, 1.0)}
+    for (cid, method), fit in fits.items():
+        m = FOG[method]
+        entry = method_entry(m, fit, label=f"{m.label}, {cid}", case=cid, domain=domain,
+                             residual_units="relative", outputs=("out_r", "out_g", "out_b"))  # fmt: skip
+        write_fit(out, f"fitted/fog-{cid}-{method}.json", title=f"height fog, {m.label} ({cid})",
+                  provenance=provenance(None, "height-fog", ["ab12"], 8), entry=entry,
+                  doc_id=f"fog-{cid}-{method}", label=f"artist parameters, {cid}-{method}", model=m.formula,
+                  fit=fit)  # fmt: skip
     return fits
 
 
@@ -216,7 +204,7 @@ WRITERS = {
     "diffuse": (_diffuse, ["diffuse.json", "wrap_smooth.json"]),
     "height-fog": (
         _height_fog,
-        ["fog-e5-single-const.json", "fog-e5-single-phase.json", "fog-volume-colours.json"],
+        ["fog-e5-single-const.json", "fog-e5-single-phase.json"],
     ),
     "irradiance-bases": (_irradiance_bases, ["grey.json"]),
     "ambient-aperture": (_ambient_aperture, ["intersection.json", "lambert.json"]),

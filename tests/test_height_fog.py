@@ -21,7 +21,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rtfit.experiments.height_fog import float64_truth, random_domain
+from rtfit.experiments.height_fog_study import float64_truth, random_domain
 from rtfit.realtime import NUMPY_OPS, jax_ops
 from rtfit.realtime import height_fog as hf
 from rtfit.realtime.phase import hg_phase, rayleigh_phase

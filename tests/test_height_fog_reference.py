@@ -1,4 +1,4 @@
-"""The exponential-fog scene part, its Mitsuba medium, and a tiny run of the ``height-fog`` experiment.
+"""The exponential-fog scene part, its Mitsuba medium, and a tiny ``rtfit run height-fog`` (engine + study).
 
 The Mitsuba check is independent of rtfit's kernels: the expected transmittance per pixel is computed here
 from a float64 slab/quadric intersection and the analytic integral b·e^(−c·h₀)·(1 − e^(−c·Δh))/c along the
@@ -125,46 +125,79 @@ def test_mitsuba_transmittance_equals_closed_form(mi, ellipsoid):
     assert np.all(np.abs(p.mean[~fogged, 0] - 1) < 1e-6)  # outside the medium: the backdrop untouched
 
 
-def test_tiny_experiment_run(tmp_path, monkeypatch):
-    from .conftest import run_tiny_experiment
+def _shipped_audit(tmp_path, name: str, width: int, height: int, spp: int):
+    """The engine's audit of one shipped scene, as ``rtfit run height-fog`` makes it (case ids tagged)."""
+    from rtfit.experiments import audit_height_fog
+    from rtfit.experiments.audit_run import audit
+    from rtfit.scenes.parse import LIBRARY_DIR
 
-    tiny = dict(
-        sun_elevations_deg=[30.0],
-        resolution=[24, 12],
-        spp=32,
-        pass_spp=16,
-        check_resolution=12,
-        check_spp=64,
-        volumes=True,
-        map_size=[12, 8],
-        random_samples=2000,
-        cost_elements=1 << 12,
+    shipped = {s.name: s for s in audit_height_fog.SCENES}[name]
+    return audit(
+        LIBRARY_DIR / shipped.file,
+        ["height-fog"],
+        spp=spp,
+        width=width,
+        height=height,
+        cache=tmp_path / "cache",
+        tag=(f"{name}-", f"{name}: "),
+        pass_spp=min(spp, shipped.options["pass_spp"]),
+        metrics=("rmse", "rel_mse"),
     )
-    from rtfit.experiments import height_fog
 
-    # figures are exercised by the quick run; here they would double the test's time
-    monkeypatch.setattr(height_fog, "make_figures", lambda *a, **k: [])
-    res = run_tiny_experiment("height-fog", tmp_path, tiny)
-    assert res["experiment"] == "height-fog"
-    assert {c["id"] for c in res["cases"]} == {"e30-single", "e30-multiple", "volumes"}
-    failed = [c["name"] for c in res["checks"] if not c["passed"]]
-    # at 64 spp and 12² pixels the transmittance z-spread check is loose; everything else must pass
-    assert all("reference check" in name for name in failed), failed
-    assert (tmp_path / "out" / "height-fog" / "fitted" / "fog-e30-single-const.json").is_file()
-    # the report's image viewer: every case's pixels (ꟻLIP needs 21 pixels: not at 12 rows, said so)
-    out = tmp_path / "out" / "height-fog"
-    assert {p.name for p in (out / "pixels").glob("*.exr")} == {
-        "e30-single.exr",
-        "e30-multiple.exr",
-        "volumes.exr",
+
+def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
+    """``rtfit run height-fog`` = the engine's audits of the shipped scenes + `height_fog_study.study`, on
+    tiny images. Independent values: the ``absorbing`` row (L₀·e^(−τ) of the kernel) against this file's own
+    float64 slab/quadric transmittance per pixel (`_expected_t`), for the box and the ellipsoid (the quick
+    run's size and samples); the study's z-checks of that row against rtfit's fog path tracer (the old
+    experiment's reference check) and every other study check pass (the float32 scan, the fits); the seed's
+    horizon-phase row is given only (not fitted)."""
+    from rtfit.experiments import audit_height_fog, height_fog_study
+    from rtfit.experiments.audit_family import StudyContext
+    from rtfit.experiments.families import ENGINE, FAMILIES
+
+    fam = FAMILIES["height-fog"]
+    assert fam.module == ENGINE and fam.scenes == audit_height_fog.SCENES
+    assert fam.study is height_fog_study.study
+    assert [s.name for s in fam.scenes if s.quick] == [
+        "fog_transmittance",
+        "fog_transmittance_ellipsoid",
+        "fog_terrain_e10_single",
+        "fog_terrain_e10_multiple",
+        "fog_terrain_e40_single",
+        "fog_terrain_e40_multiple",
+        "fog_volumes_e40",
+    ]
+    audits = []
+    for name in ("fog_transmittance", "fog_transmittance_ellipsoid"):
+        r = _shipped_audit(tmp_path, name, 24, 24, 256)  # the quick run's size and samples
+        case = next(c for c in r.cases if c.id.endswith("-radiance"))
+        row = r.outcomes[case.id]["absorbing"]
+        assert row.fit is None and not row.method.params  # given only: the true b, c and colour 0
+        t = _expected_t(load_scene(library_path(name)), r.gbuffer.view_dir.astype(np.float64))
+        np.testing.assert_allclose(row.image[case.mask][:, 0], t[case.mask], rtol=2e-5)
+        assert all(c.passed for c in r.results.checks), [c.name for c in r.results.checks if not c.passed]
+        audits.append(r)
+    for name in ("fog_terrain_e10_single", "fog_volumes_e40"):
+        audits.append(_shipped_audit(tmp_path, name, 16, 8, 16))
+    rows = audits[2].outcomes["fog_terrain_e10_single-fog0-radiance"]
+    assert {"const", "phase", "horizon-phase", "const-fitted", "phase-fitted"} <= set(rows)
+    assert rows["horizon-phase"].fit is None and "horizon-phase-fitted" not in rows
+    assert rows["horizon-phase"].parameters == {}  # every value fixed: the seed's colour, true b, c
+    res = height_fog_study.study(
+        StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "cache", tuple(audits))
+    )
+    assert all(c.passed for c in res.checks), [c.name for c in res.checks if not c.passed]
+    ref_checks = [c.name for c in res.checks if c.name.startswith("reference check")]
+    assert len(ref_checks) == 6 and any("(ellipsoid)" in n for n in ref_checks)  # box and ellipsoid, 3 each
+    vol = res.extra["fog_volumes"]
+    assert vol["fogged_pixels"] > 0 and all(np.isfinite(v) for v in vol["colours"].values())
+    assert [f.id for f in res.fits] == ["volume-colours"] and dict(res.fits[0].parameters) == vol["colours"]
+    assert {f.file for f in res.figures} >= {
+        "figures/optical_depth_error_maps.png",
+        "figures/rmse_vs_sun.png",
     }
-    import json
-    import re
-
-    page = (out / "report.html").read_text()
-    manifest = json.loads(re.search(r'id="rtfit-viewer-manifest">(.*?)</script>', page).group(1))
-    assert [c["id"] for c in manifest["cases"]] == ["e30-single", "e30-multiple", "volumes"]
-    assert all("at least 21x21 pixels" in c["flip_note"] for c in manifest["cases"])
+    assert (tmp_path / "figures" / "residual_vs_elevation.png").is_file()
 
 
 INSCATTER_TOML = """

@@ -3,7 +3,7 @@
 import numpy as np
 
 from rtfit.experiments.executors import make_executor
-from rtfit.experiments.height_fog import render_job
+from rtfit.experiments.height_fog_study import render_job
 from rtfit.experiments.jobs import InlineExecutor, Job, ProcessExecutor
 from rtfit.scenes import scene_to_toml
 

@@ -25,7 +25,7 @@ def _tiny(name: str, fog: bool = True):
 def test_planted_stuck_medium_fails_one_job_with_one_line(tmp_path, monkeypatch, reduction):
     """With either of `PassMoments`' reductions (the CPU's ``atomic``, the GPU's ``stored``, whose sampling
     kernel only stores its samples: the media's event counters must still be evaluated with it)."""
-    from rtfit.experiments.height_fog import render_job
+    from rtfit.experiments.height_fog_study import render_job
     from rtfit.experiments.jobs import InlineExecutor, Job
     from rtfit.reference import estimators, fog_integrator, height_fog
 
