@@ -36,6 +36,7 @@ from rtfit.realtime import (
     nishita_sky,
     obscurances,
     parallax_occlusion,
+    pcf_soft_shadows,
     reflections,
     sdf_occlusion,
     sh_sky_bent_normal,
@@ -66,6 +67,7 @@ from . import (
     audit_nishita_sky,
     audit_obscurances,
     audit_parallax_occlusion,
+    audit_pcf_soft_shadows,
     audit_sh_sky_bent_normal,
     audit_sky_emitter,
     audit_sky_occlusion,
@@ -328,6 +330,18 @@ FAMILIES: dict[str, Family] = {
             methods=sh_sky_bent_normal.METHODS,
             audits=(audit_sh_sky_bent_normal.FAMILY,),
             scenes=audit_sh_sky_bent_normal.SCENES,
+        ),
+        Family(
+            "pcf-soft-shadows",
+            ENGINE,
+            "Soft shadows by filtering a shadow map (PCF, PCSS) vs an area light's penumbra",
+            "The seed's 8-tap Poisson PCF (fixed and rotated per pixel), 16-tap rotated Poisson, 3×3 and 5×5 "
+            "box PCF and PCSS of a shadow map cast from the light's centre (256² and 1024²), kernel radius, "
+            "bias and light size fitted, times the light's closed-form irradiance, against its path-traced "
+            "shadowed irradiance.",
+            methods=pcf_soft_shadows.METHODS,
+            audits=(audit_pcf_soft_shadows.FAMILY,),
+            scenes=audit_pcf_soft_shadows.SCENES,
         ),
     )
 }

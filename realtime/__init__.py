@@ -62,6 +62,8 @@ Modules:
     sh_sky_bent_normal  sky ambient from the sky's SH along the bent normal (the seed's radiance
                 lookup × AO), the SH irradiance at the bent normal / normal × AO, the visible cone
                 (docs/sh-sky-bent-normal.md).
+    pcf_soft_shadows  percentage-closer filtering of a shadow map for an area light's penumbra: the seed's
+                8-tap Poisson PCF (fixed, rotated), box PCF, PCSS; the `ShadowMap` (docs/pcf-soft-shadows.md).
     obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
                 estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
@@ -91,6 +93,7 @@ from .methods import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
 from .obscurances import *  # noqa: F403
 from .parallax_occlusion import *  # noqa: F403
+from .pcf_soft_shadows import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .quantities import *  # noqa: F403
 from .reflections import *  # noqa: F403
@@ -130,6 +133,7 @@ MODULES = (
     "obscurances",
     "fresnel",
     "sh_sky_bent_normal",
+    "pcf_soft_shadows",
     "quantities",
     "shader",
 )

@@ -47,6 +47,8 @@ from .light_cones import INPUTS as CONE_INPUTS
 from .methods import Input, Method, Param
 from .obscurances import MISS
 from .parallax_occlusion import HeightMap
+from .pcf_soft_shadows import INPUTS as PCF_INPUTS
+from .pcf_soft_shadows import ShadowMap
 from .reflections import INPUTS as REFLECTION_INPUTS
 from .reflections import IRRADIANCE_RESOLUTION, PROBE_RESOLUTION
 from .sdf_grid import HalfSpace, Sphere
@@ -181,6 +183,13 @@ def _example_field(n: int) -> HeightMap:
     """An egg-crate height field h = ½ + ½·sin 2πu·sin 2πv on 16 × 16 texels (bilinear, repeating)."""
     c = (np.arange(16) + 0.5) / 16.0
     return HeightMap(0.5 + 0.5 * np.outer(np.sin(2.0 * math.pi * c), np.sin(2.0 * math.pi * c)))
+
+
+def _example_shadow_map(n: int) -> ShadowMap:
+    """A 64² perspective shadow map of a half-plane blocker at depth 2 over a floor at depth 5 (any ``n``)."""
+    depth = np.full((64, 64), 5.0)
+    depth[:, :32] = 2.0
+    return ShadowMap(depth, light_size=0.05, near=2.0)
 
 
 def _example_map(resolution: int, low: float, high: float) -> Callable[[int], np.ndarray]:
@@ -658,6 +667,17 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 },
                 reference="path-traced irradiance at the visible points (every light a ray can reach, as "
                 "the probes store it)",
+            ),
+            Quantity(
+                "shadowed_light_irradiance",
+                "W/m²",
+                "direct irradiance of one light at a surface point with the scene's occluders, from its "
+                "unshadowed irradiance and a shadow map",
+                PCF_INPUTS,
+                examples={"shadow_map": _example_shadow_map},
+                reference="that light's shadowed direct irradiance at the visible points (emitter sampling, "
+                "shadow rays)",
+                note="g.shadow_map.compare(ops, u, v, z): the bilinear compare; .nearest(ops, u, v): a depth",
             ),
             Quantity(
                 "fresnel_reflectance",
