@@ -31,6 +31,7 @@ from rtfit.realtime import (
     environment_bases,
     fresnel,
     height_fog,
+    ibl_samples,
     irradiance_volumes,
     linear_fog,
     nishita_sky,
@@ -58,6 +59,7 @@ from . import (
     audit_fog_media,
     audit_fresnel,
     audit_height_fog,
+    audit_ibl_samples,
     audit_irradiance_bases,
     audit_irradiance_volumes,
     audit_light_cones,
@@ -305,6 +307,17 @@ FAMILIES: dict[str, Family] = {
             methods=sh_sky_bent_normal.METHODS,
             audits=(audit_sh_sky_bent_normal.FAMILY,),
             scenes=audit_sh_sky_bent_normal.SCENES,
+        ),
+        Family(
+            "ibl-samples",
+            ENGINE,
+            "Image-based lighting from N directional light samples (Lloyd, median cut) vs occluded envmap",
+            "The environment map split into N = 4…256 directional lights — the seed's energy samples with "
+            "Lloyd's relaxation on the sphere, the same without relaxation, Debevec's median cut — each "
+            "with an exact shadow ray, against the environment's irradiance with the scene's occlusion.",
+            methods=ibl_samples.METHODS,
+            audits=(audit_ibl_samples.FAMILY,),
+            scenes=audit_ibl_samples.SCENES,
         ),
     )
 }

@@ -130,6 +130,7 @@ MODULES = (
     "obscurances",
     "fresnel",
     "sh_sky_bent_normal",
+    "ibl_samples",
     "quantities",
     "shader",
 )
