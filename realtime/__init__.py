@@ -62,6 +62,9 @@ Modules:
     sh_sky_bent_normal  sky ambient from the sky's SH along the bent normal (the seed's radiance
                 lookup × AO), the SH irradiance at the bent normal / normal × AO, the visible cone
                 (docs/sh-sky-bent-normal.md).
+    ibl_samples image-based lighting from N directional lights baked from an environment map (the seed's
+                energy samples + Lloyd relaxation, median cut), each with its own shadow
+                (docs/ibl-samples.md).
     obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
                 estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
@@ -82,6 +85,7 @@ from .environment_maps import *  # noqa: F403
 from .fresnel import *  # noqa: F403
 from .height_fog import *  # noqa: F403
 from .hemisphere_bases import *  # noqa: F403
+from .ibl_samples import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
 from .light_cones import *  # noqa: F403

@@ -73,7 +73,6 @@ __all__ = [
     "BAKES",
     "COUNTS",
     "LLOYD_ITERATIONS",
-    "LUMINANCE",
     "bake_lights",
     "fibonacci_directions",
     "lights_irradiance",
@@ -84,7 +83,8 @@ __all__ = [
 ]
 
 LUMINANCE = (0.2126, 0.7152, 0.0722)
-"""Rec. 709 luminance weights: a texel's energy is w·Y(L)."""
+"""Rec. 709 luminance weights: a texel's energy is w·Y(L) (not exported: linear_fog's ``LUMINANCE`` is the
+root's; the same weights)."""
 LLOYD_ITERATIONS = 32
 """Lloyd steps of the seed's bake (the relaxation has converged to < 10⁻³ rad on the shipped map by then)."""
 _TINY = 1e-30

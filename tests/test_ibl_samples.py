@@ -67,9 +67,7 @@ def test_kernel_is_the_seeds_sum_by_hand_at_three_points():
     n = np.array([[0, 0, 1.0], [0.6, 0, 0.8], [0.6, 0, 0.8], [0.6, 0, 0.8], [0, 0, 2.0]])
     vis = np.array([[1, 1, 0, 0.5, 1], [1, 1, 1, 1, 1], [1, 1, 1, 1, 1.0]])
     e = ibl.lights_irradiance(table, n, vis)
-    want = np.array(
-        [[1.0, 2.0, 3.0], [1.1, 1.9, 2.7], [0.3, 0.3, 0.3], [0.7, 1.1, 1.5], [1.0, 2.0, 3.0]]
-    )
+    want = np.array([[1.0, 2.0, 3.0], [1.1, 1.9, 2.7], [0.3, 0.3, 0.3], [0.7, 1.1, 1.5], [1.0, 2.0, 3.0]])
     assert np.allclose(e, want, rtol=1e-12, atol=1e-14)
 
 
@@ -93,8 +91,8 @@ def test_each_row_runs_the_one_kernel_on_its_inputs():
 def test_a_constant_map_conserves_energy_and_converges_to_pi_l(bake):
     """L = (0.5, 1, 2): the powers sum to L·Σw, Σw = 4π·(h/2)/sin(h/2) (the midpoint rule in θ, h = π/H:
     4π to 4·10⁻⁴ at H = 32); the irradiance at
-    64 normals tends to πL: max relative error ≤ 0.2 at N = 16, ≤ 0.02 at N = 256 (measured 0.11/0.14/0.20
-    and 0.0035/0.0053/0.0046 on the linear map below; a constant map is easier)."""
+    64 normals tends to πL: max relative error ≤ 0.2 at N = 16, ≤ 0.02 at N = 256 (measured for Lloyd /
+    importance / median cut 0.045 / 0.063 / 0.187 and 0.0023 / 0.0038 / 0.0042)."""
     lum = np.array([0.5, 1.0, 2.0])
     grid = _grid(lambda d: np.broadcast_to(lum, d.shape))
     half = 0.5 * math.pi / ROWS  # the midpoint rule of ∫ sin θ dθ: exactly 2·(h/2)/sin(h/2)
@@ -169,11 +167,11 @@ def test_lloyd_moves_the_lights_to_a_centroidal_voronoi_tessellation():
 
 def test_median_cut_regions_hold_equal_energy():
     """Debevec's cut halves each region's energy: on a smooth map the 16 lights' luminance powers agree to
-    within the texel granularity (max/min < 1.3; measured 1.06)."""
+    within the texel granularity of the cuts (max/min < 1.5; measured 1.26 at 64 rows)."""
     grid = _grid(lambda d: np.broadcast_to(1.0 + 0.8 * d[..., 2:3], d.shape), rows=64)
     t = _lights("median-cut", grid, 16)
     y = t[:, 3:] @ np.array(ibl.LUMINANCE)
-    assert y.max() / y.min() < 1.3
+    assert y.max() / y.min() < 1.5
 
 
 # ------------------------------------------------------------------------------------------------ extremes
@@ -292,6 +290,41 @@ def test_toml_constant_sky_over_a_floating_sphere_matches_the_closed_form(tmp_pa
         assert float(rel.mean()) < 0.03 and float(rel.max()) < 0.1, (bake, rel.mean(), rel.max())
         coarse = np.abs(rows[f"{bake}-4"].image[case.mask][ground] / want - 1)
         assert coarse.mean() > rel.mean(), bake
+
+
+MY_SUM = '''
+from rtfit import approximation
+
+
+@approximation(quantity="sky_irradiance_lights")
+def my_sum(ops, g):
+    """The seed's sum restated: lights read from g.lights (6 floats each), visibilities from g.visibility."""
+    n = ops.sqrt(g.nx * g.nx + g.ny * g.ny + g.nz * g.nz)
+    out = [0.0 * n, 0.0 * n, 0.0 * n]
+    for k, v in enumerate(g.visibility):
+        dx, dy, dz, r, gr, b = g.lights[6 * k : 6 * k + 6]
+        c = ops.maximum((g.nx * dx + g.ny * dy + g.nz * dz) / n, 0.0) * v
+        out = [out[0] + c * r, out[1] + c * gr, out[2] + c * b]
+    return tuple(out)
+'''
+
+
+def test_a_user_approximation_reads_the_seed_rows_own_lights(tmp_path):
+    """A user's ``@approximation(quantity="sky_irradiance_lights")`` restating the sum gives the seed row at
+    N = 64 (`USER_COUNT`: the same visibilities as ``g.visibility`` and table as ``g.lights``) to float32
+    rounding (relative 1e-5)."""
+    from rtfit.experiments.audit_ibl_samples import USER_COUNT
+
+    (tmp_path / "toml.toml").write_text(TOML)
+    (tmp_path / "mine.py").write_text(MY_SUM)
+    spec = f"{tmp_path / 'mine.py'}:my_sum"
+    r = audit(tmp_path / "toml.toml", [f"ibl-samples:seed-lloyd-{USER_COUNT}", spec], spp=16, pass_spp=16,
+              cache=tmp_path / "c", **FAST)  # fmt: skip
+    (case,) = r.cases
+    rows = r.outcomes[case.id]
+    assert set(rows) == {f"seed-lloyd-{USER_COUNT}", "my_sum"} and rows["my_sum"].user
+    m = case.mask
+    np.testing.assert_allclose(rows["my_sum"].image[m], rows[f"seed-lloyd-{USER_COUNT}"].image[m], rtol=1e-5)
 
 
 @pytest.fixture(scope="module")
