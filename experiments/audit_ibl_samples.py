@@ -19,9 +19,14 @@ One case ``ibl<i>`` per environment, on the visible surface pixels:
   as its radiance), its texels (`quadrature_samples`: midpoints, solid angles) split into N lights by each
   bake — the seed's energy samples with Lloyd's relaxation, the same without it, Debevec's median cut — for
   N in `COUNTS`;
+* **the depth maps** (``seed-depthmap`` rows: the seed's lights with the seed's shadow test,
+  `depth_map_visibility_rows`): per light an orthographic depth-and-normal map of `SHADOW_RESOLUTION`²
+  texels over the scene's bounding sphere, by Mitsuba rays from its texel centres, then the seed's linearly
+  filtered comparison with its normal-weighted bias 0.01;
 * **inputs** per row (``row_inputs``: each bake and N has its own lights): n (the G-buffer's unit normal)
   and v1..vN, each light's visibility at the point by one Mitsuba shadow ray towards it (`light_visibility`:
-  exact, spawned as the reference spawns its rays; 0 where the light is below the surface's plane). The
+  exact, spawned as the reference spawns its rays; 0 where the light is below the surface's plane), or by
+  its depth map (``seed-depthmap``). The
   light table (6·N floats) is a constant of the row (``Method.fixed``: literals of the compiled kernel). So
   a row's error is the sampling of the map alone; its cost is the N multiply-adds of the blend, without
   the shadow test (a depth-map lookup per light in an engine, here a ray cast). The three bakes run the same
@@ -40,7 +45,16 @@ from functools import partial
 import numpy as np
 
 from rtfit.realtime.arrays import xyz_columns
-from rtfit.realtime.ibl_samples import BAKES, COUNTS, METHODS, bake_lights, on_lights, visibility_names
+from rtfit.realtime.ibl_samples import (
+    BAKES,
+    COUNTS,
+    METHODS,
+    SHADOW_RESOLUTION,
+    bake_lights,
+    depth_map_visibility,
+    on_lights,
+    visibility_names,
+)
 from rtfit.realtime.methods import Input, Method
 from rtfit.reference.environments import quadrature_samples
 from rtfit.reference.estimators import device_vectors
@@ -50,7 +64,16 @@ from .audit_environment import environment_of
 from .audit_family import AuditFamily, AuditSetup, FamilyCase, ShippedScene
 from .audit_sky import sky_reference
 
-__all__ = ["BAKE_ROWS", "FAMILY", "SCENES", "USER_COUNT", "ibl_cases", "light_visibility", "scene_texels"]
+__all__ = [
+    "BAKE_ROWS",
+    "FAMILY",
+    "SCENES",
+    "USER_COUNT",
+    "depth_map_visibility_rows",
+    "ibl_cases",
+    "light_visibility",
+    "scene_texels",
+]
 
 BAKE_ROWS = 64
 """Rows of the lat-long bake the lights are made from (× 2 columns: 8192 texels)."""
@@ -117,6 +140,71 @@ def light_visibility(setup: AuditSetup, points, normals, directions) -> np.ndarr
     return out
 
 
+def _frame(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing the unit ``d`` to an orthonormal frame (the depth map's u and v axes)."""
+    t = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    t /= np.linalg.norm(t)
+    return t, np.cross(d, t)
+
+
+def depth_map_visibility_rows(setup: AuditSetup, points, normals, directions, resolution: int) -> np.ndarray:
+    """(K, N) visibility of the K lights at the N points by the seed's depth maps (001:2814-2871).
+
+    Per light, an orthographic map of ``resolution``² texels over the scene's bounding sphere (centre c,
+    radius r: Mitsuba's scene box), its camera on the sphere at c + r·d looking at c. Each texel's depth (the
+    first hit's distance along −d over 2r, 1 for a miss) and shading normal come from one Mitsuba ray from its
+    centre (every light's rays in launches of at most `_MAX_LANES`, directions as per-lane arrays: one
+    compiled kernel). Each point's texture coordinates (u, v, z) in that map then go through
+    `depth_map_visibility` (the seed's filtered test and bias). 0 where the light is at or below the
+    surface's plane."""
+    mi = setup.mi
+    box = setup.scene.bbox()
+    lo, hi = np.array(box.min, np.float64), np.array(box.max, np.float64)
+    centre, radius = 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-6)
+    grid = (np.arange(resolution) + 0.5) / resolution * 2.0 - 1.0
+    gu, gv = (g.reshape(-1) for g in np.meshgrid(grid, grid))  # row j: v, column i: u
+    dirs = np.asarray(directions, np.float64).reshape(-1, 3)
+    frames = np.array([_frame(d) for d in dirs]).reshape(-1, 2, 3)  # (K, 2, 3): u and v axes
+    eyes = centre + radius * dirs
+    texels = resolution * resolution
+    depth = np.ones((len(dirs), texels))
+    map_n = np.zeros((len(dirs), texels, 3))
+    offsets = radius * np.stack([gu, gv], axis=-1).astype(np.float32)  # (T, 2)
+    per = max(1, _MAX_LANES // texels)
+    for a in range(0, len(dirs), per):
+        b = min(len(dirs), a + per)
+        o = (eyes[a:b, None, :] + offsets[None] @ frames[a:b]).reshape(-1, 3)  # (K·T, 3)
+        w = np.repeat(-dirs[a:b], texels, axis=0)
+        ray = mi.Ray3f(
+            mi.Point3f(*(mi.Float(np.ascontiguousarray(o[:, c], np.float32)) for c in range(3))),
+            mi.Vector3f(*(mi.Float(np.ascontiguousarray(w[:, c], np.float32)) for c in range(3))),
+        )
+        si = setup.scene.ray_intersect(ray)
+        hit = np.asarray(si.is_valid(), dtype=bool).reshape(b - a, texels)
+        t = np.asarray(si.t, np.float64).reshape(b - a, texels)
+        depth[a:b] = np.where(hit, t / (2.0 * radius), 1.0)
+        sn = np.stack([np.asarray(getattr(si.sh_frame.n, c), np.float32) for c in "xyz"], axis=-1)
+        map_n[a:b] = np.where(hit[..., None], sn.reshape(b - a, texels, 3), 0.0)
+    pts, nrm = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    out = np.zeros((len(dirs), len(pts)))
+    rel = pts - centre
+    for k, d in enumerate(dirs):
+        t, b = frames[k, 0], frames[k, 1]
+        coords = np.stack(
+            [
+                0.5 * (rel @ t / radius + 1.0),
+                0.5 * (rel @ b / radius + 1.0),
+                (eyes[k] - pts) @ d / (2.0 * radius),
+            ],
+            axis=-1,
+        )
+        lit = depth_map_visibility(
+            depth[k].reshape(resolution, resolution), map_n[k].reshape(resolution, resolution, 3), coords, nrm
+        )
+        out[k] = np.where(nrm @ d > 0.0, lit, 0.0)
+    return out
+
+
 def _row(method: Method, lights: np.ndarray) -> Method:
     """A row with its light table as a constant (``fixed``): the kernel's literals."""
     inputs = tuple(i for i in method.inputs if i.name != "lights")
@@ -151,8 +239,13 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     lit: dict[str, float] = {}
     for rid in app.methods:
         bake, count = rid.rsplit("-", 1)
-        table = bake_lights(bake, *grid, int(count))
-        vis = light_visibility(setup, sky.points, sky.normals, table.reshape(-1, 6)[:, :3])
+        same = f"seed-lloyd-{count}" if bake == "seed-depthmap" else rid
+        table = tables[same] if same in tables else bake_lights(bake, *grid, int(count))
+        if bake == "seed-depthmap":
+            dirs = table.reshape(-1, 6)[:, :3]
+            vis = depth_map_visibility_rows(setup, sky.points, sky.normals, dirs, SHADOW_RESOLUTION)
+        else:
+            vis = light_visibility(setup, sky.points, sky.normals, table.reshape(-1, 6)[:, :3])
         tables[rid] = table
         lit[rid] = float(vis.mean())
         methods[rid] = _row(METHODS[rid], table)
@@ -210,8 +303,9 @@ FAMILY = AuditFamily(
         "Mitsuba's emitter sampling and the cosine hemisphere (balance heuristic) with shadow rays against "
         "the scene's shapes, in independent passes with per-pixel standard errors — against the map split "
         "into N = 4, 16, 64, 256 directional lights, each with an exact shadow ray: the seed's energy "
-        "samples with Lloyd's relaxation on the sphere (GameTools D5.3 §2.8), the same without relaxation, "
-        "and Debevec's median cut. Error and cost per N."
+        "samples with Lloyd's relaxation on the sphere (GameTools D5.3 §2.8), the same lights shadowed by "
+        "the seed's depth maps instead, the samples without relaxation, and Debevec's median cut. Error "
+        "and cost per N."
     ),
     rules=(
         Rule(

@@ -313,8 +313,9 @@ FAMILIES: dict[str, Family] = {
             ENGINE,
             "Image-based lighting from N directional light samples (Lloyd, median cut) vs occluded envmap",
             "The environment map split into N = 4…256 directional lights — the seed's energy samples with "
-            "Lloyd's relaxation on the sphere, the same without relaxation, Debevec's median cut — each "
-            "with an exact shadow ray, against the environment's irradiance with the scene's occlusion.",
+            "Lloyd's relaxation on the sphere (with shadow rays, and with the seed's depth maps), the same "
+            "without relaxation, Debevec's median cut — against the environment's irradiance with the "
+            "scene's occlusion.",
             methods=ibl_samples.METHODS,
             audits=(audit_ibl_samples.FAMILY,),
             scenes=audit_ibl_samples.SCENES,

@@ -40,6 +40,11 @@ The bakes (the rows), NumPy, offline (what an engine does once per map)
   seed's shader names the light direction ``LightDir`` and tests ``dot(LightDir, Normal) > 0``, so
   ``LightDir`` points **towards** the light (as here), although its ``cosPsi = −dot(Reflect, LightDir)``
   would need the opposite sign; only the diffuse term is audited.
+* ``seed-depthmap`` — the seed's lights (``seed-lloyd``) with the seed's shadow test instead of a shadow
+  ray (`depth_map_visibility`, made offline by the audit): per light an orthographic depth-and-normal map
+  of `SHADOW_RESOLUTION`² texels over the scene's bounding sphere (001:2814-2871: the camera on the sphere
+  looking at its centre, depth 2r → [0, 1]), filtered linearly, lit where z − 0.01·dot(n̂_map, n) < depth
+  (001:3026-3028). Its error beside ``seed-lloyd``'s is what the depth maps cost.
 * ``importance`` — the same energy-weighted placement without the relaxation (0 iterations): what Lloyd's
   relaxation buys.
 * ``median-cut`` — Debevec 2005 ("A median cut algorithm for light probe sampling", SIGGRAPH 2005 poster):
@@ -73,7 +78,10 @@ __all__ = [
     "BAKES",
     "COUNTS",
     "LLOYD_ITERATIONS",
+    "SHADOW_BIAS",
+    "SHADOW_RESOLUTION",
     "bake_lights",
+    "depth_map_visibility",
     "fibonacci_directions",
     "lights_irradiance",
     "lloyd_lights",
@@ -281,15 +289,57 @@ def median_cut_lights(dirs, weights, radiance, n: int) -> np.ndarray:
 
 
 def bake_lights(bake: str, dirs, weights, radiance, n: int) -> np.ndarray:
-    """The 6·n light table of the bake ``bake`` (``seed-lloyd``, ``importance``, ``median-cut``) of the texels
+    """The 6·n light table of the bake ``bake`` (``seed-lloyd`` and ``seed-depthmap``: the same lights,
+    ``importance``, ``median-cut``) of the texels
     on their (H, W) grid (`median_cut_lights`' arguments)."""
-    if bake == "seed-lloyd":
+    if bake in ("seed-lloyd", "seed-depthmap"):
         return lloyd_lights(dirs, weights, radiance, n)
     if bake == "importance":
         return lloyd_lights(dirs, weights, radiance, n, iterations=0)
     if bake == "median-cut":
         return median_cut_lights(dirs, weights, radiance, n)
-    raise ValueError(f"unknown bake {bake!r} (known: seed-lloyd, importance, median-cut)")
+    raise ValueError(f"unknown bake {bake!r} (known: seed-lloyd, seed-depthmap, importance, median-cut)")
+
+
+SHADOW_BIAS = 0.01
+"""The seed's depth bias (001:3026-3028: ``z − 0.01·dot(normalize(n_map), n) < depth``), in the map's
+depth units: the orthographic projection maps the scene's bounding sphere's diameter 2r to [0, 1]
+(001:2838-2851)."""
+SHADOW_RESOLUTION = 128
+"""Texels per edge of each light's depth map (the seed's "Depth map size" slider; its default is not
+printed)."""
+
+
+def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Linear filtering of an (R, R, C) texture at (u, v) ∈ [0, 1]² with clamped addressing (the seed's
+    ``MinFilter = LINEAR``, ``AddressU = Clamp``): texel centres at (i + ½)/R."""
+    res = img.shape[0]
+    x = np.clip(np.asarray(u) * res - 0.5, 0.0, res - 1.0)
+    y = np.clip(np.asarray(v) * res - 0.5, 0.0, res - 1.0)
+    i0 = np.minimum(np.floor(x).astype(np.int64), res - 2) if res > 1 else np.zeros_like(x, np.int64)
+    j0 = np.minimum(np.floor(y).astype(np.int64), res - 2) if res > 1 else np.zeros_like(y, np.int64)
+    i1, j1 = np.minimum(i0 + 1, res - 1), np.minimum(j0 + 1, res - 1)
+    fx, fy = (x - i0)[:, None], (y - j0)[:, None]
+    top = img[j0, i0] * (1 - fx) + img[j0, i1] * fx
+    bottom = img[j1, i0] * (1 - fx) + img[j1, i1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def depth_map_visibility(depth, map_normals, coords, normals, bias: float = SHADOW_BIAS) -> np.ndarray:
+    """The seed's shadow test of one light (001:3026-3028), NumPy, per point: 1 where lit, else 0.
+
+    ``depth`` (R, R): the map's normalised depth (0 at the light's end of the bounding sphere, 1 at the far
+    end; 1 where no surface); ``map_normals`` (R, R, 3): the surface normal stored beside it (0 where none);
+    ``coords`` (P, 3): each point's (u, v, z) in the map's texture space; ``normals`` (P, 3): the points' unit
+    normals. Depth and normal are filtered linearly (the seed's float render target), the normal normalised
+    (a filtered normal of length < 1e-6, between opposite faces or at the map's empty background, reads a
+    bias of 0: HLSL's normalize(0) is NaN), and the point is lit where z − bias·dot(n̂_map, n) < depth."""
+    c = np.asarray(coords, np.float64)
+    d = _bilinear(np.asarray(depth, np.float64)[..., None], c[:, 0], c[:, 1])[:, 0]
+    nm = _bilinear(np.asarray(map_normals, np.float64), c[:, 0], c[:, 1])
+    length = np.linalg.norm(nm, axis=1)
+    cos = np.where(length > 1e-6, np.sum(nm * normals, axis=1) / np.maximum(length, 1e-30), 0.0)
+    return (c[:, 2] - bias * cos < d).astype(np.float64)
 
 
 # ===================================================================================== public API
@@ -374,6 +424,13 @@ _BAKES = (
         "d_k: energy-CDF picks (no Lloyd step)",
         f"the seed's placement before its relaxation; {_KERNEL_SOURCE}",
         "what Lloyd's relaxation buys: the same placement, the cells not relaxed",
+    ),
+    (
+        "seed-depthmap",
+        "Seed lights, depth-map shadows",
+        "d_k: the seed-lloyd lights; V_k: each light's depth map (seed's bias, linear filtering)",
+        f"seed 001:2738-3070, depth maps 001:2814-2871, test 001:3026-3028; {_KERNEL_SOURCE}",
+        "the seed as printed: its Lloyd lights, each shadowed by an orthographic depth-and-normal map",
     ),
     (
         "median-cut",

@@ -174,6 +174,40 @@ def test_median_cut_regions_hold_equal_energy():
     assert y.max() / y.min() < 1.5
 
 
+# ------------------------------------------------------------------------------------------------ depth maps
+def test_depth_map_test_is_the_seeds_comparison_with_its_bias():
+    """A flat map at depth 0.5 holding the normal +z: lit where z − 0.01·cos < 0.5 (001:3026-3028), by hand —
+    z = 0.4 lit, 0.6 shadowed, 0.505 lit when the point's normal agrees (0.495 < 0.5) and shadowed when it is
+    opposite (0.515); an empty map (depth 1, normal 0: no bias) lights every z < 1."""
+    depth = np.full((4, 4), 0.5)
+    up = np.zeros((4, 4, 3))
+    up[..., 2] = 1.0
+    coords = np.array([[0.3, 0.6, 0.4], [0.3, 0.6, 0.6], [0.5, 0.5, 0.505], [0.5, 0.5, 0.505]])
+    normals = np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0], [0, 0, -1.0]])
+    assert list(ibl.depth_map_visibility(depth, up, coords, normals)) == [1, 0, 1, 0]
+    empty = ibl.depth_map_visibility(np.ones((4, 4)), np.zeros((4, 4, 3)), coords, normals)
+    assert list(empty) == [1, 1, 1, 1]
+
+
+def test_depth_map_filtering_is_linear_between_texel_centres():
+    """A map whose depth is a ramp in u sampled at the texel centres (i + ½)/R: linear filtering returns the
+    ramp itself between the centres, so z just below u·0.8 + 0.1 is lit and just above it is not (no bias:
+    the stored normal is 0); beyond the outer centres the address clamps (the seed's AddressU = Clamp)."""
+    res = 8
+    u_c = (np.arange(res) + 0.5) / res
+    depth = np.broadcast_to(0.1 + 0.8 * u_c, (res, res)).copy()
+    u = np.array([0.2, 0.37, 0.5, 0.81])
+    ramp = 0.1 + 0.8 * u
+    n = np.tile([0.0, 0.0, 1.0], (4, 1))
+    none = np.zeros((res, res, 3))
+    below = np.stack([u, np.full(4, 0.5), ramp - 1e-9], axis=1)
+    above = np.stack([u, np.full(4, 0.5), ramp + 1e-9], axis=1)
+    assert np.all(ibl.depth_map_visibility(depth, none, below, n) == 1)
+    assert np.all(ibl.depth_map_visibility(depth, none, above, n) == 0)
+    edge = np.array([[0.01, 0.5, 0.1 + 0.8 * u_c[0] - 1e-9], [0.01, 0.5, 0.1 + 0.8 * u_c[0] + 1e-9]])
+    assert list(ibl.depth_map_visibility(depth, none, edge, n[:2])) == [1, 0]
+
+
 # ------------------------------------------------------------------------------------------------ extremes
 @pytest.mark.parametrize("bake", ibl.BAKES)
 def test_a_black_map_gives_dark_lights_and_zero_irradiance(bake):
@@ -290,6 +324,11 @@ def test_toml_constant_sky_over_a_floating_sphere_matches_the_closed_form(tmp_pa
         assert float(rel.mean()) < 0.03 and float(rel.max()) < 0.1, (bake, rel.mean(), rel.max())
         coarse = np.abs(rows[f"{bake}-4"].image[case.mask][ground] / want - 1)
         assert coarse.mean() > rel.mean(), bake
+    # The depth maps (128², the seed's bias) agree with the shadow rays on most tests (measured 99.4 %
+    # at N = 256); where they differ the light is at a silhouette or grazing the floor.
+    rays = np.stack([case.row_inputs["seed-lloyd-256"][0][f"v{k + 1}"] for k in range(256)])
+    maps = np.stack([case.row_inputs["seed-depthmap-256"][0][f"v{k + 1}"] for k in range(256)])
+    assert float(np.mean(rays == maps)) > 0.97
 
 
 MY_SUM = '''
