@@ -86,6 +86,28 @@ def test_each_row_runs_the_one_kernel_on_its_inputs():
     assert np.allclose(got, ibl.lights_irradiance(table, n, vis), rtol=1e-12)
 
 
+def test_float32_drjit_agrees_with_float64_numpy():
+    """The kernel text on Dr.Jit float32 (the batched run: 64 lights, two evaluated batches) against its
+    NumPy float64 run on 2000 random normals and visibilities: within 2⁻²⁰ of the largest value."""
+    import drjit as dr
+
+    from rtfit.realtime import DRJIT_OPS, NUMPY_OPS
+
+    rng = np.random.default_rng(5)
+    table = ibl.lloyd_lights(*_grid(lambda d: 1.0 + np.abs(d)), 64)
+    n = rng.normal(size=(2000, 3))
+    vis = rng.uniform(size=(64, 2000))
+    m = ibl.METHODS["seed-lloyd-64"]
+    names = ibl.visibility_names(64)
+    host = {"nx": n[:, 0], "ny": n[:, 1], "nz": n[:, 2], "lights": tuple(table)}
+    host.update(zip(names, vis, strict=True))
+    want = np.stack(m(NUMPY_OPS, host), axis=1)
+    F = dr.llvm.Float
+    out = m(DRJIT_OPS, {k: (F(v) if isinstance(v, np.ndarray) else v) for k, v in host.items()})
+    got = np.stack([np.asarray(c, np.float64) for c in out], axis=1)
+    assert np.max(np.abs(got - want)) <= 2.0**-20 * np.max(np.abs(want))
+
+
 # ------------------------------------------------------------------------------------------------ the bakes
 @pytest.mark.parametrize("bake", ibl.BAKES)
 def test_a_constant_map_conserves_energy_and_converges_to_pi_l(bake):
@@ -228,7 +250,7 @@ def test_a_black_map_gives_dark_lights_and_zero_irradiance(bake):
 )
 def test_kernel_finite_and_nonnegative_over_the_whole_domain(n, vis, powers, dirs):
     """Any normal (the zero vector included: E = 0), V ∈ [0, 1], non-negative powers, any directions (a
-    grazing n ⟂ d adds 0): finite and ≥ 0, NumPy float64 and Dr.Jit float32 alike."""
+    grazing n ⟂ d adds 0): finite and ≥ 0."""
     d = np.asarray(dirs).reshape(4, 3)
     d = np.where(np.linalg.norm(d, axis=1, keepdims=True) > 1e-6, d, [0.0, 0.0, 1.0])
     d /= np.linalg.norm(d, axis=1, keepdims=True)
