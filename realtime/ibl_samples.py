@@ -216,7 +216,8 @@ def lloyd_lights(dirs, weights, radiance, n: int, iterations: int = LLOYD_ITERAT
         cdf = np.cumsum(e) / total
         picks = np.unique(np.minimum(np.searchsorted(cdf, (np.arange(n) + 0.5) / n), len(d) - 1))
         if len(picks) < n:  # a texel holding more than 1/n of the energy (a sun): the next brightest ones
-            rest = np.setdiff1d(np.argsort(-e, kind="stable"), picks, assume_unique=False)
+            order = np.argsort(-e, kind="stable")
+            rest = order[~np.isin(order, picks)]
             picks = np.concatenate([picks, rest[: n - len(picks)]])
         centres = d[picks] / np.linalg.norm(d[picks], axis=1, keepdims=True)
         if len(centres) < n:  # fewer texels than lights
