@@ -80,6 +80,7 @@ BAKE_ROWS = 64
 USER_COUNT = 64
 """N of the seed bake a user's approximation reads."""
 _MAX_LANES = 1 << 22  # shadow rays per launch
+_MAP_LANES = 1 << 20  # depth-map rays per launch (a surface interaction per lane: ~0.1 GB a launch)
 
 SCENES = (
     ShippedScene(
@@ -153,7 +154,7 @@ def depth_map_visibility_rows(setup: AuditSetup, points, normals, directions, re
     Per light, an orthographic map of ``resolution``² texels over the scene's bounding sphere (centre c,
     radius r: Mitsuba's scene box), its camera on the sphere at c + r·d looking at c. Each texel's depth (the
     first hit's distance along −d over 2r, 1 for a miss) and shading normal come from one Mitsuba ray from its
-    centre (every light's rays in launches of at most `_MAX_LANES`, directions as per-lane arrays: one
+    centre (every light's rays in launches of at most `_MAP_LANES`, directions as per-lane arrays: one
     compiled kernel). Each point's texture coordinates (u, v, z) in that map then go through
     `depth_map_visibility` (the seed's filtered test and bias). 0 where the light is at or below the
     surface's plane."""
@@ -168,9 +169,9 @@ def depth_map_visibility_rows(setup: AuditSetup, points, normals, directions, re
     eyes = centre + radius * dirs
     texels = resolution * resolution
     depth = np.ones((len(dirs), texels))
-    map_n = np.zeros((len(dirs), texels, 3))
+    map_n = np.zeros((len(dirs), texels, 3), np.float32)
     offsets = radius * np.stack([gu, gv], axis=-1).astype(np.float32)  # (T, 2)
-    per = max(1, _MAX_LANES // texels)
+    per = max(1, _MAP_LANES // texels)
     for a in range(0, len(dirs), per):
         b = min(len(dirs), a + per)
         o = (eyes[a:b, None, :] + offsets[None] @ frames[a:b]).reshape(-1, 3)  # (K·T, 3)
