@@ -16,6 +16,8 @@ another and one environment is rendered and baked once per run.
   normal b (the mean unoccluded direction; n where every ray is blocked), and the aperture
   r_a = acos(1 − V_u) (`ambient_aperture.aperture_from_visibility`). What an engine bakes per vertex or
   texel; its noise is independent of the reference's.
+* ``sky_reference``: the reference alone (the same passes and cache entry), for a family that reads neither
+  the bake nor the SH (ibl-samples: its own lights and shadow rays).
 * **The sky's SH L2** (`audit_environment.sh_l2_table` of `environment_bases`: 27 coefficients L_lm,
   channel-major, W/m²; a sunsky's sky without its sun), what an engine's probe stores.
 """
@@ -38,7 +40,7 @@ from .audit import Applicability
 from .audit_environment import environment_bases, environment_of, scene_environment, sh_l2_table
 from .audit_family import AuditError, AuditReference, AuditSetup, pooled_passes
 
-__all__ = ["FORMAT", "OccludedSky", "occluded_sky"]
+__all__ = ["FORMAT", "OccludedSky", "SkyReference", "occluded_sky", "sky_reference"]
 
 FORMAT = 1
 """The key format of the sky and cap passes (every family reading them shares one set of passes)."""
@@ -64,9 +66,8 @@ class OccludedSky:
     notes: tuple[str, ...]
 
 
-def _passes(setup: AuditSetup, source: int, emitter, kind: str, points, normals, label: str):
-    """Pooled passes of the occluded sky irradiance (N, 3), W/m², and of the visibility bake (N, 5)."""
-    digest = array_digest(points, normals)
+def _sky_passes(setup: AuditSetup, source: int, emitter, kind: str, points, normals, label: str):
+    """Pooled passes of the occluded sky irradiance (N, 3), W/m²."""
     sky_only = kind == "sunsky"
 
     def sky(spp: int, seed: int):
@@ -79,22 +80,71 @@ def _passes(setup: AuditSetup, source: int, emitter, kind: str, points, normals,
             setup.mi, emitter, normals, spp, seed, mi_scene=setup.scene, points=points
         )
 
+    what = {"format": FORMAT, "quantity": "sky-irradiance-occluded", "emitter": source, "sky_only": sky_only}
+    return pooled_passes(
+        setup,
+        {**what, "points": array_digest(points, normals)},
+        sky,
+        (-1, 3),
+        f"sky: {label}",
+        seed_label="sky-pass",
+    )
+
+
+def _cap_passes(setup: AuditSetup, points, normals, label: str):
+    """Pooled passes of the visibility bake (N, 5)."""
+
     def caps(spp: int, seed: int):
         return visibility_cap_pass(setup.mi, setup.scene, points, normals, spp, seed)
 
-    what = {"format": FORMAT, "quantity": "sky-irradiance-occluded", "emitter": source, "sky_only": sky_only}
-    ref = pooled_passes(
-        setup, {**what, "points": digest}, sky, (-1, 3), f"sky: {label}", seed_label="sky-pass"
-    )
-    bake = pooled_passes(
+    return pooled_passes(
         setup,
-        {"format": FORMAT, "quantity": "visibility-caps", "points": digest},
+        {"format": FORMAT, "quantity": "visibility-caps", "points": array_digest(points, normals)},
         caps,
         (-1, 5),
         f"caps: {label}",
         seed_label="cap-pass",
     )
-    return ref, bake
+
+
+@dataclass(frozen=True)
+class SkyReference:
+    """The occluded sky irradiance of one environment alone (no bake, no SH): its pooled ``passes``, the
+    Mitsuba ``kind``, the visible ``points`` and ``normals`` (N, 3)."""
+
+    passes: Any
+    kind: str
+    points: np.ndarray
+    normals: np.ndarray
+
+    def reference(self, mask: np.ndarray, extra_seconds: float = 0.0) -> AuditReference:
+        """The `AuditReference` of the passes on ``mask``."""
+        kind = self.kind
+        return self.passes.reference(
+            mask,
+            quantity="sky irradiance with visibility E = ∫ L_env V (n·ω) dω at the visible points (W/m²)",
+            integrator="environment irradiance with shadow rays (MIS: emitter + cosine sampling)",
+            integrator_reason=(
+                f"{kind}"
+                + (" (sky only: sun_scale 0)" if kind == "sunsky" else "")
+                + ": the environment emitter alone, Mitsuba's Emitter.sample_direction and the cosine "
+                "hemisphere by the balance heuristic, each sample times Mitsuba's shadow ray against the "
+                "scene's shapes"
+            ),
+            extra_seconds=extra_seconds,
+        )
+
+
+def sky_reference(setup: AuditSetup, app: Applicability, family: str) -> SkyReference:
+    """The occluded sky irradiance of the environment ``app.source`` alone: the passes `occluded_sky` pools
+    (the same cache entry), for a family that reads neither the visibility bake nor the SH (ibl-samples).
+    `AuditError` naming ``family`` where ``app`` is no environment."""
+    if app.source is None:
+        raise AuditError(f"{family}: {app.part} is not an environment of the scene")
+    scene_env = scene_environment(setup, app.source, family)
+    points, normals = gbuffer_points(setup.gbuffer, setup.mask)
+    sky = _sky_passes(setup, app.source, scene_env.emitter, scene_env.kind, points, normals, app.part)
+    return SkyReference(sky, scene_env.kind, points, normals)
 
 
 _MEMO: dict[str, Any] = {}
@@ -109,9 +159,9 @@ def occluded_sky(setup: AuditSetup, app: Applicability, family: str) -> Occluded
     key = (id(setup), app.source)
     if _MEMO.get("key") == key and _MEMO.get("setup") is setup:
         return _MEMO["value"]
-    scene_env = scene_environment(setup, app.source, family)
-    points, normals = gbuffer_points(setup.gbuffer, setup.mask)
-    sky, bake = _passes(setup, app.source, scene_env.emitter, scene_env.kind, points, normals, app.part)
+    base = sky_reference(setup, app, family)
+    points, normals, kind = base.points, base.normals, base.kind
+    bake = _cap_passes(setup, points, normals, app.part)
     caps = bake.mean
     v_u = np.clip(caps[:, 0], 0.0, 1.0)
     vis = np.clip(caps[:, 1], 0.0, 1.0)
@@ -121,19 +171,7 @@ def occluded_sky(setup: AuditSetup, app: Applicability, family: str) -> Occluded
     aperture = np.asarray(aperture_from_visibility(v_u), np.float64)
     env = environment_of(setup, app.source, family=family)
     sh27 = sh_l2_table(environment_bases(replace(env, sun=None)))
-    kind = scene_env.kind
-    ref = sky.reference(
-        setup.mask,
-        quantity="sky irradiance with visibility E = ∫ L_env V (n·ω) dω at the visible points (W/m²)",
-        integrator="environment irradiance with shadow rays (MIS: emitter + cosine sampling)",
-        integrator_reason=(
-            f"{kind}"
-            + (" (sky only: sun_scale 0)" if kind == "sunsky" else "")
-            + ": the environment emitter alone, Mitsuba's Emitter.sample_direction and the cosine hemisphere "
-            "by the balance heuristic, each sample times Mitsuba's shadow ray against the scene's shapes"
-        ),
-        extra_seconds=bake.seconds,
-    )
+    ref = base.reference(setup.mask, extra_seconds=bake.seconds)
     notes = (
         "occluded: the scene's shapes block the sky (one bounce: no interreflection)",
         "E_SH: the environment's SH L2 projection"

@@ -31,6 +31,7 @@ from rtfit.realtime import (
     environment_bases,
     fresnel,
     height_fog,
+    ibl_samples,
     irradiance_volumes,
     linear_fog,
     nishita_sky,
@@ -60,6 +61,7 @@ from . import (
     audit_fog_media,
     audit_fresnel,
     audit_height_fog,
+    audit_ibl_samples,
     audit_irradiance_bases,
     audit_irradiance_volumes,
     audit_light_cones,
@@ -342,6 +344,18 @@ FAMILIES: dict[str, Family] = {
             methods=pcf_soft_shadows.METHODS,
             audits=(audit_pcf_soft_shadows.FAMILY,),
             scenes=audit_pcf_soft_shadows.SCENES,
+        ),
+        Family(
+            "ibl-samples",
+            ENGINE,
+            "Image-based lighting from N directional light samples (Lloyd, median cut) vs occluded envmap",
+            "The environment map split into N = 4…256 directional lights — the seed's energy samples with "
+            "Lloyd's relaxation on the sphere (with shadow rays, and with the seed's depth maps), the same "
+            "without relaxation, Debevec's median cut — against the environment's irradiance with the "
+            "scene's occlusion.",
+            methods=ibl_samples.METHODS,
+            audits=(audit_ibl_samples.FAMILY,),
+            scenes=audit_ibl_samples.SCENES,
         ),
     )
 }

@@ -64,6 +64,9 @@ Modules:
                 (docs/sh-sky-bent-normal.md).
     pcf_soft_shadows  percentage-closer filtering of a shadow map for an area light's penumbra: the seed's
                 8-tap Poisson PCF (fixed, rotated), box PCF, PCSS; the `ShadowMap` (docs/pcf-soft-shadows.md).
+    ibl_samples image-based lighting from N directional lights baked from an environment map (the seed's
+                energy samples + Lloyd relaxation, median cut), each with its own shadow
+                (docs/ibl-samples.md).
     obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
                 estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
@@ -84,6 +87,7 @@ from .environment_maps import *  # noqa: F403
 from .fresnel import *  # noqa: F403
 from .height_fog import *  # noqa: F403
 from .hemisphere_bases import *  # noqa: F403
+from .ibl_samples import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
 from .light_cones import *  # noqa: F403
@@ -134,6 +138,7 @@ MODULES = (
     "fresnel",
     "sh_sky_bent_normal",
     "pcf_soft_shadows",
+    "ibl_samples",
     "quantities",
     "shader",
 )

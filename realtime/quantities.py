@@ -42,6 +42,7 @@ import numpy as np
 
 from . import soft_particles
 from .fresnel import INPUTS as FRESNEL_INPUTS
+from .ibl_samples import INPUTS as IBL_INPUTS
 from .irradiance_volumes import ProbeGrid, probe_table
 from .light_cones import INPUTS as CONE_INPUTS
 from .methods import Input, Method, Param
@@ -139,6 +140,17 @@ def _example_sh(n: int = 0):
 
 EXAMPLE_RAYS = 8
 """Rays per point of the ``obscurance`` quantity's example (validation)."""
+
+
+def _example_visibility(n: int) -> tuple:
+    """4 lights' visibilities at ``n`` points: lit, shadowed, half (a filtered test) and alternating."""
+    return (np.ones(n), np.zeros(n), np.full(n, 0.5), (np.arange(n) % 2).astype(np.float64))
+
+
+def _example_lights(n: int) -> tuple[float, ...]:
+    """4 lights (6 floats each: direction towards it, RGB power) of a sky brighter above (any ``n``)."""
+    return (0.0, 0.0, 1.0, 2.0, 2.0, 2.5, 1.0, 0.0, 0.0, 0.5, 0.5, 0.5,
+            0.0, -0.6, 0.8, 1.0, 0.9, 0.8, 0.0, 0.0, -1.0, 0.2, 0.2, 0.1)  # fmt: skip
 
 
 def _example_distances(n: int) -> tuple[np.ndarray, ...]:
@@ -318,6 +330,21 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 channels=3,
                 examples={"coeffs": _example_sh},
                 reference="sky irradiance with visibility at the visible points (direct, environment only)",
+            ),
+            Quantity(
+                "sky_irradiance_lights",
+                "W/m²",
+                "irradiance from the environment at a surface point, with the scene's occlusion, from N "
+                "directional lights baked from the map, each with its own visibility, per RGB channel",
+                IBL_INPUTS,
+                vectors={"normal": ("nx", "ny", "nz"), "point": ("px", "py", "pz")},
+                unit_vectors=("normal",),
+                channels=3,
+                examples={"visibility": _example_visibility, "lights": _example_lights},
+                reference="environment irradiance with visibility at the visible points (direct, environment "
+                "only, shadow rays)",
+                note="the audit gives each N its own visibilities and table: a user's row reads the seed "
+                "bake's N = 64 (`g.visibility`: N per-pixel arrays; `g.lights`: 6·N floats)",
             ),
             Quantity(
                 "environment_irradiance",

@@ -1,0 +1,469 @@
+r"""Image-based lighting from N directional light samples of an environment map, each with its own shadow
+test (the ``ibl-samples`` family, docs/ibl-samples.md).
+
+Conventions and units
+---------------------
+* The environment is a lat-long radiance map L(ω) (W·m⁻²·sr⁻¹, RGB) given to the bakes as its **texels**:
+  unit directions d_t, solid angles w_t (sr) and radiances L_t, on an (H, W) grid of rows of equal polar
+  angle (Mitsuba's lat-long convention, +Z up; `rtfit.reference.environments.quadrature_samples` makes them
+  from a map). A texel's **energy** is e_t = w_t·Y(L_t), Y the Rec. 709 luminance (`LUMINANCE`).
+* A bake returns N **lights**, a table of 6·N floats, sample-major: for light k its unit direction towards
+  the light (d_x, d_y, d_z) and its power P_k (R, G, B, W/m²) = Σ_{t ∈ cell k} w_t L_t, the irradiance at
+  normal incidence of the texels it stands for (so Σ_k P_k = ∫ L dω: energy is conserved exactly).
+* ``nx, ny, nz``: the surface's unit normal (normalised by the kernel); ``visibility``: N per-pixel arrays
+  V_k ∈ [0, 1], light k's visibility at the point (1: lit; here a Mitsuba shadow ray, exact; a shadow map's
+  filtered test would give values in between).
+* Every row gives an **irradiance** (W/m², per RGB channel, the tuple (R, G, B)): the quantity
+  ``sky_irradiance_lights``, compared with E = ∫ V(ω) L(ω) max(n·ω, 0) dω, the environment's irradiance with
+  the scene's occlusion. A Lambertian surface of albedo ρ reflects ρE/π.
+
+The kernel (one text for every row; the rows differ in the bake only)
+---------------------------------------------------------------------
+    E ≈ Σ_k V_k · max(n·d_k, 0) · P_k
+
+the seed's ``renderFinal`` sum (001:3021-3038, the diffuse part of ``COMPUTE_LIGHT_SAMPLE_CONTRIB_SHINY``:
+``cosTheta = dot(LightDir, Normal); if (cosTheta > 0) … rcolor += cosTheta · LightPower`` when the depth
+test passes; the depth test with its normal-weighted bias, 001:3026-3027, is replaced by an exact shadow
+ray here). The Phong term (``as·ShinyKs``) is the glossy part and is not audited; ``ToneScale`` and the
+``brdfMap`` albedo are display factors (1 here).
+
+The bakes (the rows), NumPy, offline (what an engine does once per map)
+-----------------------------------------------------------------------
+* ``seed-lloyd`` — the seed (001:2738-3070, the GameTools image-based lighting module, §2.8.1 at
+  001:2742: "The environment map is decomposed into directional samples using Delaunay triangulation and
+  Lloyd's relaxation"). Reading: the seed prints neither step; we read it as Kollig & Keller 2003
+  ("Efficient illumination by high dynamic range images", EGSR) do: N directions placed by the map's energy
+  (systematic sampling of the energy CDF over the texels), then Lloyd's relaxation on the sphere with the
+  energy as density (each texel assigned to its nearest direction — the spherical Voronoi cells, dual of
+  the Delaunay triangulation the seed draws — and each direction moved to its cell's energy centroid,
+  `LLOYD_ITERATIONS` times). Light k sits at its cell's energy centroid with the cell's power. Errata: the
+  seed's shader names the light direction ``LightDir`` and tests ``dot(LightDir, Normal) > 0``, so
+  ``LightDir`` points **towards** the light (as here), although its ``cosPsi = −dot(Reflect, LightDir)``
+  would need the opposite sign; only the diffuse term is audited.
+* ``seed-depthmap`` — the seed's lights (``seed-lloyd``) with the seed's shadow test instead of a shadow
+  ray (`depth_map_visibility`, made offline by the audit): per light an orthographic depth-and-normal map
+  of `SHADOW_RESOLUTION`² texels over the scene's bounding sphere (001:2814-2871: the camera on the sphere
+  looking at its centre, depth 2r → [0, 1]), filtered linearly, lit where z − 0.01·dot(n̂_map, n) < depth
+  (001:3026-3028). Its error beside ``seed-lloyd``'s is what the depth maps cost.
+* ``importance`` — the same energy-weighted placement without the relaxation (0 iterations): what Lloyd's
+  relaxation buys.
+* ``median-cut`` — Debevec 2005 ("A median cut algorithm for light probe sampling", SIGGRAPH 2005 poster):
+  split the lat-long map recursively into 2ᵏ regions of equal energy,
+  each cut across the region's longer side (its width measured with sin θ, the cos-latitude of the
+  poster), a light at each region's energy centroid with the region's power. N not a power of two: the
+  2^⌊log₂N⌋ regions of the levels, then the most energetic regions split once more.
+
+Guards (reasons): the normal's length is floored at 1e-30 before it is normalised (a zero normal reads
+E = 0, not NaN); V_k is clamped to [0, 1] (a filtered shadow test never lights more than the light); n·d_k
+is clamped at 0 (light from below the surface's plane is not received: the seed's ``if (cosTheta > 0)``).
+A black map gives N lights of zero power (directions on a Fibonacci sphere); a cell with no energy keeps
+its direction and gets zero power; negative texels are clamped to 0 (a bake below the horizon).
+
+Float32 rewrite: the same text runs in float32 on Dr.Jit: N multiply-adds per channel, no cancellation
+(every term is ≥ 0). Domain: any normal, V ∈ [0, 1], finite non-negative powers, unit light directions.
+Dr.Jit arrays are never checked (no host sync); NumPy inputs of the public functions are.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .arrays import DRJIT_OPS, clamp01, evaluate, is_drjit, split3
+from .methods import Input, Method, method_table
+
+__all__ = [
+    "BAKES",
+    "COUNTS",
+    "LLOYD_ITERATIONS",
+    "SHADOW_BIAS",
+    "SHADOW_RESOLUTION",
+    "bake_lights",
+    "depth_map_visibility",
+    "fibonacci_directions",
+    "lights_irradiance",
+    "lloyd_lights",
+    "median_cut_lights",
+    "on_lights",
+    "visibility_names",
+]
+
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 luminance weights: a texel's energy is w·Y(L) (not exported: linear_fog's ``LUMINANCE`` is the
+root's; the same weights)."""
+LLOYD_ITERATIONS = 32
+"""Lloyd steps of the seed's bake (the relaxation has converged to < 10⁻³ rad on the shipped map by then)."""
+_TINY = 1e-30
+_BATCH = 32  # lights per evaluated Dr.Jit kernel
+_CHUNK = 1 << 13  # texels per block of the nearest-direction assignment (N·_CHUNK dot products)
+
+
+# ===================================================================================== kernel (ops text)
+def _value(t) -> Any:
+    """A table entry as a Python float, or as it is (a traced array)."""
+    return float(t) if isinstance(t, (float, int, np.floating, np.integer)) else t
+
+
+_OPAQUE: dict[tuple, tuple] = {}
+
+
+def _device_table(ops, lights, like) -> list:
+    """The light table as the kernel reads it: on Dr.Jit, opaque size-1 arrays (kernel parameters, not
+    literals: one compiled kernel serves every bake and map with the same N), made once per table object
+    (a row's ``fixed`` tuple: its repeated calls, e.g. a cost measurement, trace no new arrays); else the
+    values."""
+    if ops is not DRJIT_OPS or not is_drjit(like):
+        return [_value(t) for t in lights]
+    key = (id(lights), type(like))
+    hit = _OPAQUE.get(key)
+    if hit is not None and hit[0] is lights:
+        return hit[1]
+    import drjit as dr  # (the Dr.Jit run only)
+
+    table = [dr.opaque(type(like), _value(t)) if not is_drjit(t) else t for t in lights]
+    if isinstance(lights, tuple):
+        _OPAQUE.clear()  # one table at a time: a row's calls follow each other
+        _OPAQUE[key] = (lights, table)
+    return table
+
+
+def _lights_kernel(ops, nx, ny, nz, visibility, lights, scale=1.0):
+    """s·Σ_k clamp(V_k, 0, 1)·max(n̂·d_k, 0)·P_k (R, G, B) over the N = len(visibility) lights of the table.
+    On Dr.Jit the three sums are evaluated every `_BATCH` lights: one kernel of a fixed size per batch,
+    instead of an unrolled graph of all N lights compiled once per channel."""
+    inv = 1.0 / ops.sqrt(ops.maximum(nx * nx + ny * ny + nz * nz, _TINY))
+    x, y, z = nx * inv, ny * inv, nz * inv
+    zero = 0.0 * x
+    acc = [zero, zero, zero]
+    table = _device_table(ops, lights, x)
+    device = ops is DRJIT_OPS and is_drjit(x)
+    count = min(len(visibility), len(table) // 6)
+    for k in range(count):
+        dx, dy, dz, pr, pg, pb = table[6 * k : 6 * k + 6]
+        c = ops.maximum(ops.fma(x, dx, ops.fma(y, dy, z * dz)), 0.0) * clamp01(ops, visibility[k])
+        acc = [ops.fma(c, pr, acc[0]), ops.fma(c, pg, acc[1]), ops.fma(c, pb, acc[2])]
+        if device and ((k + 1) % _BATCH == 0 or k + 1 == count):
+            import drjit as dr
+
+            dr.eval(*acc)
+    return (acc[0] * scale, acc[1] * scale, acc[2] * scale)
+
+
+# ===================================================================================== bakes (NumPy)
+def fibonacci_directions(n: int) -> np.ndarray:
+    """``n`` unit directions (n, 3) spread evenly over the sphere (golden-angle spiral)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * np.arange(n)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+
+
+def _texels(dirs, weights, radiance):
+    d = np.asarray(dirs, np.float64).reshape(-1, 3)
+    w = np.asarray(weights, np.float64).reshape(-1)
+    L = np.maximum(np.asarray(radiance, np.float64).reshape(-1, 3), 0.0)
+    if len(d) != len(w) or len(d) != len(L) or not len(d):
+        raise ValueError(f"texels: {len(d)} directions, {len(w)} weights, {len(L)} radiances (one each)")
+    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(w)) and np.all(np.isfinite(L))) or np.any(w < 0):
+        raise ValueError("texels: finite directions and radiances, finite non-negative solid angles")
+    wl = w[:, None] * L
+    return d, wl, wl @ np.asarray(LUMINANCE)
+
+
+def _count(n) -> int:
+    if isinstance(n, bool) or int(n) != n or not 1 <= int(n) <= 1 << 16:
+        raise ValueError(f"n = {n!r}: the number of lights is an integer in [1, 65536]")
+    return int(n)
+
+
+def _nearest(d: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Index of the nearest centre (largest dot product) of each direction (its spherical Voronoi cell)."""
+    out = np.empty(len(d), np.int64)
+    for a in range(0, len(d), _CHUNK):
+        out[a : a + _CHUNK] = np.argmax(d[a : a + _CHUNK] @ centres.T, axis=1)
+    return out
+
+
+def _table(directions: np.ndarray, powers: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(np.concatenate([directions, powers], axis=1).reshape(-1))
+
+
+def _cells(d, wl, e, cell, n, fallback):
+    """(directions, powers) of the cells: each cell's energy centroid (``fallback`` where it has none)."""
+    centroid = np.stack([np.bincount(cell, e * d[:, c], minlength=n) for c in range(3)], axis=-1)
+    length = np.linalg.norm(centroid, axis=1, keepdims=True)
+    ok = length[:, 0] > 1e-12 * max(float(e.sum()), _TINY)
+    dirs = np.where(ok[:, None], centroid / np.maximum(length, _TINY), fallback)
+    powers = np.stack([np.bincount(cell, wl[:, c], minlength=n) for c in range(3)], axis=-1)
+    return dirs, powers
+
+
+def lloyd_lights(dirs, weights, radiance, n: int, iterations: int = LLOYD_ITERATIONS) -> np.ndarray:
+    """The ``seed-lloyd`` bake (``iterations`` = 0: ``importance``): ``n`` lights (the 6·n table, module
+    docstring) of the texels (``dirs`` (..., 3), ``weights`` (...) sr, ``radiance`` (..., 3)): energy-CDF
+    placement, then Lloyd's relaxation on the sphere with the energy as density."""
+    n = _count(n)
+    if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 0:
+        raise ValueError(f"iterations = {iterations!r}: a non-negative integer")
+    d, wl, e = _texels(dirs, weights, radiance)
+    total = float(e.sum())
+    if total <= 0.0:  # a black map: evenly spread directions, zero power
+        centres = fibonacci_directions(n)
+    else:
+        cdf = np.cumsum(e) / total
+        picks = np.unique(np.minimum(np.searchsorted(cdf, (np.arange(n) + 0.5) / n), len(d) - 1))
+        if len(picks) < n:  # a texel holding more than 1/n of the energy (a sun): the next brightest ones
+            order = np.argsort(-e, kind="stable")
+            rest = order[~np.isin(order, picks)]
+            picks = np.concatenate([picks, rest[: n - len(picks)]])
+        centres = d[picks] / np.linalg.norm(d[picks], axis=1, keepdims=True)
+        if len(centres) < n:  # fewer texels than lights
+            centres = np.concatenate([centres, fibonacci_directions(n - len(centres))])
+    cell = _nearest(d, centres)
+    for _ in range(int(iterations)):
+        centres, _p = _cells(d, wl, e, cell, n, centres)
+        new = _nearest(d, centres)
+        if np.array_equal(new, cell):
+            break
+        cell = new
+    return _table(*_cells(d, wl, e, cell, n, centres))
+
+
+def _split(e: np.ndarray, region, rows: int) -> tuple | None:
+    """Two halves of equal energy of ``region`` (j0, j1, i0, i1) cut across its longer side, or None for
+    one texel."""
+    j0, j1, i0, i1 = region
+    h, w = j1 - j0, i1 - i0
+    if h * w <= 1:
+        return None
+    theta = math.pi * 0.5 * (j0 + j1) / rows
+    across_rows = h * math.pi / rows >= w * 2.0 * math.pi / e.shape[1] * math.sin(theta)
+    if h == 1 or (w > 1 and not across_rows):
+        profile, size = e[j0:j1, i0:i1].sum(axis=0), w
+    else:
+        profile, size = e[j0:j1, i0:i1].sum(axis=1), h
+    total = float(profile.sum())
+    cut = int(np.searchsorted(np.cumsum(profile), 0.5 * total)) + 1 if total > 0 else size // 2
+    cut = min(max(cut, 1), size - 1)
+    if size == w and (h == 1 or (w > 1 and not across_rows)):
+        return (j0, j1, i0, i0 + cut), (j0, j1, i0 + cut, i1)
+    return (j0, j0 + cut, i0, i1), (j0 + cut, j1, i0, i1)
+
+
+def median_cut_lights(dirs, weights, radiance, n: int) -> np.ndarray:
+    """The ``median-cut`` bake (Debevec 2005): ``n`` lights (the 6·n table) of the texels on their (H, W)
+    grid (``dirs`` (H, W, 3), ``weights`` (H, W) sr, ``radiance`` (H, W, 3); rows of equal polar angle)."""
+    n = _count(n)
+    grid = np.asarray(dirs, np.float64)
+    if grid.ndim != 3 or grid.shape[2] != 3:
+        raise ValueError(f"median cut: dirs must be an (H, W, 3) grid (got {grid.shape})")
+    rows, cols = grid.shape[:2]
+    d, wl, e = _texels(grid, weights, radiance)
+    eg = e.reshape(rows, cols)
+    regions = [(0, rows, 0, cols)]
+    energy = lambda r: float(eg[r[0] : r[1], r[2] : r[3]].sum())  # noqa: E731
+    while len(regions) < n:
+        level = len(regions) * 2 <= n
+        order = regions if level else sorted(regions, key=energy, reverse=True)[: n - len(regions)]
+        out, split_any = [], False
+        for r in regions:
+            halves = _split(eg, r, rows) if r in order else None
+            split_any |= halves is not None
+            out.extend(halves if halves is not None else (r,))
+        regions = out
+        if not split_any:  # every region one texel: fewer texels than lights
+            break
+    cell = np.empty((rows, cols), np.int64)
+    centre = np.empty((len(regions), 3))
+    for k, (j0, j1, i0, i1) in enumerate(regions):
+        cell[j0:j1, i0:i1] = k
+        centre[k] = grid[(j0 + j1 - 1) // 2, (i0 + i1 - 1) // 2]
+    dirs_k, powers = _cells(d, wl, e, cell.reshape(-1), len(regions), centre)
+    if len(regions) < n:  # pad with dark lights
+        pad = n - len(regions)
+        dirs_k = np.concatenate([dirs_k, fibonacci_directions(pad)])
+        powers = np.concatenate([powers, np.zeros((pad, 3))])
+    return _table(dirs_k, powers)
+
+
+def bake_lights(bake: str, dirs, weights, radiance, n: int) -> np.ndarray:
+    """The 6·n light table of the bake ``bake`` (``seed-lloyd`` and ``seed-depthmap``: the same lights,
+    ``importance``, ``median-cut``) of the texels
+    on their (H, W) grid (`median_cut_lights`' arguments)."""
+    if bake in ("seed-lloyd", "seed-depthmap"):
+        return lloyd_lights(dirs, weights, radiance, n)
+    if bake == "importance":
+        return lloyd_lights(dirs, weights, radiance, n, iterations=0)
+    if bake == "median-cut":
+        return median_cut_lights(dirs, weights, radiance, n)
+    raise ValueError(f"unknown bake {bake!r} (known: seed-lloyd, seed-depthmap, importance, median-cut)")
+
+
+SHADOW_BIAS = 0.01
+"""The seed's depth bias (001:3026-3028: ``z − 0.01·dot(normalize(n_map), n) < depth``), in the map's
+depth units: the orthographic projection maps the scene's bounding sphere's diameter 2r to [0, 1]
+(001:2838-2851)."""
+SHADOW_RESOLUTION = 128
+"""Texels per edge of each light's depth map (the seed's "Depth map size" slider; its default is not
+printed)."""
+
+
+def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Linear filtering of an (R, R, C) texture at (u, v) ∈ [0, 1]² with clamped addressing (the seed's
+    ``MinFilter = LINEAR``, ``AddressU = Clamp``): texel centres at (i + ½)/R."""
+    res = img.shape[0]
+    x = np.clip(np.asarray(u) * res - 0.5, 0.0, res - 1.0)
+    y = np.clip(np.asarray(v) * res - 0.5, 0.0, res - 1.0)
+    i0 = np.minimum(np.floor(x).astype(np.int64), res - 2) if res > 1 else np.zeros_like(x, np.int64)
+    j0 = np.minimum(np.floor(y).astype(np.int64), res - 2) if res > 1 else np.zeros_like(y, np.int64)
+    i1, j1 = np.minimum(i0 + 1, res - 1), np.minimum(j0 + 1, res - 1)
+    fx, fy = (x - i0)[:, None], (y - j0)[:, None]
+    top = img[j0, i0] * (1 - fx) + img[j0, i1] * fx
+    bottom = img[j1, i0] * (1 - fx) + img[j1, i1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def depth_map_visibility(depth, map_normals, coords, normals, bias: float = SHADOW_BIAS) -> np.ndarray:
+    """The seed's shadow test of one light (001:3026-3028), NumPy, per point: 1 where lit, else 0.
+
+    ``depth`` (R, R): the map's normalised depth (0 at the light's end of the bounding sphere, 1 at the far
+    end; 1 where no surface); ``map_normals`` (R, R, 3): the surface normal stored beside it (0 where none);
+    ``coords`` (P, 3): each point's (u, v, z) in the map's texture space; ``normals`` (P, 3): the points' unit
+    normals. Depth and normal are filtered linearly (the seed's float render target), the normal normalised
+    (a filtered normal of length < 1e-6, between opposite faces or at the map's empty background, reads a
+    bias of 0: HLSL's normalize(0) is NaN), and the point is lit where z − bias·dot(n̂_map, n) < depth."""
+    c = np.asarray(coords, np.float64)
+    d = _bilinear(np.asarray(depth, np.float64)[..., None], c[:, 0], c[:, 1])[:, 0]
+    nm = _bilinear(np.asarray(map_normals, np.float64), c[:, 0], c[:, 1])
+    length = np.linalg.norm(nm, axis=1)
+    cos = np.where(length > 1e-6, np.sum(nm * normals, axis=1) / np.maximum(length, 1e-30), 0.0)
+    return (c[:, 2] - bias * cos < d).astype(np.float64)
+
+
+# ===================================================================================== public API
+def lights_irradiance(lights, normals, visibility=None):
+    """E = Σ_k V_k max(n̂·d_k, 0) P_k (W/m², RGB, (..., 3)) of the light table ``lights`` (6·N floats) at
+    ``normals`` (..., 3); ``visibility`` (N, ...) in [0, 1], None: every light visible (unoccluded)."""
+    table = np.asarray(lights, np.float64).reshape(-1)
+    if table.size % 6 or not table.size or not np.all(np.isfinite(table)):
+        raise ValueError(f"lights must be 6·N finite floats (got {table.size})")
+    x, y, z = split3(normals, "normals")
+    count = table.size // 6
+    shape = np.shape(np.asarray(x))
+    vis = np.ones((count, *shape)) if visibility is None else np.asarray(visibility, np.float64)
+    if vis.shape != (count, *shape):
+        raise ValueError(f"visibility must be (N, ...) = {(count, *shape)} (got {vis.shape})")
+    floats = [float(v) for v in table]
+
+    def kernel(ops, x, y, z, *v):
+        return _lights_kernel(ops, x, y, z, v, floats)
+
+    out = evaluate(kernel, x, y, z, *vis)
+    return np.stack([np.asarray(c, np.float64) for c in out], axis=-1)
+
+
+# ===================================================================================== methods as data
+COUNTS = (4, 16, 64, 256)
+"""The quality knob: N lights per bake (one row per bake and N; the seed's slider "Num of samples")."""
+_NORMAL = tuple(
+    Input(f"n{c}", "1", f"surface normal {c} (world frame, +Z up; normalised by the kernel)", (-1.0, 1.0))
+    for c in "xyz"
+)
+VISIBILITY = Input(
+    "visibility",
+    "1",
+    "a tuple of N per-pixel arrays V_k ∈ [0, 1]: light k's visibility at the point (a shadow ray: 0 or 1)",
+)
+LIGHTS = Input(
+    "lights",
+    "W/m²",
+    "6·N floats, per light k: its unit direction towards the light (x, y, z) and its power P_k (R, G, B: "
+    "the irradiance at normal incidence of its cell of the map)",
+)
+_POINT = tuple(
+    Input(f"p{c}", "m", f"visible point {c} (world frame; no row reads it)", (-1e3, 1e3)) for c in "xyz"
+)
+INPUTS = (*_NORMAL, VISIBILITY, LIGHTS, *_POINT)
+"""The quantity ``sky_irradiance_lights``'s inputs (the point for a user's formula: no shipped row reads
+it)."""
+
+
+def visibility_names(n: int) -> tuple[str, ...]:
+    """The per-pixel inputs v1..vN a row of N lights reads its visibilities from."""
+    return tuple(f"v{k + 1}" for k in range(n))
+
+
+def on_lights(kernel, n: int):
+    """``kernel(ops, …, visibility=…)`` reading its N visibilities as the keywords v1..vN (one text: the
+    tuple is handed to the same kernel)."""
+    names = visibility_names(n)
+
+    def on_inputs(ops, **kw):
+        visibility = tuple(kw.pop(v) for v in names)
+        return kernel(ops, visibility=visibility, **kw)
+
+    return on_inputs
+
+
+_Q = "sky_irradiance_lights"
+_FORMULA = "E ≈ Σ_k V_k·max(n·d_k, 0)·P_k, P_k = Σ_{t∈cell k} w_t L_t"
+_KERNEL_SOURCE = "001:3021-3038 (renderFinalShiny's diffuse sum)"
+_BAKES = (
+    (
+        "seed-lloyd",
+        "Seed: energy samples + Lloyd",
+        "d_k: Lloyd-relaxed energy centroids of the spherical Voronoi cells",
+        f"GameTools D5.3 §2.8 (seed 001:2738-3070, 001:2742); Kollig & Keller 2003; {_KERNEL_SOURCE}",
+        "N lights by the map's energy, relaxed (Lloyd) over the sphere; an exact shadow ray per light",
+    ),
+    (
+        "importance",
+        "Energy samples, no relaxation",
+        "d_k: energy-CDF picks (no Lloyd step)",
+        f"the seed's placement before its relaxation; {_KERNEL_SOURCE}",
+        "what Lloyd's relaxation buys: the same placement, the cells not relaxed",
+    ),
+    (
+        "seed-depthmap",
+        "Seed lights, depth-map shadows",
+        "d_k: the seed-lloyd lights; V_k: each light's depth map (seed's bias, linear filtering)",
+        f"seed 001:2738-3070, depth maps 001:2814-2871, test 001:3026-3028; {_KERNEL_SOURCE}",
+        "the seed as printed: its Lloyd lights, each shadowed by an orthographic depth-and-normal map",
+    ),
+    (
+        "median-cut",
+        "Median cut (Debevec 2005)",
+        "cells: 2ᵏ lat-long regions of equal energy, d_k their energy centroids",
+        "Debevec 2005, A median cut algorithm for light probe sampling (SIGGRAPH 2005 poster)",
+        "recursive equal-energy splits across the longer side; an exact shadow ray per light",
+    ),
+)
+BAKES = tuple(b[0] for b in _BAKES)
+"""The bakes, each a row per N of `COUNTS`: row id ``<bake>-<N>``."""
+
+
+def _rows():
+    for bake, label, where, source, words in _BAKES:
+        for n in COUNTS:
+            vis = tuple(
+                Input(v, "1", f"visibility of light {k + 1} of {n} (1: lit)", (0.0, 1.0))
+                for k, v in enumerate(visibility_names(n))
+            )
+            yield Method(
+                f"{bake}-{n}",
+                f"{label}, N = {n}",
+                on_lights(_lights_kernel, n),
+                inputs=(*_NORMAL, *vis, LIGHTS),
+                storage=6 * n,
+                quantity=_Q,
+                formula=f"{_FORMULA}; {where}",
+                source=source,
+                description=words,
+            )
+
+
+METHODS = method_table(_rows())
+"""The ibl-samples rows: one kernel text, three bakes × N = 4, 16, 64, 256 lights (module docstring)."""
