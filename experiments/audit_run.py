@@ -450,9 +450,10 @@ def _bad_values(method: Method, img: np.ndarray, case: FamilyCase) -> str | None
     return f"{method.id}: returned a non-finite value on {case.label} at {at}"
 
 
-_UNIFORM_FLOATS = 16384
-"""A table of at most this many floats, where the kernel reads it by index, is timed as a shader's constant
-buffer (`rtfit.realtime.arrays.Uniforms`): a D3D11/12 constant buffer holds 4096 float4 = 16384 floats."""
+_UNIFORM_FLOATS = 1024
+"""A table of at most this many floats, where the kernel reads it by index (coefficients: SH L2's 27, L4's
+75), is timed as a shader's constant buffer (`rtfit.realtime.arrays.Uniforms`): 256 float4, a uniform array
+an engine declares; a larger table (a cube map's 6·16² texels) is a texture, gathered from as it is."""
 _COST_PROBE = 1 << 12  # elements of the first, sizing call of a cost measurement
 _COST_CALL_SECONDS = 0.05  # the sized call's target duration: a slow kernel is timed on fewer elements
 _COST_MIN_SECONDS = 0.05
