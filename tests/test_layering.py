@@ -77,7 +77,6 @@ FAMILY_IMPORTS_ALLOWED = {
     "audit_sky_occlusion -> audit_ambient_occlusion",  # DistanceFieldRows, distance_field_rows
     # An audit declaration reads its experiment module's parameter sources and fits:
     "audit_height_fog -> height_fog",  # fit_params, horizon_colour, segment_geometry, single_scatter_colour
-    "audit_irradiance_bases -> irradiance_bases",  # ROW, row_params
     "audit_nishita_sky -> nishita_sky",  # atmosphere_params_of
 }
 FAMILY_MAX_LINES = 600
@@ -87,7 +86,6 @@ FAMILY_LINES_CEILING = {
     "ambient_aperture": 1324,
     "environment_maps": 1524,
     "height_fog": 1406,
-    "irradiance_bases": 1708,
     "nishita_sky": 1726,
     "parallax_occlusion": 972,
     "sdf_occlusion": 1914,
