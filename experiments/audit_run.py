@@ -49,6 +49,7 @@ from rtfit.fitting import (
     z_checks,
     z_pair,
 )
+from rtfit.fitting.stats import Z_TAIL_FRACTION
 from rtfit.realtime.arrays import Uniforms, backend_float
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import is_user_approximation
@@ -934,12 +935,31 @@ def _checks(plan, outcomes) -> list[dict]:
                 ref.mean[case.mask],
                 ref.stderr[case.mask],
                 ref.sigma()[case.mask],
-                precision_floor=RELATIVE_PRECISION_FLOOR,
+                precision_floor=(
+                    RELATIVE_PRECISION_FLOOR if ref.precision is None else ref.relative_floor()[case.mask]
+                ),
             )
-            checks += z_checks(
-                f"{row.row} vs the reference, {case.label}", *concat_z_pairs([pair]), samples=int(ref.spp)
-            )
+            what = f"{row.row} vs the reference, {case.label}"
+            if not pair[0].size and pair[1].size:  # no element's noise above the reference's own precision
+                checks.append(_within_precision_check(what, pair[1]))
+                continue
+            checks += z_checks(what, *concat_z_pairs([pair]), samples=int(ref.spp))
     return checks
+
+
+def _within_precision_check(what: str, z_all: np.ndarray) -> dict:
+    """The exact row's check where no element's standard error exceeds the reference's precision floor (a
+    very small sphere light: `audit_lights.sphere_sampling_precision`): no z-scores to judge a spread or a
+    median by, only that the row sits within that floor (σ includes it): at most `Z_TAIL_FRACTION` of the
+    elements beyond |z| = 4."""
+    tail = float(np.mean(np.abs(z_all) > 4.0))
+    return {
+        "name": f"{what}: fraction with |z| > 4 ({z_all.size} elements; every one's noise is below the "
+        "reference's precision floor)",
+        "value": tail,
+        "expected": f"≤ {Z_TAIL_FRACTION}",
+        "passed": bool(tail <= Z_TAIL_FRACTION),
+    }
 
 
 DETERMINISTIC_TOLERANCE = 4.0
