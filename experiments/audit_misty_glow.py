@@ -30,13 +30,21 @@ from typing import Any
 
 import numpy as np
 
-from rtfit.realtime.misty_glow import METHODS
+from rtfit.realtime.misty_glow import KAWASE_PASSES, KAWASE_SEED_PASSES, METHODS
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import PassResult, radiance_pass
 from rtfit.reference.single_scattering import point_single_scattering
 
 from .audit import Applicability, Rule
-from .audit_family import AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
+from .audit_family import (
+    AuditFamily,
+    AuditSetup,
+    FamilyCase,
+    ShippedScene,
+    Study,
+    StudyContext,
+    pooled_passes,
+)
 from .audit_lit_media import (
     NOTES,
     LitMedium,
@@ -47,6 +55,7 @@ from .audit_lit_media import (
     stretches,
 )
 from .audit_media import RADIANCE_INTEGRATOR
+from .records import Check, Section
 
 __all__ = [
     "FAMILY",
@@ -56,6 +65,7 @@ __all__ = [
     "glow_cases",
     "glow_inputs",
     "start_amplitude",
+    "study",
 ]
 
 FORMAT = 1
@@ -228,3 +238,78 @@ FAMILY = AuditFamily(
         ),
     ),
 )
+
+
+# ------------------------------------------------------------------------------------------------ study
+def _passes(row: str) -> int | None:
+    """The Kawase passes N of a bloom row, None for the others."""
+    base = row.removesuffix("-fitted")
+    if base == "kawase-seed":
+        return KAWASE_SEED_PASSES
+    if base.startswith("kawase-") and int(base.split("-")[1]) in KAWASE_PASSES:
+        return int(base.split("-")[1])
+    return None
+
+
+def _cost_lines(result, case) -> list[str]:
+    """The cost-beside-error rows of one case (`study`)."""
+    tau = case.parameters.get("optical_depth", float("nan"))
+    lines = []
+    for row_id, out in result.outcomes.get(case.id, {}).items():
+        n = _passes(row_id)
+        if not row_id.endswith("-fitted") or (n is None and not row_id.startswith("gaussian")):
+            continue
+        rmse = out.metrics["rmse"]
+        ratio = rmse.value / rmse.noise_floor if rmse.noise_floor else float("nan")
+        cost = result.costs.get(out.method.id, {}).get("ns_per_pixel")
+        scale = float(out.parameters.get("scale", out.parameters.get("sigma", float("nan"))))
+        reads = f"{4 * n / max(scale, 1e-6) ** 2:.3g}" if n is not None else "—"
+        ns = f"{cost:.3g}" if cost else "—"
+        lines.append(
+            f"| {case.id} | {tau:.3g} | {row_id} | {n or '—'} | {scale:.3g} | {reads} | {ratio:.3g} | {ns} |"
+        )
+    return lines
+
+
+def _single_check(result, case) -> Check | None:
+    """The all-orders glow summed over the pixels is not below its single-scattering part (3 s.e.)."""
+    single = result.outcomes.get(case.id, {}).get("single-scattering")
+    if single is None:
+        return None
+    ref = case.reference.mean[case.mask]
+    err = float(np.sqrt(np.sum(case.reference.stderr[case.mask] ** 2)))
+    gap = float(np.sum(ref) - np.sum(single.image[case.mask]))
+    return Check(
+        name=f"{case.id}: glow >= its single-scattering part (sum over pixels, W/m²/sr)",
+        value=gap,
+        expected=f">= -3 s.e. = {-3 * err:.3g}",
+        passed=gap >= -3 * err,
+    )
+
+
+def study(ctx: StudyContext) -> Study:
+    """Cost beside error across the passes: per scene each fitted bloom's RMSE over the reference's noise
+    floor, its fitted scale s and the bilinear reads per film pixel a GPU spends on it (4N/s² for N
+    ping-pong passes over the film downsampled by s); and the check that the all-orders glow is not below
+    its single-scattering part."""
+    lines = [
+        "| case | τ | row | N | s or σ (px) | GPU reads / film px (4N/s²) | RMSE / floor | kernel ns/px |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    checks = []
+    for result in ctx.audits:
+        for case in result.cases:
+            lines += _cost_lines(result, case)
+            check = _single_check(result, case)
+            if check is not None:
+                checks.append(check)
+    text = (
+        "Each fitted bloom's RMSE over the reference's noise floor beside its cost: the bilinear reads a GPU "
+        "spends per film pixel on N ping-pong passes over the film downsampled by the fitted s (4N/s²; the "
+        "seed's N = 4 at s = 4 reads 1 per film pixel, plus the down- and upsample), and the kernel text's "
+        "measured ns per pixel (the per-pixel evaluation of the upsampled kernel, a sum of N(N+1)+1 tents "
+        "per axis: not the GPU's bloom).\n\n" + "\n".join(lines)
+    )
+    return Study(
+        sections=(Section("cost-passes", "Cost beside error across the passes", text),), checks=tuple(checks)
+    )

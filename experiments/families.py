@@ -243,6 +243,7 @@ FAMILIES: dict[str, Family] = {
             methods=misty_glow.METHODS,
             audits=(audit_misty_glow.FAMILY,),
             scenes=audit_misty_glow.SCENES,
+            study=audit_misty_glow.study,
         ),
         Family(
             "aerial-perspective",
