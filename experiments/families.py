@@ -34,6 +34,7 @@ from rtfit.realtime import (
     ibl_samples,
     irradiance_volumes,
     linear_fog,
+    misty_glow,
     nishita_sky,
     obscurances,
     parallax_occlusion,
@@ -66,6 +67,7 @@ from . import (
     audit_irradiance_volumes,
     audit_light_cones,
     audit_linear_fog,
+    audit_misty_glow,
     audit_nishita_sky,
     audit_obscurances,
     audit_parallax_occlusion,
@@ -235,6 +237,18 @@ FAMILIES: dict[str, Family] = {
             audits=(audit_volumetric_lightning.FAMILY,),
             scenes=audit_volumetric_lightning.SCENES,
             study=volumetric_lightning_study.study,
+        ),
+        Family(
+            "misty-glow",
+            ENGINE,
+            "Misty glow: the seed's Kawase bloom as the atmospheric PSF vs a path-traced point light in fog",
+            "The glow around a point light in a forward-scattering homogeneous medium (volpathmis, all "
+            "orders) against the seed's 4-pass Kawase bloom of the light's direct image, 1–8 passes with "
+            "scale and amplitude fitted per optical depth, a Gaussian bloom and single scattering alone.",
+            methods=misty_glow.METHODS,
+            audits=(audit_misty_glow.FAMILY,),
+            scenes=audit_misty_glow.SCENES,
+            study=audit_misty_glow.study,
         ),
         Family(
             "aerial-perspective",

@@ -44,6 +44,8 @@ Modules:
     sdf_occlusion  Evans multi-scale SDF skylight/occlusion, curvature term, cone-traced soft occlusion.
     nishita_sky Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
                 (docs/nishita-sky.md).
+    misty_glow  the seed's misty glow: an iterated Kawase bloom of a light's direct image as the
+                atmospheric point-spread function; a Gaussian bloom (docs/misty-glow.md).
     volumetric_lightning  the seed's volumetric lightning (softened point light gathered along the view
                 segment) in a float32-stable closed form; single scattering without extinction
                 (docs/volumetric-lightning.md). The package attribute ``volumetric_lightning`` is the
@@ -94,6 +96,7 @@ from .light_cones import *  # noqa: F403
 from .light_models import *  # noqa: F403
 from .linear_fog import *  # noqa: F403
 from .methods import *  # noqa: F403
+from .misty_glow import *  # noqa: F403
 from .nishita_sky import *  # noqa: F403
 from .obscurances import *  # noqa: F403
 from .parallax_occlusion import *  # noqa: F403
@@ -120,6 +123,7 @@ MODULES = (
     "reflections",
     "height_fog",
     "linear_fog",
+    "misty_glow",
     "irradiance_bases",
     "irradiance_volumes",
     "spherical_gaussians",

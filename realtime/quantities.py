@@ -487,6 +487,20 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 "(equiangular sampling, Mitsuba's emitter, phase function and shadow rays)",
             ),
             Quantity(
+                "glow_radiance",
+                "W/m²/sr",
+                "radiance of the glow around a point light in a scattering medium (all orders), per channel",
+                (
+                    Input("du", "px", "film pixels from the light's image, horizontal", (-1e3, 1e3)),
+                    Input("dv", "px", "film pixels from the light's image, vertical", (-1e3, 1e3)),
+                    Input("e_direct", "W/m²", "the light's attenuated irradiance at the camera", (0.0, 1e4)),
+                    Input("omega_px", "sr", "the pixel's solid angle", (1e-8, 1.0)),
+                    *_MEDIUM_LIGHT,
+                    Input("distance", "m", "the camera-to-light distance R", (0.0, 1e3)),
+                ),
+                reference="the radiance at the camera with the light's medium (volpath, all bounces)",
+            ),
+            Quantity(
                 "spot_inscattered_radiance",
                 "W/m²/sr",
                 "radiance a spot light scatters into a view ray through a homogeneous medium (per channel)",
