@@ -49,7 +49,7 @@ from rtfit.fitting import (
     z_checks,
     z_pair,
 )
-from rtfit.fitting.stats import Z_TAIL_FRACTION
+from rtfit.fitting.stats import Z_MEDIAN_TOLERANCE, Z_TAIL_FRACTION
 from rtfit.realtime.arrays import Uniforms, backend_float
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import is_user_approximation
@@ -937,7 +937,12 @@ def _checks(plan, outcomes) -> list[dict]:
                 ref.stderr[case.mask],
                 ref.sigma()[case.mask],
                 precision_floor=(
-                    RELATIVE_PRECISION_FLOOR if ref.precision is None else ref.relative_floor()[case.mask]
+                    RELATIVE_PRECISION_FLOOR
+                    if ref.precision is None
+                    # A bias bound b of the reference (not noise) shifts an element's z by up to b/stderr:
+                    # only elements whose noise is ≥ b / Z_MEDIAN_TOLERANCE judge the spread and median
+                    # (one bias in every element then moves the median by at most its tolerance).
+                    else np.maximum(RELATIVE_PRECISION_FLOOR, ref.precision[case.mask] / Z_MEDIAN_TOLERANCE)
                 ),
             )
             what = f"{row.row} vs the reference, {case.label}"
