@@ -222,6 +222,10 @@ class PooledPasses:
         )
 
 
+FIT_WEIGHTS = ("absolute", "relative")
+"""`FamilyCase.fit_weight`: how a case's fits weigh each residual."""
+
+
 @dataclass(frozen=True)
 class FamilyCase:
     """One comparison: ``id`` (file-name safe), ``label``, ``parameters`` (free-form, into results.json),
@@ -254,6 +258,14 @@ class FamilyCase:
     uncosted: Mapping[str, str] = field(default_factory=dict)
     """Row id → why its cost is not measured like the others' (a row whose value is computed outside its
     kernel, which only passes it through: timing that kernel would print a cost of nothing)."""
+    fit_weight: str = "absolute"
+    """How the case's fits weigh each element's residual (`audit_fit.fit_data`): ``absolute`` (1: the
+    least-squares fit of the RMSE in the quantity's units) or ``relative`` (1 / max(|reference|, σ): the
+    relative error, its noise floor σ stopping a dark pixel from dominating; σ = `AuditReference.sigma`)."""
+
+    def __post_init__(self):
+        if self.fit_weight not in FIT_WEIGHTS:
+            raise AuditError(f"{self.id}: fit_weight {self.fit_weight!r}: one of {', '.join(FIT_WEIGHTS)}")
 
 
 @dataclass(frozen=True)

@@ -480,6 +480,7 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         methods=methods,
         quantity="fogged_radiance",
         params=given_rows,
+        fit_weight="relative",  # (the height-fog experiment's fits: near and far pixels alike)
     )
     return [*t_cases, r_case]
 
