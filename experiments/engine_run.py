@@ -202,6 +202,12 @@ class EngineExperiment:
 
     # ---------------------------------------------------------------------------------------------- bench
     def bench(self, ctx) -> list[dict]:
+        """Every method with only declared-domain inputs (`method_bench`), then the family's own rows
+        (`Family.bench`: its reference estimators, a texture's build)."""
+        own = self.family.bench(ctx) if self.family.bench is not None else []
+        return [*self.method_bench(ctx), *own]
+
+    def method_bench(self, ctx) -> list[dict]:
         """Every method with only declared-domain inputs (a table or sampler input is left out): Dr.Jit vs
         NumPy of the same kernel text on ``size`` elements drawn uniformly over each input's domain (a
         fixed seed), at its declared parameters, against the memory floor of its inputs."""

@@ -24,7 +24,7 @@ from rtfit.realtime import diffuse
 SCENE = ShippedScene("sphere_light.toml", "sphere light", quick_size=(16, 16), quick_spp=8)
 
 
-def _planted(monkeypatch, study=None) -> ExperimentSpec:
+def _planted(monkeypatch, study=None, bench=None) -> ExperimentSpec:
     fam = Family(
         "diffuse",
         ENGINE,
@@ -34,6 +34,7 @@ def _planted(monkeypatch, study=None) -> ExperimentSpec:
         audits=(audit_diffuse.FAMILY,),
         scenes=(SCENE,),
         study=study,
+        bench=bench,
     )
     monkeypatch.setattr(engine_run, "FAMILIES", {**FAMILIES, "diffuse": fam})
     return ExperimentSpec("diffuse", ENGINE, "planted", "d")
@@ -127,6 +128,25 @@ def test_bench_times_every_method_with_declared_domains(monkeypatch):
     whats = [r["what"] for r in rows]
     assert whats[-1].startswith("memory baseline") and len(whats) >= 3
     assert all(r["ns_per_px"] > 0 for r in rows)
+
+
+def test_a_family_bench_hook_adds_its_rows_after_the_engine_rows(monkeypatch):
+    from rtfit.experiments import nishita_sky_study
+    from rtfit.experiments.registry import BenchContext
+
+    given = []
+
+    def own(ctx):
+        given.append(ctx)
+        return [{"what": "planted reference throughput", "backend": "llvm", "Mray_s": 1.0}]
+
+    ctx = BenchContext(variant="llvm_ad_rgb", size=1 << 10, quick=True)
+    plain = [r["what"] for r in _planted(monkeypatch).load().bench(ctx)]
+    rows = [r["what"] for r in _planted(monkeypatch, bench=own).load().bench(ctx)]
+    assert rows == [*plain, "planted reference throughput"] and given == [ctx]
+    with pytest.raises(ValueError, match="ships its scenes"):
+        Family("x", "rtfit.experiments.x", "t", "d", bench=own)  # (an old module has its own bench)
+    assert FAMILIES["nishita-sky"].bench is nishita_sky_study.bench
 
 
 def test_every_shipped_scene_of_the_registry_is_in_the_library():
