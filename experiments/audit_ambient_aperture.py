@@ -345,6 +345,10 @@ FAMILY = AuditFamily(
 )
 
 
+QUICK_ROLES = ("sky occlusion (aperture fill)", LIGHT_ROLE)
+"""The roles ``--quick`` audits (the fill's role is declared by `audit_sky_occlusion`; `engine_run` checks
+every name): not the AO caps (their bake and AO reference), which the full run audits."""
+
 SCENES = (
     ShippedScene(
         "aperture_hole.toml",
@@ -354,6 +358,7 @@ SCENES = (
         spp=8192,
         quick_size=(24, 24),
         quick_spp=1024,
+        quick_roles=QUICK_ROLES,
     ),
     ShippedScene(
         "aperture_well.toml",
@@ -363,6 +368,7 @@ SCENES = (
         spp=8192,
         quick_size=(24, 24),
         quick_spp=1024,
+        quick_roles=QUICK_ROLES,
     ),
     ShippedScene(
         "aperture_bumps.toml",
@@ -372,6 +378,7 @@ SCENES = (
         spp=8192,
         quick_size=(24, 24),
         quick_spp=1024,
+        quick_roles=QUICK_ROLES,
     ),
 )
 """The scenes ``rtfit run ambient-aperture`` audits (scenes/library/aperture_*.toml): the three receivers of

@@ -101,6 +101,13 @@ class AuditSetup:
     """``--grid``: the irradiance-volumes probe grid (None: the family's default for the scene's box)."""
     pom_depth: float | None = None
     """``--pom-depth``: the parallax-occlusion height range in texture units (None: the family's default)."""
+    quantities: frozenset[str] | None = None
+    """The case quantities this run audits (`ShippedScene.quantities`; None: every one): a family asks
+    `wants` before it renders a case's reference, and the engine drops the cases of any other quantity."""
+
+    def wants(self, quantity: str) -> bool:
+        """Whether this run audits cases of ``quantity`` (render a case's reference only if so)."""
+        return self.quantities is None or quantity in self.quantities
 
 
 @dataclass(frozen=True)
@@ -228,6 +235,10 @@ class PooledPasses:
         )
 
 
+FIT_WEIGHTS = ("absolute", "relative")
+"""`FamilyCase.fit_weight`: how a case's fits weigh each residual."""
+
+
 @dataclass(frozen=True)
 class FamilyCase:
     """One comparison: ``id`` (file-name safe), ``label``, ``parameters`` (free-form, into results.json),
@@ -260,6 +271,14 @@ class FamilyCase:
     uncosted: Mapping[str, str] = field(default_factory=dict)
     """Row id → why its cost is not measured like the others' (a row whose value is computed outside its
     kernel, which only passes it through: timing that kernel would print a cost of nothing)."""
+    fit_weight: str = "absolute"
+    """How the case's fits weigh each element's residual (`audit_fit.fit_data`): ``absolute`` (1: the
+    least-squares fit of the RMSE in the quantity's units) or ``relative`` (1 / max(|reference|, σ): the
+    relative error, its noise floor σ stopping a dark pixel from dominating; σ = `AuditReference.sigma`)."""
+
+    def __post_init__(self):
+        if self.fit_weight not in FIT_WEIGHTS:
+            raise AuditError(f"{self.id}: fit_weight {self.fit_weight!r}: one of {', '.join(FIT_WEIGHTS)}")
 
 
 @dataclass(frozen=True)
@@ -331,6 +350,25 @@ class ShippedScene:
     """Its id in case ids (file-name safe); default: the file's stem, then the defines (``name-value``)."""
     quick: bool = True
     """Whether ``--quick`` audits it too (False: the full run only, e.g. the in-between light sizes)."""
+    roles: tuple[str, ...] | None = None
+    """The applicability roles of the family audited on this scene (None: every role that applies); the
+    others are dropped before any reference is rendered, and named in the run's notes."""
+    quantities: tuple[str, ...] | None = None
+    """The case quantities audited on this scene (`FamilyCase.quantity`, else the family's; None: every
+    one): the family's ``cases`` skips the others' references (`AuditSetup.wants`)."""
+    quick_roles: tuple[str, ...] | None = None
+    """``roles`` of ``--quick`` (None: the same as the full run's)."""
+    quick_quantities: tuple[str, ...] | None = None
+    """``quantities`` of ``--quick`` (None: the same as the full run's)."""
+
+    def audited(self, quick: bool) -> tuple[tuple[str, ...] | None, tuple[str, ...] | None]:
+        """(roles, quantities) audited on this scene by the full run or by ``--quick``."""
+        if quick:
+            return (
+                self.roles if self.quick_roles is None else self.quick_roles,
+                self.quantities if self.quick_quantities is None else self.quick_quantities,
+            )
+        return self.roles, self.quantities
 
     def __post_init__(self):
         if "/" in self.file or not self.file.endswith((".xml", ".toml")):

@@ -6,7 +6,8 @@ content, not one per scene. Each case c (N_c fitted elements, reference r_c) is 
 w_c = 1 / (rms(r_c) √N_c), so that the pooled objective is Σ_c ‖f_c(θ) − r_c‖² / (N_c rms(r_c)²) — the sum of
 each case's squared relative RMSE: every scene counts alike, whatever its brightness or size in pixels
 (unweighted, the brightest case would set the value alone). A case whose reference is 0 everywhere has no
-relative error (rms 0) and is left out of the pool, saying so.
+relative error (rms 0) and is left out of the pool, saying so. A case fitted on its relative error
+(`FamilyCase.fit_weight` ``relative``) keeps its own weights, divided by √N_c: its RMS relative error.
 """
 
 from __future__ import annotations
@@ -78,6 +79,16 @@ class FitData:
     target: np.ndarray
     params: Mapping[str, Param]
     per_channel: bool
+    weights: np.ndarray | None = None
+    """Each residual's weight, shaped as ``target`` (`FamilyCase.fit_weight` ``relative``: the image's
+    relative residual, 1 / max(|reference|, σ), times the case's factor where the target was divided by
+    it; 0 where both are 0, a pixel without a relative error); None: 1 (``absolute``)."""
+
+
+def _relative_weights(ref: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """1 / max(|ref|, σ) elementwise, 0 where both are 0."""
+    floor = np.maximum(np.abs(ref), sigma)
+    return np.divide(1.0, floor, out=np.zeros_like(floor, dtype=np.float64), where=floor > 0)
 
 
 def fit_data(method: Method, case: FamilyCase, row: str = "") -> FitData:
@@ -86,11 +97,14 @@ def fit_data(method: Method, case: FamilyCase, row: str = "") -> FitData:
     (R, G, B) and its inputs are passed as they are. Starts and bounds: the case's for the row
     (`FamilyCase.params`), else the method's declared ones."""
     ref = case.reference.mean[case.mask]
+    relative = case.fit_weight == "relative"
+    w = _relative_weights(ref, case.reference.sigma()[case.mask]) if relative else None
     start = {k: p for k, p in case.params.get(row, {}).items() if k in method.params}
     params = {**method.params, **start}
     if len(case.channel_inputs) == 1 and case.factor is None:
         inputs = {n: case.channel_inputs[0][n] for n in method.input_names}
-        return FitData(inputs, np.asarray(ref.T, np.float64), params, per_channel=False)
+        return FitData(inputs, np.asarray(ref.T, np.float64), params, per_channel=False,
+                       weights=None if w is None else np.ascontiguousarray(w.T))  # fmt: skip
     keep = np.ones(len(ref), bool) if case.factor is None else case.factor > 0
     scale = np.ones(len(ref)) if case.factor is None else np.where(keep, case.factor, 1.0)
     inputs: dict[str, Any] = {}
@@ -107,14 +121,19 @@ def fit_data(method: Method, case: FamilyCase, row: str = "") -> FitData:
             )
         inputs[n] = np.concatenate(parts)
     target = np.concatenate([ref[keep, c] / scale[keep] for c in range(3)])
-    return FitData(inputs, target, params, per_channel=True)
+    if w is not None:  # (f − ref/s)·s / max(|ref|, σ): the image's relative residual
+        w = np.concatenate([w[keep, c] * scale[keep] for c in range(3)])
+    return FitData(inputs, target, params, per_channel=True, weights=w)
 
 
 def fit_case(method: Method, case: FamilyCase, row: str = "") -> dict:
-    """Fit ``method``'s free parameters to one case (`fit_data`), unweighted: the least-squares fit of the
-    image's RMSE in the quantity's units; the `FitResult` as a dict."""
+    """Fit ``method``'s free parameters to one case (`fit_data`), weighted by the case's `fit_weight`
+    (``absolute``: the least-squares fit of the image's RMSE in the quantity's units; ``relative``: of its
+    relative error over the noise floor); the `FitResult` as a dict."""
     d = fit_data(method, case, row)
-    return fit_method(method, d.inputs, d.target, params=d.params, solver=FIT_SOLVER).to_dict()
+    return fit_method(
+        method, d.inputs, d.target, weights=d.weights, params=d.params, solver=FIT_SOLVER
+    ).to_dict()
 
 
 @dataclass(frozen=True)
@@ -168,8 +187,14 @@ def pooled_fit(
             left[case.id] = "its data is read per channel where the first case's is one mapping (or back)"
         else:
             datas.append(d)
-            n = d.target.shape[-1]
-            weights.append(np.full(n, 1.0 / (rms * np.sqrt(d.target.size))))
+            # absolute: 1/(rms·√N), each case's relative RMSE; relative: its own weights / √N (its RMS
+            # relative error)
+            each = (
+                1.0 / (rms * np.sqrt(d.target.size))
+                if d.weights is None
+                else d.weights / np.sqrt(d.target.size)
+            )
+            weights.append(np.broadcast_to(each, d.target.shape))
             ids.append(case.id)
             starts.append(own)
     if len(datas) < 2:
@@ -181,7 +206,7 @@ def pooled_fit(
         ]
         inputs[name] = np.concatenate(parts)
     target = np.concatenate([d.target for d in datas], axis=-1)
-    w = np.concatenate(weights)
+    w = np.concatenate(weights, axis=-1)
     params = _pooled_params(method, datas, starts)
     try:
         result = fit_method(method, inputs, target, weights=w, params=params, solver=FIT_SOLVER)

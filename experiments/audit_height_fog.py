@@ -91,6 +91,7 @@ PASSES = {"pass_spp": 128}
 
 
 def _terrain(e: float, transport: str) -> ShippedScene:
+    # --quick audits the terrain's radiance alone (the transmittance is checked on the fog boxes)
     return ShippedScene(
         f"fog_terrain_e{e:g}_{transport}.toml",
         f"terrain with objects at 10 m–20 km under sunsky (sun {e:g}°, azimuth 50° from the view) in "
@@ -100,6 +101,7 @@ def _terrain(e: float, transport: str) -> ShippedScene:
         quick_size=(64, 32),
         quick_spp=256,
         quick=e in QUICK_ELEVATIONS_DEG,
+        quick_quantities=("fogged_radiance",),
         options=PASSES,
     )
 
@@ -378,27 +380,38 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         "length_max_m": float(length[mask].max()),
     }
 
-    # transmittance: ratio tracking through the Mitsuba medium alone
-    t_ref = _transmittance(setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance").reference(
-        mask,
-        quantity="transmittance T of the medium along the camera's rays (1, grey)",
-        integrator="ratio tracking (Mitsuba Medium.sample_interaction with the medium's majorant)",
-        integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
-    )
+    # transmittance: ratio tracking through the Mitsuba medium alone (also the absorbing radiance's noise)
+    absorbing = not any(medium.albedo)
+    t_ref = None
+    if absorbing or setup.wants("fog_transmittance"):
+        t_ref = _transmittance(
+            setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance"
+        ).reference(
+            mask,
+            quantity="transmittance T of the medium along the camera's rays (1, grey)",
+            integrator="ratio tracking (Mitsuba Medium.sample_interaction with the medium's majorant)",
+            integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
+        )
     t_rows = {f: TRANSMITTANCE_METHODS[f] for f in OPTICAL_DEPTH_FORMS}
-    t_case = FamilyCase(
-        id=f"{tag}-transmittance",
-        label=f"{app.part}, transmittance",
-        reference=t_ref,
-        mask=mask,
-        channel_inputs=(common, common, common),
-        parameters={**params, "quantity": "transmittance"},
-        units="1",
-        notes=("the optical-depth forms are compared as T = e^(−τ), with the medium's b, c, then fitted",),
-        methods=t_rows,
-        quantity="fog_transmittance",
-        params={f: _row_params(f, medium, true_bc, horizon) for f in t_rows},
-    )
+    t_cases = []
+    if t_ref is not None:  # not where the run audits the radiance alone (the terrain's --quick)
+        t_cases.append(
+            FamilyCase(
+                id=f"{tag}-transmittance",
+                label=f"{app.part}, transmittance",
+                reference=t_ref,
+                mask=mask,
+                channel_inputs=(common, common, common),
+                parameters={**params, "quantity": "transmittance"},
+                units="1",
+                notes=(
+                    "the optical-depth forms are compared as T = e^(−τ), with the medium's b, c, then fitted",
+                ),
+                methods=t_rows,
+                quantity="fog_transmittance",
+                params={f: _row_params(f, medium, true_bc, horizon) for f in t_rows},
+            )
+        )
 
     # radiance: this medium alone vs the fog-free scene (same transport, spp, seed)
     alone = dataclasses.replace(scene, name=f"{scene.name}-{tag}", media=(medium,))
@@ -428,7 +441,7 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         )
     reason = fogged.integrator.get("reason") or "rtfit's reference integrator rule"
     stderr = fogged.stderr[mask]
-    if not any(medium.albedo):
+    if t_ref is not None and absorbing:
         # A camera ray through a purely absorbing medium survives (with probability T) or not, independently
         # of the radiance L behind it: per sample the variance is T·Var L + L₀²·T(1 − T), which the sample
         # variance of a pixel whose samples all survived (or none) misses (0). Its value under the hypothesis
@@ -467,8 +480,9 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         methods=methods,
         quantity="fogged_radiance",
         params=given_rows,
+        fit_weight="relative",  # (the height-fog experiment's fits: near and far pixels alike)
     )
-    return [t_case, r_case]
+    return [*t_cases, r_case]
 
 
 FAMILY = AuditFamily(

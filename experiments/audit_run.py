@@ -29,7 +29,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
-import math
 import re
 import time
 import warnings
@@ -60,15 +59,15 @@ from rtfit.reference.mitsuba_xml import XMLSceneError, loaded_xml
 from rtfit.reference.nishita_sky import hemisphere_directions, load_atmosphere_scene
 from rtfit.reference.variants import resolve_variant, scoped_variant
 from rtfit.scenes import load_scene, scene_hash
-from rtfit.scenes.parse import MAX_LENGTH
 
 from . import audit_api
 from . import fitted as fitfiles
 from .applicability import applicable_families
-from .atomic import atomic_directory, writable_problem
+from .atomic import atomic_directory
 from .audit import SURFACE_FREE_KINDS, Applicability, AuditError, SceneInfo, inspect_scene
 from .audit_family import AuditFamily, AuditSetup, FamilyCase
 from .audit_fit import evaluate_case, fit_case
+from .audit_options import GRID_MAX, check_ao_distance, check_out, check_sizes, triple
 from .audit_output import reference_record, write_audit
 from .audit_parallax_occlusion import check_pom_depth
 from .cost import time_drjit
@@ -381,38 +380,6 @@ def _scene_name(path: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", stem) or "scene"
 
 
-def _check_out(out: Path, option: str = "--out") -> None:
-    """``out`` a directory this process can create and write (`writable_problem`), or a one-line error."""
-    problem = writable_problem(out)
-    if problem is not None:
-        raise AuditError(f"{option} {out}: {problem}")
-
-
-def check_ao_distance(value) -> None:
-    """``--ao-distance``: None (the default from the scene's size), or a finite distance in (0, 1e8] scene
-    units (`rtfit.scenes.parse.MAX_LENGTH`, the TOML scenes' limit). nan, inf and 1e30 were accepted, and
-    the AO family then said "give --ao-distance" although it was given (issue 32)."""
-    if value is None:
-        return
-    if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 < value <= MAX_LENGTH:
-        raise AuditError(
-            f"--ao-distance {value!r}: must be a finite distance in (0, {MAX_LENGTH:g}] scene units"
-        )
-
-
-def _check_sizes(spp: int, pass_spp: int, width, height) -> None:
-    """spp, pass-spp, passes and film sizes within the shared limit table (`registry.LIMITS`)."""
-    try:
-        LIMITS["spp"].check("--spp", spp)
-        LIMITS["spp"].check("--pass-spp", pass_spp)
-        LIMITS["passes"].check(f"--spp {spp} / --pass-spp {pass_spp} =", -(-spp // pass_spp))
-        for option, value in (("--width", width), ("--height", height)):
-            if value is not None:
-                LIMITS["resolution"].check(option, value)
-    except ValueError as e:
-        raise AuditError(str(e)) from None
-
-
 def _rows(
     family: AuditFamily, app: Applicability, sel: Selection, case: FamilyCase | None = None
 ) -> list[tuple[str, Method, bool]]:
@@ -569,32 +536,6 @@ def _opened(info: SceneInfo, defines, variant: str, camera: int, width, height) 
         yield mi, mi_scene, sensor, (), gbuffer(mi, mi_scene, sensor), toml, digest
 
 
-GRID_MAX = 64
-"""Most probes along one axis of ``--grid``."""
-
-
-def triple(option: str, value, kind) -> Any:
-    """``value`` (None, ``"a,b,c"`` or three numbers) as a tuple of three ``kind`` (float: finite; int: 1 …
-    `GRID_MAX`), or `AuditError` (one line, before anything runs)."""
-    if value is None:
-        return None
-    parts = value.split(",") if isinstance(value, str) else list(value)
-    what = "three finite numbers X,Y,Z" if kind is float else f"three integers NX,NY,NZ in 1…{GRID_MAX}"
-    if len(parts) != 3:
-        raise AuditError(f"{option} {value!r}: expected {what}")
-    try:
-        out = tuple(float(str(p).strip()) for p in parts)
-    except ValueError:
-        raise AuditError(f"{option} {value!r}: expected {what}") from None
-    if kind is float:
-        if not all(math.isfinite(v) for v in out):
-            raise AuditError(f"{option} {value!r}: expected {what}")
-        return out
-    if not all(v.is_integer() and 1 <= v <= GRID_MAX for v in out):
-        raise AuditError(f"{option} {value!r}: expected {what}")
-    return tuple(int(v) for v in out)
-
-
 def audit(
     scene_or_path,
     approximations=None,
@@ -621,6 +562,8 @@ def audit(
     metrics: Sequence[str] = ALL_METRICS,
     tag: tuple[str, str] | None = None,
     costs: dict[str, dict] | None = None,
+    roles: Sequence[str] | None = None,
+    quantities: Sequence[str] | None = None,
 ) -> AuditResult:
     """Audit the scene ``scene_or_path`` (a Mitsuba ``.xml`` or rtfit ``.toml`` path, or a Mitsuba scene
     dict as ``mi.load_dict`` takes it; a loaded ``mi.Scene`` is refused: `inspect_scene`) and return an
@@ -637,7 +580,8 @@ def audit(
     prefix, label prefix) put before every case's id and label, where one report holds the audits of
     several scenes (``rtfit run`` of a family born on the engine, `engine_run`). ``costs``: the costs already
     measured by the audits of the same run (method id → record; filled in place): a method is timed once per
-    run, not once per scene."""
+    run, not once per scene. ``roles``, ``quantities``: only the applicabilities of these roles and the cases
+    of these quantities (`ShippedScene.roles`; None: all)."""
     say = say or log.info
     probe_at = triple("--probe-at", probe_at, float)
     grid = triple("--grid", grid, int)
@@ -654,7 +598,7 @@ def audit(
         raise AuditError(
             f"--variant {variant}: the audit needs a vectorised variant (llvm_ad_rgb, cuda_ad_rgb)"
         )
-    _check_sizes(spp, pass_spp, width, height)
+    check_sizes(spp, pass_spp, width, height)
     check_ao_distance(ao_distance)
     info = inspect_scene(scene_or_path, defines=defines, camera=camera, width=width, height=height, up=up)
     film = info.xml.camera if info.xml is not None else None
@@ -666,10 +610,15 @@ def audit(
             raise AuditError(f"{e} (--width/--height render it smaller)") from None
     sel = resolve_approximations(approximations)
     found = selected_applicabilities(info, sel, ao_distance)
-    audited = [a for a in found if _audits(a, info.format)]
+    audited = [a for a in found if _audits(a, info.format) and (roles is None or a.role in roles)]
     skipped = [
-        f"{a.family} ({a.role}: {a.part}): listed by --list, not audited yet"
-        + (f" on {info.format} scenes" if _wrong_format(a, info.format) else "")
+        f"{a.family} ({a.role}: {a.part}): "
+        + (
+            "not audited in this run (not a role it asks for)"
+            if _audits(a, info.format)
+            else "listed by --list, not audited yet"
+            + (f" on {info.format} scenes" if _wrong_format(a, info.format) else "")
+        )
         for a in found
         if a not in audited
     ]
@@ -688,8 +637,8 @@ def audit(
     target = None
     if out is not None:
         target = Path(out) / f"audit-{_scene_name(info.source)}"
-        _check_out(target)
-    _check_out(Path(cache) if cache is not None else default_cache_dir(), "--cache")
+        check_out(target)
+    check_out(Path(cache) if cache is not None else default_cache_dir(), "--cache")
     say(f"camera: {info.camera}; up: {info.up_reason}")  # (after every refusal: one line, then progress)
     cache_root = Path(cache) if cache is not None else default_cache_dir()
     backend = use_variant_backend(variant)
@@ -741,6 +690,7 @@ def audit(
                 probe_at=probe_at,
                 grid=grid,
                 pom_depth=pom_depth,
+                quantities=None if quantities is None else frozenset(quantities),
             )
             timings["reference"] += time.perf_counter() - t0
             # Family by family, each case evaluated and fitted as soon as its references are made: an
@@ -750,7 +700,11 @@ def audit(
                 spent = by_family.setdefault(a.family, {"reference": 0.0, "evaluation": 0.0, "fit": 0.0})
                 say(f"{a.family}: references for {a.part} ({spp} spp in passes of {pass_spp})")
                 tf = time.perf_counter()
-                cases = [c for c in family.cases(setup, a) if _rows(family, a, sel, c)]
+                cases = [
+                    c
+                    for c in family.cases(setup, a)
+                    if _rows(family, a, sel, c) and setup.wants(c.quantity or family.quantity)
+                ]
                 if tag is not None:
                     cases = [replace(c, id=f"{tag[0]}{c.id}", label=f"{tag[1]}{c.label}") for c in cases]
                 spent["reference"] += time.perf_counter() - tf

@@ -88,9 +88,11 @@ class EngineExperiment:
         shipped = {s.name: s for s in self.family.scenes}
         audits, tags = [], []
         costs: dict[str, dict] = {}  # each method timed once, on the first scene that has it
+        _check_selections(self.family, [shipped[name] for name in cfg["scenes"]])
         t0 = time.perf_counter()
         for name in cfg["scenes"]:
             scene = shipped[name]
+            roles, quantities = scene.audited(ctx.quick)
             width, height = scene.quick_size if ctx.quick else scene.size
             if cfg["resolution"] is not None:
                 width, height = cfg["resolution"], max(1, round(cfg["resolution"] * height / width))
@@ -115,6 +117,8 @@ class EngineExperiment:
                     tag=tag,
                     costs=costs,
                     defines=dict(scene.defines) or None,
+                    roles=roles,
+                    quantities=quantities,
                     **dict(scene.options),
                 )
             )
@@ -198,6 +202,12 @@ class EngineExperiment:
 
     # ---------------------------------------------------------------------------------------------- bench
     def bench(self, ctx) -> list[dict]:
+        """Every method with only declared-domain inputs (`method_bench`), then the family's own rows
+        (`Family.bench`: its reference estimators, a texture's build)."""
+        own = self.family.bench(ctx) if self.family.bench is not None else []
+        return [*self.method_bench(ctx), *own]
+
+    def method_bench(self, ctx) -> list[dict]:
         """Every method with only declared-domain inputs (a table or sampler input is left out): Dr.Jit vs
         NumPy of the same kernel text on ``size`` elements drawn uniformly over each input's domain (a
         fixed seed), at its declared parameters, against the memory floor of its inputs."""
@@ -230,6 +240,26 @@ class EngineExperiment:
         inputs = {k: Float(v) for k, v in np_inputs.items()}
         base = f"memory baseline (fma of the {len(inputs)} inputs)"
         return method_bench_rows(methods, backend, inputs, np_inputs, n, baseline=base)
+
+
+def _check_selections(family: Family, scenes) -> None:
+    """Every role and quantity a shipped scene names is one of the family's (`ShippedScene.roles`), checked
+    before anything is rendered."""
+    roles = {r for a in family.audits for r in (a.roles or ())}
+    quantities = {q for a in family.audits for q in (a.quantity, *a.quantities)}
+    for scene in scenes:
+        for quick in (False, True):
+            named_roles, named_quantities = scene.audited(quick)
+            for kind, named, known in (
+                ("role", named_roles, roles),
+                ("quantity", named_quantities, quantities),
+            ):
+                stray = sorted(set(named or ()) - known)
+                if stray:
+                    raise ValueError(
+                        f"{family.name}: shipped scene {scene.name} names the {kind} {', '.join(stray)}, "
+                        f"not one of the family's ({', '.join(sorted(known))})"
+                    )
 
 
 def experiment(name: str) -> EngineExperiment:

@@ -91,7 +91,7 @@ from . import (
 )
 from .audit import Rule
 from .audit_family import AuditFamily, ShippedScene, Study, StudyContext, by_name
-from .registry import ALIASES, SPP_MAX, ExperimentSpec, UnknownExperiment, apply_overrides
+from .registry import ALIASES, SPP_MAX, BenchContext, ExperimentSpec, UnknownExperiment, apply_overrides
 
 __all__ = [
     "AUDITED",
@@ -127,6 +127,10 @@ class Family:
     study: Callable[[StudyContext], Study] | None = None
     """Its own study (tables and figures only it has), run after the engine on its shipped scenes: a
     function of a leaf module that imports no other family."""
+    bench: Callable[[BenchContext], list[dict]] | None = None
+    """Its own ``rtfit bench NAME`` rows (given the `registry.BenchContext`: the reference estimators, a
+    texture's build), appended to the engine's rows of its methods (`engine_run.EngineExperiment.bench`);
+    for a family born on the engine, a function of its study's leaf module."""
 
     def __post_init__(self):
         stray = [a.name for a in self.audits if a.name != self.name]
@@ -134,7 +138,7 @@ class Family:
             raise ValueError(f"family {self.name!r}: declarations of another family ({', '.join(stray)})")
         if self.audits and self.methods is None:
             raise ValueError(f"family {self.name!r}: an audited family needs its method table")
-        if (self.module == ENGINE) != bool(self.scenes) or (self.study and not self.scenes):
+        if (self.module == ENGINE) != bool(self.scenes) or ((self.study or self.bench) and not self.scenes):
             raise ValueError(f"family {self.name!r}: a family run by the engine ({ENGINE}) ships its scenes")
 
     @property
@@ -226,6 +230,7 @@ FAMILIES: dict[str, Family] = {
             audits=(audit_nishita_sky.FAMILY, audit_sky_emitter.FAMILY),
             scenes=audit_nishita_sky.SCENES,
             study=nishita_sky_study.study,
+            bench=nishita_sky_study.bench,
         ),
         Family(
             "volumetric-lightning",

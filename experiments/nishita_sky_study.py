@@ -57,7 +57,16 @@ from .cost import time_drjit, time_numpy
 from .records import Check, Headline
 from .sky_rows import near_sun
 
-__all__ = ["Sky", "config", "quadrature_check", "skies", "spectral_white_balance", "study"]
+__all__ = [
+    "BENCH_SETTINGS",
+    "Sky",
+    "bench",
+    "config",
+    "quadrature_check",
+    "skies",
+    "spectral_white_balance",
+    "study",
+]
 
 SPECTRAL = "nishita-spectral"
 RGB = ("nishita-seed", "nishita-fine")
@@ -470,6 +479,43 @@ def cost_part(ctx, cfg, backend) -> list[dict]:
             )
         rows.append(row)
     return rows
+
+
+# ============================================================================================== bench
+BENCH_SETTINGS = (
+    *(dataclasses.replace(SEED_SETTING, layers=n) for n in (8, 32, 128)),
+    dataclasses.replace(SEED_SETTING, width=512, height=256),
+    FINE_SETTING,
+)
+"""The texture builds `bench` times (the old experiment's: the seed at 8, 32, 128 layers, at 512×256, the
+fine setting)."""
+
+
+def bench(ctx) -> list[dict]:
+    """``rtfit bench nishita-sky`` beyond the engine's rows (`Family.bench`): the whole texture's build per
+    `BENCH_SETTINGS` (``--quick``: the first two), Dr.Jit (this backend) vs the NumPy loop, and the reference
+    estimators side by side (`bench_media`, sun 10°: 32×16 at 128 spp with ``--quick``, else 128×64 at 1024
+    spp)."""
+    backend = backend_of(ctx.variant)
+    p = atmosphere_params_of(library_atmosphere())
+    rows = []
+    for setting in BENCH_SETTINGS[:2] if ctx.quick else BENCH_SETTINGS:  # (NumPy's fine build: ~1 min)
+        c = setting.build_keywords()
+        texels = c["width"] * c["height"]
+        t_dr = time_drjit(_builder(p, 10.0, c, backend), (), texels, repeats=5)
+        fn = lambda c=c: build_sky(p, 10.0, 10.0, backend="numpy", **c)  # noqa: E731
+        t_np = time_numpy(fn, (), texels, repeats=1 if ctx.quick else 3, min_seconds=0.0)
+        rows.append({
+            "what": f"texture build n={c['layers']} {c['width']}×{c['height']} table {c['table_size']}",
+            "backend": backend,
+            "elements": texels,
+            "drjit_ms": t_dr.seconds * 1e3,
+            "numpy_ms": t_np.seconds * 1e3,
+            "drjit/numpy": t_np.seconds / t_dr.seconds,
+            "seed_2006_s": 15.0,
+        })  # fmt: skip
+    res, spp = ((32, 16), 128) if ctx.quick else ((128, 64), 1024)
+    return rows + bench_media(ctx.variant, library_atmosphere(sun_elevation_deg=10.0), res=res, spp=spp)
 
 
 # ============================================================================================== study

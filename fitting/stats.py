@@ -9,8 +9,11 @@ the per-element variance estimate is unreliable where an element got only a few 
 Tolerances of `z_checks` (defaults, each derived):
 
 * robust spread 1.4826·MAD of n ≥ 500 normal z-scores has a standard deviation ≈ 1.17/√n ≤ 0.05, so
-  |spread − 1| ≤ 0.15 is a 3σ band;
-* |median| ≤ 0.15 likewise (the median of n normal values has standard deviation 1.2533/√n ≤ 0.056);
+  |spread − 1| ≤ 0.15 is a 3σ band; with fewer elements the band widens to k·(that standard deviation)
+  (`z_spread_tolerance`: k = Φ⁻¹(1 − α/2), α = 1 %, the false-alarm rate of the largest-|z| check), never
+  narrower than 0.15 (a 6×6-pixel case's 36 values: ± 0.50);
+* |median| ≤ 0.15 likewise (the median of n normal values has standard deviation 1.2533/√n ≤ 0.056),
+  widened the same way where n is small (`z_median_tolerance`);
 * with normal z-scores only 6.3e-5 of the elements exceed |z| > 4, so a tail fraction ≤ 1 % leaves room
   for the few-hit elements alone.
 
@@ -36,6 +39,7 @@ __all__ = [
     "MAD_TO_SIGMA",
     "Z_MEDIAN_TOLERANCE",
     "Z_MIN_SAMPLES",
+    "Z_SPREAD_ALPHA",
     "Z_SPREAD_TOLERANCE",
     "Z_TAIL_FRACTION",
     "concat_z_pairs",
@@ -45,13 +49,21 @@ __all__ = [
     "sidak_threshold",
     "t_tail",
     "z_checks",
+    "z_median_tolerance",
     "z_not_meaningful",
     "z_pair",
+    "z_spread_tolerance",
 ]
 
 MAD_TO_SIGMA = 1.4826
 """1/Φ⁻¹(3/4): the median absolute deviation of a normal sample times this is its standard deviation."""
 Z_SPREAD_TOLERANCE = 0.15
+"""The spread checks' tolerance where the elements are many (`z_spread_tolerance`: the narrowest band)."""
+Z_SPREAD_ALPHA = 0.01
+"""The false-alarm rate of one spread check (`z_spread_tolerance`): the 1 % of the largest-|z| check
+(`sidak_threshold`)."""
+MAD_SPREAD_SE = 1.1664
+"""√(asymptotic variance) of 1.4826·MAD of n standard normal values, times √n (√1.3605)."""
 Z_MEDIAN_TOLERANCE = 0.15
 Z_TAIL_FRACTION = 0.01
 Z_MIN_SAMPLES = 8
@@ -137,6 +149,45 @@ def concat_z_pairs(pairs) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs])
 
 
+def z_spread_tolerance(
+    n: int,
+    *,
+    robust: bool = False,
+    samples: int | None = None,
+    floor: float = Z_SPREAD_TOLERANCE,
+    alpha: float = Z_SPREAD_ALPHA,
+) -> float:
+    """The tolerance of the spread of ``n`` z-scores around its expected value: k·se, k = Φ⁻¹(1 − α/2) (a
+    spread check of exact z fails with probability ≈ α), never below ``floor`` (the tolerance of many
+    elements). se: the standard error of the sample standard deviation of n values of kurtosis κ,
+    σ·√((κ − 1)/(4(n − 1))) (normal values, κ = 3: σ/√(2(n − 1))); σ and κ those of t(samples − 1) with
+    ``samples`` (κ = 3 + 6/(ν − 4)); ``robust``: of 1.4826·MAD instead, ≈ 1.1664·σ/√n (`MAD_SPREAD_SE`)."""
+    from scipy.stats import norm  # (as `sidak_threshold`)
+
+    n = max(int(n), 2)
+    k = float(norm.isf(alpha / 2))
+    if robust:
+        se = MAD_SPREAD_SE * expected_robust_spread(samples) / math.sqrt(n)
+    else:
+        nu = t_dof(samples)
+        kurtosis = 3.0 if math.isinf(nu) or nu <= 4 else 3.0 + 6.0 / (nu - 4.0)
+        se = expected_spread(samples) * math.sqrt((kurtosis - 1.0) / (4.0 * (n - 1)))
+    return max(float(floor), k * se)
+
+
+def z_median_tolerance(
+    n: int, *, floor: float = Z_MEDIAN_TOLERANCE, alpha: float = Z_SPREAD_ALPHA, samples: int | None = None
+) -> float:
+    """The tolerance of the median of ``n`` z-scores around 0: k·√(π/2)/√n (the median's standard error for
+    standard normal values; t(samples − 1): 1/(2·f_t(0)·√n)), k as `z_spread_tolerance`'s, never below
+    ``floor``."""
+    from scipy.stats import norm, t
+
+    nu = t_dof(samples)
+    density = float(norm.pdf(0.0)) if math.isinf(nu) else float(t.pdf(0.0, nu))
+    return max(float(floor), float(norm.isf(alpha / 2)) / (2.0 * density * math.sqrt(max(int(n), 1))))
+
+
 def z_checks(
     what: str,
     z,
@@ -148,7 +199,9 @@ def z_checks(
     samples: int | None = None,
 ) -> list[dict]:
     """Three check records (name, value, expected, passed) for z-scores that should be standard normal:
-    robust spread 1 ± tol, median 0 ± tol, and the fraction of ``z_all`` (default ``z``) beyond |z| > 4.
+    robust spread 1 ± tol (``spread_tolerance`` where the elements are many, wider where few:
+    `z_spread_tolerance`), median 0 ± tol (likewise: `z_median_tolerance`), and the fraction of ``z_all``
+    (default ``z``) beyond |z| > 4.
     No element at all is one failed check. ``samples``: the samples per element the standard errors were
     estimated from; the spread is then expected at `expected_robust_spread` and the tail fraction allowed
     `t_tail` (4) more (module docstring); below `Z_MIN_SAMPLES` each check reports its value, passes and
@@ -173,23 +226,22 @@ def z_checks(
             for n, v in zip(names, (spread, median, tail), strict=True)
         ]
     centre = expected_robust_spread(samples)
+    tol = z_spread_tolerance(z.size, robust=True, samples=samples, floor=spread_tolerance)
+    median_tol = z_median_tolerance(z.size, floor=median_tolerance, samples=samples)
     allowed = tail_fraction + (0.0 if samples is None else t_tail(4.0, samples))
     of_t = "" if samples is None else f" (t({samples - 1}): {samples} samples per element)"
     return [
         {
             "name": names[0],
             "value": spread,
-            "expected": (
-                f"1 ± {spread_tolerance}" if samples is None else f"{centre:.4g} ± {spread_tolerance}"
-            )
-            + of_t,
-            "passed": bool(abs(spread - centre) <= spread_tolerance),
+            "expected": (f"1 ± {tol:.3g}" if samples is None else f"{centre:.4g} ± {tol:.3g}") + of_t,
+            "passed": bool(abs(spread - centre) <= tol),
         },
         {
             "name": names[1],
             "value": median,
-            "expected": f"0 ± {median_tolerance}",
-            "passed": bool(abs(median) <= median_tolerance),
+            "expected": f"0 ± {median_tol:.3g}",
+            "passed": bool(abs(median) <= median_tol),
         },
         {
             "name": names[2],

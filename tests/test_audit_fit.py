@@ -104,3 +104,54 @@ def test_a_kernel_that_gathers_from_a_uniforms_table_reads_its_values():
     u = Uniforms.of(table)
     got = np.asarray(DRJIT_OPS.gather(u, idx))
     assert got == pytest.approx(np.array(u)[[0, 7, 29]], rel=1e-12)  # (each entry within 2⁻²⁰·(|v|+1)·30)
+
+
+def _scale(ops, x, a):
+    return a * x
+
+
+SCALE = Method(
+    id="scale",
+    label="a·x",
+    kernel=_scale,
+    inputs=(Input("x", "1", "abscissa", domain=(0.0, 10.0)),),
+    params={"a": Param(1.0, -10.0, 10.0, unit="1")},
+    formula="a·x",
+)
+
+
+@pytest.mark.parametrize("with_factor", [False, True])
+def test_a_relative_fit_minimises_the_relative_error_over_the_noise_floor(with_factor):
+    """``fit_weight="relative"``: the fit of a·x·s to y minimises Σ((a·x·s − y)/m)², m = max(|y|, σ), whose
+    minimum is a = Σ(x·s·y/m²) / Σ((x·s)²/m²) (closed form); absolute, a = Σ(x·s·y) / Σ((x·s)²). Dark pixels
+    (y below σ, one y = 0) are weighed by σ, not by their own tiny value."""
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0.5, 10, 30)
+    y = np.where(np.arange(30) % 3 == 0, 1e-3 * x, 2.0 * x * rng.uniform(0.8, 1.2, 30))
+    y[1] = 0.0
+    s = rng.uniform(0.5, 2.0, 30) if with_factor else np.ones(30)
+    mean = np.repeat(y[None, :, None], 3, axis=2)
+    ref = AuditReference(mean, np.full_like(mean, 0.02), 16, 1, 1, "k", "p", 0.0, "q", "none", "planted")
+    sigma = ref.sigma()[0, :, 0]
+    assert sigma.min() >= 0.02 and (np.abs(y) < sigma).sum() >= 10  # (the floor matters on the dark third)
+    common = dict(reference=ref, mask=np.ones((1, 30), bool), channel_inputs=({"x": x / s},) * 3,
+                  factor=s if with_factor else None)  # fmt: skip
+    rel = FamilyCase("rel", "rel", fit_weight="relative", **common)
+    ab = FamilyCase("abs", "abs", **common)
+    m = np.maximum(np.abs(y), sigma)
+    xs = x  # x/s·s: the image's value per unit a
+    expected_rel = np.sum(xs * y / m**2) / np.sum(xs**2 / m**2)
+    expected_abs = np.sum(xs / s * y / s) / np.sum((xs / s) ** 2)  # (absolute: on the target y/s)
+    got_rel = fit_case(SCALE, rel, "scale")["parameters"]["a"]["value"]
+    got_abs = fit_case(SCALE, ab, "scale")["parameters"]["a"]["value"]
+    assert got_rel == pytest.approx(expected_rel, rel=1e-6)
+    assert got_abs == pytest.approx(expected_abs, rel=1e-6)
+    assert abs(got_rel - got_abs) > 0.05 * abs(got_abs)  # (the weighting changes the answer)
+
+
+def test_an_unknown_fit_weight_is_refused():
+    from rtfit.experiments.audit_family import AuditError
+
+    with pytest.raises(AuditError, match="fit_weight 'square'"):
+        FamilyCase("c", "c", _case("x", np.ones(2), np.ones(2)).reference, np.ones((1, 2), bool),
+                   ({"x": 1.0},) * 3, fit_weight="square")  # fmt: skip

@@ -15,7 +15,7 @@ import pytest
 from rtfit.experiments import audit_diffuse, engine_run
 from rtfit.experiments.audit_family import ShippedScene, Study
 from rtfit.experiments.families import ENGINE, FAMILIES, Family
-from rtfit.experiments.records import Check, Fit, Section
+from rtfit.experiments.records import Check, Fit, Section, to_json
 from rtfit.experiments.registry import ExperimentSpec
 from rtfit.experiments.results import load_results
 from rtfit.experiments.runner import failed_checks, run_experiments
@@ -24,7 +24,7 @@ from rtfit.realtime import diffuse
 SCENE = ShippedScene("sphere_light.toml", "sphere light", quick_size=(16, 16), quick_spp=8)
 
 
-def _planted(monkeypatch, study=None) -> ExperimentSpec:
+def _planted(monkeypatch, study=None, bench=None) -> ExperimentSpec:
     fam = Family(
         "diffuse",
         ENGINE,
@@ -34,6 +34,7 @@ def _planted(monkeypatch, study=None) -> ExperimentSpec:
         audits=(audit_diffuse.FAMILY,),
         scenes=(SCENE,),
         study=study,
+        bench=bench,
     )
     monkeypatch.setattr(engine_run, "FAMILIES", {**FAMILIES, "diffuse": fam})
     return ExperimentSpec("diffuse", ENGINE, "planted", "d")
@@ -129,6 +130,25 @@ def test_bench_times_every_method_with_declared_domains(monkeypatch):
     assert all(r["ns_per_px"] > 0 for r in rows)
 
 
+def test_a_family_bench_hook_adds_its_rows_after_the_engine_rows(monkeypatch):
+    from rtfit.experiments import nishita_sky_study
+    from rtfit.experiments.registry import BenchContext
+
+    given = []
+
+    def own(ctx):
+        given.append(ctx)
+        return [{"what": "planted reference throughput", "backend": "llvm", "Mray_s": 1.0}]
+
+    ctx = BenchContext(variant="llvm_ad_rgb", size=1 << 10, quick=True)
+    plain = [r["what"] for r in _planted(monkeypatch).load().bench(ctx)]
+    rows = [r["what"] for r in _planted(monkeypatch, bench=own).load().bench(ctx)]
+    assert rows == [*plain, "planted reference throughput"] and given == [ctx]
+    with pytest.raises(ValueError, match="ships its scenes"):
+        Family("x", "rtfit.experiments.x", "t", "d", bench=own)  # (an old module has its own bench)
+    assert FAMILIES["nishita-sky"].bench is nishita_sky_study.bench
+
+
 def test_every_shipped_scene_of_the_registry_is_in_the_library():
     from rtfit.scenes.parse import LIBRARY_DIR
 
@@ -157,3 +177,52 @@ def test_a_shipped_xml_scene_is_named_like_a_toml_one():
     assert inspect_scene("fresnel-spheres.xml").source == info.source
     with pytest.raises(AuditError, match="no such scene file"):
         inspect_scene("no_such_shipped_scene")
+
+
+def test_a_shipped_scene_audits_only_the_roles_it_names(tmp_path, monkeypatch):
+    """``quick_roles``: the roles left out are never asked for their cases (so nothing of theirs is
+    rendered) and are named in the notes; the full run audits every role."""
+    from rtfit.experiments import audit_ambient_aperture as aa
+
+    def refused(setup, app):
+        raise AssertionError(f"{app.role}: rendered although the scene does not audit it")
+
+    monkeypatch.setitem(aa._CASES, aa.CAPS_ROLE, refused)
+    scene = ShippedScene("aperture_hole.toml", "hole", quick_roles=(aa.LIGHT_ROLE,))
+    assert scene.audited(True) == ((aa.LIGHT_ROLE,), None) and scene.audited(False) == (None, None)
+    roles, quantities = scene.audited(True)
+    r = engine_run.audit(
+        engine_run.LIBRARY_DIR / scene.file, ["ambient-aperture"], spp=8, width=8, height=8, fit=False,
+        cache=tmp_path / "cache", roles=roles, quantities=quantities, metrics=("rmse",),
+    )  # fmt: skip
+    assert [c.id for c in r.cases] == ["light0-occluded"]
+    notes = " ".join(to_json(r.results)["notes"])
+    assert f"({aa.CAPS_ROLE}: " in notes and "not audited in this run" in notes
+
+
+def test_a_shipped_scene_audits_only_the_quantities_it_names(tmp_path, monkeypatch):
+    """``quick_quantities``: height fog's terrain without its transmittance case, whose ratio-tracking
+    reference is then never rendered."""
+    from rtfit.experiments import audit_height_fog as hf
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the transmittance reference was rendered")
+
+    monkeypatch.setattr(hf, "_transmittance", refused)
+    r = engine_run.audit(
+        engine_run.LIBRARY_DIR / "fog_terrain_e40_single.toml", ["height-fog"], spp=4, width=8, height=4,
+        fit=False, cache=tmp_path / "cache", quantities=("fogged_radiance",), metrics=("rmse",),
+    )  # fmt: skip
+    assert [c.id for c in r.cases] == ["fog0-radiance"]
+
+
+def test_a_shipped_scene_names_only_its_family_roles_and_quantities():
+    fam = FAMILIES["height-fog"]
+    for bad, word in (
+        ({"quick_roles": ("no such role",)}, "role"),
+        ({"quantities": ("radiance",)}, "quantity"),
+    ):
+        scene = ShippedScene("fog_transmittance.toml", "x", **bad)
+        with pytest.raises(ValueError, match=f"names the {word}"):
+            engine_run._check_selections(fam, [scene])
+    engine_run._check_selections(fam, fam.scenes)  # (the shipped ones are right)
