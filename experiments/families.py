@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 from rtfit.realtime import (
     ambient_aperture,
+    colour_bleeding,
     diffuse,
     environment_bases,
     fresnel,
@@ -57,6 +58,7 @@ from . import (
     audit_aerial_perspective,
     audit_ambient_aperture,
     audit_ambient_occlusion,
+    audit_colour_bleeding,
     audit_diffuse,
     audit_environment_maps,
     audit_fog_media,
@@ -380,6 +382,18 @@ FAMILIES: dict[str, Family] = {
             methods=ibl_samples.METHODS,
             audits=(audit_ibl_samples.FAMILY,),
             scenes=audit_ibl_samples.SCENES,
+        ),
+        Family(
+            "colour-bleeding",
+            ENGINE,
+            "Colour bleeding (per-channel SDF bias, RGB obscurances, one-bounce gather) vs one bounce",
+            "The seed's per-channel SDF biased by the surface colour (bias fitted per channel), the seed's "
+            "RGB obscurances' colour part (√ transfer, and fitted) and a one-bounce gather reading the "
+            "direct light at each hit, on K = 4 and 16 rays, against the path-traced one-bounce indirect "
+            "irradiance per channel (path max_depth 2 − 1 along cosine rays).",
+            methods=colour_bleeding.METHODS,
+            audits=(audit_colour_bleeding.FAMILY,),
+            scenes=audit_colour_bleeding.SCENES,
         ),
     )
 }

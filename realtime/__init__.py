@@ -69,6 +69,8 @@ Modules:
     ibl_samples image-based lighting from N directional lights baked from an environment map (the seed's
                 energy samples + Lloyd relaxation, median cut), each with its own shadow
                 (docs/ibl-samples.md).
+    colour_bleeding  stand-ins for one diffuse bounce per channel: the seed's per-channel SDF bias, RGB
+                obscurances' colour part, a one-bounce gather (docs/colour-bleeding.md).
     obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
                 estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
@@ -83,6 +85,7 @@ from .aerial_perspective import *  # noqa: F403
 from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
+from .colour_bleeding import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .environment_bases import *  # noqa: F403
 from .environment_maps import *  # noqa: F403
@@ -143,6 +146,7 @@ MODULES = (
     "sh_sky_bent_normal",
     "pcf_soft_shadows",
     "ibl_samples",
+    "colour_bleeding",
     "quantities",
     "shader",
 )

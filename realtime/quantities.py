@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from . import soft_particles
+from .colour_bleeding import INPUTS as BLEED_INPUTS
 from .fresnel import INPUTS as FRESNEL_INPUTS
 from .ibl_samples import INPUTS as IBL_INPUTS
 from .irradiance_volumes import ProbeGrid, probe_table
@@ -728,6 +729,16 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 FRESNEL_INPUTS,
                 reference="Mitsuba's own Fresnel of the visible conductor or dielectric: the smooth BSDF's "
                 "delta-reflection weight, fresnel()/fresnel_conductor() on a rough BSDF's η, k",
+            ),
+            Quantity(
+                "bounce_irradiance",
+                "W/m²",
+                "one-bounce indirect irradiance at a surface point in one colour channel, from K = 16 "
+                "cosine-distributed rays: each hit's distance, albedo and direct irradiance",
+                BLEED_INPUTS,
+                reference="one-bounce indirect irradiance at the visible points, per channel: a cosine ray, "
+                "then π × (path max_depth 2 − path max_depth 1)",
+                note="called once per channel (g.channel 0, 1, 2); a miss has d = 1e30, a = e = 0",
             ),
         )
     }

@@ -673,8 +673,8 @@ def irradiance_pass(
     check_spp(spp)
     if mi.variant().startswith("scalar"):
         raise ValueError("irradiance probes need a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
-    if transport not in ("direct", "global"):
-        raise ValueError(f"transport must be 'direct' or 'global' (got {transport!r})")
+    if transport not in ("direct", "global", "bounce"):
+        raise ValueError(f"transport must be 'direct', 'global' or 'bounce' (got {transport!r})")
     t0 = time.perf_counter()
     probes = as_device_probes(mi, points, normals, normalise=False)
     acc = PassMoments(mi, probes.count, 3, spp)
@@ -682,6 +682,8 @@ def irradiance_pass(
     for a, sampler, (p, nrm) in point_chunks(mi, spp, seed, columns):
         if transport == "direct":
             value = _direct_irradiance(mi, dr, mi_scene, sampler, p, nrm)
+        elif transport == "bounce":
+            value = _bounce_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         else:
             value = _global_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         acc.add(a, [value[c] for c in range(3)])
@@ -726,6 +728,21 @@ def _direct_irradiance(mi, dr, mi_scene, sampler, p, n):
     pdf_cos = mi.warp.square_to_cosine_hemisphere_pdf(d_local)
     e_cos = dr.select(pdf_cos > 0, le * dr.pi * _power(pdf_cos, pdf_em_hit), 0.0)
     return e_em + e_cos
+
+
+def _bounce_irradiance(mi, dr, mi_scene, sampler, p, n):
+    """One-bounce indirect irradiance: π × (``path`` with max_depth 2 − ``path`` with max_depth 1) along a
+    cosine-distributed ray, i.e. π × the light leaving the first surface y after one reflection of the
+    lights' direct light (Mitsuba's next-event estimation and BSDF sampling at y, MIS), without y's own
+    emission (the direct light at x: max_depth 1 returns exactly that, deterministically, on the same ray)."""
+    it = _probe_interaction(mi, dr, p, n)
+    d = mi.Frame3f(n).to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
+    ray = it.spawn_ray(d)
+    two = mi.load_dict({"type": "path", "max_depth": 2})
+    one = mi.load_dict({"type": "path", "max_depth": 1})
+    value, _, _ = two.sample(mi_scene, sampler, ray, None, True)
+    emitted, _, _ = one.sample(mi_scene, sampler, ray, None, True)
+    return (value - emitted) * dr.pi
 
 
 def _global_irradiance(mi, dr, mi_scene, sampler, p, n):
