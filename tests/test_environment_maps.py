@@ -413,3 +413,16 @@ def test_study_impostor_search_beats_classic_against_exact_hits():
     cur = {(c["sphere"], c["kind"], c["row"]): c for c in imp["curves"]}
     assert cur[("moved", "mirror", "iterative-8")]["hit_error_mean_m"] < 0.01
     assert cur[("moved", "mirror", "classic")]["hit_error_mean_m"] > 0.3
+
+
+def test_audit_list_names_the_family_on_the_shipped_room():
+    from click.testing import CliRunner
+
+    from rtfit.experiments.audit_cli import audit as audit_cmd
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    scene = LIBRARY_DIR / "environment_maps_room_glass.xml"
+    out = CliRunner().invoke(audit_cmd, [str(scene), "--list", "-D", "centre=0,0,1.25"])
+    assert out.exit_code == 0, out.output
+    line = next(x for x in out.output.splitlines() if x.strip().startswith("environment-maps — reflections"))
+    assert "glass sphere 'sphere'" in line
