@@ -308,7 +308,7 @@ def _scene(material: str, where: str) -> ShippedScene:
         "room, cube maps captured at the room's centre",
         size=(96, 96),
         spp=2048 if material == "glass" else 16,
-        quick_size=(32, 32),
+        quick_size=(16, 16),
         quick_spp=64 if material == "glass" else 4,
         options={"probe_at": tuple(float(c) for c in ROOM_CENTRE.split(","))},
         defines={"centre": SPHERES[where]},
