@@ -64,12 +64,13 @@ from rtfit.reference.reflective_shapes import (
 )
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
 
 __all__ = [
     "FAMILY",
     "FAR_FACTOR",
     "LOBE_SAMPLES",
+    "SCENES",
     "environment_maps_cases",
     "filtered_tables",
     "on_probe",
@@ -290,3 +291,33 @@ FAMILY = AuditFamily(
         ),
     ),
 )
+
+
+ROOM_CENTRE = "0, 0, 1.25"
+"""The room's centre (m): where the experiment before the engine captured its cube maps."""
+SPHERES = {"moved": "1, 0.4, 0.75", "at-reference": ROOM_CENTRE}
+"""The sphere's centre (m) in scenes/library/environment_maps_room_*.xml: moved 1.2 m from the room's centre
+(its cube maps captured at the room's centre: the parallax the impostors correct) or at the centre."""
+
+
+def _scene(material: str, where: str) -> ShippedScene:
+    what = "perfect mirror" if material == "mirror" else "glass sphere (n = 1.5)"
+    return ShippedScene(
+        f"environment_maps_room_{material}.xml",
+        f"{what} {'moved 1.2 m from' if where == 'moved' else 'at'} the centre of the textured emitting "
+        "room, cube maps captured at the room's centre",
+        size=(96, 96),
+        spp=2048 if material == "glass" else 16,
+        quick_size=(16, 16),
+        quick_spp=64 if material == "glass" else 4,
+        options={"probe_at": tuple(float(c) for c in ROOM_CENTRE.split(","))},
+        defines={"centre": SPHERES[where]},
+        name=f"{material}-{where}",
+        quick=where == "moved" and material == "mirror",
+    )
+
+
+SCENES = tuple(_scene(m, w) for w in SPHERES for m in ("mirror", "glass"))
+"""The scenes ``rtfit run environment-maps`` audits: the experiment's room (walls emitting its closed-form
+texture, reflecting nothing) with a perfect-mirror or a glass sphere, moved from the room's centre (quick) or
+at it, the cube maps captured at the room's centre (the cases of the experiment's path-traced part)."""

@@ -80,6 +80,7 @@ from . import (
     audit_soft_particles,
     audit_volumetric_lightning,
     diffuse_study,
+    environment_maps_study,
     height_fog_study,
     irradiance_bases_study,
     irradiance_volumes_study,
@@ -293,13 +294,17 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "environment-maps",
-            "rtfit.experiments.environment_maps",
+            ENGINE,
             "Pre-convolved and localised environment maps, distance impostors vs exact traces in a room",
-            "Cube-map convolution solid-angle rules, the seed's localised diffuse/glossy convolution with "
-            "its cosine look-up against depth-1 Monte Carlo in an emissive room, and the impostor Hit search "
-            "against exact ray_intersect hit points of a mirror and a glass sphere.",
+            "A mirror and a glass sphere in an emitting room audited by the engine (classic, distance "
+            "impostor, secant search against path tracing), plus the study: cube-map convolution "
+            "solid-angle rules, the seed's localised convolution against depth-1 Monte Carlo, impostor hits "
+            "against exact traces, and the lookups against path-traced spheres over map size, iterations "
+            "and Fresnel.",
             methods=reflections.METHODS,
             audits=(audit_environment_maps.FAMILY,),
+            scenes=audit_environment_maps.SCENES,
+            study=environment_maps_study.study,
         ),
         Family(
             "parallax-occlusion",

@@ -319,3 +319,110 @@ def test_texel_room_matches_mitsuba_emitters():
     want = room.room_radiance(np.asarray(si.p, np.float64).T, "texels")
     assert np.all(np.asarray(si.is_valid()))
     assert np.max(np.abs(got - want) / want) <= 2e-6
+
+
+# ------------------------------------------------------------------ rtfit run environment-maps (the engine)
+def _slab_exit(p: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Where rays from points inside the room leave it: the slab method, written here."""
+    lo, hi = np.array([-2.0, -1.5, 0.0]), np.array([2.0, 1.5, 2.5])
+    with np.errstate(divide="ignore"):
+        t = np.where(d > 0, (hi - p) / d, np.where(d < 0, (lo - p) / d, np.inf))
+    return p + t.min(axis=1, keepdims=True) * d
+
+
+def test_run_is_the_engine_on_the_shipped_room_plus_the_study(tmp_path):
+    """``rtfit run environment-maps`` = the engine on the shipped room scenes (walls emitting the closed-form
+    texture as 1/32 m bitmaps, a mirror or glass sphere, cube maps at the room's centre) + the study leaf.
+    Independent values: the mirror sphere's path-traced radiance is the texture at the slab-method exit of
+    the reflected ray (the normal (p − c)/r and the view ray from the file's camera, written here), off texel
+    edges; the closed room leaves no probe texel without a surface."""
+    from rtfit.experiments import audit_environment_maps as audit_em
+    from rtfit.experiments import environment_maps_study
+    from rtfit.experiments.audit_run import audit
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    fam = FAMILIES["environment-maps"]
+    assert fam.module == ENGINE and fam.scenes == audit_em.SCENES
+    assert fam.study is environment_maps_study.study
+    assert {s.name for s in fam.scenes} == {
+        "mirror-moved",
+        "glass-moved",
+        "mirror-at-reference",
+        "glass-at-reference",
+    }
+    assert {s.name for s in fam.scenes if s.quick} == {"mirror-moved"}
+    shipped = {s.name: s for s in fam.scenes}["mirror-moved"]
+    r = audit(LIBRARY_DIR / shipped.file, ["environment-maps"], spp=2, pass_spp=2, width=12, height=12,
+              fit=False, defines=shipped.defines, probe_at=shipped.options["probe_at"],
+              cache=tmp_path / "cache", cost_elements=1 << 10)  # fmt: skip
+    (case,) = r.cases
+    assert case.parameters["probe"] == pytest.approx([0.0, 0.0, 1.25])
+    assert case.parameters["texels_missing_the_scene"] == 0
+    g = case.channel_inputs[0]
+    centre = np.array([1.0, 0.4, 0.75])
+    p = np.stack([g["x"], g["y"], g["z"]], 1) + np.array([0.0, 0.0, 1.25])
+    n = (p - centre) / np.linalg.norm(p - centre, axis=1, keepdims=True)
+    v = p - np.array([-1.6, -1.2, 1.9])
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    hit = _slab_exit(p, v - 2.0 * np.sum(v * n, 1, keepdims=True) * n)
+    want = room.room_radiance(hit, "texels")  # the texture at the 1/32 m texel centre (nearest filtering)
+    texel = hit / room.EMITTER_TEXEL  # off texel edges on both in-plane axes (and off the room's edges)
+    frac = np.abs(texel - np.round(texel))
+    on_wall = np.isclose(np.abs(hit), [2.0, 1.5, 0.0]) | np.isclose(hit, [2.0, 1.5, 2.5])
+    calm = np.all(on_wall | (frac > 0.1), axis=1)
+    got = case.reference.mean[case.mask][:, 0]
+    assert calm.sum() >= 0.5 * len(calm) and len(calm) >= 20
+    assert np.abs(got[calm] / want[calm] - 1).max() < 1e-4  # conductor "none" reflects everything
+    assert set(r.outcomes[case.id]) == {"classic", "parallax", "iterative"}
+
+
+def test_study_constant_environment_matches_the_midpoint_sum_and_the_continuum():
+    """The study's constant-environment table against the midpoint-rule sum over texel centres written here
+    (Σ max(n·ω, 0)·(2/N)²/|p|³ over the six faces, for n = +z) and E = π for exact Ω with the cap integral."""
+    from rtfit.experiments import environment_maps_study as study
+
+    cfg = study.configure(True)  # N = 2…32, 400 normals
+    const = study.constant_environment(cfg)
+    for row in const["rows"]:
+        n = row["N"]
+        c = (np.arange(n) + 0.5) / n * 2 - 1
+        u, w = (a.ravel() for a in np.meshgrid(c, c))
+        one = np.ones_like(u)
+        faces = [np.stack(f, 1) for f in ((u, w, one), (u, w, -one), (u, one, w), (u, -one, w), (one, u, w),
+                                           (-one, u, w))]  # fmt: skip
+        pts = np.concatenate(faces)
+        r = np.linalg.norm(pts, axis=1)
+        e = np.sum(np.maximum(pts[:, 2] / r, 0.0) * (2.0 / n) ** 2 / r**3)
+        assert row["midpoint_axis"] == pytest.approx(e / math.pi, rel=1e-9)
+    assert abs(const["rows"][-1]["cap_max"] - 1) < 5e-3 and abs(const["rows"][-1]["cap_min"] - 1) < 5e-3
+    checks = study.constant_checks(const)
+    assert len(checks) == 8 and all(c.passed for c in checks), [c.name for c in checks if not c.passed]
+
+
+def test_study_impostor_search_beats_classic_against_exact_hits():
+    """The sphere leaf's impostor part on an 8×8 image: the secant search's hits approach the exact hits
+    (Mitsuba's ray_intersect, itself against the slab method above) and beat the classic lookup."""
+    from rtfit.experiments import environment_maps_spheres as spheres
+    from rtfit.experiments import environment_maps_study as study
+
+    cfg = {**study.configure(True), "image_size": 8, "impostor_resolutions": [64], "iterations": [0, 8]}
+    imp = spheres.impostor_part("llvm_ad_rgb", cfg)
+    checks = spheres.impostor_checks(cfg, imp)
+    assert all(c.passed for c in checks), [(c.name, c.value) for c in checks if not c.passed]
+    cur = {(c["sphere"], c["kind"], c["row"]): c for c in imp["curves"]}
+    assert cur[("moved", "mirror", "iterative-8")]["hit_error_mean_m"] < 0.01
+    assert cur[("moved", "mirror", "classic")]["hit_error_mean_m"] > 0.3
+
+
+def test_audit_list_names_the_family_on_the_shipped_room():
+    from click.testing import CliRunner
+
+    from rtfit.experiments.audit_cli import audit as audit_cmd
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    scene = LIBRARY_DIR / "environment_maps_room_glass.xml"
+    out = CliRunner().invoke(audit_cmd, [str(scene), "--list", "-D", "centre=0,0,1.25"])
+    assert out.exit_code == 0, out.output
+    line = next(x for x in out.output.splitlines() if x.strip().startswith("environment-maps — reflections"))
+    assert "glass sphere 'sphere'" in line
