@@ -38,6 +38,7 @@ from rtfit.realtime import (
     obscurances,
     parallax_occlusion,
     pcf_soft_shadows,
+    probe_specular,
     reflections,
     sdf_occlusion,
     sh_sky_bent_normal,
@@ -70,6 +71,7 @@ from . import (
     audit_obscurances,
     audit_parallax_occlusion,
     audit_pcf_soft_shadows,
+    audit_probe_specular,
     audit_sh_sky_bent_normal,
     audit_sky_emitter,
     audit_sky_occlusion,
@@ -356,6 +358,17 @@ FAMILIES: dict[str, Family] = {
             methods=ibl_samples.METHODS,
             audits=(audit_ibl_samples.FAMILY,),
             scenes=audit_ibl_samples.SCENES,
+        ),
+        Family(
+            "probe-specular",
+            ENGINE,
+            "Glossy specular from the nearest pre-convolved cube map (placement, parallax, mip) vs path",
+            "The seed's nearest (or assigned) pre-rendered cube map pre-convolved per roughness (GGX chain), "
+            "with Lagarde's box and sphere parallax correction and a fitted roughness → mip exponent, from "
+            "the assigned probe and a 2×2×2 grid, against the path-traced radiance of glossy shapes.",
+            methods=probe_specular.METHODS,
+            audits=(audit_probe_specular.FAMILY,),
+            scenes=audit_probe_specular.SCENES,
         ),
     )
 }

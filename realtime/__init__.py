@@ -67,6 +67,9 @@ Modules:
     ibl_samples image-based lighting from N directional lights baked from an environment map (the seed's
                 energy samples + Lloyd relaxation, median cut), each with its own shadow
                 (docs/ibl-samples.md).
+    probe_specular  glossy specular from the nearest pre-rendered cube map pre-convolved per roughness
+                (GGX chain, roughness → mip), Lagarde's box/sphere parallax correction
+                (docs/probe-specular.md).
     obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
                 estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
@@ -99,6 +102,7 @@ from .obscurances import *  # noqa: F403
 from .parallax_occlusion import *  # noqa: F403
 from .pcf_soft_shadows import *  # noqa: F403
 from .phase import *  # noqa: F403
+from .probe_specular import *  # noqa: F403
 from .quantities import *  # noqa: F403
 from .reflections import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
@@ -139,6 +143,7 @@ MODULES = (
     "sh_sky_bent_normal",
     "pcf_soft_shadows",
     "ibl_samples",
+    "probe_specular",
     "quantities",
     "shader",
 )
