@@ -44,8 +44,8 @@ direction of that hit from the probe:
 
 Domain and guards (each with its reason)
 ----------------------------------------
-* α ∈ [0, 1] (clamped: a fit or a user value outside has no level); α is floored at 10⁻⁶ before α^(p/2)
-  (the JAX gradient of 0^q is NaN).
+* α ∈ [0, 1] (clamped: a fit or a user value outside has no level); α ≤ 0 is level 0 exactly, and α is
+  floored at 10⁻⁶ inside α^(p/2) (the JAX gradient of 0^q is NaN).
 * R, n unit vectors. A zero component of R: the box's 1/R is taken as ±10³⁰ (its slab is never the exit).
 * A shading point outside the box (t ≤ 0) or outside the sphere (negative discriminant, or t ≤ 0) has no
   exit point: the lookup falls back to R (no correction), which is also what an engine does past the
@@ -154,9 +154,11 @@ def prefilter(radiance: np.ndarray, target: int = PREFILTER_RESOLUTION, levels: 
 
 
 def mip_level_kernel(ops, alpha, levels, p):
-    """The level m = (levels − 1)·α^(p/2) ∈ [0, levels − 1] of a GGX roughness α (α clamped to [10⁻⁶, 1])."""
+    """The level m = (levels − 1)·α^(p/2) ∈ [0, levels − 1] of a GGX roughness α: 0 for α ≤ 0 (a mirror
+    reads level 0 exactly), α clamped to [10⁻⁶, 1] inside the power (module docstring)."""
     a = ops.clip(alpha, 1e-6, 1.0)
-    return ops.clip((levels - 1.0) * ops.power(a, 0.5 * p), 0.0, levels - 1.0)
+    m = ops.select(alpha > 0.0, (levels - 1.0) * ops.power(a, 0.5 * p), 0.0)
+    return ops.clip(m, 0.0, levels - 1.0)
 
 
 def chain_lookup_kernel(ops, table, dx, dy, dz, level, resolution, levels, probe):
