@@ -70,12 +70,8 @@ from .environment_maps import cube_lookup, cube_lookup_kernel, cube_texels, texe
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
-    "INPUTS",
-    "IRRADIANCE_RESOLUTION",
     "LEVELS",
-    "METHODS",
     "PREFILTER_RESOLUTION",
-    "PROBE_RESOLUTION",
     "ProbeChains",
     "box_parallax_kernel",
     "chain_lookup_kernel",
