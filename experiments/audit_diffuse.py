@@ -46,6 +46,7 @@ from .audit_lights import (
     light_reference,
     scene_light,
     small_sphere_caveat,
+    sphere_sampling_precision,
 )
 
 __all__ = ["ALPHAS_DEG", "FAMILY", "SCENES", "light_geometry", "light_radiance", "light_reference"]
@@ -131,6 +132,7 @@ def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             integrator="light-irradiance (emitter sampling" + (", shadow rays)" if k else ")"),
             integrator_reason=reason,
             columns=slice(3 * k, 3 * k + 3),
+            precision=sphere_sampling_precision(alpha) if radius > 0 else None,
         )
         cases.append(
             FamilyCase(

@@ -121,10 +121,20 @@ class AuditReference:
     quantity: str
     integrator: str
     integrator_reason: str
+    precision: np.ndarray | None = None
+    """The reference's own relative precision floor per pixel (H, W, 3), where its estimator's float32
+    arithmetic biases it beyond `RELATIVE_PRECISION_FLOOR` (a very small sphere light's cone sampling:
+    `audit_lights.sphere_sampling_precision`); None: `RELATIVE_PRECISION_FLOOR` everywhere."""
+
+    def relative_floor(self):
+        """The relative precision floor: `RELATIVE_PRECISION_FLOOR`, or per pixel at least ``precision``."""
+        if self.precision is None:
+            return RELATIVE_PRECISION_FLOOR
+        return np.maximum(RELATIVE_PRECISION_FLOOR, self.precision)
 
     def sigma(self) -> np.ndarray:
         """The standard error combined with the float32 precision floor (as `Reference.sigma`)."""
-        return np.sqrt(self.stderr**2 + (RELATIVE_PRECISION_FLOOR * self.mean) ** 2)
+        return np.sqrt(self.stderr**2 + (self.relative_floor() * self.mean) ** 2)
 
     @classmethod
     def deterministic(
@@ -191,12 +201,14 @@ class PooledPasses:
         integrator_reason: str,
         columns: slice | None = None,
         extra_seconds: float = 0.0,
+        precision: np.ndarray | None = None,
     ) -> AuditReference:
         """The `AuditReference` these passes give on the pixels of ``mask`` (element i is the i-th masked
         pixel, row-major): ``mean`` and ``stderr`` (their ``columns``: three RGB columns, or all of a grey
         (N,) pass) as (H, W, 3) images (`masked_image`), the samples and passes, the cache entry's key and
         folder, the seconds of rendering plus ``extra_seconds`` (another pass the case needed, e.g. a
-        bake), and the report's words (``quantity`` with units, ``integrator``, ``integrator_reason``)."""
+        bake), and the report's words (``quantity`` with units, ``integrator``, ``integrator_reason``);
+        ``precision``: the relative precision floor per masked element ((N,), `AuditReference.precision`)."""
         mean, stderr = (
             (self.mean, self.stderr) if columns is None else (self.mean[:, columns], self.stderr[:, columns])
         )
@@ -212,6 +224,7 @@ class PooledPasses:
             quantity=quantity,
             integrator=integrator,
             integrator_reason=integrator_reason,
+            precision=None if precision is None else masked_image(mask, precision),
         )
 
 

@@ -150,9 +150,13 @@ def pooled_fit(
     (module docstring: each case weighted by its reference's RMS and its size). None when fewer than two
     cases can be pooled. A case is left out (and named) where its reference is zero everywhere, where its
     data is read differently from the first's (per channel vs one mapping), or where it passes the kernel a
-    scene object (a distance field), which other scenes cannot share."""
+    scene object (a distance field) or reads inputs of its own row (`FamilyCase.row_inputs`: a table baked per
+    scene), which other scenes cannot share."""
     datas, weights, ids, starts, left = [], [], [], [], {}
     for case, row, own in cases:
+        if row in case.row_inputs:  # its own stored table (irradiance-bases' baked coefficients per scene)
+            left[case.id] = "reads its own per-row inputs (a table baked per scene): fitted per scene only"
+            continue
         d = fit_data(method, case, row)
         rms = float(np.sqrt(np.mean(np.square(d.target)))) if d.target.size else 0.0
         objects = [n for n, v in d.inputs.items() if not (np.ndim(v) or np.isscalar(v))]

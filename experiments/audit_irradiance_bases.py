@@ -15,7 +15,7 @@ camera (camera-facing unit normals n at the visible points):
 * the environment as the bases see it: `rtfit.reference.environments.emitter_environment` bakes the
   loaded emitter (its ``to_world`` and ``scale`` included; `audit_environment.environment_of`) into a
   lat-long map of ``BAKE_ROWS`` rows (a sunsky's sun as an exact disc, its E⊥ from the emitter itself; a
-  constant as its radiance); from that environment `rtfit.experiments.irradiance_bases.build_bases` bakes
+  constant as its radiance); from that environment `audit_environment.build_bases` bakes
   what an engine stores: SH L2 by projection (the L1 bases read its first four coefficients), Valve's
   ambient cube (irradiance at the six axes), the NNLS-optimal cube (fitted over a Fibonacci sphere of
   normals) and Sloan's λ (the smallest window strength without negative irradiance);
@@ -23,8 +23,8 @@ camera (camera-facing unit normals n at the visible points):
   (`rtfit.realtime.irradiance_bases`: Valve's and the NNLS cube, SH L1/L2/L3/L4 plain and windowed, ZH3),
   spherical Gaussians (``sg{6,9,12}-{naive,ls,nnls,ambient}``: lobe amplitudes fitted to the baked radiance,
   `rtfit.realtime.spherical_gaussians`) and Ambient Dice (12 vertex values, least squares over the Fibonacci
-  normals, `rtfit.realtime.ambient_dice`), the same table and the same bake (`build_bases`) as the
-  irradiance-bases experiment — each with its own stored coefficients
+  normals, `rtfit.realtime.ambient_dice`), the same table and the same bake (`build_bases`) for
+  every scene — each with its own stored coefficients
   (`FamilyCase.row_inputs`), evaluated on Dr.Jit at the visible normals; the exact row ``quadrature`` is
   the midpoint quadrature of the emitter itself at the same normals (`QUADRATURE_ROWS` rows of cells, the
   emitter's ``eval`` at each cell centre, a sunsky's sun as the exact disc:
@@ -62,8 +62,10 @@ from .audit import Applicability, Rule
 from .audit_environment import (
     BAKE_ROWS,
     QUADRATURE_MIN_ROWS,
+    ROW,
     environment_bases,
     environment_of,
+    row_params,
     scene_environment,
     sh_l2_table,
 )
@@ -73,21 +75,81 @@ from .audit_family import (
     AuditSetup,
     FamilyCase,
     PooledPasses,
+    ShippedScene,
     pooled_passes,
 )
 from .audit_lightmap_bases import lightmap_rows, lightmaps, texel_reference
-from .irradiance_bases import ROW, row_params
 
 __all__ = [
     "BAKE_ROWS",
     "FAMILY",
     "QUADRATURE_MIN_ROWS",
     "QUADRATURE_ROWS",
+    "SCENES",
+    "SUNSKY_ELEVATIONS",
     "environment_bases",
     "environment_of",
     "irradiance_bases_cases",
     "sh_l2_table",
 ]
+
+SUNSKY_ELEVATIONS = (2.0, 10.0, 30.0, 60.0, 90.0)
+"""Sun elevations (°) of the shipped sunsky scenes (azimuth 30° from +Y towards +X); ``--quick``: 10°, 60°."""
+QUICK_SUNSKY_ELEVATIONS = (10.0, 60.0)
+
+
+def _sun_defines(elevation_deg: float) -> dict[str, str]:
+    e, a = math.radians(elevation_deg), math.radians(30.0)
+    d = (math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e))
+    return {k: f"{v:.9f}" for k, v in zip(("sx", "sy", "sz"), d, strict=True)}
+
+
+METRICS = ("rmse", "rel_mse", "mae", "max_abs", "psnr", "ssim")
+"""The engine's metrics on the shipped scenes: `rtfit.fitting.ALL_METRICS` but ꟻLIP (~0.4 s a row on the CPU,
+43 rows a scene: 60 of the quick run's 155 s, for a perceptual metric of an irradiance image the study's
+relative errors already cover; the experiment before the engine had none). ``rtfit audit`` keeps all."""
+_SPHERE = {
+    "size": (128, 128),
+    "spp": 4096,
+    "quick_size": (32, 32),
+    "quick_spp": 1024,
+    "options": {"metrics": METRICS},
+}
+SCENES = (
+    ShippedScene(
+        "irradiance_sphere.toml",
+        "white unit sphere in a constant environment of radiance 1 (white furnace: E = π at every normal)",
+        name="constant",
+        **_SPHERE,
+    ),
+    *(
+        ShippedScene(
+            "irradiance_sphere_sunsky.xml",
+            f"white unit sphere under Mitsuba's sunsky, sun at {e:g}° elevation",
+            defines=_sun_defines(e),
+            name=f"sunsky-{e:g}",
+            quick=e in QUICK_SUNSKY_ELEVATIONS,
+            **_SPHERE,
+        )
+        for e in SUNSKY_ELEVATIONS
+    ),
+    *(
+        ShippedScene(
+            "irradiance_sphere_envmap.xml",
+            f"white unit sphere under the {label} map (envmaps/{m}.exr, 64 × 128)",
+            defines={"map": f"envmaps/{m}.exr"},
+            name=m,
+            **_SPHERE,
+        )
+        for m, label in (("studio", "studio (3 softboxes on black)"), ("overcast", "overcast (CIE sky)"))
+    ),
+)
+"""The scenes ``rtfit run irradiance-bases`` audits (scenes/library/): the white unit sphere of the
+experiment before the engine under each of its environments that a Mitsuba scene can hold as one emitter:
+the constant (white furnace), Mitsuba's own sunsky at `SUNSKY_ELEVATIONS` (the bases baked from the emitter,
+the reference the emitter itself) and the procedural studio and overcast maps, shipped as EXR files. The
+lone disc suns (``sun-<r>``) are no environment emitter (the family does not apply to a lone sun): the study
+keeps them, against their closed-form irradiance (`irradiance_bases_study`)."""
 
 FORMAT = 2  # 2: MIS of emitter and cosine sampling (`environment_irradiance_pass`)
 QUADRATURE_ROWS = 256

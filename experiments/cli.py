@@ -46,7 +46,7 @@ from rtfit.reference import default_cache_dir, resolve_variant
 from rtfit.reference.budget import NonFinitePass, PassBudgetExceeded, pass_budget_seconds
 from rtfit.reference.export_xml import export_xml
 from rtfit.reference.io import atomic_write_json
-from rtfit.reference.probe_maps import parse_probe_spec
+from rtfit.reference.probe_maps import parse_probe_spec, probe_spec_problem
 from rtfit.reference.variants import cuda_available
 from rtfit.scenes import SceneError, library_path, load_scene
 
@@ -222,9 +222,8 @@ def list_cmd(as_json):
     "probes",
     multiple=True,
     metavar="FILE[:MAPPING]",
-    help="Your own light probe as one more environment (repeatable; experiments with a 'probes' key, "
-    "e.g. irradiance-bases): EXR/HDR lat-long, vcross, hcross, mirrorball or angular map; the mapping "
-    "from the aspect ratio unless named.",
+    help="Your own light probe as one more environment, for experiments with a 'probes' key (none since "
+    "irradiance-bases runs on the audit engine: audit a scene holding your probe as its envmap instead).",
 )
 def run_cmd(
     experiments,
@@ -349,6 +348,10 @@ def _probe_overrides(specs, quick: bool, probes) -> dict:
     kept), for experiments that declare it; none: no overrides."""
     if not probes:
         return {}
+    for text in probes:  # the file's own problem first (one line), then whether any experiment takes it
+        problem = probe_spec_problem(text)
+        if problem:
+            _fail(f"--probe {text}: {problem}")
     without = []
     for s in specs:
         try:
@@ -357,7 +360,10 @@ def _probe_overrides(specs, quick: bool, probes) -> dict:
         except ValueError as e:  # a bad default (e.g. a corrupt measured probe): the usual one line
             _fail(f"{s.name}: {e}")
     if without:
-        _fail(f"--probe: {', '.join(without)} takes no probes (irradiance-bases does)")
+        _fail(
+            f"--probe: {', '.join(without)} takes no probes (irradiance-bases runs on the audit engine's "
+            "shipped scenes: put your probe in a scene as its envmap and run `rtfit audit SCENE`)"
+        )
     out = []
     for text in probes:
         p = parse_probe_spec(text)

@@ -79,6 +79,7 @@ from . import (
     audit_volumetric_lightning,
     diffuse_study,
     height_fog_study,
+    irradiance_bases_study,
     irradiance_volumes_study,
     light_cones_study,
     nishita_sky_study,
@@ -157,12 +158,16 @@ FAMILIES: dict[str, Family] = {
         ),
         Family(
             "irradiance-bases",
-            "rtfit.experiments.irradiance_bases",
+            ENGINE,
             "Irradiance bases: ambient cube vs spherical harmonics against path-traced irradiance",
-            "Valve ambient cube (axis-sampled and NNLS-optimal), SH L1/L2 and windowed SH under constant, "
-            "sun, sunsky, studio, overcast and measured light probes, with per-probe storage and cost.",
+            "Valve ambient cube (axis-sampled and NNLS-optimal), SH L1–L4 plain and windowed, ZH3, spherical "
+            "Gaussians, Ambient Dice and the lightmap bases (H-basis, RNM) on a white sphere under a "
+            "constant, sunsky, studio and overcast environment (shipped scenes), with the lone suns, "
+            "ringing, hemisphere and storage-budget study.",
             methods=environment_bases.ALL_METHODS,
             audits=(audit_irradiance_bases.FAMILY,),
+            scenes=audit_irradiance_bases.SCENES,
+            study=irradiance_bases_study.study,
         ),
         Family(
             "irradiance-volumes",

@@ -11,16 +11,18 @@ engine's lightmapper would, the hemispherical bases of `rtfit.realtime.hemispher
   basis directions (the same quadrature), reconstructed with the three weightings;
 
 and compares them, with SH L1/L2 of the whole-sphere probe evaluated at the same normals (what a probe
-would give the texel), against Mitsuba's irradiance at the experiment's Fibonacci normals that lie in the
-frame's upper hemisphere (n·N > 0): the render the experiment already made, so the section adds no
-Mitsuba pass. The ``quadrature`` row (the dense quadrature at those normals) must sit at the noise floor.
+would give the texel), against the reference the caller passes at its Fibonacci normals that lie in the
+frame's upper hemisphere (n·N > 0): since the family runs on the audit engine
+(`irradiance_bases_study`), the dense quadrature of the environment (noise floor 0; the engine's exact row
+validates it against Mitsuba), so the section adds no Mitsuba pass. (The engine's own lightmap case,
+`audit_lightmap_bases`, evaluates these rows at each visible texel's own normal against Mitsuba.)
 
 The truth is the unoccluded irradiance of the distant environment at n (the quantity of the rest of the
 experiment): light from below the surface plane reaches a tilted bumped normal. A lightmapper on a real
 plane would block it (the surface's own occlusion), which this section leaves out so that every row
 approximates one function of n.
 
-This module never imports the experiment module (it receives the metric function and the baked SH).
+This module never imports the study (it receives the metric function and the baked SH).
 """
 
 from __future__ import annotations
@@ -45,7 +47,6 @@ from rtfit.realtime.irradiance_bases import METHODS, basis_inputs, basis_irradia
 from rtfit.reference import environments as envs
 
 from . import fitted as fitfiles
-from .cost import comparison_row, cost_row, time_drjit, time_numpy
 from .records import Check
 
 _TILT = math.radians(60.0)
@@ -300,50 +301,8 @@ def figure(out, records: list[dict], line_plot) -> dict:
     }
 
 
-# ================================================================================================ costs
-def demo_texel() -> dict:
-    """A fixed texel for the timings (the kernels' cost does not depend on the values)."""
-    rng = np.random.default_rng(5)
-    return {"hbasis-4": rng.uniform(0.1, 2.0, (4, 3)), "hbasis-6": rng.uniform(0.1, 2.0, (6, 3)),
-            "rnm": rng.uniform(0.1, 2.0, (3, 3))}  # fmt: skip
-
-
 def _texel_coeffs(texel: dict, method: str):
     return texel["rnm"] if method.startswith("rnm") else texel[method]
-
-
-def cost_rows(normals_drjit, n: int, backend: str) -> list[dict]:
-    """Dr.Jit cost per normal of every hemispherical basis (the experiment's ``costs`` rows): tangent-space
-    normal in memory, RGB out (the normals are the experiment's timing normals, any hemisphere)."""
-    rows = []
-    for m, spec, _, t in _timed(normals_drjit, n):
-        note = (
-            f"per bumped normal (lightmap texel): tangent-space normal in memory, RGB out; "
-            f"{spec.storage} floats per texel"
-        )
-        rows.append(cost_row(m, spec.label, backend, t, note, floats_per_probe=spec.storage))
-    return rows
-
-
-def _timed(normals_drjit, n: int):
-    """Per hemispherical basis (the RNM weightings do different work: one each): its id, method, the demo
-    texel's coefficients and the Dr.Jit timing on ``n`` normals."""
-    texel = demo_texel()
-    for m, spec in HEMISPHERE_METHODS.items():
-        c = _texel_coeffs(texel, m)
-        t = time_drjit(lambda v, spec=spec, c=c: hemisphere_irradiance(spec, c, v), (normals_drjit,), n)
-        yield m, spec, c, t
-
-
-def bench_rows(normals_drjit, normals64: np.ndarray, n: int, backend: str, base) -> list[dict]:
-    """`rtfit bench` rows: Dr.Jit (on ``n`` normals) vs the NumPy run of the same kernel text (on
-    ``normals64``, possibly fewer: rates are compared), per hemispherical basis."""
-    rows = []
-    for _, spec, c, t_dr in _timed(normals_drjit, n):
-        inputs = basis_inputs(spec, c, normals64)
-        t_np = time_numpy(lambda spec=spec, inputs=inputs: spec(NUMPY_OPS, inputs), (), len(normals64))
-        rows.append(comparison_row(spec.label, backend, t_dr, t_np, base, unit="normals", per="normal"))
-    return rows
 
 
 # ============================================================================================== fitted

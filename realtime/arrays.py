@@ -94,7 +94,12 @@ def _np_gather(table, index):
 
 
 def _dr_gather(table, index):
-    """dr.gather of ``table``'s own type at ``index`` (a float index is truncated, as a cast in a shader)."""
+    """dr.gather of ``table``'s own type at ``index`` (a float index is truncated, as a cast in a shader). A
+    table of Python floats (a `Uniforms`) is gathered from as an array of the index's type (a tuple has no
+    Dr.Jit type to gather: the LLVM backend crashed on one)."""
+    if not dr.is_array_v(table):
+        Float = type(index) if dr.is_array_v(index) else dr.llvm.Float
+        table = Float(np.asarray(table, np.float64).reshape(-1))
     return dr.gather(type(table), table, dr.uint32_array_t(type(table))(index))
 
 

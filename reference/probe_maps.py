@@ -1,8 +1,9 @@
 """Your own light probes: lat-long, cube-cross, mirror-ball and angular maps, resampled to rtfit's lat-long.
 
-A probe is given as ``PATH[:MAPPING]`` (``rtfit run irradiance-bases --probe PATH[:MAPPING]``, or the
-``probes`` key of a sweep file). The file is read with Mitsuba's ``Bitmap`` (OpenEXR ``.exr``, Radiance
-``.hdr``/``.pic``, ``.pfm``: linear radiance, W·m⁻²·sr⁻¹ per linear-sRGB channel); it must be finite and
+A probe is given as ``PATH[:MAPPING]`` (``rtfit run --probe PATH[:MAPPING]`` checks it; no experiment
+takes probes since irradiance-bases runs on the audit engine). The file is read with Mitsuba's ``Bitmap``
+(OpenEXR ``.exr``, Radiance ``.hdr``/``.pic``, ``.pfm``: linear radiance, W·m⁻²·sr⁻¹ per linear-sRGB
+channel); it must be finite and
 non-negative. ``MAPPING`` is one of `MAPPINGS`; without it the mapping is read off the aspect ratio
 (`detect_mapping`): 2:1 lat-long, 3:4 vertical cross, 4:3 horizontal cross. A square image is a mirror ball
 or an angular map, which the aspect cannot tell apart: name it.
@@ -42,7 +43,7 @@ normal), and the integral of the map is the probe's own up to the O(h²) resampl
 
 Published numbers: `RH2001_GRACE_L2` are Ramamoorthi & Hanrahan 2001's L2 coefficients of Grace
 Cathedral (2 decimals) in their frame; `RH2001_FROM_WORLD` maps rtfit's world frame onto it
-(`rtfit.experiments.irradiance_bases.rh2001_coefficients` projects a map in that frame).
+(`rtfit.experiments.irradiance_bases_study.rh2001_coefficients` projects a map in that frame).
 """
 
 from __future__ import annotations

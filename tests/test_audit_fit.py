@@ -90,3 +90,17 @@ def test_a_small_table_is_timed_as_distinct_unfoldable_literals():
     assert timed == pytest.approx(exact, rel=1e-4)
     # a constant sky of radiance L lights every normal with E = π L: L00 = 2√π·L, so L = 3.5/(2√π)
     assert exact == pytest.approx(np.pi * 3.5 / (2 * np.sqrt(np.pi)), rel=1e-6)
+
+
+def test_a_kernel_that_gathers_from_a_uniforms_table_reads_its_values():
+    """A `Uniforms` table handed to a kernel that gathers from it (a cube map) is gathered from as an array
+    (the LLVM backend crashed gathering from a tuple: the matpreview audit's environment-maps cost timing,
+    exit 139)."""
+    from rtfit.realtime.arrays import DRJIT_OPS, Uniforms, backend_float
+
+    table = np.linspace(0.5, 3.0, 30)
+    Float = backend_float(None, np.float64)
+    idx = Float([0.0, 7.9, 29.0])
+    u = Uniforms.of(table)
+    got = np.asarray(DRJIT_OPS.gather(u, idx))
+    assert got == pytest.approx(np.array(u)[[0, 7, 29]], rel=1e-12)  # (each entry within 2⁻²⁰·(|v|+1)·30)

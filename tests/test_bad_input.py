@@ -146,35 +146,15 @@ def test_unknown_shipped_scene(capsys, dirs, tmp_path):
 
 
 def test_unknown_environment(capsys, dirs, tmp_path):
+    """irradiance-bases runs on the engine: its environments are its shipped scenes, named in the sweep's
+    ``scenes`` key (a name that is none of them is refused before anything runs)."""
     out, cache = dirs
     spec = _sweep_file(
         tmp_path,
-        'experiment = "irradiance-bases"\nquick = true\n[grid]\nenvironments = [["constant"], ["nowhere"]]\n',
+        'experiment = "irradiance-bases"\nquick = true\n[grid]\nscenes = [["constant"], ["nowhere"]]\n',
     )
     line = _refused(capsys, _sweep(spec, out, cache), out, cache)
-    assert "point 1" in line and '"nowhere": unknown environment' in line
-
-
-def test_missing_probe_asked_for(capsys, dirs, tmp_path):
-    out, cache = dirs
-    spec = _sweep_file(
-        tmp_path, 'experiment = "irradiance-bases"\nquick = true\n[fixed]\nenvironments = ["probe-grace"]\n'
-    )
-    line = _refused(capsys, _sweep(spec, out, cache), out, cache)
-    assert "probe file not found" in line
-
-
-def test_corrupt_probe_file(capsys, dirs, tmp_path, monkeypatch):
-    """A truncated EXR in $RTFIT_PROBE_DIR: the default quick run would include probe-grace."""
-    out, cache = dirs
-    probes = tmp_path / "probes"
-    probes.mkdir()
-    # The first bytes of an OpenEXR file (magic 76 2f 31 01, version 2), then nothing: truncated.
-    (probes / "pbrt-v2_grace_latlong.exr").write_bytes(b"\x76\x2f\x31\x01\x02\x00\x00\x00channels\x00chl")
-    monkeypatch.setenv("RTFIT_PROBE_DIR", str(probes))
-    argv = ["run", "irradiance-bases", "--quick", "--out", str(out), "--cache", str(cache)]
-    line = _refused(capsys, argv, out, cache)
-    assert "pbrt-v2_grace_latlong.exr does not read" in line
+    assert "scenes" in line and "nowhere" in line
 
 
 def test_every_experiment_declares_every_key():

@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import types
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,6 @@ import pytest
 
 from rtfit.experiments import ambient_aperture_study as aa
 from rtfit.experiments import diffuse_study as df
-from rtfit.experiments import irradiance_bases as ib
 from rtfit.experiments import sdf_occlusion_fit as so
 from rtfit.experiments.fitted import (
     FORMAT,
@@ -36,7 +34,6 @@ from rtfit.experiments.fitted import (
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.diffuse import METHODS as DIFFUSE
 from rtfit.realtime.height_fog import METHODS as FOG
-from rtfit.realtime.irradiance_bases import basis_irradiance
 from rtfit.realtime.nishita_sky import METHODS as SKY_METHODS
 from rtfit.realtime.volumetric_lightning import METHODS as LIGHTNING
 
@@ -119,29 +116,6 @@ def _height_fog(out: Path):
     return fits
 
 
-def _irradiance_bases(out: Path):
-    rng = np.random.default_rng(2)
-    b = {
-        "cube_valve": rng.uniform(0, 1, (6, 3)),
-        "cube_nnls": rng.uniform(0, 1, (6, 3)),
-        "cube_nnls_rms": rng.uniform(0, 0.1, 3),
-        "sh": rng.normal(0, 1, (25, 3)),
-        "zh3": rng.normal(0, 1, (5, 3)),
-        "zh3_lum": rng.normal(0, 1, (5, 3)),
-        "lambda": 0.02,
-        "lambda_l3": 0.02,
-        "lambda_l4": 0.03,
-        "ambient_dice": rng.uniform(0, 1, (12, 3)),
-        **{
-            f"sg{n}_{f}": rng.uniform(0, 1, (n + 1, 3))
-            for n in (6, 9, 12)
-            for f in ("naive", "ls", "nnls", "ambient")
-        },
-    }
-    rendered = {"grey": {"env": types.SimpleNamespace(label="grey sky"), "hashes": {"sky": "ffee"}}}
-    ib.write_fitted(out, {"environments": ["grey"], "spp": 8}, rendered, {"grey": b})
-
-
 def _ambient_aperture(out: Path):
     prov = provenance(None, "ambient-aperture")
     fit_i = {**_fit({f"c{i}": 0.01 * i for i in range(6)}, method=aa.FITTED_OMEGA), "errors": {"max": 0.01}}
@@ -206,7 +180,6 @@ WRITERS = {
         _height_fog,
         ["fog-e5-single-const.json", "fog-e5-single-phase.json"],
     ),
-    "irradiance-bases": (_irradiance_bases, ["grey.json"]),
     "ambient-aperture": (_ambient_aperture, ["intersection.json", "lambert.json"]),
     "sdf-occlusion": (_sdf_occlusion, ["evans_joint_ao.json", "evans_joint_sky.json", "per_case.json"]),
     "nishita-sky": (_nishita_sky, ["nishita-sky.json"]),
@@ -352,21 +325,6 @@ def test_write_fit_writes_one_method_and_returns_its_record(tmp_path):
     assert (rec["rms_residual"], rec["n_residuals"], rec["converged"]) == (0.0123, 200, True)
     loaded = load_fitted(tmp_path / rec["file"])
     assert loaded.title == "one fit" and [m.id for m in loaded.methods] == [entry.id]
-
-
-def test_irradiance_basis_shaders_reproduce_basis_irradiance(tmp_path):
-    _irradiance_bases(tmp_path)
-    doc = load_fitted(tmp_path / "fitted" / "grey.json")
-    rng = np.random.default_rng(7)
-    n = rng.normal(size=(1000, 3)).astype(np.float32)
-    for m in doc.methods:
-        # SH rows and hallucinated ZH3 read the L4 table's first rows
-        key = "sh_l4" if m.id.startswith(("sh", "zh3-hallucinated")) else m.id.replace("-", "_")
-        params = {k: p.value for k, p in m.parameters.items()}
-        spec = ib.METHODS[m.id]  # the experiment's table: cube/SH, spherical Gaussians, Ambient Dice
-        ref = np.asarray(basis_irradiance(spec, np.array(doc.data[key]), n.astype(np.float64), params))
-        got = np.stack(compile_function(m.shader.hlsl)(n[:, 0], n[:, 1], n[:, 2]), axis=-1)
-        np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(ref))))
 
 
 @pytest.mark.parametrize("name", ["intersection", "lambert"])

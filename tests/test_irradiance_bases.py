@@ -307,12 +307,76 @@ def test_resolved_means_leave_out_cases_where_a_row_is_within_noise():
 def test_storage_budget_winner_is_not_ranked_on_noise():
     """Issue 32: a basis whose error on an environment is within the reference's noise (a quick run's SH L4
     on Pisa and Wells, 2.4–2.7× its true error) must not win the ranking on that environment's value."""
-    from rtfit.experiments.irradiance_bases import BASES, METHODS, budget_winners
+    from rtfit.experiments.irradiance_bases_study import BASES, budget_winners
+    from rtfit.realtime.environment_bases import METHODS
 
     stored = [r.method for r in BASES if METHODS[r.method].storage]
     assert {"sh-l2", "sh-l4"} <= set(stored)
+
+    def env(values, unresolved=()):
+        return {m: {"rel_rmse": {"value": v, "resolved": m not in unresolved}} for m, v in values.items()}
+
     first = {m: 0.3 for m in stored} | {"sh-l2": 0.10, "sh-l4": 0.12}
     second = {m: 0.5 for m in stored} | {"sh-l2": 0.2, "sh-l4": 0.001}  # L4 within noise here
-    cases = [_env("env-a", first), _env("env-b", second, unresolved=("sh-l4",))]
-    top = budget_winners(cases, [])[-1]  # 27+: every stored basis is a candidate
+    top = budget_winners({"env-a": env(first), "env-b": env(second, ("sh-l4",))})[-1]  # 27+: all stored
     assert top["best"] == "sh-l2" and top["rel_rmse"] == pytest.approx(0.10)
+    nine = budget_winners({"env-a": env(first)})[2]  # 9 floats per channel: SH L2's 27 floats and below
+    assert nine["budget"] == "9" and nine["best"] == "sh-l2" and nine["best_at_budget"] == "sh-l2"
+
+
+def test_run_is_the_engine_on_the_shipped_spheres_plus_the_study(tmp_path):
+    """``rtfit run irradiance-bases`` = the engine's audits of the shipped white sphere (constant, sunsky at
+    five elevations, studio, overcast) + `irradiance_bases_study.study`. Independent values: the white
+    furnace (constant radiance 1: E = π at every normal, every SH / cube row exact); under a lone sun the
+    clamped cosine's band energies (π/4, π/3, 5π/64, 0, π/256 of a total 2π/3) give the relative RMSE of SH
+    L1, L2 and L4 over the sphere: √(1/8), √(1/128), √(1/512); the shipped maps are rtfit's procedural maps
+    at 64 × 128; every old self-check is there and passes."""
+    from rtfit.experiments import audit_irradiance_bases as decl
+    from rtfit.experiments import irradiance_bases_study as study
+    from rtfit.experiments.audit_family import StudyContext
+    from rtfit.experiments.audit_run import audit
+    from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.realtime.environment_bases import METHODS
+    from rtfit.reference import environments as envs
+    from rtfit.scenes import library_path
+    from rtfit.scenes.parse import LIBRARY_DIR
+
+    fam = FAMILIES["irradiance-bases"]
+    assert fam.module == ENGINE and fam.scenes == decl.SCENES and fam.study is study.study
+    assert [s.name for s in fam.scenes if s.quick] == [
+        "constant",
+        "sunsky-10",
+        "sunsky-60",
+        "studio",
+        "overcast",
+    ]
+    for m, make in (("studio", envs.studio_map), ("overcast", envs.overcast_map)):
+        shipped = envs.read_image(LIBRARY_DIR / "envmaps" / f"{m}.exr")
+        np.testing.assert_allclose(shipped, make(64, 128), rtol=1e-6, atol=0)
+    r = audit(library_path("irradiance_sphere"), "irradiance-bases", spp=64, pass_spp=8, width=24, height=24,
+              fit=False, cache=tmp_path / "cache", cost_elements=1 << 10, metrics=("rmse",))  # fmt: skip
+    case = r.cases[0]
+    m = case.mask
+    z = (case.reference.mean[m] - math.pi) / case.reference.stderr[m]  # Mitsuba's MIS estimate: noisy
+    assert np.all(np.abs(z) < 5) and abs(np.mean(z)) < 4 / math.sqrt(z.size)
+    for row in ("quadrature", "sh-l2", "sh-l4", "cube-valve", "cube-nnls", "ambient-dice"):
+        np.testing.assert_allclose(r.outcomes[case.id][row].image[m], math.pi, rtol=1e-4)
+    res = study.study(StudyContext(tmp_path, True, "llvm_ad_rgb", 0, tmp_path / "cache", (r,)))
+    assert all(c.passed for c in res.checks), [c.name for c in res.checks if not c.passed]
+    names = " ".join(c.name for c in res.checks)
+    olds = ("white furnace", "no worse than", "L3 irradiance equals L2", "fitted λ window",
+            "reproduces a constant", "SG ⊗ clamped", "hemisphere: constant", "hbasis-6 no worse")  # fmt: skip
+    for old in olds:
+        assert old in names, old
+    sun = res.extra["sphere_metrics"]["sun-0.27"]
+    for row, want in (
+        ("sh-l1", math.sqrt(1 / 8)),
+        ("sh-l2", math.sqrt(1 / 128)),
+        ("sh-l4", math.sqrt(1 / 512)),
+    ):
+        assert sun[row]["rel_rmse"]["value"] == pytest.approx(want, rel=0.03), row
+    top = res.extra["budgets"][-1]  # 27+ floats: every stored basis a candidate
+    assert top["candidates"] == sum(1 for r in study.BASES if METHODS[r.method].storage)
+    assert (
+        top["best"] is None
+    )  # the furnace resolves no basis's error (all exact): nothing is ranked on noise

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from rtfit.experiments.cli import main
-from rtfit.experiments.irradiance_bases import rh2001_coefficients
+from rtfit.experiments.irradiance_bases_study import rh2001_coefficients
 from rtfit.realtime.irradiance_bases import fibonacci_sphere
 from rtfit.reference import environments as envs
 from rtfit.reference import probe_maps as pm
@@ -223,11 +223,15 @@ def test_bad_probe_is_one_line_and_exit_2(capsys, dirs, tmp_path):
 
 
 def test_probe_option_is_for_experiments_with_probes(capsys, dirs, tmp_path):
+    """No experiment takes ``--probe`` since irradiance-bases runs on the engine: a readable probe is one
+    line pointing at ``rtfit audit``, exit 2, nothing written."""
     out, cache = dirs
     spec = _write(tmp_path / "ok.exr", np.ones((16, 32, 3)))
-    rc = main(["run", "diffuse", "--quick", "--out", str(out), "--cache", str(cache), "--probe", spec])
-    err = capsys.readouterr().err
-    assert rc == 2 and "takes no probes" in err
+    for name in ("diffuse", "irradiance-bases"):
+        rc = main(["run", name, "--quick", "--out", str(out), "--cache", str(cache), "--probe", spec])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and "takes no probes" in err[0] and "rtfit audit" in err[0]
+        assert not out.exists() and not cache.exists()
 
 
 def test_grace_l2_matches_ramamoorthi_hanrahan_2001():
@@ -244,16 +248,3 @@ def test_grace_l2_matches_ramamoorthi_hanrahan_2001():
     assert np.max(np.abs(coeffs - pm.RH2001_GRACE_L2)) <= pm.RH2001_TOLERANCE
     wrong, _ = rh2001_coefficients(env.radiance_map, frame=np.eye(3))
     assert np.max(np.abs(wrong - pm.RH2001_GRACE_L2)) > 0.3
-
-
-def test_probes_config_key(dirs, tmp_path):
-    """The sweep-file form: ``probes = ["FILE[:MAPPING]", …]`` is checked like --probe, and the run's
-    environments gain ``probe-file-<stem>``."""
-    from rtfit.experiments.families import validate_config
-    from rtfit.experiments.irradiance_bases import with_user_probes
-
-    ok = _write(tmp_path / "ok.exr", np.ones((16, 32, 3)))
-    cfg = validate_config("irradiance-bases", True, None, {"probes": [ok]})
-    assert with_user_probes(cfg)["environments"][-1] == "probe-file-ok"
-    with pytest.raises(ValueError, match="probe file not found"):
-        validate_config("irradiance-bases", True, None, {"probes": [str(tmp_path / "gone.hdr:angular")]})
