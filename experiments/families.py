@@ -40,6 +40,7 @@ from rtfit.realtime import (
     obscurances,
     parallax_occlusion,
     pcf_soft_shadows,
+    probe_specular,
     reflections,
     sdf_occlusion,
     sh_sky_bent_normal,
@@ -74,6 +75,7 @@ from . import (
     audit_obscurances,
     audit_parallax_occlusion,
     audit_pcf_soft_shadows,
+    audit_probe_specular,
     audit_sh_sky_bent_normal,
     audit_sky_emitter,
     audit_sky_occlusion,
@@ -399,6 +401,17 @@ FAMILIES: dict[str, Family] = {
             methods=colour_bleeding.METHODS,
             audits=(audit_colour_bleeding.FAMILY,),
             scenes=audit_colour_bleeding.SCENES,
+        ),
+        Family(
+            "probe-specular",
+            ENGINE,
+            "Glossy specular from the nearest pre-convolved cube map (placement, parallax, mip) vs path",
+            "The seed's nearest (or assigned) pre-rendered cube map pre-convolved per roughness (GGX chain), "
+            "with Lagarde's box and sphere parallax correction and a fitted roughness → mip exponent, from "
+            "the assigned probe and a 2×2×2 grid, against the path-traced radiance of glossy shapes.",
+            methods=probe_specular.METHODS,
+            audits=(audit_probe_specular.FAMILY,),
+            scenes=audit_probe_specular.SCENES,
         ),
     )
 }

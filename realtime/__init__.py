@@ -71,6 +71,9 @@ Modules:
                 (docs/ibl-samples.md).
     colour_bleeding  stand-ins for one diffuse bounce per channel: the seed's per-channel SDF bias, RGB
                 obscurances' colour part, a one-bounce gather (docs/colour-bleeding.md).
+    probe_specular  glossy specular from the nearest pre-rendered cube map pre-convolved per roughness
+                (GGX chain, roughness → mip), Lagarde's box/sphere parallax correction
+                (docs/probe-specular.md).
     obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
                 estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
@@ -105,6 +108,7 @@ from .obscurances import *  # noqa: F403
 from .parallax_occlusion import *  # noqa: F403
 from .pcf_soft_shadows import *  # noqa: F403
 from .phase import *  # noqa: F403
+from .probe_specular import *  # noqa: F403
 from .quantities import *  # noqa: F403
 from .reflections import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
@@ -147,6 +151,7 @@ MODULES = (
     "pcf_soft_shadows",
     "ibl_samples",
     "colour_bleeding",
+    "probe_specular",
     "quantities",
     "shader",
 )

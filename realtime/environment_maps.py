@@ -258,12 +258,14 @@ def _face_coords(ops, dx, dy, dz):
     return face, ops.clip(u / major, -1.0, 1.0), ops.clip(v / major, -1.0, 1.0)
 
 
-def cube_lookup_kernel(ops, table, dx, dy, dz, resolution, bilinear):
+def cube_lookup_kernel(ops, table, dx, dy, dz, resolution, bilinear, offset=0.0):
     """Value of a cube map ``table`` (6N², this module's layout) in direction d: nearest texel, or bilinear
-    within the face with clamp-to-edge (D3D9 ``texCUBE`` does not filter across faces)."""
+    within the face with clamp-to-edge (D3D9 ``texCUBE`` does not filter across faces). ``offset`` (a
+    float or a per-element array of texel indices): where the map starts in ``table``, for several maps
+    stacked in one table (a mip chain, the probes of a level)."""
     n = float(resolution)
     face, a, b = _face_coords(ops, dx, dy, dz)
-    base = face * (n * n)
+    base = offset + face * (n * n)
     if not bilinear:
         i = ops.clip(ops.floor((a + 1.0) * 0.5 * n), 0.0, n - 1.0)
         j = ops.clip(ops.floor((b + 1.0) * 0.5 * n), 0.0, n - 1.0)

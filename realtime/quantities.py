@@ -51,6 +51,10 @@ from .obscurances import MISS
 from .parallax_occlusion import HeightMap
 from .pcf_soft_shadows import INPUTS as PCF_INPUTS
 from .pcf_soft_shadows import ShadowMap
+from .probe_specular import INPUTS as PROBE_SPECULAR_INPUTS
+from .probe_specular import IRRADIANCE_RESOLUTION as PS_IRRADIANCE_RESOLUTION
+from .probe_specular import LEVELS as PS_LEVELS
+from .probe_specular import PREFILTER_RESOLUTION, ProbeChains
 from .reflections import INPUTS as REFLECTION_INPUTS
 from .reflections import IRRADIANCE_RESOLUTION, PROBE_RESOLUTION
 from .sdf_grid import HalfSpace, Sphere
@@ -221,6 +225,16 @@ _REFLECTION_MAPS = {
     "resolution": _example_resolution(PROBE_RESOLUTION),
     "irr_resolution": _example_resolution(IRRADIANCE_RESOLUTION),
 }
+
+
+def _example_chains(n: int) -> ProbeChains:
+    """One probe's tables rising through the texel order (any ``n``)."""
+    pre = np.linspace(0.2, 2.0, PS_LEVELS * 6 * PREFILTER_RESOLUTION**2)
+    irr = np.linspace(0.5, 5.0, 6 * PS_IRRADIANCE_RESOLUTION**2)
+    return ProbeChains(np.stack([pre, 0.9 * pre, 0.8 * pre], 1), np.stack([irr, 0.9 * irr, 0.8 * irr], 1))
+
+
+_PROBE_SPECULAR_TABLES = {"chains": _example_chains, "probe": lambda n: np.zeros(n)}
 
 
 _NORMAL = _vec("n", "unit surface normal (world frame, +Z up)")
@@ -668,6 +682,22 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 examples=_REFLECTION_MAPS,
                 reference="path-traced radiance of the pixels that see the shape (Mitsuba's own BSDF)",
                 note="the glossy pre-filtered map of the preconvolved rows is not in g",
+            ),
+            Quantity(
+                "probe_specular_radiance",
+                "W/m²/sr",
+                "radiance of a glossy surface from the nearest (or assigned) probe's cube map pre-convolved "
+                "per roughness, per RGB channel",
+                (*PROBE_SPECULAR_INPUTS,),
+                vectors={
+                    "point": ("x", "y", "z"),
+                    "reflect": ("rx", "ry", "rz"),
+                    "normal": ("nx", "ny", "nz"),
+                },
+                unit_vectors=("reflect", "normal"),
+                channels=3,
+                examples=_PROBE_SPECULAR_TABLES,
+                reference="path-traced radiance of the pixels that see the glossy shape (Mitsuba's own BSDF)",
             ),
             Quantity(
                 "volume_irradiance",
