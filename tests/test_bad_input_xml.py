@@ -425,6 +425,21 @@ STRUCTURE = {
     "no sensor": (lambda d: write(d, scene(sensor="")), "sensor"),
     "unset parameter": (lambda d: write(d, scene(_sphere("$r"))), "$r"),
     "radius not a number": (lambda d: write(d, scene(_sphere("big"))), "big"),
+    # rtfit reads every value to check it; Mitsuba's "unreferenced property" refusal must still hold
+    "unreferenced shape property": (
+        lambda d: write(d, scene('<shape type="sphere"><float name="radus" value="2"/></shape>')),
+        'unreferenced property in shape plugin of type "sphere": - float "radus"',
+    ),
+    "unreferenced sensor property": (
+        lambda d: write(d, scene(sensor=sensor_with(extra='<float name="fovv" value="40"/>'))),
+        'float "fovv"',
+    ),
+    "unreferenced film property": (
+        lambda d: write(
+            d, scene(sensor=sensor_with().replace("</film>", '<integer name="widht" value="4"/></film>'))
+        ),
+        'integer "widht"',
+    ),
     "a directory named .xml": (lambda d: (d / "dir.xml").mkdir() or d / "dir.xml", "dir.xml"),
 }
 
