@@ -955,6 +955,34 @@ def test_an_unreadable_cached_pass_is_named_in_one_warning(tmp_path, caplog, dam
     assert len(lines) == 1 and str(data) in lines[0] and "rendered again" in lines[0], lines
 
 
+@pytest.mark.parametrize("damage", ["truncated", "garbage"])
+def test_a_corrupt_exr_pass_prints_no_openexr_lines(tmp_path, capfd, caplog, damage):
+    """OpenEXR printed its own lines (stdout and stderr) for a corrupt pass before rtfit's warning: now the
+    warning alone names the pass; a sound EXR still reads (issue 32)."""
+    import logging
+
+    import numpy as np
+
+    from rtfit.reference.cache import PassEntry, PassResult
+
+    entry = PassEntry(tmp_path, {"test": "bad-exr"}, storage="exr")
+    entry.save(0, PassResult(np.ones((4, 4, 3)), np.ones((4, 4, 3)) * 0.1, 16, 0, 0.01))
+    assert entry.load(0) is not None
+    data = entry.folder / "pass-00000.exr"
+    good = data.read_bytes()
+    if damage == "truncated":
+        data.write_bytes(good[: len(good) // 2] + bytes(len(good) // 2))
+    else:
+        data.write_bytes(b"garbage" * 40)
+    capfd.readouterr()
+    with caplog.at_level(logging.WARNING, logger="rtfit.reference"):
+        assert entry.load(0) is None
+    lines = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(lines) == 1 and str(data) in lines[0] and "rendered again" in lines[0], lines
+    raw = capfd.readouterr()
+    assert raw.out == "" and "EXR" not in raw.err and "Exception raised" not in raw.err, raw
+
+
 def test_ray_address_variable_is_checked_like_the_option(capsys, tmp_path, monkeypatch):
     """$RAY_ADDRESS naming a port nothing listens on: one line in seconds (Ray retried for > 300 s)."""
     import socket
