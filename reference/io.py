@@ -15,11 +15,15 @@ scans can skip what a killed process left behind.
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import io
 import json
 import math
 import os
 import re
 import secrets
+import sys
+import tempfile
 import threading
 from pathlib import Path
 
@@ -31,6 +35,7 @@ __all__ = [
     "atomic_write_json",
     "atomic_write_text",
     "fsync_dir",
+    "held_output",
     "is_temporary_name",
     "read_exr",
     "rgb_group",
@@ -203,7 +208,7 @@ def read_exr(path) -> dict[str, np.ndarray]:
     import OpenEXR
 
     out: dict[str, np.ndarray] = {}
-    with _held_output() as held:
+    with held_output() as held:
         with OpenEXR.File(str(path), separate_channels=True) as f:
             for name, chan in f.channels().items():
                 out[name] = np.asarray(chan.pixels, dtype=np.float32)
@@ -219,18 +224,16 @@ _HOLDING = threading.Lock()  # one holder of the process's descriptors 1 and 2 a
 
 
 @contextlib.contextmanager
-def _held_output():
-    """File descriptors 1 and 2 into temporary files for the block; afterwards their text is written
-    back, all of it if the block set ``ok``, else only lines that start with ``rtfit`` (another thread's
-    log lines; what a failing C++ library printed is dropped)."""
+def held_output():
+    """File descriptors 1 and 2 (and Python's ``sys.stdout``/``sys.stderr``) into temporary files for the
+    block; afterwards their text is written back, all of it if the block set ``.ok`` on what it yields,
+    else only lines that start with ``rtfit`` (another thread's log lines; what a failing C/C++ library
+    printed is dropped, its exception being the caller's one line)."""
     with _HOLDING:
         yield from _holding()
 
 
 def _holding():
-    import io
-    import sys
-    import tempfile
 
     held = _Held()
     _c_flush()
@@ -263,8 +266,6 @@ def _holding():
 
 
 def _c_flush() -> None:
-    import ctypes
-
     try:
         ctypes.CDLL(None).fflush(None)
     except (OSError, AttributeError):  # no C library to reach: nothing buffered there to flush

@@ -983,6 +983,33 @@ def test_a_corrupt_exr_pass_prints_no_openexr_lines(tmp_path, capfd, caplog, dam
     assert raw.out == "" and "EXR" not in raw.err and "Exception raised" not in raw.err, raw
 
 
+def test_ray_init_retry_lines_are_held(capfd):
+    """An address that answers TCP but is no Ray cluster: Ray's C++ client printed a line a second while
+    retrying (21 before the error, issue 32); now the error alone, as one ValueError line. A connection
+    that succeeds shows what Ray printed."""
+    import types
+
+    from rtfit.experiments.ray_executor import _init_within
+
+    def failing(address, **kwargs):
+        for _ in range(3):
+            os.write(2, b"[2026-12-05 W] gcs_client.cc:210: Failed to get cluster ID from GCS server\n")
+        print("SIGTERM handler is not set", file=__import__("sys").stderr)
+        raise ConnectionError(f"Failed to connect to Ray cluster at {address}")
+
+    capfd.readouterr()
+    with pytest.raises(ValueError, match=r"^--address 1\.2\.3\.4:6379: ConnectionError: Failed to connect"):
+        _init_within(types.SimpleNamespace(init=failing), 5, "1.2.3.4:6379")
+    assert capfd.readouterr() == ("", "")
+
+    def connecting(address, **kwargs):
+        os.write(2, b"Connected to Ray cluster\n")
+        return "context"
+
+    assert _init_within(types.SimpleNamespace(init=connecting), 5, "1.2.3.4:6379") == "context"
+    assert capfd.readouterr().err == "Connected to Ray cluster\n"
+
+
 def test_ray_address_variable_is_checked_like_the_option(capsys, tmp_path, monkeypatch):
     """$RAY_ADDRESS naming a port nothing listens on: one line in seconds (Ray retried for > 300 s)."""
     import socket
