@@ -64,7 +64,7 @@ from .fitted_cli import fitted_group
 from .jobs import JobsFailed, error_line
 from .ray_executor import RAY_EXTRA_HINT, check_address
 from .registry import LIMITS, SPP_MAX, BenchContext
-from .report import write_index, write_report
+from .report import missing_figures, write_index, write_report
 from .runner import (
     RunFailed,
     check_summary,
@@ -427,6 +427,19 @@ def _parse_gpus(text, executor: str):
     return ids
 
 
+def _warn_missing_figures(directory: Path) -> None:
+    """One warning line when figure files that results.json names are gone (the report marks them)."""
+    missing = missing_figures(directory)
+    if missing:
+        shown = ", ".join(missing[:3]) + (f" and {len(missing) - 3} more" if len(missing) > 3 else "")
+        logging.getLogger("rtfit.experiments").warning(
+            "%s: %d figure file(s) named in results.json are missing (%s): the report marks them missing",
+            directory,
+            len(missing),
+            shown,
+        )
+
+
 @cli.command("report")
 @click.argument("directory", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--single-file", is_flag=True, help=SINGLE_FILE_HELP)
@@ -434,6 +447,7 @@ def report_cmd(directory, single_file):
     """Regenerate report.md/html and tables.tex from DIRECTORY/results.json (or every experiment below it)."""
     if (directory / "results.json").is_file():
         write_report(directory, single_file=single_file)
+        _warn_missing_figures(directory)
         click.echo(str((directory / ("report.single.html" if single_file else "report.html")).resolve()))
         return
     subdirs = sorted(
@@ -443,6 +457,7 @@ def report_cmd(directory, single_file):
         _fail(f"{directory}: no results.json here or in its subdirectories")
     for sub in subdirs:
         write_report(sub, single_file=single_file)
+        _warn_missing_figures(sub)
     write_index(directory, subdirs)
     click.echo(str((directory / "index.html").resolve()))
     book = write_book(directory, subdirs)  # the audit book over the whole run (docs/book.md)

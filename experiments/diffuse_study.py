@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from rtfit.fitting import Param, compute_metrics, fit_method
+from rtfit.fitting import Param, compute_metrics, concatenated, fit_method
 from rtfit.realtime import NUMPY_OPS, Input, Method
 from rtfit.realtime.diffuse import METHODS
 
@@ -148,13 +148,6 @@ def alpha_cases(audits) -> list[AlphaCase]:
 
 
 # ================================================================================================== fits
-def _stack_law(wp):
-    """`SMOOTH_LAW`'s (w, p) as one vector [w…, p…] (the fit's output transform; JAX-traceable)."""
-    import jax.numpy as jnp  # jax: heavy, only the fit needs it
-
-    return jnp.concatenate(wp)
-
-
 def fit_smooth(alphas_deg, fits: list[Mapping[str, dict]]) -> dict:
     """`SMOOTH_LAW` fitted jointly to the per-α (w, p) ``fits`` (`AlphaCase.wp`, one per α of
     ``alphas_deg``), each weighted by 1/stderr (floored at 1e-3 so that one very precise α does not
@@ -164,7 +157,7 @@ def fit_smooth(alphas_deg, fits: list[Mapping[str, dict]]) -> dict:
     weights = np.concatenate(
         [1.0 / np.maximum([f[k]["stderr"] or 1e-3 for f in fits], 1e-3) for k in ("w", "p")]
     )
-    return fit_method(SMOOTH_LAW, {"alpha": alphas}, target, weights=weights, output=_stack_law).to_dict()
+    return fit_method(SMOOTH_LAW, {"alpha": alphas}, target, weights=weights, output=concatenated).to_dict()
 
 
 def smooth_wp(smooth: Mapping, alpha_rad) -> dict[str, Any]:

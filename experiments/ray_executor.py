@@ -32,6 +32,8 @@ import threading
 import time
 import warnings
 
+from rtfit.reference.io import held_output
+
 from .jobs import MAX_ATTEMPTS, Job, JobTracker, Outcome, error_line, run_path, values_or_raise
 
 RAY_EXTRA_HINT = "--executor ray needs Ray: pip install 'rtfit[ray]'"
@@ -117,8 +119,12 @@ def _init_within(ray, timeout: float, address: str, option: str = "--address", *
             box["error"] = e
 
     thread = threading.Thread(target=target, name="rtfit-ray-init", daemon=True)
-    thread.start()
-    thread.join(timeout)
+    # Ray's C++ client prints a line a second while it retries an address that answers TCP but is no
+    # cluster (issue 32: 21 lines before the error): held, and shown only if it connects
+    with held_output() as held:
+        thread.start()
+        thread.join(timeout)
+        held.ok = not thread.is_alive() and "error" not in box
     if thread.is_alive():
         raise ValueError(f"{option} {address}: Ray did not connect within {timeout:g} s")
     if "error" in box:

@@ -1024,6 +1024,17 @@ def write_report(directory, single_file: bool = False) -> list[Path]:
     return [atomic_write_text(directory / name, texts[name]) for name in REPORT_FILES] + extra
 
 
+def missing_figures(directory) -> list[str]:
+    """The figure files ``directory/results.json`` names (its figures and each approximation's) that are
+    not files under ``directory``, each once in the order named: the report marks them "(missing: …)";
+    ``rtfit report`` also says so in one warning line (issue 32: a deleted ``figures/`` went unsaid)."""
+    directory = Path(directory)
+    results = load_results(directory)
+    named = [f.file for f in results.figures]
+    named += [f for c in results.cases for ap in c.approximations for f in ap.figures]
+    return [f for f in dict.fromkeys(named) if not (directory / f).is_file()]
+
+
 def _first_paragraph(md: str) -> str:
     return re.split(r"\n\s*\n", md.strip(), maxsplit=1)[0]
 

@@ -29,7 +29,7 @@ from .least_squares import (
     fit_curve,
     fit_least_squares,
 )
-from .method_fit import fit_method, method_model, zero_padded
+from .method_fit import concatenated, fit_method, method_model, zero_padded
 from .metrics import (
     ALL_METRICS,
     EXTRA_METRICS,
@@ -74,6 +74,7 @@ __all__ = [
     "bounded_lm_result",
     "compute_metrics",
     "concat_z_pairs",
+    "concatenated",
     "covariance_from_jacobian",
     "fit_curve",
     "fit_least_squares",

@@ -32,7 +32,7 @@ from rtfit.realtime.methods import Method, Param
 
 from .least_squares import FitResult, bound_flags, covariance_from_jacobian, fit_least_squares
 
-__all__ = ["FD_RCOND", "fit_method", "method_model", "zero_padded"]
+__all__ = ["FD_RCOND", "concatenated", "fit_method", "method_model", "zero_padded"]
 
 TRF_TOL_FACTOR = 1e-3
 """SciPy's TRF stops on *relative* changes of the cost, the step and the scaled gradient; at the LM fits'
@@ -57,6 +57,15 @@ def zero_padded(a, size: int) -> np.ndarray:
     out = np.zeros((*a.shape[:-1], size))
     out[..., : a.shape[-1]] = a
     return out
+
+
+def concatenated(parts):
+    """A kernel's tuple of arrays as one vector ``[parts[0]…, parts[1]…, …]``: the ``output`` transform
+    (module-level, JAX-traceable) for a fit of a method that returns several quantities at once (issue
+    32: the experiments each imported ``jax.numpy`` for it; it lives here, once)."""
+    import jax.numpy as jnp  # jax: heavy, only a fit needs it
+
+    return jnp.concatenate(parts)
 
 
 def method_model(method: Method, output: Callable[[Any], Any] | None = None) -> Callable:

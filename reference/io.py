@@ -14,11 +14,17 @@ scans can skip what a killed process left behind.
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import io
 import json
 import math
 import os
 import re
 import secrets
+import sys
+import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +35,7 @@ __all__ = [
     "atomic_write_json",
     "atomic_write_text",
     "fsync_dir",
+    "held_output",
     "is_temporary_name",
     "read_exr",
     "rgb_group",
@@ -191,14 +198,78 @@ def write_exr(path, channels: dict[str, np.ndarray]) -> Path:
 
 
 def read_exr(path) -> dict[str, np.ndarray]:
-    """Read every channel of an EXR as float32 2-D arrays keyed by full channel name (``R``, ``var.G``…)."""
+    """Read every channel of an EXR as float32 2-D arrays keyed by full channel name (``R``, ``var.G``…).
+
+    OpenEXR prints its own lines on a corrupt file before raising (``…exr: (EXR_ERR_INVALID_ARGUMENT)
+    Invalid packed size of 0`` on stderr, ``Warning: Exception raised reading pixel data…`` on stdout):
+    while it reads, file descriptors 1 and 2 go to temporary files, and what was written there is shown
+    only when the read succeeds; a failed read is the exception alone, which the caller says in one line
+    of its own (issue 32: a corrupt cached pass printed raw OpenEXR lines)."""
     import OpenEXR
 
     out: dict[str, np.ndarray] = {}
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        for name, chan in f.channels().items():
-            out[name] = np.asarray(chan.pixels, dtype=np.float32)
+    with held_output() as held:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            for name, chan in f.channels().items():
+                out[name] = np.asarray(chan.pixels, dtype=np.float32)
+        held.ok = True
     return out
+
+
+class _Held:
+    ok = False
+
+
+_HOLDING = threading.Lock()  # one holder of the process's descriptors 1 and 2 at a time
+
+
+@contextlib.contextmanager
+def held_output():
+    """File descriptors 1 and 2 (and Python's ``sys.stdout``/``sys.stderr``) into temporary files for the
+    block; afterwards their text is written back, all of it if the block set ``.ok`` on what it yields,
+    else only lines that start with ``rtfit`` (another thread's log lines; what a failing C/C++ library
+    printed is dropped, its exception being the caller's one line)."""
+    with _HOLDING:
+        yield from _holding()
+
+
+def _holding():
+
+    held = _Held()
+    _c_flush()
+    saved = []
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        stream = getattr(sys, name)
+        if stream is not None:
+            stream.flush()
+        tmp = tempfile.TemporaryFile()
+        saved.append((fd, name, stream, os.dup(fd), tmp))
+        os.dup2(tmp.fileno(), fd)
+        setattr(sys, name, io.StringIO())  # (C++ bindings may print through Python's sys.stdout)
+    try:
+        yield held
+    finally:
+        _c_flush()  # C/C++ stdio buffers (std::cout off a terminal is fully buffered)
+        for fd, name, stream, copy, tmp in saved:
+            python_text = getattr(sys, name).getvalue().encode()
+            setattr(sys, name, stream)
+            os.dup2(copy, fd)
+            os.close(copy)
+            tmp.seek(0)
+            text = tmp.read() + python_text
+            tmp.close()
+            if not held.ok:
+                text = b"".join(ln for ln in text.splitlines(keepends=True) if ln.startswith(b"rtfit"))
+            if text and stream is not None:
+                stream.write(text.decode(errors="replace"))
+                stream.flush()
+
+
+def _c_flush() -> None:
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):  # no C library to reach: nothing buffered there to flush
+        pass
 
 
 def rgb_group(channels: dict[str, np.ndarray], prefix: str = "") -> np.ndarray:

@@ -105,8 +105,10 @@ def _file_digest(h, path: str, root: str) -> None:
 def _parsed(path, defines: Mapping[str, str], variant: str | None) -> Iterator[tuple]:
     """Parse ``path`` (or a scene dict, `DICT_SOURCE`, with ``mitsuba.parser.parse_dict``) under a file
     resolver of its own (a copy of the caller's, so that plugins are still found, with the scene's folder
-    first); yields ``(mi, parser, config, state)`` and puts the caller's
-    resolver back afterwards. Mitsuba's refusal becomes one `XMLSceneError` line."""
+    first); yields ``(mi, parser, config, state, unread)`` and puts the caller's
+    resolver back afterwards. Mitsuba's refusal becomes one `XMLSceneError` line. ``unread``: each node's
+    properties nobody had read when the file was parsed, for `_instantiate` (rtfit's own reading of the
+    values marks them read, which would hide a property no plugin uses from Mitsuba's check)."""
     given = path if isinstance(path, Mapping) else None
     if given is None and not os.path.isfile(path):
         raise XMLSceneError(f"{path}: no such file")
@@ -141,7 +143,7 @@ def _parsed(path, defines: Mapping[str, str], variant: str | None) -> Iterator[t
                 raise XMLSceneError(
                     f"{path}: Mitsuba could not parse it (a file it reads is not text)"
                 ) from None
-            yield mi, parser, config, state
+            yield mi, parser, config, state, [tuple(n.props.unqueried()) for n in state.nodes]
         finally:
             mi.set_file_resolver(previous)
 
@@ -199,7 +201,7 @@ def xml_dependencies(
     every file it loads with their digest (`XmlDependencies`). Raises `XMLSceneError` (one line) when
     Mitsuba refuses the file."""
     path, defines = _normalise(path, defines)
-    with _parsed(path, defines, variant) as (mi, _parser, _config, state):
+    with _parsed(path, defines, variant) as (mi, _parser, _config, state, _unread):
         return _collect(mi, path, defines, state)
 
 
@@ -395,6 +397,17 @@ def _floats(value) -> tuple[float, ...]:
     return tuple(float(x) for x in np.asarray(value, dtype=float).ravel())
 
 
+def _instantiate(parser, config, state, unread: list[tuple[str, ...]]):
+    """``parser.instantiate`` after marking unread again each property that was unread when the file was
+    parsed (`_parsed`): rtfit read every value to check it (`_props`), and Mitsuba refuses a property that
+    no plugin reads only if it is still unread ("Found 1 unreferenced property …"; issue 32: a misspelt
+    ``<float name="radus">`` was silently ignored)."""
+    for node, names in zip(state.nodes, unread, strict=False):
+        for name in names:
+            node.props.mark_queried(name, False)
+    return parser.instantiate(config, state)
+
+
 def _props(node) -> dict:
     return {k: _plain(node.props[k]) for k in node.props.keys()}
 
@@ -572,7 +585,7 @@ def inspect_xml(
     label = _label(path)
     if up is not None and up not in UP_AXES:
         raise XMLSceneError(f"--up {up!r}: expected one of {', '.join(UP_AXES)}")
-    with _parsed(path, defines, variant) as (mi, parser, config, state):
+    with _parsed(path, defines, variant) as (mi, parser, config, state, unread):
         deps = _collect(mi, path, defines, state)
         config.merge_meshes = False  # keep the user's shapes one by one (counts, ids, emitters)
         config.merge_equivalent = False
@@ -584,7 +597,7 @@ def inspect_xml(
             where = [parser.file_location(state, n) for n in nodes]
             kind = {i: str(n.type).rsplit(".", 1)[-1] for i, n in enumerate(nodes)}
             _check(mi, nodes, [kind[i] for i in range(len(nodes))], props, where, camera)
-            scene = parser.instantiate(config, state)
+            scene = _instantiate(parser, config, state, unread)
         except RuntimeError as e:
             raise XMLSceneError(f"{label}: {_mitsuba_text(e)}") from None
         except UnicodeDecodeError:  # Mitsuba's message quoted bytes of a data file that is not text
@@ -814,7 +827,7 @@ def loaded_xml(
     (one line) for anything Mitsuba refuses."""
     path, defines = _normalise(path, defines)
     label = _label(path)
-    with _parsed(path, defines, variant) as (mi, parser, config, state):
+    with _parsed(path, defines, variant) as (mi, parser, config, state, unread):
         config.merge_meshes = False
         config.merge_equivalent = False
         try:
@@ -848,7 +861,7 @@ def loaded_xml(
                     film.props["width"] = int(width)
                 if height is not None:
                     film.props["height"] = int(height)
-            scene = parser.instantiate(config, state)
+            scene = _instantiate(parser, config, state, unread)
         except RuntimeError as e:
             raise XMLSceneError(f"{label}: {_mitsuba_text(e)}") from None
         except UnicodeDecodeError:

@@ -320,7 +320,8 @@ def test_xml_sensor_out_of_range(capsys, tmp_path, sensor, says):
 def test_the_orthographic_sensor_need_not_be_the_chosen_one(capsys, tmp_path):
     """Only the sensor the audit uses must be perspective: --camera 1 on an orthographic one is refused,
     --camera 0 (perspective) is not refused for sensor 1's type (here refused for another reason: -D)."""
-    both = scene(sensor=SENSOR + "\n" + sensor_with(kind="orthographic"))
+    ortho = sensor_with(kind="orthographic").replace('<float name="fov" value="30"/>', "")  # (it has no fov:
+    both = scene(sensor=SENSOR + "\n" + ortho)  # Mitsuba refuses the property as unreferenced)
     path = write(tmp_path, both)
     line = refuse(capsys, tmp_path, path, "--camera", "1")
     assert "orthographic" in line and "sensor 1" in line
@@ -425,6 +426,21 @@ STRUCTURE = {
     "no sensor": (lambda d: write(d, scene(sensor="")), "sensor"),
     "unset parameter": (lambda d: write(d, scene(_sphere("$r"))), "$r"),
     "radius not a number": (lambda d: write(d, scene(_sphere("big"))), "big"),
+    # rtfit reads every value to check it; Mitsuba's "unreferenced property" refusal must still hold
+    "unreferenced shape property": (
+        lambda d: write(d, scene('<shape type="sphere"><float name="radus" value="2"/></shape>')),
+        'unreferenced property in shape plugin of type "sphere": - float "radus"',
+    ),
+    "unreferenced sensor property": (
+        lambda d: write(d, scene(sensor=sensor_with(extra='<float name="fovv" value="40"/>'))),
+        'float "fovv"',
+    ),
+    "unreferenced film property": (
+        lambda d: write(
+            d, scene(sensor=sensor_with().replace("</film>", '<integer name="widht" value="4"/></film>'))
+        ),
+        'integer "widht"',
+    ),
     "a directory named .xml": (lambda d: (d / "dir.xml").mkdir() or d / "dir.xml", "dir.xml"),
 }
 
@@ -841,8 +857,9 @@ def test_sweep_key_in_fixed_and_grid(capsys, tmp_path):
     ids=["run", "audit"],
 )
 def test_missing_libllvm_is_one_rtfit_line_before_anything_is_written(tmp_path, argv):
-    """A $DRJIT_LIBLLVM_PATH that names no file: one rtfit line, exit 2, no out/ and no cache entry (Dr.Jit
-    itself prints two lines of its own when it is imported; rtfit cannot stop those)."""
+    """A $DRJIT_LIBLLVM_PATH that names no file: one rtfit line, exit 2, no out/ and no cache entry, and
+    nothing else (Dr.Jit's own two lines at import, ``jit_find_library(): Unable to load …``, are silenced
+    by rtfit.experiments, which imports it first)."""
     import subprocess
     import sys
 
@@ -856,6 +873,7 @@ def test_missing_libllvm_is_one_rtfit_line_before_anything_is_written(tmp_path, 
     ours = [line for line in proc.stderr.splitlines() if line.startswith("rtfit")]
     assert proc.returncode == 2, proc.stderr
     assert len(ours) == 1 and ours[0].startswith("rtfit: error: ") and "DRJIT_LIBLLVM_PATH" in ours[0]
+    assert proc.stderr.strip().splitlines() == ours, proc.stderr  # no jit_find_library() lines
     assert "Traceback" not in proc.stderr
     assert not out.exists() and not cache.exists()
 
@@ -938,6 +956,61 @@ def test_an_unreadable_cached_pass_is_named_in_one_warning(tmp_path, caplog, dam
         assert entry.load(0) is None
     lines = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert len(lines) == 1 and str(data) in lines[0] and "rendered again" in lines[0], lines
+
+
+@pytest.mark.parametrize("damage", ["truncated", "garbage"])
+def test_a_corrupt_exr_pass_prints_no_openexr_lines(tmp_path, capfd, caplog, damage):
+    """OpenEXR printed its own lines (stdout and stderr) for a corrupt pass before rtfit's warning: now the
+    warning alone names the pass; a sound EXR still reads (issue 32)."""
+    import logging
+
+    import numpy as np
+
+    from rtfit.reference.cache import PassEntry, PassResult
+
+    entry = PassEntry(tmp_path, {"test": "bad-exr"}, storage="exr")
+    entry.save(0, PassResult(np.ones((4, 4, 3)), np.ones((4, 4, 3)) * 0.1, 16, 0, 0.01))
+    assert entry.load(0) is not None
+    data = entry.folder / "pass-00000.exr"
+    good = data.read_bytes()
+    if damage == "truncated":
+        data.write_bytes(good[: len(good) // 2] + bytes(len(good) // 2))
+    else:
+        data.write_bytes(b"garbage" * 40)
+    capfd.readouterr()
+    with caplog.at_level(logging.WARNING, logger="rtfit.reference"):
+        assert entry.load(0) is None
+    lines = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(lines) == 1 and str(data) in lines[0] and "rendered again" in lines[0], lines
+    raw = capfd.readouterr()
+    assert raw.out == "" and "EXR" not in raw.err and "Exception raised" not in raw.err, raw
+
+
+def test_ray_init_retry_lines_are_held(capfd):
+    """An address that answers TCP but is no Ray cluster: Ray's C++ client printed a line a second while
+    retrying (21 before the error, issue 32); now the error alone, as one ValueError line. A connection
+    that succeeds shows what Ray printed."""
+    import types
+
+    from rtfit.experiments.ray_executor import _init_within
+
+    def failing(address, **kwargs):
+        for _ in range(3):
+            os.write(2, b"[2026-12-05 W] gcs_client.cc:210: Failed to get cluster ID from GCS server\n")
+        print("SIGTERM handler is not set", file=__import__("sys").stderr)
+        raise ConnectionError(f"Failed to connect to Ray cluster at {address}")
+
+    capfd.readouterr()
+    with pytest.raises(ValueError, match=r"^--address 1\.2\.3\.4:6379: ConnectionError: Failed to connect"):
+        _init_within(types.SimpleNamespace(init=failing), 5, "1.2.3.4:6379")
+    assert capfd.readouterr() == ("", "")
+
+    def connecting(address, **kwargs):
+        os.write(2, b"Connected to Ray cluster\n")
+        return "context"
+
+    assert _init_within(types.SimpleNamespace(init=connecting), 5, "1.2.3.4:6379") == "context"
+    assert capfd.readouterr().err == "Connected to Ray cluster\n"
 
 
 def test_ray_address_variable_is_checked_like_the_option(capsys, tmp_path, monkeypatch):

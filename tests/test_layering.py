@@ -477,3 +477,15 @@ def test_a_planted_backend_switch_is_found(tmp_path):
         "experiments/family.py:4: set_default_backend",
         "experiments/family.py:2: F = dr.cuda.Float if GPU else dr.llvm.Float",
     ]
+
+
+def test_experiments_import_no_jax():
+    """JAX runs rtfit's fits in fitting/ (and realtime/'s JAX ops): issue 32, experiments imported
+    ``jax.numpy`` for their fits' output transforms; `rtfit.fitting.concatenated` is that transform, once."""
+    found = [
+        f"{path.relative_to(ROOT)}:{node.lineno}: {name}"
+        for path in sorted((ROOT / "experiments").rglob("*.py"))
+        for name, _, node, _ in _imports(path, "experiments")
+        if name == "jax" or name.startswith("jax.")
+    ]
+    assert found == []

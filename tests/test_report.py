@@ -327,6 +327,23 @@ def test_missing_figure_is_flagged(exp_dir):
     assert "(missing: figures/pareto.png)" in (exp_dir / "report.html").read_text(encoding="utf-8")
 
 
+def test_rtfit_report_says_when_figure_files_are_gone(capsys, exp_dir):
+    """issue 32: ``rtfit report`` on a folder whose figures/ was deleted exited 0 without a word; now one
+    warning line names the missing files (the page still marks each one), and a complete folder none."""
+    import shutil
+
+    from rtfit.experiments.cli import main
+
+    assert main(["report", str(exp_dir)]) == 0
+    assert capsys.readouterr().err == ""
+    shutil.rmtree(exp_dir / "figures")
+    assert main(["report", str(exp_dir)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rtfit: warning: "), err
+    assert "3 figure file(s) named in results.json are missing" in err[0] and "figures/pareto.png" in err[0]
+    assert "(missing: figures/pareto.png)" in (exp_dir / "report.html").read_text(encoding="utf-8")
+
+
 def test_a_case_composite_shared_by_every_approximation_is_shown_once(tmp_path):
     """figures.case_comparison points every approximation of a case at one composite PNG and also returns a
     figure record for it (height-fog, light-cones, …): the page shows that image once, under the case's
