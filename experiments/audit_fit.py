@@ -179,8 +179,13 @@ def pooled_fit(
         d = fit_data(method, case, row)
         rms = float(np.sqrt(np.mean(np.square(d.target)))) if d.target.size else 0.0
         objects = [n for n, v in d.inputs.items() if not (np.ndim(v) or np.isscalar(v))]
+        # An array input not one value per fitted element is a table of the scene (a sky texture's texels,
+        # a case's SH coefficients): the kernel reads it whole, and another scene's table is another input.
+        tables = [n for n, v in d.inputs.items() if np.ndim(v) and np.size(v) != d.target.shape[-1]]
         if objects:
             left[case.id] = f"reads a scene object ({', '.join(objects)}): fitted per scene only"
+        elif tables:
+            left[case.id] = f"reads a table of its scene ({', '.join(tables)}): fitted per scene only"
         elif not (rms > 0.0 and np.isfinite(rms)):
             left[case.id] = "its reference is zero everywhere: no relative error to pool"
         elif datas and d.per_channel != datas[0].per_channel:

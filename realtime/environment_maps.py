@@ -255,7 +255,11 @@ def _face_coords(ops, dx, dy, dz):
         ops.select(dx >= 0.0, 0.0, 1.0),
         ops.select(isy, ops.select(dy >= 0.0, 2.0, 3.0), ops.select(dz >= 0.0, 4.0, 5.0)),
     )
-    return face, ops.clip(u / major, -1.0, 1.0), ops.clip(v / major, -1.0, 1.0)
+    a, b = ops.clip(u / major, -1.0, 1.0), ops.clip(v / major, -1.0, 1.0)
+    # A NaN direction (an impostor's secant dividing by zero in float32) must not become a texel index: a
+    # Dr.Jit gather is unchecked, and the LLVM backend read outside the table and crashed (exit 139 on two
+    # real scenes). It reads the face's centre instead (a, b = 0), as the zero vector does.
+    return face, ops.select(a == a, a, 0.0), ops.select(b == b, b, 0.0)
 
 
 def cube_lookup_kernel(ops, table, dx, dy, dz, resolution, bilinear, offset=0.0):

@@ -155,3 +155,24 @@ def test_an_unknown_fit_weight_is_refused():
     with pytest.raises(AuditError, match="fit_weight 'square'"):
         FamilyCase("c", "c", _case("x", np.ones(2), np.ones(2)).reference, np.ones((1, 2), bool),
                    ({"x": 1.0},) * 3, fit_weight="square")  # fmt: skip
+
+
+def test_a_case_reading_a_table_of_its_scene_is_left_out_of_the_pool():
+    """A kernel input that is not one value per pixel (a sky texture's texels: nishita-sky's ``texel_mu``)
+    cannot be concatenated across scenes: the case is left out and named (the quick suite's nishita-sky run
+    failed on a broadcast of 8,192 texels to 512 pixels)."""
+
+    def _tab(ops, x, table, a):  # a one-mapping kernel: (R, G, B)
+        v = a * x + 0.0 * table[0]
+        return v, v, v
+
+    tab = Method(id="tab", label="a·x with a table", kernel=_tab,
+                 inputs=(Input("x", "1", "abscissa", domain=(0.0, 10.0)), Input("table", "1", "a table")),
+                 params={"a": Param(1.0, -10.0, 10.0, unit="1")}, formula="a·x")  # fmt: skip
+    x = np.linspace(0, 1, 10)
+    cases = []
+    for cid, y in (("c1", 2 * x + 1), ("c2", 3 * x)):
+        c = _case(cid, x, y)
+        c = FamilyCase(c.id, c.label, c.reference, c.mask, ({"x": x, "table": np.ones(37)},))
+        cases.append((c, "tab", {}))
+    assert pooled_fit(tab, cases) is None  # both left out: nothing to pool

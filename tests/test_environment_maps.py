@@ -426,3 +426,22 @@ def test_audit_list_names_the_family_on_the_shipped_room():
     assert out.exit_code == 0, out.output
     line = next(x for x in out.output.splitlines() if x.strip().startswith("environment-maps — reflections"))
     assert "glass sphere 'sphere'" in line
+
+
+def test_a_nan_direction_reads_a_texel_inside_the_table():
+    """A NaN lookup direction (an impostor's float32 secant dividing by zero) reads the +Z face's centre,
+    never an index outside the table: a Dr.Jit gather is unchecked, and the cost timing of the ``iterative``
+    row crashed the LLVM backend (exit 139) on two of Mitsuba's scenes."""
+    import drjit as dr
+
+    from rtfit.realtime.arrays import DRJIT_OPS, backend_float
+    from rtfit.realtime.environment_maps import cube_lookup_kernel
+
+    Float = backend_float(None, np.float32)
+    table = np.arange(6 * 4 * 4, dtype=np.float32)
+    nan = float("nan")
+    d = [Float([nan, 0.0]), Float([0.0, nan]), Float([nan, 1.0])]
+    out = cube_lookup_kernel(DRJIT_OPS, Float(table), *d, 4, True)
+    dr.eval(out)
+    got = np.asarray(out)
+    assert np.all(np.isfinite(got)) and np.all((got >= table.min()) & (got <= table.max()))
