@@ -166,34 +166,24 @@ def run_experiments(
     out = Path(out)
     pool = make_executor(executor, workers, progress, address=address)  # a bad address: nothing written
     done: list[Path] = []
+    failed: list[str] = []
     with callers_variant():  # the experiments activate their variants; the caller's comes back
         try:
             out.mkdir(parents=True, exist_ok=True)
             for spec in specs:
                 final = out / spec.name
                 t0 = time.perf_counter()
-                with atomic_directory(final) as tmp:
-                    ctx = RunContext(
-                        out_dir=Path(tmp),
-                        cache_dir=Path(cache_dir),
-                        executor=pool,
-                        quick=quick,
-                        variant=variant,
-                        spp=spp,
-                        seed=seed,
-                        progress=progress,
-                        overrides=dict(overrides or {}),
-                    )
-                    before = PASS_COUNTS.snapshot()
-                    try:
-                        run_experiment_into(spec, Path(tmp), ctx, executor, single_file=single_file)
-                    except (SceneError, ValueError) as e:
-                        # The input was validated before this loop (the CLI: every configuration value, file
-                        # and address): a ValueError from inside an experiment is the run failing — a fit
-                        # refusing a non-finite target, say — not bad input. The traceback: debug log (-v).
-                        log.debug("%s failed", spec.name, exc_info=True)
-                        raise RunFailed(f"{spec.name}: {error_line(e)}") from e
-                    print_resumed(spec.name, before, PASS_COUNTS.snapshot())
+                try:
+                    _run_one(spec, final, cache_dir, pool, quick, variant, spp, seed, progress,
+                             overrides, executor, single_file)  # fmt: skip
+                except RunFailed as e:
+                    # One family failing does not stop the others (the quick suite's nishita-sky failure
+                    # left 15 families unrun): each is said now, all of them at the end (exit 1).
+                    if len(specs) == 1:
+                        raise
+                    log.error("%s", e)
+                    failed.append(str(e))
+                    continue
                 done.append(final)
                 log.info(
                     "%s: done in %.1f s, report at %s",
@@ -204,7 +194,36 @@ def run_experiments(
         finally:
             pool.close()
     write_index(out, experiment_dirs(out))
+    if failed:
+        raise RunFailed(f"{len(failed)} of {len(specs)} experiment(s) failed: " + "; ".join(failed))
     return done
+
+
+def _run_one(spec, final, cache_dir, pool, quick, variant, spp, seed, progress, overrides, executor,
+             single_file) -> None:  # fmt: skip
+    """One experiment of `run_experiments` into ``final`` (atomically); a failure inside it is `RunFailed`."""
+    with atomic_directory(final) as tmp:
+        ctx = RunContext(
+            out_dir=Path(tmp),
+            cache_dir=Path(cache_dir),
+            executor=pool,
+            quick=quick,
+            variant=variant,
+            spp=spp,
+            seed=seed,
+            progress=progress,
+            overrides=dict(overrides or {}),
+        )
+        before = PASS_COUNTS.snapshot()
+        try:
+            run_experiment_into(spec, Path(tmp), ctx, executor, single_file=single_file)
+        except (SceneError, ValueError) as e:
+            # The input was validated before this loop (the CLI: every configuration value, file
+            # and address): a ValueError from inside an experiment is the run failing — a fit
+            # refusing a non-finite target, say — not bad input. The traceback: debug log (-v).
+            log.debug("%s failed", spec.name, exc_info=True)
+            raise RunFailed(f"{spec.name}: {error_line(e)}") from e
+        print_resumed(spec.name, before, PASS_COUNTS.snapshot())
 
 
 def resumed_line(name: str, before: tuple[int, int], after: tuple[int, int]) -> str | None:

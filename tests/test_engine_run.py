@@ -226,3 +226,27 @@ def test_a_shipped_scene_names_only_its_family_roles_and_quantities():
         with pytest.raises(ValueError, match=f"names the {word}"):
             engine_run._check_selections(fam, [scene])
     engine_run._check_selections(fam, fam.scenes)  # (the shipped ones are right)
+
+
+def test_a_failing_family_does_not_stop_the_others(tmp_path, monkeypatch):
+    """``rtfit run all`` goes on past a family that fails (the quick suite's nishita-sky failure left 15
+    families unrun): the others' reports and the index are written, then one RunFailed names the failure."""
+    from rtfit.experiments.runner import RunFailed
+
+    good = _planted(monkeypatch)
+    bad = ExperimentSpec("broken", ENGINE, "planted", "d")
+
+    class _Broken:
+        def run(self, ctx):
+            raise ValueError("planted failure")
+
+    monkeypatch.setattr(ExperimentSpec, "load", lambda self: _Broken() if self.name == "broken" else
+                        engine_run.experiment(self.name))  # fmt: skip
+    out = tmp_path / "out"
+    with pytest.raises(RunFailed, match="1 of 2 experiment\\(s\\) failed: broken: .*planted failure"):
+        run_experiments(
+            [bad, good], out, quick=True, variant="llvm_ad_rgb", spp=None, seed=0,
+            cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False,
+        )  # fmt: skip
+    assert (out / "diffuse" / "report.html").exists() and (out / "index.html").exists()
+    assert not (out / "broken").exists()
