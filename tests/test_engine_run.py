@@ -243,7 +243,7 @@ def test_a_failing_family_does_not_stop_the_others(tmp_path, monkeypatch):
     monkeypatch.setattr(ExperimentSpec, "load", lambda self: _Broken() if self.name == "broken" else
                         engine_run.experiment(self.name))  # fmt: skip
     out = tmp_path / "out"
-    with pytest.raises(RunFailed, match="1 of 2 experiment\\(s\\) failed: broken: .*planted failure"):
+    with pytest.raises(RunFailed, match=r"1 of 2 experiment\(s\) failed: broken: .*planted failure"):
         run_experiments(
             [bad, good], out, quick=True, variant="llvm_ad_rgb", spp=None, seed=0,
             cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False,
