@@ -23,6 +23,7 @@ from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_run import audit, resolve_approximations
 from rtfit.experiments.families import METHOD_TABLES
 from rtfit.experiments.results import load_results
+from rtfit.realtime.irradiance_volumes import METHODS as IRRADIANCE_VOLUME_ROWS
 
 DATA = Path(__file__).parent / "data" / "mitsuba"
 CBOX = DATA / "cbox"
@@ -69,7 +70,7 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
     r = load_results(report)
     assert [c.id for c in r.cases] == [
         "light0-unshadowed", "light0-shadowed", "volume", "caps", "ao",
-        "obscurance-model", "obscurance-ambient", "light0-map1024", "light0-map256",
+        "obscurance-model", "obscurance-ambient", "light0-map1024", "light0-map256", "bounce",
     ]  # fmt: skip
     cap_rows = [m for m in METHOD_TABLES["ambient-aperture"] if m.startswith(("aa-", "fill-"))]
     for case in r.cases:
@@ -78,10 +79,12 @@ def test_cornell_box_includes_variant_as_a_new_user_runs_it(tmp_path):
             "caps": cap_rows,
             "obscurance-model": list(METHOD_TABLES["obscurances"]),
             "obscurance-ambient": list(METHOD_TABLES["obscurances"]),
-            "volume": list(METHOD_TABLES["irradiance-volumes"]),
+            "volume": list(IRRADIANCE_VOLUME_ROWS),  # (the "direct + volume" rows: its volume-total case)
             # pcf-soft-shadows: every row's radius or bias has no published value (shown fitted only)
             "light0-map1024": [],
             "light0-map256": [],
+            # colour-bleeding: only the rows whose every parameter has a published value (the gathers)
+            "bounce": [k for k, m in METHOD_TABLES["colour-bleeding"].items() if not m.unpublished],
         }.get(case.id, ["lambert", "half-lambert", "wrap"])
         assert [a.method for a in case.approximations] == want
         for a in case.approximations:
