@@ -91,7 +91,10 @@ def _ramp(ops, num, start, end, below_end):
     the dropped branch stays finite (no 0/0, no NaN gradient in a JAX fit)."""
     w = end - start
     flat = w == 0.0
-    ramp = clamp01(ops, num / ops.select(flat, 1.0, w))
+    # num is clipped to ±|w| first: the same clamp (|num/w| ≥ 1 either way, same sign), and no float32
+    # overflow of the quotient (d = 3e38 over w = 0.5: inf, a NumPy overflow warning found by hypothesis).
+    aw = ops.abs(w)
+    ramp = clamp01(ops, ops.clip(num, -aw, aw) / ops.select(flat, 1.0, w))
     return ops.select(flat, below_end, ramp)
 
 

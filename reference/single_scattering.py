@@ -142,7 +142,8 @@ def _u_integral(
     s0 = np.asarray(start, np.float64)
     if sigma_t > 0.0:  # breaks where the extinction has decayed by e², e⁸, e³²: optically thick segments
         # (σ_t·S ≫ 1, the light behind the camera) left its whole decay inside one or two panels (issue 32)
-        decay = np.broadcast_to(s0, edges.shape[:-1])[..., None] + DECAY_BREAKS / sigma_t
+        with np.errstate(over="ignore"):  # a denormal σ_t (5e-324): breaks at +inf, clipped to the end next
+            decay = np.broadcast_to(s0, edges.shape[:-1])[..., None] + DECAY_BREAKS / sigma_t
         decay = np.clip(decay, edges[..., :1], edges[..., -1:])
         edges = np.sort(np.concatenate([edges, decay], axis=-1), axis=-1)
     u_edges = np.arcsinh((edges - c_par[..., None]) / h[..., None])

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.ndimage import map_coordinates
 
@@ -125,6 +125,7 @@ _F = st.floats(allow_nan=False, allow_infinity=False)
     scale=st.floats(0.05, 512.0),
     sigma=st.floats(0.05, 512.0),
 )
+@example(sigma_t=5e-324, albedo=0.0, g=0.0, u=0.0, scale=1.0, sigma=1.0)  # a denormal σ_t, found by CI
 def test_extremes_finite(sigma_t, albedo, g, u, scale, sigma):
     """Zero and huge density, g → 0 and g → 1, fitted scales at their bounds: the audit's inputs (E_d, A₀),
     every bloom row and the single-scattering quadrature stay finite and non-negative (float32 Dr.Jit and
