@@ -64,7 +64,17 @@ from rtfit.reference.reflective_shapes import (
 )
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditSetup,
+    FamilyCase,
+    ShippedScene,
+    pooled_passes,
+    rgb_columns,
+    vector_text,
+    xyz_columns,
+)
 
 __all__ = [
     "FAMILY",
@@ -161,7 +171,7 @@ def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[Family
         },
         lambda spp, seed: ray_radiance_pass(mi, scene, probe, texels, spp, seed, skip=shape),
         (-1, 3),
-        f"{tag}: cube map at {_vec(probe)}",
+        f"{tag}: cube map at {vector_text(probe)}",
         seed_label="probe",
     )
     rad = capture.mean
@@ -178,12 +188,12 @@ def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[Family
     shininess = phong_exponent(alpha)
     inputs: dict = {
         **{c: np.ascontiguousarray(points[:, k] - probe[k]) for k, c in enumerate("xyz")},
-        **_columns("r", lobes.reflect),
-        **_columns("t", lobes.refract),
-        **_columns("n", lobes.normal),
-        **_channels("wr", lobes.w_reflect),
-        **_channels("wt", lobes.w_refract),
-        **_channels("wd", lobes.w_diffuse),
+        **xyz_columns("r", lobes.reflect),
+        **xyz_columns("t", lobes.refract),
+        **xyz_columns("n", lobes.normal),
+        **rgb_columns("wr", lobes.w_reflect),
+        **rgb_columns("wt", lobes.w_refract),
+        **rgb_columns("wd", lobes.w_diffuse),
         **{f"rad_{c}": np.ascontiguousarray(rad[:, k]) for k, c in enumerate("rgb")},
         **filtered_tables("irr", rad, IRRADIANCE_RESOLUTION, 0.0),
         "dist": dist,
@@ -217,7 +227,7 @@ def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[Family
         "pixels": int(mask.sum()),
     }
     notes = (
-        f"cube maps captured at {_vec(probe)} ({parameters['probe_from']}), the shape hidden: "
+        f"cube maps captured at {vector_text(probe)} ({parameters['probe_from']}), the shape hidden: "
         f"{PROBE_RESOLUTION}² texels a face, {capture.spp} path samples a texel; {missed} of {len(texels)} "
         f"texels see no surface (distance {far:.4g}, {FAR_FACTOR:g} × the scene's diagonal)",
         "lobe weights from Mitsuba's BSDF: delta lobes exact, glossy and diffuse albedos from "
@@ -246,18 +256,6 @@ def on_probe(method: Method) -> Method:
     return replace(
         method, inputs=tuple(i for i in method.inputs if i.name not in sizes), fixed={**method.fixed, **sizes}
     )
-
-
-def _vec(v) -> str:
-    return "(" + ", ".join(f"{float(c):.4g}" for c in v) + ")"
-
-
-def _columns(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
-    return {f"{prefix}{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("xyz")}
-
-
-def _channels(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
-    return {f"{prefix}_{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("rgb")}
 
 
 FAMILY = AuditFamily(

@@ -63,6 +63,9 @@ __all__ = [
     "by_name",
     "masked_image",
     "pooled_passes",
+    "rgb_columns",
+    "vector_text",
+    "xyz_columns",
 ]
 
 
@@ -173,6 +176,21 @@ class AuditReference:
             integrator=integrator,
             integrator_reason=integrator_reason,
         )
+
+
+def vector_text(v) -> str:
+    """A point or vector for a report line: "(x, y, z)", 4 significant digits each."""
+    return "(" + ", ".join(f"{float(c):.4g}" for c in v) + ")"
+
+
+def xyz_columns(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
+    """Kernel inputs ``<prefix>x``, ``<prefix>y``, ``<prefix>z`` from the columns of an (N, 3) array."""
+    return {f"{prefix}{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("xyz")}
+
+
+def rgb_columns(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
+    """Kernel inputs ``<prefix>_r``, ``<prefix>_g``, ``<prefix>_b`` from the columns of an (N, 3) array."""
+    return {f"{prefix}_{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("rgb")}
 
 
 def masked_image(mask: np.ndarray, values) -> np.ndarray:

@@ -68,6 +68,7 @@ from .audit_family import (
     ShippedScene,
     masked_image,
     pooled_passes,
+    vector_text,
 )
 from .probe_projection import FEATURE_NORMALS, FEATURES_NAME, NNLS_NORMALS, probe_bases, probe_features
 
@@ -187,7 +188,7 @@ def irradiance_volume_cases(setup: AuditSetup, app: Applicability) -> list[Famil
     dims = "×".join(str(d) for d in grid.dims)
     notes = (
         f"probe grid {dims} ({parameters['grid_from']}), spacing {grid.spacing:.4g}, centred in the "
-        f"scene's box {_vec(lo)}–{_vec(hi)}; {outside} probe(s) outside it",
+        f"scene's box {vector_text(lo)}–{vector_text(hi)}; {outside} probe(s) outside it",
         f"each probe: {probes.spp} path-traced directions, projected on SH L2, Valve's six axes and "
         f"{NNLS_NORMALS} normals (the NNLS cube)",
     )
@@ -290,10 +291,6 @@ def on_grid(method: Method, grid: ProbeGrid) -> Method:
         inputs=tuple(i for i in method.inputs if i.name != "grid"),
         fixed={**method.fixed, "grid": grid},
     )
-
-
-def _vec(v) -> str:
-    return "(" + ", ".join(f"{float(c):.4g}" for c in v) + ")"
 
 
 FAMILY = AuditFamily(

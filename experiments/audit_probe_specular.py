@@ -50,7 +50,17 @@ from rtfit.reference.reflective_shapes import (
 )
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditSetup,
+    FamilyCase,
+    ShippedScene,
+    pooled_passes,
+    rgb_columns,
+    vector_text,
+    xyz_columns,
+)
 
 __all__ = ["FAMILY", "GRIDS", "LOBE_SAMPLES", "SCENES", "probe_specular_cases", "storage_floats"]
 
@@ -168,7 +178,7 @@ def probe_specular_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCa
     for name, probes in placements:
         t0 = time.perf_counter()
         captures = [
-            _capture(setup, index, shape, p, far, f"{tag}: probe {j + 1}/{len(probes)} at {_vec(p)}")
+            _capture(setup, index, shape, p, far, f"{tag}: probe {j + 1}/{len(probes)} at {vector_text(p)}")
             for j, p in enumerate(probes)
         ]
         chains = np.concatenate([ps.prefilter(c[0]) for c in captures], axis=0)
@@ -179,10 +189,10 @@ def probe_specular_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCa
         radius = np.array([c[2] for c in captures])[nearest]
         inputs = {
             **{c: np.ascontiguousarray(rel[:, k]) for k, c in enumerate("xyz")},
-            **_columns("r", lobes.reflect),
-            **_columns("n", lobes.normal),
-            **_channels("wr", lobes.w_reflect),
-            **_channels("wd", lobes.w_diffuse),
+            **xyz_columns("r", lobes.reflect),
+            **xyz_columns("n", lobes.normal),
+            **rgb_columns("wr", lobes.w_reflect),
+            **rgb_columns("wd", lobes.w_diffuse),
             "alpha": np.full(len(points), alpha),
             "probe": nearest.astype(np.float64),
             **{f"b{c}0": np.ascontiguousarray(b0[:, k]) for k, c in enumerate("xyz")},
@@ -227,8 +237,8 @@ def probe_specular_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCa
             f"pre-convolution {capture_seconds:.3g} s",
             f"α = {alpha:.4g} ({distribution}"
             + (": read as a GGX α by the chain" if distribution != "ggx" else "")
-            + f"); box proxy: the scene's bounding box {_vec(lo)}–{_vec(hi)}; sphere proxy: the median "
-            "distance the probe sees",
+            + f"); box proxy: the scene's bounding box {vector_text(lo)}–{vector_text(hi)}; sphere proxy: "
+            "the median distance the probe sees",
         )
         cases.append(
             FamilyCase(
@@ -249,18 +259,6 @@ def _distribution(shape) -> str:
     """The microfacet distribution the BSDF prints (``distribution = ggx`` or ``beckmann``)."""
     text = str(shape.bsdf())
     return "ggx" if "distribution = ggx" in text else "beckmann"
-
-
-def _vec(v) -> str:
-    return "(" + ", ".join(f"{float(c):.4g}" for c in v) + ")"
-
-
-def _columns(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
-    return {f"{prefix}{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("xyz")}
-
-
-def _channels(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
-    return {f"{prefix}_{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("rgb")}
 
 
 FAMILY = AuditFamily(
