@@ -291,31 +291,7 @@ def test_public_functions_say_what_is_wrong_in_one_line():
 
 
 # ------------------------------------------------------------------------------------------------ the audit
-TOML = """
-name = "sphere over a floor"
-
-[camera]
-origin = [0, -5, 4]
-target = [0, 0, 0.4]
-fov_deg = 45
-width = 16
-height = 16
-
-[[lights]]
-type = "constant_env"
-radiance = [0.5, 1.0, 2.0]
-
-[[shapes]]
-type = "rectangle"
-center = [0, 0, 0]
-normal = [0, 0, 1]
-size = [12, 12]
-
-[[shapes]]
-type = "sphere"
-center = [0, 0, 1]
-radius = 0.5
-"""
+SPHERE_OVER_FLOOR = Path(__file__).parent / "data" / "sphere_over_floor.toml"
 
 
 def test_toml_constant_sky_over_a_floating_sphere_matches_the_closed_form(tmp_path):
@@ -324,9 +300,7 @@ def test_toml_constant_sky_over_a_floating_sphere_matches_the_closed_form(tmp_pa
     every N = 256 row is within 3 % of it on the ground on average and 10 % at worst (one light of a constant
     map is 1/64 of πL: the sphere's cap hides a whole number of them; measured mean 0.43 / 0.60 / 0.65 %, max
     4.0 / 4.0 / 3.6 % for Lloyd / importance / median cut), the N = 4 rows further (mean 5.7 / 11 / 46 %)."""
-    path = tmp_path / "s.toml"
-    path.write_text(TOML)
-    r = audit(path, FAMILY, spp=64, pass_spp=32, cache=tmp_path / "c", **FAST)
+    r = audit(SPHERE_OVER_FLOOR, FAMILY, spp=64, pass_spp=32, cache=tmp_path / "c", **FAST)
     (case,) = r.cases
     assert case.id == "ibl0" and case.parameters["kind"] == "constant"
     g = case.row_inputs["seed-lloyd-256"][0]
@@ -376,10 +350,9 @@ def test_a_user_approximation_reads_the_seed_rows_own_lights(tmp_path):
     rounding (relative 1e-5)."""
     from rtfit.experiments.audit_ibl_samples import USER_COUNT
 
-    (tmp_path / "toml.toml").write_text(TOML)
     (tmp_path / "mine.py").write_text(MY_SUM)
     spec = f"{tmp_path / 'mine.py'}:my_sum"
-    r = audit(tmp_path / "toml.toml", [f"ibl-samples:seed-lloyd-{USER_COUNT}", spec], spp=16, pass_spp=16,
+    r = audit(SPHERE_OVER_FLOOR, [f"ibl-samples:seed-lloyd-{USER_COUNT}", spec], spp=16, pass_spp=16,
               cache=tmp_path / "c", **FAST)  # fmt: skip
     (case,) = r.cases
     rows = r.outcomes[case.id]

@@ -218,31 +218,7 @@ def test_public_functions_say_what_is_wrong_in_one_line():
 
 
 # ------------------------------------------------------------------------------------------------ the audit
-TOML = """
-name = "sphere over a floor"
-
-[camera]
-origin = [0, -5, 4]
-target = [0, 0, 0.4]
-fov_deg = 45
-width = 16
-height = 16
-
-[[lights]]
-type = "constant_env"
-radiance = [0.5, 1.0, 2.0]
-
-[[shapes]]
-type = "rectangle"
-center = [0, 0, 0]
-normal = [0, 0, 1]
-size = [12, 12]
-
-[[shapes]]
-type = "sphere"
-center = [0, 0, 1]
-radius = 0.5
-"""
+SPHERE_OVER_FLOOR = Path(__file__).parent / "data" / "sphere_over_floor.toml"
 
 
 def test_toml_constant_sky_over_a_floating_sphere_matches_the_closed_form(tmp_path):
@@ -250,9 +226,7 @@ def test_toml_constant_sky_over_a_floating_sphere_matches_the_closed_form(tmp_pa
     point's horizon): at a ground point at distance d from the centre, E = πL(1 − (R/d)²·h/d) — the reference
     sits on it (pooled |z| mean < 0.5, max < 4.5 at 64 spp); the bake is L00 = L√(4π), the rest ~0; the seed
     row and the irradiance rows are πL·V (V the bake's), so within the bake's noise of the closed form."""
-    path = tmp_path / "s.toml"
-    path.write_text(TOML)
-    r = audit(path, FAMILY, spp=64, pass_spp=32, cache=tmp_path / "c", **FAST)
+    r = audit(SPHERE_OVER_FLOOR, FAMILY, spp=64, pass_spp=32, cache=tmp_path / "c", **FAST)
     (case,) = r.cases
     assert case.id == "shsky0" and case.parameters["kind"] == "constant"
     g = case.channel_inputs[0]
