@@ -452,7 +452,7 @@ def _cost(
     Float = backend_float(backend)
     n = int(case.mask.sum())
     reps = max(1, -(-size // max(n, 1)))
-    args, keys, consts, uniforms = [], [], {}, {}
+    args, host, keys, consts, uniforms = [], [], [], {}, {}
     for name in method.input_names:
         v = case.channel_inputs[0][name]
         if not isinstance(v, (int, float, np.ndarray, np.generic)):  # a sampler object (a distance field)
@@ -465,14 +465,16 @@ def _cost(
         elif np.ndim(v):
             a = np.tile(np.asarray(v, np.float64), reps)[:size]
             a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
+            host.append(a)
             args.append(Float(a))
             keys.append(name)
         else:
             consts[name] = float(v)
     elements = min(n * reps, size) if keys else 1
     if uniforms:  # a small table read by index, as a shader's constant buffer (`Uniforms`: nothing folded)
+        trial = [Float(a[:_COST_PROBE]) for a in host]  # whether it reads the table by index: a small call
         try:
-            dr.eval(method.evaluate({**consts, **uniforms, **dict(zip(keys, args, strict=True))}))
+            dr.eval(method.evaluate({**consts, **uniforms, **dict(zip(keys, trial, strict=True))}))
             consts.update(uniforms)
         except (TypeError, IndexError, AttributeError, RuntimeError):  # a kernel that gathers from it
             pass
