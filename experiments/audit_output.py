@@ -95,13 +95,18 @@ def fitted_entries(r: AuditResult) -> list:
     the inputs' domain on this scene)."""
     entries = []
     for case in r.cases:
+        n = int(case.mask.sum())
         for o in r.outcomes[case.id].values():
             if not o.fit:
                 continue
-            dom = {}
+            dom, tables = {}, {}
             for name in o.method.input_names:
                 v = case.channel_inputs[0].get(name)
-                if v is not None and np.ndim(v):
+                if v is not None and not isinstance(v, (int, float, np.ndarray, np.generic)):
+                    tables[name] = v  # a sampler object (a shadow map, probe chains): bindings it reads
+                elif v is not None and np.ndim(v) and np.size(v) != n:
+                    tables[name] = np.ravel(v)  # a table (a sky's SH coefficients): one binding
+                elif v is not None and np.ndim(v):
                     a = np.asarray(v, np.float64)
                     a = a[np.isfinite(a)]
                     if a.size:
@@ -115,6 +120,7 @@ def fitted_entries(r: AuditResult) -> list:
                     domain=dom,
                     residual_units=f"{case.units}: residual = method − reference per pixel and channel",
                     data={"scene": r.info.source, "case": case.id},
+                    tables=tables,
                 )
             )
     return entries

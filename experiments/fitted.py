@@ -105,16 +105,35 @@ class Range(Record):
 
 
 @dataclass(frozen=True)
+class ShaderTable(Record):
+    """A table the shader function reads, declared before it and filled by the engine with its own data
+    (its sky's SH coefficients, its shadow map's depths): ``name``, size in ``floats``, ``kind`` "uniform"
+    (a uniform array / constant buffer) or "buffer" (a storage / structured buffer), and ``description``
+    (the input it stands for; its layout is the method's, `rtfit.realtime.shader`)."""
+
+    name: str
+    floats: int
+    kind: str
+    description: str = ""
+
+    def problems(self) -> list[tuple[str, str]]:
+        out = [] if self.floats > 0 else [("floats", f"a table of {self.floats} floats")]
+        return out + ([] if self.kind in ("uniform", "buffer") else [("kind", f"unknown kind {self.kind!r}")])
+
+
+@dataclass(frozen=True)
 class Shader(Record):
     """A ready shader function with the fitted constants baked in: its name, ``float`` arguments (the
     method's inputs, in this order), outputs (one: the return value; several: ``out float`` arguments
-    after the inputs), and the GLSL (4.00+, for ``fma``) and HLSL (SM 5) text."""
+    after the inputs), the GLSL (4.00+, for ``fma``; 4.30 where it reads a storage buffer) and HLSL (SM 5)
+    text, and the ``tables`` it reads (declared at the head of both texts)."""
 
     function: str
     arguments: list[str]
     outputs: list[str]
     glsl: str
     hlsl: str
+    tables: list[ShaderTable] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -245,17 +264,29 @@ def shader_entry(
     constants: Mapping[str, object],
     outputs: Sequence[str] | None = None,
     comment: str = "",
+    tables: Mapping[str, object] | None = None,
+    descriptions: Mapping[str, str] | None = None,
 ) -> tuple[Shader | None, str | None]:
-    """(`Shader`, None) for a kernel the tracer can write, else (None, why not)."""
+    """(`Shader`, None) for a kernel the tracer can write, else (None, why not). ``tables``: inputs that
+    are tables or sampler objects (`rtfit.realtime.shader_function`), described by ``descriptions``."""
     try:
-        fn = shader_function(name, kernel, arguments, constants, outputs=outputs, comment=comment)
+        fn = shader_function(
+            name, kernel, arguments, constants, outputs=outputs, comment=comment, tables=tables
+        )
     except Untraceable as e:
         return None, f"no shader text: {e}"
     except TypeError as e:  # an operation the tracer does not define (Untraceable covers the known ones)
         return None, f"no shader text: the kernel uses an operation the shader tracer lacks ({e})"
     except AttributeError as e:  # an input read through its own methods (a distance field's sample())
         return None, f"no shader text: an input is a sampler object, not a value ({e})"
-    return Shader(fn.name, list(fn.arguments), list(fn.outputs), fn.glsl, fn.hlsl), None
+    descriptions = descriptions or {}
+    used = [
+        ShaderTable(
+            b.name, b.floats, b.kind, next((d for k, d in descriptions.items() if b.name.startswith(k)), "")
+        )
+        for b in fn.tables
+    ]
+    return Shader(fn.name, list(fn.arguments), list(fn.outputs), fn.glsl, fn.hlsl, used), None
 
 
 def method_entry(
@@ -271,19 +302,24 @@ def method_entry(
     outputs: Sequence[str] | None = None,
     baked: Mapping[str, object] | None = None,
     data=None,
+    tables: Mapping[str, object] | None = None,
 ) -> FittedMethod:
     """The `FittedMethod` of ``method`` with the parameters of ``fit`` (a `FitResult.to_dict()`; None: the
     given ``params``, or the declared defaults), its residual, domain and traced shader text.
 
     ``baked``: inputs given as constants (e.g. a basis' stored coefficients): written into the shader as
-    literals instead of arguments."""
+    literals instead of arguments. ``tables``: inputs that are tables or sampler objects (a sky's SH
+    coefficients, a shadow map): the shader reads them from bindings it declares (`ShaderTable`), which an
+    engine fills with its own; their sizes and any constants the objects carry (a map's resolution) are
+    this case's."""
     baked = dict(baked or {})
+    tables = dict(tables or {})
     fit = fit or {}
     raw = fit.get("parameters") or {k: v for k, v in {**method.defaults(), **(params or {})}.items()}
     parameters = parameters_from_fit(method, raw)
     values = {k: p.value for k, p in parameters.items() if k in method.params}
     ranges = {}
-    units = {i.name: i.unit for i in method.inputs if i.name not in baked}
+    units = {i.name: i.unit for i in method.inputs if i.name not in baked and i.name not in tables}
     for k, r in (domain or {}).items():
         if not isinstance(r, Range):  # (lower, upper) or (lower, upper, unit)
             r = Range(float(r[0]), float(r[1]), unit=r[2] if len(r) > 2 else units.get(k, ""))
@@ -292,10 +328,12 @@ def method_entry(
     shader, note = shader_entry(
         fn,
         method.kernel,
-        [n for n in method.input_names if n not in baked],
+        [n for n in method.input_names if n not in baked and n not in tables],
         {**baked, **method.keywords(values)},
         outputs=outputs,
         comment=f"{label or method.label}: {method.formula}",
+        tables=tables,
+        descriptions={i.name: f"{i.name}: {i.description}" for i in method.inputs if i.name in tables},
     )
     residual = None
     if "rms_residual" in fit:

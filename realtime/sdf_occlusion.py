@@ -442,7 +442,7 @@ def cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
     kk = _const(ops, px, k)
     t_scale = _const(ops, px, t0)  # t_s = t0 · ratio^s: the geometric ratio is structural, t0 is an input
     axes = _cone_axes(cones)
-    if ops.name != "drjit":
+    if ops.name in ("numpy", "jax"):
         # NumPy/JAX: every cone at once, the axes as a leading (cones, 1) dimension broadcast against the
         # points — the same arithmetic as the loop below, traced once: a JAX fit compiles `steps` field
         # samples instead of cones × steps (9 × 8 cones: a fit of k on 4096 points took 175 s on 2 loaded
@@ -466,12 +466,13 @@ def cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
                 level = max(0, min(sdf.levels - 1, math.floor(math.log2(max(width / sdf.voxel, 1.0)))))
             s = sdf.sample(ops, level, px + tt * wx, py + tt * wy, pz + tt * wz)
             vis = ops.minimum(vis, ops.clip(kk * s / tt, 0.0, 1.0))
-        if ops.name == "drjit":
-            total = total + vis
-            dr.eval(total)
-        else:  # (cones, N): the cones' sum in the loop's order
+        if ops.name in ("numpy", "jax"):  # (cones, N): the cones' sum in the loop's order
             for j in range(cones):
                 total = total + vis[j]
+        else:  # Dr.Jit (one cone a kernel) or the shader tracer (the cones unrolled)
+            total = total + vis
+            if ops.name == "drjit":
+                dr.eval(total)
     ao = total * (1.0 / cones)
     return ops.select(nlen > 0, ao, 1.0 + px * 0.0)
 

@@ -14,8 +14,20 @@ single-assignment code (no expression is ever copied, so reused intermediates co
 Operations on Python numbers only are folded in float64 (a fitted parameter clipped to its range becomes
 one literal); literals are written with the shortest decimal that round-trips to the same float32.
 
-What cannot be traced raises `Untraceable` with the reason: ``gather`` (table lookups), a Python branch
-on a traced value (``if x > 0``), converting one to a number, NumPy calls on it (loops over arrays).
+Tables (an SH sky's 27 coefficients, a shadow map's texels, a probe's cube-map chain) are *bindings*: an
+input named in ``tables`` reaches the kernel as a `SymTable` (indexing it with a Python int reads
+``name[k]``, ``ops.gather`` with a traced index reads ``name[int(i)]``); a sampler object named there (an
+object whose methods gather from its own NumPy tables) is passed through a proxy under which each table it
+gathers from becomes the binding ``name`` (the method call's string and integer arguments appended:
+``chains.sample(ops, "pre", 0, like)`` reads ``chains_pre_0``; ``_1``, ``_2``, … for further tables of
+one call). The function
+text is then preceded by the bindings' declarations, which the engine fills with its own data (its sky, its
+shadow map): at most `UNIFORM_FLOATS` floats a uniform array (GLSL ``uniform float name[N];``, HLSL a
+``cbuffer``), larger ones a storage buffer (GLSL 4.30 ``buffer``, HLSL ``StructuredBuffer<float>``).
+
+What cannot be traced raises `Untraceable` with the reason: a table gathered from that is not a binding, a
+Python branch on a traced value (``if x > 0``), converting one to a number, NumPy calls on it (loops over
+arrays).
 
 `shader_function` turns a kernel into a GLSL and an HLSL function (one output: ``float f(...)``; several:
 ``void f(..., out float o0, ...)``). The two languages differ only in ``atan2`` (GLSL ``atan(y, x)``),
@@ -35,7 +47,17 @@ import numpy as np
 
 from .arrays import OP_NAMES
 
-__all__ = ["SHADER_OPS", "ShaderFunction", "Sym", "Untraceable", "float_literal", "shader_function"]
+__all__ = [
+    "SHADER_OPS",
+    "UNIFORM_FLOATS",
+    "ShaderFunction",
+    "ShaderTable",
+    "Sym",
+    "SymTable",
+    "Untraceable",
+    "float_literal",
+    "shader_function",
+]
 
 
 class Untraceable(TypeError):
@@ -65,11 +87,22 @@ def float_literal(x: float) -> str:
     return f"{mant}e{int(exp)}"
 
 
+UNIFORM_FLOATS = 1024
+"""A table of at most this many floats is declared a uniform array (a constant buffer: 256 float4, what an
+engine binds for SH coefficients), a larger one a storage buffer (a shadow map's or cube map's texels)."""
+
+
 class _Trace:
-    """The statements of the function being traced, and a counter for temporaries."""
+    """The statements of the function being traced, a counter for temporaries, and the table bindings
+    read so far (name → float count), in the order first read."""
 
     def __init__(self):
         self.lines: list[tuple[str, str, str]] = []  # (type, name, expression)
+        self.tables: dict[str, int] = {}
+        self.owned: dict[int, SymTable] = {}  # id(NumPy table of a sampler) → its binding
+        self.keep: list = []  # the sampler tables themselves: their ids stay theirs while tracing
+        self.owner: str | None = None  # the sampler binding whose method is running
+        self.owner_tables: dict[str, int] = {}  # tables named after each sampler binding so far
 
     def emit(self, kind: str, expr: str) -> Sym:
         name = f"t{len(self.lines)}"
@@ -229,8 +262,99 @@ def _select(cond, a, b):
     return cond.trace.emit(kind, f"{_atom(cond)} ? {_atom(a)} : {_atom(b)}")
 
 
+class SymTable:
+    """A table binding of the shader function being traced: ``size`` floats named ``name``."""
+
+    def __init__(self, name: str, size: int, trace: _Trace):
+        self.name, self.size, self.trace = name, int(size), trace
+
+    def __repr__(self):
+        return f"SymTable({self.name}[{self.size}])"
+
+    def __len__(self):
+        return self.size
+
+    def read(self, index) -> Sym:
+        """``name[index]``: a Python int index is checked against the size; a traced one is truncated."""
+        self.trace.tables.setdefault(self.name, self.size)
+        if isinstance(index, Sym):
+            return self.trace.emit("float", f"{self.name}[int({index.name})]")
+        k = int(index)
+        if not 0 <= k < self.size:
+            raise Untraceable(f"the kernel reads {self.name}[{k}] outside its {self.size} floats")
+        return Sym(f"{self.name}[{k}]", self.trace)
+
+    def __getitem__(self, index):
+        return self.read(index)
+
+    def __iter__(self):
+        return (self.read(k) for k in range(self.size))
+
+
+class _BoundSampler:
+    """A sampler object whose methods run with ``trace.owner`` set to its binding name, so that the NumPy
+    tables they gather from become that binding (`_gather`)."""
+
+    def __init__(self, obj, name: str, trace: _Trace):
+        self._obj, self._name, self._trace = obj, name, trace
+
+    def __getattr__(self, attr):
+        value = getattr(self._obj, attr)
+        if not callable(value):
+            return value
+
+        def bound(*args, **kwargs):
+            # the call's names and indices name the table it reads (a probe's chains.sample(ops, "pre", 0,
+            # like) → chains_pre_0); a nested call keeps the outer call's name
+            keys = [str(a) for a in args if isinstance(a, (str, int)) and not isinstance(a, bool)]
+            before = self._trace.owner
+            if before is None:
+                self._trace.owner = "_".join([self._name, *keys])
+            try:
+                out = value(*args, **kwargs)
+                if isinstance(out, np.ndarray) and out.ndim:  # a table handed to the kernel to gather from
+                    out = _owned_table(out, self._trace)
+                return out
+            except (Untraceable, TypeError, AttributeError, ValueError, IndexError) as e:
+                # a sampler whose own code is not table reads (a 3-D distance-field texture sampled with
+                # trilinear filtering on the array kinds it knows): say which input, and why
+                kind = type(self._obj).__name__
+                raise Untraceable(f"{self._name} ({kind}.{attr}) is sampled by its own code: {e}") from e
+            finally:
+                self._trace.owner = before
+
+        return bound
+
+
+def _owned_table(table, trace: _Trace) -> SymTable:
+    key = id(table)
+    if key not in trace.owned and trace.owner is not None:
+        for seen, kept in zip(trace.owned.values(), trace.keep, strict=True):  # a fresh copy of a table
+            if seen.name.startswith(trace.owner) and np.shape(kept) == np.shape(table):
+                if np.array_equal(kept, table):
+                    trace.owned[key] = seen
+                    trace.keep.append(table)
+                    return seen
+    if key not in trace.owned:
+        if trace.owner is None:
+            raise Untraceable(
+                "the kernel reads a table (gather) that is not a binding: name its input in `tables`"
+            )
+        taken = trace.owner_tables.get(trace.owner, 0)
+        trace.owner_tables[trace.owner] = taken + 1
+        name = trace.owner if not taken else f"{trace.owner}_{taken}"
+        trace.owned[key] = SymTable(name, np.size(table), trace)
+        trace.keep.append(table)
+    return trace.owned[key]
+
+
 def _gather(table, index):
-    raise Untraceable("the kernel reads a table (gather): a shader needs a buffer or texture binding")
+    if isinstance(table, SymTable):
+        return table.read(index)
+    tr = _trace_of((index,))
+    if tr is None:  # a constant table read at a constant index: folded
+        return float(np.asarray(table, np.float64).reshape(-1)[int(index)])
+    return _owned_table(table, tr).read(index)
 
 
 def _clip(x, lo, hi):
@@ -287,6 +411,26 @@ class ShaderFunction:
     outputs: tuple[str, ...]
     glsl: str
     hlsl: str
+    tables: tuple[ShaderTable, ...] = ()
+
+
+@dataclass(frozen=True)
+class ShaderTable:
+    """A table binding the function reads: its ``name``, its size in ``floats``, and ``kind``: "uniform"
+    (a uniform array / constant buffer) or "buffer" (a storage / structured buffer)."""
+
+    name: str
+    floats: int
+    kind: str
+
+    def declaration(self, lang: str) -> str:
+        if self.kind == "uniform":
+            if lang == "glsl":
+                return f"uniform float {self.name}[{self.floats}];"
+            return f"cbuffer rtfit_{self.name}_block {{ float {self.name}[{self.floats}]; }};"
+        if lang == "glsl":
+            return f"layout(std430) readonly buffer rtfit_{self.name}_block {{ float {self.name}[]; }};"
+        return f"StructuredBuffer<float> {self.name};"
 
 
 _GLSL_INF = "uintBitsToFloat(0x7F800000u)"
@@ -311,22 +455,35 @@ def shader_function(
     constants: Mapping[str, float] | None = None,
     outputs: Sequence[str] | None = None,
     comment: str = "",
+    tables: Mapping[str, object] | None = None,
 ) -> ShaderFunction:
     """Trace ``kernel(SHADER_OPS, **{a: Sym(a)}, **constants)`` into a GLSL and an HLSL function.
 
     ``arguments`` become the function's ``float`` parameters; ``constants`` (fitted values) are baked in
-    as literals. A kernel returning a tuple writes ``out float`` parameters named ``outputs`` (default
-    ``out0``, ``out1``, …). Raises `Untraceable` (with the reason) for kernels a shader cannot express."""
+    as literals; ``tables`` (name → a NumPy array, or a sampler object gathering from its own arrays) become
+    bindings declared before the function (module docstring). A kernel returning a tuple writes ``out
+    float`` parameters named ``outputs`` (default ``out0``, ``out1``, …). Raises `Untraceable` (with the
+    reason) for kernels a shader cannot express."""
     name = _identifier(name)
     tr = _Trace()
     syms = {a: Sym(_identifier(a), tr) for a in arguments}
-    result = kernel(SHADER_OPS, **syms, **dict(constants or {}))
+    bound = {}
+    for key, value in (tables or {}).items():
+        if isinstance(value, (np.ndarray, list, tuple)):
+            bound[key] = SymTable(_identifier(key), np.size(value), tr)
+        else:
+            bound[key] = _BoundSampler(value, _identifier(key), tr)
+    result = kernel(SHADER_OPS, **syms, **bound, **dict(constants or {}))
     results = list(result) if isinstance(result, (tuple, list)) else [result]
     if outputs is None:
         outputs = ("result",) if len(results) == 1 else tuple(f"out{i}" for i in range(len(results)))
     if len(outputs) != len(results):
         raise ValueError(f"kernel returns {len(results)} values, {len(outputs)} output names given")
     args = [_identifier(a) for a in arguments]
+    used = tuple(
+        ShaderTable(n, size, "uniform" if size <= UNIFORM_FLOATS else "buffer")
+        for n, size in tr.tables.items()
+    )
     texts = {}
     for lang in ("glsl", "hlsl"):
         body = [f"    {kind} {n} = {_language(expr, lang)};" for kind, n, expr in tr.lines]
@@ -339,7 +496,8 @@ def shader_function(
             sig = f"void {name}({', '.join(params)})"
             body += [f"    {_identifier(o)} = {v};" for o, v in zip(outputs, vals, strict=True)]
         head = [f"// {line}" for line in comment.splitlines()] if comment else []
+        head += [b.declaration(lang) for b in used]
         texts[lang] = "\n".join([*head, sig, "{", *body, "}"]) + "\n"
     return ShaderFunction(
-        name, tuple(args), tuple(_identifier(o) for o in outputs), texts["glsl"], texts["hlsl"]
+        name, tuple(args), tuple(_identifier(o) for o in outputs), texts["glsl"], texts["hlsl"], used
     )

@@ -338,3 +338,10 @@ def test_registry_entry_is_born_on_the_engine_and_runs(tmp_path):
     res = load_results(d)
     assert [c.id for c in res.cases] == ["sphere-r0p4-light0-map1024", "sphere-r0p4-light0-map256"]
     assert not failed_checks(res) and (d / "fitted" / f"{FAMILY}.json").is_file()
+    # every row's shader text reads the case's map from one binding of its W·H depths plus the border
+    from rtfit.experiments.fitted import load_fitted
+
+    methods = load_fitted(d / "fitted" / f"{FAMILY}.json").methods
+    sizes = {m.case: {(b.name, b.floats, b.kind) for b in m.shader.tables} for m in methods if m.shader}
+    assert len(sizes) == 2 and all(m.shader is not None for m in methods), [m.shader_note for m in methods]
+    assert sizes["sphere_r0p4_light0_map256"] == {("shadow_map", 256 * 256 + 1, "buffer")}

@@ -52,6 +52,7 @@ _FUNCS = {
     "fma": lambda a, b, c: a * b + c,
     "mad": lambda a, b, c: a * b + c,
 }
+_DECLARATIONS = ("uniform ", "layout(", "cbuffer ", "StructuredBuffer<")
 _NUMBER = re.compile(r"(?<![\w.])(\d+\.\d*(?:e[+-]?\d+)?|\d+e[+-]?\d+)")
 _TERNARY = re.compile(r"^(\w+) \? (.+) : (.+)$")
 
@@ -65,12 +66,14 @@ def python_expression(expr: str) -> str:
     expr = expr.replace("&&", "&").replace("||", "|")
     expr = re.sub(r"!(?!=)", "~", expr)
     expr = expr.replace("true", "True").replace("false", "False")
+    expr = re.sub(r"\bint\(", "I(", expr)  # a table read at a computed index: name[int(t3)]
     return _NUMBER.sub(r"F(\1)", expr)
 
 
 def compile_function(text: str):
     """A Python callable from one emitted function: ``f(*arrays) -> array or tuple of arrays``."""
     lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("//")]
+    lines = [ln for ln in lines if not ln.startswith(_DECLARATIONS)]  # the table bindings
     sig = re.match(r"^(float|void) (\w+)\((.*)\)$", lines[0])
     assert sig, lines[0]
     params = [p.strip().split() for p in sig.group(3).split(",") if p.strip()]
@@ -91,9 +94,11 @@ def compile_function(text: str):
             raise AssertionError(f"statement outside the subset: {ln}")
     code = compile("\n".join(body), "<shader>", "exec")
 
-    def run(*args):
-        env = {"F": F32, "INF": F32(np.inf), "where": np.where, **_FUNCS}
+    def run(*args, tables=None):
+        env = {"F": F32, "INF": F32(np.inf), "where": np.where, "I": lambda a: np.asarray(a).astype(np.int64)}
+        env.update(_FUNCS)
         env.update({n: np.asarray(a, F32) for n, a in zip(ins, args, strict=True)})
+        env.update({n: np.asarray(a, F32) for n, a in (tables or {}).items()})
         with np.errstate(all="ignore"):
             exec(code, env)
         if outs:
@@ -267,6 +272,147 @@ def test_shader_text_compiles_with_glslang(method, params, tmp_path):
     hlsl = tmp_path / "f.hlsl"
     hlsl.write_text(
         f"{fn.hlsl}\nfloat4 main() : SV_Target {{ {call_hlsl} return float4({use}, {use}, {use}, 1.0); }}\n"
+    )
+    r = subprocess.run(
+        [GLSLANG, "-V", "-D", "-e", "main", "-S", "frag", "-o", str(tmp_path / "h.spv"), str(hlsl)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+# ------------------------------------------------------------------------------- table bindings
+def _shadow_map_case(rng, n):
+    """A 6 × 5 shadow map of random depths and receivers around it (some outside the map)."""
+    from rtfit.realtime.pcf_soft_shadows import FAR, ShadowMap
+
+    sm = ShadowMap(rng.uniform(0.5, 2.0, (5, 6)), light_size=0.2, near=0.1)
+    inputs = {
+        "irradiance": rng.uniform(0.0, 5.0, n),
+        "u": rng.uniform(-0.2, 1.2, n),
+        "v": rng.uniform(-0.2, 1.2, n),
+        "depth": rng.uniform(0.4, 2.2, n),
+        "rotation": rng.uniform(0.0, 2 * math.pi, n),
+    }
+    flat = np.append(sm.depth.reshape(-1), FAR)  # the layout the docs state: rows, then the border depth
+    return sm, {k: v.astype(F32) for k, v in inputs.items()}, flat
+
+
+@pytest.mark.parametrize("method_id", ["hard", "poisson8-rotated", "pcss"])
+def test_a_shadow_map_is_a_buffer_binding_and_the_text_reads_it_as_the_kernel_does(method_id):
+    """pcf-soft-shadows' kernels read the map through its object (nearest texel, bilinear compares): the
+    text declares one binding ``shadow_map`` of W·H + 1 floats and, fed the same depths, computes what the
+    kernel's NumPy runs compute, to float32 precision."""
+    from rtfit.realtime.pcf_soft_shadows import METHODS
+
+    method = METHODS[method_id]
+    rng = np.random.default_rng(7)
+    sm, inputs, flat = _shadow_map_case(rng, 3000)
+    names = [n for n in method.input_names if n != "shadow_map"]
+    params = method.defaults()
+    fn = shader_function("f", method.kernel, names, method.keywords(params), tables={"shadow_map": sm})
+    assert [(b.name, b.floats, b.kind) for b in fn.tables] == [("shadow_map", 31, "uniform")]
+    assert fn.glsl.startswith("uniform float shadow_map[31];")
+    got = compile_function(fn.glsl)(*(inputs[n] for n in names), tables={"shadow_map": flat})
+    own = method(NUMPY_OPS, {**inputs, "shadow_map": sm}, {k: F32(v) for k, v in params.items()})
+    want = method(
+        NUMPY_OPS, {**{k: v.astype(np.float64) for k, v in inputs.items()}, "shadow_map": sm}, params
+    )
+    # the NumPy run reads the map's depths in float64 (its table), the text in float32: equal to float32
+    # rounding of the weights (measured ≤ 2.2e-5 relative), the depth tests the same on these receivers
+    np.testing.assert_allclose(got, np.asarray(own, F32), rtol=1e-4, atol=1e-6)
+    assert 0 < np.mean(np.asarray(want) > 0) < 1  # lit and shadowed receivers both present
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(want))))
+
+
+def test_sh_coefficients_are_a_uniform_array_read_at_fixed_indices():
+    """sh-sky-bent-normal reads its 27 coefficients at fixed indices: ``coeffs[k]`` of a uniform array; the
+    text fed a random sky equals the kernel's float32 run, and a changed sky changes the result (nothing of
+    the tracing-time table was baked in)."""
+    from rtfit.realtime.sh_sky_bent_normal import METHODS
+
+    method = METHODS["seed-radiance-bent"]
+    rng = np.random.default_rng(9)
+    names = [n for n in method.input_names if n != "coeffs"]
+    inputs = {n: rng.uniform(-1.0, 1.0, 500).astype(F32) for n in ("bx", "by", "bz")}
+    inputs["ao"] = rng.uniform(0.0, 1.0, 500).astype(F32)
+    fn = shader_function(
+        "f", method.kernel, names, method.keywords(method.defaults()), tables={"coeffs": np.zeros(27)}
+    )
+    assert "uniform float coeffs[27];" in fn.glsl and "float coeffs[27]; };" in fn.hlsl
+    assert "coeffs[int(" not in fn.glsl  # fixed indices only
+    for sky in (rng.uniform(0.0, 2.0, 27), rng.uniform(0.0, 2.0, 27)):
+        got = compile_function(fn.glsl)(*(inputs[n] for n in names), tables={"coeffs": sky})
+        own = method(
+            NUMPY_OPS,
+            {**inputs, "coeffs": sky.astype(F32)},
+            {k: F32(v) for k, v in method.defaults().items()},
+        )
+        for g, o in zip(got, own, strict=True):
+            np.testing.assert_array_equal(g, np.asarray(o, F32))
+
+
+def test_a_sampler_returning_its_tables_names_each_after_the_call():
+    """A sampler handing its tables to the kernel (probe chains: ``sample(ops, "pre", channel, like)``) gets
+    one binding per table named after the call; over `UNIFORM_FLOATS` floats a storage buffer."""
+    from rtfit.realtime.shader import UNIFORM_FLOATS
+
+    class Chains:
+        def sample(self, ops, name, channel, like):
+            return np.arange(2000.0) if name == "pre" else np.arange(8.0) + channel
+
+    def kernel(ops, i, chains):
+        return ops.gather(chains.sample(ops, "pre", 1, i), i) + ops.gather(
+            chains.sample(ops, "irr", 1, i), 3.0
+        )
+
+    fn = shader_function("f", kernel, ["i"], tables={"chains": Chains()})
+    assert [(b.name, b.floats, b.kind) for b in fn.tables] == [
+        ("chains_pre_1", 2000, "buffer"),
+        ("chains_irr_1", 8, "uniform"),
+    ]
+    assert 2000 > UNIFORM_FLOATS >= 8
+    assert "layout(std430) readonly buffer rtfit_chains_pre_1_block { float chains_pre_1[]; };" in fn.glsl
+    assert "StructuredBuffer<float> chains_pre_1;" in fn.hlsl
+    got = compile_function(fn.glsl)(
+        np.array([5.0, 7.0], F32),
+        tables={"chains_pre_1": np.arange(2000.0), "chains_irr_1": np.arange(8.0) + 1},
+    )
+    np.testing.assert_array_equal(got, [9.0, 11.0])
+    with pytest.raises(Untraceable, match="outside its 8 floats"):
+        shader_function("g", lambda ops, t: t[8], [], tables={"t": np.zeros(8)})
+
+
+@pytest.mark.skipif(
+    GLSLANG is None, reason="glslangValidator not installed (Debian: apt-get install glslang-tools)"
+)
+def test_table_bindings_compile_with_glslang(tmp_path):
+    """A uniform array and a storage buffer read at fixed and computed indices: GLSL 4.50 and HLSL (SPIR-V)
+    both compile."""
+    from rtfit.realtime.pcf_soft_shadows import METHODS
+
+    def kernel(ops, i, small, big):
+        return ops.gather(big, i * 2.0) + small[3] * ops.gather(small, i)
+
+    fn = shader_function("f", kernel, ["i"], tables={"small": np.zeros(27), "big": np.zeros(5000)})
+    pcf = METHODS["poisson8-rotated"]
+    rng = np.random.default_rng(1)
+    sm, _, _ = _shadow_map_case(rng, 4)
+    names = [n for n in pcf.input_names if n != "shadow_map"]
+    fp = shader_function("g", pcf.kernel, names, pcf.keywords(pcf.defaults()), tables={"shadow_map": sm})
+    frag = tmp_path / "f.frag"
+    call = f"float w = g({', '.join(['0.5'] * len(names))});"
+    frag.write_text(
+        f"#version 450\n{fn.glsl}\n{fp.glsl}\nlayout(location = 0) out vec4 colour;\n"
+        f"void main() {{ float v = f(0.5); {call} colour = vec4(v + w); }}\n"
+    )
+    r = subprocess.run([GLSLANG, str(frag)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+    hlsl = tmp_path / "f.hlsl"
+    hlsl.write_text(
+        f"{fn.hlsl}\n{fp.hlsl}\n"
+        f"float4 main() : SV_Target {{ float v = f(0.5); {call} return float4(v + w, 0, 0, 1); }}\n"
     )
     r = subprocess.run(
         [GLSLANG, "-V", "-D", "-e", "main", "-S", "frag", "-o", str(tmp_path / "h.spv"), str(hlsl)],
