@@ -96,7 +96,8 @@ class _Trace:
     """The statements of the function being traced, a counter for temporaries, and the table bindings
     read so far (name → float count), in the order first read."""
 
-    def __init__(self):
+    def __init__(self, prefix: str = "t"):
+        self.prefix = prefix  # of the temporaries: t0, t1, … unless an input is named so
         self.lines: list[tuple[str, str, str]] = []  # (type, name, expression)
         self.tables: dict[str, int] = {}
         self.owned: dict[int, SymTable] = {}  # id(NumPy table of a sampler) → its binding
@@ -105,7 +106,7 @@ class _Trace:
         self.owner_tables: dict[str, int] = {}  # tables named after each sampler binding so far
 
     def emit(self, kind: str, expr: str) -> Sym:
-        name = f"t{len(self.lines)}"
+        name = f"{self.prefix}{len(self.lines)}"
         self.lines.append((kind, name, expr))
         return Sym(name, self, kind)
 
@@ -465,7 +466,11 @@ def shader_function(
     float`` parameters named ``outputs`` (default ``out0``, ``out1``, …). Raises `Untraceable` (with the
     reason) for kernels a shader cannot express."""
     name = _identifier(name)
-    tr = _Trace()
+    names = [_identifier(a) for a in (*arguments, *(tables or {}))]
+    prefix = "t"
+    while any(n.startswith(prefix) and n[len(prefix) :].isdigit() for n in names):
+        prefix = f"{prefix}_"  # an input named t0 (a march's start): the temporaries are t_0, t_1, …
+    tr = _Trace(prefix)
     syms = {a: Sym(_identifier(a), tr) for a in arguments}
     bound = {}
     for key, value in (tables or {}).items():

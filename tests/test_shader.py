@@ -158,6 +158,13 @@ def test_untraceable_kernels_say_why():
         shader_function("f", lambda ops, x: ops.expm1(x), ["x"])
 
 
+def test_temporaries_never_take_an_input_name():
+    """An input named like a temporary (a march's ``t0``) keeps its name; the temporaries move aside."""
+    fn = shader_function("f", lambda ops, t0, t1: ops.sqrt(t0 * t1) + t0, ["t0", "t1"])
+    got = compile_function(fn.glsl)(np.array([4.0], F32), np.array([9.0], F32))
+    assert got[0] == 10.0 and "float t_0 = t0 * t1;" in fn.glsl
+
+
 def test_constants_fold_and_every_op_is_defined():
     assert SHADER_OPS.clip(2.0, 0.0, 1.0) == 1.0  # parameters clipped to their range become literals
     fn = shader_function("f", lambda ops, x, k: x * ops.maximum(k, 0.0), ["x"], {"k": -3.0})
