@@ -54,6 +54,7 @@ from .compare_checks import (
     group_labels,
 )
 from .compare_frames import Frame, frame_id, read_frame
+from .compare_quantities import SURFACE_QUANTITIES, quantity_reference, refusal
 from .compare_report import results_record, temporal_stability, write_compare
 from .records import Results
 from .registry import LIMITS
@@ -73,9 +74,9 @@ log = logging.getLogger(__name__)
 QUANTITIES = {
     "radiance": "radiance along each camera ray, W·m⁻²·sr⁻¹ per RGB channel (the scene's own integrator)",
     "direct": "emitted plus directly lit radiance, W·m⁻²·sr⁻¹ (Mitsuba's path integrator, max_depth 2)",
+    **SURFACE_QUANTITIES,
 }
-"""The quantities ``--quantity`` renders a reference of (issue 36 also names irradiance, AO,
-transmittance)."""
+"""The quantities ``--quantity`` renders a reference of (the last three: `compare_quantities`)."""
 FOOTPRINTS = ("box", "centre")
 DEFAULT_SPP = 256
 DEFAULT_PASS_SPP = 32
@@ -197,6 +198,7 @@ def compare(
     footprint: str = "box",
     metrics: Sequence[str] = ALL_METRICS,
     camera_path: str | None = None,
+    ao_radius: float = float("inf"),
     progress: bool = False,
     say=None,
 ) -> CompareResult:
@@ -209,7 +211,7 @@ def compare(
     say = say or log.info
     t0 = time.perf_counter()
     if quantity not in QUANTITIES:
-        raise AuditError(f"--quantity {quantity}: expected one of {', '.join(QUANTITIES)} (others: issue 36)")
+        raise AuditError(f"--quantity {quantity}: expected one of {', '.join(QUANTITIES)}")
     if footprint not in FOOTPRINTS:
         raise AuditError(f"--footprint {footprint}: expected one of {', '.join(FOOTPRINTS)}")
     try:
@@ -258,6 +260,11 @@ def compare(
     cams = list(range(len(read))) if moving else [camera]
     infos = {c: inspect_scene(str(path), defines=defines, camera=c) for c in cams}
     info = infos[cams[0]]
+    why = refusal(quantity, info, float(ao_radius))
+    if why is not None:
+        raise AuditError(why)
+    if quantity in SURFACE_QUANTITIES:
+        footprint = "centre"  # the G-buffer's pixel-centre points and rays
     sizes = set()
     for inf in infos.values():
         cam = inf.xml.camera if inf.xml is not None else None
@@ -287,7 +294,7 @@ def compare(
     camera_of_case: dict[str, int] = {}
     outcomes: list[FrameOutcome] = []
     taken: set[str] = set()
-    settings = (quantity, footprint, cache_root, variant, spp, pass_spp, seed, progress)
+    settings = (quantity, footprint, cache_root, variant, spp, pass_spp, seed, progress, float(ao_radius))
     names: dict[int, str] = {}
     for c in cams:
         case = quantity if not moving else f"{quantity}-camera{c}"
@@ -310,7 +317,7 @@ def compare(
                 plan = f"{width}×{height}, {spp} spp in passes of {pass_spp}"
                 say(f"camera: {infos[c].camera}; reference {quantity} at {plan}")
                 t1 = time.perf_counter()
-                references[case] = _reference(
+                references[case], mask = _reference(
                     mi, mi_scene, sensor, infos[c], gb, c, (width, height), *settings
                 )
                 camera_of_case[case] = c
@@ -327,7 +334,7 @@ def compare(
                 f.image,
                 reference.mean,
                 sigma,
-                np.ones(hits.shape, bool),
+                mask,
                 hits,
                 names,
                 fit_exposure,
@@ -339,7 +346,6 @@ def compare(
             label = f.path.name + (f":{f.layer}" if f.layer else "")
             outcomes.append(FrameOutcome(frame_id(f, taken), label, f, image, a, alignment, case))
         timings["comparison"] += time.perf_counter() - t2
-    mask = np.ones((height, width), bool)
     result = CompareResult(
         info, references, outcomes, names, mask, quantity, camera_of_case, camera_path, timings=timings
     )
@@ -416,8 +422,10 @@ def _reference(
     pass_spp,
     seed,
     progress,
-) -> AuditReference:
-    """The reference of ``quantity`` through the pass cache (`pooled_passes`), every pixel an element."""
+    ao_radius,
+) -> tuple[AuditReference, np.ndarray]:
+    """The reference of ``quantity`` through the pass cache (`pooled_passes`) and the mask of the pixels it
+    holds: every pixel an element for radiance (`compare_quantities.quantity_reference` for the others)."""
     integrator = None
     name, reason = "the scene's own", "the scene's integrator: radiance as the scene declares it"
     if quantity == "direct":
@@ -443,10 +451,15 @@ def _reference(
         scene_digest=digest,
     )
 
+    if quantity in SURFACE_QUANTITIES:
+        return quantity_reference(setup, quantity, ao_radius)
+
     def render(n: int, s: int) -> PassResult:
         p = radiance_pass(mi, mi_scene, n, s, integrator=integrator, sensor=sensor, footprint=footprint)
         return PassResult(p.mean.reshape(-1, 3), p.var.reshape(-1, 3), p.spp, p.seed, p.seconds)
 
     what = {"format": FORMAT, "kind": "compare", "quantity": quantity, "footprint": footprint}
     pooled = pooled_passes(setup, what, render, (-1, 3), f"compare: {quantity}")
-    return pooled.reference(mask, QUANTITIES[quantity], name, reason + f"; pixel footprint: {footprint}")
+    return pooled.reference(
+        mask, QUANTITIES[quantity], name, reason + f"; pixel footprint: {footprint}"
+    ), mask

@@ -196,12 +196,13 @@ def registration(frame: np.ndarray, ref: np.ndarray) -> tuple[tuple[int, int], b
     return best, significant, errs
 
 
-def shape_errors(frame, ref, sigma, hits, names, rel_scale_err: float = 0.0) -> list[ShapeError]:
-    """`ShapeError` per shape seen at the pixels' first hits, most pixels first. ``rel_scale_err``: σ_s/s of a
-    frame divided by its scale (an error common to every pixel, added to each shape's uncertainty)."""
+def shape_errors(frame, ref, sigma, hits, names, rel_scale_err: float = 0.0, mask=None) -> list[ShapeError]:
+    """`ShapeError` per shape seen at the pixels' first hits (those of ``mask``: None, all), most pixels
+    first. ``rel_scale_err``: σ_s/s of a frame divided by its scale (an error common to every pixel, added to
+    each shape's uncertainty)."""
     out = []
-    for idx in np.unique(hits):
-        m = hits == idx
+    for idx in np.unique(hits if mask is None else hits[mask]):
+        m = hits == idx if mask is None else (hits == idx) & mask
         f, r, s = frame[m], ref[m], sigma[m]
         d = f - r
         total = float(np.sum(r))
@@ -255,9 +256,10 @@ def analyse_frame(
     zs = z_score_summary(compared, ref, sigma, mask).to_dict()
     outliers = float(np.mean(~(np.abs(zmap[mask]) <= OUTLIER_Z)))
     rel_err = s_err / s if fit_exposure and s > 0 and np.isfinite(s_err) else 0.0
-    shapes = shape_errors(compared, ref, sigma, hits, names, rel_err)
+    shapes = shape_errors(compared, ref, sigma, hits, names, rel_err, mask)
     by_group = {
-        t: shape_errors(compared, ref, sigma, lab, nm, rel_err) for t, (lab, nm) in (groups or {}).items()
+        t: shape_errors(compared, ref, sigma, lab, nm, rel_err, mask)
+        for t, (lab, nm) in (groups or {}).items()
     }
     edges = edge_pixels(hits) & mask
     excess = np.maximum(np.sum((compared - ref) ** 2 - sigma**2, axis=-1), 0.0) * mask

@@ -1,7 +1,7 @@
 """The ``rtfit compare`` command (`rtfit.experiments.compare`): frames a user's engine rendered against the
 path-traced reference of the same Mitsuba XML scene.
 
-    rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity radiance|direct]
+    rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity Q] [--ao-radius R]
                   [--aov depth=D.exr,normal=N.exr] [--fit-exposure] [--footprint box|centre]
                   [--camera-path sensors|static] [-D name=value ...] [--camera N] [--variant V] [--spp N]
                   [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
@@ -36,7 +36,16 @@ def _error(message: str):
     type=click.Choice(list(QUANTITIES)),
     default="radiance",
     show_default=True,
-    help="What the frames show: radiance (the scene's integrator) or direct (max_depth 2).",
+    help="What the frames show: radiance (the scene's integrator), direct (max_depth 2), irradiance (W/m² "
+    "at the first hit), ao (visibility 0..1 at the first hit) or transmittance (camera ray to the first "
+    "surface).",
+)
+@click.option(
+    "--ao-radius",
+    type=float,
+    default=float("inf"),
+    show_default=True,
+    help="With --quantity ao: the occlusion radius (scene units; inf: unbounded).",
 )
 @click.option(
     "--aov",
@@ -75,6 +84,7 @@ def compare(
     scene,
     frames,
     quantity,
+    ao_radius,
     aov,
     fit_exposure,
     footprint,
@@ -118,6 +128,7 @@ def compare(
             aov=aov,
             footprint=footprint,
             camera_path=camera_path,
+            ao_radius=ao_radius,
             progress=bool(obj.get("bars", False)) and not no_progress,
         )
     except AuditError as e:
