@@ -46,6 +46,7 @@ from rtfit.reference.variants import resolve_variant
 from .atomic import atomic_directory, writable_problem
 from .audit import AuditError, SceneInfo, inspect_scene
 from .audit_family import AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .compare_albedo import albedo_split
 from .compare_aovs import align_aovs, parse_aovs, read_aovs
 from .compare_checks import (
     FrameAnalysis,
@@ -312,7 +313,8 @@ def compare(
                     "first-hit distance band": distance_bands(gb.depth),
                 }
                 cam = infos[c].xml.camera
-                alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg)  # refused here, before rendering
+                # refused here, before rendering
+                alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg, hits, names)
                 timings["setup"] += time.perf_counter() - t0
                 plan = f"{width}×{height}, {spp} spp in passes of {pass_spp}"
                 say(f"camera: {infos[c].camera}; reference {quantity} at {plan}")
@@ -344,7 +346,14 @@ def compare(
             )
             image = f.image / a.scale if fit_exposure and a.scale > 0 else f.image
             label = f.path.name + (f":{f.layer}" if f.layer else "")
-            outcomes.append(FrameOutcome(frame_id(f, taken), label, f, image, a, alignment, case))
+            mine_aovs = alignment
+            if "albedo" in aov_data and quantity in ("radiance", "direct"):
+                split = albedo_split(
+                    image, reference.mean, sigma, aov_data["albedo"], gb.albedo, mask, hits, names
+                )
+                text = alignment["albedo"]["text"] + " Albedo/lighting split: " + split["text"]
+                mine_aovs = {**alignment, "albedo": {**alignment["albedo"], "split": split, "text": text}}
+            outcomes.append(FrameOutcome(frame_id(f, taken), label, f, image, a, mine_aovs, case))
         timings["comparison"] += time.perf_counter() - t2
     result = CompareResult(
         info, references, outcomes, names, mask, quantity, camera_of_case, camera_path, timings=timings

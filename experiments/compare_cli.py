@@ -2,7 +2,7 @@
 path-traced reference of the same Mitsuba XML scene.
 
     rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity Q] [--ao-radius R]
-                  [--aov depth=D.exr,normal=N.exr] [--fit-exposure] [--footprint box|centre]
+                  [--aov depth=D.exr,normal=N.exr,albedo=A.exr] [--fit-exposure] [--footprint box|centre]
                   [--camera-path sensors|static] [-D name=value ...] [--camera N] [--variant V] [--spp N]
                   [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
 
@@ -50,9 +50,10 @@ def _error(message: str):
 @click.option(
     "--aov",
     multiple=True,
-    metavar="depth=D.exr,normal=N.exr",
-    help="The frames' depth AOV (ray distance or planar depth) and normal AOV (world or view space): their "
-    "alignment with the scene's camera.",
+    metavar="depth=D.exr,normal=N.exr,albedo=A.exr",
+    help="The frames' depth AOV (ray distance or planar depth), normal AOV (world or view space) and albedo "
+    "AOV (linear BSDF reflectance): their alignment with the scene's camera; the albedo also splits a "
+    "radiance frame's error into albedo and lighting.",
 )
 @click.option(
     "--fit-exposure", is_flag=True, help="Compare the frames after dividing by their best global scale."

@@ -64,6 +64,10 @@ def _case_doc(r: CompareResult, case, variant: str, fit_exposure: bool, footprin
             "offset_x": float(a.offset[0]),
             "offset_y": float(a.offset[1]),
         }
+        split = f.aovs.get("albedo", {}).get("split", {})
+        if "error" in split:  # the albedo AOV's split of the error (compare_albedo.albedo_split)
+            params.update({f"{k}_error": split[k] for k in ("albedo", "lighting")})
+            params["lighting_error_stderr"] = split["lighting_uncertainty"]
         rows.append(
             {
                 "method": f.id,
