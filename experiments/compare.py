@@ -55,6 +55,7 @@ from .compare_checks import (
     group_labels,
 )
 from .compare_frames import Frame, frame_id, read_frame
+from .compare_light import main_light, nl_bands
 from .compare_quantities import SURFACE_QUANTITIES, quantity_reference, refusal
 from .compare_report import results_record, temporal_stability, write_compare
 from .records import Results
@@ -79,6 +80,8 @@ QUANTITIES = {
 }
 """The quantities ``--quantity`` renders a reference of (the last three: `compare_quantities`)."""
 FOOTPRINTS = ("box", "centre")
+NL_QUANTITIES = ("radiance", "direct", "irradiance")
+"""The quantities broken down per normal-to-light band (`compare_light`): those lit by the lights."""
 DEFAULT_SPP = 256
 DEFAULT_PASS_SPP = 32
 FORMAT = 1
@@ -312,6 +315,12 @@ def compare(
                     "BSDF at the first hit": group_labels(hits, _bsdf_names(shapes, names)),
                     "first-hit distance band": distance_bands(gb.depth),
                 }
+                light = None
+                if quantity in NL_QUANTITIES:
+                    light = main_light(mi, mi_scene, gb, seed, _emitter_names(loaded.emitters, infos[c]))
+                if light is not None:
+                    share = f"{light.share:.0%} of the unshadowed irradiance"
+                    groups[f"n·l band (to the main light: {light.name}, {share})"] = nl_bands(light.nl)
                 cam = infos[c].xml.camera
                 # refused here, before rendering
                 alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg, hits, names)
@@ -389,6 +398,19 @@ def _shape_name(shape) -> str:
         c = shape.bbox().center()
         name = f"{_class_name(shape)} at ({float(c[0]):.3g}, {float(c[1]):.3g}, {float(c[2]):.3g})"
     return name + (f" [bsdf {b}]" if b and not b.startswith("_unnamed") else "")
+
+
+def _emitter_names(emitters, info) -> dict[str, str]:
+    """A loaded emitter's Mitsuba id (`loaded_xml` tags them) → its XML ``id`` and kind (e.g. ``sun
+    (directional)``), or its kind and where the file declares it."""
+    out = {}
+    xml = info.xml.emitters if info.xml is not None else ()
+    for em, x in zip(emitters, xml, strict=False):
+        if em is None:
+            continue
+        own = x.id and not x.id.startswith("_unnamed")
+        out[str(em.id())] = f"{x.id} ({x.kind})" if own else f"{x.kind} light ({x.location})"
+    return out
 
 
 def _class_name(obj) -> str:

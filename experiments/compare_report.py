@@ -121,6 +121,26 @@ def _temporal_section(steps: list[dict]) -> dict:
     return {"id": "temporal", "title": "Temporal stability", "text": text}
 
 
+def _breakdowns(a) -> dict:
+    """Each frame's error per shape and per group (BSDF, distance band, n·l band): title → rows."""
+    groups = {"shape at the first hit": a.shapes, **a.groups}
+    return {
+        title: [
+            {
+                "name": e.name,
+                "pixels": e.pixels,
+                "reference_mean": e.reference_mean,
+                "bias": e.bias,
+                "uncertainty": e.uncertainty,
+                "z_rms": e.z_rms,
+                "within_noise": e.within_noise,
+            }
+            for e in errors
+        ]
+        for title, errors in groups.items()
+    }
+
+
 def results_record(r: CompareResult, *, variant, spp, pass_spp, seed, fit_exposure, footprint) -> Results:
     """The `Results` record of a comparison ``r`` (module docstring)."""
     info = r.info
@@ -188,6 +208,7 @@ def results_record(r: CompareResult, *, variant, spp, pass_spp, seed, fit_exposu
         "cases": cases,
         "checks": [to_json(c) for c in checks],
         "notes": notes,
+        "breakdowns": {f.id: _breakdowns(f.analysis) for f in r.frames},
     }
     return from_json(Results, plain_json(doc), f"compare of {info.source}")
 
