@@ -40,7 +40,7 @@ import numpy as np
 from rtfit.fitting import ALL_METRICS
 from rtfit.reference.cache import default_cache_dir
 from rtfit.reference.estimators import PassResult, first_hit_shapes, gbuffer, radiance_pass
-from rtfit.reference.mitsuba_xml import XMLSceneError, loaded_xml
+from rtfit.reference.mitsuba_xml import UP_AXES, XMLSceneError, loaded_xml
 from rtfit.reference.variants import resolve_variant
 
 from .atomic import atomic_directory, writable_problem
@@ -53,9 +53,11 @@ from .compare_checks import (
     analyse_frame,
     distance_bands,
     group_labels,
+    unsampled_outline_sigma,
 )
 from .compare_frames import Frame, frame_id, read_frame
 from .compare_light import main_light, nl_bands
+from .compare_poses import Pose, apply_pose, read_poses
 from .compare_quantities import SURFACE_QUANTITIES, quantity_reference, refusal
 from .compare_report import results_record, temporal_stability, write_compare
 from .records import Results
@@ -120,6 +122,8 @@ class CompareResult:
     quantity: str
     camera_of_case: dict[str, int] = field(default_factory=dict)
     camera_path: str | None = None
+    pose_of_case: dict[str, int] = field(default_factory=dict)
+    """Case id → the index of its pose in ``--camera-path poses.json`` (`compare_poses`)."""
     temporal: list[dict] = field(default_factory=list)
     results: Results | None = None
     out: Path | None = None
@@ -140,7 +144,13 @@ class CompareResult:
             FamilyCase(
                 id=cid,
                 label=f"{self.quantity} of {name}"
-                + (f", camera {self.camera_of_case[cid]}" if len(self.references) > 1 else ""),
+                + (
+                    f", pose {self.pose_of_case[cid]}"
+                    if cid in self.pose_of_case
+                    else f", camera {self.camera_of_case[cid]}"
+                    if len(self.references) > 1
+                    else ""
+                ),
                 reference=ref,
                 mask=self.mask,
                 channel_inputs=(),
@@ -248,13 +258,14 @@ def compare(
             )
     aovs = parse_aovs(aov)
     aov_data = read_aovs(aovs, read[0].image.shape[:2])
-    if camera_path not in (None, "sensors", "static"):
+    posed = camera_path not in (None, "sensors", "static")
+    if posed and not str(camera_path).lower().endswith(".json"):
         raise AuditError(
-            f"--camera-path {camera_path}: expected 'sensors' (frame i through sensor i) or 'static' (every "
-            "frame through --camera)"
+            f"--camera-path {camera_path}: expected 'sensors' (frame i through sensor i), 'static' (every "
+            "frame through --camera) or a JSON file of camera poses (poses.json)"
         )
     moving = camera_path == "sensors"
-    if moving and aovs:
+    if (moving or posed) and aovs:
         raise AuditError("--aov with --camera-path: not read yet (one AOV per frame of a sequence)")
     path = Path(str(scene))
     if path.suffix.lower() != ".xml":
@@ -264,6 +275,10 @@ def compare(
     cams = list(range(len(read))) if moving else [camera]
     infos = {c: inspect_scene(str(path), defines=defines, camera=c) for c in cams}
     info = infos[cams[0]]
+    poses: list[Pose] = []
+    if posed:
+        up = UP_AXES.get(info.xml.up, (0.0, 0.0, 1.0)) if info.xml is not None else (0.0, 0.0, 1.0)
+        poses = read_poses(str(camera_path), len(read), np.asarray(up, np.float64))
     why = refusal(quantity, info, float(ao_radius))
     if why is not None:
         raise AuditError(why)
@@ -296,17 +311,23 @@ def compare(
     timings: dict[str, float] = {"setup": 0.0, "reference": 0.0, "comparison": 0.0}
     references: dict[str, AuditReference] = {}
     camera_of_case: dict[str, int] = {}
+    pose_of_case: dict[str, int] = {}
     outcomes: list[FrameOutcome] = []
     taken: set[str] = set()
     settings = (quantity, footprint, cache_root, variant, spp, pass_spp, seed, progress, float(ao_radius))
     names: dict[int, str] = {}
-    for c in cams:
-        case = quantity if not moving else f"{quantity}-camera{c}"
-        mine = [f for i, f in enumerate(read) if not moving or i == c]
+    views = list(enumerate(cams)) if moving else [(i, camera) for i in range(len(poses))] or [(None, camera)]
+    for vi, c in views:
+        pose = poses[vi] if poses and vi is not None else None
+        case = quantity if vi is None else f"{quantity}-camera{c}" if moving else f"{quantity}-pose{vi}"
+        mine = read if vi is None else [read[vi]]
         t0 = time.perf_counter()
         try:
             with loaded_xml(path, defines, variant, camera=c, width=width, height=height) as loaded:
                 mi, mi_scene, sensor = loaded.mi, loaded.scene, loaded.sensor
+                if pose is not None:
+                    apply_pose(mi, sensor, pose, f"--camera-path {camera_path}: {pose.text}")
+                    pose_of_case[case] = int(vi)
                 gb = gbuffer(mi, mi_scene, sensor)
                 hits = first_hit_shapes(mi, mi_scene, sensor)
                 shapes = list(mi_scene.shapes())
@@ -326,10 +347,12 @@ def compare(
                 alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg, hits, names)
                 timings["setup"] += time.perf_counter() - t0
                 plan = f"{width}×{height}, {spp} spp in passes of {pass_spp}"
-                say(f"camera: {infos[c].camera}; reference {quantity} at {plan}")
+                view = infos[c].camera if pose is None else f"sensor {c} at {pose.text} of {camera_path}"
+                say(f"camera: {view}; reference {quantity} at {plan}")
                 t1 = time.perf_counter()
+                key = c if pose is None else f"{c}-pose-{pose.digest}"
                 references[case], mask = _reference(
-                    mi, mi_scene, sensor, infos[c], gb, c, (width, height), *settings
+                    mi, mi_scene, sensor, infos[c], gb, key, (width, height), *settings
                 )
                 camera_of_case[case] = c
                 timings["reference"] += time.perf_counter() - t1
@@ -337,8 +360,11 @@ def compare(
             raise AuditError(str(e)) from None
         t2 = time.perf_counter()
         reference = references[case]
+        base_sigma = reference.sigma()
+        if footprint == "box":  # a sliver of another shape that no sample of an outline pixel met
+            base_sigma = np.sqrt(base_sigma**2 + unsampled_outline_sigma(reference, hits) ** 2)
         for f in mine:
-            sigma = reference.sigma()
+            sigma = base_sigma
             if f.precision is not None:  # the frame format's own rounding joins the reference's noise
                 sigma = np.sqrt(sigma**2 + f.precision**2)
             a = analyse_frame(
@@ -365,8 +391,9 @@ def compare(
             outcomes.append(FrameOutcome(frame_id(f, taken), label, f, image, a, mine_aovs, case))
         timings["comparison"] += time.perf_counter() - t2
     result = CompareResult(
-        info, references, outcomes, names, mask, quantity, camera_of_case, camera_path, timings=timings
-    )
+        info, references, outcomes, names, mask, quantity, camera_of_case, camera_path, timings=timings,
+        pose_of_case=pose_of_case,
+    )  # fmt: skip
     result.temporal = temporal_stability(result) if camera_path and len(outcomes) > 1 else []
     result.results = results_record(
         result,

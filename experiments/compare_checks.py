@@ -236,6 +236,24 @@ def edge_pixels(hits: np.ndarray) -> np.ndarray:
     return out
 
 
+def unsampled_outline_sigma(reference, hits: np.ndarray) -> np.ndarray:
+    """(H, W, 3) extra standard error of the box-footprint pixels at shape outlines (`edge_pixels`) whose
+    samples all agree (standard error 0): a part of the pixel covering a fraction p of it, of contrast Δ with
+    the rest, is missed by all n samples with probability (1 − p)ⁿ — more often than not for p ≲ 1/n — and
+    would move the pixel by p·Δ; so a zero sample variance there cannot rule out Δ/n, with Δ the largest
+    difference to a neighbouring pixel's reference (per channel). Elsewhere 0. (Measured: a ball's outline
+    clipping 0.2 % of a sky pixel, missed by all 128 samples, gave z = 500 against Mitsuba's own frame.)"""
+    mean = np.asarray(reference.mean, np.float64)
+    h, w = hits.shape
+    p = np.pad(mean, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    contrast = np.zeros_like(mean)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            contrast = np.maximum(contrast, np.abs(p[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] - mean))
+    unsampled = edge_pixels(hits) & np.all(np.asarray(reference.stderr) == 0, axis=-1)
+    return np.where(unsampled[..., None], contrast / max(int(reference.spp), 1), 0.0)
+
+
 def analyse_frame(
     frame, ref, sigma, mask, hits, names, fit_exposure: bool, metrics, seed: int, groups=None
 ) -> FrameAnalysis:

@@ -3,8 +3,8 @@ path-traced reference of the same Mitsuba XML scene.
 
     rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity Q] [--ao-radius R]
                   [--aov depth=D.exr,normal=N.exr,albedo=A.exr] [--fit-exposure] [--footprint box|centre]
-                  [--camera-path sensors|static] [-D name=value ...] [--camera N] [--variant V] [--spp N]
-                  [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
+                  [--camera-path sensors|static|POSES.json] [-D name=value ...] [--camera N] [--variant V]
+                  [--spp N] [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
 
 Bad input is one line, ``rtfit: error: …``, exit status 2, nothing rendered or written. A frame that is not
 within the reference's noise, or a step of a sequence that flickers (a failed check), exits with status 1
@@ -67,10 +67,11 @@ def _error(message: str):
 )
 @click.option(
     "--camera-path",
-    type=click.Choice(["sensors", "static"]),
     default=None,
+    metavar="sensors|static|POSES.json",
     help="The frames are a sequence (with its temporal stability): frame i through the scene's sensor i "
-    "(sensors), or every frame through --camera (static).",
+    "(sensors), every frame through --camera (static), or frame i through --camera moved to pose i of a "
+    "JSON list of {origin, target, up, fov} or 4×4 to_world matrices.",
 )
 @click.option("-D", "defines", multiple=True, metavar="NAME=VALUE", help="A Mitsuba XML parameter ($NAME).")
 @click.option("--camera", type=click.IntRange(min=0), default=0, show_default=True, help="XML sensor index.")

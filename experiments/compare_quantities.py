@@ -22,6 +22,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -34,7 +35,7 @@ from rtfit.reference.total_irradiance import total_irradiance_pass
 
 from .audit import Applicability, AuditError
 from .audit_family import AuditReference, AuditSetup, pooled_passes
-from .audit_media import MediumChannel, opened_medium, sigma_t_at
+from .audit_media import MediumChannel, medium_intervals, opened_medium, sigma_t_at
 
 __all__ = ["SURFACE_QUANTITIES", "quantity_reference", "refusal"]
 
@@ -110,6 +111,11 @@ def _transmittance(setup: AuditSetup) -> tuple[AuditReference, np.ndarray]:
     for k, medium in enumerate(setup.info.xml.media):
         app = Applicability("compare", "transmittance", f"medium {k} ({medium.type})", (), (), "", "", "", k)
         med, dirs, t_in, t_out = opened_medium(setup, app, "compare")
+        origin = np.asarray(setup.sensor.world_transform().matrix, np.float64).reshape(4, 4)[:3, 3]
+        if np.max(np.abs(origin - med.origin)) > 1e-6 * (1.0 + float(np.max(np.abs(origin)))):
+            # a sensor moved to a pose (--camera-path poses.json): the rays start at its own origin
+            med = dataclasses.replace(med, origin=origin)
+            t_in, t_out = medium_intervals(setup.mi, med.scene, origin, dirs, med.ptr, med.on_sensor)
         enters = np.isfinite(t_in) & (t_out > t_in)
         ok = enters & np.isfinite(t_out)
         mk_mean, mk_var = np.ones((h * w, 3)), np.zeros((h * w, 3))

@@ -85,6 +85,7 @@ def _case_doc(r: CompareResult, case, variant: str, fit_exposure: bool, footprin
             "height": int(case.mask.shape[0]),
             "footprint": footprint,
             "camera": r.camera_of_case[case.id],
+            **({"pose": r.pose_of_case[case.id]} if case.id in r.pose_of_case else {}),
         },
         "scene": {"name": Path(info.source).name, "hash": info.xml.dependencies.digest if info.xml else None},
         "reference": reference_record(case.reference, variant, np.ones(case.mask.shape, bool)),  # every pixel
