@@ -489,6 +489,9 @@ def _reference(
     if quantity == "direct":
         integrator = mi.load_dict({"type": "path", "max_depth": 2})
         name, reason = "path (max_depth 2)", "direct light only: emission and one bounce"
+    elif mi_scene.integrator() is None:  # no <integrator> in the file: Mitsuba's default, path
+        integrator = mi.load_dict({"type": "path"})
+        name, reason = "path (Mitsuba's default)", "the scene declares no integrator: Mitsuba's default"
     xml = info.xml
     digest = f"{xml.dependencies.digest}:camera{camera}:{size[0]}x{size[1]}"
     mask = np.ones(gb.mask.shape, bool)

@@ -173,3 +173,12 @@ def test_transmittance_without_a_medium_is_refused_in_one_line(plane_env, tmp_pa
     assert len(lines) == 1 and "no medium" in lines[0], res.output
     res = CliRunner().invoke(cli, ["compare", scene, frame, "--quantity", "ao", "--ao-radius", "-1"])
     assert res.exit_code == 2 and "--ao-radius" in res.output, res.output
+
+
+def test_radiance_of_a_scene_without_an_integrator(plane_env, tmp_path):
+    """No <integrator>: Mitsuba's default path tracer. The diffuse plane (ρ = 0.5) under the constant sky
+    (L = 0.5) has radiance ρ·E/π = ρ·L = 0.25 (it sees nothing but the sky)."""
+    d, scene = plane_env
+    r = compare(scene, _frame(tmp_path / "l.exr", np.full((16, 16), 0.25)), spp=SPP, cache=d / "cache")
+    assert r.frames[0].analysis.within_noise, r.frames[0].analysis.verdict
+    assert "default" in r.reference.integrator
