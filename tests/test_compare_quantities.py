@@ -126,7 +126,7 @@ def test_irradiance_of_a_point_light_on_a_plane(tmp_path):
     e = 2.0 * 1.5 / r**3  # indirect: 0 (the plane sees nothing but the dark sky)
     good = compare(scene, _frame(tmp_path / "e.exr", e), quantity="irradiance", spp=SPP, cache=tmp_path / "c")
     assert good.frames[0].analysis.within_noise, good.frames[0].analysis.verdict
-    assert np.allclose(good.reference.mean[..., 0], e, rtol=2e-3)
+    assert np.allclose(good.reference.mean[..., 0], e, rtol=1e-4)
     bad = compare(scene, _frame(tmp_path / "s.exr", 1.05 * e), quantity="irradiance", spp=SPP,
                   cache=tmp_path / "c")  # fmt: skip
     assert not bad.frames[0].analysis.within_noise
