@@ -40,20 +40,25 @@ import numpy as np
 from rtfit.fitting import ALL_METRICS
 from rtfit.reference.cache import default_cache_dir
 from rtfit.reference.estimators import PassResult, first_hit_shapes, gbuffer, radiance_pass
-from rtfit.reference.mitsuba_xml import XMLSceneError, loaded_xml
+from rtfit.reference.mitsuba_xml import UP_AXES, XMLSceneError, loaded_xml
 from rtfit.reference.variants import resolve_variant
 
 from .atomic import atomic_directory, writable_problem
 from .audit import AuditError, SceneInfo, inspect_scene
 from .audit_family import AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .compare_albedo import albedo_split
 from .compare_aovs import align_aovs, parse_aovs, read_aovs
 from .compare_checks import (
     FrameAnalysis,
     analyse_frame,
     distance_bands,
     group_labels,
+    unsampled_outline_sigma,
 )
 from .compare_frames import Frame, frame_id, read_frame
+from .compare_light import main_light, nl_bands
+from .compare_poses import Pose, apply_pose, read_poses
+from .compare_quantities import SURFACE_QUANTITIES, quantity_reference, refusal
 from .compare_report import results_record, temporal_stability, write_compare
 from .records import Results
 from .registry import LIMITS
@@ -73,10 +78,12 @@ log = logging.getLogger(__name__)
 QUANTITIES = {
     "radiance": "radiance along each camera ray, W·m⁻²·sr⁻¹ per RGB channel (the scene's own integrator)",
     "direct": "emitted plus directly lit radiance, W·m⁻²·sr⁻¹ (Mitsuba's path integrator, max_depth 2)",
+    **SURFACE_QUANTITIES,
 }
-"""The quantities ``--quantity`` renders a reference of (issue 36 also names irradiance, AO,
-transmittance)."""
+"""The quantities ``--quantity`` renders a reference of (the last three: `compare_quantities`)."""
 FOOTPRINTS = ("box", "centre")
+NL_QUANTITIES = ("radiance", "direct", "irradiance")
+"""The quantities broken down per normal-to-light band (`compare_light`): those lit by the lights."""
 DEFAULT_SPP = 256
 DEFAULT_PASS_SPP = 32
 FORMAT = 1
@@ -115,6 +122,8 @@ class CompareResult:
     quantity: str
     camera_of_case: dict[str, int] = field(default_factory=dict)
     camera_path: str | None = None
+    pose_of_case: dict[str, int] = field(default_factory=dict)
+    """Case id → the index of its pose in ``--camera-path poses.json`` (`compare_poses`)."""
     temporal: list[dict] = field(default_factory=list)
     results: Results | None = None
     out: Path | None = None
@@ -135,7 +144,13 @@ class CompareResult:
             FamilyCase(
                 id=cid,
                 label=f"{self.quantity} of {name}"
-                + (f", camera {self.camera_of_case[cid]}" if len(self.references) > 1 else ""),
+                + (
+                    f", pose {self.pose_of_case[cid]}"
+                    if cid in self.pose_of_case
+                    else f", camera {self.camera_of_case[cid]}"
+                    if len(self.references) > 1
+                    else ""
+                ),
                 reference=ref,
                 mask=self.mask,
                 channel_inputs=(),
@@ -197,6 +212,7 @@ def compare(
     footprint: str = "box",
     metrics: Sequence[str] = ALL_METRICS,
     camera_path: str | None = None,
+    ao_radius: float = float("inf"),
     progress: bool = False,
     say=None,
 ) -> CompareResult:
@@ -209,7 +225,7 @@ def compare(
     say = say or log.info
     t0 = time.perf_counter()
     if quantity not in QUANTITIES:
-        raise AuditError(f"--quantity {quantity}: expected one of {', '.join(QUANTITIES)} (others: issue 36)")
+        raise AuditError(f"--quantity {quantity}: expected one of {', '.join(QUANTITIES)}")
     if footprint not in FOOTPRINTS:
         raise AuditError(f"--footprint {footprint}: expected one of {', '.join(FOOTPRINTS)}")
     try:
@@ -242,13 +258,14 @@ def compare(
             )
     aovs = parse_aovs(aov)
     aov_data = read_aovs(aovs, read[0].image.shape[:2])
-    if camera_path not in (None, "sensors", "static"):
+    posed = camera_path not in (None, "sensors", "static")
+    if posed and not str(camera_path).lower().endswith(".json"):
         raise AuditError(
-            f"--camera-path {camera_path}: expected 'sensors' (frame i through sensor i) or 'static' (every "
-            "frame through --camera)"
+            f"--camera-path {camera_path}: expected 'sensors' (frame i through sensor i), 'static' (every "
+            "frame through --camera) or a JSON file of camera poses (poses.json)"
         )
     moving = camera_path == "sensors"
-    if moving and aovs:
+    if (moving or posed) and aovs:
         raise AuditError("--aov with --camera-path: not read yet (one AOV per frame of a sequence)")
     path = Path(str(scene))
     if path.suffix.lower() != ".xml":
@@ -258,6 +275,15 @@ def compare(
     cams = list(range(len(read))) if moving else [camera]
     infos = {c: inspect_scene(str(path), defines=defines, camera=c) for c in cams}
     info = infos[cams[0]]
+    poses: list[Pose] = []
+    if posed:
+        up = UP_AXES.get(info.xml.up, (0.0, 0.0, 1.0)) if info.xml is not None else (0.0, 0.0, 1.0)
+        poses = read_poses(str(camera_path), len(read), np.asarray(up, np.float64))
+    why = refusal(quantity, info, float(ao_radius))
+    if why is not None:
+        raise AuditError(why)
+    if quantity in SURFACE_QUANTITIES:
+        footprint = "centre"  # the G-buffer's pixel-centre points and rays
     sizes = set()
     for inf in infos.values():
         cam = inf.xml.camera if inf.xml is not None else None
@@ -285,17 +311,23 @@ def compare(
     timings: dict[str, float] = {"setup": 0.0, "reference": 0.0, "comparison": 0.0}
     references: dict[str, AuditReference] = {}
     camera_of_case: dict[str, int] = {}
+    pose_of_case: dict[str, int] = {}
     outcomes: list[FrameOutcome] = []
     taken: set[str] = set()
-    settings = (quantity, footprint, cache_root, variant, spp, pass_spp, seed, progress)
+    settings = (quantity, footprint, cache_root, variant, spp, pass_spp, seed, progress, float(ao_radius))
     names: dict[int, str] = {}
-    for c in cams:
-        case = quantity if not moving else f"{quantity}-camera{c}"
-        mine = [f for i, f in enumerate(read) if not moving or i == c]
+    views = list(enumerate(cams)) if moving else [(i, camera) for i in range(len(poses))] or [(None, camera)]
+    for vi, c in views:
+        pose = poses[vi] if poses and vi is not None else None
+        case = quantity if vi is None else f"{quantity}-camera{c}" if moving else f"{quantity}-pose{vi}"
+        mine = read if vi is None else [read[vi]]
         t0 = time.perf_counter()
         try:
             with loaded_xml(path, defines, variant, camera=c, width=width, height=height) as loaded:
                 mi, mi_scene, sensor = loaded.mi, loaded.scene, loaded.sensor
+                if pose is not None:
+                    apply_pose(mi, sensor, pose, f"--camera-path {camera_path}: {pose.text}")
+                    pose_of_case[case] = int(vi)
                 gb = gbuffer(mi, mi_scene, sensor)
                 hits = first_hit_shapes(mi, mi_scene, sensor)
                 shapes = list(mi_scene.shapes())
@@ -304,14 +336,23 @@ def compare(
                     "BSDF at the first hit": group_labels(hits, _bsdf_names(shapes, names)),
                     "first-hit distance band": distance_bands(gb.depth),
                 }
+                light = None
+                if quantity in NL_QUANTITIES:
+                    light = main_light(mi, mi_scene, gb, seed, _emitter_names(loaded.emitters, infos[c]))
+                if light is not None:
+                    share = f"{light.share:.0%} of the unshadowed irradiance"
+                    groups[f"n·l band (to the main light: {light.name}, {share})"] = nl_bands(light.nl)
                 cam = infos[c].xml.camera
-                alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg)  # refused here, before rendering
+                # refused here, before rendering
+                alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg, hits, names)
                 timings["setup"] += time.perf_counter() - t0
                 plan = f"{width}×{height}, {spp} spp in passes of {pass_spp}"
-                say(f"camera: {infos[c].camera}; reference {quantity} at {plan}")
+                view = infos[c].camera if pose is None else f"sensor {c} at {pose.text} of {camera_path}"
+                say(f"camera: {view}; reference {quantity} at {plan}")
                 t1 = time.perf_counter()
-                references[case] = _reference(
-                    mi, mi_scene, sensor, infos[c], gb, c, (width, height), *settings
+                key = c if pose is None else f"{c}-pose-{pose.digest}"
+                references[case], mask = _reference(
+                    mi, mi_scene, sensor, infos[c], gb, key, (width, height), *settings
                 )
                 camera_of_case[case] = c
                 timings["reference"] += time.perf_counter() - t1
@@ -319,15 +360,18 @@ def compare(
             raise AuditError(str(e)) from None
         t2 = time.perf_counter()
         reference = references[case]
+        base_sigma = reference.sigma()
+        if footprint == "box":  # a sliver of another shape that no sample of an outline pixel met
+            base_sigma = np.sqrt(base_sigma**2 + unsampled_outline_sigma(reference, hits) ** 2)
         for f in mine:
-            sigma = reference.sigma()
+            sigma = base_sigma
             if f.precision is not None:  # the frame format's own rounding joins the reference's noise
                 sigma = np.sqrt(sigma**2 + f.precision**2)
             a = analyse_frame(
                 f.image,
                 reference.mean,
                 sigma,
-                np.ones(hits.shape, bool),
+                mask,
                 hits,
                 names,
                 fit_exposure,
@@ -337,12 +381,19 @@ def compare(
             )
             image = f.image / a.scale if fit_exposure and a.scale > 0 else f.image
             label = f.path.name + (f":{f.layer}" if f.layer else "")
-            outcomes.append(FrameOutcome(frame_id(f, taken), label, f, image, a, alignment, case))
+            mine_aovs = alignment
+            if "albedo" in aov_data and quantity in ("radiance", "direct"):
+                split = albedo_split(
+                    image, reference.mean, sigma, aov_data["albedo"], gb.albedo, mask, hits, names
+                )
+                text = alignment["albedo"]["text"] + " Albedo/lighting split: " + split["text"]
+                mine_aovs = {**alignment, "albedo": {**alignment["albedo"], "split": split, "text": text}}
+            outcomes.append(FrameOutcome(frame_id(f, taken), label, f, image, a, mine_aovs, case))
         timings["comparison"] += time.perf_counter() - t2
-    mask = np.ones((height, width), bool)
     result = CompareResult(
-        info, references, outcomes, names, mask, quantity, camera_of_case, camera_path, timings=timings
-    )
+        info, references, outcomes, names, mask, quantity, camera_of_case, camera_path, timings=timings,
+        pose_of_case=pose_of_case,
+    )  # fmt: skip
     result.temporal = temporal_stability(result) if camera_path and len(outcomes) > 1 else []
     result.results = results_record(
         result,
@@ -374,6 +425,19 @@ def _shape_name(shape) -> str:
         c = shape.bbox().center()
         name = f"{_class_name(shape)} at ({float(c[0]):.3g}, {float(c[1]):.3g}, {float(c[2]):.3g})"
     return name + (f" [bsdf {b}]" if b and not b.startswith("_unnamed") else "")
+
+
+def _emitter_names(emitters, info) -> dict[str, str]:
+    """A loaded emitter's Mitsuba id (`loaded_xml` tags them) → its XML ``id`` and kind (e.g. ``sun
+    (directional)``), or its kind and where the file declares it."""
+    out = {}
+    xml = info.xml.emitters if info.xml is not None else ()
+    for em, x in zip(emitters, xml, strict=False):
+        if em is None:
+            continue
+        own = x.id and not x.id.startswith("_unnamed")
+        out[str(em.id())] = f"{x.id} ({x.kind})" if own else f"{x.kind} light ({x.location})"
+    return out
 
 
 def _class_name(obj) -> str:
@@ -416,13 +480,18 @@ def _reference(
     pass_spp,
     seed,
     progress,
-) -> AuditReference:
-    """The reference of ``quantity`` through the pass cache (`pooled_passes`), every pixel an element."""
+    ao_radius,
+) -> tuple[AuditReference, np.ndarray]:
+    """The reference of ``quantity`` through the pass cache (`pooled_passes`) and the mask of the pixels it
+    holds: every pixel an element for radiance (`compare_quantities.quantity_reference` for the others)."""
     integrator = None
     name, reason = "the scene's own", "the scene's integrator: radiance as the scene declares it"
     if quantity == "direct":
         integrator = mi.load_dict({"type": "path", "max_depth": 2})
         name, reason = "path (max_depth 2)", "direct light only: emission and one bounce"
+    elif mi_scene.integrator() is None:  # no <integrator> in the file: Mitsuba's default, path
+        integrator = mi.load_dict({"type": "path"})
+        name, reason = "path (Mitsuba's default)", "the scene declares no integrator: Mitsuba's default"
     xml = info.xml
     digest = f"{xml.dependencies.digest}:camera{camera}:{size[0]}x{size[1]}"
     mask = np.ones(gb.mask.shape, bool)
@@ -443,10 +512,15 @@ def _reference(
         scene_digest=digest,
     )
 
+    if quantity in SURFACE_QUANTITIES:
+        return quantity_reference(setup, quantity, ao_radius)
+
     def render(n: int, s: int) -> PassResult:
         p = radiance_pass(mi, mi_scene, n, s, integrator=integrator, sensor=sensor, footprint=footprint)
         return PassResult(p.mean.reshape(-1, 3), p.var.reshape(-1, 3), p.spp, p.seed, p.seconds)
 
     what = {"format": FORMAT, "kind": "compare", "quantity": quantity, "footprint": footprint}
     pooled = pooled_passes(setup, what, render, (-1, 3), f"compare: {quantity}")
-    return pooled.reference(mask, QUANTITIES[quantity], name, reason + f"; pixel footprint: {footprint}")
+    return pooled.reference(
+        mask, QUANTITIES[quantity], name, reason + f"; pixel footprint: {footprint}"
+    ), mask

@@ -6,6 +6,8 @@ assumed (`rtfit.experiments.compare`).
   the fraction of surface pixels off by more than `DEPTH_TOLERANCE`. Above `DEPTH_WARN` the depth is examined
   for a flipped or mirrored image, a half-pixel offset or another field of view, and refused naming the one
   that explains it; above `DEPTH_REFUSE` it is refused in any case.
+* **albedo**: the BSDF reflectance at the first hit (`compare_albedo`: its alignment, and the split of a
+  radiance frame's error into albedo and lighting).
 * **normal**: unit normals, stored as they are or encoded as n/2 + ½; the convention they are in (world with
   the scene's axes, world with Y up, view space looking down −z or +z) is the one with the least median angle
   to Mitsuba's shading normals; refused when even that exceeds `NORMAL_REFUSE_DEG`.
@@ -19,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from .audit import AuditError
+from .compare_albedo import albedo_alignment
 from .compare_frames import read_depth, read_frame
 
 __all__ = [
@@ -31,7 +34,7 @@ __all__ = [
     "read_aovs",
 ]
 
-AOVS = ("depth", "normal")
+AOVS = ("depth", "normal", "albedo")
 DEPTH_TOLERANCE = 0.02
 """A pixel's depth is misaligned when it differs from Mitsuba's first-hit distance by more than this
 fraction."""
@@ -45,7 +48,8 @@ NORMAL_REFUSE_DEG = 30.0
 
 
 def parse_aovs(values: Sequence[str] | str | None) -> dict[str, str]:
-    """``--aov depth=D.exr[,normal=N.exr]`` (repeatable) → {name: file}; `AuditError` on anything else."""
+    """``--aov depth=D.exr[,normal=N.exr,albedo=A.exr]`` (repeatable) → {name: file}; `AuditError` on
+    anything else."""
     if values is None:
         return {}
     items = [values] if isinstance(values, str) else list(values)
@@ -64,7 +68,7 @@ def parse_aovs(values: Sequence[str] | str | None) -> dict[str, str]:
 
 def read_aovs(aovs: Mapping[str, str], shape: tuple[int, int]) -> dict[str, Any]:
     """Each AOV of ``aovs`` (`parse_aovs`) read and checked to be of the frames' (H, W) ``shape``: depth →
-    (array, channel), normal → (H, W, 3); `AuditError` (one line) otherwise."""
+    (array, channel), normal and albedo → (H, W, 3); `AuditError` (one line) otherwise."""
     out: dict[str, Any] = {}
     for name, text in aovs.items():
         data = read_depth(text) if name == "depth" else read_frame(text).image
@@ -75,13 +79,19 @@ def read_aovs(aovs: Mapping[str, str], shape: tuple[int, int]) -> dict[str, Any]
     return out
 
 
-def align_aovs(aovs: Mapping[str, str], data: Mapping[str, Any], gb, x_fov_deg) -> dict[str, dict]:
-    """AOV name → its alignment with the scene's first hits (`depth_alignment`, `normal_alignment`)."""
+def align_aovs(
+    aovs: Mapping[str, str], data: Mapping[str, Any], gb, x_fov_deg, hits=None, names=None
+) -> dict[str, dict]:
+    """AOV name → its alignment with the scene's first hits (`depth_alignment`, `normal_alignment`,
+    `compare_albedo.albedo_alignment` with the first-hit shape indices ``hits`` and their ``names``)."""
     out = {}
     if "depth" in data:
         out["depth"] = depth_alignment(data["depth"][0], gb, aovs["depth"], data["depth"][1], x_fov_deg)
     if "normal" in data:
         out["normal"] = normal_alignment(data["normal"], gb, aovs["normal"])
+    if "albedo" in data:
+        hits = np.full(gb.mask.shape, -1) if hits is None else hits
+        out["albedo"] = albedo_alignment(data["albedo"], gb, hits, names or {}, aovs["albedo"])
     return out
 
 

@@ -1,10 +1,10 @@
 """The ``rtfit compare`` command (`rtfit.experiments.compare`): frames a user's engine rendered against the
 path-traced reference of the same Mitsuba XML scene.
 
-    rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity radiance|direct]
-                  [--aov depth=D.exr,normal=N.exr] [--fit-exposure] [--footprint box|centre]
-                  [--camera-path sensors|static] [-D name=value ...] [--camera N] [--variant V] [--spp N]
-                  [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
+    rtfit compare SCENE.xml FRAME.exr [FRAME2.exr[:layer] | FRAME.png …] [--quantity Q] [--ao-radius R]
+                  [--aov depth=D.exr,normal=N.exr,albedo=A.exr] [--fit-exposure] [--footprint box|centre]
+                  [--camera-path sensors|static|POSES.json] [-D name=value ...] [--camera N] [--variant V]
+                  [--spp N] [--pass-spp N] [--out DIR] [--cache DIR] [--seed S] [--no-progress]
 
 Bad input is one line, ``rtfit: error: …``, exit status 2, nothing rendered or written. A frame that is not
 within the reference's noise, or a step of a sequence that flickers (a failed check), exits with status 1
@@ -36,14 +36,24 @@ def _error(message: str):
     type=click.Choice(list(QUANTITIES)),
     default="radiance",
     show_default=True,
-    help="What the frames show: radiance (the scene's integrator) or direct (max_depth 2).",
+    help="What the frames show: radiance (the scene's integrator), direct (max_depth 2), irradiance (W/m² "
+    "at the first hit), ao (visibility 0..1 at the first hit) or transmittance (camera ray to the first "
+    "surface).",
+)
+@click.option(
+    "--ao-radius",
+    type=float,
+    default=float("inf"),
+    show_default=True,
+    help="With --quantity ao: the occlusion radius (scene units; inf: unbounded).",
 )
 @click.option(
     "--aov",
     multiple=True,
-    metavar="depth=D.exr,normal=N.exr",
-    help="The frames' depth AOV (ray distance or planar depth) and normal AOV (world or view space): their "
-    "alignment with the scene's camera.",
+    metavar="depth=D.exr,normal=N.exr,albedo=A.exr",
+    help="The frames' depth AOV (ray distance or planar depth), normal AOV (world or view space) and albedo "
+    "AOV (linear BSDF reflectance): their alignment with the scene's camera; the albedo also splits a "
+    "radiance frame's error into albedo and lighting.",
 )
 @click.option(
     "--fit-exposure", is_flag=True, help="Compare the frames after dividing by their best global scale."
@@ -57,10 +67,11 @@ def _error(message: str):
 )
 @click.option(
     "--camera-path",
-    type=click.Choice(["sensors", "static"]),
     default=None,
+    metavar="sensors|static|POSES.json",
     help="The frames are a sequence (with its temporal stability): frame i through the scene's sensor i "
-    "(sensors), or every frame through --camera (static).",
+    "(sensors), every frame through --camera (static), or frame i through --camera moved to pose i of a "
+    "JSON list of {origin, target, up, fov} or 4×4 to_world matrices.",
 )
 @click.option("-D", "defines", multiple=True, metavar="NAME=VALUE", help="A Mitsuba XML parameter ($NAME).")
 @click.option("--camera", type=click.IntRange(min=0), default=0, show_default=True, help="XML sensor index.")
@@ -75,6 +86,7 @@ def compare(
     scene,
     frames,
     quantity,
+    ao_radius,
     aov,
     fit_exposure,
     footprint,
@@ -118,6 +130,7 @@ def compare(
             aov=aov,
             footprint=footprint,
             camera_path=camera_path,
+            ao_radius=ao_radius,
             progress=bool(obj.get("bars", False)) and not no_progress,
         )
     except AuditError as e:

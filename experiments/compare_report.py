@@ -64,6 +64,10 @@ def _case_doc(r: CompareResult, case, variant: str, fit_exposure: bool, footprin
             "offset_x": float(a.offset[0]),
             "offset_y": float(a.offset[1]),
         }
+        split = f.aovs.get("albedo", {}).get("split", {})
+        if "error" in split:  # the albedo AOV's split of the error (compare_albedo.albedo_split)
+            params.update({f"{k}_error": split[k] for k in ("albedo", "lighting")})
+            params["lighting_error_stderr"] = split["lighting_uncertainty"]
         rows.append(
             {
                 "method": f.id,
@@ -81,6 +85,7 @@ def _case_doc(r: CompareResult, case, variant: str, fit_exposure: bool, footprin
             "height": int(case.mask.shape[0]),
             "footprint": footprint,
             "camera": r.camera_of_case[case.id],
+            **({"pose": r.pose_of_case[case.id]} if case.id in r.pose_of_case else {}),
         },
         "scene": {"name": Path(info.source).name, "hash": info.xml.dependencies.digest if info.xml else None},
         "reference": reference_record(case.reference, variant, np.ones(case.mask.shape, bool)),  # every pixel
@@ -115,6 +120,26 @@ def _temporal_section(steps: list[dict]) -> dict:
         "temporal filters that do not hold still).\n\n" + "\n".join(rows)
     )
     return {"id": "temporal", "title": "Temporal stability", "text": text}
+
+
+def _breakdowns(a) -> dict:
+    """Each frame's error per shape and per group (BSDF, distance band, n·l band): title → rows."""
+    groups = {"shape at the first hit": a.shapes, **a.groups}
+    return {
+        title: [
+            {
+                "name": e.name,
+                "pixels": e.pixels,
+                "reference_mean": e.reference_mean,
+                "bias": e.bias,
+                "uncertainty": e.uncertainty,
+                "z_rms": e.z_rms,
+                "within_noise": e.within_noise,
+            }
+            for e in errors
+        ]
+        for title, errors in groups.items()
+    }
 
 
 def results_record(r: CompareResult, *, variant, spp, pass_spp, seed, fit_exposure, footprint) -> Results:
@@ -184,6 +209,7 @@ def results_record(r: CompareResult, *, variant, spp, pass_spp, seed, fit_exposu
         "cases": cases,
         "checks": [to_json(c) for c in checks],
         "notes": notes,
+        "breakdowns": {f.id: _breakdowns(f.analysis) for f in r.frames},
     }
     return from_json(Results, plain_json(doc), f"compare of {info.source}")
 

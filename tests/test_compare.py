@@ -269,7 +269,7 @@ def test_bad_frames_are_one_line_exit_2(frames, tmp_path):
     _one_line_exit_2([str(SCENE), f"{p['good']}:beauty", *cache], "no layer 'beauty'")
     _one_line_exit_2([str(SCENE), str(tmp_path / "frame.jpg"), *cache], "no such file")
     _one_line_exit_2([str(SCENE), *cache], "no frame to compare")
-    _one_line_exit_2([str(SCENE), str(p["good"]), "--aov", "albedo=a.exr", *cache], "not read yet")
+    _one_line_exit_2([str(SCENE), str(p["good"]), "--aov", "motion=a.exr", *cache], "not read yet")
 
 
 def test_render_size_integer_factors():
