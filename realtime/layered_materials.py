@@ -62,9 +62,31 @@ refracted row equals the seed's at η = 1 to rounding, not to 4e-6). No NaN or I
 domain (tests/test_layered_materials.py, hypothesis). Public functions validate NumPy inputs (one-line
 ValueError); Dr.Jit arrays are not checked (the kernels clamp).
 
-Not a row of the audit (no reference yet; docs/layered-materials.md): the blur radii (`seed_blur_radii`: the
-light map's radius d, the albedo's s = d/cos θ, against the refracted s = d/cos θ_t) and the composite
-(`seed_composite`; a Fresnel-weighted composite, inner weight (1 − F(θ)), is its modern counterpart).
+The composite (quantity ``coated_radiance``, W/m²/sr per channel)
+-----------------------------------------------------------------
+The radiance the camera sees of a clear coat over a diffuse base of albedo ρ under a uniform sky of radiance
+L (the audit's second case). For a uniform base it is exact (energy balance of the coat's internal
+reflections; the smooth-plastic model of Mitsuba's ``plastic``, after Weidlich & Wilkie 2007):
+
+    L_o = F(θ)·L + (1 − F(θ))·(1 − F̄_ext)·ρ·L/(η²·(1 − ρ·F̄_int))
+
+with F(θ) the dielectric Fresnel at the view angle, F̄_ext the cosine-weighted hemispherical mean of F seen
+from outside and F̄_int = 1 − (1 − F̄_ext)/η² the internal one (reciprocity; total internal reflection
+included): sky light enters with (1 − F̄_ext)πL, the base reflects ρ of it, a fraction F̄_int of that returns
+to the base, the rest leaves, compressed by 1/η² in radiance. The case supplies F, F̄_ext, F̄_int (Mitsuba's
+``fresnel`` and a float64 quadrature of it) and ρ read by Mitsuba at two base points: ``albedo_seed`` where
+the seed's straight ray meets the base, ``albedo_refracted`` where the refracted ray does. Rows:
+
+* ``seed-composite``: listing 3 for a clear coat: the outer layer has no diffuse albedo (its term is 0), the
+  inner light is the uniform light map L (irradiance πL over π), so L_o = a·cos θ·ρ_seed·L with a = 1 (a
+  clear outer layer: the inner layer fully shown); ``seed-composite-alpha``: a ∈ (0, 1) fitted;
+* ``fresnel-lerp``: lerp(ρ_refr·L, L, F(θ)): the modern cheap form, a Fresnel-weighted layer blend at the
+  refracted point (no internal reflections, no 1/η²);
+* ``coated-diffuse`` (exact for a uniform base; on a texture the base's light is mixed over a few d by the
+  internal reflections, which this leaves out: the seed's blur's job).
+
+Not audited (no reference yet; docs/layered-materials.md): the blur radii (`seed_blur_radii`: the light
+map's radius d, the albedo's s = d/cos θ, against the refracted s = d/cos θ_t) with their Poisson taps.
 """
 
 from __future__ import annotations
@@ -125,6 +147,29 @@ def _seed_radii_kernel(ops, cos_theta, depth):
     return d, d / ops.maximum(clamp01(ops, cos_theta), COS_MIN)
 
 
+def _seed_coat_kernel(ops, cos_theta, albedo_seed, sky, alpha):
+    """Listing 3 for a clear coat: lerp(0, ρ_seed·L, alpha·saturate(N·V)) (module docstring)."""
+    return _composite_kernel(ops, 0.0, albedo_seed * sky, alpha, cos_theta)
+
+
+def _fresnel_lerp_kernel(ops, albedo_refracted, sky, fresnel):
+    """lerp(ρ_refr·L, L, F): the Fresnel-weighted blend of the base and the coat's mirror of the sky."""
+    f = clamp01(ops, fresnel)
+    return sky * (f + (1.0 - f) * albedo_refracted)
+
+
+def _coated_diffuse_kernel(ops, albedo_refracted, sky, fresnel, eta, fdr_ext, fdr_int):
+    """F·L + (1 − F)(1 − F̄_ext)ρL/(η²(1 − ρF̄_int)); 1 − ρF̄_int ≥ 1 − 1·F̄_int > 0 for η ≥ 1 (F̄_int < 1:
+    the refraction cone's light leaves), floored at 1e-6 (the reason: ρ = F̄_int = 1 would divide by 0)."""
+    f = clamp01(ops, fresnel)
+    rho = clamp01(ops, albedo_refracted)
+    e = ops.maximum(eta, 1.0)
+    inner = (
+        (1.0 - clamp01(ops, fdr_ext)) * rho / (e * e * ops.maximum(1.0 - rho * clamp01(ops, fdr_int), 1e-6))
+    )
+    return sky * (f + (1.0 - f) * inner)
+
+
 def _composite_kernel(ops, outer, inner, alpha, cos_theta):
     """Listing 3: lerp(outer, inner, alpha·saturate(N·V)) (the inner layer's weight: module docstring)."""
     w = clamp01(ops, alpha) * clamp01(ops, cos_theta)
@@ -173,6 +218,16 @@ INPUTS = (_COS, _DEPTH, _ETA)
 _SEED = "Oat 2006, Rendering Goopy Materials, ParallaxOffsetAndDepth (seed 000:1189-1217, listing 1)"
 _SCALE = Param(1.0, 0.05, 2.0, unit="1", description="effective depth scale k (the seed: 1)", published=False)
 
+_ALBEDO_SEED = Input("albedo_seed", "1", "ρ of the base where the seed's straight ray meets it", (0.0, 1.0))
+_ALBEDO_REFR = Input("albedo_refracted", "1", "ρ of the base where the refracted ray meets it", (0.0, 1.0))
+_SKY = Input("sky", "W/m²/sr", "L: the uniform sky's radiance", (0.0, 1e4))
+_FRESNEL = Input("fresnel", "1", "F(θ): the coat's Fresnel reflectance at the view angle", (0.0, 1.0))
+_FDR_EXT = Input("fdr_ext", "1", "F̄_ext: the coat's cosine-weighted mean Fresnel, outside", (0.0, 1.0))
+_FDR_INT = Input("fdr_int", "1", "F̄_int = 1 − (1 − F̄_ext)/η²: the mean Fresnel inside", (0.0, 1.0))
+COMPOSITE_INPUTS = (_COS, _ETA, _ALBEDO_SEED, _ALBEDO_REFR, _SKY, _FRESNEL, _FDR_EXT, _FDR_INT)
+"""The quantity ``coated_radiance``'s inputs."""
+_SEED_COMPOSITE = "Oat 2006, the layer composite (seed 000:1321-1331, listing 3)"
+
 METHODS = method_table(
     [
         Method(
@@ -217,6 +272,54 @@ METHODS = method_table(
             source="Snell's law (Born & Wolf §1.5.1); HLSL refract(−V, N, 1/η)",
             description="Exact for a smooth coat over its base (the best modern form).",
         ),
+        Method(
+            "seed-composite",
+            "Seed composite (clear coat)",
+            _seed_coat_kernel,
+            inputs=(_COS, _ALBEDO_SEED, _SKY),
+            fixed={"alpha": 1.0},
+            quantity="coated_radiance",
+            formula="L_o = lerp(0, ρ(uv + d·tan θ)·L, a·N·V), a = 1",
+            source=_SEED_COMPOSITE + " with listing 1's offset",
+            description="No coat reflection; the inner layer faded by N·V: black at grazing view.",
+        ),
+        Method(
+            "seed-composite-alpha",
+            "Seed composite, fitted alpha",
+            _seed_coat_kernel,
+            inputs=(_COS, _ALBEDO_SEED, _SKY),
+            params={
+                "alpha": Param(
+                    0.9, 0.0, 1.0, unit="1", description="a: the outer layer's alpha", published=False
+                )
+            },
+            quantity="coated_radiance",
+            formula="L_o = a·cos θ·ρ(uv + d·tan θ)·L, a fitted",
+            source=_SEED_COMPOSITE,
+        ),
+        Method(
+            "fresnel-lerp",
+            "Fresnel lerp at the refracted point",
+            _fresnel_lerp_kernel,
+            inputs=(_ALBEDO_REFR, _SKY, _FRESNEL),
+            quantity="coated_radiance",
+            formula="L_o = lerp(ρ(uv + d·tan θ_t)·L, L, F(θ))",
+            source="a clear-coat layer blend weighted by Fresnel (e.g. the Disney/OpenPBR coat's 1 − F "
+            "attenuation of the base), at Snell's offset",
+        ),
+        Method(
+            "coated-diffuse",
+            "Coated diffuse (internal reflections)",
+            _coated_diffuse_kernel,
+            inputs=(_ALBEDO_REFR, _SKY, _FRESNEL, _ETA, _FDR_EXT, _FDR_INT),
+            quantity="coated_radiance",
+            formula="L_o = F·L + (1 − F)(1 − F̄_ext)ρL/(η²(1 − ρF̄_int))",
+            source="smooth plastic (Weidlich & Wilkie 2007; Mitsuba 3 plastic), at Snell's offset",
+            description="Exact for a uniform base under a uniform sky; a texture's lateral mixing left out.",
+        ),
     ]
 )
-"""The layered-materials family's methods (module docstring); quantity ``layer_offset``."""
+"""The layered-materials family's methods (module docstring): quantities ``layer_offset`` (the first four)
+and ``coated_radiance``."""
+OFFSET_ROWS = tuple(k for k, m in METHODS.items() if m.quantity == "layer_offset")
+COMPOSITE_ROWS = tuple(k for k, m in METHODS.items() if m.quantity == "coated_radiance")

@@ -19,7 +19,9 @@ from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_layered_materials import SCENES, offset_ratio
 from rtfit.experiments.audit_run import audit
 from rtfit.realtime.layered_materials import (
+    COMPOSITE_ROWS,
     METHODS,
+    OFFSET_ROWS,
     POISSON_TAPS,
     refracted_offset,
     seed_blur_radii,
@@ -64,7 +66,7 @@ def _rows(c, d, eta):
         name: np.atleast_1d(np.asarray(v, np.float64))
         for name, v in (("cos_theta", c), ("depth", d), ("eta", eta))
     }
-    return {k: m.evaluate(g) for k, m in METHODS.items()}
+    return {k: METHODS[k].evaluate(g) for k in OFFSET_ROWS}
 
 
 @pytest.mark.parametrize("theta", [10.0, 30.0, 60.0, 80.0])
@@ -104,6 +106,58 @@ def test_radii_composite_and_taps():
     assert len(POISSON_TAPS) == 12 and max(math.hypot(*t) for t in POISSON_TAPS) < 1.0
 
 
+def _fresnel64(c: np.ndarray, eta: float) -> np.ndarray:
+    """Fresnel's unpolarised dielectric reflectance in float64 (Born & Wolf §1.5.2), from outside (η ≥ 1)."""
+    ct = np.sqrt(1.0 - (1.0 - c * c) / eta**2)
+    rs = (c - eta * ct) / (c + eta * ct)
+    rp = (eta * c - ct) / (eta * c + ct)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+def _fdr64(eta: float) -> float:
+    """∫₀¹ F(μ)·2μ dμ by a 4000-point midpoint rule (float64)."""
+    mu = (np.arange(4000) + 0.5) / 4000
+    return float(np.mean(_fresnel64(mu, eta) * 2.0 * mu))
+
+
+def test_composite_rows_by_hand():
+    """At normal view through glass (F = 0.04) over ρ = 0.5 under L = 2: the seed's composite is ρL = 1
+    (no coat reflection), the Fresnel lerp 2·(0.04 + 0.96·0.5), the coated diffuse
+    2·(0.04 + 0.96·(1 − F̄)·0.5/(2.25·(1 − 0.5·F̄_int))); at grazing view the seed's composite is 0 (black)
+    where the coat mirrors the sky."""
+    fdr = _fdr64(1.5)
+    fdr_int = 1.0 - (1.0 - fdr) / 2.25
+    g = {"cos_theta": np.array([1.0, 0.0]), "eta": np.array([1.5, 1.5]), "albedo_seed": np.array([0.5, 0.5]),
+         "albedo_refracted": np.array([0.5, 0.5]), "sky": 2.0, "fresnel": np.array([0.04, 1.0]),
+         "fdr_ext": fdr, "fdr_int": fdr_int}  # fmt: skip
+    out = {k: np.asarray(METHODS[k].evaluate(g), np.float64) for k in COMPOSITE_ROWS if not METHODS[k].params}
+    assert np.allclose(out["seed-composite"], [1.0, 0.0], rtol=1e-12, atol=0)
+    assert np.allclose(out["fresnel-lerp"], [2 * (0.04 + 0.96 * 0.5), 2.0], rtol=1e-12)
+    want = 2 * (0.04 + 0.96 * (1 - fdr) * 0.5 / (2.25 * (1 - 0.5 * fdr_int)))
+    assert np.allclose(out["coated-diffuse"], [want, 2.0], rtol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    c=st.floats(0.0, 1.0),
+    rho=st.floats(0.0, 1.0),
+    f=st.floats(0.0, 1.0),
+    fdr=st.floats(0.0, 1.0),
+    fint=st.floats(0.0, 1.0),
+    eta=st.floats(1.0, 4.0),
+)
+@example(c=0.0, rho=1.0, f=0.0, fdr=0.0, fint=1.0, eta=1.0)  # ρ·F̄_int = 1: the floored denominator
+def test_composite_extremes_finite(c, rho, f, fdr, fint, eta):
+    for dtype in (np.float64, np.float32):
+        g = {"cos_theta": np.array([c], dtype), "eta": np.array([eta], dtype),
+             "albedo_seed": np.array([rho], dtype), "albedo_refracted": np.array([rho], dtype), "sky": 1e4,
+             "fresnel": np.array([f], dtype), "fdr_ext": fdr, "fdr_int": fint}  # fmt: skip
+        for mid in COMPOSITE_ROWS:
+            m = METHODS[mid]
+            out = np.asarray(m.evaluate(g, {"alpha": 0.5} if m.params else None), np.float64)
+            assert np.all(np.isfinite(out)) and np.all(out >= 0.0), (mid, dtype)
+
+
 def test_public_functions_say_what_is_wrong_in_one_line():
     for call, word in (
         (lambda: seed_offset(0.5, -1.0), "depth"),
@@ -131,10 +185,11 @@ def test_extremes_finite(c, d, eta, k):
     thickness, η → 1); the refracted offset never exceeds the seed's (η ≥ 1 bends the ray to the normal)."""
     for dtype in (np.float64, np.float32):
         g = {"cos_theta": np.array([c], dtype), "depth": np.array([d], dtype), "eta": np.array([eta], dtype)}
-        for mid, m in METHODS.items():
+        for mid in OFFSET_ROWS:
+            m = METHODS[mid]
             out = np.asarray(m.evaluate(g, {"scale": k} if m.params else None), np.float64)
             assert np.all(np.isfinite(out)) and np.all(out >= 0.0), (mid, dtype)
-        rows = {mid: float(np.asarray(m.evaluate(g))[0]) for mid, m in METHODS.items()}
+        rows = {mid: float(np.asarray(METHODS[mid].evaluate(g))[0]) for mid in OFFSET_ROWS}
         assert rows["refracted"] <= rows["seed"] * (1 + 1e-6) + 1e-30
 
 
@@ -152,7 +207,8 @@ def test_shipped_scene_audit(coat_audit):
     the file's 1.5; Mitsuba's refraction equals Snell's closed form on each pixel's inputs (float32: 1e-6
     relative) and the exact row to the engine's precision; the seed's offset is √6 ≈ 2.45× Mitsuba's."""
     r = coat_audit
-    (case,) = r.cases
+    case = r.cases[0]
+    assert [c.id for c in r.cases] == ["coat-0", "coat-0-radiance"]
     assert case.mask.all() and case.parameters["eta"] == pytest.approx(1.5)
     g = case.channel_inputs[0]
     assert np.all(np.abs(g["depth"] - 0.1) < 5e-4)
@@ -168,6 +224,44 @@ def test_shipped_scene_audit(coat_audit):
     assert ratio == pytest.approx(math.sqrt(6.0), rel=0.01)
     rmse = {k: o.metrics["rmse"].value for k, o in out.items()}
     assert rmse["refracted"] < rmse["seed-scaled-fitted"] < rmse["apparent-depth"] < rmse["seed"]
+
+
+def test_shipped_radiance_case(coat_audit):
+    """The radiance case: F̄_ext is the float64 quadrature of Fresnel's equations (1e-5), F̄_int its
+    reciprocal; the coated diffuse beats the seed's composite and the Fresnel lerp."""
+    r = coat_audit
+    case = r.cases[1]
+    assert case.quantity == "coated_radiance" and case.mask.sum() == 144
+    assert case.parameters["fdr_ext"] == pytest.approx(_fdr64(1.5), abs=1e-5)
+    assert case.parameters["fdr_int"] == pytest.approx(1 - (1 - _fdr64(1.5)) / 2.25, abs=1e-5)
+    g = case.channel_inputs[0]
+    assert np.max(np.abs(g["fresnel"] - _fresnel64(g["cos_theta"], 1.5))) < 1e-6
+    rmse = {k: o.metrics["rmse"].value for k, o in r.outcomes[case.id].items()}
+    assert rmse["coated-diffuse"] < min(rmse["seed-composite"], rmse["fresnel-lerp"])
+
+
+def test_radiance_reference_is_the_closed_form_on_a_uniform_base(tmp_path):
+    """On a uniform base (ρ = 0.2, 0.5, 0.8) the coat's radiance is the closed form F·L + (1 − F)(1 − F̄)ρL/
+    (η²(1 − ρF̄_int)) computed here in float64: Mitsuba's path-traced mean over the pixels agrees within
+    4 standard errors per channel (the reference checked independently)."""
+    xml = tmp_path / "uniform.xml"
+    text = SCENE.read_text()
+    start, end = text.index('<texture type="checkerboard"'), text.index("</texture>") + len("</texture>")
+    xml.write_text(text[:start] + '<rgb name="reflectance" value="0.2, 0.5, 0.8"/>' + text[end:])
+    (scene,) = [s for s in SCENES if s.name == "theta60-eta1p5"]
+    r = audit(str(xml), ["layered-materials"], width=8, height=8, spp=128, cache=tmp_path / "c",
+              defines=dict(scene.defines), **FAST)  # fmt: skip
+    case = r.cases[1]
+    c = case.channel_inputs[0]["cos_theta"]
+    fdr = _fdr64(1.5)
+    fdr_int = 1 - (1 - fdr) / 2.25
+    f = _fresnel64(c, 1.5)
+    ref = case.reference.mean[case.mask]
+    se = case.reference.stderr[case.mask]
+    for ch, rho in enumerate((0.2, 0.5, 0.8)):
+        want = f + (1 - f) * (1 - fdr) * rho / (2.25 * (1 - rho * fdr_int))
+        err = float(np.sqrt(np.sum(se[:, ch] ** 2))) / len(c)
+        assert abs(float(np.mean(ref[:, ch]) - np.mean(want))) < 4 * err, ch
 
 
 def test_no_case_without_a_smooth_coat(tmp_path):
