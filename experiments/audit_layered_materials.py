@@ -23,11 +23,18 @@ Rows: the seed's offset d·tan θ (given, and with its depth scale k fitted), th
 (d/η)·tan θ and the exact refracted offset d·tan θ_t (``exact=True``: z-checked against the reference,
 equal to float32 precision where the base is parallel to the coat).
 
-No case (said in the run): a rough dielectric (its refraction is a lobe, not one direction; left for later),
+Where the scene's only light is a constant sky, a second case ``coat-<i>-radiance`` (quantity
+``coated_radiance``) on the pixels whose unrefracted ray also meets the base: the **radiance at the camera**
+path traced by Mitsuba (``path``, unbounded depth, pixel centres, through the pass cache) against the seed's
+composite (listing 3, 000:1321-1331, with the base's albedo where the seed's straight ray meets it), a
+Fresnel lerp and the coated-diffuse closed form (both with the albedo where the refracted ray meets it).
+Inputs from Mitsuba: F(θ) (``mi.fresnel``), F̄_ext (64-node Gauss–Legendre of ``mi.fresnel``), F̄_int =
+1 − (1 − F̄_ext)/η², the albedos (``eval_diffuse_reflectance`` at the two hits) and the sky's radiance.
+
+No case: a rough dielectric is not a trigger (its refraction is a lobe, not one direction; left for later);
 a thin dielectric, a conductor or plastic (nothing is seen through them), a dielectric seen from inside
-(η < 1: total internal reflection, the seed's coat is seen from outside), pixels whose refracted ray
-escapes. The base's own shading (the seed's composite, 000:1321-1331, and its blur radii) is not audited yet
-(docs/layered-materials.md).
+(η < 1: the seed's coat is seen from outside) and pixels whose refracted ray escapes give none. The seed's
+blur radii (000:1221-1319) are not audited yet (docs/layered-materials.md).
 """
 
 from __future__ import annotations
@@ -311,9 +318,11 @@ def _radiance_reference(setup: AuditSetup, app: Applicability, mask: np.ndarray)
 _RULE_WORDS = (
     "{part}: seen through as a clear coat, an engine offsets the layer under it by parallax without "
     "refraction (the seed's goopy materials)",
-    "the lateral offset at which the camera sees the surface under the coat (scene units): a smooth "
-    "dielectric seen from outside with another shape under it (no case otherwise)",
-    "none: Mitsuba's dielectric BSDF refracts each pixel-centre ray (deterministic: noise floor zero)",
+    "the lateral offset at which the camera sees the surface under the coat (scene units) where a smooth "
+    "dielectric is seen from outside with another shape under it (no case otherwise); under a constant sky "
+    "as the only light, also the coated base's radiance at the camera (W/m²/sr)",
+    "none for the offset: Mitsuba's dielectric BSDF refracts each pixel-centre ray (deterministic); path "
+    "(unbounded depth) at the pixel centres for the radiance",
 )
 
 FAMILY = AuditFamily(
@@ -327,7 +336,9 @@ FAMILY = AuditFamily(
         "the lateral offset at which each pixel sees the base, from Mitsuba's own refraction of the "
         "pixel-centre ray (the dielectric BSDF's transmission sample) and the refracted ray's hit, against "
         "the seed's parallax offset without refraction (d·tan θ, 000:1189-1217; given and with its depth "
-        "fitted), the paraxial apparent depth and the exact refracted offset d·tan θ_t (z-checked)."
+        "fitted), the paraxial apparent depth and the exact refracted offset d·tan θ_t (z-checked). Under a "
+        "constant sky, also the coated base's radiance path traced by Mitsuba against the seed's layer "
+        "composite (000:1321-1331), a Fresnel lerp and the coated-diffuse closed form."
     ),
     rules=(
         Rule(

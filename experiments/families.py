@@ -269,7 +269,9 @@ FAMILIES: dict[str, Family] = {
             "Where a smooth dielectric coat covers a base: the offset at which each pixel sees the base, "
             "from Mitsuba's own refraction of the camera ray, against the seed's parallax offset without "
             "refraction (given and with its depth fitted), the paraxial apparent depth and Snell's refracted "
-            "offset; the study measures the seed's error against view angle (the issue's ≈ 2× at 60°).",
+            "offset; under a sky, the coated base's path-traced radiance against the seed's layer composite, "
+            "a Fresnel lerp and the coated-diffuse closed form; the study measures the seed's offset error "
+            "against view angle (the issue's ≈ 2× at 60°).",
             methods=layered_materials.METHODS,
             audits=(audit_layered_materials.FAMILY,),
             scenes=audit_layered_materials.SCENES,
