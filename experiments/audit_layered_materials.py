@@ -3,7 +3,8 @@ dielectric coat, the lateral offset of the seen point (scene units), as Mitsuba 
 against the seed's parallax offset without refraction (000:1189-1217) and Snell's refracted offset
 (`rtfit.realtime.layered_materials.METHODS`).
 
-For each smooth ``dielectric`` shape of a Mitsuba XML scene (a ``reflective-shape`` part), one case
+For each smooth ``dielectric`` shape of a Mitsuba XML scene, or of an rtfit TOML scene (a ``mitsuba_xml``
+shape keeping its file's BSDFs), a ``reflective-shape`` part, one case
 ``coat-<i>`` on the pixels whose camera ray meets that shape first from its outside and whose refracted ray
 then meets another shape (the base):
 
@@ -330,7 +331,7 @@ FAMILY = AuditFamily(
     quantity="layer_offset",
     quantities=("coated_radiance",),
     cases=coat_cases,
-    formats=("mitsuba-xml",),
+    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per smooth dielectric shape seen from outside with a surface under it (a clear coat over a base): "
         "the lateral offset at which each pixel sees the base, from Mitsuba's own refraction of the "

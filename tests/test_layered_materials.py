@@ -264,6 +264,35 @@ def test_radiance_reference_is_the_closed_form_on_a_uniform_base(tmp_path):
         assert abs(float(np.mean(ref[:, ch]) - np.mean(want))) < 4 * err, ch
 
 
+def test_toml_scene_holds_the_coat(tmp_path):
+    """rtfit TOML holds the coat and its base through a ``mitsuba_xml`` shape (its file's BSDFs) under a
+    constant sky: the same two cases, Mitsuba's offset at Snell's closed form, the seed's √6× at 60°."""
+    toml = tmp_path / "coat.toml"
+    toml.write_text(f"""name = "coat"
+[camera]
+origin = [0.0, -8.66025, 5.1]
+target = [0.0, 0.0, 0.1]
+fov_deg = 8.0
+width = 8
+height = 8
+[[shapes]]
+type = "mitsuba_xml"
+file = "{SCENE.as_posix()}"
+[[lights]]
+type = "constant_env"
+radiance = 1.0
+""")
+    r = audit(str(toml), ["layered-materials"], width=8, height=8, spp=8, cache=tmp_path / "c", **FAST)
+    assert [c.id for c in r.cases] == ["coat-0", "coat-0-radiance"]
+    case = r.cases[0]
+    g = case.channel_inputs[0]
+    ref = case.reference.mean[case.mask][:, 0]
+    s = np.sqrt(1.0 - g["cos_theta"] ** 2)
+    assert np.max(np.abs(ref / (g["depth"] * s / np.sqrt(2.25 - s * s)) - 1.0)) < 1e-6
+    seed = r.image(case.id, "seed")[case.mask][:, 0]
+    assert float(np.median(seed / ref)) == pytest.approx(math.sqrt(6.0), rel=0.01)
+
+
 def test_no_case_without_a_smooth_coat(tmp_path):
     """A mirror over the base gives no case (nothing is seen through it); a rough dielectric is not a
     trigger of the rule (no single refracted direction): asking for the family there is one clear error."""
