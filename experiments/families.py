@@ -34,6 +34,7 @@ from rtfit.realtime import (
     height_fog,
     ibl_samples,
     irradiance_volumes,
+    layered_materials,
     linear_fog,
     misty_glow,
     nishita_sky,
@@ -68,6 +69,7 @@ from . import (
     audit_ibl_samples,
     audit_irradiance_bases,
     audit_irradiance_volumes,
+    audit_layered_materials,
     audit_light_cones,
     audit_linear_fog,
     audit_misty_glow,
@@ -259,6 +261,21 @@ FAMILIES: dict[str, Family] = {
             audits=(audit_misty_glow.FAMILY,),
             scenes=audit_misty_glow.SCENES,
             study=audit_misty_glow.study,
+        ),
+        Family(
+            "layered-materials",
+            ENGINE,
+            "Layered materials: the seed's parallax offset through a coat vs Mitsuba's refraction",
+            "Where a smooth dielectric coat covers a base: the offset at which each pixel sees the base, "
+            "from Mitsuba's own refraction of the camera ray, against the seed's parallax offset without "
+            "refraction (given and with its depth fitted), the paraxial apparent depth and Snell's refracted "
+            "offset; under a sky, the coated base's path-traced radiance against the seed's layer composite, "
+            "a Fresnel lerp and the coated-diffuse closed form; the study measures the seed's offset error "
+            "against view angle (the issue's ≈ 2× at 60°).",
+            methods=layered_materials.METHODS,
+            audits=(audit_layered_materials.FAMILY,),
+            scenes=audit_layered_materials.SCENES,
+            study=audit_layered_materials.study,
         ),
         Family(
             "aerial-perspective",

@@ -44,6 +44,8 @@ Modules:
     sdf_occlusion  Evans multi-scale SDF skylight/occlusion, curvature term, cone-traced soft occlusion.
     nishita_sky Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
                 (docs/nishita-sky.md).
+    layered_materials  the seed's layered ("goopy") materials: the inner layer's parallax offset without
+                refraction vs Snell's refracted offset; blur radii and composite (docs/layered-materials.md).
     misty_glow  the seed's misty glow: an iterated Kawase bloom of a light's direct image as the
                 atmospheric point-spread function; a Gaussian bloom (docs/misty-glow.md).
     volumetric_lightning  the seed's volumetric lightning (softened point light gathered along the view
@@ -98,6 +100,7 @@ from .hemisphere_bases import *  # noqa: F403
 from .ibl_samples import *  # noqa: F403
 from .irradiance_bases import *  # noqa: F403
 from .irradiance_volumes import *  # noqa: F403
+from .layered_materials import *  # noqa: F403
 from .light_cones import *  # noqa: F403
 from .light_models import *  # noqa: F403
 from .linear_fog import *  # noqa: F403
@@ -130,6 +133,7 @@ MODULES = (
     "reflections",
     "height_fog",
     "linear_fog",
+    "layered_materials",
     "misty_glow",
     "irradiance_bases",
     "irradiance_volumes",

@@ -45,6 +45,8 @@ from .colour_bleeding import INPUTS as BLEED_INPUTS
 from .fresnel import INPUTS as FRESNEL_INPUTS
 from .ibl_samples import INPUTS as IBL_INPUTS
 from .irradiance_volumes import ProbeGrid, probe_table
+from .layered_materials import COMPOSITE_INPUTS as COAT_INPUTS
+from .layered_materials import INPUTS as LAYER_INPUTS
 from .light_cones import INPUTS as CONE_INPUTS
 from .methods import Input, Method, Param
 from .obscurances import MISS
@@ -759,6 +761,23 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 FRESNEL_INPUTS,
                 reference="Mitsuba's own Fresnel of the visible conductor or dielectric: the smooth BSDF's "
                 "delta-reflection weight, fresnel()/fresnel_conductor() on a rough BSDF's η, k",
+            ),
+            Quantity(
+                "layer_offset",
+                "m",
+                "lateral offset (scene units) at which the inner layer is seen through a smooth dielectric "
+                "coat of thickness d, from the point where the view ray enters the coat",
+                LAYER_INPUTS,
+                reference="Mitsuba: the camera ray's first hit on the coat, its refracted direction from the "
+                "dielectric BSDF's transmission sample, and that ray's hit on the base",
+            ),
+            Quantity(
+                "coated_radiance",
+                "W/m²/sr",
+                "radiance of a clear dielectric coat over a diffuse base under a uniform sky, per channel",
+                COAT_INPUTS,
+                reference="Mitsuba path tracing (path, unbounded depth) at the pixel centres: the coat's "
+                "reflection, refraction and the base's internal reflections",
             ),
             Quantity(
                 "bounce_irradiance",

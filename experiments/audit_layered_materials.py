@@ -1,0 +1,447 @@
+r"""The ``layered-materials`` family in `rtfit audit`: where the camera sees a base through a smooth
+dielectric coat, the lateral offset of the seen point (scene units), as Mitsuba refracts the camera ray,
+against the seed's parallax offset without refraction (000:1189-1217) and Snell's refracted offset
+(`rtfit.realtime.layered_materials.METHODS`).
+
+For each smooth ``dielectric`` shape of a Mitsuba XML scene, or of an rtfit TOML scene (a ``mitsuba_xml``
+shape keeping its file's BSDFs), a ``reflective-shape`` part, one case
+``coat-<i>`` on the pixels whose camera ray meets that shape first from its outside and whose refracted ray
+then meets another shape (the base):
+
+* **reference** (deterministic, `AuditReference.deterministic`: no sampling, noise floor zero): at the
+  pixel-centre ray's first hit p₁ on the coat, **Mitsuba's own dielectric BSDF** refracts it (one
+  ``bsdf.sample`` with the lobe-selecting sample at 1⁻: the delta-transmission lobe), the refracted ray
+  (from p₁ moved off the coat by Mitsuba's ``spawn_ray`` ε) meets the base at distance t₂; the offset is
+  t₂·|d₂ − (d₂·n)n|, t₂ times the part of its unit direction d₂ along the coat's tangent plane (n the
+  shading normal at p₁). Mitsuba's hit distance, not its hit point: a rectangle's float32 hit point is
+  rebuilt from its uv and carried 3e-5 relative error in the offset, the distance 1e-7;
+* **inputs** per pixel: ``cos_theta`` = wi·n at p₁ (Mitsuba's shading frame), ``depth`` d = the distance
+  from the refracted ray's origin to the base along −n (a second ray, independent of the refraction: the
+  coat's thickness there),
+  ``eta`` the BSDF's own relative index (``mi.traverse``: int_ior/ext_ior).
+
+Rows: the seed's offset d·tan θ (given, and with its depth scale k fitted), the paraxial apparent depth
+(d/η)·tan θ and the exact refracted offset d·tan θ_t (``exact=True``: z-checked against the reference,
+equal to float32 precision where the base is parallel to the coat).
+
+Where the scene's only light is a constant sky, a second case ``coat-<i>-radiance`` (quantity
+``coated_radiance``) on the pixels whose unrefracted ray also meets the base: the **radiance at the camera**
+path traced by Mitsuba (``path``, unbounded depth, pixel centres, through the pass cache) against the seed's
+composite (listing 3, 000:1321-1331, with the base's albedo where the seed's straight ray meets it), a
+Fresnel lerp and the coated-diffuse closed form (both with the albedo where the refracted ray meets it).
+Inputs from Mitsuba: F(θ) (``mi.fresnel``), F̄_ext (64-node Gauss–Legendre of ``mi.fresnel``), F̄_int =
+1 − (1 − F̄_ext)/η², the albedos (``eval_diffuse_reflectance`` at the two hits) and the sky's radiance.
+
+No case: a rough dielectric is not a trigger (its refraction is a lobe, not one direction; left for later);
+a thin dielectric, a conductor or plastic (nothing is seen through them), a dielectric seen from inside
+(η < 1: the seed's coat is seen from outside) and pixels whose refracted ray escapes give none. The seed's
+blur radii (000:1221-1319) are not audited yet (docs/layered-materials.md).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+from rtfit.realtime.layered_materials import COMPOSITE_ROWS, METHODS, OFFSET_ROWS
+from rtfit.reference.cache import array_digest
+from rtfit.reference.estimators import PassResult, radiance_pass
+from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
+
+from .audit import Applicability, Rule
+from .audit_family import (
+    AuditError,
+    AuditFamily,
+    AuditReference,
+    AuditSetup,
+    FamilyCase,
+    ShippedScene,
+    Study,
+    StudyContext,
+    pooled_passes,
+    vector_text,
+)
+from .records import Check, Section
+
+__all__ = ["ANGLES", "FAMILY", "SCENES", "coat_cases", "offset_ratio", "study"]
+
+FORMAT = 1
+_ONE_MINUS = 1.0 - 2.0**-24  # the largest float32 below 1: the dielectric's transmission lobe
+ANGLES = (15, 30, 45, 60, 75)
+"""The shipped scenes' view angles θ (degrees from the coat's normal) at η = 1.5; 60° also at η = 1.33."""
+_DISTANCE = 10.0  # the camera's distance from the coat's centre (scene units)
+_THICKNESS = 0.1  # the shipped coat's thickness d (scene units)
+
+
+def _scene(theta: int, eta: float) -> ShippedScene:
+    t = math.radians(theta)
+    cy, cz = -_DISTANCE * math.sin(t), _THICKNESS + _DISTANCE * math.cos(t)
+    return ShippedScene(
+        "layered_materials_coat.xml",
+        f"a checkerboard base under a smooth coat (η = {eta:g}, d = {_THICKNESS:g}) seen at θ = {theta}°",
+        size=(32, 32),
+        spp=256,
+        quick_size=(16, 16),
+        quick_spp=64,
+        defines={"eta": f"{eta:g}", "d": f"{_THICKNESS:g}", "cy": f"{cy:.6g}", "cz": f"{cz:.6g}"},
+        name=f"theta{theta}-eta{eta:g}".replace(".", "p"),
+        quick=(theta, eta) in ((30, 1.5), (60, 1.5), (60, 1.33)),
+    )
+
+
+SCENES = (*(_scene(a, 1.5) for a in ANGLES), _scene(60, 1.33))
+"""The scenes ``rtfit run layered-materials`` audits (scenes/library/layered_materials_coat.xml)."""
+
+
+def offset_ratio(theta_deg, eta):
+    """The seed's offset over the refracted one, tan θ/tan θ_t = √(η² − sin²θ)/cos θ (closed form, for the
+    study's table; → η at normal incidence)."""
+    t = np.radians(np.asarray(theta_deg, np.float64))
+    s = np.sin(t)
+    return np.sqrt(eta * eta - s * s) / np.cos(t)
+
+
+def _median_ratio(theta, eta: float) -> float:
+    return float(np.median(offset_ratio(theta, eta)))
+
+
+def _shape(setup: AuditSetup, app: Applicability):
+    found = reflective_shapes(setup.scene)
+    k = app.source
+    if k is None or not 0 <= k < len(found) or REFLECTIVE_BSDFS[found[k][1]].text not in app.part:
+        raise AuditError(f"layered-materials: {app.part} is not a reflective shape of the loaded scene")
+    index, plugin = found[k]
+    return index, setup.scene.shapes()[index], plugin
+
+
+def _ray(mi, origins: np.ndarray, dirs: np.ndarray):
+    o = np.ascontiguousarray(origins, np.float32)
+    d = np.ascontiguousarray(dirs, np.float32)
+    return mi.Ray3f(mi.Point3f(*(o[:, i] for i in range(3))), mi.Vector3f(*(d[:, i] for i in range(3))))
+
+
+def _np3(v) -> np.ndarray:
+    return np.stack([np.array(v.x, np.float64), np.array(v.y, np.float64), np.array(v.z, np.float64)], 1)
+
+
+def _shape_ids(mi, si) -> np.ndarray:
+    return np.array(dr.reinterpret_array(mi.UInt32, si.shape), np.int64)
+
+
+def _own_id(mi, shape) -> int:
+    ids: Any = dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))
+    return int(ids[0])
+
+
+def _diffuse_albedo(mi, si) -> np.ndarray:
+    """(N, 3): the diffuse reflectance of whatever BSDF each interaction hit (Mitsuba's own texture read)."""
+    rho = si.bsdf().eval_diffuse_reflectance(si, si.is_valid())
+    return np.array(mi.Color3f(rho), np.float64).T.reshape(-1, 3)
+
+
+def _fdr_ext(mi, eta: float) -> float:
+    """F̄_ext = ∫₀¹ F(μ)·2μ dμ: Mitsuba's Fresnel at 64 Gauss–Legendre nodes (float64 sum)."""
+    x, w = np.polynomial.legendre.leggauss(64)
+    mu = 0.5 * (x + 1.0)
+    f = np.array(mi.fresnel(mi.Float(mu.astype(np.float32)), mi.Float(eta))[0], np.float64)
+    return float(np.sum(0.5 * w * f * 2.0 * mu))
+
+
+def _uniform_sky(mi, scene) -> np.ndarray | None:
+    """The (3,) radiance of the scene's only light where it is a constant sky; None otherwise."""
+    env = scene.environment()
+    if env is None or len(scene.emitters()) != 1 or env.class_name() != "ConstantBackgroundEmitter":
+        return None
+    return np.broadcast_to(np.array(mi.traverse(env)["radiance.value"], np.float64).reshape(-1), (3,)).copy()
+
+
+def _mask_of(visible: np.ndarray, sees: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    idx = np.flatnonzero(visible.reshape(-1))[np.flatnonzero(sees)[keep]]
+    mask = np.zeros(visible.size, bool)
+    mask[idx] = True
+    return mask.reshape(visible.shape)
+
+
+def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
+    """The offset case and, under a uniform sky, the radiance case of one smooth dielectric seen from outside
+    with a base under it (module docstring); none otherwise."""
+    mi, scene = setup.mi, setup.scene
+    index, shape, plugin = _shape(setup, app)
+    if plugin != "dielectric":
+        return []
+    t0 = time.perf_counter()
+    gb = setup.gbuffer
+    visible = setup.mask
+    dirs = gb.view_dir[visible].astype(np.float64)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    origins = gb.position[visible].astype(np.float64) - gb.depth[visible].astype(np.float64)[:, None] * dirs
+    sees = shape_pixels(mi, scene, index, origins, dirs)
+    if not sees.any():
+        return []
+    si = scene.ray_intersect(_ray(mi, origins[sees], dirs[sees]))
+    cos = np.array(si.wi.z, np.float64)
+    bsdf = shape.bsdf()
+    bs, _ = bsdf.sample(mi.BSDFContext(), si, mi.Float(_ONE_MINUS), mi.Point2f(0.5, 0.5), si.is_valid())
+    through = np.array(mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaTransmission), bool)
+    ray2 = si.spawn_ray(si.to_world(bs.wo))  # its origin: p₁ moved off the coat by Mitsuba's ε
+    si2 = scene.ray_intersect(ray2)
+    n = si.sh_frame.n
+    si3 = scene.ray_intersect(mi.Ray3f(ray2.o, -n))  # the thickness from the same origin, down the normal
+    own = _own_id(mi, shape)
+    ids2, ids3 = _shape_ids(mi, si2), _shape_ids(mi, si3)
+    base = np.array(si2.is_valid(), bool) & np.array(si3.is_valid(), bool) & (ids2 != own) & (ids3 != own)
+    keep = (cos > 0.0) & through & base
+    if not keep.any():
+        return []
+    d2, nn = _np3(ray2.d), _np3(n)
+    lateral = d2 - np.sum(d2 * nn, axis=1, keepdims=True) * nn
+    offset = (np.array(si2.t, np.float64) * np.linalg.norm(lateral, axis=1))[keep]
+    depth = np.array(si3.t, np.float64)[keep]
+    eta = float(np.array(mi.traverse(bsdf)["eta"]).reshape(-1)[0])
+    mask = _mask_of(visible, sees, keep)
+    cos_k = cos[keep]
+    inputs = {"cos_theta": cos_k, "depth": depth, "eta": np.full(cos_k.shape, eta)}
+    reference = AuditReference.deterministic(
+        mask,
+        offset,
+        (FORMAT, setup.scene_digest, app.part, plugin, eta),
+        time.perf_counter() - t0,
+        "lateral offset of the base point seen through the coat (scene units)",
+        "Mitsuba's dielectric BSDF: one bsdf.sample (the delta-transmission lobe) at the pixel-centre ray's "
+        "hit on the coat, the refracted ray's hit on the base (no sampling, not cached)",
+        "ray geometry and Snell refraction by Mitsuba in float32: deterministic, noise floor zero",
+    )
+    theta = np.degrees(np.arccos(np.clip(cos_k, 0.0, 1.0)))
+    cases = [
+        FamilyCase(
+            id=f"coat-{app.source}",
+            label=f"{app.part}, the base's offset seen through it",
+            reference=reference,
+            mask=mask,
+            channel_inputs=(inputs, inputs, inputs),
+            parameters={
+                "shape": app.part,
+                "bsdf": plugin,
+                "eta": eta,
+                "depth_min": float(depth.min()),
+                "depth_max": float(depth.max()),
+                "theta_min_deg": float(theta.min()),
+                "theta_max_deg": float(theta.max()),
+                "pixels": int(mask.sum()),
+            },
+            units="m",
+            notes=(
+                f"η = {eta:.4g} (the loaded BSDF's int_ior/ext_ior); view angle θ from {theta.min():.3g}° to "
+                f"{theta.max():.3g}°; coat thickness d from {depth.min():.4g} to {depth.max():.4g}",
+                f"{int(mask.sum())} pixels see the base through the coat; the seed's offset over the "
+                f"refracted one at θ = {np.median(theta):.3g}°: {_median_ratio(theta, eta):.3g}×",
+            ),
+            methods={k: METHODS[k] for k in OFFSET_ROWS},
+        )
+    ]
+    sky = _uniform_sky(mi, scene)
+    if sky is None or not setup.wants("coated_radiance"):
+        return cases
+    straight = scene.ray_intersect(si.spawn_ray(-si.to_world(si.wi)))  # the seed's ray, unrefracted
+    seen = np.array(straight.is_valid(), bool) & (_shape_ids(mi, straight) != own)
+    keep_r = keep & seen
+    if not keep_r.any():
+        return cases
+    mask_r = _mask_of(visible, sees, keep_r)
+    rho_seed = _diffuse_albedo(mi, straight)[keep_r]
+    rho_refr = _diffuse_albedo(mi, si2)[keep_r]
+    cos_r = cos[keep_r]
+    fresnel = np.array(mi.fresnel(mi.Float(cos_r.astype(np.float32)), mi.Float(eta))[0], np.float64)
+    fdr_ext = _fdr_ext(mi, eta)
+    fdr_int = 1.0 - (1.0 - fdr_ext) / (eta * eta)
+    shared = {"cos_theta": cos_r, "eta": np.full(cos_r.shape, eta), "fresnel": fresnel,
+              "fdr_ext": fdr_ext, "fdr_int": fdr_int}  # fmt: skip
+    channels = tuple(
+        {**shared, "albedo_seed": rho_seed[:, c], "albedo_refracted": rho_refr[:, c], "sky": float(sky[c])}
+        for c in range(3)
+    )
+    cases.append(
+        FamilyCase(
+            id=f"coat-{app.source}-radiance",
+            label=f"{app.part}, the coated base's radiance under the sky",
+            reference=_radiance_reference(setup, app, mask_r),
+            mask=mask_r,
+            channel_inputs=channels,
+            parameters={
+                "shape": app.part,
+                "eta": eta,
+                "sky": [float(v) for v in sky],
+                "fdr_ext": fdr_ext,
+                "fdr_int": fdr_int,
+                "pixels": int(mask_r.sum()),
+            },
+            units="W/m²/sr",
+            quantity="coated_radiance",
+            notes=(
+                f"uniform sky L = {vector_text(sky)}; F̄_ext = {fdr_ext:.4g}, F̄_int = {fdr_int:.4g} "
+                "(Mitsuba's fresnel, 64-node Gauss–Legendre)",
+                "the base's albedo read by Mitsuba where the seed's straight ray and the refracted ray meet "
+                "it",
+                "coated-diffuse is exact for a uniform base; on a texture its error is the internal "
+                "reflections' lateral mixing (what the seed's blur stands in for)",
+            ),
+            methods={k: METHODS[k] for k in COMPOSITE_ROWS},
+        )
+    )
+    return cases
+
+
+def _radiance_reference(setup: AuditSetup, app: Applicability, mask: np.ndarray) -> AuditReference:
+    """The radiance at the camera (Mitsuba ``path``, unbounded depth) at the pixel centres of ``mask``."""
+    mi = setup.mi
+    integrator = mi.load_dict({"type": "path", "max_depth": -1})
+    keep = mask.ravel()
+    what = {"format": FORMAT, "quantity": "coated-radiance", "part": app.part, "mask": array_digest(mask)}
+
+    def render(spp: int, seed: int):
+        r = radiance_pass(mi, setup.scene, spp, seed, integrator=integrator, sensor=setup.sensor)
+        return PassResult(r.mean.reshape(-1, 3)[keep], r.var.reshape(-1, 3)[keep], r.spp, r.seed, r.seconds)
+
+    pooled = pooled_passes(setup, what, render, (-1, 3), f"coat{app.source}: {app.part} radiance")
+    return pooled.reference(
+        mask,
+        quantity="radiance at the camera of the coat over its base (W/m²/sr)",
+        integrator="path",
+        integrator_reason="unbiased for the coat's refraction and the base's internal reflections "
+        "(unbounded depth, Russian roulette)",
+    )
+
+
+_RULE_WORDS = (
+    "{part}: seen through as a clear coat, an engine offsets the layer under it by parallax without "
+    "refraction (the seed's goopy materials)",
+    "the lateral offset at which the camera sees the surface under the coat (scene units) where a smooth "
+    "dielectric is seen from outside with another shape under it (no case otherwise); under a constant sky "
+    "as the only light, also the coated base's radiance at the camera (W/m²/sr)",
+    "none for the offset: Mitsuba's dielectric BSDF refracts each pixel-centre ray (deterministic); path "
+    "(unbounded depth) at the pixel centres for the radiance",
+)
+
+FAMILY = AuditFamily(
+    name="layered-materials",
+    quantity="layer_offset",
+    quantities=("coated_radiance",),
+    cases=coat_cases,
+    formats=("mitsuba-xml", "rtfit-toml"),
+    describe=(
+        "Per smooth dielectric shape seen from outside with a surface under it (a clear coat over a base): "
+        "the lateral offset at which each pixel sees the base, from Mitsuba's own refraction of the "
+        "pixel-centre ray (the dielectric BSDF's transmission sample) and the refracted ray's hit, against "
+        "the seed's parallax offset without refraction (d·tan θ, 000:1189-1217; given and with its depth "
+        "fitted), the paraxial apparent depth and the exact refracted offset d·tan θ_t (z-checked). Under a "
+        "constant sky, also the coated base's radiance path traced by Mitsuba against the seed's layer "
+        "composite (000:1321-1331), a Fresnel lerp and the coated-diffuse closed form."
+    ),
+    rules=(
+        Rule(
+            "layered-materials",
+            "coat over a base",
+            ("reflective-shape",),
+            *_RULE_WORDS,
+            supplies=frozenset(i.name for m in METHODS.values() for i in m.inputs),
+        ),
+    ),
+)
+
+
+# ------------------------------------------------------------------------------------------------ study
+def _measured(ctx: StudyContext) -> list[tuple[float, float, float, float]]:
+    """(median θ°, η, seed/reference, refracted/reference) per audited case: median over its pixels."""
+    rows = []
+    for result in ctx.audits:
+        for case in result.cases:
+            outs = result.outcomes.get(case.id, {})
+            if case.quantity == "coated_radiance" or "seed" not in outs or "refracted" not in outs:
+                continue
+            ref = case.reference.mean[case.mask][:, 0]
+            ok = ref > 0.0
+            theta = np.degrees(np.arccos(np.clip(case.channel_inputs[0]["cos_theta"], 0.0, 1.0)))
+            seed = outs["seed"].image[case.mask][:, 0]
+            exact = outs["refracted"].image[case.mask][:, 0]
+            eta = float(case.parameters["eta"])
+            seed_ratio, exact_ratio = np.median(seed[ok] / ref[ok]), np.median(exact[ok] / ref[ok])
+            rows.append((float(np.median(theta)), eta, float(seed_ratio), float(exact_ratio)))
+    return rows
+
+
+def _cost_lines(ctx: StudyContext) -> list[str]:
+    """One line per scene, case and row: θ, η, the case's quantity, the row's RMSE and largest error (in the
+    case's units: m for the offset, W/m²/sr for the radiance), its fitted parameters and its kernel cost."""
+    lines = [
+        "| θ (median) | η | quantity | row | RMSE | max abs | fitted | kernel ns/px |",
+        "|---" * 8 + "|",
+    ]
+    for result in ctx.audits:
+        for case in result.cases:
+            cos = np.clip(case.channel_inputs[0]["cos_theta"], 0.0, 1.0)
+            where = f"{float(np.median(np.degrees(np.arccos(cos)))):.3g}° | {case.parameters['eta']:.3g}"
+            what = f"{case.quantity or 'layer_offset'} ({case.units})"
+            for row_id, out in result.outcomes.get(case.id, {}).items():
+                cost = result.costs.get(out.method.id, {}).get("ns_per_pixel")
+                mx = out.metrics["max_abs"].value if "max_abs" in out.metrics else float("nan")
+                ns = f"{cost:.3g}" if cost else "—"
+                fit = (
+                    ", ".join(f"{k} = {float(v):.3g}" for k, v in out.parameters.items()) if out.fit else "—"
+                )
+                rmse = out.metrics["rmse"].value
+                lines.append(f"| {where} | {what} | {row_id} | {rmse:.3g} | {mx:.3g} | {fit} | {ns} |")
+    return lines
+
+
+def study(ctx: StudyContext) -> Study:
+    """The seed's offset error against view angle: the closed-form ratio tan θ/tan θ_t at η = 1.33 and 1.5
+    over 0°–85°, the ratio measured on each shipped scene (seed and refracted rows over Mitsuba's offset),
+    the check of the issue's claim "≈ 2× at 60°", and each row's error beside its cost."""
+    angles = (0, 15, 30, 45, 60, 75, 85)
+    table = ["| θ | seed/refracted, η = 1.33 | seed/refracted, η = 1.5 |", "|---|---|---|"]
+    for a in angles:
+        table.append(f"| {a}° | {float(offset_ratio(a, 1.33)):.3g} | {float(offset_ratio(a, 1.5)):.3g} |")
+    measured = _measured(ctx)
+    mtab = ["| θ (median) | η | seed / Mitsuba | refracted / Mitsuba |", "|---|---|---|---|"]
+    mtab += [f"| {t:.3g}° | {e:.3g} | {s:.4g} | {r:.6g} |" for t, e, s, r in measured]
+    checks = []
+    for t, e, s, r in measured:
+        checks.append(
+            Check(
+                name=f"θ = {t:.3g}°, η = {e:.3g}: refracted offset / Mitsuba's (median over pixels)",
+                value=r,
+                expected="1 within 1e-3 (float32 ray geometry)",
+                passed=abs(r - 1.0) < 1e-3,
+            )
+        )
+        if abs(t - 60.0) < 2.0:
+            want = float(offset_ratio(t, e))
+            checks.append(
+                Check(
+                    name=f"θ = {t:.3g}°, η = {e:.3g}: the seed's offset / Mitsuba's (issue: ≈ 2× at 60°)",
+                    value=s,
+                    expected=f"the closed form tan θ/tan θ_t = {want:.3g} within 2 %",
+                    passed=abs(s / want - 1.0) < 0.02,
+                )
+            )
+    text = (
+        "The seed continues the view ray straight into the coat (offset d·tan θ); Snell bends it toward the "
+        "normal (d·tan θ_t). Their ratio in closed form:\n\n" + "\n".join(table) + "\n\nMeasured on the "
+        "shipped scenes (median over each scene's pixels, Mitsuba's refraction as the reference):\n\n"
+        + "\n".join(mtab)
+        + '\n\nThe issue\'s "≈ 2× at 60°" holds for a water-like coat (η = 1.33: 2.02×); for glass (η = 1.5) '
+        "the seed's offset is 2.45× the true one. At normal incidence the ratio is η, not 1: the seed's "
+        "offset is 0 there, as is the true one, so the ratio matters only away from the normal.\n\n"
+        "Error beside cost (the engine's metrics; kernel ns per pixel as measured). The radiance case "
+        "compares the seed's composite (listing 3 with a clear outer layer: no coat reflection) with a "
+        "Fresnel lerp and the coated-diffuse closed form, all at Mitsuba's albedo where the seed's or the "
+        "refracted ray meets the base:\n\n" + "\n".join(_cost_lines(ctx))
+    )
+    return Study(
+        sections=(Section("offset-vs-angle", "The seed's offset error against view angle", text),),
+        checks=tuple(checks),
+    )
