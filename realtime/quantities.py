@@ -46,6 +46,7 @@ from .fresnel import INPUTS as FRESNEL_INPUTS
 from .ibl_samples import INPUTS as IBL_INPUTS
 from .irradiance_volumes import ProbeGrid, probe_table
 from .light_cones import INPUTS as CONE_INPUTS
+from .light_path_maps import INPUTS as PATH_MAP_INPUTS
 from .methods import Input, Method, Param
 from .obscurances import MISS
 from .parallax_occlusion import HeightMap
@@ -769,6 +770,16 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 reference="one-bounce indirect irradiance at the visible points, per channel: a cosine ray, "
                 "then π × (path max_depth 2 − path max_depth 1)",
                 note="called once per channel (g.channel 0, 1, 2); a miss has d = 1e30, a = e = 0",
+            ),
+            Quantity(
+                "path_map_irradiance",
+                "W/m²",
+                "one-bounce indirect irradiance at a surface point in one channel from a moving light, "
+                "from K = 32 baked cluster transfers and the light's mean direct irradiance per cluster",
+                PATH_MAP_INPUTS,
+                reference="one-bounce indirect irradiance at the visible points per light position: a cosine "
+                "ray, then π × (path max_depth 2 − path max_depth 1)",
+                note="called once per channel; g.t<k> is per point, g.w<k> one number per light position",
             ),
         )
     }
