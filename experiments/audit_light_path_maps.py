@@ -25,7 +25,7 @@ is scene geometry, moving it rebuilds the scene) is audited where it is, one cas
   transport — a cosine ray from x, then π × (Mitsuba ``path`` max_depth 2 − max_depth 1): exactly one
   reflection of every light's direct light (the colour-bleeding family's transport, reused). Independent
   passes through the pass cache (the light's position is part of the key), per-pixel standard errors.
-* **inputs** (per channel; each row its own, ``row_inputs``): t_k = T_k,c at the point and
+* **inputs** (per channel; each row its own, ``row_inputs``): pane_k = T_k,c at the point and
   w_k = mean over the cluster's entry points of the light's direct irradiance E_dir,c (`irradiance_pass`,
   ``direct`` transport, at the entry point with its normal: the seed's ``ComputeWeights``).
 * **rows**: `rtfit.realtime.light_path_maps.METHODS` (K = 1, 4, 16 and the seed's 32), and the seed's 32
@@ -90,12 +90,15 @@ MOVE = 0.3
 """The light moves by ± this × the scene's widest bounding-box extent (cases p = 1, 2)."""
 MARGIN = 0.05
 """A moved light stays this × the extent inside the scene's bounding box."""
-CUT_GRID = (0.0, 0.25, 0.5, 1.0, 2.0, 4.0)
+CUT_GRID = (0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
 """The cut d_c tried by the fit, in entry-point disc radii (within `CUT`'s bounds)."""
 ENTRY_SPP_FACTOR = 0.25
 ENTRY_SPP_MIN = 8
 """The direct irradiance at the entry points: max(`ENTRY_SPP_MIN`, `ENTRY_SPP_FACTOR` × spp) samples each."""
 FIT_ROW = CUT_FIT_ROW
+ENTRY_SWEEP = (128, 256, 512)
+"""The entry-point counts the study compares (every (N/n)-th of the bake, on the seed's 32 panes, the fitted
+cut): 4, 8, 16 (and at N, 32) entry points per cluster."""
 
 SCENES = (
     ShippedScene(
@@ -229,10 +232,23 @@ def _weights(groups: dict, e_entry: np.ndarray) -> dict:
     return {k: [(m.T @ e_entry[:, ch]) / count for ch in range(3)] for k, (m, count) in groups.items()}
 
 
+def _rmse_over(positions: list, baked: dict, groups: dict, idx=None) -> float:
+    """RMSE (W/m², all channels and positions) of the walk on the one K of ``groups`` against the references;
+    ``idx``: the entry points the bake used (None: all)."""
+    ((k, t),) = baked.items()
+    sse, count = 0.0, 0
+    for _, e_entry, _, pooled in positions:
+        w = _weights(groups, e_entry if idx is None else e_entry[idx])[k]
+        for ch in range(3):
+            sse += float(np.sum((t[ch] @ w[ch] - pooled.mean[:, ch]) ** 2))
+            count += len(t[ch])
+    return math.sqrt(sse / max(count, 1))
+
+
 def _inputs(t: list, w: list, k: int) -> tuple[dict, ...]:
     out = []
     for ch in range(3):
-        d: dict = {f"t{i + 1}": np.ascontiguousarray(t[ch][:, i]) for i in range(k)}
+        d: dict = {f"pane{i + 1}": np.ascontiguousarray(t[ch][:, i]) for i in range(k)}
         d.update({f"w{i + 1}": float(w[ch][i]) for i in range(k)})
         out.append(d)
     return tuple(out)
@@ -281,20 +297,24 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             pooled = pooled_passes(setup, what, render, (-1, 3), f"{tag}-at{p}: one-bounce irradiance")
         positions.append((offset, e_entry, res.seconds, pooled))
     # the cut fitted across the positions (one bake serves them all): SSE of the seed's K over a grid
-    sweep = {}
-    for f in CUT_GRID:
-        t_f = _bake(parts, f * radius, area_each, albedo, {SEED_CLUSTERS: groups[SEED_CLUSTERS]})[
-            SEED_CLUSTERS
-        ]
-        sse, count = 0.0, 0
-        for _, e_entry, _, pooled in positions:
-            w = _weights({SEED_CLUSTERS: groups[SEED_CLUSTERS]}, e_entry)[SEED_CLUSTERS]
-            for ch in range(3):
-                sse += float(np.sum((t_f[ch] @ w[ch] - pooled.mean[:, ch]) ** 2))
-                count += len(points)
-        sweep[f] = math.sqrt(sse / max(count, 1))
+    seed_group = {SEED_CLUSTERS: groups[SEED_CLUSTERS]}
+    sweep = {
+        f: _rmse_over(positions, _bake(parts, f * radius, area_each, albedo, seed_group), seed_group)
+        for f in CUT_GRID
+    }
     best = min(sweep, key=lambda f: sweep[f])
-    fitted_t = _bake(parts, best * radius, area_each, albedo, {SEED_CLUSTERS: groups[SEED_CLUSTERS]})
+    fitted_t = _bake(parts, best * radius, area_each, albedo, seed_group)
+    # the entry points per cluster: every (N/n)-th entry point (still stratified by area), the fitted cut
+    diag = float(np.linalg.norm(hi - lo))
+    entry_sweep = {}
+    for n_sub in ENTRY_SWEEP:
+        idx = np.arange(0, ENTRY_POINTS, ENTRY_POINTS // n_sub)
+        m = membership(cluster_entry_points(pos[idx], nrm[idx], SEED_CLUSTERS, diag), SEED_CLUSTERS)
+        sub = {SEED_CLUSTERS: (m, np.maximum(m.sum(axis=0), 1.0))}
+        cut = best * default_cut(area, len(idx))
+        t_sub = _bake(tuple(a[:, idx] for a in parts), cut, area / len(idx), albedo[idx], sub)
+        entry_sweep[len(idx)] = _rmse_over(positions, t_sub, sub, idx)
+    entry_sweep[ENTRY_POINTS] = sweep[best]
     methods: dict[str, Method] = {
         **METHODS,
         FIT_ROW: replace(METHODS[FIT_ROW], description=f"d_c = {best:g} × √(A_S/(π N)), the best of "
@@ -334,6 +354,7 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                     "cut_default": CUT.initial * radius,
                     "cut_fitted_factor": best,
                     "cut_sweep_rmse": {f"{f:g}": v for f, v in sweep.items()},
+                    "entry_sweep_rmse": {str(n): v for n, v in entry_sweep.items()},
                     "bake_seconds": bake_seconds,
                     "bake_pairs": int(parts[0].size),
                     "entry_spp": entry_spp,
@@ -410,7 +431,7 @@ def study(ctx: StudyContext) -> Study:
         "| case | light at | row | K | RMSE (W/m²) | RMSE / mean | RMSE / floor | walk ns/px |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    bake, sweep, checks = [], [], []
+    bake, sweep, entries, checks = [], [], [], []
     for result in ctx.audits:
         for case in result.cases:
             par = case.parameters
@@ -440,6 +461,11 @@ def study(ctx: StudyContext) -> Study:
                 )
                 sweep += [f"| {case.id.removesuffix('-at0')} | {f} | {v:.4g} |" for f, v in
                           par["cut_sweep_rmse"].items()]  # fmt: skip
+                entries += [
+                    f"| {case.id.removesuffix('-at0')} | {n} | {int(n) / SEED_CLUSTERS:g} | "
+                    f"{par['bake_seconds'] * int(n) / par['entry_points']:.3g} | {v:.4g} |"
+                    for n, v in par.get("entry_sweep_rmse", {}).items()
+                ]
     text = (
         "Each row's error per light position beside its run-time cost (the walk: K pane reads and "
         "multiply-adds per pixel; the kernel text's measured ns per pixel), and the bake's one-off cost "
@@ -451,6 +477,11 @@ def study(ctx: StudyContext) -> Study:
         + "\n\nThe cut d_c (in entry-point disc radii √(A_S/(π N))) against the RMSE of the seed's K = 32 "
         "over every light position (W/m²):\n\n| scene light | d_c factor | RMSE |\n|---|---|---|\n"
         + "\n".join(sweep)
+        + "\n\nThe entry points N of the bake (every (1024/N)-th, on the seed's 32 panes, the fitted cut): "
+        "the bake's cost (∝ N, scaled from the measured bake) beside the RMSE over every light position "
+        "(W/m²):\n\n"
+        "| scene light | N | entry points per pane | bake s (∝ N) | RMSE |\n|---|---|---|---|---|\n"
+        + "\n".join(entries)
     )
     return Study(
         sections=(Section("path-map-cost", "Error against K and light position, beside cost", text),),

@@ -40,7 +40,7 @@ n_y: h' = h + δ, r'² = ρ² + h'², n_x·(y − x') = q − δc, and
 
 The seed gives no value ("should be set according to the sampling probability", 001:2646); rtfit's default
 is the radius of the disc each entry point stands for, d_c = √(A_S/(π N)) (`default_cut`); the audit fits
-d_c ∈ [0, 4] × that radius (`CUT`) across the light positions (one bake serves every position).
+d_c ∈ [0, 8] × that radius (`CUT`) across the light positions (one bake serves every position).
 
 Units: h, ρ², q, d_c in scene units (m, m²); a_c and c dimensionless; τ in 1/m², A_j in m², T in 1, w and E
 in W/m². Domain: n_x, n_y unit; q ∈ [−r, r]; c ∈ [−1, 1]; d_c ≥ 0.
@@ -110,10 +110,11 @@ def vpl_transfer(ops, h, rho2, q, c, cut):
 
 
 def walk_kernel(ops, *, clusters=KMAX, **kw):
-    """Σ_{k ≤ K} w_k T_k: the run-time blend of the K cluster panes (``Walk``, 001:2664-2666)."""
-    acc = kw["w1"] * kw["t1"]
+    """Σ_{k ≤ K} w_k T_k (inputs ``w<k>``, ``pane<k>``): the run-time blend of the K cluster panes (``Walk``,
+    001:2664-2666). (Not ``t<k>``: the shader tracer names its temporaries t0, t1, …)"""
+    acc = kw["w1"] * kw["pane1"]
     for k in range(2, clusters + 1):
-        acc = ops.fma(kw[f"w{k}"], kw[f"t{k}"], acc)
+        acc = ops.fma(kw[f"w{k}"], kw[f"pane{k}"], acc)
     return acc
 
 
@@ -174,7 +175,7 @@ def membership(labels: np.ndarray, k: int) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------------- rows
 _T = tuple(
-    Input(f"t{k}", "1", f"cluster {k}'s baked transfer at the point (irradiance per unit entry irradiance)",
+    Input(f"pane{k}", "1", f"cluster {k}'s baked transfer at the point (per unit entry-point irradiance)",
           (0.0, 1.0e3))
     for k in range(1, KMAX + 1)
 )  # fmt: skip
@@ -185,7 +186,7 @@ _W = tuple(
 )  # fmt: skip
 INPUTS = (*_T, *_W)
 """The quantity ``path_map_irradiance``'s inputs (`rtfit.realtime.quantities`)."""
-CUT = Param(1.0, 0.0, 4.0, unit="× √(A_S/(π N))",
+CUT = Param(1.0, 0.0, 8.0, unit="× √(A_S/(π N))",
             description="the seed's cut distance d_c (cutNearness), in entry-point disc radii",
             published=False)  # fmt: skip
 """The bake's free parameter d_c (module docstring): fitted by the audit over its light positions."""

@@ -779,7 +779,7 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 PATH_MAP_INPUTS,
                 reference="one-bounce indirect irradiance at the visible points per light position: a cosine "
                 "ray, then π × (path max_depth 2 − path max_depth 1)",
-                note="called once per channel; g.t<k> is per point, g.w<k> one number per light position",
+                note="called once per channel; g.pane<k> is per point, g.w<k> one number per light position",
             ),
         )
     }

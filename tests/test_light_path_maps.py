@@ -60,7 +60,9 @@ def test_transfer_by_hand():
 
 
 def test_walk_reads_the_first_k_panes():
-    g = {f"t{k}": float(k) for k in range(1, lpm.KMAX + 1)} | {f"w{k}": 0.5 for k in range(1, lpm.KMAX + 1)}
+    g = {f"pane{k}": float(k) for k in range(1, lpm.KMAX + 1)} | {
+        f"w{k}": 0.5 for k in range(1, lpm.KMAX + 1)
+    }
     assert float(np.squeeze(lpm.METHODS["path-map-k4"].evaluate(g, {}))) == pytest.approx(0.5 * 10)
     assert float(np.squeeze(lpm.METHODS["seed-path-map"].evaluate(g, {}))) == pytest.approx(0.5 * 32 * 33 / 2)
     with pytest.raises(ValueError, match="clusters must be in"):
@@ -85,7 +87,7 @@ def _path_map(x, nx, pos, nrm, area, albedo, e, k):
     labels = lpm.cluster_entry_points(pos, nrm, k, 2.0)
     m = lpm.membership(labels, k)
     t, w = tau @ m, (m.T @ e) / m.sum(axis=0)
-    g = {f"t{i + 1}": float(t[i]) for i in range(k)} | {f"w{i + 1}": float(w[i]) for i in range(k)}
+    g = {f"pane{i + 1}": float(t[i]) for i in range(k)} | {f"w{i + 1}": float(w[i]) for i in range(k)}
     return float(np.squeeze(lpm.walk_kernel(NUMPY_OPS, clusters=k, **g)))
 
 
@@ -159,7 +161,7 @@ def test_extremes_are_finite(h, rho2, q, c, cut, w, albedo, k):
         tau = lpm.vpl_transfer(NUMPY_OPS, dt(h), dt(rho2), dt(q), dt(c), dt(cut))
         assert np.isfinite(tau) and tau >= 0.0, (dt, tau)
         t = dt(albedo) * tau * dt(0.01)
-        g = {f"t{i}": t for i in range(1, k + 1)} | {f"w{i}": dt(w) for i in range(1, k + 1)}
+        g = {f"pane{i}": t for i in range(1, k + 1)} | {f"w{i}": dt(w) for i in range(1, k + 1)}
         v = lpm.walk_kernel(NUMPY_OPS, clusters=k, **g)
         assert np.isfinite(v) and v >= 0.0
         if albedo == 0.0:
