@@ -303,6 +303,8 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         for f in CUT_GRID
     }
     best = min(sweep, key=lambda f: sweep[f])
+    at = CUT_GRID.index(best)  # the fit's bracket: the grid values either side of the best
+    bracket = (CUT_GRID[max(at - 1, 0)], CUT_GRID[min(at + 1, len(CUT_GRID) - 1)])
     fitted_t = _bake(parts, best * radius, area_each, albedo, seed_group)
     # the entry points per cluster: every (N/n)-th entry point (still stratified by area), the fitted cut
     diag = float(np.linalg.norm(hi - lo))
@@ -353,6 +355,7 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                     "cut_radius": radius,
                     "cut_default": CUT.initial * radius,
                     "cut_fitted_factor": best,
+                    "cut_fitted_bracket": list(bracket),
                     "cut_sweep_rmse": {f"{f:g}": v for f, v in sweep.items()},
                     "entry_sweep_rmse": {str(n): v for n, v in entry_sweep.items()},
                     "bake_seconds": bake_seconds,
@@ -366,8 +369,9 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                     f"{ENTRY_POINTS} entry points (area each {area_each:.4g} m²), clusters K = "
                     f"{', '.join(map(str, CLUSTERS))}; cut d_c = {CUT.initial:g} × {radius:.4g} (the disc "
                     "each entry point stands for)",
-                    f"{FIT_ROW}: d_c = {best:g} × {radius:.4g}, the best of {len(CUT_GRID)} values over all "
-                    f"{len(positions)} light positions (fitted on the same pixels it is compared on)",
+                    f"{FIT_ROW}: d_c = {best:g} × {radius:.4g} (bracket {bracket[0]:g}–{bracket[1]:g}), the "
+                    f"best of {len(CUT_GRID)} values over all {len(positions)} light positions (fitted on "
+                    "the same pixels it is compared on)",
                     f"bake: {parts[0].size} shadow rays and transfers in {bake_seconds:.3g} s (paid once); "
                     f"the walk reads K panes per pixel",
                     *(

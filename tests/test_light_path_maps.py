@@ -125,6 +125,11 @@ def test_disc_off_axis_matches_quadrature_and_k_equal_n_is_the_vpl_sum():
     e = e0 * (1 + 0.8 * pos[:, 0])
     full = _path_map(x, nx, pos, nrm, area, a, e, len(pos))
     assert full == pytest.approx(want, rel=5e-3)
+    # K = N is the plain VPL sum, term by term: a E_j A cos θ_y cos θ_x/(π r²) from the vectors
+    d = pos - x[None]
+    r2 = np.einsum("ij,ij->i", d, d)
+    vpl = np.sum(a * e * area * np.maximum(-d[:, 2], 0) * np.maximum(d @ nx, 0) / (math.pi * r2 * r2))
+    assert full == pytest.approx(float(vpl), rel=1e-12)
     one = _path_map(x, nx, pos, nrm, area, a, e, 1)
     assert abs(one - want) > abs(full - want)
 
@@ -141,6 +146,24 @@ def test_clusters_are_never_empty():
     assert lpm.cluster_entry_points(pos, nrm, 100, 1.0).tolist() == list(range(48))
     with pytest.raises(ValueError, match="clusters must be"):
         lpm.cluster_entry_points(pos, nrm, 0, 1.0)
+
+
+@pytest.mark.parametrize("height", [0.0, 1e-6, 1e-3])
+def test_a_light_on_the_surface_gives_finite_weights_and_bounce(height):
+    """A point light (I = 10) on the lit disc itself (height 0: every entry point sees it at grazing
+    incidence, E = I h/r³ = 0) or just above it (E up to I/h² near it): the weights and the walk on K = 1 and
+    32 are finite, and exactly 0 with the light in the disc's plane (float32: the hypothesis test below)."""
+    pos, nrm, area = _disc_entry_points(16, 32)
+    lamp = np.array([0.05, 0.0, height])
+    d = lamp[None] - pos
+    r = np.sqrt(np.einsum("ij,ij->i", d, d))
+    e = 10.0 * np.maximum(d[:, 2], 0.0) / r**3
+    assert np.all(np.isfinite(e))
+    for k in (1, 32):
+        v = _path_map(np.array([0.0, 0.0, 0.5]), np.array([0.0, 0.0, -1.0]), pos, nrm, area, 0.7, e, k)
+        assert math.isfinite(v) and v >= 0.0
+        if height == 0.0:
+            assert v == 0.0
 
 
 @settings(max_examples=150, deadline=None)
@@ -191,6 +214,30 @@ def test_a_moved_point_light_is_where_the_case_says():
     with _light_moved(mi, lamp, np.array([1.5, 0.0, 0.0])):
         d2 = 1.5**2 + 2.0**2
         assert direct() == pytest.approx(5.0 * (2.0 / math.sqrt(d2)) / d2, rel=1e-5)
+    assert direct() == pytest.approx(5.0 / 4.0, rel=1e-5)
+
+
+def test_a_moved_spot_light_keeps_its_direction():
+    """A spot (I = 5, cutoff 60°, beam 50°) looking down from (0, 0, 2), moved by 1.5 along x by its
+    ``to_world``: the point under its old position is 36.9° off its axis, inside the beam: I cos θ/d²."""
+    import mitsuba as mi
+
+    mi.set_variant("llvm_ad_rgb")
+    from rtfit.experiments.audit_light_path_maps import _light_moved
+    from rtfit.reference.estimators import irradiance_pass
+
+    frame = mi.ScalarTransform4f().look_at(origin=[0, 0, 2], target=[0, 0, 0], up=[0, 1, 0])
+    spot = {"type": "spot", "to_world": frame, "intensity": 5.0, "cutoff_angle": 60.0, "beam_width": 50.0}
+    floor = {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(4)}
+    scene = mi.load_dict({"type": "scene", "lamp": spot, "floor": floor})
+    (lamp,) = scene.emitters()
+    pts, nrm = np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]])
+
+    def direct():
+        return float(irradiance_pass(mi, scene, pts, nrm, 8, 1).mean[0, 0])
+
+    with _light_moved(mi, lamp, np.array([1.5, 0.0, 0.0])):
+        assert direct() == pytest.approx(5.0 * (2.0 / 2.5) / 6.25, rel=1e-5)
     assert direct() == pytest.approx(5.0 / 4.0, rel=1e-5)
 
 
