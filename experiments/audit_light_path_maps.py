@@ -72,7 +72,7 @@ from .audit_family import (
     vector_text,
 )
 from .audit_lights import scene_light
-from .records import Check, Section
+from .records import Check, Headline, Section
 
 __all__ = [
     "CUT_GRID",
@@ -436,6 +436,7 @@ def study(ctx: StudyContext) -> Study:
         "|---|---|---|---|---|---|---|---|",
     ]
     bake, sweep, entries, checks = [], [], [], []
+    relative: dict[str, list[float]] = {}
     for result in ctx.audits:
         for case in result.cases:
             par = case.parameters
@@ -450,6 +451,8 @@ def study(ctx: StudyContext) -> Study:
                 ratio = rmse.value / rmse.noise_floor if rmse.noise_floor else float("nan")
                 cost = result.costs.get(out.method.id, {}).get("ns_per_pixel")
                 finite = bool(np.all(np.isfinite(out.image)))
+                if mean > 0:
+                    relative.setdefault(row_id, []).append(rmse.value / mean)
                 checks.append(Check(name=f"{case.id} {row_id}: finite", value=str(finite), expected="True",
                                     passed=finite))  # fmt: skip
                 lines.append(
@@ -487,7 +490,13 @@ def study(ctx: StudyContext) -> Study:
         "| scene light | N | entry points per pane | bake s (∝ N) | RMSE |\n|---|---|---|---|---|\n"
         + "\n".join(entries)
     )
+    headline = tuple(
+        Headline(label=f"{row} RMSE / mean, over the light positions", value=float(np.mean(v)))
+        for row, v in relative.items()
+        if row in ("path-map-k1", "seed-path-map", FIT_ROW)
+    )
     return Study(
         sections=(Section("path-map-cost", "Error against K and light position, beside cost", text),),
         checks=tuple(checks),
+        headline=headline,
     )
