@@ -35,6 +35,7 @@ from rtfit.realtime import (
     ibl_samples,
     irradiance_volumes,
     layered_materials,
+    light_path_maps,
     linear_fog,
     misty_glow,
     nishita_sky,
@@ -71,6 +72,7 @@ from . import (
     audit_irradiance_volumes,
     audit_layered_materials,
     audit_light_cones,
+    audit_light_path_maps,
     audit_linear_fog,
     audit_misty_glow,
     audit_nishita_sky,
@@ -418,6 +420,20 @@ FAMILIES: dict[str, Family] = {
             methods=colour_bleeding.METHODS,
             audits=(audit_colour_bleeding.FAMILY,),
             scenes=audit_colour_bleeding.SCENES,
+        ),
+        Family(
+            "light-path-maps",
+            ENGINE,
+            "Light path maps (clustered virtual lights, blended by the moving light) vs one bounce",
+            "The seed's path maps: entry points on the surfaces clustered into K = 1, 4, 16 and 32 panes, "
+            "each the baked one-bounce transfer of its entry points as virtual lights (the seed's cut; and "
+            "fitted), "
+            "blended by the light's mean direct irradiance per cluster, against the path-traced one-bounce "
+            "indirect irradiance (path max_depth 2 − 1) with the light moved across the scene.",
+            methods=light_path_maps.METHODS,
+            audits=(audit_light_path_maps.FAMILY,),
+            scenes=audit_light_path_maps.SCENES,
+            study=audit_light_path_maps.study,
         ),
         Family(
             "probe-specular",

@@ -73,6 +73,8 @@ Modules:
                 (docs/ibl-samples.md).
     colour_bleeding  stand-ins for one diffuse bounce per channel: the seed's per-channel SDF bias, RGB
                 obscurances' colour part, a one-bounce gather (docs/colour-bleeding.md).
+    light_path_maps  one diffuse bounce from a moving light as clustered virtual lights: the seed's path
+                maps (entry points, k-means clusters, the cut, the run-time blend) (docs/light-path-maps.md).
     probe_specular  glossy specular from the nearest pre-rendered cube map pre-convolved per roughness
                 (GGX chain, roughness → mip), Lagarde's box/sphere parallax correction
                 (docs/probe-specular.md).
@@ -103,6 +105,7 @@ from .irradiance_volumes import *  # noqa: F403
 from .layered_materials import *  # noqa: F403
 from .light_cones import *  # noqa: F403
 from .light_models import *  # noqa: F403
+from .light_path_maps import *  # noqa: F403
 from .linear_fog import *  # noqa: F403
 from .methods import *  # noqa: F403
 from .misty_glow import *  # noqa: F403
@@ -155,6 +158,7 @@ MODULES = (
     "pcf_soft_shadows",
     "ibl_samples",
     "colour_bleeding",
+    "light_path_maps",
     "probe_specular",
     "quantities",
     "shader",

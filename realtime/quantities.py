@@ -48,6 +48,7 @@ from .irradiance_volumes import ProbeGrid, probe_table
 from .layered_materials import COMPOSITE_INPUTS as COAT_INPUTS
 from .layered_materials import INPUTS as LAYER_INPUTS
 from .light_cones import INPUTS as CONE_INPUTS
+from .light_path_maps import INPUTS as PATH_MAP_INPUTS
 from .methods import Input, Method, Param
 from .obscurances import MISS
 from .parallax_occlusion import HeightMap
@@ -788,6 +789,16 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 reference="one-bounce indirect irradiance at the visible points, per channel: a cosine ray, "
                 "then π × (path max_depth 2 − path max_depth 1)",
                 note="called once per channel (g.channel 0, 1, 2); a miss has d = 1e30, a = e = 0",
+            ),
+            Quantity(
+                "path_map_irradiance",
+                "W/m²",
+                "one-bounce indirect irradiance at a surface point in one channel from a moving light, "
+                "from K = 32 baked cluster transfers and the light's mean direct irradiance per cluster",
+                PATH_MAP_INPUTS,
+                reference="one-bounce indirect irradiance at the visible points per light position: a cosine "
+                "ray, then π × (path max_depth 2 − path max_depth 1)",
+                note="called once per channel; g.pane<k> is per point, g.w<k> one number per light position",
             ),
         )
     }

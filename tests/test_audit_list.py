@@ -125,7 +125,7 @@ def test_cornell_like_scene_with_include_lists_diffuse_and_ao(tmp_path):
     info = inspect_scene(xml)
     fams = _families(applicable_families(info))
     want = {"diffuse", "sdf-occlusion", "ambient-aperture", "obscurances", "irradiance-volumes"}
-    assert set(fams) == want | {"pcf-soft-shadows", "colour-bleeding"}
+    assert set(fams) == want | {"pcf-soft-shadows", "colour-bleeding", "light-path-maps"}
     (diffuse,) = fams["diffuse"]
     # no exact form (a rectangle); its light models: the inverse square and its windows, the polygon
     assert diffuse.methods == (
