@@ -68,11 +68,12 @@ Methods as data
 ---------------
 ``METHODS`` (`rtfit.realtime.methods.method_table`: ``lambert``, ``half-lambert``, ``wrap``, ``exact``, then
 the light models of `rtfit.realtime.light_models`: ``punctual``, ``unreal-window``, ``frostbite-window``,
-``representative-point``, ``polygon``, ``spot-linear``, ``spot-smoothstep``, ``spot-squared``, which read
-the light's own parameters instead of E⊥) declares each formula once: its kernel text, its inputs with
-units (``cos_theta`` "1", ``irradiance`` "W/m²", ``alpha`` "rad", ``radiance`` "W/m²/sr"), wrap's free
-parameters w ∈ [0, 1], p ∈ [0.25, 8] (dimensionless, defaults 0.5 and 1.5) and ``exact=True`` for the
-sphere-light closed form.
+``representative-point``, ``polygon``, ``disc``, ``spot-linear``, ``spot-smoothstep``, ``spot-squared``,
+which read the light's own parameters instead of E⊥) declares each formula once: its kernel text, its
+inputs with units (``cos_theta`` "1", ``irradiance`` "W/m²", ``alpha`` "rad", ``radiance`` "W/m²/sr"),
+wrap's free parameters w ∈ [0, 1], p ∈ [0.25, 8] (dimensionless, defaults 0.5 and 1.5) and ``exact=True``
+for the sphere-light closed form (its kernel text, `sphere_light_irradiance_kernel`, lives in
+`rtfit.realtime.light_models`, whose disc row reads it too).
 ``METHODS[id](NUMPY_OPS, inputs, params)`` is the NumPy run of the same text (benchmarks, references);
 `rtfit.fitting.fit_method` fits through its JAX run. ``METHODS`` is not re-exported by
 `rtfit.realtime` (every family has one): use ``rtfit.realtime.diffuse.METHODS``.
