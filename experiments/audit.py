@@ -84,6 +84,9 @@ PROVIDES: dict[str, frozenset[str]] = {
     "punctual-light": frozenset({"cos_theta", "distance", "intensity"}),
     "spot-light": frozenset({"cos_theta", "distance", "axis_intensity", "cos_axis", "cutoff", "beam"}),
     "rect-light": frozenset({f"{v}{a}" for v in ("p", "n", "lc", "lu", "lv") for a in "xyz"} | {"radiance"}),
+    "disc-light": frozenset(
+        {f"{v}{a}" for v in ("p", "n", "dc", "dm") for a in "xyz"} | {"disc_radius", "radiance"}
+    ),
     "environment": frozenset({"nx", "ny", "nz", "coeffs", "irradiance", "sky_radiance"}),
     "surface": frozenset(),
     "geometry": frozenset({*_GEOMETRY_INPUTS, "cos_na", "aperture"}),
@@ -128,6 +131,7 @@ _KIND_TEXT = {
     "of uniform radiance)",
     "spot-light": "a spot light",
     "rect-light": "a rectangle light of uniform radiance",
+    "disc-light": "a circular disk light of uniform radiance",
     "environment": "an environment (envmap, constant or sunsky)",
     "surface": "a surface for the camera to see",
     "geometry": "geometry that can occlude itself (two or more shapes, or one non-convex shape)",
@@ -296,19 +300,20 @@ _TOML_MODEL_KIND = {
 }
 
 
-def _model_kinds(kind: str, uniform: bool) -> set[str]:
+def _model_kinds(kind: str, uniform: bool, circular: bool = True) -> set[str]:
     """The light-model kinds (`PROVIDES`) of a light of ``kind`` (an `XmlEmitter.kind`): what its own
     parameters give the rows of `rtfit.realtime.light_models`. Every light needs a uniform emission
     (``uniform``: its intensity or radiance declared as values, not a texture; a spot projecting no
     texture); an area light on a mesh or a cylinder has no intensity rtfit computes (its rows are left out,
-    saying so)."""
+    saying so); a disk gives the disc row only when ``circular`` (not an ellipse)."""
     if not uniform:
         return set()
     if kind == "point":
         return {"punctual-light"}
     if kind == "spot":
         return {"spot-light"}
-    return {"sphere": {"punctual-light"}, "disk": {"punctual-light"}}.get(
+    disk = {"punctual-light", "disc-light"} if circular else {"punctual-light"}
+    return {"sphere": {"punctual-light"}, "disk": disk}.get(
         kind, {"punctual-light", "rect-light"} if kind == "rectangle" else set()
     )
 
@@ -351,7 +356,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
                 kinds.add("sky")
         elif e.kind in _XML_LIGHTS:
             kinds = {"light", "spherical-light"} if e.spherical else {"light"}
-            kinds |= _model_kinds(e.kind, e.scale is not None and not e.patterned)
+            kinds |= _model_kinds(e.kind, e.scale is not None and not e.patterned, not e.elliptical)
             what = f"{e.kind} area light" if e.shape else f"{e.kind} light"
             if e.shape and e.kind == "area":
                 what = f"area light on a {e.shape}"

@@ -290,7 +290,9 @@ def light_model_inputs(setup: AuditSetup, source: int, points, normals, towards,
     * a sphere light of uniform radiance L and radius r: ``intensity`` π r² L (its projected area × L);
     * a rectangle or disk light of uniform radiance L (one-sided, towards to_world's +z): ``intensity``
       L·A·max(cos θ_l, 0) (A = 4|u × v| or π|u × v|, u, v the images of the x and y axes); a rectangle also
-      gives the polygon row its centre, half-edges u, v and the points and normals (``px``…, ``nx``…);
+      gives the polygon row its centre, half-edges u, v and the points and normals (``px``…, ``nx``…), a
+      circular disk (|u| = |v|, u ⊥ v) the disc row its centre (``dcx``…), unit normal u × v/|u × v|
+      (``dmx``…), radius |u| (``disc_radius``) and the points and normals;
 
     an empty mapping per channel for any other light (its light-model rows are left out by `PROVIDES`)."""
     mi = setup.mi
@@ -322,11 +324,17 @@ def light_model_inputs(setup: AuditSetup, source: int, points, normals, towards,
         cross = np.cross(u, v)
         area = (4.0 if kind == "Rectangle" else math.pi) * float(np.linalg.norm(cross))
         scale = area * np.clip(-(towards @ _unit(cross)), 0.0, None)  # A·max(cos θ_l, 0): one-sided
+        p, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
         if kind == "Rectangle":
-            p, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
             for k, a in enumerate("xyz"):
                 out |= {f"p{a}": p[:, k], f"n{a}": n[:, k], f"lc{a}": float(c[k])}
                 out |= {f"lu{a}": float(u[k]), f"lv{a}": float(v[k])}
+            per_channel["radiance"] = radiance
+        elif setup.info.xml is not None and not setup.info.xml.emitters[source].elliptical:  # a circle
+            m = _unit(cross)
+            for k, a in enumerate("xyz"):
+                out |= {f"p{a}": p[:, k], f"n{a}": n[:, k], f"dc{a}": float(c[k]), f"dm{a}": float(m[k])}
+            out["disc_radius"] = float(np.linalg.norm(u))
             per_channel["radiance"] = radiance
     channels = []
     for ch in range(3):

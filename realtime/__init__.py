@@ -18,7 +18,8 @@ Modules:
                 seed's horizon-matched fog colour (docs/aerial-perspective.md).
     diffuse     Lambert, half-Lambert, wrap lighting, exact sphere-light irradiance (docs/diffuse.md).
     light_models  the diffuse family's light models from the light's own parameters: punctual, Unreal and
-                Frostbite windows, representative point, LTC polygon, spot cones (docs/diffuse.md).
+                Frostbite windows, representative point, LTC polygon and disc, spot cones (docs/diffuse.md);
+                the exact sphere-light kernel text.
     environment_bases  every irradiance basis of an environment as one method table (the irradiance-bases
                 family: cube, SH, ZH3, SG, Ambient Dice; ``METHODS`` from the module).
     environment_maps  pre-convolved and localised cube maps, cosine look-up, distance-impostor Hit

@@ -127,7 +127,7 @@ from .arrays import (
     safe_sqrt,
     sincos_first_quadrant,
 )
-from .diffuse import sphere_light_irradiance_kernel
+from .light_models import sphere_light_irradiance_kernel
 from .methods import Input, Method, Param, method_table
 
 __all__ = [

@@ -68,11 +68,12 @@ Methods as data
 ---------------
 ``METHODS`` (`rtfit.realtime.methods.method_table`: ``lambert``, ``half-lambert``, ``wrap``, ``exact``, then
 the light models of `rtfit.realtime.light_models`: ``punctual``, ``unreal-window``, ``frostbite-window``,
-``representative-point``, ``polygon``, ``spot-linear``, ``spot-smoothstep``, ``spot-squared``, which read
-the light's own parameters instead of E⊥) declares each formula once: its kernel text, its inputs with
-units (``cos_theta`` "1", ``irradiance`` "W/m²", ``alpha`` "rad", ``radiance`` "W/m²/sr"), wrap's free
-parameters w ∈ [0, 1], p ∈ [0.25, 8] (dimensionless, defaults 0.5 and 1.5) and ``exact=True`` for the
-sphere-light closed form.
+``representative-point``, ``polygon``, ``disc``, ``spot-linear``, ``spot-smoothstep``, ``spot-squared``,
+which read the light's own parameters instead of E⊥) declares each formula once: its kernel text, its
+inputs with units (``cos_theta`` "1", ``irradiance`` "W/m²", ``alpha`` "rad", ``radiance`` "W/m²/sr"),
+wrap's free parameters w ∈ [0, 1], p ∈ [0.25, 8] (dimensionless, defaults 0.5 and 1.5) and ``exact=True``
+for the sphere-light closed form (its kernel text, `sphere_light_irradiance_kernel`, lives in
+`rtfit.realtime.light_models`, whose disc row reads it too).
 ``METHODS[id](NUMPY_OPS, inputs, params)`` is the NumPy run of the same text (benchmarks, references);
 `rtfit.fitting.fit_method` fits through its JAX run. ``METHODS`` is not re-exported by
 `rtfit.realtime` (every family has one): use ``rtfit.realtime.diffuse.METHODS``.
@@ -90,19 +91,17 @@ import sys
 import numpy as np
 
 from .arrays import (
-    ATAN_SERIES_LIMIT,
-    atan_minus_x_series,
     check_range,
     clamp_cos,
     evaluate,
     is_drjit,
     safe_div,
     safe_sqrt,
-    sin_from_cos,
     sincos_first_quadrant,
     split3,
 )
 from .light_models import METHODS as LIGHT_MODELS
+from .light_models import sphere_light_irradiance_kernel
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
@@ -111,7 +110,6 @@ __all__ = [
     "lambert",
     "sphere_light_geometry",
     "sphere_light_irradiance",
-    "sphere_light_irradiance_kernel",
     "sphere_light_peak_irradiance",
     "wrap",
 ]
@@ -142,35 +140,6 @@ def _wrap_kernel(ops, cos_theta, w, p, irradiance):
     p = ops.clip(p, _P_MIN, 8.0)
     base = ops.maximum((c + w) / (1.0 + w), 0.0)
     return irradiance * ops.power(base, p)
-
-
-def sphere_light_irradiance_kernel(ops, cos_theta, alpha, radiance):
-    """Exact irradiance from a uniform sphere light (cap of half-angle α), horizon clipping included.
-
-    Kernel text (``ops`` an ops namespace of `rtfit.realtime.arrays`, no validation): public so that other
-    kernels (ambient aperture's projected cap) can call the one text inside their own."""
-    c = clamp_cos(ops, cos_theta)
-    a = ops.clip(alpha, 0.0, HALF_PI)
-    sin_a, cos_a = sincos_first_quadrant(ops, a)  # not ops.sin/cos: CUDA float32 sin/cos are approximate
-    cos_a = ops.maximum(cos_a, 0.0)  # float32(π/2) exceeds π/2: its cosine would be −4.4e-8
-    sin2_a = sin_a * sin_a
-    sin_t = sin_from_cos(ops, c)
-
-    above = math.pi * sin2_a * c  # whole cap above the horizon
-
-    # Horizon-clipped cap. Denominators are guarded so that the branch not selected stays finite.
-    y = clamp_cos(ops, safe_div(ops, -cos_a * c, sin_a * sin_t))
-    s = safe_sqrt(ops, (1.0 - y) * (1.0 + y))
-    g = sin_a * sin_t * s  # sin α sin θ √(1 − y²)
-    u = safe_div(ops, g, cos_a)  # tan α sin θ √(1 − y²) ≥ 0
-    c_acos = c * ops.acos(y)
-    small = sin2_a * (c_acos + u) + atan_minus_x_series(ops, ops.minimum(u, ATAN_SERIES_LIMIT))
-    large = sin2_a * c_acos + (ops.atan2(g, cos_a) - g * cos_a)
-    partial = ops.select(u < ATAN_SERIES_LIMIT, small, large)
-    partial = ops.clip(partial, 0.0, math.pi * sin2_a)  # rounding only: 0 ≤ E ≤ E⊥ holds exactly
-
-    e = ops.select(c >= sin_a, above, ops.select(c <= -sin_a, 0.0, partial))
-    return radiance * e
 
 
 def _peak_kernel(ops, alpha, radiance):

@@ -63,7 +63,7 @@ import drjit as dr
 import numpy as np
 
 from .arrays import NUMPY_OPS, evaluate, evaluate_numpy, safe_div, safe_sqrt
-from .diffuse import sphere_light_irradiance_kernel
+from .light_models import sphere_light_irradiance_kernel
 from .methods import Input, Method, Param, method_table
 
 __all__ = [

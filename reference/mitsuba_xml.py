@@ -289,6 +289,9 @@ class XmlEmitter:
     patterned: bool = False
     """A spot light that projects a ``texture`` (its intensity varies across the cone, not only with the
     angle from its axis): no cone profile models it."""
+    elliptical: bool = False
+    """A ``disk`` whose to_world scales its x and y axes differently (or shears them): an ellipse, which
+    the disc light model (a circle) does not describe."""
 
 
 @dataclass(frozen=True)
@@ -497,6 +500,11 @@ def _emitter(mi, node, props: dict, location: str, obj, shape=None) -> XmlEmitte
                 extra["position"] = _column(sm, 3)
                 extra["radius"] = math.sqrt(sum(x * x for x in _column(sm, 0)))
                 extra["direction"] = _unit(_column(sm, 2))
+                u, v = _column(sm, 0), _column(sm, 1)
+                uu, vv, uv = (
+                    sum(a * b for a, b in zip(x, y, strict=True)) for x, y in ((u, u), (v, v), (u, v))
+                )
+                extra["elliptical"] = abs(uu - vv) > 1e-4 * (uu + vv) or abs(uv) > 1e-4 * (uu + vv)
             else:
                 extra["position"], extra["radius"], extra["direction"] = (0.0, 0.0, 0.0), 1.0, (0.0, 0.0, 1.0)
         return XmlEmitter(kind=kind, **base, **extra)

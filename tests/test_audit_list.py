@@ -362,7 +362,8 @@ def test_rtfit_toml_scenes(tmp_path):
         applicable_families(inspect_scene(xml), approx="nishita-sky")
 
 
-_LIGHT_KINDS = {"spherical-light", "punctual-light", "spot-light", "rect-light"}  # always with "light"
+# always with "light"
+_LIGHT_KINDS = {"spherical-light", "punctual-light", "spot-light", "rect-light", "disc-light"}
 
 
 def test_rules_are_data_and_reach_every_method():
