@@ -104,7 +104,10 @@ def eval_environment(mi, emitter, dirs: np.ndarray) -> np.ndarray:
 
     si = dr.zeros(mi.SurfaceInteraction3f, len(dirs))
     si.wi = mi.Vector3f(np.ascontiguousarray(-np.asarray(dirs, np.float64).T, np.float32))
-    return np.array(emitter.eval(si), np.float64).T.reshape(len(dirs), 3)
+    value = np.array(emitter.eval(si), np.float64).reshape(3, -1).T
+    if len(value) == 1:  # a constant emitter returns one colour for every direction
+        return np.broadcast_to(value, (len(dirs), 3)).copy()
+    return value
 
 
 def bake_cube(mi, emitter, resolution: int = ENV_RESOLUTION) -> np.ndarray:
