@@ -75,7 +75,7 @@ from .arrays import check_range, evaluate, safe_sqrt
 from .environment_maps import cube_lookup_kernel, dielectric_fresnel_kernel, schlick_fresnel_kernel
 from .methods import Input, Method, Param, method_table
 
-__all__ = [
+__all__ = [  # METHODS, CAUSTIC_METHODS and INPUTS stay out (each family has its own)
     "ENV_RESOLUTION",
     "ORDERS",
     "WATER_ETA",
@@ -283,6 +283,87 @@ METHODS = method_table(
     ]
 )
 """The raindrops family's rows on ``drop_radiance`` (module docstring)."""
+
+
+# ======================================================================== the droplet's shadow (study)
+def _shadow(ops, r, radius):
+    """[r ≥ R]: lit outside the drop's shadow disk (the sun overhead)."""
+    return ops.select(r >= radius, 1.0, 0.0) + 0.0 * r
+
+
+def _hard_shadow_kernel(ops, r, radius, e_sun):
+    """E = E⊥·[r ≥ R]: the shadow map's hard shadow, no caustic."""
+    return e_sun * _shadow(ops, r, radius)
+
+
+def _spot(ops, r, sigma):
+    s = ops.maximum(sigma, _MIN_SPOT)
+    return ops.exp(-0.5 * (r * r) / (s * s)), s
+
+
+def _seed_spot_kernel(ops, r, radius, e_sun, amplitude, sigma):
+    """E = E⊥·([r ≥ R] + A·e^(−r²/2σ²)): the seed's pseudo-caustic highlight in the shadow's middle."""
+    g, _ = _spot(ops, r, sigma)
+    return e_sun * (_shadow(ops, r, radius) + ops.maximum(amplitude, 0.0) * g)
+
+
+def _flux_spot_kernel(ops, r, radius, e_sun, sigma, transmitted):
+    """E = E⊥·([r ≥ R] + τ·R²/(2σ²)·e^(−r²/2σ²)): the spot carries the flux τ·πR²·E⊥ that crosses the drop."""
+    g, s = _spot(ops, r, sigma)
+    return e_sun * (_shadow(ops, r, radius) + transmitted * (radius * radius) / (2.0 * s * s) * g)
+
+
+_MIN_SPOT = 1e-4  # σ floor (m): a fitted width at its bound keeps the spot finite
+
+
+_R = Input("r", "m", "distance on the floor from the shadow's centre (the sun overhead)", (0.0, 10.0))
+_RADIUS = Input("radius", "m", "the drop's radius R (its shadow disk's)", (1e-3, 10.0))
+_E_SUN = Input("e_sun", "W/m²", "the sun's irradiance on the floor without the drop", (0.0, 1e5))
+_SIGMA = Param(0.3, 1e-3, 10.0, unit="m", description="the spot's Gaussian width σ", published=False)
+CAUSTIC_METHODS = method_table(
+    [
+        Method(
+            "hard-shadow",
+            "shadow map, no caustic",
+            _hard_shadow_kernel,
+            inputs=(_R, _RADIUS, _E_SUN),
+            quantity="receiver_irradiance",
+            formula="E = E⊥·[r ≥ R]",
+            source="a shadow map (the droplet's projected mass as an opaque shadow, 000:1010)",
+        ),
+        Method(
+            "seed-spot",
+            "seed: pseudo-caustic spot in the shadow (A, σ fitted)",
+            _seed_spot_kernel,
+            inputs=(_R, _RADIUS, _E_SUN),
+            params={
+                "amplitude": Param(
+                    2.0, 0.0, 100.0, unit="1", description="the spot's peak / E⊥", published=False
+                ),
+                "sigma": _SIGMA,
+            },
+            quantity="receiver_irradiance",
+            formula="E = E⊥·([r ≥ R] + A·e^(−r²/(2σ²)))",
+            source="seed 000:1010, 1018 (a bright pseudo-caustic highlight mid-shadow; no formula)",
+        ),
+        Method(
+            "flux-spot",
+            "spot carrying the drop's transmitted flux (σ fitted)",
+            _flux_spot_kernel,
+            inputs=(
+                _R,
+                _RADIUS,
+                _E_SUN,
+                Input("transmitted", "1", "τ: the fraction of the disk's light crossing"),
+            ),
+            params={"sigma": _SIGMA},
+            quantity="receiver_irradiance",
+            formula="E = E⊥·([r ≥ R] + τR²/(2σ²)·e^(−r²/(2σ²))), τ from the ray optics' (1 − F)²",
+            source="energy conservation: the flux πR²E⊥τ through the drop lands in its shadow",
+        ),
+    ]
+)
+"""The droplet shadow's rows (the study's, on light-traced caustics: `rtfit.reference.caustic_pass`)."""
 
 
 # ===================================================================================== public API

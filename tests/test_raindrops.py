@@ -24,7 +24,7 @@ from rtfit.experiments.audit_raindrops import ETA_RANGE, bake_cube, eval_environ
 from rtfit.experiments.audit_run import audit
 from rtfit.realtime import DRJIT_OPS, NUMPY_OPS, drop_directions, drop_weights
 from rtfit.realtime import environment_maps as em
-from rtfit.realtime.raindrops import ENV_RESOLUTION, METHODS, ORDERS
+from rtfit.realtime.raindrops import CAUSTIC_METHODS, ENV_RESOLUTION, METHODS, ORDERS
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 
@@ -436,3 +436,68 @@ def test_registry_entry_is_born_on_the_engine():
     f = FAMILIES["raindrops"]
     assert f.module == ENGINE and f.methods is METHODS
     assert {s.file for s in f.scenes} == {"raindrops_drop.xml"} and SCENE.is_file()
+
+
+# ------------------------------------------------------------------------ the droplet's shadow (caustic)
+def test_shadow_rows_by_hand():
+    """hard-shadow is E⊥ outside the disk and 0 inside; seed-spot is E⊥·A at the centre; flux-spot's excess
+    integrates to τπR²E⊥ over the floor (midpoint rule, h = 1e-4: to 1e-7)."""
+    m = CAUSTIC_METHODS
+    r = np.array([0.0, 0.5, 0.999, 1.0, 2.0])
+    g = {"r": r, "radius": 1.0, "e_sun": 3.0}
+    assert np.array_equal(m["hard-shadow"](NUMPY_OPS, g, {}), [0, 0, 0, 3, 3])
+    spot = m["seed-spot"](NUMPY_OPS, g, {"amplitude": 5.0, "sigma": 0.2})
+    assert spot[0] == pytest.approx(15.0) and spot[4] == pytest.approx(3.0)
+    rr = (np.arange(200000) + 0.5) * 1e-4
+    g = {"r": rr, "radius": 1.0, "e_sun": 2.0, "transmitted": 0.88}
+    excess = m["flux-spot"](NUMPY_OPS, g, {"sigma": 0.25}) - m["hard-shadow"](NUMPY_OPS, g, {})
+    assert float(np.sum(excess * 2 * math.pi * rr) * 1e-4) == pytest.approx(0.88 * math.pi * 2.0, rel=1e-7)
+
+
+def _landing_radius(b: np.ndarray, eta: float, gap: float) -> np.ndarray:
+    """Where the light entering a unit drop at impact parameter b (sun overhead) lands on the floor
+    z = −1 − gap after two refractions (angles: the chord 2cos θt, the deviations θi − θt and 2(θi − θt))."""
+    ti, tt = np.arcsin(b), np.arcsin(b / eta)
+    p1 = np.stack([b, np.sqrt(1 - b * b)], axis=1)  # (x, z)
+    inside = np.stack([-np.sin(ti - tt), -np.cos(ti - tt)], axis=1)
+    p2 = p1 + 2 * np.cos(tt)[:, None] * inside
+    out = np.stack([-np.sin(2 * (ti - tt)), -np.cos(2 * (ti - tt))], axis=1)
+    s = (-1.0 - gap - p2[:, 1]) / out[:, 1]
+    return np.abs(p2[:, 0] + s * out[:, 0])
+
+
+def test_light_traced_shadow_is_the_ray_optics_of_the_drop():
+    """The caustic under a water drop by light tracing (Mitsuba's dielectric, 60 000 rays, sun overhead)
+    against the ray optics computed here: the flux landing in the shadow is τπR²E⊥ with
+    τ = ∫(1 − F)²·2c dc (the angles' Fresnel, 400-node midpoint rule; 3 s.e.); the order-0 rays land within
+    r_max = max_b r(b) (Descartes' geometry): the annuli between r_max and the shadow's edge are dark
+    (< 2 % of E⊥), the one holding r_max is the brightest (the caustic's edge), and beyond the shadow the
+    floor gets E⊥ plus at most 3 % reflected off the drop."""
+    import mitsuba as mi
+
+    from rtfit.experiments.audit_raindrops import FLOOR_GAP
+    from rtfit.reference.caustic_pass import caustic_profile
+
+    mi.set_variant("llvm_ad_rgb")
+    scene = mi.load_dict({
+        "type": "scene",
+        "drop": {"type": "sphere", "bsdf": {"type": "dielectric", "int_ior": WATER, "ext_ior": 1.0}},
+        "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"},
+                  "to_world": mi.ScalarTransform4f().translate([0, 0, -1 - FLOOR_GAP]).scale(20.0)},
+    })  # fmt: skip
+    edges = np.linspace(0.0, 1.5, 31)
+    prof = caustic_profile(mi, scene, 1.0, 1.0, edges, 60000, 5)
+    c = (np.arange(400) + 0.5) / 400
+    tau = float(np.sum((1 - _fresnel(c, WATER)) ** 2 * 2 * c) / 400)
+    area = math.pi * (edges[1:] ** 2 - edges[:-1] ** 2)
+    shade = edges[1:] <= 1.0
+    flux = float(np.sum(prof.irradiance[shade] * area[shade])) / math.pi
+    se = float(np.sqrt(np.sum((prof.stderr[shade] * area[shade]) ** 2))) / math.pi
+    assert abs(flux - tau) < 3 * se + 1e-4, (flux, tau, se)
+    r_max = float(_landing_radius(np.linspace(1e-4, 0.9999, 20000), WATER, FLOOR_GAP).max())
+    j = int(np.searchsorted(edges, r_max) - 1)
+    assert int(np.argmax(prof.irradiance[shade])) == j
+    dark = (edges[:-1] > r_max) & shade
+    assert dark.sum() >= 10 and np.all(prof.irradiance[dark] < 0.02)
+    lit = edges[:-1] >= 1.0
+    assert np.all((prof.irradiance[lit] >= 1.0 - 4 * prof.stderr[lit]) & (prof.irradiance[lit] < 1.03))
