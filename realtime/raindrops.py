@@ -48,6 +48,13 @@ path), ``ray-optics`` K = `ORDERS` (the weights left out, (1 − F)·F^{K+1} ≤
 matter only at the rim, where F → 1). Under a constant environment L₀ the sum of the weights is
 1 − (1 − F)F^{K+1}: the drop is L₀ up to that rest (energy conservation, the white furnace).
 
+The droplet's shadow (000:1010: "a pseudo-caustic highlight in the middle of the shadow", no formula): with
+the sun overhead, a floor point at distance r from the shadow's centre of a drop of radius R gets
+E = E⊥·[r ≥ R] (``hard-shadow``, a shadow map), plus a Gaussian spot A·e^(−r²/2σ²) (``seed-spot``: A, σ
+only fitted) or a spot carrying the flux that crosses the drop, τ·R²/(2σ²)·e^(−r²/2σ²) with
+τ = ∫₀¹ (1 − F(c))²·2c dc (``flux-spot``: energy conservation, σ fitted). These `CAUSTIC_METHODS` are the
+family study's (against light tracing: `rtfit.reference.caustic_pass`), not the audit's rows.
+
 Look-ups L(·) read one cube map of the environment (`ENV_RESOLUTION`² texels a face, this module's
 neighbour `rtfit.realtime.environment_maps`' layout and `cube_lookup_kernel`, bilinear within a face): what
 an engine stores. Fresnel: `dielectric_fresnel_kernel` (exact, unpolarised) and `schlick_fresnel_kernel`
