@@ -361,7 +361,7 @@ CAUSTIC_METHODS = method_table(
                 _R,
                 _RADIUS,
                 _E_SUN,
-                Input("transmitted", "1", "τ: the fraction of the disk's light crossing"),
+                Input("transmitted", "1", "τ: the disk's light crossing the drop", (0.0, 1.0)),
             ),
             params={"sigma": _SIGMA},
             quantity="receiver_irradiance",
