@@ -43,6 +43,7 @@ from rtfit.realtime import (
     parallax_occlusion,
     pcf_soft_shadows,
     probe_specular,
+    raindrops,
     reflections,
     sdf_occlusion,
     sh_sky_bent_normal,
@@ -80,6 +81,7 @@ from . import (
     audit_parallax_occlusion,
     audit_pcf_soft_shadows,
     audit_probe_specular,
+    audit_raindrops,
     audit_sh_sky_bent_normal,
     audit_sky_emitter,
     audit_sky_occlusion,
@@ -278,6 +280,20 @@ FAMILIES: dict[str, Family] = {
             audits=(audit_layered_materials.FAMILY,),
             scenes=audit_layered_materials.SCENES,
             study=audit_layered_materials.study,
+        ),
+        Family(
+            "raindrops",
+            ENGINE,
+            "Raindrops: the seed's refracted + reflected look-up with a Fresnel blend vs a path-traced drop",
+            "A water drop (a smooth dielectric sphere, η = 1.33) under an environment map, path traced, "
+            "against the seed's Fresnel blend of a reflected and a once-refracted environment look-up "
+            "(000:822-887; fitted effective η and brightness; the particle's Fresnel opacity), the ray "
+            "optics of a sphere (two refractions, 0, 1 and 8 internal reflections) and the background it "
+            "hides; the seed's claim that a drop is brighter than its background measured.",
+            methods=raindrops.METHODS,
+            audits=(audit_raindrops.FAMILY,),
+            scenes=audit_raindrops.SCENES,
+            study=audit_raindrops.study,
         ),
         Family(
             "aerial-perspective",

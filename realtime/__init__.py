@@ -49,6 +49,9 @@ Modules:
                 refraction vs Snell's refracted offset; blur radii and composite (docs/layered-materials.md).
     misty_glow  the seed's misty glow: an iterated Kawase bloom of a light's direct image as the
                 atmospheric point-spread function; a Gaussian bloom (docs/misty-glow.md).
+    raindrops   the seed's raindrop: a Fresnel blend of a reflected and a once-refracted environment
+                look-up vs the ray optics of a sphere (two refractions, internal reflections)
+                (docs/raindrops.md).
     volumetric_lightning  the seed's volumetric lightning (softened point light gathered along the view
                 segment) in a float32-stable closed form; single scattering without extinction
                 (docs/volumetric-lightning.md). The package attribute ``volumetric_lightning`` is the
@@ -117,6 +120,7 @@ from .pcf_soft_shadows import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .probe_specular import *  # noqa: F403
 from .quantities import *  # noqa: F403
+from .raindrops import *  # noqa: F403
 from .reflections import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
 from .sdf_occlusion import *  # noqa: F403
@@ -139,6 +143,7 @@ MODULES = (
     "linear_fog",
     "layered_materials",
     "misty_glow",
+    "raindrops",
     "irradiance_bases",
     "irradiance_volumes",
     "spherical_gaussians",

@@ -58,6 +58,8 @@ from .probe_specular import INPUTS as PROBE_SPECULAR_INPUTS
 from .probe_specular import IRRADIANCE_RESOLUTION as PS_IRRADIANCE_RESOLUTION
 from .probe_specular import LEVELS as PS_LEVELS
 from .probe_specular import PREFILTER_RESOLUTION, ProbeChains
+from .raindrops import ENV_RESOLUTION as DROP_ENV_RESOLUTION
+from .raindrops import INPUTS as DROP_INPUTS
 from .reflections import INPUTS as REFLECTION_INPUTS
 from .reflections import IRRADIANCE_RESOLUTION, PROBE_RESOLUTION
 from .sdf_grid import HalfSpace, Sphere
@@ -503,6 +505,22 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 vectors={"origin": ("ox", "oy", "oz"), "segment": ("dx", "dy", "dz"), "light": _LIGHT},
                 reference="single scattering of that light along the camera's rays in the medium "
                 "(equiangular sampling, Mitsuba's emitter, phase function and shadow rays)",
+            ),
+            Quantity(
+                "drop_radiance",
+                "W/m²/sr",
+                "radiance of a water drop (a dielectric sphere) under a distant environment, per RGB channel",
+                DROP_INPUTS,
+                vectors={"direction": ("dx", "dy", "dz"), "normal": ("nx", "ny", "nz")},
+                unit_vectors=("direction", "normal"),
+                channels=3,
+                examples={
+                    f"env_{c}": _example_map(DROP_ENV_RESOLUTION, 0.2, 2.0 - 0.3 * k)
+                    for k, c in enumerate("rgb")
+                },
+                reference="path-traced radiance of the pixels that see the drop (Mitsuba's dielectric, path)",
+                note=f"env_r, env_g, env_b: the channels' cube maps of {DROP_ENV_RESOLUTION}² texels a face "
+                "(rtfit.realtime.environment_maps' layout)",
             ),
             Quantity(
                 "glow_radiance",
