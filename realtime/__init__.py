@@ -44,6 +44,8 @@ Modules:
     sdf_occlusion  Evans multi-scale SDF skylight/occlusion, curvature term, cone-traced soft occlusion.
     nishita_sky Nishita single-scattering sky texture, atmosphere optical depth, aerial perspective
                 (docs/nishita-sky.md).
+    clouds      the seed's cloud shadows: a 2-D density plane projected along the sun, the plane extruded
+                and marched, a 3-D ray march of the cloud's grid (docs/clouds.md).
     misty_glow  the seed's misty glow: an iterated Kawase bloom of a light's direct image as the
                 atmospheric point-spread function; a Gaussian bloom (docs/misty-glow.md).
     volumetric_lightning  the seed's volumetric lightning (softened point light gathered along the view
@@ -88,6 +90,7 @@ from .aerial_perspective import *  # noqa: F403
 from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
+from .clouds import *  # noqa: F403
 from .colour_bleeding import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .environment_bases import *  # noqa: F403
@@ -131,6 +134,7 @@ MODULES = (
     "height_fog",
     "linear_fog",
     "misty_glow",
+    "clouds",
     "irradiance_bases",
     "irradiance_volumes",
     "spherical_gaussians",
