@@ -4,9 +4,9 @@ the scene's own heterogeneous medium.
 
 When it applies (its ``rules``): a Mitsuba ``heterogeneous`` medium whose ``sigma_t`` is a ``gridvolume``
 (the ``grid-fog`` part) in a scene with a light and a surface; its cases then need a **distant** light (a
-``directional`` emitter, or a ``sunsky``'s sun): a cloud shadow is the sun's. Without one the case is refused
-with that reason (one line). The grid's box must be axis-aligned (a shadow texture is a plane of the world's
-xy; +z up).
+``directional`` emitter, or a ``sunsky``'s sun): a cloud shadow is the sun's. Without one it gives no case
+(``--list`` says it needs one; an error there would stop every other family's audit of the scene). The
+grid's box must be axis-aligned (a shadow texture is a plane of the world's xy; +z up).
 
 One case ``cloudK-shadow`` per such medium, on the pixels that show a surface facing the sun (n·s > 0):
 
@@ -130,19 +130,16 @@ SCENES = tuple(_scene(e) for e in SUN_ELEVATIONS)
 """The scenes ``rtfit run clouds`` audits (scenes/library/clouds_sun.xml, one per sun elevation)."""
 
 
-def _sun(setup: AuditSetup) -> np.ndarray:
-    """The unit direction towards the scene's distant light (directional, or a sunsky's sun)."""
+def _sun(setup: AuditSetup) -> np.ndarray | None:
+    """The unit direction towards the scene's distant light (directional, or a sunsky's sun); None without
+    one."""
     xml = setup.info.xml
     if xml is not None:
         for e in xml.emitters:
             if e.kind == "directional" and e.direction is not None:
                 d = np.asarray(e.direction, np.float64)
                 return d / np.linalg.norm(d)
-    sun = sun_direction_of(setup)
-    if sun is None:
-        raise AuditError("clouds: needs a distant light (a directional emitter or a sunsky's sun): a cloud "
-                         "shadow is the sun's")  # fmt: skip
-    return sun
+    return sun_direction_of(setup)
 
 
 def _grid(setup: AuditSetup, medium) -> CloudGrid:
@@ -181,16 +178,20 @@ def _params(cloud: CloudGrid) -> dict:
 
 
 def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
-    """One case per gridvolume medium: the sun's transmittance to the visible points (module docstring)."""
+    """One case per gridvolume medium: the sun's transmittance to the visible points (module docstring);
+    none in a scene without a distant light (its rule's "needs a distant sun"): a cloud shadow is the sun's,
+    and refusing there would stop the audit of every other family on the scene."""
     s = _sun(setup)
+    if s is None:
+        return []
     med, _dirs, _t_in, _t_out = opened_medium(setup, app, "clouds")
     cloud = _grid(setup, med.medium)
     points, normals = gbuffer_points(setup.gbuffer, setup.mask)
     facing = normals @ s > 0.0
     mask = setup.mask.copy()
     mask[setup.mask] = facing
-    if not mask.any():
-        raise AuditError("clouds: no visible surface faces the sun")
+    if not mask.any():  # the sun below every visible surface (below the horizon): no sunlight to shadow
+        return []
     pts = points[facing]
     tag = f"cloud{app.source}"
     what = {"format": FORMAT, "quantity": "sun-transmittance", "medium": app.source,

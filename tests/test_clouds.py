@@ -284,6 +284,25 @@ def test_shipped_scene_audit(cloud_audit):
     assert rmse["plane-fitted"].value <= rmse["plane"].value * (1 + 1e-9)
 
 
+def test_no_distant_light_no_case(tmp_path):
+    """The shipped scene with its sun swapped for a point light: the family gives no case (a cloud shadow is
+    the sun's), without stopping the audit."""
+    text = SCENE.read_text()
+    start, end = text.index('<emitter type="directional">'), text.index("</emitter>") + len("</emitter>")
+    point = (
+        '<emitter type="point"><point name="position" x="0" y="0" z="8"/>'
+        '<rgb name="intensity" value="5"/></emitter>'
+    )
+    (tmp_path / "volumes").mkdir()
+    (tmp_path / "volumes" / "clouds_blobs.vol").write_bytes(
+        (LIBRARY / "volumes" / "clouds_blobs.vol").read_bytes()
+    )
+    (tmp_path / "point.xml").write_text(text[:start] + point + text[end:])
+    r = audit(str(tmp_path / "point.xml"), ["clouds"], width=8, height=8, spp=8, pass_spp=8,
+              cache=tmp_path / "c", **FAST)  # fmt: skip
+    assert r.cases == []
+
+
 def test_list_names_clouds():
     result = CliRunner().invoke(audit_cmd, [str(SCENE), "--list"])
     assert result.exit_code == 0, result.output
