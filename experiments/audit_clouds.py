@@ -174,7 +174,7 @@ def _params(cloud: CloudGrid) -> dict:
     plane = {"h": height("h", cloud.mean_height(), "plane height h (given: the cloud's mean height)")}
     slab = {"h0": height("h0", lo, "slab bottom h₀ (given: the box's bottom)"),
             "h1": height("h1", hi, "slab top h₁ (given: the box's top)")}  # fmt: skip
-    return {k: (plane if k == "plane" else slab) for k in METHODS if not k.startswith("march")}
+    return {k: (plane if k.startswith("plane") else slab) for k in METHODS if not k.startswith("march")}
 
 
 def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
@@ -275,7 +275,7 @@ def _steps(row: str) -> str:
     return (
         base.split("-")[1]
         if "-" in base and base.split("-")[1].isdigit()
-        else ("1 tap" if base == "plane" else "—")
+        else ("1 tap" if base.startswith("plane") else "—")
     )
 
 

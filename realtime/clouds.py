@@ -31,6 +31,8 @@ s = (sx, sy, sz) (+z up; μ = s_z the sine of the sun's elevation) and the cloud
   texture's plane at height h), T = exp(−k·D(x_p)/μ). For a cloud that is a thin layer at height h this is
   Beer–Lambert exactly with k = 1 (the slant path through a layer of vertical optical depth D is D/μ): k = 1
   and h = the cloud's density-weighted mean height are given, then fitted (k ∈ [0, 100], h within the box).
+  ``plane-mip1``, ``plane-mip2``: the same at ½ and ¼ of the texture's resolution (the columns box-filtered
+  2 × 2, 4 × 4: a mip chain), the seed form's memory knob (4 texel reads each).
 * ``slab-N`` — **the 2-D plane with the nested march** (002:367-381): the texture extruded into a slab
   [h₀, h₁] of density k·D(x, y)/(h₁ − h₀), marched with N midpoint samples along the sun ray's stretch in
   the slab: T = exp(−Σᵢ k·D(xᵢ)/(h₁ − h₀)·Δt). Given: k = 1 and the box's bottom and top; then fitted.
@@ -79,6 +81,7 @@ __all__ = [
     "DIR_MIN",
     "MARCH_STEPS",
     "MU_MIN",
+    "PLANE_LEVELS",
     "SLAB_STEPS",
     "CloudGrid",
     "cloud_transmittance",
@@ -92,6 +95,8 @@ DIR_MIN = 1e-12
 """Smallest |direction component| of the slab test (module docstring, guards)."""
 MARCH_STEPS = (4, 8, 16, 64)
 """The 3-D march's numbers of samples (the quality knob)."""
+PLANE_LEVELS = (1, 2)
+"""Mip levels of the texture rows (the texture's resolution halved L times: the seed form's knob)."""
 SLAB_STEPS = (4, 16)
 """The nested march's samples through the extruded plane."""
 _BATCH = 4  # samples per evaluated Dr.Jit kernel (`_midpoints`)
@@ -127,10 +132,21 @@ class CloudGrid:
         nz, ny, nx = self.data.shape
         return nx, ny, nz
 
-    def columns(self) -> np.ndarray:
-        """The density plane D (ny, nx): each column's vertical optical depth Δz·Σ_k σ (dimensionless)."""
+    def columns(self, level: int = 0) -> np.ndarray:
+        """The density plane D: each column's vertical optical depth Δz·Σ_k σ (dimensionless), (ny, nx) at
+        ``level`` 0; at level L the mean over blocks of 2^L × 2^L columns (`plane_resolution`; a block at
+        the far edge of a size not divisible by 2^L holds the remainder), as a mip chain's box filter."""
         dz = (self.hi[2] - self.lo[2]) / self.data.shape[0]
-        return self.data.sum(axis=0) * dz
+        d = self.data.sum(axis=0) * dz
+        for axis, n in ((0, self.plane_resolution(level)[1]), (1, self.plane_resolution(level)[0])):
+            blocks = np.array_split(np.arange(d.shape[axis]), n)
+            d = np.stack([np.take(d, b, axis=axis).mean(axis=axis) for b in blocks], axis=axis)
+        return d
+
+    def plane_resolution(self, level: int = 0) -> tuple[int, int]:
+        """(W, H) texels of the density plane at mip ``level``: the grid's (nx, ny) halved L times (≥ 1)."""
+        nx, ny, _nz = self.resolution
+        return max(1, nx >> level), max(1, ny >> level)
 
     def mean_height(self) -> float:
         """The density-weighted mean height of the cloud (m; the box's centre for an empty grid)."""
@@ -139,10 +155,10 @@ class CloudGrid:
         w = self.data.sum(axis=(1, 2))
         return float(np.sum(w * z) / np.sum(w)) if np.sum(w) > 0 else 0.5 * (self.lo[2] + self.hi[2])
 
-    def _table(self, ops, like, which: str):
-        key = (which, ops.name, type(like) if ops.name == "drjit" and dr.is_array_v(like) else None)
+    def _table(self, ops, like, which: str, level: int = 0):
+        key = (which, level, ops.name, type(like) if ops.name == "drjit" and dr.is_array_v(like) else None)
         if key not in self._tables:
-            values = self.data if which == "grid" else self.columns()
+            values = self.data if which == "grid" else self.columns(level)
             # clipped at `DENSITY_MAX`: a float32 inf in a table would give inf·0 = NaN in the interpolation
             flat = np.ascontiguousarray(np.minimum(values, DENSITY_MAX).reshape(-1))
             if ops.name == "drjit":
@@ -181,10 +197,11 @@ class CloudGrid:
         value = bilinear(k0) * (1.0 - fz) + bilinear(k1) * fz
         return ops.select(ix & iy & iz, value, 0.0 * value)
 
-    def plane(self, ops, x, y):
-        """D at (x, y) (dimensionless): the density plane, bilinear at column centres, 0 off the footprint."""
-        nx, ny, _nz = self.resolution
-        table = self._table(ops, x, "plane")
+    def plane(self, ops, x, y, level: int = 0):
+        """D at (x, y) (dimensionless): the density plane (mip ``level``), bilinear at texel centres, 0 off
+        the box's footprint."""
+        nx, ny = self.plane_resolution(level)
+        table = self._table(ops, x, "plane", level)
         i0, i1, fx, ix = self._axis(ops, x, 0, nx)
         j0, j1, fy, iy = self._axis(ops, y, 1, ny)
 
@@ -237,11 +254,11 @@ def _march_kernel(ops, px, py, pz, sx, sy, sz, cloud, steps):
     return ops.exp(-tau)
 
 
-def _plane_kernel(ops, px, py, pz, sx, sy, sz, cloud, k, h):
-    """The seed's cloud-shadow texture: T = exp(−k·D(p + t·s)/μ), t = (h − p_z)/μ."""
+def _plane_kernel(ops, px, py, pz, sx, sy, sz, cloud, k, h, level=0):
+    """The seed's cloud-shadow texture: T = exp(−k·D(p + t·s)/μ), t = (h − p_z)/μ (D at mip ``level``)."""
     mu = ops.maximum(sz, MU_MIN)
     t = (h - pz) / mu
-    d = cloud.plane(ops, px + t * sx, py + t * sy)
+    d = cloud.plane(ops, px + t * sx, py + t * sy, int(level))
     lit = (sz > MU_MIN) & (t >= 0.0)
     return ops.select(lit, ops.exp(-k * d / mu), 1.0 + 0.0 * d)
 
@@ -288,6 +305,21 @@ METHODS = method_table(
             quantity="cloud_transmittance",
             formula="T = exp(−k·D(p + t·s)/μ), t = (h − p_z)/μ, D = ∫σ dz (the density plane)",
             source=_SEED,
+        ),
+        *(
+            Method(
+                id=f"plane-mip{level}",
+                label=f"the seed's texture at 1/{1 << level} resolution",
+                kernel=_plane_kernel,
+                inputs=INPUTS,
+                params={"k": _K, "h": _H},
+                fixed={"level": level},
+                quantity="cloud_transmittance",
+                formula=f"T = exp(−k·D_{level}(p + t·s)/μ), D_{level}: the density plane box-filtered "
+                f"{1 << level}×{1 << level}",
+                source=_SEED,
+            )
+            for level in PLANE_LEVELS
         ),
         *(
             Method(

@@ -31,7 +31,11 @@ BLOB = ((0.2, -0.3, 3.0), 0.5, 2.0)  # centre (m), standard deviation (m), peak 
 
 
 def _given(method: str, lo: float, hi: float, h: float) -> dict:
-    return {"h": h} if method == "plane" else ({"h0": lo, "h1": hi} if method.startswith("slab") else {})
+    return (
+        {"h": h}
+        if method.startswith("plane")
+        else ({"h0": lo, "h1": hi} if method.startswith("slab") else {})
+    )
 
 
 def _blob_cloud(n: int = 48, half: float = 2.5) -> CloudGrid:
@@ -112,6 +116,26 @@ def test_density_plane_is_the_blob_column_depth():
     r2 = np.sum((xy - np.asarray(c[:2])) ** 2, axis=1)
     truth = a * np.exp(-0.5 * r2 / w**2) * w * math.sqrt(2 * math.pi)
     assert np.max(np.abs(got / truth - 1.0)) < 1.1e-2, (got, truth)
+
+
+def test_texture_mips_are_block_means():
+    """The seed texture's mip levels (plane-mip1, -mip2): the shipped grid's 40 × 40 columns averaged over
+    2 × 2 and 4 × 4 blocks (NumPy reshape, independent of the split the module uses), read at a coarse texel
+    centre; a 5 × 3 plane (not divisible by 2) splits into blocks of 3 and 2 columns."""
+    cloud = CloudGrid(blob_grid().astype(np.float64), *BOX)
+    d = blob_grid().astype(np.float64).sum(axis=0) * 0.2  # Δz = 2 m / 10
+    for level in (1, 2):
+        b = 1 << level
+        mean = d.reshape(40 // b, b, 40 // b, b).mean(axis=(1, 3))
+        assert np.allclose(cloud.columns(level), mean, rtol=1e-12, atol=0)
+        w = 8.0 / (40 // b)  # a coarse texel's width (m); texel (3, 5) centre
+        x, y = -4.0 + 3.5 * w, -4.0 + 5.5 * w
+        got = cloud.plane(NUMPY_OPS, np.array([x]), np.array([y]), level)
+        assert math.isclose(float(got[0]), mean[5, 3], rel_tol=1e-12)
+    odd = CloudGrid(np.arange(15.0).reshape(1, 3, 5), (0, 0, 0), (5, 3, 1))
+    assert odd.plane_resolution(1) == (2, 1) and odd.columns(1).shape == (1, 2)
+    full = np.arange(15.0).reshape(3, 5)
+    assert np.allclose(odd.columns(1), [[full[:, :3].mean(), full[:, 3:].mean()]])
 
 
 def test_seed_plane_is_exact_for_a_thin_layer():
@@ -225,7 +249,7 @@ def test_extremes_finite(elevation, azimuth, scale, x, z, k, h):
     for method in METHODS:
         params = (
             {"k": k, "h": h}
-            if method == "plane"
+            if method.startswith("plane")
             else ({"k": k, "h0": h, "h1": 3.0} if "slab" in method else {})
         )
         inputs = {"px": pts[:, 0], "py": pts[:, 1], "pz": pts[:, 2], "sx": s[0], "sy": s[1], "sz": s[2],
@@ -307,7 +331,10 @@ def test_list_names_clouds():
     result = CliRunner().invoke(audit_cmd, [str(SCENE), "--list"])
     assert result.exit_code == 0, result.output
     assert "clouds — cloud shadow: heterogeneous medium 'cloud'" in result.output
-    assert "plane, slab-4, slab-16, march-4, march-8, march-16, march-64" in result.output
+    assert (
+        "plane, plane-mip1, plane-mip2, slab-4, slab-16, march-4, march-8, march-16, march-64"
+        in result.output
+    )
 
 
 def test_registry_entry_is_born_on_the_engine():
