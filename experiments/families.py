@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 from rtfit.realtime import (
     ambient_aperture,
+    clouds,
     colour_bleeding,
     diffuse,
     environment_bases,
@@ -62,6 +63,7 @@ from . import (
     audit_aerial_perspective,
     audit_ambient_aperture,
     audit_ambient_occlusion,
+    audit_clouds,
     audit_colour_bleeding,
     audit_diffuse,
     audit_environment_maps,
@@ -294,6 +296,19 @@ FAMILIES: dict[str, Family] = {
             audits=(audit_raindrops.FAMILY,),
             scenes=audit_raindrops.SCENES,
             study=audit_raindrops.study,
+        ),
+        Family(
+            "clouds",
+            ENGINE,
+            "Cloud shadows: the seed's 2-D density plane vs the sun's transmittance through a gridvolume",
+            "The sun's transmittance through a heterogeneous (gridvolume) cloud to the ground, by ratio "
+            "tracking through the medium, against the seed's cloud-shadow texture (the density plane "
+            "projected along the sun), the plane extruded with the distance clouds' nested march, and a 3-D "
+            "ray march of 4–64 samples.",
+            methods=clouds.METHODS,
+            audits=(audit_clouds.FAMILY,),
+            scenes=audit_clouds.SCENES,
+            study=audit_clouds.study,
         ),
         Family(
             "aerial-perspective",

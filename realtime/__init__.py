@@ -47,6 +47,8 @@ Modules:
                 (docs/nishita-sky.md).
     layered_materials  the seed's layered ("goopy") materials: the inner layer's parallax offset without
                 refraction vs Snell's refracted offset; blur radii and composite (docs/layered-materials.md).
+    clouds      the seed's cloud shadows: a 2-D density plane projected along the sun, the plane extruded
+                and marched, a 3-D ray march of the cloud's grid (docs/clouds.md).
     misty_glow  the seed's misty glow: an iterated Kawase bloom of a light's direct image as the
                 atmospheric point-spread function; a Gaussian bloom (docs/misty-glow.md).
     raindrops   the seed's raindrop: a Fresnel blend of a reflected and a once-refracted environment
@@ -96,6 +98,7 @@ from .aerial_perspective import *  # noqa: F403
 from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
+from .clouds import *  # noqa: F403
 from .colour_bleeding import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .environment_bases import *  # noqa: F403
@@ -144,6 +147,7 @@ MODULES = (
     "layered_materials",
     "misty_glow",
     "raindrops",
+    "clouds",
     "irradiance_bases",
     "irradiance_volumes",
     "spherical_gaussians",

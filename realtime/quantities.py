@@ -41,6 +41,8 @@ from typing import Any
 import numpy as np
 
 from . import soft_particles
+from .clouds import INPUTS as CLOUD_INPUTS
+from .clouds import CloudGrid
 from .colour_bleeding import INPUTS as BLEED_INPUTS
 from .fresnel import INPUTS as FRESNEL_INPUTS
 from .ibl_samples import INPUTS as IBL_INPUTS
@@ -240,6 +242,16 @@ def _example_chains(n: int) -> ProbeChains:
 
 
 _PROBE_SPECULAR_TABLES = {"chains": _example_chains, "probe": lambda n: np.zeros(n)}
+
+
+def _example_cloud(n: int) -> CloudGrid:
+    """A 6 × 6 × 3 cloud of one blob (peak σ 2 /m) over [−2, 2]² × [1, 2] m (any ``n``)."""
+    c = (np.arange(6) + 0.5) / 6.0 * 4.0 - 2.0
+    z = 1.0 + (np.arange(3) + 0.5) / 3.0
+    zz, yy, xx = np.meshgrid(z, c, c, indexing="ij")
+    return CloudGrid(
+        2.0 * np.exp(-(xx**2 + yy**2 + 4.0 * (zz - 1.5) ** 2)), (-2.0, -2.0, 1.0), (2.0, 2.0, 2.0)
+    )
 
 
 _NORMAL = _vec("n", "unit surface normal (world frame, +Z up)")
@@ -444,6 +456,17 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 reference=_FOG_REFERENCE,
                 note="height-fog's shipped forms approximate τ (fog_optical_depth): T = exp(−τ); "
                 "linear-fog's fog factors f(d) read the stretch's length d (`length`) and give T directly",
+            ),
+            Quantity(
+                "cloud_transmittance",
+                "1",
+                "the sun's transmittance T through a cloud (a density grid) to a ground point",
+                CLOUD_INPUTS,
+                vectors={"point": ("px", "py", "pz"), "sun": ("sx", "sy", "sz")},
+                unit_vectors=("sun",),
+                examples={"cloud": _example_cloud},
+                reference="ratio tracking from each visible point toward the sun through the scene's own "
+                "gridvolume medium",
             ),
             Quantity(
                 "fog_inscatter",
