@@ -14,9 +14,10 @@ engine's forward pass does, from the approximations rtfit audits, and writes the
 2. **Direct light, per emitter**, from the diffuse family's light-model rows (`rtfit.realtime.light_models`)
    evaluated from the light's own parameters as the audit reads them (`rtfit.experiments.audit_lights`):
    point and sphere lights ``punctual`` (I/d² at the centre; a sphere's I = π r² L), rectangle lights
-   ``polygon`` (LTC for a diffuse BRDF), spot lights ``spot-linear`` (Mitsuba's own profile), disk and other
-   area lights of uniform radiance ``punctual`` (I = L·A·cos θ_l); a directional light ``lambert``
-   (`rtfit.realtime.diffuse`) with its own ``irradiance``.
+   ``polygon`` (LTC for a diffuse BRDF), spot lights ``spot-linear`` (Mitsuba's own profile), disk lights
+   ``punctual`` (I = L·A·cos θ_l); a directional light ``lambert`` (`rtfit.realtime.diffuse`) with its own
+   ``irradiance``. Any other light (a projector, an area light on a mesh, a textured light) is left out with
+   a note: no row of the family reads it.
 3. **Hard shadows**: one shadow ray per pixel and light towards the light's centre, cast by Mitsuba
    (`audit_lights.hard_shadow`): an ideal shadow map (no resolution, no bias, no acne), but hard — an area
    light's penumbra is either fully lit or fully shadowed.
@@ -28,8 +29,7 @@ engine's forward pass does, from the approximations rtfit audits, and writes the
    own ``eval``: the engine's emissive material and sky box).
 
 **Not modelled**: specular reflection (every BSDF is shaded as Lambertian with its diffuse reflectance),
-indirect (bounce) light, soft shadows, occlusion of the sky, media, textured lights (a texture's mean is not
-taken: such a light is left out with a note).
+indirect (bounce) light, soft shadows, occlusion of the sky, media, the lights left out above.
 
 AOVs (with ``--aov-dir``): ``depth.exr`` (channel ``Z``: the distance along the ray, 0 where no surface) and
 ``normal.exr`` (world-space shading normals, 0 where no surface), so that compare checks the alignment.
@@ -95,19 +95,28 @@ def _row(row: str, channels: list[dict], cos_theta, dist) -> np.ndarray:
 
 def _light(setup, k: int, points, normals, notes) -> tuple[np.ndarray, np.ndarray]:
     """E (N, 3) of the light ``k`` (unshadowed) from its light-model row, and its hard shadow (N,)."""
-    light = scene_light(setup, k)
+    none = np.zeros((len(points), 3)), np.ones(len(points))
+    try:
+        light = scene_light(setup, k)
+    except AuditError as e:  # a projector, a light Mitsuba did not instantiate: no row reads it
+        notes.append(f"light {k}: left out ({e})")
+        return none
+    if setup.info.xml.emitters[k].patterned:
+        notes.append(f"{light.kind} light {k}: left out (it projects a texture: no cone profile models it)")
+        return none
     towards, dist, _alpha, _centre, radius = light_geometry(setup, k, points)
     cos_theta = np.sum(normals * towards, axis=1)
-    shadow = hard_shadow(setup, points, normals, towards, dist, radius, shape=light.emitter.get_shape())
-    if light.kind == "directional":
-        e_perp = np.resize(np.asarray(setup.mi.traverse(light.emitter)["irradiance.value"]).reshape(-1), 3)
+    params = setup.mi.traverse(light.emitter)
+    if light.kind == "directional" and "irradiance.value" in params:
+        e_perp = np.resize(np.asarray(params["irradiance.value"]).reshape(-1), 3)
         channels, row = [{"irradiance": float(v)} for v in e_perp], "lambert"
     else:
         channels = light_model_inputs(setup, k, points, normals, towards, dist)
         row = ROW_OF_LIGHT.get(light.kind, "punctual")
     if any(name not in {**channels[0], "cos_theta": 0, "distance": 0} for name in DIFFUSE[row].input_names):
-        notes.append(f"{light.kind} light {k}: left out (not a light of uniform, untextured emission)")
-        return np.zeros((len(points), 3)), shadow
+        notes.append(f"{light.kind} light {k}: left out (no {row} row: textured, or on a mesh)")
+        return none
+    shadow = hard_shadow(setup, points, normals, towards, dist, radius, shape=light.emitter.get_shape())
     notes.append(f"{light.kind} light {k}: {row} row, hard shadow")
     return _row(row, channels, cos_theta, dist), shadow
 
