@@ -168,7 +168,7 @@ def realtime_frame(scene_path, defines=None, *, variant: str = "llvm_ad_rgb") ->
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    p = argparse.ArgumentParser(description=(__doc__ or "").split("\n", 1)[0])
     p.add_argument("scene", help="a Mitsuba XML scene with a sensor")
     p.add_argument("out", help="the frame, an OpenEXR file (linear RGB, 32-bit float)")
     p.add_argument("--aov-dir", help="also write depth.exr and normal.exr here")
