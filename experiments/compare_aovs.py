@@ -10,11 +10,14 @@ assumed (`rtfit.experiments.compare`).
   radiance frame's error into albedo and lighting).
 * **normal**: unit normals, stored as they are or encoded as n/2 + ½; the convention they are in (world with
   the scene's axes, world with Y up, view space looking down −z or +z) is the one with the least median angle
-  to Mitsuba's shading normals; refused when even that exceeds `NORMAL_REFUSE_DEG`.
+  to Mitsuba's shading normals; refused when even that exceeds `NORMAL_REFUSE_DEG`, or when the image turned
+  back (upside down, mirrored, rotated by 180°: `FLIPS`) matches far better (with only a normal AOV, the
+  flips are told from the normals, as from the depth).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -45,6 +48,15 @@ DEPTH_WARN = 0.2
 view (refused, naming it, when one of them explains the depth)."""
 NORMAL_TOLERANCE_DEG = 10.0
 NORMAL_REFUSE_DEG = 30.0
+NORMAL_FLIP_MIN = 0.05
+"""Fraction of surface pixels whose normal is off by more than `NORMAL_TOLERANCE_DEG` above which the normal
+AOV is examined for a flipped image (refused, naming it, when the flip brings that fraction to a quarter)."""
+FLIPS = (
+    ("its image is upside down: a flipped up axis (Y-up against Z-up?) or image origin", np.s_[::-1, :]),
+    ("its image is mirrored: the other handedness", np.s_[:, ::-1]),
+    ("its image is rotated by 180°", np.s_[::-1, ::-1]),
+)
+"""The image flips an AOV is examined for (depth and normals): the words naming each, and its slice."""
 
 
 def parse_aovs(values: Sequence[str] | str | None) -> dict[str, str]:
@@ -111,8 +123,9 @@ def _camera_axes(gb) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def normal_alignment(normals: np.ndarray, gb, text: str) -> dict:
     """The normal AOV against Mitsuba's shading normals at the first hits (module docstring): the encoding,
     the convention, the median angle and the fraction of surface pixels beyond `NORMAL_TOLERANCE_DEG`.
-    `AuditError` (one line) when they are not unit vectors, or no convention brings the median angle under
-    `NORMAL_REFUSE_DEG`."""
+    `AuditError` (one line) when they are not unit vectors, no convention brings the median angle under
+    `NORMAL_REFUSE_DEG`, or more than `NORMAL_FLIP_MIN` are off and the image turned back (the best of
+    `FLIPS`) has at most a quarter as many off: the flip is named."""
     raw = np.asarray(normals, np.float64)
     ok = gb.mask & np.all(np.isfinite(raw), axis=-1)
     candidates = {"stored as they are": raw}
@@ -134,12 +147,26 @@ def normal_alignment(normals: np.ndarray, gb, text: str) -> dict:
         "view space looking down −z (OpenGL)": np.stack([m @ right, m @ up, -(m @ fwd)], axis=-1),
         "view space looking down +z (Direct3D)": np.stack([m @ right, m @ up, m @ fwd], axis=-1),
     }
-    angles = {}
-    for name, x in conventions.items():
-        a = np.degrees(np.arccos(np.clip(np.sum(n[ok] * x[ok], axis=-1), -1.0, 1.0)))
-        angles[name] = (float(np.median(a)), float(np.mean(a > NORMAL_TOLERANCE_DEG)))
-    best = min(angles, key=lambda k: angles[k][0])
-    median, frac = angles[best]
+
+    def matched(n: np.ndarray, ok: np.ndarray) -> tuple[float, float, str]:
+        """(median angle, fraction beyond the tolerance, convention): the convention of least median."""
+        best = (math.inf, 1.0, "")
+        for name, x in conventions.items():
+            a = np.degrees(np.arccos(np.clip(np.sum(n[ok] * x[ok], axis=-1), -1.0, 1.0)))
+            best = min(best, (float(np.median(a)), float(np.mean(a > NORMAL_TOLERANCE_DEG)), name))
+        return best
+
+    median, frac, best = matched(n, ok)
+    if frac > NORMAL_FLIP_MIN:  # flipped, mirrored or rotated: the normals match only with the image turned
+        turned = [(*matched(n[flip], gb.mask & np.all(np.isfinite(raw[flip]), axis=-1))[:2], label)
+                  for label, flip in FLIPS]  # fmt: skip
+        f_median, f_frac, label = min(turned, key=lambda t: t[1])
+        if f_frac <= frac / 4 and f_median <= NORMAL_REFUSE_DEG:
+            raise AuditError(
+                f"--aov normal {text}: the frame's camera does not match the scene's sensor: {label} "
+                f"({frac:.0%} of surface pixels' normals off by more than {NORMAL_TOLERANCE_DEG:g}°, "
+                f"{f_frac:.0%} with the image turned back)"
+            )
     if median > NORMAL_REFUSE_DEG:
         raise AuditError(
             f"--aov normal {text}: the frame's normals do not match the scene's in any convention (world, "
@@ -179,13 +206,8 @@ def _camera_mismatch(depth, frac: float, misaligned, x_fov_deg) -> str | None:
     """Which simple change of the camera makes the frame's depth match (misaligned at most `DEPTH_WARN` and
     half of ``frac``): a flip, a half-pixel offset or another field of view; None when none does."""
     good = min(DEPTH_WARN, frac / 2)
-    flips = (
-        ("its image is upside down: a flipped up axis (Y-up against Z-up?) or image origin", depth[::-1, :]),
-        ("its image is mirrored: the other handedness", depth[:, ::-1]),
-        ("its image is rotated by 180°", depth[::-1, ::-1]),
-    )
-    for label, flipped in flips:
-        if misaligned(flipped)[0] <= good:
+    for label, flip in FLIPS:
+        if misaligned(depth[flip])[0] <= good:
             return label
     shifts = [
         (misaligned(_resampled(depth, 1.0, dx, dy), coverage=False)[0], (dx, dy)) for dx, dy in HALF_PIXELS

@@ -210,7 +210,9 @@ def shape_errors(frame, ref, sigma, hits, names, rel_scale_err: float = 0.0, mas
         u_abs = float(np.hypot(u_abs, rel_scale_err * total))
         z = _z(d, s)
         z = z[np.isfinite(z)]
-        denom = total if total > 0 else float("nan")
+        # A black reference (no sky behind a direct-only frame): relative to what the frame shows instead
+        # (+100 % where it shows light there), and 0 ± 0 where it is black too (was NaN: refused by results).
+        denom = total if total > 0 else max(float(np.sum(np.abs(f))), 1e-300)
         out.append(
             ShapeError(
                 int(idx),
