@@ -176,6 +176,9 @@ def main(argv=None) -> int:
         "-D", action="append", default=[], metavar="NAME=VALUE", help="an XML <default> (as rtfit's)"
     )
     args = p.parse_args(argv)
+    bad = [d for d in args.D if "=" not in d or not d.split("=", 1)[0]]
+    if bad:
+        p.error(f"-D {bad[0]!r}: expected NAME=VALUE")  # one line, exit 2, before anything is loaded
     try:
         frame = realtime_frame(args.scene, dict(d.split("=", 1) for d in args.D))
     except (AuditError, ValueError) as e:

@@ -77,14 +77,17 @@ def transmittance_pass(
     seed: int,
     max_steps: int = MAX_STEPS,
     min_distance=None,
+    tag: str = "transmittance",
 ) -> PassResult:
     """One pass of ``spp`` ratio-tracking samples of the transmittance of ``medium`` (a loaded Mitsuba
-    medium) along rays from ``origin`` (3,) in unit ``directions`` (N, 3) over [``min_distance``,
+    medium) along rays from ``origin`` — (3,): one camera for every ray; (N, 3): one origin per ray (the
+    sun's parallel rays from ground points) — in unit ``directions`` (N, 3) over [``min_distance``,
     ``max_distance``] (N,; +inf allowed; ``min_distance`` None: 0), intersected with the medium's own region
     (``intersect_aabb``). A medium that Mitsuba bounds by a shape rather than by its own region (a
     ``homogeneous`` medium is unbounded) is clipped to the shape by the caller through these distances.
     Returns a `PassResult` with mean and variance (N, 3): the grey T estimated independently in each channel
-    (3 × ``spp`` samples per ray), so that the three channels' errors are independent."""
+    (3 × ``spp`` samples per ray), so that the three channels' errors are independent. ``tag`` names the
+    pass's random streams (`sub_seed`)."""
     d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
     dist = np.asarray(max_distance, np.float64).reshape(-1)
     n = len(d)
@@ -93,19 +96,27 @@ def transmittance_pass(
     t0 = time.perf_counter()
     s = np.empty((n, 3))
     q = np.empty((n, 3))
-    o = [float(x) for x in origin]
+    per_ray = np.ndim(origin) == 2
+    if per_ray:
+        ox, oy, oz = (mi.Float(np.asarray(origin, np.float64)[:, k].astype(np.float32)) for k in range(3))
+    else:
+        o = [float(x) for x in origin]
     dx, dy, dz = (mi.Float(d[:, k].astype(np.float32)) for k in range(3))
     far = mi.Float(np.where(np.isfinite(dist), dist, np.finfo(np.float32).max).astype(np.float32))
     lanes = 3 * spp  # three independent estimates (one per channel) of spp samples each
     for k, (a, b) in enumerate(chunk_ranges(n, lanes)):
         m = (b - a) * lanes
         sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(sub_seed(seed, "transmittance", k), m)
+        sampler.seed(sub_seed(seed, tag, k), m)
         idx = dr.arange(mi.UInt32, m) // lanes + a
         direction = mi.Vector3f(
             dr.gather(mi.Float, dx, idx), dr.gather(mi.Float, dy, idx), dr.gather(mi.Float, dz, idx)
         )
-        ray = mi.Ray3f(mi.Point3f(*o), dr.normalize(direction))
+        if per_ray:
+            start = mi.Point3f(*(dr.gather(mi.Float, c, idx) for c in (ox, oy, oz)))
+        else:
+            start = mi.Point3f(*o)
+        ray = mi.Ray3f(start, dr.normalize(direction))
         hit_box, t_in, t_out = medium.intersect_aabb(ray)
         t_in = dr.maximum(t_in, dr.gather(mi.Float, near, idx))
         t_out = dr.minimum(t_out, dr.gather(mi.Float, far, idx))
