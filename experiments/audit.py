@@ -107,6 +107,9 @@ PROVIDES: dict[str, frozenset[str]] = {
     "point-in-medium": frozenset({*_SEGMENT_INPUTS, "lx", "ly", "lz", *_LIT_MEDIUM_INPUTS}),
     "spot-in-medium": frozenset({*(i.name for i in CONE_INPUTS), *_LIT_MEDIUM_INPUTS}),
     "reflective-shape": frozenset(i.name for i in reflections.METHODS["classic"].inputs),
+    # a smooth `dielectric` (not thin glass): a clear coat or a drop; on a sphere shape, a drop
+    "glass-shape": frozenset(i.name for i in reflections.METHODS["classic"].inputs),
+    "glass-sphere": frozenset(i.name for i in reflections.METHODS["classic"].inputs),
     "volume": frozenset({"px", "py", "pz", "nx", "ny", "nz", "table", "grid"}),
     "rough-shape": frozenset(
         i.name for m in ("classic", "preconvolved") for i in reflections.METHODS[m].inputs
@@ -146,6 +149,8 @@ _KIND_TEXT = {
     "point-in-medium": "a point light inside a homogeneous medium",
     "spot-in-medium": "a spot light inside a homogeneous medium",
     "reflective-shape": "a mirror or glass shape (conductor, dielectric, thindielectric or plastic)",
+    "glass-shape": "a smooth glass shape (a dielectric BSDF, not thindielectric)",
+    "glass-sphere": "a smooth glass sphere (a sphere shape with a dielectric BSDF)",
     "volume": "a scene with a finite bounding box for a probe grid",
     "rough-shape": "a rough (glossy) reflective shape: roughconductor, roughdielectric or roughplastic",
     "height-field": "a shape whose BSDF is a bumpmap with a bitmap texture (its height field)",
@@ -376,7 +381,7 @@ def _xml_info(x: XmlScene) -> SceneInfo:
     for ordinal, shape in enumerate(reflective):  # `Part.source`: the ordinal among the reflective shapes
         named = f" '{shape.id}'" if shape.id else ""
         text = f"{REFLECTIVE_BSDFS[shape.bsdf].text} {shape.type}{named} ({_short(shape.location)})"
-        parts.append(Part(_reflective_kinds(shape.bsdf), text, ordinal))
+        parts.append(Part(_reflective_kinds(shape.bsdf, shape.type == "sphere"), text, ordinal))
     for index, m in enumerate(x.media):
         where = " bounded by a shape" if m.boundary else (" around the sensor" if m.on_sensor else "")
         named = f" '{m.id}'" if m.id and m.id not in ("interior", "exterior", "medium") else ""
@@ -494,9 +499,13 @@ def _volume_part(bbox) -> Part:
     return Part(kinds, f"a probe grid over the scene's box {vec_text(lo)}–{vec_text(hi)}")
 
 
-def _reflective_kinds(plugin: str) -> frozenset[str]:
-    """The part kinds of a shape with the reflective BSDF ``plugin`` (`REFLECTIVE_BSDFS`)."""
-    return frozenset({"rough-shape" if REFLECTIVE_BSDFS[plugin].rough else "reflective-shape"})
+def _reflective_kinds(plugin: str, sphere: bool = False) -> frozenset[str]:
+    """The part kinds of a shape with the reflective BSDF ``plugin`` (`REFLECTIVE_BSDFS`); a smooth
+    ``dielectric`` is also glass (``glass-shape``), on a ``sphere`` shape a drop (``glass-sphere``)."""
+    kinds = {"rough-shape" if REFLECTIVE_BSDFS[plugin].rough else "reflective-shape"}
+    if plugin == "dielectric":
+        kinds |= {"glass-shape", "glass-sphere"} if sphere else {"glass-shape"}
+    return frozenset(kinds)
 
 
 def _counts(items) -> list[tuple[str, int]]:
@@ -535,9 +544,9 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
             parts.append(Part(frozenset({"geometry"}), f"the scene's geometry ({types})"))
         if bbox is not None:
             parts.append(_volume_part(bbox))
-        for index, plugin, where in _toml_reflective(scene):
-            text = f"{REFLECTIVE_BSDFS[plugin].text} shape ({where}: {plugin})"
-            parts.append(Part(_reflective_kinds(plugin), text, index))
+        for index, plugin, where, sphere in _toml_reflective(scene):
+            text = f"{REFLECTIVE_BSDFS[plugin].text} {'sphere' if sphere else 'shape'} ({where}: {plugin})"
+            parts.append(Part(_reflective_kinds(plugin, sphere), text, index))
     for i, medium in enumerate(scene.media):
         kind = {
             "exponential_fog": {"fog"},
@@ -635,11 +644,11 @@ def _toml_bbox(scene: Scene):
     return (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2]))
 
 
-def _toml_reflective(scene: Scene) -> list[tuple[int, str, str]]:
-    """(ordinal, BSDF plugin, where) of each reflective shape of a TOML scene, in the order of the Mitsuba
-    scene dict's keys (`mitsuba_scene_dict`: ``xml<i>_<j>``, the j-th shape of TOML shape i; the order
-    `rtfit.reference.reflective_shapes.reflective_shapes` gives them). rtfit's own materials are diffuse, so
-    these come from ``mitsuba_xml`` shapes that keep their file's BSDFs."""
+def _toml_reflective(scene: Scene) -> list[tuple[int, str, str, bool]]:
+    """(ordinal, BSDF plugin, where, is a sphere) of each reflective shape of a TOML scene, in the order of
+    the Mitsuba scene dict's keys (`mitsuba_scene_dict`: ``xml<i>_<j>``, the j-th shape of TOML shape i; the
+    order `rtfit.reference.reflective_shapes.reflective_shapes` gives them). rtfit's own materials are
+    diffuse, so these come from ``mitsuba_xml`` shapes that keep their file's BSDFs."""
     keeps = [getattr(s, "override_material", None) is None for s in scene.shapes if s.kind == "mitsuba_xml"]
     if not any(keeps):
         return []
@@ -651,7 +660,8 @@ def _toml_reflective(scene: Scene) -> list[tuple[int, str, str]]:
                 continue
             plugin = shape_plugin(obj)
             if plugin is not None:
-                out.append((len(out), plugin, f"shapes[{key[3:].split('_')[0]}], {key}"))
+                sphere = obj.shape_type() == int(mi.ShapeType.Sphere)
+                out.append((len(out), plugin, f"shapes[{key[3:].split('_')[0]}], {key}", sphere))
     return out
 
 

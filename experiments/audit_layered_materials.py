@@ -4,7 +4,7 @@ against the seed's parallax offset without refraction (000:1189-1217) and Snell'
 (`rtfit.realtime.layered_materials.METHODS`).
 
 For each smooth ``dielectric`` shape of a Mitsuba XML scene, or of an rtfit TOML scene (a ``mitsuba_xml``
-shape keeping its file's BSDFs), a ``reflective-shape`` part, one case
+shape keeping its file's BSDFs), a ``glass-shape`` part (a smooth ``dielectric``), one case
 ``coat-<i>`` on the pixels whose camera ray meets that shape first from its outside and whose refracted ray
 then meets another shape (the base):
 
@@ -345,7 +345,7 @@ FAMILY = AuditFamily(
         Rule(
             "layered-materials",
             "coat over a base",
-            ("reflective-shape",),
+            ("glass-shape",),
             *_RULE_WORDS,
             supplies=frozenset(i.name for m in METHODS.values() for i in m.inputs),
         ),

@@ -2,7 +2,7 @@ r"""The ``raindrops`` family in `rtfit audit`: a water drop — a smooth dielect
 environment — path traced, against the seed's Fresnel blend of a reflected and a once-refracted look-up
 and the ray optics of a sphere (`rtfit.realtime.raindrops.METHODS`).
 
-It applies to each glass shape of the scene (``reflective-shape``) when the scene has an environment; the
+It applies to each smooth glass sphere of the scene (``glass-sphere``) when the scene has an environment; the
 case is made only where the shape is what the rows assume, else none (the reason in the rule's words):
 
 * a Mitsuba ``sphere`` (the exit directions are the sphere's: a mesh drop or another shape is left out);
@@ -296,9 +296,9 @@ FAMILY = AuditFamily(
         Rule(
             "raindrops",
             "drop",
-            ("reflective-shape", "environment"),
-            "{part} under {with_}: if it is a smooth dielectric sphere of η 1.2–1.6 (a drop; other shapes, "
-            "rough or thin glass give no case), an engine shades it as a refracted and a reflected "
+            ("glass-sphere", "environment"),
+            "{part} under {with_}: a drop where its η is 1.2–1.6 (water 1.33, glass 1.5; other η give no "
+            "case), an engine shades it as a refracted and a reflected "
             "environment look-up with a Fresnel blend",
             "path-traced radiance of the pixels that see the drop (W/m²/sr, RGB)",
             "path (unbounded depth, Russian roulette) along the pixel-centre camera rays; the environment's "
