@@ -88,6 +88,7 @@ from .aerial_perspective import *  # noqa: F403
 from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
+from .caustics import *  # noqa: F403
 from .colour_bleeding import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .environment_bases import *  # noqa: F403
@@ -151,6 +152,7 @@ MODULES = (
     "pcf_soft_shadows",
     "ibl_samples",
     "colour_bleeding",
+    "caustics",
     "probe_specular",
     "quantities",
     "shader",
