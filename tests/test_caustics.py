@@ -18,7 +18,7 @@ from rtfit.experiments.audit_caustics import nearest_photons
 from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_run import audit
 from rtfit.realtime import NUMPY_OPS, adaptive_splat_irradiance, photon_map_irradiance, splat_irradiance
-from rtfit.realtime.caustics import METHODS, NEAREST, NO_PHOTON, PHOTON_COUNTS
+from rtfit.realtime.caustics import METHODS, NEAREST, NO_PHOTON, PHOTON_COUNTS, RINGS
 from rtfit.reference import caustic_pass as cp
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -28,45 +28,56 @@ SUN = LIBRARY / "caustics_sphere_sun.xml"
 FAST = {"cost_elements": 1 << 10, "metrics": ("rmse", "max_abs")}
 
 
-def _as_inputs(d, f, s) -> dict:
-    cols = {"d": d, "f": f, "s": s}
-    return {f"{v}{k + 1}": a[:, k] for v, a in cols.items() for k in range(NEAREST)}
+def _as_inputs(d, f, g=None, q=None) -> dict:
+    """The kernels' per-point inputs: K nearest (d, f) and the rings (g, q; default: empty)."""
+    n = len(d)
+    g = np.zeros((n, RINGS)) if g is None else g
+    q = np.full((n, RINGS), NO_PHOTON) if q is None else q
+    near = {f"{v}{k + 1}": a[:, k] for v, a in {"d": d, "f": f}.items() for k in range(NEAREST)}
+    return near | {f"{v}{j + 1}": a[:, j] for v, a in {"g": g, "q": q}.items() for j in range(RINGS)}
 
 
 def _photons(n_points=3, k=NEAREST, seed=0):
     rng = np.random.default_rng(seed)
     d = np.sort(rng.uniform(0.0, 0.4, (n_points, k)), axis=1)
     f = rng.uniform(0.0, 0.01, (n_points, k))
-    s = rng.uniform(0.01, 0.2, (n_points, k))
-    return d, f, s
+    g = rng.uniform(0.0, 0.05, (n_points, RINGS))
+    q = d[:, -1:] * 1.15 ** (np.arange(RINGS) + 0.5)
+    return d, f, g, q
 
 
 # ------------------------------------------------------------------------------------------ kernels
 def test_kernels_are_the_sums_by_hand():
-    """At 3 points: the seed's constant snippets Σ f e^(−d²/2h²)/(2πh²), the adaptive ones (h = c·s per
-    photon) and the photon-map gather Σf/(πd_K²), each summed photon by photon in plain Python."""
-    d, f, s = _photons()
+    """At 3 points: the seed's constant snippets Σ f e^(−d²/2h²)/(2πh²), the adaptive ones (h = c·d₈) and
+    the photon-map gather Σf/(πd_K²), each summed photon by photon in plain Python; the table's rows add
+    the rings' Σ g e^(−q²/2h²)/(2πh²)."""
+    d, f, g, q = _photons()
+    inputs = _as_inputs(d, f, g, q)
+
+    def snip(dist, w):
+        return math.exp(-(dist**2) / (2 * w * w)) / (2 * math.pi * w * w)
+
     h, c = 0.07, 1.3
     for i in range(3):
-        seed = sum(
-            f[i, k] * math.exp(-(d[i, k] ** 2) / (2 * h * h)) / (2 * math.pi * h * h) for k in range(NEAREST)
-        )
-        adapt = sum(
-            f[i, k]
-            * math.exp(-(d[i, k] ** 2) / (2 * (c * s[i, k]) ** 2))
-            / (2 * math.pi * (c * s[i, k]) ** 2)
-            for k in range(NEAREST)
-        )
+        seed = sum(f[i, k] * snip(d[i, k], h) for k in range(NEAREST))
+        ha = c * d[i, 7]
+        adapt = sum(f[i, k] * snip(d[i, k], ha) for k in range(NEAREST))
         gather = sum(f[i]) / (math.pi * d[i, -1] ** 2)
         assert splat_irradiance(d, f, h)[i] == pytest.approx(seed, rel=1e-12)
-        assert adaptive_splat_irradiance(d, f, s, c)[i] == pytest.approx(adapt, rel=1e-12)
+        assert adaptive_splat_irradiance(d, f, c)[i] == pytest.approx(adapt, rel=1e-12)
         assert photon_map_irradiance(d, f)[i] == pytest.approx(gather, rel=1e-12)
+        rings = sum(g[i, j] * snip(q[i, j], h) for j in range(RINGS))
+        rings_a = sum(g[i, j] * snip(q[i, j], ha) for j in range(RINGS))
+        row = METHODS["splat-seed-n4096"](NUMPY_OPS, inputs, {"width": h})
+        assert row[i] == pytest.approx(seed + rings, rel=1e-12)
+        row = METHODS["splat-adaptive-n4096"](NUMPY_OPS, inputs, {"scale": c})
+        assert row[i] == pytest.approx(adapt + rings_a, rel=1e-12)
 
 
 def test_methods_table_runs_the_same_text_on_drjit():
     """Each row of `METHODS` (float32 Dr.Jit) equals the float64 NumPy run of the same kernel to float32."""
-    d, f, s = _photons(5)
-    inputs = _as_inputs(d, f, s)
+    d, f, g, q = _photons(5)
+    inputs = _as_inputs(d, f, g, q)
     assert len(METHODS) == 3 * len(PHOTON_COUNTS)
     for mid, m in METHODS.items():
         a = np.asarray(m.evaluate({k: v.astype(np.float32) for k, v in inputs.items()}))
@@ -84,12 +95,13 @@ def test_snippet_keeps_the_energy():
 
 
 def test_public_functions_say_what_is_wrong_in_one_line():
-    d, f, s = _photons()
+    d, f, _, _ = _photons()
     for call, text in [
         (lambda: splat_irradiance(d, f, 0.0), "width must be in"),
         (lambda: splat_irradiance(d, -f, 0.1), "flux must be in"),
         (lambda: splat_irradiance(d[:, 0], f, 0.1), "(N, K) array"),
-        (lambda: adaptive_splat_irradiance(d, f, s, -1.0), "scale must be in"),
+        (lambda: adaptive_splat_irradiance(d, f, -1.0), "scale must be in"),
+        (lambda: adaptive_splat_irradiance(d[:, :4], f[:, :4], 1.0), "at least the 8 nearest"),
     ]:
         with pytest.raises(ValueError, match=None) as e:
             call()
@@ -102,15 +114,16 @@ def test_public_functions_say_what_is_wrong_in_one_line():
     scale=st.one_of(st.just(1e-6), st.just(1e4), st.floats(1e-6, 1e4)),
     d=st.one_of(st.just(0.0), st.just(NO_PHOTON), st.floats(0.0, 1e3)),
     flux=st.one_of(st.just(0.0), st.floats(0.0, 1e3)),
-    rho=st.one_of(st.just(0.0), st.floats(0.0, 1e3)),
+    ring=st.one_of(st.just(0.0), st.just(NO_PHOTON), st.floats(0.0, 1e3)),
 )
-def test_extremes_finite(width, scale, d, flux, rho):
-    """Zero photons (d = NO_PHOTON, f = 0), coincident photons (ρ = 0), tiny and huge widths: every row finite
-    and non-negative (float32 Dr.Jit and float64 NumPy)."""
+def test_extremes_finite(width, scale, d, flux, ring):
+    """Zero photons (d = q = NO_PHOTON, f = g = 0), photons on the point (d = 0: r₈ = 0), tiny and huge
+    widths: every row finite and non-negative (float32 Dr.Jit and float64 NumPy)."""
     dd = np.array([[d] * NEAREST, [NO_PHOTON] * NEAREST])
     ff = np.array([[flux] * NEAREST, [0.0] * NEAREST])
-    ss = np.array([[rho] * NEAREST, [0.0] * NEAREST])
-    inputs = _as_inputs(dd, ff, ss)
+    gg = np.array([[flux] * RINGS, [0.0] * RINGS])
+    qq = np.array([[ring] * RINGS, [NO_PHOTON] * RINGS])
+    inputs = _as_inputs(dd, ff, gg, qq)
     for mid, m in METHODS.items():
         if not mid.endswith(f"-n{PHOTON_COUNTS[0]}"):
             continue  # (the other photon counts run the same three kernels)
@@ -128,14 +141,41 @@ def test_extremes_finite(width, scale, d, flux, rho):
 
 
 def test_nearest_photons_pads_a_short_set():
-    """Fewer photons than K: the rest are NO_PHOTON, no flux; ρ is each photon's 8th-neighbour distance."""
+    """Fewer photons than K: the rest are NO_PHOTON, no flux, and the rings are empty."""
     pts = np.stack([np.arange(12.0), np.zeros(12), np.zeros(12)], axis=1)
     hits = cp.PhotonHits(pts, np.tile([0, 0, 1.0], (12, 1)), np.ones((12, 3)), np.tile([0, 0, -1.0], (12, 1)),
                          np.arange(12), np.zeros(3))  # fmt: skip
-    d, f, s = nearest_photons(np.array([[0.0, 0.0, 0.0]]), hits)
+    got = nearest_photons(np.array([[0.0, 0.0, 0.0]]), hits)
+    d, f = got["d"], got["f"]
     assert np.allclose(d[0, :12], np.arange(12.0)) and np.all(d[0, 12:] == NO_PHOTON)
     assert np.all(f[0, 12:] == 0) and np.all(f[0, :12] == 1)
-    assert s[0, 0] == 8.0 and s[0, 11] == 8.0 and s[0, 5] == 4.0
+    assert np.all(got["g"] == 0) and np.all(got["q"] == NO_PHOTON)  # no photon beyond the K nearest
+
+
+@pytest.mark.parametrize("h", [0.003, 0.01, 0.03, 0.1])
+def test_rings_give_the_photon_by_photon_splat(h):
+    """2000 photons in a Gaussian blob (σ 5 cm) with varied flux: the K nearest plus the rings (the audit's
+    inputs) give the constant-width and the adaptive (h = c·d₈) splats summed over every photon within 1.5 %
+    at 3 points (centre, flank, tail) and every width (ring ratio 1.15: each ring at its flux-weighted RMS
+    distance)."""
+    rng = np.random.default_rng(4)
+    m = 2000
+    pts = np.concatenate([rng.normal(0, 0.05, (m, 2)), np.zeros((m, 1))], axis=1)
+    flux = np.tile(rng.uniform(0.5, 1.5, (m, 1)) / m, (1, 3))
+    hits = cp.PhotonHits(pts, np.tile([0, 0, 1.0], (m, 1)), flux, np.tile([0, 0, -1.0], (m, 1)),
+                         np.arange(m), np.zeros(3))  # fmt: skip
+    x = np.array([[0.0, 0.0, 0.0], [0.06, 0.02, 0.0], [0.15, -0.05, 0.0]])
+    got = nearest_photons(x, hits)
+    inputs = _as_inputs(got["d"], got["f"][..., 0], got["g"][..., 0], got["q"])
+    dist = np.linalg.norm(x[:, None, :] - pts[None], axis=2)
+    full = (flux[None, :, 0] * np.exp(-(dist**2) / (2 * h * h)) / (2 * np.pi * h * h)).sum(axis=1)
+    seed = np.asarray(METHODS["splat-seed-n1024"](NUMPY_OPS, inputs, {"width": h}))
+    assert np.allclose(seed, full, rtol=0.015, atol=1e-6 * full.max()), (seed, full)
+    c = h / 0.01
+    hh = c * np.sort(dist, axis=1)[:, 7:8]  # the point's 8th nearest photon, by brute force
+    full_a = (flux[None, :, 0] * np.exp(-(dist**2) / (2 * hh * hh)) / (2 * np.pi * hh * hh)).sum(axis=1)
+    adapt = np.asarray(METHODS["splat-adaptive-n1024"](NUMPY_OPS, inputs, {"scale": c}))
+    assert np.allclose(adapt, full_a, rtol=0.015, atol=1e-6 * full_a.max()), (adapt, full_a)
 
 
 # ------------------------------------------------------------------------------------ reference (Mitsuba)
