@@ -251,6 +251,11 @@ def caustic_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     index, shape, plugin = _caster(setup, app)
     if plugin not in CASTERS:
         return []
+    if setup.sensor.class_name() != "PerspectiveCamera":
+        raise AuditError(
+            f"caustics: the reference connects photons to a pinhole camera; the sensor is a "
+            f"{setup.sensor.class_name()} (use a perspective sensor)"
+        )
     centre, radius = _bounding_sphere(mi, shape)
     mask = _receivers(setup)
     if not mask.any():

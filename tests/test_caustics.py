@@ -221,6 +221,28 @@ def test_energy_conservation_through_a_glass_sphere(mi):
     assert np.all(hits.dropped < 1e-6) and ana[0] < f.sum(axis=0)[0]
 
 
+def test_spot_light_photons_carry_its_falloff(mi):
+    """A spot light in place of the point light (same position and I, aimed at the ball): with its cone wider
+    than the ball's (cutoff 20°, the ball subtends 11.5°) the photons carry I·Ω as the point light's do;
+    with cutoff 10° (Mitsuba's falloff inside the ball's cone) less, and still more than nothing."""
+    text = (LIBRARY / "caustics_sphere_point.xml").read_text()
+    spot = '<emitter type="spot"><float name="cutoff_angle" value="$cut"/><transform name="to_world">' \
+        '<lookat origin="-1.2, 0, 3.2" target="0, 0, 1"/></transform>'  # fmt: skip
+    text = text.replace('<emitter type="point">', spot).replace(
+        '<point name="position" x="-1.2" y="0" z="3.2"/>', ""
+    )
+    flux = {}
+    for cut in ("20", "10"):
+        scene = mi.load_string(text.replace("$cut", cut))
+        light = cp.light_of(mi, scene.emitters()[0], [0, 0, 1.0])
+        assert light is not None and light.position is not None
+        flux[cut] = cp.emit_photons(mi, light, [0, 0, 1.0], 0.5, 1024, 1, stratified=True)[2].sum(axis=0)[0]
+    dist = math.hypot(1.2, 2.2)
+    omega = 2 * math.pi * (1 - math.sqrt(1 - (0.5 / dist) ** 2))
+    assert flux["20"] == pytest.approx(10.0 * omega, rel=1e-5)
+    assert 0.2 * flux["20"] < flux["10"] < 0.9 * flux["20"]
+
+
 MIRROR = """<scene version="3.0.0">
   <sensor type="perspective"><float name="fov" value="20"/>
     <transform name="to_world"><lookat origin="1.73, 0, 4" target="1.73, 0, 0" up="0, 1, 0"/></transform>
@@ -350,3 +372,16 @@ def test_a_toml_scene_with_a_glass_ball_from_an_xml_shape(tmp_path):
     assert float(case.reference.mean[case.mask].max()) > 0.5
     e = case.parameters["energy"]  # (the TOML floor reaches Mitsuba as a rectangle)
     assert abs(e["traced_on_receiver_w"] - e["analytic_on_receiver_w"]) < 4 * e["traced_stderr_w"]
+
+
+def test_an_orthographic_camera_is_refused_in_one_line(tmp_path):
+    """The reference connects photons to a pinhole: another sensor gets one clear line (the audit's own)."""
+    from rtfit.experiments.audit import AuditError
+
+    text = SUN.read_text().replace('<sensor type="perspective">\n        <float name="fov" value="30"/>',
+                                   '<sensor type="orthographic">')  # fmt: skip
+    assert '<sensor type="orthographic">' in text
+    (tmp_path / "o.xml").write_text(text)
+    with pytest.raises(AuditError, match="perspective") as e:
+        audit(tmp_path / "o.xml", "caustics", spp=2, pass_spp=2, fit=False, cache=tmp_path / "c", **FAST)
+    assert "\n" not in str(e.value)
