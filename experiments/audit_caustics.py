@@ -406,10 +406,10 @@ def study(ctx: StudyContext) -> Study:
                 rmse = out.metrics["rmse"]
                 ratio = rmse.value / rmse.noise_floor if rmse.noise_floor else float("nan")
                 cost = result.costs.get(out.method.id, {}).get("ns_per_pixel")
-                par = next(iter(out.parameters.values()), float("nan")) if out.parameters else float("nan")
+                par = f"{float(next(iter(out.parameters.values()))):.3g}" if out.parameters else "—"
                 dk = sets.get(str(n), {}).get("median_d_nearest_m", float("nan"))
                 ns = f"{cost:.3g}" if cost else "—"
-                lines.append(f"| {case.id} | {row_id} | {n} | {float(par):.3g} | {dk:.3g} | {ratio:.3g} | "
+                lines.append(f"| {case.id} | {row_id} | {n} | {par} | {dk:.3g} | {ratio:.3g} | "
                              f"{rmse.value / scale:.3g} | {ns} |")  # fmt: skip
             check = _energy_check(case)
             if check is not None:
