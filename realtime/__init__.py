@@ -99,6 +99,7 @@ from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
 from .clouds import *  # noqa: F403
+from .caustics import *  # noqa: F403
 from .colour_bleeding import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .environment_bases import *  # noqa: F403
@@ -169,6 +170,7 @@ MODULES = (
     "ibl_samples",
     "colour_bleeding",
     "light_path_maps",
+    "caustics",
     "probe_specular",
     "quantities",
     "shader",

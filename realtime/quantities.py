@@ -43,6 +43,9 @@ import numpy as np
 from . import soft_particles
 from .clouds import INPUTS as CLOUD_INPUTS
 from .clouds import CloudGrid
+            ),
+            Quantity(
+from .caustics import CAUSTIC_INPUTS, NEAREST
 from .colour_bleeding import INPUTS as BLEED_INPUTS
 from .fresnel import INPUTS as FRESNEL_INPUTS
 from .ibl_samples import INPUTS as IBL_INPUTS
@@ -840,6 +843,17 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 reference="one-bounce indirect irradiance at the visible points per light position: a cosine "
                 "ray, then π × (path max_depth 2 − path max_depth 1)",
                 note="called once per channel; g.pane<k> is per point, g.w<k> one number per light position",
+            ),
+            Quantity(
+                "caustic_irradiance",
+                "W/m²",
+                f"caustic irradiance at a receiver point in one colour channel, from its K = {NEAREST} "
+                "nearest photon hits traced through the caster: each one's distance, flux and neighbour "
+                "distance",
+                CAUSTIC_INPUTS,
+                reference="caustic irradiance at the visible receivers (light paths L S+ D): light tracing "
+                "through the caster, connected to the camera (ptracer's estimator)",
+                note="called once per channel; a missing photon has d = 1e15, f = 0",
             ),
         )
     }
