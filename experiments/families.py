@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 from rtfit.realtime import (
     ambient_aperture,
-    clouds,
     caustics,
+    clouds,
     colour_bleeding,
     diffuse,
     environment_bases,
@@ -64,8 +64,8 @@ from . import (
     audit_aerial_perspective,
     audit_ambient_aperture,
     audit_ambient_occlusion,
-    audit_clouds,
     audit_caustics,
+    audit_clouds,
     audit_colour_bleeding,
     audit_diffuse,
     audit_environment_maps,

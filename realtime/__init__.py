@@ -98,8 +98,8 @@ from .aerial_perspective import *  # noqa: F403
 from .ambient_aperture import *  # noqa: F403
 from .ambient_dice import *  # noqa: F403
 from .arrays import *  # noqa: F403
-from .clouds import *  # noqa: F403
 from .caustics import *  # noqa: F403
+from .clouds import *  # noqa: F403
 from .colour_bleeding import *  # noqa: F403
 from .diffuse import *  # noqa: F403
 from .environment_bases import *  # noqa: F403

@@ -41,11 +41,9 @@ from typing import Any
 import numpy as np
 
 from . import soft_particles
+from .caustics import CAUSTIC_INPUTS, NEAREST
 from .clouds import INPUTS as CLOUD_INPUTS
 from .clouds import CloudGrid
-            ),
-            Quantity(
-from .caustics import CAUSTIC_INPUTS, NEAREST
 from .colour_bleeding import INPUTS as BLEED_INPUTS
 from .fresnel import INPUTS as FRESNEL_INPUTS
 from .ibl_samples import INPUTS as IBL_INPUTS
