@@ -545,7 +545,7 @@ def _toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
         if bbox is not None:
             parts.append(_volume_part(bbox))
         for index, plugin, where, sphere in _toml_reflective(scene):
-            text = f"{REFLECTIVE_BSDFS[plugin].text} {'sphere' if sphere else 'shape'} ({where}: {plugin})"
+            text = f"{REFLECTIVE_BSDFS[plugin].text} shape ({where}: {plugin})"
             parts.append(Part(_reflective_kinds(plugin, sphere), text, index))
     for i, medium in enumerate(scene.media):
         kind = {
