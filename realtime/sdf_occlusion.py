@@ -61,7 +61,15 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from .arrays import DRJIT_OPS, NUMPY_OPS, backend_type, check_scalar, get_default_backend, is_drjit
+from .arrays import (
+    DRJIT_OPS,
+    NUMPY_OPS,
+    backend_type,
+    check_scalar,
+    get_default_backend,
+    is_drjit,
+    to_drjit,
+)
 from .methods import Input, Method, Param, method_table
 from .sdf_grid import EMPTY_DISTANCE, SdfGrid, build_mips, primitives_sdf
 
@@ -143,7 +151,7 @@ class GridSDF:
         key = (Float, level)
         arr = self._dr_cache.get(key)
         if arr is None:
-            arr = Float(g.values.reshape(-1))
+            arr = to_drjit(Float, g.values)
             dr.make_opaque(arr)
             self._dr_cache[key] = arr
         return arr
@@ -351,7 +359,7 @@ def evans_terms(points, normals, sdf, params: EvansParams, *, backend: str | Non
         return np.stack([np.asarray(o, dtype=np.float64) for o in out])
     be = backend or get_default_backend()
     Float = (dr.cuda if be == "cuda" else dr.llvm).Float
-    cols = [Float(np.ascontiguousarray(a[:, i], dtype=np.float32)) for a in (p, n) for i in range(3)]
+    cols = [to_drjit(Float, a[:, i]) for a in (p, n) for i in range(3)]
     out = _evans_terms_kernel(DRJIT_OPS, sdf, params, *cols)
     dr.eval(*out)
     return np.stack([np.array(o, dtype=np.float64) for o in out])
@@ -387,21 +395,24 @@ def evans_terms_jacobian(points, normals, sdf, params: EvansParams, *, backend: 
     if not np.all(np.isfinite(p)) or not np.all(np.isfinite(nrm)):
         raise ValueError("points and normals must be finite")
     Float = backend_type("Float", be, ad=True)
-    cols = [Float(np.ascontiguousarray(a[:, i], dtype=np.float32)) for a in (p, nrm) for i in range(3)]
-    values, grads = None, []
-    for wrt in ("alpha", "base"):
-        a = dr.opaque(Float, float(params.alpha))  # pyright: ignore[reportArgumentType]  # llvm|cuda union
-        b = dr.opaque(Float, float(params.base))  # pyright: ignore[reportArgumentType]  # llvm|cuda union
-        var = a if wrt == "alpha" else b
-        dr.enable_grad(var)
-        terms = _evans_terms_kernel(DRJIT_OPS, sdf, params, *cols, alpha=a, base=b)
-        dr.forward_from(var)
-        g = [dr.grad(t) for t in terms]
-        dr.eval(*terms, *g)
-        if values is None:
-            values = np.stack([np.array(dr.detach(t), dtype=np.float64) for t in terms])
-        grads.append(np.stack([np.array(x, dtype=np.float64) for x in g]))
-    return values, grads[0], grads[1]
+    # One trace and one forward pass for both derivatives: the points twice, the tangent t (0, grad 1) moving
+    # α on the first copy and the base on the second (α + t·sel, base + t·(1 − sel): the same values), so
+    # that dD/dt is ∂D/∂α on the first half and ∂D/∂base on the second (half the Python-side tracing of
+    # one pass per parameter).
+    m = len(p)
+    cols = [to_drjit(Float, np.concatenate([a[:, i], a[:, i]])) for a in (p, nrm) for i in range(3)]
+    sel = to_drjit(Float, np.repeat(np.array([1.0, 0.0], np.float32), m))
+    t = dr.opaque(Float, 0.0)  # pyright: ignore[reportArgumentType]  # llvm|cuda union
+    dr.enable_grad(t)
+    a = dr.opaque(Float, float(params.alpha)) + t * sel  # pyright: ignore[reportArgumentType]
+    b = dr.opaque(Float, float(params.base)) + t * (1.0 - sel)  # pyright: ignore[reportArgumentType]
+    terms = _evans_terms_kernel(DRJIT_OPS, sdf, params, *cols, alpha=a, base=b)
+    dr.forward_from(t)
+    g = [dr.grad(x) for x in terms]
+    dr.eval(*terms, *g)
+    values = np.stack([np.array(dr.detach(x), dtype=np.float64)[:m] for x in terms])
+    grads = np.stack([np.array(x, dtype=np.float64) for x in g])
+    return values, grads[:, :m], grads[:, m:]
 
 
 def curvature_kernel(ops, distance, k, norm=1.0):
@@ -509,9 +520,9 @@ def _run(kernel, points, normals, backend, *extra):
             return np.asarray(kernel(NUMPY_OPS, *cols), dtype=np.float64)
     be = backend or get_default_backend()
     Float = (dr.cuda if be == "cuda" else dr.llvm).Float
-    cols = [Float(np.ascontiguousarray(p[:, i], dtype=np.float32)) for i in range(3)]
+    cols = [to_drjit(Float, p[:, i]) for i in range(3)]
     if n is not None:
-        cols += [Float(np.ascontiguousarray(n[:, i], dtype=np.float32)) for i in range(3)]
+        cols += [to_drjit(Float, n[:, i]) for i in range(3)]
     out = kernel(DRJIT_OPS, *cols)
     return np.array(out, dtype=np.float32).reshape(-1)
 
