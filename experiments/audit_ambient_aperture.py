@@ -171,7 +171,7 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     caps = bake_caps(setup, points, normals, max_distance=radius, label=f"caps: {app.part}")
     cos_na = np.clip(np.sum(normals * caps.bent_normal, axis=1), -1.0, 1.0)
     # The AO role's inputs, for a user approximation of ambient_occlusion (the same distance field).
-    sdf, sign, _shapes = scene_distance_field(setup.mi, setup.scene, radius)
+    sdf, sign, _shapes = scene_distance_field(setup.mi, setup.scene, radius, setup.cache_root)
     blurred = sdf.sample(NUMPY_OPS, CURVATURE_LEVEL, *points.T)
     inputs = {
         "cos_na": cos_na,

@@ -113,7 +113,7 @@ def configure(quick: bool) -> dict:
         "alphas": [0.0, 0.5, 1.0] if quick else list(ALPHAS),
         "bases_vox": [1.0] if quick else list(BASES_VOX),
         "probe_spp": 2048 if quick else 16384,
-        "cost_points": (1 << 17) if quick else (1 << 22),
+        "cost_points": (1 << 16) if quick else (1 << 22),
         "cone_count": cone["cones"],
         "cone_steps": cone["steps"],
         "sun_elevation": 30.0,

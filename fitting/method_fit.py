@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float, jax_ops
+from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float, jax_ops, to_drjit
 from rtfit.realtime.methods import Method, Param
 
 from .least_squares import FitResult, bound_flags, covariance_from_jacobian, fit_least_squares
@@ -196,7 +196,7 @@ def _drjit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[s
 
     Float = backend_float(None, np.float64)
     x = {
-        n: Float(np.ascontiguousarray(v, np.float64).ravel()) if isinstance(v, np.ndarray) else v
+        n: to_drjit(Float, np.asarray(v, np.float64)) if isinstance(v, np.ndarray) else v
         for n, v in inputs.items()
     }
 

@@ -71,6 +71,7 @@ __all__ = [
     "sin_from_cos",
     "sincos_first_quadrant",
     "split3",
+    "to_drjit",
     "xyz_columns",
 ]
 
@@ -99,7 +100,7 @@ def _dr_gather(table, index):
     Dr.Jit type to gather: the LLVM backend crashed on one)."""
     if not dr.is_array_v(table):
         Float = type(index) if dr.is_array_v(index) else dr.llvm.Float
-        table = Float(np.asarray(table, np.float64).reshape(-1))
+        table = to_drjit(Float, np.asarray(table, np.float64))
     return dr.gather(type(table), table, dr.uint32_array_t(type(table))(index))
 
 
@@ -383,6 +384,43 @@ def _backend_float(dtype) -> type:
     return backend_float(None, dtype)
 
 
+_ALIGN = 64
+"""Bytes to which `to_drjit` aligns the NumPy memory it gives Dr.Jit (a cache line; AVX-512 vectors)."""
+
+
+_NUMPY_OF = {
+    dr.VarType.Float16: np.float16,
+    dr.VarType.Float32: np.float32,
+    dr.VarType.Float64: np.float64,
+    dr.VarType.Int32: np.int32,
+    dr.VarType.UInt32: np.uint32,
+    dr.VarType.Int64: np.int64,
+    dr.VarType.UInt64: np.uint64,
+}
+
+
+def to_drjit(Float: type, values: Any) -> Any:
+    """``values`` (array-like) as a flat Dr.Jit array of type ``Float`` (float32 for ``Float``, float64 for
+    ``Float64``, uint32 for ``UInt32``, ...), in a fresh NumPy buffer aligned to 64 bytes.
+
+    Dr.Jit's LLVM backend maps NumPy memory without copying and compiles a load from an input whose
+    address is not a multiple of the vector width as an unaligned load (``align 1`` instead of ``align 32``
+    in the IR): the same kernel on NumPy inputs then hashes differently from call to call, as NumPy's
+    allocator happens to place them (glibc: 16-byte granules), and is compiled again for every pattern
+    of alignments — 2^6 variants of a kernel of six point/normal columns. Measured on the cone-traced
+    AO kernel (934 ops, 2 loaded cores): every call rebuilt its two kernels, 2.1–2.8 s each, where an
+    aligned call reuses them (0.03 s). The copy also keeps a later write to ``values`` out of the kernel
+    (a mapped array aliases it)."""
+    dtype = _NUMPY_OF[dr.type_v(Float)]
+    flat = np.asarray(values).reshape(-1)
+    item = np.dtype(dtype).itemsize
+    buf = np.empty(flat.size + _ALIGN // item, dtype)
+    start = (-buf.ctypes.data % _ALIGN) // item
+    out = buf[start : start + flat.size]
+    out[...] = flat
+    return Float(out)
+
+
 # ----------------------------------------------------------------------------------------- dispatch
 def is_drjit(x: Any) -> bool:
     """True for a Dr.Jit array (any backend, scalar-valued or nested)."""
@@ -457,7 +495,7 @@ def evaluate(kernel: Callable, *args: Any) -> Any:
             if is_drjit(a):
                 conv.append(a if type(a) is Float else Float(a))
             elif _is_numpy_array(a):  # size 1 broadcasts; kept an array (a literal would recompile per value)
-                conv.append(Float(np.ascontiguousarray(a.reshape(-1))))
+                conv.append(to_drjit(Float, a))
             else:
                 conv.append(_as_float_scalar(a))
         return kernel(DRJIT_OPS, *conv)
@@ -486,7 +524,7 @@ def evaluate(kernel: Callable, *args: Any) -> Any:
         else:  # size-1 arrays stay size-1 Dr.Jit arrays (broadcast by Dr.Jit, no per-value recompilation)
             same = a.shape == shape or a.size == 1
             flat = a.reshape(-1) if same else np.broadcast_to(a, shape).reshape(-1)
-            conv.append(Float(np.ascontiguousarray(flat, dtype=dtype)))
+            conv.append(to_drjit(Float, flat))
     out = kernel(DRJIT_OPS, *conv)
 
     def back(o):  # an owned NumPy copy (never a view of Dr.Jit memory); size-1 results are broadcast

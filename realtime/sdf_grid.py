@@ -58,7 +58,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Array3f64, Float, Float64, Int32, UInt32
 
-from .arrays import NUMPY_OPS
+from .arrays import NUMPY_OPS, to_drjit
 
 __all__ = [
     "Box",
@@ -566,8 +566,8 @@ def _propagate_closest_points(best_p, src, o, h, shape, sweeps: int = 2) -> np.n
     Returns the distances (flat, float64)."""
     nx, ny, nz = shape
     n = nx * ny * nz
-    pts = [Float(np.ascontiguousarray(best_p[:, k], dtype=np.float32)) for k in range(3)]
-    S = UInt32(np.ascontiguousarray(src, dtype=np.uint32))
+    pts = [to_drjit(Float, best_p[:, k]) for k in range(3)]
+    S = to_drjit(UInt32, src)
     idx = dr.arange(Int32, n)
     coords = (idx % nx, (idx // nx) % ny, idx // (nx * ny))
     centre = Array3f(*[o[k] + (Float(coords[k]) + 0.5) * h for k in range(3)])
