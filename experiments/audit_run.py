@@ -72,6 +72,7 @@ from .audit_output import reference_record, write_audit
 from .audit_parallax_occlusion import check_pom_depth
 from .cost import time_drjit
 from .families import AUDITED, METHOD_TABLES, RULES
+from .progress import Stage
 from .records import SCHEMA, Check, Results, from_json, plain_json, to_json
 from .registry import ALIASES, LIMITS
 from .runner import created_now, device_description, use_variant_backend, versions
@@ -697,10 +698,11 @@ def audit(
             timings["reference"] += time.perf_counter() - t0
             # Family by family, each case evaluated and fitted as soon as its references are made: an
             # interrupted run has every finished case to report (`_partial_report`).
+            parts = Stage(len(audited), "references", enabled=progress, say=say)  # a bar on a terminal
             for a in audited:
                 family = AUDITED[a.family]
                 spent = by_family.setdefault(a.family, {"reference": 0.0, "evaluation": 0.0, "fit": 0.0})
-                say(f"{a.family}: references for {a.part} ({spp} spp in passes of {pass_spp})")
+                parts.note(f"{a.family}: references for {a.part} ({spp} spp in passes of {pass_spp})")
                 tf = time.perf_counter()
                 cases = [
                     c
@@ -711,11 +713,15 @@ def audit(
                     cases = [replace(c, id=f"{tag[0]}{c.id}", label=f"{tag[1]}{c.label}") for c in cases]
                 spent["reference"] += time.perf_counter() - tf
                 timings["reference"] += time.perf_counter() - tf
+                rows = Stage(len(cases), f"{a.family}: cases", enabled=progress, say=say)
                 for case in cases:
                     outcomes[case.id] = run.case(family, a, case)
                     plan.append((family, a, case))
-                    say(f"{case.id}: {len(outcomes[case.id])} rows evaluated")
+                    rows.advance(f"{case.id}: {len(outcomes[case.id])} rows evaluated")
+                rows.close()
+                parts.advance()
                 done.append(a)
+            parts.close()
     except XMLSceneError as e:
         raise AuditError(str(e)) from None
     except KeyboardInterrupt as e:

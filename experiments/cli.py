@@ -21,7 +21,9 @@ with failed self-checks: one line per experiment, ``rtfit: EXPERIMENT: N of M ch
 Progress goes to stderr through `logging` (loggers under ``rtfit``: ``rtfit.experiments`` one line per
 experiment start and end, ``rtfit.jobs`` one per finished job, ``rtfit.reference`` cache resumes),
 configured here once per call: INFO by default, ``-q`` warnings and errors only, ``-v`` DEBUG. On a
-terminal the jobs show as tqdm bars instead of lines (``--no-progress``: lines). Results go to stdout.
+terminal the jobs and the stages with a known count (`rtfit.experiments.progress.Stage`: experiments,
+scenes, references, cases) show as tqdm bars instead of lines (``--no-progress``: lines). Results go to
+stdout.
 """
 
 from __future__ import annotations

@@ -102,6 +102,11 @@ extinction × tint (`hdrp_sky_coefficients`). So (`sky_to_hdrp`) Maximum Altitud
 Number Of Bounces 1. rtfit's unscaled air is HDRP's built-in Earth air (5.8e-6, 1.35e-5, 3.31e-5 per m)
 within 0.5 %. Lost: ``ambient``, the sun, the atmosphere's top (HDRP's ends at 55.3 km for this air, rtfit's
 at 60 km) and HDRP's ozone where the version has one (set to 0).
+
+SH irradiance (the irradiance-bases ``sh-l*`` fits) — Unity's SphericalHarmonicsL2
+--------------------------------------------------------------------------------
+The layout, constants, frame and shader packing: `rtfit.experiments.engine_presets_sh`; the document:
+`_sh_document` (Unity only).
 """
 
 from __future__ import annotations
@@ -116,6 +121,7 @@ from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.nishita_sky import AtmosphereParams
 from rtfit.realtime.phase import hg_phase_kernel
 
+from .engine_presets_sh import UNITY_SH_SOURCES, is_sh, unity_sh_preset
 from .fitted import FittedFile, FittedMethod
 
 __all__ = [
@@ -640,6 +646,32 @@ def _sky_preset(m: FittedMethod, engine: str) -> dict:
     ).to_json()
 
 
+def _sh_document(doc: FittedFile, engine: str, methods: list[FittedMethod], source: str = "") -> dict:
+    """The ``rtfit.engine-preset/1`` document of the SH methods of ``doc`` for ``engine`` (Unity only)."""
+    if engine != "unity-hdrp":
+        raise ConvertError(
+            f"{source or doc.title}: SH irradiance converts to Unity's SphericalHarmonicsL2 (--engine "
+            f"unity-hdrp); {engine}'s SH layout is not converted yet"
+        )
+    presets = []
+    for m in methods:
+        lam = float(m.parameters["lam"].value) if "lam" in m.parameters else None
+        values, lost = unity_sh_preset(m.id, lam)
+        fitted = {} if lam is None else {"lam": lam}
+        pairs = tuple(EngineValue(k, v, "1") for k, v in values.items())
+        presets.append(Preset(engine, m.id, m.case, 0.0, pairs, tuple(lost), fitted).to_json())
+    return {
+        "format": PRESET_FORMAT,
+        "source": source,
+        "experiment": doc.provenance.experiment,
+        "engine": engine,
+        "engine_title": "Unity SphericalHarmonicsL2 (light probes, ambient probe; built-in, URP, HDRP)",
+        "anchor": "Unity's world frame: rtfit's (x, y, z) is Unity's (x, z, y)",
+        "sources": list(UNITY_SH_SOURCES),
+        "presets": presets,
+    }
+
+
 def convert_fitted(doc: FittedFile, engine: str, base: float | None = None, source: str = "") -> dict:
     """The ``rtfit.engine-preset/1`` document of every fog method of ``doc`` in ``engine`` (``skipped``: the
     fits an engine's fog cannot hold, each with why); `ConvertError` (one line) when none converts."""
@@ -667,12 +699,15 @@ def convert_fitted(doc: FittedFile, engine: str, base: float | None = None, sour
             "sources": list(SKY_HDRP_SOURCES if hdrp else SKY_UNREAL_SOURCES),
             "presets": [_sky_preset(m, engine) for m in sky],
         }
+    sh = [m for m in doc.methods if is_sh(m.id)]
+    if sh and not fog:
+        return _sh_document(doc, engine, sh, source)
     if not fog:
         ids = ", ".join(m.id for m in doc.methods) or "none"
         raise ConvertError(
             f"{source or doc.title}: no height-fog method (parameters b and c in 1/m) to convert for "
             f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits, and the "
-            f"Nishita sky's artist fits for unreal and unity-hdrp)"
+            f"Nishita sky's artist fits for unreal and unity-hdrp, SH L2+ irradiance for unity-hdrp)"
         )
     # Each fit on its own: one an engine cannot hold (a constant fog fitted to c < 0) is named in ``skipped``,
     # the others converted; none convertible is the first one's error.

@@ -44,6 +44,7 @@ from .audit_run import audit
 from .cost import bench_backend, method_bench_rows
 from .engine_pooled import pooled_fits
 from .families import FAMILIES, Family
+from .progress import Stage
 from .records import to_json
 from .registry import SPP_MAX, ConfigKey, RunContext, checked
 
@@ -90,6 +91,7 @@ class EngineExperiment:
         costs: dict[str, dict] = {}  # each method timed once, on the first scene that has it
         _check_selections(self.family, [shipped[name] for name in cfg["scenes"]])
         t0 = time.perf_counter()
+        scenes = Stage(len(cfg["scenes"]), f"{self.family.name}: scenes", enabled=ctx.progress, say=ctx.log)
         for name in cfg["scenes"]:
             scene = shipped[name]
             roles, quantities = scene.audited(ctx.quick)
@@ -97,7 +99,7 @@ class EngineExperiment:
             if cfg["resolution"] is not None:
                 width, height = cfg["resolution"], max(1, round(cfg["resolution"] * height / width))
             spp = cfg["spp"] or (scene.quick_spp if ctx.quick else scene.spp)
-            ctx.log(f"{self.family.name}: auditing {scene.name} ({width}×{height}, {spp} spp)")
+            scenes.note(f"{self.family.name}: auditing {scene.name} ({width}×{height}, {spp} spp)")
             # Case ids carry the scene's file stem; labels too where the family ships several scenes.
             several = len(cfg["scenes"]) > 1
             tag = (f"{scene.name}-", f"{scene.name}: " if several else "")
@@ -123,6 +125,8 @@ class EngineExperiment:
                 )
             )
             tags.append((scene, tag))
+            scenes.advance()
+        scenes.close()
         engine_seconds = time.perf_counter() - t0
         ctx.log(f"{self.family.name}: figures, viewer pixels and pooled fits of {len(audits)} scene(s)")
         body = self._merged(ctx, audits, tags, cfg)

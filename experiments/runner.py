@@ -28,6 +28,7 @@ from rtfit.scenes import SceneError
 from .atomic import atomic_directory, is_temporary_name
 from .executors import make_executor
 from .jobs import error_line
+from .progress import Stage
 from .records import SCHEMA, Results, from_json, plain_json
 from .registry import ExperimentSpec, RunContext
 from .report import write_index, write_report
@@ -170,6 +171,7 @@ def run_experiments(
     with callers_variant():  # the experiments activate their variants; the caller's comes back
         try:
             out.mkdir(parents=True, exist_ok=True)
+            stage = Stage(len(specs) if len(specs) > 1 else 0, "experiments", enabled=progress)  # a bar
             for spec in specs:
                 final = out / spec.name
                 t0 = time.perf_counter()
@@ -183,6 +185,7 @@ def run_experiments(
                         raise
                     log.error("%s", e)
                     failed.append(str(e))
+                    stage.advance()
                     continue
                 done.append(final)
                 log.info(
@@ -191,6 +194,7 @@ def run_experiments(
                     time.perf_counter() - t0,
                     final / "report.html",
                 )
+                stage.advance()
         finally:
             pool.close()
     write_index(out, experiment_dirs(out))

@@ -8,6 +8,28 @@ fit in rtfit, with the covariance convention of `covariance_from_jacobian`.
 
 Bounds come as `Param` declarations (`rtfit.realtime.methods.Param`: finite lower and upper bounds), so a
 method table's parameter bounds are the fit's bounds: `param_bounds`.
+
+Why not SciPy's ``least_squares(method="trf", x_scale="jac", bounds=…, jac=…)`` (issue 37), measured by
+``scripts/bench-bounded-lm.py`` (2-core machine under load, 2026-12-05; wall seconds, best of 3) on the
+problems this loop solves — the sdf-occlusion Evans fits on the synthetic sphere-on-plane targets of
+tests/test_sdf_fit.py (stage 1, `fit_free`: (log B, c_i) on fixed D_i; stage 2, `fit_evans_continuous`:
+through the Dr.Jit kernel) and the problems of tests/test_bounded_lm.py:
+
+* the same optimum: ½‖r‖² equal to ≤ 6e-9 relative on every stage-1 and bounded test problem, 1e-7 on the
+  noisy kernel fits (exact targets: both at the kernel's float32 floor, ½‖r‖² ≈ 5e-11); parameters equal to
+  ≤ 1e-4 except along the flat direction of α = 0, base = ½ voxel (same cost, c_i differ by up to 14);
+  `tests/test_bounded_lm.py` asserts both on a bound-active exponential fit against its closed form;
+* calls of ``fun``: trf needs fewer on the kernel fit (11–12 against 15–16), about as many on stage 1
+  (9–46 against 6–42);
+* wall time: slower. Stage 1: 1.0–7.4× (m = 1382: 0.012 s against 0.003 s; m = 8705, the study's 4 scenes ×
+  2048 points: 0.089 s against 0.030 s per grid point, 15 grid points per fit). Stage 2 (the kernel fit):
+  with NumPy's default threaded BLAS 0.31–0.63 s against 0.04–0.07 s (6–9×: trf takes an SVD of the
+  scaled (m + p) × p Jacobian every iteration, ≈ 25 ms each when the BLAS threads contend for 2 cores);
+  with OPENBLAS_NUM_THREADS=1, 0.042–0.083 s against 0.039–0.071 s (0.9–1.2×).
+
+So `bounded_lm` stays: the same optima, SciPy's trf no faster anywhere that matters and up to 9× slower
+in the default configuration, and rtfit's `FitResult` fields (steps, converged,
+message) from its own stopping rules. Rerun the script after changing this loop or SciPy.
 """
 
 from __future__ import annotations

@@ -84,3 +84,35 @@ def test_param_bounds_from_declarations():
         param_bounds(params, ["c"])
     with pytest.raises(ValueError, match="no bounds"):
         param_bounds(params, ["d"])
+
+
+def test_bounded_lm_and_scipy_trf_reach_the_same_bound_active_optimum():
+    # y = 1.7·exp(−0.8 t) fitted with b ≥ 1.2: the optimum holds b on its bound, and with b fixed the model is
+    # linear in a, so a = Σ y e / Σ e² (e = exp(−1.2 t)), closed form. bounded_lm and SciPy's
+    # least_squares(trf, x_scale="jac", bounds, jac) (the comparison of the module docstring) both reach it.
+    from scipy.optimize import least_squares
+
+    t = np.linspace(0.0, 3.0, 80)
+    y = 1.7 * np.exp(-0.8 * t)
+
+    def fun(p):
+        e = np.exp(-p[1] * t)
+        return p[0] * e - y, np.column_stack([e, -p[0] * t * e])
+
+    lo, hi = np.array([0.0, 1.2]), np.array([10.0, 10.0])
+    e = np.exp(-1.2 * t)
+    a_exact = float(y @ e / (e @ e))
+    r_exact = a_exact * e - y
+    ssr_exact = float(r_exact @ r_exact)
+    # b on its bound is optimal: the gradient of the SSR in b at (a_exact, 1.2) points out of the box
+    assert float(r_exact @ (-a_exact * t * e)) > 0
+
+    lm = bounded_lm(fun, [0.5, 3.0], lo, hi)
+    sp = least_squares(
+        lambda p: fun(p)[0], [0.5, 3.0], jac=lambda p: fun(p)[1], bounds=(lo, hi), method="trf", x_scale="jac"
+    )
+    assert lm["converged"] and sp.success
+    for x, ssr in ((lm["x"], lm["ssr"]), (sp.x, 2 * sp.cost)):
+        assert x[1] == pytest.approx(1.2, abs=1e-12)
+        assert x[0] == pytest.approx(a_exact, rel=1e-9)
+        assert ssr == pytest.approx(ssr_exact, rel=1e-12)
