@@ -49,7 +49,7 @@ from rtfit.fitting import (
     z_pair,
 )
 from rtfit.fitting.stats import Z_MEDIAN_TOLERANCE, Z_TAIL_FRACTION
-from rtfit.realtime.arrays import Uniforms, backend_float
+from rtfit.realtime.arrays import Uniforms, backend_float, to_drjit
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import is_user_approximation
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
@@ -460,20 +460,20 @@ def _cost(
             consts[name] = v
         elif np.ndim(v) and np.size(v) != n:
             table = np.ascontiguousarray(v, np.float32).reshape(-1)
-            consts[name] = Float(table)
+            consts[name] = to_drjit(Float, table)
             if table.size <= _UNIFORM_FLOATS:
                 uniforms[name] = Uniforms.of(table)
         elif np.ndim(v):
             a = np.tile(np.asarray(v, np.float64), reps)[:size]
             a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
             host.append(a)
-            args.append(Float(a))
+            args.append(to_drjit(Float, a))  # aligned: one compiled kernel whatever NumPy's addresses
             keys.append(name)
         else:
             consts[name] = float(v)
     elements = min(n * reps, size) if keys else 1
     if uniforms:  # a small table read by index, as a shader's constant buffer (`Uniforms`: nothing folded)
-        trial = [Float(a[:_COST_PROBE]) for a in host]  # whether it reads the table by index: a small call
+        trial = [to_drjit(Float, a[:_COST_PROBE]) for a in host]  # whether it reads the table by index: a small call
         try:
             dr.eval(method.evaluate({**consts, **uniforms, **dict(zip(keys, trial, strict=True))}))
             consts.update(uniforms)

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from rtfit.realtime.arrays import backend_float
+from rtfit.realtime.arrays import backend_float, to_drjit
 from rtfit.scenes.parse import LIBRARY_DIR
 
 from .audit_family import StudyContext
@@ -241,7 +241,7 @@ class EngineExperiment:
         for name in names:
             lo, hi = domain[name]  # type: ignore[misc]
             np_inputs[name] = rng.uniform(lo, hi, n).astype(np.float32)
-        inputs = {k: Float(v) for k, v in np_inputs.items()}
+        inputs = {k: to_drjit(Float, v) for k, v in np_inputs.items()}
         base = f"memory baseline (fma of the {len(inputs)} inputs)"
         return method_bench_rows(methods, backend, inputs, np_inputs, n, baseline=base)
 
