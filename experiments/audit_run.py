@@ -473,7 +473,7 @@ def _cost(
             consts[name] = float(v)
     elements = min(n * reps, size) if keys else 1
     if uniforms:  # a small table read by index, as a shader's constant buffer (`Uniforms`: nothing folded)
-        trial = [to_drjit(Float, a[:_COST_PROBE]) for a in host]  # whether it reads the table by index: a small call
+        trial = [to_drjit(Float, a[:_COST_PROBE]) for a in host]  # reads the table by index? (small)
         try:
             dr.eval(method.evaluate({**consts, **uniforms, **dict(zip(keys, trial, strict=True))}))
             consts.update(uniforms)
