@@ -47,7 +47,14 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime.layered_materials import COMPOSITE_ROWS, METHODS, OFFSET_ROWS
+from rtfit.realtime.layered_materials import (
+    BLUR_MAX,
+    BLUR_ROWS,
+    COMPOSITE_ROWS,
+    METHODS,
+    OFFSET_ROWS,
+    BaseTexture,
+)
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import PassResult, radiance_pass
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
@@ -93,8 +100,27 @@ def _scene(theta: int, eta: float) -> ShippedScene:
     )
 
 
-SCENES = (*(_scene(a, 1.5) for a in ANGLES), _scene(60, 1.33))
-"""The scenes ``rtfit run layered-materials`` audits (scenes/library/layered_materials_coat.xml)."""
+def _slab(theta: int) -> ShippedScene:
+    coat = _scene(theta, 1.5)
+    return ShippedScene(
+        "layered_materials_slab.xml",
+        f"the checkerboard under a smooth coat (η = 1.5, d = {_THICKNESS:g}) filled with a scattering medium "
+        f"(σ_t = 10, albedo 0.95, HG g = 0.7; volpath) seen at θ = {theta}°",
+        size=(32, 32),
+        spp=256,
+        quick_size=(16, 16),
+        quick_spp=64,
+        defines=dict(coat.defines),
+        name=f"slab-theta{theta}-eta1p5",
+        quick=theta == 60,
+    )
+
+
+SCENES = (*(_scene(a, 1.5) for a in ANGLES), _scene(60, 1.33), _slab(30), _slab(60))
+"""The scenes ``rtfit run layered-materials`` audits (scenes/library/layered_materials_coat.xml and
+layered_materials_slab.xml)."""
+_TEXELS_PER_DEPTH = 8  # texels per coat thickness in the base's texture window
+_TEXELS_MAX = 512  # per side
 
 
 def offset_ratio(theta_deg, eta):
@@ -137,6 +163,27 @@ def _own_id(mi, shape) -> int:
     return int(ids[0])
 
 
+def _solid_hit(mi, scene, ray):
+    """The first hit of ``ray`` on a shape that is not a null-BSDF medium boundary (a slab's container is
+    passed through, up to 8 times) and its distance (float64 sum of the segments) from the ray's origin."""
+    nulls = [_own_id(mi, s) for s in scene.shapes() if mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Null)]
+    si = scene.ray_intersect(ray)
+    t = np.array(si.t, np.float64)
+    if not nulls:
+        return si, t
+    origin, direction, acc = _np3(ray.o), _np3(ray.d), np.zeros(t.shape)
+    for _ in range(8):
+        on = np.isin(_shape_ids(mi, si), nulls) & np.array(si.is_valid(), bool)
+        if not on.any():
+            break
+        origin = np.where(on[:, None], _np3(si.spawn_ray(ray.d).o), origin)
+        acc += np.where(on, t, 0.0)
+        ray = _ray(mi, origin, direction)
+        si = scene.ray_intersect(ray)
+        t = np.array(si.t, np.float64)
+    return si, acc + t
+
+
 def _diffuse_albedo(mi, si) -> np.ndarray:
     """(N, 3): the diffuse reflectance of whatever BSDF each interaction hit (Mitsuba's own texture read)."""
     rho = si.bsdf().eval_diffuse_reflectance(si, si.is_valid())
@@ -157,6 +204,27 @@ def _uniform_sky(mi, scene) -> np.ndarray | None:
     if env is None or len(scene.emitters()) != 1 or env.class_name() != "ConstantBackgroundEmitter":
         return None
     return np.broadcast_to(np.array(mi.traverse(env)["radiance.value"], np.float64).reshape(-1), (3,)).copy()
+
+
+def _base_textures(mi, scene, base_id: int, uvs: np.ndarray, si, radius: float, depth: float):
+    """The `BaseTexture` (R, G, B) of the base's albedo read by Mitsuba at texel centres on the uv window
+    around ``uvs`` padded by ``radius`` (scene units), 8 texels per thickness ``depth`` (≤ 512 a side)."""
+    units = (float(np.median(np.linalg.norm(_np3(si.dp_du), axis=1))),
+             float(np.median(np.linalg.norm(_np3(si.dp_dv), axis=1))))  # fmt: skip
+    pad = np.array([radius / units[0], radius / units[1]])
+    lo, hi = np.clip(uvs.min(0) - pad, 0.0, 1.0), np.clip(uvs.max(0) + pad, 0.0, 1.0)
+    texel = max(depth, 1e-9) / _TEXELS_PER_DEPTH
+    n = [int(np.clip(np.ceil((hi[k] - lo[k]) * units[k] / texel), 2, _TEXELS_MAX)) for k in range(2)]
+    u = lo[0] + (np.arange(n[0]) + 0.5) * (hi[0] - lo[0]) / n[0]
+    v = lo[1] + (np.arange(n[1]) + 0.5) * (hi[1] - lo[1]) / n[1]
+    uu, vv = np.meshgrid(u, v)
+    query = dr.zeros(mi.SurfaceInteraction3f, uu.size)
+    query.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
+    shape = next(s for s in scene.shapes() if _own_id(mi, s) == base_id)
+    rho = np.array(mi.Color3f(shape.bsdf().eval_diffuse_reflectance(query, True)), np.float64)
+    rho = np.broadcast_to(rho.reshape(3, -1), (3, uu.size))  # a constant texture answers one value
+    window = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    return BaseTexture(rho.reshape(3, n[1], n[0]), window, units)
 
 
 def _mask_of(visible: np.ndarray, sees: np.ndarray, keep: np.ndarray) -> np.ndarray:
@@ -188,9 +256,9 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     bs, _ = bsdf.sample(mi.BSDFContext(), si, mi.Float(_ONE_MINUS), mi.Point2f(0.5, 0.5), si.is_valid())
     through = np.array(mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaTransmission), bool)
     ray2 = si.spawn_ray(si.to_world(bs.wo))  # its origin: p₁ moved off the coat by Mitsuba's ε
-    si2 = scene.ray_intersect(ray2)
+    si2, t2 = _solid_hit(mi, scene, ray2)
     n = si.sh_frame.n
-    si3 = scene.ray_intersect(mi.Ray3f(ray2.o, -n))  # the thickness from the same origin, down the normal
+    si3, t3 = _solid_hit(mi, scene, mi.Ray3f(ray2.o, -n))  # the thickness from the same origin, along −n
     own = _own_id(mi, shape)
     ids2, ids3 = _shape_ids(mi, si2), _shape_ids(mi, si3)
     base = np.array(si2.is_valid(), bool) & np.array(si3.is_valid(), bool) & (ids2 != own) & (ids3 != own)
@@ -199,8 +267,8 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         return []
     d2, nn = _np3(ray2.d), _np3(n)
     lateral = d2 - np.sum(d2 * nn, axis=1, keepdims=True) * nn
-    offset = (np.array(si2.t, np.float64) * np.linalg.norm(lateral, axis=1))[keep]
-    depth = np.array(si3.t, np.float64)[keep]
+    offset = (t2 * np.linalg.norm(lateral, axis=1))[keep]
+    depth = t3[keep]
     eta = float(np.array(mi.traverse(bsdf)["eta"]).reshape(-1)[0])
     mask = _mask_of(visible, sees, keep)
     cos_k = cos[keep]
@@ -246,7 +314,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     sky = _uniform_sky(mi, scene)
     if sky is None or not setup.wants("coated_radiance"):
         return cases
-    straight = scene.ray_intersect(si.spawn_ray(-si.to_world(si.wi)))  # the seed's ray, unrefracted
+    straight, _ = _solid_hit(mi, scene, si.spawn_ray(-si.to_world(si.wi)))  # the seed's ray, unrefracted
     seen = np.array(straight.is_valid(), bool) & (_shape_ids(mi, straight) != own)
     keep_r = keep & seen
     if not keep_r.any():
@@ -264,11 +332,27 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         {**shared, "albedo_seed": rho_seed[:, c], "albedo_refracted": rho_refr[:, c], "sky": float(sky[c])}
         for c in range(3)
     )
+    rows = COMPOSITE_ROWS
+    base_ids = np.concatenate([ids2[keep_r], _shape_ids(mi, straight)[keep_r]])
+    if np.all(base_ids == base_ids[0]):  # one base: its texture is a kernel input (the blur rows)
+        uv_seed, uv_refr = _uv(straight)[keep_r], _uv(si2)[keep_r]
+        depth_r = t3[keep_r]
+        radius = BLUR_MAX * float(np.max(depth_r / np.maximum(cos_r, 1e-3)))
+        texture = _base_textures(mi, scene, int(base_ids[0]), np.concatenate([uv_seed, uv_refr]), si2,
+                                  radius, float(depth_r.min()))  # fmt: skip
+        blur = {"depth": depth_r, "u_seed": uv_seed[:, 0], "v_seed": uv_seed[:, 1],
+                "u_refracted": uv_refr[:, 0], "v_refracted": uv_refr[:, 1]}  # fmt: skip
+        channels = tuple(
+            {**ch, **blur, "texture": texture, "channel": float(c)} for c, ch in enumerate(channels)
+        )
+        rows = COMPOSITE_ROWS + BLUR_ROWS
+    media = [s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None]
+    medium = media[0] if media else None  # a medium in the scene (a slab under the coat): volpath
     cases.append(
         FamilyCase(
             id=f"coat-{app.source}-radiance",
             label=f"{app.part}, the coated base's radiance under the sky",
-            reference=_radiance_reference(setup, app, mask_r),
+            reference=_radiance_reference(setup, app, mask_r, medium is not None),
             mask=mask_r,
             channel_inputs=channels,
             parameters={
@@ -278,6 +362,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "fdr_ext": fdr_ext,
                 "fdr_int": fdr_int,
                 "pixels": int(mask_r.sum()),
+                "medium": None if medium is None else medium.class_name(),
             },
             units="W/m²/sr",
             quantity="coated_radiance",
@@ -288,19 +373,31 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "it",
                 "coated-diffuse is exact for a uniform base; on a texture its error is the internal "
                 "reflections' lateral mixing (what the seed's blur stands in for)",
+                "the coat holds a scattering medium (volpath): the base is seen blurred by it"
+                if medium is not None
+                else "no medium in the coat (path)",
             ),
-            methods={k: METHODS[k] for k in COMPOSITE_ROWS},
+            methods={k: METHODS[k] for k in rows},
         )
     )
     return cases
 
 
-def _radiance_reference(setup: AuditSetup, app: Applicability, mask: np.ndarray) -> AuditReference:
-    """The radiance at the camera (Mitsuba ``path``, unbounded depth) at the pixel centres of ``mask``."""
+def _uv(si) -> np.ndarray:
+    return np.stack([np.array(si.uv.x, np.float64), np.array(si.uv.y, np.float64)], 1)
+
+
+def _radiance_reference(
+    setup: AuditSetup, app: Applicability, mask: np.ndarray, medium: bool
+) -> AuditReference:
+    """The radiance at the camera (Mitsuba ``path``, or ``volpath`` where the coat holds a medium, unbounded
+    depth) at the pixel centres of ``mask``."""
     mi = setup.mi
-    integrator = mi.load_dict({"type": "path", "max_depth": -1})
+    kind = "volpath" if medium else "path"
+    integrator = mi.load_dict({"type": kind, "max_depth": -1})
     keep = mask.ravel()
-    what = {"format": FORMAT, "quantity": "coated-radiance", "part": app.part, "mask": array_digest(mask)}
+    what = {"format": FORMAT, "quantity": "coated-radiance", "part": app.part, "mask": array_digest(mask),
+            "integrator": kind}  # fmt: skip
 
     def render(spp: int, seed: int):
         r = radiance_pass(mi, setup.scene, spp, seed, integrator=integrator, sensor=setup.sensor)
@@ -310,9 +407,10 @@ def _radiance_reference(setup: AuditSetup, app: Applicability, mask: np.ndarray)
     return pooled.reference(
         mask,
         quantity="radiance at the camera of the coat over its base (W/m²/sr)",
-        integrator="path",
+        integrator=kind,
         integrator_reason="unbiased for the coat's refraction and the base's internal reflections "
-        "(unbounded depth, Russian roulette)",
+        "(unbounded depth, Russian roulette)"
+        + ("; volpath: the coat's homogeneous medium" if medium else ""),
     )
 
 
