@@ -32,16 +32,25 @@ Fresnel lerp and the coated-diffuse closed form (both with the albedo where the 
 Inputs from Mitsuba: F(θ) (``mi.fresnel``), F̄_ext (64-node Gauss–Legendre of ``mi.fresnel``), F̄_int =
 1 − (1 − F̄_ext)/η², the albedos (``eval_diffuse_reflectance`` at the two hits) and the sky's radiance.
 
+Where both rays meet one base, its albedo becomes a kernel input (a `BaseTexture` of texels read by Mitsuba on
+the uv window the rays and the largest blur reach, 8 texels per coat thickness) and the case adds the seed's
+blurred inner albedo (000:1291-1319: ``seed-blur``; ``coated-blur-1/5/13``, the coated diffuse with the
+albedo blurred at the refracted point), their radius scale k fitted from the best point of a 17-point grid
+(the error is piecewise in k on a texture). Where the scene holds a medium (``layered_materials_slab.xml``: a
+homogeneous scattering slab in a null-BSDF box under the coat, which the offset rays pass through) the
+reference is ``volpath``: the blur's exact counterpart.
+
 No case: a rough dielectric is not a trigger (its refraction is a lobe, not one direction; left for later);
 a thin dielectric, a conductor or plastic (nothing is seen through them), a dielectric seen from inside
 (η < 1: the seed's coat is seen from outside) and pixels whose refracted ray escapes give none. The seed's
-blur radii (000:1221-1319) are not audited yet (docs/layered-materials.md).
+light-map blur (000:1221-1290) is not audited (docs/layered-materials.md).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import Any
 
 import drjit as dr
@@ -57,6 +66,7 @@ from rtfit.realtime.layered_materials import (
 )
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import PassResult, radiance_pass
+from rtfit.reference.particle_media import shapes_scene
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
 
 from .audit import Applicability, Rule
@@ -163,25 +173,12 @@ def _own_id(mi, shape) -> int:
     return int(ids[0])
 
 
-def _solid_hit(mi, scene, ray):
-    """The first hit of ``ray`` on a shape that is not a null-BSDF medium boundary (a slab's container is
-    passed through, up to 8 times) and its distance (float64 sum of the segments) from the ray's origin."""
-    nulls = [_own_id(mi, s) for s in scene.shapes() if mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Null)]
-    si = scene.ray_intersect(ray)
-    t = np.array(si.t, np.float64)
-    if not nulls:
-        return si, t
-    origin, direction, acc = _np3(ray.o), _np3(ray.d), np.zeros(t.shape)
-    for _ in range(8):
-        on = np.isin(_shape_ids(mi, si), nulls) & np.array(si.is_valid(), bool)
-        if not on.any():
-            break
-        origin = np.where(on[:, None], _np3(si.spawn_ray(ray.d).o), origin)
-        acc += np.where(on, t, 0.0)
-        ray = _ray(mi, origin, direction)
-        si = scene.ray_intersect(ray)
-        t = np.array(si.t, np.float64)
-    return si, acc + t
+def _solid_scene(mi, scene):
+    """The scene without its null-BSDF shapes (a medium's container, e.g. the slab's box: the rays here pass
+    through it), or the scene itself where it has none; the same shape objects (their ids compare)."""
+    shapes = list(scene.shapes())
+    solid = [s for s in shapes if not mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Null)]
+    return scene if len(solid) == len(shapes) else shapes_scene(mi, solid)
 
 
 def _diffuse_albedo(mi, si) -> np.ndarray:
@@ -256,9 +253,11 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     bs, _ = bsdf.sample(mi.BSDFContext(), si, mi.Float(_ONE_MINUS), mi.Point2f(0.5, 0.5), si.is_valid())
     through = np.array(mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaTransmission), bool)
     ray2 = si.spawn_ray(si.to_world(bs.wo))  # its origin: p₁ moved off the coat by Mitsuba's ε
-    si2, t2 = _solid_hit(mi, scene, ray2)
+    solid = _solid_scene(mi, scene)
+    si2 = solid.ray_intersect(ray2)
     n = si.sh_frame.n
-    si3, t3 = _solid_hit(mi, scene, mi.Ray3f(ray2.o, -n))  # the thickness from the same origin, along −n
+    si3 = solid.ray_intersect(mi.Ray3f(ray2.o, -n))  # the thickness from the same origin, down the normal
+    t2, t3 = np.array(si2.t, np.float64), np.array(si3.t, np.float64)
     own = _own_id(mi, shape)
     ids2, ids3 = _shape_ids(mi, si2), _shape_ids(mi, si3)
     base = np.array(si2.is_valid(), bool) & np.array(si3.is_valid(), bool) & (ids2 != own) & (ids3 != own)
@@ -314,7 +313,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     sky = _uniform_sky(mi, scene)
     if sky is None or not setup.wants("coated_radiance"):
         return cases
-    straight, _ = _solid_hit(mi, scene, si.spawn_ray(-si.to_world(si.wi)))  # the seed's ray, unrefracted
+    straight = solid.ray_intersect(si.spawn_ray(-si.to_world(si.wi)))  # the seed's ray, unrefracted
     seen = np.array(straight.is_valid(), bool) & (_shape_ids(mi, straight) != own)
     keep_r = keep & seen
     if not keep_r.any():
@@ -348,13 +347,15 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         rows = COMPOSITE_ROWS + BLUR_ROWS
     media = [s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None]
     medium = media[0] if media else None  # a medium in the scene (a slab under the coat): volpath
+    reference = _radiance_reference(setup, app, mask_r, medium is not None)
     cases.append(
         FamilyCase(
             id=f"coat-{app.source}-radiance",
             label=f"{app.part}, the coated base's radiance under the sky",
-            reference=_radiance_reference(setup, app, mask_r, medium is not None),
+            reference=reference,
             mask=mask_r,
             channel_inputs=channels,
+            params=_blur_starts(reference.mean[mask_r], channels) if rows != COMPOSITE_ROWS else {},
             parameters={
                 "shape": app.part,
                 "eta": eta,
@@ -381,6 +382,40 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         )
     )
     return cases
+
+
+def _inside(x: float, p) -> float:
+    """x moved strictly inside the parameter's bounds (a start on a bound is not accepted)."""
+    margin = 1e-3 * (p.upper - p.lower)
+    return float(np.clip(x, p.lower + margin, p.upper - margin))
+
+
+def _blur_starts(ref: np.ndarray, channels) -> dict:
+    """The fits' starts for the blurred rows: the radius scale k of a 17-point grid over [0, BLUR_MAX] with
+    the least squared error against the reference ``ref`` (N, 3) (seed-blur: with its best alpha per k,
+    linear); on a textured base the error is piecewise in k: a local fit from k = 1 stays near 1."""
+    grid = np.linspace(0.0, BLUR_MAX, 17)
+    n, reps = len(ref), len(grid)
+    target = np.tile(ref.T.reshape(-1), reps)
+    out = {}
+    for row in ("seed-blur", "coated-blur-5", "coated-blur-13"):
+        m = METHODS[row]
+        inputs = {
+            name: channels[0][name]
+            if name == "texture"
+            else np.tile(np.concatenate([np.broadcast_to(ch[name], (n,)) for ch in channels]), reps)
+            for name in m.input_names
+        }
+        k = np.repeat(grid, 3 * n)
+        f = np.asarray(m.evaluate(inputs, {"blur": k, **({"alpha": 1.0} if "alpha" in m.params else {})}))
+        f, t = f.reshape(reps, -1), target.reshape(reps, -1)
+        a = np.ones(reps)
+        if "alpha" in m.params:  # L_o is a times its value at a = 1: the least-squares a per k
+            a = np.clip(np.sum(f * t, 1) / np.maximum(np.sum(f * f, 1), 1e-30), 0.0, 1.0)
+        best = int(np.argmin(np.sum((a[:, None] * f - t) ** 2, 1)))
+        start = {"blur": grid[best], "alpha": a[best]}
+        out[row] = {k: replace(p, initial=_inside(start[k], p)) for k, p in m.params.items()}
+    return out
 
 
 def _uv(si) -> np.ndarray:
