@@ -32,24 +32,41 @@ Fresnel lerp and the coated-diffuse closed form (both with the albedo where the 
 Inputs from Mitsuba: F(θ) (``mi.fresnel``), F̄_ext (64-node Gauss–Legendre of ``mi.fresnel``), F̄_int =
 1 − (1 − F̄_ext)/η², the albedos (``eval_diffuse_reflectance`` at the two hits) and the sky's radiance.
 
+Where both rays meet one base, its albedo becomes a kernel input (a `BaseTexture` of texels read by Mitsuba on
+the uv window the rays and the largest blur reach, 8 texels per coat thickness) and the case adds the seed's
+blurred inner albedo (000:1291-1319: ``seed-blur``; ``coated-blur-1/5/13``, the coated diffuse with the
+albedo blurred at the refracted point), their radius scale k fitted from the best point of a 17-point grid
+(the error is piecewise in k on a texture). Where the scene holds a medium (``layered_materials_slab.xml``: a
+homogeneous scattering slab in a null-BSDF box under the coat, which the offset rays pass through) the
+reference is ``volpath``: the blur's exact counterpart.
+
 No case: a rough dielectric is not a trigger (its refraction is a lobe, not one direction; left for later);
 a thin dielectric, a conductor or plastic (nothing is seen through them), a dielectric seen from inside
 (η < 1: the seed's coat is seen from outside) and pixels whose refracted ray escapes give none. The seed's
-blur radii (000:1221-1319) are not audited yet (docs/layered-materials.md).
+light-map blur (000:1221-1290) is not audited (docs/layered-materials.md).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import Any
 
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime.layered_materials import COMPOSITE_ROWS, METHODS, OFFSET_ROWS
+from rtfit.realtime.layered_materials import (
+    BLUR_MAX,
+    BLUR_ROWS,
+    COMPOSITE_ROWS,
+    METHODS,
+    OFFSET_ROWS,
+    BaseTexture,
+)
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import PassResult, radiance_pass
+from rtfit.reference.particle_media import shapes_scene
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
 
 from .audit import Applicability, Rule
@@ -93,8 +110,27 @@ def _scene(theta: int, eta: float) -> ShippedScene:
     )
 
 
-SCENES = (*(_scene(a, 1.5) for a in ANGLES), _scene(60, 1.33))
-"""The scenes ``rtfit run layered-materials`` audits (scenes/library/layered_materials_coat.xml)."""
+def _slab(theta: int) -> ShippedScene:
+    coat = _scene(theta, 1.5)
+    return ShippedScene(
+        "layered_materials_slab.xml",
+        f"the checkerboard under a smooth coat (η = 1.5, d = {_THICKNESS:g}) filled with a scattering medium "
+        f"(σ_t = 10, albedo 0.95, HG g = 0.7; volpath) seen at θ = {theta}°",
+        size=(32, 32),
+        spp=256,
+        quick_size=(16, 16),
+        quick_spp=64,
+        defines=dict(coat.defines),
+        name=f"slab-theta{theta}-eta1p5",
+        quick=theta == 60,
+    )
+
+
+SCENES = (*(_scene(a, 1.5) for a in ANGLES), _scene(60, 1.33), _slab(30), _slab(60))
+"""The scenes ``rtfit run layered-materials`` audits (scenes/library/layered_materials_coat.xml and
+layered_materials_slab.xml)."""
+_TEXELS_PER_DEPTH = 8  # texels per coat thickness in the base's texture window
+_TEXELS_MAX = 512  # per side
 
 
 def offset_ratio(theta_deg, eta):
@@ -137,6 +173,14 @@ def _own_id(mi, shape) -> int:
     return int(ids[0])
 
 
+def _solid_scene(mi, scene):
+    """The scene without its null-BSDF shapes (a medium's container, e.g. the slab's box: the rays here pass
+    through it), or the scene itself where it has none; the same shape objects (their ids compare)."""
+    shapes = list(scene.shapes())
+    solid = [s for s in shapes if not mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Null)]
+    return scene if len(solid) == len(shapes) else shapes_scene(mi, solid)
+
+
 def _diffuse_albedo(mi, si) -> np.ndarray:
     """(N, 3): the diffuse reflectance of whatever BSDF each interaction hit (Mitsuba's own texture read)."""
     rho = si.bsdf().eval_diffuse_reflectance(si, si.is_valid())
@@ -157,6 +201,27 @@ def _uniform_sky(mi, scene) -> np.ndarray | None:
     if env is None or len(scene.emitters()) != 1 or env.class_name() != "ConstantBackgroundEmitter":
         return None
     return np.broadcast_to(np.array(mi.traverse(env)["radiance.value"], np.float64).reshape(-1), (3,)).copy()
+
+
+def _base_textures(mi, scene, base_id: int, uvs: np.ndarray, si, radius: float, depth: float):
+    """The `BaseTexture` (R, G, B) of the base's albedo read by Mitsuba at texel centres on the uv window
+    around ``uvs`` padded by ``radius`` (scene units), 8 texels per thickness ``depth`` (≤ 512 a side)."""
+    units = (float(np.median(np.linalg.norm(_np3(si.dp_du), axis=1))),
+             float(np.median(np.linalg.norm(_np3(si.dp_dv), axis=1))))  # fmt: skip
+    pad = np.array([radius / units[0], radius / units[1]])
+    lo, hi = np.clip(uvs.min(0) - pad, 0.0, 1.0), np.clip(uvs.max(0) + pad, 0.0, 1.0)
+    texel = max(depth, 1e-9) / _TEXELS_PER_DEPTH
+    n = [int(np.clip(np.ceil((hi[k] - lo[k]) * units[k] / texel), 2, _TEXELS_MAX)) for k in range(2)]
+    u = lo[0] + (np.arange(n[0]) + 0.5) * (hi[0] - lo[0]) / n[0]
+    v = lo[1] + (np.arange(n[1]) + 0.5) * (hi[1] - lo[1]) / n[1]
+    uu, vv = np.meshgrid(u, v)
+    query = dr.zeros(mi.SurfaceInteraction3f, uu.size)
+    query.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
+    shape = next(s for s in scene.shapes() if _own_id(mi, s) == base_id)
+    rho = np.array(mi.Color3f(shape.bsdf().eval_diffuse_reflectance(query, True)), np.float64)
+    rho = np.broadcast_to(rho.reshape(3, -1), (3, uu.size))  # a constant texture answers one value
+    window = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    return BaseTexture(rho.reshape(3, n[1], n[0]), window, units)
 
 
 def _mask_of(visible: np.ndarray, sees: np.ndarray, keep: np.ndarray) -> np.ndarray:
@@ -188,9 +253,11 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     bs, _ = bsdf.sample(mi.BSDFContext(), si, mi.Float(_ONE_MINUS), mi.Point2f(0.5, 0.5), si.is_valid())
     through = np.array(mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaTransmission), bool)
     ray2 = si.spawn_ray(si.to_world(bs.wo))  # its origin: p₁ moved off the coat by Mitsuba's ε
-    si2 = scene.ray_intersect(ray2)
+    solid = _solid_scene(mi, scene)
+    si2 = solid.ray_intersect(ray2)
     n = si.sh_frame.n
-    si3 = scene.ray_intersect(mi.Ray3f(ray2.o, -n))  # the thickness from the same origin, down the normal
+    si3 = solid.ray_intersect(mi.Ray3f(ray2.o, -n))  # the thickness from the same origin, down the normal
+    t2, t3 = np.array(si2.t, np.float64), np.array(si3.t, np.float64)
     own = _own_id(mi, shape)
     ids2, ids3 = _shape_ids(mi, si2), _shape_ids(mi, si3)
     base = np.array(si2.is_valid(), bool) & np.array(si3.is_valid(), bool) & (ids2 != own) & (ids3 != own)
@@ -199,8 +266,8 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         return []
     d2, nn = _np3(ray2.d), _np3(n)
     lateral = d2 - np.sum(d2 * nn, axis=1, keepdims=True) * nn
-    offset = (np.array(si2.t, np.float64) * np.linalg.norm(lateral, axis=1))[keep]
-    depth = np.array(si3.t, np.float64)[keep]
+    offset = (t2 * np.linalg.norm(lateral, axis=1))[keep]
+    depth = t3[keep]
     eta = float(np.array(mi.traverse(bsdf)["eta"]).reshape(-1)[0])
     mask = _mask_of(visible, sees, keep)
     cos_k = cos[keep]
@@ -246,7 +313,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     sky = _uniform_sky(mi, scene)
     if sky is None or not setup.wants("coated_radiance"):
         return cases
-    straight = scene.ray_intersect(si.spawn_ray(-si.to_world(si.wi)))  # the seed's ray, unrefracted
+    straight = solid.ray_intersect(si.spawn_ray(-si.to_world(si.wi)))  # the seed's ray, unrefracted
     seen = np.array(straight.is_valid(), bool) & (_shape_ids(mi, straight) != own)
     keep_r = keep & seen
     if not keep_r.any():
@@ -264,13 +331,31 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         {**shared, "albedo_seed": rho_seed[:, c], "albedo_refracted": rho_refr[:, c], "sky": float(sky[c])}
         for c in range(3)
     )
+    rows = COMPOSITE_ROWS
+    base_ids = np.concatenate([ids2[keep_r], _shape_ids(mi, straight)[keep_r]])
+    if np.all(base_ids == base_ids[0]):  # one base: its texture is a kernel input (the blur rows)
+        uv_seed, uv_refr = _uv(straight)[keep_r], _uv(si2)[keep_r]
+        depth_r = t3[keep_r]
+        radius = BLUR_MAX * float(np.max(depth_r / np.maximum(cos_r, 1e-3)))
+        texture = _base_textures(mi, scene, int(base_ids[0]), np.concatenate([uv_seed, uv_refr]), si2,
+                                  radius, float(depth_r.min()))  # fmt: skip
+        blur = {"depth": depth_r, "u_seed": uv_seed[:, 0], "v_seed": uv_seed[:, 1],
+                "u_refracted": uv_refr[:, 0], "v_refracted": uv_refr[:, 1]}  # fmt: skip
+        channels = tuple(
+            {**ch, **blur, "texture": texture, "channel": float(c)} for c, ch in enumerate(channels)
+        )
+        rows = COMPOSITE_ROWS + BLUR_ROWS
+    media = [s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None]
+    medium = media[0] if media else None  # a medium in the scene (a slab under the coat): volpath
+    reference = _radiance_reference(setup, app, mask_r, medium is not None)
     cases.append(
         FamilyCase(
             id=f"coat-{app.source}-radiance",
             label=f"{app.part}, the coated base's radiance under the sky",
-            reference=_radiance_reference(setup, app, mask_r),
+            reference=reference,
             mask=mask_r,
             channel_inputs=channels,
+            params=_blur_starts(reference.mean[mask_r], channels) if rows != COMPOSITE_ROWS else {},
             parameters={
                 "shape": app.part,
                 "eta": eta,
@@ -278,6 +363,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "fdr_ext": fdr_ext,
                 "fdr_int": fdr_int,
                 "pixels": int(mask_r.sum()),
+                "medium": None if medium is None else medium.class_name(),
             },
             units="W/m²/sr",
             quantity="coated_radiance",
@@ -288,19 +374,65 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "it",
                 "coated-diffuse is exact for a uniform base; on a texture its error is the internal "
                 "reflections' lateral mixing (what the seed's blur stands in for)",
+                "the coat holds a scattering medium (volpath): the base is seen blurred by it"
+                if medium is not None
+                else "no medium in the coat (path)",
             ),
-            methods={k: METHODS[k] for k in COMPOSITE_ROWS},
+            methods={k: METHODS[k] for k in rows},
         )
     )
     return cases
 
 
-def _radiance_reference(setup: AuditSetup, app: Applicability, mask: np.ndarray) -> AuditReference:
-    """The radiance at the camera (Mitsuba ``path``, unbounded depth) at the pixel centres of ``mask``."""
+def _inside(x: float, p) -> float:
+    """x moved strictly inside the parameter's bounds (a start on a bound is not accepted)."""
+    margin = 1e-3 * (p.upper - p.lower)
+    return float(np.clip(x, p.lower + margin, p.upper - margin))
+
+
+def _blur_starts(ref: np.ndarray, channels) -> dict:
+    """The fits' starts for the blurred rows: the radius scale k of a 17-point grid over [0, BLUR_MAX] with
+    the least squared error against the reference ``ref`` (N, 3) (seed-blur: with its best alpha per k,
+    linear); on a textured base the error is piecewise in k: a local fit from k = 1 stays near 1."""
+    grid = np.linspace(0.0, BLUR_MAX, 17)
+    n, reps = len(ref), len(grid)
+    target = np.tile(ref.T.reshape(-1), reps)
+    out = {}
+    for row in ("seed-blur", "coated-blur-5", "coated-blur-13"):
+        m = METHODS[row]
+        inputs = {
+            name: channels[0][name]
+            if name == "texture"
+            else np.tile(np.concatenate([np.broadcast_to(ch[name], (n,)) for ch in channels]), reps)
+            for name in m.input_names
+        }
+        k = np.repeat(grid, 3 * n)
+        f = np.asarray(m.evaluate(inputs, {"blur": k, **({"alpha": 1.0} if "alpha" in m.params else {})}))
+        f, t = f.reshape(reps, -1), target.reshape(reps, -1)
+        a = np.ones(reps)
+        if "alpha" in m.params:  # L_o is a times its value at a = 1: the least-squares a per k
+            a = np.clip(np.sum(f * t, 1) / np.maximum(np.sum(f * f, 1), 1e-30), 0.0, 1.0)
+        best = int(np.argmin(np.sum((a[:, None] * f - t) ** 2, 1)))
+        start = {"blur": grid[best], "alpha": a[best]}
+        out[row] = {k: replace(p, initial=_inside(start[k], p)) for k, p in m.params.items()}
+    return out
+
+
+def _uv(si) -> np.ndarray:
+    return np.stack([np.array(si.uv.x, np.float64), np.array(si.uv.y, np.float64)], 1)
+
+
+def _radiance_reference(
+    setup: AuditSetup, app: Applicability, mask: np.ndarray, medium: bool
+) -> AuditReference:
+    """The radiance at the camera (Mitsuba ``path``, or ``volpath`` where the coat holds a medium, unbounded
+    depth) at the pixel centres of ``mask``."""
     mi = setup.mi
-    integrator = mi.load_dict({"type": "path", "max_depth": -1})
+    kind = "volpath" if medium else "path"
+    integrator = mi.load_dict({"type": kind, "max_depth": -1})
     keep = mask.ravel()
-    what = {"format": FORMAT, "quantity": "coated-radiance", "part": app.part, "mask": array_digest(mask)}
+    what = {"format": FORMAT, "quantity": "coated-radiance", "part": app.part, "mask": array_digest(mask),
+            "integrator": kind}  # fmt: skip
 
     def render(spp: int, seed: int):
         r = radiance_pass(mi, setup.scene, spp, seed, integrator=integrator, sensor=setup.sensor)
@@ -310,9 +442,10 @@ def _radiance_reference(setup: AuditSetup, app: Applicability, mask: np.ndarray)
     return pooled.reference(
         mask,
         quantity="radiance at the camera of the coat over its base (W/m²/sr)",
-        integrator="path",
+        integrator=kind,
         integrator_reason="unbiased for the coat's refraction and the base's internal reflections "
-        "(unbounded depth, Russian roulette)",
+        "(unbounded depth, Russian roulette)"
+        + ("; volpath: the coat's homogeneous medium" if medium else ""),
     )
 
 

@@ -85,18 +85,45 @@ the seed's straight ray meets the base, ``albedo_refracted`` where the refracted
 * ``coated-diffuse`` (exact for a uniform base; on a texture the base's light is mixed over a few d by the
   internal reflections, which this leaves out: the seed's blur's job).
 
-Not audited (no reference yet; docs/layered-materials.md): the blur radii (`seed_blur_radii`: the light
-map's radius d, the albedo's s = d/cos θ, against the refracted s = d/cos θ_t) with their Poisson taps.
+The blurred inner albedo (quantity ``coated_radiance``; 000:1291-1319)
+------------------------------------------------------------------------
+The seed blurs the inner albedo by listing 2's Poisson disc (the centre and the 12 `POISSON_TAPS`, a plain
+mean) of radius s = d/cos θ (its transmission distance, listing 3) around the parallax-offset point. Here the
+base's albedo is a kernel input, a `BaseTexture` (one channel's texels on a window of the base's uv square,
+read bilinearly with ``ops.gather``, clamped to the window's edge: the seed's ``tex2D``), the centre a uv
+point and the radius in scene units (divided by the base's scene units per uv: the seed's texel count times
+its texel size). The mean is written c + Σ_k (t_k − c)/n (equal to the seed's Σ/n; at zero radius it is the
+centre's texel value exactly). Rows (the radius scale k ∈ [0, 4] fitted, 1 as printed):
+
+* ``seed-blur``: listing 3 with the 13-tap blurred albedo at the seed's point, r = k·d/cos θ, alpha fitted
+  (``seed-composite-alpha`` is its unblurred comparison);
+* ``coated-blur-1``, ``-5``, ``-13``: the coated-diffuse closed form with the albedo blurred at the
+  refracted point, r = k·d/cos θ_t (Snell's transmission distance), by 1 tap (the texture read there, no
+  blur: the comparison), 5 taps (the centre and `TAPS_5`, four of the seed's taps chosen here with the
+  smallest centroid and anisotropy; not the seed's) and the seed's 13.
+
+The exact counterpart is a scattering slab (a homogeneous medium between the coat and the base, Mitsuba
+``volpath``): no closed form; the rows stand or fall by their RMSE against it. At grazing view the seed's
+radius d/COS_MIN is huge; the taps then read the window's clamped edge (finite).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import drjit as dr
+import numpy as np
 
 from .arrays import check_range, clamp01, evaluate, safe_sqrt, sin_from_cos
 from .methods import Input, Method, Param, method_table
 
 __all__ = [  # METHODS and INPUTS stay out: every family has its own (not re-exported by rtfit.realtime)
+    "BLUR_MAX",
     "COS_MIN",
     "POISSON_TAPS",
+    "TAPS_5",
+    "BaseTexture",
+    "poisson_albedo",
     "refracted_offset",
     "seed_blur_radii",
     "seed_composite",
@@ -113,6 +140,67 @@ POISSON_TAPS = (
     (0.507431, 0.064425), (0.89642, 0.412458), (-0.32194, -0.932615), (-0.791559, -0.59771),
 )  # fmt: skip
 """The seed's 12 Poisson-disc taps on the unit disc (000:1266-1271); the 13th tap is the centre."""
+TAPS_5 = tuple(POISSON_TAPS[i] for i in (1, 3, 7, 9))
+"""Four of the seed's taps for a 5-tap disc (with the centre): ours, the subset with the smallest centroid
+and second-moment anisotropy (the seed has only 13)."""
+BLUR_MAX = 4.0
+"""The upper bound of the fitted blur radius scale k (the seed: 1)."""
+
+
+@dataclass(frozen=True, eq=False)
+class BaseTexture:
+    """The base's albedo: ``texels`` (C, H, W) or (H, W) (C channels; H, W ≥ 2; row j along v) at the texel
+    centres of the uv window ``window`` = (u0, v0, u1, v1), and ``units_per_uv`` = (|∂p/∂u|, |∂p/∂v|), the
+    base's scene units per unit uv (a radius in scene units → uv). Read bilinearly, clamped to the window's
+    edge; the channel is a kernel input (one texture object for every channel: a constant of a fit)."""
+
+    texels: np.ndarray
+    window: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 1.0)
+    units_per_uv: tuple[float, float] = (1.0, 1.0)
+    _tables: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self):
+        t = np.asarray(self.texels, np.float64)
+        t = t[None] if t.ndim == 2 else t
+        u0, v0, u1, v1 = self.window
+        if t.ndim != 3 or min(t.shape[1:]) < 2 or not np.all(np.isfinite(t)):
+            raise ValueError(f"BaseTexture: texels must be finite (C, H, W), H, W ≥ 2 (got shape {t.shape})")
+        if not (u1 > u0 and v1 > v0 and min(self.units_per_uv) > 0.0):
+            raise ValueError(f"BaseTexture: need u1 > u0, v1 > v0, units_per_uv > 0 (got {self.window})")
+        object.__setattr__(self, "texels", t)
+
+    def _table(self, ops, like):
+        key = (ops.name, type(like) if ops.name == "drjit" and dr.is_array_v(like) else None)
+        if key not in self._tables:
+            flat = np.ascontiguousarray(self.texels.reshape(-1))
+            if ops.name == "drjit":
+                self._tables[key] = (type(like) if dr.is_array_v(like) else dr.llvm.Float64)(flat)
+            elif ops.name == "jax":
+                import jax.numpy as jnp
+
+                self._tables[key] = jnp.asarray(flat)
+            else:
+                self._tables[key] = flat
+        return self._tables[key]
+
+    def bilinear(self, ops, u, v, channel=0.0):
+        """The bilinear read of ``channel`` at (u, v), clamped to the window's edge texels (the seed's
+        tex2D)."""
+        nc, h, w = self.texels.shape
+        u0, v0, u1, v1 = self.window
+        x = ops.clip((u - u0) * (w / (u1 - u0)) - 0.5, 0.0, w - 1.0)
+        y = ops.clip((v - v0) * (h / (v1 - v0)) - 0.5, 0.0, h - 1.0)
+        x0, y0 = ops.minimum(ops.floor(x), w - 2.0), ops.minimum(ops.floor(y), h - 2.0)
+        fx, fy = x - x0, y - y0
+        c = ops.clip(ops.floor(channel + 0.5), 0.0, nc - 1.0)
+        table, i = self._table(ops, u), (c * h + y0) * w + x0
+        top = ops.gather(table, i) * (1.0 - fx) + ops.gather(table, i + 1.0) * fx
+        bottom = ops.gather(table, i + w) * (1.0 - fx) + ops.gather(table, i + (w + 1.0)) * fx
+        return top * (1.0 - fy) + bottom * fy
+
+    def sample(self, ops, u, v, channel=0.0):
+        """The sampler protocol of `rtfit.realtime.arrays.evaluate` (passed to a kernel as it is)."""
+        return self.bilinear(ops, u, v, channel)
 
 
 # ===================================================================================== kernels (ops text)
@@ -170,6 +258,40 @@ def _coated_diffuse_kernel(ops, albedo_refracted, sky, fresnel, eta, fdr_ext, fd
     return sky * (f + (1.0 - f) * inner)
 
 
+def _taps(n: int):
+    return {1: (), 5: TAPS_5, 13: POISSON_TAPS}[n]
+
+
+def _poisson_kernel(ops, texture, channel, u, v, radius, taps):
+    """Listing 2: the mean of the centre and the taps at (u, v) + r·p_k (r in scene units → uv), written
+    c + Σ(t_k − c)/n: zero radius gives the centre's value exactly."""
+    c = texture.bilinear(ops, u, v, channel)
+    su, sv = texture.units_per_uv
+    r = ops.maximum(radius, 0.0)
+    acc = 0.0 * c
+    for ox, oy in _taps(taps):
+        acc = acc + (texture.bilinear(ops, u + (ox / su) * r, v + (oy / sv) * r, channel) - c)
+    return c + acc * (1.0 / taps)
+
+
+def _seed_blur_kernel(ops, cos_theta, depth, texture, channel, u_seed, v_seed, sky, alpha, blur, taps):
+    """Listing 3, the albedo blurred by listing 2 at the seed's point, radius k·d/cos θ (cos θ floored)."""
+    _, s = _seed_radii_kernel(ops, cos_theta, depth)
+    rho = _poisson_kernel(ops, texture, channel, u_seed, v_seed, blur * s, taps)
+    return _seed_coat_kernel(ops, cos_theta, rho, sky, alpha)
+
+
+def _coated_blur_kernel(ops, cos_theta, depth, eta, texture, channel, u_refracted, v_refracted, sky, fresnel,
+                        fdr_ext, fdr_int, blur, taps):  # fmt: skip
+    """Coated diffuse with the albedo blurred at the refracted point, radius k·d/cos θ_t (cos θ_t floored)."""
+    c = clamp01(ops, cos_theta)
+    e = ops.maximum(eta, 1.0)
+    cos_t = safe_sqrt(ops, (e - 1.0) * (e + 1.0) + c * c) / e
+    r = blur * ops.maximum(depth, 0.0) / ops.maximum(cos_t, COS_MIN)
+    rho = _poisson_kernel(ops, texture, channel, u_refracted, v_refracted, r, taps)
+    return _coated_diffuse_kernel(ops, rho, sky, fresnel, eta, fdr_ext, fdr_int)
+
+
 def _composite_kernel(ops, outer, inner, alpha, cos_theta):
     """Listing 3: lerp(outer, inner, alpha·saturate(N·V)) (the inner layer's weight: module docstring)."""
     w = clamp01(ops, alpha) * clamp01(ops, cos_theta)
@@ -202,6 +324,19 @@ def refracted_offset(cos_theta, depth, eta):
 def seed_blur_radii(cos_theta, depth):
     """(light-map radius d, albedo radius d/cos θ) of the seed's Poisson discs (units of d)."""
     return evaluate(_seed_radii_kernel, _cos(cos_theta), _depth(depth))
+
+
+def poisson_albedo(texture: BaseTexture, u, v, radius, taps: int = 13, channel=0.0):
+    """The seed's Poisson-disc mean (listing 2) of ``texture``'s ``channel`` at (u, v), radius in scene
+    units; taps 1, 5 or 13."""
+    if taps not in (1, 5, 13):
+        raise ValueError(f"taps must be 1, 5 or 13 (got {taps})")
+    r = check_range("radius", radius, 0.0, 1e9)
+
+    def kernel(ops, texture, channel, u, v, r):
+        return _poisson_kernel(ops, texture, channel, u, v, r, taps)
+
+    return evaluate(kernel, texture, channel, u, v, r)
 
 
 def seed_composite(outer, inner, alpha, cos_theta):
@@ -319,7 +454,57 @@ METHODS = method_table(
         ),
     ]
 )
+_TEXTURE = Input("texture", "1", "the base's albedo (`BaseTexture`: its texels on a uv window)")
+_CHANNEL = Input("channel", "1", "the texture's channel: 0 red, 1 green, 2 blue", (0.0, 2.0))
+_U_SEED = Input("u_seed", "1", "u of the base where the seed's straight ray meets it", (0.0, 1.0))
+_V_SEED = Input("v_seed", "1", "v of the base where the seed's straight ray meets it", (0.0, 1.0))
+_U_REFR = Input("u_refracted", "1", "u of the base where the refracted ray meets it", (0.0, 1.0))
+_V_REFR = Input("v_refracted", "1", "v of the base where the refracted ray meets it", (0.0, 1.0))
+BLUR_INPUTS = (_COS, _DEPTH, _ETA, _TEXTURE, _CHANNEL, _U_SEED, _V_SEED, _U_REFR, _V_REFR)
+"""The blur rows' inputs beside the composite's."""
+_BLUR = Param(1.0, 0.0, BLUR_MAX, unit="1", description="k: the blur radius over the transmission distance",
+              published=False)  # fmt: skip
+_SEED_BLUR = "Oat 2006, PoissonFilter of the inner albedo (seed 000:1291-1319, listings 2, 3)"
+
+
+def _coated_blur(taps: int) -> Method:
+    return Method(
+        f"coated-blur-{taps}",
+        f"Coated diffuse, albedo blurred ({taps} taps)",
+        _coated_blur_kernel,
+        inputs=(_COS, _DEPTH, _ETA, _TEXTURE, _CHANNEL, _U_REFR, _V_REFR, _SKY, _FRESNEL, _FDR_EXT, _FDR_INT),
+        params={} if taps == 1 else {"blur": _BLUR},
+        fixed={"taps": taps, **({"blur": 0.0} if taps == 1 else {})},
+        quantity="coated_radiance",
+        formula="L_o = coated diffuse, ρ the mean over the disc of radius k·d/cos θ_t at the refracted point"
+        if taps > 1
+        else "L_o = coated diffuse with ρ read from the texture at the refracted point (no blur)",
+        source=f"{_SEED_BLUR}: the seed's disc at Snell's point and transmission distance",
+    )
+
+
+METHODS = method_table(
+    [
+        *METHODS.values(),
+        Method(
+            "seed-blur",
+            "Seed composite, albedo blurred (13 taps)",
+            _seed_blur_kernel,
+            inputs=(_COS, _DEPTH, _TEXTURE, _CHANNEL, _U_SEED, _V_SEED, _SKY),
+            params={"alpha": METHODS["seed-composite-alpha"].params["alpha"], "blur": _BLUR},
+            fixed={"taps": 13},
+            quantity="coated_radiance",
+            formula="L_o = a·cos θ·PoissonFilter(ρ, uv + d·tan θ, k·d/cos θ)·L, a and k fitted",
+            source=_SEED_BLUR,
+            description="The seed's view-dependent blur of the inner albedo at its parallax point.",
+        ),
+        *(_coated_blur(n) for n in (1, 5, 13)),
+    ]
+)
 """The layered-materials family's methods (module docstring): quantities ``layer_offset`` (the first four)
 and ``coated_radiance``."""
 OFFSET_ROWS = tuple(k for k, m in METHODS.items() if m.quantity == "layer_offset")
-COMPOSITE_ROWS = tuple(k for k, m in METHODS.items() if m.quantity == "coated_radiance")
+BLUR_ROWS = ("seed-blur", "coated-blur-1", "coated-blur-5", "coated-blur-13")
+COMPOSITE_ROWS = tuple(
+    k for k, m in METHODS.items() if m.quantity == "coated_radiance" and k not in BLUR_ROWS
+)
