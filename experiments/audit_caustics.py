@@ -49,7 +49,6 @@ from rtfit.realtime.methods import Method, Param
 from rtfit.reference import caustic_pass as cp
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import device_vectors, sub_seed
-from rtfit.reference.reflective_shapes import reflective_shapes
 
 from .audit import Applicability, Rule
 from .audit_family import (
@@ -62,6 +61,7 @@ from .audit_family import (
     StudyContext,
     pooled_passes,
 )
+from .audit_geometry import reflective_shape
 from .records import Check, Section
 
 __all__ = [
@@ -106,12 +106,7 @@ SCENES = (
 
 
 def _caster(setup: AuditSetup, app: Applicability):
-    found = reflective_shapes(setup.scene)
-    k = app.source
-    if k is None or not 0 <= k < len(found):
-        raise AuditError(f"caustics: {app.part} is not a reflective shape of the loaded scene")
-    index, plugin = found[k]
-    return index, setup.scene.shapes()[index], plugin
+    return reflective_shape(setup, app, "caustics", check_label=False)
 
 
 def _bounding_sphere(mi, shape) -> tuple[np.ndarray, float]:

@@ -58,14 +58,12 @@ from rtfit.reference.reflective_shapes import (
     bsdf_roughness,
     first_hits,
     ray_radiance_pass,
-    reflective_shapes,
     shape_pixels,
     surface_lobes,
 )
 
 from .audit import Applicability, Rule
 from .audit_family import (
-    AuditError,
     AuditFamily,
     AuditSetup,
     FamilyCase,
@@ -75,6 +73,7 @@ from .audit_family import (
     vector_text,
     xyz_columns,
 )
+from .audit_geometry import camera_rays, reflective_shape
 
 __all__ = [
     "FAMILY",
@@ -126,14 +125,7 @@ def filtered_tables(prefix: str, rad: np.ndarray, resolution: int, shininess: fl
 
 
 def _shape(setup: AuditSetup, app: Applicability):
-    """(index in the loaded scene's shapes, Mitsuba shape, BSDF plugin) of the applicability's shape:
-    ``app.source`` is its ordinal among the scene's reflective shapes (`reflective_shapes`)."""
-    found = reflective_shapes(setup.scene)
-    k = app.source
-    if k is None or not 0 <= k < len(found) or REFLECTIVE_BSDFS[found[k][1]].text not in app.part:
-        raise AuditError(f"environment-maps: {app.part} is not a reflective shape of the loaded scene")
-    index, plugin = found[k]
-    return index, setup.scene.shapes()[index], plugin
+    return reflective_shape(setup, app, "environment-maps")
 
 
 def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
@@ -143,9 +135,7 @@ def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[Family
     gb = setup.gbuffer
     visible = setup.mask
     points = gb.position[visible].astype(np.float64)
-    dirs = gb.view_dir[visible].astype(np.float64)
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    origins = points - gb.depth[visible].astype(np.float64)[:, None] * dirs
+    origins, dirs = camera_rays(setup)
     sees = shape_pixels(mi, scene, index, origins, dirs)
     if not sees.any():
         return []

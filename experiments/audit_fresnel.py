@@ -37,10 +37,11 @@ import time
 import numpy as np
 
 from rtfit.realtime.fresnel import METHODS
-from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
+from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, shape_pixels
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase, ShippedScene
+from .audit_family import AuditFamily, AuditReference, AuditSetup, FamilyCase, ShippedScene
+from .audit_geometry import camera_rays, rays, reflective_shape
 
 __all__ = ["FAMILY", "SCENES", "fresnel_cases", "material_ior", "mitsuba_fresnel"]
 
@@ -97,18 +98,7 @@ def mitsuba_fresnel(mi, cos_theta, eta: float, k: float, dielectric: bool) -> np
 
 
 def _shape(setup: AuditSetup, app: Applicability):
-    found = reflective_shapes(setup.scene)
-    k = app.source
-    if k is None or not 0 <= k < len(found) or REFLECTIVE_BSDFS[found[k][1]].text not in app.part:
-        raise AuditError(f"fresnel: {app.part} is not a reflective shape of the loaded scene")
-    index, plugin = found[k]
-    return index, setup.scene.shapes()[index], plugin
-
-
-def _ray(mi, origins: np.ndarray, dirs: np.ndarray):
-    o = np.ascontiguousarray(origins, np.float32)
-    d = np.ascontiguousarray(dirs, np.float32)
-    return mi.Ray3f(mi.Point3f(*(o[:, i] for i in range(3))), mi.Vector3f(*(d[:, i] for i in range(3))))
+    return reflective_shape(setup, app, "fresnel")
 
 
 def fresnel_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
@@ -120,15 +110,12 @@ def fresnel_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     if plugin in _UNAUDITED or ior is None:
         return []
     t0 = time.perf_counter()
-    gb = setup.gbuffer
     visible = setup.mask
-    dirs = gb.view_dir[visible].astype(np.float64)
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    origins = gb.position[visible].astype(np.float64) - gb.depth[visible].astype(np.float64)[:, None] * dirs
+    origins, dirs = camera_rays(setup)
     sees = shape_pixels(mi, scene, index, origins, dirs)
     if not sees.any():
         return []
-    ray = _ray(mi, origins[sees], dirs[sees])
+    ray = rays(mi, origins[sees], dirs[sees])
     si = scene.ray_intersect(ray)
     wi_z = np.array(si.wi.z, np.float64)
     dielectric = plugin in _DIELECTRIC

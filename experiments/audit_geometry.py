@@ -15,7 +15,9 @@ instance's ``to_world`` (issue 31: instances are common in real scenes). A shape
 (``sdfgrid``, curves) raises `AuditError` naming it: its distance field would be silently missing otherwise.
 
 The AO radius every geometry family shares (`ao_radius`: ``--ao-distance``, else the scene's default) lives
-here too, so that no family module imports another's (the visible points: `rtfit.reference.gbuffer_points`).
+here too, so that no family module imports another's (the visible points: `rtfit.reference.gbuffer_points`),
+and so do the reflective shape an applicability names (`reflective_shape`: the families of mirror and glass
+shapes), the camera rays of the visible pixels (`camera_rays`) and Mitsuba rays from NumPy (`rays`).
 """
 
 from __future__ import annotations
@@ -24,11 +26,13 @@ import math
 
 import numpy as np
 
-from .audit import default_ao_distance
+from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes
+
+from .audit import Applicability, default_ao_distance
 from .audit_family import AuditError, AuditSetup
 from .sdf_occlusion_scenes import icosphere
 
-__all__ = ["ao_radius", "scene_triangles"]
+__all__ = ["ao_radius", "camera_rays", "rays", "reflective_shape", "scene_triangles"]
 
 _SEGMENTS = 64
 _SPHERE_SUBDIVISIONS = 4
@@ -182,3 +186,38 @@ def ao_radius(setup: AuditSetup, family: str = "sdf-occlusion") -> float:
     if radius is None or not (math.isfinite(radius) and radius > 0):
         raise AuditError(f"{family}: the scene has no finite size; give --ao-distance")
     return float(radius)
+
+
+def reflective_shape(setup: AuditSetup, app: Applicability, family: str, check_label: bool = True):
+    """(index in the loaded scene's shapes, Mitsuba shape, BSDF plugin) of the applicability's shape:
+    ``app.source`` is its ordinal among the scene's reflective shapes (`reflective_shapes`, the order the
+    scene's parts were listed in); ``check_label``: the part's label must name that shape's BSDF kind (a
+    mirror, glass …), else the scene was not the one listed. One line naming ``family`` otherwise."""
+    found = reflective_shapes(setup.scene)
+    k = app.source
+    if (
+        k is None
+        or not 0 <= k < len(found)
+        or (check_label and REFLECTIVE_BSDFS[found[k][1]].text not in app.part)
+    ):
+        raise AuditError(f"{family}: {app.part} is not a reflective shape of the loaded scene")
+    index, plugin = found[k]
+    return index, setup.scene.shapes()[index], plugin
+
+
+def rays(mi, origins: np.ndarray, dirs: np.ndarray):
+    """A Mitsuba ray per row of ``origins`` and ``dirs`` (N, 3), float32."""
+    o = np.ascontiguousarray(origins, np.float32)
+    d = np.ascontiguousarray(dirs, np.float32)
+    return mi.Ray3f(mi.Point3f(*(o[:, i] for i in range(3))), mi.Vector3f(*(d[:, i] for i in range(3))))
+
+
+def camera_rays(setup: AuditSetup) -> tuple[np.ndarray, np.ndarray]:
+    """(origins, unit directions) (N, 3) float64 of the pixel-centre camera rays of the visible pixels
+    (``setup.mask``, row-major): each origin is the first hit minus its ray distance along the direction."""
+    gb, visible = setup.gbuffer, setup.mask
+    dirs = gb.view_dir[visible].astype(np.float64)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    return gb.position[visible].astype(np.float64) - gb.depth[visible].astype(np.float64)[
+        :, None
+    ] * dirs, dirs

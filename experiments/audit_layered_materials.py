@@ -67,11 +67,10 @@ from rtfit.realtime.layered_materials import (
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import PassResult, radiance_pass
 from rtfit.reference.particle_media import shapes_scene
-from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
+from rtfit.reference.reflective_shapes import shape_pixels
 
 from .audit import Applicability, Rule
 from .audit_family import (
-    AuditError,
     AuditFamily,
     AuditReference,
     AuditSetup,
@@ -82,6 +81,7 @@ from .audit_family import (
     pooled_passes,
     vector_text,
 )
+from .audit_geometry import camera_rays, rays, reflective_shape
 from .records import Check, Section
 
 __all__ = ["ANGLES", "FAMILY", "SCENES", "coat_cases", "offset_ratio", "study"]
@@ -146,18 +146,7 @@ def _median_ratio(theta, eta: float) -> float:
 
 
 def _shape(setup: AuditSetup, app: Applicability):
-    found = reflective_shapes(setup.scene)
-    k = app.source
-    if k is None or not 0 <= k < len(found) or REFLECTIVE_BSDFS[found[k][1]].text not in app.part:
-        raise AuditError(f"layered-materials: {app.part} is not a reflective shape of the loaded scene")
-    index, plugin = found[k]
-    return index, setup.scene.shapes()[index], plugin
-
-
-def _ray(mi, origins: np.ndarray, dirs: np.ndarray):
-    o = np.ascontiguousarray(origins, np.float32)
-    d = np.ascontiguousarray(dirs, np.float32)
-    return mi.Ray3f(mi.Point3f(*(o[:, i] for i in range(3))), mi.Vector3f(*(d[:, i] for i in range(3))))
+    return reflective_shape(setup, app, "layered-materials")
 
 
 def _np3(v) -> np.ndarray:
@@ -239,15 +228,12 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     if plugin != "dielectric":
         return []
     t0 = time.perf_counter()
-    gb = setup.gbuffer
     visible = setup.mask
-    dirs = gb.view_dir[visible].astype(np.float64)
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    origins = gb.position[visible].astype(np.float64) - gb.depth[visible].astype(np.float64)[:, None] * dirs
+    origins, dirs = camera_rays(setup)
     sees = shape_pixels(mi, scene, index, origins, dirs)
     if not sees.any():
         return []
-    si = scene.ray_intersect(_ray(mi, origins[sees], dirs[sees]))
+    si = scene.ray_intersect(rays(mi, origins[sees], dirs[sees]))
     cos = np.array(si.wi.z, np.float64)
     bsdf = shape.bsdf()
     bs, _ = bsdf.sample(mi.BSDFContext(), si, mi.Float(_ONE_MINUS), mi.Point2f(0.5, 0.5), si.is_valid())

@@ -44,14 +44,12 @@ from rtfit.reference.reflective_shapes import (
     bsdf_roughness,
     first_hits,
     ray_radiance_pass,
-    reflective_shapes,
     shape_pixels,
     surface_lobes,
 )
 
 from .audit import Applicability, Rule
 from .audit_family import (
-    AuditError,
     AuditFamily,
     AuditSetup,
     FamilyCase,
@@ -61,6 +59,7 @@ from .audit_family import (
     vector_text,
     xyz_columns,
 )
+from .audit_geometry import camera_rays, reflective_shape
 
 __all__ = ["FAMILY", "GRIDS", "LOBE_SAMPLES", "SCENES", "probe_specular_cases", "storage_floats"]
 
@@ -94,12 +93,7 @@ def storage_floats(probes: int) -> int:
 
 
 def _shape(setup: AuditSetup, app: Applicability):
-    found = reflective_shapes(setup.scene)
-    k = app.source
-    if k is None or not 0 <= k < len(found):
-        raise AuditError(f"probe-specular: {app.part} is not a reflective shape of the loaded scene")
-    index, plugin = found[k]
-    return index, setup.scene.shapes()[index], plugin
+    return reflective_shape(setup, app, "probe-specular", check_label=False)
 
 
 def _unit(resolution: int) -> np.ndarray:
@@ -147,9 +141,7 @@ def probe_specular_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCa
     gb = setup.gbuffer
     visible = setup.mask
     points = gb.position[visible].astype(np.float64)
-    dirs = gb.view_dir[visible].astype(np.float64)
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    origins = points - gb.depth[visible].astype(np.float64)[:, None] * dirs
+    origins, dirs = camera_rays(setup)
     sees = shape_pixels(mi, scene, index, origins, dirs)
     if not sees.any():
         return []

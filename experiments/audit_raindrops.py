@@ -46,7 +46,7 @@ from rtfit.realtime import environment_maps as em
 from rtfit.realtime.raindrops import CAUSTIC_METHODS, ENV_RESOLUTION, METHODS, ORDERS, WATER_ETA
 from rtfit.reference.cache import array_digest
 from rtfit.reference.caustic_pass import caustic_profile
-from rtfit.reference.reflective_shapes import ray_radiance_pass, reflective_shapes, shape_pixels
+from rtfit.reference.reflective_shapes import ray_radiance_pass, shape_pixels
 from rtfit.reference.variants import scoped_variant
 
 from .audit import Applicability, Rule
@@ -64,6 +64,7 @@ from .audit_family import (
     vector_text,
     xyz_columns,
 )
+from .audit_geometry import camera_rays, reflective_shape
 from .records import Check, Section
 
 __all__ = [
@@ -140,12 +141,7 @@ def sphere_hits(origins: np.ndarray, dirs: np.ndarray, centre, radius: float):
 
 
 def _shape(setup: AuditSetup, app: Applicability):
-    found = reflective_shapes(setup.scene)
-    k = app.source
-    if k is None or not 0 <= k < len(found):
-        raise AuditError(f"raindrops: {app.part} is not a reflective shape of the loaded scene")
-    index, plugin = found[k]
-    return index, setup.scene.shapes()[index], plugin
+    return reflective_shape(setup, app, "raindrops", check_label=False)
 
 
 def _environment(setup: AuditSetup):
@@ -202,11 +198,8 @@ def drop_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         return []
     centre, radius = sphere
     env = _environment(setup)
-    gb = setup.gbuffer
     visible = setup.mask
-    dirs = gb.view_dir[visible].astype(np.float64)
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    origins = gb.position[visible].astype(np.float64) - gb.depth[visible].astype(np.float64)[:, None] * dirs
+    origins, dirs = camera_rays(setup)
     sees = shape_pixels(mi, scene, index, origins, dirs)
     _, normals, hit = sphere_hits(origins, dirs, centre, radius)
     keep = sees & hit
