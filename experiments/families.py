@@ -307,7 +307,7 @@ FAMILIES: dict[str, Family] = {
             "tracking through the medium, against the seed's cloud-shadow texture (the density plane "
             "projected along the sun), the plane extruded with the distance clouds' nested march, and a 3-D "
             "ray march of 4–64 samples.",
-            methods=clouds.METHODS,
+            methods={**clouds.METHODS, **clouds.RADIANCE_METHODS},
             audits=(audit_clouds.FAMILY,),
             scenes=audit_clouds.SCENES,
             study=audit_clouds.study,
