@@ -350,6 +350,8 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "are Beer–Lambert on the density plane, rtfit's reading (docs/clouds.md)",
             ),
             params=_params(cloud),
+            methods=METHODS,
+            quantity="cloud_transmittance",
         ),
         *radiance,
     ]

@@ -323,17 +323,15 @@ def _gradient_kernel(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, e_sun, albedo, g, 
     + T·L_bg at the pixel's density-weighted point x̄."""
     device = ops.name == "drjit" and dr.is_array_v(ox)
     tau, wx, wy, wz = 0.0 * ox, 0.0 * ox, 0.0 * ox, 0.0 * ox
-    t_first = t_last = None
     for i, (t, sigma, dt) in enumerate(_view_samples(ops, ox, oy, oz, dx, dy, dz, cloud, steps)):
         w = sigma * dt
         tau, wx, wy, wz = tau + w, wx + w * (ox + t * dx), wy + w * (oy + t * dy), wz + w * (oz + t * dz)
-        t_first = t if t_first is None else t_first
-        t_last = t
         if device and (i + 1) % _BATCH == 0:
             dr.eval(tau, wx, wy, wz)
     full = tau > TAU_MIN  # an empty ray: x̄ is the stretch's midpoint (its weight 1 − T is 0 anyway)
     inv = 1.0 / ops.maximum(tau, TAU_MIN)
-    tm = 0.5 * (t_first + t_last)
+    t0, t1 = _box_stretch(ops, (ox, oy, oz), (dx, dy, dz), cloud.lo, cloud.hi)
+    tm = 0.5 * (t0 + t1)
     xb = ops.select(full, wx * inv, ox + tm * dx)
     yb = ops.select(full, wy * inv, oy + tm * dy)
     zb = ops.select(full, wz * inv, oz + tm * dz)

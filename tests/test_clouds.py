@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import drjit as dr
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -20,6 +21,7 @@ from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_clouds import BOX, blob_grid, cloud_blobs, sun_direction
 from rtfit.experiments.audit_run import audit
 from rtfit.realtime import NUMPY_OPS, CloudGrid, cloud_transmittance
+from rtfit.realtime.arrays import DRJIT_OPS
 from rtfit.realtime.clouds import METHODS, RADIANCE_METHODS
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -361,6 +363,41 @@ def test_extremes_finite(elevation, azimuth, scale, x, z, k, h):
             assert np.all(np.isfinite(got)) and np.all((got >= 0.0) & (got <= 1.0)), (method, got)
 
 
+@settings(max_examples=10, deadline=None)
+@given(
+    elevation=st.floats(-90.0, 90.0),
+    azimuth=st.floats(0.0, 6.3),
+    scale=st.sampled_from([0.0, 1e-30, 1.0, 1e6, 1e30]),
+    view=st.floats(-1.0, 1.0),
+    g=st.floats(-0.99, 0.99),
+    a=st.floats(0.0, 10.0),
+    b=st.floats(0.0, 2.0),
+)
+@example(elevation=-90.0, azimuth=0.0, scale=1e30, view=1.0, g=0.99, a=10.0, b=0.0)  # sun below, opaque
+def test_radiance_extremes_finite(elevation, azimuth, scale, view, g, a, b):
+    """The radiance rows without NaN/Inf and ≥ 0: the sun from straight up to straight below the horizon, no
+    cloud to 10³⁰ /m, rays through, beside and from inside the cloud, g and the colours anywhere in their
+    bounds, float64 (NumPy) and float32 (Dr.Jit)."""
+    e, az = math.radians(elevation), azimuth
+    s = np.array([math.cos(e) * math.cos(az), math.cos(e) * math.sin(az), math.sin(e)])
+    s /= np.linalg.norm(s)
+    cloud = CloudGrid(blob_grid().astype(np.float64) * scale, *BOX)
+    d = np.array([[1.0, 0.0, view], [0.0, 1.0, 0.3], [0.2, -0.1, -1.0]])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    for o in ((-9.0, -1.3, 0.7), (0.0, 0.0, 3.0)):
+        for method in RADIANCE_METHODS:
+            params = {"a_shadow": a, "a_lit": 10.0 - a, "b": b} if method.startswith("gradient") else {}
+            runs = [_radiance(method, o, d, s, cloud, e=100.0, albedo=1.0, g=g, l_bg=100.0, **params)]
+            if method in ("gradient-16", "single-8-4"):
+                f32 = dr.llvm.Float
+                inputs = {"ox": o[0], "oy": o[1], "oz": o[2], "dx": f32(d[:, 0]), "dy": f32(d[:, 1]),
+                          "dz": f32(d[:, 2]), "sx": float(s[0]), "sy": float(s[1]), "sz": float(s[2]),
+                          "e_sun": 100.0, "albedo": 1.0, "g": g, "l_bg": 100.0, "cloud": cloud}  # fmt: skip
+                runs.append(np.asarray(RADIANCE_METHODS[method](DRJIT_OPS, inputs, params), np.float64))
+            for got in runs:
+                assert np.all(np.isfinite(got)) and np.all(got >= 0.0), (method, got)
+
+
 def test_public_function_says_what_is_wrong_in_one_line():
     cloud = CloudGrid(np.ones((2, 2, 2)), (0, 0, 0), (1, 1, 1))
     for bad, text in [
@@ -393,10 +430,16 @@ def cloud_audit(tmp_path_factory):
 
 
 def test_shipped_scene_audit(cloud_audit):
-    """One case on the ground pixels: the reference is ratio tracking toward the sun; the shadowed points are
-    dark and the unshadowed ones 1; the 3-D march sits near the noise floor, the seed's plane is evaluated
-    and fitted (the fit not worse than the given start)."""
-    (case,) = cloud_audit.cases
+    """The shadow case on the ground pixels: the reference is ratio tracking toward the sun; the shadowed
+    points are dark and the unshadowed ones 1; the 3-D march sits near the noise floor, the seed's plane is
+    evaluated and fitted (the fit not worse than the given start). The radiance case beside it (the camera
+    looks down through the cloud) has its own rows only."""
+    shadow, radiance = cloud_audit.cases
+    assert (
+        set(cloud_audit.outcomes[radiance.id]) >= set(RADIANCE_METHODS)
+        and radiance.quantity == "cloud_radiance"
+    )
+    case = shadow
     assert case.id == "cloud0-shadow" and case.mask.sum() > 100
     ref = case.reference.mean[case.mask][:, 0]
     assert ref.min() < 0.3 and ref.max() > 0.99
@@ -405,6 +448,22 @@ def test_shipped_scene_audit(cloud_audit):
     rmse = {k: o.metrics["rmse"] for k, o in outcomes.items()}
     assert rmse["march-64"].value < 3 * rmse["march-64"].noise_floor
     assert rmse["plane-fitted"].value <= rmse["plane"].value * (1 + 1e-9)
+
+
+def test_sky_scene_radiance_audit(tmp_path):
+    """The cloud against a black sky (clouds_sky.xml, 10², 32 spp): one radiance case on the pixels whose ray
+    crosses the cloud (no surface faces the sun: no shadow case); L_bg is 0 there; the gradient row is
+    evaluated and fitted (not worse than its start), the single-scattering rows evaluated, every value
+    finite."""
+    r = audit(str(SKY), ["clouds"], width=10, height=10, spp=32, pass_spp=32, cache=tmp_path / "c", **FAST)
+    (case,) = r.cases
+    assert case.id == "cloud0-radiance" and case.mask.sum() > 20
+    assert np.all(case.channel_inputs[0]["l_bg"] == 0.0) and case.reference.mean[case.mask].mean() > 0.01
+    outcomes = r.outcomes[case.id]
+    assert {"gradient-16", "gradient-16-fitted", "single-8-4", "single-16-8"} <= set(outcomes)
+    rmse = {k: o.metrics["rmse"].value for k, o in outcomes.items()}
+    assert all(np.isfinite(v) for v in rmse.values()), rmse
+    assert rmse["gradient-16-fitted"] <= rmse["gradient-16"] * (1 + 1e-9)
 
 
 def test_no_distant_light_no_case(tmp_path):
@@ -431,8 +490,8 @@ def test_list_names_clouds():
     assert result.exit_code == 0, result.output
     assert "clouds — cloud shadow: heterogeneous medium 'cloud'" in result.output
     assert (
-        "plane, plane-mip1, plane-mip2, slab-4, slab-16, march-4, march-8, march-16, march-64"
-        in result.output
+        "plane, plane-mip1, plane-mip2, slab-4, slab-16, march-4, march-8, march-16, march-64, gradient-16, "
+        "single-8-4, single-16-8" in result.output
     )
 
 
@@ -440,5 +499,5 @@ def test_registry_entry_is_born_on_the_engine():
     from rtfit.experiments.families import ENGINE, FAMILIES
 
     f = FAMILIES["clouds"]
-    assert f.module == ENGINE and f.methods is METHODS
-    assert {s.file for s in f.scenes} == {"clouds_sun.xml"} and SCENE.is_file()
+    assert f.module == ENGINE and dict(f.methods) == {**METHODS, **RADIANCE_METHODS}
+    assert {s.file for s in f.scenes} == {"clouds_sun.xml", "clouds_sky.xml"} and SKY.is_file()
