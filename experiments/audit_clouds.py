@@ -20,9 +20,16 @@ One case ``cloudK-shadow`` per such medium, on the pixels that show a surface fa
   height, then fitted), the plane extruded and marched (``slab-4``, ``slab-16``: k = 1 and the box's bottom
   and top, then fitted), the 3-D march with 4 … 64 samples (no free parameter).
 
-The shipped scene (``scenes/library/clouds_sun.xml``): the grid of `cloud_blobs` (four Gaussian blobs,
-written to ``scenes/library/volumes/clouds_blobs.vol`` by `write_blobs`) over a grey ground under a
-directional sun at two elevations.
+A second case ``cloudK-radiance`` (quantity ``cloud_radiance``, rows `rtfit.realtime.clouds.RADIANCE_METHODS`)
+on the pixels whose ray crosses the cloud's box: the reference is ``volpathmis`` with the cloud alone
+(`audit_media.radiance_passes`), L_bg the same pixels with it switched off; inputs: the camera ray, the sun,
+its irradiance (a ``directional`` emitter's), the medium's constant albedo and HG g (no case otherwise);
+rows: the seed's gradient-lit cloud (fitted colours) and the sun's single scattering marched.
+
+The shipped scenes: the grid of `cloud_blobs` (four Gaussian blobs, written to
+``scenes/library/volumes/clouds_blobs.vol`` by `write_blobs`) over a grey ground under a directional sun at
+two elevations (``scenes/library/clouds_sun.xml``: its shadows), and against a black sky from two sides
+(``clouds_sky.xml``: its radiance).
 """
 
 from __future__ import annotations
@@ -124,6 +131,7 @@ def _scene(elevation: float) -> ShippedScene:
         defines={"dx": f"{-s[0]:.6f}", "dy": "0", "dz": f"{-s[2]:.6f}"},
         name=f"sun{elevation:g}",
         quick=elevation == SUN_ELEVATIONS[0],
+        quantities=("cloud_transmittance",),  # the radiance: clouds_sky.xml's (no ground behind the cloud)
     )
 
 
@@ -150,6 +158,7 @@ def _sky_scene(view: str) -> ShippedScene:
         },
         name=f"sky-{view}",
         quick=view == "backlit",
+        quantities=("cloud_radiance",),
     )
 
 
@@ -233,6 +242,8 @@ def _radiance_case(
 ) -> list[FamilyCase]:
     """The cloud's radiance at the camera (docs/clouds.md): volpathmis with the cloud alone against the rows
     of `RADIANCE_METHODS`, on the pixels whose ray crosses the cloud; L_bg: the same pixels without it."""
+    if not setup.wants("cloud_radiance"):
+        return []
     e_sun = _sun_irradiance(setup)
     read = _scattering(setup.mi, med.medium)
     crosses = np.isfinite(t_in) & (np.nan_to_num(t_out, nan=0.0) > np.nan_to_num(t_in, nan=0.0))
@@ -298,6 +309,8 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     med, dirs, t_in, t_out = opened_medium(setup, app, "clouds")
     cloud = _grid(setup, med.medium)
     radiance = _radiance_case(setup, app, med, dirs, t_in, t_out, cloud, s)
+    if not setup.wants("cloud_transmittance"):
+        return radiance
     points, normals = gbuffer_points(setup.gbuffer, setup.mask)
     facing = normals @ s > 0.0
     mask = setup.mask.copy()
@@ -417,7 +430,8 @@ def _steps(row: str) -> str:
 
 def study(ctx: StudyContext) -> Study:
     """Cost beside error: per scene and row, RMSE over the reference's noise floor, the largest |error|, the
-    texel reads per pixel (march: 8 per sample; plane: 4 per tap) and the kernel's measured ns per pixel."""
+    texel reads per pixel (march, gradient: 8 per sample; plane: 4 per tap; single: 8 per view and sun sample)
+    and the kernel's measured ns per pixel."""
     lines = ["| case | row | samples | texel reads / px | RMSE | RMSE / floor | max abs err | kernel ns/px |",
              "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for result in ctx.audits:
@@ -429,9 +443,13 @@ def study(ctx: StudyContext) -> Study:
                 err = float(np.max(np.abs(out.image[case.mask][:, 0] - ref))) if ref.size else float("nan")
                 steps = _steps(row_id)
                 base = row_id.removesuffix("-fitted")
-                reads = (
-                    8 * int(steps) if base.startswith("march") else (4 * int(steps) if steps.isdigit() else 4)
-                )
+                parts = base.split("-")
+                if base.startswith("single"):  # N view samples, each with an M-sample sun march
+                    steps, reads = f"{parts[1]} × {parts[2]}", 8 * int(parts[1]) * (int(parts[2]) + 1)
+                elif base.startswith(("march", "gradient")):
+                    reads = 8 * int(steps)
+                else:
+                    reads = 4 * int(steps) if steps.isdigit() else 4
                 cost = result.costs.get(out.method.id, {}).get("ns_per_pixel")
                 ns = f"{cost:.3g}" if cost else "—"
                 lines.append(f"| {case.id} | {row_id} | {steps} | {reads} | {rmse.value:.3g} | {ratio:.3g} | "

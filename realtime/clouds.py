@@ -50,7 +50,7 @@ E_sun (W/m², per channel), the medium's single-scattering albedo ϖ and Henyey�
 L_bg behind the cloud (W/m²/sr: the same pixel with the cloud removed) and the cloud. Both rows march the
 view ray's stretch in the box with N midpoint samples xᵢ (σᵢ, Δt as in ``march-N``).
 
-* ``gradient-N`` — **the seed's gradient-lit clouds** (000:2324-2328, 002:353-354: "gradient-based lighting",
+* ``gradient-N`` — **the seed's gradient-lit clouds** (000:2324, 002:353: "gradient-based lighting",
   "similar to [Wang03]"; Wang 2003/2004 shades each sprite with artist-set colours by its place in the cloud
   relative to the sun and by altitude, "artist-driven controls rather than a programmatic approach", the
   paper's abstract): the pixel's point x̄ = Σσᵢxᵢ/Σσᵢ (where its density — its sprites — lies), its
@@ -61,7 +61,7 @@ view ray's stretch in the box with N midpoint samples xᵢ (σᵢ, Δt as in ``m
   seed and Wang give no values, so both a start at 1/(4π) (the isotropic, unshadowed single-scattering limit
   of a thin white cloud, rtfit's choice) and b = 1 (no gradient). The exact lerp and
   gradient Wang's text uses was not retrievable (docs/clouds.md, "The radiance case"); this is rtfit's
-  reading of "gradient-based" + "shadow/lit by the sun's side". **No rim term** (000:2326 "backlighting
+  reading of "gradient-based" + "shadow/lit by the sun's side". **No rim term** (000:2327 "backlighting
   threshold (with respect to cloud alpha), and backlighting softness" is a figure caption; no formula found).
 * ``single-N-M`` — single scattering of the sun, marched: L = Σᵢ Tᵢ·ϖσᵢ·p(s·d)·E_sun·T_sun(xᵢ)·Δt +
   T_view·L_bg, Tᵢ = exp(−Σ_{j<i}σⱼΔt − ½σᵢΔt), T_sun(xᵢ) the ``march-M`` row's text from xᵢ, p the
@@ -476,7 +476,7 @@ RADIANCE_METHODS = method_table(
                 quantity="cloud_radiance",
                 formula="L = E·(a_s + (a_l − a_s)·u)·(b + (1 − b)·v)·(1 − T) + T·L_bg; u: x̄'s place along "
                 "the sun in the box, v: its height, x̄ = Σσᵢxᵢ/Σσᵢ, T = exp(−Σσᵢ·Δt)",
-                source='seed 000:2324-2328, 002:353-355 ("gradient-based lighting", after Wang 2003, JGT '
+                source='seed 000:2324-2327, 002:353-356 ("gradient-based lighting", after Wang 2003, JGT '
                 "9(3) 2004: artists' colours; their lerp is rtfit's reading, the rim term not built)",
             )
             for n in GRADIENT_STEPS
