@@ -20,9 +20,16 @@ One case ``cloudK-shadow`` per such medium, on the pixels that show a surface fa
   height, then fitted), the plane extruded and marched (``slab-4``, ``slab-16``: k = 1 and the box's bottom
   and top, then fitted), the 3-D march with 4 … 64 samples (no free parameter).
 
-The shipped scene (``scenes/library/clouds_sun.xml``): the grid of `cloud_blobs` (four Gaussian blobs,
-written to ``scenes/library/volumes/clouds_blobs.vol`` by `write_blobs`) over a grey ground under a
-directional sun at two elevations.
+A second case ``cloudK-radiance`` (quantity ``cloud_radiance``, rows `rtfit.realtime.clouds.RADIANCE_METHODS`)
+on the pixels whose ray crosses the cloud's box: the reference is ``volpathmis`` with the cloud alone
+(`audit_media.radiance_passes`), L_bg the same pixels with it switched off; inputs: the camera ray, the sun,
+its irradiance (a ``directional`` emitter's), the medium's constant albedo and HG g (no case otherwise);
+rows: the seed's gradient-lit cloud (fitted colours) and the sun's single scattering marched.
+
+The shipped scenes: the grid of `cloud_blobs` (four Gaussian blobs, written to
+``scenes/library/volumes/clouds_blobs.vol`` by `write_blobs`) over a grey ground under a directional sun at
+two elevations (``scenes/library/clouds_sun.xml``: its shadows), and against a black sky from two sides
+(``clouds_sky.xml``: its radiance).
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rtfit.realtime.clouds import MARCH_STEPS, METHODS, CloudGrid
+from rtfit.realtime.clouds import MARCH_STEPS, METHODS, RADIANCE_METHODS, CloudGrid
 from rtfit.reference.cache import array_digest
 from rtfit.reference.cloud_shadow import sun_transmittance_pass
 from rtfit.reference.estimators import gbuffer_points
@@ -50,13 +57,14 @@ from .audit_family import (
     StudyContext,
     pooled_passes,
 )
-from .audit_media import opened_medium, sun_direction_of
+from .audit_media import RADIANCE_INTEGRATOR, opened_medium, radiance_passes, sun_direction_of
 from .records import Section
 
 __all__ = [
     "BLOBS",
     "BOX",
     "FAMILY",
+    "RADIANCE_SCENES",
     "SCENES",
     "cloud_blobs",
     "cloud_cases",
@@ -123,11 +131,41 @@ def _scene(elevation: float) -> ShippedScene:
         defines={"dx": f"{-s[0]:.6f}", "dy": "0", "dz": f"{-s[2]:.6f}"},
         name=f"sun{elevation:g}",
         quick=elevation == SUN_ELEVATIONS[0],
+        quantities=("cloud_transmittance",),  # the radiance: clouds_sky.xml's (no ground behind the cloud)
     )
 
 
-SCENES = tuple(_scene(e) for e in SUN_ELEVATIONS)
-"""The scenes ``rtfit run clouds`` audits (scenes/library/clouds_sun.xml, one per sun elevation)."""
+CAMERAS = {"backlit": (-9.0, -1.3, 0.7), "front": (9.0, 1.3, 0.7)}
+"""clouds_sky.xml's camera positions (m): from −x it looks towards the sun (azimuth +x), from +x with it."""
+
+
+def _sky_scene(view: str) -> ShippedScene:
+    s, c = sun_direction(SUN_ELEVATIONS[0]), CAMERAS[view]
+    return ShippedScene(
+        "clouds_sky.xml",
+        f"the blobs' cloud against a black sky, sun at {SUN_ELEVATIONS[0]:g}°, seen {view}",
+        size=(32, 32),
+        spp=256,
+        quick_size=(12, 12),
+        quick_spp=32,
+        defines={
+            "dx": f"{-s[0]:.6f}",
+            "dy": "0",
+            "dz": f"{-s[2]:.6f}",
+            "cx": f"{c[0]:g}",
+            "cy": f"{c[1]:g}",
+            "cz": f"{c[2]:g}",
+        },
+        name=f"sky-{view}",
+        quick=view == "backlit",
+        quantities=("cloud_radiance",),
+    )
+
+
+RADIANCE_SCENES = tuple(_sky_scene(v) for v in CAMERAS)
+"""The cloud's radiance scenes (scenes/library/clouds_sky.xml, two views)."""
+SCENES = (*(_scene(e) for e in SUN_ELEVATIONS), *RADIANCE_SCENES)
+"""The scenes ``rtfit run clouds`` audits (clouds_sun.xml per sun elevation; clouds_sky.xml per view)."""
 
 
 def _sun(setup: AuditSetup) -> np.ndarray | None:
@@ -177,21 +215,108 @@ def _params(cloud: CloudGrid) -> dict:
     return {k: (plane if k.startswith("plane") else slab) for k in METHODS if not k.startswith("march")}
 
 
+def _sun_irradiance(setup: AuditSetup) -> np.ndarray | None:
+    """The directional light's irradiance (3,) W/m² (None: no directional light of a plain RGB value)."""
+    xml = setup.info.xml
+    for e in xml.emitters if xml is not None else ():
+        if e.kind == "directional" and e.scale_name == "irradiance" and e.scale and len(e.scale) in (1, 3):
+            return np.broadcast_to(np.asarray(e.scale, np.float64), (3,)).copy()
+    return None
+
+
+def _scattering(mi, medium) -> tuple[np.ndarray, float] | str:
+    """The medium's albedo (3,) and Henyey–Greenstein g; or why the radiance rows cannot read them."""
+    params = mi.traverse(medium)
+    if "albedo.value.value" not in params:
+        return "its albedo is not a constant (the rows read one ϖ per channel)"
+    albedo = np.broadcast_to(np.asarray(params["albedo.value.value"], np.float64).ravel(), (3,)).copy()
+    if "phase_function.g" in params:
+        return albedo, float(np.asarray(params["phase_function.g"]).ravel()[0])
+    if "Isotropic" in str(medium.phase_function()):
+        return albedo, 0.0
+    return "its phase function is neither Henyey–Greenstein nor isotropic"
+
+
+def _radiance_case(
+    setup: AuditSetup, app: Applicability, med, dirs, t_in, t_out, cloud, s
+) -> list[FamilyCase]:
+    """The cloud's radiance at the camera (docs/clouds.md): volpathmis with the cloud alone against the rows
+    of `RADIANCE_METHODS`, on the pixels whose ray crosses the cloud; L_bg: the same pixels without it."""
+    if not setup.wants("cloud_radiance"):
+        return []
+    e_sun = _sun_irradiance(setup)
+    read = _scattering(setup.mi, med.medium)
+    crosses = np.isfinite(t_in) & (np.nan_to_num(t_out, nan=0.0) > np.nan_to_num(t_in, nan=0.0))
+    if e_sun is None or isinstance(read, str) or not crosses.any() or med.on_sensor:
+        return []  # no directional irradiance, an albedo or phase the rows cannot read, no pixel, or inside
+    albedo, g = read
+    tag = f"cloud{app.source}"
+    origin = np.asarray(med.origin, np.float64)
+    what = {"format": FORMAT, "medium": app.source, "rays": array_digest(origin, dirs[crosses])}
+    fogged, clear = radiance_passes(setup, med, crosses, what, f"{tag}: cloud radiance")
+    mask = crosses.reshape(setup.gbuffer.view_dir.shape[:2])
+    reference = fogged.reference(
+        mask,
+        quantity="radiance at the camera with the cloud alone (W/m²/sr, RGB)",
+        integrator=RADIANCE_INTEGRATOR,
+        integrator_reason="unbiased for the cloud's multiple scattering (Mitsuba's volumetric path tracer)",
+    )
+    d = dirs[crosses]
+    common = {"ox": float(origin[0]), "oy": float(origin[1]), "oz": float(origin[2]), "dx": d[:, 0],
+              "dy": d[:, 1], "dz": d[:, 2], "sx": float(s[0]), "sy": float(s[1]), "sz": float(s[2]), "g": g,
+              "cloud": cloud}  # fmt: skip
+    channels = tuple(
+        {**common, "e_sun": float(e_sun[c]), "albedo": float(albedo[c]), "l_bg": clear.mean[:, c]}
+        for c in range(3)
+    )
+    return [
+        FamilyCase(
+            id=f"{tag}-radiance",
+            label=f"{app.part}, the sunlit cloud's radiance at the camera",
+            reference=reference,
+            mask=mask,
+            channel_inputs=channels,
+            parameters={
+                "medium": app.part,
+                "albedo": albedo.tolist(),
+                "g": g,
+                "e_sun": e_sun.tolist(),
+                "pixels": int(mask.sum()),
+                "cos_sun_view_mean": float(np.mean(d @ s)),
+            },
+            units="W/m²/sr",
+            notes=(
+                f"albedo {albedo.tolist()}, HG g = {g:.3g}, E_sun = {e_sun.tolist()} W/m²; L_bg: the pixels "
+                "with the cloud removed (same integrator, spp and seed)",
+                "gradient-N: the seed's gradient-lit cloud (Wang 2003's artist colours: the shadow and lit "
+                "sides and the base's brightness, fitted; their lerp is rtfit's reading); no rim term (the "
+                "seed's is in a lost figure); single-N-M: the sun's single scattering marched (no parameter)",
+            ),
+            methods=RADIANCE_METHODS,
+            quantity="cloud_radiance",
+        )
+    ]
+
+
 def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
-    """One case per gridvolume medium: the sun's transmittance to the visible points (module docstring);
-    none in a scene without a distant light (its rule's "needs a distant sun"): a cloud shadow is the sun's,
-    and refusing there would stop the audit of every other family on the scene."""
+    """Per gridvolume medium: the sun's transmittance to the visible points facing the sun (``-shadow``) and
+    the cloud's radiance at the camera (``-radiance``; module docstring); none in a scene without a distant
+    light (its rule's "needs a distant sun"): a cloud is lit by the sun, and refusing there would stop the
+    audit of every other family on the scene."""
     s = _sun(setup)
     if s is None:
         return []
-    med, _dirs, _t_in, _t_out = opened_medium(setup, app, "clouds")
+    med, dirs, t_in, t_out = opened_medium(setup, app, "clouds")
     cloud = _grid(setup, med.medium)
+    radiance = _radiance_case(setup, app, med, dirs, t_in, t_out, cloud, s)
+    if not setup.wants("cloud_transmittance"):
+        return radiance
     points, normals = gbuffer_points(setup.gbuffer, setup.mask)
     facing = normals @ s > 0.0
     mask = setup.mask.copy()
     mask[setup.mask] = facing
     if not mask.any():  # the sun below every visible surface (below the horizon): no sunlight to shadow
-        return []
+        return radiance
     pts = points[facing]
     tag = f"cloud{app.source}"
     what = {"format": FORMAT, "quantity": "sun-transmittance", "medium": app.source,
@@ -238,13 +363,17 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "are Beer–Lambert on the density plane, rtfit's reading (docs/clouds.md)",
             ),
             params=_params(cloud),
-        )
+            methods=METHODS,
+            quantity="cloud_transmittance",
+        ),
+        *radiance,
     ]
 
 
 FAMILY = AuditFamily(
     name="clouds",
     quantity="cloud_transmittance",
+    quantities=("cloud_radiance",),
     formats=("mitsuba-xml",),
     cases=cloud_cases,
     describe=(
@@ -263,7 +392,27 @@ FAMILY = AuditFamily(
             "sun: a directional light or a sunsky)",
             "the sun's transmittance T through the cloud to each visible surface facing the sun (1)",
             "ratio tracking toward the sun through the scene's own medium",
-            supplies=frozenset({"px", "py", "pz", "sx", "sy", "sz", "cloud"}),
+            supplies=frozenset(
+                {
+                    "px",
+                    "py",
+                    "pz",
+                    "sx",
+                    "sy",
+                    "sz",
+                    "cloud",
+                    "ox",
+                    "oy",
+                    "oz",
+                    "dx",
+                    "dy",
+                    "dz",
+                    "e_sun",
+                    "albedo",
+                    "g",
+                    "l_bg",
+                }
+            ),
         ),
     ),
 )
@@ -281,7 +430,8 @@ def _steps(row: str) -> str:
 
 def study(ctx: StudyContext) -> Study:
     """Cost beside error: per scene and row, RMSE over the reference's noise floor, the largest |error|, the
-    texel reads per pixel (march: 8 per sample; plane: 4 per tap) and the kernel's measured ns per pixel."""
+    texel reads per pixel (march, gradient: 8 per sample; plane: 4 per tap; single: 8 per view and sun sample)
+    and the kernel's measured ns per pixel."""
     lines = ["| case | row | samples | texel reads / px | RMSE | RMSE / floor | max abs err | kernel ns/px |",
              "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for result in ctx.audits:
@@ -293,9 +443,13 @@ def study(ctx: StudyContext) -> Study:
                 err = float(np.max(np.abs(out.image[case.mask][:, 0] - ref))) if ref.size else float("nan")
                 steps = _steps(row_id)
                 base = row_id.removesuffix("-fitted")
-                reads = (
-                    8 * int(steps) if base.startswith("march") else (4 * int(steps) if steps.isdigit() else 4)
-                )
+                parts = base.split("-")
+                if base.startswith("single"):  # N view samples, each with an M-sample sun march
+                    steps, reads = f"{parts[1]} × {parts[2]}", 8 * int(parts[1]) * (int(parts[2]) + 1)
+                elif base.startswith(("march", "gradient")):
+                    reads = 8 * int(steps)
+                else:
+                    reads = 4 * int(steps) if steps.isdigit() else 4
                 cost = result.costs.get(out.method.id, {}).get("ns_per_pixel")
                 ns = f"{cost:.3g}" if cost else "—"
                 lines.append(f"| {case.id} | {row_id} | {steps} | {reads} | {rmse.value:.3g} | {ratio:.3g} | "

@@ -306,8 +306,9 @@ FAMILIES: dict[str, Family] = {
             "The sun's transmittance through a heterogeneous (gridvolume) cloud to the ground, by ratio "
             "tracking through the medium, against the seed's cloud-shadow texture (the density plane "
             "projected along the sun), the plane extruded with the distance clouds' nested march, and a 3-D "
-            "ray march of 4–64 samples.",
-            methods=clouds.METHODS,
+            "ray march of 4–64 samples; and the sunlit cloud's radiance (volpathmis) against the seed's "
+            "gradient-lit clouds (Wang 2003's artist colours, fitted) and the sun's single scattering.",
+            methods={**clouds.METHODS, **clouds.RADIANCE_METHODS},
             audits=(audit_clouds.FAMILY,),
             scenes=audit_clouds.SCENES,
             study=audit_clouds.study,

@@ -43,6 +43,7 @@ import numpy as np
 from . import soft_particles
 from .caustics import CAUSTIC_INPUTS, NEAREST
 from .clouds import INPUTS as CLOUD_INPUTS
+from .clouds import RADIANCE_INPUTS as CLOUD_RADIANCE_INPUTS
 from .clouds import CloudGrid
 from .colour_bleeding import INPUTS as BLEED_INPUTS
 from .fresnel import INPUTS as FRESNEL_INPUTS
@@ -468,6 +469,21 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 examples={"cloud": _example_cloud},
                 reference="ratio tracking from each visible point toward the sun through the scene's own "
                 "gridvolume medium",
+            ),
+            Quantity(
+                "cloud_radiance",
+                "W/m²/sr",
+                "radiance at the camera through a sunlit cloud (a density grid) and what lies behind it, one "
+                "channel at a time",
+                CLOUD_RADIANCE_INPUTS,
+                vectors={
+                    "origin": ("ox", "oy", "oz"),
+                    "direction": ("dx", "dy", "dz"),
+                    "sun": ("sx", "sy", "sz"),
+                },
+                unit_vectors=("direction", "sun"),
+                examples={"cloud": _example_cloud},
+                reference="volpathmis radiance of the cloud's pixels with the scene's own gridvolume medium",
             ),
             Quantity(
                 "fog_inscatter",
