@@ -87,6 +87,9 @@ PROVIDES: dict[str, frozenset[str]] = {
     "disc-light": frozenset(
         {f"{v}{a}" for v in ("p", "n", "dc", "dm") for a in "xyz"} | {"disc_radius", "radiance"}
     ),
+    "tube-light": frozenset(
+        {f"{v}{a}" for v in ("p", "n", "ta", "tb") for a in "xyz"} | {"tube_radius", "radiance"}
+    ),
     "environment": frozenset({"nx", "ny", "nz", "coeffs", "irradiance", "sky_radiance"}),
     "surface": frozenset(),
     "geometry": frozenset({*_GEOMETRY_INPUTS, "cos_na", "aperture"}),
@@ -130,11 +133,12 @@ _INPUT_SOURCE.update(dict.fromkeys(("r1", "r2", "d"), "caps"))
 _KIND_TEXT = {
     "light": "a light (sun, directional, point, spot, sphere, disk or area)",
     "spherical-light": "a spherical light (a sphere light, or a sun of finite angular radius)",
-    "punctual-light": "a local light of known intensity (a point light, or a sphere, rectangle or disk light "
-    "of uniform radiance)",
+    "punctual-light": "a local light of known intensity (a point light, or a sphere, rectangle, disk or "
+    "cylinder light of uniform radiance)",
     "spot-light": "a spot light",
     "rect-light": "a rectangle light of uniform radiance",
     "disc-light": "a circular disk light of uniform radiance",
+    "tube-light": "a tube light (a circular cylinder area light of uniform radiance)",
     "environment": "an environment (envmap, constant or sunsky)",
     "surface": "a surface for the camera to see",
     "geometry": "geometry that can occlude itself (two or more shapes, or one non-convex shape)",
@@ -309,8 +313,8 @@ def _model_kinds(kind: str, uniform: bool, circular: bool = True) -> set[str]:
     """The light-model kinds (`PROVIDES`) of a light of ``kind`` (an `XmlEmitter.kind`): what its own
     parameters give the rows of `rtfit.realtime.light_models`. Every light needs a uniform emission
     (``uniform``: its intensity or radiance declared as values, not a texture; a spot projecting no
-    texture); an area light on a mesh or a cylinder has no intensity rtfit computes (its rows are left out,
-    saying so); a disk gives the disc row only when ``circular`` (not an ellipse)."""
+    texture); an area light on a mesh has no intensity rtfit computes (its rows are left out, saying so); a
+    disk gives the disc row and a cylinder (``kind`` "cylinder": a tube) any row only when ``circular``."""
     if not uniform:
         return set()
     if kind == "point":
@@ -318,7 +322,8 @@ def _model_kinds(kind: str, uniform: bool, circular: bool = True) -> set[str]:
     if kind == "spot":
         return {"spot-light"}
     disk = {"punctual-light", "disc-light"} if circular else {"punctual-light"}
-    return {"sphere": {"punctual-light"}, "disk": disk}.get(
+    tube = {"punctual-light", "tube-light"} if circular else set()
+    return {"sphere": {"punctual-light"}, "disk": disk, "cylinder": tube}.get(
         kind, {"punctual-light", "rect-light"} if kind == "rectangle" else set()
     )
 
@@ -361,7 +366,8 @@ def _xml_info(x: XmlScene) -> SceneInfo:
                 kinds.add("sky")
         elif e.kind in _XML_LIGHTS:
             kinds = {"light", "spherical-light"} if e.spherical else {"light"}
-            kinds |= _model_kinds(e.kind, e.scale is not None and not e.patterned, not e.elliptical)
+            model = "cylinder" if e.kind == "area" and e.shape == "cylinder" else e.kind
+            kinds |= _model_kinds(model, e.scale is not None and not e.patterned, not e.elliptical)
             what = f"{e.kind} area light" if e.shape else f"{e.kind} light"
             if e.shape and e.kind == "area":
                 what = f"area light on a {e.shape}"

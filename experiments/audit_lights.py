@@ -293,6 +293,10 @@ def light_model_inputs(setup: AuditSetup, source: int, points, normals, towards,
       gives the polygon row its centre, half-edges u, v and the points and normals (``px``…, ``nx``…), a
       circular disk (|u| = |v|, u ⊥ v) the disc row its centre (``dcx``…), unit normal u × v/|u × v|
       (``dmx``…), radius |u| (``disc_radius``) and the points and normals;
+    * a circular ``cylinder`` light of uniform radiance L (a tube: open ends, emitting outwards; to_world
+      maps the unit cylinder z ∈ [0, 1] to radius r = |u|, axis w from p0): ``intensity`` 2rℓL|sin ψ| (its
+      projected area × L, ψ between the axis and the direction to the point) and the tube row its axis's
+      ends p0, p0 + w (``tax``…, ``tbx``…), ``tube_radius`` r and the points and normals;
 
     an empty mapping per channel for any other light (its light-model rows are left out by `PROVIDES`)."""
     mi = setup.mi
@@ -336,6 +340,17 @@ def light_model_inputs(setup: AuditSetup, source: int, points, normals, towards,
                 out |= {f"p{a}": p[:, k], f"n{a}": n[:, k], f"dc{a}": float(c[k]), f"dm{a}": float(m[k])}
             out["disc_radius"] = float(np.linalg.norm(u))
             per_channel["radiance"] = radiance
+    elif radiance is not None and kind == "Cylinder":
+        m = _matrix(mi.traverse(shape)["to_world"])
+        r, w, p0 = float(np.linalg.norm(m[:3, 0])), m[:3, 2], m[:3, 3]
+        length = float(np.linalg.norm(w))
+        cos_psi = towards @ (w / max(length, 1e-300))
+        scale = 2.0 * r * length * np.sqrt(np.clip(1.0 - cos_psi * cos_psi, 0.0, 1.0))  # 2rℓ|sin ψ|
+        p, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+        for k, a in enumerate("xyz"):
+            out |= {f"p{a}": p[:, k], f"n{a}": n[:, k], f"ta{a}": float(p0[k]), f"tb{a}": float(p0[k] + w[k])}
+        out["tube_radius"] = r
+        per_channel["radiance"] = radiance
     channels = []
     for ch in range(3):
         d = dict(out)

@@ -41,8 +41,22 @@ Formulas (one kernel text each)
   light of I = π r² L does), E = π sin²α L · w(cos θ, sin α) with w = cos θ above the horizon
   (cos θ ≥ sin α), 0 below (cos θ ≤ −sin α) and, across the horizon band, Unreal's smooth wrap
   w = (sin α + cos θ)²/(4 sin α) (UE4 ``SphereHorizonCosWrap``, a smooth stand-in for the exact clipped
-  form of Lagarde & de Rousiers 2014's sphere-light section). Tube lights: rtfit's scenes have none
-  (Mitsuba has no capsule emitter; a ``cylinder`` area light is left out of these rows, docs/diffuse.md).
+  form of Lagarde & de Rousiers 2014's sphere-light section).
+* ``tube`` — a tube light (Mitsuba's ``cylinder`` with an ``area`` emitter: radius r, axis from L0 + x to
+  L1 + x, open ends, radiance L outwards) as Karis 2013's line light ("Tube lights"): a segment of
+  isotropic points of intensity I' = 2rL per unit length (the tube's width 2r times L: its intensity
+  seen side-on), E = I'·ℓ·max(NoL·falloff, 0), ℓ = |L1 − L0|, with Karis's (Picott 1992) closed form of
+  the segment's inverse-square integral ∫₀¹ n·L(t)/|L(t)|³ dt, L(t) = L0 + t(L1 − L0):
+      NoL = (n·L0/|L0| + n·L1/|L1|)/2,  falloff = 2/(|L0||L1| + L0·L1)
+  (Karis's listing; the identity is exact, tests/test_light_models.py). Assumptions: thin (r ≪ distance)
+  and every point of the segment emitting the side-on I' — a real tube's element emits 2rL·|sin ψ| (ψ
+  between the axis and the direction to x), so the row is exact only side-on in the thin far limit and
+  overestimates elsewhere by up to 1/|sin ψ| (end-on: without bound, an open tube seen end-on shows no
+  area); across the horizon the signed integral (not clipped per element) is clipped at 0. Measured
+  against quadrature over the cylinder (docs/diffuse.md, "The tube row"). The punctual rows read a tube
+  as I = 2rℓL|sin ψ| at its centre (its projected area × L, `audit_lights.light_model_inputs`).
+  Float32: lengths divided by k = max(r, |L0|∞, |L1|∞) (E is scale-free); |L0||L1| + L0·L1 written as
+  |L0 × L1|²/(|L0||L1| − L0·L1) where L0·L1 < 0 (no cancellation beside the segment).
 * ``polygon`` (LTC, diffuse) — a rectangle light by Lambert's formula for a polygon of uniform radiance L,
   horizon-clipped: E = L·max(−½ Σᵢ Θᵢ (n·Γᵢ), 0) over the clipped polygon's edges (vᵢ, vᵢ₊₁) seen from x,
   Θᵢ the angle between them, Γᵢ the unit normal of their plane (Lambert 1760; Arvo 1994, "The irradiance
@@ -110,6 +124,9 @@ Guards (each keeps a value finite where the formula has none; none changes a val
   the rim in its plane (h = 0, ρ = R), where h ≤ 0 gives E = 0 anyway (`safe_div`: 0, not 0/0); the
   4h²ρ²/(S + …) branch's denominator is clipped at its selected sign; |F|/π clipped to [0, 1] and n·F/|F|
   to [−1, 1] (rounding; |F| = 0 gives cos ω = 0, α = 0, E = 0); n or m of length 0 give E = 0.
+* the tube: |L0||L1| + L0·L1 ≥ 2r² (it is 2ρ² at distance ρ beside a long segment's middle, 0 on the
+  segment: the floor binds only within about r of the axis, inside or at the tube, where the thin line
+  does not hold); a zero L0 or L1 (x at an end) gives its NoL half 0 (`safe_div`); k ≥ 1e-30.
 * the spots: φ_c − φ_b ≥ 1e-30 (a hard cone when the beam fills it); cos φ clamped to [−1, 1] before acos.
 
 Accuracy (tests/test_light_models.py): the polygon form against 2-D Gauss–Legendre quadrature over the
@@ -327,6 +344,36 @@ def _disc_kernel(
     return radiance * ops.select(h > 0.0, ops.select(up, e, 0.0), 0.0)  # one-sided: 0 behind
 
 
+def _tube_kernel(
+    ops, px, py, pz, nx, ny, nz, tax, tay, taz, tbx, tby, tbz, tube_radius, radiance
+):  # fmt: skip
+    """Karis 2013's tube: E = 2rL·ℓ·max(NoL·falloff, 0), NoL = (n·L̂0 + n·L̂1)/2, falloff =
+    2/(|L0||L1| + L0·L1), L0, L1 the axis's ends seen from x (module docstring, ``tube``)."""
+    n = _unit3(ops, nx, ny, nz)
+    ax, ay, az = tax - px, tay - py, taz - pz  # L0
+    bx, by, bz = tbx - px, tby - py, tbz - pz  # L1
+    r_abs = ops.abs(tube_radius)
+    k = ops.maximum(ops.maximum(r_abs, ops.maximum(ops.abs(ax), ops.abs(ay))), ops.abs(az))
+    k = ops.maximum(ops.maximum(k, ops.maximum(ops.abs(bx), ops.abs(by))), ops.abs(bz))
+    k = ops.maximum(k, _TINY)  # E is scale-free: every square below is ≤ 3 after this (Guards)
+    rad, ax, ay, az, bx, by, bz = r_abs / k, ax / k, ay / k, az / k, bx / k, by / k, bz / k
+    la = safe_sqrt(ops, ax * ax + ay * ay + az * az)
+    lb = safe_sqrt(ops, bx * bx + by * by + bz * bz)
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    length = safe_sqrt(ops, dx * dx + dy * dy + dz * dz)
+    nol = 0.5 * (
+        safe_div(ops, n[0] * ax + n[1] * ay + n[2] * az, la)
+        + safe_div(ops, n[0] * bx + n[1] * by + n[2] * bz, lb)
+    )
+    dot = ax * bx + ay * by + az * bz
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    beside = safe_div(ops, cx * cx + cy * cy + cz * cz, la * lb - ops.minimum(dot, 0.0))
+    den = ops.select(dot >= 0.0, la * lb + dot, beside)  # |L0||L1| + L0·L1 without cancellation
+    den = ops.maximum(den, 2.0 * rad * rad)  # within ~r of the axis: the tube, not a line (Guards)
+    e = safe_div(ops, 2.0 * nol, den) * (2.0 * rad * length)  # falloff·NoL·I'ℓ/L
+    return radiance * ops.maximum(e, 0.0)
+
+
 def _spot_cos(ops, cos_axis):
     return clamp_cos(ops, cos_axis)
 
@@ -389,6 +436,12 @@ _DISC_INPUTS = (
         for a in "xyz"
     ),
     Input("disc_radius", "m", "the disc's radius R", (0.0, 2.0)),
+)
+_TUBE_INPUTS = (
+    *_POLYGON_INPUTS[:6],
+    *(Input(f"ta{a}", "m", f"the tube's axis, first end (Mitsuba's p0), {a}", (-3.0, 3.0)) for a in "xyz"),
+    *(Input(f"tb{a}", "m", f"the tube's axis, second end (Mitsuba's p1), {a}", (-3.0, 3.0)) for a in "xyz"),
+    Input("tube_radius", "m", "the tube's radius r", (0.0, 0.5)),
 )
 _SPOT_INPUTS = (
     _COS,
@@ -464,6 +517,16 @@ METHODS = method_table(
             source="Arvo 1994 eq. 9 on the rim in closed form (Howell's catalogue, element to disc) = "
             "Heitz & Hill 2017's LTC disc with M = I; horizon: their clipped-sphere table (Snyder 1996)",
             description="A uniform disc light: exact wholly above the horizon, the sphere cap across it.",
+        ),
+        Method(
+            "tube",
+            "Tube as a line (Karis)",
+            _tube_kernel,
+            inputs=(*_TUBE_INPUTS, _RADIANCE),
+            quantity="light_irradiance",
+            formula="E = 2rL·ℓ·max((n·L̂0 + n·L̂1)/2 · 2/(|L0||L1| + L0·L1), 0)",
+            source="Karis 2013, Real Shading in Unreal Engine 4, tube lights (line irradiance, Picott 1992)",
+            description="A cylinder light as a segment of side-on intensity 2rL per length: thin, side-on.",
         ),
         Method(
             "spot-linear",

@@ -494,6 +494,14 @@ def _emitter(mi, node, props: dict, location: str, obj, shape=None) -> XmlEmitte
             extra["position"] = tuple((a + b) / 2 for a, b in zip(lo, hi, strict=True))
             extra["radius"] = (hi[0] - lo[0]) / 2
             extra["spherical"] = True
+        elif s_plugin == "cylinder" and (sm := s_props.get("to_world")) is not None:  # a tube's circle
+            u, v, w = _column(sm, 0), _column(sm, 1), _column(sm, 2)
+            uu, vv, uv, uw, vw = (
+                sum(a * b for a, b in zip(x, y, strict=True))
+                for x, y in ((u, u), (v, v), (u, v), (u, w), (v, w))
+            )
+            tol = 1e-4 * (uu + vv)
+            extra["elliptical"] = abs(uu - vv) > tol or max(abs(uv), abs(uw), abs(vw)) > tol
         elif kind == "disk":
             sm = s_props.get("to_world")
             if sm is not None:

@@ -363,7 +363,7 @@ def test_rtfit_toml_scenes(tmp_path):
 
 
 # always with "light"
-_LIGHT_KINDS = {"spherical-light", "punctual-light", "spot-light", "rect-light", "disc-light"}
+_LIGHT_KINDS = {"spherical-light", "punctual-light", "spot-light", "rect-light", "disc-light", "tube-light"}
 
 
 def test_rules_are_data_and_reach_every_method():
