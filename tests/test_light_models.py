@@ -910,3 +910,22 @@ def test_mitsuba_cylinder_light_audit_runs_the_tube_row(tmp_path):
     assert np.all(np.isfinite(punct)) and np.all(punct >= 0)
     rms = [float(np.sqrt(np.mean((x - quad) ** 2) / np.mean(quad**2))) for x in (tube, punct)]
     assert 0.1 < rms[0] < rms[1] < 0.3  # measured: tube 0.166, punctual 0.214 (relative rms)
+
+
+def test_an_elliptical_cylinder_gets_no_light_model_row(tmp_path):
+    """A cylinder whose to_world scales x ≠ y (`XmlEmitter.elliptical`) is not a tube: neither the tube row
+    nor the punctual rows (its projected width depends on the view), saying what they need."""
+    from rtfit.experiments.applicability import applicable_families
+    from rtfit.experiments.audit import inspect_scene
+
+    oval = """<shape type="cylinder" id="oval">
+        <transform name="to_world"><scale x="0.1" y="0.05" z="1"/><translate z="2"/></transform>
+        <emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter>
+    </shape></scene>"""
+    path = tmp_path / "oval.xml"
+    path.write_text(_TUBE_XML.replace("</scene>", oval))
+    tube, ellipse = (
+        a for a in applicable_families(inspect_scene(path), approx="diffuse") if "cylinder" in a.part
+    )
+    assert {"tube", "punctual"} <= set(tube.methods) and not {"tube", "punctual"} & set(ellipse.methods)
+    assert "circular cylinder" in dict(ellipse.excluded)["tube"]
