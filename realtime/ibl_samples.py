@@ -73,7 +73,7 @@ from typing import Any
 
 import numpy as np
 
-from .arrays import DRJIT_OPS, clamp01, evaluate, is_drjit, split3
+from .arrays import DRJIT_OPS, NUMPY_OPS, clamp01, evaluate, is_drjit, split3
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
@@ -88,8 +88,10 @@ __all__ = [
     "fibonacci_directions",
     "lights_irradiance",
     "lloyd_lights",
+    "maps_input",
     "median_cut_lights",
     "on_lights",
+    "on_maps",
     "visibility_names",
 ]
 
@@ -382,8 +384,6 @@ class DepthMaps:
 
     def coords(self, points) -> np.ndarray:
         """(N, P, 3): the points' (u, v, z) in each light's map (`_project`, NumPy float64)."""
-        from .arrays import NUMPY_OPS
-
         p = np.asarray(points, np.float64)
         out = [_project(NUMPY_OPS, self, k, p[:, 0], p[:, 1], p[:, 2]) for k in range(len(self.frames))]
         return np.stack([np.stack(c, axis=-1) for c in out])
