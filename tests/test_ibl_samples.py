@@ -502,3 +502,15 @@ def test_registry_entry_is_born_on_the_engine_and_runs(tmp_path):
     res = load_results(tmp_path / "out" / FAMILY)
     assert [c.id for c in res.cases] == ["ibl_samples_museum-ibl0"]
     assert not failed_checks(res)
+    # every depth-map row is fitted: its bias b with its bounds and a stderr field (None where the step
+    # compare gives the finite differences nothing), and shader text reading the four map channels
+    import json
+
+    fitted = json.loads((tmp_path / "out" / FAMILY / "fitted" / f"{FAMILY}.json").read_text())
+    entries = {m["id"]: m for m in fitted["methods"]}
+    assert set(ibl.DEPTH_ROWS) <= set(entries)
+    for rid in ibl.DEPTH_ROWS:
+        bias = entries[rid]["parameters"]["bias"]
+        assert "stderr" in bias and (bias["lower"], bias["upper"]) == (0.0, 0.5) and 0 <= bias["value"] <= 0.5
+        names = {t["name"] for t in entries[rid]["shader"]["tables"]}
+        assert names == {f"{ibl.maps_input(rid)}_{c}" for c in ("depth", "nx", "ny", "nz")}, (rid, names)
