@@ -279,9 +279,10 @@ def test_in_kernel_flat_map_by_hand_with_bias_and_pcf():
     """One light straight down (d = +z) over a flat 8² map at depth 0.5 holding the normal +z, c = 0, r = 1:
     a point at height h has z = ½ − h/2. By hand: h = 0.2 (z = 0.4) lit, h = −0.2 (0.6) shadowed, h = −0.01
     (0.505) lit with its normal +z (0.505 − 0.01 = 0.495 < 0.5) and shadowed with −z (0.515); b = 0 shadows
-    it either way. A 3×3 PCF on a map half at depth 0.3 (u < ½) and half 0.9: a point at z = 0.6 exactly on
-    the edge (u = ½) reads 3/9·0 + … = the taps at u = ½ ∓ 1/8 (shadowed, lit) and ½: 6/9 or 3/9 by the
-    centre's filtered depth 0.6 (not < 0.6: shadowed) → 1/3."""
+    it either way. A 3×3 PCF (taps one texel, 1/8, apart) on a map at depth 0.3 for u < ½ and 0.9 beyond, no
+    stored normal (no bias), a point at z = 0.6 on the edge (u = ½): the column of taps at u = ½ − ⅛ reads
+    depth 0.3 (shadowed), at u = ½ + ⅛ 0.9 (lit), at u = ½ the filtered 0.6, not < 0.6 (shadowed): V = 3/9;
+    half a map to the lit side, V = 1."""
     up = np.zeros((1, 8, 8, 3))
     up[..., 2] = 1.0
     maps = _maps(np.full((1, 8, 8), 0.5), up, [[0.0, 0.0, 1.0]], centre=(0, 0, 0), radius=1.0)
