@@ -48,10 +48,12 @@ from rtfit.realtime.arrays import xyz_columns
 from rtfit.realtime.ibl_samples import (
     BAKES,
     COUNTS,
+    DEPTH_ROWS,
     METHODS,
-    SHADOW_RESOLUTION,
+    SHADOW_BIAS,
+    DepthMaps,
     bake_lights,
-    depth_map_visibility,
+    maps_input,
     on_lights,
     visibility_names,
 )
@@ -69,7 +71,9 @@ __all__ = [
     "FAMILY",
     "SCENES",
     "USER_COUNT",
+    "depth_map_visibility",
     "depth_map_visibility_rows",
+    "depth_maps",
     "ibl_cases",
     "light_visibility",
     "scene_texels",
@@ -141,6 +145,38 @@ def light_visibility(setup: AuditSetup, points, normals, directions) -> np.ndarr
     return out
 
 
+def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Linear filtering of an (R, R, C) texture at (u, v) ∈ [0, 1]² with clamped addressing (the seed's
+    ``MinFilter = LINEAR``, ``AddressU = Clamp``): texel centres at (i + ½)/R."""
+    res = img.shape[0]
+    x = np.clip(np.asarray(u) * res - 0.5, 0.0, res - 1.0)
+    y = np.clip(np.asarray(v) * res - 0.5, 0.0, res - 1.0)
+    i0 = np.minimum(np.floor(x).astype(np.int64), res - 2) if res > 1 else np.zeros_like(x, np.int64)
+    j0 = np.minimum(np.floor(y).astype(np.int64), res - 2) if res > 1 else np.zeros_like(y, np.int64)
+    i1, j1 = np.minimum(i0 + 1, res - 1), np.minimum(j0 + 1, res - 1)
+    fx, fy = (x - i0)[:, None], (y - j0)[:, None]
+    top = img[j0, i0] * (1 - fx) + img[j0, i1] * fx
+    bottom = img[j1, i0] * (1 - fx) + img[j1, i1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def depth_map_visibility(depth, map_normals, coords, normals, bias: float = SHADOW_BIAS) -> np.ndarray:
+    """The seed's shadow test of one light (001:3026-3028), NumPy, per point: 1 where lit, else 0.
+
+    ``depth`` (R, R): the map's normalised depth (0 at the light's end of the bounding sphere, 1 at the far
+    end; 1 where no surface); ``map_normals`` (R, R, 3): the surface normal stored beside it (0 where none);
+    ``coords`` (P, 3): each point's (u, v, z) in the map's texture space; ``normals`` (P, 3): the points' unit
+    normals. Depth and normal are filtered linearly (the seed's float render target), the normal normalised
+    (a filtered normal of length < 1e-6, between opposite faces or at the map's empty background, reads a
+    bias of 0: HLSL's normalize(0) is NaN), and the point is lit where z − bias·dot(n̂_map, n) < depth."""
+    c = np.asarray(coords, np.float64)
+    d = _bilinear(np.asarray(depth, np.float64)[..., None], c[:, 0], c[:, 1])[:, 0]
+    nm = _bilinear(np.asarray(map_normals, np.float64), c[:, 0], c[:, 1])
+    length = np.linalg.norm(nm, axis=1)
+    cos = np.where(length > 1e-6, np.sum(nm * normals, axis=1) / np.maximum(length, 1e-30), 0.0)
+    return (c[:, 2] - bias * cos < d).astype(np.float64)
+
+
 def _frame(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors completing the unit ``d`` to an orthonormal frame (the depth map's u and v axes)."""
     t = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -148,16 +184,14 @@ def _frame(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t, np.cross(d, t)
 
 
-def depth_map_visibility_rows(setup: AuditSetup, points, normals, directions, resolution: int) -> np.ndarray:
-    """(K, N) visibility of the K lights at the N points by the seed's depth maps (001:2814-2871).
+def depth_maps(setup: AuditSetup, directions, resolution: int) -> DepthMaps:
+    """The K lights' seed depth maps (001:2814-2871) as the kernel's sampler (`DepthMaps`).
 
     Per light, an orthographic map of ``resolution``² texels over the scene's bounding sphere (centre c,
     radius r: Mitsuba's scene box), its camera on the sphere at c + r·d looking at c. Each texel's depth (the
-    first hit's distance along −d over 2r, 1 for a miss) and shading normal come from one Mitsuba ray from its
-    centre (every light's rays in launches of at most `_MAP_LANES`, directions as per-lane arrays: one
-    compiled kernel). Each point's texture coordinates (u, v, z) in that map then go through
-    `depth_map_visibility` (the seed's filtered test and bias). 0 where the light is at or below the
-    surface's plane."""
+    first hit's distance along −d over 2r, 1 for a miss) and shading normal (0 for a miss) come from one
+    Mitsuba ray from its centre (every light's rays in launches of at most `_MAP_LANES`, directions as
+    per-lane arrays: one compiled kernel)."""
     mi = setup.mi
     box = setup.scene.bbox()
     lo, hi = np.array(box.min, np.float64), np.array(box.max, np.float64)
@@ -168,7 +202,7 @@ def depth_map_visibility_rows(setup: AuditSetup, points, normals, directions, re
     frames = np.array([_frame(d) for d in dirs]).reshape(-1, 2, 3)  # (K, 2, 3): u and v axes
     eyes = centre + radius * dirs
     texels = resolution * resolution
-    depth = np.ones((len(dirs), texels))
+    depth = np.ones((len(dirs), texels), np.float32)
     map_n = np.zeros((len(dirs), texels, 3), np.float32)
     offsets = radius * np.stack([gu, gv], axis=-1).astype(np.float32)  # (T, 2)
     per = max(1, _MAP_LANES // texels)
@@ -186,22 +220,23 @@ def depth_map_visibility_rows(setup: AuditSetup, points, normals, directions, re
         depth[a:b] = np.where(hit, t / (2.0 * radius), 1.0)
         sn = np.stack([np.asarray(getattr(si.sh_frame.n, c), np.float32) for c in "xyz"], axis=-1)
         map_n[a:b] = np.where(hit[..., None], sn.reshape(b - a, texels, 3), 0.0)
-    pts, nrm = np.asarray(points, np.float64), np.asarray(normals, np.float64)
-    out = np.zeros((len(dirs), len(pts)))
-    rel = pts - centre
-    for k, d in enumerate(dirs):
-        t, b = frames[k, 0], frames[k, 1]
-        coords = np.stack(
-            [
-                0.5 * (rel @ t / radius + 1.0),
-                0.5 * (rel @ b / radius + 1.0),
-                (eyes[k] - pts) @ d / (2.0 * radius),
-            ],
-            axis=-1,
-        )
-        lit = depth_map_visibility(
-            depth[k].reshape(resolution, resolution), map_n[k].reshape(resolution, resolution, 3), coords, nrm
-        )
+    res = (len(dirs), resolution, resolution)
+    return DepthMaps(depth.reshape(res), map_n.reshape(*res, 3), np.concatenate([frames, dirs[:, None]], 1),
+                     tuple(float(c) for c in centre), radius)  # fmt: skip
+
+
+def depth_map_visibility_rows(setup: AuditSetup, points, normals, directions, resolution: int,
+                              maps: DepthMaps | None = None) -> np.ndarray:  # fmt: skip
+    """(K, N) visibility of the K lights at the N points by the seed's depth maps (`depth_maps`, or
+    ``maps``), made offline: each point's (u, v, z) in each map (`DepthMaps.coords`) through
+    `depth_map_visibility` (the seed's filtered test and bias 0.01). 0 where the light is at or below the
+    surface's plane."""
+    maps = depth_maps(setup, directions, resolution) if maps is None else maps
+    nrm = np.asarray(normals, np.float64)
+    coords = maps.coords(points)
+    out = np.zeros((len(maps.frames), len(nrm)))
+    for k, d in enumerate(maps.frames[:, 2]):
+        lit = depth_map_visibility(maps.depth[k], maps.normals[k], coords[k], nrm)
         out[k] = np.where(nrm @ d > 0.0, lit, 0.0)
     return out
 
@@ -238,22 +273,40 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     row_inputs: dict[str, tuple] = {}
     tables: dict[str, np.ndarray] = {}
     lit: dict[str, float] = {}
+    maps: dict[str, DepthMaps] = {}
     for rid in app.methods:
+        if rid in DEPTH_ROWS:  # the seed's lights, their depth maps as the kernel's sampler
+            count, res, _taps = DEPTH_ROWS[rid]
+            same = f"seed-lloyd-{count}"
+            table = tables[same] if same in tables else bake_lights("seed-lloyd", *grid, count)
+            name = maps_input(rid)
+            if name not in maps:
+                maps[name] = depth_maps(setup, table.reshape(-1, 6)[:, :3], res)
+                vis = depth_map_visibility_rows(setup, sky.points, sky.normals, None, res, maps[name])
+                lit[name] = float(vis.mean())
+            tables[rid] = table
+            methods[rid] = _row(METHODS[rid], table)
+            row_inputs[rid] = ({**base, name: maps[name]},)
+            continue
         bake, count = rid.rsplit("-", 1)
-        same = f"seed-lloyd-{count}" if bake == "seed-depthmap" else rid
-        table = tables[same] if same in tables else bake_lights(bake, *grid, int(count))
-        if bake == "seed-depthmap":
-            dirs = table.reshape(-1, 6)[:, :3]
-            vis = depth_map_visibility_rows(setup, sky.points, sky.normals, dirs, SHADOW_RESOLUTION)
-        else:
-            vis = light_visibility(setup, sky.points, sky.normals, table.reshape(-1, 6)[:, :3])
+        table = tables[rid] if rid in tables else bake_lights(bake, *grid, int(count))
+        vis = light_visibility(setup, sky.points, sky.normals, table.reshape(-1, 6)[:, :3])
         tables[rid] = table
         lit[rid] = float(vis.mean())
         methods[rid] = _row(METHODS[rid], table)
         row_inputs[rid] = ({**base, **dict(zip(visibility_names(int(count)), vis, strict=True))},)
-    user = f"seed-lloyd-{USER_COUNT}" if f"seed-lloyd-{USER_COUNT}" in row_inputs else next(iter(row_inputs))
+    rays = [r for r in row_inputs if r not in DEPTH_ROWS]
+    user = f"seed-lloyd-{USER_COUNT}" if f"seed-lloyd-{USER_COUNT}" in row_inputs else (rays or [""])[0]
+    if not user:  # depth-map rows only: a user's formula reads the seed bake's shadow rays all the same
+        user_n = DEPTH_ROWS[next(iter(row_inputs))][0]
+        user = f"seed-lloyd-{user_n}"
+        tables[user] = tables[next(iter(row_inputs))]
+        vis = light_visibility(setup, sky.points, sky.normals, tables[user].reshape(-1, 6)[:, :3])
+        row_inputs[user] = ({**base, **dict(zip(visibility_names(user_n), vis, strict=True))},)
     user_n = int(user.rsplit("-", 1)[1])
     user_lights = tuple(float(v) for v in tables[user])
+    # the maps ride on the case's own inputs too: its cost runs and shader texts read each row's sampler there
+    channel = ({**row_inputs[user][0], **maps},)
     power = np.asarray(grid[1])[..., None] * np.asarray(grid[2])
     return [
         FamilyCase(
@@ -261,7 +314,7 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             label=f"{app.part}: environment irradiance with visibility, N directional lights with shadows",
             reference=sky.reference(setup.mask),
             mask=setup.mask,
-            channel_inputs=row_inputs[user],
+            channel_inputs=channel,
             parameters={
                 "environment": app.part,
                 "kind": sky.kind,
@@ -279,6 +332,8 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "(texel midpoints); each light's power is its cell's ∫L dω, so Σ_k P_k = ∫L dω exactly",
                 "visibility: one exact Mitsuba shadow ray per light and point (no depth map): the error is "
                 "the sampling of the map; the cost is the blend of N lights without their shadow tests",
+                "seed-depthmap rows: the seed's depth-and-normal map test in the kernel (maps of R² texels "
+                "made by Mitsuba rays; the lookups, filtering and compare are timed), its bias b fitted",
             ),
             methods=methods,
             row_inputs=row_inputs,
@@ -286,7 +341,9 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 rid: f"the kernel of seed-lloyd-{rid.rsplit('-', 1)[1]} (one text; only the bake differs, "
                 "offline): its cost is that row's"
                 for rid in methods
-                if not rid.startswith("seed-lloyd-") and f"seed-lloyd-{rid.rsplit('-', 1)[1]}" in methods
+                if rid not in DEPTH_ROWS
+                and not rid.startswith("seed-lloyd-")
+                and f"seed-lloyd-{rid.rsplit('-', 1)[1]}" in methods
             },
             user_rows=partial(_user_row, n=user_n, lights=user_lights),
         )
@@ -319,7 +376,7 @@ FAMILY = AuditFamily(
             "shadowed; a sunsky's sky alone)",
             "the environment alone: emitter + cosine sampling (MIS) with shadow rays against the scene's "
             "shapes; the lights' visibility by one shadow ray each",
-            supplies=frozenset({"lights", *visibility_names(max(COUNTS))}),
+            supplies=frozenset({"lights", *visibility_names(max(COUNTS)), *map(maps_input, DEPTH_ROWS)}),
         ),
     ),
 )

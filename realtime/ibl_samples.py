@@ -23,8 +23,8 @@ The kernel (one text for every row; the rows differ in the bake only)
 
 the seed's ``renderFinal`` sum (001:3021-3038, the diffuse part of ``COMPUTE_LIGHT_SAMPLE_CONTRIB_SHINY``:
 ``cosTheta = dot(LightDir, Normal); if (cosTheta > 0) … rcolor += cosTheta · LightPower`` when the depth
-test passes; the depth test with its normal-weighted bias, 001:3026-3027, is replaced by an exact shadow
-ray here). The Phong term (``as·ShinyKs``) is the glossy part and is not audited; ``ToneScale`` and the
+test passes; the depth test with its normal-weighted bias, 001:3026-3027, is an exact shadow ray in the
+other rows). The Phong term (``as·ShinyKs``) is the glossy part and is not audited; ``ToneScale`` and the
 ``brdfMap`` albedo are display factors (1 here).
 
 The bakes (the rows), NumPy, offline (what an engine does once per map)
@@ -40,11 +40,12 @@ The bakes (the rows), NumPy, offline (what an engine does once per map)
   seed's shader names the light direction ``LightDir`` and tests ``dot(LightDir, Normal) > 0``, so
   ``LightDir`` points **towards** the light (as here), although its ``cosPsi = −dot(Reflect, LightDir)``
   would need the opposite sign; only the diffuse term is audited.
-* ``seed-depthmap`` — the seed's lights (``seed-lloyd``) with the seed's shadow test instead of a shadow
-  ray (`depth_map_visibility`, made offline by the audit): per light an orthographic depth-and-normal map
-  of `SHADOW_RESOLUTION`² texels over the scene's bounding sphere (001:2814-2871: the camera on the sphere
-  looking at its centre, depth 2r → [0, 1]), filtered linearly, lit where z − 0.01·dot(n̂_map, n) < depth
-  (001:3026-3028). Its error beside ``seed-lloyd``'s is what the depth maps cost.
+* ``seed-depthmap`` — the seed's lights (``seed-lloyd``) with the seed's shadow test in the kernel
+  (`_shadow_test`, `DepthMaps`; the audit's offline `depth_map_visibility` is its NumPy twin): per light an
+  orthographic depth-and-normal map of R² texels over the scene's bounding sphere (001:2814-2871: camera
+  on the sphere looking at its centre, depth 2r → [0, 1]), filtered linearly, lit where
+  z − b·dot(n̂_map, n) < depth (001:3026-3028), b the parameter ``bias`` (the seed's 0.01); knobs R (64,
+  128, 256) and a 3×3 PCF (`DEPTH_ROWS`).
 * ``importance`` — the same energy-weighted placement without the relaxation (0 iterations): what Lloyd's
   relaxation buys.
 * ``median-cut`` — Debevec 2005 ("A median cut algorithm for light probe sampling", SIGGRAPH 2005 poster):
@@ -67,26 +68,30 @@ Dr.Jit arrays are never checked (no host sync); NumPy inputs of the public funct
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from .arrays import DRJIT_OPS, clamp01, evaluate, is_drjit, split3
-from .methods import Input, Method, method_table
+from .arrays import DRJIT_OPS, NUMPY_OPS, clamp01, evaluate, is_drjit, split3
+from .methods import Input, Method, Param, method_table
 
 __all__ = [
     "BAKES",
     "COUNTS",
+    "DEPTH_ROWS",
     "LLOYD_ITERATIONS",
     "SHADOW_BIAS",
     "SHADOW_RESOLUTION",
+    "DepthMaps",
     "bake_lights",
-    "depth_map_visibility",
     "fibonacci_directions",
     "lights_irradiance",
     "lloyd_lights",
+    "maps_input",
     "median_cut_lights",
     "on_lights",
+    "on_maps",
     "visibility_names",
 ]
 
@@ -129,8 +134,9 @@ def _device_table(ops, lights, like) -> list:
     return table
 
 
-def _lights_kernel(ops, nx, ny, nz, visibility, lights, scale=1.0):
-    """s·Σ_k clamp(V_k, 0, 1)·max(n̂·d_k, 0)·P_k (R, G, B) over the N = len(visibility) lights of the table.
+def _lights_kernel(ops, nx, ny, nz, visibility, lights, scale=1.0, batch=_BATCH):
+    """s·Σ_k clamp(V_k, 0, 1)·max(n̂·d_k, 0)·P_k (R, G, B) over the N = len(visibility) lights of the table
+    (``visibility`` a callable: V_k = visibility(k, n̂x, n̂y, n̂z), over every light of the table).
     On Dr.Jit the three sums are evaluated every `_BATCH` lights: one kernel of a fixed size per batch,
     instead of an unrolled graph of all N lights compiled once per channel."""
     inv = 1.0 / ops.sqrt(ops.maximum(nx * nx + ny * ny + nz * nz, _TINY))
@@ -139,12 +145,14 @@ def _lights_kernel(ops, nx, ny, nz, visibility, lights, scale=1.0):
     acc = [zero, zero, zero]
     table = _device_table(ops, lights, x)
     device = ops is DRJIT_OPS and is_drjit(x)
-    count = min(len(visibility), len(table) // 6)
+    lazy = callable(visibility)  # V_k made per light (an in-kernel shadow test): one batch's graph at a time
+    count = len(table) // 6 if lazy else min(len(visibility), len(table) // 6)
     for k in range(count):
         dx, dy, dz, pr, pg, pb = table[6 * k : 6 * k + 6]
-        c = ops.maximum(ops.fma(x, dx, ops.fma(y, dy, z * dz)), 0.0) * clamp01(ops, visibility[k])
+        v = visibility(k, x, y, z) if lazy else visibility[k]
+        c = ops.maximum(ops.fma(x, dx, ops.fma(y, dy, z * dz)), 0.0) * clamp01(ops, v)
         acc = [ops.fma(c, pr, acc[0]), ops.fma(c, pg, acc[1]), ops.fma(c, pb, acc[2])]
-        if device and ((k + 1) % _BATCH == 0 or k + 1 == count):
+        if device and ((k + 1) % (batch if lazy else _BATCH) == 0 or k + 1 == count):
             import drjit as dr
 
             dr.eval(*acc)
@@ -311,36 +319,122 @@ SHADOW_RESOLUTION = 128
 printed)."""
 
 
-def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Linear filtering of an (R, R, C) texture at (u, v) ∈ [0, 1]² with clamped addressing (the seed's
-    ``MinFilter = LINEAR``, ``AddressU = Clamp``): texel centres at (i + ½)/R."""
-    res = img.shape[0]
-    x = np.clip(np.asarray(u) * res - 0.5, 0.0, res - 1.0)
-    y = np.clip(np.asarray(v) * res - 0.5, 0.0, res - 1.0)
-    i0 = np.minimum(np.floor(x).astype(np.int64), res - 2) if res > 1 else np.zeros_like(x, np.int64)
-    j0 = np.minimum(np.floor(y).astype(np.int64), res - 2) if res > 1 else np.zeros_like(y, np.int64)
-    i1, j1 = np.minimum(i0 + 1, res - 1), np.minimum(j0 + 1, res - 1)
-    fx, fy = (x - i0)[:, None], (y - j0)[:, None]
-    top = img[j0, i0] * (1 - fx) + img[j0, i1] * fx
-    bottom = img[j1, i0] * (1 - fx) + img[j1, i1] * fx
-    return top * (1 - fy) + bottom * fy
+_CHANNELS = ("depth", "nx", "ny", "nz")
 
 
-def depth_map_visibility(depth, map_normals, coords, normals, bias: float = SHADOW_BIAS) -> np.ndarray:
-    """The seed's shadow test of one light (001:3026-3028), NumPy, per point: 1 where lit, else 0.
+@dataclass(frozen=True, eq=False)
+class DepthMaps:
+    """The N lights' depth-and-normal maps (001:2814-2871), a sampler of the kernel: ``depth`` (N, R, R)
+    (1: no surface), ``normals`` (N, R, R, 3) (0: none), float32 texels, row j along v; ``frames`` (N, 3, 3):
+    each map's u axis t, v axis b and the direction d towards the light; the scene's bounding sphere
+    (``centre`` c, ``radius`` r), map k's camera at c + r·d (`_project`). Texels reach each ops namespace once
+    (``_table``): a shader's tables ``<input>_depth``, ``_nx``, ``_ny``, ``_nz`` (N·R² floats each)."""
 
-    ``depth`` (R, R): the map's normalised depth (0 at the light's end of the bounding sphere, 1 at the far
-    end; 1 where no surface); ``map_normals`` (R, R, 3): the surface normal stored beside it (0 where none);
-    ``coords`` (P, 3): each point's (u, v, z) in the map's texture space; ``normals`` (P, 3): the points' unit
-    normals. Depth and normal are filtered linearly (the seed's float render target), the normal normalised
-    (a filtered normal of length < 1e-6, between opposite faces or at the map's empty background, reads a
-    bias of 0: HLSL's normalize(0) is NaN), and the point is lit where z − bias·dot(n̂_map, n) < depth."""
-    c = np.asarray(coords, np.float64)
-    d = _bilinear(np.asarray(depth, np.float64)[..., None], c[:, 0], c[:, 1])[:, 0]
-    nm = _bilinear(np.asarray(map_normals, np.float64), c[:, 0], c[:, 1])
-    length = np.linalg.norm(nm, axis=1)
-    cos = np.where(length > 1e-6, np.sum(nm * normals, axis=1) / np.maximum(length, 1e-30), 0.0)
-    return (c[:, 2] - bias * cos < d).astype(np.float64)
+    depth: np.ndarray
+    normals: np.ndarray
+    frames: np.ndarray
+    centre: tuple
+    radius: float
+    _tables: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self):
+        d, n = np.asarray(self.depth, np.float32), np.asarray(self.normals, np.float32)
+        f = np.asarray(self.frames, np.float64)
+        ok = d.ndim == 3 and d.shape[1:] == d.shape[1:][::-1] and n.shape == (*d.shape, 3)
+        if not (ok and f.shape == (len(d), 3, 3) and self.radius > 0 and np.isfinite(d.sum() + n.sum())):
+            raise ValueError(f"DepthMaps: finite depth (N, R, R), normals (N, R, R, 3), frames (N, 3, 3), "
+                             f"radius > 0 (got {d.shape}, {n.shape}, {f.shape}, {self.radius})")  # fmt: skip
+        for name, value in (("depth", d), ("normals", n), ("frames", f)):
+            object.__setattr__(self, name, value)
+
+    resolution = property(lambda self: int(self.depth.shape[1]), doc="R: texels per edge of each map")
+
+    def _table(self, ops, channel: str, like):
+        """The channel's N·R² texels (float64 copies of the float32 values; on Dr.Jit ``like``'s type)."""
+        key = (ops.name, channel, type(like) if ops is DRJIT_OPS and is_drjit(like) else None)
+        if key not in self._tables:
+            c = _CHANNELS.index(channel)
+            flat = np.ascontiguousarray(
+                (self.normals[..., c - 1] if c else self.depth).reshape(-1), np.float64
+            )
+            self._tables[key] = type(like)(flat) if key[2] is not None else flat
+        return self._tables[key]
+
+    def sample(self, ops, channel: str, index, like):
+        """Texel ``index`` (k·R² + j·R + i, a float holding an integer) of the channel (`_CHANNELS`): the
+        sampler protocol of `rtfit.realtime.arrays.evaluate` (an object with ``sample`` passes as it is)."""
+        return ops.gather(self._table(ops, channel, like), index)
+
+    def constants(self, ops, like) -> list:
+        """Per light k its frame (t, b, d: 9 floats) and texel offset k·R²; then c and r: opaque scalars
+        on Dr.Jit (one compiled kernel serves every batch of lights), else floats (a shader's literals)."""
+        offset = np.arange(len(self.frames))[:, None] * float(self.resolution) ** 2
+        values = [
+            float(v)
+            for v in (*np.hstack([self.frames.reshape(-1, 9), offset]).ravel(), *self.centre, self.radius)
+        ]
+        if ops is not DRJIT_OPS or not is_drjit(like):
+            return values
+        key = ("const", type(like))
+        if key not in self._tables:
+            import drjit as dr
+
+            self._tables[key] = [dr.opaque(type(like), v) for v in values]
+        return self._tables[key]
+
+    def coords(self, points) -> np.ndarray:
+        """(N, P, 3): the points' (u, v, z) in each light's map (`_project`, NumPy float64)."""
+        p = np.asarray(points, np.float64)
+        out = [_project(NUMPY_OPS, self, k, p[:, 0], p[:, 1], p[:, 2]) for k in range(len(self.frames))]
+        return np.stack([np.stack(c, axis=-1) for c in out])
+
+
+def _project(ops, maps: DepthMaps, k: int, px, py, pz):
+    """(u, v, z) of the point in light k's map (`DepthMaps`; 001:2838-2851)."""
+    c = maps.constants(ops, px)
+    tx, ty, tz, bx, by, bz, dx, dy, dz = c[10 * k : 10 * k + 9]
+    cx, cy, cz, r = c[-4:]
+    rx, ry, rz = px - cx, py - cy, pz - cz
+    u = 0.5 * ((rx * tx + ry * ty + rz * tz) / r + 1.0)
+    v = 0.5 * ((rx * bx + ry * by + rz * bz) / r + 1.0)
+    return u, v, 0.5 - (rx * dx + ry * dy + rz * dz) / (2.0 * r)
+
+
+def _shadow_test(ops, maps: DepthMaps, k: int, x, y, z, px, py, pz, bias, taps: int):
+    """Light k's seed test at the point (unit normal x, y, z): depth and normal filtered linearly (clamped
+    addressing, texel centres at (i + ½)/R), lit where z − b·dot(n̂_map, n) < depth
+    (001:3026-3028; a filtered normal shorter than 1e-6 reads a bias of 0: HLSL's normalize(0) is NaN), the
+    mean over taps × taps compares one texel apart (taps = 1: the seed's single test; 3: a 3×3 PCF)."""
+    res = float(maps.resolution)
+    u, v, zp = _project(ops, maps, k, px, py, pz)
+    lit = 0.0 * zp
+    offsets = [(a - (taps - 1) / 2) / res for a in range(taps)]
+    for ov in offsets:
+        for ou in offsets:
+            fx_ = ops.clip((u + ou) * res - 0.5, 0.0, res - 1.0)
+            fy_ = ops.clip((v + ov) * res - 0.5, 0.0, res - 1.0)
+            i0 = ops.minimum(ops.floor(fx_), max(res - 2.0, 0.0))
+            j0 = ops.minimum(ops.floor(fy_), max(res - 2.0, 0.0))
+            i1, j1 = ops.minimum(i0 + 1.0, res - 1.0), ops.minimum(j0 + 1.0, res - 1.0)
+            fx, fy = fx_ - i0, fy_ - j0
+            base = maps.constants(ops, zp)[10 * k + 9]
+            val = []
+            for ch in _CHANNELS:
+                t00, t01 = (maps.sample(ops, ch, base + j0 * res + i, zp) for i in (i0, i1))
+                t10, t11 = (maps.sample(ops, ch, base + j1 * res + i, zp) for i in (i0, i1))
+                top, bottom = t00 * (1 - fx) + t01 * fx, t10 * (1 - fx) + t11 * fx
+                val.append(top * (1 - fy) + bottom * fy)
+            depth, mx, my, mz = val
+            length = ops.sqrt(mx * mx + my * my + mz * mz)
+            cos = ops.select(length > 1e-6, (mx * x + my * y + mz * z) / ops.maximum(length, 1e-30), 0.0)
+            lit = lit + ops.select(zp - bias * cos < depth, 1.0, 0.0)
+    return lit * (1.0 / (taps * taps))
+
+
+def _depth_kernel(ops, nx, ny, nz, px, py, pz, maps, lights, bias, taps=1):
+    """The seed as printed: the one sum (`_lights_kernel`) with V_k its depth-map test in the kernel."""
+    test = lambda k, x, y, z: _shadow_test(ops, maps, k, x, y, z, px, py, pz, bias, taps)  # noqa: E731
+    return _lights_kernel(ops, nx, ny, nz, test, lights, batch=max(1, 4 // (taps * taps)))
 
 
 # ===================================================================================== public API
@@ -384,11 +478,11 @@ LIGHTS = Input(
     "the irradiance at normal incidence of its cell of the map)",
 )
 _POINT = tuple(
-    Input(f"p{c}", "m", f"visible point {c} (world frame; no row reads it)", (-1e3, 1e3)) for c in "xyz"
+    Input(f"p{c}", "m", f"visible point {c} (world frame; the depth-map rows project it)", (-1e3, 1e3))
+    for c in "xyz"
 )
 INPUTS = (*_NORMAL, VISIBILITY, LIGHTS, *_POINT)
-"""The quantity ``sky_irradiance_lights``'s inputs (the point for a user's formula: no shipped row reads
-it)."""
+"""The quantity ``sky_irradiance_lights``'s inputs (the point: the depth-map rows' and a user's formula)."""
 
 
 def visibility_names(n: int) -> tuple[str, ...]:
@@ -445,8 +539,43 @@ BAKES = tuple(b[0] for b in _BAKES)
 """The bakes, each a row per N of `COUNTS`: row id ``<bake>-<N>``."""
 
 
+DEPTH_ROWS = {
+    **{f"seed-depthmap-{n}": (n, SHADOW_RESOLUTION, 1) for n in COUNTS},
+    "seed-depthmap-64-pcf3": (64, SHADOW_RESOLUTION, 3),
+    "seed-depthmap-64-map64": (64, 64, 1),
+    "seed-depthmap-64-map256": (64, 256, 1),
+}
+"""The depth-map rows (the test in the kernel): row id → (N, map resolution R, PCF taps per side)."""
+BIAS = Param(SHADOW_BIAS, 0.0, 0.5, unit="1 (map depth, 2r = 1)",
+             description="depth bias b: lit where z − b·dot(n̂_map, n) < depth (the seed's 0.01)")  # fmt: skip
+MAPS = Input("maps", "1", "the N lights' depth-and-normal maps (`DepthMaps`: a sampler of 4 tables)")
+
+
+def on_maps(kernel, name: str):
+    """``kernel`` reading its `DepthMaps` from the input ``name`` (one per row: each row's own maps)."""
+    return lambda ops, **kw: kernel(ops, maps=kw.pop(name), **kw)
+
+
+def maps_input(rid: str) -> str:
+    """The input a depth-map row reads its maps from (``maps_<N>_<R>``: rows of the same maps share it)."""
+    return "maps_{}_{}".format(*DEPTH_ROWS[rid][:2])
+
+
+def _depth_rows(label, where, source, words):
+    for rid, (n, res, taps) in DEPTH_ROWS.items():
+        knob = f", {res}² maps" + (f", {taps}×{taps} PCF" if taps > 1 else "")
+        yield Method(rid, f"{label}, N = {n}{knob}", on_maps(_depth_kernel, maps_input(rid)),
+                     inputs=(*_NORMAL, *_POINT, replace(MAPS, name=maps_input(rid)), LIGHTS),
+                     params={"bias": BIAS}, fixed={"taps": taps}, storage=6 * n + 4 * n * res**2, quantity=_Q,
+                     formula=f"{_FORMULA}; {where}; V_k = mean of {taps}×{taps} taps [z − b·n̂_map·n < depth]",
+                     source=source, description=f"{words} ({res}² texels, {taps}×{taps} taps)")  # fmt: skip
+
+
 def _rows():
     for bake, label, where, source, words in _BAKES:
+        if bake == "seed-depthmap":
+            yield from _depth_rows(label, where, source, words)
+            continue
         for n in COUNTS:
             vis = tuple(
                 Input(v, "1", f"visibility of light {k + 1} of {n} (1: lit)", (0.0, 1.0))
@@ -466,4 +595,5 @@ def _rows():
 
 
 METHODS = method_table(_rows())
-"""The ibl-samples rows: one kernel text, three bakes × N = 4, 16, 64, 256 lights (module docstring)."""
+"""The ibl-samples rows: one kernel text, three bakes × N = 4, 16, 64, 256 lights, and the depth-map rows
+(`DEPTH_ROWS`: the seed's test in the kernel, its bias b a parameter) (module docstring)."""

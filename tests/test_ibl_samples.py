@@ -22,6 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rtfit.experiments.audit_cli import audit as audit_cmd
+from rtfit.experiments.audit_ibl_samples import _frame, depth_map_visibility
 from rtfit.experiments.audit_run import audit
 from rtfit.realtime import ibl_samples as ibl
 
@@ -206,8 +207,8 @@ def test_depth_map_test_is_the_seeds_comparison_with_its_bias():
     up[..., 2] = 1.0
     coords = np.array([[0.3, 0.6, 0.4], [0.3, 0.6, 0.6], [0.5, 0.5, 0.505], [0.5, 0.5, 0.505]])
     normals = np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0], [0, 0, -1.0]])
-    assert list(ibl.depth_map_visibility(depth, up, coords, normals)) == [1, 0, 1, 0]
-    empty = ibl.depth_map_visibility(np.ones((4, 4)), np.zeros((4, 4, 3)), coords, normals)
+    assert list(depth_map_visibility(depth, up, coords, normals)) == [1, 0, 1, 0]
+    empty = depth_map_visibility(np.ones((4, 4)), np.zeros((4, 4, 3)), coords, normals)
     assert list(empty) == [1, 1, 1, 1]
 
 
@@ -224,10 +225,97 @@ def test_depth_map_filtering_is_linear_between_texel_centres():
     none = np.zeros((res, res, 3))
     below = np.stack([u, np.full(4, 0.5), ramp - 1e-9], axis=1)
     above = np.stack([u, np.full(4, 0.5), ramp + 1e-9], axis=1)
-    assert np.all(ibl.depth_map_visibility(depth, none, below, n) == 1)
-    assert np.all(ibl.depth_map_visibility(depth, none, above, n) == 0)
+    assert np.all(depth_map_visibility(depth, none, below, n) == 1)
+    assert np.all(depth_map_visibility(depth, none, above, n) == 0)
     edge = np.array([[0.01, 0.5, 0.1 + 0.8 * u_c[0] - 1e-9], [0.01, 0.5, 0.1 + 0.8 * u_c[0] + 1e-9]])
-    assert list(ibl.depth_map_visibility(depth, none, edge, n[:2])) == [1, 0]
+    assert list(depth_map_visibility(depth, none, edge, n[:2])) == [1, 0]
+
+
+def _maps(depth, normals, dirs, centre=(0.1, -0.2, 0.3), radius=1.5) -> ibl.DepthMaps:
+    frames = np.array([[*_frame(np.asarray(d, float)), d] for d in dirs])
+    return ibl.DepthMaps(depth, normals, frames, centre, radius)
+
+
+def _kernel_vis(maps, points, normals, bias=ibl.SHADOW_BIAS, taps=1, ops=None):
+    """(K, P) V_k of the kernel's in-kernel test (the depth-map rows' text) at the points."""
+    from rtfit.realtime import NUMPY_OPS
+
+    p, n = np.asarray(points, float), np.asarray(normals, float)
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    out = [
+        ibl._shadow_test(ops or NUMPY_OPS, maps, k, *n.T, *p.T, bias, taps) for k in range(len(maps.frames))
+    ]
+    return np.stack([np.asarray(v, float) + 0 * p[:, 0] for v in out])
+
+
+def test_in_kernel_depth_test_equals_the_offline_test_at_the_seeds_bias():
+    """Random 16² maps of 4 lights (depths, normals), 3000 random points and normals: the kernel's test (NumPy
+    float64 and Dr.Jit float32) equals the offline `depth_map_visibility` at b = 0.01 on the same texels and
+    the same (u, v, z) — every point in float64, ≥ 99.9 % in float32 (a test within float32 rounding of the
+    threshold may flip)."""
+    import drjit as dr
+
+    from rtfit.realtime import DRJIT_OPS
+
+    rng = np.random.default_rng(4)
+    maps = _maps(
+        rng.uniform(0.2, 1, (4, 16, 16)), rng.normal(size=(4, 16, 16, 3)), ibl.fibonacci_directions(4)
+    )
+    pts, n = rng.uniform(-1.2, 1.2, (3000, 3)), rng.normal(size=(3000, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    coords = maps.coords(pts)
+    want = np.stack([depth_map_visibility(maps.depth[k], maps.normals[k], coords[k], n) for k in range(4)])
+    assert 0.2 < want.mean() < 0.8
+    assert np.array_equal(_kernel_vis(maps, pts, n), want)
+    F = dr.llvm.Float
+    got32 = np.stack([
+        np.asarray(ibl._shadow_test(DRJIT_OPS, maps, k, *map(F, n.T), *map(F, pts.T), 0.01, 1))
+        for k in range(4)
+    ])  # fmt: skip
+    assert np.mean(got32 == want) > 0.999
+
+
+def test_in_kernel_flat_map_by_hand_with_bias_and_pcf():
+    """One light straight down (d = +z) over a flat 8² map at depth 0.5 holding the normal +z, c = 0, r = 1:
+    a point at height h has z = ½ − h/2. By hand: h = 0.2 (z = 0.4) lit, h = −0.2 (0.6) shadowed, h = −0.01
+    (0.505) lit with its normal +z (0.505 − 0.01 = 0.495 < 0.5) and shadowed with −z (0.515); b = 0 shadows
+    it either way. A 3×3 PCF (taps one texel, 1/8, apart) on a map at depth 0.3 for u < ½ and 0.9 beyond, no
+    stored normal (no bias), a point at z = 0.6 on the edge (u = ½): the column of taps at u = ½ − ⅛ reads
+    depth 0.3 (shadowed), at u = ½ + ⅛ 0.9 (lit), at u = ½ the filtered 0.6, not < 0.6 (shadowed): V = 3/9;
+    half a map to the lit side, V = 1."""
+    up = np.zeros((1, 8, 8, 3))
+    up[..., 2] = 1.0
+    maps = _maps(np.full((1, 8, 8), 0.5), up, [[0.0, 0.0, 1.0]], centre=(0, 0, 0), radius=1.0)
+    pts = np.array([[0.1, 0.1, 0.2], [0.1, 0.1, -0.2], [0.0, 0.0, -0.01], [0.0, 0.0, -0.01]])
+    n = np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0], [0, 0, -1.0]])
+    assert list(_kernel_vis(maps, pts, n)[0]) == [1, 0, 1, 0]
+    assert list(_kernel_vis(maps, pts, n, bias=0.0)[0]) == [1, 0, 0, 0]
+    # the edge: the map's u axis is t = _frame(+z)'s first vector; u = ½ at the centre
+    step = np.full((1, 8, 8), 0.9)
+    t = maps.frames[0, 0]
+    col = (np.arange(8) + 0.5) / 8
+    step[0][:, col < 0.5] = 0.3  # columns i (u) below the edge
+    edge = _maps(step, np.zeros((1, 8, 8, 3)), [[0.0, 0.0, 1.0]], centre=(0, 0, 0), radius=1.0)
+    p = np.array([[0.0, 0.0, -0.2]])  # z = 0.6, u = v = ½
+    assert abs(float(_kernel_vis(edge, p, [[0, 0, 1.0]], taps=3)[0, 0]) - 1 / 3) < 1e-12
+    assert float(_kernel_vis(edge, p + 0.5 * t, [[0, 0, 1.0]], taps=3)[0, 0]) == 1.0
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.0, 1e6), st.sampled_from([1, 3]), st.lists(st.floats(-1e3, 1e3), min_size=6, max_size=6))
+def test_in_kernel_test_finite_at_any_bias_and_point(bias, taps, pn):
+    """b = 0 to 10⁶ (the Param's bounds and far past), any point (outside the sphere: clamped addressing),
+    any normal (zero too): V ∈ [0, 1], finite; E finite and ≥ 0 through the row's kernel."""
+    rng = np.random.default_rng(0)
+    maps = _maps(rng.uniform(0, 1, (2, 4, 4)), rng.normal(size=(2, 4, 4, 3)), ibl.fibonacci_directions(2))
+    p, n = np.array([pn[:3]]), np.array([pn[3:]]) + 1e-9
+    v = _kernel_vis(maps, p, n, bias=bias, taps=taps)
+    assert np.all(np.isfinite(v)) and np.all((v >= 0) & (v <= 1))
+    table = tuple(ibl.lloyd_lights(ibl.fibonacci_directions(50), np.ones(50), np.ones((50, 3)), 2))
+    from rtfit.realtime import NUMPY_OPS
+
+    e = ibl._depth_kernel(NUMPY_OPS, *n.T, *p.T, maps, table, bias, taps)
+    assert all(np.all(np.isfinite(c)) and np.all(c >= 0) for c in e)
 
 
 # ------------------------------------------------------------------------------------------------ extremes
@@ -313,7 +401,8 @@ def test_toml_constant_sky_over_a_floating_sphere_matches_the_closed_form(tmp_pa
     z = (ref - want) / case.reference.stderr[case.mask][ground]
     assert abs(float(np.mean(z))) < 0.5 and float(np.max(np.abs(z))) < 4.5, (np.mean(z), np.max(np.abs(z)))
     rows = r.outcomes[case.id]
-    assert set(rows) == set(ibl.METHODS)  # no free parameter: no fitted rows
+    fitted = {f"{r}-fitted" for r in ibl.DEPTH_ROWS}  # the depth-map rows' bias b: fitted rows
+    assert set(rows) == set(ibl.METHODS) | fitted
     for bake in ibl.BAKES:
         got = rows[f"{bake}-256"].image[case.mask][ground]
         rel = np.abs(got / want - 1)
@@ -323,8 +412,12 @@ def test_toml_constant_sky_over_a_floating_sphere_matches_the_closed_form(tmp_pa
     # The depth maps (128², the seed's bias) agree with the shadow rays on most tests (measured 99.4 %
     # at N = 256); where they differ the light is at a silhouette or grazing the floor.
     rays = np.stack([case.row_inputs["seed-lloyd-256"][0][f"v{k + 1}"] for k in range(256)])
-    maps = np.stack([case.row_inputs["seed-depthmap-256"][0][f"v{k + 1}"] for k in range(256)])
-    assert float(np.mean(rays == maps)) > 0.97
+    g = case.row_inputs["seed-depthmap-256"][0]
+    maps = _kernel_vis(
+        g["maps_256_128"], np.stack([g["px"], g["py"], g["pz"]], 1), np.stack([g["nx"], g["ny"], g["nz"]], 1)
+    )
+    up = np.stack([g["nx"], g["ny"], g["nz"]], 1) @ g["maps_256_128"].frames[:, 2].T > 0
+    assert float(np.mean(rays == np.where(up.T, maps, 0.0))) > 0.97
 
 
 MY_SUM = '''
@@ -374,7 +467,7 @@ def test_shipped_scene_audit(shipped):
     (case,) = shipped.cases
     assert case.id == "ibl0" and case.parameters["kind"] == "envmap"
     rows = shipped.outcomes[case.id]
-    assert set(rows) == set(ibl.METHODS)
+    assert set(rows) == set(ibl.METHODS) | {f"{r}-fitted" for r in ibl.DEPTH_ROWS}
     for row in rows.values():
         assert np.all(np.isfinite(row.image[case.mask]))
     for rid, method in case.methods.items():
@@ -410,3 +503,15 @@ def test_registry_entry_is_born_on_the_engine_and_runs(tmp_path):
     res = load_results(tmp_path / "out" / FAMILY)
     assert [c.id for c in res.cases] == ["ibl_samples_museum-ibl0"]
     assert not failed_checks(res)
+    # every depth-map row is fitted: its bias b with its bounds and a stderr field (None where the step
+    # compare gives the finite differences nothing), and shader text reading the four map channels
+    import json
+
+    fitted = json.loads((tmp_path / "out" / FAMILY / "fitted" / f"{FAMILY}.json").read_text())
+    entries = {m["id"]: m for m in fitted["methods"]}
+    assert set(ibl.DEPTH_ROWS) <= set(entries)
+    for rid in ibl.DEPTH_ROWS:
+        bias = entries[rid]["parameters"]["bias"]
+        assert "stderr" in bias and (bias["lower"], bias["upper"]) == (0.0, 0.5) and 0 <= bias["value"] <= 0.5
+        names = {t["name"] for t in entries[rid]["shader"]["tables"]}
+        assert names == {f"{ibl.maps_input(rid)}_{c}" for c in ("depth", "nx", "ny", "nz")}, (rid, names)
