@@ -22,7 +22,9 @@ same covariance rule (`covariance_from_jacobian`) on the Jacobian at the solutio
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -181,10 +183,35 @@ def fit_method(
         if _is_sampler(inputs[n]) or np.isscalar(inputs[n])
     }
     x = {n: np.asarray(inputs[n], np.float64) for n in method.input_names if n not in objects}
+    if any(p.scan for p in params.values()):
+        params = _scanned_starts(method, params, {**x, **objects}, held_values, target, w, output)
     if solver == "trf":
         return _fit_trf(method, params, {**x, **objects}, held_values, target, w, output, **kwargs)
     fn = _residual(method, tuple(params), tuple(sorted(held_values)), method.input_names, output, objects)
     return fit_least_squares(fn, params, (x, held_values, target, np.ascontiguousarray(w)), **kwargs)
+
+
+def _scanned_starts(method, params, inputs, held, target, weights, output) -> dict[str, Param]:
+    """``params`` with each scanned parameter's start (`Param.scan`) moved to the value of its scan with the
+    least weighted squared residual, the other parameters at their starts, one parameter after another in
+    declaration order (NumPy or Dr.Jit run, as the fit's `Method.fit_ops`)."""
+    run = _drjit_run(method, inputs) if method.fit_ops == "drjit" else None
+    values = {**held, **{k: p.initial for k, p in params.items()}}
+    out = dict(params)
+    for k, p in params.items():
+        best, cost = p.initial, math.inf
+        for v in p.scan_values():
+            trial = {**values, k: v}
+            with np.errstate(all="ignore"):
+                pred = method(NUMPY_OPS, inputs, trial) if run is None else run(trial)
+                pred = output(pred) if output is not None else pred
+                r = weights * (np.asarray(pred, np.float64) - target)
+                c = float(np.sum(r * r))
+            if np.isfinite(c) and c < cost:
+                best, cost = v, c
+        values[k] = best
+        out[k] = replace(p, initial=best)
+    return out
 
 
 def _drjit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[str, float]], Any]:

@@ -54,6 +54,11 @@ class Param:
     published: bool = True
     """False where the source gives no value (the seed's Evans contrast k): ``initial`` is then only the
     fit's start, and a row evaluated at it is no result of the method (`Method.unpublished`)."""
+    scan: int = 0
+    """0: the local solver alone. n > 0: the method is a step function of this parameter (a depth compare's
+    bias), whose gradient is 0 between steps: the fit first scans n values over the bounds (`scan_values`)
+    and starts the solver at the best, which then stays there; its resolution is the scan's step (no
+    standard error)."""
 
     def __post_init__(self):
         for f in ("initial", "lower", "upper"):
@@ -76,11 +81,26 @@ class Param:
             raise ValueError(
                 f"Param.initial {self.initial} must lie strictly inside ({self.lower}, {self.upper})"
             )
+        if isinstance(self.scan, bool) or not isinstance(self.scan, int) or self.scan < 0:
+            raise ValueError(f"Param.scan must be a non-negative int, got {self.scan!r}")
+        if self.scan and not (math.isfinite(self.lower) and math.isfinite(self.upper)):
+            raise ValueError("Param.scan needs finite bounds (the scan covers them)")
 
     @property
     def default(self) -> float:
         """The start value (an alias of ``initial`` that reads better in method tables)."""
         return self.initial
+
+    def scan_values(self) -> list[float]:
+        """The ``scan`` values a step-function fit tries, strictly inside the bounds: geometric from 10⁻³ of
+        the upper bound to it where the range is [0, upper] (a bias: relative resolution (10³)^(1/(n−1))),
+        else the centres of n equal cells."""
+        n, lo, hi = self.scan, self.lower, self.upper
+        if n <= 0 or not (math.isfinite(lo) and math.isfinite(hi)):
+            return []
+        if lo == 0.0 and hi > 0.0:
+            return [hi * 10.0 ** (-3.0 * (1.0 - (j + 0.5) / n)) for j in range(n)]
+        return [lo + (hi - lo) * (j + 0.5) / n for j in range(n)]
 
     @property
     def kind(self) -> str:

@@ -191,3 +191,37 @@ def test_one_text_runs_on_drjit_numpy_and_jax(method):
         scale = max(float(np.max(np.abs(r))), 1e-300)
         np.testing.assert_allclose(np.broadcast_to(np.asarray(j), (n,)), r, rtol=0, atol=1e-9 * scale)
         np.testing.assert_allclose(np.broadcast_to(np.asarray(d), (n,)), r, rtol=0, atol=1e-9 * scale)
+
+
+def _depth_test(ops, z, depth, b):
+    """A shadow map's compare: lit (1) where z − b < depth — a step function of the bias b."""
+    return ops.select(z - b < depth, 1.0 + 0.0 * z, 0.0 * z)
+
+
+def test_a_scanned_parameter_fits_a_step_function():
+    """A depth compare's bias has zero gradient between steps: a local solver started at 0.01 stays there.
+    With ``Param.scan`` the fit first tries the scan's values and keeps the one with the least squared
+    residual. Receivers whose depth gap is uniform in [0, 0.1] lit by the truth b = 0.05: the fraction lit
+    moves by 1/n per 0.1/n of b, so the scan's best value is the scan value nearest 0.05 (independently: the
+    residual count |{gap < b} Δ {gap < 0.05}| is smallest there)."""
+    rng = np.random.default_rng(2)
+    gap = rng.uniform(0.0, 0.1, 4000)
+    z, depth = gap, np.zeros_like(gap)
+    truth = (gap < 0.05).astype(float)
+    plain = Method("step", "Step", _depth_test, inputs=("z", "depth"), params={"b": Param(0.01, 0.0, 0.5)})
+    fit = fit_method(plain, {"z": z, "depth": depth}, truth, solver="trf")
+    assert fit.values["b"] == pytest.approx(0.01)  # stuck at its start: no gradient
+    scanned = Method("step-scan", "Step", _depth_test, inputs=("z", "depth"),
+                     params={"b": Param(0.01, 0.0, 0.5, scan=33)})  # fmt: skip
+    values = scanned.params["b"].scan_values()
+    assert len(values) == 33 and 0.0 < values[0] < values[-1] < 0.5
+    assert values[1] / values[0] == pytest.approx(1000.0 ** (1 / 33))
+    mismatch = [int(np.sum((gap < v) != (gap < 0.05))) for v in values]
+    want = values[int(np.argmin(mismatch))]
+    for solver in ("trf", "lm"):
+        fit = fit_method(scanned, {"z": z, "depth": depth}, truth, solver=solver)
+        assert fit.values["b"] == pytest.approx(want, rel=1e-9), solver
+    with pytest.raises(ValueError, match="scan"):
+        Param(0.1, 0.0, 1.0, scan=-1)
+    with pytest.raises(ValueError, match="finite bounds"):
+        Param(0.1, 0.0, scan=3)
