@@ -127,12 +127,30 @@ def _scene_box(scene) -> tuple[np.ndarray, np.ndarray]:
     return (np.array([float(box.min[i]) for i in range(3)]), np.array([float(box.max[i]) for i in range(3)]))
 
 
+def _surface_shapes(scene) -> tuple[list, np.ndarray, list[str]]:
+    """The shapes entry points go on (not lights, not sensors), their areas (m²), and the shapes left out:
+    an ``instance`` (Mitsuba implements neither its area nor position sampling on it: its bounce is missing
+    from the map, said in the case's parameters; found on mitsuba-data's instancing scene)."""
+    shapes, areas, left = [], [], []
+    for s in scene.shapes():
+        if s.is_emitter() or s.is_sensor():
+            continue
+        try:
+            area = float(np.asarray(s.surface_area()).ravel()[0])
+        except RuntimeError:  # Shape::surface_area(): not implemented (an instance)
+            left.append(str(s.id()) or "an unnamed shape")
+            continue
+        shapes.append(s)
+        areas.append(area)
+    return shapes, np.asarray(areas, np.float64), left
+
+
 def entry_points(setup: AuditSetup, n: int):
     """N entry points on the surfaces that are not lights (module docstring): positions (N, 3), unit normals
-    (N, 3), diffuse albedo (N, 3), the area each stands for (m²) and the surfaces' total area A_S."""
+    (N, 3), diffuse albedo (N, 3), the area each stands for (m²), the surfaces' total area A_S and the shapes
+    left out (`_surface_shapes`)."""
     mi, scene = setup.mi, setup.scene
-    shapes = [s for s in scene.shapes() if not s.is_emitter() and not s.is_sensor()]
-    areas = np.array([float(np.asarray(s.surface_area()).ravel()[0]) for s in shapes])
+    shapes, areas, left = _surface_shapes(scene)
     total = float(areas.sum())
     if not shapes or not total > 0.0:
         raise AuditError("light-path-maps: the scene has no surface to place entry points on")
@@ -156,7 +174,7 @@ def entry_points(setup: AuditSetup, n: int):
     albedo = _np3(si.bsdf(ray).eval_diffuse_reflectance(si))
     valid = np.asarray(si.is_valid(), bool)
     albedo = np.where(valid[:, None], np.clip(np.nan_to_num(albedo), 0.0, 1.0), 0.0)
-    return pos, nrm, albedo, total / n, total
+    return pos, nrm, albedo, total / n, total, left
 
 
 def transfer_terms(setup: AuditSetup, points, normals, pos, nrm):
@@ -268,7 +286,7 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         raise AuditError("light-path-maps: the camera sees no surface")
     light = scene_light(setup, app.source)
     t0 = time.perf_counter()
-    pos, nrm, albedo, area_each, area = entry_points(setup, ENTRY_POINTS)
+    pos, nrm, albedo, area_each, area, left_out = entry_points(setup, ENTRY_POINTS)
     lo, hi = _scene_box(scene)
     groups = {}
     for k in CLUSTERS:
@@ -351,6 +369,7 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                     else None,
                     "offset": [float(x) for x in offset],
                     "entry_points": ENTRY_POINTS,
+                    "entry_shapes_left_out": left_out,
                     "clusters": list(CLUSTERS),
                     "cut_radius": radius,
                     "cut_default": CUT.initial * radius,
