@@ -148,12 +148,12 @@ def _surface_shapes(scene) -> tuple[list, np.ndarray, list[str]]:
 def entry_points(setup: AuditSetup, n: int):
     """N entry points on the surfaces that are not lights (module docstring): positions (N, 3), unit normals
     (N, 3), diffuse albedo (N, 3), the area each stands for (m²), the surfaces' total area A_S and the shapes
-    left out (`_surface_shapes`)."""
+    left out (`_surface_shapes`); None where no surface can take them (every one an instance)."""
     mi, scene = setup.mi, setup.scene
     shapes, areas, left = _surface_shapes(scene)
     total = float(areas.sum())
     if not shapes or not total > 0.0:
-        raise AuditError("light-path-maps: the scene has no surface to place entry points on")
+        return None  # only instances (mitsuba-data's instancing scene): no map, no case (not an error)
     rng = np.random.default_rng(sub_seed(setup.seed, "light-path-maps-entries", 0))
     u = (np.arange(n) + rng.uniform(size=n)) / n  # stratified over the shapes by area
     which = np.minimum(np.searchsorted(np.cumsum(areas) / total, u, side="right"), len(shapes) - 1)
@@ -286,7 +286,10 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         raise AuditError("light-path-maps: the camera sees no surface")
     light = scene_light(setup, app.source)
     t0 = time.perf_counter()
-    pos, nrm, albedo, area_each, area, left_out = entry_points(setup, ENTRY_POINTS)
+    entries = entry_points(setup, ENTRY_POINTS)
+    if entries is None:  # no surface Mitsuba can sample (every one an instance): the other families go on
+        return []
+    pos, nrm, albedo, area_each, area, left_out = entries
     lo, hi = _scene_box(scene)
     groups = {}
     for k in CLUSTERS:

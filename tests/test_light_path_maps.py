@@ -342,6 +342,17 @@ def test_an_instance_is_left_out_of_the_entry_points_and_said(tmp_path):
     r = audit(str(scene), FAMILY, spp=4, cache=tmp_path / "c", **FAST)
     assert r.cases and all(c.parameters["entry_shapes_left_out"] == ["ball1"] for c in r.cases)
     assert all(np.all(np.isfinite(o.image)) for c in r.cases for o in r.outcomes[c.id].values())
+    # every surface an instance (the instancing scene's case): no map and no case, not an error
+    only = INSTANCED.replace(
+        '<shape type="rectangle" id="floor">', '<shape type="shapegroup" id="g"><shape type="rectangle">'
+    )
+    only = only.replace(
+        '<bsdf type="diffuse"/></shape>',
+        '<bsdf type="diffuse"/></shape></shape><shape type="instance"><ref id="g"/></shape>',
+        1,
+    )
+    scene.write_text(only)
+    assert audit(str(scene), FAMILY, spp=4, cache=tmp_path / "c2", **FAST).cases == []
 
 
 def test_list_names_the_family_with_its_reason():
