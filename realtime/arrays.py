@@ -54,6 +54,7 @@ __all__ = [
     "atan_minus_x_series",
     "backend_float",
     "backend_type",
+    "cached_table",
     "check_range",
     "check_scalar",
     "clamp01",
@@ -419,6 +420,27 @@ def to_drjit(Float: type, values: Any) -> Any:
     out = buf[start : start + flat.size]
     out[...] = flat
     return Float(out)
+
+
+def cached_table(cache: dict, ops, like: Any, key: tuple, values: Callable[[], Any]) -> Any:
+    """A sampler's table (a shadow map's depths, a height field, probe chains, a cloud grid) as the array
+    kind ``ops`` runs on, made once per (``key``, ops kind, Dr.Jit type) and kept in ``cache``: on Dr.Jit the
+    type of ``like`` (float32 or float64, LLVM or CUDA; `dr.llvm.Float64` where ``like`` is a plain number),
+    on JAX a device array, else the flat NumPy array ``values()`` returns (made only on a miss). The shader
+    tracer gets the NumPy array too: it names it a binding (`rtfit.realtime.shader`)."""
+    kind = type(like) if ops.name == "drjit" and dr.is_array_v(like) else None
+    full = (*key, ops.name, kind)
+    if full not in cache:
+        flat = np.ascontiguousarray(values()).reshape(-1)
+        if ops.name == "drjit":
+            cache[full] = (kind or dr.llvm.Float64)(flat)
+        elif ops.name == "jax":
+            import jax.numpy as jnp
+
+            cache[full] = jnp.asarray(flat)
+        else:
+            cache[full] = flat
+    return cache[full]
 
 
 # ----------------------------------------------------------------------------------------- dispatch

@@ -95,7 +95,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from .arrays import check_range
+from .arrays import cached_table, check_range
 from .methods import Input, Method, Param, method_table
 from .phase import hg_phase_kernel
 
@@ -187,20 +187,11 @@ class CloudGrid:
         return float(np.sum(w * z) / np.sum(w)) if np.sum(w) > 0 else 0.5 * (self.lo[2] + self.hi[2])
 
     def _table(self, ops, like, which: str, level: int = 0):
-        key = (which, level, ops.name, type(like) if ops.name == "drjit" and dr.is_array_v(like) else None)
-        if key not in self._tables:
-            values = self.data if which == "grid" else self.columns(level)
+        def values():
             # clipped at `DENSITY_MAX`: a float32 inf in a table would give inf·0 = NaN in the interpolation
-            flat = np.ascontiguousarray(np.minimum(values, DENSITY_MAX).reshape(-1))
-            if ops.name == "drjit":
-                self._tables[key] = (type(like) if dr.is_array_v(like) else dr.llvm.Float64)(flat)
-            elif ops.name == "jax":
-                import jax.numpy as jnp
+            return np.minimum(self.data if which == "grid" else self.columns(level), DENSITY_MAX)
 
-                self._tables[key] = jnp.asarray(flat)
-            else:
-                self._tables[key] = flat
-        return self._tables[key]
+        return cached_table(self._tables, ops, like, (which, level), values)
 
     def _axis(self, ops, x, k: int, n: int):
         """Texel coordinate along axis k: the two clamped neighbour indices, the weight, inside the box."""

@@ -111,10 +111,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import drjit as dr
 import numpy as np
 
-from .arrays import check_range, clamp01, evaluate, safe_sqrt, sin_from_cos
+from .arrays import cached_table, check_range, clamp01, evaluate, safe_sqrt, sin_from_cos
 from .methods import Input, Method, Param, method_table
 
 __all__ = [  # METHODS and INPUTS stay out: every family has its own (not re-exported by rtfit.realtime)
@@ -170,18 +169,7 @@ class BaseTexture:
         object.__setattr__(self, "texels", t)
 
     def _table(self, ops, like):
-        key = (ops.name, type(like) if ops.name == "drjit" and dr.is_array_v(like) else None)
-        if key not in self._tables:
-            flat = np.ascontiguousarray(self.texels.reshape(-1))
-            if ops.name == "drjit":
-                self._tables[key] = (type(like) if dr.is_array_v(like) else dr.llvm.Float64)(flat)
-            elif ops.name == "jax":
-                import jax.numpy as jnp
-
-                self._tables[key] = jnp.asarray(flat)
-            else:
-                self._tables[key] = flat
-        return self._tables[key]
+        return cached_table(self._tables, ops, like, (), lambda: self.texels)
 
     def bilinear(self, ops, u, v, channel=0.0):
         """The bilinear read of ``channel`` at (u, v), clamped to the window's edge texels (the seed's

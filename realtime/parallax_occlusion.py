@@ -58,10 +58,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import drjit as dr
 import numpy as np
 
-from .arrays import evaluate
+from .arrays import cached_table, evaluate
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
@@ -155,19 +154,7 @@ class HeightMap:
         return self.texels.shape  # type: ignore[return-value]
 
     def _table(self, ops, like):
-        key = (ops.name, type(like) if ops.name == "drjit" and dr.is_array_v(like) else None)
-        if key not in self._tables:
-            flat = np.ascontiguousarray(self.texels.reshape(-1))
-            if ops.name == "drjit":
-                Float = type(like) if dr.is_array_v(like) else dr.llvm.Float64
-                self._tables[key] = Float(flat)
-            elif ops.name == "jax":
-                import jax.numpy as jnp
-
-                self._tables[key] = jnp.asarray(flat)
-            else:
-                self._tables[key] = flat
-        return self._tables[key]
+        return cached_table(self._tables, ops, like, (), lambda: self.texels)
 
     def _wrapped(self, ops, i, n: float):
         if self.wrap == "clamp":

@@ -71,10 +71,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import drjit as dr
 import numpy as np
 
-from .arrays import evaluate
+from .arrays import cached_table, evaluate
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
@@ -156,18 +155,8 @@ class ShadowMap:
         return self.depth.shape[1], self.depth.shape[0]
 
     def _table(self, ops, like):
-        key = (ops.name, type(like) if ops.name == "drjit" and dr.is_array_v(like) else None)
-        if key not in self._tables:
-            flat = np.ascontiguousarray(np.append(self.depth.reshape(-1), FAR))  # last: the border
-            if ops.name == "drjit":
-                self._tables[key] = (type(like) if dr.is_array_v(like) else dr.llvm.Float64)(flat)
-            elif ops.name == "jax":
-                import jax.numpy as jnp
-
-                self._tables[key] = jnp.asarray(flat)
-            else:
-                self._tables[key] = flat
-        return self._tables[key]
+        # the depths row by row, then the border's (`FAR`)
+        return cached_table(self._tables, ops, like, (), lambda: np.append(self.depth.reshape(-1), FAR))
 
     def texel(self, ops, i, j, like):
         """The depth of texel (i, j) (floats holding integers); ``FAR`` outside the map."""

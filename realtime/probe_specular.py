@@ -62,10 +62,9 @@ import functools
 import math
 from dataclasses import dataclass, field
 
-import drjit as dr
 import numpy as np
 
-from .arrays import evaluate_numpy
+from .arrays import cached_table, evaluate_numpy
 from .environment_maps import cube_lookup, cube_lookup_kernel, cube_texels, texel_solid_angle
 from .methods import Input, Method, Param, method_table
 
@@ -237,18 +236,7 @@ class ProbeChains:
     def sample(self, ops, name: str, channel: int, like):
         """Channel ``channel`` of table ``name`` ("pre" or "irr") as the array kind ``ops`` runs on (the
         sampler protocol of `rtfit.realtime.arrays.evaluate`: the object reaches the kernel as it is)."""
-        key = (name, channel, ops.name, type(like) if ops.name == "drjit" and dr.is_array_v(like) else None)
-        if key not in self._tables:
-            flat = np.ascontiguousarray(getattr(self, name)[:, channel])
-            if ops.name == "drjit":
-                self._tables[key] = (type(like) if dr.is_array_v(like) else dr.llvm.Float64)(flat)
-            elif ops.name == "jax":
-                import jax.numpy as jnp
-
-                self._tables[key] = jnp.asarray(flat)
-            else:
-                self._tables[key] = flat
-        return self._tables[key]
+        return cached_table(self._tables, ops, like, (name, channel), lambda: getattr(self, name)[:, channel])
 
 
 def probe_specular_kernel(
