@@ -119,6 +119,11 @@ def _audits(a: Applicability, scene_format: str) -> bool:
 DEFAULT_SPP = 256
 DEFAULT_PASS_SPP = 32
 _COST_ELEMENTS = 1 << 20  # inputs are tiled to this many elements for the cost measurement
+_COST_INPUT_BYTES = 64 << 20
+"""At most this many bytes of tiled per-pixel inputs in a cost measurement (float32, every input together):
+far beyond any CPU cache, so the memory traffic is still what is timed. The caustics' splats read 112
+per-pixel inputs: at 2^20 elements their tiled copies were 0.9 GB (and as much again on the host), which
+lifted the quick suite's peak memory to 3.9 GB (issue 33); they are timed on 2^17 elements now."""
 
 
 # ----------------------------------------------------------------------------------------- approximations
@@ -446,12 +451,18 @@ def _cost(
     sizing call is the median of 7 repeats with no minimum duration (``min_seconds`` 0: it only sizes the
     measured call, which keeps its `_COST_MIN_SECONDS`): 15 methods' sizing calls took 2.9 s of a
     Cornell-box audit's evaluation at 0.2 s each."""
+    n = int(case.mask.sum())
+    per_pixel = sum(
+        1
+        for name in method.input_names
+        if isinstance(v := case.channel_inputs[0][name], (np.ndarray, np.generic)) and np.size(v) == n > 0
+    )
+    size = min(size, max(_COST_PROBE, _COST_INPUT_BYTES // (4 * max(per_pixel, 1))))
     if size > _COST_PROBE:
         probe = _cost(method, case, backend, _COST_PROBE, min_seconds=0.0)
         per_element = probe["ns_per_pixel"] * 1e-9
         size = int(min(size, max(_COST_PROBE, _COST_CALL_SECONDS / max(per_element, 1e-15))))
     Float = backend_float(backend)
-    n = int(case.mask.sum())
     reps = max(1, -(-size // max(n, 1)))
     args, host, keys, consts, uniforms = [], [], [], {}, {}
     for name in method.input_names:
@@ -466,14 +477,14 @@ def _cost(
         elif np.ndim(v):
             a = np.tile(np.asarray(v, np.float64), reps)[:size]
             a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
-            host.append(a)
+            host.append(a[:_COST_PROBE])  # the trial below reads no more
             args.append(to_drjit(Float, a))  # aligned: one compiled kernel whatever NumPy's addresses
             keys.append(name)
         else:
             consts[name] = float(v)
     elements = min(n * reps, size) if keys else 1
     if uniforms:  # a small table read by index, as a shader's constant buffer (`Uniforms`: nothing folded)
-        trial = [to_drjit(Float, a[:_COST_PROBE]) for a in host]  # reads the table by index? (small)
+        trial = [to_drjit(Float, a) for a in host]  # reads the table by index? (small)
         try:
             dr.eval(method.evaluate({**consts, **uniforms, **dict(zip(keys, trial, strict=True))}))
             consts.update(uniforms)

@@ -12,6 +12,7 @@ import dataclasses
 import datetime
 import logging
 import platform
+import resource
 import subprocess
 import time
 from collections.abc import Mapping
@@ -174,7 +175,7 @@ def run_experiments(
             stage = Stage(len(specs) if len(specs) > 1 else 0, "experiments", enabled=progress)  # a bar
             for spec in specs:
                 final = out / spec.name
-                t0 = time.perf_counter()
+                t0, cpu0 = time.perf_counter(), _cpu_seconds()
                 try:
                     _run_one(spec, final, cache_dir, pool, quick, variant, spp, seed, progress,
                              overrides, executor, single_file)  # fmt: skip
@@ -189,9 +190,11 @@ def run_experiments(
                     continue
                 done.append(final)
                 log.info(
-                    "%s: done in %.1f s, report at %s",
+                    "%s: done in %.1f s (CPU %.1f s, peak memory of the process so far %s), report at %s",
                     spec.name,
                     time.perf_counter() - t0,
+                    _cpu_seconds() - cpu0,
+                    _peak_memory(),
                     final / "report.html",
                 )
                 stage.advance()
@@ -201,6 +204,18 @@ def run_experiments(
     if failed:
         raise RunFailed(f"{len(failed)} of {len(specs)} experiment(s) failed: " + "; ".join(failed))
     return done
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU seconds of this process so far (every thread: Dr.Jit's pool, BLAS, JAX)."""
+    use = resource.getrusage(resource.RUSAGE_SELF)
+    return use.ru_utime + use.ru_stime
+
+
+def _peak_memory() -> str:
+    """The process's peak resident set so far (Linux reports ru_maxrss in KiB), for telling which
+    experiment of a suite raised it (issue 33: the quick suite peaked at 3.9 GB)."""
+    return f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} GiB"
 
 
 def _run_one(spec, final, cache_dir, pool, quick, variant, spp, seed, progress, overrides, executor,
