@@ -236,7 +236,10 @@ def pcf_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             "shadow_map": sm,
         }
         methods = METHODS if res == MAP else {m: METHODS[m] for m in LOW_ROWS}
-        bias = Param(2.0 * footprint, 0.0, 200.0 * footprint, unit="m", published=False,
+        # The bias is a step in the depth compare: the residuals' derivative is 0 between steps (a solver
+        # left it at its start: "zero derivative at every element" on every real scene), so it is scanned
+        # over 33 values, 24 % apart, from 0.2 to 200 texel footprints before the solver (`Param.scan`).
+        bias = Param(2.0 * footprint, 0.0, 200.0 * footprint, unit="m", published=False, scan=33,
                      description="depth bias b (scene units): the receiver compared at z_r − b")  # fmt: skip
         notes = (
             e_note,

@@ -309,12 +309,16 @@ def _fit_trf(
     message = "" if converged else f"scipy least_squares (trf): {sol.message}"
     # A parameter the residuals do not change with at the solution (every central difference exactly 0: a
     # step such as an AO radius, between the samples' distances) was not fitted, only left at its start.
+    # A scanned parameter (`Param.scan`) is such a step by declaration: its value is the scan's best.
     flat = [nm for i, nm in enumerate(names) if np.all(np.isfinite(jac[:, i])) and not np.any(jac[:, i])]
-    if flat:
-        message = "; ".join(
-            [*([message] if message else []), f"{', '.join(flat)}: the residuals do not change with it "
-             "(zero derivative at every element): left at its start, not fitted"]
-        )  # fmt: skip
+    stuck = [nm for nm in flat if not params[nm].scan]
+    scanned = [f"{nm}: a step (zero derivative), the best of a {params[nm].scan}-value scan" for nm in flat
+               if params[nm].scan]  # fmt: skip
+    if stuck:
+        scanned.append(f"{', '.join(stuck)}: the residuals do not change with it (zero derivative at every "
+                       "element): left at its start, not fitted")  # fmt: skip
+    if scanned:
+        message = "; ".join([*([message] if message else []), *scanned])
     return FitResult(
         values={nm: float(x[i]) for i, nm in enumerate(names)},
         stderr={nm: float(se[i]) for i, nm in enumerate(names)},

@@ -331,11 +331,17 @@ INPUTS = (
     Input("shadow_map", "m", "the depth map from the light (`ShadowMap`: depth, ortho, light_size, near)"),
 )
 _IN = {i.name: i for i in INPUTS}
-_RADIUS = Param(1.5, 0.0, 64.0, unit="texels", published=False,
+# Every parameter moves taps or the compare across texels of a nearest-texel depth test: the residuals are
+# steps in it, their derivative 0 almost everywhere (on a real scene the fits left the bias, and on the plate
+# the box filter's radius, at their starts), so each is scanned over 33 values before the solver
+# (`Param.scan`: geometric over (10⁻³·upper, upper), 24 % apart).
+_RADIUS = Param(1.5, 0.0, 64.0, unit="texels", published=False, scan=33,
                 description="PCF kernel radius r (an artist's setting per light)")  # fmt: skip
-_BIAS = Param(0.02, 0.0, 10.0, unit="m", published=False,
+_BIAS = Param(0.02, 0.0, 10.0, unit="m", published=False, scan=33,
               description="depth bias b: the receiver compared at z_r − b")  # fmt: skip
-_SCALE = Param(1.0, 0.0, 20.0, unit="1", description="PCSS light-size scale s (1: the light's own size)")
+_SCALE = Param(
+    1.0, 0.0, 20.0, unit="1", scan=33, description="PCSS light-size scale s (1: the light's own size)"
+)
 _SEED = "000:586-594 (ToyShop: 8-tap Poisson PCF, random rotation from a lookup texture, 1024² DF16 map)"
 
 

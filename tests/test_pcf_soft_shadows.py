@@ -287,6 +287,9 @@ def test_plate_audit_reference_map_and_rows(plate):
     assert set(rows) == {f"{m}-fitted" for m in pcf.METHODS}
     for row in rows.values():
         assert np.all(np.isfinite(row.image[case.mask]))
+    # the bias is a step (zero derivative): scanned, not left at its start without a word
+    for fit in r.results.fits:
+        assert "left at its start" not in (fit.message or ""), (fit.id, fit.message)
     rmse = {k: row.metrics["rmse"].value for k, row in rows.items()}
     assert rmse["pcss-fitted"] == min(rmse.values()) and rmse["hard-fitted"] == max(rmse.values()), rmse
     low = r.outcomes["light0-map256"]
