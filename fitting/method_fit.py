@@ -192,15 +192,15 @@ def fit_method(
 
 
 def _scanned_starts(method, params, inputs, held, target, weights, output) -> dict[str, Param]:
-    """``params`` with each scanned parameter's start (`Param.scan`) moved to the value of its scan with the
-    least weighted squared residual, the other parameters at their starts, one parameter after another in
-    declaration order (NumPy or Dr.Jit run, as the fit's `Method.fit_ops`)."""
+    """``params`` with each scanned parameter's start (`Param.scan`) moved to the value of its scan (or its
+    declared start) with the least weighted squared residual, the other parameters at their starts, one
+    parameter after another in declaration order (NumPy or Dr.Jit run, as the fit's `Method.fit_ops`)."""
     run = _drjit_run(method, inputs) if method.fit_ops == "drjit" else None
     values = {**held, **{k: p.initial for k, p in params.items()}}
     out = dict(params)
     for k, p in params.items():
         best, cost = p.initial, math.inf
-        for v in p.scan_values():
+        for v in (p.initial, *p.scan_values()):  # the start is a candidate: a scan never ends worse
             trial = {**values, k: v}
             with np.errstate(all="ignore"):
                 pred = method(NUMPY_OPS, inputs, trial) if run is None else run(trial)
