@@ -43,7 +43,8 @@ reference is ``volpath``: the blur's exact counterpart.
 No case: a rough dielectric is not a trigger (its refraction is a lobe, not one direction; left for later);
 a thin dielectric, a conductor or plastic (nothing is seen through them), a dielectric seen from inside
 (η < 1: the seed's coat is seen from outside) and pixels whose refracted ray escapes give none. The seed's
-light-map blur (000:1221-1290) is not audited (docs/layered-materials.md).
+light-map blur (000:1221-1290) has its own case on a scattering slab under a delta light
+(experiments/layered_lightmap.py: role ``slab over a base``, quantity ``inner_irradiance``).
 """
 
 from __future__ import annotations
@@ -82,6 +83,7 @@ from .audit_family import (
     vector_text,
 )
 from .audit_geometry import camera_rays, rays, reflective_shape
+from .layered_lightmap import LIGHTMAP_RULE, LIGHTMAP_SCENE, ROLE, lightmap_cases
 from .records import Check, Section
 
 __all__ = ["ANGLES", "FAMILY", "SCENES", "coat_cases", "offset_ratio", "study"]
@@ -126,9 +128,9 @@ def _slab(theta: int) -> ShippedScene:
     )
 
 
-SCENES = (*(_scene(a, 1.5) for a in ANGLES), _scene(60, 1.33), _slab(30), _slab(60))
-"""The scenes ``rtfit run layered-materials`` audits (scenes/library/layered_materials_coat.xml and
-layered_materials_slab.xml)."""
+SCENES = (*(_scene(a, 1.5) for a in ANGLES), _scene(60, 1.33), _slab(30), _slab(60), LIGHTMAP_SCENE)
+"""The scenes ``rtfit run layered-materials`` audits (scenes/library/layered_materials_coat.xml,
+layered_materials_slab.xml and the light map's layered_materials_lightmap.xml)."""
 _TEXELS_PER_DEPTH = 8  # texels per coat thickness in the base's texture window
 _TEXELS_MAX = 512  # per side
 
@@ -223,6 +225,8 @@ def _mask_of(visible: np.ndarray, sees: np.ndarray, keep: np.ndarray) -> np.ndar
 def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """The offset case and, under a uniform sky, the radiance case of one smooth dielectric seen from outside
     with a base under it (module docstring); none otherwise."""
+    if app.role == ROLE:  # a scattering slab over a base under a delta light: the light map's case
+        return lightmap_cases(setup, app)
     mi, scene = setup.mi, setup.scene
     index, shape, plugin = _shape(setup, app)
     if plugin != "dielectric":
@@ -448,7 +452,7 @@ _RULE_WORDS = (
 FAMILY = AuditFamily(
     name="layered-materials",
     quantity="layer_offset",
-    quantities=("coated_radiance",),
+    quantities=("coated_radiance", "inner_irradiance"),
     cases=coat_cases,
     formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
@@ -468,7 +472,9 @@ FAMILY = AuditFamily(
             *_RULE_WORDS,
             supplies=frozenset(i.name for m in METHODS.values() for i in m.inputs),
         ),
+        LIGHTMAP_RULE,
     ),
+    role_formats={ROLE: ("mitsuba-xml",)},
 )
 
 
@@ -501,8 +507,11 @@ def _cost_lines(ctx: StudyContext) -> list[str]:
     ]
     for result in ctx.audits:
         for case in result.cases:
-            cos = np.clip(case.channel_inputs[0]["cos_theta"], 0.0, 1.0)
-            where = f"{float(np.median(np.degrees(np.arccos(cos)))):.3g}° | {case.parameters['eta']:.3g}"
+            g = case.channel_inputs[0]
+            where = "— (light map) | —"  # the light-map case has no view angle or coat
+            if "cos_theta" in g:
+                theta = float(np.median(np.degrees(np.arccos(np.clip(g["cos_theta"], 0.0, 1.0)))))
+                where = f"{theta:.3g}° | {case.parameters['eta']:.3g}"
             what = f"{case.quantity or 'layer_offset'} ({case.units})"
             for row_id, out in result.outcomes.get(case.id, {}).items():
                 cost = result.costs.get(out.method.id, {}).get("ns_per_pixel")

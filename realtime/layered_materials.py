@@ -105,11 +105,29 @@ centre's texel value exactly). Rows (the radius scale k ∈ [0, 4] fitted, 1 as 
 The exact counterpart is a scattering slab (a homogeneous medium between the coat and the base, Mitsuba
 ``volpath``): no closed form; the rows stand or fall by their RMSE against it. At grazing view the seed's
 radius d/COS_MIN is huge; the taps then read the window's clamped edge (finite).
+
+The blurred light map (quantity ``inner_irradiance``, W/m² per channel; 000:1221-1290)
+-------------------------------------------------------------------------------------
+The seed renders the outer layer's local diffuse lighting (N·L times the light, shadowed) into texture space
+(a light map E_map(u, v), W/m²) and lights the inner layer with it blurred by listing 2's disc of radius
+proportional to the outer layer's thickness d ("fLayerThickness" texels in listing 3: radius d). Here the
+light map is a kernel input, a `BaseTexture` of E_map on the inner layer's uv window (the layers share one
+texture space; (u, v) the G-buffer's point on the inner layer), read by the same `_poisson_kernel`. Rows
+(E_in the irradiance the inner layer receives):
+
+* ``lightmap-local``: E_in = t·E_map(u, v), the local light map unblurred, t ∈ [0, 2] fitted (the slab's
+  transmission);
+* ``lightmap-seed``: E_in = PoissonFilter(E_map, (u, v), d) as printed (t = 1, radius d: no attenuation);
+* ``lightmap-blur``: E_in = t·PoissonFilter(E_map, (u, v), k·d), t and k ∈ [0, 4] fitted.
+
+Listing 2's 12 taps are not zero-mean: their sum is (0.365428, −1.25609), so the 13-tap mean of a linear
+ramp is the ramp at (u, v) + r·(0.0281, −0.0966)/units_per_uv, not at the centre (a shift of 0.1·r along
+−v). At d = 0 every row reads the centre (t·E_map); a huge d reads the window's clamped edge (finite).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -122,6 +140,7 @@ __all__ = [  # METHODS and INPUTS stay out: every family has its own (not re-exp
     "POISSON_TAPS",
     "TAPS_5",
     "BaseTexture",
+    "lightmap_irradiance",
     "poisson_albedo",
     "refracted_offset",
     "seed_blur_radii",
@@ -280,6 +299,12 @@ def _coated_blur_kernel(ops, cos_theta, depth, eta, texture, channel, u_refracte
     return _coated_diffuse_kernel(ops, rho, sky, fresnel, eta, fdr_ext, fdr_int)
 
 
+def _lightmap_kernel(ops, lightmap, channel, u, v, depth, transmit, blur, taps):
+    """The inner layer's irradiance: t × listing 2's mean of the light map at (u, v), radius k·d (taps 1:
+    the local light map read at (u, v))."""
+    return transmit * _poisson_kernel(ops, lightmap, channel, u, v, blur * ops.maximum(depth, 0.0), taps)
+
+
 def _composite_kernel(ops, outer, inner, alpha, cos_theta):
     """Listing 3: lerp(outer, inner, alpha·saturate(N·V)) (the inner layer's weight: module docstring)."""
     w = clamp01(ops, alpha) * clamp01(ops, cos_theta)
@@ -325,6 +350,21 @@ def poisson_albedo(texture: BaseTexture, u, v, radius, taps: int = 13, channel=0
         return _poisson_kernel(ops, texture, channel, u, v, r, taps)
 
     return evaluate(kernel, texture, channel, u, v, r)
+
+
+def lightmap_irradiance(lightmap: BaseTexture, u, v, depth, scale=1.0, transmit=1.0, taps: int = 13,
+                        channel=0.0):  # fmt: skip
+    """The inner layer's irradiance t·PoissonFilter(light map, (u, v), k·d) (W/m² of the light map; taps 1,
+    5 or 13; k = ``scale``, 1 as printed)."""
+    if taps not in (1, 5, 13):
+        raise ValueError(f"taps must be 1, 5 or 13 (got {taps})")
+    d, k = _depth(depth), check_range("scale", scale, 0.0, BLUR_MAX)
+    t = check_range("transmit", transmit, 0.0, 1e3)
+
+    def kernel(ops, lightmap, channel, u, v, d, t, k):
+        return _lightmap_kernel(ops, lightmap, channel, u, v, d, t, k, taps)
+
+    return evaluate(kernel, lightmap, channel, u, v, d, t, k)
 
 
 def seed_composite(outer, inner, alpha, cos_theta):
@@ -489,10 +529,58 @@ METHODS = method_table(
         *(_coated_blur(n) for n in (1, 5, 13)),
     ]
 )
-"""The layered-materials family's methods (module docstring): quantities ``layer_offset`` (the first four)
-and ``coated_radiance``."""
+_LIGHTMAP = Input("lightmap", "W/m²", "E_map: the outer layer's local diffuse lighting (N·L, shadowed) in "
+                  "texture space (`BaseTexture` on the inner layer's uv window)")  # fmt: skip
+_U = Input("u", "1", "u of the inner layer's point (the G-buffer's uv)", (0.0, 1.0))
+_V = Input("v", "1", "v of the inner layer's point (the G-buffer's uv)", (0.0, 1.0))
+_THICK = Input("depth", "m", "d: the outer layer's thickness above the point (scene units)", (0.0, DEPTH_MAX))
+LIGHTMAP_INPUTS = (_LIGHTMAP, _CHANNEL, _U, _V, _THICK)
+"""The quantity ``inner_irradiance``'s inputs."""
+_TRANSMIT = Param(0.7, 0.0, 2.0, unit="1", description="t: the outer layer's transmission", published=False)
+_SEED_LIGHT = "Oat 2006, PoissonFilter of the light map (seed 000:1221-1290, listings 2, 3)"
+METHODS = method_table(
+    [
+        *METHODS.values(),
+        Method(
+            "lightmap-local",
+            "Local light map (no blur), fitted transmission",
+            _lightmap_kernel,
+            inputs=LIGHTMAP_INPUTS,
+            params={"transmit": _TRANSMIT},
+            fixed={"blur": 0.0, "taps": 1},
+            quantity="inner_irradiance",
+            formula="E_in = t·E_map(u, v), t fitted",
+            source="the light map read where the inner point lies (the unblurred comparison)",
+        ),
+        Method(
+            "lightmap-seed",
+            "Seed light map blur (13 taps, radius d)",
+            _lightmap_kernel,
+            inputs=LIGHTMAP_INPUTS,
+            fixed={"transmit": 1.0, "blur": 1.0, "taps": 13},
+            quantity="inner_irradiance",
+            formula="E_in = PoissonFilter(E_map, (u, v), d)",
+            source=_SEED_LIGHT,
+            description="The inner layer lit by the blurred light map as printed: no attenuation.",
+        ),
+        Method(
+            "lightmap-blur",
+            "Light map blur, fitted radius and transmission",
+            _lightmap_kernel,
+            inputs=LIGHTMAP_INPUTS,
+            params={"transmit": _TRANSMIT, "blur": replace(_BLUR, description="k: the blur radius over d")},
+            fixed={"taps": 13},
+            quantity="inner_irradiance",
+            formula="E_in = t·PoissonFilter(E_map, (u, v), k·d), t and k fitted",
+            source=_SEED_LIGHT + " with its radius scale and a transmission fitted",
+        ),
+    ]
+)
+"""The layered-materials family's methods (module docstring): quantities ``layer_offset`` (the first four),
+``coated_radiance`` and ``inner_irradiance`` (the light-map rows)."""
+LIGHTMAP_ROWS = ("lightmap-local", "lightmap-seed", "lightmap-blur")
 OFFSET_ROWS = tuple(k for k, m in METHODS.items() if m.quantity == "layer_offset")
 BLUR_ROWS = ("seed-blur", "coated-blur-1", "coated-blur-5", "coated-blur-13")
 COMPOSITE_ROWS = tuple(
     k for k, m in METHODS.items() if m.quantity == "coated_radiance" and k not in BLUR_ROWS
-)
+)  # the light-map rows: LIGHTMAP_ROWS

@@ -51,6 +51,7 @@ from .ibl_samples import INPUTS as IBL_INPUTS
 from .irradiance_volumes import ProbeGrid, probe_table
 from .layered_materials import COMPOSITE_INPUTS as COAT_INPUTS
 from .layered_materials import INPUTS as LAYER_INPUTS
+from .layered_materials import LIGHTMAP_INPUTS, BaseTexture
 from .light_cones import INPUTS as CONE_INPUTS
 from .light_path_maps import INPUTS as PATH_MAP_INPUTS
 from .methods import Input, Method, Param
@@ -244,6 +245,12 @@ def _example_chains(n: int) -> ProbeChains:
 
 
 _PROBE_SPECULAR_TABLES = {"chains": _example_chains, "probe": lambda n: np.zeros(n)}
+
+
+def _example_lightmap(n: int) -> BaseTexture:
+    """A 3-channel 8 × 8 light map (W/m²) with a shadow edge at u = 0.5 over the uv square (any ``n``)."""
+    u = (np.arange(8) + 0.5) / 8.0
+    return BaseTexture(np.broadcast_to(np.where(u > 0.5, 2.0, 0.1), (3, 8, 8)).copy())
 
 
 def _example_cloud(n: int) -> CloudGrid:
@@ -837,6 +844,18 @@ QUANTITIES: Mapping[str, Quantity] = MappingProxyType(
                 COAT_INPUTS,
                 reference="Mitsuba path tracing (path, unbounded depth) at the pixel centres: the coat's "
                 "reflection, refraction and the base's internal reflections",
+            ),
+            Quantity(
+                "inner_irradiance",
+                "W/m²",
+                "irradiance E_in the inner layer of a two-layer material (a diffuse surface under a "
+                "scattering slab) receives at a point, per channel: all light arriving at its upper side "
+                "(the light's beam attenuated through the slab, and the light the slab scatters down, "
+                "any number of scatterings, with light the inner layer reflected and the slab sent back)",
+                LIGHTMAP_INPUTS,
+                examples={"lightmap": _example_lightmap},
+                reference="Mitsuba: the beam's transmittance exp(−σ_t·ℓ) with shadow rays, plus π × volpath "
+                "(unbounded depth) along cosine-distributed rays from the inner layer's point",
             ),
             Quantity(
                 "bounce_irradiance",

@@ -21,10 +21,12 @@ from rtfit.experiments.audit_run import audit
 from rtfit.realtime.layered_materials import (
     BLUR_ROWS,
     COMPOSITE_ROWS,
+    LIGHTMAP_ROWS,
     METHODS,
     OFFSET_ROWS,
     POISSON_TAPS,
     BaseTexture,
+    lightmap_irradiance,
     poisson_albedo,
     refracted_offset,
     seed_blur_radii,
@@ -327,10 +329,11 @@ def test_registry_entry_is_born_on_the_engine():
 
     f = FAMILIES["layered-materials"]
     assert f.module == ENGINE and f.methods is METHODS
-    assert {s.file for s in f.scenes} == {"layered_materials_coat.xml", "layered_materials_slab.xml"}
-    assert SCENE.is_file() and SLAB.is_file()
+    assert {s.file for s in f.scenes} == {"layered_materials_coat.xml", "layered_materials_slab.xml",
+                                          "layered_materials_lightmap.xml"}  # fmt: skip
+    assert SCENE.is_file() and SLAB.is_file() and SCENE.with_name("layered_materials_lightmap.xml").is_file()
     assert {s.name for s in f.scenes if s.quick} == {"theta30-eta1p5", "theta60-eta1p5", "theta60-eta1p33",
-                                                     "slab-theta60-eta1p5"}  # fmt: skip
+                                                     "slab-theta60-eta1p5", "lightmap-edge"}  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------------------ the blur
@@ -457,3 +460,127 @@ def test_slab_audit_blur_rows():
     rmse = {k: o.metrics["rmse"].value for k, o in r.outcomes[rad.id].items()}
     assert rmse["coated-blur-13-fitted"] < rmse["coated-blur-1"]
     assert rmse["seed-blur-fitted"] < rmse["seed-composite"]
+
+
+# ------------------------------------------------------------------------------------------- the light map
+LIGHTMAP = SCENE.with_name("layered_materials_lightmap.xml")
+_TAP_SUM = _LISTING2.sum(axis=0)  # (0.365428, −1.25609): the listed taps are not zero-mean
+
+
+def _lightmap(texels: np.ndarray, window=(0.25, 0.25, 0.75, 0.75), units=(32.0, 32.0)) -> BaseTexture:
+    return BaseTexture(np.broadcast_to(texels, (3, *texels.shape)).copy(), window, units)
+
+
+def _lm_rows(tex, u, v, d, t=1.0, k=1.0):
+    g = {"lightmap": tex, "channel": np.ones(len(u)), "u": u, "v": v, "depth": d}
+    out = {}
+    for mid in LIGHTMAP_ROWS:
+        ps = {n: x for n, x in (("transmit", t), ("blur", k)) if n in METHODS[mid].params}
+        out[mid] = np.asarray(METHODS[mid].evaluate(g, ps or None), np.float64)
+    return out
+
+
+def test_lightmap_blur_of_a_constant_is_the_constant():
+    """Every light-map row of a constant map c is t·c at any point and radius (clamped edges included)."""
+    tex = _lightmap(np.full((9, 11), 0.37))
+    rng = np.random.default_rng(7)
+    u, v, d = rng.uniform(0.0, 1.0, 50), rng.uniform(0.0, 1.0, 50), rng.uniform(0.0, 5.0, 50)
+    for mid, out in _lm_rows(tex, u, v, d, t=0.8, k=3.0).items():
+        want = 0.37 if mid == "lightmap-seed" else 0.8 * 0.37
+        assert np.allclose(out, want, rtol=1e-12), mid
+
+
+def test_lightmap_blur_of_a_ramp_is_the_ramp_at_the_taps_mean():
+    """A linear ramp f = a·x + b·y (texel centres; bilinear reads reproduce it exactly inside the window):
+    the 13-tap mean at (u, v), radius r, is f at (u, v) + r·Σp_k/13 (per uv unit: / units_per_uv), and
+    Σp_k/13 = (0.02811, −0.09662) from the seed's listed taps: not the centre (the taps are not zero-mean)."""
+    n = 64
+    x = (np.arange(n) + 0.5) / n
+    a, b = 3.0, -2.0
+    texels = a * x[None, :] + b * x[:, None]  # f(x, y) over the window's unit coordinates
+    tex = _lightmap(texels, window=(0.0, 0.0, 1.0, 1.0), units=(10.0, 10.0))
+    u, v, r = np.array([0.5, 0.4]), np.array([0.5, 0.6]), np.array([1.0, 2.0])  # taps within ±0.2 uv
+    got = lightmap_irradiance(tex, u, v, r, 1.0, 1.0, 13)
+    shift = r[:, None] * _TAP_SUM / 13.0 / 10.0
+    assert np.allclose(_TAP_SUM / 13.0, [0.0281099, -0.0966223], atol=1e-6)
+    assert np.allclose(got, a * (u + shift[:, 0]) + b * (v + shift[:, 1]), rtol=1e-12)
+    assert not np.allclose(got, a * u + b * v, rtol=1e-3)  # the centre's value is off by the taps' mean
+
+
+@pytest.mark.parametrize(("x0", "r"), [(0.0, 0.5), (0.12, 0.5), (-0.25, 0.6), (0.35, 0.9), (2.0, 0.5)])
+def test_lightmap_step_edge_is_the_fraction_of_taps_on_the_lit_side(x0, r):
+    """A step E = 1 for x > 0, 0 for x < 0 (a 4000-texel map: the bilinear ramp across the edge is 5e-4 wide,
+    each tap kept ≥ 3e-3 from it): the 13-tap mean is the fraction of the centre and the listed taps with
+    x0 + r·p_x > 0 (counted here), times t."""
+    n = 4000
+    xs = -2.0 + (np.arange(n) + 0.5) * 4.0 / n
+    tex = _lightmap(np.tile((xs > 0).astype(float), (2, 1)), window=(0.0, 0.0, 1.0, 1.0), units=(4.0, 1.0))
+    taps_x = np.concatenate([[0.0], _LISTING2[:, 0]]) * r + x0
+    assert np.min(np.abs(taps_x)) > 3e-3 or x0 == 0.0
+    want = np.mean(taps_x > 0.0) if x0 != 0.0 else np.mean(_LISTING2[:, 0] > 0.0) * 12 / 13 + 0.5 / 13
+    u = np.array([(x0 + 2.0) / 4.0])
+    got = float(lightmap_irradiance(tex, u, np.array([0.5]), np.array([r]), 1.0, 0.9, 13)[0])
+    assert got == pytest.approx(0.9 * want, abs=1e-9)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_lightmap_rows_finite_at_zero_and_huge_thickness(dtype):
+    """d = 0: every row reads the centre (t·E_map(u, v) exactly); d = 1e3 (radius far past the window): the
+    taps read the clamped edge; t and k at their bounds: finite, ≥ 0."""
+    rng = np.random.default_rng(2)
+    tex = _lightmap(rng.uniform(0.0, 3.0, (7, 9)))
+    u = np.array([0.0, 0.3, 0.5, 1.0], dtype)
+    v = np.array([1.0, 0.6, 0.5, 0.0], dtype)
+    centre = lightmap_irradiance(tex, u, v, np.zeros(4), 1.0, 1.0, 1)
+    for d in (0.0, 1e3):
+        for t, k in ((0.0, 0.0), (2.0, 4.0), (0.7, 1.0)):
+            rows = _lm_rows(tex, u, v, np.full(4, d, dtype), t=t, k=k)
+            for mid, out in rows.items():
+                assert np.all(np.isfinite(out)) and np.all(out >= 0.0), (mid, d)
+                if d == 0.0:
+                    scale = 1.0 if mid == "lightmap-seed" else t
+                    assert np.allclose(out, scale * centre, rtol=1e-6), mid
+
+
+@pytest.fixture(scope="module")
+def lightmap_audit(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("lightmap") / "c"
+    return audit(str(LIGHTMAP), ["layered-materials"], width=12, height=12, spp=256, cache=cache, **FAST)
+
+
+def test_lightmap_audit_case(lightmap_audit):
+    """The shipped shadow-edge scene gives one light-map case on every pixel: d is the slab's 0.1, the light
+    map is 1 (the light's irradiance) on the lit side and 0 in the shadow; the fitted radius scale k is
+    finite and inside (0, 4); blurring beats the local light map and the seed as printed (no attenuation)."""
+    r = lightmap_audit
+    (case,) = r.cases
+    assert case.id == "slab-0-lightmap" and case.quantity == "inner_irradiance" and case.mask.all()
+    g = case.channel_inputs[0]
+    assert np.allclose(g["depth"], 0.1, atol=1e-4)
+    assert set(np.unique(np.round(g["lightmap"].texels, 6))) == {0.0, 1.0}
+    out = r.outcomes[case.id]
+    k = float(out["lightmap-blur-fitted"].parameters["blur"])
+    assert math.isfinite(k) and 0.0 < k < 4.0
+    rmse = {key: o.metrics["rmse"].value for key, o in out.items()}
+    assert rmse["lightmap-blur-fitted"] < rmse["lightmap-local-fitted"] < rmse["lightmap-seed"]
+
+
+def test_lightmap_reference_of_an_absorbing_slab_is_the_beam(tmp_path):
+    """With the slab's albedo 0 (pure absorption; the blocker black) nothing is scattered: the reference is
+    the light's beam e^(−σ_t·(d − gap)) = e^(−10·0.0995) on the lit side and 0 in the shadow (closed form)."""
+    r = audit(str(LIGHTMAP), ["layered-materials"], width=8, height=8, spp=8, cache=tmp_path / "c",
+              defines={"albedo": "0"}, **FAST)  # fmt: skip
+    (case,) = r.cases
+    ref = case.reference.mean[case.mask][:, 1]
+    g = case.channel_inputs[1]
+    lit = lightmap_irradiance(g["lightmap"], g["u"], g["v"], np.zeros(len(ref)), 1.0, 1.0, 1)
+    on = lit > 0.5  # the light's E = 1 W/m² (float32: 1 − 6e-8) on the lit side, 0 in the shadow
+    assert 0 < np.sum(on) < len(lit) and np.allclose(lit[on], 1.0, atol=1e-6) and np.all(lit[~on] == 0.0)
+    assert np.allclose(ref[on], math.exp(-10.0 * 0.0995), rtol=2e-4)
+    assert np.all(ref[~on] == 0.0)
+
+
+def test_list_names_the_slab_role():
+    result = CliRunner().invoke(audit_cmd, [str(LIGHTMAP), "--list"])
+    assert result.exit_code == 0, result.output
+    assert "layered-materials — slab over a base" in result.output
