@@ -468,6 +468,14 @@ def _case_figure(d: _Doc, label: str, aps, placed: dict[tuple[str, str], list[Fi
             del placed[key]
 
 
+PRECOMPUTE_CAPTION = (
+    " Precompute: one whole run of the method's precompute (a bake an engine pays apart from the per-pixel "
+    "kernel; median of 3 after a warm-up, the same loop), paid again as *Precompute paid* says; *per frame* "
+    "spreads it over the pixels of the case it was timed on, as if it were paid every frame."
+)
+"""The cost table's caption where a method has a precompute (`records.Cost.precompute_ms`)."""
+
+
 def _build(r: Results, directory: Path | None) -> _Doc:
     d = _Doc(r, directory)
     cases = r.cases
@@ -601,24 +609,29 @@ def _build(r: Results, directory: Path | None) -> _Doc:
             cols = [
                 ("ns_per_pixel", "ns/pixel"),
                 ("pixels_per_second", "pixels/s"),
+                ("precompute_ms", "Precompute ms"),
+                ("precompute_per_pixel", "Precompute ns/pixel per frame"),
+                ("precompute_trigger", "Precompute paid"),
                 ("backend", "Backend"),
                 ("note", "Note"),
             ]
             cols = [(k, n) for k, n in cols if any(getattr(c, k) is not None for c in r.costs)]
+            text = ("backend", "note", "precompute_trigger")
             rows = [
                 [_Cell(c.display)]
                 + [
-                    _Cell(c.note or "", md=True)
+                    _Cell(getattr(c, k) or "", md=True)
                     if k == "note"
-                    else _Cell(format_number(getattr(c, k)), numeric=k != "backend")
+                    else _Cell(format_number(getattr(c, k)), numeric=k not in text)
                     for k, _ in cols
                 ]
                 for c in r.costs
             ]
             d.table(
                 "costs",
-                "Measured cost per pixel on this run's device.",
-                [_Cell("Method")] + [_Cell(n, numeric=k not in ("backend", "note")) for k, n in cols],
+                "Measured cost per pixel on this run's device."
+                + (PRECOMPUTE_CAPTION if any(c.precompute_trigger for c in r.costs) else ""),
+                [_Cell("Method")] + [_Cell(n, numeric=k not in text) for k, n in cols],
                 rows,
             )
         emit_figures(("builtin", "costs"))
