@@ -39,6 +39,7 @@ from .records import (
     SCHEMA,
     Approximation,
     Case,
+    Cost,
     Figure,
     FitParameter,
     Metric,
@@ -470,10 +471,18 @@ def _case_figure(d: _Doc, label: str, aps, placed: dict[tuple[str, str], list[Fi
 
 PRECOMPUTE_CAPTION = (
     " Precompute: one whole run of the method's precompute (a bake an engine pays apart from the per-pixel "
-    "kernel; median of 3 after a warm-up, the same loop), paid again as *Precompute paid* says; *per frame* "
-    "spreads it over the pixels of the case it was timed on, as if it were paid every frame."
+    "kernel; the median of up to 3 calls after a warm-up in the same timing loop, the warm-up alone for a "
+    "step of a second or more), paid again as *Precompute "
+    "paid* says; *per frame* spreads it over the pixels of the case it was timed on, as if it were paid "
+    "every frame."
 )
 """The cost table's caption where a method has a precompute (`records.Cost.precompute_ms`)."""
+
+
+def _cost_note(c: Cost) -> str:
+    """A cost row's note, and what its precompute does (`records.Cost.precompute_note`)."""
+    pre = f"Precompute: {c.precompute_note}." if c.precompute_note else ""
+    return " ".join(x for x in (c.note or "", pre) if x)
 
 
 def _build(r: Results, directory: Path | None) -> _Doc:
@@ -615,12 +624,13 @@ def _build(r: Results, directory: Path | None) -> _Doc:
                 ("backend", "Backend"),
                 ("note", "Note"),
             ]
-            cols = [(k, n) for k, n in cols if any(getattr(c, k) is not None for c in r.costs)]
+            cols = [(k, n) for k, n in cols if any(getattr(c, k) is not None for c in r.costs)
+                    or (k == "note" and any(c.precompute_note for c in r.costs))]  # fmt: skip
             text = ("backend", "note", "precompute_trigger")
             rows = [
                 [_Cell(c.display)]
                 + [
-                    _Cell(getattr(c, k) or "", md=True)
+                    _Cell(_cost_note(c), md=True)
                     if k == "note"
                     else _Cell(format_number(getattr(c, k)), numeric=k not in text)
                     for k, _ in cols
