@@ -56,6 +56,7 @@ from .audit_family import (
     AuditFamily,
     AuditSetup,
     FamilyCase,
+    Precompute,
     ShippedScene,
     Study,
     StudyContext,
@@ -283,18 +284,20 @@ def caustic_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             "light tracing is the exact counterpart of the seed's photons",
         )
         row_inputs: dict[str, tuple] = {}
+        precompute: dict[str, Precompute] = {}
         energy = None
         channel_inputs: tuple = ()
         counts = {}
         for n in PHOTON_COUNTS:
-            emitted, hits = photon_set(
-                setup, light, centre, radius, n, sub_seed(setup.seed, "caustics", j, n)
-            )
+            seed_n = sub_seed(setup.seed, "caustics", j, n)
+            emitted, hits = photon_set(setup, light, centre, radius, n, seed_n)
             reads = nearest_photons(points, hits)
             inputs = _channel_inputs(reads)
+            pre = _precompute(setup, light, centre, radius, n, seed_n, points)
             for m in METHODS.values():
                 if m.fixed.get("photons") == n:
                     row_inputs[m.id] = inputs
+                    precompute[m.id] = pre
             counts[n] = {
                 "stored": len(hits.points),
                 "median_d_nearest_m": float(np.median(reads["d"][:, -1])),
@@ -332,9 +335,25 @@ def caustic_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 ),
                 methods=methods,
                 params=params,
+                precompute=precompute,
             )
         )
     return cases
+
+
+def _precompute(setup: AuditSetup, light, centre, radius: float, n: int, seed: int, points) -> Precompute:
+    """The rows' per-frame precompute at N photons (one for the three forms): the photon set traced
+    (`photon_set`) and gathered at the pixels (`nearest_photons`: what each pixel's snippet sum reads, the
+    stand-in for splatting the N snippets into the receiver's atlas)."""
+
+    def run():
+        return nearest_photons(points, photon_set(setup, light, centre, radius, n, seed)[1])
+
+    return Precompute(
+        run=run,
+        trigger="frame",
+        what=f"{n} photons traced through the caster and gathered at the pixels (the snippets' splat)",
+    )
 
 
 FAMILY = AuditFamily(

@@ -30,6 +30,14 @@ applicability's methods is dropped), ``quantity`` (user approximations of it are
 (row id → parameter name → `Param`: the value the row is evaluated with, ``Param.initial``, and the start
 and bounds of its fit, e.g. the scene's own fog density) and ``row_inputs`` (row id → that row's own
 ``channel_inputs``, e.g. the stored coefficients of one irradiance basis).
+
+A row whose method needs a **precompute** that an engine pays apart from its per-pixel kernel (transfers
+baked, photons traced and gathered, a texture built) declares it on the case: ``precompute`` (row id →
+`Precompute`: a callable doing the whole step on the case's own inputs, what it is, and its ``trigger``:
+once per ``frame``, per ``light`` change or per ``scene``). The engine times it with the same loop as the
+per-pixel kernel (`rtfit.experiments.cost.time_precompute`) and records ``precompute_ms``, its trigger and
+the case's pixel count beside the ns per pixel; a precompute that raises is a failed check of the run (one
+line), not a crash.
 """
 
 from __future__ import annotations
@@ -51,12 +59,14 @@ from rtfit.reference.estimators import GBuffer, PassResult, launch_identity, sub
 from .audit import Applicability, AuditError, Rule, SceneInfo
 
 __all__ = [
+    "PRECOMPUTE_TRIGGERS",
     "AuditError",
     "AuditFamily",
     "AuditReference",
     "AuditSetup",
     "FamilyCase",
     "PooledPasses",
+    "Precompute",
     "ShippedScene",
     "Study",
     "StudyContext",
@@ -253,6 +263,35 @@ class PooledPasses:
         )
 
 
+PRECOMPUTE_TRIGGERS = {
+    "frame": "every frame",
+    "light": "when a light moves or changes",
+    "scene": "when the scene's geometry or materials change",
+}
+"""`Precompute.trigger`: when an engine runs a row's precompute again (key → words for the report)."""
+
+
+@dataclass(frozen=True)
+class Precompute:
+    """A row's precompute (module docstring): ``run()`` does the whole step once on the case's inputs (it
+    closes over them: the scene, the entry points, the light) and returns its product (what the per-pixel
+    kernel reads; Dr.Jit arrays in it are evaluated inside the timing); ``trigger``: a key of
+    `PRECOMPUTE_TRIGGERS`; ``what``: one line saying what it does (the cost table's note). Rows sharing one
+    step share one `Precompute` (timed once)."""
+
+    run: Callable[[], Any]
+    trigger: str
+    what: str
+
+    def __post_init__(self):
+        if self.trigger not in PRECOMPUTE_TRIGGERS:
+            raise AuditError(
+                f"precompute {self.what!r}: trigger {self.trigger!r}: one of {', '.join(PRECOMPUTE_TRIGGERS)}"
+            )
+        if not callable(self.run):
+            raise AuditError(f"precompute {self.what!r}: run must be callable")
+
+
 FIT_WEIGHTS = ("absolute", "relative")
 """`FamilyCase.fit_weight`: how a case's fits weigh each residual."""
 
@@ -289,6 +328,10 @@ class FamilyCase:
     uncosted: Mapping[str, str] = field(default_factory=dict)
     """Row id → why its cost is not measured like the others' (a row whose value is computed outside its
     kernel, which only passes it through: timing that kernel would print a cost of nothing)."""
+    precompute: Mapping[str, Precompute] = field(default_factory=dict)
+    """Row id → the `Precompute` an engine runs before that row's per-pixel kernel (module docstring): timed
+    by the engine beside the kernel's ns per pixel (``precompute_ms``, its trigger and this case's pixel
+    count in the cost record)."""
     fit_weight: str = "absolute"
     """How the case's fits weigh each element's residual (`audit_fit.fit_data`): ``absolute`` (1: the
     least-squares fit of the RMSE in the quantity's units) or ``relative`` (1 / max(|reference|, σ): the

@@ -65,6 +65,7 @@ from .audit_family import (
     AuditFamily,
     AuditSetup,
     FamilyCase,
+    Precompute,
     ShippedScene,
     Study,
     StudyContext,
@@ -79,6 +80,7 @@ __all__ = [
     "FAMILY",
     "MOVE",
     "SCENES",
+    "bake_path_maps",
     "entry_points",
     "path_map_cases",
     "study",
@@ -276,6 +278,37 @@ def _row_id(k: int) -> str:
     return "seed-path-map" if k == SEED_CLUSTERS else f"path-map-k{k}"
 
 
+def bake_path_maps(setup: AuditSetup, points, normals, clusters=CLUSTERS, cut_factor: float = CUT.initial):
+    """The seed's precompute (module docstring, light-independent): `ENTRY_POINTS` entry points, their
+    clusters for each K of ``clusters``, the transfer terms of every (visible point, entry point) pair with a
+    shadow ray, and the panes T_k,c at the cut ``cut_factor`` × √(A_S/(π N)). Returns None where no surface
+    takes entry points, else (entries, groups, transfer terms, cut radius, K → per channel T_k,c). The
+    audit's own bake and each row's timed precompute (`FamilyCase.precompute`: one K) are this function."""
+    entries = entry_points(setup, ENTRY_POINTS)
+    if entries is None:  # no surface Mitsuba can sample (every one an instance)
+        return None
+    pos, nrm, albedo, area_each, area, _left = entries
+    lo, hi = _scene_box(setup.scene)
+    groups = {}
+    for k in clusters:
+        labels = cluster_entry_points(pos, nrm, k, float(np.linalg.norm(hi - lo)))
+        m = membership(labels, k)
+        groups[k] = (m, np.maximum(m.sum(axis=0), 1.0))
+    parts = transfer_terms(setup, points, normals, pos, nrm)
+    radius = default_cut(area, ENTRY_POINTS)
+    return entries, groups, parts, radius, _bake(parts, cut_factor * radius, area_each, albedo, groups)
+
+
+def _precompute(setup: AuditSetup, points, normals, k: int, cut_factor: float) -> Precompute:
+    """Row K's precompute as an engine pays it once per scene (`bake_path_maps` for that K alone)."""
+    return Precompute(
+        run=lambda: bake_path_maps(setup, points, normals, (k,), cut_factor),
+        trigger="scene",
+        what=f"bake: {ENTRY_POINTS} entry points clustered into {k}, a shadow ray and a transfer per "
+        "(pixel, entry point)",
+    )
+
+
 def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """One case per light position (module docstring)."""
     mi, scene, mask = setup.mi, setup.scene, setup.mask
@@ -286,19 +319,12 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         raise AuditError("light-path-maps: the camera sees no surface")
     light = scene_light(setup, app.source)
     t0 = time.perf_counter()
-    entries = entry_points(setup, ENTRY_POINTS)
-    if entries is None:  # no surface Mitsuba can sample (every one an instance): the other families go on
+    bake = bake_path_maps(setup, points, normals)
+    if bake is None:  # no surface Mitsuba can sample (every one an instance): the other families go on
         return []
+    entries, groups, parts, radius, baked = bake
     pos, nrm, albedo, area_each, area, left_out = entries
     lo, hi = _scene_box(scene)
-    groups = {}
-    for k in CLUSTERS:
-        labels = cluster_entry_points(pos, nrm, k, float(np.linalg.norm(hi - lo)))
-        m = membership(labels, k)
-        groups[k] = (m, np.maximum(m.sum(axis=0), 1.0))
-    parts = transfer_terms(setup, points, normals, pos, nrm)
-    radius = default_cut(area, ENTRY_POINTS)
-    baked = _bake(parts, CUT.initial * radius, area_each, albedo, groups)
     bake_seconds = time.perf_counter() - t0
     entry_spp = max(ENTRY_SPP_MIN, int(ENTRY_SPP_FACTOR * setup.spp))
     tag = f"light{app.source}"
@@ -357,6 +383,8 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         weights = _weights(groups, e_entry)
         rows = {_row_id(k): _inputs(baked[k], weights[k], k) for k in CLUSTERS}
         rows[FIT_ROW] = _inputs(fitted_t[SEED_CLUSTERS], weights[SEED_CLUSTERS], SEED_CLUSTERS)
+        precompute = {_row_id(k): _precompute(setup, points, normals, k, CUT.initial) for k in CLUSTERS}
+        precompute[FIT_ROW] = _precompute(setup, points, normals, SEED_CLUSTERS, best)
         cases.append(
             FamilyCase(
                 id=f"{tag}-at{p}",
@@ -365,6 +393,7 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 mask=mask,
                 channel_inputs=rows["seed-path-map"],
                 row_inputs=rows,
+                precompute=precompute,
                 methods=methods,
                 parameters={
                     "light_position": [float(x) for x in (light.centre + offset)]

@@ -45,7 +45,7 @@ from .audit_family import (
     ShippedScene,
     masked_image,
 )
-from .sky_rows import SPECTRAL_NOTE, TEXTURE_UNCOSTED, near_sun, nishita_rows
+from .sky_rows import SPECTRAL_NOTE, TEXTURE_UNCOSTED, near_sun, nishita_rows, texture_precomputes
 
 __all__ = ["FAMILY", "ROLE", "SCENES", "SUN_ELEVATIONS_DEG", "atmosphere_params_of", "sky_cases"]
 
@@ -136,6 +136,7 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             ),
             methods=rows,
             uncosted=dict.fromkeys(rows, TEXTURE_UNCOSTED),
+            precompute=texture_precomputes(atmosphere_params_of(spec), elev, alt, rows, setup.variant),
             quantity="sky_radiance",
         )
     ]

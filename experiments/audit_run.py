@@ -65,12 +65,12 @@ from . import fitted as fitfiles
 from .applicability import applicable_families
 from .atomic import atomic_directory
 from .audit import SURFACE_FREE_KINDS, Applicability, AuditError, SceneInfo, inspect_scene
-from .audit_family import AuditFamily, AuditSetup, FamilyCase
+from .audit_family import PRECOMPUTE_TRIGGERS, AuditFamily, AuditSetup, FamilyCase, Precompute
 from .audit_fit import evaluate_case, fit_case
 from .audit_options import GRID_MAX, check_ao_distance, check_out, check_sizes, triple
 from .audit_output import reference_record, write_audit
 from .audit_parallax_occlusion import check_pom_depth
-from .cost import time_drjit
+from .cost import time_drjit, time_precompute
 from .families import AUDITED, METHOD_TABLES, RULES
 from .progress import Stage
 from .records import SCHEMA, Check, Results, from_json, plain_json, to_json
@@ -296,6 +296,8 @@ class AuditResult:
     """The pixel-centre G-buffer of the scene's camera the cases were computed on (its ``mask``, points,
     normals, depths): what a family's study reads instead of tracing it again
     (`audit_family.StudyContext`)."""
+    failed: list[dict] = field(default_factory=list)
+    """Checks that failed while the cases ran (a precompute that raised), in results.json's ``checks``."""
     _figures: list = field(default_factory=list, repr=False)
 
     def reference(self, case: str) -> np.ndarray:
@@ -778,6 +780,7 @@ def _assemble(
         skipped=[*skipped, *run.notes],
         by_family=run.by_family,
         partial=partial,
+        failed=list(run.failed),
     )
     result.results = _results(result, plan, **settings)
     if interrupted is not None:
@@ -800,6 +803,41 @@ class _CaseRun:
     timings: dict[str, float]
     by_family: dict[str, dict[str, float]]
     notes: list[str] = field(default_factory=list)
+    failed: list[dict] = field(default_factory=list)
+    """Checks of this audit that failed while it ran (a precompute that raised: `precompute`)."""
+    timed: dict[Precompute, dict] = field(default_factory=dict)
+    """Each precompute timed so far (its cost columns): rows sharing one are timed once."""
+
+    def precompute(self, method: Method, case: FamilyCase, pre: Precompute) -> None:
+        """Time the row's precompute (`cost.time_precompute`) into its method's cost record:
+        ``precompute_ms``, its ``precompute_trigger``, the case's ``precompute_pixels`` and
+        ``precompute_note``. One that raises leaves ``precompute_ms`` None and becomes a failed check (one
+        line: the exception's type and first line), not a crash of the run. Rows sharing one `Precompute`
+        get one timing."""
+        if pre in self.timed:  # rows sharing one step (the three photon forms at one N): timed once
+            self.costs[method.id].update(self.timed[pre])
+            return
+        pixels = int(case.mask.sum())
+        record = {"precompute_trigger": pre.trigger, "precompute_pixels": pixels,
+                  "precompute_note": f"{pre.what} ({PRECOMPUTE_TRIGGERS[pre.trigger]})"}  # fmt: skip
+        try:
+            t = time_precompute(pre.run)
+            record["precompute_ms"] = t.seconds * 1e3
+        except Exception as e:  # the family's own code: a failure is the run's finding, not its crash
+            line = (str(e).strip().splitlines() or [""])[0]
+            record["precompute_ms"] = None
+            self.failed.append(
+                to_json(
+                    Check(
+                        name=f"{method.id} ({case.label}): its precompute ({pre.what}) runs",
+                        value=f"{type(e).__name__}: {line}"[:300],
+                        expected="no error",
+                        passed=False,
+                    )
+                )  # type: ignore[arg-type]
+            )
+        self.timed[pre] = record
+        self.costs[method.id].update(record)
 
     def metrics_of(self, img: np.ndarray, case: FamilyCase, sigma: np.ndarray, row: str):
         """The row's metrics beside the noise floor. A metric's warning about the row's values (ꟻLIP clips
@@ -856,6 +894,8 @@ class _CaseRun:
             if method.id not in self.costs:
                 cost = _cost(method, case, self.backend, self.cost_elements)
                 self.costs[method.id] = {"label": method.label, **cost}
+            if row_id in case.precompute and "precompute_trigger" not in self.costs[method.id]:
+                self.precompute(method, case, case.precompute[row_id])
             self.timings["evaluation"] += time.perf_counter() - t1
             spent["evaluation"] += time.perf_counter() - t1
             if self.fit and method.params:
@@ -988,6 +1028,10 @@ def _fit_record(case: FamilyCase, row: MethodOutcome) -> dict:
     )
 
 
+_PRECOMPUTE_KEYS = ("precompute_ms", "precompute_trigger", "precompute_pixels", "precompute_note")
+"""A cost record's precompute columns (`_CaseRun.precompute`; the first three also on each approximation)."""
+
+
 def _results(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selection) -> Results:
     info = r.info
     case_docs = []
@@ -1006,6 +1050,7 @@ def _results(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selecti
                         "ns_per_pixel": c["ns_per_pixel"],
                         "pixels_per_second": c["pixels_per_second"],
                         "backend": c["backend"],
+                        **{k: c.get(k) for k in _PRECOMPUTE_KEYS[:3]},
                     }
                     if c
                     else None,
@@ -1029,7 +1074,8 @@ def _results(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selecti
     costs = [
         {"method": mid, "label": c["label"], "backend": c["backend"], "ns_per_pixel": c["ns_per_pixel"],
          "pixels_per_second": c["pixels_per_second"], "elements": c["elements"], "repeats": c["repeats"],
-         "note": c.get("note", "per pixel: the scene's own inputs, tiled, as float32; declared parameters")}
+         "note": c.get("note", "per pixel: the scene's own inputs, tiled, as float32; declared parameters"),
+         **{k: c.get(k) for k in _PRECOMPUTE_KEYS}}
         for mid, c in r.costs.items()
     ]  # fmt: skip
     families = sorted({f.name for f, _a, _c in plan})
@@ -1087,7 +1133,7 @@ def _results(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selecti
         "fits": fits,
         "figures": figs,
         "costs": costs,
-        "checks": _checks(plan, r.outcomes),
+        "checks": [*_checks(plan, r.outcomes), *r.failed],
         "notes": notes,
     }
     return from_json(Results, plain_json(doc), f"audit of {info.source}")

@@ -46,7 +46,7 @@ from rtfit.realtime.nishita_sky import AtmosphereParams
 
 from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
-from .sky_rows import SPECTRAL_NOTE, TEXTURE_UNCOSTED, near_sun, nishita_rows
+from .sky_rows import SPECTRAL_NOTE, TEXTURE_UNCOSTED, near_sun, nishita_rows, texture_precomputes
 
 __all__ = ["FAMILY", "ROLE", "SOLAR_SCALE", "emitter_radiance", "sky_emitter_cases", "sky_frame"]
 
@@ -154,6 +154,7 @@ def sky_emitter_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]
             ),
             methods=rows,
             uncosted=dict.fromkeys(rows, TEXTURE_UNCOSTED),
+            precompute=texture_precomputes(AtmosphereParams(), elev, 0.0, rows, setup.variant),
             quantity="sky_radiance",
         )
     ]

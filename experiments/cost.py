@@ -80,6 +80,39 @@ def time_drjit(
     return Timing(seconds, elements, n)
 
 
+PRECOMPUTE_REPEATS = 3
+"""Timed calls of a precompute (`time_precompute`) after its warm-up, where the warm-up took less than
+`PRECOMPUTE_LONG` seconds; a longer one is timed once more (a bake of 0.3–1 s on 2 shared CPU cores: five
+path-map rows spent 13 s of a 16-px audit at 3 repeats)."""
+PRECOMPUTE_LONG = 0.1
+PRECOMPUTE_ONCE = 1.0
+"""A precompute whose warm-up call took this long (s) or more is timed by that call alone: its kernels'
+compilation (if any: the case that declared it has usually just run the same step) is then a small part of
+it, and 16384 caustic photons traced and gathered took 4–18 s a call on 2 loaded cores."""
+
+
+def time_precompute(run: Callable[[], Any], repeats: int = PRECOMPUTE_REPEATS) -> Timing:
+    """Median wall time of one whole precompute ``run()`` (a bake, photons traced, a texture built), in the
+    per-pixel kernel's loop (`_median_time`, each call evaluating the Dr.Jit arrays it returns and waiting for
+    the device, as `time_drjit`): a warm-up call (kernel compilation, caches), then ``repeats`` calls, or one
+    where the warm-up took `PRECOMPUTE_LONG` s or more, or none where it took `PRECOMPUTE_ONCE` s or more
+    (the warm-up is the timing: ``repeats`` 1); no minimum duration. ``elements`` is 1: the timing is of one
+    precompute (``Timing.seconds``)."""
+
+    def call():
+        dr.eval(run())
+        dr.sync_thread()
+
+    dr.sync_thread()
+    t0 = time.perf_counter()
+    call()  # warm-up
+    first = time.perf_counter() - t0
+    if first >= PRECOMPUTE_ONCE:
+        return Timing(first, 1, 1)
+    seconds, n = _median_time(call, repeats if first < PRECOMPUTE_LONG else 1, 0.0)
+    return Timing(seconds, 1, n)
+
+
 def time_numpy(
     fn: Callable, args: tuple, elements: int, repeats: int = 5, min_seconds: float = 0.2
 ) -> Timing:

@@ -59,6 +59,7 @@ __all__ = [
     "ResultsError",
     "Scene",
     "Section",
+    "amortised_ns",
     "from_json",
     "plain_json",
     "record_json_schema",
@@ -166,13 +167,33 @@ class Metric(Record):
     debiased: float | None = None
 
 
+def amortised_ns(precompute_ms: float | None, pixels: int | None) -> float | None:
+    """ns per pixel of a precompute of ``precompute_ms`` paid every frame of ``pixels`` pixels (None where
+    either is missing or the pixels are not positive)."""
+    if precompute_ms is None or not pixels or pixels <= 0:
+        return None
+    return precompute_ms * 1e6 / pixels
+
+
 @dataclass(frozen=True)
 class PixelCost(Record):
-    """Measured cost of one approximation: ns per evaluated pixel, its reciprocal, the Dr.Jit backend."""
+    """Measured cost of one approximation: ns per evaluated pixel, its reciprocal, the Dr.Jit backend; where
+    the method has a precompute (a bake) an engine pays apart: its ``precompute_ms`` (one whole run), when
+    it is paid again (``precompute_trigger``: ``frame``, ``light`` or ``scene``) and the pixels of the case it
+    was timed on (``precompute_pixels``: ms × 10⁶ / pixels is its share per pixel if paid every frame)."""
 
     ns_per_pixel: float | None = None
     pixels_per_second: float | None = None
     backend: str | None = None
+    precompute_ms: float | None = None
+    precompute_trigger: Literal["frame", "light", "scene"] | None = None
+    precompute_pixels: int | None = None
+
+    @property
+    def precompute_per_pixel(self) -> float | None:
+        """The precompute's share per pixel if paid every frame (ns): ``precompute_ms`` spread over the
+        ``precompute_pixels`` of the case it was timed on (None without both)."""
+        return amortised_ns(self.precompute_ms, self.precompute_pixels)
 
 
 @dataclass(frozen=True)
@@ -321,7 +342,11 @@ class Section(Record):
 class Cost(Record):
     """Measured cost of one method on the run's device: median ns per pixel after warm-up, its
     reciprocal, the backend (``llvm``, ``cuda``, ``numpy``), what was timed (markdown ``note``), the
-    kernel size and repetitions, and for stored representations the floats per probe."""
+    kernel size and repetitions, and for stored representations the floats per probe. A method with a
+    precompute (a bake an engine pays apart from the per-pixel kernel) also has its median ``precompute_ms``
+    (one whole run, timed like the kernel), its ``precompute_trigger`` (paid again every ``frame``, when a
+    ``light`` changes, or when the ``scene`` changes), the ``precompute_pixels`` of the case it was timed on
+    and ``precompute_note`` (what it does)."""
 
     method: str
     label: str | None = None
@@ -332,6 +357,16 @@ class Cost(Record):
     repeats: int | None = None
     floats_per_probe: int | None = None
     note: str | None = None
+    precompute_ms: float | None = None
+    precompute_trigger: Literal["frame", "light", "scene"] | None = None
+    precompute_pixels: int | None = None
+    precompute_note: str | None = None
+
+    @property
+    def precompute_per_pixel(self) -> float | None:
+        """The precompute's share per pixel if paid every frame (ns): ``precompute_ms`` spread over the
+        ``precompute_pixels`` of the case it was timed on (None without both)."""
+        return amortised_ns(self.precompute_ms, self.precompute_pixels)
 
     @property
     def display(self) -> str:

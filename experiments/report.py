@@ -39,6 +39,7 @@ from .records import (
     SCHEMA,
     Approximation,
     Case,
+    Cost,
     Figure,
     FitParameter,
     Metric,
@@ -468,6 +469,22 @@ def _case_figure(d: _Doc, label: str, aps, placed: dict[tuple[str, str], list[Fi
             del placed[key]
 
 
+PRECOMPUTE_CAPTION = (
+    " Precompute: one whole run of the method's precompute (a bake an engine pays apart from the per-pixel "
+    "kernel; the median of up to 3 calls after a warm-up in the same timing loop, the warm-up alone for a "
+    "step of a second or more), paid again as *Precompute "
+    "paid* says; *per frame* spreads it over the pixels of the case it was timed on, as if it were paid "
+    "every frame."
+)
+"""The cost table's caption where a method has a precompute (`records.Cost.precompute_ms`)."""
+
+
+def _cost_note(c: Cost) -> str:
+    """A cost row's note, and what its precompute does (`records.Cost.precompute_note`)."""
+    pre = f"Precompute: {c.precompute_note}." if c.precompute_note else ""
+    return " ".join(x for x in (c.note or "", pre) if x)
+
+
 def _build(r: Results, directory: Path | None) -> _Doc:
     d = _Doc(r, directory)
     cases = r.cases
@@ -601,24 +618,30 @@ def _build(r: Results, directory: Path | None) -> _Doc:
             cols = [
                 ("ns_per_pixel", "ns/pixel"),
                 ("pixels_per_second", "pixels/s"),
+                ("precompute_ms", "Precompute ms"),
+                ("precompute_per_pixel", "Precompute ns/pixel per frame"),
+                ("precompute_trigger", "Precompute paid"),
                 ("backend", "Backend"),
                 ("note", "Note"),
             ]
-            cols = [(k, n) for k, n in cols if any(getattr(c, k) is not None for c in r.costs)]
+            cols = [(k, n) for k, n in cols if any(getattr(c, k) is not None for c in r.costs)
+                    or (k == "note" and any(c.precompute_note for c in r.costs))]  # fmt: skip
+            text = ("backend", "note", "precompute_trigger")
             rows = [
                 [_Cell(c.display)]
                 + [
-                    _Cell(c.note or "", md=True)
+                    _Cell(_cost_note(c), md=True)
                     if k == "note"
-                    else _Cell(format_number(getattr(c, k)), numeric=k != "backend")
+                    else _Cell(format_number(getattr(c, k)), numeric=k not in text)
                     for k, _ in cols
                 ]
                 for c in r.costs
             ]
             d.table(
                 "costs",
-                "Measured cost per pixel on this run's device.",
-                [_Cell("Method")] + [_Cell(n, numeric=k not in ("backend", "note")) for k, n in cols],
+                "Measured cost per pixel on this run's device."
+                + (PRECOMPUTE_CAPTION if any(c.precompute_trigger for c in r.costs) else ""),
+                [_Cell("Method")] + [_Cell(n, numeric=k not in text) for k, n in cols],
                 rows,
             )
         emit_figures(("builtin", "costs"))

@@ -14,7 +14,10 @@ import math
 import numpy as np
 
 from rtfit.realtime.methods import Input, Method
-from rtfit.realtime.nishita_sky import METHODS, AtmosphereParams, sky_kernel_inputs
+from rtfit.realtime.nishita_sky import METHODS, AtmosphereParams, build_sky, sky_kernel_inputs
+from rtfit.reference.variants import backend_of
+
+from .audit_family import Precompute
 
 __all__ = [
     "SETTING_INPUTS",
@@ -23,7 +26,34 @@ __all__ = [
     "near_sun",
     "nishita_rows",
     "setting_method",
+    "texture_precomputes",
 ]
+
+
+def texture_precomputes(
+    atmosphere: AtmosphereParams, elev: float, alt: float, rows: dict[str, Method], variant: str
+) -> dict[str, Precompute]:
+    """Each row's precompute (`FamilyCase.precompute`): its sky texture built once (`build_sky` with the
+    atmosphere, sun elevation ``elev`` degrees, viewer altitude ``alt`` m and the row's texture setting, on
+    ``variant``'s Dr.Jit backend), paid again when the sun or the atmosphere changes; rows of one setting
+    share one (timed once). The per-pixel lookup stays uncosted here (`TEXTURE_UNCOSTED`)."""
+    backend = backend_of(variant)
+    by_setting: dict[tuple, Precompute] = {}
+    out = {}
+    for rid, m in rows.items():
+        s = m.fixed["setting"]
+        key = _setting_key(m)
+        if key not in by_setting:
+            kw = s.build_keywords()
+
+            def run(kw=kw):
+                sky = build_sky(atmosphere, elev, alt, backend=backend, **kw)
+                return sky.rayleigh, sky.mie
+
+            what = f"the sky texture built: {s.layers} layers, {s.width}×{s.height} texels"
+            by_setting[key] = Precompute(run, "light", what)
+        out[rid] = by_setting[key]
+    return out
 
 
 def near_sun(dirs, elev: float, degrees: float = 1.0) -> np.ndarray:
@@ -45,7 +75,8 @@ TEXTURE_UNCOSTED = (
     "the kernel rebuilds the whole sky texture (n layers, W×H texels, 2n + 4 path steps each) on every call, "
     "so that a fit can change its parameters: timed per pixel it would divide one texture build by this "
     "image's pixel count. An engine builds the texture once per sun or atmosphere change and looks it up per "
-    "pixel; `rtfit run nishita-sky`'s study times both (lookup ns/pixel and build ms per setting)"
+    "pixel: the texture's build is its precompute (Precompute ms), the lookup's ns/pixel is timed by "
+    "`rtfit run nishita-sky`'s study"
 )
 """Why the Nishita rows have no cost per pixel (`FamilyCase.uncosted`): timing the kernel took 44 s of a
 52-s evaluation of one 32×16 sky file (2 CPU cores), for a number that was not a per-pixel cost (issue 33)."""

@@ -223,3 +223,18 @@ def test_sky_frame_follows_the_emitters_to_world():
     assert np.allclose(np.cross(z, x), y) and abs(x @ z) < 1e-9
     assert s @ y == pytest.approx(0.0, abs=1e-6) and s @ x > 0.0  # the sun at azimuth 0
     assert np.all(radiance[0] > 0.0) and np.all(radiance[1] == 0.0)
+
+
+def test_the_texture_build_is_each_rows_precompute(audits):
+    """The rows' per-pixel cost stays unmeasured (their kernel rebuilds the texture per call), but the build
+    an engine pays once per sun change is timed as their precompute (trigger ``light``), with its setting."""
+    from rtfit.realtime.nishita_sky import METHODS
+
+    r = audits[20.0]
+    costs = {c.method: c for c in r.results.costs}
+    for mid in ("nishita-seed", "nishita-fitted"):
+        c = costs[mid]
+        s = METHODS[mid].fixed["setting"]
+        assert c.ns_per_pixel is None and c.precompute_trigger == "light"
+        assert c.precompute_ms is not None and c.precompute_ms > 0
+        assert f"{s.layers} layers, {s.width}×{s.height} texels" in (c.precompute_note or "")

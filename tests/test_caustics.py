@@ -313,6 +313,22 @@ def test_shipped_scene_audit(caustic_audit):
     assert float(case.reference.mean[case.mask].max()) > 1.0  # the focused caustic (E⊥ = 3 W/m² in)
 
 
+def test_shipped_scene_reports_the_photons_beside_the_gather(caustic_audit):
+    """Each row's precompute (its N photons traced and gathered, every frame) is timed by the engine, shared
+    by the three forms at one N, and is at least the kernel's whole per-pixel total (ns/pixel × pixels)."""
+    r = caustic_audit
+    pixels = int(r.cases[0].mask.sum())
+    costs = {c.method: c for c in r.results.costs}
+    for n in PHOTON_COUNTS:
+        rows = [costs[f"{form}-n{n}"] for form in ("splat-seed", "splat-adaptive", "photon-map")]
+        assert len({c.precompute_ms for c in rows}) == 1  # one step, timed once
+        for c in rows:
+            assert c.precompute_trigger == "frame" and c.precompute_pixels == pixels
+            assert c.precompute_ms is not None and c.ns_per_pixel is not None
+            assert c.precompute_ms * 1e6 >= c.ns_per_pixel * pixels, c
+            assert c.precompute_note and c.precompute_note.startswith(f"{n} photons traced")
+
+
 def test_list_names_caustics():
     result = CliRunner().invoke(audit_cmd, [str(SUN), "--list"])
     assert result.exit_code == 0, result.output

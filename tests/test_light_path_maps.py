@@ -269,6 +269,20 @@ def test_shipped_box_follows_the_light(shipped):
     assert ratio["light0-at1"] > ratio["light0-at2"] and pm_ratio["light0-at1"] > pm_ratio["light0-at2"]
 
 
+def test_shipped_box_reports_the_bake_beside_the_walk(shipped):
+    """Each row's precompute (its K's bake, once per scene) is timed by the engine and is at least the walk's
+    whole per-pixel total (ns/pixel × pixels): the map is not free; it is in the results' cost records."""
+    pixels = int(shipped.cases[0].mask.sum())
+    costs = {c.method: c for c in shipped.results.costs}
+    for mid in lpm.METHODS:
+        c = costs[mid]
+        assert c.precompute_trigger == "scene" and c.precompute_pixels == pixels
+        assert c.precompute_ms is not None and c.ns_per_pixel is not None
+        assert c.precompute_ms * 1e6 >= c.ns_per_pixel * pixels, c
+        assert f"clustered into {lpm.METHODS[mid].fixed.get('clusters', '')}" in (c.precompute_note or "")
+    assert all(ch.passed for ch in shipped.results.checks if "precompute" in ch.name)
+
+
 TOML = """
 name = "red wall over a floor"
 
