@@ -103,10 +103,11 @@ Number Of Bounces 1. rtfit's unscaled air is HDRP's built-in Earth air (5.8e-6, 
 within 0.5 %. Lost: ``ambient``, the sun, the atmosphere's top (HDRP's ends at 55.3 km for this air, rtfit's
 at 60 km) and HDRP's ozone where the version has one (set to 0).
 
-SH irradiance (the irradiance-bases ``sh-l*`` fits) — Unity's SphericalHarmonicsL2
---------------------------------------------------------------------------------
-The layout, constants, frame and shader packing: `rtfit.experiments.engine_presets_sh`; the document:
-`_sh_document` (Unity only).
+SH irradiance (the irradiance-bases ``sh-l*`` fits) — Unity, Godot, Unreal
+---------------------------------------------------------------------------
+Unity's SphericalHarmonicsL2, Godot's LightmapGI probe SH and Unreal's FSHVectorRGB3: the layouts, constants,
+frames and each engine's evaluation, with the sources, in `rtfit.experiments.engine_presets_sh`
+(`SH_LAYOUTS`); the section: `_sh_section`.
 """
 
 from __future__ import annotations
@@ -121,7 +122,7 @@ from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.nishita_sky import AtmosphereParams
 from rtfit.realtime.phase import hg_phase_kernel
 
-from .engine_presets_sh import UNITY_SH_SOURCES, is_sh, unity_sh_preset
+from .engine_presets_sh import SH_LAYOUTS, is_sh, sh_preset
 from .preset_records import (
     ENGINE_NAMES,
     PRESET_FORMAT,
@@ -612,23 +613,16 @@ def _sky_preset(m: MethodLike, engine: str) -> Preset:
     return _make(engine, m, 0.0, values, units, lost if p.get("ambient", 0.0) > 0 else lost[1:], p)
 
 
-def _sh_section(doc: FittedLike, engine: str, methods: list[MethodLike]) -> EnginePresets:
-    """The SH methods of ``doc`` for ``engine`` (Unity only)."""
-    if engine != "unity-hdrp":
-        raise ConvertError(
-            f"SH irradiance converts to Unity's SphericalHarmonicsL2 (--engine "
-            f"unity-hdrp); {engine}'s SH layout is not converted yet"
-        )
+def _sh_section(engine: str, methods: list[MethodLike]) -> EnginePresets:
+    """The SH methods of a file in ``engine``'s SH layout (`rtfit.experiments.engine_presets_sh`)."""
+    lay = SH_LAYOUTS[engine]
     presets = []
     for m in methods:
         lam = float(m.parameters["lam"].value) if "lam" in m.parameters else None
-        values, lost = unity_sh_preset(m.id, lam)
+        values, lost = sh_preset(engine, m.id, lam)
         presets.append(_make(engine, m, 0.0, values, {}, lost, {} if lam is None else {"lam": lam}))
     return EnginePresets(
-        engine_title="Unity SphericalHarmonicsL2 (light probes, ambient probe; built-in, URP, HDRP)",
-        anchor="Unity's world frame: rtfit's (x, y, z) is Unity's (x, z, y)",
-        sources=list(UNITY_SH_SOURCES),
-        presets=presets,
+        engine_title=lay.title, anchor=lay.anchor, sources=list(lay.sources), presets=presets
     )
 
 
@@ -659,13 +653,13 @@ def engine_section(doc: FittedLike, engine: str, base: float | None = None) -> E
         )
     sh = [m for m in doc.methods if is_sh(m.id)]
     if sh and not fog:
-        return _sh_section(doc, engine, sh)
+        return _sh_section(engine, sh)
     if not fog:
         ids = ", ".join(m.id for m in doc.methods) or "none"
         raise ConvertError(
             f"no height-fog method (parameters b and c in 1/m) to convert for "
             f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits, and the "
-            f"Nishita sky's artist fits for unreal and unity-hdrp, SH L2+ irradiance for unity-hdrp)"
+            f"Nishita sky's artist fits for unreal and unity-hdrp, SH L2+ irradiance for all three)"
         )
     # Each fit on its own: one an engine cannot hold (a constant fog fitted to c < 0) is named in ``skipped``,
     # the others converted; none convertible is the first one's error.

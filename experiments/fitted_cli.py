@@ -1,6 +1,6 @@
 """``rtfit fitted convert FILE --engine unreal|unity-hdrp|godot``: a fitted file's height fog (and the
-Nishita sky's artist fit, the irradiance-bases SH fits in Unity's SphericalHarmonicsL2 layout) in an engine's
-own properties (`rtfit.experiments.engine_presets`, format ``rtfit.engine-preset/1``).
+Nishita sky's artist fit, the irradiance-bases SH fits in the engines' SH layouts) in an engine's own
+properties (`rtfit.experiments.engine_presets`, format ``rtfit.engine-preset/1``).
 
     rtfit fitted convert fitted/fog-e10-single-const.json --engine unreal [--base-height M] [--out FILE|-]
 
@@ -63,7 +63,7 @@ def fitted_group():
 @click.option("--out", "out", default="-", metavar="FILE", help="Where the document goes ('-': stdout).")
 def convert_cmd(file, engine, base_height, out):
     """Convert FILE's height-fog fits into ENGINE's own fog properties (a Nishita-sky fit into its sky, SH
-    irradiance fits into Unity's SphericalHarmonicsL2 layout), with what the engine cannot hold."""
+    irradiance fits into its SH layout), with what the engine cannot hold."""
     if base_height is not None and not math.isfinite(base_height):
         raise _InputError(f"--base-height {base_height}: expected a finite height in metres")
     try:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 from .records import Record
 
@@ -42,7 +42,7 @@ class ConvertError(ValueError):
     """A fitted file that cannot be converted (one line)."""
 
 
-def plain_value(v):
+def plain_value(v) -> Any:
     """A property's value as JSON holds it: a number, or a list (of numbers or lists of numbers)."""
     if isinstance(v, (tuple, list)):
         return [plain_value(x) for x in v]

@@ -77,14 +77,14 @@ def test_written_height_fog_file_carries_what_convert_prints(tmp_path):
 
 
 def test_only_engines_with_the_same_effect_are_written(tmp_path):
-    """A diffuse fit has no engine section; the Nishita sky's artist fit has Unreal's and HDRP's; an SH L2
-    irradiance fit Unity's (the engines' refusals are `rtfit fitted convert`'s one line)."""
+    """A diffuse fit has no engine section; the Nishita sky's artist fit has Unreal's and HDRP's (Godot's sky
+    is not converted: `rtfit fitted convert`'s one line); an SH L2 irradiance fit all three engines'."""
     assert "engine_presets" not in _write(tmp_path / "d.json", [method_entry(DIFFUSE["wrap"])], "diffuse")
     sky = next(m for m in SKY.values() if {"rayleigh_scale", "mie_scale", "mie_g"} <= set(m.params))
     doc = _write(tmp_path / "s.json", [method_entry(sky)], "nishita-sky")
     assert list(doc["engine_presets"]) == ["unreal", "unity-hdrp"]
     doc = _write(tmp_path / "i.json", [method_entry(IB["sh-l2-lambda"], params={"lam": 0.02})], "ib")
-    assert "unity-hdrp" in doc["engine_presets"]
+    assert list(doc["engine_presets"]) == list(ENGINE_NAMES)
 
 
 def test_convert_reads_the_section_back(tmp_path):
