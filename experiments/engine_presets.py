@@ -112,6 +112,8 @@ frames and each engine's evaluation, with the sources, in `rtfit.experiments.eng
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -387,9 +389,22 @@ def hg_as_power_lobe(g: float) -> tuple[float, float, float, float]:
     a + k·max(cos θ, 0)^n, Unreal's constant plus directional inscattering: (a, k, n, relative RMS error
     over the sphere). n from `LOBE_EXPONENTS`, (a, k) by linear least squares for each."""
     w = 4.0 * math.pi * np.asarray(hg_phase_kernel(NUMPY_OPS, _MU, float(g)), dtype=np.float64)
-    fits = [(*_lobe_fit(w, float(n)), float(n)) for n in LOBE_EXPONENTS]
-    a, k, err, n = min(fits, key=lambda f: f[2])
+    # every n at once by the 2 × 2 normal equations (the choice of n), then that n's least squares itself
+    f = _powers()
+    s1, sf, sff = float(np.sum(_MU_W)), f @ _MU_W, (f * f) @ _MU_W
+    sy, sfy = float(_MU_W @ w), f @ (_MU_W * w)
+    det = s1 * sff - sf * sf
+    a_n, k_n = (sff * sy - sf * sfy) / det, (s1 * sfy - sf * sy) / det
+    errs = ((a_n[:, None] + k_n[:, None] * f - w) ** 2) @ _MU_W
+    n = float(LOBE_EXPONENTS[int(np.argmin(errs))])
+    a, k, err = _lobe_fit(w, n)
     return a, k, n, math.sqrt(err / float(np.sum(_MU_W * w**2)))
+
+
+@functools.cache
+def _powers() -> np.ndarray:
+    """max(μ, 0)^n at the quadrature nodes for every n of `LOBE_EXPONENTS` (600 × 512), made once."""
+    return np.maximum(_MU, 0.0)[None, :] ** LOBE_EXPONENTS[:, None]
 
 
 # ------------------------------------------------------------------------------------------ the files
@@ -626,43 +641,29 @@ def _sh_section(engine: str, methods: list[MethodLike]) -> EnginePresets:
     )
 
 
-def engine_section(doc: FittedLike, engine: str, base: float | None = None) -> EnginePresets:
-    """Every method of ``doc`` that ``engine`` has the same effect for, in its properties (`EnginePresets`:
-    ``skipped`` names the fits the engine cannot hold, each with why); `ConvertError` (one line) when none
-    converts. The one conversion behind both ``rtfit fitted convert`` and a fitted file's
-    ``engine_presets``."""
-    eng = ENGINES[engine]
-    fog = [m for m in doc.methods if _is_fog(m)]
-    sky = [m for m in doc.methods if _is_sky(m)]
-    if sky and not fog:
-        if engine == "godot":
-            raise ConvertError(
-                "the Nishita sky converts to Unreal's SkyAtmosphere and HDRP's "
-                "Physically Based Sky (--engine unreal|unity-hdrp); Godot's sky is not converted yet"
-            )
-        hdrp = engine == "unity-hdrp"
-        return EnginePresets(
-            engine_title="Unity HDRP Physically Based Sky (Type: Custom)"
-            if hdrp
-            else "Unreal Engine 4.26+/5 SkyAtmosphere",
-            anchor="sea level at the world origin (Spherical Mode off)"
-            if hdrp
-            else "the planet's top at the world origin (Transform Mode: planet top at absolute world origin)",
-            sources=list(SKY_HDRP_SOURCES if hdrp else SKY_UNREAL_SOURCES),
-            presets=[_sky_preset(m, engine) for m in sky],
-        )
-    sh = [m for m in doc.methods if is_sh(m.id)]
-    if sh and not fog:
-        return _sh_section(engine, sh)
-    if not fog:
-        ids = ", ".join(m.id for m in doc.methods) or "none"
+def _sky_section(engine: str, sky: list[MethodLike]) -> EnginePresets:
+    if engine == "godot":
         raise ConvertError(
-            f"no height-fog method (parameters b and c in 1/m) to convert for "
-            f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits, and the "
-            f"Nishita sky's artist fits for unreal and unity-hdrp, SH L2+ irradiance for all three)"
+            "the Nishita sky converts to Unreal's SkyAtmosphere and HDRP's "
+            "Physically Based Sky (--engine unreal|unity-hdrp); Godot's sky is not converted yet"
         )
+    hdrp = engine == "unity-hdrp"
+    return EnginePresets(
+        engine_title="Unity HDRP Physically Based Sky (Type: Custom)"
+        if hdrp
+        else "Unreal Engine 4.26+/5 SkyAtmosphere",
+        anchor="sea level at the world origin (Spherical Mode off)"
+        if hdrp
+        else "the planet's top at the world origin (Transform Mode: planet top at absolute world origin)",
+        sources=list(SKY_HDRP_SOURCES if hdrp else SKY_UNREAL_SOURCES),
+        presets=[_sky_preset(m, engine) for m in sky],
+    )
+
+
+def _fog_section(engine: str, fog: list[MethodLike], base: float | None) -> EnginePresets:
     # Each fit on its own: one an engine cannot hold (a constant fog fitted to c < 0) is named in ``skipped``,
     # the others converted; none convertible is the first one's error.
+    eng = ENGINES[engine]
     presets, skipped = [], []
     for m in fog:
         try:
@@ -673,6 +674,47 @@ def engine_section(doc: FittedLike, engine: str, base: float | None = None) -> E
         raise ConvertError(skipped[0])
     return EnginePresets(
         engine_title=eng.title, anchor=eng.anchor, sources=list(eng.sources), presets=presets, skipped=skipped
+    )
+
+
+def engine_section(doc: FittedLike, engine: str, base: float | None = None) -> EnginePresets:
+    """Every method of ``doc`` that ``engine`` has the same effect for, in its properties (`EnginePresets`:
+    ``skipped`` names the fits the engine cannot hold, each with why); `ConvertError` (one line) when none
+    converts. The one conversion behind both ``rtfit fitted convert`` and a fitted file's
+    ``engine_presets``. A file of several families (an audit's) gives one section of all of them: each
+    preset names its engine ``feature``; the titles, anchors and sources are those of every feature."""
+    kinds = (
+        ([m for m in doc.methods if _is_fog(m)], lambda ms: _fog_section(engine, ms, base)),
+        ([m for m in doc.methods if _is_sky(m)], lambda ms: _sky_section(engine, ms)),
+        ([m for m in doc.methods if is_sh(m.id)], lambda ms: _sh_section(engine, ms)),
+    )
+    parts: list[EnginePresets] = []
+    refused: list[str] = []
+    for methods, section in kinds:
+        if not methods:
+            continue
+        try:
+            parts.append(section(methods))
+        except ConvertError as e:
+            refused.append(str(e))
+    if not parts and refused:
+        raise ConvertError(refused[0])
+    if not parts:
+        ids = ", ".join(m.id for m in doc.methods) or "none"
+        raise ConvertError(
+            f"no height-fog method (parameters b and c in 1/m) to convert for "
+            f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits, and the "
+            f"Nishita sky's artist fits for unreal and unity-hdrp, SH L2+ irradiance for all three)"
+        )
+    presets = [dataclasses.replace(p, feature=part.engine_title) for part in parts for p in part.presets]
+    if len(parts) == 1:
+        return dataclasses.replace(parts[0], presets=presets, skipped=[*parts[0].skipped, *refused])
+    return EnginePresets(
+        engine_title=" + ".join(p.engine_title for p in parts),
+        anchor="; ".join(f"{p.engine_title}: {p.anchor}" for p in parts),
+        sources=list(dict.fromkeys(s for p in parts for s in p.sources)),
+        presets=presets,
+        skipped=[s for p in parts for s in p.skipped] + refused,
     )
 
 

@@ -5,7 +5,7 @@ fitted file's ``engine_presets`` section (``rtfit.fitted/1``, `rtfit.experiments
 
     FittedFile.engine_presets ─ {engine: EnginePresets} ─ engine_title, anchor, sources (the documentation),
                                                           skipped (fits the engine cannot hold, each with why)
-                                                        └ presets: [Preset] ─ engine, method, case,
+                                                        └ presets: [Preset] ─ engine, method, case, feature,
                                                                      base_height_m, fitted {name: value},
                                                                      values: [EngineValue], lost: [str]
 
@@ -64,12 +64,14 @@ class EngineValue(Record):
 @dataclass(frozen=True)
 class Preset(Record):
     """One fitted method (``method``, ``case`` as the file names them) in one engine's properties
-    (``values``): the height its fog is anchored at (``base_height_m``, rtfit's metres; 0 where none), the
-    fitted values converted (``fitted``), and what the engine's model does not hold (``lost``)."""
+    (``values``) of its engine ``feature`` (e.g. Unreal's Exponential Height Fog): the height its fog is
+    anchored at (``base_height_m``, rtfit's metres; 0 where none), the fitted values converted (``fitted``),
+    and what the engine's model does not hold (``lost``)."""
 
     engine: str
     method: str
     case: str | None = field(metadata={"required": True})
+    feature: str = ""
     base_height_m: float = field(default=0.0, metadata={"required": True})
     fitted: Mapping[str, float] = field(default_factory=dict, metadata={"required": True})
     values: list[EngineValue] = field(default_factory=list, metadata={"required": True})

@@ -147,3 +147,43 @@ def test_malformed_section_is_refused_with_one_line(tmp_path):
     refused(
         lambda ps: ps["godot"]["presets"][0].update(engine="unreal"), r"presets\[0\].engine: 'unreal'", False
     )
+
+
+def test_an_audit_file_of_several_families_carries_every_feature(tmp_path):
+    """An audit's fitted file holds fog, sky and SH fits together: each engine's section has the presets of
+    every feature it has (each naming its ``feature``), Godot names the sky it cannot hold in ``skipped``,
+    and ``rtfit fitted convert`` prints the same section."""
+    sky = next(m for m in SKY.values() if {"rayleigh_scale", "mie_scale", "mie_g"} <= set(m.params))
+    entries = [
+        method_entry(FOG["const"], params=CONST, case="fog0", domain=DOMAIN),
+        method_entry(sky, case="sky0"),
+        method_entry(IB["sh-l2-lambda"], params={"lam": 0.02}, case="env0"),
+    ]
+    path = tmp_path / "audit.json"
+    doc = _write(path, entries, "audit")
+    features = {e: [p["feature"] for p in s["presets"]] for e, s in doc["engine_presets"].items()}
+    assert features == {
+        "unreal": [
+            "Unreal Engine 4/5 Exponential Height Fog",
+            "Unreal Engine 4.26+/5 SkyAtmosphere",
+            "Unreal Engine 4/5 FSHVectorRGB3 / FThreeBandSHVectorRGB (volumetric lightmap, indirect lighting "
+            "cache)",
+        ],
+        "unity-hdrp": [
+            "Unity HDRP Fog volume override",
+            "Unity HDRP Physically Based Sky (Type: Custom)",
+            "Unity SphericalHarmonicsL2 (light probes, ambient probe; built-in, URP, HDRP)",
+        ],
+        "godot": [
+            "Godot 4 volumetric fog: FogVolume + FogMaterial",
+            "Godot 4 LightmapGI probes (LightmapGIData capture data: 9 Colors per probe)",
+        ],
+    }
+    (why,) = doc["engine_presets"]["godot"]["skipped"]
+    assert "Godot's sky is not converted yet" in why
+    assert doc["engine_presets"]["unreal"]["engine_title"].count(" + ") == 2
+    for engine in ENGINE_NAMES:
+        out = _convert(path, engine)
+        assert out.exit_code == 0 and out.stderr == "", out.output
+        printed = json.loads(out.stdout)
+        assert {k: v for k, v in printed.items() if k not in HEADER} == doc["engine_presets"][engine]
