@@ -103,17 +103,20 @@ Number Of Bounces 1. rtfit's unscaled air is HDRP's built-in Earth air (5.8e-6, 
 within 0.5 %. Lost: ``ambient``, the sun, the atmosphere's top (HDRP's ends at 55.3 km for this air, rtfit's
 at 60 km) and HDRP's ozone where the version has one (set to 0).
 
-SH irradiance (the irradiance-bases ``sh-l*`` fits) — Unity's SphericalHarmonicsL2
---------------------------------------------------------------------------------
-The layout, constants, frame and shader packing: `rtfit.experiments.engine_presets_sh`; the document:
-`_sh_document` (Unity only).
+SH irradiance (the irradiance-bases ``sh-l*`` fits) — Unity, Godot, Unreal
+---------------------------------------------------------------------------
+Unity's SphericalHarmonicsL2, Godot's LightmapGI probe SH and Unreal's FSHVectorRGB3: the layouts, constants,
+frames and each engine's evaluation, with the sources, in `rtfit.experiments.engine_presets_sh`
+(`SH_LAYOUTS`); the section: `_sh_section`.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -121,8 +124,19 @@ from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.nishita_sky import AtmosphereParams
 from rtfit.realtime.phase import hg_phase_kernel
 
-from .engine_presets_sh import UNITY_SH_SOURCES, is_sh, unity_sh_preset
-from .fitted import FittedFile, FittedMethod
+from .engine_presets_sh import SH_LAYOUTS, is_sh, sh_preset
+from .preset_records import (
+    ENGINE_NAMES,
+    PRESET_FORMAT,
+    ConvertError,
+    EnginePresets,
+    EngineValue,
+    FittedLike,
+    MethodLike,
+    Preset,
+    plain_value,
+)
+from .records import to_json
 
 __all__ = [
     "ENGINES",
@@ -133,9 +147,12 @@ __all__ = [
     "EngineValue",
     "Preset",
     "convert_fitted",
+    "engine_presets_of",
+    "engine_section",
     "godot_extinction",
     "hdrp_optical_depth",
     "hdrp_sky_coefficients",
+    "preset_document",
     "sky_from_hdrp",
     "sky_from_unreal",
     "sky_to_hdrp",
@@ -144,26 +161,11 @@ __all__ = [
     "unreal_sky_coefficients",
 ]
 
-PRESET_FORMAT = "rtfit.engine-preset/1"
 LN2 = math.log(2.0)
 HDRP_SCALE_HEIGHT = 0.144765
 """HDRP's ``ScaleHeightFromLayerDepth`` factor (≈ 1/ln 1000, as the engine writes it)."""
 _COLOUR = ("r0", "g0", "b0")
 _LOBE = ("r1", "g1", "b1", "g")
-
-
-class ConvertError(ValueError):
-    """A fitted file that cannot be converted (one line)."""
-
-
-@dataclass(frozen=True)
-class EngineValue:
-    """One engine property: ``name`` as the engine's editor shows it, ``value``, ``unit``, ``note``."""
-
-    name: str
-    value: float | tuple[float, ...]
-    unit: str
-    note: str = ""
 
 
 @dataclass(frozen=True)
@@ -323,6 +325,9 @@ ENGINES: dict[str, Engine] = {
 }
 
 
+assert tuple(ENGINES) == ENGINE_NAMES  # one list of engine names: the fitted files' keys, the CLI's choices
+
+
 # ------------------------------------------------------------------- the engines' own formulas (tests)
 def unreal_optical_depth(
     fog_density, fog_height_falloff, fog_z_cm, z0_cm, z1_cm, length_cm, dtype=np.float32
@@ -384,58 +389,38 @@ def hg_as_power_lobe(g: float) -> tuple[float, float, float, float]:
     a + k·max(cos θ, 0)^n, Unreal's constant plus directional inscattering: (a, k, n, relative RMS error
     over the sphere). n from `LOBE_EXPONENTS`, (a, k) by linear least squares for each."""
     w = 4.0 * math.pi * np.asarray(hg_phase_kernel(NUMPY_OPS, _MU, float(g)), dtype=np.float64)
-    fits = [(*_lobe_fit(w, float(n)), float(n)) for n in LOBE_EXPONENTS]
-    a, k, err, n = min(fits, key=lambda f: f[2])
+    # every n at once by the 2 × 2 normal equations (the choice of n), then that n's least squares itself
+    f = _powers()
+    s1, sf, sff = float(np.sum(_MU_W)), f @ _MU_W, (f * f) @ _MU_W
+    sy, sfy = float(_MU_W @ w), f @ (_MU_W * w)
+    det = s1 * sff - sf * sf
+    a_n, k_n = (sff * sy - sf * sfy) / det, (s1 * sfy - sf * sy) / det
+    errs = ((a_n[:, None] + k_n[:, None] * f - w) ** 2) @ _MU_W
+    n = float(LOBE_EXPONENTS[int(np.argmin(errs))])
+    a, k, err = _lobe_fit(w, n)
     return a, k, n, math.sqrt(err / float(np.sum(_MU_W * w**2)))
 
 
+@functools.cache
+def _powers() -> np.ndarray:
+    """max(μ, 0)^n at the quadrature nodes for every n of `LOBE_EXPONENTS` (600 × 512), made once."""
+    return np.maximum(_MU, 0.0)[None, :] ** LOBE_EXPONENTS[:, None]
+
+
 # ------------------------------------------------------------------------------------------ the files
-@dataclass(frozen=True)
-class Preset:
-    """One fitted method in one engine's properties (``values``), with the ``base`` height used and what
-    the engine's model does not hold (``lost``: the engine's, plus what this method has that is dropped)."""
-
-    engine: str
-    method: str
-    case: str | None
-    base: float
-    values: tuple[EngineValue, ...]
-    lost: tuple[str, ...]
-    fitted: Mapping[str, float] = field(default_factory=dict)
-
-    def to_json(self) -> dict:
-        return {
-            "engine": self.engine,
-            "method": self.method,
-            "case": self.case,
-            "base_height_m": self.base,
-            "fitted": dict(self.fitted),
-            "values": [
-                {
-                    "name": v.name,
-                    "value": list(v.value) if isinstance(v.value, tuple) else v.value,
-                    "unit": v.unit,
-                    **({"note": v.note} if v.note else {}),
-                }
-                for v in self.values
-            ],
-            "lost": list(self.lost),
-        }
-
-
-def _is_fog(m: FittedMethod) -> bool:
+def _is_fog(m: MethodLike) -> bool:
     p = m.parameters
     return all(k in p and p[k].unit == "1/m" for k in ("b", "c"))
 
 
-def _base(m: FittedMethod, engine: Engine, base: float | None) -> float:
+def _base(m: MethodLike, engine: Engine, base: float | None) -> float:
     if base is not None or not engine.base_from_domain:
         return float(base or 0.0)
     lows = [m.domain[k].lower for k in ("z0", "z1") if k in m.domain]
     return float(min(lows)) if lows else 0.0
 
 
-def convert_method(m: FittedMethod, engine: Engine, base: float | None = None) -> Preset:
+def convert_method(m: MethodLike, engine: Engine, base: float | None = None) -> Preset:
     """One fitted fog method (``b``, ``c`` in 1/m; optional C₀ = r0, g0, b0) in ``engine``'s properties."""
     p = m.parameters
     b, c = float(p["b"].value), float(p["c"].value)
@@ -470,16 +455,21 @@ def convert_method(m: FittedMethod, engine: Engine, base: float | None = None) -
     return _preset(engine, m, at, values, lost, p)
 
 
-def _preset(engine: Engine, m: FittedMethod, at: float, values: dict, lost, p, colour_kept: bool = False):
+def _preset(engine: Engine, m: MethodLike, at: float, values: dict, lost, p, colour_kept: bool = False):
     kept = [k for k in ("b", "c", *_COLOUR, *(_LOBE if colour_kept else ())) if k in p]
+    return _make(engine.name, m, at, values, engine.units, lost, {k: float(p[k].value) for k in kept})
+
+
+def _make(engine: str, m: MethodLike, at: float, values: Mapping, units: Mapping[str, str], lost, fitted):
+    """The `Preset` of method ``m``: ``values`` {property: value} with their ``units`` (missing: "1")."""
     return Preset(
-        engine.name,
-        m.id,
-        m.case,
-        at,
-        tuple(EngineValue(k, v, engine.units.get(k, "")) for k, v in values.items()),
-        tuple(dict.fromkeys(lost)),
-        {k: float(p[k].value) for k in kept},
+        engine=engine,
+        method=m.id,
+        case=m.case,
+        base_height_m=float(at),
+        fitted=dict(fitted),
+        values=[EngineValue(k, plain_value(v), units.get(k, "1")) for k, v in values.items()],
+        lost=list(dict.fromkeys(lost)),
     )
 
 
@@ -500,7 +490,7 @@ SKY_UNREAL_LOST = (
 _SKY_KEYS = ("rayleigh_scale", "mie_scale", "mie_g")
 
 
-def _is_sky(m: FittedMethod) -> bool:
+def _is_sky(m: MethodLike) -> bool:
     return all(k in m.parameters for k in _SKY_KEYS)
 
 
@@ -617,7 +607,7 @@ def sky_from_hdrp(values: Mapping, params) -> tuple[float, float, float]:
     )
 
 
-def _sky_preset(m: FittedMethod, engine: str) -> dict:
+def _sky_preset(m: MethodLike, engine: str) -> Preset:
     p = {k: float(m.parameters[k].value) for k in (*_SKY_KEYS, "ambient") if k in m.parameters}
     params = AtmosphereParams(rayleigh_scale=p["rayleigh_scale"], mie_scale=p["mie_scale"], mie_g=p["mie_g"])
     if engine == "unity-hdrp":
@@ -635,98 +625,123 @@ def _sky_preset(m: FittedMethod, engine: str) -> dict:
         per_km = ("RayleighScatteringScale", "MieScatteringScale", "MieAbsorptionScale")
         units = {**dict.fromkeys(km, "km"), **dict.fromkeys(per_km, "1/km")}
         lost = SKY_UNREAL_LOST
-    return Preset(
-        engine,
-        m.id,
-        m.case,
-        0.0,
-        tuple(EngineValue(k, v, units.get(k, "1")) for k, v in values.items()),
-        lost if p.get("ambient", 0.0) > 0 else lost[1:],
-        p,
-    ).to_json()
+    return _make(engine, m, 0.0, values, units, lost if p.get("ambient", 0.0) > 0 else lost[1:], p)
 
 
-def _sh_document(doc: FittedFile, engine: str, methods: list[FittedMethod], source: str = "") -> dict:
-    """The ``rtfit.engine-preset/1`` document of the SH methods of ``doc`` for ``engine`` (Unity only)."""
-    if engine != "unity-hdrp":
-        raise ConvertError(
-            f"{source or doc.title}: SH irradiance converts to Unity's SphericalHarmonicsL2 (--engine "
-            f"unity-hdrp); {engine}'s SH layout is not converted yet"
-        )
+def _sh_section(engine: str, methods: list[MethodLike]) -> EnginePresets:
+    """The SH methods of a file in ``engine``'s SH layout (`rtfit.experiments.engine_presets_sh`)."""
+    lay = SH_LAYOUTS[engine]
     presets = []
     for m in methods:
         lam = float(m.parameters["lam"].value) if "lam" in m.parameters else None
-        values, lost = unity_sh_preset(m.id, lam)
-        fitted = {} if lam is None else {"lam": lam}
-        pairs = tuple(EngineValue(k, v, "1") for k, v in values.items())
-        presets.append(Preset(engine, m.id, m.case, 0.0, pairs, tuple(lost), fitted).to_json())
-    return {
-        "format": PRESET_FORMAT,
-        "source": source,
-        "experiment": doc.provenance.experiment,
-        "engine": engine,
-        "engine_title": "Unity SphericalHarmonicsL2 (light probes, ambient probe; built-in, URP, HDRP)",
-        "anchor": "Unity's world frame: rtfit's (x, y, z) is Unity's (x, z, y)",
-        "sources": list(UNITY_SH_SOURCES),
-        "presets": presets,
-    }
+        values, lost = sh_preset(engine, m.id, lam)
+        presets.append(_make(engine, m, 0.0, values, {}, lost, {} if lam is None else {"lam": lam}))
+    return EnginePresets(
+        engine_title=lay.title, anchor=lay.anchor, sources=list(lay.sources), presets=presets
+    )
 
 
-def convert_fitted(doc: FittedFile, engine: str, base: float | None = None, source: str = "") -> dict:
-    """The ``rtfit.engine-preset/1`` document of every fog method of ``doc`` in ``engine`` (``skipped``: the
-    fits an engine's fog cannot hold, each with why); `ConvertError` (one line) when none converts."""
-    eng = ENGINES[engine]
-    fog = [m for m in doc.methods if _is_fog(m)]
-    sky = [m for m in doc.methods if _is_sky(m)]
-    if sky and not fog:
-        if engine == "godot":
-            raise ConvertError(
-                f"{source or doc.title}: the Nishita sky converts to Unreal's SkyAtmosphere and HDRP's "
-                f"Physically Based Sky (--engine unreal|unity-hdrp); Godot's sky is not converted yet"
-            )
-        hdrp = engine == "unity-hdrp"
-        return {
-            "format": PRESET_FORMAT,
-            "source": source,
-            "experiment": doc.provenance.experiment,
-            "engine": engine,
-            "engine_title": "Unity HDRP Physically Based Sky (Type: Custom)"
-            if hdrp
-            else "Unreal Engine 4.26+/5 SkyAtmosphere",
-            "anchor": "sea level at the world origin (Spherical Mode off)"
-            if hdrp
-            else "the planet's top at the world origin (Transform Mode: planet top at absolute world origin)",
-            "sources": list(SKY_HDRP_SOURCES if hdrp else SKY_UNREAL_SOURCES),
-            "presets": [_sky_preset(m, engine) for m in sky],
-        }
-    sh = [m for m in doc.methods if is_sh(m.id)]
-    if sh and not fog:
-        return _sh_document(doc, engine, sh, source)
-    if not fog:
-        ids = ", ".join(m.id for m in doc.methods) or "none"
+def _sky_section(engine: str, sky: list[MethodLike]) -> EnginePresets:
+    if engine == "godot":
         raise ConvertError(
-            f"{source or doc.title}: no height-fog method (parameters b and c in 1/m) to convert for "
-            f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits, and the "
-            f"Nishita sky's artist fits for unreal and unity-hdrp, SH L2+ irradiance for unity-hdrp)"
+            "the Nishita sky converts to Unreal's SkyAtmosphere and HDRP's "
+            "Physically Based Sky (--engine unreal|unity-hdrp); Godot's sky is not converted yet"
         )
+    hdrp = engine == "unity-hdrp"
+    return EnginePresets(
+        engine_title="Unity HDRP Physically Based Sky (Type: Custom)"
+        if hdrp
+        else "Unreal Engine 4.26+/5 SkyAtmosphere",
+        anchor="sea level at the world origin (Spherical Mode off)"
+        if hdrp
+        else "the planet's top at the world origin (Transform Mode: planet top at absolute world origin)",
+        sources=list(SKY_HDRP_SOURCES if hdrp else SKY_UNREAL_SOURCES),
+        presets=[_sky_preset(m, engine) for m in sky],
+    )
+
+
+def _fog_section(engine: str, fog: list[MethodLike], base: float | None) -> EnginePresets:
     # Each fit on its own: one an engine cannot hold (a constant fog fitted to c < 0) is named in ``skipped``,
     # the others converted; none convertible is the first one's error.
+    eng = ENGINES[engine]
     presets, skipped = [], []
     for m in fog:
         try:
-            presets.append(convert_method(m, eng, base).to_json())
+            presets.append(convert_method(m, eng, base))
         except ConvertError as e:
             skipped.append(str(e))
     if not presets:
         raise ConvertError(skipped[0])
-    return {
-        "format": PRESET_FORMAT,
-        "source": source,
-        "experiment": doc.provenance.experiment,
-        "engine": eng.name,
-        "engine_title": eng.title,
-        "anchor": eng.anchor,
-        "sources": list(eng.sources),
-        "presets": presets,
-        **({"skipped": skipped} if skipped else {}),
-    }
+    return EnginePresets(
+        engine_title=eng.title, anchor=eng.anchor, sources=list(eng.sources), presets=presets, skipped=skipped
+    )
+
+
+def engine_section(doc: FittedLike, engine: str, base: float | None = None) -> EnginePresets:
+    """Every method of ``doc`` that ``engine`` has the same effect for, in its properties (`EnginePresets`:
+    ``skipped`` names the fits the engine cannot hold, each with why); `ConvertError` (one line) when none
+    converts. The one conversion behind both ``rtfit fitted convert`` and a fitted file's
+    ``engine_presets``. A file of several families (an audit's) gives one section of all of them: each
+    preset names its engine ``feature``; the titles, anchors and sources are those of every feature."""
+    kinds = (
+        ([m for m in doc.methods if _is_fog(m)], lambda ms: _fog_section(engine, ms, base)),
+        ([m for m in doc.methods if _is_sky(m)], lambda ms: _sky_section(engine, ms)),
+        ([m for m in doc.methods if is_sh(m.id)], lambda ms: _sh_section(engine, ms)),
+    )
+    parts: list[EnginePresets] = []
+    refused: list[str] = []
+    for methods, section in kinds:
+        if not methods:
+            continue
+        try:
+            parts.append(section(methods))
+        except ConvertError as e:
+            refused.append(str(e))
+    if not parts and refused:
+        raise ConvertError(refused[0])
+    if not parts:
+        ids = ", ".join(m.id for m in doc.methods) or "none"
+        raise ConvertError(
+            f"no height-fog method (parameters b and c in 1/m) to convert for "
+            f"{engine} (methods: {ids}; converted: the height-fog and aerial-perspective fog fits, and the "
+            f"Nishita sky's artist fits for unreal and unity-hdrp, SH L2+ irradiance for all three)"
+        )
+    presets = [dataclasses.replace(p, feature=part.engine_title) for part in parts for p in part.presets]
+    if len(parts) == 1:
+        return dataclasses.replace(parts[0], presets=presets, skipped=[*parts[0].skipped, *refused])
+    return EnginePresets(
+        engine_title=" + ".join(p.engine_title for p in parts),
+        anchor="; ".join(f"{p.engine_title}: {p.anchor}" for p in parts),
+        sources=list(dict.fromkeys(s for p in parts for s in p.sources)),
+        presets=presets,
+        skipped=[s for p in parts for s in p.skipped] + refused,
+    )
+
+
+def engine_presets_of(doc: FittedLike) -> dict[str, EnginePresets]:
+    """A fitted file's ``engine_presets`` section: `engine_section` of every engine that converts one of its
+    methods (at the default anchor heights), in `ENGINE_NAMES` order; empty where none does."""
+    out = {}
+    for engine in ENGINE_NAMES:
+        try:
+            out[engine] = engine_section(doc, engine)
+        except ConvertError:
+            continue
+    return out
+
+
+def convert_fitted(doc: FittedLike, engine: str, base: float | None = None, source: str = "") -> dict:
+    """The ``rtfit.engine-preset/1`` document of ``doc`` in ``engine``: its header (format, source file,
+    experiment, engine) and `engine_section` as JSON; `ConvertError` (one line, naming ``source``)."""
+    try:
+        section = engine_section(doc, engine, base)
+    except ConvertError as e:
+        raise ConvertError(f"{source or doc.title}: {e}") from None
+    return preset_document(section, engine, doc.provenance.experiment, source)
+
+
+def preset_document(section: EnginePresets, engine: str, experiment: str, source: str = "") -> dict:
+    """The ``rtfit.engine-preset/1`` document of one engine's section (a fitted file's or a conversion's)."""
+    body = to_json(section)
+    assert isinstance(body, dict)
+    return {"format": PRESET_FORMAT, "source": source, "experiment": experiment, "engine": engine, **body}

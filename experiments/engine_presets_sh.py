@@ -35,27 +35,68 @@ baked probes are in its convention: the fitted window is the only change), and t
 L_lm (the fitted file's ``coeffs`` table) to Unity's sh[c, ·] with κ, the window and the frame folded in.
 Lost: the ×π (Unity's diffuse term is E/π times the albedo); bands above 2 of ``sh-l3``/``sh-l4`` (Â₃ = 0:
 nothing for L3; L4's Â₄ = −π/24 band is dropped).
+
+Godot 4 (LightmapGI's probes: the 9 ``Color`` per probe of ``LightmapGIData``'s capture data), from its
+source (godotengine/godot, read at commit 000ae031b1c3): the baker ``modules/lightmapper_rd/lm_compute.glsl``
+(``MODE_LIGHT_PROBES``) projects the traced radiance on ``c[9]`` = 0.282095, 0.488603·(y, z, x),
+1.092548·(xy, yz), 0.315392·(3z² − 1), 1.092548·xz, 0.546274·(x² − y²) — rtfit's basis and order, no
+Condon–Shortley phase — and scales the sum by 4/N (not 4π/N): the stored sh[k] is L_k/π. The shader
+(``servers/rendering/renderer_rd/shaders/forward_clustered/scene_forward_clustered.glsl``, the
+``INSTANCE_FLAGS_USE_LIGHTMAP_CAPTURE`` branch, "has lightmap capture") adds to ``ambient_light`` Ramamoorthi
+and Hanrahan's eq. 13 with c1…c5 = 0.429043, 0.511664, 0.743125, 0.886227, 0.247708 on sh[0…8] at the world
+normal, times ``scene_data.emissive_exposure_normalization``: E/π. So sh[c, k] = w_l·L'_k/π, L' in Godot's
+world frame (+Y up, right-handed, −Z forward: the ``Vector3.UP``/``FORWARD`` constants): rtfit's (x, y, z) is
+Godot's (x, z, −y), a rotation. Line numbers are not cited: the repository was read through a search index
+that gives the text, not its lines (the shader's branch and the baker's ``#ifdef MODE_LIGHT_PROBES`` name
+the places).
+
+Unreal Engine 4/5 (``FSHVectorRGB3`` in C++, ``FThreeBandSHVectorRGB`` in shaders: the volumetric lightmap,
+the indirect lighting cache), from its shader source ``Engine/Shaders/Private/SHCommon.ush``:
+``SHBasisFunction3`` is V0 = (0.282095, −0.488603·y, 0.488603·z, −0.488603·x), V1 = (1.092548·xy,
+−1.092548·yz, 0.315392·(3z² − 1), −1.092548·xz), V2 = 0.546274·(x² − y²) — rtfit's order with the
+Condon–Shortley phase (the odd-m entries negated); ``CalcDiffuseTransferSH3(N, 1)`` scales its bands by
+2π/2, 2π/3, 2π/8 = Â; ``BasePassPixelShader.usf`` (``PRECOMPUTED_IRRADIANCE_VOLUME_LIGHTING``) shades with
+max(0, DotSH3(IrradianceSH, CalcDiffuseTransferSH3(DiffuseDir, 1)))/π: E/π, the SH holding radiance
+coefficients. So sh[c, k] = s_k·w_l·L'_k with s = (1, −1, 1, −1, 1, −1, 1, −1, 1). Frame: Unreal is +Z up,
+left-handed
+(https://dev.epicgames.com/documentation/en-us/unreal-engine/coordinate-system-and-spaces-in-unreal-engine);
+rtfit's (x, y, z) is Unreal's (x, −y, z) (the importers' Y flip; a reflection). Epic's repository is
+access-restricted: the functions were read in public copies marked "Copy From Unreal Engine SHCommon.ush",
+so the functions are cited by name, not by line.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from rtfit.realtime.irradiance_bases import A_HAT, METHODS, SH_C, sh_basis, sh_window
 
 __all__ = [
+    "GODOT_AXES",
+    "GODOT_C",
+    "SH_LAYOUTS",
     "UNITY_AXES",
     "UNITY_SH_SOURCES",
+    "UNREAL_AXES",
+    "UNREAL_BASIS",
+    "ShLayout",
+    "godot_capture_irradiance",
     "is_sh",
     "rtfit_to_unity_sh",
+    "sh_from_engine",
+    "sh_matrix",
+    "sh_preset",
+    "sh_to_engine",
     "unity_sh_constants",
     "unity_sh_factors",
     "unity_sh_matrix",
     "unity_sh_preset",
     "unity_shade_sh9",
     "unity_to_rtfit_sh",
+    "unreal_diffuse_sh3",
 ]
 
 UNITY_SH_SOURCES = (
@@ -88,18 +129,18 @@ def unity_sh_factors(window=(1.0, 1.0, 1.0)) -> np.ndarray:
     return np.array([_NORM[k] * A_HAT[_BAND[k]] / math.pi * w[_BAND[k]] for k in range(9)])
 
 
-def _frame_matrix() -> np.ndarray:
-    """M (9, 9) with Y(P n) = M Y(n) (P = `UNITY_AXES`), by least squares on 64 directions (exact: the
-    permuted basis lies in the span of each band)."""
+def _frame_matrix(axes: np.ndarray) -> np.ndarray:
+    """M (9, 9) with Y(P n) = M Y(n) (P = ``axes``, orthogonal), by least squares on 64 directions (exact:
+    the rotated or reflected basis lies in the span of each band)."""
     rng = np.random.default_rng(0)
     d = rng.normal(size=(64, 3))
-    a, b = sh_basis(d, 2), sh_basis(d @ UNITY_AXES.T, 2)
+    a, b = sh_basis(d, 2), sh_basis(d @ axes.T, 2)
     mt, *_ = np.linalg.lstsq(a, b, rcond=None)
     mt[np.abs(mt) < 1e-12] = 0.0  # round-off where the band's mixing is exactly 0
     return mt.T
 
 
-_FRAME = _frame_matrix()
+_FRAME = _frame_matrix(UNITY_AXES)
 
 
 def unity_sh_matrix(window=(1.0, 1.0, 1.0)) -> np.ndarray:
@@ -129,7 +170,7 @@ def unity_sh_constants(sh) -> np.ndarray:
     return np.array([*a, *b, [sh[0, 8], sh[1, 8], sh[2, 8], 1.0]])
 
 
-def unity_shade_sh9(constants, normal, dtype=np.float32) -> np.ndarray:
+def unity_shade_sh9(constants, normal, dtype: type = np.float32) -> np.ndarray:
     """UnityCG's ShadeSH9 (``SHEvalLinearL0L1`` + ``SHEvalLinearL2``) with the seven float4 ``constants`` at
     unit normals (..., 3) in Unity's frame, in ``dtype`` (the shader's float32 by default) → (..., 3) RGB."""
     k = np.asarray(constants, dtype)
@@ -142,26 +183,180 @@ def unity_shade_sh9(constants, normal, dtype=np.float32) -> np.ndarray:
     return np.stack(out, axis=-1)
 
 
-def unity_sh_preset(method_id: str, lam: float | None) -> tuple[dict, list[str]]:
-    """(values, lost) of one SH method for Unity: the band scale and the rtfit → Unity matrix."""
+GODOT_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+"""rtfit (x, y, z), +Z up right-handed → Godot (x, z, −y), +Y up right-handed, −Z forward (a rotation)."""
+UNREAL_AXES = np.diag([1.0, -1.0, 1.0])
+"""rtfit (x, y, z), +Z up right-handed → Unreal (x, −y, z), +Z up left-handed (a reflection)."""
+GODOT_C = (0.429043, 0.511664, 0.743125, 0.886227, 0.247708)
+"""c1…c5 as Godot's capture shader writes them (Ramamoorthi and Hanrahan's eq. 13, 6 digits)."""
+UNREAL_BASIS = (0.282095, 0.488603, 1.092548, 0.315392, 0.546274)
+"""The basis constants of Unreal's ``SHBasisFunction3`` as its shader writes them (6 digits)."""
+GODOT_SH_SOURCES = (
+    "godotengine/godot servers/rendering/renderer_rd/shaders/forward_clustered/scene_forward_clustered.glsl "
+    "(the INSTANCE_FLAGS_USE_LIGHTMAP_CAPTURE branch: Ramamoorthi–Hanrahan eq. 13 on sh[0..8])",
+    "godotengine/godot modules/lightmapper_rd/lm_compute.glsl (MODE_LIGHT_PROBES: the basis c[9] and the "
+    "4/N scale)",
+    "https://docs.godotengine.org/en/stable/classes/class_vector3.html (UP = (0, 1, 0), "
+    "FORWARD = (0, 0, −1))",
+)
+UNREAL_SH_SOURCES = (
+    "Unreal Engine Engine/Shaders/Private/SHCommon.ush (SHBasisFunction3, CalcDiffuseTransferSH3, DotSH3)",
+    "Unreal Engine Engine/Shaders/Private/BasePassPixelShader.usf (PRECOMPUTED_IRRADIANCE_VOLUME_LIGHTING: "
+    "max(0, DotSH3(IrradianceSH, CalcDiffuseTransferSH3(N, 1))) / PI)",
+    "https://dev.epicgames.com/documentation/en-us/unreal-engine/coordinate-system-and-spaces-in-unreal-engine",
+)
+_CS_PHASE = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class ShLayout:
+    """One engine's SH L2 layout: sh[c, k] = factor_k·w_l·(M L)_k with M the frame change of ``axes``;
+    ``title`` and ``target`` name the engine's container, ``lost`` what the conversion does not keep."""
+
+    engine: str
+    title: str
+    anchor: str
+    target: str
+    axes: np.ndarray
+    factors: np.ndarray
+    sources: tuple[str, ...]
+    lost: tuple[str, ...]
+
+
+SH_LAYOUTS: dict[str, ShLayout] = {
+    "unity-hdrp": ShLayout(
+        "unity-hdrp",
+        "Unity SphericalHarmonicsL2 (light probes, ambient probe; built-in, URP, HDRP)",
+        "Unity's world frame: rtfit's (x, y, z) is Unity's (x, z, y)",
+        "SphericalHarmonicsL2",
+        UNITY_AXES,
+        unity_sh_factors(),
+        UNITY_SH_SOURCES,
+        (
+            "the factor π: Unity's ShadeSH9 returns E/π (the outgoing radiance of a white Lambertian "
+            "surface), rtfit's kernel the irradiance E",
+            "the frame: rtfit's (x, y, z) (+Z up, right-handed) is Unity's (x, z, y) (+Y up, left-handed), "
+            "folded into the matrix",
+        ),
+    ),
+    "godot": ShLayout(
+        "godot",
+        "Godot 4 LightmapGI probes (LightmapGIData capture data: 9 Colors per probe)",
+        "Godot's world frame: rtfit's (x, y, z) is Godot's (x, z, −y)",
+        "LightmapGI probe SH",
+        GODOT_AXES,
+        np.full(9, 1.0 / math.pi),
+        GODOT_SH_SOURCES,
+        (
+            "the factor π: Godot's probe SH holds L_lm/π (its baker scales by 4/N, not 4π/N) and its capture "
+            "shader returns E/π, rtfit's kernel the irradiance E",
+            "the frame: rtfit's (x, y, z) (+Z up) is Godot's (x, z, −y) (+Y up, right-handed: a rotation), "
+            "folded into the matrix",
+            "Godot's constants: its shader writes Ramamoorthi and Hanrahan's published c1…c5 (6 digits, "
+            "relative error ≤ 1.6e-6 per term), and "
+            "multiplies by the camera's emissive_exposure_normalization",
+        ),
+    ),
+    "unreal": ShLayout(
+        "unreal",
+        "Unreal Engine 4/5 FSHVectorRGB3 / FThreeBandSHVectorRGB (volumetric lightmap, indirect lighting "
+        "cache)",
+        "Unreal's world frame: rtfit's (x, y, z) is Unreal's (x, −y, z)",
+        "FSHVectorRGB3",
+        UNREAL_AXES,
+        _CS_PHASE,
+        UNREAL_SH_SOURCES,
+        (
+            "the factor π: Unreal's base pass divides DotSH3(SH, CalcDiffuseTransferSH3(N, 1)) = E by π",
+            "the Condon–Shortley phase of Unreal's SHBasisFunction3 (the odd-m entries negated), folded into "
+            "the matrix",
+            "the frame: rtfit's (x, y, z) (+Z up, right-handed) is Unreal's (x, −y, z) (+Z up, "
+            "left-handed: a reflection), folded into the matrix",
+            "Unreal's constants: SHBasisFunction3 writes the basis constants to 6 digits (relative error "
+            "≤ 1.4e-6 per term)",
+        ),
+    ),
+}
+_FRAMES = {e: _FRAME if e == "unity-hdrp" else _frame_matrix(lay.axes) for e, lay in SH_LAYOUTS.items()}
+
+
+def sh_matrix(engine: str, window=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """The 9 × 9 matrix T with sh[c, ·] = T @ L[·, c] in ``engine``'s layout: frame, factors, window."""
+    w = np.asarray(window, np.float64)
+    lay = SH_LAYOUTS[engine]
+    return (lay.factors * np.array([w[b] for b in _BAND]))[:, None] * _FRAMES[engine]
+
+
+def sh_to_engine(engine: str, coeffs, window=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """rtfit's SH (9, 3) radiance coefficients (or the 27 stored floats, channel-major) → ``engine``'s
+    sh[c, k] (3, 9)."""
+    c = np.asarray(coeffs, np.float64)
+    c = c.reshape(3, 9).T if c.shape == (27,) else c
+    return (sh_matrix(engine, window) @ c).T
+
+
+def sh_from_engine(engine: str, sh, window=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """The inverse of `sh_to_engine`: ``engine``'s sh[c, k] (3, 9) → rtfit's L (9, 3) (w_l > 0)."""
+    return np.linalg.solve(sh_matrix(engine, window), np.asarray(sh, np.float64).T)
+
+
+def godot_capture_irradiance(sh, normal, dtype: type = np.float32, c=GODOT_C) -> np.ndarray:
+    """Godot's capture shader (module docstring) with probe SH ``sh`` (3, 9) at world normals (..., 3) in
+    Godot's frame, in ``dtype`` → ``ambient_light`` (..., 3), E/π (exposure normalisation 1). ``c``: c1…c5
+    (Godot's 6-digit literals by default)."""
+    k = np.asarray(sh, dtype)
+    n = np.asarray(normal, dtype)
+    x, y, z = n[..., 0], n[..., 1], n[..., 2]
+    c1, c2, c3, c4, c5 = (dtype(v) for v in c)
+    two = dtype(2.0)
+    out = [
+        c1 * s[8] * (x * x - y * y) + c3 * s[6] * z * z + c4 * s[0] - c5 * s[6]
+        + two * c1 * s[4] * x * y + two * c1 * s[7] * x * z + two * c1 * s[5] * y * z
+        + two * c2 * s[3] * x + two * c2 * s[1] * y + two * c2 * s[2] * z
+        for s in k
+    ]  # fmt: skip
+    return np.stack(out, axis=-1)
+
+
+def unreal_diffuse_sh3(sh, normal, dtype: type = np.float32, basis=UNREAL_BASIS) -> np.ndarray:
+    """Unreal's max(0, DotSH3(SH, CalcDiffuseTransferSH3(N, 1)))/π (module docstring) with ``sh`` (3, 9) as
+    V0 = sh[0:4], V1 = sh[4:8], V2 = sh[8] per channel, at normals (..., 3) in Unreal's frame, in ``dtype``
+    → (..., 3). ``basis``: SHBasisFunction3's constants (Unreal's literals by default)."""
+    k = np.asarray(sh, dtype)
+    n = np.asarray(normal, dtype)
+    x, y, z = n[..., 0], n[..., 1], n[..., 2]
+    b0, b1, b2, b3, b4 = (dtype(v) for v in basis)
+    pi = dtype(math.pi)
+    l0, l1, l2 = dtype(2) * pi / dtype(2), dtype(2) * pi / dtype(3), dtype(2) * pi / dtype(8)
+    v0 = np.stack([np.full_like(x, b0) * l0, -b1 * y * l1, b1 * z * l1, -b1 * x * l1], axis=-1)
+    v1 = np.stack([b2 * x * y * l2, -b2 * y * z * l2, b3 * (dtype(3) * z * z - dtype(1)) * l2,
+                   -b2 * x * z * l2], axis=-1)  # fmt: skip
+    v2 = b4 * (x * x - y * y) * l2
+    out = [np.maximum(dtype(0), v0 @ s[0:4] + v1 @ s[4:8] + s[8] * v2) / pi for s in k]
+    return np.stack(out, axis=-1)
+
+
+def sh_preset(engine: str, method_id: str, lam: float | None) -> tuple[dict, list[str]]:
+    """(values, lost) of one SH method for ``engine``: the band scale and the rtfit → engine matrix."""
+    lay = SH_LAYOUTS[engine]
     w = _window(method_id, lam)
     order = int(METHODS[method_id].fixed["order"])
     values = {
-        "SphericalHarmonicsL2 band scale": tuple(float(w[b]) for b in _BAND),
-        "rtfit L_lm → SphericalHarmonicsL2 (sh[c, k] = Σ_j T[k][j]·L_j)": tuple(
-            tuple(float(v) for v in row) for row in unity_sh_matrix(w)
+        f"{lay.target} band scale": tuple(float(w[b]) for b in _BAND),
+        f"rtfit L_lm → {lay.target} (sh[c, k] = Σ_j T[k][j]·L_j)": tuple(
+            tuple(float(v) for v in row) for row in sh_matrix(engine, w)
         ),
     }
-    lost = [
-        "the factor π: Unity's ShadeSH9 returns E/π (the outgoing radiance of a white Lambertian surface), "
-        "rtfit's kernel the irradiance E",
-        "the frame: rtfit's (x, y, z) (+Z up, right-handed) is Unity's (x, z, y) (+Y up, left-handed), "
-        "folded into the matrix",
-    ]
+    lost = list(lay.lost)
     if order >= 3:
         lost.append(
-            "bands 3 and up: SphericalHarmonicsL2 holds l ≤ 2 (Â₃ = 0: nothing lost for L3"
+            f"bands 3 and up: {lay.target} holds l ≤ 2 (Â₃ = 0: nothing lost for L3"
             + ("; L4's band, Â₄ = −π/24, is dropped" if order >= 4 else "")
             + ")"
         )
     return values, lost
+
+
+def unity_sh_preset(method_id: str, lam: float | None) -> tuple[dict, list[str]]:
+    """(values, lost) of one SH method for Unity: `sh_preset` of ``unity-hdrp``."""
+    return sh_preset("unity-hdrp", method_id, lam)

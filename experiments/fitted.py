@@ -11,6 +11,8 @@ with the machinery of `rtfit.experiments.records`)::
                                           ├ domain: {input: Range} (the input ranges the fit saw)
                                           └ shader: Shader (GLSL and HLSL with the constants baked in)
                                             or null with shader_note (why no shader text)
+               └ engine_presets: {engine: EnginePresets} (`rtfit.experiments.preset_records`: the
+                                 methods an engine has the same effect for, in its own properties)
 
 `method_entry` builds a `FittedMethod` from a `rtfit.realtime.Method` and its fit
 (`rtfit.fitting.FitResult.to_dict()`), tracing the kernel with `rtfit.realtime.shader.SHADER_OPS`;
@@ -22,6 +24,7 @@ with the machinery of `rtfit.experiments.records`)::
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import json
 import math
@@ -34,6 +37,8 @@ from rtfit import __version__
 from rtfit.realtime import Method, Untraceable, shader_function
 from rtfit.reference.io import atomic_write_json
 
+from .engine_presets import engine_presets_of
+from .preset_records import ENGINE_NAMES, EnginePresets
 from .records import JSON, Record, ResultsError, from_json, plain_json, record_json_schema, to_json
 
 __all__ = [
@@ -184,13 +189,17 @@ class Provenance(Record):
 @dataclass(frozen=True)
 class FittedFile(Record):
     """A ``fitted/*.json`` document (``rtfit.fitted/1``): one or more fitted methods and their provenance;
-    ``data``: family-specific tables (e.g. per-case coefficient arrays) that are not one method's."""
+    ``data``: family-specific tables (e.g. per-case coefficient arrays) that are not one method's;
+    ``engine_presets``: per engine (unreal, unity-hdrp, godot) that has the same effect as one of the
+    methods, those methods' fitted values in the engine's own properties (``rtfit fitted convert``'s
+    conversion; each preset names a method and case of this file)."""
 
     format: Literal["rtfit.fitted/1"]
     title: str
     provenance: Provenance
     methods: list[FittedMethod] = field(default_factory=list, metadata={"required": True})
     data: JSON = None
+    engine_presets: Mapping[str, EnginePresets] = field(default_factory=dict)
 
     def problems(self) -> list[tuple[str, str]]:
         seen = set()
@@ -199,6 +208,15 @@ class FittedFile(Record):
             if key in seen:
                 return [(f"methods[{i}]", f"method {m.id!r} (case {m.case!r}) listed twice")]
             seen.add(key)
+        for engine, section in self.engine_presets.items():
+            if engine not in ENGINE_NAMES:
+                return [(f"engine_presets.{engine}", f"unknown engine (known: {', '.join(ENGINE_NAMES)})")]
+            for i, p in enumerate(section.presets):
+                where = f"engine_presets.{engine}.presets[{i}]"
+                if p.engine != engine:
+                    return [(f"{where}.engine", f"{p.engine!r} under engine_presets.{engine}")]
+                if (p.method, p.case) not in seen:
+                    return [(f"{where}.method", f"no method {p.method!r} (case {p.case!r}) in this file")]
         return []
 
 
@@ -372,7 +390,9 @@ def _check(doc, where: str) -> FittedFile:
 def write_fitted(path: Path, document: FittedFile) -> dict:
     """Validate ``document`` as the loader would (schema types, no NaN, shader or note), refuse a parameter
     without a unit (a `FittedError` naming it; "1" is the unit of a dimensionless one) and write it
-    atomically as JSON; returns the written JSON."""
+    atomically as JSON, with its ``engine_presets`` (`rtfit.experiments.engine_presets.engine_presets_of`:
+    the conversion of ``rtfit fitted convert``, made again from the methods' values here, never kept from
+    the given document); returns the written JSON."""
     for i, m in enumerate(document.methods):
         for name, p in m.parameters.items():
             if not p.unit.strip():  # a number without its unit cannot be loaded into an engine safely
@@ -380,6 +400,7 @@ def write_fitted(path: Path, document: FittedFile) -> dict:
                     f"{path}: methods[{i}].parameters.{name}.unit: no unit for {m.id!r} parameter {name!r} "
                     '(declare it: Param(unit=…), "1" if dimensionless)'
                 )
+    document = dataclasses.replace(document, engine_presets=engine_presets_of(document))
     doc = plain_json(to_json(document))
     _check(doc, str(path))
     atomic_write_json(Path(path), doc)
