@@ -83,7 +83,7 @@ from .audit_family import (
     vector_text,
 )
 from .audit_geometry import camera_rays, rays, reflective_shape
-from .layered_lightmap import LIGHTMAP_RULE, LIGHTMAP_SCENE, ROLE, lightmap_cases
+from .layered_lightmap import LIGHTMAP_RULE, LIGHTMAP_SCENE, ROLE, lightmap_cases, uv_window
 from .records import Check, Section
 
 __all__ = ["ANGLES", "FAMILY", "SCENES", "coat_cases", "offset_ratio", "study"]
@@ -131,8 +131,6 @@ def _slab(theta: int) -> ShippedScene:
 SCENES = (*(_scene(a, 1.5) for a in ANGLES), _scene(60, 1.33), _slab(30), _slab(60), LIGHTMAP_SCENE)
 """The scenes ``rtfit run layered-materials`` audits (scenes/library/layered_materials_coat.xml,
 layered_materials_slab.xml and the light map's layered_materials_lightmap.xml)."""
-_TEXELS_PER_DEPTH = 8  # texels per coat thickness in the base's texture window
-_TEXELS_MAX = 512  # per side
 
 
 def offset_ratio(theta_deg, eta):
@@ -199,19 +197,12 @@ def _base_textures(mi, scene, base_id: int, uvs: np.ndarray, si, radius: float, 
     around ``uvs`` padded by ``radius`` (scene units), 8 texels per thickness ``depth`` (≤ 512 a side)."""
     units = (float(np.median(np.linalg.norm(_np3(si.dp_du), axis=1))),
              float(np.median(np.linalg.norm(_np3(si.dp_dv), axis=1))))  # fmt: skip
-    pad = np.array([radius / units[0], radius / units[1]])
-    lo, hi = np.clip(uvs.min(0) - pad, 0.0, 1.0), np.clip(uvs.max(0) + pad, 0.0, 1.0)
-    texel = max(depth, 1e-9) / _TEXELS_PER_DEPTH
-    n = [int(np.clip(np.ceil((hi[k] - lo[k]) * units[k] / texel), 2, _TEXELS_MAX)) for k in range(2)]
-    u = lo[0] + (np.arange(n[0]) + 0.5) * (hi[0] - lo[0]) / n[0]
-    v = lo[1] + (np.arange(n[1]) + 0.5) * (hi[1] - lo[1]) / n[1]
-    uu, vv = np.meshgrid(u, v)
+    window, n, uu, vv = uv_window(uvs, units, radius, depth)
     query = dr.zeros(mi.SurfaceInteraction3f, uu.size)
     query.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
     shape = next(s for s in scene.shapes() if _own_id(mi, s) == base_id)
     rho = np.array(mi.Color3f(shape.bsdf().eval_diffuse_reflectance(query, True)), np.float64)
     rho = np.broadcast_to(rho.reshape(3, -1), (3, uu.size))  # a constant texture answers one value
-    window = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     return BaseTexture(rho.reshape(3, n[1], n[0]), window, units)
 
 

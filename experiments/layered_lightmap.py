@@ -41,12 +41,12 @@ from .audit import Applicability, Rule
 from .audit_family import AuditSetup, FamilyCase, ShippedScene, pooled_passes
 from .audit_geometry import camera_rays, rays
 
-__all__ = ["LIGHTMAP_RULE", "LIGHTMAP_SCENE", "ROLE", "lightmap_cases"]
+__all__ = ["LIGHTMAP_RULE", "LIGHTMAP_SCENE", "ROLE", "lightmap_cases", "uv_window"]
 
 FORMAT = 1
 ROLE = "slab over a base"
-_TEXELS_PER_DEPTH = 8
-_TEXELS_MAX = 512
+_TEXELS_PER_DEPTH = 8  # texels per layer thickness in a texture-space window (the albedo, the light map)
+_TEXELS_MAX = 512  # per side
 LIGHTMAP_SCENE = ShippedScene(
     "layered_materials_lightmap.xml",
     "a diffuse inner layer (ρ = 0.5) under a scattering slab (d = 0.1, σ_t = 10, albedo 0.95, HG g = 0.7) "
@@ -126,22 +126,30 @@ def _slab_shape(setup: AuditSetup, app: Applicability):
     return holders[order] if order < len(holders) else None
 
 
-def _light_map(mi, setup, base, emitter, box, uvs, si_units, radius: float, depth: float, normal):
-    """The `BaseTexture` of E_map on the inner layer's uv window around ``uvs`` padded by ``radius``."""
-    pad = np.array([radius / si_units[0], radius / si_units[1]])
+def uv_window(uvs: np.ndarray, units, radius: float, depth: float):
+    """The texture-space window of a layer's texture (the base's albedo, the light map): the (u, v) box of
+    ``uvs`` padded by ``radius`` (scene units; ``units`` = scene units per unit of u and of v), clipped to
+    [0, 1]², with `_TEXELS_PER_DEPTH` texels per thickness ``depth`` (2 to `_TEXELS_MAX` a side). Returns
+    ``(window (u0, v0, u1, v1), (nu, nv), uu, vv)``: the texel centres as (nv, nu) grids."""
+    pad = np.array([radius / units[0], radius / units[1]])
     lo, hi = np.clip(uvs.min(0) - pad, 0.0, 1.0), np.clip(uvs.max(0) + pad, 0.0, 1.0)
     texel = max(depth, 1e-9) / _TEXELS_PER_DEPTH
-    n = [int(np.clip(np.ceil((hi[k] - lo[k]) * si_units[k] / texel), 2, _TEXELS_MAX)) for k in range(2)]
+    n = [int(np.clip(np.ceil((hi[k] - lo[k]) * units[k] / texel), 2, _TEXELS_MAX)) for k in range(2)]
     u = lo[0] + (np.arange(n[0]) + 0.5) * (hi[0] - lo[0]) / n[0]
     v = lo[1] + (np.arange(n[1]) + 0.5) * (hi[1] - lo[1]) / n[1]
     uu, vv = np.meshgrid(u, v)
+    return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])), (n[0], n[1]), uu, vv
+
+
+def _light_map(mi, setup, base, emitter, box, uvs, si_units, radius: float, depth: float, normal):
+    """The `BaseTexture` of E_map on the inner layer's uv window around ``uvs`` padded by ``radius``."""
+    window, n, uu, vv = uv_window(uvs, si_units, radius, depth)
     si = base.eval_parameterization(mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32)))
     p = _v3(si.p)
     nrm = np.broadcast_to(normal, p.shape).copy()
     _, _, t_out = _chord(mi, box, p, nrm)
     top = p + nrm * (t_out + 1e-4 * max(depth, 1e-9))[:, None]  # just above the outer surface
     e_map, _ = _light(mi, emitter, top, nrm, setup.scene)
-    window = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     return BaseTexture(e_map.T.reshape(3, n[1], n[0]), window, si_units)
 
 
