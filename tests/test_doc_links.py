@@ -40,3 +40,18 @@ def test_readme_lists_every_page_of_docs():
     listed = set(re.findall(r"\]\((docs/[\w.-]+\.md)\)", readme))
     pages = {f"docs/{p.name}" for p in (ROOT / "docs").glob("*.md")}
     assert sorted(pages - listed) == []
+
+
+def test_readme_names_every_experiment_and_their_count():
+    """The README's experiment paragraph names each registered experiment (`rtfit list`) in backticks and
+    says how many there are: a family added to `experiments.families.FAMILIES` without its README line, or
+    a count left behind, fails here (issue 30: the lists naming the families had drifted apart)."""
+    from rtfit.experiments.families import FAMILIES
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    start = readme.index("Experiments (`rtfit list`")
+    paragraph = readme[start : readme.index("\n\n", start)]
+    missing = [name for name in FAMILIES if f"`{name}`" not in paragraph]
+    assert not missing, f"README.md's experiment list lacks {missing}"
+    count = re.search(r"(\d+) experiments", paragraph)
+    assert count and int(count.group(1)) == len(FAMILIES), (count and count.group(0), len(FAMILIES))
