@@ -371,40 +371,48 @@ def godot_extinction(density, height_falloff, y0, y, dtype=np.float32):
 
 
 # ------------------------------------------------------------------ the phase lobe as Unreal's power lobe
-_MU, _MU_W = np.polynomial.legendre.leggauss(512)
+@functools.cache
+def _nodes() -> tuple[np.ndarray, np.ndarray]:
+    """512-point Gauss–Legendre nodes μ and weights on [−1, 1], made on first use (at import they cost
+    `rtfit --help` seconds: an eigen-decomposition of a 512 × 512 matrix)."""
+    return np.polynomial.legendre.leggauss(512)
+
+
 LOBE_EXPONENTS = np.geomspace(1.0, 512.0, 600)
 """The exponents n `hg_as_power_lobe` searches (Unreal's DirectionalInscatteringExponent)."""
 
 
 def _lobe_fit(w: np.ndarray, n: float) -> tuple[float, float, float]:
     """(a, k, squared error) of the least-squares a + k·max(μ, 0)^n ≈ w(μ) over the sphere (dΩ = 2π dμ)."""
-    basis = np.stack([np.ones_like(_MU), np.maximum(_MU, 0.0) ** n], axis=1)
-    sw = np.sqrt(_MU_W)
+    mu, mu_w = _nodes()
+    basis = np.stack([np.ones_like(mu), np.maximum(mu, 0.0) ** n], axis=1)
+    sw = np.sqrt(mu_w)
     (a, k), *_ = np.linalg.lstsq(basis * sw[:, None], w * sw, rcond=None)
-    return float(a), float(k), float(np.sum(_MU_W * (basis @ (a, k) - w) ** 2))
+    return float(a), float(k), float(np.sum(mu_w * (basis @ (a, k) - w) ** 2))
 
 
 def hg_as_power_lobe(g: float) -> tuple[float, float, float, float]:
     """The fitted colour lobe 4π·p_HG(θ, g) (`rtfit.realtime.phase`, mean 1 over the sphere) as
     a + k·max(cos θ, 0)^n, Unreal's constant plus directional inscattering: (a, k, n, relative RMS error
     over the sphere). n from `LOBE_EXPONENTS`, (a, k) by linear least squares for each."""
-    w = 4.0 * math.pi * np.asarray(hg_phase_kernel(NUMPY_OPS, _MU, float(g)), dtype=np.float64)
+    mu, mu_w = _nodes()
+    w = 4.0 * math.pi * np.asarray(hg_phase_kernel(NUMPY_OPS, mu, float(g)), dtype=np.float64)
     # every n at once by the 2 × 2 normal equations (the choice of n), then that n's least squares itself
     f = _powers()
-    s1, sf, sff = float(np.sum(_MU_W)), f @ _MU_W, (f * f) @ _MU_W
-    sy, sfy = float(_MU_W @ w), f @ (_MU_W * w)
+    s1, sf, sff = float(np.sum(mu_w)), f @ mu_w, (f * f) @ mu_w
+    sy, sfy = float(mu_w @ w), f @ (mu_w * w)
     det = s1 * sff - sf * sf
     a_n, k_n = (sff * sy - sf * sfy) / det, (s1 * sfy - sf * sy) / det
-    errs = ((a_n[:, None] + k_n[:, None] * f - w) ** 2) @ _MU_W
+    errs = ((a_n[:, None] + k_n[:, None] * f - w) ** 2) @ mu_w
     n = float(LOBE_EXPONENTS[int(np.argmin(errs))])
     a, k, err = _lobe_fit(w, n)
-    return a, k, n, math.sqrt(err / float(np.sum(_MU_W * w**2)))
+    return a, k, n, math.sqrt(err / float(np.sum(mu_w * w**2)))
 
 
 @functools.cache
 def _powers() -> np.ndarray:
     """max(μ, 0)^n at the quadrature nodes for every n of `LOBE_EXPONENTS` (600 × 512), made once."""
-    return np.maximum(_MU, 0.0)[None, :] ** LOBE_EXPONENTS[:, None]
+    return np.maximum(_nodes()[0], 0.0)[None, :] ** LOBE_EXPONENTS[:, None]
 
 
 # ------------------------------------------------------------------------------------------ the files
