@@ -149,7 +149,8 @@ def _sky_sun(view: str) -> tuple[float, float, float]:
     if view != "sun-behind":
         return sun_direction(SUN_ELEVATIONS[0])
     d = np.asarray(SKY_TARGET) - np.asarray(CAMERAS[view])
-    return tuple(float(x) for x in d / np.linalg.norm(d))
+    d = d / np.linalg.norm(d)
+    return float(d[0]), float(d[1]), float(d[2])
 
 
 def _sky_scene(view: str) -> ShippedScene:
@@ -302,10 +303,10 @@ def _radiance_case(
                 f"albedo {albedo.tolist()}, HG g = {g:.3g}, E_sun = {e_sun.tolist()} W/m²; L_bg: the pixels "
                 "with the cloud removed (same integrator, spp and seed)",
                 "gradient-N: the seed's gradient-lit cloud (Wang 2003's artist colours: the shadow and lit "
-                "sides and the base's brightness, fitted; their lerp is rtfit's reading); gradient-N-rim[-blended]: "
-                "plus the seed's back-light (a glow below an alpha threshold, soft, times an HG lobe about the "
-                "sun: rtfit's reading of a figure caption, all fitted); single-N-M: the sun's single scattering "
-                "marched (no parameter)",
+                "sides and the base's brightness, fitted; their lerp is rtfit's reading); "
+                "gradient-N-rim[-blended]: plus the seed's back-light (a glow below an alpha threshold, "
+                "soft, times an HG lobe about the sun: rtfit's reading of a figure caption, all fitted); "
+                "single-N-M: the sun's single scattering marched (no parameter)",
             ),
             methods=RADIANCE_METHODS,
             quantity="cloud_radiance",

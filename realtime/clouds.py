@@ -74,7 +74,9 @@ view ray's stretch in the box with N midpoint samples xᵢ (σᵢ, Δt as in ``m
   Domain: t ∈ [0, 1], w ∈ [0, ½] (w = 0: a hard threshold), g_r ∈ [−0.99, 0.99], k ∈ [0, 10] (1: radiance
   k·E_sun·p_HG at α = 0). None is published (`Param.published` False): t = ½, w = ¼, g_r = 0, k = 1 are
   only the fit's start. At α = 0 (a ray through the box that misses the density) it glows too: the caption
-  puts no alpha factor on the glow, and the fit decides (t − w < 0 dims it there).
+  puts no alpha factor on the glow. ``gradient-N-rim-blended``: the glow is part of the sprite's colour,
+  blended by α as the gradient's colour is (+ k·E_sun·(1 − S)·p_HG·α: nothing glows where there is no
+  cloud); docs/clouds.md measures both (the blended one fits the sun-behind view 1.8× better).
 * ``single-N-M`` — single scattering of the sun, marched: L = Σᵢ Tᵢ·ϖσᵢ·p(s·d)·E_sun·T_sun(xᵢ)·Δt +
   T_view·L_bg, Tᵢ = exp(−Σ_{j<i}σⱼΔt − ½σᵢΔt), T_sun(xᵢ) the ``march-M`` row's text from xᵢ, p the
   Henyey–Greenstein phase of `rtfit.realtime.phase.hg_phase_kernel` (cos ϑ = s·d: light travelling −s
@@ -121,9 +123,9 @@ __all__ = [
     "DIR_MIN",
     "MARCH_STEPS",
     "MU_MIN",
-    "RIM_WIDTH_MIN",
     "PLANE_LEVELS",
     "RADIANCE_METHODS",
+    "RIM_WIDTH_MIN",
     "SINGLE_STEPS",
     "SLAB_STEPS",
     "CloudGrid",
@@ -360,7 +362,9 @@ def _gradient_kernel(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, e_sun, albedo, g, 
                      b, steps):  # fmt: skip
     """The seed's gradient-lit cloud (module docstring): L = E·lerp(a_shadow, a_lit, u)·lerp(b, 1, v)·(1 − T)
     + T·L_bg at the pixel's density-weighted point x̄."""
-    colour, t_view = _gradient_parts(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, cloud, a_shadow, a_lit, b, steps)
+    colour, t_view = _gradient_parts(
+        ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, cloud, a_shadow, a_lit, b, steps
+    )
     return e_sun * colour * (1.0 - t_view) + t_view * l_bg
 
 
@@ -375,7 +379,9 @@ def _gradient_rim_kernel(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, e_sun, albedo,
                          a_lit, b, threshold, softness, g_rim, k_rim, steps, blended):  # fmt: skip
     """The gradient row plus the seed's back-light (module docstring): + k·E·rim(α, s·d; t, w, g_rim), times α
     where ``blended`` (the glow is part of the sprite's colour, blended by its alpha as the gradient's is)."""
-    colour, t_view = _gradient_parts(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, cloud, a_shadow, a_lit, b, steps)
+    colour, t_view = _gradient_parts(
+        ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, cloud, a_shadow, a_lit, b, steps
+    )
     alpha = 1.0 - t_view
     rim = _rim_kernel(ops, alpha, dx * sx + dy * sy + dz * sz, threshold, softness, g_rim)
     return e_sun * colour * alpha + t_view * l_bg + k_rim * e_sun * rim * (alpha if blended else 1.0)
@@ -497,9 +503,9 @@ _GRADIENT_PARAMS = {
 }
 _RIM_PARAMS = {  # no source gives a value (figure 5 is lost): published=False, each start is only the fit's
     "threshold": Param(0.5, 0.0, 1.0, unit="1", published=False,
-                       description="the back-light's threshold t on the cloud's alpha 1 − T (below it: glow)"),
+                       description="the back-light's threshold t on the alpha 1 − T (below it: glow)"),
     "softness": Param(0.25, 0.0, 0.5, unit="1", published=False,
-                      description="the back-light's softness w (the smoothstep over [t − w, t + w] of alpha)"),
+                      description="the back-light's softness w (smoothstep over [t − w, t + w] of alpha)"),
     "g_rim": Param(0.0, -0.99, 0.99, unit="1", published=False,
                    description="the back-light's Henyey–Greenstein g (its closeness to the sun)"),
     "k_rim": Param(1.0, 0.0, 10.0, unit="1", published=False,
@@ -537,9 +543,9 @@ RADIANCE_METHODS = method_table(
                 formula="L = gradient-N + k·E·(1 − smoothstep(t − w, t + w, α))·p_HG(s·d, g_r)"
                 + ("·α" if blended else "")
                 + ", α = 1 − T",
-                source='seed 000:2324-2327 ("back lighting with respect to the sun ... glowing edges"; figure '
-                "5's caption: a threshold and a softness w.r.t. cloud alpha), 002:356 (rim lighting based on "
-                "cloud density); no formula printed: the form is rtfit's reading, every constant fitted",
+                source='seed 000:2324-2327 ("back lighting with respect to the sun ... glowing edges"; '
+                "figure 5's caption: a threshold and a softness w.r.t. cloud alpha), 002:356 (rim lighting "
+                "based on cloud density); no formula printed: rtfit's reading, every constant fitted",
             )
             for n in GRADIENT_STEPS
             for blended in (False, True)
