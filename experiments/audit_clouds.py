@@ -135,22 +135,36 @@ def _scene(elevation: float) -> ShippedScene:
     )
 
 
-CAMERAS = {"backlit": (-9.0, -1.3, 0.7), "front": (9.0, 1.3, 0.7)}
-"""clouds_sky.xml's camera positions (m): from −x it looks towards the sun (azimuth +x), from +x with it."""
+CAMERAS = {"backlit": (-9.0, -1.3, 0.7), "front": (9.0, 1.3, 0.7), "sun-behind": (-9.0, -1.3, 0.7)}
+"""clouds_sky.xml's camera positions (m): from −x it looks towards the sun (azimuth +x), from +x with it;
+``sun-behind``: the backlit camera with the sun straight behind the cloud's centre (`SKY_TARGET`)."""
+SKY_TARGET = (0.011, 0.013, 3.0)
+"""clouds_sky.xml's camera target (m): the cloud's centre (its lookat)."""
+
+
+def _sky_sun(view: str) -> tuple[float, float, float]:
+    """The direction towards the sun of a sky view: 60° elevation, azimuth +x; for ``sun-behind`` the
+    camera's own line of sight to `SKY_TARGET` (elevation 14°: the cloud partly covers the sun, the seed's
+    back-lighting case 000:2324)."""
+    if view != "sun-behind":
+        return sun_direction(SUN_ELEVATIONS[0])
+    d = np.asarray(SKY_TARGET) - np.asarray(CAMERAS[view])
+    d = d / np.linalg.norm(d)
+    return float(d[0]), float(d[1]), float(d[2])
 
 
 def _sky_scene(view: str) -> ShippedScene:
-    s, c = sun_direction(SUN_ELEVATIONS[0]), CAMERAS[view]
+    s, c = _sky_sun(view), CAMERAS[view]
     return ShippedScene(
         "clouds_sky.xml",
-        f"the blobs' cloud against a black sky, sun at {SUN_ELEVATIONS[0]:g}°, seen {view}",
+        f"the blobs' cloud against a black sky, sun at {math.degrees(math.asin(s[2])):.3g}°, seen {view}",
         size=(32, 32),
         spp=256,
         quick_size=(12, 12),
         quick_spp=32,
         defines={
             "dx": f"{-s[0]:.6f}",
-            "dy": "0",
+            "dy": f"{-s[1]:.6f}" if s[1] else "0",
             "dz": f"{-s[2]:.6f}",
             "cx": f"{c[0]:g}",
             "cy": f"{c[1]:g}",
@@ -163,7 +177,7 @@ def _sky_scene(view: str) -> ShippedScene:
 
 
 RADIANCE_SCENES = tuple(_sky_scene(v) for v in CAMERAS)
-"""The cloud's radiance scenes (scenes/library/clouds_sky.xml, two views)."""
+"""The cloud's radiance scenes (scenes/library/clouds_sky.xml, three views)."""
 SCENES = (*(_scene(e) for e in SUN_ELEVATIONS), *RADIANCE_SCENES)
 """The scenes ``rtfit run clouds`` audits (clouds_sun.xml per sun elevation; clouds_sky.xml per view)."""
 
@@ -289,8 +303,10 @@ def _radiance_case(
                 f"albedo {albedo.tolist()}, HG g = {g:.3g}, E_sun = {e_sun.tolist()} W/m²; L_bg: the pixels "
                 "with the cloud removed (same integrator, spp and seed)",
                 "gradient-N: the seed's gradient-lit cloud (Wang 2003's artist colours: the shadow and lit "
-                "sides and the base's brightness, fitted; their lerp is rtfit's reading); no rim term (the "
-                "seed's is in a lost figure); single-N-M: the sun's single scattering marched (no parameter)",
+                "sides and the base's brightness, fitted; their lerp is rtfit's reading); "
+                "gradient-N-rim[-blended]: plus the seed's back-light (a glow below an alpha threshold, "
+                "soft, times an HG lobe about the sun: rtfit's reading of a figure caption, all fitted); "
+                "single-N-M: the sun's single scattering marched (no parameter)",
             ),
             methods=RADIANCE_METHODS,
             quantity="cloud_radiance",

@@ -61,8 +61,22 @@ view ray's stretch in the box with N midpoint samples xᵢ (σᵢ, Δt as in ``m
   seed and Wang give no values, so both a start at 1/(4π) (the isotropic, unshadowed single-scattering limit
   of a thin white cloud, rtfit's choice) and b = 1 (no gradient). The exact lerp and
   gradient Wang's text uses was not retrievable (docs/clouds.md, "The radiance case"); this is rtfit's
-  reading of "gradient-based" + "shadow/lit by the sun's side". **No rim term** (000:2327 "backlighting
-  threshold (with respect to cloud alpha), and backlighting softness" is a figure caption; no formula found).
+  reading of "gradient-based" + "shadow/lit by the sun's side". No rim term (the next row adds it).
+* ``gradient-N-rim`` — **the seed's back-light** (000:2324 "back lighting with respect to the sun was added
+  to achieve the effect of glowing edges when looking at clouds partially covering the sun"; figure 5's
+  caption 000:2327 "backlighting threshold (with respect to cloud alpha), and backlighting softness"; 002:356
+  "Added rim lighting based on cloud density"). No formula is printed (the figure is lost; Wang's shading
+  section was not retrievable): the form is **rtfit's reading of the caption**, every constant fitted:
+  L = gradient-N + k·E_sun·(1 − S(α))·p_HG(s·d, g_r), α = 1 − T_view, S = smoothstep(t − w, t + w, α).
+  1 − S, not S: the glowing *edges* are a cloud's thin, low-alpha parts (its core, α → 1, stays dark), so
+  the glow is 1 below t − w, 0 above t + w, Hermite r²(3 − 2r) between ("softness"); the HG lobe (the one
+  text `rtfit.realtime.phase.hg_phase_kernel`, cos = s·d as in ``single-N-M``) is "with respect to the sun".
+  Domain: t ∈ [0, 1], w ∈ [0, ½] (w = 0: a hard threshold), g_r ∈ [−0.99, 0.99], k ∈ [0, 10] (1: radiance
+  k·E_sun·p_HG at α = 0). None is published (`Param.published` False): t = ½, w = ¼, g_r = 0, k = 1 are
+  only the fit's start. At α = 0 (a ray through the box that misses the density) it glows too: the caption
+  puts no alpha factor on the glow. ``gradient-N-rim-blended``: the glow is part of the sprite's colour,
+  blended by α as the gradient's colour is (+ k·E_sun·(1 − S)·p_HG·α: nothing glows where there is no
+  cloud); docs/clouds.md measures both (the blended one fits the sun-behind view 1.8× better).
 * ``single-N-M`` — single scattering of the sun, marched: L = Σᵢ Tᵢ·ϖσᵢ·p(s·d)·E_sun·T_sun(xᵢ)·Δt +
   T_view·L_bg, Tᵢ = exp(−Σ_{j<i}σⱼΔt − ½σᵢΔt), T_sun(xᵢ) the ``march-M`` row's text from xᵢ, p the
   Henyey–Greenstein phase of `rtfit.realtime.phase.hg_phase_kernel` (cos ϑ = s·d: light travelling −s
@@ -82,6 +96,11 @@ to NaN. Guards, each with its reason (none changes a value inside the domain):
 * points above the plane (t < 0) read no texture (T = 1: the layer is behind them);
 * the tables are clipped at `DENSITY_MAX` = 10³⁰ (1/m, and per column): a float32 inf in a table gives
   inf·0 = NaN in the interpolation's weights, and 10³⁰ /m is opaque over any length beyond 10⁻²⁸ m;
+* the rim's smoothstep divides by max(2w, `RIM_WIDTH_MIN` = 10⁻⁷): w = 0 (the hard threshold, inside the
+  domain) would form (α − t)/0 = ±inf, and 0/0 = NaN at α = t; floored, the ramp is ≤ 2 float32 ulps of α
+  near 1 (2⁻²⁴ ≈ 6·10⁻⁸), i.e. the step itself at float32 resolution, and it changes nothing for w ≥ 5·10⁻⁸;
+  the numerator stays within [−1.5, 2], so the quotient (≤ 2·10⁷) is finite and clipped to [0, 1]. α = 1 − T
+  in float32 is 0 for τ < 6·10⁻⁸ (cancellation): the glow there is the α = 0 value, which it is to 10⁻⁷;
 * the march sums σᵢ·Δt term by term (a ray that misses has Δt = 0: each term 0, never inf·0); k·D/μ ≤
   100·10³⁰/10⁻⁶ stays below float32's 3.4·10³⁸ per term; exp(−τ) is 0 beyond τ ≈ 104 (float32).
 """
@@ -106,6 +125,7 @@ __all__ = [
     "MU_MIN",
     "PLANE_LEVELS",
     "RADIANCE_METHODS",
+    "RIM_WIDTH_MIN",
     "SINGLE_STEPS",
     "SLAB_STEPS",
     "CloudGrid",
@@ -130,6 +150,8 @@ GRADIENT_STEPS = (16,)
 """The gradient row's view samples (for T_view and the pixel's point x̄)."""
 TAU_MIN = 1e-30
 """Smallest view optical depth x̄ divides by (an empty ray: x̄ is then the stretch's midpoint, unused)."""
+RIM_WIDTH_MIN = 1e-7
+"""Smallest smoothstep width 2w the rim divides by (module docstring, guards: w = 0 is the hard threshold)."""
 _BATCH = 4  # samples per evaluated Dr.Jit kernel (`_midpoints`)
 
 
@@ -308,10 +330,9 @@ def _view_samples(ops, ox, oy, oz, dx, dy, dz, cloud, steps):
         t = t + dt
 
 
-def _gradient_kernel(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, e_sun, albedo, g, l_bg, cloud, a_shadow, a_lit,
-                     b, steps):  # fmt: skip
-    """The seed's gradient-lit cloud (module docstring): L = E·lerp(a_shadow, a_lit, u)·lerp(b, 1, v)·(1 − T)
-    + T·L_bg at the pixel's density-weighted point x̄."""
+def _gradient_parts(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, cloud, a_shadow, a_lit, b, steps):
+    """The gradient row's colour (a_shadow + (a_lit − a_shadow)·u)·(b + (1 − b)·v) at the pixel's
+    density-weighted point x̄, and T_view = exp(−Σσᵢ·Δt) (module docstring)."""
     device = ops.name == "drjit" and dr.is_array_v(ox)
     tau, wx, wy, wz = 0.0 * ox, 0.0 * ox, 0.0 * ox, 0.0 * ox
     for i, (t, sigma, dt) in enumerate(_view_samples(ops, ox, oy, oz, dx, dy, dz, cloud, steps)):
@@ -334,9 +355,36 @@ def _gradient_kernel(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, e_sun, albedo, g, 
     u = ops.clip(0.5 + along / (2.0 * ops.maximum(reach, 1e-12)), 0.0, 1.0)  # |s| = 1: reach > 0; the
     # floor only stops 0/0 for a zero s (outside the domain)
     v = ops.clip((zb - lo[2]) / (hi[2] - lo[2]), 0.0, 1.0)
-    t_view = ops.exp(-tau)
-    colour = (a_shadow + (a_lit - a_shadow) * u) * (b + (1.0 - b) * v)
+    return (a_shadow + (a_lit - a_shadow) * u) * (b + (1.0 - b) * v), ops.exp(-tau)
+
+
+def _gradient_kernel(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, e_sun, albedo, g, l_bg, cloud, a_shadow, a_lit,
+                     b, steps):  # fmt: skip
+    """The seed's gradient-lit cloud (module docstring): L = E·lerp(a_shadow, a_lit, u)·lerp(b, 1, v)·(1 − T)
+    + T·L_bg at the pixel's density-weighted point x̄."""
+    colour, t_view = _gradient_parts(
+        ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, cloud, a_shadow, a_lit, b, steps
+    )
     return e_sun * colour * (1.0 - t_view) + t_view * l_bg
+
+
+def _rim_kernel(ops, alpha, cos_sd, threshold, softness, g_rim):
+    """The back-light's glow per unit k·E_sun (1/sr): (1 − smoothstep(t − w, t + w, α))·p_HG(cos, g_rim),
+    smoothstep(e₀, e₁, x) = r²(3 − 2r), r = clip((x − e₀)/max(e₁ − e₀, `RIM_WIDTH_MIN`), 0, 1)."""
+    r = ops.clip((alpha - (threshold - softness)) / ops.maximum(2.0 * softness, RIM_WIDTH_MIN), 0.0, 1.0)
+    return (1.0 - r * r * (3.0 - 2.0 * r)) * hg_phase_kernel(ops, cos_sd, g_rim)
+
+
+def _gradient_rim_kernel(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, e_sun, albedo, g, l_bg, cloud, a_shadow,
+                         a_lit, b, threshold, softness, g_rim, k_rim, steps, blended):  # fmt: skip
+    """The gradient row plus the seed's back-light (module docstring): + k·E·rim(α, s·d; t, w, g_rim), times α
+    where ``blended`` (the glow is part of the sprite's colour, blended by its alpha as the gradient's is)."""
+    colour, t_view = _gradient_parts(
+        ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, cloud, a_shadow, a_lit, b, steps
+    )
+    alpha = 1.0 - t_view
+    rim = _rim_kernel(ops, alpha, dx * sx + dy * sy + dz * sz, threshold, softness, g_rim)
+    return e_sun * colour * alpha + t_view * l_bg + k_rim * e_sun * rim * (alpha if blended else 1.0)
 
 
 def _single_kernel(ops, ox, oy, oz, dx, dy, dz, sx, sy, sz, e_sun, albedo, g, l_bg, cloud, steps, sun_steps):
@@ -453,6 +501,16 @@ _GRADIENT_PARAMS = {
     "a_lit": dataclasses.replace(_A, description="the sun side's colour a_lit (per irradiance)"),
     "b": Param(1.0, 0.0, 2.0, unit="1", description="the cloud base's brightness b (the top's is 1)"),
 }
+_RIM_PARAMS = {  # no source gives a value (figure 5 is lost): published=False, each start is only the fit's
+    "threshold": Param(0.5, 0.0, 1.0, unit="1", published=False,
+                       description="the back-light's threshold t on the alpha 1 − T (below it: glow)"),
+    "softness": Param(0.25, 0.0, 0.5, unit="1", published=False,
+                      description="the back-light's softness w (smoothstep over [t − w, t + w] of alpha)"),
+    "g_rim": Param(0.0, -0.99, 0.99, unit="1", published=False,
+                   description="the back-light's Henyey–Greenstein g (its closeness to the sun)"),
+    "k_rim": Param(1.0, 0.0, 10.0, unit="1", published=False,
+                   description="the back-light's strength k (radiance k·E_sun·p_HG at alpha 0)"),
+}  # fmt: skip
 
 RADIANCE_METHODS = method_table(
     [
@@ -471,6 +529,26 @@ RADIANCE_METHODS = method_table(
                 "9(3) 2004: artists' colours; their lerp is rtfit's reading, the rim term not built)",
             )
             for n in GRADIENT_STEPS
+        ),
+        *(
+            Method(
+                id=f"gradient-{n}-rim{'-blended' if blended else ''}",
+                label="seed: gradient-lit cloud + back-light (glowing edges; rtfit's reading of a caption)"
+                + (", the glow blended by the sprite's alpha" if blended else ""),
+                kernel=_gradient_rim_kernel,
+                inputs=RADIANCE_INPUTS,
+                params={**_GRADIENT_PARAMS, **_RIM_PARAMS},
+                fixed={"steps": n, "blended": blended},
+                quantity="cloud_radiance",
+                formula="L = gradient-N + k·E·(1 − smoothstep(t − w, t + w, α))·p_HG(s·d, g_r)"
+                + ("·α" if blended else "")
+                + ", α = 1 − T",
+                source='seed 000:2324-2327 ("back lighting with respect to the sun ... glowing edges"; '
+                "figure 5's caption: a threshold and a softness w.r.t. cloud alpha), 002:356 (rim lighting "
+                "based on cloud density); no formula printed: rtfit's reading, every constant fitted",
+            )
+            for n in GRADIENT_STEPS
+            for blended in (False, True)
         ),
         *(
             Method(

@@ -22,7 +22,7 @@ from rtfit.experiments.audit_clouds import BOX, blob_grid, cloud_blobs, sun_dire
 from rtfit.experiments.audit_run import audit
 from rtfit.realtime import NUMPY_OPS, CloudGrid, cloud_transmittance
 from rtfit.realtime.arrays import DRJIT_OPS
-from rtfit.realtime.clouds import METHODS, RADIANCE_METHODS
+from rtfit.realtime.clouds import METHODS, RADIANCE_METHODS, _rim_kernel
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 
@@ -297,6 +297,90 @@ def test_gradient_row_against_numpy():
         assert abs(got[0] - truth) < 1e-9, (got, truth)
 
 
+def _hermite(x: float) -> float:
+    """smoothstep's ramp written out: 0 below 0, 1 above 1, 3x² − 2x³ between."""
+    x = min(max(x, 0.0), 1.0)
+    return 3 * x * x - 2 * x**3
+
+
+RIM = {"threshold": 0.8, "softness": 0.1, "g_rim": 0.7, "k_rim": 0.6}
+
+
+def test_rim_rows_against_numpy():
+    """The back-light rows on the constant box of `test_gradient_row_against_numpy` (α = 1 − e^(−σH) = 0.650,
+    the gradient part written out there): with t = 0.8, w = 0.1 the pixel is below the glow's ramp, so the row
+    adds k·E·p_HG(s·d, g_r) (× α blended); with t = 0.4 it is above t + w (opaque to the glow): the row is the
+    gradient's value; looking away from the sun (d = −s, s·d = −1) the HG lobe is (1 − g²)/(4π(1 + g)³),
+    0.55 % of its forward value; an empty cloud (α = 0): L_bg + k·E·p_HG (the plain row), L_bg (blended)."""
+    cloud = CloudGrid(np.full((5, 7, 6), 0.7), (-2.0, -2.0, 1.0), (2.0, 2.0, 2.5))
+    s = np.asarray(sun_direction(60.0))
+    grad = {"a_shadow": 0.02, "a_lit": 0.3, "b": 0.4}
+    t = math.exp(-0.7 * 1.5)
+    alpha = 1 - t
+    for x, y in ((0.0, 0.0), (-1.5, 0.4), (1.9, -1.3)):
+        u = 0.5 + x * s[0] / (2 * (2.0 * abs(s[0]) + 0.75 * abs(s[2])))
+        gradient = 2.0 * (0.02 + 0.28 * u) * (0.4 + 0.6 * 0.5) * alpha + t * 0.5
+        for blended, weight in (("", 1.0), ("-blended", alpha)):
+            row = f"gradient-16-rim{blended}"
+            glow = _radiance(row, (x, y, 0.0), (0, 0, 1.0), s, cloud, l_bg=0.5, **grad, **RIM)
+            truth = gradient + 0.6 * 2.0 * _hg(s[2], 0.7) * weight  # α = 0.65 < t − w = 0.7: glow 1
+            assert abs(glow[0] - truth) < 1e-9, (row, glow, truth)
+            opaque = _radiance(
+                row, (x, y, 0.0), (0, 0, 1.0), s, cloud, l_bg=0.5, **grad, **{**RIM, "threshold": 0.4}
+            )
+            assert abs(opaque[0] - gradient) < 1e-9, (row, opaque, gradient)  # α = 0.65 > t + w = 0.5
+    # facing away from the sun: from above the box looking down along −s
+    o = np.array([0.0, 0.0, 1.75]) + 3.0 * s
+    empty = CloudGrid(np.zeros((2, 2, 2)), (-2.0, -2.0, 1.0), (2.0, 2.0, 2.5))
+    away = _radiance("gradient-16-rim", o, -s, s, empty, l_bg=0.5, **grad, **RIM)
+    lobe = (1 - 0.49) / (4 * math.pi * 1.7**3)
+    assert abs(away[0] - (0.5 + 0.6 * 2.0 * lobe)) < 1e-12 and lobe < 6e-3 * _hg(1.0, 0.7), (away, lobe)
+    # α = 0 (an empty cloud), looking straight up, the sun at 60°: k·E·p_HG(sin 60°) over L_bg
+    for row, extra in (("gradient-16-rim", 0.6 * 2.0 * _hg(s[2], 0.7)), ("gradient-16-rim-blended", 0.0)):
+        got = _radiance(row, (0.3, 0.2, 0.0), (0, 0, 1.0), s, empty, l_bg=0.5, **grad, **RIM)
+        assert abs(got[0] - (0.5 + extra)) < 1e-12, (row, got)
+
+
+def test_rim_smoothstep_edges_are_exact():
+    """1 − smoothstep(t − w, t + w, α): exactly 1 at α = t − w and below, exactly 0 at α = t + w and above, ½
+    at t, 1 − (3·¼² − 2·¼³) a quarter into the ramp; w = 0 is the hard step (1 at α ≤ t, 0 above); times the
+    HG lobe (`_hg`)."""
+    for t, w in ((0.5, 0.25), (0.3, 0.125), (0.75, 0.0)):
+        alpha = np.array([0.0, t - w, t - w + 0.5 * w, t, t + w, t + w + 1e-3, 1.0])
+        got = np.asarray(_rim_kernel(NUMPY_OPS, alpha, 0.4, t, w, -0.3)) / _hg(0.4, -0.3)
+        ramp = [(a - (t - w)) / (2 * w) if w else float(a > t) for a in alpha]
+        truth = [1.0 - _hermite(r) for r in ramp]
+        assert np.allclose(got, truth, rtol=0, atol=1e-12), (t, w, got, truth)
+        assert got[1] == 1.0 and got[-1] == 0.0 and got[0] == 1.0, got
+        if w:
+            assert got[4] == 0.0, got
+            assert abs(got[3] - 0.5) < 1e-12 and abs(got[2] - (1 - _hermite(0.25))) < 1e-12, got
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    alpha=st.floats(0.0, 1.0),
+    cos=st.floats(-1.0, 1.0),
+    t=st.floats(0.0, 1.0),
+    w=st.floats(0.0, 0.5),
+    g=st.floats(-0.99, 0.99),
+)
+@example(alpha=0.0, cos=1.0, t=0.0, w=0.0, g=0.99)
+@example(alpha=1.0, cos=-1.0, t=1.0, w=0.0, g=-0.99)
+@example(alpha=0.0, cos=-1.0, t=0.0, w=0.0, g=-0.99)
+@example(alpha=1.0, cos=1.0, t=1.0, w=0.0, g=0.99)
+@example(alpha=0.5, cos=1.0, t=0.5, w=0.0, g=0.99)  # α = t with w = 0: the guard's 0/0
+def test_rim_extremes_finite(alpha, cos, t, w, g):
+    """The back-light's glow over its whole domain (w = 0 the hard threshold, t at 0 and 1, g at ±0.99, α at
+    0 and 1): finite, in [0, p_HG], on float64 (NumPy) and float32 (Dr.Jit)."""
+    lobe = _hg(cos, g)
+    a = np.array([alpha, 0.0, 1.0])
+    f32 = dr.llvm.Float
+    for got in (_rim_kernel(NUMPY_OPS, a, cos, t, w, g), _rim_kernel(DRJIT_OPS, f32(a), cos, t, w, g)):
+        got = np.asarray(got, np.float64)
+        assert np.all(np.isfinite(got)) and np.all(got >= 0.0) and np.all(got <= lobe * (1 + 1e-5)), got
+
+
 def _sky_render(mi, density: float, depth: int, spp: int):
     from rtfit.reference.estimators import gbuffer, radiance_pass
 
@@ -387,8 +471,10 @@ def test_radiance_extremes_finite(elevation, azimuth, scale, view, g, a, b):
     for o in ((-9.0, -1.3, 0.7), (0.0, 0.0, 3.0)):
         for method in RADIANCE_METHODS:
             params = {"a_shadow": a, "a_lit": 10.0 - a, "b": b} if method.startswith("gradient") else {}
+            if "rim" in method:  # the hard threshold at t = 1, the lobe at its narrowest
+                params |= {"threshold": 1.0, "softness": 0.0, "g_rim": g, "k_rim": 10.0}
             runs = [_radiance(method, o, d, s, cloud, e=100.0, albedo=1.0, g=g, l_bg=100.0, **params)]
-            if method in ("gradient-16", "single-8-4"):
+            if method in ("gradient-16", "gradient-16-rim-blended", "single-8-4"):
                 f32 = dr.llvm.Float
                 inputs = {"ox": o[0], "oy": o[1], "oz": o[2], "dx": f32(d[:, 0]), "dy": f32(d[:, 1]),
                           "dz": f32(d[:, 2]), "sx": float(s[0]), "sy": float(s[1]), "sz": float(s[2]),
@@ -435,10 +521,8 @@ def test_shipped_scene_audit(cloud_audit):
     evaluated and fitted (the fit not worse than the given start). The radiance case beside it (the camera
     looks down through the cloud) has its own rows only."""
     shadow, radiance = cloud_audit.cases
-    assert (
-        set(cloud_audit.outcomes[radiance.id]) >= set(RADIANCE_METHODS)
-        and radiance.quantity == "cloud_radiance"
-    )
+    rows = {f"{k}-fitted" if m.unpublished else k for k, m in RADIANCE_METHODS.items()}  # rim: fitted only
+    assert set(cloud_audit.outcomes[radiance.id]) >= rows and radiance.quantity == "cloud_radiance"
     case = shadow
     assert case.id == "cloud0-shadow" and case.mask.sum() > 100
     ref = case.reference.mean[case.mask][:, 0]
@@ -464,6 +548,11 @@ def test_sky_scene_radiance_audit(tmp_path):
     rmse = {k: o.metrics["rmse"].value for k, o in outcomes.items()}
     assert all(np.isfinite(v) for v in rmse.values()), rmse
     assert rmse["gradient-16-fitted"] <= rmse["gradient-16"] * (1 + 1e-9)
+    for row in ("gradient-16-rim", "gradient-16-rim-blended"):  # unpublished constants: fitted rows only
+        assert row not in outcomes and f"{row}-fitted" in outcomes, set(outcomes)
+        fitted = outcomes[f"{row}-fitted"].parameters
+        for name, p in RADIANCE_METHODS[row].params.items():
+            assert np.isfinite(fitted[name]) and p.lower <= fitted[name] <= p.upper, (row, name, fitted)
 
 
 def test_no_distant_light_no_case(tmp_path):
@@ -491,7 +580,7 @@ def test_list_names_clouds():
     assert "clouds — cloud shadow: heterogeneous medium 'cloud'" in result.output
     assert (
         "plane, plane-mip1, plane-mip2, slab-4, slab-16, march-4, march-8, march-16, march-64, gradient-16, "
-        "single-8-4, single-16-8" in result.output
+        "gradient-16-rim, gradient-16-rim-blended, single-8-4, single-16-8" in result.output
     )
 
 
