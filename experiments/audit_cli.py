@@ -12,7 +12,10 @@ is one line, ``rtfit: error: …``, exit status 2, nothing written.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import sys
 from pathlib import Path
 
 import click
@@ -46,6 +49,31 @@ class AuditInputError(click.ClickException):
 
 def _error(message: str):
     raise AuditInputError(" ".join(str(message).split()))
+
+
+@contextlib.contextmanager
+def _stdout_for_the_json_alone(active: bool):
+    """With ``--json -`` stdout holds the JSON document alone: while the audit runs, whatever else writes
+    to stdout (your approximation's ``print``, at import or per call; C++ code writing to file descriptor 1)
+    goes to stderr. Before this, a user's ``print`` came first on stdout and the document did not parse
+    (the re-check of issue 32)."""
+    if not active:
+        yield
+        return
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+        os.dup2(2, 1)
+    except OSError:  # no file descriptor 1 (an embedding host): Python's own prints are still redirected
+        saved = None
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        sys.stderr.flush()
+        if saved is not None:
+            os.dup2(saved, 1)
+            os.close(saved)
 
 
 def _quantities(family: str) -> tuple[str, ...]:
@@ -200,27 +228,28 @@ def audit(
                 )
             return
         obj = click.get_current_context().find_root().obj or {}
-        result = run_audit(
-            scene,
-            approx,
-            spp=spp,
-            variant=variant,
-            fit=not no_fit,
-            out=out,
-            defines=_defines(defines),
-            camera=camera,
-            width=width,
-            height=height,
-            up=up,
-            seed=seed,
-            cache=cache,
-            pass_spp=pass_spp,
-            progress=bool(obj.get("bars", False)) and not no_progress,
-            ao_distance=ao_distance,
-            probe_at=probe_at,
-            grid=grid,
-            pom_depth=pom_depth,
-        )
+        with _stdout_for_the_json_alone(json_out == "-"):
+            result = run_audit(
+                scene,
+                approx,
+                spp=spp,
+                variant=variant,
+                fit=not no_fit,
+                out=out,
+                defines=_defines(defines),
+                camera=camera,
+                width=width,
+                height=height,
+                up=up,
+                seed=seed,
+                cache=cache,
+                pass_spp=pass_spp,
+                progress=bool(obj.get("bars", False)) and not no_progress,
+                ao_distance=ao_distance,
+                probe_at=probe_at,
+                grid=grid,
+                pom_depth=pom_depth,
+            )
     except AuditError as e:
         _error(str(e))
     click.echo(f"camera: {result.info.camera}", err=True)

@@ -986,6 +986,39 @@ def test_a_corrupt_exr_pass_prints_no_openexr_lines(tmp_path, capfd, caplog, dam
     assert raw.out == "" and "EXR" not in raw.err and "Exception raised" not in raw.err, raw
 
 
+@pytest.mark.parametrize("damage", ["garbage npz", "edited spp"])
+def test_a_bad_cached_pass_is_named_once_per_run(tmp_path, caplog, damage):
+    """`PassEntry.passes` looks at a missing pass up to three times (before, while and after claiming it):
+    a corrupt pass, or one whose JSON ``spp`` was edited, printed its line three times (the re-check of
+    issue 32 through ``rtfit audit``); now one line, the pass rendered again, at the request's size. Random
+    bytes are "not an npz (zip) archive", not NumPy's text about pickles, cut off mid-sentence."""
+    import json
+    import logging
+
+    import numpy as np
+
+    from rtfit.reference.cache import PassEntry, PassResult
+
+    entry = PassEntry(tmp_path, {"test": "bad-pass-once"})
+    entry.save(0, PassResult(np.ones((2, 3)), np.ones((2, 3)) * 0.1, 16, 0, 0.01))
+    data, meta = entry.folder / "pass-00000.npz", entry.folder / "pass-00000.json"
+    if damage == "garbage npz":
+        data.write_bytes(os.urandom(100))
+    else:
+        meta.write_text(json.dumps({**json.loads(meta.read_text()), "spp": 400}))
+
+    def render(i):
+        return PassResult(np.full((2, 3), 2.0), np.zeros((2, 3)), 16, 1, 0.01)
+
+    with caplog.at_level(logging.INFO, logger="rtfit.reference"):
+        results, rendered = entry.passes(1, render, spp_of=lambda i: 16)
+    said = [r.getMessage() for r in caplog.records if str(data) in r.getMessage()]
+    assert len(said) == 1 and "rendered again" in said[0], said
+    if damage == "garbage npz":
+        assert "not an npz (zip) archive" in said[0] and "pickle" not in said[0], said
+    assert rendered == 1 and results[0].spp == 16 and np.all(results[0].mean == 2.0)
+
+
 def test_ray_init_retry_lines_are_held(capfd):
     """An address that answers TCP but is no Ray cluster: Ray's C++ client printed a line a second while
     retrying (21 before the error, issue 32); now the error alone, as one ValueError line. A connection
