@@ -186,6 +186,20 @@ VALUES = {
         '<emitter type="spot"><float name="intensity" value="-1"/></emitter>',
         "intensity: must be >= 0",
     ),
+    "directional direction 0": (
+        '<emitter type="directional"><vector name="direction" x="0" y="0" z="0"/>'
+        '<rgb name="irradiance" value="3"/></emitter>',
+        "direction: must be non-zero (got (0, 0, 0))",
+    ),
+    # BSDFs: a numeric index of refraction (Mitsuba takes 0, then the render fails on NaN)
+    "dielectric int_ior 0": (
+        '<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="0"/></bsdf></shape>',
+        '<bsdf type="dielectric"> int_ior: must be in [1, 10] (got 0)',
+    ),
+    "roughplastic ext_ior -1": (
+        '<shape type="sphere"><bsdf type="roughplastic"><float name="ext_ior" value="-1"/></bsdf></shape>',
+        "ext_ior: must be in [1, 10]",
+    ),
     "spot cutoff 0": (
         '<emitter type="spot"><float name="cutoff_angle" value="0"/></emitter>',
         "cutoff_angle: must be in (0, 90]",
