@@ -23,6 +23,7 @@ import click
 from rtfit.reference.mitsuba_xml import UP_AXES
 
 from .applicability import describe
+from .atomic import writable_problem
 from .audit import AuditError, inspect_scene
 from .audit_api import summary_document
 from .audit_parallax_occlusion import check_pom_depth
@@ -90,6 +91,9 @@ def _json_target(path: str) -> None:
         _error(f"--json {path}: a folder (expected a file name, or - for stdout)")
     if not p.parent.is_dir():
         _error(f"--json {path}: no folder {p.parent}")
+    problem = writable_problem(p.parent)  # /proc, a read-only mount: refused before the audit renders
+    if problem:
+        _error(f"--json {path}: {problem}")
 
 
 def _defines(values: tuple[str, ...]) -> dict[str, str]:

@@ -588,6 +588,9 @@ def _json_target(value):
         _fail(f"--json {value}: is a directory (name a file)")
     if not path.parent.is_dir():
         _fail(f"--json {value}: no directory {path.parent}")
+    problem = writable_problem(path.parent)  # /proc, a read-only mount: not after the benchmark (issue 32)
+    if problem:
+        _fail(f"--json {value}: {problem}")
     return path
 
 

@@ -757,6 +757,7 @@ OPTIONS = {
     "--ao-distance inf": (["--ao-distance", "inf"], "--ao-distance inf: must be a finite distance"),
     "--ao-distance 1e30": (["--ao-distance", "1e30"], "--ao-distance 1e+30: must be a finite distance"),
     "--ao-distance 0": (["--ao-distance", "0"], "'--ao-distance'"),
+    "--json under /proc": (["--json", "/proc/rtfit-x.json"], "--json /proc/rtfit-x.json: cannot create"),
 }
 
 
@@ -806,6 +807,10 @@ def test_api_width_beyond_the_limit(tmp_path):
 OTHER_COMMANDS = {
     "bench --size 2^40": (["bench", "diffuse", "--size", str(1 << 40)], "'--size'"),
     "bench --size 1": (["bench", "diffuse", "--size", "1"], "'--size'"),
+    "bench --json under /proc": (  # was: the benchmark ran (2 minutes), then a traceback
+        ["bench", "diffuse", "--json", "/proc/rtfit-x.json"],
+        "--json /proc/rtfit-x.json: cannot create anything in /proc",
+    ),
     "cache info unreadable": (["cache", "info", "--cache", "/proc/1/cwd"], "cannot read it"),
     "cache info symlink loop": (
         ["cache", "info", "--cache", "{tmp}/loop"],
