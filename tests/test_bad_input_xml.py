@@ -936,6 +936,36 @@ def test_report_of_a_bad_results_file(capsys, tmp_path, make, says):
     assert sorted(p.name for p in d.iterdir()) == ["results.json"]  # nothing written
 
 
+@pytest.mark.parametrize("layout", ["one experiment", "a run folder"])
+def test_report_into_a_read_only_folder(capsys, tmp_path, layout):
+    """``rtfit report DIR`` writes into DIR (and each experiment's folder below it): a folder that cannot be
+    written ended in a traceback from the first atomic write (the re-check of issue 32); now one line before
+    anything is written. Root ignores permissions, so the folder is made immutable (``chattr +i``) there."""
+    import subprocess
+
+    d = tmp_path / "run"
+    exp = d if layout == "one experiment" else d / "half-lambert"
+    exp.mkdir(parents=True)
+    (exp / "results.json").write_text(_results_text(), encoding="utf-8")
+    locked = exp
+    if os.geteuid() == 0:
+        if subprocess.run(["chattr", "+i", str(locked)], capture_output=True).returncode != 0:
+            pytest.skip("chattr +i is not available here")
+    else:
+        locked.chmod(0o555)
+    try:
+        rc = main(["report", str(d)])
+        err = capsys.readouterr().err.strip().splitlines()
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["chattr", "-i", str(locked)], check=True)
+        else:
+            locked.chmod(0o755)
+    assert rc == 2 and len(err) == 1 and err[0].startswith("rtfit: error: "), err
+    assert f"{locked}: the report is written there, but cannot create anything" in err[0], err
+    assert sorted(p.name for p in d.iterdir()) == ["results.json" if layout == "one experiment" else exp.name]
+
+
 def test_sweep_gpus_without_a_gpu(capsys, tmp_path):
     from rtfit.reference.variants import cuda_available
 
