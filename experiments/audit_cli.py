@@ -12,7 +12,10 @@ is one line, ``rtfit: error: …``, exit status 2, nothing written.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import sys
 from pathlib import Path
 
 import click
@@ -20,6 +23,7 @@ import click
 from rtfit.reference.mitsuba_xml import UP_AXES
 
 from .applicability import describe
+from .atomic import writable_problem
 from .audit import AuditError, inspect_scene
 from .audit_api import summary_document
 from .audit_parallax_occlusion import check_pom_depth
@@ -48,6 +52,31 @@ def _error(message: str):
     raise AuditInputError(" ".join(str(message).split()))
 
 
+@contextlib.contextmanager
+def _stdout_for_the_json_alone(active: bool):
+    """With ``--json -`` stdout holds the JSON document alone: while the audit runs, whatever else writes
+    to stdout (your approximation's ``print``, at import or per call; C++ code writing to file descriptor 1)
+    goes to stderr. Before this, a user's ``print`` came first on stdout and the document did not parse
+    (the re-check of issue 32)."""
+    if not active:
+        yield
+        return
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+        os.dup2(2, 1)
+    except OSError:  # no file descriptor 1 (an embedding host): Python's own prints are still redirected
+        saved = None
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        sys.stderr.flush()
+        if saved is not None:
+            os.dup2(saved, 1)
+            os.close(saved)
+
+
 def _quantities(family: str) -> tuple[str, ...]:
     """The quantities an audited family compares (none for a family the audit does not run)."""
     f = AUDITED.get(family)
@@ -62,6 +91,9 @@ def _json_target(path: str) -> None:
         _error(f"--json {path}: a folder (expected a file name, or - for stdout)")
     if not p.parent.is_dir():
         _error(f"--json {path}: no folder {p.parent}")
+    problem = writable_problem(p.parent)  # /proc, a read-only mount: refused before the audit renders
+    if problem:
+        _error(f"--json {path}: {problem}")
 
 
 def _defines(values: tuple[str, ...]) -> dict[str, str]:
@@ -200,27 +232,28 @@ def audit(
                 )
             return
         obj = click.get_current_context().find_root().obj or {}
-        result = run_audit(
-            scene,
-            approx,
-            spp=spp,
-            variant=variant,
-            fit=not no_fit,
-            out=out,
-            defines=_defines(defines),
-            camera=camera,
-            width=width,
-            height=height,
-            up=up,
-            seed=seed,
-            cache=cache,
-            pass_spp=pass_spp,
-            progress=bool(obj.get("bars", False)) and not no_progress,
-            ao_distance=ao_distance,
-            probe_at=probe_at,
-            grid=grid,
-            pom_depth=pom_depth,
-        )
+        with _stdout_for_the_json_alone(json_out == "-"):
+            result = run_audit(
+                scene,
+                approx,
+                spp=spp,
+                variant=variant,
+                fit=not no_fit,
+                out=out,
+                defines=_defines(defines),
+                camera=camera,
+                width=width,
+                height=height,
+                up=up,
+                seed=seed,
+                cache=cache,
+                pass_spp=pass_spp,
+                progress=bool(obj.get("bars", False)) and not no_progress,
+                ao_distance=ao_distance,
+                probe_at=probe_at,
+                grid=grid,
+                pom_depth=pom_depth,
+            )
     except AuditError as e:
         _error(str(e))
     click.echo(f"camera: {result.info.camera}", err=True)

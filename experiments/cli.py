@@ -448,6 +448,7 @@ def _warn_missing_figures(directory: Path) -> None:
 def report_cmd(directory, single_file):
     """Regenerate report.md/html and tables.tex from DIRECTORY/results.json (or every experiment below it)."""
     if (directory / "results.json").is_file():
+        _check_report_folders([directory])
         write_report(directory, single_file=single_file)
         _warn_missing_figures(directory)
         click.echo(str((directory / ("report.single.html" if single_file else "report.html")).resolve()))
@@ -457,6 +458,7 @@ def report_cmd(directory, single_file):
     )
     if not subdirs:
         _fail(f"{directory}: no results.json here or in its subdirectories")
+    _check_report_folders([directory, *subdirs])
     for sub in subdirs:
         write_report(sub, single_file=single_file)
         _warn_missing_figures(sub)
@@ -471,6 +473,16 @@ def report_cmd(directory, single_file):
         raise click.exceptions.Exit(1)
     else:
         click.echo(f"rtfit: book.pdf not written: {book.error}", err=True)
+
+
+def _check_report_folders(folders: list[Path]) -> None:
+    """Each folder the report is written into must be writable, checked before anything is written (a
+    read-only or immutable folder ended in a traceback from the first atomic write: the re-check of issue
+    32)."""
+    for folder in folders:
+        problem = writable_problem(folder)
+        if problem:
+            _fail(f"{folder}: the report is written there, but {problem}")
 
 
 @cli.command("export-xml")
@@ -588,6 +600,9 @@ def _json_target(value):
         _fail(f"--json {value}: is a directory (name a file)")
     if not path.parent.is_dir():
         _fail(f"--json {value}: no directory {path.parent}")
+    problem = writable_problem(path.parent)  # /proc, a read-only mount: not after the benchmark (issue 32)
+    if problem:
+        _fail(f"--json {value}: {problem}")
     return path
 
 

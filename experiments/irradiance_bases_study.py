@@ -364,12 +364,12 @@ def published_checks(quick: bool) -> list[Check]:
         return []
     try:
         grace = envs.probe_environment("grace", 64 if quick else None)
-    except Exception as e:  # a file that does not read: the check fails and says why
+    except Exception as e:  # a file that does not read: the check fails, naming the file and why
         why = str(e).splitlines()[0] if str(e) else type(e).__name__
         return [
             Check(
                 name="probe-grace: L2 vs Ramamoorthi & Hanrahan 2001",
-                value=why,
+                value=f"{envs.probe_dir() / envs.PROBES['grace'][0]}: does not read ({why})",
                 expected="a probe that reads",
             )
         ]

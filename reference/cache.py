@@ -269,6 +269,14 @@ class PassEntry:
         self.folder = base / self.key[:2] / self.key
         self.storage = storage
         self.info = {"key": self.key, **ident, **(info or {})}
+        self._said: set[tuple[str, str]] = set()  # (pass file, why) already logged: `passes` loads thrice
+
+    def _say(self, level: int, data: Path, why: str, text: str, *args) -> None:
+        """Log ``text`` once per pass file and reason: `passes` looks at a missing pass up to three times
+        (before, while and after claiming it), and a bad pass is one line, not three (issue 32)."""
+        if (str(data), why) not in self._said:
+            self._said.add((str(data), why))
+            log.log(level, text, data, *args)
 
     def _files(self, index: int) -> tuple[Path, Path]:
         return self.folder / f"pass-{index:05d}.{self.storage}", self.folder / f"pass-{index:05d}.json"
@@ -289,6 +297,9 @@ class PassEntry:
                 ch = read_exr(data)
                 mean, var = rgb_group(ch, "mean"), rgb_group(ch, "var")
             else:
+                with open(data, "rb") as fh:
+                    if fh.read(4) != b"PK\x03\x04":  # np.load reads anything else as a pickle, and says so
+                        raise ValueError("not an npz (zip) archive")
                 with open(data, "rb") as fh, np.load(fh) as z:  # own handle: closed even if np.load fails
                     mean, var = z["mean"], z["var"]
             mean, var = mean.astype(np.float64), var.astype(np.float64)
@@ -298,9 +309,11 @@ class PassEntry:
             if n < 1:
                 raise ValueError(f"spp {n}")
             if spp is not None and n != spp:
-                log.info(
-                    "cached pass %s holds %d samples, this request needs %d: it is rendered again",
+                self._say(
+                    logging.INFO,
                     data,
+                    f"spp {n}",
+                    "cached pass %s holds %d samples, this request needs %d: it is rendered again",
                     n,
                     spp,
                 )
@@ -308,8 +321,11 @@ class PassEntry:
             return PassResult(mean, var, n, int(info["seed"]), float(info["seconds"]))
         except (OSError, ValueError, RuntimeError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as e:
             # unreadable leftovers are re-rendered, never trusted; one line says which (issue 32)
-            why = " ".join(f"{type(e).__name__}: {e}".split())[:160]
-            log.warning("cached pass %s is unreadable (%s): it is rendered again", data, why)
+            why = " ".join(f"{type(e).__name__}: {e}".split())
+            why = why if len(why) <= 160 else why[:159] + "…"
+            self._say(
+                logging.WARNING, data, why, "cached pass %s is unreadable (%s): it is rendered again", why
+            )
             return None
 
     def save(self, index: int, result: PassResult) -> PassResult:

@@ -17,7 +17,8 @@ parser read, in three passes:
    (a sphere's radius > 0, emitted radiance/intensity ≥ 0, positions within ±`MAX_LENGTH`, the field of
    view in (0°, 180°), film sizes in [1, 16384] as the TOML camera's), every ``to_world`` finite and not
    singular (a zero scale: the shape, or the area light on it, has no size), and the chosen sensor a
-   ``perspective`` one (the audit traces its G-buffer through a pinhole camera).
+   ``perspective`` one (the audit traces its G-buffer through a pinhole camera); a numeric index of
+   refraction in [1, 10] (`_IOR`) and a light's direction non-zero (`NONZERO`).
 3. `mesh_problem(path)` (`rtfit.scenes.mesh_files`, shared with the TOML scenes' meshes) — a mesh file
    named by a shape, before Mitsuba loads it. The problem names the file; no message quotes its content.
 
@@ -106,6 +107,12 @@ PROPERTY_BOUNDS: dict[str, dict[str, Bounds]] = {
 """Per node kind (Mitsuba's object type), the bounds of a property by name: a number, or each component of a
 colour, vector or spectrum. Numbers not named here are only kept finite and within ±1e12."""
 _DIFFUSE = {"reflectance": Bounds(0.0, 1.0)}  # a diffuse BSDF's albedo, as a TOML material's
+_IOR = Bounds(1.0, 10.0)
+"""A dielectric's (or plastic's) ``int_ior``/``ext_ior`` given as a number: Mitsuba accepts 0 and the render
+then fails on NaN after writing a cache entry; its own table spans 1.0 (vacuum) to 2.42 (diamond)."""
+NONZERO: dict[str, tuple[str, ...]] = {"Emitter": ("direction", "sun_direction")}
+"""Vectors that must not be zero (as a TOML light's ``direction``): Mitsuba accepts a ``directional``
+emitter pointing nowhere, and the audit failed after rendering with "expected an (N, 3) array"."""
 
 
 class XmlProblem(ValueError):
@@ -326,6 +333,8 @@ def _value(node: XmlNode, key: str, v: object, bounds: Bounds) -> None:
 def _bounds(node: XmlNode, key: str) -> Bounds:
     if node.kind == "BSDF" and node.plugin == "diffuse" and key in _DIFFUSE:
         return _DIFFUSE[key]
+    if node.kind == "BSDF" and key in ("int_ior", "ext_ior"):
+        return _IOR
     return PROPERTY_BOUNDS.get(node.kind, {}).get(key, GENERIC)
 
 
@@ -346,6 +355,10 @@ def check_values(nodes: Iterable[XmlNode], camera: int = 0) -> str | None:
                 if key.startswith("_arg_"):
                     continue
                 _value(node, key, v, _bounds(node, key))
+                if key in NONZERO.get(node.kind, ()) and isinstance(v, tuple) and not any(v):
+                    raise XmlProblem(
+                        f"{node.location}: {_element(node)} {key}: must be non-zero (got {_show(v)})"
+                    )
     except XmlProblem as e:
         return str(e)
     return None

@@ -332,3 +332,18 @@ def test_bad_ray_address_that_never_answers(dirs, tmp_path):
     assert lines == [f"rtfit: error: --address 127.0.0.1:{port}: Ray did not connect within 3 s"], proc.stderr
     assert time.perf_counter() - t0 < 60
     assert not out.exists() and not cache.exists()
+
+
+def test_corrupt_probe_file(tmp_path, monkeypatch):
+    """A corrupt measured probe under ``$RTFIT_PROBE_DIR`` (issue 32: reported as "not found"): the
+    published check fails, naming the file and that it does not read; nothing else is printed."""
+    from rtfit.experiments.irradiance_bases_study import published_checks
+    from rtfit.reference import environments as envs
+
+    path = tmp_path / envs.PROBES["grace"][0]
+    path.write_bytes(os.urandom(4096))
+    monkeypatch.setenv("RTFIT_PROBE_DIR", str(tmp_path))
+    (check,) = published_checks(quick=True)
+    assert not check.passed
+    assert str(path) in str(check.value) and "does not read" in str(check.value)
+    assert "not found" not in str(check.value)

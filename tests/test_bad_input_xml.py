@@ -186,6 +186,20 @@ VALUES = {
         '<emitter type="spot"><float name="intensity" value="-1"/></emitter>',
         "intensity: must be >= 0",
     ),
+    "directional direction 0": (
+        '<emitter type="directional"><vector name="direction" x="0" y="0" z="0"/>'
+        '<rgb name="irradiance" value="3"/></emitter>',
+        "direction: must be non-zero (got (0, 0, 0))",
+    ),
+    # BSDFs: a numeric index of refraction (Mitsuba takes 0, then the render fails on NaN)
+    "dielectric int_ior 0": (
+        '<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="0"/></bsdf></shape>',
+        '<bsdf type="dielectric"> int_ior: must be in [1, 10] (got 0)',
+    ),
+    "roughplastic ext_ior -1": (
+        '<shape type="sphere"><bsdf type="roughplastic"><float name="ext_ior" value="-1"/></bsdf></shape>',
+        "ext_ior: must be in [1, 10]",
+    ),
     "spot cutoff 0": (
         '<emitter type="spot"><float name="cutoff_angle" value="0"/></emitter>',
         "cutoff_angle: must be in (0, 90]",
@@ -743,6 +757,7 @@ OPTIONS = {
     "--ao-distance inf": (["--ao-distance", "inf"], "--ao-distance inf: must be a finite distance"),
     "--ao-distance 1e30": (["--ao-distance", "1e30"], "--ao-distance 1e+30: must be a finite distance"),
     "--ao-distance 0": (["--ao-distance", "0"], "'--ao-distance'"),
+    "--json under /proc": (["--json", "/proc/rtfit-x.json"], "--json /proc/rtfit-x.json: cannot create"),
 }
 
 
@@ -792,6 +807,10 @@ def test_api_width_beyond_the_limit(tmp_path):
 OTHER_COMMANDS = {
     "bench --size 2^40": (["bench", "diffuse", "--size", str(1 << 40)], "'--size'"),
     "bench --size 1": (["bench", "diffuse", "--size", "1"], "'--size'"),
+    "bench --json under /proc": (  # was: the benchmark ran (2 minutes), then a traceback
+        ["bench", "diffuse", "--json", "/proc/rtfit-x.json"],
+        "--json /proc/rtfit-x.json: cannot create anything in /proc",
+    ),
     "cache info unreadable": (["cache", "info", "--cache", "/proc/1/cwd"], "cannot read it"),
     "cache info symlink loop": (
         ["cache", "info", "--cache", "{tmp}/loop"],
@@ -917,6 +936,36 @@ def test_report_of_a_bad_results_file(capsys, tmp_path, make, says):
     assert sorted(p.name for p in d.iterdir()) == ["results.json"]  # nothing written
 
 
+@pytest.mark.parametrize("layout", ["one experiment", "a run folder"])
+def test_report_into_a_read_only_folder(capsys, tmp_path, layout):
+    """``rtfit report DIR`` writes into DIR (and each experiment's folder below it): a folder that cannot be
+    written ended in a traceback from the first atomic write (the re-check of issue 32); now one line before
+    anything is written. Root ignores permissions, so the folder is made immutable (``chattr +i``) there."""
+    import subprocess
+
+    d = tmp_path / "run"
+    exp = d if layout == "one experiment" else d / "half-lambert"
+    exp.mkdir(parents=True)
+    (exp / "results.json").write_text(_results_text(), encoding="utf-8")
+    locked = exp
+    if os.geteuid() == 0:
+        if subprocess.run(["chattr", "+i", str(locked)], capture_output=True).returncode != 0:
+            pytest.skip("chattr +i is not available here")
+    else:
+        locked.chmod(0o555)
+    try:
+        rc = main(["report", str(d)])
+        err = capsys.readouterr().err.strip().splitlines()
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["chattr", "-i", str(locked)], check=True)
+        else:
+            locked.chmod(0o755)
+    assert rc == 2 and len(err) == 1 and err[0].startswith("rtfit: error: "), err
+    assert f"{locked}: the report is written there, but cannot create anything" in err[0], err
+    assert sorted(p.name for p in d.iterdir()) == ["results.json" if layout == "one experiment" else exp.name]
+
+
 def test_sweep_gpus_without_a_gpu(capsys, tmp_path):
     from rtfit.reference.variants import cuda_available
 
@@ -984,6 +1033,39 @@ def test_a_corrupt_exr_pass_prints_no_openexr_lines(tmp_path, capfd, caplog, dam
     assert len(lines) == 1 and str(data) in lines[0] and "rendered again" in lines[0], lines
     raw = capfd.readouterr()
     assert raw.out == "" and "EXR" not in raw.err and "Exception raised" not in raw.err, raw
+
+
+@pytest.mark.parametrize("damage", ["garbage npz", "edited spp"])
+def test_a_bad_cached_pass_is_named_once_per_run(tmp_path, caplog, damage):
+    """`PassEntry.passes` looks at a missing pass up to three times (before, while and after claiming it):
+    a corrupt pass, or one whose JSON ``spp`` was edited, printed its line three times (the re-check of
+    issue 32 through ``rtfit audit``); now one line, the pass rendered again, at the request's size. Random
+    bytes are "not an npz (zip) archive", not NumPy's text about pickles, cut off mid-sentence."""
+    import json
+    import logging
+
+    import numpy as np
+
+    from rtfit.reference.cache import PassEntry, PassResult
+
+    entry = PassEntry(tmp_path, {"test": "bad-pass-once"})
+    entry.save(0, PassResult(np.ones((2, 3)), np.ones((2, 3)) * 0.1, 16, 0, 0.01))
+    data, meta = entry.folder / "pass-00000.npz", entry.folder / "pass-00000.json"
+    if damage == "garbage npz":
+        data.write_bytes(os.urandom(100))
+    else:
+        meta.write_text(json.dumps({**json.loads(meta.read_text()), "spp": 400}))
+
+    def render(i):
+        return PassResult(np.full((2, 3), 2.0), np.zeros((2, 3)), 16, 1, 0.01)
+
+    with caplog.at_level(logging.INFO, logger="rtfit.reference"):
+        results, rendered = entry.passes(1, render, spp_of=lambda i: 16)
+    said = [r.getMessage() for r in caplog.records if str(data) in r.getMessage()]
+    assert len(said) == 1 and "rendered again" in said[0], said
+    if damage == "garbage npz":
+        assert "not an npz (zip) archive" in said[0] and "pickle" not in said[0], said
+    assert rendered == 1 and results[0].spp == 16 and np.all(results[0].mean == 2.0)
 
 
 def test_ray_init_retry_lines_are_held(capfd):

@@ -218,3 +218,28 @@ def test_sys_exit_after_validation_is_still_one_line(capsys, tmp_path):
         "rtfit: error: f: called sys.exit(0) (an approximation must return values or raise an exception)"
     ]
     assert not out.exists()
+
+
+def test_prints_of_user_code_do_not_spoil_json_on_stdout(tmp_path):
+    """``--json -``: stdout holds the JSON document alone. An approximation that prints (at import and on
+    every call) put its lines first on stdout and the document did not parse (the re-check of issue 32);
+    now they go to stderr. The installed command, end to end (a print reaches file descriptor 1)."""
+    import json
+
+    scene = tmp_path / "s.xml"
+    scene.write_text(
+        '<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="30"/>'
+        '<transform name="to_world"><lookat origin="0, -6, 0" target="0, 0, 0" up="0, 0, 1"/></transform>'
+        '<film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>'
+        '</sensor><shape type="sphere"/><emitter type="point"><point name="position" x="0" y="-4" z="4"/>'
+        '<float name="intensity" value="10"/></emitter></scene>'
+    )
+    path = user_file(tmp_path, "print('in f'); return g.irradiance", "print('at import')")
+    argv = ["audit", str(scene), "--approx", f"{path}:f", "--spp", "4", "--pass-spp", "2", "--no-fit"]
+    argv += ["--out", str(tmp_path / "out"), "--cache", str(tmp_path / "cache"), "--json", "-"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "rtfit", "-q", *argv], capture_output=True, text=True, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["format"] == "rtfit.audit-summary/1"
+    assert "at import" in proc.stderr and "in f" in proc.stderr
