@@ -368,11 +368,13 @@ class DepthMaps:
     def constants(self, ops, like) -> list:
         """Per light k its frame (t, b, d: 9 floats) and texel offset k·R²; then c and r: opaque scalars
         on Dr.Jit (one compiled kernel serves every batch of lights), else floats (a shader's literals)."""
-        offset = np.arange(len(self.frames))[:, None] * float(self.resolution) ** 2
-        values = [
-            float(v)
-            for v in (*np.hstack([self.frames.reshape(-1, 9), offset]).ravel(), *self.centre, self.radius)
-        ]
+        values = self._tables.get("const")
+        if values is None:  # made once: a kernel reads its constants per light and tap (~10⁵ calls a run)
+            offset = np.arange(len(self.frames))[:, None] * float(self.resolution) ** 2
+            values = self._tables["const"] = [
+                float(v)
+                for v in (*np.hstack([self.frames.reshape(-1, 9), offset]).ravel(), *self.centre, self.radius)
+            ]
         if ops is not DRJIT_OPS or not is_drjit(like):
             return values
         key = ("const", type(like))
