@@ -368,11 +368,13 @@ class DepthMaps:
     def constants(self, ops, like) -> list:
         """Per light k its frame (t, b, d: 9 floats) and texel offset k·R²; then c and r: opaque scalars
         on Dr.Jit (one compiled kernel serves every batch of lights), else floats (a shader's literals)."""
-        offset = np.arange(len(self.frames))[:, None] * float(self.resolution) ** 2
-        values = [
-            float(v)
-            for v in (*np.hstack([self.frames.reshape(-1, 9), offset]).ravel(), *self.centre, self.radius)
-        ]
+        values = self._tables.get("const")
+        if values is None:  # made once: a kernel reads its constants per light and tap (~10⁵ calls a run)
+            offset = np.arange(len(self.frames))[:, None] * float(self.resolution) ** 2
+            values = self._tables["const"] = [
+                float(v)
+                for v in (*np.hstack([self.frames.reshape(-1, 9), offset]).ravel(), *self.centre, self.radius)
+            ]
         if ops is not DRJIT_OPS or not is_drjit(like):
             return values
         key = ("const", type(like))
@@ -400,31 +402,55 @@ def _project(ops, maps: DepthMaps, k: int, px, py, pz):
     return u, v, 0.5 - (rx * dx + ry * dy + rz * dz) / (2.0 * r)
 
 
+_MEMO_POINTS = 1 << 12
+"""The most points whose bias-independent test values (`_kept`) a map keeps per light and tap (NumPy)."""
+
+
+def _kept(ops, maps: DepthMaps, key: tuple, points: tuple, make):
+    """``make()``, on the NumPy run of at most `_MEMO_POINTS` points kept in ``maps`` per ``key`` for these
+    very point arrays (identity): the fit's 33-value scan of b and its TRF steps evaluate the kernel again
+    on the same points, and the projection and filtered texels do not depend on b (only the test does).
+    The same operations on the same arrays: the same values. Other runs (Dr.Jit, a shader) trace it."""
+    if ops is not NUMPY_OPS or not all(isinstance(a, np.ndarray) and a.size <= _MEMO_POINTS for a in points):
+        return make()
+    hit = maps._tables.get(key)
+    if hit is not None and all(a is b for a, b in zip(hit[0], points, strict=True)):
+        return hit[1]
+    value = make()
+    maps._tables[key] = (points, value)
+    return value
+
+
 def _shadow_test(ops, maps: DepthMaps, k: int, x, y, z, px, py, pz, bias, taps: int):
     """Light k's seed test at the point (unit normal x, y, z): depth and normal filtered linearly (clamped
     addressing, texel centres at (i + ½)/R), lit where z − b·dot(n̂_map, n) < depth
     (001:3026-3028; a filtered normal shorter than 1e-6 reads a bias of 0: HLSL's normalize(0) is NaN), the
     mean over taps × taps compares one texel apart (taps = 1: the seed's single test; 3: a 3×3 PCF)."""
     res = float(maps.resolution)
-    u, v, zp = _project(ops, maps, k, px, py, pz)
+    points = (px, py, pz)
+    u, v, zp = _kept(ops, maps, ("project", k), points, lambda: _project(ops, maps, k, px, py, pz))
     lit = 0.0 * zp
     offsets = [(a - (taps - 1) / 2) / res for a in range(taps)]
     for ov in offsets:
         for ou in offsets:
-            fx_ = ops.clip((u + ou) * res - 0.5, 0.0, res - 1.0)
-            fy_ = ops.clip((v + ov) * res - 0.5, 0.0, res - 1.0)
-            i0 = ops.minimum(ops.floor(fx_), max(res - 2.0, 0.0))
-            j0 = ops.minimum(ops.floor(fy_), max(res - 2.0, 0.0))
-            i1, j1 = ops.minimum(i0 + 1.0, res - 1.0), ops.minimum(j0 + 1.0, res - 1.0)
-            fx, fy = fx_ - i0, fy_ - j0
-            base = maps.constants(ops, zp)[10 * k + 9]
-            val = []
-            for ch in _CHANNELS:
-                t00, t01 = (maps.sample(ops, ch, base + j0 * res + i, zp) for i in (i0, i1))
-                t10, t11 = (maps.sample(ops, ch, base + j1 * res + i, zp) for i in (i0, i1))
-                top, bottom = t00 * (1 - fx) + t01 * fx, t10 * (1 - fx) + t11 * fx
-                val.append(top * (1 - fy) + bottom * fy)
-            depth, mx, my, mz = val
+
+            def filtered(ou=ou, ov=ov) -> list:
+                fx_ = ops.clip((u + ou) * res - 0.5, 0.0, res - 1.0)
+                fy_ = ops.clip((v + ov) * res - 0.5, 0.0, res - 1.0)
+                i0 = ops.minimum(ops.floor(fx_), max(res - 2.0, 0.0))
+                j0 = ops.minimum(ops.floor(fy_), max(res - 2.0, 0.0))
+                i1, j1 = ops.minimum(i0 + 1.0, res - 1.0), ops.minimum(j0 + 1.0, res - 1.0)
+                fx, fy = fx_ - i0, fy_ - j0
+                base = maps.constants(ops, zp)[10 * k + 9]
+                val = []
+                for ch in _CHANNELS:
+                    t00, t01 = (maps.sample(ops, ch, base + j0 * res + i, zp) for i in (i0, i1))
+                    t10, t11 = (maps.sample(ops, ch, base + j1 * res + i, zp) for i in (i0, i1))
+                    top, bottom = t00 * (1 - fx) + t01 * fx, t10 * (1 - fx) + t11 * fx
+                    val.append(top * (1 - fy) + bottom * fy)
+                return val
+
+            depth, mx, my, mz = _kept(ops, maps, ("filtered", k, ou, ov), points, filtered)
             length = ops.sqrt(mx * mx + my * my + mz * mz)
             cos = ops.select(length > 1e-6, (mx * x + my * y + mz * z) / ops.maximum(length, 1e-30), 0.0)
             lit = lit + ops.select(zp - bias * cos < depth, 1.0, 0.0)

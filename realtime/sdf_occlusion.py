@@ -146,8 +146,11 @@ class GridSDF:
 
     def _arrays(self, ops, Float, level):
         g = self.grids[min(level, self.levels - 1)]
-        if ops.name != "drjit":
-            return g.values.astype(np.float64).reshape(-1)
+        if ops.name != "drjit":  # the float64 copy made once per level (it was made per sample call)
+            hit = self._dr_cache.get(("float64", level))
+            if hit is None or hit[0] is not g.values:
+                hit = self._dr_cache[("float64", level)] = (g.values, g.values.astype(np.float64).reshape(-1))
+            return hit[1]
         key = (Float, level)
         arr = self._dr_cache.get(key)
         if arr is None:

@@ -67,6 +67,11 @@ class Untraceable(TypeError):
 _INF = "INF"  # placeholder for +inf in statements: each language writes its own literal
 
 
+_LITERALS: dict[tuple[float, float], str] = {}
+"""`float_literal`'s texts by (value, sign of zero): a kernel's constants recur (a light table's floats in
+every statement that reads them: ~10⁵ literals for ibl-samples' seven depth-map shaders)."""
+
+
 def float_literal(x: float) -> str:
     """Shortest decimal literal that rounds to float32(x), always with a '.' or exponent (GLSL/HLSL float).
 
@@ -74,6 +79,16 @@ def float_literal(x: float) -> str:
     x = float(x)
     if math.isnan(x):
         raise Untraceable("a NaN constant has no shader literal")
+    key = (x, math.copysign(1.0, x))  # −0.0 == 0.0: the sign keeps "-0.0" apart
+    text = _LITERALS.get(key)
+    if text is None:
+        text = _LITERALS[key] = _float_literal(x)
+        if len(_LITERALS) > 1 << 16:
+            _LITERALS.clear()
+    return text
+
+
+def _float_literal(x: float) -> str:
     with np.errstate(over="ignore"):
         f = np.float32(x)  # beyond float32's range: ±inf, as the kernel's float32 run would round it
     if math.isinf(f):

@@ -301,6 +301,27 @@ def test_in_kernel_flat_map_by_hand_with_bias_and_pcf():
     assert float(_kernel_vis(edge, p + 0.5 * t, [[0, 0, 1.0]], taps=3)[0, 0]) == 1.0
 
 
+def test_kept_texels_serve_every_bias_on_the_same_points_and_no_others():
+    """The by-hand flat map above (depth 0.5, normal +z): the NumPy run keeps each light's projection and
+    filtered texels for the same point arrays (`_kept`: a scan of b re-evaluates on them), so b = 0.01, 0,
+    0.01 in turn give the by-hand [1, 0, 1, 0], [1, 0, 0, 0], [1, 0, 1, 0]; then other points (every height
+    lifted by 0.4: all lit at z < ½) are not read from the kept values."""
+    from rtfit.realtime import NUMPY_OPS
+
+    up = np.zeros((1, 8, 8, 3))
+    up[..., 2] = 1.0
+    maps = _maps(np.full((1, 8, 8), 0.5), up, [[0.0, 0.0, 1.0]], centre=(0, 0, 0), radius=1.0)
+    px, py, pz = np.array([[0.1, 0.1, 0.2], [0.1, 0.1, -0.2], [0.0, 0.0, -0.01], [0.0, 0.0, -0.01]]).T.copy()
+    nx, ny, nz = np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0], [0, 0, -1.0]]).T.copy()
+
+    def vis(b, z=pz):
+        return list(ibl._shadow_test(NUMPY_OPS, maps, 0, nx, ny, nz, px, py, z, b, 1))
+
+    assert vis(0.01) == [1, 0, 1, 0] and vis(0.0) == [1, 0, 0, 0] and vis(0.01) == [1, 0, 1, 0]
+    assert maps._tables[("filtered", 0, 0.0, 0.0)][0][2] is pz
+    assert vis(0.0, pz + 0.4) == [1, 1, 1, 1]
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.floats(0.0, 1e6), st.sampled_from([1, 3]), st.lists(st.floats(-1e3, 1e3), min_size=6, max_size=6))
 def test_in_kernel_test_finite_at_any_bias_and_point(bias, taps, pn):

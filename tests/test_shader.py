@@ -140,6 +140,11 @@ def test_float_literals_round_trip_in_float32():
     assert float_literal(math.inf) == "INF"
     assert float_literal(1e39) == "INF" and float_literal(-1e39) == "(-INF)"  # beyond float32: rounds to inf
     assert float_literal(0.5) == "0.5" and float_literal(1.0) == "1.0" and float_literal(1e-30) == "1.0e-30"
+    # memoised texts keep the sign of zero (−0.0 == 0.0 as a key) and NaN stays refused on every call
+    assert [float_literal(0.0), float_literal(-0.0), float_literal(0.0)] == ["0.0", "-0.0", "0.0"]
+    for _ in range(2):
+        with pytest.raises(Untraceable, match="NaN"):
+            float_literal(math.nan)
 
 
 # ------------------------------------------------------------------------------- tracing rules
