@@ -548,7 +548,7 @@ def _cell_lines(c) -> list[tuple[str, float, str]]:
     """A cell as lines (LaTeX, estimated width in pt, 'word' or 'line'): a 'line' never breaks."""
     if c.numeric and not c.text.strip() and not c.sub:
         return [("", 0.0, "line")]
-    if c.numeric:
+    if c.numeric and not _is_prose(c.text):
         text, extra = c.text, ""
         if " ± " in text:  # value ± standard error: the ± part goes below in small print
             text, extra = text.split(" ± ", 1)
@@ -585,6 +585,14 @@ def _cell_lines(c) -> list[tuple[str, float, str]]:
     return lines
 
 
+def _is_prose(text: str) -> bool:
+    """A cell of a numeric column that is a sentence with numbers in it (a check's value such as
+    "Σ|point − disc| / Σ disc = 0.00583, low anti-solar sky 0.0184; …"), wider than a third of the text
+    width: it wraps like text. As one unbreakable number it made the nishita-sky checks table 185 pt wider
+    than the page (issue 32)."""
+    return len(text.split()) > 3 and text_width(text) > TEXT_WIDTH_PT / 3
+
+
 def _bold(c) -> bool:
     return c.style in ("best", "fail") or (c.md and "**" in c.text)
 
@@ -618,7 +626,8 @@ def _words_max(lines: list[tuple[str, float, str]], cell) -> float:
 
 class _Column:
     def __init__(self, header, cells):
-        self.numeric = bool(header.numeric)
+        # a column holding a sentence (`_is_prose`) is laid out as text: it wraps into the room left
+        self.numeric = bool(header.numeric) and not any(c.numeric and _is_prose(c.text) for c in cells)
         self.header = header
         hl = _cell_lines(_plain(header))
         self.head_tex = hl[0][0]

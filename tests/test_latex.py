@@ -242,6 +242,30 @@ def test_wide_and_long_tables_are_split_and_broken(tmp_path):
     _assert_clean(_compile(tmp_path, tex))
 
 
+@needs_pdflatex
+def test_a_sentence_in_a_numeric_column_wraps(tmp_path):
+    """A checks table's value column holds numbers and, in one row, a sentence with numbers in it (the
+    nishita-sky disc-sun check): laid out as one unbreakable number it was 185 pt wider than the page;
+    the column now wraps like text and the table fits (issue 32, the book's overfull boxes)."""
+    sentence = ("Σ|point − disc| / Σ disc = 0.00583, low anti-solar sky 0.0184; 0.12 σ of this run's SS "
+                "reference sum")  # fmt: skip
+    header = [_Cell("Check"), _Cell("Value", numeric=True)]
+    rows = [
+        [_Cell("sun 45°: Σ quadrature / Σ Mitsuba SS (G)"), _Cell("0.9939", numeric=True)],
+        [
+            _Cell("sun −4°: the sun's disc vs a point sun in the SS quadrature (G)"),
+            _Cell(sentence, numeric=True),
+        ],
+        [_Cell("solar spectrum: max relative difference"), _Cell("2.220e-16", numeric=True)],
+    ]
+    tex = latex.render_tables("checks", [_Table("table-checks", "Checks.", header, rows, [])])
+    for spec in re.findall(r"\\begin\{(?:tabular|longtable)\}\{(.*)\}\n", tex):
+        widths = [float(w) for w in re.findall(r"p\{([0-9.]+)pt\}", spec)]
+        assert sum(widths) + 2 * latex.TABCOLSEP_PT * len(widths) <= latex.TEXT_WIDTH_PT
+    assert "0.00583" in tex
+    _assert_clean(_compile(tmp_path, tex))
+
+
 def test_fits_table_split_keys_later_parts_by_fit():
     """height-fog's fits table is split; its second part holds the per-fit columns, one row per fit,
     without the Parameter column."""
