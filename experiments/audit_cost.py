@@ -1,0 +1,95 @@
+"""The engine's cost of a method: ns per pixel of its kernel on the run's backend, its per-pixel inputs
+tiled to a measurable size (`method_cost`; split from `audit_run`, issue 30)."""
+
+from __future__ import annotations
+
+import drjit as dr
+import numpy as np
+
+from rtfit.realtime.arrays import Uniforms, backend_float, to_drjit
+from rtfit.realtime.methods import Method
+
+from .audit_family import FamilyCase
+from .cost import time_drjit
+
+COST_ELEMENTS = 1 << 20  # inputs are tiled to this many elements for the cost measurement
+_COST_INPUT_BYTES = 64 << 20
+"""At most this many bytes of tiled per-pixel inputs in a cost measurement (float32, every input together):
+far beyond any CPU cache, so the memory traffic is still what is timed. The caustics' splats read 112
+per-pixel inputs: at 2^20 elements their tiled copies were 0.9 GB (and as much again on the host), which
+lifted the quick suite's peak memory to 3.9 GB (issue 33); they are timed on 2^17 elements now."""
+
+
+_UNIFORM_FLOATS = 1024
+"""A table of at most this many floats, where the kernel reads it by index (coefficients: SH L2's 27, L4's
+75), is timed as a shader's constant buffer (`rtfit.realtime.arrays.Uniforms`): 256 float4, a uniform array
+an engine declares; a larger table (a cube map's 6·16² texels) is a texture, gathered from as it is."""
+_COST_PROBE = 1 << 12  # elements of the first, sizing call of a cost measurement
+_COST_CALL_SECONDS = 0.05  # the sized call's target duration: a slow kernel is timed on fewer elements
+_COST_MIN_SECONDS = 0.05
+"""The least time the measured call is repeated for (and at least 7 times; the median is the cost): a kernel
+at ~1 ns a pixel is one 1 ms call at 2^20 elements, so 50 ms is ~50 repeats; a slow kernel sized to
+`_COST_CALL_SECONDS` a call runs its 7. At 0.2 s, 23 methods spent ~4.6 s of a Cornell-box audit here."""
+
+
+def method_cost(
+    method: Method,
+    case: FamilyCase,
+    backend: str,
+    size: int = COST_ELEMENTS,
+    min_seconds: float = _COST_MIN_SECONDS,
+) -> dict:
+    """ns per pixel of ``method`` (declared parameters) on the backend, its per-pixel inputs (channel 0 of the
+    case) tiled to ``size`` float32 elements; a table (an array that is not per pixel) is passed as it is.
+
+    A kernel that would take longer than `_COST_CALL_SECONDS` a call at ``size`` (timed first on
+    `_COST_PROBE` elements) is timed on proportionally fewer, never fewer than `_COST_PROBE`: a cone tracer at
+    ~10 µs a pixel on 2 CPU cores took 10 s a call on 2^20 elements, 80 s for its 7 repeats + warm-up. The
+    sizing call is the median of 7 repeats with no minimum duration (``min_seconds`` 0: it only sizes the
+    measured call, which keeps its `_COST_MIN_SECONDS`): 15 methods' sizing calls took 2.9 s of a
+    Cornell-box audit's evaluation at 0.2 s each."""
+    n = int(case.mask.sum())
+    per_pixel = sum(
+        1
+        for name in method.input_names
+        if isinstance(v := case.channel_inputs[0][name], (np.ndarray, np.generic)) and np.size(v) == n > 0
+    )
+    size = min(size, max(_COST_PROBE, _COST_INPUT_BYTES // (4 * max(per_pixel, 1))))
+    if size > _COST_PROBE:
+        probe = method_cost(method, case, backend, _COST_PROBE, min_seconds=0.0)
+        per_element = probe["ns_per_pixel"] * 1e-9
+        size = int(min(size, max(_COST_PROBE, _COST_CALL_SECONDS / max(per_element, 1e-15))))
+    Float = backend_float(backend)
+    reps = max(1, -(-size // max(n, 1)))
+    args, host, keys, consts, uniforms = [], [], [], {}, {}
+    for name in method.input_names:
+        v = case.channel_inputs[0][name]
+        if not isinstance(v, (int, float, np.ndarray, np.generic)):  # a sampler object (a distance field)
+            consts[name] = v
+        elif np.ndim(v) and np.size(v) != n:
+            table = np.ascontiguousarray(v, np.float32).reshape(-1)
+            consts[name] = to_drjit(Float, table)
+            if table.size <= _UNIFORM_FLOATS:
+                uniforms[name] = Uniforms.of(table)
+        elif np.ndim(v):
+            a = np.tile(np.asarray(v, np.float64), reps)[:size]
+            a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
+            host.append(a[:_COST_PROBE])  # the trial below reads no more
+            args.append(to_drjit(Float, a))  # aligned: one compiled kernel whatever NumPy's addresses
+            keys.append(name)
+        else:
+            consts[name] = float(v)
+    elements = min(n * reps, size) if keys else 1
+    if uniforms:  # a small table read by index, as a shader's constant buffer (`Uniforms`: nothing folded)
+        trial = [to_drjit(Float, a) for a in host]  # reads the table by index? (small)
+        try:
+            dr.eval(method.evaluate({**consts, **uniforms, **dict(zip(keys, trial, strict=True))}))
+            consts.update(uniforms)
+        except (TypeError, IndexError, AttributeError, RuntimeError):  # a kernel that gathers from it
+            pass
+
+    def call(*xs):
+        return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))})
+
+    t = time_drjit(call, tuple(args), elements, min_seconds=min_seconds)
+    return {**t.to_dict(), "backend": backend}
