@@ -40,6 +40,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -209,7 +210,7 @@ def _quadrature_drjit(n: np.ndarray, d: np.ndarray, wl: np.ndarray, backend: str
 
     if backend not in ("llvm", "cuda"):
         raise ValueError(f"backend must be None, 'llvm' or 'cuda' (got {backend!r})")
-    mod = dr.cuda if backend == "cuda" else dr.llvm
+    mod: Any = dr.cuda if backend == "cuda" else dr.llvm
     F, U = mod.Float64, mod.UInt32
     dx, dy, dz = (F(np.ascontiguousarray(d[:, k])) for k in range(3))
     w0, w1, w2 = (F(np.ascontiguousarray(wl[:, k])) for k in range(3))
