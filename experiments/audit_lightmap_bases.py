@@ -44,6 +44,7 @@ from rtfit.realtime.environment_bases import ALL_METHODS, METHODS
 from rtfit.realtime.hemisphere_bases import (
     HEMISPHERE_METHODS,
     RNM_BASIS,
+    hbasis_design_matrix,
     hbasis_project,
     hemisphere_quadrature,
 )
@@ -210,7 +211,10 @@ def lightmaps(setup: AuditSetup, env) -> Lightmaps | str:
     cells = cell_vectors(env)
     e = cell_irradiance(env, cells, world, backend).reshape(len(frames), len(local), 3)
     m = len(dirs_t)
-    h6 = np.stack([hbasis_project(dirs_t, weights, e[f, :m], 6) for f in range(len(frames))])  # (F, 6, 3)
+    design = hbasis_design_matrix(dirs_t, 6)  # one rule for every texel: its H_k values once (issue 33)
+    h6 = np.stack(
+        [hbasis_project(dirs_t, weights, e[f, :m], 6, design) for f in range(len(frames))]
+    )  # (F, 6, 3)
     lm = e[:, m:]  # (F, 3, 3): rows E_0..E_2, RGB
     sample = world.reshape(len(frames), len(local), 3)[:, m:].reshape(-1, 3)
     sample = sample[np.linspace(0, len(sample) - 1, min(_CHECK_DIRECTIONS, len(sample))).astype(np.int64)]
