@@ -151,9 +151,13 @@ def cell_irradiance(env, cells, normals, backend: str | None) -> np.ndarray:
     """E (N, 3) (W/m²) of ``env`` at unit ``normals`` (N, 3): the ``cells`` of `cell_vectors`, plus the
     environment's constant part and disc sun exactly (`irradiance_quadrature` without the map)."""
     e = irradiance_quadrature(replace(env, radiance_map=None), normals)
-    if len(cells[0]):
-        d, w, channels = cells
-        e = e + samples_irradiance(normals, d, w, channels, backend)
+    d, w, channels = cells
+    for c in range(3):  # each cell lights one channel: a sum per channel over its own cells, one weight a
+        on = channels[:, c] != 0  # product instead of three (issue 33; on Dr.Jit the same sums, bit for bit)
+        if on.any():
+            e[:, c] = (
+                e[:, c] + samples_irradiance(normals, d[on], w[on], channels[on, c : c + 1], backend)[:, 0]
+            )
     return e
 
 

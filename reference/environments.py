@@ -185,13 +185,13 @@ def irradiance_quadrature(
 
 def samples_irradiance(normals, d, w, L, backend: str | None = None) -> np.ndarray:
     """Σ_k w_k L_k max(n·d_k, 0) (N, 3) at unit ``normals`` (N, 3) over samples: directions ``d`` (M, 3),
-    solid-angle weights ``w`` (M,), radiance ``L`` (M, 3). ``backend``: None sums in NumPy (float64, blocks
-    of at most 2²¹ products), "llvm"/"cuda" with a Dr.Jit float64 kernel."""
+    solid-angle weights ``w`` (M,), radiance ``L`` (M, 3) (or (M, C): C channels, (N, C)). ``backend``: None
+    sums in NumPy (float64, blocks of at most 2²¹ products), "llvm"/"cuda" with a Dr.Jit float64 kernel."""
     n = np.asarray(normals, np.float64)
     wl = np.asarray(L, np.float64) * np.asarray(w, np.float64)[:, None]
     keep = np.any(wl != 0, axis=1)
     d, wl = np.asarray(d, np.float64)[keep], wl[keep]
-    e = np.zeros((len(n), 3))
+    e = np.zeros((len(n), wl.shape[1]))
     if backend is None:
         chunk = max(256, (1 << 21) // max(len(n), 1))
         for a in range(0, len(d), chunk):
@@ -213,15 +213,15 @@ def _quadrature_drjit(n: np.ndarray, d: np.ndarray, wl: np.ndarray, backend: str
     mod: Any = dr.cuda if backend == "cuda" else dr.llvm
     F, U = mod.Float64, mod.UInt32
     dx, dy, dz = (F(np.ascontiguousarray(d[:, k])) for k in range(3))
-    w0, w1, w2 = (F(np.ascontiguousarray(wl[:, k])) for k in range(3))
+    ws = [F(np.ascontiguousarray(wl[:, k])) for k in range(wl.shape[1])]
     nx, ny, nz = (F(np.ascontiguousarray(n[:, k])) for k in range(3))
     m = dr.opaque(U, len(d))
 
-    def body(i, a0, a1, a2):
+    def body(i, *acc):
         c = dr.maximum(nx * dr.gather(F, dx, i) + ny * dr.gather(F, dy, i) + nz * dr.gather(F, dz, i), 0.0)
-        return i + 1, a0 + c * dr.gather(F, w0, i), a1 + c * dr.gather(F, w1, i), a2 + c * dr.gather(F, w2, i)
+        return i + 1, *(a + c * dr.gather(F, wk, i) for a, wk in zip(acc, ws, strict=True))
 
-    state = (dr.zeros(U, len(n)), dr.zeros(F, len(n)), dr.zeros(F, len(n)), dr.zeros(F, len(n)))
+    state = (dr.zeros(U, len(n)), *(dr.zeros(F, len(n)) for _ in ws))
     _, *sums = dr.while_loop(state=state, cond=lambda i, *_: i < m, body=body)
     dr.eval(sums)
     return np.stack([np.asarray(x, np.float64) for x in sums], axis=-1)
