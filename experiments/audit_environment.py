@@ -150,10 +150,11 @@ def environment_of(setup: AuditSetup, source: int, rows: int = BAKE_ROWS, family
     return emitter_environment(setup.mi, env.emitter, env.kind, rows, sun=env.sun, name=name)
 
 
-def environment_bases(env) -> dict:
+def environment_bases(env, backend: str | None = None) -> dict:
     """What an engine bakes from ``env`` (`build_bases` with the irradiance-bases family's settings): ``sh``
-    (SH to L4, (25, 3)), the cubes, λ, … as that family's rows read them."""
-    return build_bases(env, _CFG, fit_normals=_FIT_NORMALS)
+    (SH to L4, (25, 3)), the cubes, λ, … as that family's rows read them. ``backend``: the dense
+    quadrature's (`rtfit.reference.environments.irradiance_quadrature`)."""
+    return build_bases(env, _CFG, fit_normals=_FIT_NORMALS, backend=backend)
 
 
 def sh_l2_table(bases: dict) -> np.ndarray:
@@ -245,7 +246,9 @@ def build_bases(env, cfg: dict, fit_normals: int = 2048, backend: str | None = N
     out["zh3_lum"] = zh3_from_sh(sh, shared_axis=True)
     t0 = time.perf_counter()
     ss = supersample_for(env, cfg)
-    out["cube_valve"] = ambient_cube_from_axes(envs.irradiance_quadrature(env, np.array(CUBE_AXES), ss))
+    out["cube_valve"] = ambient_cube_from_axes(
+        envs.irradiance_quadrature(env, np.array(CUBE_AXES), ss, backend)
+    )
     out["timing_ms"]["cube-valve"] = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
     fn = fibonacci_sphere(fit_normals)

@@ -44,6 +44,7 @@ from rtfit.realtime.environment_bases import ALL_METHODS, METHODS
 from rtfit.realtime.hemisphere_bases import (
     HEMISPHERE_METHODS,
     RNM_BASIS,
+    hbasis_design_matrix,
     hbasis_project,
     hemisphere_quadrature,
 )
@@ -150,9 +151,13 @@ def cell_irradiance(env, cells, normals, backend: str | None) -> np.ndarray:
     """E (N, 3) (W/m²) of ``env`` at unit ``normals`` (N, 3): the ``cells`` of `cell_vectors`, plus the
     environment's constant part and disc sun exactly (`irradiance_quadrature` without the map)."""
     e = irradiance_quadrature(replace(env, radiance_map=None), normals)
-    if len(cells[0]):
-        d, w, channels = cells
-        e = e + samples_irradiance(normals, d, w, channels, backend)
+    d, w, channels = cells
+    for c in range(3):  # each cell lights one channel: a sum per channel over its own cells, one weight a
+        on = channels[:, c] != 0  # product instead of three (issue 33; on Dr.Jit the same sums, bit for bit)
+        if on.any():
+            e[:, c] = (
+                e[:, c] + samples_irradiance(normals, d[on], w[on], channels[on, c : c + 1], backend)[:, 0]
+            )
     return e
 
 
@@ -210,7 +215,10 @@ def lightmaps(setup: AuditSetup, env) -> Lightmaps | str:
     cells = cell_vectors(env)
     e = cell_irradiance(env, cells, world, backend).reshape(len(frames), len(local), 3)
     m = len(dirs_t)
-    h6 = np.stack([hbasis_project(dirs_t, weights, e[f, :m], 6) for f in range(len(frames))])  # (F, 6, 3)
+    design = hbasis_design_matrix(dirs_t, 6)  # one rule for every texel: its H_k values once (issue 33)
+    h6 = np.stack(
+        [hbasis_project(dirs_t, weights, e[f, :m], 6, design) for f in range(len(frames))]
+    )  # (F, 6, 3)
     lm = e[:, m:]  # (F, 3, 3): rows E_0..E_2, RGB
     sample = world.reshape(len(frames), len(local), 3)[:, m:].reshape(-1, 3)
     sample = sample[np.linspace(0, len(sample) - 1, min(_CHECK_DIRECTIONS, len(sample))).astype(np.int64)]

@@ -41,6 +41,7 @@ from rtfit.realtime.spherical_gaussians import SG_COUNTS, sg_cosine_error, sg_sh
 from rtfit.reference import environments as envs
 from rtfit.reference import probe_maps, use_variant
 from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR
+from rtfit.reference.variants import backend_of
 
 from . import figures
 from . import irradiance_hemisphere as hemisphere
@@ -217,7 +218,9 @@ def sunsky_bake_checks(ctx: StudyContext, baked: dict) -> list[Check]:
         m = case.mask
         own, ose = case.reference.mean[m], case.reference.stderr[m]
         nrm = np.stack([case.channel_inputs[0][k] for k in ("nx", "ny", "nz")], axis=1)
-        mine = envs.irradiance_quadrature(env, nrm, supersample_for(env, CFG[ctx.quick]))
+        mine = envs.irradiance_quadrature(
+            env, nrm, supersample_for(env, CFG[ctx.quick]), backend_of(ctx.variant)
+        )
         keep = np.ones(3, bool)
         keep[env.params.get("sun_negative_channels", [])] = False  # rtfit's disc sun clamps them to 0
         bias = ((mine - own).mean(axis=0) / own.mean(axis=0))[keep]
@@ -260,10 +263,11 @@ def sphere_results(ctx: StudyContext, environments: dict) -> dict:
     """Name → {bases, normals, quadrature, evals: row → (N, 3), metrics: row → `point_metrics`}."""
     normals = fibonacci_sphere(NORMALS[ctx.quick])
     cfg = CFG[ctx.quick]
+    backend = backend_of(ctx.variant)  # the dense quadratures on Dr.Jit (issue 33)
     out = {}
     for name, env in environments.items():
-        b = build_bases(env, cfg, FIT_NORMALS[ctx.quick])
-        quad = envs.irradiance_quadrature(env, normals, supersample_for(env, cfg))
+        b = build_bases(env, cfg, FIT_NORMALS[ctx.quick], backend)
+        quad = envs.irradiance_quadrature(env, normals, supersample_for(env, cfg), backend)
         evals = {r.method: evaluate_row(r, b, normals, quad) for r in ROWS}
         zero = np.zeros_like(quad)
         out[name] = {
@@ -423,33 +427,41 @@ def sun_profile_figure(ctx: StudyContext, res: dict) -> Figure | None:
 
 def error_map_figure(ctx: StudyContext, res: dict) -> Figure:
     """Relative error of every basis over the sphere of normals (lat-long) for up to `ERROR_MAP_ROWS`
-    environments, against the dense quadrature."""
+    environments, against the dense quadrature: one mosaic image (`figures._mosaic_axes`; one axes per map
+    drew 186 axes, ~20 CPU s of the quick run: issue 33)."""
     plt = figures.pyplot()
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
     h, w = 24, 48
     uu, vv = np.meshgrid((np.arange(w) + 0.5) / w, (np.arange(h) + 0.5) / h)
     nrm = envs.uv_to_direction(uu, vv).reshape(-1, 3)
     show = list(res)[:ERROR_MAP_ROWS]
-    fig, axes = plt.subplots(
-        len(show), len(BASES), figsize=(2.2 * len(BASES), 1.3 * len(show) + 0.6), squeeze=False
+    backend = backend_of(ctx.variant)
+    fig, ax, gap, band = figures._mosaic_axes(
+        plt, len(BASES) + 1, h, w, len(show), 1.1 * (len(BASES) + 1), ""
     )
-    im = None
+    mosaic = np.ones(
+        (len(show) * (h + band) + (len(show) - 1) * gap, (len(BASES) + 1) * w + len(BASES) * gap, 3)
+    )
+    cmap = plt.get_cmap("RdBu_r")
+    norm = Normalize(vmin=-1, vmax=1)
     for i, name in enumerate(show):
         env, b = res[name]["env"], res[name]["bases"]
-        lum_r = envs.irradiance_quadrature(env, nrm, supersample_for(env, CFG[ctx.quick])) @ LUMINANCE
-        for j, row in enumerate(BASES):
-            x = evaluate_row(row, b, nrm) @ LUMINANCE
-            err = (x - lum_r) / np.maximum(np.abs(lum_r), 0.05 * np.mean(np.abs(lum_r)))
-            im = axes[i, j].imshow(
-                err.reshape(h, w), cmap="RdBu_r", vmin=-1, vmax=1, extent=(0, 360, -90, 90)
-            )
-            axes[i, j].set_xticks([])
-            axes[i, j].set_yticks([])
+        lum_r = (
+            envs.irradiance_quadrature(env, nrm, supersample_for(env, CFG[ctx.quick]), backend) @ LUMINANCE
+        )
+        y, x = figures._tile_origin(i, 0, h, w, gap, band)
+        ax.text(x + w / 2, y + h / 2, name, ha="center", va="center", fontsize=6)
+        for j, row in enumerate(BASES, start=1):
+            xr = evaluate_row(row, b, nrm) @ LUMINANCE
+            err = (xr - lum_r) / np.maximum(np.abs(lum_r), 0.05 * np.mean(np.abs(lum_r)))
+            y, x = figures._tile_origin(i, j, h, w, gap, band)
+            mosaic[y : y + h, x : x + w] = cmap(norm(err.reshape(h, w)))[..., :3]
             if i == 0:
-                axes[i, j].set_title(row.method, fontsize=8)
-            if j == 0:
-                axes[i, j].set_ylabel(name, fontsize=7)
-    if im is not None:
-        fig.colorbar(im, ax=axes, shrink=0.6, label="relative error (luminance)")
+                ax.text(x + w / 2, y - 1, row.method, ha="center", va="bottom", fontsize=5, clip_on=False)
+    ax.imshow(mosaic, interpolation="nearest")
+    fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.6, label="relative error (luminance)")
     name = "figures/error_maps.png"
     figures.save_figure(fig, ctx.out_dir / name)
     return Figure(
@@ -511,8 +523,8 @@ def study(ctx: StudyContext) -> Study:
         ss = supersample_for(r["env"], CFG[ctx.quick])
         sigma = RELATIVE_PRECISION_FLOOR * np.abs(r["quadrature"])  # float32's floor: round-off ties
         hemi += hemisphere.environment_section(
-            n, r["env"], r["normals"], r["quadrature"], sigma, r["quadrature"], r["bases"]["sh"], ss, None,
-            point_metrics, ctx.quick,
+            n, r["env"], r["normals"], r["quadrature"], sigma, r["quadrature"], r["bases"]["sh"], ss,
+            backend_of(ctx.variant), point_metrics, ctx.quick,
         )  # fmt: skip
     checks = [
         *furnace_checks(ctx),

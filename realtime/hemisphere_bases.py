@@ -282,11 +282,12 @@ def hbasis_design_matrix(normals, count: int = 6) -> np.ndarray:
     return np.stack(cols, axis=-1)
 
 
-def hbasis_project(normals, weights, irradiance, count: int = 6) -> np.ndarray:
+def hbasis_project(normals, weights, irradiance, count: int = 6, design=None) -> np.ndarray:
     """H-basis coefficients (count, 3): c_k = Σ_j w_j E_j H_k(n_j), the projection of the irradiance
     ``irradiance`` (N, 3) (or (N,)) at tangent-space ``normals`` (N, 3) with quadrature ``weights`` (N,)
-    over the hemisphere (e.g. `hemisphere_quadrature`)."""
-    a = hbasis_design_matrix(normals, count)
+    over the hemisphere (e.g. `hemisphere_quadrature`). ``design``: `hbasis_design_matrix` of these
+    ``normals`` and ``count``, when the caller projects many texels on one rule (computed here if None)."""
+    a = hbasis_design_matrix(normals, count) if design is None else np.asarray(design, np.float64)
     w = np.asarray(weights, dtype=np.float64)
     e = np.asarray(irradiance, dtype=np.float64)
     if e.ndim == 1:
