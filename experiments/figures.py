@@ -48,7 +48,7 @@ GREY = (0.75, 0.75, 0.75)
 """The colour of pixels outside the comparison mask in an error panel."""
 
 
-def _mosaic_axes(plt, tiles_wide: int, tile_h: int, tile_w: int, rows: int, width_in: float, title: str):
+def mosaic_axes(plt, tiles_wide: int, tile_h: int, tile_w: int, rows: int, width_in: float, title: str):
     """One figure holding a mosaic of ``rows`` × ``tiles_wide`` tiles of tile_h × tile_w pixels, each with a
     label band above it, as one image on one axes (no per-panel axes: a 12-panel comparison drew in 1.5 s as
     22 axes, in a fraction as one). Returns (fig, ax, gap, band): pixels between tiles and of each label band.
@@ -69,7 +69,7 @@ def _mosaic_axes(plt, tiles_wide: int, tile_h: int, tile_w: int, rows: int, widt
     return fig, ax, gap, band
 
 
-def _tile_origin(row: int, col: int, tile_h: int, tile_w: int, gap: int, band: int) -> tuple[int, int]:
+def tile_origin(row: int, col: int, tile_h: int, tile_w: int, gap: int, band: int) -> tuple[int, int]:
     """(y, x) of the top-left pixel of tile (row, col) in the mosaic (below its label band)."""
     return row * (tile_h + band + gap) + band, col * (tile_w + gap)
 
@@ -97,27 +97,27 @@ def image_comparison(
         exposure = exposure if exposure > 0 else 1.0
     n = len(panels)
     h, w = reference.shape[:2]
-    fig, ax, gap, band = _mosaic_axes(plt, n + 1, h, w, 2, 2.3 * (n + 1), title)
+    fig, ax, gap, band = mosaic_axes(plt, n + 1, h, w, 2, 2.3 * (n + 1), title)
     mosaic = np.ones((2 * (h + band) + gap, (n + 1) * w + n * gap, 3))
     errors = [np.where(mask, (img - reference).mean(axis=-1) / error_scale, np.nan) for _, img in panels]
     vmax = max([float(np.nanmax(np.abs(e))) for e in errors if np.isfinite(e).any()] + [1e-6])
     cmap = plt.get_cmap("RdBu_r").with_extremes(bad=GREY)
     norm = Normalize(vmin=-vmax, vmax=vmax)
     labels = [(0, 0, "reference", 9)]
-    y, x = _tile_origin(0, 0, h, w, gap, band)
+    y, x = tile_origin(0, 0, h, w, gap, band)
     mosaic[y : y + h, x : x + w] = srgb(reference / exposure)
     for k, ((label, img), err) in enumerate(zip(panels, errors, strict=True), start=1):
-        y, x = _tile_origin(0, k, h, w, gap, band)
+        y, x = tile_origin(0, k, h, w, gap, band)
         mosaic[y : y + h, x : x + w] = srgb(img / exposure)
-        y, x = _tile_origin(1, k, h, w, gap, band)
+        y, x = tile_origin(1, k, h, w, gap, band)
         mosaic[y : y + h, x : x + w] = cmap(norm(np.ma.masked_invalid(err)))[..., :3]
         worst = float(np.nanmax(np.abs(err))) if np.isfinite(err).any() else float("nan")
         labels += [(0, k, label, 9), (1, k, f"error (max {worst:.3g})", 8)]
     ax.imshow(mosaic, interpolation="nearest")
     for row, col, text, size in labels:
-        y, x = _tile_origin(row, col, h, w, gap, band)
+        y, x = tile_origin(row, col, h, w, gap, band)
         ax.text(x + w / 2, y - 1, text, ha="center", va="bottom", fontsize=size, clip_on=False)
-    y, x = _tile_origin(1, 0, h, w, gap, band)
+    y, x = tile_origin(1, 0, h, w, gap, band)
     ax.text(x + w / 2, y + h / 2, f"signed error\n÷ {error_scale:.3g}", ha="center", va="center", fontsize=9)
     if n:
         from matplotlib.cm import ScalarMappable
@@ -128,13 +128,13 @@ def image_comparison(
 
 def flip_maps_figure(path, maps: list[tuple[str, np.ndarray]], mask: np.ndarray, title: str) -> Path:
     """Each (label, ꟻLIP map in [0, 1]) side by side with its mean over ``mask`` (magma; grey outside the
-    mask), as one mosaic (`_mosaic_axes`), and a shared colour bar."""
+    mask), as one mosaic (`mosaic_axes`), and a shared colour bar."""
     plt = pyplot()
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
 
     h, w = maps[0][1].shape
-    fig, ax, gap, band = _mosaic_axes(plt, len(maps), h, w, 1, 2.3 * len(maps), title)
+    fig, ax, gap, band = mosaic_axes(plt, len(maps), h, w, 1, 2.3 * len(maps), title)
     band2 = 2 * band  # (two lines of label)
     mosaic = np.ones((h + band2, len(maps) * w + (len(maps) - 1) * gap, 3))
     cmap = plt.get_cmap("magma").with_extremes(bad=GREY)

@@ -427,7 +427,7 @@ def sun_profile_figure(ctx: StudyContext, res: dict) -> Figure | None:
 
 def error_map_figure(ctx: StudyContext, res: dict) -> Figure:
     """Relative error of every basis over the sphere of normals (lat-long) for up to `ERROR_MAP_ROWS`
-    environments, against the dense quadrature: one mosaic image (`figures._mosaic_axes`; one axes per map
+    environments, against the dense quadrature: one mosaic image (`figures.mosaic_axes`; one axes per map
     drew 186 axes, ~20 CPU s of the quick run: issue 33)."""
     plt = figures.pyplot()
     from matplotlib.cm import ScalarMappable
@@ -438,9 +438,7 @@ def error_map_figure(ctx: StudyContext, res: dict) -> Figure:
     nrm = envs.uv_to_direction(uu, vv).reshape(-1, 3)
     show = list(res)[:ERROR_MAP_ROWS]
     backend = backend_of(ctx.variant)
-    fig, ax, gap, band = figures._mosaic_axes(
-        plt, len(BASES) + 1, h, w, len(show), 1.1 * (len(BASES) + 1), ""
-    )
+    fig, ax, gap, band = figures.mosaic_axes(plt, len(BASES) + 1, h, w, len(show), 1.1 * (len(BASES) + 1), "")
     mosaic = np.ones(
         (len(show) * (h + band) + (len(show) - 1) * gap, (len(BASES) + 1) * w + len(BASES) * gap, 3)
     )
@@ -451,12 +449,12 @@ def error_map_figure(ctx: StudyContext, res: dict) -> Figure:
         lum_r = (
             envs.irradiance_quadrature(env, nrm, supersample_for(env, CFG[ctx.quick]), backend) @ LUMINANCE
         )
-        y, x = figures._tile_origin(i, 0, h, w, gap, band)
+        y, x = figures.tile_origin(i, 0, h, w, gap, band)
         ax.text(x + w / 2, y + h / 2, name, ha="center", va="center", fontsize=6)
         for j, row in enumerate(BASES, start=1):
             xr = evaluate_row(row, b, nrm) @ LUMINANCE
             err = (xr - lum_r) / np.maximum(np.abs(lum_r), 0.05 * np.mean(np.abs(lum_r)))
-            y, x = figures._tile_origin(i, j, h, w, gap, band)
+            y, x = figures.tile_origin(i, j, h, w, gap, band)
             mosaic[y : y + h, x : x + w] = cmap(norm(err.reshape(h, w)))[..., :3]
             if i == 0:
                 ax.text(x + w / 2, y - 1, row.method, ha="center", va="bottom", fontsize=5, clip_on=False)
