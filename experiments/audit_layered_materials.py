@@ -61,6 +61,7 @@ from rtfit.realtime.layered_materials import (
     BLUR_MAX,
     BLUR_ROWS,
     COMPOSITE_ROWS,
+    LIGHTMAP_ROWS,
     METHODS,
     OFFSET_ROWS,
     BaseTexture,
@@ -461,7 +462,10 @@ FAMILY = AuditFamily(
             "coat over a base",
             ("glass-shape",),
             *_RULE_WORDS,
-            supplies=frozenset(i.name for m in METHODS.values() for i in m.inputs),
+            # the coat's rows only: the light-map rows are the slab role's (`LIGHTMAP_RULE`)
+            supplies=frozenset(
+                i.name for k, m in METHODS.items() if k not in LIGHTMAP_ROWS for i in m.inputs
+            ),
         ),
         LIGHTMAP_RULE,
     ),

@@ -69,7 +69,7 @@ LIGHTMAP_RULE = Rule(
     "scattered light) where an opaque surface lies under the box and one delta light lights the scene",
     "volpath (unbounded depth) along cosine rays from the inner layer's points, plus the beam's "
     "transmittance",
-    supplies=frozenset(i.name for m in METHODS.values() for i in m.inputs),
+    supplies=frozenset(i.name for k in LIGHTMAP_ROWS for i in METHODS[k].inputs),  # its own rows
 )
 
 
