@@ -32,6 +32,11 @@ at ~1 ns a pixel is one 1 ms call at 2^20 elements, so 50 ms is ~50 repeats; a s
 `_COST_CALL_SECONDS` a call runs its 7. At 0.2 s, 23 methods spent ~4.6 s of a Cornell-box audit here."""
 
 
+def _is_per_pixel(v, n: int) -> bool:
+    """An input with one value per masked pixel (tiled for the timing); any other array is a table."""
+    return isinstance(v, (np.ndarray, np.generic)) and np.ndim(v) > 0 and np.size(v) == n
+
+
 def method_cost(
     method: Method,
     case: FamilyCase,
@@ -49,12 +54,9 @@ def method_cost(
     measured call, which keeps its `_COST_MIN_SECONDS`): 15 methods' sizing calls took 2.9 s of a
     Cornell-box audit's evaluation at 0.2 s each."""
     n = int(case.mask.sum())
-    per_pixel = sum(
-        1
-        for name in method.input_names
-        if isinstance(v := case.channel_inputs[0][name], (np.ndarray, np.generic)) and np.size(v) == n > 0
-    )
-    size = min(size, max(_COST_PROBE, _COST_INPUT_BYTES // (4 * max(per_pixel, 1))))
+    inputs = {name: case.channel_inputs[0][name] for name in method.input_names}
+    per_pixel = [name for name, v in inputs.items() if _is_per_pixel(v, n)]
+    size = min(size, max(_COST_PROBE, _COST_INPUT_BYTES // (4 * max(len(per_pixel), 1))))
     if size > _COST_PROBE:
         probe = method_cost(method, case, backend, _COST_PROBE, min_seconds=0.0)
         per_element = probe["ns_per_pixel"] * 1e-9
@@ -62,11 +64,10 @@ def method_cost(
     Float = backend_float(backend)
     reps = max(1, -(-size // max(n, 1)))
     args, host, keys, consts, uniforms = [], [], [], {}, {}
-    for name in method.input_names:
-        v = case.channel_inputs[0][name]
+    for name, v in inputs.items():
         if not isinstance(v, (int, float, np.ndarray, np.generic)):  # a sampler object (a distance field)
             consts[name] = v
-        elif np.ndim(v) and np.size(v) != n:
+        elif np.ndim(v) and not _is_per_pixel(v, n):
             table = np.ascontiguousarray(v, np.float32).reshape(-1)
             consts[name] = to_drjit(Float, table)
             if table.size <= _UNIFORM_FLOATS:
