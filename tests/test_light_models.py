@@ -635,7 +635,7 @@ radiance = 100.0
     assert np.allclose(sphere.channel_inputs[0]["intensity"], math.pi * 0.25 * 100.0)
 
 
-_DISC_XML = """<scene version="3.0.0">
+_FLOOR_SCENE = """<scene version="3.0.0">
     <sensor type="perspective">
         <float name="fov" value="40"/>
         <transform name="to_world"><lookat origin="0, -0.01, 5" target="0, 0, 0" up="0, 0, 1"/></transform>
@@ -645,15 +645,20 @@ _DISC_XML = """<scene version="3.0.0">
         <transform name="to_world"><scale value="3"/></transform>
         <bsdf type="diffuse"/>
     </shape>
-    <shape type="disk" id="lamp">
+    {lights}
+</scene>
+"""
+"""A 6 × 6 m diffuse floor seen from 5 m above (16² pixels) with the ``lights`` given as shape XML."""
+_DISC_XML = _FLOOR_SCENE.replace(
+    "{lights}",
+    """<shape type="disk" id="lamp">
         <transform name="to_world">
             <scale value="0.4"/><rotate x="1" angle="160"/><translate x="0.3" y="0.2" z="0.5"/>
         </transform>
         <emitter type="area"><rgb name="radiance" value="5, 4, 3"/></emitter>
     </shape>
-    {extra}
-</scene>
-"""
+    {extra}""",
+)
 _OVAL = """<shape type="disk" id="oval">
         <transform name="to_world">
             <scale x="0.4" y="0.2"/><rotate x="1" angle="180"/><translate z="2"/>
@@ -861,24 +866,15 @@ def test_tube_is_finite_and_non_negative_everywhere(p, n, a, b, r, where):
         assert e64 == 0.0 and v32 == 0.0
 
 
-_TUBE_XML = """<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="40"/>
-        <transform name="to_world"><lookat origin="0, -0.01, 5" target="0, 0, 0" up="0, 0, 1"/></transform>
-        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
-    </sensor>
-    <shape type="rectangle" id="floor">
-        <transform name="to_world"><scale value="3"/></transform>
-        <bsdf type="diffuse"/>
-    </shape>
-    <shape type="cylinder" id="tube">
+_TUBE_XML = _FLOOR_SCENE.replace(
+    "{lights}",
+    """<shape type="cylinder" id="tube">
         <point name="p0" x="-0.6" y="0.3" z="0.7"/>
         <point name="p1" x="0.6" y="-0.1" z="0.7"/>
         <float name="radius" value="0.04"/>
         <emitter type="area"><rgb name="radiance" value="20, 16, 12"/></emitter>
-    </shape>
-</scene>
-"""
+    </shape>""",
+)
 
 
 def test_mitsuba_cylinder_light_audit_runs_the_tube_row(tmp_path):
