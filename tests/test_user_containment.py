@@ -197,17 +197,21 @@ def test_module_spec_and_entry_point_are_found_by_the_child(capsys, tmp_path, mo
         sys.modules.pop("studio_wraps_rtfit", None)
 
 
+_SPHERE_POINT_XML = (
+    '<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="30"/>'
+    '<transform name="to_world"><lookat origin="0, -6, 0" target="0, 0, 0" up="0, 0, 1"/></transform>'
+    '<film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>'
+    '</sensor><shape type="sphere"/><emitter type="point"><point name="position" x="0" y="-4" z="4"/>'
+    '<float name="intensity" value="10"/></emitter></scene>'
+)
+"""A unit sphere lit by a point light, 8² pixels: the smallest scene a user approximation is audited on."""
+
+
 def test_sys_exit_after_validation_is_still_one_line(capsys, tmp_path):
     """A function that passes validation (256 samples) and calls sys.exit on the scene's own pixels (here:
     any other count): the kernel turns the SystemExit into a one-line error, exit 2 — not rtfit's exit 0."""
     scene = tmp_path / "s.xml"
-    scene.write_text(
-        '<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="30"/>'
-        '<transform name="to_world"><lookat origin="0, -6, 0" target="0, 0, 0" up="0, 0, 1"/></transform>'
-        '<film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>'
-        '</sensor><shape type="sphere"/><emitter type="point"><point name="position" x="0" y="-4" z="4"/>'
-        '<float name="intensity" value="10"/></emitter></scene>'
-    )
+    scene.write_text(_SPHERE_POINT_XML)
     path = user_file(tmp_path, "return g.irradiance if len(g.cos_theta) == 256 else sys.exit(0)")
     out = tmp_path / "out"
     argv = ["-q", "audit", str(scene), "--approx", f"{path}:f", "--spp", "4", "--pass-spp", "2", "--no-fit"]
@@ -227,13 +231,7 @@ def test_prints_of_user_code_do_not_spoil_json_on_stdout(tmp_path):
     import json
 
     scene = tmp_path / "s.xml"
-    scene.write_text(
-        '<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="30"/>'
-        '<transform name="to_world"><lookat origin="0, -6, 0" target="0, 0, 0" up="0, 0, 1"/></transform>'
-        '<film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>'
-        '</sensor><shape type="sphere"/><emitter type="point"><point name="position" x="0" y="-4" z="4"/>'
-        '<float name="intensity" value="10"/></emitter></scene>'
-    )
+    scene.write_text(_SPHERE_POINT_XML)
     path = user_file(tmp_path, "print('in f'); return g.irradiance", "print('at import')")
     argv = ["audit", str(scene), "--approx", f"{path}:f", "--spp", "4", "--pass-spp", "2", "--no-fit"]
     argv += ["--out", str(tmp_path / "out"), "--cache", str(tmp_path / "cache"), "--json", "-"]
