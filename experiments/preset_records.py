@@ -19,7 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from .records import Record
+from .record_base import Record
 
 __all__ = [
     "ENGINE_NAMES",

@@ -21,7 +21,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rtfit.experiments import latex
+from rtfit.experiments import latex, latex_text
 from rtfit.experiments.report import render_report
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -105,25 +105,25 @@ def _assert_clean(log: str) -> None:
     ],
 )
 def test_tex_text(text, expected):
-    assert latex.tex_text(text) == expected
+    assert latex_text.tex_text(text) == expected
 
 
 def test_unknown_character_falls_back():
-    assert latex.tex_text("snow ☃") == r"snow [U+2603]\allowbreak{}"  # a line may break after it
-    assert latex.tex_text("中☃") == r"[U+4E2D]\allowbreak{}[U+2603]\allowbreak{}"
-    assert latex.tex_text("a\u0362b") == "ab"  # unknown combining mark: dropped, letters kept
-    assert latex.tex_text("\\\u0304") == r"\textbackslash{}"  # accent over a special: dropped
+    assert latex_text.tex_text("snow ☃") == r"snow [U+2603]\allowbreak{}"  # a line may break after it
+    assert latex_text.tex_text("中☃") == r"[U+4E2D]\allowbreak{}[U+2603]\allowbreak{}"
+    assert latex_text.tex_text("a\u0362b") == "ab"  # unknown combining mark: dropped, letters kept
+    assert latex_text.tex_text("\\\u0304") == r"\textbackslash{}"  # accent over a special: dropped
 
 
 def test_tex_number():
-    assert latex.tex_number("9.264e-5") == r"\ensuremath{9.264\times 10^{-5}}"
-    assert latex.tex_number("-1.5e+06") == r"\ensuremath{-1.5\times 10^{6}}"
-    assert latex.tex_number("[-0.95, 0.95]") == r"[\ensuremath{-}0.95, 0.95]"
-    assert latex.tex_number("—") == "---"
+    assert latex_text.tex_number("9.264e-5") == r"\ensuremath{9.264\times 10^{-5}}"
+    assert latex_text.tex_number("-1.5e+06") == r"\ensuremath{-1.5\times 10^{6}}"
+    assert latex_text.tex_number("[-0.95, 0.95]") == r"[\ensuremath{-}0.95, 0.95]"
+    assert latex_text.tex_number("—") == "---"
 
 
 def test_tex_markdown():
-    assert latex.tex_markdown("`r_a` and **bold** *it* [link](a(b)c) r_a") == (
+    assert latex_text.tex_markdown("`r_a` and **bold** *it* [link](a(b)c) r_a") == (
         r"\texttt{r\_a} and \textbf{bold} \emph{it} link r\_a"
     )
 
@@ -148,13 +148,13 @@ def test_every_character_of_the_results_is_mapped():
         _non_ascii(json.loads(p.read_text(encoding="utf-8")), found)
     assert {"₀", "₁", "ᵢ", "⁴", "⁶", "\u0304", "°", "×", "−", "≤", "·", "²"} <= found
     for ch in sorted(found):
-        out = latex.tex_text(("L" if unicodedata.combining(ch) else "") + ch)
+        out = latex_text.tex_text(("L" if unicodedata.combining(ch) else "") + ch)
         assert out.isascii() and "[U+" not in out, (ch, hex(ord(ch)), out)
 
 
 @given(st.text(max_size=40))
 def test_any_text_becomes_ascii_with_balanced_braces(text):
-    out = latex.tex_text(text)
+    out = latex_text.tex_text(text)
     assert out.isascii()
     depth = 0
     for m in re.finditer(r"\\.|[{}]", out):
@@ -202,7 +202,7 @@ def test_tables_tex_compiles_and_fits(tmp_path, path):
 def test_fallback_and_every_mapped_character_compile(tmp_path):
     """A table holding every mapped character, a sample of the whole BMP below the CJK block (mostly
     fallbacks) and unknown combining marks compiles without error or missing glyph."""
-    mapped = "".join(sorted(latex.KNOWN_CHARACTERS))
+    mapped = "".join(sorted(latex_text.KNOWN_CHARACTERS))
     sample = "".join(chr(c) for c in range(0xA0, 0x3000, 37) if unicodedata.category(chr(c))[0] != "C")
     pieces = [mapped[i : i + 12] for i in range(0, len(mapped), 12)]
     pieces += [sample[i : i + 12] for i in range(0, len(sample), 12)]
@@ -300,7 +300,7 @@ def test_best_and_unresolved_values_mark_their_maths():
     assert r"\textit{\ensuremath{\mathit{4.458\times 10^{-4}}}}" in italic
     plain = latex.render_table("x", _one_value_table(""))
     assert r"\boldmath" not in plain and r"\mathit" not in plain
-    assert latex.tex_number("4.458e-4", italic=True) == r"\ensuremath{\mathit{4.458\times 10^{-4}}}"
+    assert latex_text.tex_number("4.458e-4", italic=True) == r"\ensuremath{\mathit{4.458\times 10^{-4}}}"
 
 
 @needs_pdflatex
