@@ -1,14 +1,7 @@
 """The typed records of ``results.json`` (schema ``rtfit.results/1``; `rtfit.experiments.records` is the
-public face): the document :class:`Results` and everything in it, a frozen dataclass per JSON object. Each
-field is a key (its type says what the loader accepts, its docstring is the schema's description); checks
-across fields that types cannot say are a record's ``problems``::
-
-    Results ─ config: Config, versions, sections: [Section], notes: [str], headline: [Headline]
-            ├ cases: [Case] ─ scene: Scene, reference: Reference,
-            │                 approximations: [Approximation] ─ metrics: {name: Metric}, cost: PixelCost
-            ├ fits: [Fit] ─ parameters: {name: FitParameter}
-            ├ figures: [Figure], costs: [Cost], checks: [Check]
-            └ extra: per-family data (JSON), e.g. ``spectral`` or ``optical_depth_forms``
+public face and draws their tree): the document :class:`Results` and everything in it, a frozen dataclass
+per JSON object. Each field is a key (its type says what the loader accepts, the class docstring is the
+schema's description); checks across fields that types cannot say are a record's ``problems``.
 """
 
 from __future__ import annotations
@@ -34,6 +27,8 @@ __all__ = [
     "Headline",
     "Metric",
     "PixelCost",
+    "PrecomputeShare",
+    "PrecomputeTrigger",
     "Reference",
     "Results",
     "Scene",
@@ -71,8 +66,27 @@ def amortised_ns(precompute_ms: float | None, pixels: int | None) -> float | Non
     return precompute_ms * 1e6 / pixels
 
 
+PrecomputeTrigger = Literal["frame", "light", "scene"]
+"""When a method's precompute is paid again: every ``frame``, when a ``light`` changes, or when the ``scene``
+changes."""
+
+
+class PrecomputeShare:
+    """What the two cost records with a precompute (:class:`PixelCost`, :class:`Cost`) derive alike: its
+    share per pixel. A plain class, not a record: it adds no JSON key."""
+
+    precompute_ms: float | None
+    precompute_pixels: int | None
+
+    @property
+    def precompute_per_pixel(self) -> float | None:
+        """The precompute's share per pixel if paid every frame (ns): ``precompute_ms`` spread over the
+        ``precompute_pixels`` of the case it was timed on (None without both)."""
+        return amortised_ns(self.precompute_ms, self.precompute_pixels)
+
+
 @dataclass(frozen=True)
-class PixelCost(Record):
+class PixelCost(Record, PrecomputeShare):
     """Measured cost of one approximation: ns per evaluated pixel, its reciprocal, the Dr.Jit backend; where
     the method has a precompute (a bake) an engine pays apart: its ``precompute_ms`` (one whole run), when
     it is paid again (``precompute_trigger``: ``frame``, ``light`` or ``scene``) and the pixels of the case it
@@ -82,14 +96,8 @@ class PixelCost(Record):
     pixels_per_second: float | None = None
     backend: str | None = None
     precompute_ms: float | None = None
-    precompute_trigger: Literal["frame", "light", "scene"] | None = None
+    precompute_trigger: PrecomputeTrigger | None = None
     precompute_pixels: int | None = None
-
-    @property
-    def precompute_per_pixel(self) -> float | None:
-        """The precompute's share per pixel if paid every frame (ns): ``precompute_ms`` spread over the
-        ``precompute_pixels`` of the case it was timed on (None without both)."""
-        return amortised_ns(self.precompute_ms, self.precompute_pixels)
 
 
 @dataclass(frozen=True)
@@ -235,7 +243,7 @@ class Section(Record):
 
 
 @dataclass(frozen=True)
-class Cost(Record):
+class Cost(Record, PrecomputeShare):
     """Measured cost of one method on the run's device: median ns per pixel after warm-up, its
     reciprocal, the backend (``llvm``, ``cuda``, ``numpy``), what was timed (markdown ``note``), the
     kernel size and repetitions, and for stored representations the floats per probe. A method with a
@@ -254,15 +262,9 @@ class Cost(Record):
     floats_per_probe: int | None = None
     note: str | None = None
     precompute_ms: float | None = None
-    precompute_trigger: Literal["frame", "light", "scene"] | None = None
+    precompute_trigger: PrecomputeTrigger | None = None
     precompute_pixels: int | None = None
     precompute_note: str | None = None
-
-    @property
-    def precompute_per_pixel(self) -> float | None:
-        """The precompute's share per pixel if paid every frame (ns): ``precompute_ms`` spread over the
-        ``precompute_pixels`` of the case it was timed on (None without both)."""
-        return amortised_ns(self.precompute_ms, self.precompute_pixels)
 
     @property
     def display(self) -> str:
