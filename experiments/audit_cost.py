@@ -6,7 +6,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime.arrays import Uniforms, backend_float, to_drjit
+from rtfit.realtime.arrays import Uniforms, backend_float, release_backend_tables, to_drjit
 from rtfit.realtime.methods import Method
 
 from .audit_family import FamilyCase
@@ -93,4 +93,5 @@ def method_cost(
         return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))})
 
     t = time_drjit(call, tuple(args), elements, min_seconds=min_seconds)
+    release_backend_tables(consts.values())  # a sampler's large tables: not kept past the timing
     return {**t.to_dict(), "backend": backend}

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from rtfit.fitting import fit_method
-from rtfit.realtime.arrays import backend_float
+from rtfit.realtime.arrays import backend_float, release_backend_tables
 from rtfit.realtime.methods import Method, Param
 
 from .audit_family import AuditError, FamilyCase
@@ -45,6 +45,7 @@ def evaluate_case(method: Method, case: FamilyCase, params: Mapping[str, float])
         v = method.evaluate(tables_as_drjit(inputs), dict(params))
         parts = v if isinstance(v, (tuple, list)) else (v,)
         vals += [np.broadcast_to(np.asarray(p, np.float64), (n,)) for p in parts]
+        release_backend_tables(inputs.values())  # a sampler's Dr.Jit tables: not kept to the case's end
     if len(vals) == 1:  # a grey value on a one-mapping case
         vals *= 3
     if len(vals) != 3:

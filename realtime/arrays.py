@@ -66,6 +66,7 @@ __all__ = [
     "is_jax",
     "jax_ops",
     "ops_for",
+    "release_backend_tables",
     "safe_div",
     "safe_sqrt",
     "set_default_backend",
@@ -441,6 +442,17 @@ def cached_table(cache: dict, ops, like: Any, key: tuple, values: Callable[[], A
         else:
             cache[full] = flat
     return cache[full]
+
+
+def release_backend_tables(objects) -> None:
+    """Let each sampler among ``objects`` drop the per-backend copies of its tables (an object with a
+    ``release_backend_tables()`` method; others are passed over): the engine calls it once a row's Dr.Jit
+    evaluation or cost run is done, so that large tables (ibl-samples' depth maps: ~0.6 GiB in float32 and
+    float64 copies) are not held to the case's end. The next use makes them again."""
+    for obj in objects:
+        release = getattr(obj, "release_backend_tables", None)
+        if callable(release):
+            release()
 
 
 # ----------------------------------------------------------------------------------------- dispatch

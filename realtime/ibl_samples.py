@@ -350,20 +350,34 @@ class DepthMaps:
     resolution = property(lambda self: int(self.depth.shape[1]), doc="R: texels per edge of each map")
 
     def _table(self, ops, channel: str, like):
-        """The channel's N·R² texels (float64 copies of the float32 values; on Dr.Jit ``like``'s type)."""
-        key = (ops.name, channel, type(like) if ops is DRJIT_OPS and is_drjit(like) else None)
+        """The channel's N·R² texels: on NumPy (and for the shader tracer, which reads a table's size) the
+        float32 values themselves (gathered, then widened: the same float64 values as a float64 table, at
+        half its memory: 0.5 GiB of the quick suite's maps), on Dr.Jit in ``like``'s type, on JAX float64."""
+        drjit_kind = type(like) if ops is DRJIT_OPS and is_drjit(like) else None
+        key = (ops.name, channel, drjit_kind)
         if key not in self._tables:
             c = _CHANNELS.index(channel)
-            flat = np.ascontiguousarray(
-                (self.normals[..., c - 1] if c else self.depth).reshape(-1), np.float64
-            )
-            self._tables[key] = type(like)(flat) if key[2] is not None else flat
+            narrow = ops.name in (NUMPY_OPS.name, "shader")  # the shader tracer reads only a table's size
+            if narrow and c == 0:
+                self._tables[key] = self.depth.reshape(-1)  # a view: no copy
+            else:
+                dtype = np.float32 if narrow else np.float64
+                texels = self.normals[..., c - 1] if c else self.depth
+                flat = np.ascontiguousarray(texels.reshape(-1), dtype)
+                self._tables[key] = drjit_kind(flat) if drjit_kind is not None else flat
         return self._tables[key]
 
     def sample(self, ops, channel: str, index, like):
         """Texel ``index`` (k·R² + j·R + i, a float holding an integer) of the channel (`_CHANNELS`): the
         sampler protocol of `rtfit.realtime.arrays.evaluate` (an object with ``sample`` passes as it is)."""
-        return ops.gather(self._table(ops, channel, like), index)
+        texels = ops.gather(self._table(ops, channel, like), index)
+        return texels.astype(np.float64) if ops is NUMPY_OPS else texels
+
+    def release_backend_tables(self) -> None:
+        """Drop the Dr.Jit copies of the texels (made again on the next use): the engine calls it after a
+        row's cost run, whose float32 copies of six environments' maps held ~0.6 GiB to the case's end."""
+        for key in [k for k in self._tables if isinstance(k, tuple) and k[0] == DRJIT_OPS.name]:
+            del self._tables[key]
 
     def constants(self, ops, like) -> list:
         """Per light k its frame (t, b, d: 9 floats) and texel offset k·R²; then c and r: opaque scalars
