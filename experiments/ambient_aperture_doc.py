@@ -73,10 +73,9 @@ def map_figure(out: Path, fitted) -> Figure:
     assert im is not None
     fig.colorbar(im, ax=axes, shrink=0.6, label="(Ω_approx − Ω_exact) / smaller cap")
     figures.save_figure(fig, out / "figures/error_maps.png")
-    return Figure(
-        file="figures/error_maps.png",
-        section="study-ambient-aperture",
-        caption="Signed error of the smoothstep (seed), linear ramp and fitted forms over the centre "
+    return _study_figure(
+        "figures/error_maps.png",
+        "Signed error of the smoothstep (seed), linear ramp and fitted forms over the centre "
         "distance d and the larger radius r₁, for r₂/r₁ = 1, 0.5, 0.2, as a fraction of the smaller "
         "cap; white outside the partial-overlap band. Colour range ±0.16.",
     )
@@ -102,13 +101,17 @@ def curve_figure(out: Path, fitted) -> Figure:
         ax.legend(fontsize=7)
     fig.tight_layout()
     figures.save_figure(fig, out / "figures/intersection_curves.png")
-    return Figure(
-        file="figures/intersection_curves.png",
-        section="study-ambient-aperture",
-        caption="Intersection solid angle over the centre distance for three cap pairs, as a fraction "
+    return _study_figure(
+        "figures/intersection_curves.png",
+        "Intersection solid angle over the centre distance for three cap pairs, as a fraction "
         "of the smaller cap. Two hemispheres (right): the exact lune 2(π − d) is linear in d; the "
         "smoothstep bends it into an S.",
     )
+
+
+def _study_figure(file: str, caption: str) -> Figure:
+    """The record of a figure of the study's section, written to OUT/``file``."""
+    return Figure(file=file, section="study-ambient-aperture", caption=caption)
 
 
 def pareto_figure(out: Path, fl: Mapping, costs: list[dict]) -> Figure:
@@ -124,10 +127,9 @@ def pareto_figure(out: Path, fl: Mapping, costs: list[dict]) -> Figure:
         "max |ΔΩ| / smaller cap (full domain)",
         title="Intersection forms: error vs cost (exact plotted at its float32 level, 1e-7)",
     )
-    return Figure(
-        file="figures/pareto.png",
-        section="study-ambient-aperture",
-        caption="Maximum error over the full domain against the measured cost per evaluation, same run.",
+    return _study_figure(
+        "figures/pareto.png",
+        "Maximum error over the full domain against the measured cost per evaluation, same run.",
     )
 
 

@@ -19,15 +19,16 @@ The well scene uses Mitsuba's open cylinder around a floor disk: visibility thro
 from __future__ import annotations
 
 import math
-import struct
 from pathlib import Path
 
 import numpy as np
 
 from .mesh_normals import vertex_normals
+from .mesh_ply import write_ply
 
 HOLE_PLATE = "aperture_hole_plate.ply"
 BUMPS = "aperture_bumps.ply"
+MESH_COMMENT = "rtfit ambient-aperture mesh"  # the header comment line of the meshes written here
 BUMPS_GRID = 49
 BUMPS_HALF = 2.0
 # (cx, cy, height, sigma) of the Gaussian bumps (scene units).
@@ -39,29 +40,6 @@ BUMPS_SPEC = (
     (1.2, -0.8, 0.5, 0.35),
     (-1.3, 0.2, 0.4, 0.3),
 )
-
-
-def write_ply(path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> Path:
-    """Binary little-endian PLY with float32 x, y, z (and nx, ny, nz when ``normals`` are given) and
-    uchar-counted int32 triangle indices."""
-    v = np.ascontiguousarray(vertices, dtype="<f4")
-    props = "property float x\nproperty float y\nproperty float z\n"
-    if normals is not None:
-        v = np.ascontiguousarray(np.concatenate([v, np.asarray(normals, dtype="<f4")], axis=1))
-        props += "property float nx\nproperty float ny\nproperty float nz\n"
-    f = np.ascontiguousarray(faces, dtype="<i4")
-    header = (
-        f"ply\nformat binary_little_endian 1.0\ncomment rtfit ambient-aperture mesh\n"
-        f"element vertex {len(v)}\n{props}"
-        f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n"
-    ).encode("ascii")
-    rows = b"".join(struct.pack("<B3i", 3, *tri) for tri in f.tolist())
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_bytes(header + v.tobytes() + rows)
-    tmp.replace(path)
-    return path
 
 
 def hole_plate(hole_radius: float = 1.0, half: float = 20.0, segments: int = 96, rings: int = 6):
@@ -115,6 +93,8 @@ def write_library_meshes(directory) -> list[Path]:
     directory = Path(directory)
     bumps_v, bumps_f = bumps()
     return [
-        write_ply(directory / HOLE_PLATE, *hole_plate()),
-        write_ply(directory / BUMPS, bumps_v, bumps_f, vertex_normals(bumps_v, bumps_f)),
+        write_ply(directory / HOLE_PLATE, *hole_plate(), comment=MESH_COMMENT),
+        write_ply(
+            directory / BUMPS, bumps_v, bumps_f, vertex_normals(bumps_v, bumps_f), comment=MESH_COMMENT
+        ),
     ]

@@ -34,7 +34,7 @@ from .cli_options import cache_option, out_option, pass_spp_option, spp_option, 
 from .families import AUDITED
 from .registry import RESOLUTION_MAX
 
-__all__ = ["AuditInputError", "audit"]
+__all__ = ["AuditInputError", "audit", "input_error", "parse_defines"]
 
 
 class AuditInputError(click.ClickException):
@@ -48,7 +48,8 @@ class AuditInputError(click.ClickException):
         click.echo(f"rtfit: error: {self.format_message()}", err=True, file=file)
 
 
-def _error(message: str):
+def input_error(message: str):
+    """Stop with ``message`` (whitespace folded to one line) as the command's error line, exit status 2."""
     raise AuditInputError(" ".join(str(message).split()))
 
 
@@ -88,20 +89,21 @@ def _json_target(path: str) -> None:
     anything runs."""
     p = Path(path)
     if p.is_dir():
-        _error(f"--json {path}: a folder (expected a file name, or - for stdout)")
+        input_error(f"--json {path}: a folder (expected a file name, or - for stdout)")
     if not p.parent.is_dir():
-        _error(f"--json {path}: no folder {p.parent}")
+        input_error(f"--json {path}: no folder {p.parent}")
     problem = writable_problem(p.parent)  # /proc, a read-only mount: refused before the audit renders
     if problem:
-        _error(f"--json {path}: {problem}")
+        input_error(f"--json {path}: {problem}")
 
 
-def _defines(values: tuple[str, ...]) -> dict[str, str]:
+def parse_defines(values: tuple[str, ...]) -> dict[str, str]:
+    """``-D name=value`` options as a dict (a later name wins); one without ``=`` or name: an input error."""
     out: dict[str, str] = {}
     for text in values:
         name, eq, value = text.partition("=")
         if not eq or not name.strip():
-            _error(f"-D {text!r}: expected name=value")
+            input_error(f"-D {text!r}: expected name=value")
         out[name.strip()] = value
     return out
 
@@ -208,7 +210,7 @@ def audit(
     applicable approximation against the scene's own reference, with noise floors, fits, costs and a report
     in OUT/audit-<scene>. --list prints which approximation families apply to it and why."""
     if json_out is not None and list_only:
-        _error("--json writes the run's summary; --list prints what applies as text (drop one of them)")
+        input_error("--json writes the run's summary; --list prints what applies as text (drop one of them)")
     if json_out is not None and json_out != "-":
         _json_target(json_out)
     try:
@@ -218,7 +220,7 @@ def audit(
         if list_only:
             check_ao_distance(ao_distance)
             info = inspect_scene(
-                scene, defines=_defines(defines), camera=camera, width=width, height=height, up=up
+                scene, defines=parse_defines(defines), camera=camera, width=width, height=height, up=up
             )
             sel = resolve_approximations(approx)  # families, shipped methods and your own, as the run
             found = selected_applicabilities(info, sel, ao_distance)
@@ -240,7 +242,7 @@ def audit(
                 variant=variant,
                 fit=not no_fit,
                 out=out,
-                defines=_defines(defines),
+                defines=parse_defines(defines),
                 camera=camera,
                 width=width,
                 height=height,
@@ -255,7 +257,7 @@ def audit(
                 pom_depth=pom_depth,
             )
     except AuditError as e:
-        _error(str(e))
+        input_error(str(e))
     click.echo(f"camera: {result.info.camera}", err=True)
     click.echo(f"up: {result.info.up_reason}", err=True)
     for line in result.skipped:

@@ -16,16 +16,12 @@ from __future__ import annotations
 import click
 
 from .audit import AuditError
-from .audit_cli import AuditInputError
+from .audit_cli import input_error, parse_defines
 from .cli_options import cache_option, out_option, pass_spp_option, spp_option, variant_option
 from .compare import FOOTPRINTS, QUANTITIES
 from .compare import compare as run_compare
 
 __all__ = ["compare"]
-
-
-def _error(message: str):
-    raise AuditInputError(" ".join(str(message).split()))
 
 
 @click.command("compare")
@@ -105,13 +101,8 @@ def compare(
     reference of SCENE (Mitsuba XML) through its own sensor: metrics beside the reference's noise, the best
     global scale, the registration offset, the error per shape, and a report in OUT/compare-<scene>."""
     if not frames:
-        _error("no frame to compare (rtfit compare SCENE.xml FRAME.exr …)")
-    defs: dict[str, str] = {}
-    for text in defines:
-        name, eq, value = text.partition("=")
-        if not eq or not name.strip():
-            _error(f"-D {text!r}: expected name=value")
-        defs[name.strip()] = value
+        input_error("no frame to compare (rtfit compare SCENE.xml FRAME.exr …)")
+    defs = parse_defines(defines)
     obj = click.get_current_context().find_root().obj or {}
     try:
         result = run_compare(
@@ -134,7 +125,7 @@ def compare(
             progress=bool(obj.get("bars", False)) and not no_progress,
         )
     except AuditError as e:
-        _error(str(e))
+        input_error(str(e))
     for f in result.frames:
         a = f.analysis
         click.echo(f"{f.label}: {a.verdict}")

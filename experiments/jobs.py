@@ -64,6 +64,25 @@ class Outcome:
     attempts: int = 1
     seconds: float = 0.0
 
+    @classmethod
+    def returned(cls, index: int, label: str, value: Any, attempts: int, t0: float) -> Outcome:
+        """A job that returned ``value`` (started at ``time.perf_counter()`` ``t0``; ``attempts`` tries)."""
+        return cls(index, label, True, value, attempts=attempts, seconds=time.perf_counter() - t0)
+
+    @classmethod
+    def raised(cls, index: int, label: str, exc: BaseException, attempts: int, t0: float) -> Outcome:
+        """A job that raised ``exc``, its own error (started at ``time.perf_counter()`` ``t0``)."""
+        return cls(
+            index, label, False, error=error_line(exc), attempts=attempts, seconds=time.perf_counter() - t0
+        )
+
+    @classmethod
+    def worker_died(cls, index: int, label: str, exc: BaseException, attempts: int) -> Outcome:
+        """A job given up on: its worker died under it on all ``attempts`` tries (the last: ``exc``)."""
+        return cls(
+            index, label, False, attempts=attempts, error=f"worker died {attempts} times ({error_line(exc)})"
+        )
+
 
 def error_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
@@ -238,11 +257,9 @@ class InlineExecutor:
             tracker.started()
             t0 = time.perf_counter()
             try:
-                out.append(Outcome(i, job.label, True, job.run(), seconds=time.perf_counter() - t0))
+                out.append(Outcome.returned(i, job.label, job.run(), 1, t0))
             except Exception as e:  # reported per job, never swallowed silently
-                out.append(
-                    Outcome(i, job.label, False, error=error_line(e), seconds=time.perf_counter() - t0)
-                )
+                out.append(Outcome.raised(i, job.label, e, 1, t0))
             tracker.finished(out[-1].ok, label=job.label)
         tracker.close()
         return out
@@ -322,33 +339,18 @@ class ProcessExecutor:
                     except BrokenProcessPool as e:
                         broken.append(i)
                         if attempts[i] >= self.max_attempts:
-                            outcomes[i] = Outcome(
-                                i,
-                                jobs[i].label,
-                                False,
-                                attempts=attempts[i],
-                                error=f"worker died {attempts[i]} times ({error_line(e)})",
-                            )
+                            outcomes[i] = Outcome.worker_died(i, jobs[i].label, e, attempts[i])
                             tracker.finished(False, label=jobs[i].label)
                         else:
                             tracker.requeued()
                         continue
                     except Exception as e:  # the job's own error, reported per job
-                        outcomes[i] = Outcome(
-                            i,
-                            jobs[i].label,
-                            False,
-                            error=error_line(e),
-                            attempts=attempts[i],
-                            seconds=time.perf_counter() - t0,
-                        )
+                        outcomes[i] = Outcome.raised(i, jobs[i].label, e, attempts[i], t0)
                         if _exceptions is not None:
                             _exceptions[i] = e
                         tracker.finished(False, label=jobs[i].label)
                         continue
-                    outcomes[i] = Outcome(
-                        i, jobs[i].label, True, value, attempts=attempts[i], seconds=time.perf_counter() - t0
-                    )
+                    outcomes[i] = Outcome.returned(i, jobs[i].label, value, attempts[i], t0)
                     tracker.finished(True, label=jobs[i].label)
                 todo = [i for i in broken if outcomes[i] is None]
                 if broken:

@@ -273,6 +273,11 @@ def _values(fit: dict) -> dict[str, float]:
 
 
 # ================================================================================================ checks
+def _no_scene_fails(claim: str, failing: list) -> Check:
+    """The check that ``claim`` holds in every scene: its value, the number of ``failing`` scenes."""
+    return Check(name=f"{claim} (scenes failing)", value=len(failing), expected="0", passed=not failing)
+
+
 def _checks(cases: list[SceneCases], sweeps: dict, rays) -> list[Check]:
     checks = []
     zs = [s["per_k"][k]["z"] for s in sweeps.values() for k in rays]
@@ -287,24 +292,10 @@ def _checks(cases: list[SceneCases], sweeps: dict, rays) -> list[Check]:
         )
     )
     bad = [n for n, s in sweeps.items() if s["per_k"][max(rays)]["rmse"] >= s["per_k"][min(rays)]["rmse"]]
-    checks.append(
-        Check(
-            name=f"RMSE at {max(rays)} rays below {min(rays)} rays (scenes failing)",
-            value=len(bad),
-            expected="0",
-            passed=not bad,
-        )
-    )
+    checks.append(_no_scene_fails(f"RMSE at {max(rays)} rays below {min(rays)} rays", bad))
     if ENGINE_RAYS in rays:
         bad = [n for n, s in sweeps.items() if not s.get("same_as_rows")]
-        checks.append(
-            Check(
-                name=f"the study's {ENGINE_RAYS}-ray distances are the rows' own (scenes failing)",
-                value=len(bad),
-                expected="0",
-                passed=not bad,
-            )
-        )
+        checks.append(_no_scene_fails(f"the study's {ENGINE_RAYS}-ray distances are the rows' own", bad))
     worst_far = worst_zero = worst_order = 0.0
     for sc in cases:
         d = sc.distances()

@@ -240,26 +240,37 @@ def scene_table(audits) -> list[dict]:
     """One row per (scene, case, engine row in `SAMPLE_ROWS`): RMSE of the visible depth, ns/pixel, the
     mesh's own error and the scene's view/depth parameters."""
     rows = []
+    for audit, case, rid, outcome in _case_outcomes(audits, "parallax_depth", SAMPLE_ROWS):
+        cost = audit.costs.get(rid, {}).get("ns_per_pixel")
+        rows.append({
+            "scene": case.id.removesuffix("-pom-0"),
+            "case": case.id,
+            "row": rid,
+            "pom_depth": case.parameters["pom_depth"],
+            "pixels": case.parameters["pixels"],
+            "mesh_rms": case.parameters["mesh_rms"],
+            "rmse": float(outcome.metrics["rmse"].value),
+            "ns_per_pixel": None if cost is None else float(cost),
+        })  # fmt: skip
+    return rows
+
+
+def _case_outcomes(audits, quantity: str, row_ids):
+    """(audit, case, row id, outcome) for each case of ``quantity`` and each of ``row_ids`` it has an
+    outcome for, in the audits' order."""
+    for audit, case in _cases(audits, quantity):
+        outs = audit.outcomes.get(case.id, {})
+        for rid in row_ids:
+            if rid in outs:
+                yield audit, case, rid, outs[rid]
+
+
+def _cases(audits, quantity: str):
+    """(audit, case) for each case of ``quantity``, in the audits' order."""
     for audit in audits:
         for case in audit.cases:
-            if case.quantity != "parallax_depth":
-                continue
-            outs = audit.outcomes.get(case.id, {})
-            for rid in SAMPLE_ROWS:
-                if rid not in outs:
-                    continue
-                cost = audit.costs.get(rid, {}).get("ns_per_pixel")
-                rows.append({
-                    "scene": case.id.removesuffix("-pom-0"),
-                    "case": case.id,
-                    "row": rid,
-                    "pom_depth": case.parameters["pom_depth"],
-                    "pixels": case.parameters["pixels"],
-                    "mesh_rms": case.parameters["mesh_rms"],
-                    "rmse": float(outs[rid].metrics["rmse"].value),
-                    "ns_per_pixel": None if cost is None else float(cost),
-                })  # fmt: skip
-    return rows
+            if case.quantity == quantity:
+                yield audit, case
 
 
 def _markdown(table: list[dict]) -> str:
@@ -328,36 +339,33 @@ def reference_checks(audits, table: list[dict]) -> list[Check]:
     1e-5: float32 hit positions), and the mesh's own error beside the stable march's (`MESH_MARGIN`)."""
     checks = []
     stable = {(r["case"]): r["rmse"] for r in table if r["row"] == "pom-stable"}
-    for audit in audits:
-        for case in audit.cases:
-            if case.quantity != "parallax_depth":
-                continue
-            scene = case.id.removesuffix("-pom-0")
-            par = case.parameters
-            field = case.methods["pom-stable"].fixed["field"]
-            got = oracle_depth(field, par["pom_depth"], case.channel_inputs[0])
-            rms = float(np.sqrt(np.mean((got - case.reference.mean[case.mask][:, 0]) ** 2)))
-            bound = par["mesh_rms"] + 1e-5
+    for _, case in _cases(audits, "parallax_depth"):
+        scene = case.id.removesuffix("-pom-0")
+        par = case.parameters
+        field = case.methods["pom-stable"].fixed["field"]
+        got = oracle_depth(field, par["pom_depth"], case.channel_inputs[0])
+        rms = float(np.sqrt(np.mean((got - case.reference.mean[case.mask][:, 0]) ** 2)))
+        bound = par["mesh_rms"] + 1e-5
+        checks.append(
+            Check(
+                name=f"{scene}: the displaced mesh's hits vs a float64 root finder on the bilinear "
+                "height field (RMS, fraction of the range) within the fine-vs-half mesh RMS + 1e-5",
+                value=rms,
+                expected=f"≤ {bound:.3g}",
+                passed=bool(rms <= bound),
+            )
+        )
+        if case.id in stable:
+            ratio = par["mesh_rms"] / 3.0 / stable[case.id]
             checks.append(
                 Check(
-                    name=f"{scene}: the displaced mesh's hits vs a float64 root finder on the bilinear "
-                    "height field (RMS, fraction of the range) within the fine-vs-half mesh RMS + 1e-5",
-                    value=rms,
-                    expected=f"≤ {bound:.3g}",
-                    passed=bool(rms <= bound),
+                    name=f"{scene}: the fine mesh's own error (⅓ of its RMS difference to the "
+                    "half-resolution mesh) over the stable march's RMSE (n 8…40)",
+                    value=ratio,
+                    expected=f"≤ {MESH_MARGIN:g}",
+                    passed=bool(ratio <= MESH_MARGIN),
                 )
             )
-            if case.id in stable:
-                ratio = par["mesh_rms"] / 3.0 / stable[case.id]
-                checks.append(
-                    Check(
-                        name=f"{scene}: the fine mesh's own error (⅓ of its RMS difference to the "
-                        "half-resolution mesh) over the stable march's RMSE (n 8…40)",
-                        value=ratio,
-                        expected=f"≤ {MESH_MARGIN:g}",
-                        passed=bool(ratio <= MESH_MARGIN),
-                    )
-                )
     return checks
 
 
@@ -397,25 +405,18 @@ def shadow_table(audits) -> list[dict]:
     """One row per (scene, shadow case, row of `SHADOW_ROWS` and its fitted row): RMSE of the visible
     fraction of the light, the parameters (softening, floor), the reference's mean visibility and stderr."""
     rows = []
-    for audit in audits:
-        for case in audit.cases:
-            if case.quantity != "parallax_shadow":
-                continue
-            outs = audit.outcomes.get(case.id, {})
-            for rid in (r for base in SHADOW_ROWS for r in (base, f"{base}-fitted")):
-                if rid not in outs:
-                    continue
-                o = outs[rid]
-                rows.append({
-                    "scene": case.id.split("-pom-")[0],
-                    "case": case.id,
-                    "row": rid,
-                    "rmse": float(o.metrics["rmse"].value),
-                    "softening": _finite(o.parameters.get("softening", math.nan)),
-                    "floor": _finite(o.parameters.get("floor", math.nan)),
-                    "mean_visibility": case.parameters["mean_visibility"],
-                    "mean_stderr": case.parameters["mean_stderr"],
-                })  # fmt: skip
+    shadow_rows = [r for base in SHADOW_ROWS for r in (base, f"{base}-fitted")]
+    for _, case, rid, o in _case_outcomes(audits, "parallax_shadow", shadow_rows):
+        rows.append({
+            "scene": case.id.split("-pom-")[0],
+            "case": case.id,
+            "row": rid,
+            "rmse": float(o.metrics["rmse"].value),
+            "softening": _finite(o.parameters.get("softening", math.nan)),
+            "floor": _finite(o.parameters.get("floor", math.nan)),
+            "mean_visibility": case.parameters["mean_visibility"],
+            "mean_stderr": case.parameters["mean_stderr"],
+        })  # fmt: skip
     return rows
 
 

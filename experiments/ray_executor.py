@@ -261,14 +261,7 @@ class RayExecutor:
                     if isinstance(cause, lost_worker):
                         self._lost(i, slot, cause, attempts, outcomes, queue, tracker, jobs)
                     else:
-                        outcomes[i] = Outcome(
-                            i,
-                            jobs[i].label,
-                            False,
-                            error=error_line(cause),
-                            attempts=attempts[i],
-                            seconds=time.perf_counter() - t0,
-                        )
+                        outcomes[i] = Outcome.raised(i, jobs[i].label, cause, attempts[i], t0)
                         if _exceptions is not None:
                             _exceptions[i] = cause
                         tracker.finished(False)
@@ -278,9 +271,7 @@ class RayExecutor:
                     self._lost(i, slot, e, attempts, outcomes, queue, tracker, jobs)
                     idle.append(slot)
                     continue
-                outcomes[i] = Outcome(
-                    i, jobs[i].label, True, value, attempts=attempts[i], seconds=time.perf_counter() - t0
-                )
+                outcomes[i] = Outcome.returned(i, jobs[i].label, value, attempts[i], t0)
                 tracker.finished(True)
                 idle.append(slot)
         finally:
@@ -296,13 +287,7 @@ class RayExecutor:
         self._actors[slot] = self._new_actor()
         self._pids[slot] = self._ray.get(self._actors[slot].pid.remote())
         if attempts[i] >= self.max_attempts:
-            outcomes[i] = Outcome(
-                i,
-                jobs[i].label,
-                False,
-                attempts=attempts[i],
-                error=f"worker died {attempts[i]} times ({error_line(exc)})",
-            )
+            outcomes[i] = Outcome.worker_died(i, jobs[i].label, exc, attempts[i])
             tracker.finished(False)
         else:
             queue.insert(0, i)

@@ -43,6 +43,7 @@ from rtfit.reference.io import atomic_write_bytes
 from rtfit.scenes import library_path, load_scene
 
 from .mesh_normals import vertex_normals
+from .mesh_ply import write_ply
 
 CREASE_ANGLES = (30, 60, 90, 120)
 SCENE_NAMES = (*(f"crease_{a}" for a in CREASE_ANGLES), "sphere_plane", "room", "boxes", "character")
@@ -52,23 +53,6 @@ SMOOTH = ("sphere_plane", "character")
 
 
 # ------------------------------------------------------------------------------------------ PLY
-def write_ply(path, vertices, faces, normals=None) -> None:
-    """Binary little-endian PLY (float32 x y z, and nx ny nz when ``normals`` are given; uchar-count int32
-    faces), written atomically."""
-    v = np.ascontiguousarray(vertices, dtype="<f4")
-    props = "property float x\nproperty float y\nproperty float z\n"
-    if normals is not None:
-        v = np.ascontiguousarray(np.concatenate([v, np.asarray(normals, dtype="<f4")], axis=1))
-        props += "property float nx\nproperty float ny\nproperty float nz\n"
-    f = np.asarray(faces, dtype="<i4")
-    head = (
-        f"ply\nformat binary_little_endian 1.0\nelement vertex {len(v)}\n{props}"
-        f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n"
-    ).encode()
-    rec = np.zeros(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    rec["n"] = 3
-    rec["i"] = f
-    atomic_write_bytes(path, head + v.tobytes() + rec.tobytes())
 
 
 def read_ply(path):

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from rtfit.experiments import cli, families, registry
+from rtfit.experiments import cli_options, families, registry
 from rtfit.experiments.cli import main
 from rtfit.experiments.registry import SPP_MAX, ConfigKey, ExperimentSpec, apply_overrides, check_value
 from rtfit.scenes import SceneError, library_path, parse_scene_text
@@ -112,7 +112,7 @@ def test_scalar_variant_is_not_offered(capsys, dirs):
     out, cache = dirs
     line = _refused(capsys, _run(out, cache, "--variant", "scalar_rgb"), out, cache)
     assert "llvm_ad_rgb" in line and "cuda_ad_rgb" in line
-    assert "scalar_rgb" not in cli.VARIANT_CHOICES
+    assert "scalar_rgb" not in cli_options.VARIANT_CHOICES
 
 
 def test_spp_above_the_bound(capsys, dirs):
