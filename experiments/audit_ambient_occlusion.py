@@ -38,6 +38,7 @@ import hashlib
 import io
 import math
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -101,14 +102,11 @@ SCENE_LABELS = {
     "boxes": "city block of boxes",
     "character": "procedural character (held out of the study's joint fit)",
 }
+_shipped = partial(ShippedScene, size=(128, 128), spp=1024, quick_size=(36, 36), quick_spp=64)
 SCENES = tuple(
-    ShippedScene(
+    _shipped(
         f"sdf_{name}.toml",
         f"{label}; white diffuse, AO within R = 1",
-        size=(128, 128),
-        spp=1024,
-        quick_size=(36, 36),
-        quick_spp=64,
         options={"ao_distance": 1.0},
     )
     for name, label in SCENE_LABELS.items()

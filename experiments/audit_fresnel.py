@@ -33,6 +33,7 @@ per material over its pixels and three channels.
 from __future__ import annotations
 
 import time
+from functools import partial
 
 import numpy as np
 
@@ -51,14 +52,11 @@ _SAMPLED = frozenset({"conductor", "dielectric"})
 _DIELECTRIC = frozenset({"dielectric", "roughdielectric", "plastic", "roughplastic"})
 _UNAUDITED = frozenset({"thindielectric"})  # two interfaces: 2R/(1 + R), not one Fresnel term
 
+_shipped = partial(ShippedScene, size=(64, 64), spp=64, quick_size=(24, 24), quick_spp=8)
 SCENES = (
-    ShippedScene(
+    _shipped(
         "fresnel_spheres.xml",
         "a smooth gold sphere, a glass sphere and a rough copper sphere under a constant white sky",
-        size=(64, 64),
-        spp=64,
-        quick_size=(24, 24),
-        quick_spp=8,
     ),
 )
 

@@ -52,6 +52,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import drjit as dr
@@ -97,16 +98,15 @@ _DISTANCE = 10.0  # the camera's distance from the coat's centre (scene units)
 _THICKNESS = 0.1  # the shipped coat's thickness d (scene units)
 
 
+_shipped = partial(ShippedScene, size=(32, 32), spp=256, quick_size=(16, 16), quick_spp=64)
+
+
 def _scene(theta: int, eta: float) -> ShippedScene:
     t = math.radians(theta)
     cy, cz = -_DISTANCE * math.sin(t), _THICKNESS + _DISTANCE * math.cos(t)
-    return ShippedScene(
+    return _shipped(
         "layered_materials_coat.xml",
         f"a checkerboard base under a smooth coat (η = {eta:g}, d = {_THICKNESS:g}) seen at θ = {theta}°",
-        size=(32, 32),
-        spp=256,
-        quick_size=(16, 16),
-        quick_spp=64,
         defines={"eta": f"{eta:g}", "d": f"{_THICKNESS:g}", "cy": f"{cy:.6g}", "cz": f"{cz:.6g}"},
         name=f"theta{theta}-eta{eta:g}".replace(".", "p"),
         quick=(theta, eta) in ((30, 1.5), (60, 1.5), (60, 1.33)),
@@ -115,14 +115,10 @@ def _scene(theta: int, eta: float) -> ShippedScene:
 
 def _slab(theta: int) -> ShippedScene:
     coat = _scene(theta, 1.5)
-    return ShippedScene(
+    return _shipped(
         "layered_materials_slab.xml",
         f"the checkerboard under a smooth coat (η = 1.5, d = {_THICKNESS:g}) filled with a scattering medium "
         f"(σ_t = 10, albedo 0.95, HG g = 0.7; volpath) seen at θ = {theta}°",
-        size=(32, 32),
-        spp=256,
-        quick_size=(16, 16),
-        quick_spp=64,
         defines=dict(coat.defines),
         name=f"slab-theta{theta}-eta1p5",
         quick=theta == 60,

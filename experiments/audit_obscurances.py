@@ -77,14 +77,11 @@ SCENE_LABELS = {
 `rtfit.experiments.sdf_occlusion_scenes`) the family ships, the first four ``--quick``."""
 QUICK_SCENES = ("crease_90", "sphere_plane", "room", "boxes")
 
+_shipped = partial(ShippedScene, size=(128, 128), spp=1024, quick_size=(36, 36), quick_spp=64)
 SCENES = tuple(
-    ShippedScene(
+    _shipped(
         f"sdf_{name}.toml",
         f"{label}; white diffuse, R = d_max = {SEED_D_MAX:g} (the seed's)",
-        size=(128, 128),
-        spp=1024,
-        quick_size=(36, 36),
-        quick_spp=64,
         options={"ao_distance": SEED_D_MAX},
         quick=name in QUICK_SCENES,
     )

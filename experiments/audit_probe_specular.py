@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from functools import partial
 
 import numpy as np
 
@@ -71,16 +72,13 @@ LOBE_SAMPLES = 128
 GLOSSY = frozenset({"roughconductor", "roughplastic"})
 """The BSDFs this family audits (a rough dielectric's transmission is not a probe's specular)."""
 
+_shipped = partial(ShippedScene, size=(48, 48), spp=64, quick_size=(16, 16), quick_spp=4)
 SCENES = (
-    ShippedScene(
+    _shipped(
         "probe_specular_room.xml",
         "a closed room (red and green side walls, white back wall, a ceiling light) with a rough aluminium "
         "floor (GGX α = 0.1) and a rough plastic sphere (GGX α = 0.3); probes at the shapes' centres and "
         "on a 2×2×2 grid",
-        size=(48, 48),
-        spp=64,
-        quick_size=(16, 16),
-        quick_spp=4,
     ),
 )
 """The scene ``rtfit run probe-specular`` audits (scenes/library/)."""

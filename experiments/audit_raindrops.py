@@ -37,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from functools import partial
 
 import numpy as np
 
@@ -84,14 +85,11 @@ FORMAT = 1
 ETA_RANGE = (1.2, 1.6)
 """The relative indices of refraction audited as a drop (water 1.33 … dense glass)."""
 
+_shipped = partial(ShippedScene, size=(48, 48), spp=1024, quick_size=(20, 20), quick_spp=64)
 SCENES = tuple(
-    ShippedScene(
+    _shipped(
         "raindrops_drop.xml",
         f"a water drop (η = 1.33, r = 1 m) under the {label}, seen 11° from above",
-        size=(48, 48),
-        spp=1024,
-        quick_size=(20, 20),
-        quick_spp=64,
         defines={"map": f"envmaps/{name}.exr"},
         name=f"drop-{name}",
         quick=name == "overcast",
