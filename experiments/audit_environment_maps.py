@@ -58,7 +58,6 @@ from rtfit.reference.reflective_shapes import (
     bsdf_roughness,
     first_hits,
     ray_radiance_pass,
-    shape_pixels,
     surface_lobes,
 )
 
@@ -73,7 +72,7 @@ from .audit_family import (
     vector_text,
     xyz_columns,
 )
-from .audit_geometry import camera_rays, reflective_shape
+from .audit_geometry import reflective_shape, shape_view, visible_subset
 
 __all__ = [
     "FAMILY",
@@ -135,12 +134,10 @@ def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[Family
     gb = setup.gbuffer
     visible = setup.mask
     points = gb.position[visible].astype(np.float64)
-    origins, dirs = camera_rays(setup)
-    sees = shape_pixels(mi, scene, index, origins, dirs)
+    origins, dirs, sees = shape_view(setup, index)
     if not sees.any():
         return []
-    mask = np.zeros_like(visible)
-    mask[visible] = sees
+    mask = visible_subset(visible, sees)
     origins, dirs, points = origins[sees], dirs[sees], points[sees]
     box = shape.bbox()
     centre = 0.5 * (np.array(box.min, np.float64) + np.array(box.max, np.float64))

@@ -26,13 +26,21 @@ import math
 
 import numpy as np
 
-from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes
+from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
 
 from .audit import Applicability, default_ao_distance
 from .audit_family import AuditError, AuditSetup
 from .sdf_occlusion_scenes import icosphere
 
-__all__ = ["ao_radius", "camera_rays", "rays", "reflective_shape", "scene_triangles"]
+__all__ = [
+    "ao_radius",
+    "camera_rays",
+    "rays",
+    "reflective_shape",
+    "scene_triangles",
+    "shape_view",
+    "visible_subset",
+]
 
 _SEGMENTS = 64
 _SPHERE_SUBDIVISIONS = 4
@@ -221,3 +229,21 @@ def camera_rays(setup: AuditSetup) -> tuple[np.ndarray, np.ndarray]:
     return gb.position[visible].astype(np.float64) - gb.depth[visible].astype(np.float64)[
         :, None
     ] * dirs, dirs
+
+
+def shape_view(setup: AuditSetup, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The visible pixels' camera rays (`camera_rays`: origins and unit directions, (N, 3)) and which of them
+    first hit the scene's shape ``index`` (`shape_pixels`: (N,) bool): the pixels a family auditing one
+    shape compares."""
+    origins, dirs = camera_rays(setup)
+    return origins, dirs, shape_pixels(setup.mi, setup.scene, index, origins, dirs)
+
+
+def visible_subset(visible: np.ndarray, sees: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+    """The (H, W) bool mask of the pixels of ``visible`` (H, W) that ``sees`` keeps (one bool per visible
+    pixel, row-major, as `shape_view` gives it) and, where given, ``keep`` too (one bool per pixel that
+    ``sees`` keeps)."""
+    chosen = np.flatnonzero(sees) if keep is None else np.flatnonzero(sees)[keep]
+    mask = np.zeros(visible.size, bool)
+    mask[np.flatnonzero(visible.reshape(-1))[chosen]] = True
+    return mask.reshape(visible.shape)

@@ -69,6 +69,7 @@ from .audit_family import (
     masked_image,
     pooled_passes,
 )
+from .audit_media import transmittance_case, transmittance_reference
 
 __all__ = [
     "FAMILY",
@@ -369,31 +370,26 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     absorbing = not any(medium.albedo)
     t_ref = None
     if absorbing or setup.wants("fog_transmittance"):
-        t_ref = _transmittance(
-            setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance"
-        ).reference(
+        t_ref = transmittance_reference(
+            _transmittance(setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance"),
             mask,
-            quantity="transmittance T of the medium along the camera's rays (1, grey)",
-            integrator="ratio tracking (Mitsuba Medium.sample_interaction with the medium's majorant)",
-            integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
+            "ratio tracking (Mitsuba Medium.sample_interaction with the medium's majorant)",
         )
     t_rows = {f: TRANSMITTANCE_METHODS[f] for f in OPTICAL_DEPTH_FORMS}
     t_cases = []
     if t_ref is not None:  # not where the run audits the radiance alone (the terrain's --quick)
         t_cases.append(
-            FamilyCase(
-                id=f"{tag}-transmittance",
-                label=f"{app.part}, transmittance",
-                reference=t_ref,
-                mask=mask,
-                channel_inputs=(common, common, common),
-                parameters={**params, "quantity": "transmittance"},
-                units="1",
+            transmittance_case(
+                tag,
+                app.part,
+                t_ref,
+                mask,
+                common,
+                params,
                 notes=(
                     "the optical-depth forms are compared as T = e^(−τ), with the medium's b, c, then fitted",
                 ),
                 methods=t_rows,
-                quantity="fog_transmittance",
                 params={f: _row_params(f, medium, true_bc, horizon) for f in t_rows},
             )
         )

@@ -70,7 +70,6 @@ from rtfit.realtime.layered_materials import (
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import PassResult, radiance_pass
 from rtfit.reference.particle_media import shapes_scene
-from rtfit.reference.reflective_shapes import shape_pixels
 
 from .audit import Applicability, Rule
 from .audit_family import (
@@ -84,7 +83,7 @@ from .audit_family import (
     pooled_passes,
     vector_text,
 )
-from .audit_geometry import camera_rays, rays, reflective_shape
+from .audit_geometry import rays, reflective_shape, shape_view, visible_subset
 from .layered_lightmap import LIGHTMAP_RULE, LIGHTMAP_SCENE, ROLE, lightmap_cases, uv_window
 from .records import Check, Section
 
@@ -203,13 +202,6 @@ def _base_textures(mi, scene, base_id: int, uvs: np.ndarray, si, radius: float, 
     return BaseTexture(rho.reshape(3, n[1], n[0]), window, units)
 
 
-def _mask_of(visible: np.ndarray, sees: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    idx = np.flatnonzero(visible.reshape(-1))[np.flatnonzero(sees)[keep]]
-    mask = np.zeros(visible.size, bool)
-    mask[idx] = True
-    return mask.reshape(visible.shape)
-
-
 def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """The offset case and, under a uniform sky, the radiance case of one smooth dielectric seen from outside
     with a base under it (module docstring); none otherwise."""
@@ -220,9 +212,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     if plugin != "dielectric":
         return []
     t0 = time.perf_counter()
-    visible = setup.mask
-    origins, dirs = camera_rays(setup)
-    sees = shape_pixels(mi, scene, index, origins, dirs)
+    origins, dirs, sees = shape_view(setup, index)
     if not sees.any():
         return []
     si = scene.ray_intersect(rays(mi, origins[sees], dirs[sees]))
@@ -247,7 +237,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     offset = (t2 * np.linalg.norm(lateral, axis=1))[keep]
     depth = t3[keep]
     eta = float(np.array(mi.traverse(bsdf)["eta"]).reshape(-1)[0])
-    mask = _mask_of(visible, sees, keep)
+    mask = visible_subset(setup.mask, sees, keep)
     cos_k = cos[keep]
     inputs = {"cos_theta": cos_k, "depth": depth, "eta": np.full(cos_k.shape, eta)}
     reference = AuditReference.deterministic(
@@ -296,7 +286,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     keep_r = keep & seen
     if not keep_r.any():
         return cases
-    mask_r = _mask_of(visible, sees, keep_r)
+    mask_r = visible_subset(setup.mask, sees, keep_r)
     rho_seed = _diffuse_albedo(mi, straight)[keep_r]
     rho_refr = _diffuse_albedo(mi, si2)[keep_r]
     cos_r = cos[keep_r]

@@ -50,6 +50,8 @@ from .audit_media import (
     fogged_radiance_inputs,
     opened_medium,
     sigma_t_at,
+    transmittance_case,
+    transmittance_reference,
 )
 
 __all__ = ["FAMILY", "SCENES", "homogeneous_fog_cases"]
@@ -160,27 +162,24 @@ def homogeneous_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyC
                 mi, tracked, med.origin, dirs[ok], t_out[ok], spp, seed, min_distance=t_in[ok]
             )
 
-        ref = pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance").reference(
+        ref = transmittance_reference(
+            pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance"),
             mask,
-            quantity="transmittance T of the medium along the camera's rays (1, grey)",
-            integrator="ratio tracking (Mitsuba Medium.get_scattering_coefficients, the medium's majorant)",
-            integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
+            "ratio tracking (Mitsuba Medium.get_scattering_coefficients, the medium's majorant)",
         )
         parameters = {"medium": app.part, "sigma_t": s, "channel": None if ch is None else "rgb"[ch],
                       "pixels": int(ok.sum()), "length_max": span}  # fmt: skip
         tail = "" if ch is None else f" ({'rgb'[ch]} channel)"
         out.append(
-            FamilyCase(
-                id=f"{tag}-transmittance",
-                label=f"{app.part}{tail}, transmittance",
-                reference=ref,
-                mask=mask,
-                channel_inputs=(common, common, common),
-                parameters={**parameters, "quantity": "transmittance"},
-                units="1",
+            transmittance_case(
+                tag,
+                f"{app.part}{tail}",
+                ref,
+                mask,
+                common,
+                parameters,
                 notes=tuple(notes),
                 methods={r: METHODS[r] for r in TRANSMITTANCE_ROWS},
-                quantity="fog_transmittance",
                 params={r: given[r] for r in TRANSMITTANCE_ROWS},
             )
         )

@@ -45,7 +45,6 @@ from rtfit.reference.reflective_shapes import (
     bsdf_roughness,
     first_hits,
     ray_radiance_pass,
-    shape_pixels,
     surface_lobes,
 )
 
@@ -60,7 +59,7 @@ from .audit_family import (
     vector_text,
     xyz_columns,
 )
-from .audit_geometry import camera_rays, reflective_shape
+from .audit_geometry import reflective_shape, shape_view, visible_subset
 
 __all__ = ["FAMILY", "GRIDS", "LOBE_SAMPLES", "SCENES", "probe_specular_cases", "storage_floats"]
 
@@ -139,12 +138,10 @@ def probe_specular_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCa
     gb = setup.gbuffer
     visible = setup.mask
     points = gb.position[visible].astype(np.float64)
-    origins, dirs = camera_rays(setup)
-    sees = shape_pixels(mi, scene, index, origins, dirs)
+    origins, dirs, sees = shape_view(setup, index)
     if not sees.any():
         return []
-    mask = np.zeros_like(visible)
-    mask[visible] = sees
+    mask = visible_subset(visible, sees)
     origins, dirs, points = origins[sees], dirs[sees], points[sees]
     sbox = scene.bbox()
     lo, hi = np.array(sbox.min, np.float64), np.array(sbox.max, np.float64)
