@@ -29,7 +29,7 @@ import numpy as np
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
 
 from .audit import Applicability, default_ao_distance
-from .audit_family import AuditError, AuditSetup
+from .audit_family import AuditError, AuditSetup, ShippedScene
 from .sdf_occlusion_scenes import icosphere
 
 __all__ = [
@@ -38,6 +38,7 @@ __all__ = [
     "rays",
     "reflective_shape",
     "scene_triangles",
+    "sdf_scene",
     "shape_view",
     "visible_subset",
 ]
@@ -247,3 +248,13 @@ def visible_subset(visible: np.ndarray, sees: np.ndarray, keep: np.ndarray | Non
     mask = np.zeros(visible.size, bool)
     mask[np.flatnonzero(visible.reshape(-1))[chosen]] = True
     return mask.reshape(visible.shape)
+
+
+def sdf_scene(name: str, label: str, **fields) -> ShippedScene:
+    """A shipped sdf-occlusion scene (``scenes/library/sdf_<name>.toml``, geometry by
+    `rtfit.experiments.sdf_occlusion_scenes`) at the sizes and samples of the experiment before the engine
+    (full: 128², 1024 spp; ``--quick``: 36², 64 spp), with a family's ``label`` and own ``fields`` (the AO
+    radius, which scenes ``--quick`` audits): the sdf-occlusion and obscurances families ship them."""
+    return ShippedScene(
+        f"sdf_{name}.toml", label, size=(128, 128), spp=1024, quick_size=(36, 36), quick_spp=64, **fields
+    )
