@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 
 import drjit as dr
 import numpy as np
@@ -108,16 +109,15 @@ QUICK = (("fog_bank", 60.0), ("height_fog", 4.0))
 """The ``--quick`` scenes: a high sun through the constant fog, a low sun through the height fog."""
 
 
+_shipped = partial(ShippedScene, size=(96, 64), spp=1024, quick_size=(24, 16), quick_spp=64)
+
+
 def _sun_scene(medium: str, elevation: float) -> ShippedScene:
     e, a = math.radians(elevation), math.radians(SUN_AZIMUTH_DEG)
     sun = (math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e))
-    return ShippedScene(
+    return _shipped(
         f"aerial_perspective_{medium}.xml",
         f"sunsky (turbidity 3), sun at {elevation:g}° elevation, through {MEDIA[medium]}",
-        size=(96, 64),
-        spp=1024,
-        quick_size=(24, 16),
-        quick_spp=64,
         defines={k: f"{v:.6f}" for k, v in zip(("sx", "sy", "sz"), sun, strict=True)},
         name=f"{medium}-sun{elevation:g}",
         quick=(medium, elevation) in QUICK,

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -85,22 +86,15 @@ PHOTONS_PER_SAMPLE = 4
 LENGTHS = frozenset({"width"})
 """Parameters declared in units of the caster's bounding radius (multiplied by it here)."""
 
+_shipped = partial(ShippedScene, size=(32, 32), spp=256, quick_size=(24, 24), quick_spp=32)
 SCENES = (
-    ShippedScene(
+    _shipped(
         "caustics_sphere_sun.xml",
         "a glass ball (η 1.5) over a white floor, a directional light 30° off the vertical",
-        size=(32, 32),
-        spp=256,
-        quick_size=(24, 24),
-        quick_spp=32,
     ),
-    ShippedScene(
+    _shipped(
         "caustics_sphere_point.xml",
         "a glass ball (η 1.5) over a white floor, a point light 2.5 m away (the caustic near focus)",
-        size=(32, 32),
-        spp=256,
-        quick_size=(24, 24),
-        quick_spp=32,
     ),
 )
 """The scenes ``rtfit run caustics`` audits (scenes/library/caustics_*.xml)."""

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -119,15 +120,15 @@ def sun_direction(elevation_deg: float) -> tuple[float, float, float]:
     return (math.cos(e), 0.0, math.sin(e))
 
 
+_ground = partial(ShippedScene, size=(48, 48), spp=256, quick_size=(16, 16), quick_spp=32)
+_sky = partial(ShippedScene, size=(32, 32), spp=256, quick_size=(12, 12), quick_spp=32)
+
+
 def _scene(elevation: float) -> ShippedScene:
     s = sun_direction(elevation)
-    return ShippedScene(
+    return _ground(
         "clouds_sun.xml",
         f"four Gaussian blobs of cloud (peak σt 1.5–4 /m) 2–4 m above a grey ground, sun at {elevation:g}°",
-        size=(48, 48),
-        spp=256,
-        quick_size=(16, 16),
-        quick_spp=32,
         defines={"dx": f"{-s[0]:.6f}", "dy": "0", "dz": f"{-s[2]:.6f}"},
         name=f"sun{elevation:g}",
         quick=elevation == SUN_ELEVATIONS[0],
@@ -155,13 +156,9 @@ def _sky_sun(view: str) -> tuple[float, float, float]:
 
 def _sky_scene(view: str) -> ShippedScene:
     s, c = _sky_sun(view), CAMERAS[view]
-    return ShippedScene(
+    return _sky(
         "clouds_sky.xml",
         f"the blobs' cloud against a black sky, sun at {math.degrees(math.asin(s[2])):.3g}°, seen {view}",
-        size=(32, 32),
-        spp=256,
-        quick_size=(12, 12),
-        quick_spp=32,
         defines={
             "dx": f"{-s[0]:.6f}",
             "dy": f"{-s[1]:.6f}" if s[1] else "0",

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from functools import partial
 
 import drjit as dr
 import numpy as np
@@ -58,23 +59,16 @@ HIT_SPP_FACTOR = 0.25
 HIT_SPP_MIN = 8
 """The direct irradiance at the hits: max(`HIT_SPP_MIN`, `HIT_SPP_FACTOR` × spp) samples each."""
 
+_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(20, 20), quick_spp=32)
 SCENES = (
-    ShippedScene(
+    _shipped(
         "colour_bleeding_box.xml",
         "a mini Cornell box (red and green walls, white floor, ceiling, back wall and block) lit by a small "
         "rectangle light under the ceiling",
-        size=(64, 64),
-        spp=256,
-        quick_size=(20, 20),
-        quick_spp=32,
     ),
-    ShippedScene(
+    _shipped(
         "volume_room.toml",
         "the irradiance-volumes room (red and green side walls, a point light, a thin occluding wall)",
-        size=(64, 64),
-        spp=256,
-        quick_size=(20, 20),
-        quick_spp=32,
         quick=False,
     ),
 )

@@ -30,6 +30,8 @@ camera-facing unit normals n):
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
 from rtfit.realtime.light_models import METHODS as LIGHT_MODELS
@@ -56,14 +58,11 @@ ALPHAS_DEG = (0.27, 1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 30.0)
 QUICK_ALPHAS_DEG = (0.27, 5.0, 15.0, 30.0)
 """Those ``--quick`` audits (the smooth law's four parameters still have four light sizes to fit)."""
 
+_shipped = partial(ShippedScene, size=(128, 128), spp=4096, quick_size=(32, 32), quick_spp=256)
 SCENES = tuple(
-    ShippedScene(
+    _shipped(
         f"diffuse_sphere_a{a:g}".replace(".", "p") + ".toml",
         f"white unit sphere side-lit by a sun of {a:g}° angular radius (E⊥ = π), seen from −Y",
-        size=(128, 128),
-        spp=4096,
-        quick_size=(32, 32),
-        quick_spp=256,
         quick=a in QUICK_ALPHAS_DEG,
     )
     for a in ALPHAS_DEG

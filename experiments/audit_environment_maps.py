@@ -51,15 +51,10 @@ from rtfit.realtime.reflections import (
     IRRADIANCE_RESOLUTION,
     PROBE_RESOLUTION,
 )
-from rtfit.reference.cache import array_digest
-from rtfit.reference.estimators import sub_seed
 from rtfit.reference.reflective_shapes import (
     REFLECTIVE_BSDFS,
     bsdf_roughness,
     first_hits,
-    ray_radiance_pass,
-    shape_pixels,
-    surface_lobes,
 )
 
 from .audit import Applicability, Rule
@@ -68,12 +63,12 @@ from .audit_family import (
     AuditSetup,
     FamilyCase,
     ShippedScene,
-    pooled_passes,
     rgb_columns,
     vector_text,
     xyz_columns,
 )
-from .audit_geometry import camera_rays, reflective_shape
+from .audit_geometry import reflective_shape
+from .audit_shape_probes import probe_capture, seen_shape, shape_radiance, unit_cube_texels
 
 __all__ = [
     "FAMILY",
@@ -101,11 +96,6 @@ def phong_exponent(alpha: float) -> float:
     return min(max((2.0 / (alpha * alpha) - 2.0) / 4.0, 1e-3), 1e4)
 
 
-def _unit_texels(resolution: int) -> np.ndarray:
-    p = em.cube_texels(resolution)["point"]
-    return p / np.linalg.norm(p, axis=1, keepdims=True)
-
-
 def filtered_tables(prefix: str, rad: np.ndarray, resolution: int, shininess: float) -> dict[str, np.ndarray]:
     """The radiance map ``rad`` (6N², 3) convolved with the lobe of ``shininess`` (0: clamped cosine) at the
     texel centres of a ``resolution``² map, one table per channel: Σ_t L_t·lobe(q·ω_t)·Ω_t divided by the
@@ -113,7 +103,7 @@ def filtered_tables(prefix: str, rad: np.ndarray, resolution: int, shininess: fl
     lobe), as an engine's filter normalises its weights, so that a lobe narrower than a texel (a nearly
     smooth BSDF: s in the thousands) keeps its energy; where no texel centre falls inside it at all, the
     map's own bilinear value at q."""
-    q = _unit_texels(resolution)
+    q = unit_cube_texels(resolution)
     weight = em.convolve(np.ones(len(rad)), q, shininess, "exact")
     integral = math.pi if shininess <= 0.0 else 1.0
     out = {}
@@ -132,47 +122,20 @@ def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[Family
     """One case per reflective shape the camera sees (module docstring); none where it sees none of it."""
     mi, scene = setup.mi, setup.scene
     index, shape, plugin = _shape(setup, app)
-    gb = setup.gbuffer
-    visible = setup.mask
-    points = gb.position[visible].astype(np.float64)
-    origins, dirs = camera_rays(setup)
-    sees = shape_pixels(mi, scene, index, origins, dirs)
-    if not sees.any():
+    seen = seen_shape(setup, index, shape)
+    if seen is None:
         return []
-    mask = np.zeros_like(visible)
-    mask[visible] = sees
-    origins, dirs, points = origins[sees], dirs[sees], points[sees]
-    box = shape.bbox()
-    centre = 0.5 * (np.array(box.min, np.float64) + np.array(box.max, np.float64))
-    probe = np.array(setup.probe_at, np.float64) if setup.probe_at is not None else centre
+    mask, points, probe = seen.mask, seen.points, seen.probe
     sbox = scene.bbox()
     far = FAR_FACTOR * max(float(np.linalg.norm(np.array(sbox.max) - np.array(sbox.min))), 1e-6)
     tag = f"shape{index}"
-    texels = _unit_texels(PROBE_RESOLUTION)
+    texels = unit_cube_texels(PROBE_RESOLUTION)
     dist = np.minimum(first_hits(mi, scene, probe, texels, skip=shape), far)
-    capture = pooled_passes(
-        setup,
-        {
-            "format": FORMAT,
-            "quantity": "probe-radiance",
-            "shape": index,
-            "probe": [float(c) for c in probe],
-            "resolution": PROBE_RESOLUTION,
-        },
-        lambda spp, seed: ray_radiance_pass(mi, scene, probe, texels, spp, seed, skip=shape),
-        (-1, 3),
-        f"{tag}: cube map at {vector_text(probe)}",
-        seed_label="probe",
+    capture = probe_capture(
+        setup, FORMAT, index, shape, probe, PROBE_RESOLUTION, f"{tag}: cube map at {vector_text(probe)}"
     )
     rad = capture.mean
-    pooled = pooled_passes(
-        setup,
-        {"format": FORMAT, "quantity": "shape-radiance", "shape": index, "rays": array_digest(dirs)},
-        lambda spp, seed: ray_radiance_pass(mi, scene, origins, dirs, spp, seed),
-        (-1, 3),
-        f"{tag}: {app.part}",
-    )
-    lobes = surface_lobes(mi, scene, origins, dirs, LOBE_SAMPLES, sub_seed(setup.seed, "lobes", index))
+    pooled, lobes = shape_radiance(setup, app, FORMAT, seen, LOBE_SAMPLES)
     rough = REFLECTIVE_BSDFS[plugin].rough
     alpha = bsdf_roughness(mi, shape) if rough else 0.0
     shininess = phong_exponent(alpha)

@@ -76,6 +76,8 @@ from .audit_media import (
     medium_intervals,
     opened_medium,
     sigma_t_at,
+    transmittance_case,
+    transmittance_reference,
 )
 
 __all__ = ["FAMILY", "MAX_SURFACES", "media_cases", "medium_intervals"]
@@ -157,11 +159,10 @@ def _cases(
     def render(spp: int, seed: int):
         return transmittance_pass(mi, tracked, o, d, t_out[ok], spp, seed, min_distance=t_in[ok])
 
-    ref = pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance").reference(
+    ref = transmittance_reference(
+        pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance"),
         mask,
-        quantity="transmittance T of the medium along the camera's rays (1, grey)",
-        integrator="ratio tracking (Mitsuba Medium.get_scattering_coefficients with the medium's majorant)",
-        integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
+        "ratio tracking (Mitsuba Medium.get_scattering_coefficients with the medium's majorant)",
     )
     given = density_params(b, c, float(length.max()))
     parameters = {
@@ -173,17 +174,15 @@ def _cases(
         "length_max": float(length.max()),
         **extra,
     }
-    t_case = FamilyCase(
-        id=f"{tag}-transmittance",
-        label=f"{app.part}{label_tail}, transmittance",
-        reference=ref,
-        mask=mask,
-        channel_inputs=(common, common, common),
-        parameters={**parameters, "quantity": "transmittance"},
-        units="1",
+    t_case = transmittance_case(
+        tag,
+        f"{app.part}{label_tail}",
+        ref,
+        mask,
+        common,
+        parameters,
         notes=tuple(notes),
         methods={f: _as_exact(TRANSMITTANCE_METHODS[f], exact) for f in rows},
-        quantity="fog_transmittance",
         params={f: given for f in rows},
     )
     if not radiance:

@@ -33,15 +33,16 @@ per material over its pixels and three channels.
 from __future__ import annotations
 
 import time
+from functools import partial
 
 import numpy as np
 
 from rtfit.realtime.fresnel import METHODS
-from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, shape_pixels
+from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS
 
 from .audit import Applicability, Rule
 from .audit_family import AuditFamily, AuditReference, AuditSetup, FamilyCase, ShippedScene
-from .audit_geometry import camera_rays, rays, reflective_shape
+from .audit_geometry import rays, reflective_shape, shape_view, visible_subset
 
 __all__ = ["FAMILY", "SCENES", "fresnel_cases", "material_ior", "mitsuba_fresnel"]
 
@@ -51,14 +52,11 @@ _SAMPLED = frozenset({"conductor", "dielectric"})
 _DIELECTRIC = frozenset({"dielectric", "roughdielectric", "plastic", "roughplastic"})
 _UNAUDITED = frozenset({"thindielectric"})  # two interfaces: 2R/(1 + R), not one Fresnel term
 
+_shipped = partial(ShippedScene, size=(64, 64), spp=64, quick_size=(24, 24), quick_spp=8)
 SCENES = (
-    ShippedScene(
+    _shipped(
         "fresnel_spheres.xml",
         "a smooth gold sphere, a glass sphere and a rough copper sphere under a constant white sky",
-        size=(64, 64),
-        spp=64,
-        quick_size=(24, 24),
-        quick_spp=8,
     ),
 )
 
@@ -110,9 +108,7 @@ def fresnel_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     if plugin in _UNAUDITED or ior is None:
         return []
     t0 = time.perf_counter()
-    visible = setup.mask
-    origins, dirs = camera_rays(setup)
-    sees = shape_pixels(mi, scene, index, origins, dirs)
+    origins, dirs, sees = shape_view(setup, index)
     if not sees.any():
         return []
     ray = rays(mi, origins[sees], dirs[sees])
@@ -145,10 +141,7 @@ def fresnel_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     keep = front & np.isfinite(value).all(axis=1)
     if not keep.any():
         return []
-    idx = np.flatnonzero(visible.reshape(-1))[np.flatnonzero(sees)[keep]]
-    mask = np.zeros(visible.size, bool)
-    mask[idx] = True
-    mask = mask.reshape(visible.shape)
+    mask = visible_subset(setup.mask, sees, keep)
     cos = np.abs(wi_z[keep])
     inside = wi_z[keep] < 0.0
     channel = tuple(

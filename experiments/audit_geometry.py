@@ -26,13 +26,22 @@ import math
 
 import numpy as np
 
-from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes
+from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
 
 from .audit import Applicability, default_ao_distance
-from .audit_family import AuditError, AuditSetup
+from .audit_family import AuditError, AuditSetup, ShippedScene
 from .sdf_occlusion_scenes import icosphere
 
-__all__ = ["ao_radius", "camera_rays", "rays", "reflective_shape", "scene_triangles"]
+__all__ = [
+    "ao_radius",
+    "camera_rays",
+    "rays",
+    "reflective_shape",
+    "scene_triangles",
+    "sdf_scene",
+    "shape_view",
+    "visible_subset",
+]
 
 _SEGMENTS = 64
 _SPHERE_SUBDIVISIONS = 4
@@ -221,3 +230,31 @@ def camera_rays(setup: AuditSetup) -> tuple[np.ndarray, np.ndarray]:
     return gb.position[visible].astype(np.float64) - gb.depth[visible].astype(np.float64)[
         :, None
     ] * dirs, dirs
+
+
+def shape_view(setup: AuditSetup, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The visible pixels' camera rays (`camera_rays`: origins and unit directions, (N, 3)) and which of them
+    first hit the scene's shape ``index`` (`shape_pixels`: (N,) bool): the pixels a family auditing one
+    shape compares."""
+    origins, dirs = camera_rays(setup)
+    return origins, dirs, shape_pixels(setup.mi, setup.scene, index, origins, dirs)
+
+
+def visible_subset(visible: np.ndarray, sees: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+    """The (H, W) bool mask of the pixels of ``visible`` (H, W) that ``sees`` keeps (one bool per visible
+    pixel, row-major, as `shape_view` gives it) and, where given, ``keep`` too (one bool per pixel that
+    ``sees`` keeps)."""
+    chosen = np.flatnonzero(sees) if keep is None else np.flatnonzero(sees)[keep]
+    mask = np.zeros(visible.size, bool)
+    mask[np.flatnonzero(visible.reshape(-1))[chosen]] = True
+    return mask.reshape(visible.shape)
+
+
+def sdf_scene(name: str, label: str, **fields) -> ShippedScene:
+    """A shipped sdf-occlusion scene (``scenes/library/sdf_<name>.toml``, geometry by
+    `rtfit.experiments.sdf_occlusion_scenes`) at the sizes and samples of the experiment before the engine
+    (full: 128², 1024 spp; ``--quick``: 36², 64 spp), with a family's ``label`` and own ``fields`` (the AO
+    radius, which scenes ``--quick`` audits): the sdf-occlusion and obscurances families ship them."""
+    return ShippedScene(
+        f"sdf_{name}.toml", label, size=(128, 128), spp=1024, quick_size=(36, 36), quick_spp=64, **fields
+    )

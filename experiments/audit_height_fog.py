@@ -44,6 +44,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+from functools import partial
 
 import numpy as np
 
@@ -68,6 +69,7 @@ from .audit_family import (
     masked_image,
     pooled_passes,
 )
+from .audit_media import transmittance_case, transmittance_reference
 
 __all__ = [
     "FAMILY",
@@ -90,52 +92,36 @@ PASSES = {"pass_spp": 128}
 """The shipped scenes' passes of 128 samples (the engine's default 32 costs ~1 s more per pass here)."""
 
 
+_box = partial(ShippedScene, size=(64, 64), spp=2048, quick_size=(24, 24), quick_spp=256, options=PASSES)
+_field = partial(ShippedScene, size=(256, 128), spp=2048, quick_size=(64, 32), quick_spp=256, options=PASSES)
+
+
 def _terrain(e: float, transport: str) -> ShippedScene:
     # --quick audits the terrain's radiance alone (the transmittance is checked on the fog boxes)
-    return ShippedScene(
+    return _field(
         f"fog_terrain_e{e:g}_{transport}.toml",
         f"terrain with objects at 10 m–20 km under sunsky (sun {e:g}°, azimuth 50° from the view) in "
         f"scattering height fog (b = 2e-4 /m, c = 0.004 /m, albedo 0.9, g = 0.6), {transport} scattering",
-        size=(256, 128),
-        spp=2048,
-        quick_size=(64, 32),
-        quick_spp=256,
         quick=e in QUICK_ELEVATIONS_DEG,
         quick_quantities=("fogged_radiance",),
-        options=PASSES,
     )
 
 
 SCENES = (
-    ShippedScene(
+    _box(
         "fog_transmittance.toml",
         "an emissive backdrop (radiance 1) through a purely absorbing exponential-fog box (tilted, shifted "
         "gradient): the fog path tracer must render e^(−τ)",
-        size=(64, 64),
-        spp=2048,
-        quick_size=(24, 24),
-        quick_spp=256,
-        options=PASSES,
     ),
-    ShippedScene(
+    _box(
         "fog_transmittance_ellipsoid.toml",
         "the same check with the fog in the ellipsoid inscribed in the box (a fog volume)",
-        size=(64, 64),
-        spp=2048,
-        quick_size=(24, 24),
-        quick_spp=256,
-        options=PASSES,
     ),
     *(_terrain(e, tr) for e in SUN_ELEVATIONS_DEG for tr in TRANSPORTS),
-    ShippedScene(
+    _field(
         "fog_volumes_e40.toml",
         "the terrain with two local fog volumes (an ellipsoid and a rotated box with a tilted gradient), "
         "sun 40°, multiple scattering",
-        size=(256, 128),
-        spp=2048,
-        quick_size=(64, 32),
-        quick_spp=256,
-        options=PASSES,
     ),
 )
 """The scenes ``rtfit run height-fog`` audits (scenes/library/): the reference checks (an absorbing box and
@@ -384,31 +370,26 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     absorbing = not any(medium.albedo)
     t_ref = None
     if absorbing or setup.wants("fog_transmittance"):
-        t_ref = _transmittance(
-            setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance"
-        ).reference(
+        t_ref = transmittance_reference(
+            _transmittance(setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance"),
             mask,
-            quantity="transmittance T of the medium along the camera's rays (1, grey)",
-            integrator="ratio tracking (Mitsuba Medium.sample_interaction with the medium's majorant)",
-            integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
+            "ratio tracking (Mitsuba Medium.sample_interaction with the medium's majorant)",
         )
     t_rows = {f: TRANSMITTANCE_METHODS[f] for f in OPTICAL_DEPTH_FORMS}
     t_cases = []
     if t_ref is not None:  # not where the run audits the radiance alone (the terrain's --quick)
         t_cases.append(
-            FamilyCase(
-                id=f"{tag}-transmittance",
-                label=f"{app.part}, transmittance",
-                reference=t_ref,
-                mask=mask,
-                channel_inputs=(common, common, common),
-                parameters={**params, "quantity": "transmittance"},
-                units="1",
+            transmittance_case(
+                tag,
+                app.part,
+                t_ref,
+                mask,
+                common,
+                params,
                 notes=(
                     "the optical-depth forms are compared as T = e^(−τ), with the medium's b, c, then fitted",
                 ),
                 methods=t_rows,
-                quantity="fog_transmittance",
                 params={f: _row_params(f, medium, true_bc, horizon) for f in t_rows},
             )
         )

@@ -86,15 +86,12 @@ USER_COUNT = 64
 _MAX_LANES = 1 << 22  # shadow rays per launch
 _MAP_LANES = 1 << 20  # depth-map rays per launch (a surface interaction per lane: ~0.1 GB a launch)
 
+_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(24, 24), quick_spp=32)
 SCENES = (
-    ShippedScene(
+    _shipped(
         "ibl_samples_museum.xml",
         "a sphere and two boxes on a grey ground plane under a museum light probe (32 × 64 lat-long, "
         "Mitsuba's test data): bright windows, soft indoor light, contact shadows",
-        size=(64, 64),
-        spp=256,
-        quick_size=(24, 24),
-        quick_spp=32,
     ),
 )
 """The scene ``rtfit run ibl-samples`` audits (scenes/library/)."""

@@ -333,16 +333,15 @@ QUICK_GRIDS = (GRIDS[0], GRIDS[-1])
 scene on 2 CPU cores, so the middle grid is the full run's)."""
 
 
+_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(24, 24), quick_spp=64)
+
+
 def _room(dims: tuple[int, int, int]) -> ShippedScene:
     h = 4.0 / dims[0]
-    return ShippedScene(
+    return _shipped(
         "volume_room.toml",
         f"the room with a bright point light and an occluder, probe grid {'×'.join(map(str, dims))} "
         f"(spacing {h:g} m)",
-        size=(64, 64),
-        spp=256,
-        quick_size=(24, 24),
-        quick_spp=64,
         options={"grid": dims},
         name=f"volume_room-h{h:g}".replace(".", "p"),
         quick=dims in QUICK_GRIDS,

@@ -52,6 +52,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import drjit as dr
@@ -69,7 +70,6 @@ from rtfit.realtime.layered_materials import (
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import PassResult, radiance_pass
 from rtfit.reference.particle_media import shapes_scene
-from rtfit.reference.reflective_shapes import shape_pixels
 
 from .audit import Applicability, Rule
 from .audit_family import (
@@ -83,7 +83,7 @@ from .audit_family import (
     pooled_passes,
     vector_text,
 )
-from .audit_geometry import camera_rays, rays, reflective_shape
+from .audit_geometry import rays, reflective_shape, shape_view, visible_subset
 from .layered_lightmap import LIGHTMAP_RULE, LIGHTMAP_SCENE, ROLE, lightmap_cases, uv_window
 from .records import Check, Section
 
@@ -97,16 +97,15 @@ _DISTANCE = 10.0  # the camera's distance from the coat's centre (scene units)
 _THICKNESS = 0.1  # the shipped coat's thickness d (scene units)
 
 
+_shipped = partial(ShippedScene, size=(32, 32), spp=256, quick_size=(16, 16), quick_spp=64)
+
+
 def _scene(theta: int, eta: float) -> ShippedScene:
     t = math.radians(theta)
     cy, cz = -_DISTANCE * math.sin(t), _THICKNESS + _DISTANCE * math.cos(t)
-    return ShippedScene(
+    return _shipped(
         "layered_materials_coat.xml",
         f"a checkerboard base under a smooth coat (η = {eta:g}, d = {_THICKNESS:g}) seen at θ = {theta}°",
-        size=(32, 32),
-        spp=256,
-        quick_size=(16, 16),
-        quick_spp=64,
         defines={"eta": f"{eta:g}", "d": f"{_THICKNESS:g}", "cy": f"{cy:.6g}", "cz": f"{cz:.6g}"},
         name=f"theta{theta}-eta{eta:g}".replace(".", "p"),
         quick=(theta, eta) in ((30, 1.5), (60, 1.5), (60, 1.33)),
@@ -115,14 +114,10 @@ def _scene(theta: int, eta: float) -> ShippedScene:
 
 def _slab(theta: int) -> ShippedScene:
     coat = _scene(theta, 1.5)
-    return ShippedScene(
+    return _shipped(
         "layered_materials_slab.xml",
         f"the checkerboard under a smooth coat (η = 1.5, d = {_THICKNESS:g}) filled with a scattering medium "
         f"(σ_t = 10, albedo 0.95, HG g = 0.7; volpath) seen at θ = {theta}°",
-        size=(32, 32),
-        spp=256,
-        quick_size=(16, 16),
-        quick_spp=64,
         defines=dict(coat.defines),
         name=f"slab-theta{theta}-eta1p5",
         quick=theta == 60,
@@ -207,13 +202,6 @@ def _base_textures(mi, scene, base_id: int, uvs: np.ndarray, si, radius: float, 
     return BaseTexture(rho.reshape(3, n[1], n[0]), window, units)
 
 
-def _mask_of(visible: np.ndarray, sees: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    idx = np.flatnonzero(visible.reshape(-1))[np.flatnonzero(sees)[keep]]
-    mask = np.zeros(visible.size, bool)
-    mask[idx] = True
-    return mask.reshape(visible.shape)
-
-
 def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     """The offset case and, under a uniform sky, the radiance case of one smooth dielectric seen from outside
     with a base under it (module docstring); none otherwise."""
@@ -224,9 +212,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     if plugin != "dielectric":
         return []
     t0 = time.perf_counter()
-    visible = setup.mask
-    origins, dirs = camera_rays(setup)
-    sees = shape_pixels(mi, scene, index, origins, dirs)
+    origins, dirs, sees = shape_view(setup, index)
     if not sees.any():
         return []
     si = scene.ray_intersect(rays(mi, origins[sees], dirs[sees]))
@@ -251,7 +237,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     offset = (t2 * np.linalg.norm(lateral, axis=1))[keep]
     depth = t3[keep]
     eta = float(np.array(mi.traverse(bsdf)["eta"]).reshape(-1)[0])
-    mask = _mask_of(visible, sees, keep)
+    mask = visible_subset(setup.mask, sees, keep)
     cos_k = cos[keep]
     inputs = {"cos_theta": cos_k, "depth": depth, "eta": np.full(cos_k.shape, eta)}
     reference = AuditReference.deterministic(
@@ -300,7 +286,7 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     keep_r = keep & seen
     if not keep_r.any():
         return cases
-    mask_r = _mask_of(visible, sees, keep_r)
+    mask_r = visible_subset(setup.mask, sees, keep_r)
     rho_seed = _diffuse_albedo(mi, straight)[keep_r]
     rho_refr = _diffuse_albedo(mi, si2)[keep_r]
     cos_r = cos[keep_r]

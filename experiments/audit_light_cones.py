@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 
 import numpy as np
 
@@ -66,16 +67,15 @@ QUICK = {"views": ("beside", "inside", "up-axis"), "sigma_t": (0.05,)}
 """Those ``--quick`` audits (as the experiment before the engine)."""
 
 
+_shipped = partial(ShippedScene, size=(96, 72), spp=4096, quick_size=(24, 18), quick_spp=1024)
+
+
 def _scene(view: str, sigma_t: float) -> ShippedScene:
     origin, target, up = VIEWS[view]
-    return ShippedScene(
+    return _shipped(
         "light_cones_spot.xml",
         f"street lamp (spot, cutoff 30°, beam 22.5°, 100 W/sr, 6 m up) seen {view}, σ_t = {sigma_t:g} /m, "
         "albedo 1",
-        size=(96, 72),
-        spp=4096,
-        quick_size=(24, 18),
-        quick_spp=1024,
         defines={"origin": origin, "target": target, "up": up, "sigma_t": f"{sigma_t:g}"},
         name=f"{view}-s{sigma_t:g}".replace(".", "p"),
         quick=view in QUICK["views"] and sigma_t in QUICK["sigma_t"],

@@ -38,6 +38,7 @@ import contextlib
 import math
 import time
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -102,15 +103,12 @@ ENTRY_SWEEP = (128, 256, 512)
 """The entry-point counts the study compares (every (N/n)-th of the bake, on the seed's 32 panes, the fitted
 cut): 4, 8, 16 (and at N, 32) entry points per cluster."""
 
+_shipped = partial(ShippedScene, size=(48, 48), spp=256, quick_size=(16, 16), quick_spp=32)
 SCENES = (
-    ShippedScene(
+    _shipped(
         "light_path_maps_box.xml",
         "the colour-bleeding mini Cornell box (red and green walls, a white block) lit by a point light "
         "under the ceiling, moved towards each coloured wall",
-        size=(48, 48),
-        spp=256,
-        quick_size=(16, 16),
-        quick_spp=32,
     ),
 )
 """The scene ``rtfit run light-path-maps`` audits (scenes/library/)."""

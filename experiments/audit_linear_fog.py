@@ -31,6 +31,7 @@ Two cases per medium, on the pixels whose camera ray crosses it:
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 
 import numpy as np
 
@@ -49,19 +50,18 @@ from .audit_media import (
     fogged_radiance_inputs,
     opened_medium,
     sigma_t_at,
+    transmittance_case,
+    transmittance_reference,
 )
 
 __all__ = ["FAMILY", "SCENES", "homogeneous_fog_cases"]
 
+_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(24, 24), quick_spp=32)
 SCENES = (
-    ShippedScene(
+    _shipped(
         "linear_fog_box.xml",
         "a rotated cube of scattering homogeneous fog (σt = 0.8, albedo 0.9/0.85/0.7) in front of a blue "
         "diffuse wall lit by a point light and a constant sky; the camera looks through the cube",
-        size=(64, 64),
-        spp=256,
-        quick_size=(24, 24),
-        quick_spp=32,
     ),
 )
 """The scene ``rtfit run linear-fog`` audits (scenes/library/)."""
@@ -162,27 +162,24 @@ def homogeneous_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyC
                 mi, tracked, med.origin, dirs[ok], t_out[ok], spp, seed, min_distance=t_in[ok]
             )
 
-        ref = pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance").reference(
+        ref = transmittance_reference(
+            pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance"),
             mask,
-            quantity="transmittance T of the medium along the camera's rays (1, grey)",
-            integrator="ratio tracking (Mitsuba Medium.get_scattering_coefficients, the medium's majorant)",
-            integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
+            "ratio tracking (Mitsuba Medium.get_scattering_coefficients, the medium's majorant)",
         )
         parameters = {"medium": app.part, "sigma_t": s, "channel": None if ch is None else "rgb"[ch],
                       "pixels": int(ok.sum()), "length_max": span}  # fmt: skip
         tail = "" if ch is None else f" ({'rgb'[ch]} channel)"
         out.append(
-            FamilyCase(
-                id=f"{tag}-transmittance",
-                label=f"{app.part}{tail}, transmittance",
-                reference=ref,
-                mask=mask,
-                channel_inputs=(common, common, common),
-                parameters={**parameters, "quantity": "transmittance"},
-                units="1",
+            transmittance_case(
+                tag,
+                f"{app.part}{tail}",
+                ref,
+                mask,
+                common,
+                parameters,
                 notes=tuple(notes),
                 methods={r: METHODS[r] for r in TRANSMITTANCE_ROWS},
-                quantity="fog_transmittance",
                 params={r: given[r] for r in TRANSMITTANCE_ROWS},
             )
         )

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -22,11 +23,12 @@ from rtfit.reference.build import load_dict, mitsuba_scene_dict
 from rtfit.reference.estimators import PassResult, radiance_pass
 
 from .audit import Applicability
-from .audit_family import AuditError, AuditReference, AuditSetup, pooled_passes
+from .audit_family import AuditError, AuditReference, AuditSetup, FamilyCase, PooledPasses, pooled_passes
 
 __all__ = [
     "MAX_SURFACES",
     "RADIANCE_INTEGRATOR",
+    "TRANSMITTANCE_QUANTITY",
     "FoggedRadiance",
     "Medium",
     "MediumChannel",
@@ -41,6 +43,8 @@ __all__ = [
     "sigma_t_at",
     "sun_direction_of",
     "switched_off",
+    "transmittance_case",
+    "transmittance_reference",
 ]
 
 MAX_SURFACES = 32
@@ -331,3 +335,44 @@ def fogged_radiance_inputs(
         extra_seconds=clear.seconds,
     )
     return FoggedRadiance(ref, inputs, clear.entry.key, sun)
+
+
+TRANSMITTANCE_QUANTITY = "transmittance T of the medium along the camera's rays (1, grey)"
+"""The words of a fog family's transmittance reference (`transmittance_reference`)."""
+
+
+def transmittance_reference(pooled: PooledPasses, mask: np.ndarray, integrator: str) -> AuditReference:
+    """A fog family's transmittance reference on the camera rays of ``mask``: the ratio tracker's ``pooled``
+    passes (`audit_family.PooledPasses.reference`), ``integrator`` the tracker's words."""
+    return pooled.reference(
+        mask,
+        quantity=TRANSMITTANCE_QUANTITY,
+        integrator=integrator,
+        integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
+    )
+
+
+def transmittance_case(
+    tag: str,
+    label: str,
+    reference: AuditReference,
+    mask: np.ndarray,
+    common: Mapping[str, Any],
+    parameters: Mapping[str, Any],
+    **rows: Any,
+) -> FamilyCase:
+    """A fog family's transmittance case of one medium (`transmittance_reference`) on the pixels of
+    ``mask``: id ``<tag>-transmittance``, label ``<label>, transmittance``, the per-pixel inputs ``common``
+    for the three channels (T is grey), ``parameters`` with its quantity, units 1, quantity
+    ``fog_transmittance``; ``rows``: the case's ``notes``, ``methods`` and ``params`` (`FamilyCase`)."""
+    return FamilyCase(
+        id=f"{tag}-transmittance",
+        label=f"{label}, transmittance",
+        reference=reference,
+        mask=mask,
+        channel_inputs=(common, common, common),
+        parameters={**parameters, "quantity": "transmittance"},
+        units="1",
+        quantity="fog_transmittance",
+        **rows,
+    )

@@ -26,6 +26,7 @@ the camera (else its image offset is set far outside the film and the bloom rows
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -77,15 +78,14 @@ FAR = 1.0e6
 """The image offset (px) given where the light is behind the camera: far outside any film."""
 
 
+_shipped = partial(ShippedScene, size=(64, 64), spp=1024, quick_size=(24, 24), quick_spp=256)
+
+
 def _scene(sigma_t: float, g: float) -> ShippedScene:
-    return ShippedScene(
+    return _shipped(
         "misty_glow_point.xml",
         f"point light 4 m away in a medium of σ_t = {sigma_t:g} /m (τ = {4 * sigma_t:g}), albedo 0.9, "
         f"g = {g:g}",
-        size=(64, 64),
-        spp=1024,
-        quick_size=(24, 24),
-        quick_spp=256,
         defines={"sigma_t": f"{sigma_t:g}", "g": f"{g:g}"},
         name=f"s{sigma_t:g}-g{g:g}".replace(".", "p"),
         quick=sigma_t in (0.25, 1.0),

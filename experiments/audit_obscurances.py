@@ -51,8 +51,8 @@ from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.occlusion import hit_distances, occlusion_pass
 
 from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
-from .audit_geometry import ao_radius
+from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit_geometry import ao_radius, sdf_scene
 
 __all__ = ["AMBIENT_ALBEDO", "FAMILY", "MISS", "RAYS", "SCENES", "obscurance_cases", "on_rays"]
 
@@ -78,13 +78,9 @@ SCENE_LABELS = {
 QUICK_SCENES = ("crease_90", "sphere_plane", "room", "boxes")
 
 SCENES = tuple(
-    ShippedScene(
-        f"sdf_{name}.toml",
+    sdf_scene(
+        name,
         f"{label}; white diffuse, R = d_max = {SEED_D_MAX:g} (the seed's)",
-        size=(128, 128),
-        spp=1024,
-        quick_size=(36, 36),
-        quick_spp=64,
         options={"ao_distance": SEED_D_MAX},
         quick=name in QUICK_SCENES,
     )

@@ -68,6 +68,7 @@ import functools
 import hashlib
 import math
 import time
+from functools import partial
 
 import numpy as np
 
@@ -523,14 +524,13 @@ DEPTHS = (0.1, 0.15)
 """The shipped scenes' ``pom_depth`` (texture units): the family's default and the old experiment's s."""
 
 
+_shipped = partial(ShippedScene, size=(64, 64), spp=1024, quick_size=(24, 24), quick_spp=256)
+
+
 def _scene(view: str, depth: float) -> ShippedScene:
-    return ShippedScene(
+    return _shipped(
         "parallax_occlusion_floor.xml",
         f"egg-crate height texture (32×32 texels) on a 1×1 floor seen {view}, carved {depth:g} texture units",
-        size=(64, 64),
-        quick_size=(24, 24),
-        quick_spp=256,
-        spp=1024,
         options={"pom_depth": depth},
         defines={"origin": VIEWS[view]},
         name=f"{view}-d{depth:g}".replace(".", "p"),

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 
 import drjit as dr
 import numpy as np
@@ -60,28 +61,21 @@ NOISE = np.random.default_rng(20060731).uniform(0.0, 2.0 * math.pi, (32, 32))
 """The per-pixel rotation texture (rad), tiled over the screen: the seed's lookup texture of rotations."""
 
 _SPHERE = "a box, a floating plate and a ball on a grey floor under a sphere light of radius {} m (3 m up)"
+_shipped = partial(ShippedScene, size=(64, 64), spp=512, quick_size=(32, 32), quick_spp=64)
 SCENES = (
     *(
-        ShippedScene(
+        _shipped(
             "pcf_soft_shadows_sphere.xml",
             _SPHERE.format(r),
-            size=(64, 64),
-            spp=512,
-            quick_size=(32, 32),
-            quick_spp=64,
             defines={"radius": f"{r}", "radiance": f"{1.0 / (math.pi * (r / 3.0) ** 2):.4g}"},
             name=f"sphere-r{r}".replace(".", "p"),
             quick=r == 0.4,
         )
         for r in (0.1, 0.4)
     ),
-    ShippedScene(
+    _shipped(
         "pcf_soft_shadows_rect.xml",
         "the same objects under a 1 × 1 m rectangle light facing down, 3 m up",
-        size=(64, 64),
-        spp=512,
-        quick_size=(32, 32),
-        quick_spp=64,
         quick=False,
     ),
 )

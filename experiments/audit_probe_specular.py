@@ -33,19 +33,15 @@ from __future__ import annotations
 
 import itertools
 import time
+from functools import partial
 
 import numpy as np
 
 from rtfit.realtime import probe_specular as ps
-from rtfit.realtime.environment_maps import convolve, cube_texels
-from rtfit.reference.cache import array_digest
-from rtfit.reference.estimators import sub_seed
+from rtfit.realtime.environment_maps import convolve
 from rtfit.reference.reflective_shapes import (
     bsdf_roughness,
     first_hits,
-    ray_radiance_pass,
-    shape_pixels,
-    surface_lobes,
 )
 
 from .audit import Applicability, Rule
@@ -54,12 +50,12 @@ from .audit_family import (
     AuditSetup,
     FamilyCase,
     ShippedScene,
-    pooled_passes,
     rgb_columns,
     vector_text,
     xyz_columns,
 )
-from .audit_geometry import camera_rays, reflective_shape
+from .audit_geometry import reflective_shape
+from .audit_shape_probes import probe_capture, seen_shape, shape_radiance, unit_cube_texels
 
 __all__ = ["FAMILY", "GRIDS", "LOBE_SAMPLES", "SCENES", "probe_specular_cases", "storage_floats"]
 
@@ -71,16 +67,13 @@ LOBE_SAMPLES = 128
 GLOSSY = frozenset({"roughconductor", "roughplastic"})
 """The BSDFs this family audits (a rough dielectric's transmission is not a probe's specular)."""
 
+_shipped = partial(ShippedScene, size=(48, 48), spp=64, quick_size=(16, 16), quick_spp=4)
 SCENES = (
-    ShippedScene(
+    _shipped(
         "probe_specular_room.xml",
         "a closed room (red and green side walls, white back wall, a ceiling light) with a rough aluminium "
         "floor (GGX α = 0.1) and a rough plastic sphere (GGX α = 0.3); probes at the shapes' centres and "
         "on a 2×2×2 grid",
-        size=(48, 48),
-        spp=64,
-        quick_size=(16, 16),
-        quick_spp=4,
     ),
 )
 """The scene ``rtfit run probe-specular`` audits (scenes/library/)."""
@@ -96,11 +89,6 @@ def _shape(setup: AuditSetup, app: Applicability):
     return reflective_shape(setup, app, "probe-specular", check_label=False)
 
 
-def _unit(resolution: int) -> np.ndarray:
-    p = cube_texels(resolution)["point"]
-    return p / np.linalg.norm(p, axis=1, keepdims=True)
-
-
 def _grid(lo: np.ndarray, hi: np.ndarray, k: int) -> np.ndarray:
     axes = [lo[a] + (np.arange(k) + 0.5) * (hi[a] - lo[a]) / k for a in range(3)]
     return np.array(list(itertools.product(*axes)), np.float64)
@@ -109,24 +97,11 @@ def _grid(lo: np.ndarray, hi: np.ndarray, k: int) -> np.ndarray:
 def _capture(setup: AuditSetup, index: int, shape, probe: np.ndarray, far: float, label: str):
     """(radiance (6N², 3), irradiance (6N_E², 3), sphere radius, seconds, spp) of one probe."""
     mi, scene = setup.mi, setup.scene
-    texels = _unit(ps.PROBE_RESOLUTION)
-    pooled = pooled_passes(
-        setup,
-        {
-            "format": FORMAT,
-            "quantity": "probe-radiance",
-            "shape": index,
-            "probe": [float(c) for c in probe],
-            "resolution": ps.PROBE_RESOLUTION,
-        },
-        lambda spp, seed: ray_radiance_pass(mi, scene, probe, texels, spp, seed, skip=shape),
-        (-1, 3),
-        label,
-        seed_label="probe",
-    )
+    pooled = probe_capture(setup, FORMAT, index, shape, probe, ps.PROBE_RESOLUTION, label)
     rad = pooled.mean
+    texels = unit_cube_texels(ps.PROBE_RESOLUTION)
     dist = np.minimum(first_hits(mi, scene, probe, texels, skip=shape), far)
-    q = _unit(ps.IRRADIANCE_RESOLUTION)
+    q = unit_cube_texels(ps.IRRADIANCE_RESOLUTION)
     irr = np.stack([convolve(rad[:, c], q, 0.0, "exact") for c in range(3)], axis=1)
     return rad, irr, float(np.median(dist)), pooled.seconds, pooled.spp
 
@@ -138,31 +113,15 @@ def probe_specular_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCa
     index, shape, plugin = _shape(setup, app)
     if plugin not in GLOSSY:
         return []
-    gb = setup.gbuffer
-    visible = setup.mask
-    points = gb.position[visible].astype(np.float64)
-    origins, dirs = camera_rays(setup)
-    sees = shape_pixels(mi, scene, index, origins, dirs)
-    if not sees.any():
+    seen = seen_shape(setup, index, shape)
+    if seen is None:
         return []
-    mask = np.zeros_like(visible)
-    mask[visible] = sees
-    origins, dirs, points = origins[sees], dirs[sees], points[sees]
+    mask, points, assigned = seen.mask, seen.points, seen.probe
     sbox = scene.bbox()
     lo, hi = np.array(sbox.min, np.float64), np.array(sbox.max, np.float64)
     far = max(float(np.linalg.norm(hi - lo)), 1e-6)
-    box = shape.bbox()
-    centre = 0.5 * (np.array(box.min, np.float64) + np.array(box.max, np.float64))
-    assigned = np.array(setup.probe_at, np.float64) if setup.probe_at is not None else centre
     tag = f"shape{index}"
-    pooled = pooled_passes(
-        setup,
-        {"format": FORMAT, "quantity": "shape-radiance", "shape": index, "rays": array_digest(dirs)},
-        lambda spp, seed: ray_radiance_pass(mi, scene, origins, dirs, spp, seed),
-        (-1, 3),
-        f"{tag}: {app.part}",
-    )
-    lobes = surface_lobes(mi, scene, origins, dirs, LOBE_SAMPLES, sub_seed(setup.seed, "lobes", index))
+    pooled, lobes = shape_radiance(setup, app, FORMAT, seen, LOBE_SAMPLES)
     alpha = bsdf_roughness(mi, shape)
     distribution = _distribution(shape)
     placements = [("assigned", assigned[None, :])] + [(f"grid{k}", _grid(lo, hi, k)) for k in GRIDS]

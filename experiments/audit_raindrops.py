@@ -37,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from functools import partial
 
 import numpy as np
 
@@ -46,7 +47,7 @@ from rtfit.realtime import environment_maps as em
 from rtfit.realtime.raindrops import CAUSTIC_METHODS, ENV_RESOLUTION, METHODS, ORDERS, WATER_ETA
 from rtfit.reference.cache import array_digest
 from rtfit.reference.caustic_pass import caustic_profile
-from rtfit.reference.reflective_shapes import ray_radiance_pass, shape_pixels
+from rtfit.reference.reflective_shapes import ray_radiance_pass
 from rtfit.reference.variants import scoped_variant
 
 from .audit import Applicability, Rule
@@ -64,7 +65,7 @@ from .audit_family import (
     vector_text,
     xyz_columns,
 )
-from .audit_geometry import camera_rays, reflective_shape
+from .audit_geometry import reflective_shape, shape_view, visible_subset
 from .records import Check, Section
 
 __all__ = [
@@ -84,14 +85,11 @@ FORMAT = 1
 ETA_RANGE = (1.2, 1.6)
 """The relative indices of refraction audited as a drop (water 1.33 … dense glass)."""
 
+_shipped = partial(ShippedScene, size=(48, 48), spp=1024, quick_size=(20, 20), quick_spp=64)
 SCENES = tuple(
-    ShippedScene(
+    _shipped(
         "raindrops_drop.xml",
         f"a water drop (η = 1.33, r = 1 m) under the {label}, seen 11° from above",
-        size=(48, 48),
-        spp=1024,
-        quick_size=(20, 20),
-        quick_spp=64,
         defines={"map": f"envmaps/{name}.exr"},
         name=f"drop-{name}",
         quick=name == "overcast",
@@ -198,15 +196,12 @@ def drop_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         return []
     centre, radius = sphere
     env = _environment(setup)
-    visible = setup.mask
-    origins, dirs = camera_rays(setup)
-    sees = shape_pixels(mi, scene, index, origins, dirs)
+    origins, dirs, sees = shape_view(setup, index)
     _, normals, hit = sphere_hits(origins, dirs, centre, radius)
     keep = sees & hit
     if not keep.any():
         return []
-    mask = np.zeros_like(visible)
-    mask[visible] = keep
+    mask = visible_subset(setup.mask, keep)
     origins, dirs, normals = origins[keep], dirs[keep], normals[keep]
     t0 = time.perf_counter()
     cube = bake_cube(mi, env.emitter)

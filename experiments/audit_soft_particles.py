@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -74,15 +75,12 @@ __all__ = ["FAMILY", "SCENES", "Particle"]
 FORMAT = 1
 _EXACT = {"sphere": "exact-sphere", "box": "exact-box"}
 
+_shipped = partial(ShippedScene, size=(64, 64), spp=16384, quick_size=(20, 20), quick_spp=1024)
 SCENES = tuple(
-    ShippedScene(
+    _shipped(
         f"soft_particles_{c.shape}.xml",
         f"{c.shape} of absorbing medium, α_c = {c.alpha_c:g} (σ = {c.sigma:.4g}), cut by an opaque plane "
         f"tilted {c.tilt_deg:g}°" + (", the camera inside it" if c.inside else ""),
-        size=(64, 64),
-        spp=16384,
-        quick_size=(20, 20),
-        quick_spp=1024,
         defines=c.defines(),
         name=c.name,
         quick=c.quick,

@@ -37,6 +37,7 @@ boundary around the light, or the sensor's unbounded medium); a medium seen thro
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 
 import numpy as np
 
@@ -66,14 +67,13 @@ QUICK = {"D": (4.0, 16.0), "sigma_t": (0.01, 0.05)}
 """Those ``--quick`` audits (as the experiment before the engine)."""
 
 
+_shipped = partial(ShippedScene, size=(96, 64), spp=4096, quick_size=(24, 16), quick_spp=512)
+
+
 def _scene(distance: float, sigma_t: float) -> ShippedScene:
-    return ShippedScene(
+    return _shipped(
         "volumetric_lightning_point.xml",
         f"point light at D = {distance:g} m (I = D² W/sr) in a medium of σ_t = {sigma_t:g} /m, albedo 1",
-        size=(96, 64),
-        spp=4096,
-        quick_size=(24, 16),
-        quick_spp=512,
         defines={"D": f"{distance:g}", "intensity": f"{distance * distance:g}", "sigma_t": f"{sigma_t:g}"},
         name=f"D{distance:g}-s{sigma_t:g}".replace(".", "p"),
         quick=distance in QUICK["D"] and sigma_t in QUICK["sigma_t"],

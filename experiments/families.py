@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from types import ModuleType
 
 from rtfit.realtime import (
     ambient_aperture,
@@ -161,118 +162,131 @@ class Family:
         return ExperimentSpec(self.name, self.module, self.title, self.description)
 
 
+def _engine(
+    name: str,
+    audit: ModuleType,
+    methods: Mapping[str, Method],
+    title: str,
+    description: str,
+    study: Callable[[StudyContext], Study] | None = None,
+    bench: Callable[[BenchContext], list[dict]] | None = None,
+    audits: tuple[AuditFamily, ...] | None = None,
+) -> Family:
+    """A family born on the engine (module `ENGINE`) from its audit module ``audit``: its declaration
+    ``audit.FAMILY`` (or ``audits``, where other declarations join it, in their order) and its shipped
+    scenes ``audit.SCENES``."""
+    return Family(
+        name,
+        ENGINE,
+        title,
+        description,
+        methods=methods,
+        audits=(audit.FAMILY,) if audits is None else audits,
+        scenes=audit.SCENES,
+        study=study,
+        bench=bench,
+    )
+
+
 FAMILIES: dict[str, Family] = {
     f.name: f
     for f in (
-        Family(
+        _engine(
             "diffuse",
-            ENGINE,
+            audit_diffuse,
+            diffuse.METHODS,
             "Half-Lambert and wrap lighting vs exact sphere-light irradiance",
             "White diffuse sphere under a distant spherical light of angular radius 0.27°–30°: Lambert, "
             "half-Lambert and wrap lighting (fitted per α and as one smooth law w(α), p(α)) against Mitsuba.",
-            methods=diffuse.METHODS,
-            audits=(audit_diffuse.FAMILY,),
-            scenes=audit_diffuse.SCENES,
             study=diffuse_study.study,
         ),
-        Family(
+        _engine(
             "irradiance-bases",
-            ENGINE,
+            audit_irradiance_bases,
+            environment_bases.ALL_METHODS,
             "Irradiance bases: ambient cube vs spherical harmonics against path-traced irradiance",
             "Valve ambient cube (axis-sampled and NNLS-optimal), SH L1–L4 plain and windowed, ZH3, spherical "
             "Gaussians, Ambient Dice and the lightmap bases (H-basis, RNM) on a white sphere under a "
             "constant, sunsky, studio and overcast environment (shipped scenes), with the lone suns, "
             "ringing, hemisphere and storage-budget study.",
-            methods=environment_bases.ALL_METHODS,
-            audits=(audit_irradiance_bases.FAMILY,),
-            scenes=audit_irradiance_bases.SCENES,
             study=irradiance_bases_study.study,
         ),
-        Family(
+        _engine(
             "irradiance-volumes",
-            ENGINE,
+            audit_irradiance_volumes,
+            {**irradiance_volumes.METHODS, **irradiance_volumes.SPLIT_METHODS},
             "Irradiance volumes: a grid of ambient cubes / SH L2 probes, nearest vs trilinear",
             "Path-traced probes over a room with a bright point light and an occluder (one shipped scene per "
             "probe grid), looked up nearest and trilinear against path-traced irradiance at the visible "
             "points: error vs spacing, popping, storage per probe.",
-            methods={**irradiance_volumes.METHODS, **irradiance_volumes.SPLIT_METHODS},
-            audits=(audit_irradiance_volumes.FAMILY,),
-            scenes=audit_irradiance_volumes.SCENES,
             study=irradiance_volumes_study.study,
         ),
-        Family(
+        _engine(
             "ambient-aperture",
-            ENGINE,
+            audit_ambient_aperture,
+            ambient_aperture.METHODS,
             "Ambient aperture lighting: spherical-cap intersection, exact vs smoothstep vs fitted",
             "Solid angle of two intersecting spherical caps over the whole domain (study), and each visible "
             "point's baked cap against a sphere light's shadowed irradiance, the occluded sky and ray-cast "
             "AO on a plate with a hole, a well and bumps (the engine), with fitted Ω and Lambert weights.",
-            methods=ambient_aperture.METHODS,
-            audits=(audit_sky_occlusion.APERTURE_FILL, audit_ambient_aperture.FAMILY),
-            scenes=audit_ambient_aperture.SCENES,
             study=ambient_aperture_study.study,
+            audits=(audit_sky_occlusion.APERTURE_FILL, audit_ambient_aperture.FAMILY),
         ),
-        Family(
+        _engine(
             "sdf-occlusion",
-            ENGINE,
+            audit_ambient_occlusion,
+            sdf_occlusion.METHODS,
             "SDF occlusion and skylight (Evans) vs path-traced ambient occlusion and sky light",
             "Multi-scale signed-distance sampling and cone-traced soft occlusion against Mitsuba AO and "
             "sky-lit irradiance, with steps-vs-error-vs-cost and fitted contrast.",
-            methods=sdf_occlusion.METHODS,
-            audits=(audit_sky_occlusion.SKY_OCCLUSION, audit_ambient_occlusion.FAMILY),
-            scenes=audit_ambient_occlusion.SCENES,
             study=sdf_occlusion_study.study,
+            audits=(audit_sky_occlusion.SKY_OCCLUSION, audit_ambient_occlusion.FAMILY),
         ),
-        Family(
+        _engine(
             "height-fog",
-            ENGINE,
+            audit_height_fog,
+            height_fog.METHODS,
             "Exponential height fog: closed-form optical depth and fog colour vs path-traced media",
             "Closed-form, seed-listing and Taylor optical-depth forms over the whole domain, and fog "
             "shading against Mitsuba transmittance and aerial perspective, with fitted artist parameters.",
-            methods=height_fog.METHODS,
-            audits=(audit_height_fog.FAMILY, audit_fog_media.FAMILY),
-            scenes=audit_height_fog.SCENES,
             study=height_fog_study.study,
+            audits=(audit_height_fog.FAMILY, audit_fog_media.FAMILY),
         ),
-        Family(
+        _engine(
             "nishita-sky",
-            ENGINE,
+            audit_nishita_sky,
+            nishita_sky.METHODS,
             "Nishita sky: single-scattering sky texture vs a path-traced spherical-shell atmosphere",
             "The 128×64 Nishita sky texture with per-pixel phase on shipped sky files, one per sun elevation "
             "(multiple-scattering Mitsuba reference, fitted artist parameters), and its study: single "
             "scattering checked by quadrature, viewer altitude, spectral reference, sunsky, layers-vs-error.",
-            methods=nishita_sky.METHODS,
-            audits=(audit_nishita_sky.FAMILY, audit_sky_emitter.FAMILY),
-            scenes=audit_nishita_sky.SCENES,
             study=nishita_sky_study.study,
+            audits=(audit_nishita_sky.FAMILY, audit_sky_emitter.FAMILY),
             bench=nishita_sky_study.bench,
         ),
-        Family(
+        _engine(
             "volumetric-lightning",
-            ENGINE,
+            audit_volumetric_lightning,
+            {**LIGHTNING_METHODS, "quadrature": LIGHTNING_QUADRATURE},
             "Volumetric lightning: the seed's softened point light along the view ray vs single scattering",
             "The closed-form line integral of i/(1 + a·r²) (stable float32 form vs the printed one) against "
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
-            methods={**LIGHTNING_METHODS, "quadrature": LIGHTNING_QUADRATURE},
-            audits=(audit_volumetric_lightning.FAMILY,),
-            scenes=audit_volumetric_lightning.SCENES,
             study=volumetric_lightning_study.study,
         ),
-        Family(
+        _engine(
             "misty-glow",
-            ENGINE,
+            audit_misty_glow,
+            misty_glow.METHODS,
             "Misty glow: the seed's Kawase bloom as the atmospheric PSF vs a path-traced point light in fog",
             "The glow around a point light in a forward-scattering homogeneous medium (volpathmis, all "
             "orders) against the seed's 4-pass Kawase bloom of the light's direct image, 1–8 passes with "
             "scale and amplitude fitted per optical depth, a Gaussian bloom and single scattering alone.",
-            methods=misty_glow.METHODS,
-            audits=(audit_misty_glow.FAMILY,),
-            scenes=audit_misty_glow.SCENES,
             study=audit_misty_glow.study,
         ),
-        Family(
+        _engine(
             "layered-materials",
-            ENGINE,
+            audit_layered_materials,
+            layered_materials.METHODS,
             "Layered materials: the seed's parallax offset through a coat vs Mitsuba's refraction",
             "Where a smooth dielectric coat covers a base: the offset at which each pixel sees the base, "
             "from Mitsuba's own refraction of the camera ray, against the seed's parallax offset without "
@@ -280,218 +294,181 @@ FAMILIES: dict[str, Family] = {
             "offset; under a sky, the coated base's path-traced radiance against the seed's layer composite, "
             "a Fresnel lerp and the coated-diffuse closed form; the study measures the seed's offset error "
             "against view angle (the issue's ≈ 2× at 60°).",
-            methods=layered_materials.METHODS,
-            audits=(audit_layered_materials.FAMILY,),
-            scenes=audit_layered_materials.SCENES,
             study=audit_layered_materials.study,
         ),
-        Family(
+        _engine(
             "raindrops",
-            ENGINE,
+            audit_raindrops,
+            raindrops.METHODS,
             "Raindrops: the seed's refracted + reflected look-up with a Fresnel blend vs a path-traced drop",
             "A water drop (a smooth dielectric sphere, η = 1.33) under an environment map, path traced, "
             "against the seed's Fresnel blend of a reflected and a once-refracted environment look-up "
             "(000:822-887; fitted effective η and brightness; the particle's Fresnel opacity), the ray "
             "optics of a sphere (two refractions, 0, 1 and 8 internal reflections) and the background it "
             "hides; the seed's claim that a drop is brighter than its background measured.",
-            methods=raindrops.METHODS,
-            audits=(audit_raindrops.FAMILY,),
-            scenes=audit_raindrops.SCENES,
             study=audit_raindrops.study,
         ),
-        Family(
+        _engine(
             "clouds",
-            ENGINE,
+            audit_clouds,
+            {**clouds.METHODS, **clouds.RADIANCE_METHODS},
             "Cloud shadows: the seed's 2-D density plane vs the sun's transmittance through a gridvolume",
             "The sun's transmittance through a heterogeneous (gridvolume) cloud to the ground, by ratio "
             "tracking through the medium, against the seed's cloud-shadow texture (the density plane "
             "projected along the sun), the plane extruded with the distance clouds' nested march, and a 3-D "
             "ray march of 4–64 samples; and the sunlit cloud's radiance (volpathmis) against the seed's "
             "gradient-lit clouds (Wang 2003's artist colours, fitted) and the sun's single scattering.",
-            methods={**clouds.METHODS, **clouds.RADIANCE_METHODS},
-            audits=(audit_clouds.FAMILY,),
-            scenes=audit_clouds.SCENES,
             study=audit_clouds.study,
         ),
-        Family(
+        _engine(
             "aerial-perspective",
-            ENGINE,
+            audit_aerial_perspective,
+            AERIAL_METHODS,
             "Aerial perspective matched to the sky: the fog blend under a Nishita atmosphere + height fog",
             "The seed's sky-matched fog blend on Mitsuba sunsky scenes through a fog bank and a height fog "
             "(given and fitted b, c, colour), and its error budget per sun elevation under a Nishita "
             "atmosphere + height fog by quadrature (checked against Mitsuba).",
-            methods=AERIAL_METHODS,
-            audits=(audit_aerial_perspective.FAMILY,),
-            scenes=audit_aerial_perspective.SCENES,
             study=aerial_perspective_study.study,
         ),
-        Family(
+        _engine(
             "soft-particles",
-            ENGINE,
+            audit_soft_particles,
+            soft_particles.METHODS,
             "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",
             "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned "
             "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
-            methods=soft_particles.METHODS,
-            audits=(audit_soft_particles.FAMILY,),
-            scenes=audit_soft_particles.SCENES,
             study=soft_particles_study.study,
         ),
-        Family(
+        _engine(
             "light-cones",
-            ENGINE,
+            audit_light_cones,
+            {**CONE_METHODS, "quadrature": CONE_QUADRATURE},
             "Light cones in fog: the seed's shell (edge fade, v² attenuation) vs spot-light scattering",
             "The pseudo-volumetric cone shell and §1's integral over the view ray's chord against path-traced"
             " single scattering of a spot light in fog, from beside, inside and along the cone, with fits.",
-            methods={**CONE_METHODS, "quadrature": CONE_QUADRATURE},
-            audits=(audit_light_cones.FAMILY,),
-            scenes=audit_light_cones.SCENES,
             study=light_cones_study.study,
         ),
-        Family(
+        _engine(
             "environment-maps",
-            ENGINE,
+            audit_environment_maps,
+            reflections.METHODS,
             "Pre-convolved and localised environment maps, distance impostors vs exact traces in a room",
             "A mirror and a glass sphere in an emitting room audited by the engine (classic, distance "
             "impostor, secant search against path tracing), plus the study: cube-map convolution "
             "solid-angle rules, the seed's localised convolution against depth-1 Monte Carlo, impostor hits "
             "against exact traces, and the lookups against path-traced spheres over map size, iterations "
             "and Fresnel.",
-            methods=reflections.METHODS,
-            audits=(audit_environment_maps.FAMILY,),
-            scenes=audit_environment_maps.SCENES,
             study=environment_maps_study.study,
         ),
-        Family(
+        _engine(
             "parallax-occlusion",
-            ENGINE,
+            audit_parallax_occlusion,
+            {**parallax_occlusion.DEPTH_METHODS, **parallax_occlusion.SHADOW_AUDIT_METHODS},
             "Parallax occlusion mapping vs a displaced mesh, error vs samples vs cost, the listing's hazards",
             "The seed's linear search + piecewise-linear intersection (as printed and stable, three sample "
             "ranges) against Mitsuba's first hits on the displaced height field of a shipped bump-mapped "
             "floor at three views and two depths; the printed listing's float32 hazards (normal incidence, "
             "no crossing, unclamped offset, the soft shadow's LOD pop) against the stable form.",
-            methods={**parallax_occlusion.DEPTH_METHODS, **parallax_occlusion.SHADOW_AUDIT_METHODS},
-            audits=(audit_parallax_occlusion.FAMILY,),
-            scenes=audit_parallax_occlusion.SCENES,
             study=parallax_occlusion_study.study,
         ),
-        Family(
+        _engine(
             "obscurances",
-            ENGINE,
+            audit_obscurances,
+            obscurances.METHODS,
             "Obscurances (Zhukov/Iones) vs their Monte Carlo definition and uniform-ambient path tracing",
             "The K-ray obscurance estimator with the seed's √(d/d_max) against the model's ray-cast "
             "definition (error vs rays vs cost), and fitted d_max, exponent and ambient scale against "
             "path-traced interreflections under a uniform ambient, on the sdf-occlusion scenes.",
-            methods=obscurances.METHODS,
-            audits=(audit_obscurances.FAMILY,),
-            scenes=audit_obscurances.SCENES,
             study=obscurances_study.study,
         ),
-        Family(
+        _engine(
             "fresnel",
-            ENGINE,
+            audit_fresnel,
+            fresnel.METHODS,
             "Fresnel reflectance: Schlick, its fitted exponent, the seeds' forms and F82 vs exact Fresnel",
             "The reflectance of every visible conductor and dielectric at its viewing angle, from Mitsuba's "
             "own BSDF, against Schlick (F0 from the IOR, fitted exponent), the seeds' slider, rim and metal "
             "forms, Hoffman's F82 tint and the exact dielectric and conductor formulas.",
-            methods=fresnel.METHODS,
-            audits=(audit_fresnel.FAMILY,),
-            scenes=audit_fresnel.SCENES,
         ),
-        Family(
+        _engine(
             "linear-fog",
-            ENGINE,
+            audit_linear_fog,
+            linear_fog.METHODS,
             "Linear, exp and exp² distance fog (the seed's luminance-faded linear fog) vs Beer–Lambert",
             "Classic fixed-function fog factors on the view distance through a homogeneous medium, given "
             "(ρ = σt: Beer–Lambert) and fitted, against ratio-tracked transmittance, and the fog blend "
             "L₀·f + C·(1 − f) with fitted colour against the path-traced fogged radiance.",
-            methods=linear_fog.METHODS,
-            audits=(audit_linear_fog.FAMILY,),
-            scenes=audit_linear_fog.SCENES,
         ),
-        Family(
+        _engine(
             "sh-sky-bent-normal",
-            ENGINE,
+            audit_sh_sky_bent_normal,
+            sh_sky_bent_normal.METHODS,
             "Sky ambient from the sky's SH along the bent normal (the skybox's lookup) vs occluded sky",
             "The seed's SH L2 sky radiance read at the bent normal × AO, the SH irradiance at the bent "
             "normal and at the normal × AO, and the SH irradiance through the visible cone, with scale and "
             "AO exponent fitted, against the sky's irradiance with the scene's occlusion (shadow rays).",
-            methods=sh_sky_bent_normal.METHODS,
-            audits=(audit_sh_sky_bent_normal.FAMILY,),
-            scenes=audit_sh_sky_bent_normal.SCENES,
         ),
-        Family(
+        _engine(
             "pcf-soft-shadows",
-            ENGINE,
+            audit_pcf_soft_shadows,
+            pcf_soft_shadows.METHODS,
             "Soft shadows by filtering a shadow map (PCF, PCSS) vs an area light's penumbra",
             "The seed's 8-tap Poisson PCF (fixed and rotated per pixel), 16-tap rotated Poisson, 3×3 and 5×5 "
             "box PCF and PCSS of a shadow map cast from the light's centre (256² and 1024²), kernel radius, "
             "bias and light size fitted, times the light's closed-form irradiance, against its path-traced "
             "shadowed irradiance.",
-            methods=pcf_soft_shadows.METHODS,
-            audits=(audit_pcf_soft_shadows.FAMILY,),
-            scenes=audit_pcf_soft_shadows.SCENES,
         ),
-        Family(
+        _engine(
             "ibl-samples",
-            ENGINE,
+            audit_ibl_samples,
+            ibl_samples.METHODS,
             "Image-based lighting from N directional light samples (Lloyd, median cut) vs occluded envmap",
             "The environment map split into N = 4…256 directional lights — the seed's energy samples with "
             "Lloyd's relaxation on the sphere (with shadow rays, and with the seed's depth maps), the same "
             "without relaxation, Debevec's median cut — against the environment's irradiance with the "
             "scene's occlusion.",
-            methods=ibl_samples.METHODS,
-            audits=(audit_ibl_samples.FAMILY,),
-            scenes=audit_ibl_samples.SCENES,
         ),
-        Family(
+        _engine(
             "colour-bleeding",
-            ENGINE,
+            audit_colour_bleeding,
+            colour_bleeding.METHODS,
             "Colour bleeding (per-channel SDF bias, RGB obscurances, one-bounce gather) vs one bounce",
             "The seed's per-channel SDF biased by the surface colour (bias fitted per channel), the seed's "
             "RGB obscurances' colour part (√ transfer, and fitted) and a one-bounce gather reading the "
             "direct light at each hit, on K = 4 and 16 rays, against the path-traced one-bounce indirect "
             "irradiance per channel (path max_depth 2 − 1 along cosine rays).",
-            methods=colour_bleeding.METHODS,
-            audits=(audit_colour_bleeding.FAMILY,),
-            scenes=audit_colour_bleeding.SCENES,
         ),
-        Family(
+        _engine(
             "light-path-maps",
-            ENGINE,
+            audit_light_path_maps,
+            light_path_maps.METHODS,
             "Light path maps (clustered virtual lights, blended by the moving light) vs one bounce",
             "The seed's path maps: entry points on the surfaces clustered into K = 1, 4, 16 and 32 panes, "
             "each the baked one-bounce transfer of its entry points as virtual lights (the seed's cut; and "
             "fitted), "
             "blended by the light's mean direct irradiance per cluster, against the path-traced one-bounce "
             "indirect irradiance (path max_depth 2 − 1) with the light moved across the scene.",
-            methods=light_path_maps.METHODS,
-            audits=(audit_light_path_maps.FAMILY,),
-            scenes=audit_light_path_maps.SCENES,
             study=audit_light_path_maps.study,
         ),
-        Family(
+        _engine(
             "probe-specular",
-            ENGINE,
+            audit_probe_specular,
+            probe_specular.METHODS,
             "Glossy specular from the nearest pre-convolved cube map (placement, parallax, mip) vs path",
             "The seed's nearest (or assigned) pre-rendered cube map pre-convolved per roughness (GGX chain), "
             "with Lagarde's box and sphere parallax correction and a fitted roughness → mip exponent, from "
             "the assigned probe and a 2×2×2 grid, against the path-traced radiance of glossy shapes.",
-            methods=probe_specular.METHODS,
-            audits=(audit_probe_specular.FAMILY,),
-            scenes=audit_probe_specular.SCENES,
         ),
-        Family(
+        _engine(
             "caustics",
-            ENGINE,
+            audit_caustics,
+            caustics.METHODS,
             "Caustics (photon snippets splatted into the receiver's texture) vs light tracing",
             "The seed's photon hits traced through a glass or metal caster and splatted into the receiver's "
             "texture as Gaussian snippets of constant width (fitted), density-adaptive snippets and the "
             "photon-map gather, at 1024, 4096 and 16384 photons, against the caustic irradiance by light "
             "tracing through the caster connected to the camera (ptracer's estimator); energy conservation "
             "through a glass sphere against its closed-form ray optics.",
-            methods=caustics.METHODS,
-            audits=(audit_caustics.FAMILY,),
-            scenes=audit_caustics.SCENES,
             study=audit_caustics.study,
         ),
     )

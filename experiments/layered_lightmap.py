@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from functools import partial
 
 import drjit as dr
 import numpy as np
@@ -47,14 +48,11 @@ FORMAT = 1
 ROLE = "slab over a base"
 _TEXELS_PER_DEPTH = 8  # texels per layer thickness in a texture-space window (the albedo, the light map)
 _TEXELS_MAX = 512  # per side
-LIGHTMAP_SCENE = ShippedScene(
+_shipped = partial(ShippedScene, size=(32, 32), spp=1024, quick_size=(16, 16), quick_spp=256)
+LIGHTMAP_SCENE = _shipped(
     "layered_materials_lightmap.xml",
     "a diffuse inner layer (ρ = 0.5) under a scattering slab (d = 0.1, σ_t = 10, albedo 0.95, HG g = 0.7) "
     "lit straight down by a directional light cut by a half-plane: a sharp shadow edge (volpath)",
-    size=(32, 32),
-    spp=1024,
-    quick_size=(16, 16),
-    quick_spp=256,
     name="lightmap-edge",
     roles=(ROLE,),
 )
