@@ -15,8 +15,9 @@ import pytest
 from click.testing import CliRunner
 
 from rtfit.experiments.applicability import applicable_families
-from rtfit.experiments.audit import PROVIDES, AuditError, Part, SceneInfo, inspect_scene
+from rtfit.experiments.audit import AuditError, inspect_scene
 from rtfit.experiments.audit_cli import audit
+from rtfit.experiments.audit_parts import PROVIDES, Part, SceneInfo
 from rtfit.experiments.families import METHOD_TABLES, RULES
 from rtfit.reference.mitsuba_xml import inspect_xml
 from rtfit.scenes import library_path

@@ -2,11 +2,11 @@
 engine's own properties (`rtfit.experiments.engine_presets`).
 
 Round trip: converting to the engine and back reproduces the fitted b, c and colour. Formula: each engine's
-fog, written from its documentation and source in `engine_presets` (Unreal's base-2 line integral in cm with
-its ×1000 scales, HDRP's ``OpticalDepthHeightFog``, Godot's FogMaterial density) and evaluated with the
-converted values, against rtfit's own kernel (`rtfit.realtime.height_fog.METHODS`) on random segments: to
-float64 round-off in float64, and within float32 round-off (with the conditioning of the engine's own
-float32 text) in float32."""
+fog, written from its documentation and source in its module (`engine_presets_unreal`: Unreal's base-2 line
+integral in cm with its ×1000 scales; `engine_presets_hdrp`: HDRP's ``OpticalDepthHeightFog``;
+`engine_presets_godot`: Godot's FogMaterial density) and evaluated with the converted values, against rtfit's
+own kernel (`rtfit.realtime.height_fog.METHODS`) on random segments: to float64 round-off in float64, and
+within float32 round-off (with the conditioning of the engine's own float32 text) in float32."""
 
 from __future__ import annotations
 
@@ -18,13 +18,10 @@ import pytest
 from click.testing import CliRunner
 
 from rtfit.experiments.cli import cli
-from rtfit.experiments.engine_presets import (
-    ENGINES,
-    HDRP_SCALE_HEIGHT,
-    godot_extinction,
-    hdrp_optical_depth,
-    unreal_optical_depth,
-)
+from rtfit.experiments.engine_presets import ENGINES
+from rtfit.experiments.engine_presets_godot import godot_extinction
+from rtfit.experiments.engine_presets_hdrp import HDRP_SCALE_HEIGHT, hdrp_optical_depth
+from rtfit.experiments.engine_presets_unreal import unreal_optical_depth
 from rtfit.experiments.fitted import FittedFile, Provenance, method_entry, write_fitted
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.height_fog import METHODS
@@ -251,7 +248,7 @@ def test_unscaled_sky_is_unreals_documented_default():
     """rtfit's atmosphere (Bruneton's parameters) as SkyAtmosphere properties: Unreal's documented defaults
     (Rayleigh 0.0331 × (0.175287, 0.409607, 1) per km over 8 km, Mie 0.003996 / absorption 0.000444 per km
     over 1.2 km, anisotropy 0.8, ground 6360 km, atmosphere 60 km)."""
-    from rtfit.experiments.engine_presets import sky_to_unreal
+    from rtfit.experiments.engine_presets_unreal import sky_to_unreal
     from rtfit.realtime.nishita_sky import AtmosphereParams
 
     v = sky_to_unreal(AtmosphereParams())
@@ -269,7 +266,11 @@ def test_sky_round_trip_and_the_engine_medium(s_r, s_m, g):
     """The fitted scales to SkyAtmosphere and back; Unreal's medium (scale × colour × e^(−h/distribution),
     per km) is rtfit's β·e^(−h/H) per m at every altitude, and its vertical optical depth (Gauss–Legendre
     over 0…60 km) gives rtfit's sun transmittance at the zenith."""
-    from rtfit.experiments.engine_presets import sky_from_unreal, sky_to_unreal, unreal_sky_coefficients
+    from rtfit.experiments.engine_presets_unreal import (
+        sky_from_unreal,
+        sky_to_unreal,
+        unreal_sky_coefficients,
+    )
     from rtfit.realtime.nishita_sky import AtmosphereParams, sun_transmittance
 
     params = AtmosphereParams(rayleigh_scale=s_r, mie_scale=s_m, mie_g=g)
@@ -330,7 +331,7 @@ def test_phase_lobe_as_unreals_directional_inscattering():
     inscattering): isotropic (g = 0) is a = 1, k = 0 exactly; for g = 0.58 the reported relative RMS error is
     the one a midpoint rule over 20 000 cosines gives for the returned (a, k, n), and no exponent 5 % away
     (with its own least-squares a, k on that grid) does better."""
-    from rtfit.experiments.engine_presets import hg_as_power_lobe
+    from rtfit.experiments.engine_presets_fog import hg_as_power_lobe
 
     a, k, n, rel = hg_as_power_lobe(0.0)
     assert a == pytest.approx(1.0, abs=1e-9) and k == pytest.approx(0.0, abs=1e-9) and rel < 1e-9
@@ -352,7 +353,7 @@ def test_phase_lobe_as_unreals_directional_inscattering():
 def test_phase_file_for_unreal_carries_the_lobe(tmp_path):
     """A ``phase`` height-fog file for Unreal: b and c round-trip, FogInscatteringColor = C₀ + a·C₁ and
     DirectionalInscatteringColor = k·C₁ with the lobe fit's (a, k, n), the fit's error listed as lost."""
-    from rtfit.experiments.engine_presets import hg_as_power_lobe
+    from rtfit.experiments.engine_presets_fog import hg_as_power_lobe
 
     values = {"b": 1.3266e-4, "c": 2.898e-3, "r0": 0.0109, "g0": 0.0188, "b0": 0.0245}
     values |= {"r1": 0.0704, "g1": 0.0431, "b1": 0.0159, "g": 0.58}
@@ -377,7 +378,7 @@ def test_hdrp_sky_round_trip_and_medium(s_r, s_m, g):
     """The fitted scales as HDRP Physically Based Sky properties and back; HDRP's medium (zenith opacity →
     extinction −ln(1 − α)/H, H = 0.144765 × Maximum Altitude, scattering = extinction × tint) is rtfit's
     β·e^(−h/H) at every altitude."""
-    from rtfit.experiments.engine_presets import hdrp_sky_coefficients, sky_from_hdrp, sky_to_hdrp
+    from rtfit.experiments.engine_presets_hdrp import hdrp_sky_coefficients, sky_from_hdrp, sky_to_hdrp
     from rtfit.realtime.nishita_sky import AtmosphereParams
 
     params = AtmosphereParams(rayleigh_scale=s_r, mie_scale=s_m, mie_g=g)
@@ -396,7 +397,7 @@ def test_unscaled_sky_is_close_to_hdrps_earth():
     """rtfit's unscaled air, converted and read back as HDRP does, is HDRP's built-in Earth air extinction
     (5.8e-6, 1.35e-5, 3.31e-5 per m) within 0.5 % (both are Bruneton's coefficients, HDRP's rounded), and the
     aerosol's scale height is Earth's 1200 m: the units (per metre, metres) agree."""
-    from rtfit.experiments.engine_presets import hdrp_sky_coefficients, sky_to_hdrp
+    from rtfit.experiments.engine_presets_hdrp import hdrp_sky_coefficients, sky_to_hdrp
     from rtfit.realtime.nishita_sky import AtmosphereParams
 
     v = sky_to_hdrp(AtmosphereParams())
