@@ -32,7 +32,8 @@ from .jobs import error_line
 from .progress import Stage
 from .records import SCHEMA, Results, from_json, plain_json
 from .registry import ExperimentSpec, RunContext
-from .report import write_index, write_report
+from .report import write_report
+from .report_index import write_index
 from .results import RESULTS_FILE, load_results, write_results
 
 log = logging.getLogger("rtfit.experiments")

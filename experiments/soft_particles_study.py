@@ -39,7 +39,7 @@ from . import fitted as fitfiles
 from .audit_family import Study, StudyContext
 from .particle_geometry import RADIUS, billboard_inputs, sigma_of
 from .records import Check, Figure, Headline, Section
-from .report import markdown_table
+from .report_text import markdown_table
 from .soft_particles_kernels import (
     chord_checks,
     claim_checks,

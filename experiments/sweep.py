@@ -50,7 +50,8 @@ from .families import get_experiment
 from .jobs import InlineExecutor, Job, Outcome
 from .records import SCHEMA, Check, Results, ResultsError, from_json, to_json
 from .registry import LIMITS, RunContext, apply_overrides
-from .report import write_index, write_report
+from .report import write_report
+from .report_index import write_index
 from .results import RESULTS_FILE, load_results, write_results
 from .runner import created_now, device_description, experiment_dirs, run_experiment_into, versions
 

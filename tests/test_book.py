@@ -20,7 +20,9 @@ import numpy as np
 import pytest
 
 from rtfit.experiments import book as book_mod
-from rtfit.experiments.book import PREAMBLE, SETUP, family_points, normalised_error, tex_markdown_blocks
+from rtfit.experiments.book import PREAMBLE, SETUP
+from rtfit.experiments.book_markdown import tex_markdown_blocks
+from rtfit.experiments.book_plots import family_points, normalised_error
 from rtfit.experiments.cli import main
 from rtfit.experiments.latex import tex_text
 from rtfit.experiments.records import Approximation, Metric, Results, from_json, plain_json

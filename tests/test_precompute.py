@@ -148,7 +148,7 @@ def test_a_bad_trigger_is_refused_in_one_line():
 def test_the_books_error_vs_cost_point_adds_the_precompute_per_frame(toy_run):
     """The book's point of a method with a precompute: its kernel's ns/pixel, and (``x_pre``) that plus the
     precompute spread over the case's pixels (records' fields, read back from results.json)."""
-    from rtfit.experiments.book import _pareto_point, family_points
+    from rtfit.experiments.book_plots import family_points, pareto_point
     from rtfit.experiments.results import load_results
 
     r = load_results(toy_run.out)
@@ -156,8 +156,8 @@ def test_the_books_error_vs_cost_point_adds_the_precompute_per_frame(toy_run):
     for p in family_points(r):
         c = costs[p.method]
         if c.precompute_ms is None:
-            assert p.precompute_ns is None and "x_pre" not in _pareto_point(p)
+            assert p.precompute_ns is None and "x_pre" not in pareto_point(p)
             continue
         share = c.precompute_ms * 1e6 / c.precompute_pixels
         assert p.precompute_ns == pytest.approx(share, rel=1e-12) and p.precompute_trigger == "light"
-        assert _pareto_point(p)["x_pre"] == pytest.approx(p.ns_per_pixel + share, rel=1e-12)
+        assert pareto_point(p)["x_pre"] == pytest.approx(p.ns_per_pixel + share, rel=1e-12)

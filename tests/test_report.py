@@ -18,18 +18,10 @@ from rtfit.experiments.atomic import (
     atomic_write_text,
     is_temporary_name,
 )
-from rtfit.experiments.report import (
-    INDEX_UNRESOLVED_NOTE,
-    UNRESOLVED_NOTE,
-    ResultsError,
-    format_number,
-    load_results,
-    markdown_inline,
-    markdown_to_html,
-    render_report,
-    write_index,
-    write_report,
-)
+from rtfit.experiments.report import ResultsError, load_results, render_report, write_report
+from rtfit.experiments.report_doc import UNRESOLVED_NOTE
+from rtfit.experiments.report_index import INDEX_UNRESOLVED_NOTE, write_index
+from rtfit.experiments.report_text import format_number, markdown_inline, markdown_to_html
 
 
 def _metric(value, floor, resolved=True):
@@ -760,7 +752,7 @@ def _html_table_cells(html_text: str) -> list[list[str]]:
 def test_markdown_table_escapes_bars_in_cells_once():
     """A ``|`` in a header or cell is a literal bar, not a cell boundary: 2 columns stay 2 (before the
     fix, "mean |error|" made 4 header cells), and a bar escaped already is not escaped twice."""
-    from rtfit.experiments.report import markdown_table, markdown_table_cell
+    from rtfit.experiments.report_text import markdown_table, markdown_table_cell
 
     md = markdown_table(["case", "mean |error|"], [["a|b", "1.0"], ["c\\|d", "2"]], [False, True])
     assert md.splitlines()[0] == "| case | mean \\|error\\| |"
