@@ -30,7 +30,8 @@ from .cli_options import CACHE_HELP, VARIANT_CHOICES, cache_option, out_option, 
 from .executors import EXECUTORS, make_executor
 from .families import EXPERIMENTS, describe_config
 from .registry import SPP_MAX
-from .report import missing_figures, write_index, write_report
+from .report import missing_figures, write_report
+from .report_index import write_index
 from .runner import check_summary, run_experiments
 from .sweep import load_sweep, run_sweep
 

@@ -35,7 +35,6 @@ from . import latex, viewer
 from .atomic import atomic_write_text
 from .records import SCHEMA, Figure, Results, ResultsError, from_json, plain_json
 from .report_doc import Bullets, Cell, ReportDoc, TableBlock, headline_metric
-from .report_index import write_index
 from .report_sections import (
     add_case,
     add_checks_table,
@@ -54,7 +53,6 @@ __all__ = [
     "missing_figures",
     "render_report",
     "report_tables",
-    "write_index",  # re-exported for experiments/cli.py (its home: report_index)
     "write_report",
 ]
 
