@@ -69,24 +69,36 @@ arguments, so everything is validated before it is called.
 
 Memoised (results bit-identical, only the time changes): a noise floor depends on the reference, its
 stderr, the mask, the seed and the draws — never on the approximation — so each is computed once per
-reference and reused for every row compared with it (`_memo_floor`); a ꟻLIP map is computed once per
-(reference, test, exposures) and reused by the report's error-map figure (`_flip_map`). Keys are content
-digests (BLAKE2b of the arrays' bytes, shapes and dtypes), so a changed array never hits a stale entry;
-the memos keep at most `_MEMO_ENTRIES` floors and `_MEMO_MAP_BYTES` of maps.
+reference and reused for every row compared with it (`rtfit.fitting.metric_noise.memo_floor`); a ꟻLIP map
+is computed once per (reference, test, exposures) and reused by the report's error-map figure
+(`rtfit.fitting.flip_maps.flip_map`). Keys are content digests (BLAKE2b of the arrays' bytes, shapes and
+dtypes), so a changed array never hits a stale entry; the memos keep at most `metric_noise.MEMO_ENTRIES`
+floors and `flip_maps.MEMO_MAP_BYTES` of maps.
+
+Rooms: this module holds the metrics, their floors and the public API; `rtfit.fitting.flip_maps` the ꟻLIP
+machinery (exposures, inputs, maps, their memo and tiling); `rtfit.fitting.metric_noise` the seeded noise
+draws and the floors' memo.
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
-import threading
-import warnings
-import zlib
-from collections import OrderedDict
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from .flip_maps import (
+    FLIP_MIN_SIZE,
+    FLIP_PPD,
+    compute_flip_maps,
+    flip_exposures,
+    flip_input,
+    flip_map,
+    flip_mean,
+    flip_noisy_references,
+    luminance,
+)
+from .metric_noise import memo_floor, noise_rng
 
 __all__ = [
     "ALL_METRICS",
@@ -115,11 +127,7 @@ REL_MSE_EPS = 0.01
 """Added to r² in the rel_mse denominator (in squared image units)."""
 SSIM_SIGMA = 1.5
 SSIM_MIN_SIZE = 2 * int(3.5 * SSIM_SIGMA + 0.5) + 1  # scikit-image's window for gaussian_weights: 11
-FLIP_PPD = 67.02064514160156  # ꟻLIP's default pixels per degree (0.7 m from a 0.7 m wide 4K display)
-# ꟻLIP's widest filter: the colour CSF of scale 0.04, radius ceil(3·sqrt(0.04/(2π²))·ppd) = 10 → 21 px.
-FLIP_MIN_SIZE = 2 * math.ceil(3.0 * math.sqrt(0.04 / (2.0 * math.pi**2)) * FLIP_PPD) + 1
 _RESOLVE_FACTOR = 2.0
-_FLIP_NEG_WARN = 1e-6
 _F32_MAX = float(np.finfo(np.float32).max)
 
 
@@ -233,10 +241,6 @@ def _sel(a, m):
     return a[m].ravel()
 
 
-def _rng(seed: int, name: str) -> np.random.Generator:
-    return np.random.default_rng([int(seed), zlib.crc32(name.encode())])
-
-
 def tone_map(x):
     """t(x) = x / (1 + |x|): Reinhard's x/(1+x) for x ≥ 0, odd and bounded for negative inputs."""
     x = np.asarray(x, dtype=np.float64)
@@ -262,7 +266,7 @@ def _skip_reason(name, x, r, m, is_image) -> str | None:
                 return f"flip needs 3 colour channels (linear RGB); image has {x.shape[2]}"
             if np.abs(r).max() > _F32_MAX or np.abs(x).max() > _F32_MAX:
                 return "flip works in float32 and the inputs exceed its range"
-            if not np.any(_luminance(np.maximum(r, 0.0))[m] > 0):
+            if not np.any(luminance(np.maximum(r, 0.0))[m] > 0):
                 return "flip's exposure range is undefined: the reference is black inside the mask"
     if name == "psnr" and not _sel(r, m).max() > 0:
         return "psnr needs a positive peak (max of the masked reference)"
@@ -272,40 +276,6 @@ def _skip_reason(name, x, r, m, is_image) -> str | None:
 # ----------------------------------------------------------------------------------- the metrics
 def _resolved_above(value, floor, factor=_RESOLVE_FACTOR) -> bool:
     return bool(value > factor * floor)
-
-
-_MEMO_ENTRIES = 256
-"""Noise floors kept (floats: a few kB)."""
-_MEMO_MAP_BYTES = 64 << 20
-"""Bytes of ꟻLIP maps kept (a 1024² map is 8 MiB)."""
-_memo_lock = threading.Lock()
-_floor_memo: OrderedDict[tuple, float] = OrderedDict()
-_map_memo: OrderedDict[tuple, np.ndarray] = OrderedDict()
-
-
-def _digest(*arrays) -> tuple:
-    """A content key of ``arrays``: shape, dtype and a BLAKE2b digest of the bytes of each."""
-    out = []
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        out.append((a.shape, a.dtype.str, hashlib.blake2b(a.tobytes(), digest_size=16).digest()))
-    return tuple(out)
-
-
-def _memo_floor(name: str, r, s, m, seed: int, draws: int, compute: Callable[[], float]) -> float:
-    """The noise floor ``compute()`` of metric ``name``, computed once per (reference ``r``, stderr ``s``,
-    mask ``m``, seed, draws): the floors depend on nothing else (module text)."""
-    key = (name, int(seed), int(draws), _digest(r, s, m))
-    with _memo_lock:
-        if key in _floor_memo:
-            _floor_memo.move_to_end(key)
-            return _floor_memo[key]
-    value = compute()
-    with _memo_lock:
-        _floor_memo[key] = value
-        while len(_floor_memo) > _MEMO_ENTRIES:
-            _floor_memo.popitem(last=False)
-    return value
 
 
 def _rmse(x, r, s, m, **_):
@@ -339,10 +309,10 @@ def _max_abs(x, r, s, m, seed, draws, **_):
     sm = _sel(s, m)
 
     def compute() -> float:
-        rng = _rng(seed, "max_abs")
+        rng = noise_rng(seed, "max_abs")
         return float(np.mean([np.max(np.abs(sm * rng.standard_normal(sm.shape))) for _ in range(draws)]))
 
-    floor = _memo_floor("max_abs", r, s, m, seed, draws, compute)
+    floor = memo_floor("max_abs", r, s, m, seed, draws, compute)
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
@@ -381,181 +351,24 @@ def _ssim(x, r, s, m, seed, draws, **_):
     val = _ssim_mean(r, x, m)
 
     def compute() -> float:
-        rng = _rng(seed, "ssim")
+        rng = noise_rng(seed, "ssim")
         return float(np.mean([_ssim_mean(r + s * rng.standard_normal(r.shape), r, m) for _ in range(draws)]))
 
-    floor = _memo_floor("ssim", r, s, m, seed, draws, compute)
+    floor = memo_floor("ssim", r, s, m, seed, draws, compute)
     return MetricValue(val, floor, _resolved_above(1.0 - val, 1.0 - floor))
 
 
-def _luminance(rgb):
-    return 0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]
-
-
-def _flip_exposures(r, m) -> dict:
-    """ꟻLIP's HDR exposure rule (ACES, t = 0.85) on the masked reference luminances."""
-    tc = (0.6 * 0.6 * 2.51, 0.6 * 0.03, 0.0, 0.6 * 0.6 * 2.43, 0.6 * 0.59, 0.14)
-    t = 0.85
-    a, b, c = tc[0] - t * tc[3], tc[1] - t * tc[4], tc[2] - t * tc[5]
-    x_max = (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
-    y = _luminance(np.maximum(r, 0.0))[m]
-    y_max = float(y.max())
-    y_med = float(np.median(y))
-    if not y_med > 0:
-        y_med = float(np.median(y[y > 0]))
-    start = math.log2(x_max / y_max)
-    stop = math.log2(x_max / y_med)
-    if not stop > start + 1e-3:
-        stop = start + 1.0
-    n = max(2, math.ceil(stop - start))
-    return {"startExposure": float(start), "stopExposure": float(stop), "numExposures": int(n)}
-
-
-def _flip_input(a, name, peak, warn):
-    a = np.asarray(a, dtype=np.float64)
-    if warn:
-        lim = -_FLIP_NEG_WARN * max(peak, np.finfo(np.float32).tiny)
-        n_neg = int(np.sum(a < lim))
-        if n_neg:
-            warnings.warn(
-                f"flip: {n_neg} values of {name} below -1e-6·peak clipped to 0 (HDR-FLIP needs "
-                f"non-negative radiance; min {a.min():.3g})",
-                RuntimeWarning,
-                stacklevel=4,
-            )
-    return np.ascontiguousarray(np.maximum(a, 0.0), dtype=np.float32)
-
-
-def _flip_call(ref32, test32, m, params) -> float:
-    return float(np.mean(_flip_map(ref32, test32, params)[m]))
-
-
-def _flip_map(ref32, test32, params) -> np.ndarray:
-    """The ꟻLIP map of ``test32`` against ``ref32``, computed once per content and exposures (module
-    text); the caller gets its own copy."""
-    key = (_digest(ref32, test32), tuple(sorted(params.items())))
-    with _memo_lock:
-        if key in _map_memo:
-            _map_memo.move_to_end(key)
-            return _map_memo[key].copy()
-    fmap = _flip_map_uncached(ref32, test32, params)
-    with _memo_lock:
-        _map_memo[key] = fmap.copy()
-        while sum(v.nbytes for v in _map_memo.values()) > _MEMO_MAP_BYTES and len(_map_memo) > 1:
-            _map_memo.popitem(last=False)
-    return fmap
-
-
-FLIP_TILE_PAD = FLIP_MIN_SIZE
-"""Edge-replicated columns on each side of each image when several ꟻLIP maps are computed in one call
-(`prime_flip`): twice ꟻLIP's widest filter radius (10 px at its default pixels per degree), so that no filter
-reaches a neighbour's pixels and every map equals the map of its pair alone (tests/test_metrics.py checks it
-against separate calls). One call of ꟻLIP costs ~0.1 s on a CPU core at any size up to ~64²: one call for a
-case's rows instead of one per row is most of the saving."""
-FLIP_TILES_MAX = 16
-"""At most this many pairs per tiled ꟻLIP call (its working memory grows with the tiled width)."""
-
-
-def _flip_maps_tiled(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> list[np.ndarray]:
-    """The ꟻLIP maps of ``pairs`` (reference, test; float32 (H, W, 3) of one shape), side by side in one call
-    per `FLIP_TILES_MAX` pairs, each padded by `FLIP_TILE_PAD` edge-replicated columns."""
-    pad = FLIP_TILE_PAD
-    out: list[np.ndarray] = []
-    for i in range(0, len(pairs), FLIP_TILES_MAX):
-        chunk = pairs[i : i + FLIP_TILES_MAX]
-        if len(chunk) == 1:
-            out.append(_flip_map_uncached(chunk[0][0], chunk[0][1], params))
-            continue
-        w = chunk[0][0].shape[1]
-
-        def tiled(images):
-            return np.ascontiguousarray(
-                np.concatenate([np.pad(a, ((0, 0), (pad, pad), (0, 0)), mode="edge") for a in images], axis=1)
-            )
-
-        fmap = _flip_map_uncached(tiled([a for a, _ in chunk]), tiled([b for _, b in chunk]), params)
-        step = w + 2 * pad
-        out += [fmap[:, k * step + pad : k * step + pad + w].copy() for k in range(len(chunk))]
-    return out
-
-
-def prime_flip(approxes, reference, stderr, mask=None, seed: int = 0, floor_draws: int = 4) -> int:
-    """Compute, in as few ꟻLIP calls as possible (`_flip_maps_tiled`), the ꟻLIP maps that `compute_metrics`
-    of each of ``approxes`` against one ``reference`` will ask for (each approximation's map and the noise
-    floor's ``floor_draws`` maps), and keep them in the map memo, where `compute_metrics` and `flip_error_map`
-    find them: the same values, fewer calls. Returns the number of maps computed (0 where ꟻLIP does not
-    apply to these images or every map is already known)."""
-    _, r, s, m, is_image = _validate(reference, reference, stderr, mask)
-    if _skip_reason("flip", r, r, m, is_image) is not None:
-        return 0
-    params = _flip_exposures(r, m)
-    peak = float(np.max(r[m]))
-    r32 = _flip_input(r, "reference", peak, False)
-    tests = [np.asarray(x, np.float64) for x in approxes]
-    pairs = [
-        (r32, _flip_input(x, "", peak, False))
-        for x in tests
-        if x.shape == r.shape and np.all(np.isfinite(x)) and np.abs(x).max() <= _F32_MAX
-    ]  # (another is refused by compute_metrics itself)
-    pairs += [(n, r32) for n in _flip_noisy_references(r, s, seed, int(floor_draws), peak)]
-    keyed, todo = {}, []
-    for a, b in pairs:
-        key = (_digest(a, b), tuple(sorted(params.items())))
-        with _memo_lock:
-            known = key in _map_memo
-        if not known and key not in keyed:
-            keyed[key] = len(todo)
-            todo.append((a, b))
-    maps = _flip_maps_tiled(todo, params)
-    with _memo_lock:
-        for key, k in keyed.items():
-            _map_memo[key] = maps[k]
-        while sum(v.nbytes for v in _map_memo.values()) > _MEMO_MAP_BYTES and len(_map_memo) > 1:
-            _map_memo.popitem(last=False)
-    return len(todo)
-
-
-def _flip_map_uncached(ref32, test32, params) -> np.ndarray:
-    import flip_evaluator
-
-    # flip_evaluator exits the process on bad arguments: check everything it checks, and more.
-    for a in (ref32, test32):
-        if not (
-            a.dtype == np.float32
-            and a.ndim == 3
-            and a.shape[2] == 3
-            and a.flags.c_contiguous
-            and np.all(np.isfinite(a))
-            and a.min() >= 0.0
-        ):
-            raise ValueError("internal: flip input must be finite non-negative contiguous float32 (H, W, 3)")
-    if ref32.shape != test32.shape or min(ref32.shape[:2]) < FLIP_MIN_SIZE:
-        raise ValueError(f"internal: flip inputs must share a shape of at least {FLIP_MIN_SIZE} pixels")
-    if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
-        raise ValueError(f"internal: bad flip exposure parameters {params}")
-    fmap, _, _ = flip_evaluator.evaluate(
-        ref32, test32, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
-    )
-    return np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
-
-
-def _flip_noisy_references(r, s, seed, draws, peak) -> list[np.ndarray]:
-    """The ``draws`` noisy references r + σ·ε of the ꟻLIP noise floor (float32, clipped at 0)."""
-    rng = _rng(seed, "flip")
-    return [_flip_input(r + s * rng.standard_normal(r.shape), "", peak, False) for _ in range(draws)]
-
-
 def _flip(x, r, s, m, seed, draws, **_):
-    params = _flip_exposures(r, m)
+    params = flip_exposures(r, m)
     peak = float(np.max(r[m]))
-    r32 = _flip_input(r, "reference", peak, True)
-    val = _flip_call(r32, _flip_input(x, "approx", peak, True), m, params)
+    r32 = flip_input(r, "reference", peak, True)
+    val = flip_mean(r32, flip_input(x, "approx", peak, True), m, params)
 
     def compute() -> float:
-        noisy = _flip_noisy_references(r, s, seed, draws, peak)
-        return float(np.mean([_flip_call(n, r32, m, params) for n in noisy]))
+        noisy = flip_noisy_references(r, s, seed, draws, peak)
+        return float(np.mean([flip_mean(n, r32, m, params) for n in noisy]))
 
-    floor = _memo_floor("flip", r, s, m, seed, draws, compute)
+    floor = memo_floor("flip", r, s, m, seed, draws, compute)
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
@@ -570,11 +383,11 @@ def _smape(x, r, s, m, seed, draws, **_):
     val = _smape_value(xs, rs)
 
     def compute() -> float:
-        rng = _rng(seed, "smape")
+        rng = noise_rng(seed, "smape")
         draws_ = [_smape_value(rs, rs + ss * rng.standard_normal(rs.shape)) for _ in range(draws)]
         return float(np.mean(draws_))
 
-    floor = _memo_floor("smape", r, s, m, seed, draws, compute)
+    floor = memo_floor("smape", r, s, m, seed, draws, compute)
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
@@ -624,6 +437,28 @@ def grey_metrics(approx, reference, stderr, mask, names) -> dict:
     return compute_metrics(x, r, s, mask, names=names).to_dict()
 
 
+def prime_flip(approxes, reference, stderr, mask=None, seed: int = 0, floor_draws: int = 4) -> int:
+    """Compute, in as few ꟻLIP calls as possible (`rtfit.fitting.flip_maps.compute_flip_maps`), the ꟻLIP
+    maps that `compute_metrics` of each of ``approxes`` against one ``reference`` will ask for (each
+    approximation's map and the noise floor's ``floor_draws`` maps), and keep them in the map memo, where
+    `compute_metrics` and `flip_error_map` find them: the same values, fewer calls. Returns the number of
+    maps computed (0 where ꟻLIP does not apply to these images or every map is already known)."""
+    _, r, s, m, is_image = _validate(reference, reference, stderr, mask)
+    if _skip_reason("flip", r, r, m, is_image) is not None:
+        return 0
+    params = flip_exposures(r, m)
+    peak = float(np.max(r[m]))
+    r32 = flip_input(r, "reference", peak, False)
+    tests = [np.asarray(x, np.float64) for x in approxes]
+    pairs = [
+        (r32, flip_input(x, "", peak, False))
+        for x in tests
+        if x.shape == r.shape and np.all(np.isfinite(x)) and np.abs(x).max() <= _F32_MAX
+    ]  # (another is refused by compute_metrics itself)
+    pairs += [(n, r32) for n in flip_noisy_references(r, s, seed, int(floor_draws), peak)]
+    return compute_flip_maps(pairs, params)
+
+
 def flip_error_map(approx, reference, mask=None) -> np.ndarray:
     """The per-pixel HDR-ꟻLIP error map (H, W) in [0, 1] of ``approx`` against ``reference``
     (linear RGB images (H, W, 3)), with the exposure range of the ``flip`` metric (ꟻLIP's rule on the
@@ -635,8 +470,8 @@ def flip_error_map(approx, reference, mask=None) -> np.ndarray:
     if reason is not None:
         raise ValueError(reason)
     peak = float(np.max(r[m]))
-    return _flip_map(
-        _flip_input(r, "reference", peak, False), _flip_input(x, "", peak, False), _flip_exposures(r, m)
+    return flip_map(
+        flip_input(r, "reference", peak, False), flip_input(x, "", peak, False), flip_exposures(r, m)
     )
 
 

@@ -87,7 +87,9 @@ Modules:
     obscurances Zhukov/Iones obscurances: distance functions ρ (power, exponential, step) and the K-ray
                 estimator (docs/obscurances.md).
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
-                decorator for a user's own formula (docs/audit.md, "Your own approximation").
+                decorator for a user's own formula (docs/audit.md, "Your own approximation"); the table's
+                rooms: quantity_types (the `Quantity` record, shared inputs), quantities_lights,
+                quantities_sky, quantities_media, quantities_probes, quantities_materials.
     shader      GLSL/HLSL text traced from the kernels (`SHADER_OPS`, `shader_function`).
 """
 
@@ -124,6 +126,12 @@ from .pcf_soft_shadows import *  # noqa: F403
 from .phase import *  # noqa: F403
 from .probe_specular import *  # noqa: F403
 from .quantities import *  # noqa: F403
+from .quantities_lights import *  # noqa: F403
+from .quantities_materials import *  # noqa: F403
+from .quantities_media import *  # noqa: F403
+from .quantities_probes import *  # noqa: F403
+from .quantities_sky import *  # noqa: F403
+from .quantity_types import *  # noqa: F403
 from .raindrops import *  # noqa: F403
 from .reflections import *  # noqa: F403
 from .sdf_grid import *  # noqa: F403
@@ -172,6 +180,12 @@ MODULES = (
     "light_path_maps",
     "caustics",
     "probe_specular",
+    "quantity_types",
+    "quantities_lights",
+    "quantities_sky",
+    "quantities_media",
+    "quantities_probes",
+    "quantities_materials",
     "quantities",
     "shader",
 )

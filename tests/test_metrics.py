@@ -355,25 +355,26 @@ def test_noise_floors_are_computed_once_per_reference_and_never_stale(monkeypatc
     """The MC floors depend only on the reference, its stderr, the mask, the seed and the draws: a second row
     against the same reference reuses them (no further ꟻLIP or SSIM call), and any change of the reference
     or the stderr computes them afresh, equal to a computation with the memo emptied."""
-    from rtfit.fitting import metrics as M
+    from rtfit.fitting import flip_maps as F
+    from rtfit.fitting import metric_noise as N
 
     rng = np.random.default_rng(7)
     ref = rng.uniform(0.2, 1.0, (32, 32, 3))
     err = np.full_like(ref, 0.01)
-    M._floor_memo.clear()
-    M._map_memo.clear()
+    N._floor_memo.clear()
+    F._map_memo.clear()
     first = compute_metrics(ref * 1.1, ref, err, seed=3)
     calls = []
-    real = M._flip_map_uncached
-    monkeypatch.setattr(M, "_flip_map_uncached", lambda *a: calls.append(1) or real(*a))
+    real = F._flip_map_uncached
+    monkeypatch.setattr(F, "_flip_map_uncached", lambda *a: calls.append(1) or real(*a))
     second = compute_metrics(ref * 0.9, ref, err, seed=3)
     assert len(calls) == 1  # the row's own map only; the four floor draws are reused
     for k in ("ssim", "flip", "max_abs"):
         assert second[k].noise_floor == first[k].noise_floor
     # a changed stderr: fresh floors, equal to those of an empty memo
     moved = compute_metrics(ref * 0.9, ref, err * 2, seed=3)
-    M._floor_memo.clear()
-    M._map_memo.clear()
+    N._floor_memo.clear()
+    F._map_memo.clear()
     fresh = compute_metrics(ref * 0.9, ref, err * 2, seed=3)
     for k in ("ssim", "flip", "max_abs"):
         assert moved[k].noise_floor == fresh[k].noise_floor != first[k].noise_floor
@@ -386,6 +387,8 @@ def test_prime_flip_gives_the_maps_and_values_of_separate_calls():
     the same flip value and floor as without it."""
     import flip_evaluator
 
+    from rtfit.fitting import flip_maps as F
+    from rtfit.fitting import metric_noise as N
     from rtfit.fitting import metrics as M
 
     rng = np.random.default_rng(3)
@@ -394,20 +397,20 @@ def test_prime_flip_gives_the_maps_and_values_of_separate_calls():
     mask = np.ones((40, 48), bool)
     mask[:5] = False
     approxes = [ref * (1 + 0.2 * rng.standard_normal(ref.shape)).clip(0.1) for _ in range(5)]
-    M._map_memo.clear()
-    M._floor_memo.clear()
+    F._map_memo.clear()
+    N._floor_memo.clear()
     alone = [compute_metrics(a, ref, sd, mask, names=("flip",))["flip"] for a in approxes]
-    M._map_memo.clear()
-    M._floor_memo.clear()
+    F._map_memo.clear()
+    N._floor_memo.clear()
     assert M.prime_flip(approxes, ref, sd, mask) == 5 + 4  # each approximation's map and 4 floor draws
     primed = [compute_metrics(a, ref, sd, mask, names=("flip",))["flip"] for a in approxes]
     assert [(p.value, p.noise_floor) for p in primed] == [(a.value, a.noise_floor) for a in alone]
-    params = M._flip_exposures(ref, mask)
+    params = F.flip_exposures(ref, mask)
     peak = float(ref[mask].max())
-    r32 = M._flip_input(ref, "", peak, False)
+    r32 = F.flip_input(ref, "", peak, False)
     for a in approxes[:2]:
         direct, _, _ = flip_evaluator.evaluate(
-            r32, M._flip_input(a, "", peak, False), "HDR", applyMagma=False, computeMeanError=False,
+            r32, F.flip_input(a, "", peak, False), "HDR", applyMagma=False, computeMeanError=False,
             parameters=dict(params),
         )  # fmt: skip
         assert np.array_equal(np.asarray(direct, np.float64).reshape(40, 48), M.flip_error_map(a, ref, mask))

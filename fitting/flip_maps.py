@@ -1,0 +1,196 @@
+"""The ꟻLIP machinery of the ``flip`` metric (`rtfit.fitting.metrics`): its exposure range, its inputs,
+its maps memoised by content, and several maps computed side by side in one call of ꟻLIP (tiling).
+
+ꟻLIP: ``flip_evaluator.evaluate(reference, test, "HDR", applyMagma=False)`` on contiguous float32 (H, W, 3)
+arrays with negative values clipped to 0; the exposure range by ꟻLIP's own rule on the luminances of the
+masked reference (`flip_exposures`; the module text of `rtfit.fitting.metrics` gives the details).
+flip_evaluator calls ``sys.exit`` on bad arguments, so everything is validated before it is called.
+
+Memoised (results bit-identical, only the time changes): a ꟻLIP map is computed once per (reference, test,
+exposures) and reused by the report's error-map figure (`flip_map`); keys are content digests
+(`rtfit.fitting.metric_noise.content_digest`), and the memo keeps at most `MEMO_MAP_BYTES` of maps.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import warnings
+from collections import OrderedDict
+
+import numpy as np
+
+from .metric_noise import content_digest, noise_rng
+
+__all__ = [
+    "FLIP_MIN_SIZE",
+    "FLIP_PPD",
+    "FLIP_TILES_MAX",
+    "FLIP_TILE_PAD",
+    "MEMO_MAP_BYTES",
+    "compute_flip_maps",
+    "flip_exposures",
+    "flip_input",
+    "flip_map",
+    "flip_maps_tiled",
+    "flip_mean",
+    "flip_noisy_references",
+    "luminance",
+]
+
+FLIP_PPD = 67.02064514160156  # ꟻLIP's default pixels per degree (0.7 m from a 0.7 m wide 4K display)
+# ꟻLIP's widest filter: the colour CSF of scale 0.04, radius ceil(3·sqrt(0.04/(2π²))·ppd) = 10 → 21 px.
+FLIP_MIN_SIZE = 2 * math.ceil(3.0 * math.sqrt(0.04 / (2.0 * math.pi**2)) * FLIP_PPD) + 1
+_FLIP_NEG_WARN = 1e-6
+MEMO_MAP_BYTES = 64 << 20
+"""Bytes of ꟻLIP maps kept (a 1024² map is 8 MiB)."""
+_map_lock = threading.Lock()
+_map_memo: OrderedDict[tuple, np.ndarray] = OrderedDict()
+
+
+def luminance(rgb):
+    """The luminance Y of linear-sRGB ``rgb`` (..., 3): 0.2126 R + 0.7152 G + 0.0722 B."""
+    return 0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]
+
+
+def flip_exposures(r, m) -> dict:
+    """ꟻLIP's HDR exposure rule (ACES, t = 0.85) on the masked reference luminances."""
+    tc = (0.6 * 0.6 * 2.51, 0.6 * 0.03, 0.0, 0.6 * 0.6 * 2.43, 0.6 * 0.59, 0.14)
+    t = 0.85
+    a, b, c = tc[0] - t * tc[3], tc[1] - t * tc[4], tc[2] - t * tc[5]
+    x_max = (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
+    y = luminance(np.maximum(r, 0.0))[m]
+    y_max = float(y.max())
+    y_med = float(np.median(y))
+    if not y_med > 0:
+        y_med = float(np.median(y[y > 0]))
+    start = math.log2(x_max / y_max)
+    stop = math.log2(x_max / y_med)
+    if not stop > start + 1e-3:
+        stop = start + 1.0
+    n = max(2, math.ceil(stop - start))
+    return {"startExposure": float(start), "stopExposure": float(stop), "numExposures": int(n)}
+
+
+def flip_input(a, name, peak, warn):
+    """``a`` as ꟻLIP takes it: contiguous float32 with negative values clipped to 0; ``warn``: warn (naming
+    ``name``) where values below −1e-6·``peak`` are clipped (the warning points at `compute_metrics`'
+    caller)."""
+    a = np.asarray(a, dtype=np.float64)
+    if warn:
+        lim = -_FLIP_NEG_WARN * max(peak, np.finfo(np.float32).tiny)
+        n_neg = int(np.sum(a < lim))
+        if n_neg:
+            warnings.warn(
+                f"flip: {n_neg} values of {name} below -1e-6·peak clipped to 0 (HDR-FLIP needs "
+                f"non-negative radiance; min {a.min():.3g})",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+    return np.ascontiguousarray(np.maximum(a, 0.0), dtype=np.float32)
+
+
+def flip_mean(ref32, test32, m, params) -> float:
+    """The mean over the mask ``m`` of the ꟻLIP map of ``test32`` against ``ref32`` (`flip_map`)."""
+    return float(np.mean(flip_map(ref32, test32, params)[m]))
+
+
+def flip_map(ref32, test32, params) -> np.ndarray:
+    """The ꟻLIP map of ``test32`` against ``ref32``, computed once per content and exposures (module
+    text); the caller gets its own copy."""
+    key = (content_digest(ref32, test32), tuple(sorted(params.items())))
+    with _map_lock:
+        if key in _map_memo:
+            _map_memo.move_to_end(key)
+            return _map_memo[key].copy()
+    fmap = _flip_map_uncached(ref32, test32, params)
+    with _map_lock:
+        _map_memo[key] = fmap.copy()
+        while sum(v.nbytes for v in _map_memo.values()) > MEMO_MAP_BYTES and len(_map_memo) > 1:
+            _map_memo.popitem(last=False)
+    return fmap
+
+
+FLIP_TILE_PAD = FLIP_MIN_SIZE
+"""Edge-replicated columns on each side of each image when several ꟻLIP maps are computed in one call
+(`compute_flip_maps`, behind `rtfit.fitting.metrics.prime_flip`): twice ꟻLIP's widest filter radius (10 px
+at its default pixels per degree), so that no filter reaches a neighbour's pixels and every map equals the
+map of its pair alone (tests/test_metrics.py checks it against separate calls). One call of ꟻLIP costs
+~0.1 s on a CPU core at any size up to ~64²: one call for a case's rows instead of one per row is most of
+the saving."""
+FLIP_TILES_MAX = 16
+"""At most this many pairs per tiled ꟻLIP call (its working memory grows with the tiled width)."""
+
+
+def flip_maps_tiled(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> list[np.ndarray]:
+    """The ꟻLIP maps of ``pairs`` (reference, test; float32 (H, W, 3) of one shape), side by side in one call
+    per `FLIP_TILES_MAX` pairs, each padded by `FLIP_TILE_PAD` edge-replicated columns."""
+    pad = FLIP_TILE_PAD
+    out: list[np.ndarray] = []
+    for i in range(0, len(pairs), FLIP_TILES_MAX):
+        chunk = pairs[i : i + FLIP_TILES_MAX]
+        if len(chunk) == 1:
+            out.append(_flip_map_uncached(chunk[0][0], chunk[0][1], params))
+            continue
+        w = chunk[0][0].shape[1]
+
+        def tiled(images):
+            return np.ascontiguousarray(
+                np.concatenate([np.pad(a, ((0, 0), (pad, pad), (0, 0)), mode="edge") for a in images], axis=1)
+            )
+
+        fmap = _flip_map_uncached(tiled([a for a, _ in chunk]), tiled([b for _, b in chunk]), params)
+        step = w + 2 * pad
+        out += [fmap[:, k * step + pad : k * step + pad + w].copy() for k in range(len(chunk))]
+    return out
+
+
+def compute_flip_maps(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> int:
+    """Compute the ꟻLIP maps of the ``pairs`` (reference, test) not yet in the memo, side by side in as few
+    calls as possible (`flip_maps_tiled`), and keep them in the memo, where `flip_map` finds them. Returns
+    the number of maps computed."""
+    keyed, todo = {}, []
+    for a, b in pairs:
+        key = (content_digest(a, b), tuple(sorted(params.items())))
+        with _map_lock:
+            known = key in _map_memo
+        if not known and key not in keyed:
+            keyed[key] = len(todo)
+            todo.append((a, b))
+    maps = flip_maps_tiled(todo, params)
+    with _map_lock:
+        for key, k in keyed.items():
+            _map_memo[key] = maps[k]
+        while sum(v.nbytes for v in _map_memo.values()) > MEMO_MAP_BYTES and len(_map_memo) > 1:
+            _map_memo.popitem(last=False)
+    return len(todo)
+
+
+def _flip_map_uncached(ref32, test32, params) -> np.ndarray:
+    import flip_evaluator
+
+    # flip_evaluator exits the process on bad arguments: check everything it checks, and more.
+    for a in (ref32, test32):
+        if not (
+            a.dtype == np.float32
+            and a.ndim == 3
+            and a.shape[2] == 3
+            and a.flags.c_contiguous
+            and np.all(np.isfinite(a))
+            and a.min() >= 0.0
+        ):
+            raise ValueError("internal: flip input must be finite non-negative contiguous float32 (H, W, 3)")
+    if ref32.shape != test32.shape or min(ref32.shape[:2]) < FLIP_MIN_SIZE:
+        raise ValueError(f"internal: flip inputs must share a shape of at least {FLIP_MIN_SIZE} pixels")
+    if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
+        raise ValueError(f"internal: bad flip exposure parameters {params}")
+    fmap, _, _ = flip_evaluator.evaluate(
+        ref32, test32, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
+    )
+    return np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
+
+
+def flip_noisy_references(r, s, seed, draws, peak) -> list[np.ndarray]:
+    """The ``draws`` noisy references r + σ·ε of the ꟻLIP noise floor (float32, clipped at 0)."""
+    rng = noise_rng(seed, "flip")
+    return [flip_input(r + s * rng.standard_normal(r.shape), "", peak, False) for _ in range(draws)]
