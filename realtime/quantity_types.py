@@ -20,6 +20,7 @@ from .methods import Input, Method
 __all__ = [
     "Quantity",
     "example_sh_coefficients",
+    "quantity_table",
     "vector_inputs",
 ]
 
@@ -70,6 +71,11 @@ class Quantity:
             for mid, m in table.items()
             if m.quantity == self.name
         )
+
+
+def quantity_table(*quantities: Quantity) -> Mapping[str, Quantity]:
+    """The ``quantities`` by name (read-only), in the order given: one room of the quantity table."""
+    return MappingProxyType({q.name: q for q in quantities})
 
 
 def vector_inputs(prefix: str, what: str, unit: str = "1", domain=(-1.0, 1.0)) -> tuple[Input, Input, Input]:
