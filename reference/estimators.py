@@ -21,12 +21,17 @@ with Mitsuba's own emitter sampling and ray tracing: emitter sampling and cosine
 direction sampling combined by multiple importance sampling (power heuristic), as Mitsuba's
 ``direct`` integrator does for a white Lambertian receiver; ``transport="global"`` instead takes
 the full path-traced radiance along cosine-sampled directions (E = π · E_cos[L_path]).
+
+This module holds the passes (`radiance_pass`, `irradiance_pass`, their lanes, chunks and seeds,
+`PassMoments`); the G-buffer (pixel-centre rays and their first hits: `rtfit.reference.first_hits`), the
+probes' device arrays (`rtfit.reference.device_arrays`) and the irradiance pass's per-lane estimators
+(`rtfit.reference.irradiance_integrands`) have rooms of their own; the first two's names are re-exported
+here (`__all__`).
 """
 
 from __future__ import annotations
 
 import hashlib
-import math
 import time
 from dataclasses import dataclass
 
@@ -35,7 +40,54 @@ import numpy as np
 from numpy.typing import DTypeLike
 
 from .budget import ArmedMedia, counters
+from .device_arrays import DeviceProbes, as_device_probes, device_components, device_probes, device_vectors
+from .first_hits import (
+    MAX_PASS_THROUGH,
+    GBuffer,
+    first_hit_shapes,
+    first_surface,
+    gbuffer,
+    gbuffer_points,
+    is_pass_through,
+    pixel_rays,
+    shape_has_uv,
+    uv_tangents,
+)
+from .irradiance_integrands import bounce_irradiance, direct_irradiance, global_irradiance
 from .variants import backend_of
+
+__all__ = [
+    "MAX_LANES",
+    "MAX_LANES_CUDA",
+    "MAX_PASS_THROUGH",
+    "DeviceProbes",
+    "GBuffer",
+    "PassMoments",
+    "PassResult",
+    "as_device_probes",
+    "channel_moments",
+    "check_spp",
+    "chunk_ranges",
+    "default_reduction",
+    "device_components",
+    "device_probes",
+    "device_vectors",
+    "first_hit_shapes",
+    "first_surface",
+    "gbuffer",
+    "gbuffer_points",
+    "irradiance_pass",
+    "is_pass_through",
+    "launch_identity",
+    "mean_var",
+    "moments",
+    "pass_max_lanes",
+    "point_chunks",
+    "radiance_pass",
+    "shape_has_uv",
+    "sub_seed",
+    "uv_tangents",
+]
 
 # Lanes per kernel launch: bounded so memory stays small and far from the 2^32 lane limit.
 MAX_LANES = 1 << 24
@@ -55,36 +107,6 @@ class PassResult:
     spp: int
     seed: int
     seconds: float
-
-
-@dataclass(frozen=True)
-class GBuffer:
-    """Pixel-centre first hits. Arrays are (H, W, ·) float32; ``mask`` is True where a surface was hit.
-
-    ``normal`` is the shading normal turned to face the camera; ``emitter`` is True where the hit
-    surface is itself a light (its pixels are excluded from lighting comparisons).
-    """
-
-    position: np.ndarray
-    normal: np.ndarray
-    depth: np.ndarray
-    albedo: np.ndarray
-    mask: np.ndarray
-    emitter: np.ndarray
-    view_dir: np.ndarray  # unit direction from the camera through the pixel centre
-
-
-def gbuffer_points(gb: GBuffer, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(points, unit normals), float64 (N, 3), of the G-buffer's pixels under ``mask`` (default
-    ``gb.mask``: every hit), in row-major pixel order: the per-point estimators' probes for a scene.
-
-    The normals are renormalised in float64 (the float32 G-buffer's are unit only to ~1e-7); a zero normal
-    stays zero rather than becoming NaN (its length is floored at 1e-30), so a caller can drop it."""
-    mask = gb.mask if mask is None else mask
-    points = gb.position[mask].astype(np.float64)
-    normals = gb.normal[mask].astype(np.float64)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
-    return points, normals
 
 
 def sub_seed(seed: int, *labels) -> int:
@@ -111,83 +133,6 @@ def chunk_ranges(n_elements: int, spp: int, max_lanes: int | None = None):
     per = max(1, (MAX_LANES if max_lanes is None else max_lanes) // spp)
     for start in range(0, n_elements, per):
         yield start, min(n_elements, start + per)
-
-
-def device_components(mi, arr) -> list:
-    """The three columns of an (N, 3) float32 or float64 array (other dtypes: converted to float64) as Dr.Jit
-    arrays of that precision, made **on the device**: the array's row-major bytes go there in one copy and
-    the columns are gathered there (lazily: they are evaluated with whatever uses them). Host-side NumPy work
-    per point (a transposed copy, a dtype conversion) cost more than the AO probe pass's kernels on the H200
-    machine's CPU (≈ 30 ms for 673k points against a 5 ms kernel; issue 21 §3, docs/benchmarks.md), and Dr.Jit
-    converts a transposed (strided) NumPy view element by element (6–29 ms for 673k points on 2 cores)."""
-    a = np.asarray(arr)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise ValueError(f"expected an (N, 3) array (got shape {a.shape})")
-    if a.dtype not in (np.float32, np.float64):
-        a = a.astype(np.float64)
-    flat_type = mi.Float64 if a.dtype == np.float64 else mi.Float32
-    flat = flat_type(np.ascontiguousarray(a).reshape(-1))
-    row = dr.arange(mi.UInt32, len(a)) * 3
-    return [dr.gather(flat_type, flat, row + k) for k in range(3)]
-
-
-def device_vectors(mi, vector_type, arr):
-    """An (N, 3) array as a Mitsuba float32 3-vector array ``vector_type`` (e.g. ``mi.Point3f``), converted on
-    the device (`device_components`; float64 rounds to nearest, as NumPy's ``astype(float32)``), evaluated."""
-    v = vector_type(*[mi.Float32(c) for c in device_components(mi, arr)])
-    dr.eval(v)
-    return v
-
-
-@dataclass(frozen=True)
-class DeviceProbes:
-    """Probe points and normals resident on the device (``mi.Point3f`` / ``mi.Vector3f``, float32), made once
-    by `device_probes` and used by every pass of a reference: a pass from host arrays copies them to the
-    device each time (25 MB for 1M probes: ≈ 4.7 ms on the H200 machine, a quarter of a 1M × 64 spp pass;
-    issue 21 §3, docs/benchmarks.md). ``unit``: the normals were normalised (`device_probes`)."""
-
-    points: object
-    normals: object
-    unit: bool
-
-    @property
-    def count(self) -> int:
-        """The number of probes."""
-        return dr.width(self.points)
-
-
-def device_probes(mi, points, normals, normalise: bool) -> DeviceProbes:
-    """``points`` and ``normals`` ((N, 3) arrays) on the device. ``normalise``: the normals divided by their
-    length in float64 on the device, then rounded to float32 (zero, NaN, infinite normals and lengths whose
-    square overflows are refused: ValueError); otherwise rounded to float32 as they are."""
-    points, normals = np.asarray(points), np.asarray(normals)
-    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
-        raise ValueError(f"points and normals must both be (N, 3) (got {points.shape} and {normals.shape})")
-    on_device = device_vectors(mi, mi.Point3f, points)
-    if not normalise:
-        return DeviceProbes(on_device, device_vectors(mi, mi.Vector3f, normals), False)
-    x, y, z = (mi.Float64(c) for c in device_components(mi, normals))
-    length = dr.sqrt(x * x + y * y + z * z)
-    dr.eval(x, y, z, length)
-    if not dr.all(dr.isfinite(length) & (length > 0)):  # NaN or ±inf components give a non-finite length
-        raise ValueError("normals must be finite and non-zero (and their squared length below 1.8e308)")
-    unit = mi.Vector3f(mi.Float32(x / length), mi.Float32(y / length), mi.Float32(z / length))
-    dr.eval(unit)
-    return DeviceProbes(on_device, unit, True)
-
-
-def as_device_probes(mi, points, normals, normalise: bool) -> DeviceProbes:
-    """``points`` itself where it is `DeviceProbes` (``normals`` must then be None, and with ``normalise`` its
-    normals must have been normalised), else `device_probes` of the arrays."""
-    if not isinstance(points, DeviceProbes):
-        return device_probes(mi, points, normals, normalise)
-    if normals is not None:
-        raise ValueError("with DeviceProbes as the points, normals must be None (the probes carry them)")
-    if normalise and not points.unit:
-        raise ValueError(
-            "these DeviceProbes' normals were not normalised (device_probes(..., normalise=True))"
-        )
-    return points
 
 
 def point_chunks(mi, spp: int, seed: int, columns):
@@ -389,21 +334,6 @@ def mean_var(s: np.ndarray, q: np.ndarray, n: int):
     return mean, var
 
 
-def _pixel_rays(mi, dr, sensor, width: int, first_pixel: int, n_pixels: int, spp: int, offset=None):
-    """Camera rays through the pixels ``first_pixel …`` (``spp`` each): through the pixel centres, or with
-    ``offset`` (a Point2f in [0, 1)², one per lane) at that point of each pixel."""
-    idx = dr.arange(mi.UInt32, n_pixels * spp)
-    # The first pixel is opaque (a device value): as a literal, every chunk of a pass was its own kernel.
-    pix = idx // spp + dr.opaque(mi.UInt32, first_pixel)
-    x = mi.Float(pix % width)
-    y = mi.Float(pix // width)
-    film_size = sensor.film().crop_size()
-    ox, oy = (0.5, 0.5) if offset is None else (offset.x, offset.y)
-    uv = mi.Point2f((x + ox) / film_size[0], (y + oy) / film_size[1])
-    ray, weight = sensor.sample_ray(0.0, 0.5, uv, mi.Point2f(0.5, 0.5))
-    return ray, weight
-
-
 def check_spp(spp: int):
     if spp < 2:
         raise ValueError(f"spp per pass must be >= 2 to estimate the variance (got {spp})")
@@ -447,7 +377,7 @@ def radiance_pass(
     for k, (a, b) in enumerate(chunk_ranges(n_pixels, spp, pass_max_lanes(mi))):
         sampler.seed(sub_seed(seed, "chunk", k), (b - a) * spp)
         offset = sampler.next_2d() if footprint == "box" else None
-        ray, weight = _pixel_rays(mi, dr, sensor, width, a, b - a, spp, offset)
+        ray, weight = pixel_rays(mi, dr, sensor, width, a, b - a, spp, offset)
         with ArmedMedia(media, mi.UInt32, (b - a) * spp) as armed:
             if media:  # lane index for the media's event counts (rtfit.reference.budget)
                 ray.time = mi.Float(dr.arange(mi.UInt32, (b - a) * spp))
@@ -479,182 +409,6 @@ def _radiance_scalar(mi, mi_scene, sensor, integrator, width, height, spp, seed)
     return mean_var(s, q, spp)
 
 
-# ------------------------------------------------------------------------------------------ G-buffer
-MAX_PASS_THROUGH = 16
-"""At most this many medium boundaries are passed through along one camera ray (nested media boxes, a
-glass shell's two faces); a ray still on one after that keeps it as its first hit."""
-
-
-def is_pass_through(mi, shape) -> bool:
-    """True for a surface a real-time renderer does not shade as an opaque first hit (issue 31): a ``null``
-    BSDF (a medium's invisible boundary: flags Null and no reflection or transmission lobe), or a
-    boundary between media (``Shape.is_medium_transition``) whose BSDF has no diffuse or glossy lobe (a
-    smooth or thin dielectric around a medium: delta lobes only, drawn as a transparent volume, not as a
-    lit surface). Every other surface (diffuse, glossy, rough dielectric, a ``mask``'s opaque part) is a
-    first hit as before."""
-    bsdf = shape.bsdf()
-    if bsdf is None:
-        return False
-    flags = bsdf.flags()
-    f = mi.BSDFFlags
-    lobes = any(mi.has_flag(flags, k) for k in (f.Diffuse, f.Glossy))
-    if lobes:
-        return False
-    if mi.has_flag(flags, f.Null) and not mi.has_flag(flags, f.Delta):
-        return True
-    return bool(shape.is_medium_transition())
-
-
-def first_surface(mi, mi_scene, ray):
-    """(si, t): the first hit of the camera rays ``ray`` that is not a pass-through surface
-    (`is_pass_through`), and its distance along the ray (+inf where none). In a scene without such
-    surfaces this is exactly ``mi_scene.ray_intersect(ray)`` and its ``t`` (the same single trace)."""
-    si = mi_scene.ray_intersect(ray)
-    through_shapes = [shape for shape in mi_scene.shapes() if is_pass_through(mi, shape)]
-    if not through_shapes:
-        return si, si.t
-    t_before = dr.zeros(type(si.t), dr.width(si.t))
-    for _ in range(MAX_PASS_THROUGH):
-        through = dr.full(mi.Bool, False, dr.width(si.t))
-        for shape in through_shapes:
-            through |= si.shape == mi.ShapePtr(shape)
-        through &= si.is_valid()
-        if not dr.any(through):
-            break
-        t_before = dr.select(through, t_before + si.t, t_before)
-        nxt = mi_scene.ray_intersect(si.spawn_ray(ray.d), through)
-        si = dr.select(through, nxt, si)
-    return si, t_before + si.t
-
-
-def _first_surface_scalar(mi, mi_scene, ray):
-    """`first_surface` for one scalar ray."""
-    si = mi_scene.ray_intersect(ray)
-    t = 0.0
-    for _ in range(MAX_PASS_THROUGH):
-        if not (si.is_valid() and is_pass_through(mi, si.shape)):
-            break
-        t += float(si.t)
-        si = mi_scene.ray_intersect(si.spawn_ray(ray.d))
-    return si, t + float(si.t)
-
-
-def gbuffer(mi, mi_scene, sensor=None) -> GBuffer:
-    """First hits of the pixel-centre rays (the approximation's inputs) of ``sensor`` (default: the
-    scene's first): the first surface a real-time renderer shades, through medium boundaries
-    (`first_surface`); ``depth`` is the distance along the ray to it."""
-
-    sensor = mi_scene.sensors()[0] if sensor is None else sensor
-    width, height = sensor.film().crop_size()
-    n = width * height
-    if mi.variant().startswith("scalar"):
-        return _gbuffer_scalar(mi, mi_scene, sensor, width, height)
-    ray, _ = _pixel_rays(mi, dr, sensor, width, 0, n, 1)
-    si, t = first_surface(mi, mi_scene, ray)
-    valid = si.is_valid()
-    n_sh = si.sh_frame.n
-    n_sh = dr.select(dr.dot(n_sh, ray.d) > 0, -n_sh, n_sh)
-    albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
-    emitter = si.emitter(mi_scene)
-    is_emitter = valid & (emitter != None)  # noqa: E711  (Dr.Jit pointer-array comparison)
-    depth = dr.select(valid, t, math.inf)
-    dr.eval(si.p, n_sh, depth, albedo, valid, is_emitter, ray.d)
-
-    def img(v, c=3):
-        a = np.array(v, dtype=np.float32)
-        return (a.T if c > 1 else a).reshape((height, width, c) if c > 1 else (height, width))
-
-    mask = img(valid, 1).astype(bool)
-    pos = np.where(mask[..., None], img(si.p), 0.0).astype(np.float32)
-    nrm = np.where(mask[..., None], img(n_sh), 0.0).astype(np.float32)
-    alb = np.where(mask[..., None], img(albedo), 0.0).astype(np.float32)
-    return GBuffer(pos, nrm, img(depth, 1), alb, mask, img(is_emitter, 1).astype(bool), img(ray.d))
-
-
-def first_hit_shapes(mi, mi_scene, sensor=None) -> np.ndarray:
-    """(H, W) int32: the index in ``mi_scene.shapes()`` of the shape each pixel-centre ray of ``sensor``
-    (default: the scene's first) hits first, through medium boundaries as `gbuffer`; −1 where it hits none.
-    Vectorised variants only."""
-    sensor = mi_scene.sensors()[0] if sensor is None else sensor
-    width, height = sensor.film().crop_size()
-    ray, _ = _pixel_rays(mi, dr, sensor, width, 0, width * height, 1)
-    si, _t = first_surface(mi, mi_scene, ray)
-    hit = np.array(si.is_valid(), dtype=bool)
-    ids = np.array(dr.reinterpret_array(mi.UInt32, si.shape), dtype=np.int64)
-    index = {}
-    for i, shape in enumerate(mi_scene.shapes()):
-        key = np.array(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape)), dtype=np.int64)
-        index[int(key[0])] = i
-    out = np.array([index.get(int(k), -1) for k in ids], dtype=np.int32)
-    return np.where(hit, out, -1).reshape(height, width).astype(np.int32)
-
-
-_UV_ANALYTIC = frozenset({"sphere", "disk", "cylinder", "rectangle"})
-"""Mitsuba's analytic shapes, each with its own (u, v) parametrisation (a sphere: longitude, latitude)."""
-
-
-def shape_has_uv(shape) -> bool:
-    """True when Mitsuba gives ``shape`` a UV parametrisation of its own: a mesh with texture coordinates
-    (``has_vertex_texcoords``), or an analytic sphere, disk, cylinder or rectangle. A mesh without
-    texcoords has none: Mitsuba then reports the hit's barycentrics as ``uv`` and the triangle's edges
-    as ``dp_du``/``dp_dv`` (measured, Mitsuba 3.6), a frame no texture or lightmap is laid out in."""
-    if shape.is_mesh():
-        return bool(shape.has_vertex_texcoords())
-    return str(shape.class_name()).lower() in _UV_ANALYTIC
-
-
-def uv_tangents(mi, mi_scene, sensor=None) -> tuple[np.ndarray, np.ndarray]:
-    """The UV tangent ∂p/∂u (Mitsuba's ``dp_du``, world units per unit u) at the pixel-centre first hits of
-    ``sensor`` (the rays `gbuffer` traces), (H, W, 3) float32, and (H, W) bool: the hit lies on a shape
-    with a UV parametrisation (`shape_has_uv`) and its ``dp_du`` is finite and non-zero (a sphere's poles
-    have none). Zero where False."""
-    sensor = mi_scene.sensors()[0] if sensor is None else sensor
-    width, height = sensor.film().crop_size()
-    if mi.variant().startswith("scalar"):
-        raise ValueError("uv_tangents needs a vectorised variant (llvm_ad_rgb or cuda_ad_rgb)")
-    ray, _ = _pixel_rays(mi, dr, sensor, width, 0, width * height, 1)
-    si, _ = first_surface(mi, mi_scene, ray)
-    has_uv = dr.full(mi.Bool, False, width * height)
-    for shape in mi_scene.shapes():
-        if shape_has_uv(shape):
-            has_uv |= si.shape == mi.ShapePtr(shape)
-    has_uv &= si.is_valid()
-    dr.eval(si.dp_du, has_uv)
-    t = np.array(si.dp_du, dtype=np.float64).T.reshape(height, width, 3)
-    ok = np.array(has_uv, dtype=bool).reshape(height, width)
-    ok &= np.all(np.isfinite(t), axis=-1) & (np.linalg.norm(t, axis=-1) > 0.0)
-    return np.where(ok[..., None], t, 0.0).astype(np.float32), ok
-
-
-def _gbuffer_scalar(mi, mi_scene, sensor, width, height) -> GBuffer:
-    pos = np.zeros((height, width, 3), np.float32)
-    nrm = np.zeros_like(pos)
-    alb = np.zeros_like(pos)
-    view = np.zeros_like(pos)
-    depth = np.full((height, width), np.inf, np.float32)
-    mask = np.zeros((height, width), bool)
-    emit = np.zeros_like(mask)
-    for j in range(height):
-        for i in range(width):
-            ray, _ = sensor.sample_ray(
-                0.0, 0.5, mi.Point2f((i + 0.5) / width, (j + 0.5) / height), mi.Point2f(0.5, 0.5)
-            )
-            view[j, i] = np.array(ray.d)
-            si, t = _first_surface_scalar(mi, mi_scene, ray)
-            if not si.is_valid():
-                continue
-            n = np.array(si.sh_frame.n)
-            if np.dot(n, np.array(ray.d)) > 0:
-                n = -n
-            mask[j, i] = True
-            pos[j, i] = np.array(si.p)
-            nrm[j, i] = n
-            depth[j, i] = t
-            alb[j, i] = np.array(si.bsdf(ray).eval_diffuse_reflectance(si))
-            emit[j, i] = si.emitter(mi_scene) is not None
-    return GBuffer(pos, nrm, depth, alb, mask, emit, view)
-
-
 # ---------------------------------------------------------------------------------- irradiance pass
 def irradiance_pass(
     mi,
@@ -681,74 +435,11 @@ def irradiance_pass(
     columns = [(mi.Point3f, probes.points), (mi.Vector3f, probes.normals)]
     for a, sampler, (p, nrm) in point_chunks(mi, spp, seed, columns):
         if transport == "direct":
-            value = _direct_irradiance(mi, dr, mi_scene, sampler, p, nrm)
+            value = direct_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         elif transport == "bounce":
-            value = _bounce_irradiance(mi, dr, mi_scene, sampler, p, nrm)
+            value = bounce_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         else:
-            value = _global_irradiance(mi, dr, mi_scene, sampler, p, nrm)
+            value = global_irradiance(mi, dr, mi_scene, sampler, p, nrm)
         acc.add(a, [value[c] for c in range(3)])
     mean, var = acc.result(dtype)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
-
-
-def _probe_interaction(mi, dr, p, n):
-    it = dr.zeros(mi.SurfaceInteraction3f)
-    it.p = p
-    it.n = n
-    it.sh_frame = mi.Frame3f(n)
-    it.wi = mi.Vector3f(0, 0, 1)
-    return it
-
-
-def _power(a, b):
-    """Power-heuristic MIS weight a²/(a² + b²); 0 where both densities vanish (no NaN)."""
-
-    a2 = a * a
-    denom = a2 + b * b
-    return dr.select(denom > 0, a2 / dr.maximum(denom, 1e-30), 0.0)
-
-
-def _direct_irradiance(mi, dr, mi_scene, sampler, p, n):
-    it = _probe_interaction(mi, dr, p, n)
-    # Emitter sampling (visibility tested by Mitsuba).
-    ds, em_weight = mi_scene.sample_emitter_direction(it, sampler.next_2d(), True, True)
-    cos_em = dr.maximum(dr.dot(ds.d, n), 0.0)
-    pdf_cos_em = cos_em / dr.pi
-    w_em = dr.select(ds.delta, 1.0, _power(ds.pdf, pdf_cos_em))
-    e_em = em_weight * cos_em * w_em
-    # Cosine-weighted direction sampling; radiance of whatever emitter the ray reaches.
-    d_local = mi.warp.square_to_cosine_hemisphere(sampler.next_2d())
-    d = mi.Frame3f(n).to_world(d_local)
-    ray = it.spawn_ray(d)
-    si = mi_scene.ray_intersect(ray)
-    emitter = si.emitter(mi_scene)
-    le = emitter.eval(si)
-    ds_hit = mi.DirectionSample3f(mi_scene, si, it)
-    pdf_em_hit = mi_scene.pdf_emitter_direction(it, ds_hit, True)
-    pdf_cos = mi.warp.square_to_cosine_hemisphere_pdf(d_local)
-    e_cos = dr.select(pdf_cos > 0, le * dr.pi * _power(pdf_cos, pdf_em_hit), 0.0)
-    return e_em + e_cos
-
-
-def _bounce_irradiance(mi, dr, mi_scene, sampler, p, n):
-    """One-bounce indirect irradiance: π × (``path`` with max_depth 2 − ``path`` with max_depth 1) along a
-    cosine-distributed ray, i.e. π × the light leaving the first surface y after one reflection of the
-    lights' direct light (Mitsuba's next-event estimation and BSDF sampling at y, MIS), without y's own
-    emission (the direct light at x: max_depth 1 returns exactly that, deterministically, on the same ray)."""
-    it = _probe_interaction(mi, dr, p, n)
-    d = mi.Frame3f(n).to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
-    ray = it.spawn_ray(d)
-    two = mi.load_dict({"type": "path", "max_depth": 2})
-    one = mi.load_dict({"type": "path", "max_depth": 1})
-    value, _, _ = two.sample(mi_scene, sampler, ray, None, True)
-    emitted, _, _ = one.sample(mi_scene, sampler, ray, None, True)
-    return (value - emitted) * dr.pi
-
-
-def _global_irradiance(mi, dr, mi_scene, sampler, p, n):
-    it = _probe_interaction(mi, dr, p, n)
-    d = mi.Frame3f(n).to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
-    ray = it.spawn_ray(d)
-    path = mi.load_dict({"type": "path", "max_depth": -1})
-    value, _, _ = path.sample(mi_scene, sampler, ray, None, True)
-    return value * dr.pi

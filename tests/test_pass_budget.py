@@ -139,12 +139,12 @@ def test_a_run_whose_reference_fails_exits_1_with_one_line(monkeypatch, tmp_path
     """A reference pass that cannot be stored (here a planted non-finite pass; a pass past its budget takes
     the same path) ends ``rtfit run`` with one line naming the case and pass and exit status 1 (a failed
     self-check, not bad input), no traceback and no half-written output folder."""
-    from rtfit.reference import budget, cache
+    from rtfit.reference import budget, pass_entry
 
     def planted(result, what):
         raise budget.NonFinitePass(f"{what}: 3 non-finite values (planted)")
 
-    monkeypatch.setattr(cache, "check_finite", planted)
+    monkeypatch.setattr(pass_entry, "check_finite", planted)
     out, code, err = _run_quick_diffuse(tmp_path, capsys)
     err = [ln for ln in err if ln.startswith("rtfit: failed")]
     assert code == 1

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-import rtfit.reference.cache as cache_mod
+import rtfit.reference.pass_entry as pass_entry
 import rtfit.reference.soft_particles as sp
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.soft_particles import METHODS
@@ -169,13 +169,13 @@ def test_key_follows_the_physics_and_nothing_else(dirs, sigma):
 def test_every_pass_runs_under_the_watchdog(tmp_path, dirs, sigma, monkeypatch):
     """No pass without bound: `PassEntry.passes` wraps each render in `PassWatchdog` naming case and pass."""
     seen = []
-    real = cache_mod.PassWatchdog
+    real = pass_entry.PassWatchdog
 
     def recording(what, *a, **kw):
         seen.append(what)
         return real(what, *a, **kw)
 
-    monkeypatch.setattr(cache_mod, "PassWatchdog", recording)
+    monkeypatch.setattr(pass_entry, "PassWatchdog", recording)
     _reference(tmp_path, dirs, sigma, label="case-x")  # a fresh cache: both passes render
     assert seen == ["case-x pass 1 of 2", "case-x pass 2 of 2"]
 
