@@ -1090,8 +1090,16 @@ def nishita_sky_kernel(
     return tuple(c * solar_scale for c in L)  # L is linear in E₀
 
 
-_LAST_INSCATTER: list = []
-"""[(array inputs, scalar key, (S_R, S_M))]: the last Dr.Jit in-scatter of `nishita_sky_kernel`."""
+INSCATTER_KEEP = 8
+"""In-scatter textures `_inscatter_reused` keeps for one set of array inputs (least recently used dropped).
+SciPy's 3-point Jacobian evaluates x ± h per parameter in declaration order (``rayleigh_scale``,
+``mie_scale``, ``mie_g``, ``ambient``): by ``mie_g``'s turn the last texture is x + h of ``mie_scale``, and
+only a store holding the centre's (five distinct textures: x, x ± h twice) serves ``mie_g`` and ``ambient``
+from it. A seed texture in float64 is 8192 texels × 6 channels × 8 bytes (0.4 MB)."""
+
+_INSCATTER_HELD: list = []
+"""[array inputs, {scalar key: (S_R, S_M)}]: the Dr.Jit in-scatters of `nishita_sky_kernel` on the last array
+inputs it saw (`_inscatter_reused`), oldest first."""
 
 
 def _scalar_key(v):
@@ -1107,27 +1115,33 @@ def _scalar_key(v):
 
 
 def _inscatter_reused(ops, arrays: tuple, scalars: tuple, compute):
-    """``compute()`` (the in-scatter texture: all of the kernel's cost), or on Dr.Jit the previous call's
-    result when the array inputs are the same objects and the scalars (viewer, sun, ``rayleigh_scale``,
-    ``mie_scale``, setting, atmosphere) the same values. A fit's Dr.Jit run (`Method.fit_ops`) converts its
-    inputs once, and SciPy's Jacobian changes one parameter at a time: ``mie_g`` and ``ambient`` only shade
-    the texture, so 4 of every 9 evaluations reuse it — the same evaluated arrays, bit-identical results
-    (issue 33). The inputs are held (no object id is reused while they are)."""
+    """``compute()`` (the in-scatter texture: all of the kernel's cost), or on Dr.Jit an earlier call's result
+    when the array inputs are the same objects and the scalars (viewer, sun, ``rayleigh_scale``,
+    ``mie_scale``, setting, atmosphere) the same values (up to `INSCATTER_KEEP` of them per array inputs). A
+    fit's Dr.Jit run (`Method.fit_ops`) converts its inputs once, and SciPy's Jacobian changes one parameter
+    at a time: ``mie_g`` and ``ambient`` only shade the texture, so 4 of every 9 evaluations reuse the
+    centre's — the same evaluated arrays, bit-identical results (issue 33). The inputs are held (no object
+    id is reused while they are); new array inputs drop the textures of the old."""
     if ops.name != "drjit":
         return compute()
     key = tuple(_scalar_key(v) for v in scalars)
     if any(k is None for k in key):
         return compute()
-    last = _LAST_INSCATTER[0] if _LAST_INSCATTER else None
-    if (
-        last is not None
-        and len(last[0]) == len(arrays)
-        and all(a is b for a, b in zip(last[0], arrays, strict=True))
-    ):
-        if last[1] == key:
-            return [*last[2][0]], [*last[2][1]]
+    same = (
+        bool(_INSCATTER_HELD)
+        and len(_INSCATTER_HELD[0]) == len(arrays)
+        and all(a is b for a, b in zip(_INSCATTER_HELD[0], arrays, strict=True))
+    )
+    if not same:
+        _INSCATTER_HELD[:] = [arrays, {}]
+    held: dict = _INSCATTER_HELD[1]
+    if key in held:
+        S_r, S_m = held[key] = held.pop(key)  # most recently used last
+        return [*S_r], [*S_m]
     S_r, S_m = compute()
-    _LAST_INSCATTER[:] = [(arrays, key, ([*S_r], [*S_m]))]
+    held[key] = ([*S_r], [*S_m])
+    while len(held) > INSCATTER_KEEP:
+        del held[next(iter(held))]
     return S_r, S_m
 
 

@@ -431,3 +431,42 @@ def test_the_fits_dr_jit_residual_recovers_known_artist_parameters():
     for k, v in truth.items():
         assert res.values[k] == pytest.approx(v, rel=1e-6), k
     assert res.steps >= 3 and len({(h["hash"], h["size"]) for h in launches}) <= 8
+
+
+def test_inscatter_store_serves_the_jacobians_centre(monkeypatch):
+    """`_inscatter_reused` (issue 33): in the order SciPy's 3-point Jacobian evaluates (the centre x, then
+    x ± h for s_R, s_M, g and A in turn) the in-scatter texture is computed 5 times, not 7 (a store of the
+    last texture only: g's first step follows s_M's +h) or 9; every result equals the same evaluation on
+    freshly converted inputs (no texture to reuse), bit for bit."""
+    import dataclasses
+
+    import drjit as dr
+
+    from rtfit.realtime.arrays import DRJIT_OPS, backend_float, to_drjit
+    from rtfit.reference.nishita_sky import hemisphere_directions
+
+    m = sky.METHODS["nishita-fitted"]
+    setting = dataclasses.replace(m.fixed["setting"], layers=8, width=32, height=16, table_size=32)
+    small = dataclasses.replace(m, fixed={**m.fixed, "setting": setting, "altitude_m": 10.0})
+    d = hemisphere_directions(16, 8)[0].reshape(-1, 3)
+    inputs = sky.sky_kernel_inputs(sky.AtmosphereParams(), 20.0, d, setting, 10.0)
+    Float = backend_float(None, np.float64)
+
+    def converted():
+        return {k: to_drjit(Float, v) if isinstance(v, np.ndarray) else v for k, v in inputs.items()}
+
+    def run(x, p):
+        out = small(DRJIT_OPS, x, {k: dr.opaque(Float, v) for k, v in p.items()})
+        return np.stack([np.asarray(c, np.float64) for c in out])
+
+    centre = {"rayleigh_scale": 1.1, "mie_scale": 1.7, "mie_g": 0.75, "ambient": 0.3}
+    order = [centre] + [{**centre, k: centre[k] + s * 1e-3} for k in centre for s in (-1, 1)]
+    computed = []
+    inner = sky._inscatter_kernel
+    monkeypatch.setattr(sky, "_inscatter_kernel", lambda *a: computed.append(1) or inner(*a))
+    x = converted()
+    got = [run(x, p) for p in order]
+    assert len(computed) == 5
+    for p, g in zip(order, got, strict=True):
+        assert np.array_equal(run(converted(), p), g)
+    assert len(computed) == 5 + len(order)
