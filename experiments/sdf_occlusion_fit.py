@@ -485,15 +485,16 @@ def run_sweep(cfg, sds, grids) -> list[dict]:
         configs.append((res, 4, False, False))
         configs.append((res, 4, True, True))
     size = int(cfg["cost_points"])
+    fields = {}  # (scene, res, prefilter, 8 bit) → GridSDF: built once for every n
     for res, n, pre, q8 in configs:
         errs, floors = [], []
         timing = None
         for name in cfg["sweep_scenes"]:
             sd = sds[name]
-            g = grids[(name, res)]
-            if q8:
-                g = quantize_8bit(g)
-            sdf = GridSDF.from_grid(g, levels=8, prefilter=pre)
+            if (name, res, pre, q8) not in fields:
+                g = quantize_8bit(grids[(name, res)]) if q8 else grids[(name, res)]
+                fields[(name, res, pre, q8)] = g, GridSDF.from_grid(g, levels=8, prefilter=pre)
+            g, sdf = fields[(name, res, pre, q8)]
             prm = EvansParams(n=n, base=g.voxel, k=1.0, alpha=0.0, prefilter=True)
             d = evans_terms(sd.points, sd.normals, sdf, prm)
             ref, err = sd.target(target)

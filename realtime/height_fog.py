@@ -96,7 +96,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .arrays import check_range, evaluate, is_drjit, safe_div, split3
+from .arrays import NUMPY_OPS, check_range, evaluate, is_drjit, safe_div, split3
 from .methods import Input, Method, Param, method_table
 from .phase import hg_phase, hg_phase_kernel, rayleigh_phase
 
@@ -212,9 +212,56 @@ def _transmittance_kernel(ops, z0, z1, distance, b, c):
     return ops.exp(-_optical_depth_kernel(ops, z0, z1, distance, b, c))
 
 
+class _NumpyMemo:
+    """The last few results of a NumPy computation by its arguments' exact bytes (dtype, shape and bit
+    pattern of each: a stored copy, so an argument changed in place is a miss). A fit's finite-difference
+    Jacobian (`rtfit.fitting.fit_method`, ``solver="trf"``) calls a shading kernel once per parameter step
+    on the same inputs: the transmittance does not change when only a colour moves, nor the phase weight
+    when b, c or a colour does. The cached arrays are read, never written, by the kernels below."""
+
+    def __init__(self, size: int = 2):
+        self.size = size
+        self.entries: list = []
+
+    def get(self, compute, *args):
+        arrs = [np.asarray(a) for a in args]
+        for i, (keys, value) in enumerate(self.entries):
+            if all(_same_bits(k, a) for k, a in zip(keys, arrs, strict=True)):
+                self.entries.append(self.entries.pop(i))
+                return value
+        value = compute(NUMPY_OPS, *args)
+        self.entries.append(([np.array(a, copy=True) for a in arrs], value))
+        del self.entries[: -self.size]
+        return value
+
+
+def _same_bits(stored: np.ndarray, a: np.ndarray) -> bool:
+    if stored.dtype != a.dtype or stored.shape != a.shape:
+        return False
+    return np.array_equal(
+        stored.reshape(-1).view(np.uint8), np.ascontiguousarray(a).reshape(-1).view(np.uint8)
+    )
+
+
+_T_MEMO = _NumpyMemo()
+_W_MEMO = _NumpyMemo()
+
+
+def _segment_transmittance(ops, z0, z1, distance, b, c):
+    """`_transmittance_kernel` (memoised on NumPy: `_NumpyMemo`)."""
+    if ops.name == "numpy":
+        return _T_MEMO.get(_transmittance_kernel, z0, z1, distance, b, c)
+    return _transmittance_kernel(ops, z0, z1, distance, b, c)
+
+
+def _phase_weight(ops, cos_sun, g):
+    """4π·p_HG(θ, g) (mean 1 over the sphere)."""
+    return 4.0 * math.pi * hg_phase_kernel(ops, ops.clip(cos_sun, -1.0, 1.0), g)
+
+
 def _fog_colour(ops, cos_sun, r0, g0, b0, r1, g1, b1, g):
     """C(θ) = C₀ + C₁·4π·p_HG(θ, g) per channel (4π·p_HG has mean 1 over the sphere)."""
-    w = 4.0 * math.pi * hg_phase_kernel(ops, ops.clip(cos_sun, -1.0, 1.0), g)
+    w = _W_MEMO.get(_phase_weight, cos_sun, g) if ops.name == "numpy" else _phase_weight(ops, cos_sun, g)
     return ops.fma(r1, w, r0), ops.fma(g1, w, g0), ops.fma(b1, w, b0)
 
 
@@ -226,13 +273,13 @@ def _blend(ops, t, l0_r, l0_g, l0_b, cr, cg, cb):
 
 def _fog_const_kernel(ops, z0, z1, distance, l0_r, l0_g, l0_b, b, c, r0, g0, b0):
     """Shading model ``const``: T of the stable form along the segment, constant fog colour."""
-    t = _transmittance_kernel(ops, z0, z1, distance, b, c)
+    t = _segment_transmittance(ops, z0, z1, distance, b, c)
     return _blend(ops, t, l0_r, l0_g, l0_b, r0, g0, b0)
 
 
 def _fog_phase_kernel(ops, z0, z1, distance, cos_sun, l0_r, l0_g, l0_b, b, c, r0, g0, b0, r1, g1, b1, g):
     """Shading model ``phase``: as ``const`` with the colour C₀ + C₁·4π·p_HG(θ, g)."""
-    t = _transmittance_kernel(ops, z0, z1, distance, b, c)
+    t = _segment_transmittance(ops, z0, z1, distance, b, c)
     return _blend(ops, t, l0_r, l0_g, l0_b, *_fog_colour(ops, cos_sun, r0, g0, b0, r1, g1, b1, g))
 
 

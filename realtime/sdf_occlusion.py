@@ -54,6 +54,7 @@ matching Float). Normals are normalised in the kernel (zero normals give C = B: 
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -483,42 +484,15 @@ def cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
     """Cone-traced distance-field AO in [0, 1] at points (px, py, pz) with normals (nx, ny, nz) on ``ops``
     (the text `cone_occlusion` runs; module docstring): ``cones`` axes, ``steps`` march distances from
     ``t0`` to ``t_max`` (scene units), aperture ``k`` = 1/tan(half-angle)."""
-    nx, ny, nz, nlen = _unit(ops, nx, ny, nz)
-    # Branchless orthonormal basis (Duff et al. 2017, "Building an orthonormal basis, revisited").
-    sgn = ops.select(nz >= 0, 1.0 + nz * 0.0, -1.0 + nz * 0.0)
-    a = -1.0 / (sgn + nz)
-    b = nx * ny * a
-    t1x, t1y, t1z = 1.0 + sgn * nx * nx * a, sgn * b, -sgn * nx
-    t2x, t2y, t2z = b, sgn + ny * ny * a, -ny
-    ratio = (t_max / t0) ** (1.0 / max(steps - 1, 1))
-    ts = [t0 * ratio**s for s in range(steps)]
     total = px * 0.0
     kk = _const(ops, px, k)
-    t_scale = _const(ops, px, t0)  # t_s = t0 · ratio^s: the geometric ratio is structural, t0 is an input
-    axes = _cone_axes(cones)
-    if ops.name in ("numpy", "jax"):
-        # NumPy/JAX: every cone at once, the axes as a leading (cones, 1) dimension broadcast against the
-        # points — the same arithmetic as the loop below, traced once: a JAX fit compiles `steps` field
-        # samples instead of cones × steps (9 × 8 cones: a fit of k on 4096 points took 175 s on 2 loaded
-        # cores, the compile of 72 inlined trilinear samples; session 6).
-        axes = [tuple(np.asarray([a[i] for a in axes], dtype=np.float64)[:, None] for i in range(3))]
-    for axis in axes:
-        # Dr.Jit: the axis enters as kernel inputs and each cone is evaluated on its own: LLVM's build time
-        # grows about quadratically with kernel size (measured on one core under load: 929 ops 2.5 s,
-        # 2,605 ops 13 s, 7,615 ops = 9 cones × 8 steps 147 s), so nine identical one-cone kernels compile
-        # once (2.5 s) where the fused kernel took minutes.
-        lx, ly, lz = (_const(ops, px, c) for c in axis)
-        wx = lx * t1x + ly * t2x + lz * nx
-        wy = lx * t1y + ly * t2y + lz * ny
-        wz = lx * t1z + ly * t2z + lz * nz
+    if ops.name == "numpy":  # k only scales the march's samples: a fit of k reuses them (`_numpy_cone_march`)
+        nlen, marches = _numpy_cone_march(sdf, cones, steps, t0, t_max, px, py, pz, nx, ny, nz)
+    else:
+        nlen, marches = _cone_march(ops, sdf, cones, steps, t0, t_max, px, py, pz, nx, ny, nz)
+    for march in marches:
         vis = px * 0.0 + 1.0
-        for t in ts:
-            width = t / CONE_LEVEL_K  # level choice independent of k: one compiled kernel serves every k
-            tt = t_scale * (t / t0)
-            level = 0
-            if sdf.voxel > 0:
-                level = max(0, min(sdf.levels - 1, math.floor(math.log2(max(width / sdf.voxel, 1.0)))))
-            s = sdf.sample(ops, level, px + tt * wx, py + tt * wy, pz + tt * wz)
+        for tt, s in march:
             vis = ops.minimum(vis, ops.clip(kk * s / tt, 0.0, 1.0))
         if ops.name in ("numpy", "jax"):  # (cones, N): the cones' sum in the loop's order
             for j in range(cones):
@@ -529,6 +503,76 @@ def cone_kernel(ops, sdf, cones, steps, t0, t_max, k, px, py, pz, nx, ny, nz):
                 dr.eval(total)
     ao = total * (1.0 / cones)
     return ops.select(nlen > 0, ao, 1.0 + px * 0.0)
+
+
+def _cone_march(ops, sdf, cones, steps, t0, t_max, px, py, pz, nx, ny, nz):
+    """The part of `cone_kernel` that does not depend on k: the normals' length and, per cone axis (NumPy/JAX:
+    one batch of every axis), the march's (t_s, s(P + t_s ω)) pairs, an iterator that traces each axis as it
+    is read (Dr.Jit: one kernel a cone, evaluated before the next is traced)."""
+    nx, ny, nz, nlen = _unit(ops, nx, ny, nz)
+    # Branchless orthonormal basis (Duff et al. 2017, "Building an orthonormal basis, revisited").
+    sgn = ops.select(nz >= 0, 1.0 + nz * 0.0, -1.0 + nz * 0.0)
+    a = -1.0 / (sgn + nz)
+    b = nx * ny * a
+    t1x, t1y, t1z = 1.0 + sgn * nx * nx * a, sgn * b, -sgn * nx
+    t2x, t2y, t2z = b, sgn + ny * ny * a, -ny
+    ratio = (t_max / t0) ** (1.0 / max(steps - 1, 1))
+    ts = [t0 * ratio**s for s in range(steps)]
+    t_scale = _const(ops, px, t0)  # t_s = t0 · ratio^s: the geometric ratio is structural, t0 is an input
+    axes = _cone_axes(cones)
+    if ops.name in ("numpy", "jax"):
+        # NumPy/JAX: every cone at once, the axes as a leading (cones, 1) dimension broadcast against the
+        # points — the same arithmetic as one cone at a time, traced once: a JAX fit compiles `steps` field
+        # samples instead of cones × steps (9 × 8 cones: a fit of k on 4096 points took 175 s on 2 loaded
+        # cores, the compile of 72 inlined trilinear samples; session 6).
+        axes = [tuple(np.asarray([a[i] for a in axes], dtype=np.float64)[:, None] for i in range(3))]
+
+    def march(axis):
+        # Dr.Jit: the axis enters as kernel inputs and each cone is evaluated on its own: LLVM's build time
+        # grows about quadratically with kernel size (measured on one core under load: 929 ops 2.5 s,
+        # 2,605 ops 13 s, 7,615 ops = 9 cones × 8 steps 147 s), so nine identical one-cone kernels compile
+        # once (2.5 s) where the fused kernel took minutes.
+        lx, ly, lz = (_const(ops, px, c) for c in axis)
+        wx = lx * t1x + ly * t2x + lz * nx
+        wy = lx * t1y + ly * t2y + lz * ny
+        wz = lx * t1z + ly * t2z + lz * nz
+        out = []
+        for t in ts:
+            width = t / CONE_LEVEL_K  # level choice independent of k: one compiled kernel serves every k
+            tt = t_scale * (t / t0)
+            level = 0
+            if sdf.voxel > 0:
+                level = max(0, min(sdf.levels - 1, math.floor(math.log2(max(width / sdf.voxel, 1.0)))))
+            out.append((tt, sdf.sample(ops, level, px + tt * wx, py + tt * wy, pz + tt * wz)))
+        return out
+
+    return nlen, (march(axis) for axis in axes)
+
+
+_CONE_MARCHES: list = []
+"""`_numpy_cone_march`'s memo: (key, sdf, nlen, marches), the last few, newest last."""
+_CONE_MARCHES_MAX = 2
+
+
+def _numpy_cone_march(sdf, cones, steps, t0, t_max, *cols):
+    """`_cone_march` on NumPy, memoised on the field (its identity), the march settings and the points' and
+    normals' bytes: a fit of k (the engine's ``cone`` row, SciPy's trf) calls the kernel on the same inputs
+    at every step, and only k changes (the same arrays: identical results)."""
+    h = hashlib.blake2b(digest_size=16)
+    for c in (t0, t_max, *cols):
+        c = np.asarray(c)
+        h.update(repr((c.dtype.str, c.shape)).encode())
+        h.update(np.ascontiguousarray(c).tobytes())
+    key = (id(sdf), int(cones), int(steps), h.digest())
+    for i, (k, s, nlen, marches) in enumerate(_CONE_MARCHES):
+        if k == key and s is sdf:
+            _CONE_MARCHES.append(_CONE_MARCHES.pop(i))
+            return nlen, marches
+    nlen, gen = _cone_march(NUMPY_OPS, sdf, cones, steps, t0, t_max, *cols)
+    marches = [list(m) for m in gen]
+    _CONE_MARCHES.append((key, sdf, nlen, marches))
+    del _CONE_MARCHES[:-_CONE_MARCHES_MAX]
+    return nlen, marches
 
 
 # ===================================================================================== dispatch

@@ -432,3 +432,39 @@ def test_fog_colour_phase_is_the_sum_of_both_lobes():
     cols = hf.fog_colour_phase(np.array([0.0, 1.0]), (1.0, 0.5, 0.25), (0.1, 0.2, 0.3), 0.0)
     for k, (hr, hm) in enumerate(zip((1.0, 0.5, 0.25), (0.1, 0.2, 0.3), strict=True)):
         assert np.allclose(cols[k], [hr * 0.75 + hm, hr * 1.5 + hm], rtol=1e-6)
+
+
+def test_numpy_kernels_follow_every_parameter_and_input_change():
+    # a trf fit calls the NumPy kernel once per parameter step on the same inputs (the transmittance and the
+    # phase weight are memoised there): every call, and an input changed in place, as the closed form
+    # L = L₀T + C(1 − T), T = e^(−b·D·e^(−c·z)) on a level segment, C = r0 + r1·4π·p_HG(cos θ, g)
+    m = hf.METHODS["phase"]
+    x = {"z0": np.array([10.0, 40.0]), "z1": np.array([10.0, 40.0]), "distance": np.array([300.0, 900.0]),
+         "cos_sun": np.array([0.3, -0.6]), **{f"l0_{ch}": np.array([0.2, 0.7]) for ch in "rgb"}}  # fmt: skip
+    base = {
+        "b": 2e-3,
+        "c": 0.01,
+        "r0": 0.1,
+        "g0": 0.2,
+        "b0": 0.3,
+        "r1": 0.05,
+        "g1": 0.06,
+        "b1": 0.07,
+        "g": 0.4,
+    }
+
+    def expect(p):
+        t = np.exp(-p["b"] * x["distance"] * np.exp(-p["c"] * x["z0"]))
+        g, cs = p["g"], x["cos_sun"]
+        w = (1 - g * g) / (1 + g * g - 2 * g * cs) ** 1.5
+        return [x[f"l0_{ch}"] * t + (p[f"{ch}0"] + p[f"{ch}1"] * w) * (1 - t) for ch in "rgb"]
+
+    steps = [{}, {"r0": 0.15}, {"g": 0.5}, {}, {"b": 3e-3}, {"c": 0.02}, {"g1": 0.2}, {}]
+    for i, step in enumerate(steps):
+        if i == 3:
+            x["z0"][1] = x["z1"][1] = 25.0  # changed in place
+            x["cos_sun"][0] = 0.9
+        p = {**base, **step}
+        got = m(NUMPY_OPS, x, p)
+        for ch, (a, b) in enumerate(zip(got, expect(p), strict=True)):
+            assert np.allclose(a, b, rtol=1e-12, atol=0), (i, ch)

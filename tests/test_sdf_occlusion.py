@@ -25,6 +25,7 @@ from rtfit.realtime.sdf_occlusion import (
     AnalyticSDF,
     EvansParams,
     GridSDF,
+    cone_kernel,
     cone_occlusion,
     curvature_term,
     evans_occlusion,
@@ -302,3 +303,19 @@ def test_evans_and_curvature_kernels_over_their_whole_domain(terms, k, log_b, di
     assert math.isfinite(v) and v >= 0.5 / 1.5 - 1e-12
     if k_text * -distance <= 0:
         assert v <= 1 + 1e-12
+
+
+def test_cone_numpy_runs_of_several_k_and_moved_points():
+    # a fit of k calls the NumPy kernel on the same arrays at every k (its march is memoised): each k, and the
+    # point moved in place to height h: s(P + tω) = h + t cos θ_j, v_j = min(1, k(h/t_max + cos θ_j))
+    M = 9
+    p = np.zeros((1, 3))
+
+    def expect(k, h):
+        return np.mean([min(1.0, k * (h / 1.0 + math.sqrt(1 - (j + 0.5) / M))) for j in range(M)])
+
+    for h in (0.0, 0.05):
+        p[:, 2] = h
+        for k in (0.5, 1.0, 1.7, 0.5):
+            c = cone_kernel(NUMPY_OPS, PLANE, M, 6, 0.01, 1.0, k, *p.T, *UP.T)
+            assert c[0] == pytest.approx(expect(k, h), rel=1e-9)
