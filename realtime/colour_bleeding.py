@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -99,7 +100,7 @@ _MEMO_ENTRIES = 16
 _KEPT: dict[str, tuple] = {}
 
 
-def _kept(ops, key: tuple, arrays: list, make):
+def _kept(ops, key: tuple, arrays: list, make) -> Any:
     """``make(True)`` (its values computed now) on the NumPy run, kept per ``key`` (plain numbers) for these
     very ``arrays`` (identity; weakly referenced, the values staying until newer ones push them out of
     `_MEMO_FLOATS`): a fit evaluates the kernel again and again on the same rays, and ρ(d_k) does not
