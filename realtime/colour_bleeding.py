@@ -50,8 +50,13 @@ reading of a prose description (no formula is printed).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import replace
+from typing import Any
 
+import numpy as np
+
+from .arrays import NUMPY_OPS
 from .methods import Input, Method, Param, method_table
 from .obscurances import MISS, SEED_D_MAX, SEED_EXPONENT, rho_exponential, rho_power
 
@@ -86,23 +91,79 @@ def _mean(terms, rays: int):
     return acc * (1.0 / rays)
 
 
+_MEMO_FLOATS = 1 << 22
+"""The most floats (32 MB) the values `_kept` keeps hold together (the least recently used dropped first):
+a TRF Jacobian evaluates the kernel at D ± h and at each bias ± h before I ± h, so the ray mean at the
+step's start must outlive about ten others (each one float per point; ρ(d_k) K per point)."""
+_MEMO_ENTRIES = 16
+"""The most values `_kept` keeps (the least recently used dropped first; see `_MEMO_FLOATS`)."""
+_KEPT: dict[str, tuple] = {}
+
+
+def _kept(ops, key: tuple, arrays: list, make) -> Any:
+    """``make(True)`` (its values computed now) on the NumPy run, kept per ``key`` (plain numbers) for these
+    very ``arrays`` (identity; weakly referenced, the values staying until newer ones push them out of
+    `_MEMO_FLOATS`): a fit evaluates the kernel again and again on the same rays, and ρ(d_k) does not
+    depend on the biases or I, nor the ray mean on I. The same operations on the same arrays: the same
+    values. Other runs (Dr.Jit, JAX, a shader; arrays too long) get ``make(False)``: the values made as
+    they are read (a generator), so that a trace keeps the kernel's order of operations."""
+    if (
+        ops is not NUMPY_OPS
+        or not all(isinstance(a, np.ndarray) and a.ndim == 1 for a in arrays)
+        or max(a.size for a in arrays) * RAYS > _MEMO_FLOATS // 4
+        or not all(isinstance(k, str | int | float) for k in key)
+    ):
+        return make(False)
+    full = repr(key)  # exact numbers (−0.0 and 0.0 apart)
+    hit = _KEPT.pop(full, None)
+    if (
+        hit is None
+        or len(hit[0]) != len(arrays)
+        or not all(r() is a for r, a in zip(hit[0], arrays, strict=False))
+    ):
+        value = make(True)
+        floats = sum(np.size(v) for v in (value if isinstance(value, list) else [value]))
+        while _KEPT and (
+            len(_KEPT) >= _MEMO_ENTRIES or sum(e[2] for e in _KEPT.values()) + floats > _MEMO_FLOATS
+        ):
+            _KEPT.pop(next(iter(_KEPT)))
+        hit = (tuple(weakref.ref(a) for a in arrays), value, floats)
+    _KEPT[full] = hit  # the most recently used last
+    return hit[1]
+
+
 # ---------------------------------------------------------------------------------------------- kernels
 def sdf_bias_kernel(ops, channel, *, rays=RAYS, d_max=1.0, bias_r=0.1, bias_g=0.1, bias_b=0.1, ambient=1.0,
                     **kw):  # fmt: skip
     """I · (1/K) Σ_k [ρ(d_k + b_c a_k) − ρ(d_k)], ρ(d) = 1 − e^{−d/D} (D = ``d_max``): seed 000:3083-3087."""
-    b = _pick(channel, bias_r, bias_g, bias_b)
-    terms = [
-        rho_exponential(ops, d + b * a, d_max) - rho_exponential(ops, d, d_max) for d, a, _ in _rays(kw, rays)
-    ]
-    return ambient * _mean(terms, rays)
+    hits = _rays(kw, rays)
+    distances = [d for d, _, _ in hits]
+
+    def at_hits(eager: bool):
+        rho = (rho_exponential(ops, d, d_max) for d in distances)
+        return list(rho) if eager else rho
+
+    def mean(eager: bool):
+        b = _pick(channel, bias_r, bias_g, bias_b)
+        rho_d = iter(_kept(ops, ("rho-exponential", rays, d_max), distances, at_hits))
+        terms = [rho_exponential(ops, d + b * a, d_max) - next(rho_d) for d, a, _ in hits]
+        return _mean(terms, rays)
+
+    arrays = [channel, *distances, *(a for _, a, _ in hits)]
+    return ambient * _kept(ops, ("sdf-bias", rays, d_max, bias_r, bias_g, bias_b), arrays, mean)
 
 
 def rgb_obscurance_kernel(
     ops, channel, *, rays=RAYS, d_max=SEED_D_MAX, exponent=SEED_EXPONENT, ambient=1.0, **kw
 ):
     """I · (1/K) Σ_k (1 − min(d_k/d_max, 1)^p) a_k: the RGB obscurance's colour part (001:3284, p = ½)."""
-    terms = [(1.0 - rho_power(ops, d, d_max, exponent)) * a for d, a, _ in _rays(kw, rays)]
-    return ambient * _mean(terms, rays) + 0.0 * channel
+    hits = _rays(kw, rays)
+
+    def mean(eager: bool):
+        return _mean([(1.0 - rho_power(ops, d, d_max, exponent)) * a for d, a, _ in hits], rays)
+
+    arrays = [x for d, a, _ in hits for x in (d, a)]
+    return ambient * _kept(ops, ("rgb-obscurance", rays, d_max, exponent), arrays, mean) + 0.0 * channel
 
 
 def gather_kernel(ops, channel, *, rays=RAYS, **kw):

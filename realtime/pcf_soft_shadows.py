@@ -73,7 +73,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .arrays import cached_table, evaluate
+from .arrays import NUMPY_OPS, cached_table, evaluate
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
@@ -140,6 +140,7 @@ class ShadowMap:
     axis: tuple[float, float, float] = (0.0, 0.0, -1.0)
     size: float = 1.0
     _tables: dict = field(default_factory=dict, repr=False, compare=False)
+    _kept: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self):
         d = np.asarray(self.depth, np.float64)
@@ -177,6 +178,13 @@ class ShadowMap:
 
     def compare(self, ops, u, v, z):
         """The bilinear compare at (u, v): the 2 × 2 texels' (z ≤ depth), weighted bilinearly."""
+        return self.weigh(ops, self.texels(ops, u, v), z)
+
+    def texels(self, ops, u, v) -> tuple:
+        """What the compare at (u, v) reads that does not depend on the receiver's depth: ``(depth, fx, fy)``,
+        ``depth(di, dj)`` gathering (when called: the compare's order of operations) the depth of the texel
+        di, dj ∈ {0, 1} past the 2 × 2 block's corner (``FAR`` outside the map), fx, fy the bilinear
+        fractions."""
         w, h = (float(x) for x in self.resolution)
         table = self._table(ops, u)
         x, y = u * w - 0.5, v * h - 0.5
@@ -187,14 +195,75 @@ class ShadowMap:
         rows = [(y0 >= 0.0) & (y0 <= h - 1.0), (y0 >= -1.0) & (y0 <= h - 2.0)]
         base = y0 * w + x0
 
-        def lit(di, dj):
+        def depth(di, dj):
             inside = cols[di] & rows[dj]
-            d = ops.gather(table, ops.select(inside, base + (dj * w + di), border))
-            return ops.select(z <= d, 1.0, 0.0)
+            return ops.gather(table, ops.select(inside, base + (dj * w + di), border))
+
+        return depth, fx, fy
+
+    def fetch(self, ops, u, v) -> tuple:
+        """`texels` with the four depths gathered now (a form to keep)."""
+        depth, fx, fy = self.texels(ops, u, v)
+        gathered = (depth(0, 0), depth(1, 0), depth(0, 1), depth(1, 1))
+        return (lambda di, dj: gathered[di + 2 * dj]), fx, fy
+
+    @staticmethod
+    def weigh(ops, texels: tuple, z):
+        """The bilinear compare of a receiver at depth z from `texels` (or `fetch`)."""
+        depth, fx, fy = texels
+
+        def lit(di, dj):
+            return ops.select(z <= depth(di, dj), 1.0, 0.0)
 
         top = lit(0, 0) * (1.0 - fx) + lit(1, 0) * fx
         bottom = lit(0, 1) * (1.0 - fx) + lit(1, 1) * fx
         return top * (1.0 - fy) + bottom * fy
+
+
+_MEMO_FLOATS = 1 << 21
+"""The most floats (16 MB) one entry of a map's bias-independent values (`_kept`) may hold (NumPy)."""
+_MEMO_ENTRIES = 5
+"""The most entries a map keeps (`_kept`, the least recently used dropped first): a TRF Jacobian evaluates
+the kernel at r − h, r + h, then at r with b ± h, so the values at r must outlive two others (and the taps'
+rotations, a small entry of their own)."""
+
+
+def _kept(ops, sm: ShadowMap, key: tuple, arrays: tuple, make, size: int = 1, values: tuple = ()):
+    """``make(True)`` (its values computed now), on the NumPy run kept in ``sm`` per ``key`` (plain numbers)
+    for these very ``arrays`` (identity) and arrays of these very ``values`` (bit for bit), while ``size`` ×
+    their length is at most `_MEMO_FLOATS`: a fit's 33-value scan of the bias b and its TRF steps in b
+    evaluate the kernel again on the same receivers, and the taps' positions, texels' depths and bilinear
+    weights do not depend on b (only the compare does). The same operations on the same arrays: the same
+    values. Other runs (Dr.Jit, JAX, a shader; arrays too long) get ``make(False)``: the same values made as
+    they are read (generators), so that a trace keeps the kernel's order of operations."""
+    if (
+        ops is not NUMPY_OPS
+        or not all(isinstance(a, np.ndarray) and a.size * size <= _MEMO_FLOATS for a in (*arrays, *values))
+        or not all(isinstance(k, str | int | float | tuple | bool) for k in key)
+    ):
+        return make(False)
+    memo = sm._kept
+    full = repr(key)  # exact numbers (−0.0 and 0.0 apart)
+    hit = memo.pop(full, None)
+    if (
+        hit is None
+        or not all(a is b for a, b in zip(hit[0], arrays, strict=True))
+        or not all(_same_bits(a, b) for a, b in zip(hit[1], values, strict=True))
+    ):
+        hit = (arrays, tuple(np.copy(a) for a in values), make(True))
+        while len(memo) >= _MEMO_ENTRIES:
+            memo.pop(next(iter(memo)))
+    memo[full] = hit  # the most recently used last
+    return hit[2]
+
+
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    """``a`` and ``b`` hold the same float64 values bit for bit (−0.0 ≠ 0.0, a NaN equal to its copy)."""
+    return (
+        a.shape == b.shape
+        and a.dtype == b.dtype == np.float64
+        and np.array_equal(a.view(np.int64), b.view(np.int64))
+    )
 
 
 # ===================================================================================== kernels (ops text)
@@ -206,25 +275,45 @@ def _rotated(ops, offsets, rotation, rotate: bool):
     return [(ox * c - oy * s, ox * s + oy * c) for ox, oy in offsets]
 
 
-def _filter(ops, sm: ShadowMap, u, v, z, taps, radius_uv_x, radius_uv_y):
-    """Mean bilinear compare over the taps (uv offsets already rotated), scaled by the radius in uv."""
-    acc = 0.0 * u
-    for ox, oy in taps:
-        acc = acc + sm.compare(ops, u + ox * radius_uv_x, v + oy * radius_uv_y, z)
-    return acc * (1.0 / len(taps))
+def _tap_texels(ops, sm: ShadowMap, u, v, taps, radius_uv_x, radius_uv_y, eager: bool):
+    """`ShadowMap.texels` at each tap (uv offsets already rotated, scaled by the radius in uv): a list of
+    `ShadowMap.fetch` (``eager``) or a generator."""
+    at = ((u + ox * radius_uv_x, v + oy * radius_uv_y) for ox, oy in taps)
+    return [sm.fetch(ops, *uv) for uv in at] if eager else (sm.texels(ops, *uv) for uv in at)
+
+
+def _mean_compare(ops, sm: ShadowMap, u, texels, z):
+    """The mean over the taps' `texels` of the bilinear compare at depth z; ``u`` the receivers'. (On the
+    map: a shader trace names the table its gathers read after the map's method that runs them.)"""
+    acc, n = 0.0 * u, 0
+    for t in texels:
+        acc, n = acc + sm.weigh(ops, t, z), n + 1
+    return acc * (1.0 / n)
 
 
 def _pcf_kernel(ops, irradiance, u, v, depth, rotation, shadow_map, radius, bias, offsets, rotate):
     """E · mean_k lit(uv + r·R_φ p_k / (W, H)) with the receiver at z_r − b."""
     w, h = (float(x) for x in shadow_map.resolution)
-    taps = _rotated(ops, offsets, rotation, rotate)
-    vis = _filter(ops, shadow_map, u, v, depth - bias, taps, radius / w, radius / h)
-    return irradiance * vis
+
+    def rotated(eager: bool):
+        return _rotated(ops, offsets, rotation, rotate)
+
+    taps = _kept(ops, shadow_map, ("taps", offsets, rotate), (rotation,), rotated, size=2 * len(offsets))
+    z, radius_uv_x, radius_uv_y = depth - bias, radius / w, radius / h
+
+    def texels(eager: bool):
+        return _tap_texels(ops, shadow_map, u, v, taps, radius_uv_x, radius_uv_y, eager)
+
+    key = ("pcf", offsets, rotate, radius)
+    kept = _kept(ops, shadow_map, key, (u, v, rotation), texels, size=6 * len(offsets))
+    return irradiance * _mean_compare(ops, shadow_map, u, kept, z)
 
 
 def _hard_kernel(ops, irradiance, u, v, depth, shadow_map, bias):
     """E · (z_r − b ≤ depth of the nearest texel)."""
-    return irradiance * ops.select(depth - bias <= shadow_map.nearest(ops, u, v), 1.0, 0.0)
+    z = depth - bias
+    nearest = _kept(ops, shadow_map, ("hard",), (u, v), lambda eager: shadow_map.nearest(ops, u, v))
+    return irradiance * ops.select(z <= nearest, 1.0, 0.0)
 
 
 def _penumbra_uv(ops, sm: ShadowMap, z_receiver, z):
@@ -241,17 +330,28 @@ def _pcss_kernel(ops, irradiance, u, v, depth, rotation, shadow_map, light_scale
     """Fernando 2005: blocker search over f(z_n), penumbra s·f(z_b), 16-tap rotated PCF of that radius."""
     sm = shadow_map
     z = depth - bias
-    taps = _rotated(ops, POISSON16, rotation, True)
-    search = _penumbra_uv(ops, sm, depth, 0.0 * depth + sm.near) * light_scale
+
+    def searched(eager: bool):
+        taps = _rotated(ops, POISSON16, rotation, True)
+        search = _penumbra_uv(ops, sm, depth, 0.0 * depth + sm.near) * light_scale
+        found = (sm.nearest(ops, u + ox * search, v + oy * search) for ox, oy in taps)
+        return taps, list(found) if eager else found
+
+    taps, found = _kept(ops, sm, ("pcss-search", light_scale), (u, v, depth, rotation), searched, size=48)
     total, count = 0.0 * u, 0.0 * u
-    for ox, oy in taps:
-        d = sm.nearest(ops, u + ox * search, v + oy * search)
+    for d in found:
         blocker = d < z
         total = total + ops.select(blocker, d, 0.0)
         count = count + ops.select(blocker, 1.0, 0.0)
     z_b = total / ops.maximum(count, 1.0)  # none found: unused (Guards)
     radius = _penumbra_uv(ops, sm, depth, z_b) * light_scale
-    vis = _filter(ops, sm, u, v, z, taps, radius, radius)
+
+    def texels(eager: bool):
+        return _tap_texels(ops, sm, u, v, taps, radius, radius, eager)
+
+    # the filter's taps move with the bias only through the radius: kept while it is the same, bit for bit
+    kept = _kept(ops, sm, ("pcss-filter",), (u, v, rotation), texels, size=96, values=(radius,))
+    vis = _mean_compare(ops, sm, u, kept, z)
     return irradiance * ops.select(count > 0.0, vis, 1.0)
 
 

@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 
 from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_run import audit
+from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime import colour_bleeding as cb
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -52,6 +53,30 @@ def test_seed_sdf_bias_by_hand(channel):
                      for dk, ak in zip(d, a, strict=True)) / 4  # fmt: skip
     got = cb.METHODS["seed-sdf-bias"].evaluate(_inputs(d, a, [0] * 4, channel), p)
     assert float(np.squeeze(got)) == pytest.approx(want, rel=1e-12)
+
+
+def test_kept_terms_follow_every_parameter_on_the_same_arrays():
+    """The fit's NumPy run on the same input arrays again and again keeps ρ(d_k) and the ray mean
+    (`colour_bleeding._kept`): at every parameter set of a sequence that changes D, a bias, I, and comes
+    back, seed-sdf-bias and rgb-obscurance equal their closed forms to 1e-12."""
+    rng = np.random.default_rng(5)
+    n = 12
+    channel = np.repeat([0.0, 1.0, 2.0], n // 3)
+    d, a = rng.uniform(0.0, 2.0, (cb.RAYS, n)), rng.uniform(0.0, 1.0, (cb.RAYS, n))
+    inputs = {"channel": channel}
+    for k in range(cb.RAYS):
+        inputs[f"d{k + 1}"], inputs[f"a{k + 1}"], inputs[f"e{k + 1}"] = d[k], a[k], np.zeros(n)
+    sdf, rgb = cb.METHODS["seed-sdf-bias"], cb.METHODS["rgb-obscurance"]
+    base = {"d_max": 0.5, "bias_r": 0.05, "bias_g": 0.2, "bias_b": 0.4, "ambient": 3.0}
+    steps = [{}, {"d_max": 0.7}, {"bias_g": 0.3}, {"ambient": 2.0}, {}, {"d_max": 0.7, "ambient": 1.0}, {}]
+    for step in steps:
+        p = {**base, **step}
+        b = np.choose(channel.astype(int), [p["bias_r"], p["bias_g"], p["bias_b"]])
+        want = p["ambient"] * np.mean(np.exp(-d / p["d_max"]) * -np.expm1(-b * a / p["d_max"]), axis=0)
+        assert np.allclose(sdf(NUMPY_OPS, inputs, p), want, rtol=1e-12, atol=0), step
+        q = {"d_max": p["d_max"], "exponent": 0.5, "ambient": p["ambient"]}
+        want = q["ambient"] * np.mean((1.0 - np.sqrt(np.minimum(d / q["d_max"], 1.0))) * a, axis=0)
+        assert np.allclose(rgb(NUMPY_OPS, inputs, q), want, rtol=1e-12, atol=0), step
 
 
 def test_rgb_obscurance_seed_by_hand():

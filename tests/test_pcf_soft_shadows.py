@@ -65,6 +65,26 @@ def test_pcf_of_a_half_plane_is_the_bilinear_fraction_of_its_taps(method):
     assert got[0] == 0.0 and got[-1] == 1.0
 
 
+@pytest.mark.parametrize("method", PCF_ROWS)
+def test_kept_texels_follow_radius_and_bias_on_the_same_arrays(method):
+    """The fit's NumPy run on the same input arrays again and again (a scan, TRF steps) keeps the texels of
+    each radius (`_kept`): at every (r, b) of a sequence that changes one, then the other, and comes back,
+    the row equals `_half_plane_pcf` (b = 3.5 lifts the receiver at 5 above the blocker at 2: all lit)."""
+    m = pcf.METHODS[method]
+    offsets, rotate = m.fixed["offsets"], m.fixed["rotate"]
+    u = np.array([0.40, 0.47, 0.49, 0.5, 0.51, 0.53, 0.60])
+    rotation = 0.7
+    inputs = {"irradiance": np.ones_like(u), "u": u, "v": np.full_like(u, 0.5), "depth": np.full_like(u, 5.0),
+              "rotation": np.full_like(u, rotation), "shadow_map": ShadowMap(_half_plane())}  # fmt: skip
+    for radius, bias in ((1.0, 0.0), (2.5, 0.0), (1.0, 3.5), (1.0, 0.0), (2.5, 1.0), (4.0, 3.5), (2.5, 0.0)):
+        got = m(NUMPY_OPS, inputs, {"radius": radius, "bias": bias})
+        want = 1.0 if bias > 3.0 else _half_plane_pcf(u, offsets, radius, rotation if rotate else 0.0)
+        assert np.allclose(got, want, atol=1e-12), (method, radius, bias, got, want)
+    hard = pcf.METHODS["hard"]
+    for bias, want in ((0.0, u >= 0.5), (3.5, u >= 0.0), (0.0, u >= 0.5)):
+        assert np.array_equal(hard(NUMPY_OPS, inputs, {"bias": bias}), want.astype(float)), bias
+
+
 def test_bias_and_hard_compare():
     """The hard row is one nearest texel; the bias moves the receiver towards the light: a receiver at depth
     2.05 against a blocker texel at 2 is shadowed at b < 0.05 and lit at b > 0.05."""
