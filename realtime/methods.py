@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from types import MappingProxyType
 from typing import Any
 
@@ -177,8 +178,9 @@ class Method:
         if dup:
             raise ValueError(f"method {self.id!r}: {', '.join(dup)} declared twice (inputs, params, fixed)")
 
-    @property
+    @cached_property
     def input_names(self) -> tuple[str, ...]:
+        """The inputs' names in declaration order (made once: a fit calls the kernel ~10⁴ times an audit)."""
         return tuple(i.name for i in self.inputs)
 
     @property
