@@ -36,6 +36,7 @@ bilinear function Mitsuba sees, E(n) = Σ_k w_k L_k max(n·d_k, 0).
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import os
 from dataclasses import dataclass, field
@@ -44,7 +45,13 @@ from typing import Any
 
 import numpy as np
 
-from .latlong_quadrature import latlong_irradiance
+from .latlong_quadrature import (
+    LatLongTable,
+    cached_table,
+    latlong_irradiance,
+    latlong_table,
+    table_irradiance,
+)
 
 _ROOT = Path(__file__).resolve().parents[1]
 
@@ -177,12 +184,24 @@ def irradiance_quadrature(
     if env.constant is not None:
         e += math.pi * np.asarray(env.constant, np.float64)[None, :]
     if env.radiance_map is not None and len(n):
-        d, w, L = quadrature_samples(env.radiance_map, supersample)
-        h, wd, s = *env.radiance_map.shape[:2], int(supersample)
-        e += latlong_irradiance(n, d, np.asarray(L, np.float64) * w[:, None], s * h, s * wd)
+        e += table_irradiance(n, map_table(env.radiance_map, supersample))
     if include_sun and env.sun is not None:
         e += disc_irradiance(env.sun, n)
     return e
+
+
+def map_table(img: np.ndarray, supersample: int) -> LatLongTable:
+    """`quadrature_samples` of ``img`` as the prefix sums of `latlong_irradiance`, kept per content of the
+    map and ``supersample`` (`cached_table`)."""
+    img = np.ascontiguousarray(img)
+    s = int(supersample)
+    key = (hashlib.blake2b(img.tobytes(), digest_size=20).hexdigest(), img.shape, img.dtype.str, s)
+
+    def build() -> LatLongTable:
+        d, w, L = quadrature_samples(img, s)
+        return latlong_table(d, L * w[:, None], s * img.shape[0], s * img.shape[1])
+
+    return cached_table(key, build)
 
 
 def samples_irradiance(normals, d, w, L, backend: str | None = None) -> np.ndarray:

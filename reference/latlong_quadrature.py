@@ -12,37 +12,81 @@ to round-off (the summation order moved)."""
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass
 
 import numpy as np
 
-_CHUNK = 1 << 18  # normal × row pairs per block (each gathers 2 × 3 × C prefix values)
+_CHUNK = 1 << 18  # normal × row pairs per block (each gathers 2 or 3 × 3C prefix values)
+_TABLES_BYTES = 128 << 20  # `cached_table` keeps the latest tables up to this size
 
 
-def latlong_irradiance(normals, d, wl, rows: int, cols: int) -> np.ndarray:
-    """Σ_k wl_k max(n·d_k, 0) (N, C) at unit ``normals`` (N, 3) over a lat-long grid in row-major
-    order: directions ``d`` (rows·cols, 3), d = (sin θ_j sin φ_i, sin θ_j cos φ_i, cos θ_j) with
-    φ_i = 2π(i + ½)/cols, and weighted radiance ``wl`` (rows·cols, C) (solid-angle weight times radiance)."""
-    n = np.asarray(normals, np.float64)
+@dataclass(frozen=True)
+class LatLongTable:
+    """A grid's prefix sums (`latlong_table`): ``prefix`` (rows·(cols + 1), 3 C), each row's running sums
+    of w L d from φ = 0 (an arc that wraps past φ = 2π is two differences), the directions' components
+    ``flat`` (3 × (rows·cols,)), each row's cos θ ``z`` and sin θ ``s``."""
+
+    prefix: np.ndarray
+    flat: tuple
+    z: np.ndarray
+    s: np.ndarray
+    cols: int
+    channels: int
+
+    @property
+    def nbytes(self) -> int:
+        return self.prefix.nbytes + sum(x.nbytes for x in self.flat) + self.z.nbytes + self.s.nbytes
+
+
+def latlong_table(d, wl, rows: int, cols: int) -> LatLongTable:
+    """The prefix sums of a lat-long grid in row-major order: directions ``d`` (rows·cols, 3),
+    d = (sin θ_j sin φ_i, sin θ_j cos φ_i, cos θ_j) with φ_i = 2π(i + ½)/cols, and weighted radiance ``wl``
+    (rows·cols, C) (solid-angle weight times radiance)."""
     d = np.asarray(d, np.float64).reshape(rows, cols, 3)
     wl = np.asarray(wl, np.float64).reshape(rows, cols, -1)
     channels = wl.shape[2]
     terms = (d[:, :, :, None] * wl[:, :, None, :]).reshape(rows, cols, 3 * channels)
-    prefix = np.zeros((rows, 2 * cols + 1, 3 * channels))
-    np.cumsum(np.concatenate([terms, terms], axis=1), axis=1, out=prefix[:, 1:])  # doubled: arcs wrap
-    prefix = prefix.reshape(rows * (2 * cols + 1), 3 * channels)
-    flat = [np.ascontiguousarray(d[:, :, k].reshape(-1)) for k in range(3)]
-    z = d[:, 0, 2]
-    s = np.hypot(d[:, 0, 0], d[:, 0, 1])
-    out = np.zeros((len(n), channels))
-    step = max(1, _CHUNK // rows)
+    prefix = np.zeros((rows, cols + 1, 3 * channels))
+    np.cumsum(terms, axis=1, out=prefix[:, 1:])
+    flat = tuple(np.ascontiguousarray(d[:, :, k].reshape(-1)) for k in range(3))
+    z, s = d[:, 0, 2].copy(), np.hypot(d[:, 0, 0], d[:, 0, 1])
+    return LatLongTable(prefix.reshape(rows * (cols + 1), 3 * channels), flat, z, s, cols, channels)
+
+
+_TABLES: OrderedDict[Hashable, LatLongTable] = OrderedDict()
+
+
+def cached_table(key: Hashable, build: Callable[[], LatLongTable]) -> LatLongTable:
+    """The table under ``key`` (the caller's digest of everything ``build`` reads), built on first use;
+    the most recent tables are kept while they fit in 128 MiB (an environment is integrated many times)."""
+    table = _TABLES.pop(key, None) or build()
+    _TABLES[key] = table
+    while len(_TABLES) > 1 and sum(t.nbytes for t in _TABLES.values()) > _TABLES_BYTES:
+        _TABLES.popitem(last=False)
+    return table
+
+
+def latlong_irradiance(normals, d, wl, rows: int, cols: int) -> np.ndarray:
+    """Σ_k wl_k max(n·d_k, 0) (N, C) at unit ``normals`` (N, 3) over the lat-long grid of `latlong_table`."""
+    return table_irradiance(normals, latlong_table(d, wl, rows, cols))
+
+
+def table_irradiance(normals, table: LatLongTable) -> np.ndarray:
+    """`latlong_irradiance` from the grid's `LatLongTable`."""
+    n = np.asarray(normals, np.float64)
+    out = np.zeros((len(n), table.channels))
+    step = max(1, _CHUNK // len(table.z))
     for a in range(0, len(n), step):
-        sums = _row_sums(n[a : a + step], flat, prefix, z, s, cols).reshape(-1, 3, channels)
+        sums = _row_sums(n[a : a + step], table).reshape(-1, 3, table.channels)
         out[a : a + step] = np.einsum("nk,nkc->nc", n[a : a + step], sums)
     return out
 
 
-def _row_sums(n: np.ndarray, flat: list, prefix: np.ndarray, z: np.ndarray, s: np.ndarray, cols: int):
+def _row_sums(n: np.ndarray, table: LatLongTable):
     """Σ over the rows of each row's arc sum of the prefixed terms, (N, 3·C)."""
+    flat, prefix, z, s, cols = table.flat, table.prefix, table.z, table.s, table.cols
     rows = len(z)
     nx, ny, nz = (n[:, k : k + 1] for k in range(3))
     rho = np.hypot(nx, ny)
@@ -72,6 +116,9 @@ def _row_sums(n: np.ndarray, flat: list, prefix: np.ndarray, z: np.ndarray, s: n
         part = (count > 0) & (count < cols)
         end = positive(lo + count - 1)
         count = count - (part & ~end) + (part & end & positive(lo + count))
-    k = (np.arange(rows)[None, :] * (2 * cols + 1) + lo).reshape(-1)
-    sums = np.take(prefix, k + count.reshape(-1), axis=0) - np.take(prefix, k, axis=0)
+    k = np.broadcast_to(np.arange(rows)[None, :] * (cols + 1), lo.shape).reshape(-1)
+    start, end = lo.reshape(-1), (lo + count).reshape(-1)
+    sums = np.take(prefix, k + np.minimum(end, cols), axis=0) - np.take(prefix, k + start, axis=0)
+    wrap = end > cols  # the arc's part past φ = 2π: columns 0 … end − cols − 1
+    sums[wrap] += np.take(prefix, k[wrap] + end[wrap] - cols, axis=0)
     return sums.reshape(len(n), rows, -1).sum(axis=1)
