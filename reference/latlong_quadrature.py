@@ -107,15 +107,18 @@ def _row_sums(n: np.ndarray, table: LatLongTable):
         k = base + np.mod(i, cols)
         return nx * np.take(flat[0], k) + ny * np.take(flat[1], k) + nz * np.take(flat[2], k) > 0
 
-    for _ in range(2):  # the arc's ends by the sign of n·d itself (arccos is off by round-off at most)
+    for _ in range(3):  # the arc's ends by the sign of n·d itself (arccos is off by round-off at most)
         part = (count > 0) & (count < cols)
         shrink = part & ~positive(lo)
         grow = part & ~shrink & positive(lo - 1)
         lo = np.mod(lo + shrink - grow, cols)
         count = count - shrink + grow
         part = (count > 0) & (count < cols)
-        end = positive(lo + count - 1)
-        count = count - (part & ~end) + (part & end & positive(lo + count))
+        last = positive(lo + count - 1)
+        cut, extend = part & ~last, part & last & positive(lo + count)
+        count = count - cut + extend
+        if not (shrink.any() or grow.any() or cut.any() or extend.any()):
+            break
     k = np.broadcast_to(np.arange(rows)[None, :] * (cols + 1), lo.shape).reshape(-1)
     start, end = lo.reshape(-1), (lo + count).reshape(-1)
     sums = np.take(prefix, k + np.minimum(end, cols), axis=0) - np.take(prefix, k + start, axis=0)
