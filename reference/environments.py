@@ -36,6 +36,7 @@ bilinear function Mitsuba sees, E(n) = Σ_k w_k L_k max(n·d_k, 0).
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import os
 from dataclasses import dataclass, field
@@ -43,6 +44,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from .latlong_quadrature import (
+    LatLongTable,
+    cached_table,
+    latlong_irradiance,
+    latlong_table,
+    table_irradiance,
+)
 
 _ROOT = Path(__file__).resolve().parents[1]
 
@@ -167,20 +176,32 @@ def irradiance_quadrature(
     """Irradiance (N, 3) of ``env`` at unit ``normals`` (N, 3): dense midpoint quadrature of the map
     (error O(h²) away from the horizon kink), π·L for a constant, plus the sun's exact disc irradiance.
 
-    ``backend``: None sums in NumPy (float64, blocks of at most 2²¹ normal × direction products); "llvm" or
-    "cuda" sums the same products with a Dr.Jit float64 kernel (one lane per product, reduced per normal
-    with ``block_sum``), which is what makes full-resolution probes affordable."""
+    The map's sum is `latlong_irradiance`'s (prefix sums along the grid's rows, float64 NumPy, O(rows) per
+    normal: issue 33), whatever ``backend`` (kept for the callers; `samples_irradiance` still takes it)."""
     n = np.asarray(normals, np.float64)
     n = n / np.linalg.norm(n, axis=1, keepdims=True)
     e = np.zeros((len(n), 3))
     if env.constant is not None:
         e += math.pi * np.asarray(env.constant, np.float64)[None, :]
     if env.radiance_map is not None and len(n):
-        d, w, L = quadrature_samples(env.radiance_map, supersample)
-        e += samples_irradiance(n, d, w, L, backend)
+        e += table_irradiance(n, map_table(env.radiance_map, supersample))
     if include_sun and env.sun is not None:
         e += disc_irradiance(env.sun, n)
     return e
+
+
+def map_table(img: np.ndarray, supersample: int) -> LatLongTable:
+    """`quadrature_samples` of ``img`` as the prefix sums of `latlong_irradiance`, kept per content of the
+    map and ``supersample`` (`cached_table`)."""
+    img = np.ascontiguousarray(img)
+    s = int(supersample)
+    key = (hashlib.blake2b(img.tobytes(), digest_size=20).hexdigest(), img.shape, img.dtype.str, s)
+
+    def build() -> LatLongTable:
+        d, w, L = quadrature_samples(img, s)
+        return latlong_table(d, L * w[:, None], s * img.shape[0], s * img.shape[1])
+
+    return cached_table(key, build)
 
 
 def samples_irradiance(normals, d, w, L, backend: str | None = None) -> np.ndarray:
@@ -458,7 +479,7 @@ def emitter_irradiance_quadrature(
     ``eval`` at each cell centre — no bake, no interpolation, so a radiance cut on a cell boundary (a
     sunsky's horizon, with ``rows`` even) is integrated without smearing — plus, for a ``sunsky`` with
     ``sun``, its sky alone (``sun_scale`` 0) and the disc sun's exact irradiance (`disc_irradiance`).
-    A ``constant``: πL."""
+    A ``constant``: πL. The cells' sum is `latlong_irradiance`'s, whatever ``backend`` (kept for callers)."""
     import drjit as dr
 
     n = np.asarray(normals, np.float64)
@@ -477,7 +498,7 @@ def emitter_irradiance_quadrature(
             L = _eval_emitter(mi, dr, emitter, d)
     else:
         L = _eval_emitter(mi, dr, emitter, d)
-    e = samples_irradiance(n, d, w, np.maximum(L, 0.0), backend)
+    e = latlong_irradiance(n, d, np.maximum(L, 0.0) * w[:, None], r, 2 * r)
     if sun is not None:
         e += disc_irradiance(sun, n)
     return e
