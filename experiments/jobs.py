@@ -143,6 +143,12 @@ def values_or_raise(outcomes: list[Outcome], exceptions: dict[int, BaseException
     return [o.value for o in outcomes]
 
 
+class RunFailed(RuntimeError):
+    """An experiment that started (its input valid) and could not finish: one line naming it and the cause;
+    ``rtfit`` prints it and exits with status 1 (README: exit statuses). Raised by the runner; kept here,
+    beside `JobsFailed`, so that the command line's entry point knows it without importing the runner."""
+
+
 class JobsFailed(RuntimeError):
     """Jobs that could not be completed (their worker kept dying); one line naming each."""
 

@@ -30,7 +30,7 @@ from rtfit.scenes import SceneError
 
 from .atomic import atomic_directory, is_temporary_name
 from .executors import make_executor
-from .jobs import error_line
+from .jobs import RunFailed, error_line
 from .progress import Stage
 from .records import SCHEMA, Results, from_json, plain_json
 from .registry import ExperimentSpec, RunContext
@@ -142,11 +142,6 @@ def run_experiment_into(
     ctx.log(f"{spec.name}: writing the report ({len(results.figures)} figures)")
     write_report(Path(directory), single_file=single_file)
     return results
-
-
-class RunFailed(RuntimeError):
-    """An experiment that started (its input valid) and could not finish: one line naming it and the cause;
-    ``rtfit`` prints it and exits with status 1 (README: exit statuses)."""
 
 
 def run_experiments(

@@ -297,3 +297,32 @@ def test_bench_json_to_a_missing_directory_is_refused_before_running(capsys, tmp
     err = _one_line_error(capsys, 2, ["bench", "diffuse", "--json", str(tmp_path / "no" / "b.json")])
     assert "no directory" in err
     assert not (tmp_path / "no").exists()
+
+
+def test_help_listing_matches_each_commands_own_short_help():
+    """`rtfit --help` reads each command's one-line help from its source (`cli_commands.short_help`): it must
+    be what click itself makes of the imported command, at every listing width."""
+    import importlib
+
+    from rtfit.experiments.cli_commands import COMMANDS, short_help
+
+    for name, (module, attribute) in COMMANDS.items():
+        command = getattr(importlib.import_module(f"rtfit.experiments.{module}"), attribute)
+        assert command.name == name
+        for limit in (20, 45, 63, 120):
+            assert short_help(name, limit) == command.get_short_help_str(limit), (name, limit)
+
+
+def test_help_imports_no_command():
+    """`rtfit --help` lists the commands without importing their modules, Mitsuba, JAX, matplotlib, SciPy or
+    any family (issue 33: start-up under 2 s on 2 cores; what remains is Dr.Jit and the reference package
+    the failure classes live in)."""
+    heavy = ["mitsuba", "jax", "matplotlib", "scipy"]
+    heavy += [f"rtfit.experiments.{m}" for m in ("families", "audit_cli", "runner", "cli_run")]
+    probe = (
+        "import sys; from rtfit.experiments.cli import main; code = main(['--help']); "
+        f"heavy = [m for m in {heavy!r} if m in sys.modules]; print('HEAVY', heavy, code)"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert "HEAVY [] 0" in out, out
+    assert "audit       Audit SCENE" in out and "compare     Compare FRAMES" in out
