@@ -136,8 +136,6 @@ def cli(ctx, verbose, quiet):
     ctx.obj = {"bars": configure_logging(verbose, quiet)}
 
 
-
-
 class Terminated(KeyboardInterrupt):
     """SIGTERM (a `timeout`, a batch system's stop) turned into an interruption: the work ends as after Ctrl-C
     (a partial audit report, the cache kept), exit 143 (128 + 15)."""
