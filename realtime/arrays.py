@@ -69,6 +69,7 @@ __all__ = [
     "release_backend_tables",
     "safe_div",
     "safe_sqrt",
+    "same_bits",
     "set_default_backend",
     "sin_from_cos",
     "sincos_first_quadrant",
@@ -442,6 +443,19 @@ def cached_table(cache: dict, ops, like: Any, key: tuple, values: Callable[[], A
         else:
             cache[full] = flat
     return cache[full]
+
+
+def same_bits(stored: np.ndarray, a: np.ndarray) -> bool:
+    """``stored`` and ``a`` hold the same values bit for bit: the same dtype and shape and equal bytes
+    (−0.0 ≠ 0.0, a NaN equal to its copy). A kernel's NumPy-run memo (kept values of a fit's repeated
+    evaluations: pcf-soft-shadows, height fog) reuses a result only on this test, so a hit gives the values
+    a fresh computation would."""
+    if stored.dtype != a.dtype or stored.shape != a.shape:
+        return False
+    return np.array_equal(
+        np.ascontiguousarray(stored).reshape(-1).view(np.uint8),
+        np.ascontiguousarray(a).reshape(-1).view(np.uint8),
+    )
 
 
 def release_backend_tables(objects) -> None:

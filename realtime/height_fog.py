@@ -96,7 +96,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .arrays import NUMPY_OPS, check_range, evaluate, is_drjit, safe_div, split3
+from .arrays import NUMPY_OPS, check_range, evaluate, is_drjit, safe_div, same_bits, split3
 from .methods import Input, Method, Param, method_table
 from .phase import hg_phase, hg_phase_kernel, rayleigh_phase
 
@@ -226,21 +226,13 @@ class _NumpyMemo:
     def get(self, compute, *args):
         arrs = [np.asarray(a) for a in args]
         for i, (keys, value) in enumerate(self.entries):
-            if all(_same_bits(k, a) for k, a in zip(keys, arrs, strict=True)):
+            if all(same_bits(k, a) for k, a in zip(keys, arrs, strict=True)):
                 self.entries.append(self.entries.pop(i))
                 return value
         value = compute(NUMPY_OPS, *args)
         self.entries.append(([np.array(a, copy=True) for a in arrs], value))
         del self.entries[: -self.size]
         return value
-
-
-def _same_bits(stored: np.ndarray, a: np.ndarray) -> bool:
-    if stored.dtype != a.dtype or stored.shape != a.shape:
-        return False
-    return np.array_equal(
-        stored.reshape(-1).view(np.uint8), np.ascontiguousarray(a).reshape(-1).view(np.uint8)
-    )
 
 
 _T_MEMO = _NumpyMemo()

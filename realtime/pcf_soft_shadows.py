@@ -73,7 +73,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .arrays import NUMPY_OPS, cached_table, evaluate
+from .arrays import NUMPY_OPS, cached_table, evaluate, same_bits
 from .methods import Input, Method, Param, method_table
 
 __all__ = [
@@ -248,22 +248,13 @@ def _kept(ops, sm: ShadowMap, key: tuple, arrays: tuple, make, size: int = 1, va
     if (
         hit is None
         or not all(a is b for a, b in zip(hit[0], arrays, strict=True))
-        or not all(_same_bits(a, b) for a, b in zip(hit[1], values, strict=True))
+        or not all(same_bits(a, b) for a, b in zip(hit[1], values, strict=True))
     ):
         hit = (arrays, tuple(np.copy(a) for a in values), make(True))
         while len(memo) >= _MEMO_ENTRIES:
             memo.pop(next(iter(memo)))
     memo[full] = hit  # the most recently used last
     return hit[2]
-
-
-def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
-    """``a`` and ``b`` hold the same float64 values bit for bit (−0.0 ≠ 0.0, a NaN equal to its copy)."""
-    return (
-        a.shape == b.shape
-        and a.dtype == b.dtype == np.float64
-        and np.array_equal(a.view(np.int64), b.view(np.int64))
-    )
 
 
 # ===================================================================================== kernels (ops text)
