@@ -31,7 +31,6 @@ closed-form ray optics of the sphere on the same emitted rays (`caustic_pass.sph
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from functools import partial
 from typing import Any
 
@@ -46,7 +45,7 @@ from rtfit.realtime.caustics import (
     RING_RATIO,
     RINGS,
 )
-from rtfit.realtime.methods import Method, Param
+from rtfit.realtime.methods import Method
 from rtfit.reference import caustic_pass as cp
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import device_vectors, sub_seed
@@ -63,6 +62,7 @@ from .audit_family import (
     StudyContext,
     pooled_passes,
 )
+from .audit_fit import length_scaled_params
 from .audit_geometry import reflective_shape
 from .records import Check, Section
 
@@ -224,15 +224,7 @@ def energy_balance(setup: AuditSetup, shape, plugin: str, emitted, hits: cp.Phot
 
 
 def _rows(radius: float) -> tuple[dict[str, Method], dict]:
-    params: dict[str, dict[str, Param]] = {}
-    for m in METHODS.values():
-        scaled = {
-            k: replace(p, initial=p.initial * radius, lower=p.lower * radius, upper=p.upper * radius)
-            for k, p in m.params.items()
-            if k in LENGTHS
-        }
-        params[m.id] = {**m.params, **scaled}
-    return dict(METHODS), params
+    return dict(METHODS), length_scaled_params(METHODS.values(), LENGTHS, radius)
 
 
 def caustic_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:

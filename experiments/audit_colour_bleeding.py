@@ -48,6 +48,7 @@ from rtfit.reference.estimators import gbuffer_points, irradiance_pass, sub_seed
 
 from .audit import Applicability, Rule
 from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
+from .audit_fit import length_scaled_params
 from .audit_geometry import ao_radius
 
 __all__ = ["FAMILY", "FEW_RAYS", "HIT_SPP_FACTOR", "HIT_SPP_MIN", "SCENES", "bounce_cases", "ray_hits"]
@@ -128,19 +129,11 @@ def _rows(radius: float, ambient: float) -> tuple[dict[str, Method], dict]:
     base = dict(METHODS)
     for mid in ("rgb-obscurance-seed", f"rgb-obscurance-seed-k{FEW_RAYS}"):
         base[mid] = replace(base[mid], fixed={**base[mid].fixed, "d_max": radius})
-    methods: dict[str, Method] = {}
-    params: dict[str, dict[str, Param]] = {}
+    params = length_scaled_params(base.values(), LENGTHS, radius)
     for m in base.values():
-        scaled = {
-            k: replace(p, initial=p.initial * radius, lower=p.lower * radius, upper=p.upper * radius)
-            for k, p in m.params.items()
-            if k in LENGTHS
-        }
         if "ambient" in m.params:
-            scaled["ambient"] = amb
-        methods[m.id] = m
-        params[m.id] = {**m.params, **scaled}
-    return methods, params
+            params[m.id]["ambient"] = amb
+    return {m.id: m for m in base.values()}, params
 
 
 def bounce_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:

@@ -12,7 +12,7 @@ relative error (rms 0) and is left out of the pool, saying so. A case fitted on 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence, Set
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -24,8 +24,8 @@ from rtfit.realtime.methods import Method, Param
 
 from .audit_family import AuditError, FamilyCase
 
-__all__ = ["FIT_SOLVER", "FitData", "PooledFit", "evaluate_case", "fit_case", "fit_data", "pooled_fit",
-           "tables_as_drjit"]  # fmt: skip
+__all__ = ["FIT_SOLVER", "FitData", "PooledFit", "evaluate_case", "fit_case", "fit_data",
+           "length_scaled_params", "pooled_fit", "tables_as_drjit"]  # fmt: skip
 
 FIT_SOLVER = "trf"
 """The audit's fits: SciPy's trust-region reflective solver on the NumPy run of each kernel text
@@ -219,3 +219,19 @@ def pooled_fit(
     except ValueError as e:
         raise AuditError(f"{method.id}: the pooled fit over {len(ids)} cases failed: {e}") from None
     return PooledFit(method, result.to_dict(), tuple(ids), left)
+
+
+def length_scaled_params(
+    methods: Iterable[Method], lengths: Set[str], length: float
+) -> dict[str, dict[str, Param]]:
+    """Row id → its parameters, with those named in ``lengths`` (declared in units of a scene length: a
+    caster's bounding radius, the AO radius) multiplied by ``length``: start value and both bounds."""
+    return {
+        m.id: {
+            k: replace(p, initial=p.initial * length, lower=p.lower * length, upper=p.upper * length)
+            if k in lengths
+            else p
+            for k, p in m.params.items()
+        }
+        for m in methods
+    }
