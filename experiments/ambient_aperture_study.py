@@ -75,32 +75,19 @@ __all__ = [
 ]
 
 PI = math.pi
-CONFIG = {
-    True: {
-        "grid": 40,
-        "fit_grid": 40,
-        "quad_nodes": 48,
-        "lambert_configs": 1500,
-        "lambert_quad": (24, 96),
-        "cap_quad": (24, 96),
-        "probe_n": 32,
-        "spp": 1024,
-        "pass_spp": 512,
-        "cost_elements": 1 << 20,
-    },
-    False: {
-        "grid": 96,
-        "fit_grid": 72,
-        "quad_nodes": 96,
-        "lambert_configs": 6000,
-        "lambert_quad": (48, 192),
-        "cap_quad": (48, 192),
-        "probe_n": 64,
-        "spp": 8192,
-        "pass_spp": 4096,
-        "cost_elements": 1 << 24,
-    },
+_SIZES = {  # name: (--quick, the full run)
+    "grid": (40, 96),
+    "fit_grid": (40, 72),
+    "quad_nodes": (48, 96),
+    "lambert_configs": (1500, 6000),
+    "lambert_quad": ((24, 96), (48, 192)),
+    "cap_quad": ((24, 96), (48, 192)),
+    "probe_n": (32, 64),
+    "spp": (1024, 8192),
+    "pass_spp": (512, 4096),
+    "cost_elements": (1 << 20, 1 << 24),
 }
+CONFIG = {quick: {name: both[0 if quick else 1] for name, both in _SIZES.items()} for quick in (True, False)}
 """The study's sizes by ``--quick`` (those of the experiment before the engine): (r1, r2, d) grid points per
 axis, fit grid, Gauss–Legendre nodes of the grid's quadrature, Lambert configurations and their quadrature
 nodes (coarse, fine), the cap-model nodes, the unoccluded check's probe image side, samples and pass size,

@@ -197,32 +197,31 @@ def limit_values() -> dict:
     return {"labels": ["a = 0, |d| = 5", "|d| = 0", "light 1e4 m ahead, a = 1e3"], "expected": expect, **out}
 
 
+def _worst_error_check(row: dict, versus: str, samples: str, error: str, tolerance: float) -> Check:
+    """The stable form's worst relative error ``row[error]`` (against ``versus``) ≤ ``tolerance``."""
+    return Check(
+        name=f"stable form, {versus}: worst relative error, {row['inputs']} ({row[samples]} inputs)",
+        value=row[error],
+        expected=f"≤ {tolerance:g}",
+        passed=bool(row[error] <= tolerance),
+    )
+
+
 def accuracy_checks(acc: dict) -> list[Check]:
     checks = []
     for row in acc["table"]:
         if row["form"] != "stable":
             continue
-        label = row["inputs"]
         checks += [
+            _worst_error_check(row, "float32 vs float64", "samples", "worst_rel_error", F32_TOLERANCE),
             Check(
-                name=f"stable form, float32 vs float64: worst relative error, {label} "
-                f"({row['samples']} inputs)",
-                value=row["worst_rel_error"],
-                expected=f"≤ {F32_TOLERANCE:g}",
-                passed=bool(row["worst_rel_error"] <= F32_TOLERANCE),
-            ),
-            Check(
-                name=f"stable form, float32: non-finite outputs, {label}",
+                name=f"stable form, float32: non-finite outputs, {row['inputs']}",
                 value=row["non_finite"],
                 expected="0",
                 passed=row["non_finite"] == 0,
             ),
-            Check(
-                name=f"stable form, float64 vs mpmath (50 digits): worst relative error, {label} "
-                f"({row['mpmath_samples']} inputs)",
-                value=row["float64_vs_mpmath"],
-                expected=f"≤ {F64_TOLERANCE:g}",
-                passed=bool(row["float64_vs_mpmath"] <= F64_TOLERANCE),
+            _worst_error_check(
+                row, "float64 vs mpmath (50 digits)", "mpmath_samples", "float64_vs_mpmath", F64_TOLERANCE
             ),
         ]
     lim = acc["limits"]
