@@ -8,6 +8,9 @@ each case's squared relative RMSE: every scene counts alike, whatever its bright
 (unweighted, the brightest case would set the value alone). A case whose reference is 0 everywhere has no
 relative error (rms 0) and is left out of the pool, saying so. A case fitted on its relative error
 (`FamilyCase.fit_weight` ``relative``) keeps its own weights, divided by √N_c: its RMS relative error.
+
+Parameters declared in units of a scene length (a caster's bounding radius, the AO radius) get their start
+and bounds in scene units here too (`length_scaled_params`), for every family that declares them so.
 """
 
 from __future__ import annotations
