@@ -61,10 +61,13 @@ _exports: dict[str, str] | None = None
 def _declared_all(name: str) -> list[str]:
     """The ``__all__`` of module ``name`` read from its source text (a literal list or tuple, as every module
     here writes it), without importing it; imported where it is not a literal."""
-    text = _Path(__path__[0], f"{name}.py").read_text(encoding="utf-8")
+    try:
+        text = _Path(__path__[0], f"{name}.py").read_text(encoding="utf-8")
+    except OSError:  # no source file (an install of bytecode only): its module tells
+        text = ""
     found = _ALL.search(text)
     if found is None:
-        return []
+        return list(getattr(_import_module(f"{__name__}.{name}"), "__all__", ())) if not text else []
     lines = text[found.end() :].splitlines()
     for n in range(1, min(len(lines), 400) + 1):  # the shortest run of lines that is the whole literal
         try:

@@ -134,8 +134,9 @@ def family_quantities(
     for name in sorted(modules):
         if name.startswith(("quantities", "quantity_")):
             continue
-        if not _DECLARES.search((folder / f"{name}.py").read_text(encoding="utf-8")):
-            continue
+        source = folder / f"{name}.py"
+        if source.is_file() and not _DECLARES.search(source.read_text(encoding="utf-8")):
+            continue  # (no source file, an install of bytecode only: the module itself tells)
         declared = getattr(import_module(f"{package}.{name}"), "QUANTITIES", ())
         if not isinstance(declared, tuple) or not all(isinstance(q, Quantity) for q in declared):
             raise ValueError(f"{package}.{name}.QUANTITIES must be a tuple of Quantity")
