@@ -31,17 +31,25 @@ such as the K hit distances, is a tuple of arrays of ``n`` values).
 The table is kept in rooms by domain: `rtfit.realtime.quantity_types` (the `Quantity` record and shared
 inputs), ``quantities_lights``, ``quantities_sky``, ``quantities_media``, ``quantities_probes`` and
 ``quantities_materials``; this module gathers them in `QUANTITY_ORDER` and holds the look-up and the
-user-approximation machinery.
+user-approximation machinery. A family that needs a new quantity declares it in its own realtime module,
+``QUANTITIES = (Quantity(...),)`` at the module's top level (`family_quantities` finds it: no edit here),
+after the rooms' in `QUANTITIES`, by module name, then in the module's order; its generated section
+(`quantities_markdown`) is on the family's own page, docs/<family>.md. Such a module must not import this
+one (it is imported from here): `Quantity` and the shared inputs are in `rtfit.realtime.quantity_types`.
 """
 
 from __future__ import annotations
 
 import inspect
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import replace
+from importlib import import_module
+from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from . import MODULES
 from .methods import Method, Param
 from .quantities_lights import LIGHT_QUANTITIES
 from .quantities_materials import MATERIAL_QUANTITIES
@@ -61,6 +69,7 @@ __all__ = [
     "UserCodeExit",
     "UserKernel",
     "approximation",
+    "family_quantities",
     "get_quantity",
     "is_user_approximation",
     "quantities_markdown",
@@ -103,10 +112,43 @@ QUANTITY_ORDER: tuple[str, ...] = (
     "path_map_irradiance",
     "caustic_irradiance",
 )
-"""The order of `QUANTITIES` (and of docs/audit.md's quantity table): each quantity where it was added."""
+"""The order of the rooms' quantities in `QUANTITIES` (and in docs/audit.md's quantity table): each where it
+was added. A family module's own ``QUANTITIES`` come after them (`family_quantities`)."""
 
 
-def _in_order(tables: tuple[Mapping[str, Quantity], ...], order: tuple[str, ...]) -> Mapping[str, Quantity]:
+_PACKAGE = __name__.rpartition(".")[0]
+_DECLARES = re.compile(r"^QUANTITIES\b[^=\n]*=", re.M)
+
+
+def family_quantities(
+    package: str = _PACKAGE, folder: Path | None = None, modules: tuple[str, ...] | None = None
+) -> dict[str, tuple[Quantity, ...]]:
+    """Module → the quantities it declares in its own ``QUANTITIES`` (a tuple of `Quantity`), for every
+    module of ``package`` (default: this one; ``folder``: its directory, ``modules``: its module names, by
+    default every module file there) whose source assigns ``QUANTITIES`` at its top level, by module name.
+    Only those modules are imported. This module and the rooms (``quantities_*``) are not family modules."""
+    folder = Path(__file__).parent if folder is None else folder
+    if modules is None:
+        modules = MODULES if package == _PACKAGE else tuple(sorted(p.stem for p in folder.glob("[!_]*.py")))
+    found: dict[str, tuple[Quantity, ...]] = {}
+    for name in sorted(modules):
+        if name.startswith(("quantities", "quantity_")):
+            continue
+        source = folder / f"{name}.py"
+        if source.is_file() and not _DECLARES.search(source.read_text(encoding="utf-8")):
+            continue  # (no source file, an install of bytecode only: the module itself tells)
+        declared = getattr(import_module(f"{package}.{name}"), "QUANTITIES", ())
+        if not isinstance(declared, tuple) or not all(isinstance(q, Quantity) for q in declared):
+            raise ValueError(f"{package}.{name}.QUANTITIES must be a tuple of Quantity")
+        found[name] = declared
+    return found
+
+
+def _in_order(
+    tables: tuple[Mapping[str, Quantity], ...],
+    order: tuple[str, ...],
+    families: Mapping[str, tuple[Quantity, ...]],
+) -> Mapping[str, Quantity]:
     by_name: dict[str, Quantity] = {}
     for table in tables:
         for name, q in table.items():
@@ -115,14 +157,23 @@ def _in_order(tables: tuple[Mapping[str, Quantity], ...], order: tuple[str, ...]
             by_name[name] = q
     if sorted(order) != sorted(by_name):
         raise ValueError("QUANTITY_ORDER must name every quantity of the rooms once")
-    return MappingProxyType({name: by_name[name] for name in order})
+    out = {name: by_name[name] for name in order}
+    where = dict.fromkeys(out, "the rooms")
+    for module, declared in families.items():
+        for q in declared:
+            if q.name in out:
+                raise ValueError(f"quantity {q.name!r} is declared in {where[q.name]} and in {module}")
+            out[q.name], where[q.name] = q, module
+    return MappingProxyType(out)
 
 
 QUANTITIES: Mapping[str, Quantity] = _in_order(
     (LIGHT_QUANTITIES, SKY_QUANTITIES, MEDIA_QUANTITIES, PROBE_QUANTITIES, MATERIAL_QUANTITIES),
     QUANTITY_ORDER,
+    family_quantities(),
 )
-"""Every documented quantity by name (docs/audit.md, "Your own approximation", is generated from it)."""
+"""Every documented quantity by name: the rooms' in `QUANTITY_ORDER`, then each family module's own
+``QUANTITIES`` (`family_quantities`: by module name, in the module's order)."""
 
 
 class ApproximationError(ValueError):
@@ -301,18 +352,20 @@ def approximation(
     return wrap
 
 
-def quantities_markdown(tables: Mapping[str, Mapping[str, Method]]) -> str:
-    """The quantity table of docs/audit.md ("Your own approximation"), generated from `QUANTITIES`; the
-    shipped methods from ``tables`` (family → method table, `rtfit.experiments.families.METHOD_TABLES`)."""
+def quantities_markdown(names: tuple[str, ...] | None = None) -> str:
+    """The generated quantity sections of ``names``, from `QUANTITIES` (default: the rooms' `QUANTITY_ORDER`,
+    docs/audit.md's "Your own approximation"; a family module's own quantities: its page, docs/<family>.md).
+    No registry is read, so a family added changes no generated text: which shipped methods approximate a
+    quantity is ``rtfit list --json`` (each family's methods and quantities)."""
     lines = []
-    for q in QUANTITIES.values():
+    for q in (get_quantity(n) for n in (QUANTITY_ORDER if names is None else names)):
         out = "one array" if q.channels == 1 else f"a tuple of {q.channels} arrays (R, G, B)"
         lines.append(f"#### `{q.name}` [{q.unit}]")
         lines.append("")
         lines.append(f"{q.description[0].upper()}{q.description[1:]}; `f` returns {out}.")
         lines.append(f"Reference: {q.reference}." if q.reference else "")
-        shipped = ", ".join(f"`{m}`" for m in q.methods(tables)) or "none"
-        lines.append(f"Shipped methods: {shipped}." + (f" ({q.note}.)" if q.note else ""))
+        if q.note:
+            lines.append(f"Note: {q.note}.")
         lines.append("")
         lines.append("| input | unit | domain | meaning |")
         lines.append("|---|---|---|---|")

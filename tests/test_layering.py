@@ -31,6 +31,8 @@ import ast
 import importlib
 import inspect
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -368,6 +370,35 @@ def test_every_public_realtime_function_is_importable_from_the_root():
     assert modules == set(realtime.MODULES), f"realtime.MODULES is not the module list: {sorted(modules)}"
     assert not missing, f"public realtime names not importable from rtfit.realtime: {missing}"
     assert not dup, f"two realtime modules export the same name: {dup}"
+    # The root's index (read from the modules' source) is each module's own __all__.
+    assert realtime.exports() == owner
+    # A root name that is also a module's name is the exported function (the package's SHADOWING list).
+    shadowing = {attr: name for attr, name in owner.items() if attr in realtime.MODULES}
+    assert shadowing == realtime.SHADOWING
+    for attr, name in shadowing.items():
+        importlib.import_module(f"rtfit.realtime.{attr}")  # the import system binds the module: ignored
+        assert getattr(realtime, attr) is getattr(importlib.import_module(f"rtfit.realtime.{name}"), attr)
+
+
+def test_the_realtime_root_imports_lazily():
+    """``import rtfit.realtime`` imports none of its modules (nor Dr.Jit); a root name imports only the
+    module that exports it, a submodule name only that module."""
+    code = (
+        "import sys, rtfit.realtime as r\n"
+        "def loaded(): return sorted(m for m in sys.modules if m.startswith('rtfit.realtime.'))\n"
+        "print(loaded(), 'drjit' in sys.modules)\n"
+        "from rtfit.realtime import NUMPY_OPS\n"
+        "print(loaded())\n"
+        "from rtfit.realtime import fresnel\n"
+        "print(loaded(), fresnel.__name__)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines() == [
+        "[] False",
+        "['rtfit.realtime.arrays']",
+        "['rtfit.realtime.arrays', 'rtfit.realtime.fresnel', 'rtfit.realtime.methods']"
+        " rtfit.realtime.fresnel",
+    ], out
 
 
 def test_no_family_module_imports_another():
