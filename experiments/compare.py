@@ -380,14 +380,9 @@ def compare(
     )  # fmt: skip
     result.temporal = temporal_stability(result) if camera_path and len(outcomes) > 1 else []
     result.results = results_record(
-        result,
-        variant=run.variant,
-        spp=run.spp,
-        pass_spp=run.pass_spp,
-        seed=run.seed,
-        fit_exposure=fit_exposure,
-        footprint=footprint,
-    )
+        result, variant=run.variant, spp=run.spp, pass_spp=run.pass_spp, seed=run.seed,
+        fit_exposure=fit_exposure, footprint=footprint,
+    )  # fmt: skip
     if target is not None:
         result.write_report(target)
     return result

@@ -62,11 +62,11 @@ class RunSettings:
         height: int | None = None,
     ) -> RunSettings:
         """The settings of an audit or a comparison from the Python API's keywords, validated: ``variant``
-        resolved (None: ``llvm_ad_rgb``; a scalar variant is refused: ``needs`` names who needs a
-        vectorised one), ``spp`` (None: `DEFAULT_SPP`) and ``pass_spp`` (None: `DEFAULT_PASS_SPP`, at most
-        ``spp``) at least 2 and within the limits (`registry.LIMITS`, with the film's ``width`` and
-        ``height`` where given), ``cache`` (None: `default_cache_dir`). Each bad value is one `AuditError`
-        line, before anything is read or rendered."""
+        resolved (None: ``llvm_ad_rgb``; a scalar variant is refused, the line saying who needs a
+        vectorised one: ``needs``, e.g. "the audit needs"), ``spp`` (None: `DEFAULT_SPP`) and ``pass_spp``
+        (None: `DEFAULT_PASS_SPP`, at most ``spp``) at least 2 and within the limits (`registry.LIMITS`,
+        with the film's ``width`` and ``height`` where given), ``cache`` (None: `default_cache_dir`). Each
+        bad value is one `AuditError` line, before anything is read or rendered."""
         try:
             variant = resolve_variant(variant or "llvm_ad_rgb")
         except ValueError as e:
@@ -111,19 +111,7 @@ class RunSettings:
         ``optional`` its optional fields (``ao_distance``, ``source``, ``probe_at``, …)."""
         spp, pass_spp = self.samples()
         return AuditSetup(
-            mi=mi,
-            scene=scene,
-            sensor=sensor,
-            emitters=emitters,
-            info=info,
-            gbuffer=gbuffer,
-            mask=mask,
-            cache_root=self.cache_dir,
-            variant=self.variant,
-            spp=spp,
-            pass_spp=pass_spp,
-            seed=self.seed,
-            progress=self.progress,
-            scene_digest=scene_digest,
-            **optional,
-        )
+            mi=mi, scene=scene, sensor=sensor, emitters=emitters, info=info, gbuffer=gbuffer, mask=mask,
+            cache_root=self.cache_dir, variant=self.variant, spp=spp, pass_spp=pass_spp, seed=self.seed,
+            progress=self.progress, scene_digest=scene_digest, **optional,
+        )  # fmt: skip
