@@ -31,6 +31,7 @@ from .audit_run import audit as run_audit
 from .audit_run import check_ao_distance, resolve_approximations, selected_applicabilities, triple
 from .cli_complete import complete_approx, complete_scene
 from .cli_options import cache_option, out_option, pass_spp_option, spp_option, variant_option
+from .cli_run import settings_keywords
 from .families import AUDITED
 from .registry import RESOLUTION_MAX
 
@@ -108,6 +109,12 @@ def parse_defines(values: tuple[str, ...]) -> dict[str, str]:
     return out
 
 
+JSON_HELP = (
+    "Also write the run's summary as JSON (rtfit.audit-summary/1) to FILE; '-': to stdout, and only that on "
+    "stdout (the other lines go to stderr)."
+)
+
+
 @click.command("audit")
 @click.argument("scene", shell_complete=complete_scene)
 @click.option("--list", "list_only", is_flag=True, help="Print which approximation families apply, and why.")
@@ -168,14 +175,7 @@ def parse_defines(values: tuple[str, ...]) -> dict[str, str]:
 @cache_option()
 @click.option("--seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True)
 @click.option("--no-fit", is_flag=True, help="Do not fit free parameters to the scene.")
-@click.option(
-    "--json",
-    "json_out",
-    default=None,
-    metavar="FILE",
-    help="Also write the run's summary as JSON (rtfit.audit-summary/1) to FILE; '-': to stdout, and only "
-    "that on stdout (the other lines go to stderr).",
-)
+@click.option("--json", "json_out", default=None, metavar="FILE", help=JSON_HELP)
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
 @click.option(
     "--profile",
@@ -195,16 +195,11 @@ def audit(
     probe_at,
     grid,
     pom_depth,
-    variant,
-    spp,
-    pass_spp,
     out,
-    cache,
-    seed,
     no_fit,
     json_out,
-    no_progress,
     profile,
+    **run_options,
 ):
     """Audit SCENE (a Mitsuba .xml scene, an rtfit .toml scene or sky file, or a library name): every
     applicable approximation against the scene's own reference, with noise floors, fits, costs and a report
@@ -233,29 +228,12 @@ def audit(
                     + (", ".join(dict.fromkeys(fams)) or "no family that applies here")
                 )
             return
-        obj = click.get_current_context().find_root().obj or {}
         with _stdout_for_the_json_alone(json_out == "-"):
             result = run_audit(
-                scene,
-                approx,
-                spp=spp,
-                variant=variant,
-                fit=not no_fit,
-                out=out,
-                defines=parse_defines(defines),
-                camera=camera,
-                width=width,
-                height=height,
-                up=up,
-                seed=seed,
-                cache=cache,
-                pass_spp=pass_spp,
-                progress=bool(obj.get("bars", False)) and not no_progress,
-                ao_distance=ao_distance,
-                probe_at=probe_at,
-                grid=grid,
-                pom_depth=pom_depth,
-            )
+                scene, approx, fit=not no_fit, out=out, defines=parse_defines(defines), camera=camera,
+                width=width, height=height, up=up, ao_distance=ao_distance, probe_at=probe_at, grid=grid,
+                pom_depth=pom_depth, **settings_keywords(run_options),
+            )  # fmt: skip
     except AuditError as e:
         input_error(str(e))
     click.echo(f"camera: {result.info.camera}", err=True)

@@ -46,18 +46,17 @@ from rtfit.fitting import (
 )
 from rtfit.realtime.methods import Method
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
-from rtfit.reference.cache import default_cache_dir
 from rtfit.reference.estimators import GBuffer, gbuffer, is_pass_through
 from rtfit.reference.mitsuba_xml import XMLSceneError, loaded_xml
 from rtfit.reference.nishita_sky import hemisphere_directions, load_atmosphere_scene
-from rtfit.reference.variants import resolve_variant, scoped_variant
+from rtfit.reference.variants import scoped_variant
 from rtfit.scenes import load_scene, scene_hash
 
 from .audit import SURFACE_FREE_KINDS, Applicability, AuditError, SceneInfo, inspect_scene
 from .audit_cost import COST_ELEMENTS, method_cost
-from .audit_family import PRECOMPUTE_TRIGGERS, AuditFamily, AuditSetup, FamilyCase, Precompute
+from .audit_family import PRECOMPUTE_TRIGGERS, AuditFamily, FamilyCase, Precompute
 from .audit_fit import evaluate_case, fit_case
-from .audit_options import GRID_MAX, check_ao_distance, check_out, check_sizes, triple
+from .audit_options import GRID_MAX, check_ao_distance, check_out, triple
 from .audit_parallax_occlusion import check_pom_depth
 from .audit_results import AuditResult, MethodOutcome, results_record
 from .audit_selection import (
@@ -73,6 +72,7 @@ from .families import AUDITED, METHOD_TABLES
 from .progress import Stage
 from .records import Check, to_json
 from .registry import LIMITS
+from .run_settings import DEFAULT_PASS_SPP, DEFAULT_SPP, RunSettings
 from .runner import use_variant_backend
 
 __all__ = [
@@ -90,10 +90,6 @@ __all__ = [
 ]
 
 log = logging.getLogger("rtfit.audit")
-
-
-DEFAULT_SPP = 256
-DEFAULT_PASS_SPP = 32
 
 
 # -------------------------------------------------------------------------------------------------- run
@@ -241,19 +237,10 @@ def audit(
     probe_at = triple("--probe-at", probe_at, float)
     grid = triple("--grid", grid, int)
     pom_depth = check_pom_depth(pom_depth)
-    try:
-        variant = resolve_variant(variant or "llvm_ad_rgb")
-    except ValueError as e:
-        raise AuditError(f"--variant: {e}") from None
-    spp = int(spp or DEFAULT_SPP)
-    pass_spp = int(pass_spp or min(DEFAULT_PASS_SPP, spp))
-    if spp < 2 or pass_spp < 2:
-        raise AuditError(f"--spp {spp}: at least 2 samples per pixel (the variance needs two)")
-    if variant.startswith("scalar"):
-        raise AuditError(
-            f"--variant {variant}: the audit needs a vectorised variant (llvm_ad_rgb, cuda_ad_rgb)"
-        )
-    check_sizes(spp, pass_spp, width, height)
+    run_settings = RunSettings.checked(
+        variant=variant, spp=spp, pass_spp=pass_spp, seed=seed, cache=cache, progress=progress,
+        needs="the audit needs", width=width, height=height,
+    )  # fmt: skip
     check_ao_distance(ao_distance)
     info = inspect_scene(scene_or_path, defines=defines, camera=camera, width=width, height=height, up=up)
     film = info.xml.camera if info.xml is not None else None
@@ -293,10 +280,9 @@ def audit(
     if out is not None:
         target = Path(out) / f"audit-{_scene_name(info.source)}"
         check_out(target)
-    check_out(Path(cache) if cache is not None else default_cache_dir(), "--cache")
+    check_out(run_settings.cache_dir, "--cache")
     say(f"camera: {info.camera}; up: {info.up_reason}")  # (after every refusal: one line, then progress)
-    cache_root = Path(cache) if cache is not None else default_cache_dir()
-    backend = use_variant_backend(variant)
+    backend = use_variant_backend(run_settings.variant)
 
     timings = {"reference": 0.0, "evaluation": 0.0, "fit": 0.0}
     by_family: dict[str, dict[str, float]] = {}
@@ -305,9 +291,10 @@ def audit(
     plan: list[tuple[AuditFamily, Applicability, FamilyCase]] = []  # the finished cases, in order
     done: list[Applicability] = []
     run = _CaseRun(
-        sel, bool(fit), tuple(metrics), int(seed), backend, cost_elements, costs, timings, by_family
+        sel, bool(fit), tuple(metrics), run_settings.seed, backend, cost_elements, costs, timings, by_family
     )
-    settings = {"variant": variant, "spp": spp, "pass_spp": pass_spp, "seed": int(seed), "sel": sel}
+    variant, spp, pass_spp = run_settings.variant, run_settings.spp, run_settings.pass_spp
+    settings = {"variant": variant, "spp": spp, "pass_spp": pass_spp, "seed": run_settings.seed, "sel": sel}
     t0 = time.perf_counter()
     try:
         with _opened(info, defines, variant, camera, width, height) as opened:
@@ -325,32 +312,15 @@ def audit(
                     f"{a.family} ({a.role}: {a.part}): not audited: {why}" for a in audited if a not in kept
                 ]
                 audited = kept
-            setup = AuditSetup(
-                mi=mi,
-                scene=mi_scene,
-                sensor=sensor,
-                emitters=emitters,
-                info=info,
-                gbuffer=gb,
-                mask=mask,
-                cache_root=cache_root,
-                variant=variant,
-                spp=spp,
-                pass_spp=pass_spp,
-                seed=int(seed),
-                progress=progress,
-                scene_digest=scene_digest,
-                ao_distance=ao_distance,
-                source=source,
-                probe_at=probe_at,
-                grid=grid,
-                pom_depth=pom_depth,
+            setup = run_settings.setup(
+                mi, mi_scene, sensor, emitters, info, gb, mask, scene_digest, ao_distance=ao_distance,
+                source=source, probe_at=probe_at, grid=grid, pom_depth=pom_depth,
                 quantities=None if quantities is None else frozenset(quantities),
-            )
+            )  # fmt: skip
             timings["reference"] += time.perf_counter() - t0
             # Family by family, each case evaluated and fitted as soon as its references are made: an
-            # interrupted run has every finished case to report (`_partial_report`).
-            parts = Stage(len(audited), "references", enabled=progress, say=say)  # a bar on a terminal
+            # interrupted run has every finished case to report (`_partial_report`). (A bar on a terminal.)
+            parts = Stage(len(audited), "references", enabled=run_settings.progress, say=say)
             for a in audited:
                 family = AUDITED[a.family]
                 spent = by_family.setdefault(a.family, {"reference": 0.0, "evaluation": 0.0, "fit": 0.0})
@@ -365,7 +335,7 @@ def audit(
                     cases = [replace(c, id=f"{tag[0]}{c.id}", label=f"{tag[1]}{c.label}") for c in cases]
                 spent["reference"] += time.perf_counter() - tf
                 timings["reference"] += time.perf_counter() - tf
-                rows = Stage(len(cases), f"{a.family}: cases", enabled=progress, say=say)
+                rows = Stage(len(cases), f"{a.family}: cases", enabled=run_settings.progress, say=say)
                 for case in cases:
                     outcomes[case.id] = run.case(family, a, case)
                     plan.append((family, a, case))

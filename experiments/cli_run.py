@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -32,10 +34,19 @@ from .families import EXPERIMENTS, describe_config
 from .registry import SPP_MAX
 from .report import missing_figures, write_report
 from .report_index import write_index
+from .run_settings import RunSettings
 from .runner import check_summary, run_experiments
 from .sweep import load_sweep, run_sweep
 
-__all__ = ["export_xml_cmd", "list_cmd", "report_cmd", "run_cmd", "sweep_cmd"]
+__all__ = [
+    "export_xml_cmd",
+    "list_cmd",
+    "progress_bars",
+    "report_cmd",
+    "run_cmd",
+    "settings_keywords",
+    "sweep_cmd",
+]
 
 SINGLE_FILE_HELP = (
     "Also write EXPERIMENT/report.single.html: the report with its figures, image viewer and pixel data "
@@ -66,6 +77,14 @@ def progress_bars(no_progress: bool) -> bool:
     """Whether this command draws progress bars (``-q``/``--no-progress``/no terminal: no)."""
     obj = click.get_current_context().find_root().obj or {}
     return obj.get("bars", False) and not no_progress
+
+
+def settings_keywords(options: Mapping[str, Any]) -> dict[str, Any]:
+    """The run settings among a command's ``options`` (``--variant``, ``--spp``, ``--pass-spp``, ``--seed``,
+    ``--cache``, ``--no-progress``) as the keywords of `rtfit.audit` and `rtfit.compare`, which build their
+    `RunSettings` from them (`RunSettings.checked`)."""
+    keys = ("variant", "spp", "pass_spp", "seed", "cache")
+    return {**{k: options[k] for k in keys}, "progress": progress_bars(options["no_progress"])}
 
 
 @click.command("list")
@@ -132,21 +151,11 @@ def run_cmd(
     writable_dir(out, "--out")
     for spec in specs:  # every configuration value, its type, range and files, before anything runs
         config_ok(spec.name, quick, spp, overrides)
+    settings = RunSettings(cache, variant, spp, seed=seed, progress=progress_bars(no_progress), quick=quick)
     done = run_experiments(
-        specs,
-        out,
-        quick=quick,
-        variant=variant,
-        spp=spp,
-        seed=seed,
-        cache_dir=cache,
-        executor=executor,
-        workers=workers,
-        progress=progress_bars(no_progress),
-        address=address,
+        specs, out, settings, executor=executor, workers=workers, address=address, overrides=overrides,
         single_file=single_file,
-        overrides=overrides,
-    )
+    )  # fmt: skip
     click.echo(str((out / "index.html").resolve()))
     failed = [line for line in map(check_summary, done) if line]
     for line in failed:

@@ -38,14 +38,12 @@ from typing import Any
 import numpy as np
 
 from rtfit.fitting import ALL_METRICS
-from rtfit.reference.cache import default_cache_dir
 from rtfit.reference.estimators import PassResult, first_hit_shapes, gbuffer, radiance_pass
 from rtfit.reference.mitsuba_xml import UP_AXES, XMLSceneError, loaded_xml
-from rtfit.reference.variants import resolve_variant
 
 from .atomic import atomic_directory, writable_problem
 from .audit import AuditError, SceneInfo, inspect_scene
-from .audit_family import AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .audit_family import AuditReference, FamilyCase, pooled_passes
 from .compare_albedo import albedo_split
 from .compare_aovs import align_aovs, parse_aovs, read_aovs
 from .compare_checks import (
@@ -62,6 +60,7 @@ from .compare_quantities import SURFACE_QUANTITIES, quantity_reference, refusal
 from .compare_report import results_record, temporal_stability, write_compare
 from .records import Results
 from .registry import LIMITS
+from .run_settings import RunSettings
 
 __all__ = [
     "FOOTPRINTS",
@@ -84,8 +83,6 @@ QUANTITIES = {
 FOOTPRINTS = ("box", "centre")
 NL_QUANTITIES = ("radiance", "direct", "irradiance")
 """The quantities broken down per normal-to-light band (`compare_light`): those lit by the lights."""
-DEFAULT_SPP = 256
-DEFAULT_PASS_SPP = 32
 FORMAT = 1
 """Part of the reference's cache key: bump it when what a pass holds changes."""
 
@@ -228,23 +225,10 @@ def compare(
         raise AuditError(f"--quantity {quantity}: expected one of {', '.join(QUANTITIES)}")
     if footprint not in FOOTPRINTS:
         raise AuditError(f"--footprint {footprint}: expected one of {', '.join(FOOTPRINTS)}")
-    try:
-        variant = resolve_variant(variant or "llvm_ad_rgb")
-    except ValueError as e:
-        raise AuditError(f"--variant: {e}") from None
-    if variant.startswith("scalar"):
-        raise AuditError(
-            f"--variant {variant}: compare needs a vectorised variant (llvm_ad_rgb, cuda_ad_rgb)"
-        )
-    spp = int(spp or DEFAULT_SPP)
-    pass_spp = int(pass_spp or min(DEFAULT_PASS_SPP, spp))
-    if spp < 2 or pass_spp < 2:
-        raise AuditError(f"--spp {spp}: at least 2 samples per pixel (the variance needs two)")
-    try:
-        LIMITS["spp"].check("--spp", spp)
-        LIMITS["passes"].check(f"--spp {spp} / --pass-spp {pass_spp} =", -(-spp // pass_spp))
-    except ValueError as e:
-        raise AuditError(str(e)) from None
+    run = RunSettings.checked(
+        variant=variant, spp=spp, pass_spp=pass_spp, seed=seed, cache=cache, progress=progress,
+        needs="compare needs",
+    )  # fmt: skip
     texts = [frames] if isinstance(frames, str | Path) else list(frames)
     if not texts:
         raise AuditError("no frame to compare (rtfit compare SCENE.xml FRAME.exr …)")
@@ -306,15 +290,13 @@ def compare(
     if out is not None:
         target = Path(out) / f"compare-{re.sub(r'[^A-Za-z0-9_.-]+', '-', path.stem) or 'scene'}"
         _writable(target, "--out")
-    cache_root = Path(cache) if cache is not None else default_cache_dir()
-    _writable(cache_root, "--cache")
+    _writable(run.cache_dir, "--cache")
     timings: dict[str, float] = {"setup": 0.0, "reference": 0.0, "comparison": 0.0}
     references: dict[str, AuditReference] = {}
     camera_of_case: dict[str, int] = {}
     pose_of_case: dict[str, int] = {}
     outcomes: list[FrameOutcome] = []
     taken: set[str] = set()
-    settings = (quantity, footprint, cache_root, variant, spp, pass_spp, seed, progress, float(ao_radius))
     names: dict[int, str] = {}
     views = list(enumerate(cams)) if moving else [(i, camera) for i in range(len(poses))] or [(None, camera)]
     for vi, c in views:
@@ -323,7 +305,7 @@ def compare(
         mine = read if vi is None else [read[vi]]
         t0 = time.perf_counter()
         try:
-            with loaded_xml(path, defines, variant, camera=c, width=width, height=height) as loaded:
+            with loaded_xml(path, defines, run.variant, camera=c, width=width, height=height) as loaded:
                 mi, mi_scene, sensor = loaded.mi, loaded.scene, loaded.sensor
                 if pose is not None:
                     apply_pose(mi, sensor, pose, f"--camera-path {camera_path}: {pose.text}")
@@ -338,7 +320,8 @@ def compare(
                 }
                 light = None
                 if quantity in NL_QUANTITIES:
-                    light = main_light(mi, mi_scene, gb, seed, _emitter_names(loaded.emitters, infos[c]))
+                    emitter_names = _emitter_names(loaded.emitters, infos[c])
+                    light = main_light(mi, mi_scene, gb, run.seed, emitter_names)
                 if light is not None:
                     share = f"{light.share:.0%} of the unshadowed irradiance"
                     groups[f"n·l band (to the main light: {light.name}, {share})"] = nl_bands(light.nl)
@@ -346,14 +329,15 @@ def compare(
                 # refused here, before rendering
                 alignment = align_aovs(aovs, aov_data, gb, cam.x_fov_deg, hits, names)
                 timings["setup"] += time.perf_counter() - t0
-                plan = f"{width}×{height}, {spp} spp in passes of {pass_spp}"
+                plan = f"{width}×{height}, {run.spp} spp in passes of {run.pass_spp}"
                 view = infos[c].camera if pose is None else f"sensor {c} at {pose.text} of {camera_path}"
                 say(f"camera: {view}; reference {quantity} at {plan}")
                 t1 = time.perf_counter()
                 key = c if pose is None else f"{c}-pose-{pose.digest}"
                 references[case], mask = _reference(
-                    mi, mi_scene, sensor, infos[c], gb, key, (width, height), *settings
-                )
+                    mi, mi_scene, sensor, infos[c], gb, key, (width, height), quantity, footprint, run,
+                    float(ao_radius),
+                )  # fmt: skip
                 camera_of_case[case] = c
                 timings["reference"] += time.perf_counter() - t1
         except XMLSceneError as e:
@@ -376,7 +360,7 @@ def compare(
                 names,
                 fit_exposure,
                 tuple(metrics),
-                seed,
+                run.seed,
                 groups,
             )
             image = f.image / a.scale if fit_exposure and a.scale > 0 else f.image
@@ -396,14 +380,9 @@ def compare(
     )  # fmt: skip
     result.temporal = temporal_stability(result) if camera_path and len(outcomes) > 1 else []
     result.results = results_record(
-        result,
-        variant=variant,
-        spp=spp,
-        pass_spp=pass_spp,
-        seed=seed,
-        fit_exposure=fit_exposure,
-        footprint=footprint,
-    )
+        result, variant=run.variant, spp=run.spp, pass_spp=run.pass_spp, seed=run.seed,
+        fit_exposure=fit_exposure, footprint=footprint,
+    )  # fmt: skip
     if target is not None:
         result.write_report(target)
     return result
@@ -474,12 +453,7 @@ def _reference(
     size,
     quantity,
     footprint,
-    cache_root,
-    variant,
-    spp,
-    pass_spp,
-    seed,
-    progress,
+    run: RunSettings,
     ao_radius,
 ) -> tuple[AuditReference, np.ndarray]:
     """The reference of ``quantity`` through the pass cache (`pooled_passes`) and the mask of the pixels it
@@ -495,22 +469,7 @@ def _reference(
     xml = info.xml
     digest = f"{xml.dependencies.digest}:camera{camera}:{size[0]}x{size[1]}"
     mask = np.ones(gb.mask.shape, bool)
-    setup = AuditSetup(
-        mi=mi,
-        scene=mi_scene,
-        sensor=sensor,
-        emitters=(),
-        info=info,
-        gbuffer=gb,
-        mask=mask,
-        cache_root=cache_root,
-        variant=variant,
-        spp=spp,
-        pass_spp=pass_spp,
-        seed=int(seed),
-        progress=progress,
-        scene_digest=digest,
-    )
+    setup = run.setup(mi, mi_scene, sensor, (), info, gb, mask, digest)
 
     if quantity in SURFACE_QUANTITIES:
         return quantity_reference(setup, quantity, ao_radius)

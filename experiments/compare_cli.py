@@ -18,6 +18,7 @@ import click
 from .audit import AuditError
 from .audit_cli import input_error, parse_defines
 from .cli_options import cache_option, out_option, pass_spp_option, spp_option, variant_option
+from .cli_run import settings_keywords
 from .compare import FOOTPRINTS, QUANTITIES
 from .compare import compare as run_compare
 
@@ -89,13 +90,8 @@ def compare(
     camera_path,
     defines,
     camera,
-    variant,
-    spp,
-    pass_spp,
     out,
-    cache,
-    seed,
-    no_progress,
+    **run_options,
 ):
     """Compare FRAMES (OpenEXR, FRAME.exr:layer, or PNG) rendered by your engine with the path-traced
     reference of SCENE (Mitsuba XML) through its own sensor: metrics beside the reference's noise, the best
@@ -103,27 +99,12 @@ def compare(
     if not frames:
         input_error("no frame to compare (rtfit compare SCENE.xml FRAME.exr …)")
     defs = parse_defines(defines)
-    obj = click.get_current_context().find_root().obj or {}
     try:
         result = run_compare(
-            scene,
-            frames,
-            quantity=quantity,
-            spp=spp,
-            pass_spp=pass_spp,
-            variant=variant,
-            out=out,
-            cache=cache,
-            seed=seed,
-            defines=defs,
-            camera=camera,
-            fit_exposure=fit_exposure,
-            aov=aov,
-            footprint=footprint,
-            camera_path=camera_path,
-            ao_radius=ao_radius,
-            progress=bool(obj.get("bars", False)) and not no_progress,
-        )
+            scene, frames, quantity=quantity, out=out, defines=defs, camera=camera, fit_exposure=fit_exposure,
+            aov=aov, footprint=footprint, camera_path=camera_path, ao_radius=ao_radius,
+            **settings_keywords(run_options),
+        )  # fmt: skip
     except AuditError as e:
         input_error(str(e))
     for f in result.frames:

@@ -42,6 +42,7 @@ from . import figures as F
 from .audit_family import Study, StudyContext
 from .audit_height_fog import pixel_rays, volume_from_medium
 from .records import Check, Figure, Fit, Headline, Section
+from .run_settings import RunSettings
 from .zchecks import pixel_z_checks
 
 __all__ = ["SPECIAL_INPUTS", "float64_truth", "optical_depth_errors", "random_domain", "render_job", "study"]
@@ -261,26 +262,21 @@ def _map_figure(fdir: Path, forms) -> Figure:
 
 
 # ===================================================================================== fog volumes
-def render_job(
-    scene_toml: str,
-    spp: int,
-    pass_spp: int,
-    seed: int,
-    variant: str,
-    cache_dir: str,
-    gbuffer_of: str | None = None,
-    progress: bool = False,
-) -> dict:
-    """Job: one cached reference image (and, if given, the G-buffer of another scene: the fog-free one)."""
+def render_job(scene_toml: str, settings: RunSettings, gbuffer_of: str | None = None) -> dict:
+    """Job: one cached reference image with ``settings`` (its ``spp`` in passes of ``pass_spp``, seed,
+    variant, cache and progress) and, if given, the G-buffer of another scene (the fog-free one)."""
     scene = parse_scene_text(scene_toml)
-    ref = ReferenceCache(cache_dir).get(
-        ReferenceRequest(scene=scene, spp=spp, pass_spp=pass_spp, seed=seed, variant=variant),
-        progress=progress,
+    spp, pass_spp = settings.samples()
+    ref = ReferenceCache(settings.cache_dir).get(
+        ReferenceRequest(
+            scene=scene, spp=spp, pass_spp=pass_spp, seed=settings.seed, variant=settings.variant
+        ),
+        progress=settings.progress,
         label=scene.name,
     )
     out: dict[str, Any] = {"image": ref}
     if gbuffer_of is not None:
-        out["gbuffer"] = render_gbuffer(parse_scene_text(gbuffer_of), variant)
+        out["gbuffer"] = render_gbuffer(parse_scene_text(gbuffer_of), settings.variant)
     return out
 
 

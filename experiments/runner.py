@@ -37,6 +37,7 @@ from .registry import ExperimentSpec, RunContext
 from .report import write_report
 from .report_index import write_index
 from .results import RESULTS_FILE, load_results, write_results
+from .run_settings import RunSettings
 
 log = logging.getLogger("rtfit.experiments")
 
@@ -147,23 +148,20 @@ def run_experiment_into(
 def run_experiments(
     specs: list[ExperimentSpec],
     out: Path,
+    settings: RunSettings,
     *,
-    quick: bool,
-    variant: str,
-    spp: int | None,
-    seed: int,
-    cache_dir: Path,
-    executor: str,
-    workers: int | None,
-    progress: bool,
+    executor: str = "inline",
+    workers: int | None = None,
     address: str | None = None,
     overrides: dict | None = None,
     single_file: bool = False,
 ) -> list[Path]:
-    """Run each experiment into ``out/<name>`` (atomically) and write the suite index. ``overrides``:
-    configuration keys replacing the experiments' defaults (as one `rtfit sweep` point does; validated
-    by `registry.apply_overrides`: an unknown key or a value of another kind is a ValueError)."""
+    """Run each experiment with ``settings`` into ``out/<name>`` (atomically) and write the suite index, on
+    the ``executor`` named (with ``workers``, ``address``: `make_executor`). ``overrides``: configuration
+    keys replacing the experiments' defaults (as one `rtfit sweep` point does; validated by
+    `registry.apply_overrides`: an unknown key or a value of another kind is a ValueError)."""
     out = Path(out)
+    progress = settings.progress
     pool = make_executor(executor, workers, progress, address=address)  # a bad address: nothing written
     done: list[Path] = []
     failed: list[str] = []
@@ -175,8 +173,7 @@ def run_experiments(
                 final = out / spec.name
                 t0, cpu0 = time.perf_counter(), _cpu_seconds()
                 try:
-                    _run_one(spec, final, cache_dir, pool, quick, variant, spp, seed, progress,
-                             overrides, executor, single_file)  # fmt: skip
+                    _run_one(spec, final, settings, pool, overrides, executor, single_file)
                 except RunFailed as e:
                     # One family failing does not stop the others (the quick suite's nishita-sky failure
                     # left 15 families unrun): each is said now, all of them at the end (exit 1).
@@ -232,21 +229,10 @@ def _peak_memory() -> str:
     return f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} GiB"
 
 
-def _run_one(spec, final, cache_dir, pool, quick, variant, spp, seed, progress, overrides, executor,
-             single_file) -> None:  # fmt: skip
+def _run_one(spec, final, settings, pool, overrides, executor, single_file) -> None:
     """One experiment of `run_experiments` into ``final`` (atomically); a failure inside it is `RunFailed`."""
     with atomic_directory(final) as tmp:
-        ctx = RunContext(
-            out_dir=Path(tmp),
-            cache_dir=Path(cache_dir),
-            executor=pool,
-            quick=quick,
-            variant=variant,
-            spp=spp,
-            seed=seed,
-            progress=progress,
-            overrides=dict(overrides or {}),
-        )
+        ctx = settings.context(Path(tmp), pool, overrides)
         before = PASS_COUNTS.snapshot()
         try:
             run_experiment_into(spec, Path(tmp), ctx, executor, single_file=single_file)

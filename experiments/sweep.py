@@ -49,10 +49,11 @@ from .atomic import atomic_directory
 from .families import get_experiment
 from .jobs import InlineExecutor, Job, Outcome
 from .records import SCHEMA, Check, Results, ResultsError, from_json, to_json
-from .registry import LIMITS, RunContext, apply_overrides
+from .registry import LIMITS, apply_overrides
 from .report import write_report
 from .report_index import write_index
 from .results import RESULTS_FILE, load_results, write_results
+from .run_settings import RunSettings
 from .runner import created_now, device_description, experiment_dirs, run_experiment_into, versions
 
 SWEEP_KEYS = {"name", "experiment", "quick", "spp", "seed", "fixed", "grid", "points", "description"}
@@ -208,32 +209,13 @@ def load_sweep(path) -> Sweep:
 
 
 # ------------------------------------------------------------------------------------------ workers
-def run_point(
-    experiment: str,
-    overrides: dict,
-    quick: bool,
-    variant: str,
-    spp,
-    seed: int,
-    cache_dir: str,
-    point_key: str,
-) -> dict:
-    """Job body: run ``experiment`` with ``overrides`` in a scratch directory on this worker and
-    return its files as ``{relative path: bytes}`` (plain data, so it crosses any executor)."""
+def run_point(experiment: str, overrides: dict, settings: RunSettings, point_key: str) -> dict:
+    """Job body: run ``experiment`` with ``overrides`` and ``settings`` in a scratch directory on this
+    worker and return its files as ``{relative path: bytes}`` (plain data, so it crosses any executor)."""
     spec = get_experiment(experiment)
     scratch = Path(tempfile.mkdtemp(prefix="rtfit-point-"))
     try:
-        ctx = RunContext(
-            out_dir=scratch,
-            cache_dir=Path(cache_dir),
-            executor=InlineExecutor(),
-            quick=quick,
-            variant=variant,
-            spp=spp,
-            seed=seed,
-            progress=False,
-            overrides=dict(overrides),
-        )
+        ctx = settings.context(scratch, InlineExecutor(), overrides)
         run_experiment_into(spec, scratch, ctx, "inline", extra_config={"sweep_point": point_key})
         return {
             "files": {
@@ -297,19 +279,11 @@ def run_sweep(
         f"sweep {sweep.name}: {len(points)} points of {sweep.experiment}, {len(resumed)} already done, "
         f"{len(todo)} to run on {executor_name}"
     )
+    settings = RunSettings(Path(cache_dir), variant, sweep.spp, seed=sweep.seed, quick=sweep.quick)
     jobs = [
         Job(
             run_point,
-            dict(
-                experiment=sweep.experiment,
-                overrides=p.overrides,
-                quick=sweep.quick,
-                variant=variant,
-                spp=sweep.spp,
-                seed=sweep.seed,
-                cache_dir=str(cache_dir),
-                point_key=p.key,
-            ),
+            dict(experiment=sweep.experiment, overrides=p.overrides, settings=settings, point_key=p.key),
             label=p.id,
         )
         for p in todo

@@ -91,19 +91,13 @@ def run_tiny_experiment(name: str, tmp_path, overrides: dict):
     ``tmp_path/out`` with its own cache, and return its loaded results record."""
     from rtfit.experiments.families import get_experiment
     from rtfit.experiments.results import load_results
+    from rtfit.experiments.run_settings import RunSettings
     from rtfit.experiments.runner import run_experiments
 
     run_experiments(
         [get_experiment(name)],
         tmp_path / "out",
-        quick=True,
-        variant="llvm_ad_rgb",
-        spp=None,
-        seed=0,
-        cache_dir=tmp_path / "cache",
-        executor="inline",
-        workers=None,
-        progress=False,
+        RunSettings(tmp_path / "cache", "llvm_ad_rgb", quick=True),
         overrides=overrides,
     )
     return load_results(tmp_path / "out" / name)

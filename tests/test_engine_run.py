@@ -18,6 +18,7 @@ from rtfit.experiments.families import ENGINE, FAMILIES, Family
 from rtfit.experiments.records import Check, Fit, Section, to_json
 from rtfit.experiments.registry import ExperimentSpec
 from rtfit.experiments.results import load_results
+from rtfit.experiments.run_settings import RunSettings
 from rtfit.experiments.runner import failed_checks, run_experiments
 from rtfit.realtime import diffuse
 
@@ -42,10 +43,7 @@ def _planted(monkeypatch, study=None, bench=None) -> ExperimentSpec:
 
 def _run(spec, tmp_path):
     out = tmp_path / "out"
-    run_experiments(
-        [spec], out, quick=True, variant="llvm_ad_rgb", spp=None, seed=0, cache_dir=tmp_path / "cache",
-        executor="inline", workers=None, progress=False,
-    )  # fmt: skip
+    run_experiments([spec], out, RunSettings(tmp_path / "cache", "llvm_ad_rgb", quick=True))
     return out / "diffuse"
 
 
@@ -244,9 +242,6 @@ def test_a_failing_family_does_not_stop_the_others(tmp_path, monkeypatch):
                         engine_run.experiment(self.name))  # fmt: skip
     out = tmp_path / "out"
     with pytest.raises(RunFailed, match=r"1 of 2 experiment\(s\) failed: broken: .*planted failure"):
-        run_experiments(
-            [bad, good], out, quick=True, variant="llvm_ad_rgb", spp=None, seed=0,
-            cache_dir=tmp_path / "cache", executor="inline", workers=None, progress=False,
-        )  # fmt: skip
+        run_experiments([bad, good], out, RunSettings(tmp_path / "cache", "llvm_ad_rgb", quick=True))
     assert (out / "diffuse" / "report.html").exists() and (out / "index.html").exists()
     assert not (out / "broken").exists()

@@ -46,13 +46,13 @@ DRIVER = textwrap.dedent(
     median_time = cost._median_time
     cost._median_time = lambda call, repeats, min_seconds: median_time(call, repeats, 0.0)  # as conftest.py
     logging.basicConfig(level=logging.INFO, format="rtfit: %(message)s", stream=sys.stderr)
+    from rtfit.experiments.run_settings import RunSettings
     from rtfit.experiments.runner import run_experiments
 
     scenes = ["diffuse_sphere_a5", "diffuse_sphere_a30"]
     overrides = {"scenes": scenes, "resolution": 16}
-    run_experiments([get_experiment("diffuse")], Path(sys.argv[1]), quick=True, variant="llvm_ad_rgb",
-                    spp=256, seed=0, cache_dir=Path(sys.argv[2]), executor="inline", workers=None,
-                    progress=False, overrides=overrides)
+    run_experiments([get_experiment("diffuse")], Path(sys.argv[1]),
+                    RunSettings(Path(sys.argv[2]), "llvm_ad_rgb", spp=256, quick=True), overrides=overrides)
     """
 )
 KILLS = 3

@@ -511,16 +511,14 @@ def test_registry_entry_is_born_on_the_engine_and_runs(tmp_path):
     from rtfit.experiments.families import ENGINE, FAMILIES
     from rtfit.experiments.registry import ExperimentSpec
     from rtfit.experiments.results import load_results
+    from rtfit.experiments.run_settings import RunSettings
     from rtfit.experiments.runner import failed_checks, run_experiments
 
     f = FAMILIES[FAMILY]
     assert f.module == ENGINE and f.methods is ibl.METHODS
     assert [s.file for s in f.scenes] == [SHIPPED.name] and SHIPPED.is_file()
     spec = ExperimentSpec(FAMILY, ENGINE, f.title, f.description)
-    run_experiments(
-        [spec], tmp_path / "out", quick=True, variant="llvm_ad_rgb", spp=8, seed=0, cache_dir=tmp_path / "c",
-        executor="inline", workers=None, progress=False,
-    )  # fmt: skip
+    run_experiments([spec], tmp_path / "out", RunSettings(tmp_path / "c", "llvm_ad_rgb", spp=8, quick=True))
     res = load_results(tmp_path / "out" / FAMILY)
     assert [c.id for c in res.cases] == ["ibl_samples_museum-ibl0"]
     assert not failed_checks(res)

@@ -5,6 +5,7 @@ import numpy as np
 from rtfit.experiments.executors import make_executor
 from rtfit.experiments.height_fog_study import render_job
 from rtfit.experiments.jobs import InlineExecutor, Job, ProcessExecutor
+from rtfit.experiments.run_settings import RunSettings
 from rtfit.scenes import scene_to_toml
 
 from .conftest import sphere_scene
@@ -17,11 +18,7 @@ def _jobs(tmp_path):
             render_job,
             dict(
                 scene_toml=tomls[a],
-                spp=32,
-                pass_spp=16,
-                seed=3,
-                variant="llvm_ad_rgb",
-                cache_dir=str(tmp_path / f"cache-{tag}"),
+                settings=RunSettings(tmp_path / f"cache-{tag}", "llvm_ad_rgb", spp=32, pass_spp=16, seed=3),
                 gbuffer_of=tomls[a],
             ),
             label=f"a{a}",

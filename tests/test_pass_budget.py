@@ -27,6 +27,7 @@ def test_planted_stuck_medium_fails_one_job_with_one_line(tmp_path, monkeypatch,
     kernel only stores its samples: the media's event counters must still be evaluated with it)."""
     from rtfit.experiments.height_fog_study import render_job
     from rtfit.experiments.jobs import InlineExecutor, Job
+    from rtfit.experiments.run_settings import RunSettings
     from rtfit.reference import estimators, fog_integrator, height_fog
 
     monkeypatch.setattr(estimators, "default_reduction", lambda mi: reduction)
@@ -38,11 +39,11 @@ def test_planted_stuck_medium_fails_one_job_with_one_line(tmp_path, monkeypatch,
     orig = height_fog.medium_dict
     monkeypatch.setattr(height_fog, "medium_dict", lambda mi, m: orig(mi, m, segment_majorant=False))
     height_fog._registered.discard("llvm_ad_rgb")  # re-register: the plugin's class reads the patch
-    common = dict(spp=4, pass_spp=4, seed=0, variant="llvm_ad_rgb", cache_dir=str(tmp_path / "cache"))
+    settings = RunSettings(tmp_path / "cache", "llvm_ad_rgb", spp=4, pass_spp=4, seed=0)
     jobs = [
         Job(
             render_job,
-            dict(scene_toml=scene_to_toml(s), **common),
+            dict(scene_toml=scene_to_toml(s), settings=settings),
             label=s.name,
         )
         for s in (_tiny("stuck-fog"), _tiny("no-fog", fog=False))

@@ -346,6 +346,7 @@ def test_registry_entry_is_born_on_the_engine_and_runs(tmp_path):
     from rtfit.experiments.families import ENGINE, FAMILIES
     from rtfit.experiments.registry import ExperimentSpec
     from rtfit.experiments.results import load_results
+    from rtfit.experiments.run_settings import RunSettings
     from rtfit.experiments.runner import failed_checks, run_experiments
 
     f = FAMILIES[FAMILY]
@@ -353,10 +354,7 @@ def test_registry_entry_is_born_on_the_engine_and_runs(tmp_path):
     assert {s.file for s in f.scenes} == {SHIPPED.name, "pcf_soft_shadows_rect.xml"}
     assert all((LIBRARY / s.file).is_file() for s in f.scenes)
     spec = ExperimentSpec(FAMILY, ENGINE, f.title, f.description)
-    run_experiments(
-        [spec], tmp_path / "out", quick=True, variant="llvm_ad_rgb", spp=8, seed=0, cache_dir=tmp_path / "c",
-        executor="inline", workers=None, progress=False,
-    )  # fmt: skip
+    run_experiments([spec], tmp_path / "out", RunSettings(tmp_path / "c", "llvm_ad_rgb", spp=8, quick=True))
     d = tmp_path / "out" / FAMILY
     res = load_results(d)
     assert [c.id for c in res.cases] == ["sphere-r0p4-light0-map1024", "sphere-r0p4-light0-map256"]
