@@ -25,11 +25,11 @@ terminal the jobs and the stages with a known count (`rtfit.experiments.progress
 scenes, references, cases) show as tqdm bars instead of lines (``--no-progress``: lines). Results go to
 stdout.
 
-This module holds the group, logging and `main`; the commands live in `cli_run` (``list``, ``run``,
-``sweep``, ``report``, ``export-xml``), `cli_bench` (``bench``), `audit_cli`, `compare_cli`, `cache_cli` and
-`fitted_cli`, the checks of what the user typed in `cli_checks`. The group imports a command's module only
-when that command runs or shows its help (`cli_commands.LazyGroup`): ``rtfit --help`` lists them from their
-source text, and imports neither Mitsuba nor any family (issue 33: < 2 s on 2 cores).
+This module holds the group, logging and `main`; the commands live in `cli_list` (``list``), `cli_run`
+(``run``, ``sweep``, ``report``, ``export-xml``), `cli_bench` (``bench``), `audit_cli`, `compare_cli`,
+`cache_cli` and `fitted_cli`, the checks of what the user typed in `cli_checks`. The group imports a
+command's module only when that command runs or shows its help (`cli_commands.LazyGroup`): ``rtfit --help``
+lists them from their source text, and imports neither Mitsuba nor any family (issue 33: < 2 s on 2 cores).
 """
 
 from __future__ import annotations

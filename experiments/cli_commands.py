@@ -23,7 +23,7 @@ import click
 __all__ = ["COMMANDS", "LazyGroup", "short_help"]
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "list": ("cli_run", "list_cmd"),
+    "list": ("cli_list", "list_cmd"),
     "run": ("cli_run", "run_cmd"),
     "sweep": ("cli_run", "sweep_cmd"),
     "report": ("cli_run", "report_cmd"),

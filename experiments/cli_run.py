@@ -1,10 +1,9 @@
-"""The ``rtfit`` commands that run experiments and write their reports: ``list``, ``run``, ``sweep``,
+"""The ``rtfit`` commands that run experiments and write their reports: ``run``, ``sweep``,
 ``report`` and ``export-xml`` (registered on the group in `rtfit.experiments.cli`), with the options
 ``run`` and ``sweep`` share."""
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Mapping
 from pathlib import Path
@@ -27,10 +26,10 @@ from .cli_checks import (
     validated,
     writable_dir,
 )
-from .cli_complete import complete_experiments, family_list
+from .cli_complete import complete_experiments
 from .cli_options import CACHE_HELP, VARIANT_CHOICES, cache_option, out_option, spp_option, variant_option
 from .executors import EXECUTORS, make_executor
-from .families import EXPERIMENTS, describe_config
+from .families import describe_config
 from .registry import SPP_MAX
 from .report import missing_figures, write_report
 from .report_index import write_index
@@ -40,7 +39,6 @@ from .sweep import load_sweep, run_sweep
 
 __all__ = [
     "export_xml_cmd",
-    "list_cmd",
     "progress_bars",
     "report_cmd",
     "run_cmd",
@@ -85,20 +83,6 @@ def settings_keywords(options: Mapping[str, Any]) -> dict[str, Any]:
     `RunSettings` from them (`RunSettings.checked`)."""
     keys = ("variant", "spp", "pass_spp", "seed", "cache")
     return {**{k: options[k] for k in keys}, "progress": progress_bars(options["no_progress"])}
-
-
-@click.command("list")
-@click.option(
-    "--json", "as_json", is_flag=True, help="One JSON document: name, title, audited, methods, quantities."
-)
-def list_cmd(as_json):
-    """List the experiments."""
-    if as_json:
-        click.echo(json.dumps({"families": family_list()}, indent=2))
-        return
-    width = max(len(n) for n in EXPERIMENTS)
-    for name, spec in EXPERIMENTS.items():
-        click.echo(f"{name:<{width}}  {spec.title}")
 
 
 @click.command("run")

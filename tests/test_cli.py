@@ -5,6 +5,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -326,3 +327,20 @@ def test_help_imports_no_command():
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
     assert "HEAVY [] 0" in out, out
     assert "audit       Audit SCENE" in out and "compare     Compare FRAMES" in out
+
+
+def test_list_and_audit_list_import_nothing_heavy():
+    """`rtfit list` reads the registry without ``cli_run``'s runner and reports or Mitsuba, and neither it nor
+    `rtfit audit SCENE --list` imports matplotlib, SciPy or JAX (issue 33: start-up under 2 s on 2 cores)."""
+    scene = str(Path(__file__).parent / "data" / "mitsuba" / "cbox" / "cbox-rgb.xml")
+    for argv, heavy in (
+        (["list"], ["rtfit.experiments.cli_run", "rtfit.experiments.runner", "mitsuba"]),
+        (["audit", scene, "--list"], []),
+    ):
+        probe = (
+            f"import sys; from rtfit.experiments.cli import main; code = main({argv!r}); "
+            f"found = [m for m in sys.modules if m in {heavy!r} "
+            "or m.split('.')[0] in ('matplotlib', 'scipy', 'jax')]; print('FOUND', found, code)"
+        )
+        run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=False)
+        assert "FOUND [] 0" in run.stdout, (argv, run.stdout[-500:], run.stderr[-500:])
