@@ -148,7 +148,7 @@ _DISTANCE = Input("distance", "m", "camera to light distance D", (0.01, 1e3))
 _GGX_INPUTS = (
     Input("cos_nl", "1", "n·l: the plane's normal and the unit direction to the light's centre", (-1.0, 1.0)),
     Input("cos_nv", "1", "n·v: the normal and the unit direction to the camera", (-1.0, 1.0)),
-    Input("cos_nh", "1", "n·h: the normal and the half vector h = (v + l)/|v + l|", (-1.0, 1.0)),
+    Input("cos_nh", "1", "n·h: the normal and the half vector h (v + l normalised)", (-1.0, 1.0)),
     Input("fresnel_h", "1", "the material's Fresnel reflectance at v·h (Mitsuba's, per channel)", (0.0, 1.0)),
     Input("e_perp", "W/m²", "the light's irradiance at normal incidence L_e·Ω (I/d² for a point light)",
           (0.0, 1e4)),
