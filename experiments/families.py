@@ -51,6 +51,7 @@ from rtfit.realtime import (
     sdf_occlusion,
     sh_sky_bent_normal,
     soft_particles,
+    streaky_reflections,
 )
 from rtfit.realtime.aerial_perspective import METHODS as AERIAL_METHODS
 from rtfit.realtime.light_cones import METHODS as CONE_METHODS
@@ -91,6 +92,7 @@ from . import (
     audit_sky_emitter,
     audit_sky_occlusion,
     audit_soft_particles,
+    audit_streaky_reflections,
     audit_volumetric_lightning,
     diffuse_study,
     environment_maps_study,
@@ -470,6 +472,15 @@ FAMILIES: dict[str, Family] = {
             "tracing through the caster connected to the camera (ptracer's estimator); energy conservation "
             "through a glass sphere against its closed-form ray optics.",
             study=audit_caustics.study,
+        ),
+        _engine(
+            "streaky-reflections",
+            audit_streaky_reflections,
+            streaky_reflections.METHODS,
+            "Streaky reflections: the seed's vertically streaked mirror image of a lamp vs a rough wet plane",
+            "A street lamp's glossy reflection in a rough specular plane (GGX, η = 1.33), path traced with "
+            "each light alone, against the seed's mirror image streaked vertically with σy = k·distance, the "
+            "same streak without the distance law, an isotropic blur and the GGX BRDF toward the light.",
         ),
     )
 }
