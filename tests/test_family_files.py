@@ -285,7 +285,9 @@ def test_a_planted_family_edits_one_existing_file(tmp_path):
     ]
     got = json.loads(_run([sys.executable, "-c", CHECK], src, env))
     assert "toy" in got["modules"] and got["root"] == 0.5**5  # the realtime root
-    assert got["quantities"][-1] == "toy_reflectance" and got["declared"] == {"toy": ["toy_reflectance"]}
+    ours = {m: [q.name for q in qs] for m, qs in family_quantities().items()}  # the repository's own
+    assert set(got["quantities"]) == {*QUANTITIES, "toy_reflectance"}
+    assert got["declared"] == {**ours, "toy": ["toy_reflectance"]}
     assert got["families"][0] == "toy" and got["shipped"]["toy"] == ["toy_reflectance"]
     assert missing_quantity_sections(src, got["declared"], got["shipped"], got["sections"]) == []
     assert families_without_a_page(src, got["families"]) == []  # the docs checks
