@@ -314,7 +314,6 @@ def aerial_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"{tag}-aerial",
             label=f"{app.part} under the {sky}, fog blend",
             reference=reference,
-            mask=mask,
             channel_inputs=(inputs,),
             parameters={
                 "medium": app.part,

@@ -115,13 +115,13 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         quantity="sky radiance along the panorama's directions, single + multiple scattering (RGB)",
         integrator="rtfit_skypath (max_depth −1) in the spherical-shell atmosphere",
         integrator_reason="media with chromatic extinction; all scattering orders and the ground bounce",
+        mask=mask,
     )
     return [
         FamilyCase(
             id="sky",
             label=f"sky, sun {elev:g}°, viewer {alt:g} m",
             reference=reference,
-            mask=mask,
             channel_inputs=(inputs,),
             parameters={
                 "sun_elevation_deg": elev,

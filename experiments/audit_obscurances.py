@@ -183,7 +183,6 @@ def obscurance_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 id=f"obscurance-{tag}",
                 label=f"{app.part}: {what}",
                 reference=ref,
-                mask=mask,
                 channel_inputs=(inputs,) * 3,
                 parameters={**parameters, "reference_quantity": quantity},
                 units="1",
