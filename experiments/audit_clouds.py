@@ -375,7 +375,6 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             ),
             params=_params(cloud),
             methods=METHODS,
-            quantity="cloud_transmittance",
         ),
         *radiance,
     ]

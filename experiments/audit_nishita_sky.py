@@ -137,7 +137,6 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             methods=rows,
             uncosted=dict.fromkeys(rows, TEXTURE_UNCOSTED),
             precompute=texture_precomputes(atmosphere_params_of(spec), elev, alt, rows, setup.variant),
-            quantity="sky_radiance",
         )
     ]
 

@@ -188,7 +188,6 @@ def obscurance_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 units="1",
                 notes=notes,
                 methods=methods,
-                quantity="obscurance",
                 params=params,
                 user_rows=partial(on_rays, rays=RAYS),  # a user's g.distances: the rows' own K distances
             )

@@ -154,7 +154,6 @@ def sky_emitter_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]
             methods=rows,
             uncosted=dict.fromkeys(rows, TEXTURE_UNCOSTED),
             precompute=texture_precomputes(AtmosphereParams(), elev, 0.0, rows, setup.variant),
-            quantity="sky_radiance",
         )
     ]
 

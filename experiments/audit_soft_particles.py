@@ -370,7 +370,6 @@ def particle_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             units="1",
             notes=tuple(notes),
             methods=methods,
-            quantity="particle_opacity",
         )
     ]
 
