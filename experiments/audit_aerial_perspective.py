@@ -314,7 +314,6 @@ def aerial_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"{tag}-aerial",
             label=f"{app.part} under the {sky}, fog blend",
             reference=reference,
-            mask=mask,
             channel_inputs=(inputs,),
             parameters={
                 "medium": app.part,
@@ -340,7 +339,6 @@ def aerial_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 *(() if sun is not None else ("the sky has no sun: cos_sun = 0 (θ = 90°)",)),
             ),
             methods=rows,
-            quantity="fogged_radiance",
             params=params,
         )
     ]

@@ -212,7 +212,6 @@ def caps_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id="caps",
             label=f"{app.part}: visibility caps against ambient occlusion within R = {radius:.4g}",
             reference=ref,
-            mask=mask,
             channel_inputs=(inputs,) * 3,
             parameters={"ao_distance": radius, "pixels": int(mask.sum()), **_cap_parameters(caps)},
             units="1",
@@ -271,7 +270,6 @@ def light_case(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"{tag}-occluded",
             label=f"{app.part}, occluded: visibility cap ∩ light cap",
             reference=ref,
-            mask=mask,
             channel_inputs=inputs,
             parameters={
                 "light": app.part,

@@ -376,7 +376,6 @@ def ao_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id="ao",
             label=f"{app.part}: ambient occlusion within R = {radius:.4g}",
             reference=ref,
-            mask=mask,
             channel_inputs=(rows.inputs,) * 3,
             parameters={"ao_distance": float(radius), **rows.parameters, "pixels": int(mask.sum())},
             units="1",

@@ -298,7 +298,6 @@ def caustic_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 id=tag,
                 label=f"{app.part}: caustic of light {j} ({kind})",
                 reference=ref,
-                mask=mask,
                 channel_inputs=channel_inputs,
                 row_inputs=row_inputs,
                 parameters={

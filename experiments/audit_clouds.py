@@ -285,7 +285,6 @@ def _radiance_case(
             id=f"{tag}-radiance",
             label=f"{app.part}, the sunlit cloud's radiance at the camera",
             reference=reference,
-            mask=mask,
             channel_inputs=channels,
             parameters={
                 "medium": app.part,
@@ -355,7 +354,6 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"{tag}-shadow",
             label=f"{app.part}, the sun's transmittance to the ground",
             reference=reference,
-            mask=mask,
             channel_inputs=(inputs, inputs, inputs),
             parameters={
                 "medium": app.part,
@@ -377,7 +375,6 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             ),
             params=_params(cloud),
             methods=METHODS,
-            quantity="cloud_transmittance",
         ),
         *radiance,
     ]

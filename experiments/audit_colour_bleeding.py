@@ -186,7 +186,6 @@ def bounce_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id="bounce",
             label="one-bounce indirect irradiance at the visible points",
             reference=ref,
-            mask=mask,
             channel_inputs=tuple(channels),
             parameters={
                 "rays_per_point": RAYS,

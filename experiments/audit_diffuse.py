@@ -138,7 +138,6 @@ def diffuse_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 id=f"{tag}-{what}",
                 label=f"{app.part}, {what}",
                 reference=ref,
-                mask=mask,
                 channel_inputs=inputs,
                 parameters={**params, "shadowing": what},
                 factor=factor,

@@ -192,7 +192,6 @@ def environment_maps_cases(setup: AuditSetup, app: Applicability) -> list[Family
             id=tag,
             label=f"{app.part}, radiance",
             reference=ref,
-            mask=mask,
             channel_inputs=(inputs,),
             parameters=parameters,
             units="W/m²/sr",

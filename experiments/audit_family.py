@@ -47,7 +47,7 @@ import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import drjit as dr
 import numpy as np
@@ -145,6 +145,9 @@ class AuditReference:
     """The reference's own relative precision floor per pixel (H, W, 3), where its estimator's float32
     arithmetic biases it beyond `RELATIVE_PRECISION_FLOOR` (a very small sphere light's cone sampling:
     `audit_lights.sphere_sampling_precision`); None: `RELATIVE_PRECISION_FLOOR` everywhere."""
+    mask: np.ndarray | None = None
+    """The (H, W) mask of the pixels it was made for (its constructors set it: `PooledPasses.reference`,
+    `deterministic`): a `FamilyCase` that names no mask of its own compares these pixels."""
 
     def relative_floor(self):
         """The relative precision floor: `RELATIVE_PRECISION_FLOOR`, or per pixel at least ``precision``."""
@@ -185,6 +188,7 @@ class AuditReference:
             quantity=quantity,
             integrator=integrator,
             integrator_reason=integrator_reason,
+            mask=mask,
         )
 
 
@@ -260,6 +264,7 @@ class PooledPasses:
             integrator=integrator,
             integrator_reason=integrator_reason,
             precision=None if precision is None else masked_image(mask, precision),
+            mask=mask,
         )
 
 
@@ -299,16 +304,20 @@ FIT_WEIGHTS = ("absolute", "relative")
 @dataclass(frozen=True)
 class FamilyCase:
     """One comparison: ``id`` (file-name safe), ``label``, ``parameters`` (free-form, into results.json),
-    the ``reference``, the ``mask`` (H, W) of compared pixels, ``channel_inputs`` (one mapping per RGB
-    channel: input name → array over the masked pixels, or a float), ``factor`` (over the masked pixels,
-    or None), ``units`` of the quantity and ``notes`` (sentences for the report); ``methods``, ``quantity``
-    and ``params``: the case's own rows (module docstring; empty: the family's)."""
+    the ``reference``, the ``mask`` (H, W) of compared pixels (left out: the reference's own,
+    `AuditReference.mask`), ``channel_inputs`` (one mapping per RGB channel: input name → array over the
+    masked pixels, or a float), ``factor`` (over the masked pixels, or None), ``units`` of the quantity and
+    ``notes`` (sentences for the report); ``methods``, ``quantity`` and ``params``: the case's own rows
+    (module docstring; empty: the family's)."""
 
     id: str
     label: str
     reference: AuditReference
-    mask: np.ndarray
-    channel_inputs: tuple[Mapping[str, Any], ...]
+    mask: np.ndarray = field(default=cast(np.ndarray, None))
+    """The compared pixels; left out (None): the pixels the reference was made for (`AuditReference.mask`).
+    Given, it is used as it is (rtfit compare's cases give their own)."""
+    channel_inputs: tuple[Mapping[str, Any], ...] = ()
+    """Empty only where no row is evaluated (rtfit compare's cases: a reference and its frames)."""
     parameters: Mapping[str, Any] = field(default_factory=dict)
     factor: np.ndarray | None = None
     units: str = ""
@@ -338,6 +347,10 @@ class FamilyCase:
     relative error, its noise floor σ stopping a dark pixel from dominating; σ = `AuditReference.sigma`)."""
 
     def __post_init__(self):
+        if self.mask is None:
+            if self.reference.mask is None:
+                raise AuditError(f"{self.id}: no mask: neither the case nor its reference names one")
+            object.__setattr__(self, "mask", self.reference.mask)
         if self.fit_weight not in FIT_WEIGHTS:
             raise AuditError(f"{self.id}: fit_weight {self.fit_weight!r}: one of {', '.join(FIT_WEIGHTS)}")
 

@@ -177,7 +177,6 @@ def fresnel_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"fresnel-{app.source}",
             label=f"{app.part}, Fresnel reflectance",
             reference=reference,
-            mask=mask,
             channel_inputs=channel,
             parameters={
                 "shape": app.part,

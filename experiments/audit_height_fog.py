@@ -383,7 +383,6 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 tag,
                 app.part,
                 t_ref,
-                mask,
                 common,
                 params,
                 notes=(
@@ -448,12 +447,12 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         quantity="radiance at the camera with this medium alone (W/m²/sr, RGB)",
         integrator=str(fogged.integrator.get("type", "volpathmis")),
         integrator_reason=str(reason),
+        mask=mask,
     )
     r_case = FamilyCase(
         id=f"{tag}-radiance",
         label=f"{app.part}, fogged radiance",
         reference=r_ref,
-        mask=mask,
         channel_inputs=(radiance_inputs,),
         parameters={**params, "quantity": "fogged radiance", "l0_cache_key": l0.key},
         units="W/m²/sr",

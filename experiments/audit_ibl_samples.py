@@ -310,7 +310,6 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"ibl{app.source}",
             label=f"{app.part}: environment irradiance with visibility, N directional lights with shadows",
             reference=sky.reference(setup.mask),
-            mask=setup.mask,
             channel_inputs=channel,
             parameters={
                 "environment": app.part,

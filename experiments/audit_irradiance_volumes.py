@@ -196,7 +196,6 @@ def irradiance_volume_cases(setup: AuditSetup, app: Applicability) -> list[Famil
         id="volume",
         label=f"probe grid {dims}, irradiance at the visible points",
         reference=ref,
-        mask=mask,
         channel_inputs=(user_inputs,),
         parameters=parameters,
         units="W/m²",
@@ -234,7 +233,6 @@ def irradiance_volume_cases(setup: AuditSetup, app: Applicability) -> list[Famil
         label=f"probe grid {dims}, total irradiance: {n_lights} delta light(s) folded into the probes, or "
         "exact direct + the volume",
         reference=total_ref,
-        mask=mask,
         channel_inputs=(
             {
                 **geometry,

@@ -256,7 +256,6 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"coat-{app.source}",
             label=f"{app.part}, the base's offset seen through it",
             reference=reference,
-            mask=mask,
             channel_inputs=(inputs, inputs, inputs),
             parameters={
                 "shape": app.part,
@@ -321,7 +320,6 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"coat-{app.source}-radiance",
             label=f"{app.part}, the coated base's radiance under the sky",
             reference=reference,
-            mask=mask_r,
             channel_inputs=channels,
             params=_blur_starts(reference.mean[mask_r], channels) if rows != COMPOSITE_ROWS else {},
             parameters={

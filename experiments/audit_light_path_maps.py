@@ -388,7 +388,6 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 id=f"{tag}-at{p}",
                 label=f"one bounce with the light at {where}" + (" (as declared)" if p == 0 else " (moved)"),
                 reference=ref,
-                mask=mask,
                 channel_inputs=rows["seed-path-map"],
                 row_inputs=rows,
                 precompute=precompute,

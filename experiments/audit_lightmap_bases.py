@@ -256,6 +256,7 @@ def lightmap_rows(maps: Lightmaps) -> tuple[dict[str, Method], dict]:
 
 
 def texel_reference(ref: AuditReference, mask: np.ndarray) -> AuditReference:
-    """The case's reference restricted to the texels' ``mask`` (zero elsewhere): no new render."""
+    """The case's reference restricted to the texels' ``mask`` (zero elsewhere, made for ``mask``): no new
+    render."""
     keep = mask[..., None].astype(np.float64)
-    return replace(ref, mean=ref.mean * keep, stderr=ref.stderr * keep)
+    return replace(ref, mean=ref.mean * keep, stderr=ref.stderr * keep, mask=mask)

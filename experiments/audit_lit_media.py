@@ -299,7 +299,6 @@ def inscatter_case(
         id=f"{case.tag}-{suffix}",
         label=f"{app.part}, in-scattered radiance",
         reference=case.reference,
-        mask=rays.mask,
         channel_inputs=channels,
         parameters={"light": app.part, **light_parameters(lit, rays), **parameters, "K_W_per_m_sr": case.k},
         units="W/m²/sr",

@@ -356,20 +356,18 @@ def transmittance_case(
     tag: str,
     label: str,
     reference: AuditReference,
-    mask: np.ndarray,
     common: Mapping[str, Any],
     parameters: Mapping[str, Any],
     **rows: Any,
 ) -> FamilyCase:
-    """A fog family's transmittance case of one medium (`transmittance_reference`) on the pixels of
-    ``mask``: id ``<tag>-transmittance``, label ``<label>, transmittance``, the per-pixel inputs ``common``
-    for the three channels (T is grey), ``parameters`` with its quantity, units 1, quantity
+    """A fog family's transmittance case of one medium (`transmittance_reference`) on the pixels its
+    ``reference`` was made for: id ``<tag>-transmittance``, label ``<label>, transmittance``, the per-pixel
+    inputs ``common`` for the three channels (T is grey), ``parameters`` with its quantity, units 1, quantity
     ``fog_transmittance``; ``rows``: the case's ``notes``, ``methods`` and ``params`` (`FamilyCase`)."""
     return FamilyCase(
         id=f"{tag}-transmittance",
         label=f"{label}, transmittance",
         reference=reference,
-        mask=mask,
         channel_inputs=(common, common, common),
         parameters={**parameters, "quantity": "transmittance"},
         units="1",

@@ -197,7 +197,6 @@ def glow_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"{tag}-glow",
             label=f"{app.part}, glow at the camera",
             reference=reference,
-            mask=rays.mask,
             channel_inputs=channels,
             parameters={"light": app.part, **light_parameters(lit, rays), "optical_depth": tau, "A0": a0},
             units="W/m²/sr",

@@ -115,13 +115,13 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         quantity="sky radiance along the panorama's directions, single + multiple scattering (RGB)",
         integrator="rtfit_skypath (max_depth −1) in the spherical-shell atmosphere",
         integrator_reason="media with chromatic extinction; all scattering orders and the ground bounce",
+        mask=mask,
     )
     return [
         FamilyCase(
             id="sky",
             label=f"sky, sun {elev:g}°, viewer {alt:g} m",
             reference=reference,
-            mask=mask,
             channel_inputs=(inputs,),
             parameters={
                 "sun_elevation_deg": elev,
@@ -137,7 +137,6 @@ def sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             methods=rows,
             uncosted=dict.fromkeys(rows, TEXTURE_UNCOSTED),
             precompute=texture_precomputes(atmosphere_params_of(spec), elev, alt, rows, setup.variant),
-            quantity="sky_radiance",
         )
     ]
 

@@ -183,13 +183,11 @@ def obscurance_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 id=f"obscurance-{tag}",
                 label=f"{app.part}: {what}",
                 reference=ref,
-                mask=mask,
                 channel_inputs=(inputs,) * 3,
                 parameters={**parameters, "reference_quantity": quantity},
                 units="1",
                 notes=notes,
                 methods=methods,
-                quantity="obscurance",
                 params=params,
                 user_rows=partial(on_rays, rays=RAYS),  # a user's g.distances: the rows' own K distances
             )

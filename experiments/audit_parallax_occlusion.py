@@ -332,7 +332,6 @@ def parallax_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"pom-{app.source}",
             label=f"parallax occlusion, {app.part.split(':')[0]}",
             reference=reference,
-            mask=mask,
             channel_inputs=(inputs,),
             parameters={
                 "pom_depth": depth,
@@ -436,6 +435,7 @@ def _shadow_cases(setup, app, k, light_id, emitter, centre, hit, fine_scene, hm,
         "ray_test against the displaced mesh only (no sampling of the camera ray; not cached)",
         integrator_reason="the height field's own shadow, what POM's shadow query models: other occluders "
         "are a shadow map's; standard error by the delta method on the paired samples",
+        mask=mask,
     )
     rows = {mid: on_field(m, hm, depth) for mid, m in SHADOW_AUDIT_METHODS.items()}
     label = f"parallax occlusion soft shadow, {app.part.split(':')[0]}, {light_id}"
@@ -444,7 +444,6 @@ def _shadow_cases(setup, app, k, light_id, emitter, centre, hit, fine_scene, hm,
             id=f"pom-{app.source}-shadow-{k}",
             label=label,
             reference=reference,
-            mask=mask,
             channel_inputs=(inputs,),
             parameters={
                 "pom_depth": depth,

@@ -248,7 +248,6 @@ def pcf_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 id=f"{tag}-map{res}",
                 label=f"{app.part}, shadow map {res}²",
                 reference=ref,
-                mask=mask,
                 channel_inputs=tuple({"irradiance": e[c][keep], **inputs} for c in range(3)),
                 parameters={**params, "light_size_uv": sm.light_size, "pixels": int(keep.sum())},
                 units="W/m²",

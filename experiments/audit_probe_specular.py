@@ -196,7 +196,6 @@ def probe_specular_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCa
                 id=f"{tag}-{name}",
                 label=f"{app.part}, {name} probe{'s' if len(probes) > 1 else ''}",
                 reference=ref,
-                mask=mask,
                 channel_inputs=(inputs,),
                 parameters=parameters,
                 units="W/m²/sr",

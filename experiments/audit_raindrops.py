@@ -237,7 +237,6 @@ def drop_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=tag,
             label=f"{app.part}, drop radiance",
             reference=ref,
-            mask=mask,
             channel_inputs=channels,
             parameters={
                 "shape": app.part,

@@ -67,7 +67,6 @@ def sh_sky_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"shsky{app.source}",
             label=f"{app.part}: sky irradiance with visibility, the sky's SH at the bent normal",
             reference=sky.reference,
-            mask=setup.mask,
             channel_inputs=(inputs,),
             parameters={
                 "environment": app.part,

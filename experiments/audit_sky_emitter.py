@@ -140,7 +140,6 @@ def sky_emitter_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]
             id="sky-emitter" if app.source is None else f"sky-emitter-{app.source}",
             label=f"sunsky sky, sun {elev:.3g}°",
             reference=reference,
-            mask=mask,
             channel_inputs=(inputs,),
             parameters={"sun_elevation_deg": elev, "pixels": int(mask.sum()), **knobs},
             units="W/m²/sr",
@@ -155,7 +154,6 @@ def sky_emitter_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]
             methods=rows,
             uncosted=dict.fromkeys(rows, TEXTURE_UNCOSTED),
             precompute=texture_precomputes(AtmosphereParams(), elev, 0.0, rows, setup.variant),
-            quantity="sky_radiance",
         )
     ]
 

@@ -357,7 +357,6 @@ def particle_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=tag,
             label=f"{app.part}: particle opacity",
             reference=ref,
-            mask=mask,
             channel_inputs=tuple(inputs),
             parameters={
                 "particle": app.part,
@@ -371,7 +370,6 @@ def particle_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             units="1",
             notes=tuple(notes),
             methods=methods,
-            quantity="particle_opacity",
         )
     ]
 

@@ -41,7 +41,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from .engine_presets_fog import Engine
-from .engine_presets_unreal import SKY_UNREAL_LOST
+from .engine_presets_unreal import SKY_UNREAL_LOST, colour_property
 
 __all__ = [
     "HDRP_FOG",
@@ -73,8 +73,7 @@ def _hdrp_to(b, c, base, colour):
 def _hdrp_from(v, base):
     c = 1.0 / (HDRP_SCALE_HEIGHT * (v["MaximumHeight"] - v["BaseHeight"]))
     b = math.exp(c * v["BaseHeight"]) / v["FogAttenuationDistance"]
-    colour = v.get("Color")
-    return b, c, (tuple(colour) if colour is not None else None)
+    return b, c, colour_property(v, "Color")
 
 
 HDRP_FOG = Engine(

@@ -60,6 +60,7 @@ __all__ = [
     "SKY_UNREAL_LOST",
     "SKY_UNREAL_SOURCES",
     "UNREAL_FOG",
+    "colour_property",
     "sky_from_unreal",
     "sky_to_unreal",
     "unreal_optical_depth",
@@ -68,6 +69,12 @@ __all__ = [
 
 
 # ------------------------------------------------------------------------------ the height fog's conversion
+def colour_property(values: Mapping, key: str) -> tuple | None:
+    """An engine's colour property ``key`` of ``values`` as an RGB tuple, or None where it is not given."""
+    colour = values.get(key)
+    return tuple(colour) if colour is not None else None
+
+
 def _unreal_to(b, c, base, colour):
     out = {
         "FogDensity": 10.0 * b * math.exp(-c * base) / LN2**2,
@@ -86,8 +93,7 @@ def _unreal_from(v, base):
     c = LN2 * v["FogHeightFalloff"] / 10.0
     z_fog = v.get("ActorLocationZ", 100.0 * base) / 100.0  # the actor's height (cm) in rtfit's metres
     b = LN2**2 * v["FogDensity"] / 10.0 * math.exp(c * z_fog)
-    colour = v.get("FogInscatteringColor")
-    return b, c, (tuple(colour) if colour is not None else None)
+    return b, c, colour_property(v, "FogInscatteringColor")
 
 
 UNREAL_FOG = Engine(

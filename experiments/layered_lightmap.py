@@ -222,7 +222,6 @@ def lightmap_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             id=f"slab-{app.source}-lightmap",
             label=f"{app.part}: the inner layer's irradiance under it",
             reference=reference,
-            mask=mask,
             channel_inputs=channels,
             params=_starts(pooled.mean, channels),
             parameters={

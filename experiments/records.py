@@ -31,55 +31,22 @@ them, `rtfit.experiments.record_base` (:class:`Record`, the marked types, :func:
 
 from __future__ import annotations
 
+from . import record_types
 from .record_base import JSON, DateTime, Record, RelPath, to_json
 from .record_loader import ResultsError, from_json, plain_json
 from .record_schema import record_json_schema, results_json_schema
-from .record_types import (
-    SCHEMA,
-    Approximation,
-    Case,
-    Check,
-    Config,
-    Cost,
-    Figure,
-    Fit,
-    FitParameter,
-    Headline,
-    Metric,
-    PixelCost,
-    Reference,
-    Results,
-    Scene,
-    Section,
-    amortised_ns,
-)
+from .record_types import *  # noqa: F403 (the record classes: record_types.__all__)
 
 __all__ = [
     "JSON",
-    "SCHEMA",
-    "Approximation",
-    "Case",
-    "Check",
-    "Config",
-    "Cost",
     "DateTime",
-    "Figure",
-    "Fit",
-    "FitParameter",
-    "Headline",
-    "Metric",
-    "PixelCost",
     "Record",
-    "Reference",
     "RelPath",
-    "Results",
     "ResultsError",
-    "Scene",
-    "Section",
-    "amortised_ns",
     "from_json",
     "plain_json",
     "record_json_schema",
     "results_json_schema",
     "to_json",
 ]
+__all__ += record_types.__all__  # (every record type, re-exported)

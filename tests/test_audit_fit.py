@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rtfit.experiments.audit_family import AuditReference, FamilyCase
+from rtfit.experiments.audit_family import AuditError, AuditReference, FamilyCase
 from rtfit.experiments.audit_fit import fit_case, pooled_fit
 from rtfit.realtime.methods import Input, Method, Param
 
@@ -176,3 +176,16 @@ def test_a_case_reading_a_table_of_its_scene_is_left_out_of_the_pool():
         c = FamilyCase(c.id, c.label, c.reference, c.mask, ({"x": x, "table": np.ones(37)},))
         cases.append((c, "tab", {}))
     assert pooled_fit(tab, cases) is None  # both left out: nothing to pool
+
+
+def test_a_case_compares_the_pixels_its_reference_was_made_for():
+    mask = np.array([[True, False, True], [False, True, False]])
+    ref = AuditReference.deterministic(mask, np.array([1.0, 2.0, 3.0]), ("k",), 0.0, "q", "none", "planted")
+    assert ref.mean[..., 0].tolist() == [[1.0, 0.0, 2.0], [0.0, 3.0, 0.0]]  # (row-major over the mask)
+    case = FamilyCase("c", "c", ref, channel_inputs=({"x": 1.0},) * 3)
+    assert case.mask is mask
+    own = ~mask
+    assert FamilyCase("d", "d", ref, own, ({"x": 1.0},) * 3).mask is own  # (a case's own mask is kept)
+    bare = AuditReference(ref.mean, ref.stderr, 1, 1, 1, "k", "", 0.0, "q", "none", "planted")
+    with pytest.raises(AuditError, match=r"^e: no mask"):
+        FamilyCase("e", "e", bare, channel_inputs=({"x": 1.0},) * 3)
