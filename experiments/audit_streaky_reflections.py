@@ -266,7 +266,6 @@ def _light_case(
         id=tag,
         label=f"{shape_text} × {light_part}, reflected radiance",
         reference=reference,
-        mask=mask,
         channel_inputs=channels,
         parameters={
             "shape": shape_text,

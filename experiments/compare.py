@@ -148,8 +148,7 @@ class CompareResult:
                     if len(self.references) > 1
                     else ""
                 ),
-                reference=ref,
-                mask=self.mask,
+                reference=ref,  # with its own camera's mask (each camera sees its own pixels)
                 channel_inputs=(),
             )
             for cid, ref in self.references.items()

@@ -163,5 +163,6 @@ def _transmittance(setup: AuditSetup) -> tuple[AuditReference, np.ndarray]:
         quantity=SURFACE_QUANTITIES["transmittance"],
         integrator="ratio tracking through each medium (Medium.get_scattering_coefficients)",
         integrator_reason="unbiased exp(−∫σt ds) per medium stretch, multiplied over the media; pixel centre",
+        mask=mask,
     )
     return ref, mask

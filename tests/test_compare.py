@@ -375,3 +375,26 @@ def test_sequence_with_more_frames_than_sensors_is_one_line(sequence):
     d, xml, (v0, v1, bright) = sequence
     args = [str(xml), str(v0), str(v1), str(bright), "--camera-path", "sensors", "--cache", str(d / "cache")]
     _one_line_exit_2(args, "--camera 2")
+
+
+def test_each_cameras_case_holds_its_own_mask():
+    """Two cameras that see different pixels (a surface quantity's mask is the pixels on a surface): each
+    case of the result is compared on its own camera's pixels, not on the last camera's (the case used to
+    take ``CompareResult.mask``, the last one's, for every camera)."""
+    from types import SimpleNamespace
+
+    from rtfit.experiments.audit_family import AuditReference
+    from rtfit.experiments.compare import CompareResult
+
+    masks = [np.zeros((4, 5), bool) for _ in range(2)]
+    masks[0][:2] = True  # camera 0 sees the top rows' surface, camera 1 the bottom ones
+    masks[1][2:] = True
+    refs = {
+        f"cam{i}": AuditReference.deterministic(m, np.full((m.sum(), 3), 1.0 + i), (i,), 0, "q", "i", "r")
+        for i, m in enumerate(masks)
+    }
+    info = SimpleNamespace(source="two_views.xml")
+    result = CompareResult(info, refs, [], {}, masks[-1], "irradiance", camera_of_case={"cam0": 0, "cam1": 1})
+    for case, mask in zip(result.cases, masks, strict=True):
+        assert np.array_equal(case.mask, mask)
+        assert np.all(case.reference.mean[mask] == case.reference.mean[mask][0])  # its own pixels hold values
