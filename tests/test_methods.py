@@ -120,7 +120,7 @@ def test_trf_solver_lands_where_an_independent_fit_lands_and_flags_bounds_and_nu
     assert ref_low.x[0] == pytest.approx(0.0, abs=1e-9)
     at = fit_method(WRAP, {"cos_theta": c}, low, solver="trf")
     assert at.converged and at.at_bound["w"] and at.values["w"] == pytest.approx(0.0, abs=1e-9)
-    assert at.values["p"] == pytest.approx(ref_low.x[1], rel=1e-7)
+    assert abs(at.values["p"] - ref_low.x[1]) <= NOISE_KAPPA * at.stderr["p"]
     # p only scales the exponent of a base that is 1 everywhere (cos θ = 1): w and p are not determined.
     flat = fit_method(WRAP, {"cos_theta": np.ones(50)}, np.ones(50), solver="trf")
     assert math.isnan(flat.stderr["p"]) and flat.jacobian_rank < 2
