@@ -17,6 +17,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import os
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -59,18 +60,31 @@ def _entry_points(paths: tuple[str, ...]) -> tuple[tuple[Callable[[], int], Call
     return tuple(out)
 
 
+_LOCK = threading.Lock()
+_HELD: list = [0, ()]  # blocks inside one_blas_thread now, and the (set, count) pairs to restore
+
+
 @contextmanager
 def one_blas_thread() -> Iterator[None]:
-    """Run the block with one OpenBLAS thread in every loaded OpenBLAS, then restore each one's count."""
-    libs = _entry_points(_loaded_openblas())
-    before = [get() for get, _ in libs]
-    for _, put in libs:
-        put(1)
+    """Run the block with one OpenBLAS thread in every loaded OpenBLAS, then restore each one's count.
+    Nested or concurrent blocks (fits in several threads) share one setting: the first to enter saves the
+    counts, the last to leave restores them."""
+    with _LOCK:
+        if _HELD[0] == 0:
+            libs = _entry_points(_loaded_openblas())
+            _HELD[1] = tuple((put, get()) for get, put in libs)
+            for put, _ in _HELD[1]:
+                put(1)
+        _HELD[0] += 1
     try:
         yield
     finally:
-        for (_, put), n in zip(libs, before, strict=True):
-            put(n)
+        with _LOCK:
+            _HELD[0] -= 1
+            if _HELD[0] == 0:
+                for put, n in _HELD[1]:
+                    put(n)
+                _HELD[1] = ()
 
 
 def blas_thread_counts() -> list[int]:

@@ -71,3 +71,8 @@ def test_one_blas_thread_sets_one_and_restores():
     with pytest.raises(RuntimeError), blas_threads.one_blas_thread():
         raise RuntimeError("restored on an exception too")
     assert blas_threads.blas_thread_counts() == before
+    with blas_threads.one_blas_thread():  # nested: the outer block's exit restores
+        with blas_threads.one_blas_thread():
+            pass
+        assert blas_threads.blas_thread_counts() == [1] * len(before)
+    assert blas_threads.blas_thread_counts() == before
