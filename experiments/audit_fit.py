@@ -32,10 +32,26 @@ __all__ = ["FIT_SOLVER", "FitData", "PooledFit", "evaluate_case", "fit_case", "f
 
 FIT_SOLVER = "trf"
 """The audit's fits: SciPy's trust-region reflective solver on the NumPy run of each kernel text
-(`rtfit.fitting.fit_method`, ``solver="trf"``): nothing is compiled per scene. On Mitsuba's Cornell box at
-64² × 32 spp (2 loaded CPU cores) its 9 fits took 3.1 s against 34.3 s through the JAX run (optimistix LM),
-with the same values to ~1e-9 where both converge, and a lower SSR where LM stopped early (the Evans
-listing form's logB, stuck on its bound through the change of variables: SSR 8928 → 262.5)."""
+(`rtfit.fitting.fit_method`, ``solver="trf"``): nothing is compiled per scene. On Mitsuba's Cornell box at 64²
+× 32 spp (2 loaded CPU cores) its 9 fits took 3.1 s against 34.3 s through the JAX run (optimistix LM), with
+the same values to ~1e-9 where both converge, and a lower SSR where LM stopped early (the Evans listing form's
+logB, stuck on its bound through the change of variables: SSR 8928 → 262.5).
+
+Issue 33 (session 18), measured with a CPU-clock profiler on the same audit: the 29 fits spent 28.9 / 28.6 CPU
+s (two rounds, alternated with the change), about half of it inside SciPy's TRF on threaded OpenBLAS (each m ×
+p product, m ≈ 10⁴, p ≤ 7, split over the threads, which spin on a loaded machine) and the rest in ≈ 4200
+kernel evaluations, 84 % of them the central-difference Jacobian's. Kept: one BLAS thread while TRF runs
+(`rtfit.fitting.blas_threads`) and a stop derived from the noise (`method_fit.noise_ftol`: ftol = κ²/dof keeps
+each value within κ = 1e-2 of its stderr of the optimum; checked at the stop by the Gauss–Newton gain,
+`gauss_newton_gain_small`): 13.2 / 12.8 CPU s (−55 %), every determined value within 7e-4 of its stderr of the
+former fit (poisson8-rotated's radius; the rest ≤ 4e-4), the same Jacobian ranks (values the data do not
+determine, stderr NaN, may move along their null direction at the same SSR: aa-fitted-seed's c0, c2, c4 by
+0.11–0.22). Measured and not kept: a forward-difference Jacobian while iterating (then a central one to
+polish; −17 % more) moved PCSS's light scale 248 stderr to a 1.8 % lower SSR and dropped two RGB-obscurance
+fits' Jacobian rank (their d_max, exponent undetermined); fitting first on a deterministic every-k-th
+subsample of ≤ 4096 elements, then polishing on all (−6 % more) moved the 256² map's poisson8-rotated radius
+0.50 stderr to a higher SSR (its texel steps: a subsample sees other edges), and quick runs fit fewer than
+4096 elements anyway."""
 
 
 def evaluate_case(method: Method, case: FamilyCase, params: Mapping[str, float]) -> np.ndarray:

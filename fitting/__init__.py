@@ -7,7 +7,9 @@
 * :mod:`.least_squares`: `fit_least_squares` / `fit_curve` (optimistix Levenberg–Marquardt, bounds by
   reparametrisation, standard errors), `covariance_from_jacobian`.
 * :mod:`.method_fit`: `fit_method`: fit a `rtfit.realtime.methods.Method`'s parameters through the JAX
-  run of its one kernel text.
+  run of its one kernel text (``solver="trf"``: the NumPy run, SciPy TRF, stopped at a noise-derived
+  tolerance, `method_fit.noise_ftol`).
+* :mod:`.blas_threads`: `one_blas_thread`, one OpenBLAS thread while a TRF fit runs.
 * :mod:`.bounded_lm`: `bounded_lm`, a projected Levenberg–Marquardt for residuals with a user-supplied
   Jacobian (NumPy; residuals JAX cannot trace), `bounded_lm_result` (its `FitResult`), `param_bounds`.
 

@@ -1,0 +1,78 @@
+"""The ``"trf"`` fits' stopping rule from the noise (`method_fit.noise_ftol`) and their one BLAS thread
+(`blas_threads.one_blas_thread`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from rtfit.fitting import blas_threads, fit_method
+from rtfit.fitting.method_fit import NOISE_KAPPA, noise_ftol
+from rtfit.realtime import Input, Method, Param
+
+
+def _exp_decay(ops, t, a, k):
+    return a * ops.exp(-k * t)
+
+
+DECAY = Method(
+    "decay-test",
+    "Exponential decay",
+    _exp_decay,
+    inputs=(Input("t", "s", "time"),),
+    params={"a": Param(0.5, 0.0, 10.0, unit="1"), "k": Param(3.0, 0.01, 20.0, unit="1/s")},
+)
+
+
+@pytest.mark.parametrize("sigma", [1e-3, 3e-2])
+def test_trf_stops_within_kappa_stderr_of_the_optimum(sigma):
+    """Noisy data of a*exp(−k t): the fit stops within NOISE_KAPPA of each value's stderr of the optimum
+    that SciPy's own TRF reaches at tolerances 1e-15 on a hand-written residual (an independent fit)."""
+    rng = np.random.default_rng(7)
+    t = np.linspace(0.0, 2.0, 5000)
+    y = 2.0 * np.exp(-1.5 * t) + rng.normal(0.0, sigma, t.size)
+    ref = least_squares(
+        lambda x: x[0] * np.exp(-x[1] * t) - y,
+        [0.5, 3.0],
+        bounds=([0.0, 0.01], [10.0, 20.0]),
+        ftol=1e-15,
+        xtol=1e-15,
+        gtol=1e-15,
+    )
+    fit = fit_method(DECAY, {"t": t}, y, solver="trf")
+    assert fit.converged
+    for i, k in enumerate(("a", "k")):
+        assert abs(fit.values[k] - ref.x[i]) <= NOISE_KAPPA * fit.stderr[k]
+    # the stderr: the textbook s·√((JᵀJ)⁻¹)ᵢᵢ at the reference optimum, J written by hand
+    j = np.stack([np.exp(-ref.x[1] * t), -ref.x[0] * t * np.exp(-ref.x[1] * t)], axis=1)
+    s2 = float(ref.fun @ ref.fun) / (t.size - 2)
+    se = np.sqrt(s2 * np.diag(np.linalg.inv(j.T @ j)))
+    assert [fit.stderr["a"], fit.stderr["k"]] == pytest.approx(se, rel=1e-4)
+
+
+def test_noise_ftol_is_kappa_squared_over_dof():
+    """|δᵢ|/seᵢ < √(ftol·dof) (s² = SSR/dof), so ftol = κ²/dof; with absolute σ (s² = 1), κ²/SSR."""
+    assert noise_ftol(10_000, 5.0) == pytest.approx(NOISE_KAPPA**2 / 10_000)
+    assert noise_ftol(0, 5.0) == pytest.approx(NOISE_KAPPA**2)
+    assert noise_ftol(10_000, 400.0, absolute_sigma=True) == pytest.approx(NOISE_KAPPA**2 / 400.0)
+    assert noise_ftol(10_000, 0.0, absolute_sigma=True) == 0.0
+
+
+def test_one_blas_thread_sets_one_and_restores():
+    """Inside the block every loaded OpenBLAS reports one thread; after it, the count it had."""
+    import scipy.linalg  # noqa: F401  (loads SciPy's own OpenBLAS beside NumPy's)
+
+    before = blas_threads.blas_thread_counts()
+    assert before, "NumPy's and SciPy's OpenBLAS: their thread counts can be read"
+    with blas_threads.one_blas_thread():
+        assert blas_threads.blas_thread_counts() == [1] * len(before)
+    assert blas_threads.blas_thread_counts() == before
+    with pytest.raises(RuntimeError), blas_threads.one_blas_thread():
+        raise RuntimeError("restored on an exception too")
+    assert blas_threads.blas_thread_counts() == before
+    with blas_threads.one_blas_thread():  # nested: the outer block's exit restores
+        with blas_threads.one_blas_thread():
+            pass
+        assert blas_threads.blas_thread_counts() == [1] * len(before)
+    assert blas_threads.blas_thread_counts() == before
