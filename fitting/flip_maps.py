@@ -111,13 +111,15 @@ def flip_map(ref32, test32, params) -> np.ndarray:
     return fmap
 
 
-FLIP_TILE_PAD = FLIP_MIN_SIZE
+FLIP_TILE_PAD = FLIP_MIN_SIZE // 2
 """Edge-replicated columns on each side of each image when several ꟻLIP maps are computed in one call
-(`compute_flip_maps`, behind `rtfit.fitting.metrics.prime_flip`): twice ꟻLIP's widest filter radius (10 px
-at its default pixels per degree), so that no filter reaches a neighbour's pixels and every map equals the
-map of its pair alone (tests/test_metrics.py checks it against separate calls). One call of ꟻLIP costs
-~0.1 s on a CPU core at any size up to ~64²: one call for a case's rows instead of one per row is most of
-the saving."""
+(`compute_flip_maps`, behind `rtfit.fitting.metrics.prime_flip`): ꟻLIP's widest filter radius (10 px at its
+default pixels per degree; each of its filters is one pass over the input), so that no filter reaches a
+neighbour's pixels and every map equals the map of its pair alone, bit for bit (tests/test_metrics.py checks
+it against separate calls; 9 columns do not). One call of ꟻLIP costs ~0.1 s on a CPU core at any size up to
+~64²: one call for a case's rows instead of one per row is most of the saving. Issue 33 (session 18): the
+pad was the whole filter width (21 columns a side) before; at 10, a 64-wide image is tiled 84 columns wide,
+not 106 (−21 % of ꟻLIP's work; the Cornell-box audit's 16 tiled calls: X → Y CPU s)."""
 FLIP_TILES_MAX = 16
 """At most this many pairs per tiled ꟻLIP call (its working memory grows with the tiled width)."""
 
