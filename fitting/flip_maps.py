@@ -116,10 +116,12 @@ FLIP_TILE_PAD = FLIP_MIN_SIZE // 2
 (`compute_flip_maps`, behind `rtfit.fitting.metrics.prime_flip`): ꟻLIP's widest filter radius (10 px at its
 default pixels per degree; each of its filters is one pass over the input), so that no filter reaches a
 neighbour's pixels and every map equals the map of its pair alone, bit for bit (tests/test_metrics.py checks
-it against separate calls; 9 columns do not). One call of ꟻLIP costs ~0.1 s on a CPU core at any size up to
-~64²: one call for a case's rows instead of one per row is most of the saving. Issue 33 (session 18): the
-pad was the whole filter width (21 columns a side) before; at 10, a 64-wide image is tiled 84 columns wide,
-not 106 (−21 % of ꟻLIP's work; the Cornell-box audit's 16 tiled calls: X → Y CPU s)."""
+it against separate calls; 9 columns do not). One call of ꟻLIP cost ~0.1 s on 2 loaded CPU cores at any size
+up to ~64² (its threads' synchronisation; a 64² map is ~10 ms of work on one idle thread): one call for a
+case's rows instead of one per row is most of the saving. Issue 33 (session 18): the pad was the whole
+filter width (21 columns a side) before; at 10, a 64-wide image is tiled 84 columns wide, not 106: 15 pairs
+of 64² in one call took 0.40 CPU s instead of 0.52 on one thread (OMP_NUM_THREADS=1, 4 rounds alternated;
+separate calls 0.29 there, but not on loaded cores)."""
 FLIP_TILES_MAX = 16
 """At most this many pairs per tiled ꟻLIP call (its working memory grows with the tiled width)."""
 

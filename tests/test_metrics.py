@@ -415,3 +415,32 @@ def test_prime_flip_gives_the_maps_and_values_of_separate_calls():
         )  # fmt: skip
         assert np.array_equal(np.asarray(direct, np.float64).reshape(40, 48), M.flip_error_map(a, ref, mask))
     assert M.prime_flip(approxes, ref, sd, mask) == 0  # all known now
+
+
+def test_flip_tile_pad_is_the_least_that_keeps_the_maps(monkeypatch):
+    """`FLIP_TILE_PAD` columns between tiled images keep each ꟻLIP map equal to its pair's map alone
+    (flip_evaluator called directly); one column fewer lets a filter reach the neighbour (the pad is the
+    filter radius, not more)."""
+    import flip_evaluator
+
+    from rtfit.fitting import flip_maps as F
+
+    rng = np.random.default_rng(5)
+    ref = rng.uniform(0.0, 3.0, (24, 30, 3)) ** 3
+    params = F.flip_exposures(ref, np.ones((24, 30), bool))
+    r32 = F.flip_input(ref, "", float(ref.max()), False)
+    pairs = [
+        (r32, F.flip_input(ref * rng.uniform(0, 2, ref.shape), "", float(ref.max()), False)) for _ in range(3)
+    ]
+    alone = [
+        np.asarray(
+            flip_evaluator.evaluate(
+                a, b, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
+            )[0],
+            np.float64,
+        ).reshape(24, 30)
+        for a, b in pairs
+    ]
+    assert all(np.array_equal(t, a) for t, a in zip(F.flip_maps_tiled(pairs, params), alone, strict=True))
+    monkeypatch.setattr(F, "FLIP_TILE_PAD", F.FLIP_TILE_PAD - 1)
+    assert not all(np.array_equal(t, a) for t, a in zip(F.flip_maps_tiled(pairs, params), alone, strict=True))
