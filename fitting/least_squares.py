@@ -44,6 +44,7 @@ __all__ = [
     "covariance_from_jacobian",
     "fit_curve",
     "fit_least_squares",
+    "normalised_svd",
 ]
 
 AT_BOUND_RTOL = 1e-6
@@ -190,16 +191,24 @@ def _to_f64_tree(args):
     return jax.tree_util.tree_map(conv, args)
 
 
-def _covariance(jac: np.ndarray, ssr: float, dof: int, absolute_sigma: bool, rcond: float = 0.0):
-    """Covariance from the pseudo-inverse of JᵀJ on column-normalised J, and J's rank (singular values
-    below max(n, k)·ε, or ``rcond`` where larger, of the largest are dropped)."""
+def normalised_svd(jac: np.ndarray, rcond: float = 0.0):
+    """The SVD of J with its columns scaled to unit norm (zero columns left zero): ``(u, sv, vt, keep,
+    norms, live)``, ``keep`` the singular values that count (above max(n, k)·ε, or ``rcond`` where larger, of
+    the largest), ``norms`` the columns' norms and ``live`` the nonzero columns. The covariance's rank rule
+    (`covariance_from_jacobian`), shared with `method_fit.gauss_newton_gain_small`."""
     n, k = jac.shape
     norms = np.linalg.norm(jac, axis=0)
     live = norms > 0
     js = np.where(live, jac / np.where(live, norms, 1.0), 0.0)
-    _, sv, vt = np.linalg.svd(js, full_matrices=False)
+    u, sv, vt = np.linalg.svd(js, full_matrices=False)
     tol = (sv.max() if sv.size else 0.0) * max(max(n, k) * np.finfo(np.float64).eps, rcond)
-    keep = sv > tol
+    return u, sv, vt, sv > tol, norms, live
+
+
+def _covariance(jac: np.ndarray, ssr: float, dof: int, absolute_sigma: bool, rcond: float = 0.0):
+    """Covariance from the pseudo-inverse of JᵀJ on column-normalised J, and J's rank (`normalised_svd`)."""
+    k = jac.shape[1]
+    _, sv, vt, keep, norms, live = normalised_svd(jac, rcond)
     rank = int(np.sum(keep))
     v = vt[keep].T
     inv = (v / sv[keep] ** 2) @ v.T  # (JsᵀJs)⁺

@@ -36,7 +36,7 @@ from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float, jax_ops, 
 from rtfit.realtime.methods import Method, Param
 
 from .blas_threads import one_blas_thread
-from .least_squares import FitResult, bound_flags, covariance_from_jacobian, fit_least_squares
+from .least_squares import FitResult, bound_flags, covariance_from_jacobian, fit_least_squares, normalised_svd
 
 __all__ = [
     "CHECK_KAPPA",
@@ -98,12 +98,9 @@ def gauss_newton_gain_small(jac, r, dof: int, absolute_sigma: bool = False) -> b
         return False
     ssr = float(r @ r)
     s2 = 1.0 if absolute_sigma else ssr / max(dof, 1)
-    norms = np.linalg.norm(jac, axis=0)
-    cols = norms > 0
-    if not np.any(cols) or ssr == 0.0:
+    u, _, _, keep, _, live = normalised_svd(jac, FD_RCOND)  # J's column space, as the covariance takes it
+    if not np.any(live) or ssr == 0.0:
         return True
-    u, sv, _ = np.linalg.svd(jac[:, cols] / norms[cols], full_matrices=False)
-    keep = sv > FD_RCOND * sv[0]
     gain = float(np.sum((u[:, keep].T @ r) ** 2))
     return gain <= CHECK_KAPPA**2 * s2
 
