@@ -73,10 +73,10 @@ def method_cost(
             if table.size <= _UNIFORM_FLOATS:
                 uniforms[name] = Uniforms.of(table)
         elif np.ndim(v):
-            a = np.asarray(
-                v, np.float64
-            )  # cleaned and cast before tiling: the same elements, 1/reps the work
-            a = np.tile(np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32), reps)[:size]
+            # cleaned and cast before tiling: the same elements, 1/reps the work
+            a = np.asarray(v, np.float64)
+            a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
+            a = np.tile(a, reps)[:size]
             host.append(a[:_COST_PROBE])  # the trial below reads no more
             args.append(to_drjit(Float, a))  # aligned: one compiled kernel whatever NumPy's addresses
             keys.append(name)
