@@ -109,7 +109,9 @@ class CompareResult:
     """What `compare` returns: ``info`` (the scene's inspection, first camera), ``references`` (case id →
     `AuditReference`: one per camera), ``frames`` (`FrameOutcome` in the order given), ``shapes`` (shape
     index → name), ``temporal`` (`compare_report.temporal_stability` of two frames or more), ``results`` (the
-    `Results` record written as results.json), ``out`` (the report's directory, or None) and ``timings``."""
+    `Results` record written as results.json), ``out`` (the report's directory, or None) and ``timings``;
+    ``mask``: the compared pixels of the last camera (the only one without ``camera_path``; each case's own
+    are its reference's, `AuditReference.mask`)."""
 
     info: SceneInfo
     references: dict[str, AuditReference]
