@@ -46,8 +46,8 @@ from rtfit.reference.aerial_perspective import box_exit_distance, render_fog_sun
 from rtfit.reference.nishita_sky import library_atmosphere, single_scattering_quadrature
 
 from . import figures as F
-from .audit_family import Study, StudyContext
 from .records import Check, Figure, Headline, Section
+from .shipped import Study, StudyContext
 
 __all__ = [
     "BUDGET_PARTS",

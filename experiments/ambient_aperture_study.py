@@ -60,9 +60,9 @@ from .ambient_aperture_doc import (
     report_text,
     smaller_cap,
 )
-from .audit_family import Study, StudyContext
 from .cost import cost_row, memory_floor_row, time_method
 from .records import Check, Fit, FitParameter, Headline, Section
+from .shipped import Study, StudyContext
 
 __all__ = [
     "CONFIG",

@@ -55,8 +55,8 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.grid_fit import fit_height_density, grid_of_medium
 from rtfit.reference.mitsuba_xml import UP_AXES
 
-from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_media import (
     RADIANCE_INTEGRATOR,
     box_interval,
@@ -66,6 +66,8 @@ from .audit_media import (
     radiance_passes,
     sun_direction_of,
 )
+from .audit_setup import AuditSetup
+from .shipped import ShippedScene
 
 __all__ = [
     "FAMILY",

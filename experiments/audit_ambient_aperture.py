@@ -74,11 +74,13 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.occlusion import visibility_cap_pass
 
-from .audit import Applicability, Rule
+from .audit import Applicability, AuditError, Rule
 from .audit_ambient_occlusion import ao_reference, scene_distance_field
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
+from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import ao_radius
 from .audit_lights import light_geometry, light_radiance, light_reference, scene_light
+from .audit_setup import AuditSetup, pooled_passes
+from .shipped import ShippedScene
 
 __all__ = ["CAPS_ROLE", "FAMILY", "LIGHT_ROLE", "SCENES", "BakedCaps", "bake_caps"]
 

@@ -58,16 +58,10 @@ from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.io import atomic_write_bytes
 from rtfit.reference.occlusion import occlusion_pass
 
-from .audit import Applicability, Rule
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    PooledPasses,
-    pooled_passes,
-)
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import ao_radius, scene_triangles, sdf_scene
+from .audit_setup import AuditSetup, PooledPasses, pooled_passes
 
 __all__ = [
     "FAMILY",

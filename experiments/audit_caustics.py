@@ -50,21 +50,13 @@ from rtfit.reference import caustic_pass as cp
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import device_vectors, sub_seed
 
-from .audit import Applicability, Rule
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    Precompute,
-    ShippedScene,
-    Study,
-    StudyContext,
-    pooled_passes,
-)
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase, Precompute
 from .audit_fit import length_scaled_params
 from .audit_geometry import reflective_shape
+from .audit_setup import AuditSetup, pooled_passes
 from .records import Check, Section
+from .shipped import ShippedScene, Study, StudyContext
 
 __all__ = [
     "CASTERS",

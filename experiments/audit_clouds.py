@@ -47,19 +47,12 @@ from rtfit.reference.cloud_shadow import sun_transmittance_pass
 from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.grid_fit import grid_of_medium
 
-from .audit import Applicability, Rule
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    ShippedScene,
-    Study,
-    StudyContext,
-    pooled_passes,
-)
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_media import RADIANCE_INTEGRATOR, opened_medium, radiance_passes, sun_direction_of
+from .audit_setup import AuditSetup, pooled_passes
 from .records import Check, Section
+from .shipped import ShippedScene, Study, StudyContext
 
 __all__ = [
     "BLOBS",

@@ -46,10 +46,12 @@ from rtfit.realtime.obscurances import cosine_spiral_directions
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import gbuffer_points, irradiance_pass, sub_seed
 
-from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_fit import length_scaled_params
 from .audit_geometry import ao_radius
+from .audit_setup import AuditSetup, pooled_passes
+from .shipped import ShippedScene
 
 __all__ = ["FAMILY", "FEW_RAYS", "HIT_SPP_FACTOR", "HIT_SPP_MIN", "SCENES", "bounce_cases", "ray_hits"]
 

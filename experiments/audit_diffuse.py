@@ -38,8 +38,8 @@ from rtfit.realtime.light_models import METHODS as LIGHT_MODELS
 from rtfit.realtime.methods import Param
 from rtfit.reference.estimators import gbuffer_points
 
-from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_lights import (
     hard_shadow,
     light_geometry,
@@ -50,6 +50,8 @@ from .audit_lights import (
     small_sphere_caveat,
     sphere_sampling_precision,
 )
+from .audit_setup import AuditSetup
+from .shipped import ShippedScene
 
 __all__ = ["ALPHAS_DEG", "FAMILY", "SCENES", "light_geometry", "light_radiance", "light_reference"]
 

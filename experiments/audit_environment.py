@@ -55,7 +55,8 @@ from rtfit.reference import environments as envs
 from rtfit.reference.build import light_dicts
 from rtfit.reference.environments import emitter_environment
 
-from .audit_family import AuditError, AuditSetup
+from .audit import AuditError
+from .audit_setup import AuditSetup
 from .rows import Row
 
 __all__ = [

@@ -58,17 +58,12 @@ from rtfit.reference.reflective_shapes import (
 )
 
 from .audit import Applicability, Rule
-from .audit_family import (
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    ShippedScene,
-    rgb_columns,
-    vector_text,
-    xyz_columns,
-)
+from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import reflective_shape
+from .audit_setup import AuditSetup
 from .audit_shape_probes import probe_capture, seen_shape, shape_radiance, unit_cube_texels
+from .case_inputs import rgb_columns, vector_text, xyz_columns
+from .shipped import ShippedScene
 
 __all__ = [
     "FAMILY",

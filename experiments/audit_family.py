@@ -13,7 +13,9 @@ A family joins the audit with **one declaration**, an `AuditFamily` in a module 
 Everything else — evaluating every method with Dr.Jit, measuring its cost, fitting its free parameters
 through the JAX run of the same kernel text, metrics with noise floors, error maps, ``results.json``, the
 report and the fitted-parameter file — is the audit's, the same for every family. A family never imports
-the audit engine (this module is the only thing both sides share).
+the audit engine: this module, `rtfit.experiments.audit_setup` (what its cases are given and make their
+references with), `rtfit.experiments.case_inputs` (kernel-input helpers) and `rtfit.experiments.shipped` (its
+scenes and study for ``rtfit run``) are all both sides share.
 
 A case's reference is an image (H, W, 3) with its per-pixel standard error; the methods are evaluated on the
 masked pixels only, once per RGB channel (``channel_inputs``: each input name → an array over the masked
@@ -42,230 +44,25 @@ line), not a crash.
 
 from __future__ import annotations
 
-import hashlib
-import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, cast
 
-import drjit as dr
 import numpy as np
 
 from rtfit.realtime.methods import Method, Param
-from rtfit.reference.cache import RELATIVE_PRECISION_FLOOR, PassEntry, pass_size, pool_passes
-from rtfit.reference.estimators import GBuffer, PassResult, launch_identity, sub_seed
 
-from .audit import Applicability, AuditError, Rule, SceneInfo
+from .audit import Applicability, AuditError, Rule
+from .audit_setup import AuditReference, AuditSetup
 
 __all__ = [
+    "FIT_WEIGHTS",
     "PRECOMPUTE_TRIGGERS",
-    "AuditError",
     "AuditFamily",
-    "AuditReference",
-    "AuditSetup",
     "FamilyCase",
-    "PooledPasses",
     "Precompute",
-    "ShippedScene",
-    "Study",
-    "StudyContext",
     "by_name",
-    "masked_image",
-    "pooled_passes",
-    "rgb_columns",
-    "vector_text",
-    "xyz_columns",
 ]
-
-
-@dataclass(frozen=True)
-class AuditSetup:
-    """What a family's ``cases`` is given: the scene loaded in the audit's Mitsuba variant (``mi``,
-    ``scene``, the chosen ``sensor``, ``emitters`` in `XmlScene.emitters` order), its inspection
-    (``info``; ``info.xml`` for an XML scene), the pixel-centre G-buffer and the ``mask`` of pixels that
-    show a surface that is not itself a light; the cache and sampling settings; ``scene_digest``: the
-    digest over every file the scene loads (`XmlDependencies.digest`) plus the camera and film size — part
-    of every cache key. ``ao_distance``: the AO radius (scene units)."""
-
-    mi: Any
-    scene: Any
-    sensor: Any
-    emitters: tuple
-    info: SceneInfo
-    gbuffer: GBuffer
-    mask: np.ndarray
-    cache_root: Path
-    variant: str
-    spp: int
-    pass_spp: int
-    seed: int
-    progress: bool
-    scene_digest: str
-    ao_distance: float | None = None
-    source: Any = None
-    """The rtfit `Scene` of a TOML input (its camera at the run's film size), or the `AtmosphereSpec` of an
-    rtfit sky file (whose camera is the azimuth × elevation panorama of `sky_view`); None for Mitsuba XML
-    (``info.xml``)."""
-    probe_at: tuple[float, float, float] | None = None
-    """``--probe-at``: where the environment-maps family captures its cube maps (None: each shape's
-    centre)."""
-    grid: tuple[int, int, int] | None = None
-    """``--grid``: the irradiance-volumes probe grid (None: the family's default for the scene's box)."""
-    pom_depth: float | None = None
-    """``--pom-depth``: the parallax-occlusion height range in texture units (None: the family's default)."""
-    quantities: frozenset[str] | None = None
-    """The case quantities this run audits (`ShippedScene.quantities`; None: every one): a family asks
-    `wants` before it renders a case's reference, and the engine drops the cases of any other quantity."""
-
-    def wants(self, quantity: str) -> bool:
-        """Whether this run audits cases of ``quantity`` (render a case's reference only if so)."""
-        return self.quantities is None or quantity in self.quantities
-
-
-@dataclass(frozen=True)
-class AuditReference:
-    """A reference image: ``mean`` and ``stderr`` (H, W, 3, float64), ``spp`` samples per pixel in
-    ``passes`` passes (``passes_rendered`` of them by this run), ``cache_key``/``cache_path`` of its
-    `PassEntry`, ``seconds`` of rendering summed over the passes, ``quantity``, ``integrator`` and
-    ``integrator_reason`` (words)."""
-
-    mean: np.ndarray
-    stderr: np.ndarray
-    spp: int
-    passes: int
-    passes_rendered: int
-    cache_key: str
-    cache_path: str
-    seconds: float
-    quantity: str
-    integrator: str
-    integrator_reason: str
-    precision: np.ndarray | None = None
-    """The reference's own relative precision floor per pixel (H, W, 3), where its estimator's float32
-    arithmetic biases it beyond `RELATIVE_PRECISION_FLOOR` (a very small sphere light's cone sampling:
-    `audit_lights.sphere_sampling_precision`); None: `RELATIVE_PRECISION_FLOOR` everywhere."""
-    mask: np.ndarray | None = None
-    """The (H, W) mask of the pixels it was made for (its constructors set it: `PooledPasses.reference`,
-    `deterministic`): a `FamilyCase` that names no mask of its own compares these pixels."""
-
-    def relative_floor(self):
-        """The relative precision floor: `RELATIVE_PRECISION_FLOOR`, or per pixel at least ``precision``."""
-        if self.precision is None:
-            return RELATIVE_PRECISION_FLOOR
-        return np.maximum(RELATIVE_PRECISION_FLOOR, self.precision)
-
-    def sigma(self) -> np.ndarray:
-        """The standard error combined with the float32 precision floor (as `Reference.sigma`)."""
-        return np.sqrt(self.stderr**2 + (self.relative_floor() * self.mean) ** 2)
-
-    @classmethod
-    def deterministic(
-        cls,
-        mask: np.ndarray,
-        values,
-        key_parts: tuple,
-        seconds: float,
-        quantity: str,
-        integrator: str,
-        integrator_reason: str,
-    ) -> AuditReference:
-        """A reference computed without sampling (Mitsuba's exact first hits, an emitter's closed form): one
-        "pass" rendered now, standard error zero, not cached; ``values`` on the masked pixels as
-        `masked_image` takes them; ``key_parts`` (the scene digest, the part, the settings) make its
-        ``cache_key``, which names the reference in the results."""
-        image = masked_image(mask, values)
-        key = hashlib.sha256(repr(key_parts).encode()).hexdigest()[:16]
-        return cls(
-            mean=image,
-            stderr=np.zeros_like(image),
-            spp=1,
-            passes=1,
-            passes_rendered=1,
-            cache_key=key,
-            cache_path="",
-            seconds=seconds,
-            quantity=quantity,
-            integrator=integrator,
-            integrator_reason=integrator_reason,
-            mask=mask,
-        )
-
-
-def vector_text(v) -> str:
-    """A point or vector for a report line: "(x, y, z)", 4 significant digits each."""
-    return "(" + ", ".join(f"{float(c):.4g}" for c in v) + ")"
-
-
-def xyz_columns(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
-    """Kernel inputs ``<prefix>x``, ``<prefix>y``, ``<prefix>z`` from the columns of an (N, 3) array."""
-    return {f"{prefix}{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("xyz")}
-
-
-def rgb_columns(prefix: str, v: np.ndarray) -> dict[str, np.ndarray]:
-    """Kernel inputs ``<prefix>_r``, ``<prefix>_g``, ``<prefix>_b`` from the columns of an (N, 3) array."""
-    return {f"{prefix}_{c}": np.ascontiguousarray(v[:, k]) for k, c in enumerate("rgb")}
-
-
-def masked_image(mask: np.ndarray, values) -> np.ndarray:
-    """An (H, W, 3) float64 image, zero outside ``mask`` (H, W), holding ``values`` on the masked pixels in
-    row-major order: (N, 3) one value per RGB channel, or (N,) one grey value copied to the three channels
-    (N = the masked pixels). The units are the values'."""
-    img = np.zeros((*mask.shape, 3))
-    v = np.asarray(values, np.float64)
-    img[mask] = v if v.ndim == 2 else v[:, None]
-    return img
-
-
-@dataclass(frozen=True)
-class PooledPasses:
-    """A family's reference passes through the pass cache, pooled (`pooled_passes`): the ``mean`` and its
-    ``stderr`` per element (point or ray) and pass column, (N,) or (N, C), in the quantity's units; ``spp``
-    samples per element in all, in ``passes`` passes, ``passes_rendered`` of them by this run (the rest read
-    from the cache); the cache ``entry`` (`PassEntry`) and ``seconds`` of rendering summed over the passes."""
-
-    mean: np.ndarray
-    stderr: np.ndarray
-    spp: int
-    passes: int
-    passes_rendered: int
-    entry: PassEntry
-    seconds: float
-
-    def reference(
-        self,
-        mask: np.ndarray,
-        quantity: str,
-        integrator: str,
-        integrator_reason: str,
-        columns: slice | None = None,
-        extra_seconds: float = 0.0,
-        precision: np.ndarray | None = None,
-    ) -> AuditReference:
-        """The `AuditReference` these passes give on the pixels of ``mask`` (element i is the i-th masked
-        pixel, row-major): ``mean`` and ``stderr`` (their ``columns``: three RGB columns, or all of a grey
-        (N,) pass) as (H, W, 3) images (`masked_image`), the samples and passes, the cache entry's key and
-        folder, the seconds of rendering plus ``extra_seconds`` (another pass the case needed, e.g. a
-        bake), and the report's words (``quantity`` with units, ``integrator``, ``integrator_reason``);
-        ``precision``: the relative precision floor per masked element ((N,), `AuditReference.precision`)."""
-        mean, stderr = (
-            (self.mean, self.stderr) if columns is None else (self.mean[:, columns], self.stderr[:, columns])
-        )
-        return AuditReference(
-            mean=masked_image(mask, mean),
-            stderr=masked_image(mask, stderr),
-            spp=self.spp,
-            passes=self.passes,
-            passes_rendered=self.passes_rendered,
-            cache_key=self.entry.key,
-            cache_path=str(self.entry.folder),
-            seconds=self.seconds + extra_seconds,
-            quantity=quantity,
-            integrator=integrator,
-            integrator_reason=integrator_reason,
-            precision=None if precision is None else masked_image(mask, precision),
-            mask=mask,
-        )
 
 
 PRECOMPUTE_TRIGGERS = {
@@ -402,92 +199,6 @@ class AuditFamily:
         return self.reads(role, scene_format) and (self.roles is None or role in self.roles)
 
 
-@dataclass(frozen=True)
-class ShippedScene:
-    """A scene a family ships for ``rtfit run FAMILY`` (issue 30 §1): the engine audits it for this family
-    alone, exactly as ``rtfit audit`` audits a user's scene. ``file``: a Mitsuba XML or rtfit TOML file in
-    rtfit's scene library (``scenes/library/``); ``label``: one line for the report; ``size`` (width,
-    height) and ``spp`` of the full run, ``quick_size`` and ``quick_spp`` of ``--quick``; ``options``: the
-    audit's keyword options for this scene (``ao_distance``, ``grid``, ``probe_at``, ``pom_depth``)."""
-
-    file: str
-    label: str
-    size: tuple[int, int] = (128, 128)
-    spp: int = 1024
-    quick_size: tuple[int, int] = (32, 32)
-    quick_spp: int = 64
-    options: Mapping[str, Any] = field(default_factory=dict)
-    defines: Mapping[str, str] = field(default_factory=dict)
-    """Values of the XML file's ``<default name=… value=…/>`` parameters (Mitsuba's ``$name``; ``rtfit audit
-    -D name=value``): one scene file, several shipped scenes (a light's angular radius, a sky's radiance)."""
-    name: str = ""
-    """Its id in case ids (file-name safe); default: the file's stem, then the defines (``name-value``)."""
-    quick: bool = True
-    """Whether ``--quick`` audits it too (False: the full run only, e.g. the in-between light sizes)."""
-    roles: tuple[str, ...] | None = None
-    """The applicability roles of the family audited on this scene (None: every role that applies); the
-    others are dropped before any reference is rendered, and named in the run's notes."""
-    quantities: tuple[str, ...] | None = None
-    """The case quantities audited on this scene (`FamilyCase.quantity`, else the family's; None: every
-    one): the family's ``cases`` skips the others' references (`AuditSetup.wants`)."""
-    quick_roles: tuple[str, ...] | None = None
-    """``roles`` of ``--quick`` (None: the same as the full run's)."""
-    quick_quantities: tuple[str, ...] | None = None
-    """``quantities`` of ``--quick`` (None: the same as the full run's)."""
-
-    def audited(self, quick: bool) -> tuple[tuple[str, ...] | None, tuple[str, ...] | None]:
-        """(roles, quantities) audited on this scene by the full run or by ``--quick``."""
-        if quick:
-            return (
-                self.roles if self.quick_roles is None else self.quick_roles,
-                self.quantities if self.quick_quantities is None else self.quick_quantities,
-            )
-        return self.roles, self.quantities
-
-    def __post_init__(self):
-        if "/" in self.file or not self.file.endswith((".xml", ".toml")):
-            raise ValueError(f"shipped scene {self.file!r}: a .xml or .toml file name in scenes/library/")
-        if self.defines and not self.file.endswith(".xml"):
-            raise ValueError(f"shipped scene {self.file!r}: defines are for Mitsuba XML files")
-        if not self.name:
-            parts = [self.file.rsplit(".", 1)[0], *(f"{k}{v}" for k, v in self.defines.items())]
-            object.__setattr__(self, "name", re.sub(r"[^A-Za-z0-9_-]", "_", "-".join(parts)))
-
-
-@dataclass(frozen=True)
-class StudyContext:
-    """What a family's own study (`Study`) is given: the run's ``out_dir`` (figures go under
-    ``out_dir/figures/``), ``quick``, ``variant``, ``seed``, the ``cache_dir`` of reference passes, and
-    ``audits``: the engine's `rtfit.experiments.audit_run.AuditResult` of each shipped scene, in
-    declaration order (the study may read their references, rows and ``gbuffer``, the camera's pixel-centre
-    G-buffer the cases were computed on; it never re-renders them)."""
-
-    out_dir: Path
-    quick: bool
-    variant: str
-    seed: int
-    cache_dir: Path
-    audits: tuple[Any, ...] = ()
-
-
-@dataclass(frozen=True)
-class Study:
-    """The tables and figures only this family has, added to its ``rtfit run`` report after the engine's:
-    typed records (`rtfit.experiments.records`) — ``sections`` (text and Markdown tables), ``figures``
-    (files under ``figures/``), ``checks`` (its own self-checks: a failed one fails the run), ``fits``,
-    ``notes``, ``headline`` numbers and ``extra`` (plain JSON)."""
-
-    sections: tuple[Any, ...] = ()
-    figures: tuple[Any, ...] = ()
-    checks: tuple[Any, ...] = ()
-    fits: tuple[Any, ...] = ()
-    """Its own fits (`records.Fit`: a law fitted across the scenes' fits), in the report's fit table and
-    tables.tex beside the engine's."""
-    notes: tuple[str, ...] = ()
-    headline: tuple[Any, ...] = ()
-    extra: Mapping[str, Any] = field(default_factory=dict)
-
-
 def _merged(family: list[AuditFamily]) -> AuditFamily:
     """One declaration of a family from declarations of its roles (`by_name`)."""
     first = family[0]
@@ -534,48 +245,3 @@ def by_name(families) -> dict[str, AuditFamily]:
     for f in families:
         groups.setdefault(f.name, []).append(f)
     return {name: _merged(group) for name, group in groups.items()}
-
-
-def pooled_passes(
-    setup: AuditSetup,
-    what: Mapping[str, Any],
-    render_pass: Callable[[int, int], PassResult],
-    shape: tuple[int, ...],
-    label: str,
-    seed_label: str = "pass",
-) -> PooledPasses:
-    """A family's reference passes through the pass cache, pooled (`PooledPasses`; its ``reference`` is the
-    case's `AuditReference`).
-
-    ``what``: the family's own part of the cache key (format, quantity, the emitter or medium, a digest of the
-    points or rays); the run's part (scene digest, variant, seed, pass size, Mitsuba and Dr.Jit versions) is
-    added here (with the GPU's launch layout, `launch_identity`). ``render_pass(spp, seed)`` renders one
-    pass; pass i has ``min(pass_spp, spp − i·pass_spp)`` samples (at least 2: the variance needs two) and the
-    seed ``sub_seed(setup.seed, seed_label, i)``."""
-    import mitsuba as mi  # (its version is part of the key)
-
-    ident = {
-        **what,
-        "scene": setup.scene_digest,
-        "variant": setup.variant,
-        "seed": setup.seed,
-        "pass_spp": setup.pass_spp,
-        "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__},
-        **launch_identity(setup.variant),
-    }
-    entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
-    count = -(-setup.spp // setup.pass_spp)
-
-    def size(i: int) -> int:
-        return pass_size(setup.spp, setup.pass_spp, i)
-
-    def render(i: int):
-        return render_pass(size(i), sub_seed(setup.seed, seed_label, i))
-
-    passes, rendered = entry.passes(
-        count, render, shape=shape, progress=setup.progress, label=label, spp_of=size
-    )
-    mean, stderr, total = pool_passes(passes)
-    return PooledPasses(
-        mean, stderr, total, len(passes), rendered, entry, float(sum(p.seconds for p in passes))
-    )

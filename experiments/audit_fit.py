@@ -25,7 +25,8 @@ from rtfit.fitting import fit_method
 from rtfit.realtime.arrays import backend_float, release_backend_tables
 from rtfit.realtime.methods import Method, Param
 
-from .audit_family import AuditError, FamilyCase
+from .audit import AuditError
+from .audit_family import FamilyCase
 
 __all__ = ["FIT_SOLVER", "FitData", "PooledFit", "evaluate_case", "fit_case", "fit_data",
            "length_scaled_params", "pooled_fit", "tables_as_drjit"]  # fmt: skip

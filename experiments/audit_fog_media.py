@@ -62,8 +62,8 @@ from rtfit.reference.grid_fit import GridDensity, HeightFit, fit_height_density,
 from rtfit.reference.medium_transmittance import transmittance_pass
 from rtfit.reference.mitsuba_xml import UP_AXES
 
-from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_media import (
     MAX_SURFACES,
     RADIANCE_INTEGRATOR,
@@ -79,6 +79,7 @@ from .audit_media import (
     transmittance_case,
     transmittance_reference,
 )
+from .audit_setup import AuditSetup, pooled_passes
 
 __all__ = ["FAMILY", "MAX_SURFACES", "media_cases", "medium_intervals"]
 

@@ -41,8 +41,10 @@ from rtfit.realtime.fresnel import METHODS
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS
 
 from .audit import Applicability, Rule
-from .audit_family import AuditFamily, AuditReference, AuditSetup, FamilyCase, ShippedScene
+from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import rays, reflective_shape, shape_view, visible_subset
+from .audit_setup import AuditReference, AuditSetup
+from .shipped import ShippedScene
 
 __all__ = ["FAMILY", "SCENES", "fresnel_cases", "material_ior", "mitsuba_fresnel"]
 

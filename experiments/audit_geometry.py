@@ -28,9 +28,10 @@ import numpy as np
 
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
 
-from .audit import Applicability, default_ao_distance
-from .audit_family import AuditError, AuditSetup, ShippedScene
+from .audit import Applicability, AuditError, default_ao_distance
+from .audit_setup import AuditSetup
 from .sdf_occlusion_scenes import icosphere
+from .shipped import ShippedScene
 
 __all__ = [
     "ao_radius",

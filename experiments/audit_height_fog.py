@@ -57,19 +57,12 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.height_fog import medium_dict, region_matrix, register, sky_statistics
 from rtfit.reference.medium_transmittance import transmittance_pass
 
-from .audit import Applicability, Rule
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditReference,
-    AuditSetup,
-    FamilyCase,
-    PooledPasses,
-    ShippedScene,
-    masked_image,
-    pooled_passes,
-)
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_media import transmittance_case, transmittance_reference
+from .audit_setup import AuditReference, AuditSetup, PooledPasses, pooled_passes
+from .case_inputs import masked_image
+from .shipped import ShippedScene
 
 __all__ = [
     "FAMILY",

@@ -63,8 +63,10 @@ from rtfit.reference.estimators import device_vectors
 
 from .audit import Applicability, Rule
 from .audit_environment import environment_of
-from .audit_family import AuditFamily, AuditSetup, FamilyCase, ShippedScene
+from .audit_family import AuditFamily, FamilyCase
+from .audit_setup import AuditSetup
 from .audit_sky import sky_reference
+from .shipped import ShippedScene
 
 __all__ = [
     "BAKE_ROWS",

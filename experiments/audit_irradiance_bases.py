@@ -59,7 +59,7 @@ from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.light_irradiance import environment_irradiance_pass
 from rtfit.reference.variants import backend_of
 
-from .audit import Applicability, Rule
+from .audit import Applicability, AuditError, Rule
 from .audit_environment import (
     BAKE_ROWS,
     QUADRATURE_MIN_ROWS,
@@ -70,16 +70,10 @@ from .audit_environment import (
     scene_environment,
     sh_l2_table,
 )
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    PooledPasses,
-    ShippedScene,
-    pooled_passes,
-)
+from .audit_family import AuditFamily, FamilyCase
 from .audit_lightmap_bases import lightmap_rows, lightmaps, texel_reference
+from .audit_setup import AuditSetup, PooledPasses, pooled_passes
+from .shipped import ShippedScene
 
 __all__ = [
     "BAKE_ROWS",

@@ -59,18 +59,12 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import irradiance_pass
 from rtfit.reference.probe_radiance import delta_light_irradiance, probe_radiance_pass
 
-from .audit import Applicability, Rule
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    ShippedScene,
-    masked_image,
-    pooled_passes,
-    vector_text,
-)
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
+from .audit_setup import AuditSetup, pooled_passes
+from .case_inputs import masked_image, vector_text
 from .probe_projection import FEATURE_NORMALS, FEATURES_NAME, NNLS_NORMALS, probe_bases, probe_features
+from .shipped import ShippedScene
 
 __all__ = [
     "DEFAULT_NODES",

@@ -72,20 +72,13 @@ from rtfit.reference.estimators import PassResult, radiance_pass
 from rtfit.reference.particle_media import shapes_scene
 
 from .audit import Applicability, Rule
-from .audit_family import (
-    AuditFamily,
-    AuditReference,
-    AuditSetup,
-    FamilyCase,
-    ShippedScene,
-    Study,
-    StudyContext,
-    pooled_passes,
-    vector_text,
-)
+from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import rays, reflective_shape, shape_view, visible_subset
+from .audit_setup import AuditReference, AuditSetup, pooled_passes
+from .case_inputs import vector_text
 from .layered_lightmap import LIGHTMAP_RULE, LIGHTMAP_SCENE, ROLE, lightmap_cases, uv_window
 from .records import Check, Section
+from .shipped import ShippedScene, Study, StudyContext
 
 __all__ = ["ANGLES", "FAMILY", "SCENES", "coat_cases", "offset_ratio", "study"]
 

@@ -41,13 +41,15 @@ from rtfit.reference.medium_lights import medium_segments
 from rtfit.reference.single_scattering import spot_single_scattering
 
 from .audit import Applicability, Rule
-from .audit_family import AuditFamily, AuditSetup, FamilyCase, ShippedScene
+from .audit_family import AuditFamily, FamilyCase
 from .audit_lit_media import (
     LitMedium,
     Stretches,
     inscatter,
     inscatter_case,
 )
+from .audit_setup import AuditSetup
+from .shipped import ShippedScene
 
 __all__ = ["FAMILY", "SCENES", "SIGMAS_T", "VIEWS", "cone_cases"]
 

@@ -60,21 +60,13 @@ from rtfit.realtime.methods import Method
 from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import gbuffer_points, irradiance_pass, sub_seed
 
-from .audit import Applicability, Rule
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    Precompute,
-    ShippedScene,
-    Study,
-    StudyContext,
-    pooled_passes,
-    vector_text,
-)
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase, Precompute
 from .audit_lights import scene_light
+from .audit_setup import AuditSetup, pooled_passes
+from .case_inputs import vector_text
 from .records import Check, Headline, Section
+from .shipped import ShippedScene, Study, StudyContext
 
 __all__ = [
     "CUT_GRID",

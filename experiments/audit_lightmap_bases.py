@@ -58,7 +58,7 @@ from rtfit.reference.environments import (
 from rtfit.reference.estimators import uv_tangents
 from rtfit.reference.variants import backend_of
 
-from .audit_family import AuditReference, AuditSetup
+from .audit_setup import AuditReference, AuditSetup
 
 __all__ = [
     "BAKE_RULE",

@@ -41,7 +41,8 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.environments import emitter_scales
 from rtfit.reference.light_irradiance import light_irradiance_pass
 
-from .audit_family import AuditError, AuditSetup, PooledPasses, pooled_passes
+from .audit import AuditError
+from .audit_setup import AuditSetup, PooledPasses, pooled_passes
 
 __all__ = [
     "AuditLight",

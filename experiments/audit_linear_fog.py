@@ -41,8 +41,8 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.medium_transmittance import transmittance_pass
 from rtfit.reference.mitsuba_xml import UP_AXES
 
-from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_media import (
     RADIANCE_INTEGRATOR,
     MediumChannel,
@@ -53,6 +53,8 @@ from .audit_media import (
     transmittance_case,
     transmittance_reference,
 )
+from .audit_setup import AuditSetup, pooled_passes
+from .shipped import ShippedScene
 
 __all__ = ["FAMILY", "SCENES", "homogeneous_fog_cases"]
 

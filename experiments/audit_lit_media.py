@@ -39,8 +39,9 @@ from rtfit.reference.medium_lights import (
 )
 from rtfit.reference.single_scattering import FOUR_PI
 
-from .audit import Applicability
-from .audit_family import AuditError, AuditReference, AuditSetup, FamilyCase, pooled_passes
+from .audit import Applicability, AuditError
+from .audit_family import FamilyCase
+from .audit_setup import AuditReference, AuditSetup, pooled_passes
 
 __all__ = [
     "NOTES",

@@ -22,8 +22,9 @@ from rtfit.realtime.methods import Param
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
 from rtfit.reference.estimators import PassResult, radiance_pass
 
-from .audit import Applicability
-from .audit_family import AuditError, AuditReference, AuditSetup, FamilyCase, PooledPasses, pooled_passes
+from .audit import Applicability, AuditError
+from .audit_family import FamilyCase
+from .audit_setup import AuditReference, AuditSetup, PooledPasses, pooled_passes
 
 __all__ = [
     "MAX_SURFACES",
@@ -343,7 +344,7 @@ TRANSMITTANCE_QUANTITY = "transmittance T of the medium along the camera's rays 
 
 def transmittance_reference(pooled: PooledPasses, mask: np.ndarray, integrator: str) -> AuditReference:
     """A fog family's transmittance reference on the camera rays of ``mask``: the ratio tracker's ``pooled``
-    passes (`audit_family.PooledPasses.reference`), ``integrator`` the tracker's words."""
+    passes (`audit_setup.PooledPasses.reference`), ``integrator`` the tracker's words."""
     return pooled.reference(
         mask,
         quantity=TRANSMITTANCE_QUANTITY,

@@ -37,15 +37,7 @@ from rtfit.reference.estimators import PassResult, radiance_pass
 from rtfit.reference.single_scattering import point_single_scattering
 
 from .audit import Applicability, Rule
-from .audit_family import (
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    ShippedScene,
-    Study,
-    StudyContext,
-    pooled_passes,
-)
+from .audit_family import AuditFamily, FamilyCase
 from .audit_lit_media import (
     NOTES,
     LitMedium,
@@ -56,7 +48,9 @@ from .audit_lit_media import (
     stretches,
 )
 from .audit_media import RADIANCE_INTEGRATOR
+from .audit_setup import AuditSetup, pooled_passes
 from .records import Check, Section
+from .shipped import ShippedScene, Study, StudyContext
 
 __all__ = [
     "FAMILY",

@@ -35,16 +35,11 @@ import numpy as np
 from rtfit.realtime.nishita_sky import AtmosphereParams
 from rtfit.reference.nishita_sky import render_sky
 
-from .audit import Applicability, Rule
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditReference,
-    AuditSetup,
-    FamilyCase,
-    ShippedScene,
-    masked_image,
-)
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
+from .audit_setup import AuditReference, AuditSetup
+from .case_inputs import masked_image
+from .shipped import ShippedScene
 from .sky_rows import SPECTRAL_NOTE, TEXTURE_UNCOSTED, near_sun, nishita_rows, texture_precomputes
 
 __all__ = ["FAMILY", "ROLE", "SCENES", "SUN_ELEVATIONS_DEG", "atmosphere_params_of", "sky_cases"]

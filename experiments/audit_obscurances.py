@@ -50,9 +50,10 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.occlusion import hit_distances, occlusion_pass
 
-from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, pooled_passes
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import ao_radius, sdf_scene
+from .audit_setup import AuditSetup, pooled_passes
 
 __all__ = ["AMBIENT_ALBEDO", "FAMILY", "MISS", "RAYS", "SCENES", "obscurance_cases", "on_rays"]
 

@@ -159,7 +159,7 @@ def write_fitted_file(
 
 
 def reference_record(ref, variant: str, mask: np.ndarray) -> dict:
-    """The results' ``reference`` record of an `audit_family.AuditReference` compared on ``mask``: its cache
+    """The results' ``reference`` record of an `audit_setup.AuditReference` compared on ``mask``: its cache
     key, quantity, integrator and why, variant, spp and passes, the mean relative standard error over the
     compared pixels, and samples per second of rendering (None when no time was spent)."""
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -89,16 +89,11 @@ from rtfit.reference.parallax_occlusion import (
     uv_range,
 )
 
-from .audit import Applicability, Rule
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditReference,
-    AuditSetup,
-    FamilyCase,
-    ShippedScene,
-    masked_image,
-)
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
+from .audit_setup import AuditReference, AuditSetup
+from .case_inputs import masked_image
+from .shipped import ShippedScene
 
 __all__ = [
     "CELLS_PER_TEXEL",

@@ -45,9 +45,11 @@ from rtfit.realtime.methods import Param
 from rtfit.realtime.pcf_soft_shadows import FAR, METHODS, ShadowMap, map_frame, project, texel_directions
 from rtfit.reference.estimators import gbuffer_points
 
-from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditSetup, FamilyCase, ShippedScene
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
 from .audit_lights import AuditLight, light_geometry, light_model_inputs, light_reference, scene_light
+from .audit_setup import AuditSetup
+from .shipped import ShippedScene
 
 __all__ = ["FAMILY", "LOW", "LOW_ROWS", "MAP", "NOISE", "SCENES", "pcf_cases", "shadow_map"]
 

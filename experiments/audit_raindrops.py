@@ -50,23 +50,14 @@ from rtfit.reference.caustic_pass import caustic_profile
 from rtfit.reference.reflective_shapes import ray_radiance_pass
 from rtfit.reference.variants import scoped_variant
 
-from .audit import Applicability, Rule
+from .audit import Applicability, AuditError, Rule
 from .audit_environment import scene_environment
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    ShippedScene,
-    Study,
-    StudyContext,
-    pooled_passes,
-    rgb_columns,
-    vector_text,
-    xyz_columns,
-)
+from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import reflective_shape, shape_view, visible_subset
+from .audit_setup import AuditSetup, pooled_passes
+from .case_inputs import rgb_columns, vector_text, xyz_columns
 from .records import Check, Section
+from .shipped import ShippedScene, Study, StudyContext
 
 __all__ = [
     "ETA_RANGE",

@@ -70,7 +70,7 @@ class AuditResult:
     gbuffer: GBuffer | None = None
     """The pixel-centre G-buffer of the scene's camera the cases were computed on (its ``mask``, points,
     normals, depths): what a family's study reads instead of tracing it again
-    (`audit_family.StudyContext`)."""
+    (`shipped.StudyContext`)."""
     failed: list[dict] = field(default_factory=list)
     """Checks that failed while the cases ran (a precompute that raised), in results.json's ``checks``."""
     _figures: list = field(default_factory=list, repr=False)

@@ -33,8 +33,10 @@ from rtfit.realtime.arrays import xyz_columns
 from rtfit.realtime.sh_sky_bent_normal import METHODS
 
 from .audit import Applicability, Rule
-from .audit_family import AuditFamily, AuditSetup, FamilyCase, ShippedScene
+from .audit_family import AuditFamily, FamilyCase
+from .audit_setup import AuditSetup
 from .audit_sky import occluded_sky
+from .shipped import ShippedScene
 
 __all__ = ["FAMILY", "SCENES", "sh_sky_cases"]
 

@@ -18,8 +18,8 @@ from rtfit.reference.estimators import sub_seed
 from rtfit.reference.reflective_shapes import SurfaceLobes, ray_radiance_pass, surface_lobes
 
 from .audit import Applicability
-from .audit_family import AuditSetup, PooledPasses, pooled_passes
 from .audit_geometry import shape_view, visible_subset
+from .audit_setup import AuditSetup, PooledPasses, pooled_passes
 
 __all__ = ["SeenShape", "probe_capture", "seen_shape", "shape_radiance", "unit_cube_texels"]
 

@@ -36,9 +36,9 @@ from rtfit.reference.estimators import gbuffer_points
 from rtfit.reference.light_irradiance import environment_irradiance_pass
 from rtfit.reference.occlusion import visibility_cap_pass
 
-from .audit import Applicability
+from .audit import Applicability, AuditError
 from .audit_environment import environment_bases, environment_of, scene_environment, sh_l2_table
-from .audit_family import AuditError, AuditReference, AuditSetup, pooled_passes
+from .audit_setup import AuditReference, AuditSetup, pooled_passes
 
 __all__ = ["FORMAT", "OccludedSky", "SkyReference", "occluded_sky", "sky_reference"]
 

@@ -44,8 +44,9 @@ import numpy as np
 from rtfit.realtime.methods import Param
 from rtfit.realtime.nishita_sky import AtmosphereParams
 
-from .audit import Applicability, Rule
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
+from .audit_setup import AuditReference, AuditSetup
 from .sky_rows import SPECTRAL_NOTE, TEXTURE_UNCOSTED, near_sun, nishita_rows, texture_precomputes
 
 __all__ = ["FAMILY", "ROLE", "SOLAR_SCALE", "emitter_radiance", "sky_emitter_cases", "sky_frame"]

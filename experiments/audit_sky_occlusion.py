@@ -62,10 +62,11 @@ from rtfit.realtime.irradiance_bases import METHODS as BASIS_METHODS
 from rtfit.realtime.methods import Input, Method
 from rtfit.reference.estimators import gbuffer_points
 
-from .audit import Applicability, Rule
+from .audit import Applicability, AuditError, Rule
 from .audit_ambient_occlusion import DistanceFieldRows, distance_field_rows
-from .audit_family import AuditError, AuditFamily, AuditReference, AuditSetup, FamilyCase
+from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import ao_radius
+from .audit_setup import AuditReference, AuditSetup
 from .audit_sky import occluded_sky
 
 __all__ = [

@@ -58,17 +58,11 @@ from rtfit.reference.particle_media import (
 from rtfit.reference.transforms import rotation_matrix
 from rtfit.scenes import Scene
 
-from .audit import Applicability, Rule
-from .audit_family import (
-    AuditError,
-    AuditFamily,
-    AuditSetup,
-    FamilyCase,
-    PooledPasses,
-    ShippedScene,
-    pooled_passes,
-)
+from .audit import Applicability, AuditError, Rule
+from .audit_family import AuditFamily, FamilyCase
+from .audit_setup import AuditSetup, PooledPasses, pooled_passes
 from .particle_geometry import CUT_SCENES, billboard_inputs
+from .shipped import ShippedScene
 
 __all__ = ["FAMILY", "SCENES", "Particle"]
 

@@ -39,9 +39,12 @@ from rtfit.reference.cache import array_digest
 from rtfit.reference.reflective_shapes import bsdf_roughness, ray_radiance_pass
 
 from .audit import Applicability, Rule
-from .audit_family import AuditFamily, AuditSetup, FamilyCase, ShippedScene, pooled_passes, vector_text
+from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import reflective_shape, shape_view, visible_subset
 from .audit_lights import AuditLight, scene_light
+from .audit_setup import AuditSetup, pooled_passes
+from .case_inputs import vector_text
+from .shipped import ShippedScene
 
 __all__ = ["ALPHA", "FAMILY", "SCENES", "emitters_alone", "mirror_point", "streak_cases"]
 

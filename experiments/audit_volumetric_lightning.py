@@ -47,7 +47,7 @@ from rtfit.realtime.volumetric_lightning import METHODS
 from rtfit.reference.single_scattering import point_single_scattering
 
 from .audit import Applicability, Rule
-from .audit_family import AuditFamily, AuditSetup, FamilyCase, ShippedScene
+from .audit_family import AuditFamily, FamilyCase
 from .audit_lit_media import (
     LitMedium,
     Stretches,
@@ -55,7 +55,9 @@ from .audit_lit_media import (
     inscatter_case,
     light_parameters,
 )
+from .audit_setup import AuditSetup
 from .scattering_reference import fit_params
+from .shipped import ShippedScene
 
 __all__ = ["DISTANCES_M", "FAMILY", "SCENES", "SIGMAS_T", "lightning_cases"]
 

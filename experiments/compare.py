@@ -6,7 +6,7 @@ same Mitsuba XML scene (issue 36).
 
 The reference is the scene's own sensor at the frame's resolution (the film's, or the frame's where the two
 differ by an integer factor: the field of view is kept), rendered in passes through the pass cache
-(`audit_family.pooled_passes`), each sample's ray through a uniform point of its pixel (``footprint="box"``:
+(`audit_setup.pooled_passes`), each sample's ray through a uniform point of its pixel (``footprint="box"``:
 the pixel's area average, what an antialiased frame or a box-filtered film holds; ``"centre"``: the pixel
 centre, a frame without antialiasing). ``radiance`` is the scene's own integrator, ``direct`` Mitsuba's
 ``path`` integrator with ``max_depth`` 2 (emission and one bounce of direct light).
@@ -43,7 +43,8 @@ from rtfit.reference.mitsuba_xml import UP_AXES, XMLSceneError, loaded_xml
 
 from .atomic import atomic_directory, writable_problem
 from .audit import AuditError, SceneInfo, inspect_scene
-from .audit_family import AuditReference, FamilyCase, pooled_passes
+from .audit_family import FamilyCase
+from .audit_setup import AuditReference, pooled_passes
 from .compare_albedo import albedo_split
 from .compare_aovs import align_aovs, parse_aovs, read_aovs
 from .compare_checks import (

@@ -34,8 +34,8 @@ from rtfit.reference.occlusion import occlusion_pass
 from rtfit.reference.total_irradiance import total_irradiance_pass
 
 from .audit import Applicability, AuditError
-from .audit_family import AuditReference, AuditSetup, pooled_passes
 from .audit_media import MediumChannel, medium_intervals, opened_medium, sigma_t_at
+from .audit_setup import AuditReference, AuditSetup, pooled_passes
 
 __all__ = ["SURFACE_QUANTITIES", "quantity_reference", "refusal"]
 

@@ -39,8 +39,9 @@ from rtfit.realtime.diffuse import METHODS
 
 from . import figures, prose
 from . import fitted as fitfiles
-from .audit_family import Study, StudyContext, masked_image
+from .case_inputs import masked_image
 from .records import Check, Figure, Section
+from .shipped import Study, StudyContext
 
 __all__ = [
     "SMOOTH_LAW",

@@ -2,8 +2,8 @@
 
 A family declared in the registry with ``module = ENGINE`` (`rtfit.experiments.families`) has no experiment
 module of its own. Its run is the same engine that audits a user's scene (`audit_run.audit`), run on each of
-the family's shipped scenes (`audit_family.ShippedScene`, files of ``scenes/library/``) for that family alone,
-then its own study if it declares one (`audit_family.Study`):
+the family's shipped scenes (`shipped.ShippedScene`, files of ``scenes/library/``) for that family alone,
+then its own study if it declares one (`shipped.Study`):
 
 1. **Each shipped scene audited** at its own size and samples (``--quick``: its quick size and samples;
    ``resolution``/``spp`` override both), through the pass cache of the run: references with their noise,
@@ -15,7 +15,7 @@ then its own study if it declares one (`audit_family.Study`):
    error, ꟻLIP per case), the viewer's pixels and ``fitted/<family>.json`` with every fitted row of every
    scene — the results schema, report and viewer of every run — and, for each method fitted on two or more
    cases, its **pooled fit**: one value for every scene (`engine_pooled`).
-3. **The study** (`Family.study`): a leaf module's function given the audits (`audit_family.StudyContext`)
+3. **The study** (`Family.study`): a leaf module's function given the audits (`shipped.StudyContext`)
    adds its own sections, figures, checks, notes and headline numbers; a failed check fails the run like the
    engine's.
 
@@ -38,7 +38,6 @@ import numpy as np
 from rtfit.realtime.arrays import backend_float, to_drjit
 from rtfit.scenes.parse import LIBRARY_DIR
 
-from .audit_family import StudyContext
 from .audit_output import case_figures, fitted_entries, save_pixels, write_fitted_file
 from .audit_run import audit
 from .cost import bench_backend, method_bench_rows
@@ -47,6 +46,7 @@ from .families import FAMILIES, Family
 from .progress import Stage
 from .records import to_json
 from .registry import SPP_MAX, ConfigKey, RunContext, checked
+from .shipped import StudyContext
 
 __all__ = ["EngineExperiment", "experiment"]
 

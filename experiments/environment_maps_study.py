@@ -36,9 +36,9 @@ from rtfit.reference import environment_maps as room
 
 from . import environment_maps_spheres as spheres
 from . import figures as F
-from .audit_family import Study, StudyContext
 from .cost import cost_backend, time_drjit
 from .records import Check, Figure, Fit, FitParameter, Headline, Section
+from .shipped import Study, StudyContext
 
 __all__ = ["configure", "constant_environment", "fibonacci_sphere", "room_part", "study"]
 

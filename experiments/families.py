@@ -108,8 +108,9 @@ from . import (
     volumetric_lightning_study,
 )
 from .audit import Rule
-from .audit_family import AuditFamily, ShippedScene, Study, StudyContext, by_name
+from .audit_family import AuditFamily, by_name
 from .registry import ALIASES, SPP_MAX, BenchContext, ExperimentSpec, UnknownExperiment, apply_overrides
+from .shipped import ShippedScene, Study, StudyContext
 
 __all__ = [
     "AUDITED",

@@ -39,10 +39,10 @@ from rtfit.reference import ReferenceCache, ReferenceRequest, render_gbuffer
 from rtfit.scenes import load_scene, parse_scene_text
 
 from . import figures as F
-from .audit_family import Study, StudyContext
 from .audit_height_fog import pixel_rays, volume_from_medium
 from .records import Check, Figure, Fit, Headline, Section
 from .run_settings import RunSettings
+from .shipped import Study, StudyContext
 from .zchecks import pixel_z_checks
 
 __all__ = ["SPECIAL_INPUTS", "float64_truth", "optical_depth_errors", "random_domain", "render_job", "study"]

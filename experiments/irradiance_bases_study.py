@@ -46,9 +46,9 @@ from rtfit.reference.variants import backend_of
 from . import figures
 from . import irradiance_hemisphere as hemisphere
 from .audit_environment import ROW, ROWS, build_bases, evaluate_row, supersample_for
-from .audit_family import Study, StudyContext
 from .audit_irradiance_bases import SCENES
 from .records import Check, Figure, Headline, Section
+from .shipped import Study, StudyContext
 
 __all__ = [
     "ORDER_CHECKS",

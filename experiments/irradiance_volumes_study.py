@@ -57,9 +57,9 @@ from rtfit.reference.probe_radiance import probe_radiance_pass
 from rtfit.scenes import library_path, load_scene
 from rtfit.scenes.model import ConstantEnv, Cube, PointLight, ReferenceSettings, Scene
 
-from .audit_family import Study, StudyContext
 from .probe_projection import probe_features
 from .records import Check, Headline, Section
+from .shipped import Study, StudyContext
 
 __all__ = [
     "BOUNDARY_EPS",

@@ -39,8 +39,10 @@ from rtfit.reference.particle_media import medium_extinction
 from rtfit.reference.slab_irradiance import scattered_irradiance_pass
 
 from .audit import Applicability, Rule
-from .audit_family import AuditSetup, FamilyCase, ShippedScene, pooled_passes
+from .audit_family import FamilyCase
 from .audit_geometry import camera_rays, rays
+from .audit_setup import AuditSetup, pooled_passes
+from .shipped import ShippedScene
 
 __all__ = ["LIGHTMAP_RULE", "LIGHTMAP_SCENE", "ROLE", "lightmap_cases", "uv_window"]
 

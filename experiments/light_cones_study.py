@@ -33,8 +33,8 @@ from rtfit.realtime.light_cones import CHORD_LENGTH, METHODS
 from rtfit.reference.single_scattering import spot_single_scattering
 
 from . import figures
-from .audit_family import Study, StudyContext
 from .records import Check, Figure, Headline, Section
+from .shipped import Study, StudyContext
 
 __all__ = [
     "CHORD_BINS",

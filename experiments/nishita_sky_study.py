@@ -51,10 +51,11 @@ from rtfit.reference.nishita_sky import (
 from rtfit.reference.variants import backend_of
 
 from . import nishita_sky_report as R
-from .audit_family import Study, StudyContext, masked_image
 from .audit_nishita_sky import atmosphere_params_of
+from .case_inputs import masked_image
 from .cost import time_drjit, time_numpy
 from .records import Check, Headline
+from .shipped import Study, StudyContext
 from .sky_rows import near_sun
 
 __all__ = [

@@ -51,9 +51,10 @@ from rtfit.scenes import load_scene
 
 from . import figures
 from . import fitted as fitfiles
-from .audit_family import Study, StudyContext, masked_image
+from .case_inputs import masked_image
 from .cost import time_drjit
 from .records import Check, Figure, Section
+from .shipped import Study, StudyContext
 
 __all__ = ["RAYS_FULL", "RAYS_QUICK", "RAY_EPSILON", "SceneCases", "scene_cases", "spawn_height", "study"]
 

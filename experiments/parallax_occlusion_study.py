@@ -44,8 +44,8 @@ from rtfit.reference.parallax_occlusion import (
 )
 from rtfit.reference.variants import use_variant
 
-from .audit_family import Study, StudyContext
 from .records import Check, Headline, Section
+from .shipped import Study, StudyContext
 
 __all__ = [
     "LOD_STEP",

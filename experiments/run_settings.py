@@ -19,8 +19,8 @@ from rtfit.reference.cache import default_cache_dir
 from rtfit.reference.variants import resolve_variant
 
 from .audit import AuditError
-from .audit_family import AuditSetup
 from .audit_options import check_sizes
+from .audit_setup import AuditSetup
 from .registry import RunContext
 
 __all__ = ["DEFAULT_PASS_SPP", "DEFAULT_SPP", "RunSettings"]

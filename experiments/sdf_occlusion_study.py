@@ -54,7 +54,6 @@ from rtfit.reference.occlusion import (
 from rtfit.scenes import scene_hash
 
 from . import figures
-from .audit_family import Study, StudyContext
 from .cost import time_drjit
 from .records import Check, Figure, Headline, Section
 from .sdf_occlusion_fit import (
@@ -76,6 +75,7 @@ from .sdf_occlusion_fit import (
     write_fitted,
 )
 from .sdf_occlusion_scenes import build, grid_of, load_case_scene
+from .shipped import Study, StudyContext
 
 __all__ = ["CREASE_PROBE_X", "HELD_OUT", "TARGET_LABEL", "configure", "study"]
 

@@ -36,10 +36,10 @@ from rtfit.realtime.soft_particles import BIG, METHODS, billboard_alpha
 
 from . import figures as F
 from . import fitted as fitfiles
-from .audit_family import Study, StudyContext
 from .particle_geometry import RADIUS, billboard_inputs, sigma_of
 from .records import Check, Figure, Headline, Section
 from .report_text import markdown_table
+from .shipped import Study, StudyContext
 from .soft_particles_kernels import (
     chord_checks,
     claim_checks,

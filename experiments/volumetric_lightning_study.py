@@ -33,9 +33,9 @@ from rtfit.realtime.volumetric_lightning import METHODS
 from rtfit.reference.single_scattering import FOUR_PI
 
 from . import figures
-from .audit_family import Study, StudyContext
 from .records import Check, Figure, Headline, Section
 from .scattering_reference import fit_level
+from .shipped import Study, StudyContext
 
 __all__ = [
     "ACCURACY_SETS",

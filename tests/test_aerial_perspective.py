@@ -17,9 +17,9 @@ from hypothesis import strategies as st
 from rtfit.experiments import aerial_perspective_study as ap
 from rtfit.experiments import audit_aerial_perspective
 from rtfit.experiments.audit_cli import audit as audit_cmd
-from rtfit.experiments.audit_family import StudyContext
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.families import ENGINE, FAMILIES
+from rtfit.experiments.shipped import StudyContext
 from rtfit.realtime import NUMPY_OPS
 from rtfit.realtime.aerial_perspective import (
     FogLayer,

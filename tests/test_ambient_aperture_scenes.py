@@ -19,9 +19,9 @@ import pytest
 from rtfit.experiments import ambient_aperture_scenes as sc
 from rtfit.experiments import ambient_aperture_study as study
 from rtfit.experiments import audit_ambient_aperture
-from rtfit.experiments.audit_family import StudyContext
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.families import ENGINE, FAMILIES
+from rtfit.experiments.shipped import StudyContext
 from rtfit.realtime import sphere_light_irradiance
 from rtfit.reference.cap_quadrature import (
     adaptive_quadrature_intersection,

@@ -7,8 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rtfit.experiments.audit_family import AuditError, AuditReference, FamilyCase
+from rtfit.experiments.audit import AuditError
+from rtfit.experiments.audit_family import FamilyCase
 from rtfit.experiments.audit_fit import fit_case, pooled_fit
+from rtfit.experiments.audit_setup import AuditReference
 from rtfit.realtime.methods import Input, Method, Param
 
 
@@ -150,7 +152,7 @@ def test_a_relative_fit_minimises_the_relative_error_over_the_noise_floor(with_f
 
 
 def test_an_unknown_fit_weight_is_refused():
-    from rtfit.experiments.audit_family import AuditError
+    from rtfit.experiments.audit import AuditError
 
     with pytest.raises(AuditError, match="fit_weight 'square'"):
         FamilyCase("c", "c", _case("x", np.ones(2), np.ones(2)).reference, np.ones((1, 2), bool),

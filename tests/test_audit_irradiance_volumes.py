@@ -261,8 +261,8 @@ def test_run_is_the_engine_on_the_shipped_room_plus_the_study(tmp_path):
     (white furnace, constant volume, direct light, two estimators, lookups at the nodes, continuity)."""
     from rtfit.experiments import audit_irradiance_volumes as decl
     from rtfit.experiments import irradiance_volumes_study as study
-    from rtfit.experiments.audit_family import StudyContext
     from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.experiments.shipped import StudyContext
     from rtfit.scenes import library_path
 
     fam = FAMILIES["irradiance-volumes"]

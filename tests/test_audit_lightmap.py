@@ -22,9 +22,9 @@ import math
 import mitsuba as mi
 import numpy as np
 
-from rtfit.experiments.audit_family import AuditSetup
 from rtfit.experiments.audit_lightmap_bases import texel_frames
 from rtfit.experiments.audit_run import audit
+from rtfit.experiments.audit_setup import AuditSetup
 from rtfit.reference.estimators import gbuffer
 from rtfit.reference.variants import scoped_variant
 

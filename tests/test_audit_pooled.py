@@ -1,4 +1,4 @@
-"""`rtfit.experiments.audit_family.pooled_passes` and its `PooledPasses`: through the pass cache, the pooled
+"""`rtfit.experiments.audit_setup.pooled_passes` and its `PooledPasses`: through the pass cache, the pooled
 mean and standard error are those of all the passes' samples concatenated (NumPy over the raw samples, the
 oracle), a rerun reads every pass from the cache, and `PooledPasses.reference` lays the masked elements
 (RGB columns, or one grey value) onto the image, zero elsewhere."""
@@ -10,7 +10,8 @@ from typing import cast
 
 import numpy as np
 
-from rtfit.experiments.audit_family import AuditSetup, PooledPasses, masked_image, pooled_passes
+from rtfit.experiments.audit_setup import AuditSetup, PooledPasses, pooled_passes
+from rtfit.experiments.case_inputs import masked_image
 from rtfit.reference.cache import PassEntry
 from rtfit.reference.estimators import PassResult
 

@@ -222,7 +222,8 @@ def test_a_family_declared_once_per_role_is_one_audited_family():
     is refused."""
     from dataclasses import replace
 
-    from rtfit.experiments.audit_family import AuditError, AuditFamily, by_name
+    from rtfit.experiments.audit import AuditError
+    from rtfit.experiments.audit_family import AuditFamily, by_name
     from rtfit.experiments.audit_parts import Applicability
 
     def case_of(tag):

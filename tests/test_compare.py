@@ -383,7 +383,7 @@ def test_each_cameras_case_holds_its_own_mask():
     take ``CompareResult.mask``, the last one's, for every camera)."""
     from types import SimpleNamespace
 
-    from rtfit.experiments.audit_family import AuditReference
+    from rtfit.experiments.audit_setup import AuditReference
     from rtfit.experiments.compare import CompareResult
 
     masks = [np.zeros((4, 5), bool) for _ in range(2)]

@@ -558,9 +558,9 @@ def test_run_diffuse_is_the_engine_on_its_shipped_suns_plus_the_study(tmp_path):
     import tomllib
 
     from rtfit.experiments import audit_diffuse, diffuse_study
-    from rtfit.experiments.audit_family import StudyContext
     from rtfit.experiments.audit_run import audit
     from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.experiments.shipped import StudyContext
     from rtfit.scenes.parse import LIBRARY_DIR
 
     fam = FAMILIES["diffuse"]

@@ -13,13 +13,13 @@ import json
 import pytest
 
 from rtfit.experiments import audit_diffuse, engine_run
-from rtfit.experiments.audit_family import ShippedScene, Study
 from rtfit.experiments.families import ENGINE, FAMILIES, Family
 from rtfit.experiments.records import Check, Fit, Section, to_json
 from rtfit.experiments.registry import ExperimentSpec
 from rtfit.experiments.results import load_results
 from rtfit.experiments.run_settings import RunSettings
 from rtfit.experiments.runner import failed_checks, run_experiments
+from rtfit.experiments.shipped import ShippedScene, Study
 from rtfit.realtime import diffuse
 
 SCENE = ShippedScene("sphere_light.toml", "sphere light", quick_size=(16, 16), quick_spp=8)

@@ -145,7 +145,8 @@ from __future__ import annotations
 from rtfit.realtime.toy import METHODS
 
 from .audit import Rule
-from .audit_family import AuditFamily, ShippedScene
+from .audit_family import AuditFamily
+from .shipped import ShippedScene
 
 __all__ = ["FAMILY", "METHODS", "SCENES"]
 

@@ -153,8 +153,8 @@ def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
     experiment's reference check) and every other study check pass (the float32 scan, the fits); the seed's
     horizon-phase row is given only (not fitted)."""
     from rtfit.experiments import audit_height_fog, height_fog_study
-    from rtfit.experiments.audit_family import StudyContext
     from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.experiments.shipped import StudyContext
 
     fam = FAMILIES["height-fog"]
     assert fam.module == ENGINE and fam.scenes == audit_height_fog.SCENES

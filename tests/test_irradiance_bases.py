@@ -333,9 +333,9 @@ def test_run_is_the_engine_on_the_shipped_spheres_plus_the_study(tmp_path):
     at 64 × 128; every old self-check is there and passes."""
     from rtfit.experiments import audit_irradiance_bases as decl
     from rtfit.experiments import irradiance_bases_study as study
-    from rtfit.experiments.audit_family import StudyContext
     from rtfit.experiments.audit_run import audit
     from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.experiments.shipped import StudyContext
     from rtfit.realtime.environment_bases import METHODS
     from rtfit.reference import environments as envs
     from rtfit.scenes import library_path

@@ -33,9 +33,9 @@ from hypothesis import strategies as st
 from rtfit.experiments import audit_light_cones
 from rtfit.experiments import light_cones_study as study
 from rtfit.experiments.audit_cli import audit as audit_cmd
-from rtfit.experiments.audit_family import StudyContext
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.families import ENGINE, FAMILIES
+from rtfit.experiments.shipped import StudyContext
 from rtfit.realtime import NUMPY_OPS, cone_chord, light_cone_shell
 from rtfit.realtime.light_cones import CHORD_LENGTH, METHODS
 from rtfit.reference.single_scattering import (

@@ -303,9 +303,9 @@ def test_run_obscurances_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_
     the other face alone, by scipy quadrature (`_perpendicular_plane_obscurance`): the engine's model
     reference matches it (|z| < 5) and the rows' 32-ray estimator is unbiased for it."""
     from rtfit.experiments import audit_obscurances, obscurances_study
-    from rtfit.experiments.audit_family import StudyContext
     from rtfit.experiments.audit_run import audit
     from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.experiments.shipped import StudyContext
     from rtfit.scenes.parse import LIBRARY_DIR
 
     fam = FAMILIES["obscurances"]

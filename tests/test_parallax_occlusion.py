@@ -356,8 +356,8 @@ def test_shipped_scenes_and_study_through_the_engine(tmp_path):
     against Mitsuba's first hits on the displaced mesh, and the study's checks."""
     import rtfit
     from rtfit.experiments import audit_parallax_occlusion, parallax_occlusion_study
-    from rtfit.experiments.audit_family import StudyContext
     from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.experiments.shipped import StudyContext
     from rtfit.scenes.parse import LIBRARY_DIR as lib
 
     fam = FAMILIES["parallax-occlusion"]

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from rtfit.experiments import audit_run
-from rtfit.experiments.audit_family import AuditError, Precompute
+from rtfit.experiments.audit import AuditError
+from rtfit.experiments.audit_family import Precompute
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.cost import time_precompute
 from rtfit.experiments.records import Cost, amortised_ns

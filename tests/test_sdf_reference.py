@@ -238,9 +238,9 @@ def test_run_sdf_occlusion_is_the_engine_on_its_shipped_scenes_plus_the_study(tm
     import json
 
     from rtfit.experiments import audit_ambient_occlusion, sdf_occlusion_study
-    from rtfit.experiments.audit_family import StudyContext
     from rtfit.experiments.audit_run import audit
     from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.experiments.shipped import StudyContext
     from rtfit.scenes.parse import LIBRARY_DIR
 
     fam = FAMILIES["sdf-occlusion"]

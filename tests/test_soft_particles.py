@@ -345,9 +345,9 @@ def test_run_soft_particles_is_the_engine_on_its_shipped_scenes_plus_the_study(t
     import xml.etree.ElementTree as ET
 
     from rtfit.experiments import audit_soft_particles, soft_particles_study
-    from rtfit.experiments.audit_family import StudyContext
     from rtfit.experiments.audit_run import audit
     from rtfit.experiments.families import ENGINE, FAMILIES
+    from rtfit.experiments.shipped import StudyContext
     from rtfit.scenes.parse import LIBRARY_DIR
 
     fam = FAMILIES["soft-particles"]

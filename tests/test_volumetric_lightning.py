@@ -34,9 +34,9 @@ from hypothesis import strategies as st
 from rtfit.experiments import audit_volumetric_lightning
 from rtfit.experiments import volumetric_lightning_study as study
 from rtfit.experiments.audit_cli import audit as audit_cmd
-from rtfit.experiments.audit_family import StudyContext
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.families import ENGINE, FAMILIES
+from rtfit.experiments.shipped import StudyContext
 from rtfit.experiments.volumetric_lightning_study import random_domain as domain
 from rtfit.realtime import NUMPY_OPS, inverse_square_airlight, volumetric_lightning
 from rtfit.realtime.volumetric_lightning import METHODS
