@@ -38,6 +38,7 @@ from rtfit.reference.io import (
     is_temporary_name,
     temp_name,
 )
+from rtfit.reference.processes import process_alive, process_start
 
 log = logging.getLogger("rtfit.experiments")
 
@@ -64,44 +65,14 @@ TORN_OWNER_SECONDS = 10.0
 """An owner file that does not parse is taken for its writer's last act once it is this old."""
 
 
-def _process_start(pid: int) -> str | None:
-    """The start time of ``pid`` (clock ticks since boot, Linux ``/proc``), or None where unknown."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            stat = f.read()
-    except OSError:
-        return None
-    fields = stat.rsplit(")", 1)[-1].split()
-    return fields[19] if len(fields) > 19 else None
-
-
-def _process_state(pid: int) -> str | None:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[-1].split()
-    except OSError:
-        return None
-    return fields[0] if fields else None
-
-
 def _owner_alive(owner: dict) -> bool | None:
     """True/False for an owner of this host, None when it cannot be checked (another host)."""
     if owner.get("host") != socket.gethostname():
         return None
     pid = owner.get("pid")
-    if not isinstance(pid, int) or pid <= 0:
+    if not isinstance(pid, int):
         return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass  # exists, owned by another user
-    if _process_state(pid) == "Z":
-        return False  # killed, not yet reaped
-    start = owner.get("start")
-    now = _process_start(pid)
-    return not (start is not None and now is not None and start != now)
+    return process_alive(pid, owner.get("start"))
 
 
 def writable_problem(path) -> str | None:
@@ -137,7 +108,7 @@ def owner_file(tmp: Path) -> Path:
 
 
 def _write_owner(tmp: Path) -> None:
-    owner = {"host": socket.gethostname(), "pid": os.getpid(), "start": _process_start(os.getpid())}
+    owner = {"host": socket.gethostname(), "pid": os.getpid(), "start": process_start(os.getpid())}
     atomic_write_json(owner_file(tmp), {**owner, "created": time.time()})
 
 

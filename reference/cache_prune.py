@@ -15,7 +15,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .pass_entry import ComputedEntry, PassEntry, pid_alive
+from .pass_entry import ComputedEntry, PassEntry
+from .processes import process_alive
 
 CACHE_NAMESPACES = {"images": "", "probes": "", "occlusion": "occlusion", "sky": "sky"}
 """What ``rtfit cache info`` reports, and the namespace folder each lives in (``""``: the root, where
@@ -145,7 +146,7 @@ def leftover_removals(root) -> list[Path]:
     out = []
     for p in root.glob("**/.*.removing-*"):
         pid = p.name.rpartition("-")[2]
-        if p.is_dir() and not (pid.isdigit() and int(pid) != os.getpid() and pid_alive(int(pid))):
+        if p.is_dir() and not (pid.isdigit() and int(pid) != os.getpid() and process_alive(int(pid))):
             out.append(p)
     return out
 

@@ -30,6 +30,7 @@ import numpy as np
 from .budget import PassBudgetExceeded, PassWatchdog, check_finite
 from .estimators import PassResult
 from .io import atomic_write_bytes, atomic_write_json, read_exr, rgb_group, write_exr
+from .processes import process_alive, process_start
 from .progress import progress_bar
 
 log = logging.getLogger("rtfit.reference")
@@ -207,7 +208,15 @@ class PassEntry:
                 path.unlink(missing_ok=True)
                 continue
             with os.fdopen(fd, "w") as f:
-                json.dump({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}, f)
+                json.dump(
+                    {
+                        "host": socket.gethostname(),
+                        "pid": os.getpid(),
+                        "start": process_start(os.getpid()),
+                        "started": time.time(),
+                    },
+                    f,
+                )
             # Holding the claim, no other process writes this pass: temporary files of it are leftovers
             # of a writer that was killed mid-write (atomic writes rename a `.NAME.<hex>.tmp` file).
             for leftover in self.folder.glob(f".pass-{index:05d}.*.tmp"):
@@ -230,7 +239,8 @@ class PassEntry:
             return True  # released meanwhile: try again
         except (OSError, ValueError):
             return True  # a torn claim (its writer died between open and write)
-        if info.get("host") == socket.gethostname() and not pid_alive(int(info.get("pid", -1))):
+        pid, start = int(info.get("pid", -1)), info.get("start")
+        if info.get("host") == socket.gethostname() and not process_alive(pid, start):
             return True
         return age > CLAIM_STALE_SECONDS
 
@@ -358,19 +368,6 @@ and for a heartbeat starved by a long kernel that holds the GIL)."""
 CLAIM_POLL_SECONDS = 0.5
 """How often a process waiting for another's pass looks for it."""
 _HEARTBEAT_SECONDS = 10.0
-
-
-def pid_alive(pid: int) -> bool:
-    """True when a process ``pid`` exists on this host (also one owned by another user)."""
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True  # exists, owned by someone else
-    return True
 
 
 class _Heartbeat:

@@ -21,6 +21,7 @@ import pytest
 from rtfit.experiments import atomic
 from rtfit.experiments.atomic import atomic_directory, is_temporary_name, owner_file, remove_stale_temporaries
 from rtfit.experiments.runner import resumed_line
+from rtfit.reference import processes
 from rtfit.reference.cache import PASS_COUNTS, PassEntry, PassResult
 
 # A tiny diffuse run (two shipped scenes, the fewest its study takes, at 16² pixels, 8 passes of 32 samples
@@ -213,7 +214,7 @@ def test_the_owner_file_comes_before_its_directory(tmp_path, monkeypatch):
     with atomic.atomic_directory(final, log=None) as tmp:
         assert seen == [False] and owner_file(tmp).exists()
     monkeypatch.undo()
-    me = {"host": socket.gethostname(), "pid": os.getpid(), "start": atomic._process_start(os.getpid())}
+    me = {"host": socket.gethostname(), "pid": os.getpid(), "start": processes.process_start(os.getpid())}
     mine = owner_file(final.parent / f".{final.name}.{'cd' * 6}.tmp")
     mine.write_text(json.dumps(me))
     dead = owner_file(final.parent / f".{final.name}.{'ef' * 6}.tmp")
