@@ -31,7 +31,6 @@ closed-form ray optics of the sphere on the same emitted rays (`caustic_pass.sph
 from __future__ import annotations
 
 import math
-from functools import partial
 from typing import Any
 
 import numpy as np
@@ -56,7 +55,7 @@ from .audit_fit import length_scaled_params
 from .audit_geometry import reflective_shape
 from .audit_setup import AuditSetup, pooled_passes
 from .records import Check, Section
-from .shipped import ShippedScene, Study, StudyContext
+from .shipped import Sizes, Study, StudyContext
 
 __all__ = [
     "CASTERS",
@@ -78,13 +77,13 @@ PHOTONS_PER_SAMPLE = 4
 LENGTHS = frozenset({"width"})
 """Parameters declared in units of the caster's bounding radius (multiplied by it here)."""
 
-_shipped = partial(ShippedScene, size=(32, 32), spp=256, quick_size=(24, 24), quick_spp=32)
+_sizes = Sizes(full=(32, 32, 256), quick=(24, 24, 32))
 SCENES = (
-    _shipped(
+    _sizes.scene(
         "caustics_sphere_sun.xml",
         "a glass ball (η 1.5) over a white floor, a directional light 30° off the vertical",
     ),
-    _shipped(
+    _sizes.scene(
         "caustics_sphere_point.xml",
         "a glass ball (η 1.5) over a white floor, a point light 2.5 m away (the caustic near focus)",
     ),

@@ -66,7 +66,7 @@ from .audit_environment import environment_of
 from .audit_family import AuditFamily, FamilyCase
 from .audit_setup import AuditSetup
 from .audit_sky import sky_reference
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = [
     "BAKE_ROWS",
@@ -88,9 +88,8 @@ USER_COUNT = 64
 _MAX_LANES = 1 << 22  # shadow rays per launch
 _MAP_LANES = 1 << 20  # depth-map rays per launch (a surface interaction per lane: ~0.1 GB a launch)
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(24, 24), quick_spp=32)
 SCENES = (
-    _shipped(
+    Sizes(full=(64, 64, 256), quick=(24, 24, 32)).scene(
         "ibl_samples_museum.xml",
         "a sphere and two boxes on a grey ground plane under a museum light probe (32 × 64 lat-long, "
         "Mitsuba's test data): bright windows, soft indoor light, contact shadows",

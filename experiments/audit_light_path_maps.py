@@ -38,7 +38,6 @@ import contextlib
 import math
 import time
 from dataclasses import replace
-from functools import partial
 
 import numpy as np
 
@@ -66,7 +65,7 @@ from .audit_lights import scene_light
 from .audit_setup import AuditSetup, pooled_passes
 from .case_inputs import vector_text
 from .records import Check, Headline, Section
-from .shipped import ShippedScene, Study, StudyContext
+from .shipped import Sizes, Study, StudyContext
 
 __all__ = [
     "CUT_GRID",
@@ -95,9 +94,8 @@ ENTRY_SWEEP = (128, 256, 512)
 """The entry-point counts the study compares (every (N/n)-th of the bake, on the seed's 32 panes, the fitted
 cut): 4, 8, 16 (and at N, 32) entry points per cluster."""
 
-_shipped = partial(ShippedScene, size=(48, 48), spp=256, quick_size=(16, 16), quick_spp=32)
 SCENES = (
-    _shipped(
+    Sizes(full=(48, 48, 256), quick=(16, 16, 32)).scene(
         "light_path_maps_box.xml",
         "the colour-bleeding mini Cornell box (red and green walls, a white block) lit by a point light "
         "under the ceiling, moved towards each coloured wall",

@@ -37,7 +37,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from functools import partial
 
 import numpy as np
 
@@ -57,7 +56,7 @@ from .audit_geometry import reflective_shape, shape_view, visible_subset
 from .audit_setup import AuditSetup, pooled_passes
 from .case_inputs import rgb_columns, vector_text, xyz_columns
 from .records import Check, Section
-from .shipped import ShippedScene, Study, StudyContext
+from .shipped import Sizes, Study, StudyContext
 
 __all__ = [
     "ETA_RANGE",
@@ -76,9 +75,9 @@ FORMAT = 1
 ETA_RANGE = (1.2, 1.6)
 """The relative indices of refraction audited as a drop (water 1.33 … dense glass)."""
 
-_shipped = partial(ShippedScene, size=(48, 48), spp=1024, quick_size=(20, 20), quick_spp=64)
+_sizes = Sizes(full=(48, 48, 1024), quick=(20, 20, 64))
 SCENES = tuple(
-    _shipped(
+    _sizes.scene(
         "raindrops_drop.xml",
         f"a water drop (η = 1.33, r = 1 m) under the {label}, seen 11° from above",
         defines={"map": f"envmaps/{name}.exr"},
