@@ -348,7 +348,6 @@ def aerial_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name=NAME,
     quantity="fogged_radiance",
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=aerial_cases,
     describe=(
         "Per medium the camera looks through under the scene's sky (sunsky, envmap or constant "
@@ -358,6 +357,7 @@ FAMILY = AuditFamily(
         "its source function at the camera (camera-source), its horizon average (horizon-flat) and that "
         "average times the medium's phase per pixel (horizon-phase), given, then fitted to this scene."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "aerial-perspective",

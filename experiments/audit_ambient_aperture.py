@@ -309,7 +309,6 @@ FAMILY = AuditFamily(
     # ``ambient-aperture`` it is a row of the occluded-light case too.
     quantity="ambient_occlusion",
     cases=ambient_aperture_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Each visible pixel's visibility cap (bent normal and aperture r_a = acos(1 − V), V the visible "
         "fraction of --spp uniform hemisphere directions cast with Mitsuba against the scene's own "
@@ -320,6 +319,7 @@ FAMILY = AuditFamily(
         "light's shadowed direct irradiance (the diffuse family's reference). The fitted forms' "
         "coefficients and the Lambert exponent are fitted to this scene."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "ambient-aperture",

@@ -336,7 +336,6 @@ FAMILY = AuditFamily(
     name="caustics",
     quantity="caustic_irradiance",
     cases=caustic_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per smooth glass or mirror caster and delta light (point, spot, directional): the caustic "
         "irradiance at the visible diffuse receivers (light paths L S+ D, W/m²) by light tracing through the "
@@ -346,6 +345,7 @@ FAMILY = AuditFamily(
         f"{', '.join(map(str, PHOTON_COUNTS))} photons traced from the seed's regular hit map (each pixel "
         f"reads its {NEAREST} nearest)."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "caustics",

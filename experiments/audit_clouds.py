@@ -375,8 +375,6 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="clouds",
     quantity="cloud_transmittance",
-    quantities=("cloud_radiance",),
-    formats=("mitsuba-xml",),
     cases=cloud_cases,
     describe=(
         "Per heterogeneous gridvolume medium lit by a distant sun: the sun's transmittance through the cloud "
@@ -385,6 +383,8 @@ FAMILY = AuditFamily(
         "002:349-387), the plane extruded to a slab with the nested march of the seed's distance clouds, and "
         "a 3-D ray march with 4–64 samples."
     ),
+    quantities=("cloud_radiance",),
+    formats=("mitsuba-xml",),
     rules=(
         Rule(
             "clouds",

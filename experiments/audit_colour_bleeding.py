@@ -217,7 +217,6 @@ FAMILY = AuditFamily(
     name="colour-bleeding",
     quantity="bounce_irradiance",
     cases=bounce_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "The one-bounce indirect irradiance at each visible point, per channel (W/m², RGB): a cosine ray, "
         "then π × (Mitsuba path with max_depth 2 − max_depth 1), in independent passes with per-pixel "
@@ -227,6 +226,7 @@ FAMILY = AuditFamily(
         f"and the one-bounce gather reading the direct light at each hit, all on K = {RAYS} (and "
         f"{FEW_RAYS}) cosine-spiral rays per point with the hit distances, albedos and direct irradiance."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "colour-bleeding",

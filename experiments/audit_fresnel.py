@@ -209,7 +209,6 @@ FAMILY = AuditFamily(
     name="fresnel",
     quantity="fresnel_reflectance",
     cases=fresnel_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per visible conductor or dielectric (and their rough versions, and plastic's coating): the Fresnel "
         "reflectance F at each pixel's viewing angle as Mitsuba computes it — the smooth BSDF's own "
@@ -218,6 +217,7 @@ FAMILY = AuditFamily(
         "seeds' slider, rim and metal forms, Hoffman's F82 tint and the exact dielectric and conductor "
         "formulas (z-checked). A thin dielectric is not audited (two interfaces: 2R/(1 + R))."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=tuple(
         Rule("fresnel", role, (kind,), *_RULE_WORDS, supplies=frozenset({"cos_theta", "eta", "k"}))
         for role, kind in (("reflectance", "reflective-shape"), ("glossy reflectance", "rough-shape"))

@@ -464,8 +464,6 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="height-fog",
     quantity="fog_transmittance",
-    quantities=("fogged_radiance",),
-    formats=("rtfit-toml",),
     cases=fog_cases,
     describe=(
         "Per exponential-fog medium, on the pixels whose camera ray crosses it: (1) its transmittance "
@@ -476,6 +474,8 @@ FAMILY = AuditFamily(
         "(rtfit's volpathmis reference), against the shading models L₀·T + C·(1 − T) on the fog-free image "
         "L₀ (same transport and spp), with the true b, c and the sky colours of the experiment, and fitted."
     ),
+    quantities=("fogged_radiance",),
+    formats=("rtfit-toml",),
     rules=(
         Rule(
             "height-fog",

@@ -351,7 +351,6 @@ FAMILY = AuditFamily(
     name="ibl-samples",
     quantity="sky_irradiance_lights",
     cases=ibl_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per environment with occluding geometry: the environment's irradiance with visibility "
         "E = ∫ L_env V (n·ω) dω (W/m², RGB; a sunsky's sky without its sun) at each visible point, by "
@@ -362,6 +361,7 @@ FAMILY = AuditFamily(
         "the seed's depth maps instead, the samples without relaxation, and Debevec's median cut. Error "
         "and cost per N."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "ibl-samples",

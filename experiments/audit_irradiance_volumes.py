@@ -289,7 +289,6 @@ FAMILY = AuditFamily(
     name="irradiance-volumes",
     quantity="volume_irradiance",
     cases=irradiance_volume_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "A regular grid of probes over the scene's bounding box (cubic cells, nodes centred in the box; "
         f"--grid NX,NY,NZ, default {DEFAULT_NODES} nodes on the longest side), each path-traced along "
@@ -298,6 +297,7 @@ FAMILY = AuditFamily(
         "the visible points and camera-facing normals, against the path-traced irradiance there (a "
         "cosine-distributed ray, then unbounded path tracing: every light a ray can reach, as the probes)."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "irradiance-volumes",

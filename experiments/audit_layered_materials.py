@@ -420,9 +420,7 @@ _RULE_WORDS = (
 FAMILY = AuditFamily(
     name="layered-materials",
     quantity="layer_offset",
-    quantities=("coated_radiance", "inner_irradiance"),
     cases=coat_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per smooth dielectric shape seen from outside with a surface under it (a clear coat over a base): "
         "the lateral offset at which each pixel sees the base, from Mitsuba's own refraction of the "
@@ -432,6 +430,9 @@ FAMILY = AuditFamily(
         "constant sky, also the coated base's radiance path traced by Mitsuba against the seed's layer "
         "composite (000:1321-1331), a Fresnel lerp and the coated-diffuse closed form."
     ),
+    quantities=("coated_radiance", "inner_irradiance"),
+    formats=("mitsuba-xml", "rtfit-toml"),
+    role_formats={ROLE: ("mitsuba-xml",)},
     rules=(
         Rule(
             "layered-materials",
@@ -445,7 +446,6 @@ FAMILY = AuditFamily(
         ),
         LIGHTMAP_RULE,
     ),
-    role_formats={ROLE: ("mitsuba-xml",)},
 )
 
 

@@ -163,7 +163,6 @@ def cone_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="light-cones",
     quantity="spot_inscattered_radiance",
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=cone_cases,
     describe=(
         "Per spot light inside a homogeneous medium, on the pixels whose camera ray has a stretch in that "
@@ -176,6 +175,7 @@ FAMILY = AuditFamily(
         "scattering with extinction and the medium's phase function (rtfit.reference.single_scattering), "
         "which must sit at the reference's noise where nothing shadows the medium."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "light-cones",

@@ -430,7 +430,6 @@ FAMILY = AuditFamily(
     name="light-path-maps",
     quantity="path_map_irradiance",
     cases=path_map_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "The one-bounce indirect irradiance at each visible point, per channel (W/m², RGB), for the light "
         "where the scene puts it and moved towards either side (π × (Mitsuba path max_depth 2 − 1) "
@@ -441,6 +440,7 @@ FAMILY = AuditFamily(
         "irradiance at each cluster's entry points; and the seed's K = 32 with the cut fitted across the "
         "light's positions."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "light-path-maps",

@@ -218,8 +218,6 @@ def _radiance_case(setup, app, med, ok, mask, common, what, given, tag, paramete
 FAMILY = AuditFamily(
     name="linear-fog",
     quantity="fog_transmittance",
-    quantities=("fogged_radiance",),
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=homogeneous_fog_cases,
     describe=(
         "Per homogeneous medium of the scene: the classic fog factors f(d) on the view distance d through "
@@ -228,6 +226,8 @@ FAMILY = AuditFamily(
         "the fog blends L₀·f + C·(1 − f) (the seed's with its luminance fade) against the radiance path "
         "traced with this medium alone, fitted (C per channel and the factor's parameters)."
     ),
+    quantities=("fogged_radiance",),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "linear-fog",

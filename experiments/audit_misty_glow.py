@@ -209,7 +209,6 @@ def glow_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="misty-glow",
     quantity="glow_radiance",
-    formats=("mitsuba-xml",),
     cases=glow_cases,
     describe=(
         "Per point light inside a homogeneous medium, on the pixels whose camera ray has a stretch in that "
@@ -218,6 +217,7 @@ FAMILY = AuditFamily(
         "light's direct image (4 passes, ¼ downsample, 000:628-652), 1–8 passes with scale and amplitude "
         "fitted, a Gaussian bloom, and the single-scattering quadrature (rtfit.reference.single_scattering)."
     ),
+    formats=("mitsuba-xml",),
     rules=(
         Rule(
             "misty-glow",

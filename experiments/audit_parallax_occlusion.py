@@ -477,8 +477,6 @@ def on_field(method: Method, field: HeightMap, scale: float) -> Method:
 FAMILY = AuditFamily(
     name="parallax-occlusion",
     quantity="parallax_depth",
-    formats=("mitsuba-xml", "rtfit-toml"),
-    quantities=("parallax_shadow",),
     cases=parallax_cases,
     describe=(
         "A shape whose BSDF is a bumpmap of a bitmap texture: the texture as a height field, carved "
@@ -493,6 +491,8 @@ FAMILY = AuditFamily(
         "with standard errors) against the POM shadow query after the march and at the exact visible point, "
         "declared and fitted (softening, floor), and no shadow."
     ),
+    quantities=("parallax_shadow",),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "parallax-occlusion",

@@ -264,7 +264,6 @@ FAMILY = AuditFamily(
     name="pcf-soft-shadows",
     quantity="shadowed_light_irradiance",
     cases=pcf_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per light with occluding geometry: its shadowed direct irradiance E_s (W/m², RGB) at each visible "
         "point, by Mitsuba's emitter sampling of that light alone with shadow rays, in independent passes "
@@ -275,6 +274,7 @@ FAMILY = AuditFamily(
         "PCSS (blocker search + penumbra estimate). Kernel radius, depth bias and PCSS's light-size scale "
         "are fitted per light and map resolution; pixels outside the map's frustum are left out."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "pcf-soft-shadows",

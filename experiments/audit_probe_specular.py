@@ -208,7 +208,6 @@ FAMILY = AuditFamily(
     name="probe-specular",
     quantity="probe_specular_radiance",
     cases=probe_specular_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per glossy shape (roughconductor, roughplastic): the radiance of the pixels that see it, "
         "path-traced along the pixel-centre camera rays, against the seed's nearest pre-rendered cube map "
@@ -217,6 +216,7 @@ FAMILY = AuditFamily(
         "over the scene's box; rows without parallax correction, with Lagarde 2012's box and sphere "
         "proxies, and with the roughness → mip exponent fitted."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "probe-specular",

@@ -258,7 +258,6 @@ FAMILY = AuditFamily(
     name="raindrops",
     quantity="drop_radiance",
     cases=drop_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per smooth dielectric sphere (η 1.2–1.6: a water or glass drop) under the scene's environment: the "
         "radiance of the pixels that see it, path traced (unbounded depth), against the seed's Fresnel blend "
@@ -269,6 +268,7 @@ FAMILY = AuditFamily(
         f"the environment ({ENV_RESOLUTION}² a face). The seed's claim that a drop is brighter than its "
         "background is measured per case."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "raindrops",

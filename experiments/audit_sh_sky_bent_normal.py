@@ -90,7 +90,6 @@ FAMILY = AuditFamily(
     name="sh-sky-bent-normal",
     quantity="sky_irradiance_sh",
     cases=sh_sky_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per environment with occluding geometry: the sky's irradiance with visibility "
         "E = ∫ L_env V (n·ω) dω (W/m², RGB; a sunsky's sky without its sun) at each visible point, by "
@@ -102,6 +101,7 @@ FAMILY = AuditFamily(
         "AO and cone come from unbounded ray casts (what an engine bakes); the SH from the emitter's "
         "projection. The scale and AO exponent are fitted per scene."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "sh-sky-bent-normal",

@@ -126,7 +126,6 @@ def lightning_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="volumetric-lightning",
     quantity="inscattered_radiance",
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=lightning_cases,
     describe=(
         "Per point light inside a homogeneous medium, on the pixels whose camera ray has a stretch in "
@@ -139,6 +138,7 @@ FAMILY = AuditFamily(
         "(rtfit.reference.single_scattering), which must sit at the reference's noise where nothing "
         "shadows the medium."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "volumetric-lightning",
