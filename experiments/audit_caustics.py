@@ -290,7 +290,6 @@ def caustic_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 label=f"{app.part}: caustic of light {j} ({kind})",
                 reference=ref,
                 channel_inputs=channel_inputs,
-                row_inputs=row_inputs,
                 parameters={
                     "caster": app.part,
                     "caster_bsdf": plugin,
@@ -311,6 +310,7 @@ def caustic_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 ),
                 methods=methods,
                 params=params,
+                row_inputs=row_inputs,
                 precompute=precompute,
             )
         )

@@ -365,8 +365,8 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "the seed prints no formula for the cloud shadows (its figures are lost): the texture rows "
                 "are Beer–Lambert on the density plane, rtfit's reading (docs/clouds.md)",
             ),
-            params=_params(cloud),
             methods=METHODS,
+            params=_params(cloud),
         ),
         *radiance,
     ]

@@ -334,6 +334,7 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             ),
             methods=methods,
             row_inputs=row_inputs,
+            user_rows=partial(_user_row, n=user_n, lights=user_lights),
             uncosted={
                 rid: f"the kernel of seed-lloyd-{rid.rsplit('-', 1)[1]} (one text; only the bake differs, "
                 "offline): its cost is that row's"
@@ -342,7 +343,6 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 and not rid.startswith("seed-lloyd-")
                 and f"seed-lloyd-{rid.rsplit('-', 1)[1]}" in methods
             },
-            user_rows=partial(_user_row, n=user_n, lights=user_lights),
         )
     ]
 

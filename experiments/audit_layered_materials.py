@@ -313,7 +313,6 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             label=f"{app.part}, the coated base's radiance under the sky",
             reference=reference,
             channel_inputs=channels,
-            params=_blur_starts(reference.mean[mask_r], channels) if rows != COMPOSITE_ROWS else {},
             parameters={
                 "shape": app.part,
                 "eta": eta,
@@ -324,7 +323,6 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "medium": None if medium is None else medium.class_name(),
             },
             units="W/m²/sr",
-            quantity="coated_radiance",
             notes=(
                 f"uniform sky L = {vector_text(sky)}; F̄_ext = {fdr_ext:.4g}, F̄_int = {fdr_int:.4g} "
                 "(Mitsuba's fresnel, 64-node Gauss–Legendre)",
@@ -337,6 +335,8 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 else "no medium in the coat (path)",
             ),
             methods={k: METHODS[k] for k in rows},
+            quantity="coated_radiance",
+            params=_blur_starts(reference.mean[mask_r], channels) if rows != COMPOSITE_ROWS else {},
         )
     )
     return cases

@@ -379,9 +379,6 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 label=f"one bounce with the light at {where}" + (" (as declared)" if p == 0 else " (moved)"),
                 reference=ref,
                 channel_inputs=rows["seed-path-map"],
-                row_inputs=rows,
-                precompute=precompute,
-                methods=methods,
                 parameters={
                     "light_position": [float(x) for x in (light.centre + offset)]
                     if light.centre is not None
@@ -421,6 +418,9 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                         )
                     ),
                 ),
+                methods=methods,
+                row_inputs=rows,
+                precompute=precompute,
             )
         )
     return cases

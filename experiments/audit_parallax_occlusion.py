@@ -456,10 +456,10 @@ def _shadow_cases(setup, app, k, light_id, emitter, centre, hit, fine_scene, hm,
             ),
             methods=rows,
             quantity="parallax_shadow",
+            user_rows=functools.partial(on_field, field=hm, scale=depth),
             uncosted={
                 "pom-no-shadow": "POM without the shadow query returns the constant 1: no work to time"
             },
-            user_rows=functools.partial(on_field, field=hm, scale=depth),
         )
     ]
 

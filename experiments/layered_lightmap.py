@@ -224,7 +224,6 @@ def lightmap_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             label=f"{app.part}: the inner layer's irradiance under it",
             reference=reference,
             channel_inputs=channels,
-            params=_starts(pooled.mean, channels),
             parameters={
                 "part": app.part,
                 "depth_min": float(depth.min()),
@@ -235,7 +234,6 @@ def lightmap_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "pixels": int(mask.sum()),
             },
             units="W/m²",
-            quantity="inner_irradiance",
             notes=(
                 f"outer layer thickness d = {np.median(depth):.4g}, σ_t = {sigma:.4g} (optical depth "
                 f"{sigma * np.median(depth):.3g}); the beam's share of the reference: "
@@ -244,6 +242,8 @@ def lightmap_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "layer's local diffuse lighting (N·L, shadowed) on the inner layer's uv window",
             ),
             methods={k: METHODS[k] for k in LIGHTMAP_ROWS},
+            quantity="inner_irradiance",
+            params=_starts(pooled.mean, channels),
         )
     ]
 
