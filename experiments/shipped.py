@@ -19,8 +19,9 @@ class ShippedScene:
     """A scene a family ships for ``rtfit run FAMILY`` (issue 30 §1): the engine audits it for this family
     alone, exactly as ``rtfit audit`` audits a user's scene. ``file``: a Mitsuba XML or rtfit TOML file in
     rtfit's scene library (``scenes/library/``); ``label``: one line for the report; ``size`` (width,
-    height) and ``spp`` of the full run, ``quick_size`` and ``quick_spp`` of ``--quick``; ``options``: the
-    audit's keyword options for this scene (``ao_distance``, ``grid``, ``probe_at``, ``pom_depth``)."""
+    height) and ``spp`` of the full run, ``quick_size`` and ``quick_spp`` of ``--quick`` (a family writes
+    them once for its scenes: `Sizes`); ``options``: the audit's keyword options for this scene
+    (``ao_distance``, ``grid``, ``probe_at``, ``pom_depth``)."""
 
     file: str
     label: str
