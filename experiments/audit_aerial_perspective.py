@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from functools import partial
 
 import drjit as dr
 import numpy as np
@@ -67,7 +66,7 @@ from .audit_media import (
     sun_direction_of,
 )
 from .audit_setup import AuditSetup
-from .shipped import ShippedScene
+from .shipped import ShippedScene, Sizes
 
 __all__ = [
     "FAMILY",
@@ -111,13 +110,13 @@ QUICK = (("fog_bank", 60.0), ("height_fog", 4.0))
 """The ``--quick`` scenes: a high sun through the constant fog, a low sun through the height fog."""
 
 
-_shipped = partial(ShippedScene, size=(96, 64), spp=1024, quick_size=(24, 16), quick_spp=64)
+_sizes = Sizes(full=(96, 64, 1024), quick=(24, 16, 64))
 
 
 def _sun_scene(medium: str, elevation: float) -> ShippedScene:
     e, a = math.radians(elevation), math.radians(SUN_AZIMUTH_DEG)
     sun = (math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e))
-    return _shipped(
+    return _sizes.scene(
         f"aerial_perspective_{medium}.xml",
         f"sunsky (turbidity 3), sun at {elevation:g}° elevation, through {MEDIA[medium]}",
         defines={k: f"{v:.6f}" for k, v in zip(("sx", "sy", "sz"), sun, strict=True)},
@@ -349,7 +348,6 @@ def aerial_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name=NAME,
     quantity="fogged_radiance",
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=aerial_cases,
     describe=(
         "Per medium the camera looks through under the scene's sky (sunsky, envmap or constant "
@@ -359,6 +357,7 @@ FAMILY = AuditFamily(
         "its source function at the camera (camera-source), its horizon average (horizon-flat) and that "
         "average times the medium's phase per pixel (horizon-phase), given, then fitted to this scene."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "aerial-perspective",

@@ -63,7 +63,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from functools import partial
 
 import numpy as np
 
@@ -80,7 +79,7 @@ from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import ao_radius
 from .audit_lights import light_geometry, light_radiance, light_reference, scene_light
 from .audit_setup import AuditSetup, pooled_passes
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["CAPS_ROLE", "FAMILY", "LIGHT_ROLE", "SCENES", "BakedCaps", "bake_caps"]
 
@@ -310,7 +309,6 @@ FAMILY = AuditFamily(
     # ``ambient-aperture`` it is a row of the occluded-light case too.
     quantity="ambient_occlusion",
     cases=ambient_aperture_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Each visible pixel's visibility cap (bent normal and aperture r_a = acos(1 − V), V the visible "
         "fraction of --spp uniform hemisphere directions cast with Mitsuba against the scene's own "
@@ -321,6 +319,7 @@ FAMILY = AuditFamily(
         "light's shadowed direct irradiance (the diffuse family's reference). The fitted forms' "
         "coefficients and the Lambert exponent are fitted to this scene."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "ambient-aperture",
@@ -350,24 +349,25 @@ QUICK_ROLES = ("sky occlusion (aperture fill)", LIGHT_ROLE)
 """The roles ``--quick`` audits (the fill's role is declared by `audit_sky_occlusion`; `engine_run` checks
 every name): not the AO caps (their bake and AO reference), which the full run audits."""
 
-_shipped = partial(
-    ShippedScene, size=(64, 64), spp=8192, quick_size=(24, 24), quick_spp=1024, quick_roles=QUICK_ROLES
-)
+_sizes = Sizes(full=(64, 64, 8192), quick=(24, 24, 1024))
 SCENES = (
-    _shipped(
+    _sizes.scene(
         "aperture_hole.toml",
         "white floor under a plate with a circular hole (radius 0.6, 1 up), seen from under the plate; a "
         "sphere light above, offset, and a constant sky of radiance 1",
+        quick_roles=QUICK_ROLES,
     ),
-    _shipped(
+    _sizes.scene(
         "aperture_well.toml",
         "white floor of an open cylindrical well (radius 0.7, depth 1.2), seen down its axis; a sphere light "
         "above, offset, and a constant sky of radiance 1",
+        quick_roles=QUICK_ROLES,
     ),
-    _shipped(
+    _sizes.scene(
         "aperture_bumps.toml",
         "white height field of six Gaussian bumps under a low sphere light (soft shadows of the bumps on "
         "each other) and a constant sky of radiance 1",
+        quick_roles=QUICK_ROLES,
     ),
 )
 """The scenes ``rtfit run ambient-aperture`` audits (scenes/library/aperture_*.toml): the three receivers of

@@ -386,8 +386,6 @@ FAMILY = AuditFamily(
     name="sdf-occlusion",
     quantity="ambient_occlusion",
     cases=ao_cases,
-    quantities=("crease_darkening",),
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Ambient occlusion A = (1/π)∫ V_R (n·ω) dω within the radius R at each visible point, by Mitsuba ray "
         "casts (cosine-distributed rays of length R against the scene's own shapes) in independent passes "
@@ -395,6 +393,8 @@ FAMILY = AuditFamily(
         "triangles (Mitsuba's mesh buffers; spheres, disks and cylinders tessellated): cone-traced AO and "
         "Evans' curvature term, each with its free parameter fitted to this scene."
     ),
+    quantities=("crease_darkening",),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "sdf-occlusion",

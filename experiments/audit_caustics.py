@@ -31,7 +31,6 @@ closed-form ray optics of the sphere on the same emitted rays (`caustic_pass.sph
 from __future__ import annotations
 
 import math
-from functools import partial
 from typing import Any
 
 import numpy as np
@@ -56,7 +55,7 @@ from .audit_fit import length_scaled_params
 from .audit_geometry import reflective_shape
 from .audit_setup import AuditSetup, pooled_passes
 from .records import Check, Section
-from .shipped import ShippedScene, Study, StudyContext
+from .shipped import Sizes, Study, StudyContext
 
 __all__ = [
     "CASTERS",
@@ -78,13 +77,13 @@ PHOTONS_PER_SAMPLE = 4
 LENGTHS = frozenset({"width"})
 """Parameters declared in units of the caster's bounding radius (multiplied by it here)."""
 
-_shipped = partial(ShippedScene, size=(32, 32), spp=256, quick_size=(24, 24), quick_spp=32)
+_sizes = Sizes(full=(32, 32, 256), quick=(24, 24, 32))
 SCENES = (
-    _shipped(
+    _sizes.scene(
         "caustics_sphere_sun.xml",
         "a glass ball (η 1.5) over a white floor, a directional light 30° off the vertical",
     ),
-    _shipped(
+    _sizes.scene(
         "caustics_sphere_point.xml",
         "a glass ball (η 1.5) over a white floor, a point light 2.5 m away (the caustic near focus)",
     ),
@@ -291,7 +290,6 @@ def caustic_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 label=f"{app.part}: caustic of light {j} ({kind})",
                 reference=ref,
                 channel_inputs=channel_inputs,
-                row_inputs=row_inputs,
                 parameters={
                     "caster": app.part,
                     "caster_bsdf": plugin,
@@ -312,6 +310,7 @@ def caustic_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 ),
                 methods=methods,
                 params=params,
+                row_inputs=row_inputs,
                 precompute=precompute,
             )
         )
@@ -337,7 +336,6 @@ FAMILY = AuditFamily(
     name="caustics",
     quantity="caustic_irradiance",
     cases=caustic_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per smooth glass or mirror caster and delta light (point, spot, directional): the caustic "
         "irradiance at the visible diffuse receivers (light paths L S+ D, W/m²) by light tracing through the "
@@ -347,6 +345,7 @@ FAMILY = AuditFamily(
         f"{', '.join(map(str, PHOTON_COUNTS))} photons traced from the seed's regular hit map (each pixel "
         f"reads its {NEAREST} nearest)."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "caustics",

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +51,7 @@ from .audit_family import AuditFamily, FamilyCase
 from .audit_media import RADIANCE_INTEGRATOR, opened_medium, radiance_passes, sun_direction_of
 from .audit_setup import AuditSetup, pooled_passes
 from .records import Check, Section
-from .shipped import ShippedScene, Study, StudyContext
+from .shipped import ShippedScene, Sizes, Study, StudyContext
 
 __all__ = [
     "BLOBS",
@@ -113,13 +112,13 @@ def sun_direction(elevation_deg: float) -> tuple[float, float, float]:
     return (math.cos(e), 0.0, math.sin(e))
 
 
-_ground = partial(ShippedScene, size=(48, 48), spp=256, quick_size=(16, 16), quick_spp=32)
-_sky = partial(ShippedScene, size=(32, 32), spp=256, quick_size=(12, 12), quick_spp=32)
+_ground = Sizes(full=(48, 48, 256), quick=(16, 16, 32))
+_sky = Sizes(full=(32, 32, 256), quick=(12, 12, 32))
 
 
 def _scene(elevation: float) -> ShippedScene:
     s = sun_direction(elevation)
-    return _ground(
+    return _ground.scene(
         "clouds_sun.xml",
         f"four Gaussian blobs of cloud (peak σt 1.5–4 /m) 2–4 m above a grey ground, sun at {elevation:g}°",
         defines={"dx": f"{-s[0]:.6f}", "dy": "0", "dz": f"{-s[2]:.6f}"},
@@ -149,7 +148,7 @@ def _sky_sun(view: str) -> tuple[float, float, float]:
 
 def _sky_scene(view: str) -> ShippedScene:
     s, c = _sky_sun(view), CAMERAS[view]
-    return _sky(
+    return _sky.scene(
         "clouds_sky.xml",
         f"the blobs' cloud against a black sky, sun at {math.degrees(math.asin(s[2])):.3g}°, seen {view}",
         defines={
@@ -366,8 +365,8 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "the seed prints no formula for the cloud shadows (its figures are lost): the texture rows "
                 "are Beer–Lambert on the density plane, rtfit's reading (docs/clouds.md)",
             ),
-            params=_params(cloud),
             methods=METHODS,
+            params=_params(cloud),
         ),
         *radiance,
     ]
@@ -376,8 +375,6 @@ def cloud_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="clouds",
     quantity="cloud_transmittance",
-    quantities=("cloud_radiance",),
-    formats=("mitsuba-xml",),
     cases=cloud_cases,
     describe=(
         "Per heterogeneous gridvolume medium lit by a distant sun: the sun's transmittance through the cloud "
@@ -386,6 +383,8 @@ FAMILY = AuditFamily(
         "002:349-387), the plane extruded to a slab with the nested march of the seed's distance clouds, and "
         "a 3-D ray march with 4–64 samples."
     ),
+    quantities=("cloud_radiance",),
+    formats=("mitsuba-xml",),
     rules=(
         Rule(
             "clouds",

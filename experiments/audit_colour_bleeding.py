@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from functools import partial
 
 import drjit as dr
 import numpy as np
@@ -51,7 +50,7 @@ from .audit_family import AuditFamily, FamilyCase
 from .audit_fit import length_scaled_params
 from .audit_geometry import ao_radius
 from .audit_setup import AuditSetup, pooled_passes
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["FAMILY", "FEW_RAYS", "HIT_SPP_FACTOR", "HIT_SPP_MIN", "SCENES", "bounce_cases", "ray_hits"]
 
@@ -62,14 +61,14 @@ HIT_SPP_FACTOR = 0.25
 HIT_SPP_MIN = 8
 """The direct irradiance at the hits: max(`HIT_SPP_MIN`, `HIT_SPP_FACTOR` × spp) samples each."""
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(20, 20), quick_spp=32)
+_sizes = Sizes(full=(64, 64, 256), quick=(20, 20, 32))
 SCENES = (
-    _shipped(
+    _sizes.scene(
         "colour_bleeding_box.xml",
         "a mini Cornell box (red and green walls, white floor, ceiling, back wall and block) lit by a small "
         "rectangle light under the ceiling",
     ),
-    _shipped(
+    _sizes.scene(
         "volume_room.toml",
         "the irradiance-volumes room (red and green side walls, a point light, a thin occluding wall)",
         quick=False,
@@ -218,7 +217,6 @@ FAMILY = AuditFamily(
     name="colour-bleeding",
     quantity="bounce_irradiance",
     cases=bounce_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "The one-bounce indirect irradiance at each visible point, per channel (W/m², RGB): a cosine ray, "
         "then π × (Mitsuba path with max_depth 2 − max_depth 1), in independent passes with per-pixel "
@@ -228,6 +226,7 @@ FAMILY = AuditFamily(
         f"and the one-bounce gather reading the direct light at each hit, all on K = {RAYS} (and "
         f"{FEW_RAYS}) cosine-spiral rays per point with the hit distances, albedos and direct irradiance."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "colour-bleeding",

@@ -30,8 +30,6 @@ camera-facing unit normals n):
 
 from __future__ import annotations
 
-from functools import partial
-
 import numpy as np
 
 from rtfit.realtime.light_models import METHODS as LIGHT_MODELS
@@ -51,7 +49,7 @@ from .audit_lights import (
     sphere_sampling_precision,
 )
 from .audit_setup import AuditSetup
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["ALPHAS_DEG", "FAMILY", "SCENES", "light_geometry", "light_radiance", "light_reference"]
 
@@ -60,9 +58,9 @@ ALPHAS_DEG = (0.27, 1.0, 2.0, 5.0, 10.0, 15.0, 20.0, 30.0)
 QUICK_ALPHAS_DEG = (0.27, 5.0, 15.0, 30.0)
 """Those ``--quick`` audits (the smooth law's four parameters still have four light sizes to fit)."""
 
-_shipped = partial(ShippedScene, size=(128, 128), spp=4096, quick_size=(32, 32), quick_spp=256)
+_sizes = Sizes(full=(128, 128, 4096), quick=(32, 32, 256))
 SCENES = tuple(
-    _shipped(
+    _sizes.scene(
         f"diffuse_sphere_a{a:g}".replace(".", "p") + ".toml",
         f"white unit sphere side-lit by a sun of {a:g}° angular radius (E⊥ = π), seen from −Y",
         quick=a in QUICK_ALPHAS_DEG,

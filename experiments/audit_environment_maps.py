@@ -209,7 +209,6 @@ FAMILY = AuditFamily(
     name="environment-maps",
     quantity="reflected_radiance",
     cases=environment_maps_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per reflective shape (conductor, dielectric, thin dielectric, plastic and their rough versions): "
         "the radiance of the pixels that see it, path-traced along the pixel-centre camera rays (unbounded "
@@ -221,6 +220,7 @@ FAMILY = AuditFamily(
         "and the row's lookup M: classic (L at the direction), the distance impostor's one-lookup and "
         "secant hits, the pre-convolved glossy map."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         *(
             Rule(

@@ -318,7 +318,6 @@ def media_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="height-fog",
     quantity="fog_transmittance",
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=media_cases,
     describe=(
         "Per medium of the scene that is not rtfit's exponential fog: a homogeneous medium is constant fog "
@@ -327,6 +326,7 @@ FAMILY = AuditFamily(
         "ray's first stretch inside the medium, by ratio tracking through the loaded Mitsuba medium, against "
         "the optical-depth forms as T = e^(−τ) with the medium's (or the fitted) b, c, and fitted."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "height-fog",

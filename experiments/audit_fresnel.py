@@ -33,7 +33,6 @@ per material over its pixels and three channels.
 from __future__ import annotations
 
 import time
-from functools import partial
 
 import numpy as np
 
@@ -44,7 +43,7 @@ from .audit import Applicability, Rule
 from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import rays, reflective_shape, shape_view, visible_subset
 from .audit_setup import AuditReference, AuditSetup
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["FAMILY", "SCENES", "fresnel_cases", "material_ior", "mitsuba_fresnel"]
 
@@ -54,9 +53,8 @@ _SAMPLED = frozenset({"conductor", "dielectric"})
 _DIELECTRIC = frozenset({"dielectric", "roughdielectric", "plastic", "roughplastic"})
 _UNAUDITED = frozenset({"thindielectric"})  # two interfaces: 2R/(1 + R), not one Fresnel term
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=64, quick_size=(24, 24), quick_spp=8)
 SCENES = (
-    _shipped(
+    Sizes(full=(64, 64, 64), quick=(24, 24, 8)).scene(
         "fresnel_spheres.xml",
         "a smooth gold sphere, a glass sphere and a rough copper sphere under a constant white sky",
     ),
@@ -211,7 +209,6 @@ FAMILY = AuditFamily(
     name="fresnel",
     quantity="fresnel_reflectance",
     cases=fresnel_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per visible conductor or dielectric (and their rough versions, and plastic's coating): the Fresnel "
         "reflectance F at each pixel's viewing angle as Mitsuba computes it — the smooth BSDF's own "
@@ -220,6 +217,7 @@ FAMILY = AuditFamily(
         "seeds' slider, rim and metal forms, Hoffman's F82 tint and the exact dielectric and conductor "
         "formulas (z-checked). A thin dielectric is not audited (two interfaces: 2R/(1 + R))."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=tuple(
         Rule("fresnel", role, (kind,), *_RULE_WORDS, supplies=frozenset({"cos_theta", "eta", "k"}))
         for role, kind in (("reflectance", "reflective-shape"), ("glossy reflectance", "rough-shape"))

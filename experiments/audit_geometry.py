@@ -31,7 +31,7 @@ from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shape
 from .audit import Applicability, AuditError, default_ao_distance
 from .audit_setup import AuditSetup
 from .sdf_occlusion_scenes import icosphere
-from .shipped import ShippedScene
+from .shipped import ShippedScene, Sizes
 
 __all__ = [
     "ao_radius",
@@ -256,6 +256,4 @@ def sdf_scene(name: str, label: str, **fields) -> ShippedScene:
     `rtfit.experiments.sdf_occlusion_scenes`) at the sizes and samples of the experiment before the engine
     (full: 128², 1024 spp; ``--quick``: 36², 64 spp), with a family's ``label`` and own ``fields`` (the AO
     radius, which scenes ``--quick`` audits): the sdf-occlusion and obscurances families ship them."""
-    return ShippedScene(
-        f"sdf_{name}.toml", label, size=(128, 128), spp=1024, quick_size=(36, 36), quick_spp=64, **fields
-    )
+    return Sizes(full=(128, 128, 1024), quick=(36, 36, 64)).scene(f"sdf_{name}.toml", label, **fields)

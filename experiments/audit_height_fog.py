@@ -44,7 +44,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
-from functools import partial
 
 import numpy as np
 
@@ -62,7 +61,7 @@ from .audit_family import AuditFamily, FamilyCase
 from .audit_media import transmittance_case, transmittance_reference
 from .audit_setup import AuditReference, AuditSetup, PooledPasses, pooled_passes
 from .case_inputs import masked_image
-from .shipped import ShippedScene
+from .shipped import ShippedScene, Sizes
 
 __all__ = [
     "FAMILY",
@@ -85,36 +84,40 @@ PASSES = {"pass_spp": 128}
 """The shipped scenes' passes of 128 samples (the engine's default 32 costs ~1 s more per pass here)."""
 
 
-_box = partial(ShippedScene, size=(64, 64), spp=2048, quick_size=(24, 24), quick_spp=256, options=PASSES)
-_field = partial(ShippedScene, size=(256, 128), spp=2048, quick_size=(64, 32), quick_spp=256, options=PASSES)
+_box = Sizes(full=(64, 64, 2048), quick=(24, 24, 256))
+_field = Sizes(full=(256, 128, 2048), quick=(64, 32, 256))
 
 
 def _terrain(e: float, transport: str) -> ShippedScene:
     # --quick audits the terrain's radiance alone (the transmittance is checked on the fog boxes)
-    return _field(
+    return _field.scene(
         f"fog_terrain_e{e:g}_{transport}.toml",
         f"terrain with objects at 10 m–20 km under sunsky (sun {e:g}°, azimuth 50° from the view) in "
         f"scattering height fog (b = 2e-4 /m, c = 0.004 /m, albedo 0.9, g = 0.6), {transport} scattering",
         quick=e in QUICK_ELEVATIONS_DEG,
         quick_quantities=("fogged_radiance",),
+        options=PASSES,
     )
 
 
 SCENES = (
-    _box(
+    _box.scene(
         "fog_transmittance.toml",
         "an emissive backdrop (radiance 1) through a purely absorbing exponential-fog box (tilted, shifted "
         "gradient): the fog path tracer must render e^(−τ)",
+        options=PASSES,
     ),
-    _box(
+    _box.scene(
         "fog_transmittance_ellipsoid.toml",
         "the same check with the fog in the ellipsoid inscribed in the box (a fog volume)",
+        options=PASSES,
     ),
     *(_terrain(e, tr) for e in SUN_ELEVATIONS_DEG for tr in TRANSPORTS),
-    _field(
+    _field.scene(
         "fog_volumes_e40.toml",
         "the terrain with two local fog volumes (an ellipsoid and a rotated box with a tilted gradient), "
         "sun 40°, multiple scattering",
+        options=PASSES,
     ),
 )
 """The scenes ``rtfit run height-fog`` audits (scenes/library/): the reference checks (an absorbing box and
@@ -461,8 +464,6 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="height-fog",
     quantity="fog_transmittance",
-    quantities=("fogged_radiance",),
-    formats=("rtfit-toml",),
     cases=fog_cases,
     describe=(
         "Per exponential-fog medium, on the pixels whose camera ray crosses it: (1) its transmittance "
@@ -473,6 +474,8 @@ FAMILY = AuditFamily(
         "(rtfit's volpathmis reference), against the shading models L₀·T + C·(1 − T) on the fog-free image "
         "L₀ (same transport and spp), with the true b, c and the sky colours of the experiment, and fitted."
     ),
+    quantities=("fogged_radiance",),
+    formats=("rtfit-toml",),
     rules=(
         Rule(
             "height-fog",

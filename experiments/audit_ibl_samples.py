@@ -66,7 +66,7 @@ from .audit_environment import environment_of
 from .audit_family import AuditFamily, FamilyCase
 from .audit_setup import AuditSetup
 from .audit_sky import sky_reference
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = [
     "BAKE_ROWS",
@@ -88,9 +88,8 @@ USER_COUNT = 64
 _MAX_LANES = 1 << 22  # shadow rays per launch
 _MAP_LANES = 1 << 20  # depth-map rays per launch (a surface interaction per lane: ~0.1 GB a launch)
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(24, 24), quick_spp=32)
 SCENES = (
-    _shipped(
+    Sizes(full=(64, 64, 256), quick=(24, 24, 32)).scene(
         "ibl_samples_museum.xml",
         "a sphere and two boxes on a grey ground plane under a museum light probe (32 × 64 lat-long, "
         "Mitsuba's test data): bright windows, soft indoor light, contact shadows",
@@ -335,6 +334,7 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             ),
             methods=methods,
             row_inputs=row_inputs,
+            user_rows=partial(_user_row, n=user_n, lights=user_lights),
             uncosted={
                 rid: f"the kernel of seed-lloyd-{rid.rsplit('-', 1)[1]} (one text; only the bake differs, "
                 "offline): its cost is that row's"
@@ -343,7 +343,6 @@ def ibl_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 and not rid.startswith("seed-lloyd-")
                 and f"seed-lloyd-{rid.rsplit('-', 1)[1]}" in methods
             },
-            user_rows=partial(_user_row, n=user_n, lights=user_lights),
         )
     ]
 
@@ -352,7 +351,6 @@ FAMILY = AuditFamily(
     name="ibl-samples",
     quantity="sky_irradiance_lights",
     cases=ibl_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per environment with occluding geometry: the environment's irradiance with visibility "
         "E = ∫ L_env V (n·ω) dω (W/m², RGB; a sunsky's sky without its sun) at each visible point, by "
@@ -363,6 +361,7 @@ FAMILY = AuditFamily(
         "the seed's depth maps instead, the samples without relaxation, and Debevec's median cut. Error "
         "and cost per N."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "ibl-samples",

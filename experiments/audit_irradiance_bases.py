@@ -73,7 +73,7 @@ from .audit_environment import (
 from .audit_family import AuditFamily, FamilyCase
 from .audit_lightmap_bases import lightmap_rows, lightmaps, texel_reference
 from .audit_setup import AuditSetup, PooledPasses, pooled_passes
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = [
     "BAKE_ROWS",
@@ -103,38 +103,32 @@ METRICS = ("rmse", "rel_mse", "mae", "max_abs", "psnr", "ssim")
 """The engine's metrics on the shipped scenes: `rtfit.fitting.ALL_METRICS` but ꟻLIP (~0.4 s a row on the CPU,
 43 rows a scene: 60 of the quick run's 155 s, for a perceptual metric of an irradiance image the study's
 relative errors already cover; the experiment before the engine had none). ``rtfit audit`` keeps all."""
-_SPHERE = {
-    "size": (128, 128),
-    "spp": 4096,
-    "quick_size": (32, 32),
-    "quick_spp": 1024,
-    "options": {"metrics": METRICS},
-}
+_sphere, _options = Sizes(full=(128, 128, 4096), quick=(32, 32, 1024)), {"metrics": METRICS}
 SCENES = (
-    ShippedScene(
+    _sphere.scene(
         "irradiance_sphere.toml",
         "white unit sphere in a constant environment of radiance 1 (white furnace: E = π at every normal)",
         name="constant",
-        **_SPHERE,
+        options=_options,
     ),
     *(
-        ShippedScene(
+        _sphere.scene(
             "irradiance_sphere_sunsky.xml",
             f"white unit sphere under Mitsuba's sunsky, sun at {e:g}° elevation",
             defines=_sun_defines(e),
             name=f"sunsky-{e:g}",
             quick=e in QUICK_SUNSKY_ELEVATIONS,
-            **_SPHERE,
+            options=_options,
         )
         for e in SUNSKY_ELEVATIONS
     ),
     *(
-        ShippedScene(
+        _sphere.scene(
             "irradiance_sphere_envmap.xml",
             f"white unit sphere under the {label} map (envmaps/{m}.exr, 64 × 128)",
             defines={"map": f"envmaps/{m}.exr"},
             name=m,
-            **_SPHERE,
+            options=_options,
         )
         for m, label in (("studio", "studio (3 softboxes on black)"), ("overcast", "overcast (CIE sky)"))
     ),

@@ -64,7 +64,7 @@ from .audit_family import AuditFamily, FamilyCase
 from .audit_setup import AuditSetup, pooled_passes
 from .case_inputs import masked_image, vector_text
 from .probe_projection import FEATURE_NORMALS, FEATURES_NAME, NNLS_NORMALS, probe_bases, probe_features
-from .shipped import ShippedScene
+from .shipped import ShippedScene, Sizes
 
 __all__ = [
     "DEFAULT_NODES",
@@ -289,7 +289,6 @@ FAMILY = AuditFamily(
     name="irradiance-volumes",
     quantity="volume_irradiance",
     cases=irradiance_volume_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "A regular grid of probes over the scene's bounding box (cubic cells, nodes centred in the box; "
         f"--grid NX,NY,NZ, default {DEFAULT_NODES} nodes on the longest side), each path-traced along "
@@ -298,6 +297,7 @@ FAMILY = AuditFamily(
         "the visible points and camera-facing normals, against the path-traced irradiance there (a "
         "cosine-distributed ray, then unbounded path tracing: every light a ray can reach, as the probes)."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "irradiance-volumes",
@@ -325,12 +325,12 @@ QUICK_GRIDS = (GRIDS[0], GRIDS[-1])
 scene on 2 CPU cores, so the middle grid is the full run's)."""
 
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(24, 24), quick_spp=64)
+_sizes = Sizes(full=(64, 64, 256), quick=(24, 24, 64))
 
 
 def _room(dims: tuple[int, int, int]) -> ShippedScene:
     h = 4.0 / dims[0]
-    return _shipped(
+    return _sizes.scene(
         "volume_room.toml",
         f"the room with a bright point light and an occluder, probe grid {'×'.join(map(str, dims))} "
         f"(spacing {h:g} m)",

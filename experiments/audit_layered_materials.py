@@ -52,7 +52,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
-from functools import partial
 from typing import Any
 
 import drjit as dr
@@ -78,7 +77,7 @@ from .audit_setup import AuditReference, AuditSetup, pooled_passes
 from .case_inputs import vector_text
 from .layered_lightmap import LIGHTMAP_RULE, LIGHTMAP_SCENE, ROLE, lightmap_cases, uv_window
 from .records import Check, Section
-from .shipped import ShippedScene, Study, StudyContext
+from .shipped import ShippedScene, Sizes, Study, StudyContext
 
 __all__ = ["ANGLES", "FAMILY", "SCENES", "coat_cases", "offset_ratio", "study"]
 
@@ -90,13 +89,13 @@ _DISTANCE = 10.0  # the camera's distance from the coat's centre (scene units)
 _THICKNESS = 0.1  # the shipped coat's thickness d (scene units)
 
 
-_shipped = partial(ShippedScene, size=(32, 32), spp=256, quick_size=(16, 16), quick_spp=64)
+_sizes = Sizes(full=(32, 32, 256), quick=(16, 16, 64))
 
 
 def _scene(theta: int, eta: float) -> ShippedScene:
     t = math.radians(theta)
     cy, cz = -_DISTANCE * math.sin(t), _THICKNESS + _DISTANCE * math.cos(t)
-    return _shipped(
+    return _sizes.scene(
         "layered_materials_coat.xml",
         f"a checkerboard base under a smooth coat (η = {eta:g}, d = {_THICKNESS:g}) seen at θ = {theta}°",
         defines={"eta": f"{eta:g}", "d": f"{_THICKNESS:g}", "cy": f"{cy:.6g}", "cz": f"{cz:.6g}"},
@@ -107,7 +106,7 @@ def _scene(theta: int, eta: float) -> ShippedScene:
 
 def _slab(theta: int) -> ShippedScene:
     coat = _scene(theta, 1.5)
-    return _shipped(
+    return _sizes.scene(
         "layered_materials_slab.xml",
         f"the checkerboard under a smooth coat (η = 1.5, d = {_THICKNESS:g}) filled with a scattering medium "
         f"(σ_t = 10, albedo 0.95, HG g = 0.7; volpath) seen at θ = {theta}°",
@@ -314,7 +313,6 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             label=f"{app.part}, the coated base's radiance under the sky",
             reference=reference,
             channel_inputs=channels,
-            params=_blur_starts(reference.mean[mask_r], channels) if rows != COMPOSITE_ROWS else {},
             parameters={
                 "shape": app.part,
                 "eta": eta,
@@ -325,7 +323,6 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "medium": None if medium is None else medium.class_name(),
             },
             units="W/m²/sr",
-            quantity="coated_radiance",
             notes=(
                 f"uniform sky L = {vector_text(sky)}; F̄_ext = {fdr_ext:.4g}, F̄_int = {fdr_int:.4g} "
                 "(Mitsuba's fresnel, 64-node Gauss–Legendre)",
@@ -338,6 +335,8 @@ def coat_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 else "no medium in the coat (path)",
             ),
             methods={k: METHODS[k] for k in rows},
+            quantity="coated_radiance",
+            params=_blur_starts(reference.mean[mask_r], channels) if rows != COMPOSITE_ROWS else {},
         )
     )
     return cases
@@ -421,9 +420,7 @@ _RULE_WORDS = (
 FAMILY = AuditFamily(
     name="layered-materials",
     quantity="layer_offset",
-    quantities=("coated_radiance", "inner_irradiance"),
     cases=coat_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per smooth dielectric shape seen from outside with a surface under it (a clear coat over a base): "
         "the lateral offset at which each pixel sees the base, from Mitsuba's own refraction of the "
@@ -433,6 +430,9 @@ FAMILY = AuditFamily(
         "constant sky, also the coated base's radiance path traced by Mitsuba against the seed's layer "
         "composite (000:1321-1331), a Fresnel lerp and the coated-diffuse closed form."
     ),
+    quantities=("coated_radiance", "inner_irradiance"),
+    formats=("mitsuba-xml", "rtfit-toml"),
+    role_formats={ROLE: ("mitsuba-xml",)},
     rules=(
         Rule(
             "layered-materials",
@@ -446,7 +446,6 @@ FAMILY = AuditFamily(
         ),
         LIGHTMAP_RULE,
     ),
-    role_formats={ROLE: ("mitsuba-xml",)},
 )
 
 

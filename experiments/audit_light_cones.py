@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from functools import partial
 
 import numpy as np
 
@@ -49,7 +48,7 @@ from .audit_lit_media import (
     inscatter_case,
 )
 from .audit_setup import AuditSetup
-from .shipped import ShippedScene
+from .shipped import ShippedScene, Sizes
 
 __all__ = ["FAMILY", "SCENES", "SIGMAS_T", "VIEWS", "cone_cases"]
 
@@ -69,12 +68,12 @@ QUICK = {"views": ("beside", "inside", "up-axis"), "sigma_t": (0.05,)}
 """Those ``--quick`` audits (as the experiment before the engine)."""
 
 
-_shipped = partial(ShippedScene, size=(96, 72), spp=4096, quick_size=(24, 18), quick_spp=1024)
+_sizes = Sizes(full=(96, 72, 4096), quick=(24, 18, 1024))
 
 
 def _scene(view: str, sigma_t: float) -> ShippedScene:
     origin, target, up = VIEWS[view]
-    return _shipped(
+    return _sizes.scene(
         "light_cones_spot.xml",
         f"street lamp (spot, cutoff 30°, beam 22.5°, 100 W/sr, 6 m up) seen {view}, σ_t = {sigma_t:g} /m, "
         "albedo 1",
@@ -164,7 +163,6 @@ def cone_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="light-cones",
     quantity="spot_inscattered_radiance",
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=cone_cases,
     describe=(
         "Per spot light inside a homogeneous medium, on the pixels whose camera ray has a stretch in that "
@@ -177,6 +175,7 @@ FAMILY = AuditFamily(
         "scattering with extinction and the medium's phase function (rtfit.reference.single_scattering), "
         "which must sit at the reference's noise where nothing shadows the medium."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "light-cones",

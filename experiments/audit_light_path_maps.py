@@ -38,7 +38,6 @@ import contextlib
 import math
 import time
 from dataclasses import replace
-from functools import partial
 
 import numpy as np
 
@@ -66,7 +65,7 @@ from .audit_lights import scene_light
 from .audit_setup import AuditSetup, pooled_passes
 from .case_inputs import vector_text
 from .records import Check, Headline, Section
-from .shipped import ShippedScene, Study, StudyContext
+from .shipped import Sizes, Study, StudyContext
 
 __all__ = [
     "CUT_GRID",
@@ -95,9 +94,8 @@ ENTRY_SWEEP = (128, 256, 512)
 """The entry-point counts the study compares (every (N/n)-th of the bake, on the seed's 32 panes, the fitted
 cut): 4, 8, 16 (and at N, 32) entry points per cluster."""
 
-_shipped = partial(ShippedScene, size=(48, 48), spp=256, quick_size=(16, 16), quick_spp=32)
 SCENES = (
-    _shipped(
+    Sizes(full=(48, 48, 256), quick=(16, 16, 32)).scene(
         "light_path_maps_box.xml",
         "the colour-bleeding mini Cornell box (red and green walls, a white block) lit by a point light "
         "under the ceiling, moved towards each coloured wall",
@@ -381,9 +379,6 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 label=f"one bounce with the light at {where}" + (" (as declared)" if p == 0 else " (moved)"),
                 reference=ref,
                 channel_inputs=rows["seed-path-map"],
-                row_inputs=rows,
-                precompute=precompute,
-                methods=methods,
                 parameters={
                     "light_position": [float(x) for x in (light.centre + offset)]
                     if light.centre is not None
@@ -423,6 +418,9 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                         )
                     ),
                 ),
+                methods=methods,
+                row_inputs=rows,
+                precompute=precompute,
             )
         )
     return cases
@@ -432,7 +430,6 @@ FAMILY = AuditFamily(
     name="light-path-maps",
     quantity="path_map_irradiance",
     cases=path_map_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "The one-bounce indirect irradiance at each visible point, per channel (W/m², RGB), for the light "
         "where the scene puts it and moved towards either side (π × (Mitsuba path max_depth 2 − 1) "
@@ -443,6 +440,7 @@ FAMILY = AuditFamily(
         "irradiance at each cluster's entry points; and the seed's K = 32 with the cut fitted across the "
         "light's positions."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "light-path-maps",

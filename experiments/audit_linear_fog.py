@@ -31,7 +31,6 @@ Two cases per medium, on the pixels whose camera ray crosses it:
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
 
 import numpy as np
 
@@ -54,13 +53,12 @@ from .audit_media import (
     transmittance_reference,
 )
 from .audit_setup import AuditSetup, pooled_passes
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["FAMILY", "SCENES", "homogeneous_fog_cases"]
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(24, 24), quick_spp=32)
 SCENES = (
-    _shipped(
+    Sizes(full=(64, 64, 256), quick=(24, 24, 32)).scene(
         "linear_fog_box.xml",
         "a rotated cube of scattering homogeneous fog (σt = 0.8, albedo 0.9/0.85/0.7) in front of a blue "
         "diffuse wall lit by a point light and a constant sky; the camera looks through the cube",
@@ -220,8 +218,6 @@ def _radiance_case(setup, app, med, ok, mask, common, what, given, tag, paramete
 FAMILY = AuditFamily(
     name="linear-fog",
     quantity="fog_transmittance",
-    quantities=("fogged_radiance",),
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=homogeneous_fog_cases,
     describe=(
         "Per homogeneous medium of the scene: the classic fog factors f(d) on the view distance d through "
@@ -230,6 +226,8 @@ FAMILY = AuditFamily(
         "the fog blends L₀·f + C·(1 − f) (the seed's with its luminance fade) against the radiance path "
         "traced with this medium alone, fitted (C per channel and the factor's parameters)."
     ),
+    quantities=("fogged_radiance",),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "linear-fog",

@@ -26,7 +26,6 @@ the camera (else its image offset is set far outside the film and the bloom rows
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
 from typing import Any
 
 import numpy as np
@@ -50,7 +49,7 @@ from .audit_lit_media import (
 from .audit_media import RADIANCE_INTEGRATOR
 from .audit_setup import AuditSetup, pooled_passes
 from .records import Check, Section
-from .shipped import ShippedScene, Study, StudyContext
+from .shipped import ShippedScene, Sizes, Study, StudyContext
 
 __all__ = [
     "FAMILY",
@@ -72,11 +71,11 @@ FAR = 1.0e6
 """The image offset (px) given where the light is behind the camera: far outside any film."""
 
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=1024, quick_size=(24, 24), quick_spp=256)
+_sizes = Sizes(full=(64, 64, 1024), quick=(24, 24, 256))
 
 
 def _scene(sigma_t: float, g: float) -> ShippedScene:
-    return _shipped(
+    return _sizes.scene(
         "misty_glow_point.xml",
         f"point light 4 m away in a medium of σ_t = {sigma_t:g} /m (τ = {4 * sigma_t:g}), albedo 0.9, "
         f"g = {g:g}",
@@ -210,7 +209,6 @@ def glow_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="misty-glow",
     quantity="glow_radiance",
-    formats=("mitsuba-xml",),
     cases=glow_cases,
     describe=(
         "Per point light inside a homogeneous medium, on the pixels whose camera ray has a stretch in that "
@@ -219,6 +217,7 @@ FAMILY = AuditFamily(
         "light's direct image (4 passes, ¼ downsample, 000:628-652), 1–8 passes with scale and amplitude "
         "fitted, a Gaussian bloom, and the single-scattering quadrature (rtfit.reference.single_scattering)."
     ),
+    formats=("mitsuba-xml",),
     rules=(
         Rule(
             "misty-glow",

@@ -143,7 +143,6 @@ atmosphere (a Mitsuba sky emitter's role is `rtfit.experiments.audit_sky_emitter
 FAMILY = AuditFamily(
     name="nishita-sky",
     quantity="sky_radiance",
-    formats=("rtfit-sky",),
     cases=sky_cases,
     describe=(
         "The sky radiance (RGB) of the file's atmosphere along the directions of an azimuth × elevation "
@@ -153,6 +152,7 @@ FAMILY = AuditFamily(
         "Every Nishita method runs with the file's atmosphere and altitude on its own texture setting; the "
         "fitted method's artist parameters are fitted to this sky."
     ),
+    formats=("rtfit-sky",),
     rules=(
         Rule(
             "nishita-sky",

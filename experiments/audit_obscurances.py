@@ -200,7 +200,6 @@ FAMILY = AuditFamily(
     name="obscurances",
     quantity="obscurance",
     cases=obscurance_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Obscurances W = (1/π)∫ρ(d)(n·ω)dω of the scene's own geometry at each visible point, the distance "
         "scale being the AO radius R. Two references by Mitsuba ray casts from the visible points in "
@@ -209,6 +208,7 @@ FAMILY = AuditFamily(
         f"estimator an engine bakes (K = {RAYS} stratified cosine rays per point) with the seed's, power, "
         "exponential and step ρ, their d_max, exponent and ambient scale fitted to this scene."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "obscurances",

@@ -68,7 +68,6 @@ import functools
 import hashlib
 import math
 import time
-from functools import partial
 
 import numpy as np
 
@@ -93,7 +92,7 @@ from .audit import Applicability, AuditError, Rule
 from .audit_family import AuditFamily, FamilyCase
 from .audit_setup import AuditReference, AuditSetup
 from .case_inputs import masked_image
-from .shipped import ShippedScene
+from .shipped import ShippedScene, Sizes
 
 __all__ = [
     "CELLS_PER_TEXEL",
@@ -457,10 +456,10 @@ def _shadow_cases(setup, app, k, light_id, emitter, centre, hit, fine_scene, hm,
             ),
             methods=rows,
             quantity="parallax_shadow",
+            user_rows=functools.partial(on_field, field=hm, scale=depth),
             uncosted={
                 "pom-no-shadow": "POM without the shadow query returns the constant 1: no work to time"
             },
-            user_rows=functools.partial(on_field, field=hm, scale=depth),
         )
     ]
 
@@ -478,8 +477,6 @@ def on_field(method: Method, field: HeightMap, scale: float) -> Method:
 FAMILY = AuditFamily(
     name="parallax-occlusion",
     quantity="parallax_depth",
-    formats=("mitsuba-xml", "rtfit-toml"),
-    quantities=("parallax_shadow",),
     cases=parallax_cases,
     describe=(
         "A shape whose BSDF is a bumpmap of a bitmap texture: the texture as a height field, carved "
@@ -494,6 +491,8 @@ FAMILY = AuditFamily(
         "with standard errors) against the POM shadow query after the march and at the exact visible point, "
         "declared and fitted (softening, floor), and no shadow."
     ),
+    quantities=("parallax_shadow",),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "parallax-occlusion",
@@ -518,11 +517,11 @@ DEPTHS = (0.1, 0.15)
 """The shipped scenes' ``pom_depth`` (texture units): the family's default and the old experiment's s."""
 
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=1024, quick_size=(24, 24), quick_spp=256)
+_sizes = Sizes(full=(64, 64, 1024), quick=(24, 24, 256))
 
 
 def _scene(view: str, depth: float) -> ShippedScene:
-    return _shipped(
+    return _sizes.scene(
         "parallax_occlusion_floor.xml",
         f"egg-crate height texture (32×32 texels) on a 1×1 floor seen {view}, carved {depth:g} texture units",
         options={"pom_depth": depth},

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from functools import partial
 
 import drjit as dr
 import numpy as np
@@ -49,7 +48,7 @@ from .audit import Applicability, AuditError, Rule
 from .audit_family import AuditFamily, FamilyCase
 from .audit_lights import AuditLight, light_geometry, light_model_inputs, light_reference, scene_light
 from .audit_setup import AuditSetup
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["FAMILY", "LOW", "LOW_ROWS", "MAP", "NOISE", "SCENES", "pcf_cases", "shadow_map"]
 
@@ -63,10 +62,10 @@ NOISE = np.random.default_rng(20060731).uniform(0.0, 2.0 * math.pi, (32, 32))
 """The per-pixel rotation texture (rad), tiled over the screen: the seed's lookup texture of rotations."""
 
 _SPHERE = "a box, a floating plate and a ball on a grey floor under a sphere light of radius {} m (3 m up)"
-_shipped = partial(ShippedScene, size=(64, 64), spp=512, quick_size=(32, 32), quick_spp=64)
+_sizes = Sizes(full=(64, 64, 512), quick=(32, 32, 64))
 SCENES = (
     *(
-        _shipped(
+        _sizes.scene(
             "pcf_soft_shadows_sphere.xml",
             _SPHERE.format(r),
             defines={"radius": f"{r}", "radiance": f"{1.0 / (math.pi * (r / 3.0) ** 2):.4g}"},
@@ -75,7 +74,7 @@ SCENES = (
         )
         for r in (0.1, 0.4)
     ),
-    _shipped(
+    _sizes.scene(
         "pcf_soft_shadows_rect.xml",
         "the same objects under a 1 × 1 m rectangle light facing down, 3 m up",
         quick=False,
@@ -265,7 +264,6 @@ FAMILY = AuditFamily(
     name="pcf-soft-shadows",
     quantity="shadowed_light_irradiance",
     cases=pcf_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per light with occluding geometry: its shadowed direct irradiance E_s (W/m², RGB) at each visible "
         "point, by Mitsuba's emitter sampling of that light alone with shadow rays, in independent passes "
@@ -276,6 +274,7 @@ FAMILY = AuditFamily(
         "PCSS (blocker search + penumbra estimate). Kernel radius, depth bias and PCSS's light-size scale "
         "are fitted per light and map resolution; pixels outside the map's frustum are left out."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "pcf-soft-shadows",

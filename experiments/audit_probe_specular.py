@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import itertools
 import time
-from functools import partial
 
 import numpy as np
 
@@ -50,7 +49,7 @@ from .audit_geometry import reflective_shape
 from .audit_setup import AuditSetup
 from .audit_shape_probes import probe_capture, seen_shape, shape_radiance, unit_cube_texels
 from .case_inputs import rgb_columns, vector_text, xyz_columns
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["FAMILY", "GRIDS", "LOBE_SAMPLES", "SCENES", "probe_specular_cases", "storage_floats"]
 
@@ -62,9 +61,8 @@ LOBE_SAMPLES = 128
 GLOSSY = frozenset({"roughconductor", "roughplastic"})
 """The BSDFs this family audits (a rough dielectric's transmission is not a probe's specular)."""
 
-_shipped = partial(ShippedScene, size=(48, 48), spp=64, quick_size=(16, 16), quick_spp=4)
 SCENES = (
-    _shipped(
+    Sizes(full=(48, 48, 64), quick=(16, 16, 4)).scene(
         "probe_specular_room.xml",
         "a closed room (red and green side walls, white back wall, a ceiling light) with a rough aluminium "
         "floor (GGX α = 0.1) and a rough plastic sphere (GGX α = 0.3); probes at the shapes' centres and "
@@ -210,7 +208,6 @@ FAMILY = AuditFamily(
     name="probe-specular",
     quantity="probe_specular_radiance",
     cases=probe_specular_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per glossy shape (roughconductor, roughplastic): the radiance of the pixels that see it, "
         "path-traced along the pixel-centre camera rays, against the seed's nearest pre-rendered cube map "
@@ -219,6 +216,7 @@ FAMILY = AuditFamily(
         "over the scene's box; rows without parallax correction, with Lagarde 2012's box and sphere "
         "proxies, and with the roughness → mip exponent fitted."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "probe-specular",

@@ -37,7 +37,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from functools import partial
 
 import numpy as np
 
@@ -57,7 +56,7 @@ from .audit_geometry import reflective_shape, shape_view, visible_subset
 from .audit_setup import AuditSetup, pooled_passes
 from .case_inputs import rgb_columns, vector_text, xyz_columns
 from .records import Check, Section
-from .shipped import ShippedScene, Study, StudyContext
+from .shipped import Sizes, Study, StudyContext
 
 __all__ = [
     "ETA_RANGE",
@@ -76,9 +75,9 @@ FORMAT = 1
 ETA_RANGE = (1.2, 1.6)
 """The relative indices of refraction audited as a drop (water 1.33 … dense glass)."""
 
-_shipped = partial(ShippedScene, size=(48, 48), spp=1024, quick_size=(20, 20), quick_spp=64)
+_sizes = Sizes(full=(48, 48, 1024), quick=(20, 20, 64))
 SCENES = tuple(
-    _shipped(
+    _sizes.scene(
         "raindrops_drop.xml",
         f"a water drop (η = 1.33, r = 1 m) under the {label}, seen 11° from above",
         defines={"map": f"envmaps/{name}.exr"},
@@ -259,7 +258,6 @@ FAMILY = AuditFamily(
     name="raindrops",
     quantity="drop_radiance",
     cases=drop_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per smooth dielectric sphere (η 1.2–1.6: a water or glass drop) under the scene's environment: the "
         "radiance of the pixels that see it, path traced (unbounded depth), against the seed's Fresnel blend "
@@ -270,6 +268,7 @@ FAMILY = AuditFamily(
         f"the environment ({ENV_RESOLUTION}² a face). The seed's claim that a drop is brighter than its "
         "background is measured per case."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "raindrops",

@@ -27,8 +27,6 @@ A user approximation of ``sky_irradiance_sh`` gets the same inputs (``g.normal``
 
 from __future__ import annotations
 
-from functools import partial
-
 from rtfit.realtime.arrays import xyz_columns
 from rtfit.realtime.sh_sky_bent_normal import METHODS
 
@@ -36,13 +34,12 @@ from .audit import Applicability, Rule
 from .audit_family import AuditFamily, FamilyCase
 from .audit_setup import AuditSetup
 from .audit_sky import occluded_sky
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["FAMILY", "SCENES", "sh_sky_cases"]
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=256, quick_size=(24, 24), quick_spp=32)
 SCENES = (
-    _shipped(
+    Sizes(full=(64, 64, 256), quick=(24, 24, 32)).scene(
         "sh_sky_bent_normal_blocks.xml",
         "two boxes, a sphere and a wall on a grey ground plane under Mitsuba's sunsky (sun 30° up; its sky "
         "alone is audited): creases, contact shadows and open ground",
@@ -93,7 +90,6 @@ FAMILY = AuditFamily(
     name="sh-sky-bent-normal",
     quantity="sky_irradiance_sh",
     cases=sh_sky_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Per environment with occluding geometry: the sky's irradiance with visibility "
         "E = ∫ L_env V (n·ω) dω (W/m², RGB; a sunsky's sky without its sun) at each visible point, by "
@@ -105,6 +101,7 @@ FAMILY = AuditFamily(
         "AO and cone come from unbounded ray casts (what an engine bakes); the SH from the emitter's "
         "projection. The scale and AO exponent are fitted per scene."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "sh-sky-bent-normal",

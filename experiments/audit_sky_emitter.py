@@ -162,7 +162,6 @@ def sky_emitter_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]
 FAMILY = AuditFamily(
     name="nishita-sky",
     quantity="sky_radiance",
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=sky_emitter_cases,
     describe=(
         "A Mitsuba sunsky's sky radiance (RGB) along the camera's sky pixels (rays that escape the scene, "
@@ -171,6 +170,7 @@ FAMILY = AuditFamily(
         "ground and the sunsky's own sun direction; nishita-fitted's artist parameters and the sun's "
         "intensity scale (solar_scale) are fitted to this sky: which Nishita parameters best match it."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "nishita-sky",

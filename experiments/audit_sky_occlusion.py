@@ -243,7 +243,6 @@ SKY_OCCLUSION = AuditFamily(
     name="sdf-occlusion",
     quantity="sky_irradiance",
     cases=sky_occlusion_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Sky occlusion: "
         + _REFERENCE_TEXT
@@ -252,6 +251,7 @@ SKY_OCCLUSION = AuditFamily(
         "visibility factor times the environment's SH L2 irradiance at the normal, with its free "
         "parameters fitted to this scene."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "sdf-occlusion",
@@ -269,7 +269,6 @@ APERTURE_FILL = AuditFamily(
     name="ambient-aperture",
     quantity="sky_irradiance",
     cases=aperture_fill_cases,
-    formats=("mitsuba-xml", "rtfit-toml"),
     describe=(
         "Aperture fill: "
         + _REFERENCE_TEXT
@@ -277,6 +276,7 @@ APERTURE_FILL = AuditFamily(
         "bent normal b, the aperture acos(1 − V) of the visible fraction V) and the uniform sky "
         "radiance E_SH(b)/π of the environment's SH L2 projection."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "ambient-aperture",

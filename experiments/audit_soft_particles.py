@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from functools import partial
 from typing import Any
 
 import numpy as np
@@ -62,16 +61,16 @@ from .audit import Applicability, AuditError, Rule
 from .audit_family import AuditFamily, FamilyCase
 from .audit_setup import AuditSetup, PooledPasses, pooled_passes
 from .particle_geometry import CUT_SCENES, billboard_inputs
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["FAMILY", "SCENES", "Particle"]
 
 FORMAT = 1
 _EXACT = {"sphere": "exact-sphere", "box": "exact-box"}
 
-_shipped = partial(ShippedScene, size=(64, 64), spp=16384, quick_size=(20, 20), quick_spp=1024)
+_sizes = Sizes(full=(64, 64, 16384), quick=(20, 20, 1024))
 SCENES = tuple(
-    _shipped(
+    _sizes.scene(
         f"soft_particles_{c.shape}.xml",
         f"{c.shape} of absorbing medium, α_c = {c.alpha_c:g} (σ = {c.sigma:.4g}), cut by an opaque plane "
         f"tilted {c.tilt_deg:g}°" + (", the camera inside it" if c.inside else ""),

@@ -44,7 +44,7 @@ from .audit_geometry import reflective_shape, shape_view, visible_subset
 from .audit_lights import AuditLight, scene_light
 from .audit_setup import AuditSetup, pooled_passes
 from .case_inputs import vector_text
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["ALPHA", "FAMILY", "SCENES", "emitters_alone", "mirror_point", "streak_cases"]
 
@@ -61,13 +61,9 @@ so the engine's pooled fit (one setting for every case) is meaningful across the
 roughness; other α through ``rtfit audit … -D alpha=…``."""
 
 SCENES = (
-    ShippedScene(
+    Sizes(full=(64, 64, 256), quick=(32, 32, 64)).scene(
         "streaky_reflections_street.xml",
         f"a wet street (η = 1.33, GGX α = {ALPHA:g}), two sphere lamps 12 m and 28 m away, a camera at 1.7 m",
-        size=(64, 64),
-        spp=256,
-        quick_size=(32, 32),
-        quick_spp=64,
         defines={"alpha": f"{ALPHA:g}"},
     ),
 )

@@ -37,7 +37,6 @@ boundary around the light, or the sensor's unbounded medium); a medium seen thro
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
 
 import numpy as np
 
@@ -57,7 +56,7 @@ from .audit_lit_media import (
 )
 from .audit_setup import AuditSetup
 from .scattering_reference import fit_params
-from .shipped import ShippedScene
+from .shipped import ShippedScene, Sizes
 
 __all__ = ["DISTANCES_M", "FAMILY", "SCENES", "SIGMAS_T", "lightning_cases"]
 
@@ -69,11 +68,11 @@ QUICK = {"D": (4.0, 16.0), "sigma_t": (0.01, 0.05)}
 """Those ``--quick`` audits (as the experiment before the engine)."""
 
 
-_shipped = partial(ShippedScene, size=(96, 64), spp=4096, quick_size=(24, 16), quick_spp=512)
+_sizes = Sizes(full=(96, 64, 4096), quick=(24, 16, 512))
 
 
 def _scene(distance: float, sigma_t: float) -> ShippedScene:
-    return _shipped(
+    return _sizes.scene(
         "volumetric_lightning_point.xml",
         f"point light at D = {distance:g} m (I = D² W/sr) in a medium of σ_t = {sigma_t:g} /m, albedo 1",
         defines={"D": f"{distance:g}", "intensity": f"{distance * distance:g}", "sigma_t": f"{sigma_t:g}"},
@@ -127,7 +126,6 @@ def lightning_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
 FAMILY = AuditFamily(
     name="volumetric-lightning",
     quantity="inscattered_radiance",
-    formats=("mitsuba-xml", "rtfit-toml"),
     cases=lightning_cases,
     describe=(
         "Per point light inside a homogeneous medium, on the pixels whose camera ray has a stretch in "
@@ -140,6 +138,7 @@ FAMILY = AuditFamily(
         "(rtfit.reference.single_scattering), which must sit at the reference's noise where nothing "
         "shadows the medium."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "volumetric-lightning",

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from functools import partial
 
 import drjit as dr
 import numpy as np
@@ -42,7 +41,7 @@ from .audit import Applicability, Rule
 from .audit_family import FamilyCase
 from .audit_geometry import camera_rays, rays
 from .audit_setup import AuditSetup, pooled_passes
-from .shipped import ShippedScene
+from .shipped import Sizes
 
 __all__ = ["LIGHTMAP_RULE", "LIGHTMAP_SCENE", "ROLE", "lightmap_cases", "uv_window"]
 
@@ -50,8 +49,8 @@ FORMAT = 1
 ROLE = "slab over a base"
 _TEXELS_PER_DEPTH = 8  # texels per layer thickness in a texture-space window (the albedo, the light map)
 _TEXELS_MAX = 512  # per side
-_shipped = partial(ShippedScene, size=(32, 32), spp=1024, quick_size=(16, 16), quick_spp=256)
-LIGHTMAP_SCENE = _shipped(
+_sizes = Sizes(full=(32, 32, 1024), quick=(16, 16, 256))
+LIGHTMAP_SCENE = _sizes.scene(
     "layered_materials_lightmap.xml",
     "a diffuse inner layer (ρ = 0.5) under a scattering slab (d = 0.1, σ_t = 10, albedo 0.95, HG g = 0.7) "
     "lit straight down by a directional light cut by a half-plane: a sharp shadow edge (volpath)",
@@ -225,7 +224,6 @@ def lightmap_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             label=f"{app.part}: the inner layer's irradiance under it",
             reference=reference,
             channel_inputs=channels,
-            params=_starts(pooled.mean, channels),
             parameters={
                 "part": app.part,
                 "depth_min": float(depth.min()),
@@ -236,7 +234,6 @@ def lightmap_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "pixels": int(mask.sum()),
             },
             units="W/m²",
-            quantity="inner_irradiance",
             notes=(
                 f"outer layer thickness d = {np.median(depth):.4g}, σ_t = {sigma:.4g} (optical depth "
                 f"{sigma * np.median(depth):.3g}); the beam's share of the reference: "
@@ -245,6 +242,8 @@ def lightmap_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "layer's local diffuse lighting (N·L, shadowed) on the inner layer's uv window",
             ),
             methods={k: METHODS[k] for k in LIGHTMAP_ROWS},
+            quantity="inner_irradiance",
+            params=_starts(pooled.mean, channels),
         )
     ]
 

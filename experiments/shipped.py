@@ -1,7 +1,7 @@
 """What a family ships for ``rtfit run FAMILY`` beside its audit declaration
 (`rtfit.experiments.audit_family`): its scenes (`ShippedScene`, audited by the engine exactly as
 ``rtfit audit`` audits a user's scene) and its own study (`Study`: the tables and figures only this
-family has, given a `StudyContext`)."""
+family has, given a `StudyContext`), and the render sizes a family's scenes share (`Sizes`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ShippedScene", "Study", "StudyContext"]
+__all__ = ["ShippedScene", "Sizes", "Study", "StudyContext"]
 
 
 @dataclass(frozen=True)
@@ -19,8 +19,9 @@ class ShippedScene:
     """A scene a family ships for ``rtfit run FAMILY`` (issue 30 §1): the engine audits it for this family
     alone, exactly as ``rtfit audit`` audits a user's scene. ``file``: a Mitsuba XML or rtfit TOML file in
     rtfit's scene library (``scenes/library/``); ``label``: one line for the report; ``size`` (width,
-    height) and ``spp`` of the full run, ``quick_size`` and ``quick_spp`` of ``--quick``; ``options``: the
-    audit's keyword options for this scene (``ao_distance``, ``grid``, ``probe_at``, ``pom_depth``)."""
+    height) and ``spp`` of the full run, ``quick_size`` and ``quick_spp`` of ``--quick`` (a family writes
+    them once for its scenes: `Sizes`); ``options``: the audit's keyword options for this scene
+    (``ao_distance``, ``grid``, ``probe_at``, ``pom_depth``)."""
 
     file: str
     label: str
@@ -64,6 +65,28 @@ class ShippedScene:
         if not self.name:
             parts = [self.file.rsplit(".", 1)[0], *(f"{k}{v}" for k, v in self.defines.items())]
             object.__setattr__(self, "name", re.sub(r"[^A-Za-z0-9_-]", "_", "-".join(parts)))
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """The render sizes a family's shipped scenes share, written once: ``full`` = (width, height, spp) of
+    ``rtfit run FAMILY``, ``quick`` = (width, height, spp) of ``--quick``. ``scene(file, label, …)`` is the
+    `ShippedScene` at these sizes (its ``size``, ``spp``, ``quick_size``, ``quick_spp``)."""
+
+    full: tuple[int, int, int]
+    quick: tuple[int, int, int]
+
+    def __post_init__(self):
+        for what, v in (("full", self.full), ("quick", self.quick)):
+            if len(v) != 3 or not all(isinstance(n, int) and n > 0 for n in v):
+                raise ValueError(f"sizes: {what} = {v!r}: (width, height, spp), three positive whole numbers")
+
+    def scene(self, file: str, label: str, **keywords: Any) -> ShippedScene:
+        """The `ShippedScene` of ``file`` and ``label`` at these sizes; ``keywords``: its other fields."""
+        (w, h, spp), (qw, qh, qspp) = self.full, self.quick
+        return ShippedScene(
+            file, label, size=(w, h), spp=spp, quick_size=(qw, qh), quick_spp=qspp, **keywords
+        )
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from rtfit.experiments.registry import ExperimentSpec
 from rtfit.experiments.results import load_results
 from rtfit.experiments.run_settings import RunSettings
 from rtfit.experiments.runner import failed_checks, run_experiments
-from rtfit.experiments.shipped import ShippedScene, Study
+from rtfit.experiments.shipped import ShippedScene, Sizes, Study
 from rtfit.realtime import diffuse
 
 SCENE = ShippedScene("sphere_light.toml", "sphere light", quick_size=(16, 16), quick_spp=8)
@@ -163,6 +163,24 @@ def test_defines_name_the_scene_and_reach_the_audit():
     assert s.name == "x-alpha5-sky0_2"
     with pytest.raises(ValueError, match="defines are for Mitsuba XML"):
         ShippedScene("x.toml", "x", defines={"a": "1"})
+
+
+def test_sizes_give_a_scene_its_full_and_quick_sizes():
+    """`Sizes` writes (width, height, spp) once: its scene is the `ShippedScene` of those fields."""
+    s = Sizes(full=(64, 48, 256), quick=(24, 16, 32)).scene("x.xml", "x", quick=False, defines={"a": "1"})
+    assert s == ShippedScene(
+        "x.xml",
+        "x",
+        size=(64, 48),
+        spp=256,
+        quick_size=(24, 16),
+        quick_spp=32,
+        quick=False,
+        defines={"a": "1"},
+    )
+    for bad in ((64, 64), (64, 64, 0), (64, 64, 2.5)):
+        with pytest.raises(ValueError, match=r"\(width, height, spp\)"):
+            Sizes(full=bad, quick=(8, 8, 8))  # type: ignore[arg-type]
 
 
 def test_a_shipped_xml_scene_is_named_like_a_toml_one():
