@@ -12,8 +12,8 @@ stretch [t_in, t_out] (`audit_media.medium_intervals`):
 * **reference**: the radiance at the camera with this medium alone (the scene's other media switched off),
   lit by every light of the scene and its sky, path traced by Mitsuba's ``volpathmis`` (all bounces), and
   the fog-free image L₀ (every medium switched off; same integrator, spp and seed):
-  `audit_media.radiance_passes`, the passes the height-fog family's radiance case renders (one cache entry
-  for both);
+  `audit_media.fogged_radiance_inputs`, the passes the height-fog family's radiance case renders (one
+  cache entry for both);
 * **the medium as height fog** (the blend's T): constant fog b = σt, c = 0 (σt read from the loaded medium
   at a point inside; a chromatic σt gives the grey extinction of its G channel: the experiment's
   simplification (3)), or a grid fitted with b·exp(−c·(p·ĝ − h₀)) (`rtfit.reference.grid_fit`, the
@@ -61,9 +61,8 @@ from .audit_media import (
     box_interval,
     density_params,
     finite_stretch,
+    fogged_radiance_inputs,
     opened_medium,
-    radiance_passes,
-    sun_direction_of,
 )
 from .audit_setup import AuditSetup
 from .shipped import ShippedScene, Sizes
@@ -111,6 +110,10 @@ QUICK = (("fog_bank", 60.0), ("height_fog", 4.0))
 
 
 _sizes = Sizes(full=(96, 64, 1024), quick=(24, 16, 64))
+
+
+_QUANTITY = "radiance at the camera with this medium alone, under the scene's sky (W/m²/sr, RGB)"
+"""The words of the fog-blend case's reference."""
 
 
 def _sun_scene(medium: str, elevation: float) -> ShippedScene:
@@ -261,13 +264,9 @@ def aerial_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     tag = f"media{app.source}"
     what = {"format": FORMAT, "quantity": "medium-radiance", "medium": app.source, "channel": None,
             "rays": array_digest(o, d, t_in[ok], t_out[ok]), "integrator": RADIANCE_INTEGRATOR}  # fmt: skip
-    fogged, clear = radiance_passes(setup, med, ok, what, tag)
-    sun = sun_direction_of(setup)
-    horizon = horizon_average(mi, emitter, up, sun)
-    source = source_function(mi, emitter, o, d, albedo, g)
     start, end = o + r0[ok, None] * d, o + r1[ok, None] * d
     length = r1[ok] - r0[ok]
-    inputs = {
+    common = {
         "z0": height(start),
         "z1": height(end),
         "distance": length,
@@ -276,10 +275,12 @@ def aerial_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         **{f"d{a}": d[:, i] for i, a in enumerate("xyz")},
         "density": np.full(len(d), b),
         "falloff": np.full(len(d), c),
-        "cos_sun": d @ sun if sun is not None else np.zeros(len(d)),
-        **{f"l0_{ch}": clear.mean[:, i] for i, ch in enumerate("rgb")},
-        **{f"j_{ch}": source[:, i] for i, ch in enumerate("rgb")},
     }
+    fogged = fogged_radiance_inputs(setup, med, ok, mask, common, what, tag, quantity=_QUANTITY)
+    sun = fogged.sun
+    horizon = horizon_average(mi, emitter, up, sun)
+    source = source_function(mi, emitter, o, d, albedo, g)
+    inputs = {**fogged.inputs, **{f"j_{ch}": source[:, i] for i, ch in enumerate("rgb")}}
     given = density_params(b, c, float(length.max()))
     flat = METHODS["horizon-flat"].params
     phase = METHODS["horizon-phase"]
@@ -302,19 +303,12 @@ def aerial_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             **{f"{ch}1": _colour(phase.params[f"{ch}1"], horizon[i]) for i, ch in enumerate("rgb")},
         },
     }
-    reference = fogged.reference(
-        mask,
-        quantity="radiance at the camera with this medium alone, under the scene's sky (W/m²/sr, RGB)",
-        integrator=RADIANCE_INTEGRATOR,
-        integrator_reason="unbiased for the scene's media (Mitsuba's volumetric path tracer, all bounces)",
-        extra_seconds=clear.seconds,
-    )
     sky = str(emitter).split("[")[0]
     return [
         FamilyCase(
             id=f"{tag}-aerial",
             label=f"{app.part} under the {sky}, fog blend",
-            reference=reference,
+            reference=fogged.reference,
             channel_inputs=(inputs,),
             parameters={
                 "medium": app.part,
@@ -327,7 +321,7 @@ def aerial_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                 "sun_direction": None if sun is None else sun.tolist(),
                 "pixels": int(ok.sum()),
                 "length_max": float(length.max()),
-                "l0_cache_key": clear.entry.key,
+                "l0_cache_key": fogged.l0_cache_key,
             },
             units="W/m²/sr",
             notes=(

@@ -312,14 +312,26 @@ class FoggedRadiance(NamedTuple):
     sun: np.ndarray | None
 
 
+FOGGED_RADIANCE_QUANTITY = "radiance at the camera with this medium alone (W/m²/sr, RGB)"
+"""The words of a fog family's fogged-radiance reference (`fogged_radiance_inputs`)."""
+
+
 def fogged_radiance_inputs(
-    setup: AuditSetup, med, ok, mask, common: dict, what: dict, tag: str
+    setup: AuditSetup,
+    med,
+    ok,
+    mask,
+    common: dict,
+    what: dict,
+    tag: str,
+    quantity: str = FOGGED_RADIANCE_QUANTITY,
 ) -> FoggedRadiance:
     """The reference of a fogged-radiance case and its rows' inputs: the radiance at the camera with this
     medium alone (`radiance_passes`: the scene's other media switched off), path traced with
-    `RADIANCE_INTEGRATOR` through the run's sensor, as an `AuditReference` on ``mask``; and ``common``
-    (the rays' inputs) with ``cos_sun`` (each ray's direction · the sun's; 0 without a sun) and the fog-free
-    image L₀ (``l0_r``, ``l0_g``, ``l0_b``: every medium switched off, same integrator, spp and seed)."""
+    `RADIANCE_INTEGRATOR` through the run's sensor, as an `AuditReference` on ``mask`` (its ``quantity`` in
+    the report's words); and ``common`` (the rays' inputs, with ``dx``, ``dy``, ``dz``) with ``cos_sun``
+    (each ray's direction · the sun's; 0 without a sun) and the fog-free image L₀ (``l0_r``, ``l0_g``,
+    ``l0_b``: every medium switched off, same integrator, spp and seed)."""
     fogged, clear = radiance_passes(setup, med, ok, what, tag)
     sun = sun_direction_of(setup)
     d = np.stack([common["dx"], common["dy"], common["dz"]], axis=1)
@@ -330,7 +342,7 @@ def fogged_radiance_inputs(
     }
     ref = fogged.reference(
         mask,
-        quantity="radiance at the camera with this medium alone (W/m²/sr, RGB)",
+        quantity=quantity,
         integrator=RADIANCE_INTEGRATOR,
         integrator_reason="unbiased for the scene's media (Mitsuba's volumetric path tracer, all bounces)",
         extra_seconds=clear.seconds,
