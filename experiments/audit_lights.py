@@ -65,7 +65,8 @@ class AuditLight:
     """One light (module docstring): ``kind`` (words for the report), the Mitsuba ``emitter`` its reference
     samples, ``centre`` (local lights, scene units) or ``direction`` (distant lights: unit, towards the
     light), ``radius`` (a sphere light's, scene units; else 0), ``angular_radius`` (a distant disc's α, rad;
-    else 0), ``radiance`` (the declared L per channel, or None), ``scales`` (emitter parameters set during
+    else 0), ``radiance`` (the declared L per channel, or None), ``intensity`` (a point or spot light's
+    declared I per channel, W/sr, a spot's on its axis, or None), ``scales`` (emitter parameters set during
     the passes: a sunsky's ``sky_scale`` 0) and ``key`` (what the cache key adds for this light)."""
 
     kind: str
@@ -75,6 +76,7 @@ class AuditLight:
     radius: float = 0.0
     angular_radius: float = 0.0
     radiance: tuple[float, float, float] | None = None
+    intensity: tuple[float, float, float] | None = None
     scales: Mapping[str, float] = field(default_factory=dict)
     key: Mapping[str, Any] = field(default_factory=dict)
 
@@ -114,7 +116,11 @@ def _xml_light(setup: AuditSetup, source: int) -> AuditLight:
         raise AuditError(f"{light.kind} environment ({light.location}): not a light of its own")
     if light.kind in ("point", "spot"):
         centre = np.asarray(light.position, np.float64)
-        return AuditLight(light.kind, emitter, centre=centre, radiance=declared)
+        intensity = None
+        if light.scale_name == "intensity" and light.scale is not None and len(light.scale) in (1, 3):
+            r, g, b = (float(v) for v in light.scale * (3 // len(light.scale)))
+            intensity = (r, g, b)
+        return AuditLight(light.kind, emitter, centre=centre, radiance=declared, intensity=intensity)
     what = f"{light.kind} light ({light.location})"
     centre = _bbox_centre(emitter, what)
     radius = 0.0
@@ -159,7 +165,9 @@ def _toml_light(setup: AuditSetup, source: int) -> AuditLight:
             scales={"sky_scale": 0.0}, key={"light": "sunsky sun (sky_scale 0)"},
         )  # fmt: skip
     if light.kind in ("point_light", "spot_light"):
-        return AuditLight(light.kind.split("_")[0], emitter, centre=np.asarray(light.position, np.float64))
+        r, g, b = (float(v) for v in light.intensity)
+        centre = np.asarray(light.position, np.float64)
+        return AuditLight(light.kind.split("_")[0], emitter, centre=centre, intensity=(r, g, b))
     if light.kind == "sphere_light":
         return AuditLight("sphere", emitter, centre=np.asarray(light.center, np.float64),
                           radius=float(light.radius), radiance=tuple(light.radiance))  # fmt: skip

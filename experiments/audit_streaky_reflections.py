@@ -3,12 +3,15 @@ plane (a wet street), path traced, against the seed's mirror image streaked vert
 
 For each rough reflective shape (``roughplastic``, ``roughconductor``, ``roughdielectric``:
 `rtfit.reference.reflective_shapes.REFLECTIVE_BSDFS`) that the camera sees as a plane, and each point or
-uniform sphere light of the scene above it (on the camera's side), one case ``plane<i>-light<j>``:
+uniform sphere light of the scene above it (on the camera's side), one case ``plane<i>-light<j>``, in a
+Mitsuba XML scene or in an rtfit TOML scene (its plane a ``mitsuba_xml`` shape keeping its file's BSDFs,
+its lights TOML ``point_light``/``sphere_light``: `audit_lights.scene_light` reads either format):
 
 * **pixels**: the pixel-centre camera rays whose first hit is that shape (`audit_geometry.shape_view`);
 * **reference**: Mitsuba's ``path`` (unbounded depth) along those rays with **that light alone** (every
-  other emitter's radiance, intensity or scale set to 0 for the passes, then put back), in passes through
-  the pass cache (`ray_radiance_pass`): the plane's reflected radiance of the one light (W/m²/sr, RGB);
+  other emitter's radiance, intensity or scale set to 0 for the passes, then put back: `emitters_alone`), in
+  passes through the pass cache (`ray_radiance_pass`): the plane's reflected radiance of the one light
+  (W/m²/sr, RGB);
 * **inputs** (`rtfit.realtime.streaky_reflections`): the light's mirror point c' = c − 2((c − p₀)·n)n
   projected on the camera's image plane (tangents at unit focal length, the camera's local x and up axes),
   each pixel's offset (``du``, ``dv``) from it, its radius ``rho`` = r/z', ``e_mirror`` = L_e·F(θ_m)·π·rho²
@@ -36,9 +39,10 @@ import numpy as np
 
 from rtfit.realtime.streaky_reflections import METHODS
 from rtfit.reference.cache import array_digest
+from rtfit.reference.emitters import PLUGIN as DISC_PLUGIN
 from rtfit.reference.reflective_shapes import bsdf_roughness, ray_radiance_pass
 
-from .audit import Applicability, Rule
+from .audit import Applicability, AuditError, Rule
 from .audit_family import AuditFamily, FamilyCase
 from .audit_geometry import reflective_shape, shape_view, visible_subset
 from .audit_lights import AuditLight, scene_light
@@ -54,6 +58,10 @@ PLANE_TOLERANCE = 1e-3
 relative to the camera distance) for it to count as a plane: the mirror image needs one."""
 _EMISSION = ("radiance", "intensity", "irradiance", "scale", "sun_scale", "sky_scale")
 """The emitter parameters (`mi.traverse` keys, or their ``.value``) set to 0 for a light-alone pass."""
+_DISC_EMISSION = ("radiance", "sky", "weight")
+"""The attributes set to 0 for a light-alone pass on rtfit's own distant disc (`rtfit.reference.emitters`: an
+rtfit TOML sun of finite size, a ``constant_env`` sky folded into it), a Python emitter `mi.traverse` sees no
+parameter of (RGB variants: the audit's)."""
 _CONDUCTORS = frozenset({"roughconductor"})
 ALPHA = 0.1
 """The shipped street's GGX roughness α. One α only: every blur width scales with α (the family's page),
@@ -79,23 +87,39 @@ def mirror_point(centre, p0, n) -> np.ndarray:
 
 @contextlib.contextmanager
 def emitters_alone(mi, scene, keep):
-    """The scene with every emitter but ``keep`` dark (their `_EMISSION` parameters 0), put back after."""
-    saved = []
+    """The scene with every emitter but ``keep`` dark (their `_EMISSION` parameters 0; rtfit's distant disc's
+    `_DISC_EMISSION` attributes 0), put back after. An emitter with none of them (a textured emission):
+    `AuditError`, one line, rather than a reference lit by it."""
+    saved, disc = [], []
     try:
         for e in scene.emitters():
             if e is keep:
                 continue
+            if str(e).startswith(f"{DISC_PLUGIN}["):
+                for name in _DISC_EMISSION:
+                    value = getattr(e, name)
+                    disc.append((e, name, value))
+                    setattr(e, name, type(value)(0.0))
+                continue
             params: Any = mi.traverse(e)
-            for key in params.keys():
-                if key.removesuffix(".value") in _EMISSION:
-                    saved.append((params, key, type(params[key])(params[key])))
-                    params[key] = type(params[key])(0.0)
+            keys = [k for k in params.keys() if k.removesuffix(".value") in _EMISSION]
+            if not keys:
+                what = str(e).split("[", 1)[0].strip()
+                raise AuditError(
+                    f"{FAMILY.name}: cannot darken the emitter {what} for another light's reference (none of "
+                    f"its parameters is {', '.join(_EMISSION)})"
+                )
+            for key in keys:
+                saved.append((params, key, type(params[key])(params[key])))
+                params[key] = type(params[key])(0.0)
             params.update()
         yield scene
     finally:
         for params, key, value in saved:
             params[key] = value
             params.update()
+        for e, name, value in disc:
+            setattr(e, name, value)
 
 
 def _camera_frame(setup: AuditSetup) -> tuple[np.ndarray, np.ndarray]:
@@ -165,16 +189,15 @@ def _material(mi, shape, plugin: str):
     return fresnel, bsdf_roughness(mi, shape), notes
 
 
-def _light_emission(setup: AuditSetup, source: int, light: AuditLight):
-    """(radiance L_e (3,) or None, intensity I (3,) W/sr, radius r) of a sphere or point light; None for any
-    other light, or one whose emission is not uniform."""
+def _light_emission(light: AuditLight):
+    """(radiance L_e (3,) or None, intensity I (3,) W/sr, radius r) of a sphere or point light, as the scene
+    declares it (either format: `audit_lights.scene_light`); None for any other light, or one whose emission
+    is not uniform."""
     if light.kind == "sphere" and light.radiance is not None and light.radius > 0.0:
         le = np.asarray(light.radiance, np.float64)
         return le, le * math.pi * light.radius**2, light.radius
-    if light.kind == "point" and setup.info.xml is not None:
-        e = setup.info.xml.emitters[source]
-        if e.scale_name == "intensity" and e.scale is not None and len(e.scale) in (1, 3):
-            return None, np.broadcast_to(np.asarray(e.scale, np.float64), (3,)).copy(), 0.0
+    if light.kind == "point" and light.intensity is not None:
+        return None, np.asarray(light.intensity, np.float64), 0.0
     return None
 
 
@@ -206,7 +229,7 @@ def _light_case(
     p0, n = plane
     fresnel, alpha, material_notes = material
     light = scene_light(setup, source)
-    emission = _light_emission(setup, source, light)
+    emission = _light_emission(light)
     if emission is None or light.centre is None:
         return None
     le, intensity, radius = emission
@@ -249,6 +272,9 @@ def _light_case(
     tag = f"plane{app.source}-light{source}"
     what = {"format": FORMAT, "quantity": "streak-radiance", "shape": index, "emitter": source,
             "rays": array_digest(origins, dirs)}  # fmt: skip
+
+    with emitters_alone(mi, scene, light.emitter):
+        pass  # every other emitter can be darkened (else one line, before any pass; cached or not)
 
     def render(spp: int, seed: int):
         with emitters_alone(mi, scene, light.emitter):
@@ -328,6 +354,7 @@ FAMILY = AuditFamily(
         "(000:757-807), the same streak without the distance law, an isotropic blur, and the GGX microfacet "
         "BRDF toward the light's centre."
     ),
+    formats=("mitsuba-xml", "rtfit-toml"),
     rules=(
         Rule(
             "streaky-reflections",

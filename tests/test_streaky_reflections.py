@@ -1,7 +1,9 @@
 """The streaky-reflections family (docs/streaky-reflections.md): the streak rows' energy and moments against
 grid quadrature of the mirror image (a uniform disc), the GGX row against Mitsuba's own ``roughplastic`` BSDF
 and against a quadrature of it over a small sphere light, extremes without NaN/Inf (hypothesis over the
-declared domains), the light-alone switch, and the audit of the shipped street."""
+declared domains), the light-alone switch, the audit of the shipped street, and the audit of an rtfit TOML
+street (a ``mitsuba_xml`` plane, TOML point and sphere lights) against its Mitsuba XML twin and the closed
+form written here (Mitsuba's own BSDF ``eval`` at each pixel's hit, found here by ray–plane intersection)."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rtfit.experiments.audit import AuditError
 from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.audit_streaky_reflections import emitters_alone, mirror_point
@@ -275,3 +278,186 @@ def test_registry_entry_is_born_on_the_engine():
     f = FAMILIES["streaky-reflections"]
     assert f.module == ENGINE and f.methods is METHODS
     assert {s.file for s in f.scenes} == {SCENE.name} and SCENE.is_file()
+
+
+# ------------------------------------------------------------------------------- an rtfit TOML street
+PLANE = """<scene version="3.0.0">
+  <shape type="rectangle" id="street">
+    <transform name="to_world"><scale x="6" y="30.5"/><translate y="29.5"/></transform>
+    <bsdf type="roughplastic"><string name="distribution" value="ggx"/><float name="alpha" value="0.2"/>
+      <float name="int_ior" value="1.33"/><rgb name="diffuse_reflectance" value="0"/></bsdf>
+  </shape>
+</scene>"""
+"""The street of the shipped scene (α = 0.2): x ∈ [−6, 6], y ∈ [−1, 60], z = 0."""
+POINT, INTENSITY = np.array([1.5, 12.0, 3.0]), np.array([300.0, 240.0, 150.0])
+LAMP, LAMP_RADIUS, LAMP_RADIANCE = np.array([-2.0, 28.0, 3.0]), 0.1, np.array([2000.0, 1600.0, 1000.0])
+TOML_STREET = """name = "wet street"
+[camera]
+origin = [0, 0, 1.7]
+target = [0, 20, -1]
+fov_deg = 40
+width = 16
+height = 16
+
+[[lights]]
+type = "point_light"
+position = [1.5, 12, 3]
+intensity = [300, 240, 150]
+
+[[lights]]
+type = "sphere_light"
+center = [-2, 28, 3]
+radius = 0.1
+radiance = [2000, 1600, 1000]
+
+[[lights]]  # a finite sun (rtfit's own disc emitter) whose reflection the camera sees, and a constant sky
+type = "sun"
+direction = [0, 1, 0.3]
+irradiance = [2, 2, 2]
+angular_radius_deg = 0.5
+
+[[lights]]
+type = "constant_env"
+radiance = [1, 1, 1]
+
+[[shapes]]
+type = "mitsuba_xml"
+file = "street.xml"
+"""
+"""The street as an rtfit TOML scene: its plane a ``mitsuba_xml`` shape keeping its BSDF; besides the two
+lamps a sun (0.5°, its reflection in view) and a sky, both folded into rtfit's disc emitter: each lamp's
+reference must have them dark."""
+XML_STREET = f"""<scene version="3.0.0">
+  <sensor type="perspective">
+    <transform name="to_world"><lookat origin="0, 0, 1.7" target="0, 20, -1" up="0, 0, 1"/></transform>
+    <float name="fov" value="40"/>
+    <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
+  </sensor>
+  {PLANE[PLANE.index("<shape") : PLANE.rindex("</scene>")]}
+  <emitter type="point"><point name="position" x="1.5" y="12" z="3"/>
+    <rgb name="intensity" value="300, 240, 150"/></emitter>
+  <shape type="sphere"><point name="center" x="-2" y="28" z="3"/><float name="radius" value="0.1"/>
+    <emitter type="area"><rgb name="radiance" value="2000, 1600, 1000"/></emitter>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf></shape>
+</scene>"""
+"""Its Mitsuba XML twin: the same camera, plane and lamps, no sun, no sky."""
+
+
+@pytest.fixture(scope="module")
+def street_twins(tmp_path_factory):
+    root = tmp_path_factory.mktemp("toml-street")
+    (root / "street.xml").write_text(PLANE)
+    (root / "s.toml").write_text(TOML_STREET)
+    (root / "s.xml").write_text(XML_STREET)
+    return root, tuple(
+        audit(str(root / name), ["streaky-reflections"], spp=32, pass_spp=16, cache=root / "cache", **FAST)
+        for name in ("s.toml", "s.xml")
+    )
+
+
+def _street_closed_form(mi):
+    """(hit mask (16, 16), {case id: expected radiance (N, 3)}) of the street: each pixel-centre ray of the
+    16² pinhole camera (40° across x; the image's x along the camera's −left, rows downwards) meets the
+    plane z = 0 at p; L = f_r(v, l)·cos θ_l·I/d² (the point light) or ·L_e·πr²/d² (the small sphere lamp,
+    its solid angle; the lobe's variation over it is O((θ/α)²) ≈ 3e-4), f_r·cos θ_l from Mitsuba's own
+    ``roughplastic`` eval (`_mitsuba_eval`)."""
+    origin, target = np.array([0.0, 0.0, 1.7]), np.array([0.0, 20.0, -1.0])
+    fwd = _unit(target - origin)
+    left = _unit(np.cross([0.0, 0.0, 1.0], fwd))
+    up = np.cross(fwd, left)
+    t = -math.tan(math.radians(20.0)) * (2.0 * (np.arange(16) + 0.5) / 16.0 - 1.0)
+    tu, tv = np.meshgrid(t, t)
+    d = _unit(fwd + tu[..., None] * left + tv[..., None] * up)
+    p = origin + (-origin[2] / np.minimum(d[..., 2], -1e-9))[..., None] * d
+    hit = (d[..., 2] < 0) & (np.abs(p[..., 0]) <= 6) & (p[..., 1] >= -1) & (p[..., 1] <= 60)
+    bsdf = mi.load_dict({"type": "roughplastic", "distribution": "ggx", "alpha": 0.2, "int_ior": 1.33,
+                         "diffuse_reflectance": {"type": "rgb", "value": 0.0}})  # fmt: skip
+    out = {}
+    lamp = LAMP_RADIANCE * math.pi * LAMP_RADIUS**2
+    for tag, centre, scale in (("plane0-light0", POINT, INTENSITY), ("plane0-light1", LAMP, lamp)):
+        to_light = centre - p[hit]
+        dist = np.linalg.norm(to_light, axis=1)
+        f_cos = _mitsuba_eval(mi, bsdf, -d[hit], to_light / dist[:, None])
+        out[tag] = f_cos[:, None] * scale[None, :] / (dist * dist)[:, None]
+    return hit, out
+
+
+def test_a_toml_street_is_audited_like_its_xml_twin(street_twins, mi):
+    """The TOML street (its plane a ``mitsuba_xml`` shape, TOML point and sphere lamps, a sun and a sky that
+    must be dark) and its XML twin: the same cases on the same pixels (the ray–plane hits computed here);
+    each lamp's reference equals the closed form (`_street_closed_form`) within its noise (pixel sums,
+    |z| < 4: the sun's reflection left lit measured z ≈ 30), the ggx-point row equals it to float32; each
+    row of the TOML audit equals the XML audit's within the two references' noise (pixel sums, |z| < 4;
+    measured ≤ 1.73)."""
+    _, (toml, xml) = street_twins
+    hit, want = _street_closed_form(mi)
+    assert [c.id for c in toml.cases] == [c.id for c in xml.cases] == list(want)
+    for ct, cx, centre in zip(toml.cases, xml.cases, (POINT, LAMP), strict=True):
+        assert np.array_equal(ct.mask, hit) and np.array_equal(cx.mask, hit)
+        distance = float(np.linalg.norm(centre - [0.0, 0.0, 1.7]))
+        for case in (ct, cx):
+            assert case.parameters["distance"] == pytest.approx(distance, rel=1e-9)
+            assert case.parameters["light_height"] == pytest.approx(3.0, abs=1e-6)
+            assert case.parameters["alpha"] == pytest.approx(0.2, rel=1e-6)
+        e = want[ct.id]
+        for r, case in ((toml, ct), (xml, cx)):
+            mean, err = case.reference.mean[hit], case.reference.stderr[hit]
+            z = (mean.sum(0) - e.sum(0)) / np.sqrt((err**2).sum(0))
+            assert np.all(np.abs(z) < 4.0), (case.id, z)
+            ggx = np.asarray(r.outcomes[case.id]["ggx-point"].image)[hit]
+            assert np.max(np.abs(ggx - e)) < 1e-4 * np.max(e), case.id
+        sigma = np.sqrt((ct.reference.stderr[hit] ** 2).sum(0) + (cx.reference.stderr[hit] ** 2).sum(0))
+        assert set(toml.outcomes[ct.id]) == set(xml.outcomes[cx.id])
+        for row, out in toml.outcomes[ct.id].items():
+            a = np.asarray(out.image)[hit].sum(0)
+            b = np.asarray(xml.outcomes[cx.id][row].image)[hit].sum(0)
+            assert np.all(np.isfinite(a)) and np.all(np.abs(a - b) < 4.0 * sigma), (ct.id, row, a, b)
+
+
+def test_list_names_the_family_on_a_toml_scene(street_twins):
+    root, _ = street_twins
+    result = CliRunner().invoke(audit_cmd, [str(root / "s.toml"), "--list"])
+    assert result.exit_code == 0, result.output
+    assert (
+        "streaky-reflections — light streak in a rough plane: rough plastic shape (shapes[0], xml0_0: "
+        "roughplastic) reflects point light (lights[0])" in result.output
+    )
+
+
+def test_emitters_alone_darkens_rtfits_sun_disc_and_puts_it_back(mi, tmp_path):
+    """The TOML sun of finite size (rtfit's Python disc emitter, the sky folded in: no `mi.traverse`
+    parameters) is dark while another light is alone, and lit again after."""
+    from rtfit.reference.build import load_mitsuba_scene
+    from rtfit.scenes import load_scene
+
+    (tmp_path / "street.xml").write_text(PLANE)
+    (tmp_path / "s.toml").write_text(TOML_STREET)
+    _, scene = load_mitsuba_scene(load_scene(tmp_path / "s.toml"))
+    emitters = list(scene.emitters())
+    (disc,) = [e for e in emitters if str(e).startswith("rtfit_distant_disk")]
+    point = next(e for e in emitters if "intensity.value" in mi.traverse(e).keys())
+    before = [np.array(getattr(disc, k)) for k in ("radiance", "sky", "weight")]
+    assert np.all(before[0] > 0) and np.all(before[1] == 1.0)
+    with emitters_alone(mi, scene, point):
+        assert all(np.all(np.array(getattr(disc, k)) == 0.0) for k in ("radiance", "sky", "weight"))
+        assert np.array_equal(np.array(mi.traverse(point)["intensity.value"]).ravel(), INTENSITY)
+    assert all(
+        np.array_equal(np.array(getattr(disc, k)), b)
+        for k, b in zip(("radiance", "sky", "weight"), before, strict=True)
+    )
+
+
+def test_emitters_alone_refuses_an_emitter_it_cannot_darken(mi):
+    """A textured area light has no uniform emission parameter to set to 0: one line, nothing changed."""
+    scene = mi.load_dict({
+        "type": "scene",
+        "lamp": {"type": "sphere", "emitter": {"type": "area", "radiance": 1.0}},
+        "panel": {"type": "rectangle", "emitter": {"type": "area", "radiance": {"type": "checkerboard"}}},
+    })  # fmt: skip
+    lamp = next(e for e in scene.emitters() if "radiance.value" in mi.traverse(e).keys())
+    with (
+        pytest.raises(AuditError, match="cannot darken the emitter") as info,
+        emitters_alone(mi, scene, lamp),
+    ):
+        pass
+    assert "\n" not in str(info.value)
