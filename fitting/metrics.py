@@ -58,7 +58,7 @@ The tone map x/(1+|x|) equals x/(1+x) for x ≥ 0 and keeps negative inputs fini
 computed on the whole image (windows reach outside the mask) and averaged over the mask. It is written
 here once for all channels (`_ssim_maps`: scikit-image's filters and expressions in its order, bit-identical
 to its per-channel maps; tests/test_metrics.py), the reference's filtered tone map kept per reference and
-the floor's draws filtered in one call (issue 33: 3 Gaussian filters a row instead of 15).
+the floor's draws filtered in one call (issue 33: 3 Gaussian filter calls a row instead of 15).
 
 ꟻLIP: ``flip_evaluator.evaluate(reference, test, "HDR", applyMagma=False)`` on contiguous float32
 (H, W, 3) arrays with negative values clipped to 0 (HDR-ꟻLIP accepts only non-negative radiance;
