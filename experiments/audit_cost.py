@@ -27,7 +27,8 @@ an engine declares; a larger table (a cube map's 6·16² texels) is a texture, g
 _COST_PROBE = 1 << 12  # elements of the first, sizing call of a cost measurement
 _COST_CALL_SECONDS = 0.05  # the sized call's target duration: a slow kernel is timed on fewer elements
 _COST_MIN_SECONDS = 0.05
-"""The least time the measured call is repeated for (and at least 7 times; the median is the cost): a kernel
+"""The least time the measured call is repeated for (and at least 7 times; the median is the cost), unless its
+median is known first (`cost._median_time`: its 95 % interval within ± 3 %, after 6 calls or more): a kernel
 at ~1 ns a pixel is one 1 ms call at 2^20 elements, so 50 ms is ~50 repeats; a slow kernel sized to
 `_COST_CALL_SECONDS` a call runs its 7. At 0.2 s, 23 methods spent ~4.6 s of a Cornell-box audit here."""
 
@@ -57,7 +58,8 @@ def method_cost(
     inputs = {name: case.channel_inputs[0][name] for name in method.input_names}
     per_pixel = [name for name, v in inputs.items() if _is_per_pixel(v, n)]
     size = min(size, max(_COST_PROBE, _COST_INPUT_BYTES // (4 * max(len(per_pixel), 1))))
-    if size > _COST_PROBE:
+    probed = size > _COST_PROBE
+    if probed:
         probe = method_cost(method, case, backend, _COST_PROBE, min_seconds=0.0)
         per_element = probe["ns_per_pixel"] * 1e-9
         size = int(min(size, max(_COST_PROBE, _COST_CALL_SECONDS / max(per_element, 1e-15))))
@@ -94,6 +96,7 @@ def method_cost(
     def call(*xs):
         return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))})
 
-    t = time_drjit(call, tuple(args), elements, min_seconds=min_seconds)
+    # the sizing call compiled this kernel (and warmed it up): Dr.Jit's kernels do not depend on the size
+    t = time_drjit(call, tuple(args), elements, min_seconds=min_seconds, warm_up=not probed)
     release_backend_tables(consts.values())  # a sampler's large tables: not kept past the timing
     return {**t.to_dict(), "backend": backend}

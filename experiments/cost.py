@@ -12,6 +12,7 @@ closed form is to the memory limit.
 
 from __future__ import annotations
 
+import functools
 import math
 import statistics
 import time
@@ -53,10 +54,61 @@ class Timing:
         }
 
 
+MEDIAN_CI_LEVEL = 0.95
+"""Coverage of the median's distribution-free confidence interval (`median_ci`) that stops a timing loop."""
+MEDIAN_CI_REL = 0.03
+"""A timing loop stops once the median's `MEDIAN_CI_LEVEL` interval lies within ± this fraction of the median
+(`_median_time`): more calls would not move the reported median by more than about this."""
+
+
+@functools.cache
+def _median_rank(n: int, level: float) -> int:
+    """The largest k with P(k ≤ B ≤ n − k) ≥ ``level``, B ~ Binomial(n, ½); 0 where none."""
+    k, term, below = 0, 0.5**n, 0.0  # term: P(B = k); below: P(B ≤ k), summed as k grows
+    while k < n // 2:
+        below += term
+        if 2.0 * below > 1.0 - level:
+            break
+        term *= (n - k) / (k + 1)
+        k += 1
+    return k
+
+
+def median_ci(times, level: float = MEDIAN_CI_LEVEL) -> tuple[float, float] | None:
+    """The distribution-free confidence interval of the median of ``times`` at ``level`` or more: the k-th
+    smallest and the k-th largest time, k the largest with P(k ≤ B ≤ n − k) ≥ level, B ~ Binomial(n, ½) the
+    number of times below the true median (no assumption on their distribution, only independence). None
+    where no interval reaches ``level``: fewer than 6 times at 95 % (the minimum and maximum of 5 cover
+    1 − 2/2⁵ = 93.75 %)."""
+    n = len(times)
+    k = _median_rank(n, level)
+    if k == 0:
+        return None
+    s = sorted(times)
+    return s[k - 1], s[n - k]
+
+
+def _median_known(times) -> bool:
+    """The median of ``times`` is known to `MEDIAN_CI_REL`: its `median_ci` lies within ± that of it."""
+    ci = median_ci(times)
+    if ci is None:
+        return False
+    med = statistics.median(times)
+    return max(ci[1] - med, med - ci[0]) <= MEDIAN_CI_REL * med
+
+
 def _median_time(call: Callable[[], None], repeats: int, min_seconds: float) -> tuple[float, int]:
-    times = []
+    """The median time of ``call()`` and the number of calls timed: until the median is known
+    (`_median_known`: its 95 % interval within ± 3 %, which needs 6 calls or more), else until
+    ``repeats`` calls and ``min_seconds`` have passed (at most 1000 calls). Issue 33 (session 19): before,
+    every timing ran its ``repeats`` and ``min_seconds`` whatever the spread; a stable kernel is now known
+    after 6 calls (the fewest whose interval reaches 95 %), and a noisy one (a loaded machine) still runs to
+    that cap."""
+    times: list[float] = []
     start = time.perf_counter()
     while len(times) < repeats or (time.perf_counter() - start < min_seconds and len(times) < 1000):
+        if _median_known(times):
+            break
         t0 = time.perf_counter()
         call()
         times.append(time.perf_counter() - t0)
@@ -64,9 +116,16 @@ def _median_time(call: Callable[[], None], repeats: int, min_seconds: float) -> 
 
 
 def time_drjit(
-    fn: Callable, args: tuple, elements: int, repeats: int = 7, min_seconds: float = 0.2
+    fn: Callable,
+    args: tuple,
+    elements: int,
+    repeats: int = 7,
+    min_seconds: float = 0.2,
+    warm_up: bool = True,
 ) -> Timing:
-    """Median time of ``fn(*args)`` with evaluation and device sync inside the timed region."""
+    """Median time of ``fn(*args)`` with evaluation and device sync inside the timed region, after a warm-up
+    call (kernel compilation or cache load); ``warm_up`` False where the caller has just run the same
+    kernel (Dr.Jit's kernels do not depend on the arrays' size: `audit_cost.method_cost`'s sizing call)."""
     dr.eval(*[a for a in args if dr.is_array_v(a)])
     dr.sync_thread()
 
@@ -75,7 +134,8 @@ def time_drjit(
         dr.eval(out)
         dr.sync_thread()
 
-    call()  # warm-up: kernel compilation or cache load
+    if warm_up:
+        call()  # warm-up: kernel compilation or cache load
     seconds, n = _median_time(call, repeats, min_seconds)
     return Timing(seconds, elements, n)
 

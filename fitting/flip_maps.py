@@ -13,10 +13,15 @@ exposures) and reused by the report's error-map figure (`flip_map`); keys are co
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import math
+import os
 import threading
 import warnings
 from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -35,6 +40,7 @@ __all__ = [
     "flip_maps_tiled",
     "flip_mean",
     "flip_noisy_references",
+    "flip_one_thread",
     "luminance",
 ]
 
@@ -170,6 +176,53 @@ def compute_flip_maps(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> int
     return len(todo)
 
 
+@functools.cache
+def _flip_openmp() -> tuple | None:
+    """(get, set) of the thread count of the OpenMP runtime that ꟻLIP's extension carries
+    (``flip_evaluator.libs/libgomp-*.so``, loaded with it), or None where it is not found."""
+    import flip_evaluator
+
+    libs = os.path.join(os.path.dirname(os.path.dirname(flip_evaluator.__file__)), "flip_evaluator.libs")
+    try:
+        names = sorted(n for n in os.listdir(libs) if n.startswith("libgomp"))
+    except OSError:
+        return None
+    for name in names:
+        try:
+            lib = ctypes.CDLL(os.path.join(libs, name), mode=os.RTLD_NOLOAD | os.RTLD_LOCAL)
+        except OSError:
+            continue
+        get, put = lib.omp_get_max_threads, lib.omp_set_num_threads
+        get.restype, get.argtypes = ctypes.c_int, []
+        put.restype, put.argtypes = None, [ctypes.c_int]
+        return get, put
+    return None
+
+
+@contextmanager
+def flip_one_thread() -> Iterator[None]:
+    """Run the block's ꟻLIP calls on one OpenMP thread, then restore the count. OpenMP's thread count is
+    a setting of the calling thread, so other threads' ꟻLIP calls are not affected. Where ꟻLIP's OpenMP
+    runtime is not found nothing changes.
+
+    Why (issue 33, session 19): ꟻLIP splits each of its filter passes over every OpenMP thread, and on 2
+    CPU cores shared with other work the threads spend more time waiting for each other than working: 15
+    pairs of 64² in one tiled call took 1.05–1.14 CPU s (2.6–2.9 s wall) on 2 threads against 0.71–0.81
+    (1.8–2.1 s) on one; one 512² pair 3.0–3.5 CPU s (6.1–8.3 s) against 2.3–2.8 (4.7–7.0 s). The maps are
+    bit-identical (each pixel is computed alike whatever thread computes it; tests/test_metrics.py)."""
+    omp = _flip_openmp()
+    if omp is None:
+        yield
+        return
+    get, put = omp
+    before = get()
+    put(1)
+    try:
+        yield
+    finally:
+        put(before)
+
+
 def _flip_map_uncached(ref32, test32, params) -> np.ndarray:
     import flip_evaluator
 
@@ -188,9 +241,10 @@ def _flip_map_uncached(ref32, test32, params) -> np.ndarray:
         raise ValueError(f"internal: flip inputs must share a shape of at least {FLIP_MIN_SIZE} pixels")
     if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
         raise ValueError(f"internal: bad flip exposure parameters {params}")
-    fmap, _, _ = flip_evaluator.evaluate(
-        ref32, test32, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
-    )
+    with flip_one_thread():
+        fmap, _, _ = flip_evaluator.evaluate(
+            ref32, test32, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
+        )
     return np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
 
 

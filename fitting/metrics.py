@@ -55,7 +55,10 @@ reference that is not black inside the mask. Metrics that do not apply are left 
 SSIM: scikit-image ``structural_similarity`` with data_range=1, channel_axis=-1,
 gaussian_weights=True, sigma=1.5, use_sample_covariance=False, full=True on the tone-mapped images.
 The tone map x/(1+|x|) equals x/(1+x) for x ≥ 0 and keeps negative inputs finite. The SSIM map is
-computed on the whole image (windows reach outside the mask) and averaged over the mask.
+computed on the whole image (windows reach outside the mask) and averaged over the mask. It is written
+here once for all channels (`_ssim_maps`: scikit-image's filters and expressions in its order, bit-identical
+to its per-channel maps; tests/test_metrics.py), the reference's filtered tone map kept per reference and
+the floor's draws filtered in one call (issue 33: 3 Gaussian filter calls a row instead of 15).
 
 ꟻLIP: ``flip_evaluator.evaluate(reference, test, "HDR", applyMagma=False)`` on contiguous float32
 (H, W, 3) arrays with negative values clipped to 0 (HDR-ꟻLIP accepts only non-negative radiance;
@@ -83,6 +86,8 @@ draws and the floors' memo.
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -98,7 +103,7 @@ from .flip_maps import (
     flip_noisy_references,
     luminance,
 )
-from .metric_noise import memo_floor, noise_rng
+from .metric_noise import content_digest, memo_floor, noise_rng
 
 __all__ = [
     "ALL_METRICS",
@@ -330,29 +335,74 @@ def _psnr(x, r, s, m, **_):
     return MetricValue(val, ceiling, resolved)
 
 
-def _ssim_mean(a, b, m):
-    from skimage.metrics import structural_similarity
+SSIM_TRUNCATE = 3.5  # scikit-image's truncation of the Gaussian window (radius int(3.5 σ + 0.5) = 5)
+_SSIM_C1 = (0.01 * 1.0) ** 2  # (K1 · data_range)², scikit-image's K1 = 0.01, data_range 1
+_SSIM_C2 = (0.03 * 1.0) ** 2  # (K2 · data_range)², K2 = 0.03
+_SSIM_MEMO_ENTRIES = 2
+"""References whose filtered tone map `_ssim_reference` keeps (the audit compares one reference's rows at
+a time; a 1024² reference's three arrays are 75 MB)."""
+_ssim_lock = threading.Lock()
+_ssim_memo: OrderedDict[tuple, tuple] = OrderedDict()
 
-    result = structural_similarity(
-        tone_map(a),
-        tone_map(b),
-        data_range=1.0,
-        channel_axis=-1,
-        gaussian_weights=True,
-        sigma=SSIM_SIGMA,
-        use_sample_covariance=False,
-        full=True,
+
+def _ssim_filter(a: np.ndarray) -> np.ndarray:
+    """scikit-image's SSIM window on (..., H, W, C): ``scipy.ndimage.gaussian_filter`` of σ = 1.5 along H and
+    W (mode ``reflect``, truncate 3.5) and none along the other axes (an axis of σ 0 is not filtered): per
+    (H, W) plane the same passes, in the same order, as scikit-image's call on each channel."""
+    from scipy.ndimage import gaussian_filter
+
+    sigma = (0.0,) * (a.ndim - 3) + (SSIM_SIGMA, SSIM_SIGMA, 0.0)
+    return gaussian_filter(a, sigma, mode="reflect", truncate=SSIM_TRUNCATE)
+
+
+def _ssim_maps(t1, t2, f1=None, f2=None) -> np.ndarray:
+    """The SSIM maps of tone-mapped images ``t1`` against ``t2`` ((..., H, W, C), broadcast against each
+    other: several draws against one reference in one call), ``f1``/``f2`` their filtered (mean, mean of
+    squares) where already known. scikit-image's ``structural_similarity`` (gaussian_weights, σ 1.5,
+    population covariance, data_range 1, full map) written once for all channels and images: its
+    expressions in its order, so the maps are bit-identical to its per-channel ones (a test)."""
+    ux, uxx = f1 if f1 is not None else (_ssim_filter(t1), _ssim_filter(t1 * t1))
+    uy, uyy = f2 if f2 is not None else (_ssim_filter(t2), _ssim_filter(t2 * t2))
+    uxy = _ssim_filter(t1 * t2)
+    cov_norm = 1.0  # use_sample_covariance=False (as scikit-image writes it)
+    vx = cov_norm * (uxx - ux * ux)
+    vy = cov_norm * (uyy - uy * uy)
+    vxy = cov_norm * (uxy - ux * uy)
+    a1, a2, b1, b2 = (
+        2 * ux * uy + _SSIM_C1,
+        2 * vxy + _SSIM_C2,
+        ux**2 + uy**2 + _SSIM_C1,
+        vx + vy + _SSIM_C2,
     )
-    smap = result[1]  # full=True: (mean SSIM, per-pixel map)
-    return float(np.mean(smap[m]))
+    return (a1 * a2) / (b1 * b2)
+
+
+def _ssim_reference(r) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """The reference's tone map and its filtered (mean, mean of squares), computed once per reference
+    content (every row and every noise draw is compared with the same ones)."""
+    key = content_digest(r)
+    with _ssim_lock:
+        if key in _ssim_memo:
+            _ssim_memo.move_to_end(key)
+            return _ssim_memo[key]
+    t = tone_map(r)
+    value = (t, (_ssim_filter(t), _ssim_filter(t * t)))
+    with _ssim_lock:
+        _ssim_memo[key] = value
+        while len(_ssim_memo) > _SSIM_MEMO_ENTRIES:
+            _ssim_memo.popitem(last=False)
+    return value
 
 
 def _ssim(x, r, s, m, seed, draws, **_):
-    val = _ssim_mean(r, x, m)
+    tr, fr = _ssim_reference(r)
+    val = float(np.mean(_ssim_maps(tr, tone_map(x), f1=fr)[m]))
 
     def compute() -> float:
         rng = noise_rng(seed, "ssim")
-        return float(np.mean([_ssim_mean(r + s * rng.standard_normal(r.shape), r, m) for _ in range(draws)]))
+        noisy = np.stack([tone_map(r + s * rng.standard_normal(r.shape)) for _ in range(draws)])
+        maps = _ssim_maps(noisy, tr, f2=fr)
+        return float(np.mean([float(np.mean(smap[m])) for smap in maps]))
 
     floor = memo_floor("ssim", r, s, m, seed, draws, compute)
     return MetricValue(val, floor, _resolved_above(1.0 - val, 1.0 - floor))

@@ -6,18 +6,23 @@ The shared bench loops (`method_bench_rows`, `method_cost_rows`, `rate_row`): th
 
 from __future__ import annotations
 
+import math
 import time
+from types import SimpleNamespace
 
 import drjit as dr
 import numpy as np
 import pytest
 
+from rtfit.experiments import cost
 from rtfit.experiments.cost import (
+    MEDIAN_CI_REL,
     NUMPY_MAX_ELEMENTS,
     Stock,
     Timing,
     comparison_row,
     cost_row,
+    median_ci,
     memory_floor_row,
     method_bench_rows,
     method_cost_rows,
@@ -89,7 +94,7 @@ def test_memory_floor_row_times_the_arrays_it_loads_and_counts_them():
         "memory traffic baseline (3 loads, 1 store)",
         "the floor",
     )
-    assert row["elements"] == 4096 and row["ns_per_pixel"] > 0 and row["repeats"] >= 7
+    assert row["elements"] == 4096 and row["ns_per_pixel"] > 0 and row["repeats"] >= 6
     assert memory_floor_row((x,), 4096, "llvm", "n", label="own words")["label"] == "own words"
 
 
@@ -134,3 +139,54 @@ def test_method_bench_and_cost_rows_time_every_method_then_the_floor():
         ("memory-baseline", "the floor"),
     ]
     assert costs[-1]["label"] == "memory traffic baseline (2 loads, 1 store)"
+
+
+def test_median_ci_is_the_widest_order_statistics_pair_reaching_95_percent():
+    """The interval (k-th smallest, k-th largest) covers the median with probability 1 − 2 P(B < k),
+    B ~ Binomial(n, ½), summed here exactly with integers: `median_ci` takes the largest k at 95 %."""
+    for n in range(1, 120):
+        times = [float(i) for i in range(n)][::-1]  # order given does not matter
+
+        def cover(k, n=n):
+            return 1 - 2 * sum(math.comb(n, i) for i in range(k)) / 2**n
+
+        ks = [k for k in range(1, n // 2 + 1) if cover(k) >= 0.95]
+        expect = (float(max(ks) - 1), float(n - max(ks))) if ks else None
+        assert median_ci(times) == expect
+    assert median_ci([1.0] * 5) is None and median_ci([1.0] * 6) == (1.0, 1.0)  # 93.75 % < 95 % ≤ 96.9 %
+
+
+def _timed_on_a_fake_clock(monkeypatch, durations, repeats, min_seconds):
+    """`cost._median_time` of a call whose k-th run takes ``durations[k % len]`` on a clock set here (the
+    suite's own patch of it, conftest.py, undone first)."""
+    monkeypatch.undo()
+    clock = SimpleNamespace(t=0.0)
+    monkeypatch.setattr(cost, "time", SimpleNamespace(perf_counter=lambda: clock.t))
+    runs = []
+
+    def call():
+        clock.t += durations[len(runs) % len(durations)]
+        runs.append(1)
+
+    median, n = cost._median_time(call, repeats, min_seconds)
+    assert n == len(runs)
+    return median, n
+
+
+def test_a_stable_timing_stops_once_its_median_is_known(monkeypatch):
+    """Equal times: the median's 95 % interval is one point after 6 calls (the fewest that reach 95 %), so
+    the loop stops there instead of running 1 s of 10 ms calls; within ± 3 % likewise (1 % apart)."""
+    median, n = _timed_on_a_fake_clock(monkeypatch, [0.01], 7, 1.0)
+    assert n == 6 and median == pytest.approx(0.01)
+    median, n = _timed_on_a_fake_clock(monkeypatch, [0.010, 0.0101, 0.0099], 7, 1.0)
+    assert n == 6 and median == pytest.approx(0.01)
+
+
+def test_a_noisy_timing_runs_to_its_repeats_and_minimum_duration(monkeypatch):
+    """Times 2× apart never put the interval within ± 3 % of the median: the loop runs to the cap, the
+    old rule (``repeats`` calls and ``min_seconds``: 0.2 s of calls alternating 10 and 20 ms → 14 calls)."""
+    median, n = _timed_on_a_fake_clock(monkeypatch, [0.01, 0.02], 7, 0.2)
+    assert n == 14 and median == pytest.approx(0.015)
+    assert MEDIAN_CI_REL < 0.5  # (0.02 − 0.015) / 0.015 = 1/3 is outside it
+    # fewer repeats than 6 (a precompute's 3): the interval never reaches 95 %, the repeats alone count
+    assert _timed_on_a_fake_clock(monkeypatch, [0.01], 3, 0.0)[1] == 3

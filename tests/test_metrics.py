@@ -444,3 +444,62 @@ def test_flip_tile_pad_is_the_least_that_keeps_the_maps(monkeypatch):
     assert all(np.array_equal(t, a) for t, a in zip(F.flip_maps_tiled(pairs, params), alone, strict=True))
     monkeypatch.setattr(F, "FLIP_TILE_PAD", F.FLIP_TILE_PAD - 1)
     assert not all(np.array_equal(t, a) for t, a in zip(F.flip_maps_tiled(pairs, params), alone, strict=True))
+
+
+def test_flip_on_one_openmp_thread_gives_the_maps_of_its_default_threads():
+    """`flip_one_thread` (ꟻLIP's OpenMP runtime at one thread for the block, issue 33) finds the runtime,
+    sets one thread inside and restores the count after; a map computed inside is bit-identical to
+    flip_evaluator's own call with its default threads."""
+    import flip_evaluator
+
+    from rtfit.fitting import flip_maps as F
+
+    rng = np.random.default_rng(7)
+    ref = rng.uniform(0.0, 3.0, (40, 52, 3)) ** 3
+    params = F.flip_exposures(ref, np.ones(ref.shape[:2], bool))
+    r32 = F.flip_input(ref, "", float(ref.max()), False)
+    t32 = F.flip_input(ref * rng.uniform(0, 2, ref.shape), "", float(ref.max()), False)
+
+    def direct():
+        fmap = flip_evaluator.evaluate(
+            r32, t32, "HDR", applyMagma=False, computeMeanError=False, parameters=params
+        )
+        return np.asarray(fmap[0], np.float64).reshape(ref.shape[:2])
+
+    omp = F._flip_openmp()
+    assert omp is not None  # the wheel's own libgomp is found
+    get, _ = omp
+    before = get()
+    with F.flip_one_thread():
+        assert get() == 1
+        inside = direct()
+    assert get() == before
+    assert np.array_equal(inside, direct())
+
+
+def test_ssim_value_and_floor_are_scikit_image_s_bit_for_bit():
+    """The SSIM written once for all channels and noise draws (the reference's filtered tone map kept per
+    reference) gives scikit-image's per-channel values exactly, and its noise floor exactly: the mean of
+    `floor_draws` draws of scikit-image's SSIM of the noisy reference against the reference."""
+    from skimage.metrics import structural_similarity
+
+    from rtfit.fitting.metric_noise import noise_rng
+
+    def ssim(a, b, m):
+        smap = structural_similarity(
+            tone_map(a), tone_map(b), data_range=1.0, channel_axis=-1, gaussian_weights=True, sigma=1.5,
+            use_sample_covariance=False, full=True,
+        )[1]  # fmt: skip
+        return float(np.mean(smap[m]))
+
+    rng = np.random.default_rng(11)
+    for h, w in ((11, 11), (23, 37)):
+        ref = rng.gamma(1.0, 2.0, (h, w, 3))
+        ap = ref * (1 + 0.3 * rng.standard_normal(ref.shape)) - 0.05  # partly negative
+        s = 0.05 * ref
+        mask = rng.random((h, w)) > 0.3
+        m = compute_metrics(ap, ref, s, mask=mask, names=("ssim",), seed=4)["ssim"]
+        g = noise_rng(4, "ssim")
+        floor = float(np.mean([ssim(ref + s * g.standard_normal(ref.shape), ref, mask) for _ in range(4)]))
+        assert m.value == ssim(ref, ap, mask)
+        assert m.noise_floor == floor
