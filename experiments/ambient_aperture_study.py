@@ -492,7 +492,7 @@ def study(ctx: StudyContext) -> Study:
         ),
         Check.holds("fitted form stays within [0, smaller cap] on the grid", fe["in_bounds"]),
         Check.below(
-            "fitted form beats the smoothstep: max error, full domain", fe["full"]["max"], seed_max, ".4g"
+            "fitted form beats the smoothstep: max error, full domain", fe["full"]["max"], seed_max, fmt=".4g"
         ),
         Check.holds("intersection fit converged", fit_i["converged"]),
         Check.holds("Lambert-weight fit converged", fit_l["converged"]),

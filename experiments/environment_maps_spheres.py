@@ -530,7 +530,7 @@ def path_checks(cfg, pt: dict) -> list[Check]:
         thr = max(sidak_threshold(c["glass_z_pixels"]), 3.0)
         name = f"path-traced glass sphere ({sid}) = exact-Fresnel path series within its exact noise "
         name += f"(max |z| over {c['glass_z_pixels']} pixels off texel edges)"
-        out.append(Check.at_most(name, c["glass_max_z"], thr, ".2f"))
+        out.append(Check.at_most(name, c["glass_max_z"], thr, fmt=".2f"))
         name = f"white furnace: glass sphere ({sid}) in a uniform room (max |L − 1|)"
         out.append(Check.at_most(name, c["furnace_max"], "1e-5"))
         name = f"total internal reflection events inside the sphere ({sid}; impossible for rays entering "

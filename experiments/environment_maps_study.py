@@ -342,7 +342,7 @@ def reference_checks(ctx: StudyContext, cfg) -> list[Check]:
     name = (
         f"MC irradiance of piecewise-constant walls vs Lambert's polygon formula ({len(z)} points): max |z|"
     )
-    out.append(Check.below(name, float(z.max()), thr, ".2f", note="(Šidák, α = 0.01)"))
+    out.append(Check.below(name, float(z.max()), thr, fmt=".2f", note="(Šidák, α = 0.01)"))
     d = fibonacci_sphere(4096)
     o = np.broadcast_to(room.REF_POINT, d.shape)
     t, _ = room.trace_room(o, d, ctx.variant)

@@ -243,7 +243,7 @@ def furnace_checks(ctx: StudyContext, room: Scene, grid: ProbeGrid) -> list[Chec
             f"forms within noise ({r.spp} directions × 3 probes)",
             float(z.max()),
             zmax,
-            ".2f",
+            fmt=".2f",
             quantity="max |z|",
             note=f"(Šidák, α = 0.01, n = {int(noisy.sum())})",
         ),
@@ -277,7 +277,7 @@ def estimator_checks(ctx: StudyContext, room: Scene, grid: ProbeGrid) -> list[Ch
             f"probe projection (uniform sphere) = surface estimator (cosine paths), {what}",
             float(np.abs(zz).max()),
             zlim,
-            ".2f",
+            fmt=".2f",
             quantity="max |z|",
             note=f"(Šidák, α = 0.01, n = {zz.size})",
         ),
@@ -349,7 +349,7 @@ def self_checks(ctx: StudyContext, room: Scene) -> list[Check]:
             f"bounced reference resolved (mean relative standard error over the pixels, {spp} spp)",
             se,
             tol,
-            ".3g",
+            fmt=".3g",
             note=f"({RESOLVED_TOL:g} at {RESOLVED_SPP} spp, × √({RESOLVED_SPP}/spp) below)",
         )
     )
@@ -385,7 +385,7 @@ def study(ctx: StudyContext) -> Study:
                         f"a cell boundary (±{BOUNDARY_EPS:g} m)",
                         pops[mid],
                         CONTINUITY_TOL,
-                        "g",
+                        fmt="g",
                     )
                 )
     for mid, m in METHODS.items():

@@ -289,7 +289,7 @@ def _checks(cases: list[SceneCases], sweeps: dict, rays) -> list[Check]:
             "K-ray estimator unbiased for the model: |mean difference|/its stderr, every scene and K",
             v,
             thr,
-            ".2f",
+            fmt=".2f",
         )
     )
     bad = [n for n, s in sweeps.items() if s["per_k"][max(rays)]["rmse"] >= s["per_k"][min(rays)]["rmse"]]

@@ -352,7 +352,7 @@ def reference_checks(audits, table: list[dict]) -> list[Check]:
                 "height field (RMS, fraction of the range) within the fine-vs-half mesh RMS + 1e-5",
                 rms,
                 bound,
-                ".3g",
+                fmt=".3g",
             )
         )
         if case.id in stable:
@@ -363,7 +363,7 @@ def reference_checks(audits, table: list[dict]) -> list[Check]:
                     "half-resolution mesh) over the stable march's RMSE (n 8…40)",
                     ratio,
                     MESH_MARGIN,
-                    "g",
+                    fmt="g",
                 )
             )
     return checks

@@ -10,7 +10,7 @@ import operator
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, TypedDict, Unpack
 
 from .record_base import JSON, DateTime, Record, RelPath
 
@@ -19,6 +19,7 @@ __all__ = [
     "SCHEMA",
     "Approximation",
     "Bound",
+    "BoundText",
     "Case",
     "Check",
     "Config",
@@ -296,20 +297,22 @@ def bound_text(bound: Bound, fmt: str = "") -> tuple[str, float]:
     return format(bound, fmt), float(bound)
 
 
+class BoundText(TypedDict, total=False):
+    """How a relation's ``expected`` text is written around its bound (`Check.compare`): ``fmt``, the
+    format of a number bound (`Bound`); ``quantity``, the text before the relation (``"max |z|"`` gives
+    ``max |z| ≤ 4``); ``note``, the text after the bound (``"relative"`` gives ``≤ 1e-6 relative``)."""
+
+    fmt: str
+    quantity: str
+    note: str
+
+
 def _relation_constructor(relation: Relation, doc: str):
     """A constructor of `Check` for one `Relation` (``Check.at_most`` is ``≤``): ``(name, value, bound,
-    fmt="", quantity="", note="")`` → `Check.compare` with that relation; ``doc`` its docstring."""
+    **text)`` → `Check.compare` with that relation; ``doc`` its docstring."""
 
-    def make(
-        cls: type[Check],
-        name: str,
-        value: float,
-        bound: Bound,
-        fmt: str = "",
-        quantity: str = "",
-        note: str = "",
-    ) -> Check:
-        return cls.compare(name, value, relation, bound, fmt, quantity, note)
+    def make(cls: type[Check], name: str, value: float, bound: Bound, **text: Unpack[BoundText]) -> Check:
+        return cls.compare(name, value, relation, bound, **text)
 
     make.__doc__ = f"Passed when {doc} (`Check.compare`)."
     return classmethod(make)
@@ -331,23 +334,15 @@ class Check(Record):
 
     @classmethod
     def compare(
-        cls,
-        name: str,
-        value: float,
-        relation: Relation,
-        bound: Bound,
-        fmt: str = "",
-        quantity: str = "",
-        note: str = "",
+        cls, name: str, value: float, relation: Relation, bound: Bound, **text: Unpack[BoundText]
     ) -> Check:
-        """Passed when ``value relation bound`` holds; expected ``[quantity ]relation bound[ note]``: the
-        optional ``quantity`` stands before the relation (``"max |z|"`` gives ``max |z| ≤ 4``), ``note`` after
-        the bound (``"relative"`` gives ``≤ 1e-6 relative``)."""
-        text, limit = bound_text(bound, fmt)
-        expected = " ".join(part for part in (quantity, relation, text, note) if part)
-        return cls(
-            name=name, value=value, expected=expected, passed=bool(_RELATION_TESTS[relation](value, limit))
-        )
+        """Passed when ``value relation bound`` holds; expected ``[quantity ]relation bound[ note]``
+        (`BoundText`: ``fmt``, ``quantity``, ``note``, each optional)."""
+        shown, limit = bound_text(bound, text.get("fmt", ""))
+        parts = (text.get("quantity", ""), relation, shown, text.get("note", ""))
+        expected = " ".join(part for part in parts if part)
+        passed = bool(_RELATION_TESTS[relation](value, limit))
+        return cls(name=name, value=value, expected=expected, passed=passed)
 
     at_most = _relation_constructor(
         "≤", 'value ≤ bound, e.g. ``Check.at_most(name, err, "1e-6")``: ``≤ 1e-6``'
@@ -358,14 +353,14 @@ class Check(Record):
     exactly = _relation_constructor("=", "value == bound: expected ``= bound`` (`zero` writes a bare ``0``)")
 
     @classmethod
-    def magnitude_at_most(cls, name: str, value: float, symbol: str, bound: Bound, fmt: str = "") -> Check:
+    def magnitude_at_most(cls, name: str, value: float, symbol: str, bound: Bound, *, fmt: str = "") -> Check:
         """Passed when ``|value| ≤ bound``; the signed value is kept, expected ``|symbol| ≤ bound`` (e.g.
         ``Check.magnitude_at_most(n, pooled, "z", "4")`` shows ``|z| ≤ 4``)."""
         text, limit = bound_text(bound, fmt)
         return cls(name=name, value=value, expected=f"|{symbol}| ≤ {text}", passed=bool(abs(value) <= limit))
 
     @classmethod
-    def within(cls, name: str, value: float, centre: Bound, tolerance: Bound, fmt: str = "") -> Check:
+    def within(cls, name: str, value: float, centre: Bound, tolerance: Bound, *, fmt: str = "") -> Check:
         """Passed when ``|value − centre| ≤ tolerance``; expected ``centre ± tolerance`` (each a `Bound`,
         ``fmt`` for whichever is a number)."""
         (c_text, c), (t_text, t) = bound_text(centre, fmt), bound_text(tolerance, fmt)

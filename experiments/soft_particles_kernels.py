@@ -101,7 +101,7 @@ def claim_checks() -> list[Check]:
             exact,
             closed,
             "1e-12",
-            ".6f",
+            fmt=".6f",
         ),
         Check.holds(
             f"claim: 1 − (1 − α)^f ≥ α·f on f ∈ [0, 1] (concavity; the largest gap {gap:.3f} at "

@@ -110,7 +110,9 @@ def reference_checks(audits) -> tuple[list[Check], list[list[str]]]:
                     "0.2",
                 ),
                 Check.magnitude_at_most(f"{head}, pooled z", pooled, "z", "4"),
-                Check.at_most(f"{head}, largest |z|", zmax, sidak, ".2f", note="(Šidák, 1 % family-wise)"),
+                Check.at_most(
+                    f"{head}, largest |z|", zmax, sidak, fmt=".2f", note="(Šidák, 1 % family-wise)"
+                ),
                 Check.zero(
                     f"{head}: exactly the exact value where T is 0 or 1 (no chord, or saturated)", zero
                 ),

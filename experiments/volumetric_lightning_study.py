@@ -200,7 +200,7 @@ def limit_values() -> dict:
 def _worst_error_check(row: dict, versus: str, samples: str, error: str, tolerance: float) -> Check:
     """The stable form's worst relative error ``row[error]`` (against ``versus``) ≤ ``tolerance``."""
     name = f"stable form, {versus}: worst relative error, {row['inputs']} ({row[samples]} inputs)"
-    return Check.at_most(name, row[error], tolerance, "g")
+    return Check.at_most(name, row[error], tolerance, fmt="g")
 
 
 def accuracy_checks(acc: dict) -> list[Check]:

@@ -53,5 +53,5 @@ def pixel_z_checks(
             passed=bool(abs(spread - centre) <= tol),
         ),
         Check.magnitude_at_most(names[1], pooled, "z", "4"),
-        Check.at_most(names[2], largest, sidak, ".2f", note="(Šidák, 1 % family-wise)"),
+        Check.at_most(names[2], largest, sidak, fmt=".2f", note="(Šidák, 1 % family-wise)"),
     ]

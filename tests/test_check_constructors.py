@@ -54,15 +54,15 @@ def test_nan_passes_no_relation(make):
 
 
 def test_number_bound_shown_with_its_format_tested_unrounded():
-    c = Check.at_most("n", 2.004, 2.0049, ".2f")  # shown 2.00, yet 2.004 ≤ 2.0049
+    c = Check.at_most("n", 2.004, 2.0049, fmt=".2f")  # shown 2.00, yet 2.004 ≤ 2.0049
     assert (c.expected, c.passed) == ("≤ 2.00", True)
-    c = Check.below("n", 0.01, 1e-2, "g")
+    c = Check.below("n", 0.01, 1e-2, fmt="g")
     assert (c.expected, c.passed) == ("< 0.01", False)
     assert Check.at_least("n", 3, 3).expected == "≥ 3"
 
 
 def test_quantity_and_note_around_the_relation():
-    c = Check.at_most("n", 2.5, 3.0, ".2f", quantity="max |z|", note="(Šidák, α = 0.01, n = 9)")
+    c = Check.at_most("n", 2.5, 3.0, fmt=".2f", quantity="max |z|", note="(Šidák, α = 0.01, n = 9)")
     assert (c.expected, c.passed) == ("max |z| ≤ 3.00 (Šidák, α = 0.01, n = 9)", True)
     c = Check.at_least("n", 0.5, "0.99", note="of the pixels within 1e-4 relative")
     assert (c.expected, c.passed) == ("≥ 0.99 of the pixels within 1e-4 relative", False)
@@ -83,7 +83,7 @@ def test_within_a_centre():
     assert (c.expected, c.passed) == ("1 ± 0.2", abs(0.8 - 1.0) <= 0.2)
     assert Check.within("n", 0.475, "0.475", "1e-12").passed is True
     assert Check.within("n", 0.4750001, "0.475", "1e-12").passed is False
-    c = Check.within("n", 0.7763932, 0.776393202, "1e-12", ".6f")  # centre shown rounded, tested exactly
+    c = Check.within("n", 0.7763932, 0.776393202, "1e-12", fmt=".6f")  # centre shown rounded, tested exactly
     assert (c.expected, c.passed) == ("0.776393 ± 1e-12", False)
     assert Check.within("n", NAN, "1", "0.2").passed is False
 
