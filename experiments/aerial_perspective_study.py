@@ -187,15 +187,15 @@ def ladder_checks(elevation: float, lad: dict, level: float) -> list[Check]:
     finite = all(bool(np.all(np.isfinite(v))) for v in lad["images"].values())
     conv = float(np.max(lad["stderr"]) / level)
     out = [
-        Check(name=f"sun {elevation:g}°: every row finite (no NaN/Inf)", value=str(finite), expected="True",
-              passed=finite),
-        Check(name=f"sun {elevation:g}°: quadrature converged, max |Q(P) − Q(P/2)| / mean level", value=conv,
-              expected="≤ 1e-3", passed=bool(conv <= 1e-3)),
-    ]  # fmt: skip
+        Check.holds(f"sun {elevation:g}°: every row finite (no NaN/Inf)", finite),
+        Check.at_most(
+            f"sun {elevation:g}°: quadrature converged, max |Q(P) − Q(P/2)| / mean level", conv, "1e-3"
+        ),
+    ]
     if elevation <= -2.0:
         dark = float(np.max(np.abs(ref)))
         name = f"sun {elevation:g}°: the planet occludes the sun at every scattering point and surface"
-        out.append(Check(name=name, value=dark, expected="= 0", passed=bool(dark == 0.0)))
+        out.append(Check.exactly(name, dark, "0"))
     return out
 
 
@@ -248,14 +248,25 @@ def quadrature_checks(check: dict) -> list[Check]:
     )["S"]  # fmt: skip
     rel = float(np.max(np.abs(np.stack(s, -1) / ref - 1.0)))
     return [
-        Check(name="fog-only quadrature vs path-traced Mitsuba (volpathmis, rtfit_expfog, distant sun): "
-              "summed bias in units of its standard error", value=bias, expected="|z| ≤ 4",
-              passed=bool(abs(bias) <= 4)),
-        Check(name="fog-only quadrature vs Mitsuba: median |z| per direction (t with passes − 1 dof: ≈ 0.7)",
-              value=med, expected="≤ 1.2", passed=bool(med <= 1.2)),
-        Check(name="atmosphere-only quadrature (fog b = 0, sky rays to the top) vs nishita-sky's reference "
-              "quadrature, max relative difference", value=rel, expected="≤ 2e-3", passed=bool(rel <= 2e-3)),
-    ]  # fmt: skip
+        Check.magnitude_at_most(
+            "fog-only quadrature vs path-traced Mitsuba (volpathmis, rtfit_expfog, distant sun): "
+            "summed bias in units of its standard error",
+            bias,
+            "z",
+            "4",
+        ),
+        Check.at_most(
+            "fog-only quadrature vs Mitsuba: median |z| per direction (t with passes − 1 dof: ≈ 0.7)",
+            med,
+            "1.2",
+        ),
+        Check.at_most(
+            "atmosphere-only quadrature (fog b = 0, sky rays to the top) vs nishita-sky's reference "
+            "quadrature, max relative difference",
+            rel,
+            "2e-3",
+        ),
+    ]
 
 
 def extreme_checks(cfg: dict) -> list[Check]:
@@ -277,17 +288,20 @@ def extreme_checks(cfg: dict) -> list[Check]:
                 atmosphere=atm, sun=sun, fog=fog, panels=4 * cfg["panels"] if huge else 8,
             )  # fmt: skip
             ok = bool(np.all(np.isfinite(np.concatenate([np.ravel(v) for k in q for v in q[k]]))))
-            out.append(Check(name=f"{name}, sun {e:g}°, horizontal rays: finite", value=str(ok),
-                             expected="True", passed=ok))  # fmt: skip
+            out.append(Check.holds(f"{name}, sun {e:g}°, horizontal rays: finite", ok))
             if huge:
                 s, j = np.stack(q["S"])[:, :2], np.stack(q["J_cam"])[:, :2]  # the level rays: J constant
                 rel = float(np.max(np.abs(s / j - 1.0)))
-                out.append(Check(name="huge fog, level rays: in-scatter = the source function at the camera",
-                                 value=rel, expected="≤ 1e-3", passed=bool(rel <= 1e-3)))  # fmt: skip
+                out.append(
+                    Check.at_most(
+                        "huge fog, level rays: in-scatter = the source function at the camera", rel, "1e-3"
+                    )
+                )
             if e < 0:
                 mx = float(np.max(np.abs(np.stack(q["S"]))))
-                out.append(Check(name=f"{name}, sun {e:g}°: no single scattering (planet shadow)", value=mx,
-                                 expected="= 0", passed=bool(mx == 0.0)))  # fmt: skip
+                out.append(
+                    Check.exactly(f"{name}, sun {e:g}°: no single scattering (planet shadow)", mx, "0")
+                )
     return out
 
 

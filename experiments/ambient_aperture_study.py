@@ -411,18 +411,8 @@ def unoccluded_checks(ctx: StudyContext, n: int, spp: int, pass_spp: int) -> tup
     spread, med = robust_spread(z), float(np.median(z))
     name = "reference vs closed-form sphere-light irradiance, hole scene's occluders removed"
     return [
-        Check(
-            name=f"{name}: z-score robust spread",
-            value=spread,
-            expected=f"1 ± {Z_SPREAD_TOLERANCE}",
-            passed=bool(abs(spread - 1) <= Z_SPREAD_TOLERANCE),
-        ),
-        Check(
-            name=f"{name}: z-score median",
-            value=med,
-            expected=f"|median| ≤ {Z_MEDIAN_TOLERANCE}",
-            passed=bool(abs(med) <= Z_MEDIAN_TOLERANCE),
-        ),
+        Check.within(f"{name}: z-score robust spread", spread, "1", Z_SPREAD_TOLERANCE),
+        Check.magnitude_at_most(f"{name}: z-score median", med, "median", Z_MEDIAN_TOLERANCE),
     ], {"probes": len(p), "spp": spp, "z_spread": spread, "z_median": med}
 
 
@@ -484,62 +474,35 @@ def study(ctx: StudyContext) -> Study:
     )
     fe, seed_max = fl["errors"][FITTED_OMEGA.id], fl["errors"][SEED_OMEGA.id]["full"]["max"]
     checks = (
-        Check(
-            name="closed form vs independent quadrature over the grid (max |ΔΩ| / smaller cap)",
-            value=fl["quad_dev"],
-            expected="≤ 1e-4",
-            passed=fl["quad_dev"] <= 1e-4,
+        Check.at_most(
+            "closed form vs independent quadrature over the grid (max |ΔΩ| / smaller cap)",
+            fl["quad_dev"],
+            "1e-4",
         ),
-        Check(
-            name="closed form vs adaptive quadrature (SciPy, float64) at 5 points incl. near-tangent tiny "
+        Check.at_most(
+            "closed form vs adaptive quadrature (SciPy, float64) at 5 points incl. near-tangent tiny "
             "caps (max |ΔΩ| / smaller cap)",
-            value=hard,
-            expected="≤ 1e-10",
-            passed=hard <= 1e-10,
+            hard,
+            "1e-10",
         ),
-        Check(
-            name="closed form on nested / disjoint / covering grid points vs their closed values",
-            value=fl["closed_dev"],
-            expected="≤ 1e-12",
-            passed=fl["closed_dev"] <= 1e-12,
+        Check.at_most(
+            "closed form on nested / disjoint / covering grid points vs their closed values",
+            fl["closed_dev"],
+            "1e-12",
         ),
-        Check(
-            name="fitted form stays within [0, smaller cap] on the grid",
-            value=str(fe["in_bounds"]),
-            expected="True",
-            passed=fe["in_bounds"],
+        Check.holds("fitted form stays within [0, smaller cap] on the grid", fe["in_bounds"]),
+        Check.below(
+            "fitted form beats the smoothstep: max error, full domain", fe["full"]["max"], seed_max, fmt=".4g"
         ),
-        Check(
-            name="fitted form beats the smoothstep: max error, full domain",
-            value=fe["full"]["max"],
-            expected=f"< {seed_max:.4g}",
-            passed=fe["full"]["max"] < seed_max,
-        ),
-        Check(
-            name="intersection fit converged",
-            value=str(fit_i["converged"]),
-            expected="True",
-            passed=bool(fit_i["converged"]),
-        ),
-        Check(
-            name="Lambert-weight fit converged",
-            value=str(fit_l["converged"]),
-            expected="True",
-            passed=bool(fit_l["converged"]),
-        ),
-        Check(
-            name="Lambert-factor quadrature: change with doubled nodes (max, fraction of the light cap)",
-            value=fit_l["quad_resolution"],
-            expected="≤ 0.01",
-            passed=fit_l["quad_resolution"] <= 0.01,
+        Check.holds("intersection fit converged", fit_i["converged"]),
+        Check.holds("Lambert-weight fit converged", fit_l["converged"]),
+        Check.at_most(
+            "Lambert-factor quadrature: change with doubled nodes (max, fraction of the light cap)",
+            fit_l["quad_resolution"],
+            "0.01",
         ),
         *unocc,
-        Check(
-            name="every row of every case and the cap model finite (no NaN/Inf)",
-            value=str(finite),
-            expected="True",
-            passed=finite,
-        ),
+        Check.holds("every row of every case and the cap model finite (no NaN/Inf)", finite),
     )
     coeffs = [fitted[p] for p in FITTED_OMEGA.params]
     return Study(

@@ -530,14 +530,14 @@ def path_checks(cfg, pt: dict) -> list[Check]:
         thr = max(sidak_threshold(c["glass_z_pixels"]), 3.0)
         name = f"path-traced glass sphere ({sid}) = exact-Fresnel path series within its exact noise "
         name += f"(max |z| over {c['glass_z_pixels']} pixels off texel edges)"
-        out.append(_check(name, c["glass_max_z"], f"≤ {thr:.2f}", c["glass_max_z"] <= thr))
+        out.append(Check.at_most(name, c["glass_max_z"], thr, fmt=".2f"))
         name = f"white furnace: glass sphere ({sid}) in a uniform room (max |L − 1|)"
-        out.append(_check(name, c["furnace_max"], "≤ 1e-5", c["furnace_max"] <= 1e-5))
+        out.append(Check.at_most(name, c["furnace_max"], "1e-5"))
         name = f"total internal reflection events inside the sphere ({sid}; impossible for rays entering "
         name += "a sphere)"
-        out.append(_check(name, c["tir_events"], "0", c["tir_events"] == 0))
+        out.append(Check.zero(name, c["tir_events"]))
     bad = sum(not c["finite"] for c in pt["curves"])
-    out.append(_check("every path-traced comparison value finite", bad, "0", bad == 0))
+    out.append(Check.zero("every path-traced comparison value finite", bad))
     nmax, kmax = max(cfg["impostor_resolutions"]), max(cfg["iterations"])
     for sid in cfg["path_spheres"]:
         sel = {
@@ -554,7 +554,7 @@ def impostor_checks(cfg, imp: dict) -> list[Check]:
     hit error."""
     cur = imp["curves"]
     bad = sum(not c["finite"] for c in cur)
-    out = [_check("every impostor hit point and radiance finite", bad, "0", bad == 0)]
+    out = [Check.zero("every impostor hit point and radiance finite", bad)]
     nmax, kmax = max(cfg["impostor_resolutions"]), max(cfg["iterations"])
     for sid in SPHERES:
         for kind in ("mirror", "glass"):
@@ -565,4 +565,4 @@ def impostor_checks(cfg, imp: dict) -> list[Check]:
     sel = {c["row"]: c for c in cur if (c["sphere"], c["kind"], c["N"]) == ("moved", "mirror", nmax)}
     e = sel[f"iterative-{kmax}"]["hit_error_mean_m"]
     name = f"moved mirror sphere, N = {nmax}, {kmax} iterations: mean hit error (m)"
-    return [*out, _check(name, e, "< 0.05", e < 0.05)]
+    return [*out, Check.below(name, e, "0.05")]

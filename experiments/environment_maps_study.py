@@ -342,7 +342,7 @@ def reference_checks(ctx: StudyContext, cfg) -> list[Check]:
     name = (
         f"MC irradiance of piecewise-constant walls vs Lambert's polygon formula ({len(z)} points): max |z|"
     )
-    out.append(_check(name, float(z.max()), f"< {thr:.2f} (Šidák, α = 0.01)", z.max() < thr))
+    out.append(Check.below(name, float(z.max()), thr, fmt=".2f", note="(Šidák, α = 0.01)"))
     d = fibonacci_sphere(4096)
     o = np.broadcast_to(room.REF_POINT, d.shape)
     t, _ = room.trace_room(o, d, ctx.variant)
@@ -357,7 +357,7 @@ def room_checks(cfg, part: dict) -> list[Check]:
     n0, nmax = cfg["cube_resolutions"][0], cfg["cube_resolutions"][-1]
     val, ref = part["values"], {k: v[0] for k, v in part["refs"].items()}
     bad = [k for k, v in val.items() if not np.all(np.isfinite(v))]
-    out = [_check("every room approximation finite", len(bad), "0", not bad)]
+    out = [Check.zero("every room approximation finite", len(bad))]
     for lobe in ("irradiance", "glossy"):
         ratio = float(np.mean(val[(lobe, "centre", f"localised-seed-N{n0}")] / ref[(lobe, "centre")]))
         name = f"seed's localised {lobe} over-weights the room seen from its centre (N = {n0})"
@@ -366,7 +366,7 @@ def room_checks(cfg, part: dict) -> list[Check]:
         np.mean(val[("irradiance", "near-wall", f"localised-cap-N{nmax}")] / ref[("irradiance", "near-wall")])
     )
     name = f"0.25 m from a wall the localised form over-weights (N = {nmax}; the seed's own warning, 001:318)"
-    out.append(_check(name, ratio, "mean E/E_ref > 1.1 (confirmed)", ratio > 1.1))
+    out.append(Check.above(name, ratio, "1.1", quantity="mean E/E_ref", note="(confirmed)"))
     for pid in ("off-centre", "corner"):
         r = ref[("irradiance", pid)]
         e_cap = np.sqrt(np.mean((val[("irradiance", pid, f"localised-cap-N{nmax}")] / r - 1) ** 2))

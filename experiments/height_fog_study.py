@@ -172,19 +172,13 @@ def optical_depth_checks(forms: dict) -> list[Check]:
     ex = forms["per_form"][EXACT_FORM]
     samples = forms["table"][0]["samples"]
     checks = [
-        Check(
-            name="stable closed form, float32: worst relative error / (2e-6 + 2·2⁻²⁴·|c·z_min|) over "
+        Check.at_most(
+            "stable closed form, float32: worst relative error / (2e-6 + 2·2⁻²⁴·|c·z_min|) over "
             f"{samples} random inputs",
-            value=ex["bound_ratio"],
-            expected="≤ 1",
-            passed=bool(ex["bound_ratio"] <= 1.0),
+            ex["bound_ratio"],
+            "1",
         ),
-        Check(
-            name="stable closed form: non-finite outputs where τ is finite",
-            value=ex["non_finite"],
-            expected="0",
-            passed=ex["non_finite"] == 0,
-        ),
+        Check.zero("stable closed form: non-finite outputs where τ is finite", ex["non_finite"]),
     ]
     for label, (v, tv) in ex["specials"].items():
         good = (
@@ -202,14 +196,7 @@ def optical_depth_checks(forms: dict) -> list[Check]:
         )
     zero, far = np.zeros(1, np.float32), np.full(1, 1e6, np.float32)
     t_under = float(np.asarray(height_fog_transmittance(zero, zero, far, 1.0, 0.0))[0])
-    checks.append(
-        Check(
-            name="transmittance underflow (b·D = 1e6) is exactly 0",
-            value=t_under,
-            expected="0",
-            passed=t_under == 0.0,
-        )
-    )
+    checks.append(Check.zero("transmittance underflow (b·D = 1e6) is exactly 0", t_under))
     return checks
 
 
@@ -475,12 +462,7 @@ def reference_checks(ctx: StudyContext) -> list[Check]:
 def fit_checks(ctx: StudyContext) -> list[Check]:
     """Every fit of every shipped scene converged."""
     return [
-        Check(
-            name=f"fit {o.row} ({case_id}) converged",
-            value=str(o.fit.get("converged")),
-            expected="True",
-            passed=bool(o.fit.get("converged")),
-        )
+        Check.holds(f"fit {o.row} ({case_id}) converged", o.fit.get("converged"))
         for r in ctx.audits
         for case_id, rows in r.outcomes.items()
         for o in rows.values()

@@ -227,12 +227,12 @@ def sunsky_bake_checks(ctx: StudyContext, baked: dict) -> list[Check]:
         bias_se = (np.sqrt(np.sum(ose**2, axis=0)) / len(own) / own.mean(axis=0))[keep]
         k = int(np.argmax(np.abs(bias)))
         out.append(
-            Check(
-                name=f"{s.name}: baked sky + disc sun vs Mitsuba's own sunsky: relative bias of the mean "
+            Check.magnitude_at_most(
+                f"{s.name}: baked sky + disc sun vs Mitsuba's own sunsky: relative bias of the mean "
                 f"irradiance over the visible normals, worst channel (± {bias_se[k]:.2g} statistical)",
-                value=float(bias[k]),
-                expected=f"|bias| ≤ {SUNSKY_BAKE_TOLERANCE}",
-                passed=abs(float(bias[k])) <= SUNSKY_BAKE_TOLERANCE,
+                float(bias[k]),
+                "bias",
+                SUNSKY_BAKE_TOLERANCE,
             )
         )
     return out
@@ -303,33 +303,27 @@ def order_checks(res: dict) -> list[Check]:
         )
     diff = max(abs(_v(res, n, "sh-l3") - _v(res, n, "sh-l2")) for n in names)
     checks.append(
-        Check(
-            name="SH L3 irradiance equals L2 (Â_3 = 0: odd bands above 1 vanish): max |Δ rel. RMSE|",
-            value=diff,
-            expected="≤ 1e-12",
-            passed=diff <= 1e-12,
+        Check.at_most(
+            "SH L3 irradiance equals L2 (Â_3 = 0: odd bands above 1 vanish): max |Δ rel. RMSE|", diff, "1e-12"
         )
     )
     lam_rows = [r.method for r in ROWS if "lam" in r.fitted_keys]
     neg = max(_v(res, n, m, "neg_frac") for n in names for m in lam_rows)
     checks.append(
-        Check(
-            name=f"fitted λ window leaves no negative irradiance ({', '.join(lam_rows)}; max over "
+        Check.zero(
+            f"fitted λ window leaves no negative irradiance ({', '.join(lam_rows)}; max over "
             "environments, sphere of normals)",
-            value=neg,
-            expected="0",
-            passed=neg == 0.0,
+            neg,
         )
     )
     if "constant" in res:
         for method in ("ambient-dice", *(f"sg{n}-ambient" for n in SG_COUNTS)):
             gap = abs(_v(res, "constant", method) - _v(res, "constant", "quadrature"))
             checks.append(
-                Check(
-                    name=f"{method} reproduces a constant environment (rel. RMSE equal to the exact row's)",
-                    value=gap,
-                    expected="≤ 1e-9",
-                    passed=gap <= 1e-9,
+                Check.at_most(
+                    f"{method} reproduces a constant environment (rel. RMSE equal to the exact row's)",
+                    gap,
+                    "1e-9",
                 )
             )
     return checks
@@ -340,13 +334,12 @@ def sg_check() -> Check:
     lams = sorted({*SG_ERROR_LAMBDAS, *(sg_sharpness(n) for n in SG_COUNTS)})
     err = sg_cosine_error(lams, np.linspace(-1.0, 1.0, 41))
     worst = int(np.argmax(err["max_rel"]))
-    return Check(
-        name="SG ⊗ clamped cosine: Hill's shape with exact end values vs quadrature, max |S̃ − S|/S(λ, 1) "
+    return Check.at_most(
+        "SG ⊗ clamped cosine: Hill's shape with exact end values vs quadrature, max |S̃ − S|/S(λ, 1) "
         f"over λ ∈ {{{', '.join(f'{v:.3g}' for v in lams)}}} × 41 cosines "
         f"(worst λ = {err['lam'][worst]:.3g})",
-        value=float(err["max_rel"][worst]),
-        expected=f"≤ {SG_ERROR_BOUND}",
-        passed=bool(err["max_rel"][worst] <= SG_ERROR_BOUND),
+        float(err["max_rel"][worst]),
+        SG_ERROR_BOUND,
     )
 
 
@@ -381,12 +374,12 @@ def published_checks(quick: bool) -> list[Check]:
     diff = float(np.max(np.abs(coeffs - probe_maps.RH2001_GRACE_L2)))
     tol = probe_maps.RH2001_TOLERANCE
     return [
-        Check(
-            name="probe-grace: L2 radiance coefficients vs Ramamoorthi & Hanrahan 2001's table (their frame "
+        Check.at_most(
+            "probe-grace: L2 radiance coefficients vs Ramamoorthi & Hanrahan 2001's table (their frame "
             f"(x, y, z) = (w_y, w_z, −w_x), one fitted exposure ×{scale:.4g}): max |ΔL_lm| over 9 × RGB",
-            value=diff,
-            expected=f"≤ {tol} (the table's 2-decimal rounding 0.005 + 0.005)",
-            passed=diff <= tol,
+            diff,
+            tol,
+            note="(the table's 2-decimal rounding 0.005 + 0.005)",
         )
     ]
 

@@ -238,19 +238,21 @@ def furnace_checks(ctx: StudyContext, room: Scene, grid: ProbeGrid) -> list[Chec
     tables = {b: probe_table(c) for b, c in const.items()}
     worst = max(float(np.max(np.abs(v / math.pi - 1.0))) for v in _lookups(grid, tables, p, n).values())
     return [
-        Check(
+        Check.at_most(
             f"white furnace: probe projections (SH, irradiance at {r.mean.shape[1] - 9} normals) = closed "
             f"forms within noise ({r.spp} directions × 3 probes)",
             float(z.max()),
-            f"max |z| ≤ {zmax:.2f} (Šidák, α = 0.01, n = {int(noisy.sum())})",
-            bool(z.max() <= zmax),
+            zmax,
+            fmt=".2f",
+            quantity="max |z|",
+            note=f"(Šidák, α = 0.01, n = {int(noisy.sum())})",
         ),
-        Check("white furnace: the noiseless SH DC projection is exact", dc, "≤ 1e-6 relative", dc <= 1e-6),
-        Check(
+        Check.at_most("white furnace: the noiseless SH DC projection is exact", dc, "1e-6", note="relative"),
+        Check.at_most(
             "constant environment: every lookup × basis of identical exact probes returns π (float32)",
             worst,
-            "≤ 2e-6 relative",
-            worst <= 2e-6,
+            "2e-6",
+            note="relative",
         ),
     ]
 
@@ -271,11 +273,13 @@ def estimator_checks(ctx: StudyContext, room: Scene, grid: ProbeGrid) -> list[Ch
     zlim, spread = sidak_threshold(zz.size), robust_spread(zz)
     what = f"{grid.count} nodes × 6 axes, {probe_spp} directions / {surface_spp} paths"
     return [
-        Check(
+        Check.at_most(
             f"probe projection (uniform sphere) = surface estimator (cosine paths), {what}",
             float(np.abs(zz).max()),
-            f"max |z| ≤ {zlim:.2f} (Šidák, α = 0.01, n = {zz.size})",
-            bool(np.abs(zz).max() <= zlim),
+            zlim,
+            fmt=".2f",
+            quantity="max |z|",
+            note=f"(Šidák, α = 0.01, n = {zz.size})",
         ),
         Check(
             "  … and the z-scores have unit spread",
@@ -320,32 +324,33 @@ def self_checks(ctx: StudyContext, room: Scene) -> list[Check]:
     if agree:
         share = float(np.mean(np.concatenate(agree)))
         checks.append(
-            Check(
+            Check.at_least(
                 "direct light of the direct-… rows = I·max(n·d, 0)/r² × analytic occluder shadow "
                 "(pixels off shadow edges)",
                 share,
-                "≥ 0.99 of the pixels within 1e-4 relative",
-                share >= 0.99,
+                "0.99",
+                note="of the pixels within 1e-4 relative",
             )
         )
     checks.append(
-        Check(
+        Check.at_most(
             "nearest and trilinear lookups at the nodes return the node's own probe",
             worst,
-            "≤ 1e-5 relative (the same float32 basis text: only the lookup's node and weights differ)",
-            worst <= 1e-5,
+            "1e-5",
+            note="relative (the same float32 basis text: only the lookup's node and weights differ)",
         )
     )
-    checks.append(Check("every row's image is finite", str(finite), "True", finite))
+    checks.append(Check.holds("every row's image is finite", finite))
     spp = min(spp_)
     tol = RESOLVED_TOL * math.sqrt(max(RESOLVED_SPP / spp, 1.0))
     se = max(rel_se)
     checks.append(
-        Check(
+        Check.at_most(
             f"bounced reference resolved (mean relative standard error over the pixels, {spp} spp)",
             se,
-            f"≤ {tol:.3g} ({RESOLVED_TOL:g} at {RESOLVED_SPP} spp, × √({RESOLVED_SPP}/spp) below)",
-            se <= tol,
+            tol,
+            fmt=".3g",
+            note=f"({RESOLVED_TOL:g} at {RESOLVED_SPP} spp, × √({RESOLVED_SPP}/spp) below)",
         )
     )
     return checks
@@ -375,12 +380,12 @@ def study(ctx: StudyContext) -> Study:
             )
             if m.fixed["lookup"].startswith("trilinear"):
                 checks.append(
-                    Check(
+                    Check.below(
                         f"trilinear lookup continuous at h = {grid.spacing:g} m ({mid}): largest step at "
                         f"a cell boundary (±{BOUNDARY_EPS:g} m)",
                         pops[mid],
-                        f"< {CONTINUITY_TOL:g}",
-                        pops[mid] < CONTINUITY_TOL,
+                        CONTINUITY_TOL,
+                        fmt="g",
                     )
                 )
     for mid, m in METHODS.items():

@@ -152,12 +152,7 @@ def dark_check(items) -> Check:
         count += int(dark.sum())
         if dark.any():
             worst = max(worst, float(np.max(np.abs(c.reference.mean[c.mask][dark]))))
-    return Check(
-        name=f"reference is exactly 0 where the ray misses the cutoff cone ({count} pixels)",
-        value=worst,
-        expected="0",
-        passed=worst == 0.0,
-    )
+    return Check.zero(f"reference is exactly 0 where the ray misses the cutoff cone ({count} pixels)", worst)
 
 
 # ------------------------------------------------------------------------------------ extremes
@@ -253,11 +248,9 @@ def extreme_table(samples: int) -> dict:
 
 def extreme_checks(ext: dict) -> list[Check]:
     checks = [
-        Check(
-            name=f"{r['method']} float32, {r['inputs']}: non-finite outputs ({r['samples']} inputs)",
-            value=r["non_finite"],
-            expected="0",
-            passed=r["non_finite"] == 0,
+        Check.zero(
+            f"{r['method']} float32, {r['inputs']}: non-finite outputs ({r['samples']} inputs)",
+            r["non_finite"],
         )
         for r in ext["kernels"]
     ]
@@ -271,12 +264,7 @@ def extreme_checks(ext: dict) -> list[Check]:
         )
     )
     checks.append(
-        Check(
-            name="quadrature, dense medium σ_t = 2 /m: finite and non-negative",
-            value=str(dense["finite"]),
-            expected="True",
-            passed=bool(dense["finite"]),
-        )
+        Check.holds("quadrature, dense medium σ_t = 2 /m: finite and non-negative", dense["finite"])
     )
     return checks
 

@@ -402,12 +402,11 @@ def spectral_part(ctx, cfg, sks, backend) -> dict | None:
     )
     checks += [
         c,
-        Check(
-            name="solar spectrum: reference (re-derived) vs the real-time spectral variant's, max "
+        Check.below(
+            "solar spectrum: reference (re-derived) vs the real-time spectral variant's, max "
             "relative difference",
-            value=dev,
-            expected="< 1e-12",
-            passed=bool(dev < 1e-12),
+            dev,
+            "1e-12",
         ),
     ]
     return {"rows": rows, "checks": checks, "white_balance": wb, "robust_z_spread": spread, "size": (SW, SH)}
@@ -551,9 +550,8 @@ def study(ctx: StudyContext) -> Study:
         *alt["checks"],
         *(spectral["checks"] if spectral else []),
         spread_check,
-        Check(name="all approximation images finite and non-negative", value=str(finite), expected="True",
-              passed=bool(finite)),
-    ]  # fmt: skip
+        Check.holds("all approximation images finite and non-negative", finite),
+    ]
     parts = dict(main=main, alt=alt, spectral=spectral, sweep=sweep, costs=costs, bench=bench, spread=spread)
     bound = [
         f"{s.elev:g}° ({', '.join(k for k, p in s.fit['parameters'].items() if p['at_bound'])})"

@@ -276,7 +276,7 @@ def _values(fit: dict) -> dict[str, float]:
 # ================================================================================================ checks
 def _no_scene_fails(claim: str, failing: list) -> Check:
     """The check that ``claim`` holds in every scene: its value, the number of ``failing`` scenes."""
-    return Check(name=f"{claim} (scenes failing)", value=len(failing), expected="0", passed=not failing)
+    return Check.zero(f"{claim} (scenes failing)", len(failing))
 
 
 def _checks(cases: list[SceneCases], sweeps: dict, rays) -> list[Check]:
@@ -285,11 +285,11 @@ def _checks(cases: list[SceneCases], sweeps: dict, rays) -> list[Check]:
     thr = max(4.0, sidak_threshold(len(zs)))
     v = float(np.max(np.abs(zs)))
     checks.append(
-        Check(
-            name="K-ray estimator unbiased for the model: |mean difference|/its stderr, every scene and K",
-            value=v,
-            expected=f"≤ {thr:.2f}",
-            passed=v <= thr,
+        Check.at_most(
+            "K-ray estimator unbiased for the model: |mean difference|/its stderr, every scene and K",
+            v,
+            thr,
+            fmt=".2f",
         )
     )
     bad = [n for n, s in sweeps.items() if s["per_k"][max(rays)]["rmse"] >= s["per_k"][min(rays)]["rmse"]]
@@ -307,25 +307,14 @@ def _checks(cases: list[SceneCases], sweeps: dict, rays) -> list[Check]:
         wp = _eval("power", d, {"d_max": sc.radius, "exponent": SEED_EXPONENT, "scale": 1.0})
         worst_order = max(worst_order, float(np.max(_eval("ao", d, {"d_max": sc.radius}) - wp)))
     checks += [
-        Check(
-            name="estimator at d_max = 1e30 equals the escaping fraction (every scene; a miss at 1e30 "
+        Check.at_most(
+            "estimator at d_max = 1e30 equals the escaping fraction (every scene; a miss at 1e30 "
             "gives ρ = 1)",
-            value=worst_far,
-            expected="≤ 1e-12",
-            passed=worst_far <= 1e-12,
+            worst_far,
+            "1e-12",
         ),
-        Check(
-            name="estimator at d_max = 1e-30 is 1 (every scene)",
-            value=worst_zero,
-            expected="= 0",
-            passed=worst_zero == 0.0,
-        ),
-        Check(
-            name="W_power(R) ≥ AO within R on every point (max AO − W)",
-            value=worst_order,
-            expected="≤ 1e-6",
-            passed=worst_order <= 1e-6,
-        ),
+        Check.exactly("estimator at d_max = 1e-30 is 1 (every scene)", worst_zero, "0"),
+        Check.at_most("W_power(R) ≥ AO within R on every point (max AO − W)", worst_order, "1e-6"),
     ]
     bad = [
         sc.name
@@ -335,11 +324,8 @@ def _checks(cases: list[SceneCases], sweeps: dict, rays) -> list[Check]:
         > sc.ambient_rows["seed"].metrics["rmse"].value
     ]
     checks.append(
-        Check(
-            name="fitted power obscurance no worse than the seed's (uniform ambient, scenes failing)",
-            value=len(bad),
-            expected="0",
-            passed=not bad,
+        Check.zero(
+            "fitted power obscurance no worse than the seed's (uniform ambient, scenes failing)", len(bad)
         )
     )
     return checks

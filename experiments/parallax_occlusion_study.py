@@ -347,23 +347,23 @@ def reference_checks(audits, table: list[dict]) -> list[Check]:
         rms = float(np.sqrt(np.mean((got - case.reference.mean[case.mask][:, 0]) ** 2)))
         bound = par["mesh_rms"] + 1e-5
         checks.append(
-            Check(
-                name=f"{scene}: the displaced mesh's hits vs a float64 root finder on the bilinear "
+            Check.at_most(
+                f"{scene}: the displaced mesh's hits vs a float64 root finder on the bilinear "
                 "height field (RMS, fraction of the range) within the fine-vs-half mesh RMS + 1e-5",
-                value=rms,
-                expected=f"≤ {bound:.3g}",
-                passed=bool(rms <= bound),
+                rms,
+                bound,
+                fmt=".3g",
             )
         )
         if case.id in stable:
             ratio = par["mesh_rms"] / 3.0 / stable[case.id]
             checks.append(
-                Check(
-                    name=f"{scene}: the fine mesh's own error (⅓ of its RMS difference to the "
+                Check.at_most(
+                    f"{scene}: the fine mesh's own error (⅓ of its RMS difference to the "
                     "half-resolution mesh) over the stable march's RMSE (n 8…40)",
-                    value=ratio,
-                    expected=f"≤ {MESH_MARGIN:g}",
-                    passed=bool(ratio <= MESH_MARGIN),
+                    ratio,
+                    MESH_MARGIN,
+                    fmt="g",
                 )
             )
     return checks

@@ -6,10 +6,11 @@ schema's description); checks across fields that types cannot say are a record's
 
 from __future__ import annotations
 
+import operator
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, TypedDict, Unpack
 
 from .record_base import JSON, DateTime, Record, RelPath
 
@@ -17,6 +18,8 @@ __all__ = [
     "NON_NEGATIVE_METRICS",
     "SCHEMA",
     "Approximation",
+    "Bound",
+    "BoundText",
     "Case",
     "Check",
     "Config",
@@ -30,10 +33,12 @@ __all__ = [
     "PrecomputeShare",
     "PrecomputeTrigger",
     "Reference",
+    "Relation",
     "Results",
     "Scene",
     "Section",
     "amortised_ns",
+    "bound_text",
 ]
 
 SCHEMA = "rtfit.results/1"
@@ -272,14 +277,105 @@ class Cost(Record, PrecomputeShare):
         return self.label or self.method
 
 
+Bound = str | float
+"""A check's bound, given once: a string is shown as written and read by ``float()`` for the test (``"1e-6"``
+shows ``1e-6`` and tests against 1e-6); a number is tested as it is and shown by ``format(bound, fmt)`` (the
+``fmt`` of the constructor: ``""`` writes it as ``str`` does, ``".2f"`` rounds the text, not the test)."""
+
+
+Relation = Literal["≤", "<", "≥", ">", "="]
+"""How a check's value must stand to its bound, written as its ``expected`` text shows it."""
+
+_RELATION_TESTS = {"≤": operator.le, "<": operator.lt, "≥": operator.ge, ">": operator.gt, "=": operator.eq}
+"""The test of each `Relation` (value, bound) → bool."""
+
+
+def bound_text(bound: Bound, fmt: str = "") -> tuple[str, float]:
+    """A check's bound as (the text its ``expected`` shows, the number its test uses): see `Bound`."""
+    if isinstance(bound, str):
+        return bound, float(bound)
+    return format(bound, fmt), float(bound)
+
+
+class BoundText(TypedDict, total=False):
+    """How a relation's ``expected`` text is written around its bound (`Check.compare`): ``fmt``, the
+    format of a number bound (`Bound`); ``quantity``, the text before the relation (``"max |z|"`` gives
+    ``max |z| ≤ 4``); ``note``, the text after the bound (``"relative"`` gives ``≤ 1e-6 relative``)."""
+
+    fmt: str
+    quantity: str
+    note: str
+
+
+def _relation_constructor(relation: Relation, doc: str):
+    """A constructor of `Check` for one `Relation` (``Check.at_most`` is ``≤``): ``(name, value, bound,
+    **text)`` → `Check.compare` with that relation; ``doc`` its docstring."""
+
+    def make(cls: type[Check], name: str, value: float, bound: Bound, **text: Unpack[BoundText]) -> Check:
+        return cls.compare(name, value, relation, bound, **text)
+
+    make.__doc__ = f"Passed when {doc} (`Check.compare`)."
+    return classmethod(make)
+
+
 @dataclass(frozen=True)
 class Check(Record):
     """A self-consistency check of the run: the measured value, the accepted range as text, pass/fail."""
+
+    # (The docstring above is the schema's description: docs/results.schema.json.) The constructors below
+    # write ``expected`` and ``passed`` from one bound (a `Bound`: the text shown, or a number and its
+    # ``fmt``), so the two cannot disagree; a NaN value passes none of them (every comparison with NaN is
+    # false).
 
     name: str
     value: float | str | None = None
     expected: str | None = None
     passed: bool = field(default=False, metadata={"required": True})
+
+    @classmethod
+    def compare(
+        cls, name: str, value: float, relation: Relation, bound: Bound, **text: Unpack[BoundText]
+    ) -> Check:
+        """Passed when ``value relation bound`` holds; expected ``[quantity ]relation bound[ note]``
+        (`BoundText`: ``fmt``, ``quantity``, ``note``, each optional)."""
+        shown, limit = bound_text(bound, text.get("fmt", ""))
+        parts = (text.get("quantity", ""), relation, shown, text.get("note", ""))
+        expected = " ".join(part for part in parts if part)
+        passed = bool(_RELATION_TESTS[relation](value, limit))
+        return cls(name=name, value=value, expected=expected, passed=passed)
+
+    at_most = _relation_constructor(
+        "≤", 'value ≤ bound, e.g. ``Check.at_most(name, err, "1e-6")``: ``≤ 1e-6``'
+    )
+    below = _relation_constructor("<", "value < bound: expected ``< bound``")
+    at_least = _relation_constructor("≥", "value ≥ bound: expected ``≥ bound``")
+    above = _relation_constructor(">", "value > bound: expected ``> bound``")
+    exactly = _relation_constructor("=", "value == bound: expected ``= bound`` (`zero` writes a bare ``0``)")
+
+    @classmethod
+    def magnitude_at_most(cls, name: str, value: float, symbol: str, bound: Bound, *, fmt: str = "") -> Check:
+        """Passed when ``|value| ≤ bound``; the signed value is kept, expected ``|symbol| ≤ bound`` (e.g.
+        ``Check.magnitude_at_most(n, pooled, "z", "4")`` shows ``|z| ≤ 4``)."""
+        text, limit = bound_text(bound, fmt)
+        return cls(name=name, value=value, expected=f"|{symbol}| ≤ {text}", passed=bool(abs(value) <= limit))
+
+    @classmethod
+    def within(cls, name: str, value: float, centre: Bound, tolerance: Bound, *, fmt: str = "") -> Check:
+        """Passed when ``|value − centre| ≤ tolerance``; expected ``centre ± tolerance`` (each a `Bound`,
+        ``fmt`` for whichever is a number)."""
+        (c_text, c), (t_text, t) = bound_text(centre, fmt), bound_text(tolerance, fmt)
+        return cls(name=name, value=value, expected=f"{c_text} ± {t_text}", passed=bool(abs(value - c) <= t))
+
+    @classmethod
+    def zero(cls, name: str, value: float) -> Check:
+        """Passed when ``value == 0`` (a count of failures, or a value that must vanish); expected ``0``."""
+        return cls(name=name, value=value, expected="0", passed=bool(value == 0))
+
+    @classmethod
+    def holds(cls, name: str, flag: object) -> Check:
+        """A claim that is true or false: value ``str(flag)`` (``True``/``False``), expected ``True``, passed
+        ``bool(flag)``."""
+        return cls(name=name, value=str(flag), expected="True", passed=bool(flag))
 
 
 @dataclass(frozen=True)

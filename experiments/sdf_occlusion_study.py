@@ -327,7 +327,7 @@ def make_checks(cfg, sds, extra, table, fit_rows) -> list[Check]:
         "continuous Evans fit (LM, autodiff α/base) never above its grid initialisation (RMS residual, "
         "every case)"
     )
-    checks.append(Check(name=name, value=len(worse), expected="0", passed=not worse))
+    checks.append(Check.zero(name, len(worse)))
     # Mitsuba AO at floor probes of each crease vs the wedge integral (independent quadrature, `crease_ao`):
     # within R ≤ 1 the shipped crease (arms 2 long, 2 wide) is exact for probes at y = 0, x ≤ 0.4.
     for n in sds:
@@ -352,7 +352,7 @@ def make_checks(cfg, sds, extra, table, fit_rows) -> list[Check]:
     )
     dev = float(np.max(np.abs(np.asarray(c) - 1.0)))
     name = "Evans on an unoccluded plane (analytic SDF, normalised N') equals 1"
-    checks.append(Check(name=name, value=dev, expected="max |C − 1| ≤ 1e-6", passed=dev <= 1e-6))
+    checks.append(Check.at_most(name, dev, "1e-6", quantity="max |C − 1|"))
     # The sunsky reference at an unoccluded point vs the quadrature of the baked sky (independent).
     pr = next((e["sky_probe"] for e in extra.values() if "sky_probe" in e), None)
     if pr is not None:
@@ -372,16 +372,14 @@ def make_checks(cfg, sds, extra, table, fit_rows) -> list[Check]:
             )
         )
     bad = [r["case"] for r in table if not all(math.isfinite(v["value"]) for v in r["rows"].values())]
-    checks.append(
-        Check(name="every metric of the study's rows finite", value=len(bad), expected="0", passed=not bad)
-    )
+    checks.append(Check.zero("every metric of the study's rows finite", len(bad)))
     return checks
 
 
 def _max_z(name: str, z) -> Check:
     """max |z| ≤ 4 (a 4σ tolerance: a handful of probes, no multiple-comparison correction needed)."""
     value = float(np.max(np.abs(z)))
-    return Check(name=name, value=value, expected="≤ 4", passed=value <= 4.0)
+    return Check.at_most(name, value, "4")
 
 
 def _tables(cfg, table, fit_rows, joint, sweep, cost) -> list[Section]:

@@ -92,25 +92,21 @@ def claim_checks() -> list[Check]:
     f = np.linspace(0.0, 1.0, 1001)
     concave = bool(np.all(1.0 - (1.0 - alpha) ** f >= alpha * f - 1e-15))
     return [
-        Check(
-            name="claim (issue 18): linear fade at α = 0.95, half the chord = 0.475",
-            value=linear,
-            expected="0.475 ± 1e-12",
-            passed=abs(linear - 0.475) <= 1e-12,
+        Check.within(
+            "claim (issue 18): linear fade at α = 0.95, half the chord = 0.475", linear, "0.475", "1e-12"
         ),
-        Check(
-            name="claim (issue 18): exact Beer–Lambert opacity of half the chord = 1 − √0.05 = 0.7764 "
+        Check.within(
+            "claim (issue 18): exact Beer–Lambert opacity of half the chord = 1 − √0.05 = 0.7764 "
             "(exact-box kernel on the view axis)",
-            value=exact,
-            expected=f"{closed:.6f} ± 1e-12",
-            passed=abs(exact - closed) <= 1e-12,
+            exact,
+            closed,
+            "1e-12",
+            fmt=".6f",
         ),
-        Check(
-            name=f"claim: 1 − (1 − α)^f ≥ α·f on f ∈ [0, 1] (concavity; the largest gap {gap:.3f} at "
+        Check.holds(
+            f"claim: 1 − (1 − α)^f ≥ α·f on f ∈ [0, 1] (concavity; the largest gap {gap:.3f} at "
             f"f = {f_star:.3f} for α = 0.95)",
-            value=str(concave),
-            expected="True",
-            passed=concave,
+            concave,
         ),
     ]
 
@@ -136,12 +132,11 @@ def chord_checks(n: int = 400, steps: int = 20000) -> list[Check]:
             counted += inside.sum(-1) * dt
         err = float(np.max(np.abs(analytic - counted) / (2.0 * dt)))
         out.append(
-            Check(
-                name=f"{shape} chord: analytic clipped chord = midpoint count along the ray ({n} random "
+            Check.at_most(
+                f"{shape} chord: analytic clipped chord = midpoint count along the ray ({n} random "
                 f"rays, {steps} steps), in units of the step's 2-step bound",
-                value=err,
-                expected="≤ 1",
-                passed=err <= 1.0,
+                err,
+                "1",
             )
         )
     return out
@@ -246,43 +241,30 @@ def extreme_checks(ext: dict) -> list[Check]:
     ratio = max(abs(v["tau_ratio_box_beer"] - v["cos"]) for v in off.values())
     hv = list(ext["huge_sigma"].values())
     return [
-        Check(
-            name="camera inside the sphere (view axis): the spherical billboard clips at the camera plane "
-            "and equals the exact opacity",
-            value=sph,
-            expected="≤ 1e-6",
-            passed=sph <= 1e-6,
+        Check.at_most(
+            "camera inside the sphere (view axis): the spherical billboard clips at the camera plane and "
+            "equals the exact opacity",
+            sph,
+            "1e-6",
         ),
-        Check(
-            name="camera inside the sphere: the linear fade ignores the camera plane and over-estimates",
-            value=lin,
-            expected="> 0",
-            passed=lin > 0,
+        Check.above(
+            "camera inside the sphere: the linear fade ignores the camera plane and over-estimates", lin, "0"
         ),
-        Check(
-            name="s → 0: the linear fade becomes a hard step at Δ = 0 (0 at Δ ≤ 0, α above), never NaN",
-            value=str(step),
-            expected="True",
-            passed=step,
+        Check.holds(
+            "s → 0: the linear fade becomes a hard step at Δ = 0 (0 at Δ ≤ 0, α above), never NaN", step
         ),
-        Check(
-            name="Δ ≤ 0: the linear fade is 0; the chords are 0 once the surface is in front of it",
-            value=str(fade0 and chord0),
-            expected="True",
-            passed=fade0 and chord0,
+        Check.holds(
+            "Δ ≤ 0: the linear fade is 0; the chords are 0 once the surface is in front of it",
+            fade0 and chord0,
         ),
-        Check(
-            name="off-axis: box-beer-ray (view-z travel over cos θ) equals the exact opacity",
-            value=ray,
-            expected="≤ 1e-6",
-            passed=ray <= 1e-6,
+        Check.at_most(
+            "off-axis: box-beer-ray (view-z travel over cos θ) equals the exact opacity", ray, "1e-6"
         ),
-        Check(
-            name="off-axis (box, ray through the centre, surface at the centre's depth): the view-z methods' "
+        Check.at_most(
+            "off-axis (box, ray through the centre, surface at the centre's depth): the view-z methods' "
             "optical depth is the exact one times cos θ",
-            value=ratio,
-            expected="≤ 1e-5",
-            passed=ratio <= 1e-5,
+            ratio,
+            "1e-5",
         ),
         Check(
             name="huge σ: opacity 1 where the chord is positive, 0 where it is 0 (no 0·∞)",

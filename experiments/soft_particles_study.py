@@ -103,24 +103,18 @@ def reference_checks(audits) -> tuple[list[Check], list[list[str]]]:
             )
             head = f"reference {case.id}: path-traced opacity vs the analytic clipped chord"
             checks += [
-                Check(
-                    name=f"{head}, z-score spread ({z.size} pixels, binomial noise √(T(1 − T)/N))",
-                    value=spread,
-                    expected="1 ± 0.2",
-                    passed=abs(spread - 1.0) <= 0.2,
+                Check.within(
+                    f"{head}, z-score spread ({z.size} pixels, binomial noise √(T(1 − T)/N))",
+                    spread,
+                    "1",
+                    "0.2",
                 ),
-                Check(name=f"{head}, pooled z", value=pooled, expected="|z| ≤ 4", passed=abs(pooled) <= 4.0),
-                Check(
-                    name=f"{head}, largest |z|",
-                    value=zmax,
-                    expected=f"≤ {sidak:.2f} (Šidák, 1 % family-wise)",
-                    passed=zmax <= sidak,
+                Check.magnitude_at_most(f"{head}, pooled z", pooled, "z", "4"),
+                Check.at_most(
+                    f"{head}, largest |z|", zmax, sidak, fmt=".2f", note="(Šidák, 1 % family-wise)"
                 ),
-                Check(
-                    name=f"{head}: exactly the exact value where T is 0 or 1 (no chord, or saturated)",
-                    value=zero,
-                    expected="0",
-                    passed=zero == 0.0,
+                Check.zero(
+                    f"{head}: exactly the exact value where T is 0 or 1 (no chord, or saturated)", zero
                 ),
             ]
     return checks, table
@@ -211,14 +205,7 @@ def domain_study(fit_alphas, samples: int) -> dict:
                 )
             )
     for (shape, fid, alpha_c), res in fits.items():
-        checks.append(
-            Check(
-                name=f"fit {fid} ({shape}, α_c = {alpha_c:g}) converged",
-                value=str(res["converged"]),
-                expected="True",
-                passed=bool(res["converged"]),
-            )
-        )
+        checks.append(Check.holds(f"fit {fid} ({shape}, α_c = {alpha_c:g}) converged", res["converged"]))
     return {"table": table, "fits": fits, "checks": checks, "profiles": profiles}
 
 
@@ -311,17 +298,9 @@ def particle_scene(resolution, fits: dict, n: int = 100, seed: int = 21) -> dict
         }
     finite = all(bool(np.all(np.isfinite(images[row]))) for row in ROWS)
     checks = [
-        Check(
-            name=f"{n}-particle scene: composited opacity of every row finite",
-            value=str(finite),
-            expected="True",
-            passed=finite,
-        ),
-        Check(
-            name=f"{n}-particle scene: at least a fifth of the particles are cut by the geometry",
-            value=straddle,
-            expected=f"≥ {n // 5}",
-            passed=straddle >= n // 5,
+        Check.holds(f"{n}-particle scene: composited opacity of every row finite", finite),
+        Check.at_least(
+            f"{n}-particle scene: at least a fifth of the particles are cut by the geometry", straddle, n // 5
         ),
     ]
     return {

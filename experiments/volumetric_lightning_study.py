@@ -199,12 +199,8 @@ def limit_values() -> dict:
 
 def _worst_error_check(row: dict, versus: str, samples: str, error: str, tolerance: float) -> Check:
     """The stable form's worst relative error ``row[error]`` (against ``versus``) ≤ ``tolerance``."""
-    return Check(
-        name=f"stable form, {versus}: worst relative error, {row['inputs']} ({row[samples]} inputs)",
-        value=row[error],
-        expected=f"≤ {tolerance:g}",
-        passed=bool(row[error] <= tolerance),
-    )
+    name = f"stable form, {versus}: worst relative error, {row['inputs']} ({row[samples]} inputs)"
+    return Check.at_most(name, row[error], tolerance, fmt="g")
 
 
 def accuracy_checks(acc: dict) -> list[Check]:
@@ -214,12 +210,7 @@ def accuracy_checks(acc: dict) -> list[Check]:
             continue
         checks += [
             _worst_error_check(row, "float32 vs float64", "samples", "worst_rel_error", F32_TOLERANCE),
-            Check(
-                name=f"stable form, float32: non-finite outputs, {row['inputs']}",
-                value=row["non_finite"],
-                expected="0",
-                passed=row["non_finite"] == 0,
-            ),
+            Check.zero(f"stable form, float32: non-finite outputs, {row['inputs']}", row["non_finite"]),
             _worst_error_check(
                 row, "float64 vs mpmath (50 digits)", "mpmath_samples", "float64_vs_mpmath", F64_TOLERANCE
             ),

@@ -52,11 +52,6 @@ def pixel_z_checks(
             expected=f"1 ± {tol:.3g}" if samples is None else f"{centre:.4g} ± {tol:.3g} (t({samples - 1}))",
             passed=bool(abs(spread - centre) <= tol),
         ),
-        Check(name=names[1], value=pooled, expected="|z| ≤ 4", passed=bool(abs(pooled) <= 4)),
-        Check(
-            name=names[2],
-            value=largest,
-            expected=f"≤ {sidak:.2f} (Šidák, 1 % family-wise)",
-            passed=bool(largest <= sidak),
-        ),
+        Check.magnitude_at_most(names[1], pooled, "z", "4"),
+        Check.at_most(names[2], largest, sidak, fmt=".2f", note="(Šidák, 1 % family-wise)"),
     ]
