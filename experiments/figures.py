@@ -230,6 +230,7 @@ class MosaicFigure:
         image = self._pixels()
         ih, iw = image.shape[:2]
         texts, ticks = list(self.texts), []
+        bar_w = x0 = 0  # (the colour bar's width and left edge, where there is one)
         if self.bar is not None:
             cmap, norm, top, bottom = self.bar
             bar_w, x0 = max(2, round((bottom - top) / self.BAR_ASPECT)), iw + self.BAR_PAD
@@ -353,6 +354,7 @@ def colour_bar_ticks(vmin: float, vmax: float, length_pt: float, font_pt: float)
     locs = [float(v) for v in locs if vmin - 1e-10 * span <= v <= vmax + 1e-10 * span]
     fmt = ScalarFormatter()
     fmt.create_dummy_axis()
+    assert fmt.axis is not None
     fmt.axis.set_view_interval(vmin, vmax)
     labels = fmt.format_ticks(locs)
     return locs, labels, fmt.get_offset()
