@@ -4,19 +4,21 @@
 from __future__ import annotations
 
 import re
+import threading
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from rtfit.fitting import flip_error_map, prime_flip
+from rtfit.fitting.flip_maps import MEMO_MAP_BYTES
 
 from . import figures
 from . import fitted as fitfiles
 from .records import Results, from_json, plain_json, to_json
 from .report import write_report
 from .results import write_results
-from .viewer import save_case_pixels
+from .viewer import prime_case_flip, save_case_pixels
 
 AuditResult = Any
 """An `audit_run.AuditResult` (not imported: audit_run imports this module)."""
@@ -26,26 +28,51 @@ __all__ = [
     "fitted_entries",
     "reference_record",
     "save_pixels",
+    "viewer_flip_thread",
     "write_audit",
     "write_fitted_file",
 ]
 
 
 def write_audit(directory: Path, r: AuditResult) -> None:
-    """Write an audit into ``directory``: figures, results.json (with the figures), fitted/audit.json, the
-    viewer's pixels and the report."""
-    figs = case_figures(directory, r)
-    doc = plain_json(to_json(r.results))
-    assert isinstance(doc, dict)
-    for f in figs:  # (the figures name their case: placed after the case tables, in case order)
-        f.pop("_case", None)
-    doc["figures"] = figs
-    results = from_json(Results, doc, f"audit of {r.info.source}")
-    r.results = results
-    _write_fitted(directory, r)
+    """Write an audit into ``directory``: the viewer's pixels, figures, results.json (with the figures),
+    fitted/audit.json and the report. The viewer's ꟻLIP maps (of the saved float32 pixels) are computed
+    in a second thread while the figures are drawn (`viewer_flip_thread`)."""
     save_pixels(directory, r)
-    write_results(directory, results)
+    flip = viewer_flip_thread(directory, r)
+    try:
+        figs = case_figures(directory, r)
+        doc = plain_json(to_json(r.results))
+        assert isinstance(doc, dict)
+        for f in figs:  # (the figures name their case: placed after the case tables, in case order)
+            f.pop("_case", None)
+        doc["figures"] = figs
+        results = from_json(Results, doc, f"audit of {r.info.source}")
+        r.results = results
+        _write_fitted(directory, r)
+        write_results(directory, results)
+    finally:
+        if flip is not None:
+            flip.join()
     write_report(directory)
+
+
+def viewer_flip_thread(directory: Path, r: AuditResult) -> threading.Thread | None:
+    """A started thread computing the ꟻLIP maps the report's viewer will show (`viewer.prime_case_flip`:
+    the same maps, found in the memo by content), beside the figures on a second core: they were a third
+    of an audit's report time (issue 33). None (the viewer computes them itself) where the maps of the
+    audit and of the viewer, at 8 bytes a pixel, would not fit half of the memo (`MEMO_MAP_BYTES`): the
+    thread's maps must not push out the audit's before the figures read them, nor their own before the
+    viewer does."""
+    maps = sum(c.reference.mean[..., 0].size * len(r.outcomes[c.id]) for c in r.cases)
+    if 2 * 8 * maps > MEMO_MAP_BYTES // 2:
+        return None
+    ids = [c.id for c in r.cases]
+    thread = threading.Thread(
+        target=lambda: [prime_case_flip(directory, i) for i in ids], name="rtfit-viewer-flip", daemon=True
+    )
+    thread.start()
+    return thread
 
 
 def save_pixels(directory: Path, r: AuditResult) -> None:

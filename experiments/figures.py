@@ -32,14 +32,34 @@ def srgb(linear: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
-def save_figure(fig, path) -> Path:
+PNG_DPI = 110
+"""Pixels per inch of the PNG figures."""
+
+
+def tight_bbox(fig, dpi: float):
+    """The box (inches) that ``bbox_inches="tight"`` crops ``fig`` to at ``dpi``: its artists' extents padded
+    by :rc:`savefig.pad_inches`. Measured from the artists' extents alone: given to ``savefig`` as a box, it
+    spares the second, invisible draw of the whole figure that ``"tight"`` makes to find the same box (the
+    same pixels; 10-15 % of a mosaic figure's time when they were matplotlib axes, issue 33)."""
+    import matplotlib
+
+    fig.set_dpi(dpi)
+    pad = matplotlib.rcParams["savefig.pad_inches"]
+    return fig.get_tightbbox(fig.canvas.get_renderer()).padded(pad, pad)
+
+
+def save_figure(fig, path, tight: bool = True) -> Path:
     """Write ``fig`` atomically and close it: PDF (vector, no creation date, so the same figure gives
-    the same bytes) where ``path`` ends in ``.pdf``, PNG otherwise."""
+    the same bytes) where ``path`` ends in ``.pdf``, PNG otherwise; cropped to its artists (`tight_bbox`)
+    unless ``tight`` is false (a figure laid out to its size, `MosaicFigure`)."""
     buf = io.BytesIO()
     if Path(path).suffix.lower() == ".pdf":
-        fig.savefig(buf, format="pdf", bbox_inches="tight", metadata={"CreationDate": None})
+        fig.savefig(
+            buf, format="pdf", bbox_inches="tight" if tight else None, metadata={"CreationDate": None}
+        )
     else:
-        fig.savefig(buf, format="png", dpi=110, bbox_inches="tight", pil_kwargs={"compress_level": 1})
+        box = tight_bbox(fig, PNG_DPI) if tight else None
+        fig.savefig(buf, format="png", dpi=PNG_DPI, bbox_inches=box, pil_kwargs={"compress_level": 1})
     pyplot().close(fig)
     return atomic_write_bytes(path, buf.getvalue())
 
@@ -53,8 +73,7 @@ def mosaic_axes(plt, tiles_wide: int, tile_h: int, tile_w: int, rows: int, width
     label band above it, as one image on one axes (no per-panel axes: a 12-panel comparison drew in 1.5 s as
     22 axes, in a fraction as one). Returns (fig, ax, gap, band): pixels between tiles and of each label band.
     """
-    gap = max(2, tile_w // 16)
-    band = max(6, tile_h // 5)
+    gap, band = mosaic_spacing(tile_h, tile_w)
     width = tiles_wide * tile_w + (tiles_wide - 1) * gap
     height = rows * (tile_h + band) + (rows - 1) * gap
     height_in = width_in * height / width + (0.35 if title else 0.0)
@@ -86,10 +105,11 @@ def image_comparison(
     """Reference, then for each (label, image): the image above its signed error map.
 
     ``error_scale`` normalises the error (approx − reference) / error_scale; the colour range is
-    ±max(|normalised error|) over all panels, shown on a shared colour bar. Pixels are drawn as pixels
-    (nearest neighbour: no smoothing hides a one-pixel error).
+    ±max(|normalised error|) over all panels, shown on a shared colour bar beside the error row. Pixels are
+    drawn as pixels (nearest neighbour: no smoothing hides a one-pixel error). One mosaic image
+    (`MosaicFigure`).
     """
-    plt = pyplot()
+    import matplotlib
     from matplotlib.colors import Normalize
 
     if exposure is None:
@@ -97,11 +117,11 @@ def image_comparison(
         exposure = exposure if exposure > 0 else 1.0
     n = len(panels)
     h, w = reference.shape[:2]
-    fig, ax, gap, band = mosaic_axes(plt, n + 1, h, w, 2, 2.3 * (n + 1), title)
+    gap, band = mosaic_spacing(h, w)
     mosaic = np.ones((2 * (h + band) + gap, (n + 1) * w + n * gap, 3))
     errors = [np.where(mask, (img - reference).mean(axis=-1) / error_scale, np.nan) for _, img in panels]
     vmax = max([float(np.nanmax(np.abs(e))) for e in errors if np.isfinite(e).any()] + [1e-6])
-    cmap = plt.get_cmap("RdBu_r").with_extremes(bad=GREY)
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad=GREY)
     norm = Normalize(vmin=-vmax, vmax=vmax)
     labels = [(0, 0, "reference", 9)]
     y, x = tile_origin(0, 0, h, w, gap, band)
@@ -113,41 +133,231 @@ def image_comparison(
         mosaic[y : y + h, x : x + w] = cmap(norm(np.ma.masked_invalid(err)))[..., :3]
         worst = float(np.nanmax(np.abs(err))) if np.isfinite(err).any() else float("nan")
         labels += [(0, k, label, 9), (1, k, f"error (max {worst:.3g})", 8)]
-    ax.imshow(mosaic, interpolation="nearest")
+    fig = MosaicFigure(mosaic, title, w)
     for row, col, text, size in labels:
         y, x = tile_origin(row, col, h, w, gap, band)
-        ax.text(x + w / 2, y - 1, text, ha="center", va="bottom", fontsize=size, clip_on=False)
+        fig.text(x + w / 2, y - 1, text, size, va="bottom")
     y, x = tile_origin(1, 0, h, w, gap, band)
-    ax.text(x + w / 2, y + h / 2, f"signed error\n÷ {error_scale:.3g}", ha="center", va="center", fontsize=9)
+    fig.text(x + w / 2, y + h / 2, f"signed error\n÷ {error_scale:.3g}", 9, va="center")
     if n:
-        from matplotlib.cm import ScalarMappable
-
-        fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.45, pad=0.01, anchor=(0.0, 0.0))
-    return save_figure(fig, path)
+        fig.colour_bar(cmap, norm, y, y + h)  # beside the error row
+    return fig.save(path)
 
 
 def flip_maps_figure(path, maps: list[tuple[str, np.ndarray]], mask: np.ndarray, title: str) -> Path:
     """Each (label, ꟻLIP map in [0, 1]) side by side with its mean over ``mask`` (magma; grey outside the
-    mask), as one mosaic (`mosaic_axes`), and a shared colour bar."""
-    plt = pyplot()
-    from matplotlib.cm import ScalarMappable
+    mask), as one mosaic image (`MosaicFigure`), and a shared colour bar."""
+    import matplotlib
     from matplotlib.colors import Normalize
 
     h, w = maps[0][1].shape
-    fig, ax, gap, band = mosaic_axes(plt, len(maps), h, w, 1, 2.3 * len(maps), title)
+    gap, band = mosaic_spacing(h, w)
     band2 = 2 * band  # (two lines of label)
     mosaic = np.ones((h + band2, len(maps) * w + (len(maps) - 1) * gap, 3))
-    cmap = plt.get_cmap("magma").with_extremes(bad=GREY)
+    cmap = matplotlib.colormaps["magma"].with_extremes(bad=GREY)
     norm = Normalize(vmin=0.0, vmax=1.0)
+    texts = []
     for k, (label, m) in enumerate(maps):
         x = k * (w + gap)
         mosaic[band2 : band2 + h, x : x + w] = cmap(norm(np.ma.masked_where(~mask, m)))[..., :3]
-        ax.text(x + w / 2, band2 - 1, f"{label}\nmean {float(np.mean(m[mask])):.3g}", ha="center",
-                va="bottom", fontsize=8, clip_on=False)  # fmt: skip
-    ax.set_ylim(h + band2 - 0.5, -0.5)
-    ax.imshow(mosaic, interpolation="nearest")
-    fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.8, pad=0.01)
-    return save_figure(fig, path)
+        texts.append((x + w / 2, f"{label}\nmean {float(np.mean(m[mask])):.3g}"))
+    fig = MosaicFigure(mosaic, title, w)
+    for x, text in texts:
+        fig.text(x, band2 - 1, text, 8, va="bottom")
+    fig.colour_bar(cmap, norm, 0, h + band2)
+    return fig.save(path)
+
+
+def mosaic_spacing(tile_h: int, tile_w: int) -> tuple[int, int]:
+    """(gap, band): mosaic pixels between tiles and of each tile's label band (`mosaic_axes`,
+    `MosaicFigure`)."""
+    return max(2, tile_w // 16), max(6, tile_h // 5)
+
+
+MOSAIC_COLUMN_PX = 214
+"""Figure pixels of one tile and its gap in a `MosaicFigure` (what `mosaic_axes` gave a tile at 110 dpi beside
+a colour bar)."""
+
+
+class MosaicFigure:
+    """A figure that is one RGB mosaic (tiles with label bands, `tile_origin`) shown at a fixed scale (nearest
+    neighbour: each mosaic pixel a block of figure pixels), its labels and title as text, and optionally a
+    colour bar (a gradient with its frame, ticks and tick labels), composed as one array of pixels and
+    written as PNG; the text is drawn by matplotlib's FreeType font (`text_pixels`: the font, size
+    and hinting of matplotlib's text). The layout is computed, not searched: no matplotlib figure, axes,
+    colour-bar axes or ``bbox_inches="tight"`` (drawing each figure twice, measuring every artist, and
+    matplotlib's drawing of text and image took 95 % of an audit's figure time, issue 33). Text positions
+    are in mosaic pixels from the top-left, pixel centres at integers."""
+
+    MARGIN = 11  # figure pixels around the content (savefig's pad of 0.1 in at 110 dpi)
+    TITLE_BAND = 38  # figure pixels of the title's band above the mosaic (0.35 in)
+    BAR_PAD, BAR_ASPECT, TICK, TICK_PAD = (
+        11,
+        20,
+        5,
+        5,
+    )  # matplotlib's colour bar at 110 dpi: pad, aspect, ticks
+    TICK_FONT = 10
+
+    def __init__(self, mosaic: np.ndarray, title: str, tile_w: int):
+        gap, _ = mosaic_spacing(1, tile_w)
+        self.scale = MOSAIC_COLUMN_PX / (tile_w + gap)
+        self.mosaic, self.title = mosaic, title
+        self.texts: list = []  # (text, size, ha, va, x, y): figure pixels from the image's top-left
+        self.bar = None
+
+    def text(self, x: float, y: float, text: str, size: float, va: str) -> None:
+        """``text`` centred on mosaic pixel column ``x``, its ``va`` ("bottom", "center") at row ``y``."""
+        self.texts.append((text, size, "center", va, (x + 0.5) * self.scale, (y + 0.5) * self.scale))
+
+    def colour_bar(self, cmap, norm, top: int, bottom: int) -> None:
+        """A vertical colour bar of ``cmap`` over ``norm``'s range, right of the mosaic, from mosaic row
+        ``top`` to ``bottom`` (exclusive), ticked as matplotlib ticks a colour bar that long
+        (`colour_bar_ticks`)."""
+        self.bar = (cmap, norm, round(top * self.scale), round(bottom * self.scale))
+
+    def _pixels(self) -> np.ndarray:
+        mh, mw = self.mosaic.shape[:2]
+        rows = (np.arange(round(mh * self.scale)) + 0.5) / self.scale
+        cols = (np.arange(round(mw * self.scale)) + 0.5) / self.scale
+        return self.mosaic[np.minimum(rows.astype(int), mh - 1)][:, np.minimum(cols.astype(int), mw - 1)]
+
+    def save(self, path) -> Path:
+        """Lay the figure out around its content and write it as PNG (atomically)."""
+        import matplotlib.image
+
+        m = self.MARGIN
+        image = self._pixels()
+        ih, iw = image.shape[:2]
+        texts, ticks = list(self.texts), []
+        bar_w = x0 = 0  # (the colour bar's width and left edge, where there is one)
+        if self.bar is not None:
+            cmap, norm, top, bottom = self.bar
+            bar_w, x0 = max(2, round((bottom - top) / self.BAR_ASPECT)), iw + self.BAR_PAD
+            locs, labels, offset = colour_bar_ticks(
+                norm.vmin, norm.vmax, (bottom - top) / PNG_DPI * 72, self.TICK_FONT
+            )
+            for loc, label in zip(locs, labels, strict=True):
+                ticks.append(
+                    round(bottom - 1 - (loc - norm.vmin) / (norm.vmax - norm.vmin) * (bottom - top - 1))
+                )
+                texts.append(
+                    (
+                        label,
+                        self.TICK_FONT,
+                        "left",
+                        "center",
+                        x0 + bar_w + self.TICK + self.TICK_PAD,
+                        ticks[-1],
+                    )
+                )
+            if offset:
+                texts.append((offset, self.TICK_FONT, "left", "bottom", x0, top - self.TICK_PAD))
+        # the content's box (figure pixels from the image's top-left): the image, bar, and every text
+        x_lo, y_lo, x_hi, y_hi = 0.0, 0.0, float(iw), float(ih)
+        if self.bar is not None:
+            x_hi = float(x0 + bar_w)
+        placed = []
+        for text, size, ha, va, x, y in texts:
+            alpha = text_pixels(text, size, ha)
+            th, tw = alpha.shape
+            left = round(x - tw / 2 if ha == "center" else x)
+            top = round(y - th / 2 if va == "center" else y - th)
+            placed.append((alpha, left, top))
+            x_lo, x_hi, y_lo, y_hi = (
+                min(x_lo, left),
+                max(x_hi, left + tw),
+                min(y_lo, top),
+                max(y_hi, top + th),
+            )
+        title = text_pixels(self.title, 10, "center") if self.title else np.zeros((0, 0))
+        width = int(np.ceil(max(x_hi - x_lo, title.shape[1]) + 2 * m))
+        ox = round(m - x_lo + max(0.0, (title.shape[1] - (x_hi - x_lo)) / 2))
+        oy = round(m - y_lo + (self.TITLE_BAND if self.title else 0))
+        height = int(np.ceil(oy + y_hi + m))
+        canvas = np.ones((height, width, 3))
+        canvas[oy : oy + ih, ox : ox + iw] = image
+        if self.bar is not None:
+            cmap, norm, top, bottom = self.bar
+            rows, cols = slice(oy + top, oy + bottom), slice(ox + x0, ox + x0 + bar_w)
+            canvas[rows, cols] = cmap(np.linspace(1.0, 0.0, bottom - top))[:, None, :3]
+            canvas[rows, ox + x0] = canvas[rows, ox + x0 + bar_w - 1] = 0.0  # the frame
+            canvas[oy + top, cols] = canvas[oy + bottom - 1, cols] = 0.0
+            for y in ticks:
+                canvas[oy + y, ox + x0 + bar_w : ox + x0 + bar_w + self.TICK] = 0.0
+        if self.title:
+            placed.append((title, (width - title.shape[1]) // 2 - ox, m - oy))
+        for alpha, left, top in placed:  # black text over the canvas
+            th, tw = alpha.shape
+            canvas[oy + top : oy + top + th, ox + left : ox + left + tw] *= 1.0 - alpha[..., None]
+        buf = io.BytesIO()
+        pixels = np.round(canvas * 255).astype(np.uint8)
+        matplotlib.image.imsave(
+            buf,
+            pixels,
+            format="png",
+            dpi=PNG_DPI,
+            metadata={"Software": None},
+            pil_kwargs={"compress_level": 1},
+        )
+        return atomic_write_bytes(path, buf.getvalue())
+
+
+def text_pixels(text: str, size_pt: float, ha: str = "center") -> np.ndarray:
+    """Coverage in [0, 1] of ``text`` (lines ``ha``-aligned: "center" or "left") drawn by matplotlib's
+    FreeType font of its default family at ``size_pt`` points and `PNG_DPI`, with matplotlib's hinting and
+    line spacing (1.2)."""
+    import matplotlib
+    from matplotlib.font_manager import FontProperties, findfont, get_font
+    from matplotlib.ft2font import LoadFlags
+
+    font = get_font(findfont(FontProperties(size=size_pt)))
+    hinting = matplotlib.rcParams["text.hinting"]  # (as matplotlib's Agg renderer reads it)
+    flags = {"default": LoadFlags.DEFAULT, "either": LoadFlags.DEFAULT, "no_autohint": LoadFlags.NO_AUTOHINT,
+             "native": LoadFlags.NO_AUTOHINT, "no_hinting": LoadFlags.NO_HINTING,
+             "none": LoadFlags.NO_HINTING,
+             False: LoadFlags.NO_HINTING}.get(hinting, LoadFlags.FORCE_AUTOHINT)  # fmt: skip
+
+    def draw(s: str) -> tuple[np.ndarray, float]:
+        font.clear()
+        font.set_size(size_pt, PNG_DPI)
+        font.set_text(s, 0.0, flags=flags)
+        font.draw_glyphs_to_bitmap(antialiased=matplotlib.rcParams["text.antialiased"])
+        return np.asarray(font.get_image()), font.get_descent() / 64.0
+
+    lp, lp_descent = draw("lp")
+    ascent, pitch = lp.shape[0] - lp_descent, 1.2 * lp.shape[0]
+    lines = [draw(s) for s in text.split("\n")]
+    width = max(img.shape[1] for img, _ in lines)
+    height = round((len(lines) - 1) * pitch + lp.shape[0]) + 2
+    out = np.zeros((height, width))
+    for k, (img, descent) in enumerate(lines):
+        baseline = k * pitch + ascent
+        top = max(0, round(baseline - (img.shape[0] - descent)))
+        left = (width - img.shape[1]) // 2 if ha == "center" else 0
+        block = img[: height - top] / 255.0
+        out[top : top + block.shape[0], left : left + img.shape[1]] = np.maximum(
+            out[top : top + block.shape[0], left : left + img.shape[1]], block
+        )
+    return out
+
+
+def colour_bar_ticks(vmin: float, vmax: float, length_pt: float, font_pt: float) -> tuple[list, list, str]:
+    """(values, labels, offset text) of the ticks matplotlib puts on a vertical colour bar of ``length_pt``
+    points over [vmin, vmax] with tick labels of ``font_pt``: its `AutoLocator`'s bins ('auto': one per two
+    label heights, at most 9) and `ScalarFormatter` (its offset text, e.g. ``1e−5``, set above the bar)."""
+    from matplotlib.ticker import MaxNLocator, ScalarFormatter
+
+    nbins = max(min(int(np.floor(length_pt / (2 * font_pt))), 9), 1)
+    locs = MaxNLocator(nbins=nbins, steps=[1, 2, 2.5, 5, 10]).tick_values(vmin, vmax)
+    span = abs(vmax - vmin)
+    locs = [float(v) for v in locs if vmin - 1e-10 * span <= v <= vmax + 1e-10 * span]
+    fmt = ScalarFormatter()
+    fmt.create_dummy_axis()
+    assert fmt.axis is not None
+    fmt.axis.set_view_interval(vmin, vmax)
+    labels = fmt.format_ticks(locs)
+    return locs, labels, fmt.get_offset()
 
 
 def case_comparison(

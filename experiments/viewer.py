@@ -54,6 +54,7 @@ __all__ = [
     "CasePixels",
     "case_file_stem",
     "load_case_pixels",
+    "prime_case_flip",
     "save_case_pixels",
     "single_file_html",
     "write_viewer",
@@ -238,6 +239,19 @@ def _exposure(ref: np.ndarray, mask: np.ndarray) -> float:
     vals = ref[mask] if mask.any() else ref.reshape(-1, 3)
     p = float(np.percentile(vals, 99.5)) if vals.size else 0.0
     return 1.0 / p if p > 0 else 1.0
+
+
+def prime_case_flip(directory, case_id: str) -> None:
+    """Compute the ꟻLIP maps the viewer of ``case_id`` will show (its saved pixels under ``directory``, as
+    `write_viewer` reads them) into the map memo of `rtfit.fitting.prime_flip`, where `write_viewer` finds
+    them: `audit_output.write_audit` runs this beside the figures (ꟻLIP releases the GIL). A case without
+    pixels or with unreadable ones is left to `write_viewer` (which says why)."""
+    try:
+        px = load_case_pixels(directory, case_id)
+    except ValueError:
+        return
+    if px is not None:
+        prime_flip(list(px.approximations.values()), px.reference, px.stderr, px.mask, floor_draws=0)
 
 
 def _build_case(directory: Path, case, px: CasePixels) -> tuple[dict, str, list[Path]]:

@@ -26,10 +26,11 @@ from rtfit.reference.cache import PASS_COUNTS, PassEntry, PassResult
 
 # A tiny diffuse run (two shipped scenes, the fewest its study takes, at 16² pixels, 8 passes of 32 samples
 # per light reference: 16 passes in all, rendered in a few seconds; the fits, costs and study after them take
-# longer). Every run here draws its figures but does not encode them (matplotlib's savefig was a third of a
-# run): the figure files are written empty, the same in every run, so results.json is compared as before;
-# the figures themselves are checked by the runs of the other tests. Costs are timed on their repeats only
-# (tests/conftest.py; results.json is compared without timings).
+# longer). Every run here draws its matplotlib figures but does not encode them (matplotlib's savefig was a
+# third of a run): those files are written empty, the same in every run, so results.json is compared as
+# before; the figures themselves are checked by the runs of the other tests. (The per-case image and ꟻLIP
+# mosaics are composed as pixels, `figures.MosaicFigure`, not through savefig: written as they are.)
+# Costs are timed on their repeats only (tests/conftest.py; results.json is compared without timings).
 DRIVER = textwrap.dedent(
     """
     import logging

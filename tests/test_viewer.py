@@ -299,3 +299,18 @@ def test_single_file_report_in_headless_chromium(report_dir, tmp_path):
             assert not math.isnan(page.evaluate("RTFIT_VIEWER.instances[0].state.ev"))
         finally:
             browser.close()
+
+
+def test_primed_flip_maps_are_those_the_viewer_asks_for(tmp_path):
+    """`prime_case_flip` (run beside an audit's figures) leaves in the memo every ꟻLIP map the viewer of that
+    case then needs: priming the viewer's own inputs afterwards computes none."""
+    from rtfit.fitting import prime_flip
+
+    ref, se, mask, approx = _images()
+    approx = {k: v * 1.0001 for k, v in approx.items()}  # (maps not in the memo from other tests)
+    viewer.save_case_pixels(tmp_path, "p", ref, se, approx, mask)
+    viewer.prime_case_flip(tmp_path, "p")
+    px = viewer.load_case_pixels(tmp_path, "p")
+    assert px is not None
+    assert prime_flip(list(px.approximations.values()), px.reference, px.stderr, px.mask, floor_draws=0) == 0
+    viewer.prime_case_flip(tmp_path, "missing")  # no pixels: nothing to do, no error
