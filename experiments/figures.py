@@ -136,7 +136,7 @@ def image_comparison(
     fig = MosaicFigure(mosaic, title, w)
     for row, col, text, size in labels:
         y, x = tile_origin(row, col, h, w, gap, band)
-        fig.text(x + w / 2, y - 1, text, size, va="bottom")
+        fig.text(x + w / 2, y - 1, text, size, va="bottom", width=w + gap)
     y, x = tile_origin(1, 0, h, w, gap, band)
     fig.text(x + w / 2, y + h / 2, f"signed error\n÷ {error_scale:.3g}", 9, va="center")
     if n:
@@ -163,7 +163,7 @@ def flip_maps_figure(path, maps: list[tuple[str, np.ndarray]], mask: np.ndarray,
         texts.append((x + w / 2, f"{label}\nmean {float(np.mean(m[mask])):.3g}"))
     fig = MosaicFigure(mosaic, title, w)
     for x, text in texts:
-        fig.text(x, band2 - 1, text, 8, va="bottom")
+        fig.text(x, band2 - 1, text, 8, va="bottom", width=w + gap)
     fig.colour_bar(cmap, norm, 0, h + band2)
     return fig.save(path)
 
@@ -206,8 +206,12 @@ class MosaicFigure:
         self.texts: list = []  # (text, size, ha, va, x, y): figure pixels from the image's top-left
         self.bar = None
 
-    def text(self, x: float, y: float, text: str, size: float, va: str) -> None:
-        """``text`` centred on mosaic pixel column ``x``, its ``va`` ("bottom", "center") at row ``y``."""
+    def text(self, x: float, y: float, text: str, size: float, va: str, width: float | None = None) -> None:
+        """``text`` centred on mosaic pixel column ``x``, its ``va`` ("bottom", "center") at row ``y``; with
+        ``width`` (mosaic pixels, e.g. a tile's), its lines wrapped at spaces to fit that width
+        (`wrap_to_width`), so that neighbouring tiles' labels do not run into each other."""
+        if width is not None:
+            text = wrap_to_width(text, size, width * self.scale)
         self.texts.append((text, size, "center", va, (x + 0.5) * self.scale, (y + 0.5) * self.scale))
 
     def colour_bar(self, cmap, norm, top: int, bottom: int) -> None:
@@ -301,6 +305,24 @@ class MosaicFigure:
             pil_kwargs={"compress_level": 1},
         )
         return atomic_write_bytes(path, buf.getvalue())
+
+
+def wrap_to_width(text: str, size_pt: float, width_px: float) -> str:
+    """``text`` with each of its lines broken at spaces (greedily) so that every line drawn at ``size_pt``
+    (`text_pixels`) is at most ``width_px`` figure pixels wide; a single word wider than that keeps a line
+    of its own."""
+    out = []
+    for line in text.split("\n"):
+        words, current = line.split(" "), ""
+        for word in words:
+            candidate = f"{current} {word}" if current else word
+            if current and text_pixels(candidate, size_pt).shape[1] > width_px:
+                out.append(current)
+                current = word
+            else:
+                current = candidate
+        out.append(current)
+    return "\n".join(out)
 
 
 def text_pixels(text: str, size_pt: float, ha: str = "center") -> np.ndarray:

@@ -62,3 +62,14 @@ def test_image_comparison_shows_each_pixel_as_a_block(tmp_path):
         for j in range(5):
             got = png[y0 + int((i + 0.5) * s), x0 + int((j + 0.5) * s)]
             assert np.allclose(got, want[i, j], atol=1e-6)
+
+
+def test_labels_wrap_at_spaces_to_the_tile_width():
+    label = "Schlick, fitted F0 and exponent (fitted to this scene)"
+    width = 0.5 * figures.text_pixels(label, 9).shape[1]
+    wrapped = figures.wrap_to_width(label, 9, width)
+    lines = wrapped.split("\n")
+    assert len(lines) >= 2 and " ".join(lines) == label  # only spaces became line breaks
+    assert all(figures.text_pixels(line, 9).shape[1] <= width for line in lines)
+    assert figures.wrap_to_width("Schlick\nmean 0.03", 9, 1e4) == "Schlick\nmean 0.03"  # fits: unchanged
+    assert figures.wrap_to_width("Lazányi–Szirmay-Kalos", 9, 5.0) == "Lazányi–Szirmay-Kalos"  # one word
