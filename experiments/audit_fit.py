@@ -22,13 +22,13 @@ from typing import Any
 import numpy as np
 
 from rtfit.fitting import fit_method
-from rtfit.realtime.arrays import backend_float, release_backend_tables
+from rtfit.realtime.arrays import NUMPY_OPS, backend_float, release_backend_tables, same_bits
 from rtfit.realtime.methods import Method, Param
 
 from .audit_family import AuditError, FamilyCase
 
 __all__ = ["FIT_SOLVER", "FitData", "PooledFit", "evaluate_case", "fit_case", "fit_data",
-           "length_scaled_params", "pooled_fit", "tables_as_drjit"]  # fmt: skip
+           "length_scaled_params", "pooled_fit", "stacked_agrees", "tables_as_drjit"]  # fmt: skip
 
 FIT_SOLVER = "trf"
 """The audit's fits: SciPy's trust-region reflective solver on the NumPy run of each kernel text
@@ -111,11 +111,14 @@ def _relative_weights(ref: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return np.divide(1.0, floor, out=np.zeros_like(floor, dtype=np.float64), where=floor > 0)
 
 
-def fit_data(method: Method, case: FamilyCase, row: str = "") -> FitData:
+def fit_data(method: Method, case: FamilyCase, row: str = "", stacked: bool = False) -> FitData:
     """The data of ``method``'s fit to the case's reference over the masked pixels and the three channels
     (where the case's factor is positive, the target divided by it). On a one-mapping case the method returns
     (R, G, B) and its inputs are passed as they are. Starts and bounds: the case's for the row
-    (`FamilyCase.params`), else the method's declared ones."""
+    (`FamilyCase.params`), else the method's declared ones. ``stacked``: a per-channel case's target and
+    weights as (3, n) arrays, each input the same in the three channels (bit for bit) passed once (n,) and
+    the others stacked (3, n): the kernel's elementwise text broadcasts them to the same values in the same
+    order as the concatenation (`fit_case`), computing what the channels share once."""
     ref = case.reference.mean[case.mask]
     relative = case.fit_weight == "relative"
     w = _relative_weights(ref, case.reference.sigma()[case.mask]) if relative else None
@@ -127,6 +130,7 @@ def fit_data(method: Method, case: FamilyCase, row: str = "") -> FitData:
                        weights=None if w is None else np.ascontiguousarray(w.T))  # fmt: skip
     keep = np.ones(len(ref), bool) if case.factor is None else case.factor > 0
     scale = np.ones(len(ref)) if case.factor is None else np.where(keep, case.factor, 1.0)
+    join = np.stack if stacked else np.concatenate
     inputs: dict[str, Any] = {}
     for n in method.input_names:
         first = case.channel_inputs[0][n]
@@ -139,21 +143,48 @@ def fit_data(method: Method, case: FamilyCase, row: str = "") -> FitData:
             parts.append(
                 np.asarray(v, np.float64)[keep] if np.ndim(v) else np.full(int(keep.sum()), float(v))
             )
-        inputs[n] = np.concatenate(parts)
-    target = np.concatenate([ref[keep, c] / scale[keep] for c in range(3)])
+        if stacked and all(same_bits(parts[0], p) for p in parts[1:]):
+            inputs[n] = parts[0]  # the same values in every channel: once, broadcast over the channels
+        else:
+            inputs[n] = join(parts)
+    target = join([ref[keep, c] / scale[keep] for c in range(3)])
     if w is not None:  # (f − ref/s)·s / max(|ref|, σ): the image's relative residual
-        w = np.concatenate([w[keep, c] * scale[keep] for c in range(3)])
+        w = join([w[keep, c] * scale[keep] for c in range(3)])
     return FitData(inputs, target, params, per_channel=True, weights=w)
 
 
 def fit_case(method: Method, case: FamilyCase, row: str = "") -> dict:
     """Fit ``method``'s free parameters to one case (`fit_data`), weighted by the case's `fit_weight`
     (``absolute``: the least-squares fit of the image's RMSE in the quantity's units; ``relative``: of its
-    relative error over the noise floor); the `FitResult` as a dict."""
+    relative error over the noise floor); the `FitResult` as a dict. A per-channel case whose channels share
+    inputs is fitted on its stacked data (`fit_data` ``stacked``: the shared work once, not three times) where
+    the kernel's NumPy run gives there, at the start, the concatenated data's residuals bit for bit (an
+    elementwise kernel; `stacked_agrees`), so that every evaluation of the fit does."""
     d = fit_data(method, case, row)
+    if d.per_channel and method.fit_ops == "numpy":
+        s = fit_data(method, case, row, stacked=True)
+        if any(np.ndim(v) == 1 for v in s.inputs.values()) and stacked_agrees(method, d, s):
+            d = s
     return fit_method(
         method, d.inputs, d.target, weights=d.weights, params=d.params, solver=FIT_SOLVER
     ).to_dict()
+
+
+def stacked_agrees(method: Method, flat: FitData, stacked: FitData) -> bool:
+    """Whether ``method``'s NumPy run at its start values gives on ``stacked`` (`fit_data` ``stacked``) the
+    values it gives on ``flat`` (the concatenated channels), bit for bit in the same order: the test that
+    its text is elementwise over the inputs (a kernel reading a 2-D input as a stack of rays, or failing on
+    one, is fitted on the concatenation)."""
+    values = {k: p.initial for k, p in flat.params.items()}
+    try:
+        with np.errstate(all="ignore"):
+            a = np.asarray(method(NUMPY_OPS, flat.inputs, values), np.float64)
+            b = np.asarray(method(NUMPY_OPS, stacked.inputs, values), np.float64)
+        a = np.ascontiguousarray(np.broadcast_to(a, flat.target.shape)).reshape(-1)
+        b = np.ascontiguousarray(np.broadcast_to(b, stacked.target.shape)).reshape(-1)
+    except Exception:  # any failure of the stacked run: the concatenation, as before
+        return False
+    return same_bits(a, b)
 
 
 @dataclass(frozen=True)

@@ -269,7 +269,7 @@ def _scanned_starts(method, params, inputs, held, target, weights, output) -> di
             with np.errstate(all="ignore"):
                 pred = method(NUMPY_OPS, inputs, trial) if run is None else run(trial)
                 pred = output(pred) if output is not None else pred
-                r = weights * (np.asarray(pred, np.float64) - target)
+                r = np.ravel(weights * (np.asarray(pred, np.float64) - target))  # (stacked: the same order)
                 c = float(np.sum(r * r))
             if np.isfinite(c) and c < cost:
                 best, cost = v, c
