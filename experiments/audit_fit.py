@@ -27,8 +27,19 @@ from rtfit.realtime.methods import Method, Param
 
 from .audit_family import AuditError, FamilyCase
 
-__all__ = ["FIT_SOLVER", "FitData", "PooledFit", "evaluate_case", "fit_case", "fit_data",
-           "length_scaled_params", "pooled_fit", "stacked_agrees", "tables_as_drjit"]  # fmt: skip
+__all__ = [
+    "FIT_SOLVER",
+    "FitData",
+    "PooledFit",
+    "channel_param_rows",
+    "evaluate_case",
+    "fit_case",
+    "fit_data",
+    "length_scaled_params",
+    "pooled_fit",
+    "stacked_agrees",
+    "tables_as_drjit",
+]  # fmt: skip
 
 FIT_SOLVER = "trf"
 """The audit's fits: SciPy's trust-region reflective solver on the NumPy run of each kernel text
@@ -161,13 +172,44 @@ def fit_case(method: Method, case: FamilyCase, row: str = "") -> dict:
     the kernel's NumPy run gives there, at the start, the concatenated data's residuals bit for bit (an
     elementwise kernel; `stacked_agrees`), so that every evaluation of the fit does."""
     d = fit_data(method, case, row)
+    rows = None
     if d.per_channel and method.fit_ops == "numpy":
         s = fit_data(method, case, row, stacked=True)
         if any(np.ndim(v) == 1 for v in s.inputs.values()) and stacked_agrees(method, d, s):
             d = s
+            rows = channel_param_rows(method, d)
     return fit_method(
-        method, d.inputs, d.target, weights=d.weights, params=d.params, solver=FIT_SOLVER
+        method, d.inputs, d.target, weights=d.weights, params=d.params, solver=FIT_SOLVER, param_rows=rows
     ).to_dict()
+
+
+def channel_param_rows(method: Method, d: FitData) -> dict[str, np.ndarray] | None:
+    """For a stacked per-channel fit (`fit_data` ``stacked``) of a method with one parameter per channel,
+    named ``<x>_r``, ``<x>_g``, ``<x>_b`` (colour-bleeding's SDF biases b_c): each one's residual rows, its
+    channel's, for `rtfit.fitting.fit_method`'s ``param_rows`` (its Jacobian steps the three together: one
+    evaluation per side, not three). Checked on the kernel's NumPy run: with each set to either bound, the
+    other channels' values stay those at the start bit for bit; else (or no such parameters) None."""
+    names = [k for k in d.params if k[-2:] in ("_r", "_g", "_b")
+             and all(k[:-2] + c in d.params for c in ("_r", "_g", "_b"))]  # fmt: skip
+    if not names or d.target.ndim != 2 or d.target.shape[0] != 3:
+        return None
+    start = {k: p.initial for k, p in d.params.items()}
+
+    def run(values) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            out = np.asarray(method(NUMPY_OPS, d.inputs, values), np.float64)
+        return np.ascontiguousarray(np.broadcast_to(out, d.target.shape))
+
+    base = run(start)
+    rows = {}
+    for k in names:
+        own = np.zeros(d.target.shape, bool)
+        own["rgb".index(k[-1])] = True
+        for v in (d.params[k].lower, d.params[k].upper):
+            if not (np.isfinite(v) and same_bits(run({**start, k: v})[~own], base[~own])):
+                return None
+        rows[k] = own.reshape(-1)
+    return rows
 
 
 def stacked_agrees(method: Method, flat: FitData, stacked: FitData) -> bool:
