@@ -62,7 +62,18 @@ polish; −17 % more) moved PCSS's light scale 248 stderr to a 1.8 % lower SSR a
 fits' Jacobian rank (their d_max, exponent undetermined); fitting first on a deterministic every-k-th
 subsample of ≤ 4096 elements, then polishing on all (−6 % more) moved the 256² map's poisson8-rotated radius
 0.50 stderr to a higher SSR (its texel steps: a subsample sees other edges), and quick runs fit fewer than
-4096 elements anyway."""
+4096 elements anyway.
+
+Issue 33 (session 19), the same audit, CPU seconds of its 25 fits (`fit_case`) measured alternately: 15.8 /
+14.2 → 8.6 / 8.6 (−42 %; pcf-soft-shadows 6.6 / 6.0 → 3.2 / 3.5, colour-bleeding 5.4 / 4.4 → 2.9 / 3.0,
+obscurances 2.0 / 2.0 → 1.0 / 0.9, ambient-aperture's caps 1.1 / 1.1 → 0.7 / 0.6), every number of the report
+the same bit for bit. Kept: (1) a per-channel case's inputs the channels share (a shadow map's u, v, depth,
+rotation; the rays' hit distances; the grey families' every input) passed once and broadcast (`fit_data`
+``stacked``), where the kernel gives the concatenation's residuals bit for bit (`stacked_agrees`): the
+kernels did each visibility three times; (2) colour-bleeding's per-channel biases stepped together in the
+central-difference Jacobian (`channel_param_rows`; 8 → 4 costly evaluations a Jacobian, its ~100
+Jacobians a fit crawling to its bounds). Checked and not the cost: the fitted rows' Dr.Jit evaluations
+(≤ 30 ms each; kernel cache hits), NumPy ↔ Dr.Jit conversions (the fits run NumPy)."""
 
 
 def evaluate_case(method: Method, case: FamilyCase, params: Mapping[str, float]) -> np.ndarray:

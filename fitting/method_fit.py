@@ -20,7 +20,9 @@ cores): what `rtfit audit` uses, where every scene gives new shapes. The standar
 same covariance rule (`covariance_from_jacobian`) on the Jacobian at the solution. It stops when the SSR
 change is far below the noise (`noise_ftol`: within 1e-2 of each value's stderr of the optimum) and runs
 with one BLAS thread (`blas_threads.one_blas_thread`: TRF's small matrix products on threaded OpenBLAS cost
-more CPU than the kernel evaluations).
+more CPU than the kernel evaluations). Parameters declared to change disjoint residuals (``param_rows``: a
+per-channel parameter of a per-channel fit) share the Jacobian's evaluations (`grouped_differences`), with
+the same Jacobian bit for bit.
 """
 
 from __future__ import annotations
