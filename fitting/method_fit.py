@@ -27,6 +27,7 @@ the same Jacobian bit for bit.
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import replace
@@ -311,8 +312,6 @@ def _drjit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[s
 
 def _takes_workers(least_squares) -> bool:
     """Whether SciPy's ``least_squares`` takes ``workers`` (the map its finite differences run through)."""
-    import inspect
-
     try:
         return "workers" in inspect.signature(least_squares).parameters
     except (TypeError, ValueError):
@@ -413,6 +412,7 @@ def _fit_trf(
 
     rows = [None if param_rows is None else param_rows.get(n) for n in names]
     workers = grouped_differences(rows, last) if _takes_workers(scipy.optimize.least_squares) else None
+    extra: dict[str, Any] = {} if workers is None else {"workers": workers}
 
     with np.errstate(all="ignore"), one_blas_thread():
         r0 = residual(x0)
@@ -435,7 +435,7 @@ def _fit_trf(
                 xtol=rtol * TRF_TOL_FACTOR,
                 gtol=atol * TRF_TOL_FACTOR,
                 max_nfev=int(max_steps) * (2 * len(names) + 1),
-                **({} if workers is None else {"workers": workers}),
+                **extra,
             )
 
         tight = rtol * TRF_TOL_FACTOR
