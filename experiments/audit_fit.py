@@ -64,9 +64,10 @@ subsample of ≤ 4096 elements, then polishing on all (−6 % more) moved the 25
 0.50 stderr to a higher SSR (its texel steps: a subsample sees other edges), and quick runs fit fewer than
 4096 elements anyway.
 
-Issue 33 (session 19), the same audit, CPU seconds of its 25 fits (`fit_case`) measured alternately: 15.8 /
-14.2 → 8.6 / 8.6 (−42 %; pcf-soft-shadows 6.6 / 6.0 → 3.2 / 3.5, colour-bleeding 5.4 / 4.4 → 2.9 / 3.0,
-obscurances 2.0 / 2.0 → 1.0 / 0.9, ambient-aperture's caps 1.1 / 1.1 → 0.7 / 0.6), every number of the report
+Issue 33 (session 19), the same audit, CPU seconds of its 25 fits (`fit_case`) measured alternately (two
+rounds): 15.8 / 14.2 and 13.9 / 13.7 → 8.6 / 8.6 and 9.4 / 7.8 (−40 %; first round: pcf-soft-shadows 6.6 /
+6.0 → 3.2 / 3.5, colour-bleeding 5.4 / 4.4 → 2.9 / 3.0, obscurances 2.0 / 2.0 → 1.0 / 0.9,
+ambient-aperture's caps 1.1 / 1.1 → 0.7 / 0.6), every number of the report
 the same bit for bit. Kept: (1) a per-channel case's inputs the channels share (a shadow map's u, v, depth,
 rotation; the rays' hit distances; the grey families' every input) passed once and broadcast (`fit_data`
 ``stacked``), where the kernel gives the concatenation's residuals bit for bit (`stacked_agrees`): the
