@@ -22,14 +22,25 @@ from typing import Any
 import numpy as np
 
 from rtfit.fitting import fit_method
-from rtfit.realtime.arrays import backend_float, release_backend_tables
+from rtfit.realtime.arrays import NUMPY_OPS, backend_float, release_backend_tables, same_bits
 from rtfit.realtime.methods import Method, Param
 
 from .audit import AuditError
 from .audit_family import FamilyCase
 
-__all__ = ["FIT_SOLVER", "FitData", "PooledFit", "evaluate_case", "fit_case", "fit_data",
-           "length_scaled_params", "pooled_fit", "tables_as_drjit"]  # fmt: skip
+__all__ = [
+    "FIT_SOLVER",
+    "FitData",
+    "PooledFit",
+    "channel_param_rows",
+    "evaluate_case",
+    "fit_case",
+    "fit_data",
+    "length_scaled_params",
+    "pooled_fit",
+    "stacked_agrees",
+    "tables_as_drjit",
+]  # fmt: skip
 
 FIT_SOLVER = "trf"
 """The audit's fits: SciPy's trust-region reflective solver on the NumPy run of each kernel text
@@ -52,7 +63,19 @@ polish; −17 % more) moved PCSS's light scale 248 stderr to a 1.8 % lower SSR a
 fits' Jacobian rank (their d_max, exponent undetermined); fitting first on a deterministic every-k-th
 subsample of ≤ 4096 elements, then polishing on all (−6 % more) moved the 256² map's poisson8-rotated radius
 0.50 stderr to a higher SSR (its texel steps: a subsample sees other edges), and quick runs fit fewer than
-4096 elements anyway."""
+4096 elements anyway.
+
+Issue 33 (session 19), the same audit, CPU seconds of its 25 fits (`fit_case`) measured alternately (two
+rounds): 15.8 / 14.2 and 13.9 / 13.7 → 8.6 / 8.6 and 9.4 / 7.8 (−40 %; first round: pcf-soft-shadows 6.6 /
+6.0 → 3.2 / 3.5, colour-bleeding 5.4 / 4.4 → 2.9 / 3.0, obscurances 2.0 / 2.0 → 1.0 / 0.9,
+ambient-aperture's caps 1.1 / 1.1 → 0.7 / 0.6), every number of the report
+the same bit for bit. Kept: (1) a per-channel case's inputs the channels share (a shadow map's u, v, depth,
+rotation; the rays' hit distances; the grey families' every input) passed once and broadcast (`fit_data`
+``stacked``), where the kernel gives the concatenation's residuals bit for bit (`stacked_agrees`): the
+kernels did each visibility three times; (2) colour-bleeding's per-channel biases stepped together in the
+central-difference Jacobian (`channel_param_rows`; 8 → 4 costly evaluations a Jacobian, its ~100
+Jacobians a fit crawling to its bounds). Checked and not the cost: the fitted rows' Dr.Jit evaluations
+(≤ 30 ms each; kernel cache hits), NumPy ↔ Dr.Jit conversions (the fits run NumPy)."""
 
 
 def evaluate_case(method: Method, case: FamilyCase, params: Mapping[str, float]) -> np.ndarray:
@@ -112,11 +135,14 @@ def _relative_weights(ref: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return np.divide(1.0, floor, out=np.zeros_like(floor, dtype=np.float64), where=floor > 0)
 
 
-def fit_data(method: Method, case: FamilyCase, row: str = "") -> FitData:
+def fit_data(method: Method, case: FamilyCase, row: str = "", stacked: bool = False) -> FitData:
     """The data of ``method``'s fit to the case's reference over the masked pixels and the three channels
     (where the case's factor is positive, the target divided by it). On a one-mapping case the method returns
     (R, G, B) and its inputs are passed as they are. Starts and bounds: the case's for the row
-    (`FamilyCase.params`), else the method's declared ones."""
+    (`FamilyCase.params`), else the method's declared ones. ``stacked``: a per-channel case's target and
+    weights as (3, n) arrays, each input the same in the three channels (bit for bit) passed once (n,) and
+    the others stacked (3, n): the kernel's elementwise text broadcasts them to the same values in the same
+    order as the concatenation (`fit_case`), computing what the channels share once."""
     ref = case.reference.mean[case.mask]
     relative = case.fit_weight == "relative"
     w = _relative_weights(ref, case.reference.sigma()[case.mask]) if relative else None
@@ -128,6 +154,7 @@ def fit_data(method: Method, case: FamilyCase, row: str = "") -> FitData:
                        weights=None if w is None else np.ascontiguousarray(w.T))  # fmt: skip
     keep = np.ones(len(ref), bool) if case.factor is None else case.factor > 0
     scale = np.ones(len(ref)) if case.factor is None else np.where(keep, case.factor, 1.0)
+    join = np.stack if stacked else np.concatenate
     inputs: dict[str, Any] = {}
     for n in method.input_names:
         first = case.channel_inputs[0][n]
@@ -140,21 +167,79 @@ def fit_data(method: Method, case: FamilyCase, row: str = "") -> FitData:
             parts.append(
                 np.asarray(v, np.float64)[keep] if np.ndim(v) else np.full(int(keep.sum()), float(v))
             )
-        inputs[n] = np.concatenate(parts)
-    target = np.concatenate([ref[keep, c] / scale[keep] for c in range(3)])
+        if stacked and all(same_bits(parts[0], p) for p in parts[1:]):
+            inputs[n] = parts[0]  # the same values in every channel: once, broadcast over the channels
+        else:
+            inputs[n] = join(parts)
+    target = join([ref[keep, c] / scale[keep] for c in range(3)])
     if w is not None:  # (f − ref/s)·s / max(|ref|, σ): the image's relative residual
-        w = np.concatenate([w[keep, c] * scale[keep] for c in range(3)])
+        w = join([w[keep, c] * scale[keep] for c in range(3)])
     return FitData(inputs, target, params, per_channel=True, weights=w)
 
 
 def fit_case(method: Method, case: FamilyCase, row: str = "") -> dict:
     """Fit ``method``'s free parameters to one case (`fit_data`), weighted by the case's `fit_weight`
     (``absolute``: the least-squares fit of the image's RMSE in the quantity's units; ``relative``: of its
-    relative error over the noise floor); the `FitResult` as a dict."""
+    relative error over the noise floor); the `FitResult` as a dict. A per-channel case whose channels share
+    inputs is fitted on its stacked data (`fit_data` ``stacked``: the shared work once, not three times) where
+    the kernel's NumPy run gives there, at the start, the concatenated data's residuals bit for bit (an
+    elementwise kernel; `stacked_agrees`), so that every evaluation of the fit does."""
     d = fit_data(method, case, row)
+    rows = None
+    if d.per_channel and method.fit_ops == "numpy":
+        s = fit_data(method, case, row, stacked=True)
+        if any(np.ndim(v) == 1 for v in s.inputs.values()) and stacked_agrees(method, d, s):
+            d = s
+            rows = channel_param_rows(method, d)
     return fit_method(
-        method, d.inputs, d.target, weights=d.weights, params=d.params, solver=FIT_SOLVER
+        method, d.inputs, d.target, weights=d.weights, params=d.params, solver=FIT_SOLVER, param_rows=rows
     ).to_dict()
+
+
+def channel_param_rows(method: Method, d: FitData) -> dict[str, np.ndarray] | None:
+    """For a stacked per-channel fit (`fit_data` ``stacked``) of a method with one parameter per channel,
+    named ``<x>_r``, ``<x>_g``, ``<x>_b`` (colour-bleeding's SDF biases b_c): each one's residual rows, its
+    channel's, for `rtfit.fitting.fit_method`'s ``param_rows`` (its Jacobian steps the three together: one
+    evaluation per side, not three). Checked on the kernel's NumPy run: with each set to either bound, the
+    other channels' values stay those at the start bit for bit; else (or no such parameters) None."""
+    names = [k for k in d.params if k[-2:] in ("_r", "_g", "_b")
+             and all(k[:-2] + c in d.params for c in ("_r", "_g", "_b"))]  # fmt: skip
+    if not names or d.target.ndim != 2 or d.target.shape[0] != 3:
+        return None
+    start = {k: p.initial for k, p in d.params.items()}
+
+    def run(values) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            out = np.asarray(method(NUMPY_OPS, d.inputs, values), np.float64)
+        return np.ascontiguousarray(np.broadcast_to(out, d.target.shape))
+
+    base = run(start)
+    rows = {}
+    for k in names:
+        own = np.zeros(d.target.shape, bool)
+        own["rgb".index(k[-1])] = True
+        for v in (d.params[k].lower, d.params[k].upper):
+            if not (np.isfinite(v) and same_bits(run({**start, k: v})[~own], base[~own])):
+                return None
+        rows[k] = own.reshape(-1)
+    return rows
+
+
+def stacked_agrees(method: Method, flat: FitData, stacked: FitData) -> bool:
+    """Whether ``method``'s NumPy run at its start values gives on ``stacked`` (`fit_data` ``stacked``) the
+    values it gives on ``flat`` (the concatenated channels), bit for bit in the same order: the test that
+    its text is elementwise over the inputs (a kernel reading a 2-D input as a stack of rays, or failing on
+    one, is fitted on the concatenation)."""
+    values = {k: p.initial for k, p in flat.params.items()}
+    try:
+        with np.errstate(all="ignore"):
+            a = np.asarray(method(NUMPY_OPS, flat.inputs, values), np.float64)
+            b = np.asarray(method(NUMPY_OPS, stacked.inputs, values), np.float64)
+        a = np.ascontiguousarray(np.broadcast_to(a, flat.target.shape)).reshape(-1)
+        b = np.ascontiguousarray(np.broadcast_to(b, stacked.target.shape)).reshape(-1)
+    except Exception:  # any failure of the stacked run: the concatenation, as before
+        return False
+    return same_bits(a, b)
 
 
 @dataclass(frozen=True)

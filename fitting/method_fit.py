@@ -20,11 +20,14 @@ cores): what `rtfit audit` uses, where every scene gives new shapes. The standar
 same covariance rule (`covariance_from_jacobian`) on the Jacobian at the solution. It stops when the SSR
 change is far below the noise (`noise_ftol`: within 1e-2 of each value's stderr of the optimum) and runs
 with one BLAS thread (`blas_threads.one_blas_thread`: TRF's small matrix products on threaded OpenBLAS cost
-more CPU than the kernel evaluations).
+more CPU than the kernel evaluations). Parameters declared to change disjoint residuals (``param_rows``: a
+per-channel parameter of a per-channel fit) share the Jacobian's evaluations (`grouped_differences`), with
+the same Jacobian bit for bit.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import replace
@@ -45,6 +48,7 @@ __all__ = [
     "concatenated",
     "fit_method",
     "gauss_newton_gain_small",
+    "grouped_differences",
     "method_model",
     "noise_ftol",
     "zero_padded",
@@ -194,6 +198,7 @@ def fit_method(
     held: Mapping[str, float] | None = None,
     output: Callable[[Any], Any] | None = None,
     solver: str = "lm",
+    param_rows: Mapping[str, Any] | None = None,
     **kwargs,
 ) -> FitResult:
     """Fit ``method``'s free parameters to ``target`` through the JAX run of its kernel text.
@@ -205,7 +210,10 @@ def fit_method(
     take the value in ``held`` (default: their declared default). ``output``: a module-level, JAX-traceable
     function applied to the kernel's result before the residual (reuse the same object across calls, or
     each call compiles again). ``solver``: ``"lm"`` (the JAX run, optimistix Levenberg–Marquardt) or
-    ``"trf"`` (the NumPy run, SciPy's trust-region reflective solver; module text). Other keyword
+    ``"trf"`` (the NumPy run, SciPy's trust-region reflective solver; module text). ``param_rows`` (``"trf"``
+    only): parameter name → boolean mask over the raveled residuals, the only ones that parameter changes
+    (the others stay the same bit for bit at any value: a per-channel parameter of a per-channel fit), so
+    that parameters of disjoint rows share the Jacobian's evaluations (`grouped_differences`). Other keyword
     arguments go to :func:`fit_least_squares` (``absolute_sigma``, ``max_steps`` for both solvers).
     """
     if solver not in ("lm", "trf"):
@@ -250,7 +258,8 @@ def fit_method(
     if any(p.scan for p in params.values()):
         params = _scanned_starts(method, params, {**x, **objects}, held_values, target, w, output)
     if solver == "trf":
-        return _fit_trf(method, params, {**x, **objects}, held_values, target, w, output, **kwargs)
+        return _fit_trf(method, params, {**x, **objects}, held_values, target, w, output,
+                        param_rows=param_rows, **kwargs)  # fmt: skip
     fn = _residual(method, tuple(params), tuple(sorted(held_values)), method.input_names, output, objects)
     return fit_least_squares(fn, params, (x, held_values, target, np.ascontiguousarray(w)), **kwargs)
 
@@ -269,7 +278,7 @@ def _scanned_starts(method, params, inputs, held, target, weights, output) -> di
             with np.errstate(all="ignore"):
                 pred = method(NUMPY_OPS, inputs, trial) if run is None else run(trial)
                 pred = output(pred) if output is not None else pred
-                r = weights * (np.asarray(pred, np.float64) - target)
+                r = np.ravel(weights * (np.asarray(pred, np.float64) - target))  # (stacked: the same order)
                 c = float(np.sum(r * r))
             if np.isfinite(c) and c < cost:
                 best, cost = v, c
@@ -301,6 +310,66 @@ def _drjit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[s
     return run
 
 
+def _takes_workers(least_squares) -> bool:
+    """Whether SciPy's ``least_squares`` takes ``workers`` (the map its finite differences run through)."""
+    try:
+        return "workers" in inspect.signature(least_squares).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def grouped_differences(rows: list, centre: Mapping[bytes, np.ndarray]) -> Callable | None:
+    """The ``workers`` map for SciPy's central-difference Jacobian (``jac="3-point"``) of a fit whose
+    parameter i changes only the residuals ``rows[i]`` (a boolean mask; None: any): parameters of pairwise
+    disjoint rows are stepped together, one evaluation per side for the group instead of one per parameter,
+    and each parameter's column gets the group's residuals on its rows and the centre's elsewhere — what
+    its own evaluation gives there, bit for bit, so SciPy's differences (its steps, bounds and one-sided rule
+    untouched) are the same. ``centre``: the latest residuals by the parameters' bytes (else evaluated
+    again). None where no two parameters' rows are disjoint. A map of anything but the Jacobian's 2·k points
+    (each stepping one parameter of one centre) runs each point as it is."""
+    groups: list[list[int]] = []
+    for i, r in enumerate(rows):
+        home = next((g for g in groups if r is not None and all(
+            rows[j] is not None and not np.any(r & rows[j]) for j in g)), None)  # fmt: skip
+        if home is None:
+            groups.append([i])
+        else:
+            home.append(i)
+    if all(len(g) == 1 for g in groups):
+        return None
+    k = len(rows)
+
+    def workers(fun, points):
+        xs = [np.array(x, np.float64) for x in points]
+        if len(xs) != 2 * k or k < 2:
+            return [fun(x) for x in xs]
+        x0 = xs[2].copy()
+        x0[1] = xs[0][1]  # the first pair steps parameter 0 only, the second parameter 1 only
+        for i, x in enumerate(xs):
+            other = np.arange(k) != i // 2
+            if not np.array_equal(x[other].view(np.uint64), x0[other].view(np.uint64)):
+                return [fun(x) for x in xs]
+        f0 = centre.get(x0.tobytes())
+        f0 = np.asarray(fun(x0) if f0 is None else f0, np.float64)
+        out: list = [None] * (2 * k)
+        for g in groups:
+            for side in (0, 1):
+                if len(g) == 1:
+                    out[2 * g[0] + side] = fun(xs[2 * g[0] + side])
+                    continue
+                x = x0.copy()
+                for i in g:
+                    x[i] = xs[2 * i + side][i]
+                f = np.asarray(fun(x), np.float64)
+                for i in g:
+                    col = f0.copy()
+                    col[rows[i]] = f[rows[i]]
+                    out[2 * i + side] = col
+        return out
+
+    return workers
+
+
 def _fit_trf(
     method: Method,
     params: Mapping[str, Param],
@@ -314,6 +383,7 @@ def _fit_trf(
     absolute_sigma: bool = False,
     rtol: float = 1e-10,
     atol: float = 1e-10,
+    param_rows: Mapping[str, Any] | None = None,
 ) -> FitResult:
     """`fit_method` with ``solver="trf"`` (module text): the NumPy run of the kernel, SciPy's TRF with a
     central-difference Jacobian; the result in the same form (and at-bound rule) as `fit_least_squares`."""
@@ -327,13 +397,22 @@ def _fit_trf(
 
     run = _drjit_run(method, inputs) if method.fit_ops == "drjit" else None
 
+    last: dict[bytes, np.ndarray] = {}  # the latest residuals (a Jacobian's centre: `grouped_differences`)
+
     def residual(v: np.ndarray) -> np.ndarray:
         values = {**held, **dict(zip(names, (float(a) for a in v), strict=True))}
         pred = method(NUMPY_OPS, inputs, values) if run is None else run(values)
         if output is not None:
             pred = output(pred)
         r = weights * (np.asarray(pred, np.float64) - target)
-        return np.ravel(np.broadcast_to(r, target.shape))
+        out = np.ravel(np.broadcast_to(r, target.shape))
+        last.clear()
+        last[np.asarray(v, np.float64).tobytes()] = out
+        return out
+
+    rows = [None if param_rows is None else param_rows.get(n) for n in names]
+    workers = grouped_differences(rows, last) if _takes_workers(scipy.optimize.least_squares) else None
+    extra: dict[str, Any] = {} if workers is None else {"workers": workers}
 
     with np.errstate(all="ignore"), one_blas_thread():
         r0 = residual(x0)
@@ -356,6 +435,7 @@ def _fit_trf(
                 xtol=rtol * TRF_TOL_FACTOR,
                 gtol=atol * TRF_TOL_FACTOR,
                 max_nfev=int(max_steps) * (2 * len(names) + 1),
+                **extra,
             )
 
         tight = rtol * TRF_TOL_FACTOR

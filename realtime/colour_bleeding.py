@@ -109,7 +109,7 @@ def _kept(ops, key: tuple, arrays: list, make) -> Any:
     they are read (a generator), so that a trace keeps the kernel's order of operations."""
     if (
         ops is not NUMPY_OPS
-        or not all(isinstance(a, np.ndarray) and a.ndim == 1 for a in arrays)
+        or not all(isinstance(a, np.ndarray) and a.ndim >= 1 for a in arrays)
         or max(a.size for a in arrays) * RAYS > _MEMO_FLOATS // 4
         or not all(isinstance(k, str | int | float) for k in key)
     ):

@@ -191,3 +191,80 @@ def test_a_case_compares_the_pixels_its_reference_was_made_for():
     bare = AuditReference(ref.mean, ref.stderr, 1, 1, 1, "k", "", 0.0, "q", "none", "planted")
     with pytest.raises(AuditError, match=r"^e: no mask"):
         FamilyCase("e", "e", bare, channel_inputs=({"x": 1.0},) * 3)
+
+
+def _scaled(ops, x, s, a, b):
+    return a * x * s + b
+
+
+def _indexed(ops, x, s, a, b):  # not elementwise: reads each element's place in the array
+    return a * x * s + b * np.arange(np.size(x * s)) / np.size(x * s)
+
+
+@pytest.mark.parametrize("kernel", [_scaled, _indexed])
+def test_a_per_channel_fit_computes_shared_inputs_once_where_the_kernel_is_elementwise(kernel):
+    """`fit_data` ``stacked`` passes an input the three channels share once (n,), the others (3, n);
+    `fit_case` fits on it only where the kernel gives there the concatenation's values (`stacked_agrees`):
+    an elementwise kernel does, one reading each element's place in the array does not. Either way the
+    values are the least-squares solution of the concatenated model (`lstsq`, computed here), within the
+    fits' stop."""
+    from rtfit.experiments.audit_fit import fit_data, stacked_agrees
+
+    rng = np.random.default_rng(11)
+    n = 20
+    x = rng.uniform(0.5, 4.0, n)
+    mean = rng.uniform(0.5, 8.0, (1, n, 3))
+    ref = AuditReference(mean, np.full_like(mean, 0.01), 16, 1, 1, "k", "p", 0.0, "q", "none", "planted")
+    inputs = tuple({"x": x.copy(), "s": float(c + 1)} for c in range(3))  # x: equal values, not one object
+    method = Method(id="m", label="m", kernel=kernel, inputs=(Input("x"), Input("s")),
+                    params={"a": Param(1.0, -10.0, 10.0), "b": Param(0.0, -10.0, 10.0)})  # fmt: skip
+    case = FamilyCase("c", "c", ref, np.ones((1, n), bool), inputs)
+    stacked, flat = fit_data(method, case, "m", stacked=True), fit_data(method, case, "m")
+    assert stacked.inputs["x"].shape == (n,) and stacked.inputs["s"].shape == (3, n)
+    assert stacked.target.shape == (3, n) and flat.target.shape == (3 * n,)
+    assert stacked_agrees(method, flat, stacked) == (kernel is _scaled)
+    got = fit_case(method, case, "m")["parameters"]
+    s = np.repeat([1.0, 2.0, 3.0], n)
+    col_b = np.ones(3 * n) if kernel is _scaled else np.arange(3 * n) / (3 * n)
+    A = np.stack([np.tile(x, 3) * s, col_b], axis=1)
+    expected = np.linalg.lstsq(A, mean[0].T.reshape(-1), rcond=None)[0]
+    for k, e in zip("ab", expected, strict=True):  # (the fits stop within 1e-2 of a stderr: `noise_ftol`)
+        assert abs(got[k]["value"] - e) <= 0.02 * got[k]["stderr"]
+
+
+def _channel_scales(ops, channel, x, s_r, s_g, s_b, leak):
+    """s_c·x on channel c (exact Lagrange picks), plus ``leak``·s_g on every channel (0: none)."""
+    c = channel
+    s = s_r * (c - 1.0) * (c - 2.0) * 0.5 - s_g * c * (c - 2.0) + s_b * c * (c - 1.0) * 0.5
+    return s * x + leak * s_g
+
+
+@pytest.mark.parametrize("leak", [0.0, 0.1])
+def test_per_channel_parameters_are_found_by_name_and_checked(leak):
+    """`channel_param_rows`: parameters ``<x>_r``, ``<x>_g``, ``<x>_b`` of a stacked per-channel fit, each
+    changing only its channel's values (checked at its bounds), get their channel's rows; one that changes
+    another channel's values (``leak``) makes none. The fit's values are the least-squares ones either way
+    (per channel: s_c = Σ x y_c / Σ x², computed here)."""
+    from rtfit.experiments.audit_fit import channel_param_rows, fit_data
+
+    rng = np.random.default_rng(8)
+    n = 25
+    x = rng.uniform(0.5, 3.0, n)
+    mean = x[None, :, None] * np.array([0.5, 1.5, 2.5]) + rng.normal(0, 0.01, (1, n, 3))
+    ref = AuditReference(mean, np.full_like(mean, 0.01), 16, 1, 1, "k", "p", 0.0, "q", "none", "planted")
+    inputs = tuple({"channel": float(c), "x": x} for c in range(3))
+    method = Method(id="cs", label="cs", kernel=_channel_scales, inputs=(Input("channel"), Input("x")),
+                    params={f"s_{c}": Param(1.0, 0.0, 4.0) for c in "rgb"},
+                    fixed={"leak": leak})  # fmt: skip
+    case = FamilyCase("c", "c", ref, np.ones((1, n), bool), inputs)
+    rows = channel_param_rows(method, fit_data(method, case, "cs", stacked=True))
+    if leak:
+        assert rows is None
+    else:
+        assert rows is not None and sorted(rows) == ["s_b", "s_g", "s_r"]
+        for i, c in enumerate("rgb"):
+            assert np.array_equal(rows[f"s_{c}"].reshape(3, n), np.arange(3)[:, None] == i + 0 * x)
+        got = fit_case(method, case, "cs")["parameters"]
+        for i, c in enumerate("rgb"):
+            expected = np.sum(x * mean[0, :, i]) / np.sum(x * x)
+            assert abs(got[f"s_{c}"]["value"] - expected) <= 0.02 * got[f"s_{c}"]["stderr"]
