@@ -112,6 +112,8 @@ def _value(t) -> Any:
 
 
 _OPAQUE: dict[tuple, tuple] = {}
+MEMOS = (_OPAQUE,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def _device_table(ops, lights, like) -> list:
