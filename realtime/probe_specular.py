@@ -128,13 +128,24 @@ def prefilter_matrix(source: int, target: int, alpha: float, rows: slice = slice
     is computed alone, so a block's rows are the whole matrix's)."""
     if lobe_within_texel(source, alpha):
         return None
-    q = cube_texels(target)["point"][rows]
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w = cube_texels(source)["point"]
-    w = w / np.linalg.norm(w, axis=1, keepdims=True)
+    return _weight_rows(_unit_texels(target)[rows], _unit_texels(source), _solid_angles(source), alpha)
+
+
+def _unit_texels(resolution: int) -> np.ndarray:
+    q = cube_texels(resolution)["point"]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _solid_angles(source: int) -> np.ndarray:
+    return texel_solid_angle(source, "exact")[None, :]
+
+
+def _weight_rows(q: np.ndarray, w: np.ndarray, omega: np.ndarray, alpha: float) -> np.ndarray:
+    """Rows of `prefilter_matrix` for the unit target directions ``q`` over the unit source texels ``w``
+    (solid angles ``omega``, (1, S))."""
     with np.errstate(all="ignore"):
         weights = evaluate_numpy(ggx_prefilter_weight_kernel, q @ w.T, float(alpha))
-    weights = np.asarray(weights) * texel_solid_angle(source, "exact")[None, :]
+    weights = np.asarray(weights) * omega
     return weights / np.maximum(weights.sum(axis=1, keepdims=True), 1e-300)
 
 
@@ -148,8 +159,9 @@ def prefilter_many(
     radiances: Sequence[np.ndarray], target: int = PREFILTER_RESOLUTION, levels: int = LEVELS
 ) -> list[np.ndarray]:
     """The chains of several probes (each as `prefilter`), every level's matrix built once for all of them
-    and never whole: a block of `PREFILTER_ROWS` rows at a time, applied to each probe's map (a row's
-    product is the same in a block as in the whole matrix)."""
+    and never whole: a block of `PREFILTER_ROWS` rows at a time (`prefilter_matrix`'s rows), times the
+    probes' maps side by side in one product (an element of W·L is its row's dot product with its column,
+    the same in a block, and beside other columns, as alone)."""
     rads = [np.asarray(r, np.float64) for r in radiances]
     rads = [r.reshape(r.shape[0], -1) for r in rads]
     sources = {round(math.sqrt(r.shape[0] / 6)) for r in rads}
@@ -158,21 +170,23 @@ def prefilter_many(
     source = sources.pop() if sources else 1
     q = cube_texels(target)["point"]
     chains: list[list[np.ndarray]] = [[] for _ in rads]
+    if not rads:
+        return []
+    qn, wn, omega = _unit_texels(target), _unit_texels(source), _solid_angles(source)
+    stacked = np.hstack(rads)
+    columns = np.cumsum([0] + [r.shape[1] for r in rads])
     for alpha in level_roughness(levels):
         if lobe_within_texel(source, float(alpha)):
             for chain, rad in zip(chains, rads, strict=True):
                 lookups = [np.asarray(cube_lookup(rad[:, c], q, numpy=True)) for c in range(rad.shape[1])]
                 chain.append(np.stack(lookups, 1))
             continue
-        level = [np.empty((len(q), rad.shape[1])) for rad in rads]
+        level = np.empty((len(q), stacked.shape[1]))
         for start in range(0, len(q), PREFILTER_ROWS):
             block = slice(start, start + PREFILTER_ROWS)
-            m = prefilter_matrix(source, target, float(alpha), block)
-            assert m is not None
-            for out, rad in zip(level, rads, strict=True):
-                out[block] = m @ rad
-        for chain, out in zip(chains, level, strict=True):
-            chain.append(out)
+            level[block] = _weight_rows(qn[block], wn, omega, float(alpha)) @ stacked
+        for chain, a, b in zip(chains, columns[:-1], columns[1:], strict=True):
+            chain.append(level[:, a:b])
     return [np.concatenate(chain, axis=0) for chain in chains]
 
 
