@@ -150,6 +150,8 @@ def scene_distance_field(
 
 
 _LAST_FIELD: dict = {}
+MEMOS = (_LAST_FIELD,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def _baked_grid(v, f, origin, voxel, shape, cache_root: Path | None) -> tuple[SdfGrid, str]:

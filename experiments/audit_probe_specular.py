@@ -118,14 +118,27 @@ def probe_specular_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCa
     alpha = bsdf_roughness(mi, shape)
     distribution = _distribution(shape)
     placements = [("assigned", assigned[None, :])] + [(f"grid{k}", _grid(lo, hi, k)) for k in GRIDS]
-    cases = []
-    for name, probes in placements:
+    placed, waited = [], []
+    for _, probes in placements:
         t0 = time.perf_counter()
-        captures = [
-            _capture(setup, index, shape, p, far, f"{tag}: probe {j + 1}/{len(probes)} at {vector_text(p)}")
-            for j, p in enumerate(probes)
-        ]
-        chains = np.concatenate([ps.prefilter(c[0]) for c in captures], axis=0)
+        placed.append(
+            [
+                _capture(
+                    setup, index, shape, p, far, f"{tag}: probe {j + 1}/{len(probes)} at {vector_text(p)}"
+                )
+                for j, p in enumerate(probes)
+            ]
+        )
+        waited.append(time.perf_counter() - t0)
+    # Every probe's chain in one pass: each level's matrix is built once for the shape (`prefilter_many`),
+    # its time shared among the placements by their probe counts.
+    t0 = time.perf_counter()
+    chain_of = iter(ps.prefilter_many([c[0] for captures in placed for c in captures]))
+    per_probe = (time.perf_counter() - t0) / sum(len(probes) for _, probes in placements)
+    cases = []
+    for (name, probes), captures, wait in zip(placements, placed, waited, strict=True):
+        spent, t0 = wait + per_probe * len(probes), time.perf_counter()  # its captures, its chains' share
+        chains = np.concatenate([next(chain_of) for _ in captures], axis=0)
         irr = np.concatenate([c[1] for c in captures], axis=0)
         nearest = np.argmin(np.linalg.norm(points[:, None, :] - probes[None, :, :], axis=2), axis=1)
         rel = points - probes[nearest]
@@ -144,7 +157,7 @@ def probe_specular_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCa
             "radius": radius,
             "chains": ps.ProbeChains(chains, irr),
         }
-        capture_seconds = sum(c[3] for c in captures) + time.perf_counter() - t0
+        capture_seconds = sum(c[3] for c in captures) + spent + time.perf_counter() - t0
         ref = pooled.reference(
             mask,
             quantity="radiance of the pixels that see the glossy shape (W/m²/sr)",

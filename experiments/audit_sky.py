@@ -148,6 +148,8 @@ def sky_reference(setup: AuditSetup, app: Applicability, family: str) -> SkyRefe
 
 
 _MEMO: dict[str, Any] = {}
+MEMOS = (_MEMO,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def occluded_sky(setup: AuditSetup, app: Applicability, family: str) -> OccludedSky:

@@ -125,6 +125,8 @@ class SkyInputs:
 
 
 _MEMO: dict[str, Any] = {}
+MEMOS = (_MEMO,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def sky_inputs(setup: AuditSetup, app: Applicability, family: str) -> SkyInputs:

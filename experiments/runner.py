@@ -16,6 +16,7 @@ import logging
 import platform
 import resource
 import subprocess
+import sys
 import time
 from collections.abc import Mapping
 from importlib import metadata
@@ -203,12 +204,27 @@ def run_experiments(
     return done
 
 
+def forget_memos() -> None:
+    """Empty the process-wide memos of every loaded rtfit module: a module that keeps tables, compiled or
+    frozen functions or loaded scenes from one call to the next names their containers (dicts, lists) in a
+    module attribute ``MEMOS``. They serve the calls of one experiment (a fit's repeated evaluations, a
+    scene's cases); past it they only held its memory under the next (issue 33: the lat-long quadrature's
+    tables, 128 MiB, stayed from irradiance-bases to the end of the quick suite). A memo's entry is what
+    recomputing gives, so emptying it changes no result."""
+    for name, module in list(sys.modules.items()):
+        if name.startswith("rtfit.") and module is not None:
+            for memo in vars(module).get("MEMOS", ()):
+                memo.clear()
+
+
 def release_memory() -> None:
-    """Hand the memory an experiment freed back to the system before the next one starts: Python's cycles
-    collected, Dr.Jit's allocation cache flushed (it keeps freed buffers for reuse) and glibc's free heap
-    trimmed (`malloc_trim`, where the C library has it). A suite runs its experiments in one process, so
-    without it each one's high-water mark stayed resident under the next (issue 33: the quick suite's peak
-    was the sum of retained heaps, not one family's need)."""
+    """Hand the memory an experiment freed back to the system before the next one starts: the modules'
+    memos emptied (`forget_memos`), Python's cycles collected, Dr.Jit's allocation cache flushed (it keeps
+    freed buffers for reuse) and glibc's free heap trimmed (`malloc_trim`, where the C library has it). A
+    suite runs its experiments in one process, so without it each one's high-water mark stayed resident
+    under the next (issue 33: the quick suite's peak was the sum of retained heaps, not one family's
+    need)."""
+    forget_memos()
     gc.collect()
     dr.flush_malloc_cache()
     try:

@@ -315,6 +315,8 @@ def _pin_candidates(jac, r, x, names, ps) -> list[tuple[str, str]]:
 
 
 _PINNED: dict[tuple, Callable] = {}
+MEMOS = (_PINNED,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def _pinned_residual(residual_fn: Callable, names: tuple, pinned: tuple) -> Callable:

@@ -118,6 +118,8 @@ fits report a rank-deficient one."""
 
 _RESIDUALS: dict[tuple, Callable] = {}
 _KEEP_ALIVE: dict[int, Method] = {}
+MEMOS = (_RESIDUALS, _KEEP_ALIVE)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def zero_padded(a, size: int) -> np.ndarray:

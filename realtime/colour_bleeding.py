@@ -98,6 +98,8 @@ step's start must outlive about ten others (each one float per point; ρ(d_k) K 
 _MEMO_ENTRIES = 16
 """The most values `_kept` keeps (the least recently used dropped first; see `_MEMO_FLOATS`)."""
 _KEPT: dict[str, tuple] = {}
+MEMOS = (_KEPT,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def _kept(ops, key: tuple, arrays: list, make) -> Any:

@@ -112,6 +112,8 @@ def _value(t) -> Any:
 
 
 _OPAQUE: dict[tuple, tuple] = {}
+MEMOS = (_OPAQUE,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def _device_table(ops, lights, like) -> list:
@@ -352,18 +354,19 @@ class DepthMaps:
     def _table(self, ops, channel: str, like):
         """The channel's N·R² texels: on NumPy (and for the shader tracer, which reads a table's size) the
         float32 values themselves (gathered, then widened: the same float64 values as a float64 table, at
-        half its memory: 0.5 GiB of the quick suite's maps), on Dr.Jit in ``like``'s type, on JAX float64."""
+        half its memory: 0.5 GiB of the quick suite's maps), a view of the maps (a normal's component strided
+        through the (N, R, R, 3) normals: its contiguous copies were 115 MiB of ibl-samples' quick peak,
+        issue 33); on Dr.Jit in ``like``'s type, on JAX float64."""
         drjit_kind = type(like) if ops is DRJIT_OPS and is_drjit(like) else None
         key = (ops.name, channel, drjit_kind)
         if key not in self._tables:
             c = _CHANNELS.index(channel)
             narrow = ops.name in (NUMPY_OPS.name, "shader")  # the shader tracer reads only a table's size
-            if narrow and c == 0:
-                self._tables[key] = self.depth.reshape(-1)  # a view: no copy
+            texels = self.normals[..., c - 1] if c else self.depth
+            if narrow:
+                self._tables[key] = texels.reshape(-1)  # a view (evenly strided): no copy
             else:
-                dtype = np.float32 if narrow else np.float64
-                texels = self.normals[..., c - 1] if c else self.depth
-                flat = np.ascontiguousarray(texels.reshape(-1), dtype)
+                flat = np.ascontiguousarray(texels.reshape(-1), np.float64)
                 self._tables[key] = drjit_kind(flat) if drjit_kind is not None else flat
         return self._tables[key]
 

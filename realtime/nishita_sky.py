@@ -1100,6 +1100,8 @@ from it. A seed texture in float64 is 8192 texels × 6 channels × 8 bytes (0.4 
 _INSCATTER_HELD: list = []
 """[array inputs, {scalar key: (S_R, S_M)}]: the Dr.Jit in-scatters of `nishita_sky_kernel` on the last array
 inputs it saw (`_inscatter_reused`), oldest first."""
+MEMOS = (_INSCATTER_HELD,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def _scalar_key(v):

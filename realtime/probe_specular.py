@@ -58,8 +58,8 @@ denominator is ≥ α⁴ (floored at 10⁻³⁰) and its weights are normalised 
 
 from __future__ import annotations
 
-import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -71,13 +71,16 @@ from .methods import Input, Method, Param, method_table
 __all__ = [
     "LEVELS",
     "PREFILTER_RESOLUTION",
+    "PREFILTER_ROWS",
     "ProbeChains",
     "box_parallax_kernel",
     "chain_lookup_kernel",
     "ggx_prefilter_weight_kernel",
     "level_roughness",
+    "lobe_within_texel",
     "mip_level_kernel",
     "prefilter",
+    "prefilter_many",
     "prefilter_matrix",
     "probe_specular_kernel",
     "sphere_parallax_kernel",
@@ -111,41 +114,86 @@ def ggx_prefilter_weight_kernel(ops, cos_angle, alpha):
     return a2 * _INV_PI / ops.maximum(den * den, 1e-30) * c
 
 
-@functools.lru_cache(maxsize=32)
-def prefilter_matrix(source: int, target: int, alpha: float) -> np.ndarray | None:
+def lobe_within_texel(source: int, alpha: float) -> bool:
+    """Whether the lobe of ``alpha`` is narrower than a texel of a ``source``² map (2α < π/(2·source)): no
+    texel centre lies in it, and the level is the map's bilinear value (`prefilter_matrix` is None)."""
+    return 2.0 * alpha < 0.5 * math.pi / source
+
+
+def prefilter_matrix(source: int, target: int, alpha: float, rows: slice = slice(None)) -> np.ndarray | None:
     """The (6·target², 6·source²) matrix W of one level (G = W·L, rows summing to 1): Karis's weights
     (`ggx_prefilter_weight_kernel`) times the exact texel solid angles, normalised per row. None where the
-    lobe is narrower than a source texel (2α < π/(2·source)): the level is then the bilinear lookup. Cached
-    (the matrix depends on the resolutions and α only, not on the probe)."""
-    if 2.0 * alpha < 0.5 * math.pi / source:
+    lobe is narrower than a source texel (2α < π/(2·source)): the level is then the bilinear lookup.
+    ``rows``: only those target texels' rows (`prefilter_many` builds a level a block at a time; each row
+    is computed alone, so a block's rows are the whole matrix's)."""
+    if lobe_within_texel(source, alpha):
         return None
-    q = cube_texels(target)["point"]
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w = cube_texels(source)["point"]
-    w = w / np.linalg.norm(w, axis=1, keepdims=True)
+    return _weight_rows(_unit_texels(target)[rows], _unit_texels(source), _solid_angles(source), alpha)
+
+
+def _unit_texels(resolution: int) -> np.ndarray:
+    q = cube_texels(resolution)["point"]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _solid_angles(source: int) -> np.ndarray:
+    return texel_solid_angle(source, "exact")[None, :]
+
+
+def _weight_rows(q: np.ndarray, w: np.ndarray, omega: np.ndarray, alpha: float) -> np.ndarray:
+    """Rows of `prefilter_matrix` for the unit target directions ``q`` over the unit source texels ``w``
+    (solid angles ``omega``, (1, S))."""
     with np.errstate(all="ignore"):
         weights = evaluate_numpy(ggx_prefilter_weight_kernel, q @ w.T, float(alpha))
-    weights = np.asarray(weights) * texel_solid_angle(source, "exact")[None, :]
+    weights = np.asarray(weights) * omega
     return weights / np.maximum(weights.sum(axis=1, keepdims=True), 1e-300)
+
+
+PREFILTER_ROWS = 256
+"""Target texels (rows of a level's matrix) `prefilter_many` builds and applies at a time. The whole
+matrix at 16² from 32² is 1536 × 6144 float64 (75 MB) and its build held several temporaries of that size;
+a block of 256 rows is 12.6 MB (issue 33: the quick suite's peak memory was probe-specular's matrices)."""
+
+
+def prefilter_many(
+    radiances: Sequence[np.ndarray], target: int = PREFILTER_RESOLUTION, levels: int = LEVELS
+) -> list[np.ndarray]:
+    """The chains of several probes (each as `prefilter`), every level's matrix built once for all of them
+    and never whole: a block of `PREFILTER_ROWS` rows at a time (`prefilter_matrix`'s rows), times the
+    probes' maps side by side in one product (an element of W·L is its row's dot product with its column,
+    the same in a block, and beside other columns, as alone)."""
+    rads = [np.asarray(r, np.float64) for r in radiances]
+    rads = [r.reshape(r.shape[0], -1) for r in rads]
+    sources = {round(math.sqrt(r.shape[0] / 6)) for r in rads}
+    if len(sources) > 1:
+        raise ValueError(f"the probes' maps have different resolutions: {sorted(sources)}")
+    source = sources.pop() if sources else 1
+    q = cube_texels(target)["point"]
+    chains: list[list[np.ndarray]] = [[] for _ in rads]
+    if not rads:
+        return []
+    qn, wn, omega = _unit_texels(target), _unit_texels(source), _solid_angles(source)
+    stacked = np.hstack(rads)
+    columns = np.cumsum([0] + [r.shape[1] for r in rads])
+    for alpha in level_roughness(levels):
+        if lobe_within_texel(source, float(alpha)):
+            for chain, rad in zip(chains, rads, strict=True):
+                lookups = [np.asarray(cube_lookup(rad[:, c], q, numpy=True)) for c in range(rad.shape[1])]
+                chain.append(np.stack(lookups, 1))
+            continue
+        level = np.empty((len(q), stacked.shape[1]))
+        for start in range(0, len(q), PREFILTER_ROWS):
+            block = slice(start, start + PREFILTER_ROWS)
+            level[block] = _weight_rows(qn[block], wn, omega, float(alpha)) @ stacked
+        for chain, a, b in zip(chains, columns[:-1], columns[1:], strict=True):
+            chain.append(level[:, a:b])
+    return [np.concatenate(chain, axis=0) for chain in chains]
 
 
 def prefilter(radiance: np.ndarray, target: int = PREFILTER_RESOLUTION, levels: int = LEVELS) -> np.ndarray:
     """The chain of one probe: ``radiance`` (6N², C) → (levels·6·target², C), level after level
     (`prefilter_matrix`; a level narrower than a texel is the map's bilinear value at the texel centres)."""
-    rad = np.asarray(radiance, np.float64)
-    rad = rad.reshape(rad.shape[0], -1)
-    source = round(math.sqrt(rad.shape[0] / 6))
-    q = cube_texels(target)["point"]
-    out = []
-    for alpha in level_roughness(levels):
-        m = prefilter_matrix(source, target, float(alpha))
-        if m is None:
-            out.append(
-                np.stack([np.asarray(cube_lookup(rad[:, c], q, numpy=True)) for c in range(rad.shape[1])], 1)
-            )
-        else:
-            out.append(m @ rad)
-    return np.concatenate(out, axis=0)
+    return prefilter_many([radiance], target, levels)[0]
 
 
 def mip_level_kernel(ops, alpha, levels, p):

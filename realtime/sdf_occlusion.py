@@ -552,6 +552,8 @@ def _cone_march(ops, sdf, cones, steps, t0, t_max, px, py, pz, nx, ny, nz):
 _CONE_MARCHES: list = []
 """`_numpy_cone_march`'s memo: (key, sdf, nlen, marches), the last few, newest last."""
 _CONE_MARCHES_MAX = 2
+MEMOS = (_FROZEN, _CONE_MARCHES)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def _numpy_cone_march(sdf, cones, steps, t0, t_max, *cols):

@@ -153,6 +153,8 @@ def box_exit(origins, dirs) -> np.ndarray:
 
 # ========================================================================================== Mitsuba
 _SCENES: dict = {}
+MEMOS = (_SCENES,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def _room_scene(variant: str):

@@ -56,6 +56,8 @@ def latlong_table(d, wl, rows: int, cols: int) -> LatLongTable:
 
 
 _TABLES: OrderedDict[Hashable, LatLongTable] = OrderedDict()
+MEMOS = (_TABLES,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def cached_table(key: Hashable, build: Callable[[], LatLongTable]) -> LatLongTable:

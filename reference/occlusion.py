@@ -143,6 +143,8 @@ class SunskySky:
 
 
 _SKY_CACHE: dict = {}
+MEMOS = (_SKY_CACHE,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def sunsky_emitter(mi, sky: SunskySky):

@@ -275,6 +275,26 @@ def test_in_kernel_depth_test_equals_the_offline_test_at_the_seeds_bias():
     assert np.mean(got32 == want) > 0.999
 
 
+def test_numpy_tables_read_the_maps_texels_without_a_copy():
+    """The NumPy run's tables are the maps' own float32 texels, no copy (issue 33: the normals' per-channel
+    copies were 115 MiB of ibl-samples' quick peak): texel k·R² + j·R + i of each channel is depth[k, j, i]
+    or normals[k, j, i, c] exactly, widened to float64."""
+    from rtfit.realtime import NUMPY_OPS
+
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(0.2, 1, (3, 8, 8)).astype(np.float32)
+    normals = rng.normal(size=(3, 8, 8, 3)).astype(np.float32)
+    maps = _maps(depth, normals, ibl.fibonacci_directions(3))
+    k, j, i = rng.integers(0, 3, 50), rng.integers(0, 8, 50), rng.integers(0, 8, 50)
+    index = (k * 64 + j * 8 + i).astype(np.float64)
+    for c, channel in enumerate(("depth", "nx", "ny", "nz")):
+        table = maps._table(NUMPY_OPS, channel, index)
+        assert np.shares_memory(table, maps.depth if c == 0 else maps.normals)
+        want = depth[k, j, i] if c == 0 else normals[k, j, i, c - 1]
+        got = maps.sample(NUMPY_OPS, channel, index, index)
+        assert got.dtype == np.float64 and np.array_equal(got, want.astype(np.float64))
+
+
 def test_in_kernel_flat_map_by_hand_with_bias_and_pcf():
     """One light straight down (d = +z) over a flat 8² map at depth 0.5 holding the normal +z, c = 0, r = 1:
     a point at height h has z = ½ − h/2. By hand: h = 0.2 (z = 0.4) lit, h = −0.2 (0.6) shadowed, h = −0.01

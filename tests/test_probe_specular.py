@@ -20,9 +20,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import rtfit
+import rtfit.realtime.probe_specular as probe_specular_module
 from rtfit.experiments.audit_cli import audit as audit_cli
 from rtfit.realtime.arrays import NUMPY_OPS
-from rtfit.realtime.environment_maps import cube_texels
+from rtfit.realtime.environment_maps import cube_lookup, cube_texels
 from rtfit.realtime.probe_specular import (
     LEVELS,
     METHODS,
@@ -30,8 +31,11 @@ from rtfit.realtime.probe_specular import (
     ProbeChains,
     box_parallax_kernel,
     level_roughness,
+    lobe_within_texel,
     mip_level_kernel,
     prefilter,
+    prefilter_many,
+    prefilter_matrix,
     sphere_parallax_kernel,
 )
 from rtfit.scenes.parse import LIBRARY_DIR
@@ -183,6 +187,28 @@ def test_ggx_prefilter_matches_quadrature():
     # roughness blurs: at α = 1 the lobe's mean of ω_z² over the upper hemisphere about +z is below 1
     top = int(np.argmax(q[:, 2]))
     assert chain[(LEVELS - 1) * 6 * N * N + top, 0] < chain[top, 0]
+
+
+def test_prefilter_many_builds_each_level_by_blocks(monkeypatch):
+    """`prefilter_many` builds a level's matrix a block of rows at a time and applies it to several probes
+    (issue 33: the whole matrices were the quick suite's peak memory): each probe's chain is, bit for bit,
+    the whole matrix `prefilter_matrix` times its map at the rough levels and the map's own bilinear value
+    (`cube_lookup`) at the levels narrower than a texel. Blocks of 40 rows of 96: the last one is short."""
+    monkeypatch.setattr(probe_specular_module, "PREFILTER_ROWS", 40)
+    rng = np.random.default_rng(7)
+    maps = [rng.random((6 * 8 * 8, 3)) for _ in range(3)]
+    chains = prefilter_many(maps, target=4)
+    q, size = cube_texels(4)["point"], 6 * 4 * 4
+    for rad, chain in zip(maps, chains, strict=True):
+        assert chain.shape == (LEVELS * size, 3)
+        for k, alpha in enumerate(level_roughness()):
+            level = chain[k * size : (k + 1) * size]
+            if lobe_within_texel(8, float(alpha)):
+                want = np.stack([np.asarray(cube_lookup(rad[:, c], q, numpy=True)) for c in range(3)], 1)
+            else:
+                want = prefilter_matrix(8, 4, float(alpha)) @ rad
+            np.testing.assert_array_equal(level, want)
+    np.testing.assert_array_equal(prefilter(maps[1], target=4), chains[1])
 
 
 @settings(max_examples=60, deadline=None)
