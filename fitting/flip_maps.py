@@ -52,6 +52,8 @@ MEMO_MAP_BYTES = 64 << 20
 """Bytes of ꟻLIP maps kept (a 1024² map is 8 MiB)."""
 _map_lock = threading.Lock()
 _map_memo: OrderedDict[tuple, np.ndarray] = OrderedDict()
+MEMOS = (_map_memo,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def luminance(rgb):

@@ -35,6 +35,8 @@ MEMO_ENTRIES = 256
 """Noise floors kept (floats: a few kB)."""
 _floor_lock = threading.Lock()
 _floor_memo: OrderedDict[tuple, float] = OrderedDict()
+MEMOS = (_floor_memo,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def content_digest(*arrays) -> tuple:

@@ -343,6 +343,8 @@ _SSIM_MEMO_ENTRIES = 2
 a time; a 1024² reference's three arrays are 75 MB)."""
 _ssim_lock = threading.Lock()
 _ssim_memo: OrderedDict[tuple, tuple] = OrderedDict()
+MEMOS = (_ssim_memo,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def _ssim_filter(a: np.ndarray) -> np.ndarray:
