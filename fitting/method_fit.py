@@ -51,6 +51,7 @@ __all__ = [
     "grouped_differences",
     "method_model",
     "noise_ftol",
+    "residual_variance",
     "zero_padded",
 ]
 
@@ -89,6 +90,12 @@ def noise_ftol(dof: int, ssr_start: float, absolute_sigma: bool = False) -> floa
     return NOISE_KAPPA**2 / max(dof, 1)
 
 
+def residual_variance(ssr: float, dof: int, absolute_sigma: bool = False) -> float:
+    """s², the residuals' variance the fits' stderr scale with (the covariance rule): SSR/dof, or 1 with
+    ``absolute_sigma`` (the weights are 1/σ)."""
+    return 1.0 if absolute_sigma else ssr / max(dof, 1)
+
+
 def gauss_newton_gain_small(jac, r, dof: int, absolute_sigma: bool = False) -> bool:
     """Whether the full Gauss–Newton step from the point (residuals ``r``, Jacobian ``jac``) would lower
     the SSR by at most κ²·s² (``CHECK_KAPPA``; s² = SSR/dof, or 1 with ``absolute_sigma``): that gain is
@@ -101,7 +108,7 @@ def gauss_newton_gain_small(jac, r, dof: int, absolute_sigma: bool = False) -> b
     if not (np.all(np.isfinite(jac)) and np.all(np.isfinite(r))):
         return False
     ssr = float(r @ r)
-    s2 = 1.0 if absolute_sigma else ssr / max(dof, 1)
+    s2 = residual_variance(ssr, dof, absolute_sigma)
     u, _, _, keep, _, live = normalised_svd(jac, FD_RCOND)  # J's column space, as the covariance takes it
     if not np.any(live) or ssr == 0.0:
         return True
@@ -451,15 +458,13 @@ def _fit_trf(
             more = solve(np.asarray(sol.x, np.float64), tight)
             nfev += int(more.nfev)
             ssr, ssr_more = float(sol.fun @ sol.fun), float(more.fun @ more.fun)
-            s2 = 1.0 if absolute_sigma else ssr / max(dof, 1)
-            if ssr - ssr_more > CHECK_KAPPA**2 * s2:
+            if ssr - ssr_more > CHECK_KAPPA**2 * residual_variance(ssr, dof, absolute_sigma):
                 sol = more
     x = np.asarray(sol.x, np.float64)
     r = np.asarray(sol.fun, np.float64)
     jac = np.asarray(sol.jac, np.float64).reshape(r.size, len(names))
-    n, k = r.size, len(names)
+    n, k = r.size, len(names)  # (r spans the whole target: n − k is the dof above)
     ssr = float(r @ r)
-    dof = n - k
     if np.all(np.isfinite(jac)):
         cov, rank = covariance_from_jacobian(jac, ssr, dof, absolute_sigma=absolute_sigma, rcond=FD_RCOND)
     else:
