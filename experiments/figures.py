@@ -48,17 +48,14 @@ def tight_bbox(fig, dpi: float):
     return fig.get_tightbbox(fig.canvas.get_renderer()).padded(pad, pad)
 
 
-def save_figure(fig, path, tight: bool = True) -> Path:
-    """Write ``fig`` atomically and close it: PDF (vector, no creation date, so the same figure gives
-    the same bytes) where ``path`` ends in ``.pdf``, PNG otherwise; cropped to its artists (`tight_bbox`)
-    unless ``tight`` is false (a figure laid out to its size, `MosaicFigure`)."""
+def save_figure(fig, path) -> Path:
+    """Write ``fig`` atomically and close it, cropped to its artists (`tight_bbox`): PDF (vector, no creation
+    date, so the same figure gives the same bytes) where ``path`` ends in ``.pdf``, PNG otherwise."""
     buf = io.BytesIO()
     if Path(path).suffix.lower() == ".pdf":
-        fig.savefig(
-            buf, format="pdf", bbox_inches="tight" if tight else None, metadata={"CreationDate": None}
-        )
+        fig.savefig(buf, format="pdf", bbox_inches="tight", metadata={"CreationDate": None})
     else:
-        box = tight_bbox(fig, PNG_DPI) if tight else None
+        box = tight_bbox(fig, PNG_DPI)
         fig.savefig(buf, format="png", dpi=PNG_DPI, bbox_inches=box, pil_kwargs={"compress_level": 1})
     pyplot().close(fig)
     return atomic_write_bytes(path, buf.getvalue())
