@@ -118,7 +118,7 @@ def _xml_light(setup: AuditSetup, source: int) -> AuditLight:
         centre = np.asarray(light.position, np.float64)
         intensity = None
         if light.scale_name == "intensity" and light.scale is not None and len(light.scale) in (1, 3):
-            r, g, b = (float(v) for v in light.scale * (3 // len(light.scale)))
+            r, g, b = np.broadcast_to(np.asarray(light.scale, np.float64), (3,)).tolist()  # grey: one value
             intensity = (r, g, b)
         return AuditLight(light.kind, emitter, centre=centre, radiance=declared, intensity=intensity)
     what = f"{light.kind} light ({light.location})"
