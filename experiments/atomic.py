@@ -34,6 +34,7 @@ from rtfit.reference.io import (
     atomic_write_bytes,
     atomic_write_json,
     atomic_write_text,
+    deferred_sync,
     fsync_dir,
     is_temporary_name,
     temp_name,
@@ -223,7 +224,8 @@ def atomic_directory(final_path, log: Callable[[str], None] | None = _say) -> It
         except FileExistsError:
             continue
     try:
-        yield tmp
+        with deferred_sync(tmp):  # the files' fsyncs: one sync of the file system before the swap
+            yield tmp
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         owner_file(tmp).unlink(missing_ok=True)
