@@ -103,13 +103,13 @@ def _sync_file_system(directory: Path) -> None:
     journal commit for all of them), else an fsync of each file and directory under it (what each write
     would have done)."""
     try:
-        libc = ctypes.CDLL(None, use_errno=True)
+        syncfs = getattr(ctypes.CDLL(None, use_errno=True), "syncfs", None)
         fd = os.open(directory, os.O_RDONLY)
     except (OSError, AttributeError):
-        libc = fd = None
+        syncfs = fd = None
     if fd is not None:
         try:
-            if getattr(libc, "syncfs", None) is not None and libc.syncfs(fd) == 0:
+            if syncfs is not None and syncfs(fd) == 0:
                 return
         finally:
             os.close(fd)
