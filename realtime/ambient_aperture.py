@@ -129,6 +129,7 @@ from .arrays import (
 )
 from .light_models import sphere_light_irradiance_kernel
 from .methods import Input, Method, Param, method_table
+from .numpy_memo import KeptValues
 
 __all__ = [
     "FILL_FORMS",
@@ -174,6 +175,13 @@ def _sin_0_pi(ops, x):
     return s
 
 
+_KEPT = KeptValues(max_floats=1 << 22, max_entries=8)
+"""The NumPy run's parameter-free values of the light kernels (`_light_terms`, `_fitted_geometry`,
+`_area_ratio`; `rtfit.realtime.numpy_memo`): a fit of c0..c5 or k evaluates the kernel again and again on the
+same inputs. At most 2^22 floats (32 MiB): a fit's own inputs and the clamped, geometric values of one
+(the light inputs 4, the geometry 9, the area ratio 1 per point), or of a pooled fit of a few scenes."""
+MEMOS = (_KEPT,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 _SIN_QUARTER = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(7))  # 1, −1/3!, …, 1/13!
 
 
@@ -285,13 +293,9 @@ def _linear_kernel(ops, r1, r2, d):
     return ops.select(d <= diff, a_min, ops.select(d >= total, 0.0, a_min * t))
 
 
-def _fitted_kernel(ops, r1, r2, d, c0, c1, c2, c3, c4, c5):
-    """Complement trick + smoothstep corrected by a fitted t(1 − t)·(bilinear in u, ρ, σ) term.
-
-    With the complement (r1 + r2 > π), |C1 ∩ C2| = A(r1) + A(r2) − 4π + A(q_min)·f, which equals
-    A(r_min) − A(q_min)(1 − f) since A(r_min) = A(r1) + A(r2) − 4π + A(q_min) when q_min = π − r_max:
-    written that way there is no 4π − A(·) cancellation in float32 and only two cap areas are evaluated
-    (q_min ≤ π/2 takes the shorter polynomial)."""
+def _fitted_geometry(ops, r1, r2, d):
+    """The parameter-free part of `_fitted_kernel`: (complement?, A(r_min), A(q_min) or A(r_min), the ramp
+    t, ρ, σ, u = 1 − 2t, nested?, disjoint?), kept on the NumPy run of a fit (`_KEPT`)."""
     r1 = ops.clip(r1, 0.0, PI)
     r2 = ops.clip(r2, 0.0, PI)
     d = ops.clip(d, 0.0, PI)
@@ -307,9 +311,22 @@ def _fitted_kernel(ops, r1, r2, d, c0, c1, c2, c3, c4, c5):
     rho = safe_div(ops, q_min, q_max)
     sigma = (q_min + q_max) * (1.0 / PI)
     u = ops.fma(t, -2.0, 1.0)
+    return comp, a_min, a_q, t, rho, sigma, u, d <= diff, d >= q1 + q2
+
+
+def _fitted_kernel(ops, r1, r2, d, c0, c1, c2, c3, c4, c5):
+    """Complement trick + smoothstep corrected by a fitted t(1 − t)·(bilinear in u, ρ, σ) term.
+
+    With the complement (r1 + r2 > π), |C1 ∩ C2| = A(r1) + A(r2) − 4π + A(q_min)·f, which equals
+    A(r_min) − A(q_min)(1 − f) since A(r_min) = A(r1) + A(r2) − 4π + A(q_min) when q_min = π − r_max:
+    written that way there is no 4π − A(·) cancellation in float32 and only two cap areas are evaluated
+    (q_min ≤ π/2 takes the shorter polynomial)."""
+    comp, a_min, a_q, t, rho, sigma, u, nested, disjoint = _KEPT.get(
+        ops, ("fitted-geometry",), (r1, r2, d), lambda: _fitted_geometry(ops, r1, r2, d)
+    )
     corr = ops.fma(u, c1, c0) + rho * ops.fma(u, c3, c2) + sigma * ops.fma(u, c5, c4)
     f = clamp01(ops, ops.fma(t * (1.0 - t), corr, t * t * ops.fma(t, -2.0, 3.0)))
-    f = ops.select(d <= diff, 1.0, ops.select(d >= q1 + q2, 0.0, f))
+    f = ops.select(nested, 1.0, ops.select(disjoint, 0.0, f))
     out = ops.select(comp, ops.fma(-a_q, 1.0 - f, a_min), a_q * f)
     return ops.clip(out, 0.0, a_min)
 
@@ -352,11 +369,16 @@ def _seed_weight(ops, r_a, alpha, k):
     return 0.5
 
 
-def _fitted_weight(ops, r_a, alpha, k):
-    """w = A_a^k / (A_a^k + A_l^k) = 1 / (1 + (A_l/A_a)^k): one power, no overflow for tiny caps."""
+def _area_ratio(ops, r_a, alpha):
+    """A_l / A_a (at most 1e30): the parameter-free part of `_fitted_weight`."""
     aa = _cap_area_kernel(ops, r_a)
     al = _cap_area_kernel(ops, alpha)
-    ratio = ops.minimum(safe_div(ops, al, aa), 1e30)
+    return ops.minimum(safe_div(ops, al, aa), 1e30)
+
+
+def _fitted_weight(ops, r_a, alpha, k):
+    """w = A_a^k / (A_a^k + A_l^k) = 1 / (1 + (A_l/A_a)^k): one power, no overflow for tiny caps."""
+    ratio = _KEPT.get(ops, ("area-ratio",), (r_a, alpha), lambda: _area_ratio(ops, r_a, alpha))
     return 1.0 / (1.0 + ops.power(ratio, k))
 
 
@@ -393,11 +415,15 @@ FILL_FORMS = tuple(FILL_KERNELS)
 
 def _light_terms(ops, cos_na, cos_nl, cos_al, aperture, alpha, intersection, weight, k, coeffs):
     """(Ω, λ, r_a, n·a): the intersection of the aperture and light caps and the Lambert factor
-    λ = max(n·c, 0), inputs clamped into their domain."""
-    r_a = ops.clip(aperture, 0.0, 0.5 * PI)
-    alpha = ops.clip(alpha, 0.0, 0.5 * PI)
-    cos_na = clamp_cos(ops, cos_na)
-    d = _angle_from_cos(ops, cos_al)
+    λ = max(n·c, 0), inputs clamped into their domain (kept on the NumPy run of a fit, `_KEPT`: the
+    same arrays at each call, so that the intersection's and the weight's own kept values are found)."""
+
+    def clamped():
+        r_a = ops.clip(aperture, 0.0, 0.5 * PI)
+        alpha_c = ops.clip(alpha, 0.0, 0.5 * PI)
+        return r_a, alpha_c, clamp_cos(ops, cos_na), _angle_from_cos(ops, cos_al)
+
+    r_a, alpha, cos_na, d = _KEPT.get(ops, ("light-inputs",), (aperture, alpha, cos_na, cos_al), clamped)
     omega = intersection(ops, r_a, alpha, d, **coeffs)
     w = weight(ops, r_a, alpha, k)
     lam = ops.maximum(_centroid_cos(ops, cos_na, cos_nl, cos_al, w), 0.0)
