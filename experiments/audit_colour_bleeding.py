@@ -133,7 +133,7 @@ def _rows(radius: float, ambient: float) -> tuple[dict[str, Method], dict]:
     params = length_scaled_params(base.values(), LENGTHS, radius)
     for m in base.values():
         if "ambient" in m.params:
-            params[m.id]["ambient"] = amb
+            params[m.id]["ambient"] = replace(amb, log=m.params["ambient"].log)  # (`Param.log`: as the row's)
     return {m.id: m for m in base.values()}, params
 
 

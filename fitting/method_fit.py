@@ -403,13 +403,21 @@ def _fit_trf(
     lo = np.array([p.lower for p in ps], np.float64)
     hi = np.array([p.upper for p in ps], np.float64)
     x0 = np.clip(np.array([p.initial for p in ps], np.float64), lo, hi)
+    logs = np.array([p.log for p in ps], bool)  # `Param.log`: the solver steps log p (p = e^y)
+    if np.any(logs):
+        with np.errstate(divide="ignore"):
+            lo, hi, x0 = (np.where(logs, np.log(a), a) for a in (lo, hi, x0))
+
+    def values_of(v: np.ndarray) -> np.ndarray:
+        """The parameters' values at the solver's point ``v``."""
+        return np.where(logs, np.exp(v), v) if np.any(logs) else v
 
     run = _drjit_run(method, inputs) if method.fit_ops == "drjit" else None
 
     last: dict[bytes, np.ndarray] = {}  # the latest residuals (a Jacobian's centre: `grouped_differences`)
 
     def residual(v: np.ndarray) -> np.ndarray:
-        values = {**held, **dict(zip(names, (float(a) for a in v), strict=True))}
+        values = {**held, **dict(zip(names, (float(a) for a in values_of(v)), strict=True))}
         pred = method(NUMPY_OPS, inputs, values) if run is None else run(values)
         if output is not None:
             pred = output(pred)
@@ -460,9 +468,11 @@ def _fit_trf(
             ssr, ssr_more = float(sol.fun @ sol.fun), float(more.fun @ more.fun)
             if ssr - ssr_more > CHECK_KAPPA**2 * residual_variance(ssr, dof, absolute_sigma):
                 sol = more
-    x = np.asarray(sol.x, np.float64)
+    x = values_of(np.asarray(sol.x, np.float64))
     r = np.asarray(sol.fun, np.float64)
     jac = np.asarray(sol.jac, np.float64).reshape(r.size, len(names))
+    if np.any(logs):
+        jac = jac / np.where(logs, x, 1.0)  # ∂r/∂p = ∂r/∂(log p) / p
     n, k = r.size, len(names)  # (r spans the whole target: n − k is the dof above)
     ssr = float(r @ r)
     if np.all(np.isfinite(jac)):

@@ -199,6 +199,14 @@ def _bias(c: str) -> Param:
                  published=False)  # fmt: skip
 
 
+_SDF_BIAS_PARAMS = {
+    k: replace(p, log=True)
+    for k, p in (("d_max", _D), ("bias_r", _bias("r")), ("bias_g", _bias("g")), ("bias_b", _bias("b")),
+                 ("ambient", _AMBIENT))
+}  # fmt: skip
+"""seed-sdf-bias's parameters, fitted in their logs (`Param.log`): where b_c a_k ≪ D the bleed is
+I·b_c/D·(1/K) Σ_k a_k e^{−d_k/D}, a valley along I·b_c/D = const (straight in the logs) that TRF crawled along
+in p, a hundred small steps on the Cornell box."""
 _Q = "bounce_irradiance"
 _ROWS = (
     Method(
@@ -206,13 +214,7 @@ _ROWS = (
         "Seed: per-channel SDF biased by the surface colour (b_c fitted per channel)",
         sdf_bias_kernel,
         inputs=INPUTS,
-        params={
-            "d_max": _D,
-            "bias_r": _bias("r"),
-            "bias_g": _bias("g"),
-            "bias_b": _bias("b"),
-            "ambient": _AMBIENT,
-        },
+        params=_SDF_BIAS_PARAMS,
         quantity=_Q,
         formula="I · (1/K) Σ_k [ρ(d_k + b_c a_c,k) − ρ(d_k)],  ρ(d) = 1 − e^{−d/D}",
         source="Evans 2006 §9.9, seed 000:3083-3087 (rtfit's reading of the prose)",

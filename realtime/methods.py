@@ -60,6 +60,11 @@ class Param:
     bias), whose gradient is 0 between steps: the fit first scans n values over the bounds (`scan_values`)
     and starts the solver at the best, which then stays there; its resolution is the scan's step (no
     standard error)."""
+    log: bool = False
+    """True: the ``"trf"`` fits (`rtfit.fitting.fit_method`) step this parameter in log p, a scale whose
+    fit runs along a curved valley in p (colour-bleeding's I·b/D, a straight line in the logs: in p, TRF
+    crawled along it in a hundred small steps). Needs lower ≥ 0 (a lower bound 0 is log p = −∞); the
+    values, bounds and standard errors reported are p's."""
 
     def __post_init__(self):
         for f in ("initial", "lower", "upper"):
@@ -84,6 +89,8 @@ class Param:
             )
         if isinstance(self.scan, bool) or not isinstance(self.scan, int) or self.scan < 0:
             raise ValueError(f"Param.scan must be a non-negative int, got {self.scan!r}")
+        if self.log and not self.lower >= 0.0:
+            raise ValueError(f"Param.log needs lower ≥ 0, got {self.lower}")
         if self.scan and not (math.isfinite(self.lower) and math.isfinite(self.upper)):
             raise ValueError("Param.scan needs finite bounds (the scan covers them)")
 

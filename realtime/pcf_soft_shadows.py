@@ -70,6 +70,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -266,11 +267,28 @@ def _rotated(ops, offsets, rotation, rotate: bool):
     return [(ox * c - oy * s, ox * s + oy * c) for ox, oy in offsets]
 
 
+@dataclass(frozen=True)
+class _AllTaps:
+    """Every tap's values at once (the NumPy run's kept form, `_kept` ``eager``): ``values`` a (taps, N)
+    array, or a `ShadowMap.fetch` of (taps, N) arrays. The kernels apply to it the operations they apply
+    to one tap's (N,) values, elementwise the same, then add the taps' results row by row in the taps'
+    order: the same values bit for bit, in a few NumPy operations instead of a few per tap."""
+
+    values: Any
+
+
+def _stacked(xs) -> np.ndarray:
+    """Per-tap arrays (or numbers) as one (taps, N) array."""
+    return np.stack(np.broadcast_arrays(*xs))
+
+
 def _tap_texels(ops, sm: ShadowMap, u, v, taps, radius_uv_x, radius_uv_y, eager: bool):
-    """`ShadowMap.texels` at each tap (uv offsets already rotated, scaled by the radius in uv): a list of
-    `ShadowMap.fetch` (``eager``) or a generator."""
-    at = ((u + ox * radius_uv_x, v + oy * radius_uv_y) for ox, oy in taps)
-    return [sm.fetch(ops, *uv) for uv in at] if eager else (sm.texels(ops, *uv) for uv in at)
+    """`ShadowMap.texels` at each tap (uv offsets already rotated, scaled by the radius in uv): one
+    `_AllTaps` of `ShadowMap.fetch` (``eager``, NumPy) or a generator."""
+    if eager:
+        ox, oy = _stacked([o for o, _ in taps]), _stacked([o for _, o in taps])
+        return [_AllTaps(sm.fetch(ops, u + ox * radius_uv_x, v + oy * radius_uv_y))]
+    return (sm.texels(ops, u + ox * radius_uv_x, v + oy * radius_uv_y) for ox, oy in taps)
 
 
 def _mean_compare(ops, sm: ShadowMap, u, texels, z):
@@ -278,7 +296,11 @@ def _mean_compare(ops, sm: ShadowMap, u, texels, z):
     map: a shader trace names the table its gathers read after the map's method that runs them.)"""
     acc, n = 0.0 * u, 0
     for t in texels:
-        acc, n = acc + sm.weigh(ops, t, z), n + 1
+        if isinstance(t, _AllTaps):  # NumPy: every tap's compare at once, added in the taps' order
+            for lit in sm.weigh(ops, t.values, z):
+                acc, n = acc + lit, n + 1
+        else:
+            acc, n = acc + sm.weigh(ops, t, z), n + 1
     return acc * (1.0 / n)
 
 
@@ -325,12 +347,19 @@ def _pcss_kernel(ops, irradiance, u, v, depth, rotation, shadow_map, light_scale
     def searched(eager: bool):
         taps = _rotated(ops, POISSON16, rotation, True)
         search = _penumbra_uv(ops, sm, depth, 0.0 * depth + sm.near) * light_scale
-        found = (sm.nearest(ops, u + ox * search, v + oy * search) for ox, oy in taps)
-        return taps, list(found) if eager else found
+        if eager:  # NumPy: every tap's nearest texel at once (`_AllTaps`)
+            ox, oy = _stacked([o for o, _ in taps]), _stacked([o for _, o in taps])
+            return taps, [_AllTaps(sm.nearest(ops, u + ox * search, v + oy * search))]
+        return taps, (sm.nearest(ops, u + ox * search, v + oy * search) for ox, oy in taps)
 
     taps, found = _kept(ops, sm, ("pcss-search", light_scale), (u, v, depth, rotation), searched, size=48)
     total, count = 0.0 * u, 0.0 * u
     for d in found:
+        if isinstance(d, _AllTaps):  # NumPy: every tap at once, added in the taps' order
+            blocker = d.values < z
+            for t, c in zip(ops.select(blocker, d.values, 0.0), ops.select(blocker, 1.0, 0.0), strict=True):
+                total, count = total + t, count + c
+            continue
         blocker = d < z
         total = total + ops.select(blocker, d, 0.0)
         count = count + ops.select(blocker, 1.0, 0.0)

@@ -133,6 +133,41 @@ def test_trf_solver_lands_where_an_independent_fit_lands_and_flags_bounds_and_nu
         fit_method(WRAP, {"cos_theta": c * np.nan}, target, solver="trf")
 
 
+def _saturating(ops, x, scale, length):
+    return scale * (1.0 - ops.exp(-x / length))
+
+
+def test_trf_log_parameters_land_where_an_independent_fit_in_p_lands():
+    """`Param.log` (the TRF steps log p): the optimum of an independent fit in p itself, within NOISE_KAPPA of
+    each stderr, the same SSR to round-off, the standard errors p's (those of the fit in p within 1e-6
+    relative: the Jacobian's chain rule ∂r/∂p = ∂r/∂log p / p); an optimum on an upper bound flagged; a
+    lower bound 0 is allowed (log p = −∞), a negative one refused."""
+    rng = np.random.default_rng(5)
+    x = np.linspace(0.0, 5.0, 400)
+    target = 2.0 * (1.0 - np.exp(-x / 1.5)) + rng.normal(0.0, 0.01, x.size)
+
+    def method(log: bool, upper: float = 10.0) -> Method:
+        return Method("sat-test", "Saturating", _saturating, inputs=(Input("x", "1", "x"),),
+                      params={"scale": Param(1.0, 0.0, upper, unit="1", log=log),
+                              "length": Param(1.0, 1e-3, 1e3, unit="1", log=log)})  # fmt: skip
+
+    def resid(p):
+        return p[0] * (1.0 - np.exp(-x / p[1])) - target
+
+    ref = least_squares(resid, [1.0, 1.0], bounds=([0.0, 1e-3], [10.0, 1e3]), xtol=1e-15, ftol=1e-15)
+    logged = fit_method(method(True), {"x": x}, target, solver="trf")
+    plain = fit_method(method(False), {"x": x}, target, solver="trf")
+    assert logged.converged and not any(logged.at_bound.values())
+    for i, k in enumerate(("scale", "length")):
+        assert abs(logged.values[k] - ref.x[i]) <= NOISE_KAPPA * logged.stderr[k]
+        assert logged.stderr[k] == pytest.approx(plain.stderr[k], rel=1e-6)
+    assert logged.ssr == pytest.approx(2 * ref.cost, rel=1e-9)
+    capped = fit_method(method(True, upper=1.8), {"x": x}, target, solver="trf")
+    assert capped.at_bound["scale"] and capped.values["scale"] == pytest.approx(1.8, rel=1e-9)
+    with pytest.raises(ValueError, match="log needs lower"):
+        Param(1.0, -1.0, 2.0, log=True)
+
+
 # ------------------------------------------------------------------- every shipped method, three libraries
 def _shipped_methods():
     import importlib
