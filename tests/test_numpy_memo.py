@@ -1,5 +1,5 @@
-"""`rtfit.realtime.numpy_memo.KeptValues`: a NumPy run's parameter-free values kept per key and identity of the
-input arrays, computed afresh on every other run (issue 33, session 20)."""
+"""`rtfit.realtime.numpy_memo.KeptValues`: a NumPy run's parameter-free values kept per key and identity of
+the input arrays, computed afresh on every other run (issue 33, session 20)."""
 
 from __future__ import annotations
 
