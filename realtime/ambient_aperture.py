@@ -175,11 +175,11 @@ def _sin_0_pi(ops, x):
     return s
 
 
-_KEPT = KeptValues(max_floats=1 << 22, max_entries=8)
+_KEPT = KeptValues(max_floats=1 << 22, max_entries=8, max_input_floats=1 << 18)
 """The NumPy run's parameter-free values of the light kernels (`_light_terms`, `_fitted_geometry`,
 `_area_ratio`; `rtfit.realtime.numpy_memo`): a fit of c0..c5 or k evaluates the kernel again and again on the
-same inputs. At most 2^22 floats (32 MiB): a fit's own inputs and the clamped, geometric values of one
-(the light inputs 4, the geometry 9, the area ratio 1 per point), or of a pooled fit of a few scenes."""
+same inputs. At most 2^22 floats (32 MiB): the clamped and geometric values of a fit on up to 2^18 points
+(the light inputs 4, the geometry 9, the area ratio 1 per point), a pooled fit of a few scenes included."""
 MEMOS = (_KEPT,)
 """This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 _SIN_QUARTER = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(7))  # 1, −1/3!, …, 1/13!
@@ -322,7 +322,7 @@ def _fitted_kernel(ops, r1, r2, d, c0, c1, c2, c3, c4, c5):
     written that way there is no 4π − A(·) cancellation in float32 and only two cap areas are evaluated
     (q_min ≤ π/2 takes the shorter polynomial)."""
     comp, a_min, a_q, t, rho, sigma, u, nested, disjoint = _KEPT.get(
-        ops, ("fitted-geometry",), (r1, r2, d), lambda: _fitted_geometry(ops, r1, r2, d)
+        ops, ("fitted-geometry",), (r1, r2, d), lambda _: _fitted_geometry(ops, r1, r2, d)
     )
     corr = ops.fma(u, c1, c0) + rho * ops.fma(u, c3, c2) + sigma * ops.fma(u, c5, c4)
     f = clamp01(ops, ops.fma(t * (1.0 - t), corr, t * t * ops.fma(t, -2.0, 3.0)))
@@ -378,7 +378,7 @@ def _area_ratio(ops, r_a, alpha):
 
 def _fitted_weight(ops, r_a, alpha, k):
     """w = A_a^k / (A_a^k + A_l^k) = 1 / (1 + (A_l/A_a)^k): one power, no overflow for tiny caps."""
-    ratio = _KEPT.get(ops, ("area-ratio",), (r_a, alpha), lambda: _area_ratio(ops, r_a, alpha))
+    ratio = _KEPT.get(ops, ("area-ratio",), (r_a, alpha), lambda _: _area_ratio(ops, r_a, alpha))
     return 1.0 / (1.0 + ops.power(ratio, k))
 
 
@@ -418,7 +418,7 @@ def _light_terms(ops, cos_na, cos_nl, cos_al, aperture, alpha, intersection, wei
     λ = max(n·c, 0), inputs clamped into their domain (kept on the NumPy run of a fit, `_KEPT`: the
     same arrays at each call, so that the intersection's and the weight's own kept values are found)."""
 
-    def clamped():
+    def clamped(_kept: bool):
         r_a = ops.clip(aperture, 0.0, 0.5 * PI)
         alpha_c = ops.clip(alpha, 0.0, 0.5 * PI)
         return r_a, alpha_c, clamp_cos(ops, cos_na), _angle_from_cos(ops, cos_al)

@@ -50,14 +50,10 @@ reading of a prose description (no formula is printed).
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import replace
-from typing import Any
 
-import numpy as np
-
-from .arrays import NUMPY_OPS
 from .methods import Input, Method, Param, method_table
+from .numpy_memo import KeptValues
 from .obscurances import MISS, SEED_D_MAX, SEED_EXPONENT, rho_exponential, rho_power
 
 __all__ = [
@@ -91,47 +87,14 @@ def _mean(terms, rays: int):
     return acc * (1.0 / rays)
 
 
-_MEMO_FLOATS = 1 << 22
-"""The most floats (32 MB) the values `_kept` keeps hold together (the least recently used dropped first):
-a TRF Jacobian evaluates the kernel at D ± h and at each bias ± h before I ± h, so the ray mean at the
-step's start must outlive about ten others (each one float per point; ρ(d_k) K per point)."""
-_MEMO_ENTRIES = 16
-"""The most values `_kept` keeps (the least recently used dropped first; see `_MEMO_FLOATS`)."""
-_KEPT: dict[str, tuple] = {}
+_KEPT = KeptValues(max_floats=1 << 22, max_entries=16, max_input_floats=(1 << 20) // RAYS)
+"""The NumPy run's kept values (`rtfit.realtime.numpy_memo`): a fit evaluates the kernel again and again on
+the same rays, and ρ(d_k) does not depend on the biases or I, nor the ray mean on I. At most 2^22 floats
+(32 MB; the least recently used dropped first): a TRF Jacobian evaluates the kernel at D ± h and at each
+bias ± h before I ± h, so the ray mean at the step's start must outlive about ten others (each one float per
+point; ρ(d_k) K per point), and at most 16 entries; points of up to 2^20 / K (`RAYS`) floats."""
 MEMOS = (_KEPT,)
 """This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
-
-
-def _kept(ops, key: tuple, arrays: list, make) -> Any:
-    """``make(True)`` (its values computed now) on the NumPy run, kept per ``key`` (plain numbers) for these
-    very ``arrays`` (identity; weakly referenced, the values staying until newer ones push them out of
-    `_MEMO_FLOATS`): a fit evaluates the kernel again and again on the same rays, and ρ(d_k) does not
-    depend on the biases or I, nor the ray mean on I. The same operations on the same arrays: the same
-    values. Other runs (Dr.Jit, JAX, a shader; arrays too long) get ``make(False)``: the values made as
-    they are read (a generator), so that a trace keeps the kernel's order of operations."""
-    if (
-        ops is not NUMPY_OPS
-        or not all(isinstance(a, np.ndarray) and a.ndim >= 1 for a in arrays)
-        or max(a.size for a in arrays) * RAYS > _MEMO_FLOATS // 4
-        or not all(isinstance(k, str | int | float) for k in key)
-    ):
-        return make(False)
-    full = repr(key)  # exact numbers (−0.0 and 0.0 apart)
-    hit = _KEPT.pop(full, None)
-    if (
-        hit is None
-        or len(hit[0]) != len(arrays)
-        or not all(r() is a for r, a in zip(hit[0], arrays, strict=False))
-    ):
-        value = make(True)
-        floats = sum(np.size(v) for v in (value if isinstance(value, list) else [value]))
-        while _KEPT and (
-            len(_KEPT) >= _MEMO_ENTRIES or sum(e[2] for e in _KEPT.values()) + floats > _MEMO_FLOATS
-        ):
-            _KEPT.pop(next(iter(_KEPT)))
-        hit = (tuple(weakref.ref(a) for a in arrays), value, floats)
-    _KEPT[full] = hit  # the most recently used last
-    return hit[1]
 
 
 # ---------------------------------------------------------------------------------------------- kernels
@@ -147,12 +110,12 @@ def sdf_bias_kernel(ops, channel, *, rays=RAYS, d_max=1.0, bias_r=0.1, bias_g=0.
 
     def mean(eager: bool):
         b = _pick(channel, bias_r, bias_g, bias_b)
-        rho_d = iter(_kept(ops, ("rho-exponential", rays, d_max), distances, at_hits))
+        rho_d = iter(_KEPT.get(ops, ("rho-exponential", rays, d_max), distances, at_hits))
         terms = [rho_exponential(ops, d + b * a, d_max) - next(rho_d) for d, a, _ in hits]
         return _mean(terms, rays)
 
     arrays = [channel, *distances, *(a for _, a, _ in hits)]
-    return ambient * _kept(ops, ("sdf-bias", rays, d_max, bias_r, bias_g, bias_b), arrays, mean)
+    return ambient * _KEPT.get(ops, ("sdf-bias", rays, d_max, bias_r, bias_g, bias_b), arrays, mean)
 
 
 def rgb_obscurance_kernel(
@@ -165,7 +128,7 @@ def rgb_obscurance_kernel(
         return _mean([(1.0 - rho_power(ops, d, d_max, exponent)) * a for d, a, _ in hits], rays)
 
     arrays = [x for d, a, _ in hits for x in (d, a)]
-    return ambient * _kept(ops, ("rgb-obscurance", rays, d_max, exponent), arrays, mean) + 0.0 * channel
+    return ambient * _KEPT.get(ops, ("rgb-obscurance", rays, d_max, exponent), arrays, mean) + 0.0 * channel
 
 
 def gather_kernel(ops, channel, *, rays=RAYS, **kw):

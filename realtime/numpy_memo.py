@@ -36,24 +36,29 @@ def _floats(value: Any) -> int:
 
 class KeptValues:
     """Values kept per (key, the identity of their input arrays), the least recently used dropped first once
-    more than ``max_entries`` entries or ``max_floats`` floats in all are kept. The input arrays are held by
-    weak references: an entry whose arrays are gone is never matched again (and is pushed out in turn)."""
+    more than ``max_entries`` entries or ``max_floats`` floats in all are kept; inputs of more than
+    ``max_input_floats`` elements (the largest) are not kept at all (default: ``max_floats``). The input
+    arrays are held by weak references: an entry whose arrays are gone is never matched again (and is pushed
+    out in turn)."""
 
-    def __init__(self, max_floats: int, max_entries: int) -> None:
+    def __init__(self, max_floats: int, max_entries: int, max_input_floats: int | None = None) -> None:
         self.max_floats, self.max_entries = int(max_floats), int(max_entries)
+        self.max_input_floats = self.max_floats if max_input_floats is None else int(max_input_floats)
         self._entries: dict[str, tuple[tuple, Any, int]] = {}
 
-    def get(self, ops, key: tuple, arrays: Sequence[Any], make: Callable[[], T]) -> T:
-        """``make()`` on the NumPy run, kept for ``key`` (plain numbers and strings) and these very
-        ``arrays`` (identity); computed each time on any other run, where an array is not a NumPy array, or
-        where the inputs alone are larger than the memo."""
+    def get(self, ops, key: tuple, arrays: Sequence[Any], make: Callable[[bool], T]) -> T:
+        """``make(True)`` (the values computed now) on the NumPy run, kept for ``key`` (plain numbers and
+        strings) and these very ``arrays`` (identity). ``make(False)`` on any other run, where an array is
+        not a NumPy array of at least one dimension, or where the largest is over ``max_input_floats``: the
+        same values, which ``make`` may then produce as they are read (a generator), so that a trace keeps
+        the kernel's order of operations."""
         if (
             ops is not NUMPY_OPS
-            or not all(isinstance(a, np.ndarray) for a in arrays)
-            or sum(a.size for a in arrays) > self.max_floats
+            or not all(isinstance(a, np.ndarray) and a.ndim >= 1 for a in arrays)
+            or max((a.size for a in arrays), default=0) > self.max_input_floats
             or not all(isinstance(k, str | int | float | bool | None) for k in key)
         ):
-            return make()
+            return make(False)
         full = repr(key)  # exact numbers (−0.0 and 0.0 apart)
         hit = self._entries.pop(full, None)
         if (
@@ -61,7 +66,7 @@ class KeptValues:
             or len(hit[0]) != len(arrays)
             or not all(r() is a for r, a in zip(hit[0], arrays, strict=True))
         ):
-            value = make()
+            value = make(True)
             floats = _floats(value)
             while self._entries and (
                 len(self._entries) >= self.max_entries

@@ -15,8 +15,8 @@ from rtfit.realtime.numpy_memo import KeptValues
 def counting(value):
     calls = []
 
-    def make():
-        calls.append(1)
+    def make(kept: bool):
+        calls.append(kept)
         return value
 
     return make, calls
@@ -43,19 +43,19 @@ def test_other_runs_and_large_inputs_are_never_kept():
         memo.get(DRJIT_OPS, ("k",), (small,), make)
         memo.get(NUMPY_OPS, ("k",), (large,), make)
         memo.get(NUMPY_OPS, ("k",), (small.tolist(),), make)
-    assert len(calls) == 6 and len(memo) == 0
+    assert calls == [False] * 6 and len(memo) == 0
 
 
 def test_least_recently_used_dropped_by_entries_and_by_floats():
     memo = KeptValues(max_floats=12, max_entries=2)
     arrays = [np.zeros(1) for _ in range(3)]
     for k, a in enumerate(arrays):
-        memo.get(NUMPY_OPS, (k,), (a,), lambda: np.zeros(2))
+        memo.get(NUMPY_OPS, (k,), (a,), lambda _: np.zeros(2))
     assert len(memo) == 2  # the first pushed out by the entry count
     make, calls = counting(np.zeros(2))
     memo.get(NUMPY_OPS, (0,), (arrays[0],), make)
     assert len(calls) == 1
-    memo.get(NUMPY_OPS, ("big",), (arrays[1],), lambda: np.zeros(11))  # 11 floats: the rest pushed out
+    memo.get(NUMPY_OPS, ("big",), (arrays[1],), lambda _: np.zeros(11))  # 11 floats: the rest pushed out
     assert len(memo) == 1
     memo.clear()
     assert len(memo) == 0
@@ -64,11 +64,11 @@ def test_least_recently_used_dropped_by_entries_and_by_floats():
 def test_an_entry_whose_arrays_are_gone_is_not_matched():
     memo = KeptValues(max_floats=100, max_entries=4)
     a = np.zeros(4)
-    memo.get(NUMPY_OPS, ("k",), (a,), lambda: 1.0)
+    memo.get(NUMPY_OPS, ("k",), (a,), lambda _: 1.0)
     del a
     gc.collect()
     make, calls = counting(2.0)
-    assert memo.get(NUMPY_OPS, ("k",), (np.zeros(4),), make) == 2.0 and calls == [1]
+    assert memo.get(NUMPY_OPS, ("k",), (np.zeros(4),), make) == 2.0 and calls == [True]
 
 
 def test_the_light_kernel_kept_or_not_gives_the_same_bits():
