@@ -3,10 +3,12 @@ tiled to a measurable size (`method_cost`; split from `audit_run`, issue 30)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime.arrays import Uniforms, backend_float, release_backend_tables, to_drjit
+from rtfit.realtime.arrays import Uniforms, aligned_copy, backend_float, release_backend_tables, to_drjit
 from rtfit.realtime.methods import Method
 
 from .audit_family import FamilyCase
@@ -38,12 +40,48 @@ def _is_per_pixel(v, n: int) -> bool:
     return isinstance(v, (np.ndarray, np.generic)) and np.ndim(v) > 0 and np.size(v) == n
 
 
+@dataclass
+class CostInputs:
+    """One case's per-pixel inputs as its methods' cost measurements read them (`method_cost`): each cleaned
+    (a non-finite value → float32's max), cast to float32 and tiled once, in a 64-byte aligned buffer
+    (`aligned_copy`) at the largest size asked so far; a method is handed a prefix, which Dr.Jit maps without
+    a copy: the elements a tile of its own size held, at an aligned address as `to_drjit` gives.
+
+    Issue 33 (session 20): every method tiled and copied its own inputs (a 2^20-element tile, then an aligned
+    copy of it): 1.4 of the 6.3 CPU s of a Cornell-box audit's cost loop, colour-bleeding's eight methods
+    tiling the same 54 inputs to 64 MiB each time. Kept for one case (`audit_run`'s case loop makes one per
+    case), at most ``budget`` bytes (the oldest tiles are dropped first)."""
+
+    budget: int = 2 * _COST_INPUT_BYTES
+    tiles: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    """(input name, id of its array) → (the array, its cleaned float32 tile); the array is kept so its id
+    stays its own."""
+
+    def tiled(self, name: str, v: np.ndarray, size: int) -> np.ndarray:
+        """The first ``size`` elements of ``v`` cleaned, cast to float32 and repeated (``v`` a per-pixel
+        input of ``n`` ≥ 1 elements)."""
+        key = (name, id(v))
+        known = self.tiles.get(key)
+        if known is not None and known[0] is v and known[1].size >= size:
+            return known[1][:size]
+        a = np.asarray(v, np.float64).reshape(-1)
+        # cleaned and cast before tiling: the same elements, 1/reps the work
+        a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
+        tile = aligned_copy(np.tile(a, -(-size // a.size))[:size], np.float32)
+        self.tiles.pop(key, None)
+        while self.tiles and sum(t.nbytes for _, t in self.tiles.values()) + tile.nbytes > self.budget:
+            self.tiles.pop(next(iter(self.tiles)))
+        self.tiles[key] = (v, tile)
+        return tile
+
+
 def method_cost(
     method: Method,
     case: FamilyCase,
     backend: str,
     size: int = COST_ELEMENTS,
     min_seconds: float = _COST_MIN_SECONDS,
+    tiles: CostInputs | None = None,
 ) -> dict:
     """ns per pixel of ``method`` (declared parameters) on the backend, its per-pixel inputs (channel 0 of the
     case) tiled to ``size`` float32 elements; a table (an array that is not per pixel) is passed as it is.
@@ -53,14 +91,18 @@ def method_cost(
     ~10 µs a pixel on 2 CPU cores took 10 s a call on 2^20 elements, 80 s for its 7 repeats + warm-up. The
     sizing call is the median of 7 repeats with no minimum duration (``min_seconds`` 0: it only sizes the
     measured call, which keeps its `_COST_MIN_SECONDS`): 15 methods' sizing calls took 2.9 s of a
-    Cornell-box audit's evaluation at 0.2 s each."""
+    Cornell-box audit's evaluation at 0.2 s each. ``tiles``: the case's tiled inputs, shared by its methods
+    (`CostInputs`; None: made for this call alone)."""
+    tiles = CostInputs() if tiles is None else tiles
     n = int(case.mask.sum())
     inputs = {name: case.channel_inputs[0][name] for name in method.input_names}
     per_pixel = [name for name, v in inputs.items() if _is_per_pixel(v, n)]
     size = min(size, max(_COST_PROBE, _COST_INPUT_BYTES // (4 * max(len(per_pixel), 1))))
     probed = size > _COST_PROBE
     if probed:
-        probe = method_cost(method, case, backend, _COST_PROBE, min_seconds=0.0)
+        for name in per_pixel:  # tiled once at the most this call may time, the probe a prefix of it
+            tiles.tiled(name, inputs[name], size)
+        probe = method_cost(method, case, backend, _COST_PROBE, min_seconds=0.0, tiles=tiles)
         per_element = probe["ns_per_pixel"] * 1e-9
         size = int(min(size, max(_COST_PROBE, _COST_CALL_SECONDS / max(per_element, 1e-15))))
     Float = backend_float(backend)
@@ -75,12 +117,9 @@ def method_cost(
             if table.size <= _UNIFORM_FLOATS:
                 uniforms[name] = Uniforms.of(table)
         elif np.ndim(v):
-            # cleaned and cast before tiling: the same elements, 1/reps the work
-            a = np.asarray(v, np.float64)
-            a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
-            a = np.tile(a, reps)[:size]
+            a = tiles.tiled(name, v, size)  # the case's tile, shared by its methods (`CostInputs`)
             host.append(a[:_COST_PROBE])  # the trial below reads no more
-            args.append(to_drjit(Float, a))  # aligned: one compiled kernel whatever NumPy's addresses
+            args.append(Float(a))  # mapped, aligned: one compiled kernel whatever NumPy's addresses
             keys.append(name)
         else:
             consts[name] = float(v)

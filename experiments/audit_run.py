@@ -53,7 +53,7 @@ from rtfit.reference.variants import scoped_variant
 from rtfit.scenes import load_scene, scene_hash
 
 from .audit import SURFACE_FREE_KINDS, Applicability, AuditError, SceneInfo, inspect_scene
-from .audit_cost import COST_ELEMENTS, method_cost
+from .audit_cost import COST_ELEMENTS, CostInputs, method_cost
 from .audit_family import PRECOMPUTE_TRIGGERS, AuditFamily, FamilyCase, Precompute
 from .audit_fit import evaluate_case, fit_case
 from .audit_options import GRID_MAX, check_ao_distance, check_out, triple
@@ -465,10 +465,15 @@ class _CaseRun:
 
     def case(self, family: AuditFamily, a: Applicability, base: FamilyCase) -> dict[str, MethodOutcome]:
         """Every row of ``base`` (`_rows`): evaluated, its metrics beside the noise floor, its cost measured
-        once per method, and, where it has free parameters, fitted and evaluated again."""
-        rows: dict[str, MethodOutcome] = {}
+        once per method, and, where it has free parameters, fitted and evaluated again. The rows are
+        evaluated and measured first, then fitted (the outcomes in row order: each declared row, then its
+        fitted row): the case's tiled cost inputs (`CostInputs`, shared by its methods) are let go before its
+        fits run."""
+        declared: dict[str, MethodOutcome] = {}
         sigma = base.reference.sigma()
         spent = self.by_family[family.name]
+        tiles = CostInputs()  # the case's inputs tiled once for all its methods' cost measurements
+        fitted: list[tuple[str, Method, bool, FamilyCase]] = []
         for row_id, method, user in _rows(family, a, self.sel, base):
             case = (
                 replace(base, channel_inputs=base.row_inputs[row_id]) if row_id in base.row_inputs else base
@@ -491,7 +496,7 @@ class _CaseRun:
                 bad = _bad_values(method, img, case)
                 if bad:
                     raise AuditError(bad)
-                rows[row_id] = MethodOutcome(
+                declared[row_id] = MethodOutcome(
                     case.id, row_id, method, method.label, img, None, given, user=user
                 )
             if method.id not in self.costs and row_id in case.uncosted:
@@ -501,30 +506,40 @@ class _CaseRun:
                     "note": f"cost not measured like the others: {case.uncosted[row_id]}",
                 }  # fmt: skip
             if method.id not in self.costs:
-                cost = method_cost(method, case, self.backend, self.cost_elements)
+                cost = method_cost(method, case, self.backend, self.cost_elements, tiles=tiles)
                 self.costs[method.id] = {"label": method.label, **cost}
             if row_id in case.precompute and "precompute_trigger" not in self.costs[method.id]:
                 self.precompute(method, case, case.precompute[row_id])
             self.timings["evaluation"] += time.perf_counter() - t1
             spent["evaluation"] += time.perf_counter() - t1
             if self.fit and method.params:
-                t2 = time.perf_counter()
-                result = fit_case(method, case, row_id)
-                values = {k: v["value"] for k, v in result["parameters"].items()}
-                img_f = evaluate_case(method, case, values)
-                rows[f"{row_id}-fitted"] = MethodOutcome(
-                    case.id,
-                    f"{row_id}-fitted",
-                    method,
-                    f"{method.label} (fitted to this scene)",
-                    img_f,
-                    None,
-                    values,
-                    fit=result,
-                    user=user,
-                )
-                self.timings["fit"] += time.perf_counter() - t2
-                spent["fit"] += time.perf_counter() - t2
+                fitted.append((row_id, method, user, case))
+        del tiles  # (up to 128 MiB of tiled inputs: not held through the fits)
+        refits: dict[str, MethodOutcome] = {}
+        for row_id, method, user, case in fitted:
+            t2 = time.perf_counter()
+            result = fit_case(method, case, row_id)
+            values = {k: v["value"] for k, v in result["parameters"].items()}
+            img_f = evaluate_case(method, case, values)
+            refits[row_id] = MethodOutcome(
+                case.id,
+                f"{row_id}-fitted",
+                method,
+                f"{method.label} (fitted to this scene)",
+                img_f,
+                None,
+                values,
+                fit=result,
+                user=user,
+            )
+            self.timings["fit"] += time.perf_counter() - t2
+            spent["fit"] += time.perf_counter() - t2
+        rows: dict[str, MethodOutcome] = {}
+        for row_id, _method, _user in _rows(family, a, self.sel, base):
+            if row_id in declared:
+                rows[row_id] = declared[row_id]
+            if row_id in refits:
+                rows[f"{row_id}-fitted"] = refits[row_id]
         # Every row's metrics beside the noise floor, once all are evaluated: their ꟻLIP maps (and the
         # floor's) in one tiled call (`prime_flip`: the same maps, ~0.1 s a call saved per row on a CPU).
         t3 = time.perf_counter()

@@ -51,6 +51,7 @@ __all__ = [
     "NUMPY_OPS",
     "OP_NAMES",
     "Uniforms",
+    "aligned_copy",
     "atan_minus_x_series",
     "backend_float",
     "backend_type",
@@ -414,14 +415,20 @@ def to_drjit(Float: type, values: Any) -> Any:
     AO kernel (934 ops, 2 loaded cores): every call rebuilt its two kernels, 2.1–2.8 s each, where an
     aligned call reuses them (0.03 s). The copy also keeps a later write to ``values`` out of the kernel
     (a mapped array aliases it)."""
-    dtype = _NUMPY_OF[dr.type_v(Float)]
+    return Float(aligned_copy(values, _NUMPY_OF[dr.type_v(Float)]))
+
+
+def aligned_copy(values: Any, dtype: Any) -> np.ndarray:
+    """``values`` (array-like) as a flat, fresh NumPy array of ``dtype`` whose first element is aligned to 64
+    bytes (`to_drjit`'s buffer). Dr.Jit maps such an array (and any prefix of it) without copying: the
+    engine's cost measurement keeps one per input and hands each method a prefix (`audit_cost.CostInputs`)."""
     flat = np.asarray(values).reshape(-1)
     item = np.dtype(dtype).itemsize
     buf = np.empty(flat.size + _ALIGN // item, dtype)
     start = (-buf.ctypes.data % _ALIGN) // item
     out = buf[start : start + flat.size]
     out[...] = flat
-    return Float(out)
+    return out
 
 
 def cached_table(cache: dict, ops, like: Any, key: tuple, values: Callable[[], Any]) -> Any:
