@@ -10,9 +10,13 @@ same across panels; pixels outside the comparison mask are grey.
 from __future__ import annotations
 
 import io
+import threading
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
+import PIL.Image
+import PIL.PngImagePlugin
 
 from rtfit.reference.io import atomic_write_bytes
 
@@ -217,19 +221,24 @@ class MosaicFigure:
         (`colour_bar_ticks`)."""
         self.bar = (cmap, norm, round(top * self.scale), round(bottom * self.scale))
 
-    def _pixels(self) -> np.ndarray:
+    def _indices(self) -> tuple[np.ndarray, np.ndarray]:
+        """The mosaic's row and column shown at each figure pixel row and column (nearest neighbour)."""
         mh, mw = self.mosaic.shape[:2]
         rows = (np.arange(round(mh * self.scale)) + 0.5) / self.scale
         cols = (np.arange(round(mw * self.scale)) + 0.5) / self.scale
-        return self.mosaic[np.minimum(rows.astype(int), mh - 1)][:, np.minimum(cols.astype(int), mw - 1)]
+        return np.minimum(rows.astype(int), mh - 1), np.minimum(cols.astype(int), mw - 1)
 
     def save(self, path) -> Path:
-        """Lay the figure out around its content and write it as PNG (atomically)."""
-        import matplotlib.image
+        """Lay the figure out around its content and write it as PNG (atomically).
 
+        The figure's pixels are 8-bit: round(255 × v) of each pixel's value v in [0, 1] (the mosaic's, the
+        colour bar's, white around them), text darkening v by (1 − coverage) for each text over it in
+        turn. Composed in 8 bits where no text lies (the mosaic rounded once, then enlarged) and in floats
+        only under the texts' boxes: the same pixels as composing every pixel in floats first, without a
+        float canvas of the whole figure (issue 33)."""
         m = self.MARGIN
-        image = self._pixels()
-        ih, iw = image.shape[:2]
+        row_of, col_of = self._indices()
+        ih, iw = len(row_of), len(col_of)
         texts, ticks = list(self.texts), []
         bar_w = x0 = 0  # (the colour bar's width and left edge, where there is one)
         if self.bar is not None:
@@ -276,77 +285,211 @@ class MosaicFigure:
         ox = round(m - x_lo + max(0.0, (title.shape[1] - (x_hi - x_lo)) / 2))
         oy = round(m - y_lo + (self.TITLE_BAND if self.title else 0))
         height = int(np.ceil(oy + y_hi + m))
-        canvas = np.ones((height, width, 3))
-        canvas[oy : oy + ih, ox : ox + iw] = image
+        # the layers under the text, in order: (top, left, a block of values in [0, 1]; a function giving
+        # the block's rows and columns where it is large: the mosaic enlarged)
+        layers: list = [(oy, ox, ih, iw, lambda r, c: self.mosaic[row_of[r]][:, col_of[c]])]
         if self.bar is not None:
             cmap, norm, top, bottom = self.bar
-            rows, cols = slice(oy + top, oy + bottom), slice(ox + x0, ox + x0 + bar_w)
-            canvas[rows, cols] = cmap(np.linspace(1.0, 0.0, bottom - top))[:, None, :3]
-            canvas[rows, ox + x0] = canvas[rows, ox + x0 + bar_w - 1] = 0.0  # the frame
-            canvas[oy + top, cols] = canvas[oy + bottom - 1, cols] = 0.0
-            for y in ticks:
-                canvas[oy + y, ox + x0 + bar_w : ox + x0 + bar_w + self.TICK] = 0.0
+            block = np.repeat(cmap(np.linspace(1.0, 0.0, bottom - top))[:, None, :3], bar_w, axis=1)
+            block[:, 0] = block[:, -1] = block[0] = block[-1] = 0.0  # the frame
+            layers.append((oy + top, ox + x0, bottom - top, bar_w, block))
+            layers += [(oy + y, ox + x0 + bar_w, 1, self.TICK, np.zeros((1, self.TICK, 3))) for y in ticks]
+        canvas = np.full((height, width, 3), 255, np.uint8)
+        small = np.round(np.asarray(self.mosaic, np.float64) * 255).astype(np.uint8)
+        canvas[oy : oy + ih, ox : ox + iw] = small[row_of][:, col_of]
+        for y, x, h, w, block in layers[1:]:
+            canvas[y : y + h, x : x + w] = np.round(block * 255).astype(np.uint8)
         if self.title:
             placed.append((title, (width - title.shape[1]) // 2 - ox, m - oy))
-        for alpha, left, top in placed:  # black text over the canvas
-            th, tw = alpha.shape
-            canvas[oy + top : oy + top + th, ox + left : ox + left + tw] *= 1.0 - alpha[..., None]
-        buf = io.BytesIO()
-        pixels = np.round(canvas * 255).astype(np.uint8)
-        matplotlib.image.imsave(
-            buf,
-            pixels,
-            format="png",
-            dpi=PNG_DPI,
-            metadata={"Software": None},
-            pil_kwargs={"compress_level": 1},
-        )
-        return atomic_write_bytes(path, buf.getvalue())
+        boxes = [(oy + top, ox + left, *alpha.shape) for alpha, left, top in placed]
+        for k, (y, x, h, w) in enumerate(boxes):  # black text: each box's pixels in floats, every text over
+            values = _base_values(layers, y, x, h, w)  # them (this one and those before) in turn
+            for (alpha, _, _), (ay, ax, ah, aw) in zip(placed[: k + 1], boxes[: k + 1], strict=True):
+                r0, r1, c0, c1 = max(y, ay), min(y + h, ay + ah), max(x, ax), min(x + w, ax + aw)
+                if r0 < r1 and c0 < c1:
+                    values[r0 - y : r1 - y, c0 - x : c1 - x] *= (
+                        1.0 - alpha[r0 - ay : r1 - ay, c0 - ax : c1 - ax, None]
+                    )
+            canvas[y : y + h, x : x + w] = np.round(values * 255).astype(np.uint8)
+        return atomic_write_bytes(path, png_bytes(canvas, PNG_DPI, compress_level=1))
+
+
+def _base_values(layers: list, y: int, x: int, h: int, w: int) -> np.ndarray:
+    """The values in [0, 1] of the figure's pixels [y, y + h) × [x, x + w) under any text: white, then each of
+    `MosaicFigure.save`'s ``layers`` (top, left, height, width, block) in turn."""
+    values = np.ones((h, w, 3))
+    for ly, lx, lh, lw, block in layers:
+        r0, r1, c0, c1 = max(y, ly), min(y + h, ly + lh), max(x, lx), min(x + w, lx + lw)
+        if r0 < r1 and c0 < c1:
+            rows, cols = slice(r0 - ly, r1 - ly), slice(c0 - lx, c1 - lx)
+            values[r0 - y : r1 - y, c0 - x : c1 - x] = (
+                block(rows, cols) if callable(block) else block[rows, cols]
+            )
+    return values
+
+
+def png_bytes(rgb8: np.ndarray, dpi: float, compress_level: int | None = None) -> bytes:
+    """PNG of 8-bit RGB pixels (H, W, 3) as ``matplotlib.image.imsave`` writes them with
+    ``metadata={"Software": None}`` (RGBA, opaque, its resolution ``dpi``; the same bytes), written by
+    Pillow directly: no colour mapping of pixels that are already bytes, and no import of matplotlib's
+    image module."""
+    rgba = np.empty((*rgb8.shape[:2], 4), np.uint8)
+    rgba[..., :3] = rgb8
+    rgba[..., 3] = 255
+    image = PIL.Image.frombuffer("RGBA", (rgba.shape[1], rgba.shape[0]), rgba, "raw", "RGBA", 0, 1)
+    buf = io.BytesIO()
+    options = {} if compress_level is None else {"compress_level": compress_level}
+    image.save(buf, format="png", pnginfo=PIL.PngImagePlugin.PngInfo(), dpi=(dpi, dpi), **options)
+    return buf.getvalue()
 
 
 def wrap_to_width(text: str, size_pt: float, width_px: float) -> str:
     """``text`` with each of its lines broken at spaces (greedily) so that every line drawn at ``size_pt``
     (`text_pixels`) is at most ``width_px`` figure pixels wide; a single word wider than that keeps a line
-    of its own."""
+    of its own.
+
+    Greedy: each line takes the most words that fit. A line's width grows with the words it takes (its
+    glyphs keep their places as words are appended: FreeType lays a line out left to right), so a line
+    that fits whole is measured once, and otherwise the most words that fit are found by a search over
+    the candidate lines (`_most_words_that_fit`) rather than by measuring one candidate per word: each
+    measurement is a drawing (`line_pixels`, memoised), and FreeType's layout of every candidate line was
+    a third of an audit's figure time (issue 33)."""
     out = []
     for line in text.split("\n"):
-        words, current = line.split(" "), ""
-        for word in words:
-            candidate = f"{current} {word}" if current else word
-            if current and text_pixels(candidate, size_pt).shape[1] > width_px:
-                out.append(current)
-                current = word
-            else:
-                current = candidate
-        out.append(current)
+        words = line.split(" ")
+        if "" in words:  # (a leading or double space: word by word, each candidate measured)
+            current = ""
+            for word in words:
+                candidate = f"{current} {word}" if current else word
+                if current and line_pixels(candidate, size_pt)[0].shape[1] > width_px:
+                    out.append(current)
+                    current = word
+                else:
+                    current = candidate
+            out.append(current)
+            continue
+        while len(words) > 1:
+            k = _most_words_that_fit(words, size_pt, width_px)
+            if k == len(words):
+                break
+            out.append(" ".join(words[:k]))
+            words = words[k:]
+        out.append(" ".join(words))
     return "\n".join(out)
+
+
+def _most_words_that_fit(words: list[str], size_pt: float, width_px: float) -> int:
+    """The most leading ``words`` (at least one) whose line is at most ``width_px`` wide at ``size_pt``.
+
+    Only measurements (`line_pixels`) decide, and a line's width grows with the words it takes, so the
+    answer is the greedy one: the search keeps lo (lo words fit, or lo = 1) and hi (hi + 1 words do not
+    fit, or hi = all) and measures candidates between them until they meet. What it measures first is
+    guessed from the characters' advances (`_advances`): the whole line where the guess says it fits
+    (one measurement, the line kept), else the guessed k words and then k + 1 (two measurements, the
+    first the line kept), bisecting only where the guess was off by more than one word; a line measured
+    whole that does not fit guesses again from its glyphs' pen positions."""
+    n = len(words)
+    advance, mean = _advances(size_pt)
+    ends = np.cumsum([sum(advance.get(c, mean) for c in w) + advance.get(" ", mean) for w in words])
+    guess = int(np.searchsorted(ends - advance.get(" ", mean), width_px, side="right"))
+    lo, hi, steps = 1, n, 0
+    while lo < hi:
+        probe = (lo + hi + 1) // 2 if guess is None else min(max(guess, lo + 1), hi)
+        img, _, pen = line_pixels(" ".join(words[:probe]), size_pt)
+        if img.shape[1] <= width_px:
+            lo, guess = probe, probe + 1
+        else:
+            hi, guess = probe - 1, probe - 1
+            if probe == n and len(pen) == sum(len(w) for w in words) + n - 1:  # pen x at each space
+                spaces = np.cumsum([len(w) + 1 for w in words[:-1]]) - 1
+                guess = max(1, int(np.searchsorted(pen[spaces] - pen[0], width_px, side="right")))
+                steps = -1
+        steps += 1
+        if steps >= 3:  # (the guess was off by more than one word: bisect)
+            guess = None
+    return lo
+
+
+ADVANCE_SAMPLE = "".join(chr(c) for c in range(32, 127))
+"""The characters whose advances `_advances` measures (printable ASCII)."""
+
+
+def _advances(size_pt: float) -> tuple[dict[str, float], float]:
+    """({character: its advance in pixels}, their mean) at ``size_pt``, from the pen positions of one line
+    of `ADVANCE_SAMPLE` (`line_pixels`): the guesses of `_most_words_that_fit`, which only orders its
+    measurements."""
+    _, _, pen = line_pixels(ADVANCE_SAMPLE, size_pt)
+    if len(pen) != len(ADVANCE_SAMPLE):
+        return {}, 0.6 * size_pt * PNG_DPI / 72
+    steps = np.diff(pen)
+    return dict(zip(ADVANCE_SAMPLE, steps, strict=False)), float(np.mean(steps))
+
+
+TEXT_MEMO_BYTES = 16 << 20
+"""Bytes of drawn text lines kept (`line_pixels`; a 9 pt label line of 200 pixels is ~3 KB)."""
+_text_lock = threading.Lock()
+_text_memo: OrderedDict[tuple, tuple[np.ndarray, float, np.ndarray]] = OrderedDict()
+MEMOS = (_text_memo,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
+
+
+def _text_font(size_pt: float) -> tuple:
+    """(font file, FreeType load flags, antialiased) of matplotlib's text at ``size_pt``: its default
+    family's font and the hinting and antialiasing of its rc settings (as its Agg renderer reads them)."""
+    import matplotlib
+    from matplotlib.font_manager import FontProperties, findfont
+    from matplotlib.ft2font import LoadFlags
+
+    hinting = matplotlib.rcParams["text.hinting"]
+    flags = {"default": LoadFlags.DEFAULT, "either": LoadFlags.DEFAULT, "no_autohint": LoadFlags.NO_AUTOHINT,
+             "native": LoadFlags.NO_AUTOHINT, "no_hinting": LoadFlags.NO_HINTING,
+             "none": LoadFlags.NO_HINTING,
+             False: LoadFlags.NO_HINTING}.get(hinting, LoadFlags.FORCE_AUTOHINT)  # fmt: skip
+    return findfont(FontProperties(size=size_pt)), flags, bool(matplotlib.rcParams["text.antialiased"])
+
+
+def line_pixels(line: str, size_pt: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """(coverage 0–255 as uint8 (rows, columns), descent in pixels, each glyph's pen x in pixels) of one line
+    of text drawn by FreeType (`_text_font`) at ``size_pt`` points and `PNG_DPI`: matplotlib's own drawing
+    of it. Memoised by the line, size and font settings (up to `TEXT_MEMO_BYTES`): FreeType's layout of a
+    line (``set_text``, some 20–50 µs a glyph) was most of a report's figure time, its labels measured
+    again for every candidate line of `wrap_to_width` and drawn again in `text_pixels` (issue 33). The
+    arrays are read-only: a caller cannot change the memo."""
+    from matplotlib.font_manager import get_font
+
+    path, flags, antialiased = _text_font(size_pt)
+    key = (line, float(size_pt), path, flags, antialiased)
+    with _text_lock:
+        hit = _text_memo.get(key)
+        if hit is not None:
+            _text_memo.move_to_end(key)
+            return hit
+    font = get_font(path)
+    font.clear()
+    font.set_size(size_pt, PNG_DPI)
+    pen = np.array(font.set_text(line, 0.0, flags=flags), dtype=np.float64).reshape(-1, 2)[:, 0] / 64.0
+    font.draw_glyphs_to_bitmap(antialiased=antialiased)
+    img = np.array(font.get_image(), dtype=np.uint8)
+    img.flags.writeable = pen.flags.writeable = False
+    drawn = (img, font.get_descent() / 64.0, pen)
+    with _text_lock:
+        _text_memo[key] = drawn
+        while (
+            sum(v[0].nbytes + v[2].nbytes for v in _text_memo.values()) > TEXT_MEMO_BYTES
+            and len(_text_memo) > 1
+        ):
+            _text_memo.popitem(last=False)
+    return drawn
 
 
 def text_pixels(text: str, size_pt: float, ha: str = "center") -> np.ndarray:
     """Coverage in [0, 1] of ``text`` (lines ``ha``-aligned: "center" or "left") drawn by matplotlib's
     FreeType font of its default family at ``size_pt`` points and `PNG_DPI`, with matplotlib's hinting and
-    line spacing (1.2)."""
-    import matplotlib
-    from matplotlib.font_manager import FontProperties, findfont, get_font
-    from matplotlib.ft2font import LoadFlags
-
-    font = get_font(findfont(FontProperties(size=size_pt)))
-    hinting = matplotlib.rcParams["text.hinting"]  # (as matplotlib's Agg renderer reads it)
-    flags = {"default": LoadFlags.DEFAULT, "either": LoadFlags.DEFAULT, "no_autohint": LoadFlags.NO_AUTOHINT,
-             "native": LoadFlags.NO_AUTOHINT, "no_hinting": LoadFlags.NO_HINTING,
-             "none": LoadFlags.NO_HINTING,
-             False: LoadFlags.NO_HINTING}.get(hinting, LoadFlags.FORCE_AUTOHINT)  # fmt: skip
-
-    def draw(s: str) -> tuple[np.ndarray, float]:
-        font.clear()
-        font.set_size(size_pt, PNG_DPI)
-        font.set_text(s, 0.0, flags=flags)
-        font.draw_glyphs_to_bitmap(antialiased=matplotlib.rcParams["text.antialiased"])
-        return np.asarray(font.get_image()), font.get_descent() / 64.0
-
-    lp, lp_descent = draw("lp")
+    line spacing (1.2). Its lines are drawn by `line_pixels` (memoised); the array returned is the
+    caller's own."""
+    lp, lp_descent, _ = line_pixels("lp", size_pt)
     ascent, pitch = lp.shape[0] - lp_descent, 1.2 * lp.shape[0]
-    lines = [draw(s) for s in text.split("\n")]
+    lines = [line_pixels(s, size_pt)[:2] for s in text.split("\n")]
     width = max(img.shape[1] for img, _ in lines)
     height = round((len(lines) - 1) * pitch + lp.shape[0]) + 2
     out = np.zeros((height, width))

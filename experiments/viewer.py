@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import json
 import logging
 import re
@@ -44,6 +43,7 @@ import numpy as np
 from rtfit.fitting import REL_MSE_EPS, flip_error_map, prime_flip
 from rtfit.reference.io import atomic_write_bytes, atomic_write_json, atomic_write_text, read_exr, write_exr
 
+from .figures import png_bytes
 from .records import Results
 
 __all__ = [
@@ -227,11 +227,9 @@ def _srgb8(linear: np.ndarray) -> np.ndarray:
 
 
 def _png(rgb8: np.ndarray) -> bytes:
-    import matplotlib.image
-
-    buf = io.BytesIO()
-    matplotlib.image.imsave(buf, rgb8, format="png", metadata={"Software": None})
-    return buf.getvalue()
+    """PNG bytes as ``matplotlib.image.imsave(buf, rgb8, format="png", metadata={"Software": None})`` writes
+    them (its default 100 dpi and compression; `figures.png_bytes`)."""
+    return png_bytes(rgb8, 100)
 
 
 def _exposure(ref: np.ndarray, mask: np.ndarray) -> float:

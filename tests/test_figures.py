@@ -73,3 +73,105 @@ def test_labels_wrap_at_spaces_to_the_tile_width():
     assert all(figures.text_pixels(line, 9).shape[1] <= width for line in lines)
     assert figures.wrap_to_width("Schlick\nmean 0.03", 9, 1e4) == "Schlick\nmean 0.03"  # fits: unchanged
     assert figures.wrap_to_width("Lazányi–Szirmay-Kalos", 9, 5.0) == "Lazányi–Szirmay-Kalos"  # one word
+
+
+def _drawn_by_freetype(line: str, size: float) -> np.ndarray:
+    """``line`` drawn by matplotlib's FreeType font directly (no memo): the drawing `line_pixels` keeps."""
+    import matplotlib
+    from matplotlib.font_manager import FontProperties, findfont, get_font
+    from matplotlib.ft2font import LoadFlags
+
+    assert matplotlib.rcParams["text.hinting"] == "default"  # (the flags below are its)
+    font = get_font(findfont(FontProperties(size=size)))
+    font.clear()
+    font.set_size(size, figures.PNG_DPI)
+    font.set_text(line, 0.0, flags=LoadFlags.DEFAULT)
+    font.draw_glyphs_to_bitmap(antialiased=matplotlib.rcParams["text.antialiased"])
+    return np.asarray(font.get_image())
+
+
+def test_memoised_text_is_a_fresh_drawing_and_cannot_be_changed():
+    """A memo hit of `line_pixels` is FreeType's drawing of the line; its arrays are read-only, and
+    `text_pixels` gives each caller its own array (changing it changes no later drawing)."""
+    import pytest
+
+    figures.MEMOS[0].clear()
+    line = "Ambient cube (Valve: axis samples)"
+    first = figures.line_pixels(line, 9)
+    hit = figures.line_pixels(line, 9)
+    assert hit[0] is first[0]  # (the memo answered)
+    assert np.array_equal(hit[0], _drawn_by_freetype(line, 9))
+    for a in (hit[0], hit[2]):
+        with pytest.raises(ValueError):
+            a[0] = 1
+    text = f"{line}\nmean 0.25"
+    mine = figures.text_pixels(text, 8)
+    mine[:] = 7.0
+    again = figures.text_pixels(text, 8)
+    figures.MEMOS[0].clear()
+    assert np.array_equal(again, figures.text_pixels(text, 8))  # memo hit == drawn afresh
+    assert again.max() <= 1.0 and again.flags.writeable
+
+
+def test_wrapping_is_the_greedy_one_measured_word_by_word():
+    """`wrap_to_width` breaks each line where the greedy rule does: each line takes words while the line
+    drawn afresh (`_drawn_by_freetype`) is at most the width."""
+
+    def greedy(line, size, width):
+        out, current = [], ""
+        for word in line.split(" "):
+            candidate = f"{current} {word}" if current else word
+            if current and _drawn_by_freetype(candidate, size).shape[1] > width:
+                out.append(current)
+                current = word
+            else:
+                current = candidate
+        return "\n".join([*out, current])
+
+    labels = [
+        "Seed: per-channel SDF biased by the surface normal (fitted to this scene)",
+        "AA: fitted Ω, seed Lambert, cap ∩ hemisphere (fitted to this scene)",
+        "Ambient cube (Valve: axis samples) volume, nearest probe",
+        "Wrap lighting (fitted to this scene)",
+        "error (max 0.0686)",
+        "a bb ccc dddd eeeee ffffff ggggggg hhhhhhhh iiiiiiiii",
+    ]
+    for label in labels:
+        for size in (8, 9):
+            for width in (30.0, 75.0, 140.0, 214.0, 400.0):
+                figures.MEMOS[0].clear()
+                assert figures.wrap_to_width(label, size, width) == greedy(label, size, width), (label, width)
+
+
+def test_text_over_an_image_darkens_it_in_turn(tmp_path):
+    """A `MosaicFigure` pixel under text is round(255 · v · Π(1 − coverage)) of the image's value v, each
+    text over it in turn (here two texts at one place over a uniform grey)."""
+    from PIL import Image
+
+    v = 0.4
+    fig = figures.MosaicFigure(np.full((40, 60, 3), v), "", 60)
+    fig.text(30, 20, "Wg", 9, va="center")
+    fig.text(30, 20, "Wg", 9, va="center")
+    png = np.asarray(Image.open(fig.save(tmp_path / "t.png")))
+    alpha = figures.text_pixels("Wg", 9)
+    m = figures.MosaicFigure.MARGIN  # (the content is the image: it starts at the margin)
+    th, tw = alpha.shape
+    top, left = round((20 + 0.5) * fig.scale - th / 2), round((30 + 0.5) * fig.scale - tw / 2)
+    got = png[m + top : m + top + th, m + left : m + left + tw, :3]
+    want = np.round(v * (1.0 - alpha) * (1.0 - alpha) * 255).astype(np.uint8)
+    assert np.array_equal(got, np.repeat(want[..., None], 3, axis=-1))
+    assert png[m, m, :3].tolist() == [round(v * 255)] * 3 and png[0, 0].tolist() == [255] * 4  # grey; white
+
+
+def test_png_bytes_are_matplotlibs(tmp_path):
+    """`png_bytes` writes the PNG ``matplotlib.image.imsave`` writes (RGBA, its dpi, no Software text)."""
+    import io
+
+    import matplotlib.image
+
+    rgb = np.random.default_rng(2).integers(0, 256, (7, 11, 3), dtype=np.uint8)
+    for dpi, level in ((110, 1), (100, None)):
+        buf = io.BytesIO()
+        kw = {} if level is None else {"pil_kwargs": {"compress_level": level}}
+        matplotlib.image.imsave(buf, rgb, format="png", dpi=dpi, metadata={"Software": None}, **kw)
+        assert figures.png_bytes(rgb, dpi, compress_level=level) == buf.getvalue()
