@@ -175,3 +175,19 @@ def test_png_bytes_are_matplotlibs(tmp_path):
         kw = {} if level is None else {"pil_kwargs": {"compress_level": level}}
         matplotlib.image.imsave(buf, rgb, format="png", dpi=dpi, metadata={"Software": None}, **kw)
         assert figures.png_bytes(rgb, dpi, compress_level=level) == buf.getvalue()
+
+
+def test_rows_up_png_holds_the_same_pixels(tmp_path):
+    """`png_rows_up` (the mosaic figures' fast encoding) decodes to the pixels and resolution of
+    `png_bytes` (Pillow's encoding, matplotlib's bytes), for an enlarged image and for noise."""
+    import io
+
+    from PIL import Image
+
+    rng = np.random.default_rng(4)
+    blocks = np.repeat(np.repeat(rng.integers(0, 256, (5, 7, 3), dtype=np.uint8), 3, axis=0), 4, axis=1)
+    for rgb in (blocks, rng.integers(0, 256, (9, 13, 3), dtype=np.uint8), np.zeros((1, 1, 3), np.uint8)):
+        fast = Image.open(io.BytesIO(figures.png_rows_up(rgb, figures.PNG_DPI)))
+        ref = Image.open(io.BytesIO(figures.png_bytes(rgb, figures.PNG_DPI, compress_level=1)))
+        assert fast.mode == ref.mode == "RGBA" and fast.info == ref.info
+        assert np.array_equal(np.asarray(fast), np.asarray(ref))
