@@ -324,9 +324,8 @@ def _base_values(layers: list, y: int, x: int, h: int, w: int) -> np.ndarray:
         r0, r1, c0, c1 = max(y, ly), min(y + h, ly + lh), max(x, lx), min(x + w, lx + lw)
         if r0 < r1 and c0 < c1:
             rows, cols = slice(r0 - ly, r1 - ly), slice(c0 - lx, c1 - lx)
-            values[r0 - y : r1 - y, c0 - x : c1 - x] = (
-                block(rows, cols) if callable(block) else block[rows, cols]
-            )
+            part = np.asarray(block(rows, cols) if callable(block) else block[rows, cols])
+            values[r0 - y : r1 - y, c0 - x : c1 - x] = part
     return values
 
 
@@ -364,10 +363,11 @@ def png_bytes(rgb8: np.ndarray, dpi: float, compress_level: int | None = None) -
     ``metadata={"Software": None}`` (RGBA, opaque, its resolution ``dpi``; the same bytes), written by
     Pillow directly: no colour mapping of pixels that are already bytes, and no import of matplotlib's
     image module."""
-    rgba = np.empty((*rgb8.shape[:2], 4), np.uint8)
+    h, w = rgb8.shape[:2]
+    rgba = np.empty((h, w, 4), np.uint8)
     rgba[..., :3] = rgb8
     rgba[..., 3] = 255
-    image = PIL.Image.frombuffer("RGBA", (rgba.shape[1], rgba.shape[0]), rgba, "raw", "RGBA", 0, 1)
+    image = PIL.Image.frombuffer("RGBA", (w, h), rgba, "raw", "RGBA", 0, 1)
     buf = io.BytesIO()
     options = {} if compress_level is None else {"compress_level": compress_level}
     image.save(buf, format="png", pnginfo=PIL.PngImagePlugin.PngInfo(), dpi=(dpi, dpi), **options)

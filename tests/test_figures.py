@@ -172,8 +172,9 @@ def test_png_bytes_are_matplotlibs(tmp_path):
     rgb = np.random.default_rng(2).integers(0, 256, (7, 11, 3), dtype=np.uint8)
     for dpi, level in ((110, 1), (100, None)):
         buf = io.BytesIO()
-        kw = {} if level is None else {"pil_kwargs": {"compress_level": level}}
-        matplotlib.image.imsave(buf, rgb, format="png", dpi=dpi, metadata={"Software": None}, **kw)
+        pil_kwargs = None if level is None else {"compress_level": level}
+        no_software: dict = {"Software": None}
+        matplotlib.image.imsave(buf, rgb, format="png", dpi=dpi, metadata=no_software, pil_kwargs=pil_kwargs)
         assert figures.png_bytes(rgb, dpi, compress_level=level) == buf.getvalue()
 
 
