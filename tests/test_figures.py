@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from rtfit.experiments import figures
+from rtfit.experiments import figure_text, figures
 
 
 def test_case_comparison_writes_links_and_returns_record(tmp_path):
@@ -95,10 +95,10 @@ def test_memoised_text_is_a_fresh_drawing_and_cannot_be_changed():
     `text_pixels` gives each caller its own array (changing it changes no later drawing)."""
     import pytest
 
-    figures.MEMOS[0].clear()
+    figure_text.MEMOS[0].clear()
     line = "Ambient cube (Valve: axis samples)"
-    first = figures.line_pixels(line, 9)
-    hit = figures.line_pixels(line, 9)
+    first = figure_text.line_pixels(line, 9)
+    hit = figure_text.line_pixels(line, 9)
     assert hit[0] is first[0]  # (the memo answered)
     assert np.array_equal(hit[0], _drawn_by_freetype(line, 9))
     for a in (hit[0], hit[2]):
@@ -108,7 +108,7 @@ def test_memoised_text_is_a_fresh_drawing_and_cannot_be_changed():
     mine = figures.text_pixels(text, 8)
     mine[:] = 7.0
     again = figures.text_pixels(text, 8)
-    figures.MEMOS[0].clear()
+    figure_text.MEMOS[0].clear()
     assert np.array_equal(again, figures.text_pixels(text, 8))  # memo hit == drawn afresh
     assert again.max() <= 1.0 and again.flags.writeable
 
@@ -139,7 +139,7 @@ def test_wrapping_is_the_greedy_one_measured_word_by_word():
     for label in labels:
         for size in (8, 9):
             for width in (30.0, 75.0, 140.0, 214.0, 400.0):
-                figures.MEMOS[0].clear()
+                figure_text.MEMOS[0].clear()
                 assert figures.wrap_to_width(label, size, width) == greedy(label, size, width), (label, width)
 
 
