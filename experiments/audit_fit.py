@@ -84,25 +84,29 @@ Jacobians a fit crawling to its bounds). Checked and not the cost: the fitted ro
 
 FIT_PIXELS = 1 << 13
 """The most masked pixels a case's fit (`fit_case`) reads: a larger case is fitted on a deterministic
-stratified subsample of 8192 of its pixels (`fit_subsample`), the same pixels in every channel, and its
-fitted row is then evaluated, measured and shown on every pixel as any other row. Issue 33 (session 20): a
-fit's cost grows with its elements (each evaluation of the kernel, each TRF product), and on Mitsuba's
-Cornell box at 256² × 256 spp the fits took 405 s against the references' 172 s.
+stratified subsample of 8192 of its pixels (`fit_subsample`), the same pixels in every channel, and its fitted
+row is then evaluated, measured and shown on every pixel as any other row. Issue 33 (session 20): a fit's cost
+grows with its elements (each evaluation of the kernel, each TRF product), and on Mitsuba's Cornell box at
+256² × 256 spp the fits took 405 s against the references' 172 s.
 
-Why 2¹³. (1) Nothing below it changes: every ``--quick`` case and every 64² audit (≤ 4096 pixels) is fitted
-on all its pixels, bit for bit as before, and so is a 90² one. (2) What the subsample costs in accuracy: a
-uniform subsample of n of N pixels gives the fitted values a covariance (N/n) s²(JᵀJ)⁻¹, the full fit's
-times N/n (the stderr the fit reports, from the subsample's own Jacobian and residuals, is larger by
-√(N/n)), and its optimum lies Δ from the full data's with E[Δᵀ JᵀJ Δ] = p s² (N/n − 1) (p parameters, s² the
-residual variance, J over all N pixels): evaluated on every pixel, the row's mean squared error is larger by
-the fraction p (N/n − 1) / (N − p) < p / n, its RMSE by < p / (2n): for p ≤ 8 free parameters (the largest
-audited row) and n = 8192, below 0.05 %, far inside the reference noise an RMSE is shown beside (its floor's
-own Monte Carlo spread is ≥ 1 % at the audits' sizes). (3) Each parameter keeps ≥ 1000 pixels (× 3 channels
-of residuals) per parameter. The residuals of a real-time approximation are mostly its model error,
-correlated across neighbouring pixels, not independent noise: the subsample is stratified (one pixel drawn in
-each of n runs of consecutive masked pixels in raster order), so that it covers the image as evenly as a
-regular stride without aliasing with texel or pixel periods (session 18 measured a fixed every-k-th subsample
-see other shadow-map edges)."""
+Why 2¹³. (1) Nothing below it changes: every ``--quick`` case and every 64² audit (≤ 4096 pixels) is fitted on
+all its pixels, bit for bit as before, and so is a 90² one. (2) What the subsample costs in accuracy: a
+uniform subsample of n of N pixels gives the fitted values a covariance (N/n) s²(JᵀJ)⁻¹, the full fit's times
+N/n (the stderr the fit reports, from the subsample's own Jacobian and residuals, is larger by √(N/n)), and
+its optimum lies Δ from the full data's with E[Δᵀ JᵀJ Δ] = p s² (N/n − 1) (p parameters, s² the residual
+variance, J over all N pixels): evaluated on every pixel, the row's mean squared error is larger by the
+fraction p (N/n − 1) / (N − p) < p / n, its RMSE by < p / (2n): for p ≤ 8 free parameters (the largest audited
+row) and n = 8192, below 0.05 %, far inside the reference noise an RMSE is shown beside (its floor's own Monte
+Carlo spread is ≥ 1 % at the audits' sizes). Measured on the Cornell box at 256² × 256 spp
+(docs/benchmarks.md, "Fits on a subsample at large sizes"): the smooth fits' RMSE ≤ +0.16 % (more than the
+bound: their residuals are correlated model error), the shadow-map rows' ≤ +1 % (their SSR steps with the
+texels), PCSS's +15.8 % on one map (another local minimum of its light scale); the fits' CPU 71.5 → 13.1
+s. (3) Each parameter keeps ≥ 1000 pixels (× 3 channels of residuals). The residuals of a real-time
+approximation are mostly its model error, correlated across neighbouring pixels, not independent noise: the
+subsample is stratified (one pixel drawn in each of n runs of consecutive masked pixels in raster order), so
+that it covers the image as evenly as a regular stride without aliasing with texel or pixel periods (session
+18 measured a fixed every-k-th subsample see other shadow-map edges). The pooled fit (`pooled_fit`) reads
+every pixel still."""
 
 
 def fit_subsample(case: FamilyCase, limit: int = FIT_PIXELS) -> np.ndarray | None:
