@@ -15,6 +15,7 @@ and bounds in scene units here too (`length_scaled_params`), for every family th
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Iterable, Mapping, Sequence, Set
 from dataclasses import dataclass, replace
 from typing import Any
@@ -29,6 +30,7 @@ from .audit import AuditError
 from .audit_family import FamilyCase
 
 __all__ = [
+    "FIT_PIXELS",
     "FIT_SOLVER",
     "FitData",
     "PooledFit",
@@ -36,9 +38,11 @@ __all__ = [
     "evaluate_case",
     "fit_case",
     "fit_data",
+    "fit_subsample",
     "length_scaled_params",
     "pooled_fit",
     "stacked_agrees",
+    "subsampled_case",
     "tables_as_drjit",
 ]  # fmt: skip
 
@@ -76,6 +80,76 @@ kernels did each visibility three times; (2) colour-bleeding's per-channel biase
 central-difference Jacobian (`channel_param_rows`; 8 → 4 costly evaluations a Jacobian, its ~100
 Jacobians a fit crawling to its bounds). Checked and not the cost: the fitted rows' Dr.Jit evaluations
 (≤ 30 ms each; kernel cache hits), NumPy ↔ Dr.Jit conversions (the fits run NumPy)."""
+
+
+FIT_PIXELS = 1 << 13
+"""The most masked pixels a case's fit (`fit_case`) reads: a larger case is fitted on a deterministic
+stratified subsample of 8192 of its pixels (`fit_subsample`), the same pixels in every channel, and its fitted
+row is then evaluated, measured and shown on every pixel as any other row. Issue 33 (session 20): a fit's cost
+grows with its elements (each evaluation of the kernel, each TRF product), and on Mitsuba's Cornell box at
+256² × 256 spp the fits took 405 s against the references' 172 s.
+
+Why 2¹³. (1) Nothing below it changes: every ``--quick`` case and every 64² audit (≤ 4096 pixels) is fitted on
+all its pixels, bit for bit as before, and so is a 90² one. (2) What the subsample costs in accuracy: a
+uniform subsample of n of N pixels gives the fitted values a covariance (N/n) s²(JᵀJ)⁻¹, the full fit's times
+N/n (the stderr the fit reports, from the subsample's own Jacobian and residuals, is larger by √(N/n)), and
+its optimum lies Δ from the full data's with E[Δᵀ JᵀJ Δ] = p s² (N/n − 1) (p parameters, s² the residual
+variance, J over all N pixels): evaluated on every pixel, the row's mean squared error is larger by the
+fraction p (N/n − 1) / (N − p) < p / n, its RMSE by < p / (2n): for p ≤ 8 free parameters (the largest audited
+row) and n = 8192, below 0.05 %, far inside the reference noise an RMSE is shown beside (its floor's own Monte
+Carlo spread is ≥ 1 % at the audits' sizes). Measured on the Cornell box at 256² × 256 spp
+(docs/benchmarks.md, "Fits on a subsample at large sizes"): the smooth fits' RMSE ≤ +0.16 % (more than the
+bound: their residuals are correlated model error), the shadow-map rows' ≤ +1 % (their SSR steps with the
+texels), PCSS's +15.8 % on one map (another local minimum of its light scale); the fits' CPU 71.5 → 13.1
+s. (3) Each parameter keeps ≥ 1000 pixels (× 3 channels of residuals). The residuals of a real-time
+approximation are mostly its model error, correlated across neighbouring pixels, not independent noise: the
+subsample is stratified (one pixel drawn in each of n runs of consecutive masked pixels in raster order), so
+that it covers the image as evenly as a regular stride without aliasing with texel or pixel periods (session
+18 measured a fixed every-k-th subsample see other shadow-map edges). The pooled fit (`pooled_fit`) reads
+every pixel still."""
+
+
+def fit_subsample(case: FamilyCase, limit: int = FIT_PIXELS) -> np.ndarray | None:
+    """The positions (sorted, among the case's masked pixels in raster order) that a fit of ``case`` reads
+    (`FIT_PIXELS`): None (every pixel) when the case has at most ``limit`` pixels; else one position drawn
+    uniformly in each of ``limit`` runs of ⌊N/limit⌋ or ⌈N/limit⌉ consecutive masked pixels, from a
+    generator seeded by the case's id (CRC-32): the same pixels at every run of the same case, whichever
+    row, process or time."""
+    n = int(np.count_nonzero(case.mask))
+    if n <= limit:
+        return None
+    edges = (np.arange(limit + 1, dtype=np.int64) * n) // limit
+    u = np.random.default_rng(zlib.crc32(case.id.encode("utf-8"))).random(limit)
+    return edges[:-1] + (u * np.diff(edges)).astype(np.int64)
+
+
+def subsampled_case(case: FamilyCase, keep: np.ndarray) -> FamilyCase | None:
+    """``case`` restricted to the masked pixels at positions ``keep`` (`fit_subsample`): its mask, its
+    factor and every per-pixel input of every channel (a NumPy array of one value per masked pixel), each
+    indexed once here, so that a kernel memoising on its arrays' identity (a shadow map's `_kept`) sees the
+    same arrays at every evaluation of the fit. Tables (arrays of another size: a sky's texels, SH
+    coefficients), sampler objects and constants are passed whole. None where an input has one value per
+    pixel but is not a 1-D NumPy array (its layout unknown here: fitted on every pixel)."""
+    n = int(np.count_nonzero(case.mask))
+    flat = np.zeros(case.mask.size, bool)
+    flat[np.flatnonzero(case.mask)[keep]] = True
+    taken: dict[int, np.ndarray] = {}  # an array shared by several channels: indexed once, still shared
+
+    def take(v):
+        if not (np.ndim(v) and np.size(v) == n):
+            return v  # a constant, an object or a table
+        if not (isinstance(v, np.ndarray) and v.ndim == 1):
+            raise TypeError
+        if id(v) not in taken:
+            taken[id(v)] = v[keep]
+        return taken[id(v)]
+
+    try:
+        channels = tuple({k: take(v) for k, v in inp.items()} for inp in case.channel_inputs)
+        factor = None if case.factor is None else take(case.factor)
+    except TypeError:
+        return None
+    return replace(case, mask=flat.reshape(case.mask.shape), channel_inputs=channels, factor=factor)
 
 
 def evaluate_case(method: Method, case: FamilyCase, params: Mapping[str, float]) -> np.ndarray:
@@ -183,7 +257,21 @@ def fit_case(method: Method, case: FamilyCase, row: str = "") -> dict:
     relative error over the noise floor); the `FitResult` as a dict. A per-channel case whose channels share
     inputs is fitted on its stacked data (`fit_data` ``stacked``: the shared work once, not three times) where
     the kernel's NumPy run gives there, at the start, the concatenated data's residuals bit for bit (an
-    elementwise kernel; `stacked_agrees`), so that every evaluation of the fit does."""
+    elementwise kernel; `stacked_agrees`), so that every evaluation of the fit does.
+
+    A case of more than `FIT_PIXELS` masked pixels is fitted on its deterministic subsample
+    (`fit_subsample`, `subsampled_case`): the values' stderr, residuals and counts are the subsample's, and
+    the dict's ``subsample`` says so ({"pixels": n fitted, "of": N masked}; absent where every pixel was)."""
+    keep = fit_subsample(case)
+    sub = None if keep is None else subsampled_case(case, keep)
+    result = _fit_case(method, case if sub is None else sub, row)
+    if sub is not None and keep is not None:
+        result["subsample"] = {"pixels": len(keep), "of": int(np.count_nonzero(case.mask))}
+    return result
+
+
+def _fit_case(method: Method, case: FamilyCase, row: str) -> dict:
+    """`fit_case` on the pixels of ``case`` as given."""
     d = fit_data(method, case, row)
     rows = None
     if d.per_channel and method.fit_ops == "numpy":

@@ -26,6 +26,7 @@ AuditResult = Any
 __all__ = [
     "case_figures",
     "fitted_entries",
+    "fitted_on_text",
     "reference_record",
     "save_pixels",
     "viewer_flip_thread",
@@ -122,6 +123,11 @@ def case_figures(directory: Path, r: AuditResult) -> list[dict]:
     return out
 
 
+def fitted_on_text(subsample: dict) -> str:
+    """A subsampled fit's pixels in words (`audit_fit.fit_case`'s ``subsample``): "8192 of 65536 pixels"."""
+    return f"{subsample['pixels']} of {subsample['of']} pixels"
+
+
 def fitted_entries(r: AuditResult) -> list:
     """One `fitted.method_entry` per fitted row of every case (kernel text, values with their uncertainties,
     the inputs' domain on this scene)."""
@@ -151,7 +157,11 @@ def fitted_entries(r: AuditResult) -> list:
                     case=re.sub(r"[^A-Za-z0-9_]", "_", case.id),
                     domain=dom,
                     residual_units=f"{case.units}: residual = method − reference per pixel and channel",
-                    data={"scene": r.info.source, "case": case.id},
+                    data={
+                        "scene": r.info.source,
+                        "case": case.id,
+                        **({"fitted_on": fitted_on_text(o.fit["subsample"])} if "subsample" in o.fit else {}),
+                    },
                     tables=tables,
                 )
             )

@@ -21,7 +21,7 @@ from . import fitted as fitfiles
 from .atomic import atomic_directory
 from .audit import SceneInfo
 from .audit_family import FamilyCase
-from .audit_output import reference_record, write_audit
+from .audit_output import fitted_on_text, reference_record, write_audit
 from .audit_selection import Selection
 from .families import AUDITED
 from .records import SCHEMA, Check, Results, from_json, plain_json, to_json
@@ -253,6 +253,7 @@ def _fit_record(case: FamilyCase, row: MethodOutcome) -> dict:
         "fitted/audit.json",
         at_bound=[k for k, v in f["parameters"].items() if v.get("at_bound")],
         message=f.get("message"),
+        **({"fitted_on": fitted_on_text(f["subsample"])} if "subsample" in f else {}),
     )
 
 

@@ -209,7 +209,9 @@ class FitParameter(Record):
 @dataclass(frozen=True)
 class Fit(Record):
     """A parameter fit. ``parameters``: name → :class:`FitParameter` (a bare number is the value);
-    ``at_bound``: names of the parameters that ended on a bound; ``message``: the optimiser's."""
+    ``at_bound``: names of the parameters that ended on a bound; ``message``: the optimiser's;
+    ``fitted_on``: where the fit read a subsample of its case's pixels (the audit's large cases), which (e.g.
+    "8192 of 65536 pixels"): its residuals, their count and the stderr are the subsample's."""
 
     id: str | None = None
     label: str | None = None
@@ -220,6 +222,7 @@ class Fit(Record):
     converged: bool | None = None
     at_bound: list[str] | None = None
     message: str | None = None
+    fitted_on: str | None = None
     file: RelPath | None = None
 
     @property

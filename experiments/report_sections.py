@@ -26,6 +26,7 @@ from .report_text import format_number
 __all__ = [
     "AT_BOUND_NOTE",
     "PRECOMPUTE_CAPTION",
+    "SUBSAMPLE_NOTE",
     "add_case",
     "add_checks_table",
     "add_cost_table",
@@ -36,6 +37,11 @@ __all__ = [
 
 AT_BOUND_NOTE = (
     "‡ At a bound of its allowed range: the fit is constrained there, so its standard error is unreliable."
+)
+SUBSAMPLE_NOTE = (
+    "Fitted on n of N pixels: a large case's fit reads a deterministic stratified subsample of its pixels "
+    "(its residuals, their count and the standard errors are the subsample's); the fitted row's metrics are "
+    "computed on every pixel."
 )
 
 
@@ -233,7 +239,11 @@ def add_fits_table(d: ReportDoc, fits: list[Fit]) -> None:
                     val,
                     Cell(bounds, numeric=True),
                     Cell(format_number(f.rms_residual) if first else "", numeric=True),
-                    Cell(format_number(f.n_residuals) if first else "", numeric=True),
+                    Cell(
+                        format_number(f.n_residuals) if first else "",
+                        sub=f"fitted on {f.fitted_on}" if first and f.fitted_on else "",
+                        numeric=True,
+                    ),
                     Cell(
                         ("yes" if conv else "no") if first and conv is not None else "",
                         style="" if conv or not first or conv is None else "fail",
@@ -255,7 +265,7 @@ def add_fits_table(d: ReportDoc, fits: list[Fit]) -> None:
             Cell("Converged"),
         ],
         rows,
-        [AT_BOUND_NOTE] if at_bound else [],
+        ([AT_BOUND_NOTE] if at_bound else []) + ([SUBSAMPLE_NOTE] if any(f.fitted_on for f in fits) else []),
     )
     if files:
         d.prose("Fitted-parameter files:")

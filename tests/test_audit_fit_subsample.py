@@ -1,0 +1,141 @@
+"""A large case's fit on a deterministic subsample of its pixels (`rtfit.experiments.audit_fit.fit_case`,
+`fit_subsample`, `FIT_PIXELS`): checked against the closed-form least-squares solution of a linear model with
+known truth and noise (`numpy.linalg.lstsq`, computed here on all pixels and on the subsample's), the
+subsample's stderr against the full fit's × √(N/n), small cases fitted on every pixel, tables passed whole and
+the subsample the same at every call."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rtfit.experiments.audit_family import FamilyCase
+from rtfit.experiments.audit_fit import FIT_PIXELS, fit_case, fit_subsample, subsampled_case
+from rtfit.experiments.audit_setup import AuditReference
+from rtfit.realtime.methods import Input, Method, Param
+
+TRUTH = (2.0, 1.0)  # y = a·x + b + noise
+NOISE = 0.3
+
+
+def _line(ops, x, a, b):
+    return a * x + b
+
+
+LINE = Method(
+    id="line",
+    label="a·x + b",
+    kernel=_line,
+    inputs=(Input("x", "1", "abscissa", domain=(0.0, 10.0)),),
+    params={"a": Param(1.0, -10.0, 10.0, unit="1"), "b": Param(0.0, -10.0, 10.0, unit="1")},
+    formula="a·x + b",
+)
+
+
+def _image_case(cid: str, shape: tuple[int, int], seed: int, fraction: float = 0.8):
+    """A grey per-channel case over an image ``shape`` with ~``fraction`` of its pixels masked: x uniform on
+    [0, 10], each channel's reference a·x + b plus its own Gaussian noise. Returns (case, x, y (n, 3))."""
+    rng = np.random.default_rng(seed)
+    mask = rng.random(shape) < fraction
+    n = int(mask.sum())
+    x = rng.uniform(0.0, 10.0, n)
+    y = TRUTH[0] * x[:, None] + TRUTH[1] + rng.normal(0.0, NOISE, (n, 3))
+    mean = np.zeros((*shape, 3))
+    mean[mask] = y
+    ref = AuditReference(mean, np.full_like(mean, 0.01), 16, 1, 1, "k", "p", 0.0, "q", "none", "planted")
+    return FamilyCase(cid, cid, ref, mask, ({"x": x},) * 3), x, y
+
+
+def _lstsq(x: np.ndarray, y: np.ndarray):
+    """Closed-form least squares of y (n, 3) = a·x + b over the three channels: values and stderrs."""
+    A = np.stack([np.tile(x, 3), np.ones(3 * len(x))], axis=1)
+    t = y.T.reshape(-1)
+    sol, ssr, _, _ = np.linalg.lstsq(A, t, rcond=None)
+    s2 = float(ssr[0]) / (len(t) - 2)
+    return sol, np.sqrt(np.diag(s2 * np.linalg.inv(A.T @ A)))
+
+
+def test_a_large_case_is_fitted_on_its_subsample_within_a_few_stderr_of_the_full_fit():
+    case, x, y = _image_case("large", (160, 160), seed=5)
+    n = len(x)
+    assert n > 2 * FIT_PIXELS
+    fit = fit_case(LINE, case, "line")
+    assert fit["subsample"] == {"pixels": FIT_PIXELS, "of": n}
+    assert fit["n_residuals"] == 3 * FIT_PIXELS
+    full, full_se = _lstsq(x, y)
+    keep = fit_subsample(case)
+    assert keep is not None
+    sub, sub_se = _lstsq(x[keep], y[keep])
+    for i, k in enumerate("ab"):
+        got = fit["parameters"][k]
+        # exactly the subsample's least-squares fit (within the fits' stop, 1e-2 of a stderr: `noise_ftol`)
+        assert abs(got["value"] - sub[i]) <= 0.02 * sub_se[i]
+        assert abs(got["stderr"] - sub_se[i]) <= 1e-3 * sub_se[i]
+        # its stderr is the subsample's, √(N/n) × the full fit's (within the residual variance's spread)
+        assert abs(got["stderr"] / (full_se[i] * np.sqrt(n / FIT_PIXELS)) - 1.0) < 0.05
+        # and the value lies within a few of its stderr of the full fit's and of the truth
+        assert abs(got["value"] - full[i]) <= 3.0 * got["stderr"]
+        assert abs(got["value"] - TRUTH[i]) <= 4.0 * got["stderr"]
+
+
+def test_a_small_case_is_fitted_on_every_pixel():
+    case, x, y = _image_case("small", (64, 128), seed=7, fraction=1.0)  # exactly FIT_PIXELS pixels
+    assert len(x) == FIT_PIXELS and fit_subsample(case) is None
+    fit = fit_case(LINE, case, "line")
+    assert "subsample" not in fit and fit["n_residuals"] == 3 * FIT_PIXELS
+    full, full_se = _lstsq(x, y)
+    for i, k in enumerate("ab"):
+        assert abs(fit["parameters"][k]["value"] - full[i]) <= 0.02 * full_se[i]
+        assert abs(fit["parameters"][k]["stderr"] - full_se[i]) <= 1e-3 * full_se[i]
+
+
+def test_the_subsample_is_deterministic_stratified_and_the_same_in_every_channel():
+    case, x, _ = _image_case("det", (150, 150), seed=9)
+    again, _, _ = _image_case("det", (150, 150), seed=9)
+    other, _, _ = _image_case("other", (150, 150), seed=9)
+    keep = fit_subsample(case)
+    assert keep is not None and len(keep) == FIT_PIXELS
+    same, moved = fit_subsample(again), fit_subsample(other)
+    assert same is not None and moved is not None
+    assert np.array_equal(keep, same)  # seeded by the case's id: the same at every call
+    assert not np.array_equal(keep, moved)
+    n = len(x)
+    edges = (np.arange(FIT_PIXELS + 1) * n) // FIT_PIXELS  # one position in each run of consecutive pixels
+    assert np.all((keep >= edges[:-1]) & (keep < edges[1:]))
+    sub = subsampled_case(case, keep)
+    assert sub is not None and int(sub.mask.sum()) == FIT_PIXELS
+    assert np.array_equal(np.flatnonzero(sub.mask), np.flatnonzero(case.mask)[keep])
+    for inp in sub.channel_inputs:  # the same pixels in every channel, indexed once (one shared array)
+        assert inp["x"] is sub.channel_inputs[0]["x"]
+        assert np.array_equal(inp["x"], x[keep])
+
+
+def _rgb_offsets(ops, x, t, a, b):
+    """One mapping, (R, G, B): a·x + b·t[c], t a table of three offsets (not one value per pixel)."""
+    return tuple(a * x + b * t[c] for c in range(3))
+
+
+def test_tables_are_passed_whole():
+    rng = np.random.default_rng(13)
+    shape = (100, 100)
+    mask = np.ones(shape, bool)
+    n = mask.size
+    x = rng.uniform(0.0, 10.0, n)
+    t = np.array([0.5, 1.0, 2.0])
+    y = TRUTH[0] * x[:, None] + TRUTH[1] * t[None, :] + rng.normal(0.0, NOISE, (n, 3))
+    ref = AuditReference(
+        y.reshape(*shape, 3), np.full((*shape, 3), 0.01), 16, 1, 1, "k", "p", 0.0, "q", "none", "planted"
+    )
+    method = Method(id="rgb", label="rgb", kernel=_rgb_offsets, inputs=(Input("x"), Input("t")),
+                    params={"a": Param(1.0, -10.0, 10.0), "b": Param(0.0, -10.0, 10.0)})  # fmt: skip
+    case = FamilyCase("tabled", "tabled", ref, mask, ({"x": x, "t": t},))
+    keep = fit_subsample(case)
+    assert keep is not None
+    sub = subsampled_case(case, keep)
+    assert sub is not None and sub.channel_inputs[0]["t"] is t
+    fit = fit_case(method, case, "rgb")
+    assert fit["subsample"] == {"pixels": FIT_PIXELS, "of": n}
+    A = np.stack([np.tile(x[keep], 3), np.repeat(t, FIT_PIXELS)], axis=1)
+    sol = np.linalg.lstsq(A, y[keep].T.reshape(-1), rcond=None)[0]
+    for i, k in enumerate("ab"):
+        got = fit["parameters"][k]
+        assert abs(got["value"] - sol[i]) <= 0.02 * got["stderr"]
