@@ -40,6 +40,7 @@ __all__ = [
     "fit_data",
     "fit_subsample",
     "length_scaled_params",
+    "polish_params",
     "pooled_fit",
     "stacked_agrees",
     "subsampled_case",
@@ -259,19 +260,41 @@ def fit_case(method: Method, case: FamilyCase, row: str = "") -> dict:
     the kernel's NumPy run gives there, at the start, the concatenated data's residuals bit for bit (an
     elementwise kernel; `stacked_agrees`), so that every evaluation of the fit does.
 
-    A case of more than `FIT_PIXELS` masked pixels is fitted on its deterministic subsample
-    (`fit_subsample`, `subsampled_case`): the values' stderr, residuals and counts are the subsample's, and
-    the dict's ``subsample`` says so ({"pixels": n fitted, "of": N masked}; absent where every pixel was)."""
+    A case of more than `FIT_PIXELS` masked pixels is fitted first on its deterministic subsample
+    (`fit_subsample`, `subsampled_case`), then polished on every pixel from the subsample's values (no scan:
+    `polish_params`), so that what is reported is the full data's optimum near the subsample's, with the full
+    data's stderr, residuals and counts, as on a smaller case; the dict's ``subsample`` says so ({"pixels": n,
+    "of": N masked}; absent where every pixel was fitted at once)."""
     keep = fit_subsample(case)
-    sub = None if keep is None else subsampled_case(case, keep)
-    result = _fit_case(method, case if sub is None else sub, row)
-    if sub is not None and keep is not None:
-        result["subsample"] = {"pixels": len(keep), "of": int(np.count_nonzero(case.mask))}
+    if keep is None:
+        return _fit_case(method, case, row)
+    first = _fit_case(method, subsampled_case(case, keep), row)
+    result = _fit_case(method, case, row, polish_from=first)
+    result["subsample"] = {"pixels": len(keep), "of": int(np.count_nonzero(case.mask))}
     return result
 
 
-def _fit_case(method: Method, case: FamilyCase, row: str) -> dict:
-    """`fit_case` on the pixels of ``case`` as given."""
+def polish_params(params: Mapping[str, Param], fitted: Mapping[str, Any]) -> dict[str, Param]:
+    """``params`` started at a previous fit's values (``fitted``: a `FitResult.to_dict`'s ``parameters``),
+    each moved strictly inside its bounds (a value on a bound starts a hair inside it, as `Param` requires),
+    with no scan (the previous fit scanned): the start of `fit_case`'s polish on every pixel."""
+    out = {}
+    for k, p in params.items():
+        v = fitted.get(k, {}).get("value")
+        if v is None or not np.isfinite(v):
+            out[k] = replace(p, scan=0)
+            continue
+        lo, hi = p.lower, p.upper
+        span = (hi - lo) if np.isfinite(hi - lo) else max(abs(float(v)), 1.0)
+        inner = 1e-9 * span
+        v = float(min(max(v, lo + inner), hi - inner))
+        out[k] = replace(p, initial=v, scan=0)
+    return out
+
+
+def _fit_case(method: Method, case: FamilyCase, row: str, polish_from: dict | None = None) -> dict:
+    """`fit_case` on the pixels of ``case`` as given; ``polish_from``: a fit's dict whose values start this
+    one (`polish_params`)."""
     d = fit_data(method, case, row)
     rows = None
     if d.per_channel and method.fit_ops == "numpy":
@@ -279,6 +302,8 @@ def _fit_case(method: Method, case: FamilyCase, row: str) -> dict:
         if any(np.ndim(v) == 1 for v in s.inputs.values()) and stacked_agrees(method, d, s):
             d = s
             rows = channel_param_rows(method, d)
+    if polish_from is not None:
+        d = replace(d, params=polish_params(d.params, polish_from["parameters"]))
     return fit_method(
         method, d.inputs, d.target, weights=d.weights, params=d.params, solver=FIT_SOLVER, param_rows=rows
     ).to_dict()

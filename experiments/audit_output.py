@@ -124,7 +124,8 @@ def case_figures(directory: Path, r: AuditResult) -> list[dict]:
 
 
 def fitted_on_text(subsample: dict) -> str:
-    """A subsampled fit's pixels in words (`audit_fit.fit_case`'s ``subsample``): "8192 of 65536 pixels"."""
+    """The subsample a fit started on, in words (`audit_fit.fit_case`'s ``subsample``): "8192 of 65536
+    pixels"."""
     return f"{subsample['pixels']} of {subsample['of']} pixels"
 
 

@@ -210,8 +210,9 @@ class FitParameter(Record):
 class Fit(Record):
     """A parameter fit. ``parameters``: name → :class:`FitParameter` (a bare number is the value);
     ``at_bound``: names of the parameters that ended on a bound; ``message``: the optimiser's;
-    ``fitted_on``: where the fit read a subsample of its case's pixels (the audit's large cases), which (e.g.
-    "8192 of 65536 pixels"): its residuals, their count and the stderr are the subsample's."""
+    ``fitted_on``: where the fit started on a subsample of its case's pixels (the audit's large cases), which
+    (e.g. "8192 of 65536 pixels"), before its polish on every pixel: its values, residuals and stderr are
+    the full data's."""
 
     id: str | None = None
     label: str | None = None

@@ -39,9 +39,9 @@ AT_BOUND_NOTE = (
     "‡ At a bound of its allowed range: the fit is constrained there, so its standard error is unreliable."
 )
 SUBSAMPLE_NOTE = (
-    "Fitted on n of N pixels: a large case's fit reads a deterministic stratified subsample of its pixels "
-    "(its residuals, their count and the standard errors are the subsample's); the fitted row's metrics are "
-    "computed on every pixel."
+    "Started on n of N pixels: a large case's fit is first made on a deterministic stratified subsample of "
+    "its pixels, then polished on all of them from the subsample's values (no scan); its values, residuals "
+    "and standard errors are the full data's."
 )
 
 
@@ -241,7 +241,7 @@ def add_fits_table(d: ReportDoc, fits: list[Fit]) -> None:
                     Cell(format_number(f.rms_residual) if first else "", numeric=True),
                     Cell(
                         format_number(f.n_residuals) if first else "",
-                        sub=f"fitted on {f.fitted_on}" if first and f.fitted_on else "",
+                        sub=f"started on {f.fitted_on}" if first and f.fitted_on else "",
                         numeric=True,
                     ),
                     Cell(

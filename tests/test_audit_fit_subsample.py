@@ -1,4 +1,5 @@
-"""A large case's fit on a deterministic subsample of its pixels (`rtfit.experiments.audit_fit.fit_case`,
+"""A large case's fit started on a deterministic subsample of its pixels and polished on all of them
+(`rtfit.experiments.audit_fit.fit_case`,
 `fit_subsample`, `FIT_PIXELS`): checked against the closed-form least-squares solution of a linear model with
 known truth and noise (`numpy.linalg.lstsq`, computed here on all pixels and on the subsample's), the
 subsample's stderr against the full fit's × √(N/n), small cases fitted on every pixel, tables passed whole and
@@ -6,10 +7,13 @@ the subsample the same at every call."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import pytest
 
 from rtfit.experiments.audit_family import FamilyCase
-from rtfit.experiments.audit_fit import FIT_PIXELS, fit_case, fit_subsample, subsampled_case
+from rtfit.experiments.audit_fit import FIT_PIXELS, fit_case, fit_subsample, polish_params, subsampled_case
 from rtfit.experiments.audit_setup import AuditReference
 from rtfit.realtime.methods import Input, Method, Param
 
@@ -54,27 +58,52 @@ def _lstsq(x: np.ndarray, y: np.ndarray):
     return sol, np.sqrt(np.diag(s2 * np.linalg.inv(A.T @ A)))
 
 
-def test_a_large_case_is_fitted_on_its_subsample_within_a_few_stderr_of_the_full_fit():
+def test_a_large_case_is_started_on_its_subsample_and_polished_on_every_pixel():
     case, x, y = _image_case("large", (160, 160), seed=5)
     n = len(x)
     assert n > 2 * FIT_PIXELS
     fit = fit_case(LINE, case, "line")
     assert fit["subsample"] == {"pixels": FIT_PIXELS, "of": n}
-    assert fit["n_residuals"] == 3 * FIT_PIXELS
+    assert fit["n_residuals"] == 3 * n  # the polish reads every pixel
     full, full_se = _lstsq(x, y)
+    for i, k in enumerate("ab"):
+        got = fit["parameters"][k]
+        # the full data's least squares (within the fits' stop, 1e-2 of a stderr: `noise_ftol`), its stderr
+        assert abs(got["value"] - full[i]) <= 0.02 * full_se[i]
+        assert abs(got["stderr"] - full_se[i]) <= 1e-3 * full_se[i]
+        assert abs(got["value"] - TRUTH[i]) <= 4.0 * got["stderr"]
+
+
+def test_the_subsample_fit_alone_is_the_subsamples_least_squares():
+    """The first stage (the subsample's fit, `subsampled_case`): the subsample's own least-squares answer,
+    its stderr √(N/n) × the full fit's (within the residual variance's spread), a few of it from the truth."""
+    case, x, y = _image_case("large", (160, 160), seed=5)
+    n = len(x)
     keep = fit_subsample(case)
     assert keep is not None
+    fit = fit_case(LINE, subsampled_case(case, keep), "line")
+    assert "subsample" not in fit and fit["n_residuals"] == 3 * FIT_PIXELS
+    _, full_se = _lstsq(x, y)
     sub, sub_se = _lstsq(x[keep], y[keep])
     for i, k in enumerate("ab"):
         got = fit["parameters"][k]
-        # exactly the subsample's least-squares fit (within the fits' stop, 1e-2 of a stderr: `noise_ftol`)
         assert abs(got["value"] - sub[i]) <= 0.02 * sub_se[i]
         assert abs(got["stderr"] - sub_se[i]) <= 1e-3 * sub_se[i]
-        # its stderr is the subsample's, √(N/n) × the full fit's (within the residual variance's spread)
         assert abs(got["stderr"] / (full_se[i] * np.sqrt(n / FIT_PIXELS)) - 1.0) < 0.05
-        # and the value lies within a few of its stderr of the full fit's and of the truth
-        assert abs(got["value"] - full[i]) <= 3.0 * got["stderr"]
         assert abs(got["value"] - TRUTH[i]) <= 4.0 * got["stderr"]
+
+
+def test_a_polish_starts_strictly_inside_the_bounds_without_a_scan():
+    params = {
+        "a": Param(1.0, 0.0, 2.0, scan=33),
+        "b": Param(0.5, -math.inf, math.inf),
+        "c": Param(1.0, 0.0, 5.0),
+    }
+    fitted = {"a": {"value": 2.0}, "b": {"value": -7.5}, "c": {"value": float("nan")}}
+    out = polish_params(params, fitted)
+    assert 0.0 < out["a"].initial < 2.0 and out["a"].initial == pytest.approx(2.0, abs=1e-8)
+    assert out["b"].initial == -7.5 and out["c"].initial == 1.0
+    assert all(p.scan == 0 for p in out.values())
 
 
 def test_a_small_case_is_fitted_on_every_pixel():
@@ -134,8 +163,8 @@ def test_tables_are_passed_whole():
     assert sub is not None and sub.channel_inputs[0]["t"] is t
     fit = fit_case(method, case, "rgb")
     assert fit["subsample"] == {"pixels": FIT_PIXELS, "of": n}
-    A = np.stack([np.tile(x[keep], 3), np.repeat(t, FIT_PIXELS)], axis=1)
-    sol = np.linalg.lstsq(A, y[keep].T.reshape(-1), rcond=None)[0]
+    A = np.stack([np.tile(x, 3), np.repeat(t, n)], axis=1)  # the polish: every pixel, the table whole
+    sol = np.linalg.lstsq(A, y.T.reshape(-1), rcond=None)[0]
     for i, k in enumerate("ab"):
         got = fit["parameters"][k]
         assert abs(got["value"] - sol[i]) <= 0.02 * got["stderr"]
