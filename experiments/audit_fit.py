@@ -84,30 +84,28 @@ Jacobians a fit crawling to its bounds). Checked and not the cost: the fitted ro
 
 
 FIT_PIXELS = 1 << 13
-"""The most masked pixels a case's fit (`fit_case`) reads: a larger case is fitted on a deterministic
-stratified subsample of 8192 of its pixels (`fit_subsample`), the same pixels in every channel, and its fitted
-row is then evaluated, measured and shown on every pixel as any other row. Issue 33 (session 20): a fit's cost
-grows with its elements (each evaluation of the kernel, each TRF product), and on Mitsuba's Cornell box at
-256² × 256 spp the fits took 405 s against the references' 172 s.
+"""The most masked pixels a case's fit (`fit_case`) starts on: a larger case is fitted first on a
+deterministic stratified subsample of 8192 of its pixels (`fit_subsample`), the same pixels in every
+channel, then polished on every pixel from the subsample's values (`polish_params`: no scan), so that what
+is reported is the full data's optimum, its stderr and residuals. Issue 33 (session 20): a fit's cost grows
+with its elements (each evaluation of the kernel, each TRF product), and on Mitsuba's Cornell box at 256² ×
+256 spp the fits took 405 s against the references' 172 s on 2 cores; most of a fit's evaluations are its
+start scans and the steps far from the optimum, which the subsample takes at a fraction of the cost, and the
+polish from near the optimum needs a few Jacobians on every pixel.
 
-Why 2¹³. (1) Nothing below it changes: every ``--quick`` case and every 64² audit (≤ 4096 pixels) is fitted on
-all its pixels, bit for bit as before, and so is a 90² one. (2) What the subsample costs in accuracy: a
-uniform subsample of n of N pixels gives the fitted values a covariance (N/n) s²(JᵀJ)⁻¹, the full fit's times
-N/n (the stderr the fit reports, from the subsample's own Jacobian and residuals, is larger by √(N/n)), and
-its optimum lies Δ from the full data's with E[Δᵀ JᵀJ Δ] = p s² (N/n − 1) (p parameters, s² the residual
-variance, J over all N pixels): evaluated on every pixel, the row's mean squared error is larger by the
-fraction p (N/n − 1) / (N − p) < p / n, its RMSE by < p / (2n): for p ≤ 8 free parameters (the largest audited
-row) and n = 8192, below 0.05 %, far inside the reference noise an RMSE is shown beside (its floor's own Monte
-Carlo spread is ≥ 1 % at the audits' sizes). Measured on the Cornell box at 256² × 256 spp
-(docs/benchmarks.md, "Fits on a subsample at large sizes"): the smooth fits' RMSE ≤ +0.16 % (more than the
-bound: their residuals are correlated model error), the shadow-map rows' ≤ +1 % (their SSR steps with the
-texels), PCSS's +15.8 % on one map (another local minimum of its light scale); the fits' CPU 71.5 → 13.1
-s. (3) Each parameter keeps ≥ 1000 pixels (× 3 channels of residuals). The residuals of a real-time
-approximation are mostly its model error, correlated across neighbouring pixels, not independent noise: the
-subsample is stratified (one pixel drawn in each of n runs of consecutive masked pixels in raster order), so
-that it covers the image as evenly as a regular stride without aliasing with texel or pixel periods (session
-18 measured a fixed every-k-th subsample see other shadow-map edges). The pooled fit (`pooled_fit`) reads
-every pixel still."""
+Why 2¹³. (1) Nothing below it changes: every ``--quick`` case and every 64² audit (≤ 4096 pixels) is fitted
+on all its pixels, bit for bit as before, and so is a 90² one. (2) The subsample's optimum lies Δ from the
+full data's with E[Δᵀ JᵀJ Δ] = p s² (N/n − 1) (p parameters, s² the residual variance): for n = 8192 and p ≤
+8 the start is then within a few of the full fit's stderr × √(N/n) of its optimum, where a local solver
+converges in a few steps, and each parameter keeps ≥ 1000 pixels (× 3 channels of residuals). (3) The
+residuals of a real-time approximation are mostly its model error, correlated across neighbouring pixels:
+the subsample is stratified (one pixel drawn in each of n runs of consecutive masked pixels in raster
+order), so that it covers the image as evenly as a regular stride without aliasing with texel or pixel
+periods (session 18 measured a fixed every-k-th subsample see other shadow-map edges). Measured
+(docs/benchmarks.md, "Fits on a subsample at large sizes"): at 256² the smooth fits end on the full fit's
+values (≤ 0.001 of its stderr); a shadow map's rows, whose SSR steps with the texels and the scanned depth
+bias, may end on another step (RMSE ≤ +0.62 %), and PCSS's light scale, a fit with several local minima, in
+a better one (RMSE −20 % and −4.8 %). The pooled fit (`pooled_fit`) reads every pixel still."""
 
 
 def fit_subsample(case: FamilyCase, limit: int = FIT_PIXELS) -> np.ndarray | None:
