@@ -50,12 +50,13 @@ def _is_per_pixel(v, n: int) -> bool:
 class CostInputs:
     """One case's per-pixel inputs as its methods' cost measurements read them (`method_cost`): each cleaned
     (a non-finite value → float32's max), cast to float32 and tiled once, in a 64-byte aligned buffer
-    (`aligned_copy`) at the largest size asked so far; a method is handed a prefix, which Dr.Jit maps without
-    a copy: the elements a tile of its own size held, at an aligned address as `to_drjit` gives.
+    (`aligned_copy`) at the largest size asked so far; a method is handed a prefix (the elements a tile of its
+    own size held), of which its Dr.Jit array gets an aligned copy of its own (`to_drjit`).
 
     Issue 33 (session 20): every method tiled and copied its own inputs (a 2^20-element tile, then an aligned
     copy of it): 1.4 of the 6.3 CPU s of a Cornell-box audit's cost loop, colour-bleeding's eight methods
-    tiling the same 54 inputs to 64 MiB each time. Kept for one case (`audit_run`'s case loop makes one per
+    tiling the same 54 inputs to 64 MiB each time (the tiling is now once a case; the copy stays per method,
+    see `method_cost`). Kept for one case (`audit_run`'s case loop makes one per
     case), at most ``budget`` bytes (the oldest tiles are dropped first)."""
 
     budget: int = 2 * _COST_INPUT_BYTES
@@ -125,7 +126,10 @@ def method_cost(
         elif np.ndim(v):
             a = tiles.tiled(name, v, size)  # the case's tile, shared by its methods (`CostInputs`)
             host.append(a[:_COST_PROBE])  # the trial below reads no more
-            args.append(Float(a))  # mapped, aligned: one compiled kernel whatever NumPy's addresses
+            # An aligned copy of its own (`to_drjit`), not the shared tile mapped: a kernel's arrays own their
+            # memory, as before session 20 (a quick suite on the GPU host ended in a segmentation fault once
+            # while the tiles were mapped; not reproduced, and not shown to be the cause: a precaution).
+            args.append(to_drjit(Float, a))
             keys.append(name)
         else:
             consts[name] = float(v)
