@@ -17,22 +17,10 @@ from rtfit.experiments.audit_fit import FIT_PIXELS, fit_case, fit_subsample, pol
 from rtfit.experiments.audit_setup import AuditReference
 from rtfit.realtime.methods import Input, Method, Param
 
+from .test_audit_fit import LINE  # y = a·x + b
+
 TRUTH = (2.0, 1.0)  # y = a·x + b + noise
 NOISE = 0.3
-
-
-def _line(ops, x, a, b):
-    return a * x + b
-
-
-LINE = Method(
-    id="line",
-    label="a·x + b",
-    kernel=_line,
-    inputs=(Input("x", "1", "abscissa", domain=(0.0, 10.0)),),
-    params={"a": Param(1.0, -10.0, 10.0, unit="1"), "b": Param(0.0, -10.0, 10.0, unit="1")},
-    formula="a·x + b",
-)
 
 
 def _image_case(cid: str, shape: tuple[int, int], seed: int, fraction: float = 0.8):
