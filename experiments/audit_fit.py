@@ -32,6 +32,7 @@ from .audit_family import FamilyCase
 __all__ = [
     "FIT_PIXELS",
     "FIT_SOLVER",
+    "SUBSAMPLE_FROM",
     "FitData",
     "PooledFit",
     "channel_param_rows",
@@ -84,38 +85,49 @@ Jacobians a fit crawling to its bounds). Checked and not the cost: the fitted ro
 
 
 FIT_PIXELS = 1 << 13
-"""The most masked pixels a case's fit (`fit_case`) starts on: a larger case is fitted first on a
-deterministic stratified subsample of 8192 of its pixels (`fit_subsample`), the same pixels in every
-channel, then polished on every pixel from the subsample's values (`polish_params`: no scan), so that what
-is reported is the full data's optimum, its stderr and residuals. Issue 33 (session 20): a fit's cost grows
-with its elements (each evaluation of the kernel, each TRF product), and on Mitsuba's Cornell box at 256² ×
-256 spp the fits took 405 s against the references' 172 s on 2 cores; most of a fit's evaluations are its
-start scans and the steps far from the optimum, which the subsample takes at a fraction of the cost, and the
-polish from near the optimum needs a few Jacobians on every pixel.
+"""The most masked pixels a case's fit (`fit_case`) starts on: a case of more than twice as many
+(`SUBSAMPLE_FROM`) is fitted first on a deterministic stratified subsample of 8192 of its pixels
+(`fit_subsample`), the same pixels in every channel, then polished on every pixel from the subsample's
+values (`polish_params`: no scan), so that what is reported is the full data's optimum, its stderr and
+residuals. Issue 33 (session 20): a fit's cost grows with its elements (each evaluation of the kernel, each
+TRF product), and on Mitsuba's Cornell box at 256² × 256 spp the fits took 405 s against the references' 172
+s on 2 cores; most of a fit's evaluations are its start scans and the steps far from the optimum, which the
+subsample takes at a fraction of the cost, and the polish from near the optimum needs a few Jacobians on
+every pixel.
 
 Why 2¹³. (1) Nothing below it changes: every ``--quick`` case and every 64² audit (≤ 4096 pixels) is fitted
-on all its pixels, bit for bit as before, and so is a 90² one. (2) The subsample's optimum lies Δ from the
-full data's with E[Δᵀ JᵀJ Δ] = p s² (N/n − 1) (p parameters, s² the residual variance): for n = 8192 and p ≤
-8 the start is then within a few of the full fit's stderr × √(N/n) of its optimum, where a local solver
-converges in a few steps, and each parameter keeps ≥ 1000 pixels (× 3 channels of residuals). (3) The
-residuals of a real-time approximation are mostly its model error, correlated across neighbouring pixels:
-the subsample is stratified (one pixel drawn in each of n runs of consecutive masked pixels in raster
-order), so that it covers the image as evenly as a regular stride without aliasing with texel or pixel
-periods (session 18 measured a fixed every-k-th subsample see other shadow-map edges). Measured
-(docs/benchmarks.md, "Fits on a subsample at large sizes"): at 256² the smooth fits end on the full fit's
-values (≤ 0.001 of its stderr); a shadow map's rows, whose SSR steps with the texels and the scanned depth
-bias, may end on another step (RMSE ≤ +0.62 %), and PCSS's light scale, a fit with several local minima, in
-a better one (RMSE −20 % and −4.8 %). The pooled fit (`pooled_fit`) reads every pixel still."""
+on all its pixels, bit for bit as before, and so is every case of at most 2¹⁴ (`SUBSAMPLE_FROM`: a 128²
+audit's). (2) The subsample's optimum lies Δ from the full data's with E[Δᵀ JᵀJ Δ] = p s² (N/n − 1) (p
+parameters, s² the residual variance): for n = 8192 and p ≤ 8 the start is then within a few of the full
+fit's stderr × √(N/n) of its optimum, where a local solver converges in a few steps, and each parameter
+keeps ≥ 1000 pixels (× 3 channels of residuals). (3) The residuals of a real-time approximation are mostly
+its model error, correlated across neighbouring pixels: the subsample is stratified (one pixel drawn in each
+of n runs of consecutive masked pixels in raster order), so that it covers the image as evenly as a regular
+stride without aliasing with texel or pixel periods (session 18 measured a fixed every-k-th subsample see
+other shadow-map edges). Measured (docs/benchmarks.md, "Fits on a subsample at large sizes"): at 256² the
+smooth fits end on the full fit's values (≤ 0.001 of its stderr); a shadow map's rows, whose SSR steps with
+the texels and the scanned depth bias, may end on another step (RMSE ≤ +0.62 %), and PCSS's light scale, a
+fit with several local minima, in a better one (RMSE −20 % and −4.8 %). The pooled fit (`pooled_fit`) reads
+every pixel still."""
+
+
+SUBSAMPLE_FROM = 2 * FIT_PIXELS
+"""A case's fit starts on a subsample (`fit_subsample`) only where it has more than this many masked pixels:
+where the subsample would be half the pixels or more, the polish on every pixel costs about what a fit on
+every pixel does (the Cornell box at 128² × 32 spp, 15164 pixels a case: the fits 20.9 s with the subsample
+start, 20.5 s without; at 256², 60805 pixels, 42 s against 96 s on the GPU host), so such a case is fitted
+on every pixel at once, as before session 20."""
 
 
 def fit_subsample(case: FamilyCase, limit: int = FIT_PIXELS) -> np.ndarray | None:
-    """The positions (sorted, among the case's masked pixels in raster order) that a fit of ``case`` reads
-    (`FIT_PIXELS`): None (every pixel) when the case has at most ``limit`` pixels; else one position drawn
+    """The positions (sorted, among the case's masked pixels in raster order) that a fit of ``case`` starts
+    on (`FIT_PIXELS`): None (every pixel at once) when the case has at most 2 × ``limit`` pixels
+    (`SUBSAMPLE_FROM`); else one position drawn
     uniformly in each of ``limit`` runs of ⌊N/limit⌋ or ⌈N/limit⌉ consecutive masked pixels, from a
     generator seeded by the case's id (CRC-32): the same pixels at every run of the same case, whichever
     row, process or time."""
     n = int(np.count_nonzero(case.mask))
-    if n <= limit:
+    if n <= 2 * limit:
         return None
     edges = (np.arange(limit + 1, dtype=np.int64) * n) // limit
     u = np.random.default_rng(zlib.crc32(case.id.encode("utf-8"))).random(limit)

@@ -13,7 +13,14 @@ import numpy as np
 import pytest
 
 from rtfit.experiments.audit_family import FamilyCase
-from rtfit.experiments.audit_fit import FIT_PIXELS, fit_case, fit_subsample, polish_params, subsampled_case
+from rtfit.experiments.audit_fit import (
+    FIT_PIXELS,
+    SUBSAMPLE_FROM,
+    fit_case,
+    fit_subsample,
+    polish_params,
+    subsampled_case,
+)
 from rtfit.experiments.audit_setup import AuditReference
 from rtfit.realtime.methods import Input, Method, Param
 
@@ -95,10 +102,10 @@ def test_a_polish_starts_strictly_inside_the_bounds_without_a_scan():
 
 
 def test_a_small_case_is_fitted_on_every_pixel():
-    case, x, y = _image_case("small", (64, 128), seed=7, fraction=1.0)  # exactly FIT_PIXELS pixels
-    assert len(x) == FIT_PIXELS and fit_subsample(case) is None
+    case, x, y = _image_case("small", (128, 128), seed=7, fraction=1.0)  # exactly SUBSAMPLE_FROM pixels
+    assert len(x) == SUBSAMPLE_FROM and fit_subsample(case) is None
     fit = fit_case(LINE, case, "line")
-    assert "subsample" not in fit and fit["n_residuals"] == 3 * FIT_PIXELS
+    assert "subsample" not in fit and fit["n_residuals"] == 3 * SUBSAMPLE_FROM
     full, full_se = _lstsq(x, y)
     for i, k in enumerate("ab"):
         assert abs(fit["parameters"][k]["value"] - full[i]) <= 0.02 * full_se[i]
@@ -133,7 +140,7 @@ def _rgb_offsets(ops, x, t, a, b):
 
 def test_tables_are_passed_whole():
     rng = np.random.default_rng(13)
-    shape = (100, 100)
+    shape = (150, 150)  # > SUBSAMPLE_FROM pixels
     mask = np.ones(shape, bool)
     n = mask.size
     x = rng.uniform(0.0, 10.0, n)
