@@ -119,18 +119,17 @@ start, 20.5 s without; at 256², 60805 pixels, 42 s against 96 s on the GPU host
 on every pixel at once, as before session 20."""
 
 
-def fit_subsample(case: FamilyCase, limit: int = FIT_PIXELS) -> np.ndarray | None:
+def fit_subsample(case: FamilyCase) -> np.ndarray | None:
     """The positions (sorted, among the case's masked pixels in raster order) that a fit of ``case`` starts
-    on (`FIT_PIXELS`): None (every pixel at once) when the case has at most 2 × ``limit`` pixels
-    (`SUBSAMPLE_FROM`); else one position drawn
-    uniformly in each of ``limit`` runs of ⌊N/limit⌋ or ⌈N/limit⌉ consecutive masked pixels, from a
+    on: None (every pixel at once) when the case has at most `SUBSAMPLE_FROM` pixels; else one position
+    drawn uniformly in each of n = `FIT_PIXELS` runs of ⌊N/n⌋ or ⌈N/n⌉ consecutive masked pixels, from a
     generator seeded by the case's id (CRC-32): the same pixels at every run of the same case, whichever
     row, process or time."""
     n = int(np.count_nonzero(case.mask))
-    if n <= 2 * limit:
+    if n <= SUBSAMPLE_FROM:
         return None
-    edges = (np.arange(limit + 1, dtype=np.int64) * n) // limit
-    u = np.random.default_rng(zlib.crc32(case.id.encode("utf-8"))).random(limit)
+    edges = (np.arange(FIT_PIXELS + 1, dtype=np.int64) * n) // FIT_PIXELS
+    u = np.random.default_rng(zlib.crc32(case.id.encode("utf-8"))).random(FIT_PIXELS)
     return edges[:-1] + (u * np.diff(edges)).astype(np.int64)
 
 

@@ -474,7 +474,8 @@ class _CaseRun:
         spent = self.by_family[family.name]
         tiles = CostInputs()  # the case's inputs tiled once for all its methods' cost measurements
         fitted: list[tuple[str, Method, bool, FamilyCase]] = []
-        for row_id, method, user in _rows(family, a, self.sel, base):
+        order = _rows(family, a, self.sel, base)
+        for row_id, method, user in order:
             case = (
                 replace(base, channel_inputs=base.row_inputs[row_id]) if row_id in base.row_inputs else base
             )
@@ -535,7 +536,7 @@ class _CaseRun:
             self.timings["fit"] += time.perf_counter() - t2
             spent["fit"] += time.perf_counter() - t2
         rows: dict[str, MethodOutcome] = {}
-        for row_id, _method, _user in _rows(family, a, self.sel, base):
+        for row_id, _method, _user in order:
             if row_id in declared:
                 rows[row_id] = declared[row_id]
             if row_id in refits:
