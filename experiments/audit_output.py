@@ -61,7 +61,9 @@ def write_audit(directory: Path, r: AuditResult) -> None:
 def viewer_flip_thread(directory: Path, r: AuditResult) -> threading.Thread | None:
     """A started thread computing the ꟻLIP maps the report's viewer will show (`viewer.prime_case_flip`:
     the same maps, found in the memo by content), beside the figures on a second core: they were a third
-    of an audit's report time (issue 33). None (the viewer computes them itself) where the maps of the
+    of an audit's report time (issue 33). The viewer's float32 pixels now give the audit's own maps
+    (`rtfit.fitting.flip_maps.flip_exposures`), so the thread computes only those the memo dropped.
+    None (the viewer computes them itself) where the maps of the
     audit and of the viewer, at 8 bytes a pixel, would not fit half of the memo (`MEMO_MAP_BYTES`): the
     thread's maps must not push out the audit's before the figures read them, nor their own before the
     viewer does."""

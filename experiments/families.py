@@ -21,6 +21,7 @@ entry here beside its realtime module, its experiment or audit module, its tests
 
 from __future__ import annotations
 
+import importlib
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -61,8 +62,6 @@ from rtfit.realtime.volumetric_lightning import METHODS as LIGHTNING_METHODS
 from rtfit.realtime.volumetric_lightning import QUADRATURE as LIGHTNING_QUADRATURE
 
 from . import (
-    aerial_perspective_study,
-    ambient_aperture_study,
     audit_aerial_perspective,
     audit_ambient_aperture,
     audit_ambient_occlusion,
@@ -94,18 +93,6 @@ from . import (
     audit_soft_particles,
     audit_streaky_reflections,
     audit_volumetric_lightning,
-    diffuse_study,
-    environment_maps_study,
-    height_fog_study,
-    irradiance_bases_study,
-    irradiance_volumes_study,
-    light_cones_study,
-    nishita_sky_study,
-    obscurances_study,
-    parallax_occlusion_study,
-    sdf_occlusion_study,
-    soft_particles_study,
-    volumetric_lightning_study,
 )
 from .audit import Rule
 from .audit_family import AuditFamily, by_name
@@ -119,11 +106,32 @@ __all__ = [
     "METHOD_TABLES",
     "RULES",
     "Family",
+    "LeafFunction",
     "describe_config",
     "get_experiment",
     "resolve_names",
     "validate_config",
 ]
+
+
+@dataclass(frozen=True)
+class LeafFunction:
+    """A function of a study's leaf module ``rtfit.experiments.<module>``, imported when first called (or
+    `target` read): a family's own study and bench run only in ``rtfit run`` / ``rtfit bench`` of that
+    family, and importing the fourteen study modules with the registry cost every ``rtfit`` command,
+    ``rtfit audit`` included, ~0.3 s (issue 33). An unknown module or name fails at the call, and
+    tests/test_families_lazy.py imports every one."""
+
+    module: str
+    name: str
+
+    @property
+    def target(self) -> Callable:
+        """The function itself (its module imported now)."""
+        return getattr(importlib.import_module(f"rtfit.experiments.{self.module}"), self.name)
+
+    def __call__(self, *args, **kwargs):
+        return self.target(*args, **kwargs)
 
 
 ENGINE = "rtfit.experiments.engine_run"
@@ -201,7 +209,7 @@ FAMILIES: dict[str, Family] = {
             "Half-Lambert and wrap lighting vs exact sphere-light irradiance",
             "White diffuse sphere under a distant spherical light of angular radius 0.27°–30°: Lambert, "
             "half-Lambert and wrap lighting (fitted per α and as one smooth law w(α), p(α)) against Mitsuba.",
-            study=diffuse_study.study,
+            study=LeafFunction("diffuse_study", "study"),
         ),
         _engine(
             "irradiance-bases",
@@ -212,7 +220,7 @@ FAMILIES: dict[str, Family] = {
             "Gaussians, Ambient Dice and the lightmap bases (H-basis, RNM) on a white sphere under a "
             "constant, sunsky, studio and overcast environment (shipped scenes), with the lone suns, "
             "ringing, hemisphere and storage-budget study.",
-            study=irradiance_bases_study.study,
+            study=LeafFunction("irradiance_bases_study", "study"),
         ),
         _engine(
             "irradiance-volumes",
@@ -222,7 +230,7 @@ FAMILIES: dict[str, Family] = {
             "Path-traced probes over a room with a bright point light and an occluder (one shipped scene per "
             "probe grid), looked up nearest and trilinear against path-traced irradiance at the visible "
             "points: error vs spacing, popping, storage per probe.",
-            study=irradiance_volumes_study.study,
+            study=LeafFunction("irradiance_volumes_study", "study"),
         ),
         _engine(
             "ambient-aperture",
@@ -232,7 +240,7 @@ FAMILIES: dict[str, Family] = {
             "Solid angle of two intersecting spherical caps over the whole domain (study), and each visible "
             "point's baked cap against a sphere light's shadowed irradiance, the occluded sky and ray-cast "
             "AO on a plate with a hole, a well and bumps (the engine), with fitted Ω and Lambert weights.",
-            study=ambient_aperture_study.study,
+            study=LeafFunction("ambient_aperture_study", "study"),
             audits=(audit_sky_occlusion.APERTURE_FILL, audit_ambient_aperture.FAMILY),
         ),
         _engine(
@@ -242,7 +250,7 @@ FAMILIES: dict[str, Family] = {
             "SDF occlusion and skylight (Evans) vs path-traced ambient occlusion and sky light",
             "Multi-scale signed-distance sampling and cone-traced soft occlusion against Mitsuba AO and "
             "sky-lit irradiance, with steps-vs-error-vs-cost and fitted contrast.",
-            study=sdf_occlusion_study.study,
+            study=LeafFunction("sdf_occlusion_study", "study"),
             audits=(audit_sky_occlusion.SKY_OCCLUSION, audit_ambient_occlusion.FAMILY),
         ),
         _engine(
@@ -252,7 +260,7 @@ FAMILIES: dict[str, Family] = {
             "Exponential height fog: closed-form optical depth and fog colour vs path-traced media",
             "Closed-form, seed-listing and Taylor optical-depth forms over the whole domain, and fog "
             "shading against Mitsuba transmittance and aerial perspective, with fitted artist parameters.",
-            study=height_fog_study.study,
+            study=LeafFunction("height_fog_study", "study"),
             audits=(audit_height_fog.FAMILY, audit_fog_media.FAMILY),
         ),
         _engine(
@@ -263,9 +271,9 @@ FAMILIES: dict[str, Family] = {
             "The 128×64 Nishita sky texture with per-pixel phase on shipped sky files, one per sun elevation "
             "(multiple-scattering Mitsuba reference, fitted artist parameters), and its study: single "
             "scattering checked by quadrature, viewer altitude, spectral reference, sunsky, layers-vs-error.",
-            study=nishita_sky_study.study,
+            study=LeafFunction("nishita_sky_study", "study"),
             audits=(audit_nishita_sky.FAMILY, audit_sky_emitter.FAMILY),
-            bench=nishita_sky_study.bench,
+            bench=LeafFunction("nishita_sky_study", "bench"),
         ),
         _engine(
             "volumetric-lightning",
@@ -274,7 +282,7 @@ FAMILIES: dict[str, Family] = {
             "Volumetric lightning: the seed's softened point light along the view ray vs single scattering",
             "The closed-form line integral of i/(1 + a·r²) (stable float32 form vs the printed one) against "
             "path-traced single scattering of a point light in thin and dense media, with fitted i and a.",
-            study=volumetric_lightning_study.study,
+            study=LeafFunction("volumetric_lightning_study", "study"),
         ),
         _engine(
             "misty-glow",
@@ -331,7 +339,7 @@ FAMILIES: dict[str, Family] = {
             "The seed's sky-matched fog blend on Mitsuba sunsky scenes through a fog bank and a height fog "
             "(given and fitted b, c, colour), and its error budget per sun elevation under a Nishita "
             "atmosphere + height fog by quadrature (checked against Mitsuba).",
-            study=aerial_perspective_study.study,
+            study=LeafFunction("aerial_perspective_study", "study"),
         ),
         _engine(
             "soft-particles",
@@ -340,7 +348,7 @@ FAMILIES: dict[str, Family] = {
             "Soft particles: depth fade, 2007 box, spherical billboards vs exact clipped Beer–Lambert",
             "Particle opacity where geometry cuts the volume: the seed's linear fade, the camera-aligned "
             "box, spherical billboards and a fitted fade against analytic chords checked by Mitsuba.",
-            study=soft_particles_study.study,
+            study=LeafFunction("soft_particles_study", "study"),
         ),
         _engine(
             "light-cones",
@@ -349,7 +357,7 @@ FAMILIES: dict[str, Family] = {
             "Light cones in fog: the seed's shell (edge fade, v² attenuation) vs spot-light scattering",
             "The pseudo-volumetric cone shell and §1's integral over the view ray's chord against path-traced"
             " single scattering of a spot light in fog, from beside, inside and along the cone, with fits.",
-            study=light_cones_study.study,
+            study=LeafFunction("light_cones_study", "study"),
         ),
         _engine(
             "environment-maps",
@@ -361,7 +369,7 @@ FAMILIES: dict[str, Family] = {
             "solid-angle rules, the seed's localised convolution against depth-1 Monte Carlo, impostor hits "
             "against exact traces, and the lookups against path-traced spheres over map size, iterations "
             "and Fresnel.",
-            study=environment_maps_study.study,
+            study=LeafFunction("environment_maps_study", "study"),
         ),
         _engine(
             "parallax-occlusion",
@@ -372,7 +380,7 @@ FAMILIES: dict[str, Family] = {
             "ranges) against Mitsuba's first hits on the displaced height field of a shipped bump-mapped "
             "floor at three views and two depths; the printed listing's float32 hazards (normal incidence, "
             "no crossing, unclamped offset, the soft shadow's LOD pop) against the stable form.",
-            study=parallax_occlusion_study.study,
+            study=LeafFunction("parallax_occlusion_study", "study"),
         ),
         _engine(
             "obscurances",
@@ -382,7 +390,7 @@ FAMILIES: dict[str, Family] = {
             "The K-ray obscurance estimator with the seed's √(d/d_max) against the model's ray-cast "
             "definition (error vs rays vs cost), and fitted d_max, exponent and ambient scale against "
             "path-traced interreflections under a uniform ambient, on the sdf-occlusion scenes.",
-            study=obscurances_study.study,
+            study=LeafFunction("obscurances_study", "study"),
         ),
         _engine(
             "fresnel",

@@ -62,7 +62,13 @@ def luminance(rgb):
 
 
 def flip_exposures(r, m) -> dict:
-    """ꟻLIP's HDR exposure rule (ACES, t = 0.85) on the masked reference luminances."""
+    """ꟻLIP's HDR exposure rule (ACES, t = 0.85) on the masked reference luminances.
+
+    The rule reads the reference as ꟻLIP does, rounded to float32 (`flip_input`), then computes in float64:
+    an image saved as float32 (the report viewer's pixels, `rtfit.experiments.viewer`) gives the same
+    exposures as the float64 image it was saved from, hence the same maps, found in the memo (issue 33: the
+    viewer computed every row's map again for exposures a few ulps apart, ~1.5 CPU s of a 64² audit)."""
+    r = np.asarray(r, dtype=np.float32).astype(np.float64)
     tc = (0.6 * 0.6 * 2.51, 0.6 * 0.03, 0.0, 0.6 * 0.6 * 2.43, 0.6 * 0.59, 0.14)
     t = 0.85
     a, b, c = tc[0] - t * tc[3], tc[1] - t * tc[4], tc[2] - t * tc[5]

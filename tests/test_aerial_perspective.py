@@ -211,7 +211,7 @@ def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
     nishita-sky's) passes."""
     fam = FAMILIES["aerial-perspective"]
     assert fam.module == ENGINE and fam.scenes == audit_aerial_perspective.SCENES
-    assert fam.study is ap.study
+    assert fam.study.target is ap.study
     assert len(fam.scenes) == 12 and [s.name for s in fam.scenes if s.quick] == [
         "fog_bank-sun60",
         "height_fog-sun4",

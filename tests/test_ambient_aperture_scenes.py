@@ -51,7 +51,7 @@ def test_shipped_meshes_are_the_generator_output(tmp_path):
 def test_shipped_scenes_are_the_registry_entry_and_parse():
     fam = FAMILIES["ambient-aperture"]
     assert fam.module == ENGINE and fam.scenes == audit_ambient_aperture.SCENES
-    assert fam.study is study.study
+    assert fam.study.target is study.study
     assert [s.name for s in fam.scenes if s.quick] == ["aperture_hole", "aperture_well", "aperture_bumps"]
     for shipped in fam.scenes:
         s = load_scene(LIBRARY_DIR / shipped.file)

@@ -266,7 +266,7 @@ def test_run_is_the_engine_on_the_shipped_room_plus_the_study(tmp_path):
     from rtfit.scenes import library_path
 
     fam = FAMILIES["irradiance-volumes"]
-    assert fam.module == ENGINE and fam.scenes == decl.SCENES and fam.study is study.study
+    assert fam.module == ENGINE and fam.scenes == decl.SCENES and fam.study.target is study.study
     assert [s.options["grid"] for s in fam.scenes] == [(2, 2, 2), (4, 4, 4), (8, 8, 8)]
     assert {s.name for s in fam.scenes if s.quick} == {"volume_room-h2", "volume_room-h0p5"}
     shipped = fam.scenes[0]

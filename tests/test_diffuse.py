@@ -564,7 +564,8 @@ def test_run_diffuse_is_the_engine_on_its_shipped_suns_plus_the_study(tmp_path):
     from rtfit.scenes.parse import LIBRARY_DIR
 
     fam = FAMILIES["diffuse"]
-    assert fam.module == ENGINE and fam.scenes == audit_diffuse.SCENES and fam.study is diffuse_study.study
+    assert fam.module == ENGINE and fam.scenes == audit_diffuse.SCENES
+    assert fam.study.target is diffuse_study.study
     shipped = {s.name: s for s in audit_diffuse.SCENES}
     declared = {
         n: tomllib.loads((LIBRARY_DIR / s.file).read_text())["lights"][0]["angular_radius_deg"]

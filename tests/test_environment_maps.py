@@ -344,7 +344,7 @@ def test_run_is_the_engine_on_the_shipped_room_plus_the_study(tmp_path):
 
     fam = FAMILIES["environment-maps"]
     assert fam.module == ENGINE and fam.scenes == audit_em.SCENES
-    assert fam.study is environment_maps_study.study
+    assert fam.study.target is environment_maps_study.study
     assert {s.name for s in fam.scenes} == {
         "mirror-moved",
         "glass-moved",

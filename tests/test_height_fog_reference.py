@@ -158,7 +158,7 @@ def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
 
     fam = FAMILIES["height-fog"]
     assert fam.module == ENGINE and fam.scenes == audit_height_fog.SCENES
-    assert fam.study is height_fog_study.study
+    assert fam.study.target is height_fog_study.study
     assert [s.name for s in fam.scenes if s.quick] == [
         "fog_transmittance",
         "fog_transmittance_ellipsoid",

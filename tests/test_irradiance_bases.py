@@ -342,7 +342,7 @@ def test_run_is_the_engine_on_the_shipped_spheres_plus_the_study(tmp_path):
     from rtfit.scenes.parse import LIBRARY_DIR
 
     fam = FAMILIES["irradiance-bases"]
-    assert fam.module == ENGINE and fam.scenes == decl.SCENES and fam.study is study.study
+    assert fam.module == ENGINE and fam.scenes == decl.SCENES and fam.study.target is study.study
     assert [s.name for s in fam.scenes if s.quick] == [
         "constant",
         "sunsky-10",

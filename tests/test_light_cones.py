@@ -369,7 +369,7 @@ def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
     against the rays that marching finds crossing the cutoff cone; every study check passes."""
     fam = FAMILIES["light-cones"]
     assert fam.module == ENGINE and fam.scenes == audit_light_cones.SCENES
-    assert fam.study is study.study
+    assert fam.study.target is study.study
     assert len(fam.scenes) == 15 and {s.name for s in fam.scenes if s.quick} == {
         "beside-s0p05", "inside-s0p05", "up-axis-s0p05"
     }  # fmt: skip

@@ -417,6 +417,28 @@ def test_prime_flip_gives_the_maps_and_values_of_separate_calls():
     assert M.prime_flip(approxes, ref, sd, mask) == 0  # all known now
 
 
+def test_flip_maps_of_float32_copies_are_the_audits_maps():
+    """The report viewer reads an audit's images back as float32 (its EXR pixels): `flip_exposures` rounds
+    the reference to float32, as ꟻLIP sees it, so the copies give the same exposures, the same ꟻLIP inputs
+    and the maps the audit computed, found in the memo (issue 33); the values are ꟻLIP's own on either."""
+    from rtfit.fitting import flip_maps as F
+    from rtfit.fitting import metric_noise as N
+    from rtfit.fitting import metrics as M
+
+    rng = np.random.default_rng(11)
+    ref = rng.uniform(0.0, 2.0, (30, 34, 3)) ** 3 + 1e-3 * rng.uniform(size=(30, 34, 3))
+    approxes = [ref * rng.uniform(0.5, 1.5, ref.shape) for _ in range(3)]
+    mask = np.ones(ref.shape[:2], bool)
+    assert F.flip_exposures(ref, mask) == F.flip_exposures(ref.astype(np.float32), mask)
+    F._map_memo.clear()
+    N._floor_memo.clear()
+    audit = [compute_metrics(a, ref, 0.01 * ref, mask, names=("flip",))["flip"].value for a in approxes]
+    copies = [a.astype(np.float32) for a in approxes]
+    assert M.prime_flip(copies, ref.astype(np.float32), 0.01 * ref, mask, floor_draws=0) == 0
+    viewer = [float(np.mean(M.flip_error_map(c, ref.astype(np.float32), mask))) for c in copies]
+    assert viewer == audit
+
+
 def test_flip_tile_pad_is_the_least_that_keeps_the_maps(monkeypatch):
     """`FLIP_TILE_PAD` columns between tiled images keep each ꟻLIP map equal to its pair's map alone
     (flip_evaluator called directly); one column fewer lets a filter reach the neighbour (the pad is the

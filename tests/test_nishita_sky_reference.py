@@ -405,7 +405,7 @@ def test_run_is_the_engine_on_the_shipped_sky_files():
 
     fam = FAMILIES["nishita-sky"]
     assert fam.module == ENGINE and fam.scenes == audit_nishita_sky.SCENES
-    assert fam.study is nishita_sky_study.study
+    assert fam.study.target is nishita_sky_study.study
     assert [s.name for s in fam.scenes if s.quick] == ["sky_sun_45", "sky_sun_10", "sky_sun_m4"]
     assert [s.quick_spp for s in fam.scenes if s.quick] == [256, 256, 1024]
     base = dataclasses.asdict(library_atmosphere())

@@ -310,7 +310,7 @@ def test_run_obscurances_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_
 
     fam = FAMILIES["obscurances"]
     assert fam.module == ENGINE and fam.scenes == audit_obscurances.SCENES
-    assert fam.study is obscurances_study.study
+    assert fam.study.target is obscurances_study.study
     assert all((LIBRARY_DIR / s.file).is_file() for s in fam.scenes)
     shipped = {s.name: s for s in fam.scenes}
     assert [s.name for s in fam.scenes if s.quick] == [

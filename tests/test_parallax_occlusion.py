@@ -362,7 +362,7 @@ def test_shipped_scenes_and_study_through_the_engine(tmp_path):
 
     fam = FAMILIES["parallax-occlusion"]
     assert fam.module == ENGINE and fam.scenes == audit_parallax_occlusion.SCENES
-    assert fam.study is parallax_occlusion_study.study
+    assert fam.study.target is parallax_occlusion_study.study
     assert len(fam.scenes) == 6 and [s.name for s in fam.scenes if s.quick] == ["45deg-d0p15"]
     assert all((lib / s.file).is_file() for s in fam.scenes)
     assert (lib / "parallax_occlusion_bumps.exr").is_file()

@@ -245,7 +245,7 @@ def test_run_sdf_occlusion_is_the_engine_on_its_shipped_scenes_plus_the_study(tm
 
     fam = FAMILIES["sdf-occlusion"]
     assert fam.module == ENGINE and fam.scenes == audit_ambient_occlusion.SCENES
-    assert fam.study is sdf_occlusion_study.study
+    assert fam.study.target is sdf_occlusion_study.study
     assert all((LIBRARY_DIR / s.file).is_file() for s in fam.scenes)
     assert [s.name for s in fam.scenes if s.quick] == [f"sdf_{n}" for n in SCENE_NAMES]
     s = {s.name: s for s in fam.scenes}["sdf_crease_90"]

@@ -352,7 +352,7 @@ def test_run_soft_particles_is_the_engine_on_its_shipped_scenes_plus_the_study(t
 
     fam = FAMILIES["soft-particles"]
     assert fam.module == ENGINE and fam.scenes == audit_soft_particles.SCENES
-    assert fam.study is soft_particles_study.study
+    assert fam.study.target is soft_particles_study.study
     shipped = {s.name: s for s in audit_soft_particles.SCENES}
     assert {n for n, s in shipped.items() if s.quick} == {"sphere-a0p95", "box-a0p95", "sphere-a0p95-inside"}
     for s in shipped.values():

@@ -393,7 +393,7 @@ def test_run_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_path):
     printed form near the axis; every study check passes."""
     fam = FAMILIES["volumetric-lightning"]
     assert fam.module == ENGINE and fam.scenes == audit_volumetric_lightning.SCENES
-    assert fam.study is study.study
+    assert fam.study.target is study.study
     assert len(fam.scenes) == 12 and sum(s.quick for s in fam.scenes) == 4
     audits = tuple(_shipped_audit(tmp_path, n) for n in ("D4-s0p01", "D4-s0p05"))
     for r, sigma in zip(audits, (0.01, 0.05), strict=True):
