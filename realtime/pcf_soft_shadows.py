@@ -465,10 +465,15 @@ _SCALE = Param(
 _SEED = "000:586-594 (ToyShop: 8-tap Poisson PCF, random rotation from a lookup texture, 1024² DF16 map)"
 
 
+# Every row's fit evaluates the kernel text on float64 Dr.Jit (`Method.fit_ops` "drjit", issue 33): one
+# compiled kernel replayed per scan value and TRF step. On the Cornell box at 64² the ten fits took 1.6 s
+# instead of 2.9 s through NumPy (even with `_kept`'s texels); values moved ≤ 3e-11 relative (Dr.Jit's and
+# NumPy's sin/cos of the rotation differ in the last bits), stderr ≤ 1e-8. `_kept` serves the NumPy runs.
 def _pcf(mid, label, offsets, rotate, source, description):
     ins = tuple(_IN[n] for n in ("irradiance", "u", "v", "depth", "rotation", "shadow_map"))
     return Method(mid, label, _pcf_kernel, inputs=ins, params={"radius": _RADIUS, "bias": _BIAS},
                   fixed={"offsets": offsets, "rotate": rotate}, quantity="shadowed_light_irradiance",
+                  fit_ops="drjit",
                   formula=f"E·(1/{len(offsets)}) Σ_k lit(uv + r·{'R_φ ' if rotate else ''}p_k/W; z_r − b)",
                   source=source, description=description)  # fmt: skip
 
@@ -482,6 +487,7 @@ METHODS = method_table(
             inputs=tuple(_IN[n] for n in ("irradiance", "u", "v", "depth", "shadow_map")),
             params={"bias": _BIAS},
             quantity="shadowed_light_irradiance",
+            fit_ops="drjit",
             formula="E·[z_r − b ≤ depth(nearest texel)]",
             source="Williams 1978, Casting curved shadows on curved surfaces",
             description="The unfiltered shadow map: a hard shadow of the light's centre.",
@@ -533,6 +539,7 @@ METHODS = method_table(
             inputs=tuple(_IN[n] for n in ("irradiance", "u", "v", "depth", "rotation", "shadow_map")),
             params={"light_scale": _SCALE, "bias": _BIAS},
             quantity="shadowed_light_irradiance",
+            fit_ops="drjit",
             formula="E·PCF16(r = s·f(z_b)), z_b = mean blocker depth over f(z_n), f(z) = ℓ(z_r − z)/(z z_r)",
             source="Fernando 2005, Percentage-closer soft shadows (SIGGRAPH sketch; NVIDIA PCSS sample)",
             description="The modern row: the filter radius from the light's size and the blockers' depth.",
