@@ -782,10 +782,12 @@ def _sun_optical_depth(p: np.ndarray, s: np.ndarray, spec: AtmosphereSpec, nodes
     rg, rt = spec.planet_radius_km, spec.top_radius_km
     s = np.broadcast_to(s, p.shape)
     b = np.einsum("ij,ij->i", p, s)
-    c_top = np.einsum("ij,ij->i", p, p) - rt * rt
+    pp = np.einsum("ij,ij->i", p, p)
+    ss = np.einsum("ij,ij->i", s, s)
+    c_top = pp - rt * rt
     t_top = -b + np.sqrt(np.maximum(b * b - c_top, 0.0))
     # planet blocks if the ray towards the sun meets the ground sphere ahead
-    c_g = np.einsum("ij,ij->i", p, p) - rg * rg
+    c_g = pp - rg * rg
     disc = b * b - c_g
     blocked = (disc > 0) & (-b - np.sqrt(np.maximum(disc, 0)) > 0)
     x, w = _gl(nodes)
@@ -796,8 +798,10 @@ def _sun_optical_depth(p: np.ndarray, s: np.ndarray, spec: AtmosphereSpec, nodes
     for a0, a1 in itertools.pairwise(edges):
         ta, tb = a0 * t_top, a1 * t_top
         t = 0.5 * (ta + tb)[:, None] + 0.5 * (tb - ta)[:, None] * x[None, :]
-        q = p[:, None, :] + t[..., None] * s[:, None, :]
-        h = np.linalg.norm(q, axis=-1) - rg
+        # |p + t·s|² = |p|² + 2t(p·s) + t²|s|², without the (N, nodes, 3) points (issue 33: their norms were
+        # a third of the quick nishita-sky run's quadrature); ≥ rg² on the rays that are kept (a blocked ray
+        # is inf below), the max only keeps a rounding below 0 out of the root
+        h = np.sqrt(np.maximum(pp[:, None] + t * (2.0 * b[:, None] + t * ss[:, None]), 0.0)) - rg
         jw = 0.5 * (tb - ta)[:, None] * w[None, :]
         tr += np.sum(jw * np.exp(-h / spec.rayleigh_height_km), axis=1)
         tm += np.sum(jw * np.exp(-np.maximum(h, 0) / spec.mie_height_km), axis=1)

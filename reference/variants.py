@@ -61,11 +61,20 @@ INSPECTION_VARIANTS = ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
 
 
 def inspection_variant() -> str:
-    """The variant to read a scene in: ``scalar_rgb`` (no JIT: nothing is compiled to look at a scene),
-    else the first installed JIT variant whose backend works here. A Mitsuba built or packed without the
-    scalar variants (the GPU machine's pack carries only the JIT variants) still reads scenes."""
+    """The variant to read a scene in: the active one where it is one of `INSPECTION_VARIANTS` (no switch),
+    else ``scalar_rgb`` (no JIT: nothing is compiled to look at a scene), else the first installed JIT
+    variant whose backend works here. A Mitsuba built or packed without the scalar variants (the GPU
+    machine's pack carries only the JIT variants) still reads scenes.
+
+    Why the active one first (issue 33): switching Mitsuba back into a JIT variant re-imports its Python
+    integrators (each class through Dr.Jit's AST rewrite), 0.12 s a switch here; reading each scene in
+    ``scalar_rgb`` from ``llvm_ad_rgb`` cost ~70 switches, 8 s, of the quick suite. These variants all read
+    colours as RGB, so the parse and what rtfit reads from it are the same (tests/test_variants.py)."""
     import mitsuba
 
+    active = mitsuba.variant()
+    if active in INSPECTION_VARIANTS:
+        return active
     have = set(mitsuba.variants())  # the variants Mitsuba was built with; a pack may have dropped some:
     for v in INSPECTION_VARIANTS:  # so look for the variant's module itself
         if v not in have or importlib.util.find_spec(f"mitsuba.{v}") is None:
