@@ -82,8 +82,12 @@ def probe_radiance_pass(
         dv = np.stack([np.asarray(d[ch], dtype=np.float64) for ch in range(3)], axis=-1)
         lv = 4.0 * math.pi * np.where(np.isfinite(lv), lv, 0.0).reshape(b - a, spp, 3)
         f = np.asarray(features(dv), dtype=np.float64).reshape(b - a, spp, k)
-        s[a:b] = np.einsum("psk,psc->pkc", f, lv)
-        q[a:b] = np.einsum("psk,psc->pkc", f * f, lv * lv)
+        # Σ_s f_k·L_c per probe as a batched matrix product (P, K, S) @ (P, S, 3): one BLAS product per probe,
+        # ~10× NumPy's einsum loop of the same sums (issue 33: 4 s of the quick suite); the order of the
+        # additions differs, ~1e-16 relative
+        ft = f.transpose(0, 2, 1)
+        s[a:b] = np.matmul(ft, lv)
+        q[a:b] = np.matmul(ft * ft, lv * lv)
     mean, var = mean_var(s, q, spp)
     return PassResult(mean, var, spp, seed, time.perf_counter() - t0)
 
