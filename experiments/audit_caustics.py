@@ -142,9 +142,16 @@ def nearest_photons(points: np.ndarray, hits: cp.PhotonHits, chunk: int = 256) -
         return out
     k = min(NEAREST, m)
     w = hits.flux.mean(axis=1)  # the rings' weights: the channels' mean flux
+    # Per coordinate and per channel, contiguous (issue 33: the (C, M, 3) differences' norm and the rings'
+    # (C, M, 3) flux gather, three times, were most of this function); the same operations per element in
+    # the same order as np.linalg.norm's (x² + y²) + z² and flux[far][..., c]: the same bits.
+    hx, hy, hz = (np.ascontiguousarray(hits.points[:, i]) for i in range(3))
+    flux_c = [np.ascontiguousarray(hits.flux[:, c]) for c in range(3)]
     for a in range(0, p, chunk):
         b = min(p, a + chunk)
-        dist = np.linalg.norm(points[a:b, None, :] - hits.points[None, :, :], axis=2)  # (C, M)
+        dx, dy, dz = points[a:b, 0, None] - hx, points[a:b, 1, None] - hy, points[a:b, 2, None] - hz
+        dist = np.sqrt(dx * dx + dy * dy + dz * dz)  # (C, M)
+        del dx, dy, dz
         order = np.argsort(dist, axis=1)
         near = order[:, :k]
         dn = np.take_along_axis(dist, near, axis=1)
@@ -165,7 +172,7 @@ def nearest_photons(points: np.ndarray, hits: cp.PhotonHits, chunk: int = 256) -
         q[some] = np.sqrt(d2[some] / wsum[some])
         out["q"][a:b] = q.reshape(-1, RINGS)
         for c in range(3):
-            out["g"][a:b, :, c] = np.bincount(slot, hits.flux[far][..., c].ravel(), size).reshape(-1, RINGS)
+            out["g"][a:b, :, c] = np.bincount(slot, flux_c[c][far].ravel(), size).reshape(-1, RINGS)
     return out
 
 

@@ -107,3 +107,20 @@ def test_jax_is_not_imported_by_the_package(tmp_path):
     assert arrays.ops_for("numpy") is NUMPY_OPS
     with pytest.raises(ValueError, match="unknown array library"):
         arrays.ops_for("torch")
+
+
+def test_aligned_copy_of_views_is_the_flattened_array_in_c_order():
+    """`aligned_copy` writes straight from a broadcast or transposed view (issue 33: no flattened copy first):
+    the values are NumPy's C-order flattening converted to the dtype, bit for bit, the first at a 64-byte
+    boundary."""
+    from rtfit.realtime.arrays import aligned_copy
+
+    rng = np.random.default_rng(4)
+    col = rng.standard_normal((37, 1))
+    views = [np.broadcast_to(col, (37, 53)), rng.standard_normal((29, 31)).T, np.float64(2.5), [1, 2, 3]]
+    for v in views:
+        for dtype in (np.float32, np.float64):
+            got = aligned_copy(v, dtype)
+            want = np.ascontiguousarray(v).reshape(-1).astype(dtype)
+            assert got.dtype == dtype and got.ctypes.data % 64 == 0
+            assert np.array_equal(got, want)
