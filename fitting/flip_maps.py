@@ -13,6 +13,7 @@ exposures) and reused by the report's error-map figure (`flip_map`); keys are co
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import math
@@ -211,13 +212,16 @@ def _flip_openmp() -> tuple | None:
 def flip_one_thread() -> Iterator[None]:
     """Run the block's ꟻLIP calls on one OpenMP thread, then restore the count. OpenMP's thread count is
     a setting of the calling thread, so other threads' ꟻLIP calls are not affected. Where ꟻLIP's OpenMP
-    runtime is not found nothing changes.
+    runtime is not found nothing changes. `_flip_map_uncached` uses it off the main thread only: for maps
+    computed beside other work (the report's viewer thread next to the figures).
 
-    Why (issue 33, session 19): ꟻLIP splits each of its filter passes over every OpenMP thread, and on 2
-    CPU cores shared with other work the threads spend more time waiting for each other than working: 15
-    pairs of 64² in one tiled call took 1.05–1.14 CPU s (2.6–2.9 s wall) on 2 threads against 0.71–0.81
-    (1.8–2.1 s) on one; one 512² pair 3.0–3.5 CPU s (6.1–8.3 s) against 2.3–2.8 (4.7–7.0 s). The maps are
-    bit-identical (each pixel is computed alike whatever thread computes it; tests/test_metrics.py)."""
+    Why (issue 33): ꟻLIP splits each of its filter passes over every OpenMP thread. On 2 CPU cores shared
+    with other work the threads spend more time waiting for each other than working (session 19: 15 pairs of
+    64² in one tiled call took 1.05–1.14 CPU s, 2.6–2.9 s wall, on 2 threads against 0.71–0.81 CPU s,
+    1.8–2.1 s, on one), so every call ran on one thread. On 2 idle cores, where the audit's own calls run
+    (session 21, 12 pairs tiled, two rounds): 256² 9.9 / 6.3 s wall on one thread, 5.8 / 3.3 s on two, the
+    same CPU seconds; 64² 0.36 / 0.55 s against 0.19 / 0.22 s. The maps are bit-identical (each pixel is
+    computed alike whatever thread computes it; tests/test_metrics.py)."""
     omp = _flip_openmp()
     if omp is None:
         yield
@@ -249,7 +253,10 @@ def _flip_map_uncached(ref32, test32, params) -> np.ndarray:
         raise ValueError(f"internal: flip inputs must share a shape of at least {FLIP_MIN_SIZE} pixels")
     if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
         raise ValueError(f"internal: bad flip exposure parameters {params}")
-    with flip_one_thread():
+    # Off the main thread (the report's viewer maps beside the figures) one OpenMP thread; on it, ꟻLIP's own
+    # threads (`flip_one_thread`'s text says why)
+    beside = threading.current_thread() is not threading.main_thread()
+    with flip_one_thread() if beside else contextlib.nullcontext():
         fmap, _, _ = flip_evaluator.evaluate(
             ref32, test32, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
         )
