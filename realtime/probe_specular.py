@@ -161,7 +161,8 @@ def prefilter_many(
     """The chains of several probes (each as `prefilter`), every level's matrix built once for all of them
     and never whole: a block of `PREFILTER_ROWS` rows at a time (`prefilter_matrix`'s rows), times the
     probes' maps side by side in one product (an element of W·L is its row's dot product with its column,
-    the same in a block, and beside other columns, as alone)."""
+    the same in a block, and beside other columns, as alone, to the rounding of that dot product: BLAS picks
+    its kernel, and so the order of the additions, by the matrices' shapes)."""
     rads = [np.asarray(r, np.float64) for r in radiances]
     rads = [r.reshape(r.shape[0], -1) for r in rads]
     sources = {round(math.sqrt(r.shape[0] / 6)) for r in rads}
