@@ -37,8 +37,9 @@ __all__ = [
 
 def write_audit(directory: Path, r: AuditResult) -> None:
     """Write an audit into ``directory``: the viewer's pixels, figures, results.json (with the figures),
-    fitted/audit.json and the report. The viewer's ꟻLIP maps (of the saved float32 pixels) are computed
-    in a second thread while the figures are drawn (`viewer_flip_thread`)."""
+    fitted/audit.json and the report. The viewer's ꟻLIP maps (of the saved float32 pixels) are the audit's,
+    or, where its metrics left ꟻLIP out, computed in a second thread while the figures are drawn
+    (`viewer_flip_thread`)."""
     save_pixels(directory, r)
     flip = viewer_flip_thread(directory, r)
     try:
@@ -61,12 +62,15 @@ def write_audit(directory: Path, r: AuditResult) -> None:
 def viewer_flip_thread(directory: Path, r: AuditResult) -> threading.Thread | None:
     """A started thread computing the ꟻLIP maps the report's viewer will show (`viewer.prime_case_flip`:
     the same maps, found in the memo by content), beside the figures on a second core: they were a third
-    of an audit's report time (issue 33). The viewer's float32 pixels now give the audit's own maps
-    (`rtfit.fitting.flip_maps.flip_exposures`), so the thread computes only those the memo dropped.
-    None (the viewer computes them itself) where the maps of the
+    of an audit's report time (issue 33). None where the audit itself computed every row's map (its
+    metrics hold ``flip``): the viewer's float32 pixels give the audit's own exposures and maps
+    (`rtfit.fitting.flip_maps.flip_exposures`), already in the memo, and the thread would only read every
+    case's pixels back to find them there. None too (the viewer computes them itself) where the maps of the
     audit and of the viewer, at 8 bytes a pixel, would not fit half of the memo (`MEMO_MAP_BYTES`): the
     thread's maps must not push out the audit's before the figures read them, nor their own before the
     viewer does."""
+    if all("flip" in (o.metrics or {}) for c in r.cases for o in r.outcomes[c.id].values()):
+        return None
     maps = sum(c.reference.mean[..., 0].size * len(r.outcomes[c.id]) for c in r.cases)
     if 2 * 8 * maps > MEMO_MAP_BYTES // 2:
         return None

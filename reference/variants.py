@@ -69,7 +69,7 @@ def inspection_variant() -> str:
     Why the active one first (issue 33): switching Mitsuba back into a JIT variant re-imports its Python
     integrators (each class through Dr.Jit's AST rewrite), 0.12 s a switch here; reading each scene in
     ``scalar_rgb`` from ``llvm_ad_rgb`` cost ~70 switches, 8 s, of the quick suite. These variants all read
-    colours as RGB, so the parse and what rtfit reads from it are the same (tests/test_variants.py)."""
+    colours as RGB, so the parse and what rtfit reads from it are the same (tests/test_variant_scope.py)."""
     import mitsuba
 
     active = mitsuba.variant()

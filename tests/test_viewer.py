@@ -314,3 +314,35 @@ def test_primed_flip_maps_are_those_the_viewer_asks_for(tmp_path):
     assert px is not None
     assert prime_flip(list(px.approximations.values()), px.reference, px.stderr, px.mask, floor_draws=0) == 0
     viewer.prime_case_flip(tmp_path, "missing")  # no pixels: nothing to do, no error
+
+
+def test_viewer_flip_thread_starts_only_where_the_audit_left_flip_out(tmp_path):
+    """`audit_output.viewer_flip_thread`: where every row's metrics hold ``flip``, the audit's own maps are
+    the viewer's (its float32 pixels give the same exposures) and no thread starts: priming the viewer's
+    inputs then computes no map. Where the rows' metrics leave ꟻLIP out, the thread computes the viewer's
+    maps beside the figures (afterwards, none is left to compute)."""
+    from types import SimpleNamespace
+
+    from rtfit.experiments.audit_output import viewer_flip_thread
+    from rtfit.fitting import prime_flip
+
+    ref, se, mask, approx = _images()
+    for scale, names, starts in ((1.0002, ("rmse", "flip"), False), (1.0003, ("rmse",), True)):
+        images = {k: v * scale for k, v in approx.items()}  # (maps not in the memo from other tests)
+        viewer.save_case_pixels(tmp_path, "p", ref, se, images, mask)
+        rows = {
+            k: SimpleNamespace(metrics=compute_metrics(v, ref, se, mask, names=names))
+            for k, v in images.items()
+        }
+        audit = SimpleNamespace(
+            cases=[SimpleNamespace(id="p", reference=SimpleNamespace(mean=ref))], outcomes={"p": rows}
+        )
+        thread = viewer_flip_thread(tmp_path, audit)
+        assert (thread is not None) == starts
+        if thread is not None:
+            thread.join()
+        px = viewer.load_case_pixels(tmp_path, "p")
+        assert px is not None
+        assert (
+            prime_flip(list(px.approximations.values()), px.reference, px.stderr, px.mask, floor_draws=0) == 0
+        )
