@@ -269,7 +269,7 @@ def fit_case(method: Method, case: FamilyCase, row: str = "") -> dict:
     the kernel's NumPy run gives there, at the start, the concatenated data's residuals bit for bit (an
     elementwise kernel; `stacked_agrees`), so that every evaluation of the fit does.
 
-    A case of more than `FIT_PIXELS` masked pixels is fitted first on its deterministic subsample
+    A case of more than `SUBSAMPLE_FROM` masked pixels is fitted first on its deterministic subsample
     (`fit_subsample`, `subsampled_case`), then polished on every pixel from the subsample's values (no scan:
     `polish_params`), so that what is reported is the full data's optimum near the subsample's, with the full
     data's stderr, residuals and counts, as on a smaller case; the dict's ``subsample`` says so ({"pixels": n,
