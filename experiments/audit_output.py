@@ -110,8 +110,8 @@ def case_figures(directory: Path, r: AuditResult) -> list[dict]:
         )
         out.append({"file": name, "section": "results", "_case": case.id, "caption": caption})
         maps = []
-        # every row's ꟻLIP map in one tiled call (`prime_flip`, no noise-floor draws; the same maps as one
-        # call per row, which cost 43 calls a case in irradiance-bases: issue 33)
+        # every row's ꟻLIP map together (`prime_flip`, no noise-floor draws: the reference filtered once for
+        # all rows, the same maps as one call per row; issue 33)
         prime_flip(
             [o.image for o in rows], case.reference.mean, case.reference.stderr, case.mask, floor_draws=0
         )

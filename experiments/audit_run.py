@@ -542,7 +542,7 @@ class _CaseRun:
             if row_id in refits:
                 rows[f"{row_id}-fitted"] = refits[row_id]
         # Every row's metrics beside the noise floor, once all are evaluated: their ꟻLIP maps (and the
-        # floor's) in one tiled call (`prime_flip`: the same maps, ~0.1 s a call saved per row on a CPU).
+        # floor's) together (`prime_flip`: the same maps, the reference's share of the work done once).
         t3 = time.perf_counter()
         if "flip" in self.metrics:
             images = [o.image for o in rows.values()]

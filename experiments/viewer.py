@@ -262,7 +262,7 @@ def _build_case(directory: Path, case, px: CasePixels) -> tuple[dict, str, list[
         "mask": _b64(px.mask, np.uint8),
     }
     approx, flip_note = [], None
-    # Every row's ꟻLIP map in one tiled call (`prime_flip`, no noise-floor draws), where the memo does not
+    # Every row's ꟻLIP map together (`prime_flip`, no noise-floor draws), where the memo does not
     # hold it yet: the pixels read back as float32 are what ꟻLIP saw in the audit, with the same exposures
     # (`flip_exposures` rounds the reference to float32), so the audit's maps are found by content.
     prime_flip(list(px.approximations.values()), px.reference, px.stderr, px.mask, floor_draws=0)

@@ -1,10 +1,10 @@
 """The ꟻLIP machinery of the ``flip`` metric (`rtfit.fitting.metrics`): its exposure range, its inputs,
-its maps memoised by content, and several maps computed side by side in one call of ꟻLIP (tiling).
+its maps memoised by content, and the maps of several pairs computed together (`compute_flip_maps`).
 
-ꟻLIP: ``flip_evaluator.evaluate(reference, test, "HDR", applyMagma=False)`` on contiguous float32 (H, W, 3)
-arrays with negative values clipped to 0; the exposure range by ꟻLIP's own rule on the luminances of the
-masked reference (`flip_exposures`; the module text of `rtfit.fitting.metrics` gives the details).
-flip_evaluator calls ``sys.exit`` on bad arguments, so everything is validated before it is called.
+ꟻLIP: HDR-ꟻLIP (`rtfit.fitting.hdr_flip`, NVIDIA's reference code step for step in float64; flip_evaluator,
+that code's own Python package, is the tests' oracle) on float32 (H, W, 3) arrays with negative values
+clipped to 0; the exposure range by ꟻLIP's own rule on the luminances of the masked reference
+(`flip_exposures`; the module text of `rtfit.fitting.metrics` gives the details).
 
 Memoised (results bit-identical, only the time changes): a ꟻLIP map is computed once per (reference, test,
 exposures) and reused by the report's error-map figure (`flip_map`); keys are content digests
@@ -13,39 +13,30 @@ exposures) and reused by the report's error-map figure (`flip_map`); keys are co
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import functools
 import math
-import os
 import threading
 import warnings
 from collections import OrderedDict
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import numpy as np
 
+from .hdr_flip import FLIP_PPD, hdr_flip_maps
 from .metric_noise import content_digest, noise_rng
 
 __all__ = [
     "FLIP_MIN_SIZE",
     "FLIP_PPD",
-    "FLIP_TILES_MAX",
-    "FLIP_TILE_PAD",
     "MEMO_MAP_BYTES",
     "compute_flip_maps",
     "flip_exposures",
     "flip_input",
     "flip_map",
-    "flip_maps_tiled",
+    "flip_maps_shared",
     "flip_mean",
     "flip_noisy_references",
-    "flip_one_thread",
     "luminance",
 ]
 
-FLIP_PPD = 67.02064514160156  # ꟻLIP's default pixels per degree (0.7 m from a 0.7 m wide 4K display)
 # ꟻLIP's widest filter: the colour CSF of scale 0.04, radius ceil(3·sqrt(0.04/(2π²))·ppd) = 10 → 21 px.
 FLIP_MIN_SIZE = 2 * math.ceil(3.0 * math.sqrt(0.04 / (2.0 * math.pi**2)) * FLIP_PPD) + 1
 _FLIP_NEG_WARN = 1e-6
@@ -126,48 +117,54 @@ def flip_map(ref32, test32, params) -> np.ndarray:
     return fmap
 
 
-FLIP_TILE_PAD = FLIP_MIN_SIZE // 2
-"""Edge-replicated columns on each side of each image when several ꟻLIP maps are computed in one call
-(`compute_flip_maps`, behind `rtfit.fitting.metrics.prime_flip`): ꟻLIP's widest filter radius (10 px at its
-default pixels per degree; each of its filters is one pass over the input), so that no filter reaches a
-neighbour's pixels and every map equals the map of its pair alone, bit for bit (tests/test_metrics.py checks
-it against separate calls; 9 columns do not). One call of ꟻLIP cost ~0.1 s on 2 loaded CPU cores at any size
-up to ~64² (its threads' synchronisation; a 64² map is ~10 ms of work on one idle thread): one call for a
-case's rows instead of one per row is most of the saving. Issue 33 (session 18): the pad was the whole
-filter width (21 columns a side) before; at 10, a 64-wide image is tiled 84 columns wide, not 106: 15 pairs
-of 64² in one call took 0.40 CPU s instead of 0.52 on one thread (OMP_NUM_THREADS=1, 4 rounds alternated;
-separate calls 0.29 there, but not on loaded cores)."""
-FLIP_TILES_MAX = 16
-"""At most this many pairs per tiled ꟻLIP call (its working memory grows with the tiled width)."""
+def flip_maps_shared(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> list[np.ndarray]:
+    """The ꟻLIP maps of ``pairs`` (reference, test; float32 (H, W, 3) of one shape) at the exposures
+    ``params``: each distinct image (by identity, then by content) filtered once per exposure however many
+    pairs hold it (`rtfit.fitting.hdr_flip.hdr_flip_maps`): a case's rows share their reference, and the
+    noise floor's draws hold it as their test. Each map equals its pair's map alone, bit for bit (an image's
+    features do not depend on the others; tests/test_metrics.py)."""
+    for a in (x for pair in pairs for x in pair):
+        _check_input(a, pairs[0][0].shape)
+    if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
+        raise ValueError(f"internal: bad flip exposure parameters {params}")
+    images: list[np.ndarray] = []
+    by_id: dict[int, int] = {}
+    by_digest: dict[tuple, int] = {}
+
+    def index(a: np.ndarray) -> int:
+        k = by_id.get(id(a))
+        if k is None:
+            digest = content_digest(a)
+            k = by_digest.setdefault(digest, len(images))
+            if k == len(images):
+                images.append(a)
+            by_id[id(a)] = k
+        return k
+
+    indexed = [(index(a), index(b)) for a, b in pairs]
+    return hdr_flip_maps(images, indexed, params)
 
 
-def flip_maps_tiled(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> list[np.ndarray]:
-    """The ꟻLIP maps of ``pairs`` (reference, test; float32 (H, W, 3) of one shape), side by side in one call
-    per `FLIP_TILES_MAX` pairs, each padded by `FLIP_TILE_PAD` edge-replicated columns."""
-    pad = FLIP_TILE_PAD
-    out: list[np.ndarray] = []
-    for i in range(0, len(pairs), FLIP_TILES_MAX):
-        chunk = pairs[i : i + FLIP_TILES_MAX]
-        if len(chunk) == 1:
-            out.append(_flip_map_uncached(chunk[0][0], chunk[0][1], params))
-            continue
-        w = chunk[0][0].shape[1]
-
-        def tiled(images):
-            return np.ascontiguousarray(
-                np.concatenate([np.pad(a, ((0, 0), (pad, pad), (0, 0)), mode="edge") for a in images], axis=1)
-            )
-
-        fmap = _flip_map_uncached(tiled([a for a, _ in chunk]), tiled([b for _, b in chunk]), params)
-        step = w + 2 * pad
-        out += [fmap[:, k * step + pad : k * step + pad + w].copy() for k in range(len(chunk))]
-    return out
+def _check_input(a: np.ndarray, shape) -> None:
+    """ꟻLIP's inputs: finite, non-negative, contiguous float32 (H, W, 3) of one shape, at least
+    `FLIP_MIN_SIZE` pixels a side (the metric's domain: ꟻLIP's widest filter)."""
+    if not (
+        a.dtype == np.float32
+        and a.ndim == 3
+        and a.shape[2] == 3
+        and a.flags.c_contiguous
+        and np.all(np.isfinite(a))
+        and a.min() >= 0.0
+    ):
+        raise ValueError("internal: flip input must be finite non-negative contiguous float32 (H, W, 3)")
+    if a.shape != shape or min(a.shape[:2]) < FLIP_MIN_SIZE:
+        raise ValueError(f"internal: flip inputs must share a shape of at least {FLIP_MIN_SIZE} pixels")
 
 
 def compute_flip_maps(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> int:
-    """Compute the ꟻLIP maps of the ``pairs`` (reference, test) not yet in the memo, side by side in as few
-    calls as possible (`flip_maps_tiled`), and keep them in the memo, where `flip_map` finds them. Returns
-    the number of maps computed."""
+    """Compute the ꟻLIP maps of the ``pairs`` (reference, test) not yet in the memo, together
+    (`flip_maps_shared`: each image's share once), and keep them in the memo, where `flip_map` finds them.
+    Returns the number of maps computed."""
     keyed, todo = {}, []
     for a, b in pairs:
         key = (content_digest(a, b), tuple(sorted(params.items())))
@@ -176,7 +173,7 @@ def compute_flip_maps(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> int
         if not known and key not in keyed:
             keyed[key] = len(todo)
             todo.append((a, b))
-    maps = flip_maps_tiled(todo, params)
+    maps = flip_maps_shared(todo, params) if todo else []
     with _map_lock:
         for key, k in keyed.items():
             _map_memo[key] = maps[k]
@@ -185,82 +182,9 @@ def compute_flip_maps(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> int
     return len(todo)
 
 
-@functools.cache
-def _flip_openmp() -> tuple | None:
-    """(get, set) of the thread count of the OpenMP runtime that ꟻLIP's extension carries
-    (``flip_evaluator.libs/libgomp-*.so``, loaded with it), or None where it is not found."""
-    import flip_evaluator
-
-    libs = os.path.join(os.path.dirname(os.path.dirname(flip_evaluator.__file__)), "flip_evaluator.libs")
-    try:
-        names = sorted(n for n in os.listdir(libs) if n.startswith("libgomp"))
-    except OSError:
-        return None
-    for name in names:
-        try:
-            lib = ctypes.CDLL(os.path.join(libs, name), mode=os.RTLD_NOLOAD | os.RTLD_LOCAL)
-        except OSError:
-            continue
-        get, put = lib.omp_get_max_threads, lib.omp_set_num_threads
-        get.restype, get.argtypes = ctypes.c_int, []
-        put.restype, put.argtypes = None, [ctypes.c_int]
-        return get, put
-    return None
-
-
-@contextmanager
-def flip_one_thread() -> Iterator[None]:
-    """Run the block's ꟻLIP calls on one OpenMP thread, then restore the count. OpenMP's thread count is
-    a setting of the calling thread, so other threads' ꟻLIP calls are not affected. Where ꟻLIP's OpenMP
-    runtime is not found nothing changes. `_flip_map_uncached` uses it off the main thread only: for maps
-    computed beside other work (the report's viewer thread next to the figures).
-
-    Why (issue 33): ꟻLIP splits each of its filter passes over every OpenMP thread. On 2 CPU cores shared
-    with other work the threads spend more time waiting for each other than working (session 19: 15 pairs of
-    64² in one tiled call took 1.05–1.14 CPU s, 2.6–2.9 s wall, on 2 threads against 0.71–0.81 CPU s,
-    1.8–2.1 s, on one), so every call ran on one thread. On 2 idle cores, where the audit's own calls run
-    (session 21, 12 pairs tiled, two rounds): 256² 9.9 / 6.3 s wall on one thread, 5.8 / 3.3 s on two, the
-    same CPU seconds; 64² 0.36 / 0.55 s against 0.19 / 0.22 s. The maps are bit-identical (each pixel is
-    computed alike whatever thread computes it; tests/test_metrics.py)."""
-    omp = _flip_openmp()
-    if omp is None:
-        yield
-        return
-    get, put = omp
-    before = get()
-    put(1)
-    try:
-        yield
-    finally:
-        put(before)
-
-
 def _flip_map_uncached(ref32, test32, params) -> np.ndarray:
-    import flip_evaluator
-
-    # flip_evaluator exits the process on bad arguments: check everything it checks, and more.
-    for a in (ref32, test32):
-        if not (
-            a.dtype == np.float32
-            and a.ndim == 3
-            and a.shape[2] == 3
-            and a.flags.c_contiguous
-            and np.all(np.isfinite(a))
-            and a.min() >= 0.0
-        ):
-            raise ValueError("internal: flip input must be finite non-negative contiguous float32 (H, W, 3)")
-    if ref32.shape != test32.shape or min(ref32.shape[:2]) < FLIP_MIN_SIZE:
-        raise ValueError(f"internal: flip inputs must share a shape of at least {FLIP_MIN_SIZE} pixels")
-    if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
-        raise ValueError(f"internal: bad flip exposure parameters {params}")
-    # Off the main thread (the report's viewer maps beside the figures) one OpenMP thread; on it, ꟻLIP's own
-    # threads (`flip_one_thread`'s text says why)
-    beside = threading.current_thread() is not threading.main_thread()
-    with flip_one_thread() if beside else contextlib.nullcontext():
-        fmap, _, _ = flip_evaluator.evaluate(
-            ref32, test32, "HDR", applyMagma=False, computeMeanError=False, parameters=dict(params)
-        )
-    return np.asarray(fmap, dtype=np.float64).reshape(ref32.shape[:2])
+    """The ꟻLIP map of one pair (`flip_maps_shared`)."""
+    return flip_maps_shared([(ref32, test32)], params)[0]
 
 
 def flip_noisy_references(r, s, seed, draws, peak) -> list[np.ndarray]:

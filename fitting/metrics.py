@@ -60,15 +60,15 @@ here once for all channels (`_ssim_maps`: scikit-image's filters and expressions
 to its per-channel maps; tests/test_metrics.py), the reference's filtered tone map kept per reference and
 the floor's draws filtered in one call (issue 33: 3 Gaussian filter calls a row instead of 15).
 
-ꟻLIP: ``flip_evaluator.evaluate(reference, test, "HDR", applyMagma=False)`` on contiguous float32
-(H, W, 3) arrays with negative values clipped to 0 (HDR-ꟻLIP accepts only non-negative radiance;
-clipping more than 1e-6 of the peak warns). The exposure range uses ꟻLIP's own rule, ACES tone
-mapper: start = log2(x_max / Y_max), stop = log2(x_max / Y_median), exposures =
-max(2, ceil(stop − start)), but with the luminances Y taken over the *masked* reference pixels (a
-black background would otherwise push the median to 0 and the range to ~25 stops), a median of 0
-replaced by the median of the positive luminances, and a one-stop range for a reference of constant
-luminance (where ꟻLIP itself would exit the process). flip_evaluator calls ``sys.exit`` on bad
-arguments, so everything is validated before it is called.
+ꟻLIP: HDR-ꟻLIP (`rtfit.fitting.hdr_flip`: NVIDIA's reference code, the code of
+``flip_evaluator.evaluate(reference, test, "HDR")``, step for step in float64; within 1e-4 of
+flip_evaluator's float32 maps, tests/test_hdr_flip.py) on float32 (H, W, 3) arrays with negative values
+clipped to 0 (HDR-ꟻLIP accepts only non-negative radiance; clipping more than 1e-6 of the peak warns). The
+exposure range uses ꟻLIP's own rule, ACES tone mapper: start = log2(x_max / Y_max),
+stop = log2(x_max / Y_median), exposures = max(2, ceil(stop − start)), but with the luminances Y taken over
+the *masked* reference pixels (a black background would otherwise push the median to 0 and the range to ~25
+stops), a median of 0 replaced by the median of the positive luminances, and a one-stop range for a
+reference of constant luminance (where flip_evaluator's own rule has start = stop and exits the process).
 
 Memoised (results bit-identical, only the time changes): a noise floor depends on the reference, its
 stderr, the mask, the seed and the draws — never on the approximation — so each is computed once per
