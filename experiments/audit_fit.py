@@ -275,10 +275,11 @@ def fit_case(method: Method, case: FamilyCase, row: str = "") -> dict:
     data's stderr, residuals and counts, as on a smaller case; the dict's ``subsample`` says so ({"pixels": n,
     "of": N masked}; absent where every pixel was fitted at once)."""
     keep = fit_subsample(case)
-    if keep is None:
-        return _fit_case(method, case, row)
-    first = _fit_case(method, subsampled_case(case, keep), row)
-    result = _fit_case(method, case, row, polish_from=first)
+    sub = None if keep is None else subsampled_case(case, keep)
+    if keep is None or sub is None:  # (None: an input of unknown layout, `subsampled_case`: every pixel)
+        return _fit_case(method, case, row)[0]
+    first, layout = _fit_case(method, sub, row)
+    result, _ = _fit_case(method, case, row, polish_from=first, layout=layout)
     result["subsample"] = {"pixels": len(keep), "of": int(np.count_nonzero(case.mask))}
     return result
 
@@ -301,21 +302,55 @@ def polish_params(params: Mapping[str, Param], fitted: Mapping[str, Any]) -> dic
     return out
 
 
-def _fit_case(method: Method, case: FamilyCase, row: str, polish_from: dict | None = None) -> dict:
-    """`fit_case` on the pixels of ``case`` as given; ``polish_from``: a fit's dict whose values start this
-    one (`polish_params`)."""
+@dataclass(frozen=True)
+class ChannelLayout:
+    """How a per-channel fit's data is laid out (`_fit_case`): ``stacked`` (the channels stacked, (3, N),
+    where the kernel's NumPy run gives the concatenation's values bit for bit: `stacked_agrees`), and its
+    per-channel parameters of disjoint residual rows (`channel_param_rows`; None: none). Both are properties
+    of the kernel's text, checked once on the first fit's data (a case's subsample) and kept for its polish
+    on every pixel: at 256² the two checks evaluated the kernel ~8 times on every pixel a row (issue 33)."""
+
+    stacked: bool
+    channel_params: tuple[str, ...] | None
+
+
+def _fit_case(
+    method: Method,
+    case: FamilyCase,
+    row: str,
+    polish_from: dict | None = None,
+    layout: ChannelLayout | None = None,
+) -> tuple[dict, ChannelLayout | None]:
+    """`fit_case` on the pixels of ``case`` as given, and the `ChannelLayout` it used (None: not a per-channel
+    NumPy fit); ``polish_from``: a fit's dict whose values start this one (`polish_params`); ``layout``: the
+    layout decided by that fit (else checked here)."""
     d = fit_data(method, case, row)
     rows = None
     if d.per_channel and method.fit_ops == "numpy":
         s = fit_data(method, case, row, stacked=True)
-        if any(np.ndim(v) == 1 for v in s.inputs.values()) and stacked_agrees(method, d, s):
+        if layout is None:
+            stacked = any(np.ndim(v) == 1 for v in s.inputs.values()) and stacked_agrees(method, d, s)
+            found = channel_param_rows(method, s) if stacked else None
+            layout = ChannelLayout(stacked, None if found is None else tuple(found))
+        if layout.stacked:
             d = s
-            rows = channel_param_rows(method, d)
+            rows = None if layout.channel_params is None else _channel_rows(layout.channel_params, d)
     if polish_from is not None:
         d = replace(d, params=polish_params(d.params, polish_from["parameters"]))
-    return fit_method(
+    fit = fit_method(
         method, d.inputs, d.target, weights=d.weights, params=d.params, solver=FIT_SOLVER, param_rows=rows
-    ).to_dict()
+    )
+    return fit.to_dict(), layout
+
+
+def _channel_rows(names: Sequence[str], d: FitData) -> dict[str, np.ndarray]:
+    """Each per-channel parameter's residual rows (`channel_param_rows`) in the stacked data ``d``."""
+    out = {}
+    for k in names:
+        own = np.zeros(d.target.shape, bool)
+        own["rgb".index(k[-1])] = True
+        out[k] = own.reshape(-1)
+    return out
 
 
 def channel_param_rows(method: Method, d: FitData) -> dict[str, np.ndarray] | None:

@@ -117,12 +117,13 @@ def flip_map(ref32, test32, params) -> np.ndarray:
     return fmap
 
 
-def flip_maps_shared(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> list[np.ndarray]:
+def flip_maps_shared(pairs: list[tuple[np.ndarray, np.ndarray]], params, digest_of=None) -> list[np.ndarray]:
     """The ꟻLIP maps of ``pairs`` (reference, test; float32 (H, W, 3) of one shape) at the exposures
     ``params``: each distinct image (by identity, then by content) filtered once per exposure however many
     pairs hold it (`rtfit.fitting.hdr_flip.hdr_flip_maps`): a case's rows share their reference, and the
     noise floor's draws hold it as their test. Each map equals its pair's map alone, bit for bit (an image's
-    features do not depend on the others; tests/test_metrics.py)."""
+    features do not depend on the others; tests/test_metrics.py). ``digest_of``: an array's content digest
+    where the caller has made it (`compute_flip_maps`)."""
     for a in (x for pair in pairs for x in pair):
         _check_input(a, pairs[0][0].shape)
     if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
@@ -134,7 +135,7 @@ def flip_maps_shared(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> list
     def index(a: np.ndarray) -> int:
         k = by_id.get(id(a))
         if k is None:
-            digest = content_digest(a)
+            digest = content_digest(a)[0] if digest_of is None else digest_of(a)
             k = by_digest.setdefault(digest, len(images))
             if k == len(images):
                 images.append(a)
@@ -166,14 +167,21 @@ def compute_flip_maps(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> int
     (`flip_maps_shared`: each image's share once), and keep them in the memo, where `flip_map` finds them.
     Returns the number of maps computed."""
     keyed, todo = {}, []
-    for a, b in pairs:
-        key = (content_digest(a, b), tuple(sorted(params.items())))
+    digests: dict[int, tuple] = {}  # id → content digest of the pairs' arrays (alive through the call)
+
+    def digest_of(a: np.ndarray) -> tuple:
+        if id(a) not in digests:
+            digests[id(a)] = content_digest(a)[0]
+        return digests[id(a)]
+
+    for a, b in pairs:  # (the shared reference hashed once, not once a pair)
+        key = ((digest_of(a), digest_of(b)), tuple(sorted(params.items())))
         with _map_lock:
             known = key in _map_memo
         if not known and key not in keyed:
             keyed[key] = len(todo)
             todo.append((a, b))
-    maps = flip_maps_shared(todo, params) if todo else []
+    maps = flip_maps_shared(todo, params, digest_of) if todo else []
     with _map_lock:
         for key, k in keyed.items():
             _map_memo[key] = maps[k]

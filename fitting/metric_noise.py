@@ -44,14 +44,20 @@ def content_digest(*arrays) -> tuple:
     out = []
     for a in arrays:
         a = np.ascontiguousarray(a)
-        out.append((a.shape, a.dtype.str, hashlib.blake2b(a.tobytes(), digest_size=16).digest()))
+        # the array's own buffer, not a copy of it (``tobytes``): a 256² float64 image is 1.5 MB a digest
+        digest = hashlib.blake2b(a.reshape(-1).view(np.uint8).data, digest_size=16).digest()
+        out.append((a.shape, a.dtype.str, digest))
     return tuple(out)
 
 
-def memo_floor(name: str, r, s, m, seed: int, draws: int, compute: Callable[[], float]) -> float:
+def memo_floor(
+    name: str, r, s, m, seed: int, draws: int, compute: Callable[[], float], digest: tuple | None = None
+) -> float:
     """The noise floor ``compute()`` of metric ``name``, computed once per (reference ``r``, stderr ``s``,
-    mask ``m``, seed, draws): the floors depend on nothing else (module text)."""
-    key = (name, int(seed), int(draws), content_digest(r, s, m))
+    mask ``m``, seed, draws): the floors depend on nothing else (module text). ``digest``: their
+    `content_digest` where the caller has it (`rtfit.fitting.metrics.compute_metrics` makes it once for
+    all its metrics: issue 33, three digests of 3 MB a row at 256²)."""
+    key = (name, int(seed), int(draws), content_digest(r, s, m) if digest is None else digest)
     with _floor_lock:
         if key in _floor_memo:
             _floor_memo.move_to_end(key)

@@ -309,7 +309,7 @@ def _mae(x, r, s, m, **_):
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
-def _max_abs(x, r, s, m, seed, draws, **_):
+def _max_abs(x, r, s, m, seed, draws, floor_digest=None, **_):
     val = float(np.max(np.abs(_sel(x - r, m))))
     sm = _sel(s, m)
 
@@ -317,7 +317,7 @@ def _max_abs(x, r, s, m, seed, draws, **_):
         rng = noise_rng(seed, "max_abs")
         return float(np.mean([np.max(np.abs(sm * rng.standard_normal(sm.shape))) for _ in range(draws)]))
 
-    floor = memo_floor("max_abs", r, s, m, seed, draws, compute)
+    floor = memo_floor("max_abs", r, s, m, seed, draws, compute, floor_digest)
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
@@ -396,7 +396,7 @@ def _ssim_reference(r) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     return value
 
 
-def _ssim(x, r, s, m, seed, draws, **_):
+def _ssim(x, r, s, m, seed, draws, floor_digest=None, **_):
     tr, fr = _ssim_reference(r)
     val = float(np.mean(_ssim_maps(tr, tone_map(x), f1=fr)[m]))
 
@@ -406,11 +406,11 @@ def _ssim(x, r, s, m, seed, draws, **_):
         maps = _ssim_maps(noisy, tr, f2=fr)
         return float(np.mean([float(np.mean(smap[m])) for smap in maps]))
 
-    floor = memo_floor("ssim", r, s, m, seed, draws, compute)
+    floor = memo_floor("ssim", r, s, m, seed, draws, compute, floor_digest)
     return MetricValue(val, floor, _resolved_above(1.0 - val, 1.0 - floor))
 
 
-def _flip(x, r, s, m, seed, draws, **_):
+def _flip(x, r, s, m, seed, draws, floor_digest=None, **_):
     params = flip_exposures(r, m)
     peak = float(np.max(r[m]))
     r32 = flip_input(r, "reference", peak, True)
@@ -420,7 +420,7 @@ def _flip(x, r, s, m, seed, draws, **_):
         noisy = flip_noisy_references(r, s, seed, draws, peak)
         return float(np.mean([flip_mean(n, r32, m, params) for n in noisy]))
 
-    floor = memo_floor("flip", r, s, m, seed, draws, compute)
+    floor = memo_floor("flip", r, s, m, seed, draws, compute, floor_digest)
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
@@ -430,7 +430,7 @@ def _smape_value(x, r):
     return float(np.mean(np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)))
 
 
-def _smape(x, r, s, m, seed, draws, **_):
+def _smape(x, r, s, m, seed, draws, floor_digest=None, **_):
     xs, rs, ss = _sel(x, m), _sel(r, m), _sel(s, m)
     val = _smape_value(xs, rs)
 
@@ -439,7 +439,7 @@ def _smape(x, r, s, m, seed, draws, **_):
         draws_ = [_smape_value(rs, rs + ss * rng.standard_normal(rs.shape)) for _ in range(draws)]
         return float(np.mean(draws_))
 
-    floor = memo_floor("smape", r, s, m, seed, draws, compute)
+    floor = memo_floor("smape", r, s, m, seed, draws, compute, floor_digest)
     return MetricValue(val, floor, _resolved_above(val, floor))
 
 
@@ -453,6 +453,10 @@ _METRICS = {
     "flip": _flip,
     "smape": _smape,
 }
+
+
+_FLOORED = frozenset({"max_abs", "ssim", "flip", "smape"})
+"""The metrics whose noise floors are Monte Carlo draws, memoised by the content of (r, s, m)."""
 
 
 # ------------------------------------------------------------------------------------- public API
@@ -473,12 +477,15 @@ def compute_metrics(
     if int(floor_draws) < 1:
         raise ValueError(f"floor_draws must be >= 1, got {floor_draws}")
     out, skipped = {}, {}
+    digest = None  # (r, s, m)'s content key, made once for every floor (`memo_floor`)
     for name in dict.fromkeys(names):
         reason = _skip_reason(name, x, r, m, is_image)
         if reason is not None:
             skipped[name] = reason
             continue
-        out[name] = _METRICS[name](x, r, s, m, seed=seed, draws=int(floor_draws))
+        if digest is None and name in _FLOORED:
+            digest = content_digest(r, s, m)
+        out[name] = _METRICS[name](x, r, s, m, seed=seed, draws=int(floor_draws), floor_digest=digest)
     return MetricResults(out, skipped)
 
 

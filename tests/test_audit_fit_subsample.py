@@ -163,3 +163,52 @@ def test_tables_are_passed_whole():
     for i, k in enumerate("ab"):
         got = fit["parameters"][k]
         assert abs(got["value"] - sol[i]) <= 0.02 * got["stderr"]
+
+
+def _per_channel_offsets(ops, x, channel, a=1.0, b_r=0.0, b_g=0.0, b_b=0.0):
+    """a·x + b_c in channel c (``channel``: 0, 1, 2 per pixel): one slope, one offset per channel (the
+    layout of colour-bleeding's SDF biases)."""
+    return a * x + ops.select(channel < 0.5, b_r, ops.select(channel < 1.5, b_g, b_b))
+
+
+def test_the_channel_layout_is_checked_once_on_the_subsample_and_kept_for_the_polish(monkeypatch):
+    """A per-channel case with per-channel parameters ``b_r``, ``b_g``, ``b_b``: whether its channels are
+    stacked (`stacked_agrees`) and which parameters own which rows (`channel_param_rows`) are checked once,
+    on the subsample's data, and the polish on every pixel uses that layout (issue 33: the checks evaluated
+    the kernel ~8 times on every pixel); the fit is the closed-form least squares (a shared, b a channel)."""
+    import rtfit.experiments.audit_fit as AF
+
+    rng = np.random.default_rng(17)
+    shape = (160, 160)
+    mask = rng.random(shape) < 0.8
+    n = int(mask.sum())
+    x = rng.uniform(0.0, 10.0, n)
+    offsets = np.array([0.5, 1.0, 2.0])
+    y = TRUTH[0] * x[:, None] + offsets + rng.normal(0.0, NOISE, (n, 3))
+    mean = np.zeros((*shape, 3))
+    mean[mask] = y
+    ref = AuditReference(mean, np.full_like(mean, 0.01), 16, 1, 1, "k", "p", 0.0, "q", "none", "planted")
+    inputs = tuple({"x": x, "channel": np.full(n, float(c))} for c in range(3))
+    case = FamilyCase("layout", "layout", ref, mask, inputs)
+    params = {"a": Param(1.0, -10.0, 10.0), **{f"b_{c}": Param(0.0, -10.0, 10.0) for c in "rgb"}}
+    method = Method(
+        id="offsets", label="offsets", kernel=_per_channel_offsets, inputs=(Input("x"), Input("channel")),
+        params=params,
+    )  # fmt: skip
+    calls = {"stacked_agrees": 0, "channel_param_rows": 0}
+    for name in calls:
+        real = getattr(AF, name)
+        monkeypatch.setattr(
+            AF, name, lambda *a, _r=real, _n=name: calls.__setitem__(_n, calls[_n] + 1) or _r(*a)
+        )
+    fit = fit_case(method, case, "offsets")
+    assert fit["subsample"] == {"pixels": FIT_PIXELS, "of": n}
+    assert calls == {"stacked_agrees": 1, "channel_param_rows": 1}
+    A = np.zeros((3 * n, 4))
+    A[:, 0] = np.tile(x, 3)
+    for c in range(3):
+        A[c * n : (c + 1) * n, 1 + c] = 1.0
+    sol = np.linalg.lstsq(A, y.T.reshape(-1), rcond=None)[0]
+    for i, k in enumerate(("a", "b_r", "b_g", "b_b")):
+        got = fit["parameters"][k]
+        assert abs(got["value"] - sol[i]) <= 0.02 * got["stderr"]
