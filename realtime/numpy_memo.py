@@ -14,6 +14,7 @@ shader are what the kernel text says.
 
 from __future__ import annotations
 
+import threading
 import weakref
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
@@ -45,6 +46,9 @@ class KeptValues:
         self.max_floats, self.max_entries = int(max_floats), int(max_entries)
         self.max_input_floats = self.max_floats if max_input_floats is None else int(max_input_floats)
         self._entries: dict[str, tuple[tuple, Any, int]] = {}
+        # a fit may evaluate its Jacobian's points on several threads (`rtfit.fitting.method_fit`'s
+        # `difference_map`): one at a time here (re-entrant: a kept value's ``make`` may ask for another)
+        self._lock = threading.RLock()
 
     def get(self, ops, key: tuple, arrays: Sequence[Any], make: Callable[[bool], T]) -> T:
         """``make(True)`` (the values computed now) on the NumPy run, kept for ``key`` (plain numbers and
@@ -59,6 +63,10 @@ class KeptValues:
             or not all(isinstance(k, str | int | float | bool | None) for k in key)
         ):
             return make(False)
+        with self._lock:
+            return self._get(key, arrays, make)
+
+    def _get(self, key: tuple, arrays: Sequence[Any], make: Callable[[bool], T]) -> T:
         full = repr(key)  # exact numbers (−0.0 and 0.0 apart)
         hit = self._entries.pop(full, None)
         if (

@@ -129,3 +129,44 @@ def test_grouped_differences_give_scipys_jacobian_with_fewer_evaluations():
     dense = approx_derivative(residual, x, method="3-point", bounds=bounds)
     shared = approx_derivative(residual, x, method="3-point", bounds=bounds, workers=workers)
     assert dense.tobytes() == shared.tobytes()
+
+
+def test_threaded_differences_give_the_serial_fit_bit_for_bit(monkeypatch):
+    """A NumPy fit of `method_fit.PARALLEL_FROM` residuals or more evaluates its Jacobian's points on threads
+    (`difference_map`, issue 33): each point alone, so the fit ends where the serial fit ends, bit for bit,
+    grouped (`param_rows`) or not; smaller fits, and Dr.Jit fits, get no threads."""
+    import inspect
+
+    from rtfit.fitting import method_fit
+
+    if "workers" not in inspect.signature(least_squares).parameters:
+        pytest.skip("this SciPy's least_squares takes no workers map (the fits run serially)")
+    assert method_fit.difference_map(method_fit.PARALLEL_FROM - 1, "numpy") is None
+    assert method_fit.difference_map(method_fit.PARALLEL_FROM, "drjit") is None
+    monkeypatch.setattr(method_fit, "_threads", lambda: 2)
+    assert method_fit.difference_map(method_fit.PARALLEL_FROM, "numpy") is not None
+
+    rng = np.random.default_rng(9)
+    n = 24
+    t = np.tile(rng.uniform(0.0, 2.0, n), 3)
+    channel = np.repeat([0.0, 1.0, 2.0], n)
+    y = np.repeat([1.0, 2.0, 0.5], n) * np.exp(-1.5 * t) + rng.normal(0.0, 0.01, 3 * n)
+    box = {"k": Param(1.0, 0.0, 5.0), **{f"s_{c}": Param(1.0, 0.0, 4.0) for c in "rgb"}}
+    threads = []
+
+    def kernel(ops, **kw):
+        threads.append(__import__("threading").get_ident())
+        return _per_channel(ops, **kw)
+
+    method = Method("pc", "per channel", kernel, inputs=(Input("channel"), Input("t")), params=box)
+    rows = {f"s_{c}": channel == i for i, c in enumerate("rgb")}
+    inputs = {"channel": channel, "t": t}
+    for declared in (None, rows):
+        monkeypatch.setattr(method_fit, "PARALLEL_FROM", 10**9)  # serial
+        serial = fit_method(method, inputs, y, solver="trf", param_rows=declared)
+        monkeypatch.setattr(method_fit, "PARALLEL_FROM", 1)  # threaded
+        threads.clear()
+        threaded = fit_method(method, inputs, y, solver="trf", param_rows=declared)
+        assert len(set(threads)) > 1  # the points did run on other threads
+        assert threaded.values == serial.values and threaded.stderr == serial.stderr
+        assert threaded.ssr == serial.ssr and threaded.steps == serial.steps
