@@ -27,13 +27,13 @@ maps of several pairs at the same exposures are computed from each distinct imag
 reference as their test; ꟻLIP called per pair filtered the shared image again for every pair (issue 33: half
 of a 256² audit's evaluation time).
 
-The change of arithmetic: everything is float64 from the float32 inputs (the reference code computes in
-float32). The change of order: each 1-D filter pass is a product with a banded matrix (`_filter_axis`,
-edge-clamped as the reference code's loops, computed by BLAS in blocks), not a loop over the taps. Both
-only change rounding. Where a test equals the reference the map is 0 in both. Where they differ by a few
-float32 ulps, the reference code's map is its own rounding noise raised to small powers (colour^0.7 and
-then ^(1 − feature)), up to ~1e-3; here it is smaller. tests/test_hdr_flip.py compares the maps with
-flip_evaluator's on rendered and synthetic images.
+The arithmetic is float32, as the reference code's (`_DTYPE`; float64 gave maps no closer to its than its
+own rounding and took 2.1× as long). The one change is of order: each 1-D filter pass is a product with a
+banded matrix (`_filter_axis`, edge-clamped as the reference code's loops, computed by BLAS in blocks), not a
+loop over the taps, so the sums round differently. Where a test equals the reference the map is 0 in both.
+Where they differ by a few float32 ulps, either map is rounding noise raised to small powers (colour^0.7 and
+then ^(1 − feature)). tests/test_hdr_flip.py compares the maps with flip_evaluator's on rendered and
+synthetic images (within 1e-4 a pixel).
 """
 
 from __future__ import annotations
@@ -141,21 +141,23 @@ def _feature_filters(ppd: float) -> np.ndarray:
     return np.stack([g / g.sum(), signed(dg), signed(ddg)])
 
 
+_DTYPE = np.float32
+"""The working precision: the reference code's."""
 _BLOCK = 64
 """Outputs per block of a filter pass (`_filter_axis`): a block reads BLOCK + 2r inputs."""
 
 
 @functools.lru_cache(maxsize=16)
-def _band(filters_bytes: bytes, n_filters: int, b: int) -> np.ndarray:
-    """The banded (B + 2r, F·B) matrix of F 1-D filters (their float64 bytes): column f·B + j holds filter f
-    at rows j … j + 2r."""
+def _band(filters_bytes: bytes, n_filters: int, b: int, dtype: str) -> np.ndarray:
+    """The banded (B + 2r, F·B) matrix of F 1-D filters (their float64 bytes), of ``dtype``: column f·B + j
+    holds filter f at rows j … j + 2r."""
     filters = np.frombuffer(filters_bytes).reshape(n_filters, -1)
     width = filters.shape[1]
     band = np.zeros((b + width - 1, n_filters, b))
     cols = np.arange(b)
     for k in range(width):
         band[cols + k, :, cols] = filters[:, k]
-    band = band.reshape(b + width - 1, n_filters * b)
+    band = band.reshape(b + width - 1, n_filters * b).astype(dtype)
     band.flags.writeable = False
     return band
 
@@ -174,7 +176,7 @@ def _filter_axis(a: np.ndarray, filters: np.ndarray, axis: int) -> np.ndarray:
     pad = [(0, 0)] * a.ndim
     pad[axis] = (r, r + blocks * b - n)
     padded = np.pad(a, pad, mode="edge")
-    band = _band(np.ascontiguousarray(filters, np.float64).tobytes(), n_filters, b)
+    band = _band(np.ascontiguousarray(filters, np.float64).tobytes(), n_filters, b, a.dtype.str)
     st = padded.strides
     if axis == -1:
         windows = np.lib.stride_tricks.as_strided(
@@ -227,14 +229,15 @@ _YCXCZ = np.stack(
 
 def _linear(m: np.ndarray, planes) -> list[np.ndarray]:
     """The three planes m · (p₀, p₁, p₂) of a 3 × 3 matrix ``m`` applied to three planes."""
-    return [m[i, 0] * planes[0] + m[i, 1] * planes[1] + m[i, 2] * planes[2] for i in range(3)]
+    c = [[float(v) for v in row] for row in m]  # Python floats: the planes keep their precision
+    return [c[i][0] * planes[0] + c[i][1] * planes[1] + c[i][2] * planes[2] for i in range(3)]
 
 
 def image_features(image: np.ndarray, scales: np.ndarray, ppd: float = FLIP_PPD) -> ImageFeatures:
     """`ImageFeatures` of ``image`` (H, W, 3, linear RGB, non-negative) at each exposure multiplier of
     ``scales`` (E,)."""
-    img = np.asarray(image, np.float64)
-    scales = np.asarray(scales, np.float64)[:, None, None]
+    img = np.asarray(image, _DTYPE)
+    scales = np.asarray(scales, _DTYPE)[:, None, None]
     a0, a1, _, a3, a4, a5 = _ACES  # (a2 = 0)
     planes = []
     for ch in range(3):
@@ -247,9 +250,11 @@ def image_features(image: np.ndarray, scales: np.ndarray, ppd: float = FLIP_PPD)
     z1, z2 = _filter_axis(cz, spatial[2:4], -1)
     fcz = _filter_axis(z1, spatial[2:3], -2)[0] + _filter_axis(z2, spatial[3:4], -2)[0]
     yn = fy / 116.0
-    filtered_xyz = [(yn + fcx / 500.0) * _ILLUMINANT[0], yn, (yn - fcz / 200.0) * _ILLUMINANT[2]]
+    ill, inv = (float(v) for v in _ILLUMINANT), [float(v) for v in _INV_ILLUMINANT]  # (weak: float32 stays)
+    x_ill, _, z_ill = ill
+    filtered_xyz = [(yn + fcx / 500.0) * x_ill, yn, (yn - fcz / 200.0) * z_ill]
     rgb = [np.clip(p, 0.0, 1.0) for p in _linear(_XYZ_TO_RGB, filtered_xyz)]
-    fx, fyy, fz = (_lab_f(p * k) for p, k in zip(_linear(_RGB_TO_XYZ, rgb), _INV_ILLUMINANT, strict=True))
+    fx, fyy, fz = (_lab_f(p * k) for p, k in zip(_linear(_RGB_TO_XYZ, rgb), inv, strict=True))
     lum = 116.0 * fyy - 16.0
     a = (0.01 * 500.0) * lum * (fx - fyy)
     b = (0.01 * 200.0) * lum * (fyy - fz)
@@ -271,8 +276,8 @@ def ldr_errors(p: ImageFeatures, q: ImageFeatures) -> np.ndarray:
 
 
 _CHUNK_ELEMENTS = 1 << 19
-"""At most this many pixels × exposures per image in one `image_features` call (its ~30 float64
-temporaries then stay near 4 MiB each)."""
+"""At most this many pixels × exposures per image in one `image_features` call (its ~30 float32
+temporaries then stay near 2 MiB each)."""
 
 
 def hdr_flip_maps(images: Sequence[np.ndarray], pairs: Sequence[tuple[int, int]], params) -> list[np.ndarray]:
@@ -281,11 +286,11 @@ def hdr_flip_maps(images: Sequence[np.ndarray], pairs: Sequence[tuple[int, int]]
     image's features computed once per exposure (module text)."""
     scales = exposures(params)
     h, w = images[0].shape[:2]
-    maps = [np.zeros((h, w)) for _ in pairs]
+    maps = [np.zeros((h, w), _DTYPE) for _ in pairs]
     used = sorted({k for pair in pairs for k in pair})
     step = max(1, _CHUNK_ELEMENTS // (h * w))
     for e in range(0, len(scales), step):
         feats = {k: image_features(images[k], scales[e : e + step]) for k in used}
         for out, (i, j) in zip(maps, pairs, strict=True):
             np.maximum(out, ldr_errors(feats[i], feats[j]).max(axis=0), out=out)
-    return maps
+    return [m.astype(np.float64) for m in maps]
