@@ -28,7 +28,7 @@ from rtfit.realtime.irradiance_volumes import METHODS as IRRADIANCE_VOLUME_ROWS
 DATA = Path(__file__).parent / "data" / "mitsuba"
 CBOX = DATA / "cbox"
 TEAPOT = DATA / "teapot" / "teapot.xml"
-# Cost measured on few elements, and no ꟻLIP/SSIM (their maps and noise floors: seconds a case): the tests check
+# Cost measured on few elements, and no ꟻLIP/SSIM (maps and noise floors: seconds a case): the tests check
 # values, not speed; the command-line test keeps every metric.
 FAST = {"cost_elements": 1 << 12, "metrics": ("rmse", "rel_mse", "mae", "max_abs", "psnr")}
 
