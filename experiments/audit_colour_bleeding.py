@@ -18,8 +18,8 @@ One case ``bounce`` on the visible surface pixels (`rtfit.reference.gbuffer_poin
   along `cosine_spiral_directions`, rotated per point (the real-time bake): each ray's hit distance d_k
   (`MISS` for a miss), the hit's diffuse albedo a_c,k (Mitsuba's ``eval_diffuse_reflectance``) and the
   direct irradiance there E_dir,c,k (`irradiance_pass`, ``direct`` transport, at the hit with its normal
-  turned towards x; `HIT_SPP_FACTOR` × spp samples, at least `HIT_SPP_MIN`): what an engine's direct-light
-  buffer holds.
+  turned towards x; `HIT_SPP_FACTOR` × spp samples, at least `HIT_SPP_MIN`; kept in the pass cache,
+  `cached_pass`): what an engine's direct-light buffer holds.
 * **rows**: `rtfit.realtime.colour_bleeding.METHODS` on all K rays and on the first `FEW_RAYS` (``-k4``):
   the seed's per-channel SDF bias (D, b_r, b_g, b_b, I fitted), the seed's RGB obscurance's colour part
   (d_max = R, I fitted) and its fitted form (d_max, p, I), and the one-bounce gather (no parameter). Lengths
@@ -49,7 +49,7 @@ from .audit import Applicability, AuditError, Rule
 from .audit_family import AuditFamily, FamilyCase
 from .audit_fit import length_scaled_params
 from .audit_geometry import ao_radius
-from .audit_setup import AuditSetup, pooled_passes
+from .audit_setup import AuditSetup, cached_pass, pooled_passes
 from .shipped import Sizes
 
 __all__ = ["FAMILY", "FEW_RAYS", "HIT_SPP_FACTOR", "HIT_SPP_MIN", "SCENES", "bounce_cases", "ray_hits"]
@@ -151,7 +151,11 @@ def bounce_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     if valid.any():
         hp = hit_p[valid]
         hn = hit_n[valid]
-        res = irradiance_pass(mi, scene, hp, hn, hit_spp, sub_seed(setup.seed, "colour-bleeding-hits", 0))
+        seed = sub_seed(setup.seed, "colour-bleeding-hits", 0)
+        hits = {"format": FORMAT, "quantity": "hit-direct-irradiance", "points": array_digest(hp, hn),
+                "spp": hit_spp, "seed_label": "colour-bleeding-hits"}  # fmt: skip
+        res = cached_pass(setup, hits, lambda: irradiance_pass(mi, scene, hp, hn, hit_spp, seed), (-1, 3),
+                          f"bounce: direct light at {len(hp)} ray hits", hit_spp)  # fmt: skip
         direct[valid] = np.maximum(np.nan_to_num(res.mean), 0.0)
         seconds = res.seconds
     what = {"format": FORMAT, "quantity": "bounce-irradiance", "points": array_digest(points, normals)}

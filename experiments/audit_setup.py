@@ -188,6 +188,42 @@ class PooledPasses:
         )
 
 
+def _run_identity(setup: AuditSetup, what: Mapping[str, Any]) -> dict:
+    """A cache entry's key: the family's part ``what`` and the run's (scene digest, variant, seed, pass size,
+    Mitsuba and Dr.Jit versions, and the GPU's launch layout, `launch_identity`)."""
+    import mitsuba as mi  # (its version is part of the key)
+
+    return {
+        **what,
+        "scene": setup.scene_digest,
+        "variant": setup.variant,
+        "seed": setup.seed,
+        "pass_spp": setup.pass_spp,
+        "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__},
+        **launch_identity(setup.variant),
+    }
+
+
+def cached_pass(
+    setup: AuditSetup,
+    what: Mapping[str, Any],
+    render: Callable[[], PassResult],
+    shape: tuple[int, ...],
+    label: str,
+    spp: int,
+) -> PassResult:
+    """One Monte Carlo pass of ``spp`` samples through the pass cache (``render()`` where it is not there),
+    keyed as `pooled_passes` keys a reference: a family's input that is itself a render (colour-bleeding's
+    direct light at its rays' hits, an engine's direct-light buffer), loaded on a second audit of the scene
+    instead of rendered again (issue 33: 4 of the ~40 s of a cached 256² Cornell-box audit). ``what`` must
+    name everything the pass depends on beyond the run (its points, its spp, its seed's label)."""
+    entry = PassEntry(setup.cache_root, _run_identity(setup, what), namespace="audit", storage="npz",
+                      info={"label": label})  # fmt: skip
+    passes, _ = entry.passes(1, lambda _i: render(), shape=shape, progress=setup.progress, label=label,
+                             spp_of=lambda _i: spp)  # fmt: skip
+    return passes[0]
+
+
 def pooled_passes(
     setup: AuditSetup,
     what: Mapping[str, Any],
@@ -204,18 +240,8 @@ def pooled_passes(
     added here (with the GPU's launch layout, `launch_identity`). ``render_pass(spp, seed)`` renders one
     pass; pass i has ``min(pass_spp, spp − i·pass_spp)`` samples (at least 2: the variance needs two) and the
     seed ``sub_seed(setup.seed, seed_label, i)``."""
-    import mitsuba as mi  # (its version is part of the key)
-
-    ident = {
-        **what,
-        "scene": setup.scene_digest,
-        "variant": setup.variant,
-        "seed": setup.seed,
-        "pass_spp": setup.pass_spp,
-        "versions": {"mitsuba": mi.__version__, "drjit": dr.__version__},
-        **launch_identity(setup.variant),
-    }
-    entry = PassEntry(setup.cache_root, ident, namespace="audit", storage="npz", info={"label": label})
+    entry = PassEntry(setup.cache_root, _run_identity(setup, what), namespace="audit", storage="npz",
+                      info={"label": label})  # fmt: skip
     count = -(-setup.spp // setup.pass_spp)
 
     def size(i: int) -> int:

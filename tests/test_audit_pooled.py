@@ -10,7 +10,7 @@ from typing import cast
 
 import numpy as np
 
-from rtfit.experiments.audit_setup import AuditSetup, PooledPasses, pooled_passes
+from rtfit.experiments.audit_setup import AuditSetup, PooledPasses, cached_pass, pooled_passes
 from rtfit.experiments.case_inputs import masked_image
 from rtfit.reference.cache import PassEntry
 from rtfit.reference.estimators import PassResult
@@ -44,6 +44,30 @@ def test_pooled_passes_are_the_concatenated_samples_and_a_rerun_reads_the_cache(
     assert len(drawn) == 3 and again.passes_rendered == 0 and again.entry.key == p.entry.key
     np.testing.assert_array_equal(again.mean, p.mean)
     np.testing.assert_array_equal(again.stderr, p.stderr)
+
+
+def test_a_cached_pass_is_rendered_once_and_read_back_bit_for_bit(tmp_path):
+    """`cached_pass` (a family's input that is itself a render: colour-bleeding's direct light at its rays'
+    hits): the first call renders its one pass of the given spp, the second reads it from the cache, the
+    same values bit for bit and the render not called; another ``what`` (other points) renders again."""
+    rng = np.random.default_rng(11)
+    setup = types.SimpleNamespace(scene_digest="d", variant="scalar_rgb", seed=3, pass_spp=4, spp=10,
+                                  cache_root=tmp_path, progress=False)  # fmt: skip
+    calls = []
+
+    def render() -> PassResult:
+        x = rng.normal(1.0, 0.5, size=(12, 7, 3))
+        calls.append(1)
+        return PassResult(x.mean(axis=0), x.var(axis=0, ddof=1), 12, 5, 0.5)
+
+    what = {"quantity": "hits", "points": "p1", "spp": 12}
+    first = cached_pass(cast(AuditSetup, setup), what, render, (-1, 3), "hits", 12)
+    again = cached_pass(cast(AuditSetup, setup), what, render, (-1, 3), "hits", 12)
+    assert len(calls) == 1
+    assert again.mean.tobytes() == first.mean.tobytes() and again.var.tobytes() == first.var.tobytes()
+    assert (again.spp, again.seconds) == (12, 0.5)
+    cached_pass(cast(AuditSetup, setup), {**what, "points": "p2"}, render, (-1, 3), "hits", 12)
+    assert len(calls) == 2
 
 
 def test_reference_lays_the_masked_elements_onto_the_image(tmp_path):
