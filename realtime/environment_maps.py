@@ -62,7 +62,16 @@ import math
 import drjit as dr
 import numpy as np
 
-from .arrays import NUMPY_OPS, evaluate, evaluate_numpy, safe_div, safe_sqrt
+from .arrays import (
+    DRJIT_OPS,
+    NUMPY_OPS,
+    backend_float,
+    evaluate,
+    evaluate_numpy,
+    safe_div,
+    safe_sqrt,
+    to_drjit,
+)
 from .light_models import sphere_light_irradiance_kernel
 from .methods import Input, Method, Param, method_table
 
@@ -222,20 +231,23 @@ def convolve(env: np.ndarray, query: np.ndarray, shininess: float = 0.0, rule: s
     dw = texel_solid_angle(n, rule) * env
     out = np.empty(len(q))
     chunk = max(1, (1 << 21) // env.size)
+    # Every (query, texel) pair gathered by index inside the kernel from the Q queries and the T texels, not
+    # broadcast to Q·T values on the host and copied in (issue 33: 7 copies of 2²¹ floats a chunk were half
+    # of probe-specular's captures); the same values per pair, so the same terms bit for bit.
+    Float = backend_float(None, np.float64)
+    UInt = dr.uint32_array_t(Float)
+    texels = [to_drjit(Float, np.ascontiguousarray(a)) for a in (pts[:, 0], pts[:, 1], pts[:, 2], dw)]
+    t = env.size
     for s in range(0, len(q), chunk):
         qq = q[s : s + chunk]
-        terms = evaluate(
-            convolution_term_kernel,
-            qq[:, 0:1],
-            qq[:, 1:2],
-            qq[:, 2:3],
-            pts[None, :, 0],
-            pts[None, :, 1],
-            pts[None, :, 2],
-            dw[None, :],
-            float(shininess),
-        )
-        out[s : s + chunk] = np.asarray(terms).sum(axis=1)
+        axes = [to_drjit(Float, np.ascontiguousarray(qq[:, k])) for k in range(3)]
+        pair = dr.arange(UInt, len(qq) * t)
+        i = pair // t
+        j = pair - i * t
+        qx, qy, qz = (dr.gather(Float, a, i) for a in axes)
+        lx, ly, lz, solid_angle = (dr.gather(Float, a, j) for a in texels)
+        terms = convolution_term_kernel(DRJIT_OPS, qx, qy, qz, lx, ly, lz, solid_angle, float(shininess))
+        out[s : s + chunk] = np.asarray(terms, np.float64).reshape(len(qq), t).sum(axis=1)
     return out
 
 

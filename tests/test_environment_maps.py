@@ -445,3 +445,25 @@ def test_a_nan_direction_reads_a_texel_inside_the_table():
     dr.eval(out)
     got = np.asarray(out)
     assert np.all(np.isfinite(got)) and np.all((got >= table.min()) & (got <= table.max()))
+
+
+@pytest.mark.parametrize("shininess", [0.0, 37.0])
+def test_convolve_gathers_each_pair_as_the_broadcast_text_computes_it(shininess):
+    """`em.convolve` gathers every (query, texel) pair by index inside its Dr.Jit kernel (issue 33) instead of
+    copying in broadcast arrays: each query's sum equals the kernel text's NumPy run on the broadcast
+    arrays (float64; 1e-12 relative: the two runs' last bits), over several chunks of queries."""
+    rng = np.random.default_rng(21)
+    n = 32  # 6144 texels: chunks of 341 queries
+    env = rng.uniform(0.0, 2.0, 6 * n * n)
+    q = rng.normal(size=(700, 3))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    pts = em.cube_texels(n)["point"]
+    dw = em.texel_solid_angle(n, "exact") * env
+    got = em.convolve(env, q, shininess, "exact")
+    for rows in (slice(0, 3), slice(340, 343), slice(697, 700)):  # across the chunk boundaries
+        qq = q[rows]
+        lx, ly, lz = (pts[None, :, k] for k in range(3))
+        terms = em.convolution_term_kernel(
+            NUMPY_OPS, qq[:, 0:1], qq[:, 1:2], qq[:, 2:3], lx, ly, lz, dw[None, :], shininess
+        )
+        np.testing.assert_allclose(got[rows], terms.sum(axis=1), rtol=1e-12)
