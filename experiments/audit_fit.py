@@ -344,7 +344,8 @@ def _fit_case(
 
 
 def _channel_rows(names: Sequence[str], d: FitData) -> dict[str, np.ndarray]:
-    """Each per-channel parameter's residual rows (`channel_param_rows`) in the stacked data ``d``."""
+    """Each per-channel parameter's residual rows in the stacked data ``d``: its channel's (the last letter
+    of its name), a boolean mask over the raveled residuals (`channel_param_rows`)."""
     out = {}
     for k in names:
         own = np.zeros(d.target.shape, bool)
@@ -371,14 +372,12 @@ def channel_param_rows(method: Method, d: FitData) -> dict[str, np.ndarray] | No
         return np.ascontiguousarray(np.broadcast_to(out, d.target.shape))
 
     base = run(start)
-    rows = {}
+    rows = _channel_rows(names, d)
     for k in names:
-        own = np.zeros(d.target.shape, bool)
-        own["rgb".index(k[-1])] = True
+        own = rows[k].reshape(d.target.shape)
         for v in (d.params[k].lower, d.params[k].upper):
             if not (np.isfinite(v) and same_bits(run({**start, k: v})[~own], base[~own])):
                 return None
-        rows[k] = own.reshape(-1)
     return rows
 
 

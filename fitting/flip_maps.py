@@ -1,7 +1,7 @@
 """The ꟻLIP machinery of the ``flip`` metric (`rtfit.fitting.metrics`): its exposure range, its inputs,
 its maps memoised by content, and the maps of several pairs computed together (`compute_flip_maps`).
 
-ꟻLIP: HDR-ꟻLIP (`rtfit.fitting.hdr_flip`, NVIDIA's reference code step for step in float64; flip_evaluator,
+ꟻLIP: HDR-ꟻLIP (`rtfit.fitting.hdr_flip`, NVIDIA's reference code step for step in float32; flip_evaluator,
 that code's own Python package, is the tests' oracle) on float32 (H, W, 3) arrays with negative values
 clipped to 0; the exposure range by ꟻLIP's own rule on the luminances of the masked reference
 (`flip_exposures`; the module text of `rtfit.fitting.metrics` gives the details).
@@ -17,6 +17,7 @@ import math
 import threading
 import warnings
 from collections import OrderedDict
+from collections.abc import Callable
 
 import numpy as np
 
@@ -122,28 +123,37 @@ def flip_maps_shared(pairs: list[tuple[np.ndarray, np.ndarray]], params, digest_
     ``params``: each distinct image (by identity, then by content) filtered once per exposure however many
     pairs hold it (`rtfit.fitting.hdr_flip.hdr_flip_maps`): a case's rows share their reference, and the
     noise floor's draws hold it as their test. Each map equals its pair's map alone, bit for bit (an image's
-    features do not depend on the others; tests/test_metrics.py). ``digest_of``: an array's content digest
-    where the caller has made it (`compute_flip_maps`)."""
-    for a in (x for pair in pairs for x in pair):
-        _check_input(a, pairs[0][0].shape)
+    features do not depend on the others; tests/test_metrics.py). ``digest_of``: the caller's
+    `_digest_by_identity` (`compute_flip_maps`: its digests made once)."""
     if not (params["startExposure"] < params["stopExposure"] and params["numExposures"] >= 2):
         raise ValueError(f"internal: bad flip exposure parameters {params}")
+    digest_of = digest_of or _digest_by_identity()
     images: list[np.ndarray] = []
-    by_id: dict[int, int] = {}
     by_digest: dict[tuple, int] = {}
 
     def index(a: np.ndarray) -> int:
-        k = by_id.get(id(a))
-        if k is None:
-            digest = content_digest(a)[0] if digest_of is None else digest_of(a)
-            k = by_digest.setdefault(digest, len(images))
-            if k == len(images):
-                images.append(a)
-            by_id[id(a)] = k
+        k = by_digest.setdefault(digest_of(a), len(images))
+        if k == len(images):  # a new image: checked once, however many pairs hold it
+            _check_input(a, pairs[0][0].shape)
+            images.append(a)
         return k
 
     indexed = [(index(a), index(b)) for a, b in pairs]
     return hdr_flip_maps(images, indexed, params)
+
+
+def _digest_by_identity() -> Callable[[np.ndarray], tuple]:
+    """An array's content digest (`content_digest`), each array hashed once however often it is asked for
+    (by identity: the arrays are held by the caller throughout its call): a case's shared reference is
+    hashed once, not once a pair."""
+    digests: dict[int, tuple] = {}
+
+    def digest_of(a: np.ndarray) -> tuple:
+        if id(a) not in digests:
+            digests[id(a)] = content_digest(a)[0]
+        return digests[id(a)]
+
+    return digest_of
 
 
 def _check_input(a: np.ndarray, shape) -> None:
@@ -167,13 +177,7 @@ def compute_flip_maps(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> int
     (`flip_maps_shared`: each image's share once), and keep them in the memo, where `flip_map` finds them.
     Returns the number of maps computed."""
     keyed, todo = {}, []
-    digests: dict[int, tuple] = {}  # id → content digest of the pairs' arrays (alive through the call)
-
-    def digest_of(a: np.ndarray) -> tuple:
-        if id(a) not in digests:
-            digests[id(a)] = content_digest(a)[0]
-        return digests[id(a)]
-
+    digest_of = _digest_by_identity()
     for a, b in pairs:  # (the shared reference hashed once, not once a pair)
         key = ((digest_of(a), digest_of(b)), tuple(sorted(params.items())))
         with _map_lock:

@@ -89,17 +89,24 @@ def _lab_f(t):
     return np.where(t > _DELTA**3, np.cbrt(t), t / (3.0 * _DELTA**2) + 4.0 / 29.0)
 
 
-def _hunt_lab(rgb):
-    """Linear RGB (…, 3) → Hunt-adjusted CIELAB (L, 0.01·L·a, 0.01·L·b), as three arrays."""
-    xyz = (rgb @ _RGB_TO_XYZ.T) * _INV_ILLUMINANT
-    f = _lab_f(xyz)
-    lum = 116.0 * f[..., 1] - 16.0
-    return lum, 0.01 * lum * (500.0 * (f[..., 0] - f[..., 1])), 0.01 * lum * (200.0 * (f[..., 1] - f[..., 2]))
+def _linear(m: np.ndarray, planes) -> list[np.ndarray]:
+    """The three planes m · (p₀, p₁, p₂) of a 3 × 3 matrix ``m`` applied to three planes."""
+    c = [[float(v) for v in row] for row in m]  # Python floats: the planes keep their precision
+    return [c[i][0] * planes[0] + c[i][1] * planes[1] + c[i][2] * planes[2] for i in range(3)]
+
+
+def _hunt_lab(rgb) -> tuple:
+    """Three planes of linear RGB → Hunt-adjusted CIELAB (L, 0.01·L·a, 0.01·L·b), three planes of their
+    precision."""
+    xyz = _linear(_RGB_TO_XYZ, rgb)
+    fx, fy, fz = (_lab_f(p * float(k)) for p, k in zip(xyz, _INV_ILLUMINANT, strict=True))
+    lum = 116.0 * fy - 16.0
+    return lum, (0.01 * 500.0) * lum * (fx - fy), (0.01 * 200.0) * lum * (fy - fz)
 
 
 def _cmax() -> float:
     """ꟻLIP's c_max: the Hunt-adjusted HyAB distance of pure green and pure blue, raised to 0.7."""
-    lum, a, b = _hunt_lab(np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+    lum, a, b = _hunt_lab([np.array([0.0, 0.0]), np.array([1.0, 0.0]), np.array([0.0, 1.0])])
     return float((abs(lum[0] - lum[1]) + math.hypot(a[0] - a[1], b[0] - b[1])) ** _GQC)
 
 
@@ -227,12 +234,6 @@ _YCXCZ = np.stack(
 """Linear RGB → (Y + 16, Cx, Cz): ꟻLIP's RGB → XYZ → YCxCz, one linear map."""
 
 
-def _linear(m: np.ndarray, planes) -> list[np.ndarray]:
-    """The three planes m · (p₀, p₁, p₂) of a 3 × 3 matrix ``m`` applied to three planes."""
-    c = [[float(v) for v in row] for row in m]  # Python floats: the planes keep their precision
-    return [c[i][0] * planes[0] + c[i][1] * planes[1] + c[i][2] * planes[2] for i in range(3)]
-
-
 def image_features(image: np.ndarray, scales: np.ndarray, ppd: float = FLIP_PPD) -> ImageFeatures:
     """`ImageFeatures` of ``image`` (H, W, 3, linear RGB, non-negative) at each exposure multiplier of
     ``scales`` (E,)."""
@@ -250,14 +251,9 @@ def image_features(image: np.ndarray, scales: np.ndarray, ppd: float = FLIP_PPD)
     z1, z2 = _filter_axis(cz, spatial[2:4], -1)
     fcz = _filter_axis(z1, spatial[2:3], -2)[0] + _filter_axis(z2, spatial[3:4], -2)[0]
     yn = fy / 116.0
-    ill, inv = (float(v) for v in _ILLUMINANT), [float(v) for v in _INV_ILLUMINANT]  # (weak: float32 stays)
-    x_ill, _, z_ill = ill
+    x_ill, z_ill = float(_ILLUMINANT[0]), float(_ILLUMINANT[2])  # (Python floats: float32 stays)
     filtered_xyz = [(yn + fcx / 500.0) * x_ill, yn, (yn - fcz / 200.0) * z_ill]
-    rgb = [np.clip(p, 0.0, 1.0) for p in _linear(_XYZ_TO_RGB, filtered_xyz)]
-    fx, fyy, fz = (_lab_f(p * k) for p, k in zip(_linear(_RGB_TO_XYZ, rgb), inv, strict=True))
-    lum = 116.0 * fyy - 16.0
-    a = (0.01 * 500.0) * lum * (fx - fyy)
-    b = (0.01 * 200.0) * lum * (fyy - fz)
+    lum, a, b = _hunt_lab([np.clip(p, 0.0, 1.0) for p in _linear(_XYZ_TO_RGB, filtered_xyz)])
     feature = _feature_filters(ppd)
     dx_, ddx_, gx_ = _filter_axis(y16 / 116.0, feature[[1, 2, 0]], -1)  # along x: d/dx, d²/dx², Gaussian
     dx = _filter_axis(dx_, feature[0:1], -2)[0]

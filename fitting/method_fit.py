@@ -395,7 +395,7 @@ PARALLEL_FROM = 1 << 16
 (`difference_map`): NumPy's elementwise passes over such arrays release the GIL for most of their time, and a
 fit otherwise leaves every core but one idle (its BLAS runs on one thread: `one_blas_thread`). Below it (a
 64² audit's 4096 pixels: ~10 µs a pass) the threads would mostly wait for the GIL. Each point is evaluated
-alone, as before: the same Jacobian bit for bit (tests/test_method_fit.py). Issue 33: the polishes on every
+alone, as before: the same Jacobian bit for bit (tests/test_fit_tolerance.py). Issue 33: the polishes on every
 pixel were 16.5 of the 23 s of a 256² Cornell-box audit's fits."""
 
 
@@ -468,8 +468,10 @@ def grouped_differences(
         todo = []  # (group, side, point): one evaluation per side of each group
         for g in groups:
             for side in (0, 1):
-                x = xs[2 * g[0] + side] if len(g) == 1 else x0.copy()
-                if len(g) > 1:
+                if len(g) == 1:
+                    x = xs[2 * g[0] + side]
+                else:
+                    x = x0.copy()
                     for i in g:
                         x[i] = xs[2 * i + side][i]
                 todo.append((g, side, x))

@@ -51,13 +51,20 @@ def content_digest(*arrays) -> tuple:
 
 
 def memo_floor(
-    name: str, r, s, m, seed: int, draws: int, compute: Callable[[], float], digest: tuple | None = None
+    name: str,
+    r,
+    s,
+    m,
+    seed: int,
+    draws: int,
+    compute: Callable[[], float],
+    digest: Callable[[], tuple] | None = None,
 ) -> float:
     """The noise floor ``compute()`` of metric ``name``, computed once per (reference ``r``, stderr ``s``,
-    mask ``m``, seed, draws): the floors depend on nothing else (module text). ``digest``: their
-    `content_digest` where the caller has it (`rtfit.fitting.metrics.compute_metrics` makes it once for
-    all its metrics: issue 33, three digests of 3 MB a row at 256²)."""
-    key = (name, int(seed), int(draws), content_digest(r, s, m) if digest is None else digest)
+    mask ``m``, seed, draws): the floors depend on nothing else (module text). ``digest()``: their
+    `content_digest`, kept by the caller (`rtfit.fitting.metrics.compute_metrics` makes it once for all its
+    metrics: issue 33, three digests of 3 MB a row at 256²); None: made here."""
+    key = (name, int(seed), int(draws), content_digest(r, s, m) if digest is None else digest())
     with _floor_lock:
         if key in _floor_memo:
             _floor_memo.move_to_end(key)

@@ -61,7 +61,7 @@ to its per-channel maps; tests/test_metrics.py), the reference's filtered tone m
 the floor's draws filtered in one call (issue 33: 3 Gaussian filter calls a row instead of 15).
 
 ꟻLIP: HDR-ꟻLIP (`rtfit.fitting.hdr_flip`: NVIDIA's reference code, the code of
-``flip_evaluator.evaluate(reference, test, "HDR")``, step for step in float64; within 1e-4 of
+``flip_evaluator.evaluate(reference, test, "HDR")``, step for step in float32; within 1e-4 of
 flip_evaluator's float32 maps, tests/test_hdr_flip.py) on float32 (H, W, 3) arrays with negative values
 clipped to 0 (HDR-ꟻLIP accepts only non-negative radiance; clipping more than 1e-6 of the peak warns). The
 exposure range uses ꟻLIP's own rule, ACES tone mapper: start = log2(x_max / Y_max),
@@ -85,6 +85,7 @@ draws and the floors' memo.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from collections import OrderedDict
@@ -455,10 +456,6 @@ _METRICS = {
 }
 
 
-_FLOORED = frozenset({"max_abs", "ssim", "flip", "smape"})
-"""The metrics whose noise floors are Monte Carlo draws, memoised by the content of (r, s, m)."""
-
-
 # ------------------------------------------------------------------------------------- public API
 def compute_metrics(
     approx, reference, stderr, mask=None, names=ALL_METRICS, seed: int = 0, floor_draws: int = 4
@@ -477,14 +474,13 @@ def compute_metrics(
     if int(floor_draws) < 1:
         raise ValueError(f"floor_draws must be >= 1, got {floor_draws}")
     out, skipped = {}, {}
-    digest = None  # (r, s, m)'s content key, made once for every floor (`memo_floor`)
+    # (r, s, m)'s content key, made at the first floor that asks for it and kept for the others (`memo_floor`)
+    digest = functools.cache(lambda: content_digest(r, s, m))
     for name in dict.fromkeys(names):
         reason = _skip_reason(name, x, r, m, is_image)
         if reason is not None:
             skipped[name] = reason
             continue
-        if digest is None and name in _FLOORED:
-            digest = content_digest(r, s, m)
         out[name] = _METRICS[name](x, r, s, m, seed=seed, draws=int(floor_draws), floor_digest=digest)
     return MetricResults(out, skipped)
 

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
@@ -85,6 +87,17 @@ def _per_channel(ops, channel, t, k, s_r, s_g, s_b):
     return s * ops.exp(-k * t)
 
 
+def _per_channel_data(seed: int, n: int):
+    """(t, channel, y, parameter box) of `_per_channel` data: n times a channel, s = (1, 2, 0.5), k = 1.5,
+    noise σ = 0.01."""
+    rng = np.random.default_rng(seed)
+    t = np.tile(rng.uniform(0.0, 2.0, n), 3)
+    channel = np.repeat([0.0, 1.0, 2.0], n)
+    y = np.repeat([1.0, 2.0, 0.5], n) * np.exp(-1.5 * t) + rng.normal(0.0, 0.01, 3 * n)
+    box = {"k": Param(1.0, 0.0, 5.0), **{f"s_{c}": Param(1.0, 0.0, 4.0) for c in "rgb"}}
+    return t, channel, y, box
+
+
 def test_grouped_differences_give_scipys_jacobian_with_fewer_evaluations():
     """Parameters declared to change disjoint residuals (`fit_method` ``param_rows``: s_r, s_g, s_b, one
     channel each) share the central-difference Jacobian's evaluations (`grouped_differences`): the fit
@@ -98,12 +111,7 @@ def test_grouped_differences_give_scipys_jacobian_with_fewer_evaluations():
     if "workers" not in inspect.signature(least_squares).parameters:
         pytest.skip("this SciPy's least_squares takes no workers map (the fits run ungrouped)")
 
-    rng = np.random.default_rng(4)
-    n = 30
-    t = np.tile(rng.uniform(0.0, 2.0, n), 3)
-    channel = np.repeat([0.0, 1.0, 2.0], n)
-    y = np.repeat([1.0, 2.0, 0.5], n) * np.exp(-1.5 * t) + rng.normal(0.0, 0.01, 3 * n)
-    box = {"k": Param(1.0, 0.0, 5.0), **{f"s_{c}": Param(1.0, 0.0, 4.0) for c in "rgb"}}
+    t, channel, y, box = _per_channel_data(seed=4, n=30)
     calls = []
     method = Method("pc", "per channel", lambda ops, **kw: calls.append(1) or _per_channel(ops, **kw),
                     inputs=(Input("channel"), Input("t")), params=box)  # fmt: skip
@@ -146,16 +154,11 @@ def test_threaded_differences_give_the_serial_fit_bit_for_bit(monkeypatch):
     monkeypatch.setattr(method_fit, "_threads", lambda: 2)
     assert method_fit.difference_map(method_fit.PARALLEL_FROM, "numpy") is not None
 
-    rng = np.random.default_rng(9)
-    n = 24
-    t = np.tile(rng.uniform(0.0, 2.0, n), 3)
-    channel = np.repeat([0.0, 1.0, 2.0], n)
-    y = np.repeat([1.0, 2.0, 0.5], n) * np.exp(-1.5 * t) + rng.normal(0.0, 0.01, 3 * n)
-    box = {"k": Param(1.0, 0.0, 5.0), **{f"s_{c}": Param(1.0, 0.0, 4.0) for c in "rgb"}}
+    t, channel, y, box = _per_channel_data(seed=9, n=24)
     threads = []
 
     def kernel(ops, **kw):
-        threads.append(__import__("threading").get_ident())
+        threads.append(threading.get_ident())
         return _per_channel(ops, **kw)
 
     method = Method("pc", "per channel", kernel, inputs=(Input("channel"), Input("t")), params=box)
