@@ -103,7 +103,7 @@ from . import emitters, sky_integrator
 from .budget import ABSORB, ArmedMedia, LaneCounter, check_finite, counters
 from .cache import ComputedEntry, PassEntry, array_digest, pool_passes
 from .estimators import PassResult, chunk_ranges, mean_var, moments, sub_seed
-from .variants import cuda_available, use_variant
+from .variants import callers_variant, cuda_available, use_variant
 
 __all__ = [
     "DEFAULT_SCENE",
@@ -697,6 +697,7 @@ def _use_variant(variant: str):
     return mi
 
 
+@callers_variant()  # the caller's variant comes back (issue 33: the spectral one was left active)
 def render_sky(
     spec: AtmosphereSpec,
     dirs: np.ndarray,

@@ -313,11 +313,15 @@ def test_spectral_reference_matches_spectral_quadrature(tmp_path):
         spectral_single_scattering_quadrature,
     )
 
+    import mitsuba
+
     spec = library_atmosphere(sun_elevation_deg=20.0)
     d, _, _ = hemisphere_directions(6, 3)
+    mitsuba.set_variant("llvm_ad_rgb")  # the caller's: put back afterwards (issue 33: it was left spectral)
     r = render_sky(
         spec, d, spp=4096, pass_spp=2048, seed=5, variant="llvm_ad_spectral", max_depth=2, cache_dir=tmp_path
     )
+    assert mitsuba.variant() == "llvm_ad_rgb"
     q = spectral_single_scattering_quadrature(spec, d, steps=1000)["srgb"]
     z = (r["mean"] - q) / r["stderr"]
     assert np.abs(z).max() < 4.5
