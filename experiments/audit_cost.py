@@ -27,13 +27,15 @@ _UNIFORM_FLOATS = 1024
 75), is timed as a shader's constant buffer (`rtfit.realtime.arrays.Uniforms`): 256 float4, a uniform array
 an engine declares; a larger table (a cube map's 6·16² texels) is a texture, gathered from as it is."""
 _COST_PROBE = 1 << 12  # elements of the first, sizing call of a cost measurement
-_COST_CALL_SECONDS = 0.02
-"""The sized call's target duration: a slow kernel is timed on fewer elements. 20 ms is five scheduler
-ticks and ≥ 2^18 elements for a kernel up to 80 ns a pixel (far past every cache); the median's stop
-(`cost._median_time`) is what makes the number precise. Issue 33 (session 20): at 0.05 s the 20 slowest
-kernels of a Cornell-box audit ran 6–7 calls of 45–135 ms each (≈ 4 CPU s); at 0.02 s the audit's
-evaluation took 6.6 / 6.6 s against 10.8 / 8.6 (alternated, a loaded machine) and the 98 costs moved by a
-median factor 1.01 (geometric mean 0.97), inside the spread of two runs at 0.05 s (0.63–2.22)."""
+_COST_CALL_SECONDS = 0.005
+"""The sized call's target kernel time (s; `cost.time_drjit` times the kernels, not the Python tracing them):
+a slow kernel is timed on fewer elements. 5 ms is ≥ 2^18 elements for a kernel up to 19 ns a pixel (1 MiB
+an input, past the per-core caches) and every kernel up to 5 ns a pixel runs on all 2^20; the median's
+stop (`cost._median_time`) is what makes the number precise. Issue 33: at 0.05 s the 20 slowest kernels of
+a Cornell-box audit ran 6–7 calls of 45–135 ms each (≈ 4 CPU s); session 20 set 0.02 s of wall time,
+which, the tracing counted in the sizing call's 4096 elements, gave measured calls of 1–5 ms. Session 23
+times the kernels alone: at 0.02 s of kernel time the audit's 38 costs took 3.1 s against 1.8 s; at
+0.005 s, 1.9–2.2 s, their calls as long as they were."""
 _COST_MIN_SECONDS = 0.05
 """The least time the measured call is repeated for (and at least 7 times; the median is the cost), unless its
 median is known first (`cost._median_time`: its 95 % interval within ± 3 %, after 6 calls or more): a kernel

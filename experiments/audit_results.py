@@ -23,6 +23,7 @@ from .audit import SceneInfo
 from .audit_family import FamilyCase
 from .audit_output import fitted_on_text, reference_record, write_audit
 from .audit_selection import Selection
+from .cost_store import COST_NOTE
 from .families import AUDITED
 from .records import SCHEMA, Check, Results, from_json, plain_json, to_json
 from .runner import created_now, device_description, versions
@@ -303,7 +304,7 @@ def results_record(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: S
     costs = [
         {"method": mid, "label": c["label"], "backend": c["backend"], "ns_per_pixel": c["ns_per_pixel"],
          "pixels_per_second": c["pixels_per_second"], "elements": c["elements"], "repeats": c["repeats"],
-         "note": c.get("note", "per pixel: the scene's own inputs, tiled, as float32; declared parameters"),
+         "note": c.get("note", COST_NOTE),
          **{k: c.get(k) for k in _PRECOMPUTE_KEYS}}
         for mid, c in r.costs.items()
     ]  # fmt: skip

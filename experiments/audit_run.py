@@ -34,6 +34,7 @@ import time
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -68,12 +69,13 @@ from .audit_selection import (
     wrong_format,
 )
 from .cost import time_precompute
+from .cost_store import CostStore
 from .families import AUDITED, METHOD_TABLES
 from .progress import Stage
 from .records import Check, to_json
 from .registry import LIMITS
 from .run_settings import DEFAULT_PASS_SPP, DEFAULT_SPP, RunSettings
-from .runner import use_variant_backend
+from .runner import device_description, use_variant_backend
 
 __all__ = [
     "AUDITED",
@@ -290,9 +292,11 @@ def audit(
     costs = {} if costs is None else costs
     plan: list[tuple[AuditFamily, Applicability, FamilyCase]] = []  # the finished cases, in order
     done: list[Applicability] = []
+    store = CostStore(run_settings.cache_dir, device_description(run_settings.variant))
     run = _CaseRun(
-        sel, bool(fit), tuple(metrics), run_settings.seed, backend, cost_elements, costs, timings, by_family
-    )
+        sel, bool(fit), tuple(metrics), run_settings.seed, backend, cost_elements, costs, timings, by_family,
+        store,
+    )  # fmt: skip
     variant, spp, pass_spp = run_settings.variant, run_settings.spp, run_settings.pass_spp
     settings = {"variant": variant, "spp": spp, "pass_spp": pass_spp, "seed": run_settings.seed, "sel": sel}
     t0 = time.perf_counter()
@@ -411,6 +415,9 @@ class _CaseRun:
     costs: dict[str, dict]
     timings: dict[str, float]
     by_family: dict[str, dict[str, float]]
+    store: CostStore
+    """The costs kept across runs (`cost_store`): a method timed by an earlier run on the same inputs and
+    machine is not timed again."""
     notes: list[str] = field(default_factory=list)
     failed: list[dict] = field(default_factory=list)
     """Checks of this audit that failed while it ran (a precompute that raised: `precompute`)."""
@@ -507,7 +514,11 @@ class _CaseRun:
                     "note": f"cost not measured like the others: {case.uncosted[row_id]}",
                 }  # fmt: skip
             if method.id not in self.costs:
-                cost = method_cost(method, case, self.backend, self.cost_elements, tiles=tiles)
+                key = None if user else self.store.key(method, case.channel_inputs[0], self.backend,
+                                                       self.cost_elements)  # fmt: skip
+                cost = self.store.cost(
+                    key, partial(method_cost, method, case, self.backend, self.cost_elements, tiles=tiles)
+                )
                 self.costs[method.id] = {"label": method.label, **cost}
             if row_id in case.precompute and "precompute_trigger" not in self.costs[method.id]:
                 self.precompute(method, case, case.precompute[row_id])

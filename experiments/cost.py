@@ -97,22 +97,31 @@ def _median_known(times) -> bool:
     return max(ci[1] - med, med - ci[0]) <= MEDIAN_CI_REL * med
 
 
-def _median_time(call: Callable[[], None], repeats: int, min_seconds: float) -> tuple[float, int]:
+def _median_time(call: Callable[[], float | None], repeats: int, min_seconds: float) -> tuple[float, int]:
     """The median time of ``call()`` and the number of calls timed: until the median is known
     (`_median_known`: its 95 % interval within ± 3 %, which needs 6 calls or more), else until
-    ``repeats`` calls and ``min_seconds`` have passed (at most 1000 calls). Issue 33 (session 19): before,
-    every timing ran its ``repeats`` and ``min_seconds`` whatever the spread; a stable kernel is now known
-    after 6 calls (the fewest whose interval reaches 95 %), and a noisy one (a loaded machine) still runs to
-    that cap."""
+    ``repeats`` calls and ``min_seconds`` (of wall time) have passed (at most 1000 calls). A call's time is
+    what it returns (`time_drjit`: its kernels' own), or its wall time where it returns None. Issue 33
+    (session 19): before, every timing ran its ``repeats`` and ``min_seconds`` whatever the spread; a stable
+    kernel is now known after 6 calls (the fewest whose interval reaches 95 %), and a noisy one (a loaded
+    machine) still runs to that cap."""
     times: list[float] = []
     start = time.perf_counter()
     while len(times) < repeats or (time.perf_counter() - start < min_seconds and len(times) < 1000):
         if _median_known(times):
             break
         t0 = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - t0)
+        own = call()
+        times.append(time.perf_counter() - t0 if own is None else own)
     return statistics.median(times), len(times)
+
+
+def _kernel_seconds(history: list) -> float | None:
+    """Σ of the execution times (Dr.Jit reports ms) of the kernels in ``history`` (`dr.kernel_history`:
+    each launch since the last read), in s; None where no launch reported one (a result that needed no
+    kernel: its call's wall time stands in, `time_drjit`)."""
+    times = [k["execution_time"] for k in history if k.get("execution_time") is not None]
+    return sum(times) * 1e-3 if times else None
 
 
 def time_drjit(
@@ -123,16 +132,28 @@ def time_drjit(
     min_seconds: float = 0.2,
     warm_up: bool = True,
 ) -> Timing:
-    """Median time of ``fn(*args)`` with evaluation and device sync inside the timed region, after a warm-up
-    call (kernel compilation or cache load); ``warm_up`` False where the caller has just run the same
-    kernel (Dr.Jit's kernels do not depend on the arrays' size: `audit_cost.method_cost`'s sizing call)."""
+    """Median time of ``fn(*args)``'s kernels, after a warm-up call (kernel compilation or cache load);
+    ``warm_up`` False where the caller has just run the same kernel (Dr.Jit's kernels do not depend on the
+    arrays' size: `audit_cost.method_cost`'s sizing call).
+
+    A call's time is the execution time Dr.Jit's kernel history reports for the kernels it launched
+    (``JitFlag.KernelHistory``: measured by Dr.Jit around each launch, on the CPU and the GPU), not the wall
+    time around it: the wall time also held the Python tracing of the kernel text, which an engine's shader
+    does not pay. Issue 33 (session 23): on a Cornell-box audit's 38 methods that tracing was 3–180 % of
+    the kernel time (an ibl-samples kernel: 3.6 ms of tracing around 1.1 ms of kernel at 4096 elements), so
+    each cost was raised by its own text's length, and `audit_cost.method_cost`'s sizing call, taking it
+    for kernel time, sized the measured calls to 1–5 ms instead of its 20 ms. A call that launched no
+    kernel is timed by its wall time (`_kernel_seconds`)."""
     dr.eval(*[a for a in args if dr.is_array_v(a)])
     dr.sync_thread()
 
-    def call():
-        out = fn(*args)
-        dr.eval(out)
-        dr.sync_thread()
+    def call() -> float | None:
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history()  # (read and emptied: only this call's launches below)
+            out = fn(*args)
+            dr.eval(out)
+            dr.sync_thread()
+            return _kernel_seconds(dr.kernel_history())
 
     if warm_up:
         call()  # warm-up: kernel compilation or cache load
@@ -176,8 +197,11 @@ def time_precompute(run: Callable[[], Any], repeats: int = PRECOMPUTE_REPEATS) -
 def time_numpy(
     fn: Callable, args: tuple, elements: int, repeats: int = 5, min_seconds: float = 0.2
 ) -> Timing:
-    fn(*args)
-    seconds, n = _median_time(lambda: fn(*args), repeats, min_seconds)
+    def call() -> None:  # (its wall time: NumPy runs on the host, nothing is traced)
+        fn(*args)
+
+    call()
+    seconds, n = _median_time(call, repeats, min_seconds)
     return Timing(seconds, elements, n)
 
 

@@ -306,14 +306,14 @@ def test_spectral_quadrature_at_550nm_is_the_rgb_green_channel():
 def test_spectral_reference_matches_spectral_quadrature(tmp_path):
     """Mitsuba's spectral variant (volpathmis, max_depth 2, λ⁻⁴ medium, 5778 K sun, film
     conversion per path) vs the float64 spectral quadrature: z of every pixel and of the sums."""
+    import mitsuba
+
     from rtfit.reference.nishita_sky import (
         hemisphere_directions,
         library_atmosphere,
         render_sky,
         spectral_single_scattering_quadrature,
     )
-
-    import mitsuba
 
     spec = library_atmosphere(sun_elevation_deg=20.0)
     d, _, _ = hemisphere_directions(6, 3)
