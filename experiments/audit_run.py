@@ -45,6 +45,7 @@ from rtfit.fitting import (
     compute_metrics,
     prime_flip,
 )
+from rtfit.fitting.metric_noise import content_digest
 from rtfit.realtime.methods import Method
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
 from rtfit.reference.estimators import GBuffer, gbuffer, is_pass_through
@@ -455,15 +456,17 @@ class _CaseRun:
         self.timed[pre] = record
         self.costs[method.id].update(record)
 
-    def metrics_of(self, img: np.ndarray, case: FamilyCase, sigma: np.ndarray, row: str):
-        """The row's metrics beside the noise floor. A metric's warning about the row's values (ꟻLIP clips
-        an approximation's negative radiance to 0: an SH L2 ring below zero) is the row's property, not a
-        fault of the run: it becomes a note of the report naming the row and the case."""
+    def metrics_of(self, img: np.ndarray, case: FamilyCase, sigma: np.ndarray, row: str, key: tuple):
+        """The row's metrics beside the noise floor (``key``: the `content_digest` of the case's reference
+        mean, ``sigma`` and mask, made once for its rows). A metric's warning about the row's values (ꟻLIP
+        clips an approximation's negative radiance to 0: an SH L2 ring below zero) is the row's property, not
+        a fault of the run: it becomes a note of the report naming the row and the case."""
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             m = compute_metrics(
-                img, case.reference.mean, sigma, case.mask, names=self.metrics, seed=self.seed
-            )
+                img, case.reference.mean, sigma, case.mask, names=self.metrics, seed=self.seed,
+                reference_key=key,
+            )  # fmt: skip
         for w in caught:
             note = f"{row} ({case.label}): {str(w.message).splitlines()[0]}"
             if note not in self.notes:
@@ -558,8 +561,9 @@ class _CaseRun:
         if "flip" in self.metrics:
             images = [o.image for o in rows.values()]
             prime_flip(images, base.reference.mean, sigma, base.mask, seed=self.seed)
+        key = content_digest(base.reference.mean, sigma, base.mask)  # every row's reference: once a case
         for row_id, o in rows.items():
-            o.metrics = self.metrics_of(o.image, base, sigma, row_id)
+            o.metrics = self.metrics_of(o.image, base, sigma, row_id, key)
         self.timings["evaluation"] += time.perf_counter() - t3
         spent["evaluation"] += time.perf_counter() - t3
         return rows
