@@ -41,7 +41,14 @@ from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float, jax_ops, 
 from rtfit.realtime.methods import Method, Param
 
 from .blas_threads import one_blas_thread
-from .least_squares import FitResult, bound_flags, covariance_from_jacobian, fit_least_squares, normalised_svd
+from .least_squares import (
+    AT_BOUND_RTOL,
+    FitResult,
+    bound_flags,
+    covariance_from_jacobian,
+    fit_least_squares,
+    normalised_svd,
+)
 
 __all__ = [
     "CHECK_KAPPA",
@@ -99,17 +106,23 @@ def residual_variance(ssr: float, dof: int, absolute_sigma: bool = False) -> flo
     return 1.0 if absolute_sigma else ssr / max(dof, 1)
 
 
-def gauss_newton_gain_small(jac, r, dof: int, absolute_sigma: bool = False) -> bool:
+def gauss_newton_gain_small(jac, r, dof: int, absolute_sigma: bool = False, free=None) -> bool:
     """Whether the full Gauss–Newton step from the point (residuals ``r``, Jacobian ``jac``) would lower
     the SSR by at most κ²·s² (``CHECK_KAPPA``; s² = SSR/dof, or 1 with ``absolute_sigma``): that gain is
     ‖P r‖², P the projection on J's column space (directions below ``FD_RCOND`` of the column-normalised
     J's largest singular value left out, as the covariance does), and |δᵢ|/seᵢ ≤ √(‖P r‖²/s²) bounds how
     far each value lies from the linearised optimum in its stderr. The check of `noise_ftol`'s premise:
-    TRF stopped by ftol after a step that gained little, but in a flat valley many such steps remain."""
+    TRF stopped by ftol after a step that gained little, but in a flat valley many such steps remain.
+    ``free``: the columns the step may move (`held_at_bounds`' complement; None: all): a value a bound
+    holds has no gain to give, however large the unbounded step's."""
     jac = np.asarray(jac, np.float64)
     r = np.asarray(r, np.float64)
     if not (np.all(np.isfinite(jac)) and np.all(np.isfinite(r))):
         return False
+    if free is not None:
+        jac = jac.reshape(r.size, -1)[:, np.asarray(free, bool)]
+        if jac.shape[1] == 0:
+            return True
     ssr = float(r @ r)
     s2 = residual_variance(ssr, dof, absolute_sigma)
     u, _, _, keep, _, live = normalised_svd(jac, FD_RCOND)  # J's column space, as the covariance takes it
@@ -117,6 +130,26 @@ def gauss_newton_gain_small(jac, r, dof: int, absolute_sigma: bool = False) -> b
         return True
     gain = float(np.sum((u[:, keep].T @ r) ** 2))
     return gain <= CHECK_KAPPA**2 * s2
+
+
+def held_at_bounds(x, lo, hi, jac, r) -> np.ndarray:
+    """Which values of the point ``x`` (the solver's variables, bounds ``lo``, ``hi``) a bound holds: within
+    `AT_BOUND_RTOL` of a finite bound (`bound_flags`' rule) with the cost's descent −Jᵀr pointing out through
+    it. A Gauss–Newton step along them would leave the box, so its gain is not there to take.
+
+    Issue 33 (session 23): the check after TRF's ftol stop counted that gain, so fits with values at their
+    bounds (the ambient-aperture intersection's coefficients at ±4, seed-sdf-bias) always went on at the
+    fixed tolerance, and the polish on every pixel ran a second solve that moved nothing: 2.2 of the 9 s of
+    two families' fits at 256²."""
+    x, lo, hi = (np.asarray(a, np.float64) for a in (x, lo, hi))
+    g = np.asarray(jac, np.float64).reshape(np.size(r), -1).T @ np.asarray(r, np.float64)
+    both = np.isfinite(lo) & np.isfinite(hi)
+    with np.errstate(invalid="ignore"):
+        tol_lo = AT_BOUND_RTOL * np.where(both, hi - lo, np.maximum(1.0, np.abs(lo)))
+        tol_hi = AT_BOUND_RTOL * np.where(both, hi - lo, np.maximum(1.0, np.abs(hi)))
+        at_lo = np.isfinite(lo) & (x - lo <= tol_lo) & (g >= 0.0)
+        at_hi = np.isfinite(hi) & (hi - x <= tol_hi) & (g <= 0.0)
+    return at_lo | at_hi
 
 
 FD_RCOND = 1e-8
@@ -573,7 +606,8 @@ def _fit_trf(
         tight = rtol * TRF_TOL_FACTOR
         sol = solve(x0, max(noise_ftol(dof, float(r0 @ r0), absolute_sigma), tight))
         nfev = int(sol.nfev)
-        if sol.status == 2 and not gauss_newton_gain_small(sol.jac, sol.fun, dof, absolute_sigma):
+        at_bound = held_at_bounds(sol.x, lo, hi, sol.jac, sol.fun)
+        if sol.status == 2 and not gauss_newton_gain_small(sol.jac, sol.fun, dof, absolute_sigma, ~at_bound):
             # Stopped on ftol with a Gauss–Newton gain left: possibly crawling along a flat valley (each
             # step gains little, many remain). Go on at the fixed tolerance, and keep where that ends if it
             # gained more than CHECK_KAPPA² s² (a value moved by more than that fraction of its stderr);

@@ -173,3 +173,61 @@ def test_threaded_differences_give_the_serial_fit_bit_for_bit(monkeypatch):
         assert len(set(threads)) > 1  # the points did run on other threads
         assert threaded.values == serial.values and threaded.stderr == serial.stderr
         assert threaded.ssr == serial.ssr and threaded.steps == serial.steps
+
+
+def test_a_value_a_bound_holds_gives_no_gauss_newton_gain():
+    """`held_at_bounds`: a value at its bound whose descent −Jᵀr points out of the box is held; one at its
+    bound with the descent pointing inward, an interior one and an infinite bound are not. The gain check
+    (`gauss_newton_gain_small`) left to the free columns: r lies along the held column alone, so the
+    unbounded step's gain (‖r‖², huge against s²) is not there to take."""
+    from rtfit.fitting.method_fit import gauss_newton_gain_small, held_at_bounds
+
+    n = 1000
+    rng = np.random.default_rng(3)
+    j = np.stack([np.ones(n), rng.standard_normal(n)], axis=1)
+    j[:, 1] -= j[:, 1].mean()  # orthogonal columns
+    r = -np.ones(n)  # −Jᵀr = (n, 0): descent pushes column 0 up
+    lo, hi = np.array([0.0, -np.inf]), np.array([4.0, np.inf])
+    assert held_at_bounds([4.0, 0.3], lo, hi, j, r).tolist() == [True, False]  # pushed out through 4
+    assert held_at_bounds([0.0, 0.3], lo, hi, j, r).tolist() == [False, False]  # pushed inward from 0
+    assert held_at_bounds([2.0, 0.3], lo, hi, j, r).tolist() == [False, False]
+    assert held_at_bounds([4.0 - 1e-7, 0.3], lo, hi, j, r).tolist() == [True, False]  # within 1e-6 · 4
+    dof = n - 2
+    assert not gauss_newton_gain_small(j, r, dof)
+    assert gauss_newton_gain_small(j, r, dof, free=[False, True])
+    assert gauss_newton_gain_small(j, r, dof, free=[False, False])
+
+
+def _line(ops, t, a, b):
+    return a * t + b
+
+
+LINE = Method(
+    "line-test",
+    "A line",
+    _line,
+    inputs=(Input("t", "1", "abscissa"),),
+    params={"a": Param(0.5, 0.0, 1.0, unit="1"), "b": Param(0.0, -5.0, 5.0, unit="1")},
+)
+
+
+def test_a_fit_held_at_its_bound_is_solved_once(monkeypatch):
+    """y = 3 t + 1 + noise fitted with a ≤ 1: a stops at its bound. The unbounded Gauss–Newton step would
+    still gain (it moves a past 1), so before session 23 the fit always went on at the fixed tolerance, a
+    second solve that moved nothing; now TRF runs once and the values are those of SciPy's TRF at
+    tolerances 1e-15 (an independent fit of the same residual)."""
+    import scipy.optimize
+
+    rng = np.random.default_rng(11)
+    t = np.linspace(0.0, 1.0, 4000)
+    y = 3.0 * t + 1.0 + rng.normal(0.0, 0.01, t.size)
+    solves = []
+    real = scipy.optimize.least_squares
+    monkeypatch.setattr(scipy.optimize, "least_squares", lambda *a, **k: solves.append(1) or real(*a, **k))
+    fit = fit_method(LINE, {"t": t}, y, solver="trf")
+    assert len(solves) == 1 and fit.at_bound["a"] and not fit.at_bound["b"]
+    ref = real(lambda x: x[0] * t + x[1] - y, [0.5, 0.0], bounds=([0.0, -5.0], [1.0, 5.0]), ftol=1e-15,
+               xtol=1e-15, gtol=1e-15)  # fmt: skip
+    assert fit.values["a"] == pytest.approx(ref.x[0], abs=1e-6) and fit.values["b"] == pytest.approx(
+        ref.x[1], abs=1e-4
+    )
