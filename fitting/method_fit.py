@@ -27,10 +27,12 @@ the same Jacobian bit for bit.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import inspect
 import math
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from typing import Any
@@ -354,6 +356,22 @@ def _held_arrays(value: Any, out: list, depth: int = 0) -> list:
     return out
 
 
+@contextlib.contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Python's cycle collector off for the block (on again after it, where it was on): a frozen function's
+    recording must not run the finalisers of unrelated garbage. Issue 33 (session 23): one run of the test
+    suite aborted (``Fatal Python error: Aborted``, in pcf-soft-shadows' frozen fit) while the collector ran
+    inside the recording of `_drjit_run`, in a worker holding earlier tests' garbage (Mitsuba scenes among
+    it); not reproduced alone. Reference counting still frees everything else as it goes."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 def _drjit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[str, float]], Any]:
     """``run(params) -> prediction``: ``method``'s kernel text on float64 Dr.Jit arrays of the default backend
     (`Method.fit_ops` ``"drjit"``), back as NumPy (a tuple output stacked). The array inputs are converted
@@ -395,14 +413,16 @@ def _drjit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[s
         if frozen is None:  # the second call: recorded
             try:
                 f, tables = dr.freeze(frozen_kernel), _held_arrays(list(others.values()), [])
-                out = as_numpy(f(arrays, tables, p))
+                with _collector_paused():
+                    out = as_numpy(f(arrays, tables, p))
             except Exception:  # a text that cannot be frozen: traced at every call
                 state["frozen"] = False
                 return as_numpy(method(DRJIT_OPS, x, p))
             state["frozen"], state["check"] = (f, tables), True
             return out
         f, tables = frozen
-        out = as_numpy(f(arrays, tables, p))
+        with _collector_paused():
+            out = as_numpy(f(arrays, tables, p))
         if state["check"]:  # the first replay, against the trace
             state["check"] = False
             traced = as_numpy(method(DRJIT_OPS, x, p))

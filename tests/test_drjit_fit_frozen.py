@@ -97,3 +97,28 @@ def test_a_replay_that_is_not_the_trace_is_caught_and_traced_from_then_on():
     # fresh trace's (the replay's own value is dropped)
     assert [float(o[0]) for o in outs] == [1.0, 2.0, 3.0, 4.0, 5.0]
     assert len(calls) == 5
+
+
+def test_the_cycle_collector_is_paused_around_a_frozen_call_and_restored():
+    """`method_fit._collector_paused`: off inside (a recording must not run unrelated finalisers), back on
+    after, after an exception too, and left off where the caller had it off."""
+    import gc
+
+    import pytest
+
+    from rtfit.fitting.method_fit import _collector_paused
+
+    assert gc.isenabled()
+    with _collector_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    with pytest.raises(RuntimeError), _collector_paused():
+        raise RuntimeError("restored on an exception")
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with _collector_paused():
+            pass
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
