@@ -139,8 +139,8 @@ def time_drjit(
     A call's time is the execution time Dr.Jit's kernel history reports for the kernels it launched
     (``JitFlag.KernelHistory``: measured by Dr.Jit around each launch, on the CPU and the GPU), not the wall
     time around it: the wall time also held the Python tracing of the kernel text, which an engine's shader
-    does not pay. Issue 33 (session 23): on a Cornell-box audit's 38 methods that tracing was 3–180 % of
-    the kernel time (an ibl-samples kernel: 3.6 ms of tracing around 1.1 ms of kernel at 4096 elements), so
+    does not pay. Issue 33 (session 23): on a Cornell-box audit's methods that tracing added 7–180 % to
+    the kernel time (the SDF cone tracer: 3.6 ms of tracing around 1.1 ms of kernel at 4096 elements), so
     each cost was raised by its own text's length, and `audit_cost.method_cost`'s sizing call, taking it
     for kernel time, sized the measured calls to 1–5 ms instead of its 20 ms. A call that launched no
     kernel is timed by its wall time (`_kernel_seconds`)."""
