@@ -178,7 +178,8 @@ def time_precompute(run: Callable[[], Any], repeats: int = PRECOMPUTE_REPEATS) -
     the device, as `time_drjit`): a warm-up call (kernel compilation, caches), then ``repeats`` calls, or one
     where the warm-up took `PRECOMPUTE_LONG` s or more, or none where it took `PRECOMPUTE_ONCE` s or more
     (the warm-up is the timing: ``repeats`` 1); no minimum duration. ``elements`` is 1: the timing is of one
-    precompute (``Timing.seconds``)."""
+    precompute (``Timing.seconds``). Wall time, unlike `time_drjit`'s kernel time: a precompute's host work
+    (NumPy, Mitsuba's ray tracing, its launches) is part of what an engine's bake pays."""
 
     def call():
         dr.eval(run())
