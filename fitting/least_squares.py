@@ -44,6 +44,7 @@ __all__ = [
     "covariance_from_jacobian",
     "fit_curve",
     "fit_least_squares",
+    "near_bounds",
     "normalised_svd",
 ]
 
@@ -224,18 +225,26 @@ def _covariance(jac: np.ndarray, ssr: float, dof: int, absolute_sigma: bool, rco
     return cov, rank
 
 
+def near_bounds(x, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+    """(at_lower, at_upper), boolean arrays: whether each value of ``x`` lies within `AT_BOUND_RTOL` of its
+    finite ``lower`` / ``upper`` bound (of (upper − lower) when both are finite, else of max(1, |bound|)).
+    The one rule `bound_flags` reports and `rtfit.fitting.method_fit.held_at_bounds` acts on."""
+    x, lo, hi = (np.asarray(a, np.float64) for a in (x, lower, upper))
+    both = np.isfinite(lo) & np.isfinite(hi)
+    with np.errstate(invalid="ignore"):
+        tol_lo = AT_BOUND_RTOL * np.where(both, hi - lo, np.maximum(1.0, np.abs(lo)))
+        tol_hi = AT_BOUND_RTOL * np.where(both, hi - lo, np.maximum(1.0, np.abs(hi)))
+        return np.isfinite(lo) & (x - lo <= tol_lo), np.isfinite(hi) & (hi - x <= tol_hi)
+
+
 def bound_flags(names, params, x) -> tuple[dict[str, bool], dict[str, bool]]:
     """(at_lower, at_upper): per parameter name, whether the value ``x[i]`` lies within `AT_BOUND_RTOL` of
-    its finite lower / upper bound (of (upper − lower) when both are finite, else of max(1, |bound|))."""
-    at_lower, at_upper = {}, {}
-    for i, (nm, p) in enumerate(zip(names, params, strict=True)):
-        if p.kind == "both":
-            tol = AT_BOUND_RTOL * (p.upper - p.lower)
-        else:
-            tol = AT_BOUND_RTOL * max(1.0, abs(p.lower if p.kind == "lower" else p.upper))
-        at_lower[nm] = bool(math.isfinite(p.lower) and x[i] - p.lower <= tol)
-        at_upper[nm] = bool(math.isfinite(p.upper) and p.upper - x[i] <= tol)
-    return at_lower, at_upper
+    its finite lower / upper bound (`near_bounds`)."""
+    lo, hi = near_bounds(x, [p.lower for p in params], [p.upper for p in params])
+    return (
+        {nm: bool(v) for nm, v in zip(names, lo, strict=True)},
+        {nm: bool(v) for nm, v in zip(names, hi, strict=True)},
+    )
 
 
 def covariance_from_jacobian(jac, ssr: float, dof: int, *, absolute_sigma: bool = False, rcond: float = 0.0):

@@ -44,11 +44,11 @@ from rtfit.realtime.methods import Method, Param
 
 from .blas_threads import one_blas_thread
 from .least_squares import (
-    AT_BOUND_RTOL,
     FitResult,
     bound_flags,
     covariance_from_jacobian,
     fit_least_squares,
+    near_bounds,
     normalised_svd,
 )
 
@@ -135,23 +135,17 @@ def gauss_newton_gain_small(jac, r, dof: int, absolute_sigma: bool = False, free
 
 
 def held_at_bounds(x, lo, hi, jac, r) -> np.ndarray:
-    """Which values of the point ``x`` (the solver's variables, bounds ``lo``, ``hi``) a bound holds: within
-    `AT_BOUND_RTOL` of a finite bound (`bound_flags`' rule) with the cost's descent −Jᵀr pointing out through
-    it. A Gauss–Newton step along them would leave the box, so its gain is not there to take.
+    """Which values of the point ``x`` (the solver's variables, bounds ``lo``, ``hi``) a bound holds: at it
+    (`near_bounds`, `bound_flags`' rule) with the cost's descent −Jᵀr pointing out through it. A
+    Gauss–Newton step along them would leave the box, so its gain is not there to take.
 
     Issue 33 (session 23): the check after TRF's ftol stop counted that gain, so fits with values at their
     bounds (the ambient-aperture intersection's coefficients at ±4, seed-sdf-bias) always went on at the
     fixed tolerance, and the polish on every pixel ran a second solve that moved nothing: 2.2 of the 9 s of
     two families' fits at 256²."""
-    x, lo, hi = (np.asarray(a, np.float64) for a in (x, lo, hi))
     g = np.asarray(jac, np.float64).reshape(np.size(r), -1).T @ np.asarray(r, np.float64)
-    both = np.isfinite(lo) & np.isfinite(hi)
-    with np.errstate(invalid="ignore"):
-        tol_lo = AT_BOUND_RTOL * np.where(both, hi - lo, np.maximum(1.0, np.abs(lo)))
-        tol_hi = AT_BOUND_RTOL * np.where(both, hi - lo, np.maximum(1.0, np.abs(hi)))
-        at_lo = np.isfinite(lo) & (x - lo <= tol_lo) & (g >= 0.0)
-        at_hi = np.isfinite(hi) & (hi - x <= tol_hi) & (g <= 0.0)
-    return at_lo | at_hi
+    at_lo, at_hi = near_bounds(x, lo, hi)
+    return (at_lo & (g >= 0.0)) | (at_hi & (g <= 0.0))
 
 
 FD_RCOND = 1e-8
@@ -626,8 +620,9 @@ def _fit_trf(
         tight = rtol * TRF_TOL_FACTOR
         sol = solve(x0, max(noise_ftol(dof, float(r0 @ r0), absolute_sigma), tight))
         nfev = int(sol.nfev)
-        at_bound = held_at_bounds(sol.x, lo, hi, sol.jac, sol.fun)
-        if sol.status == 2 and not gauss_newton_gain_small(sol.jac, sol.fun, dof, absolute_sigma, ~at_bound):
+        if sol.status == 2 and not gauss_newton_gain_small(
+            sol.jac, sol.fun, dof, absolute_sigma, ~held_at_bounds(sol.x, lo, hi, sol.jac, sol.fun)
+        ):
             # Stopped on ftol with a Gauss–Newton gain left: possibly crawling along a flat valley (each
             # step gains little, many remain). Go on at the fixed tolerance, and keep where that ends if it
             # gained more than CHECK_KAPPA² s² (a value moved by more than that fraction of its stderr);
