@@ -4,11 +4,12 @@ tiled to a measurable size (`method_cost`; split from `audit_run`, issue 30)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime.arrays import Uniforms, aligned_copy, backend_float, release_backend_tables, to_drjit
+from rtfit.realtime.arrays import Uniforms, backend_float, release_backend_tables, to_drjit
 from rtfit.realtime.methods import Method
 
 from .audit_family import FamilyCase
@@ -40,11 +41,18 @@ wall time, which, the tracing counted in the sizing call's 4096 elements, gave m
 Session 23 times the kernels alone: at 0.005 s of kernel time the audit's 38 costs took 2.1–2.3 s, at
 0.002 s 1.8 s (as before the change), their values 0.62–1.53× those at 0.005 s (geometric mean 0.98: the
 run-to-run spread of this machine)."""
-_COST_MIN_SECONDS = 0.05
-"""The least time the measured call is repeated for (and at least 7 times; the median is the cost), unless its
-median is known first (`cost._median_time`: its 95 % interval within ± 3 %, after 6 calls or more): a kernel
-at ~1 ns a pixel is one 1 ms call at 2^20 elements, so 50 ms is ~50 repeats; a slow kernel sized to
-`_COST_CALL_SECONDS` a call runs its 7. At 0.2 s, 23 methods spent ~4.6 s of a Cornell-box audit here."""
+_COST_MIN_SECONDS = 0.01
+"""The least wall time the measured call is repeated for (and at least 7 times; the median is the cost),
+unless its median is known first (`cost._median_time`: its 95 % interval within ± 3 %, after 6 calls or
+more). At 0.2 s, 23 methods spent ~4.6 s of a Cornell-box audit here. Issue 33, session 24: each of the 38
+methods of a Cornell-box audit at 64² timed 4 times at each setting, interleaved, in one run: a run took
+1.34 s at 0.05 s (sessions 19–23), 0.83 s at 0.01 s and 0.80 s with no floor; the spread of a method's 4
+costs (max/min) was the same at all three (median 1.10, 1.09, 1.08; 90th percentile 1.46, 1.48, 1.34) and
+the medians agreed (0.01 s against 0.05 s: geometric mean 1.02, 0.92–1.23). Repeating a 2 ms kernel for
+longer does not make its cost more precise on this machine: the spread between runs is the machine's."""
+_PROBE_REPEATS = 3
+"""Calls of the sizing call (`_COST_PROBE` elements), the median sizing the measured call: it need only be
+right to a factor (the measured call's 2 ms target, `_COST_CALL_SECONDS`); 7 before session 24."""
 
 
 def _is_per_pixel(v, n: int) -> bool:
@@ -55,34 +63,49 @@ def _is_per_pixel(v, n: int) -> bool:
 @dataclass
 class CostInputs:
     """One case's per-pixel inputs as its methods' cost measurements read them (`method_cost`): each cleaned
-    (a non-finite value → float32's max), cast to float32 and tiled once, in a 64-byte aligned buffer
-    (`aligned_copy`) at the largest size asked so far; a method is handed a prefix (the elements a tile of its
-    own size held), of which its Dr.Jit array gets an aligned copy of its own (`to_drjit`).
+    (a non-finite value → float32's max) and cast to float32 once (`cleaned`), then repeated cyclically to
+    the elements a call times as a Dr.Jit array of the backend (`tiled`), made once per size and shared by
+    the case's methods (Dr.Jit's arrays are values: a kernel cannot change its inputs).
 
-    Issue 33 (session 20): every method tiled and copied its own inputs (a 2^20-element tile, then an aligned
-    copy of it): 1.4 of the 6.3 CPU s of a Cornell-box audit's cost loop, colour-bleeding's eight methods
-    tiling the same 54 inputs to 64 MiB each time (the tiling is now once a case; the copy stays per method,
-    see `method_cost`). Kept for one case (`audit_run`'s case loop makes one per
-    case), at most ``budget`` bytes (the oldest tiles are dropped first)."""
+    Issue 33: every method tiled and copied its own inputs (a 2^20-element tile, then an aligned copy of it):
+    1.4 of the 6.3 CPU s of a Cornell-box audit's cost loop (session 20: tiled once a case on the host, a
+    copy per method); the host tiles and the per-method copies were still 0.3 of the 1.0 s of that audit's
+    costs (session 24): the repetition is now a gather in one kernel per input and size, whose result Dr.Jit
+    owns (aligned, nothing mapped from NumPy). Kept for one case (`audit_run`'s case loop makes one per
+    case), at most ``budget`` bytes of tiles (the oldest are dropped first)."""
 
     budget: int = 2 * _COST_INPUT_BYTES
-    tiles: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    """(input name, id of its array) → (the array, its cleaned float32 tile); the array is kept so its id
+    host: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    """(input name, id of its array) → (the array, its cleaned float32 copy); the array is kept so its id
     stays its own."""
+    tiles: dict[tuple[str, int, int, type], tuple[np.ndarray, Any]] = field(default_factory=dict)
+    """(input name, id of its array, elements, Dr.Jit type) → (the array, its tile)."""
 
-    def tiled(self, name: str, v: np.ndarray, size: int) -> np.ndarray:
-        """The first ``size`` elements of ``v`` cleaned, cast to float32 and repeated (``v`` a per-pixel
-        input of ``n`` ≥ 1 elements)."""
+    def cleaned(self, name: str, v: np.ndarray) -> np.ndarray:
+        """``v`` flat, its non-finite values float32's max, as float32 (made once per array)."""
         key = (name, id(v))
+        known = self.host.get(key)
+        if known is None or known[0] is not v:
+            a = np.asarray(v, np.float64).reshape(-1)
+            clean = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
+            known = self.host[key] = (v, clean)
+        return known[1]
+
+    def tiled(self, name: str, v: np.ndarray, size: int, Float: type) -> Any:
+        """The `cleaned` ``v`` repeated to ``size`` elements (element i is element i mod n of ``v``'s n ≥ 1),
+        a ``Float`` array evaluated on its backend."""
+        key = (name, id(v), int(size), Float)
         known = self.tiles.get(key)
-        if known is not None and known[0] is v and known[1].size >= size:
-            return known[1][:size]
-        a = np.asarray(v, np.float64).reshape(-1)
-        # cleaned and cast before tiling: the same elements, 1/reps the work
-        a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
-        tile = aligned_copy(np.tile(a, -(-size // a.size))[:size], np.float32)
+        if known is not None and known[0] is v:
+            return known[1]
+        small = self.cleaned(name, v)
+        UInt32 = dr.uint32_array_t(Float)
+        # (n opaque: one kernel for every n)
+        index = dr.arange(UInt32, int(size)) % dr.opaque(UInt32, small.size)
+        tile = dr.gather(Float, to_drjit(Float, small), index)
+        dr.eval(tile)
         self.tiles.pop(key, None)
-        while self.tiles and sum(t.nbytes for _, t in self.tiles.values()) + tile.nbytes > self.budget:
+        while self.tiles and 4 * (sum(dr.width(t) for _, t in self.tiles.values()) + size) > self.budget:
             self.tiles.pop(next(iter(self.tiles)))
         self.tiles[key] = (v, tile)
         return tile
@@ -95,6 +118,7 @@ def method_cost(
     size: int = COST_ELEMENTS,
     min_seconds: float = _COST_MIN_SECONDS,
     tiles: CostInputs | None = None,
+    repeats: int = 7,
 ) -> dict:
     """ns per pixel of ``method`` (declared parameters) on the backend, its per-pixel inputs (channel 0 of the
     case) tiled to ``size`` float32 elements; a table (an array that is not per pixel) is passed as it is.
@@ -102,10 +126,11 @@ def method_cost(
     A kernel that would take longer than `_COST_CALL_SECONDS` a call at ``size`` (timed first on
     `_COST_PROBE` elements) is timed on proportionally fewer, never fewer than `_COST_PROBE`: a cone tracer at
     ~10 µs a pixel on 2 CPU cores took 10 s a call on 2^20 elements, 80 s for its 7 repeats + warm-up. The
-    sizing call is the median of 7 repeats with no minimum duration (``min_seconds`` 0: it only sizes the
-    measured call, which keeps its `_COST_MIN_SECONDS`): 15 methods' sizing calls took 2.9 s of a
+    sizing call is the median of `_PROBE_REPEATS` calls with no minimum duration (``min_seconds`` 0: it only
+    sizes the measured call, which keeps its `_COST_MIN_SECONDS`): 15 methods' sizing calls took 2.9 s of a
     Cornell-box audit's evaluation at 0.2 s each. ``tiles``: the case's tiled inputs, shared by its methods
-    (`CostInputs`; None: made for this call alone)."""
+    (`CostInputs`; None: made for this call alone). ``repeats``: the fewest calls timed
+    (`cost.time_drjit`)."""
     tiles = CostInputs() if tiles is None else tiles
     n = int(case.mask.sum())
     inputs = {name: case.channel_inputs[0][name] for name in method.input_names}
@@ -113,9 +138,7 @@ def method_cost(
     size = min(size, max(_COST_PROBE, _COST_INPUT_BYTES // (4 * max(len(per_pixel), 1))))
     probed = size > _COST_PROBE
     if probed:
-        for name in per_pixel:  # tiled once at the most this call may time, the probe a prefix of it
-            tiles.tiled(name, inputs[name], size)
-        probe = method_cost(method, case, backend, _COST_PROBE, min_seconds=0.0, tiles=tiles)
+        probe = method_cost(method, case, backend, _COST_PROBE, 0.0, tiles, _PROBE_REPEATS)
         per_element = probe["ns_per_pixel"] * 1e-9
         size = int(min(size, max(_COST_PROBE, _COST_CALL_SECONDS / max(per_element, 1e-15))))
     Float = backend_float(backend)
@@ -130,12 +153,8 @@ def method_cost(
             if table.size <= _UNIFORM_FLOATS:
                 uniforms[name] = Uniforms.of(table)
         elif np.ndim(v):
-            a = tiles.tiled(name, v, size)  # the case's tile, shared by its methods (`CostInputs`)
-            host.append(a[:_COST_PROBE])  # the trial below reads no more
-            # An aligned copy of its own (`to_drjit`), not the shared tile mapped: a kernel's arrays own their
-            # memory, as before session 20 (a quick suite on the GPU host ended in a segmentation fault once
-            # while the tiles were mapped; not reproduced, and not shown to be the cause: a precaution).
-            args.append(to_drjit(Float, a))
+            args.append(tiles.tiled(name, v, size, Float))  # the case's tile, shared by its methods
+            host.append(np.resize(tiles.cleaned(name, v), min(size, _COST_PROBE)))  # (the trial below's)
             keys.append(name)
         else:
             consts[name] = float(v)
@@ -152,6 +171,6 @@ def method_cost(
         return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))})
 
     # the sizing call compiled this kernel (and warmed it up): Dr.Jit's kernels do not depend on the size
-    t = time_drjit(call, tuple(args), elements, min_seconds=min_seconds, warm_up=not probed)
+    t = time_drjit(call, tuple(args), elements, repeats, min_seconds, warm_up=not probed)
     release_backend_tables(consts.values())  # a sampler's large tables: not kept past the timing
     return {**t.to_dict(), "backend": backend}
