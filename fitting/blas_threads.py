@@ -17,6 +17,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import os
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -31,8 +32,26 @@ _SYMBOLS = (
 )
 
 
+_BLAS_MODULES = ("numpy", "scipy.linalg")
+"""The modules whose import loads an OpenBLAS (NumPy's copy, SciPy's): the scan of the loaded libraries
+(`_loaded_openblas`) is made again only when one of them has been imported since the last."""
+_SCANNED: dict[tuple[str, ...], tuple[str, ...]] = {}
+
+
 def _loaded_openblas() -> tuple[str, ...]:
-    """The paths of the OpenBLAS libraries loaded in this process (none where /proc/self/maps is absent)."""
+    """The paths of the OpenBLAS libraries loaded in this process (none where /proc/self/maps is absent),
+    scanned once per set of imported `_BLAS_MODULES`. Issue 33: a process that has run Dr.Jit's LLVM
+    kernels maps thousands of regions, and the scan at every fit took ~2 ms (0.5 s of a quick suite's
+    ~270 fits)."""
+    token = tuple(m for m in _BLAS_MODULES if m in sys.modules)
+    known = _SCANNED.get(token)
+    if known is None:
+        known = _SCANNED[token] = _scan_openblas()
+    return known
+
+
+def _scan_openblas() -> tuple[str, ...]:
+    """`_loaded_openblas` read from /proc/self/maps."""
     try:
         with open("/proc/self/maps", encoding="utf-8", errors="replace") as f:
             return tuple(sorted({ln.split()[-1] for ln in f if "openblas" in ln.rsplit("/", 1)[-1].lower()}))

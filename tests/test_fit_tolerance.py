@@ -80,6 +80,24 @@ def test_one_blas_thread_sets_one_and_restores():
     assert blas_threads.blas_thread_counts() == before
 
 
+def test_the_openblas_scan_is_made_once_per_set_of_blas_modules(monkeypatch):
+    """/proc/self/maps is read again only when NumPy's or SciPy's BLAS-loading module set changes; the kept
+    paths are the fresh scan's."""
+    import sys
+
+    import scipy.linalg  # noqa: F401
+
+    scans = []
+    real = blas_threads._scan_openblas
+    monkeypatch.setattr(blas_threads, "_SCANNED", {})
+    monkeypatch.setattr(blas_threads, "_scan_openblas", lambda: scans.append(1) or real())
+    first = blas_threads._loaded_openblas()
+    assert blas_threads._loaded_openblas() == first == real() and len(scans) == 1
+    monkeypatch.delitem(sys.modules, "scipy.linalg")  # another module set: scanned again
+    blas_threads._loaded_openblas()
+    assert len(scans) == 2
+
+
 def _per_channel(ops, channel, t, k, s_r, s_g, s_b):
     """s_c · e^{−k t} on channel c's elements (channel ∈ {0, 1, 2}, Lagrange weights: exact picks)."""
     c = channel
