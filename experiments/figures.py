@@ -53,6 +53,13 @@ def tight_bbox(fig, dpi: float):
 def save_figure(fig, path) -> Path:
     """Write ``fig`` atomically and close it, cropped to its artists (`tight_bbox`): PDF (vector, no creation
     date, so the same figure gives the same bytes) where ``path`` ends in ``.pdf``, PNG otherwise."""
+    from matplotlib.layout_engine import PlaceHolderLayoutEngine
+
+    if isinstance(fig.get_layout_engine(), PlaceHolderLayoutEngine):
+        # What ``fig.tight_layout()`` leaves behind (a layout done once, no engine): savefig would draw the
+        # whole figure once more, unseen, "to make sure the layout engine runs" — none runs. Without it the
+        # same bytes (a log-log `line_plot`: 0.47 → 0.28–0.41 s, issue 33).
+        fig.set_layout_engine(None)
     buf = io.BytesIO()
     if Path(path).suffix.lower() == ".pdf":
         fig.savefig(buf, format="pdf", bbox_inches="tight", metadata={"CreationDate": None})

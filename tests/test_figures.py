@@ -194,3 +194,31 @@ def test_rows_up_png_holds_the_same_pixels(tmp_path):
         assert fast.mode == "RGB" and ref.mode == "RGBA" and fast.info == ref.info
         assert np.all(np.asarray(ref)[..., 3] == 255)
         assert np.array_equal(np.asarray(fast), np.asarray(ref)[..., :3])
+
+
+def test_a_tight_layout_figure_is_saved_as_matplotlibs_tight_savefig(tmp_path):
+    """`save_figure` of a figure laid out by ``tight_layout`` (its layout engine then a placeholder, which
+    `save_figure` drops to spare savefig's unseen draw) writes the bytes of matplotlib's own
+    ``savefig(bbox_inches="tight")`` of the same figure with the placeholder kept; log axes and a legend."""
+    import io
+
+    plt = figures.pyplot()
+
+    def figure():
+        fig, ax = plt.subplots(figsize=(4.6, 3.6))
+        x = np.geomspace(0.01, 30, 25)
+        for k in range(3):
+            ax.plot(x, x ** (0.5 + 0.2 * k), label=f"series {k}")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        return fig
+
+    ours = figures.save_figure(figure(), tmp_path / "ours.png").read_bytes()
+    fig = figure()
+    assert type(fig.get_layout_engine()).__name__ == "PlaceHolderLayoutEngine"
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=figures.PNG_DPI, bbox_inches="tight", pil_kwargs={"compress_level": 1})
+    plt.close(fig)
+    assert ours == buf.getvalue()
