@@ -4,12 +4,11 @@ tiled to a measurable size (`method_cost`; split from `audit_run`, issue 30)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime.arrays import Uniforms, backend_float, release_backend_tables, to_drjit
+from rtfit.realtime.arrays import Uniforms, aligned_copy, backend_float, release_backend_tables, to_drjit
 from rtfit.realtime.methods import Method
 
 from .audit_family import FamilyCase
@@ -63,49 +62,34 @@ def _is_per_pixel(v, n: int) -> bool:
 @dataclass
 class CostInputs:
     """One case's per-pixel inputs as its methods' cost measurements read them (`method_cost`): each cleaned
-    (a non-finite value → float32's max) and cast to float32 once (`cleaned`), then repeated cyclically to
-    the elements a call times as a Dr.Jit array of the backend (`tiled`), made once per size and shared by
-    the case's methods (Dr.Jit's arrays are values: a kernel cannot change its inputs).
+    (a non-finite value → float32's max), cast to float32 and tiled once, in a 64-byte aligned buffer
+    (`aligned_copy`) at the largest size asked so far; a method is handed a prefix (the elements a tile of its
+    own size held), of which its Dr.Jit array gets an aligned copy of its own (`to_drjit`).
 
-    Issue 33: every method tiled and copied its own inputs (a 2^20-element tile, then an aligned copy of it):
-    1.4 of the 6.3 CPU s of a Cornell-box audit's cost loop (session 20: tiled once a case on the host, a
-    copy per method); the host tiles and the per-method copies were still 0.3 of the 1.0 s of that audit's
-    costs (session 24): the repetition is now a gather in one kernel per input and size, whose result Dr.Jit
-    owns (aligned, nothing mapped from NumPy). Kept for one case (`audit_run`'s case loop makes one per
-    case), at most ``budget`` bytes of tiles (the oldest are dropped first)."""
+    Issue 33 (session 20): every method tiled and copied its own inputs (a 2^20-element tile, then an aligned
+    copy of it): 1.4 of the 6.3 CPU s of a Cornell-box audit's cost loop, colour-bleeding's eight methods
+    tiling the same 54 inputs to 64 MiB each time (the tiling is now once a case; the copy stays per method,
+    see `method_cost`). Kept for one case (`audit_run`'s case loop makes one per
+    case), at most ``budget`` bytes (the oldest tiles are dropped first)."""
 
     budget: int = 2 * _COST_INPUT_BYTES
-    host: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    """(input name, id of its array) → (the array, its cleaned float32 copy); the array is kept so its id
+    tiles: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    """(input name, id of its array) → (the array, its cleaned float32 tile); the array is kept so its id
     stays its own."""
-    tiles: dict[tuple[str, int, int, type], tuple[np.ndarray, Any]] = field(default_factory=dict)
-    """(input name, id of its array, elements, Dr.Jit type) → (the array, its tile)."""
 
-    def cleaned(self, name: str, v: np.ndarray) -> np.ndarray:
-        """``v`` flat, its non-finite values float32's max, as float32 (made once per array)."""
+    def tiled(self, name: str, v: np.ndarray, size: int) -> np.ndarray:
+        """The first ``size`` elements of ``v`` cleaned, cast to float32 and repeated (``v`` a per-pixel
+        input of ``n`` ≥ 1 elements)."""
         key = (name, id(v))
-        known = self.host.get(key)
-        if known is None or known[0] is not v:
-            a = np.asarray(v, np.float64).reshape(-1)
-            clean = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
-            known = self.host[key] = (v, clean)
-        return known[1]
-
-    def tiled(self, name: str, v: np.ndarray, size: int, Float: type) -> Any:
-        """The `cleaned` ``v`` repeated to ``size`` elements (element i is element i mod n of ``v``'s n ≥ 1),
-        a ``Float`` array evaluated on its backend."""
-        key = (name, id(v), int(size), Float)
         known = self.tiles.get(key)
-        if known is not None and known[0] is v:
-            return known[1]
-        small = self.cleaned(name, v)
-        UInt32 = dr.uint32_array_t(Float)
-        # (n opaque: one kernel for every n)
-        index = dr.arange(UInt32, int(size)) % dr.opaque(UInt32, small.size)
-        tile = dr.gather(Float, to_drjit(Float, small), index)
-        dr.eval(tile)
+        if known is not None and known[0] is v and known[1].size >= size:
+            return known[1][:size]
+        a = np.asarray(v, np.float64).reshape(-1)
+        # cleaned and cast before tiling: the same elements, 1/reps the work
+        a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
+        tile = aligned_copy(np.tile(a, -(-size // a.size))[:size], np.float32)
         self.tiles.pop(key, None)
-        while self.tiles and 4 * (sum(dr.width(t) for _, t in self.tiles.values()) + size) > self.budget:
+        while self.tiles and sum(t.nbytes for _, t in self.tiles.values()) + tile.nbytes > self.budget:
             self.tiles.pop(next(iter(self.tiles)))
         self.tiles[key] = (v, tile)
         return tile
@@ -138,6 +122,8 @@ def method_cost(
     size = min(size, max(_COST_PROBE, _COST_INPUT_BYTES // (4 * max(len(per_pixel), 1))))
     probed = size > _COST_PROBE
     if probed:
+        for name in per_pixel:  # tiled once at the most this call may time, the probe a prefix of it
+            tiles.tiled(name, inputs[name], size)
         probe = method_cost(method, case, backend, _COST_PROBE, 0.0, tiles, _PROBE_REPEATS)
         per_element = probe["ns_per_pixel"] * 1e-9
         size = int(min(size, max(_COST_PROBE, _COST_CALL_SECONDS / max(per_element, 1e-15))))
@@ -153,8 +139,12 @@ def method_cost(
             if table.size <= _UNIFORM_FLOATS:
                 uniforms[name] = Uniforms.of(table)
         elif np.ndim(v):
-            args.append(tiles.tiled(name, v, size, Float))  # the case's tile, shared by its methods
-            host.append(np.resize(tiles.cleaned(name, v), min(size, _COST_PROBE)))  # (the trial below's)
+            a = tiles.tiled(name, v, size)  # the case's tile, shared by its methods (`CostInputs`)
+            host.append(a[:_COST_PROBE])  # the trial below reads no more
+            # An aligned copy of its own (`to_drjit`), not the shared tile mapped: a kernel's arrays own their
+            # memory, as before session 20 (a quick suite on the GPU host ended in a segmentation fault once
+            # while the tiles were mapped; not reproduced, and not shown to be the cause: a precaution).
+            args.append(to_drjit(Float, a))
             keys.append(name)
         else:
             consts[name] = float(v)
