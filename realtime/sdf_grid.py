@@ -379,7 +379,7 @@ def _closest_on_triangle(P, A, B, C):
     d1 = ab·ap, d2 = ac·ap). The closest point of a triangle lies in its interior or on an edge, so this is
     exact, and it stays exact for degenerate and nearly degenerate (needle, collinear) triangles, where
     Voronoi-region tests on rounded products pick the wrong region (det ≤ 1e-12·|ab|²|ac|² skips (ii)).
-    Used by `mesh_sdf_grid`'s band (`_band_pairs`)."""
+    Used by `mesh_sdf_grid`'s band (`_BandTriangles.pairs`)."""
     best = bq = None
     for e0, e1 in ((A, B), (B, C), (C, A)):
         e = e1 - e0
