@@ -412,9 +412,15 @@ def spectral_part(ctx, cfg, sks, backend) -> dict | None:
     return {"rows": rows, "checks": checks, "white_balance": wb, "robust_z_spread": spread, "size": (SW, SH)}
 
 
-def sweep_part(cfg, sks, quads, backend) -> list[dict]:
+BUILD_REPEATS = 3
+"""Timed builds of a texture after its warm-up (`_timed_build`) in a full run; a quick run times one: each
+build is traced again (~0.1–0.3 s of Python around a few ms of kernels on 2 cores), and the quick suite's
+sweep and cost tables spent ~2.6 s in them (issue 33, session 24)."""
+
+
+def sweep_part(cfg, sks, quads, backend, build_repeats: int = BUILD_REPEATS) -> list[dict]:
     """Layers / texture / table / horizon mapping against the point-sun quadrature (noise-free) on its
-    pixel subset, with the measured whole-texture build time."""
+    pixel subset, with the measured whole-texture build time (`_timed_build`, ``build_repeats``)."""
     seed = SEED_SETTING.build_keywords()
     confs = [dict(seed, layers=n) for n in cfg["sweep_layers"]]
     for w, h in cfg["sweep_textures"]:
@@ -428,7 +434,7 @@ def sweep_part(cfg, sks, quads, backend) -> list[dict]:
             continue
         q, sub = quads[s.elev]["value"], s.dirs[sl]
         for c in {tuple(sorted(c.items())): c for c in confs}.values():
-            sky, t = _timed_build(p, s.elev, c, backend)
+            sky, t = _timed_build(p, s.elev, c, backend, build_repeats)
             L = shade_sky(sky, sub)
             rel = float(np.sum(np.abs(L - q)) / max(float(np.sum(np.abs(q))), 1e-30))
             out.append(
@@ -456,14 +462,16 @@ def _builder(p, e, c, backend, built: list | None = None):
     return fn
 
 
-def _timed_build(p, e, c, backend):
-    """(the texture, the `time_drjit` timing of its whole build): the texture is the one the timing's warm-up
-    call built (the same inputs, so the same texture; `build_sky` evaluates it), not built once more before
-    the timing as it was (a fine texture: 0.7 CPU s; issue 33)."""
+def _timed_build(p, e, c, backend, repeats: int = BUILD_REPEATS):
+    """(the texture, the `time_drjit` timing of its whole build, the median of ``repeats`` builds after the
+    warm-up): the texture is the one the timing's warm-up call built (the same inputs, so the same texture;
+    `build_sky` evaluates it), not built once more before the timing as it was (a fine texture: 0.7 CPU s;
+    issue 33)."""
     built: list = []
     t = time_drjit(
-        _builder(p, e, c, backend, built), (), c["width"] * c["height"], repeats=3, min_seconds=0.05
-    )
+        _builder(p, e, c, backend, built), (), c["width"] * c["height"], repeats=repeats,
+        min_seconds=0.05 if repeats > 1 else 0.0,  # (one build: the one, however short)
+    )  # fmt: skip
     return built[0], t
 
 
@@ -480,7 +488,7 @@ def cost_part(ctx, cfg, backend) -> list[dict]:
     rows = []
     for m in RGB:
         c = METHODS[m].fixed["setting"].build_keywords()
-        sky, tb = _timed_build(p, 10.0, c, backend)
+        sky, tb = _timed_build(p, 10.0, c, backend, 1 if ctx.quick else BUILD_REPEATS)
         t = time_drjit(lambda d, sky=sky: shade_sky(sky, d), (dirs,), n)
         row = {"method": m, "lookup_ns_per_pixel": t.seconds * 1e9 / n, "build_ms": tb.seconds * 1e3}
         if not ctx.quick:
@@ -538,7 +546,7 @@ def study(ctx: StudyContext) -> Study:
     main = ss_part(ctx, cfg, sks, backend)
     alt = altitude_part(ctx, cfg, sks, backend)
     spectral = spectral_part(ctx, cfg, sks, backend)
-    sweep = sweep_part(cfg, sks, main["quads"], backend)
+    sweep = sweep_part(cfg, sks, main["quads"], backend, 1 if ctx.quick else BUILD_REPEATS)
     costs = cost_part(ctx, cfg, backend)
     sun10 = library_atmosphere(sun_elevation_deg=10.0)
     bench = [] if ctx.quick else bench_media(ctx.variant, sun10, res=(128, 64), spp=1024)  # the old bench's
