@@ -360,7 +360,9 @@ def point_triangle_distance(p, a, b, c):
 
 def _point_triangle_distance_drjit(p, a, b, c):
     """Closest point and distance as `point_triangle_distance`, as one Dr.Jit LLVM kernel in float64
-    (`_closest_on_triangle`); inputs and outputs as `point_triangle_distance`."""
+    (`_closest_on_triangle`); inputs and outputs as `point_triangle_distance`. The band of `mesh_sdf_grid`
+    runs the same kernel through `_BandTriangles.pairs`; this NumPy entry, on any (point, triangle) pairs,
+    is where tests/test_sdf_grid_kernels.py checks it on generic, degenerate and densely sampled triangles."""
 
     def up(x):
         x = np.ascontiguousarray(x, dtype=np.float64)
