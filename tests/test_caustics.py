@@ -152,6 +152,40 @@ def test_nearest_photons_pads_a_short_set():
     assert np.all(got["g"] == 0) and np.all(got["q"] == NO_PHOTON)  # no photon beyond the K nearest
 
 
+@pytest.mark.parametrize(("m", "chunk"), [(33, None), (500, None), (500, 3), (5000, None)])
+def test_nearest_photons_against_a_brute_force_sort(m, chunk):
+    """The K nearest (distances, fluxes) and the rings' flux and flux-weighted RMS distance against a
+    plain loop over each point's photons sorted by distance (photons at distinct distances): the K
+    nearest the same bits, the rings' sums to 1e-12 relative (their order of summation differs)."""
+    from rtfit.realtime.caustics import RING_RATIO
+
+    rng = np.random.default_rng(m)
+    pts = rng.normal(0.0, 0.3, (m, 3))
+    flux = rng.uniform(0.1, 1.0, (m, 3)) / m
+    hits = cp.PhotonHits(pts, np.tile([0, 0, 1.0], (m, 1)), flux, np.tile([0, 0, -1.0], (m, 1)),
+                         np.arange(m), np.zeros(3))  # fmt: skip
+    x = rng.normal(0.0, 0.4, (7, 3))
+    got = nearest_photons(x, hits, chunk=chunk)
+    for i, xi in enumerate(x):
+        dist = np.linalg.norm(xi[None, :] - pts, axis=1)
+        order = np.argsort(dist, kind="stable")
+        near, far = order[:NEAREST], order[NEAREST:]
+        assert np.array_equal(got["d"][i], dist[near]) and np.array_equal(got["f"][i], flux[near])
+        g, wd2, ws = np.zeros((RINGS, 3)), np.zeros(RINGS), np.zeros(RINGS)
+        for j in far:
+            r = min(
+                RINGS - 1,
+                max(0, math.floor(math.log(max(dist[j] / dist[near[-1]], 1.0)) / math.log(RING_RATIO))),
+            )
+            w = flux[j].mean()
+            g[r] += flux[j]
+            ws[r] += w
+            wd2[r] += w * dist[j] ** 2
+        q = np.where(ws > 0, np.sqrt(wd2 / np.where(ws > 0, ws, 1.0)), NO_PHOTON)
+        assert np.allclose(got["g"][i], g, rtol=1e-12, atol=0.0)
+        assert np.allclose(got["q"][i], q, rtol=1e-12, atol=0.0)
+
+
 @pytest.mark.parametrize("h", [0.003, 0.01, 0.03, 0.1])
 def test_rings_give_the_photon_by_photon_splat(h):
     """2000 photons in a Gaussian blob (σ 5 cm) with varied flux: the K nearest plus the rings (the audit's
