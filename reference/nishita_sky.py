@@ -68,10 +68,10 @@ the render's noise (tests). No white balance: a spectrum maps to the sRGB of its
 
 Also here, for the cross-checks of the experiment:
 
-* `single_scattering_quadrature`: an independent float64 NumPy quadrature of the single-scattering
-  integral (fine trapezoid along the view ray, sun optical depth by Gauss–Legendre along each
-  sun ray, planet shadow by exact ray–sphere test), to check the Mitsuba single-scattering
-  reference and the real-time sky;
+* `single_scattering_quadrature`: an independent float64 quadrature of the single-scattering
+  integral (fine trapezoid along the view ray in NumPy, sun optical depth by Gauss–Legendre along
+  each sun ray in a float64 Dr.Jit kernel, planet shadow by exact ray–sphere test), to check the
+  Mitsuba single-scattering reference and the real-time sky;
 * `spectral_single_scattering_quadrature`: the same quadrature per wavelength (1 nm grid on
   360–830 nm by default) with the spectral coefficients above, converted by `film_srgb`: the check
   of the spectral Mitsuba reference;
@@ -779,36 +779,61 @@ def _gl(n):
 def _sun_optical_depth(p: np.ndarray, s: np.ndarray, spec: AtmosphereSpec, nodes: int = 64):
     """(τ_R, τ_M) density integrals (km) from points p (N, 3) to the top along s ((3,), or (N, 3): one
     unit direction per point); inf if the planet blocks. Gauss–Legendre on the arc length split at 8
-    geometric sub-intervals."""
+    geometric sub-intervals [0, 1/128, …, 1/2, 1]·t_top (the density falls fast).
+
+    A float64 Dr.Jit kernel on the CPU (LLVM): one lane per point looping over the 8·``nodes`` nodes (a
+    symbolic loop over opaque node tables: one compiled kernel for every size and node count), each lane
+    summing in node order. Issue 33: the same sums in NumPy over (N, nodes) arrays were 87 % of the quick
+    nishita-sky study's quadratures (4.3 s); a lane's value does not depend on the other lanes (no
+    reduction across them), so a point gives the same bits alone or in any batch."""
     rg, rt = spec.planet_radius_km, spec.top_radius_km
-    s = np.broadcast_to(s, p.shape)
-    b = np.einsum("ij,ij->i", p, s)
-    pp = np.einsum("ij,ij->i", p, p)
-    ss = np.einsum("ij,ij->i", s, s)
-    c_top = pp - rt * rt
-    t_top = -b + np.sqrt(np.maximum(b * b - c_top, 0.0))
-    # planet blocks if the ray towards the sun meets the ground sphere ahead
-    c_g = pp - rg * rg
-    disc = b * b - c_g
-    blocked = (disc > 0) & (-b - np.sqrt(np.maximum(disc, 0)) > 0)
+    F, U = dr.llvm.Float64, dr.llvm.UInt32
+    p = np.asarray(p, np.float64)
+    s = np.broadcast_to(np.asarray(s, np.float64), p.shape)
+    px, py, pz = (F(np.ascontiguousarray(p[:, k])) for k in range(3))
+    sx, sy, sz = (F(np.ascontiguousarray(s[:, k])) for k in range(3))
+    b = dr.fma(px, sx, dr.fma(py, sy, pz * sz))
+    pp = dr.fma(px, px, dr.fma(py, py, pz * pz))
+    ss = dr.fma(sx, sx, dr.fma(sy, sy, sz * sz))
+    t_top = -b + dr.sqrt(dr.maximum(b * b - (pp - rt * rt), 0.0))
+    # The planet blocks if the ray towards the sun meets the ground sphere ahead: its perigee lies ahead
+    # (p·s < 0) and below the ground (b² − |p|² + rg² > 0). Before issue 33 the test was that the nearer
+    # root −b − √disc be > 0, which let a point on the ground (a ground-hit view ray's end, a viewer at 0 m)
+    # with the sun below its horizon through (the root is 0 there): its ray then crossed the planet, where
+    # the Rayleigh density e^{−h/H} of a negative h grows; its transmittance came out ~0 all the same.
+    disc = b * b - (pp - rg * rg)
+    blocked = (disc > 0) & (b < 0)
+    # node k of sub-interval [a0, a1]: t = t_top·u_k, weight t_top·c_k (u, c the interval's Gauss–Legendre
+    # abscissae and weights mapped onto it)
     x, w = _gl(nodes)
-    # split [0, t_top] geometrically (density falls fast): edges t_top·(0, 1/128, …, 1/2, 1)
     edges = np.concatenate([[0.0], 2.0 ** np.arange(-7, 1)])
-    tr = np.zeros(p.shape[0])
-    tm = np.zeros(p.shape[0])
-    for a0, a1 in itertools.pairwise(edges):
-        ta, tb = a0 * t_top, a1 * t_top
-        t = 0.5 * (ta + tb)[:, None] + 0.5 * (tb - ta)[:, None] * x[None, :]
-        # |p + t·s|² = |p|² + 2t(p·s) + t²|s|², without the (N, nodes, 3) points (issue 33: their norms were
-        # a third of the quick nishita-sky run's quadrature); ≥ rg² on the rays that are kept (a blocked ray
-        # is inf below), the max only keeps a rounding below 0 out of the root
-        h = np.sqrt(np.maximum(pp[:, None] + t * (2.0 * b[:, None] + t * ss[:, None]), 0.0)) - rg
-        jw = 0.5 * (tb - ta)[:, None] * w[None, :]
-        tr += np.sum(jw * np.exp(-h / spec.rayleigh_height_km), axis=1)
-        tm += np.sum(jw * np.exp(-np.maximum(h, 0) / spec.mie_height_km), axis=1)
-    tr[blocked] = np.inf
-    tm[blocked] = np.inf
-    return tr, tm
+    u = np.concatenate([0.5 * (a0 + a1) + 0.5 * (a1 - a0) * x for a0, a1 in itertools.pairwise(edges)])
+    c = np.concatenate([0.5 * (a1 - a0) * w for a0, a1 in itertools.pairwise(edges)])
+    u_t, c_t, count = F(u), F(c), dr.opaque(U, u.size)
+    inv_hr, inv_hm = 1.0 / spec.rayleigh_height_km, 1.0 / spec.mie_height_km
+
+    def body(i, tr, tm):
+        t = t_top * dr.gather(F, u_t, i)
+        jw = t_top * dr.gather(F, c_t, i)
+        # |p + t·s|² = |p|² + 2t(p·s) + t²|s|²; ≥ rg² on the rays that are kept (a blocked ray is inf
+        # below), the max only keeps a rounding below 0 out of the root
+        h = dr.sqrt(dr.maximum(pp + t * (2.0 * b + t * ss), 0.0)) - rg
+        return i + 1, tr + jw * dr.exp(-h * inv_hr), tm + jw * dr.exp(-dr.maximum(h, 0.0) * inv_hm)
+
+    n = p.shape[0]
+    _, tr, tm = dr.while_loop(  # (a blocked lane's sums are not read: it stops at once)
+        state=(dr.zeros(U, n), dr.zeros(F, n), dr.zeros(F, n)),
+        cond=lambda i, *_: (i < count) & ~blocked,
+        body=body,
+    )
+    tr, tm = dr.select(blocked, dr.inf, tr), dr.select(blocked, dr.inf, tm)
+    dr.eval(tr, tm)
+    return np.asarray(tr, np.float64), np.asarray(tm, np.float64)
+
+
+SUN_RAY_LANES = 1 << 20
+"""`_ss_quadrature` hands the sun rays of this many points (at most; at least one row's) to one
+`_sun_optical_depth` kernel: enough lanes for every core, and 48 MiB of points and directions."""
 
 
 DISC_NODES = 8
@@ -890,47 +915,68 @@ def _ss_quadrature(
     disc_scale = 2.0 / (1.0 + math.cos(alpha))
     u = np.linspace(0.0, 1.0, steps) ** 2
 
-    def row(i: int) -> np.ndarray:
+    def disc_directions(x: np.ndarray) -> np.ndarray:
+        """The K sun directions (K, n, 3) across the disc's diameter through each point's zenith."""
+        # unit vector ⊥ s towards x's zenith: the disc diameter along which the sun's elevation varies
+        up = x / np.linalg.norm(x, axis=1, keepdims=True)
+        perp = up - (up @ s)[:, None] * s[None, :]
+        pn = np.linalg.norm(perp, axis=1, keepdims=True)
+        fallback = np.cross(s, [1.0, 0.0, 0.0] if abs(s[0]) < 0.9 else [0.0, 1.0, 0.0])
+        perp = np.where(pn > 1e-12, perp / np.maximum(pn, 1e-300), fallback / np.linalg.norm(fallback))
+        return np.cos(deltas)[:, None, None] * s[None, None, :] + np.sin(deltas)[:, None, None] * perp[None]
+
+    def points(i: int) -> np.ndarray:
+        """Row i's points along the view ray (steps, 3)."""
+        return o[None, :] + (u * t_max[i])[:, None] * d[i][None, :]
+
+    def sun_rays(i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Row i's sun rays: (points, directions), one per point (point sun) or K per point (disc)."""
+        x = points(i)
+        if deltas is None:
+            return x, np.broadcast_to(s, x.shape)
+        om = disc_directions(x)
+        return np.broadcast_to(x, om.shape).reshape(-1, 3), om.reshape(-1, 3)
+
+    def row(i: int, rays: tuple[np.ndarray, np.ndarray], sr: np.ndarray, sm: np.ndarray) -> np.ndarray:
+        """Row i's integral, given its sun rays (`sun_rays`) and their optical depths."""
         t = u * t_max[i]
-        x = o[None, :] + t[:, None] * d[i][None, :]
+        x = points(i)
         h = np.maximum(np.linalg.norm(x, axis=1) - rg, 0.0)
         rr, rm = np.exp(-h / spec.rayleigh_height_km), np.exp(-h / spec.mie_height_km)
         dt = np.diff(t)
         odr = np.concatenate([[0.0], np.cumsum(0.5 * (rr[1:] + rr[:-1]) * dt)])
         odm = np.concatenate([[0.0], np.cumsum(0.5 * (rm[1:] + rm[:-1]) * dt)])
         t_view = np.exp(-(odr[:, None] * br[None, :] + odm[:, None] * bme[None, :]))
+        t_sun = np.exp(-(sr[:, None] * br[None, :] + sm[:, None] * bme[None, :]))
         if deltas is None:
-            sr, sm = _sun_optical_depth(x, s, spec)
-            t_sun = np.exp(-(sr[:, None] * br[None, :] + sm[:, None] * bme[None, :]))
             f = (br[None, :] * rr[:, None] * pr[i] + bm[None, :] * rm[:, None] * pm[i]) * t_sun
         else:
-            # unit vector ⊥ s towards x's zenith: the disc diameter along which the sun's elevation varies
-            up = x / np.linalg.norm(x, axis=1, keepdims=True)
-            perp = up - (up @ s)[:, None] * s[None, :]
-            pn = np.linalg.norm(perp, axis=1, keepdims=True)
-            fallback = np.cross(s, [1.0, 0.0, 0.0] if abs(s[0]) < 0.9 else [0.0, 1.0, 0.0])
-            perp = np.where(pn > 1e-12, perp / np.maximum(pn, 1e-300), fallback / np.linalg.norm(fallback))
-            # all disc nodes in one call: directions (K, n, 3) flattened with the points repeated
-            om = np.cos(deltas)[:, None, None] * s[None, None, :] + np.sin(deltas)[:, None, None] * perp[None]
-            k, n = om.shape[:2]
-            sr, sm = _sun_optical_depth(np.broadcast_to(x, (k, n, 3)).reshape(-1, 3), om.reshape(-1, 3), spec)
-            t_sun = np.exp(-(sr[:, None] * br[None, :] + sm[:, None] * bme[None, :])).reshape(k, n, -1)
+            k, n = len(deltas), len(x)
+            om = rays[1].reshape(k, n, 3)
             prk, pmk = _phases(om @ d[i], g)  # (K, n)
             dens = br[None, None, :] * rr[None, :, None] * prk[..., None]
             dens = dens + bm[None, None, :] * rm[None, :, None] * pmk[..., None]
-            f = np.einsum("k,knc->nc", wts, dens * t_sun)
+            f = np.einsum("k,knc->nc", wts, dens * t_sun.reshape(k, n, -1))
             f *= disc_scale
         f = f * t_view
         return np.sum(0.5 * (f[1:] + f[:-1]) * dt[:, None], axis=0)
 
-    # Rows are independent and each is whole-array NumPy work (exp, norms and sums over ~10⁵–10⁶ values,
-    # which release the GIL): threads give the same numbers, row for row, in a fraction of the time.
+    # The sun rays of a batch of rows in one Dr.Jit kernel (`_sun_optical_depth`: every core), then each
+    # row's NumPy work (exp, norms and sums over ~10⁴–10⁶ values, which release the GIL) on threads: the
+    # same numbers, row for row, as a row computed alone.
+    per_row = steps * (len(deltas) if deltas is not None else 1)
+    batch = max(1, SUN_RAY_LANES // per_row)
     workers = max(1, min(d.shape[0], len(os.sched_getaffinity(0))))
-    if workers == 1:
-        rows = [row(i) for i in range(d.shape[0])]
-    else:
-        with ThreadPoolExecutor(workers) as pool:
-            rows = list(pool.map(row, range(d.shape[0])))
+    rows: list[np.ndarray] = []
+    with ThreadPoolExecutor(workers) as pool:
+        for a in range(0, d.shape[0], batch):
+            todo = range(a, min(d.shape[0], a + batch))
+            rays = [sun_rays(i) for i in todo]
+            sr, sm = _sun_optical_depth(
+                np.concatenate([r[0] for r in rays]), np.concatenate([r[1] for r in rays]), spec
+            )
+            cuts = np.cumsum([len(r[0]) for r in rays])[:-1]
+            rows += pool.map(row, todo, rays, np.split(sr, cuts), np.split(sm, cuts))
     return np.array(rows, dtype=np.float64).reshape(d.shape[0], br.size)
 
 
@@ -1106,7 +1152,7 @@ DISC_MAX_DEG = 2.0
 """Sun elevations (°) up to which `cached_quadrature` also integrates over the sun's disc: Σ|disc − point| /
 Σ disc is 6e-4 at +2° and 6e-5 at +10° (`single_scattering_quadrature`), far below any reference's noise
 above 2°, and the disc costs `DISC_NODES`× the point sun's time."""
-QUADRATURE_FORMAT = 1
+QUADRATURE_FORMAT = 2
 """Version of the stored quadratures (`ComputedEntry`, namespace "sky-quadrature"): bump it when
 `single_scattering_quadrature`, `spectral_single_scattering_quadrature` or what is stored changes."""
 
