@@ -592,6 +592,10 @@ def _fit_trf(
         mapper = difference_map(target.size, method.fit_ops)
         workers = grouped_differences(rows, last, mapper) or mapper
     extra: dict[str, Any] = {} if workers is None else {"workers": workers}
+    if any(p.fd_step for p in ps):
+        # `Param.fd_step`: h·|p| for such a parameter; the others ε^{1/3}·|p| (SciPy's default relative step,
+        # which SciPy applies as ε^{1/3}·max(1, |p|) only where no step is given at all; at least 1 ulp)
+        extra["diff_step"] = np.array([p.fd_step or np.finfo(np.float64).eps ** (1 / 3) for p in ps])
 
     with np.errstate(all="ignore"), one_blas_thread():
         r0 = residual(x0)

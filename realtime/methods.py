@@ -60,6 +60,13 @@ class Param:
     bias), whose gradient is 0 between steps: the fit first scans n values over the bounds (`scan_values`)
     and starts the solver at the best, which then stays there; its resolution is the scan's step (no
     standard error)."""
+    fd_step: float = 0.0
+    """0: the ``"trf"`` fits' central differences step this parameter by SciPy's default, ε^{1/3}·max(1, |p|)
+    (ε the float64 epsilon). h > 0: by h·|p|, a relative step wider than the spacing of the steps the
+    residuals take in p where they depend on p through comparisons with many sampled values (an AO radius
+    against each pixel's ray-hit distances: a staircase of ~10⁵ tiny steps). The difference then measures
+    the slope of the staircase over ±h·p, not whether a step happens to fall within ±ε^{1/3}·p, along which
+    the solver crawled in tens of evaluations (issue 33). The fit resolves p to about h·p."""
     log: bool = False
     """True: the ``"trf"`` fits (`rtfit.fitting.fit_method`) step this parameter in log p, a scale whose
     fit runs along a curved valley in p (colour-bleeding's I·b/D, a straight line in the logs: in p, TRF
@@ -89,8 +96,14 @@ class Param:
             )
         if isinstance(self.scan, bool) or not isinstance(self.scan, int) or self.scan < 0:
             raise ValueError(f"Param.scan must be a non-negative int, got {self.scan!r}")
+        if self.log and self.fd_step:
+            raise ValueError("Param.fd_step is a step in p: not with Param.log (the solver steps log p)")
         if self.log and not self.lower >= 0.0:
             raise ValueError(f"Param.log needs lower ≥ 0, got {self.lower}")
+        if isinstance(self.fd_step, bool) or not (
+            isinstance(self.fd_step, int | float) and 0.0 <= self.fd_step < 1.0
+        ):
+            raise ValueError(f"Param.fd_step must be a number in [0, 1), got {self.fd_step!r}")
         if self.scan and not (math.isfinite(self.lower) and math.isfinite(self.upper)):
             raise ValueError("Param.scan needs finite bounds (the scan covers them)")
 

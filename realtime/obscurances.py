@@ -41,6 +41,7 @@ from min(d, 100 d_max)).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -75,6 +76,8 @@ D_MAX_LIMIT = 1e30
 MISS = 1e30
 """A ray that escapes, as the hit distance the audit gives a row (finite, so that JAX fits and float32 costs
 stay finite: every ρ is 1 there for d_max ≤ 10²⁸)."""
+AO_FD_STEP = 1e-2
+"""The AO row's relative finite-difference step in d_max (`Param.fd_step`)."""
 RAY_CHUNK = 64
 """Rays per fused Dr.Jit kernel in `obscurance` (more rays: several launches, their means combined)."""
 _TINY = 1e-300  # log guard of ρ_power below every ratio that matters (float32: 0, the branch is unselected)
@@ -137,6 +140,9 @@ DISTANCES = Input("distances", "scene units", "hit distance of each of K cosine-
 _D_MAX = Param(
     1.0, 1e-3, 1e3, unit="scene units", description="distance beyond which a hit no longer occludes"
 )
+_AO_D_MAX = replace(_D_MAX, fd_step=AO_FD_STEP)
+"""The AO row's d_max: the step ρ makes W a staircase in d_max (a step at every ray-hit distance): its
+central differences span ±1 % of d_max (`Param.fd_step`)."""
 _EXPONENT = Param(0.5, 1e-2, 16.0, unit="1", description="exponent p of ρ = min(d/d_max, 1)^p")
 _SCALE = Param(1.0, 1e-2, 10.0, unit="1", description="ambient scale s (W is multiplied by it)")
 
@@ -177,7 +183,7 @@ METHODS = method_table(
             "Ambient occlusion within d_max (step ρ)",
             step_obscurance_kernel,
             inputs=(DISTANCES,),
-            params={"d_max": _D_MAX},
+            params={"d_max": _AO_D_MAX},
             fixed={"scale": 1.0},
             quantity="obscurance",
             formula="(1/K) Σ_k [d_k ≥ d_max]",
