@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import datetime
+import functools
 import gc
 import logging
 import platform
@@ -44,7 +45,14 @@ log = logging.getLogger("rtfit.experiments")
 
 
 def versions() -> dict:
-    """Installed version of each package a result depends on (None: not installed)."""
+    """Installed version of each package a result depends on (None: not installed); the caller's own dict."""
+    return dict(_versions())
+
+
+@functools.cache
+def _versions() -> dict:
+    """`versions`, read once a process: each `metadata.version` walks the distributions on sys.path
+    (~3 ms; every results record of a suite asked again, issue 33), and what is imported cannot change."""
     out = {"python": platform.python_version()}
     for dist in ("rtfit", "mitsuba", "drjit", "numpy", "jax", "optimistix", "scikit-image", "flip-evaluator"):
         try:
