@@ -301,7 +301,10 @@ class MosaicFigure:
             layers += [(oy + y, ox + x0 + bar_w, 1, self.TICK, np.zeros((1, self.TICK, 3))) for y in ticks]
         canvas = np.full((height, width, 3), 255, np.uint8)
         small = np.round(np.asarray(self.mosaic, np.float64) * 255).astype(np.uint8)
-        canvas[oy : oy + ih, ox : ox + iw] = small[row_of][:, col_of]
+        # columns first, on the mosaic's own rows, then rows: the same gathers (the same bytes) as
+        # small[row_of][:, col_of], whose column gather on the enlarged rows was a third of the quick suite's
+        # mosaic time (2.5 of 8.2 s; this order 6.5x faster on a 600 x 1680 figure, issue 33)
+        canvas[oy : oy + ih, ox : ox + iw] = small.take(col_of, axis=1).take(row_of, axis=0)
         for y, x, h, w, block in layers[1:]:
             canvas[y : y + h, x : x + w] = np.round(block * 255).astype(np.uint8)
         if self.title:
