@@ -56,7 +56,7 @@ def write_audit(directory: Path, r: AuditResult) -> None:
     finally:
         if flip is not None:
             flip.join()
-    write_report(directory)
+    write_report(directory, results=r.results)
 
 
 def viewer_flip_thread(directory: Path, r: AuditResult) -> threading.Thread | None:

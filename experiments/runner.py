@@ -150,7 +150,7 @@ def run_experiment_into(
     results = from_json(Results, plain_json(doc), f"results of {spec.name}")
     write_results(directory, results)
     ctx.log(f"{spec.name}: writing the report ({len(results.figures)} figures)")
-    write_report(Path(directory), single_file=single_file)
+    write_report(Path(directory), single_file=single_file, results=results)
     return results
 
 

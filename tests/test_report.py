@@ -22,6 +22,7 @@ from rtfit.experiments.report import ResultsError, load_results, render_report, 
 from rtfit.experiments.report_doc import UNRESOLVED_NOTE
 from rtfit.experiments.report_index import INDEX_UNRESOLVED_NOTE, write_index
 from rtfit.experiments.report_text import format_number, markdown_inline, markdown_to_html
+from rtfit.experiments.results import write_results
 
 
 def _metric(value, floor, resolved=True):
@@ -823,3 +824,14 @@ def test_setup_table_shows_a_dict_settings_keys_as_rows():
     assert _md_row(setup, "`extra.timings_s.render`") == "| `extra.timings_s.render` | 2.25 |"
     assert "| `extra.none` |" in setup  # an empty dict keeps its row
     assert "| `extra` |" not in setup and " = " not in setup
+
+
+def test_report_from_the_written_record_equals_the_report_read_back(exp_dir):
+    """`write_report(..., results=)` renders the record the caller just wrote instead of reading the file
+    back: the record read back equals it, and the written files are the same bytes."""
+    record = load_results(exp_dir)
+    write_results(exp_dir, record)
+    assert load_results(exp_dir) == record
+    read_back = {p.name: p.read_bytes() for p in write_report(exp_dir)}
+    passed = {p.name: p.read_bytes() for p in write_report(exp_dir, results=record)}
+    assert passed == read_back
