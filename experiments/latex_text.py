@@ -298,7 +298,14 @@ def tex_text(text) -> str:
     combining accents (``L̄``, ``ȳ``, ``á``) become text accents (math accents on math symbols); a
     character with no mapping becomes ``[U+XXXX]``.
     """
-    s = unicodedata.normalize("NFD", str(text))
+    s = str(text)
+    if s.isascii():  # (NFD leaves ASCII as it is; most of a report's cells: issue 33)
+        return s.translate(_ASCII_CODES)
+    return _tex_chars(unicodedata.normalize("NFD", s))
+
+
+def _tex_chars(s: str) -> str:
+    """`tex_text` of NFD-normalised ``s``, character by character."""
     out: list[str] = []
     i, n = 0, len(s)
     while i < n:
@@ -332,6 +339,12 @@ def tex_text(text) -> str:
             out.append(f"\\ensuremath{{{code}}}" if math_mode else code)
             i = j
     return "".join(out)
+
+
+_ASCII_CODES = {c: _tex_chars(chr(c)) for c in range(128)}
+"""`tex_text` of each ASCII character alone, for `str.translate`: no ASCII character is a sub- or superscript
+or a combining mark, so an ASCII string's LaTeX is its characters' side by side (tested against `_tex_chars`
+on every ASCII character pair and on random ASCII text)."""
 
 
 SCI_NUMBER = re.compile(r"(?<![\w.])(-?\d+(?:\.\d+)?)e([-+]?\d+)\b")

@@ -313,3 +313,17 @@ def test_marked_values_compile_in_their_font(tmp_path, style, font):
     embedded = set(re.findall(r"/(cm[a-z]+)\d+\.pfb", log))
     marks = {"cmbx", "cmti"}
     assert embedded & marks == ({font} if font else set()), embedded
+
+
+def test_ascii_fast_path_is_the_character_loop_on_every_pair():
+    """`tex_text` translates an ASCII string character by character (`_ASCII_CODES`): the same as the full
+    loop (`_tex_chars`) on every pair of ASCII characters (specials, controls and DEL included)."""
+    for a in range(128):
+        for b in range(128):
+            s = chr(a) + chr(b)
+            assert latex_text.tex_text(s) == latex_text._tex_chars(s), repr(s)
+
+
+@given(st.text(alphabet=st.characters(max_codepoint=127), max_size=60))
+def test_ascii_fast_path_is_the_character_loop(text):
+    assert latex_text.tex_text(text) == latex_text._tex_chars(unicodedata.normalize("NFD", text))
