@@ -124,7 +124,9 @@ def method_cost(
     if probed:
         for name in per_pixel:  # tiled once at the most this call may time, the probe a prefix of it
             tiles.tiled(name, inputs[name], size)
-        probe = method_cost(method, case, backend, _COST_PROBE, 0.0, tiles, _PROBE_REPEATS)
+        probe = method_cost(
+            method, case, backend, _COST_PROBE, min_seconds=0.0, tiles=tiles, repeats=_PROBE_REPEATS
+        )
         per_element = probe["ns_per_pixel"] * 1e-9
         size = int(min(size, max(_COST_PROBE, _COST_CALL_SECONDS / max(per_element, 1e-15))))
     Float = backend_float(backend)

@@ -96,14 +96,14 @@ class Param:
             )
         if isinstance(self.scan, bool) or not isinstance(self.scan, int) or self.scan < 0:
             raise ValueError(f"Param.scan must be a non-negative int, got {self.scan!r}")
-        if self.log and self.fd_step:
-            raise ValueError("Param.fd_step is a step in p: not with Param.log (the solver steps log p)")
         if self.log and not self.lower >= 0.0:
             raise ValueError(f"Param.log needs lower ≥ 0, got {self.lower}")
         if isinstance(self.fd_step, bool) or not (
             isinstance(self.fd_step, int | float) and 0.0 <= self.fd_step < 1.0
         ):
             raise ValueError(f"Param.fd_step must be a number in [0, 1), got {self.fd_step!r}")
+        if self.log and self.fd_step:
+            raise ValueError("Param.fd_step is a step in p: not with Param.log (the solver steps log p)")
         if self.scan and not (math.isfinite(self.lower) and math.isfinite(self.upper)):
             raise ValueError("Param.scan needs finite bounds (the scan covers them)")
 

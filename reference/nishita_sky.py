@@ -925,13 +925,10 @@ def _ss_quadrature(
         perp = np.where(pn > 1e-12, perp / np.maximum(pn, 1e-300), fallback / np.linalg.norm(fallback))
         return np.cos(deltas)[:, None, None] * s[None, None, :] + np.sin(deltas)[:, None, None] * perp[None]
 
-    def points(i: int) -> np.ndarray:
-        """Row i's points along the view ray (steps, 3)."""
-        return o[None, :] + (u * t_max[i])[:, None] * d[i][None, :]
-
     def sun_rays(i: int) -> tuple[np.ndarray, np.ndarray]:
-        """Row i's sun rays: (points, directions), one per point (point sun) or K per point (disc)."""
-        x = points(i)
+        """Row i's sun rays: (points, directions), one per point of its view ray (point sun), or K per point
+        (disc: the points repeated K times, the first `steps` rows the view ray's points)."""
+        x = o[None, :] + (u * t_max[i])[:, None] * d[i][None, :]
         if deltas is None:
             return x, np.broadcast_to(s, x.shape)
         om = disc_directions(x)
@@ -940,7 +937,7 @@ def _ss_quadrature(
     def row(i: int, rays: tuple[np.ndarray, np.ndarray], sr: np.ndarray, sm: np.ndarray) -> np.ndarray:
         """Row i's integral, given its sun rays (`sun_rays`) and their optical depths."""
         t = u * t_max[i]
-        x = points(i)
+        x = rays[0][:steps]  # the view ray's points (`sun_rays`)
         h = np.maximum(np.linalg.norm(x, axis=1) - rg, 0.0)
         rr, rm = np.exp(-h / spec.rayleigh_height_km), np.exp(-h / spec.mie_height_km)
         dt = np.diff(t)
