@@ -108,9 +108,20 @@ def owner_file(tmp: Path) -> Path:
     return tmp.with_name(tmp.name + OWNER_SUFFIX)
 
 
-def _write_owner(tmp: Path) -> None:
+def _write_owner(tmp: Path) -> bool:
+    """Create the owner file of ``tmp`` (False: the name is taken, pick another). Written in place, not
+    through a temporary file: a process killed inside an atomic write would leave that temporary file
+    (``..NAME.<hex>.tmp.owner.<hex>.tmp``) where nothing removes it (CI saw one, stop 51); killed here, it
+    leaves at worst a torn owner file without its directory, which `remove_stale_temporaries` removes."""
     owner = {"host": socket.gethostname(), "pid": os.getpid(), "start": process_start(os.getpid())}
-    atomic_write_json(owner_file(tmp), {**owner, "created": time.time()})
+    text = json.dumps({**owner, "created": time.time()})
+    try:
+        fd = os.open(owner_file(tmp), os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except FileExistsError:
+        return False
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
+    return True
 
 
 def _owner_file_live(path: Path) -> bool:
@@ -153,6 +164,22 @@ def _stale_reason(path: Path, now: float) -> str | None:
     return None
 
 
+def _legacy_owner_temporary(path: Path, prefix: str, now: float) -> bool:
+    """Whether ``path`` is the temporary file of an owner file of ``prefix``'s directories
+    (``.<prefix><hex>.tmp.owner.<hex>.tmp``) left by an rtfit that wrote owner files atomically and was killed
+    inside the write; nothing writes those now, so one unchanged for `TORN_OWNER_SECONDS` is abandoned."""
+    name = path.name
+    if not (name.startswith("." + prefix) and is_temporary_name(name)):
+        return False
+    inner = name[1:].rsplit(".", 2)[0]  # the owner file's name
+    if not (inner.endswith(OWNER_SUFFIX) and is_temporary_name(inner.removesuffix(OWNER_SUFFIX))):
+        return False
+    try:
+        return path.is_file() and not path.is_symlink() and now - path.stat().st_mtime > TORN_OWNER_SECONDS
+    except OSError:
+        return False
+
+
 def _say(message: str) -> None:
     log.info("%s", message)  # the CLI prints INFO lines as "rtfit: …" (-q silences them)
 
@@ -169,6 +196,11 @@ def remove_stale_temporaries(final_path, log: Callable[[str], None] | None = _sa
         return removed
     now = time.time()
     for path in entries:
+        if _legacy_owner_temporary(path, prefix, now):
+            path.unlink(missing_ok=True)
+            if log is not None:
+                log(f"removed the abandoned temporary file {path} (an owner file's, from an older rtfit)")
+            continue
         if not path.name.startswith(prefix):
             continue
         if path.name.endswith(OWNER_SUFFIX) and is_temporary_name(path.name.removesuffix(OWNER_SUFFIX)):
@@ -212,12 +244,11 @@ def atomic_directory(final_path, log: Callable[[str], None] | None = _say) -> It
     remove_stale_temporaries(final, log)
     while True:
         tmp = temp_name(final, "tmp")
-        if tmp.exists() or owner_file(tmp).exists():
-            continue  # (random names: never in practice) another builder's: pick again
         # The owner file first, then the directory: a process killed between the two leaves an owner file
         # without its directory (removed by the next `remove_stale_temporaries`), never a directory without
         # an owner, which would wait `STALE_UNOWNED_SECONDS` (tests/test_faults.py hit that under load).
-        _write_owner(tmp)
+        if tmp.exists() or not _write_owner(tmp):
+            continue  # (random names: never in practice) another builder's: pick again
         try:
             tmp.mkdir(mode=0o777)
             break

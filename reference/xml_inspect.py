@@ -229,6 +229,22 @@ def _up(camera: XmlSensor | None, up: str | None) -> tuple[str, str]:
     return axis, reason
 
 
+def _check_normal_map(mi, shape, location: str) -> None:
+    """Mitsuba's ``normalmap`` reads an RGB normal from its texture; a one-channel bitmap (a height map
+    given by mistake) loads, then fails only inside a render ("was queried for a RGB value, but it is
+    monochromatic") — in any later render of the process while the scene is alive, since a BSDF call
+    traces every live BSDF (CI hit this: stop 51). Said at once, as one line."""
+    params = mi.traverse(shape.bsdf())
+    for key in params.keys():
+        if key.endswith("normalmap.data"):
+            channels = params[key].shape[-1]
+            if channels != 3:
+                raise XMLSceneError(
+                    f'{location}: <bsdf type="normalmap">: its texture has {channels} channel(s); '
+                    "a normal map is an RGB image (Mitsuba fails at render time with it)"
+                )
+
+
 def inspect_xml(
     path: str | os.PathLike | Mapping,
     defines: Mapping[str, str] | None = None,
@@ -329,6 +345,8 @@ def inspect_xml(
             }
             boundaries.update(j for k, j in named.items() if k in ("interior", "exterior"))
             obj = shape_obj.get(i)
+            if bump_plugin == "normalmap" and obj is not None:
+                _check_normal_map(mi, obj, where[bsdf_node])
             plugin = nodes[i].props.plugin_name()
             filename = props[i].get("filename") if plugin in MESH_PLUGINS else None  # (a mesh's data file)
             shapes.append(

@@ -158,7 +158,7 @@ def test_list_names_the_family_with_its_reason(tmp_path):
 def test_a_normal_map_alone_does_not_apply_and_says_why(tmp_path):
     """A normal map stores normals, not heights: with only the normal-mapped square, the family is listed as
     not applying, with that reason."""
-    shutil.copy(DATA / "flat.exr", tmp_path / "flat.exr")
+    shutil.copy(DATA / "flat_normals.exr", tmp_path / "flat_normals.exr")
     text = SCENE.read_text()
     start = text.index('<bsdf type="bumpmap">')
     text = text[:start] + text[text.index("</shape>", start) :]  # the floor keeps Mitsuba's default BSDF
@@ -168,6 +168,21 @@ def test_a_normal_map_alone_does_not_apply_and_says_why(tmp_path):
     line = next(x for x in result.stdout.splitlines() if x.strip().startswith("parallax-occlusion:"))
     assert "needs a shape whose BSDF is a bumpmap with a bitmap texture" in line
     assert "the normalmap on the rectangle 'tiles'" in line and "stores normals, not heights" in line
+
+
+def test_a_one_channel_normal_map_is_refused_in_one_line(tmp_path):
+    """A height map given to ``normalmap`` loads in Mitsuba and fails only inside a render (and in any later
+    render while the scene lives: CI, stop 51): the audit refuses it before anything runs, exit 2."""
+    shutil.copy(DATA / "flat.exr", tmp_path / "flat.exr")
+    (tmp_path / "s.xml").write_text(SCENE.read_text().replace("flat_normals.exr", "flat.exr"))
+    result = CliRunner().invoke(audit_cli, [str(tmp_path / "s.xml"), "--list"])
+    assert result.exit_code == 2, result.output
+    (line,) = result.output.strip().splitlines()
+    assert line.startswith(f"rtfit: error: {tmp_path / 's.xml'} (line ")
+    assert line.endswith(
+        '<bsdf type="normalmap">: its texture has 1 channel(s); a normal map is an RGB image '
+        "(Mitsuba fails at render time with it)"
+    )
 
 
 def test_toml_scene_with_the_bumped_floor_as_a_mitsuba_xml_shape(tmp_path):

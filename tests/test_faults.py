@@ -224,6 +224,35 @@ def test_the_owner_file_comes_before_its_directory(tmp_path, monkeypatch):
     assert mine.exists() and not dead.exists()
 
 
+def test_the_owner_file_is_written_in_place_and_an_old_owner_temporary_goes(tmp_path, monkeypatch, caplog):
+    """The owner file is created in place (O_EXCL), never through a temporary file: CI killed a run inside the
+    atomic write of one and its ``..NAME.<hex>.tmp.owner.<hex>.tmp`` stayed (stop 51). Such a file left by an
+    older rtfit goes once unchanged for `TORN_OWNER_SECONDS`, with one line; a fresh one stays."""
+    caplog.set_level(logging.INFO, logger="rtfit.experiments")
+    final = tmp_path / "diffuse"
+    final.parent.mkdir(parents=True, exist_ok=True)
+    made = []
+    real_open = os.open
+    monkeypatch.setattr(
+        atomic.os, "open", lambda path, *a, **k: made.append(Path(path)) or real_open(path, *a, **k)
+    )
+    with atomic.atomic_directory(final, log=None) as tmp:
+        assert made == [owner_file(tmp)] and json.loads(owner_file(tmp).read_text())["pid"] == os.getpid()
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["diffuse"]
+    old = tmp_path / f"..diffuse.{'ab' * 6}.tmp.owner.{'cd' * 6}.tmp"
+    fresh = tmp_path / f"..diffuse.{'ef' * 6}.tmp.owner.{'01' * 6}.tmp"
+    foreign = tmp_path / f"..height-fog.{'ab' * 6}.tmp.owner.{'cd' * 6}.tmp"
+    for f in (old, fresh, foreign):
+        f.write_text('{"host": ')
+    for f in (old, foreign):
+        os.utime(f, (time.time() - 60, time.time() - 60))
+    assert remove_stale_temporaries(final) == []  # (files: the directories' list stays)
+    assert not old.exists() and fresh.exists() and foreign.exists()
+    (line,) = [r.getMessage() for r in caplog.records if r.name == "rtfit.experiments"]
+    assert line == f"removed the abandoned temporary file {old} (an owner file's, from an older rtfit)"
+
+
 def test_a_live_owners_temporary_directory_is_kept(tmp_path):
     final = tmp_path / "diffuse"
     child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
