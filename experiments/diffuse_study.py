@@ -158,7 +158,9 @@ def fit_smooth(alphas_deg, fits: list[Mapping[str, dict]]) -> dict:
     weights = np.concatenate(
         [1.0 / np.maximum([f[k]["stderr"] or 1e-3 for f in fits], 1e-3) for k in ("w", "p")]
     )
-    return fit_method(SMOOTH_LAW, {"alpha": alphas}, target, weights=weights, output=concatenated).to_dict()
+    return fit_method(
+        SMOOTH_LAW, {"alpha": alphas}, target, weights=weights, output=concatenated, solver="trf"
+    ).to_dict()
 
 
 def smooth_wp(smooth: Mapping, alpha_rad) -> dict[str, Any]:

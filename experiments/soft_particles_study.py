@@ -171,7 +171,9 @@ def domain_study(fit_alphas, samples: int) -> dict:
             exact = exact64(shape, ex)
             for fid, kernel in (("linear-fit", "linear"), ("fitted", "fitted")):
                 m = METHODS[kernel]
-                fit = fit_method(m, {k: bb[k] for k in m.input_names}, exact, max_steps=FIT_MAX_STEPS)
+                fit = fit_method(
+                    m, {k: bb[k] for k in m.input_names}, exact, max_steps=FIT_MAX_STEPS, solver="trf"
+                )
                 fits[(shape, fid, alpha_c)] = fit.to_dict()
             prof: dict = {"delta_over_r": [float(x) for x in 0.5 * (bins[1:] + bins[:-1])]}
             idx = np.digitize(bb["delta"] / RADIUS, bins) - 1

@@ -173,8 +173,11 @@ def zero_padded(a, size: int) -> np.ndarray:
 def concatenated(parts):
     """A kernel's tuple of arrays as one vector ``[parts[0]…, parts[1]…, …]``: the ``output`` transform
     (module-level, JAX-traceable) for a fit of a method that returns several quantities at once (issue
-    32: the experiments each imported ``jax.numpy`` for it; it lives here, once)."""
-    import jax.numpy as jnp  # jax: heavy, only a fit needs it
+    32: the experiments each imported ``jax.numpy`` for it; it lives here, once). NumPy parts (the NumPy run
+    of a ``solver="trf"`` fit) stay in NumPy: no JAX import."""
+    if all(isinstance(p, np.ndarray | np.generic | float | int) for p in parts):
+        return np.concatenate([np.ravel(p) for p in parts])
+    import jax.numpy as jnp  # jax: heavy, only a JAX fit needs it
 
     return jnp.concatenate(parts)
 
