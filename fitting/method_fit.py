@@ -579,6 +579,10 @@ def _fit_trf(
     last: dict[bytes, np.ndarray] = {}  # the latest residuals (a Jacobian's centre: `grouped_differences`)
 
     def residual(v: np.ndarray) -> np.ndarray:
+        key = np.asarray(v, np.float64).tobytes()
+        kept = last.get(key)
+        if kept is not None:  # the point just evaluated (SciPy's start is ours, `r0` below): the same values
+            return kept.copy()
         values = {**held, **dict(zip(names, (float(a) for a in values_of(v)), strict=True))}
         pred = method(NUMPY_OPS, inputs, values) if run is None else run(values)
         if output is not None:
@@ -586,7 +590,7 @@ def _fit_trf(
         r = weights * (np.asarray(pred, np.float64) - target)
         out = np.ravel(np.broadcast_to(r, target.shape))
         last.clear()
-        last[np.asarray(v, np.float64).tobytes()] = out
+        last[key] = out
         return out
 
     rows = [None if param_rows is None else param_rows.get(n) for n in names]
