@@ -581,8 +581,8 @@ def _fit_trf(
     def residual(v: np.ndarray) -> np.ndarray:
         key = np.asarray(v, np.float64).tobytes()
         kept = last.get(key)
-        if kept is not None:  # the point just evaluated (SciPy's start is ours, `r0` below): the same values
-            return kept.copy()
+        if kept is not None:  # the point just evaluated (SciPy's start is ours, `r0` below): the same array,
+            return kept  # as every evaluation hands out the array it keeps (nothing writes into residuals)
         values = {**held, **dict(zip(names, (float(a) for a in values_of(v)), strict=True))}
         pred = method(NUMPY_OPS, inputs, values) if run is None else run(values)
         if output is not None:
