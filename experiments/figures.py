@@ -9,10 +9,12 @@ same across panels; pixels outside the comparison mask are grey.
 
 from __future__ import annotations
 
+import functools
 import io
 import struct
 import zlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import PIL.Image
@@ -24,13 +26,48 @@ from .figure_text import PNG_DPI, text_pixels, wrap_to_width
 
 
 def pyplot():
-    """matplotlib.pyplot on the non-interactive Agg backend (figures are written, never shown)."""
+    """matplotlib.pyplot on the non-interactive Agg backend (figures are written, never shown), its renderers
+    sharing one cache of parsed math text (`_share_math_parses`)."""
     import matplotlib
 
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
+    _share_math_parses()
     return plt
+
+
+MATH_PARSES = 1024
+"""Parsed math-text labels kept for all the figures of a process (`_share_math_parses`; matplotlib: 50)."""
+
+
+@functools.cache
+def _share_math_parses() -> None:
+    """One math-text parser for all of matplotlib's Agg renderers, its cache of parses (keyed by the text, the
+    dpi, the font and the hinting: the same parse for the same key) raised to `MATH_PARSES` entries.
+
+    Matplotlib 3.11 gives each renderer its own ``MathTextParser`` and caches parses per parser (50 of them),
+    and every figure gets new renderers: one for its layout, one for the PNG at `PNG_DPI` (a cropped canvas
+    of another size). A log axis labels its ticks in math text (10², 10³), so every log-scaled figure parsed
+    every tick label again, twice: 2.4 of the quick suite's ~14 s of matplotlib (issue 33, session 27); a
+    two-panel log-log `line_plot` 0.44–0.50 → 0.29–0.32 s, the same bytes. Where matplotlib's internals are
+    not as expected, nothing is changed."""
+    import matplotlib.backends.backend_agg as agg
+    import matplotlib.mathtext as mathtext
+
+    parser_class = getattr(mathtext, "MathTextParser", None)
+    cached = getattr(parser_class, "_parse_cached", None)
+    if agg.MathTextParser is not parser_class or not hasattr(cached, "__wrapped__"):
+        return
+    shared: dict[str, Any] = {}
+
+    def one_parser(output: str):
+        if output not in shared:
+            shared[output] = parser_class(output)
+        return shared[output]
+
+    parser_class._parse_cached = functools.lru_cache(MATH_PARSES)(cached.__wrapped__)
+    agg.MathTextParser = one_parser
 
 
 def srgb(linear: np.ndarray) -> np.ndarray:

@@ -48,6 +48,7 @@ import numpy as np
 
 from .arrays import DRJIT_OPS, evaluate
 from .methods import Input, Method, Param, method_table
+from .numpy_memo import KeptValues
 
 __all__ = [
     "D_MAX_LIMIT",
@@ -120,20 +121,37 @@ def _ray_mean(distances, rho) -> Any:
     return acc * (1.0 / k)
 
 
+_KEPT_MEANS = KeptValues(max_floats=1 << 22, max_entries=8)
+"""The NumPy run's ray means by (ρ, its parameters) and distance arrays (`_kept_mean`)."""
+MEMOS = (_KEPT_MEANS,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
+
+
+def _kept_mean(ops, key: tuple, distances, rho) -> Any:
+    """`_ray_mean` of ``rho``, kept on the NumPy run for ``key`` (ρ's name and parameters) and these distance
+    arrays (`KeptValues`): a fit's Jacobian steps the scale s alone at two of its points (and a 3-parameter
+    power fit: 2 of its 7 evaluations an iteration), where the mean is the one of the point before, bit for
+    bit. Issue 33 (session 27): the power ρ was the quick suite's largest kernel cost in its fits (2.2 s)."""
+    rays = [distances] if getattr(distances, "ndim", 0) == 2 else list(distances)
+    return _KEPT_MEANS.get(ops, key, rays, lambda _: _ray_mean(distances, rho))
+
+
 # ---------------------------------------------------------------------------------------------- kernels
 def power_obscurance_kernel(ops, distances, d_max=SEED_D_MAX, exponent=SEED_EXPONENT, scale=1.0):
     """s · (1/K) Σ_k min(d_k/d_max, 1)^p: the obscurance estimator with the seed's (generalised) ρ."""
-    return scale * _ray_mean(distances, lambda d: rho_power(ops, d, d_max, exponent))
+    rho = lambda d: rho_power(ops, d, d_max, exponent)  # noqa: E731
+    return scale * _kept_mean(ops, ("power", d_max, exponent), distances, rho)
 
 
 def exponential_obscurance_kernel(ops, distances, d_max=1.0, scale=1.0):
     """s · (1/K) Σ_k (1 − e^{−d_k/d_max})."""
-    return scale * _ray_mean(distances, lambda d: rho_exponential(ops, d, d_max))
+    rho = lambda d: rho_exponential(ops, d, d_max)  # noqa: E731
+    return scale * _kept_mean(ops, ("exponential", d_max), distances, rho)
 
 
 def step_obscurance_kernel(ops, distances, d_max=1.0, scale=1.0):
     """s · (1/K) Σ_k [d_k ≥ d_max]: ambient occlusion within d_max (the p → ∞ limit of the power form)."""
-    return scale * _ray_mean(distances, lambda d: rho_step(ops, d, d_max))
+    return scale * _kept_mean(ops, ("step", d_max), distances, lambda d: rho_step(ops, d, d_max))
 
 
 DISTANCES = Input("distances", "scene units", "hit distance of each of K cosine-distributed rays (∞: miss)")

@@ -222,3 +222,53 @@ def test_a_tight_layout_figure_is_saved_as_matplotlibs_tight_savefig(tmp_path):
     fig.savefig(buf, format="png", dpi=figures.PNG_DPI, bbox_inches="tight", pil_kwargs={"compress_level": 1})
     plt.close(fig)
     assert ours == buf.getvalue()
+
+
+_LOG_FIGURE = """
+import io, sys
+import numpy as np
+import matplotlib
+matplotlib.use("Agg", force=True)
+import matplotlib.pyplot as plt
+fig, axes = plt.subplots(1, 2, figsize=(9.2, 3.6), squeeze=False)
+x = np.geomspace(0.01, 300, 25)
+for ax in axes[0]:
+    for k in range(3):
+        ax.plot(x, x ** (0.5 + 0.2 * k), label=f"series $\\\\alpha_{k}$")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_ylabel("RMSE $\\\\sigma$")
+    ax.legend(fontsize=7)
+fig.tight_layout()
+buf = io.BytesIO()
+fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight", pil_kwargs={"compress_level": 1})
+plt.close(fig)
+"""
+
+
+def test_renderers_share_math_parses_with_matplotlibs_bytes(tmp_path):
+    """`figures.pyplot` makes matplotlib's Agg renderers share one math-text parser and a larger cache of its
+    parses (`_share_math_parses`; log-axis tick labels are math text): a log-log figure drawn twice parses
+    its labels once (the second figure's renderers hit the cache), and its PNG is the bytes that matplotlib
+    alone (a fresh process, nothing shared) writes for it."""
+    import subprocess
+    import sys
+
+    import matplotlib.backends.backend_agg as agg
+    import matplotlib.mathtext as mathtext
+
+    code = _LOG_FIGURE.replace("DPI", str(figures.PNG_DPI))
+    alone = tmp_path / "alone.png"
+    subprocess.run([sys.executable, "-c", code + f"open({str(alone)!r}, 'wb').write(buf.getvalue())\n"],
+                   check=True)  # fmt: skip
+    figures.pyplot()
+    namespace: dict = {}
+    exec(code, namespace)
+    first = namespace["buf"].getvalue()
+    before = mathtext.MathTextParser._parse_cached.cache_info()
+    exec(code, namespace)
+    after = mathtext.MathTextParser._parse_cached.cache_info()
+    assert namespace["buf"].getvalue() == first == alone.read_bytes()
+    assert after.misses == before.misses and after.hits > before.hits  # the second figure parsed nothing
+    assert after.maxsize == figures.MATH_PARSES
+    assert agg.MathTextParser("path") is agg.MathTextParser("path")

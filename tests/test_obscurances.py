@@ -350,3 +350,41 @@ def test_run_obscurances_is_the_engine_on_its_shipped_scenes_plus_the_study(tmp_
     seed = obscurances_study._eval("power", sc.distances()[:, pick], {"d_max": 0.3, "exponent": 0.5})
     diff = seed - expect
     assert abs(diff.mean()) < 4 * diff.std(ddof=1) / math.sqrt(diff.size) + 1e-3
+
+
+def test_a_fit_keeps_the_ray_mean_where_only_the_scale_moves(monkeypatch):
+    """The NumPy run keeps each form's ray mean by (ρ, d_max, p) and distance arrays (`_kept_mean`): a mean
+    asked for again with only the scale s changed is not computed again, every kernel value is the fresh
+    computation's bit for bit, and a TRF fit ends where the same fit without the memo ends, bit for bit."""
+    from rtfit.fitting import fit_method
+    from rtfit.realtime import obscurances as ob
+
+    rng = np.random.default_rng(5)
+    n, k = 600, 8
+    d = tuple(np.where(rng.random(n) < 0.3, 1e30, rng.exponential(2.0, n)) for _ in range(k))
+    calls = []
+
+    def counted(ops, dd, d_max, p):
+        calls.append(d_max)
+        return rho(ops, dd, d_max, p)
+
+    rho = ob.rho_power
+    monkeypatch.setattr(ob, "rho_power", counted)
+    ob._KEPT_MEANS.clear()
+    a = power_obscurance_kernel(NUMPY_OPS, d, 1.5, 0.7, 1.0)
+    b = power_obscurance_kernel(NUMPY_OPS, d, 1.5, 0.7, 0.8)
+    assert len(calls) == k  # the second call, s alone changed, reused the mean
+    fresh = sum(((np.minimum(x, 1.5) / 1.5) ** 0.7 for x in d), np.zeros(n)) / k
+    np.testing.assert_allclose(a, fresh, rtol=1e-13)
+    assert np.array_equal(b, 0.8 * (a / 1.0))
+    monkeypatch.setattr(ob, "rho_power", rho)
+
+    from rtfit.experiments.audit_obscurances import on_rays
+
+    method = on_rays(METHODS["power"], k)
+    inputs = {f"d{i + 1}": d[i] for i in range(k)}
+    y = power_obscurance_kernel(NUMPY_OPS, d, 2.2, 0.6, 0.9) + rng.normal(0.0, 0.01, n)
+    kept = fit_method(method, inputs, y, solver="trf")
+    monkeypatch.setattr(ob._KEPT_MEANS, "get", lambda ops, key, arrays, make: make(False))
+    unkept = fit_method(method, inputs, y, solver="trf")
+    assert kept.values == unkept.values and kept.ssr == unkept.ssr and kept.steps == unkept.steps
