@@ -4,6 +4,7 @@ tiled to a measurable size (`method_cost`; split from `audit_run`, issue 30)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -76,8 +77,31 @@ class CostInputs:
     tiles: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     """(input name, id of its array) → (the array, its cleaned float32 tile); the array is kept so its id
     stays its own."""
+    on_backend: dict[tuple[str, int, int, type], tuple[np.ndarray, Any]] = field(default_factory=dict)
+    """(input name, id of its array, elements, Dr.Jit type) → (the array, its tile's prefix as a Dr.Jit array
+    of that type: `backend_array`)."""
 
-    def tiled(self, name: str, v: np.ndarray, size: int) -> np.ndarray:
+    def backend_array(self, name: str, v: Any, size: int, Float: type) -> Any:
+        """The first ``size`` elements of ``v``'s tile (`tiled`) as a ``Float`` array of their own (an aligned
+        copy, `to_drjit`), made once and handed to every method of the case that reads them at this size.
+
+        Issue 33 (session 27): each method made its own copy, the same values: obscurances' seven methods
+        copied the same 32 distance inputs (64 MiB) seven times a case, colour-bleeding's eight its 54; the
+        copies (`aligned_copy`) were 2.3 s of the quick suite. A Dr.Jit array is a value no kernel writes
+        into, so one copy serves them all (still a copy the array owns, not the tile's memory mapped:
+        `method_cost`). At most ``budget`` bytes are kept (the oldest dropped first)."""
+        key = (name, id(v), int(size), Float)
+        known = self.on_backend.get(key)
+        if known is not None and known[0] is v:
+            return known[1]
+        array = to_drjit(Float, self.tiled(name, v, size))
+        self.on_backend.pop(key, None)
+        while self.on_backend and 4 * (sum(k[2] for k in self.on_backend) + size) > self.budget:
+            self.on_backend.pop(next(iter(self.on_backend)))
+        self.on_backend[key] = (v, array)
+        return array
+
+    def tiled(self, name: str, v: Any, size: int) -> np.ndarray:
         """The first ``size`` elements of ``v`` cleaned, cast to float32 and repeated (``v`` a per-pixel
         input of ``n`` ≥ 1 elements)."""
         key = (name, id(v))
@@ -143,10 +167,11 @@ def method_cost(
         elif np.ndim(v):
             a = tiles.tiled(name, v, size)  # the case's tile, shared by its methods (`CostInputs`)
             host.append(a[:_COST_PROBE])  # the trial below reads no more
-            # An aligned copy of its own (`to_drjit`), not the shared tile mapped: a kernel's arrays own their
-            # memory, as before session 20 (a quick suite on the GPU host ended in a segmentation fault once
-            # while the tiles were mapped; not reproduced, and not shown to be the cause: a precaution).
-            args.append(to_drjit(Float, a))
+            # An aligned copy the Dr.Jit array owns (`to_drjit`), not the shared tile mapped: the arrays of
+            # a kernel own their memory, as before session 20 (a quick suite on the GPU host ended in a
+            # segmentation fault once while the tiles were mapped; not reproduced, and not shown to be the
+            # cause: a precaution). One copy per size a case, shared by its methods (`backend_array`).
+            args.append(tiles.backend_array(name, v, size, Float))
             keys.append(name)
         else:
             consts[name] = float(v)

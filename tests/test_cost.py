@@ -244,6 +244,17 @@ def test_method_cost_methods_of_one_case_share_its_tiled_inputs():
     assert first == 1 << 13  # tiled at the most the call may time; the probe and the timed call are prefixes
     for src, tile in tiles.tiles.values():
         np.testing.assert_array_equal(tile, np.resize(src.astype(np.float32), tile.size))
+    # one Dr.Jit array per input and size, handed to both methods (`CostInputs.backend_array`), its values
+    # those of the tile's prefix
+    sizes = {key[2] for key in tiles.on_backend}
+    assert len(tiles.on_backend) == 2 * len(sizes) and len(sizes) <= 2
+    for (_, _, size, _), (src, arr) in tiles.on_backend.items():
+        np.testing.assert_array_equal(np.asarray(arr), np.resize(src.astype(np.float32), size))
+    Float = type(next(iter(tiles.on_backend.values()))[1])
+    src = case.channel_inputs[0]["cos_theta"]
+    size = next(iter(sizes))
+    same = tiles.backend_array("cos_theta", src, size, Float)
+    assert tiles.backend_array("cos_theta", src, size, Float) is same
 
 
 # ------------------------------------------------------------ a timing is its kernels', not its tracing
