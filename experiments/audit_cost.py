@@ -89,14 +89,15 @@ class CostInputs:
         copied the same 32 distance inputs (64 MiB) seven times a case, colour-bleeding's eight its 54; the
         copies (`aligned_copy`) were 2.3 s of the quick suite. A Dr.Jit array is a value no kernel writes
         into, so one copy serves them all (still a copy the array owns, not the tile's memory mapped:
-        `method_cost`). At most ``budget`` bytes are kept (the oldest dropped first)."""
+        `method_cost`). At most `_COST_INPUT_BYTES` are kept (the oldest dropped first): what one method's own
+        copies held at most before, so the peak memory stays where it was."""
         key = (name, id(v), int(size), Float)
         known = self.on_backend.get(key)
         if known is not None and known[0] is v:
             return known[1]
         array = to_drjit(Float, self.tiled(name, v, size))
         self.on_backend.pop(key, None)
-        while self.on_backend and 4 * (sum(k[2] for k in self.on_backend) + size) > self.budget:
+        while self.on_backend and 4 * (sum(k[2] for k in self.on_backend) + size) > _COST_INPUT_BYTES:
             self.on_backend.pop(next(iter(self.on_backend)))
         self.on_backend[key] = (v, array)
         return array
