@@ -31,9 +31,7 @@ import contextlib
 import gc
 import inspect
 import math
-import os
 from collections.abc import Callable, Iterator, Mapping
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from typing import Any
 
@@ -43,6 +41,7 @@ from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float, jax_ops, 
 from rtfit.realtime.methods import Method, Param
 
 from .blas_threads import one_blas_thread
+from .difference_maps import batched_points, difference_map, grouped_differences, point_batch
 from .least_squares import (
     FitResult,
     bound_flags,
@@ -57,10 +56,8 @@ __all__ = [
     "FD_RCOND",
     "NOISE_KAPPA",
     "concatenated",
-    "difference_map",
     "fit_method",
     "gauss_newton_gain_small",
-    "grouped_differences",
     "method_model",
     "noise_ftol",
     "residual_variance",
@@ -440,107 +437,6 @@ def _takes_workers(least_squares) -> bool:
         return False
 
 
-PARALLEL_FROM = 1 << 16
-"""A NumPy fit of at least this many residuals evaluates its Jacobian's points on `_threads` threads
-(`difference_map`): NumPy's elementwise passes over such arrays release the GIL for most of their time, and a
-fit otherwise leaves every core but one idle (its BLAS runs on one thread: `one_blas_thread`). Below it (a
-64² audit's 4096 pixels: ~10 µs a pass) the threads would mostly wait for the GIL. Each point is evaluated
-alone, as before: the same Jacobian bit for bit (tests/test_fit_tolerance.py). Issue 33: the polishes on every
-pixel were 16.5 of the 23 s of a 256² Cornell-box audit's fits."""
-
-
-def _threads() -> int:
-    """The CPU cores this process may run on (at most 4: a Jacobian has 2k points, k ≤ 7 here)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
-    return max(1, min(4, cores))
-
-
-def difference_map(size: int, ops: str) -> Callable | None:
-    """The map a fit's finite differences run through: threads (`PARALLEL_FROM`) for a NumPy fit
-    (``ops`` "numpy") of ``size`` residuals or more on a machine of several cores, each evaluation under
-    NumPy's ``errstate(all="ignore")`` as the fit's own; None (the caller's serial map) otherwise. A Dr.Jit
-    fit (`Method.fit_ops` "drjit") is left serial: its kernels already run on every core."""
-    threads = _threads()
-    if ops != "numpy" or size < PARALLEL_FROM or threads < 2:
-        return None
-
-    def parallel(fun, points):
-        def one(x):
-            with np.errstate(all="ignore"):
-                return fun(x)
-
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            return list(pool.map(one, list(points)))
-
-    return parallel
-
-
-def grouped_differences(
-    rows: list, centre: Mapping[bytes, np.ndarray], mapper: Callable | None = None
-) -> Callable | None:
-    """The ``workers`` map for SciPy's central-difference Jacobian (``jac="3-point"``) of a fit whose
-    parameter i changes only the residuals ``rows[i]`` (a boolean mask; None: any): parameters of pairwise
-    disjoint rows are stepped together, one evaluation per side for the group instead of one per parameter,
-    and each parameter's column gets the group's residuals on its rows and the centre's elsewhere — what
-    its own evaluation gives there, bit for bit, so SciPy's differences (its steps, bounds and one-sided rule
-    untouched) are the same. ``centre``: the latest residuals by the parameters' bytes (else evaluated
-    again). None where no two parameters' rows are disjoint. A map of anything but the Jacobian's 2·k points
-    (each stepping one parameter of one centre) runs each point as it is. ``mapper``: the map the points
-    are evaluated through (`difference_map`; None: one after another)."""
-    run_all = mapper or (lambda fun, xs: [fun(x) for x in xs])
-    groups: list[list[int]] = []
-    for i, r in enumerate(rows):
-        home = next((g for g in groups if r is not None and all(
-            rows[j] is not None and not np.any(r & rows[j]) for j in g)), None)  # fmt: skip
-        if home is None:
-            groups.append([i])
-        else:
-            home.append(i)
-    if all(len(g) == 1 for g in groups):
-        return None
-    k = len(rows)
-
-    def workers(fun, points):
-        xs = [np.array(x, np.float64) for x in points]
-        if len(xs) != 2 * k or k < 2:
-            return run_all(fun, xs)
-        x0 = xs[2].copy()
-        x0[1] = xs[0][1]  # the first pair steps parameter 0 only, the second parameter 1 only
-        for i, x in enumerate(xs):
-            other = np.arange(k) != i // 2
-            if not np.array_equal(x[other].view(np.uint64), x0[other].view(np.uint64)):
-                return run_all(fun, xs)
-        f0 = centre.get(x0.tobytes())
-        f0 = np.asarray(fun(x0) if f0 is None else f0, np.float64)
-        todo = []  # (group, side, point): one evaluation per side of each group
-        for g in groups:
-            for side in (0, 1):
-                if len(g) == 1:
-                    x = xs[2 * g[0] + side]
-                else:
-                    x = x0.copy()
-                    for i in g:
-                        x[i] = xs[2 * i + side][i]
-                todo.append((g, side, x))
-        values = run_all(fun, [x for _, _, x in todo])
-        out: list = [None] * (2 * k)
-        for (g, side, _), f in zip(todo, values, strict=True):
-            if len(g) == 1:
-                out[2 * g[0] + side] = f
-                continue
-            f = np.asarray(f, np.float64)
-            for i in g:
-                col = f0.copy()
-                col[rows[i]] = f[rows[i]]
-                out[2 * i + side] = col
-        return out
-
-    return workers
-
-
 def _fit_trf(
     method: Method,
     params: Mapping[str, Param],
@@ -577,6 +473,7 @@ def _fit_trf(
     run = _drjit_run(method, inputs) if method.fit_ops == "drjit" else None
 
     last: dict[bytes, np.ndarray] = {}  # the latest residuals (a Jacobian's centre: `grouped_differences`)
+    shapes: list[tuple[int, ...]] = []  # the kernel's output shapes at one point (`point_batch`)
 
     def residual(v: np.ndarray) -> np.ndarray:
         key = np.asarray(v, np.float64).tobytes()
@@ -585,6 +482,8 @@ def _fit_trf(
             return kept  # as every evaluation hands out the array it keeps (nothing writes into residuals)
         values = {**held, **dict(zip(names, (float(a) for a in values_of(v)), strict=True))}
         pred = method(NUMPY_OPS, inputs, values) if run is None else run(values)
+        if not shapes:
+            shapes.extend(np.shape(p) for p in (pred if isinstance(pred, tuple | list) else (pred,)))
         if output is not None:
             pred = output(pred)
         r = weights * (np.asarray(pred, np.float64) - target)
@@ -597,6 +496,9 @@ def _fit_trf(
     workers = None
     if _takes_workers(scipy.optimize.least_squares):
         mapper = difference_map(target.size, method.fit_ops)
+        if mapper is None and run is None and output is None:  # a NumPy run: its points in one call
+            batch = point_batch(method, inputs, held, names, values_of, weights, target, shapes)
+            mapper = batched_points(batch, last, target.size)
         workers = grouped_differences(rows, last, mapper) or mapper
     extra: dict[str, Any] = {} if workers is None else {"workers": workers}
     if any(p.fd_step for p in ps):

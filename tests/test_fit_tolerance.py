@@ -117,7 +117,7 @@ def _per_channel_data(seed: int, n: int):
     return t, channel, y, box
 
 
-def test_grouped_differences_give_scipys_jacobian_with_fewer_evaluations():
+def test_grouped_differences_give_scipys_jacobian_with_fewer_evaluations(monkeypatch):
     """Parameters declared to change disjoint residuals (`fit_method` ``param_rows``: s_r, s_g, s_b, one
     channel each) share the central-difference Jacobian's evaluations (`grouped_differences`): the fit
     evaluates the kernel fewer times, and ends where SciPy's own Jacobian (no grouping) ends, bit for bit."""
@@ -125,10 +125,12 @@ def test_grouped_differences_give_scipys_jacobian_with_fewer_evaluations():
 
     from scipy.optimize._numdiff import approx_derivative
 
-    from rtfit.fitting.method_fit import grouped_differences
+    from rtfit.fitting import difference_maps
+    from rtfit.fitting.difference_maps import grouped_differences
 
     if "workers" not in inspect.signature(least_squares).parameters:
         pytest.skip("this SciPy's least_squares takes no workers map (the fits run ungrouped)")
+    monkeypatch.setattr(difference_maps, "BATCH_ELEMENTS", 0)  # a kernel call a point: the calls counted
 
     t, channel, y, box = _per_channel_data(seed=4, n=30)
     calls = []
@@ -159,19 +161,20 @@ def test_grouped_differences_give_scipys_jacobian_with_fewer_evaluations():
 
 
 def test_threaded_differences_give_the_serial_fit_bit_for_bit(monkeypatch):
-    """A NumPy fit of `method_fit.PARALLEL_FROM` residuals or more evaluates its Jacobian's points on threads
-    (`difference_map`, issue 33): each point alone, so the fit ends where the serial fit ends, bit for bit,
-    grouped (`param_rows`) or not; smaller fits, and Dr.Jit fits, get no threads."""
+    """A NumPy fit of `difference_maps.PARALLEL_FROM` residuals or more evaluates its Jacobian's points on
+    threads (`difference_map`, issue 33): each point alone, so the fit ends where the serial fit ends, bit for
+    bit, grouped (`param_rows`) or not; smaller fits, and Dr.Jit fits, get no threads."""
     import inspect
 
-    from rtfit.fitting import method_fit
+    from rtfit.fitting import difference_maps
 
     if "workers" not in inspect.signature(least_squares).parameters:
         pytest.skip("this SciPy's least_squares takes no workers map (the fits run serially)")
-    assert method_fit.difference_map(method_fit.PARALLEL_FROM - 1, "numpy") is None
-    assert method_fit.difference_map(method_fit.PARALLEL_FROM, "drjit") is None
-    monkeypatch.setattr(method_fit, "_threads", lambda: 2)
-    assert method_fit.difference_map(method_fit.PARALLEL_FROM, "numpy") is not None
+    assert difference_maps.difference_map(difference_maps.PARALLEL_FROM - 1, "numpy") is None
+    assert difference_maps.difference_map(difference_maps.PARALLEL_FROM, "drjit") is None
+    monkeypatch.setattr(difference_maps, "_threads", lambda: 2)
+    monkeypatch.setattr(difference_maps, "BATCH_ELEMENTS", 0)  # a call a point where no thread runs
+    assert difference_maps.difference_map(difference_maps.PARALLEL_FROM, "numpy") is not None
 
     t, channel, y, box = _per_channel_data(seed=9, n=24)
     threads = []
@@ -184,9 +187,9 @@ def test_threaded_differences_give_the_serial_fit_bit_for_bit(monkeypatch):
     rows = {f"s_{c}": channel == i for i, c in enumerate("rgb")}
     inputs = {"channel": channel, "t": t}
     for declared in (None, rows):
-        monkeypatch.setattr(method_fit, "PARALLEL_FROM", 10**9)  # serial
+        monkeypatch.setattr(difference_maps, "PARALLEL_FROM", 10**9)  # serial
         serial = fit_method(method, inputs, y, solver="trf", param_rows=declared)
-        monkeypatch.setattr(method_fit, "PARALLEL_FROM", 1)  # threaded
+        monkeypatch.setattr(difference_maps, "PARALLEL_FROM", 1)  # threaded
         threads.clear()
         threaded = fit_method(method, inputs, y, solver="trf", param_rows=declared)
         assert len(set(threads)) > 1  # the points did run on other threads
@@ -310,3 +313,66 @@ def test_a_trf_fit_evaluates_its_start_once():
     fit = fit_method(method, {"x": x}, y, solver="trf")
     assert seen.count((1.0, 0.1)) == 1
     assert fit.values["a"] == pytest.approx(2.0, abs=0.01) and fit.values["b"] == pytest.approx(0.7, abs=0.01)
+
+
+def _mixing(ops, channel, t, k, s_r, s_g, s_b):
+    """`_per_channel` less its mean over every element: not elementwise (a batch's points mixed)."""
+    v = _per_channel(ops, channel, t, k, s_r, s_g, s_b)
+    return v - np.mean(v) + np.mean(_per_channel(ops, channel, t, 1.5, 1.0, 2.0, 0.5))
+
+
+def _numbered(ops, channel, t, k, s_r, s_g, s_b):
+    """`_per_channel` with its rate read as a number (a batch's array of rates cannot be)."""
+    return _per_channel(ops, channel, t, float(k), s_r, s_g, s_b)
+
+
+def _reduced(ops, channel, t, k, s_r, s_g, s_b):
+    """`_per_channel` on a 2-D input whose first axis it reduces: one point's shape, not a batch's."""
+    return _per_channel(ops, channel, np.stack([t, t]), k, s_r, s_g, s_b).mean(axis=0)
+
+
+@pytest.mark.parametrize("grouped", [False, True])
+def test_batched_points_give_the_fit_of_a_call_a_point_bit_for_bit(monkeypatch, grouped):
+    """A NumPy fit may evaluate its Jacobian's points in one call of the kernel, each fitted parameter an
+    array over the points (`batched_points`, `point_batch`; issue 33): its first Jacobian runs a call a point,
+    its second batched, and the faster way runs the rest. Either way the fit ends where the fit of a call a
+    point ends, bit for bit (values, stderr, SSR, steps), grouped or not. A kernel whose batched run is not
+    its run at one point falls back to a call a point and ends there too: one that mixes the points keeping
+    the shapes (caught by the centre evaluated again in each batch), one that reads a parameter as a number
+    (an exception), one that reduces an axis (the shape). Here a call a point is made slow (2 ms, a sleep) so
+    that batches are faster; a kernel whose batches are slower (a 50 ms sleep) goes back to a call a point."""
+    import inspect
+    import time
+
+    from rtfit.fitting import difference_maps
+
+    if "workers" not in inspect.signature(least_squares).parameters:
+        pytest.skip("this SciPy's least_squares takes no workers map (the fits run serially)")
+    t, channel, y, box = _per_channel_data(seed=11, n=40)
+    rows = {f"s_{c}": channel == i for i, c in enumerate("rgb")} if grouped else None
+    inputs = {"channel": channel, "t": t}
+    texts = ((_per_channel, True, 0.002), (_mixing, False, 0.002), (_numbered, False, 0.002),
+             (_reduced, False, 0.002), (_per_channel, False, 0.0))  # fmt: skip
+    calls: list[bool] = []
+    for text, batches, serial_sleep in texts:
+
+        def kernel(ops, _text=text, _sleep=serial_sleep, **kw):
+            batch = np.ndim(kw["k"]) > 0
+            calls.append(batch)
+            time.sleep(0.05 if batch and not _sleep else 0.0 if batch else _sleep)
+            return _text(ops, **kw)
+
+        method = Method("pc", "per channel", kernel, inputs=(Input("channel"), Input("t")), params=box)
+        monkeypatch.setattr(difference_maps, "BATCH_ELEMENTS", 0)
+        calls.clear()
+        serial = fit_method(method, inputs, y, solver="trf", param_rows=rows)
+        n_serial = len(calls)
+        monkeypatch.setattr(difference_maps, "BATCH_ELEMENTS", 1 << 16)
+        calls.clear()
+        batched = fit_method(method, inputs, y, solver="trf", param_rows=rows)
+        assert batched.values == serial.values and batched.stderr == serial.stderr, text.__name__
+        assert batched.ssr == serial.ssr and batched.steps == serial.steps
+        if batches:
+            assert len(calls) < 0.75 * n_serial and sum(calls) > 1  # whole Jacobians a call
+        else:
+            assert sum(calls) <= 1  # one batch tried, then a call a point
