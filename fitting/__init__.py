@@ -10,6 +10,8 @@
   run of its one kernel text (``solver="trf"``: the NumPy run, SciPy TRF, stopped at a noise-derived
   tolerance, `method_fit.noise_ftol`).
 * :mod:`.blas_threads`: `one_blas_thread`, one OpenBLAS thread while a TRF fit runs.
+* :mod:`.difference_maps`: how a TRF fit's Jacobian points are evaluated (threads, grouped parameters, or
+  several points in one kernel call), the same Jacobian bit for bit.
 * :mod:`.bounded_lm`: `bounded_lm`, a projected Levenberg–Marquardt for residuals with a user-supplied
   Jacobian (NumPy; residuals JAX cannot trace), `bounded_lm_result` (its `FitResult`), `param_bounds`.
 
