@@ -342,6 +342,43 @@ def test_kept_texels_serve_every_bias_on_the_same_points_and_no_others():
     assert vis(0.0, pz + 0.4) == [1, 1, 1, 1]
 
 
+def test_kept_comparison_terms_are_keyed_by_the_points_and_the_normals():
+    """With the normals' arrays given (`_depth_kernel` passes them), the NumPy run keeps each tap's depth and
+    cos θ (neither depends on b) by the points and the normals (`_kept`, key "compared"): on the by-hand flat
+    map, b = 0.01, 0, 0.01 give [1, 0, 1, 0], [1, 0, 0, 0], [1, 0, 1, 0]; the same points with every normal
+    flipped are not read from them (by hand: the third point, z = 0.505, its normal now −z, is shadowed, the
+    fourth lit: [1, 0, 0, 1]); and a row's whole kernel at one bias gives the same bits with the values kept
+    as with them computed afresh."""
+    from rtfit.realtime import NUMPY_OPS
+
+    up = np.zeros((1, 8, 8, 3))
+    up[..., 2] = 1.0
+    maps = _maps(np.full((1, 8, 8), 0.5), up, [[0.0, 0.0, 1.0]], centre=(0, 0, 0), radius=1.0)
+    px, py, pz = np.array([[0.1, 0.1, 0.2], [0.1, 0.1, -0.2], [0.0, 0.0, -0.01], [0.0, 0.0, -0.01]]).T.copy()
+    normals = tuple(np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0], [0, 0, -1.0]]).T.copy())
+    flipped = tuple(-a for a in normals)
+
+    def vis(b, n):
+        return list(ibl._shadow_test(NUMPY_OPS, maps, 0, *n, px, py, pz, b, 1, n))
+
+    assert vis(0.01, normals) == [1, 0, 1, 0] and vis(0.0, normals) == [1, 0, 0, 0]
+    assert vis(0.01, normals) == [1, 0, 1, 0]
+    assert maps._tables[("compared", 0, 0.0, 0.0)][0][3] is normals[0]
+    assert vis(0.01, flipped) == [1, 0, 0, 1]
+
+    rng = np.random.default_rng(4)
+    many = _maps(rng.uniform(0, 1, (3, 8, 8)), rng.normal(size=(3, 8, 8, 3)), ibl.fibonacci_directions(3))
+    table = tuple(ibl.lloyd_lights(ibl.fibonacci_directions(40), np.ones(40), np.ones((40, 3)), 3))
+    p = rng.uniform(-0.5, 0.5, (200, 3))
+    n = rng.normal(size=(200, 3))
+    args = (*n.T.copy(), *p.T.copy(), many, table)
+    first = ibl._depth_kernel(NUMPY_OPS, *args, 0.02, 3)  # kept here
+    again = ibl._depth_kernel(NUMPY_OPS, *args, 0.02, 3)  # read back
+    fresh = ibl._depth_kernel(NUMPY_OPS, *(a.copy() for a in args[:6]), many, table, 0.02, 3)  # other arrays
+    for a, b, c in zip(first, again, fresh, strict=True):
+        assert a.tobytes() == b.tobytes() == c.tobytes()
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.floats(0.0, 1e6), st.sampled_from([1, 3]), st.lists(st.floats(-1e3, 1e3), min_size=6, max_size=6))
 def test_in_kernel_test_finite_at_any_bias_and_point(bias, taps, pn):
