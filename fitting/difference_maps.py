@@ -71,6 +71,11 @@ def difference_map(size: int, ops: str) -> Callable | None:
     return parallel
 
 
+def _one_by_one(fun: Callable, xs) -> list:
+    """The serial ``workers`` map: ``fun`` at each point in turn (SciPy's own, without a map)."""
+    return [fun(x) for x in xs]
+
+
 def grouped_differences(
     rows: list, centre: Mapping[bytes, np.ndarray], mapper: Callable | None = None
 ) -> Callable | None:
@@ -83,7 +88,7 @@ def grouped_differences(
     again). None where no two parameters' rows are disjoint. A map of anything but the Jacobian's 2·k points
     (each stepping one parameter of one centre) runs each point as it is. ``mapper``: the map the points
     are evaluated through (`difference_map`; None: one after another)."""
-    run_all = mapper or (lambda fun, xs: [fun(x) for x in xs])
+    run_all = mapper or _one_by_one
     groups: list[list[int]] = []
     for i, r in enumerate(rows):
         home = next((g for g in groups if r is not None and all(
@@ -216,18 +221,15 @@ def batched_points(
     chunk = max(2, BATCH_ELEMENTS // max(int(size), 1))
     state: dict[str, Any] = {"mode": "time serial", "serial": math.inf}
 
-    def one_by_one(fun, xs):
-        return [fun(x) for x in xs]
-
     def workers(fun, points):
         xs = [np.array(x, np.float64) for x in points]
         known = list(last.items())[-1] if last else None
         mode = state["mode"]
         if mode == "serial" or len(xs) < 2 or known is None:
-            return one_by_one(fun, xs)
+            return _one_by_one(fun, xs)
         start = time.perf_counter()
         if mode == "time serial":
-            out = one_by_one(fun, xs)
+            out = _one_by_one(fun, xs)
             state["serial"], state["mode"] = time.perf_counter() - start, "time batched"
             return out
         centre = np.frombuffer(known[0], np.float64).copy()
@@ -236,7 +238,7 @@ def batched_points(
             values = evaluate([*xs[i : i + chunk], centre])
             if values is None or not same_bits(np.asarray(known[1]), values[-1]):
                 state["mode"] = "serial"
-                return out + one_by_one(fun, xs[len(out) :])
+                return out + _one_by_one(fun, xs[len(out) :])
             out.extend(values[:-1])
         if mode == "time batched":
             faster = time.perf_counter() - start < state["serial"]
