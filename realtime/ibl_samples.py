@@ -438,14 +438,14 @@ def _kept(ops, maps: DepthMaps, key: tuple, points: tuple, make):
     return value
 
 
-def _shadow_test(ops, maps: DepthMaps, k: int, x, y, z, px, py, pz, bias, taps: int, normals: tuple = ()):
+def _shadow_test(ops, maps: DepthMaps, k: int, x, y, z, px, py, pz, bias, taps: int, normals: tuple):
     """Light k's seed test at the point (unit normal x, y, z): depth and normal filtered linearly (clamped
     addressing, texel centres at (i + ½)/R), lit where z − b·dot(n̂_map, n) < depth
     (001:3026-3028; a filtered normal shorter than 1e-6 reads a bias of 0: HLSL's normalize(0) is NaN), the
     mean over taps × taps compares one texel apart (taps = 1: the seed's single test; 3: a 3×3 PCF).
     ``normals``: the arrays (x, y, z) were normalised from, by which (with the points) the NumPy run keeps
-    each tap's depth and cos θ (`_kept`: neither depends on the bias); empty: it keeps the filtered texels
-    only, and cos θ is computed at every call."""
+    each tap's depth and cos θ (`_kept`: neither depends on the bias; a scan of b and the TRF steps pay the
+    comparison alone)."""
     res = float(maps.resolution)
     points = (px, py, pz)
     u, v, zp = _kept(ops, maps, ("project", k), points, lambda: _project(ops, maps, k, px, py, pz))
@@ -470,18 +470,13 @@ def _shadow_test(ops, maps: DepthMaps, k: int, x, y, z, px, py, pz, bias, taps: 
                     val.append(top * (1 - fy) + bottom * fy)
                 return val
 
-            def compared(texels) -> tuple:
+            def compared(texels=filtered) -> tuple:
                 depth, mx, my, mz = texels()
                 length = ops.sqrt(mx * mx + my * my + mz * mz)
                 cos = ops.select(length > 1e-6, (mx * x + my * y + mz * z) / ops.maximum(length, 1e-30), 0.0)
                 return depth, cos
 
-            if normals:  # the depth and cos θ do not depend on the bias: kept with the points and normals,
-                key = ("compared", k, ou, ov)  # a scan of b and the TRF steps pay the comparison alone
-                depth, cos = _kept(ops, maps, key, (*points, *normals), lambda f=filtered: compared(f))
-            else:
-                key = ("filtered", k, ou, ov)
-                depth, cos = compared(lambda f=filtered, key=key: _kept(ops, maps, key, points, f))
+            depth, cos = _kept(ops, maps, ("compared", k, ou, ov), (*points, *normals), compared)
             lit = lit + ops.select(zp - bias * cos < depth, 1.0, 0.0)
     return lit * (1.0 / (taps * taps))
 

@@ -242,8 +242,10 @@ def _kernel_vis(maps, points, normals, bias=ibl.SHADOW_BIAS, taps=1, ops=None):
 
     p, n = np.asarray(points, float), np.asarray(normals, float)
     n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    unit = tuple(n.T)  # (the normals, already unit: the arrays the kept values are keyed by)
     out = [
-        ibl._shadow_test(ops or NUMPY_OPS, maps, k, *n.T, *p.T, bias, taps) for k in range(len(maps.frames))
+        ibl._shadow_test(ops or NUMPY_OPS, maps, k, *unit, *p.T, bias, taps, unit)
+        for k in range(len(maps.frames))
     ]
     return np.stack([np.asarray(v, float) + 0 * p[:, 0] for v in out])
 
@@ -268,8 +270,9 @@ def test_in_kernel_depth_test_equals_the_offline_test_at_the_seeds_bias():
     assert 0.2 < want.mean() < 0.8
     assert np.array_equal(_kernel_vis(maps, pts, n), want)
     F = dr.llvm.Float
+    unit = tuple(map(F, n.T))
     got32 = np.stack([
-        np.asarray(ibl._shadow_test(DRJIT_OPS, maps, k, *map(F, n.T), *map(F, pts.T), 0.01, 1))
+        np.asarray(ibl._shadow_test(DRJIT_OPS, maps, k, *unit, *map(F, pts.T), 0.01, 1, unit))
         for k in range(4)
     ])  # fmt: skip
     assert np.mean(got32 == want) > 0.999
@@ -323,9 +326,10 @@ def test_in_kernel_flat_map_by_hand_with_bias_and_pcf():
 
 def test_kept_texels_serve_every_bias_on_the_same_points_and_no_others():
     """The by-hand flat map above (depth 0.5, normal +z): the NumPy run keeps each light's projection and
-    filtered texels for the same point arrays (`_kept`: a scan of b re-evaluates on them), so b = 0.01, 0,
-    0.01 in turn give the by-hand [1, 0, 1, 0], [1, 0, 0, 0], [1, 0, 1, 0]; then other points (every height
-    lifted by 0.4: all lit at z < ½) are not read from the kept values."""
+    each tap's filtered depth and cos θ for the same point and normal arrays (`_kept`: a scan of b
+    re-evaluates on them), so b = 0.01, 0, 0.01 in turn give the by-hand [1, 0, 1, 0], [1, 0, 0, 0],
+    [1, 0, 1, 0]; then other points (every height lifted by 0.4: all lit at z < ½) are not read from the kept
+    values."""
     from rtfit.realtime import NUMPY_OPS
 
     up = np.zeros((1, 8, 8, 3))
@@ -335,10 +339,10 @@ def test_kept_texels_serve_every_bias_on_the_same_points_and_no_others():
     nx, ny, nz = np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0], [0, 0, -1.0]]).T.copy()
 
     def vis(b, z=pz):
-        return list(ibl._shadow_test(NUMPY_OPS, maps, 0, nx, ny, nz, px, py, z, b, 1))
+        return list(ibl._shadow_test(NUMPY_OPS, maps, 0, nx, ny, nz, px, py, z, b, 1, (nx, ny, nz)))
 
     assert vis(0.01) == [1, 0, 1, 0] and vis(0.0) == [1, 0, 0, 0] and vis(0.01) == [1, 0, 1, 0]
-    assert maps._tables[("filtered", 0, 0.0, 0.0)][0][2] is pz
+    assert maps._tables[("compared", 0, 0.0, 0.0)][0][2] is pz
     assert vis(0.0, pz + 0.4) == [1, 1, 1, 1]
 
 
