@@ -60,6 +60,32 @@ def test_sphere_light_probes_match_quadrature(mi):
             )
 
 
+def test_probes_on_a_sphere_lights_own_surface_see_only_the_other_lights(mi):
+    """A probe on a sphere light's surface, its normal outward (a colour-bleeding ray's hit on a lamp): the
+    lamp, convex, sends it nothing, and an emitter sample that picks the lamp has no direction (pdf 0, its
+    direction 0/0: the Veach MIS scene's NaN before `direct_irradiance` masked it); the other lamp's light
+    is the cap quadrature's, within 4.5 standard errors."""
+    from .conftest import SphereLight
+
+    a = SphereLight(center=(0.0, 0.0, 5.0), radius=1.0, radiance=(3.0,) * 3)
+    b = SphereLight(center=(4.0, 0.0, 5.0), radius=0.5, radiance=(2.0,) * 3)  # (the ball at 0 hides neither)
+    scene = sphere_scene(lights=(a, b))
+    thetas = np.radians([0.0, 40.0, 85.0, 90.0, 135.0, 180.0])  # from +x: facing b … past its horizon
+    normals = np.stack([np.cos(thetas), 0 * thetas, np.sin(thetas)], -1)
+    points = np.asarray(a.center) + a.radius * normals
+    _, ms = load_mitsuba_scene(scene)
+    spp = 16384
+    r = irradiance_pass(mi, ms, points, normals, spp, seed=5)
+    assert np.all(np.isfinite(r.mean)) and np.all(np.isfinite(r.var))
+    for k in range(len(thetas)):
+        d = np.asarray(b.center) - points[k]
+        alpha = math.asin(b.radius / np.linalg.norm(d))
+        th = math.acos(np.clip(np.dot(normals[k], d / np.linalg.norm(d)), -1, 1))
+        exact = cap_irradiance_quadrature(th, alpha, b.radiance[0])
+        se = math.sqrt(r.var[k, 0] / spp)
+        assert abs(r.mean[k, 0] - exact) < 4.5 * se + 1e-6 * exact + 1e-12, (thetas[k], r.mean[k, 0], exact)
+
+
 def test_image_matches_closed_form_within_noise(mi):
     """Point-sampled reference vs the exact irradiance at the same pixel centres: unit-spread z-scores."""
     from rtfit.realtime.diffuse import sphere_light_geometry, sphere_light_irradiance
