@@ -9,7 +9,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime.arrays import Uniforms, aligned_copy, backend_float, release_backend_tables, to_drjit
+from rtfit.realtime.arrays import Uniforms, backend_float, release_backend_tables, to_drjit
 from rtfit.realtime.methods import Method
 
 from .audit_family import FamilyCase
@@ -60,64 +60,85 @@ def _is_per_pixel(v, n: int) -> bool:
     return isinstance(v, (np.ndarray, np.generic)) and np.ndim(v) > 0 and np.size(v) == n
 
 
+_STAGGER_STEP = 23
+"""`CostInputs.backend_array` starts its k-th input (k · 23 mod 64) cache lines into a 4 KiB page: 64 inputs
+on distinct offsets (23 is prime to 64), each 64-byte aligned. Issue 33 (session 28): arrays that all start
+at one offset in their pages (Dr.Jit's own allocations are 2 MiB aligned) read their i-th elements from one
+cache set, and a kernel streaming many inputs thrashes it: colour bleeding's one-bounce gather (48 per-pixel
+inputs) timed 1.38–1.40× slower on such arrays than on NumPy's (whose heap offsets happen to differ), the
+same data. Staggered, a cost is what the kernel does with its inputs, not where an allocator put them."""
+
+
 @dataclass
 class CostInputs:
     """One case's per-pixel inputs as its methods' cost measurements read them (`method_cost`): each cleaned
-    (a non-finite value → float32's max), cast to float32 and tiled once, in a 64-byte aligned buffer
-    (`aligned_copy`) at the largest size asked so far; a method is handed a prefix (the elements a tile of its
-    own size held), of which its Dr.Jit array gets an aligned copy of its own (`to_drjit`).
+    (a non-finite value → float32's max) and cast to float32 once (`cleaned`), then repeated to each size a
+    timing asks for (`backend_array`: element i is value i mod n, the cyclic repeat), one array per input
+    and size that every method of the case reading it at that size is handed.
 
     Issue 33 (session 20): every method tiled and copied its own inputs (a 2^20-element tile, then an aligned
-    copy of it): 1.4 of the 6.3 CPU s of a Cornell-box audit's cost loop, colour-bleeding's eight methods
-    tiling the same 54 inputs to 64 MiB each time (the tiling is now once a case; the copy stays per method,
-    see `method_cost`). Kept for one case (`audit_run`'s case loop makes one per
-    case), at most ``budget`` bytes (the oldest tiles are dropped first)."""
+    copy of it): 1.4 of the 6.3 CPU s of a Cornell-box audit's cost loop. Session 28: the repeat was made in
+    three passes over its 4 MiB (NumPy's tile, an aligned copy kept on the host, the Dr.Jit array's own
+    aligned copy), 0.16–0.20 s of a 64² Cornell-box audit's 0.82–1.00 s of costs; it is now written once,
+    straight into the buffer the Dr.Jit array maps, and no tile is kept besides. Kept for one case
+    (`audit_run`'s case loop makes one per case)."""
 
-    budget: int = 2 * _COST_INPUT_BYTES
-    tiles: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    """(input name, id of its array) → (the array, its cleaned float32 tile); the array is kept so its id
+    budget: int = _COST_INPUT_BYTES
+    """The most bytes of repeated arrays kept (`backend_array`; the oldest dropped first): what one method's
+    own copies held at most before session 27, so the peak memory stays where it was."""
+    clean: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    """(input name, id of its array) → (the array, its cleaned float32 values); the array is kept so its id
     stays its own."""
     on_backend: dict[tuple[str, int, int, type], tuple[np.ndarray, Any]] = field(default_factory=dict)
-    """(input name, id of its array, elements, Dr.Jit type) → (the array, its tile's prefix as a Dr.Jit array
-    of that type: `backend_array`)."""
+    """(input name, id of its array, elements, Dr.Jit type) → (the array, its values repeated to that many
+    elements as a Dr.Jit array of that type: `backend_array`)."""
+    made: int = 0
+    """Repeats made so far (each starts at its own offset in its page: `_STAGGER_STEP`)."""
+    digests: dict[int, tuple[np.ndarray, bytes]] = field(default_factory=dict)
+    """The case's arrays' digests for the cost store's keys (`cost_store.cost_key`), hashed once a case."""
+
+    def cleaned(self, name: str, v: Any) -> np.ndarray:
+        """``v`` (a per-pixel input of n ≥ 1 elements) flat, each non-finite value replaced by float32's max
+        (a kernel timed on NaN may take another path), as float32; made once."""
+        key = (name, id(v))
+        known = self.clean.get(key)
+        if known is not None and known[0] is v:
+            return known[1]
+        a = np.asarray(v, np.float64).reshape(-1)
+        out = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
+        self.clean[key] = (v, out)
+        return out
+
+    def host_prefix(self, name: str, v: Any, size: int) -> np.ndarray:
+        """The first ``size`` elements of ``v``'s cyclic repeat (`cleaned`): the host's copy of the start of
+        what `backend_array` holds, for a trial call on a few elements."""
+        return np.resize(self.cleaned(name, v), size)
 
     def backend_array(self, name: str, v: Any, size: int, Float: type) -> Any:
-        """The first ``size`` elements of ``v``'s tile (`tiled`) as a ``Float`` array of their own (an aligned
-        copy, `to_drjit`), made once and handed to every method of the case that reads them at this size.
-
-        Issue 33 (session 27): each method made its own copy, the same values: obscurances' seven methods
-        copied the same 32 distance inputs (64 MiB) seven times a case, colour-bleeding's eight its 54; the
-        copies (`aligned_copy`) were 2.3 s of the quick suite. A Dr.Jit array is a value no kernel writes
-        into, so one copy serves them all (still a copy the array owns, not the tile's memory mapped:
-        `method_cost`). At most `_COST_INPUT_BYTES` are kept (the oldest dropped first): what one method's own
-        copies held at most before, so the peak memory stays where it was."""
+        """``v``'s cleaned values (`cleaned`) repeated to ``size`` elements as a ``Float`` array: written in
+        one pass into a fresh host buffer, 64-byte aligned (`rtfit.realtime.arrays.to_drjit`: one compiled
+        kernel whatever the address) and staggered in its page (`_STAGGER_STEP`), which Dr.Jit's LLVM
+        backend maps (the array holds it; CUDA copies it to the device). Made once per input and size and
+        handed to every method of the case that reads it there."""
         key = (name, id(v), int(size), Float)
         known = self.on_backend.get(key)
         if known is not None and known[0] is v:
             return known[1]
-        array = to_drjit(Float, self.tiled(name, v, size))
+        a = self.cleaned(name, v)
+        offset = (self.made * _STAGGER_STEP) % 64 * 64  # bytes into a 4 KiB page
+        self.made += 1
+        buf = np.empty(size + 4096 // a.itemsize, np.float32)
+        start = (offset - buf.ctypes.data) % 4096 // a.itemsize  # (NumPy's buffers: 16-byte aligned)
+        out = buf[start : start + size]
+        reps = size // a.size
+        out[: reps * a.size].reshape(reps, a.size)[...] = a
+        out[reps * a.size :] = a[: size - reps * a.size]
+        array = Float(out)
         self.on_backend.pop(key, None)
-        while self.on_backend and 4 * (sum(k[2] for k in self.on_backend) + size) > _COST_INPUT_BYTES:
+        while self.on_backend and 4 * (sum(k[2] for k in self.on_backend) + size) > self.budget:
             self.on_backend.pop(next(iter(self.on_backend)))
         self.on_backend[key] = (v, array)
         return array
-
-    def tiled(self, name: str, v: Any, size: int) -> np.ndarray:
-        """The first ``size`` elements of ``v`` cleaned, cast to float32 and repeated (``v`` a per-pixel
-        input of ``n`` ≥ 1 elements)."""
-        key = (name, id(v))
-        known = self.tiles.get(key)
-        if known is not None and known[0] is v and known[1].size >= size:
-            return known[1][:size]
-        a = np.asarray(v, np.float64).reshape(-1)
-        # cleaned and cast before tiling: the same elements, 1/reps the work
-        a = np.where(np.isfinite(a), a, np.finfo(np.float32).max).astype(np.float32)
-        tile = aligned_copy(np.tile(a, -(-size // a.size))[:size], np.float32)
-        self.tiles.pop(key, None)
-        while self.tiles and sum(t.nbytes for _, t in self.tiles.values()) + tile.nbytes > self.budget:
-            self.tiles.pop(next(iter(self.tiles)))
-        self.tiles[key] = (v, tile)
-        return tile
 
 
 def method_cost(
@@ -147,8 +168,6 @@ def method_cost(
     size = min(size, max(_COST_PROBE, _COST_INPUT_BYTES // (4 * max(len(per_pixel), 1))))
     probed = size > _COST_PROBE
     if probed:
-        for name in per_pixel:  # tiled once at the most this call may time, the probe a prefix of it
-            tiles.tiled(name, inputs[name], size)
         probe = method_cost(
             method, case, backend, _COST_PROBE, min_seconds=0.0, tiles=tiles, repeats=_PROBE_REPEATS
         )
@@ -166,12 +185,10 @@ def method_cost(
             if table.size <= _UNIFORM_FLOATS:
                 uniforms[name] = Uniforms.of(table)
         elif np.ndim(v):
-            a = tiles.tiled(name, v, size)  # the case's tile, shared by its methods (`CostInputs`)
-            host.append(a[:_COST_PROBE])  # the trial below reads no more
-            # An aligned copy the Dr.Jit array owns (`to_drjit`), not the shared tile mapped: the arrays of
-            # a kernel own their memory, as before session 20 (a quick suite on the GPU host ended in a
-            # segmentation fault once while the tiles were mapped; not reproduced, and not shown to be the
-            # cause: a precaution). One copy per size a case, shared by its methods (`backend_array`).
+            host.append(tiles.host_prefix(name, v, min(size, _COST_PROBE)))  # the trial below reads no more
+            # the case's repeat at this size, shared by its methods (`CostInputs.backend_array`): a buffer
+            # of its own that the Dr.Jit array maps, no view of a shared tile (a quick suite on the GPU host
+            # ended in a segmentation fault once while shared tiles were mapped; not reproduced, a precaution)
             args.append(tiles.backend_array(name, v, size, Float))
             keys.append(name)
         else:

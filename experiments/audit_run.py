@@ -518,7 +518,7 @@ class _CaseRun:
                 }  # fmt: skip
             if method.id not in self.costs:
                 key = None if user else self.store.key(method, case.channel_inputs[0], self.backend,
-                                                       self.cost_elements)  # fmt: skip
+                                                       self.cost_elements, tiles.digests)  # fmt: skip
                 cost = self.store.cost(
                     key, partial(method_cost, method, case, self.backend, self.cost_elements, tiles=tiles)
                 )

@@ -42,7 +42,7 @@ import numpy as np
 from rtfit.realtime.methods import Method
 from rtfit.reference.io import atomic_write_bytes
 
-STORE_FORMAT = 1
+STORE_FORMAT = 2
 """The layout of a stored record; a change makes every key new."""
 _PACKAGES = ("rtfit.scenes", "rtfit.reference", "rtfit.realtime", "rtfit.fitting", "rtfit.experiments")
 _MAX_DEPTH = 12
@@ -61,7 +61,23 @@ def source_digest() -> str:
     return h.hexdigest()
 
 
-def _feed(h, v: Any, depth: int = 0) -> int | None:
+def _array_digest(a: np.ndarray, digests: dict[int, tuple[np.ndarray, bytes]] | None) -> bytes:
+    """SHA-256 of ``a``'s dtype, shape and bytes, kept in ``digests`` by the array's id (the array held
+    there, so that its id stays its own) where a dict is given: the methods of one case read the same
+    arrays (obscurances' seven, 32 hit distances each), which were hashed once a method."""
+    if digests is not None:
+        known = digests.get(id(a))
+        if known is not None and known[0] is a:
+            return known[1]
+    c = np.ascontiguousarray(a)
+    d = hashlib.sha256(f"{c.dtype.str}:{c.shape}\0".encode())
+    d.update(c.reshape(-1).view(np.uint8).data if c.size else b"")
+    if digests is not None:
+        digests[id(a)] = (a, d.digest())
+    return d.digest()
+
+
+def _feed(h, v: Any, depth: int = 0, digests: dict | None = None) -> int | None:
     """Feed ``v``'s content into the hash ``h``; returns how many arrays and numbers it held, or None where a
     part of it cannot be told by content (no key: `cost_key`). Dr.Jit arrays are passed over: the cost inputs
     are NumPy, and a Dr.Jit array inside a sampler is its per-backend copy of a NumPy table it also holds
@@ -73,11 +89,9 @@ def _feed(h, v: Any, depth: int = 0) -> int | None:
         h.update(f"{type(v).__name__}:{v!r}\0".encode())
         return 1
     if isinstance(v, np.ndarray | np.generic):
-        a = np.ascontiguousarray(v)
-        if a.dtype == object:
+        if np.asarray(v).dtype == object:
             return None
-        h.update(f"array:{a.dtype.str}:{a.shape}\0".encode())
-        h.update(a.reshape(-1).view(np.uint8).data if a.size else b"")
+        h.update(b"array:" + _array_digest(v if isinstance(v, np.ndarray) else np.asarray(v), digests))
         return 1
     if dr.is_array_v(v):
         return 0
@@ -105,7 +119,7 @@ def _feed(h, v: Any, depth: int = 0) -> int | None:
     held = 0
     for k, x in items:
         h.update(f"{k!r}=".encode())
-        n = _feed(h, x, depth + 1)
+        n = _feed(h, x, depth + 1, digests)
         if n is None:
             return None
         held += n
@@ -114,9 +128,18 @@ def _feed(h, v: Any, depth: int = 0) -> int | None:
     return held if held else None  # (an object holding only Dr.Jit arrays: its content is not seen)
 
 
-def cost_key(method: Method, inputs: Mapping[str, Any], backend: str, size: int, device: str) -> str | None:
+def cost_key(
+    method: Method,
+    inputs: Mapping[str, Any],
+    backend: str,
+    size: int,
+    device: str,
+    digests: dict[int, tuple[np.ndarray, bytes]] | None = None,
+) -> str | None:
     """The store key of ``method``'s cost on ``inputs`` (the case's channel-0 inputs it reads) at ``size``
-    elements on ``backend`` and ``device`` (module docstring); None where it cannot be made."""
+    elements on ``backend`` and ``device`` (module docstring); None where it cannot be made. ``digests``: the
+    arrays' digests kept by id for the span of one case (`_array_digest`; None: each hashed anew), whose
+    arrays are not written meanwhile."""
     import mitsuba
 
     h = hashlib.sha256()
@@ -132,7 +155,7 @@ def cost_key(method: Method, inputs: Mapping[str, Any], backend: str, size: int,
     }
     h.update(json.dumps(head, sort_keys=True).encode())
     parts = {"fixed": dict(method.fixed), "inputs": {k: inputs[k] for k in method.input_names}}
-    if _feed(h, parts) is None:
+    if _feed(h, parts, digests=digests) is None:
         return None
     return h.hexdigest()
 
@@ -145,9 +168,11 @@ class CostStore:
     root: Path | None
     device: str
 
-    def key(self, method: Method, inputs: Mapping[str, Any], backend: str, size: int) -> str | None:
+    def key(
+        self, method: Method, inputs: Mapping[str, Any], backend: str, size: int, digests: dict | None = None
+    ) -> str | None:
         """`cost_key` on this store's device; None where nothing is kept (no store)."""
-        return None if self.root is None else cost_key(method, inputs, backend, size, self.device)
+        return None if self.root is None else cost_key(method, inputs, backend, size, self.device, digests)
 
     def _path(self, key: str) -> Path:
         assert self.root is not None

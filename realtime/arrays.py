@@ -420,8 +420,7 @@ def to_drjit(Float: type, values: Any) -> Any:
 
 def aligned_copy(values: Any, dtype: Any) -> np.ndarray:
     """``values`` (array-like) as a flat, fresh NumPy array of ``dtype`` whose first element is aligned to 64
-    bytes (`to_drjit`'s buffer). Dr.Jit maps such an array (and any prefix of it) without copying: the
-    engine's cost measurement keeps one per input and hands each method a prefix (`audit_cost.CostInputs`)."""
+    bytes (`to_drjit`'s buffer). Dr.Jit maps such an array (and any prefix of it) without copying."""
     arr = np.asarray(values)
     item = np.dtype(dtype).itemsize
     buf = np.empty(arr.size + _ALIGN // item, dtype)

@@ -193,37 +193,66 @@ def test_a_noisy_timing_runs_to_its_repeats_and_minimum_duration(monkeypatch):
 
 
 # ------------------------------------------------------- the engine's cost inputs, tiled once per case
-def test_cost_inputs_prefix_is_the_cyclic_repeat_of_the_cleaned_input_whatever_the_order_asked():
+def test_cost_inputs_are_the_cyclic_repeat_of_the_cleaned_input_at_every_size_asked():
+    """`CostInputs.backend_array`: element i of the repeat is value i mod n of the input, each non-finite
+    value float32's max, at sizes below, at and above n (checked against NumPy's own ``resize``)."""
+    import drjit as dr
+
     from rtfit.experiments.audit_cost import CostInputs
+    from rtfit.realtime.arrays import backend_float
 
     v = np.array([0.5, np.nan, -2.0, np.inf, 3.25], np.float64)
-    want = np.resize(np.array([0.5, np.finfo(np.float32).max, -2.0, np.finfo(np.float32).max, 3.25],
-                              np.float32), 23)  # fmt: skip
+    clean = np.array([0.5, np.finfo(np.float32).max, -2.0, np.finfo(np.float32).max, 3.25], np.float32)
+    Float = backend_float("llvm")
     tiles = CostInputs()
-    small = tiles.tiled("x", v, 7)
-    np.testing.assert_array_equal(small, want[:7])
-    big = tiles.tiled("x", v, 23)  # grown: made again at the larger size
-    np.testing.assert_array_equal(big, want)
-    again = tiles.tiled("x", v, 11)  # a prefix of the kept tile, no copy
-    np.testing.assert_array_equal(again, want[:11])
-    assert np.shares_memory(again, big) and again.dtype == np.float32
-    assert again.ctypes.data % 64 == 0  # aligned as `to_drjit`'s buffers: one compiled kernel
-    other = np.array(v)  # another array of the same name (a row's own inputs) has its own tile
-    assert not np.shares_memory(tiles.tiled("x", other, 11), big)
+    for size in (3, 5, 7, 23, 4099):
+        arr = tiles.backend_array("x", v, size, Float)
+        assert type(arr) is Float and dr.width(arr) == size
+        np.testing.assert_array_equal(np.asarray(arr), np.resize(clean, size))
+        np.testing.assert_array_equal(tiles.host_prefix("x", v, size), np.resize(clean, size))
+    assert tiles.backend_array("x", v, 23, Float) is tiles.backend_array("x", v, 23, Float)  # made once
+    other = np.array(v)  # another array of the same name (a row's own inputs) has its own repeat
+    assert tiles.backend_array("x", other, 23, Float) is not tiles.backend_array("x", v, 23, Float)
+    assert len(tiles.clean) == 2  # cleaned once an array, whatever the sizes
+
+
+def test_cost_inputs_start_aligned_on_distinct_offsets_of_their_pages():
+    """64 inputs of one case: each Dr.Jit array maps its own buffer (its values read back after the
+    buffers' other references are gone), 64-byte aligned, and no two start at the same offset in a 4 KiB
+    page (`_STAGGER_STEP`: arrays at one offset read from one cache set)."""
+    import gc
+
+    from rtfit.experiments.audit_cost import CostInputs
+    from rtfit.realtime.arrays import backend_float
+
+    Float = backend_float("llvm")
+    tiles = CostInputs(budget=1 << 30)
+    inputs = [np.arange(k, k + 37, dtype=np.float64) for k in range(64)]
+    arrays = [tiles.backend_array(f"in{k}", a, 5000, Float) for k, a in enumerate(inputs)]
+    tiles.clean.clear()
+    gc.collect()
+    starts = [np.asarray(x).ctypes.data for x in arrays]
+    assert all(p % 64 == 0 for p in starts)
+    assert len({p % 4096 for p in starts}) == 64
+    for a, x in zip(inputs, arrays, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.resize(a.astype(np.float32), 5000))
 
 
 def test_cost_inputs_keep_at_most_their_budget_dropping_the_oldest():
     from rtfit.experiments.audit_cost import CostInputs
+    from rtfit.realtime.arrays import backend_float
 
+    Float = backend_float("llvm")
     tiles = CostInputs(budget=3 * 400)
     arrays = [np.full(10, float(k)) for k in range(4)]
     for k, a in enumerate(arrays):
-        tiles.tiled(f"in{k}", a, 100)  # 400 bytes each
-    assert [name for name, _ in tiles.tiles] == ["in1", "in2", "in3"]
-    np.testing.assert_array_equal(tiles.tiled("in0", arrays[0], 100), np.zeros(100, np.float32))
+        tiles.backend_array(f"in{k}", a, 100, Float)  # 400 bytes each
+    assert [name for name, *_ in tiles.on_backend] == ["in1", "in2", "in3"]
+    again = tiles.backend_array("in0", arrays[0], 100, Float)
+    np.testing.assert_array_equal(np.asarray(again), np.zeros(100))
 
 
-def test_method_cost_methods_of_one_case_share_its_tiled_inputs():
+def test_method_cost_methods_of_one_case_share_its_repeated_inputs():
     from rtfit.experiments.audit_cost import CostInputs, method_cost
     from rtfit.realtime.diffuse import METHODS
 
@@ -235,26 +264,20 @@ def test_method_cost_methods_of_one_case_share_its_tiled_inputs():
     )
     tiles = CostInputs()
     made = []
-    tiled = tiles.tiled
-    tiles.tiled = lambda name, v, size: made.append((name, size)) or tiled(name, v, size)  # type: ignore[method-assign]
+    backend_array = tiles.backend_array
+    tiles.backend_array = lambda name, v, size, F: (
+        made.append((name, size)) or backend_array(name, v, size, F)
+    )  # type: ignore[method-assign]  # noqa: E501
     rows = [method_cost(METHODS[m], case, "llvm", 1 << 13, tiles=tiles) for m in ("lambert", "half-lambert")]
     assert all(r["elements"] <= 1 << 13 and r["ns_per_pixel"] > 0 and r["repeats"] >= 6 for r in rows)
-    assert len(tiles.tiles) == 2  # cos_theta and irradiance: one tile each for both methods
-    first = next(size for name, size in made if name == "cos_theta")
-    assert first == 1 << 13  # tiled at the most the call may time; the probe and the timed call are prefixes
-    for src, tile in tiles.tiles.values():
-        np.testing.assert_array_equal(tile, np.resize(src.astype(np.float32), tile.size))
-    # one Dr.Jit array per input and size, handed to both methods (`CostInputs.backend_array`), its values
-    # those of the tile's prefix
+    assert len(tiles.clean) == 2  # cos_theta and irradiance: cleaned once each for both methods
+    # one Dr.Jit array per input and size (the sizing call's and the timed call's), handed to both methods,
+    # its values the input's cyclic repeat
     sizes = {key[2] for key in tiles.on_backend}
     assert len(tiles.on_backend) == 2 * len(sizes) and len(sizes) <= 2
+    assert set(made) == {(name, size) for name, _, size, _ in tiles.on_backend}  # both asked, one made
     for (_, _, size, _), (src, arr) in tiles.on_backend.items():
         np.testing.assert_array_equal(np.asarray(arr), np.resize(src.astype(np.float32), size))
-    Float = type(next(iter(tiles.on_backend.values()))[1])
-    src = case.channel_inputs[0]["cos_theta"]
-    size = next(iter(sizes))
-    same = tiles.backend_array("cos_theta", src, size, Float)
-    assert tiles.backend_array("cos_theta", src, size, Float) is same
 
 
 # ------------------------------------------------------------ a timing is its kernels', not its tracing

@@ -40,6 +40,23 @@ def test_the_key_follows_the_inputs_content_and_the_machine():
     assert _key(_inputs(), method=METHODS["half-lambert"]) != base
 
 
+def test_a_cases_kept_digests_give_the_keys_hashed_anew(monkeypatch):
+    """`cost_key` with a case's ``digests``: the same key as each array hashed anew, every array hashed once
+    for two methods (counted on the hash's constructor), another array of the same content the same key."""
+    import rtfit.experiments.cost_store as store
+
+    inputs = _inputs()
+    fresh = [_key(inputs), cost_key(METHODS["half-lambert"], inputs, "llvm", 1 << 10, "CPU")]
+    made = []
+    sha256 = store.hashlib.sha256
+    monkeypatch.setattr(store.hashlib, "sha256", lambda *a: made.append(1) or sha256(*a))
+    digests: dict = {}
+    kept = [cost_key(m, inputs, "llvm", 1 << 10, "CPU", digests) for m in (LAMBERT, METHODS["half-lambert"])]
+    assert kept == fresh
+    assert len(digests) == 2 and len(made) == 2 + 2  # two arrays once, and each method's own key
+    assert cost_key(LAMBERT, _inputs(), "llvm", 1 << 10, "CPU", digests) == fresh[0]
+
+
 def test_a_samplers_caches_are_not_its_content_but_its_arrays_are():
     """A shadow map's per-backend tables and kept NumPy runs (dicts declared compare=False) fill as it is
     used: its key stays; a depth changed changes it."""
