@@ -45,6 +45,7 @@ from functools import partial
 import numpy as np
 
 from rtfit.realtime.arrays import xyz_columns
+from rtfit.realtime.ibl_bakes import bake_lights
 from rtfit.realtime.ibl_samples import (
     BAKES,
     COUNTS,
@@ -52,7 +53,6 @@ from rtfit.realtime.ibl_samples import (
     METHODS,
     SHADOW_BIAS,
     DepthMaps,
-    bake_lights,
     maps_input,
     on_lights,
     visibility_names,

@@ -107,11 +107,16 @@ def rho_step(ops, d, d_max):
     return ops.select(d >= d_max, zero + 1.0, zero)
 
 
+def _one_array(distances) -> bool:
+    """Whether ``distances`` is one (K, N) array (NumPy/JAX), not a sequence of K arrays."""
+    return getattr(distances, "ndim", 0) == 2
+
+
 def _ray_mean(distances, rho) -> Any:
     """(1/K) Σ_k ρ(d_k) over the K rows of ``distances``: a sequence of K arrays (Dr.Jit: one fused kernel),
     or a (K, N) NumPy/JAX array (ρ on the whole array, then its mean over the rays: a small JAX graph for
     the fits whatever K is)."""
-    if getattr(distances, "ndim", 0) == 2:
+    if _one_array(distances):
         return rho(distances).mean(axis=0)
     k = len(distances)
     acc: Any = None
@@ -132,7 +137,7 @@ def _kept_mean(ops, key: tuple, distances, rho) -> Any:
     arrays (`KeptValues`): a fit's Jacobian steps the scale s alone at two of its points (and a 3-parameter
     power fit: 2 of its 7 evaluations an iteration), where the mean is the one of the point before, bit for
     bit. Issue 33 (session 27): the power ρ was the quick suite's largest kernel cost in its fits (2.2 s)."""
-    rays = [distances] if getattr(distances, "ndim", 0) == 2 else list(distances)
+    rays = [distances] if _one_array(distances) else list(distances)
     return _KEPT_MEANS.get(ops, key, rays, lambda _: _ray_mean(distances, rho))
 
 

@@ -267,7 +267,7 @@ def test_method_cost_methods_of_one_case_share_its_repeated_inputs():
     backend_array = tiles.backend_array
     tiles.backend_array = lambda name, v, size, F: (
         made.append((name, size)) or backend_array(name, v, size, F)
-    )  # type: ignore[method-assign]  # noqa: E501
+    )  # type: ignore[method-assign]
     rows = [method_cost(METHODS[m], case, "llvm", 1 << 13, tiles=tiles) for m in ("lambert", "half-lambert")]
     assert all(r["elements"] <= 1 << 13 and r["ns_per_pixel"] > 0 and r["repeats"] >= 6 for r in rows)
     assert len(tiles.clean) == 2  # cos_theta and irradiance: cleaned once each for both methods

@@ -24,6 +24,7 @@ from hypothesis import strategies as st
 from rtfit.experiments.audit_cli import audit as audit_cmd
 from rtfit.experiments.audit_ibl_samples import _frame, depth_map_visibility
 from rtfit.experiments.audit_run import audit
+from rtfit.realtime import ibl_bakes as bakes
 from rtfit.realtime import ibl_samples as ibl
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -50,12 +51,12 @@ def _grid(radiance_fn, rows: int = ROWS):
 
 
 def _lights(bake: str, grid, n: int) -> np.ndarray:
-    table = ibl.bake_lights(bake, *grid, n).reshape(-1, 6)
+    table = bakes.bake_lights(bake, *grid, n).reshape(-1, 6)
     assert table.shape == (n, 6)
     return table
 
 
-NORMALS = ibl.fibonacci_directions(64)
+NORMALS = bakes.fibonacci_directions(64)
 
 
 # ------------------------------------------------------------------------------------------------ the kernel
@@ -77,7 +78,7 @@ def test_each_row_runs_the_one_kernel_on_its_inputs():
     from dataclasses import replace
 
     rng = np.random.default_rng(3)
-    table = ibl.lloyd_lights(*_grid(lambda d: 1.0 + d * 0.5), 4)
+    table = bakes.lloyd_lights(*_grid(lambda d: 1.0 + d * 0.5), 4)
     m = ibl.METHODS["median-cut-4"]
     m = replace(m, inputs=tuple(i for i in m.inputs if i.name != "lights"), fixed={"lights": tuple(table)})
     n = rng.normal(size=(50, 3))
@@ -95,7 +96,7 @@ def test_float32_drjit_agrees_with_float64_numpy():
     from rtfit.realtime import DRJIT_OPS, NUMPY_OPS
 
     rng = np.random.default_rng(5)
-    table = ibl.lloyd_lights(*_grid(lambda d: 1.0 + np.abs(d)), 64)
+    table = bakes.lloyd_lights(*_grid(lambda d: 1.0 + np.abs(d)), 64)
     n = rng.normal(size=(2000, 3))
     vis = rng.uniform(size=(64, 2000))
     m = ibl.METHODS["seed-lloyd-64"]
@@ -169,7 +170,7 @@ def _centroid_offsets(table: np.ndarray, grid) -> np.ndarray:
     """Angle (rad) between each light and the energy centroid of its own spherical Voronoi cell (recomputed
     here by brute force over the texels: nearest light by angle)."""
     d = grid[0].reshape(-1, 3)
-    e = (grid[1][..., None] * grid[2]).reshape(-1, 3) @ np.array(ibl.LUMINANCE)
+    e = (grid[1][..., None] * grid[2]).reshape(-1, 3) @ np.array(bakes.LUMINANCE)
     cell = np.argmax(d @ table[:, :3].T, axis=1)
     out = []
     for k in range(len(table)):
@@ -184,7 +185,7 @@ def test_lloyd_moves_the_lights_to_a_centroidal_voronoi_tessellation():
     0.05 rad or more (measured 0.15)."""
     grid = _grid(lambda d: np.broadcast_to(0.2 + np.maximum(d[..., 2:3], 0) ** 4 * 5, d.shape))
     assert _centroid_offsets(_lights("seed-lloyd", grid, 16), grid).max() < 0.02
-    assert _centroid_offsets(ibl.lloyd_lights(*grid, 16, iterations=200).reshape(-1, 6), grid).max() < 1e-6
+    assert _centroid_offsets(bakes.lloyd_lights(*grid, 16, iterations=200).reshape(-1, 6), grid).max() < 1e-6
     assert _centroid_offsets(_lights("importance", grid, 16), grid).max() > 0.05
 
 
@@ -193,7 +194,7 @@ def test_median_cut_regions_hold_equal_energy():
     within the texel granularity of the cuts (max/min < 1.5; measured 1.26 at 64 rows)."""
     grid = _grid(lambda d: np.broadcast_to(1.0 + 0.8 * d[..., 2:3], d.shape), rows=64)
     t = _lights("median-cut", grid, 16)
-    y = t[:, 3:] @ np.array(ibl.LUMINANCE)
+    y = t[:, 3:] @ np.array(bakes.LUMINANCE)
     assert y.max() / y.min() < 1.5
 
 
@@ -261,7 +262,7 @@ def test_in_kernel_depth_test_equals_the_offline_test_at_the_seeds_bias():
 
     rng = np.random.default_rng(4)
     maps = _maps(
-        rng.uniform(0.2, 1, (4, 16, 16)), rng.normal(size=(4, 16, 16, 3)), ibl.fibonacci_directions(4)
+        rng.uniform(0.2, 1, (4, 16, 16)), rng.normal(size=(4, 16, 16, 3)), bakes.fibonacci_directions(4)
     )
     pts, n = rng.uniform(-1.2, 1.2, (3000, 3)), rng.normal(size=(3000, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -287,7 +288,7 @@ def test_numpy_tables_read_the_maps_texels_without_a_copy():
     rng = np.random.default_rng(5)
     depth = rng.uniform(0.2, 1, (3, 8, 8)).astype(np.float32)
     normals = rng.normal(size=(3, 8, 8, 3)).astype(np.float32)
-    maps = _maps(depth, normals, ibl.fibonacci_directions(3))
+    maps = _maps(depth, normals, bakes.fibonacci_directions(3))
     k, j, i = rng.integers(0, 3, 50), rng.integers(0, 8, 50), rng.integers(0, 8, 50)
     index = (k * 64 + j * 8 + i).astype(np.float64)
     for c, channel in enumerate(("depth", "nx", "ny", "nz")):
@@ -371,8 +372,8 @@ def test_kept_comparison_terms_are_keyed_by_the_points_and_the_normals():
     assert vis(0.01, flipped) == [1, 0, 0, 1]
 
     rng = np.random.default_rng(4)
-    many = _maps(rng.uniform(0, 1, (3, 8, 8)), rng.normal(size=(3, 8, 8, 3)), ibl.fibonacci_directions(3))
-    table = tuple(ibl.lloyd_lights(ibl.fibonacci_directions(40), np.ones(40), np.ones((40, 3)), 3))
+    many = _maps(rng.uniform(0, 1, (3, 8, 8)), rng.normal(size=(3, 8, 8, 3)), bakes.fibonacci_directions(3))
+    table = tuple(bakes.lloyd_lights(bakes.fibonacci_directions(40), np.ones(40), np.ones((40, 3)), 3))
     p = rng.uniform(-0.5, 0.5, (200, 3))
     n = rng.normal(size=(200, 3))
     args = (*n.T.copy(), *p.T.copy(), many, table)
@@ -389,11 +390,11 @@ def test_in_kernel_test_finite_at_any_bias_and_point(bias, taps, pn):
     """b = 0 to 10⁶ (the Param's bounds and far past), any point (outside the sphere: clamped addressing),
     any normal (zero too): V ∈ [0, 1], finite; E finite and ≥ 0 through the row's kernel."""
     rng = np.random.default_rng(0)
-    maps = _maps(rng.uniform(0, 1, (2, 4, 4)), rng.normal(size=(2, 4, 4, 3)), ibl.fibonacci_directions(2))
+    maps = _maps(rng.uniform(0, 1, (2, 4, 4)), rng.normal(size=(2, 4, 4, 3)), bakes.fibonacci_directions(2))
     p, n = np.array([pn[:3]]), np.array([pn[3:]]) + 1e-9
     v = _kernel_vis(maps, p, n, bias=bias, taps=taps)
     assert np.all(np.isfinite(v)) and np.all((v >= 0) & (v <= 1))
-    table = tuple(ibl.lloyd_lights(ibl.fibonacci_directions(50), np.ones(50), np.ones((50, 3)), 2))
+    table = tuple(bakes.lloyd_lights(bakes.fibonacci_directions(50), np.ones(50), np.ones((50, 3)), 2))
     from rtfit.realtime import NUMPY_OPS
 
     e = ibl._depth_kernel(NUMPY_OPS, *n.T, *p.T, maps, table, bias, taps)
@@ -451,9 +452,9 @@ def test_bakes_finite_unit_and_energy_conserving_on_any_map(n, texels, bake):
 def test_public_functions_say_what_is_wrong_in_one_line():
     grid = _grid(lambda d: np.ones_like(d), rows=4)
     with pytest.raises(ValueError, match=r"number of lights"):
-        ibl.lloyd_lights(*grid, 0)
+        bakes.lloyd_lights(*grid, 0)
     with pytest.raises(ValueError, match=r"unknown bake"):
-        ibl.bake_lights("random", *grid, 4)
+        bakes.bake_lights("random", *grid, 4)
     with pytest.raises(ValueError, match=r"6·N finite floats"):
         ibl.lights_irradiance([0, 0, 1, 1, 1], [[0, 0, 1]])
     with pytest.raises(ValueError, match=r"visibility must be"):
