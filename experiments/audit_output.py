@@ -39,11 +39,13 @@ def write_audit(directory: Path, r: AuditResult) -> None:
     """Write an audit into ``directory``: the viewer's pixels, figures, results.json (with the figures),
     fitted/audit.json and the report. The viewer's ꟻLIP maps (of the saved float32 pixels) are the audit's,
     or, where its metrics left ꟻLIP out, computed in a second thread while the figures are drawn
-    (`viewer_flip_thread`)."""
+    (`viewer_flip_thread`); the figures' PNGs are encoded and written by another
+    (`figures.pngs_in_background`)."""
     save_pixels(directory, r)
     flip = viewer_flip_thread(directory, r)
     try:
-        figs = case_figures(directory, r)
+        with figures.pngs_in_background():  # (every figure written before the report reads them)
+            figs = case_figures(directory, r)
         doc = plain_json(to_json(r.results))
         assert isinstance(doc, dict)
         for f in figs:  # (the figures name their case: placed after the case tables, in case order)

@@ -128,7 +128,10 @@ def run_experiment_into(
         ctx = dataclasses.replace(ctx, experiment=spec.name, config=spec.config)
     ctx.log(f"{spec.name}: running ({'quick' if ctx.quick else 'full'}, {ctx.variant})")
     use_variant_backend(ctx.variant)
-    body = spec.load().run(ctx)
+    from .figures import pngs_in_background  # (imported by a run only: PIL and the figures' text)
+
+    with pngs_in_background():  # (its figures written before its results and report name them)
+        body = spec.load().run(ctx)
     doc = {
         "schema": SCHEMA,
         "experiment": spec.name,

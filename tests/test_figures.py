@@ -272,3 +272,38 @@ def test_renderers_share_math_parses_with_matplotlibs_bytes(tmp_path):
     assert after.misses == before.misses and after.hits > before.hits  # the second figure parsed nothing
     assert after.maxsize == figures.MATH_PARSES
     assert agg.MathTextParser("path") is agg.MathTextParser("path")
+
+
+def test_figures_written_in_the_background_are_the_plain_writes_bytes(tmp_path, monkeypatch):
+    """`pngs_in_background`: the same files, byte for byte, as `MosaicFigure.save` writes without it, all
+    present when the block ends; at most ``most`` figures wait (an earlier figure is written before the
+    next is handed over); a write's error is raised when the block ends, and a block's own error wins."""
+    import pytest
+
+    rng = np.random.default_rng(3)
+    images = [rng.uniform(0, 1, (12 + k, 20, 3)) for k in range(5)]
+
+    def figure(k):
+        fig = figures.MosaicFigure(images[k], f"figure {k}", 60)
+        fig.text(10, 6, f"label {k}", 9, va="center")
+        return fig
+
+    plain = [figure(k).save(tmp_path / f"plain{k}.png").read_bytes() for k in range(5)]
+    with figures.pngs_in_background(most=2):
+        paths = [figure(k).save(tmp_path / f"bg{k}.png") for k in range(5)]
+        background = figures._BACKGROUND.get()
+        assert background is not None and len(background[1]) <= 2
+    assert figures._BACKGROUND.get() is None
+    assert [p.read_bytes() for p in paths] == plain
+
+    def failing(path, canvas):
+        raise OSError(f"no space left writing {path}")
+
+    monkeypatch.setattr(figures, "_write_png", failing)
+    with pytest.raises(OSError, match="no space left"):
+        with figures.pngs_in_background():
+            figure(0).save(tmp_path / "x.png")
+    with pytest.raises(KeyError):  # the block's own error, not the write's
+        with figures.pngs_in_background():
+            figure(0).save(tmp_path / "y.png")
+            raise KeyError("the block's")
