@@ -75,7 +75,9 @@ from .audit_media import (
     fogged_radiance_inputs,
     medium_intervals,
     opened_medium,
+    past_variance_target,
     sigma_t_at,
+    thick_rays_note,
     transmittance_case,
     transmittance_reference,
 )
@@ -160,11 +162,14 @@ def _cases(
     def render(spp: int, seed: int):
         return transmittance_pass(mi, tracked, o, d, t_out[ok], spp, seed, min_distance=t_in[ok])
 
+    heavy = past_variance_target(mi, tracked, o, d, t_out[ok], t_in[ok])
     ref = transmittance_reference(
         pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance"),
         mask,
         "ratio tracking (Mitsuba Medium.get_scattering_coefficients with the medium's majorant)",
+        unchecked=heavy,
     )
+    t_notes = [*notes, thick_rays_note(int(heavy.sum()), n)] if heavy.any() else list(notes)
     given = density_params(b, c, float(length.max()))
     parameters = {
         "medium": app.part,
@@ -181,14 +186,15 @@ def _cases(
         ref,
         common,
         parameters,
-        notes=tuple(notes),
+        notes=tuple(t_notes),
         methods={f: _as_exact(TRANSMITTANCE_METHODS[f], exact) for f in rows},
         params={f: given for f in rows},
     )
     if not radiance:
         return [t_case]
     if not len(med.scene.emitters()):
-        return [dataclasses.replace(t_case, notes=(*notes, "no light in the scene: no fogged-radiance case"))]
+        no_light = "no light in the scene: no fogged-radiance case"
+        return [dataclasses.replace(t_case, notes=(*t_notes, no_light))]
     what = {**what, "quantity": "medium-radiance", "integrator": RADIANCE_INTEGRATOR}
     r_case = _radiance_case(setup, med, ok, mask, common, what, given, tag)
     label = f"{app.part}{label_tail}, fogged radiance"

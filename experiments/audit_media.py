@@ -21,6 +21,7 @@ import numpy as np
 from rtfit.realtime.methods import Param
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
 from rtfit.reference.estimators import PassResult, radiance_pass
+from rtfit.reference.medium_transmittance import VARIANCE_EXPONENT, variance_exponents
 
 from .audit import Applicability, AuditError
 from .audit_family import FamilyCase
@@ -40,10 +41,12 @@ __all__ = [
     "medium_intervals",
     "medium_pointer",
     "opened_medium",
+    "past_variance_target",
     "radiance_passes",
     "sigma_t_at",
     "sun_direction_of",
     "switched_off",
+    "thick_rays_note",
     "transmittance_case",
     "transmittance_reference",
 ]
@@ -354,14 +357,37 @@ TRANSMITTANCE_QUANTITY = "transmittance T of the medium along the camera's rays 
 """The words of a fog family's transmittance reference (`transmittance_reference`)."""
 
 
-def transmittance_reference(pooled: PooledPasses, mask: np.ndarray, integrator: str) -> AuditReference:
+def transmittance_reference(
+    pooled: PooledPasses, mask: np.ndarray, integrator: str, unchecked: np.ndarray | None = None
+) -> AuditReference:
     """A fog family's transmittance reference on the camera rays of ``mask``: the ratio tracker's ``pooled``
-    passes (`audit_setup.PooledPasses.reference`), ``integrator`` the tracker's words."""
+    passes (`audit_setup.PooledPasses.reference`), ``integrator`` the tracker's words; ``unchecked``: per ray,
+    True where the tracker ran past its variance target (`thick_rays_note`)."""
     return pooled.reference(
         mask,
         quantity=TRANSMITTANCE_QUANTITY,
         integrator=integrator,
         integrator_reason="unbiased estimate of exp(−∫σt ds) with the medium plugin's own density",
+        unchecked=unchecked,
+    )
+
+
+def past_variance_target(mi, tracked, origin, dirs, far, near) -> np.ndarray:
+    """Per ray (`transmittance_pass`'s arguments), True where the ratio tracker runs past its variance target
+    (`rtfit.reference.medium_transmittance.variance_exponents`): the rays a transmittance reference's
+    ``unchecked`` names (`transmittance_reference`, `thick_rays_note`)."""
+    bound = variance_exponents(mi, tracked, origin, dirs, far, min_distance=near)
+    return bound > VARIANCE_EXPONENT * (1.0 + 1e-6)
+
+
+def thick_rays_note(thick: int, rays: int) -> str:
+    """The case note of a transmittance reference with ``thick`` of its ``rays`` past the ratio tracker's
+    variance target (`rtfit.reference.medium_transmittance.variance_exponents`)."""
+    return (
+        f"{thick} of {rays} rays cross more than 16 of the medium's majorant optical depths (m·L; in a "
+        "homogeneous medium T < 1.2e-7): there the ratio tracker, at its cost cap, runs past its variance "
+        "target, its weights are heavy-tailed and a pass's sample variance does not measure its error, so "
+        "the exact row's z-checks leave those rays out (they are compared and shown as the others)"
     )
 
 

@@ -173,26 +173,42 @@ def _checks(plan, outcomes) -> list[dict]:
             if not np.any(ref.stderr[case.mask]):  # computed without sampling: no z-scores to judge
                 checks.append(_deterministic_check(row, case))
                 continue
+            what = f"{row.row} vs the reference, {case.label}"
+            # pixels whose sample variance does not measure the reference's error are not judged
+            judged = case.mask if ref.unchecked is None else case.mask & ~ref.unchecked
+            if not judged.any():
+                checks.append(_unjudged_check(what, int(case.mask.sum())))
+                continue
             pair = z_pair(
-                row.image[case.mask],
-                ref.mean[case.mask],
-                ref.stderr[case.mask],
-                ref.sigma()[case.mask],
+                row.image[judged],
+                ref.mean[judged],
+                ref.stderr[judged],
+                ref.sigma()[judged],
                 precision_floor=(
                     RELATIVE_PRECISION_FLOOR
                     if ref.precision is None
                     # A bias bound b of the reference (not noise) shifts an element's z by up to b/stderr:
                     # only elements whose noise is ≥ b / Z_MEDIAN_TOLERANCE judge the spread and median
                     # (one bias in every element then moves the median by at most its tolerance).
-                    else np.maximum(RELATIVE_PRECISION_FLOOR, ref.precision[case.mask] / Z_MEDIAN_TOLERANCE)
+                    else np.maximum(RELATIVE_PRECISION_FLOOR, ref.precision[judged] / Z_MEDIAN_TOLERANCE)
                 ),
             )
-            what = f"{row.row} vs the reference, {case.label}"
             if not pair[0].size and pair[1].size:  # no element's noise above the reference's own precision
                 checks.append(_within_precision_check(what, pair[1]))
                 continue
             checks += z_checks(what, *concat_z_pairs([pair]), samples=int(ref.spp))
     return checks
+
+
+def _unjudged_check(what: str, pixels: int) -> dict:
+    """The exact row's check where every pixel's reference is one whose sample variance does not measure its
+    error (`AuditReference.unchecked`): nothing to judge; reported as such, passed."""
+    return {
+        "name": f"{what}: z-scores ({pixels} elements)",
+        "value": 0.0,
+        "expected": "not judged: no element's sample variance measures its error (the case's notes say why)",
+        "passed": True,
+    }
 
 
 def _within_precision_check(what: str, z_all: np.ndarray) -> dict:

@@ -93,6 +93,11 @@ class AuditReference:
     mask: np.ndarray | None = None
     """The (H, W) mask of the pixels it was made for (its constructors set it: `PooledPasses.reference`,
     `deterministic`): a `FamilyCase` that names no mask of its own compares these pixels."""
+    unchecked: np.ndarray | None = None
+    """(H, W) True where the estimator's own sample variance does not measure its error (heavy-tailed
+    weights: a ratio tracker past its variance target, `rtfit.reference.medium_transmittance.
+    variance_exponents`): those pixels are compared and shown, but the exact row's z-checks leave them out
+    (`audit_results._checks`); None: every pixel is judged."""
 
     def relative_floor(self):
         """The relative precision floor: `RELATIVE_PRECISION_FLOOR`, or per pixel at least ``precision``."""
@@ -161,13 +166,16 @@ class PooledPasses:
         columns: slice | None = None,
         extra_seconds: float = 0.0,
         precision: np.ndarray | None = None,
+        unchecked: np.ndarray | None = None,
     ) -> AuditReference:
         """The `AuditReference` these passes give on the pixels of ``mask`` (element i is the i-th masked
         pixel, row-major): ``mean`` and ``stderr`` (their ``columns``: three RGB columns, or all of a grey
         (N,) pass) as (H, W, 3) images (`masked_image`), the samples and passes, the cache entry's key and
         folder, the seconds of rendering plus ``extra_seconds`` (another pass the case needed, e.g. a
         bake), and the report's words (``quantity`` with units, ``integrator``, ``integrator_reason``);
-        ``precision``: the relative precision floor per masked element ((N,), `AuditReference.precision`)."""
+        ``precision``: the relative precision floor per masked element ((N,), `AuditReference.precision`);
+        ``unchecked``: per masked element, True where its noise is not measured by its sample variance ((N,),
+        `AuditReference.unchecked`)."""
         mean, stderr = (
             (self.mean, self.stderr) if columns is None else (self.mean[:, columns], self.stderr[:, columns])
         )
@@ -185,7 +193,15 @@ class PooledPasses:
             integrator_reason=integrator_reason,
             precision=None if precision is None else masked_image(mask, precision),
             mask=mask,
+            unchecked=None if unchecked is None else _masked_flags(mask, unchecked),
         )
+
+
+def _masked_flags(mask: np.ndarray, flags) -> np.ndarray:
+    """(H, W) bool: ``flags`` (one per masked pixel, row-major) on the pixels of ``mask``, False elsewhere."""
+    out = np.zeros(mask.shape, bool)
+    out[mask] = np.asarray(flags, bool).reshape(-1)
+    return out
 
 
 def _run_identity(setup: AuditSetup, what: Mapping[str, Any]) -> dict:

@@ -32,6 +32,7 @@ from rtfit.scenes import SceneError
 
 from .atomic import atomic_directory, is_temporary_name
 from .executors import make_executor
+from .figures import pngs_in_background
 from .jobs import RunFailed, error_line
 from .progress import Stage
 from .records import SCHEMA, Results, from_json, plain_json
@@ -128,8 +129,6 @@ def run_experiment_into(
         ctx = dataclasses.replace(ctx, experiment=spec.name, config=spec.config)
     ctx.log(f"{spec.name}: running ({'quick' if ctx.quick else 'full'}, {ctx.variant})")
     use_variant_backend(ctx.variant)
-    from .figures import pngs_in_background  # (imported by a run only: PIL and the figures' text)
-
     with pngs_in_background():  # (its figures written before its results and report name them)
         body = spec.load().run(ctx)
     doc = {
