@@ -20,6 +20,7 @@ scenes=(
   "$real/sionna/etoile/etoile.xml"
   "$real/mitsuba3-sunsky/teapot/teapot.xml"
   "$real/mitsuba-blender/test1/test1.xml"
+  "$real/mitsuba-data/docs/scenes/medium_homogeneous_sss.xml"
 )
 mkdir -p "$out"
 for i in "${!scenes[@]}"; do
