@@ -108,7 +108,7 @@ def parsed_xml(path, defines: Mapping[str, str], variant: str | None) -> Iterato
                     if given is not None and "object" in str(e)
                     else ""
                 )
-                raise XMLSceneError(f"{source_label(path)}: {_one_line(str(e))}{hint}") from None
+                raise XMLSceneError(f"{source_label(path)}: {mitsuba_error_text(e)}{hint}") from None
             except UnicodeDecodeError:  # Mitsuba's message quoted bytes of a file that is not text
                 raise XMLSceneError(
                     f"{path}: Mitsuba could not parse it (a file it reads is not text)"
@@ -231,10 +231,14 @@ NOT_TEXT_ERROR = (
 
 def mitsuba_error_text(e: RuntimeError) -> str:
     """Mitsuba's error ``e`` as one line without its source-location prefixes, with a hint for a PLY file
-    of non-triangular faces (Mitsuba 3.9's PLY loader reads triangles only)."""
+    of non-triangular faces (Mitsuba 3.9's PLY loader reads triangles only) and for a ``$name`` the scene
+    uses without a ``<default>`` (Mitsuba's own scenes leave ``$spp`` and ``$res`` to the command line)."""
     text = _one_line(str(e))
     if "PLYMesh" in text and any(m in text for m in _PLY_FACE_ERRORS):
         text += f" ({_PLY_HINT})"
+    undefined = re.search(r"undefined parameter: \$(\w+)", text)
+    if undefined:
+        text += f" (give it a value: -D {undefined.group(1)}=VALUE)"
     return text
 
 

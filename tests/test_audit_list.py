@@ -291,6 +291,19 @@ def test_defines_reach_the_parser(tmp_path):
     assert code == 2 and err.count("\n") == 1 and "unused parameters" in err and "$nosuch=3" in err
 
 
+def test_a_parameter_without_default_is_one_line_naming_the_d_option(tmp_path):
+    """Mitsuba's own scenes leave ``$spp`` to the command line (no ``<default>``): its refusal is one line
+    that says how to give it (Mitsuba's docs/scenes/sensor_orthographic.xml, audited as a user would)."""
+    xml = tmp_path / "needs_spp.xml"
+    xml.write_text(
+        '<scene version="3.0.0"><sensor type="perspective"><sampler type="independent">'
+        '<integer name="sample_count" value="$spp"/></sampler></sensor></scene>'
+    )
+    code, out, err = _run(xml, "--list")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "undefined parameter: $spp (give it a value: -D spp=VALUE)" in err and str(xml) in err
+
+
 def test_camera_width_height_and_up_options(tmp_path):
     two = _sensor() + _sensor(id="top", origin="0, 0.5, 0", target="0, -1, 0", up="0, 0, -1", fov=60)
     xml = _cornell(tmp_path, sensors=two)
