@@ -324,7 +324,7 @@ FAMILY = AuditFamily(
         Rule(
             "ambient-aperture",
             "ambient occlusion (aperture caps)",
-            ("geometry",),
+            ("sdf-geometry",),
             "{part} occludes itself: each point's visible cap (bent normal, aperture) against its hemisphere",
             "ray-cast ambient occlusion within R = {ao_distance}, and each point's visibility cap baked by "
             "ray casts of length R",

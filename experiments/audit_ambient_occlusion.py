@@ -401,7 +401,7 @@ FAMILY = AuditFamily(
         Rule(
             "sdf-occlusion",
             "ambient occlusion",
-            ("geometry",),
+            ("sdf-geometry",),
             "{part} occludes itself",
             "ray-cast ambient occlusion within R = {ao_distance} (cosine-weighted visibility)",
             "occlusion pass: cosine-distributed rays of length R from the visible points",

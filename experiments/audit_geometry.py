@@ -74,6 +74,9 @@ def _unit_shape(kind: str):
         return _disk()
     if kind == "cylinder":
         return _cylinder()
+    if kind == "rectangle":  # Mitsuba's unit rectangle: [−1, 1]² at z = 0, its normal +z
+        v = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+        return v, np.array([[0, 1, 2], [0, 2, 3]], np.int64)
     return None
 
 
@@ -102,7 +105,7 @@ def _shape_triangles(mi, shape) -> tuple[np.ndarray, np.ndarray, str] | None:
 def _unreadable(shape, kind: str) -> AuditError:
     return AuditError(
         f"shape {shape.id() or kind!r} ({kind}): the audit's distance field reads meshes, spheres, disks, "
-        "cylinders and instances of shape groups of them only"
+        "cylinders, rectangles and instances of shape groups of them only"
     )
 
 

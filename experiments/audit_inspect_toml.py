@@ -65,7 +65,8 @@ def toml_info(scene: Scene, source: str, up: str | None) -> SceneInfo:
         parts.append(Part(frozenset({"surface"}), f"{len(scene.shapes)} shape(s)"))
         if can_interreflect(scene):
             types = counts_text(s.kind for s in scene.shapes)
-            parts.append(Part(frozenset({"geometry"}), f"the scene's geometry ({types})"))
+            # (rtfit's TOML shapes are spheres, boxes, rectangles and meshes: a distance field reads them all)
+            parts.append(Part(frozenset({"geometry", "sdf-geometry"}), f"the scene's geometry ({types})"))
         if bbox is not None:
             parts.append(volume_part(bbox))
         for index, plugin, where, sphere in _toml_reflective(scene):

@@ -37,6 +37,23 @@ _XML_NOTES = (
     "path-traced spherical-shell atmosphere is an rtfit sky file (format rtfit.sky/1)",
 )
 _CONVEX_XML = frozenset({"sphere", "rectangle", "disk", "cube"})  # one of these alone cannot occlude itself
+SDF_SHAPE_PLUGINS = frozenset(
+    {
+        "obj",
+        "ply",
+        "serialized",
+        "cube",
+        "mesh",
+        "sphere",
+        "disk",
+        "cylinder",
+        "rectangle",
+        "instance",
+        "shapegroup",
+    }
+)
+"""The shape plugins `audit_geometry`'s distance field reads (Mitsuba's meshes, and the analytic shapes it
+tessellates; an instance by its group's members, read when the field is built): the ``sdf-geometry`` part."""
 _PARTICLE_XML = frozenset({"sphere", "cube"})  # convex medium boundaries with an exact chord
 # Emitter kinds (`XmlEmitter.kind`) that are lights of their own; others (e.g. a projector) are not audited.
 _XML_LIGHTS = frozenset({"point", "spot", "directional", "sphere", "disk", "rectangle", "area"})
@@ -95,7 +112,8 @@ def xml_info(x: XmlScene) -> SceneInfo:
         parts.append(Part(frozenset({"surface"}), f"{len(x.shapes)} shape(s)"))
         if len(x.shapes) >= 2 or x.shapes[0].type not in _CONVEX_XML:
             types = counts_text(s.type for s in x.shapes)
-            parts.append(Part(frozenset({"geometry"}), f"the scene's geometry ({types})"))
+            sdf = {"sdf-geometry"} if all(s.type in SDF_SHAPE_PLUGINS for s in x.shapes) else set()
+            parts.append(Part(frozenset({"geometry", *sdf}), f"the scene's geometry ({types})"))
     if x.shapes and x.bbox is not None:
         parts.append(volume_part(x.bbox))
     # a medium's boundary is the medium's container, not a glass object (`shape_plugin`)

@@ -78,6 +78,9 @@ PROVIDES: dict[str, frozenset[str]] = {
     "environment": frozenset({"nx", "ny", "nz", "coeffs", "irradiance", "sky_radiance"}),
     "surface": frozenset(),
     "geometry": frozenset({*_GEOMETRY_INPUTS, "cos_na", "aperture"}),
+    # geometry a signed distance field is built from (`audit_geometry`: meshes and the analytic shapes it
+    # tessellates); a scene with a curve shape has "geometry" but not this
+    "sdf-geometry": frozenset({*_GEOMETRY_INPUTS, "cos_na", "aperture"}),
     "fog": frozenset({"z0", "z1", "distance", "cos_sun", "l0_r", "l0_g", "l0_b"}),
     # a scene's own medium as height fog (constant, or fitted to its grid)
     "constant-fog": frozenset({"z0", "z1", "distance", "cos_sun", "l0_r", "l0_g", "l0_b"}),
@@ -128,6 +131,8 @@ _KIND_TEXT = {
     "environment": "an environment (envmap, constant or sunsky)",
     "surface": "a surface for the camera to see",
     "geometry": "geometry that can occlude itself (two or more shapes, or one non-convex shape)",
+    "sdf-geometry": "geometry that can occlude itself, made only of shapes a distance field is built from "
+    "(meshes, spheres, disks, cylinders, rectangles and shape-group instances; not curves)",
     "fog": "an exponential height-fog medium",
     "constant-fog": "a homogeneous medium (constant fog)",
     "grid-fog": "a heterogeneous medium with a density grid (gridvolume)",

@@ -258,7 +258,7 @@ SKY_OCCLUSION = AuditFamily(
         Rule(
             "sdf-occlusion",
             "sky occlusion",
-            ("environment", "geometry"),
+            ("environment", "sdf-geometry"),
             "{part} is occluded by {with_}",
             "sky irradiance with visibility at the visible points (the environment's direct light, "
             "shadowed; a sunsky's sky alone)",
@@ -283,7 +283,7 @@ APERTURE_FILL = AuditFamily(
         Rule(
             "ambient-aperture",
             "sky occlusion (aperture fill)",
-            ("environment", "geometry"),
+            ("environment", "sdf-geometry"),  # (`sky_inputs` builds the distance field for both roles)
             "{part} is occluded by {with_}: the visible cap of sky",
             "sky irradiance with visibility at the visible points, and each point's visible cap (bent "
             "normal, aperture)",

@@ -448,3 +448,43 @@ def test_an_area_emitter_declared_in_an_include_and_referenced_by_id(tmp_path):
     assert [s.emitter for s in x.shapes] == [True, False]
     fams = _families(applicable_families(inspect_scene(tmp_path / "cbox-rgb.xml")))
     assert "exact" in fams["diffuse"][0].methods
+
+
+def test_distance_field_families_need_shapes_a_distance_field_reads(tmp_path):
+    """A curve (Mitsuba's ``bsplinecurve``) is geometry the ray-cast families audit, but no distance field is
+    built from it: the families that read one (sdf-occlusion; ambient-aperture's caps and fill) do not apply,
+    saying why, before anything runs; rectangles (the walls) and meshes are read."""
+    code, out, _ = _run(_cornell(tmp_path / "plain"), "--list")
+    assert code == 0
+    applies = out.split("does not apply:")[0]
+    assert (
+        "sdf-occlusion — ambient occlusion" in applies and "ambient-aperture — ambient occlusion" in applies
+    )
+    (tmp_path / "curved" / "assets").mkdir(parents=True)
+    (tmp_path / "curved" / "assets" / "curve.txt").write_text(
+        "-1 0 0 0.05\n-0.3 0 0 0.05\n0.3 0 0 0.05\n1 0 0 0.05\n"
+    )
+    curve = '<shape type="bsplinecurve"><string name="filename" value="curve.txt"/></shape>'
+    code, out, _ = _run(_cornell(tmp_path / "curved", extra=curve), "--list")
+    assert code == 0
+    applies, rest = out.split("does not apply:")
+    assert "sdf-occlusion" not in applies and "ambient-aperture — ambient occlusion" not in applies
+    assert "obscurances — obscurance" in applies  # (ray-cast: the curve occludes as any shape does)
+    assert "sdf-occlusion: needs" in rest and "not curves" in rest
+
+
+def test_a_rectangles_triangles_are_mitsubas_rectangle(mi):
+    """`audit_geometry`'s tessellation of a ``rectangle``: its four corners on Mitsuba's shape (a ray down
+    onto each hits it there) and its area Mitsuba's."""
+    from rtfit.experiments.audit_geometry import _shape_triangles
+
+    shape = mi.load_dict({"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0.5, -1.0, 2.0])
+                          @ mi.ScalarTransform4f().scale([2.0, 0.5, 1.0])})  # fmt: skip
+    v, f, _ = _shape_triangles(mi, shape)
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum()
+    assert area == pytest.approx(float(shape.surface_area()[0]), rel=1e-6)
+    inner = 0.999 * (v - v.mean(axis=0)) + v.mean(axis=0)  # (just inside each corner)
+    for p in inner:
+        ray = mi.Ray3f(mi.Point3f(float(p[0]), float(p[1]), float(p[2]) + 1.0), mi.Vector3f(0.0, 0.0, -1.0))
+        si = shape.ray_intersect(ray)
+        assert bool(si.is_valid()[0]) and float(si.t[0]) == pytest.approx(1.0, abs=1e-5)
