@@ -17,10 +17,14 @@ from .cost import time_drjit
 
 COST_ELEMENTS = 1 << 20  # inputs are tiled to this many elements for the cost measurement
 _COST_INPUT_BYTES = 64 << 20
-"""At most this many bytes of tiled per-pixel inputs in a cost measurement (float32, every input together):
-far beyond any CPU cache, so the memory traffic is still what is timed. The caustics' splats read 112
-per-pixel inputs: at 2^20 elements their tiled copies were 0.9 GB (and as much again on the host), which
-lifted the quick suite's peak memory to 3.9 GB (issue 33); they are timed on 2^17 elements now."""
+"""At most this many bytes of tiled per-pixel inputs in a cost measurement (float32, every input together).
+The caustics' splats read 112 per-pixel inputs: at 2^20 elements their tiled copies were 0.9 GB (and as much
+again on the host), which lifted the quick suite's peak memory to 3.9 GB (issue 33); they are timed on 2^17
+elements now. Where the inputs are few, a kernel reads 4 MiB each (2^20 float32): beyond a laptop's caches,
+so that memory traffic is timed there, but within the last-level cache of a large server (this project's
+2-core VM reports a shared L3 of 300 MiB: a two-input Lambert kernel timed 0.13–0.21 ns a pixel, ~60–90 GB/s
+of traffic, the L3's speed, not DRAM's). A cost is of the machine it was measured on, which the report
+names (`runner.device_description`)."""
 
 
 _UNIFORM_FLOATS = 1024
