@@ -77,7 +77,6 @@ from .audit_media import (
     opened_medium,
     past_variance_target,
     sigma_t_at,
-    thick_rays_note,
     transmittance_case,
     transmittance_reference,
 )
@@ -162,14 +161,12 @@ def _cases(
     def render(spp: int, seed: int):
         return transmittance_pass(mi, tracked, o, d, t_out[ok], spp, seed, min_distance=t_in[ok])
 
-    heavy = past_variance_target(mi, tracked, o, d, t_out[ok], t_in[ok])
     ref = transmittance_reference(
         pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance"),
         mask,
         "ratio tracking (Mitsuba Medium.get_scattering_coefficients with the medium's majorant)",
-        unchecked=heavy,
+        unchecked=past_variance_target(mi, tracked, o, d, t_out[ok], t_in[ok]),
     )
-    t_notes = [*notes, thick_rays_note(int(heavy.sum()), n)] if heavy.any() else list(notes)
     given = density_params(b, c, float(length.max()))
     parameters = {
         "medium": app.part,
@@ -186,7 +183,7 @@ def _cases(
         ref,
         common,
         parameters,
-        notes=tuple(t_notes),
+        notes=tuple(notes),
         methods={f: _as_exact(TRANSMITTANCE_METHODS[f], exact) for f in rows},
         params={f: given for f in rows},
     )
@@ -194,7 +191,7 @@ def _cases(
         return [t_case]
     if not len(med.scene.emitters()):
         no_light = "no light in the scene: no fogged-radiance case"
-        return [dataclasses.replace(t_case, notes=(*t_notes, no_light))]
+        return [dataclasses.replace(t_case, notes=(*t_case.notes, no_light))]
     what = {**what, "quantity": "medium-radiance", "integrator": RADIANCE_INTEGRATOR}
     r_case = _radiance_case(setup, med, ok, mask, common, what, given, tag)
     label = f"{app.part}{label_tail}, fogged radiance"

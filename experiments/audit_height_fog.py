@@ -58,7 +58,7 @@ from rtfit.reference.medium_transmittance import transmittance_pass
 
 from .audit import Applicability, AuditError, Rule
 from .audit_family import AuditFamily, FamilyCase
-from .audit_media import transmittance_case, transmittance_reference
+from .audit_media import past_variance_target, transmittance_case, transmittance_reference
 from .audit_setup import AuditReference, AuditSetup, PooledPasses, pooled_passes
 from .case_inputs import masked_image
 from .shipped import ShippedScene, Sizes
@@ -291,8 +291,11 @@ def _sky(setup: AuditSetup, scene):
     return stats, sun / np.linalg.norm(sun)
 
 
-def _transmittance(setup: AuditSetup, index: int, medium, origin, dirs, dist, label: str) -> PooledPasses:
-    """Pooled ratio-tracking passes of the medium alone: mean and stderr (N, 3), the transmittance (1)."""
+def _transmittance(
+    setup: AuditSetup, index: int, medium, origin, dirs, dist, label: str
+) -> tuple[PooledPasses, np.ndarray]:
+    """Pooled ratio-tracking passes of the medium alone: mean and stderr (N, 3), the transmittance (1); and
+    per ray whether the tracker runs past its variance target (`audit_media.past_variance_target`)."""
     mi = setup.mi
     register(mi)
     med = mi.load_dict(medium_dict(mi, medium))
@@ -310,7 +313,8 @@ def _transmittance(setup: AuditSetup, index: int, medium, origin, dirs, dist, la
     # sun, the transport) does not change it, so scenes that differ only there share these passes (the
     # shipped terrain at each sun elevation and scattering order).
     alone = hashlib.sha256(repr(medium).encode()).hexdigest()
-    return pooled_passes(dataclasses.replace(setup, scene_digest=alone), what, render, (-1, 3), label)
+    pooled = pooled_passes(dataclasses.replace(setup, scene_digest=alone), what, render, (-1, 3), label)
+    return pooled, past_variance_target(mi, med, origin, dirs, dist, None)
 
 
 def _render(setup: AuditSetup, scene, label: str):
@@ -366,10 +370,12 @@ def fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     absorbing = not any(medium.albedo)
     t_ref = None
     if absorbing or setup.wants("fog_transmittance"):
+        pooled, thick = _transmittance(setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance")
         t_ref = transmittance_reference(
-            _transmittance(setup, index, medium, origin, d, dist[mask], f"{tag}: transmittance"),
+            pooled,
             mask,
             "ratio tracking (Mitsuba Medium.sample_interaction with the medium's majorant)",
+            unchecked=thick,
         )
     t_rows = {f: TRANSMITTANCE_METHODS[f] for f in OPTICAL_DEPTH_FORMS}
     t_cases = []

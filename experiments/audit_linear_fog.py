@@ -50,7 +50,6 @@ from .audit_media import (
     opened_medium,
     past_variance_target,
     sigma_t_at,
-    thick_rays_note,
     transmittance_case,
     transmittance_reference,
 )
@@ -164,13 +163,11 @@ def homogeneous_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyC
                 mi, tracked, med.origin, dirs[ok], t_out[ok], spp, seed, min_distance=t_in[ok]
             )
 
-        heavy = past_variance_target(mi, tracked, med.origin, dirs[ok], t_out[ok], t_in[ok])
-        t_notes = (*notes, thick_rays_note(int(heavy.sum()), int(ok.sum()))) if heavy.any() else tuple(notes)
         ref = transmittance_reference(
             pooled_passes(setup, what, render, (-1, 3), f"{tag}: transmittance"),
             mask,
             "ratio tracking (Mitsuba Medium.get_scattering_coefficients, the medium's majorant)",
-            unchecked=heavy,
+            unchecked=past_variance_target(mi, tracked, med.origin, dirs[ok], t_out[ok], t_in[ok]),
         )
         parameters = {"medium": app.part, "sigma_t": s, "channel": None if ch is None else "rgb"[ch],
                       "pixels": int(ok.sum()), "length_max": span}  # fmt: skip
@@ -182,7 +179,7 @@ def homogeneous_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyC
                 ref,
                 common,
                 parameters,
-                notes=t_notes,
+                notes=tuple(notes),
                 methods={r: METHODS[r] for r in TRANSMITTANCE_ROWS},
                 params={r: given[r] for r in TRANSMITTANCE_ROWS},
             )
@@ -191,7 +188,7 @@ def homogeneous_fog_cases(setup: AuditSetup, app: Applicability) -> list[FamilyC
             continue
         if not len(med.scene.emitters()):
             no_light = "no light in the scene: no radiance case"
-            out[-1] = dataclasses.replace(out[-1], notes=(*t_notes, no_light))
+            out[-1] = dataclasses.replace(out[-1], notes=(*out[-1].notes, no_light))
             continue
         out.append(_radiance_case(setup, app, med, ok, mask, common, what, given, tag, parameters, notes))
     if not out:

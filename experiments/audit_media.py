@@ -402,7 +402,13 @@ def transmittance_case(
     """A fog family's transmittance case of one medium (`transmittance_reference`) on the pixels its
     ``reference`` was made for: id ``<tag>-transmittance``, label ``<label>, transmittance``, the per-pixel
     inputs ``common`` for the three channels (T is grey), ``parameters`` with its quantity, units 1, quantity
-    ``fog_transmittance``; ``rows``: the case's ``notes``, ``methods`` and ``params`` (`FamilyCase`)."""
+    ``fog_transmittance``; ``rows``: the case's ``notes``, ``methods`` and ``params`` (`FamilyCase`). Where
+    the reference leaves rays out of the checks (``unchecked``), the notes count them (`thick_rays_note`)."""
+    notes = tuple(rows.pop("notes", ()))
+    flags = reference.unchecked
+    if flags is not None and flags.any():
+        rays = int(reference.mask.sum()) if reference.mask is not None else int(flags.size)
+        notes = (*notes, thick_rays_note(int(flags.sum()), rays))
     return FamilyCase(
         id=f"{tag}-transmittance",
         label=f"{label}, transmittance",
@@ -411,5 +417,6 @@ def transmittance_case(
         parameters={**parameters, "quantity": "transmittance"},
         units="1",
         quantity="fog_transmittance",
+        notes=notes,
         **rows,
     )

@@ -46,6 +46,7 @@ the segment), never a silent truncation.
 from __future__ import annotations
 
 import time
+from typing import Any, NamedTuple
 
 import drjit as dr
 import numpy as np
@@ -57,7 +58,6 @@ __all__ = [
     "MAX_STEPS",
     "MIN_COLLISIONS",
     "VARIANCE_EXPONENT",
-    "tracking_majorant",
     "transmittance_pass",
     "variance_exponents",
 ]
@@ -75,26 +75,56 @@ MAX_COLLISIONS = 1024.0
 """Most expected tentative collisions per sample that the variance bound may ask for (σ̄·L)."""
 
 
-def tracking_majorant(m, length, maximum, minimum):
-    """σ̄ of a ray's segment (module docstring): max(m, `MIN_COLLISIONS`/L, min(m²·L/`VARIANCE_EXPONENT`,
-    `MAX_COLLISIONS`/L)), ``m`` the medium's majorant on it and ``length`` L its length in the region (> 0),
-    with the array kind's ``maximum`` and ``minimum`` (Dr.Jit's in the pass, NumPy's in `variance_exponents`:
-    one text)."""
-    low_variance = minimum(m * m * length / VARIANCE_EXPONENT, MAX_COLLISIONS / length)
-    return maximum(maximum(m, MIN_COLLISIONS / length), low_variance)
+class _Rays(NamedTuple):
+    """Rays of `transmittance_pass`'s arguments as Dr.Jit arrays of one value per ray: the origin (one
+    `mi.Point3f` for every ray, or its per-ray components), the directions' components, and [near, far]."""
+
+    origin: Any
+    per_ray: bool
+    direction: tuple
+    near: Any
+    far: Any
+
+    @classmethod
+    def of(cls, mi, origin, directions, max_distance, min_distance) -> _Rays:
+        d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
+        dist = np.asarray(max_distance, np.float64).reshape(-1)
+        near = np.zeros(len(d)) if min_distance is None else np.asarray(min_distance, np.float64).reshape(-1)
+        per_ray = np.ndim(origin) == 2
+        if per_ray:
+            o = tuple(mi.Float(np.asarray(origin, np.float64)[:, k].astype(np.float32)) for k in range(3))
+        else:
+            o = mi.Point3f(*[float(x) for x in origin])
+        return cls(
+            o,
+            per_ray,
+            tuple(mi.Float(d[:, k].astype(np.float32)) for k in range(3)),
+            mi.Float(np.maximum(near, 0.0).astype(np.float32)),
+            mi.Float(np.where(np.isfinite(dist), dist, np.finfo(np.float32).max).astype(np.float32)),
+        )
+
+    def ray(self, mi, index=None):
+        """`mi.Ray3f` of every ray (``index`` None), or of the rays ``index`` picks (a sample a lane)."""
+        pick = (lambda c: c) if index is None else (lambda c: dr.gather(mi.Float, c, index))
+        start = mi.Point3f(*(pick(c) for c in self.origin)) if self.per_ray else self.origin
+        return mi.Ray3f(start, dr.normalize(mi.Vector3f(*(pick(c) for c in self.direction))))
 
 
-def _segments(mi, medium, ray, near, far, active=True):
-    """(active, t_in, t_out, m, σ̄) of ``ray`` in ``medium``'s own region (``intersect_aabb``) clipped to
-    [``near``, ``far``]: the segment each sample of `transmittance_pass` tracks, and its majorants."""
+def _segments(mi, medium, ray, near, far):
+    """(active, t_in, t_out, L, σ̄) of ``ray`` in ``medium``'s own region (``intersect_aabb``) clipped to
+    [``near``, ``far``]: the segment each sample of `transmittance_pass` tracks, its length L and σ̄ =
+    max(m, `MIN_COLLISIONS`/L, min(m²·L/`VARIANCE_EXPONENT`, `MAX_COLLISIONS`/L)) (module docstring), m the
+    medium's majorant; also the bound of `variance_exponents` (m² L/σ̄ with the m returned beside)."""
     hit_box, t_in, t_out = medium.intersect_aabb(ray)
     t_in = dr.maximum(t_in, near)
     t_out = dr.minimum(t_out, far)
-    active = hit_box & (t_out > t_in) & active
+    active = hit_box & (t_out > t_in)
     mei = dr.zeros(mi.MediumInteraction3f, dr.width(ray.d.x))
     length = dr.maximum(t_out - t_in, 1e-30)
-    m_bar = medium.get_majorant(mei, active)[0]
-    return active, t_in, t_out, m_bar, tracking_majorant(m_bar, length, dr.maximum, dr.minimum)
+    m = medium.get_majorant(mei, active)[0]
+    low_variance = dr.minimum(m * m * length / VARIANCE_EXPONENT, MAX_COLLISIONS / length)
+    bar = dr.maximum(dr.maximum(m, MIN_COLLISIONS / length), low_variance)
+    return active, t_in, t_out, length, m, bar
 
 
 def variance_exponents(mi, medium, origin, directions, max_distance, min_distance=None) -> np.ndarray:
@@ -106,21 +136,9 @@ def variance_exponents(mi, medium, origin, directions, max_distance, min_distanc
     Mitsuba's ``medium_homogeneous_sss`` scene (σt = 50 in a bunny) the exact row's z-scores were those of
     a standard normal up to optical depth 16 and drifted beyond it (median z +0.2 to +0.4, up to 8 % beyond
     |z| = 4): the audit's checks judge only the rays within the target (`AuditReference.unchecked`)."""
-    d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
-    n = len(d)
-    dist = np.asarray(max_distance, np.float64).reshape(-1)
-    near_np = np.zeros(n) if min_distance is None else np.asarray(min_distance, np.float64).reshape(-1)
-    if np.ndim(origin) == 2:
-        start = mi.Point3f(*(np.asarray(origin, np.float64)[:, k].astype(np.float32) for k in range(3)))
-    else:
-        start = mi.Point3f(*[float(x) for x in origin])
-    ray = mi.Ray3f(start, dr.normalize(mi.Vector3f(*(d[:, k].astype(np.float32) for k in range(3)))))
-    near = mi.Float(np.maximum(near_np, 0.0).astype(np.float32))
-    far = mi.Float(np.where(np.isfinite(dist), dist, np.finfo(np.float32).max).astype(np.float32))
-    active, t_in, t_out, m_bar, bar = _segments(mi, medium, ray, near, far)
-    length = dr.maximum(t_out - t_in, 1e-30)
-    bound = dr.select(active, m_bar * m_bar * length / bar, 0.0)
-    return np.asarray(bound, np.float64)
+    rays = _Rays.of(mi, origin, directions, max_distance, min_distance)
+    active, _t_in, _t_out, length, m, bar = _segments(mi, medium, rays.ray(mi), rays.near, rays.far)
+    return np.asarray(dr.select(active, m * m * length / bar, 0.0), np.float64)
 
 
 def transmittance_pass(
@@ -144,37 +162,20 @@ def transmittance_pass(
     Returns a `PassResult` with mean and variance (N, 3): the grey T estimated independently in each channel
     (3 × ``spp`` samples per ray), so that the three channels' errors are independent. ``tag`` names the
     pass's random streams (`sub_seed`)."""
-    d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
-    dist = np.asarray(max_distance, np.float64).reshape(-1)
-    n = len(d)
-    near_np = np.zeros(n) if min_distance is None else np.asarray(min_distance, np.float64).reshape(-1)
-    near = mi.Float(np.maximum(near_np, 0.0).astype(np.float32))
+    rays = _Rays.of(mi, origin, directions, max_distance, min_distance)
+    n = dr.width(rays.near)
     t0 = time.perf_counter()
     s = np.empty((n, 3))
     q = np.empty((n, 3))
-    per_ray = np.ndim(origin) == 2
-    if per_ray:
-        ox, oy, oz = (mi.Float(np.asarray(origin, np.float64)[:, k].astype(np.float32)) for k in range(3))
-    else:
-        o = [float(x) for x in origin]
-    dx, dy, dz = (mi.Float(d[:, k].astype(np.float32)) for k in range(3))
-    far = mi.Float(np.where(np.isfinite(dist), dist, np.finfo(np.float32).max).astype(np.float32))
     lanes = 3 * spp  # three independent estimates (one per channel) of spp samples each
     for k, (a, b) in enumerate(chunk_ranges(n, lanes)):
         m = (b - a) * lanes
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(sub_seed(seed, tag, k), m)
         idx = dr.arange(mi.UInt32, m) // lanes + a
-        direction = mi.Vector3f(
-            dr.gather(mi.Float, dx, idx), dr.gather(mi.Float, dy, idx), dr.gather(mi.Float, dz, idx)
-        )
-        if per_ray:
-            start = mi.Point3f(*(dr.gather(mi.Float, c, idx) for c in (ox, oy, oz)))
-        else:
-            start = mi.Point3f(*o)
-        ray = mi.Ray3f(start, dr.normalize(direction))
-        near_k, far_k = dr.gather(mi.Float, near, idx), dr.gather(mi.Float, far, idx)
-        active, t_in, t_out, _m_bar, bar = _segments(mi, medium, ray, near_k, far_k)
+        ray = rays.ray(mi, idx)
+        near, far = dr.gather(mi.Float, rays.near, idx), dr.gather(mi.Float, rays.far, idx)
+        active, t_in, t_out, _length, _m, bar = _segments(mi, medium, ray, near, far)
         mei = dr.zeros(mi.MediumInteraction3f, m)
         weight = dr.full(mi.Float, 1.0, m)
         t = mi.Float(t_in)
