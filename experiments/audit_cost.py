@@ -9,7 +9,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime.arrays import Uniforms, backend_float, release_backend_tables, to_drjit
+from rtfit.realtime.arrays import Uniforms, aligned_empty, backend_float, release_backend_tables, to_drjit
 from rtfit.realtime.methods import Method
 
 from .audit_family import FamilyCase
@@ -129,11 +129,8 @@ class CostInputs:
         if known is not None and known[0] is v:
             return known[1]
         a = self.cleaned(name, v)
-        offset = (self.made * _STAGGER_STEP) % 64 * 64  # bytes into a 4 KiB page
+        out = aligned_empty(size, np.float32, offset=(self.made * _STAGGER_STEP) % 64 * 64, period=4096)
         self.made += 1
-        buf = np.empty(size + 4096 // a.itemsize, np.float32)
-        start = (offset - buf.ctypes.data) % 4096 // a.itemsize  # (NumPy's buffers: 16-byte aligned)
-        out = buf[start : start + size]
         reps = size // a.size
         out[: reps * a.size].reshape(reps, a.size)[...] = a
         out[reps * a.size :] = a[: size - reps * a.size]

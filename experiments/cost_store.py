@@ -89,9 +89,10 @@ def _feed(h, v: Any, depth: int = 0, digests: dict | None = None) -> int | None:
         h.update(f"{type(v).__name__}:{v!r}\0".encode())
         return 1
     if isinstance(v, np.ndarray | np.generic):
-        if np.asarray(v).dtype == object:
+        a = np.asarray(v)
+        if a.dtype == object:
             return None
-        h.update(b"array:" + _array_digest(v if isinstance(v, np.ndarray) else np.asarray(v), digests))
+        h.update(b"array:" + _array_digest(a, digests if a is v else None))  # (a NumPy scalar: not kept)
         return 1
     if dr.is_array_v(v):
         return 0

@@ -52,6 +52,7 @@ __all__ = [
     "OP_NAMES",
     "Uniforms",
     "aligned_copy",
+    "aligned_empty",
     "atan_minus_x_series",
     "backend_float",
     "backend_type",
@@ -418,14 +419,22 @@ def to_drjit(Float: type, values: Any) -> Any:
     return Float(aligned_copy(values, _NUMPY_OF[dr.type_v(Float)]))
 
 
+def aligned_empty(size: int, dtype: Any, offset: int = 0, period: int = _ALIGN) -> np.ndarray:
+    """A fresh, flat NumPy array of ``size`` elements of ``dtype`` (uninitialised) whose first element's
+    address is ``offset`` bytes past a multiple of ``period`` (a multiple of the item size; NumPy's buffers
+    are at least 16-byte aligned): 64-byte aligned by default (`aligned_copy`), or staggered in a 4 KiB
+    page (`rtfit.experiments.audit_cost.CostInputs`)."""
+    item = np.dtype(dtype).itemsize
+    buf = np.empty(size + period // item, dtype)
+    start = (offset - buf.ctypes.data) % period // item
+    return buf[start : start + size]
+
+
 def aligned_copy(values: Any, dtype: Any) -> np.ndarray:
     """``values`` (array-like) as a flat, fresh NumPy array of ``dtype`` whose first element is aligned to 64
     bytes (`to_drjit`'s buffer). Dr.Jit maps such an array (and any prefix of it) without copying."""
     arr = np.asarray(values)
-    item = np.dtype(dtype).itemsize
-    buf = np.empty(arr.size + _ALIGN // item, dtype)
-    start = (-buf.ctypes.data % _ALIGN) // item
-    out = buf[start : start + arr.size]
+    out = aligned_empty(arr.size, dtype)
     # one pass in C order, straight from ``values`` (a broadcast view is not flattened into a copy first:
     # issue 33, ~half of the time of this copy for the kernels' broadcast (texels × samples) inputs)
     out.reshape(arr.shape)[...] = arr
