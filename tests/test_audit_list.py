@@ -488,3 +488,14 @@ def test_a_rectangles_triangles_are_mitsubas_rectangle(mi):
         ray = mi.Ray3f(mi.Point3f(float(p[0]), float(p[1]), float(p[2]) + 1.0), mi.Vector3f(0.0, 0.0, -1.0))
         si = shape.ray_intersect(ray)
         assert bool(si.is_valid()[0]) and float(si.t[0]) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_every_analytic_shape_the_xml_scan_calls_readable_is_read_by_the_distance_field(mi):
+    """`audit_inspect_xml.SDF_SHAPE_PLUGINS` (what --list promises) and `audit_geometry` (what the field
+    reads) name the same shapes: each analytic one loads and gives triangles; a curve does not."""
+    from rtfit.experiments.audit_geometry import _shape_triangles
+    from rtfit.experiments.audit_inspect_xml import SDF_SHAPE_PLUGINS
+
+    for plugin in sorted(SDF_SHAPE_PLUGINS & {"sphere", "disk", "cylinder", "rectangle", "cube"}):
+        assert _shape_triangles(mi, mi.load_dict({"type": plugin})) is not None, plugin
+    assert "bsplinecurve" not in SDF_SHAPE_PLUGINS and "linearcurve" not in SDF_SHAPE_PLUGINS
