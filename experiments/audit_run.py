@@ -45,6 +45,7 @@ from rtfit.fitting import (
     compute_metrics,
     prime_flip,
 )
+from rtfit.fitting.blas_threads import one_blas_thread
 from rtfit.fitting.metric_noise import content_digest
 from rtfit.realtime.methods import Method
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
@@ -190,6 +191,7 @@ def _opened(info: SceneInfo, defines, variant: str, camera: int, width, height) 
         yield mi, mi_scene, sensor, (), gbuffer(mi, mi_scene, sensor), toml, digest
 
 
+@one_blas_thread()  # (called from Python, not only through the command: see `one_blas_thread_by_default`)
 def audit(
     scene_or_path,
     approximations=None,

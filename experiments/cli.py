@@ -44,6 +44,7 @@ import click
 from tqdm import tqdm
 
 import rtfit
+from rtfit.fitting.blas_threads import one_blas_thread_by_default
 from rtfit.reference.budget import NonFinitePass, PassBudgetExceeded, pass_budget_seconds
 from rtfit.scenes import SceneError
 
@@ -160,7 +161,8 @@ def main(argv=None) -> int:
     try:
         # Without standalone mode click *returns* the status of a command that exits (`Exit(1)`: a
         # sweep with failed points) instead of raising; a command that finishes returns None.
-        status = cli.main(args=argv, prog_name="rtfit", standalone_mode=False)
+        with one_blas_thread_by_default():  # (rtfit's BLAS work is small: its threads would only spin)
+            status = cli.main(args=argv, prog_name="rtfit", standalone_mode=False)
     except click.exceptions.Exit as e:
         return e.exit_code
     except (click.exceptions.Abort, KeyboardInterrupt) as e:

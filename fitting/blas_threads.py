@@ -20,9 +20,9 @@ import os
 import sys
 import threading
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 
-__all__ = ["blas_thread_counts", "one_blas_thread"]
+__all__ = ["blas_thread_counts", "one_blas_thread", "one_blas_thread_by_default"]
 
 _SYMBOLS = (
     ("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
@@ -60,9 +60,9 @@ def _scan_openblas() -> tuple[str, ...]:
 
 
 @functools.cache
-def _entry_points(paths: tuple[str, ...]) -> tuple[tuple[Callable[[], int], Callable[[int], None]], ...]:
-    """(get, set) of the thread count of each library of ``paths`` that has them (cached per set of loaded
-    libraries: SciPy's copy is loaded with scipy.linalg, after NumPy's)."""
+def _entry_points(paths: tuple[str, ...]) -> tuple[tuple[str, Callable[[], int], Callable[[int], None]], ...]:
+    """(path, get, set) of the thread count of each library of ``paths`` that has them (cached per set of
+    loaded libraries: SciPy's copy is loaded with scipy.linalg, after NumPy's)."""
     out = []
     for path in paths:
         try:
@@ -74,25 +74,28 @@ def _entry_points(paths: tuple[str, ...]) -> tuple[tuple[Callable[[], int], Call
                 get, put = getattr(lib, get_name), getattr(lib, set_name)
                 get.restype, get.argtypes = ctypes.c_int, []
                 put.restype, put.argtypes = None, [ctypes.c_int]
-                out.append((get, put))
+                out.append((path, get, put))
                 break
     return tuple(out)
 
 
 _LOCK = threading.Lock()
-_HELD: list = [0, ()]  # blocks inside one_blas_thread now, and the (set, count) pairs to restore
+_HELD: list = [0, {}]  # blocks inside one_blas_thread now; library path → (set, count to restore)
 
 
 @contextmanager
 def one_blas_thread() -> Iterator[None]:
     """Run the block with one OpenBLAS thread in every loaded OpenBLAS, then restore each one's count.
     Nested or concurrent blocks (fits in several threads) share one setting: the first to enter saves the
-    counts, the last to leave restores them."""
+    counts, the last to leave restores them; a library loaded inside the outer block (SciPy's copy, by the
+    first fit of an audit run in one: `rtfit.experiments.cli.main`) is set to one thread by the next block
+    to enter, and restored with the others."""
     with _LOCK:
         if _HELD[0] == 0:
-            libs = _entry_points(_loaded_openblas())
-            _HELD[1] = tuple((put, get()) for get, put in libs)
-            for put, _ in _HELD[1]:
+            _HELD[1] = {}
+        for path, get, put in _entry_points(_loaded_openblas()):
+            if path not in _HELD[1]:
+                _HELD[1][path] = (put, get())
                 put(1)
         _HELD[0] += 1
     try:
@@ -101,11 +104,38 @@ def one_blas_thread() -> Iterator[None]:
         with _LOCK:
             _HELD[0] -= 1
             if _HELD[0] == 0:
-                for put, n in _HELD[1]:
+                for put, n in _HELD[1].values():
                     put(n)
-                _HELD[1] = ()
+                _HELD[1] = {}
 
 
 def blas_thread_counts() -> list[int]:
     """The thread count of each loaded OpenBLAS whose count can be set (empty where none)."""
-    return [get() for get, _ in _entry_points(_loaded_openblas())]
+    return [get() for _path, get, _put in _entry_points(_loaded_openblas())]
+
+
+_ENV = "OPENBLAS_NUM_THREADS"
+
+
+@contextmanager
+def one_blas_thread_by_default() -> Iterator[None]:
+    """The block (a whole ``rtfit`` command: `rtfit.experiments.cli.main`) with one OpenBLAS thread, unless
+    the user set ``OPENBLAS_NUM_THREADS``: the libraries loaded already through `one_blas_thread`, those
+    loaded inside the block (SciPy's copy; a spawned job worker's NumPy) through the variable, which is put
+    back on exit.
+
+    Why (issue 33, session 29): rtfit's BLAS work is small (a fit's m × p Jacobian products, p ≤ 8; a
+    probe's least squares), and OpenBLAS's worker threads spin-wait after each call, on the cores that
+    Mitsuba's and Dr.Jit's threads render and time kernels on. Measured on Mitsuba's Cornell box at 64² ×
+    32 spp (2 cores, four alternated pairs): the audit's user CPU 14.5–15.5 s → 10.5–12.9 s, its wall time
+    9.45–10.39 s → 7.74–9.70 s; one case's six fits (colour bleeding's) 0.70–0.76 s → 0.42–0.52 s."""
+    if _ENV in os.environ:
+        with nullcontext():
+            yield
+        return
+    os.environ[_ENV] = "1"
+    try:
+        with one_blas_thread():
+            yield
+    finally:
+        os.environ.pop(_ENV, None)

@@ -81,6 +81,44 @@ def test_one_blas_thread_sets_one_and_restores():
     assert blas_threads.blas_thread_counts() == before
 
 
+def test_a_blas_loaded_inside_the_block_is_set_by_the_next_block_and_restored(monkeypatch):
+    """SciPy's OpenBLAS, loaded after the outer block began (an audit's first fit), is set to one thread by
+    the next block to enter and put back by the outer block's exit with the others."""
+    import scipy.linalg  # noqa: F401
+
+    paths = blas_threads._loaded_openblas()
+    if len(paths) < 2:
+        pytest.skip("one OpenBLAS loaded (NumPy and SciPy share it): nothing loads later")
+    before = blas_threads.blas_thread_counts()
+    monkeypatch.setattr(blas_threads, "_loaded_openblas", lambda: paths[:1])  # as if only NumPy's were loaded
+    with blas_threads.one_blas_thread():
+        monkeypatch.setattr(blas_threads, "_loaded_openblas", lambda: paths)  # then SciPy's comes
+        assert blas_threads.blas_thread_counts()[1:] == before[1:]
+        with blas_threads.one_blas_thread():
+            pass
+        assert blas_threads.blas_thread_counts() == [1] * len(before)  # and stays so in the outer block
+    assert blas_threads.blas_thread_counts() == before
+
+
+def test_one_blas_thread_by_default_keeps_a_users_setting(monkeypatch):
+    """A command's block: one thread in every loaded OpenBLAS and ``OPENBLAS_NUM_THREADS=1`` for those loaded
+    inside it, both put back after it; where the user set the variable, nothing changes."""
+    import os
+
+    import scipy.linalg  # noqa: F401
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    before = blas_threads.blas_thread_counts()
+    with blas_threads.one_blas_thread_by_default():
+        assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
+        assert blas_threads.blas_thread_counts() == [1] * len(before)
+    assert "OPENBLAS_NUM_THREADS" not in os.environ and blas_threads.blas_thread_counts() == before
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "7")
+    with blas_threads.one_blas_thread_by_default():
+        assert os.environ["OPENBLAS_NUM_THREADS"] == "7" and blas_threads.blas_thread_counts() == before
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "7"
+
+
 def test_the_openblas_scan_is_made_once_per_set_of_blas_modules(monkeypatch):
     """/proc/self/maps is read again only when NumPy's or SciPy's BLAS-loading module set changes; the kept
     paths are the fresh scan's."""
