@@ -12,11 +12,14 @@ the families that apply, `rtfit.experiments.families.RULES`):
    each family renders its references in independent passes through the pass cache (`PassEntry`, keyed on
    the digest of every file Mitsuba's parser loaded, the camera and the film size): resumable, and
    rendered once.
-3. **Evaluation**: every applicable method (and each user approximation of the family's quantity) on the
-   same pixels with Dr.Jit (`Method.evaluate`), per RGB channel; every metric with its noise floor
-   (`compute_metrics`); the cost per pixel measured on the run's backend (`cost.time_drjit`).
-4. **Fits**: each method with free parameters fitted to this scene's reference through the JAX run of its
-   kernel text (`fit_method`), with standard errors and bound flags, then evaluated and measured again.
+3. **Evaluation**, case by case as its references are made: every applicable method (and each user
+   approximation of the family's quantity) on the same pixels with Dr.Jit (`Method.evaluate`), per RGB
+   channel; the cost per pixel measured on the run's backend (`cost.time_drjit`), on cores no fit shares.
+4. **Fits**, of every case together once all are evaluated: each method with free parameters fitted to this
+   scene's reference by SciPy's TRF on the NumPy (or Dr.Jit) run of its kernel text (`fit_method`), with
+   standard errors and bound flags; on two cores the NumPy-run fits are shared with a forked helper process
+   (`rtfit.fitting.forked_fits`: the same results bit for bit). Then each case's fitted rows are evaluated,
+   and every row's metrics computed beside the noise floor (`compute_metrics`).
 5. **Output** (with ``out``): ``results.json`` (schema ``rtfit.results/1``), ``report.html``/``.md``,
    ``tables.tex``, figures (images with signed error, FLIP maps) and ``fitted/audit.json``
    (``rtfit.fitted/1``), written atomically into ``OUT/audit-<scene>``.
@@ -46,6 +49,7 @@ from rtfit.fitting import (
     prime_flip,
 )
 from rtfit.fitting.blas_threads import one_blas_thread
+from rtfit.fitting.forked_fits import shared_map, two_cores
 from rtfit.fitting.metric_noise import content_digest
 from rtfit.realtime.methods import Method
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
@@ -294,6 +298,7 @@ def audit(
     outcomes: dict[str, dict[str, MethodOutcome]] = {}
     costs = {} if costs is None else costs
     plan: list[tuple[AuditFamily, Applicability, FamilyCase]] = []  # the finished cases, in order
+    evaluated: list[tuple[AuditFamily, Applicability, _EvaluatedCase]] = []  # every case evaluated so far
     done: list[Applicability] = []
     store = CostStore(run_settings.cache_dir, device_description(run_settings.variant))
     run = _CaseRun(
@@ -301,6 +306,11 @@ def audit(
         store,
     )  # fmt: skip
     variant, spp, pass_spp = run_settings.variant, run_settings.spp, run_settings.pass_spp
+    if fit:  # the fits' solver, imported first and counted as theirs (a probe grid's NNLS bake shares it)
+        t = time.perf_counter()
+        import scipy.optimize  # noqa: F401
+
+        timings["fit"] += time.perf_counter() - t
     settings = {"variant": variant, "spp": spp, "pass_spp": pass_spp, "seed": run_settings.seed, "sel": sel}
     t0 = time.perf_counter()
     try:
@@ -325,8 +335,10 @@ def audit(
                 quantities=None if quantities is None else frozenset(quantities),
             )  # fmt: skip
             timings["reference"] += time.perf_counter() - t0
-            # Family by family, each case evaluated and fitted as soon as its references are made: an
-            # interrupted run has every finished case to report (`_partial_report`). (A bar on a terminal.)
+            # Family by family, each case evaluated as soon as its references are made; then the fits of
+            # every case together (`_CaseRun.fit_cases`: shared with a helper process on two cores); then
+            # each case's fitted rows and metrics. An interrupted run reports every evaluated case (its
+            # declared rows where its fits did not run). (A bar on a terminal.)
             parts = Stage(len(audited), "references", enabled=run_settings.progress, say=say)
             for a in audited:
                 family = AUDITED[a.family]
@@ -344,16 +356,22 @@ def audit(
                 timings["reference"] += time.perf_counter() - tf
                 rows = Stage(len(cases), f"{a.family}: cases", enabled=run_settings.progress, say=say)
                 for case in cases:
-                    outcomes[case.id] = run.case(family, a, case)
-                    plan.append((family, a, case))
-                    rows.advance(f"{case.id}: {len(outcomes[case.id])} rows evaluated")
+                    evaluated.append((family, a, run.evaluate(family, a, case)))
+                    rows.advance(f"{case.id}: {evaluated[-1][2].count} rows evaluated")
                 rows.close()
                 parts.advance()
                 done.append(a)
             parts.close()
+            fits = run.fit_cases([ev for _f, _a, ev in evaluated], say)
+            for family, a, ev in evaluated:
+                outcomes[ev.base.id] = run.finish(ev, fits)
+                plan.append((family, a, ev.base))
     except XMLSceneError as e:
         raise AuditError(str(e)) from None
     except KeyboardInterrupt as e:
+        for family, a, ev in evaluated[len(plan) :]:  # evaluated, not fitted: their declared rows
+            outcomes[ev.base.id] = run.finish(ev, {})
+            plan.append((family, a, ev.base))
         missing = [f"{a.family} ({a.role}: {a.part})" for a in audited if a not in done]
         result = _assemble(info, plan, outcomes, run, skipped, settings, interrupted=missing)
         if target is not None and plan:
@@ -402,6 +420,38 @@ def _assemble(
     if interrupted is not None:
         result.results = replace(result.results, summary="Partial (interrupted). " + result.results.summary)
     return result
+
+
+@dataclass(frozen=True)
+class _EvaluatedCase:
+    """One case between its evaluation and its fits (`_CaseRun.evaluate`): the declared rows' outcomes
+    (their metrics still to come) and the rows to fit, each with the case as that row reads it."""
+
+    family: str
+    base: FamilyCase
+    sigma: np.ndarray
+    order: list[tuple[str, Method, bool]]
+    declared: dict[str, MethodOutcome]
+    fitted: list[tuple[str, Method, bool, FamilyCase]]
+
+    @property
+    def count(self) -> int:
+        """The case's rows: those evaluated, and those to fit."""
+        return len(self.declared) + len(self.fitted)
+
+
+def _shareable(method: Method, user: bool) -> bool:
+    """Whether the forked helper may fit ``method`` (`shared_map`): a fit on NumPy of a shipped method. A fit
+    on Dr.Jit needs the thread pool that a fork does not copy; a user's approximation is fitted here, where
+    its code runs as in a serial run."""
+    return method.fit_ops == "numpy" and not user
+
+
+def _fit_task(task: tuple[str, str, Method, FamilyCase]) -> dict:
+    """`fit_case` of one (case id, row, method, case) of `_CaseRun.fit_cases`: what `shared_map` runs, in
+    either process."""
+    _case_id, row_id, method, case = task
+    return fit_case(method, case, row_id)
 
 
 @dataclass
@@ -475,12 +525,10 @@ class _CaseRun:
                 self.notes.append(note)
         return m
 
-    def case(self, family: AuditFamily, a: Applicability, base: FamilyCase) -> dict[str, MethodOutcome]:
-        """Every row of ``base`` (`_rows`): evaluated, its metrics beside the noise floor, its cost measured
-        once per method, and, where it has free parameters, fitted and evaluated again. The rows are
-        evaluated and measured first, then fitted (the outcomes in row order: each declared row, then its
-        fitted row): the case's tiled cost inputs (`CostInputs`, shared by its methods) are let go before its
-        fits run."""
+    def evaluate(self, family: AuditFamily, a: Applicability, base: FamilyCase) -> _EvaluatedCase:
+        """Every row of ``base`` (`_rows`) evaluated and its cost measured once per method (on quiet cores:
+        no fit runs yet); the rows with free parameters listed for `fit_cases`. The case's tiled cost inputs
+        (`CostInputs`, shared by its methods) are let go at its end."""
         declared: dict[str, MethodOutcome] = {}
         sigma = base.reference.sigma()
         spent = self.by_family[family.name]
@@ -532,10 +580,45 @@ class _CaseRun:
             if self.fit and method.params:
                 fitted.append((row_id, method, user, case))
         del tiles  # (up to 128 MiB of tiled inputs: not held through the fits)
+        return _EvaluatedCase(family.name, base, sigma, order, declared, fitted)
+
+    def fit_cases(self, cases: Sequence[_EvaluatedCase], say) -> dict[tuple[str, str], dict]:
+        """The fits of every evaluated case ((case id, row) → `fit_case`'s dict), shared between this process
+        and a forked helper on a machine of two cores (`shared_map`: the same results bit for bit; a fit on
+        Dr.Jit, or of a user's approximation, runs here). Their wall time is the fit time, shared among the
+        families by their fits' own seconds."""
+        tasks = [(c.base.id, row_id, method, case) for c in cases for row_id, method, _u, case in c.fitted]
+        if not tasks:
+            return {}
+        may = [_shareable(method, user) for c in cases for _r, method, user, _c in c.fitted]
+        families = [c.family for c in cases for _ in c.fitted]
+        helper = " (on two processes)" if sum(may) >= 2 and two_cores() else ""
+        say(f"fits: {len(tasks)} rows of {sum(1 for c in cases if c.fitted)} case(s){helper}")
+        t = time.perf_counter()
+        done, seconds = shared_map(tasks, _fit_task, may)
+        wall = time.perf_counter() - t
+        self.timings["fit"] += wall
+        total = sum(seconds) or 1.0
+        for name, took in zip(families, seconds, strict=True):
+            self.by_family[name]["fit"] += wall * took / total
+        return {(cid, row_id): r for (cid, row_id, _m, _c), r in zip(tasks, done, strict=True)}
+
+    def finish(self, ev: _EvaluatedCase, fits: Mapping[tuple[str, str], dict]) -> dict[str, MethodOutcome]:
+        """The case's outcomes in row order (each declared row, then its fitted row, evaluated at the fitted
+        values), each with its metrics beside the noise floor. A row whose fit is not in ``fits`` (an
+        interrupted run's) has no fitted row, and the report says so."""
+        base, sigma, declared = ev.base, ev.sigma, ev.declared
+        spent = self.by_family[ev.family]
         refits: dict[str, MethodOutcome] = {}
-        for row_id, method, user, case in fitted:
+        unfitted = [row_id for row_id, *_ in ev.fitted if (base.id, row_id) not in fits]
+        if unfitted:
+            names = ", ".join(unfitted)
+            self.notes.append(f"{base.label}: not fitted (the run was interrupted first): {names}")
+        for row_id, method, user, case in ev.fitted:
             t2 = time.perf_counter()
-            result = fit_case(method, case, row_id)
+            result = fits.get((base.id, row_id))
+            if result is None:
+                continue
             values = {k: v["value"] for k, v in result["parameters"].items()}
             img_f = evaluate_case(method, case, values)
             refits[row_id] = MethodOutcome(
@@ -552,7 +635,7 @@ class _CaseRun:
             self.timings["fit"] += time.perf_counter() - t2
             spent["fit"] += time.perf_counter() - t2
         rows: dict[str, MethodOutcome] = {}
-        for row_id, _method, _user in order:
+        for row_id, _method, _user in ev.order:
             if row_id in declared:
                 rows[row_id] = declared[row_id]
             if row_id in refits:

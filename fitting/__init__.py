@@ -9,7 +9,10 @@
 * :mod:`.method_fit`: `fit_method`: fit a `rtfit.realtime.methods.Method`'s parameters through the JAX
   run of its one kernel text (``solver="trf"``: the NumPy run, SciPy TRF, stopped at a noise-derived
   tolerance, `method_fit.noise_ftol`).
-* :mod:`.blas_threads`: `one_blas_thread`, one OpenBLAS thread while a TRF fit runs.
+* :mod:`.blas_threads`: `one_blas_thread`, one OpenBLAS thread while a TRF fit runs (and through a whole
+  ``rtfit`` command: `one_blas_thread_by_default`).
+* :mod:`.forked_fits`: `shared_map`, a list of fits shared between the process and one forked helper on two
+  cores, the results those of a serial run bit for bit.
 * :mod:`.difference_maps`: how a TRF fit's Jacobian points are evaluated (threads, grouped parameters, or
   several points in one kernel call), the same Jacobian bit for bit.
 * :mod:`.bounded_lm`: `bounded_lm`, a projected Levenberg–Marquardt for residuals with a user-supplied

@@ -1,0 +1,114 @@
+"""`rtfit.fitting.forked_fits.shared_map`: a serial map's results, in order, whichever process ran each task;
+a task the helper fails, loses or never answers is run again here (raising what a serial run raises), and
+the wait for a stuck helper is bounded."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+from rtfit.fitting import forked_fits
+from rtfit.fitting.forked_fits import shared_map, two_cores
+
+PARENT = os.getpid()
+needs_two = pytest.mark.skipif(not two_cores(), reason="one core (or no fork): shared_map runs serially")
+
+
+def _square_and_pid(x):
+    time.sleep(0.02)  # long enough that both processes take tasks
+    return x * x, os.getpid()
+
+
+@needs_two
+def test_results_are_the_serial_maps_in_order_and_both_processes_work():
+    out, seconds = shared_map(list(range(12)), _square_and_pid, [True] * 12)
+    assert [v for v, _ in out] == [x * x for x in range(12)]
+    pids = {p for _, p in out}
+    assert PARENT in pids and len(pids) == 2, "the helper took a share of the tasks"
+    assert len(seconds) == 12 and all(s >= 0.02 for s in seconds)
+
+
+@needs_two
+def test_a_task_the_helper_may_not_run_runs_here():
+    may = [i % 2 == 0 for i in range(10)]
+    out, _ = shared_map(list(range(10)), _square_and_pid, may)
+    assert all(p == PARENT for (_, p), m in zip(out, may, strict=True) if not m)
+
+
+def test_fewer_than_two_shareable_tasks_run_here_in_turn():
+    out, _ = shared_map([1, 2, 3], _square_and_pid, [True, False, False])
+    assert [v for v, _ in out] == [1, 4, 9] and {p for _, p in out} == {PARENT}
+
+
+def _fails_in_the_helper(x):
+    if os.getpid() != PARENT and x == 3:
+        raise RuntimeError("helper only")
+    time.sleep(0.02)
+    return x
+
+
+@needs_two
+def test_a_task_that_raises_in_the_helper_is_run_again_here():
+    out, _ = shared_map([0, 1, 2, 3], _fails_in_the_helper, [True] * 4)  # (the helper takes 3 first)
+    assert out == [0, 1, 2, 3]
+
+
+def _raises_everywhere(x):
+    time.sleep(0.02)
+    if x == 3:
+        raise ValueError("task 3 is bad")
+    return x
+
+
+@needs_two
+def test_an_error_is_raised_here_as_a_serial_run_raises_it():
+    with pytest.raises(ValueError, match="task 3 is bad"):
+        shared_map(list(range(6)), _raises_everywhere, [True] * 6)
+
+
+def _helper_dies(x):
+    if os.getpid() != PARENT:
+        os._exit(3)  # a crash of the helper mid-task
+    time.sleep(0.02)
+    return x
+
+
+@needs_two
+def test_a_helper_that_dies_loses_nothing():
+    out, _ = shared_map(list(range(6)), _helper_dies, [True] * 6)
+    assert out == list(range(6))
+
+
+def _helper_hangs(x):
+    if os.getpid() != PARENT:
+        time.sleep(3600)  # stuck (a deadlock in the helper)
+    return x
+
+
+@needs_two
+def test_a_stuck_helper_is_killed_after_the_quiet_limit(monkeypatch):
+    monkeypatch.setattr(forked_fits, "_child_quiet_limit", lambda longest: 0.5)
+    t = time.perf_counter()
+    out, _ = shared_map(list(range(4)), _helper_hangs, [True] * 4)
+    assert out == list(range(4)) and time.perf_counter() - t < 30
+
+
+def test_the_quiet_limit_is_ten_seconds_or_eight_longest_tasks():
+    assert forked_fits._child_quiet_limit(0.1) == 10.0
+    assert forked_fits._child_quiet_limit(5.0) == 40.0
+
+
+@needs_two
+def test_no_warning_where_a_caller_has_started_jax():
+    """JAX warns at any fork once its backends run (its threads would deadlock a child that used it); the
+    helper never does, and a run under ``-W error`` (this suite's setting) must not fail on it."""
+    import warnings
+
+    jnp = pytest.importorskip("jax.numpy")
+    jnp.zeros(1).block_until_ready()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out, _ = shared_map(list(range(4)), _square_and_pid, [True] * 4)
+    assert [v for v, _ in out] == [0, 1, 4, 9]
