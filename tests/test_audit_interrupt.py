@@ -55,6 +55,26 @@ def test_an_interrupted_audit_reports_its_finished_cases_and_the_rerun_completes
     assert not any(n.startswith("PARTIAL") for n in load_results(report).notes)
 
 
+def test_an_audit_interrupted_in_its_fits_reports_every_case_with_its_declared_rows(tmp_path, monkeypatch):
+    """Ctrl-C while the fits run (after every case is evaluated): every case is in the partial report, its
+    declared rows with their metrics, no fitted row, and a note naming the rows not fitted."""
+
+    def interrupted(tasks, run, may):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(audit_run, "shared_map", interrupted)
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    with pytest.raises(KeyboardInterrupt):
+        audit(CBOX, out=out, cache=cache, approximations=["diffuse"], **{**SMALL, "fit": True}, **FAST)
+    partial = load_results(out / "audit-cbox-rgb")
+    assert [c.id for c in partial.cases] == ["light0-unshadowed", "light0-shadowed"]
+    rows = [a for c in partial.cases for a in c.approximations]
+    assert {a.method for a in rows} == {"lambert", "half-lambert", "wrap"} and not any(a.fitted for a in rows)
+    assert all((a.metrics["rmse"].value or -1.0) >= 0 for a in rows)
+    assert any("not fitted (the run was interrupted first): wrap" in n for n in partial.notes)
+    assert partial.summary.startswith("Partial (interrupted).")
+
+
 def test_sigterm_ends_the_command_with_143_and_a_partial_report(tmp_path):
     """``timeout`` sends SIGTERM: the audit stops as after Ctrl-C, exit 143, one line naming the partial
     report, the finished cases in it."""

@@ -112,3 +112,33 @@ def test_no_warning_where_a_caller_has_started_jax():
         warnings.simplefilter("error")
         out, _ = shared_map(list(range(4)), _square_and_pid, [True] * 4)
     assert [v for v, _ in out] == [0, 1, 4, 9]
+
+
+@needs_two
+def test_an_audits_shared_fits_are_those_of_one_process(tmp_path, monkeypatch):
+    """The Cornell box's obscurance fits (NumPy runs), shared with the helper and then in one process: the
+    same fitted values, stderr and SSR bit for bit; the helper did take some."""
+    from pathlib import Path
+
+    from rtfit.experiments.audit_run import audit
+
+    cbox = Path(__file__).parent / "data" / "mitsuba" / "cbox" / "cbox-rgb.xml"
+    kw = {"width": 16, "height": 16, "spp": 4, "pass_spp": 2, "cache": tmp_path / "cache",
+          "approximations": ["obscurances"], "cost_elements": 1 << 12, "metrics": ("rmse",)}  # fmt: skip
+    marks: list[bytes] = []
+    close = forked_fits._Claims.close
+
+    def kept(self):
+        marks.append(bytes(self.bytes))
+        close(self)
+
+    monkeypatch.setattr(forked_fits._Claims, "close", kept)
+
+    def fits(result):
+        return {(o.case, o.row): o.fit for rows in result.outcomes.values() for o in rows.values() if o.fit}
+
+    shared = fits(audit(cbox, **kw))
+    assert marks and any(forked_fits._CHILD in m for m in marks), "the helper fitted some rows"
+    monkeypatch.setattr(forked_fits, "two_cores", lambda: False)
+    alone = fits(audit(cbox, **kw))
+    assert len(shared) >= 2 and shared == alone
