@@ -228,9 +228,13 @@ def diagnostic_job(seconds: float = 0.0, fail: str | None = None) -> dict:
 
 
 def _worker_init(threads: int | None):
-    """Per-worker set-up: a private Dr.Jit kernel cache and, if given, a thread budget."""
+    """Per-worker set-up: a private Dr.Jit kernel cache and, if given, a thread budget (Dr.Jit's threads, and
+    the audit's fit helper: `rtfit.fitting.forked_fits.limit_cores`)."""
     os.environ.setdefault("DRJIT_CACHE_DIR", tempfile.mkdtemp(prefix="rtfit-drjit-"))
     if threads:
+        from rtfit.fitting.forked_fits import limit_cores
+
+        limit_cores(threads)
         # drjit stays lazy here: importing it starts CUDA's initialisation, which reads
         # CUDA_VISIBLE_DEVICES, and a GPU worker imports this module before `_gpu_worker_init` pins it.
         import drjit as dr

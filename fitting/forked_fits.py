@@ -40,16 +40,27 @@ import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["shared_map", "two_cores"]
+__all__ = ["limit_cores", "shared_map", "two_cores"]
 
 _FREE, _PARENT, _CHILD = 0, 1, 2
 _HEADER = struct.Struct("<iQ")  # task index (−1: the child has no task left), pickled length
 
 
+_CORE_BUDGET: list[int | None] = [None]
+
+
+def limit_cores(cores: int | None) -> None:
+    """This process's share of the machine's cores (None: all it may run on): a job worker of a process pool
+    given one core (`rtfit.experiments.jobs`) forks no helper, whose work would only take its neighbour's."""
+    _CORE_BUDGET[0] = cores
+
+
 def two_cores() -> bool:
-    """Whether this process may run on two cores or more and can ``fork`` safely: Linux only (macOS's
-    system frameworks do not support a fork without an exec)."""
+    """Whether this process may run on two cores or more (`limit_cores`) and can ``fork`` safely: Linux only
+    (macOS's system frameworks do not support a fork without an exec)."""
     if not (sys.platform.startswith("linux") and hasattr(os, "fork")):
+        return False
+    if _CORE_BUDGET[0] is not None and _CORE_BUDGET[0] < 2:
         return False
     try:
         cores = len(os.sched_getaffinity(0))

@@ -142,3 +142,13 @@ def test_an_audits_shared_fits_are_those_of_one_process(tmp_path, monkeypatch):
     monkeypatch.setattr(forked_fits, "two_cores", lambda: False)
     alone = fits(audit(cbox, **kw))
     assert len(shared) >= 2 and shared == alone
+
+
+def test_a_process_given_one_core_forks_no_helper(monkeypatch):
+    """A pool's job worker with a one-core share (`limit_cores`, set by its initialiser) fits alone."""
+    monkeypatch.setattr(forked_fits, "_CORE_BUDGET", [1])
+    assert not two_cores()
+    out, _ = shared_map(list(range(4)), _square_and_pid, [True] * 4)
+    assert {p for _, p in out} == {PARENT}
+    forked_fits.limit_cores(None)
+    assert forked_fits._CORE_BUDGET == [None]
