@@ -46,6 +46,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
 
+from rtfit.fitting.forked_fits import limit_cores
 from rtfit.reference.progress import progress_bar
 
 MAX_ATTEMPTS = 3
@@ -232,8 +233,6 @@ def _worker_init(threads: int | None):
     the audit's fit helper: `rtfit.fitting.forked_fits.limit_cores`)."""
     os.environ.setdefault("DRJIT_CACHE_DIR", tempfile.mkdtemp(prefix="rtfit-drjit-"))
     if threads:
-        from rtfit.fitting.forked_fits import limit_cores
-
         limit_cores(threads)
         # drjit stays lazy here: importing it starts CUDA's initialisation, which reads
         # CUDA_VISIBLE_DEVICES, and a GPU worker imports this module before `_gpu_worker_init` pins it.
