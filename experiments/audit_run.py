@@ -447,6 +447,25 @@ def _shareable(method: Method, user: bool) -> bool:
     return method.fit_ops == "numpy" and not user
 
 
+@contextlib.contextmanager
+def _drjit_threads_beside_a_helper(sharing: bool) -> Iterator[None]:
+    """Dr.Jit's thread pool one thread smaller while the fit helper runs (`_CaseRun.fit_cases`), put back
+    after: a Dr.Jit fit's kernels split over every core wait for the worker that the helper's process holds
+    off its core. Issue 33 (session 29): the Cornell box's ten shadow-map fits (64²) took 1.7–2.2 s beside
+    the helper with two Dr.Jit threads, against 0.9–1.0 s alone."""
+    if not sharing:
+        yield
+        return
+    import drjit as dr
+
+    threads = dr.thread_count()
+    dr.set_thread_count(max(1, threads - 1))
+    try:
+        yield
+    finally:
+        dr.set_thread_count(threads)
+
+
 def _fit_task(task: tuple[str, str, Method, FamilyCase]) -> dict:
     """`fit_case` of one (case id, row, method, case) of `_CaseRun.fit_cases`: what `shared_map` runs, in
     either process."""
@@ -595,7 +614,8 @@ class _CaseRun:
         helper = " (on two processes)" if sum(may) >= 2 and two_cores() else ""
         say(f"fits: {len(tasks)} rows of {sum(1 for c in cases if c.fitted)} case(s){helper}")
         t = time.perf_counter()
-        done, seconds = shared_map(tasks, _fit_task, may)
+        with _drjit_threads_beside_a_helper(bool(helper)):
+            done, seconds = shared_map(tasks, _fit_task, may)
         wall = time.perf_counter() - t
         self.timings["fit"] += wall
         total = sum(seconds) or 1.0

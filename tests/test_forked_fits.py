@@ -116,15 +116,17 @@ def test_no_warning_where_a_caller_has_started_jax():
 
 @needs_two
 def test_an_audits_shared_fits_are_those_of_one_process(tmp_path, monkeypatch):
-    """The Cornell box's obscurance fits (NumPy runs), shared with the helper and then in one process: the
-    same fitted values, stderr and SSR bit for bit; the helper did take some."""
+    """The Cornell box's obscurance fits (NumPy runs, shared with the helper) and shadow-map fits (Dr.Jit
+    runs, on one Dr.Jit thread fewer beside it), then all in one process: the same fitted values, stderr
+    and SSR bit for bit; the helper did take some."""
     from pathlib import Path
 
     from rtfit.experiments.audit_run import audit
 
     cbox = Path(__file__).parent / "data" / "mitsuba" / "cbox" / "cbox-rgb.xml"
     kw = {"width": 16, "height": 16, "spp": 4, "pass_spp": 2, "cache": tmp_path / "cache",
-          "approximations": ["obscurances"], "cost_elements": 1 << 12, "metrics": ("rmse",)}  # fmt: skip
+          "metrics": ("rmse",), "approximations": ["obscurances", "pcf-soft-shadows"],
+          "cost_elements": 1 << 12}  # fmt: skip
     marks: list[bytes] = []
     close = forked_fits._Claims.close
 
