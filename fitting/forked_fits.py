@@ -85,9 +85,15 @@ class _Claims:
         self.token_r, self.token_w = os.pipe()
         os.write(self.token_w, b"x")
 
-    def take(self, order: Sequence[int], who: int) -> int | None:
-        """The first free task of ``order`` marked as ``who``'s, or None where none is free."""
-        os.read(self.token_r, 1)  # the lock: one token in the pipe
+    def take(self, order: Sequence[int], who: int, gone: Callable[[], bool] | None = None) -> int | None:
+        """The first free task of ``order`` marked as ``who``'s, or None where none is free. ``gone``: whether
+        the other process has died (the parent's check, every 0.5 s of waiting for the token: a child killed
+        while it held the token never gives it back, and the parent then takes the lock itself)."""
+        while gone is not None and not select.select([self.token_r], [], [], 0.5)[0]:
+            if gone():
+                break
+        else:
+            os.read(self.token_r, 1)  # the lock: one token in the pipe
         try:
             for i in order:
                 if self.bytes[i] == _FREE:
@@ -215,7 +221,7 @@ def shared_map(
                 failed.add(i)
 
     try:
-        while (i := claims.take(mine, _PARENT)) is not None:
+        while (i := claims.take(mine, _PARENT, gone=lambda: _exited(pid))) is not None:
             results[i] = timed(i)
             collect(reader.poll(0))
         while not reader.done:
@@ -230,6 +236,14 @@ def shared_map(
         os.close(r)
         claims.close()
     return [results[i] if i in results else timed(i) for i in range(n)], seconds
+
+
+def _exited(pid: int) -> bool:
+    """Whether the child ``pid`` has exited (then reaped)."""
+    try:
+        return os.waitpid(pid, os.WNOHANG)[0] != 0
+    except ChildProcessError:
+        return True
 
 
 def _stop(pid: int) -> None:

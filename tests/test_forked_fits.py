@@ -154,3 +154,17 @@ def test_a_process_given_one_core_forks_no_helper(monkeypatch):
     assert {p for _, p in out} == {PARENT}
     forked_fits.limit_cores(None)
     assert forked_fits._CORE_BUDGET == [None]
+
+
+@needs_two
+def test_a_helper_killed_holding_the_task_lock_does_not_stop_this_process(monkeypatch):
+    """The lock is a token in a pipe: a helper that dies holding it never puts it back, and this process
+    then takes the lock itself (it checks every 0.5 s of waiting that the helper still lives)."""
+
+    def dies_holding_the_token(tasks, run, claims, order, fd):
+        os.read(claims.token_r, 1)
+        os._exit(1)
+
+    monkeypatch.setattr(forked_fits, "_child", dies_holding_the_token)  # (it waits for the token, takes it)
+    out, _ = shared_map(list(range(6)), _square_and_pid, [True] * 6)
+    assert [v for v, _ in out] == [x * x for x in range(6)] and {p for _, p in out} == {PARENT}
