@@ -233,12 +233,17 @@ class PassEntry:
         between open and write), left by a dead process of this host, or not refreshed for
         `CLAIM_STALE_SECONDS` (`rtfit.reference.cache_prune` spares entries with a live claim)."""
         try:
-            info = json.loads(path.read_text())
             age = time.time() - path.stat().st_mtime
+        except OSError:
+            return True  # released meanwhile: try again
+        try:
+            info = json.loads(path.read_text())
         except FileNotFoundError:
             return True  # released meanwhile: try again
         except (OSError, ValueError):
-            return True  # a torn claim (its writer died between open and write)
+            # Empty or torn: its writer died between open and write, or is between them now (a live claim:
+            # taken over, its pass was rendered twice — CI under load, session 29). Only an old one is dead.
+            return age > TORN_CLAIM_SECONDS
         pid, start = int(info.get("pid", -1)), info.get("start")
         if info.get("host") == socket.gethostname() and not process_alive(pid, start):
             return True
@@ -360,6 +365,11 @@ class PassCounts:
 
 PASS_COUNTS = PassCounts()
 
+
+TORN_CLAIM_SECONDS = 10.0
+"""A claim file that does not parse is taken for its writer's last act once it is this old (its writer
+creates it and writes its few bytes at once: a live one is seconds old at most, even on a loaded machine;
+as `rtfit.experiments.atomic.TORN_OWNER_SECONDS` for a result directory's owner file)."""
 
 CLAIM_STALE_SECONDS = 600.0
 """A claim not refreshed for this long belongs to a process that is gone (heartbeats come every 10 s; a

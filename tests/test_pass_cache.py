@@ -15,6 +15,7 @@ import pytest
 
 from rtfit.reference.cache import ComputedEntry, PassEntry, entry_key, pool_passes
 from rtfit.reference.estimators import PassResult
+from rtfit.reference.pass_entry import TORN_CLAIM_SECONDS
 
 IDENT = {"what": "test", "format": 1}
 
@@ -163,3 +164,18 @@ def test_a_non_finite_pass_fails_with_one_line_and_is_not_stored(tmp_path):
     assert "flat indices 7" in msg  # row 2, channel 1 of a (4, 3) pass
     assert entry.load(0) is not None and entry.load(1) is None  # pass 0 kept, pass 1 not written
     assert not list(entry.folder.glob("pass-00001.*"))
+
+
+def test_an_empty_claim_is_a_live_writers_until_it_is_old(tmp_path):
+    """A claim file that does not parse yet is a writer between its create and its write (on a loaded
+    machine: CI saw a pass rendered twice when such a claim was taken over at once); it is dead only once
+    older than `TORN_CLAIM_SECONDS`."""
+    entry = PassEntry(tmp_path, IDENT)
+    entry.folder.mkdir(parents=True)
+    claim = entry.folder / "pass-00000.claim"
+    claim.write_text("")
+    assert not PassEntry.claim_is_stale(claim) and not entry.claim(0)
+    old = time.time() - TORN_CLAIM_SECONDS - 1
+    os.utime(claim, (old, old))
+    assert PassEntry.claim_is_stale(claim) and entry.claim(0)
+    entry.release(0)
