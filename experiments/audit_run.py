@@ -49,7 +49,7 @@ from rtfit.fitting import (
     prime_flip,
 )
 from rtfit.fitting.blas_threads import one_blas_thread
-from rtfit.fitting.forked_fits import shared_map, two_cores
+from rtfit.fitting.forked_fits import shared_map, shares
 from rtfit.fitting.metric_noise import content_digest
 from rtfit.realtime.methods import Method
 from rtfit.reference.build import load_dict, mitsuba_scene_dict
@@ -475,7 +475,8 @@ def _fit_task(task: tuple[str, str, Method, FamilyCase]) -> dict:
 
 @dataclass
 class _CaseRun:
-    """Evaluates, measures and fits the rows of one case after another (`case`), adding to the run's
+    """Evaluates and measures the rows of one case after another (`evaluate`), fits those of every case
+    together (`fit_cases`) and finishes each case (`finish`: fitted rows, metrics), adding to the run's
     ``costs`` (one per method), ``timings`` and ``by_family`` seconds."""
 
     sel: Selection
@@ -611,10 +612,11 @@ class _CaseRun:
             return {}
         may = [_shareable(method, user) for c in cases for _r, method, user, _c in c.fitted]
         families = [c.family for c in cases for _ in c.fitted]
-        helper = " (on two processes)" if sum(may) >= 2 and two_cores() else ""
+        sharing = shares(may)
+        helper = " (on two processes)" if sharing else ""
         say(f"fits: {len(tasks)} rows of {sum(1 for c in cases if c.fitted)} case(s){helper}")
         t = time.perf_counter()
-        with _drjit_threads_beside_a_helper(bool(helper)):
+        with _drjit_threads_beside_a_helper(sharing):
             done, seconds = shared_map(tasks, _fit_task, may)
         wall = time.perf_counter() - t
         self.timings["fit"] += wall

@@ -20,7 +20,7 @@ import os
 import sys
 import threading
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager
 
 __all__ = ["blas_thread_counts", "one_blas_thread", "one_blas_thread_by_default"]
 
@@ -130,8 +130,7 @@ def one_blas_thread_by_default() -> Iterator[None]:
     32 spp (2 cores, four alternated pairs): the audit's user CPU 14.5–15.5 s → 10.5–12.9 s, its wall time
     9.45–10.39 s → 7.74–9.70 s; one case's six fits (colour bleeding's) 0.70–0.76 s → 0.42–0.52 s."""
     if _ENV in os.environ:
-        with nullcontext():
-            yield
+        yield
         return
     os.environ[_ENV] = "1"
     try:

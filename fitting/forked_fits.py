@@ -40,7 +40,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["limit_cores", "shared_map", "two_cores"]
+__all__ = ["limit_cores", "shared_map", "shares", "two_cores"]
 
 _FREE, _PARENT, _CHILD = 0, 1, 2
 _HEADER = struct.Struct("<iQ")  # task index (−1: the child has no task left), pickled length
@@ -175,6 +175,12 @@ class _Reader:
         return out
 
 
+def shares(child_may: Sequence[bool]) -> bool:
+    """Whether `shared_map` forks a helper for tasks the child may run where ``child_may`` says: at least two
+    of them, and two cores (`two_cores`)."""
+    return sum(map(bool, child_may)) >= 2 and two_cores()
+
+
 def shared_map(
     tasks: Sequence[Any], run: Callable[[Any], Any], child_may: Sequence[bool]
 ) -> tuple[list[Any], list[float]]:
@@ -192,9 +198,9 @@ def shared_map(
         seconds[i] = time.perf_counter() - t
         return out
 
-    shareable = [i for i in range(n) if child_may[i]]
-    if len(shareable) < 2 or not two_cores():
+    if not shares(child_may):
         return [timed(i) for i in range(n)], seconds
+    shareable = [i for i in range(n) if child_may[i]]
     mine = [i for i in range(n) if not child_may[i]] + shareable
     theirs = shareable[::-1]
     claims = _Claims(n)
