@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from rtfit.fitting import fit_method
+from rtfit.fitting.method_fit import fit_run
 from rtfit.realtime.arrays import NUMPY_OPS, backend_float, release_backend_tables, same_bits
 from rtfit.realtime.methods import Method, Param
 
@@ -326,11 +327,12 @@ def _fit_case(
     layout decided by that fit (else checked here)."""
     d = fit_data(method, case, row)
     rows = None
-    if d.per_channel and method.fit_ops == "numpy":
+    if d.per_channel and method.fit_ops in ("numpy", "drjit"):
         s = fit_data(method, case, row, stacked=True)
         if layout is None:
             stacked = any(np.ndim(v) == 1 for v in s.inputs.values()) and stacked_agrees(method, d, s)
-            found = channel_param_rows(method, s) if stacked else None
+            numpy = method.fit_ops == "numpy"  # (per-channel parameters: none of a Dr.Jit fit's methods)
+            found = channel_param_rows(method, s) if stacked and numpy else None
             layout = ChannelLayout(stacked, None if found is None else tuple(found))
         if layout.stacked:
             d = s
@@ -382,15 +384,18 @@ def channel_param_rows(method: Method, d: FitData) -> dict[str, np.ndarray] | No
 
 
 def stacked_agrees(method: Method, flat: FitData, stacked: FitData) -> bool:
-    """Whether ``method``'s NumPy run at its start values gives on ``stacked`` (`fit_data` ``stacked``) the
-    values it gives on ``flat`` (the concatenated channels), bit for bit in the same order: the test that
-    its text is elementwise over the inputs (a kernel reading a 2-D input as a stack of rays, or failing on
-    one, is fitted on the concatenation)."""
+    """Whether ``method``'s run where its fit evaluates it (`rtfit.fitting.method_fit.fit_run`: NumPy, or
+    Dr.Jit with each (3, n) input an ``Array3f64``) at its start values gives on ``stacked`` (`fit_data`
+    ``stacked``) the values it gives on ``flat`` (the concatenated channels), bit for bit in the same order:
+    the test that its text is elementwise over the inputs (a kernel reading a 2-D input as a stack of rays,
+    or failing on one, is fitted on the concatenation). Issue 33 (session 30): the shadow maps' Dr.Jit fits
+    ran every tap three times, once a channel (the receivers' map coordinates and depths are the same in
+    the three; only the unshadowed irradiance is a channel's)."""
     values = {k: p.initial for k, p in flat.params.items()}
     try:
         with np.errstate(all="ignore"):
-            a = np.asarray(method(NUMPY_OPS, flat.inputs, values), np.float64)
-            b = np.asarray(method(NUMPY_OPS, stacked.inputs, values), np.float64)
+            a = np.asarray(fit_run(method, flat.inputs)(values), np.float64)
+            b = np.asarray(fit_run(method, stacked.inputs)(values), np.float64)
         a = np.ascontiguousarray(np.broadcast_to(a, flat.target.shape)).reshape(-1)
         b = np.ascontiguousarray(np.broadcast_to(b, stacked.target.shape)).reshape(-1)
     except Exception:  # any failure of the stacked run: the concatenation, as before

@@ -31,6 +31,7 @@ __all__ = [
     "difference_map",
     "grouped_differences",
     "point_batch",
+    "run_point_batch",
 ]
 
 PARALLEL_FROM = 1 << 16
@@ -193,6 +194,33 @@ def point_batch(
         except Exception:  # any failure: a call a point, as before
             return None
         return list(r)
+
+    return evaluate
+
+
+def run_point_batch(
+    many: Callable[[Sequence[Mapping[str, float]]], list | None],
+    held: Mapping[str, float],
+    names: Sequence[str],
+    values_of: Callable[[np.ndarray], np.ndarray],
+    weights: np.ndarray,
+    target: np.ndarray,
+) -> Callable[[Sequence[np.ndarray]], list[np.ndarray] | None]:
+    """``evaluate(points) -> [residuals]`` (as `point_batch`'s) through a run that evaluates several points
+    of parameter values at once (``many``: `rtfit.fitting.drjit_run.DrJitRun.many`, a Dr.Jit fit's points in
+    one replay); each point's values and residuals made as the fit's residual function makes them."""
+
+    def evaluate(points: Sequence[np.ndarray]) -> list[np.ndarray] | None:
+        values = [{**held, **dict(zip(names, (float(a) for a in values_of(v)), strict=True))} for v in points]
+        preds = many(values)
+        if preds is None:
+            return None
+        out = []
+        with np.errstate(all="ignore"):
+            for pred in preds:
+                r = weights * (np.asarray(pred, np.float64) - target)
+                out.append(np.ravel(np.broadcast_to(r, target.shape)))
+        return out
 
     return evaluate
 

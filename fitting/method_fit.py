@@ -27,21 +27,26 @@ the same Jacobian bit for bit.
 
 from __future__ import annotations
 
-import contextlib
-import gc
 import inspect
 import math
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from rtfit.realtime.arrays import DRJIT_OPS, NUMPY_OPS, backend_float, jax_ops, same_bits, to_drjit
+from rtfit.realtime.arrays import NUMPY_OPS, jax_ops, same_bits
 from rtfit.realtime.methods import Method, Param
 
 from .blas_threads import one_blas_thread
-from .difference_maps import batched_points, difference_map, grouped_differences, point_batch
+from .difference_maps import (
+    batched_points,
+    difference_map,
+    grouped_differences,
+    point_batch,
+    run_point_batch,
+)
+from .drjit_run import DrJitRun
 from .least_squares import (
     FitResult,
     bound_flags,
@@ -57,6 +62,7 @@ __all__ = [
     "NOISE_KAPPA",
     "concatenated",
     "fit_method",
+    "fit_run",
     "gauss_newton_gain_small",
     "method_model",
     "noise_ftol",
@@ -296,28 +302,38 @@ def fit_method(
         if _is_sampler(inputs[n]) or np.isscalar(inputs[n])
     }
     x = {n: np.asarray(inputs[n], np.float64) for n in method.input_names if n not in objects}
+    # one Dr.Jit run for the scan and the fit (`Method.fit_ops` "drjit": one trace, one recording)
+    run = DrJitRun(method, {**x, **objects}) if method.fit_ops == "drjit" and solver == "trf" else None
     if any(p.scan for p in params.values()):
-        params = _scanned_starts(method, params, {**x, **objects}, held_values, target, w, output)
+        params = _scanned_starts(method, params, {**x, **objects}, held_values, target, w, output, run)
     if solver == "trf":
         return _fit_trf(method, params, {**x, **objects}, held_values, target, w, output,
-                        param_rows=param_rows, **kwargs)  # fmt: skip
+                        param_rows=param_rows, run=run, **kwargs)  # fmt: skip
     fn = _residual(method, tuple(params), tuple(sorted(held_values)), method.input_names, output, objects)
     return fit_least_squares(fn, params, (x, held_values, target, np.ascontiguousarray(w)), **kwargs)
 
 
-def _scanned_starts(method, params, inputs, held, target, weights, output) -> dict[str, Param]:
+def _scanned_starts(method, params, inputs, held, target, weights, output, run=None) -> dict[str, Param]:
     """``params`` with each scanned parameter's start (`Param.scan`) moved to the value of its scan (or its
     declared start) with the least weighted squared residual, the other parameters at their starts, one
-    parameter after another in declaration order (NumPy or Dr.Jit run, as the fit's `Method.fit_ops`)."""
-    run = _drjit_run(method, inputs) if method.fit_ops == "drjit" else None
+    parameter after another in declaration order (NumPy or Dr.Jit run, as the fit's `Method.fit_ops`;
+    ``run``: the fit's `DrJitRun`, made here where None). A Dr.Jit run evaluates a parameter's candidates in
+    one replay (`scan_predictions`)."""
+    if run is None and method.fit_ops == "drjit":
+        run = DrJitRun(method, inputs)
     values = {**held, **{k: p.initial for k, p in params.items()}}
     out = dict(params)
     for k, p in params.items():
         best, cost = p.initial, math.inf
-        for v in (p.initial, *p.scan_values()):  # the start is a candidate: a scan never ends worse
-            trial = {**values, k: v}
+        trials = [{**values, k: v} for v in (p.initial, *p.scan_values())]  # the start too: never worse
+        batch = scan_predictions(run, trials) if run is not None and output is None else None
+        for i, trial in enumerate(trials):
+            v = trial[k]
             with np.errstate(all="ignore"):
-                pred = method(NUMPY_OPS, inputs, trial) if run is None else run(trial)
+                if batch is not None:
+                    pred = batch[i]
+                else:
+                    pred = method(NUMPY_OPS, inputs, trial) if run is None else run(trial)
                 pred = output(pred) if output is not None else pred
                 r = np.ravel(weights * (np.asarray(pred, np.float64) - target))  # (stacked: the same order)
                 c = float(np.sum(r * r))
@@ -328,105 +344,32 @@ def _scanned_starts(method, params, inputs, held, target, weights, output) -> di
     return out
 
 
-def _held_arrays(value: Any, out: list, depth: int = 0) -> list:
-    """The Dr.Jit arrays a sampler object holds (its cached tables: `rtfit.realtime.arrays.cached_table`),
-    found through its attributes, dicts, lists and tuples (three levels deep): a frozen function's inputs
-    (`_drjit_run`)."""
-    import drjit as dr
-
-    if dr.is_array_v(value):
-        out.append(value)
-    elif depth <= 3:
-        if isinstance(value, dict):
-            items = list(value.values())
-        elif isinstance(value, list | tuple):
-            items = list(value)
-        elif hasattr(value, "__dict__") and not isinstance(value, type):
-            items = list(vars(value).values())
-        else:
-            items = []
-        for v in items:
-            _held_arrays(v, out, depth + 1)
-    return out
+def scan_predictions(run: DrJitRun, trials: Sequence[Mapping[str, float]]) -> list | None:
+    """The predictions at each of ``trials`` from batched replays (`DrJitRun.many`) where the first one's
+    is, bit for bit, what a call at that point gives (the scan's start, evaluated alone: the check that the
+    batched text is the kernel's, element for element); else None (a call a point, `_scanned_starts`).
+    Issue 33 (session 30): a 33-value scan of a shadow map's bias was 34 replays of ~0.3 ms, most of each
+    Dr.Jit's call overhead."""
+    batch = run.many(trials)
+    if batch is None:
+        return None
+    alone = run(trials[0])
+    pairs = zip(alone, batch[0], strict=True) if isinstance(alone, tuple) else [(alone, batch[0])]
+    return batch if all(same_bits(np.asarray(a), np.asarray(b)) for a, b in pairs) else None
 
 
-@contextlib.contextmanager
-def _collector_paused() -> Iterator[None]:
-    """Python's cycle collector off for the block (on again after it, where it was on): a frozen function's
-    recording must not run the finalisers of unrelated garbage. Issue 33 (session 23): one run of the test
-    suite aborted (``Fatal Python error: Aborted``, in pcf-soft-shadows' frozen fit) while the collector ran
-    inside the recording of `_drjit_run`, in a worker holding earlier tests' garbage (Mitsuba scenes among
-    it); not reproduced alone. Reference counting still frees everything else as it goes."""
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was:
-            gc.enable()
+def fit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[str, float]], Any]:
+    """``run(values) -> prediction``: ``method``'s kernel on ``inputs`` where its TRF fit evaluates it (its
+    `Method.fit_ops`: the NumPy run, or the Dr.Jit run `DrJitRun`), NumPy arrays out; non-finite values
+    pass silently (``errstate``), as in the fit."""
+    if method.fit_ops == "drjit":
+        return DrJitRun(method, inputs)
 
+    def numpy_run(values: Mapping[str, float]):
+        with np.errstate(all="ignore"):
+            return method(NUMPY_OPS, inputs, values)
 
-def _drjit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[str, float]], Any]:
-    """``run(params) -> prediction``: ``method``'s kernel text on float64 Dr.Jit arrays of the default backend
-    (`Method.fit_ops` ``"drjit"``), back as NumPy (a tuple output stacked). The array inputs are converted
-    once; each parameter value is ``dr.opaque``, so every evaluation replays one compiled kernel instead of
-    compiling one per value. Scalars and samplers pass as they are (constants of the fit).
-
-    Frozen (``dr.freeze``, issue 33): the first call traces the kernel text (and fills the samplers' cached
-    tables), the second records it as a frozen function of the array inputs, the samplers' tables
-    (`_held_arrays`) and the parameters, and later calls replay the recorded kernels without tracing the
-    Python text again (pcf-soft-shadows: 1.3 → 0.6 ms a call at 64², ~1200 calls an audit). The first
-    replay is checked against a fresh trace, bit for bit; where it differs, or the recording fails, the fit
-    goes on tracing every call, as before."""
-    import drjit as dr
-
-    Float = backend_float(None, np.float64)
-    x = {
-        n: to_drjit(Float, np.asarray(v, np.float64)) if isinstance(v, np.ndarray) else v
-        for n, v in inputs.items()
-    }
-    arrays = {n: v for n, v in x.items() if dr.is_array_v(v)}
-    others = {n: v for n, v in x.items() if not dr.is_array_v(v)}
-    state: dict[str, Any] = {"calls": 0, "frozen": None, "check": False}
-
-    def as_numpy(out):
-        parts = out if isinstance(out, tuple | list) else (out,)
-        dr.eval(*parts)
-        values = [np.asarray(p, np.float64) for p in parts]
-        return tuple(values) if isinstance(out, tuple | list) else values[0]
-
-    def frozen_kernel(arrays, tables, params):
-        return method(DRJIT_OPS, {**arrays, **others}, params)
-
-    def run(params: Mapping[str, float]):
-        p = {k: dr.opaque(Float, float(v)) for k, v in params.items()}
-        state["calls"] += 1
-        frozen = state["frozen"]
-        if state["calls"] == 1 or frozen is False:
-            return as_numpy(method(DRJIT_OPS, x, p))
-        if frozen is None:  # the second call: recorded
-            try:
-                f, tables = dr.freeze(frozen_kernel), _held_arrays(list(others.values()), [])
-                with _collector_paused():
-                    out = as_numpy(f(arrays, tables, p))
-            except Exception:  # a text that cannot be frozen: traced at every call
-                state["frozen"] = False
-                return as_numpy(method(DRJIT_OPS, x, p))
-            state["frozen"], state["check"] = (f, tables), True
-            return out
-        f, tables = frozen
-        with _collector_paused():
-            out = as_numpy(f(arrays, tables, p))
-        if state["check"]:  # the first replay, against the trace
-            state["check"] = False
-            traced = as_numpy(method(DRJIT_OPS, x, p))
-            pairs = zip(out, traced, strict=True) if isinstance(out, tuple) else [(out, traced)]
-            if not all(same_bits(np.asarray(a), np.asarray(b)) for a, b in pairs):
-                state["frozen"] = False
-                return traced
-        return out
-
-    return run
+    return numpy_run
 
 
 def _takes_workers(least_squares) -> bool:
@@ -451,9 +394,11 @@ def _fit_trf(
     rtol: float = 1e-10,
     atol: float = 1e-10,
     param_rows: Mapping[str, Any] | None = None,
+    run: DrJitRun | None = None,
 ) -> FitResult:
-    """`fit_method` with ``solver="trf"`` (module text): the NumPy run of the kernel, SciPy's TRF with a
-    central-difference Jacobian; the result in the same form (and at-bound rule) as `fit_least_squares`."""
+    """`fit_method` with ``solver="trf"`` (module text): the NumPy run of the kernel (or its Dr.Jit run
+    ``run``, made here where None, for `Method.fit_ops` "drjit"), SciPy's TRF with a central-difference
+    Jacobian; the result in the same form (and at-bound rule) as `fit_least_squares`."""
     import scipy.optimize
 
     names = tuple(params)
@@ -470,7 +415,8 @@ def _fit_trf(
         """The parameters' values at the solver's point ``v``."""
         return np.where(logs, np.exp(v), v) if np.any(logs) else v
 
-    run = _drjit_run(method, inputs) if method.fit_ops == "drjit" else None
+    if run is None and method.fit_ops == "drjit":
+        run = DrJitRun(method, inputs)
 
     last: dict[bytes, np.ndarray] = {}  # the latest residuals (a Jacobian's centre: `grouped_differences`)
     shapes: list[tuple[int, ...]] = []  # the kernel's output shapes at one point (`point_batch`)
@@ -496,8 +442,12 @@ def _fit_trf(
     workers = None
     if _takes_workers(scipy.optimize.least_squares):
         mapper = difference_map(target.size, method.fit_ops)
-        if mapper is None and run is None and output is None:  # a NumPy run: its points in one call
-            batch = point_batch(method, inputs, held, names, values_of, weights, target, shapes)
+        if mapper is None and output is None:  # its points in one call: NumPy's, or one Dr.Jit replay
+            batch = (
+                point_batch(method, inputs, held, names, values_of, weights, target, shapes)
+                if run is None
+                else run_point_batch(run.many, held, names, values_of, weights, target)
+            )
             mapper = batched_points(batch, last, target.size)
         workers = grouped_differences(rows, last, mapper) or mapper
     extra: dict[str, Any] = {} if workers is None else {"workers": workers}

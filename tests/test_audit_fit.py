@@ -232,6 +232,37 @@ def test_a_per_channel_fit_computes_shared_inputs_once_where_the_kernel_is_eleme
         assert abs(got[k]["value"] - e) <= 0.02 * got[k]["stderr"]
 
 
+def test_a_drjit_fit_of_a_per_channel_case_runs_shared_inputs_once_with_the_concatenations_values(
+    monkeypatch,
+):
+    """A Dr.Jit fit (`Method.fit_ops` "drjit") of an elementwise kernel runs on the stacked data too (the
+    (3, n) inputs as Dr.Jit's ``Array3f64``: `rtfit.fitting.drjit_run.drjit_input`): the same fit, bit for
+    bit, as on the concatenated channels (`stacked_agrees` off), and the least-squares solution."""
+    import rtfit.experiments.audit_fit as audit_fit
+    from rtfit.experiments.audit_fit import fit_data, stacked_agrees
+
+    rng = np.random.default_rng(12)
+    n = 24
+    x = rng.uniform(0.5, 4.0, n)
+    mean = rng.uniform(0.5, 8.0, (1, n, 3))
+    ref = AuditReference(mean, np.full_like(mean, 0.01), 16, 1, 1, "k", "p", 0.0, "q", "none", "planted")
+    inputs = tuple({"x": x.copy(), "s": float(c + 1)} for c in range(3))
+    method = Method(id="m", label="m", kernel=_scaled, inputs=(Input("x"), Input("s")),
+                    params={"a": Param(1.0, -10.0, 10.0), "b": Param(0.0, -10.0, 10.0)},
+                    fit_ops="drjit")  # fmt: skip
+    case = FamilyCase("c", "c", ref, np.ones((1, n), bool), inputs)
+    assert stacked_agrees(method, fit_data(method, case, "m"), fit_data(method, case, "m", stacked=True))
+    stacked = fit_case(method, case, "m")
+    monkeypatch.setattr(audit_fit, "stacked_agrees", lambda *a: False)
+    flat = fit_case(method, case, "m")
+    assert stacked == flat
+    s = np.repeat([1.0, 2.0, 3.0], n)
+    A = np.stack([np.tile(x, 3) * s, np.ones(3 * n)], axis=1)
+    expected = np.linalg.lstsq(A, mean[0].T.reshape(-1), rcond=None)[0]
+    for k, e in zip("ab", expected, strict=True):
+        assert abs(stacked["parameters"][k]["value"] - e) <= 0.02 * stacked["parameters"][k]["stderr"]
+
+
 def _channel_scales(ops, channel, x, s_r, s_g, s_b, leak):
     """s_c·x on channel c (exact Lagrange picks), plus ``leak``·s_g on every channel (0: none)."""
     c = channel

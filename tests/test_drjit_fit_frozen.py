@@ -1,5 +1,5 @@
 """The Dr.Jit run of a fit (`Method.fit_ops` "drjit") replays a frozen function after its second call
-(`rtfit.fitting.method_fit._drjit_run`, issue 33): the same values as tracing every call, bit for bit, with
+(`rtfit.fitting.drjit_run.DrJitRun`, issue 33): the same values as tracing every call, bit for bit, with
 samplers' tables as inputs; a text whose replay would not be what a trace gives is caught at the first
 replay and traced from then on."""
 
@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from rtfit.fitting import fit_method
-from rtfit.fitting.method_fit import _drjit_run
+from rtfit.fitting.drjit_run import DrJitRun
 from rtfit.realtime import DRJIT_OPS, Input, Method, Param
-from rtfit.realtime.arrays import cached_table
+from rtfit.realtime.arrays import cached_table, same_bits
 
 
 class _Table:
@@ -43,7 +43,7 @@ def test_frozen_calls_equal_traced_calls_bit_for_bit():
     traces = []
     counted = Method("lookup", "lookup", lambda ops, **kw: traces.append(1) or _looked_up(ops, **kw),
                      inputs=_method().inputs, params=_method().params, fit_ops="drjit")  # fmt: skip
-    frozen = _drjit_run(counted, inputs)
+    frozen = DrJitRun(counted, inputs)
     values = [{"a": 1.0 + 0.1 * i, "b": 0.5 + 0.05 * i} for i in range(6)]
     got = [frozen(v) for v in values]
     assert len(traces) == 3  # a trace, the recording, the first replay's check: the rest replayed
@@ -91,7 +91,7 @@ def test_a_replay_that_is_not_the_trace_is_caught_and_traced_from_then_on():
     method = Method("count", "count", counting, inputs=(Input("t"),), params={"a": Param(1.0, 0.0, 2.0)},
                     fit_ops="drjit")  # fmt: skip
     t = np.linspace(0.0, 1.0, 16)
-    run = _drjit_run(method, {"t": t})
+    run = DrJitRun(method, {"t": t})
     outs = [run({"a": 1.0}) for _ in range(5)]
     # the first replay repeats the recording's 2 where a trace gives 3: caught, and every call's value is a
     # fresh trace's (the replay's own value is dropped)
@@ -100,25 +100,74 @@ def test_a_replay_that_is_not_the_trace_is_caught_and_traced_from_then_on():
 
 
 def test_the_cycle_collector_is_paused_around_a_frozen_call_and_restored():
-    """`method_fit._collector_paused`: off inside (a recording must not run unrelated finalisers), back on
+    """`drjit_run.collector_paused`: off inside (a recording must not run unrelated finalisers), back on
     after, after an exception too, and left off where the caller had it off."""
     import gc
 
     import pytest
 
-    from rtfit.fitting.method_fit import _collector_paused
+    from rtfit.fitting.drjit_run import collector_paused
 
     assert gc.isenabled()
-    with _collector_paused():
+    with collector_paused():
         assert not gc.isenabled()
     assert gc.isenabled()
-    with pytest.raises(RuntimeError), _collector_paused():
+    with pytest.raises(RuntimeError), collector_paused():
         raise RuntimeError("restored on an exception")
     assert gc.isenabled()
     gc.disable()
     try:
-        with _collector_paused():
+        with collector_paused():
             pass
         assert not gc.isenabled()
     finally:
         gc.enable()
+
+
+def _pair(ops, t, k, table, s, a, b):
+    """A tuple output, one part scaled per channel where ``s`` is (3, n) (Dr.Jit: an ``Array3f64``)."""
+    base = _looked_up(ops, t, k, table, a, b)
+    return s * base, base - b
+
+
+def test_many_points_in_one_replay_are_the_calls_values_bit_for_bit():
+    """`DrJitRun.many`: the predictions at several points from one replay equal those of a call a point,
+    bit for bit, with a per-channel (3, n) input (an ``Array3f64``) and a tuple output; more points than
+    one replay holds (`MANY_ELEMENTS`) are split, with the same values."""
+    import rtfit.fitting.drjit_run as drjit_run
+
+    rng = np.random.default_rng(8)
+    n = 300
+    inputs = {"t": rng.uniform(0, 3, n), "k": rng.integers(0, 8, n).astype(np.float64),
+              "table": _Table(rng.uniform(0, 1, 8)), "s": rng.uniform(0.5, 2.0, (3, n))}  # fmt: skip
+    method = Method("pair", "pair", _pair, inputs=(Input("t"), Input("k"), Input("table"), Input("s")),
+                    params=_method().params, fit_ops="drjit")  # fmt: skip
+    points = [{"a": 1.0 + 0.25 * i, "b": 0.3 + 0.1 * i} for i in range(7)]
+    one = DrJitRun(method, inputs)
+    calls = [one(p) for p in points]
+    assert calls[0][0].shape == (3, n) and calls[0][1].shape == (n,)
+    for limit in (1 << 20, 2 * n):  # one replay; replays of two points
+        drjit_run.MANY_ELEMENTS = limit
+        try:
+            got = DrJitRun(method, inputs).many(points)
+        finally:
+            drjit_run.MANY_ELEMENTS = 1 << 20
+        assert got is not None and len(got) == len(points)
+        for g, c in zip(got, calls, strict=True):
+            assert all(same_bits(x, y) for x, y in zip(g, c, strict=True))
+
+
+def test_a_fit_with_its_points_batched_is_the_fit_a_call_a_point(monkeypatch):
+    """A Dr.Jit fit's scan and Jacobians evaluated in batched replays (`DrJitRun.many`) give the fit of a
+    call a point, bit for bit."""
+    rng = np.random.default_rng(9)
+    n = 400
+    t, k = rng.uniform(0, 3, n), rng.integers(0, 8, n).astype(np.float64)
+    table = _Table(rng.uniform(0, 1, 8))
+    y = 2.5 * np.exp(-1.5 * t) + table.values[k.astype(int)] + rng.normal(0, 1e-3, n)
+    method = Method("lookup", "lookup", _looked_up, inputs=_method().inputs, fit_ops="drjit",
+                    params={"a": Param(1.0, 0.0, 10.0, scan=9), "b": Param(1.0, 0.01, 10.0)})  # fmt: skip
+    batched = fit_method(method, {"t": t, "k": k, "table": table}, y, solver="trf")
+    monkeypatch.setattr(DrJitRun, "many", lambda self, points: None)
+    alone = fit_method(method, {"t": t, "k": k, "table": table}, y, solver="trf")
+    assert batched.to_dict() == alone.to_dict() and batched.converged
