@@ -32,10 +32,13 @@ __all__ = [
     "flip_exposures",
     "flip_input",
     "flip_map",
+    "flip_map_keys",
     "flip_maps_shared",
     "flip_mean",
     "flip_noisy_references",
     "luminance",
+    "maps_since",
+    "remember_maps",
 ]
 
 # ꟻLIP's widest filter: the colour CSF of scale 0.04, radius ceil(3·sqrt(0.04/(2π²))·ppd) = 10 → 21 px.
@@ -113,8 +116,7 @@ def flip_map(ref32, test32, params) -> np.ndarray:
     fmap = _flip_map_uncached(ref32, test32, params)
     with _map_lock:
         _map_memo[key] = fmap.copy()
-        while sum(v.nbytes for v in _map_memo.values()) > MEMO_MAP_BYTES and len(_map_memo) > 1:
-            _map_memo.popitem(last=False)
+        _trim()
     return fmap
 
 
@@ -189,9 +191,38 @@ def compute_flip_maps(pairs: list[tuple[np.ndarray, np.ndarray]], params) -> int
     with _map_lock:
         for key, k in keyed.items():
             _map_memo[key] = maps[k]
-        while sum(v.nbytes for v in _map_memo.values()) > MEMO_MAP_BYTES and len(_map_memo) > 1:
-            _map_memo.popitem(last=False)
+        _trim()
     return len(todo)
+
+
+def _trim() -> None:
+    """The memo's oldest maps dropped while it holds more than `MEMO_MAP_BYTES` (under ``_map_lock``)."""
+    while sum(v.nbytes for v in _map_memo.values()) > MEMO_MAP_BYTES and len(_map_memo) > 1:
+        _map_memo.popitem(last=False)
+
+
+def flip_map_keys() -> frozenset:
+    """The memo's keys now (`maps_since`)."""
+    with _map_lock:
+        return frozenset(_map_memo)
+
+
+def maps_since(known: frozenset) -> list[tuple[tuple, np.ndarray]]:
+    """The memo's maps whose keys are not in ``known`` (`flip_map_keys`): what a task computed, handed
+    back from another process (the audit's metrics helper, `rtfit.experiments.audit_cases`) to
+    `remember_maps`."""
+    with _map_lock:
+        return [(k, v) for k, v in _map_memo.items() if k not in known]
+
+
+def remember_maps(entries: list[tuple[tuple, np.ndarray]]) -> None:
+    """Maps computed elsewhere (`maps_since`) kept in this process's memo, as if computed here: the report's
+    figures then find them (`flip_map`)."""
+    with _map_lock:
+        for key, fmap in entries:
+            if key not in _map_memo:
+                _map_memo[key] = fmap
+        _trim()
 
 
 def _flip_map_uncached(ref32, test32, params) -> np.ndarray:

@@ -32,9 +32,11 @@ import mmap
 import os
 import pickle
 import select
+import shutil
 import signal
 import struct
 import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -43,7 +45,13 @@ from typing import Any
 __all__ = ["limit_cores", "shared_map", "shares", "two_cores"]
 
 _FREE, _PARENT, _CHILD = 0, 1, 2
-_HEADER = struct.Struct("<iQ")  # task index (−1: the child has no task left), pickled length
+_HEADER = struct.Struct("<iQ?")  # task index (−1: the child has no task left), pickled length, in a file?
+_PIPE_PAYLOAD = 32 << 10
+"""The largest result (pickled bytes) the child writes into the pipe; a larger one goes into a file of the
+parent's spill directory, and the pipe carries its header only. A pipe holds 64 KiB: a result larger than
+that left the child blocked in its write until the parent, busy with a task of its own, read the pipe again
+(issue 33, session 30: a case's metrics with its ꟻLIP maps, ~200 KB at 64², kept the helper waiting 0.28 s
+of a 0.44 s phase)."""
 
 
 _CORE_BUDGET: list[int | None] = [None]
@@ -109,14 +117,26 @@ class _Claims:
             os.close(fd)
 
 
-def _send(fd: int, index: int, payload: bytes) -> None:
-    data = _HEADER.pack(index, len(payload)) + payload
+def _write_all(fd: int, data: bytes) -> None:
     view = memoryview(data)
     while view:
         view = view[os.write(fd, view) :]
 
 
-def _child(tasks: Sequence[Any], run: Callable[[Any], Any], claims: _Claims, order: list[int], fd: int):
+def _send(fd: int, index: int, payload: bytes, spill: str | None = None) -> None:
+    """One message: its header, then the payload in the pipe, or (a payload over `_PIPE_PAYLOAD`, with a
+    spill directory) in the file ``spill/<index>`` (written whole before its header is sent)."""
+    if spill is not None and len(payload) > _PIPE_PAYLOAD:
+        with open(os.path.join(spill, str(index)), "wb") as f:
+            f.write(payload)
+        _write_all(fd, _HEADER.pack(index, len(payload), True))
+        return
+    _write_all(fd, _HEADER.pack(index, len(payload), False) + payload)
+
+
+def _child(
+    tasks: Sequence[Any], run: Callable[[Any], Any], claims: _Claims, order: list[int], fd: int, spill: str
+):
     """The child's loop: take the last free task it may run, run it, send (index, pickled ("ok", result,
     seconds) or ("error", None, 0)); at the end a header of index −1. Never returns."""
     try:
@@ -133,17 +153,18 @@ def _child(tasks: Sequence[Any], run: Callable[[Any], Any], claims: _Claims, ord
                 payload = pickle.dumps(out, protocol=pickle.HIGHEST_PROTOCOL)
             except BaseException:  # the parent runs the task again and raises what it raises
                 payload = pickle.dumps(("error", None, 0.0))
-            _send(fd, i, payload)
+            _send(fd, i, payload, spill)
         _send(fd, -1, b"")
     finally:
         os._exit(0)
 
 
 class _Reader:
-    """The parent's end of the result pipe: complete messages parsed as they arrive."""
+    """The parent's end of the result pipe: complete messages parsed as they arrive (a payload the child
+    spilled read from its file, `_send`)."""
 
-    def __init__(self, fd: int):
-        self.fd, self.buf, self.done = fd, b"", False
+    def __init__(self, fd: int, spill: str):
+        self.fd, self.buf, self.done, self.spill = fd, b"", False, spill
         self.heard = False
         """Whether the latest `poll` read any bytes (a message may come in several reads)."""
 
@@ -163,14 +184,20 @@ class _Reader:
             self.buf += chunk
             ready, _, _ = select.select([self.fd], [], [], 0)
         while len(self.buf) >= _HEADER.size:
-            index, size = _HEADER.unpack_from(self.buf)
-            if len(self.buf) < _HEADER.size + size:
+            index, size, spilled = _HEADER.unpack_from(self.buf)
+            inline = 0 if spilled else size
+            if len(self.buf) < _HEADER.size + inline:
                 break
-            payload = self.buf[_HEADER.size : _HEADER.size + size]
-            self.buf = self.buf[_HEADER.size + size :]
+            payload = self.buf[_HEADER.size : _HEADER.size + inline]
+            self.buf = self.buf[_HEADER.size + inline :]
             if index < 0:
                 self.done = True
                 break
+            if spilled:
+                path = os.path.join(self.spill, str(index))
+                with open(path, "rb") as f:
+                    payload = f.read()
+                os.unlink(path)
             out.append((index, pickle.loads(payload)))
         return out
 
@@ -204,6 +231,7 @@ def shared_map(
     mine = [i for i in range(n) if not child_may[i]] + shareable
     theirs = shareable[::-1]
     claims = _Claims(n)
+    spill = tempfile.mkdtemp(prefix="rtfit-shared-")  # (large results: `_PIPE_PAYLOAD`)
     r, w = os.pipe()
     with warnings.catch_warnings():
         # Python ≥ 3.12 warns of a fork in a process with threads, and JAX (where a caller's process has used
@@ -213,9 +241,9 @@ def shared_map(
         pid = os.fork()
     if pid == 0:  # pragma: no cover  (the child: measured by the parent's results)
         os.close(r)
-        _child(tasks, run, claims, theirs, w)
+        _child(tasks, run, claims, theirs, w, spill)
     os.close(w)
-    reader = _Reader(r)
+    reader = _Reader(r, spill)
     results: dict[int, Any] = {}
     failed: set[int] = set()
 
@@ -241,6 +269,7 @@ def shared_map(
         _stop(pid)
         os.close(r)
         claims.close()
+        shutil.rmtree(spill, ignore_errors=True)
     return [results[i] if i in results else timed(i) for i in range(n)], seconds
 
 

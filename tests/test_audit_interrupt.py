@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from rtfit.experiments import audit_run
+from rtfit.experiments import audit_cases, audit_run
 from rtfit.experiments.audit_run import audit
 from rtfit.experiments.results import load_results
 
@@ -62,7 +62,7 @@ def test_an_audit_interrupted_in_its_fits_reports_every_case_with_its_declared_r
     def interrupted(tasks, run, may):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(audit_run, "shared_map", interrupted)
+    monkeypatch.setattr(audit_cases, "shared_map", interrupted)
     out, cache = tmp_path / "out", tmp_path / "cache"
     with pytest.raises(KeyboardInterrupt):
         audit(CBOX, out=out, cache=cache, approximations=["diffuse"], **{**SMALL, "fit": True}, **FAST)

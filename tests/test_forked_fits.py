@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import time
 
+import numpy as np
 import pytest
 
 from rtfit.fitting import forked_fits
@@ -161,10 +162,36 @@ def test_a_helper_killed_holding_the_task_lock_does_not_stop_this_process(monkey
     """The lock is a token in a pipe: a helper that dies holding it never puts it back, and this process
     then takes the lock itself (it checks every 0.5 s of waiting that the helper still lives)."""
 
-    def dies_holding_the_token(tasks, run, claims, order, fd):
+    def dies_holding_the_token(tasks, run, claims, order, fd, spill):
         os.read(claims.token_r, 1)
         os._exit(1)
 
     monkeypatch.setattr(forked_fits, "_child", dies_holding_the_token)  # (it waits for the token, takes it)
     out, _ = shared_map(list(range(6)), _square_and_pid, [True] * 6)
     assert [v for v, _ in out] == [x * x for x in range(6)] and {p for _, p in out} == {PARENT}
+
+
+def _big(x: int) -> tuple[int, np.ndarray, int]:
+    """A result larger than the pipe carries (`forked_fits._PIPE_PAYLOAD`), and the process's id."""
+    time.sleep(0.01)
+    return x, np.full(1 << 15, float(x)), os.getpid()
+
+
+@needs_two
+def test_large_results_come_back_through_spill_files_that_are_removed(monkeypatch):
+    """A result over `_PIPE_PAYLOAD` bytes comes back through a file of the spill directory (the pipe
+    carries its header): every value is the serial one, the helper ran some, and the directory is gone."""
+    made = []
+    real = forked_fits.tempfile.mkdtemp
+
+    def recorded(**kw):
+        made.append(real(**kw))
+        return made[-1]
+
+    monkeypatch.setattr(forked_fits.tempfile, "mkdtemp", recorded)
+    out, _ = shared_map(list(range(8)), _big, [True] * 8)
+    assert [x for x, _, _ in out] == list(range(8))
+    assert all(np.array_equal(a, np.full(1 << 15, float(x))) for x, a, _ in out)
+    pids = {p for _, _, p in out}
+    assert PARENT in pids and len(pids) == 2, "the helper sent some of them"
+    assert made and not os.path.exists(made[0])

@@ -1,0 +1,371 @@
+"""The audit's cases, one after another and then together (`CaseRun`, issue 33): each case's rows evaluated
+and costed on quiet cores (`CaseRun.evaluate`), the fits of every case (`CaseRun.fit_cases`), then each case's
+fitted rows and every row's metrics (`CaseRun.finish_cases`), the fits and the metrics shared with a forked
+helper process on two cores (`rtfit.fitting.forked_fits.shared_map`: the same results bit for bit). Split
+from `audit_run` (session 30)."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from functools import partial
+
+import numpy as np
+
+from rtfit.fitting import compute_metrics, prime_flip
+from rtfit.fitting.flip_maps import flip_map_keys, maps_since, remember_maps
+from rtfit.fitting.forked_fits import shared_map, shares
+from rtfit.fitting.metric_noise import content_digest
+from rtfit.realtime.methods import Method
+
+from .audit import Applicability, AuditError
+from .audit_cost import CostInputs, method_cost
+from .audit_family import PRECOMPUTE_TRIGGERS, AuditFamily, FamilyCase, Precompute
+from .audit_fit import evaluate_case, fit_case
+from .audit_results import MethodOutcome
+from .audit_selection import Selection
+from .cost import time_precompute
+from .cost_store import CostStore
+from .families import METHOD_TABLES
+from .records import Check, to_json
+
+__all__ = ["CaseRun", "EvaluatedCase", "case_rows"]
+
+
+def case_rows(
+    family: AuditFamily, app: Applicability, sel: Selection, case: FamilyCase | None = None
+) -> list[tuple[str, Method, bool]]:
+    """(row id, method, user?) of one applicability (or of one of its cases, which may carry rows and a
+    quantity of its own: `FamilyCase.methods`): its applicable shipped methods (restricted by ``--approx``
+    method names) and the user approximations of the quantity (each as the case reads it:
+    `FamilyCase.user_rows`)."""
+    keep = sel.methods.get(family.name)
+    table = METHOD_TABLES[family.name] if case is None or case.methods is None else case.methods
+    rows = [
+        (r, m, False)
+        for r, m in table.items()
+        if m.id in app.methods and (keep is None or m.id in keep or r in keep)
+    ]
+    quantities = {family.quantity, *family.quantities} if case is None else {case.quantity or family.quantity}
+    adapt = (lambda m: m) if case is None or case.user_rows is None else case.user_rows
+    rows += [(m.id, adapt(m), True) for m in sel.user if m.quantity in quantities]
+    return rows
+
+
+def _given(case: FamilyCase, row: str, method: Method) -> dict[str, float]:
+    """The parameter values row ``row`` is evaluated with: the case's (`FamilyCase.params`) over the
+    method's declared defaults."""
+    own = case.params.get(row, {})
+    return {**method.defaults(), **{k: p.initial for k, p in own.items() if k in method.params}}
+
+
+def _bad_values(method: Method, img: np.ndarray, case: FamilyCase) -> str | None:
+    bad = ~np.isfinite(img[case.mask])
+    if not bad.any():
+        return None
+    k = int(np.argmax(bad.any(axis=1)))
+    inputs = {n: (np.asarray(v)[k] if np.ndim(v) else v) for n, v in case.channel_inputs[0].items()}
+    at = ", ".join(f"{n}={float(v):.6g}" for n, v in inputs.items() if n in method.input_names)
+    return f"{method.id}: returned a non-finite value on {case.label} at {at}"
+
+
+@dataclass(frozen=True)
+class EvaluatedCase:
+    """One case between its evaluation and its fits (`CaseRun.evaluate`): the declared rows' outcomes
+    (their metrics still to come) and the rows to fit, each with the case as that row reads it."""
+
+    family: str
+    base: FamilyCase
+    sigma: np.ndarray
+    order: list[tuple[str, Method, bool]]
+    declared: dict[str, MethodOutcome]
+    fitted: list[tuple[str, Method, bool, FamilyCase]]
+
+    @property
+    def count(self) -> int:
+        """The case's rows: those evaluated, and those to fit."""
+        return len(self.declared) + len(self.fitted)
+
+
+def _shareable(method: Method, user: bool) -> bool:
+    """Whether the forked helper may fit ``method`` (`shared_map`): a fit on NumPy of a shipped method. A fit
+    on Dr.Jit needs the thread pool that a fork does not copy; a user's approximation is fitted here, where
+    its code runs as in a serial run."""
+    return method.fit_ops == "numpy" and not user
+
+
+@contextlib.contextmanager
+def _drjit_threads_beside_a_helper(sharing: bool) -> Iterator[None]:
+    """Dr.Jit's thread pool one thread smaller while the fit helper runs (`CaseRun.fit_cases`), put back
+    after: a Dr.Jit fit's kernels split over every core wait for the worker that the helper's process holds
+    off its core. Issue 33 (session 29): the Cornell box's ten shadow-map fits (64²) took 1.7–2.2 s beside
+    the helper with two Dr.Jit threads, against 0.9–1.0 s alone."""
+    if not sharing:
+        yield
+        return
+    import drjit as dr
+
+    threads = dr.thread_count()
+    dr.set_thread_count(max(1, threads - 1))
+    try:
+        yield
+    finally:
+        dr.set_thread_count(threads)
+
+
+def _fit_task(task: tuple[str, str, Method, FamilyCase]) -> dict:
+    """`fit_case` of one (case id, row, method, case) of `CaseRun.fit_cases`: what `shared_map` runs, in
+    either process."""
+    _case_id, row_id, method, case = task
+    return fit_case(method, case, row_id)
+
+
+@dataclass
+class CaseRun:
+    """Evaluates and measures the rows of one case after another (`evaluate`), fits those of every case
+    together (`fit_cases`) and finishes each case (`finish`: fitted rows, metrics), adding to the run's
+    ``costs`` (one per method), ``timings`` and ``by_family`` seconds."""
+
+    sel: Selection
+    fit: bool
+    metrics: tuple[str, ...]
+    seed: int
+    backend: str
+    cost_elements: int
+    costs: dict[str, dict]
+    timings: dict[str, float]
+    by_family: dict[str, dict[str, float]]
+    store: CostStore
+    """The costs kept across runs (`cost_store`): a method timed by an earlier run on the same inputs and
+    machine is not timed again."""
+    notes: list[str] = field(default_factory=list)
+    failed: list[dict] = field(default_factory=list)
+    """Checks of this audit that failed while it ran (a precompute that raised: `precompute`)."""
+    timed: dict[Precompute, dict] = field(default_factory=dict)
+    """Each precompute timed so far (its cost columns): rows sharing one are timed once."""
+
+    def precompute(self, method: Method, case: FamilyCase, pre: Precompute) -> None:
+        """Time the row's precompute (`cost.time_precompute`) into its method's cost record:
+        ``precompute_ms``, its ``precompute_trigger``, the case's ``precompute_pixels`` and
+        ``precompute_note``. One that raises leaves ``precompute_ms`` None and becomes a failed check (one
+        line: the exception's type and first line), not a crash of the run. Rows sharing one `Precompute`
+        get one timing."""
+        if pre in self.timed:  # rows sharing one step (the three photon forms at one N): timed once
+            self.costs[method.id].update(self.timed[pre])
+            return
+        pixels = int(case.mask.sum())
+        record = {"precompute_trigger": pre.trigger, "precompute_pixels": pixels,
+                  "precompute_note": f"{pre.what} ({PRECOMPUTE_TRIGGERS[pre.trigger]})"}  # fmt: skip
+        try:
+            t = time_precompute(pre.run)
+            record["precompute_ms"] = t.seconds * 1e3
+        except Exception as e:  # the family's own code: a failure is the run's finding, not its crash
+            line = (str(e).strip().splitlines() or [""])[0]
+            record["precompute_ms"] = None
+            self.failed.append(
+                to_json(
+                    Check(
+                        name=f"{method.id} ({case.label}): its precompute ({pre.what}) runs",
+                        value=f"{type(e).__name__}: {line}"[:300],
+                        expected="no error",
+                        passed=False,
+                    )
+                )  # type: ignore[arg-type]
+            )
+        self.timed[pre] = record
+        self.costs[method.id].update(record)
+
+    def metrics_of(
+        self, img: np.ndarray, case: FamilyCase, sigma: np.ndarray, row: str, key: tuple, notes: list[str]
+    ):
+        """The row's metrics beside the noise floor (``key``: the `content_digest` of the case's reference
+        mean, ``sigma`` and mask, made once for its rows). A metric's warning about the row's values (ꟻLIP
+        clips an approximation's negative radiance to 0: an SH L2 ring below zero) is the row's property, not
+        a fault of the run: it becomes a note of the report naming the row and the case (added to
+        ``notes``)."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            m = compute_metrics(
+                img, case.reference.mean, sigma, case.mask, names=self.metrics, seed=self.seed,
+                reference_key=key,
+            )  # fmt: skip
+        for w in caught:
+            note = f"{row} ({case.label}): {str(w.message).splitlines()[0]}"
+            if note not in notes:
+                notes.append(note)
+        return m
+
+    def evaluate(self, family: AuditFamily, a: Applicability, base: FamilyCase) -> EvaluatedCase:
+        """Every row of ``base`` (`_rows`) evaluated and its cost measured once per method (on quiet cores:
+        no fit runs yet); the rows with free parameters listed for `fit_cases`. The case's tiled cost inputs
+        (`CostInputs`, shared by its methods) are let go at its end."""
+        declared: dict[str, MethodOutcome] = {}
+        sigma = base.reference.sigma()
+        spent = self.by_family[family.name]
+        tiles = CostInputs()  # the case's inputs tiled once for all its methods' cost measurements
+        fitted: list[tuple[str, Method, bool, FamilyCase]] = []
+        order = case_rows(family, a, self.sel, base)
+        for row_id, method, user in order:
+            case = (
+                replace(base, channel_inputs=base.row_inputs[row_id]) if row_id in base.row_inputs else base
+            )
+            t1 = time.perf_counter()
+            given = _given(case, row_id, method)
+            # A parameter the source gives no value for, and the case does not set, makes the declared row no
+            # result of the method (the Evans k at its fit start read AO of 1e3…1e15 on real scenes): only
+            # its fitted row is shown, and with --no-fit the row is left out, saying why.
+            own = case.params.get(row_id, {})
+            unset = [k for k in method.unpublished if k not in own or not own[k].published]
+            if unset and not self.fit:
+                self.notes.append(
+                    f"{row_id} ({case.label}): left out with --no-fit: its source gives no value for "
+                    f"{', '.join(unset)}, which only a fit to the scene sets"
+                )
+                continue
+            if not unset:
+                img = evaluate_case(method, case, given)
+                bad = _bad_values(method, img, case)
+                if bad:
+                    raise AuditError(bad)
+                declared[row_id] = MethodOutcome(
+                    case.id, row_id, method, method.label, img, None, given, user=user
+                )
+            if method.id not in self.costs and row_id in case.uncosted:
+                self.costs[method.id] = {
+                    "label": method.label, "ns_per_pixel": None, "pixels_per_second": None,
+                    "backend": self.backend, "elements": None, "repeats": None,
+                    "note": f"cost not measured like the others: {case.uncosted[row_id]}",
+                }  # fmt: skip
+            if method.id not in self.costs:
+                key = None if user else self.store.key(method, case.channel_inputs[0], self.backend,
+                                                       self.cost_elements, tiles.digests)  # fmt: skip
+                cost = self.store.cost(
+                    key, partial(method_cost, method, case, self.backend, self.cost_elements, tiles=tiles)
+                )
+                self.costs[method.id] = {"label": method.label, **cost}
+            if row_id in case.precompute and "precompute_trigger" not in self.costs[method.id]:
+                self.precompute(method, case, case.precompute[row_id])
+            self.timings["evaluation"] += time.perf_counter() - t1
+            spent["evaluation"] += time.perf_counter() - t1
+            if self.fit and method.params:
+                fitted.append((row_id, method, user, case))
+        del tiles  # (up to 128 MiB of tiled inputs: not held through the fits)
+        return EvaluatedCase(family.name, base, sigma, order, declared, fitted)
+
+    def fit_cases(self, cases: Sequence[EvaluatedCase], say) -> dict[tuple[str, str], dict]:
+        """The fits of every evaluated case ((case id, row) → `fit_case`'s dict), shared between this process
+        and a forked helper on a machine of two cores (`shared_map`: the same results bit for bit; a fit on
+        Dr.Jit, or of a user's approximation, runs here). Their wall time is the fit time, shared among the
+        families by their fits' own seconds."""
+        tasks = [(c.base.id, row_id, method, case) for c in cases for row_id, method, _u, case in c.fitted]
+        if not tasks:
+            return {}
+        may = [_shareable(method, user) for c in cases for _r, method, user, _c in c.fitted]
+        families = [c.family for c in cases for _ in c.fitted]
+        sharing = shares(may)
+        helper = " (on two processes)" if sharing else ""
+        say(f"fits: {len(tasks)} rows of {sum(1 for c in cases if c.fitted)} case(s){helper}")
+        t = time.perf_counter()
+        with _drjit_threads_beside_a_helper(sharing):
+            done, seconds = shared_map(tasks, _fit_task, may)
+        wall = time.perf_counter() - t
+        self.timings["fit"] += wall
+        total = sum(seconds) or 1.0
+        for name, took in zip(families, seconds, strict=True):
+            self.by_family[name]["fit"] += wall * took / total
+        return {(cid, row_id): r for (cid, row_id, _m, _c), r in zip(tasks, done, strict=True)}
+
+    def with_fits(self, ev: EvaluatedCase, fits: Mapping[tuple[str, str], dict]) -> dict[str, MethodOutcome]:
+        """The case's outcomes in row order, their metrics still to come (`finish_cases`): each declared row,
+        then its fitted row, evaluated here at the fitted values. A row whose fit is not in ``fits`` (an
+        interrupted run's) has no fitted row, and the report says so."""
+        base, declared = ev.base, ev.declared
+        spent = self.by_family[ev.family]
+        refits: dict[str, MethodOutcome] = {}
+        unfitted = [row_id for row_id, *_ in ev.fitted if (base.id, row_id) not in fits]
+        if unfitted:
+            names = ", ".join(unfitted)
+            self.notes.append(f"{base.label}: not fitted (the run was interrupted first): {names}")
+        for row_id, method, user, case in ev.fitted:
+            t2 = time.perf_counter()
+            result = fits.get((base.id, row_id))
+            if result is None:
+                continue
+            values = {k: v["value"] for k, v in result["parameters"].items()}
+            img_f = evaluate_case(method, case, values)
+            refits[row_id] = MethodOutcome(
+                case.id,
+                f"{row_id}-fitted",
+                method,
+                f"{method.label} (fitted to this scene)",
+                img_f,
+                None,
+                values,
+                fit=result,
+                user=user,
+            )
+            self.timings["fit"] += time.perf_counter() - t2
+            spent["fit"] += time.perf_counter() - t2
+        rows: dict[str, MethodOutcome] = {}
+        for row_id, _method, _user in ev.order:
+            if row_id in declared:
+                rows[row_id] = declared[row_id]
+            if row_id in refits:
+                rows[f"{row_id}-fitted"] = refits[row_id]
+        return rows
+
+    def finish_cases(
+        self,
+        cases: Sequence[EvaluatedCase],
+        fits: Mapping[tuple[str, str], dict],
+        share: bool = True,
+    ) -> list[dict[str, MethodOutcome]]:
+        """Each case's outcomes (`with_fits`: its fitted rows evaluated here), then every row's metrics beside
+        the noise floor (`_measured`, a case a task), shared with a forked helper on two cores (``share``;
+        `shared_map`: NumPy only, the same values bit for bit): issue 33 (session 30), the metrics were a
+        third of a 64² Cornell-box audit's evaluation (0.4–0.6 s), on one core. Their wall time is
+        evaluation time, shared among the families by the tasks' own seconds; the helper's notes and ꟻLIP
+        maps (which the report's figures read: `rtfit.fitting.flip_maps.remember_maps`) come back with its
+        metrics."""
+        outcomes = [self.with_fits(ev, fits) for ev in cases]
+        tasks = list(zip(cases, outcomes, strict=True))
+        if not tasks:
+            return []
+        t = time.perf_counter()
+        if share:
+            done, seconds = shared_map(tasks, self._measured, [True] * len(tasks))
+        else:  # (an interrupted run's report: here, in turn)
+            done, seconds = [], []
+            for task in tasks:
+                t1 = time.perf_counter()
+                done.append(self._measured(task))
+                seconds.append(time.perf_counter() - t1)
+        wall = time.perf_counter() - t
+        self.timings["evaluation"] += wall
+        total = sum(seconds) or 1.0
+        for (ev, rows), (metrics, notes, maps), took in zip(tasks, done, seconds, strict=True):
+            remember_maps(maps)
+            for row_id, o in rows.items():
+                o.metrics = metrics[row_id]
+            self.notes.extend(n for n in notes if n not in self.notes)
+            self.by_family[ev.family]["evaluation"] += wall * took / total
+        return outcomes
+
+    def _measured(self, task: tuple[EvaluatedCase, dict[str, MethodOutcome]]) -> tuple[dict, list[str], list]:
+        """One case's metrics (`finish_cases`' task, in either process): row id → its metrics, the notes
+        its metrics' warnings made (`metrics_of`), and the ꟻLIP maps computed (`maps_since`). Every row's
+        ꟻLIP maps (and the floor's) together (`prime_flip`: the same maps, the reference's share of the work
+        done once)."""
+        ev, rows = task
+        base, sigma = ev.base, ev.sigma
+        known = flip_map_keys()
+        notes: list[str] = []
+        if "flip" in self.metrics:
+            images = [o.image for o in rows.values()]
+            prime_flip(images, base.reference.mean, sigma, base.mask, seed=self.seed)
+        key = content_digest(base.reference.mean, sigma, base.mask)  # every row's reference: once a case
+        metrics = {r: self.metrics_of(o.image, base, sigma, r, key, notes) for r, o in rows.items()}
+        return metrics, notes, maps_since(known)
