@@ -180,9 +180,10 @@ def _filter_axis(a: np.ndarray, filters: np.ndarray, axis: int) -> np.ndarray:
     n = a.shape[axis]
     b = min(n, _BLOCK)
     blocks = -(-n // b)
-    pad = [(0, 0)] * a.ndim
-    pad[axis] = (r, r + blocks * b - n)
-    padded = np.pad(a, pad, mode="edge")
+    # edge-padded by r before and r + blocks·b − n after: index i of the padded axis reads clamp(i − r)
+    # (NumPy's ``pad(mode="edge")`` gives the same array, with ~0.1 ms of Python a call: issue 33)
+    clamped = np.clip(np.arange(-r, blocks * b + r), 0, n - 1)
+    padded = np.take(a, clamped, axis=axis)
     band = _band(np.ascontiguousarray(filters, np.float64).tobytes(), n_filters, b, a.dtype.str)
     st = padded.strides
     if axis == -1:
