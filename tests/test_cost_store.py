@@ -137,7 +137,7 @@ XML = """<scene version="3.0.0">
 def test_a_second_audit_reports_the_first_audits_costs_without_timing_them(tmp_path, monkeypatch):
     """The same scene audited twice into one cache: the second audit times no method (`method_cost` is not
     called) and reports the first's costs, each saying it was kept; another cache measures them again."""
-    from rtfit.experiments import audit_run
+    from rtfit.experiments import audit_cases
 
     scene = tmp_path / "ball.xml"
     scene.write_text(XML)
@@ -145,8 +145,8 @@ def test_a_second_audit_reports_the_first_audits_costs_without_timing_them(tmp_p
             "approximations": "diffuse"}  # fmt: skip
     first = rtfit.audit(str(scene), cache=tmp_path / "cache", **fast)
     timed = []
-    measure = audit_run.method_cost
-    monkeypatch.setattr(audit_run, "method_cost", lambda *a, **k: timed.append(a[0].id) or measure(*a, **k))
+    measure = audit_cases.method_cost
+    monkeypatch.setattr(audit_cases, "method_cost", lambda *a, **k: timed.append(a[0].id) or measure(*a, **k))
     second = rtfit.audit(str(scene), cache=tmp_path / "cache", **fast)
     assert timed == [] and set(second.costs) == set(first.costs) and first.costs
     for mid, c in second.costs.items():
