@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import threading
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ import numpy as np
 
 from rtfit.fitting import flip_error_map, prime_flip
 from rtfit.fitting.flip_maps import MEMO_MAP_BYTES
+from rtfit.fitting.forked_fits import shared_map
 
 from . import figures
 from . import fitted as fitfiles
@@ -40,12 +42,14 @@ def write_audit(directory: Path, r: AuditResult) -> None:
     fitted/audit.json and the report. The viewer's ꟻLIP maps (of the saved float32 pixels) are the audit's,
     or, where its metrics left ꟻLIP out, computed in a second thread while the figures are drawn
     (`viewer_flip_thread`); the figures' PNGs are encoded and written by another
-    (`figures.pngs_in_background`)."""
+    (`figures.pngs_in_background`), and the figures of the cases are shared with a forked helper where no
+    such thread runs (`case_figures`)."""
     save_pixels(directory, r)
     flip = viewer_flip_thread(directory, r)
     try:
-        with figures.pngs_in_background():  # (every figure written before the report reads them)
-            figs = case_figures(directory, r)
+        # (every figure written before the report reads them; shared with a helper where no thread of this
+        # process computes ꟻLIP maps meanwhile: a fork must not copy a lock that thread holds)
+        figs = case_figures(directory, r, share=flip is None)
         doc = plain_json(to_json(r.results))
         assert isinstance(doc, dict)
         for f in figs:  # (the figures name their case: placed after the case tables, in case order)
@@ -91,11 +95,23 @@ def save_pixels(directory: Path, r: AuditResult) -> None:
         save_case_pixels(directory, case.id, case.reference.mean, case.reference.sigma(), images, case.mask)
 
 
-def case_figures(directory: Path, r: AuditResult) -> list[dict]:
+def case_figures(directory: Path, r: AuditResult, share: bool = False) -> list[dict]:
     """Per case: the reference beside each row with its signed error, and each row's ꟻLIP map, written under
-    ``directory/figures/``; the figure entries of results.json, each with ``_case`` (its case id)."""
+    ``directory/figures/``; the figure entries of results.json, each with ``_case`` (its case id), in case
+    order. ``share``: a case a task, shared with a forked helper process on two cores
+    (`rtfit.fitting.forked_fits.shared_map`; each task's PNGs written before it returns), for a caller that
+    runs no other thread meanwhile. Issue 33 (session 30): the figures were 4.4 s of the 7.7 s report of
+    Mitsuba's `integrator_direct_both` scene (72 cases), on one core."""
+    cases = list(r.cases)
+    done, _ = shared_map(cases, partial(_figures_of, directory, r), [share] * len(cases))
+    return [entry for entries in done for entry in entries]
+
+
+def _figures_of(directory: Path, r: AuditResult, case) -> list[dict]:
+    """`case_figures` of one case, its PNGs encoded and written beside the next figure's composition
+    (`figures.pngs_in_background`) and every one written before it returns."""
     out = []
-    for case in r.cases:
+    with figures.pngs_in_background():
         rows = list(r.outcomes[case.id].values())
         name = f"figures/{case.id}_images.png"
         figures.image_comparison(

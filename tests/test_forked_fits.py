@@ -147,6 +147,37 @@ def test_an_audits_shared_fits_are_those_of_one_process(tmp_path, monkeypatch):
     assert len(shared) >= 2 and shared == alone
 
 
+@needs_two
+def test_an_audits_shared_metrics_and_figures_are_those_of_one_process(tmp_path, monkeypatch):
+    """Every row's metrics (ꟻLIP among them: its maps come back to this process for the figures) and the
+    report's figures, a case a task shared with the helper, then all in one process: the same metrics,
+    notes, figure entries and PNG bytes."""
+    from pathlib import Path
+
+    from rtfit.experiments.audit_run import audit
+
+    cbox = Path(__file__).parent / "data" / "mitsuba" / "cbox" / "cbox-rgb.xml"
+    kw = {"width": 24, "height": 24, "spp": 4, "pass_spp": 2, "cache": tmp_path / "cache", "fit": False,
+          "metrics": ("rmse", "flip"), "approximations": ["diffuse", "obscurances"],
+          "cost_elements": 1 << 12}  # fmt: skip
+
+    def measured(result):
+        return {
+            (o.case, o.row): o.metrics.to_dict() for rows in result.outcomes.values() for o in rows.values()
+        }
+
+    shared = audit(cbox, out=tmp_path / "shared", **kw)
+    monkeypatch.setattr(forked_fits, "two_cores", lambda: False)
+    alone = audit(cbox, out=tmp_path / "alone", **kw)
+    assert len(shared.cases) >= 2 and measured(shared) == measured(alone)
+    assert shared.skipped == alone.skipped
+    a, b = tmp_path / "shared" / "audit-cbox-rgb", tmp_path / "alone" / "audit-cbox-rgb"
+    pngs = sorted(p.name for p in (a / "figures").iterdir())
+    assert pngs == sorted(p.name for p in (b / "figures").iterdir()) and len(pngs) >= 4
+    assert all((a / "figures" / n).read_bytes() == (b / "figures" / n).read_bytes() for n in pngs)
+    assert shared.results.figures == alone.results.figures
+
+
 def test_a_process_given_one_core_forks_no_helper(monkeypatch):
     """A pool's job worker with a one-core share (`limit_cores`, set by its initialiser) fits alone."""
     monkeypatch.setattr(forked_fits, "_CORE_BUDGET", [1])
