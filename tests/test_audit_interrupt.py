@@ -75,6 +75,31 @@ def test_an_audit_interrupted_in_its_fits_reports_every_case_with_its_declared_r
     assert partial.summary.startswith("Partial (interrupted).")
 
 
+def test_an_audit_interrupted_in_its_metrics_reports_the_fits_that_ran(tmp_path, monkeypatch):
+    """Ctrl-C while the metrics run (every fit done): the partial report holds every case with its fitted
+    rows and every row's metrics (computed again in the audit's process), and no "not fitted" note."""
+    real = audit_cases.shared_map
+    calls = []
+
+    def interrupted_second(tasks, run, may):
+        calls.append(run)
+        if len(calls) == 2:  # (the first: the fits; the second: the metrics)
+            raise KeyboardInterrupt
+        return real(tasks, run, may)
+
+    monkeypatch.setattr(audit_cases, "shared_map", interrupted_second)
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    with pytest.raises(KeyboardInterrupt):
+        audit(CBOX, out=out, cache=cache, approximations=["diffuse"], **{**SMALL, "fit": True}, **FAST)
+    assert len(calls) == 2
+    partial = load_results(out / "audit-cbox-rgb")
+    assert [c.id for c in partial.cases] == ["light0-unshadowed", "light0-shadowed"]
+    rows = [a for c in partial.cases for a in c.approximations]
+    assert sum(a.fitted for a in rows) == 2 and all((a.metrics["rmse"].value or -1.0) >= 0 for a in rows)
+    assert not any("not fitted" in n for n in partial.notes)
+    assert partial.summary.startswith("Partial (interrupted).")
+
+
 def test_sigterm_ends_the_command_with_143_and_a_partial_report(tmp_path):
     """``timeout`` sends SIGTERM: the audit stops as after Ctrl-C, exit 143, one line naming the partial
     report, the finished cases in it."""
