@@ -169,11 +169,13 @@ class DrJitRun:
         """The predictions at each of ``points`` (parameter values, every parameter at each), as the calls
         of `__call__` give them element for element, from one replay per `MANY_ELEMENTS` (module text);
         None where the run cannot batch: no array input, inputs of several widths, a frozen run that was
-        given up (`__call__`), or a kernel that fails so. The caller checks a point it knows, bit for bit."""
+        given up (`__call__`), a run not called yet (its first call, traced, fills the samplers' tables that
+        the replays take as inputs), or a kernel that fails so. The caller checks a point it knows, bit for
+        bit."""
         import drjit as dr
 
         n = self.width
-        if n is None or not points or self.batched is False or self.frozen is False:
+        if n is None or not points or self.calls == 0 or self.batched is False or self.frozen is False:
             return None
         names = list(points[0])
         chunk = max(1, MANY_ELEMENTS // n)

@@ -350,10 +350,10 @@ def scan_predictions(run: DrJitRun, trials: Sequence[Mapping[str, float]]) -> li
     batched text is the kernel's, element for element); else None (a call a point, `_scanned_starts`).
     Issue 33 (session 30): a 33-value scan of a shadow map's bias was 34 replays of ~0.3 ms, most of each
     Dr.Jit's call overhead."""
+    alone = run(trials[0])  # (first: a traced call fills the samplers' tables the replays take as inputs)
     batch = run.many(trials)
     if batch is None:
         return None
-    alone = run(trials[0])
     pairs = zip(alone, batch[0], strict=True) if isinstance(alone, tuple) else [(alone, batch[0])]
     return batch if all(same_bits(np.asarray(a), np.asarray(b)) for a, b in pairs) else None
 

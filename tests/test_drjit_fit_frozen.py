@@ -149,7 +149,10 @@ def test_many_points_in_one_replay_are_the_calls_values_bit_for_bit():
     for limit in (1 << 20, 2 * n):  # one replay; replays of two points
         drjit_run.MANY_ELEMENTS = limit
         try:
-            got = DrJitRun(method, inputs).many(points)
+            fresh = DrJitRun(method, inputs)
+            assert fresh.many(points) is None  # (not before its first, traced call)
+            fresh(points[0])
+            got = fresh.many(points)
         finally:
             drjit_run.MANY_ELEMENTS = 1 << 20
         assert got is not None and len(got) == len(points)
