@@ -275,7 +275,8 @@ def _fit_record(case: FamilyCase, row: MethodOutcome) -> dict:
 
 
 _PRECOMPUTE_KEYS = ("precompute_ms", "precompute_trigger", "precompute_pixels", "precompute_note")
-"""A cost record's precompute columns (`_CaseRun.precompute`; the first three also on each approximation)."""
+"""A cost record's precompute columns (`audit_cases.CaseRun.precompute`; the first three also on each
+approximation)."""
 
 
 def results_record(r: AuditResult, plan, *, variant, spp, pass_spp, seed, sel: Selection) -> Results:

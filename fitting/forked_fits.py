@@ -1,4 +1,7 @@
-"""Fits shared between this process and one forked helper: `shared_map` (issue 33).
+"""Fits (and other NumPy work) shared between this process and one forked helper: `shared_map` (issue 33).
+The audit's fits (`rtfit.experiments.audit_cases.CaseRun.fit_cases`), then its metrics, a case a task
+(`CaseRun.finish_cases`, session 30), and its report's figures
+(`rtfit.experiments.audit_output.case_figures`).
 
 A fit of the audit runs on one core: SciPy's TRF on the NumPy run of a kernel text (`fit_method`
 ``solver="trf"``), one BLAS thread, each kernel evaluation a few NumPy passes over a few thousand elements
