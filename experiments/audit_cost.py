@@ -32,11 +32,11 @@ _UNIFORM_FLOATS = 1024
 75), is timed as a shader's constant buffer (`rtfit.realtime.arrays.Uniforms`): 256 float4, a uniform array
 an engine declares; a larger table (a cube map's 6·16² texels) is a texture, gathered from as it is."""
 _COST_PROBE = 1 << 12  # elements of the first, sizing call of a cost measurement
-_COST_CALL_SECONDS = 0.002
+_COST_CALL_SECONDS = 0.001
 """The sized call's target kernel time (s; `cost.time_drjit` times the kernels, not the Python tracing them):
-a slow kernel is timed on fewer elements, never fewer than `_COST_PROBE`. Every kernel up to 1.9 ns a pixel
+a slow kernel is timed on fewer elements, never fewer than `_COST_PROBE`. Every kernel up to ~1 ns a pixel
 runs on all 2^20 elements (4 MiB an input: the memory-bound ones stream from memory); a slower one is
-compute-bound, and 2 ms is ≥ 2^16 elements up to 30 ns a pixel. Dr.Jit's LLVM backend spreads even 8192
+compute-bound, and 1 ms is ≥ 2^15 elements up to 30 ns a pixel. Dr.Jit's LLVM backend spreads even 8192
 elements over both cores here (a 60-step sin/cos kernel: 53 ns an element at 8192 against 48 at 2^18 on
 2 threads, 100 and 96 on one), so a small call is not a one-core number. The median's stop
 (`cost._median_time`) is what makes the number precise. Issue 33: at 0.05 s of wall time the 20 slowest
@@ -44,7 +44,10 @@ kernels of a Cornell-box audit ran 6–7 calls of 45–135 ms each (≈ 4 CPU s)
 wall time, which, the tracing counted in the sizing call's 4096 elements, gave measured calls of 1–5 ms.
 Session 23 times the kernels alone: at 0.005 s of kernel time the audit's 38 costs took 2.1–2.3 s, at
 0.002 s 1.8 s (as before the change), their values 0.62–1.53× those at 0.005 s (geometric mean 0.98: the
-run-to-run spread of this machine)."""
+run-to-run spread of this machine). Session 30, each of the 38 costs measured 4 times at 2 ms and 4 times
+at 1 ms, interleaved, in one run: the medians' ratio 1 ms / 2 ms 0.90–1.07 (geometric mean 0.997), the
+spread of a method's 4 values (max/min) median 1.07 against 1.10 (90th percentile 1.23 against 1.41), a
+run of the 38 costs 0.56 s against 0.68 s."""
 _COST_MIN_SECONDS = 0.01
 """The least wall time the measured call is repeated for (and at least 7 times; the median is the cost),
 unless its median is known first (`cost._median_time`: its 95 % interval within ± 3 %, after 6 calls or
@@ -56,7 +59,7 @@ the medians agreed (0.01 s against 0.05 s: geometric mean 1.02, 0.92–1.23). Re
 longer does not make its cost more precise on this machine: the spread between runs is the machine's."""
 _PROBE_REPEATS = 3
 """Calls of the sizing call (`_COST_PROBE` elements), the median sizing the measured call: it need only be
-right to a factor (the measured call's 2 ms target, `_COST_CALL_SECONDS`); 7 before session 24."""
+right to a factor (the measured call's 1 ms target, `_COST_CALL_SECONDS`); 7 before session 24."""
 
 
 def _is_per_pixel(v, n: int) -> bool:
