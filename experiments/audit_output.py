@@ -48,8 +48,10 @@ def write_audit(directory: Path, r: AuditResult) -> None:
     flip = viewer_flip_thread(directory, r)
     try:
         # (every figure written before the report reads them; shared with a helper where no thread of this
-        # process computes ꟻLIP maps meanwhile: a fork must not copy a lock that thread holds)
-        figs = case_figures(directory, r, share=flip is None)
+        # process computes ꟻLIP maps meanwhile: a fork must not copy a lock that thread holds; the PNG
+        # writer's thread starts at its first figure, after the fork)
+        with figures.pngs_in_background():
+            figs = case_figures(directory, r, share=flip is None)
         doc = plain_json(to_json(r.results))
         assert isinstance(doc, dict)
         for f in figs:  # (the figures name their case: placed after the case tables, in case order)
@@ -109,7 +111,8 @@ def case_figures(directory: Path, r: AuditResult, share: bool = False) -> list[d
 
 def _figures_of(directory: Path, r: AuditResult, case) -> list[dict]:
     """`case_figures` of one case, its PNGs encoded and written beside the next figure's composition
-    (`figures.pngs_in_background`) and every one written before it returns."""
+    (`figures.pngs_in_background`: the caller's writer in the caller's process; in a forked helper its own,
+    every PNG written before the task returns)."""
     out = []
     with figures.pngs_in_background():
         rows = list(r.outcomes[case.id].values())

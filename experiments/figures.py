@@ -13,6 +13,7 @@ import contextlib
 import contextvars
 import functools
 import io
+import os
 import struct
 import zlib
 from collections import deque
@@ -370,7 +371,8 @@ def _write_png(path, canvas: np.ndarray) -> Path:
 
 
 _BACKGROUND: contextvars.ContextVar[tuple | None] = contextvars.ContextVar("rtfit_pngs", default=None)
-"""(executor, pending futures, most pending) inside `pngs_in_background`; None outside it."""
+"""(executor, pending futures, most pending, the id of the process that made them) inside
+`pngs_in_background`; None outside it."""
 PNGS_PENDING = 8
 """The most mosaic figures composed and not yet written (`pngs_in_background`): a figure's canvas is a few
 MB (a 1575 × 571 mosaic: 2.7 MB), so at most ~20 MB wait; the next one waits for the oldest."""
@@ -380,9 +382,9 @@ def _written(path, canvas: np.ndarray) -> Path:
     """Write ``canvas`` to ``path`` now, or hand it to the writer thread of an enclosing
     `pngs_in_background` (the canvas is not changed after: a figure's own array)."""
     background = _BACKGROUND.get()
-    if background is None:
+    if background is None or background[3] != os.getpid():  # (a forked helper: not its parent's writer)
         return _write_png(path, canvas)
-    executor, pending, most = background
+    executor, pending, most, _pid = background
     while len(pending) >= most:
         pending.popleft().result()  # (an earlier write's error surfaces here, at once)
     pending.append(executor.submit(_write_png, path, canvas))
@@ -396,10 +398,16 @@ def pngs_in_background(most: int = PNGS_PENDING) -> Iterator[None]:
     differences release the GIL); on leaving, every figure is written (the first error of a write raised
     there, unless the block itself raised). The figures' bytes and files are those a plain `save` writes.
     Issue 33 (session 28): encoding the mosaics was 1.5 s of the Veach MIS scene's 11.3 s report (144
-    figures) and 0.2 of the Cornell box's 2.0 s."""
+    figures) and 0.2 of the Cornell box's 2.0 s. A block inside another of the same process adds nothing
+    (the outer one's writer serves it, and its leaving writes them all); in a process forked inside one (a
+    helper, `rtfit.fitting.forked_fits`), which has no writer thread, a block makes its own."""
+    outer = _BACKGROUND.get()
+    if outer is not None and outer[3] == os.getpid():
+        yield
+        return
     executor = ThreadPoolExecutor(1, thread_name_prefix="rtfit-png")
     pending: deque[Future] = deque()
-    token = _BACKGROUND.set((executor, pending, most))
+    token = _BACKGROUND.set((executor, pending, most, os.getpid()))
     raised = True
     try:
         yield

@@ -307,3 +307,28 @@ def test_figures_written_in_the_background_are_the_plain_writes_bytes(tmp_path, 
         with figures.pngs_in_background():
             figure(0).save(tmp_path / "y.png")
             raise KeyError("the block's")
+
+
+def test_a_block_inside_another_uses_its_writer_and_a_forked_helper_writes_its_own(tmp_path):
+    """`pngs_in_background` inside another of the same process adds nothing (the outer writer serves it, and
+    is still there when the inner block ends); in a process forked inside a block (a `shared_map` helper),
+    which has none of its parent's threads, a figure is written at once, the same bytes."""
+    import os
+
+    rng = np.random.default_rng(4)
+    fig = figures.MosaicFigure(rng.uniform(0, 1, (12, 20, 3)), "figure", 60)
+    plain = fig.save(tmp_path / "plain.png").read_bytes()
+    with figures.pngs_in_background():
+        outer = figures._BACKGROUND.get()
+        with figures.pngs_in_background():
+            assert figures._BACKGROUND.get() is outer
+        assert figures._BACKGROUND.get() is outer and not outer[0]._shutdown
+        pid = os.fork()  # (before the first figure: the writer's thread is not started yet)
+        if pid == 0:  # (the helper: its write done before it exits)
+            try:
+                fig.save(tmp_path / "helper.png")
+            finally:
+                os._exit(0)
+        os.waitpid(pid, 0)
+        fig.save(tmp_path / "after-inner.png")
+    assert (tmp_path / "after-inner.png").read_bytes() == plain == (tmp_path / "helper.png").read_bytes()
