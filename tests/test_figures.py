@@ -314,6 +314,7 @@ def test_a_block_inside_another_uses_its_writer_and_a_forked_helper_writes_its_o
     is still there when the inner block ends); in a process forked inside a block (a `shared_map` helper),
     which has none of its parent's threads, a figure is written at once, the same bytes."""
     import os
+    import warnings
 
     rng = np.random.default_rng(4)
     fig = figures.MosaicFigure(rng.uniform(0, 1, (12, 20, 3)), "figure", 60)
@@ -323,7 +324,10 @@ def test_a_block_inside_another_uses_its_writer_and_a_forked_helper_writes_its_o
         with figures.pngs_in_background():
             assert figures._BACKGROUND.get() is outer
         assert figures._BACKGROUND.get() is outer and not outer[0]._shutdown
-        pid = os.fork()  # (before the first figure: the writer's thread is not started yet)
+        with warnings.catch_warnings():  # (JAX, where an earlier test of this worker started it, warns)
+            warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            pid = os.fork()  # (before the first figure: the writer's thread is not started yet)
         if pid == 0:  # (the helper: its write done before it exits)
             try:
                 fig.save(tmp_path / "helper.png")
