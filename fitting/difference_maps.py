@@ -32,6 +32,7 @@ __all__ = [
     "grouped_differences",
     "point_batch",
     "run_point_batch",
+    "weighted_residuals",
 ]
 
 PARALLEL_FROM = 1 << 16
@@ -215,14 +216,16 @@ def run_point_batch(
         preds = many(values)
         if preds is None:
             return None
-        out = []
         with np.errstate(all="ignore"):
-            for pred in preds:
-                r = weights * (np.asarray(pred, np.float64) - target)
-                out.append(np.ravel(np.broadcast_to(r, target.shape)))
-        return out
+            return [weighted_residuals(pred, weights, target) for pred in preds]
 
     return evaluate
+
+
+def weighted_residuals(pred, weights: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """A TRF fit's residuals at one point: ``weights · (pred − target)`` over the target's shape, raveled (the
+    fit's residual function, `rtfit.fitting.method_fit`, and `run_point_batch` alike: the same bits)."""
+    return np.ravel(np.broadcast_to(weights * (np.asarray(pred, np.float64) - target), target.shape))
 
 
 def batched_points(

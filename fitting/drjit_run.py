@@ -9,7 +9,7 @@ costs Dr.Jit's call overhead more than its arithmetic: a shadow map's PCF on 64�
 second frozen function, every input gathered P times over (element j of the batch reads input element
 j mod n) and each parameter an array holding point i's value on elements [i·n, (i + 1)·n): the same
 operations on the same values, element for element, as P calls (the callers check that, bit for bit, on a
-point they know: `rtfit.fitting.difference_maps.batched_points`, `scanned_values`).
+point they know: `rtfit.fitting.difference_maps.batched_points`, `rtfit.fitting.method_fit.scan_predictions`).
 
 Per-channel inputs (the (3, n) arrays of a stacked per-channel fit, `drjit_input`) are Dr.Jit's
 ``Array3f64``, broadcast against the (n,) inputs the channels share, as NumPy broadcasts (3, n) against (n,).
@@ -28,7 +28,7 @@ import numpy as np
 from rtfit.realtime.arrays import DRJIT_OPS, backend_float, backend_type, same_bits, to_drjit
 from rtfit.realtime.methods import Method
 
-__all__ = ["MANY_ELEMENTS", "DrJitRun", "collector_paused", "drjit_input", "held_arrays"]
+__all__ = ["MANY_ELEMENTS", "DrJitRun", "collector_paused", "drjit_input", "held_arrays", "same_prediction"]
 
 MANY_ELEMENTS = 1 << 20
 """The most elements (points × an input's elements) one `DrJitRun.many` replay evaluates; more points are
@@ -97,6 +97,13 @@ def _as_numpy(out):
     return tuple(values) if isinstance(out, tuple | list) else values[0]
 
 
+def same_prediction(a, b) -> bool:
+    """Whether two predictions of a kernel (arrays, or tuples of arrays part by part) are the same bit for
+    bit (`rtfit.realtime.arrays.same_bits`): a replay against a trace, a batched point against a call."""
+    pairs = zip(a, b, strict=True) if isinstance(a, tuple) else [(a, b)]
+    return all(same_bits(np.asarray(x), np.asarray(y)) for x, y in pairs)
+
+
 class DrJitRun:
     """``run(params) -> prediction``: ``method``'s kernel text on float64 Dr.Jit arrays of the default backend
     (`Method.fit_ops` ``"drjit"``), back as NumPy (a tuple output part by part). The array inputs are
@@ -153,8 +160,7 @@ class DrJitRun:
         if self.check:  # the first replay, against the trace
             self.check = False
             traced = _as_numpy(self.method(DRJIT_OPS, self.x, p))
-            pairs = zip(out, traced, strict=True) if isinstance(out, tuple) else [(out, traced)]
-            if not all(same_bits(np.asarray(a), np.asarray(b)) for a, b in pairs):
+            if not same_prediction(out, traced):
                 self.frozen = False
                 return traced
         return out

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from rtfit.realtime.arrays import NUMPY_OPS, jax_ops, same_bits
+from rtfit.realtime.arrays import NUMPY_OPS, jax_ops
 from rtfit.realtime.methods import Method, Param
 
 from .blas_threads import one_blas_thread
@@ -45,8 +45,9 @@ from .difference_maps import (
     grouped_differences,
     point_batch,
     run_point_batch,
+    weighted_residuals,
 )
-from .drjit_run import DrJitRun
+from .drjit_run import DrJitRun, same_prediction
 from .least_squares import (
     FitResult,
     bound_flags,
@@ -354,8 +355,7 @@ def scan_predictions(run: DrJitRun, trials: Sequence[Mapping[str, float]]) -> li
     batch = run.many(trials)
     if batch is None:
         return None
-    pairs = zip(alone, batch[0], strict=True) if isinstance(alone, tuple) else [(alone, batch[0])]
-    return batch if all(same_bits(np.asarray(a), np.asarray(b)) for a, b in pairs) else None
+    return batch if same_prediction(alone, batch[0]) else None
 
 
 def fit_run(method: Method, inputs: Mapping[str, Any]) -> Callable[[Mapping[str, float]], Any]:
@@ -432,8 +432,7 @@ def _fit_trf(
             shapes.extend(np.shape(p) for p in (pred if isinstance(pred, tuple | list) else (pred,)))
         if output is not None:
             pred = output(pred)
-        r = weights * (np.asarray(pred, np.float64) - target)
-        out = np.ravel(np.broadcast_to(r, target.shape))
+        out = weighted_residuals(pred, weights, target)
         last.clear()
         last[key] = out
         return out
