@@ -126,7 +126,7 @@ def _fit_task(task: tuple[str, str, Method, FamilyCase]) -> dict:
 @dataclass
 class CaseRun:
     """Evaluates and measures the rows of one case after another (`evaluate`), fits those of every case
-    together (`fit_cases`) and finishes each case (`finish`: fitted rows, metrics), adding to the run's
+    together (`fit_cases`) and finishes every case (`finish_cases`: fitted rows, metrics), adding to the run's
     ``costs`` (one per method), ``timings`` and ``by_family`` seconds."""
 
     sel: Selection
@@ -199,9 +199,9 @@ class CaseRun:
         return m
 
     def evaluate(self, family: AuditFamily, a: Applicability, base: FamilyCase) -> EvaluatedCase:
-        """Every row of ``base`` (`_rows`) evaluated and its cost measured once per method (on quiet cores:
-        no fit runs yet); the rows with free parameters listed for `fit_cases`. The case's tiled cost inputs
-        (`CostInputs`, shared by its methods) are let go at its end."""
+        """Every row of ``base`` (`case_rows`) evaluated and its cost measured once per method (on quiet
+        cores: no fit runs yet); the rows with free parameters listed for `fit_cases`. The case's tiled cost
+        inputs (`CostInputs`, shared by its methods) are let go at its end."""
         declared: dict[str, MethodOutcome] = {}
         sigma = base.reference.sigma()
         spent = self.by_family[family.name]
@@ -268,15 +268,21 @@ class CaseRun:
         sharing = shares(may)
         helper = " (on two processes)" if sharing else ""
         say(f"fits: {len(tasks)} rows of {sum(1 for c in cases if c.fitted)} case(s){helper}")
-        t = time.perf_counter()
         with _drjit_threads_beside_a_helper(sharing):
-            done, seconds = shared_map(tasks, _fit_task, may)
+            done = self._shared("fit", tasks, _fit_task, may, families)
+        return {(cid, row_id): r for (cid, row_id, _m, _c), r in zip(tasks, done, strict=True)}
+
+    def _shared(self, phase: str, tasks: list, run, may: Sequence[bool], families: Sequence[str]) -> list:
+        """`shared_map` of ``tasks`` (the helper may run those ``may`` marks), its wall time added to the
+        run's ``phase`` seconds and shared among the tasks' ``families`` by each task's own seconds."""
+        t = time.perf_counter()
+        done, seconds = shared_map(tasks, run, may)
         wall = time.perf_counter() - t
-        self.timings["fit"] += wall
+        self.timings[phase] += wall
         total = sum(seconds) or 1.0
         for name, took in zip(families, seconds, strict=True):
-            self.by_family[name]["fit"] += wall * took / total
-        return {(cid, row_id): r for (cid, row_id, _m, _c), r in zip(tasks, done, strict=True)}
+            self.by_family[name][phase] += wall * took / total
+        return done
 
     def with_fits(self, ev: EvaluatedCase, fits: Mapping[tuple[str, str], dict]) -> dict[str, MethodOutcome]:
         """The case's outcomes in row order, their metrics still to come (`finish_cases`): each declared row,
@@ -332,26 +338,14 @@ class CaseRun:
         metrics."""
         outcomes = [self.with_fits(ev, fits) for ev in cases]
         tasks = list(zip(cases, outcomes, strict=True))
-        if not tasks:
-            return []
-        t = time.perf_counter()
-        if share:
-            done, seconds = shared_map(tasks, self._measured, [True] * len(tasks))
-        else:  # (an interrupted run's report: here, in turn)
-            done, seconds = [], []
-            for task in tasks:
-                t1 = time.perf_counter()
-                done.append(self._measured(task))
-                seconds.append(time.perf_counter() - t1)
-        wall = time.perf_counter() - t
-        self.timings["evaluation"] += wall
-        total = sum(seconds) or 1.0
-        for (ev, rows), (metrics, notes, maps), took in zip(tasks, done, seconds, strict=True):
+        families = [ev.family for ev in cases]
+        # (``share`` False: an interrupted run's report, here in turn)
+        done = self._shared("evaluation", tasks, self._measured, [share] * len(tasks), families)
+        for (_ev, rows), (metrics, notes, maps) in zip(tasks, done, strict=True):
             remember_maps(maps)
             for row_id, o in rows.items():
                 o.metrics = metrics[row_id]
             self.notes.extend(n for n in notes if n not in self.notes)
-            self.by_family[ev.family]["evaluation"] += wall * took / total
         return outcomes
 
     def _measured(self, task: tuple[EvaluatedCase, dict[str, MethodOutcome]]) -> tuple[dict, list[str], list]:

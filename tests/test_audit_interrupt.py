@@ -59,8 +59,12 @@ def test_an_audit_interrupted_in_its_fits_reports_every_case_with_its_declared_r
     """Ctrl-C while the fits run (after every case is evaluated): every case is in the partial report, its
     declared rows with their metrics, no fitted row, and a note naming the rows not fitted."""
 
-    def interrupted(tasks, run, may):
-        raise KeyboardInterrupt
+    real = audit_cases.shared_map
+
+    def interrupted(tasks, run, may):  # (a shared phase; the partial report's metrics run here, in turn)
+        if any(may):
+            raise KeyboardInterrupt
+        return real(tasks, run, may)
 
     monkeypatch.setattr(audit_cases, "shared_map", interrupted)
     out, cache = tmp_path / "out", tmp_path / "cache"
@@ -82,9 +86,10 @@ def test_an_audit_interrupted_in_its_metrics_reports_the_fits_that_ran(tmp_path,
     calls = []
 
     def interrupted_second(tasks, run, may):
-        calls.append(run)
-        if len(calls) == 2:  # (the first: the fits; the second: the metrics)
-            raise KeyboardInterrupt
+        if any(may):  # (the shared phases; the partial report's metrics run here, in turn)
+            calls.append(run)
+            if len(calls) == 2:  # (the first: the fits; the second: the metrics)
+                raise KeyboardInterrupt
         return real(tasks, run, may)
 
     monkeypatch.setattr(audit_cases, "shared_map", interrupted_second)
