@@ -266,6 +266,15 @@ def audit(
         import scipy.optimize  # noqa: F401
 
         timings["fit"] += time.perf_counter() - t
+
+    def finish(part: list, share: bool = True) -> None:
+        """The evaluated cases ``part`` finished (`CaseRun.finish_cases`, with the fits that ran) into the
+        outcomes and the plan."""
+        finished = run.finish_cases([ev for _f, _a, ev in part], fits, share)
+        for (family, a, ev), rows in zip(part, finished, strict=True):
+            outcomes[ev.base.id] = rows
+            plan.append((family, a, ev.base))
+
     settings = {"variant": variant, "spp": spp, "pass_spp": pass_spp, "seed": run_settings.seed, "sel": sel}
     t0 = time.perf_counter()
     try:
@@ -318,18 +327,11 @@ def audit(
                 done.append(a)
             parts.close()
             fits = run.fit_cases([ev for _f, _a, ev in evaluated], say)
-            finished = run.finish_cases([ev for _f, _a, ev in evaluated], fits)
-            for (family, a, ev), rows in zip(evaluated, finished, strict=True):
-                outcomes[ev.base.id] = rows
-                plan.append((family, a, ev.base))
+            finish(evaluated)
     except XMLSceneError as e:
         raise AuditError(str(e)) from None
     except KeyboardInterrupt as e:
-        rest = evaluated[len(plan) :]  # evaluated, not finished: their fitted rows where the fits ran
-        finished = run.finish_cases([ev for _f, _a, ev in rest], fits, share=False)
-        for (family, a, ev), rows in zip(rest, finished, strict=True):
-            outcomes[ev.base.id] = rows
-            plan.append((family, a, ev.base))
+        finish(evaluated[len(plan) :], share=False)  # evaluated, not finished: fitted where the fits ran
         missing = [f"{a.family} ({a.role}: {a.part})" for a in audited if a not in done]
         result = _assemble(info, plan, outcomes, run, skipped, settings, interrupted=missing)
         if target is not None and plan:
