@@ -38,6 +38,7 @@ from dataclasses import replace
 import drjit as dr
 import numpy as np
 
+from rtfit.realtime.arrays import to_drjit
 from rtfit.realtime.colour_bleeding import FEW_RAYS, METHODS, MISS, RAYS
 from rtfit.realtime.colour_bleeding import INPUTS as CB_INPUTS
 from rtfit.realtime.methods import Method, Param
@@ -99,19 +100,21 @@ def ray_hits(setup: AuditSetup, points: np.ndarray, normals: np.ndarray, k: int)
     flat_d = dirs.reshape(-1, 3)
 
     def vec(kind, a):
-        return kind(*(mi.Float(np.ascontiguousarray(a[:, j], np.float32)) for j in range(3)))
+        return kind(*(to_drjit(mi.Float, a[:, j]) for j in range(3)))  # aligned: one kernel (`to_drjit`)
 
     it = dr.zeros(mi.Interaction3f, len(flat_d))
     it.p, it.n = vec(mi.Point3f, origins), vec(mi.Vector3f, flat_n)
     ray = it.spawn_ray(vec(mi.Vector3f, flat_d))
     si = setup.scene.ray_intersect(ray)
-    valid = np.asarray(si.is_valid(), bool)
-    albedo = np.stack([np.asarray(x, np.float64) for x in si.bsdf(ray).eval_diffuse_reflectance(si)], axis=1)
-    hit_p = np.stack([np.asarray(x, np.float64) for x in si.p], axis=1)
-    hit_n = np.stack([np.asarray(x, np.float64) for x in si.sh_frame.n], axis=1)
+    fields = (si.is_valid(), si.bsdf(ray).eval_diffuse_reflectance(si), si.p, si.sh_frame.n, si.t)
+    dr.eval(*fields)  # one kernel for the eleven arrays read below (each read launched its own)
+    valid = np.asarray(fields[0], bool)
+    albedo = np.stack([np.asarray(x, np.float64) for x in fields[1]], axis=1)
+    hit_p = np.stack([np.asarray(x, np.float64) for x in fields[2]], axis=1)
+    hit_n = np.stack([np.asarray(x, np.float64) for x in fields[3]], axis=1)
     flip = np.einsum("ij,ij->i", hit_n, flat_d) > 0
     hit_n[flip] *= -1.0
-    t = np.where(valid, np.asarray(si.t, np.float64), MISS)
+    t = np.where(valid, np.asarray(fields[4], np.float64), MISS)
     albedo = np.where(valid[:, None], np.clip(np.nan_to_num(albedo), 0.0, 1.0), 0.0)
     shape = (k, n_pts)
     return (

@@ -36,6 +36,7 @@ import time
 
 import numpy as np
 
+from rtfit.realtime.arrays import to_drjit
 from rtfit.realtime.fresnel import METHODS
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS
 
@@ -89,7 +90,7 @@ def material_ior(mi, bsdf, plugin: str) -> tuple[np.ndarray, np.ndarray] | None:
 def mitsuba_fresnel(mi, cos_theta, eta: float, k: float, dielectric: bool) -> np.ndarray:
     """Mitsuba's own Fresnel at signed cos θ_i (N,): ``mi.fresnel`` (dielectric: a negative cosine is the
     inside, 1/η) or ``mi.fresnel_conductor`` (cos θ_i > 0 assumed by Mitsuba)."""
-    c = mi.Float(np.ascontiguousarray(cos_theta, np.float32))
+    c = to_drjit(mi.Float, cos_theta)
     if dielectric:
         return np.array(mi.fresnel(c, mi.Float(float(eta)))[0], np.float64)
     return np.array(mi.fresnel_conductor(c, mi.Complex2f(float(eta), float(k))), np.float64)

@@ -44,7 +44,7 @@ from functools import partial
 
 import numpy as np
 
-from rtfit.realtime.arrays import xyz_columns
+from rtfit.realtime.arrays import to_drjit, xyz_columns
 from rtfit.realtime.ibl_bakes import bake_lights
 from rtfit.realtime.ibl_samples import (
     BAKES,
@@ -127,7 +127,7 @@ def light_visibility(setup: AuditSetup, points, normals, directions) -> np.ndarr
     if not k or not n:
         return out
     per = max(1, _MAX_LANES // k)
-    d_dev = [mi.Float(np.ascontiguousarray(dirs[:, c], np.float32)) for c in range(3)]
+    d_dev = [to_drjit(mi.Float, dirs[:, c]) for c in range(3)]  # aligned: one kernel (`to_drjit`)
     for a in range(0, n, per):
         b = min(n, a + per)
         lanes = (b - a) * k
@@ -209,8 +209,8 @@ def depth_maps(setup: AuditSetup, directions, resolution: int) -> DepthMaps:
         o = (eyes[a:b, None, :] + offsets[None] @ frames[a:b]).reshape(-1, 3)  # (K·T, 3)
         w = np.repeat(-dirs[a:b], texels, axis=0)
         ray = mi.Ray3f(
-            mi.Point3f(*(mi.Float(np.ascontiguousarray(o[:, c], np.float32)) for c in range(3))),
-            mi.Vector3f(*(mi.Float(np.ascontiguousarray(w[:, c], np.float32)) for c in range(3))),
+            mi.Point3f(*(to_drjit(mi.Float, o[:, c]) for c in range(3))),  # aligned: one kernel (`to_drjit`)
+            mi.Vector3f(*(to_drjit(mi.Float, w[:, c]) for c in range(3))),
         )
         si = setup.scene.ray_intersect(ray)
         hit = np.asarray(si.is_valid(), dtype=bool).reshape(b - a, texels)

@@ -41,7 +41,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from rtfit.realtime.arrays import NUMPY_OPS
+from rtfit.realtime.arrays import NUMPY_OPS, to_drjit
 from rtfit.realtime.light_path_maps import (
     CLUSTERS,
     CUT,
@@ -109,7 +109,7 @@ def _np3(v) -> np.ndarray:
 
 
 def _vec(mi, kind, a: np.ndarray):
-    return kind(*(mi.Float(np.ascontiguousarray(a[:, j], np.float32)) for j in range(3)))
+    return kind(*(to_drjit(mi.Float, a[:, j]) for j in range(3)))  # aligned: one kernel (`to_drjit`)
 
 
 def _scene_box(scene) -> tuple[np.ndarray, np.ndarray]:
@@ -184,7 +184,7 @@ def transfer_terms(setup: AuditSetup, points, normals, pos, nrm):
     d = (t - o).reshape(-1, 3)
     dist = np.maximum(np.linalg.norm(d, axis=1), 1e-30)
     ray = mi.Ray3f(_vec(mi, mi.Point3f, o.reshape(-1, 3)), _vec(mi, mi.Vector3f, d / dist[:, None]))
-    ray.maxt = mi.Float(np.asarray(dist * (1.0 - 1e-4), np.float32))
+    ray.maxt = to_drjit(mi.Float, dist * (1.0 - 1e-4))
     vis = ~np.asarray(setup.scene.ray_test(ray), bool)
     return h, rho2, q, c, vis.reshape(h.shape).astype(np.float64)
 

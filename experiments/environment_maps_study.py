@@ -32,6 +32,7 @@ import numpy as np
 from rtfit.fitting import compute_metrics, sidak_threshold
 from rtfit.realtime import DRJIT_OPS, sphere_light_irradiance
 from rtfit.realtime import environment_maps as em
+from rtfit.realtime.arrays import to_drjit
 from rtfit.reference import environment_maps as room
 
 from . import environment_maps_spheres as spheres
@@ -392,7 +393,7 @@ def localised_costs(ctx: StudyContext, cfg) -> list[dict]:
     d = _unit(rng.normal(size=(m, 3))).astype(np.float32)
     p = rng.uniform(-0.8, 0.8, size=(m, 3)).astype(np.float32)
     texel = [np.ones(m, np.float32), (d[:, 0] * 0.3), (d[:, 2] * 0.3), np.full(m, 1.5, np.float32)]
-    args = tuple(Float(np.ascontiguousarray(a)) for a in (*p.T, *d.T, *texel, np.full(m, 0.1, np.float32)))
+    args = tuple(to_drjit(Float, a) for a in (*p.T, *d.T, *texel, np.full(m, 0.1, np.float32)))
     lut = Float(em.cap_lobe_table(0.0, 32).astype(np.float32))
     kernel: Any = em.localised_term_kernel
     repeats = 3 if cfg["cost_seconds"] < 0.1 else 7

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from rtfit.realtime.arrays import NUMPY_OPS, evaluate, is_drjit
+from rtfit.realtime.arrays import NUMPY_OPS, evaluate, is_drjit, to_drjit
 from rtfit.realtime.methods import Method
 from rtfit.realtime.quantities import (
     QUANTITIES,
@@ -385,10 +385,10 @@ def check_approximation(method: Method, n: int = 256, *, seed: int = 0, drjit: b
             for k, v in structured.items():
                 if k in sequences:
                     values[k] = tuple(rest.pop(0) for _ in range(sequences[k]))
-                elif isinstance(
-                    v, np.ndarray
-                ):  # a table: an array of the kernel's kind (ops.gather reads it)
-                    values[k] = Float(np.ascontiguousarray(v, np.float64).reshape(-1))
+                elif isinstance(v, np.ndarray):
+                    # a table: an array of the kernel's kind (ops.gather reads it), aligned (`to_drjit`):
+                    # one kernel wherever NumPy put it
+                    values[k] = to_drjit(Float, np.reshape(v, -1))
                 else:
                     values[k] = v
             out = method.kernel.run(ops, values, {p: kw[p] for p in _free})

@@ -77,7 +77,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from .arrays import DRJIT_OPS, NUMPY_OPS, check_range, check_scalar, evaluate, is_drjit
+from .arrays import DRJIT_OPS, NUMPY_OPS, check_range, check_scalar, evaluate, is_drjit, to_drjit
 from .methods import Input, Method, Param, method_table
 from .phase import cornette_shanks_phase_kernel, hg_phase_kernel, rayleigh_phase_kernel
 
@@ -829,7 +829,9 @@ def aerial_perspective(
         altitude_m, cos_zenith, cos_sun, distance_m = (
             a
             if type(a) is Float
-            else Float(np.asarray(a, dtype=np.float64).ravel() if isinstance(a, np.ndarray) else float(a))
+            else to_drjit(Float, np.ravel(a))
+            if isinstance(a, np.ndarray)
+            else Float(float(a))
             for a in args
         )
     if tables is None:

@@ -13,6 +13,29 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+_ALIGN = 64
+"""Bytes: every host buffer Dr.Jit maps here starts on a multiple of this (`mapped_floats`)."""
+
+
+def mapped_floats(Float: type, values) -> object:
+    """``values`` flat as a ``Float`` array (Mitsuba's ``mi.Float``, ``mi.Float64``, …) over a fresh host
+    buffer whose first element is 64-byte aligned, which Dr.Jit's LLVM backend maps without copying (CUDA
+    copies it to the device); float64 values round to nearest into float32, as NumPy's ``astype``.
+
+    A mapped NumPy array's alignment is part of the kernel that reads it: the LLVM backend loads an input
+    whose address is not a multiple of the vector width with ``align 1``, and a gather from it differs too
+    (Dr.Jit 1.5, checked on a 4 KiB buffer shifted by 4 and 16 bytes), so a kernel of k host inputs has up to
+    2^k variants as NumPy's allocator (16-byte granules) happens to place them, each compiled anew (issue 33,
+    session 31: the kernels reading (N, 3) columns copied by ``np.ascontiguousarray``). The same rule as
+    `rtfit.realtime.arrays.to_drjit`, which this package may not import (tests/test_layering.py)."""
+    dtype = np.float64 if dr.type_v(Float) == dr.VarType.Float64 else np.float32
+    a = np.asarray(values).reshape(-1)
+    buf = np.empty(a.size + _ALIGN // np.dtype(dtype).itemsize, dtype)
+    start = (-buf.ctypes.data) % _ALIGN // buf.itemsize
+    out = buf[start : start + a.size]
+    out[...] = a
+    return Float(out)
+
 
 def device_components(mi, arr) -> list:
     """The three columns of an (N, 3) float32 or float64 array (other dtypes: converted to float64) as Dr.Jit
@@ -27,7 +50,7 @@ def device_components(mi, arr) -> list:
     if a.dtype not in (np.float32, np.float64):
         a = a.astype(np.float64)
     flat_type = mi.Float64 if a.dtype == np.float64 else mi.Float32
-    flat = flat_type(np.ascontiguousarray(a).reshape(-1))
+    flat = mapped_floats(flat_type, a)
     row = dr.arange(mi.UInt32, len(a)) * 3
     return [dr.gather(flat_type, flat, row + k) for k in range(3)]
 

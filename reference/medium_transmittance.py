@@ -51,6 +51,7 @@ from typing import Any, NamedTuple
 import drjit as dr
 import numpy as np
 
+from .device_arrays import mapped_floats
 from .estimators import PassResult, chunk_ranges, mean_var, sub_seed
 
 __all__ = [
@@ -92,15 +93,15 @@ class _Rays(NamedTuple):
         near = np.zeros(len(d)) if min_distance is None else np.asarray(min_distance, np.float64).reshape(-1)
         per_ray = np.ndim(origin) == 2
         if per_ray:
-            o = tuple(mi.Float(np.asarray(origin, np.float64)[:, k].astype(np.float32)) for k in range(3))
+            o = tuple(mapped_floats(mi.Float, np.asarray(origin, np.float64)[:, k]) for k in range(3))
         else:
             o = mi.Point3f(*[float(x) for x in origin])
         return cls(
             o,
             per_ray,
-            tuple(mi.Float(d[:, k].astype(np.float32)) for k in range(3)),
-            mi.Float(np.maximum(near, 0.0).astype(np.float32)),
-            mi.Float(np.where(np.isfinite(dist), dist, np.finfo(np.float32).max).astype(np.float32)),
+            tuple(mapped_floats(mi.Float, d[:, k]) for k in range(3)),
+            mapped_floats(mi.Float, np.maximum(near, 0.0)),
+            mapped_floats(mi.Float, np.where(np.isfinite(dist), dist, np.finfo(np.float32).max)),
         )
 
     def ray(self, mi, index=None):

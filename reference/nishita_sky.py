@@ -102,6 +102,7 @@ from rtfit.scenes import library_path
 from . import emitters, sky_integrator
 from .budget import ABSORB, ArmedMedia, LaneCounter, check_finite, counters
 from .cache import ComputedEntry, PassEntry, array_digest, pool_passes
+from .device_arrays import mapped_floats
 from .estimators import PassResult, chunk_ranges, mean_var, moments, sub_seed
 from .variants import callers_variant, cuda_available, use_variant
 
@@ -635,7 +636,7 @@ def sky_pass(mi, scene, medium, origin, dirs: np.ndarray, spp: int, seed: int, e
     q = np.empty((n, 3))
     integrator = scene.integrator()
     sampler = mi.load_dict({"type": "independent"})
-    dx, dy, dz = (mi.Float(d[:, k].astype(np.float32)) for k in range(3))
+    dx, dy, dz = (mapped_floats(mi.Float, d[:, k]) for k in range(3))
     media = counters(scene)
     for k, (a, b) in enumerate(chunk_ranges(n, spp)):
         sampler.seed(sub_seed(seed, "sky", k), (b - a) * spp)

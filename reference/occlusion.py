@@ -64,6 +64,7 @@ import numpy as np
 
 from .build import camera_dict
 from .cache import PassEntry, array_digest, pool_passes
+from .device_arrays import mapped_floats
 from .environments import SUNSKY_APERTURE_DEG, quadrature_samples, sunsky_environment
 from .estimators import (
     MAX_LANES,
@@ -412,11 +413,11 @@ def hit_distances(mi, mi_scene, points, normals, directions, rotate_seed: int | 
         idx = dr.arange(mi.UInt32, lanes) // k
         kk = dr.arange(mi.UInt32, lanes) % k
         c, s = np.cos(angle[a:b]), np.sin(angle[a:b])
-        lx = dr.gather(mi.Float, mi.Float(dirs[:, 0].astype(np.float32)), kk)
-        ly = dr.gather(mi.Float, mi.Float(dirs[:, 1].astype(np.float32)), kk)
-        lz = dr.gather(mi.Float, mi.Float(dirs[:, 2].astype(np.float32)), kk)
-        cc = dr.gather(mi.Float, mi.Float(c.astype(np.float32)), idx)
-        ss = dr.gather(mi.Float, mi.Float(s.astype(np.float32)), idx)
+        lx = dr.gather(mi.Float, mapped_floats(mi.Float, dirs[:, 0]), kk)
+        ly = dr.gather(mi.Float, mapped_floats(mi.Float, dirs[:, 1]), kk)
+        lz = dr.gather(mi.Float, mapped_floats(mi.Float, dirs[:, 2]), kk)
+        cc = dr.gather(mi.Float, mapped_floats(mi.Float, c), idx)
+        ss = dr.gather(mi.Float, mapped_floats(mi.Float, s), idx)
         local = mi.Vector3f(cc * lx - ss * ly, ss * lx + cc * ly, lz)
         p = dr.gather(mi.Point3f, device_vectors(mi, mi.Point3f, pts[a:b]), idx)
         n = dr.gather(mi.Vector3f, device_vectors(mi, mi.Vector3f, nrm[a:b]), idx)

@@ -29,6 +29,7 @@ import time
 import drjit as dr
 import numpy as np
 
+from .device_arrays import mapped_floats
 from .estimators import PassMoments, PassResult, check_spp, point_chunks
 
 __all__ = [
@@ -100,7 +101,7 @@ def shapes_scene(mi, shapes):
 
 def _rays(mi, origin, dirs):
     o = mi.Point3f(*[float(v) for v in origin])
-    d = mi.Vector3f(*[mi.Float(np.ascontiguousarray(dirs[:, k], np.float32)) for k in range(3)])
+    d = mi.Vector3f(*[mapped_floats(mi.Float, dirs[:, k]) for k in range(3)])
     return o, d
 
 

@@ -39,6 +39,7 @@ import drjit as dr
 import numpy as np
 
 from .cache import PassEntry, array_digest, pool_passes
+from .device_arrays import mapped_floats
 from .estimators import PassResult, check_spp, device_vectors, mean_var, sub_seed
 
 __all__ = ["FORMAT", "ProbeRadiance", "ProbeRadianceCache", "point_light_visibility", "probe_radiance_pass"]
@@ -103,7 +104,7 @@ def point_light_visibility(mi, mi_scene, positions, light_position) -> np.ndarra
         raise ValueError("a position coincides with the light")
     d = delta / dist[:, None]
     ray = mi.Ray3f(mi.Point3f(p.T.astype(np.float32)), mi.Vector3f(d.T.astype(np.float32)))
-    ray.maxt = mi.Float((dist * (1.0 - 1e-4)).astype(np.float32))
+    ray.maxt = mapped_floats(mi.Float, dist * (1.0 - 1e-4))
     blocked = mi_scene.ray_test(ray)
     return np.where(np.asarray(blocked, dtype=bool), 0.0, 1.0)
 
@@ -132,7 +133,7 @@ def delta_light_irradiance(mi, mi_scene, points, normals=None) -> list[tuple[np.
         ray = it.spawn_ray_to(ds.p) if normals is not None else mi.Ray3f(it.p, ds.d)
         dist = np.asarray(ds.dist, dtype=np.float64)
         if normals is None:
-            ray.maxt = mi.Float(np.where(np.isfinite(dist), dist * (1.0 - 1e-4), np.inf).astype(np.float32))
+            ray.maxt = mapped_floats(mi.Float, np.where(np.isfinite(dist), dist * (1.0 - 1e-4), np.inf))
         else:
             ray.maxt = ray.maxt * (1.0 - 1e-4)
         visible = ~np.asarray(mi_scene.ray_test(ray), dtype=bool)
