@@ -451,8 +451,8 @@ def cached_table(cache: dict, ops, like: Any, key: tuple, values: Callable[[], A
     full = (*key, ops.name, kind)
     if full not in cache:
         flat = np.ascontiguousarray(values()).reshape(-1)
-        if ops.name == "drjit":
-            cache[full] = (kind or dr.llvm.Float64)(flat)
+        if ops.name == "drjit":  # aligned (`to_drjit`): a gather's kernel depends on its table's alignment
+            cache[full] = to_drjit(kind or dr.llvm.Float64, flat)
         elif ops.name == "jax":
             import jax.numpy as jnp
 

@@ -303,7 +303,7 @@ def _table_like(ops, table, like):
     """``table`` as the array kind ``ops`` runs on (the kernels gather from it)."""
     if ops.name == "drjit":
         Float = type(like) if dr.is_array_v(like) else dr.llvm.Float64
-        return Float(np.ascontiguousarray(np.asarray(table).reshape(-1)))
+        return to_drjit(Float, np.reshape(table, -1))  # aligned: one kernel wherever NumPy put the table
     if ops.name == "jax":
         import jax.numpy as jnp
 

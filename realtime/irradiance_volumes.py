@@ -56,7 +56,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from .arrays import DRJIT_OPS, NUMPY_OPS, evaluate, is_drjit, is_jax, split3
+from .arrays import DRJIT_OPS, NUMPY_OPS, evaluate, is_drjit, is_jax, split3, to_drjit
 from .irradiance_bases import CUBE_AXES, sh9_from_directional
 from .irradiance_bases import METHODS as BASIS_METHODS
 from .methods import Input, Method, method_table
@@ -353,9 +353,9 @@ def volume_irradiance(method, grid: ProbeGrid, table, points, normals):
     keywords = m.keywords()
 
     def kernel(ops, px, py, pz, nx, ny, nz):
-        if ops is DRJIT_OPS:  # the grid's numbers as opaque arrays: one compiled kernel for every grid
+        if ops is DRJIT_OPS:  # the grid as opaque arrays, the table aligned: one kernel for every grid
             Float = type(px)
-            tab, c = Float(t), _constants(grid, lambda v: dr.opaque(Float, v))
+            tab, c = to_drjit(Float, t), _constants(grid, lambda v: dr.opaque(Float, v))
         else:
             tab, c = t, None
         return m.kernel(

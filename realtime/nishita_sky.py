@@ -576,7 +576,7 @@ def build_sky(
         )
         # every per-build value in one device array (one upload, no value baked into a kernel)
         values = np.array([h0, sz, math.cos(el_s), el_lo, *betas[0], *betas[1], *betas[2]], dtype=np.float32)
-        S_r, S_m = _device_build((*static, params.channels), Float(values))
+        S_r, S_m = _device_build((*static, params.channels), to_drjit(Float, values))
     else:
         A, E = _texel_directions(width, height, el_lo, el_hi, mapping)
         mu = np.sin(E)

@@ -37,6 +37,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
+from .device_arrays import device_vectors
 from .estimators import PassResult, channel_moments, chunk_ranges, mean_var, pass_max_lanes, sub_seed
 
 __all__ = [
@@ -126,9 +127,12 @@ def _shape_id(mi, shape):
 
 
 def _rays(mi, origins, dirs):
-    o = np.ascontiguousarray(np.asarray(origins, np.float64), np.float32).reshape(-1, 3)
-    d = np.ascontiguousarray(np.asarray(dirs, np.float64), np.float32).reshape(-1, 3)
-    return mi.Ray3f(mi.Point3f(*(o[:, k] for k in range(3))), mi.Vector3f(*(d[:, k] for k in range(3))))
+    """Rays from (N, 3) float64 origins and directions, rounded to float32 on the device (`device_vectors`:
+    one kernel whatever the host arrays' alignment; strided columns mapped as they were gave up to 3 variants
+    of each kernel reading them, compiled again from run to run, issue 33)."""
+    o = np.asarray(origins, np.float64).reshape(-1, 3)
+    d = np.asarray(dirs, np.float64).reshape(-1, 3)
+    return mi.Ray3f(device_vectors(mi, mi.Point3f, o), device_vectors(mi, mi.Vector3f, d))
 
 
 def _skip(mi, mi_scene, ray, skip):
