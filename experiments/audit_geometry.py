@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from rtfit.reference.device_arrays import device_vectors
 from rtfit.reference.reflective_shapes import REFLECTIVE_BSDFS, reflective_shapes, shape_pixels
 
 from .audit import Applicability, AuditError, default_ao_distance
@@ -219,10 +220,10 @@ def reflective_shape(setup: AuditSetup, app: Applicability, family: str, check_l
 
 
 def rays(mi, origins: np.ndarray, dirs: np.ndarray):
-    """A Mitsuba ray per row of ``origins`` and ``dirs`` (N, 3), float32."""
-    o = np.ascontiguousarray(origins, np.float32)
-    d = np.ascontiguousarray(dirs, np.float32)
-    return mi.Ray3f(mi.Point3f(*(o[:, i] for i in range(3))), mi.Vector3f(*(d[:, i] for i in range(3))))
+    """A Mitsuba ray per row of ``origins`` and ``dirs`` (N, 3), rounded to float32 on the device
+    (`device_vectors`: one kernel whatever the arrays' addresses; strided columns of a float32 copy, mapped
+    as they lay, gave the kernels reading them up to 3 variants, compiled again from run to run)."""
+    return mi.Ray3f(device_vectors(mi, mi.Point3f, origins), device_vectors(mi, mi.Vector3f, dirs))
 
 
 def camera_rays(setup: AuditSetup) -> tuple[np.ndarray, np.ndarray]:
