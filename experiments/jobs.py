@@ -22,8 +22,9 @@ Executors:
 * ``InlineExecutor`` runs jobs one after another in this process (the default; Dr.Jit's LLVM
   backend already uses every core inside one job).
 * ``ProcessExecutor`` runs them in a pool of worker processes started with the **spawn** method
-  (CUDA does not survive ``fork``). Each worker gets its own Dr.Jit kernel-cache directory (shared
-  kernel caches can corrupt, drjit #115/#130) and, on the CPU, a share of the cores; with
+  (CUDA does not survive ``fork``). Each worker gets its own Dr.Jit kernel-cache directory, kept between
+  runs (`worker_kernel_cache`; shared kernel caches can corrupt, drjit #115/#130) and, on the CPU, a share of
+  the cores; with
   ``gpus=[0, 1, …]`` one worker per GPU, pinned by ``CUDA_VISIBLE_DEVICES``.
 * ``RayExecutor`` (``rtfit.experiments.ray_executor``, optional extra ``rtfit[ray]``): one long-lived
   worker per GPU of a Ray cluster, or CPU workers.
@@ -44,6 +45,7 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from rtfit.fitting.forked_fits import limit_cores
@@ -228,10 +230,47 @@ def diagnostic_job(seconds: float = 0.0, fail: str | None = None) -> dict:
     return {"pid": os.getpid(), "cuda_visible_devices": os.environ.get("CUDA_VISIBLE_DEVICES")}
 
 
+KERNEL_SLOTS = 64
+"""Kernel-cache slots a machine's workers may hold at once (`worker_kernel_cache`); past them, a worker's
+cache is a temporary directory of its own."""
+_HELD_SLOT: list[int] = []  # the lock of this process's slot, held open until it exits
+
+
+def worker_kernel_cache(root: Path | None = None) -> str:
+    """A Dr.Jit kernel-cache directory for this worker process alone, kept between runs: the first slot
+    ``root/slot-K`` (default ``~/.drjit/rtfit-workers``) whose lock file no live process holds, locked
+    (``flock``) for this process's life; a fresh temporary directory where none is free or none can be made.
+
+    One directory a worker: a shared kernel cache can corrupt (drjit #115/#130/#162: OptiX's cache database
+    where several processes write it). Before issue 33 (session 31) each worker made a temporary one, so
+    every run of a process pool (the quick suite's two workers) compiled every kernel again; a slot keeps
+    them, as the main process's ``~/.drjit`` does, and a lock that dies with its process frees it."""
+    import fcntl
+
+    root = Path.home() / ".drjit" / "rtfit-workers" if root is None else root
+    for k in range(KERNEL_SLOTS):
+        slot = root / f"slot-{k}"
+        try:
+            slot.mkdir(parents=True, exist_ok=True)
+            fd = os.open(slot / ".lock", os.O_CREAT | os.O_RDWR, 0o644)
+        except OSError:  # an unwritable home: a private temporary cache, as before
+            break
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # another live worker's
+            os.close(fd)
+            continue
+        _HELD_SLOT.append(fd)
+        return str(slot)
+    return tempfile.mkdtemp(prefix="rtfit-drjit-")
+
+
 def _worker_init(threads: int | None):
-    """Per-worker set-up: a private Dr.Jit kernel cache and, if given, a thread budget (Dr.Jit's threads, and
-    the audit's fit helper: `rtfit.fitting.forked_fits.limit_cores`)."""
-    os.environ.setdefault("DRJIT_CACHE_DIR", tempfile.mkdtemp(prefix="rtfit-drjit-"))
+    """Per-worker set-up: a kernel cache of its own (`worker_kernel_cache`; a ``DRJIT_CACHE_DIR`` the user
+    set is kept) and, if given, a thread budget (Dr.Jit's threads, and the audit's fit helper:
+    `rtfit.fitting.forked_fits.limit_cores`)."""
+    if "DRJIT_CACHE_DIR" not in os.environ:
+        os.environ["DRJIT_CACHE_DIR"] = worker_kernel_cache()
     if threads:
         limit_cores(threads)
         # drjit stays lazy here: importing it starts CUDA's initialisation, which reads

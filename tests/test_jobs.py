@@ -72,3 +72,48 @@ def test_job_refuses_a_function_no_worker_could_import():
             assert "\n" not in str(err.value)
     finally:
         pool.close()
+
+
+def test_worker_kernel_caches_one_slot_a_live_process_kept_between_runs(tmp_path):
+    """`worker_kernel_cache`: a live process's slot is not handed to another (its ``flock``), a dead one's is
+    (the lock dies with it) and keeps what was written there; an unwritable root gives a temporary
+    directory of the worker's own."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    from rtfit.experiments import jobs
+
+    claim = (
+        "import sys, time; from pathlib import Path; from rtfit.experiments.jobs import worker_kernel_cache; "
+        "print(worker_kernel_cache(Path(sys.argv[1])), flush=True); time.sleep(float(sys.argv[2]))"
+    )
+
+    def holder(seconds: float):
+        args = [sys.executable, "-c", claim, str(tmp_path), str(seconds)]
+        p = subprocess.Popen(args, stdout=subprocess.PIPE, text=True)
+        assert p.stdout is not None
+        with p.stdout:
+            return p, p.stdout.readline().strip()
+
+    first, slot = holder(60.0)
+    try:
+        assert slot == str(tmp_path / "slot-0")
+        (tmp_path / "slot-0" / "kernel.bin").write_bytes(b"compiled")
+        held = len(jobs._HELD_SLOT)
+        assert jobs.worker_kernel_cache(tmp_path) == str(tmp_path / "slot-1")  # slot 0 is the live holder's
+        os.close(jobs._HELD_SLOT.pop())  # (this process's lock given back)
+        assert len(jobs._HELD_SLOT) == held
+    finally:
+        first.kill()
+        first.wait()
+    second, slot = holder(0.0)
+    second.wait()
+    assert slot == str(tmp_path / "slot-0")  # the dead holder's slot, with its kernels
+    assert (tmp_path / "slot-0" / "kernel.bin").read_bytes() == b"compiled"
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    private = jobs.worker_kernel_cache(blocked / "slots")
+    assert os.path.dirname(private) == tempfile.gettempdir() and "rtfit-drjit-" in private
+    os.rmdir(private)
