@@ -20,7 +20,8 @@ _ALIGN = 64
 def mapped_floats(Float: type, values) -> object:
     """``values`` flat as a ``Float`` array (Mitsuba's ``mi.Float``, ``mi.Float64``, …) over a fresh host
     buffer whose first element is 64-byte aligned, which Dr.Jit's LLVM backend maps without copying (CUDA
-    copies it to the device); float64 values round to nearest into float32, as NumPy's ``astype``.
+    copies the values to the device as they are: no aligned host copy first); float64 values round to
+    nearest into float32, as NumPy's ``astype``.
 
     A mapped NumPy array's alignment is part of the kernel that reads it: the LLVM backend loads an input
     whose address is not a multiple of the vector width with ``align 1``, and a gather from it differs too
@@ -30,6 +31,8 @@ def mapped_floats(Float: type, values) -> object:
     `rtfit.realtime.arrays.to_drjit`, which this package may not import (tests/test_layering.py)."""
     dtype = np.float64 if dr.type_v(Float) == dr.VarType.Float64 else np.float32
     a = np.asarray(values).reshape(-1)
+    if dr.backend_v(Float) != dr.JitBackend.LLVM:  # CUDA copies to device memory: no second host copy
+        return Float(np.ascontiguousarray(a, dtype))
     buf = np.empty(a.size + _ALIGN // np.dtype(dtype).itemsize, dtype)
     start = (-buf.ctypes.data) % _ALIGN // buf.itemsize
     out = buf[start : start + a.size]
