@@ -35,6 +35,7 @@ Executors:
 
 from __future__ import annotations
 
+import fcntl
 import importlib
 import logging
 import multiprocessing
@@ -245,8 +246,6 @@ def worker_kernel_cache(root: Path | None = None) -> str:
     where several processes write it). Before issue 33 (session 31) each worker made a temporary one, so
     every run of a process pool (the quick suite's two workers) compiled every kernel again; a slot keeps
     them, as the main process's ``~/.drjit`` does, and a lock that dies with its process frees it."""
-    import fcntl
-
     root = Path.home() / ".drjit" / "rtfit-workers" if root is None else root
     for k in range(KERNEL_SLOTS):
         slot = root / f"slot-{k}"
