@@ -38,12 +38,12 @@ from dataclasses import replace
 import drjit as dr
 import numpy as np
 
-from rtfit.realtime.arrays import to_drjit
 from rtfit.realtime.colour_bleeding import FEW_RAYS, METHODS, MISS, RAYS
 from rtfit.realtime.colour_bleeding import INPUTS as CB_INPUTS
 from rtfit.realtime.methods import Method, Param
 from rtfit.realtime.obscurances import cosine_spiral_directions
 from rtfit.reference.cache import array_digest
+from rtfit.reference.device_arrays import device_vectors
 from rtfit.reference.estimators import gbuffer_points, irradiance_pass, sub_seed
 
 from .audit import Applicability, AuditError, Rule
@@ -99,12 +99,9 @@ def ray_hits(setup: AuditSetup, points: np.ndarray, normals: np.ndarray, k: int)
     flat_n = np.broadcast_to(normals[None], dirs.shape).reshape(-1, 3)
     flat_d = dirs.reshape(-1, 3)
 
-    def vec(kind, a):
-        return kind(*(to_drjit(mi.Float, a[:, j]) for j in range(3)))  # aligned: one kernel (`to_drjit`)
-
     it = dr.zeros(mi.Interaction3f, len(flat_d))
-    it.p, it.n = vec(mi.Point3f, origins), vec(mi.Vector3f, flat_n)
-    ray = it.spawn_ray(vec(mi.Vector3f, flat_d))
+    it.p, it.n = device_vectors(mi, mi.Point3f, origins), device_vectors(mi, mi.Vector3f, flat_n)
+    ray = it.spawn_ray(device_vectors(mi, mi.Vector3f, flat_d))
     si = setup.scene.ray_intersect(ray)
     fields = (si.is_valid(), si.bsdf(ray).eval_diffuse_reflectance(si), si.p, si.sh_frame.n, si.t)
     dr.eval(*fields)  # one kernel for the eleven arrays read below (each read launched its own)

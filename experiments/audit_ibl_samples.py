@@ -209,8 +209,8 @@ def depth_maps(setup: AuditSetup, directions, resolution: int) -> DepthMaps:
         o = (eyes[a:b, None, :] + offsets[None] @ frames[a:b]).reshape(-1, 3)  # (K·T, 3)
         w = np.repeat(-dirs[a:b], texels, axis=0)
         ray = mi.Ray3f(
-            mi.Point3f(*(to_drjit(mi.Float, o[:, c]) for c in range(3))),  # aligned: one kernel (`to_drjit`)
-            mi.Vector3f(*(to_drjit(mi.Float, w[:, c]) for c in range(3))),
+            device_vectors(mi, mi.Point3f, o),  # (aligned on the device: one kernel, `device_vectors`)
+            device_vectors(mi, mi.Vector3f, w),
         )
         si = setup.scene.ray_intersect(ray)
         hit = np.asarray(si.is_valid(), dtype=bool).reshape(b - a, texels)

@@ -57,6 +57,7 @@ from rtfit.realtime.light_path_maps import (
 )
 from rtfit.realtime.methods import Method
 from rtfit.reference.cache import array_digest
+from rtfit.reference.device_arrays import device_vectors
 from rtfit.reference.estimators import gbuffer_points, irradiance_pass, sub_seed
 
 from .audit import Applicability, AuditError, Rule
@@ -108,10 +109,6 @@ def _np3(v) -> np.ndarray:
     return np.stack([np.asarray(x, np.float64).ravel() for x in v], axis=-1)
 
 
-def _vec(mi, kind, a: np.ndarray):
-    return kind(*(to_drjit(mi.Float, a[:, j]) for j in range(3)))  # aligned: one kernel (`to_drjit`)
-
-
 def _scene_box(scene) -> tuple[np.ndarray, np.ndarray]:
     box = scene.bbox()
     return (np.array([float(box.min[i]) for i in range(3)]), np.array([float(box.max[i]) for i in range(3)]))
@@ -158,7 +155,7 @@ def entry_points(setup: AuditSetup, n: int):
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
     lo, hi = _scene_box(scene)
     eps = 1e-4 * float(np.linalg.norm(hi - lo))
-    ray = mi.Ray3f(_vec(mi, mi.Point3f, pos + eps * nrm), _vec(mi, mi.Vector3f, -nrm))
+    ray = mi.Ray3f(device_vectors(mi, mi.Point3f, pos + eps * nrm), device_vectors(mi, mi.Vector3f, -nrm))
     ray.maxt = 4 * eps
     si = scene.ray_intersect(ray)
     albedo = _np3(si.bsdf(ray).eval_diffuse_reflectance(si))
@@ -183,7 +180,9 @@ def transfer_terms(setup: AuditSetup, points, normals, pos, nrm):
     t = (pos + eps * nrm)[None, :, :] + 0.0 * v
     d = (t - o).reshape(-1, 3)
     dist = np.maximum(np.linalg.norm(d, axis=1), 1e-30)
-    ray = mi.Ray3f(_vec(mi, mi.Point3f, o.reshape(-1, 3)), _vec(mi, mi.Vector3f, d / dist[:, None]))
+    ray = mi.Ray3f(
+        device_vectors(mi, mi.Point3f, o.reshape(-1, 3)), device_vectors(mi, mi.Vector3f, d / dist[:, None])
+    )
     ray.maxt = to_drjit(mi.Float, dist * (1.0 - 1e-4))
     vis = ~np.asarray(setup.scene.ray_test(ray), bool)
     return h, rho2, q, c, vis.reshape(h.shape).astype(np.float64)

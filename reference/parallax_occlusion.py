@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .device_arrays import mapped_floats
+from .device_arrays import device_vectors, mapped_floats
 
 __all__ = [
     "DisplacedShape",
@@ -115,8 +115,8 @@ def height_field_scene(mi, grid: HeightFieldMesh):
 def exact_hits(mi, scene, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """First hits of rays (float64 in, float32 Mitsuba): positions (N, 3), the hit triangles' geometric
     normals (N, 3, facing +z) and a validity mask (N,)."""
-    o = mi.Point3f(*[mapped_floats(mi.Float, origins[:, k]) for k in range(3)])
-    dv = mi.Vector3f(*[mapped_floats(mi.Float, dirs[:, k]) for k in range(3)])
+    o = device_vectors(mi, mi.Point3f, origins)
+    dv = device_vectors(mi, mi.Vector3f, dirs)
     si = scene.ray_intersect(mi.Ray3f(o, dv))
     p = np.array(si.p, dtype=np.float64).T.reshape(-1, 3)
     n = np.array(si.n, dtype=np.float64).T.reshape(-1, 3)
@@ -172,8 +172,8 @@ def area_light_visibility(
         cos_x = np.maximum(np.einsum("ij,ij->i", normals[idx], w), 0.0)
         cos_y = np.maximum(-(w @ n_l), 0.0)
         e_u = le_area * cos_x * cos_y / r2
-        o = mi.Point3f(*[mapped_floats(mi.Float, x[:, j]) for j in range(3)])
-        dv = mi.Vector3f(*[mapped_floats(mi.Float, d[:, j]) for j in range(3)])
+        o = device_vectors(mi, mi.Point3f, x)
+        dv = device_vectors(mi, mi.Vector3f, d)
         ray = mi.Ray3f(o, dv)
         ray.maxt = 0.999  # the segment x → y (d unnormalised)
         occluded = np.array(scene.ray_test(ray), dtype=bool).reshape(-1)
@@ -358,8 +358,8 @@ def displaced_hits(mi, displaced: DisplacedShape, scene, origins: np.ndarray, di
     hit triangles' geometric normals (N, 3, unoriented), the shape's (u, v) there (N, 2: the barycentric
     coordinates of the hit in its triangle, from the float64 vertex positions, interpolating the vertices'
     `DisplacedShape.vertex_uv`) and a validity mask (N,)."""
-    o = mi.Point3f(*[mapped_floats(mi.Float, origins[:, k]) for k in range(3)])
-    dv = mi.Vector3f(*[mapped_floats(mi.Float, dirs[:, k]) for k in range(3)])
+    o = device_vectors(mi, mi.Point3f, origins)
+    dv = device_vectors(mi, mi.Vector3f, dirs)
     si = scene.ray_intersect(mi.Ray3f(o, dv))
     p = np.array(si.p, dtype=np.float64).T.reshape(-1, 3)
     n = np.array(si.n, dtype=np.float64).T.reshape(-1, 3)
@@ -401,7 +401,7 @@ def emitter_visibility(
         idx = np.repeat(np.arange(n_pts), k)
         x = points[idx] + offset * normals[idx]
         it = mi.Interaction3f()
-        it.p = mi.Point3f(*[mapped_floats(mi.Float, x[:, j]) for j in range(3)])
+        it.p = device_vectors(mi, mi.Point3f, x)
         u = rng.random((idx.size, 2))
         ds, weight = emitter.sample_direction(
             it, mi.Point2f(mapped_floats(mi.Float, u[:, 0]), mapped_floats(mi.Float, u[:, 1]))
@@ -412,7 +412,7 @@ def emitter_visibility(
         r = np.sqrt(np.einsum("ij,ij->i", d, d))
         cos_x = np.maximum(np.einsum("ij,ij->i", normals[idx], d) / np.where(r > 0, r, 1.0), 0.0)
         e_u = np.where(np.isfinite(w), w, 0.0) * cos_x
-        dv = mi.Vector3f(*[mapped_floats(mi.Float, d[:, j]) for j in range(3)])
+        dv = device_vectors(mi, mi.Vector3f, d)
         ray = mi.Ray3f(it.p, dv)
         ray.maxt = 0.999  # the segment x → y (d unnormalised)
         occluded = np.array(occluders.ray_test(ray), dtype=bool).reshape(-1)

@@ -29,7 +29,7 @@ import time
 import drjit as dr
 import numpy as np
 
-from .device_arrays import mapped_floats
+from .device_arrays import device_vectors
 from .estimators import PassMoments, PassResult, check_spp, point_chunks
 
 __all__ = [
@@ -101,7 +101,7 @@ def shapes_scene(mi, shapes):
 
 def _rays(mi, origin, dirs):
     o = mi.Point3f(*[float(v) for v in origin])
-    d = mi.Vector3f(*[mapped_floats(mi.Float, dirs[:, k]) for k in range(3)])
+    d = device_vectors(mi, mi.Vector3f, dirs)
     return o, d
 
 
