@@ -55,22 +55,32 @@ def test_an_interrupted_audit_reports_its_finished_cases_and_the_rerun_completes
     assert not any(n.startswith("PARTIAL") for n in load_results(report).notes)
 
 
-def test_an_audit_interrupted_in_its_fits_reports_every_case_with_its_declared_rows(tmp_path, monkeypatch):
-    """Ctrl-C while the fits run (after every case is evaluated): every case is in the partial report, its
-    declared rows with their metrics, no fitted row, and a note naming the rows not fitted."""
-
+def _interrupted_in_shared_phase(tmp_path, monkeypatch, nth: int):
+    """A fitted diffuse audit of the Cornell box, Ctrl-C at the start of its ``nth`` shared phase (1: the
+    fits, 2: the metrics; `audit_cases.shared_map`, whose calls that share nothing, the partial report's
+    metrics run here in turn, pass through): its partial results, and the shared phases' ``run`` functions."""
     real = audit_cases.shared_map
+    calls = []
 
-    def interrupted(tasks, run, may):  # (a shared phase; the partial report's metrics run here, in turn)
+    def interrupted(tasks, run, may):
         if any(may):
-            raise KeyboardInterrupt
+            calls.append(run)
+            if len(calls) == nth:
+                raise KeyboardInterrupt
         return real(tasks, run, may)
 
     monkeypatch.setattr(audit_cases, "shared_map", interrupted)
     out, cache = tmp_path / "out", tmp_path / "cache"
     with pytest.raises(KeyboardInterrupt):
         audit(CBOX, out=out, cache=cache, approximations=["diffuse"], **{**SMALL, "fit": True}, **FAST)
-    partial = load_results(out / "audit-cbox-rgb")
+    return load_results(out / "audit-cbox-rgb"), calls
+
+
+def test_an_audit_interrupted_in_its_fits_reports_every_case_with_its_declared_rows(tmp_path, monkeypatch):
+    """Ctrl-C while the fits run (after every case is evaluated): every case is in the partial report, its
+    declared rows with their metrics, no fitted row, and a note naming the rows not fitted."""
+
+    partial, _ = _interrupted_in_shared_phase(tmp_path, monkeypatch, 1)
     assert [c.id for c in partial.cases] == ["light0-unshadowed", "light0-shadowed"]
     rows = [a for c in partial.cases for a in c.approximations]
     assert {a.method for a in rows} == {"lambert", "half-lambert", "wrap"} and not any(a.fitted for a in rows)
@@ -82,22 +92,8 @@ def test_an_audit_interrupted_in_its_fits_reports_every_case_with_its_declared_r
 def test_an_audit_interrupted_in_its_metrics_reports_the_fits_that_ran(tmp_path, monkeypatch):
     """Ctrl-C while the metrics run (every fit done): the partial report holds every case with its fitted
     rows and every row's metrics (computed again in the audit's process), and no "not fitted" note."""
-    real = audit_cases.shared_map
-    calls = []
-
-    def interrupted_second(tasks, run, may):
-        if any(may):  # (the shared phases; the partial report's metrics run here, in turn)
-            calls.append(run)
-            if len(calls) == 2:  # (the first: the fits; the second: the metrics)
-                raise KeyboardInterrupt
-        return real(tasks, run, may)
-
-    monkeypatch.setattr(audit_cases, "shared_map", interrupted_second)
-    out, cache = tmp_path / "out", tmp_path / "cache"
-    with pytest.raises(KeyboardInterrupt):
-        audit(CBOX, out=out, cache=cache, approximations=["diffuse"], **{**SMALL, "fit": True}, **FAST)
+    partial, calls = _interrupted_in_shared_phase(tmp_path, monkeypatch, 2)
     assert len(calls) == 2
-    partial = load_results(out / "audit-cbox-rgb")
     assert [c.id for c in partial.cases] == ["light0-unshadowed", "light0-shadowed"]
     rows = [a for c in partial.cases for a in c.approximations]
     assert sum(a.fitted for a in rows) == 2 and all((a.metrics["rmse"].value or -1.0) >= 0 for a in rows)
