@@ -201,13 +201,14 @@ def method_cost(
     if uniforms:  # a small table read by index, as a shader's constant buffer (`Uniforms`: nothing folded)
         trial = [to_drjit(Float, a) for a in host]  # reads the table by index? (small)
         try:
-            dr.eval(method.evaluate({**consts, **uniforms, **dict(zip(keys, trial, strict=True))}))
+            given = {**consts, **uniforms, **dict(zip(keys, trial, strict=True))}
+            dr.eval(method.evaluate(given, folded=True))
             consts.update(uniforms)
         except (TypeError, IndexError, AttributeError, RuntimeError):  # a kernel that gathers from it
             pass
 
-    def call(*xs):
-        return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))})
+    def call(*xs):  # the declared values folded into the kernel, as a shader's constants (`evaluate`)
+        return method.evaluate({**consts, **dict(zip(keys, xs, strict=True))}, folded=True)
 
     # the sizing call compiled this kernel (and warmed it up): Dr.Jit's kernels do not depend on the size
     t = time_drjit(call, tuple(args), elements, repeats, min_seconds, warm_up=not probed)

@@ -139,9 +139,41 @@ def _dr_log1p(x):
     return dr.select(d == 0.0, x, dr.select(plain, dr.log(u), ratio))
 
 
+POWER_PRODUCT_BITS = 7
+"""`_dr_power` of an array exponent forms x^n by products for a whole |n| < 2^7 = 128, as Dr.Jit's ``power``
+does for a whole number exponent (and Phong's 32 or 64, Schlick's 5, half-Lambert's 2 need)."""
+
+
+def _dr_power(x, y):
+    """x^y where the exponent ``y`` may be an array (an opaque parameter: `evaluate`), with the values of
+    Dr.Jit's ``power`` of a number exponent, and NumPy's where they meet. Dr.Jit's ``power`` of a whole
+    number n is a product of squarings, least significant bit of |n| first (its reciprocal for n < 0), exact
+    in sign for x < 0; of an array it is exp2(y·log2 x): a few ulp off the product in float32 (half-Lambert's
+    square not bit for bit), NaN for x < 0 and for 0^0. So a whole |y| < 2^`POWER_PRODUCT_BITS` takes the
+    same products here, selected bit by bit (the literal's bits: `tests/test_opaque_numbers.py`), and any
+    other y exp2(y·log2 |x|), signed as NumPy's for x < 0 (NaN for a fractional y). A number ``y`` is
+    ``dr.power``'s own. The selected products are ~4 operations a bit beside exp2 and log2: an evaluation's
+    cost, not a method's (its cost folds its parameters as literals: `evaluate`'s ``folded``)."""
+    if not dr.is_array_v(y):
+        return dr.power(x, y)
+    n = dr.abs(y)
+    whole = (dr.floor(n) == n) & (n < float(1 << POWER_PRODUCT_BITS))
+    product, square, rest = 1.0, x, n
+    for _ in range(POWER_PRODUCT_BITS):  # least significant bit first: Dr.Jit's order for a literal
+        half = dr.floor(0.5 * rest)
+        product = dr.select(rest - 2.0 * half == 1.0, product * square, product)
+        square, rest = square * square, half
+    products = dr.select(y < 0.0, 1.0 / product, product)
+    # beyond the products: |x|^y (the bits of dr.power for x > 0), signed as NumPy's for x < 0
+    magnitude = dr.power(dr.abs(x), y)
+    integral, odd = dr.floor(n) == n, n - 2.0 * dr.floor(0.5 * n) == 1.0
+    signed = dr.select(integral, dr.select(odd, -magnitude, magnitude), dr.nan)
+    return dr.select(whole, products, dr.select(x < 0.0, signed, magnitude))
+
+
 DRJIT_OPS = types.SimpleNamespace(
     name="drjit",
-    sqrt=dr.sqrt, cbrt=dr.cbrt, exp=dr.exp, log=dr.log, expm1=_dr_expm1, log1p=_dr_log1p, power=dr.power,
+    sqrt=dr.sqrt, cbrt=dr.cbrt, exp=dr.exp, log=dr.log, expm1=_dr_expm1, log1p=_dr_log1p, power=_dr_power,
     sin=dr.sin, cos=dr.cos, tan=dr.tan, asin=dr.asin, acos=dr.acos, atan=dr.atan, atan2=dr.atan2,
     tanh=dr.tanh, abs=dr.abs, floor=dr.floor, ceil=dr.ceil, maximum=dr.maximum, minimum=dr.minimum,
     clip=dr.clip, fma=dr.fma, select=dr.select, gather=_dr_gather,
@@ -543,10 +575,43 @@ def _numpy_dtype(args: Sequence[Any]) -> np.dtype:
     return np.dtype(np.float32)
 
 
-def evaluate(kernel: Callable, *args: Any) -> Any:
+def _on_drjit(kernel: Callable, Float: type, args: Sequence[Any], folded: bool) -> Any:
+    """``kernel`` on ``DRJIT_OPS``, its number arguments opaque size-1 ``Float`` arrays holding the values
+    literals would hold (`evaluate`), or literals where ``folded``; a sampler object or `Uniforms` table as
+    it is. A text that needs a number as a Python number (a mip level chosen by ``math.log2`` of a distance:
+    a TypeError on an array) is traced again with literals, as before session 32: a kernel per value."""
+
+    def run(opaque: bool) -> Any:
+        conv = []
+        for a in args:
+            v = a if is_drjit(a) else _as_float_scalar(a)
+            conv.append(dr.opaque(Float, v) if opaque and isinstance(v, float) else v)
+        return kernel(DRJIT_OPS, *conv)
+
+    if folded:
+        return run(False)
+    try:
+        return run(True)
+    except TypeError:
+        return run(False)
+
+
+def evaluate(kernel: Callable, *args: Any, folded: bool = False) -> Any:
     """Run ``kernel(ops, *args)`` following the dispatch rules of this module (see module docstring).
 
     ``kernel`` may return one array or a tuple of arrays; the result has the same structure.
+
+    On Dr.Jit a number argument (a free parameter, a scalar input) is an opaque size-1 array, not a
+    literal folded into the kernel, so that one compiled kernel serves every value: a method's declared
+    values and its fitted ones, its cost measurement, another scene's light. Issue 33 (session 32): an
+    audit of the Cornell box on a machine whose kernel cache was empty compiled 49 kernels (8.4 s of its
+    34 s) evaluating methods at literal values, one for each set of values, and 36 more (4.6 s) for their
+    costs. The values are a literal's, or nearer NumPy's: Dr.Jit divides by a literal as a product by its
+    rounded reciprocal (1 ulp off in a third of the elements), by an opaque value as a division; a power
+    takes a literal's products for a whole exponent (`_dr_power`). ``folded``: the numbers as literals,
+    folded into the kernel as a shader's compile-time constants are (a method's cost: an engine ships
+    Schlick's x^5 as products). The kernel text's own constants stay literals, and so do a method's
+    ``fixed`` keywords (its variant).
     """
     if any(is_jax(a) for a in args):  # traced by JAX (a fit's residual, jax.grad, jax.jit): the JAX text
         return kernel(
@@ -562,8 +627,8 @@ def evaluate(kernel: Callable, *args: Any) -> Any:
             elif _is_numpy_array(a):  # size 1 broadcasts; kept an array (a literal would recompile per value)
                 conv.append(to_drjit(Float, a))
             else:
-                conv.append(_as_float_scalar(a))
-        return kernel(DRJIT_OPS, *conv)
+                conv.append(a)
+        return _on_drjit(kernel, Float, conv, folded)
 
     np_args = [a for a in args if _is_numpy_array(a)]
     if not np_args:
@@ -585,12 +650,12 @@ def evaluate(kernel: Callable, *args: Any) -> Any:
     conv = []
     for a in args:
         if not _is_numpy_array(a):
-            conv.append(_as_float_scalar(a))
+            conv.append(a)
         else:  # size-1 arrays stay size-1 Dr.Jit arrays (broadcast by Dr.Jit, no per-value recompilation)
             same = a.shape == shape or a.size == 1
             flat = a.reshape(-1) if same else np.broadcast_to(a, shape).reshape(-1)
             conv.append(to_drjit(Float, flat))
-    out = kernel(DRJIT_OPS, *conv)
+    out = _on_drjit(kernel, Float, conv, folded)
 
     def back(o):  # an owned NumPy copy (never a view of Dr.Jit memory); size-1 results are broadcast
         arr = np.array(o, dtype=dtype).reshape(-1)

@@ -241,10 +241,13 @@ class Method:
             raise ValueError(f"method {self.id!r} needs input(s) {', '.join(missing)}")
         return self.kernel(ops, **{n: inputs[n] for n in self.input_names}, **self.keywords(params))
 
-    def evaluate(self, inputs: Mapping[str, Any], params: Mapping[str, Any] | None = None):
+    def evaluate(
+        self, inputs: Mapping[str, Any], params: Mapping[str, Any] | None = None, *, folded: bool = False
+    ):
         """Evaluate with the package's dispatch (`rtfit.realtime.arrays.evaluate`): JAX arrays → JAX,
         Dr.Jit arrays → that Dr.Jit type (lazy), NumPy arrays → the default Dr.Jit backend, back to NumPy;
-        floats → float64 NumPy text. Parameters may be floats or arrays of the inputs' kind."""
+        floats → float64 NumPy text. Parameters may be floats or arrays of the inputs' kind; on Dr.Jit a
+        number is an opaque value (one kernel for every value), or a literal where ``folded`` (a cost)."""
         names = self.input_names
         missing = [n for n in names if n not in inputs]
         if missing:
@@ -258,7 +261,7 @@ class Method:
         def kernel(ops, *args):
             return self.kernel(ops, **dict(zip(keys, args, strict=True)), **fixed)
 
-        return evaluate(kernel, *values)
+        return evaluate(kernel, *values, folded=folded)
 
 
 def method_table(methods: Iterable[Method]) -> Mapping[str, Method]:

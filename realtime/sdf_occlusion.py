@@ -104,8 +104,8 @@ _GOLDEN = math.pi * (3.0 - math.sqrt(5.0))
 def _const(ops, like, value):
     """A parameter as a kernel input: an opaque Dr.Jit scalar (one compiled kernel serves every value of it:
     grids of the same shape, any k, α, base), or the float itself for NumPy/JAX."""
-    if ops.name == "drjit" and is_drjit(like):
-        return dr.opaque(type(like), float(value))
+    if ops.name == "drjit" and is_drjit(like):  # (already one: `rtfit.realtime.arrays.evaluate`'s)
+        return value if is_drjit(value) else dr.opaque(type(like), float(value))
     return float(value) if isinstance(value, (int, float, np.number)) else value  # a JAX tracer (a fit) as is
 
 
