@@ -165,7 +165,7 @@ def _dr_power(x, y):
         square, rest = square * square, half
     products = dr.select(y < 0.0, 1.0 / product, product)
     # beyond the products: |x|^y (the bits of dr.power for x > 0), signed as NumPy's for x < 0
-    magnitude = dr.power(dr.abs(x), y)
+    magnitude: Any = dr.power(dr.abs(x), y)
     integral, odd = dr.floor(n) == n, n - 2.0 * dr.floor(0.5 * n) == 1.0
     signed = dr.select(integral, dr.select(odd, -magnitude, magnitude), dr.nan)
     return dr.select(whole, products, dr.select(x < 0.0, signed, magnitude))
