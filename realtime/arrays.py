@@ -28,7 +28,8 @@ Dispatch rules (`evaluate`), applied to all array-like arguments of a public fun
   returned.
 
 NumPy scalars are turned into Python floats at this edge: a NumPy scalar times a Dr.Jit array is an ndarray,
-which the next Dr.Jit call would reject.
+which the next Dr.Jit call would reject. On Dr.Jit a number argument is then an opaque size-1 array (one
+kernel for every value; a literal with ``folded=True``, a cost's setting): see `evaluate`.
 
 This module imports only drjit and numpy (jax on first use of `JAX_OPS`) and reads no settings at import
 time.
