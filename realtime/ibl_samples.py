@@ -130,13 +130,20 @@ def _lights_kernel(ops, nx, ny, nz, visibility, lights, scale=1.0, batch=_BATCH)
     """s·Σ_k clamp(V_k, 0, 1)·max(n̂·d_k, 0)·P_k (R, G, B) over the N = len(visibility) lights of the table
     (``visibility`` a callable: V_k = visibility(k, n̂x, n̂y, n̂z), over every light of the table).
     On Dr.Jit the three sums are evaluated every `_BATCH` lights: one kernel of a fixed size per batch,
-    instead of an unrolled graph of all N lights compiled once per channel."""
+    instead of an unrolled graph of all N lights compiled once per channel. They start from three evaluated
+    zero arrays, so that the first batch is the kernel of the others (issue 33, session 32: from 0·x, fused
+    into it, the first batch was a kernel of its own, ~0.4–0.6 s of compiling a row on a first run)."""
     inv = 1.0 / ops.sqrt(ops.maximum(nx * nx + ny * ny + nz * nz, _TINY))
     x, y, z = nx * inv, ny * inv, nz * inv
-    zero = 0.0 * x
-    acc = [zero, zero, zero]
     table = _device_table(ops, lights, x)
     device = ops is DRJIT_OPS and is_drjit(x)
+    if device:
+        import drjit as dr
+
+        acc = [dr.opaque(type(x), 0.0, dr.width(x)) for _ in range(3)]  # (three buffers, as a batch's sums)
+    else:
+        zero = 0.0 * x
+        acc = [zero, zero, zero]
     lazy = callable(visibility)  # V_k made per light (an in-kernel shadow test): one batch's graph at a time
     count = len(table) // 6 if lazy else min(len(visibility), len(table) // 6)
     for k in range(count):
