@@ -321,11 +321,17 @@ def _slab_kernel(ops, px, py, pz, sx, sy, sz, cloud, k, h0, h1, steps):
 
 # ===================================================================================== radiance (ops text)
 def _view_samples(ops, ox, oy, oz, dx, dy, dz, cloud, steps):
-    """The view ray's N midpoints in the box: yields (tᵢ, σᵢ, Δt) lazily (the `_midpoints` order)."""
+    """The view ray's N midpoints in the box: yields (tᵢ, σᵢ, Δt) lazily (the `_midpoints` order). On Dr.Jit
+    the last tᵢ of each `_BATCH` is scheduled (``dr.schedule``), evaluated with the batch's sums that its
+    consumer evaluates there, so that every batch's kernel starts from an evaluated t: a chain of additions
+    carried through the batches made each batch a kernel of its own (issue 33, session 32)."""
     t0, t1 = _box_stretch(ops, (ox, oy, oz), (dx, dy, dz), cloud.lo, cloud.hi)
     dt = (t1 - t0) * (1.0 / steps)
     t = t0 + 0.5 * dt
-    for _ in range(int(steps)):
+    device = ops.name == "drjit" and dr.is_array_v(t)
+    for i in range(int(steps)):
+        if device and (i + 1) % _BATCH == 0:
+            dr.schedule(t)
         yield t, cloud.sample(ops, ox + t * dx, oy + t * dy, oz + t * dz), dt
         t = t + dt
 
