@@ -158,7 +158,8 @@ def _dr_power(x, y):
     if not dr.is_array_v(y):
         return dr.power(x, y)
     n = dr.abs(y)
-    whole = (dr.floor(n) == n) & (n < float(1 << POWER_PRODUCT_BITS))
+    integral = dr.floor(n) == n
+    whole = integral & (n < float(1 << POWER_PRODUCT_BITS))
     product, square, rest = 1.0, x, n
     for _ in range(POWER_PRODUCT_BITS):  # least significant bit first: Dr.Jit's order for a literal
         half = dr.floor(0.5 * rest)
@@ -167,7 +168,7 @@ def _dr_power(x, y):
     products = dr.select(y < 0.0, 1.0 / product, product)
     # beyond the products: |x|^y (the bits of dr.power for x > 0), signed as NumPy's for x < 0
     magnitude: Any = dr.power(dr.abs(x), y)
-    integral, odd = dr.floor(n) == n, n - 2.0 * dr.floor(0.5 * n) == 1.0
+    odd = n - 2.0 * dr.floor(0.5 * n) == 1.0
     signed = dr.select(integral, dr.select(odd, -magnitude, magnitude), dr.nan)
     return dr.select(whole, products, dr.select(x < 0.0, signed, magnitude))
 

@@ -152,8 +152,6 @@ def _lights_kernel(ops, nx, ny, nz, visibility, lights, scale=1.0, batch=_BATCH)
         c = ops.maximum(ops.fma(x, dx, ops.fma(y, dy, z * dz)), 0.0) * clamp01(ops, v)
         acc = [ops.fma(c, pr, acc[0]), ops.fma(c, pg, acc[1]), ops.fma(c, pb, acc[2])]
         if device and ((k + 1) % (batch if lazy else _BATCH) == 0 or k + 1 == count):
-            import drjit as dr
-
             dr.eval(*acc)
     return (acc[0] * scale, acc[1] * scale, acc[2] * scale)
 
