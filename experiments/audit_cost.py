@@ -48,7 +48,7 @@ run-to-run spread of this machine). Session 30, each of the 38 costs measured 4 
 at 1 ms, interleaved, in one run: the medians' ratio 1 ms / 2 ms 0.90–1.07 (geometric mean 0.997), the
 spread of a method's 4 values (max/min) median 1.07 against 1.10 (90th percentile 1.23 against 1.41), a
 run of the 38 costs 0.56 s against 0.68 s."""
-_COST_MIN_SECONDS = 0.01
+_COST_MIN_SECONDS = 0.005
 """The least wall time the measured call is repeated for (and at least 7 times; the median is the cost),
 unless its median is known first (`cost._median_time`: its 95 % interval within ± 3 %, after 6 calls or
 more). At 0.2 s, 23 methods spent ~4.6 s of a Cornell-box audit here. Issue 33, session 24: each of the 38
@@ -56,7 +56,16 @@ methods of a Cornell-box audit at 64² timed 4 times at each setting, interleave
 1.34 s at 0.05 s (sessions 19–23), 0.83 s at 0.01 s and 0.80 s with no floor; the spread of a method's 4
 costs (max/min) was the same at all three (median 1.10, 1.09, 1.08; 90th percentile 1.46, 1.48, 1.34) and
 the medians agreed (0.01 s against 0.05 s: geometric mean 1.02, 0.92–1.23). Repeating a 2 ms kernel for
-longer does not make its cost more precise on this machine: the spread between runs is the machine's."""
+longer does not make its cost more precise on this machine: the spread between runs is the machine's.
+Session 33, each of the 38 costs measured 4 times at 0.01 and at 0.005 s, interleaved, in one run: the spread
+of a method's 4 values (max/min) median 1.026 / 1.027, 90th percentile 1.13 / 1.09; the medians' ratio
+0.005 s / 0.01 s geometric mean 1.003 (0.97–1.04); a run of the 38 costs 0.57 / 0.47 s. 0.005 s since. Not
+kept: a shorter measured call (`_COST_CALL_SECONDS` 0.5 ms: on half the elements the inputs of the
+many-input kernels fit the caches, AO's 32 distances timed 1.6 ns a pixel against 3.7), and the calls
+replayed as a frozen Dr.Jit function (``dr.freeze``, no tracing between them: the SDF cone tracer's ten
+kernels timed 384 ns a pixel replayed against 690 traced, whose kernels shared the cores with the tracing
+of the next), which aborted the process (``RecordThreadState::enqueue_host_func(): this function cannot be
+recorded!``, an uncatchable C++ exception) on a text that frees a mapped NumPy table inside the call."""
 _PROBE_REPEATS = 3
 """Calls of the sizing call (`_COST_PROBE` elements), the median sizing the measured call: it need only be
 right to a factor (the measured call's 1 ms target, `_COST_CALL_SECONDS`); 7 before session 24."""

@@ -48,6 +48,7 @@ from .difference_maps import (
     weighted_residuals,
 )
 from .drjit_run import DrJitRun, same_prediction
+from .held_steps import all_held, flat_scanned, with_held
 from .least_squares import (
     FitResult,
     bound_flags,
@@ -308,8 +309,21 @@ def fit_method(
     if any(p.scan for p in params.values()):
         params = _scanned_starts(method, params, {**x, **objects}, held_values, target, w, output, run)
     if solver == "trf":
-        return _fit_trf(method, params, {**x, **objects}, held_values, target, w, output,
-                        param_rows=param_rows, run=run, **kwargs)  # fmt: skip
+        inputs_all = {**x, **objects}
+        flat, r0 = flat_scanned(method, params, inputs_all, held_values, target, w, output, run)
+        if not flat:
+            return _fit_trf(method, params, inputs_all, held_values, target, w, output,
+                            param_rows=param_rows, run=run, **kwargs)  # fmt: skip
+        # scanned steps (`held_steps`): held at the scan's best while the others are fitted
+        steps = {k: params[k].initial for k in flat}
+        rest = {k: p for k, p in params.items() if k not in steps}
+        rows = None if param_rows is None else {k: v for k, v in param_rows.items() if k in rest}
+        if not rest:
+            assert r0 is not None
+            return with_held(all_held(r0, params), params, steps)
+        fitted = _fit_trf(method, rest, inputs_all, {**held_values, **steps}, target, w, output,
+                          param_rows=rows, run=run, spent=len(steps), **kwargs)  # fmt: skip
+        return with_held(fitted, params, steps)
     fn = _residual(method, tuple(params), tuple(sorted(held_values)), method.input_names, output, objects)
     return fit_least_squares(fn, params, (x, held_values, target, np.ascontiguousarray(w)), **kwargs)
 
@@ -395,10 +409,12 @@ def _fit_trf(
     atol: float = 1e-10,
     param_rows: Mapping[str, Any] | None = None,
     run: DrJitRun | None = None,
+    spent: int = 0,
 ) -> FitResult:
     """`fit_method` with ``solver="trf"`` (module text): the NumPy run of the kernel (or its Dr.Jit run
     ``run``, made here where None, for `Method.fit_ops` "drjit"), SciPy's TRF with a central-difference
-    Jacobian; the result in the same form (and at-bound rule) as `fit_least_squares`."""
+    Jacobian; the result in the same form (and at-bound rule) as `fit_least_squares`. ``spent``: parameters
+    fitted before and held here (`held_steps`), counted in the degrees of freedom."""
     import scipy.optimize
 
     names = tuple(params)
@@ -462,7 +478,7 @@ def _fit_trf(
                 f"method {method.id!r}: {int(np.sum(~np.isfinite(r0)))} non-finite residuals at the initial "
                 "parameters"
             )
-        dof = target.size - len(names)
+        dof = target.size - len(names) - spent
 
         def solve(start: np.ndarray, ftol: float):
             return scipy.optimize.least_squares(
