@@ -124,6 +124,16 @@ def _kernel_seconds(history: list) -> float | None:
     return sum(times) * 1e-3 if times else None
 
 
+LAUNCH_BLOCKING = dr.JitFlag.LaunchBlocking
+"""Set while `time_drjit` times a call: each kernel launch waits for the kernel to finish. Dr.Jit's LLVM
+backend otherwise runs a kernel on its worker threads while Python goes on tracing the text's next kernel,
+so a text of several kernels had each one share the cores with that tracing. Issue 33 (session 33): the SDF
+cone tracer (ten kernels of 4096 elements, one per march step, and ~390 size-1 fills) timed 823 ns a pixel
+traced against 410 with blocking launches (384 replayed as a frozen Dr.Jit function, whose kernels follow
+each other with no Python between them); the Cornell box's audit's 37 other costs 0.76–1.03× what they
+were (median 0.97; each the median of three rounds, interleaved with the former way)."""
+
+
 def time_drjit(
     fn: Callable,
     args: tuple,
@@ -143,12 +153,15 @@ def time_drjit(
     the kernel time (the SDF cone tracer: 3.6 ms of tracing around 1.1 ms of kernel at 4096 elements), so
     each cost was raised by its own text's length, and `audit_cost.method_cost`'s sizing call, taking it
     for kernel time, sized the measured calls to 1–5 ms instead of its 20 ms. A call that launched no
-    kernel is timed by its wall time (`_kernel_seconds`)."""
+    kernel is timed by its wall time (`_kernel_seconds`).
+
+    Each launch waits for its kernel (`LAUNCH_BLOCKING`): a text of several kernels (one per march step)
+    runs each alone, as a frozen replay would, instead of beside the Python tracing the next one."""
     dr.eval(*[a for a in args if dr.is_array_v(a)])
     dr.sync_thread()
 
     def call() -> float | None:
-        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True), dr.scoped_set_flag(LAUNCH_BLOCKING, True):
             dr.kernel_history()  # (read and emptied: only this call's launches below)
             out = fn(*args)
             dr.eval(out)

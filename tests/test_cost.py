@@ -307,3 +307,24 @@ def test_a_drjit_timing_is_its_kernels_execution_not_the_python_around_them():
     dr.eval(x)
     idle = cost.time_drjit(lambda a: a, (x,), 1 << 16, repeats=6, min_seconds=0.0)
     assert 0.0 < idle.seconds < 0.01
+
+
+def test_a_drjit_timing_runs_each_kernel_alone_and_leaves_the_flags_as_they_were():
+    """`cost.time_drjit` times each call with blocking launches (`cost.LAUNCH_BLOCKING`: a text of several
+    kernels runs each alone, not beside the tracing of the next); the flag is the caller's again after."""
+    from rtfit.realtime.arrays import backend_float
+
+    Float = backend_float("llvm")
+    x = dr.linspace(Float, 0.0, 1.0, 1 << 12)
+    seen = []
+
+    def steps(a):
+        seen.append(dr.flag(cost.LAUNCH_BLOCKING))
+        for _ in range(3):  # a march: a kernel a step
+            a = dr.sin(a) + 0.5
+            dr.eval(a)
+        return a
+
+    before = dr.flag(cost.LAUNCH_BLOCKING)
+    t = cost.time_drjit(steps, (x,), 1 << 12, repeats=6, min_seconds=0.0)
+    assert seen and all(seen) and dr.flag(cost.LAUNCH_BLOCKING) == before and t.seconds > 0.0
