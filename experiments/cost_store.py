@@ -21,7 +21,12 @@ cost measured again may differ by more than its median's ± 3 % (the run-to-run 
 again (``rtfit cache info`` counts its files; ``prune`` leaves them).
 
 Issue 33 (session 23): a second audit of a scene re-timed its 38 methods, 1.8–2.2 s of a cached 64² Cornell
-box audit of 10–12 s (the references themselves 0.5 s)."""
+box audit of 10–12 s (the references themselves 0.5 s).
+
+A row's precompute timing (a bake, `audit_cases.CaseRun.precompute`) is kept the same way
+(`CostStore.precompute_key`: its method's key, the case's reference cache key, the step's words, trigger and
+pixel count). Session 33: a second 64² audit of Blender's test1 scene re-timed its five light-path-map bakes
+(each run 4 times): evaluation 2.9 → 0.5 s."""
 
 from __future__ import annotations
 
@@ -209,6 +214,32 @@ class CostStore:
         cost = measure()
         self.put(key, cost)
         return cost
+
+    def precompute_key(self, cost_key: str | None, reference_key: str, what: str, trigger: str,
+                       pixels: int) -> str | None:  # fmt: skip
+        """The store key of a row's precompute timing (`audit_cases.CaseRun.precompute`): its method's
+        `cost_key` (rtfit's source, the machine, the method, the case's inputs by content: what the bake
+        produced), the case's reference cache key (the scene it bakes: its files, camera and light), what
+        the precompute does and when, and the case's pixels. None where either key is missing."""
+        if cost_key is None or not reference_key or self.root is None:
+            return None
+        head = {"format": STORE_FORMAT, "precompute": what, "trigger": trigger, "pixels": int(pixels),
+                "cost_key": cost_key, "reference": reference_key}  # fmt: skip
+        return hashlib.sha256(json.dumps(head, sort_keys=True).encode()).hexdigest()
+
+    def precompute(self, key: str | None, measure: Callable[[], float | None]) -> tuple[float | None, str]:
+        """(The precompute's ms kept under ``key``, else ``measure()``'s, kept where it is a number; the words
+        the cost record's ``precompute_note`` adds: when a kept one was timed, else none)."""
+        kept = self.get(key)
+        if kept is not None and isinstance(kept["cost"].get("precompute_ms"), int | float):
+            return float(kept["cost"]["precompute_ms"]), (
+                f"; timed {kept['measured_at']} by an earlier run on the same inputs, scene and machine "
+                "(kept in the cache)"
+            )
+        ms = measure()
+        if ms is not None:
+            self.put(key, {"precompute_ms": ms})
+        return ms, ""
 
 
 COST_NOTE = "per pixel: the scene's own inputs, tiled, as float32; declared parameters"

@@ -153,3 +153,25 @@ def test_a_second_audit_reports_the_first_audits_costs_without_timing_them(tmp_p
         assert c["ns_per_pixel"] == first.costs[mid]["ns_per_pixel"] and "earlier run" in c["note"]
     third = rtfit.audit(str(scene), cache=tmp_path / "other", **fast)
     assert sorted(timed) == sorted(first.costs) and all("note" not in c for c in third.costs.values())
+
+
+def test_a_precompute_timing_is_kept_by_its_methods_key_its_scene_and_its_step(tmp_path):
+    """`CostStore.precompute_key` (issue 33, session 33): None without a method key, a reference key or a
+    store; another step, trigger, pixel count or reference is another key. `CostStore.precompute` keeps a
+    number and gives it back with words saying when it was timed; a step that timed nothing keeps nothing."""
+    store = CostStore(tmp_path, "CPU")
+    key = store.key(LAMBERT, _inputs(), "llvm", 1024)
+    args = ("ref", "bake", "scene", 100)
+    k = store.precompute_key(key, *args)
+    assert k is not None and store.precompute_key(None, *args) is None
+    assert store.precompute_key(key, "", "bake", "scene", 100) is None
+    assert CostStore(None, "CPU").precompute_key(key, *args) is None
+    others = [("ref2", "bake", "scene", 100), ("ref", "bake 2", "scene", 100), ("ref", "bake", "light", 100),
+              ("ref", "bake", "scene", 101)]  # fmt: skip
+    assert len({k, *(store.precompute_key(key, *o) for o in others)}) == 5
+    calls = []
+    assert store.precompute(k, lambda: calls.append(1) or 12.5) == (12.5, "")
+    ms, words = store.precompute(k, lambda: calls.append(1) or 99.0)
+    assert ms == 12.5 and "earlier run" in words and len(calls) == 1
+    k2 = store.precompute_key(key, *others[0])
+    assert store.precompute(k2, lambda: None) == (None, "") and store.get(k2) is None

@@ -162,3 +162,23 @@ def test_the_books_error_vs_cost_point_adds_the_precompute_per_frame(toy_run):
         share = c.precompute_ms * 1e6 / c.precompute_pixels
         assert p.precompute_ns == pytest.approx(share, rel=1e-12) and p.precompute_trigger == "light"
         assert pareto_point(p)["x_pre"] == pytest.approx(p.ns_per_pixel + share, rel=1e-12)
+
+
+def test_a_second_audit_reports_the_kept_precompute_timing_without_running_it(toy_run, monkeypatch):
+    """The same toy audit again into the same cache (issue 33, session 33): the good row's precompute is not
+    timed again (`time_precompute` is called for the bad one alone, which kept nothing) and its
+    ``precompute_ms`` is the first run's, its note saying so; the bad one is still one failed check."""
+    from rtfit.experiments import audit_cases
+
+    _toy_family(monkeypatch)
+    timed = []
+    real = audit_cases.time_precompute
+    monkeypatch.setattr(audit_cases, "time_precompute", lambda run, *a, **k: timed.append(run) or real(run))
+    cache = toy_run.out.parent / "cache"  # (the fixture's cache: ``out`` is the report's own directory)
+    again = audit(CBOX, ["diffuse"], width=16, height=16, spp=4, pass_spp=2, fit=False,
+                  cache=cache, cost_elements=1 << 18, metrics=("rmse",))  # fmt: skip
+    good = next(m for m in again.costs if again.costs[m].get("precompute_trigger") == "light")
+    assert again.costs[good]["precompute_ms"] == toy_run.costs[good]["precompute_ms"]
+    assert "by an earlier run" in again.costs[good]["precompute_note"]
+    assert len(timed) == 1  # the bad one, run again (nothing kept)
+    assert next(ch for ch in again.results.checks if not ch.passed).value.startswith("ZeroDivisionError")
