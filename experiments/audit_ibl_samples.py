@@ -42,6 +42,7 @@ from __future__ import annotations
 from dataclasses import replace
 from functools import partial
 
+import drjit as dr
 import numpy as np
 
 from rtfit.realtime.arrays import to_drjit, xyz_columns
@@ -213,10 +214,12 @@ def depth_maps(setup: AuditSetup, directions, resolution: int) -> DepthMaps:
             device_vectors(mi, mi.Vector3f, w),
         )
         si = setup.scene.ray_intersect(ray)
-        hit = np.asarray(si.is_valid(), dtype=bool).reshape(b - a, texels)
+        valid, n = si.is_valid(), si.sh_frame.n
+        dr.eval(valid, si.t, n)  # one launch: each conversion below traced the rays again
+        hit = np.asarray(valid, dtype=bool).reshape(b - a, texels)
         t = np.asarray(si.t, np.float64).reshape(b - a, texels)
         depth[a:b] = np.where(hit, t / (2.0 * radius), 1.0)
-        sn = np.stack([np.asarray(getattr(si.sh_frame.n, c), np.float32) for c in "xyz"], axis=-1)
+        sn = np.stack([np.asarray(getattr(n, c), np.float32) for c in "xyz"], axis=-1)
         map_n[a:b] = np.where(hit[..., None], sn.reshape(b - a, texels, 3), 0.0)
     res = (len(dirs), resolution, resolution)
     return DepthMaps(depth.reshape(res), map_n.reshape(*res, 3), np.concatenate([frames, dirs[:, None]], 1),

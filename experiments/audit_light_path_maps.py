@@ -39,6 +39,7 @@ import math
 import time
 from dataclasses import replace
 
+import drjit as dr
 import numpy as np
 
 from rtfit.realtime.arrays import NUMPY_OPS, to_drjit
@@ -158,8 +159,10 @@ def entry_points(setup: AuditSetup, n: int):
     ray = mi.Ray3f(device_vectors(mi, mi.Point3f, pos + eps * nrm), device_vectors(mi, mi.Vector3f, -nrm))
     ray.maxt = 4 * eps
     si = scene.ray_intersect(ray)
-    albedo = _np3(si.bsdf(ray).eval_diffuse_reflectance(si))
-    valid = np.asarray(si.is_valid(), bool)
+    reflectance, hit = si.bsdf(ray).eval_diffuse_reflectance(si), si.is_valid()
+    dr.eval(reflectance, hit)  # one launch: each conversion below would trace the rays again
+    albedo = _np3(reflectance)
+    valid = np.asarray(hit, bool)
     albedo = np.where(valid[:, None], np.clip(np.nan_to_num(albedo), 0.0, 1.0), 0.0)
     return pos, nrm, albedo, total / n, total, left
 

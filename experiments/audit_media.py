@@ -179,11 +179,14 @@ def medium_intervals(mi, scene, origin, dirs, ptr: int | None, on_sensor: bool) 
     scale = float(np.max(np.abs(origin)))
     for _ in range(MAX_SURFACES):
         si = scene.ray_intersect(ray, mi.Bool(~done))
-        hit = np.asarray(si.is_valid(), bool) & ~done
-        t_hit = np.where(hit, np.sum((np.asarray(si.p, np.float64).T - origin) * d64, axis=1), np.inf)
-        transition = np.asarray(si.shape.is_medium_transition(), bool) & hit
-        only_null = (np.asarray(si.bsdf().flags(), np.int64) == null) & hit
-        target = np.asarray(dr.reinterpret_array(mi.UInt32, si.target_medium(ray.d)), np.int64)
+        fields = (si.is_valid(), si.p, si.shape.is_medium_transition(), si.bsdf().flags(),
+                  dr.reinterpret_array(mi.UInt32, si.target_medium(ray.d)))  # fmt: skip
+        dr.eval(*fields)  # one launch: each conversion below would trace the rays again
+        hit = np.asarray(fields[0], bool) & ~done
+        t_hit = np.where(hit, np.sum((np.asarray(fields[1], np.float64).T - origin) * d64, axis=1), np.inf)
+        transition = np.asarray(fields[2], bool) & hit
+        only_null = (np.asarray(fields[3], np.int64) == null) & hit
+        target = np.asarray(fields[4], np.int64)
         enters = transition & (ptr is not None) & (target == (ptr if ptr is not None else -1))
         miss = ~hit & ~done
         t_out = np.where(miss & inside, np.inf, t_out)

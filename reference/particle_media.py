@@ -115,7 +115,9 @@ def particle_segments(
     o, d = _rays(mi, origin, dirs)
     n = len(dirs)
     si = particle.ray_intersect(mi.Ray3f(o, d))
-    hit = np.asarray(si.is_valid(), bool)
+    valid = si.is_valid()
+    dr.eval(valid, si.t)  # one launch: each conversion below would trace the rays again
+    hit = np.asarray(valid, bool)
     t1 = np.asarray(si.t, np.float64)
     t_in = np.where(hit, 0.0 if inside else t1, math.inf)
     box = particle.bbox()
