@@ -79,11 +79,14 @@ class Precompute:
     closes over them: the scene, the entry points, the light) and returns its product (what the per-pixel
     kernel reads; Dr.Jit arrays in it are evaluated inside the timing); ``trigger``: a key of
     `PRECOMPUTE_TRIGGERS`; ``what``: one line saying what it does (the cost table's note). Rows sharing one
-    step share one `Precompute` (timed once)."""
+    step share one `Precompute` (timed once). ``shared``: a step the row's precompute does first that other
+    rows do too (light-path-maps' entry points and shadow rays, before each K's clusters): timed once for
+    all of them and added to each row's own ``run``, which then does the rest alone."""
 
     run: Callable[[], Any]
     trigger: str
     what: str
+    shared: Precompute | None = None
 
     def __post_init__(self):
         if self.trigger not in PRECOMPUTE_TRIGGERS:

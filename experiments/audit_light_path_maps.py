@@ -38,6 +38,7 @@ import contextlib
 import math
 import time
 from dataclasses import replace
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -278,25 +279,80 @@ def bake_path_maps(setup: AuditSetup, points, normals, clusters=CLUSTERS, cut_fa
     if entries is None:  # no surface Mitsuba can sample (every one an instance)
         return None
     pos, nrm, albedo, area_each, area, _left = entries
+    groups = _groups(setup, pos, nrm, clusters)
+    parts = transfer_terms(setup, points, normals, pos, nrm)
+    radius = default_cut(area, ENTRY_POINTS)
+    return entries, groups, parts, radius, _bake(parts, cut_factor * radius, area_each, albedo, groups)
+
+
+def _groups(setup: AuditSetup, pos, nrm, clusters) -> dict:
+    """K → (membership (N, K), the clusters' sizes, at least 1) of the entry points for each K of
+    ``clusters``."""
     lo, hi = _scene_box(setup.scene)
     groups = {}
     for k in clusters:
         labels = cluster_entry_points(pos, nrm, k, float(np.linalg.norm(hi - lo)))
         m = membership(labels, k)
         groups[k] = (m, np.maximum(m.sum(axis=0), 1.0))
-    parts = transfer_terms(setup, points, normals, pos, nrm)
-    radius = default_cut(area, ENTRY_POINTS)
-    return entries, groups, parts, radius, _bake(parts, cut_factor * radius, area_each, albedo, groups)
+    return groups
 
 
-def _precompute(setup: AuditSetup, points, normals, k: int, cut_factor: float) -> Precompute:
-    """Row K's precompute as an engine pays it once per scene (`bake_path_maps` for that K alone)."""
+def _shared_precompute(setup: AuditSetup, points, normals) -> Precompute:
+    """The K-independent part of every row's bake (`Precompute.shared`): the entry points and the transfer
+    terms of every (pixel, entry point) pair, a shadow ray each: timed once for the rows."""
+
+    def run():
+        entries = entry_points(setup, ENTRY_POINTS)
+        return None if entries is None else transfer_terms(setup, points, normals, entries[0], entries[1])
+
+    what = "the entry points and every pair's shadow ray and transfer"
+    return Precompute(run=run, trigger="scene", what=what)
+
+
+def _precompute(setup: AuditSetup, bake, k: int, cut_factor: float, shared: Precompute) -> Precompute:
+    """Row K's precompute as an engine pays it once per scene (`bake_path_maps` for that K alone): its
+    clusters and panes from the audit's bake ``bake`` (the same entry points and transfer terms), after the
+    ``shared`` step that every row runs alike."""
+    entries, _groups_all, parts, radius, _baked = bake
+    pos, nrm, albedo, area_each = entries[:4]
+
+    def run():
+        return _bake(parts, cut_factor * radius, area_each, albedo, _groups(setup, pos, nrm, (k,)))
+
     return Precompute(
-        run=lambda: bake_path_maps(setup, points, normals, (k,), cut_factor),
+        run=run,
         trigger="scene",
         what=f"bake: {ENTRY_POINTS} entry points clustered into {k}, a shadow ray and a transfer per "
         "(pixel, entry point)",
+        shared=shared,
     )
+
+
+def _scene_bake(setup: AuditSetup, points, normals, digest: str) -> tuple[Any, float, bool]:
+    """(`bake_path_maps` of the visible points, its seconds, whether it was baked by this call). The bake is
+    light-independent: the scene's other lights (their applicabilities) take the last one made for the same
+    scene, seed and points (`_LAST_BAKE`). Issue 33 (session 33): a 64² audit of Mitsuba's
+    integrator_direct_both scene (five lights) baked the same 4 075 520 shadow rays and transfers five times,
+    ~10 s of its 23 s of references."""
+    key = (setup.seed, digest)
+    if _LAST_BAKE.get("scene") is setup.scene and _LAST_BAKE.get("key") == key:
+        return _LAST_BAKE["bake"], _LAST_BAKE["seconds"], False
+    _LAST_BAKE.clear()
+    t0 = time.perf_counter()
+    bake = bake_path_maps(setup, points, normals)
+    seconds = time.perf_counter() - t0
+    if bake is not None and sum(np.asarray(a).nbytes for a in bake[2]) <= BAKE_KEEP_BYTES:
+        _LAST_BAKE.update(scene=setup.scene, key=key, bake=bake, seconds=seconds)
+    return bake, seconds, True
+
+
+BAKE_KEEP_BYTES = 256 << 20
+"""The largest bake's transfer terms `_scene_bake` keeps for the scene's next light (a 64² audit's: ~160 MB of
+float64 for 4 million pairs); a larger one (a 256² audit's: 16×) is made again for each light rather than
+held through the rest of the audit."""
+_LAST_BAKE: dict = {}
+MEMOS = (_LAST_BAKE,)
+"""This module's process-wide memos, emptied between the experiments of a suite (`runner.forget_memos`)."""
 
 
 def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
@@ -308,17 +364,15 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
     if not len(points):
         raise AuditError("light-path-maps: the camera sees no surface")
     light = scene_light(setup, app.source)
-    t0 = time.perf_counter()
-    bake = bake_path_maps(setup, points, normals)
+    digest = array_digest(points, normals)
+    bake, bake_seconds, baked_here = _scene_bake(setup, points, normals, digest)
     if bake is None:  # no surface Mitsuba can sample (every one an instance): the other families go on
         return []
     entries, groups, parts, radius, baked = bake
     pos, nrm, albedo, area_each, area, left_out = entries
     lo, hi = _scene_box(scene)
-    bake_seconds = time.perf_counter() - t0
     entry_spp = max(ENTRY_SPP_MIN, int(ENTRY_SPP_FACTOR * setup.spp))
     tag = f"light{app.source}"
-    digest = array_digest(points, normals)
     positions = []
     for p, offset in enumerate(_positions(setup, light)):
         with _light_moved(mi, light.emitter, offset):
@@ -360,6 +414,7 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
                          f"{len(CUT_GRID)} values across the light positions"),
     }  # fmt: skip
     cases = []
+    shared = _shared_precompute(setup, points, normals)
     for p, (offset, e_entry, e_seconds, pooled) in enumerate(positions):
         where = vector_text(light.centre + offset) if light.centre is not None else light.kind
         ref = pooled.reference(
@@ -368,13 +423,13 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
             integrator="a cosine-distributed ray from each visible point, then π × (path max_depth 2 − path "
             "max_depth 1): one reflection of every light's direct light",
             integrator_reason="the indirect light a path map stands in for, with the light at this position",
-            extra_seconds=e_seconds + (bake_seconds if p == 0 else 0.0),
+            extra_seconds=e_seconds + (bake_seconds if p == 0 and baked_here else 0.0),
         )
         weights = _weights(groups, e_entry)
         rows = {_row_id(k): _inputs(baked[k], weights[k], k) for k in CLUSTERS}
         rows[FIT_ROW] = _inputs(fitted_t[SEED_CLUSTERS], weights[SEED_CLUSTERS], SEED_CLUSTERS)
-        precompute = {_row_id(k): _precompute(setup, points, normals, k, CUT.initial) for k in CLUSTERS}
-        precompute[FIT_ROW] = _precompute(setup, points, normals, SEED_CLUSTERS, best)
+        precompute = {_row_id(k): _precompute(setup, bake, k, CUT.initial, shared) for k in CLUSTERS}
+        precompute[FIT_ROW] = _precompute(setup, bake, SEED_CLUSTERS, best, shared)
         cases.append(
             FamilyCase(
                 id=f"{tag}-at{p}",

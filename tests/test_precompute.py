@@ -182,3 +182,24 @@ def test_a_second_audit_reports_the_kept_precompute_timing_without_running_it(to
     assert "by an earlier run" in again.costs[good]["precompute_note"]
     assert len(timed) == 1  # the bad one, run again (nothing kept)
     assert next(ch for ch in again.results.checks if not ch.passed).value.startswith("ZeroDivisionError")
+
+
+def test_a_shared_step_is_timed_once_and_added_to_each_rows_own_part(monkeypatch):
+    """`Precompute.shared` (issue 33, session 33): rows whose precomputes start with one step
+    (light-path-maps' entry points and shadow rays before each K's clusters) time it once; each row's
+    ``precompute_ms`` is its own part's time plus the shared one's (stand-in timings: 100 ms shared, 5 and
+    7 ms own)."""
+    from rtfit.experiments import audit_cases
+    from rtfit.experiments.cost import Timing
+
+    shared = Precompute(lambda: "shared", "scene", "the shared step")
+    rows = [Precompute(lambda: "own a", "scene", "a", shared=shared),
+            Precompute(lambda: "own b", "scene", "b", shared=shared)]  # fmt: skip
+    took = {"shared": 0.100, "own a": 0.005, "own b": 0.007}
+    calls = []
+    monkeypatch.setattr(audit_cases, "time_precompute",
+                        lambda run: calls.append(run()) or Timing(took[run()], 1, 1))  # fmt: skip
+    run = audit_cases.CaseRun.__new__(audit_cases.CaseRun)
+    run.shared_ms = {}
+    ms = [run._precompute_ms(p) for p in rows]
+    assert ms == pytest.approx([105.0, 107.0]) and calls.count("shared") == 1
