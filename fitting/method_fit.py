@@ -48,7 +48,7 @@ from .difference_maps import (
     weighted_residuals,
 )
 from .drjit_run import DrJitRun, same_prediction
-from .held_steps import all_held, flat_scanned, with_held
+from .held_steps import all_held, flat_scanned, step_message, with_held
 from .least_squares import (
     FitResult,
     bound_flags,
@@ -533,8 +533,7 @@ def _fit_trf(
     # A scanned parameter (`Param.scan`) is such a step by declaration: its value is the scan's best.
     flat = [nm for i, nm in enumerate(names) if np.all(np.isfinite(jac[:, i])) and not np.any(jac[:, i])]
     stuck = [nm for nm in flat if not params[nm].scan]
-    scanned = [f"{nm}: a step (zero derivative), the best of a {params[nm].scan}-value scan" for nm in flat
-               if params[nm].scan]  # fmt: skip
+    scanned = [step_message(nm, params[nm]) for nm in flat if params[nm].scan]
     if stuck:
         scanned.append(f"{', '.join(stuck)}: the residuals do not change with it (zero derivative at every "
                        "element): left at its start, not fitted")  # fmt: skip
