@@ -66,9 +66,14 @@ replayed as a frozen Dr.Jit function (``dr.freeze``, no tracing between them: th
 kernels timed 384 ns a pixel replayed against 690 traced, whose kernels shared the cores with the tracing
 of the next), which aborted the process (``RecordThreadState::enqueue_host_func(): this function cannot be
 recorded!``, an uncatchable C++ exception) on a text that frees a mapped NumPy table inside the call."""
-_PROBE_REPEATS = 3
-"""Calls of the sizing call (`_COST_PROBE` elements), the median sizing the measured call: it need only be
-right to a factor (the measured call's 1 ms target, `_COST_CALL_SECONDS`); 7 before session 24."""
+_PROBE_REPEATS = 1
+"""Calls of the sizing call (`_COST_PROBE` elements) after its warm-up, the median sizing the measured call:
+it need only be right to a factor (the measured call's 1 ms target, `_COST_CALL_SECONDS`); 7 before session
+24, 3 before session 33. Issue 33, session 33: each of the Cornell box's 38 costs measured 4 times with 3 and
+with 1, interleaved, in one run: the spread of a method's 4 values median 1.048 / 1.061 (90th percentile
+1.43 / 1.33), of the elements its measured call was sized to median 1.04 both (max 1.56 / 1.73), the medians'
+ratio 1 / 3 geometric mean 0.998 (0.94–1.07); a run of the 38 costs 0.74 → 0.64 s. A text slow to trace pays
+most: teapot's ibl-samples depth-map rows trace ~25 ms a call."""
 
 
 def _is_per_pixel(v, n: int) -> bool:
