@@ -12,6 +12,7 @@ import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
+from typing import Any
 
 import numpy as np
 
@@ -148,6 +149,9 @@ class CaseRun:
     """Each precompute timed so far (its cost columns): rows sharing one are timed once."""
     shared_ms: dict[Precompute, float] = field(default_factory=dict)
     """Each shared step timed so far (`Precompute.shared`, ms)."""
+    shared_products: dict[Precompute, Any] = field(default_factory=dict)
+    """The shared steps' products while the case being evaluated times its rows (emptied at its end: a
+    light-path-map bake's transfer terms are ~160 MB at 64²)."""
 
     def precompute(self, method: Method, case: FamilyCase, pre: Precompute, cost_key: str | None) -> None:
         """Time the row's precompute (`cost.time_precompute`) into its method's cost record:
@@ -188,12 +192,27 @@ class CaseRun:
         step, timed once for every row that shares it (`Precompute.shared`) and added. Issue 33 (session 33):
         the five light-path-map rows each ran the whole bake, the K-independent 4 million shadow rays too
         (6.3 s of a 64² audit of Mitsuba's integrator_direct_both scene)."""
-        ms = time_precompute(pre.run).seconds * 1e3
-        if pre.shared is not None:
-            if pre.shared not in self.shared_ms:
-                self.shared_ms[pre.shared] = time_precompute(pre.shared.run).seconds * 1e3
-            ms += self.shared_ms[pre.shared]
-        return ms
+        if pre.shared is None:
+            return time_precompute(pre.run).seconds * 1e3
+        product = self._shared_product(pre.shared)
+        return time_precompute(lambda: pre.run(product)).seconds * 1e3 + self.shared_ms[pre.shared]
+
+    def _shared_product(self, shared: Precompute) -> Any:
+        """What the shared step ``shared`` returns, made once for the case being evaluated: timed the first
+        time (`shared_ms`), run again untimed where another case timed it."""
+        if shared not in self.shared_products:
+            made: list = []
+
+            def once():
+                made[:] = [shared.run()]
+                return made[0]
+
+            if shared in self.shared_ms:
+                once()
+            else:
+                self.shared_ms[shared] = time_precompute(once).seconds * 1e3
+            self.shared_products[shared] = made[0]
+        return self.shared_products[shared]
 
     def metrics_of(
         self, img: np.ndarray, case: FamilyCase, sigma: np.ndarray, row: str, key: tuple, notes: list[str]
@@ -272,6 +291,7 @@ class CaseRun:
             if self.fit and method.params:
                 fitted.append((row_id, method, user, case))
         del tiles  # (up to 128 MiB of tiled inputs: not held through the fits)
+        self.shared_products.clear()  # (a shared precompute's product: not held past its case either)
         return EvaluatedCase(family.name, base, sigma, order, declared, fitted)
 
     def fit_cases(self, cases: Sequence[EvaluatedCase], say) -> dict[tuple[str, str], dict]:

@@ -81,9 +81,11 @@ class Precompute:
     `PRECOMPUTE_TRIGGERS`; ``what``: one line saying what it does (the cost table's note). Rows sharing one
     step share one `Precompute` (timed once). ``shared``: a step the row's precompute does first that other
     rows do too (light-path-maps' entry points and shadow rays, before each K's clusters): timed once for
-    all of them and added to each row's own ``run``, which then does the rest alone."""
+    all of them and added to each row's own ``run``, which then takes that step's product (what
+    ``shared.run()`` returned) as its one argument and does the rest alone (so that no case holds the
+    product: the engine keeps it while it times the case's rows)."""
 
-    run: Callable[[], Any]
+    run: Callable[..., Any]
     trigger: str
     what: str
     shared: Precompute | None = None

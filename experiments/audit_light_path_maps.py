@@ -298,25 +298,25 @@ def _groups(setup: AuditSetup, pos, nrm, clusters) -> dict:
 
 
 def _shared_precompute(setup: AuditSetup, points, normals) -> Precompute:
-    """The K-independent part of every row's bake (`Precompute.shared`): the entry points and the transfer
-    terms of every (pixel, entry point) pair, a shadow ray each: timed once for the rows."""
+    """The K-independent part of every row's bake (`Precompute.shared`): (the entry points, the transfer
+    terms of every (pixel, entry point) pair, a shadow ray each), timed once for the rows."""
 
     def run():
         entries = entry_points(setup, ENTRY_POINTS)
-        return None if entries is None else transfer_terms(setup, points, normals, entries[0], entries[1])
+        return entries, transfer_terms(setup, points, normals, entries[0], entries[1])
 
     what = "the entry points and every pair's shadow ray and transfer"
     return Precompute(run=run, trigger="scene", what=what)
 
 
-def _precompute(setup: AuditSetup, bake, k: int, cut_factor: float, shared: Precompute) -> Precompute:
-    """Row K's precompute as an engine pays it once per scene (`bake_path_maps` for that K alone): its
-    clusters and panes from the audit's bake ``bake`` (the same entry points and transfer terms), after the
-    ``shared`` step that every row runs alike."""
-    entries, _groups_all, parts, radius, _baked = bake
-    pos, nrm, albedo, area_each = entries[:4]
+def _precompute(setup: AuditSetup, k: int, cut_factor: float, shared: Precompute) -> Precompute:
+    """Row K's precompute as an engine pays it once per scene (`bake_path_maps` for that K alone): after the
+    ``shared`` step that every row runs alike, its clusters and panes from that step's product (the engine
+    hands it over: the case holds no transfer terms)."""
 
-    def run():
+    def run(product):
+        (pos, nrm, albedo, area_each, area, _left), parts = product
+        radius = default_cut(area, ENTRY_POINTS)
         return _bake(parts, cut_factor * radius, area_each, albedo, _groups(setup, pos, nrm, (k,)))
 
     return Precompute(
@@ -428,8 +428,8 @@ def path_map_cases(setup: AuditSetup, app: Applicability) -> list[FamilyCase]:
         weights = _weights(groups, e_entry)
         rows = {_row_id(k): _inputs(baked[k], weights[k], k) for k in CLUSTERS}
         rows[FIT_ROW] = _inputs(fitted_t[SEED_CLUSTERS], weights[SEED_CLUSTERS], SEED_CLUSTERS)
-        precompute = {_row_id(k): _precompute(setup, bake, k, CUT.initial, shared) for k in CLUSTERS}
-        precompute[FIT_ROW] = _precompute(setup, bake, SEED_CLUSTERS, best, shared)
+        precompute = {_row_id(k): _precompute(setup, k, CUT.initial, shared) for k in CLUSTERS}
+        precompute[FIT_ROW] = _precompute(setup, SEED_CLUSTERS, best, shared)
         cases.append(
             FamilyCase(
                 id=f"{tag}-at{p}",

@@ -193,13 +193,16 @@ def test_a_shared_step_is_timed_once_and_added_to_each_rows_own_part(monkeypatch
     from rtfit.experiments.cost import Timing
 
     shared = Precompute(lambda: "shared", "scene", "the shared step")
-    rows = [Precompute(lambda: "own a", "scene", "a", shared=shared),
-            Precompute(lambda: "own b", "scene", "b", shared=shared)]  # fmt: skip
+    # each row's own part is handed the shared step's product (else it names a time the test has not)
+    rows = [
+        Precompute(lambda made, own=own: own if made == "shared" else made, "scene", own, shared=shared)
+        for own in ("own a", "own b")
+    ]
     took = {"shared": 0.100, "own a": 0.005, "own b": 0.007}
     calls = []
     monkeypatch.setattr(audit_cases, "time_precompute",
                         lambda run: calls.append(run()) or Timing(took[run()], 1, 1))  # fmt: skip
     run = audit_cases.CaseRun.__new__(audit_cases.CaseRun)
-    run.shared_ms = {}
+    run.shared_ms, run.shared_products = {}, {}
     ms = [run._precompute_ms(p) for p in rows]
     assert ms == pytest.approx([105.0, 107.0]) and calls.count("shared") == 1
