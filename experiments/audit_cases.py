@@ -91,26 +91,30 @@ class EvaluatedCase:
         return len(self.declared) + len(self.fitted)
 
 
-def _shareable(method: Method, user: bool) -> bool:
-    """Whether the forked helper may fit ``method`` (`shared_map`): a fit on NumPy of a shipped method. A fit
-    on Dr.Jit needs the thread pool that a fork does not copy; a user's approximation is fitted here, where
-    its code runs as in a serial run."""
-    return method.fit_ops == "numpy" and not user
+def _shareable(method: Method, user: bool, backend: str) -> bool:
+    """Whether the forked helper may fit ``method`` (`shared_map`): a fit of a shipped method, on NumPy, or on
+    Dr.Jit's LLVM backend (`_drjit_threads_beside_a_helper`: the fork finds no Dr.Jit worker thread, and the
+    child runs each kernel on its own thread). A fit on CUDA stays here (a forked child cannot use the
+    parent's CUDA context); a user's approximation is fitted here, where its code runs as in a serial run."""
+    return not user and (method.fit_ops == "numpy" or backend == "llvm")
 
 
 @contextlib.contextmanager
 def _drjit_threads_beside_a_helper(sharing: bool) -> Iterator[None]:
-    """Dr.Jit's thread pool one thread smaller while the fit helper runs (`CaseRun.fit_cases`), put back
-    after: a Dr.Jit fit's kernels split over every core wait for the worker that the helper's process holds
-    off its core. Issue 33 (session 29): the Cornell box's ten shadow-map fits (64²) took 1.7–2.2 s beside
-    the helper with two Dr.Jit threads, against 0.9–1.0 s alone."""
+    """Dr.Jit's thread pool without a worker thread while the fit helper runs (`CaseRun.fit_cases`): each
+    process runs its kernels on its own thread, on its own core. Put back after. Issue 33 (session 29): the
+    Cornell box's ten shadow-map fits (64²) took 1.7–2.2 s beside the helper with two Dr.Jit threads (a
+    kernel split over both cores waited for the worker that the helper held off its core), against
+    0.9–1.0 s alone. Session 34: the fork then copies no worker (nanothread's ``pool_set_size`` joins the
+    workers it removes; a size of 1 counts the calling thread only), so that the helper runs Dr.Jit fits as
+    well, with the pool as it finds it: empty, every task run by the thread that waits on it."""
     if not sharing:
         yield
         return
     import drjit as dr
 
     threads = dr.thread_count()
-    dr.set_thread_count(max(1, threads - 1))
+    dr.set_thread_count(1)
     try:
         yield
     finally:
@@ -302,7 +306,7 @@ class CaseRun:
         tasks = [(c.base.id, row_id, method, case) for c in cases for row_id, method, _u, case in c.fitted]
         if not tasks:
             return {}
-        may = [_shareable(method, user) for c in cases for _r, method, user, _c in c.fitted]
+        may = [_shareable(method, user, self.backend) for c in cases for _r, method, user, _c in c.fitted]
         families = [c.family for c in cases for _ in c.fitted]
         sharing = shares(may)
         helper = " (on two processes)" if sharing else ""

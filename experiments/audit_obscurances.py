@@ -63,6 +63,15 @@ RAYS = 32
 AMBIENT_ALBEDO = 0.8
 """Albedo of every surface in the uniform-ambient reference (the obscurances experiment's ``albedo``)."""
 ROLE = "obscurance"
+DRJIT_FITS = ("power", "ao")
+"""Rows whose fits evaluate the kernel text on Dr.Jit's float64 arrays (`Method.fit_ops` ``"drjit"``), not
+NumPy's: K = `RAYS` values of ρ a point each evaluation, and NumPy's float64 ``exp`` and ``log`` are scalar
+calls on a CPU without AVX-512 (13.7 ns each on the 2-core AVX2 machine of issue 33, against ~4 ns on
+Dr.Jit's vectorised LLVM code). Issue 33 (session 34), Cornell box 64² × 32 spp, each fit's seconds in the
+helper or beside it, kernels cached: power 0.08 → 0.04 s and 0.38 → 0.19 s (the ambient case, 22 steps to its
+bound), AO 0.10 → 0.05 s and 0.09 → 0.04 s; the exponential ρ (one ``expm1``, and the kernel's NumPy memo of
+ρ(d_k) at the previous d_max) was as fast on NumPy (0.05–0.06 s both ways) and stays there. The fitted
+values move by the last bits of float64 (Dr.Jit's exp and log against NumPy's: ~1e-12 relative)."""
 
 SCENE_LABELS = {
     "crease_90": "thick V of interior angle 90° (a crease)",
@@ -113,6 +122,8 @@ def _rows(radius: float) -> tuple[dict[str, Method], dict]:
     d_max = R; every fitted d_max starting at R within [10⁻³ R, 10³ R]."""
     methods = {mid: on_rays(m, RAYS, **({"d_max": radius} if "d_max" in m.fixed else {}))
                for mid, m in METHODS.items()}  # fmt: skip
+    for mid in DRJIT_FITS:
+        methods[mid] = replace(methods[mid], fit_ops="drjit")
     methods["seed"] = replace(
         methods["seed"],
         label=f"Seed obscurance (√(d/d_max), d_max = R = {radius:.4g})",

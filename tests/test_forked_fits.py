@@ -117,9 +117,9 @@ def test_no_warning_where_a_caller_has_started_jax():
 
 @needs_two
 def test_an_audits_shared_fits_are_those_of_one_process(tmp_path, monkeypatch):
-    """The Cornell box's obscurance fits (NumPy runs, shared with the helper) and shadow-map fits (Dr.Jit
-    runs, on one Dr.Jit thread fewer beside it), then all in one process: the same fitted values, stderr
-    and SSR bit for bit; the helper did take some."""
+    """The Cornell box's obscurance fits (NumPy and Dr.Jit runs) and shadow-map fits (Dr.Jit runs), shared
+    with the helper (Dr.Jit's pool without a worker thread: either process runs Dr.Jit fits), then all in
+    one process: the same fitted values, stderr and SSR bit for bit; the helper did take some."""
     from pathlib import Path
 
     from rtfit.experiments.audit_run import audit
@@ -226,3 +226,34 @@ def test_large_results_come_back_through_spill_files_that_are_removed(monkeypatc
     pids = {p for _, _, p in out}
     assert PARENT in pids and len(pids) == 2, "the helper sent some of them"
     assert made and not os.path.exists(made[0])
+
+
+def _drjit_task(k):
+    """A Dr.Jit kernel of its own (k in its text: compiled or loaded where the task runs), on LLVM float64."""
+    import drjit as dr
+
+    x = dr.arange(dr.llvm.Float64, 4096) * (1e-3 * (k + 1))
+    return float(dr.sum(dr.exp(-x) * dr.log(x + 1.0) + dr.sin(x * float(k)))[0]), os.getpid()
+
+
+@needs_two
+def test_dr_jit_tasks_run_in_the_helper_beside_a_pool_of_no_worker():
+    """With Dr.Jit's pool shrunk to the calling thread (`_drjit_threads_beside_a_helper`), the forked helper
+    runs Dr.Jit kernels of its own (new kernels compiled there): the serial map's values bit for bit, the
+    helper took some, no task was run again here for want of an answer, and the pool is put back after."""
+    import drjit as dr
+
+    from rtfit.experiments.audit_cases import _drjit_threads_beside_a_helper
+
+    threads = dr.thread_count()
+    tasks = list(range(8))
+    with _drjit_threads_beside_a_helper(True):
+        assert dr.thread_count() == 1
+        t = time.perf_counter()
+        shared, _ = shared_map(tasks, _drjit_task, [True] * len(tasks))
+        took = time.perf_counter() - t
+    assert dr.thread_count() == threads
+    serial = [_drjit_task(k) for k in tasks]
+    assert [v for v, _ in shared] == [v for v, _ in serial]
+    assert {p for _, p in shared} - {PARENT}, "the helper ran Dr.Jit tasks"
+    assert took < forked_fits._child_quiet_limit(0.0), "no task waited out the quiet limit"
