@@ -7,6 +7,7 @@ from `audit_run` (session 30)."""
 from __future__ import annotations
 
 import contextlib
+import sys
 import time
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
@@ -121,6 +122,11 @@ def _drjit_threads_beside_a_helper(sharing: bool) -> Iterator[None]:
         dr.set_thread_count(threads)
 
 
+def _solver_imported() -> bool:
+    """Whether the fits' solver (``scipy.optimize``) is in this process already (`CaseRun.fit_cases`)."""
+    return "scipy.optimize" in sys.modules
+
+
 def _fit_task(task: tuple[str, str, Method, FamilyCase]) -> dict:
     """`fit_case` of one (case id, row, method, case) of `CaseRun.fit_cases`: what `shared_map` runs, in
     either process."""
@@ -156,6 +162,9 @@ class CaseRun:
     shared_products: dict[Precompute, Any] = field(default_factory=dict)
     """The shared steps' products while the case being evaluated times its rows (emptied at its end: a
     light-path-map bake's transfer terms are ~160 MB at 64²)."""
+    measured: dict[str, dict[str, dict]] = field(default_factory=dict)
+    """Metrics taken before the fits (`fit_cases`: the declared rows', beside the solver's import), by case
+    id and row id; `finish_cases` measures the rest."""
 
     def precompute(self, method: Method, case: FamilyCase, pre: Precompute, cost_key: str | None) -> None:
         """Time the row's precompute (`cost.time_precompute`) into its method's cost record:
@@ -311,9 +320,41 @@ class CaseRun:
         sharing = shares(may)
         helper = " (on two processes)" if sharing else ""
         say(f"fits: {len(tasks)} rows of {sum(1 for c in cases if c.fitted)} case(s){helper}")
+        self._solver_beside_metrics(cases)
         with _drjit_threads_beside_a_helper(sharing):
             done = self._shared("fit", tasks, _fit_task, may, families)
         return {(cid, row_id): r for (cid, row_id, _m, _c), r in zip(tasks, done, strict=True)}
+
+    def _solver_beside_metrics(self, cases: Sequence[EvaluatedCase]) -> None:
+        """The fits' solver (SciPy's ``scipy.optimize``: 0.35–0.42 s to import on the 2-core machine of issue
+        33, SciPy 1.17 rewriting ~280 docstrings) imported here while a forked helper takes the declared rows'
+        metrics, which need no fit (`shared_map` ``before``; the metrics of the rows fitted next come in
+        `finish_cases`). Before session 34 the audit imported it first, alone, one core idle. The phase's
+        wall time is shared between the fits (the import's part) and the evaluation (the metrics'), by their
+        own seconds."""
+        if _solver_imported():
+            return
+        spent = [0.0]
+
+        def import_solver() -> None:
+            t = time.perf_counter()
+            import scipy.optimize  # noqa: F401
+
+            spent[0] = time.perf_counter() - t
+
+        tasks = [(ev, ev.declared) for ev in cases if ev.declared and ev.base.id not in self.measured]
+        t = time.perf_counter()
+        done, seconds = shared_map(tasks, self._measured, [True] * len(tasks), before=import_solver)
+        wall = time.perf_counter() - t
+        own = spent[0] + sum(seconds) or 1.0
+        self.timings["fit"] += wall * spent[0] / own
+        self.timings["evaluation"] += wall * sum(seconds) / own
+        for (ev, _rows), took in zip(tasks, seconds, strict=True):
+            self.by_family[ev.family]["evaluation"] += wall * took / own
+        for (ev, _rows), (metrics, notes, maps) in zip(tasks, done, strict=True):
+            remember_maps(maps)
+            self.measured[ev.base.id] = metrics
+            self.notes.extend(n for n in notes if n not in self.notes)
 
     def _shared(self, phase: str, tasks: list, run, may: Sequence[bool], families: Sequence[str]) -> list:
         """`shared_map` of ``tasks`` (the helper may run those ``may`` marks), its wall time added to the
@@ -380,8 +421,16 @@ class CaseRun:
         maps (which the report's figures read: `rtfit.fitting.flip_maps.remember_maps`) come back with its
         metrics."""
         outcomes = [self.with_fits(ev, fits) for ev in cases]
-        tasks = list(zip(cases, outcomes, strict=True))
-        families = [ev.family for ev in cases]
+        tasks = []  # each case's rows not measured yet (`measured`: the declared rows, where fits ran)
+        for ev, rows in zip(cases, outcomes, strict=True):
+            known = self.measured.get(ev.base.id, {})
+            for row_id, o in rows.items():
+                if row_id in known:
+                    o.metrics = known[row_id]
+            rest = {row_id: o for row_id, o in rows.items() if row_id not in known}
+            if rest:
+                tasks.append((ev, rest))
+        families = [ev.family for ev, _rows in tasks]
         # (``share`` False: an interrupted run's report, here in turn)
         done = self._shared("evaluation", tasks, self._measured, [share] * len(tasks), families)
         for (_ev, rows), (metrics, notes, maps) in zip(tasks, done, strict=True):

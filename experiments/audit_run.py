@@ -261,11 +261,7 @@ def audit(
         store,
     )  # fmt: skip
     variant, spp, pass_spp = run_settings.variant, run_settings.spp, run_settings.pass_spp
-    if fit:  # the fits' solver, imported first and counted as theirs (a probe grid's NNLS bake shares it)
-        t = time.perf_counter()
-        import scipy.optimize  # noqa: F401
-
-        timings["fit"] += time.perf_counter() - t
+    # (the fits' solver is imported when they start, beside the declared rows' metrics: `CaseRun.fit_cases`)
 
     def finish(part: list, share: bool = True) -> None:
         """The evaluated cases ``part`` finished (`CaseRun.finish_cases`, with the fits that ran) into the

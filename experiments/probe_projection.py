@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rtfit.realtime.irradiance_bases import CUBE_AXES, fibonacci_sphere, fit_ambient_cube_nnls, sh9_basis
+from rtfit.realtime.irradiance_bases import CUBE_AXES, fibonacci_sphere, fit_ambient_cubes_nnls, sh9_basis
 
 __all__ = ["FEATURES_NAME", "FEATURE_NORMALS", "NNLS_NORMALS", "probe_bases", "probe_features"]
 
@@ -38,5 +38,5 @@ def probe_bases(mean: np.ndarray, extra_irradiance: np.ndarray | None = None) ->
     valve = mean[:, 9:15]
     target = mean[:, 15:] + (0.0 if extra_irradiance is None else extra_irradiance)
     normals = FEATURE_NORMALS[6:]
-    nnls = np.stack([fit_ambient_cube_nnls(normals, target[i])[0] for i in range(len(mean))])
+    nnls = fit_ambient_cubes_nnls(normals, target)
     return {"cube-valve": valve, "cube-nnls": nnls, "sh-l2": sh}

@@ -214,13 +214,18 @@ def shares(child_may: Sequence[bool]) -> bool:
 
 
 def shared_map(
-    tasks: Sequence[Any], run: Callable[[Any], Any], child_may: Sequence[bool]
+    tasks: Sequence[Any],
+    run: Callable[[Any], Any],
+    child_may: Sequence[bool],
+    before: Callable[[], Any] | None = None,
 ) -> tuple[list[Any], list[float]]:
     """``[run(t) for t in tasks]`` and each task's seconds, the tasks shared between this process and one
     forked child where there are at least two the child may run (``child_may``) and two cores
     (`two_cores`); otherwise in turn here. This process takes the tasks from the front (those the child may
     not run first), the child from the back. ``run``'s results must pickle; an exception is raised here, by
-    running the task here."""
+    running the task here. ``before``: work of this process's own that it does first, after the fork (the
+    child is at the tasks meanwhile), or before the tasks where nothing is shared; the child never runs it
+    and does not see what it did (an import there is this process's alone)."""
     n = len(tasks)
     seconds = [0.0] * n
 
@@ -231,6 +236,8 @@ def shared_map(
         return out
 
     if not shares(child_may):
+        if before is not None:
+            before()
         return [timed(i) for i in range(n)], seconds
     shareable = [i for i in range(n) if child_may[i]]
     mine = [i for i in range(n) if not child_may[i]] + shareable
@@ -260,6 +267,8 @@ def shared_map(
                 failed.add(i)
 
     try:
+        if before is not None:
+            before()
         while (i := claims.take(mine, _PARENT, gone=lambda: _exited(pid))) is not None:
             results[i] = timed(i)
             collect(reader.poll(0))

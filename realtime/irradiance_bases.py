@@ -67,6 +67,7 @@ import numpy as np
 
 from .arrays import DRJIT_OPS, NUMPY_OPS, evaluate, is_drjit, safe_div, split3
 from .methods import Input, Method, Param, method_table
+from .nnls import nnls_columns
 
 __all__ = [
     "A_HAT",
@@ -86,6 +87,7 @@ __all__ = [
     "disk_zonal_factors",
     "fibonacci_sphere",
     "fit_ambient_cube_nnls",
+    "fit_ambient_cubes_nnls",
     "fit_window_lambda",
     "latlong_directions",
     "latlong_samples",
@@ -472,7 +474,7 @@ METHODS = method_table(
             storage=18,
             quantity="environment_irradiance",
             formula=f"{_CUBE_FORMULA}; C ≥ 0 minimising Σ_k (E_cube(n_k) − E(n_k))² (fit_ambient_cube_nnls)",
-            source="Lawson & Hanson NNLS (scipy.optimize.nnls); seed 000:2471-2501",
+            source="Lawson & Hanson NNLS (rtfit.realtime.nnls); seed 000:2471-2501",
             description="the least-squares cube over a uniform sphere of normals",
         ),
         Method(
@@ -896,29 +898,44 @@ def cube_design_matrix(normals) -> np.ndarray:
 
 
 def fit_ambient_cube_nnls(normals, irradiance, weights=None) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares cube with C ≥ 0 (scipy NNLS per channel) minimising Σ_k w_k (E_cube(n_k) − E_k)².
+    """Least-squares cube with C ≥ 0 (`rtfit.realtime.nnls`, per channel) minimising
+    Σ_k w_k (E_cube(n_k) − E_k)².
 
     ``normals`` (N, 3), ``irradiance`` (N, 3) or (N,), optional ``weights`` (N,) ≥ 0 (default uniform:
     a uniform sphere sampling such as `fibonacci_sphere` then minimises the sphere-integrated error).
     Returns (cube (6, 3), rms residual per channel (3,))."""
-    from scipy.optimize import nnls  # scipy: heavy, only the NNLS bake needs it
-
-    a = cube_design_matrix(normals)
+    a, sw, w = _weighted_cube_design(normals, weights)
     e = np.asarray(irradiance, dtype=np.float64)
     if e.ndim == 1:
         e = np.repeat(e[:, None], 3, axis=1)
     if e.shape != (len(a), 3) or not np.all(np.isfinite(e)):
         raise ValueError(f"irradiance must be finite with shape ({len(a)}, 3) (got {np.shape(irradiance)})")
+    b = e * sw[:, None]
+    cube = nnls_columns(a, b)
+    rms = np.linalg.norm(a @ cube - b, axis=0) / math.sqrt(max(w.sum(), _TINY))
+    return cube, rms
+
+
+def fit_ambient_cubes_nnls(normals, irradiance, weights=None) -> np.ndarray:
+    """`fit_ambient_cube_nnls`'s cubes (P, 6, 3) of P probes at once, ``irradiance`` (P, N, 3) at the same
+    ``normals`` (N, 3): every probe's channels solved together (`nnls_columns`: one design matrix)."""
+    a, sw, _w = _weighted_cube_design(normals, weights)
+    e = np.asarray(irradiance, dtype=np.float64)
+    if e.ndim != 3 or e.shape[1:] != (len(a), 3) or not np.all(np.isfinite(e)):
+        shape = np.shape(irradiance)
+        raise ValueError(f"irradiance must be finite with shape (P, {len(a)}, 3) (got {shape})")
+    b = (e * sw[None, :, None]).transpose(1, 0, 2).reshape(len(a), -1)  # (N, P·3), probe-major columns
+    return nnls_columns(a, b).reshape(6, len(e), 3).transpose(1, 0, 2)
+
+
+def _weighted_cube_design(normals, weights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(√w_k-weighted `cube_design_matrix` (N, 6), √w (N,), w (N,)) of the NNLS cube fits."""
+    a = cube_design_matrix(normals)
     w = np.ones(len(a)) if weights is None else np.asarray(weights, dtype=np.float64)
     if w.shape != (len(a),) or np.any(~np.isfinite(w)) or np.any(w < 0):
         raise ValueError("weights must be finite, >= 0, one per normal")
     sw = np.sqrt(w)
-    cube = np.zeros((6, 3))
-    rms = np.zeros(3)
-    for c in range(3):
-        cube[:, c], res = nnls(a * sw[:, None], e[:, c] * sw)
-        rms[c] = res / math.sqrt(max(w.sum(), _TINY))
-    return cube, rms
+    return a * sw[:, None], sw, w
 
 
 # ====================================================================================== λ window fit

@@ -257,3 +257,73 @@ def test_dr_jit_tasks_run_in_the_helper_beside_a_pool_of_no_worker():
     assert [v for v, _ in shared] == [v for v, _ in serial]
     assert {p for _, p in shared} - {PARENT}, "the helper ran Dr.Jit tasks"
     assert took < forked_fits._child_quiet_limit(0.0), "no task waited out the quiet limit"
+
+
+def _pid_and_flag(x, flag):
+    return x, os.getpid(), bool(flag)
+
+
+@needs_two
+def test_before_runs_here_once_after_the_fork():
+    """``before`` runs in this process, once, after the fork (the helper's tasks do not see what it did)
+    and before this process takes a task; serially, before every task."""
+    done: list[int] = []
+    flag = [False]
+
+    def before():
+        time.sleep(0.05)  # the helper is at the tasks meanwhile
+        done.append(os.getpid())
+        flag[0] = True
+
+    out, _ = shared_map(list(range(8)), lambda x: _pid_and_flag(x, flag[0]), [True] * 8, before=before)
+    assert done == [PARENT] and [v for v, _, _ in out] == list(range(8))
+    assert all(seen for _, pid, seen in out if pid == PARENT), "this process's tasks come after it"
+    assert not any(seen for _, pid, seen in out if pid != PARENT), "the helper was forked before it"
+    assert any(pid != PARENT for _, pid, _ in out)
+    done.clear()
+    flag[0] = False
+    out, _ = shared_map([1], lambda x: _pid_and_flag(x, flag[0]), [True], before=before)  # (one task: serial)
+    assert done == [PARENT] and out == [(1, PARENT, True)]
+
+
+@needs_two
+def test_metrics_taken_beside_the_solver_import_are_those_taken_after_the_fits(tmp_path, monkeypatch):
+    """The declared rows' metrics taken by the helper while this process imports the fits' solver
+    (`CaseRun._solver_beside_metrics`), the fitted rows' after the fits: the metrics, fits and figures of
+    a run that took every metric after the fits (the solver already imported), bit for bit."""
+    from pathlib import Path
+
+    from rtfit.experiments import audit_cases
+    from rtfit.experiments.audit_run import audit
+
+    cbox = Path(__file__).parent / "data" / "mitsuba" / "cbox" / "cbox-rgb.xml"
+    kw = {"width": 24, "height": 24, "spp": 4, "pass_spp": 2, "cache": tmp_path / "cache",
+          "metrics": ("rmse", "flip"), "approximations": ["diffuse", "obscurances"],
+          "cost_elements": 1 << 12}  # fmt: skip
+    early: list[int] = []
+    shared = audit_cases.shared_map
+
+    def counted(tasks, run, may, before=None):
+        if before is not None:
+            early.append(len(tasks))
+        return shared(tasks, run, may, before=before)
+
+    monkeypatch.setattr(audit_cases, "shared_map", counted)
+    monkeypatch.setattr(audit_cases, "_solver_imported", lambda: False)
+    beside = audit(cbox, out=tmp_path / "beside", **kw)
+    assert early and early[0] >= 2, "the declared rows' metrics were taken beside the import"
+    monkeypatch.setattr(audit_cases, "_solver_imported", lambda: True)
+    after = audit(cbox, out=tmp_path / "after", **kw)
+
+    def rows(result):
+        return {
+            (o.case, o.row): (o.metrics.to_dict(), o.fit)
+            for r in result.outcomes.values()
+            for o in r.values()
+        }
+
+    assert rows(beside) == rows(after) and any(fit for _m, fit in rows(beside).values())
+    a, b = tmp_path / "beside" / "audit-cbox-rgb", tmp_path / "after" / "audit-cbox-rgb"
+    pngs = sorted(p.name for p in (a / "figures").iterdir())
+    assert pngs == sorted(p.name for p in (b / "figures").iterdir()) and len(pngs) >= 4
+    assert all((a / "figures" / n).read_bytes() == (b / "figures" / n).read_bytes() for n in pngs)
