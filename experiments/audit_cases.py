@@ -92,30 +92,46 @@ class EvaluatedCase:
         return len(self.declared) + len(self.fitted)
 
 
-def _shareable(method: Method, user: bool, backend: str) -> bool:
+def _shareable(method: Method, user: bool, drjit_beside: bool) -> bool:
     """Whether the forked helper may fit ``method`` (`shared_map`): a fit of a shipped method, on NumPy, or on
-    Dr.Jit's LLVM backend (`_drjit_threads_beside_a_helper`: the fork finds no Dr.Jit worker thread, and the
-    child runs each kernel on its own thread). A fit on CUDA stays here (a forked child cannot use the
-    parent's CUDA context); a user's approximation is fitted here, where its code runs as in a serial run."""
-    return not user and (method.fit_ops == "numpy" or backend == "llvm")
+    Dr.Jit where ``drjit_beside`` (`_drjit_beside_a_helper`: LLVM, and a pool with no worker thread to copy
+    at the fork). A fit on CUDA stays here (a forked child cannot use the parent's CUDA context); a user's
+    approximation is fitted here, where its code runs as in a serial run."""
+    return not user and (method.fit_ops == "numpy" or drjit_beside)
+
+
+def _threads_beside_a_helper() -> int:
+    """Dr.Jit's threads while the fit helper runs (`_drjit_threads_beside_a_helper`): one fewer than it has,
+    at least one (counting the calling thread)."""
+    import drjit as dr
+
+    return max(1, dr.thread_count() - 1)
+
+
+def _drjit_beside_a_helper(backend: str) -> bool:
+    """Whether the helper may run fits on Dr.Jit: on the LLVM backend, where the pool beside it has no worker
+    thread (`_threads_beside_a_helper` 1: a machine of two cores). A fork copies no thread: a worker the
+    parent had would be one the child's kernels wait on for ever. On more cores the pool keeps its other
+    workers for the fits here, and the helper takes the NumPy fits only, as before session 34."""
+    return backend == "llvm" and _threads_beside_a_helper() == 1
 
 
 @contextlib.contextmanager
 def _drjit_threads_beside_a_helper(sharing: bool) -> Iterator[None]:
-    """Dr.Jit's thread pool without a worker thread while the fit helper runs (`CaseRun.fit_cases`): each
-    process runs its kernels on its own thread, on its own core. Put back after. Issue 33 (session 29): the
-    Cornell box's ten shadow-map fits (64²) took 1.7–2.2 s beside the helper with two Dr.Jit threads (a
-    kernel split over both cores waited for the worker that the helper held off its core), against
-    0.9–1.0 s alone. Session 34: the fork then copies no worker (nanothread's ``pool_set_size`` joins the
-    workers it removes; a size of 1 counts the calling thread only), so that the helper runs Dr.Jit fits as
-    well, with the pool as it finds it: empty, every task run by the thread that waits on it."""
+    """Dr.Jit's thread pool one thread smaller while the fit helper runs (`CaseRun.fit_cases`;
+    `_threads_beside_a_helper`), put back after: a Dr.Jit fit's kernels split over every core waited for the
+    worker that the helper's process held off its core (issue 33, session 29: the Cornell box's ten
+    shadow-map fits at 64² took 1.7–2.2 s beside the helper with two Dr.Jit threads, against 0.9–1.0 s
+    alone). On two cores the pool is then the calling thread alone: nanothread's ``pool_set_size`` joins the
+    workers it removes (a size of 1 counts the calling thread only), so the fork copies none, and the helper
+    runs Dr.Jit fits too (session 34), every kernel on the thread that waits on it."""
     if not sharing:
         yield
         return
     import drjit as dr
 
     threads = dr.thread_count()
-    dr.set_thread_count(1)
+    dr.set_thread_count(_threads_beside_a_helper())
     try:
         yield
     finally:
@@ -315,7 +331,8 @@ class CaseRun:
         tasks = [(c.base.id, row_id, method, case) for c in cases for row_id, method, _u, case in c.fitted]
         if not tasks:
             return {}
-        may = [_shareable(method, user, self.backend) for c in cases for _r, method, user, _c in c.fitted]
+        beside = _drjit_beside_a_helper(self.backend)
+        may = [_shareable(method, user, beside) for c in cases for _r, method, user, _c in c.fitted]
         families = [c.family for c in cases for _ in c.fitted]
         sharing = shares(may)
         helper = " (on two processes)" if sharing else ""

@@ -19,8 +19,9 @@ The rules that keep the results those of a serial run, bit for bit:
 - Only tasks the caller marks ``child_may`` run in the child. A fork copies no thread: a fit on Dr.Jit
   (`Method.fit_ops` ``"drjit"``) may run there only where the parent's Dr.Jit pool had no worker thread at
   the fork (its kernels would otherwise wait for workers the child does not have) and its backend is LLVM
-  (a CUDA context does not survive a fork): `rtfit.experiments.audit_cases` shrinks the pool to the calling
-  thread while the helper runs (session 34), and the child then runs each kernel on its own thread.
+  (a CUDA context does not survive a fork): on two cores `rtfit.experiments.audit_cases` shrinks the pool
+  to the calling thread while the helper runs (session 34), and the child then runs each kernel on its own
+  thread.
 - A task the child does not finish (an exception, a crash, no answer in time) is run again here, where it
   raises what a serial run would; the child is then stopped.
 

@@ -238,25 +238,34 @@ def _drjit_task(k):
 
 @needs_two
 def test_dr_jit_tasks_run_in_the_helper_beside_a_pool_of_no_worker():
-    """With Dr.Jit's pool shrunk to the calling thread (`_drjit_threads_beside_a_helper`), the forked helper
-    runs Dr.Jit kernels of its own (new kernels compiled there): the serial map's values bit for bit, the
-    helper took some, no task was run again here for want of an answer, and the pool is put back after."""
+    """With Dr.Jit's pool of two shrunk to the calling thread (`_drjit_threads_beside_a_helper`), the forked
+    helper runs Dr.Jit kernels of its own (new kernels compiled there): the serial map's values bit for bit,
+    the helper took some, no task was run again here for want of an answer, and the pool is put back after;
+    with more threads, Dr.Jit fits are not the helper's (`_drjit_beside_a_helper`)."""
     import drjit as dr
 
-    from rtfit.experiments.audit_cases import _drjit_threads_beside_a_helper
+    from rtfit.experiments.audit_cases import _drjit_beside_a_helper, _drjit_threads_beside_a_helper
 
     threads = dr.thread_count()
+    dr.set_thread_count(2)  # (a machine of two cores: the pool beside the helper is the calling thread)
     tasks = list(range(8))
     with _drjit_threads_beside_a_helper(True):
         assert dr.thread_count() == 1
         t = time.perf_counter()
         shared, _ = shared_map(tasks, _drjit_task, [True] * len(tasks))
         took = time.perf_counter() - t
-    assert dr.thread_count() == threads
+    assert dr.thread_count() == 2
+    dr.set_thread_count(threads)
     serial = [_drjit_task(k) for k in tasks]
     assert [v for v, _ in shared] == [v for v, _ in serial]
     assert {p for _, p in shared} - {PARENT}, "the helper ran Dr.Jit tasks"
     assert took < forked_fits._child_quiet_limit(0.0), "no task waited out the quiet limit"
+    dr.set_thread_count(4)
+    try:
+        assert not _drjit_beside_a_helper("llvm")
+    finally:
+        dr.set_thread_count(threads)
+    assert not _drjit_beside_a_helper("cuda")
 
 
 def _pid_and_flag(x, flag):
