@@ -24,6 +24,7 @@ The shared modules (each family has its own module, whose docstring says what it
 doc page, docs/<family>.md):
     arrays      the ops namespaces (Dr.Jit, NumPy, JAX), dispatch, guards and small stable helpers.
     methods     methods as data: `Method`, `Param`, `Input`, `method_table`.
+    nonnegative_lsq  non-negative least squares (Lawson–Hanson) for the probe bakes' NNLS fits.
     phase       phase functions (Rayleigh, Henyey–Greenstein, Cornette–Shanks), one text for all media.
     quantities  what an approximation approximates and the inputs its ``g`` carries; the `approximation`
                 decorator for a user's own formula (docs/audit.md, "Your own approximation"); the table's

@@ -67,7 +67,7 @@ import numpy as np
 
 from .arrays import DRJIT_OPS, NUMPY_OPS, evaluate, is_drjit, safe_div, split3
 from .methods import Input, Method, Param, method_table
-from .nnls import nnls_columns
+from .nonnegative_lsq import nnls_columns
 
 __all__ = [
     "A_HAT",
@@ -474,7 +474,7 @@ METHODS = method_table(
             storage=18,
             quantity="environment_irradiance",
             formula=f"{_CUBE_FORMULA}; C ≥ 0 minimising Σ_k (E_cube(n_k) − E(n_k))² (fit_ambient_cube_nnls)",
-            source="Lawson & Hanson NNLS (rtfit.realtime.nnls); seed 000:2471-2501",
+            source="Lawson & Hanson NNLS (rtfit.realtime.nonnegative_lsq); seed 000:2471-2501",
             description="the least-squares cube over a uniform sphere of normals",
         ),
         Method(
@@ -898,7 +898,7 @@ def cube_design_matrix(normals) -> np.ndarray:
 
 
 def fit_ambient_cube_nnls(normals, irradiance, weights=None) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares cube with C ≥ 0 (`rtfit.realtime.nnls`, per channel) minimising
+    """Least-squares cube with C ≥ 0 (`rtfit.realtime.nonnegative_lsq`, per channel) minimising
     Σ_k w_k (E_cube(n_k) − E_k)².
 
     ``normals`` (N, 3), ``irradiance`` (N, 3) or (N,), optional ``weights`` (N,) ≥ 0 (default uniform:

@@ -58,7 +58,7 @@ solid-angle weights w_j, radiance L_j) plus an optional constant radiance:
   reproduced where S_N is flat); no linear solve;
 * ``ls``: the radiance least squares min ∫(Σ a_k G_k − L)² dω: Gram system M a = b with the closed form
   M_jk = ⟨G_j, G_k⟩ = 4π e^{−2λ} sinh(κ)/κ, κ = λ|μ_j + μ_k| (`sg_gram`), b_k = ⟨L, G_k⟩;
-* ``nnls``: the same objective with a ≥ 0 (`rtfit.realtime.nnls` on the Cholesky factor: M = RᵀR,
+* ``nnls``: the same objective with a ≥ 0 (`rtfit.realtime.nonnegative_lsq` on the Cholesky factor: M = RᵀR,
   min ‖Ra − R⁻ᵀb‖² = aᵀMa − 2aᵀb + const);
 * ``ambient``: least squares over the N lobes plus a constant function (⟨1, G_k⟩ = I, ⟨1, 1⟩ = 4π); the
   constant is stored as an extra coefficient (N + 1 per channel). At the rule's λ the constant lies
@@ -86,7 +86,7 @@ import numpy as np
 from .arrays import NUMPY_OPS
 from .irradiance_bases import fibonacci_sphere, unit_normal
 from .methods import Input, Method, method_table
-from .nnls import nnls_columns
+from .nonnegative_lsq import nnls_columns
 
 __all__ = [
     "AMBIENT_RIDGE",

@@ -1,8 +1,8 @@
-"""`rtfit.realtime.nnls`: the non-negative least-squares minimiser, checked against its optimality conditions
-(Karush–Kuhn–Tucker: x ≥ 0; the gradient Aᵀ(b − Ax) ≈ 0 where x > 0 and ≤ 0 where x = 0) and against SciPy's
-``scipy.optimize.nnls`` (an independent implementation of Lawson–Hanson), on random, rank-deficient,
-zero-column, underdetermined and all-negative problems; `nnls_columns` the same column by column, and the
-cube fits built on it against their closed forms."""
+"""`rtfit.realtime.nonnegative_lsq`: the non-negative least-squares minimiser, checked against its optimality
+conditions (Karush–Kuhn–Tucker: x ≥ 0; the gradient Aᵀ(b − Ax) ≈ 0 where x > 0 and ≤ 0 where x = 0) and
+against SciPy's ``scipy.optimize.nnls`` (an independent implementation of Lawson–Hanson), on random,
+rank-deficient, zero-column, underdetermined and all-negative problems; `nnls_columns` the same column by
+column, and the cube fits built on it against their closed forms."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rtfit.realtime import irradiance_bases as ir
-from rtfit.realtime.nnls import ENUMERATE_MAX, nnls, nnls_columns
+from rtfit.realtime.nonnegative_lsq import ENUMERATE_MAX, nnls, nnls_columns
 
 scipy_optimize = pytest.importorskip("scipy.optimize")
 

@@ -5,8 +5,8 @@ cube: 6 unknowns a channel; `spherical_gaussians`' NNLS lobes: 6–12).
 Why not ``scipy.optimize.nnls`` (which implements the same algorithm): importing ``scipy.optimize`` costs
 0.35–0.42 s on the 2-core machine of issue 33 (SciPy 1.17 parses the docstrings of ~280 functions at import),
 which an audit of a scene with a probe grid paid in its references even with ``--no-fit`` (session 34). The
-result is the same minimiser: tests/test_nnls.py checks the Karush–Kuhn–Tucker conditions and SciPy's
-solution on random, rank-deficient and all-negative problems.
+result is the same minimiser: tests/test_nonnegative_lsq.py checks the Karush–Kuhn–Tucker conditions and
+SciPy's solution on random, rank-deficient and all-negative problems.
 
 The algorithm keeps a passive set P (the unknowns free to be positive; the others held at 0). While some held
 unknown has a positive gradient of −½‖Ax − b‖², w = Aᵀ(b − Ax), above the tolerance, the one of largest w
