@@ -138,6 +138,29 @@ def _drjit_threads_beside_a_helper(sharing: bool) -> Iterator[None]:
         dr.set_thread_count(threads)
 
 
+METRIC_TASKS_MIN = 4
+"""The fewest metric tasks `metric_tasks` makes where rows allow: a case a task left the helper idle where an
+audit has one case (``--approx ibl-samples`` on Mitsuba's teapot: one case of 26 rows, its metrics on one
+core)."""
+
+
+def metric_tasks(tasks: list[tuple[EvaluatedCase, dict]]) -> list[tuple[EvaluatedCase, dict]]:
+    """The metric tasks of `CaseRun._measured` (a case and some of its rows), the largest split in two (its
+    rows in order) until there are `METRIC_TASKS_MIN` or none has two rows: each row's metrics are its own
+    (the reference's ꟻLIP features and noise floors found by content in the process's memos), so a split
+    costs at most those again in the other process."""
+    out = list(tasks)
+    while len(out) < METRIC_TASKS_MIN:
+        i = max(range(len(out)), key=lambda k: len(out[k][1]), default=None)
+        if i is None or len(out[i][1]) < 2:
+            break
+        ev, rows = out[i]
+        items = list(rows.items())
+        half = len(items) // 2
+        out[i : i + 1] = [(ev, dict(items[:half])), (ev, dict(items[half:]))]
+    return out
+
+
 def _solver_imported() -> bool:
     """Whether the fits' solver (``scipy.optimize``) is in this process already (`CaseRun.fit_cases`)."""
     return "scipy.optimize" in sys.modules
@@ -359,7 +382,9 @@ class CaseRun:
 
             spent[0] = time.perf_counter() - t
 
-        tasks = [(ev, ev.declared) for ev in cases if ev.declared and ev.base.id not in self.measured]
+        tasks = metric_tasks(
+            [(ev, ev.declared) for ev in cases if ev.declared and ev.base.id not in self.measured]
+        )
         t = time.perf_counter()
         done, seconds = shared_map(tasks, self._measured, [True] * len(tasks), before=import_solver)
         wall = time.perf_counter() - t
@@ -370,7 +395,7 @@ class CaseRun:
             self.by_family[ev.family]["evaluation"] += wall * took / own
         for (ev, _rows), (metrics, notes, maps) in zip(tasks, done, strict=True):
             remember_maps(maps)
-            self.measured[ev.base.id] = metrics
+            self.measured.setdefault(ev.base.id, {}).update(metrics)
             self.notes.extend(n for n in notes if n not in self.notes)
 
     def _shared(self, phase: str, tasks: list, run, may: Sequence[bool], families: Sequence[str]) -> list:
@@ -447,6 +472,7 @@ class CaseRun:
             rest = {row_id: o for row_id, o in rows.items() if row_id not in known}
             if rest:
                 tasks.append((ev, rest))
+        tasks = metric_tasks(tasks)
         families = [ev.family for ev, _rows in tasks]
         # (``share`` False: an interrupted run's report, here in turn)
         done = self._shared("evaluation", tasks, self._measured, [share] * len(tasks), families)

@@ -263,22 +263,36 @@ def _project(ops, maps: DepthMaps, k: int, px, py, pz):
     return u, v, 0.5 - (rx * dx + ry * dy + rz * dz) / (2.0 * r)
 
 
-_MEMO_POINTS = 1 << 12
-"""The most points whose bias-independent test values (`_kept`) a map keeps per light and tap (NumPy)."""
+_MEMO_BYTES = 256 << 20
+"""The most bytes of bias-independent test values (`_kept`) one map set keeps (NumPy). Issue 33 (session
+34): a cap of 4096 points kept nothing at 128² (16384 points), and the teapot's depth-map fits (64 lights,
+3×3 taps: 64 × 21 arrays of the points) recomputed every projection and filtered texel at each of their
+~50 evaluations: 30 s of fits against 2.5 s of references; 64 × 21 × 16384 float64 are 176 MB."""
+_MEMO_KEY = "kept-bytes"  # (the bytes `_kept` holds in a map set's tables)
 
 
 def _kept(ops, maps: DepthMaps, key: tuple, points: tuple, make):
-    """``make()``, on the NumPy run of at most `_MEMO_POINTS` points kept in ``maps`` per ``key`` for these
-    very point arrays (identity): the fit's 33-value scan of b and its TRF steps evaluate the kernel again
-    on the same points, and the projection and filtered texels do not depend on b (only the test does).
-    The same operations on the same arrays: the same values. Other runs (Dr.Jit, a shader) trace it."""
-    if ops is not NUMPY_OPS or not all(isinstance(a, np.ndarray) and a.size <= _MEMO_POINTS for a in points):
+    """``make()``, on the NumPy run kept in ``maps`` per ``key`` for these very point arrays (identity), up to
+    `_MEMO_BYTES` a map set (the entry that would pass it is computed and not kept): the fit's 33-value scan
+    of b and its TRF steps evaluate the kernel again on the same points, and the projection and filtered
+    texels do not depend on b (only the test does). The same operations on the same arrays: the same
+    values. Other runs (Dr.Jit, a shader) trace it."""
+    if ops is not NUMPY_OPS or not all(isinstance(a, np.ndarray) for a in points):
         return make()
     hit = maps._tables.get(key)
     if hit is not None and all(a is b for a, b in zip(hit[0], points, strict=True)):
         return hit[1]
     value = make()
-    maps._tables[key] = (points, value)
+    size = sum(np.asarray(v).nbytes for v in value)
+    held = maps._tables.get(_MEMO_KEY, 0)
+    if hit is not None:  # (other points' entry under this key: replaced)
+        held -= sum(np.asarray(v).nbytes for v in hit[1])
+    if held + size <= _MEMO_BYTES:
+        maps._tables[key] = (points, value)
+        maps._tables[_MEMO_KEY] = held + size
+    elif hit is not None:
+        del maps._tables[key]
+        maps._tables[_MEMO_KEY] = held
     return value
 
 

@@ -55,21 +55,24 @@ def test_an_interrupted_audit_reports_its_finished_cases_and_the_rerun_completes
     assert not any(n.startswith("PARTIAL") for n in load_results(report).notes)
 
 
-def _interrupted_in_shared_phase(tmp_path, monkeypatch, nth: int):
+def _interrupted_in_shared_phase(tmp_path, monkeypatch, nth: int, solver_imported: bool = True):
     """A fitted diffuse audit of the Cornell box, Ctrl-C at the start of its ``nth`` shared phase (1: the
     fits, 2: the metrics; `audit_cases.shared_map`, whose calls that share nothing, the partial report's
-    metrics run here in turn, pass through): its partial results, and the shared phases' ``run`` functions."""
+    metrics run here in turn, pass through): its partial results, and the shared phases' ``run`` functions.
+    ``solver_imported`` False: the fits' solver is imported beside the declared rows' metrics first
+    (`CaseRun._solver_beside_metrics`), phase 1, and the fits and the fitted rows' metrics are 2 and 3."""
     real = audit_cases.shared_map
     calls = []
 
-    def interrupted(tasks, run, may):
+    def interrupted(tasks, run, may, before=None):
         if any(may):
             calls.append(run)
             if len(calls) == nth:
                 raise KeyboardInterrupt
-        return real(tasks, run, may)
+        return real(tasks, run, may, before=before)
 
     monkeypatch.setattr(audit_cases, "shared_map", interrupted)
+    monkeypatch.setattr(audit_cases, "_solver_imported", lambda: solver_imported)
     out, cache = tmp_path / "out", tmp_path / "cache"
     with pytest.raises(KeyboardInterrupt):
         audit(CBOX, out=out, cache=cache, approximations=["diffuse"], **{**SMALL, "fit": True}, **FAST)
@@ -87,6 +90,18 @@ def test_an_audit_interrupted_in_its_fits_reports_every_case_with_its_declared_r
     assert all((a.metrics["rmse"].value or -1.0) >= 0 for a in rows)
     assert any("not fitted (the run was interrupted first): wrap" in n for n in partial.notes)
     assert partial.summary.startswith("Partial (interrupted).")
+
+
+def test_an_audit_interrupted_beside_the_solver_import_reports_every_case_unfitted(tmp_path, monkeypatch):
+    """Ctrl-C while the declared rows' metrics are taken beside the solver's import (before any fit): every
+    case in the partial report with its declared rows and their metrics (taken again here), no fitted row."""
+    partial, calls = _interrupted_in_shared_phase(tmp_path, monkeypatch, 1, solver_imported=False)
+    assert len(calls) == 1
+    assert [c.id for c in partial.cases] == ["light0-unshadowed", "light0-shadowed"]
+    rows = [a for c in partial.cases for a in c.approximations]
+    assert {a.method for a in rows} == {"lambert", "half-lambert", "wrap"} and not any(a.fitted for a in rows)
+    assert all((a.metrics["rmse"].value or -1.0) >= 0 for a in rows)
+    assert any("not fitted (the run was interrupted first): wrap" in n for n in partial.notes)
 
 
 def test_an_audit_interrupted_in_its_metrics_reports_the_fits_that_ran(tmp_path, monkeypatch):

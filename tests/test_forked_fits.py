@@ -232,6 +232,7 @@ def _drjit_task(k):
     """A Dr.Jit kernel of its own (k in its text: compiled or loaded where the task runs), on LLVM float64."""
     import drjit as dr
 
+    time.sleep(0.02)  # long enough that both processes take tasks (a cached kernel runs in microseconds)
     x = dr.arange(dr.llvm.Float64, 4096) * (1e-3 * (k + 1))
     return float(dr.sum(dr.exp(-x) * dr.log(x + 1.0) + dr.sin(x * float(k)))[0]), os.getpid()
 
@@ -336,3 +337,46 @@ def test_metrics_taken_beside_the_solver_import_are_those_taken_after_the_fits(t
     pngs = sorted(p.name for p in (a / "figures").iterdir())
     assert pngs == sorted(p.name for p in (b / "figures").iterdir()) and len(pngs) >= 4
     assert all((a / "figures" / n).read_bytes() == (b / "figures" / n).read_bytes() for n in pngs)
+
+
+def test_metric_tasks_split_the_largest_case_until_there_are_four():
+    """`metric_tasks`: a case's rows split in order (the largest task first) until there are
+    `METRIC_TASKS_MIN` tasks or none has two rows; enough tasks, or single rows, are left as they are."""
+    from rtfit.experiments.audit_cases import METRIC_TASKS_MIN, metric_tasks
+
+    one = [("case", {f"r{i}": i for i in range(7)})]
+    split = metric_tasks(one)
+    assert len(split) == METRIC_TASKS_MIN == 4
+    assert [r for _c, rows in split for r in rows] == [f"r{i}" for i in range(7)]
+    assert all(c == "case" and rows for c, rows in split)
+    many = [(f"c{i}", {"a": 1, "b": 2}) for i in range(5)]
+    assert metric_tasks(many) == many
+    singles = [("c0", {"a": 1}), ("c1", {"b": 2})]
+    assert metric_tasks(singles) == singles and metric_tasks([]) == []
+
+
+@needs_two
+def test_metrics_split_within_a_case_are_those_of_a_case_a_task(tmp_path, monkeypatch):
+    """The rows of a case measured in several tasks (`metric_tasks`, the reference's ꟻLIP features and
+    floors taken again where a task needs them) give a case-a-task run's metrics and figures, bit for bit."""
+    from pathlib import Path
+
+    from rtfit.experiments import audit_cases
+    from rtfit.experiments.audit_run import audit
+
+    cbox = Path(__file__).parent / "data" / "mitsuba" / "cbox" / "cbox-rgb.xml"
+    kw = {"width": 24, "height": 24, "spp": 4, "pass_spp": 2, "cache": tmp_path / "cache",
+          "metrics": ("rmse", "flip", "ssim"), "approximations": ["diffuse"],
+          "cost_elements": 1 << 12}  # fmt: skip
+
+    def rows(result):
+        return {(o.case, o.row): o.metrics.to_dict() for r in result.outcomes.values() for o in r.values()}
+
+    monkeypatch.setattr(audit_cases, "METRIC_TASKS_MIN", 8)
+    split = audit(cbox, out=tmp_path / "split", **kw)
+    monkeypatch.setattr(audit_cases, "METRIC_TASKS_MIN", 1)
+    whole = audit(cbox, out=tmp_path / "whole", **kw)
+    assert rows(split) == rows(whole) and len(rows(split)) >= 4
+    a, b = tmp_path / "split" / "audit-cbox-rgb", tmp_path / "whole" / "audit-cbox-rgb"
+    pngs = sorted(p.name for p in (a / "figures").iterdir())
+    assert all((a / "figures" / n).read_bytes() == (b / "figures" / n).read_bytes() for n in pngs) and pngs

@@ -596,3 +596,29 @@ def test_registry_entry_is_born_on_the_engine_and_runs(tmp_path):
         assert "stderr" in bias and (bias["lower"], bias["upper"]) == (0.0, 0.5) and 0 <= bias["value"] <= 0.5
         names = {t["name"] for t in entries[rid]["shader"]["tables"]}
         assert names == {f"{ibl.maps_input(rid)}_{c}" for c in ("depth", "nx", "ny", "nz")}, (rid, names)
+
+
+def test_kept_values_are_bounded_by_bytes_not_points(monkeypatch):
+    """`_kept` keeps a map set's bias-independent values up to `_MEMO_BYTES` whatever the points (16384
+    points, more than the former cap of 4096, are kept: the teapot's depth-map fits at 128² recomputed
+    every texel at each evaluation), and an entry past the budget is computed, not kept: the same values
+    either way, the bytes held within the budget."""
+    from rtfit.realtime import NUMPY_OPS
+
+    rng = np.random.default_rng(7)
+    maps = _maps(rng.uniform(0, 1, (2, 8, 8)), rng.normal(size=(2, 8, 8, 3)), bakes.fibonacci_directions(2))
+    p = rng.uniform(-0.5, 0.5, (16384, 3))
+    n = rng.normal(size=(16384, 3))
+    table = tuple(bakes.lloyd_lights(bakes.fibonacci_directions(20), np.ones(20), np.ones((20, 3)), 2))
+    args = (*n.T.copy(), *p.T.copy(), maps, table)
+    first = ibl._depth_kernel(NUMPY_OPS, *args, 0.02, 3)
+    held = [k for k in maps._tables if isinstance(k, tuple) and k[0] in ("project", "compared")]
+    assert len(held) == 2 * (1 + 9) and maps._tables[ibl._MEMO_KEY] <= ibl._MEMO_BYTES
+    assert np.array_equal(ibl._depth_kernel(NUMPY_OPS, *args, 0.02, 3), first)
+
+    small = ibl.DepthMaps(maps.depth, maps.normals, maps.frames, maps.centre, maps.radius)
+    monkeypatch.setattr(ibl, "_MEMO_BYTES", 3 * 16384 * 8 + 2 * 16384 * 8)  # one projection and one tap
+    assert np.array_equal(ibl._depth_kernel(NUMPY_OPS, *args[:6], small, table, 0.02, 3), first)
+    kept = [k for k in small._tables if isinstance(k, tuple) and k[0] in ("project", "compared")]
+    assert len(kept) == 2 and small._tables[ibl._MEMO_KEY] <= ibl._MEMO_BYTES
+    assert np.array_equal(ibl._depth_kernel(NUMPY_OPS, *args[:6], small, table, 0.02, 3), first)
