@@ -19,7 +19,7 @@ import numpy as np
 
 from rtfit.fitting import compute_metrics, prime_flip
 from rtfit.fitting.flip_maps import flip_map_keys, maps_since, remember_maps
-from rtfit.fitting.forked_fits import shared_map, shares
+from rtfit.fitting.forked_fits import shared_map, shares, two_cores
 from rtfit.fitting.metric_noise import content_digest
 from rtfit.realtime.methods import Method
 
@@ -146,11 +146,12 @@ core)."""
 
 def metric_tasks(tasks: list[tuple[EvaluatedCase, dict]]) -> list[tuple[EvaluatedCase, dict]]:
     """The metric tasks of `CaseRun._measured` (a case and some of its rows), the largest split in two (its
-    rows in order) until there are `METRIC_TASKS_MIN` or none has two rows: each row's metrics are its own
-    (the reference's ꟻLIP features and noise floors found by content in the process's memos), so a split
-    costs at most those again in the other process."""
+    rows in order) until there are `METRIC_TASKS_MIN` or none has two rows, where a helper can take some
+    (`two_cores`; else as given: a task computes its case's reference ꟻLIP features again, which a process
+    running every task in turn would pay once a split). Each row's metrics are its own, so a split changes
+    none of them."""
     out = list(tasks)
-    while len(out) < METRIC_TASKS_MIN:
+    while two_cores() and len(out) < METRIC_TASKS_MIN:
         i = max(range(len(out)), key=lambda k: len(out[k][1]), default=None)
         if i is None or len(out[i][1]) < 2:
             break

@@ -339,12 +339,17 @@ def test_metrics_taken_beside_the_solver_import_are_those_taken_after_the_fits(t
     assert all((a / "figures" / n).read_bytes() == (b / "figures" / n).read_bytes() for n in pngs)
 
 
-def test_metric_tasks_split_the_largest_case_until_there_are_four():
-    """`metric_tasks`: a case's rows split in order (the largest task first) until there are
-    `METRIC_TASKS_MIN` tasks or none has two rows; enough tasks, or single rows, are left as they are."""
+def test_metric_tasks_split_the_largest_case_until_there_are_four(monkeypatch):
+    """`metric_tasks`: on two cores, a case's rows split in order (the largest task first) until there are
+    `METRIC_TASKS_MIN` tasks or none has two rows; enough tasks, or single rows, are left as they are; on one
+    core nothing is split."""
+    from rtfit.experiments import audit_cases
     from rtfit.experiments.audit_cases import METRIC_TASKS_MIN, metric_tasks
 
     one = [("case", {f"r{i}": i for i in range(7)})]
+    monkeypatch.setattr(audit_cases, "two_cores", lambda: False)
+    assert metric_tasks(one) == one, "one core: a task a case (its reference's features computed once)"
+    monkeypatch.setattr(audit_cases, "two_cores", lambda: True)
     split = metric_tasks(one)
     assert len(split) == METRIC_TASKS_MIN == 4
     assert [r for _c, rows in split for r in rows] == [f"r{i}" for i in range(7)]
