@@ -92,6 +92,10 @@ def nnls(a, b) -> tuple[np.ndarray, float]:
             x[~passive] = 0.0
             s = _passive_solution(gram, atb, passive)
         w = atb - gram @ x
+    if passive.any():  # the final support's solution from A_P itself (`nnls_columns`: the normal equations
+        # that led here square A's condition number), clamped at 0 where rounding crosses it
+        x = np.zeros(n)
+        x[passive] = np.maximum(np.linalg.lstsq(a[:, passive], b, rcond=None)[0], 0.0)
     return x, float(np.linalg.norm(a @ x - b))
 
 
@@ -120,15 +124,26 @@ def nnls_columns(a, b) -> np.ndarray:
         return np.stack([nnls(a, b[:, j])[0] for j in range(cols)], axis=1) if cols else np.zeros((n, 0))
     gram, c = a.T @ a, a.T @ b
     best = np.zeros(cols)  # c_S·s of the best support so far (the empty one: 0)
-    x = np.zeros((n, cols))
+    chosen = np.zeros(cols, np.int64)  # each column's support (its bits), 0: empty
     for code in range(1, 1 << n):
-        support = np.array([(code >> i) & 1 for i in range(n)], bool)
+        support = _support(code, n)
         g = gram[np.ix_(support, support)]
         s = np.linalg.pinv(g) @ c[support]
         value = np.einsum("ij,ij->j", c[support], s)
         better = np.all(s >= 0.0, axis=0) & (value > best)
-        if better.any():
-            best[better] = value[better]
-            x[:, better] = 0.0
-            x[np.ix_(support, better)] = s[:, better]
+        best[better] = value[better]
+        chosen[better] = code
+    # Each column's solution on its support from A_S itself (an SVD: A's condition number, where the normal
+    # equations that chose the support square it; a nearly dependent pair of columns had left a residual of
+    # 3e-9 where the exact fit is 0), clamped at 0 where rounding crosses it.
+    x = np.zeros((n, cols))
+    for code in np.unique(chosen[chosen > 0]):
+        support, these = _support(int(code), n), chosen == code
+        s = np.linalg.lstsq(a[:, support], b[:, these], rcond=None)[0]
+        x[np.ix_(support, these)] = np.maximum(s, 0.0)
     return x
+
+
+def _support(code: int, n: int) -> np.ndarray:
+    """The unknowns whose bits ``code`` sets, as a mask over n."""
+    return np.array([(code >> i) & 1 for i in range(n)], bool)

@@ -17,6 +17,12 @@ from rtfit.realtime.nonnegative_lsq import ENUMERATE_MAX, nnls, nnls_columns
 scipy_optimize = pytest.importorskip("scipy.optimize")
 
 
+_ROUNDING = 1e-9
+"""Two solvers' minima of ‖Ax − b‖ differ by their rounding, ~κ(A_S)·ε·‖b‖ on the support S they solve
+(hypothesis found 1.8e-12·‖b‖ between SciPy's QR and this module's SVD where the exact fit is 0): 1e-9·‖b‖
+allows condition numbers up to ~10⁶, far beyond these random columns'."""
+
+
 def _problem(seed: int, m: int, n: int, scale: float, kind: str):
     rng = np.random.default_rng(seed)
     a = rng.normal(size=(m, n))
@@ -51,8 +57,9 @@ def test_nnls_is_the_minimiser_scipy_finds(seed, m, n, scale, kind):
     _xs, rs = scipy_optimize.nnls(a, b)
     assert _kkt_holds(a, b, x)
     assert r == pytest.approx(np.linalg.norm(a @ x - b), rel=1e-12, abs=1e-300)
-    assert r <= rs * (1 + 1e-9) + 1e-12 * (np.abs(b).max() + 1e-300), "no worse than SciPy's"
-    assert rs <= r * (1 + 1e-9) + 1e-12 * (np.abs(b).max() + 1e-300), "no better: the same minimum"
+    slack = _ROUNDING * np.linalg.norm(b)
+    assert r <= rs + slack, "no worse than SciPy's"
+    assert rs <= r + slack, "no better: the same minimum"
     if kind == "negative":
         assert not x.any()
 
@@ -74,7 +81,7 @@ def test_nnls_columns_is_nnls_of_each_column(seed, m, n, cols, kind):
     for j in range(cols):
         assert _kkt_holds(a, b[:, j], x[:, j])
         rs = scipy_optimize.nnls(a, b[:, j])[1]
-        assert np.linalg.norm(a @ x[:, j] - b[:, j]) <= rs * (1 + 1e-9) + 1e-12
+        assert np.linalg.norm(a @ x[:, j] - b[:, j]) <= rs + _ROUNDING * np.linalg.norm(b[:, j])
 
 
 def test_bad_input_is_refused_with_one_line():
