@@ -369,46 +369,63 @@ class CaseRun:
     def _solver_beside_metrics(self, cases: Sequence[EvaluatedCase]) -> None:
         """The fits' solver (SciPy's ``scipy.optimize``: 0.35–0.42 s to import on the 2-core machine of issue
         33, SciPy 1.17 rewriting ~280 docstrings) imported here while a forked helper takes the declared rows'
-        metrics, which need no fit (`shared_map` ``before``; the metrics of the rows fitted next come in
-        `finish_cases`). Before session 34 the audit imported it first, alone, one core idle. The phase's
+        metrics, which need no fit (`_measure_rows` with ``before``; the metrics of the rows fitted next come
+        in `finish_cases`). Before session 34 the audit imported it first, alone, one core idle. The phase's
         wall time is shared between the fits (the import's part) and the evaluation (the metrics'), by their
         own seconds."""
         if _solver_imported():
             return
-        spent = [0.0]
 
         def import_solver() -> None:
-            t = time.perf_counter()
             import scipy.optimize  # noqa: F401
 
-            spent[0] = time.perf_counter() - t
+        self._measure_rows([(ev, ev.declared) for ev in cases if ev.declared], True, before=import_solver)
 
-        tasks = metric_tasks(
-            [(ev, ev.declared) for ev in cases if ev.declared and ev.base.id not in self.measured]
+    def _measure_rows(self, tasks: list[tuple[EvaluatedCase, dict]], share: bool, before=None) -> None:
+        """The metrics of each (case, rows) of ``tasks`` (`_measured`, split by `metric_tasks`) into
+        `measured`, shared with a helper where ``share`` (`_shared`, as evaluation time; ``before``: this
+        process's own work meanwhile, counted as fit time); the helper's notes and ꟻLIP maps (which the
+        report's figures read: `rtfit.fitting.flip_maps.remember_maps`) come back with its metrics."""
+        tasks = metric_tasks(tasks)
+        families = [ev.family for ev, _rows in tasks]
+        done = self._shared(
+            "evaluation", tasks, self._measured, [share] * len(tasks), families, before, "fit"
         )
-        t = time.perf_counter()
-        done, seconds = shared_map(tasks, self._measured, [True] * len(tasks), before=import_solver)
-        wall = time.perf_counter() - t
-        own = spent[0] + sum(seconds) or 1.0
-        self.timings["fit"] += wall * spent[0] / own
-        self.timings["evaluation"] += wall * sum(seconds) / own
-        for (ev, _rows), took in zip(tasks, seconds, strict=True):
-            self.by_family[ev.family]["evaluation"] += wall * took / own
         for (ev, _rows), (metrics, notes, maps) in zip(tasks, done, strict=True):
             remember_maps(maps)
             self.measured.setdefault(ev.base.id, {}).update(metrics)
             self.notes.extend(n for n in notes if n not in self.notes)
 
-    def _shared(self, phase: str, tasks: list, run, may: Sequence[bool], families: Sequence[str]) -> list:
-        """`shared_map` of ``tasks`` (the helper may run those ``may`` marks), its wall time added to the
-        run's ``phase`` seconds and shared among the tasks' ``families`` by each task's own seconds."""
+    def _shared(
+        self,
+        phase: str,
+        tasks: list,
+        run,
+        may: Sequence[bool],
+        families: Sequence[str],
+        before=None,
+        before_phase: str = "",
+    ) -> list:
+        """`shared_map` of ``tasks`` (the helper may run those ``may`` marks, this process ``before`` first),
+        its wall time shared by own seconds: ``before``'s to the run's ``before_phase`` seconds, the tasks'
+        to ``phase``'s and, among them, to the tasks' ``families``."""
+        spent = [0.0]
+
+        def timed_before() -> None:
+            t0 = time.perf_counter()
+            before()
+            spent[0] = time.perf_counter() - t0
+
         t = time.perf_counter()
-        done, seconds = shared_map(tasks, run, may)
+        done, seconds = shared_map(tasks, run, may, before=None if before is None else timed_before)
         wall = time.perf_counter() - t
-        self.timings[phase] += wall
-        total = sum(seconds) or 1.0
+        own = spent[0] + sum(seconds) or 1.0
+        before_part = wall * spent[0] / own  # (0 where there is no ``before``)
+        if before is not None:
+            self.timings[before_phase] += before_part
+        self.timings[phase] += wall - before_part
         for name, took in zip(families, seconds, strict=True):
-            self.by_family[name][phase] += wall * took / total
+            self.by_family[name][phase] += wall * took / own
         return done
 
     def with_fits(self, ev: EvaluatedCase, fits: Mapping[tuple[str, str], dict]) -> dict[str, MethodOutcome]:
@@ -464,24 +481,16 @@ class CaseRun:
         maps (which the report's figures read: `rtfit.fitting.flip_maps.remember_maps`) come back with its
         metrics."""
         outcomes = [self.with_fits(ev, fits) for ev in cases]
-        tasks = []  # each case's rows not measured yet (`measured`: the declared rows, where fits ran)
+        rest = []  # each case's rows not measured yet (`measured`: the declared rows, where fits ran)
         for ev, rows in zip(cases, outcomes, strict=True):
             known = self.measured.get(ev.base.id, {})
+            todo = {row_id: o for row_id, o in rows.items() if row_id not in known}
+            if todo:
+                rest.append((ev, todo))
+        self._measure_rows(rest, share)  # (``share`` False: an interrupted run's report, here in turn)
+        for ev, rows in zip(cases, outcomes, strict=True):
             for row_id, o in rows.items():
-                if row_id in known:
-                    o.metrics = known[row_id]
-            rest = {row_id: o for row_id, o in rows.items() if row_id not in known}
-            if rest:
-                tasks.append((ev, rest))
-        tasks = metric_tasks(tasks)
-        families = [ev.family for ev, _rows in tasks]
-        # (``share`` False: an interrupted run's report, here in turn)
-        done = self._shared("evaluation", tasks, self._measured, [share] * len(tasks), families)
-        for (_ev, rows), (metrics, notes, maps) in zip(tasks, done, strict=True):
-            remember_maps(maps)
-            for row_id, o in rows.items():
-                o.metrics = metrics[row_id]
-            self.notes.extend(n for n in notes if n not in self.notes)
+                o.metrics = self.measured[ev.base.id][row_id]
         return outcomes
 
     def _measured(self, task: tuple[EvaluatedCase, dict[str, MethodOutcome]]) -> tuple[dict, list[str], list]:
