@@ -274,7 +274,8 @@ def bake_path_maps(setup: AuditSetup, points, normals, clusters=CLUSTERS, cut_fa
     clusters for each K of ``clusters``, the transfer terms of every (visible point, entry point) pair with a
     shadow ray, and the panes T_k,c at the cut ``cut_factor`` × √(A_S/(π N)). Returns None where no surface
     takes entry points, else (entries, groups, transfer terms, cut radius, K → per channel T_k,c). The
-    audit's own bake and each row's timed precompute (`FamilyCase.precompute`: one K) are this function."""
+    audit's own bake; each row's timed precompute does its two halves apart (`_shared_precompute`, then
+    `_precompute`'s clusters and panes for one K)."""
     entries = entry_points(setup, ENTRY_POINTS)
     if entries is None:  # no surface Mitsuba can sample (every one an instance)
         return None
